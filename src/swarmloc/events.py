@@ -1,0 +1,75 @@
+"""Time-ordered events: what every source (simulator, dataset reader, network) produces and the runner consumes.
+
+Conventions: times in seconds, robots and landmarks identified by integer ids, planar poses as ``(x, y, theta)``
+in the world frame, relative quantities in the observer's body frame (x forward, y left).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+MeasurementKind = Literal["pose", "range_bearing", "range", "bearing", "absolute"]
+
+
+@dataclass(frozen=True, slots=True)
+class Odometry:
+    """Body-frame forward speed ``v`` [m/s] and yaw rate ``w`` [rad/s], held constant over ``[t0, t1]``."""
+
+    robot: int
+    t0: float
+    t1: float
+    v: float
+    w: float
+
+    @property
+    def t(self) -> float:
+        """Time stamp used for ordering: the end of the interval."""
+        return self.t1
+
+    @property
+    def dt(self) -> float:
+        return self.t1 - self.t0
+
+
+@dataclass(frozen=True, slots=True)
+class Detection:
+    """One exteroceptive measurement taken by ``observer`` at time ``t``.
+
+    ``kind`` says what ``z`` holds:
+
+    * ``"pose"``: relative pose of the target in the observer's frame, ``z = (x, y, theta)``;
+    * ``"range_bearing"``: ``z = (range [m], bearing [rad])``;
+    * ``"range"``: ``z = (range,)``; ``"bearing"``: ``z = (bearing,)``;
+    * ``"absolute"``: the observer's own world pose ``z = (x, y, theta)`` (GPS-like fix, ``target`` is None).
+
+    ``target`` is a robot id when ``target_is_robot`` else a landmark id. ``cov`` is the noise covariance
+    of ``z`` (in the same coordinates; for ``"pose"``, of the exponential coordinates of the noise
+    ``m_true^-1 m_measured``).
+    """
+
+    observer: int
+    t: float
+    kind: MeasurementKind
+    z: np.ndarray
+    cov: np.ndarray
+    target: int | None = None
+    target_is_robot: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class Truth:
+    """Ground-truth world pose ``(x, y, theta)`` of ``robot`` at time ``t``."""
+
+    robot: int
+    t: float
+    pose: np.ndarray = field(repr=False)
+
+
+Event = Odometry | Detection | Truth
+
+
+def event_time(e: Event) -> float:
+    return e.t

@@ -1,0 +1,209 @@
+"""Common machinery of the special Euclidean groups SE(2) and SE(3).
+
+Conventions (fixed by ``DESIGN.md``):
+
+* elements are homogeneous matrices ``(..., n+1, n+1)``; tangent vectors (exponential coordinates) are
+  ``(..., d)`` with the translational part first: SE(2) ``(v1, v2, alpha)``, SE(3) ``(v1, v2, v3, w1, w2, w3)``;
+* ``exp`` and ``log`` are the matrix exponential and its principal inverse (rotation angle in (-pi, pi]);
+* ``Ad(g) y = (g y^ g^-1)^v`` and ``ad(x) y = [x^, y^]^v``;
+* left Jacobian ``Jl(x)``: ``exp(x + dx) = exp(Jl(x) dx) exp(x)`` to first order;
+  right Jacobian ``Jr(x)``: ``exp(x + dx) = exp(x) exp(Jr(x) dx)``; ``Jr(x) = Jl(-x)``.
+
+Subclasses are namespaces of pure, batched functions (classmethods); no instance is ever created.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+
+from swarmloc.lie._checks import as_element, as_tangent
+
+
+class SEGroup:
+    """Base class: SE(n) as a namespace of batched functions."""
+
+    n: int = 0  # dimension of the space the group acts on
+    dim: int = 0  # dimension of the group (degrees of freedom)
+    name: str = "SE(n)"
+
+    # ----------------------------------------------------------------- validation
+    @classmethod
+    def check_tangent(cls, x: object, where: str = "", name: str = "x") -> np.ndarray:
+        """Validate exponential coordinates ``(..., dim)``; raise ValueError naming ``name``."""
+        return as_tangent(x, cls.dim, where or cls.__name__, name)
+
+    @classmethod
+    def check_element(cls, g: object, where: str = "", name: str = "g") -> np.ndarray:
+        """Validate group elements ``(..., n+1, n+1)``; raise ValueError naming ``name``."""
+        return as_element(g, cls.n, where or cls.__name__, name)
+
+    # ----------------------------------------------------------------- to be provided by subclasses
+    @classmethod
+    def hat(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        raise NotImplementedError
+
+    @classmethod
+    def vee(cls, X: np.ndarray, validate: bool = True) -> np.ndarray:
+        raise NotImplementedError
+
+    @classmethod
+    def exp(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        raise NotImplementedError
+
+    @classmethod
+    def log(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+        raise NotImplementedError
+
+    @classmethod
+    def Ad(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+        raise NotImplementedError
+
+    @classmethod
+    def ad(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        raise NotImplementedError
+
+    @classmethod
+    def left_jacobian(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        raise NotImplementedError
+
+    @classmethod
+    def left_jacobian_inv(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        raise NotImplementedError
+
+    # ----------------------------------------------------------------- generic
+    @classmethod
+    def identity(cls, batch_shape: tuple[int, ...] = ()) -> np.ndarray:
+        """Identity element(s) of shape ``batch_shape + (n+1, n+1)``."""
+        return np.broadcast_to(np.eye(cls.n + 1), (*batch_shape, cls.n + 1, cls.n + 1)).copy()
+
+    @classmethod
+    def inverse(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Group inverse ``[[R^T, -R^T t], [0, 1]]`` (exact, batched)."""
+        if validate:
+            g = cls.check_element(g, f"{cls.__name__}.inverse", "g")
+        n = cls.n
+        R = g[..., :n, :n]
+        t = g[..., :n, n]
+        out = np.zeros(g.shape)
+        Rt = np.swapaxes(R, -1, -2)
+        out[..., :n, :n] = Rt
+        out[..., :n, n] = -np.einsum("...ij,...j->...i", Rt, t)
+        out[..., n, n] = 1.0
+        return out
+
+    @classmethod
+    def compose(cls, a: np.ndarray, b: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Group product ``a @ b`` with broadcasting over leading axes."""
+        if validate:
+            a = cls.check_element(a, f"{cls.__name__}.compose", "a")
+            b = cls.check_element(b, f"{cls.__name__}.compose", "b")
+        return np.matmul(a, b)
+
+    @classmethod
+    def between(cls, a: np.ndarray, b: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Relative pose ``a^-1 b`` (pose of b in a's frame)."""
+        if validate:
+            a = cls.check_element(a, f"{cls.__name__}.between", "a")
+            b = cls.check_element(b, f"{cls.__name__}.between", "b")
+        return np.matmul(cls.inverse(a, validate=False), b)
+
+    @classmethod
+    def right_jacobian(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Right Jacobian ``Jr(x) = Jl(-x)``: ``exp(x + dx) = exp(x) exp(Jr(x) dx)`` to first order."""
+        if validate:
+            x = cls.check_tangent(x, f"{cls.__name__}.right_jacobian")
+        return cls.left_jacobian(-np.asarray(x, dtype=float), validate=False)
+
+    @classmethod
+    def right_jacobian_inv(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Inverse of the right Jacobian."""
+        if validate:
+            x = cls.check_tangent(x, f"{cls.__name__}.right_jacobian_inv")
+        return cls.left_jacobian_inv(-np.asarray(x, dtype=float), validate=False)
+
+    @classmethod
+    def bch(cls, x: np.ndarray, y: np.ndarray, order: int = 2, validate: bool = True) -> np.ndarray:
+        """Baker-Campbell-Hausdorff approximation of ``log(exp(x) exp(y))``.
+
+        ``order=1``: ``x + y``; ``order=2``: ``+ ad(x) y / 2``;
+        ``order=3``: ``+ (ad(x)^2 y + ad(y)^2 x) / 12`` (thesis eq. 3.18).
+        """
+        where = f"{cls.__name__}.bch"
+        if validate:
+            x = cls.check_tangent(x, where, "x")
+            y = cls.check_tangent(y, where, "y")
+        if order not in (1, 2, 3):
+            raise ValueError(f"{where}: argument 'order' must be 1, 2 or 3, got {order!r}")
+        z = x + y
+        if order >= 2:
+            adx = cls.ad(x, validate=False)
+            z = z + 0.5 * np.einsum("...ij,...j->...i", adx, y)
+        if order >= 3:
+            ady = cls.ad(y, validate=False)
+            z = (
+                z
+                + (
+                    np.einsum("...ij,...jk,...k->...i", adx, adx, y)
+                    + np.einsum("...ij,...jk,...k->...i", ady, ady, x)
+                )
+                / 12.0
+            )
+        return z
+
+    @classmethod
+    def basis(cls) -> np.ndarray:
+        """Lie-algebra basis ``E_i = hat(e_i)``, shape ``(dim, n+1, n+1)``."""
+        return _basis(cls)
+
+    @classmethod
+    def ad_basis(cls) -> np.ndarray:
+        """``ad(E_i)`` for each basis vector, shape ``(dim, dim, dim)``."""
+        return _ad_basis(cls)
+
+    @classmethod
+    def sample_tangent(
+        cls, rng: np.random.Generator, size: tuple[int, ...] | int, scale: float = 1.0
+    ) -> np.ndarray:
+        """Random tangent vectors: standard normal times ``scale``."""
+        size = (size,) if isinstance(size, int) else tuple(size)
+        return scale * rng.standard_normal((*size, cls.dim))
+
+    @classmethod
+    def random(
+        cls, rng: np.random.Generator, size: tuple[int, ...] | int = (), scale: float = 1.0
+    ) -> np.ndarray:
+        """Random elements ``exp(scale * N(0, I))``."""
+        return cls.exp(cls.sample_tangent(rng, size, scale), validate=False)
+
+    @classmethod
+    def normalize(cls, g: np.ndarray) -> np.ndarray:
+        """Project a nearly-valid element back onto the group (rotation block by SVD)."""
+        g = np.array(g, dtype=float)
+        n = cls.n
+        U, _, Vt = np.linalg.svd(g[..., :n, :n])
+        d = np.sign(np.linalg.det(U @ Vt))
+        U[..., :, -1] *= d[..., None]
+        g[..., :n, :n] = U @ Vt
+        g[..., n, :n] = 0.0
+        g[..., n, n] = 1.0
+        return g
+
+
+@cache
+def _basis_cached(group: type[SEGroup]) -> np.ndarray:
+    return group.hat(np.eye(group.dim), validate=False)
+
+
+def _basis(group: type[SEGroup]) -> np.ndarray:
+    return _basis_cached(group).copy()
+
+
+@cache
+def _ad_basis_cached(group: type[SEGroup]) -> np.ndarray:
+    return group.ad(np.eye(group.dim), validate=False)
+
+
+def _ad_basis(group: type[SEGroup]) -> np.ndarray:
+    return _ad_basis_cached(group).copy()

@@ -1,0 +1,156 @@
+"""SE(2): planar rigid motions, exponential coordinates ``x = (v1, v2, alpha)``.
+
+``hat(x) = [[0, -alpha, v1], [alpha, 0, v2], [0, 0, 0]]``.
+``exp(x) = [[R(alpha), V(alpha) v], [0, 1]]`` with ``V = [[sin a / a, -(1 - cos a)/a], [(1 - cos a)/a, sin a / a]]``
+(thesis eq. 3.7, whose rotation matrix is printed without its minus sign).
+``Ad(g) = [[R, M t], [0, 1]]``, ``ad(x) = [[-alpha M, M v], [0, 0]]`` with ``M = [[0, 1], [-1, 0]]`` (eq. 3.14).
+Since ``ad(x)^3 = -alpha^2 ad(x)``, every analytic function of ``ad(x)`` is ``I + c1 ad + c2 ad^2``; this gives
+``Jl = I + (1 - cos a)/a^2 ad + (a - sin a)/a^3 ad^2`` and ``Jl^-1 = I - ad/2 + (1 - (a/2) cot(a/2))/a^2 ad^2``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from swarmloc.lie import _series as S
+from swarmloc.lie.base import SEGroup
+
+
+class SE2(SEGroup):
+    """The planar special Euclidean group (batched numpy functions)."""
+
+    n = 2
+    dim = 3
+    name = "SE(2)"
+
+    @classmethod
+    def hat(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        """``(..., 3) -> (..., 3, 3)`` Lie-algebra matrix."""
+        if validate:
+            x = cls.check_tangent(x, "SE2.hat")
+        x = np.asarray(x, dtype=float)
+        X = np.zeros((*x.shape[:-1], 3, 3))
+        X[..., 0, 1] = -x[..., 2]
+        X[..., 1, 0] = x[..., 2]
+        X[..., 0, 2] = x[..., 0]
+        X[..., 1, 2] = x[..., 1]
+        return X
+
+    @classmethod
+    def vee(cls, X: np.ndarray, validate: bool = True) -> np.ndarray:
+        """``(..., 3, 3) -> (..., 3)``; inverse of :meth:`hat` (uses the antisymmetric part of the rotation block)."""
+        if validate:
+            from swarmloc.lie._checks import as_square
+
+            X = as_square(X, 3, "SE2.vee", "X")
+        X = np.asarray(X, dtype=float)
+        return np.stack([X[..., 0, 2], X[..., 1, 2], 0.5 * (X[..., 1, 0] - X[..., 0, 1])], axis=-1)
+
+    @classmethod
+    def exp(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Exponential map ``(..., 3) -> (..., 3, 3)`` in closed form."""
+        if validate:
+            x = cls.check_tangent(x, "SE2.exp")
+        x = np.asarray(x, dtype=float)
+        a = x[..., 2]
+        c, s = np.cos(a), np.sin(a)
+        A = S.sinc(a)
+        B = S.one_minus_cos_over_t(a)
+        g = np.zeros((*x.shape[:-1], 3, 3))
+        g[..., 0, 0] = c
+        g[..., 0, 1] = -s
+        g[..., 1, 0] = s
+        g[..., 1, 1] = c
+        g[..., 0, 2] = A * x[..., 0] - B * x[..., 1]
+        g[..., 1, 2] = B * x[..., 0] + A * x[..., 1]
+        g[..., 2, 2] = 1.0
+        return g
+
+    @classmethod
+    def log(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Principal logarithm ``(..., 3, 3) -> (..., 3)``, angle in (-pi, pi]."""
+        if validate:
+            g = cls.check_element(g, "SE2.log")
+        g = np.asarray(g, dtype=float)
+        a = np.arctan2(g[..., 1, 0], g[..., 0, 0])
+        a = np.where(a <= -np.pi, a + 2 * np.pi, a)
+        k = S.half_cot_half(a)
+        h = 0.5 * a
+        t1, t2 = g[..., 0, 2], g[..., 1, 2]
+        return np.stack([k * t1 + h * t2, -h * t1 + k * t2, a], axis=-1)
+
+    @classmethod
+    def Ad(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Adjoint matrix ``[[R, M t], [0, 1]]``, shape ``(..., 3, 3)``."""
+        if validate:
+            g = cls.check_element(g, "SE2.Ad")
+        g = np.asarray(g, dtype=float)
+        A = np.zeros(g.shape)
+        A[..., :2, :2] = g[..., :2, :2]
+        A[..., 0, 2] = g[..., 1, 2]
+        A[..., 1, 2] = -g[..., 0, 2]
+        A[..., 2, 2] = 1.0
+        return A
+
+    @classmethod
+    def ad(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Small adjoint ``[[-alpha M, M v], [0, 0]]``, shape ``(..., 3, 3)``."""
+        if validate:
+            x = cls.check_tangent(x, "SE2.ad")
+        x = np.asarray(x, dtype=float)
+        A = np.zeros((*x.shape[:-1], 3, 3))
+        A[..., 0, 1] = -x[..., 2]
+        A[..., 1, 0] = x[..., 2]
+        A[..., 0, 2] = x[..., 1]
+        A[..., 1, 2] = -x[..., 0]
+        return A
+
+    @classmethod
+    def _poly_ad(cls, x: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+        adx = cls.ad(x, validate=False)
+        return np.eye(3) + c1[..., None, None] * adx + c2[..., None, None] * (adx @ adx)
+
+    @classmethod
+    def left_jacobian(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Left Jacobian ``sum_k ad(x)^k / (k+1)!``."""
+        if validate:
+            x = cls.check_tangent(x, "SE2.left_jacobian")
+        x = np.asarray(x, dtype=float)
+        a = x[..., 2]
+        return cls._poly_ad(x, S.one_minus_cos_over_t2(a), S.t_minus_sin_over_t3(a))
+
+    @classmethod
+    def left_jacobian_inv(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Inverse of the left Jacobian (singular only at |alpha| = 2 pi)."""
+        if validate:
+            x = cls.check_tangent(x, "SE2.left_jacobian_inv")
+        x = np.asarray(x, dtype=float)
+        a = x[..., 2]
+        return cls._poly_ad(x, np.full(a.shape, -0.5), S.jinv_coeff(a))
+
+    # ----------------------------------------------------------------- planar conveniences
+    @staticmethod
+    def from_xytheta(
+        x: np.ndarray, y: np.ndarray | None = None, theta: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Pose matrix from ``(x, y, theta)`` (either one array ``(..., 3)`` or three arrays)."""
+        if y is None:
+            p = np.asarray(x, dtype=float)
+            x, y, theta = p[..., 0], p[..., 1], p[..., 2]
+        x, y, theta = np.broadcast_arrays(
+            np.asarray(x, float), np.asarray(y, float), np.asarray(theta, float)
+        )
+        g = np.zeros((*x.shape, 3, 3))
+        c, s = np.cos(theta), np.sin(theta)
+        g[..., 0, 0], g[..., 0, 1], g[..., 0, 2] = c, -s, x
+        g[..., 1, 0], g[..., 1, 1], g[..., 1, 2] = s, c, y
+        g[..., 2, 2] = 1.0
+        return g
+
+    @staticmethod
+    def to_xytheta(g: np.ndarray) -> np.ndarray:
+        """``(..., 3, 3) -> (..., 3)`` Cartesian ``(x, y, theta)``, theta in (-pi, pi]."""
+        g = np.asarray(g, dtype=float)
+        th = np.arctan2(g[..., 1, 0], g[..., 0, 0])
+        th = np.where(th <= -np.pi, th + 2 * np.pi, th)
+        return np.stack([g[..., 0, 2], g[..., 1, 2], th], axis=-1)
