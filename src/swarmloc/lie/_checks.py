@@ -26,14 +26,11 @@ def as_tangent(x: object, dim: int, where: str, name: str = "x") -> np.ndarray:
         raise ValueError(f"{where}: argument '{name}' is not a numeric array ({exc})") from None
     if arr.ndim < 1 or arr.shape[-1] != dim:
         raise ValueError(
-            f"{where}: argument '{name}' must have shape (..., {dim}) (exponential coordinates), "
-            f"got shape {arr.shape}"
+            f"{where}: argument '{name}' must have shape (..., {dim}) (exponential coordinates), got shape {arr.shape}"
         )
     finite = np.isfinite(arr)
     if not finite.all():
-        raise ValueError(
-            f"{where}: argument '{name}' contains NaN or inf (first at index {_first_bad(~finite)})"
-        )
+        raise ValueError(f"{where}: argument '{name}' contains NaN or inf (first at index {_first_bad(~finite)})")
     return arr
 
 
@@ -47,9 +44,7 @@ def as_square(x: object, dim: int, where: str, name: str) -> np.ndarray:
         raise ValueError(f"{where}: argument '{name}' must have shape (..., {dim}, {dim}), got {arr.shape}")
     finite = np.isfinite(arr)
     if not finite.all():
-        raise ValueError(
-            f"{where}: argument '{name}' contains NaN or inf (first at index {_first_bad(~finite)})"
-        )
+        raise ValueError(f"{where}: argument '{name}' contains NaN or inf (first at index {_first_bad(~finite)})")
     return arr
 
 

@@ -144,10 +144,7 @@ class SEGroup:
             ady = cls.ad(y, validate=False)
             z = (
                 z
-                + (
-                    np.einsum("...ij,...jk,...k->...i", adx, adx, y)
-                    + np.einsum("...ij,...jk,...k->...i", ady, ady, x)
-                )
+                + (np.einsum("...ij,...jk,...k->...i", adx, adx, y) + np.einsum("...ij,...jk,...k->...i", ady, ady, x))
                 / 12.0
             )
         return z
@@ -163,17 +160,13 @@ class SEGroup:
         return _ad_basis(cls)
 
     @classmethod
-    def sample_tangent(
-        cls, rng: np.random.Generator, size: tuple[int, ...] | int, scale: float = 1.0
-    ) -> np.ndarray:
+    def sample_tangent(cls, rng: np.random.Generator, size: tuple[int, ...] | int, scale: float = 1.0) -> np.ndarray:
         """Random tangent vectors: standard normal times ``scale``."""
         size = (size,) if isinstance(size, int) else tuple(size)
         return scale * rng.standard_normal((*size, cls.dim))
 
     @classmethod
-    def random(
-        cls, rng: np.random.Generator, size: tuple[int, ...] | int = (), scale: float = 1.0
-    ) -> np.ndarray:
+    def random(cls, rng: np.random.Generator, size: tuple[int, ...] | int = (), scale: float = 1.0) -> np.ndarray:
         """Random elements ``exp(scale * N(0, I))``."""
         return cls.exp(cls.sample_tangent(rng, size, scale), validate=False)
 

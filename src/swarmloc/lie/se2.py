@@ -130,16 +130,12 @@ class SE2(SEGroup):
 
     # ----------------------------------------------------------------- planar conveniences
     @staticmethod
-    def from_xytheta(
-        x: np.ndarray, y: np.ndarray | None = None, theta: np.ndarray | None = None
-    ) -> np.ndarray:
+    def from_xytheta(x: np.ndarray, y: np.ndarray | None = None, theta: np.ndarray | None = None) -> np.ndarray:
         """Pose matrix from ``(x, y, theta)`` (either one array ``(..., 3)`` or three arrays)."""
         if y is None:
             p = np.asarray(x, dtype=float)
             x, y, theta = p[..., 0], p[..., 1], p[..., 2]
-        x, y, theta = np.broadcast_arrays(
-            np.asarray(x, float), np.asarray(y, float), np.asarray(theta, float)
-        )
+        x, y, theta = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float), np.asarray(theta, float))
         g = np.zeros((*x.shape, 3, 3))
         c, s = np.cos(theta), np.sin(theta)
         g[..., 0, 0], g[..., 0, 1], g[..., 0, 2] = c, -s, x

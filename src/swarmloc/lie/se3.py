@@ -26,18 +26,14 @@ def skew(w: np.ndarray) -> np.ndarray:
 
 def unskew(W: np.ndarray) -> np.ndarray:
     """Antisymmetric part of ``(..., 3, 3)`` as a vector."""
-    return 0.5 * np.stack(
-        [W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]], -1
-    )
+    return 0.5 * np.stack([W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]], -1)
 
 
 def so3_exp(w: np.ndarray) -> np.ndarray:
     """Rodrigues' formula, batched."""
     th = np.linalg.norm(w, axis=-1)
     W = skew(w)
-    return (
-        np.eye(3) + S.sinc(th)[..., None, None] * W + S.one_minus_cos_over_t2(th)[..., None, None] * (W @ W)
-    )
+    return np.eye(3) + S.sinc(th)[..., None, None] * W + S.one_minus_cos_over_t2(th)[..., None, None] * (W @ W)
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
