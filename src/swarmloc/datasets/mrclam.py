@@ -1,0 +1,605 @@
+"""Reader for the UTIAS Multi-Robot Cooperative Localization and Mapping (MRCLAM) dataset.
+
+Leung, Halpern, Barfoot, Liu (2011): five iRobot Create robots read barcodes on each other and on 15 landmarks
+with monocular cameras; Vicon ground truth. One dataset is one folder ``MRCLAM_DatasetN`` holding
+
+* ``RobotN_Odometry.dat``: time [s, Unix epoch], forward velocity v [m/s], angular velocity w [rad/s];
+* ``RobotN_Measurement.dat``: time [s], *barcode* number, range [m], bearing [rad];
+* ``RobotN_Groundtruth.dat``: time [s], x [m], y [m], heading [rad];
+* ``Landmark_Groundtruth.dat``: subject, x [m], y [m], std x [m], std y [m];
+* ``Barcodes.dat``: subject, barcode.
+
+Lines starting with ``#`` are headers; columns are separated by blanks or tabs. Subjects 1-5 are robots, 6-20
+landmarks. Times stay absolute (Unix epoch seconds) everywhere in this module; poses are ``(x, y, theta)`` in the
+Vicon world frame with ``theta`` in ``(-pi, pi]``; bearings are in the observer's body frame (x forward, y left).
+
+Every problem with the data raises :class:`MRCLAMError` (a ``ValueError``) with a one-line message naming the file
+(and the line number for a malformed line).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from swarmloc.events import Detection, Event, Odometry
+
+__all__ = [
+    "DEFAULT_BEARING_STD",
+    "DEFAULT_RANGE_STD",
+    "MRCLAMData",
+    "MRCLAMError",
+    "ROBOT_SUBJECTS",
+    "load_mrclam",
+    "mrclam_events",
+]
+
+ROBOT_SUBJECTS: tuple[int, ...] = (1, 2, 3, 4, 5)
+"""Subject ids of the robots in every MRCLAM dataset (landmarks are 6-20)."""
+
+DEFAULT_RANGE_STD = 0.1
+"""Default range noise std [m] for :func:`mrclam_events` (a generic default, not fitted to any dataset)."""
+
+DEFAULT_BEARING_STD = 0.035
+"""Default bearing noise std [rad] (about 2 degrees) for :func:`mrclam_events` (a generic default)."""
+
+_KINDS = ("odometry", "measurements", "truth")
+_FILE_SUFFIX = {"odometry": "Odometry", "measurements": "Measurement", "truth": "Groundtruth"}
+_NCOLS = {"odometry": 3, "measurements": 4, "truth": 4}
+
+
+class MRCLAMError(ValueError):
+    """A problem with MRCLAM data: missing folder or file, malformed line, no usable time span, no ground truth."""
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# low-level parsing
+
+
+def _label(path: Path) -> str:
+    """``MRCLAM_Dataset6/Robot1_Odometry.dat``: the name used in messages."""
+    return f"{path.parent.name}/{path.name}" if path.parent.name else path.name
+
+
+def _find_bad_line(path: Path, ncols: int) -> tuple[int, str, str] | None:
+    """Scan ``path`` line by line; return ``(line number, stripped content, problem)`` of the first bad data line."""
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for lineno, raw in enumerate(fh, start=1):
+            content = raw.split("#", 1)[0].strip()
+            if not content:
+                continue
+            parts = content.split()
+            if len(parts) != ncols:
+                return lineno, content, f"expected {ncols} numeric columns"
+            for p in parts:
+                try:
+                    x = float(p)
+                except ValueError:
+                    return lineno, content, f"expected {ncols} numeric columns"
+                if not math.isfinite(x):
+                    return lineno, content, f"expected {ncols} finite numeric columns"
+    return None
+
+
+def _line_of_row(path: Path, row: int) -> tuple[int, str]:
+    """File line number (1-based) and content of data row ``row`` (0-based, headers and blank lines skipped)."""
+    k = -1
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for lineno, raw in enumerate(fh, start=1):
+            content = raw.split("#", 1)[0].strip()
+            if content:
+                k += 1
+                if k == row:
+                    return lineno, content
+    return -1, ""  # pragma: no cover - row always exists when called
+
+
+def _read_table(path: Path, ncols: int) -> np.ndarray:
+    """Read a whitespace-separated numeric table with ``#`` comments as a float64 ``(n, ncols)`` array.
+
+    Fast path: ``pandas.read_csv``. When it fails or yields the wrong shape or non-finite values, the file is
+    scanned line by line to name the first bad line.
+    """
+    try:
+        df = pd.read_csv(path, sep=r"\s+", comment="#", header=None, dtype=np.float64, engine="c")
+        arr = df.to_numpy(dtype=np.float64)
+        ok = arr.ndim == 2 and arr.shape[1] == ncols and bool(np.isfinite(arr).all())
+    except pd.errors.EmptyDataError:
+        return np.empty((0, ncols))
+    except OSError as exc:
+        raise MRCLAMError(f"{_label(path)}: cannot read file ({exc.strerror or exc})") from None
+    except (ValueError, pd.errors.ParserError, UnicodeDecodeError):
+        arr, ok = None, False
+    if ok:
+        return arr
+    try:
+        bad = _find_bad_line(path, ncols)
+    except OSError as exc:  # pragma: no cover - file vanished between the two reads
+        raise MRCLAMError(f"{_label(path)}: cannot read file ({exc.strerror or exc})") from None
+    if bad is not None:
+        lineno, content, problem = bad
+        shown = content if len(content) <= 80 else content[:77] + "..."
+        raise MRCLAMError(f"{_label(path)} line {lineno}: {problem}, got {shown!r}")
+    raise MRCLAMError(f"{_label(path)}: could not parse as a table of {ncols} numeric columns")  # pragma: no cover
+
+
+def _integer_column(path: Path, arr: np.ndarray, col: int, what: str) -> np.ndarray:
+    """Column ``col`` of ``arr`` as int64; raise naming the line when a value is not an integer."""
+    x = arr[:, col]
+    bad = np.flatnonzero(x != np.round(x))
+    if bad.size:
+        lineno, content = _line_of_row(path, int(bad[0]))
+        raise MRCLAMError(f"{_label(path)} line {lineno}: {what} must be an integer, got {content!r}")
+    return x.astype(np.int64)
+
+
+def _sort_by_time(path: Path, arr: np.ndarray, notes: list[str]) -> np.ndarray:
+    """Stable sort of rows by column 0; records a note when the file was not in time order."""
+    if arr.shape[0] > 1:
+        back = int(np.count_nonzero(np.diff(arr[:, 0]) < 0))
+        if back:
+            notes.append(f"{_label(path)}: {back} time step(s) backwards, rows sorted by time")
+            arr = arr[np.argsort(arr[:, 0], kind="stable")]
+    return arr
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Wrap angles [rad] to ``(-pi, pi]``."""
+    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# data container
+
+
+@dataclass
+class MRCLAMData:
+    """One loaded MRCLAM dataset. Times are absolute Unix-epoch seconds; poses ``(x [m], y [m], theta [rad])``.
+
+    Arrays are sorted by time (stable, so rows with equal times keep file order):
+
+    * ``odometry[r]``: ``(N, 3)`` rows ``(t, v [m/s], w [rad/s])``;
+    * ``measurements[r]``: ``(M, 4)`` rows ``(t, subject, range [m], bearing [rad])``, barcodes already mapped to
+      subject ids through ``Barcodes.dat``; rows with unknown barcodes removed and counted in ``skipped_barcodes``;
+    * ``truth[r]``: ``(K, 4)`` rows ``(t, x, y, theta)``; empty dict when the dataset has no ground truth.
+
+    ``t_start``/``t_end`` bound the common time span: latest first odometry time and earliest last odometry time
+    over ``robots`` (earliest and latest measurement when no odometry was loaded), intersected with the
+    ground-truth spans when ground truth was loaded. ``missing`` lists the files looked for and not found;
+    ``notes`` lists oddities found while loading (e.g. rows out of time order, truth ending early).
+    """
+
+    name: str
+    path: Path
+    robots: list[int]
+    odometry: dict[int, np.ndarray]
+    measurements: dict[int, np.ndarray]
+    skipped_barcodes: dict[int, int]
+    truth: dict[int, np.ndarray]
+    landmarks: dict[int, tuple[float, float, float, float]]
+    barcode_to_subject: dict[int, int]
+    t_start: float
+    t_end: float
+    missing: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def has_truth(self) -> bool:
+        """True when every robot in ``robots`` has ground truth."""
+        return bool(self.robots) and all(r in self.truth for r in self.robots)
+
+    @property
+    def duration(self) -> float:
+        """Length of the common time span [s]."""
+        return self.t_end - self.t_start
+
+    def truth_at(self, robot: int, t: float | Sequence[float] | np.ndarray) -> np.ndarray:
+        """Ground-truth poses of ``robot`` at times ``t`` [s], shape ``(len(t), 3)`` (a scalar counts as one time).
+
+        ``x``, ``y`` are interpolated linearly; the heading is interpolated on the unwrapped angle and wrapped back
+        to ``(-pi, pi]``, so interpolation across the +-pi seam takes the short way. Raises :class:`MRCLAMError`
+        when the robot has no ground truth or a time lies outside its ground-truth span.
+        """
+        gt = self.truth.get(robot)
+        if gt is None or gt.shape[0] == 0:
+            raise MRCLAMError(
+                f"{self.name}: no ground truth for robot {robot} "
+                f"(Robot{robot}_Groundtruth.dat not loaded; robots with truth: {sorted(self.truth) or 'none'})"
+            )
+        tq = np.atleast_1d(np.asarray(t, dtype=np.float64)).ravel()
+        t0, t1 = float(gt[0, 0]), float(gt[-1, 0])
+        outside = (tq < t0) | (tq > t1) | ~np.isfinite(tq)
+        if outside.any():
+            bad = float(tq[np.flatnonzero(outside)[0]])
+            raise MRCLAMError(
+                f"{self.name}: time {bad:.3f} is outside the ground-truth span [{t0:.3f}, {t1:.3f}] of robot {robot}"
+            )
+        theta = np.unwrap(gt[:, 3])
+        out = np.empty((tq.size, 3))
+        out[:, 0] = np.interp(tq, gt[:, 0], gt[:, 1])
+        out[:, 1] = np.interp(tq, gt[:, 0], gt[:, 2])
+        out[:, 2] = _wrap(np.interp(tq, gt[:, 0], theta))
+        return out
+
+    def initial_pose(self, robot: int) -> np.ndarray:
+        """Pose ``(x, y, theta)`` of ``robot`` at ``t_start``: ground truth when available.
+
+        Without ground truth this returns ``(0, 0, 0)``: the robot's own start frame. The robots' start frames are
+        then unrelated, so callers must supply the prior themselves (e.g. from landmarks) for a shared world frame.
+        """
+        if robot not in self.robots:
+            raise MRCLAMError(f"{self.name}: robot {robot} not loaded (robots: {self.robots})")
+        if robot in self.truth:
+            return self.truth_at(robot, self.t_start)[0]
+        return np.zeros(3)
+
+    def describe(self) -> str:
+        """Short human-readable summary: robots, span, row counts, skipped barcodes, missing files, notes."""
+        lines = [
+            f"{self.name} ({self.path}): robots {self.robots}, common span {self.duration:.1f} s "
+            f"[{self.t_start:.3f}, {self.t_end:.3f}], ground truth: {'yes' if self.has_truth else 'no'}, "
+            f"{len(self.landmarks)} landmarks"
+        ]
+        for r in self.robots:
+            parts = []
+            if r in self.odometry:
+                parts.append(f"{self.odometry[r].shape[0]} odometry rows")
+            if r in self.measurements:
+                m = self.measurements[r]
+                n_rob = int(np.count_nonzero(np.isin(m[:, 1], ROBOT_SUBJECTS)))
+                parts.append(f"{m.shape[0]} measurements ({n_rob} of robots)")
+            if r in self.truth:
+                parts.append(f"{self.truth[r].shape[0]} truth rows")
+            lines.append(f"  robot {r}: " + ", ".join(parts))
+        if self.skipped_barcodes:
+            total = sum(self.skipped_barcodes.values())
+            detail = ", ".join(f"{b}: {n}" for b, n in sorted(self.skipped_barcodes.items()))
+            lines.append(f"  skipped {total} measurements of unknown barcodes ({detail})")
+        else:
+            lines.append("  skipped barcodes: none")
+        lines.append(f"  missing files: {', '.join(self.missing) if self.missing else 'none'}")
+        lines.extend(f"  note: {n}" for n in self.notes)
+        return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# loading
+
+
+def _available(folder: Path) -> str:
+    try:
+        names = sorted(p.name for p in folder.iterdir())
+    except OSError:
+        return "unreadable"
+    return ", ".join(names) if names else "nothing"
+
+
+def _require_kinds(require: Iterable[str], require_truth: bool) -> set[str]:
+    if isinstance(require, str):
+        require = (require,)
+    kinds = set(require)
+    unknown = kinds - set(_KINDS)
+    if unknown:
+        raise ValueError(f"require: unknown kind(s) {sorted(unknown)}; choose from {list(_KINDS)}")
+    if require_truth:
+        kinds.add("truth")
+    return kinds
+
+
+def load_mrclam(
+    path: str | os.PathLike[str],
+    robots: Iterable[int] | None = None,
+    require: Iterable[str] = ("odometry", "measurements"),
+    require_truth: bool = False,
+) -> MRCLAMData:
+    """Load one MRCLAM dataset folder (e.g. ``.../MRCLAM_Dataset6``).
+
+    ``require`` names the per-robot files a robot must have to be loaded, among ``"odometry"``, ``"measurements"``
+    and ``"truth"`` (``require_truth=True`` adds ``"truth"``). With ``robots=None`` every robot 1-5 that has them
+    is loaded (e.g. robots 1, 2, 3, 5 of dataset 3, which lacks ``Robot4_Odometry.dat``); an explicit ``robots``
+    list must all have them. Files not required are loaded when present. ``Barcodes.dat`` and
+    ``Landmark_Groundtruth.dat`` are always required. Raises :class:`MRCLAMError` naming the folder, the missing
+    file(s) and what is available when the folder or a required file is missing, or when no robot qualifies.
+    """
+    folder = Path(path).expanduser()
+    kinds = _require_kinds(require, require_truth)
+    if not folder.is_dir():
+        parent = folder.parent
+        if folder.exists():
+            raise MRCLAMError(f"MRCLAM path {folder} is not a folder")
+        if parent.is_dir():
+            sibs = sorted(p.name for p in parent.iterdir() if p.is_dir() and p.name.startswith("MRCLAM"))
+            avail = f"available MRCLAM folders in {parent}: {', '.join(sibs) if sibs else 'none'}"
+        else:
+            avail = f"parent folder {parent} does not exist either"
+        raise MRCLAMError(f"MRCLAM folder not found: {folder} ({avail})")
+    name = folder.name
+
+    for fname in ("Barcodes.dat", "Landmark_Groundtruth.dat"):
+        if not (folder / fname).is_file():
+            raise MRCLAMError(f"{name}: required file {fname} missing in {folder} (available: {_available(folder)})")
+
+    # which per-robot files exist
+    present: dict[int, dict[str, Path]] = {}
+    missing: list[str] = []
+    for r in ROBOT_SUBJECTS:
+        present[r] = {}
+        for kind in _KINDS:
+            p = folder / f"Robot{r}_{_FILE_SUFFIX[kind]}.dat"
+            if p.is_file():
+                present[r][kind] = p
+            else:
+                missing.append(p.name)
+
+    def lacking(r: int) -> list[str]:
+        return [f"Robot{r}_{_FILE_SUFFIX[k]}.dat" for k in sorted(kinds) if k not in present[r]]
+
+    if robots is None:
+        if kinds:
+            chosen = [r for r in ROBOT_SUBJECTS if not lacking(r)]
+        else:
+            chosen = [r for r in ROBOT_SUBJECTS if present[r]]
+        if not chosen:
+            absent = [k for k in sorted(kinds) if all(k not in present[r] for r in ROBOT_SUBJECTS)]
+            if absent:
+                what = " and ".join(absent)
+                files = ", ".join(f"Robot*_{_FILE_SUFFIX[k]}.dat" for k in absent)
+                raise MRCLAMError(
+                    f"{name}: {what} missing for every robot (no {files} in {folder}); "
+                    f"available: {_available(folder)}; required: {sorted(kinds)}"
+                )
+            raise MRCLAMError(
+                f"{name}: no robot has all required files {sorted(kinds)} in {folder}; "
+                f"missing: {', '.join(missing)}; available: {_available(folder)}"
+            )
+    else:
+        chosen = sorted({int(r) for r in robots})
+        if not chosen:
+            raise ValueError("robots: empty selection")
+        bad_ids = [r for r in chosen if r not in ROBOT_SUBJECTS]
+        if bad_ids:
+            raise ValueError(f"robots: {bad_ids} are not robot subjects {list(ROBOT_SUBJECTS)}")
+        for r in chosen:
+            lack = lacking(r)
+            if lack:
+                raise MRCLAMError(
+                    f"{name}: robot {r} lacks required file(s) {', '.join(lack)} in {folder} "
+                    f"(available: {_available(folder)})"
+                )
+            if not kinds and not present[r]:
+                raise MRCLAMError(f"{name}: no files for robot {r} in {folder} (available: {_available(folder)})")
+
+    notes: list[str] = []
+
+    # barcodes: subject -> barcode
+    bc_path = folder / "Barcodes.dat"
+    bc = _read_table(bc_path, 2)
+    if bc.shape[0] == 0:
+        raise MRCLAMError(f"{_label(bc_path)}: no data rows")
+    subjects = _integer_column(bc_path, bc, 0, "subject")
+    codes = _integer_column(bc_path, bc, 1, "barcode")
+    barcode_to_subject: dict[int, int] = {}
+    for i, (s, b) in enumerate(zip(subjects.tolist(), codes.tolist(), strict=True)):
+        if b in barcode_to_subject and barcode_to_subject[b] != s:
+            lineno, content = _line_of_row(bc_path, i)
+            raise MRCLAMError(
+                f"{_label(bc_path)} line {lineno}: barcode {b} already assigned to subject {barcode_to_subject[b]}"
+            )
+        barcode_to_subject[b] = s
+
+    # landmarks
+    lm_path = folder / "Landmark_Groundtruth.dat"
+    lm = _read_table(lm_path, 5)
+    lm_subjects = _integer_column(lm_path, lm, 0, "subject")
+    landmarks: dict[int, tuple[float, float, float, float]] = {
+        int(s): (float(row[1]), float(row[2]), float(row[3]), float(row[4]))
+        for s, row in zip(lm_subjects.tolist(), lm, strict=True)
+    }
+
+    odometry: dict[int, np.ndarray] = {}
+    measurements: dict[int, np.ndarray] = {}
+    truth: dict[int, np.ndarray] = {}
+    skipped: dict[int, int] = {}
+    known = np.array(sorted(barcode_to_subject), dtype=np.int64)
+    mapped = np.array([barcode_to_subject[b] for b in known.tolist()], dtype=np.float64)
+
+    for r in chosen:
+        files = present[r]
+        if "odometry" in files:
+            p = files["odometry"]
+            arr = _sort_by_time(p, _read_table(p, 3), notes)
+            if arr.shape[0] == 0:
+                raise MRCLAMError(f"{_label(p)}: no data rows")
+            odometry[r] = arr
+        if "truth" in files:
+            p = files["truth"]
+            arr = _sort_by_time(p, _read_table(p, 4), notes)
+            if arr.shape[0] == 0:
+                raise MRCLAMError(f"{_label(p)}: no data rows")
+            truth[r] = arr
+        if "measurements" in files:
+            p = files["measurements"]
+            arr = _read_table(p, 4)
+            code = _integer_column(p, arr, 1, "barcode")
+            if known.size:
+                pos_c = np.minimum(np.searchsorted(known, code), known.size - 1)
+                ok = known[pos_c] == code
+            else:  # pragma: no cover - Barcodes.dat with no rows is rejected above
+                pos_c, ok = np.zeros(code.size, dtype=np.int64), np.zeros(code.size, dtype=bool)
+            if not ok.all():
+                vals, counts = np.unique(code[~ok], return_counts=True)
+                for b, n in zip(vals.tolist(), counts.tolist(), strict=True):
+                    skipped[b] = skipped.get(b, 0) + n
+            arr = arr[ok].copy()
+            arr[:, 1] = mapped[pos_c[ok]]
+            measurements[r] = _sort_by_time(p, arr, notes)
+
+    # common time span
+    if odometry:
+        spans = [(float(a[0, 0]), float(a[-1, 0])) for a in odometry.values()]
+        t_start = max(s for s, _ in spans)
+        t_end = min(e for _, e in spans)
+        basis = "odometry"
+    else:
+        ms = [a for a in measurements.values() if a.shape[0]]
+        if ms:
+            t_start = min(float(a[0, 0]) for a in ms)
+            t_end = max(float(a[-1, 0]) for a in ms)
+            basis = "measurement"
+        elif truth:
+            t_start = max(float(a[0, 0]) for a in truth.values())
+            t_end = min(float(a[-1, 0]) for a in truth.values())
+            basis = "ground-truth"
+        else:
+            raise MRCLAMError(f"{name}: no data rows for robots {chosen} in {folder}")
+    if truth:
+        for r, a in truth.items():
+            early, late = float(a[0, 0]) - t_start, t_end - float(a[-1, 0])
+            if early > 1.0:
+                notes.append(f"ground truth of robot {r} starts {early:.1f} s after the {basis} span: t_start moved")
+            if late > 1.0:
+                notes.append(f"ground truth of robot {r} ends {late:.1f} s before the {basis} span: t_end moved")
+        t_start = max(t_start, max(float(a[0, 0]) for a in truth.values()))
+        t_end = min(t_end, min(float(a[-1, 0]) for a in truth.values()))
+        basis += " and ground-truth"
+    if not t_end > t_start:
+        raise MRCLAMError(f"{name}: the {basis} time spans of robots {chosen} do not overlap")
+
+    return MRCLAMData(
+        name=name,
+        path=folder,
+        robots=list(chosen),
+        odometry=odometry,
+        measurements=measurements,
+        skipped_barcodes=dict(sorted(skipped.items())),
+        truth=truth,
+        landmarks=landmarks,
+        barcode_to_subject=barcode_to_subject,
+        t_start=t_start,
+        t_end=t_end,
+        missing=missing,
+        notes=notes,
+    )
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# events
+
+
+def mrclam_events(
+    data: MRCLAMData,
+    duration: float | None = None,
+    landmarks: bool = True,
+    robot_measurements: bool = True,
+    range_std: float = DEFAULT_RANGE_STD,
+    bearing_std: float = DEFAULT_BEARING_STD,
+) -> list[Event]:
+    """Time-ordered :class:`Odometry` and :class:`Detection` events of ``data`` over ``[t_start, t_end]``.
+
+    Odometry: consecutive rows ``k, k+1`` of each robot give ``Odometry(robot, t_k, t_{k+1}, v_k, w_k)``, clipped
+    to the span, so the first interval starts at ``t_start`` with the last reading at or before it, and the
+    intervals of each robot tile the span exactly; zero-length intervals (duplicate time stamps) are dropped.
+
+    Detections: each measurement within the span gives a ``"range_bearing"`` :class:`Detection` with
+    ``z = (range [m], bearing [rad])`` and ``cov = diag(range_std**2, bearing_std**2)``; ``target`` is the subject
+    id and ``target_is_robot`` is true for subjects 1-5. A detection of a robot that has no odometry here (e.g.
+    robot 4 in dataset 3) is still a robot detection: consumers ignore robots they do not estimate.
+    ``landmarks``/``robot_measurements`` switch landmark and robot detections on or off.
+
+    ``range_std`` [m] and ``bearing_std`` [rad] default to generic values (0.1 m, 0.035 rad), not fitted to any
+    dataset's ground truth; pass your own. ``duration`` [s] truncates the span to ``[t_start, t_start + duration]``.
+    Events carry absolute Unix times. The list is sorted by time (an odometry event's time is ``t1``); at equal
+    times odometry comes before detections, then by robot id, then by file order. Detection ``z``/``cov`` arrays
+    are read-only (``cov`` is shared by all events).
+    """
+    if range_std <= 0 or bearing_std <= 0:
+        raise ValueError("range_std and bearing_std must be positive")
+    t_start = data.t_start
+    t_end = data.t_end
+    if duration is not None:
+        if duration < 0:
+            raise ValueError(f"duration must be non-negative, got {duration}")
+        t_end = min(t_end, t_start + float(duration))
+
+    # odometry: vectorized clipping
+    o_rob, o_t0, o_t1, o_v, o_w = [], [], [], [], []
+    for r in data.robots:
+        odo = data.odometry.get(r)
+        if odo is None or odo.shape[0] < 2:
+            continue
+        t = odo[:, 0]
+        a = np.maximum(t[:-1], t_start)
+        b = np.minimum(t[1:], t_end)
+        keep = b > a
+        o_rob.append(np.full(int(keep.sum()), r, dtype=np.int64))
+        o_t0.append(a[keep])
+        o_t1.append(b[keep])
+        o_v.append(odo[:-1, 1][keep])
+        o_w.append(odo[:-1, 2][keep])
+
+    # detections
+    d_obs, d_t, d_sub, d_z = [], [], [], []
+    for r in data.robots:
+        m = data.measurements.get(r)
+        if m is None or m.shape[0] == 0:
+            continue
+        is_rob = np.isin(m[:, 1], ROBOT_SUBJECTS)
+        keep = (m[:, 0] >= t_start) & (m[:, 0] <= t_end)
+        if not landmarks:
+            keep &= is_rob
+        if not robot_measurements:
+            keep &= ~is_rob
+        d_obs.append(np.full(int(keep.sum()), r, dtype=np.int64))
+        d_t.append(m[keep, 0])
+        d_sub.append(m[keep, 1].astype(np.int64))
+        d_z.append(m[keep][:, 2:4])
+
+    def cat(xs: list[np.ndarray], dtype: type = np.float64, shape: tuple[int, ...] = (0,)) -> np.ndarray:
+        return np.concatenate(xs) if xs else np.empty(shape, dtype=dtype)
+
+    ot1 = cat(o_t1)
+    dt_ = cat(d_t)
+    n_o, n_d = ot1.size, dt_.size
+    times = np.concatenate([ot1, dt_])
+    kind = np.concatenate([np.zeros(n_o, dtype=np.int8), np.ones(n_d, dtype=np.int8)])
+    seq = np.arange(n_o + n_d)
+    order = np.lexsort((seq, kind, times))
+
+    odo_events: list[Odometry] = [
+        Odometry(robot=r, t0=a, t1=b, v=v, w=w)
+        for r, a, b, v, w in zip(
+            cat(o_rob, np.int64).tolist(),
+            cat(o_t0).tolist(),
+            ot1.tolist(),
+            cat(o_v).tolist(),
+            cat(o_w).tolist(),
+            strict=True,
+        )
+    ]
+    cov = np.diag([range_std**2, bearing_std**2])
+    cov.setflags(write=False)
+    zs = cat(d_z, shape=(0, 2)).copy()
+    zs.setflags(write=False)
+    robot_set = set(ROBOT_SUBJECTS)
+    det_events: list[Detection] = [
+        Detection(
+            observer=o,
+            t=t,
+            kind="range_bearing",
+            z=zs[i],
+            cov=cov,
+            target=s,
+            target_is_robot=s in robot_set,
+        )
+        for i, (o, t, s) in enumerate(
+            zip(cat(d_obs, np.int64).tolist(), dt_.tolist(), cat(d_sub, np.int64).tolist(), strict=True)
+        )
+    ]
+    pool: list[Event] = [*odo_events, *det_events]
+    return [pool[i] for i in order.tolist()]

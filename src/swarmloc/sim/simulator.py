@@ -1,0 +1,341 @@
+"""Simulator: a team of differential-drive robots, wheel-encoder odometry, relative and absolute sensors.
+
+Generative model (everything an estimator needs to match it):
+
+* **Time grid.** Odometry intervals of ``T = 1/odom_rate`` s; each is split into ``n_sub = round(T/dt)`` internal
+  steps of ``dt_f = T/n_sub`` (about ``config.dt``). Times are ``k/f`` with ``f = odom_rate * n_sub`` and integer
+  ``k``, so events of different kinds at the same instant have bit-identical times.
+* **Commands.** Each robot's commanded wheel speeds ``(w1, w2)`` [rad/s] are sampled from its schedule at the start
+  of every odometry interval and held (zero-order hold at the odometry rate, like the thesis' 15 Hz controller).
+* **Truth.** The SDE ``(g^-1 dg)^v = h dt + H dw`` (thesis 4.12/5.1, :class:`~swarmloc.motion.DiffDrive`), i.e.
+  each wheel turns at its commanded speed plus white noise of intensity ``D``, integrated by the geometric
+  Euler-Maruyama scheme ``g <- g exp((h dt_f + H dw)^)``, ``dw ~ N(0, dt_f I)``.
+* **Odometry.** The encoders report the *commanded* wheel speeds of the interval, converted by eq. (5.14):
+  ``Odometry(robot, t0, t1, v, w)``. The truth therefore deviates from the odometry by exactly the SDE's
+  diffusion: the matching process model is ``mean = exp(T (v, 0, w)^)``, covariance (5.4) with
+  ``Q = H H^T = D diag(r^2/2, 0, 2 r^2/l^2)`` per second (:meth:`SimResult.process_noise`,
+  :meth:`SimResult.unicycle_noise`; up to the O(dt_f) Euler-Maruyama discretization).
+* **Relative sensor** (:class:`RelativeSensor`), at ``rate`` Hz, for every ordered pair observer ``i`` /
+  target ``j != i`` whose true relative position ``p = R_i^T (t_j - t_i)`` has ``|p| <= max_range`` and
+  ``|atan2(p_y, p_x)| <= fov/2``:
+
+  - ``kind="pose"``: ``z = xytheta(m_true exp(n^))``, ``m_true = g_i^-1 g_j``, ``n ~ N(0, diag(s_xy^2, s_xy^2,
+    s_theta^2))`` (right perturbation: ``n`` is in the target's frame); ``cov`` is that diagonal matrix;
+  - ``kind="range_bearing"``: ``z = (|p| + n_r, wrap(bearing + n_b))``, ``cov = diag(s_r^2, s_b^2)``.
+* **Absolute fixes** (:class:`AbsoluteSensor`), GPS-like, for chosen robots at ``rate`` Hz:
+  ``z = (x, y, theta) + n`` (additive in Cartesian coordinates, ``theta`` wrapped), ``n ~ N(0, cov)``,
+  ``Detection(kind="absolute", observer=robot, target=None)``.
+* **Truth events** ``Truth(robot, t, (x, y, theta))`` at ``t = 0`` and every ``truth_every``-th odometry time.
+
+Angles are wrapped to (-pi, pi]. Random numbers: ``SeedSequence(seed)`` spawns independent streams for the motion
+noise, the relative sensor and the absolute sensor, so changing a sensor does not change the trajectories. Same
+seed and configuration give identical events. Events are sorted by time; at equal times odometry (by robot),
+then detections (by observer, kind, target; absolute fixes last), then truth (by robot).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from swarmloc.events import Detection, Event, Odometry, Truth
+from swarmloc.lie import SE2
+from swarmloc.motion.diffdrive import DiffDrive
+from swarmloc.motion.sde import compose_exp_xyt
+from swarmloc.motion.unicycle import UnicycleNoise
+
+WheelCommand = Callable[[float], "tuple[float, float] | np.ndarray"]
+
+
+def wrap_angle(a: np.ndarray | float) -> np.ndarray:
+    """Wrap angles to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)
+
+
+@dataclass(frozen=True)
+class WheelSchedule:
+    """Piecewise-constant wheel speeds: ``speeds[k] = (w1, w2)`` [rad/s] from ``times[k]`` [s] on.
+
+    Before ``times[0]`` the first speeds apply. Callable on scalars or arrays of times (returns ``(..., 2)``).
+    """
+
+    times: tuple[float, ...]
+    speeds: tuple[tuple[float, float], ...]
+
+    def __post_init__(self) -> None:
+        if len(self.times) != len(self.speeds) or not self.times:
+            raise ValueError("WheelSchedule: times and speeds must be non-empty and of equal length")
+        if np.any(np.diff(self.times) < 0):
+            raise ValueError("WheelSchedule: times must be non-decreasing")
+
+    def __call__(self, t: np.ndarray | float) -> np.ndarray:
+        idx = np.searchsorted(np.asarray(self.times), np.asarray(t, dtype=float), side="right") - 1
+        return np.asarray(self.speeds, dtype=float)[np.clip(idx, 0, None)]
+
+    @classmethod
+    def from_unicycle(
+        cls, times: Sequence[float], v: Sequence[float], w: Sequence[float], drive: DiffDrive
+    ) -> WheelSchedule:
+        """Schedule from forward speeds ``v`` [m/s] and yaw rates ``w`` [rad/s] (eq. 5.14 inverted)."""
+        w1, w2 = drive.from_unicycle(np.asarray(v, dtype=float), np.asarray(w, dtype=float))
+        return cls(tuple(float(x) for x in times), tuple((float(a), float(b)) for a, b in zip(w1, w2, strict=True)))
+
+
+@dataclass(frozen=True)
+class RelativeSensor:
+    """Exteroceptive robot-to-robot sensor (thesis 5.2: laser, 1.5 m, full circle).
+
+    ``rate`` [Hz]; ``max_range`` [m]; ``fov`` [rad], total width centred on the observer's x axis (``2 pi``: full
+    circle); ``sigma_xy`` [m] and ``sigma_theta`` [rad]: std of the pose noise (exponential coordinates, right
+    perturbation); ``kinds``: any of ``"pose"``, ``"range_bearing"``; ``sigma_range`` [m], ``sigma_bearing`` [rad].
+    """
+
+    rate: float = 10.0
+    max_range: float = 1.5
+    fov: float = 2 * np.pi
+    sigma_xy: float = 0.05
+    sigma_theta: float = float(np.deg2rad(1.0))
+    kinds: tuple[str, ...] = ("pose",)
+    sigma_range: float = 0.05
+    sigma_bearing: float = float(np.deg2rad(1.0))
+
+    def __post_init__(self) -> None:
+        bad = set(self.kinds) - {"pose", "range_bearing"}
+        if bad:
+            raise ValueError(f"RelativeSensor: unsupported kinds {sorted(bad)} (use 'pose', 'range_bearing')")
+
+    def pose_cov(self) -> np.ndarray:
+        """``diag(sigma_xy^2, sigma_xy^2, sigma_theta^2)``."""
+        return np.diag([self.sigma_xy**2, self.sigma_xy**2, self.sigma_theta**2])
+
+    def range_bearing_cov(self) -> np.ndarray:
+        """``diag(sigma_range^2, sigma_bearing^2)``."""
+        return np.diag([self.sigma_range**2, self.sigma_bearing**2])
+
+    def noiseless(self) -> RelativeSensor:
+        return replace(self, sigma_xy=0.0, sigma_theta=0.0, sigma_range=0.0, sigma_bearing=0.0)
+
+
+@dataclass(frozen=True)
+class AbsoluteSensor:
+    """GPS-like world-pose fixes for ``robots`` at ``rate`` [Hz], additive noise ``diag(s_xy^2, s_xy^2, s_th^2)``."""
+
+    robots: tuple[int, ...]
+    rate: float = 1.0
+    sigma_xy: float = 0.01
+    sigma_theta: float = 0.01
+
+    def cov(self) -> np.ndarray:
+        return np.diag([self.sigma_xy**2, self.sigma_xy**2, self.sigma_theta**2])
+
+    def noiseless(self) -> AbsoluteSensor:
+        return replace(self, sigma_xy=0.0, sigma_theta=0.0)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Simulation settings: ``duration`` [s], robot model ``drive``, internal step ``dt`` [s], ``odom_rate`` [Hz],
+    a ``Truth`` event every ``truth_every`` odometry events, sensors, and ``zero_noise`` (forces ``D = 0`` and all
+    sensor sigmas to 0)."""
+
+    duration: float
+    drive: DiffDrive = field(default_factory=DiffDrive)
+    dt: float = 0.01
+    odom_rate: float = 10.0
+    truth_every: int = 1
+    sensor: RelativeSensor | None = field(default_factory=RelativeSensor)
+    absolute: AbsoluteSensor | None = None
+    zero_noise: bool = False
+
+    def effective(self) -> SimConfig:
+        """The configuration actually simulated (noise removed when ``zero_noise``)."""
+        if not self.zero_noise:
+            return self
+        return replace(
+            self,
+            drive=replace(self.drive, D=0.0),
+            sensor=None if self.sensor is None else self.sensor.noiseless(),
+            absolute=None if self.absolute is None else self.absolute.noiseless(),
+        )
+
+
+@dataclass
+class SimResult:
+    """Output of :func:`simulate`.
+
+    ``events``: time-sorted list; ``initial_poses``: robot id -> known initial ``(x, y, theta)``;
+    ``times`` ``(K+1,)``: odometry grid including 0; ``truth`` ``(K+1, n_robots, 3)``: true poses on that grid
+    (columns in ``robot_ids`` order); ``config``: the effective configuration.
+    """
+
+    events: list[Event]
+    initial_poses: dict[int, np.ndarray]
+    robot_ids: tuple[int, ...]
+    times: np.ndarray
+    truth: np.ndarray
+    config: SimConfig
+
+    def process_noise(self) -> np.ndarray:
+        """Body-twist diffusion per second ``Q = H H^T`` (3x3) that generated the truth."""
+        return self.config.drive.diffusion()
+
+    def unicycle_noise(self) -> UnicycleNoise:
+        """The same process noise as a :class:`~swarmloc.motion.UnicycleNoise` (for ``odometry_increment``)."""
+        return UnicycleNoise.from_diff_drive(self.config.drive)
+
+    def initial_pose_matrices(self) -> dict[int, np.ndarray]:
+        return {k: SE2.from_xytheta(p) for k, p in self.initial_poses.items()}
+
+
+def _steps(period: float, dt_f: float, what: str) -> int:
+    n = int(round(period / dt_f))
+    if n < 1 or abs(n * dt_f - period) > 1e-9 * max(1.0, period):
+        raise ValueError(f"simulate: {what} period {period:g} s is not a multiple of the internal step {dt_f:g} s")
+    return n
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+def _commands(cmds: Sequence[WheelCommand], t: np.ndarray) -> np.ndarray:
+    """Wheel speeds ``(len(t), n_robots, 2)`` at the interval start times ``t``."""
+    out = np.empty((len(t), len(cmds), 2))
+    for r, c in enumerate(cmds):
+        if isinstance(c, WheelSchedule):
+            out[:, r] = c(t)
+        else:
+            out[:, r] = np.array([np.asarray(c(float(tk)), dtype=float).reshape(2) for tk in t])
+    return out
+
+
+def simulate(
+    initial_poses: Mapping[int, Sequence[float]] | Sequence[Sequence[float]],
+    commands: Mapping[int, WheelCommand] | Sequence[WheelCommand],
+    config: SimConfig,
+    seed: int | None = 0,
+) -> SimResult:
+    """Simulate a team (see the module docstring for the exact model).
+
+    ``initial_poses``: robot id -> ``(x, y, theta)`` (a sequence means ids ``0..n-1``); ``commands``: the same ids
+    -> wheel-speed schedule (a :class:`WheelSchedule` or any callable ``t -> (w1, w2)``); ``seed`` for
+    ``np.random.default_rng``-style seeding.
+    """
+    if not isinstance(initial_poses, Mapping):
+        initial_poses = dict(enumerate(initial_poses))
+    if not isinstance(commands, Mapping):
+        commands = dict(enumerate(commands))
+    ids = tuple(sorted(initial_poses))
+    if set(commands) != set(ids):
+        raise ValueError(f"simulate: commands for {sorted(commands)} but robots {list(ids)}")
+    cfg = config.effective()
+    n_rob = len(ids)
+    T = 1.0 / cfg.odom_rate
+    n_sub = max(1, int(round(T / cfg.dt)))
+    f = cfg.odom_rate * n_sub  # internal steps per second
+    dt_f = 1.0 / f
+    n_int = int(round(cfg.duration * cfg.odom_rate))
+    N = n_int * n_sub
+    ss_motion, ss_rel, ss_abs = np.random.SeedSequence(seed).spawn(3)
+    if abs(n_int / cfg.odom_rate - cfg.duration) > 1e-9 * max(1.0, cfg.duration):
+        raise ValueError(f"simulate: duration {cfg.duration:g} s is not a multiple of the odometry period {T:g} s")
+    sen, ab = cfg.sensor, cfg.absolute
+    n_s = _steps(1.0 / sen.rate, dt_f, "sensor") if sen is not None else 0
+    n_a = _steps(1.0 / ab.rate, dt_f, "absolute-fix") if ab is not None else 0
+
+    # ---------------------------------------------------------------- truth (vectorized, no time loop)
+    p0 = np.array([np.asarray(initial_poses[i], dtype=float) for i in ids]).reshape(n_rob, 3)
+    W = _commands([commands[i] for i in ids], np.arange(n_int) * n_sub / f)  # (n_int, n_rob, 2)
+    drive = cfg.drive
+    v_cmd, w_cmd = drive.to_unicycle(W[..., 0], W[..., 1])  # (n_int, n_rob)
+    h = drive.twist(W[..., 0], W[..., 1])  # (n_int, n_rob, 3)
+    xi = np.repeat(h, n_sub, axis=0) * dt_f  # (N, n_rob, 3)
+    if drive.D > 0:
+        rng_m = np.random.default_rng(ss_motion)
+        dw = np.sqrt(dt_f) * rng_m.standard_normal((N, n_rob, 2))
+        xi = xi + np.einsum("...k,ik->...i", dw, drive.H())
+    # local increments exp(xi) in the current body frame, then one cumulative sum
+    dx, dy, da = compose_exp_xyt(np.zeros(xi.shape[:-1]), np.zeros(xi.shape[:-1]), np.zeros(xi.shape[:-1]), xi)
+    th = p0[:, 2] + np.concatenate([np.zeros((1, n_rob)), np.cumsum(da, axis=0)])  # (N+1, n_rob)
+    c, s = np.cos(th[:-1]), np.sin(th[:-1])
+    steps = np.stack([c * dx - s * dy, s * dx + c * dy], axis=-1)
+    pos = p0[:, :2] + np.concatenate([np.zeros((1, n_rob, 2)), np.cumsum(steps, axis=0)])  # (N+1, n_rob, 2)
+    truth_all = np.concatenate([pos, th[..., None]], axis=-1)  # unwrapped theta
+
+    # keyed events: (step index, category, sub-order, event)
+    keyed: list[tuple[int, int, tuple, Event]] = []
+    for j in range(n_int):
+        k1 = (j + 1) * n_sub
+        t0, t1 = j * n_sub / f, k1 / f
+        for r, rid in enumerate(ids):
+            keyed.append((k1, 0, (r,), Odometry(rid, t0, t1, float(v_cmd[j, r]), float(w_cmd[j, r]))))
+
+    # ---------------------------------------------------------------- relative sensor
+    if sen is not None and n_rob > 1:
+        ks = np.arange(n_s, N + 1, n_s)
+        P = truth_all[ks]  # (S, n_rob, 3)
+        obs, tgt = np.nonzero(~np.eye(n_rob, dtype=bool))
+        gi, gj = P[:, obs], P[:, tgt]  # (S, n_pairs, 3)
+        ci, si = np.cos(gi[..., 2]), np.sin(gi[..., 2])
+        ddx, ddy = gj[..., 0] - gi[..., 0], gj[..., 1] - gi[..., 1]
+        mx, my = ci * ddx + si * ddy, -si * ddx + ci * ddy
+        mth = gj[..., 2] - gi[..., 2]
+        rng_ = np.hypot(mx, my)
+        bearing = np.arctan2(my, mx)
+        seen = (rng_ <= sen.max_range) & (np.abs(bearing) <= sen.fov / 2 + 1e-12)
+        rng_s = np.random.default_rng(ss_rel)
+        n_pose = rng_s.standard_normal((*mx.shape, 3)) * np.sqrt(np.diag(sen.pose_cov()))
+        n_rb = rng_s.standard_normal((*mx.shape, 2)) * np.sqrt(np.diag(sen.range_bearing_cov()))
+        zx, zy, zth = compose_exp_xyt(mx, my, mth, n_pose)
+        z_pose = np.stack([zx, zy, wrap_angle(zth)], axis=-1)
+        z_rb = np.stack([rng_ + n_rb[..., 0], wrap_angle(bearing + n_rb[..., 1])], axis=-1)
+        cov_pose, cov_rb = _readonly(sen.pose_cov()), _readonly(sen.range_bearing_cov())
+        for si_, p_ in zip(*np.nonzero(seen), strict=True):
+            k = int(ks[si_])
+            t = k / f
+            o, g = ids[obs[p_]], ids[tgt[p_]]
+            if "pose" in sen.kinds:
+                ev = Detection(o, t, "pose", _readonly(z_pose[si_, p_]), cov_pose, target=g)
+                keyed.append((k, 1, (obs[p_], 0, tgt[p_]), ev))
+            if "range_bearing" in sen.kinds:
+                ev = Detection(o, t, "range_bearing", _readonly(z_rb[si_, p_]), cov_rb, target=g)
+                keyed.append((k, 1, (obs[p_], 1, tgt[p_]), ev))
+
+    # ---------------------------------------------------------------- absolute fixes
+    if ab is not None and ab.robots:
+        unknown = set(ab.robots) - set(ids)
+        if unknown:
+            raise ValueError(f"simulate: absolute fixes requested for unknown robots {sorted(unknown)}")
+        ka = np.arange(n_a, N + 1, n_a)
+        cols = [ids.index(r) for r in ab.robots]
+        rng_a = np.random.default_rng(ss_abs)
+        noise = rng_a.standard_normal((len(ka), len(cols), 3)) * np.sqrt(np.diag(ab.cov()))
+        z = truth_all[ka][:, cols] + noise
+        z[..., 2] = wrap_angle(z[..., 2])
+        cov_a = _readonly(ab.cov())
+        for a_, k in enumerate(ka):
+            for c_, col in enumerate(cols):
+                ev = Detection(ids[col], int(k) / f, "absolute", _readonly(z[a_, c_]), cov_a, target=None)
+                keyed.append((int(k), 1, (n_rob + col, 2, 0), ev))
+
+    # ---------------------------------------------------------------- truth events
+    k_truth = np.arange(0, N + 1, n_sub * cfg.truth_every)
+    wrapped = truth_all.copy()
+    wrapped[..., 2] = wrap_angle(wrapped[..., 2])
+    for k in k_truth:
+        for r, rid in enumerate(ids):
+            keyed.append((int(k), 2, (r,), Truth(rid, int(k) / f, _readonly(wrapped[k, r]))))
+
+    keyed.sort(key=lambda e: (e[0], e[1], e[2]))
+    return SimResult(
+        events=[e[3] for e in keyed],
+        initial_poses={rid: _readonly(p0[r]) for r, rid in enumerate(ids)},
+        robot_ids=ids,
+        times=np.arange(n_int + 1) * n_sub / f,
+        truth=wrapped[::n_sub],
+        config=cfg,
+    )
