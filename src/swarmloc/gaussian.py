@@ -19,6 +19,7 @@ transpose ``(A'' B)^T = B^T A''^T``, which keeps the result symmetric.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
@@ -72,8 +73,8 @@ def _bvec(M: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.einsum("...ij,...j->...i", M, v)
 
 
-def convolution_F(group: type[SEGroup], A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Second-order term ``F(A, B)`` of the convolution covariance (thesis eq. 3.26, corrected), batched."""
+def convolution_F_reference(group: type[SEGroup], A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``F(A, B)`` written term by term as in eq. 3.26 (corrected); batched. Slow but plain."""
     G = group.ad_basis()  # G[i] = ad(E_i)
     term1 = np.einsum("...ij,iab,...bc,jdc->...ad", A, G, B, G, optimize=True)
     A2 = np.einsum("...ij,iab,jbc->...ac", A, G, G, optimize=True)
@@ -81,6 +82,31 @@ def convolution_F(group: type[SEGroup], A: np.ndarray, B: np.ndarray) -> np.ndar
     A2B = A2 @ B
     B2A = B2 @ A
     return 0.25 * term1 + (A2B + np.swapaxes(A2B, -1, -2) + B2A + np.swapaxes(B2A, -1, -2)) / 12.0
+
+
+@cache
+def _F_tensor(group: type[SEGroup]) -> np.ndarray:
+    """``K`` with ``vec(F(A, B)) = kron(vec A, vec B) @ K``: F is bilinear, so it is one matrix product."""
+    d = group.dim
+    E = np.eye(d * d).reshape(d * d, d, d)
+    K = convolution_F_reference(group, E[:, None], E[None, :])  # (d^2, d^2, d, d)
+    K = K.reshape(d**4, d * d)
+    K.setflags(write=False)
+    return K
+
+
+def convolution_F(group: type[SEGroup], A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Second-order term ``F(A, B)`` of the convolution covariance (thesis eq. 3.26, corrected), batched.
+
+    Evaluated as one matrix product with a precomputed bilinear tensor (equal to
+    :func:`convolution_F_reference` to rounding; tested).
+    """
+    d = group.dim
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float)
+    shape = np.broadcast_shapes(A.shape[:-2], B.shape[:-2])
+    outer = A.reshape(*A.shape[:-2], d * d, 1) * B.reshape(*B.shape[:-2], 1, d * d)
+    return (outer.reshape(*shape, d**4) @ _F_tensor(group)).reshape(*shape, d, d)
 
 
 def convolve_moments(

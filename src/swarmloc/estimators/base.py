@@ -1,0 +1,115 @@
+"""The one protocol every estimator implements, the neighbour channel, and belief conversions.
+
+Protocol (driven identically by the simulator runner, the dataset runner and, later, the network node):
+
+* ``predict(robot, t0, t1, v, w)``: propagate ``robot``'s belief over ``[t0, t1]`` with body-frame odometry
+  ``(v [m/s], w [rad/s])`` held constant;
+* ``update(robot, t, detections, channel)``: fuse the detections ``robot`` made at time ``t``; beliefs of other
+  robots may only be obtained through ``channel.belief_of(k, t)`` (what ``k`` would send over the network);
+* ``belief(robot) -> GroupGaussian``: the current belief as a Gaussian on SE(2) in exponential coordinates
+  (right perturbation), whatever the estimator's internal parametrization;
+* ``shared_belief(robot) -> GroupGaussian``: what ``robot`` answers when a neighbour asks (defaults to its
+  belief). A *distributed* estimator keeps one independent node per robot, and a node sees nothing of other
+  nodes except what arrives through the channel.
+
+Cartesian beliefs ``(x, y, theta), P`` are converted to and from exponential coordinates to first order:
+``g = (x, y, theta)`` and ``y = (R^T dp, dtheta)``, so ``Sigma = T P T^T`` with ``T = diag(R^T, 1)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from swarmloc.events import Detection
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.lie import SE2
+
+
+def _rot_block(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    B = np.eye(3)
+    B[0, 0], B[0, 1], B[1, 0], B[1, 1] = c, -s, s, c
+    return B
+
+
+def cartesian_to_group(x: np.ndarray, P: np.ndarray) -> GroupGaussian:
+    """``(x, y, theta), P`` (world-frame Cartesian covariance) -> exponential-coordinate Gaussian (first order)."""
+    T = _rot_block(x[2]).T
+    return GroupGaussian(SE2, SE2.from_xytheta(x), T @ P @ T.T, validate=False)
+
+
+def group_to_cartesian(b: GroupGaussian) -> tuple[np.ndarray, np.ndarray]:
+    """Exponential-coordinate Gaussian -> ``(x, y, theta), P`` (first order)."""
+    x = SE2.to_xytheta(b.mean)
+    B = _rot_block(x[2])
+    return x, B @ b.cov @ B.T
+
+
+@runtime_checkable
+class Channel(Protocol):
+    """Where an estimator obtains a neighbour's belief: in-process (tests, simulation) or over the network."""
+
+    def belief_of(self, robot: int, t: float) -> GroupGaussian | None:
+        """Belief that ``robot`` shares at time ``t``; ``None`` when it does not answer (unknown, offline)."""
+        ...
+
+
+class NoChannel:
+    """A channel on which nobody answers (dead reckoning, centralized estimators)."""
+
+    def belief_of(self, robot: int, t: float) -> GroupGaussian | None:
+        return None
+
+
+class CallbackChannel:
+    """In-process channel: asks ``answer(robot, t)``; the runner brings the neighbour's filter to ``t`` first.
+
+    Every answer is a fresh immutable :class:`GroupGaussian` (arrays are read-only), so a node can never
+    reach into another node's state through it.
+    """
+
+    def __init__(self, answer: Callable[[int, float], GroupGaussian | None]) -> None:
+        self._answer = answer
+        self.requests = 0
+
+    def belief_of(self, robot: int, t: float) -> GroupGaussian | None:
+        self.requests += 1
+        return self._answer(robot, t)
+
+
+class Estimator:
+    """Base class with the protocol; subclasses override what they need.
+
+    Parameters common to all: ``initial``: each robot's initial belief (a :class:`GroupGaussian` on SE(2)).
+    """
+
+    name = "estimator"
+    distributed = True
+
+    def __init__(self, initial: Mapping[int, GroupGaussian]) -> None:
+        if not initial:
+            raise ValueError(f"{type(self).__name__}: 'initial' must give at least one robot's belief")
+        for r, b in initial.items():
+            if not isinstance(b, GroupGaussian) or b.group is not SE2 or b.batch_shape:
+                raise ValueError(f"{type(self).__name__}: initial belief of robot {r} must be an SE(2) GroupGaussian")
+        self.robots: list[int] = sorted(initial)
+        self.stats: dict[str, int] = {"predict": 0, "update": 0, "fused": 0, "rejected": 0, "unknown": 0}
+
+    def _check_robot(self, robot: int) -> None:
+        if robot not in self.robots:
+            raise KeyError(f"{type(self).__name__}: unknown robot id {robot!r} (known: {self.robots})")
+
+    def predict(self, robot: int, t0: float, t1: float, v: float, w: float) -> None:
+        raise NotImplementedError
+
+    def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
+        raise NotImplementedError
+
+    def belief(self, robot: int) -> GroupGaussian:
+        raise NotImplementedError
+
+    def shared_belief(self, robot: int) -> GroupGaussian:
+        return self.belief(robot)

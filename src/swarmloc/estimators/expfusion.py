@@ -1,0 +1,176 @@
+"""The thesis estimator (exponential-coordinate prediction and fusion) and dead reckoning.
+
+Each robot runs a node with a Gaussian on SE(2) ``(mu, Sigma)``.
+
+* Prediction (thesis 4.13-4.15): the belief is convolved (second order) with the odometry increment, whose
+  mean is ``exp(dt (v, 0, w)^)`` and covariance eq. (5.4) for the body-twist diffusion ``Q(v, w)``
+  (:func:`swarmloc.motion.odometry_increment`, exact closed form rather than the Simpson rule 5.12).
+* Update (thesis 4.16-4.19 as corrected in :mod:`swarmloc.fusion`): all relative-pose detections a robot made at
+  one instant are fused at once, each with the neighbour's belief obtained *from the neighbour* through the
+  channel; GPS-like absolute fixes are fused as direct observations of the pose. Measurements of kinds the
+  thesis estimator cannot use (range/bearing only) are handled by :class:`ExpFusion` subclasses that say so.
+
+The fusion assumes the neighbour's belief is independent of the robot's own. When two robots measure each other
+again and again this is false (their beliefs become correlated through earlier fusions) and the estimator
+becomes over-confident: the NEES shows it. :mod:`swarmloc.estimators.consistent` fixes that.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from swarmloc.estimators.base import Channel, Estimator, _rot_block
+from swarmloc.events import Detection
+from swarmloc.fusion import fuse_pseudo, relative_to_pseudo
+from swarmloc.gaussian import GroupGaussian, check_covariance, convolve_moments
+from swarmloc.lie import SE2
+from swarmloc.motion import UnicycleNoise, odometry_increment
+
+log = logging.getLogger(__name__)
+
+
+def validate_detection(d: Detection) -> str | None:
+    """Return why a detection is unusable (None if it is fine)."""
+    z = np.asarray(d.z, dtype=float)
+    cov = np.asarray(d.cov, dtype=float)
+    want = {"pose": 3, "absolute": 3, "range_bearing": 2, "range": 1, "bearing": 1}.get(d.kind)
+    if want is None:
+        return f"unknown measurement kind {d.kind!r}"
+    if z.shape != (want,):
+        return f"z has shape {z.shape}, expected ({want},) for kind {d.kind!r}"
+    if not np.isfinite(z).all():
+        return "z contains NaN or inf"
+    try:
+        check_covariance(cov, want, "detection", "cov")
+    except ValueError as exc:
+        return str(exc)
+    if d.kind in ("range_bearing", "range") and z[0] <= 0:
+        return f"range must be positive, got {z[0]}"
+    return None
+
+
+class _Node:
+    """State of one robot: mean (3x3) and covariance (3x3) in exponential coordinates."""
+
+    __slots__ = ("mean", "cov", "t")
+
+    def __init__(self, b: GroupGaussian, t: float = 0.0) -> None:
+        self.mean = np.array(b.mean)
+        self.cov = np.array(b.cov)
+        self.t = t
+
+    def belief(self) -> GroupGaussian:
+        return GroupGaussian(SE2, self.mean, self.cov, validate=False)
+
+
+class ExpFusion(Estimator):
+    """Thesis estimator: second-order exponential-coordinate prediction and n-neighbour fusion (distributed).
+
+    Parameters
+    ----------
+    initial: initial belief per robot.
+    noise: process-noise model of the odometry (per-second body-twist diffusion).
+    order: 2 (thesis) or 1 (first-order convolution and fusion).
+    iterations: re-linearizations of the fusion (1 = thesis closed form).
+    use_relative: fuse relative-pose detections of other robots.
+    """
+
+    name = "expfusion"
+
+    def __init__(
+        self,
+        initial: Mapping[int, GroupGaussian],
+        noise: UnicycleNoise,
+        order: int = 2,
+        iterations: int = 1,
+        use_relative: bool = True,
+    ) -> None:
+        super().__init__(initial)
+        self.noise = noise
+        self.order = order
+        self.iterations = iterations
+        self.use_relative = use_relative
+        self._nodes = {r: _Node(b) for r, b in initial.items()}
+
+    # ------------------------------------------------------------------ protocol
+    def predict(self, robot: int, t0: float, t1: float, v: float, w: float) -> None:
+        self._check_robot(robot)
+        dt = t1 - t0
+        if dt <= 0:
+            return
+        node = self._nodes[robot]
+        inc_mean, inc_cov = odometry_increment(float(v), float(w), float(dt), self.noise)
+        node.mean, node.cov = convolve_moments(SE2, node.mean, node.cov, inc_mean, inc_cov, self.order)
+        node.t = t1
+        self.stats["predict"] += 1
+
+    def belief(self, robot: int) -> GroupGaussian:
+        self._check_robot(robot)
+        return self._nodes[robot].belief()
+
+    def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
+        self._check_robot(robot)
+        node = self._nodes[robot]
+        nus: list[np.ndarray] = []
+        Ws: list[np.ndarray] = []
+        rest: list[Detection] = []
+        for d in detections:
+            why = validate_detection(d)
+            if why is not None:
+                self.stats["rejected"] += 1
+                log.warning("robot %s: detection at t=%.3f rejected: %s", robot, d.t, why)
+                continue
+            pseudo = self._pseudo(robot, t, d, channel)
+            if pseudo is None:
+                rest.append(d)
+            elif pseudo is not False:
+                nus.append(pseudo[0])
+                Ws.append(pseudo[1])
+        if nus:
+            node.mean, node.cov = fuse_pseudo(
+                SE2, node.mean, node.cov, np.stack(nus), np.stack(Ws), self.order, self.iterations
+            )
+            self.stats["fused"] += len(nus)
+        if rest:
+            self._update_other(robot, t, rest, channel)
+        self.stats["update"] += 1
+
+    # ------------------------------------------------------------------ pieces
+    def _pseudo(
+        self, robot: int, t: float, d: Detection, channel: Channel
+    ) -> tuple[np.ndarray, np.ndarray] | None | bool:
+        """Pseudo-observation ``(nu, W)`` of the robot's own pose; None: not handled here; False: skipped."""
+        if d.kind == "absolute":
+            T = _rot_block(d.z[2]).T
+            return SE2.from_xytheta(d.z), T @ d.cov @ T.T
+        if d.kind != "pose" or not d.target_is_robot:
+            return None
+        if not self.use_relative:
+            return False
+        if d.target == robot or d.target is None:
+            self.stats["rejected"] += 1
+            return False
+        nb = channel.belief_of(d.target, t)
+        if nb is None:
+            self.stats["unknown"] += 1
+            return False
+        return relative_to_pseudo(SE2, nb.mean, nb.cov, SE2.from_xytheta(d.z), np.asarray(d.cov), self.order)
+
+    def _update_other(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
+        """Measurements the thesis estimator has no model for: ignored (subclasses add models)."""
+        self.stats["unknown"] += len(detections)
+
+
+class DeadReckoning(ExpFusion):
+    """Exponential-coordinate prediction only: every detection is ignored."""
+
+    name = "dr"
+
+    def __init__(self, initial: Mapping[int, GroupGaussian], noise: UnicycleNoise, order: int = 2) -> None:
+        super().__init__(initial, noise, order=order, use_relative=False)
+
+    def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
+        self._check_robot(robot)

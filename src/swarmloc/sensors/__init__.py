@@ -1,0 +1,1 @@
+"""Measurement models: relative pose, range-bearing, range, bearing (Cartesian with Jacobians)."""

@@ -1,0 +1,95 @@
+"""Planar measurement models in Cartesian coordinates, with Jacobians (for the EKF-family estimators).
+
+States are ``x = (x, y, theta)`` in the world frame. The observed object is either a robot (``(x, y, theta)``)
+or a landmark (``(x, y)``). Measurements are in the observer's body frame (x forward, y left); bearings and
+relative headings are wrapped to (-pi, pi]. Lecture slides 19 (bearing, distance, orientation) and thesis
+eqs. 2.6-2.9 (relative pose).
+
+Each function returns ``(h, H_i, H_k)``: the predicted measurement, its Jacobian with respect to the observer's
+state (``(m, 3)``) and with respect to the target's state (``(m, 3)`` for a robot, ``(m, 2)`` for a landmark).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def wrap(a: np.ndarray | float) -> np.ndarray:
+    """Wrap angles to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)
+
+
+def _rel(xi: np.ndarray, pk: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    dx, dy = pk[0] - xi[0], pk[1] - xi[1]
+    c, s = np.cos(xi[2]), np.sin(xi[2])
+    return dx, dy, c, s, c * dx + s * dy, -s * dx + c * dy
+
+
+def relative_pose(xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pose of robot ``k`` in robot ``i``'s frame: ``(R_i^T (p_k - p_i), theta_k - theta_i)``."""
+    dx, dy, c, s, bx, by = _rel(xi, xk)
+    h = np.array([bx, by, wrap(xk[2] - xi[2])])
+    Hi = np.array([[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]])
+    Hk = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return h, Hi, Hk
+
+
+def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Range [m] and bearing [rad] of point/robot ``k`` seen from robot ``i``."""
+    dx, dy, c, s, bx, by = _rel(xi, pk)
+    q = dx * dx + dy * dy
+    r = np.sqrt(q)
+    h = np.array([r, wrap(np.arctan2(by, bx))])
+    Hi = np.array([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]])
+    Hk = np.zeros((2, target_dim))
+    Hk[:, :2] = -Hi[:, :2]
+    return h, Hi, Hk
+
+
+def range_only(xi: np.ndarray, pk: np.ndarray, target_dim: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Range [m] of ``k`` from ``i`` (slides eq. 4)."""
+    h, Hi, Hk = range_bearing(xi, pk, target_dim)
+    return h[:1], Hi[:1], Hk[:1]
+
+
+def bearing_only(xi: np.ndarray, pk: np.ndarray, target_dim: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bearing [rad] of ``k`` in ``i``'s frame (slides eq. 3)."""
+    h, Hi, Hk = range_bearing(xi, pk, target_dim)
+    return h[1:], Hi[1:], Hk[1:]
+
+
+MODELS = {"pose": relative_pose, "range_bearing": range_bearing, "range": range_only, "bearing": bearing_only}
+ANGULAR = {"pose": (False, False, True), "range_bearing": (False, True), "range": (False,), "bearing": (True,)}
+"""Which components of each measurement kind are angles (residuals wrapped)."""
+
+
+def predict(kind: str, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dispatch on the measurement kind; ``xk`` of length 2 is a landmark, 3 a robot."""
+    if kind == "pose":
+        if len(xk) != 3:
+            raise ValueError("relative pose measurements need a robot target (x, y, theta)")
+        return relative_pose(xi, xk)
+    if kind not in MODELS:
+        raise ValueError(f"unknown measurement kind {kind!r}; expected one of {sorted(MODELS)}")
+    return MODELS[kind](xi, xk, len(xk))
+
+
+def residual(kind: str, z: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """``z - h`` with angular components wrapped."""
+    r = np.asarray(z, dtype=float) - h
+    for j, ang in enumerate(ANGULAR[kind]):
+        if ang:
+            r[j] = wrap(r[j])
+    return r
+
+
+def pose_noise_to_cartesian(z: np.ndarray, cov_exp: np.ndarray) -> np.ndarray:
+    """Covariance of a measured relative pose ``z = (x, y, theta)`` in Cartesian coordinates (first order).
+
+    Pose measurements carry noise as ``m = m_true exp(n)`` (right perturbation, ``n ~ N(0, cov_exp)``), so
+    ``d(x, y) = R(theta_z) d(v1, v2)`` and ``d theta = d alpha``.
+    """
+    B = np.eye(3)
+    c, s = np.cos(z[2]), np.sin(z[2])
+    B[:2, :2] = [[c, -s], [s, c]]
+    return B @ cov_exp @ B.T
