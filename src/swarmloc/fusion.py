@@ -33,6 +33,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from swarmloc.gaussian import GroupGaussian, check_covariance, convolution_F
+from swarmloc.lie import SE2
 from swarmloc.lie.base import SEGroup
 
 _T = np.swapaxes
@@ -186,3 +187,104 @@ def fuse_absolute(
     Ws = np.stack([o.cov for o in observations], axis=-3)
     mu, cov = fuse_pseudo(prior.group, prior.mean, prior.cov, nus, Ws, order, iterations)
     return GroupGaussian(prior.group, mu, cov, validate=False)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Partial measurements (range, bearing, range-bearing) of a robot or a landmark, on SE(2)
+
+_J2 = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+
+def _dz_dq(kind: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted measurement and its Jacobian w.r.t. the target's position ``q`` in the observer's frame."""
+    r2 = float(q @ q)
+    r = np.sqrt(r2)
+    rng = np.array([r])
+    brg = np.array([np.arctan2(q[1], q[0])])
+    d_r = np.array([[q[0] / r, q[1] / r]])
+    d_b = np.array([[-q[1] / r2, q[0] / r2]])
+    if kind == "range_bearing":
+        return np.concatenate([rng, brg]), np.vstack([d_r, d_b])
+    if kind == "range":
+        return rng, d_r
+    if kind == "bearing":
+        return brg, d_b
+    raise ValueError(f"unknown partial measurement kind {kind!r}")
+
+
+def point_measurement_model(
+    kind: str,
+    mu_i: np.ndarray,
+    target_mean: np.ndarray,
+    target_cov: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Range/bearing of a target seen from pose ``mu_i``, linearized on SE(2).
+
+    ``target_mean`` is either a pose (3x3, a robot with exponential-coordinate covariance ``target_cov`` 3x3) or a
+    world point (2,) with Cartesian covariance (2x2). The observer is perturbed on the right, ``g_i = mu_i exp(y)``;
+    the target's position in the observer's frame is ``q = exp(-y) mu_i^-1 p``, so ``dq/dy = -[I, J q]`` with
+    ``J = [[0, -1], [1, 0]]``; a robot target ``g_k = mu_k exp(y_k)`` moves ``q`` by ``R(mu_i^-1 mu_k) v_k``.
+    Returns ``(h, H, C)``: prediction, Jacobian w.r.t. ``y`` and the covariance the target's uncertainty adds.
+    """
+    R_iT = mu_i[:2, :2].T
+    if target_mean.shape == (3, 3):
+        rel = SE2.inverse(mu_i, validate=False) @ target_mean
+        q = rel[:2, 2]
+        dq_dt = np.hstack([rel[:2, :2], np.zeros((2, 1))])  # w.r.t. y_k
+    else:
+        q = R_iT @ (np.asarray(target_mean, float) - mu_i[:2, 2])
+        dq_dt = R_iT
+    h, dz = _dz_dq(kind, q)
+    H = dz @ -np.hstack([np.eye(2), (_J2 @ q)[:, None]])
+    Ht = dz @ dq_dt
+    return h, H, Ht @ target_cov @ Ht.T
+
+
+def _wrap_residual(kind: str, r: np.ndarray) -> np.ndarray:
+    idx = {"range_bearing": [1], "bearing": [0], "range": []}[kind]
+    r = r.copy()
+    for j in idx:
+        r[j] = np.pi - np.mod(np.pi - r[j], 2 * np.pi)
+    return r
+
+
+def fuse_point_measurement(
+    mu: np.ndarray,
+    cov: np.ndarray,
+    kind: str,
+    z: np.ndarray,
+    R: np.ndarray,
+    target_mean: np.ndarray,
+    target_cov: np.ndarray,
+    iterations: int = 3,
+    order: int = 2,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Update an SE(2) belief with a range/bearing measurement of an uncertain robot or landmark.
+
+    Iterated (Gauss-Newton) update on the group: at the current estimate ``mu_c = mu exp(x0)``-style point,
+    minimize ``|x0 + Gamma(x0) d|^2_{Sigma^-1} + |r - H d|^2_{S^-1}`` with ``S = C + R`` (target uncertainty
+    ``C`` from :func:`point_measurement_model` plus noise), step ``mu_c <- mu_c exp(d)``. One iteration is the
+    EKF update on the group; the posterior covariance is re-centred with ``Gamma(d)`` (second order) as in
+    :func:`fuse_pseudo`. ``order=1`` uses ``Gamma = I``.
+    """
+    cov_inv = np.linalg.inv(cov)
+    cur = mu
+    d = np.zeros(3)
+    info = cov_inv
+    for it in range(max(1, iterations)):
+        h, H, C = point_measurement_model(kind, cur, target_mean, target_cov)
+        Sinv = np.linalg.inv(C + R)
+        r = _wrap_residual(kind, np.asarray(z, float) - h)
+        if it == 0:
+            G0 = np.eye(3)
+            x0 = np.zeros(3)
+        else:
+            x0 = SE2.log(SE2.inverse(mu, validate=False) @ cur, validate=False)
+            G0 = _gamma(SE2, x0, order)
+        G0tP = G0.T @ cov_inv
+        info = G0tP @ G0 + H.T @ Sinv @ H
+        d = np.linalg.solve(info, H.T @ Sinv @ r - G0tP @ x0)
+        cur = cur @ SE2.exp(d, validate=False)
+    Gd = _gamma(SE2, -d, order)  # mu_c exp(d + y) = mu_c exp(d) exp(Jr(d) y), Jr(d) ~ I - ad(d)/2
+    post = Gd @ np.linalg.inv(info) @ Gd.T
+    return cur, 0.5 * (post + post.T)

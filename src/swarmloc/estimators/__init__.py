@@ -2,6 +2,7 @@
 the distributed EKF, the centralized CL-EKF and consistent distributed fusion."""
 
 from swarmloc.estimators.base import CallbackChannel, Channel, Estimator, NoChannel
+from swarmloc.estimators.consistent import ExpCI, RecursiveDecentralized
 from swarmloc.estimators.ekf import CentralizedEKF, DistributedEKF
 from swarmloc.estimators.expfusion import DeadReckoning, ExpFusion
 
@@ -12,6 +13,19 @@ __all__ = [
     "DeadReckoning",
     "DistributedEKF",
     "Estimator",
+    "ExpCI",
     "ExpFusion",
+    "RecursiveDecentralized",
     "NoChannel",
+    "ESTIMATORS",
 ]
+
+ESTIMATORS = {
+    "dr": DeadReckoning,
+    "expfusion": ExpFusion,
+    "dekf": DistributedEKF,
+    "cekf": CentralizedEKF,
+    "ci": ExpCI,
+    "rdl": RecursiveDecentralized,
+}
+"""Estimator classes by their command-line name."""

@@ -71,13 +71,24 @@ class CallbackChannel:
     reach into another node's state through it.
     """
 
-    def __init__(self, answer: Callable[[int, float], GroupGaussian | None]) -> None:
+    def __init__(
+        self,
+        answer: Callable[[int, float], GroupGaussian | None],
+        call: Callable[[int, float, str, dict], object] | None = None,
+    ) -> None:
         self._answer = answer
+        self._call = call
         self.requests = 0
 
     def belief_of(self, robot: int, t: float) -> GroupGaussian | None:
         self.requests += 1
         return self._answer(robot, t)
+
+    def call(self, robot: int, t: float, request: str, payload: dict) -> object:
+        """Generic request to ``robot``'s node (e.g. the pairwise exchange of recursive decentralized fusion);
+        ``None`` when nobody answers."""
+        self.requests += 1
+        return None if self._call is None else self._call(robot, t, request, payload)
 
 
 class Estimator:

@@ -106,7 +106,10 @@ class DistributedEKF(Estimator):
 
     def _target(self, robot: int, t: float, d: Detection, channel: Channel) -> tuple[np.ndarray, np.ndarray] | None:
         if d.target_is_robot:
-            if not self.use_relative or d.target == robot or d.target is None:
+            if not self.use_relative:
+                return None
+            if d.target == robot or d.target is None:
+                self.stats["rejected"] += 1
                 return None
             nb = channel.belief_of(d.target, t)
             if nb is None:
@@ -114,6 +117,9 @@ class DistributedEKF(Estimator):
                 return None
             return group_to_cartesian(nb)
         if not self.use_landmarks:
+            return None
+        if d.kind == "pose":  # a landmark is a point: it has no relative pose
+            self.stats["rejected"] += 1
             return None
         lm = landmark_state(self.landmarks, d.target)
         if lm is None:
@@ -228,6 +234,8 @@ class CentralizedEKF(Estimator):
                 if not self.use_relative or d.target == robot or d.target not in self._idx:
                     if d.target not in self._idx:
                         self.stats["unknown"] += 1
+                    elif d.target == robot:
+                        self.stats["rejected"] += 1
                     continue
                 k = self._idx[d.target]
                 h, Hi, Hk = models.predict(d.kind, xi, self._X[k : k + 3])
@@ -236,6 +244,9 @@ class CentralizedEKF(Estimator):
                 H[:, k : k + 3] = Hk
                 kind = d.kind
             else:
+                if self.use_landmarks and d.kind == "pose":  # a landmark is a point: it has no relative pose
+                    self.stats["rejected"] += 1
+                    continue
                 lm = landmark_state(self.landmarks, d.target) if self.use_landmarks else None
                 if lm is None:
                     if self.use_landmarks:

@@ -7,8 +7,9 @@ Each robot runs a node with a Gaussian on SE(2) ``(mu, Sigma)``.
   (:func:`swarmloc.motion.odometry_increment`, exact closed form rather than the Simpson rule 5.12).
 * Update (thesis 4.16-4.19 as corrected in :mod:`swarmloc.fusion`): all relative-pose detections a robot made at
   one instant are fused at once, each with the neighbour's belief obtained *from the neighbour* through the
-  channel; GPS-like absolute fixes are fused as direct observations of the pose. Measurements of kinds the
-  thesis estimator cannot use (range/bearing only) are handled by :class:`ExpFusion` subclasses that say so.
+  channel; GPS-like absolute fixes are fused as direct observations of the pose. Range/bearing detections of
+  robots and of landmarks with known position (which the thesis has no model for) are fused by an iterated
+  update on the group that includes the target's uncertainty (:func:`swarmloc.fusion.fuse_point_measurement`).
 
 The fusion assumes the neighbour's belief is independent of the robot's own. When two robots measure each other
 again and again this is false (their beliefs become correlated through earlier fusions) and the estimator
@@ -24,7 +25,7 @@ import numpy as np
 
 from swarmloc.estimators.base import Channel, Estimator, _rot_block
 from swarmloc.events import Detection
-from swarmloc.fusion import fuse_pseudo, relative_to_pseudo
+from swarmloc.fusion import fuse_point_measurement, fuse_pseudo, relative_to_pseudo
 from swarmloc.gaussian import GroupGaussian, check_covariance, convolve_moments
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise, odometry_increment
@@ -34,8 +35,11 @@ log = logging.getLogger(__name__)
 
 def validate_detection(d: Detection) -> str | None:
     """Return why a detection is unusable (None if it is fine)."""
-    z = np.asarray(d.z, dtype=float)
-    cov = np.asarray(d.cov, dtype=float)
+    try:
+        z = np.asarray(d.z, dtype=float)
+        cov = np.asarray(d.cov, dtype=float)
+    except (TypeError, ValueError) as exc:
+        return f"z or cov is not numeric: {exc}"
     want = {"pose": 3, "absolute": 3, "range_bearing": 2, "range": 1, "bearing": 1}.get(d.kind)
     if want is None:
         return f"unknown measurement kind {d.kind!r}"
@@ -87,12 +91,18 @@ class ExpFusion(Estimator):
         order: int = 2,
         iterations: int = 1,
         use_relative: bool = True,
+        landmarks: Mapping[int, tuple[float, float, float, float]] | None = None,
+        use_landmarks: bool = True,
+        point_iterations: int = 3,
     ) -> None:
         super().__init__(initial)
         self.noise = noise
         self.order = order
         self.iterations = iterations
         self.use_relative = use_relative
+        self.landmarks = landmarks
+        self.use_landmarks = use_landmarks
+        self.point_iterations = point_iterations
         self._nodes = {r: _Node(b) for r, b in initial.items()}
 
     # ------------------------------------------------------------------ protocol
@@ -159,9 +169,43 @@ class ExpFusion(Estimator):
             return False
         return relative_to_pseudo(SE2, nb.mean, nb.cov, SE2.from_xytheta(d.z), np.asarray(d.cov), self.order)
 
+    def _point_target(
+        self, robot: int, t: float, d: Detection, channel: Channel
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Target of a range/bearing detection: a neighbour's (mean 3x3, cov) or a landmark's (xy, cov 2x2)."""
+        if d.target_is_robot:
+            if not self.use_relative or d.target == robot or d.target is None:
+                return None
+            nb = channel.belief_of(d.target, t)
+            if nb is None:
+                self.stats["unknown"] += 1
+                return None
+            return np.asarray(nb.mean), np.asarray(nb.cov)
+        if not self.use_landmarks:
+            return None
+        if self.landmarks is None or d.target not in self.landmarks:
+            self.stats["unknown"] += 1
+            return None
+        lx, ly, sx, sy = self.landmarks[d.target]
+        return np.array([lx, ly], dtype=float), np.diag([sx * sx, sy * sy])
+
+    def _fuse_point(self, node: _Node, d: Detection, target: tuple[np.ndarray, np.ndarray]) -> None:
+        node.mean, node.cov = fuse_point_measurement(
+            node.mean, node.cov, d.kind, d.z, np.asarray(d.cov), target[0], target[1], self.point_iterations, self.order
+        )
+
     def _update_other(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
-        """Measurements the thesis estimator has no model for: ignored (subclasses add models)."""
-        self.stats["unknown"] += len(detections)
+        """Range/bearing detections of robots and landmarks: iterated update on the group, one at a time.
+
+        The thesis has no model for them; see :func:`swarmloc.fusion.fuse_point_measurement`.
+        """
+        node = self._nodes[robot]
+        for d in detections:
+            target = self._point_target(robot, t, d, channel)
+            if target is None:
+                continue
+            self._fuse_point(node, d, target)
+            self.stats["fused"] += 1
 
 
 class DeadReckoning(ExpFusion):
@@ -169,7 +213,7 @@ class DeadReckoning(ExpFusion):
 
     name = "dr"
 
-    def __init__(self, initial: Mapping[int, GroupGaussian], noise: UnicycleNoise, order: int = 2) -> None:
+    def __init__(self, initial: Mapping[int, GroupGaussian], noise: UnicycleNoise, order: int = 2, **_: object) -> None:
         super().__init__(initial, noise, order=order, use_relative=False)
 
     def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:

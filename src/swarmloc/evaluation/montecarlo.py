@@ -111,3 +111,53 @@ def importance_posterior(
             dy = y_i - y_mu
             q_mean, q_cov = y_mu, 1.5**2 * ((dy * w[:, None]).T @ dy)
     return mu, cov, ess
+
+
+def importance_posterior_point(
+    prior: GroupGaussian,
+    kind: str,
+    z: np.ndarray,
+    R: np.ndarray,
+    target: GroupGaussian | tuple[np.ndarray, np.ndarray],
+    n: int,
+    rng: np.random.Generator,
+    stages: int = 4,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Posterior of an SE(2) pose after a range/bearing measurement, by adaptive importance sampling.
+
+    ``target`` is a robot's belief (GroupGaussian) or a landmark ``(position (2,), covariance (2, 2))``. Each
+    draw samples the observer from the proposal and the target from its own belief; the weight is the prior
+    over proposal ratio times ``N(z - h; 0, R)`` with ``h`` computed from the sampled poses directly
+    (``R_i^T (p_k - t_i)``, ``atan2``), angles wrapped. No linearization anywhere.
+    """
+    from swarmloc.lie import SE2
+
+    d = 3
+    Rinv = np.linalg.inv(R)
+    q_mean, q_cov = np.zeros(d), prior.cov
+    for stage in range(max(1, stages)):
+        y_i = rng.multivariate_normal(q_mean, q_cov, size=n)
+        gi = prior.mean @ SE2.exp(y_i, validate=False)
+        if isinstance(target, GroupGaussian):
+            pk = target.sample(n, rng)[:, :2, 2]
+        else:
+            pk = rng.multivariate_normal(target[0], target[1], size=n)
+        dp = pk - gi[:, :2, 2]
+        q = np.einsum("nji,nj->ni", gi[:, :2, :2], dp)
+        rr = np.hypot(q[:, 0], q[:, 1])
+        bb = np.arctan2(q[:, 1], q[:, 0])
+        h = {"range_bearing": np.stack([rr, bb], 1), "range": rr[:, None], "bearing": bb[:, None]}[kind]
+        res = np.asarray(z, float) - h
+        if kind in ("range_bearing", "bearing"):
+            res[:, -1] = np.pi - np.mod(np.pi - res[:, -1], 2 * np.pi)
+        logw = _gauss_logpdf(y_i, prior.cov) - _gauss_logpdf(y_i - q_mean, q_cov)
+        logw -= 0.5 * np.einsum("ni,ij,nj->n", res, Rinv, res)
+        w = np.exp(logw - logw.max())
+        w /= w.sum()
+        ess = float(1.0 / (w**2).sum())
+        mu, cov = group_mean(SE2, gi, w, init=prior.mean)
+        if stage < stages - 1:
+            y_mu = SE2.log(SE2.inverse(prior.mean, validate=False) @ mu, validate=False)
+            dy = y_i - y_mu
+            q_mean, q_cov = y_mu, 1.5**2 * ((dy * w[:, None]).T @ dy) + 1e-12 * np.eye(d)
+    return mu, cov, ess

@@ -106,7 +106,14 @@ def run(
         advance(k, t)
         return estimator.shared_belief(k)
 
-    channel = CallbackChannel(answer)
+    def call(k: int, t: float, request: str, payload: dict) -> object:
+        handler = getattr(estimator, "handle", None)
+        if k not in robots or handler is None:
+            return None
+        advance(k, t)
+        return handler(k, request, payload)
+
+    channel = CallbackChannel(answer, call)
 
     rt = np.asarray(record_times, dtype=float) if record_times is not None else None
     rec_i = 0
@@ -146,7 +153,7 @@ def run(
             if pending and not (isinstance(e, Detection) and e.observer == pending[0].observer and e.t == pending[0].t):
                 flush()
             if rt is not None:
-                while rec_i < rt.size and rt[rec_i] <= e.t:
+                while rec_i < rt.size and rt[rec_i] < e.t:
                     record_grid(float(rt[rec_i]))
                     rec_i += 1
             if isinstance(e, Odometry):
@@ -154,7 +161,7 @@ def run(
                 if r not in robots:
                     stats["unknown_robot"] += 1
                     continue
-                if not (math.isfinite(e.v) and math.isfinite(e.w) and math.isfinite(e.t0) and e.t1 >= e.t0):
+                if not all(map(math.isfinite, (e.v, e.w, e.t0, e.t1))) or e.t1 < e.t0:
                     stats["bad_odometry"] += 1
                     continue
                 if clock[r] == -math.inf:
