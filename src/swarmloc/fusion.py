@@ -288,3 +288,24 @@ def fuse_point_measurement(
     Gd = _gamma(SE2, -d, order)  # mu_c exp(d + y) = mu_c exp(d) exp(Jr(d) y), Jr(d) ~ I - ad(d)/2
     post = Gd @ np.linalg.inv(info) @ Gd.T
     return cur, 0.5 * (post + post.T)
+
+
+def point_innovation(
+    mu: np.ndarray,
+    cov: np.ndarray,
+    kind: str,
+    z: np.ndarray,
+    R: np.ndarray,
+    target_mean: np.ndarray,
+    target_cov: np.ndarray,
+) -> float:
+    """Normalized innovation squared ``r^T (H Sigma H^T + C + R)^-1 r`` of a range/bearing measurement (gating)."""
+    h, H, C = point_measurement_model(kind, mu, target_mean, target_cov)
+    r = _wrap_residual(kind, np.asarray(z, float) - h)
+    return float(r @ np.linalg.solve(H @ cov @ H.T + C + R, r))
+
+
+def pseudo_innovation(mu: np.ndarray, cov: np.ndarray, nu: np.ndarray, W: np.ndarray) -> float:
+    """Normalized innovation squared of a pose pseudo-observation (first order), for gating."""
+    x = SE2.log(SE2.inverse(nu, validate=False) @ mu, validate=False)
+    return float(x @ np.linalg.solve(cov + W, x))

@@ -8,6 +8,8 @@ Protocol (driven identically by the simulator runner, the dataset runner and, la
   robots may only be obtained through ``channel.belief_of(k, t)`` (what ``k`` would send over the network);
 * ``belief(robot) -> GroupGaussian``: the current belief as a Gaussian on SE(2) in exponential coordinates
   (right perturbation), whatever the estimator's internal parametrization;
+* optional innovation gating (``gate``: a probability, e.g. 0.997): a measurement whose normalized innovation
+  squared exceeds the chi-square quantile is not fused (real data has outliers: wrong barcodes, occlusions);
 * ``shared_belief(robot) -> GroupGaussian``: what ``robot`` answers when a neighbour asks (defaults to its
   belief). A *distributed* estimator keeps one independent node per robot, and a node sees nothing of other
   nodes except what arrives through the channel.
@@ -19,6 +21,7 @@ Cartesian beliefs ``(x, y, theta), P`` are converted to and from exponential coo
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from functools import cache
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -26,6 +29,13 @@ import numpy as np
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
+
+
+@cache
+def _chi2_ppf(p: float, m: int) -> float:
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(p, m))
 
 
 def _rot_block(theta: float) -> np.ndarray:
@@ -100,14 +110,28 @@ class Estimator:
     name = "estimator"
     distributed = True
 
-    def __init__(self, initial: Mapping[int, GroupGaussian]) -> None:
+    def __init__(self, initial: Mapping[int, GroupGaussian], gate: float | None = None) -> None:
+        if gate is not None and not 0 < gate < 1:
+            raise ValueError(f"{type(self).__name__}: 'gate' must be a probability in (0, 1) or None, got {gate!r}")
+        self.gate = gate
         if not initial:
             raise ValueError(f"{type(self).__name__}: 'initial' must give at least one robot's belief")
         for r, b in initial.items():
             if not isinstance(b, GroupGaussian) or b.group is not SE2 or b.batch_shape:
                 raise ValueError(f"{type(self).__name__}: initial belief of robot {r} must be an SE(2) GroupGaussian")
         self.robots: list[int] = sorted(initial)
-        self.stats: dict[str, int] = {"predict": 0, "update": 0, "fused": 0, "rejected": 0, "unknown": 0}
+        self.stats: dict[str, int] = {
+            "predict": 0, "update": 0, "fused": 0, "rejected": 0, "unknown": 0, "gated": 0
+        }  # fmt: skip
+
+    def gated(self, nis: float, m: int) -> bool:
+        """True (and counted) when an innovation fails the chi-square gate of probability ``self.gate``."""
+        if self.gate is None or not np.isfinite(nis):
+            return self.gate is not None
+        if nis > _chi2_ppf(self.gate, m):
+            self.stats["gated"] += 1
+            return True
+        return False
 
     def _check_robot(self, robot: int) -> None:
         if robot not in self.robots:
@@ -124,3 +148,11 @@ class Estimator:
 
     def shared_belief(self, robot: int) -> GroupGaussian:
         return self.belief(robot)
+
+    def predicted_belief(self, robot: int, dt: float, v: float, w: float) -> GroupGaussian:
+        """Belief ``dt`` seconds ahead under odometry ``(v, w)``, *without* changing the filter.
+
+        Used to record on a time grid and to answer a neighbour's "belief at t" query between odometry readings,
+        so that neither depends on when it is asked.
+        """
+        raise NotImplementedError

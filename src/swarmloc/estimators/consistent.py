@@ -32,10 +32,16 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from swarmloc.estimators.base import Channel, Estimator, cartesian_to_group, group_to_cartesian
-from swarmloc.estimators.ekf import Landmarks, cartesian_increment, landmark_state, measurement_noise
+from swarmloc.estimators.ekf import Landmarks, _predicted, cartesian_increment, landmark_state, measurement_noise
 from swarmloc.estimators.expfusion import ExpFusion, _Node, validate_detection
 from swarmloc.events import Detection
-from swarmloc.fusion import fuse_point_measurement, fuse_pseudo, relative_to_pseudo
+from swarmloc.fusion import (
+    fuse_point_measurement,
+    fuse_pseudo,
+    point_innovation,
+    pseudo_innovation,
+    relative_to_pseudo,
+)
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
@@ -75,7 +81,9 @@ class ExpCI(ExpFusion):
                 pseudo = self._pseudo(robot, t, d, channel)
                 if pseudo is None:
                     self._update_other(robot, t, [d], channel)
-                elif pseudo is not False:
+                elif pseudo is not False and not self.gated(
+                    pseudo_innovation(node.mean, node.cov, pseudo[0], pseudo[1]), 3
+                ):
                     node.mean, node.cov = fuse_pseudo(
                         SE2, node.mean, node.cov, pseudo[0][None], pseudo[1][None], self.order, self.iterations
                     )
@@ -87,9 +95,21 @@ class ExpCI(ExpFusion):
             if nb is None:
                 self.stats["unknown"] += 1
                 continue
+            if self._ci_gated(node, d, nb):
+                continue
             self._ci_fuse(node, d, nb)
             self.stats["fused"] += 1
         self.stats["update"] += 1
+
+    def _ci_gated(self, node: _Node, d: Detection, nb: GroupGaussian) -> bool:
+        if self.gate is None:
+            return False
+        R = np.asarray(d.cov, dtype=float)
+        if d.kind == "pose":
+            nu, W = relative_to_pseudo(SE2, nb.mean, nb.cov, SE2.from_xytheta(d.z), R, self.order)
+            return self.gated(pseudo_innovation(node.mean, node.cov, nu, W), 3)
+        nis = point_innovation(node.mean, node.cov, d.kind, d.z, R, np.asarray(nb.mean), np.asarray(nb.cov))
+        return self.gated(nis, len(d.z))
 
     def _ci_fuse(self, node: _Node, d: Detection, nb: GroupGaussian) -> None:
         mu, cov = node.mean, node.cov
@@ -138,8 +158,9 @@ class RecursiveDecentralized(Estimator):
         landmarks: Landmarks | None = None,
         use_relative: bool = True,
         use_landmarks: bool = True,
+        gate: float | None = None,
     ) -> None:
-        super().__init__(initial)
+        super().__init__(initial, gate)
         self.noise = noise
         self.landmarks = landmarks
         self.use_relative = use_relative
@@ -166,6 +187,11 @@ class RecursiveDecentralized(Estimator):
         self._check_robot(robot)
         n = self._nodes[robot]
         return cartesian_to_group(n.x, n.P)
+
+    def predicted_belief(self, robot: int, dt: float, v: float, w: float) -> GroupGaussian:
+        self._check_robot(robot)
+        n = self._nodes[robot]
+        return _predicted(n.x, n.P, dt, v, w, self.noise)
 
     def handle(self, robot: int, request: str, payload: dict) -> object:
         """Answer a neighbour's request (the only way another node touches this one)."""
@@ -223,8 +249,10 @@ class RecursiveDecentralized(Estimator):
             P = np.block([[n.P, Pij], [Pij.T, Pjj]])
             H = np.hstack([Hi, Hj])
             S = H @ P @ H.T + R
-            K = P @ H.T @ np.linalg.inv(S)
             r = models.residual(d.kind, d.z, h)
+            if self.gated(float(r @ np.linalg.solve(S, r)), len(r)):
+                continue
+            K = P @ H.T @ np.linalg.inv(S)
             X = X + K @ r
             X[2], X[5] = models.wrap(X[2]), models.wrap(X[5])
             IKH = np.eye(6) - K @ H
@@ -250,8 +278,11 @@ class RecursiveDecentralized(Estimator):
             h, Hi, Hk = models.predict(d.kind, n.x, lm[0])
             extra, kind = Hk @ lm[1] @ Hk.T, d.kind
         S = Hi @ n.P @ Hi.T + extra + R
+        r = models.residual(kind, d.z, h)
+        if self.gated(float(r @ np.linalg.solve(S, r)), len(r)):
+            return
         K = n.P @ Hi.T @ np.linalg.inv(S)
-        x = n.x + K @ models.residual(kind, d.z, h)
+        x = n.x + K @ r
         x[2] = models.wrap(x[2])
         IKH = np.eye(3) - K @ Hi
         P = IKH @ n.P @ IKH.T + K @ (extra + R) @ K.T

@@ -53,6 +53,13 @@ def cartesian_increment(
     return new, Phi, B @ inc_cov @ B.T
 
 
+def _predicted(x: np.ndarray, P: np.ndarray, dt: float, v: float, w: float, noise: UnicycleNoise) -> GroupGaussian:
+    if dt <= 0:
+        return cartesian_to_group(x, P)
+    xn, Phi, Qd = cartesian_increment(x, v, w, dt, noise)
+    return cartesian_to_group(xn, Phi @ P @ Phi.T + Qd)
+
+
 def landmark_state(landmarks: Landmarks | None, lid: int | None) -> tuple[np.ndarray, np.ndarray] | None:
     if landmarks is None or lid is None or lid not in landmarks:
         return None
@@ -80,8 +87,9 @@ class DistributedEKF(Estimator):
         landmarks: Landmarks | None = None,
         use_relative: bool = True,
         use_landmarks: bool = True,
+        gate: float | None = None,
     ) -> None:
-        super().__init__(initial)
+        super().__init__(initial, gate)
         self.noise = noise
         self.landmarks = landmarks
         self.use_relative = use_relative
@@ -103,6 +111,10 @@ class DistributedEKF(Estimator):
     def belief(self, robot: int) -> GroupGaussian:
         self._check_robot(robot)
         return cartesian_to_group(self._x[robot], self._P[robot])
+
+    def predicted_belief(self, robot: int, dt: float, v: float, w: float) -> GroupGaussian:
+        self._check_robot(robot)
+        return _predicted(self._x[robot], self._P[robot], dt, v, w, self.noise)
 
     def _target(self, robot: int, t: float, d: Detection, channel: Channel) -> tuple[np.ndarray, np.ndarray] | None:
         if d.target_is_robot:
@@ -148,8 +160,10 @@ class DistributedEKF(Estimator):
                 kind = d.kind
             R = measurement_noise(d)
             S = Hi @ P @ Hi.T + extra + R
-            K = P @ Hi.T @ np.linalg.inv(S)
             r = models.residual(kind, d.z, h)
+            if self.gated(float(r @ np.linalg.solve(S, r)), len(r)):
+                continue
+            K = P @ Hi.T @ np.linalg.inv(S)
             xn = x + K @ r
             xn[2] = models.wrap(xn[2])
             IKH = np.eye(3) - K @ Hi
@@ -176,8 +190,9 @@ class CentralizedEKF(Estimator):
         landmarks: Landmarks | None = None,
         use_relative: bool = True,
         use_landmarks: bool = True,
+        gate: float | None = None,
     ) -> None:
-        super().__init__(initial)
+        super().__init__(initial, gate)
         self.noise = noise
         self.landmarks = landmarks
         self.use_relative = use_relative
@@ -208,6 +223,11 @@ class CentralizedEKF(Estimator):
         self._check_robot(robot)
         i = self._idx[robot]
         return cartesian_to_group(self._X[i : i + 3], self._P[i : i + 3, i : i + 3])
+
+    def predicted_belief(self, robot: int, dt: float, v: float, w: float) -> GroupGaussian:
+        self._check_robot(robot)
+        i = self._idx[robot]
+        return _predicted(self._X[i : i + 3], self._P[i : i + 3, i : i + 3], dt, v, w, self.noise)
 
     def joint_covariance(self) -> np.ndarray:
         """The full ``3n x 3n`` covariance (robots in sorted id order)."""
@@ -260,8 +280,10 @@ class CentralizedEKF(Estimator):
             R = measurement_noise(d) + extra
             PHt = self._P @ H.T
             S = H @ PHt + R
-            K = PHt @ np.linalg.inv(S)
             r = models.residual(kind, d.z, h)
+            if self.gated(float(r @ np.linalg.solve(S, r)), len(r)):
+                continue
+            K = PHt @ np.linalg.inv(S)
             self._X = self._X + K @ r
             for j in range(2, n, 3):
                 self._X[j] = models.wrap(self._X[j])

@@ -25,7 +25,13 @@ import numpy as np
 
 from swarmloc.estimators.base import Channel, Estimator, _rot_block
 from swarmloc.events import Detection
-from swarmloc.fusion import fuse_point_measurement, fuse_pseudo, relative_to_pseudo
+from swarmloc.fusion import (
+    fuse_point_measurement,
+    fuse_pseudo,
+    point_innovation,
+    pseudo_innovation,
+    relative_to_pseudo,
+)
 from swarmloc.gaussian import GroupGaussian, check_covariance, convolve_moments
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise, odometry_increment
@@ -94,8 +100,9 @@ class ExpFusion(Estimator):
         landmarks: Mapping[int, tuple[float, float, float, float]] | None = None,
         use_landmarks: bool = True,
         point_iterations: int = 3,
+        gate: float | None = None,
     ) -> None:
-        super().__init__(initial)
+        super().__init__(initial, gate)
         self.noise = noise
         self.order = order
         self.iterations = iterations
@@ -121,6 +128,15 @@ class ExpFusion(Estimator):
         self._check_robot(robot)
         return self._nodes[robot].belief()
 
+    def predicted_belief(self, robot: int, dt: float, v: float, w: float) -> GroupGaussian:
+        self._check_robot(robot)
+        node = self._nodes[robot]
+        if dt <= 0:
+            return node.belief()
+        inc_mean, inc_cov = odometry_increment(float(v), float(w), float(dt), self.noise)
+        mean, cov = convolve_moments(SE2, node.mean, node.cov, inc_mean, inc_cov, self.order)
+        return GroupGaussian(SE2, mean, cov, validate=False)
+
     def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
         self._check_robot(robot)
         node = self._nodes[robot]
@@ -137,6 +153,8 @@ class ExpFusion(Estimator):
             if pseudo is None:
                 rest.append(d)
             elif pseudo is not False:
+                if self.gated(pseudo_innovation(node.mean, node.cov, pseudo[0], pseudo[1]), 3):
+                    continue
                 nus.append(pseudo[0])
                 Ws.append(pseudo[1])
         if nus:
@@ -204,6 +222,9 @@ class ExpFusion(Estimator):
             target = self._point_target(robot, t, d, channel)
             if target is None:
                 continue
+            nis = point_innovation(node.mean, node.cov, d.kind, d.z, np.asarray(d.cov), target[0], target[1])
+            if self.gated(nis, len(d.z)):
+                continue
             self._fuse_point(node, d, target)
             self.stats["fused"] += 1
 
@@ -215,6 +236,7 @@ class DeadReckoning(ExpFusion):
 
     def __init__(self, initial: Mapping[int, GroupGaussian], noise: UnicycleNoise, order: int = 2, **_: object) -> None:
         super().__init__(initial, noise, order=order, use_relative=False)
+        # keyword arguments of the cooperative estimators (landmarks, gate, ...) are accepted and unused
 
     def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
         self._check_robot(robot)

@@ -6,7 +6,8 @@ Timing is causal. Each robot's filter has its own time and its last odometry com
   ``t0`` is bridged with the previous command; a part already extrapolated is not predicted twice).
 * Detections of one observer at one instant are handed to ``update`` together, after the observer has been
   brought to that instant with its last command (zero-order hold). A neighbour asked for its belief through the
-  channel is brought to the same instant the same way.
+  channel answers with its belief predicted to that instant (``Estimator.predicted_belief``) without moving its
+  own filter; recording on a time grid does the same, so results do not depend on when one looks.
 * ``Truth`` events (simulation) or a grid of record times with a truth function (datasets) trigger recording.
 
 Bad events (NaN odometry, unknown robot ids) are counted in ``RunResult.stats`` and skipped; they never stop
@@ -100,9 +101,21 @@ def run(
             stats["extrapolated"] += 1
             clock[r] = t
 
+    def peek(r: int, t: float) -> GroupGaussian:
+        """Belief of ``r`` at ``t`` without moving its filter (falls back to advancing it)."""
+        if clock[r] != -math.inf and t > clock[r]:
+            v, w = cmd[r]
+            try:
+                return estimator.predicted_belief(r, t - clock[r], v, w)
+            except NotImplementedError:
+                advance(r, t)
+        return estimator.belief(r)
+
     def answer(k: int, t: float) -> GroupGaussian | None:
         if k not in robots:
             return None
+        if clock[k] != -math.inf and t > clock[k] and type(estimator).shared_belief is Estimator.shared_belief:
+            return peek(k, t)
         advance(k, t)
         return estimator.shared_belief(k)
 
@@ -129,13 +142,11 @@ def run(
 
     def record_grid(t_rec: float) -> None:
         for r in sorted(robots):
-            advance(r, t_rec)
-        for r in sorted(robots):
             try:
                 tr = truth(r, np.array([t_rec]))[0] if truth is not None else np.full(3, np.nan)
             except ValueError:
                 continue  # no truth at this time for this robot
-            rec.add(r, t_rec, estimator.belief(r), tr)
+            rec.add(r, t_rec, peek(r, t_rec), tr)
             stats["recorded"] += 1
 
     bar = None
