@@ -14,8 +14,10 @@ from swarmloc.estimators import (
     DeadReckoning,
     DistributedEKF,
     Estimator,
+    ExpCI,
     ExpFusion,
     NoChannel,
+    RecursiveDecentralized,
 )
 from swarmloc.evaluation.metrics import evaluate, wrap
 from swarmloc.events import Detection
@@ -33,9 +35,11 @@ MAKERS: dict[str, Callable[..., Estimator]] = {
     "expfusion2": lambda init, noise, **kw: ExpFusion(init, noise, order=2),
     "dekf": lambda init, noise, **kw: DistributedEKF(init, noise, **kw),
     "cekf": lambda init, noise, **kw: CentralizedEKF(init, noise, **kw),
+    "ci": lambda init, noise, **kw: ExpCI(init, noise, **kw),
+    "rdl": lambda init, noise, **kw: RecursiveDecentralized(init, noise, **kw),
 }
 COOPERATIVE = [k for k in MAKERS if k != "dr"]
-DISTRIBUTED = {"expfusion1": MAKERS["expfusion1"], "expfusion2": MAKERS["expfusion2"], "dekf": MAKERS["dekf"]}
+DISTRIBUTED = {k: MAKERS[k] for k in ("expfusion1", "expfusion2", "dekf", "ci")}
 
 
 @pytest.fixture(autouse=True)
@@ -138,13 +142,22 @@ def test_relative_poses_correct_an_initial_error(name: str, tiny_noise_team):
 class _RecordingChannel:
     """Answers from its own table (not from the estimator) and records every request."""
 
-    def __init__(self, table: dict[int, GroupGaussian | None]) -> None:
+    def __init__(self, table: dict[int, GroupGaussian | None], est: Estimator | None = None) -> None:
         self.table = table
+        self.est = est
         self.requests: list[tuple[int, float]] = []
 
     def belief_of(self, robot: int, t: float) -> GroupGaussian | None:
         self.requests.append((robot, t))
         return self.table.get(robot)
+
+    def call(self, robot: int, t: float, request: str, payload: dict) -> object:
+        """Pairwise exchange (recursive decentralized fusion): forwarded to the node's handler, as the runner does."""
+        self.requests.append((robot, t))
+        handle = getattr(self.est, "handle", None)
+        if handle is None or robot not in self.table:
+            return None
+        return handle(robot, request, payload)
 
 
 class _ExplodingChannel:
@@ -270,7 +283,7 @@ def _bad_setup(name: str) -> Estimator:
 
 def _runner_like_channel(est: Estimator) -> _RecordingChannel:
     """What the runner answers: the neighbour's belief for a known robot, None for an unknown one."""
-    return _RecordingChannel({r: est.belief(r) for r in est.robots})
+    return _RecordingChannel({r: est.belief(r) for r in est.robots}, est)
 
 
 @pytest.mark.parametrize("name", list(MAKERS))
@@ -352,3 +365,39 @@ def test_centralized_ekf_is_not_overconfident(thesis_runs):
     rmse_c = np.mean([s["pos_rmse"] for s in thesis_runs["cekf"]])
     rmse_d = np.mean([s["pos_rmse"] for s in thesis_runs["dr"]])
     assert rmse_c < 0.5 * rmse_d, (rmse_c, rmse_d)
+
+
+def test_recursive_decentralized_uses_only_the_pair_exchange():
+    """RDL reads a neighbour only through channel.call: a lying reply must be believed, a silent one ignored."""
+    init = {0: GroupGaussian(SE2, SE2.from_xytheta([0, 0, 0]), 0.01 * np.eye(3)),
+            1: GroupGaussian(SE2, SE2.from_xytheta([1, 0, 0]), 1e-4 * np.eye(3))}  # fmt: skip
+    z = np.array([1.0, 0.0, 0.0])
+    det = Detection(0, 1.0, "pose", z, 1e-4 * np.eye(3), target=1)
+
+    class Lying:
+        def belief_of(self, robot, t):
+            return None
+
+        def call(self, robot, t, request, payload):
+            if request == "rdl_state":
+                return np.array([1.3, 0.2, 0.0]), 1e-4 * np.eye(3), np.zeros((3, 3))
+            return True
+
+    est = RecursiveDecentralized(init, TINY_Q)
+    est.update(0, 1.0, [det], Lying())
+    x0 = SE2.to_xytheta(est.belief(0).mean)
+    # the observer moved toward (1.3, 0.2) - z = (0.3, 0.2), i.e. toward what the channel said, not robot 1's state
+    assert x0[0] > 0.25 and x0[1] > 0.15
+    np.testing.assert_array_equal(est.belief(1).mean, init[1].mean)  # robot 1's node untouched by the observer
+
+    class Silent:
+        def belief_of(self, robot, t):
+            return None
+
+        def call(self, robot, t, request, payload):
+            return None
+
+    est2 = RecursiveDecentralized(init, TINY_Q)
+    est2.update(0, 1.0, [det], Silent())
+    np.testing.assert_array_equal(est2.belief(0).mean, init[0].mean)
+    assert est2.stats["unknown"] == 1

@@ -37,7 +37,7 @@ def resolve_group(group: type[SEGroup] | str) -> type[SEGroup]:
     """Accept ``SE2``/``SE3`` classes or their names."""
     if isinstance(group, str):
         if group not in _GROUPS:
-            raise ValueError(f"unknown group {group!r}; use SE2 or SE3")
+            raise ValueError(f"argument 'group' must be SE2 or SE3 (class or name), got unknown name {group!r}")
         return _GROUPS[group]
     if isinstance(group, type) and issubclass(group, SEGroup) and group.dim > 0:
         return group

@@ -89,7 +89,10 @@ class ExpCI(ExpFusion):
                     )
                     self.stats["fused"] += 1
                 continue
-            if not self.use_relative or d.target == robot or d.target is None:
+            if d.target == robot or d.target is None:
+                self.stats["rejected"] += 1
+                continue
+            if not self.use_relative:
                 continue
             nb = channel.belief_of(d.target, t)
             if nb is None:
@@ -233,9 +236,16 @@ class RecursiveDecentralized(Estimator):
             if d.kind == "absolute" or not d.target_is_robot:
                 self._private_update(n, d, R)
                 continue
-            if not self.use_relative or d.target == robot or d.target not in n.sigma:
-                if d.target not in n.sigma and d.target != robot:
-                    self.stats["unknown"] += 1
+            if d.target == robot or d.target is None:
+                self.stats["rejected"] += 1
+                continue
+            if d.kind == "pose" and not d.target_is_robot:
+                self.stats["rejected"] += 1
+                continue
+            if not self.use_relative:
+                continue
+            if d.target not in n.sigma:
+                self.stats["unknown"] += 1
                 continue
             call = getattr(channel, "call", None)
             reply = call(d.target, t, "rdl_state", {"from": robot}) if call is not None else None

@@ -7,7 +7,14 @@ Models (fixed a priori, not fitted to any dataset's ground truth; change them wi
 * odometry: the logged *commanded* ``(v, w)`` drive a unicycle with body-twist diffusion
   ``q_fwd = 1e-4 + 0.05 v^2`` [m^2/s], ``q_lat = 1e-4 + 0.01 |v|``, ``q_yaw = 1e-3 + 0.05 w^2 + 0.02 |v|``
   [rad^2/s] (a 1 cm/sqrt(s) and 0.03 rad/sqrt(s) floor, about 20% speed error, slip growing with distance);
-* camera: range std 0.1 m, bearing std 0.035 rad (2 deg); landmark positions with their listed std;
+* camera: range std 0.3 m, bearing std 0.035 rad (2 deg); landmark positions with their listed std. On
+  dataset 6 (the only one here with ground truth) the errors have a trimmed (98%) RMS of 0.15 m and 0.010 rad,
+  heavy tails (1% beyond 0.60 m / 0.042 rad), and are strongly correlated in time: the lag-1 correlation of
+  consecutive readings of the same target less than 1 s apart is 0.94 (range) and 0.65 (bearing)
+  (:func:`measurement_errors`, :func:`robust_std`). A filter that assumes white noise at the trimmed RMS
+  double counts these repeated, correlated readings and is over-confident (centralized EKF ANEES 7.3 with
+  range std 0.1 m), so the white-noise std is inflated to 0.3 m. This is a calibration on dataset 6's truth:
+  results on dataset 6 are therefore in-sample; other datasets use the same numbers;
 * outliers: every estimator rejects a measurement whose normalized innovation squared exceeds the 0.997
   chi-square quantile (``gate``); the camera's barcode readings have heavy tails;
 * initial beliefs: ground truth at the common start time with std 1 cm / 0.01 rad (as CoLo and the
@@ -23,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmloc.datasets.mrclam import DEFAULT_BEARING_STD, DEFAULT_RANGE_STD, MRCLAMData, load_mrclam, mrclam_events
+from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.estimators import ESTIMATORS
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.gaussian import GroupGaussian
@@ -31,6 +38,8 @@ from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sim.runner import RunResult, run
 
+RANGE_STD = 0.3
+BEARING_STD = 0.035
 MRCLAM_NOISE = UnicycleNoise(q_v0=1e-4, q_v2=0.05, q_lat0=1e-4, q_lat1=0.01, q_w0=1e-3, q_w2=0.05, q_wv=0.02)
 INITIAL_STD = (0.01, 0.01, 0.01)
 
@@ -44,6 +53,51 @@ def initial_beliefs(data: MRCLAMData) -> dict[int, GroupGaussian]:
         else:
             out[r] = GroupGaussian(SE2, SE2.identity(), np.diag([100.0, 100.0, 10.0]), validate=False)
     return out
+
+
+def measurement_errors(data: MRCLAMData) -> dict[str, np.ndarray]:
+    """Range and bearing errors of every detection against ground truth (robots and landmarks).
+
+    For calibrating the camera model on a dataset that has ground truth (``swarmloc`` uses it once, on
+    dataset 6, to choose its defaults; see the module docstring).
+    """
+    rng_e, brg_e, is_lm = [], [], []
+    for r in data.robots:
+        m = data.measurements[r]
+        m = m[(m[:, 0] >= data.t_start) & (m[:, 0] <= data.t_end)]
+        if m.size == 0:
+            continue
+        xi = data.truth_at(r, m[:, 0])
+        p = np.full((len(m), 2), np.nan)
+        subj = m[:, 1].astype(int)
+        for s in np.unique(subj):
+            sel = subj == s
+            if s in data.landmarks:
+                p[sel] = data.landmarks[s][:2]
+            elif s in data.robots:
+                p[sel] = data.truth_at(s, m[sel, 0])[:, :2]
+        ok = np.isfinite(p[:, 0])
+        dp = p[ok] - xi[ok, :2]
+        c, sn = np.cos(xi[ok, 2]), np.sin(xi[ok, 2])
+        qx, qy = c * dp[:, 0] + sn * dp[:, 1], -sn * dp[:, 0] + c * dp[:, 1]
+        rng_e.append(m[ok, 2] - np.hypot(qx, qy))
+        brg_e.append(np.angle(np.exp(1j * (m[ok, 3] - np.arctan2(qy, qx)))))
+        is_lm.append(np.isin(subj[ok], list(data.landmarks)))
+    return {"range": np.concatenate(rng_e), "bearing": np.concatenate(brg_e), "landmark": np.concatenate(is_lm)}
+
+
+def robust_std(e: np.ndarray, keep: float = 0.98) -> dict[str, float]:
+    """Median, MAD-based std, plain std and the RMS of the central ``keep`` fraction of ``e``."""
+    med = float(np.median(e))
+    a = np.abs(e - med)
+    cut = np.quantile(a, keep)
+    return {
+        "median": med,
+        "mad_std": float(1.4826 * np.median(a)),
+        "std": float(np.std(e)),
+        "trimmed_rms": float(np.sqrt(np.mean((e[a <= cut] - med) ** 2))),
+        "p99_abs": float(np.quantile(a, 0.99)),
+    }
 
 
 def write_tum(path: Path, times: np.ndarray, xyt: np.ndarray) -> None:
@@ -114,8 +168,8 @@ def evaluate_mrclam(
     out_dir: str | Path | None = None,
     record_rate: float = 4.0,
     noise: UnicycleNoise = MRCLAM_NOISE,
-    range_std: float = DEFAULT_RANGE_STD,
-    bearing_std: float = DEFAULT_BEARING_STD,
+    range_std: float = RANGE_STD,
+    bearing_std: float = BEARING_STD,
     gate: float | None = 0.997,
     progress: bool = False,
 ) -> dict:
