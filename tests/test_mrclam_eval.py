@@ -1,0 +1,97 @@
+"""`swarmloc evaluate mrclam` on the real data: metrics, JSON, TUM files, and clear errors on every folder."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from swarmloc.cli import main
+from swarmloc.experiments.mrclam import evaluate_mrclam
+
+ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
+DS6 = ROOT / "MRCLAM_Dataset6"
+needs_data = pytest.mark.skipif(not DS6.is_dir(), reason=f"MRCLAM data not found at {ROOT} (set SWARMLOC_MRCLAM)")
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory) -> tuple[dict, Path]:
+    if not DS6.is_dir():
+        pytest.skip(f"MRCLAM data not found at {ROOT}")
+    out = tmp_path_factory.mktemp("mrclam")
+    return evaluate_mrclam(DS6, duration=90, out_dir=out), out
+
+
+@needs_data
+def test_every_estimator_reported_with_metrics(report):
+    rep, out = report
+    assert set(rep["estimators"]) == {"dr", "dekf", "cekf", "expfusion", "ci", "rdl"}
+    for ev in rep["estimators"].values():
+        t = ev["team"]
+        assert t["n"] > 1000 and np.isfinite(t["pos_rmse"]) and np.isfinite(t["anees"])
+        assert set(ev["robots"]) == {"1", "2", "3", "4", "5"}
+    saved = json.loads((out / "mrclam.json").read_text())
+    assert saved["estimators"]["cekf"]["team"]["pos_rmse"] == pytest.approx(
+        rep["estimators"]["cekf"]["team"]["pos_rmse"]
+    )
+    assert (out / "trajectories.png").stat().st_size > 10_000
+
+
+@needs_data
+def test_cooperation_beats_dead_reckoning_on_real_data(report):
+    rep, _ = report
+    rmse = {k: v["team"]["pos_rmse"] for k, v in rep["estimators"].items()}
+    for name in ("dekf", "cekf", "expfusion", "ci", "rdl"):
+        assert rmse[name] < 0.8 * rmse["dr"], rmse
+    # the correlation-tracking estimators are the best two and close to each other
+    assert max(rmse["cekf"], rmse["rdl"]) < min(rmse["dekf"], rmse["expfusion"], rmse["ci"]), rmse
+    assert rmse["rdl"] < 1.2 * rmse["cekf"], rmse
+
+
+@needs_data
+def test_tum_files_are_evo_readable(report):
+    _, out = report
+    f = out / "tum" / "rdl_robot3.tum"
+    rows = np.loadtxt(f, comments="#")
+    assert rows.shape[1] == 8
+    assert np.all(np.diff(rows[:, 0]) > 0)  # strictly increasing stamps
+    np.testing.assert_allclose(np.linalg.norm(rows[:, 4:], axis=1), 1.0, atol=1e-6)  # unit quaternions
+    gt = np.loadtxt(out / "tum" / "groundtruth_robot3.tum", comments="#")
+    assert gt.shape == rows.shape
+
+
+@needs_data
+def test_cli_json_on_stdout(capsys):
+    rc = main(["evaluate", "mrclam", str(DS6), "--estimators", "dr,rdl", "--duration", "20", "--json", "--quiet"])
+    assert rc == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert set(rep["estimators"]) == {"dr", "rdl"}
+
+
+@needs_data
+def test_cli_rejects_unknown_estimator(capsys):
+    rc = main(["evaluate", "mrclam", str(DS6), "--estimators", "dr,nope", "--duration", "5", "--quiet"])
+    assert rc == 2
+    assert "nope" in capsys.readouterr().err
+
+
+def test_cli_missing_folder_is_one_clear_line(tmp_path, capsys):
+    rc = main(["evaluate", "mrclam", str(tmp_path / "MRCLAM_Dataset42"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "MRCLAM_Dataset42" in err and "Traceback" not in err
+
+
+@pytest.mark.skipif(not ROOT.is_dir(), reason=f"MRCLAM data not found at {ROOT}")
+@pytest.mark.parametrize("folder", sorted(p.name for p in ROOT.glob("MRCLAM_Dataset*")) if ROOT.is_dir() else [])
+def test_every_shared_folder_evaluates_or_says_why(folder: str, capsys):
+    """Folders lacking odometry or ground truth give a one-line reason (exit 2); dataset 6 runs."""
+    rc = main(["evaluate", "mrclam", str(ROOT / folder), "--estimators", "dr,cekf", "--duration", "3", "--quiet"])
+    err = capsys.readouterr().err
+    if rc == 0:
+        assert folder == "MRCLAM_Dataset6"
+    else:
+        assert rc == 2 and err.count("\n") == 1 and ("odometry" in err.lower() or "truth" in err.lower()), err
