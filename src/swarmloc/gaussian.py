@@ -214,7 +214,10 @@ class GroupGaussian:
         return GroupGaussian(self.group, mu, cov, validate=False)
 
     def inverse(self) -> GroupGaussian:
-        """Law of ``g^-1`` to first order: mean ``mu^-1``, covariance ``Ad(mu) Sigma Ad(mu)^T``."""
+        """Law of ``g^-1``: mean ``mu^-1``, covariance ``Ad(mu) Sigma Ad(mu)^T``.
+
+        Exact for the right perturbation: ``(mu exp(y))^-1 = mu^-1 exp(-Ad(mu) y)``.
+        """
         Ad = self.group.Ad(self.mean, validate=False)
         return GroupGaussian(
             self.group, self.group.inverse(self.mean, validate=False), Ad @ self.cov @ np.swapaxes(Ad, -1, -2), False

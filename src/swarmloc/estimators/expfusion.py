@@ -240,3 +240,4 @@ class DeadReckoning(ExpFusion):
 
     def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
         self._check_robot(robot)
+        self.stats["update"] += 1

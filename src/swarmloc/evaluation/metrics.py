@@ -78,8 +78,9 @@ def over_seeds(results: list[RunResult], robot: int) -> dict[str, np.ndarray]:
     """
     tracks = [r.tracks[robot] for r in results]
     n = min(t.times.size for t in tracks)
-    E = np.stack([errors(t)["pos"][:n] for t in tracks])
-    N = np.stack([errors(t)["nees"][:n] for t in tracks])
+    errs = [errors(t) for t in tracks]
+    E = np.stack([e["pos"][:n] for e in errs])
+    N = np.stack([e["nees"][:n] for e in errs])
     lo, hi = anees_bounds(len(results))
     return {
         "times": tracks[0].times[:n],
