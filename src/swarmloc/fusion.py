@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from swarmloc.gaussian import GroupGaussian, check_covariance, convolution_F
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.lie.base import SEGroup
 
 _T = np.swapaxes
@@ -244,7 +244,7 @@ def _wrap_residual(kind: str, r: np.ndarray) -> np.ndarray:
     idx = {"range_bearing": [1], "bearing": [0], "range": []}[kind]
     r = r.copy()
     for j in idx:
-        r[j] = np.pi - np.mod(np.pi - r[j], 2 * np.pi)
+        r[j] = wrap_angle(r[j])
     return r
 
 

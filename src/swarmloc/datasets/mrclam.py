@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from swarmloc.events import Detection, Event, Odometry
+from swarmloc.lie import wrap_angle
 
 __all__ = [
     "DEFAULT_BEARING_STD",
@@ -149,11 +150,6 @@ def _sort_by_time(path: Path, arr: np.ndarray, notes: list[str]) -> np.ndarray:
     return arr
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    """Wrap angles [rad] to ``(-pi, pi]``."""
-    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
-
-
 # ----------------------------------------------------------------------------------------------------------------
 # data container
 
@@ -224,7 +220,7 @@ class MRCLAMData:
         out = np.empty((tq.size, 3))
         out[:, 0] = np.interp(tq, gt[:, 0], gt[:, 1])
         out[:, 1] = np.interp(tq, gt[:, 0], gt[:, 2])
-        out[:, 2] = _wrap(np.interp(tq, gt[:, 0], theta))
+        out[:, 2] = wrap_angle(np.interp(tq, gt[:, 0], theta))
         return out
 
     def initial_pose(self, robot: int) -> np.ndarray:

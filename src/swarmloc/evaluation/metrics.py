@@ -12,13 +12,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from swarmloc.lie import SE2
+from swarmloc.lie import wrap_angle as wrap
 from swarmloc.sim.runner import RobotTrack, RunResult
 
 DOF = 3
-
-
-def wrap(a: np.ndarray) -> np.ndarray:
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)
 
 
 def errors(track: RobotTrack) -> dict[str, np.ndarray]:

@@ -130,7 +130,7 @@ def importance_posterior_point(
     over proposal ratio times ``N(z - h; 0, R)`` with ``h`` computed from the sampled poses directly
     (``R_i^T (p_k - t_i)``, ``atan2``), angles wrapped. No linearization anywhere.
     """
-    from swarmloc.lie import SE2
+    from swarmloc.lie import SE2, wrap_angle
 
     d = 3
     Rinv = np.linalg.inv(R)
@@ -149,7 +149,7 @@ def importance_posterior_point(
         h = {"range_bearing": np.stack([rr, bb], 1), "range": rr[:, None], "bearing": bb[:, None]}[kind]
         res = np.asarray(z, float) - h
         if kind in ("range_bearing", "bearing"):
-            res[:, -1] = np.pi - np.mod(np.pi - res[:, -1], 2 * np.pi)
+            res[:, -1] = wrap_angle(res[:, -1])
         logw = _gauss_logpdf(y_i, prior.cov) - _gauss_logpdf(y_i - q_mean, q_cov)
         logw -= 0.5 * np.einsum("ni,ij,nj->n", res, Rinv, res)
         w = np.exp(logw - logw.max())

@@ -44,7 +44,7 @@ import numpy as np
 from swarmloc.evaluation.montecarlo import group_mean, importance_posterior
 from swarmloc.fusion import fuse_relative
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import DiffDrive, euler_maruyama, increment_cov, increment_mean
 
 __all__ = [
@@ -161,17 +161,13 @@ def relative_measurements(truth: np.ndarray, cov: np.ndarray, rng: np.random.Gen
     return rel @ SE2.exp(noise, validate=False)
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return np.mod(a + np.pi, 2 * np.pi) - np.pi
-
-
 def pose_errors(g_true: np.ndarray, g_est: np.ndarray) -> dict[str, np.ndarray]:
     """``log``: ``|log(g_true^-1 g_est)|``; ``position`` [m]; ``heading`` [rad], wrapped, absolute. Batched."""
     x_t, x_e = SE2.to_xytheta(g_true), SE2.to_xytheta(g_est)
     return {
         "log": np.linalg.norm(SE2.log(SE2.inverse(g_true, validate=False) @ g_est, validate=False), axis=-1),
         "position": np.linalg.norm(x_t[..., :2] - x_e[..., :2], axis=-1),
-        "heading": np.abs(_wrap(x_t[..., 2] - x_e[..., 2])),
+        "heading": np.abs(wrap_angle(x_t[..., 2] - x_e[..., 2])),
     }
 
 
@@ -179,7 +175,7 @@ def deviation_510(g_true: np.ndarray, g_est: np.ndarray) -> np.ndarray:
     """Thesis eq. (5.10) with ``x = (x, y, theta)`` in the world frame, heading difference wrapped. Batched."""
     x_t, x_e = SE2.to_xytheta(g_true), SE2.to_xytheta(g_est)
     d = x_t - x_e
-    d[..., 2] = _wrap(d[..., 2])
+    d[..., 2] = wrap_angle(d[..., 2])
     return np.linalg.norm(d, axis=-1) / np.linalg.norm(x_t, axis=-1)
 
 

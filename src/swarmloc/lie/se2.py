@@ -16,6 +16,11 @@ from swarmloc.lie import _series as S
 from swarmloc.lie.base import SEGroup
 
 
+def wrap_angle(a: np.ndarray | float) -> np.ndarray:
+    """Wrap angles [rad] to (-pi, pi] (the convention of every angle swarmloc returns)."""
+    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)
+
+
 class SE2(SEGroup):
     """The planar special Euclidean group (batched numpy functions)."""
 

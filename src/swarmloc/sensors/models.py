@@ -13,10 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def wrap(a: np.ndarray | float) -> np.ndarray:
-    """Wrap angles to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)
+from swarmloc.lie import wrap_angle as wrap
 
 
 def _rel(xi: np.ndarray, pk: np.ndarray) -> tuple[float, float, float, float, float, float]:

@@ -41,17 +41,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from swarmloc.events import Detection, Event, Odometry, Truth
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion.diffdrive import DiffDrive
 from swarmloc.motion.sde import compose_exp_xyt
 from swarmloc.motion.unicycle import UnicycleNoise
 
 WheelCommand = Callable[[float], "tuple[float, float] | np.ndarray"]
-
-
-def wrap_angle(a: np.ndarray | float) -> np.ndarray:
-    """Wrap angles to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)
 
 
 @dataclass(frozen=True)
