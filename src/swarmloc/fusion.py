@@ -89,8 +89,6 @@ def fuse_pseudo(
     mu0 = mu
     cov_inv = np.linalg.inv(cov)
     cur = mu
-    S = cov_inv
-    xbar = np.zeros((*mu.shape[:-2], group.dim))
     for it in range(max(1, iterations)):
         # residuals of all observations (k) and, after the first pass, of the prior, at the current estimate
         x = group.log(group.inverse(nus, validate=False) @ cur[..., None, :, :], validate=False)  # (..., K, d)
