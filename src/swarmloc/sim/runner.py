@@ -140,14 +140,33 @@ def run(
         estimator.update(d0.observer, d0.t, list(pending), channel)
         pending.clear()
 
-    def record_grid(t_rec: float) -> None:
-        for r in sorted(robots):
+    # truth at every record time, one vectorized call per robot (falls back to one call per time when some
+    # times lie outside a robot's ground truth)
+    truth_table: dict[int, np.ndarray] = {}
+    if rt is not None and truth is not None:
+        for r in robots:
             try:
-                tr = truth(r, np.array([t_rec]))[0] if truth is not None else np.full(3, np.nan)
+                truth_table[r] = np.asarray(truth(r, rt), dtype=float)
             except ValueError:
-                continue  # no truth at this time for this robot
-            rec.add(r, t_rec, peek(r, t_rec), tr)
-            stats["recorded"] += 1
+                pass
+
+    def truth_at(r: int, i: int) -> np.ndarray | None:
+        if truth is None:
+            return np.full(3, np.nan)
+        if r in truth_table:
+            return truth_table[r][i]
+        try:
+            return np.asarray(truth(r, rt[i : i + 1]), dtype=float)[0]
+        except ValueError:
+            return None  # no truth at this time for this robot
+
+    def record_grid(i: int) -> None:
+        t_rec = float(rt[i])
+        for r in sorted(robots):
+            tr = truth_at(r, i)
+            if tr is not None:
+                rec.add(r, t_rec, peek(r, t_rec), tr)
+                stats["recorded"] += 1
 
     bar = None
     if progress:
@@ -165,7 +184,7 @@ def run(
                 flush()
             if rt is not None:
                 while rec_i < rt.size and rt[rec_i] < e.t:
-                    record_grid(float(rt[rec_i]))
+                    record_grid(rec_i)
                     rec_i += 1
             if isinstance(e, Odometry):
                 r = e.robot
@@ -199,7 +218,7 @@ def run(
         flush()
         if rt is not None:
             while rec_i < rt.size:
-                record_grid(float(rt[rec_i]))
+                record_grid(rec_i)
                 rec_i += 1
     finally:
         if bar is not None:
