@@ -18,9 +18,10 @@ After two robots have fused each other's information once, that is false, and re
   ``Sigma_il = sigma_il sigma_li^T``. Prediction updates only the robot's own factors (``sigma_il <- Phi_i
   sigma_il``); a relative measurement needs only the two robots involved, which exchange state, covariance and
   their factors and perform the joint EKF update exactly; the cross-covariances with all other robots are
-  updated approximately by ``Sigma_il+ = Sigma_ii+ Sigma_ii-^-1 Sigma_il-`` (Luft et al., eq. 22-24). It reaches
+  updated approximately by ``Sigma_il+ = Sigma_ii+ Sigma_ii-^-1 Sigma_il-`` (Luft et al.). It reaches
   close to the centralized EKF's accuracy while staying (approximately) consistent, with pairwise
-  communication only.
+  communication only. Measured on MRCLAM dataset 6 with landmarks: RMSE 0.143 m vs the centralized 0.134 m,
+  ANEES 1.37; without landmarks (team pose unobservable) the approximation fails: ANEES 24.8.
 """
 
 from __future__ import annotations
