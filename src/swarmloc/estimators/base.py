@@ -29,6 +29,7 @@ import numpy as np
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
+from swarmloc.motion import UnicycleNoise
 
 
 @cache
@@ -101,16 +102,46 @@ class CallbackChannel:
         return None if self._call is None else self._call(robot, t, request, payload)
 
 
+Landmarks = Mapping[int, tuple[float, float, float, float]]
+"""Landmark id -> (x, y, std_x, std_y) in metres."""
+
+
+def landmark_state(landmarks: Landmarks | None, lid: int | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """Position ``(2,)`` and covariance ``(2, 2)`` of a known landmark, or None."""
+    if landmarks is None or lid is None or lid not in landmarks:
+        return None
+    lx, ly, sx, sy = landmarks[lid]
+    return np.array([lx, ly], dtype=float), np.diag([sx * sx, sy * sy])
+
+
 class Estimator:
     """Base class with the protocol; subclasses override what they need.
 
-    Parameters common to all: ``initial``: each robot's initial belief (a :class:`GroupGaussian` on SE(2)).
+    Parameters common to all
+    ------------------------
+    initial: each robot's initial belief (a :class:`GroupGaussian` on SE(2)).
+    noise: process-noise model of the odometry (:class:`swarmloc.motion.UnicycleNoise`).
+    landmarks: known landmarks ``id -> (x, y, std_x, std_y)``.
+    use_relative, use_landmarks: whether detections of robots / of landmarks are fused.
+    gate: chi-square gate probability for innovations, or None.
     """
 
     name = "estimator"
     distributed = True
 
-    def __init__(self, initial: Mapping[int, GroupGaussian], gate: float | None = None) -> None:
+    def __init__(
+        self,
+        initial: Mapping[int, GroupGaussian],
+        noise: UnicycleNoise,
+        landmarks: Landmarks | None = None,
+        use_relative: bool = True,
+        use_landmarks: bool = True,
+        gate: float | None = None,
+    ) -> None:
+        self.noise = noise
+        self.landmarks = landmarks
+        self.use_relative = use_relative
+        self.use_landmarks = use_landmarks
         if gate is not None and not 0 < gate < 1:
             raise ValueError(f"{type(self).__name__}: 'gate' must be a probability in (0, 1) or None, got {gate!r}")
         self.gate = gate
@@ -123,6 +154,35 @@ class Estimator:
         self.stats: dict[str, int] = {
             "predict": 0, "update": 0, "fused": 0, "rejected": 0, "unknown": 0, "gated": 0
         }  # fmt: skip
+        self._init_state(initial)
+
+    def _init_state(self, initial: Mapping[int, GroupGaussian]) -> None:
+        """Build the estimator's own state from the initial beliefs (subclasses)."""
+
+    def resolve_target(
+        self, robot: int, t: float, d: Detection, channel: Channel
+    ) -> GroupGaussian | tuple[np.ndarray, np.ndarray] | None:
+        """What a detection is of: the neighbour's belief (asked through the channel) for a robot target,
+        ``(position, covariance)`` for a known landmark; None, counted in ``stats``, when it cannot be used."""
+        if d.target_is_robot:
+            if not self.use_relative:
+                return None
+            if d.target == robot or d.target is None:
+                self.stats["rejected"] += 1
+                return None
+            nb = channel.belief_of(d.target, t)
+            if nb is None:
+                self.stats["unknown"] += 1
+            return nb
+        if not self.use_landmarks:
+            return None
+        if d.kind == "pose":  # a landmark is a point: it has no relative pose
+            self.stats["rejected"] += 1
+            return None
+        lm = landmark_state(self.landmarks, d.target)
+        if lm is None:
+            self.stats["unknown"] += 1
+        return lm
 
     def gated(self, nis: float, m: int) -> bool:
         """True (and counted) when an innovation fails the chi-square gate of probability ``self.gate``."""

@@ -32,8 +32,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from swarmloc.estimators.base import Channel, Estimator, cartesian_to_group, group_to_cartesian
-from swarmloc.estimators.ekf import Landmarks, _predicted, cartesian_increment, landmark_state, measurement_noise
+from swarmloc.estimators.base import Channel, Estimator, cartesian_to_group, group_to_cartesian, landmark_state
+from swarmloc.estimators.ekf import _predicted, cartesian_increment, measurement_noise
 from swarmloc.estimators.expfusion import ExpFusion, _Node, validate_detection
 from swarmloc.events import Detection
 from swarmloc.fusion import (
@@ -45,7 +45,6 @@ from swarmloc.fusion import (
 )
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
-from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors import models
 
 log = logging.getLogger(__name__)
@@ -155,20 +154,7 @@ class RecursiveDecentralized(Estimator):
 
     name = "rdl"
 
-    def __init__(
-        self,
-        initial: Mapping[int, GroupGaussian],
-        noise: UnicycleNoise,
-        landmarks: Landmarks | None = None,
-        use_relative: bool = True,
-        use_landmarks: bool = True,
-        gate: float | None = None,
-    ) -> None:
-        super().__init__(initial, gate)
-        self.noise = noise
-        self.landmarks = landmarks
-        self.use_relative = use_relative
-        self.use_landmarks = use_landmarks
+    def _init_state(self, initial: Mapping[int, GroupGaussian]) -> None:
         self._nodes: dict[int, _RDLNode] = {}
         for r, b in initial.items():
             x, P = group_to_cartesian(b)

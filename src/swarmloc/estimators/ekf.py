@@ -24,7 +24,13 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from swarmloc.estimators.base import Channel, Estimator, cartesian_to_group, group_to_cartesian
+from swarmloc.estimators.base import (
+    Channel,
+    Estimator,
+    cartesian_to_group,
+    group_to_cartesian,
+    landmark_state,
+)
 from swarmloc.estimators.expfusion import validate_detection
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
@@ -32,9 +38,6 @@ from swarmloc.motion import UnicycleNoise, odometry_increment
 from swarmloc.sensors import models
 
 log = logging.getLogger(__name__)
-
-Landmarks = Mapping[int, tuple[float, float, float, float]]
-"""Landmark id -> (x, y, std_x, std_y) in metres."""
 
 
 def cartesian_increment(
@@ -60,13 +63,6 @@ def _predicted(x: np.ndarray, P: np.ndarray, dt: float, v: float, w: float, nois
     return cartesian_to_group(xn, Phi @ P @ Phi.T + Qd)
 
 
-def landmark_state(landmarks: Landmarks | None, lid: int | None) -> tuple[np.ndarray, np.ndarray] | None:
-    if landmarks is None or lid is None or lid not in landmarks:
-        return None
-    lx, ly, sx, sy = landmarks[lid]
-    return np.array([lx, ly], dtype=float), np.diag([sx * sx, sy * sy])
-
-
 def measurement_noise(d: Detection) -> np.ndarray:
     """Noise covariance of ``d.z`` in the coordinates the Cartesian models predict."""
     cov = np.asarray(d.cov, dtype=float)
@@ -80,20 +76,7 @@ class DistributedEKF(Estimator):
 
     name = "dekf"
 
-    def __init__(
-        self,
-        initial: Mapping[int, GroupGaussian],
-        noise: UnicycleNoise,
-        landmarks: Landmarks | None = None,
-        use_relative: bool = True,
-        use_landmarks: bool = True,
-        gate: float | None = None,
-    ) -> None:
-        super().__init__(initial, gate)
-        self.noise = noise
-        self.landmarks = landmarks
-        self.use_relative = use_relative
-        self.use_landmarks = use_landmarks
+    def _init_state(self, initial: Mapping[int, GroupGaussian]) -> None:
         self._x: dict[int, np.ndarray] = {}
         self._P: dict[int, np.ndarray] = {}
         for r, b in initial.items():
@@ -117,26 +100,8 @@ class DistributedEKF(Estimator):
         return _predicted(self._x[robot], self._P[robot], dt, v, w, self.noise)
 
     def _target(self, robot: int, t: float, d: Detection, channel: Channel) -> tuple[np.ndarray, np.ndarray] | None:
-        if d.target_is_robot:
-            if not self.use_relative:
-                return None
-            if d.target == robot or d.target is None:
-                self.stats["rejected"] += 1
-                return None
-            nb = channel.belief_of(d.target, t)
-            if nb is None:
-                self.stats["unknown"] += 1
-                return None
-            return group_to_cartesian(nb)
-        if not self.use_landmarks:
-            return None
-        if d.kind == "pose":  # a landmark is a point: it has no relative pose
-            self.stats["rejected"] += 1
-            return None
-        lm = landmark_state(self.landmarks, d.target)
-        if lm is None:
-            self.stats["unknown"] += 1
-        return lm
+        tgt = self.resolve_target(robot, t, d, channel)
+        return group_to_cartesian(tgt) if isinstance(tgt, GroupGaussian) else tgt
 
     def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
         self._check_robot(robot)
@@ -183,20 +148,7 @@ class CentralizedEKF(Estimator):
     name = "cekf"
     distributed = False
 
-    def __init__(
-        self,
-        initial: Mapping[int, GroupGaussian],
-        noise: UnicycleNoise,
-        landmarks: Landmarks | None = None,
-        use_relative: bool = True,
-        use_landmarks: bool = True,
-        gate: float | None = None,
-    ) -> None:
-        super().__init__(initial, gate)
-        self.noise = noise
-        self.landmarks = landmarks
-        self.use_relative = use_relative
-        self.use_landmarks = use_landmarks
+    def _init_state(self, initial: Mapping[int, GroupGaussian]) -> None:
         self._idx = {r: 3 * i for i, r in enumerate(self.robots)}
         n = 3 * len(self.robots)
         self._X = np.zeros(n)

@@ -102,14 +102,12 @@ class ExpFusion(Estimator):
         point_iterations: int = 3,
         gate: float | None = None,
     ) -> None:
-        super().__init__(initial, gate)
-        self.noise = noise
         self.order = order
         self.iterations = iterations
-        self.use_relative = use_relative
-        self.landmarks = landmarks
-        self.use_landmarks = use_landmarks
         self.point_iterations = point_iterations
+        super().__init__(initial, noise, landmarks, use_relative, use_landmarks, gate)
+
+    def _init_state(self, initial: Mapping[int, GroupGaussian]) -> None:
         self._nodes = {r: _Node(b) for r, b in initial.items()}
 
     # ------------------------------------------------------------------ protocol
@@ -191,21 +189,8 @@ class ExpFusion(Estimator):
         self, robot: int, t: float, d: Detection, channel: Channel
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Target of a range/bearing detection: a neighbour's (mean 3x3, cov) or a landmark's (xy, cov 2x2)."""
-        if d.target_is_robot:
-            if not self.use_relative or d.target == robot or d.target is None:
-                return None
-            nb = channel.belief_of(d.target, t)
-            if nb is None:
-                self.stats["unknown"] += 1
-                return None
-            return np.asarray(nb.mean), np.asarray(nb.cov)
-        if not self.use_landmarks:
-            return None
-        if self.landmarks is None or d.target not in self.landmarks:
-            self.stats["unknown"] += 1
-            return None
-        lx, ly, sx, sy = self.landmarks[d.target]
-        return np.array([lx, ly], dtype=float), np.diag([sx * sx, sy * sy])
+        tgt = self.resolve_target(robot, t, d, channel)
+        return (np.asarray(tgt.mean), np.asarray(tgt.cov)) if isinstance(tgt, GroupGaussian) else tgt
 
     def _fuse_point(self, node: _Node, d: Detection, target: tuple[np.ndarray, np.ndarray]) -> None:
         node.mean, node.cov = fuse_point_measurement(
