@@ -20,16 +20,19 @@ Cartesian beliefs ``(x, y, theta), P`` are converted to and from exponential coo
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+import logging
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from functools import cache
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from swarmloc.events import Detection
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, check_covariance
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
+
+log = logging.getLogger(__name__)
 
 
 @cache
@@ -57,6 +60,29 @@ def group_to_cartesian(b: GroupGaussian) -> tuple[np.ndarray, np.ndarray]:
     x = SE2.to_xytheta(b.mean)
     B = _rot_block(x[2])
     return x, B @ b.cov @ B.T
+
+
+def validate_detection(d: Detection) -> str | None:
+    """Return why a detection is unusable (None if it is fine)."""
+    try:
+        z = np.asarray(d.z, dtype=float)
+        cov = np.asarray(d.cov, dtype=float)
+    except (TypeError, ValueError) as exc:
+        return f"z or cov is not numeric: {exc}"
+    want = {"pose": 3, "absolute": 3, "range_bearing": 2, "range": 1, "bearing": 1}.get(d.kind)
+    if want is None:
+        return f"unknown measurement kind {d.kind!r}"
+    if z.shape != (want,):
+        return f"z has shape {z.shape}, expected ({want},) for kind {d.kind!r}"
+    if not np.isfinite(z).all():
+        return "z contains NaN or inf"
+    try:
+        check_covariance(cov, want, "detection", "cov")
+    except ValueError as exc:
+        return str(exc)
+    if d.kind in ("range_bearing", "range") and z[0] <= 0:
+        return f"range must be positive, got {z[0]}"
+    return None
 
 
 @runtime_checkable
@@ -158,6 +184,16 @@ class Estimator:
 
     def _init_state(self, initial: Mapping[int, GroupGaussian]) -> None:
         """Build the estimator's own state from the initial beliefs (subclasses)."""
+
+    def usable(self, robot: int, detections: Sequence[Detection]) -> Iterator[Detection]:
+        """The detections that pass :func:`validate_detection`; the others are counted and logged, never raised."""
+        for d in detections:
+            why = validate_detection(d)
+            if why is None:
+                yield d
+            else:
+                self.stats["rejected"] += 1
+                log.warning("robot %s: detection at t=%.3f rejected: %s", robot, d.t, why)
 
     def resolve_target(
         self, robot: int, t: float, d: Detection, channel: Channel

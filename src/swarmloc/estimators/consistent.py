@@ -26,7 +26,6 @@ After two robots have fused each other's information once, that is false, and re
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -34,7 +33,7 @@ from scipy.optimize import minimize_scalar
 
 from swarmloc.estimators.base import Channel, Estimator, cartesian_to_group, group_to_cartesian, landmark_state
 from swarmloc.estimators.ekf import _predicted, cartesian_increment, measurement_noise
-from swarmloc.estimators.expfusion import ExpFusion, _Node, validate_detection
+from swarmloc.estimators.expfusion import ExpFusion, _Node
 from swarmloc.events import Detection
 from swarmloc.fusion import (
     fuse_point_measurement,
@@ -46,8 +45,6 @@ from swarmloc.fusion import (
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.sensors import models
-
-log = logging.getLogger(__name__)
 
 _W_BOUNDS = (1e-3, 1 - 1e-3)
 
@@ -70,12 +67,7 @@ class ExpCI(ExpFusion):
     def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
         self._check_robot(robot)
         node = self._nodes[robot]
-        for d in detections:
-            why = validate_detection(d)
-            if why is not None:
-                self.stats["rejected"] += 1
-                log.warning("robot %s: detection at t=%.3f rejected: %s", robot, d.t, why)
-                continue
+        for d in self.usable(robot, detections):
             if d.kind == "absolute" or not d.target_is_robot:
                 # independent information: the usual update
                 pseudo = self._pseudo(robot, t, d, channel)
@@ -89,14 +81,8 @@ class ExpCI(ExpFusion):
                     )
                     self.stats["fused"] += 1
                 continue
-            if d.target == robot or d.target is None:
-                self.stats["rejected"] += 1
-                continue
-            if not self.use_relative:
-                continue
-            nb = channel.belief_of(d.target, t)
+            nb = self.resolve_target(robot, t, d, channel)
             if nb is None:
-                self.stats["unknown"] += 1
                 continue
             if self._ci_gated(node, d, nb):
                 continue
@@ -213,12 +199,7 @@ class RecursiveDecentralized(Estimator):
     def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
         self._check_robot(robot)
         n = self._nodes[robot]
-        for d in detections:
-            why = validate_detection(d)
-            if why is not None:
-                self.stats["rejected"] += 1
-                log.warning("robot %s: detection at t=%.3f rejected: %s", robot, d.t, why)
-                continue
+        for d in self.usable(robot, detections):
             R = measurement_noise(d)
             if d.kind == "absolute" or not d.target_is_robot:
                 self._private_update(n, d, R)

@@ -19,7 +19,6 @@ and is exact to first order.
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -31,13 +30,10 @@ from swarmloc.estimators.base import (
     group_to_cartesian,
     landmark_state,
 )
-from swarmloc.estimators.expfusion import validate_detection
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.motion import UnicycleNoise, odometry_increment
 from swarmloc.sensors import models
-
-log = logging.getLogger(__name__)
 
 
 def cartesian_increment(
@@ -105,12 +101,7 @@ class DistributedEKF(Estimator):
 
     def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
         self._check_robot(robot)
-        for d in detections:
-            why = validate_detection(d)
-            if why is not None:
-                self.stats["rejected"] += 1
-                log.warning("robot %s: detection at t=%.3f rejected: %s", robot, d.t, why)
-                continue
+        for d in self.usable(robot, detections):
             x, P = self._x[robot], self._P[robot]
             if d.kind == "absolute":
                 h, Hi, extra = x, np.eye(3), np.zeros((3, 3))
@@ -189,12 +180,7 @@ class CentralizedEKF(Estimator):
         self._check_robot(robot)
         i = self._idx[robot]
         n = self._X.size
-        for d in detections:
-            why = validate_detection(d)
-            if why is not None:
-                self.stats["rejected"] += 1
-                log.warning("robot %s: detection at t=%.3f rejected: %s", robot, d.t, why)
-                continue
+        for d in self.usable(robot, detections):
             xi = self._X[i : i + 3]
             extra = np.zeros((len(d.z), len(d.z)))
             if d.kind == "absolute":

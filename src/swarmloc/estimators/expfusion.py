@@ -18,7 +18,6 @@ becomes over-confident: the NEES shows it. :mod:`swarmloc.estimators.consistent`
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -32,34 +31,9 @@ from swarmloc.fusion import (
     pseudo_innovation,
     relative_to_pseudo,
 )
-from swarmloc.gaussian import GroupGaussian, check_covariance, convolve_moments
+from swarmloc.gaussian import GroupGaussian, convolve_moments
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise, odometry_increment
-
-log = logging.getLogger(__name__)
-
-
-def validate_detection(d: Detection) -> str | None:
-    """Return why a detection is unusable (None if it is fine)."""
-    try:
-        z = np.asarray(d.z, dtype=float)
-        cov = np.asarray(d.cov, dtype=float)
-    except (TypeError, ValueError) as exc:
-        return f"z or cov is not numeric: {exc}"
-    want = {"pose": 3, "absolute": 3, "range_bearing": 2, "range": 1, "bearing": 1}.get(d.kind)
-    if want is None:
-        return f"unknown measurement kind {d.kind!r}"
-    if z.shape != (want,):
-        return f"z has shape {z.shape}, expected ({want},) for kind {d.kind!r}"
-    if not np.isfinite(z).all():
-        return "z contains NaN or inf"
-    try:
-        check_covariance(cov, want, "detection", "cov")
-    except ValueError as exc:
-        return str(exc)
-    if d.kind in ("range_bearing", "range") and z[0] <= 0:
-        return f"range must be positive, got {z[0]}"
-    return None
 
 
 class _Node:
@@ -141,12 +115,7 @@ class ExpFusion(Estimator):
         nus: list[np.ndarray] = []
         Ws: list[np.ndarray] = []
         rest: list[Detection] = []
-        for d in detections:
-            why = validate_detection(d)
-            if why is not None:
-                self.stats["rejected"] += 1
-                log.warning("robot %s: detection at t=%.3f rejected: %s", robot, d.t, why)
-                continue
+        for d in self.usable(robot, detections):
             pseudo = self._pseudo(robot, t, d, channel)
             if pseudo is None:
                 rest.append(d)
@@ -174,14 +143,8 @@ class ExpFusion(Estimator):
             return SE2.from_xytheta(d.z), T @ d.cov @ T.T
         if d.kind != "pose" or not d.target_is_robot:
             return None
-        if not self.use_relative:
-            return False
-        if d.target == robot or d.target is None:
-            self.stats["rejected"] += 1
-            return False
-        nb = channel.belief_of(d.target, t)
+        nb = self.resolve_target(robot, t, d, channel)
         if nb is None:
-            self.stats["unknown"] += 1
             return False
         return relative_to_pseudo(SE2, nb.mean, nb.cov, SE2.from_xytheta(d.z), np.asarray(d.cov), self.order)
 
