@@ -220,11 +220,17 @@ class Estimator:
             self.stats["unknown"] += 1
         return lm
 
-    def gated(self, nis: float, m: int) -> bool:
-        """True (and counted) when an innovation fails the chi-square gate of probability ``self.gate``."""
-        if self.gate is None or not np.isfinite(nis):
-            return self.gate is not None
-        if nis > _chi2_ppf(self.gate, m):
+    def gated(self, nis: float | Callable[[], float], m: int) -> bool:
+        """True (and counted) when an innovation fails the chi-square gate of probability ``self.gate``.
+
+        ``nis`` may be a function computing the normalized innovation squared: it is not called without a gate.
+        """
+        if self.gate is None:
+            return False
+        value = nis() if callable(nis) else nis
+        if not np.isfinite(value):
+            return True
+        if value > _chi2_ppf(self.gate, m):
             self.stats["gated"] += 1
             return True
         return False

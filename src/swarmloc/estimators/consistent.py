@@ -27,6 +27,7 @@ After two robots have fused each other's information once, that is false, and re
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from functools import partial
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -74,7 +75,7 @@ class ExpCI(ExpFusion):
                 if pseudo is None:
                     self._update_other(robot, t, [d], channel)
                 elif pseudo is not False and not self.gated(
-                    pseudo_innovation(node.mean, node.cov, pseudo[0], pseudo[1]), 3
+                    partial(pseudo_innovation, node.mean, node.cov, pseudo[0], pseudo[1]), 3
                 ):
                     node.mean, node.cov = fuse_pseudo(
                         SE2, node.mean, node.cov, pseudo[0][None], pseudo[1][None], self.order, self.iterations

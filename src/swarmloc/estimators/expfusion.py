@@ -19,6 +19,7 @@ becomes over-confident: the NEES shows it. :mod:`swarmloc.estimators.consistent`
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from functools import partial
 
 import numpy as np
 
@@ -120,7 +121,7 @@ class ExpFusion(Estimator):
             if pseudo is None:
                 rest.append(d)
             elif pseudo is not False:
-                if self.gated(pseudo_innovation(node.mean, node.cov, pseudo[0], pseudo[1]), 3):
+                if self.gated(partial(pseudo_innovation, node.mean, node.cov, pseudo[0], pseudo[1]), 3):
                     continue
                 nus.append(pseudo[0])
                 Ws.append(pseudo[1])
@@ -170,7 +171,7 @@ class ExpFusion(Estimator):
             target = self._point_target(robot, t, d, channel)
             if target is None:
                 continue
-            nis = point_innovation(node.mean, node.cov, d.kind, d.z, np.asarray(d.cov), target[0], target[1])
+            nis = partial(point_innovation, node.mean, node.cov, d.kind, d.z, np.asarray(d.cov), *target)
             if self.gated(nis, len(d.z)):
                 continue
             self._fuse_point(node, d, target)
