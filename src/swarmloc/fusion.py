@@ -32,83 +32,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from swarmloc.gaussian import GroupGaussian, check_covariance, convolution_F
-from swarmloc.lie import SE2, wrap_angle
-from swarmloc.lie.base import SEGroup
-
-_T = np.swapaxes
-
-
-def _bvec(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return np.einsum("...ij,...j->...i", M, v)
-
-
-def _gamma(group: type[SEGroup], x: np.ndarray, order: int) -> np.ndarray:
-    eye = np.broadcast_to(np.eye(group.dim), (*x.shape[:-1], group.dim, group.dim))
-    if order == 1:
-        return eye
-    return eye + 0.5 * group.ad(x, validate=False)
-
-
-def relative_to_pseudo(
-    group: type[SEGroup],
-    mu_k: np.ndarray,
-    cov_k: np.ndarray,
-    m_ik: np.ndarray,
-    cov_ik: np.ndarray,
-    order: int = 2,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Turn a relative measurement of a neighbour into a Gaussian on the observer's own pose (steps 1-2).
-
-    Returns ``(nu, W)``: ``g_i ~ nu exp(N(0, W))``. Batched, no validation.
-    """
-    cov_c = cov_k + cov_ik
-    if order == 2:
-        cov_c = cov_c + convolution_F(group, cov_k, cov_ik)
-    Ad = group.Ad(m_ik, validate=False)
-    W = Ad @ cov_c @ _T(Ad, -1, -2)
-    nu = mu_k @ group.inverse(m_ik, validate=False)
-    return nu, 0.5 * (W + _T(W, -1, -2))
-
-
-def fuse_pseudo(
-    group: type[SEGroup],
-    mu: np.ndarray,
-    cov: np.ndarray,
-    nus: np.ndarray,
-    Ws: np.ndarray,
-    order: int = 2,
-    iterations: int = 1,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Fuse a prior ``(mu, cov)`` with ``K`` Gaussian observations ``(nus[..., k], Ws[..., k])`` of the same pose.
-
-    Shapes: ``mu (..., n+1, n+1)``, ``cov (..., d, d)``, ``nus (..., K, n+1, n+1)``, ``Ws (..., K, d, d)``.
-    Step 3 of the module docstring; batched over leading axes, no validation.
-    """
-    W_inv = np.linalg.inv(Ws)
-    mu0 = mu
-    cov_inv = np.linalg.inv(cov)
-    cur = mu
-    for it in range(max(1, iterations)):
-        # residuals of all observations (k) and, after the first pass, of the prior, at the current estimate
-        x = group.log(group.inverse(nus, validate=False) @ cur[..., None, :, :], validate=False)  # (..., K, d)
-        Gm = _gamma(group, x, order)
-        GtW = _T(Gm, -1, -2) @ W_inv
-        S = np.sum(GtW @ Gm, axis=-3)
-        b = np.sum(_bvec(GtW, x), axis=-2)
-        if it == 0:
-            S = S + cov_inv
-        else:
-            x0 = group.log(group.inverse(mu0, validate=False) @ cur, validate=False)
-            G0 = _gamma(group, x0, order)
-            G0tP = _T(G0, -1, -2) @ cov_inv
-            S = S + G0tP @ G0
-            b = b + _bvec(G0tP, x0)
-        xbar = np.linalg.solve(S, b[..., None])[..., 0]
-        cur = cur @ group.exp(-xbar, validate=False)
-    Gb = _gamma(group, xbar, order)
-    post = Gb @ np.linalg.inv(S) @ _T(Gb, -1, -2)
-    return cur, 0.5 * (post + _T(post, -1, -2))
+from swarmloc.gaussian import GroupGaussian, check_covariance
+from swarmloc.kernels import group as K
 
 
 def _check_pair(prior: GroupGaussian, item: object, idx: int, where: str) -> tuple[GroupGaussian, GroupGaussian]:
@@ -147,7 +72,8 @@ def fuse_relative(
         re-linearizes once about the updated mean (Gauss-Newton), which removes most of the mean error left
         by the single step when uncertainties are large (see tests/test_fusion.py and the README).
 
-    With no measurements the prior is returned unchanged.
+    With no measurements the prior is returned unchanged. The kernels are
+    :func:`swarmloc.kernels.group.relative_to_pseudo` and :func:`swarmloc.kernels.group.fuse_pseudo`.
     """
     where = "fuse_relative"
     if not isinstance(prior, GroupGaussian):
@@ -160,7 +86,7 @@ def fuse_relative(
     if not pairs:
         return prior
     G = prior.group
-    nus, Ws = relative_to_pseudo(
+    nus, Ws = K.relative_to_pseudo(
         G,
         np.stack([nb.mean for nb, _ in pairs], axis=-3),
         np.stack([nb.cov for nb, _ in pairs], axis=-3),
@@ -168,7 +94,7 @@ def fuse_relative(
         np.stack([m.cov for _, m in pairs], axis=-3),
         order,
     )
-    mu, cov = fuse_pseudo(G, prior.mean, prior.cov, nus, Ws, order, int(iterations))
+    mu, cov = K.fuse_pseudo(G, prior.mean, prior.cov, nus, Ws, order, int(iterations))
     return GroupGaussian(G, mu, check_covariance(cov, G.dim, where, "posterior covariance"), validate=False)
 
 
@@ -176,6 +102,8 @@ def fuse_absolute(
     prior: GroupGaussian, observations: Sequence[GroupGaussian], order: int = 2, iterations: int = 2
 ) -> GroupGaussian:
     """Fuse direct Gaussian observations of the same pose (e.g. GPS-like fixes) with the prior."""
+    if not isinstance(prior, GroupGaussian):
+        raise ValueError(f"fuse_absolute: argument 'prior' must be a GroupGaussian, got {type(prior).__name__}")
     if not observations:
         return prior
     for i, o in enumerate(observations):
@@ -183,67 +111,8 @@ def fuse_absolute(
             raise ValueError(f"fuse_absolute: observations[{i}] must be a GroupGaussian on {prior.group.__name__}")
     nus = np.stack([o.mean for o in observations], axis=-3)
     Ws = np.stack([o.cov for o in observations], axis=-3)
-    mu, cov = fuse_pseudo(prior.group, prior.mean, prior.cov, nus, Ws, order, iterations)
+    mu, cov = K.fuse_pseudo(prior.group, prior.mean, prior.cov, nus, Ws, order, iterations)
     return GroupGaussian(prior.group, mu, cov, validate=False)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Partial measurements (range, bearing, range-bearing) of a robot or a landmark, on SE(2)
-
-_J2 = np.array([[0.0, -1.0], [1.0, 0.0]])
-
-
-def _dz_dq(kind: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted measurement and its Jacobian w.r.t. the target's position ``q`` in the observer's frame."""
-    r2 = float(q @ q)
-    r = np.sqrt(r2)
-    rng = np.array([r])
-    brg = np.array([np.arctan2(q[1], q[0])])
-    d_r = np.array([[q[0] / r, q[1] / r]])
-    d_b = np.array([[-q[1] / r2, q[0] / r2]])
-    if kind == "range_bearing":
-        return np.concatenate([rng, brg]), np.vstack([d_r, d_b])
-    if kind == "range":
-        return rng, d_r
-    if kind == "bearing":
-        return brg, d_b
-    raise ValueError(f"unknown partial measurement kind {kind!r}")
-
-
-def point_measurement_model(
-    kind: str,
-    mu_i: np.ndarray,
-    target_mean: np.ndarray,
-    target_cov: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Range/bearing of a target seen from pose ``mu_i``, linearized on SE(2).
-
-    ``target_mean`` is either a pose (3x3, a robot with exponential-coordinate covariance ``target_cov`` 3x3) or a
-    world point (2,) with Cartesian covariance (2x2). The observer is perturbed on the right, ``g_i = mu_i exp(y)``;
-    the target's position in the observer's frame is ``q = exp(-y) mu_i^-1 p``, so ``dq/dy = -[I, J q]`` with
-    ``J = [[0, -1], [1, 0]]``; a robot target ``g_k = mu_k exp(y_k)`` moves ``q`` by ``R(mu_i^-1 mu_k) v_k``.
-    Returns ``(h, H, C)``: prediction, Jacobian w.r.t. ``y`` and the covariance the target's uncertainty adds.
-    """
-    R_iT = mu_i[:2, :2].T
-    if target_mean.shape == (3, 3):
-        rel = SE2.inverse(mu_i, validate=False) @ target_mean
-        q = rel[:2, 2]
-        dq_dt = np.hstack([rel[:2, :2], np.zeros((2, 1))])  # w.r.t. y_k
-    else:
-        q = R_iT @ (np.asarray(target_mean, float) - mu_i[:2, 2])
-        dq_dt = R_iT
-    h, dz = _dz_dq(kind, q)
-    H = dz @ -np.hstack([np.eye(2), (_J2 @ q)[:, None]])
-    Ht = dz @ dq_dt
-    return h, H, Ht @ target_cov @ Ht.T
-
-
-def _wrap_residual(kind: str, r: np.ndarray) -> np.ndarray:
-    idx = {"range_bearing": [1], "bearing": [0], "range": []}[kind]
-    r = r.copy()
-    for j in idx:
-        r[j] = wrap_angle(r[j])
-    return r
 
 
 def fuse_point_measurement(
@@ -257,35 +126,21 @@ def fuse_point_measurement(
     iterations: int = 3,
     order: int = 2,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Update an SE(2) belief with a range/bearing measurement of an uncertain robot or landmark.
+    """Update an SE(2) belief ``(mu (3, 3), cov)`` with a range/bearing measurement of an uncertain target.
 
-    Iterated (Gauss-Newton) update on the group: at the current estimate ``mu_c = mu exp(x0)``-style point,
-    minimize ``|x0 + Gamma(x0) d|^2_{Sigma^-1} + |r - H d|^2_{S^-1}`` with ``S = C + R`` (target uncertainty
-    ``C`` from :func:`point_measurement_model` plus noise), step ``mu_c <- mu_c exp(d)``. One iteration is the
-    EKF update on the group; the posterior covariance is re-centred with ``Gamma(d)`` (second order) as in
-    :func:`fuse_pseudo`. ``order=1`` uses ``Gamma = I``.
+    ``target_mean`` is a robot's pose ``(3, 3)`` (with exponential-coordinate covariance ``(3, 3)``) or a world
+    point ``(2,)`` (Cartesian covariance ``(2, 2)``). See :func:`swarmloc.kernels.group.point_update` for the
+    iterated update on the group; raises ValueError when the target is at the observer's position.
     """
-    cov_inv = np.linalg.inv(cov)
-    cur = mu
-    d = np.zeros(3)
-    info = cov_inv
-    for it in range(max(1, iterations)):
-        h, H, C = point_measurement_model(kind, cur, target_mean, target_cov)
-        Sinv = np.linalg.inv(C + R)
-        r = _wrap_residual(kind, np.asarray(z, float) - h)
-        if it == 0:
-            G0 = np.eye(3)
-            x0 = np.zeros(3)
-        else:
-            x0 = SE2.log(SE2.inverse(mu, validate=False) @ cur, validate=False)
-            G0 = _gamma(SE2, x0, order)
-        G0tP = G0.T @ cov_inv
-        info = G0tP @ G0 + H.T @ Sinv @ H
-        d = np.linalg.solve(info, H.T @ Sinv @ r - G0tP @ x0)
-        cur = cur @ SE2.exp(d, validate=False)
-    Gd = _gamma(SE2, -d, order)  # mu_c exp(d + y) = mu_c exp(d) exp(Jr(d) y), Jr(d) ~ I - ad(d)/2
-    post = Gd @ np.linalg.inv(info) @ Gd.T
-    return cur, 0.5 * (post + post.T)
+    target_mean = np.asarray(target_mean, dtype=float)
+    robot = target_mean.shape[-2:] == (3, 3)
+    m, c, ok = K.point_update(
+        np.asarray(mu, float), np.asarray(cov, float), kind, np.asarray(z, float), np.asarray(R, float),
+        target_mean, np.asarray(target_cov, float), robot, iterations, order,
+    )  # fmt: skip
+    if not np.all(ok):
+        raise ValueError("fuse_point_measurement: degenerate geometry (the target is at the observer's position)")
+    return m, c
 
 
 def point_innovation(
@@ -298,12 +153,10 @@ def point_innovation(
     target_cov: np.ndarray,
 ) -> float:
     """Normalized innovation squared ``r^T (H Sigma H^T + C + R)^-1 r`` of a range/bearing measurement (gating)."""
-    h, H, C = point_measurement_model(kind, mu, target_mean, target_cov)
-    r = _wrap_residual(kind, np.asarray(z, float) - h)
-    return float(r @ np.linalg.solve(H @ cov @ H.T + C + R, r))
+    target_mean = np.asarray(target_mean, dtype=float)
+    robot = target_mean.shape[-2:] == (3, 3)
+    return float(K.point_nis(np.asarray(mu, float), np.asarray(cov, float), kind, np.asarray(z, float),
+                             np.asarray(R, float), target_mean, np.asarray(target_cov, float), robot))  # fmt: skip
 
 
-def pseudo_innovation(mu: np.ndarray, cov: np.ndarray, nu: np.ndarray, W: np.ndarray) -> float:
-    """Normalized innovation squared of a pose pseudo-observation (first order), for gating."""
-    x = SE2.log(SE2.inverse(nu, validate=False) @ mu, validate=False)
-    return float(x @ np.linalg.solve(cov + W, x))
+__all__ = ["fuse_absolute", "fuse_point_measurement", "fuse_relative", "point_innovation"]

@@ -24,8 +24,8 @@ from functools import cache
 import numpy as np
 
 from swarmloc.lie import SE2, SE3
-from swarmloc.lie._checks import _first_bad, as_square
 from swarmloc.lie.base import SEGroup
+from swarmloc.lie.checks import as_square, first_bad
 
 _GROUPS: dict[str, type[SEGroup]] = {"SE2": SE2, "SE(2)": SE2, "se2": SE2, "SE3": SE3, "SE(3)": SE3, "se3": SE3}
 
@@ -51,7 +51,7 @@ def check_covariance(cov: object, dim: int, where: str, name: str = "cov") -> np
     scale = np.maximum(1.0, np.abs(C).max(axis=(-1, -2)))
     bad = asym > SYM_TOL * scale
     if bad.any():
-        i = _first_bad(bad)
+        i = first_bad(bad)
         Ci = C[i] if i else C
         r, c = np.unravel_index(np.argmax(np.abs(Ci - Ci.T)), Ci.shape)
         raise ValueError(
@@ -61,7 +61,7 @@ def check_covariance(cov: object, dim: int, where: str, name: str = "cov") -> np
     eig = np.linalg.eigvalsh(C)
     bad = eig[..., 0] <= 0
     if bad.any():
-        i = _first_bad(bad)
+        i = first_bad(bad)
         raise ValueError(
             f"{where}: argument '{name}' is not positive definite: smallest eigenvalue {eig[i][0]:.3g}"
             + (f" at batch index {i}" if i else "")
@@ -85,8 +85,8 @@ def convolution_F_reference(group: type[SEGroup], A: np.ndarray, B: np.ndarray) 
 
 
 @cache
-def _F_tensor(group: type[SEGroup]) -> np.ndarray:
-    """``K`` with ``vec(F(A, B)) = kron(vec A, vec B) @ K``: F is bilinear, so it is one matrix product."""
+def convolution_F_tensor(group: type[SEGroup]) -> np.ndarray:
+    """Read-only ``K`` with ``vec(F(A, B)) = kron(vec A, vec B) @ K``: F is bilinear, so it is one matrix product."""
     d = group.dim
     E = np.eye(d * d).reshape(d * d, d, d)
     K = convolution_F_reference(group, E[:, None], E[None, :])  # (d^2, d^2, d, d)
@@ -106,7 +106,7 @@ def convolution_F(group: type[SEGroup], A: np.ndarray, B: np.ndarray) -> np.ndar
     B = np.asarray(B, dtype=float)
     shape = np.broadcast_shapes(A.shape[:-2], B.shape[:-2])
     outer = A.reshape(*A.shape[:-2], d * d, 1) * B.reshape(*B.shape[:-2], 1, d * d)
-    return (outer.reshape(*shape, d**4) @ _F_tensor(group)).reshape(*shape, d, d)
+    return (outer.reshape(*shape, d**4) @ convolution_F_tensor(group)).reshape(*shape, d, d)
 
 
 def convolve_moments(

@@ -6,6 +6,7 @@ Each function takes an array of angles ``theta`` (any shape) and returns the coe
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -99,3 +100,34 @@ def q3_coeff(theta: np.ndarray) -> np.ndarray:
         [1 / 120, -1 / 2520, 1 / 120960, -1 / 9979200],
         0.1,
     )
+
+
+# ------------------------------------------------------------------------------------------------ scalar fast paths
+# The same branches and coefficients for one Python float (used by SE2 on unbatched input).
+_SINC = (1.0, -1 / 6, 1 / 120, -1 / 5040, 1 / 362880)
+_OMC2 = (1 / 2, -1 / 24, 1 / 720, -1 / 40320, 1 / 3628800)
+_HCH = (1.0, -1 / 12, -1 / 720, -1 / 30240, -1 / 1209600)
+
+
+def _poly(coeffs: Sequence[float], t2: float) -> float:
+    acc = 0.0
+    for c in reversed(coeffs):
+        acc = acc * t2 + c
+    return acc
+
+
+def sinc_scalar(t: float) -> float:
+    """:func:`sinc` of one float."""
+    return _poly(_SINC, t * t) if abs(t) < _SMALL else math.sin(t) / t
+
+
+def one_minus_cos_over_t_scalar(t: float) -> float:
+    """:func:`one_minus_cos_over_t` of one float."""
+    if abs(t) < _SMALL:
+        return t * _poly(_OMC2, t * t)
+    return t * (2.0 * math.sin(t / 2) ** 2 / (t * t))
+
+
+def half_cot_half_scalar(t: float) -> float:
+    """:func:`half_cot_half` of one float."""
+    return _poly(_HCH, t * t) if abs(t) < _SMALL else (t / 2) / math.tan(t / 2)

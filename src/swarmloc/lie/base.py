@@ -18,7 +18,7 @@ from functools import cache
 
 import numpy as np
 
-from swarmloc.lie._checks import as_element, as_tangent
+from swarmloc.lie.checks import as_element, as_tangent
 
 
 class SEGroup:

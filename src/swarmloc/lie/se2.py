@@ -10,6 +10,8 @@ Since ``ad(x)^3 = -alpha^2 ad(x)``, every analytic function of ``ad(x)`` is ``I 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from swarmloc.lie import _series as S
@@ -45,7 +47,7 @@ class SE2(SEGroup):
     def vee(cls, X: np.ndarray, validate: bool = True) -> np.ndarray:
         """``(..., 3, 3) -> (..., 3)``; inverse of :meth:`hat` (uses the antisymmetric part of the rotation block)."""
         if validate:
-            from swarmloc.lie._checks import as_square
+            from swarmloc.lie.checks import as_square
 
             X = as_square(X, 3, "SE2.vee", "X")
         X = np.asarray(X, dtype=float)
@@ -57,6 +59,11 @@ class SE2(SEGroup):
         if validate:
             x = cls.check_tangent(x, "SE2.exp")
         x = np.asarray(x, dtype=float)
+        if x.ndim == 1:  # one element: the same formulas in floats
+            x0, x1, a = x.tolist()
+            c, s = math.cos(a), math.sin(a)
+            A, B = S.sinc_scalar(a), S.one_minus_cos_over_t_scalar(a)
+            return np.array([[c, -s, A * x0 - B * x1], [s, c, B * x0 + A * x1], [0.0, 0.0, 1.0]])
         a = x[..., 2]
         c, s = np.cos(a), np.sin(a)
         A = S.sinc(a)
@@ -77,6 +84,12 @@ class SE2(SEGroup):
         if validate:
             g = cls.check_element(g, "SE2.log")
         g = np.asarray(g, dtype=float)
+        if g.ndim == 2:
+            a = math.atan2(g[1, 0], g[0, 0])
+            a = a + 2 * math.pi if a <= -math.pi else a
+            k, h = S.half_cot_half_scalar(a), 0.5 * a
+            t1, t2 = g[0, 2], g[1, 2]
+            return np.array([k * t1 + h * t2, -h * t1 + k * t2, a])
         a = np.arctan2(g[..., 1, 0], g[..., 0, 0])
         a = np.where(a <= -np.pi, a + 2 * np.pi, a)
         k = S.half_cot_half(a)
@@ -85,11 +98,25 @@ class SE2(SEGroup):
         return np.stack([k * t1 + h * t2, -h * t1 + k * t2, a], axis=-1)
 
     @classmethod
+    def inverse(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+        """Group inverse ``[[R^T, -R^T t], [0, 1]]`` (exact, batched)."""
+        if validate:
+            g = cls.check_element(g, "SE2.inverse", "g")
+        g = np.asarray(g, dtype=float)
+        if g.ndim == 2:
+            c, s, tx, ty = g[0, 0], g[1, 0], g[0, 2], g[1, 2]
+            r01, r11 = g[0, 1], g[1, 1]
+            return np.array([[c, s, -(c * tx + s * ty)], [r01, r11, -(r01 * tx + r11 * ty)], [0.0, 0.0, 1.0]])
+        return super().inverse(g, validate=False)
+
+    @classmethod
     def Ad(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
         """Adjoint matrix ``[[R, M t], [0, 1]]``, shape ``(..., 3, 3)``."""
         if validate:
             g = cls.check_element(g, "SE2.Ad")
         g = np.asarray(g, dtype=float)
+        if g.ndim == 2:
+            return np.array([[g[0, 0], g[0, 1], g[1, 2]], [g[1, 0], g[1, 1], -g[0, 2]], [0.0, 0.0, 1.0]])
         A = np.zeros(g.shape)
         A[..., :2, :2] = g[..., :2, :2]
         A[..., 0, 2] = g[..., 1, 2]

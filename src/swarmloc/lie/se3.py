@@ -112,7 +112,7 @@ class SE3(SEGroup):
     def vee(cls, X: np.ndarray, validate: bool = True) -> np.ndarray:
         """``(..., 4, 4) -> (..., 6)``; inverse of :meth:`hat`."""
         if validate:
-            from swarmloc.lie._checks import as_square
+            from swarmloc.lie.checks import as_square
 
             X = as_square(X, 4, "SE3.vee", "X")
         X = np.asarray(X, dtype=float)

@@ -18,7 +18,7 @@ from swarmloc.motion.closed_form import (
 from swarmloc.motion.diffdrive import DiffDrive
 from swarmloc.motion.propagation import increment_cov, increment_mean, increment_mean_second_order
 from swarmloc.motion.sde import em_step, euler_maruyama
-from swarmloc.motion.unicycle import UnicycleNoise, odometry_increment
+from swarmloc.motion.unicycle import UnicycleNoise, odometry_increment, odometry_increment_terms
 
 __all__ = [
     "DiffDrive",
@@ -33,6 +33,7 @@ __all__ = [
     "increment_mean_closed",
     "increment_mean_second_order",
     "odometry_increment",
+    "odometry_increment_terms",
     "straight_line_cov",
     "straight_line_mean",
     "thesis_circular_cov",

@@ -130,13 +130,38 @@ def _horner(coeffs: tuple[float, ...], x2: float) -> float:
     return acc
 
 
+def _truncations() -> tuple[tuple[float, int], ...]:
+    """``(max |x|, terms)`` pairs: below ``max |x|`` the first ``terms`` coefficients of every series reach the full
+    series to a relative 1e-18 (the first omitted term bounds the error: the series alternate and decrease)."""
+    out = []
+    for n in (3, 4, 5, 6, 8, 10):
+        lim = min((1e-18 * abs(c[0]) / abs(c[n])) ** (1 / (2 * n)) for c in SERIES.values())
+        out.append((lim, n))
+    return tuple(out)
+
+
+_TRUNC = _truncations()
+
+
+def _terms(x2: float) -> int:
+    ax = math.sqrt(x2)
+    for lim, n in _TRUNC:
+        if ax < lim:
+            return n
+    return N_TERMS
+
+
 def scalar_terms(x: float) -> tuple[float, float, float, float, float, float, float]:
-    """Scalar fast path: ``(s2, A, B, E, s1, h2, h4)`` for a Python float ``x`` (see :func:`gram`)."""
+    """Scalar fast path: ``(s2, A, B, E, s1, h2, h4)`` for a Python float ``x`` (see :func:`gram`).
+
+    The series are cut after as many terms as ``|x|`` needs for full double precision (:func:`_truncations`).
+    """
     if abs(x) < SERIES_BELOW:
         x2 = x * x
-        A = _horner(_A, x2)
-        B = _horner(_B, x2)
-        E = _horner(_E, x2)
+        n = _terms(x2)
+        A = _horner(_A[:n], x2)
+        B = _horner(_B[:n], x2)
+        E = _horner(_E[:n], x2)
         if x == 0.0:
             return 1.0, A, B, E, 1.0, 1.0, 1.0
         sx, s2x = math.sin(x), math.sin(2 * x)

@@ -208,10 +208,12 @@ def unicycle_cov(
     return _sym(S11, S12, S13, S22, S23, S33)
 
 
-def unicycle_increment_scalar(
+def unicycle_increment_terms(
     v: float, omega: float, t: float, q_v: float, q_w: float, q_lat: float = 0.0
-) -> tuple[np.ndarray, np.ndarray]:
-    """Scalar fast path: ``(exp(t (v, 0, omega)), Sigma)`` as two ``(3, 3)`` arrays, pure-Python arithmetic."""
+) -> tuple[float, float, float, float, float, float, float, float, float, float]:
+    """Scalar fast path in floats: ``(cos, sin, tx, ty, S11, S12, S13, S22, S23, S33)``: the increment
+    ``exp(t (v, 0, omega)) = [[cos, -sin, tx], [sin, cos, ty], [0, 0, 1]]`` and the upper triangle of its
+    covariance (5.4), as :func:`unicycle_cov` (pure-Python arithmetic)."""
     x = omega * t
     s2, A, B, E, s1, h2, h4 = _stable.scalar_terms(x)
     t2 = t * t
@@ -227,9 +229,16 @@ def unicycle_increment_scalar(
     S22 = q_v * Gss + q_lat * Gcc + qwvv * t3 * A
     S23 = q_w * v * t2 * h2 / 2
     S33 = q_w * t
-    cx, sx = math.cos(x), math.sin(x)
     vt = v * t
-    mean = np.array([[cx, -sx, vt * s1], [sx, cx, vt * x * h2 / 2], [0.0, 0.0, 1.0]])
+    return math.cos(x), math.sin(x), vt * s1, vt * x * h2 / 2, S11, S12, S13, S22, S23, S33
+
+
+def unicycle_increment_scalar(
+    v: float, omega: float, t: float, q_v: float, q_w: float, q_lat: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Scalar fast path: ``(exp(t (v, 0, omega)), Sigma)`` as two ``(3, 3)`` arrays, pure-Python arithmetic."""
+    cx, sx, tx, ty, S11, S12, S13, S22, S23, S33 = unicycle_increment_terms(v, omega, t, q_v, q_w, q_lat)
+    mean = np.array([[cx, -sx, tx], [sx, cx, ty], [0.0, 0.0, 1.0]])
     cov = np.array([[S11, S12, S13], [S12, S22, S23], [S13, S23, S33]])
     return mean, cov
 

@@ -23,7 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarmloc.motion.closed_form import increment_mean_closed, unicycle_cov, unicycle_increment_scalar
+from swarmloc.motion.closed_form import (
+    increment_mean_closed,
+    unicycle_cov,
+    unicycle_increment_scalar,
+    unicycle_increment_terms,
+)
 from swarmloc.motion.diffdrive import DiffDrive
 
 
@@ -70,9 +75,23 @@ def odometry_increment(
     ``mean = exp(dt (v, 0, omega)^)``; ``cov`` = (5.4) with ``Q = noise.Q(v, omega)``, exact closed form, right
     perturbation (``g = mean exp(y)``, ``y ~ N(0, cov)``). Scalars take a pure-Python fast path.
     """
-    if np.isscalar(v) and np.isscalar(omega) and np.isscalar(dt):
+    if (
+        type(v) is float
+        and type(omega) is float
+        and type(dt) is float
+        or (np.isscalar(v) and np.isscalar(omega) and np.isscalar(dt))
+    ):
         v, omega, dt = float(v), float(omega), float(dt)
         q_fwd, q_lat, q_yaw = noise.diag(v, omega)
         return unicycle_increment_scalar(v, omega, dt, q_fwd, q_yaw, q_lat)
     q_fwd, q_lat, q_yaw = noise.diag(np.asarray(v, dtype=float), np.asarray(omega, dtype=float))
     return increment_mean_closed(v, omega, dt), unicycle_cov(v, omega, dt, q_fwd, q_yaw, q_lat)
+
+
+def odometry_increment_terms(
+    v: float, omega: float, dt: float, noise: UnicycleNoise
+) -> tuple[float, float, float, float, float, float, float, float, float, float]:
+    """One increment as floats ``(cos, sin, tx, ty, S11, S12, S13, S22, S23, S33)``
+    (:func:`swarmloc.motion.closed_form.unicycle_increment_terms`): what one robot's prediction needs."""
+    q_fwd, q_lat, q_yaw = noise.diag(v, omega)
+    return unicycle_increment_terms(v, omega, dt, q_fwd, q_yaw, q_lat)

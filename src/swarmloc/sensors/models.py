@@ -5,8 +5,13 @@ or a landmark (``(x, y)``). Measurements are in the observer's body frame (x for
 relative headings are wrapped to (-pi, pi]. Lecture slides 19 (bearing, distance, orientation) and thesis
 eqs. 2.6-2.9 (relative pose).
 
-Each function returns ``(h, H_i, H_k)``: the predicted measurement, its Jacobian with respect to the observer's
-state (``(m, 3)``) and with respect to the target's state (``(m, 3)`` for a robot, ``(m, 2)`` for a landmark).
+Every function is batched over leading axes: ``xi`` ``(..., 3)``, ``xk`` ``(..., 3)`` for a robot or ``(..., 2)``
+for a landmark, broadcast against each other. Each returns ``(h, H_i, H_k)``: the predicted measurement
+``(..., m)``, its Jacobian with respect to the observer's state ``(..., m, 3)`` and with respect to the target's
+state ``(..., m, 3)`` for a robot, ``(..., m, 2)`` for a landmark.
+
+Range and bearing are undefined when the target sits on the observer (range 0): the Jacobians divide by the
+range. :func:`degenerate` tells the callers, which reject such a measurement instead of fusing NaNs.
 """
 
 from __future__ import annotations
@@ -15,44 +20,71 @@ import numpy as np
 
 from swarmloc.lie import wrap_angle as wrap
 
+MIN_RANGE = 1e-6
+"""Predicted ranges [m] below this make range/bearing models undefined (:func:`degenerate`)."""
 
-def _rel(xi: np.ndarray, pk: np.ndarray) -> tuple[float, float, float, float, float, float]:
-    dx, dy = pk[0] - xi[0], pk[1] - xi[1]
-    c, s = np.cos(xi[2]), np.sin(xi[2])
+
+def _rel(xi: np.ndarray, pk: np.ndarray) -> tuple[np.ndarray, ...]:
+    dx, dy = pk[..., 0] - xi[..., 0], pk[..., 1] - xi[..., 1]
+    c, s = np.cos(xi[..., 2]), np.sin(xi[..., 2])
     return dx, dy, c, s, c * dx + s * dy, -s * dx + c * dy
+
+
+def _stack(rows: list[list[np.ndarray | float]], shape: tuple[int, ...]) -> np.ndarray:
+    """``(..., len(rows), len(rows[0]))`` from scalars/arrays broadcast to ``shape``."""
+    return np.stack([np.stack([np.broadcast_to(v, shape) for v in row], axis=-1) for row in rows], axis=-2)
 
 
 def relative_pose(xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pose of robot ``k`` in robot ``i``'s frame: ``(R_i^T (p_k - p_i), theta_k - theta_i)``."""
+    xi, xk = np.asarray(xi, dtype=float), np.asarray(xk, dtype=float)
     dx, dy, c, s, bx, by = _rel(xi, xk)
-    h = np.array([bx, by, wrap(xk[2] - xi[2])])
-    Hi = np.array([[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]])
-    Hk = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    if xi.ndim == 1 and xk.ndim == 1:  # one pair: plain arrays are ~10x faster than stacking
+        h = np.array([bx, by, wrap(xk[2] - xi[2])])
+        Hi = np.array([[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]])
+        Hk = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        return h, Hi, Hk
+    h = np.stack([bx, by, wrap(xk[..., 2] - xi[..., 2])], axis=-1)
+    shape = h.shape[:-1]
+    Hi = _stack([[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]], shape)
+    Hk = _stack([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]], shape)
     return h, Hi, Hk
 
 
-def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Range [m] and bearing [rad] of point/robot ``k`` seen from robot ``i``."""
+def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> tuple[np.ndarray, ...]:
+    """Range [m] and bearing [rad] of point/robot ``k`` seen from robot ``i``.
+
+    ``target_dim`` (2 for a landmark, 3 for a robot) defaults to the last dimension of ``pk``.
+    """
+    xi, pk = np.asarray(xi, dtype=float), np.asarray(pk, dtype=float)
+    target_dim = pk.shape[-1] if target_dim is None else target_dim
     dx, dy, c, s, bx, by = _rel(xi, pk)
     q = dx * dx + dy * dy
     r = np.sqrt(q)
-    h = np.array([r, wrap(np.arctan2(by, bx))])
-    Hi = np.array([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]])
-    Hk = np.zeros((2, target_dim))
-    Hk[:, :2] = -Hi[:, :2]
+    if xi.ndim == 1 and pk.ndim == 1:
+        h = np.array([r, wrap(np.arctan2(by, bx))])
+        Hi = np.array([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]])
+        Hk = np.zeros((2, target_dim))
+        Hk[:, :2] = -Hi[:, :2]
+        return h, Hi, Hk
+    h = np.stack([r, wrap(np.arctan2(by, bx))], axis=-1)
+    shape = h.shape[:-1]
+    Hi = _stack([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]], shape)
+    Hk = np.zeros((*shape, 2, target_dim))
+    Hk[..., :, :2] = -Hi[..., :, :2]
     return h, Hi, Hk
 
 
-def range_only(xi: np.ndarray, pk: np.ndarray, target_dim: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def range_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> tuple[np.ndarray, ...]:
     """Range [m] of ``k`` from ``i`` (slides eq. 4)."""
     h, Hi, Hk = range_bearing(xi, pk, target_dim)
-    return h[:1], Hi[:1], Hk[:1]
+    return h[..., :1], Hi[..., :1, :], Hk[..., :1, :]
 
 
-def bearing_only(xi: np.ndarray, pk: np.ndarray, target_dim: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bearing_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> tuple[np.ndarray, ...]:
     """Bearing [rad] of ``k`` in ``i``'s frame (slides eq. 3)."""
     h, Hi, Hk = range_bearing(xi, pk, target_dim)
-    return h[1:], Hi[1:], Hk[1:]
+    return h[..., 1:], Hi[..., 1:, :], Hk[..., 1:, :]
 
 
 MODELS = {"pose": relative_pose, "range_bearing": range_bearing, "range": range_only, "bearing": bearing_only}
@@ -61,22 +93,31 @@ ANGULAR = {"pose": (False, False, True), "range_bearing": (False, True), "range"
 
 
 def predict(kind: str, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dispatch on the measurement kind; ``xk`` of length 2 is a landmark, 3 a robot."""
-    if kind == "pose":
-        if len(xk) != 3:
-            raise ValueError("relative pose measurements need a robot target (x, y, theta)")
-        return relative_pose(xi, xk)
+    """Dispatch on the measurement kind; ``xk`` with last dimension 2 is a landmark, 3 a robot."""
     if kind not in MODELS:
         raise ValueError(f"unknown measurement kind {kind!r}; expected one of {sorted(MODELS)}")
-    return MODELS[kind](xi, xk, len(xk))
+    xk = np.asarray(xk, dtype=float)
+    if kind == "pose":
+        if xk.shape[-1] != 3:
+            raise ValueError("relative pose measurements need a robot target (x, y, theta)")
+        return relative_pose(xi, xk)
+    return MODELS[kind](xi, xk)
+
+
+def degenerate(kind: str, xi: np.ndarray, xk: np.ndarray) -> np.ndarray:
+    """True where a range/bearing model is undefined: the target is within :data:`MIN_RANGE` of the observer."""
+    if kind == "pose":
+        return np.zeros(np.broadcast_shapes(np.shape(xi)[:-1], np.shape(xk)[:-1]), dtype=bool)
+    xi, xk = np.asarray(xi, dtype=float), np.asarray(xk, dtype=float)
+    return np.hypot(xk[..., 0] - xi[..., 0], xk[..., 1] - xi[..., 1]) < MIN_RANGE
 
 
 def residual(kind: str, z: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """``z - h`` with angular components wrapped."""
+    """``z - h`` with angular components wrapped (batched)."""
     r = np.asarray(z, dtype=float) - h
     for j, ang in enumerate(ANGULAR[kind]):
         if ang:
-            r[j] = wrap(r[j])
+            r[..., j] = wrap(r[..., j])
     return r
 
 
@@ -84,9 +125,12 @@ def pose_noise_to_cartesian(z: np.ndarray, cov_exp: np.ndarray) -> np.ndarray:
     """Covariance of a measured relative pose ``z = (x, y, theta)`` in Cartesian coordinates (first order).
 
     Pose measurements carry noise as ``m = m_true exp(n)`` (right perturbation, ``n ~ N(0, cov_exp)``), so
-    ``d(x, y) = R(theta_z) d(v1, v2)`` and ``d theta = d alpha``.
+    ``d(x, y) = R(theta_z) d(v1, v2)`` and ``d theta = d alpha``. Batched.
     """
-    B = np.eye(3)
-    c, s = np.cos(z[2]), np.sin(z[2])
-    B[:2, :2] = [[c, -s], [s, c]]
-    return B @ cov_exp @ B.T
+    z = np.asarray(z, dtype=float)
+    c, s = np.cos(z[..., 2]), np.sin(z[..., 2])
+    if z.ndim == 1:
+        B = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return B @ cov_exp @ B.T
+    B = _stack([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], z.shape[:-1])
+    return B @ cov_exp @ np.swapaxes(B, -1, -2)

@@ -13,7 +13,7 @@ ORTHO_TOL = 1e-6
 """Largest allowed entry of ``|R^T R - I|`` for a rotation block to count as orthonormal."""
 
 
-def _first_bad(mask: np.ndarray) -> tuple[int, ...]:
+def first_bad(mask: np.ndarray) -> tuple[int, ...]:
     idx = np.argwhere(mask)
     return tuple(int(i) for i in idx[0]) if idx.size else ()
 
@@ -30,7 +30,7 @@ def as_tangent(x: object, dim: int, where: str, name: str = "x") -> np.ndarray:
         )
     finite = np.isfinite(arr)
     if not finite.all():
-        raise ValueError(f"{where}: argument '{name}' contains NaN or inf (first at index {_first_bad(~finite)})")
+        raise ValueError(f"{where}: argument '{name}' contains NaN or inf (first at index {first_bad(~finite)})")
     return arr
 
 
@@ -44,7 +44,7 @@ def as_square(x: object, dim: int, where: str, name: str) -> np.ndarray:
         raise ValueError(f"{where}: argument '{name}' must have shape (..., {dim}, {dim}), got {arr.shape}")
     finite = np.isfinite(arr)
     if not finite.all():
-        raise ValueError(f"{where}: argument '{name}' contains NaN or inf (first at index {_first_bad(~finite)})")
+        raise ValueError(f"{where}: argument '{name}' contains NaN or inf (first at index {first_bad(~finite)})")
     return arr
 
 
@@ -60,7 +60,7 @@ def as_element(g: object, n: int, where: str, name: str = "g") -> np.ndarray:
     want[n] = 1.0
     bad_row = np.abs(bottom - want).max(axis=-1) > 1e-9
     if bad_row.any():
-        i = _first_bad(bad_row)
+        i = first_bad(bad_row)
         raise ValueError(
             f"{where}: argument '{name}' is not in SE({n}): bottom row must be {want.tolist()}, "
             f"got {arr[i][n].tolist()}" + (f" at batch index {i}" if i else "")
@@ -69,14 +69,14 @@ def as_element(g: object, n: int, where: str, name: str = "g") -> np.ndarray:
     err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(n)).max(axis=(-1, -2))
     bad = err > ORTHO_TOL
     if bad.any():
-        i = _first_bad(bad)
+        i = first_bad(bad)
         raise ValueError(
             f"{where}: argument '{name}' is not in SE({n}): its rotation block is not orthonormal "
             f"(max |R^T R - I| = {err[i]:.3g} > {ORTHO_TOL:g})" + (f" at batch index {i}" if i else "")
         )
     det = np.linalg.det(R)
     if (det <= 0).any():
-        i = _first_bad(det <= 0)
+        i = first_bad(det <= 0)
         raise ValueError(
             f"{where}: argument '{name}' is not in SE({n}): its rotation block has det {det[i]:.3g} "
             "(a reflection, not a rotation)" + (f" at batch index {i}" if i else "")

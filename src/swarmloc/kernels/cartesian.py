@@ -1,0 +1,193 @@
+"""Kernels of the EKF family in Cartesian coordinates ``x = (x [m], y [m], theta [rad])`` (world frame).
+
+Prediction: the mean moves along the exact arc of the odometry ``(v, w)`` held over ``dt`` (the same mean as the
+exponential-coordinate prediction, so comparisons isolate the filters, not the integrators; the thesis' eq. 5.13
+is its Euler approximation), the covariance by the linearization
+
+    P <- Phi P Phi^T + B Sigma_inc B^T,   Phi = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]],   B = diag(R(theta+), 1),
+
+where ``(dx, dy)`` is the world-frame displacement and ``Sigma_inc`` the increment covariance of eq. (5.4) in the
+robot's frame at the end of the interval (thesis eqs. 2.4-2.5, 5.15-5.16).
+
+Update: :func:`kalman_update` is the one Kalman update of swarmloc (Joseph form), used by the distributed EKF,
+the centralized EKF and recursive decentralized fusion, on a robot's own 3-vector, a pair's 6-vector or a team's
+3n-vector alike.
+
+All functions are batched over leading axes; unbatched inputs take the same code.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from swarmloc.lie import wrap_angle
+from swarmloc.motion import UnicycleNoise, odometry_increment, odometry_increment_terms
+
+_T = np.swapaxes
+
+
+def increment(
+    x: np.ndarray, v: np.ndarray | float, w: np.ndarray | float, dt: np.ndarray | float, noise: UnicycleNoise
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """New mean ``(..., 3)``, ``Phi`` ``(..., 3, 3)`` and additive process covariance ``(..., 3, 3)`` of one step."""
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 1 and isinstance(v, int | float) and isinstance(w, int | float) and isinstance(dt, int | float):
+        return _increment_one(x, float(v), float(w), float(dt), noise)
+    inc_mean, inc_cov = odometry_increment(v, w, dt, noise)
+    c, s = np.cos(x[..., 2]), np.sin(x[..., 2])
+    ix, iy = inc_mean[..., 0, 2], inc_mean[..., 1, 2]
+    dx, dy = c * ix - s * iy, s * ix + c * iy
+    th = wrap_angle(x[..., 2] + np.arctan2(inc_mean[..., 1, 0], inc_mean[..., 0, 0]))
+    new = np.stack([x[..., 0] + dx, x[..., 1] + dy, th], axis=-1)
+    shape = new.shape[:-1]
+    Phi = np.broadcast_to(np.eye(3), (*shape, 3, 3)).copy()
+    Phi[..., 0, 2], Phi[..., 1, 2] = -dy, dx
+    cn, sn = np.cos(th), np.sin(th)
+    B = np.broadcast_to(np.eye(3), (*shape, 3, 3)).copy()
+    B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1] = cn, -sn, sn, cn
+    return new, Phi, B @ inc_cov @ _T(B, -1, -2)
+
+
+def increment_terms(
+    x: np.ndarray, v: float, w: float, dt: float, noise: UnicycleNoise
+) -> tuple[float, float, float, float, float, float, float, float, float, float]:
+    """One robot's step in floats: new ``(x, y, theta)``, ``(dx, dy)`` and the process covariance's upper triangle
+    ``(q00, q01, q02, q11, q12, q22)`` (module docstring)."""
+    c, s, tx, ty, S11, S12, S13, S22, S23, S33 = odometry_increment_terms(v, w, dt, noise)
+    x0, y0, th0 = x.tolist()
+    ct, st = math.cos(th0), math.sin(th0)
+    dx, dy = ct * tx - st * ty, st * tx + ct * ty
+    th = math.pi - (math.pi - (th0 + math.atan2(s, c))) % (2 * math.pi)  # wrapped to (-pi, pi]
+    cn, sn = math.cos(th), math.sin(th)
+    cc, ss, cs = cn * cn, sn * sn, cn * sn
+    return (
+        x0 + dx, y0 + dy, th, dx, dy,
+        cc * S11 - 2 * cs * S12 + ss * S22, cs * (S11 - S22) + (cc - ss) * S12, cn * S13 - sn * S23,
+        ss * S11 + 2 * cs * S12 + cc * S22, sn * S13 + cn * S23, S33,
+    )  # fmt: skip
+
+
+def _increment_one(
+    x: np.ndarray, v: float, w: float, dt: float, noise: UnicycleNoise
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`increment` for one robot, in floats (the same formulas; ~3x faster than the array path)."""
+    x0, y0, th, dx, dy, q00, q01, q02, q11, q12, q22 = increment_terms(x, v, w, dt, noise)
+    return (
+        np.array([x0, y0, th]),
+        np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]]),
+        np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]]),
+    )
+
+
+def predict_one(
+    x: np.ndarray, P: np.ndarray, v: float, w: float, dt: float, noise: UnicycleNoise
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """:func:`predict` for one robot in floats: ``(x, P, dx, dy)``, where ``Phi = [[1, 0, -dy], [0, 1, dx],
+    [0, 0, 1]]`` (``Phi P Phi^T`` expanded: ``Phi`` differs from the identity in two entries)."""
+    x0, y0, th, dx, dy, q00, q01, q02, q11, q12, q22 = increment_terms(x, v, w, dt, noise)
+    p00, p01, p02, _, p11, p12, _, _, p22 = P.ravel().tolist()
+    a02 = p02 - dy * p22
+    a12 = p12 + dx * p22
+    n00 = p00 - 2 * dy * p02 + dy * dy * p22 + q00
+    n01 = p01 - dy * p12 + dx * a02 + q01
+    n11 = p11 + 2 * dx * p12 + dx * dx * p22 + q11
+    n02, n12, n22 = a02 + q02, a12 + q12, p22 + q22
+    return np.array([x0, y0, th]), np.array([[n00, n01, n02], [n01, n11, n12], [n02, n12, n22]]), dx, dy
+
+
+def predict(
+    x: np.ndarray, P: np.ndarray, v: np.ndarray | float, w: np.ndarray | float, dt: np.ndarray | float,
+    noise: UnicycleNoise,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """EKF prediction of ``(x, P)`` over ``dt`` [s] with odometry ``(v [m/s], w [rad/s])``; returns ``(x, P, Phi)``."""
+    xn, Phi, Qd = increment(x, v, w, dt, noise)
+    if Phi.ndim == 2:
+        return xn, Phi @ P @ Phi.T + Qd, Phi
+    return xn, Phi @ P @ _T(Phi, -1, -2) + Qd, Phi
+
+
+def kalman_update(
+    x: np.ndarray,
+    P: np.ndarray,
+    r: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    angles: tuple[int, ...] = (2,),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One Kalman update in Joseph form, batched: ``x (..., n)``, ``P (..., n, n)``, innovation ``r (..., m)``,
+    Jacobian ``H (..., m, n)``, noise ``R (..., m, m)`` (everything the innovation does not depend on through
+    ``x``: sensor noise plus, for a distributed filter, the neighbour's or landmark's propagated covariance).
+
+    ``K = P H^T S^-1``, ``x+ = x + K r`` (components ``angles`` wrapped to (-pi, pi]),
+    ``P+ = (I - K H) P (I - K H)^T + K R K^T``. Returns ``(x+, P+, nis, ok)``: ``nis = r^T S^-1 r`` is the
+    normalized innovation squared (for gating) and ``ok`` is False where the update is not finite (a singular
+    innovation covariance, an infinite innovation): the caller keeps the prior there.
+    """
+    Ht = _T(H, -1, -2)
+    PHt = P @ Ht
+    S = H @ PHt + R
+    try:
+        S_inv = np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        nan = np.full(np.broadcast_shapes(r.shape[:-1], P.shape[:-2]), np.nan)
+        return x, P, nan, np.zeros(nan.shape, dtype=bool)
+    nis = np.einsum("...i,...ij,...j->...", r, S_inv, r)
+    K = PHt @ S_inv
+    xn = x + np.einsum("...ij,...j->...i", K, r)
+    with np.errstate(invalid="ignore"):  # a non-finite innovation gives ok = False below
+        for j in angles:
+            xn[..., j] = wrap_angle(xn[..., j])
+    IKH = np.eye(x.shape[-1]) - K @ H
+    Pn = IKH @ P @ _T(IKH, -1, -2) + K @ R @ _T(K, -1, -2)
+    Pn = 0.5 * (Pn + _T(Pn, -1, -2))
+    ok = np.isfinite(nis) & np.isfinite(xn).all(axis=-1) & np.isfinite(Pn).all(axis=(-1, -2))
+    return xn, Pn, nis, ok
+
+
+def rot_block(theta: np.ndarray | float) -> np.ndarray:
+    """``diag(R(theta), 1)`` ``(..., 3, 3)``: maps body-frame ``(v1, v2, alpha)`` to world-frame increments."""
+    theta = np.asarray(theta, dtype=float)
+    if theta.ndim == 0:
+        c, s = math.cos(theta), math.sin(theta)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    c, s = np.cos(theta), np.sin(theta)
+    B = np.broadcast_to(np.eye(3), (*theta.shape, 3, 3)).copy()
+    B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1] = c, -s, s, c
+    return B
+
+
+def to_group(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cartesian ``(x, y, theta), P`` (world frame) -> exponential-coordinate mean ``(..., 3, 3)`` and covariance.
+
+    First order: ``g = (x, y, theta)`` and ``y = (R^T dp, dtheta)``, so ``Sigma = T P T^T``, ``T = diag(R^T, 1)``.
+    """
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 1:
+        c, s = math.cos(x[2]), math.sin(x[2])
+        T = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        g = np.array([[c, -s, x[0]], [s, c, x[1]], [0.0, 0.0, 1.0]])
+        return g, T @ P @ T.T
+    T = _T(rot_block(x[..., 2]), -1, -2)
+    c, s = np.cos(x[..., 2]), np.sin(x[..., 2])
+    g = np.zeros((*x.shape[:-1], 3, 3))
+    g[..., 0, 0], g[..., 0, 1], g[..., 0, 2] = c, -s, x[..., 0]
+    g[..., 1, 0], g[..., 1, 1], g[..., 1, 2] = s, c, x[..., 1]
+    g[..., 2, 2] = 1.0
+    return g, T @ P @ _T(T, -1, -2)
+
+
+def from_group(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exponential-coordinate Gaussian -> Cartesian ``(x, y, theta), P`` (first order; inverse of :func:`to_group`)."""
+    mean = np.asarray(mean, dtype=float)
+    if mean.ndim == 2:
+        th = math.atan2(mean[1, 0], mean[0, 0])
+        th = th + 2 * math.pi if th <= -math.pi else th
+        B = rot_block(th)
+        return np.array([mean[0, 2], mean[1, 2], th]), B @ cov @ B.T
+    th = np.arctan2(mean[..., 1, 0], mean[..., 0, 0])
+    th = np.where(th <= -np.pi, th + 2 * np.pi, th)
+    x = np.stack([mean[..., 0, 2], mean[..., 1, 2], th], axis=-1)
+    B = rot_block(th)
+    return x, B @ cov @ _T(B, -1, -2)
