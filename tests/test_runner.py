@@ -1,4 +1,4 @@
-"""Tests for swarmloc.sim.runner (determinism, bad events, recording on a time grid) and
+"""Tests for swarmloc.runner (determinism, bad events, recording on a time grid, accounting) and
 swarmloc.evaluation.metrics (NEES, ANEES and its chi-square bounds)."""
 
 from __future__ import annotations
@@ -10,26 +10,22 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from swarmloc.estimators import CentralizedEKF, DeadReckoning, DistributedEKF, Estimator, ExpFusion
+from swarmloc import make_team
+from swarmloc.estimators import Node, options_for
 from swarmloc.evaluation import metrics
 from swarmloc.events import Detection, Odometry, Truth
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
+from swarmloc.runner import RobotTrack, RunResult, run
 from swarmloc.sim import random_team
-from swarmloc.sim.runner import RobotTrack, RunResult, run
 
-ESTIMATORS = {
-    "dr": lambda init, noise: DeadReckoning(init, noise),
-    "expfusion": lambda init, noise: ExpFusion(init, noise),
-    "dekf": lambda init, noise: DistributedEKF(init, noise),
-    "cekf": lambda init, noise: CentralizedEKF(init, noise),
-}
+NAMES = ("dr", "expfusion", "dekf", "cekf", "ci", "rdl")
 
 
 @pytest.fixture(autouse=True)
 def _quiet_rejections():
-    """Rejected detections are logged one warning each; keep the test output readable."""
+    """Rejected detections are logged at debug level; keep the test output readable anyway."""
     logger = logging.getLogger("swarmloc.estimators")
     level = logger.level
     logger.setLevel(logging.ERROR)
@@ -41,8 +37,8 @@ def _initial(sim, var: float = 1e-6) -> dict[int, GroupGaussian]:
     return {r: GroupGaussian(SE2, SE2.from_xytheta(p), var * np.eye(3)) for r, p in sim.initial_poses.items()}
 
 
-def _make(name: str, sim) -> Estimator:
-    return ESTIMATORS[name](_initial(sim), sim.unicycle_noise())
+def _make(name: str, sim, **kw) -> list[Node]:
+    return make_team(name, _initial(sim), **options_for(name, noise=sim.unicycle_noise(), **kw))
 
 
 def _assert_tracks_equal(a: RunResult, b: RunResult) -> None:
@@ -55,7 +51,7 @@ def _assert_tracks_equal(a: RunResult, b: RunResult) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- determinism
-@pytest.mark.parametrize("name", list(ESTIMATORS))
+@pytest.mark.parametrize("name", NAMES)
 def test_same_seed_bitwise_identical_different_seed_different(name: str):
     a = random_team(3, 10.0, seed=4)
     b = random_team(3, 10.0, seed=4)
@@ -63,12 +59,21 @@ def test_same_seed_bitwise_identical_different_seed_different(name: str):
     ra = run(_make(name, a), a.events)
     rb = run(_make(name, b), b.events)
     _assert_tracks_equal(ra, rb)
-    assert {k: v for k, v in ra.stats.items()} == rb.stats
-    assert ra.stats["recorded"] == 3 * 101
+    assert ra.stats == rb.stats
+    assert ra.stats["recorded"] == 3 * 101 and ra.accounted()
     rc = run(_make(name, c), c.events)
     assert any(not np.array_equal(ra.tracks[r].mean, rc.tracks[r].mean) for r in ra.tracks)
-    # running the same event list twice (fresh estimators) is also identical
+    # running the same event list twice (fresh nodes) is also identical
     _assert_tracks_equal(ra, run(_make(name, a), a.events))
+
+
+def test_one_node_per_robot_and_no_robot_twice():
+    sim = random_team(2, 2.0, seed=1)
+    nodes = _make("expfusion", sim)
+    with pytest.raises(ValueError, match="robot 0 is owned by two nodes"):
+        run([*nodes, *_make("dekf", sim)], sim.events)
+    with pytest.raises(ValueError, match="no nodes"):
+        run([], sim.events)
 
 
 # ---------------------------------------------------------------------------------------------- bad events
@@ -78,14 +83,14 @@ def _insert_before_odometry(events: list, t: float, bad: list) -> list:
     return events[:i] + bad + events[i:]
 
 
-@pytest.mark.parametrize("name", ["expfusion", "dekf", "cekf"])
+@pytest.mark.parametrize("name", NAMES)
 def test_bad_events_are_counted_and_skipped(name: str):
     sim = random_team(3, 8.0, seed=2)
     events = list(sim.events)
     det = next(e for e in events if isinstance(e, Detection) and e.kind == "pose" and e.t > 2.0)
     nan_det = Detection(det.observer, det.t, "pose", np.array([np.nan, 0.0, 0.0]), det.cov, target=det.target)
     i = events.index(det)
-    events.insert(i + 1, nan_det)  # same observer and instant: fused in the same update, and rejected
+    events.insert(i + 1, nan_det)  # same observer and instant: handed over in the same group, and rejected
     bad = [
         Odometry(0, 2.9, 3.0, math.nan, 0.1),  # NaN speed
         Odometry(1, 2.9, 3.0, 0.1, math.inf),  # inf yaw rate
@@ -94,37 +99,44 @@ def test_bad_events_are_counted_and_skipped(name: str):
         Odometry(0, math.nan, 3.0, 0.1, 0.0),  # NaN start time
         Odometry(99, 2.9, 3.0, 0.1, 0.0),  # unknown robot
         Detection(99, 3.0, "pose", np.array([1.0, 0.0, 0.0]), np.eye(3) * 1e-4, target=0),  # unknown observer
-        Truth(99, 3.0, np.zeros(3)),  # truth of a robot the estimator does not know: not recorded
+        Truth(99, 3.0, np.zeros(3)),  # truth of a robot outside the team: not recorded, counted
+        "not an event",
     ]
     events = _insert_before_odometry(events, 3.0, bad)
     clean = run(_make(name, sim), sim.events)
     dirty = run(_make(name, sim), events)
-    assert dirty.stats["bad_odometry"] == 5
-    assert dirty.stats["unknown_robot"] == 2
-    assert dirty.stats["est_rejected"] == clean.stats["est_rejected"] + 1
-    assert dirty.stats["odometry"] == clean.stats["odometry"]
+    assert dirty.stats["odometry_rejected"] == clean.stats["odometry_rejected"] + 5
+    assert dirty.stats["odometry"] == clean.stats["odometry"] + 6
+    assert dirty.stats["odometry_used"] == clean.stats["odometry_used"]
+    assert dirty.stats["unknown_robot"] == 2 and dirty.stats["truth_unknown_robot"] == 1
+    assert dirty.stats["unknown_event"] == 1
+    assert dirty.stats["detections"] == clean.stats["detections"] + 2
+    assert dirty.stats["rejected"] == clean.stats["rejected"] + 1
+    assert dirty.stats["unknown"] == clean.stats["unknown"] + 1
     assert dirty.stats["recorded"] == clean.stats["recorded"]
-    assert dirty.stats["est_fused"] == clean.stats["est_fused"] > 0
+    assert dirty.stats["fused"] == clean.stats["fused"]
+    assert dirty.accounted() and clean.accounted()
     assert 99 not in dirty.tracks
     _assert_tracks_equal(clean, dirty)  # the bad events changed nothing else
     for tr in dirty.tracks.values():
         assert np.isfinite(tr.mean).all() and np.isfinite(tr.cov).all()
 
 
-def test_unknown_neighbour_through_runner_channel_counts_unknown():
+@pytest.mark.parametrize("name", ["expfusion", "dekf", "cekf", "ci", "rdl"])
+def test_detection_of_a_robot_outside_the_team_is_unknown(name: str):
     sim = random_team(3, 8.0, seed=2)
     events = list(sim.events)
     det = next(e for e in events if isinstance(e, Detection) and e.kind == "pose")
     events.insert(events.index(det) + 1, Detection(det.observer, det.t, "pose", det.z, det.cov, target=42))
-    for name in ("expfusion", "dekf", "cekf"):
-        clean = run(_make(name, sim), sim.events)
-        res = run(_make(name, sim), events)
-        assert res.stats["est_unknown"] == clean.stats["est_unknown"] + 1, name
-        _assert_tracks_equal(clean, res)
+    clean = run(_make(name, sim), sim.events)
+    res = run(_make(name, sim), events)
+    assert res.stats["unknown"] == clean.stats["unknown"] + 1 and res.accounted()
+    assert any("42" in k for k in res.reasons)
+    _assert_tracks_equal(clean, res)
 
 
 # ---------------------------------------------------------------------------------------------- recording grid
-def test_record_grid_with_truth_function():
+def test_record_grid_with_truth_function_and_missing_truth_counted():
     sim = random_team(3, 6.0, seed=3, zero_noise=True)
     col = {r: j for j, r in enumerate(sim.robot_ids)}
 
@@ -137,17 +149,31 @@ def test_record_grid_with_truth_function():
     grid = sim.times[::5]
     events = [e for e in sim.events if not isinstance(e, Truth)]
     noise = UnicycleNoise(q_v0=1e-12, q_w0=1e-12, q_lat0=1e-12)
-    res = run(DeadReckoning(_initial(sim, 1e-12), noise), events, record_times=grid, truth=truth)
-    assert res.stats["recorded"] == 3 * grid.size
+
+    def nodes() -> list[Node]:
+        return make_team("dr", _initial(sim, 1e-12), noise=noise)
+
+    res = run(nodes(), events, record_times=grid, truth=truth)
+    assert res.stats["recorded"] == 3 * grid.size and res.stats.get("truth_missing", 0) == 0
     for tr in res.tracks.values():
         np.testing.assert_array_equal(tr.times, grid)
         np.testing.assert_allclose(tr.mean[:, :2], tr.truth[:, :2], atol=1e-9)
         np.testing.assert_allclose(metrics.wrap(tr.mean[:, 2] - tr.truth[:, 2]), 0.0, atol=1e-9)
-    # a grid reaching past the last event is still recorded (extrapolated), where truth exists
+    # a grid time without truth is not recorded, and counted (one per robot)
     late = np.array([1.0, sim.times[-1], sim.times[-1] + 0.5])
-    res = run(DeadReckoning(_initial(sim, 1e-12), noise), events, record_times=late, truth=truth)
-    assert res.stats["recorded"] == 3 * 2
+    res = run(nodes(), events, record_times=late, truth=truth)
+    assert res.stats["recorded"] == 3 * 2 and res.stats["truth_missing"] == 3
     assert all(tr.times.tolist() == late[:2].tolist() for tr in res.tracks.values())
+    # without a truth function every time is recorded, with NaN truth
+    res = run(nodes(), events, record_times=late)
+    assert res.stats["recorded"] == 3 * 3 and np.isnan(res.tracks[0].truth).all()
+
+
+def test_progress_callback_reaches_the_end():
+    sim = random_team(2, 3.0, seed=1)
+    calls: list[tuple[int, int]] = []
+    run(_make("dekf", sim), sim.events, progress=lambda done, total: calls.append((done, total)))
+    assert calls[0][0] == 0 and calls[-1] == (len(sim.events), len(sim.events))
 
 
 # ---------------------------------------------------------------------------------------------- metrics

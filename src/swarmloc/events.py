@@ -26,8 +26,13 @@ class Odometry:
 
     @property
     def t(self) -> float:
-        """Time stamp used for ordering: the end of the interval."""
+        """End of the interval (when encoder odometry over it becomes available)."""
         return self.t1
+
+    @property
+    def stamp(self) -> float:
+        """The command's start ``t0``: where a node files it (the command is in force from ``t0`` on)."""
+        return self.t0
 
     @property
     def dt(self) -> float:
@@ -58,6 +63,10 @@ class Detection:
     target: int | None = None
     target_is_robot: bool = True
 
+    @property
+    def stamp(self) -> float:
+        return self.t
+
 
 @dataclass(frozen=True, slots=True)
 class Truth:
@@ -67,9 +76,14 @@ class Truth:
     t: float
     pose: np.ndarray = field(repr=False)
 
+    @property
+    def stamp(self) -> float:
+        return self.t
+
 
 Event = Odometry | Detection | Truth
 
 
 def event_time(e: Event) -> float:
-    return e.t
+    """The stamp a node files an event under: ``t0`` for odometry, ``t`` otherwise."""
+    return e.stamp

@@ -1,26 +1,33 @@
-"""Estimators behind one protocol (predict / update / belief): dead reckoning, the thesis estimator,
-the distributed EKF, the centralized CL-EKF and consistent distributed fusion."""
+"""Estimators as nodes (:mod:`swarmloc.estimators.node`): one per robot for the distributed ones, one for the team
+for the centralized one. :data:`ESTIMATORS` maps command-line names to node classes; :func:`make_team` builds the
+nodes of a team from each robot's initial belief.
 
-from swarmloc.estimators.base import CallbackChannel, Channel, Estimator, NoChannel
-from swarmloc.estimators.consistent import ExpCI, RecursiveDecentralized
-from swarmloc.estimators.ekf import CentralizedEKF, DistributedEKF
-from swarmloc.estimators.expfusion import DeadReckoning, ExpFusion
+| name | class | kind |
+|---|---|---|
+| ``dr`` | :class:`DeadReckoning` | prediction only |
+| ``expfusion`` | :class:`ExpFusion` | the thesis estimator (distributed) |
+| ``dekf`` | :class:`DistributedEKF` | distributed EKF (thesis baseline) |
+| ``ci`` | :class:`ExpCI` | covariance intersection in exponential coordinates (distributed, consistent) |
+| ``rdl`` | :class:`RecursiveDecentralized` | recursive decentralized localization (distributed, pairwise) |
+| ``cekf`` | :class:`CentralizedEKF` | centralized EKF (reference) |
+"""
 
-__all__ = [
-    "CallbackChannel",
-    "CentralizedEKF",
-    "Channel",
-    "DeadReckoning",
-    "DistributedEKF",
-    "Estimator",
-    "ExpCI",
-    "ExpFusion",
-    "RecursiveDecentralized",
-    "NoChannel",
-    "ESTIMATORS",
-]
+from __future__ import annotations
 
-ESTIMATORS = {
+import inspect
+from collections.abc import Mapping
+from typing import Any
+
+from swarmloc.estimators.cekf import CentralizedEKF
+from swarmloc.estimators.ci import ExpCI
+from swarmloc.estimators.dekf import DistributedEKF
+from swarmloc.estimators.dr import DeadReckoning
+from swarmloc.estimators.expfusion import ExpFusion
+from swarmloc.estimators.node import DEFAULT_HORIZON, Node, RobotNode
+from swarmloc.estimators.rdl import RecursiveDecentralized
+from swarmloc.gaussian import GroupGaussian
+
+ESTIMATORS: dict[str, type[Node]] = {
     "dr": DeadReckoning,
     "expfusion": ExpFusion,
     "dekf": DistributedEKF,
@@ -28,4 +35,61 @@ ESTIMATORS = {
     "ci": ExpCI,
     "rdl": RecursiveDecentralized,
 }
-"""Estimator classes by their command-line name."""
+"""Node classes by their command-line name."""
+
+
+def accepted_options(cls: type[Node]) -> set[str]:
+    """Keyword options a node class accepts (its own and, through ``**kw``, its bases')."""
+    names: set[str] = set()
+    for klass in cls.__mro__:
+        if klass is object:
+            continue
+        params = inspect.signature(klass.__init__).parameters
+        names |= {p.name for p in params.values() if p.kind is inspect.Parameter.KEYWORD_ONLY}
+        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+            break
+    return names
+
+
+def make_team(estimator: str | type[Node], initial: Mapping[int, GroupGaussian], **options: Any) -> list[Node]:
+    """The nodes of a team: one per robot for a distributed estimator, one for a centralized one.
+
+    ``estimator``: a name in :data:`ESTIMATORS` or a node class; ``initial``: robot id -> initial belief;
+    ``options``: keyword arguments of the class (``noise`` is required). An option the class does not take raises
+    TypeError naming it (use :func:`options_for` to pick a common configuration's options per class).
+    """
+    cls = ESTIMATORS.get(estimator) if isinstance(estimator, str) else estimator
+    if cls is None:
+        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(ESTIMATORS)}")
+    extra = set(options) - accepted_options(cls)
+    if extra:
+        raise TypeError(
+            f"{cls.__name__} does not take option(s) {sorted(extra)}; it takes {sorted(accepted_options(cls))}"
+        )
+    if issubclass(cls, RobotNode):
+        return [cls(r, b, **options) for r, b in sorted(initial.items())]
+    return [cls(initial, **options)]
+
+
+def options_for(estimator: str | type[Node], **candidates: Any) -> dict[str, Any]:
+    """The subset of ``candidates`` that ``estimator`` takes (e.g. dead reckoning takes no ``gate``)."""
+    cls = ESTIMATORS[estimator] if isinstance(estimator, str) else estimator
+    ok = accepted_options(cls)
+    return {k: v for k, v in candidates.items() if k in ok}
+
+
+__all__ = [
+    "DEFAULT_HORIZON",
+    "ESTIMATORS",
+    "CentralizedEKF",
+    "DeadReckoning",
+    "DistributedEKF",
+    "ExpCI",
+    "ExpFusion",
+    "Node",
+    "RecursiveDecentralized",
+    "RobotNode",
+    "accepted_options",
+    "make_team",
+    "options_for",
+]

@@ -1,192 +1,170 @@
-"""The thesis estimator (exponential-coordinate prediction and fusion) and dead reckoning.
+"""The thesis estimator: exponential-coordinate prediction and n-neighbour fusion, one node per robot.
 
-Each robot runs a node with a Gaussian on SE(2) ``(mu, Sigma)``.
+Each node holds its robot's Gaussian on SE(2) ``(mu, Sigma)`` (right perturbation).
 
-* Prediction (thesis 4.13-4.15): the belief is convolved (second order) with the odometry increment, whose
-  mean is ``exp(dt (v, 0, w)^)`` and covariance eq. (5.4) for the body-twist diffusion ``Q(v, w)``
+* Prediction (thesis 4.13-4.15): the belief is convolved (second order) with the odometry increment, whose mean
+  is ``exp(dt (v, 0, w)^)`` and covariance eq. (5.4) for the body-twist diffusion ``Q(v, w)``
   (:func:`swarmloc.motion.odometry_increment`, exact closed form rather than the Simpson rule 5.12).
 * Update (thesis 4.16-4.19 as corrected in :mod:`swarmloc.fusion`): all relative-pose detections a robot made at
-  one instant are fused at once, each with the neighbour's belief obtained *from the neighbour* through the
-  channel; GPS-like absolute fixes are fused as direct observations of the pose. Range/bearing detections of
-  robots and of landmarks with known position (which the thesis has no model for) are fused by an iterated
-  update on the group that includes the target's uncertainty (:func:`swarmloc.fusion.fuse_point_measurement`).
+  one instant are fused at once, each with the neighbour's belief *answered by the neighbour*
+  (:class:`~swarmloc.messages.BeliefQuery`); GPS-like absolute fixes are fused as direct observations of the
+  pose. Range/bearing detections of robots and of landmarks with known position (which the thesis has no model
+  for) are fused by an iterated update on the group that includes the target's uncertainty
+  (:func:`swarmloc.kernels.group.point_update`).
 
 The fusion assumes the neighbour's belief is independent of the robot's own. When two robots measure each other
 again and again this is false (their beliefs become correlated through earlier fusions) and the estimator
-becomes over-confident: the NEES shows it. :mod:`swarmloc.estimators.consistent` fixes that.
+becomes over-confident: the NEES shows it. :mod:`swarmloc.estimators.ci` and :mod:`swarmloc.estimators.rdl`
+fix that.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from functools import partial
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.base import Channel, Estimator, _rot_block
-from swarmloc.events import Detection
-from swarmloc.fusion import (
-    fuse_point_measurement,
-    fuse_pseudo,
-    point_innovation,
-    pseudo_innovation,
-    relative_to_pseudo,
-)
-from swarmloc.gaussian import GroupGaussian, convolve_moments
+from swarmloc.estimators.node import FUSED, Group, Outcome, RobotNode, usable_covariance
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.kernels import group as K
 from swarmloc.lie import SE2
-from swarmloc.motion import UnicycleNoise, odometry_increment
+from swarmloc.messages import BeliefAnswer, Message
+from swarmloc.motion import odometry_increment
+
+DEGENERATE = "degenerate geometry: the target is at the observer's position"
+NUMERICAL = "the update is not finite or not positive definite"
 
 
-class _Node:
-    """State of one robot: mean (3x3) and covariance (3x3) in exponential coordinates."""
+class ExpState(NamedTuple):
+    """A node's filter state: time [s], command ``(v [m/s], w [rad/s])``, mean ``(3, 3)``, covariance ``(3, 3)``."""
 
-    __slots__ = ("mean", "cov", "t")
-
-    def __init__(self, b: GroupGaussian, t: float = 0.0) -> None:
-        self.mean = np.array(b.mean)
-        self.cov = np.array(b.cov)
-        self.t = t
-
-    def belief(self) -> GroupGaussian:
-        return GroupGaussian(SE2, self.mean, self.cov, validate=False)
+    t: float
+    v: float
+    w: float
+    mean: np.ndarray
+    cov: np.ndarray
 
 
-class ExpFusion(Estimator):
-    """Thesis estimator: second-order exponential-coordinate prediction and n-neighbour fusion (distributed).
+class ExpFusion(RobotNode):
+    """Thesis estimator (distributed): second-order exponential-coordinate prediction and n-neighbour fusion.
 
-    Parameters
-    ----------
-    initial: initial belief per robot.
-    noise: process-noise model of the odometry (per-second body-twist diffusion).
+    Parameters (besides :class:`~swarmloc.estimators.node.RobotNode`'s)
+    --------------------------------------------------------------------
     order: 2 (thesis) or 1 (first-order convolution and fusion).
-    iterations: re-linearizations of the fusion (1 = thesis closed form).
-    use_relative: fuse relative-pose detections of other robots.
+    iterations: Gauss-Newton passes of the relative-pose fusion; 1 is the thesis' closed form, the default 2
+        re-linearizes once (as :func:`swarmloc.fuse_relative`).
+    point_iterations: passes of the range/bearing update on the group.
     """
 
     name = "expfusion"
 
     def __init__(
         self,
-        initial: Mapping[int, GroupGaussian],
-        noise: UnicycleNoise,
+        robot: int,
+        initial: GroupGaussian,
+        *,
         order: int = 2,
-        iterations: int = 1,
-        use_relative: bool = True,
-        landmarks: Mapping[int, tuple[float, float, float, float]] | None = None,
-        use_landmarks: bool = True,
+        iterations: int = 2,
         point_iterations: int = 3,
-        gate: float | None = None,
+        **kw: Any,
     ) -> None:
+        if order not in (1, 2):
+            raise ValueError(f"{type(self).__name__}: 'order' must be 1 or 2, got {order!r}")
+        for name, val in (("iterations", iterations), ("point_iterations", point_iterations)):
+            if not isinstance(val, int) or val < 1:
+                raise ValueError(f"{type(self).__name__}: '{name}' must be an integer >= 1, got {val!r}")
         self.order = order
         self.iterations = iterations
         self.point_iterations = point_iterations
-        super().__init__(initial, noise, landmarks, use_relative, use_landmarks, gate)
+        super().__init__(robot, initial, **kw)
 
-    def _init_state(self, initial: Mapping[int, GroupGaussian]) -> None:
-        self._nodes = {r: _Node(b) for r, b in initial.items()}
+    # ------------------------------------------------------------------------------------------------ filter
+    def _initial_state(self, t0: float) -> ExpState:
+        return ExpState(t0, 0.0, 0.0, np.array(self.initial.mean), np.array(self.initial.cov))
 
-    # ------------------------------------------------------------------ protocol
-    def predict(self, robot: int, t0: float, t1: float, v: float, w: float) -> None:
-        self._check_robot(robot)
-        dt = t1 - t0
+    def _advance(self, s: ExpState, robot: int, t: float) -> ExpState:
+        dt = t - s.t
         if dt <= 0:
-            return
-        node = self._nodes[robot]
-        inc_mean, inc_cov = odometry_increment(float(v), float(w), float(dt), self.noise)
-        node.mean, node.cov = convolve_moments(SE2, node.mean, node.cov, inc_mean, inc_cov, self.order)
-        node.t = t1
-        self.stats["predict"] += 1
+            return s
+        inc_mean, inc_cov = odometry_increment(s.v, s.w, dt, self.noise)
+        mean, cov = K.predict(SE2, s.mean, s.cov, inc_mean, inc_cov, self.order)
+        return ExpState(t, s.v, s.w, mean, cov)
 
-    def belief(self, robot: int) -> GroupGaussian:
-        self._check_robot(robot)
-        return self._nodes[robot].belief()
+    def _set_command(self, s: ExpState, robot: int, v: float, w: float) -> ExpState:
+        return ExpState(s.t, v, w, s.mean, s.cov)
 
-    def predicted_belief(self, robot: int, dt: float, v: float, w: float) -> GroupGaussian:
-        self._check_robot(robot)
-        node = self._nodes[robot]
-        if dt <= 0:
-            return node.belief()
-        inc_mean, inc_cov = odometry_increment(float(v), float(w), float(dt), self.noise)
-        mean, cov = convolve_moments(SE2, node.mean, node.cov, inc_mean, inc_cov, self.order)
-        return GroupGaussian(SE2, mean, cov, validate=False)
+    def _belief(self, s: ExpState, robot: int) -> GroupGaussian:
+        return GroupGaussian(SE2, s.mean, s.cov, validate=False)
 
-    def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
-        self._check_robot(robot)
-        node = self._nodes[robot]
-        nus: list[np.ndarray] = []
-        Ws: list[np.ndarray] = []
-        rest: list[Detection] = []
-        for d in self.usable(robot, detections):
-            pseudo = self._pseudo(robot, t, d, channel)
+    # ------------------------------------------------------------------------------------------------ update
+    def _pseudo(self, d: Any, target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
+        """Pseudo-observation ``(nu, W)`` of the robot's own pose (absolute fix or relative pose of a robot)."""
+        if target[0] == "absolute":
+            return K.absolute_to_pseudo(d.z, np.asarray(d.cov, float))
+        if target[0] == "robot" and d.kind == "pose":
+            nb: BeliefAnswer = target[1]
+            mean, cov = nb.belief_arrays()
+            return K.relative_to_pseudo(SE2, mean, cov, SE2.from_xytheta(d.z), np.asarray(d.cov, float), self.order)
+        return None
+
+    @staticmethod
+    def _point_target(target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray, bool]:
+        if target[0] == "robot":
+            mean, cov = target[1].belief_arrays()
+            return mean, cov, True
+        p, C = target[1]
+        return p, C, False
+
+    def _point(self, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any], w: float = 1.0) -> Any:
+        """Range/bearing update; returns ``(mean, cov)`` or the outcome when it cannot be fused."""
+        tm, tc, robot = self._point_target(target)
+        R = np.asarray(d.cov, float)
+        if self.gate is not None:
+            nis = float(K.point_nis(mean, cov, d.kind, d.z, R, tm, tc, robot))
+            if not np.isfinite(nis):
+                return ("rejected", DEGENERATE)
+            verdict = self._gated(nis, len(d.z))
+            if verdict is not None:
+                return verdict
+        m2, c2, ok = K.point_update(mean, cov, d.kind, d.z, R, tm, tc, robot, self.point_iterations, self.order)
+        if not bool(ok):
+            return ("rejected", DEGENERATE)
+        if not usable_covariance(c2):
+            return ("rejected", NUMERICAL)
+        return m2, c2
+
+    def _fuse_group(self, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
+        outcomes: list[Outcome | None] = [None] * len(g.detections)
+        nus, Ws, idx, points = [], [], [], []
+        for i, d in enumerate(g.detections):
+            target = self._classify(g, d)
+            if target[0] in ("rejected", "unknown"):
+                outcomes[i] = target
+                continue
+            pseudo = self._pseudo(d, target)
             if pseudo is None:
-                rest.append(d)
-            elif pseudo is not False:
-                if self.gated(partial(pseudo_innovation, node.mean, node.cov, pseudo[0], pseudo[1]), 3):
-                    continue
-                nus.append(pseudo[0])
-                Ws.append(pseudo[1])
+                points.append((i, d, target))
+                continue
+            verdict = self._gated(float(K.pseudo_nis(SE2, s.mean, s.cov, *pseudo)), 3) if self.gate else None
+            if verdict is not None:
+                outcomes[i] = verdict
+                continue
+            nus.append(pseudo[0])
+            Ws.append(pseudo[1])
+            idx.append(i)
+        mean, cov = s.mean, s.cov
         if nus:
-            node.mean, node.cov = fuse_pseudo(
-                SE2, node.mean, node.cov, np.stack(nus), np.stack(Ws), self.order, self.iterations
-            )
-            self.stats["fused"] += len(nus)
-        if rest:
-            self._update_other(robot, t, rest, channel)
-        self.stats["update"] += 1
-
-    # ------------------------------------------------------------------ pieces
-    def _pseudo(
-        self, robot: int, t: float, d: Detection, channel: Channel
-    ) -> tuple[np.ndarray, np.ndarray] | None | bool:
-        """Pseudo-observation ``(nu, W)`` of the robot's own pose; None: not handled here; False: skipped."""
-        if d.kind == "absolute":
-            T = _rot_block(d.z[2]).T
-            return SE2.from_xytheta(d.z), T @ d.cov @ T.T
-        if d.kind != "pose" or not d.target_is_robot:
-            return None
-        nb = self.resolve_target(robot, t, d, channel)
-        if nb is None:
-            return False
-        return relative_to_pseudo(SE2, nb.mean, nb.cov, SE2.from_xytheta(d.z), np.asarray(d.cov), self.order)
-
-    def _point_target(
-        self, robot: int, t: float, d: Detection, channel: Channel
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """Target of a range/bearing detection: a neighbour's (mean 3x3, cov) or a landmark's (xy, cov 2x2)."""
-        tgt = self.resolve_target(robot, t, d, channel)
-        return (np.asarray(tgt.mean), np.asarray(tgt.cov)) if isinstance(tgt, GroupGaussian) else tgt
-
-    def _fuse_point(self, node: _Node, d: Detection, target: tuple[np.ndarray, np.ndarray]) -> None:
-        node.mean, node.cov = fuse_point_measurement(
-            node.mean, node.cov, d.kind, d.z, np.asarray(d.cov), target[0], target[1], self.point_iterations, self.order
-        )
-
-    def _update_other(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
-        """Range/bearing detections of robots and landmarks: iterated update on the group, one at a time.
-
-        The thesis has no model for them; see :func:`swarmloc.fusion.fuse_point_measurement`.
-        """
-        node = self._nodes[robot]
-        for d in detections:
-            target = self._point_target(robot, t, d, channel)
-            if target is None:
-                continue
-            nis = partial(point_innovation, node.mean, node.cov, d.kind, d.z, np.asarray(d.cov), *target)
-            if self.gated(nis, len(d.z)):
-                continue
-            self._fuse_point(node, d, target)
-            self.stats["fused"] += 1
-
-
-class DeadReckoning(ExpFusion):
-    """Exponential-coordinate prediction only: every detection is ignored."""
-
-    name = "dr"
-
-    def __init__(self, initial: Mapping[int, GroupGaussian], noise: UnicycleNoise, order: int = 2, **_: object) -> None:
-        super().__init__(initial, noise, order=order, use_relative=False)
-        # keyword arguments of the cooperative estimators (landmarks, gate, ...) are accepted and unused
-
-    def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Channel) -> None:
-        self._check_robot(robot)
-        self.stats["update"] += 1
+            m2, c2 = K.fuse_pseudo(SE2, mean, cov, np.stack(nus), np.stack(Ws), self.order, self.iterations)
+            ok = np.isfinite(m2).all() and usable_covariance(c2)
+            if ok:
+                mean, cov = m2, c2
+            for i in idx:
+                outcomes[i] = FUSED if ok else ("rejected", NUMERICAL)
+        for i, d, target in points:
+            res = self._point(mean, cov, d, target)
+            if isinstance(res[0], str):
+                outcomes[i] = res
+            else:
+                mean, cov = res
+                outcomes[i] = FUSED
+        return ExpState(s.t, s.v, s.w, mean, cov), outcomes, []

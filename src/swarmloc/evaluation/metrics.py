@@ -13,7 +13,7 @@ from scipy.stats import chi2
 
 from swarmloc.lie import SE2
 from swarmloc.lie import wrap_angle as wrap
-from swarmloc.sim.runner import RobotTrack, RunResult
+from swarmloc.runner import RobotTrack, RunResult
 
 DOF = 3
 

@@ -1,0 +1,212 @@
+"""The centralized cooperative-localization EKF (lecture slides 15-19): one node for the whole team.
+
+Not distributed: one filter sees every robot's odometry and every detection, and keeps the joint Cartesian state
+``X = (x_1, y_1, theta_1, ..., x_n, y_n, theta_n)`` and its ``3n x 3n`` covariance. It is exact to first order and
+is the reference the distributed estimators are scored against. Each robot's block has its own clock and
+command; a detection predicts both the observer and the detected robot to the detection's stamp before the joint
+update, so the centralized filter compares like with like with the distributed ones (whose neighbours answer
+with their belief at that stamp). Updates are :func:`swarmloc.kernels.cartesian.kalman_update` on the joint
+state, one detection at a time (exact for a joint Kalman update with independent measurement noise).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, measurement_noise
+from swarmloc.estimators.node import FUSED, Group, Node, Outcome, usable_covariance
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.kernels import cartesian as C
+from swarmloc.lie import SE2
+from swarmloc.messages import Message
+from swarmloc.motion import UnicycleNoise
+from swarmloc.sensors import models
+
+
+class TeamState(NamedTuple):
+    """Joint state ``X (3n,)``, covariance ``P (3n, 3n)``, each robot's time [s] and command ``(v, w)``, and each
+    robot's predictions not yet applied to ``P`` (``pend``).
+
+    A prediction of robot ``k`` is ``P <- Phi P Phi^T + Q`` on its rows and columns, with ``Phi`` the identity but for
+    ``(0, 2) = -dy`` and ``(1, 2) = dx``. Such ``Phi`` compose by adding those two entries, so successive predictions
+    are kept as one ``(a, b, Q)`` per robot (``pend[k]``, the upper triangle of ``Q``) and applied to ``P`` when an
+    update needs the joint covariance (:func:`_flush`): the mean is always current.
+    """
+
+    X: np.ndarray
+    P: np.ndarray
+    t: tuple[float, ...]
+    cmd: tuple[tuple[float, float], ...]
+    pend: tuple[tuple[float, ...] | None, ...]
+
+
+def _shear(q: tuple[float, ...], dx: float, dy: float) -> tuple[float, ...]:
+    """``Phi Q Phi^T`` for symmetric ``Q`` given by its upper triangle ``(q00, q01, q02, q11, q12, q22)``."""
+    q00, q01, q02, q11, q12, q22 = q
+    a02, a12 = q02 - dy * q22, q12 + dx * q22
+    return (
+        q00 - 2 * dy * q02 + dy * dy * q22, q01 - dy * q12 + dx * a02, a02,
+        q11 + 2 * dx * q12 + dx * dx * q22, a12, q22,
+    )  # fmt: skip
+
+
+def _flush(s: TeamState) -> TeamState:
+    """The state with every robot's pending predictions applied to ``P``."""
+    if not any(s.pend):
+        return s
+    P = s.P.copy()
+    for k, pd in enumerate(s.pend):
+        if pd is None:
+            continue
+        i = 3 * k
+        a, b, q00, q01, q02, q11, q12, q22 = pd
+        row = P[i + 2].copy()
+        P[i] += a * row
+        P[i + 1] += b * row
+        col = P[:, i + 2].copy()
+        P[:, i] += a * col
+        P[:, i + 1] += b * col
+        P[i : i + 3, i : i + 3] += np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+    return TeamState(s.X, P, s.t, s.cmd, (None,) * len(s.pend))
+
+
+class CentralizedEKF(Node):
+    """Centralized CL-EKF with the joint covariance of the team.
+
+    Parameters
+    ----------
+    initial: every robot's initial belief (SE(2) :class:`~swarmloc.gaussian.GroupGaussian`), by robot id.
+    noise: process noise of the odometry (the same model for every robot).
+    Other keywords: see :class:`~swarmloc.estimators.node.Node`.
+    """
+
+    name = "cekf"
+    distributed = False
+
+    def __init__(self, initial: Mapping[int, GroupGaussian], *, noise: UnicycleNoise, **kw: Any) -> None:
+        cls = type(self).__name__
+        if not isinstance(initial, Mapping) or not initial:
+            raise ValueError(f"{cls}: 'initial' must map each robot id to its initial belief (at least one robot)")
+        for r, b in initial.items():
+            if not isinstance(b, GroupGaussian) or b.group is not SE2 or b.batch_shape:
+                raise ValueError(f"{cls}: initial belief of robot {r} must be one SE(2) GroupGaussian, got {b!r}")
+        if not isinstance(noise, UnicycleNoise):
+            raise ValueError(f"{cls}: 'noise' must be a UnicycleNoise, got {type(noise).__name__}")
+        self.initial = dict(initial)
+        self.noise = noise
+        robots = sorted(initial)
+        self._idx = {r: 3 * i for i, r in enumerate(robots)}
+        self._angles = tuple(range(2, 3 * len(robots), 3))
+        super().__init__(robots, **kw)
+
+    # ------------------------------------------------------------------------------------------------ filter
+    def _initial_state(self, t0: float) -> TeamState:
+        n = 3 * len(self.robots)
+        X, P = np.zeros(n), np.zeros((n, n))
+        for r, b in self.initial.items():
+            i = self._idx[r]
+            X[i : i + 3], P[i : i + 3, i : i + 3] = C.from_group(b.mean, b.cov)
+        n_r = len(self.robots)
+        return TeamState(X, P, (t0,) * n_r, ((0.0, 0.0),) * n_r, (None,) * n_r)
+
+    def _advance(self, s: TeamState, robot: int, t: float) -> TeamState:
+        k = self._idx[robot] // 3
+        dt = t - s.t[k]
+        if dt <= 0:
+            return s
+        i = 3 * k
+        v, w = s.cmd[k]
+        x0, y0, th, dx, dy, *q = C.increment_terms(s.X[i : i + 3], v, w, dt, self.noise)
+        X = s.X.copy()
+        X[i], X[i + 1], X[i + 2] = x0, y0, th
+        old = s.pend[k]
+        if old is None:
+            pend_k = (-dy, dx, *q)
+        else:  # Phi_new (Phi_old P Phi_old^T + Q_old) Phi_new^T + Q_new
+            shared = _shear(old[2:], dx, dy)
+            pend_k = (old[0] - dy, old[1] + dx, *(u + w_ for u, w_ in zip(shared, q, strict=True)))
+        times = list(s.t)
+        times[k] = t
+        pend = list(s.pend)
+        pend[k] = pend_k
+        return TeamState(X, s.P, tuple(times), s.cmd, tuple(pend))
+
+    def _set_command(self, s: TeamState, robot: int, v: float, w: float) -> TeamState:
+        cmd = list(s.cmd)
+        cmd[self._idx[robot] // 3] = (v, w)
+        return TeamState(s.X, s.P, s.t, tuple(cmd), s.pend)
+
+    def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
+        i = self._idx[robot]
+        P = s.P[i : i + 3, i : i + 3]
+        pd = s.pend[i // 3]
+        if pd is not None:  # the robot's marginal with its pending predictions
+            q = _shear((P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]), pd[1], -pd[0])
+            q00, q01, q02, q11, q12, q22 = (u + w for u, w in zip(q, pd[2:], strict=True))
+            P = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+        return GroupGaussian(SE2, *C.to_group(s.X[i : i + 3], P), validate=False)
+
+    def joint_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Joint Cartesian state ``(3n,)`` and covariance ``(3n, 3n)`` with every robot predicted to ``t`` [s]
+        (robots in increasing id order)."""
+        s = self._state_before((t, 3))
+        for r in self.robots:
+            s = self._adv(s, r, t)
+        s = _flush(s)
+        return s.X.copy(), s.P.copy()
+
+    # ------------------------------------------------------------------------------------------------ update
+    def _robot_target(self, g: Group, d: Any, sub: tuple) -> tuple[str, Any]:
+        if d.target not in self._idx:
+            return ("unknown", f"robot {d.target} is not in the team")
+        return ("robot", d.target)
+
+    def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
+        outcomes: list[Outcome] = []
+        n = s.X.size
+        i = self._idx[g.observer]
+        si = slice(i, i + 3)
+        for d in g.detections:
+            target = self._classify(g, d)
+            if target[0] in ("rejected", "unknown"):
+                outcomes.append(target)
+                continue
+            R = measurement_noise(d)
+            xi = s.X[si]
+            if target[0] == "absolute":
+                H = np.zeros((3, n))
+                H[:, si] = np.eye(3)
+                r = models.residual("pose", d.z, xi)
+            else:
+                if target[0] == "robot":
+                    s = self._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
+                    k = self._idx[target[1]]
+                    xk, Ck = s.X[k : k + 3], None
+                else:
+                    xk, Ck = target[1]
+                if models.degenerate(d.kind, xi, xk):
+                    outcomes.append(("rejected", DEGENERATE))
+                    continue
+                h, Hi, Hk = models.predict(d.kind, xi, xk)
+                H = np.zeros((len(h), n))
+                H[:, si] = Hi
+                if Ck is None:
+                    H[:, k : k + 3] = Hk
+                else:
+                    R = R + Hk @ Ck @ Hk.T
+                r = models.residual(d.kind, d.z, h)
+            sf = _flush(s)  # pending predictions applied only for an update (so a rejected one changes no bit)
+            X, P, nis, ok = C.kalman_update(sf.X, sf.P, r, H, R, self._angles)
+            verdict = self._gated(float(nis), len(r))
+            if verdict is not None:
+                outcomes.append(verdict)
+                continue
+            if not (bool(ok) and usable_covariance(P)):
+                outcomes.append(("rejected", NUMERICAL))
+                continue
+            s = TeamState(X, P, sf.t, sf.cmd, sf.pend)
+            outcomes.append(FUSED)
+        return s, outcomes, []

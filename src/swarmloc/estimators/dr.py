@@ -1,0 +1,46 @@
+"""Dead reckoning: the thesis' prediction alone (second-order exponential-coordinate convolution), no fusion.
+
+The baseline every cooperative estimator must beat. Every detection is counted ``rejected`` with the reason
+"dead reckoning does not use detections", so that a run's accounting still adds up.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from swarmloc.estimators.expfusion import ExpFusion, ExpState
+from swarmloc.estimators.node import Group, Outcome
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.messages import Message
+from swarmloc.motion import UnicycleNoise
+
+UNUSED = "dead reckoning does not use detections"
+
+
+class DeadReckoning(ExpFusion):
+    """Exponential-coordinate prediction only.
+
+    Parameters: ``robot``, ``initial``, ``noise``, ``order`` (1 or 2), ``t0``, ``horizon``; nothing else (an
+    unknown keyword raises TypeError).
+    """
+
+    name = "dr"
+
+    def __init__(
+        self,
+        robot: int,
+        initial: GroupGaussian,
+        *,
+        noise: UnicycleNoise,
+        order: int = 2,
+        t0: float | None = None,
+        horizon: float | None = None,
+    ) -> None:
+        kw: dict[str, Any] = {} if horizon is None else {"horizon": horizon}
+        super().__init__(robot, initial, noise=noise, order=order, t0=t0, use_relative=False, use_landmarks=False, **kw)
+
+    def _requests(self, g: Group) -> list[Message]:
+        return []
+
+    def _fuse_group(self, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
+        return s, [("rejected", UNUSED)] * len(g.detections), []

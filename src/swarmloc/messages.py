@@ -1,0 +1,122 @@
+"""Messages between nodes: the neighbour exchange as declared types (what the network runtime serializes).
+
+Every exchange belongs to one detection instant of one observer, its **key**: the detection's stamp ``t``, the
+observer's robot id and a sub-key ``sub`` (``()`` for a whole detection group; the detection's canonical key
+when each detection has its own exchange, as in recursive decentralized fusion). A node answers a query with
+its state *before* that key: built from all of its inputs ordered before ``(t, observer, sub)`` and predicted
+to ``t`` with the command in force then (:class:`swarmloc.estimators.node.Node`). The answer is therefore the
+same whenever it is asked; when a late input changes it, the node sends it again with a higher revision ``seq``
+and the asker re-fuses from ``t``. An answer or update with a ``seq`` lower than one already received is stale
+and dropped (and counted).
+
+Types:
+
+* :class:`BeliefQuery` / :class:`BeliefAnswer`: "your belief at my detection ``t``" (thesis estimator,
+  distributed EKF, covariance intersection; the thesis' localizer asks a detected neighbour for its belief);
+* :class:`RdlStateQuery` / :class:`RdlState` / :class:`RdlUpdate`: recursive decentralized fusion's pairwise
+  exchange (Luft et al. 2018): the observer asks for the target's Cartesian state, covariance and
+  cross-covariance factor, computes the joint update, and sends the target its part, naming the revision of
+  the state it was computed from (``based_on``), so that an update computed from an outdated state can never
+  overwrite a newer one.
+
+Numbers travel as flat tuples (row-major matrices) so that any msgspec encoder (MessagePack, JSON) carries them
+without hooks. Conventions: SE(2) means as 3x3 homogeneous matrices, covariances of exponential coordinates
+(right perturbation); Cartesian states ``(x, y, theta)`` in metres and radians.
+"""
+
+from __future__ import annotations
+
+import msgspec
+import numpy as np
+
+from swarmloc.gaussian import GroupGaussian
+
+Floats = tuple[float, ...]
+
+SCHEMA_VERSION = 1
+
+
+def flat(a: np.ndarray) -> Floats:
+    """A numpy array as a flat tuple of Python floats (row-major)."""
+    return tuple(np.asarray(a, dtype=float).ravel().tolist())
+
+
+class Message(msgspec.Struct, frozen=True, kw_only=True, tag_field="type", tag=True):
+    """Common fields: the sending and receiving robot ids, the key's stamp [s] and sub-key."""
+
+    sender: int
+    receiver: int
+    stamp: float
+    sub: Floats = ()
+
+    @property
+    def observer(self) -> int:
+        """The robot whose detection this exchange belongs to (part of the key)."""
+        return self.sender
+
+
+class BeliefQuery(Message, frozen=True, kw_only=True, tag="belief_query"):
+    """Asks ``receiver`` for its belief at ``stamp``, before the sender's detection key."""
+
+
+class BeliefAnswer(Message, frozen=True, kw_only=True, tag="belief_answer"):
+    """``receiver``'s query answered by ``sender``: its belief at ``stamp`` (``found=False``: none, see ``reason``)."""
+
+    seq: int = 0
+    found: bool = True
+    group: str = "SE2"
+    mean: Floats = ()
+    cov: Floats = ()
+    reason: str = ""
+
+    @property
+    def observer(self) -> int:
+        return self.receiver
+
+    def belief(self) -> GroupGaussian:
+        """The answered belief as an SE(2) :class:`GroupGaussian` (not validated)."""
+        return GroupGaussian(self.group, *self.belief_arrays(), validate=False)
+
+    def belief_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The answered mean ``(3, 3)`` and covariance ``(3, 3)`` as arrays."""
+        return np.reshape(np.array(self.mean), (3, 3)), np.reshape(np.array(self.cov), (3, 3))
+
+
+class RdlStateQuery(Message, frozen=True, kw_only=True, tag="rdl_state_query"):
+    """Asks ``receiver`` (the detected robot ``j``) for ``(x_j, P_jj, sigma_ji)`` before the sender's key."""
+
+
+class RdlState(Message, frozen=True, kw_only=True, tag="rdl_state"):
+    """``j``'s Cartesian state ``x`` (3), covariance ``P`` (9) and factor ``sigma`` (9) for the asker ``i``, so that
+    ``Sigma_ij = sigma_ij sigma_ji^T``; ``seq`` is the revision of this answer."""
+
+    seq: int = 0
+    found: bool = True
+    x: Floats = ()
+    P: Floats = ()
+    sigma: Floats = ()
+    reason: str = ""
+
+    @property
+    def observer(self) -> int:
+        return self.receiver
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return np.array(self.x), np.reshape(self.P, (3, 3)), np.reshape(self.sigma, (3, 3))
+
+
+class RdlUpdate(Message, frozen=True, kw_only=True, tag="rdl_update"):
+    """The observer's joint update sends the target its new state ``x`` and covariance ``P``, computed from the
+    target's answer of revision ``based_on``."""
+
+    based_on: int = 0
+    x: Floats = ()
+    P: Floats = ()
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.array(self.x), np.reshape(self.P, (3, 3))
+
+
+Query = BeliefQuery | RdlStateQuery
+Answer = BeliefAnswer | RdlState
+AnyMessage = BeliefQuery | BeliefAnswer | RdlStateQuery | RdlState | RdlUpdate

@@ -1,0 +1,39 @@
+"""What a run produces: recorded beliefs per robot against truth, counters, and wall time."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class RobotTrack:
+    """Recorded beliefs of one robot: times ``(T,)`` [s], means ``(T, 3)`` as ``(x, y, theta)``,
+    exponential-coordinate covariances ``(T, 3, 3)`` (right perturbation) and truth ``(T, 3)`` (NaN when unknown)."""
+
+    times: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    truth: np.ndarray
+
+
+@dataclass
+class RunResult:
+    """One estimator's run: ``tracks`` by robot id, ``wall_time`` [s] of the event loop, ``stats`` (the nodes'
+    counters summed with the runner's), ``reasons`` (why inputs were rejected or unknown) and ``timing``
+    (seconds in predictions and detection updates, summed over nodes)."""
+
+    estimator: str
+    tracks: dict[int, RobotTrack]
+    wall_time: float
+    stats: dict[str, int] = field(default_factory=dict)
+    n_events: int = 0
+    reasons: Counter[str] = field(default_factory=Counter)
+    timing: dict[str, float] = field(default_factory=dict)
+
+    def accounted(self) -> bool:
+        """Every detection that came in ended fused, gated, rejected or unknown (none pending, none lost)."""
+        s = self.stats
+        return s["detections"] == s["fused"] + s["gated"] + s["rejected"] + s["unknown"] and s["pending"] == 0
