@@ -1,0 +1,416 @@
+"""Configuration of the models and the filter, read from a TOML file (standard library :mod:`tomllib`).
+
+Five sections, every key optional (a missing key keeps its default; defaults are the MRCLAM evaluation defaults of
+:mod:`swarmloc.experiments.mrclam`)::
+
+    [motion]     # unicycle body-twist diffusion (swarmloc.motion.unicycle.UnicycleNoise), per second
+    q_v0 = 0.0001    # [m^2/s]      q_fwd = q_v0 + q_v1 |v| + q_v2 v^2
+    q_v1 = 0.0       # [m]
+    q_v2 = 0.05      # [s]
+    q_lat0 = 0.0001  # [m^2/s]      q_lat = q_lat0 + q_lat1 |v|
+    q_lat1 = 0.01    # [m]
+    q_w0 = 0.001     # [rad^2/s]    q_yaw = q_w0 + q_w1 |w| + q_w2 w^2 + q_wv |v|
+    q_w1 = 0.0       # [rad]
+    q_w2 = 0.05      # [s]
+    q_wv = 0.02      # [rad^2/m]
+
+    [sensors]    # noise std of detections that carry none, and of MRCLAM's camera
+    range_std = 0.3            # [m]
+    bearing_std = 0.035        # [rad]
+    pose_xy_std = 0.05         # [m]    relative pose, exponential coordinates
+    pose_theta_std = 0.0175    # [rad]
+    absolute_xy_std = 0.01     # [m]    absolute fix
+    absolute_theta_std = 0.01  # [rad]
+
+    [filter]
+    gate = 0.997       # chi-square probability in (0, 1) of the innovation gate; false (or 0) disables it
+    horizon = 5.0      # [s] how far back out-of-order input is replayed
+    order = 2          # 1 or 2: order of the SE(2) convolution
+    iterations = 2     # >= 1, iterations of the iterated update
+    point_iterations = 3  # >= 1, iterations of a point (landmark) update
+
+    [record]
+    rate = 4.0         # [Hz] rate at which beliefs are recorded
+
+    [initial]
+    std_xy = 0.01      # [m] initial-belief std of x and y
+    std_theta = 0.01   # [rad] initial-belief std of the heading
+
+Units: metres, radians, seconds. Every problem raises :class:`ConfigError` (a ``ValueError``) naming the file, the
+``[section] key`` and what was expected; a TOML syntax error names the file, line and column.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import os
+import re
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from swarmloc.motion.unicycle import UnicycleNoise
+
+__all__ = [
+    "DEFAULTS",
+    "Config",
+    "ConfigError",
+    "FilterConfig",
+    "InitialConfig",
+    "MotionConfig",
+    "RecordConfig",
+    "SensorConfig",
+    "load_config",
+]
+
+
+class ConfigError(ValueError):
+    """A problem with a configuration: unknown section or key, wrong type, value out of range, TOML syntax."""
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# field validation (shared by every section; runs in __post_init__, so direct construction is checked too)
+
+
+def _describe(value: object) -> str:
+    if isinstance(value, bool):
+        return f"a boolean ({str(value).lower()})"
+    if isinstance(value, str):
+        return f"a string ({value!r})"
+    if isinstance(value, int | float):
+        return repr(value)
+    return f"a {type(value).__name__} ({value!r})"
+
+
+def _real(section: str, key: str, value: object, lo: float | None, lo_open: bool, what: str) -> float:
+    """``value`` as a finite float ``> lo`` (``lo_open``) or ``>= lo``; TOML integers are accepted."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"[{section}] {key}: expected {what}, got {_describe(value)}")
+    x = float(value)
+    if not math.isfinite(x) or (lo is not None and (x <= lo if lo_open else x < lo)):
+        raise ConfigError(f"[{section}] {key}: expected {what}, got {_describe(value)}")
+    return x
+
+
+def _nonneg(section: str, key: str, value: object) -> float:
+    return _real(section, key, value, 0.0, False, "a finite number >= 0")
+
+
+def _positive(section: str, key: str, value: object) -> float:
+    return _real(section, key, value, 0.0, True, "a finite number > 0")
+
+
+def _integer(section: str, key: str, value: object, allowed: tuple[int, ...] | None, lo: int, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise ConfigError(f"[{section}] {key}: expected {what}, got {_describe(value)}")
+    n = int(value)
+    if (allowed is not None and n not in allowed) or n < lo:
+        raise ConfigError(f"[{section}] {key}: expected {what}, got {n}")
+    return n
+
+
+def _set(obj: object, name: str, value: object) -> None:
+    object.__setattr__(obj, name, value)
+
+
+def _fmt(x: float | int) -> str:
+    """Exact TOML literal: integers as integers, floats as Python's shortest round-trip repr."""
+    return str(int(x)) if isinstance(x, int) else repr(float(x))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# sections
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Coefficients of the unicycle body-twist diffusion (see :mod:`swarmloc.motion.unicycle`), all ``>= 0``."""
+
+    SECTION: ClassVar[str] = "motion"
+    UNITS: ClassVar[dict[str, str]] = {
+        "q_v0": "[m^2/s] forward diffusion floor: q_fwd = q_v0 + q_v1 |v| + q_v2 v^2",
+        "q_v1": "[m] forward diffusion per metre travelled",
+        "q_v2": "[s] forward diffusion per speed squared (relative speed error)",
+        "q_lat0": "[m^2/s] lateral diffusion floor: q_lat = q_lat0 + q_lat1 |v|",
+        "q_lat1": "[m] lateral diffusion per metre travelled",
+        "q_w0": "[rad^2/s] yaw diffusion floor: q_yaw = q_w0 + q_w1 |w| + q_w2 w^2 + q_wv |v|",
+        "q_w1": "[rad] yaw diffusion per radian turned",
+        "q_w2": "[s] yaw diffusion per yaw rate squared",
+        "q_wv": "[rad^2/m] yaw diffusion per metre travelled",
+    }
+
+    q_v0: float = 1e-4
+    q_v1: float = 0.0
+    q_v2: float = 0.05
+    q_lat0: float = 1e-4
+    q_lat1: float = 0.01
+    q_w0: float = 1e-3
+    q_w1: float = 0.0
+    q_w2: float = 0.05
+    q_wv: float = 0.02
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            _set(self, f.name, _nonneg(self.SECTION, f.name, getattr(self, f.name)))
+
+    def noise(self) -> UnicycleNoise:
+        """The :class:`~swarmloc.motion.unicycle.UnicycleNoise` with these coefficients."""
+        return UnicycleNoise(**{f.name: getattr(self, f.name) for f in fields(self)})
+
+    @classmethod
+    def from_noise(cls, noise: UnicycleNoise) -> MotionConfig:
+        """The section holding the coefficients of ``noise``."""
+        return cls(**{name: getattr(noise, name) for name in UnicycleNoise.__slots__})
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Noise standard deviations used when a detection carries none (and for MRCLAM's camera), all ``> 0``.
+
+    ``pose_*`` are the std of the exponential coordinates of a relative-pose measurement's noise; ``absolute_*``
+    those of an absolute fix of the observer's own pose.
+    """
+
+    SECTION: ClassVar[str] = "sensors"
+    UNITS: ClassVar[dict[str, str]] = {
+        "range_std": "[m] range std",
+        "bearing_std": "[rad] bearing std",
+        "pose_xy_std": "[m] relative pose: x and y std (exponential coordinates)",
+        "pose_theta_std": "[rad] relative pose: heading std",
+        "absolute_xy_std": "[m] absolute fix: x and y std",
+        "absolute_theta_std": "[rad] absolute fix: heading std",
+    }
+
+    range_std: float = 0.3
+    bearing_std: float = 0.035
+    pose_xy_std: float = 0.05
+    pose_theta_std: float = 0.0175
+    absolute_xy_std: float = 0.01
+    absolute_theta_std: float = 0.01
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            _set(self, f.name, _positive(self.SECTION, f.name, getattr(self, f.name)))
+
+    def detection_defaults(self) -> dict[str, np.ndarray]:
+        """Per measurement kind, the default noise std vector (for ``load_events(defaults=...)``)."""
+        return {
+            "pose": np.array([self.pose_xy_std, self.pose_xy_std, self.pose_theta_std]),
+            "range_bearing": np.array([self.range_std, self.bearing_std]),
+            "range": np.array([self.range_std]),
+            "bearing": np.array([self.bearing_std]),
+            "absolute": np.array([self.absolute_xy_std, self.absolute_xy_std, self.absolute_theta_std]),
+        }
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Filter settings: innovation gate, out-of-order horizon, convolution order, iteration counts.
+
+    ``gate``: probability in ``(0, 1)`` of the chi-square gate on the normalized innovation squared, or None for
+    no gate (TOML: ``gate = false`` or ``gate = 0``). ``horizon`` [s] ``> 0``: how far back out-of-order input is
+    replayed. ``order``: 1 or 2. ``iterations``, ``point_iterations``: integers ``>= 1``.
+    """
+
+    SECTION: ClassVar[str] = "filter"
+    UNITS: ClassVar[dict[str, str]] = {
+        "gate": "chi-square probability in (0, 1) of the innovation gate; false disables it",
+        "horizon": "[s] how far back out-of-order input is replayed",
+        "order": "1 or 2: order of the SE(2) convolution",
+        "iterations": "iterations of the iterated update (>= 1)",
+        "point_iterations": "iterations of a point (landmark) update (>= 1)",
+    }
+
+    gate: float | None = 0.997
+    horizon: float = 5.0
+    order: int = 2
+    iterations: int = 2
+    point_iterations: int = 3
+
+    def __post_init__(self) -> None:
+        s = self.SECTION
+        g = self.gate
+        if g is False or (not isinstance(g, bool) and isinstance(g, int | float) and g == 0):
+            g = None
+        if g is not None:
+            g = _real(s, "gate", g, None, False, "a probability in (0, 1), or false (or 0) to disable the gate")
+            if not 0.0 < g < 1.0:
+                raise ConfigError(
+                    f"[{s}] gate: expected a probability in (0, 1), or false (or 0) to disable the gate, got {g!r}"
+                )
+        _set(self, "gate", g)
+        _set(self, "horizon", _positive(s, "horizon", self.horizon))
+        _set(self, "order", _integer(s, "order", self.order, (1, 2), 1, "1 or 2 (an integer)"))
+        _set(self, "iterations", _integer(s, "iterations", self.iterations, None, 1, "an integer >= 1"))
+        _set(
+            self,
+            "point_iterations",
+            _integer(s, "point_iterations", self.point_iterations, None, 1, "an integer >= 1"),
+        )
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """``rate`` [Hz] ``> 0``: how often beliefs are recorded."""
+
+    SECTION: ClassVar[str] = "record"
+    UNITS: ClassVar[dict[str, str]] = {"rate": "[Hz] rate at which beliefs are recorded"}
+
+    rate: float = 4.0
+
+    def __post_init__(self) -> None:
+        _set(self, "rate", _positive(self.SECTION, "rate", self.rate))
+
+
+@dataclass(frozen=True)
+class InitialConfig:
+    """Initial-belief std (exponential coordinates, right perturbation), all ``> 0``."""
+
+    SECTION: ClassVar[str] = "initial"
+    UNITS: ClassVar[dict[str, str]] = {
+        "std_xy": "[m] initial-belief std of x and y",
+        "std_theta": "[rad] initial-belief std of the heading",
+    }
+
+    std_xy: float = 0.01
+    std_theta: float = 0.01
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            _set(self, f.name, _positive(self.SECTION, f.name, getattr(self, f.name)))
+
+    def cov(self) -> np.ndarray:
+        """Initial covariance ``diag(std_xy^2, std_xy^2, std_theta^2)``."""
+        return np.diag(np.square([self.std_xy, self.std_xy, self.std_theta]))
+
+
+_SECTIONS: dict[str, type] = {
+    "motion": MotionConfig,
+    "sensors": SensorConfig,
+    "filter": FilterConfig,
+    "record": RecordConfig,
+    "initial": InitialConfig,
+}
+
+
+def _suggest(name: str, known: list[str]) -> str:
+    close = difflib.get_close_matches(name, known, n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+@dataclass(frozen=True)
+class Config:
+    """All settings, one attribute per TOML section. ``Config()`` holds the defaults (:data:`DEFAULTS`)."""
+
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    record: RecordConfig = field(default_factory=RecordConfig)
+    initial: InitialConfig = field(default_factory=InitialConfig)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], source: str = "<dict>") -> Config:
+        """Build from a mapping ``{section: {key: value}}`` (as :func:`tomllib.load` returns); missing sections
+        and keys keep their defaults. Raises :class:`ConfigError` prefixed with ``source``."""
+        if not isinstance(d, Mapping):
+            raise ConfigError(f"{source}: expected a mapping of sections, got {type(d).__name__}")
+        known = list(_SECTIONS)
+        parts: dict[str, object] = {}
+        for name, body in d.items():
+            if name not in _SECTIONS:
+                if isinstance(body, Mapping):
+                    what = f"unknown section [{name}]"
+                else:
+                    what = f"unknown top-level key {name!r} (every key belongs in a section)"
+                raise ConfigError(f"{source}: {what}{_suggest(name, known)}; known sections: {', '.join(known)}")
+            if not isinstance(body, Mapping):
+                raise ConfigError(f"{source}: {name!r} must be a section [{name}], got {_describe(body)}")
+            sec = _SECTIONS[name]
+            keys = [f.name for f in fields(sec)]
+            for key in body:
+                if key not in keys:
+                    raise ConfigError(
+                        f"{source}: [{name}] unknown key {key!r}{_suggest(key, keys)}; known keys: {', '.join(keys)}"
+                    )
+            try:
+                parts[name] = sec(**body)
+            except ConfigError as exc:
+                raise ConfigError(f"{source}: {exc}") from None
+        return cls(**parts)
+
+    def to_dict(self) -> dict[str, dict[str, object]]:
+        """``{section: {key: value}}`` with every key (``gate`` None becomes False, as in TOML)."""
+        out: dict[str, dict[str, object]] = {}
+        for name in _SECTIONS:
+            sec = getattr(self, name)
+            out[name] = {f.name: getattr(sec, f.name) for f in fields(sec)}
+        out["filter"]["gate"] = False if self.filter.gate is None else self.filter.gate
+        return out
+
+    def to_toml(self) -> str:
+        """The configuration as TOML text: every section and key with its value and a unit comment.
+
+        ``tomllib.loads(c.to_toml())`` given to :meth:`from_dict` gives back an equal ``Config``.
+        """
+        lines = ["# swarmloc configuration (units: metres, radians, seconds)"]
+        for name, body in self.to_dict().items():
+            units = _SECTIONS[name].UNITS
+            lines.append("")
+            lines.append(f"[{name}]")
+            for key, value in body.items():
+                literal = "false" if value is False else _fmt(value)
+                lines.append(f"{key} = {literal}  # {units[key]}")
+        return "\n".join(lines) + "\n"
+
+    def replace(self, **sections: object) -> Config:
+        """A copy with whole sections replaced, e.g. ``c.replace(filter=FilterConfig(gate=None))``."""
+        unknown = sorted(set(sections) - set(_SECTIONS))
+        if unknown:
+            raise ConfigError(f"Config.replace: unknown section(s) {unknown}; known sections: {', '.join(_SECTIONS)}")
+        for name, sec in sections.items():
+            if not isinstance(sec, _SECTIONS[name]):
+                raise ConfigError(f"Config.replace: section {name!r} must be a {_SECTIONS[name].__name__}")
+        return dataclasses.replace(self, **sections)
+
+    def event_defaults(self) -> dict[str, np.ndarray]:
+        """Default noise std per record kind for :func:`swarmloc.datasets.eventfile.load_events`: the detection
+        kinds from ``[sensors]`` and ``"initial"`` from ``[initial]``."""
+        out = self.sensors.detection_defaults()
+        out["initial"] = np.array([self.initial.std_xy, self.initial.std_xy, self.initial.std_theta])
+        return out
+
+
+DEFAULTS = Config()
+"""The default configuration (the MRCLAM evaluation defaults)."""
+
+_TOML_POS = re.compile(r"\(at line (\d+), column (\d+)\)\s*$")
+
+
+def load_config(path: str | os.PathLike[str]) -> Config:
+    """Read a TOML configuration file; keys it does not set keep their defaults. Raises :class:`ConfigError`."""
+    p = Path(path).expanduser()
+    label = str(path)
+    if not p.is_file():
+        raise ConfigError(f"config file not found: {p}" if not p.exists() else f"config path {p} is not a file")
+    try:
+        with open(p, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        m = _TOML_POS.search(msg)
+        if m:
+            raise ConfigError(
+                f"{label} line {m.group(1)}, column {m.group(2)}: TOML syntax error: {msg[: m.start()].rstrip()}"
+            ) from None
+        raise ConfigError(f"{label}: TOML syntax error: {msg}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{label}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except OSError as exc:
+        raise ConfigError(f"{label}: cannot read file ({exc.strerror or exc})") from None
+    return Config.from_dict(data, source=label)
