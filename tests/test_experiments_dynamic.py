@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from swarmloc.estimators import ExpFusion
-from swarmloc.experiments.thesis_dynamic import ABLATIONS, ESTIMATORS, NOISE_LEVELS, run_dynamic, spread, timed
+from swarmloc import make_team
+from swarmloc.experiments.thesis_dynamic import ABLATIONS, NOISE_LEVELS, RUNS, run_dynamic, spread
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
+from swarmloc.runner import run
 from swarmloc.sim import thesis_two_robot
-from swarmloc.sim.runner import run
 
 COOPERATIVE = ("dekf", "expfusion", "expfusion1", "cekf")
 
@@ -48,7 +48,7 @@ def test_json_holds_rmse_and_anees_over_seeds_per_experiment_and_estimator(quick
     assert js["meta"]["seeds"] == 3 and js["meta"]["quick"] is True
     stats = {"mean", "std", "min", "max", "n"}
     for nk in (f"{n:g}" for n in NOISE_LEVELS):
-        assert set(js["two_robot"][nk]) == set(ESTIMATORS)
+        assert set(js["two_robot"][nk]) == set(RUNS)
         for key, s in js["two_robot"][nk].items():
             for q in ("pos_rmse", "heading_rmse", "anees"):
                 assert set(s["team"][q]) >= stats and s["team"][q]["n"] == 3, (nk, key, q)
@@ -58,12 +58,12 @@ def test_json_holds_rmse_and_anees_over_seeds_per_experiment_and_estimator(quick
             c = s["robot1_error_vs_time"]
             assert len(c["times"]) == len(c["pos_mean"]) == len(c["pos_p10"]) == len(c["anees"]) > 10
     for key, s in js["ground_truth_neighbour"].items():
-        assert key in ESTIMATORS
+        assert key in RUNS
         for q in ("pos_rmse", "anees"):
             assert set(s["robots"]["1"][q]) >= stats and set(s["team"][q]) >= stats
     assert set(js["double_counting"]) == set(ABLATIONS)
     rows = {row["key"]: row for row in js["table_6_1"]}
-    assert set(rows) == set(ESTIMATORS) | {"mcl"}
+    assert set(rows) == set(RUNS) | {"mcl"}
     assert rows["mcl"]["implemented"] is False
     assert (
         rows["expfusion"]["multiple_detections_at_once"] == "yes"
@@ -110,20 +110,23 @@ def test_first_and_second_order_nearly_agree(quick):
         assert abs(a - b) < 0.1 * b
 
 
-def test_timed_wrapper_books_time_and_leaves_results_unchanged():
+def test_node_timing_books_time_and_leaves_results_unchanged():
+    """``measure_time`` (Table 6.1) times predictions and updates without changing any number."""
     sim = thesis_two_robot(noise_std=0.05, seed=3, duration=5.0)
     init = {r: GroupGaussian(SE2, m, 1e-6 * np.eye(3)) for r, m in sim.initial_pose_matrices().items()}
-    plain = run(ExpFusion(init, sim.unicycle_noise()), sim.events)
-    est = timed(ExpFusion)(init, sim.unicycle_noise())
-    wrapped = run(est, sim.events)
-    assert isinstance(est, ExpFusion) and timed(ExpFusion) is type(est)
+    plain = run(make_team("expfusion", init, noise=sim.unicycle_noise()), sim.events)
+    nodes = make_team("expfusion", init, noise=sim.unicycle_noise())
+    for n in nodes:
+        n.measure_time = True
+    timed = run(nodes, sim.events)
     for r in plain.tracks:
-        np.testing.assert_array_equal(plain.tracks[r].mean, wrapped.tracks[r].mean)
-        np.testing.assert_array_equal(plain.tracks[r].cov, wrapped.tracks[r].cov)
-    t = est.timing
-    assert t["update_n"] == wrapped.stats["est_update"] > 0
-    assert t["predict_n"] >= wrapped.stats["est_predict"] > 0
-    assert t["predict_s"] > 0 and t["update_s"] > 0
+        np.testing.assert_array_equal(plain.tracks[r].mean, timed.tracks[r].mean)
+        np.testing.assert_array_equal(plain.tracks[r].cov, timed.tracks[r].cov)
+    t = timed.timing
+    assert plain.timing["predict_n"] == plain.timing["fuse_n"] == 0
+    assert t["fuse_n"] >= timed.stats["fused"] // 2 > 0  # one group update per detection instant (1 or 2 each)
+    assert t["predict_n"] >= timed.stats["odometry_used"] > 0
+    assert t["predict_s"] > 0 and t["fuse_s"] > 0
 
 
 def test_spread():

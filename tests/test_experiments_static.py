@@ -162,3 +162,26 @@ def test_tables_trends(tmp_path: Path):
         in95_1 = np.mean([r["frac_nees_in_95"] for r in m["order1"]])
         assert in95_2 > in95_1
         assert in95_2 > 0.75
+
+
+def test_pooled_tables_use_the_trials_of_run_tables_and_the_thesis_sampling_error(tmp_path: Path):
+    """``swarmloc reproduce tables``: the deviations of one seed are run_tables' own, pooled over seeds, and every
+    printed thesis value is compared in units of the combined standard error (ours and the thesis' 60 reps)."""
+    from swarmloc.experiments.thesis_static.pooled import deviations, pooled_tables
+
+    dev = deviations(seed=0, reps=300)
+    ref = run_tables(tmp_path / "t", reps=300, seed=0, progress=False, figures=False)
+    for motion, d in dev.items():
+        assert d.shape == (6, 300)
+        np.testing.assert_allclose(d.mean(axis=1), [r["mean_deviation"] for r in ref["motions"][motion]["order2"]])
+    res = pooled_tables(tmp_path / "p", seeds=2, reps=300, first_seed=0, workers=1)
+    assert (tmp_path / "p" / "pooled.md").is_file() and (tmp_path / "p" / "pooled.json").is_file()
+    rows = res["motions"]["straight"]["rows"]
+    np.testing.assert_allclose(
+        [r["mean"] for r in rows], (dev["straight"].mean(axis=1) + deviations(1, 300)["straight"].mean(axis=1)) / 2
+    )
+    r2 = rows[1]
+    assert r2["se_thesis_60"] == pytest.approx(r2["sd_one_rep"] / np.sqrt(60))
+    assert r2["z"] == pytest.approx(r2["diff"] / np.hypot(r2["se"], r2["se_thesis_60"]))
+    assert rows[0]["thesis"] is None and "z" not in rows[0]
+    assert 0 <= res["motions"]["circular"]["joint"]["p"] <= 1

@@ -160,7 +160,7 @@ def test_every_shared_folder_loads_or_raises_mrclam_error() -> None:
 @needs_data
 def test_dataset6_events_sorted_and_tiling(ds6: MRCLAMData) -> None:
     events = mrclam_events(ds6)
-    times = np.array([e.t for e in events])
+    times = np.array([e.stamp for e in events])
     assert np.all(np.diff(times) >= 0)
     assert times[0] >= ds6.t_start and times[-1] <= ds6.t_end
     odo = [e for e in events if isinstance(e, Odometry)]
@@ -238,9 +238,10 @@ def test_synthetic_load_maps_and_counts(tmp_path: Path) -> None:
 def test_events_tie_order_and_robot_targets(tmp_path: Path) -> None:
     d = load_mrclam(_synthetic(tmp_path / "MRCLAM_Syn", truth=False))
     events = mrclam_events(d, range_std=0.2, bearing_std=0.01)
-    at2 = [e for e in events if e.t == 2.0]
+    at2 = [e for e in events if e.stamp == 2.0]
     kinds = [isinstance(e, Odometry) for e in at2]
-    assert kinds == sorted(kinds, reverse=True) and any(kinds) and not all(kinds)  # odometry first at t = 2
+    assert kinds == sorted(kinds) and any(kinds) and not all(kinds)  # detections first at stamp 2
+    assert all(isinstance(e, Odometry) for e in events if e.stamp == 1.0)  # odometry filed at t0
     det = [e for e in events if isinstance(e, Detection)]
     assert len(det) == 2 * 4
     robot5 = [e for e in det if e.target == 5]

@@ -1,8 +1,8 @@
-"""Command line: ``swarmloc demo | reproduce thesis | evaluate mrclam``.
+"""Command line: ``swarmloc demo | reproduce thesis | evaluate mrclam|events | simulate | config``.
 
-Every command writes its results (Markdown, JSON, PNG) to an output folder and prints a short summary; errors in
-the input (a missing dataset file, a malformed line, an unknown estimator) are reported in one line with exit
-status 2, never as a traceback.
+Every command writes its results (Markdown, JSON, PNG, TUM) to an output folder and prints a short summary; errors in
+the input (a missing dataset file, a malformed line, an unknown estimator, a bad configuration) are reported in
+one line (or one line per bad record) with exit status 2, never as a traceback.
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ from pathlib import Path
 
 from swarmloc import __version__
 
+EST_DEFAULT = "dr,dekf,cekf,expfusion,ci,rdl"
+
 
 def _demo(args: argparse.Namespace) -> int:
     from swarmloc.experiments.thesis_static import run_demo
@@ -26,8 +28,19 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _reproduce(args: argparse.Namespace) -> int:
+    if args.what == "tables":
+        from swarmloc.experiments.thesis_static.pooled import pooled_tables
+
+        try:
+            res = pooled_tables(args.out, seeds=args.seeds, reps=args.reps, first_seed=args.first_seed)
+        except ValueError as exc:
+            print(f"swarmloc reproduce tables: {exc}", file=sys.stderr)
+            return 2
+        print((Path(args.out) / "pooled.md").read_text())
+        print(f"written to {args.out}/pooled.md and pooled.json in {res['runtime_s']:.0f} s")
+        return 0
     if args.what != "thesis":
-        print(f"swarmloc reproduce: unknown target {args.what!r} (only 'thesis')", file=sys.stderr)
+        print(f"swarmloc reproduce: unknown target {args.what!r} ('thesis' or 'tables')", file=sys.stderr)
         return 2
     from swarmloc.experiments.thesis_dynamic import run_dynamic
     from swarmloc.experiments.thesis_static import run_demo, run_tables
@@ -54,29 +67,54 @@ def _reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-def _evaluate(args: argparse.Namespace) -> int:
-    if args.what != "mrclam":
-        print(f"swarmloc evaluate: unknown data set kind {args.what!r} (only 'mrclam')", file=sys.stderr)
-        return 2
-    from swarmloc.datasets.mrclam import MRCLAMError
-    from swarmloc.experiments.mrclam import evaluate_mrclam, markdown_table
+def _config(args: argparse.Namespace):  # noqa: ANN202
+    from swarmloc.config import DEFAULTS, load_config
 
+    return load_config(args.config) if args.config else DEFAULTS
+
+
+def _with_gate(config, gate: float | None):  # noqa: ANN001, ANN202
+    """``--gate`` overrides the configuration's gate (0 disables it)."""
+    if gate is None:
+        return config
+    import dataclasses
+
+    return dataclasses.replace(config, filter=dataclasses.replace(config.filter, gate=None if gate <= 0 else gate))
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from swarmloc.config import ConfigError
+    from swarmloc.datasets.eventfile import EventFileError
+    from swarmloc.datasets.mrclam import MRCLAMError
+    from swarmloc.datasets.tum import TUMError
+    from swarmloc.experiments.evaluate import markdown_table
+
+    where = f"swarmloc evaluate {args.what}"
     names = [e.strip() for e in args.estimators.split(",") if e.strip()]
     try:
-        report = evaluate_mrclam(
-            args.path,
-            estimators=names,
-            landmarks=args.landmarks == "on",
-            duration=args.duration,
-            out_dir=args.out,
-            gate=None if args.gate <= 0 else args.gate,
-            progress=not (args.quiet or args.json),
-        )
-    except MRCLAMError as exc:
-        print(f"swarmloc evaluate mrclam: {exc}", file=sys.stderr)
-        return 2
-    except ValueError as exc:
-        print(f"swarmloc evaluate mrclam: {exc}", file=sys.stderr)
+        config = _with_gate(_config(args), args.gate)
+        progress = not (args.quiet or args.json)
+        if args.what == "mrclam":
+            from swarmloc.experiments.mrclam import evaluate_mrclam
+
+            report = evaluate_mrclam(
+                args.path, estimators=names, landmarks=args.landmarks == "on", duration=args.duration,
+                out_dir=args.out, config=config, progress=progress,
+            )  # fmt: skip
+        elif args.what == "events":
+            from swarmloc.experiments.own_robots import evaluate_event_file
+
+            report = evaluate_event_file(
+                args.path, estimators=names, truth_dir=args.truth, config=config, out_dir=args.out,
+                progress=progress, strict=not args.skip_bad_lines,
+            )  # fmt: skip
+            for problem in report["problems"]:
+                print(f"skipped: {problem}", file=sys.stderr)
+        else:
+            print(f"swarmloc evaluate: unknown kind {args.what!r} (use 'mrclam' or 'events')", file=sys.stderr)
+            return 2
+    except (MRCLAMError, EventFileError, TUMError, ConfigError, ValueError, OSError) as exc:
+        print(f"{where}: {exc}", file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(report, indent=2, default=_jsonable))
@@ -85,6 +123,40 @@ def _evaluate(args: argparse.Namespace) -> int:
         if args.out:
             print(f"results, figures and TUM trajectories in {args.out}/")
     return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from swarmloc.experiments.own_robots import simulate_to_files
+
+    if args.robots < 1 or args.duration <= 0:
+        print("swarmloc simulate: --robots must be >= 1 and --duration > 0", file=sys.stderr)
+        return 2
+    try:
+        paths = simulate_to_files(args.out, robots=args.robots, duration=args.duration, seed=args.seed,
+                                  fmt=args.format)  # fmt: skip
+    except (ValueError, OSError) as exc:
+        print(f"swarmloc simulate: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {paths['events']}, {len(paths) - 2} truth_robot*.tum files and {paths['config']}")
+    return 0
+
+
+def _config_cmd(args: argparse.Namespace) -> int:
+    from swarmloc.config import DEFAULTS, ConfigError, load_config
+
+    if args.check:
+        try:
+            cfg = load_config(args.check)
+        except ConfigError as exc:
+            print(f"swarmloc config: {exc}", file=sys.stderr)
+            return 2
+        print(cfg.to_toml(), end="")
+        return 0
+    if args.defaults:
+        print(DEFAULTS.to_toml(), end="")
+        return 0
+    print("swarmloc config: say --defaults (print every default) or --check FILE", file=sys.stderr)
+    return 2
 
 
 def _jsonable(o: object) -> object:
@@ -110,26 +182,47 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=_demo)
 
-    r = sub.add_parser("reproduce", help="reproduce a study: 'thesis' (chapter 5 and Table 6.1)")
-    r.add_argument("what", help="thesis")
+    r = sub.add_parser(
+        "reproduce",
+        help="reproduce a study: 'thesis' (chapter 5 and Table 6.1) or 'tables' (Tables 5.1/5.2 over many seeds)",
+    )
+    r.add_argument("what", help="thesis | tables")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--seeds", type=int, default=20, help="seeds per dynamic experiment (default 20)")
-    r.add_argument("--reps", type=int, default=60, help="repetitions for Tables 5.1/5.2 (default 60)")
+    r.add_argument("--seeds", type=int, default=20, help="seeds per dynamic experiment, or pooled seeds (default 20)")
+    r.add_argument("--reps", type=int, default=60,
+                   help="repetitions for Tables 5.1/5.2 (default 60; per seed with 'tables')")  # fmt: skip
+    r.add_argument("--first-seed", type=int, default=100, help="tables: first of the pooled seeds (default 100)")
     r.add_argument("--quick", action="store_true", help="few seeds and short runs (a smoke test)")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
     r.set_defaults(func=_reproduce)
 
-    e = sub.add_parser("evaluate", help="evaluate estimators on real data: 'mrclam PATH'")
-    e.add_argument("what", help="mrclam")
-    e.add_argument("path", help="an MRCLAM_DatasetN folder")
-    e.add_argument("--estimators", default="dr,dekf,cekf,expfusion,ci,rdl", help="comma-separated names")
-    e.add_argument("--landmarks", choices=["on", "off"], default="on", help="use landmark measurements")
-    e.add_argument("--duration", type=float, default=None, help="seconds from the start (default: all)")
-    e.add_argument("--gate", type=float, default=0.997, help="chi-square gate probability; 0 disables")
+    e = sub.add_parser("evaluate", help="evaluate estimators on data: 'mrclam FOLDER' or 'events FILE'")
+    e.add_argument("what", choices=["mrclam", "events"], help="mrclam (a UTIAS MRCLAM folder) or events (your file)")
+    e.add_argument("path", help="an MRCLAM_DatasetN folder, or an event file (.csv or .jsonl)")
+    e.add_argument("--estimators", default=EST_DEFAULT, help=f"comma-separated names (default {EST_DEFAULT})")
+    e.add_argument("--config", default=None, help="TOML file of model and filter settings (swarmloc config)")
+    e.add_argument("--gate", type=float, default=None, help="override the chi-square gate probability; 0 disables")
+    e.add_argument("--landmarks", choices=["on", "off"], default="on", help="mrclam: use landmark measurements")
+    e.add_argument("--duration", type=float, default=None, help="mrclam: seconds from the start (default: all)")
+    e.add_argument("--truth", default=None, help="events: folder of truth_robot<N>.tum (default: beside the file)")
+    e.add_argument("--skip-bad-lines", action="store_true", help="events: skip bad records (listed) instead of stop")
     e.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     e.add_argument("--out", default=None, help="output folder for JSON, Markdown, figures, TUM files")
     e.add_argument("--quiet", action="store_true", help="no progress bar")
     e.set_defaults(func=_evaluate)
+
+    s = sub.add_parser("simulate", help="simulate a random team and write it as an event file + TUM truth")
+    s.add_argument("--robots", type=int, default=4)
+    s.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--format", choices=["csv", "jsonl"], default="csv")
+    s.add_argument("--out", required=True, help="output folder")
+    s.set_defaults(func=_simulate)
+
+    c = sub.add_parser("config", help="print the default configuration, or check a TOML file")
+    c.add_argument("--defaults", action="store_true", help="print every default as TOML")
+    c.add_argument("--check", metavar="FILE", help="read FILE and print the full configuration it gives")
+    c.set_defaults(func=_config_cmd)
     return p
 
 

@@ -510,9 +510,11 @@ def mrclam_events(
 
     ``range_std`` [m] and ``bearing_std`` [rad] default to generic values (0.1 m, 0.035 rad), not fitted to any
     dataset's ground truth; pass your own. ``duration`` [s] truncates the span to ``[t_start, t_start + duration]``.
-    Events carry absolute Unix times. The list is sorted by time (an odometry event's time is ``t1``); at equal
-    times odometry comes before detections, then by robot id, then by file order. Detection ``z``/``cov`` arrays
-    are read-only (``cov`` is shared by all events).
+    Events carry absolute Unix times. The list is sorted by stamp (:attr:`~swarmloc.events.Odometry.stamp`): an
+    odometry event by ``t0``, since the logged velocities are commands, known when they are issued; a node that
+    receives them in this order never has to replay. At equal stamps detections come before odometry (a command
+    starting at ``t`` acts after ``t``), then by robot id, then by file order. Detection ``z``/``cov`` arrays are
+    read-only (``cov`` is shared by all events).
     """
     if range_std <= 0 or bearing_std <= 0:
         raise ValueError("range_std and bearing_std must be positive")
@@ -559,11 +561,11 @@ def mrclam_events(
     def cat(xs: list[np.ndarray], dtype: type = np.float64, shape: tuple[int, ...] = (0,)) -> np.ndarray:
         return np.concatenate(xs) if xs else np.empty(shape, dtype=dtype)
 
-    ot1 = cat(o_t1)
+    ot0, ot1 = cat(o_t0), cat(o_t1)
     dt_ = cat(d_t)
     n_o, n_d = ot1.size, dt_.size
-    times = np.concatenate([ot1, dt_])
-    kind = np.concatenate([np.zeros(n_o, dtype=np.int8), np.ones(n_d, dtype=np.int8)])
+    times = np.concatenate([ot0, dt_])
+    kind = np.concatenate([np.ones(n_o, dtype=np.int8), np.zeros(n_d, dtype=np.int8)])
     seq = np.arange(n_o + n_d)
     order = np.lexsort((seq, kind, times))
 
@@ -571,7 +573,7 @@ def mrclam_events(
         Odometry(robot=r, t0=a, t1=b, v=v, w=w)
         for r, a, b, v, w in zip(
             cat(o_rob, np.int64).tolist(),
-            cat(o_t0).tolist(),
+            ot0.tolist(),
             ot1.tolist(),
             cat(o_v).tolist(),
             cat(o_w).tolist(),

@@ -1,7 +1,8 @@
 """Reproductions of the thesis' experiments (ch. 5) that write tables, JSON and figures to a folder.
 
 ``run_demo`` and ``run_tables`` (thesis sec. 5.1) live in :mod:`swarmloc.experiments.thesis_static`; they are
-imported lazily so that ``python -m swarmloc.experiments.thesis_static`` runs without a double import.
+imported lazily, so that importing this package (e.g. for :mod:`swarmloc.experiments.mrclam`) does not load the
+thesis experiments.
 """
 
 from __future__ import annotations

@@ -19,35 +19,51 @@ Models (fixed a priori, not fitted to any dataset's ground truth; change them wi
   chi-square quantile (``gate``); the camera's barcode readings have heavy tails;
 * initial beliefs: ground truth at the common start time with std 1 cm / 0.01 rad (as CoLo and the
   dataset's authors do), or the origin with a large covariance when a dataset has no ground truth.
+
+These defaults are :data:`swarmloc.config.DEFAULTS` (``swarmloc config --defaults`` prints them); a TOML file
+(``--config``) changes any of them. The logged velocities are commands, so odometry events are delivered at their
+start ``t0`` (:func:`swarmloc.datasets.mrclam.mrclam_events`) and a detection between two commands is predicted
+with the command in force at its time.
 """
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from swarmloc.config import DEFAULTS, Config
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
-from swarmloc.estimators import ESTIMATORS
-from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
+from swarmloc.experiments.evaluate import ALL, evaluate_stream, markdown_table, write_report
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sim.runner import RunResult, run
 
-RANGE_STD = 0.3
-BEARING_STD = 0.035
-MRCLAM_NOISE = UnicycleNoise(q_v0=1e-4, q_v2=0.05, q_lat0=1e-4, q_lat1=0.01, q_w0=1e-3, q_w2=0.05, q_wv=0.02)
-INITIAL_STD = (0.01, 0.01, 0.01)
+RANGE_STD = DEFAULTS.sensors.range_std
+BEARING_STD = DEFAULTS.sensors.bearing_std
+MRCLAM_NOISE = DEFAULTS.motion.noise()
+INITIAL_STD = (DEFAULTS.initial.std_xy, DEFAULTS.initial.std_xy, DEFAULTS.initial.std_theta)
+
+__all__ = [
+    "BEARING_STD",
+    "INITIAL_STD",
+    "MRCLAM_NOISE",
+    "RANGE_STD",
+    "evaluate_mrclam",
+    "initial_beliefs",
+    "markdown_table",
+    "measurement_errors",
+    "robust_std",
+]
 
 
-def initial_beliefs(data: MRCLAMData) -> dict[int, GroupGaussian]:
-    """Ground truth at the start (std ``INITIAL_STD``); without truth (replay only), robot ``k`` starts at
+def initial_beliefs(data: MRCLAMData, config: Config = DEFAULTS) -> dict[int, GroupGaussian]:
+    """Ground truth at the start (std from ``config.initial``); without truth (replay only), robot ``k`` starts at
     ``(k, 0, 0)`` with std 10 m / 3 rad, so that no two robots coincide."""
-    cov = np.diag(np.square(INITIAL_STD))
+    cov = config.initial.cov()
     out = {}
     for r in data.robots:
         if data.has_truth:
@@ -102,162 +118,56 @@ def robust_std(e: np.ndarray, keep: float = 0.98) -> dict[str, float]:
     }
 
 
-def write_tum(path: Path, times: np.ndarray, xyt: np.ndarray) -> None:
-    """TUM trajectory file (``t tx ty tz qx qy qz qw``), readable by ``evo``; planar: z = 0, yaw quaternion."""
-    half = 0.5 * xyt[:, 2]
-    rows = np.column_stack(
-        [times, xyt[:, 0], xyt[:, 1], np.zeros(len(times)), np.zeros(len(times)), np.zeros(len(times)),
-         np.sin(half), np.cos(half)]
-    )  # fmt: skip
-    np.savetxt(path, rows, fmt="%.6f", header="timestamp tx ty tz qx qy qz qw", comments="# ")
-
-
-def _figures(out: Path, results: dict[str, RunResult], data: MRCLAMData) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    files = []
-    robots = data.robots
-    fig, axes = plt.subplots(1, len(robots), figsize=(4 * len(robots), 4), squeeze=False)
-    for ax, r in zip(axes[0], robots, strict=True):
-        first = next(iter(results.values())).tracks.get(r)
-        if first is not None:
-            ax.plot(first.truth[:, 0], first.truth[:, 1], "k-", lw=2, label="truth")
-        for name, res in results.items():
-            tr = res.tracks.get(r)
-            if tr is not None:
-                ax.plot(tr.mean[:, 0], tr.mean[:, 1], lw=0.8, label=name)
-        ax.set_title(f"robot {r}")
-        ax.set_aspect("equal")
-    axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "trajectories.png", dpi=110)
-    plt.close(fig)
-    files.append("trajectories.png")
-
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    for name, res in results.items():
-        ts, ep, ne = [], [], []
-        for tr in res.tracks.values():
-            e = errors(tr)
-            ts.append(tr.times)
-            ep.append(e["pos"])
-            ne.append(e["nees"] / 3)
-        t = ts[0] - data.t_start
-        n = min(len(x) for x in ep)
-        a1.plot(t[:n], np.mean([x[:n] for x in ep], axis=0), lw=0.8, label=name)
-        a2.semilogy(t[:n], np.mean([x[:n] for x in ne], axis=0), lw=0.8, label=name)
-    lo, hi = anees_bounds(len(robots))
-    a2.axhspan(lo, hi, color="0.85", label="95% band (team, per time)")
-    a1.set_ylabel("team mean position error [m]")
-    a2.set_ylim(1e-2, 1e3)  # the first record is the exact initial pose (NEES ~ 0)
-    a2.set_ylabel("team NEES per dof")
-    a2.set_xlabel("time since start [s]")
-    a1.legend(fontsize=7, ncol=3)
-    fig.tight_layout()
-    fig.savefig(out / "error_nees_over_time.png", dpi=110)
-    plt.close(fig)
-    files.append("error_nees_over_time.png")
-    return files
-
-
 def evaluate_mrclam(
     path: str | Path,
-    estimators: Sequence[str] = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl"),
+    estimators: Sequence[str] = ALL,
     landmarks: bool = True,
     duration: float | None = None,
     out_dir: str | Path | None = None,
-    record_rate: float = 4.0,
-    noise: UnicycleNoise = MRCLAM_NOISE,
-    range_std: float = RANGE_STD,
-    bearing_std: float = BEARING_STD,
-    gate: float | None = 0.997,
+    config: Config = DEFAULTS,
     progress: bool = False,
+    *,
+    noise: UnicycleNoise | None = None,
+    gate: float | None | bool = True,
 ) -> dict:
-    """Run ``estimators`` on the dataset at ``path`` and return (and write) per-robot and team metrics.
+    """Run ``estimators`` on the MRCLAM dataset at ``path`` and return (and write) per-robot and team metrics.
 
-    A dataset without ground truth is replayed for speed and robustness only: wall time and trajectories are
-    reported, accuracy and consistency are not (``"truth": false`` in the report).
+    ``config`` holds the models (``DEFAULTS``: the values in the module docstring); ``noise`` and ``gate``
+    override its motion model and gate (``gate=True`` keeps the config's, None disables it). A dataset without
+    ground truth is replayed for speed and robustness only: wall time and trajectories are reported, accuracy
+    and consistency are not (``"truth": false`` in the report).
     """
-    unknown = [e for e in estimators if e not in ESTIMATORS]
-    if unknown:
-        raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
+    if noise is not None:
+        config = dataclasses.replace(config, motion=type(config.motion).from_noise(noise))
+    if gate is not True:
+        config = dataclasses.replace(config, filter=dataclasses.replace(config.filter, gate=gate))
     t_load = time.perf_counter()
     data = load_mrclam(path)
-    has_truth = data.has_truth
-    events = mrclam_events(data, duration=duration, landmarks=landmarks, range_std=range_std, bearing_std=bearing_std)
+    s = config.sensors
+    events = mrclam_events(
+        data, duration=duration, landmarks=landmarks, range_std=s.range_std, bearing_std=s.bearing_std
+    )
     load_s = time.perf_counter() - t_load
     t_end = data.t_end if duration is None else min(data.t_end, data.t_start + duration)
-    record_times = np.arange(data.t_start, t_end, 1.0 / record_rate)
-    init = initial_beliefs(data)
-    lm = data.landmarks
-    results: dict[str, RunResult] = {}
-    report: dict = {
+    report, results = evaluate_stream(
+        events,
+        initial_beliefs(data, config),
+        t_start=data.t_start,
+        t_end=t_end,
+        truth=data.truth_at if data.has_truth else None,
+        landmarks=data.landmarks,
+        estimators=estimators,
+        config=config,
+        progress=progress,
+    )
+    report = {
+        "title": f"{data.name}, landmarks {'on' if landmarks else 'off'}",
         "dataset": data.name,
-        "robots": data.robots,
-        "duration_s": float(t_end - data.t_start),
         "landmarks": landmarks,
-        "n_events": len(events),
         "load_s": load_s,
         "skipped_barcodes": {str(k): v for k, v in data.skipped_barcodes.items()},
-        "noise_model": {k: getattr(noise, k) for k in noise.__slots__},
-        "range_std": range_std,
-        "bearing_std": bearing_std,
-        "gate": gate,
-        "truth": has_truth,
-        "estimators": {},
+        **report,
     }
-    for name in estimators:
-        est = ESTIMATORS[name](init, noise, landmarks=lm, gate=gate)
-        truth = data.truth_at if has_truth else None
-        res = run(est, events, record_times=record_times, truth=truth, progress=progress, description=name)
-        results[name] = res
-        ev = evaluate(res) if has_truth else {"estimator": name, "robots": {}, "team": None}
-        ev["wall_time_s"] = res.wall_time
-        ev["x_real_time"] = report["duration_s"] / res.wall_time if res.wall_time > 0 else float("inf")
-        ev["stats"] = res.stats
-        ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
-        report["estimators"][name] = ev
-    n_rec = sum(tr.times.size for tr in next(iter(results.values())).tracks.values()) if results else 0
-    report["anees_bounds_if_independent"] = anees_bounds(max(n_rec, 1))
     if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        tum = out / "tum"
-        tum.mkdir(exist_ok=True)
-        first = next(iter(results.values()), None)
-        if first is not None and has_truth:
-            for r, tr in first.tracks.items():
-                write_tum(tum / f"groundtruth_robot{r}.tum", tr.times, tr.truth)
-        for name, res in results.items():
-            for r, tr in res.tracks.items():
-                write_tum(tum / f"{name}_robot{r}.tum", tr.times, tr.mean)
-        report["figures"] = _figures(out, results, data) if results and has_truth else []
-        (out / "mrclam.json").write_text(json.dumps(report, indent=2))
-        (out / "mrclam.md").write_text(markdown_table(report))
+        write_report(out_dir, "mrclam", report, results, data.t_start)
     return report
-
-
-def markdown_table(report: dict) -> str:
-    lines = [
-        f"# {report['dataset']}: {report['duration_s']:.0f} s, robots {report['robots']}, "
-        f"landmarks {'on' if report['landmarks'] else 'off'}",
-        "",
-        "| estimator | team pos RMSE [m] | heading RMSE [rad] | ANEES (per dof) | in 95% NEES band | wall [s] "
-        "| x real time |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    if not report.get("truth", True):
-        lines[0] += " (no ground truth: replay only)"
-    for name, ev in report["estimators"].items():
-        t = ev["team"]
-        if t is None:
-            lines.append(f"| {name} | - | - | - | - | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |")
-            continue
-        lines.append(
-            f"| {name} | {t['pos_rmse']:.3f} | {t['heading_rmse']:.3f} | {t['anees']:.2f} | {t['frac_in_95']:.2f} | "
-            f"{ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |"
-        )
-    return "\n".join(lines) + "\n"

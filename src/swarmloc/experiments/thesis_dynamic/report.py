@@ -1,615 +1,56 @@
-"""Thesis sec. 5.2.2 (the ROS/Gazebo two-robot experiment, Figs 5.14-5.23) and Table 6.1, measured.
-
-:func:`run_dynamic` runs, over many seeds,
-
-1. the two-robot experiment (:func:`swarmloc.sim.thesis_two_robot`, 90 s) at relative-pose noise std 0.01, 0.05
-   and 0.1 with five estimators: dead reckoning, the distributed EKF, the thesis estimator (:class:`ExpFusion`,
-   second order), its first-order ablation and the centralized EKF (the first-order-optimal reference);
-2. the ground-truth-neighbour run (:func:`swarmloc.sim.thesis_ground_truth_neighbour`, 500 s, noise 0.05,
-   robot 2 receives absolute fixes), Figs 5.22-5.23;
-3. an investigation of the over-confidence of the distributed estimators (fewer detections, one-way fusion,
-   the correlation the centralized filter keeps, common-mode vs relative error, order 1 vs 2);
-
-and writes ``dynamic.json`` (every number), ``dynamic.md`` (tables and analysis) and PNG figures.
-
-Conventions: initial poses are known (thesis sec. 5.2.2), so every estimator starts at the true pose with
-covariance ``INIT_VAR * I`` (exponential coordinates). Errors are recorded at every odometry step (10 Hz) for both
-robots; "team" pools both robots' records. RMSE, heading RMSE and ANEES are per run (time-averaged); spreads are
-over seeds (``std`` with ``ddof=1``). ANEES is per degree of freedom (:mod:`swarmloc.evaluation.metrics`).
-Times per predict / update are measured by a thin timing subclass of each estimator (``time.perf_counter``); the
-time of a neighbour's prediction triggered inside an update (the runner brings the neighbour to the detection
-time) is booked to predict, not update.
-"""
+"""Output of thesis sec. 5.2.2 / Table 6.1: the progress bar, the figures (error and ANEES vs time, trajectories,
+ground-truth neighbour, double counting) and ``dynamic.md`` with its tables and the over-confidence analysis, plus
+``dynamic.json``. matplotlib and rich are imported only here, inside the functions that use them."""
 
 from __future__ import annotations
 
 import json
-import logging
 import math
-import os
-import platform
-import resource
-import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from swarmloc.estimators import CentralizedEKF, DeadReckoning, DistributedEKF, ExpFusion
-from swarmloc.evaluation.metrics import evaluate, over_seeds
-from swarmloc.events import Detection, Event
-from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
-from swarmloc.sim import thesis_ground_truth_neighbour, thesis_two_robot
-from swarmloc.sim.runner import RunResult, run
-
-NOISE_LEVELS = (0.01, 0.05, 0.1)
-"""Relative-pose measurement noise std [m] of the thesis' three runs (Figs 5.15, 5.18, 5.21)."""
-
-INIT_VAR = 1e-6
-"""Initial covariance ``INIT_VAR * I`` (exponential coordinates): the initial poses are known, as in the thesis."""
-
-GT_NOISE = 0.05
-ABLATION_NOISE = 0.05
-FULL = {"duration": 90.0, "gt_duration": 500.0, "gt_seeds": 5, "ablation_seeds": 8}
-QUICK = {"duration": 30.0, "gt_duration": 60.0, "gt_seeds": 3, "ablation_seeds": 3, "seeds": 3}
-log = logging.getLogger(__name__)
-
-CURVE_EVERY = 10
-"""Error-vs-time curves are stored in the JSON every ``CURVE_EVERY``-th record (1 s); figures use all records."""
+from swarmloc.experiments.thesis_dynamic.spec import ABLATION_ESTIMATORS, ABLATION_NOISE, INIT_VAR, RUNS
+from swarmloc.runner import RunResult
 
 
-@dataclass(frozen=True)
-class EstimatorSpec:
-    key: str
-    label: str
-    cls: type
-    kwargs: tuple[tuple[str, Any], ...]
-    color: str
-    style: str
-    multiple_detections: str
-    note: str
+# ---------------------------------------------------------------------------------------------------------- output
+def progress_bar(total: int) -> tuple[Any, Any]:
+    """A started rich progress bar over ``total`` estimator runs, and its task (for ``bar.update(task, ...)``)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-
-ESTIMATORS: dict[str, EstimatorSpec] = {
-    s.key: s
-    for s in (
-        EstimatorSpec(
-            "dr", "Dead reckoning", DeadReckoning, (), "magenta", "-", "n/a", "ignores detections (prediction only)"
-        ),
-        EstimatorSpec(
-            "dekf",
-            "Distributed EKF",
-            DistributedEKF,
-            (),
-            "black",
-            "-",
-            "no",
-            "one detection at a time; neighbour covariance added to the innovation covariance",
-        ),
-        EstimatorSpec(
-            "expfusion",
-            "Thesis estimator (ExpFusion, 2nd order)",
-            ExpFusion,
-            (),
-            "red",
-            "-",
-            "yes",
-            "all detections of one instant fused in one closed-form step",
-        ),
-        EstimatorSpec(
-            "expfusion1",
-            "ExpFusion, 1st order (ablation)",
-            ExpFusion,
-            (("order", 1),),
-            "darkorange",
-            "--",
-            "yes",
-            "as the thesis estimator, first-order convolution and fusion",
-        ),
-        EstimatorSpec(
-            "cekf",
-            "Centralized EKF (reference)",
-            CentralizedEKF,
-            (),
-            "green",
-            "-",
-            "no",
-            "one joint filter; detections processed one at a time (exact for a joint Kalman update)",
-        ),
+    bar = Progress(
+        TextColumn("[bold]thesis 5.2[/bold] {task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
     )
-}
-
-ABLATION_ESTIMATORS = ("expfusion", "dekf", "cekf")
-GT_ESTIMATORS = ("dr", "dekf", "expfusion", "cekf")
-"""The 500 s ground-truth-neighbour runs leave out the first-order ablation (compared in the main runs) for time."""
-ABLATIONS: dict[str, tuple[str, int, bool]] = {
-    # key: (description, keep every k-th detection instant, only robot 1 fuses)
-    "mutual_10hz": ("both robots fuse, every detection (10 Hz), as in the thesis", 1, False),
-    "mutual_1hz": ("both robots fuse, every 10th detection instant (1 Hz)", 10, False),
-    "mutual_0.1hz": ("both robots fuse, every 100th detection instant (0.1 Hz)", 100, False),
-    "oneway_10hz": ("only robot 1 fuses (robot 2 = dead reckoning), 10 Hz", 1, True),
-    "oneway_1hz": ("only robot 1 fuses (robot 2 = dead reckoning), 1 Hz", 10, True),
-}
+    task = bar.add_task("runs", total=total)
+    bar.start()
+    return bar, task
 
 
-# ---------------------------------------------------------------------------------------------------------- timing
-_TIMED: dict[type, type] = {}
-
-
-def timed(cls: type) -> type:
-    """A thin subclass of estimator class ``cls`` that accumulates the wall time of ``predict`` and ``update``.
-
-    ``instance.timing`` holds ``predict_s``, ``predict_n``, ``update_s``, ``update_n``. Predictions run *inside*
-    an update (a neighbour brought to the detection time through the channel) count as predictions only.
-    """
-    if cls in _TIMED:
-        return _TIMED[cls]
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:  # noqa: N807
-        cls.__init__(self, *args, **kwargs)
-        self.timing = {"predict_s": 0.0, "predict_n": 0, "update_s": 0.0, "update_n": 0}
-
-    def predict(self, robot: int, t0: float, t1: float, v: float, w: float) -> None:
-        t = time.perf_counter()
-        cls.predict(self, robot, t0, t1, v, w)
-        self.timing["predict_s"] += time.perf_counter() - t
-        self.timing["predict_n"] += 1
-
-    def update(self, robot: int, t: float, detections: Sequence[Detection], channel: Any) -> None:
-        p0 = self.timing["predict_s"]
-        t_start = time.perf_counter()
-        cls.update(self, robot, t, detections, channel)
-        self.timing["update_s"] += time.perf_counter() - t_start - (self.timing["predict_s"] - p0)
-        self.timing["update_n"] += 1
-
-    sub = type(f"Timed{cls.__name__}", (cls,), {"__init__": __init__, "predict": predict, "update": update})
-    _TIMED[cls] = sub
-    return sub
-
-
-# ---------------------------------------------------------------------------------------------------------- jobs
-def _filter_events(events: list[Event], every: int, oneway: bool, sensor_rate: float = 10.0) -> list[Event]:
-    """Keep detections at every ``every``-th sensor instant; with ``oneway`` drop robot 2's detections."""
-    if every == 1 and not oneway:
-        return events
-    out = []
-    for e in events:
-        if isinstance(e, Detection) and e.kind != "absolute":
-            if oneway and e.observer != 1:
-                continue
-            if int(round(e.t * sensor_rate)) % every:
-                continue
-        out.append(e)
-    return out
-
-
-def _common_relative(res: RunResult) -> dict[str, float]:
-    """RMS of the robots' common-mode position error ``(e1 + e2)/2`` and relative error ``e1 - e2``."""
-    t1, t2 = res.tracks[1], res.tracks[2]
-    n = min(t1.times.size, t2.times.size)
-    e1 = t1.mean[:n, :2] - t1.truth[:n, :2]
-    e2 = t2.mean[:n, :2] - t2.truth[:n, :2]
-    rms = lambda e: float(np.sqrt(np.mean(np.sum(e * e, axis=1))))  # noqa: E731
-    return {"common_rms": rms((e1 + e2) / 2), "relative_rms": rms(e1 - e2)}
-
-
-def _claimed_pos_std(res: RunResult, robots: Sequence[int]) -> float:
-    """``sqrt(mean trace Sigma_pos)``: the position RMSE the filter claims (equals the RMSE if consistent)."""
-    tr = np.concatenate([np.trace(res.tracks[r].cov[:, :2, :2], axis1=1, axis2=2) for r in robots])
-    return float(np.sqrt(np.mean(tr)))
-
-
-def _job(spec: dict[str, Any]) -> dict[str, Any]:
-    """One simulation (experiment, noise, seed, event filter) run through several estimators."""
-    if spec["scenario"] == "gt":
-        sim = thesis_ground_truth_neighbour(noise_std=spec["noise"], seed=spec["seed"], duration=spec["duration"])
-    else:
-        sim = thesis_two_robot(noise_std=spec["noise"], seed=spec["seed"], duration=spec["duration"])
-    events = _filter_events(sim.events, spec.get("every", 1), spec.get("oneway", False))
-    out: dict[str, Any] = {"spec": spec, "runs": {}}
-    for key in spec["estimators"]:
-        es = ESTIMATORS[key]
-        init = {
-            r: GroupGaussian(SE2, m, INIT_VAR * np.eye(3), validate=False)
-            for r, m in sim.initial_pose_matrices().items()
-        }
-        est = timed(es.cls)(init, sim.unicycle_noise(), **dict(es.kwargs))
-        res = run(est, events)
-        ev = evaluate(res)
-        item: dict[str, Any] = {
-            "team": ev["team"],
-            "robots": {int(r): v for r, v in ev["robots"].items()},
-            "wall": res.wall_time,
-            "n_predict": int(res.stats.get("est_predict", 0)),
-            "n_update": int(res.stats.get("est_update", 0)),
-            "n_fused": int(res.stats.get("est_fused", 0)),
-            "timing": dict(est.timing),
-            "claimed_pos_std": _claimed_pos_std(res, sorted(res.tracks)),
-            "claimed_pos_std_r1": _claimed_pos_std(res, [1]),
-            **_common_relative(res),
-        }
-        if key == "cekf":
-            P = est.joint_covariance()
-            s = np.sqrt(np.diag(P))
-            item["final_corr"] = {n: float(P[i, i + 3] / (s[i] * s[i + 3])) for i, n in enumerate(("x", "y", "theta"))}
-        if spec.get("keep"):
-            item["result"] = RunResult(res.estimator, {1: res.tracks[1]}, res.wall_time, res.stats, res.n_events)
-        out["runs"][key] = item
-    return out
-
-
-def _run_jobs(
-    specs: list[dict[str, Any]], workers: int, progress: bool, weight: Callable[[dict[str, Any]], float]
-) -> list[dict[str, Any]]:
-    """Run ``specs`` (largest first) in ``workers`` processes with a rich progress bar over estimator runs."""
-    order = sorted(range(len(specs)), key=lambda i: -weight(specs[i]))
-    results: list[dict[str, Any] | None] = [None] * len(specs)
-    total = sum(len(s["estimators"]) for s in specs)
-    bar = None
-    if progress:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        bar = Progress(
-            TextColumn("[bold]thesis 5.2[/bold] {task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-        )
-        task = bar.add_task("runs", total=total)
-        bar.start()
-
-    def done(i: int, r: dict[str, Any]) -> None:
-        results[i] = r
-        if bar is not None:
-            s = r["spec"]
-            bar.update(task, advance=len(s["estimators"]), description=f"{s['label']} seed {s['seed']}")
-
-    try:
-        if workers <= 1:
-            for i in order:
-                done(i, _job(specs[i]))
-        else:
-            try:
-                with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-                    futs = {pool.submit(_job, specs[i]): i for i in order}
-                    for f in as_completed(futs):
-                        done(futs[f], f.result())
-            except (OSError, BrokenProcessPool) as exc:  # no subprocesses here: finish in-process
-                log.warning("run_dynamic: worker processes failed (%s); running in-process", exc)
-                for i in order:
-                    if results[i] is None:
-                        done(i, _job(specs[i]))
-    finally:
-        if bar is not None:
-            bar.stop()
-    return [r for r in results if r is not None]
-
-
-def _cpu_seconds() -> float:
-    """CPU time of this process and its reaped children (the worker processes), user + system."""
-    me, ch = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return me.ru_utime + me.ru_stime + ch.ru_utime + ch.ru_stime
-
-
-# ---------------------------------------------------------------------------------------------------------- stats
-def spread(values: Sequence[float]) -> dict[str, float]:
-    """Mean, std (ddof=1; 0 for one value), min, max and n of ``values``."""
-    a = np.asarray(values, dtype=float)
-    return {
-        "mean": float(a.mean()),
-        "std": float(a.std(ddof=1)) if a.size > 1 else 0.0,
-        "min": float(a.min()),
-        "max": float(a.max()),
-        "n": int(a.size),
-    }
-
-
-def _curve(results: list[RunResult], robot: int = 1) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    c = over_seeds(results, robot)
-    inside = (c["anees"] >= c["anees_lo"]) & (c["anees"] <= c["anees_hi"])
-    sl = slice(None, None, CURVE_EVERY)
-    js = {k: [round(float(x), 6) for x in v[sl]] for k, v in c.items() if k not in ("anees_lo", "anees_hi")}
-    js["anees_bounds"] = [float(c["anees_lo"][0]), float(c["anees_hi"][0])]
-    js["anees_frac_in_band"] = float(np.mean(inside))
-    return c, js
-
-
-def _summarize(items: list[dict[str, Any]]) -> dict[str, Any]:
-    """Spread over seeds of one estimator in one experiment."""
-    team = {k: spread([it["team"][k] for it in items]) for k in ("pos_rmse", "heading_rmse", "anees", "frac_in_95")}
-    team["claimed_pos_std"] = spread([it["claimed_pos_std"] for it in items])
-    robots = {
-        str(r): {k: spread([it["robots"][r][k] for it in items]) for k in ("pos_rmse", "heading_rmse", "anees")}
-        for r in sorted(items[0]["robots"])
-    }
-    robots["1"]["claimed_pos_std"] = spread([it["claimed_pos_std_r1"] for it in items])
-    t = {k: sum(it["timing"][k] for it in items) for k in ("predict_s", "predict_n", "update_s", "update_n")}
-    calls = sum(it["n_predict"] + it["n_update"] for it in items)
-    timing = {
-        "us_per_call_wall": 1e6 * sum(it["wall"] for it in items) / max(calls, 1),
-        "us_per_predict": 1e6 * t["predict_s"] / max(t["predict_n"], 1),
-        "us_per_update": 1e6 * t["update_s"] / max(t["update_n"], 1),
-        "predict_calls": int(t["predict_n"]),
-        "update_calls": int(t["update_n"]),
-        "wall_s_per_run": spread([it["wall"] for it in items]),
-    }
-    return {
-        "team": team,
-        "robots": robots,
-        "common_rms": spread([it["common_rms"] for it in items]),
-        "relative_rms": spread([it["relative_rms"] for it in items]),
-        "per_seed": {
-            "pos_rmse": [it["team"]["pos_rmse"] for it in items],
-            "heading_rmse": [it["team"]["heading_rmse"] for it in items],
-            "anees": [it["team"]["anees"] for it in items],
-        },
-        "timing": timing,
-        "detections_fused_per_run": float(np.mean([it["n_fused"] for it in items])),
-    }
-
-
-def _paired(a: Sequence[float], b: Sequence[float]) -> dict[str, float]:
-    """Paired comparison over seeds of ``a`` vs ``b`` (e.g. RMSE of two estimators on the same simulations)."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    d = a - b
-    return {
-        "a_lower_in_seeds": int(np.sum(a < b)),
-        "n": int(a.size),
-        "mean_diff": float(d.mean()),
-        "std_diff": float(d.std(ddof=1)) if d.size > 1 else 0.0,
-        "mean_rel_diff": float(np.mean(d / b)),
-    }
-
-
-# ---------------------------------------------------------------------------------------------------------- main
-def run_dynamic(
-    out_dir: Path,
-    seeds: int = 20,
-    progress: bool = True,
-    quick: bool = False,
-    *,
-    workers: int | None = None,
-) -> dict:
-    """Reproduce thesis sec. 5.2.2 (Figs 5.14-5.23) and Table 6.1 with measured numbers; write into ``out_dir``.
-
-    ``seeds``: simulations per noise level (seeds ``0..seeds-1``; the ground-truth-neighbour run uses
-    ``min(seeds, 5)``, the double-counting study ``min(seeds, 8)``). ``quick``: 3 seeds and shorter runs
-    (30 s / 60 s), for tests. ``workers``: processes (default ``min(2, cpu count)``; 1 runs in-process).
-
-    Writes ``dynamic.json``, ``dynamic.md`` and ``dynamic_*.png``; returns the JSON content plus ``"markdown"``
-    (the text of ``dynamic.md``).
-    """
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` with the non-interactive Agg backend, for :func:`figures`."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    t_start = time.perf_counter()
-    cpu0 = _cpu_seconds()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    cfg = dict(FULL)
-    if quick:
-        cfg.update(QUICK)
-        seeds = min(seeds, QUICK["seeds"])
-    if seeds < 1:
-        raise ValueError(f"run_dynamic: seeds must be >= 1, got {seeds}")
-    if workers is None:
-        workers = max(1, min(2, os.cpu_count() or 1))
-    gt_seeds = min(seeds, cfg["gt_seeds"])
-    ab_seeds = min(seeds, cfg["ablation_seeds"])
-    dur, gt_dur = cfg["duration"], cfg["gt_duration"]
-    all_est = tuple(ESTIMATORS)
+    return plt
 
-    specs: list[dict[str, Any]] = []
-    for noise in NOISE_LEVELS:
-        for s in range(seeds):
-            specs.append(
-                {
-                    "label": f"two robots, noise {noise:g}",
-                    "exp": "two_robot",
-                    "scenario": "two",
-                    "noise": noise,
-                    "seed": s,
-                    "duration": dur,
-                    "estimators": all_est,
-                    "keep": True,
-                }
-            )
-    for s in range(gt_seeds):
-        specs.append(
-            {
-                "label": "ground-truth neighbour",
-                "exp": "gt",
-                "scenario": "gt",
-                "noise": GT_NOISE,
-                "seed": s,
-                "duration": gt_dur,
-                "estimators": GT_ESTIMATORS,
-                "keep": True,
-            }
-        )
-    for ak, (_, every, oneway) in ABLATIONS.items():
-        if ak == "mutual_10hz":
-            continue  # identical to the main runs at ABLATION_NOISE: taken from there
-        for s in range(ab_seeds):
-            specs.append(
-                {
-                    "label": f"double counting: {ak}",
-                    "exp": "ablation",
-                    "ablation": ak,
-                    "scenario": "two",
-                    "noise": ABLATION_NOISE,
-                    "seed": s,
-                    "duration": dur,
-                    "estimators": ABLATION_ESTIMATORS,
-                    "every": every,
-                    "oneway": oneway,
-                }
-            )
-    jobs = _run_jobs(specs, workers, progress, weight=lambda s: s["duration"] * len(s["estimators"]))
-    t_runs = time.perf_counter() - t_start
 
-    # ------------------------------------------------------------------ aggregate
-    def select(exp: str, **kw: Any) -> list[dict[str, Any]]:
-        js = [j for j in jobs if j["spec"]["exp"] == exp and all(j["spec"].get(k) == v for k, v in kw.items())]
-        return sorted(js, key=lambda j: j["spec"]["seed"])
-
-    curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
-    traj: dict[str, dict[str, RunResult]] = {}
-    two_robot: dict[str, Any] = {}
-    ordering: dict[str, Any] = {}
-    order12: dict[str, Any] = {}
-    for noise in NOISE_LEVELS:
-        nk = f"{noise:g}"
-        js = select("two_robot", noise=noise)
-        two_robot[nk] = {}
-        curves[nk] = {}
-        for key in all_est:
-            items = [j["runs"][key] for j in js]
-            summ = _summarize(items)
-            c, cj = _curve([it["result"] for it in items])
-            summ["robot1_error_vs_time"] = cj
-            if key == "cekf":
-                summ["final_corr_r1_r2"] = {
-                    n: spread([it["final_corr"][n] for it in items]) for n in ("x", "y", "theta")
-                }
-            two_robot[nk][key] = summ
-            curves[nk][key] = c
-        traj[nk] = {key: js[0]["runs"][key]["result"] for key in all_est}
-        ps = {k: two_robot[nk][k]["per_seed"] for k in all_est}
-        ordering[nk] = {
-            "expfusion_vs_dekf_rmse": _paired(ps["expfusion"]["pos_rmse"], ps["dekf"]["pos_rmse"]),
-            "expfusion_vs_dr_rmse": _paired(ps["expfusion"]["pos_rmse"], ps["dr"]["pos_rmse"]),
-            "dekf_vs_dr_rmse": _paired(ps["dekf"]["pos_rmse"], ps["dr"]["pos_rmse"]),
-            "cekf_vs_expfusion_rmse": _paired(ps["cekf"]["pos_rmse"], ps["expfusion"]["pos_rmse"]),
-            "cekf_vs_dr_rmse": _paired(ps["cekf"]["pos_rmse"], ps["dr"]["pos_rmse"]),
-            "thesis_order_holds_in_seeds": int(
-                np.sum(
-                    (np.array(ps["expfusion"]["pos_rmse"]) < np.array(ps["dekf"]["pos_rmse"]))
-                    & (np.array(ps["dekf"]["pos_rmse"]) < np.array(ps["dr"]["pos_rmse"]))
-                )
-            ),
-        }
-        order12[nk] = {
-            "rmse_order2_vs_order1": _paired(ps["expfusion"]["pos_rmse"], ps["expfusion1"]["pos_rmse"]),
-            "heading_rmse_order2_vs_order1": _paired(ps["expfusion"]["heading_rmse"], ps["expfusion1"]["heading_rmse"]),
-            "anees_order2_vs_order1": _paired(ps["expfusion"]["anees"], ps["expfusion1"]["anees"]),
-        }
-
-    gt_jobs = select("gt")
-    gt: dict[str, Any] = {}
-    gt_curves: dict[str, dict[str, np.ndarray]] = {}
-    for key in GT_ESTIMATORS:
-        items = [j["runs"][key] for j in gt_jobs]
-        summ = _summarize(items)
-        c, cj = _curve([it["result"] for it in items])
-        summ["robot1_error_vs_time"] = cj
-        gt[key] = summ
-        gt_curves[key] = c
-    gt_traj = {key: gt_jobs[0]["runs"][key]["result"] for key in GT_ESTIMATORS}
-
-    abl: dict[str, Any] = {}
-    for ak, (desc, every, oneway) in ABLATIONS.items():
-        if ak == "mutual_10hz":
-            js = select("two_robot", noise=ABLATION_NOISE)[:ab_seeds]
-        else:
-            js = select("ablation", ablation=ak)
-        abl[ak] = {"description": desc, "every": every, "oneway": oneway, "seeds": len(js), "estimators": {}}
-        for key in ABLATION_ESTIMATORS:
-            items = [j["runs"][key] for j in js]
-            abl[ak]["estimators"][key] = {
-                f"robot{r}": {k: spread([it["robots"][r][k] for it in items]) for k in ("pos_rmse", "anees")}
-                for r in (1, 2)
-            } | {"detections_fused_per_run": float(np.mean([it["n_fused"] for it in items]))}
-
-    # Table 6.1, timing pooled over all two-robot runs
-    table61 = []
-    for key, es in ESTIMATORS.items():
-        items = [j["runs"][key] for j in select("two_robot")]
-        tp = sum(it["timing"]["predict_s"] for it in items) / max(sum(it["timing"]["predict_n"] for it in items), 1)
-        tu = sum(it["timing"]["update_s"] for it in items) / max(sum(it["timing"]["update_n"] for it in items), 1)
-        table61.append(
-            {
-                "key": key,
-                "method": es.label,
-                "implemented": True,
-                "pos_rmse": {f"{n:g}": two_robot[f"{n:g}"][key]["team"]["pos_rmse"]["mean"] for n in NOISE_LEVELS},
-                "anees": {f"{n:g}": two_robot[f"{n:g}"][key]["team"]["anees"]["mean"] for n in NOISE_LEVELS},
-                "gt_neighbour_robot1_pos_rmse": gt[key]["robots"]["1"]["pos_rmse"]["mean"] if key in gt else None,
-                "gt_neighbour_robot1_anees": gt[key]["robots"]["1"]["anees"]["mean"] if key in gt else None,
-                "us_per_predict": 1e6 * tp,
-                "us_per_update": None if key == "dr" else 1e6 * tu,
-                "multiple_detections_at_once": es.multiple_detections,
-                "distributed": "yes" if es.cls.distributed else "no",
-                "note": es.note,
-            }
-        )
-    table61.append(
-        {
-            "key": "mcl",
-            "method": "Multi-robot MCL (thesis sec. 2.2)",
-            "implemented": False,
-            "multiple_detections_at_once": "no (thesis Table 2.1)",
-            "distributed": "yes (factorial representation)",
-            "note": "not implemented in swarmloc yet: no numbers",
-        }
-    )
-
-    sim0 = thesis_two_robot(noise_std=NOISE_LEVELS[0], seed=0, duration=dur)
-    sens = sim0.config.sensor
-    result: dict[str, Any] = {
-        "meta": {
-            "seeds": seeds,
-            "quick": quick,
-            "noise_levels": list(NOISE_LEVELS),
-            "duration_s": dur,
-            "gt_neighbour": {"duration_s": gt_dur, "seeds": gt_seeds, "noise": GT_NOISE},
-            "double_counting": {"seeds": ab_seeds, "noise": ABLATION_NOISE},
-            "initial_cov": f"{INIT_VAR:g} * I (exponential coordinates): known initial poses, as in the thesis",
-            "wheel_diffusion_D": sim0.config.drive.D,
-            "sensor": {
-                "rate_hz": sens.rate,
-                "max_range_m": sens.max_range,
-                "sigma_theta": "2 * noise std [rad] (assumption of swarmloc.sim.thesis_two_robot)",
-            },
-            "units": "metres, radians, seconds; ANEES per degree of freedom (3)",
-            "spread": "mean/std(ddof=1)/min/max over seeds of per-run (time-averaged) values",
-            "curves": f"robot 1, over seeds at each record time, stored every {CURVE_EVERY}th record (1 s)",
-            "workers": workers,
-            "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__},
-            "estimators": {
-                k: {"label": e.label, "distributed": bool(e.cls.distributed), "note": e.note}
-                for k, e in ESTIMATORS.items()
-            },
-        },
-        "two_robot": two_robot,
-        "thesis_ordering": ordering,
-        "order2_vs_order1": order12,
-        "ground_truth_neighbour": gt,
-        "double_counting": abl,
-        "table_6_1": table61,
-    }
-
-    # ------------------------------------------------------------------ figures
-    files = _figures(plt, out_dir, curves, traj, gt_curves, gt_traj, abl, seeds, gt_seeds)
-    runtime = time.perf_counter() - t_start
-    result["meta"]["runtime_s"] = {"runs": t_runs, "total": runtime, "cpu": _cpu_seconds() - cpu0}
-    result["files"] = ["dynamic.json", "dynamic.md", *files]
+def write_dynamic(out_dir: Path, result: dict[str, Any]) -> str:
+    """Write ``dynamic.md`` (tables and analysis) and ``dynamic.json`` (``result``) to ``out_dir``; return the text."""
     md = _markdown(result)
     (out_dir / "dynamic.md").write_text(md)
     (out_dir / "dynamic.json").write_text(json.dumps(result, indent=1, allow_nan=True))
-    return result | {"markdown": md}
+    return md
 
 
 # ---------------------------------------------------------------------------------------------------------- figures
-def _figures(
+def figures(
     plt: Any,
     out_dir: Path,
     curves: dict[str, dict[str, dict[str, np.ndarray]]],
@@ -631,7 +72,7 @@ def _figures(
 
     def err_panel(ax: Any, cs: dict[str, dict[str, np.ndarray]]) -> None:
         for key, c in cs.items():
-            es = ESTIMATORS[key]
+            es = RUNS[key]
             ax.plot(c["times"], c["pos_mean"], es.style, color=es.color, label=es.label, lw=1.3)
             ax.fill_between(c["times"], c["pos_p10"], c["pos_p90"], color=es.color, alpha=0.12, lw=0)
         ax.set_yscale("log")
@@ -653,7 +94,7 @@ def _figures(
         ins.plot(tr.truth[sel, 0], tr.truth[sel, 1], color="tab:blue", lw=6, alpha=0.45)
         err = 0.0
         for key, res in runs.items():
-            es = ESTIMATORS[key]
+            es = RUNS[key]
             m = res.tracks[1].mean
             ax.plot(m[:, 0], m[:, 1], es.style, color=es.color, lw=0.9, label=es.label)
             ins.plot(m[sel, 0], m[sel, 1], es.style, color=es.color, lw=1.2)
@@ -692,7 +133,7 @@ def _figures(
     fig, axes = plt.subplots(1, len(noises), figsize=(5 * len(noises), 4.2), sharey=True)
     for ax, nk in zip(np.atleast_1d(axes), noises, strict=True):
         for key, c in curves[nk].items():
-            es = ESTIMATORS[key]
+            es = RUNS[key]
             ax.plot(c["times"], c["anees"], es.style, color=es.color, label=es.label, lw=1.1)
         c0 = next(iter(curves[nk].values()))
         ax.fill_between(c0["times"], c0["anees_lo"], c0["anees_hi"], color="gray", alpha=0.3, label="95% chi-square")
@@ -720,7 +161,7 @@ def _figures(
     keys = list(abl)
     width = 0.8 / len(ABLATION_ESTIMATORS)
     for j, ek in enumerate(ABLATION_ESTIMATORS):
-        es = ESTIMATORS[ek]
+        es = RUNS[ek]
         vals = [abl[ak]["estimators"][ek]["robot1"]["anees"]["mean"] for ak in keys]
         ax.bar(np.arange(len(keys)) + (j - 1) * width, vals, width, color=es.color, label=es.label, alpha=0.8)
     ax.axhline(1.0, color="gray", ls="--", lw=1)
@@ -792,7 +233,7 @@ def _markdown(r: dict[str, Any]) -> str:
         for key, s in per.items():
             t = s["team"]
             add(
-                f"| {ESTIMATORS[key].label} | {_ms(t['pos_rmse'], 1e3)} | {_ms(t['heading_rmse'], 1e3)} | "
+                f"| {RUNS[key].label} | {_ms(t['pos_rmse'], 1e3)} | {_ms(t['heading_rmse'], 1e3)} | "
                 f"{_ms(t['anees'], 1, 2)} | {t['claimed_pos_std']['mean'] * 1e3:.2f} | "
                 f"{s['robots']['1']['pos_rmse']['mean'] * 1e3:.1f} | "
                 f"{s['robot1_error_vs_time']['anees_frac_in_band']:.2f} | {s['timing']['us_per_call_wall']:.0f} |"
@@ -837,7 +278,7 @@ def _markdown(r: dict[str, Any]) -> str:
     for key, s in g.items():
         r1 = s["robots"]["1"]
         add(
-            f"| {ESTIMATORS[key].label} | {_ms(r1['pos_rmse'], 1e3)} | {_ms(r1['heading_rmse'], 1e3)} | "
+            f"| {RUNS[key].label} | {_ms(r1['pos_rmse'], 1e3)} | {_ms(r1['heading_rmse'], 1e3)} | "
             f"{_ms(r1['anees'], 1, 2)} | {r1['claimed_pos_std']['mean'] * 1e3:.2f} | "
             f"{s['robots']['2']['pos_rmse']['mean'] * 1e3:.1f} |"
         )
@@ -848,7 +289,7 @@ def _markdown(r: dict[str, Any]) -> str:
     add(
         "RMSE and ANEES: two-robot experiment, mean over seeds at noise 0.01 / 0.05 / 0.1; GT: robot 1 in the "
         "ground-truth-neighbour run. µs per predict / update: pooled over all two-robot runs, measured separately "
-        f"with a timing subclass ({m['machine']['cpus']} CPUs, {m['workers']} worker processes). The qualitative rows "
+        f"by the nodes ({m['machine']['cpus']} CPUs, {m['workers']} worker processes). The qualitative rows "
         "of the thesis' table (Gaussian assumption, no global localization, no state recovery) hold for all "
         "implemented methods.\n"
     )
@@ -1115,6 +556,3 @@ def _analysis(r: dict[str, Any]) -> list[str]:
         "produce or hide these effects.\n"
     )
     return L
-
-
-__all__ = ["ABLATIONS", "ESTIMATORS", "INIT_VAR", "NOISE_LEVELS", "run_dynamic", "spread", "timed"]

@@ -1,0 +1,217 @@
+"""Evaluate estimators on one stream of events: run each, score against truth, write a report.
+
+Used by ``swarmloc evaluate mrclam`` (:mod:`swarmloc.experiments.mrclam`) and ``swarmloc evaluate events``
+(your own robots, :mod:`swarmloc.datasets.eventfile`). Every estimator runs on the same events through the
+in-process runner; beliefs are recorded on a regular grid and scored with :mod:`swarmloc.evaluation.metrics`
+(position and heading RMSE, NEES/ANEES per degree of freedom). The report is a dict (and, with ``out_dir``,
+``<name>.json``, ``<name>.md``, figures and TUM trajectories that ``evo`` reads).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarmloc.config import DEFAULTS, Config
+from swarmloc.datasets.tum import write_tum
+from swarmloc.estimators import ESTIMATORS, make_team, options_for
+from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
+from swarmloc.events import Event
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.runner import RunResult, TruthFn, run
+
+ALL = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl")
+
+
+def node_options(name: str, config: Config, landmarks: Mapping[int, Any] | None) -> dict[str, Any]:
+    """The options of estimator ``name`` taken from ``config`` (those the class accepts)."""
+    f = config.filter
+    return options_for(
+        name,
+        noise=config.motion.noise(),
+        landmarks=landmarks,
+        gate=f.gate,
+        horizon=f.horizon,
+        order=f.order,
+        iterations=f.iterations,
+        point_iterations=f.point_iterations,
+    )
+
+
+@contextlib.contextmanager
+def progress_bar(enabled: bool) -> Iterator[Callable[[str], Callable[[int, int], None]] | None]:
+    """A rich progress bar; yields ``start(description) -> callback(done, total)``, or None when disabled."""
+    if not enabled:
+        yield None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  transient=True) as bar:  # fmt: skip
+
+        def start(description: str) -> Callable[[int, int], None]:
+            task = bar.add_task(description, total=None)
+
+            def cb(done: int, total: int) -> None:
+                bar.update(task, completed=done, total=total)
+
+            return cb
+
+        yield start
+
+
+def evaluate_stream(
+    events: Sequence[Event],
+    initial: Mapping[int, GroupGaussian],
+    *,
+    t_start: float,
+    t_end: float,
+    truth: TruthFn | None,
+    landmarks: Mapping[int, Any] | None = None,
+    estimators: Sequence[str] = ALL,
+    config: Config = DEFAULTS,
+    progress: bool = False,
+) -> tuple[dict, dict[str, RunResult]]:
+    """Run ``estimators`` on ``events`` and score them; returns ``(report, results)``.
+
+    Beliefs are recorded every ``1 / config.record.rate`` s over ``[t_start, t_end)``. Without ``truth`` the
+    report has wall times, counters and trajectories but no accuracy (``"truth": false``).
+    """
+    unknown = [e for e in estimators if e not in ESTIMATORS]
+    if unknown:
+        raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
+    record_times = np.arange(t_start, t_end, 1.0 / config.record.rate)
+    duration = float(t_end - t_start)
+    report: dict[str, Any] = {
+        "robots": sorted(initial),
+        "duration_s": duration,
+        "n_events": len(events),
+        "config": config.to_dict(),
+        "truth": truth is not None,
+        "estimators": {},
+    }
+    results: dict[str, RunResult] = {}
+    with progress_bar(progress) as start:
+        for name in estimators:
+            nodes = make_team(name, initial, **node_options(name, config, landmarks))
+            cb = start(name) if start is not None else None
+            res = run(nodes, events, record_times=record_times, truth=truth, progress=cb, name=name)
+            results[name] = res
+            ev = evaluate(res) if truth is not None else {"estimator": name, "robots": {}, "team": None}
+            ev["wall_time_s"] = res.wall_time
+            ev["x_real_time"] = duration / res.wall_time if res.wall_time > 0 else float("inf")
+            ev["stats"] = res.stats
+            ev["reasons"] = dict(res.reasons)
+            ev["timing"] = res.timing
+            ev["accounted"] = res.accounted()
+            ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
+            report["estimators"][name] = ev
+    n_rec = sum(tr.times.size for tr in next(iter(results.values())).tracks.values()) if results else 0
+    report["anees_bounds_if_independent"] = anees_bounds(max(n_rec, 1))
+    return report, results
+
+
+def write_report(out_dir: str | Path, stem: str, report: dict, results: dict[str, RunResult], t_start: float) -> None:
+    """``<stem>.json``, ``<stem>.md``, ``tum/<estimator>_robot<N>.tum`` (+ ground truth) and, with truth, figures."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tum = out / "tum"
+    tum.mkdir(exist_ok=True)
+    first = next(iter(results.values()), None)
+    if first is not None and report["truth"]:
+        for r, tr in first.tracks.items():
+            write_tum(tum / f"groundtruth_robot{r}.tum", tr.times, tr.truth)
+    for name, res in results.items():
+        for r, tr in res.tracks.items():
+            write_tum(tum / f"{name}_robot{r}.tum", tr.times, tr.mean)
+    report["figures"] = figures(out, results, t_start) if results and report["truth"] else []
+    (out / f"{stem}.json").write_text(json.dumps(report, indent=2, default=_jsonable))
+    (out / f"{stem}.md").write_text(markdown_table(report))
+
+
+def _jsonable(o: object) -> object:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    return str(o)
+
+
+def figures(out: Path, results: dict[str, RunResult], t_start: float) -> list[str]:
+    """Trajectories per robot, and team position error and NEES over time per estimator (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = []
+    robots = sorted(next(iter(results.values())).tracks)
+    fig, axes = plt.subplots(1, len(robots), figsize=(4 * len(robots), 4), squeeze=False)
+    for ax, r in zip(axes[0], robots, strict=True):
+        first = next(iter(results.values())).tracks.get(r)
+        if first is not None:
+            ax.plot(first.truth[:, 0], first.truth[:, 1], "k-", lw=2, label="truth")
+        for name, res in results.items():
+            tr = res.tracks.get(r)
+            if tr is not None:
+                ax.plot(tr.mean[:, 0], tr.mean[:, 1], lw=0.8, label=name)
+        ax.set_title(f"robot {r}")
+        ax.set_aspect("equal")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "trajectories.png", dpi=110)
+    plt.close(fig)
+    files.append("trajectories.png")
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for name, res in results.items():
+        tracks = [tr for tr in res.tracks.values() if tr.times.size]
+        if not tracks:
+            continue
+        n = min(tr.times.size for tr in tracks)
+        errs = [errors(tr) for tr in tracks]
+        t = tracks[0].times[:n] - t_start
+        a1.plot(t, np.mean([e["pos"][:n] for e in errs], axis=0), lw=0.8, label=name)
+        a2.semilogy(t, np.mean([e["nees"][:n] / 3 for e in errs], axis=0), lw=0.8, label=name)
+    lo, hi = anees_bounds(len(robots))
+    a2.axhspan(lo, hi, color="0.85", label="95% band (team, per time)")
+    a1.set_ylabel("team mean position error [m]")
+    a2.set_ylim(1e-2, 1e3)  # the first record is the exact initial pose (NEES ~ 0)
+    a2.set_ylabel("team NEES per dof")
+    a2.set_xlabel("time since start [s]")
+    a1.legend(fontsize=7, ncol=3)
+    fig.tight_layout()
+    fig.savefig(out / "error_nees_over_time.png", dpi=110)
+    plt.close(fig)
+    files.append("error_nees_over_time.png")
+    return files
+
+
+def markdown_table(report: dict) -> str:
+    """The report as a Markdown table: accuracy, consistency, accounting and speed per estimator."""
+    title = report.get("title", "evaluation")
+    lines = [
+        f"# {title}: {report['duration_s']:.0f} s, robots {report['robots']}"
+        + ("" if report.get("truth", True) else " (no ground truth: replay only)"),
+        "",
+        "| estimator | team pos RMSE [m] | heading RMSE [rad] | ANEES (per dof) | in 95% NEES band | detections "
+        "fused / gated / rejected / unknown | wall [s] | x real time |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, ev in report["estimators"].items():
+        s = ev["stats"]
+        acc = f"{s['detections']}: {s['fused']} / {s['gated']} / {s['rejected']} / {s['unknown']}"
+        t = ev["team"]
+        if t is None:
+            lines.append(f"| {name} | - | - | - | - | {acc} | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |")
+            continue
+        lines.append(
+            f"| {name} | {t['pos_rmse']:.3f} | {t['heading_rmse']:.3f} | {t['anees']:.2f} | {t['frac_in_95']:.2f} | "
+            f"{acc} | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,122 @@
+"""Your own robots: evaluate an event file (``swarmloc evaluate events``) and make one from a simulation
+(``swarmloc simulate``), so that the whole path from a CSV to scores and figures can be tried with no data.
+
+The event format is :mod:`swarmloc.datasets.eventfile`; ground truth, optional, is one TUM file per robot
+(``truth_robot<N>.tum``, :mod:`swarmloc.datasets.tum`), looked for beside the event file unless a folder is given.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from swarmloc.config import DEFAULTS, Config, MotionConfig
+from swarmloc.datasets.eventfile import EventFileError, load_events, load_truth_dir, write_events
+from swarmloc.datasets.tum import interpolate, write_tum
+from swarmloc.events import Detection, Odometry
+from swarmloc.experiments.evaluate import ALL, evaluate_stream, write_report
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.lie import SE2
+from swarmloc.runner import TruthFn
+from swarmloc.sim import RelativeSensor, random_team
+
+__all__ = ["evaluate_event_file", "simulate_to_files"]
+
+
+def _truth_fn(truth: dict[int, tuple[np.ndarray, np.ndarray]]) -> TruthFn:
+    def fn(robot: int, times: np.ndarray) -> np.ndarray:
+        if robot not in truth:
+            raise ValueError(f"no ground truth for robot {robot}")
+        return interpolate(*truth[robot], times)
+
+    return fn
+
+
+def evaluate_event_file(
+    path: str | os.PathLike[str],
+    estimators: Sequence[str] = ALL,
+    truth_dir: str | os.PathLike[str] | None = None,
+    config: Config = DEFAULTS,
+    out_dir: str | os.PathLike[str] | None = None,
+    progress: bool = False,
+    strict: bool = True,
+) -> dict:
+    """Run ``estimators`` on the event file at ``path``, score them against ground truth when there is some, and
+    return (and with ``out_dir`` write) the same report as ``swarmloc evaluate mrclam``.
+
+    The estimated robots are those with odometry. Each needs an initial belief: an ``initial`` record, or else its
+    ground truth at the first stamp with ``config.initial``'s std. Detections without a noise of their own take
+    ``config.sensors``' (:meth:`~swarmloc.config.Config.event_defaults`). ``strict=False`` skips bad lines (they
+    are listed in the report's ``problems``) instead of refusing the file.
+    """
+    p = Path(path)
+    ef = load_events(p, defaults=config.event_defaults(), strict=strict)
+    robots = sorted({e.robot for e in ef.events if isinstance(e, Odometry)})
+    if not robots:
+        raise EventFileError(f"{p.name}: no odometry records: nothing to estimate")
+    folder = Path(truth_dir) if truth_dir is not None else p.parent
+    truth = load_truth_dir(folder, robots) if truth_dir is not None or any(folder.glob("truth_robot*.tum")) else {}
+    stamps = [e.stamp for e in ef.events] + [e.t1 for e in ef.events if isinstance(e, Odometry)]
+    t_start, t_end = min(stamps), max(stamps)
+    initial = {r: b for r, b in ef.initial_beliefs().items() if r in robots}
+    missing = [r for r in robots if r not in initial]
+    for r in list(missing):
+        if r in truth and truth[r][0][0] <= t_start <= truth[r][0][-1]:
+            pose = interpolate(*truth[r], t_start)[0]
+            initial[r] = GroupGaussian(SE2, SE2.from_xytheta(pose), config.initial.cov())
+            missing.remove(r)
+    if missing:
+        raise EventFileError(
+            f"{p.name}: no initial belief for robot(s) {missing}: add an 'initial' record "
+            "(type=initial, robot, z = 'x y theta', std) or ground truth covering the first stamp"
+        )
+    report, results = evaluate_stream(
+        ef.events,
+        initial,
+        t_start=t_start,
+        t_end=t_end,
+        truth=_truth_fn(truth) if truth and all(r in truth for r in robots) else None,
+        landmarks=ef.landmarks,
+        estimators=estimators,
+        config=config,
+        progress=progress,
+    )
+    report = {"title": p.name, "file": str(p), "problems": ef.problems, "truth_robots": sorted(truth), **report}
+    if out_dir is not None:
+        write_report(out_dir, "events", report, results, t_start)
+    return report
+
+
+def simulate_to_files(
+    out_dir: str | os.PathLike[str],
+    robots: int = 4,
+    duration: float = 60.0,
+    seed: int = 0,
+    fmt: str = "csv",
+) -> dict[str, Path]:
+    """Simulate a random team (:func:`swarmloc.sim.random_team`, relative-pose sensor) and write it as your own
+    robots' data would be: ``events.csv`` (or ``.jsonl``) with initial beliefs, ``truth_robot<N>.tum`` and a
+    ``config.toml`` holding the simulation's process noise. Returns the paths written."""
+    if fmt not in ("csv", "jsonl"):
+        raise ValueError(f"simulate_to_files: fmt must be 'csv' or 'jsonl', got {fmt!r}")
+    sim = random_team(robots, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    events = [e for e in sim.events if isinstance(e, Odometry | Detection)]
+    init_std = np.array([0.01, 0.01, 0.01])
+    initial = {r: (np.asarray(p), np.diag(init_std**2)) for r, p in sim.initial_poses.items()}
+    paths = {"events": write_events(out / f"events.{fmt}", events, initial=initial,
+                                    initial_times=dict.fromkeys(sim.initial_poses, 0.0))}  # fmt: skip
+    for j, r in enumerate(sim.robot_ids):
+        paths[f"truth_robot{r}"] = write_tum(out / f"truth_robot{r}.tum", sim.times, sim.truth[:, j])
+    config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
+    (out / "config.toml").write_text(
+        "# process noise of the simulation that wrote events."
+        f"{fmt} (swarmloc simulate --robots {robots} --duration {duration:g} --seed {seed})\n" + config.to_toml()
+    )
+    paths["config"] = out / "config.toml"
+    return paths
