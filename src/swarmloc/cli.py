@@ -32,7 +32,8 @@ def _reproduce(args: argparse.Namespace) -> int:
         from swarmloc.experiments.thesis_static.pooled import pooled_tables
 
         try:
-            res = pooled_tables(args.out, seeds=args.seeds, reps=args.reps, first_seed=args.first_seed)
+            reps = 20_000 if args.reps is None else args.reps
+            res = pooled_tables(args.out, seeds=args.seeds, reps=reps, first_seed=args.first_seed)
         except ValueError as exc:
             print(f"swarmloc reproduce tables: {exc}", file=sys.stderr)
             return 2
@@ -51,7 +52,7 @@ def _reproduce(args: argparse.Namespace) -> int:
     progress = not args.quiet
     report = {
         "demo": run_demo(out / "demo", seed=0, progress=progress),
-        "tables": run_tables(out / "tables", reps=5 if args.quick else args.reps, progress=progress),
+        "tables": run_tables(out / "tables", reps=5 if args.quick else args.reps or 60, progress=progress),
         "dynamic": run_dynamic(out / "dynamic", seeds=args.seeds, progress=progress, quick=args.quick),
     }
     report["wall_time_s"] = time.perf_counter() - t
@@ -189,8 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("what", help="thesis | tables")
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--seeds", type=int, default=20, help="seeds per dynamic experiment, or pooled seeds (default 20)")
-    r.add_argument("--reps", type=int, default=60,
-                   help="repetitions for Tables 5.1/5.2 (default 60; per seed with 'tables')")  # fmt: skip
+    r.add_argument(
+        "--reps", type=int, default=None, help="repetitions for Tables 5.1/5.2 (60; with 'tables': per seed, 20000)"
+    )
     r.add_argument("--first-seed", type=int, default=100, help="tables: first of the pooled seeds (default 100)")
     r.add_argument("--quick", action="store_true", help="few seeds and short runs (a smoke test)")
     r.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -82,6 +82,7 @@ def pooled_tables(
             row: dict[str, Any] = {
                 "n": i + 1, "mean": float(mean[i]), "se": float(se[i]), "sd_one_rep": float(sd[i]),
                 "seed_mean_min": float(seed_means[:, i].min()), "seed_mean_max": float(seed_means[:, i].max()),
+                "seed_mean_sd": float(seed_means[:, i].std(ddof=1)), "seed_means": seed_means[:, i].tolist(),
                 "se_thesis_60": float(se60[i]), "thesis": thesis[i],
             }  # fmt: skip
             if thesis[i] is not None:
