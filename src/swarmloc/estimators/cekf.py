@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, measurement_noise
-from swarmloc.estimators.node import FUSED, Group, Node, Outcome, usable_covariance
+from swarmloc.estimators.node import FUSED, Group, Node, Outcome, check_model, usable_covariance
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2
@@ -90,11 +90,7 @@ class CentralizedEKF(Node):
         cls = type(self).__name__
         if not isinstance(initial, Mapping) or not initial:
             raise ValueError(f"{cls}: 'initial' must map each robot id to its initial belief (at least one robot)")
-        for r, b in initial.items():
-            if not isinstance(b, GroupGaussian) or b.group is not SE2 or b.batch_shape:
-                raise ValueError(f"{cls}: initial belief of robot {r} must be one SE(2) GroupGaussian, got {b!r}")
-        if not isinstance(noise, UnicycleNoise):
-            raise ValueError(f"{cls}: 'noise' must be a UnicycleNoise, got {type(noise).__name__}")
+        check_model(cls, initial, noise)
         self.initial = dict(initial)
         self.noise = noise
         robots = sorted(initial)

@@ -78,13 +78,9 @@ class ExpCI(ExpFusion):
                 return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], order, its)
 
         else:
-            if self.gate is not None:
-                nis = float(K.point_nis(mean, cov, d.kind, d.z, R, nb_mean, nb_cov, True))
-                if not np.isfinite(nis):
-                    return ("rejected", DEGENERATE)
-                verdict = self._gated(nis, len(d.z))
-                if verdict is not None:
-                    return verdict
+            verdict = self._point_gate(mean, cov, d, nb_mean, nb_cov, True)
+            if verdict is not None:
+                return verdict
 
             def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                 wc = w[..., None, None]

@@ -115,17 +115,24 @@ class ExpFusion(RobotNode):
         p, C = target[1]
         return p, C, False
 
-    def _point(self, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any], w: float = 1.0) -> Any:
+    def _point_gate(
+        self, mean: np.ndarray, cov: np.ndarray, d: Any, tm: np.ndarray, tc: np.ndarray, robot: bool
+    ) -> Outcome | None:
+        """The gate's verdict on a range/bearing detection (None: pass, or no gate)."""
+        if self.gate is None:
+            return None
+        nis = float(K.point_nis(mean, cov, d.kind, d.z, np.asarray(d.cov, float), tm, tc, robot))
+        if not np.isfinite(nis):
+            return ("rejected", DEGENERATE)
+        return self._gated(nis, len(d.z))
+
+    def _point(self, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
         """Range/bearing update; returns ``(mean, cov)`` or the outcome when it cannot be fused."""
         tm, tc, robot = self._point_target(target)
         R = np.asarray(d.cov, float)
-        if self.gate is not None:
-            nis = float(K.point_nis(mean, cov, d.kind, d.z, R, tm, tc, robot))
-            if not np.isfinite(nis):
-                return ("rejected", DEGENERATE)
-            verdict = self._gated(nis, len(d.z))
-            if verdict is not None:
-                return verdict
+        verdict = self._point_gate(mean, cov, d, tm, tc, robot)
+        if verdict is not None:
+            return verdict
         m2, c2, ok = K.point_update(mean, cov, d.kind, d.z, R, tm, tc, robot, self.point_iterations, self.order)
         if not bool(ok):
             return ("rejected", DEGENERATE)

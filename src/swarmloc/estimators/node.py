@@ -917,6 +917,15 @@ def usable_covariance(C: np.ndarray) -> bool:
     return True
 
 
+def check_model(where: str, initial: Mapping[int, Any], noise: object) -> None:
+    """Every initial belief is one SE(2) :class:`GroupGaussian` and ``noise`` a :class:`UnicycleNoise`."""
+    for r, b in initial.items():
+        if not isinstance(b, GroupGaussian) or b.group is not SE2 or b.batch_shape:
+            raise ValueError(f"{where}: initial belief of robot {r} must be one SE(2) GroupGaussian, got {b!r}")
+    if not isinstance(noise, UnicycleNoise):
+        raise ValueError(f"{where}: 'noise' must be a UnicycleNoise, got {type(noise).__name__}")
+
+
 class RobotNode(Node):
     """A node that estimates one robot (every distributed estimator): built from that robot's belief alone.
 
@@ -933,10 +942,7 @@ class RobotNode(Node):
         cls = type(self).__name__
         if not isinstance(robot, int | np.integer) or isinstance(robot, bool):
             raise ValueError(f"{cls}: 'robot' must be an integer id, got {robot!r}")
-        if not isinstance(initial, GroupGaussian) or initial.group is not SE2 or initial.batch_shape:
-            raise ValueError(f"{cls}: 'initial' of robot {robot} must be one SE(2) GroupGaussian, got {initial!r}")
-        if not isinstance(noise, UnicycleNoise):
-            raise ValueError(f"{cls}: 'noise' must be a UnicycleNoise, got {type(noise).__name__}")
+        check_model(cls, {robot: initial}, noise)
         self.robot = int(robot)
         self.initial = initial
         self.noise = noise
