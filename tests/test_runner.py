@@ -169,6 +169,15 @@ def test_record_grid_with_truth_function_and_missing_truth_counted():
     assert res.stats["recorded"] == 3 * 3 and np.isnan(res.tracks[0].truth).all()
 
 
+def test_a_truth_event_older_than_the_history_is_counted_not_fatal():
+    sim = random_team(2, 30.0, seed=1)
+    events = [e for e in sim.events if not (isinstance(e, Truth) and e.t == 1.0)]
+    late = [e for e in sim.events if isinstance(e, Truth) and e.t == 1.0]
+    nodes = make_team("dekf", _initial(sim), noise=sim.unicycle_noise(), horizon=2.0)
+    res = run(nodes, events + late)  # the truth at t = 1 s arrives after 30 s of events
+    assert res.stats["record_too_old"] == 2 and res.stats["recorded"] == 2 * (sim.times.size - 1)
+
+
 def test_progress_callback_reaches_the_end():
     sim = random_team(2, 3.0, seed=1)
     calls: list[tuple[int, int]] = []

@@ -49,6 +49,7 @@ class _Records:
         self.heap: dict[int, list[tuple[float, int, int, np.ndarray]]] = {}
         self.rows: dict[int, list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]] = {}
         self.n = 0
+        self.too_old = 0
 
     def add(self, node: Node, t: float, robot: int, truth: np.ndarray) -> None:
         self.n += 1
@@ -59,7 +60,11 @@ class _Records:
         done = 0
         while h and h[0][0] <= upto:
             t, _, robot, truth = heapq.heappop(h)
-            b = node.belief_at(t, robot)
+            try:
+                b = node.belief_at(t, robot)
+            except ValueError:  # asked for after the node's history moved past it (a very late Truth event)
+                self.too_old += 1
+                continue
             self.rows.setdefault(robot, []).append((t, SE2.to_xytheta(b.mean), np.array(b.cov), truth))
             done += 1
         return done
@@ -225,6 +230,8 @@ def run(
     merged.update(stats)
     reasons.update(runner_reasons)
     merged["recorded"] = sum(len(v) for v in rec.rows.values())
+    if rec.too_old:
+        merged["record_too_old"] = rec.too_old
     for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
         merged.setdefault(k, 0)
     return RunResult(name or team[0].name, rec.tracks(), wall, dict(merged), total, reasons, timing)
