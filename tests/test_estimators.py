@@ -22,6 +22,7 @@ from swarmloc.estimators import (
 from swarmloc.evaluation.metrics import evaluate, wrap
 from swarmloc.events import Detection, Odometry
 from swarmloc.gaussian import GroupGaussian
+from swarmloc.kernels.cartesian import from_group
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.motion import UnicycleNoise
@@ -276,6 +277,7 @@ BAD: dict[str, tuple[Detection, str]] = {
     "target is observer": (Detection(0, 1.0, "pose", GOOD_Z, I3, target=0), "rejected"),
     "target None": (Detection(0, 1.0, "pose", GOOD_Z, I3, target=None), "rejected"),
     "unknown robot": (Detection(0, 1.0, "pose", GOOD_Z, I3, target=99), "unknown"),
+    "non-integer target": (Detection(0, 1.0, "pose", GOOD_Z, I3, target="robot one"), "rejected"),
     "unknown landmark": (Detection(0, 1.0, "range_bearing", np.array([1.0, 0.1]), I2, 7, False), "unknown"),
     "pose of a landmark": (Detection(0, 1.0, "pose", GOOD_Z, I3, target=5, target_is_robot=False), "rejected"),
     "absolute with nan": (Detection(0, 1.0, "absolute", np.array([np.nan, 0.0, 0.0]), I3), "rejected"),
@@ -437,3 +439,28 @@ def test_rdl_equals_the_centralized_ekf_for_two_robots():
     for r in (1, 2):
         np.testing.assert_allclose(a.tracks[r].mean, b.tracks[r].mean, rtol=0, atol=1e-12)
         np.testing.assert_allclose(a.tracks[r].cov, b.tracks[r].cov, rtol=0, atol=1e-14)
+
+
+def test_centralized_ekf_deferred_predictions_equal_step_by_step_ones():
+    """The centralized EKF keeps successive predictions of a robot as one shear and process covariance and applies
+    them when needed; without detections its beliefs (from the deferred form) and its joint covariance (after
+    applying it) equal the distributed EKF's step-by-step ``Phi P Phi^T + Q`` to 1e-12."""
+    rng = np.random.default_rng(4)
+    init = {r: _gauss(np.array([r, -r, 0.3 * r]), 1e-3) for r in (0, 1)}
+    noise = UnicycleNoise(q_v0=1e-3, q_v2=0.05, q_lat0=1e-4, q_w0=1e-3, q_w2=0.05, q_wv=0.02)
+    events = [Odometry(r, 0.1 * k, 0.1 * (k + 1), float(rng.uniform(-0.5, 1.0)), float(rng.uniform(-1, 1)))
+              for k in range(40) for r in (0, 1)]  # fmt: skip
+    cekf = CentralizedEKF(init, noise=noise, t0=0.0)
+    dekf = {r: make_team("dekf", {r: init[r]}, noise=noise, t0=0.0)[0] for r in (0, 1)}
+    for e in events:
+        cekf.step(e)
+        dekf[e.robot].step(e)
+    for t in (0.05, 1.37, 4.0, 4.6):
+        _, P = cekf.joint_at(t)
+        for r in (0, 1):
+            a, b = cekf.belief_at(t, r), dekf[r].belief_at(t)
+            np.testing.assert_allclose(a.mean, b.mean, atol=1e-12)
+            np.testing.assert_allclose(a.cov, b.cov, rtol=1e-12, atol=1e-15)
+            np.testing.assert_allclose(P[3 * r : 3 * r + 3, 3 * r : 3 * r + 3], from_group(b.mean, b.cov)[1],
+                                       rtol=1e-12, atol=1e-15)  # fmt: skip
+        assert np.abs(P[:3, 3:]).max() == 0.0  # never correlated without a detection

@@ -261,6 +261,8 @@ BAD_ANSWERS = {
         sender=1, receiver=0, stamp=q.stamp, based_on=0, x=(0.0, 0.0, 0.0), P=flat(np.eye(3))
     ),  # fmt: skip
     "not a message": lambda q: {"type": "belief_answer"},
+    "sender not an id": lambda q: msgspec.structs.replace(_answer(q, SE2.identity(), np.eye(3)), sender="one"),
+    "sub-key not numbers": lambda q: msgspec.structs.replace(_answer(q, SE2.identity(), np.eye(3)), sub=("x",)),
 }
 
 

@@ -56,7 +56,9 @@ def _reproduce(args: argparse.Namespace) -> int:
         "dynamic": run_dynamic(out / "dynamic", seeds=args.seeds, progress=progress, quick=args.quick),
     }
     report["wall_time_s"] = time.perf_counter() - t
-    (out / "thesis.json").write_text(json.dumps(report, indent=2, default=_jsonable))
+    from swarmloc.experiments.evaluate import json_default
+
+    (out / "thesis.json").write_text(json.dumps(report, indent=2, default=json_default))
     parts = ["# Reproducing the thesis (swarmloc)", ""]
     for sub, name in (("demo", "demo.md"), ("tables", "tables.md"), ("dynamic", "dynamic.md")):
         f = out / sub / name
@@ -118,7 +120,9 @@ def _evaluate(args: argparse.Namespace) -> int:
         print(f"{where}: {exc}", file=sys.stderr)
         return 2
     if args.json:
-        print(json.dumps(report, indent=2, default=_jsonable))
+        from swarmloc.experiments.evaluate import json_default
+
+        print(json.dumps(report, indent=2, default=json_default))
     else:
         print(markdown_table(report))
         if args.out:
@@ -158,18 +162,6 @@ def _config_cmd(args: argparse.Namespace) -> int:
         return 0
     print("swarmloc config: say --defaults (print every default) or --check FILE", file=sys.stderr)
     return 2
-
-
-def _jsonable(o: object) -> object:
-    import numpy as np
-
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    return str(o)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from swarmloc.datasets.tum import interpolate
 from swarmloc.events import Detection, Event, Odometry
-from swarmloc.lie import wrap_angle
 
 __all__ = [
     "DEFAULT_BEARING_STD",
@@ -216,12 +216,7 @@ class MRCLAMData:
             raise MRCLAMError(
                 f"{self.name}: time {bad:.3f} is outside the ground-truth span [{t0:.3f}, {t1:.3f}] of robot {robot}"
             )
-        theta = np.unwrap(gt[:, 3])
-        out = np.empty((tq.size, 3))
-        out[:, 0] = np.interp(tq, gt[:, 0], gt[:, 1])
-        out[:, 1] = np.interp(tq, gt[:, 0], gt[:, 2])
-        out[:, 2] = wrap_angle(np.interp(tq, gt[:, 0], theta))
-        return out
+        return interpolate(gt[:, 0], gt[:, 1:], tq)
 
     def initial_pose(self, robot: int) -> np.ndarray:
         """Pose ``(x, y, theta)`` of ``robot`` at ``t_start``: ground truth when available.

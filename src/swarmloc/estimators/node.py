@@ -108,6 +108,8 @@ def validate_detection(d: Detection) -> str | None:
         return str(exc)
     if d.kind in ("range_bearing", "range") and z[0] <= 0:
         return f"range must be positive, got {z[0]}"
+    if d.target is not None and (not isinstance(d.target, int | np.integer) or isinstance(d.target, bool)):
+        return f"target id must be an integer, got {d.target!r}"
     return None
 
 
@@ -574,6 +576,10 @@ class Node:
         self.counts["messages"] += 1
         if not (isinstance(m.stamp, int | float) and math.isfinite(m.stamp)):
             self._count_message_rejected("non-finite stamp")
+            return []
+        ids_ok = all(isinstance(x, int) and not isinstance(x, bool) for x in (m.sender, m.receiver))
+        if not (ids_ok and isinstance(m.sub, tuple) and all(isinstance(x, int | float) for x in m.sub)):
+            self._count_message_rejected("robot ids must be integers and the sub-key a tuple of numbers")
             return []
         if isinstance(m, BeliefQuery | RdlStateQuery):
             return self._on_query(m)

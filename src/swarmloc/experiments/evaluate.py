@@ -130,11 +130,12 @@ def write_report(out_dir: str | Path, stem: str, report: dict, results: dict[str
         for r, tr in res.tracks.items():
             write_tum(tum / f"{name}_robot{r}.tum", tr.times, tr.mean)
     report["figures"] = figures(out, results, t_start) if results and report["truth"] else []
-    (out / f"{stem}.json").write_text(json.dumps(report, indent=2, default=_jsonable))
+    (out / f"{stem}.json").write_text(json.dumps(report, indent=2, default=json_default))
     (out / f"{stem}.md").write_text(markdown_table(report))
 
 
-def _jsonable(o: object) -> object:
+def json_default(o: object) -> object:
+    """``json.dumps(default=...)`` for reports: arrays to lists, numpy scalars to numbers, anything else to text."""
     if isinstance(o, np.ndarray):
         return o.tolist()
     if isinstance(o, np.generic):

@@ -28,7 +28,6 @@ with the command in force at its time.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -40,7 +39,6 @@ from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.experiments.evaluate import ALL, evaluate_stream, markdown_table, write_report
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
-from swarmloc.motion import UnicycleNoise
 
 RANGE_STD = DEFAULTS.sensors.range_std
 BEARING_STD = DEFAULTS.sensors.bearing_std
@@ -126,21 +124,13 @@ def evaluate_mrclam(
     out_dir: str | Path | None = None,
     config: Config = DEFAULTS,
     progress: bool = False,
-    *,
-    noise: UnicycleNoise | None = None,
-    gate: float | None | bool = True,
 ) -> dict:
     """Run ``estimators`` on the MRCLAM dataset at ``path`` and return (and write) per-robot and team metrics.
 
-    ``config`` holds the models (``DEFAULTS``: the values in the module docstring); ``noise`` and ``gate``
-    override its motion model and gate (``gate=True`` keeps the config's, None disables it). A dataset without
-    ground truth is replayed for speed and robustness only: wall time and trajectories are reported, accuracy
-    and consistency are not (``"truth": false`` in the report).
+    ``config`` holds the models (``DEFAULTS``: the values in the module docstring). A dataset without ground truth
+    is replayed for speed and robustness only: wall time and trajectories are reported, accuracy and consistency
+    are not (``"truth": false`` in the report).
     """
-    if noise is not None:
-        config = dataclasses.replace(config, motion=type(config.motion).from_noise(noise))
-    if gate is not True:
-        config = dataclasses.replace(config, filter=dataclasses.replace(config.filter, gate=gate))
     t_load = time.perf_counter()
     data = load_mrclam(path)
     s = config.sensors

@@ -38,10 +38,6 @@ Progress = Callable[[int, int], None]
 """``progress(done, total)``, called every few thousand events (e.g. to drive a progress bar)."""
 
 
-def _stamp(e: Event) -> float:
-    return e.t0 if isinstance(e, Odometry) else e.t
-
-
 class _Records:
     """Pending records per node (a heap by time), resolved once final."""
 
@@ -111,7 +107,7 @@ def run(
     for e in events:
         r = e.robot if isinstance(e, Odometry | Truth) else e.observer if isinstance(e, Detection) else None
         n = owner.get(r)
-        s = _stamp(e) if n is not None else math.nan
+        s = e.stamp if n is not None else math.nan
         if n is not None and isinstance(s, int | float) and math.isfinite(s) and s < first.get(id(n), math.inf):
             first[id(n)] = s
     for n in team:
@@ -131,10 +127,13 @@ def run(
                     continue
                 rec.add(owner[r], t, r, row)
 
-    def deliver(node: Node, item: object, stamp: float) -> None:
+    def deliver(node: Node, item: object, stamp: object) -> None:
+        """Resolve the records this input could no longer change, then step the node and route its messages."""
         h = rec.heap.get(id(node))
-        if h and h[0][0] <= max(node.watermark, stamp) - node.horizon:
-            rec.resolve(node, max(node.watermark, stamp) - node.horizon)
+        if h and isinstance(stamp, float | int):
+            upto = max(node.watermark, stamp) - node.horizon
+            if h[0][0] <= upto:
+                rec.resolve(node, upto)
         out = node.step(item)
         if out:
             pump(out)
@@ -183,12 +182,7 @@ def run(
                 stats["unknown_robot"] += 1
                 stats["odometry"] += 1
                 continue
-            h = rec.heap.get(id(node))
-            if h and isinstance(e.t0, float | int) and h[0][0] <= max(node.watermark, e.t0) - node.horizon:
-                rec.resolve(node, max(node.watermark, e.t0) - node.horizon)
-            out = node.step(e)
-            if out:
-                pump(out)
+            deliver(node, e, e.t0)
         elif isinstance(e, Detection):
             group = [e]
             while i < total and isinstance(events[i], Detection) and events[i].observer == e.observer \
@@ -202,7 +196,7 @@ def run(
                 stats["unknown"] += len(group)
                 runner_reasons[f"unknown: observer {e.observer!r} is not in the team"] += len(group)
                 continue
-            deliver(node, group, e.t if isinstance(e.t, float | int) else math.nan)
+            deliver(node, group, e.t)
         elif isinstance(e, Truth):
             node = owner.get(e.robot)
             if node is None:
