@@ -1,4 +1,4 @@
-"""Command line: ``swarmloc demo | reproduce thesis | evaluate mrclam|events | simulate | config``.
+"""Command line: ``swarmloc demo | reproduce | evaluate mrclam|events | simulate | config | node | server | team``.
 
 Every command writes its results (Markdown, JSON, PNG, TUM) to an output folder and prints a short summary; errors in
 the input (a missing dataset file, a malformed line, an unknown estimator, a bad configuration) are reported in
@@ -164,6 +164,134 @@ def _config_cmd(args: argparse.Namespace) -> int:
     return 2
 
 
+def _ids(text: str | None) -> list[int] | None:
+    """``"1,2,3"`` -> ``[1, 2, 3]``; ``"none"`` -> ``[]``; None -> None."""
+    if text is None:
+        return None
+    if text.strip().lower() == "none":
+        return []
+    return [int(x) for x in text.split(",") if x.strip()]
+
+
+def _endpoints(text: str | None) -> list[str]:
+    return [x.strip() for x in (text or "").split(",") if x.strip()]
+
+
+def _net_logging(verbose: bool) -> None:
+    import logging
+
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s %(levelname)s: %(message)s")  # fmt: skip
+
+
+def _node(args: argparse.Namespace) -> int:
+    from swarmloc.config import ConfigError
+    from swarmloc.net.team import node_main
+
+    _net_logging(args.verbose)
+    try:
+        report = node_main(
+            robot=args.robot, team=args.team, source=args.source, estimator=args.estimator,
+            config=_config(args) if args.config else None, robots=args.robots, duration=args.duration,
+            seed=args.seed, speed=args.speed, lag=args.lag, listen=_endpoints(args.listen),
+            connect=_endpoints(args.connect), zenoh_config=args.zenoh_config, use_server=args.use_server,
+            resume=args.resume, faults=args.faults, wait_for=_ids(args.wait_for),
+            answer_timeout=args.answer_timeout, ros_domain=args.ros_domain, max_wall=args.max_wall,
+        )  # fmt: skip
+    except (ConfigError, ValueError, OSError, RuntimeError) as exc:
+        print(f"swarmloc node: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    s = report.stats
+    print(f"robot {report.robot}: {s['detections']} detections: {s['fused']} fused, {s['gated']} gated, "
+          f"{s['rejected']} rejected, {s['unknown']} unknown; {report.net.get('rejected', 0)} messages dropped; "
+          f"{report.wall_s:.1f} s")  # fmt: skip
+    return 0
+
+
+def _server(args: argparse.Namespace) -> int:
+    from swarmloc.net.team import server_main
+
+    _net_logging(args.verbose)
+    try:
+        server_main(
+            team=args.team, roster=_ids(args.roster) or [], listen=_endpoints(args.listen),
+            connect=_endpoints(args.connect), zenoh_config=args.zenoh_config, max_wall=args.max_wall,
+        )  # fmt: skip
+    except (ValueError, OSError) as exc:
+        print(f"swarmloc server: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _team(args: argparse.Namespace) -> int:
+    from swarmloc.config import ConfigError
+    from swarmloc.experiments.evaluate import markdown_table
+    from swarmloc.experiments.sources import load_source
+    from swarmloc.net.team import run_team, write_team_report
+
+    _net_logging(args.verbose)
+    import signal
+
+    def _terminate(*_: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)  # so that `kill` and time limits also stop every process started
+    try:
+        config = _config(args) if args.config else None
+        src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
+        run = run_team(
+            src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
+            seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
+            lag=args.lag, timeout=args.timeout, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
+            verbose=args.verbose,
+        )  # fmt: skip
+        extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}
+        report = write_team_report(run, src, args.estimator, args.out, extra)
+        if args.bag:
+            from swarmloc.net.ros import BagWriter
+
+            with BagWriter(args.bag) as bag:
+                for (r, t), b in sorted(run.beliefs.items()):
+                    import numpy as np
+
+                    bag.write(f"/swarmloc/robot{r}/pose", t, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
+    except (ConfigError, ValueError, OSError, RuntimeError) as exc:
+        print(f"swarmloc team: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("swarmloc team: interrupted; every process it started was stopped", file=sys.stderr)
+        return 130
+    print(markdown_table(report))
+    print(f"results, figures and TUM trajectories in {args.out}/" + (f"; rosbag2 in {args.bag}" if args.bag else ""))
+    bad = {n: c for n, c in run.exit_codes.items() if c not in (0, -15, None) and not n == "server"}
+    return 1 if bad or run.counts.get("timed_out") else 0
+
+
+def _net_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--team", required=True, help="team name (letters, digits, '-', '_'): part of every key")
+    p.add_argument("--listen", default=None, help="this peer's Zenoh endpoints, comma-separated (tcp/HOST:PORT)")
+    p.add_argument("--connect", default=None, help="the other peers' endpoints, comma-separated")
+    p.add_argument("--zenoh-config", default=None, help="a Zenoh JSON5 configuration file (TLS, access control)")
+    p.add_argument("--max-wall", type=float, default=None, help="stop after this many wall-clock seconds")
+    p.add_argument("--verbose", action="store_true", help="log the node's state every 2 s")
+
+
+def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:
+    p.add_argument("--source", default=default, required=default is None,
+                   help="sim:SCENARIO (random, range_bearing), mrclam:PATH or events:PATH")  # fmt: skip
+    p.add_argument("--estimator", default="expfusion", help="a distributed estimator: expfusion, dekf, ci, rdl")
+    p.add_argument("--config", default=None, help="TOML file of model and filter settings")
+    p.add_argument("--robots", type=int, default=3, help="sim: team size (default 3)")
+    p.add_argument("--duration", type=float, default=None, help="seconds of the source (sim default 30)")
+    p.add_argument("--seed", type=int, default=0, help="sim: seed")
+    p.add_argument("--speed", type=float, default=0.0, help="x real time; 0: as fast as lockstep allows")
+    p.add_argument("--lag", type=float, default=0.5, help="lockstep slack in seconds of data time")
+    p.add_argument("--faults", default=None, help="loss=P,delay=S,reorder=P,dup=P,kill=R@T,late=R@T,seed=N")
+    p.add_argument("--ros-domain", type=int, default=None, help="also publish ROS 2 poses (rmw_zenoh, this domain)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="swarmloc", description="Multi-robot cooperative localization on SE(2)/SE(3).")
     p.add_argument("--version", action="version", version=f"swarmloc {__version__}")
@@ -217,6 +345,30 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--defaults", action="store_true", help="print every default as TOML")
     c.add_argument("--check", metavar="FILE", help="read FILE and print the full configuration it gives")
     c.set_defaults(func=_config_cmd)
+
+    n = sub.add_parser("node", help="run one robot of a team as a Zenoh peer (one process per robot)")
+    n.add_argument("--robot", type=int, required=True, help="this robot's id in the source")
+    _net_args(n)
+    _source_args(n, None)
+    n.add_argument("--use-server", action="store_true", help="ask the belief server when a neighbour is silent")
+    n.add_argument("--resume", action="store_true", help="start from this robot's latest belief on the server")
+    n.add_argument("--wait-for", default=None, help="robot ids to wait for before starting (default: the team)")
+    n.add_argument("--answer-timeout", type=float, default=2.0, help="seconds to wait for a neighbour's answer")
+    n.set_defaults(func=_node)
+
+    sv = sub.add_parser("server", help="run the belief server of a team (stores every robot's Gaussian)")
+    _net_args(sv)
+    sv.add_argument("--roster", required=True, help="the team's robot ids, comma-separated")
+    sv.set_defaults(func=_server)
+
+    t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
+    _source_args(t, "sim:random")
+    t.add_argument("--server", action="store_true", help="also start the belief server")
+    t.add_argument("--bag", default=None, help="record the beliefs as a rosbag2 (folder to create)")
+    t.add_argument("--timeout", type=float, default=600.0, help="stop everything after this many seconds")
+    t.add_argument("--out", required=True, help="output folder (report, figures, TUM files, logs)")
+    t.add_argument("--verbose", action="store_true", help="nodes log their state every 2 s (in OUT/logs)")
+    t.set_defaults(func=_team)
     return p
 
 

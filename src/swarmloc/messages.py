@@ -26,6 +26,8 @@ without hooks. Conventions: SE(2) means as 3x3 homogeneous matrices, covariances
 
 from __future__ import annotations
 
+import math
+
 import msgspec
 import numpy as np
 
@@ -107,7 +109,9 @@ class RdlState(Message, frozen=True, kw_only=True, tag="rdl_state"):
 
 class RdlUpdate(Message, frozen=True, kw_only=True, tag="rdl_update"):
     """The observer's joint update sends the target its new state ``x`` and covariance ``P``, computed from the
-    target's answer of revision ``based_on``."""
+    target's answer of revision ``based_on``. Empty ``x`` and ``P``: no update follows that answer (the detection
+    was gated or rejected), or an update sent earlier is retracted; either way the target knows the exchange is
+    settled."""
 
     based_on: int = 0
     x: Floats = ()
@@ -115,6 +119,69 @@ class RdlUpdate(Message, frozen=True, kw_only=True, tag="rdl_update"):
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         return np.array(self.x), np.reshape(self.P, (3, 3))
+
+
+def _finite(xs: tuple, n: int) -> bool:
+    return len(xs) == n and all(isinstance(x, float | int) and math.isfinite(x) for x in xs)
+
+
+def _spd3(c: tuple) -> bool:
+    """A row-major 3x3 matrix is symmetric (to 1e-9 relative) and positive definite (leading minors > 0)."""
+    scale = max(1.0, max(abs(x) for x in c))
+    if abs(c[1] - c[3]) > 1e-9 * scale or abs(c[2] - c[6]) > 1e-9 * scale or abs(c[5] - c[7]) > 1e-9 * scale:
+        return False
+    m2 = c[0] * c[4] - c[1] * c[3]
+    det = c[0] * (c[4] * c[8] - c[5] * c[7]) - c[1] * (c[3] * c[8] - c[5] * c[6]) + c[2] * (c[3] * c[7] - c[4] * c[6])
+    return c[0] > 0 and m2 > 0 and det > 0
+
+
+def _se2(m: tuple) -> bool:
+    """A row-major 3x3 matrix is in SE(2): bottom row (0, 0, 1), rotation block [[c, -s], [s, c]], c^2 + s^2 = 1."""
+    c, s = m[0], m[3]
+    return (
+        m[6] == 0.0 and m[7] == 0.0 and m[8] == 1.0
+        and abs(m[4] - c) <= 1e-9 and abs(m[1] + s) <= 1e-9 and abs(c * c + s * s - 1.0) <= 1e-6
+    )  # fmt: skip
+
+
+def message_problem(m: Message) -> str | None:
+    """Why a received message cannot be used, or None: ids not integers, a non-finite stamp or sub-key, and for
+    answers and updates the shape, finiteness, SE(2) membership and positive definiteness of their numbers."""
+    name = type(m).__name__
+    for f in ("sender", "receiver"):
+        v = getattr(m, f)
+        if not isinstance(v, int) or isinstance(v, bool):
+            return f"{name}: {f} must be an integer robot id, got {v!r}"
+    if not (isinstance(m.stamp, float | int) and math.isfinite(m.stamp)):
+        return f"{name}: stamp must be a finite number of seconds, got {m.stamp!r}"
+    if not all(isinstance(x, float | int) and math.isfinite(x) for x in m.sub):
+        return f"{name}: sub-key must hold finite numbers"
+    if isinstance(m, BeliefAnswer):
+        if not m.found:
+            return None
+        if m.group != "SE2":
+            return f"{name}: group {m.group!r} is not supported (SE2)"
+        if not (_finite(m.mean, 9) and _finite(m.cov, 9)):
+            return f"{name}: mean and cov must be 9 finite numbers each"
+        if not _se2(m.mean):
+            return f"{name}: mean is not in SE(2)"
+        if not _spd3(m.cov):
+            return f"{name}: cov is not symmetric positive definite"
+    elif isinstance(m, RdlState):
+        if not m.found:
+            return None
+        if not (_finite(m.x, 3) and _finite(m.P, 9) and _finite(m.sigma, 9)):
+            return f"{name}: x, P, sigma must be 3, 9 and 9 finite numbers"
+        if not _spd3(m.P):
+            return f"{name}: P is not symmetric positive definite"
+    elif isinstance(m, RdlUpdate):
+        if not m.x and not m.P:
+            return None  # a retraction
+        if not (_finite(m.x, 3) and _finite(m.P, 9)):
+            return f"{name}: x and P must be 3 and 9 finite numbers"
+        if not _spd3(m.P):
+            return f"{name}: P is not symmetric positive definite"
+    return None
 
 
 Query = BeliefQuery | RdlStateQuery

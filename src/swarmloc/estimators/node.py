@@ -57,7 +57,16 @@ import numpy as np
 from swarmloc.events import Detection, Odometry
 from swarmloc.gaussian import GroupGaussian, check_covariance
 from swarmloc.lie import SE2
-from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
+from swarmloc.messages import (
+    BeliefAnswer,
+    BeliefQuery,
+    Message,
+    RdlState,
+    RdlStateQuery,
+    RdlUpdate,
+    flat,
+    message_problem,
+)
 from swarmloc.motion import UnicycleNoise
 
 log = logging.getLogger(__name__)
@@ -268,6 +277,12 @@ class Node:
     def pending(self) -> int:
         """Detection groups waiting for neighbours' answers."""
         return len(self._pending)
+
+    @property
+    def first_pending(self) -> Key | None:
+        """Key of the earliest detection group waiting for answers (None: none waits). A driver that holds a
+        neighbour's query keyed after it until it is applied avoids answering twice (answer, then revision)."""
+        return min(self._pending) if self._pending else None
 
     def start(self, t0: float) -> None:
         """Set the time [s] at which the initial belief holds (once)."""
@@ -762,7 +777,7 @@ class Node:
         if a.receiver not in self.robots:
             self._count_message_rejected(f"answer addressed to robot {a.receiver}, not a robot of this node")
             return []
-        why = _malformed(a)
+        why = message_problem(a)
         if why:
             self._count_message_rejected(why)
             return []
@@ -797,7 +812,7 @@ class Node:
         if u.receiver not in self.robots:
             self._count_message_rejected(f"update addressed to robot {u.receiver}, not a robot of this node")
             return []
-        why = _malformed(u)
+        why = message_problem(u)
         if why:
             self._count_message_rejected(why)
             return []
@@ -816,9 +831,9 @@ class Node:
             return []
         pos = bisect_left(self._keys, key)
         exists = pos < len(self._keys) and self._keys[pos] == key
-        if not u.x:  # retraction: the neighbour no longer fuses this exchange
+        if not u.x:  # no update (the neighbour did not fuse this exchange), or a retraction of an earlier one
             if not exists:
-                self._count_message_rejected("retraction of an update this node does not hold")
+                self.counts["no_update"] += 1
                 return []
             del self._keys[pos]
             del self._entries[pos]
@@ -841,69 +856,34 @@ class Node:
         return _same(served, self._answer(s, q))
 
 
+SAME_RTOL = 1e-10
+"""Answers whose numbers differ by less than this (relative, at least absolute for numbers below 1) are the same:
+a replay that re-derives a state along another path may change the last bits, and such a change must not start
+a revision (over a network, two nodes would otherwise send each other last-bit revisions forever)."""
+
+
 def _same(a: Message | None, b: Message | None) -> bool:
-    """Equal apart from the revision number."""
+    """Equal apart from the revision number and last-bit differences of the numbers (:data:`SAME_RTOL`)."""
     if a is None or b is None:
         return a is b
-    return _with_seq(a, 0) == _with_seq(b, 0)
+    if type(a) is not type(b):
+        return False
+    for f in a.__struct_fields__:
+        if f == "seq":
+            continue
+        x, y = getattr(a, f), getattr(b, f)
+        if x == y:
+            continue
+        if not (isinstance(x, tuple) and isinstance(y, tuple) and len(x) == len(y)):
+            return False
+        for u, v in zip(x, y, strict=True):
+            if abs(u - v) > SAME_RTOL * max(1.0, abs(u), abs(v)):
+                return False
+    return True
 
 
 def _with_seq(m: Message, seq: int) -> Message:
     return msgspec.structs.replace(m, seq=seq)
-
-
-def _finite(xs: tuple, n: int) -> bool:
-    return len(xs) == n and all(isinstance(x, float | int) and math.isfinite(x) for x in xs)
-
-
-def _spd3(c: tuple) -> bool:
-    """A row-major 3x3 matrix is symmetric (to 1e-9 relative) and positive definite (leading minors > 0)."""
-    scale = max(1.0, max(abs(x) for x in c))
-    if abs(c[1] - c[3]) > 1e-9 * scale or abs(c[2] - c[6]) > 1e-9 * scale or abs(c[5] - c[7]) > 1e-9 * scale:
-        return False
-    m2 = c[0] * c[4] - c[1] * c[3]
-    det = c[0] * (c[4] * c[8] - c[5] * c[7]) - c[1] * (c[3] * c[8] - c[5] * c[6]) + c[2] * (c[3] * c[7] - c[4] * c[6])
-    return c[0] > 0 and m2 > 0 and det > 0
-
-
-def _se2(m: tuple) -> bool:
-    """A row-major 3x3 matrix is in SE(2): bottom row (0, 0, 1), rotation block [[c, -s], [s, c]], c^2 + s^2 = 1."""
-    c, s = m[0], m[3]
-    return (
-        m[6] == 0.0 and m[7] == 0.0 and m[8] == 1.0
-        and abs(m[4] - c) <= 1e-9 and abs(m[1] + s) <= 1e-9 and abs(c * c + s * s - 1.0) <= 1e-6
-    )  # fmt: skip
-
-
-def _malformed(m: Message) -> str | None:
-    """Why a received answer or update cannot be used (shape, finiteness, SE(2), positive definiteness)."""
-    name = type(m).__name__
-    if isinstance(m, BeliefAnswer):
-        if not m.found:
-            return None
-        if m.group != "SE2":
-            return f"{name}: group {m.group!r} is not supported (SE2)"
-        if not (_finite(m.mean, 9) and _finite(m.cov, 9)):
-            return f"{name}: mean and cov must be 9 finite numbers each"
-        if not _se2(m.mean):
-            return f"{name}: mean is not in SE(2)"
-        if not _spd3(m.cov):
-            return f"{name}: cov is not symmetric positive definite"
-    elif isinstance(m, RdlState):
-        if not m.found:
-            return None
-        if not (_finite(m.x, 3) and _finite(m.P, 9) and _finite(m.sigma, 9)):
-            return f"{name}: x, P, sigma must be 3, 9 and 9 finite numbers"
-        if not _spd3(m.P):
-            return f"{name}: P is not symmetric positive definite"
-    elif isinstance(m, RdlUpdate):
-        if not m.x and not m.P:
-            return None  # a retraction
-        if not (_finite(m.x, 3) and _finite(m.P, 9)):
-            return f"{name}: x and P must be 3 and 9 finite numbers"
-        if not _spd3(m.P):
-            return f"{name}: P is not symmetric positive definite"
-    return None
 
 
 def belief_answer(q: Message, b: GroupGaussian) -> BeliefAnswer:

@@ -150,6 +150,9 @@ class RecursiveDecentralized(DistributedEKF):
             res = self._pair(s, g, d, sub, target[1]) if target[0] == "robot" else self._private(s, d, target)
             if isinstance(res[0], str):
                 outcomes.append(res)
+                if target[0] == "robot":  # tell the target that no update follows its answer
+                    a = target[1]
+                    msgs.append(RdlUpdate(sender=self.robot, receiver=d.target, stamp=g.t, sub=sub, based_on=a.seq))
                 continue
             s = res[0]
             if res[1] is not None:

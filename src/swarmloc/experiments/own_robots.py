@@ -24,7 +24,7 @@ from swarmloc.lie import SE2
 from swarmloc.runner import TruthFn
 from swarmloc.sim import RelativeSensor, random_team
 
-__all__ = ["evaluate_event_file", "simulate_to_files"]
+__all__ = ["evaluate_event_file", "load_event_source", "simulate_to_files"]
 
 
 def _truth_fn(truth: dict[int, tuple[np.ndarray, np.ndarray]]) -> TruthFn:
@@ -36,24 +36,16 @@ def _truth_fn(truth: dict[int, tuple[np.ndarray, np.ndarray]]) -> TruthFn:
     return fn
 
 
-def evaluate_event_file(
-    path: str | os.PathLike[str],
-    estimators: Sequence[str] = ALL,
-    truth_dir: str | os.PathLike[str] | None = None,
-    config: Config = DEFAULTS,
-    out_dir: str | os.PathLike[str] | None = None,
-    progress: bool = False,
-    strict: bool = True,
-) -> dict:
-    """Run ``estimators`` on the event file at ``path``, score them against ground truth when there is some, and
-    return (and with ``out_dir`` write) the same report as ``swarmloc evaluate mrclam``.
+def load_event_source(
+    path: Path, config: Config = DEFAULTS, truth_dir: str | os.PathLike[str] | None = None, strict: bool = True
+) -> tuple[list, dict[int, GroupGaussian], dict | None, float, float, TruthFn | None]:
+    """An event file as ``(events, initial, landmarks, t_start, t_end, truth)`` (see :func:`evaluate_event_file`);
+    ``truth`` is None unless every estimated robot has ground truth. The file's ``problems`` are dropped here."""
+    ef, initial, truth, _, t_start, t_end = _read(Path(path), config, truth_dir, strict)
+    return list(ef.events), initial, ef.landmarks, t_start, t_end, truth
 
-    The estimated robots are those with odometry. Each needs an initial belief: an ``initial`` record, or else its
-    ground truth at the first stamp with ``config.initial``'s std. Detections without a noise of their own take
-    ``config.sensors``' (:meth:`~swarmloc.config.Config.event_defaults`). ``strict=False`` skips bad lines (they
-    are listed in the report's ``problems``) instead of refusing the file.
-    """
-    p = Path(path)
+
+def _read(p: Path, config: Config, truth_dir: str | os.PathLike[str] | None, strict: bool):  # noqa: ANN202
     ef = load_events(p, defaults=config.event_defaults(), strict=strict)
     robots = sorted({e.robot for e in ef.events if isinstance(e, Odometry)})
     if not robots:
@@ -74,18 +66,41 @@ def evaluate_event_file(
             f"{p.name}: no initial belief for robot(s) {missing}: add an 'initial' record "
             "(type=initial, robot, z = 'x y theta', std) or ground truth covering the first stamp"
         )
+    truth_fn = _truth_fn(truth) if truth and all(r in truth for r in robots) else None
+    return ef, initial, truth_fn, sorted(truth), t_start, t_end
+
+
+def evaluate_event_file(
+    path: str | os.PathLike[str],
+    estimators: Sequence[str] = ALL,
+    truth_dir: str | os.PathLike[str] | None = None,
+    config: Config = DEFAULTS,
+    out_dir: str | os.PathLike[str] | None = None,
+    progress: bool = False,
+    strict: bool = True,
+) -> dict:
+    """Run ``estimators`` on the event file at ``path``, score them against ground truth when there is some, and
+    return (and with ``out_dir`` write) the same report as ``swarmloc evaluate mrclam``.
+
+    The estimated robots are those with odometry. Each needs an initial belief: an ``initial`` record, or else its
+    ground truth at the first stamp with ``config.initial``'s std. Detections without a noise of their own take
+    ``config.sensors``' (:meth:`~swarmloc.config.Config.event_defaults`). ``strict=False`` skips bad lines (they
+    are listed in the report's ``problems``) instead of refusing the file.
+    """
+    p = Path(path)
+    ef, initial, truth_fn, truth_robots, t_start, t_end = _read(p, config, truth_dir, strict)
     report, results = evaluate_stream(
         ef.events,
         initial,
         t_start=t_start,
         t_end=t_end,
-        truth=_truth_fn(truth) if truth and all(r in truth for r in robots) else None,
+        truth=truth_fn,
         landmarks=ef.landmarks,
         estimators=estimators,
         config=config,
         progress=progress,
     )
-    report = {"title": p.name, "file": str(p), "problems": ef.problems, "truth_robots": sorted(truth), **report}
+    report = {"title": p.name, "file": str(p), "problems": ef.problems, "truth_robots": truth_robots, **report}
     if out_dir is not None:
         write_report(out_dir, "events", report, results, t_start)
     return report

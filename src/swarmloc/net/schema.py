@@ -1,0 +1,167 @@
+"""The wire schema: every Zenoh payload is one MessagePack-encoded :class:`Envelope` (msgspec), versioned.
+
+An envelope names the schema version ``v``, the team, the sending robot (``from_robot``: ``-1`` for the belief
+server or the team launcher), a per-sender sequence number ``seq`` (increasing over the sender's life), and a
+``body``: one of the neighbour-exchange messages of :mod:`swarmloc.messages` (queries, answers, pairwise
+updates: robot ids, key stamp and sub-key, revision, mean and covariance or the estimator's payload) or one of
+the runtime messages below (a published :class:`Belief`, lockstep :class:`Progress`, a final :class:`Report`).
+
+:func:`decode` checks a received payload before anything reaches a node and says what is wrong: not MessagePack
+or not the schema (with msgspec's path to the bad field), another schema version or team, a sender outside the
+team's roster or impersonating another robot, a body addressed to somebody else, non-finite numbers, a mean
+outside SE(2), a covariance that is not symmetric positive definite. Stale and duplicate messages are caught
+where the state is: the node's history (``stale or duplicate answer``, ``duplicate update``) and the
+:class:`Dedup` filter for published beliefs and progress.
+
+Conventions: stamps in seconds of the source's (data) clock; SE(2) means as row-major 3x3 matrices and
+covariances of the right-perturbation exponential coordinates (as in :mod:`swarmloc.messages`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Container
+
+import msgspec
+
+from swarmloc.messages import AnyMessage, Floats, message_problem
+
+SCHEMA_VERSION = 1
+SERVER = -1
+"""``from_robot`` of the belief server and the team launcher."""
+
+
+class Belief(msgspec.Struct, frozen=True, kw_only=True, tag="belief"):
+    """A robot's belief at ``stamp`` [s]: ``final`` once no input the node may still receive can change it
+    (its history has moved a horizon past ``stamp``); ``rev`` counts its revisions (a final one may follow a
+    provisional one with different numbers)."""
+
+    robot: int
+    stamp: float
+    rev: int = 0
+    final: bool = False
+    mean: Floats = ()
+    cov: Floats = ()
+
+
+class Progress(msgspec.Struct, frozen=True, kw_only=True, tag="progress"):
+    """``robot`` has read every source event keyed before ``(t, prio)`` (its next input: a detection group has
+    priority 1, odometry 2; ``t = inf``: its source is exhausted); ``done``: it has also settled (no answer
+    outstanding) and published its final beliefs."""
+
+    robot: int
+    t: float
+    prio: int = 1
+    done: bool = False
+
+
+class Report(msgspec.Struct, frozen=True, kw_only=True, tag="report"):
+    """A node's counters when it stops (node counters and network counters, and the reasons behind them)."""
+
+    robot: int
+    stats: dict[str, int] = {}
+    reasons: dict[str, int] = {}
+    net: dict[str, int] = {}
+    net_reasons: dict[str, int] = {}
+    wall_s: float = 0.0
+    cpu_s: float = 0.0
+
+
+Body = AnyMessage | Belief | Progress | Report
+
+
+class Envelope(msgspec.Struct, frozen=True, kw_only=True):
+    v: int
+    team: str
+    from_robot: int
+    seq: int
+    body: Body
+
+
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder(Envelope)
+
+
+def encode(team: str, from_robot: int, seq: int, body: Body) -> bytes:
+    return _encoder.encode(Envelope(v=SCHEMA_VERSION, team=team, from_robot=from_robot, seq=seq, body=body))
+
+
+class Rejected(ValueError):
+    """A received payload that is dropped; ``reason`` says why (counted and logged by the receiver)."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+def _finite(xs: tuple, n: int) -> bool:
+    return len(xs) == n and all(math.isfinite(x) for x in xs)
+
+
+def body_problem(b: Body) -> str | None:
+    """Why a body's content is unusable (see the module docstring), or None."""
+    if isinstance(b, Belief):
+        if not math.isfinite(b.stamp):
+            return "belief: non-finite stamp"
+        if not (_finite(b.mean, 9) and _finite(b.cov, 9)):
+            return "belief: mean and cov must be 9 finite numbers each"
+        from swarmloc.messages import BeliefAnswer
+
+        # the same SE(2) / SPD checks as an answer
+        return message_problem(BeliefAnswer(sender=b.robot, receiver=b.robot, stamp=b.stamp, mean=b.mean, cov=b.cov))
+    if isinstance(b, Progress):
+        return None if not math.isnan(b.t) else "progress: NaN time"
+    if isinstance(b, Report):
+        return None
+    return message_problem(b)
+
+
+def sender_of(b: Body) -> int:
+    """The robot a body speaks for."""
+    return b.robot if isinstance(b, Belief | Progress | Report) else b.sender
+
+
+def decode(
+    payload: bytes,
+    team: str,
+    roster: Container[int],
+    to_robot: int | None = None,
+    server_ok: bool = True,
+) -> Envelope:
+    """Decode and validate a payload for a node of ``roster`` (``to_robot``: the receiving robot; bodies
+    addressed to another robot are refused). Raises :class:`Rejected` with the reason."""
+    try:
+        env = _decoder.decode(payload)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        raise Rejected(f"malformed: {exc}") from None
+    if env.v != SCHEMA_VERSION:
+        raise Rejected(f"schema version {env.v}, this node speaks {SCHEMA_VERSION}")
+    if env.team != team:
+        raise Rejected(f"message for team {env.team!r}, this is team {team!r}")
+    if env.from_robot not in roster and not (server_ok and env.from_robot == SERVER):
+        raise Rejected(f"sender {env.from_robot} is outside the team's roster")
+    b = env.body
+    if env.from_robot != SERVER and sender_of(b) != env.from_robot:
+        raise Rejected(f"robot {env.from_robot} sent a message in the name of robot {sender_of(b)}")
+    if env.from_robot == SERVER and sender_of(b) not in roster:
+        raise Rejected(f"server message about robot {sender_of(b)}, outside the team's roster")
+    if to_robot is not None and not isinstance(b, Belief | Progress | Report) and b.receiver != to_robot:
+        raise Rejected(f"{type(b).__name__} addressed to robot {b.receiver}, received by robot {to_robot}")
+    why = body_problem(b)
+    if why:
+        raise Rejected(why)
+    return env
+
+
+class Dedup:
+    """Per-sender sequence numbers: a payload with a ``seq`` not above the last accepted one from that sender
+    (a duplicate, or overtaken by a newer one) is refused. For streams where only the newest counts (progress)."""
+
+    def __init__(self) -> None:
+        self.last: dict[int, int] = {}
+
+    def fresh(self, env: Envelope) -> bool:
+        if env.seq <= self.last.get(env.from_robot, -1):
+            return False
+        self.last[env.from_robot] = env.seq
+        return True

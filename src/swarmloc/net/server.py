@@ -1,0 +1,205 @@
+"""The belief server of the book chapter: it stores every robot's Gaussian and answers queries about them.
+
+:class:`BeliefServer` is the store (no I/O, usable in-process): per robot a bounded history of
+:class:`~swarmloc.net.schema.Belief` messages by stamp, the newest revision of each kept. It answers a
+:class:`~swarmloc.messages.BeliefQuery` for robot ``j`` at stamp ``t`` with ``j``'s stored belief at the latest
+stamp ``<= t`` no older than ``max_age`` s, **as stored** (the server has no odometry, so it does not predict; the
+answer's ``reason`` says which stamp it is and ``seq`` is -1, so a real answer from ``j`` replaces it). A node
+asks it when a neighbour does not answer in time, and a restarted node asks it for its own latest belief.
+
+:class:`ServerProcess` puts it behind Zenoh: it subscribes to every robot's ``belief`` key and declares the
+queryable ``swarmloc/<team>/server/query`` (a ``BeliefQuery`` in the payload; or the selector parameter
+``latest=<robot>``, answered with that robot's newest stored :class:`~swarmloc.net.schema.Belief`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Iterable
+from typing import Any
+
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.lie import SE2
+from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
+from swarmloc.net.schema import SERVER, Belief, Rejected, decode, encode
+from swarmloc.net.transport import alive_key, robot_key, server_key
+
+__all__ = ["BeliefServer", "ServerProcess"]
+
+log = logging.getLogger(__name__)
+
+
+class BeliefServer:
+    """Latest Gaussians of every robot, ``history`` stamps per robot (oldest dropped first)."""
+
+    def __init__(self, roster: Iterable[int] | None = None, history: int = 2000, max_age: float = 1.0) -> None:
+        if history < 1:
+            raise ValueError("BeliefServer: history must be >= 1")
+        self.roster = None if roster is None else frozenset(roster)
+        self.history = history
+        self.max_age = max_age
+        self._stamps: dict[int, list[float]] = {}
+        self._beliefs: dict[int, dict[float, Belief]] = {}
+        self.counts: Counter[str] = Counter()
+
+    def store(self, b: Belief) -> bool:
+        """Keep ``b`` unless it is of a robot outside the roster or not newer than the revision stored."""
+        if self.roster is not None and b.robot not in self.roster:
+            self.counts["rejected_unknown_robot"] += 1
+            return False
+        stamps = self._stamps.setdefault(b.robot, [])
+        beliefs = self._beliefs.setdefault(b.robot, {})
+        old = beliefs.get(b.stamp)
+        if old is not None and (old.rev > b.rev or (old.rev == b.rev and (old.final or not b.final))):
+            self.counts["stale"] += 1
+            return False
+        if old is None:
+            bisect.insort(stamps, b.stamp)
+        beliefs[b.stamp] = b
+        self.counts["stored"] += 1
+        while len(stamps) > self.history:
+            del beliefs[stamps.pop(0)]
+        return True
+
+    def put(self, robot: int, t: float, belief: GroupGaussian, final: bool = True) -> bool:
+        """Store an SE(2) belief of ``robot`` at ``t`` [s] (in-process use)."""
+        b = Belief(robot=robot, stamp=float(t), final=final, mean=flat(belief.mean), cov=flat(belief.cov))
+        return self.store(b)
+
+    def robots(self) -> list[int]:
+        return sorted(r for r, s in self._stamps.items() if s)
+
+    def latest(self, robot: int) -> Belief | None:
+        s = self._stamps.get(robot)
+        return self._beliefs[robot][s[-1]] if s else None
+
+    def at(self, robot: int, t: float) -> Belief | None:
+        """The stored belief of ``robot`` at the latest stamp ``<= t`` (None if none, or older than ``max_age``)."""
+        s = self._stamps.get(robot)
+        if not s:
+            return None
+        i = bisect.bisect_right(s, t)
+        if i == 0 or t - s[i - 1] > self.max_age:
+            return None
+        return self._beliefs[robot][s[i - 1]]
+
+    def gaussian(self, robot: int, t: float) -> GroupGaussian | None:
+        b = self.at(robot, t)
+        if b is None:
+            return None
+        import numpy as np
+
+        return GroupGaussian(SE2, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)), validate=False)
+
+    def answer(self, q: BeliefQuery) -> BeliefAnswer:
+        """Answer for robot ``q.receiver`` at ``q.stamp`` (revision -1; ``found=False`` with the reason if none)."""
+        self.counts["queries"] += 1
+        b = self.at(q.receiver, q.stamp)
+        common = dict(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, seq=-1)
+        if b is None:
+            self.counts["not_found"] += 1
+            why = f"belief server: no belief of robot {q.receiver} within {self.max_age:g} s"
+            return BeliefAnswer(found=False, reason=why, **common)
+        self.counts["answered"] += 1
+        return BeliefAnswer(
+            mean=b.mean, cov=b.cov, reason=f"belief server: stored belief at {b.stamp:.3f} s (not predicted)", **common
+        )
+
+
+class ServerProcess:
+    """:class:`BeliefServer` on a Zenoh session for team ``team`` (robots ``roster``)."""
+
+    def __init__(self, session: Any, team: str, roster: Iterable[int], server: BeliefServer | None = None) -> None:
+        self.session = session
+        self.team = team
+        self.roster = frozenset(roster)
+        self.server = server if server is not None else BeliefServer(self.roster)
+        self.counts: Counter[str] = Counter()
+        self.reasons: Counter[str] = Counter()
+        self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._stop = threading.Event()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._q.put(("wake", None))
+
+    def _reject(self, reason: str) -> None:
+        self.counts["rejected"] += 1
+        self.reasons[reason] += 1
+        log.debug("belief server: dropped a message: %s", reason)
+
+    def run(self, max_wall: float | None = None) -> None:
+        """Serve until :meth:`stop` (or ``max_wall`` s)."""
+        s, put = self.session, self._q.put
+        decl = [
+            s.declare_subscriber(robot_key(self.team, "*", "belief"), handler=lambda x: put(("belief", x))),
+            s.declare_queryable(server_key(self.team), handler=lambda q: put(("query", q))),
+        ]
+        token = s.liveliness().declare_token(alive_key(self.team, "server"))
+        end = None if max_wall is None else time.monotonic() + max_wall
+        try:
+            while not self._stop.is_set() and (end is None or time.monotonic() < end):
+                try:
+                    kind, x = self._q.get(timeout=0.2)
+                except queue.Empty:
+                    continue
+                try:
+                    self._handle(kind, x)
+                except Exception as exc:  # never die of one message
+                    log.exception("belief server: error on %s", kind)
+                    self._reject(f"internal error: {type(exc).__name__}")
+        finally:
+            for d in [*decl, token]:
+                try:
+                    d.undeclare()
+                except Exception:  # noqa: BLE001
+                    pass
+
+    def _handle(self, kind: str, x: Any) -> None:
+        if kind == "belief":
+            try:
+                env = decode(x.payload.to_bytes(), self.team, self.roster, server_ok=False)
+            except Rejected as exc:
+                self._reject(exc.reason)
+                return
+            if isinstance(env.body, Belief):
+                self.server.store(env.body)
+            else:
+                self._reject(f"{type(env.body).__name__} on a belief key")
+        elif kind == "query":
+            try:
+                self._query(x)
+            finally:
+                x.drop()
+
+    def _query(self, q: Any) -> None:
+        latest = q.parameters.get("latest") if q.parameters is not None else None
+        if latest is not None:
+            try:
+                robot = int(latest)
+            except ValueError:
+                self._reject(f"latest={latest!r} is not a robot id")
+                q.reply_err(b"latest=<robot id>")
+                return
+            b = self.server.latest(robot)
+            if b is None:
+                q.reply_err(f"no belief of robot {robot}".encode())
+            else:
+                q.reply(q.key_expr, encode(self.team, SERVER, 0, b))
+            return
+        try:
+            env = decode(q.payload.to_bytes() if q.payload is not None else b"", self.team, self.roster)
+        except Rejected as exc:
+            self._reject(exc.reason)
+            q.reply_err(exc.reason.encode()[:200])
+            return
+        if not isinstance(env.body, BeliefQuery):
+            self._reject(f"{type(env.body).__name__} is not a belief query")
+            q.reply_err(b"only BeliefQuery")
+            return
+        q.reply(q.key_expr, encode(self.team, SERVER, 0, self.server.answer(env.body)))

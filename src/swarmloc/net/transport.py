@@ -1,0 +1,115 @@
+"""Zenoh sessions for a team: configuration, key expressions, and a helper that opens a session.
+
+A team is a set of Zenoh peers. By default every peer listens on ``tcp/127.0.0.1:<port>`` and connects to the
+others' endpoints given explicitly; multicast and gossip scouting are off, so nothing is sent beyond the
+endpoints named (tests and ``swarmloc team`` use 127.0.0.1 only). For a team on several machines, give each node
+the others' endpoints (``--listen``, ``--connect``) or a Zenoh configuration file (``--zenoh-config``): that file
+is where TLS and access control are set (see ``docs/network.md``).
+
+Key expressions (``<team>`` is the team's name)::
+
+    swarmloc/<team>/robot/<id>/query      queryable: BeliefQuery / RdlStateQuery -> answer (get, reply)
+    swarmloc/<team>/robot/<id>/inbox      subscriber: pushed answers (revisions) and pairwise updates
+    swarmloc/<team>/robot/<id>/belief     publisher: the robot's beliefs at its record times
+    swarmloc/<team>/robot/<id>/progress   publisher: how far the node has read its source (lockstep)
+    swarmloc/<team>/robot/<id>/report     publisher: the node's counters when it stops
+    swarmloc/<team>/alive/<id>            liveliness token of a running node
+    swarmloc/<team>/server/query          queryable of the belief server
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import socket
+from collections.abc import Sequence
+from typing import Any
+
+PREFIX = "swarmloc"
+_TEAM = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
+
+
+def check_team(team: str) -> str:
+    """A team name is 1-64 letters, digits, '-' or '_' (it is part of every key expression)."""
+    if not isinstance(team, str) or not _TEAM.match(team):
+        raise ValueError(f"team name must be 1-64 letters, digits, '-' or '_', got {team!r}")
+    return team
+
+
+def robot_key(team: str, robot: int | str, what: str) -> str:
+    """``swarmloc/<team>/robot/<robot>/<what>`` (``robot`` may be ``*``)."""
+    return f"{PREFIX}/{team}/robot/{robot}/{what}"
+
+
+def alive_key(team: str, robot: int | str = "*") -> str:
+    return f"{PREFIX}/{team}/alive/{robot}"
+
+
+def server_key(team: str) -> str:
+    return f"{PREFIX}/{team}/server/query"
+
+
+def robot_of(key: str) -> int | None:
+    """The robot id in a ``.../robot/<id>/...`` or ``.../alive/<id>`` key, or None."""
+    parts = str(key).split("/")
+    for i, p in enumerate(parts[:-1]):
+        if p in ("robot", "alive"):
+            try:
+                return int(parts[i + 1])
+            except ValueError:
+                return None
+    return None
+
+
+def free_ports(n: int, host: str = "127.0.0.1") -> list[int]:
+    """``n`` TCP ports free on ``host`` now (the OS picks them; a race with other programs is possible)."""
+    socks, ports = [], []
+    try:
+        for _ in range(n):
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind((host, 0))
+            socks.append(s)
+            ports.append(s.getsockname()[1])
+    finally:
+        for s in socks:
+            s.close()
+    return ports
+
+
+def zenoh_config(
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: str | os.PathLike[str] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> Any:
+    """A ``zenoh.Config`` for one peer: ``listen``/``connect`` endpoints (e.g. ``tcp/127.0.0.1:7447``), scouting
+    off unless ``config_file`` (a Zenoh JSON5 configuration) says otherwise; ``extra`` sets further paths
+    (``{"transport/link/tls/root_ca_certificate": "..."}``). Endpoints given here override the file's."""
+    import zenoh
+
+    cfg = zenoh.Config.from_file(str(config_file)) if config_file is not None else zenoh.Config()
+    if config_file is None:
+        cfg.insert_json5("mode", '"peer"')
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+        cfg.insert_json5("scouting/gossip/enabled", "false")
+    if listen or config_file is None:  # no endpoint named: listen nowhere (Zenoh's default listens on every interface)
+        cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if connect:
+        cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    for k, v in (extra or {}).items():
+        cfg.insert_json5(k, json.dumps(v))
+    return cfg
+
+
+def open_session(
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: str | os.PathLike[str] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> Any:
+    """Open a Zenoh session (see :func:`zenoh_config`)."""
+    import zenoh
+
+    return zenoh.open(zenoh_config(listen, connect, config_file, extra))
