@@ -162,7 +162,7 @@ class Group:
 class Entry:
     """One history entry: its key, what it is, and the filter state after it."""
 
-    __slots__ = ("key", "kind", "data", "state", "outcomes", "sent")
+    __slots__ = ("key", "kind", "data", "state", "outcomes", "sent", "marks")
 
     def __init__(self, key: Key, kind: str, data: Any) -> None:
         self.key = key
@@ -171,6 +171,7 @@ class Entry:
         self.state: Any = None
         self.outcomes: list[tuple[str, str]] = []
         self.sent: dict[tuple[int, tuple], Message] = {}
+        self.marks: list[tuple] = []
 
 
 Outcome = tuple[str, str]
@@ -225,6 +226,10 @@ class Node:
         entries they made re-apply (``late``, ``replayed``), messages in and rejected, answers and revisions sent."""
         self.reasons: Counter[str] = Counter()
         """Why inputs were rejected or unknown: ``"rejected: <reason>"`` -> count."""
+        self.ledger: Counter[tuple] | None = None
+        """Set to a Counter to track the outcome of every applied detection by measurement id: ``(observer, t,
+        detection key, outcome) -> count`` (replays take the old outcome back). A correct node has, for every
+        measurement, exactly one outcome counted once: nothing fused twice."""
         self.timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
         """With ``measure_time``: seconds and counts of predictions and of detection-group updates (net of the
         predictions inside them)."""
@@ -674,6 +679,12 @@ class Node:
             for o in outcomes:
                 self._outcome(o)
             e.outcomes = outcomes
+            if self.ledger is not None:
+                for m in e.marks:
+                    self.ledger[m] -= 1
+                e.marks = [(g.observer, g.t, k, o[0]) for k, o in zip(g.keys, outcomes, strict=True)]
+                for m in e.marks:
+                    self.ledger[m] += 1
             return s, self._changed(e, msgs), False
         u: RdlUpdate = e.data  # a neighbour's pairwise update
         s = self._adv(s, u.receiver, u.stamp)

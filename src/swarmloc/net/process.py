@@ -531,8 +531,9 @@ class NetNode:
             _, _, fn = heapq.heappop(self._timers)
             try:
                 fn()
-            except Exception as exc:  # noqa: BLE001
-                log.warning("robot %s: delayed send failed: %s", self.robot, exc)
+            except Exception as exc:  # noqa: BLE001 - e.g. the duplicate of a reply whose query is already closed
+                self.counts["send_failed"] += 1
+                log.debug("robot %s: delayed send failed: %s", self.robot, exc)
         return self._timers[0][0] - now if self._timers else math.inf
 
     # ------------------------------------------------------------------------------------------- beliefs
@@ -578,9 +579,11 @@ class NetNode:
 
             self._ros_pub.put(ros.to_cdr(ros.pose_message(t, b.mean, b.cov)))
 
-    def _publish_due(self, end: bool = False) -> None:
+    def _publish_due(self, end: bool = False, upto: float = -math.inf) -> None:
+        """Publish the beliefs due: provisional ones up to the watermark, final ones a horizon before it (or before
+        ``upto``: called before an input stamped ``upto`` is applied, whose pruning could drop them otherwise)."""
         rt = self.record_times
-        wm = self.node.watermark
+        wm = max(self.node.watermark, upto)
         while self._prov < rt.size and (end or rt[self._prov] <= wm):
             self._publish_belief(rt[self._prov], final=False)
             self._prov += 1
@@ -677,6 +680,8 @@ class NetNode:
                 self._publish_progress(s, force=True)
                 self._drain(min(wait, 0.02))
                 continue
+            if self._final < self.record_times.size and s - self.node.horizon > self.record_times[self._final]:
+                self._publish_due(upto=s)
             self._step(item)
             i += 1
             self._i = i

@@ -309,7 +309,9 @@ def run_team(
             out.close()
 
     def node_cmd(r: int, resume: bool = False) -> list[str]:
-        extra = [*node_common, "--robot", str(r), "--wait-for", ",".join(map(str, wait_for)) or "none"]
+        # a restarted or late robot joins a running team: it waits for nobody
+        wait = "none" if resume or r == late else ",".join(map(str, wait_for)) or "none"
+        extra = [*node_common, "--robot", str(r), "--wait-for", wait]
         return [*_python(), "node", *args_for(f"robot{r}", extra), *(["--resume"] if resume else [])]
 
     session = open_session([ep["collector"]], [ep[k] for k in ep if k != "collector"])

@@ -1,0 +1,383 @@
+"""The network runtime: real Zenoh peers on 127.0.0.1 only (scouting off, explicit endpoints), bounded in time,
+every process started is stopped (checked).
+
+Networked = in-process: the live team's recorded beliefs equal :func:`swarmloc.runner.run` on the same events for
+every distributed estimator, on a simulated team and on the first 120 s of MRCLAM dataset 6. Faults never crash
+a node, never produce NaN, never fuse a measurement twice (a ledger counts outcomes per measurement id). A fuzz
+test sends more than 10,000 malformed or hostile messages to live nodes, which keep publishing the same beliefs
+and count each rejection with its reason.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from swarmloc.estimators import make_team
+from swarmloc.events import Odometry
+from swarmloc.experiments.evaluate import node_options
+from swarmloc.experiments.sources import load_source
+from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlUpdate, flat
+from swarmloc.net.faults import Faults, parse_faults
+from swarmloc.net.process import NetNode
+from swarmloc.net.schema import SCHEMA_VERSION, Belief, Envelope, Progress, Rejected, decode, encode
+from swarmloc.net.server import BeliefServer
+from swarmloc.net.team import make_node, run_team, team_result
+from swarmloc.net.transport import free_ports, open_session, robot_key, server_key
+from swarmloc.runner import run
+
+zenoh = pytest.importorskip("zenoh", reason="eclipse-zenoh is a dependency of swarmloc; install it")
+
+MRCLAM6 = Path(os.environ.get("SWARMLOC_SHARED", Path(__file__).resolve().parents[2] / "shared")) / (
+    "data/mrclam/MRCLAM_Dataset6"
+)
+DISTRIBUTED = ("expfusion", "dekf", "ci", "rdl")
+I3 = flat(np.eye(3))
+COV = flat(np.diag([0.01, 0.01, 0.001]))
+
+
+def leftovers(team: str) -> list[int]:
+    """Pids of processes whose command line names ``team`` (none must be left after a run)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if team.encode() in cmd and b"swarmloc.cli" in cmd:
+            out.append(int(d.name))
+    return out
+
+
+def reference(src, est: str):
+    nodes = make_team(est, src.initial, **node_options(est, src.config, src.landmarks))
+    return run(nodes, src.events, src.record_times(), truth=src.truth)
+
+
+def max_diff(res, ref) -> float:
+    d = 0.0
+    assert sorted(res.tracks) == sorted(ref.tracks)
+    for r, tr in ref.tracks.items():
+        a = res.tracks[r]
+        assert a.times.size == tr.times.size > 0, f"robot {r}: {a.times.size} records, in-process {tr.times.size}"
+        np.testing.assert_array_equal(a.times, tr.times)
+        d = max(d, float(np.abs(a.mean - tr.mean).max()), float(np.abs(a.cov - tr.cov).max()))
+    return d
+
+
+# ------------------------------------------------------------------------------------------------ schema, server
+def _env(body, **kw) -> bytes:
+    fields = dict(v=SCHEMA_VERSION, team="t", from_robot=getattr(body, "sender", getattr(body, "robot", 0)), seq=0)
+    fields.update(kw)
+    return msgspec.msgpack.encode(Envelope(body=body, **fields))
+
+
+BAD_MEAN = flat(np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (b"\x93\x01\x02", "malformed"),
+        (b"not msgpack at all", "malformed"),
+        (_env(BeliefQuery(sender=1, receiver=0, stamp=1.0), v=2), "schema version 2"),
+        (_env(BeliefQuery(sender=1, receiver=0, stamp=1.0), team="other"), "team 'other'"),
+        (_env(BeliefQuery(sender=7, receiver=0, stamp=1.0)), "outside the team's roster"),
+        (_env(BeliefQuery(sender=2, receiver=0, stamp=1.0), from_robot=1), "in the name of robot 2"),
+        (_env(BeliefQuery(sender=1, receiver=2, stamp=1.0)), "addressed to robot 2"),
+        (_env(BeliefQuery(sender=1, receiver=0, stamp=math.nan)), "stamp must be a finite"),
+        (_env(BeliefAnswer(sender=1, receiver=0, stamp=1.0, mean=BAD_MEAN, cov=COV)), "not in SE(2)"),
+        (_env(BeliefAnswer(sender=1, receiver=0, stamp=1.0, mean=I3, cov=flat(-np.eye(3)))), "positive definite"),
+        (_env(BeliefAnswer(sender=1, receiver=0, stamp=1.0, mean=I3, cov=(math.nan,) * 9)), "finite"),
+        (_env(RdlUpdate(sender=1, receiver=0, stamp=1.0, x=(0.0, 0.0, math.inf), P=COV)), "finite"),
+        (_env(RdlState(sender=1, receiver=0, stamp=1.0, x=(0.0,) * 3, P=COV, sigma=(0.0,) * 8)), "3, 9 and 9"),
+        (_env(Belief(robot=1, stamp=1.0, mean=BAD_MEAN, cov=COV)), "not in SE(2)"),
+    ],
+)
+def test_decode_rejects_with_the_reason(payload, reason):
+    with pytest.raises(Rejected, match=reason.replace("(", r"\(").replace(")", r"\)")):
+        decode(payload, "t", {0, 1, 2}, to_robot=0)
+
+
+def test_decode_round_trip():
+    body = BeliefAnswer(sender=1, receiver=0, stamp=2.5, seq=3, mean=I3, cov=COV)
+    env = decode(encode("t", 1, 17, body), "t", {0, 1}, to_robot=0)
+    assert env.body == body and env.seq == 17 and env.v == SCHEMA_VERSION
+
+
+def test_belief_server_stores_bounded_history_and_answers():
+    s = BeliefServer(roster={1, 2}, history=3, max_age=0.5)
+    for k in range(5):
+        assert s.store(Belief(robot=1, stamp=float(k), mean=I3, cov=COV))
+    assert not s.store(Belief(robot=9, stamp=0.0, mean=I3, cov=COV))  # outside the roster
+    assert not s.store(Belief(robot=1, stamp=4.0, mean=I3, cov=COV))  # same revision again: stale
+    assert s.store(Belief(robot=1, stamp=4.0, rev=1, final=True, mean=I3, cov=COV))
+    assert s._stamps[1] == [2.0, 3.0, 4.0]  # bounded: the two oldest dropped
+    assert s.latest(1).rev == 1
+    a = s.answer(BeliefQuery(sender=2, receiver=1, stamp=3.3))
+    assert a.found and a.seq == -1 and a.sender == 1 and a.receiver == 2 and "3.000" in a.reason
+    assert not s.answer(BeliefQuery(sender=2, receiver=1, stamp=9.0)).found  # older than max_age
+    assert not s.answer(BeliefQuery(sender=1, receiver=2, stamp=3.0)).found  # nothing stored for robot 2
+
+
+def test_fault_spec():
+    f = parse_faults("loss=0.2,delay=0.5,dup=0.1,reorder=0.3,kill=2@10,late=3@5,seed=4")
+    assert f == Faults(loss=0.2, delay=0.5, dup=0.1, reorder=0.3, kill=(2, 10.0), late=(3, 5.0), seed=4)
+    assert parse_faults(f.to_spec()) == f
+    for bad in ("loss=0.7", "delay=2", "kill=2", "nope=1", "loss"):
+        with pytest.raises(ValueError, match="faults"):
+            parse_faults(bad)
+    plan = Faults(loss=0.3, dup=0.2, seed=1).plan(0)
+    n = [len(plan.schedule()) for _ in range(4000)]
+    assert abs(n.count(0) / 4000 - 0.3) < 0.03 and abs(n.count(2) / 4000 - 0.7 * 0.2) < 0.03
+
+
+# ------------------------------------------------------------------------------------------------ threads
+def thread_team(
+    src, est: str, faults: Faults | None = None, ledger: bool = False, max_wall: float = 120.0, eps=None, **kw
+):
+    """Each robot a NetNode on its own Zenoh session (threads of this process, 127.0.0.1)."""
+    eps = eps or [f"tcp/127.0.0.1:{p}" for p in free_ports(len(src.robots))]
+    team = kw.pop("team", "threads")
+    sessions, nets = [], []
+    try:
+        for i, r in enumerate(src.robots):
+            s = open_session([eps[i]], [e for e in eps if e != eps[i]])
+            sessions.append(s)
+            ev = src.own_events(r)
+            node = make_node(est, r, src.initial[r], src.config, src.landmarks)
+            if ledger:
+                node.ledger = Counter()
+            node.start(min(e.t0 if isinstance(e, Odometry) else e.stamp for e in ev))
+            nets.append(NetNode(node, ev, session=s, team=team, roster=src.robots,
+                                record_times=src.record_times(), faults=faults, **kw))  # fmt: skip
+        reports = {}
+        threads = [threading.Thread(target=lambda n=n: reports.__setitem__(n.robot, n.run(max_wall=max_wall)))
+                   for n in nets]  # fmt: skip
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(max_wall + 30)
+        assert not any(t.is_alive() for t in threads), "a node did not stop"
+        return nets, reports
+    finally:
+        for n in nets:
+            n.stop()
+        for s in sessions:
+            s.close()
+
+
+def test_faults_never_crash_never_nan_never_fuse_twice():
+    src = load_source("sim:random", robots=3, duration=10.0, seed=3)
+    f = parse_faults("loss=0.2,delay=0.2,dup=0.1,reorder=0.2,seed=1")
+    nets, reports = thread_team(src, "rdl", faults=f, ledger=True, answer_timeout=0.4)
+    injected = sum(r.net.get("lost", 0) + r.net.get("duplicated", 0) for r in reports.values())
+    assert injected > 20  # the faults did happen
+    for n in nets:
+        st_ = n.node.stats()
+        assert st_["detections"] == st_["fused"] + st_["gated"] + st_["rejected"] + st_["unknown"] + st_["pending"]
+        assert st_["pending"] == 0
+        per_measurement: Counter = Counter()
+        for (obs, t, k, outcome), c in n.node.ledger.items():
+            assert c in (0, 1), f"measurement {(obs, t, k)} counted {c} times as {outcome}"
+            per_measurement[(obs, t, k)] += c
+        assert per_measurement and set(per_measurement.values()) == {1}  # one outcome each: none fused twice
+        for t in src.record_times()[-10:]:
+            b = n.node.belief_at(t)
+            assert np.isfinite(b.mean).all() and np.isfinite(b.cov).all()
+
+
+# ------------------------------------------------------------------------------------------------ processes
+@pytest.mark.parametrize("est", DISTRIBUTED)
+def test_networked_equals_in_process_on_a_simulated_team(est):
+    src = load_source("sim:random", robots=3, duration=20.0, seed=1)
+    team = f"eqsim{est}{os.getpid()}"
+    tr = run_team(src=src, source="sim:random", robots=3, duration=20.0, seed=1, estimator=est, team=team,
+                  timeout=120)  # fmt: skip
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, est)
+    assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
+    assert max_diff(res, reference(src, est)) <= 1e-6
+    assert res.stats["fused"] > 50
+
+
+@pytest.mark.skipif(not MRCLAM6.exists(), reason=f"MRCLAM dataset 6 not found at {MRCLAM6}")
+@pytest.mark.parametrize("est", DISTRIBUTED)
+def test_networked_equals_in_process_on_mrclam6_first_120s(est):
+    spec = f"mrclam:{MRCLAM6}"
+    src = load_source(spec, duration=120.0)
+    team = f"eqmrclam{est}{os.getpid()}"
+    tr = run_team(src=src, source=spec, duration=120.0, estimator=est, team=team, timeout=300)
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, est)
+    assert res.stats["reports"] == 5
+    assert max_diff(res, reference(src, est)) <= 1e-6
+    assert res.stats["fused"] > 1000
+
+
+def test_kill_restart_and_late_join():
+    src = load_source("sim:random", robots=3, duration=16.0, seed=2)
+    team = f"killjoin{os.getpid()}"
+    tr = run_team(src=src, source="sim:random", robots=3, duration=16.0, seed=2, estimator="expfusion", team=team,
+                  faults="kill=1@6,late=2@4", timeout=120, speed=2.0)  # fmt: skip
+    assert not leftovers(team)
+    assert tr.counts["killed"] == tr.counts["restarted"] == tr.counts["late_joined"] == 1
+    res = team_result(tr, src, "expfusion")
+    for r in src.robots:
+        trk = res.tracks[r]
+        assert trk.times.size >= 0.9 * src.record_times().size  # the restarted robot resumed, the late one ran
+        assert np.isfinite(trk.mean).all() and np.isfinite(trk.cov).all()
+    rep = tr.reports[1]  # the report of the restarted process: it resumed mid-run and went on
+    assert rep.net.get("beliefs_published", 0) > 10 and rep.stats["odometry_used"] > 20
+
+
+def test_team_stops_every_process_on_its_time_limit():
+    team = f"limit{os.getpid()}"
+    t = time.monotonic()
+    tr = run_team(source="sim:random", robots=3, duration=600.0, speed=1.0, estimator="dekf", team=team, timeout=4)
+    assert time.monotonic() - t < 30
+    assert tr.counts["timed_out"] == 1
+    assert not leftovers(team)
+    assert all(c is not None for c in tr.exit_codes.values())
+
+
+# ------------------------------------------------------------------------------------------------ fuzz
+ids = st.integers(-3, 8)
+floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
+nine = st.lists(floats, min_size=0, max_size=10).map(tuple)
+stamps = st.one_of(st.floats(-1e3, -1.0), st.just(math.nan), st.just(math.inf), st.floats(1e6, 1e9))
+
+
+def _bodies():
+    common = dict(sender=ids, receiver=ids, stamp=stamps, sub=st.lists(floats, max_size=3).map(tuple))
+    return st.one_of(
+        st.builds(BeliefAnswer, seq=st.integers(-5, 5), found=st.booleans(), mean=nine, cov=nine, **common),
+        st.builds(RdlState, seq=st.integers(-5, 5), x=nine, P=nine, sigma=nine, **common),
+        st.builds(RdlUpdate, based_on=st.integers(-2, 3), x=nine, P=nine, **common),
+        st.builds(Belief, robot=ids, stamp=stamps, mean=nine, cov=nine),
+        st.builds(Progress, robot=ids, t=floats),
+    )
+
+
+def _payloads():
+    env = st.builds(
+        lambda body, v, team, frm, seq: msgspec.msgpack.encode(
+            Envelope(v=v, team=team, from_robot=frm, seq=seq, body=body)
+        ),
+        _bodies(), st.sampled_from([1, 1, 1, 0, 2]), st.sampled_from(["fuzz", "fuzz", "other"]), ids,
+        st.integers(-2**31, 2**31),
+    )  # fmt: skip
+    return st.one_of(env, st.binary(max_size=64))
+
+
+def test_fuzz_live_nodes_keep_publishing_correct_beliefs():
+    """> 10,000 malformed or hostile messages to the inboxes of two live nodes (and malformed queries to their
+    queryables); every one is dropped with a reason, and the beliefs equal the undisturbed in-process run."""
+    src = load_source("sim:random", robots=2, duration=40.0, seed=5)
+    published: dict = {}
+    lock = threading.Lock()
+
+    def keep(b):
+        with lock:
+            if b.final:
+                published[(b.robot, b.stamp)] = b
+
+    sent = Counter()
+    done = threading.Event()
+    result = {}
+    eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(2)]
+
+    def team():
+        try:
+            result["nets"], result["reports"] = thread_team(src, "expfusion", team="fuzz", on_belief=keep,
+                                                            speed=4.0, max_wall=90, eps=eps)  # fmt: skip
+        finally:
+            done.set()
+
+    th = threading.Thread(target=team)
+    th.start()
+    fuzzer = open_session([], eps)
+    t_wait = time.monotonic() + 15
+    while len(list(fuzzer.info.peers_zid())) < 2 and time.monotonic() < t_wait:
+        th.join(0.05)
+    try:
+
+        @settings(max_examples=120, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+        @given(st.lists(_payloads(), min_size=80, max_size=100), st.integers(0, 1))
+        def blast(payloads, robot):
+            for p in payloads:
+                fuzzer.put(robot_key("fuzz", robot, "inbox"), p)
+                sent[robot] += 1
+            for p in payloads[:5]:
+                for _ in fuzzer.get(robot_key("fuzz", robot, "query"), payload=p, timeout=2.0):
+                    pass
+                sent[robot] += 1
+
+        blast()
+    finally:
+        fuzzer.close()
+        th.join(120)
+    assert done.is_set() and "nets" in result
+    assert sum(sent.values()) >= 10_000
+    for n in result["nets"]:
+        r = n.robot
+        dropped = n.counts["rejected"] + n.node.counts["messages_rejected"]
+        assert dropped >= sent[r], f"robot {r}: {sent[r]} hostile messages sent, {dropped} dropped"
+        assert all(n.reasons.values()) and n.reasons  # each with its reason
+    ref = reference(src, "expfusion")
+    for r, tr in ref.tracks.items():
+        got = np.array([SE2_xyt(published[(r, t)]) for t in tr.times])
+        np.testing.assert_allclose(got, tr.mean, atol=1e-9)
+
+
+def SE2_xyt(b: Belief) -> np.ndarray:  # noqa: N802
+    from swarmloc.lie import SE2
+
+    return SE2.to_xytheta(np.reshape(b.mean, (3, 3)))
+
+
+def test_server_process_answers_over_zenoh():
+    from swarmloc.net.server import ServerProcess
+
+    port_s, port_c = free_ports(2)
+    s = open_session([f"tcp/127.0.0.1:{port_s}"], [])
+    c = open_session([f"tcp/127.0.0.1:{port_c}"], [f"tcp/127.0.0.1:{port_s}"])
+    sp = ServerProcess(s, "srv", [1, 2])
+    th = threading.Thread(target=sp.run, kwargs={"max_wall": 20})
+    th.start()
+    try:
+        b = Belief(robot=1, stamp=5.0, final=True, mean=I3, cov=COV)
+        t_end = time.monotonic() + 10
+        answer = None
+        while answer is None and time.monotonic() < t_end:
+            c.put(robot_key("srv", 1, "belief"), encode("srv", 1, 0, b))
+            q = encode("srv", 2, 0, BeliefQuery(sender=2, receiver=1, stamp=5.2))
+            for reply in c.get(server_key("srv"), payload=q, timeout=1.0):
+                if reply.ok is not None:
+                    a = decode(reply.ok.payload.to_bytes(), "srv", {1, 2}, to_robot=2).body
+                    answer = a if a.found else None
+        assert answer is not None and answer.mean == I3 and answer.seq == -1
+        c.put(robot_key("srv", 1, "belief"), b"garbage")
+        t_end = time.monotonic() + 5
+        while sp.counts["rejected"] == 0 and time.monotonic() < t_end:
+            th.join(0.05)
+        assert sp.counts["rejected"] == 1 and any("malformed" in k for k in sp.reasons)
+    finally:
+        sp.stop()
+        th.join(10)
+        c.close()
+        s.close()
