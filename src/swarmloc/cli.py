@@ -196,7 +196,7 @@ def _node(args: argparse.Namespace) -> int:
             seed=args.seed, speed=args.speed, lag=args.lag, listen=_endpoints(args.listen),
             connect=_endpoints(args.connect), zenoh_config=args.zenoh_config, use_server=args.use_server,
             resume=args.resume, faults=args.faults, wait_for=_ids(args.wait_for),
-            answer_timeout=args.answer_timeout, ros_domain=args.ros_domain, max_wall=args.max_wall,
+            answer_timeout=args.answer_timeout, ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out,
         )  # fmt: skip
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc node: {exc}", file=sys.stderr)
@@ -245,7 +245,7 @@ def _team(args: argparse.Namespace) -> int:
             src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
             seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
             lag=args.lag, timeout=args.timeout, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
-            verbose=args.verbose,
+            verbose=args.verbose, connect_extra=_endpoints(args.connect), answer_timeout=args.answer_timeout,
         )  # fmt: skip
         extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}
         report = write_team_report(run, src, args.estimator, args.out, extra)
@@ -354,6 +354,7 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--resume", action="store_true", help="start from this robot's latest belief on the server")
     n.add_argument("--wait-for", default=None, help="robot ids to wait for before starting (default: the team)")
     n.add_argument("--answer-timeout", type=float, default=2.0, help="seconds to wait for a neighbour's answer")
+    n.add_argument("--out", default=None, help="folder for robot<N>.tum (final beliefs) and robot<N>.json (report)")
     n.set_defaults(func=_node)
 
     sv = sub.add_parser("server", help="run the belief server of a team (stores every robot's Gaussian)")
@@ -364,6 +365,8 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")
+    t.add_argument("--answer-timeout", type=float, default=2.0, help="seconds a node waits for an answer")
+    t.add_argument("--connect", default=None, help="endpoints every process also connects to (a Zenoh router)")
     t.add_argument("--bag", default=None, help="record the beliefs as a rosbag2 (folder to create)")
     t.add_argument("--timeout", type=float, default=600.0, help="stop everything after this many seconds")
     t.add_argument("--out", required=True, help="output folder (report, figures, TUM files, logs)")

@@ -164,6 +164,9 @@ class NetNode:
         self._deferred: list[tuple[float, Message, Any]] = []
         self._expect: dict[tuple, float] = {}
         self._held: list[Message] = []
+        self._outbox: dict[tuple, Message] = {}
+        self._last_flush = 0.0
+        self.coalesce = 0.05
         self._last_status = 0.0
 
     # ------------------------------------------------------------------------------------------- wiring
@@ -187,9 +190,15 @@ class NetNode:
         self._pub_belief = s.declare_publisher(robot_key(team, r, "belief"), congestion_control=block)
         self._pub_progress = s.declare_publisher(robot_key(team, r, "progress"), congestion_control=block)
         if self.ros_domain is not None:
+            import hashlib
+
             from swarmloc.net import ros
 
-            self._ros_pub = s.declare_publisher(ros.ros_key(f"swarmloc/{team}/robot{r}/pose", self.ros_domain))
+            self.ros_topic = f"/swarmloc/{team.replace('-', '_')}/robot{r}/pose"
+            key = ros.ros_key(self.ros_topic, self.ros_domain)
+            self._ros_pub = s.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+            self._ros_gid = hashlib.blake2b(key.encode(), digest_size=16).digest()
+            self._ros_seq = 0
         self._token = s.liveliness().declare_token(alive_key(team, r))
 
     def _close(self) -> None:
@@ -247,16 +256,30 @@ class NetNode:
                     self._expect[(float(m.stamp), 1, m.receiver, tuple(m.sub))] = time.monotonic()
                 self._faulty(lambda q=q, payload=payload: _reply(q, payload))
             elif m.receiver in self.roster:
-                if isinstance(m, BeliefAnswer | RdlState):
-                    log.debug("robot %s: revision %s at %s to %s; next %s; expect %s; pending %s; cause %s", self.robot,
-                              m.seq, (m.stamp, m.sub), m.receiver, self.items[self._i][0] if self._i < len(self.items)
-                              else None, sorted(self._expect), self.node.first_pending, asked)  # fmt: skip
-                payload, key = self._env(m), robot_key(self.team, m.receiver, "inbox")
-                self._faulty(lambda key=key, payload=payload: self.session.put(key, payload, congestion_control=BLOCK))
+                # pushed revisions and updates are coalesced: the newest per exchange goes out with the next flush
+                k = (type(m).__name__, m.receiver, m.stamp, m.sub)
+                if k in self._outbox:
+                    self.counts["coalesced"] += 1
+                self._outbox[k] = m
             else:
                 self.counts["undeliverable"] += 1
         if query is not None:  # the query was not answered by the node (cannot happen for a well-formed query)
             _reply_err(query, "no answer")
+
+    def _flush(self, force: bool = False) -> None:
+        """Send the pushed messages waiting in the outbox: at once without faults (a revision or update is final
+        then), at most every ``coalesce`` s otherwise, so that a burst of revisions of one exchange (late and lost
+        messages make them) costs the neighbour one replay instead of one per revision."""
+        if not self._outbox:
+            return
+        now = time.monotonic()
+        if not force and self.link is not None and now - self._last_flush < self.coalesce:
+            return
+        self._last_flush = now
+        out, self._outbox = self._outbox, {}
+        for m in out.values():
+            payload, key = self._env(m), robot_key(self.team, m.receiver, "inbox")
+            self._faulty(lambda key=key, payload=payload: self.session.put(key, payload, congestion_control=BLOCK))
 
     def _ask(self, m: Message, via_server: bool = False) -> None:
         kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
@@ -305,6 +328,7 @@ class NetNode:
         out = self.node.step(item)
         if out or query is not None:
             self._route(out, query, item)
+        self._flush()
 
     def _reject(self, reason: str, where: str) -> None:
         self.counts["rejected"] += 1
@@ -577,7 +601,9 @@ class NetNode:
         if self._ros_pub is not None:
             from swarmloc.net import ros
 
-            self._ros_pub.put(ros.to_cdr(ros.pose_message(t, b.mean, b.cov)))
+            self._ros_seq += 1  # rmw_zenoh drops samples without its attachment (sequence, source time, gid)
+            att = ros.ros_attachment(self._ros_seq, time.time_ns(), self._ros_gid)
+            self._ros_pub.put(ros.to_cdr(ros.pose_message(t, b.mean, b.cov)), attachment=att)
 
     def _publish_due(self, end: bool = False, upto: float = -math.inf) -> None:
         """Publish the beliefs due: provisional ones up to the watermark, final ones a horizon before it (or before
@@ -609,6 +635,12 @@ class NetNode:
 
     # ------------------------------------------------------------------------------------------- loop
     def _may_feed(self, s: float) -> bool:
+        """Lockstep: every live teammate has read its source to ``s - lag``; and this node's oldest detection group
+        still waiting for answers is less than half a horizon before ``s`` (reading on would push it beyond the
+        horizon before its answers or their timeout come)."""
+        first = self.node.first_pending
+        if first is not None and s - first[0] > self.node.horizon / 2:
+            return False
         need = s - self.lag
         for r in self._alive:
             if r not in self._done and self._progress.get(r, -math.inf) < need:
@@ -668,6 +700,7 @@ class NetNode:
             self._drain(0)
             self._answer_ready()
             self._release()
+            self._flush()
             self._status()
             wait = self._run_timers()
             s, item = items[i]
@@ -703,7 +736,7 @@ class NetNode:
                      {k: v for k, v in self.node.stats().items() if v}, dict(self.counts))  # fmt: skip
 
     def _idle(self) -> bool:
-        return not (self._outstanding or self._timers or self._deferred or self._expect or self._held)
+        return not (self._outstanding or self._timers or self._deferred or self._expect or self._held or self._outbox)
 
     def _finish(self, deadline: float) -> None:
         """Wait for the team to finish its sources and the traffic to settle, then publish the final beliefs."""
@@ -712,6 +745,7 @@ class NetNode:
             got = self._drain(0.02)
             self._answer_ready()
             self._release()
+            self._flush()
             self._status()
             self._run_timers()
             if time.monotonic() - self._last_progress_wall > 0.2:
@@ -722,6 +756,7 @@ class NetNode:
             if all_read and time.monotonic() - quiet_since >= self.quiet:
                 break
         self._route(self.node.expire())
+        self._flush(force=True)
         self._publish_due(end=True)
         self._publish_progress(math.inf, done=True, force=True)
         t_end = time.monotonic() + self.linger
@@ -729,6 +764,7 @@ class NetNode:
         while not self._stop.is_set() and time.monotonic() < min(t_end, deadline):
             got = self._drain(0.02)
             self._run_timers()
+            self._flush()
             if got:
                 self._route(self.node.expire())
                 self._republish_changed()

@@ -89,8 +89,10 @@ def node_main(
     answer_timeout: float = 2.0,
     ros_domain: int | None = None,
     max_wall: float | None = None,
+    out: str | os.PathLike[str] | None = None,
 ) -> Report:
-    """Run robot ``robot`` of ``source`` as one Zenoh peer until the team is done; returns its report."""
+    """Run robot ``robot`` of ``source`` as one Zenoh peer until the team is done; returns its report. With
+    ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there."""
     from swarmloc.experiments.sources import load_source
     from swarmloc.gaussian import GroupGaussian
     from swarmloc.lie import SE2
@@ -104,6 +106,7 @@ def node_main(
     initial = src.initial[robot]
     record_times = src.record_times()
     session = open_session(listen, connect, zenoh_config)
+    finals: dict[float, Belief] = {}
     try:
         if resume:
             b = _latest_from_server(session, team, src.robots, robot)
@@ -131,9 +134,24 @@ def node_main(
             faults=parse_faults(faults) if isinstance(faults, str | None) else faults,
             wait_for=wait_for,
             ros_domain=ros_domain,
+            on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
         )
         _stop_on_sigterm(net.stop)
-        return net.run(max_wall=max_wall)
+        report = net.run(max_wall=max_wall)
+        if out is not None:
+            import json
+
+            import msgspec
+
+            from swarmloc.datasets.tum import write_tum
+
+            folder = Path(out)
+            folder.mkdir(parents=True, exist_ok=True)
+            bs = [finals[t] for t in sorted(finals)]
+            xyt = SE2.to_xytheta(np.array([b.mean for b in bs]).reshape(-1, 3, 3)).reshape(-1, 3)
+            write_tum(folder / f"robot{robot}.tum", np.array([b.stamp for b in bs]), xyt)
+            (folder / f"robot{robot}.json").write_text(json.dumps(msgspec.to_builtins(report), indent=2))
+        return report
     finally:
         session.close()
 
@@ -249,11 +267,13 @@ def run_team(
     ros_domain: int | None = None,
     log_dir: str | os.PathLike[str] | None = None,
     verbose: bool = False,
+    connect_extra: Sequence[str] = (),
 ) -> TeamRun:
     """Start the team's processes on 127.0.0.1, collect their beliefs and reports, stop them all.
 
     ``robots`` applies to simulated sources (a dataset's robots are its own). Faults: :mod:`swarmloc.net.faults`;
-    a kill fault needs the belief server (started automatically).
+    a kill fault needs the belief server (started automatically). ``connect_extra``: endpoints every process also
+    connects to (a Zenoh router, e.g. ROS 2's ``rmw_zenohd`` on ``tcp/127.0.0.1:7447``).
     """
     from swarmloc.experiments.sources import load_source
 
@@ -269,7 +289,7 @@ def run_team(
     common = ["--team", team]
 
     def args_for(name: str, extra: Sequence[str] = ()) -> list[str]:
-        others = [ep[k] for k in ep if k != name]
+        others = [ep[k] for k in ep if k != name] + list(connect_extra)  # e.g. a Zenoh router (ROS 2)
         out = [*common, "--listen", ep[name], "--connect", ",".join(others)]
         return [*out, *extra]
 
