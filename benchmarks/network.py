@@ -212,7 +212,8 @@ def round_trips(
     ok = lat[~np.isnan(lat)] * 1e3
     pct = (lambda q: float(np.percentile(ok, q))) if ok.size else (lambda q: math.nan)
     return {"p50_ms": pct(50), "p99_ms": pct(99), "max_ms": float(ok.max()) if ok.size else math.nan,
-            "qps": ok.size / elapsed, "lost": counts["lost"], "rejected": counts["rejected"], "n": n}  # fmt: skip
+            "qps": ok.size / elapsed, "answered": int(ok.size), "lost": counts["lost"], "rejected": counts["rejected"],
+            "n": n}  # fmt: skip
 
 
 def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -> dict[str, Any]:
@@ -407,6 +408,8 @@ def main() -> None:
     if args.responder is not None:
         responder_main(args.responder, args.team, [int(p) for p in args.ports.split(",")], args.parent)
         return
+    # SIGTERM unwinds like Ctrl-C, so that every process started is stopped (the finally blocks run)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(128 + signal.SIGTERM))
     estimators = [e for e in args.estimators.split(",") if e]
     procs = [int(p) for p in args.procs.split(",") if p]
     if args.quick:
