@@ -1,4 +1,4 @@
-"""Command line: ``swarmloc demo | reproduce | evaluate mrclam|events | simulate | config | node | server | team``.
+"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | compare | node | server | team``.
 
 Every command writes its results (Markdown, JSON, PNG, TUM) to an output folder and prints a short summary; errors in
 the input (a missing dataset file, a malformed line, an unknown estimator, a bad configuration) are reported in
@@ -269,6 +269,22 @@ def _team(args: argparse.Namespace) -> int:
     return 1 if bad or run.counts.get("timed_out") else 0
 
 
+def _compare(args: argparse.Namespace) -> int:
+    from swarmloc.experiments.compare import compare, compare_table
+
+    names = [e.strip() for e in args.estimators.split(",") if e.strip()]
+    try:
+        summary = compare(args.scenario, names, runs=args.runs, robots=args.robots, duration=args.duration,
+                          out_dir=args.out, jobs=args.jobs, progress=not args.quiet)  # fmt: skip
+    except (ValueError, OSError) as exc:
+        print(f"swarmloc compare: {exc}", file=sys.stderr)
+        return 2
+    print(compare_table(summary))
+    if args.out:
+        print(f"written to {args.out}/compare.md and compare.json")
+    return 0
+
+
 def _net_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--team", required=True, help="team name (letters, digits, '-', '_'): part of every key")
     p.add_argument("--listen", default=None, help="this peer's Zenoh endpoints, comma-separated (tcp/HOST:PORT)")
@@ -361,6 +377,17 @@ def build_parser() -> argparse.ArgumentParser:
     _net_args(sv)
     sv.add_argument("--roster", required=True, help="the team's robot ids, comma-separated")
     sv.set_defaults(func=_server)
+
+    cp = sub.add_parser("compare", help="every estimator on identical events: one table (sim scenario or dataset)")
+    cp.add_argument("--scenario", default="sim:random", help="sim:random, sim:range_bearing, mrclam:PATH, events:PATH")
+    cp.add_argument("--estimators", default=EST_DEFAULT, help=f"comma-separated names (default {EST_DEFAULT})")
+    cp.add_argument("--runs", type=int, default=1, help="seeds of a simulated scenario (default 1)")
+    cp.add_argument("--robots", type=int, default=4, help="sim: team size (default 4)")
+    cp.add_argument("--duration", type=float, default=None, help="seconds (sim default 30; dataset: all)")
+    cp.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    cp.add_argument("--out", default=None, help="output folder for compare.md / compare.json")
+    cp.add_argument("--quiet", action="store_true", help="no progress bar")
+    cp.set_defaults(func=_compare)
 
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")

@@ -1,0 +1,186 @@
+"""``swarmloc compare``: every estimator on identical events, one table.
+
+For a simulated scenario (``sim:random``, ``sim:range_bearing``; :mod:`swarmloc.experiments.sources`) each of
+``runs`` seeds gives one team and its events, and every estimator runs on exactly those events; for a dataset
+(``mrclam:PATH``, ``events:PATH``) the one recording is run once per estimator. Jobs (estimator x seed) run in
+``jobs`` worker processes.
+
+Columns, pooled over all robots' records of all runs:
+
+* position and heading RMSE [m, rad];
+* ANEES per degree of freedom and its two-sided 95% band for that many *independent* NEES values (records of one
+  run are correlated in time, so the band is a yardstick, not a test), and the share of records whose NEES lies
+  inside its own 95% interval;
+* time per update: seconds in detection-group updates per group and in predictions per prediction (the node's
+  ``measure_time`` counters), in microseconds;
+* messages per robot per second of data (queries, answers, pairwise updates; 0 for the centralized EKF);
+* detections fused / gated / rejected / unknown, summed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
+
+__all__ = ["compare", "compare_table"]
+
+
+def _job(spec: str, estimator: str, seed: int, robots: int, duration: float | None) -> dict[str, Any]:
+    """One estimator on one source: pooled error arrays and counters (runs in a worker process)."""
+    from swarmloc.estimators import make_team
+    from swarmloc.experiments.evaluate import node_options
+    from swarmloc.experiments.sources import load_source
+    from swarmloc.runner import run
+
+    src = load_source(spec, robots=robots, duration=duration, seed=seed)
+    nodes = make_team(estimator, src.initial, **node_options(estimator, src.config, src.landmarks))
+    for n in nodes:
+        n.measure_time = True
+    t = time.perf_counter()
+    res = run(nodes, src.events, src.record_times(), truth=src.truth, name=estimator)
+    wall = time.perf_counter() - t
+    pos, head, nees = [], [], []
+    for tr in res.tracks.values():
+        ok = np.isfinite(tr.truth).all(axis=1)
+        if not ok.any():
+            continue
+        e = errors(type(tr)(tr.times[ok], tr.mean[ok], tr.cov[ok], tr.truth[ok]))
+        pos.append(e["pos"])
+        head.append(e["heading"])
+        nees.append(e["nees"])
+    cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
+    return {
+        "estimator": estimator,
+        "seed": seed,
+        "pos": cat(pos),
+        "heading": cat(head),
+        "nees": cat(nees),
+        "stats": res.stats,
+        "timing": res.timing,
+        "wall_s": wall,
+        "data_s": float(src.t_end - src.t_start),
+        "robots": len(src.robots),
+    }
+
+
+def compare(
+    scenario: str,
+    estimators: Sequence[str],
+    runs: int = 1,
+    robots: int = 4,
+    duration: float | None = None,
+    out_dir: str | os.PathLike[str] | None = None,
+    jobs: int = 2,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Run ``estimators`` on ``scenario`` (``runs`` seeds for a simulation) and return the summary per estimator;
+    with ``out_dir`` also write ``compare.md`` and ``compare.json``."""
+    from swarmloc.estimators import ESTIMATORS
+
+    unknown = [e for e in estimators if e not in ESTIMATORS]
+    if unknown:
+        raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
+    if runs < 1:
+        raise ValueError(f"runs must be >= 1, got {runs}")
+    sim = scenario.startswith("sim:")
+    seeds = list(range(runs)) if sim else [0]
+    tasks = [(scenario, e, s, robots, duration) for e in estimators for s in seeds]
+    results: list[dict] = []
+    t0 = time.perf_counter()
+    bar = None
+    if progress:
+        from rich.progress import Progress
+
+        bar = Progress()
+        bar.start()
+        task_id = bar.add_task(f"compare {scenario}", total=len(tasks))
+    try:
+        if jobs <= 1 or len(tasks) == 1:
+            for t in tasks:
+                results.append(_job(*t))
+                if bar is not None:
+                    bar.advance(task_id)
+        else:
+            with ProcessPoolExecutor(max_workers=jobs) as ex:
+                futs = [ex.submit(_job, *t) for t in tasks]
+                for f in as_completed(futs):
+                    results.append(f.result())
+                    if bar is not None:
+                        bar.advance(task_id)
+    finally:
+        if bar is not None:
+            bar.stop()
+    summary: dict[str, Any] = {
+        "scenario": scenario,
+        "runs": len(seeds),
+        "robots": results[0]["robots"] if results else 0,
+        "duration_s": results[0]["data_s"] if results else 0.0,
+        "wall_s": time.perf_counter() - t0,
+        "estimators": {},
+    }
+    for e in estimators:
+        rs = [r for r in results if r["estimator"] == e]
+        pos = np.concatenate([r["pos"] for r in rs])
+        head = np.concatenate([r["heading"] for r in rs])
+        nees = np.concatenate([r["nees"] for r in rs])
+        n = int(nees.size)
+        lo, hi = anees_bounds(max(n, 1))
+        from scipy.stats import chi2
+
+        q_lo, q_hi = chi2.ppf([0.025, 0.975], DOF)
+        st: dict[str, int] = {}
+        for r in rs:
+            for k, v in r["stats"].items():
+                st[k] = st.get(k, 0) + int(v)
+        tm = {k: sum(r["timing"][k] for r in rs) for k in ("predict_s", "predict_n", "fuse_s", "fuse_n")}
+        robot_s = sum(r["robots"] * r["data_s"] for r in rs)
+        summary["estimators"][e] = {
+            "records": n,
+            "pos_rmse": float(np.sqrt(np.mean(pos**2))) if n else float("nan"),
+            "heading_rmse": float(np.sqrt(np.mean(head**2))) if n else float("nan"),
+            "anees": float(np.mean(nees) / DOF) if n else float("nan"),
+            "anees_band_95": (lo, hi),
+            "frac_in_95": float(np.mean((nees >= q_lo) & (nees <= q_hi))) if n else float("nan"),
+            "anees_per_run": [float(np.mean(r["nees"]) / DOF) for r in rs if r["nees"].size],
+            "update_us": 1e6 * tm["fuse_s"] / tm["fuse_n"] if tm["fuse_n"] else 0.0,
+            "predict_us": 1e6 * tm["predict_s"] / tm["predict_n"] if tm["predict_n"] else 0.0,
+            "messages_per_robot_s": st.get("messages", 0) / robot_s if robot_s else 0.0,
+            "detections": {k: st.get(k, 0) for k in ("detections", "fused", "gated", "rejected", "unknown")},
+            "x_real_time": sum(r["data_s"] for r in rs) / sum(r["wall_s"] for r in rs),
+        }
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "compare.json").write_text(json.dumps(summary, indent=2))
+        (out / "compare.md").write_text(compare_table(summary))
+    return summary
+
+
+def compare_table(summary: dict[str, Any]) -> str:
+    """The summary as Markdown."""
+    s = summary
+    lines = [
+        f"# {s['scenario']}: {s['runs']} run(s), {s['robots']} robots, {s['duration_s']:.0f} s each",
+        "",
+        "| estimator | pos RMSE [m] | heading RMSE [rad] | ANEES/dof (95% band if independent) | in 95% band | "
+        "update [us] | predict [us] | messages / robot / s | fused / gated / rejected / unknown |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, e in s["estimators"].items():
+        d = e["detections"]
+        lo, hi = e["anees_band_95"]
+        lines.append(
+            f"| {name} | {e['pos_rmse']:.3f} | {e['heading_rmse']:.3f} | {e['anees']:.2f} ({lo:.2f}-{hi:.2f}) | "
+            f"{e['frac_in_95']:.2f} | {e['update_us']:.0f} | {e['predict_us']:.0f} | {e['messages_per_robot_s']:.1f} "
+            f"| {d['fused']} / {d['gated']} / {d['rejected']} / {d['unknown']} |"
+        )
+    return "\n".join(lines) + "\n"

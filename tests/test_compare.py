@@ -1,0 +1,43 @@
+"""``swarmloc compare``: every estimator on identical events, the same numbers with one or two worker processes."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from swarmloc.cli import main
+from swarmloc.experiments.compare import compare
+
+
+def test_compare_identical_events_and_workers_do_not_change_results():
+    est = ["dr", "cekf", "rdl"]
+    one = compare("sim:random", est, runs=2, robots=3, duration=10.0, jobs=1)
+    two = compare("sim:random", est, runs=2, robots=3, duration=10.0, jobs=2)
+    for e in est:
+        a, b = one["estimators"][e], two["estimators"][e]
+        assert a["pos_rmse"] == b["pos_rmse"] and a["anees"] == b["anees"] and a["records"] == b["records"]
+    dets = {e: one["estimators"][e]["detections"]["detections"] for e in est}
+    assert len(set(dets.values())) == 1 and dets["dr"] > 0  # the same detections for every estimator
+    assert one["estimators"]["dr"]["detections"]["rejected"] == dets["dr"]
+    assert one["estimators"]["cekf"]["messages_per_robot_s"] == 0.0
+    assert one["estimators"]["rdl"]["messages_per_robot_s"] > 0.0
+    assert one["estimators"]["rdl"]["pos_rmse"] < one["estimators"]["dr"]["pos_rmse"]
+    lo, hi = one["estimators"]["rdl"]["anees_band_95"]
+    assert lo < 1.0 < hi
+
+
+def test_compare_cli(tmp_path, capsys):
+    rc = main(["compare", "--estimators", "dekf,ci", "--runs", "1", "--robots", "3", "--duration", "8",
+               "--out", str(tmp_path), "--quiet", "--jobs", "1"])  # fmt: skip
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "| dekf |" in out and "| ci |" in out
+    s = json.loads((tmp_path / "compare.json").read_text())
+    assert set(s["estimators"]) == {"dekf", "ci"} and s["estimators"]["ci"]["update_us"] > 0
+
+
+@pytest.mark.parametrize("bad", [["--estimators", "nope"], ["--runs", "0"], ["--scenario", "sim:unknown"]])
+def test_compare_refuses_bad_input(bad, capsys):
+    assert main(["compare", "--quiet", *bad]) == 2
+    assert "swarmloc compare:" in capsys.readouterr().err
