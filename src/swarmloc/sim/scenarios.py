@@ -160,3 +160,53 @@ def random_team(
         zero_noise=zero_noise,
     )
     return simulate(starts, cmds, cfg, int(sim_ss.generate_state(1)[0]))
+
+
+def cooperative_positioning(
+    n_a: int = 2,
+    n_b: int = 2,
+    phases: int = 8,
+    phase_s: float = 5.0,
+    speed: float = 0.2,
+    seed: int = 0,
+    D: float = 5e-3,
+    sensor: RelativeSensor | None = None,
+) -> SimResult:
+    """Kurazume, Nagata and Hirose's cooperative positioning (lecture slide 13): move-and-stop in two groups.
+
+    Robots ``0..n_a-1`` form group A, the next ``n_b`` group B; they start side by side facing +x, B 0.5 m ahead of
+    A, 0.5 m apart across. In phase ``k`` (``phase_s`` seconds each) group B moves straight ahead at ``speed``
+    [m/s] while A stands still when ``k`` is even, and the other way round when ``k`` is odd; at the end of each
+    phase every robot of the group that moved measures its relative pose to every robot of the group that stood
+    still (``sensor``: default 5 cm / 1 deg, no range limit). Odometry runs throughout; ``D`` is the wheel-speed
+    diffusion (the thesis' model: a standing robot's true pose diffuses too). Only those detections are kept.
+    """
+    if n_a < 1 or n_b < 1 or phases < 1:
+        raise ValueError("cooperative_positioning: n_a, n_b and phases must be >= 1")
+    from swarmloc.events import Detection
+
+    drive = DiffDrive(D=D)
+    n = n_a + n_b
+    group_a = set(range(n_a))
+    starts = {i: (0.0 if i in group_a else 0.5, 0.5 * (i if i in group_a else i - n_a), 0.0) for i in range(n)}
+    times = [k * phase_s for k in range(phases)]
+    cmds = {}
+    for i in range(n):
+        moving = [(k % 2 == 0) != (i in group_a) for k in range(phases)]
+        v = [speed if mv else 0.0 for mv in moving]
+        cmds[i] = WheelSchedule.from_unicycle(times, v, [0.0] * phases, drive)
+    base = RelativeSensor(rate=1.0 / phase_s, max_range=1e6) if sensor is None else sensor
+    cfg = SimConfig(duration=phases * phase_s, drive=drive, odom_rate=10.0, sensor=base)
+    sim = simulate(starts, cmds, cfg, seed)
+    ends = np.arange(1, phases + 1) * phase_s
+
+    def keep(e: object) -> bool:
+        if not isinstance(e, Detection):
+            return True
+        k = int(np.argmin(np.abs(ends - e.t)))
+        if abs(ends[k] - e.t) > 1e-6 or e.target is None:
+            return False
+        moved_a = k % 2 == 1  # phase k: B moves when k is even
+        return (e.observer in group_a) == moved_a and (e.target in group_a) != moved_a
+
+    return replace(sim, events=[e for e in sim.events if keep(e)])
