@@ -1,0 +1,685 @@
+"""Static sensor-network localization from ranges (lecture slides on multi-robot localization, slide 29).
+
+Problem: static agents (nodes) measure the distance to some other nodes; a few nodes (anchors) have known positions.
+The network is a *measurement graph* (nodes = agents, an edge = one agent measures another). Slide 29 lists the
+problems solved here: check whether the graph allows a unique solution (rigidity, :func:`rigidity_report`) and
+produce an estimate of the formation (:func:`localize_network`, least squares).
+
+Conventions and units
+---------------------
+* Planar positions ``(x, y)`` in metres in the anchors' frame; nodes are identified by integer ids.
+* A measurement is a range ``z = ||p_j - p_i|| + v`` [m] with ``v ~ N(0, std^2)`` (:class:`RangeMeasurement`, or a
+  tuple ``(i, j, range, std)``). Measurements are independent; several of the same pair (``i -> j`` and ``j -> i``)
+  are all used. Ranges need no frame, so the direction of the measurement does not matter. Bearings (slides 18-19,
+  in the *measuring* node's frame) would add each measuring node's unknown heading; they are not handled here.
+* Anchors: known positions, held fixed (not estimated); the unknowns are the positions of all other nodes, ordered
+  by increasing id in :attr:`NetworkSolution.node_ids` (x, y per node in :attr:`NetworkSolution.covariance`).
+
+Estimation: weighted nonlinear least squares ``min sum ((||p_j - p_i|| - z) / std)^2`` with
+:func:`scipy.optimize.least_squares` (analytic Jacobian), covariance ``(J^T W J)^-1`` at the solution
+(``W = diag(std^-2)``), chi-square of the fit with ``M - 2n`` degrees of freedom (``M`` measurements, ``n`` free
+nodes). Default initialization: two starts, the fit with the lower cost is kept: MDS-MAP (classical
+multidimensional scaling of the shortest-path completion of the range graph, anchor-anchor distances added as
+known edges, mapped onto the anchors by the least-squares similarity: rotation, reflection, scale, translation) and
+sequential multilateration from the anchors (ambiguities resolved towards the MDS-MAP positions). Either alone
+ends in a local minimum (a folded part of the network) on a few per cent of random networks; see the tests.
+
+Localizability (:func:`rigidity_report`): the network is uniquely localizable iff the *grounded* graph (the
+measurement graph plus edges between all anchors) is globally rigid with at least 3 non-collinear anchors (Aspnes et
+al., IEEE TMC 2006). In the plane, for generic positions, global rigidity <=> 3-connected and redundantly rigid
+(Jackson & Jordan 2005), and rigidity <=> the rigidity matrix has rank ``2N - 3`` (``N`` nodes, anchors included).
+The ranks are computed at a configuration (the initial one, then again at the solution), so a degenerate geometry
+(e.g. nodes measured only from collinear nodes) is refused as well and told apart from a flexible graph.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from numbers import Integral
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import shortest_path
+
+__all__ = [
+    "NetworkSolution",
+    "RangeMeasurement",
+    "RigidityReport",
+    "localize_network",
+    "mds_initialization",
+    "rigidity_report",
+]
+
+RANK_RTOL = 1e-8
+"""Singular values below ``RANK_RTOL`` times the largest count as zero (rows are unit vectors, so well scaled)."""
+COLLINEAR_RTOL = 1e-6
+"""Anchors are collinear when their second principal spread is below ``COLLINEAR_RTOL`` times the first."""
+
+
+class RangeMeasurement(NamedTuple):
+    """Node ``i`` measured the distance ``range`` [m] to node ``j`` with standard deviation ``std`` [m]."""
+
+    i: int
+    j: int
+    range: float
+    std: float
+
+
+@dataclass(frozen=True)
+class RigidityReport:
+    """Whether a network is (uniquely) localizable, and if not why, naming the nodes.
+
+    ``problems`` are human-readable sentences; ``localizable`` is True when there are none. The named fields list the
+    offending nodes per check: ``unconnected`` (no path of measurements to an anchor), ``low_degree`` (free nodes
+    with fewer than 3 distinct measured neighbours, ``{id: count}``), ``flexible`` (free nodes that can move
+    infinitesimally with all ranges and anchors fixed), ``separating_pairs`` (``(a, b, nodes)``: ``nodes`` reach
+    the anchors only through ``a`` and ``b`` and can be reflected across the line through them),
+    ``non_redundant`` (node pairs whose measurement is needed for rigidity: without it the network flexes, so one
+    range can be satisfied by two shapes). ``rank``/``expected_rank``: rank of the grounded rigidity matrix and
+    ``2N - 3``; ``configuration``: positions (all nodes) where the ranks were evaluated (None when not evaluated).
+    """
+
+    localizable: bool
+    problems: tuple[str, ...]
+    anchor_ids: tuple[int, ...]
+    free_ids: tuple[int, ...]
+    unconnected: tuple[int, ...] = ()
+    low_degree: Mapping[int, int] = field(default_factory=dict)
+    flexible: tuple[int, ...] = ()
+    separating_pairs: tuple[tuple[int, int, tuple[int, ...]], ...] = ()
+    non_redundant: tuple[tuple[int, int], ...] = ()
+    rank: int | None = None
+    expected_rank: int | None = None
+    configuration: Mapping[int, np.ndarray] | None = None
+
+    def raise_if_unlocalizable(self) -> None:
+        """Raise ValueError listing every problem when the network is not localizable."""
+        if not self.localizable:
+            raise ValueError("sensor network not localizable: " + "; ".join(self.problems))
+
+
+@dataclass(frozen=True)
+class NetworkSolution:
+    """Least-squares positions of the non-anchor nodes.
+
+    ``node_ids``: free node ids (increasing); ``positions``: id -> ``(2,)`` [m]; ``covariance``: ``(2n, 2n)`` [m^2]
+    ordered ``(x, y)`` per node as in ``node_ids``; ``residuals``: measured minus predicted range [m] per
+    measurement (input order); ``normalized_residuals``: the same divided by the std; ``chi2``: their sum of squares;
+    ``dof``: ``M - 2n``; ``report``: the rigidity report at the solution; ``nfev``/``success``/``message``: from
+    :func:`scipy.optimize.least_squares`.
+    """
+
+    node_ids: tuple[int, ...]
+    positions: Mapping[int, np.ndarray]
+    covariance: np.ndarray
+    residuals: np.ndarray
+    normalized_residuals: np.ndarray
+    chi2: float
+    dof: int
+    report: RigidityReport
+    nfev: int
+    success: bool
+    message: str
+
+    def position_array(self) -> np.ndarray:
+        """Positions ``(n, 2)`` in the order of ``node_ids``."""
+        return np.array([self.positions[i] for i in self.node_ids]).reshape(-1, 2)
+
+    def marginal(self, node: int) -> np.ndarray:
+        """The ``(2, 2)`` position covariance of one free node [m^2]."""
+        k = self.node_ids.index(node)
+        return self.covariance[2 * k : 2 * k + 2, 2 * k : 2 * k + 2].copy()
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# validation
+
+
+def _node_id(value: Any, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, Integral):
+        raise ValueError(f"{what}: node id {value!r} is not an integer")
+    return int(value)
+
+
+def _point(value: Any, what: str) -> np.ndarray:
+    try:
+        p = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{what}: position {value!r} is not a pair of numbers") from exc
+    if p.shape != (2,):
+        raise ValueError(f"{what}: position must have shape (2,), got {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError(f"{what}: position {p.tolist()} is not finite")
+    return p
+
+
+def _anchors(anchors: Mapping[int, Any] | Iterable[tuple[int, Any]]) -> dict[int, np.ndarray]:
+    items = anchors.items() if isinstance(anchors, Mapping) else anchors
+    out: dict[int, np.ndarray] = {}
+    for item in items:
+        try:
+            key, pos = item
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"anchor entry {item!r} is not (id, (x, y))") from exc
+        k = _node_id(key, "anchor")
+        if k in out:
+            raise ValueError(f"duplicate anchor id {k}")
+        out[k] = _point(pos, f"anchor {k}")
+    return out
+
+
+def _measurements(measurements: Iterable[Any], known: set[int] | None) -> list[RangeMeasurement]:
+    out = []
+    for n, m in enumerate(measurements):
+        try:
+            i, j, z, s = m
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"measurement {n} ({m!r}) is not (i, j, range, std)") from exc
+        i, j = _node_id(i, f"measurement {n}"), _node_id(j, f"measurement {n}")
+        if known is not None:
+            unknown = [k for k in (i, j) if k not in known]
+            if unknown:
+                raise ValueError(f"measurement {n} ({i} -> {j}): unknown node id(s) {unknown}")
+        if i == j:
+            raise ValueError(f"measurement {n}: node {i} measures itself")
+        try:
+            z, s = float(z), float(s)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"measurement {n} ({i} -> {j}): range and std must be numbers") from exc
+        if not np.isfinite(z) or z < 0.0:
+            raise ValueError(f"measurement {n} ({i} -> {j}): range {z} must be finite and non-negative")
+        if not np.isfinite(s) or s <= 0.0:
+            raise ValueError(f"measurement {n} ({i} -> {j}): std {s} must be finite and positive")
+        out.append(RangeMeasurement(i, j, z, s))
+    if not out:
+        raise ValueError("no measurements")
+    return out
+
+
+def _setup(measurements, anchors, nodes):
+    anc = _anchors(anchors)
+    if nodes is not None:
+        declared = [_node_id(k, "nodes") for k in nodes]
+        known = set(declared) | set(anc)
+    else:
+        known = None
+    meas = _measurements(measurements, known)
+    ids = set(anc) | {k for m in meas for k in (m.i, m.j)}
+    if known is not None:
+        ids |= known
+    free = tuple(sorted(ids - set(anc)))
+    if not free:
+        raise ValueError("every node is an anchor: nothing to localize")
+    return meas, anc, free
+
+
+def _configuration(positions: Mapping[int, Any], anc: dict[int, np.ndarray], free: Sequence[int], what: str):
+    if not isinstance(positions, Mapping):
+        raise ValueError(f"{what} must be a mapping node id -> (x, y)")
+    conf = {}
+    allowed = set(free) | set(anc)
+    for key, val in positions.items():
+        k = _node_id(key, what)
+        if k not in allowed:
+            raise ValueError(f"{what}: unknown node id {k}")
+        if k in anc:
+            continue
+        conf[k] = _point(val, f"{what} {k}")
+    missing = [k for k in free if k not in conf]
+    if missing:
+        raise ValueError(f"{what}: no position for node(s) {missing}")
+    conf.update(anc)
+    return conf
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# graph helpers
+
+
+def _adjacency(pairs: Iterable[tuple[int, int]], ids: Iterable[int]) -> dict[int, set[int]]:
+    adj: dict[int, set[int]] = {k: set() for k in ids}
+    for i, j in pairs:
+        adj[i].add(j)
+        adj[j].add(i)
+    return adj
+
+
+def _reach(adj: Mapping[int, set[int]], start: Iterable[int], removed: frozenset[int] = frozenset()) -> set[int]:
+    seen = {s for s in start if s not in removed}
+    todo = deque(seen)
+    while todo:
+        u = todo.popleft()
+        for v in adj[u]:
+            if v not in seen and v not in removed:
+                seen.add(v)
+                todo.append(v)
+    return seen
+
+
+def _articulation_points(adj: Mapping[int, set[int]], removed: int) -> set[int]:
+    """Cut vertices of the graph without node ``removed`` (iterative Tarjan)."""
+    disc: dict[int, int] = {}
+    low: dict[int, int] = {}
+    cut: set[int] = set()
+    t = 0
+    for root in adj:
+        if root == removed or root in disc:
+            continue
+        disc[root] = low[root] = t
+        t += 1
+        children = 0
+        stack = [(root, -1, iter(adj[root]))]
+        while stack:
+            u, parent, it = stack[-1]
+            advanced = False
+            for v in it:
+                if v == removed:
+                    continue
+                if v not in disc:
+                    disc[v] = low[v] = t
+                    t += 1
+                    if u == root:
+                        children += 1
+                    stack.append((v, u, iter(adj[v])))
+                    advanced = True
+                    break
+                if v != parent:
+                    low[u] = min(low[u], disc[v])
+            if advanced:
+                continue
+            stack.pop()
+            if stack:
+                p = stack[-1][0]
+                low[p] = min(low[p], low[u])
+                if p != root and low[u] >= disc[p]:
+                    cut.add(p)
+        if children > 1:
+            cut.add(root)
+    return cut
+
+
+def _rigidity_rows(pairs: Sequence[tuple[int, int]], conf: Mapping[int, np.ndarray], col: Mapping[int, int], ncol):
+    """Rigidity matrix with unit-vector rows (columns 2*col[k], 2*col[k]+1 for nodes in ``col``)."""
+    R = np.zeros((len(pairs), ncol))
+    for r, (i, j) in enumerate(pairs):
+        d = conf[j] - conf[i]
+        n = np.linalg.norm(d)
+        u = d / n if n > 0 else np.zeros(2)
+        if i in col:
+            R[r, 2 * col[i] : 2 * col[i] + 2] = -u
+        if j in col:
+            R[r, 2 * col[j] : 2 * col[j] + 2] = u
+    return R
+
+
+def _svd_rank(R: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    U, s, Vt = np.linalg.svd(R, full_matrices=True)
+    rank = int(np.sum(s > RANK_RTOL * s[0])) if s.size and s[0] > 0 else 0
+    return rank, U, s, Vt
+
+
+def _flexible_nodes(pairs, conf, free) -> tuple[int, ...]:
+    """Free nodes that move in some infinitesimal motion keeping ranges and anchors fixed."""
+    col = {k: n for n, k in enumerate(free)}
+    R = _rigidity_rows(pairs, conf, col, 2 * len(free))
+    rank, _, _, Vt = _svd_rank(R)
+    null = Vt[rank:].T.reshape(len(free), 2, -1)
+    move = np.sqrt(np.sum(null**2, axis=(1, 2)))
+    return tuple(k for k, m in zip(free, move, strict=True) if m > 1e-6)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# initialization
+
+
+def mds_initialization(
+    measurements: Iterable[Any],
+    anchors: Mapping[int, Any] | Iterable[tuple[int, Any]],
+    *,
+    nodes: Iterable[int] | None = None,
+) -> dict[int, np.ndarray]:
+    """MDS-MAP initial positions of the free nodes: classical MDS of the shortest-path distances through the range
+    graph (mean range per pair; anchor-anchor distances added as edges), then the least-squares similarity
+    (rotation, reflection, scale, translation) onto the anchors. Needs every node connected to an anchor and at
+    least 2 distinct anchors. Returns id -> ``(2,)`` [m] for the free nodes."""
+    meas, anc, free = _setup(measurements, anchors, nodes)
+    return _mds(meas, anc, free)
+
+
+def _mds(meas: list[RangeMeasurement], anc: dict[int, np.ndarray], free: tuple[int, ...]) -> dict[int, np.ndarray]:
+    ids = list(anc) + list(free)
+    idx = {k: n for n, k in enumerate(ids)}
+    N = len(ids)
+    W = np.zeros((N, N))
+    for (i, j), r in _mean_ranges(meas).items():
+        W[idx[i], idx[j]] = W[idx[j], idx[i]] = max(r, 1e-9)
+    akeys = list(anc)
+    for a, ka in enumerate(akeys):
+        for kb in akeys[a + 1 :]:
+            d = float(np.linalg.norm(anc[ka] - anc[kb]))
+            if d > 0:
+                W[idx[ka], idx[kb]] = W[idx[kb], idx[ka]] = d
+    D = shortest_path(csr_matrix(W), directed=False)
+    if not np.all(np.isfinite(D)):
+        raise ValueError("MDS initialization needs every node connected to the anchors")
+    Jc = np.eye(N) - 1.0 / N
+    B = -0.5 * Jc @ (D**2) @ Jc
+    w, V = np.linalg.eigh(B)
+    X = V[:, -2:] * np.sqrt(np.maximum(w[-2:], 0.0))
+    A = np.array([anc[k] for k in akeys])
+    Xa = X[: len(akeys)]
+    ma, mx = A.mean(axis=0), Xa.mean(axis=0)
+    H = (Xa - mx).T @ (A - ma)
+    U, s, Vt = np.linalg.svd(H)
+    Rm = U @ Vt
+    sx = float(np.sum((Xa - mx) ** 2))
+    scale = float(np.sum(s) / sx) if sx > 0 else 1.0
+    Y = scale * (X - mx) @ Rm + ma
+    return {k: Y[idx[k]].copy() for k in free}
+
+
+def _mean_ranges(meas: list[RangeMeasurement]) -> dict[tuple[int, int], float]:
+    total: dict[tuple[int, int], list[float]] = {}
+    for m in meas:
+        total.setdefault((min(m.i, m.j), max(m.i, m.j)), []).append(m.range)
+    return {k: float(np.mean(v)) for k, v in total.items()}
+
+
+def _multilateration(meas, anc, free, guess) -> dict[int, np.ndarray]:
+    """Sequential multilateration: repeatedly place the free node with the most placed neighbours (anchors first) by
+    a small least-squares fit to their ranges, started from the linearized solution (3 or more neighbours) or from
+    ``guess``; with 2 placed neighbours the circle intersection nearer ``guess``, with 1 the circle point nearer it."""
+    ranges = _mean_ranges(meas)
+    nbr: dict[int, dict[int, float]] = {k: {} for k in list(anc) + list(free)}
+    for (i, j), r in ranges.items():
+        nbr[i][j] = nbr[j][i] = r
+    placed = {k: np.asarray(v, dtype=float) for k, v in anc.items()}
+    todo = set(free)
+    while todo:
+        k = max(sorted(todo), key=lambda c: sum(n in placed for n in nbr[c]))
+        ns = [n for n in sorted(nbr[k]) if n in placed]
+        g = np.asarray(guess[k], dtype=float)
+        Q = np.array([placed[n] for n in ns]).reshape(-1, 2)
+        r = np.array([nbr[k][n] for n in ns])
+        if len(ns) >= 3:
+            A = 2.0 * (Q[1:] - Q[0])
+            b = np.sum(Q[1:] ** 2, axis=1) - np.sum(Q[0] ** 2) - r[1:] ** 2 + r[0] ** 2
+            sv = np.linalg.svd(A, compute_uv=False)
+            x0 = np.linalg.lstsq(A, b, rcond=None)[0] if sv[-1] > 1e-6 * sv[0] else g
+            fit = least_squares(lambda p, Q=Q, r=r: np.linalg.norm(Q - p, axis=1) - r, x0)
+            pos = fit.x
+        elif len(ns) == 2:
+            d = float(np.linalg.norm(Q[1] - Q[0]))
+            u = (Q[1] - Q[0]) / d if d > 0 else np.array([1.0, 0.0])
+            a = float(np.clip((r[0] ** 2 - r[1] ** 2 + d**2) / (2 * d), -r[0], r[0])) if d > 0 else 0.0
+            h = np.sqrt(max(r[0] ** 2 - a**2, 0.0))
+            perp = np.array([-u[1], u[0]])
+            options = [Q[0] + a * u + h * perp, Q[0] + a * u - h * perp]
+            pos = min(options, key=lambda p: float(np.linalg.norm(p - g)))
+        elif len(ns) == 1:
+            d = g - Q[0]
+            n = float(np.linalg.norm(d))
+            pos = Q[0] + r[0] * (d / n if n > 0 else np.array([1.0, 0.0]))
+        else:
+            pos = g
+        placed[k] = pos
+        todo.remove(k)
+    return {k: placed[k] for k in free}
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# rigidity
+
+
+def rigidity_report(
+    measurements: Iterable[Any],
+    anchors: Mapping[int, Any] | Iterable[tuple[int, Any]],
+    positions: Mapping[int, Any] | None = None,
+    *,
+    nodes: Iterable[int] | None = None,
+    unique: bool = True,
+) -> RigidityReport:
+    """Check that a range network with anchors is localizable, naming what is wrong.
+
+    ``measurements``: :class:`RangeMeasurement` or ``(i, j, range, std)`` items; ``anchors``: id -> ``(x, y)`` [m]
+    (or ``(id, (x, y))`` pairs); ``positions``: a configuration of the free nodes (id -> ``(x, y)``) at which the
+    rigidity matrix is evaluated, default :func:`mds_initialization`; ``nodes``: the declared node ids (anchors may
+    be left out); a measurement naming another id is an error, and a declared node without measurement is reported
+    unconnected. ``unique``: also require global rigidity (a unique solution, not only a locally unique one).
+
+    Checks, in order: at least 3 anchors, not collinear; every free node connected to an anchor; every free node
+    with at least 3 distinct measured neighbours (``unique``; 2 otherwise); infinitesimal rigidity (rank of the
+    grounded rigidity matrix ``2N - 3``, flexible nodes named); then, with ``unique``, 3-connectivity of the
+    grounded graph (separating pairs named) and redundant rigidity (measurements whose loss flexes the network).
+    Invalid input (non-integer or unknown id, NaN, non-positive range or std, duplicate anchor) raises ValueError;
+    an unlocalizable network is reported (``report.raise_if_unlocalizable()`` turns it into a ValueError).
+    """
+    meas, anc, free = _setup(measurements, anchors, nodes)
+    conf = None if positions is None else _configuration(positions, anc, free, "positions")
+    return _report(meas, anc, free, conf, unique)
+
+
+def _report(meas, anc, free, conf, unique) -> RigidityReport:
+    problems: list[str] = []
+    ids = tuple(sorted(anc)) + free
+    pairs = sorted({(min(m.i, m.j), max(m.i, m.j)) for m in meas})
+    adj = _adjacency(pairs, ids)
+    base = {"anchor_ids": tuple(sorted(anc)), "free_ids": free}
+
+    anchors_ok = True
+    if len(anc) < 3:
+        anchors_ok = False
+        problems.append(
+            f"too few anchors: {len(anc)} (ids {sorted(anc)}); a unique planar frame needs at least 3 non-collinear"
+        )
+    else:
+        A = np.array(list(anc.values()))
+        s = np.linalg.svd(A - A.mean(axis=0), compute_uv=False)
+        if s[0] == 0 or s[1] <= COLLINEAR_RTOL * s[0]:
+            anchors_ok = False
+            problems.append(
+                f"anchors {sorted(anc)} are collinear (or coincide): the network can be reflected across their line"
+            )
+
+    unconnected: tuple[int, ...] = ()
+    if anc:
+        reached = _reach(adj, anc)
+        unconnected = tuple(k for k in free if k not in reached)
+        if unconnected:
+            problems.append(f"node(s) {list(unconnected)} not connected to any anchor by measurements")
+    need = 3 if unique else 2
+    low = {k: len(adj[k]) for k in free if len(adj[k]) < need and k not in unconnected}
+    if low:
+        listed = ", ".join(f"{k} ({n})" for k, n in low.items())
+        problems.append(
+            f"node(s) with fewer than {need} distinct measured neighbours: {listed}"
+            + ("; 2 ranges leave a mirror ambiguity" if unique else "")
+        )
+    if not anchors_ok or unconnected:
+        return RigidityReport(False, tuple(problems), low_degree=low, unconnected=unconnected, **base)
+
+    if conf is None:
+        conf = dict(_mds(meas, anc, free))
+        conf.update(anc)
+    akeys = sorted(anc)
+    virtual = [(a, b) for n, a in enumerate(akeys) for b in akeys[n + 1 :]]
+    grounded = pairs + virtual
+    col = {k: n for n, k in enumerate(ids)}
+    Rg = _rigidity_rows(grounded, conf, col, 2 * len(ids))
+    rank, U, _, _ = _svd_rank(Rg)
+    expected = 2 * len(ids) - 3
+    flexible: tuple[int, ...] = ()
+    if rank < expected:
+        flexible = _flexible_nodes(pairs, conf, free)
+        generic = _generic_rank(grounded, ids)
+        if generic < expected:
+            problems.append(
+                f"the network is not rigid (rank {rank} of the rigidity matrix < 2N-3 = {expected}): node(s) "
+                f"{list(flexible)} are not rigidly attached to the anchors (they can move keeping all ranges)"
+            )
+        else:
+            problems.append(
+                f"degenerate geometry: the rigidity matrix has rank {rank} < 2N-3 = {expected} at this configuration "
+                f"(the graph is generically rigid; e.g. collinear neighbours); node(s) {list(flexible)} are not "
+                "determined to first order"
+            )
+    seps: list[tuple[int, int, tuple[int, ...]]] = []
+    nonred: tuple[tuple[int, int], ...] = ()
+    if unique and not flexible:
+        gadj = _adjacency(grounded, ids)
+        for v in ids:
+            for a in _articulation_points(gadj, v):
+                pair = (min(v, a), max(v, a))
+                if any(p[:2] == pair for p in seps):
+                    continue
+                rest = _reach(gadj, anc, frozenset(pair))
+                cut = tuple(k for k in free if k not in rest and k not in pair)
+                if cut and not set(cut) <= set(low):
+                    seps.append((pair[0], pair[1], cut))
+        for a, b, cut in seps:
+            problems.append(
+                f"node(s) {list(cut)} reach the anchors only through nodes {a} and {b}: they can be reflected "
+                "across the line through them (the graph is not 3-connected)"
+            )
+        if not seps and rank == expected:
+            stresses = U[:, rank:]
+            nonred = tuple(
+                grounded[r]
+                for r in range(len(grounded))
+                if stresses.shape[1] == 0 or np.max(np.abs(stresses[r])) < 1e-8
+            )
+            if nonred:
+                problems.append(
+                    f"not redundantly rigid: the range(s) between node pairs {[list(p) for p in nonred]} are each "
+                    "needed for rigidity (anchor pairs count as known ranges), so the network may have another shape "
+                    "that fits all ranges"
+                )
+    return RigidityReport(
+        not problems,
+        tuple(problems),
+        unconnected=unconnected,
+        low_degree=low,
+        flexible=flexible,
+        separating_pairs=tuple(seps),
+        non_redundant=nonred,
+        rank=rank,
+        expected_rank=expected,
+        configuration={k: np.array(v) for k, v in conf.items()},
+        **base,
+    )
+
+
+def _generic_rank(pairs, ids) -> int:
+    rng = np.random.default_rng(12345)
+    conf = {k: rng.uniform(-1.0, 1.0, 2) for k in ids}
+    col = {k: n for n, k in enumerate(ids)}
+    return _svd_rank(_rigidity_rows(pairs, conf, col, 2 * len(ids)))[0]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# least squares
+
+
+def localize_network(
+    measurements: Iterable[Any],
+    anchors: Mapping[int, Any] | Iterable[tuple[int, Any]],
+    initial: Mapping[int, Any] | None = None,
+    *,
+    nodes: Iterable[int] | None = None,
+    unique: bool = True,
+    xtol: float = 1e-12,
+    ftol: float = 1e-12,
+    gtol: float = 1e-12,
+    max_nfev: int | None = None,
+) -> NetworkSolution:
+    """Weighted least-squares positions of the non-anchor nodes of a range network, anchors held fixed.
+
+    Arguments as in :func:`rigidity_report`; ``initial``: id -> ``(x, y)`` [m] for every free node (entries for
+    anchors are ignored). Without it, two starts are solved and the lower cost kept: :func:`mds_initialization`
+    (MDS-MAP) and sequential multilateration from the anchors (each node placed from its already placed neighbours,
+    ambiguities resolved towards the MDS-MAP position). The network is checked first (:func:`rigidity_report` at
+    the initial, resp. MDS-MAP, configuration) and refused with a ValueError naming the problem and the nodes; the
+    rank is checked again at the solution. Solved with :func:`scipy.optimize.least_squares` (trust region
+    reflective, analytic Jacobian, residuals ``(||p_j - p_i|| - z) / std``); the covariance is ``(J^T W J)^-1`` at the
+    solution. Tolerances and ``max_nfev`` go to ``least_squares``.
+    """
+    meas, anc, free = _setup(measurements, anchors, nodes)
+    conf = None if initial is None else _configuration(initial, anc, free, "initial")
+    report = _report(meas, anc, free, conf, unique)
+    report.raise_if_unlocalizable()
+    conf = report.configuration
+    assert conf is not None
+
+    col = {k: n for n, k in enumerate(free)}
+    I = np.array([m.i for m in meas])
+    J = np.array([m.j for m in meas])
+    z = np.array([m.range for m in meas])
+    w = 1.0 / np.array([m.std for m in meas])
+    fi = np.array([col.get(k, -1) for k in I])
+    fj = np.array([col.get(k, -1) for k in J])
+    P0 = np.array([conf[k] for k in I])
+    Q0 = np.array([conf[k] for k in J])
+    rows = np.arange(len(meas))
+
+    def points(x):
+        X = x.reshape(-1, 2)
+        P = np.where((fi >= 0)[:, None], X[np.maximum(fi, 0)], P0)
+        Q = np.where((fj >= 0)[:, None], X[np.maximum(fj, 0)], Q0)
+        return P, Q
+
+    def fun(x):
+        P, Q = points(x)
+        return (np.linalg.norm(Q - P, axis=1) - z) * w
+
+    def jac(x):
+        P, Q = points(x)
+        d = Q - P
+        n = np.linalg.norm(d, axis=1)
+        u = d / np.where(n > 0, n, 1.0)[:, None] * w[:, None]
+        Jm = np.zeros((len(meas), x.size))
+        for f, sign in ((fi, -1.0), (fj, 1.0)):
+            ok = f >= 0
+            Jm[rows[ok], 2 * f[ok]] += sign * u[ok, 0]
+            Jm[rows[ok], 2 * f[ok] + 1] += sign * u[ok, 1]
+        return Jm
+
+    starts = [np.concatenate([conf[k] for k in free])]
+    if initial is None:
+        lat = _multilateration(meas, anc, free, conf)
+        starts.append(np.concatenate([lat[k] for k in free]))
+    res = None
+    for x0 in starts:
+        fit = least_squares(fun, x0, jac=jac, method="trf", xtol=xtol, ftol=ftol, gtol=gtol, max_nfev=max_nfev)
+        if res is None or fit.cost < res.cost:
+            res = fit
+    assert res is not None
+    X = res.x.reshape(-1, 2)
+    sol = {k: X[n].copy() for n, k in enumerate(free)}
+    final = _report(meas, anc, free, {**sol, **anc}, unique)
+    if final.flexible or (final.rank is not None and final.rank < final.expected_rank):
+        raise ValueError(
+            "sensor network not localizable at the least-squares solution (no finite covariance): "
+            + "; ".join(final.problems)
+        )
+    Jw = jac(res.x)
+    _, s, Vt = np.linalg.svd(Jw, full_matrices=False)
+    cov = (Vt.T / s**2) @ Vt
+    cov = 0.5 * (cov + cov.T)
+    r = fun(res.x)
+    return NetworkSolution(
+        node_ids=free,
+        positions=sol,
+        covariance=cov,
+        residuals=-r / w,
+        normalized_residuals=-r,
+        chi2=float(r @ r),
+        dof=len(meas) - 2 * len(free),
+        report=final,
+        nfev=int(res.nfev),
+        success=bool(res.success),
+        message=str(res.message),
+    )
