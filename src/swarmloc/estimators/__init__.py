@@ -10,6 +10,7 @@ nodes of a team from each robot's initial belief.
 | ``ci`` | :class:`ExpCI` | covariance intersection in exponential coordinates (distributed, consistent) |
 | ``rdl`` | :class:`RecursiveDecentralized` | recursive decentralized localization (distributed, pairwise) |
 | ``cekf`` | :class:`CentralizedEKF` | centralized EKF (reference) |
+| ``mcl`` | :class:`MonteCarloLocalization` | multi-robot Monte Carlo localization (distributed, particles) |
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from swarmloc.estimators.ci import ExpCI
 from swarmloc.estimators.dekf import DistributedEKF
 from swarmloc.estimators.dr import DeadReckoning
 from swarmloc.estimators.expfusion import ExpFusion
+from swarmloc.estimators.mcl import MonteCarloLocalization
 from swarmloc.estimators.node import DEFAULT_HORIZON, Node, RobotNode
 from swarmloc.estimators.rdl import RecursiveDecentralized
 from swarmloc.gaussian import GroupGaussian
@@ -34,6 +36,7 @@ ESTIMATORS: dict[str, type[Node]] = {
     "cekf": CentralizedEKF,
     "ci": ExpCI,
     "rdl": RecursiveDecentralized,
+    "mcl": MonteCarloLocalization,
 }
 """Node classes by their command-line name."""
 
@@ -86,6 +89,7 @@ __all__ = [
     "DistributedEKF",
     "ExpCI",
     "ExpFusion",
+    "MonteCarloLocalization",
     "Node",
     "RecursiveDecentralized",
     "RobotNode",
