@@ -313,7 +313,6 @@ def _markdown(r: dict[str, Any]) -> str:
             f"| {row['method']} | {rm} | {an} | {gtc} | {row['us_per_predict']:.0f} | {upd} | "
             f"{row['multiple_detections_at_once']} | {row['distributed']} |"
         )
-    add("\nMulti-robot MCL is not implemented in swarmloc yet: no numbers.\n")
     L.extend(_analysis(r))
     add("## Files\n")
     for f in r["files"]:

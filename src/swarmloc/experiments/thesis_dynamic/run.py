@@ -417,16 +417,6 @@ def run_dynamic(
                 "note": es.note,
             }
         )
-    table61.append(
-        {
-            "key": "mcl",
-            "method": "Multi-robot MCL (thesis sec. 2.2)",
-            "implemented": False,
-            "multiple_detections_at_once": "no (thesis Table 2.1)",
-            "distributed": "yes (factorial representation)",
-            "note": "not implemented in swarmloc yet: no numbers",
-        }
-    )
 
     sim0 = thesis_two_robot(noise_std=NOISE_LEVELS[0], seed=0, duration=dur)
     sens = sim0.config.sensor

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from swarmloc.estimators import CentralizedEKF, DeadReckoning, DistributedEKF, ExpFusion
+from swarmloc.estimators import CentralizedEKF, DeadReckoning, DistributedEKF, ExpFusion, MonteCarloLocalization
 
 NOISE_LEVELS = (0.01, 0.05, 0.1)
 """Relative-pose measurement noise std [m] of the thesis' three runs (Figs 5.15, 5.18, 5.21)."""
@@ -80,6 +80,16 @@ RUNS: dict[str, EstimatorSpec] = {
             "-",
             "no",
             "one joint filter; detections processed one at a time (exact for a joint Kalman update)",
+        ),
+        EstimatorSpec(
+            "mcl",
+            "Multi-robot MCL (Fox et al. 2000, thesis sec. 2.2)",
+            MonteCarloLocalization,
+            (("particles", 500),),
+            "royalblue",
+            "-",
+            "no (thesis Table 2.1)",
+            "500 particles per robot; the neighbour's answer is a Gaussian fitted to its particles",
         ),
     )
 }
