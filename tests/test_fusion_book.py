@@ -394,3 +394,18 @@ def test_known_heading_rejects_invalid_input(kwargs, name):
 def test_parallel_fusion_rejects_invalid_input(estimates, name):
     with pytest.raises(ValueError, match=f"'{name}"):
         parallel_fusion(estimates)
+
+
+def test_belief_server_carries_the_chapters_fusion_unchanged():
+    """The chapter's server (the network runtime's BeliefServer, here in-process) stores every robot's Gaussian
+    after each move; reading the observers' beliefs back from it gives the same result as from memory."""
+    from swarmloc.fusion_book import book_two_robot_scenario, run_book_fusion
+    from swarmloc.net.server import BeliefServer
+
+    sc = book_two_robot_scenario(seed=3)
+    server = BeliefServer(roster=sc.robots, history=1000)
+    m0, c0 = run_book_fusion(sc)
+    m1, c1 = run_book_fusion(sc, server=server)
+    np.testing.assert_allclose(m1, m0, atol=1e-12)
+    np.testing.assert_allclose(c1, c0, atol=1e-12)
+    assert server.robots() == sorted(sc.robots) and server.counts["stored"] >= len(sc.robots) * 10

@@ -60,6 +60,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -467,12 +468,19 @@ def book_two_robot_scenario(
     )
 
 
-def run_book_fusion(scenario: BookScenario, *, cooperative: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def run_book_fusion(
+    scenario: BookScenario, *, cooperative: bool = True, server: Any = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Run the chapter's localization over ``scenario``: dead reckoning (eq. 42, covariance grown by Remark 2's
     increment on every translation move) and, if ``cooperative``, after each move the serial fusion (eqs 40-41) of
     every observation of robot ``j`` by the observers' pre-update estimates, parallel-fused with ``j``'s prior
     (eqs 34-35), all treated as independent as in the chapter (overconfident with frequent observations; see the
     module docstring). Returns ``means (n_moves + 1, n_robots, 2)`` and ``covs (n_moves + 1, n_robots, 2, 2)``.
+
+    ``server``: a :class:`swarmloc.net.server.BeliefServer` (the chapter's server, the same class the network
+    runtime serves over Zenoh). Every robot then stores its Gaussian there after each move (as an SE(2) belief,
+    its known heading with variance 1e-10, step ``k`` as the stamp) and the observers' estimates are read back
+    from it instead of from memory.
     """
     sc = scenario
     n_moves, n_r = sc.headings.shape
@@ -491,6 +499,8 @@ def run_book_fusion(scenario: BookScenario, *, cooperative: bool = True) -> tupl
         if not cooperative or (k + 1) not in by_step:
             continue
         pre_m, pre_c = means[k + 1].copy(), covs[k + 1].copy()
+        if server is not None:
+            pre_m, pre_c = _through_server(server, sc, k, pre_m, pre_c)
         for b, j in enumerate(sc.robots):
             obs = [ob for ob in by_step[k + 1] if ob.target == j]
             if not obs:
@@ -501,3 +511,26 @@ def run_book_fusion(scenario: BookScenario, *, cooperative: bool = True) -> tupl
                 ests.append(serial_fusion_known_heading(pre_m[a], pre_c[a], sc.headings[k, a], ob.z, ob.cov))
             means[k + 1, b], covs[k + 1, b] = parallel_fusion(ests)
     return means, covs
+
+
+def _through_server(
+    server: Any, sc: BookScenario, k: int, m: np.ndarray, c: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Store every robot's belief after move ``k`` on the server and read the team's beliefs back from it."""
+    from swarmloc.gaussian import GroupGaussian
+    from swarmloc.lie import SE2
+
+    out_m, out_c = m.copy(), c.copy()
+    for a, r in enumerate(sc.robots):
+        g = SE2.from_xytheta([m[a, 0], m[a, 1], sc.headings[k, a]])
+        R = g[:2, :2]
+        cov = np.zeros((3, 3))
+        cov[:2, :2] = R.T @ c[a] @ R  # exponential coordinates (right perturbation): the error in the body frame
+        cov[2, 2] = 1e-10
+        server.put(r, float(k + 1), GroupGaussian(SE2, g, cov))
+    for a, r in enumerate(sc.robots):
+        b = server.gaussian(r, float(k + 1))
+        R = b.mean[:2, :2]
+        out_m[a] = b.mean[:2, 2]
+        out_c[a] = R @ b.cov[:2, :2] @ R.T
+    return out_m, out_c
