@@ -287,7 +287,7 @@ def _payloads():
 def test_fuzz_live_nodes_keep_publishing_correct_beliefs():
     """> 10,000 malformed or hostile messages to the inboxes of two live nodes (and malformed queries to their
     queryables); every one is dropped with a reason, and the beliefs equal the undisturbed in-process run."""
-    src = load_source("sim:random", robots=2, duration=40.0, seed=5)
+    src = load_source("sim:random", robots=2, duration=60.0, seed=5)
     published: dict = {}
     lock = threading.Lock()
 
@@ -304,10 +304,13 @@ def test_fuzz_live_nodes_keep_publishing_correct_beliefs():
     def team():
         try:
             result["nets"], result["reports"] = thread_team(src, "expfusion", team="fuzz", on_belief=keep,
-                                                            speed=4.0, max_wall=90, eps=eps)  # fmt: skip
+                                                            speed=3.0, max_wall=120, eps=eps)  # fmt: skip
         finally:
+            nonlocal t_team_end
+            t_team_end = time.monotonic()
             done.set()
 
+    t_team_end = math.inf
     th = threading.Thread(target=team)
     th.start()
     fuzzer = open_session([], eps)
@@ -328,11 +331,13 @@ def test_fuzz_live_nodes_keep_publishing_correct_beliefs():
                 sent[robot] += 1
 
         blast()
+        t_fuzz_end = time.monotonic()
     finally:
         fuzzer.close()
         th.join(120)
     assert done.is_set() and "nets" in result
     assert sum(sent.values()) >= 10_000
+    assert t_fuzz_end < t_team_end, "the nodes stopped before the fuzzer was done: lengthen the source"
     for n in result["nets"]:
         r = n.robot
         dropped = n.counts["rejected"] + n.node.counts["messages_rejected"]
