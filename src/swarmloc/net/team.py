@@ -377,7 +377,9 @@ def run_team(
                     progress[b.robot] = max(progress.get(b.robot, -math.inf), b.t)
             if f.late is not None and not joined:
                 others = [progress.get(r, -math.inf) for r in wait_for]
-                if others and min(others) >= t_first + f.late[1]:
+                # join once the others have read that far, or once they are all gone (a join time past the end)
+                gone = all(procs[f"robot{r}"].poll() is not None for r in wait_for)
+                if (others and min(others) >= t_first + f.late[1]) or gone:
                     spawn(f"robot{late}", node_cmd(late))
                     joined = True
                     run.counts["late_joined"] = 1
