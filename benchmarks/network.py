@@ -128,26 +128,6 @@ def responder_main(robot: int, team: str, ports: list[int], parent: int) -> None
 
 
 # ---------------------------------------------------------------------------------------------------- processes
-def stop_all(procs: list[subprocess.Popen]) -> None:
-    """SIGTERM every process (its whole session), SIGKILL what is left after GRACE s; reap them all."""
-    for p in procs:
-        if p.poll() is None:
-            try:
-                os.killpg(p.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
-    end = time.monotonic() + GRACE
-    for p in procs:
-        try:
-            p.wait(timeout=max(0.0, end - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            try:
-                os.killpg(p.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-            p.wait()
-
-
 def tail(path: Path, n: int = 2000) -> str:
     try:
         return path.read_text(errors="replace")[-n:]
@@ -219,6 +199,7 @@ def round_trips(
 def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -> dict[str, Any]:
     """One asker (this process) and ``procs - 1`` responder processes; the swarmloc and the bare paths."""
     from swarmloc.net.schema import Rejected, decode
+    from swarmloc.net.team import stop_all
     from swarmloc.net.transport import free_ports, open_session, robot_key
 
     team = f"{TEAM}_{procs}"
@@ -288,7 +269,7 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
         finally:
             if session is not None:
                 session.close()
-            stop_all(children)
+            stop_all(children, grace=GRACE)
 
 
 # ---------------------------------------------------------------------------------------------------- MRCLAM

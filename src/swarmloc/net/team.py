@@ -17,7 +17,7 @@ import subprocess
 import sys
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -426,16 +426,18 @@ def run_team(
     return run
 
 
-def stop_all(procs: dict[str, subprocess.Popen], grace: float = 3.0) -> None:
-    """SIGTERM every process still running, then SIGKILL what is left after ``grace`` s; reap them all."""
-    for p in procs.values():
+def stop_all(procs: dict[str, subprocess.Popen] | Iterable[subprocess.Popen], grace: float = 3.0) -> None:
+    """SIGTERM every process still running (its whole session: start them with ``start_new_session=True``), then
+    SIGKILL what is left after ``grace`` s; reap them all."""
+    procs = list(procs.values()) if isinstance(procs, dict) else list(procs)
+    for p in procs:
         if p.poll() is None:
             try:
                 os.killpg(p.pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
     end = time.monotonic() + grace
-    for p in procs.values():
+    for p in procs:
         try:
             p.wait(timeout=max(0.0, end - time.monotonic()))
         except subprocess.TimeoutExpired:
