@@ -36,11 +36,8 @@ from swarmloc.net.team import make_node, run_team, team_result
 from swarmloc.net.transport import free_ports, open_session, robot_key, server_key
 from swarmloc.runner import run
 
-zenoh = pytest.importorskip("zenoh", reason="eclipse-zenoh is a dependency of swarmloc; install it")
-
-MRCLAM6 = Path(os.environ.get("SWARMLOC_SHARED", Path(__file__).resolve().parents[2] / "shared")) / (
-    "data/mrclam/MRCLAM_Dataset6"
-)
+MRCLAM_ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
+MRCLAM6 = MRCLAM_ROOT / "MRCLAM_Dataset6"
 DISTRIBUTED = ("expfusion", "dekf", "ci", "rdl")
 I3 = flat(np.eye(3))
 COV = flat(np.diag([0.01, 0.01, 0.001]))
@@ -214,7 +211,7 @@ def test_networked_equals_in_process_on_a_simulated_team(est):
     assert res.stats["fused"] > 50
 
 
-@pytest.mark.skipif(not MRCLAM6.exists(), reason=f"MRCLAM dataset 6 not found at {MRCLAM6}")
+@pytest.mark.skipif(not MRCLAM6.is_dir(), reason=f"MRCLAM data not found at {MRCLAM_ROOT} (set SWARMLOC_MRCLAM)")
 @pytest.mark.parametrize("est", DISTRIBUTED)
 def test_networked_equals_in_process_on_mrclam6_first_120s(est):
     spec = f"mrclam:{MRCLAM6}"

@@ -25,7 +25,9 @@ POSE_COV_STAMPED_HASH = "RIHS01_26432f9803e43727d3c8f668d1fdb3c630f548af631e2f4e
 
 @pytest.fixture
 def rosbags():
-    return pytest.importorskip("rosbags")
+    import rosbags
+
+    return rosbags
 
 
 def random_belief(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -250,7 +252,8 @@ def test_ros_key_refuses_bad_domain(rosbags, domain):
 
 
 def test_ros_key_is_a_zenoh_key_expression(rosbags):
-    zenoh = pytest.importorskip("zenoh")
+    import zenoh
+
     key = ros.ros_key("/robot1/pose", 3)
     ke = zenoh.KeyExpr(key)
     assert str(ke) == key
@@ -281,8 +284,9 @@ def test_ros_attachment_layout():
 def test_ros_attachment_matches_zenoh_ext_serializer():
     """rmw_zenoh serializes (int64, int64, std::array<uint8_t, 16>) with zenoh-ext; the Python binding of the
     same serializer must give the same bytes."""
-    zenoh = pytest.importorskip("zenoh")
-    ext = pytest.importorskip("zenoh.ext")
+    import zenoh
+    import zenoh.ext as ext
+
     gid = bytes([7, 0, 255, 3, 9, 9, 1, 2, 200, 100, 50, 25, 12, 6, 3, 1])
     for seq, ts in [(1, 0), (42, 1_700_000_000_000_000_001), (-5, -(2**63))]:
         want = ext.z_serialize((ext.Int64(seq), ext.Int64(ts), [ext.UInt8(b) for b in gid])).to_bytes()
