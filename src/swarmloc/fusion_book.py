@@ -66,12 +66,8 @@ import numpy as np
 
 from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.gaussian import check_covariance
+from swarmloc.lie import wrap_angle
 from swarmloc.lie.checks import as_tangent
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    """Wrap angles to ``(-pi, pi]``."""
-    return np.pi - np.mod(np.pi - a, 2 * np.pi)
 
 
 def _rot2(theta: np.ndarray) -> np.ndarray:
@@ -160,7 +156,7 @@ def serial_fusion(
     e = np.broadcast_to(e, (*batch, 3))
     R = _rot2(m[..., 2])
     xy = m[..., :2] + np.einsum("...ij,...j->...i", R, e[..., :2])
-    mean = np.concatenate([xy, _wrap(m[..., 2:] + e[..., 2:])], axis=-1)
+    mean = np.concatenate([xy, wrap_angle(m[..., 2:] + e[..., 2:])], axis=-1)
 
     J = _jacobian(m, e)
     B = np.zeros((*batch, 6, 6))
@@ -213,10 +209,10 @@ def _merge(
     d = mb - ma
     if wrap_theta and d.shape[-1] == 3:
         d = d.copy()
-        d[..., 2] = _wrap(d[..., 2])
+        d[..., 2] = wrap_angle(d[..., 2])
     mean = ma + np.einsum("...ij,...j->...i", K, d)
     if wrap_theta and mean.shape[-1] == 3:
-        mean[..., 2] = _wrap(mean[..., 2])
+        mean[..., 2] = wrap_angle(mean[..., 2])
     cov = _sym(K @ Cb)
     return mean, cov
 
@@ -285,7 +281,7 @@ def parallel_fusion(
     mean, cov = pairs[0]
     mean = np.array(mean, dtype=float)
     if wrap_theta and d == 3:
-        mean[..., 2] = _wrap(mean[..., 2])
+        mean[..., 2] = wrap_angle(mean[..., 2])
     cov = np.array(cov, dtype=float)
     for m, C in pairs[1:]:
         mean, cov = _merge(mean, cov, m, C, wrap_theta)
@@ -412,9 +408,9 @@ def book_two_robot_scenario(
             th = np.deg2rad(h)
             headings[k, a] = th
             truth[k + 1, a] = truth[k, a]
-            truth[k + 1, a, 2] = _wrap(np.array(th))
+            truth[k + 1, a, 2] = wrap_angle(np.array(th))
             if kind == "turn":
-                dth = _wrap(np.array(th - truth[k, a, 2]))
+                dth = wrap_angle(np.array(th - truth[k, a, 2]))
                 events.append(Odometry(r, t0, t1, 0.0, float(dth / dt)))
             else:
                 d = step * np.array([np.cos(th), np.sin(th)])
@@ -439,7 +435,7 @@ def book_two_robot_scenario(
                 Ce = BOOK_OBS_COV[i]
                 z = rel + rng.multivariate_normal(np.zeros(2), Ce)
                 observations.append(BookObservation(k + 1, i, j, z, Ce.copy()))
-                te = float(_wrap(np.array(pj[2] - pi[2])))
+                te = float(wrap_angle(np.array(pj[2] - pi[2])))
                 Re = _rot2(np.array(te))
                 cov = np.zeros((3, 3))
                 cov[:2, :2] = _sym(Re.T @ Ce @ Re)

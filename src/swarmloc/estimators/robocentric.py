@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from swarmloc.lie import wrap_angle
+
 __all__ = [
     "JointRobocentricEKF",
     "SeparateRobocentricEKF",
@@ -38,14 +40,10 @@ def _rot(t: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
-def _wrap(a: np.ndarray | float) -> np.ndarray | float:
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
 def compose(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``a b`` for planar poses ``(x, y, theta)``, with the Jacobians with respect to ``a`` and ``b``."""
     R = _rot(a[2])
-    out = np.array([*(a[:2] + R @ b[:2]), _wrap(a[2] + b[2])])
+    out = np.array([*(a[:2] + R @ b[:2]), wrap_angle(a[2] + b[2])])
     Ja = np.eye(3)
     Ja[:2, 2] = np.array([[0.0, -1.0], [1.0, 0.0]]) @ R @ b[:2]
     Jb = np.eye(3)
@@ -60,7 +58,7 @@ def inverse(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     J = -np.eye(3)
     J[:2, :2] = -R.T
     J[:2, 2] = np.array([[0.0, -1.0], [1.0, 0.0]]) @ R.T @ a[:2]
-    return np.array([*p, _wrap(-a[2])]), J
+    return np.array([*p, wrap_angle(-a[2])]), J
 
 
 def relative_measurement(q: np.ndarray, a: int, b: int) -> tuple[np.ndarray, dict[int, np.ndarray]]:
@@ -83,7 +81,7 @@ def _predict_one(
     Rj = _rot(q[2])
     d = q[:2] - u1[:2] + Rj @ uj[:2]
     p = R1.T @ d
-    new = np.array([*p, _wrap(q[2] + uj[2] - u1[2])])
+    new = np.array([*p, wrap_angle(q[2] + uj[2] - u1[2])])
     S = np.array([[0.0, -1.0], [1.0, 0.0]])
     Jq = np.zeros((3, 3))
     Jq[:2, :2] = R1.T
@@ -101,7 +99,7 @@ def _predict_one(
 
 def _residual(z: np.ndarray, h: np.ndarray) -> np.ndarray:
     r = z - h
-    r[2] = _wrap(r[2])
+    r[2] = wrap_angle(r[2])
     return r
 
 
@@ -142,7 +140,7 @@ class JointRobocentricEKF:
         K = np.linalg.solve(S, H @ self.P).T
         dx = (K @ r).reshape(self.m, 3)
         self.q = self.q + dx
-        self.q[:, 2] = _wrap(self.q[:, 2])
+        self.q[:, 2] = wrap_angle(self.q[:, 2])
         IKH = np.eye(3 * self.m) - K @ H
         self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
         return float(r @ np.linalg.solve(S, r))
@@ -177,7 +175,7 @@ class SeparateRobocentricEKF:
         S = H @ self.Ps[j] @ H.T + R
         K = np.linalg.solve(S, H @ self.Ps[j]).T
         self.q[j] = self.q[j] + K @ r
-        self.q[j, 2] = _wrap(self.q[j, 2])
+        self.q[j, 2] = wrap_angle(self.q[j, 2])
         IKH = np.eye(3) - K @ H
         self.Ps[j] = IKH @ self.Ps[j] @ IKH.T + K @ R @ K.T
         return float(r @ np.linalg.solve(S, r))
