@@ -4,16 +4,13 @@ decentralized fusion is under half of dead reckoning's (measured: 0.058 / 0.076 
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from swarmloc.config import DEFAULTS, MotionConfig
-from swarmloc.datasets.tum import interpolate
 from swarmloc.estimators import make_team
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.evaluate import node_options
+from swarmloc.experiments.sources import sim_source
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.runner import run
@@ -37,16 +34,9 @@ def test_move_and_stop_protocol():
 def _final_rms(est: str, seeds=range(6)) -> float:
     errs = []
     for seed in seeds:
-        sim = cooperative_positioning(seed=seed)
-        cfg = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
-        init = {r: GroupGaussian(SE2, SE2.from_xytheta(p), np.eye(3) * 1e-6) for r, p in sim.initial_poses.items()}
-        events = [e for e in sim.events if isinstance(e, Odometry | Detection)]
-        col = {r: j for j, r in enumerate(sim.robot_ids)}
-
-        def truth(r, t, sim=sim, col=col):
-            return interpolate(sim.times, sim.truth[:, col[r]], t)
-
-        res = run(make_team(est, init, **node_options(est, cfg, None)), events, [39.9], truth=truth)
+        src = sim_source(cooperative_positioning(seed=seed), "coop")
+        init = {r: GroupGaussian(SE2, b.mean, np.eye(3) * 1e-6) for r, b in src.initial.items()}  # known starts
+        res = run(make_team(est, init, **node_options(est, src.config, None)), src.events, [39.9], truth=src.truth)
         errs += [np.sum((tr.mean[-1, :2] - tr.truth[-1, :2]) ** 2) for tr in res.tracks.values()]
     return float(np.sqrt(np.mean(errs)))
 

@@ -15,17 +15,14 @@ team), pooled over all pairs. :func:`observability_figure` plots both for the tw
 
 from __future__ import annotations
 
-import dataclasses
 from itertools import combinations
 from pathlib import Path
 
 import numpy as np
 
-from swarmloc.config import DEFAULTS, MotionConfig
 from swarmloc.estimators import make_team
-from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.evaluate import node_options
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.experiments.sources import sim_source
 from swarmloc.lie import SE2
 from swarmloc.runner import run
 
@@ -41,22 +38,15 @@ def observability_run(
     record_rate: float = 1.0,
 ) -> dict[str, np.ndarray]:
     """Times ``(T,)`` [s], absolute errors ``(T, robots)`` [m] and pooled relative errors ``(T, pairs)`` [m]."""
-    from swarmloc.datasets.tum import interpolate
     from swarmloc.sim import AbsoluteSensor, RelativeSensor, random_team
 
     absolute = AbsoluteSensor(robots=tuple(anchored), rate=1.0, sigma_xy=0.05, sigma_theta=0.02) if anchored else None
     sensor = RelativeSensor(rate=2.0, max_range=50.0)
     sim = random_team(robots, duration, seed=seed, area=3.0, sensor=sensor, absolute=absolute)
-    config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
-    initial = {r: GroupGaussian(SE2, SE2.from_xytheta(p), config.initial.cov()) for r, p in sim.initial_poses.items()}
-    events = [e for e in sim.events if isinstance(e, Odometry | Detection)]
+    src = sim_source(sim, "sim:observability")
     times = np.arange(0.0, duration, 1.0 / record_rate)
-    col = {r: j for j, r in enumerate(sim.robot_ids)}
-
-    def truth(r: int, t: np.ndarray) -> np.ndarray:
-        return interpolate(sim.times, sim.truth[:, col[r]], t)
-
-    res = run(make_team(estimator, initial, **node_options(estimator, config, None)), events, times, truth=truth)
+    nodes = make_team(estimator, src.initial, **node_options(estimator, src.config, None))
+    res = run(nodes, src.events, times, truth=src.truth)
     ids = sorted(res.tracks)
     est = np.stack([SE2.from_xytheta(res.tracks[r].mean) for r in ids], axis=1)
     tru = np.stack([SE2.from_xytheta(res.tracks[r].truth) for r in ids], axis=1)

@@ -29,8 +29,9 @@ from swarmloc.events import Detection, Event, Odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.runner import TruthFn
+from swarmloc.sim.simulator import SimResult
 
-__all__ = ["SIM_SCENARIOS", "Source", "load_source"]
+__all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim_source"]
 
 SIM_SCENARIOS = ("random", "range_bearing")
 
@@ -66,12 +67,12 @@ class Source:
         ]
 
 
-def _sim(scenario: str, robots: int, duration: float, seed: int, config: Config | None) -> Source:
+def sim_source(sim: SimResult, spec: str, config: Config | None = None) -> Source:
+    """A :class:`Source` of a simulation: its odometry and detections, initial beliefs at the true start with
+    ``config.initial``'s std, and truth interpolated on its grid. ``config`` defaults to :data:`DEFAULTS` with the
+    simulation's own process noise."""
     from swarmloc.datasets.tum import interpolate
-    from swarmloc.sim import RelativeSensor, random_team
 
-    kinds = ("pose",) if scenario == "random" else ("range_bearing",)
-    sim = random_team(robots, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0, kinds=kinds))
     if config is None:
         config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
     cov = config.initial.cov()
@@ -84,7 +85,15 @@ def _sim(scenario: str, robots: int, duration: float, seed: int, config: Config 
             raise ValueError(f"no ground truth for robot {robot}")
         return interpolate(sim.times, sim.truth[:, col[robot]], times)
 
-    return Source(f"sim:{scenario}", events, initial, None, 0.0, float(duration), truth, config)
+    return Source(spec, events, initial, None, float(sim.times[0]), float(sim.times[-1]), truth, config)
+
+
+def _sim(scenario: str, robots: int, duration: float, seed: int, config: Config | None) -> Source:
+    from swarmloc.sim import RelativeSensor, random_team
+
+    kinds = ("pose",) if scenario == "random" else ("range_bearing",)
+    sim = random_team(robots, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0, kinds=kinds))
+    return sim_source(sim, f"sim:{scenario}", config)
 
 
 def load_source(
