@@ -337,12 +337,27 @@ def run_team(
     session = open_session([ep["collector"]], [ep[k] for k in ep if k != "collector"])
     inq: queue.SimpleQueue = queue.SimpleQueue()
     subs = [
-        session.declare_subscriber(robot_key(team, "*", "belief"), handler=lambda x: inq.put(("belief", x))),
-        session.declare_subscriber(robot_key(team, "*", "report"), handler=lambda x: inq.put(("report", x))),
-        session.declare_subscriber(robot_key(team, "*", "progress"), handler=lambda x: inq.put(("progress", x))),
+        session.declare_subscriber(robot_key(team, "*", what), handler=lambda x: inq.put(("sample", x)))
+        for what in ("belief", "report", "progress")
     ]
     roster = frozenset(src_robots)
     progress: dict[int, float] = {}
+
+    def collect(sample: Any) -> None:
+        """Keep a published belief, report or progress announcement (a bad payload is counted and dropped)."""
+        try:
+            b = decode(sample.payload.to_bytes(), team, roster, server_ok=False).body
+        except Rejected as exc:
+            run.counts["rejected"] += 1
+            log.debug("team: dropped a message: %s", exc.reason)
+            return
+        if isinstance(b, Belief):
+            run.keep(b)
+        elif isinstance(b, Report):
+            run.reports[b.robot] = b
+        elif isinstance(b, Progress) and math.isfinite(b.t):
+            progress[b.robot] = max(progress.get(b.robot, -math.inf), b.t)
+
     t0 = time.monotonic()
     killed = restarted = joined = False
     t_first = src.t_start
@@ -362,19 +377,7 @@ def run_team(
             except queue.Empty:
                 kind, x = None, None
             if kind is not None:
-                try:
-                    env = decode(x.payload.to_bytes(), team, roster, server_ok=False)
-                except Rejected as exc:
-                    run.counts["rejected"] += 1
-                    log.debug("team: dropped %s: %s", kind, exc.reason)
-                    continue
-                b = env.body
-                if isinstance(b, Belief):
-                    run.keep(b)
-                elif isinstance(b, Report):
-                    run.reports[b.robot] = b
-                elif isinstance(b, Progress) and math.isfinite(b.t):
-                    progress[b.robot] = max(progress.get(b.robot, -math.inf), b.t)
+                collect(x)
             if f.late is not None and not joined:
                 others = [progress.get(r, -math.inf) for r in wait_for]
                 # join once the others have read that far, or once they are all gone (a join time past the end)
@@ -399,19 +402,11 @@ def run_team(
             all_started = (late is None or joined) and (f.kill is None or restarted or killed is False)
             if all_started and all(p.poll() is not None for p in nodes) and len(nodes) == len(src_robots):
                 # drain what is still queued
-                while True:
+                while True:  # what is still queued
                     try:
-                        kind, x = inq.get(timeout=0.3)
+                        collect(inq.get(timeout=0.3)[1])
                     except queue.Empty:
                         break
-                    try:
-                        env = decode(x.payload.to_bytes(), team, roster, server_ok=False)
-                    except Rejected:
-                        continue
-                    if isinstance(env.body, Belief):
-                        run.keep(env.body)
-                    elif isinstance(env.body, Report):
-                        run.reports[env.body.robot] = env.body
                 break
     finally:
         for s in subs:
