@@ -127,6 +127,9 @@ def compare(
         "wall_s": time.perf_counter() - t0,
         "estimators": {},
     }
+    from scipy.stats import chi2
+
+    q_lo, q_hi = chi2.ppf([0.025, 0.975], DOF)
     for e in estimators:
         rs = [r for r in results if r["estimator"] == e]
         pos = np.concatenate([r["pos"] for r in rs])
@@ -134,9 +137,6 @@ def compare(
         nees = np.concatenate([r["nees"] for r in rs])
         n = int(nees.size)
         lo, hi = anees_bounds(max(n, 1))
-        from scipy.stats import chi2
-
-        q_lo, q_hi = chi2.ppf([0.025, 0.975], DOF)
         st: dict[str, int] = {}
         for r in rs:
             for k, v in r["stats"].items():

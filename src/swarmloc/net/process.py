@@ -157,6 +157,7 @@ class NetNode:
         self._published: dict[float, Belief] = {}
         self._prov = 0
         self._final = 0
+        self._pruned_at = 0
         self._last_progress = -math.inf
         self._last_progress_wall = 0.0
         self._last_key: tuple[float, int] = (-math.inf, 0)
@@ -619,7 +620,8 @@ class NetNode:
         while self._final < rt.size and (end or rt[self._final] < wm - self.node.horizon):
             self._publish_belief(rt[self._final], final=True)
             self._final += 1
-        if len(self._published) > 4 * max(1, rt.size) or (self._final and self._final % 256 == 0):
+        if self._final - self._pruned_at >= 256:  # forget beliefs no input can change any more (two horizons back)
+            self._pruned_at = self._final
             cut = wm - 2 * self.node.horizon
             for t in [t for t in self._published if t < cut]:
                 del self._published[t]
