@@ -420,3 +420,11 @@ def test_cli_team_report_bag_and_ros_output(tmp_path):
     assert 0 <= t <= 6 and np.isfinite(xyt).all() and cov.shape == (3, 3)
     seq, stamp_ns, gid = ros.parse_ros_attachment(att)
     assert seq >= 1 and len(gid) == 16
+
+
+@pytest.mark.parametrize(("est", "why"), [("cekf", "not a distributed estimator"), ("nope", "unknown estimator")])
+def test_team_refuses_a_non_distributed_estimator_before_starting_anything(est, why, capsys):
+    from swarmloc.cli import main
+
+    assert main(["team", "--estimator", est, "--duration", "2", "--out", "/nonexistent/never-written"]) == 2
+    assert why in capsys.readouterr().err

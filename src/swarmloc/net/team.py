@@ -32,15 +32,12 @@ from swarmloc.net.transport import check_team, free_ports, open_session, robot_k
 
 log = logging.getLogger(__name__)
 
-DISTRIBUTED = ("expfusion", "dekf", "ci", "rdl")
-
 
 # ---------------------------------------------------------------------------------------------------- one node
-def make_node(estimator: str, robot: int, initial: Any, config: Config, landmarks: Any) -> Any:
-    """The node of ``robot`` for a distributed ``estimator`` with the options ``swarmloc evaluate`` uses."""
+def distributed_class(estimator: str) -> type:
+    """The node class of a distributed ``estimator`` (one node per robot); ValueError naming the choices else."""
     from swarmloc.estimators import ESTIMATORS
     from swarmloc.estimators.node import RobotNode
-    from swarmloc.experiments.evaluate import node_options
 
     cls = ESTIMATORS.get(estimator)
     if cls is None:
@@ -48,9 +45,17 @@ def make_node(estimator: str, robot: int, initial: Any, config: Config, landmark
     if not issubclass(cls, RobotNode) or not cls.distributed:
         raise ValueError(
             f"{estimator!r} is not a distributed estimator (one node per robot): run it in-process with "
-            f"'swarmloc evaluate'; over the network choose from {list(DISTRIBUTED)}"
+            "'swarmloc evaluate'; over the network choose from "
+            f"{[k for k, c in ESTIMATORS.items() if issubclass(c, RobotNode) and c.distributed]}"
         )
-    return cls(robot, initial, **node_options(estimator, config, landmarks))
+    return cls
+
+
+def make_node(estimator: str, robot: int, initial: Any, config: Config, landmarks: Any) -> Any:
+    """The node of ``robot`` for a distributed ``estimator`` with the options ``swarmloc evaluate`` uses."""
+    from swarmloc.experiments.evaluate import node_options
+
+    return distributed_class(estimator)(robot, initial, **node_options(estimator, config, landmarks))
 
 
 def resume_events(events: Sequence[Event], t: float) -> list[Event]:
@@ -279,6 +284,7 @@ def run_team(
 
     f = parse_faults(faults)
     team = check_team(team or f"team{os.getpid()}")
+    distributed_class(estimator)  # refuse a centralized or unknown estimator before starting anything
     if src is None:
         src = load_source(source, robots=robots, duration=duration, seed=seed)
     src_robots = src.robots
