@@ -4,6 +4,7 @@ Conventions: SE(2) exponential coordinates ``(v1, v2, alpha)``, right perturbati
 ``h = (forward speed, lateral speed, yaw rate)``, diffusion ``Q = H H^T`` per second; all batched over leading axes.
 """
 
+from swarmloc.motion._stable import SERIES, SERIES_BELOW
 from swarmloc.motion.closed_form import (
     circular_cov,
     circular_mean,
@@ -21,6 +22,8 @@ from swarmloc.motion.sde import em_step, euler_maruyama
 from swarmloc.motion.unicycle import UnicycleNoise, odometry_increment, odometry_increment_terms
 
 __all__ = [
+    "SERIES",
+    "SERIES_BELOW",
     "DiffDrive",
     "UnicycleNoise",
     "circular_cov",

@@ -17,7 +17,7 @@ Generative model (everything an estimator needs to match it):
   :meth:`SimResult.unicycle_noise`; up to the O(dt_f) Euler-Maruyama discretization).
 * **Relative sensor** (:class:`RelativeSensor`), at ``rate`` Hz, for every ordered pair observer ``i`` /
   target ``j != i`` whose true relative position ``p = R_i^T (t_j - t_i)`` has ``|p| <= max_range`` and
-  ``|atan2(p_y, p_x)| <= fov/2``:
+  ``|atan2(p_y, p_x)| <= fov/2`` (candidates from a ``scipy.spatial.cKDTree`` query per time, no all-pairs list):
 
   - ``kind="pose"``: ``z = xytheta(m_true exp(n^))``, ``m_true = g_i^-1 g_j``, ``n ~ N(0, diag(s_xy^2, s_xy^2,
     s_theta^2))`` (right perturbation: ``n`` is in the target's frame); ``cov`` is that diagonal matrix;
@@ -208,6 +208,45 @@ def _commands(cmds: Sequence[WheelCommand], t: np.ndarray) -> np.ndarray:
     return out
 
 
+def _pairs_within(xy: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ordered pairs ``(s, i, j)``, ``i != j``, of points ``xy[s]`` ``(S, n, 2)`` [m] that may lie within ``r`` [m]:
+    a k-d tree query per time with a slightly larger radius (the caller applies its exact test), sorted by
+    ``(s, i, j)``. No list of all ``n (n - 1)`` pairs unless ``r`` is infinite."""
+    n = xy.shape[1]
+    if not np.isfinite(r):
+        i, j = np.nonzero(~np.eye(n, dtype=bool))
+        s = np.repeat(np.arange(xy.shape[0]), i.size)
+        return s, np.tile(i, xy.shape[0]), np.tile(j, xy.shape[0])
+    from scipy.spatial import cKDTree
+
+    reach = r * (1 + 1e-9) + 1e-12
+    parts = []
+    for s in range(xy.shape[0]):
+        ij = cKDTree(xy[s]).query_pairs(reach, output_type="ndarray")
+        if ij.size:
+            both = np.concatenate([ij, ij[:, ::-1]])
+            parts.append(np.column_stack([np.full(both.shape[0], s), both]))
+    if not parts:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty, empty
+    sij = np.concatenate(parts).astype(np.int64)
+    sij = sij[np.lexsort((sij[:, 2], sij[:, 1], sij[:, 0]))]
+    return sij[:, 0], sij[:, 1], sij[:, 2]
+
+
+def _draws_at(rng: np.random.Generator, S: int, n_pairs: int, d: int, s: np.ndarray, pair: np.ndarray) -> np.ndarray:
+    """Rows ``[s, pair]`` of ``rng.standard_normal((S, n_pairs, d))`` (``s`` sorted), drawn a block of times at a
+    time: the generator fills arrays in order, so the numbers are those of the one big draw, in bounded memory."""
+    out = np.empty((s.size, d))
+    block = max(1, (1 << 22) // max(1, n_pairs * d))
+    for s0 in range(0, S, block):
+        b = min(block, S - s0)
+        draw = rng.standard_normal((b, n_pairs, d))
+        lo, hi = np.searchsorted(s, [s0, s0 + b])
+        out[lo:hi] = draw[s[lo:hi] - s0, pair[lo:hi]]
+    return out
+
+
 def simulate(
     initial_poses: Mapping[int, Sequence[float]] | Sequence[Sequence[float]],
     commands: Mapping[int, WheelCommand] | Sequence[WheelCommand],
@@ -273,8 +312,8 @@ def simulate(
     if sen is not None and n_rob > 1:
         ks = np.arange(n_s, N + 1, n_s)
         P = truth_all[ks]  # (S, n_rob, 3)
-        obs, tgt = np.nonzero(~np.eye(n_rob, dtype=bool))
-        gi, gj = P[:, obs], P[:, tgt]  # (S, n_pairs, 3)
+        s_, obs, tgt = _pairs_within(P[..., :2], sen.max_range)  # candidates, sorted by (s, observer, target)
+        gi, gj = P[s_, obs], P[s_, tgt]
         ci, si = np.cos(gi[..., 2]), np.sin(gi[..., 2])
         ddx, ddy = gj[..., 0] - gi[..., 0], gj[..., 1] - gi[..., 1]
         mx, my = ci * ddx + si * ddy, -si * ddx + ci * ddy
@@ -282,23 +321,28 @@ def simulate(
         rng_ = np.hypot(mx, my)
         bearing = np.arctan2(my, mx)
         seen = (rng_ <= sen.max_range) & (np.abs(bearing) <= sen.fov / 2 + 1e-12)
+        s_, obs, tgt, mx, my, mth, rng_, bearing = (a[seen] for a in (s_, obs, tgt, mx, my, mth, rng_, bearing))
+        # the noise of ordered pair p = (observer, target) at sensor time s is element [s, p] of one
+        # (S, n_rob (n_rob - 1), 3) draw and then one (S, n_rob (n_rob - 1), 2) draw, as always (same numbers)
+        pair = obs * (n_rob - 1) + tgt - (tgt > obs)
         rng_s = np.random.default_rng(ss_rel)
-        n_pose = rng_s.standard_normal((*mx.shape, 3)) * np.sqrt(np.diag(sen.pose_cov()))
-        n_rb = rng_s.standard_normal((*mx.shape, 2)) * np.sqrt(np.diag(sen.range_bearing_cov()))
+        n_pose = _draws_at(rng_s, len(ks), n_rob * (n_rob - 1), 3, s_, pair) * np.sqrt(np.diag(sen.pose_cov()))
+        n_rb = _draws_at(rng_s, len(ks), n_rob * (n_rob - 1), 2, s_, pair) * np.sqrt(np.diag(sen.range_bearing_cov()))
         zx, zy, zth = compose_exp_xyt(mx, my, mth, n_pose)
         z_pose = np.stack([zx, zy, wrap_angle(zth)], axis=-1)
         z_rb = np.stack([rng_ + n_rb[..., 0], wrap_angle(bearing + n_rb[..., 1])], axis=-1)
         cov_pose, cov_rb = _readonly(sen.pose_cov()), _readonly(sen.range_bearing_cov())
-        for si_, p_ in zip(*np.nonzero(seen), strict=True):
-            k = int(ks[si_])
+        for q in range(s_.size):
+            k = int(ks[s_[q]])
             t = k / f
-            o, g = ids[obs[p_]], ids[tgt[p_]]
+            oi, ti = int(obs[q]), int(tgt[q])
+            o, g = ids[oi], ids[ti]
             if "pose" in sen.kinds:
-                ev = Detection(o, t, "pose", _readonly(z_pose[si_, p_]), cov_pose, target=g)
-                keyed.append((k, 1, (obs[p_], 0, tgt[p_]), ev))
+                ev = Detection(o, t, "pose", _readonly(z_pose[q]), cov_pose, target=g)
+                keyed.append((k, 1, (oi, 0, ti), ev))
             if "range_bearing" in sen.kinds:
-                ev = Detection(o, t, "range_bearing", _readonly(z_rb[si_, p_]), cov_rb, target=g)
-                keyed.append((k, 1, (obs[p_], 1, tgt[p_]), ev))
+                ev = Detection(o, t, "range_bearing", _readonly(z_rb[q]), cov_rb, target=g)
+                keyed.append((k, 1, (oi, 1, ti), ev))
 
     # ---------------------------------------------------------------- absolute fixes
     if ab is not None and ab.robots:

@@ -1,0 +1,210 @@
+"""The engine's fast EKF path compiled with numba (backend ``"numba"``, optional: ``pip install numba``).
+
+The per-robot functions are the formulas of :mod:`swarmloc.engine.soa` turned into straight-line scalar code
+(:mod:`swarmloc.engine.scalar`) and compiled by numba, so the three fast backends share one formula source. Around
+them, loops over robots (``numba.prange``: ``NUMBA_NUM_THREADS`` threads) and :meth:`NumbaOps.fuse_groups`, which
+fuses every pose/absolute detection of one stamp level by level (the Gauss-Seidel levels of
+:mod:`swarmloc.engine.core`), the groups of one level in parallel. Compiled once per process and noise model
+(a few seconds). Units: m, rad, s.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+from typing import Any
+
+import numpy as np
+from numba import get_num_threads, njit, prange
+
+from swarmloc.engine.core import ABSOLUTE, FUSED, GATED, PENDING, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.engine.scalar import absolute_source, pose_source, predict_source
+from swarmloc.motion import UnicycleNoise
+
+
+class _Det:
+    """Detection arrays for the warm-up (the fields :meth:`NumbaOps.fuse_groups` reads)."""
+
+    def __init__(self, observer: np.ndarray, target: np.ndarray, kind: np.ndarray, z: np.ndarray, R: np.ndarray):
+        self.observer, self.target, self.kind, self.z, self.R = observer, target, kind, z, R
+
+
+_UP = "{a}[{i}, 0, 0], {a}[{i}, 0, 1], {a}[{i}, 0, 2], {a}[{i}, 1, 1], {a}[{i}, 1, 2], {a}[{i}, 2, 2]"
+_X = "{a}[{i}, 0], {a}[{i}, 1], {a}[{i}, 2]"
+
+
+def _args(a: str, i: str, up: bool = False) -> str:
+    return (_UP if up else _X).format(a=a, i=i)
+
+
+_STORE = """
+{o}[{i}, 0] = r[0]
+{o}[{i}, 1] = r[1]
+{o}[{i}, 2] = r[2]
+{oP}[{i}, 0, 0] = r[3]
+{oP}[{i}, 0, 1] = r[4]
+{oP}[{i}, 1, 0] = r[4]
+{oP}[{i}, 0, 2] = r[5]
+{oP}[{i}, 2, 0] = r[5]
+{oP}[{i}, 1, 1] = r[6]
+{oP}[{i}, 1, 2] = r[7]
+{oP}[{i}, 2, 1] = r[7]
+{oP}[{i}, 2, 2] = r[8]"""
+
+
+def _store(o: str, oP: str, i: str, indent: int) -> str:
+    pad = " " * indent
+    return "\n".join(pad + line for line in _STORE.format(o=o, oP=oP, i=i).strip().splitlines())
+
+
+_LOOPS = f"""
+def predict_rows(x, P, v, w, dt):
+    ox = np.empty_like(x)
+    oP = np.empty_like(P)
+    for i in prange(x.shape[0]):
+        r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], dt[i])
+{_store("ox", "oP", "i", 8)}
+    return ox, oP
+
+
+def pose_rows(x, P, xk, Pk, z, R):
+    n = x.shape[0]
+    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
+    for i in prange(n):
+        r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("xk", "i")}, {_args("Pk", "i", True)},
+                 {_args("z", "i")}, {_args("R", "i", True)})
+{_store("ox", "oP", "i", 8)}
+        nis[i] = r[9]
+        ok[i] = r[10]
+    return ox, oP, nis, ok
+
+
+def absolute_rows(x, P, z, R):
+    n = x.shape[0]
+    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
+    for i in prange(n):
+        r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "i")}, {_args("R", "i", True)})
+{_store("ox", "oP", "i", 8)}
+        nis[i] = r[9]
+        ok[i] = r[10]
+    return ox, oP, nis, ok
+
+
+def fuse_groups(x, P, px, pP, lo, lt, later, kind, z, R, status, reason, gate, thr, g0, g1, bounds):
+    for lv in range(bounds.shape[0] - 1):
+        for g in prange(bounds[lv], bounds[lv + 1]):
+            for q in range(g0[g], g1[g]):
+                if status[q] != {PENDING}:
+                    continue
+                i = lo[q]
+                j = lt[q]
+                if kind[q] == {ABSOLUTE}:
+                    r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
+                elif later[q]:
+                    r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("px", "j")}, {_args("pP", "j", True)},
+                             {_args("z", "q")}, {_args("R", "q", True)})
+                else:
+                    r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("x", "j")}, {_args("P", "j", True)},
+                             {_args("z", "q")}, {_args("R", "q", True)})
+                if gate:
+                    if not math.isfinite(r[9]):
+                        status[q] = {REJECTED}
+                        reason[q] = {R_NONFINITE}
+                        continue
+                    if r[9] > thr:
+                        status[q] = {GATED}
+                        continue
+                if not r[10]:
+                    status[q] = {REJECTED}
+                    reason[q] = {R_NUMERICAL}
+                    continue
+{_store("x", "P", "i", 16)}
+                status[q] = {FUSED}
+"""
+
+
+@cache
+def _kernels(noise: UnicycleNoise) -> dict[str, Any]:
+    """Compile the generated scalar functions and the loops around them (once per noise model)."""
+    ns: dict[str, Any] = {"math": math, "np": np, "prange": prange}
+    for src in (predict_source(noise), pose_source(), absolute_source()):
+        exec(src, ns)  # noqa: S102 - our own generated code
+    for name in ("predict", "pose", "absolute"):
+        ns[name] = njit(error_model="numpy")(ns[name])
+    exec(_LOOPS, ns)  # noqa: S102
+    out = {}
+    for name in ("predict_rows", "pose_rows", "absolute_rows", "fuse_groups"):
+        out[name] = njit(parallel=True, error_model="numpy")(ns[name])
+        out[name + "_serial"] = njit(error_model="numpy")(ns[name])  # prange runs as range
+    return out
+
+
+PARALLEL_MIN = 200_000
+"""Rows below which the kernels run on one thread: starting the thread pool once per level costs more (measured
+on the shared 2-core machine: at 30k rows per stamp the parallel path was 4x slower than one thread)."""
+
+
+def _pick(k: dict[str, Any], name: str, rows: int) -> Any:
+    return k[name] if rows >= PARALLEL_MIN and get_num_threads() > 1 else k[name + "_serial"]
+
+
+class NumbaOps:
+    """The fast EKF kernels compiled with numba (the interface of :class:`~swarmloc.engine.backends.NumpyOps`,
+    plus :meth:`fuse_groups`)."""
+
+    name = "numba"
+
+    def __init__(self, noise: UnicycleNoise) -> None:
+        self.noise = noise
+        self.k = _kernels(noise)
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Compile every kernel now (on two robots), not inside the first timed step."""
+        x, P = np.zeros((2, 3)), np.broadcast_to(np.eye(3), (2, 3, 3)).copy()
+        one = np.ones(2)
+        self.predict(x, P, one, one, one)
+        self.pose_update(x, P, x + 1.0, P, x + 1.0, P)
+        self.absolute_update(x, P, x, P)
+        z = np.zeros((2, 3))
+        det = _Det(np.array([0, 1]), np.array([1, 0]), np.array([1, 0]), z, P)
+        status, reason = np.zeros(2, dtype=np.int8), np.zeros(2, dtype=np.int8)
+        i = np.array([0, 1])
+        for thr in (None, 1.0):  # the serial variants; the parallel ones compile on their first large batch
+            self.fuse_groups((x.copy(), P.copy()), (x, P), det, i, i[::-1], status.copy(), reason.copy(), thr, i,
+                             i + 1, np.array([0, 1, 2]))  # fmt: skip
+
+    def predict(self, x: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> tuple:
+        f = np.ascontiguousarray
+        kernel = _pick(self.k, "predict_rows", x.shape[0])
+        return kernel(f(x, dtype=float), f(P, dtype=float), f(v, dtype=float), f(w, dtype=float), f(dt, dtype=float))
+
+    def pose_update(self, x: np.ndarray, P: np.ndarray, xk: np.ndarray, Pk: np.ndarray, z: np.ndarray,
+                    Rz: np.ndarray) -> tuple:  # fmt: skip
+        f = np.ascontiguousarray
+        xn, Pn, nis, ok = _pick(self.k, "pose_rows", x.shape[0])(f(x), f(P), f(xk), f(Pk), f(z), f(Rz))
+        return xn, Pn, nis, ok, ok
+
+    def absolute_update(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, Rz: np.ndarray) -> tuple:
+        f = np.ascontiguousarray
+        xn, Pn, nis, ok = _pick(self.k, "absolute_rows", x.shape[0])(f(x), f(P), f(z), f(Rz))
+        return xn, Pn, nis, ok, ok
+
+    def fuse_groups(self, cur: tuple, prior: tuple, det: Any, lo: np.ndarray, lt: np.ndarray, status: np.ndarray,
+                    reason: np.ndarray, thr: float | None, g0: np.ndarray, g1: np.ndarray,
+                    bounds: np.ndarray) -> None:  # fmt: skip
+        """Fuse the pending pose/absolute detections of one stamp in place (``cur``, ``status``, ``reason``).
+
+        Group ``g`` is rows ``g0[g]:g1[g]`` (one observer, canonical order); groups ``bounds[l]:bounds[l+1]`` form
+        level ``l``. Observer ``lo[r]`` is a row of the current states ``cur``; neighbour ``lt[r]`` is read there
+        when its id is smaller (its group is in a lower level: done) and in the snapshot ``prior`` taken before
+        the stamp's groups otherwise. ``thr``: chi-square threshold (3 dof), None: no gate. Outcome rules of
+        :class:`~swarmloc.estimators.DistributedEKF`."""
+        f = np.ascontiguousarray
+        later = f(det.target > det.observer)
+        i64 = np.int64
+        kernel = _pick(self.k, "fuse_groups", lo.shape[0])
+        gate, limit = thr is not None, 0.0 if thr is None else float(thr)
+        kernel(cur[0], cur[1], f(prior[0]), f(prior[1]), f(lo, dtype=i64), f(lt, dtype=i64), later,
+               f(det.kind, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status, reason, gate, limit,
+               f(g0, dtype=i64), f(g1, dtype=i64), f(bounds, dtype=i64))  # fmt: skip

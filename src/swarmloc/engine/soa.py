@@ -1,0 +1,298 @@
+"""Structure-of-arrays forms of the distributed EKF's kernels, generic over the array namespace ``xp``.
+
+:mod:`swarmloc.kernels.cartesian` has two forms of each kernel: floats for one robot (what a node calls) and
+stacked ``(..., 3, 3)`` matrices (``np.linalg.inv`` and ``matmul`` on 3x3 stacks: a few microseconds per robot).
+Here the same formulas act on one array per matrix entry (``x = (x0, x1, x2)``, ``P = (p00, p01, p02, p11, p12,
+p22)``, each ``(B,)``), written once for ``xp = numpy`` and ``xp = jax.numpy`` (under ``jax.jit`` the whole update
+fuses into one loop). They follow the kernels term by term (same expressions, same order), so results agree to
+rounding (tests/test_engine.py checks 1e-12 against the kernels and 1e-10 against the nodes):
+
+* :func:`predict`: :func:`swarmloc.kernels.cartesian.predict_one` (increment of
+  :func:`swarmloc.motion.odometry_increment_terms`, Taylor branches ``swarmloc.motion.SERIES``);
+* :func:`update`: :func:`swarmloc.sensors.models.relative_pose` (``kind="pose"``) or a GPS-like absolute fix,
+  :func:`swarmloc.sensors.models.pose_noise_to_cartesian` and :func:`swarmloc.kernels.cartesian.kalman_update`
+  (Joseph form), plus the gate's normalized innovation squared and the positive-definiteness test of the nodes.
+
+Small matrices are nested lists of entries; an entry is an array or a Python float, and the products skip the
+exact zeros and ones of the Jacobians (adding ``0 * a`` changes nothing for finite ``a``).
+Units: metres, radians, seconds; angles wrapped to (-pi, pi].
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from swarmloc.motion import SERIES, SERIES_BELOW, UnicycleNoise
+
+Entry = Any
+"""A matrix entry: an array ``(B,)`` of the namespace in use, or a Python float constant."""
+Mat = list[list[Entry]]
+
+_PI = math.pi
+_TWO_PI = 2 * math.pi
+
+
+# ------------------------------------------------------------------------------------------------ entry algebra
+def _is(a: Entry, c: float) -> bool:
+    return isinstance(a, float) and a == c
+
+
+def mul(a: Entry, b: Entry) -> Entry:
+    """``a * b`` skipping exact zeros and ones of constant entries."""
+    if _is(a, 0.0) or _is(b, 0.0):
+        return 0.0
+    if _is(a, 1.0):
+        return b
+    if _is(b, 1.0):
+        return a
+    if _is(a, -1.0):
+        return -b
+    if _is(b, -1.0):
+        return -a
+    return a * b
+
+
+def add(a: Entry, b: Entry) -> Entry:
+    if _is(a, 0.0):
+        return b
+    if _is(b, 0.0):
+        return a
+    return a + b
+
+
+def sub(a: Entry, b: Entry) -> Entry:
+    if _is(b, 0.0):
+        return a
+    if _is(a, 0.0):
+        return -b
+    return a - b
+
+
+def mm(A: Mat, B: Mat) -> Mat:
+    """Matrix product, the sum over the inner index in increasing order (as ``matmul``)."""
+    n, k, m = len(A), len(B), len(B[0])
+    out = []
+    for i in range(n):
+        row = []
+        for j in range(m):
+            acc: Entry = 0.0
+            for q in range(k):
+                acc = add(acc, mul(A[i][q], B[q][j]))
+            row.append(acc)
+        out.append(row)
+    return out
+
+
+def tr(A: Mat) -> Mat:
+    return [list(r) for r in zip(*A, strict=True)]
+
+
+def madd(A: Mat, B: Mat) -> Mat:
+    return [[add(a, b) for a, b in zip(ra, rb, strict=True)] for ra, rb in zip(A, B, strict=True)]
+
+
+def msub(A: Mat, B: Mat) -> Mat:
+    return [[sub(a, b) for a, b in zip(ra, rb, strict=True)] for ra, rb in zip(A, B, strict=True)]
+
+
+def eye(n: int) -> Mat:
+    return [[1.0 if i == j else 0.0 for j in range(n)] for i in range(n)]
+
+
+def inv(A: Mat) -> Mat:
+    """Inverse of a 1x1, 2x2 or 3x3 matrix by cofactors (inf/NaN where singular: the caller's ``ok`` is False)."""
+    n = len(A)
+    if n == 1:
+        return [[1.0 / A[0][0]]]
+    if n == 2:
+        a, b, c, d = A[0][0], A[0][1], A[1][0], A[1][1]
+        det = a * d - b * c
+        return [[d / det, -b / det], [-c / det, a / det]]
+    a, b, c = A[0]
+    d, e, f = A[1]
+    g, h, k = A[2]
+    c00, c01, c02 = e * k - f * h, f * g - d * k, d * h - e * g
+    det = a * c00 + b * c01 + c * c02
+    r = 1.0 / det
+    return [
+        [c00 * r, (c * h - b * k) * r, (b * f - c * e) * r],
+        [c01 * r, (a * k - c * g) * r, (c * d - a * f) * r],
+        [c02 * r, (b * g - a * h) * r, (a * e - b * d) * r],
+    ]
+
+
+def sym3(p: tuple[Entry, ...]) -> Mat:
+    """Full 3x3 matrix from its upper triangle ``(p00, p01, p02, p11, p12, p22)``."""
+    p00, p01, p02, p11, p12, p22 = p
+    return [[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]
+
+
+def upper(A: Mat) -> tuple[Entry, ...]:
+    return A[0][0], A[0][1], A[0][2], A[1][1], A[1][2], A[2][2]
+
+
+def wrap(xp: Any, a: Entry) -> Entry:
+    """Angle wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`)."""
+    return _PI - xp.mod(_PI - a, _TWO_PI)
+
+
+# ------------------------------------------------------------------------------------------------ prediction
+def _horner(coeffs: tuple[float, ...], x2: Entry) -> Entry:
+    acc: Entry = 0.0
+    for c in reversed(coeffs):
+        acc = acc * x2 + c
+    return acc
+
+
+def increment_terms(xp: Any, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise) -> tuple[Entry, ...]:
+    """``(cos, sin, tx, ty, S11, S12, S13, S22, S23, S33)`` of the odometry increment over ``dt`` [s] for ``(v [m/s],
+    w [rad/s])``: :func:`swarmloc.motion.odometry_increment_terms`, batched (Taylor branch below
+    ``SERIES_BELOW``, all ``N_TERMS`` terms)."""
+    q_v, q_lat, q_w = noise.diag(v, w)
+    t = dt
+    x = w * t
+    near = xp.abs(x) < SERIES_BELOW
+    zero = x == 0.0
+    x2 = x * x
+    safe = xp.where(near, 1.0, x)
+    s3 = safe * safe * safe
+    A = xp.where(near, _horner(SERIES["A"], x2), (2 * safe - xp.sin(2 * safe)) / (4 * s3))
+    B = xp.where(near, _horner(SERIES["B"], x2), (safe - xp.sin(safe)) / s3)
+    E = xp.where(
+        near, _horner(SERIES["E"], x2), (1.5 * safe - 2 * xp.sin(safe) + xp.sin(2 * safe) / 4) / (s3 * safe * safe)
+    )
+    nz = xp.where(zero, 1.0, x)
+    s2 = xp.where(zero, 1.0, xp.sin(2 * nz) / (2 * nz))
+    s1 = xp.where(zero, 1.0, xp.sin(nz) / nz)
+    h = xp.where(zero, 1.0, xp.sin(nz / 2) / (nz / 2))
+    h2 = h * h
+    h4 = h2 * h2
+    t2 = t * t
+    t3 = t2 * t
+    vv = v * v
+    Gcc = t * (1 + s2) / 2
+    Gss = t * x * x * A
+    Gcs = t * x * s1 * s1 / 2
+    qwvv = q_w * vv
+    S11 = q_v * Gcc + q_lat * Gss + qwvv * t3 * x * x * E
+    S12 = (q_lat - q_v) * Gcs + qwvv * t3 * x * h4 / 8
+    S13 = q_w * v * t2 * x * B
+    S22 = q_v * Gss + q_lat * Gcc + qwvv * t3 * A
+    S23 = q_w * v * t2 * h2 / 2
+    S33 = q_w * t
+    vt = v * t
+    return xp.cos(x), xp.sin(x), vt * s1, vt * x * h2 / 2, S11, S12, S13, S22, S23, S33
+
+
+def predict(
+    xp: Any, x: tuple[Entry, ...], p: tuple[Entry, ...], v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise
+) -> tuple[tuple[Entry, ...], tuple[Entry, ...]]:
+    """EKF prediction of ``x = (x, y, theta)`` and ``P`` (upper triangle) over ``dt`` [s] with the command ``(v, w)``
+    (:func:`swarmloc.kernels.cartesian.predict_one`); entries with ``dt <= 0`` are returned unchanged."""
+    c, s, tx, ty, S11, S12, S13, S22, S23, S33 = increment_terms(xp, v, w, dt, noise)
+    x0, y0, th0 = x
+    ct, st = xp.cos(th0), xp.sin(th0)
+    dx, dy = ct * tx - st * ty, st * tx + ct * ty
+    th = _PI - xp.mod(_PI - (th0 + xp.arctan2(s, c)), _TWO_PI)
+    cn, sn = xp.cos(th), xp.sin(th)
+    cc, ss, cs = cn * cn, sn * sn, cn * sn
+    q00 = cc * S11 - 2 * cs * S12 + ss * S22
+    q01 = cs * (S11 - S22) + (cc - ss) * S12
+    q02 = cn * S13 - sn * S23
+    q11 = ss * S11 + 2 * cs * S12 + cc * S22
+    q12 = sn * S13 + cn * S23
+    p00, p01, p02, p11, p12, p22 = p
+    a02 = p02 - dy * p22
+    a12 = p12 + dx * p22
+    n00 = p00 - 2 * dy * p02 + dy * dy * p22 + q00
+    n01 = p01 - dy * p12 + dx * a02 + q01
+    n11 = p11 + 2 * dx * p12 + dx * dx * p22 + q11
+    n02, n12, n22 = a02 + q02, a12 + q12, p22 + S33
+    move = dt > 0
+    new_x = (x0 + dx, y0 + dy, th)
+    new_p = (n00, n01, n02, n11, n12, n22)
+    return (
+        tuple(xp.where(move, a, b) for a, b in zip(new_x, x, strict=True)),
+        tuple(xp.where(move, a, b) for a, b in zip(new_p, p, strict=True)),
+    )
+
+
+# ------------------------------------------------------------------------------------------------ update
+def kalman(
+    xp: Any, x: tuple[Entry, ...], p: tuple[Entry, ...], r: list[Entry], H: Mat, R: Mat
+) -> tuple[tuple[Entry, ...], tuple[Entry, ...], Entry, Entry]:
+    """:func:`swarmloc.kernels.cartesian.kalman_update` on one robot's 3-vector (angle component 2 wrapped).
+
+    Returns ``(x+, P+ upper triangle, nis, ok)`` with ``ok`` False where the update is not finite."""
+    P = sym3(p)
+    Ht = tr(H)
+    PHt = mm(P, Ht)
+    S = madd(mm(H, PHt), R)
+    Si = inv(S)
+    m = len(r)
+    nis: Entry = 0.0
+    for i in range(m):
+        acc: Entry = 0.0
+        for j in range(m):
+            acc = add(acc, mul(Si[i][j], r[j]))
+        nis = add(nis, mul(r[i], acc))
+    K = mm(PHt, Si)
+    Kr = mm(K, [[a] for a in r])
+    xn = [x[i] + Kr[i][0] for i in range(3)]
+    xn[2] = wrap(xp, xn[2])
+    IKH = msub(eye(3), mm(K, H))
+    Pn = madd(mm(mm(IKH, P), tr(IKH)), mm(mm(K, R), tr(K)))
+    pn = tuple(0.5 * (Pn[i][j] + Pn[j][i]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+    ok = xp.isfinite(nis)
+    for a in (*xn, *pn):
+        ok = ok & xp.isfinite(a)
+    return tuple(xn), pn, nis, ok
+
+
+def positive_definite(xp: Any, p: tuple[Entry, ...]) -> Entry:
+    """Finite and positive definite (leading minors > 0: where a Cholesky factorization exists)."""
+    p00, p01, p02, p11, p12, p22 = p
+    d2 = p00 * p11 - p01 * p01
+    d3 = p00 * (p11 * p22 - p12 * p12) - p01 * (p01 * p22 - p12 * p02) + p02 * (p01 * p12 - p11 * p02)
+    ok = (p00 > 0) & (d2 > 0) & (d3 > 0)
+    for a in p:
+        ok = ok & xp.isfinite(a)
+    return ok
+
+
+def pose_update(
+    xp: Any,
+    x: tuple[Entry, ...],
+    p: tuple[Entry, ...],
+    xk: tuple[Entry, ...],
+    pk: tuple[Entry, ...],
+    z: tuple[Entry, ...],
+    rz: tuple[Entry, ...],
+) -> tuple[tuple[Entry, ...], tuple[Entry, ...], Entry, Entry]:
+    """Relative-pose update of observer ``(x, P)`` with the neighbour's ``(xk, Pk)`` and the measurement ``z =
+    (x, y, theta)`` of the neighbour in the observer's frame, noise ``rz`` (exponential coordinates, upper triangle).
+
+    ``R_eff = B(z) R B(z)^T + Hk Pk Hk^T`` (noise in Cartesian coordinates plus the neighbour's covariance), as the
+    node's :func:`swarmloc.estimators.dekf.linearize`. Returns ``(x+, P+, nis, ok)`` (see :func:`kalman`)."""
+    x0, x1, x2 = x
+    dx, dy = xk[0] - x0, xk[1] - x1
+    c, s = xp.cos(x2), xp.sin(x2)
+    bx, by = c * dx + s * dy, -s * dx + c * dy
+    h2 = wrap(xp, xk[2] - x2)
+    Hi = [[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]]
+    Hk = [[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]
+    cz, sz = xp.cos(z[2]), xp.sin(z[2])
+    Bz = [[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]]
+    R = mm(mm(Bz, sym3(rz)), tr(Bz))
+    R_eff = madd(R, mm(mm(Hk, sym3(pk)), tr(Hk)))
+    r = [z[0] - bx, z[1] - by, wrap(xp, z[2] - h2)]
+    return kalman(xp, x, p, r, Hi, R_eff)
+
+
+def absolute_update(
+    xp: Any, x: tuple[Entry, ...], p: tuple[Entry, ...], z: tuple[Entry, ...], rz: tuple[Entry, ...]
+) -> tuple[tuple[Entry, ...], tuple[Entry, ...], Entry, Entry]:
+    """GPS-like fix ``z = (x, y, theta)`` with additive Cartesian noise ``rz`` (upper triangle): ``H = I``."""
+    r = [z[0] - x[0], z[1] - x[1], wrap(xp, z[2] - x[2])]
+    return kalman(xp, x, p, r, eye(3), sym3(rz))

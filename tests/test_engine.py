@@ -1,0 +1,211 @@
+"""The batched engine equals the per-robot nodes (means and covariances to 1e-10 at every record time, same outcome
+counts), its structure-of-arrays kernels equal the kernels, its backends agree, and the swarm helpers run."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from swarmloc.engine import Detections, Engine, core, fusion_step, run_engine, soa, swarm_run
+from swarmloc.engine.core import levels
+from swarmloc.engine.swarm import neighbour_pairs
+from swarmloc.estimators import make_team
+from swarmloc.experiments.evaluate import node_options
+from swarmloc.experiments.sources import Source, sim_source
+from swarmloc.kernels import cartesian as C
+from swarmloc.lie import SE2, wrap_angle
+from swarmloc.motion import UnicycleNoise
+from swarmloc.runner import RunResult, run
+from swarmloc.sensors import models
+from swarmloc.sim import AbsoluteSensor, RelativeSensor, random_team
+
+TOL = 1e-10
+COUNTS = ("detections", "fused", "gated", "rejected", "unknown", "odometry", "odometry_used", "recorded")
+
+
+def _source(n: int, duration: float, seed: int, kinds: tuple[str, ...] = ("pose",), fixes: bool = False) -> Source:
+    absolute = AbsoluteSensor(robots=(0, n - 1), rate=2.0) if fixes else None
+    sim = random_team(n, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0, kinds=kinds), absolute=absolute)
+    return sim_source(sim, "sim:test")
+
+
+def _nodes(src: Source, estimator: str) -> RunResult:
+    nodes = make_team(estimator, src.initial, **node_options(estimator, src.config, src.landmarks))
+    return run(nodes, src.events, record_times=src.record_times(), truth=src.truth)
+
+
+def _assert_same(a: RunResult, b: RunResult) -> None:
+    assert sorted(a.tracks) == sorted(b.tracks)
+    for r, ta in a.tracks.items():
+        tb = b.tracks[r]
+        np.testing.assert_array_equal(ta.times, tb.times)
+        assert ta.times.size > 0
+        np.testing.assert_allclose(ta.mean[:, :2], tb.mean[:, :2], rtol=0, atol=TOL)
+        assert np.abs(wrap_angle(ta.mean[:, 2] - tb.mean[:, 2])).max() <= TOL
+        np.testing.assert_allclose(ta.cov, tb.cov, rtol=0, atol=TOL)
+        np.testing.assert_array_equal(ta.truth, tb.truth)
+    assert {k: a.stats[k] for k in COUNTS} == {k: b.stats[k] for k in COUNTS}
+
+
+CASES = [  # (estimator, robots, duration [s], seed)
+    ("dekf", 4, 20.0, 0),
+    ("dekf", 5, 15.0, 1),
+    ("dekf", 6, 10.0, 2),
+    ("expfusion", 4, 20.0, 3),
+    ("expfusion", 5, 15.0, 4),
+    ("expfusion", 6, 10.0, 5),
+    ("ci", 4, 10.0, 6),
+    ("ci", 5, 10.0, 7),
+]
+
+
+@pytest.mark.parametrize(("estimator", "n", "duration", "seed"), CASES)
+def test_engine_equals_nodes_relative_pose(estimator: str, n: int, duration: float, seed: int) -> None:
+    src = _source(n, duration, seed)
+    ref = _nodes(src, estimator)
+    eng = run_engine(src, estimator)
+    _assert_same(ref, eng)
+    assert ref.stats["fused"] > 50
+
+
+@pytest.mark.parametrize("estimator", ["dekf", "expfusion", "ci"])
+def test_engine_equals_nodes_range_bearing_and_fixes(estimator: str) -> None:
+    kinds = ("range_bearing",) if estimator == "ci" else ("pose", "range_bearing")
+    src = _source(4, 10.0, 11, kinds=kinds, fixes=True)
+    ref = _nodes(src, estimator)
+    _assert_same(ref, run_engine(src, estimator))
+    assert ref.stats["fused"] > 50
+
+
+def test_engine_kernel_path_equals_nodes() -> None:
+    """``fast=False``: the EKF through the stacked-matrix kernels of swarmloc.kernels.cartesian."""
+    src = _source(5, 10.0, 12, kinds=("pose", "range_bearing"), fixes=True)
+    _assert_same(_nodes(src, "dekf"), run_engine(src, "dekf", fast=False))
+
+
+def test_engine_structure_of_arrays_path_equals_nodes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The numpy structure-of-arrays EKF path (taken by large batches only) on a small team."""
+    monkeypatch.setattr(core, "SOA_MIN_ROWS", 0)
+    src = _source(5, 10.0, 15, fixes=True)
+    _assert_same(_nodes(src, "dekf"), run_engine(src, "dekf"))
+
+
+def test_engine_is_gauss_seidel_in_observer_order() -> None:
+    """Mutual detections at one stamp, fused in one call, equal robot 0's group first and then robot 1's (which
+    sees robot 0's updated belief), not both from the beliefs before the stamp."""
+    mean = SE2.from_xytheta(np.array([[0.0, 0.0, 0.1], [1.0, 0.2, -0.3], [0.0, 1.0, 2.0]]))
+    cov = np.stack([np.diag([1e-2, 2e-2, 1e-2]), np.diag([3e-2, 1e-2, 2e-2]), np.diag([1e-3, 1e-3, 1e-3])])
+    R = np.diag([1e-3, 1e-3, 1e-4])
+    rel = lambda i, j: SE2.to_xytheta(SE2.inverse(mean[i]) @ mean[j]) + 0.01  # noqa: E731
+    det = Detections.poses(np.array([2, 1, 0]), np.array([1, 0, 1]), np.stack([rel(2, 1), rel(1, 0), rel(0, 1)]), R)
+    for estimator in ("expfusion", "dekf", "ci"):
+        one = Engine(estimator, mean, cov, noise=UnicycleNoise(), gate=None)
+        one.fuse(0.0, det)
+        assert one.last_levels == 3  # 0, then 1 (detects 0), then 2 (detects 1)
+        seq = Engine(estimator, mean, cov, noise=UnicycleNoise(), gate=None)
+        for k in (2, 1):  # robot 0's group, then robot 1's, then robot 2's
+            seq.fuse(0.0, det.take(np.array([k])))
+        seq.fuse(0.0, det.take(np.array([0])))
+        np.testing.assert_allclose(one.a, seq.a, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(one.b, seq.b, rtol=0, atol=1e-14)
+        jacobi = Engine(estimator, mean, cov, noise=UnicycleNoise(), gate=None)
+        jacobi.fuse(0.0, det.take(np.array([1])))  # robot 1's group against robot 0's belief before the stamp
+        assert np.abs(jacobi.b[1] - one.b[1]).max() > 1e-6
+
+
+def test_levels_longest_path() -> None:
+    # 0 -> 1 -> 2 -> 4, 0 -> 3; 5 alone
+    src, dst = np.array([0, 1, 2, 0]), np.array([1, 2, 4, 3])
+    np.testing.assert_array_equal(levels(6, src, dst), [0, 1, 2, 1, 3, 0])
+    np.testing.assert_array_equal(levels(3, np.zeros(0, int), np.zeros(0, int)), [0, 0, 0])
+
+
+def _up(P: np.ndarray) -> tuple[np.ndarray, ...]:
+    return tuple(P[:, i, j] for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+
+
+def test_soa_kernels_equal_kernels() -> None:
+    rng = np.random.default_rng(0)
+    noise = UnicycleNoise(q_v0=1e-3, q_v1=2e-3, q_v2=1e-3, q_lat0=1e-4, q_lat1=1e-4, q_w0=1e-3, q_w1=1e-3,
+                          q_w2=1e-3, q_wv=1e-3)  # fmt: skip
+    B = 300
+    x = np.column_stack([rng.normal(size=(B, 2)), rng.uniform(-np.pi, np.pi, B)])
+    A = rng.normal(size=(B, 3, 3))
+    P = 0.01 * A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)
+    v, w, dt = rng.uniform(-1, 1, B), rng.uniform(-3, 3, B), rng.uniform(0, 2, B)
+    w[:10], w[10:20], dt[:5] = 0.0, w[10:20] * 1e-7, 0.0
+    xs, ps = soa.predict(np, tuple(x.T), _up(P), v, w, dt, noise)
+    for i in range(B):
+        if dt[i] > 0:
+            xr, Pr, _, _ = C.predict_one(x[i], P[i], float(v[i]), float(w[i]), float(dt[i]), noise)
+        else:
+            xr, Pr = x[i], P[i]
+        np.testing.assert_allclose([a[i] for a in xs], xr, rtol=0, atol=1e-12)
+        np.testing.assert_allclose([a[i] for a in ps], Pr[np.triu_indices(3)], rtol=0, atol=1e-14)
+
+    xk, Pk = x + 0.5 * rng.normal(size=(B, 3)), P[::-1].copy()
+    z = 0.5 * rng.normal(size=(B, 3))
+    Rz = np.broadcast_to(np.diag([0.01, 0.02, 0.003]), (B, 3, 3))
+    xn, pn, nis, ok = soa.pose_update(np, tuple(x.T), _up(P), tuple(xk.T), _up(Pk), tuple(z.T), _up(Rz))
+    h, Hi, Hk = models.predict("pose", x, xk)
+    Reff = models.pose_noise_to_cartesian(z, Rz) + Hk @ Pk @ np.swapaxes(Hk, 1, 2)
+    xr, Pr, nr, okr = C.kalman_update(x, P, models.residual("pose", z, h), Hi, Reff)
+    np.testing.assert_allclose(np.stack(xn, -1), xr, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.stack(pn, -1), Pr[:, [0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(nis, nr, rtol=1e-12)
+    assert ok.all() and okr.all()
+
+    xn, pn, nis, ok = soa.absolute_update(np, tuple(x.T), _up(P), tuple(xk.T), _up(Rz))
+    xr, Pr, nr, _ = C.kalman_update(x, P, models.residual("pose", xk, x), np.broadcast_to(np.eye(3), P.shape), Rz)
+    np.testing.assert_allclose(np.stack(xn, -1), xr, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(nis, nr, rtol=1e-12)
+
+
+def test_jax_backend_equals_numpy() -> None:
+    pytest.importorskip("jax")
+    src = _source(5, 10.0, 13, fixes=True)
+    a = run_engine(src, "dekf")
+    b = run_engine(src, "dekf", backend="jax")
+    _assert_same(a, b)
+
+
+def test_numba_backend_equals_numpy() -> None:
+    pytest.importorskip("numba")
+    src = _source(5, 10.0, 14, fixes=True)
+    _assert_same(_nodes(src, "dekf"), run_engine(src, "dekf", backend="numba"))
+
+
+def test_engine_refuses_what_it_cannot_do() -> None:
+    mean = np.broadcast_to(np.eye(3), (2, 3, 3))
+    cov = np.broadcast_to(1e-3 * np.eye(3), (2, 3, 3))
+    noise = UnicycleNoise()
+    with pytest.raises(ValueError, match="rdl"):
+        Engine("rdl", mean, cov, noise=noise)
+    with pytest.raises(ValueError, match="landmarks"):
+        Engine("expfusion", mean, cov, noise=noise, landmarks={1: (0.0, 0.0, 0.1, 0.1)})
+    with pytest.raises(ValueError, match="fast EKF"):
+        Engine("expfusion", mean, cov, noise=noise, backend="jax")
+
+
+def test_neighbour_pairs_are_the_k_nearest_within_range() -> None:
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 6, (80, 2))
+    obs, tgt = neighbour_pairs(xy, 3, 1.5)
+    d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
+    np.fill_diagonal(d, np.inf)
+    for i in range(80):
+        near = np.argsort(d[i])[:3]
+        want = sorted(j for j in near if d[i, j] <= 1.5)
+        assert tgt[obs == i].tolist() == want
+    assert np.all(np.diff(obs) >= 0)
+
+
+def test_swarm_run_and_fusion_step() -> None:
+    out = swarm_run(60, 30, seed=1)
+    for key in ("wall_sim_s", "wall_est_s", "robot_updates", "peak_mem_bytes", "n", "steps"):
+        assert key in out
+    assert out["robot_updates"] == 60 * 30 and out["n"] == 60 and out["steps"] == 30
+    assert out["fused"] > 0.9 * out["detections"] > 0
+    assert out["pos_rmse_m"] < 0.2
+    fs = fusion_step(200, repeats=1)
+    assert fs["n"] == 200 and fs["robot_updates_per_s"] > 0 and fs["levels"] >= 1
