@@ -5,14 +5,17 @@ Not distributed: one filter sees every robot's odometry and every detection, and
 is the reference the distributed estimators are scored against. Each robot's block has its own clock and
 command; a detection predicts both the observer and the detected robot to the detection's stamp before the joint
 update, so the centralized filter compares like with like with the distributed ones (whose neighbours answer
-with their belief at that stamp). Updates are :func:`swarmloc.kernels.cartesian.kalman_update` on the joint
-state, one detection at a time (exact for a joint Kalman update with independent measurement noise).
+with their belief at that stamp). Updates are the Joseph-form Kalman update on the joint state, one detection at
+a time (exact for a joint Kalman update with independent measurement noise), touching only what the detection's
+two 3-column blocks of ``H`` need (:func:`swarmloc.kernels.cartesian.kalman_update_blocks`: ``O(n^2)`` per
+detection instead of ``O(n^3)``); a run of odometry is predicted in one float loop per robot
+(:meth:`CentralizedEKF._advance_commands`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -33,7 +36,7 @@ class TeamState(NamedTuple):
     A prediction of robot ``k`` is ``P <- Phi P Phi^T + Q`` on its rows and columns, with ``Phi`` the identity but for
     ``(0, 2) = -dy`` and ``(1, 2) = dx``. Such ``Phi`` compose by adding those two entries, so successive predictions
     are kept as one ``(a, b, Q)`` per robot (``pend[k]``, the upper triangle of ``Q``) and applied to ``P`` when an
-    update needs the joint covariance (:func:`_flush`): the mean is always current.
+    update needs the joint covariance (:func:`flush_pending`): the mean is always current.
     """
 
     X: np.ndarray
@@ -43,7 +46,7 @@ class TeamState(NamedTuple):
     pend: tuple[tuple[float, ...] | None, ...]
 
 
-def _shear(q: tuple[float, ...], dx: float, dy: float) -> tuple[float, ...]:
+def shear_upper(q: tuple[float, ...], dx: float, dy: float) -> tuple[float, ...]:
     """``Phi Q Phi^T`` for symmetric ``Q`` given by its upper triangle ``(q00, q01, q02, q11, q12, q22)``."""
     q00, q01, q02, q11, q12, q22 = q
     a02, a12 = q02 - dy * q22, q12 + dx * q22
@@ -53,7 +56,7 @@ def _shear(q: tuple[float, ...], dx: float, dy: float) -> tuple[float, ...]:
     )  # fmt: skip
 
 
-def _flush(s: TeamState) -> TeamState:
+def flush_pending(s: TeamState) -> TeamState:
     """The state with every robot's pending predictions applied to ``P``."""
     if not any(s.pend):
         return s
@@ -85,6 +88,10 @@ class CentralizedEKF(Node):
 
     name = "cekf"
     distributed = False
+    lazy_odometry = True
+    error_frame: ClassVar[str] = "cartesian"
+    lin_log: list | None = None
+    """Set to a list to record every applied linearization (:mod:`swarmloc.evaluation.observability`)."""
 
     def __init__(self, initial: Mapping[int, GroupGaussian], *, noise: UnicycleNoise, **kw: Any) -> None:
         cls = type(self).__name__
@@ -122,12 +129,14 @@ class CentralizedEKF(Node):
         if old is None:
             pend_k = (-dy, dx, *q)
         else:  # Phi_new (Phi_old P Phi_old^T + Q_old) Phi_new^T + Q_new
-            shared = _shear(old[2:], dx, dy)
+            shared = shear_upper(old[2:], dx, dy)
             pend_k = (old[0] - dy, old[1] + dx, *(u + w_ for u, w_ in zip(shared, q, strict=True)))
         times = list(s.t)
         times[k] = t
         pend = list(s.pend)
         pend[k] = pend_k
+        if self.lin_log is not None:
+            self.lin_log.append(("predict", t, robot, np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])))
         return TeamState(X, s.P, tuple(times), s.cmd, tuple(pend))
 
     def _set_command(self, s: TeamState, robot: int, v: float, w: float) -> TeamState:
@@ -135,12 +144,40 @@ class CentralizedEKF(Node):
         cmd[self._idx[robot] // 3] = (v, w)
         return TeamState(s.X, s.P, s.t, tuple(cmd), s.pend)
 
+    def _advance_commands(self, s: Any, cmds: Any) -> Any:
+        """A run of odometry, each robot in one float loop (:func:`swarmloc.kernels.cartesian.predict_run`: the same
+        bits as one :meth:`_advance` per command, its pending ``(a, b, Q)`` composed as there); subclasses that
+        predict otherwise take the default."""
+        cls = type(self)
+        own = cls._advance is CentralizedEKF._advance and cls._set_command is CentralizedEKF._set_command
+        if self.measure_time or not own or self.lin_log is not None:  # the log records each prediction
+            return super()._advance_commands(s, cmds)
+        per: dict[int, list[tuple[float, float, float]]] = {}
+        for t, robot, v, w in cmds:
+            per.setdefault(self._idx[robot] // 3, []).append((t, v, w))
+        X = None
+        times, cmd, pend = list(s.t), list(s.cmd), list(s.pend)
+        for k, run in per.items():
+            i = 3 * k
+            old = pend[k]
+            q, shear = ((0.0,) * 6, (0.0, 0.0)) if old is None else (old[2:], old[:2])
+            x, q, t, cmd[k], shear = C.predict_run(
+                tuple(s.X[i : i + 3].tolist()), q, times[k], cmd[k], shear, run, self.noise
+            )
+            if t != times[k]:
+                if X is None:
+                    X = s.X.copy()
+                X[i], X[i + 1], X[i + 2] = x
+                times[k] = t
+                pend[k] = (*shear, *q)
+        return TeamState(s.X if X is None else X, s.P, tuple(times), tuple(cmd), tuple(pend))
+
     def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
         i = self._idx[robot]
         P = s.P[i : i + 3, i : i + 3]
         pd = s.pend[i // 3]
         if pd is not None:  # the robot's marginal with its pending predictions
-            q = _shear((P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]), pd[1], -pd[0])
+            q = shear_upper((P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]), pd[1], -pd[0])
             q00, q01, q02, q11, q12, q22 = (u + w for u, w in zip(q, pd[2:], strict=True))
             P = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
         return GroupGaussian(SE2, *C.to_group(s.X[i : i + 3], P), validate=False)
@@ -151,7 +188,7 @@ class CentralizedEKF(Node):
         s = self._state_before((t, 3))
         for r in self.robots:
             s = self._adv(s, r, t)
-        s = _flush(s)
+        s = flush_pending(s)
         return s.X.copy(), s.P.copy()
 
     # ------------------------------------------------------------------------------------------------ update
@@ -162,9 +199,9 @@ class CentralizedEKF(Node):
 
     def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
         outcomes: list[Outcome] = []
-        n = s.X.size
         i = self._idx[g.observer]
         si = slice(i, i + 3)
+        own = np.arange(i, i + 3)
         for d in g.detections:
             target = self._classify(g, d)
             if target[0] in ("rejected", "unknown"):
@@ -172,9 +209,9 @@ class CentralizedEKF(Node):
                 continue
             R = measurement_noise(d)
             xi = s.X[si]
+            # H is zero but in the observer's (and the detected robot's) 3 columns: H holds those, cols says which
             if target[0] == "absolute":
-                H = np.zeros((3, n))
-                H[:, si] = np.eye(3)
+                H, cols = np.eye(3), own
                 r = models.residual("pose", d.z, xi)
             else:
                 if target[0] == "robot":
@@ -187,15 +224,14 @@ class CentralizedEKF(Node):
                     outcomes.append(("rejected", DEGENERATE))
                     continue
                 h, Hi, Hk = models.predict(d.kind, xi, xk)
-                H = np.zeros((len(h), n))
-                H[:, si] = Hi
                 if Ck is None:
-                    H[:, k : k + 3] = Hk
+                    H, cols = np.hstack([Hi, Hk]), np.r_[own, k : k + 3]
                 else:
+                    H, cols = Hi, own
                     R = R + Hk @ Ck @ Hk.T
                 r = models.residual(d.kind, d.z, h)
-            sf = _flush(s)  # pending predictions applied only for an update (so a rejected one changes no bit)
-            X, P, nis, ok = C.kalman_update(sf.X, sf.P, r, H, R, self._angles)
+            sf = flush_pending(s)  # pending predictions applied only for an update (so a rejected one changes no bit)
+            X, P, nis, ok = C.kalman_update_blocks(sf.X, sf.P, r, H, cols, R, self._angles)
             verdict = self._gated(float(nis), len(r))
             if verdict is not None:
                 outcomes.append(verdict)
@@ -204,5 +240,10 @@ class CentralizedEKF(Node):
                 outcomes.append(("rejected", NUMERICAL))
                 continue
             s = TeamState(X, P, sf.t, sf.cmd, sf.pend)
+            if self.lin_log is not None:
+                blocks = {g.observer: H[:, :3]}  # H holds the observer's columns, then the detected robot's
+                if target[0] == "robot":
+                    blocks[target[1]] = H[:, 3:6]
+                self.lin_log.append(("update", g.t, blocks, R))
             outcomes.append(FUSED)
         return s, outcomes, []

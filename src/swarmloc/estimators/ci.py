@@ -4,8 +4,10 @@ Each node keeps what the thesis estimator keeps (one Gaussian on SE(2)) and fuse
 *covariance intersection*: for any unknown correlation between the robot's belief ``Sigma_i`` and the neighbour's
 ``Sigma_k``, ``blockdiag(Sigma_i / w, Sigma_k / (1 - w))`` bounds their joint covariance (Julier & Uhlmann 1997),
 while the measurement noise, independent of both, is fused as usual ("CI with independent measurement noise",
-Carrillo-Arce et al., IROS 2013). ``w`` minimizes the determinant of the posterior
-(:func:`swarmloc.kernels.ci.ci_search`). Consistent by construction, but conservative: it never gains as much as a
+Carrillo-Arce et al., IROS 2013). ``w`` minimizes the determinant of the posterior linearized at the prior, in
+closed form (:func:`swarmloc.kernels.ci.point_weight`, :func:`~swarmloc.kernels.ci.pose_weight`; any ``w`` gives a
+valid CI, so this only trades a little tightness, where the update is strongly nonlinear, for one fusion instead
+of a search over many). Consistent by construction, but conservative: it never gains as much as a
 filter that knows the correlations. Landmarks and absolute fixes are independent information and are fused
 normally, one at a time.
 """
@@ -19,7 +21,7 @@ import numpy as np
 from swarmloc.estimators.expfusion import DEGENERATE, NUMERICAL, ExpFusion, ExpState
 from swarmloc.estimators.node import FUSED, Group, Outcome, usable_covariance
 from swarmloc.kernels import group as K
-from swarmloc.kernels.ci import ci_search
+from swarmloc.kernels.ci import point_weight, pose_weight
 from swarmloc.lie import SE2
 from swarmloc.messages import Message
 
@@ -60,6 +62,8 @@ class ExpCI(ExpFusion):
         return m2, c2
 
     def _ci(self, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
+        """Covariance intersection with a neighbour's answer: the weight in closed form from the linearized fusion
+        (:func:`swarmloc.kernels.ci.point_weight`, :func:`~swarmloc.kernels.ci.pose_weight`), then one fusion."""
         nb_mean, nb_cov = target[1].belief_arrays()
         R = np.asarray(d.cov, dtype=float)
         order, its = self.order, self.iterations
@@ -70,27 +74,19 @@ class ExpCI(ExpFusion):
                 verdict = self._gated(float(K.pseudo_nis(SE2, mean, cov, nu, W)), 3)
                 if verdict is not None:
                     return verdict
-
-            def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-                wc = w[..., None, None]
-                nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - wc), m, R, order)
-                mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-                return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], order, its)
-
+            w = float(pose_weight(mean, cov, m, R, nb_mean, nb_cov, order))
+            nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - w), m, R, order)
+            m2, c2 = K.fuse_pseudo(SE2, mean, cov / w, nu[None], W[None], order, its)
         else:
             verdict = self._point_gate(mean, cov, d, nb_mean, nb_cov, True)
             if verdict is not None:
                 return verdict
-
-            def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-                wc = w[..., None, None]
-                mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-                m2, c2, ok = K.point_update(
-                    mu, cov / wc, d.kind, d.z, R, nb_mean, nb_cov / (1 - wc), True, self.point_iterations, order
-                )
-                return m2, np.where(ok[..., None, None], c2, np.nan)
-
-        m2, c2, _ = ci_search(fuse)
+            w = float(point_weight(mean, cov, d.kind, d.z, R, nb_mean, nb_cov))
+            m2, c2, ok = K.point_update(
+                mean, cov / w, d.kind, d.z, R, nb_mean, nb_cov / (1 - w), True, self.point_iterations, order
+            )
+            if not bool(ok):
+                return ("rejected", DEGENERATE)
         if not (np.isfinite(m2).all() and usable_covariance(c2)):
             return ("rejected", DEGENERATE if d.kind != "pose" else NUMERICAL)
         return m2, c2

@@ -60,10 +60,21 @@ def linearize(d: Any, x: np.ndarray, target: tuple[str, Any]) -> tuple[np.ndarra
     return models.residual(d.kind, d.z, h), Hi, R + Hk @ Pk @ Hk.T, Hk
 
 
+def _rdl_class(cls: type) -> type | None:
+    """The state class of :class:`~swarmloc.estimators.rdl.RecursiveDecentralized` when ``cls`` predicts as it does
+    (None otherwise)."""
+    from swarmloc.estimators.rdl import RdlFilter, RecursiveDecentralized
+
+    if cls._advance is RecursiveDecentralized._advance and cls._set_command is RecursiveDecentralized._set_command:
+        return RdlFilter
+    return None
+
+
 class DistributedEKF(RobotNode):
     """Distributed EKF: one Cartesian EKF per robot, neighbours' covariances as noise, one detection at a time."""
 
     name = "dekf"
+    lazy_odometry = True
 
     def _initial_state(self, t0: float) -> CartState:
         x, P = C.from_group(self.initial.mean, self.initial.cov)
@@ -78,6 +89,30 @@ class DistributedEKF(RobotNode):
 
     def _set_command(self, s: CartState, robot: int, v: float, w: float) -> CartState:
         return CartState(s.t, v, w, s.x, s.P)
+
+    def _advance_commands(self, s: Any, cmds: Any) -> Any:
+        """A run of odometry in one float loop (:func:`swarmloc.kernels.cartesian.predict_run`: the same bits as one
+        :meth:`_advance` per command), for this class and :class:`~swarmloc.estimators.rdl.RecursiveDecentralized`
+        (whose deferred shear of the factors is accumulated the same way); other subclasses take the default."""
+        cls = type(self)
+        rdl = _rdl_class(cls)
+        own = cls._advance is DistributedEKF._advance and cls._set_command is DistributedEKF._set_command
+        if self.measure_time or not (own or rdl is not None):
+            return super()._advance_commands(s, cmds)
+        p00, p01, p02, _, p11, p12, _, _, p22 = s.P.ravel().tolist()
+        shear = (s.sa, s.sb) if rdl is not None else (0.0, 0.0)
+        x, p, t, (v, w), (sa, sb) = C.predict_run(
+            tuple(s.x.tolist()), (p00, p01, p02, p11, p12, p22), s.t, (s.v, s.w), shear,
+            [(tk, vk, wk) for tk, _, vk, wk in cmds], self.noise,
+        )  # fmt: skip
+        if t == s.t:  # no prediction: only the command changed
+            X, P = s.x, s.P
+        else:
+            p00, p01, p02, p11, p12, p22 = p
+            X, P = np.array(x), np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
+        if rdl is not None:
+            return rdl(t, v, w, X, P, s.ids, s.sigma, sa, sb)
+        return CartState(t, v, w, X, P)
 
     def _belief(self, s: CartState, robot: int) -> GroupGaussian:
         return GroupGaussian(SE2, *C.to_group(s.x, s.P), validate=False)

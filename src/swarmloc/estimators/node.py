@@ -49,6 +49,7 @@ from bisect import bisect_left, bisect_right
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from functools import cache
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import msgspec
@@ -95,6 +96,25 @@ def chi2_ppf(p: float, m: int) -> float:
     return float(chi2.ppf(p, m))
 
 
+_VALID_COVS: dict[tuple[int, bytes], bool] = {}
+"""Detection covariances already found valid, by ``(dimension, bytes)`` (sensors repeat one covariance)."""
+
+
+def _clearly_valid(cov: np.ndarray) -> bool:
+    """True when ``cov`` is ``1 x 1`` or ``2 x 2``, finite, exactly symmetric and positive definite with a margin
+    (``det > 1e-9 trace^2``, so eigenvalues well above rounding): :func:`check_covariance` would accept it. False
+    means "not sure": the full check decides."""
+    if cov.shape == (1, 1):
+        a = float(cov[0, 0])
+        return math.isfinite(a) and a > 0
+    if cov.shape != (2, 2):
+        return False
+    a, b, c, d = cov.ravel().tolist()
+    if not (b == c and math.isfinite(a) and math.isfinite(b) and math.isfinite(d) and a > 0 and d > 0):
+        return False
+    return a * d - b * b > 1e-9 * (a + d) ** 2
+
+
 def validate_detection(d: Detection) -> str | None:
     """Why a detection is unusable, or None when its kind, value and covariance are well formed."""
     try:
@@ -111,10 +131,16 @@ def validate_detection(d: Detection) -> str | None:
         return "z contains NaN or inf"
     if not (isinstance(d.t, int | float | np.floating) and math.isfinite(d.t)):
         return f"time stamp {d.t!r} is not a finite number"
-    try:
-        check_covariance(cov, want, "detection", "cov")
-    except ValueError as exc:
-        return str(exc)
+    seen = (want, cov.tobytes()) if cov.shape == (want, want) else None
+    if seen is None or not (_clearly_valid(cov) or seen in _VALID_COVS):
+        try:
+            check_covariance(cov, want, "detection", "cov")
+        except ValueError as exc:
+            return str(exc)
+        if seen is not None:
+            if len(_VALID_COVS) >= 4096:
+                _VALID_COVS.clear()
+            _VALID_COVS[seen] = True
     if d.kind in ("range_bearing", "range") and z[0] <= 0:
         return f"range must be positive, got {z[0]}"
     if d.target is not None and (not isinstance(d.target, int | np.integer) or isinstance(d.target, bool)):
@@ -159,8 +185,12 @@ class Group:
         return True
 
 
+_NOTHING_SENT: Mapping = MappingProxyType({})  # only group entries send messages
+
+
 class Entry:
-    """One history entry: its key, what it is, and the filter state after it."""
+    """One history entry: its key, what it is, and the filter state after it (None: not computed yet, an odometry
+    entry of a node with :attr:`Node.lazy_odometry`; :meth:`Node._state_at` computes it when it is needed)."""
 
     __slots__ = ("key", "kind", "data", "state", "outcomes", "sent", "marks")
 
@@ -169,9 +199,9 @@ class Entry:
         self.kind = kind  # "odometry", "group" or "update"
         self.data = data
         self.state: Any = None
-        self.outcomes: list[tuple[str, str]] = []
-        self.sent: dict[tuple[int, tuple], Message] = {}
-        self.marks: list[tuple] = []
+        self.outcomes: list[tuple[str, str]] | tuple = ()  # replaced, never appended to
+        self.sent: dict[tuple[int, tuple], Message] = {} if kind == "group" else _NOTHING_SENT
+        self.marks: list[tuple] | tuple = ()  # replaced, never appended to
 
 
 Outcome = tuple[str, str]
@@ -194,9 +224,16 @@ class Node:
 
     name: ClassVar[str] = "node"
     distributed: ClassVar[bool] = True
+    over_network: ClassVar[bool] = True
+    """False for an estimator whose messages the network driver (:mod:`swarmloc.net.process`) cannot carry."""
     measure_time: bool = False
     """Set True (on a node or a class) to accumulate ``timing``: seconds and counts of predictions and of
     detection-group updates (Table 6.1). Off by default: the clock calls cost about 5% of a replay."""
+    lazy_odometry: ClassVar[bool] = False
+    """True: an odometry entry appended in order keeps no state; the states of a run of such entries are computed
+    when one is needed (a detection group, a belief, an answer), by one call of :meth:`_advance_commands` (which a
+    filter can implement for a whole run at once, e.g. preintegrating the odometry). The result is the same as
+    computing every entry's state at once. A subclass that reads ``_entries[i].state`` directly leaves it False."""
 
     def __init__(
         self,
@@ -330,8 +367,7 @@ class Node:
                 f"the horizon is {self.horizon} s"
             )
         pos = bisect_right(self._keys, (t, 3))
-        s = self._entries[pos - 1].state if pos else self._base
-        return self._belief(self._adv(s, robot, t), robot)
+        return self._belief(self._adv(self._state_at(pos - 1), robot, t), robot)
 
     def belief(self, robot: int | None = None) -> GroupGaussian:
         """Belief of ``robot`` at the node's clock (its latest entry)."""
@@ -368,6 +404,14 @@ class Node:
 
     def _set_command(self, s: Any, robot: int, v: float, w: float) -> Any:
         raise NotImplementedError
+
+    def _advance_commands(self, s: Any, cmds: Sequence[tuple[float, int, float, float]]) -> Any:
+        """State after a run of odometry entries ``cmds = [(t [s], robot, v [m/s], w [rad/s]), ...]`` (in key order):
+        each robot predicted to ``t``, then its command set. A filter may override it with a faster equivalent (the
+        same result to rounding); the default applies :meth:`_advance` and :meth:`_set_command` one by one."""
+        for t, robot, v, w in cmds:
+            s = self._set_command(self._adv(s, robot, t), robot, v, w)
+        return s
 
     def _fuse_group(self, s: Any, g: Group) -> tuple[Any, list[Outcome], list[Message]]:
         """Apply a complete detection group to ``s`` (the observer already predicted to ``g.t``)."""
@@ -490,7 +534,40 @@ class Node:
         return s2
 
     # ------------------------------------------------------------------------------------------------ inputs
+    def _odometry_fast(self, e: Odometry) -> bool:
+        """Consume ``e`` if it takes the common path: valid, in order (after every entry), nothing to revise and no
+        pruning due; False (nothing changed) otherwise, for :meth:`step` to handle it. A driver may call it before
+        :meth:`step` (same result, less overhead)."""
+        t0, t1, v, w = e.t0, e.t1, e.v, e.w
+        if not (type(t0) is type(t1) is type(v) is type(w) is float) or self._since_prune >= 63:
+            return False
+        robot = e.robot
+        start = self._t0
+        if start is None or robot not in self.robots or not (start <= t0 <= t1) or t0 < self._watermark - self.horizon:
+            return False
+        if not (math.isfinite(t1) and math.isfinite(v) and math.isfinite(w)):  # t0 is finite: start <= t0 <= t1
+            return False
+        key: Key = (t0, P_ODOMETRY, robot, ())
+        keys = self._keys
+        if (keys and not keys[-1] < key) or (self._served_keys and self._served_keys[-1][0] > key):
+            return False
+        counts = self.counts
+        counts["odometry"] += 1
+        counts["odometry_used"] += 1
+        entry = Entry(key, "odometry", (robot, v, w))
+        if not self.lazy_odometry:
+            s = self._entries[-1].state if self._entries else self._base
+            entry.state = self._set_command(self._adv(s, robot, t0), robot, v, w)
+        keys.append(key)
+        self._entries.append(entry)
+        if t0 > self._watermark:
+            self._watermark = t0
+        self._since_prune += 1
+        return True
+
     def _on_odometry(self, e: Odometry) -> list[Message]:
+        if self._odometry_fast(e):
+            return []
         self.counts["odometry"] += 1
         if e.robot not in self.robots:
             self._reject_odometry(f"robot {e.robot!r} is not a robot of this node")
@@ -522,14 +599,15 @@ class Node:
         entry = Entry(key, "odometry", (e.robot, v, w))
         if pos < len(keys) or self._since_prune >= 63 or (self._served_keys and self._served_keys[-1][0] > key):
             return self._insert(pos, entry)
-        # in order, nothing to revise or prune: the common case, inlined
+        # in order, nothing to revise or prune (a start time or a number :meth:`_odometry_fast` did not take)
         keys.append(key)
-        s = self._entries[-1].state if self._entries else self._base
+        if not self.lazy_odometry:
+            s = self._entries[-1].state if self._entries else self._base
+            entry.state = self._set_command(self._adv(s, e.robot, key[0]), e.robot, v, w)
         self._entries.append(entry)
         if key[0] > self._watermark:
             self._watermark = key[0]
         self._since_prune += 1
-        entry.state = self._set_command(self._adv(s, e.robot, key[0]), e.robot, v, w)
         return []
 
     def _on_detections(self, dets: list[Detection]) -> list[Message]:
@@ -617,10 +695,12 @@ class Node:
         if pos == len(self._keys):  # in order: the common case, one entry applied
             self._keys.append(entry.key)
             self._entries.append(entry)
-            s = self._entries[pos - 1].state if pos else self._base
-            entry.state, out, dead = self._apply(s, entry)
-            if dead:
-                del self._keys[pos], self._entries[pos]
+            if self.lazy_odometry and entry.kind == "odometry":
+                out = []
+            else:
+                entry.state, out, dead = self._apply(self._state_at(pos - 1), entry)
+                if dead:
+                    del self._keys[pos], self._entries[pos]
             if self._served_keys and self._served_keys[-1][0] > entry.key:
                 out += self._revise(entry.key)
         else:
@@ -638,7 +718,11 @@ class Node:
         entries = self._entries
         if changed is None:
             changed = entries[pos].key
-        s = entries[pos - 1].state if pos else self._base
+        lazy = self.lazy_odometry
+        if lazy:  # the states after pos are recomputed: none of them may serve as the start of a lazy run
+            for e in entries[pos:]:
+                e.state = None
+        s = self._state_at(pos - 1)
         out: list[Message] = []
         dead: list[int] = []
         if late:
@@ -646,6 +730,10 @@ class Node:
             self.counts["replayed"] += len(entries) - pos - 1
         for i in range(pos, len(entries)):
             e = entries[i]
+            if lazy:
+                if e.kind == "odometry":
+                    continue
+                s = self._state_at(i - 1)
             s, msgs, is_dead = self._apply(s, e)
             e.state = s
             out += msgs
@@ -710,8 +798,25 @@ class Node:
         return out
 
     def _state_before(self, key: Key) -> Any:
-        pos = bisect_left(self._keys, key)
-        return self._entries[pos - 1].state if pos else self._base
+        return self._state_at(bisect_left(self._keys, key) - 1)
+
+    def _state_at(self, i: int) -> Any:
+        """The state after entry ``i`` (the base for ``i < 0``); a run of odometry entries not computed yet (lazy)
+        is computed by one :meth:`_advance_commands` call from the latest state before it."""
+        if i < 0:
+            return self._base
+        entries = self._entries
+        s = entries[i].state
+        if s is not None:
+            return s
+        j = i - 1
+        while j >= 0 and entries[j].state is None:
+            j -= 1
+        s = entries[j].state if j >= 0 else self._base
+        run = entries[j + 1 : i + 1]
+        s = self._advance_commands(s, [(e.key[0], *e.data) for e in run])
+        entries[i].state = s
+        return s
 
     def _prune(self) -> None:
         """Forget entries and served answers stamped before ``watermark - horizon`` (keeping the last as base)."""
@@ -719,7 +824,7 @@ class Node:
         cutoff = self._watermark - self.horizon
         n = bisect_left(self._keys, (cutoff,))
         if n > 0:
-            self._base = self._entries[n - 1].state
+            self._base = self._state_at(n - 1)
             self._base_key = self._keys[n - 1]
             del self._entries[:n]
             del self._keys[:n]
@@ -905,6 +1010,14 @@ def belief_answer(q: Message, b: GroupGaussian) -> BeliefAnswer:
 
 def usable_covariance(C: np.ndarray) -> bool:
     """Finite and positive definite (a Cholesky factorization exists)."""
+    if C.shape == (3, 3):  # leading minors of the lower triangle (what Cholesky reads), with a margin
+        p00, p01, p02, p10, p11, p12, p20, p21, p22 = C.ravel().tolist()
+        if all(map(math.isfinite, (p00, p01, p02, p10, p11, p12, p20, p21, p22))):
+            m2 = p00 * p11 - p10 * p10
+            m3 = p00 * (p11 * p22 - p21 * p21) - p10 * (p10 * p22 - p21 * p20) + p20 * (p10 * p21 - p11 * p20)
+            tr = p00 + p11 + p22
+            if p00 > 0 and m2 > 1e-9 * tr * tr and m3 > 1e-9 * tr * tr * tr:
+                return True
     if not np.isfinite(C).all():
         return False
     try:

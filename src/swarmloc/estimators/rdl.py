@@ -74,7 +74,7 @@ class RdlFilter(NamedTuple):
 
     def with_factor(self, robot: int, value: np.ndarray, sigma: np.ndarray) -> tuple[tuple, np.ndarray]:
         """``(ids, sigma)`` with ``robot``'s factor set to ``value`` (added when new) in ``sigma`` (factors with no
-        pending shear, e.g. from :func:`_rescale`)."""
+        pending shear, e.g. from :func:`rescale_factors`)."""
         i = bisect_left(self.ids, robot)
         if i < len(self.ids) and self.ids[i] == robot:
             sigma = sigma.copy()
@@ -83,7 +83,7 @@ class RdlFilter(NamedTuple):
         return (*self.ids[:i], robot, *self.ids[i:]), np.insert(sigma, i, value, axis=0)
 
 
-def _rescale(s: RdlFilter, P_new: np.ndarray) -> np.ndarray:
+def rescale_factors(s: RdlFilter, P_new: np.ndarray) -> np.ndarray:
     """``sigma_il <- P_new P_old^-1 sigma_il`` for every robot ``l`` (Luft et al.'s approximation); the result has no
     pending shear."""
     if not s.ids:
@@ -134,7 +134,7 @@ class RecursiveDecentralized(DistributedEKF):
     def _apply_update(self, s: RdlFilter, u: RdlUpdate) -> RdlFilter:
         """A neighbour's joint update: new ``(x, P)``, ``sigma_ji <- I``, the other factors rescaled."""
         x, P = u.arrays()
-        sigma = _rescale(s, P)
+        sigma = rescale_factors(s, P)
         ids, sigma = s.with_factor(u.sender, np.eye(3), sigma)
         return RdlFilter(s.t, s.v, s.w, x, P, ids, sigma)
 
@@ -172,7 +172,7 @@ class RecursiveDecentralized(DistributedEKF):
             return verdict
         if not (bool(ok) and usable_covariance(P)):
             return ("rejected", NUMERICAL)
-        return RdlFilter(s.t, s.v, s.w, x, P, s.ids, _rescale(s, P)), None
+        return RdlFilter(s.t, s.v, s.w, x, P, s.ids, rescale_factors(s, P)), None
 
     def _pair(self, s: RdlFilter, g: Group, d: Any, sub: tuple, a: RdlState) -> Any:
         """The joint update of observer ``i`` and target ``j`` from ``j``'s answer ``a``."""
@@ -193,7 +193,7 @@ class RecursiveDecentralized(DistributedEKF):
         if not (bool(ok) and usable_covariance(Pn)):
             return ("rejected", NUMERICAL)
         Pi = Pn[:3, :3]
-        ids, sigma = s.with_factor(j, Pn[:3, 3:], _rescale(s, Pi))
+        ids, sigma = s.with_factor(j, Pn[:3, 3:], rescale_factors(s, Pi))
         new = RdlFilter(s.t, s.v, s.w, Xn[:3], Pi, ids, sigma)
         update = RdlUpdate(
             sender=self.robot, receiver=j, stamp=g.t, sub=sub, based_on=a.seq, x=flat(Xn[3:]), P=flat(Pn[3:, 3:])

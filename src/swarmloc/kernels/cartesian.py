@@ -97,6 +97,88 @@ def predict_one(
     return np.array([x0, y0, th]), np.array([[n00, n01, n02], [n01, n11, n12], [n02, n12, n22]]), dx, dy
 
 
+INCREMENT_CACHE_SIZE = 1 << 16
+"""Increments kept per noise model by :func:`increment_cached` (the cache is emptied when it is full)."""
+
+_CACHES: dict[int, tuple[UnicycleNoise, dict]] = {}
+
+
+def increment_cache(noise: UnicycleNoise) -> dict[tuple[float, float, float], tuple[float, ...]]:
+    """The increment cache of ``noise``: ``(v, w, dt) -> (alpha, tx, ty, S11, S12, S13, S22, S23, S33)``."""
+    hit = _CACHES.get(id(noise))
+    if hit is None or hit[0] is not noise:
+        if len(_CACHES) > 64:
+            _CACHES.clear()
+        hit = _CACHES[id(noise)] = (noise, {})
+    return hit[1]
+
+
+def increment_cached(cache: dict, v: float, w: float, dt: float, noise: UnicycleNoise) -> tuple[float, ...]:
+    """``(alpha, tx, ty, S11, S12, S13, S22, S23, S33)`` of one odometry increment: its rotation angle [rad],
+    translation [m] and covariance (:func:`swarmloc.motion.odometry_increment_terms`), memoized in ``cache``
+    (:func:`increment_cache`): logged odometry repeats the same command over the same period again and again."""
+    key = (v, w, dt)
+    hit = cache.get(key)
+    if hit is None:
+        c, s, *rest = odometry_increment_terms(v, w, dt, noise)
+        if len(cache) >= INCREMENT_CACHE_SIZE:
+            cache.clear()
+        hit = cache[key] = (math.atan2(s, c), *rest)
+    return hit
+
+
+def predict_run(
+    x: tuple[float, float, float],
+    p: tuple[float, float, float, float, float, float],
+    t: float,
+    cmd: tuple[float, float],
+    shear: tuple[float, float],
+    cmds: list[tuple[float, float, float]],
+    noise: UnicycleNoise,
+) -> tuple[tuple[float, float, float], tuple[float, ...], float, tuple[float, float], tuple[float, float]]:
+    """One robot's predictions over a run of odometry commands, in floats (preintegration of the odometry).
+
+    ``x = (x, y, theta)`` at time ``t`` [s] with command ``cmd = (v, w)`` in force, ``p`` the upper triangle
+    ``(p00, p01, p02, p11, p12, p22)`` of a covariance, ``shear = (a, b)`` the entries ``(0, 2), (1, 2)`` of a
+    product of ``Phi``'s; ``cmds = [(t_k, v_k, w_k), ...]``: at each ``t_k`` the robot is predicted to ``t_k``
+    (:func:`predict_one`, nothing for ``t_k <= t``) and the command becomes ``(v_k, w_k)``. Returns the new
+    ``(x, p, t, cmd, shear)``: the same arithmetic as :func:`predict_one` step by step (``p <- Phi p Phi^T + Q``,
+    ``a <- a - dy``, ``b <- b + dx``), so the same bits, with the increments memoized (:func:`increment_cached`) and
+    no array per step.
+    """
+    x0, y0, th = x
+    p00, p01, p02, p11, p12, p22 = p
+    a, b = shear
+    v, w = cmd
+    cache = increment_cache(noise)
+    ct = st = None
+    pi, tau = math.pi, 2 * math.pi
+    for tk, vk, wk in cmds:
+        dt = tk - t
+        if dt > 0:
+            hit = cache.get((v, w, dt))
+            if hit is None:
+                hit = increment_cached(cache, v, w, dt, noise)
+            alpha, tx, ty, S11, S12, S13, S22, S23, S33 = hit
+            if ct is None:
+                ct, st = math.cos(th), math.sin(th)
+            dx, dy = ct * tx - st * ty, st * tx + ct * ty
+            th = pi - (pi - (th + alpha)) % tau  # wrapped to (-pi, pi]
+            ct, st = math.cos(th), math.sin(th)
+            cc, ss, cs = ct * ct, st * st, ct * st
+            x0, y0 = x0 + dx, y0 + dy
+            a02 = p02 - dy * p22
+            a12 = p12 + dx * p22
+            p00 = p00 - 2 * dy * p02 + dy * dy * p22 + (cc * S11 - 2 * cs * S12 + ss * S22)
+            p01 = p01 - dy * p12 + dx * a02 + (cs * (S11 - S22) + (cc - ss) * S12)
+            p11 = p11 + 2 * dx * p12 + dx * dx * p22 + (ss * S11 + 2 * cs * S12 + cc * S22)
+            p02, p12, p22 = a02 + (ct * S13 - st * S23), a12 + (st * S13 + ct * S23), p22 + S33
+            a, b = a - dy, b + dx
+            t = tk
+        v, w = vk, wk
+    return (x0, y0, th), (p00, p01, p02, p11, p12, p22), t, (v, w), (a, b)
+
+
 def predict(
     x: np.ndarray, P: np.ndarray, v: np.ndarray | float, w: np.ndarray | float, dt: np.ndarray | float,
     noise: UnicycleNoise,
@@ -125,6 +207,8 @@ def kalman_update(
     normalized innovation squared (for gating) and ``ok`` is False where the update is not finite (a singular
     innovation covariance, an infinite innovation): the caller keeps the prior there.
     """
+    if x.ndim == 1 and P.ndim == 2 and r.ndim == 1 and H.ndim == 2 and R.ndim == 2 and all(map(math.isfinite, r)):
+        return _kalman_update_one(x, P, r, H, R, angles)
     Ht = _T(H, -1, -2)
     PHt = P @ Ht
     S = H @ PHt + R
@@ -143,6 +227,72 @@ def kalman_update(
     Pn = IKH @ P @ _T(IKH, -1, -2) + K @ R @ _T(K, -1, -2)
     Pn = 0.5 * (Pn + _T(Pn, -1, -2))
     ok = np.isfinite(nis) & np.isfinite(xn).all(axis=-1) & np.isfinite(Pn).all(axis=(-1, -2))
+    return xn, Pn, nis, ok
+
+
+def _kalman_update_one(
+    x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray, angles: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`kalman_update` for one state (the same Joseph form with fewer array calls; equal to rounding)."""
+    PHt = P @ H.T
+    S = H @ PHt + R
+    if S.shape == (2, 2):  # closed form (LAPACK's call costs more than the arithmetic)
+        a, b, c, d = S.ravel().tolist()
+        det = a * d - b * c
+        S_inv = np.array([[d / det, -b / det], [-c / det, a / det]]) if det != 0 else None
+    else:
+        try:
+            S_inv = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            S_inv = None
+    if S_inv is None:
+        return x, P, np.array(np.nan), np.array(False)
+    Sr = S_inv @ r
+    nis = r @ Sr
+    K = PHt @ S_inv
+    xn = x + PHt @ Sr
+    with np.errstate(invalid="ignore"):
+        for j in angles:
+            xn[j] = math.pi - (math.pi - xn[j]) % (2 * math.pi) if math.isfinite(xn[j]) else xn[j]
+    IKH = np.eye(x.shape[0]) - K @ H
+    Pn = IKH @ P @ IKH.T + K @ R @ K.T
+    Pn = 0.5 * (Pn + Pn.T)
+    ok = np.array(math.isfinite(nis) and bool(np.isfinite(xn).all()) and bool(np.isfinite(Pn).all()))
+    return xn, Pn, nis, ok
+
+
+def kalman_update_blocks(
+    x: np.ndarray,
+    P: np.ndarray,
+    r: np.ndarray,
+    H: np.ndarray,
+    cols: np.ndarray,
+    R: np.ndarray,
+    angles: tuple[int, ...] = (2,),
+) -> tuple[np.ndarray, np.ndarray, float, bool]:
+    """:func:`kalman_update` (one, unbatched) for a Jacobian that is zero outside the columns ``cols``: ``H (m, k)``
+    holds those columns only (e.g. the observer's and the target's 3 columns of a team's ``3n``).
+
+    The Joseph form is expanded around ``U = P H^T`` (``n x m``) and ``S = H U + R``: for ``K = U S^-1``,
+    ``(I - K H) P (I - K H)^T + K R K^T = P - K U^T - (U - K S) K^T``, the same matrix for any ``K`` (so the
+    Joseph form's robustness to an inexact ``K`` is kept: ``U - K S`` is what rounding left of ``U``), in
+    ``O(n^2 m)`` instead of ``O(n^3)``; symmetrized as :func:`kalman_update` does. Returns ``(x+, P+, nis, ok)``.
+    """
+    U = P[:, cols] @ H.T
+    S = H @ U[cols] + R
+    try:
+        S_inv = np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        return x, P, math.nan, False
+    nis = float(r @ S_inv @ r)
+    K = U @ S_inv
+    xn = x + K @ r
+    a = list(angles)
+    with np.errstate(invalid="ignore"):
+        xn[a] = wrap_angle(xn[a])
+    Pn = P - K @ U.T - (U - K @ S) @ K.T
+    Pn = 0.5 * (Pn + Pn.T)
+    ok = math.isfinite(nis) and bool(np.isfinite(xn).all()) and bool(np.isfinite(Pn).all())
     return xn, Pn, nis, ok
 
 
