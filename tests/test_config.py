@@ -36,7 +36,9 @@ def test_defaults_are_the_mrclam_evaluation_defaults() -> None:
     assert DEFAULTS == Config()
     mrclam_noise = UnicycleNoise(q_v0=1e-4, q_v2=0.05, q_lat0=1e-4, q_lat1=0.01, q_w0=1e-3, q_w2=0.05, q_wv=0.02)
     assert DEFAULTS.motion.noise() == mrclam_noise
-    assert (DEFAULTS.sensors.range_std, DEFAULTS.sensors.bearing_std) == (0.3, 0.035)
+    # a-priori camera std, and the correlated-error model of swarmloc.sensors.decorrelate (no fitted constant)
+    assert (DEFAULTS.sensors.range_std, DEFAULTS.sensors.bearing_std) == (0.1, 0.035)
+    assert DEFAULTS.sensors.decorrelate == "calibrate"
     assert (DEFAULTS.initial.std_xy, DEFAULTS.initial.std_theta) == (0.01, 0.01)
     assert DEFAULTS.filter.gate == 0.997
     assert DEFAULTS.record.rate == 4.0
@@ -107,6 +109,8 @@ def test_gate_values(tmp_path: Path, literal: str, gate: float | None) -> None:
         ("[sensors]\nrange_std = '0.3'\n", ["[sensors] range_std", "a string"]),
         ("[sensors]\nbearing_std = -0.1\n", ["[sensors] bearing_std", "a finite number > 0", "-0.1"]),
         ("[sensors]\npose_xy_std = 0\n", ["[sensors] pose_xy_std", "> 0"]),
+        ("[sensors]\ndecorrelate = 'yes'\n", ["[sensors] decorrelate", '"calibrate", "weights", "off"', "'yes'"]),
+        ("[sensors]\ndecorrelate = true\n", ["[sensors] decorrelate", "boolean"]),
         ("[sensors]\nrange_std = nan\n", ["[sensors] range_std", "finite"]),
         ("[initial]\nstd_theta = inf\n", ["[initial] std_theta", "finite"]),
         ("[motion]\nq_w2 = -1e-3\n", ["[motion] q_w2", ">= 0"]),
@@ -169,7 +173,7 @@ def test_motion_noise_and_event_defaults() -> None:
     assert m.noise() == noise
     d = DEFAULTS.event_defaults()
     assert set(d) == {"pose", "range_bearing", "range", "bearing", "absolute", "initial"}
-    np.testing.assert_array_equal(d["range_bearing"], [0.3, 0.035])
+    np.testing.assert_array_equal(d["range_bearing"], [0.1, 0.035])
     np.testing.assert_array_equal(d["pose"], [0.05, 0.05, 0.0175])
     np.testing.assert_array_equal(d["absolute"], [0.01, 0.01, 0.01])
     np.testing.assert_array_equal(d["initial"], [0.01, 0.01, 0.01])

@@ -377,7 +377,7 @@ def test_defaults_apply_when_no_noise_is_given(tmp_path: Path) -> None:
     defaults = {**DEFAULTS.event_defaults(), "landmark": [0.2, 0.3], "absolute": np.diag([1.0, 2.0, 3.0])}
     ef = load_events(p, defaults=defaults)
     rb, pose, ab, rng = (e for e in ef.events if isinstance(e, Detection))
-    np.testing.assert_array_equal(rb.cov, np.diag([0.3**2, 0.035**2]))
+    np.testing.assert_array_equal(rb.cov, np.diag([DEFAULTS.sensors.range_std**2, DEFAULTS.sensors.bearing_std**2]))
     np.testing.assert_array_equal(pose.cov, np.diag([0.05**2, 0.05**2, 0.0175**2]))
     np.testing.assert_array_equal(ab.cov, np.diag([1.0, 2.0, 3.0]))
     assert ab.target is None

@@ -504,7 +504,9 @@ def mrclam_events(
     ``landmarks``/``robot_measurements`` switch landmark and robot detections on or off.
 
     ``range_std`` [m] and ``bearing_std`` [rad] default to generic values (0.1 m, 0.035 rad), not fitted to any
-    dataset's ground truth; pass your own. ``duration`` [s] truncates the span to ``[t_start, t_start + duration]``.
+    dataset's ground truth; pass your own. The camera's errors are correlated in time, so these white-noise
+    covariances over-count repeated readings: :func:`swarmloc.experiments.mrclam.mrclam_stream` replaces them
+    (:mod:`swarmloc.sensors.decorrelate`). ``duration`` [s] truncates the span to ``[t_start, t_start + duration]``.
     Events carry absolute Unix times. The list is sorted by stamp (:attr:`~swarmloc.events.Odometry.stamp`): an
     odometry event by ``t0``, since the logged velocities are commands, known when they are issued; a node that
     receives them in this order never has to replay. At equal stamps detections come before odometry (a command
