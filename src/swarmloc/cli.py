@@ -389,6 +389,42 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--quiet", action="store_true", help="no progress bar")
     cp.set_defaults(func=_compare)
 
+    def _consistency(args: argparse.Namespace) -> int:
+        from swarmloc.experiments.consistency import run_command
+
+        return run_command(args)
+
+    cs = sub.add_parser(
+        "consistency",
+        help="Monte Carlo ANEES per estimator vs the 95%% chi-square band, a simulated team without and with "
+        "landmarks: table, JSON and NEES-over-time figure",
+    )
+    cs.add_argument("--estimators", default=None, help="comma-separated names (default: all registered but mcl, dr)")
+    cs.add_argument("--seeds", type=int, default=50, help="independent simulated teams (default 50)")
+    cs.add_argument("--robots", type=int, default=5, help="team size (default 5)")
+    cs.add_argument("--duration", type=float, default=60.0, help="seconds per run (default 60)")
+    cs.add_argument("--landmarks", default="off,on", help="off, on or off,on (default off,on)")
+    cs.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    cs.add_argument("--out", default=None, help="output folder for consistency.md / .json / .png")
+    cs.add_argument("--json", action="store_true", help="print the summary as JSON instead of the table")
+    cs.add_argument("--quiet", action="store_true", help="no progress bar")
+    cs.set_defaults(func=_consistency)
+
+    def _bench(args: argparse.Namespace) -> int:
+        from swarmloc.evaluation.bench import run_command
+
+        return run_command(args)
+
+    from swarmloc.evaluation.bench import add_arguments as _bench_arguments
+
+    bp = sub.add_parser(
+        "bench",
+        help="speed on this machine: fusion step (engine vs filterpy), memory and FLOP fractions, swarms of 100 to "
+        "10,000 robots, MRCLAM replay x real time",
+    )
+    _bench_arguments(bp)
+    bp.set_defaults(func=_bench)
+
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")

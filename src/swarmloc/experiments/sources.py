@@ -5,7 +5,11 @@ A source spec is one of
 * ``sim:random``: :func:`swarmloc.sim.random_team` (``robots``, ``duration``, ``seed``; area 3 m, relative-pose
   sensor at 5 Hz), process noise of the simulation, initial beliefs at the true start with ``config.initial``;
 * ``sim:range_bearing``: the same team, measuring range and bearing instead of relative pose;
-* ``mrclam:PATH``: a UTIAS MRCLAM dataset folder (``duration`` truncates it; landmarks on unless told otherwise);
+* ``sim:landmarks``: the ``sim:random`` team (the same events) plus 6 known landmarks and range-bearing detections
+  of them (:func:`swarmloc.sim.landmarks.add_landmarks`: 2 Hz, up to 4 m, 0.05 m / 2 deg; ``Source.landmarks``);
+* ``mrclam:PATH``: a UTIAS MRCLAM dataset folder (``duration`` truncates it; landmarks on unless told otherwise;
+  detection covariances from the camera model that ``config.sensors.decorrelate`` names,
+  :func:`swarmloc.experiments.mrclam.mrclam_stream`);
 * ``events:PATH``: your own event file (:mod:`swarmloc.datasets.eventfile`), truth from ``truth_robot<N>.tum``
   beside it when present.
 
@@ -33,7 +37,7 @@ from swarmloc.sim.simulator import SimResult
 
 __all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim_source"]
 
-SIM_SCENARIOS = ("random", "range_bearing")
+SIM_SCENARIOS = ("random", "range_bearing", "landmarks")
 
 
 @dataclass
@@ -91,9 +95,14 @@ def sim_source(sim: SimResult, spec: str, config: Config | None = None) -> Sourc
 def _sim(scenario: str, robots: int, duration: float, seed: int, config: Config | None) -> Source:
     from swarmloc.sim import RelativeSensor, random_team
 
-    kinds = ("pose",) if scenario == "random" else ("range_bearing",)
+    kinds = ("range_bearing",) if scenario == "range_bearing" else ("pose",)
     sim = random_team(robots, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0, kinds=kinds))
-    return sim_source(sim, f"sim:{scenario}", config)
+    if scenario != "landmarks":
+        return sim_source(sim, f"sim:{scenario}", config)
+    from swarmloc.sim.landmarks import add_landmarks
+
+    sim, landmarks = add_landmarks(sim, seed=seed)
+    return dataclasses.replace(sim_source(sim, "sim:landmarks", config), landmarks=landmarks)
 
 
 def load_source(
@@ -117,15 +126,12 @@ def load_source(
             raise ValueError(f"robots must be a positive integer, got {robots!r}")
         return _sim(scenario, robots, 30.0 if duration is None else float(duration), seed, config)
     if kind == "mrclam":
-        from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
-        from swarmloc.experiments.mrclam import initial_beliefs
+        from swarmloc.datasets.mrclam import load_mrclam
+        from swarmloc.experiments.mrclam import initial_beliefs, mrclam_stream
 
         config = DEFAULTS if config is None else config
         data = load_mrclam(Path(arg))
-        s = config.sensors
-        events = mrclam_events(
-            data, duration=duration, landmarks=landmarks, range_std=s.range_std, bearing_std=s.bearing_std
-        )
+        events, _ = mrclam_stream(data, config, duration, landmarks)  # camera model: config.sensors.decorrelate
         t_end = data.t_end if duration is None else min(data.t_end, data.t_start + duration)
         truth = data.truth_at if data.has_truth else None
         return Source(spec, events, initial_beliefs(data, config), data.landmarks, data.t_start, t_end, truth, config)

@@ -1,0 +1,333 @@
+"""``swarmloc consistency``: Monte Carlo NEES of every estimator on a simulated team, without and with landmarks.
+
+For each of ``seeds`` seeds, :func:`swarmloc.sim.random_team` gives a team of ``robots`` robots (area 3 m,
+``duration`` s, relative-pose sensor at 5 Hz: the ``sim:random`` source of :mod:`swarmloc.experiments.sources`);
+with landmarks on, the same team and events plus 6 known landmarks and range-bearing detections of them
+(``sim:landmarks``, :mod:`swarmloc.sim.landmarks`). Every estimator runs on exactly those events. The initial beliefs
+are *sampled*: covariance ``config.initial``, mean ``g exp(-y)`` with ``y ~ N(0, P0)`` drawn from its own stream of
+the seed (a belief centred on the truth would make the early NEES ~0, not chi-square). Beliefs are recorded on the
+common grid ``t_k`` every ``1 / config.record.rate`` s (4 Hz by default).
+
+With ``NEES[s, i, k]`` of robot ``i`` in seed ``s`` at ``t_k`` (3 dof on SE(2), :mod:`swarmloc.evaluation.metrics`),
+per estimator and landmark setting:
+
+* position and heading RMSE [m, rad] over all seeds, robots and times (and per time, ``pos_rmse_t``);
+* ``anees``: time-averaged ANEES per dof, the mean of ``NEES / 3`` over seeds, robots and times;
+* ``anees_t``: the team ANEES over time, ``a(t_k) = mean over s, i of NEES[s, i, k] / 3``;
+* ``in_band``: the share of record times at which ``a(t_k)`` lies inside its two-sided 95% band (below), and
+  ``in_band_independent`` the same for the band of independent robots.
+
+**The band.** Robots of one team are correlated: without landmarks all of them share the unobservable drift of
+the team's frame (relative measurements cannot correct it), so their errors, and NEES, are nearly fully correlated;
+with landmarks less so, but neighbours still share information. Only the seeds are independent. So the band takes
+``S = seeds`` independent units per time, each the team's mean NEES ``m_s(t) = mean_i NEES[s, i, k]``: if the
+robots' errors were identical, ``m_s ~ chi2(3)``, and no correlation can give the mean of ``n`` chi2(3) values a
+larger variance than that. Hence the *conservative* (team-as-one-robot) band
+
+    ``[chi2.ppf(0.025, 3 S) / (3 S), chi2.ppf(0.975, 3 S) / (3 S)]``,
+
+as if each team contributed one robot's worth of independent information; the *independent-robots* band
+``chi2.ppf(., 3 S n) / (3 S n)`` (every robot its own unit) is reported for reference: narrower, and right only for
+uncorrelated robots. The conservative band is also the yardstick for the time-averaged ``anees`` (an average of
+correlated chi2(3) values has at most the variance of one). No joint team NEES is computed: the runner records
+per-robot marginals only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarmloc.evaluation.metrics import DOF, errors
+
+__all__ = [
+    "EXCLUDED_BY_DEFAULT",
+    "INITIAL_STREAM",
+    "bands",
+    "consistency",
+    "consistency_table",
+    "default_estimators",
+    "run_command",
+    "sampled_initial",
+]
+
+EXCLUDED_BY_DEFAULT = ("mcl", "dr")
+"""Registered estimators left out of the default list (particles: slow; dead reckoning: no fusion)."""
+
+INITIAL_STREAM = 0x494E4954
+"""Second entropy word of the initial-belief stream ``SeedSequence([seed, INITIAL_STREAM])``."""
+
+SETTINGS = {False: "off", True: "on"}
+
+
+def default_estimators() -> list[str]:
+    """Every registered estimator (:data:`swarmloc.estimators.ESTIMATORS`) except :data:`EXCLUDED_BY_DEFAULT`."""
+    from swarmloc.estimators import ESTIMATORS
+
+    return [e for e in ESTIMATORS if e not in EXCLUDED_BY_DEFAULT]
+
+
+def bands(seeds: int, robots: int, p: float = 0.95) -> dict[str, tuple[float, float]]:
+    """Two-sided ``p`` bands of the team ANEES per dof at one time (see the module docstring): ``"team"`` (``seeds``
+    independent units of 3 dof) and ``"independent"`` (``seeds * robots`` units)."""
+    from scipy.stats import chi2
+
+    a = (1 - p) / 2
+    out = {}
+    for name, units in (("team", seeds), ("independent", seeds * robots)):
+        dof = units * DOF
+        out[name] = (float(chi2.ppf(a, dof) / dof), float(chi2.ppf(1 - a, dof) / dof))
+    return out
+
+
+def sampled_initial(src: Any, seed: int) -> dict[int, Any]:
+    """``src.initial`` with each mean moved to ``g exp(-y)``, ``y ~ N(0, cov)`` (so that the truth ``g`` is
+    ``mean exp(y)``: right perturbation), robots in id order, from ``SeedSequence([seed, INITIAL_STREAM])``."""
+    from swarmloc.gaussian import GroupGaussian
+    from swarmloc.lie import SE2
+
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), INITIAL_STREAM]))
+    out = {}
+    for r in sorted(src.initial):
+        b = src.initial[r]
+        y = np.linalg.cholesky(b.cov) @ rng.standard_normal(b.cov.shape[-1])
+        out[r] = GroupGaussian(SE2, b.mean @ SE2.exp(-y), b.cov)
+    return out
+
+
+def _job(
+    estimator: str, seed: int, robots: int, duration: float, landmarks: bool, sample_initial: bool
+) -> dict[str, Any]:
+    """One estimator on one seed: per-robot error arrays ``(n, K)`` on the record grid (runs in a worker)."""
+    from swarmloc.estimators import make_team
+    from swarmloc.experiments.evaluate import node_options
+    from swarmloc.experiments.sources import load_source
+    from swarmloc.runner import run
+
+    spec = "sim:landmarks" if landmarks else "sim:random"
+    src = load_source(spec, robots=robots, duration=duration, seed=seed)
+    initial = sampled_initial(src, seed) if sample_initial else src.initial
+    nodes = make_team(estimator, initial, **node_options(estimator, src.config, src.landmarks))
+    times = src.record_times()
+    t = time.perf_counter()
+    res = run(nodes, src.events, times, truth=src.truth, name=estimator)
+    wall = time.perf_counter() - t
+    errs = [errors(res.tracks[r]) for r in src.robots]
+    return {
+        "key": (landmarks, estimator, seed),
+        "times": times,
+        "pos": np.stack([e["pos"] for e in errs]),
+        "heading": np.stack([e["heading"] for e in errs]),
+        "nees": np.stack([e["nees"] for e in errs]),
+        "stats": res.stats,
+        "wall_s": wall,
+    }
+
+
+def _run_jobs(tasks: list[tuple], jobs: int, progress: bool) -> dict[tuple, dict[str, Any]]:
+    """Results of ``_job(*task)`` by key, in worker processes when ``jobs > 1``, with an optional progress bar."""
+    from swarmloc.experiments.evaluate import progress_bar
+
+    out: dict[tuple, dict[str, Any]] = {}
+    with progress_bar(progress) as start:
+        cb = start("consistency") if start is not None else None
+        if jobs <= 1 or len(tasks) == 1:
+            for t in tasks:
+                r = _job(*t)
+                out[r["key"]] = r
+                if cb is not None:
+                    cb(len(out), len(tasks))
+        else:
+            with ProcessPoolExecutor(max_workers=jobs) as ex:
+                for f in as_completed([ex.submit(_job, *t) for t in tasks]):
+                    r = f.result()
+                    out[r["key"]] = r
+                    if cb is not None:
+                        cb(len(out), len(tasks))
+    return out
+
+
+def _summarize(rs: list[dict[str, Any]], band: dict[str, tuple[float, float]]) -> dict[str, Any]:
+    """Statistics of one estimator and landmark setting from its per-seed results (in seed order)."""
+    nees = np.stack([r["nees"] for r in rs])  # (S, n, K)
+    pos = np.stack([r["pos"] for r in rs])
+    head = np.stack([r["heading"] for r in rs])
+    a_t = nees.mean(axis=(0, 1)) / DOF
+    lo, hi = band["team"]
+    ilo, ihi = band["independent"]
+    st: dict[str, int] = {}
+    for r in rs:
+        for k, v in r["stats"].items():
+            st[k] = st.get(k, 0) + int(v)
+    return {
+        "pos_rmse": float(np.sqrt(np.mean(pos**2))),
+        "heading_rmse": float(np.sqrt(np.mean(head**2))),
+        "anees": float(nees.mean() / DOF),
+        "in_band": float(np.mean((a_t >= lo) & (a_t <= hi))),
+        "in_band_independent": float(np.mean((a_t >= ilo) & (a_t <= ihi))),
+        "anees_per_seed": (nees.mean(axis=(1, 2)) / DOF).tolist(),
+        "anees_t": a_t.tolist(),
+        "pos_rmse_t": np.sqrt(np.mean(pos**2, axis=(0, 1))).tolist(),
+        "detections": {k: st.get(k, 0) for k in ("detections", "fused", "gated", "rejected", "unknown")},
+        "run_wall_s": float(sum(r["wall_s"] for r in rs)),
+    }
+
+
+def consistency(
+    estimators: Sequence[str] | None = None,
+    seeds: int = 50,
+    robots: int = 5,
+    duration: float = 60.0,
+    landmarks: Sequence[bool] = (False, True),
+    jobs: int = 2,
+    out: str | os.PathLike[str] | None = None,
+    *,
+    sample_initial: bool = True,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Run ``estimators`` (default :func:`default_estimators`) on ``seeds`` simulated teams of ``robots`` over
+    ``duration`` s, for each landmark setting in ``landmarks``, in ``jobs`` worker processes; returns the summary
+    (see the module docstring; ``summary["settings"]["off" | "on"][estimator]``). With ``out`` also writes
+    ``consistency.json``, ``consistency.md`` and ``consistency.png`` (team ANEES over time with both bands) there.
+    Raises ValueError for unknown estimators or bad sizes."""
+    from swarmloc.estimators import ESTIMATORS
+
+    estimators = default_estimators() if estimators is None else list(estimators)
+    unknown = [e for e in estimators if e not in ESTIMATORS]
+    if unknown:
+        raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
+    if not estimators:
+        raise ValueError("no estimators given")
+    if not (isinstance(seeds, int) and seeds >= 1 and isinstance(robots, int) and robots >= 1):
+        raise ValueError(f"seeds and robots must be positive integers, got {seeds!r}, {robots!r}")
+    if not duration > 0:
+        raise ValueError(f"duration must be positive, got {duration!r}")
+    settings = list(dict.fromkeys(bool(x) for x in landmarks))
+    if not settings:
+        raise ValueError("landmarks: give at least one of off (False) and on (True)")
+    t0 = time.perf_counter()
+    tasks = [(e, s, robots, float(duration), lm, sample_initial) for lm in settings for e in estimators
+             for s in range(seeds)]  # fmt: skip
+    results = _run_jobs(tasks, jobs, progress)
+    band = bands(seeds, robots)
+    summary: dict[str, Any] = {
+        "seeds": seeds,
+        "robots": robots,
+        "duration_s": float(duration),
+        "sample_initial": sample_initial,
+        "jobs": jobs,
+        "wall_s": time.perf_counter() - t0,
+        "band": {
+            "p": 0.95,
+            "team": band["team"],
+            "independent": band["independent"],
+            "note": (
+                f"per time, {seeds} independent units (seeds), each the team's mean NEES: conservative band "
+                f"chi2(3*{seeds})/(3*{seeds}) as if a team gave one robot's worth of information (its robots are "
+                f"correlated: without landmarks they share the unobservable drift); the independent-robots band "
+                f"chi2(3*{seeds}*{robots})/(3*{seeds}*{robots}) is for reference"
+            ),
+        },
+        "times": results[tasks[0][4], tasks[0][0], 0]["times"].tolist(),
+        "settings": {},
+    }
+    for lm in settings:
+        summary["settings"][SETTINGS[lm]] = {
+            e: _summarize([results[lm, e, s] for s in range(seeds)], band) for e in estimators
+        }
+    if out is not None:
+        d = Path(out)
+        d.mkdir(parents=True, exist_ok=True)
+        summary["figure"] = "consistency.png"
+        figure(summary, d / "consistency.png")
+        (d / "consistency.json").write_text(json.dumps(summary, indent=2))
+        (d / "consistency.md").write_text(consistency_table(summary))
+    return summary
+
+
+def consistency_table(summary: dict[str, Any]) -> str:
+    """The summary as Markdown: one row per landmark setting and estimator, and the band's definition."""
+    s = summary
+    lo, hi = s["band"]["team"]
+    ilo, ihi = s["band"]["independent"]
+    lines = [
+        f"# Consistency: {s['seeds']} seeds, {s['robots']} robots, {s['duration_s']:.0f} s each "
+        f"(wall {s['wall_s']:.0f} s)",
+        "",
+        f"95% band of the team ANEES per dof at one time: {lo:.3f}-{hi:.3f} (conservative: {s['seeds']} seeds as "
+        f"the independent units, a team counts as one robot); {ilo:.3f}-{ihi:.3f} if the robots were independent.",
+        "",
+        "| landmarks | estimator | pos RMSE [m] | heading RMSE [rad] | ANEES/dof (time avg) | time in band "
+        "| time in independent band | fused / gated / rejected |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for setting, ests in s["settings"].items():
+        for name, e in ests.items():
+            d = e["detections"]
+            lines.append(
+                f"| {setting} | {name} | {e['pos_rmse']:.3f} | {e['heading_rmse']:.4f} | {e['anees']:.2f} | "
+                f"{e['in_band']:.2f} | {e['in_band_independent']:.2f} | {d['fused']} / {d['gated']} / {d['rejected']} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def figure(summary: dict[str, Any], path: str | os.PathLike[str]) -> None:
+    """Team ANEES per dof over time per estimator, one panel per landmark setting, both 95% bands (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    settings = summary["settings"]
+    t = np.asarray(summary["times"])
+    lo, hi = summary["band"]["team"]
+    ilo, ihi = summary["band"]["independent"]
+    fig, axes = plt.subplots(1, len(settings), figsize=(6.5 * len(settings), 4.5), squeeze=False, sharey=True)
+    for ax, (setting, ests) in zip(axes[0], settings.items(), strict=True):
+        ax.axhspan(lo, hi, color="0.85", label=f"95% band, team as one unit ({lo:.2f}-{hi:.2f})")
+        ax.axhline(ilo, color="0.4", ls="--", lw=0.8, label=f"95% band, independent robots ({ilo:.2f}-{ihi:.2f})")
+        ax.axhline(ihi, color="0.4", ls="--", lw=0.8)
+        for name, e in ests.items():
+            ax.semilogy(t, e["anees_t"], lw=1.0, label=f"{name} (avg {e['anees']:.2f})")
+        ax.set_title(f"landmarks {setting}: {summary['seeds']} seeds x {summary['robots']} robots")
+        ax.set_xlabel("time [s]")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel("team ANEES per dof a(t)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    """``swarmloc consistency`` (arguments of :func:`swarmloc.cli.build_parser`): print the table (or JSON)."""
+    names = default_estimators() if args.estimators is None else [e.strip() for e in args.estimators.split(",")
+                                                                   if e.strip()]  # fmt: skip
+    marks = {"off": False, "on": True}
+    try:
+        settings = [marks[w.strip()] for w in args.landmarks.split(",") if w.strip()]
+    except KeyError as exc:
+        print(f"swarmloc consistency: --landmarks takes off, on or off,on; got {exc.args[0]!r}", file=sys.stderr)
+        return 2
+    try:
+        summary = consistency(names, seeds=args.seeds, robots=args.robots, duration=args.duration,
+                              landmarks=settings, jobs=args.jobs, out=args.out, progress=not args.quiet)  # fmt: skip
+    except (ValueError, OSError) as exc:
+        print(f"swarmloc consistency: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(consistency_table(summary))
+    if args.out:
+        print(f"written to {args.out}/consistency.md, consistency.json and consistency.png", file=sys.stderr)
+    return 0
