@@ -422,7 +422,10 @@ def test_cli_team_report_bag_and_ros_output(tmp_path):
     assert seq >= 1 and len(gid) == 16
 
 
-@pytest.mark.parametrize(("est", "why"), [("cekf", "not a distributed estimator"), ("nope", "unknown estimator")])
+@pytest.mark.parametrize(
+    ("est", "why"),
+    [("cekf", "not a distributed estimator"), ("nope", "unknown estimator"), ("diekf", "broadcast to every teammate")],
+)
 def test_team_refuses_a_non_distributed_estimator_before_starting_anything(est, why, capsys):
     from swarmloc.cli import main
 

@@ -121,6 +121,23 @@ class RdlUpdate(Message, frozen=True, kw_only=True, tag="rdl_update"):
         return np.array(self.x), np.reshape(self.P, (3, 3))
 
 
+class TeamUpdate(Message, frozen=True, kw_only=True, tag="team_update"):
+    """One joint update of the exact distributed invariant EKF (:mod:`swarmloc.estimators.diekf`), broadcast by
+    the observer (``sender``) to every teammate: the detected robot ``target``, the measurement's world-frame
+    Jacobians ``Hi``, ``Hj`` (``m x 3`` each), ``Sinv`` (``m x m``, the inverse innovation covariance), ``nu =
+    S^-1 r`` (``m``) and the pair's covariances before the update ``Pii``, ``Pjj`` (9 each). Empty ``Hi``: the
+    update sent earlier under this key is retracted."""
+
+    target: int = -1
+    m: int = 0
+    Hi: Floats = ()
+    Hj: Floats = ()
+    Sinv: Floats = ()
+    nu: Floats = ()
+    Pii: Floats = ()
+    Pjj: Floats = ()
+
+
 def _finite(xs: tuple, n: int) -> bool:
     return len(xs) == n and all(isinstance(x, float | int) and math.isfinite(x) for x in xs)
 
@@ -181,9 +198,20 @@ def message_problem(m: Message) -> str | None:
             return f"{name}: x and P must be 3 and 9 finite numbers"
         if not _spd3(m.P):
             return f"{name}: P is not symmetric positive definite"
+    elif isinstance(m, TeamUpdate):
+        if not m.Hi:
+            return None  # a retraction
+        k = m.m
+        if not (isinstance(k, int) and 1 <= k <= 3):
+            return f"{name}: m must be 1, 2 or 3, got {k!r}"
+        sizes = (3 * k, 3 * k, k * k, k, 9, 9)
+        if not all(_finite(v, n) for v, n in zip((m.Hi, m.Hj, m.Sinv, m.nu, m.Pii, m.Pjj), sizes, strict=True)):
+            return f"{name}: Hi, Hj, Sinv, nu, Pii, Pjj must be {sizes} finite numbers"
+        if not (_spd3(m.Pii) and _spd3(m.Pjj)):
+            return f"{name}: Pii and Pjj must be symmetric positive definite"
     return None
 
 
 Query = BeliefQuery | RdlStateQuery
 Answer = BeliefAnswer | RdlState
-AnyMessage = BeliefQuery | BeliefAnswer | RdlStateQuery | RdlState | RdlUpdate
+AnyMessage = BeliefQuery | BeliefAnswer | RdlStateQuery | RdlState | RdlUpdate | TeamUpdate

@@ -9,7 +9,11 @@ nodes of a team from each robot's initial belief.
 | ``dekf`` | :class:`DistributedEKF` | distributed EKF (thesis baseline) |
 | ``ci`` | :class:`ExpCI` | covariance intersection in exponential coordinates (distributed, consistent) |
 | ``rdl`` | :class:`RecursiveDecentralized` | recursive decentralized localization (distributed, pairwise) |
+| ``irdl`` | :class:`InvariantRDL` | ``rdl`` in world-frame errors (pairwise; third parties still approximated) |
+| ``diekf`` | :class:`DistributedInvariantEKF` | ``iekf`` computed by the robots (exact, a broadcast per update) |
 | ``cekf`` | :class:`CentralizedEKF` | centralized EKF (reference) |
+| ``iekf`` | :class:`InvariantEKF` | centralized invariant EKF, world-frame errors (observability-preserving) |
+| ``fej`` | :class:`FirstEstimatesEKF` | centralized EKF with first-estimates Jacobians (observability-preserving) |
 | ``mcl`` | :class:`MonteCarloLocalization` | multi-robot Monte Carlo localization (distributed, particles) |
 """
 
@@ -22,8 +26,11 @@ from typing import Any
 from swarmloc.estimators.cekf import CentralizedEKF
 from swarmloc.estimators.ci import ExpCI
 from swarmloc.estimators.dekf import DistributedEKF
+from swarmloc.estimators.diekf import DistributedInvariantEKF
 from swarmloc.estimators.dr import DeadReckoning
 from swarmloc.estimators.expfusion import ExpFusion
+from swarmloc.estimators.iekf import FirstEstimatesEKF, InvariantEKF
+from swarmloc.estimators.irdl import InvariantRDL
 from swarmloc.estimators.mcl import MonteCarloLocalization
 from swarmloc.estimators.node import DEFAULT_HORIZON, Node, RobotNode
 from swarmloc.estimators.rdl import RecursiveDecentralized
@@ -34,8 +41,12 @@ ESTIMATORS: dict[str, type[Node]] = {
     "expfusion": ExpFusion,
     "dekf": DistributedEKF,
     "cekf": CentralizedEKF,
+    "iekf": InvariantEKF,
+    "fej": FirstEstimatesEKF,
     "ci": ExpCI,
     "rdl": RecursiveDecentralized,
+    "irdl": InvariantRDL,
+    "diekf": DistributedInvariantEKF,
     "mcl": MonteCarloLocalization,
 }
 """Node classes by their command-line name."""
@@ -69,6 +80,8 @@ def make_team(estimator: str | type[Node], initial: Mapping[int, GroupGaussian],
         raise TypeError(
             f"{cls.__name__} does not take option(s) {sorted(extra)}; it takes {sorted(accepted_options(cls))}"
         )
+    if "team" in accepted_options(cls) and "team" not in options:
+        options = {**options, "team": tuple(sorted(initial))}
     if issubclass(cls, RobotNode):
         return [cls(r, b, **options) for r, b in sorted(initial.items())]
     return [cls(initial, **options)]
@@ -87,8 +100,12 @@ __all__ = [
     "CentralizedEKF",
     "DeadReckoning",
     "DistributedEKF",
+    "DistributedInvariantEKF",
     "ExpCI",
     "ExpFusion",
+    "FirstEstimatesEKF",
+    "InvariantEKF",
+    "InvariantRDL",
     "MonteCarloLocalization",
     "Node",
     "RecursiveDecentralized",

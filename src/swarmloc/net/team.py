@@ -42,11 +42,16 @@ def distributed_class(estimator: str) -> type:
     cls = ESTIMATORS.get(estimator)
     if cls is None:
         raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(ESTIMATORS)}")
+    networked = [k for k, c in ESTIMATORS.items() if issubclass(c, RobotNode) and c.distributed and c.over_network]
     if not issubclass(cls, RobotNode) or not cls.distributed:
         raise ValueError(
             f"{estimator!r} is not a distributed estimator (one node per robot): run it in-process with "
-            "'swarmloc evaluate'; over the network choose from "
-            f"{[k for k, c in ESTIMATORS.items() if issubclass(c, RobotNode) and c.distributed]}"
+            f"'swarmloc evaluate'; over the network choose from {networked}"
+        )
+    if not cls.over_network:
+        raise ValueError(
+            f"{estimator!r} needs a broadcast to every teammate per update, which the network driver does not carry "
+            f"yet: run it in-process with 'swarmloc evaluate'; over the network choose from {networked}"
         )
     return cls
 

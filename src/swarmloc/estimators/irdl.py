@@ -1,0 +1,115 @@
+"""Recursive decentralized localization with world-frame errors (``"irdl"``): ``rdl`` made consistent without
+landmarks.
+
+The exchange is :mod:`swarmloc.estimators.rdl`'s (Luft, Schubert, Roumeliotis & Burgard 2018): robot ``i`` asks the
+detected robot ``j`` for ``(x_j, P_jj, sigma_ji)``, performs the joint update of the pair, keeps its part and sends
+``j`` its new ``(x_j, P_jj)``; cross-covariances are factored, ``Sigma_il = sigma_il sigma_li^T``, and those with
+third robots are rescaled, ``sigma_il <- P_ii+ P_ii-^-1 sigma_il``. What changes is the error convention, that of
+:class:`~swarmloc.estimators.iekf.InvariantEKF`: every covariance and factor is of the world-frame error
+``g = exp(hat(xi)) g^`` (:mod:`swarmloc.kernels.invariant`). Consequences:
+
+* the odometry step's error transition is the identity: a prediction adds ``Q_w = N^-1 Q_c N^-T`` to ``P_ii`` and
+  leaves every factor alone (``rdl`` multiplies them by ``Phi_i``);
+* a relative measurement's Jacobians satisfy ``H_i + H_j = 0`` at any estimate, so no update gains information
+  along the team's unobservable global motion (:mod:`swarmloc.evaluation.observability`);
+* a third robot ``l``'s correlation with ``i`` after ``i``'s update is approximated by the rescaling above. With
+  world-frame errors the unobservable part of every robot's error is the *same* vector for all robots, so that
+  shared part, which the rescaling carries over exactly, is what dominates the third-party correlations without
+  absolute information; with Cartesian errors the shared part is state dependent and ``rdl`` loses it.
+
+Nodes of one team must all run ``irdl`` (answers carry world-frame covariances). Beliefs are converted to the
+thesis' body-frame convention, ``Sigma = Ad(g^-1) P Ad(g^-1)^T``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, linearize, measurement_noise
+from swarmloc.estimators.iekf import joint_update
+from swarmloc.estimators.node import Group, usable_covariance
+from swarmloc.estimators.rdl import RdlFilter, RecursiveDecentralized, rescale_factors
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.kernels import cartesian as C
+from swarmloc.kernels import invariant as I
+from swarmloc.lie import SE2
+from swarmloc.messages import RdlState, RdlUpdate, flat
+from swarmloc.sensors import models
+
+__all__ = ["InvariantRDL"]
+
+
+class InvariantRDL(RecursiveDecentralized):
+    """Recursive decentralized localization in world-frame errors (module docstring)."""
+
+    name = "irdl"
+    error_frame: ClassVar[str] = "world"
+    lin_log: list | None = None
+
+    def _initial_state(self, t0: float) -> RdlFilter:
+        s = super()._initial_state(t0)
+        return RdlFilter(s.t, s.v, s.w, s.x, I.body_to_world(self.initial.mean, self.initial.cov), s.ids, s.sigma)
+
+    def _advance(self, s: RdlFilter, robot: int, t: float) -> RdlFilter:
+        dt = t - s.t
+        if dt <= 0:
+            return s
+        x0, y0, th, _, _, q00, q01, q02, q11, q12, q22 = C.increment_terms(s.x, s.v, s.w, dt, self.noise)
+        Qc = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+        x = np.array([x0, y0, th])
+        P = s.P + I.cartesian_to_world_cov(x, Qc)
+        return RdlFilter(t, s.v, s.w, x, P, s.ids, s.sigma)
+
+    def _belief(self, s: RdlFilter, robot: int) -> GroupGaussian:
+        g = SE2.from_xytheta(s.x)
+        return GroupGaussian(SE2, g, I.world_to_body(g, s.P), validate=False)
+
+    def _log_update(self, t: float, blocks: dict[int, np.ndarray], R: np.ndarray) -> None:
+        if self.lin_log is not None:
+            self.lin_log.append(("update", t, blocks, R))
+
+    def _private(self, s: RdlFilter, d: Any, target: tuple[str, Any]) -> Any:
+        """Absolute fix or landmark: a private update in world-frame errors, then every factor rescaled."""
+        lin = linearize(d, s.x, target)
+        if lin is None:
+            return ("rejected", DEGENERATE)
+        r, Hi, R_eff, _ = lin
+        Hw = Hi @ I.world_basis(s.x)
+        delta, P, nis, ok = joint_update(s.P, [0], [Hw], r, R_eff)
+        verdict = self._gated(nis, len(r))
+        if verdict is not None:
+            return verdict
+        if not (ok and usable_covariance(P)):
+            return ("rejected", NUMERICAL)
+        self._log_update(d.t, {self.robot: Hw}, R_eff)
+        return RdlFilter(s.t, s.v, s.w, I.left_correct(s.x, delta), P, s.ids, rescale_factors(s, P)), None
+
+    def _pair(self, s: RdlFilter, g: Group, d: Any, sub: tuple, a: RdlState) -> Any:
+        """The joint update of observer ``i`` and target ``j`` (world-frame errors) from ``j``'s answer ``a``."""
+        j = d.target
+        xj, Pjj, sig_ji = a.arrays()
+        if models.degenerate(d.kind, s.x, xj):
+            return ("rejected", DEGENERATE)
+        Pij = s.factor(j) @ sig_ji.T
+        h, Hi, Hj = models.predict(d.kind, s.x, xj)
+        blocks = [Hi @ I.world_basis(s.x), Hj @ I.world_basis(xj)]
+        P = np.block([[s.P, Pij], [Pij.T, Pjj]])
+        r = models.residual(d.kind, d.z, h)
+        R = measurement_noise(d)
+        delta, Pn, nis, ok = joint_update(P, [0, 3], blocks, r, R)
+        verdict = self._gated(nis, len(r))
+        if verdict is not None:
+            return verdict
+        if not (ok and usable_covariance(Pn)):
+            return ("rejected", NUMERICAL)
+        self._log_update(g.t, {self.robot: blocks[0], j: blocks[1]}, R)
+        xi_new, xj_new = I.left_correct(np.stack([s.x, xj]), delta.reshape(2, 3))
+        Pi = Pn[:3, :3]
+        ids, sigma = s.with_factor(j, Pn[:3, 3:], rescale_factors(s, Pi))
+        new = RdlFilter(s.t, s.v, s.w, xi_new, Pi, ids, sigma)
+        update = RdlUpdate(
+            sender=self.robot, receiver=j, stamp=g.t, sub=sub, based_on=a.seq, x=flat(xj_new), P=flat(Pn[3:, 3:])
+        )
+        return new, update

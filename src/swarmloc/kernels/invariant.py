@@ -1,0 +1,88 @@
+"""Kernels of the world-frame (invariant) error convention on SE(2), batched over leading axes.
+
+A pose ``g`` with estimate ``g^`` has the *world-frame* (left) error ``xi`` with ``g = exp(hat(xi)) g^`` (Barrau &
+Bonnabel's right-invariant error ``eta = g g^-1``). A rigid motion ``T`` of the whole team maps every ``g_i`` to
+``T g_i``, so every robot's error moves by the same ``xi`` (to first order, ``xi_i -> log(T) + xi_i``): the team's
+unobservable directions without absolute information are the constant columns ``[I; I; ...; I]``, whatever the
+estimate. With the thesis' right perturbation ``g = g^ exp(y)`` (body frame) or with Cartesian errors the same
+directions depend on the estimate, and an EKF that evaluates its Jacobians at moving estimates gains false
+information along them (Huang, Mourikis & Roumeliotis 2011).
+
+Relations used (``x = (x, y, theta)`` Cartesian, first order; all verified numerically in tests/test_invariant.py):
+
+* a Cartesian perturbation is ``dx = N(x) xi`` with ``N(x) = [[1, 0, -y], [0, 1, x], [0, 0, 1]]``, the generator of
+  a rigid motion of the world at ``x`` (:func:`world_basis`); so a Cartesian Jacobian ``H_c`` becomes ``H_c N(x)``
+  and a Cartesian covariance ``P_c = N P_w N^T``;
+* the thesis' body-frame coordinates are ``y = Ad(g^-1) xi`` (:func:`world_to_body`);
+* the odometry step ``g+ = g Delta exp(w)`` gives ``xi+ = xi + Ad(g+) w``: the error transition is the identity and
+  the process noise ``Q_w = N(x+)^-1 Q_c N(x+)^-T`` for the Cartesian process covariance ``Q_c`` of the same step
+  (:func:`cartesian_to_world_cov`);
+* the update's correction ``delta`` moves the estimate to ``exp(hat(delta)) g^`` (:func:`left_correct`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from swarmloc.lie import SE2, wrap_angle
+
+_T = np.swapaxes
+
+__all__ = [
+    "body_to_world",
+    "cartesian_to_world_cov",
+    "left_correct",
+    "world_basis",
+    "world_basis_inv",
+    "world_to_body",
+    "world_to_cartesian_cov",
+]
+
+
+def world_basis(x: np.ndarray) -> np.ndarray:
+    """``N(x) (..., 3, 3)``: Cartesian change ``dx`` of the pose ``x (..., 3)`` under the world-frame error ``xi``."""
+    x = np.asarray(x, dtype=float)
+    N = np.broadcast_to(np.eye(3), (*x.shape[:-1], 3, 3)).copy()
+    N[..., 0, 2] = -x[..., 1]
+    N[..., 1, 2] = x[..., 0]
+    return N
+
+
+def world_basis_inv(x: np.ndarray) -> np.ndarray:
+    """``N(x)^-1``."""
+    x = np.asarray(x, dtype=float)
+    N = np.broadcast_to(np.eye(3), (*x.shape[:-1], 3, 3)).copy()
+    N[..., 0, 2] = x[..., 1]
+    N[..., 1, 2] = -x[..., 0]
+    return N
+
+
+def cartesian_to_world_cov(x: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Covariance of the world-frame error from a Cartesian covariance at ``x``: ``N^-1 P N^-T``."""
+    Ni = world_basis_inv(x)
+    return Ni @ P @ _T(Ni, -1, -2)
+
+
+def world_to_cartesian_cov(x: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Cartesian covariance at ``x`` from a world-frame error covariance: ``N P N^T``."""
+    N = world_basis(x)
+    return N @ P @ _T(N, -1, -2)
+
+
+def world_to_body(g: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Covariance of the body-frame (right-perturbation) error ``y = Ad(g^-1) xi`` at the pose matrix ``g``."""
+    A = SE2.Ad(SE2.inverse(g, validate=False))
+    return A @ P @ _T(A, -1, -2)
+
+
+def body_to_world(g: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Covariance of the world-frame error ``xi = Ad(g) y`` from the body-frame covariance ``S`` at ``g``."""
+    A = SE2.Ad(g)
+    return A @ S @ _T(A, -1, -2)
+
+
+def left_correct(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Cartesian pose of ``exp(hat(delta)) g(x)``: the estimate ``x (..., 3)`` corrected by a world-frame ``delta``."""
+    g = SE2.exp(np.asarray(delta, dtype=float)) @ SE2.from_xytheta(np.asarray(x, dtype=float))
+    th = wrap_angle(np.arctan2(g[..., 1, 0], g[..., 0, 0]))
+    return np.stack([g[..., 0, 2], g[..., 1, 2], th], axis=-1)
