@@ -1,0 +1,97 @@
+"""``swarmloc bench``: the quick path's pieces on tiny sizes return the documented structure, with positive and
+finite rates, ratios and fractions (no timing assertions: the machine is shared)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import pytest
+
+from swarmloc.cli import main
+from swarmloc.evaluation import bench as B
+
+ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
+
+
+def _positive(x: object) -> bool:
+    return isinstance(x, int | float) and math.isfinite(x) and x > 0
+
+
+@pytest.fixture(scope="module")
+def machine() -> dict:
+    return B.machine_rates(copy_mb=1, matmul_n=32, repeats=1, single_thread=False)
+
+
+def test_machine_rates(machine):
+    assert _positive(machine["bandwidth_gb_s"]) and _positive(machine["gflops"])
+
+
+def test_fusion_comparison_rates_ratio_and_fractions(machine):
+    ticks = []
+    f = B.fusion_comparison(engine_n=30, filterpy_n=8, neighbours=3, repeats=1, machine=machine, tick=ticks.append)
+    assert len(ticks) == 2
+    for key in ("filterpy", "engine"):
+        assert "skipped" in f[key] or _positive(f[key]["robot_updates_per_s"])
+    if "skipped" in f["filterpy"] or "skipped" in f["engine"]:
+        pytest.skip(f"a side is missing: {f}")
+    assert f["filterpy"]["n"] == 8 and f["engine"]["n"] == 30
+    keys = ("engine_over_filterpy", "achieved_gb_s", "achieved_gflops", "fraction_of_bandwidth", "fraction_of_flops")
+    for key in keys:
+        assert _positive(f[key]), key
+
+
+def test_filterpy_loop_does_the_documented_work():
+    pytest.importorskip("filterpy")
+    r = B.filterpy_fusion(5, neighbours=3, repeats=1)
+    assert r["n"] == 5 and r["neighbours"] == 3 and _positive(r["robot_updates_per_s"])
+
+
+def test_swarm_scaling_rows_and_slopes():
+    s = B.swarm_scaling(sizes=(10, 20), steps=3, neighbour_sweep=(1, 3), sweep_n=20, isolate=False)
+    if "skipped" in s:
+        pytest.skip(s["skipped"])
+    assert [r["n"] for r in s["by_size"]] == [10, 20]
+    assert [r["neighbours"] for r in s["by_neighbours"]] == [1, 3]
+    for r in [*s["by_size"], *s["by_neighbours"]]:
+        assert r["steps"] == 3 and r["robot_updates"] == 3 * r["n"]
+        for key in ("wall_est_s", "us_per_robot_step", "peak_mem_bytes"):
+            assert _positive(r[key]), key
+    for key in ("slope_cost_per_robot_vs_size", "slope_wall_vs_size", "slope_cost_per_robot_vs_neighbours"):
+        assert math.isfinite(s[key]), key
+
+
+def test_loglog_slope():
+    assert B.loglog_slope([1, 10, 100], [2, 20, 200]) == pytest.approx(1.0)
+    assert math.isnan(B.loglog_slope([1], [1]))
+
+
+def test_mrclam_replay_x_real_time():
+    ds = B.find_mrclam(ROOT)
+    if ds is None:
+        pytest.skip(f"MRCLAM data not found at {ROOT}")
+    d = B.mrclam_replay(ds, duration=3.0, estimators=("dekf", "cekf"), landmarks=(True, False))
+    assert d["duration_s"] == pytest.approx(3.0, abs=0.05)
+    for key in ("landmarks_on", "landmarks_off"):
+        rows = d[key]["estimators"]
+        assert set(rows) == {"dekf", "cekf"}
+        assert all(_positive(r["x_real_time"]) and _positive(r["wall_s"]) for r in rows.values())
+
+
+def test_report_and_json_from_a_tiny_config(capsys, monkeypatch):
+    tiny = B.BenchConfig(
+        engine_n=20, filterpy_n=5, repeats=1, copy_mb=1, matmul_n=32, swarm_sizes=(10, 20), swarm_steps=2,
+        neighbour_sweep=(1, 3), sweep_n=20, isolate=False, replay_duration=2.0, estimators=("dekf",),
+    )  # fmt: skip
+    monkeypatch.setattr(B, "QUICK", tiny)
+    rates = B.machine_rates
+    monkeypatch.setattr(B, "machine_rates", lambda *a, **k: rates(1, 32, 1, single_thread=False))
+    assert main(["bench", "--quick", "--json", "--quiet", "--mrclam", str(ROOT)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert set(res) == {"machine", "config", "fusion_step", "swarms", "mrclam"}
+    assert res["config"]["engine_n"] == 20
+    text = B.format_report(res)
+    for heading in ("a. fusion step", "b. machine", "c. swarms", "d. MRCLAM replay"):
+        assert heading in text
