@@ -23,24 +23,8 @@ from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.evaluate import node_options
 from swarmloc.experiments.sources import Source, sim_source
 from swarmloc.lie import SE2
-from swarmloc.runner import RobotTrack, RunResult, TruthFn
+from swarmloc.runner import RobotTrack, RunResult, truth_table
 from swarmloc.sim.simulator import SimResult
-
-
-def _truth_rows(truth: TruthFn | None, robot: int, times: np.ndarray) -> np.ndarray:
-    """Truth at ``times`` ``(T, 3)``, NaN where unknown (one vectorized call, else one call per time)."""
-    if truth is None:
-        return np.full((times.size, 3), np.nan)
-    try:
-        return np.asarray(truth(robot, times), dtype=float).reshape(times.size, 3)
-    except ValueError:
-        out = np.full((times.size, 3), np.nan)
-        for k in range(times.size):
-            try:
-                out[k] = np.asarray(truth(robot, times[k : k + 1]), dtype=float)[0]
-            except ValueError:
-                pass
-        return out
 
 
 def _stamp(e: Any) -> float | None:
@@ -137,7 +121,7 @@ def run_engine(
             group[key] = (e, code)
 
     rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
-    truth_rows = {r: _truth_rows(src.truth, r, rt) for r in robots}
+    truth_rows = {r: truth_table(src.truth, r, rt) for r in robots}
     initial = [src.initial[r] for r in robots]
     eng = Engine(
         estimator,

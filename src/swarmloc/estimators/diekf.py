@@ -30,7 +30,6 @@ detection retracts what it sent before. In-process runs only: the network driver
 
 from __future__ import annotations
 
-from bisect import bisect_left
 from collections.abc import Sequence
 from typing import Any, ClassVar, NamedTuple
 
@@ -219,22 +218,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         if why:
             self._count_message_rejected(f"team update {why}")
             return []
-        pos = bisect_left(self._keys, key)
-        exists = pos < len(self._keys) and self._keys[pos] == key
-        if not u.Hi:  # the exchange is settled without an update, or an earlier update is retracted
-            if not exists:
-                self.counts["no_update"] += 1
-                return []
-            del self._keys[pos]
-            del self._entries[pos]
-            return self._recompute(pos, late=True, changed=key) if pos < len(self._entries) else self._revise(key)
-        if exists:
-            if self._entries[pos].data == u:
-                self._count_message_rejected("duplicate update")
-                return []
-            self._entries[pos].data = u
-            return self._recompute(pos, late=True)
-        return self._insert(pos, Entry(key, "team", u))
+        return self._file_update(key, u, "team", empty=not u.Hi)
 
     def _apply(self, s: Any, e: Entry) -> tuple[Any, list[Message], bool]:
         if e.kind != "team":

@@ -142,6 +142,15 @@ class _LoggedCentral(CentralizedEKF):
         return flush_pending(s)
 
 
+def _clock_and_pending(s: Any, k: int, t: float, pend_k: tuple) -> tuple[tuple, tuple, tuple]:
+    """``(t, cmd, pend)`` of a team state with robot ``k``'s clock at ``t`` and its pending prediction ``pend_k``."""
+    times = list(s.t)
+    times[k] = t
+    pend = list(s.pend)
+    pend[k] = pend_k
+    return tuple(times), s.cmd, tuple(pend)
+
+
 class InvariantEKF(_LoggedCentral):
     """Centralized invariant EKF on SE(2)^n with world-frame errors (module docstring).
 
@@ -178,11 +187,7 @@ class InvariantEKF(_LoggedCentral):
         )  # fmt: skip
         old = s.pend[k]
         pend_k = (0.0, 0.0, *qw) if old is None else (0.0, 0.0, *(u + w_ for u, w_ in zip(old[2:], qw, strict=True)))
-        times = list(s.t)
-        times[k] = t
-        pend = list(s.pend)
-        pend[k] = pend_k
-        return TeamState(X, s.P, tuple(times), s.cmd, tuple(pend))
+        return TeamState(X, s.P, *_clock_and_pending(s, k, t, pend_k))
 
     def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
         i = self._idx[robot]
@@ -244,13 +249,9 @@ class FirstEstimatesEKF(_LoggedCentral):
         else:
             shared = shear_upper(old[2:], dx, dy)
             pend_k = (old[0] - dy, old[1] + dx, *(u + w_ for u, w_ in zip(shared, q, strict=True)))
-        times = list(s.t)
-        times[k] = t
-        pend = list(s.pend)
-        pend[k] = pend_k
         if self.lin_log is not None:
             self.lin_log.append(("predict", t, robot, np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])))
-        return FejState(X, s.P, tuple(times), s.cmd, tuple(pend), L)
+        return FejState(X, s.P, *_clock_and_pending(s, k, t, pend_k), L)
 
     def _set_command(self, s: FejState, robot: int, v: float, w: float) -> FejState:
         cmd = list(s.cmd)

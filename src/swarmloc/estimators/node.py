@@ -945,9 +945,15 @@ class Node:
         if why:
             self._count_message_rejected(f"update {why}")
             return []
+        return self._file_update(key, u, "update", empty=not u.x)
+
+    def _file_update(self, key: Key, u: Message, kind: str, empty: bool) -> list[Message]:
+        """File a validated update from a neighbour as a history entry of ``kind`` at ``key``: an ``empty`` one says
+        the exchange is settled without an update, or retracts the update filed there; a changed one replaces it and
+        replays; a duplicate is rejected."""
         pos = bisect_left(self._keys, key)
         exists = pos < len(self._keys) and self._keys[pos] == key
-        if not u.x:  # no update (the neighbour did not fuse this exchange), or a retraction of an earlier one
+        if empty:  # no update (the neighbour did not fuse this exchange), or a retraction of an earlier one
             if not exists:
                 self.counts["no_update"] += 1
                 return []
@@ -960,7 +966,7 @@ class Node:
                 return []
             self._entries[pos].data = u
             return self._recompute(pos, late=True)
-        return self._insert(pos, Entry(key, "update", u))
+        return self._insert(pos, Entry(key, kind, u))
 
     def _update_still_valid(self, s: Any, key: Key, u: RdlUpdate) -> bool:
         """An update applies only while the state it was computed from is still the state before its key."""

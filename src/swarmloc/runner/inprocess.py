@@ -120,7 +120,7 @@ def run(
     if record_times is not None:
         rt = np.asarray(record_times, dtype=float)
         for r in sorted(owner):
-            tr = _truth_table(truth, r, rt)
+            tr = truth_table(truth, r, rt)
             for t, row in zip(rt.tolist(), tr, strict=True):
                 if truth is not None and not np.isfinite(row).all():
                     stats["truth_missing"] += 1
@@ -263,7 +263,7 @@ def _xytheta(g: np.ndarray) -> np.ndarray:
     return np.array([g[0, 2], g[1, 2], th + 2 * np.pi if th <= -np.pi else th])
 
 
-def _truth_table(truth: TruthFn | None, robot: int, times: np.ndarray) -> np.ndarray:
+def truth_table(truth: TruthFn | None, robot: int, times: np.ndarray) -> np.ndarray:
     """Truth at every record time, one vectorized call (falls back to one call per time: NaN where missing)."""
     if truth is None:
         return np.full((times.size, 3), np.nan)
