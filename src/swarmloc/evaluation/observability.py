@@ -22,7 +22,8 @@ matrices evaluated elsewhere, so ``H U != 0`` and it gains spurious information 
 (``lin_log``: the estimators that record one are ``cekf``, ``iekf``, ``fej``, ``irdl`` and ``diekf``) and returns
 the accumulated ``J``, its trace per update, and the total measurement information for scale. The log holds the
 linearizations *as applied*, in the order the filter applied them; run it on an in-order stream without
-recording beliefs in between (as this function does), so that no prediction of a copy is logged.
+recording beliefs in between and with lazy odometry runs off (as this function does), so that each prediction of
+the filter's own history is logged once and no prediction of a copy is.
 """
 
 from __future__ import annotations
@@ -92,6 +93,7 @@ def unobservable_information(estimator: str, source: Any, **options: Any) -> dic
     log: list[tuple] = []
     for n in nodes:
         n.lin_log = log
+        n.lazy_odometry = False  # every prediction applied once, in order (a lazy run is re-derived when needed)
     run(nodes, source.events, np.zeros(0))
     bases = {}
     for r, b in source.initial.items():
