@@ -20,6 +20,7 @@ Columns, pooled over all robots' records of all runs:
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import time
 from collections.abc import Sequence
@@ -110,7 +111,8 @@ def compare(
                 if bar is not None:
                     bar.advance(task_id)
         else:
-            with ProcessPoolExecutor(max_workers=jobs) as ex:
+            # spawned, not forked: a process that imported JAX (the engine's backend) is multithreaded
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
                 futs = [ex.submit(_job, *t) for t in tasks]
                 for f in as_completed(futs):
                     results.append(f.result())

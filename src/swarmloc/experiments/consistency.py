@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import sys
 import time
@@ -147,7 +148,8 @@ def _run_jobs(tasks: list[tuple], jobs: int, progress: bool) -> dict[tuple, dict
                 if cb is not None:
                     cb(len(out), len(tasks))
         else:
-            with ProcessPoolExecutor(max_workers=jobs) as ex:
+            # spawned, not forked: a process that imported JAX (the engine's backend) is multithreaded
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
                 for f in as_completed([ex.submit(_job, *t) for t in tasks]):
                     r = f.result()
                     out[r["key"]] = r
