@@ -16,7 +16,7 @@ from swarmloc.experiments.evaluate import node_options
 from swarmloc.experiments.sources import load_source
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
-from swarmloc.messages import TeamUpdate
+from swarmloc.messages import RdlUpdate, TeamUpdate
 from swarmloc.runner import run
 from swarmloc.sensors import models
 
@@ -127,12 +127,14 @@ def test_distributed_invariant_ekf_rejects_bad_broadcasts_and_keeps_running() ->
         TeamUpdate(sender=9, receiver=0, stamp=1.0, **good, Pii=spd, Pjj=spd),  # sender outside the team
         TeamUpdate(sender=1, receiver=5, stamp=1.0, **good, Pii=spd, Pjj=spd),  # not for this node
     ]
+    bad.append(RdlUpdate(sender=1, receiver=0, stamp=1.0, x=(0.0, 0.0, 0.0), P=spd))  # another estimator's message
     before = node.belief_at(1.0)
     for m in bad:
         assert node.step(m) == []
     assert node.counts["messages_rejected"] == len(bad)
     reasons = " ".join(node.reasons)
     assert "positive definite" in reasons and "finite" in reasons and "outside the team" in reasons
+    assert "not rdl's pairwise updates" in reasons
     after = node.belief_at(1.0)
     np.testing.assert_array_equal(after.mean, before.mean)
     np.testing.assert_array_equal(after.cov, before.cov)

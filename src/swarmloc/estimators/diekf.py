@@ -42,7 +42,16 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
-from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate, flat, message_problem
+from swarmloc.messages import (
+    BeliefQuery,
+    Message,
+    RdlState,
+    RdlStateQuery,
+    RdlUpdate,
+    TeamUpdate,
+    flat,
+    message_problem,
+)
 from swarmloc.sensors import models
 
 __all__ = ["DistributedInvariantEKF", "TeamState"]
@@ -200,6 +209,10 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         if isinstance(m, TeamUpdate):
             self.counts["messages"] += 1
             return self._on_team_update(m)
+        if isinstance(m, RdlUpdate):  # a pairwise update of rdl: this filter's state has no factors to apply it to
+            self.counts["messages"] += 1
+            self._count_message_rejected("diekf takes team updates, not rdl's pairwise updates")
+            return []
         return super()._on_message(m)
 
     def _on_team_update(self, u: TeamUpdate) -> list[Message]:
