@@ -14,7 +14,7 @@ detection instead of ``O(n^3)``); a run of odometry is predicted in one float lo
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -54,6 +54,24 @@ def shear_upper(q: tuple[float, ...], dx: float, dy: float) -> tuple[float, ...]
         q00 - 2 * dy * q02 + dy * dy * q22, q01 - dy * q12 + dx * a02, a02,
         q11 + 2 * dx * q12 + dx * dx * q22, a12, q22,
     )  # fmt: skip
+
+
+def compose_pending(old: tuple[float, ...] | None, dx: float, dy: float, q: Sequence[float]) -> tuple[float, ...]:
+    """A robot's pending ``(a, b, Q)`` after one more prediction with shear ``(dx, dy)`` and process covariance
+    ``q`` (upper triangle): ``Phi_new (Phi_old P Phi_old^T + Q_old) Phi_new^T + Q_new``."""
+    if old is None:
+        return (-dy, dx, *q)
+    shared = shear_upper(old[2:], dx, dy)
+    return (old[0] - dy, old[1] + dx, *(u + w_ for u, w_ in zip(shared, q, strict=True)))
+
+
+def clock_and_pending(s: Any, k: int, t: float, pend_k: tuple) -> tuple[tuple, tuple, tuple]:
+    """``(t, cmd, pend)`` of a team state with robot ``k``'s clock at ``t`` and its pending prediction ``pend_k``."""
+    times = list(s.t)
+    times[k] = t
+    pend = list(s.pend)
+    pend[k] = pend_k
+    return tuple(times), s.cmd, tuple(pend)
 
 
 def flush_pending(s: TeamState) -> TeamState:
@@ -125,19 +143,13 @@ class CentralizedEKF(Node):
         x0, y0, th, dx, dy, *q = C.increment_terms(s.X[i : i + 3], v, w, dt, self.noise)
         X = s.X.copy()
         X[i], X[i + 1], X[i + 2] = x0, y0, th
-        old = s.pend[k]
-        if old is None:
-            pend_k = (-dy, dx, *q)
-        else:  # Phi_new (Phi_old P Phi_old^T + Q_old) Phi_new^T + Q_new
-            shared = shear_upper(old[2:], dx, dy)
-            pend_k = (old[0] - dy, old[1] + dx, *(u + w_ for u, w_ in zip(shared, q, strict=True)))
-        times = list(s.t)
-        times[k] = t
-        pend = list(s.pend)
-        pend[k] = pend_k
+        self._log_shear(t, robot, dx, dy)
+        return TeamState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)))
+
+    def _log_shear(self, t: float, robot: int, dx: float, dy: float) -> None:
+        """Record a prediction's transition ``Phi`` (the shear by ``(dx, dy)``) when the linearization log is on."""
         if self.lin_log is not None:
             self.lin_log.append(("predict", t, robot, np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])))
-        return TeamState(X, s.P, tuple(times), s.cmd, tuple(pend))
 
     def _set_command(self, s: TeamState, robot: int, v: float, w: float) -> TeamState:
         cmd = list(s.cmd)

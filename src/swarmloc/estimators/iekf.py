@@ -30,7 +30,7 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.cekf import CentralizedEKF, TeamState, flush_pending, shear_upper
+from swarmloc.estimators.cekf import CentralizedEKF, TeamState, clock_and_pending, compose_pending, flush_pending
 from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, measurement_noise
 from swarmloc.estimators.node import FUSED, Group, Outcome, usable_covariance
 from swarmloc.gaussian import GroupGaussian
@@ -142,15 +142,6 @@ class _LoggedCentral(CentralizedEKF):
         return flush_pending(s)
 
 
-def _clock_and_pending(s: Any, k: int, t: float, pend_k: tuple) -> tuple[tuple, tuple, tuple]:
-    """``(t, cmd, pend)`` of a team state with robot ``k``'s clock at ``t`` and its pending prediction ``pend_k``."""
-    times = list(s.t)
-    times[k] = t
-    pend = list(s.pend)
-    pend[k] = pend_k
-    return tuple(times), s.cmd, tuple(pend)
-
-
 class InvariantEKF(_LoggedCentral):
     """Centralized invariant EKF on SE(2)^n with world-frame errors (module docstring).
 
@@ -187,7 +178,7 @@ class InvariantEKF(_LoggedCentral):
         )  # fmt: skip
         old = s.pend[k]
         pend_k = (0.0, 0.0, *qw) if old is None else (0.0, 0.0, *(u + w_ for u, w_ in zip(old[2:], qw, strict=True)))
-        return TeamState(X, s.P, *_clock_and_pending(s, k, t, pend_k))
+        return TeamState(X, s.P, *clock_and_pending(s, k, t, pend_k))
 
     def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
         i = self._idx[robot]
@@ -243,15 +234,8 @@ class FirstEstimatesEKF(_LoggedCentral):
         X, L = s.X.copy(), s.L.copy()
         X[i], X[i + 1], X[i + 2] = x0, y0, th
         L[i : i + 3] = X[i : i + 3]
-        old = s.pend[k]
-        if old is None:
-            pend_k = (-dy, dx, *q)
-        else:
-            shared = shear_upper(old[2:], dx, dy)
-            pend_k = (old[0] - dy, old[1] + dx, *(u + w_ for u, w_ in zip(shared, q, strict=True)))
-        if self.lin_log is not None:
-            self.lin_log.append(("predict", t, robot, np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])))
-        return FejState(X, s.P, *_clock_and_pending(s, k, t, pend_k), L)
+        self._log_shear(t, robot, dx, dy)
+        return FejState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)), L)
 
     def _set_command(self, s: FejState, robot: int, v: float, w: float) -> FejState:
         cmd = list(s.cmd)
