@@ -133,14 +133,22 @@ class CentralizedEKF(Node):
         n_r = len(self.robots)
         return TeamState(X, P, (t0,) * n_r, ((0.0, 0.0),) * n_r, (None,) * n_r)
 
-    def _advance(self, s: TeamState, robot: int, t: float) -> TeamState:
+    def _increment(self, s: Any, robot: int, t: float) -> tuple[int, int, tuple[float, ...]] | None:
+        """``(k, i, terms)`` of predicting ``robot`` (block ``k``, first row ``i``) to ``t``:
+        :func:`~swarmloc.kernels.cartesian.increment_terms` with its command; None when ``t`` is not later."""
         k = self._idx[robot] // 3
         dt = t - s.t[k]
         if dt <= 0:
-            return s
+            return None
         i = 3 * k
         v, w = s.cmd[k]
-        x0, y0, th, dx, dy, *q = C.increment_terms(s.X[i : i + 3], v, w, dt, self.noise)
+        return k, i, C.increment_terms(s.X[i : i + 3], v, w, dt, self.noise)
+
+    def _advance(self, s: TeamState, robot: int, t: float) -> TeamState:
+        step = self._increment(s, robot, t)
+        if step is None:
+            return s
+        k, i, (x0, y0, th, dx, dy, *q) = step
         X = s.X.copy()
         X[i], X[i + 1], X[i + 2] = x0, y0, th
         self._log_shear(t, robot, dx, dy)

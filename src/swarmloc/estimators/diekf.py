@@ -50,7 +50,6 @@ from swarmloc.messages import (
     RdlUpdate,
     TeamUpdate,
     flat,
-    message_problem,
 )
 from swarmloc.sensors import models
 
@@ -216,12 +215,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         return super()._on_message(m)
 
     def _on_team_update(self, u: TeamUpdate) -> list[Message]:
-        if u.receiver != self.robot:
-            self._count_message_rejected(f"update addressed to robot {u.receiver}, not a robot of this node")
-            return []
-        why = message_problem(u)
-        if why:
-            self._count_message_rejected(why)
+        if self._refused(u, "team update"):
             return []
         if u.sender not in self._pos or (u.Hi and u.target not in self._pos):
             self._count_message_rejected(f"team update from or about a robot outside the team {list(self.team)}")

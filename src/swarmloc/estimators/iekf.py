@@ -34,7 +34,6 @@ from swarmloc.estimators.cekf import CentralizedEKF, TeamState, clock_and_pendin
 from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, measurement_noise
 from swarmloc.estimators.node import FUSED, Group, Outcome, usable_covariance
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.messages import Message
@@ -161,13 +160,10 @@ class InvariantEKF(_LoggedCentral):
         return TeamState(s.X, P, s.t, s.cmd, s.pend)
 
     def _advance(self, s: TeamState, robot: int, t: float) -> TeamState:
-        k = self._idx[robot] // 3
-        dt = t - s.t[k]
-        if dt <= 0:
+        step = self._increment(s, robot, t)
+        if step is None:
             return s
-        i = 3 * k
-        v, w = s.cmd[k]
-        x0, y0, th, _, _, q00, q01, q02, q11, q12, q22 = C.increment_terms(s.X[i : i + 3], v, w, dt, self.noise)
+        k, i, (x0, y0, th, _, _, q00, q01, q02, q11, q12, q22) = step
         X = s.X.copy()
         X[i], X[i + 1], X[i + 2] = x0, y0, th
         # world-frame process noise: N^-1 Q_c N^-T with N^-1 = [[1, 0, y], [0, 1, -x], [0, 0, 1]]
@@ -223,13 +219,10 @@ class FirstEstimatesEKF(_LoggedCentral):
         return s.L[k : k + 3]
 
     def _advance(self, s: FejState, robot: int, t: float) -> FejState:
-        k = self._idx[robot] // 3
-        dt = t - s.t[k]
-        if dt <= 0:
+        step = self._increment(s, robot, t)
+        if step is None:
             return s
-        i = 3 * k
-        v, w = s.cmd[k]
-        x0, y0, th, _, _, *q = C.increment_terms(s.X[i : i + 3], v, w, dt, self.noise)
+        k, i, (x0, y0, th, _, _, *q) = step
         dx, dy = x0 - s.L[i], y0 - s.L[i + 1]  # first-estimates displacement: new prediction - previous first estimate
         X, L = s.X.copy(), s.L.copy()
         X[i], X[i + 1], X[i + 2] = x0, y0, th

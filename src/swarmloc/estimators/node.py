@@ -887,15 +887,22 @@ class Node:
             out.append(new)
         return out
 
+    def _refused(self, m: Message, what: str) -> bool:
+        """Count and refuse a message addressed to a robot this node does not own, or whose numbers are unusable
+        (:func:`~swarmloc.messages.message_problem`); True when refused."""
+        if m.receiver not in self.robots:
+            self._count_message_rejected(f"{what} addressed to robot {m.receiver}, not a robot of this node")
+            return True
+        why = message_problem(m)
+        if why:
+            self._count_message_rejected(why)
+            return True
+        return False
+
     def _on_answer(self, a: Message) -> list[Message]:
         key: Key = (float(a.stamp), P_GROUP, a.receiver, ())
         slot = (a.sender, tuple(a.sub))
-        if a.receiver not in self.robots:
-            self._count_message_rejected(f"answer addressed to robot {a.receiver}, not a robot of this node")
-            return []
-        why = message_problem(a)
-        if why:
-            self._count_message_rejected(why)
+        if self._refused(a, "answer"):
             return []
         if getattr(a, "found", False):
             self._neighbours.add(a.sender)
@@ -925,12 +932,7 @@ class Node:
         return []
 
     def _on_update(self, u: RdlUpdate) -> list[Message]:
-        if u.receiver not in self.robots:
-            self._count_message_rejected(f"update addressed to robot {u.receiver}, not a robot of this node")
-            return []
-        why = message_problem(u)
-        if why:
-            self._count_message_rejected(why)
+        if self._refused(u, "update"):
             return []
         key: Key = (float(u.stamp), P_GROUP, u.sender, tuple(u.sub))
         self._neighbours.add(u.sender)
