@@ -274,8 +274,7 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
 
 # ---------------------------------------------------------------------------------------------------- MRCLAM
 def bench_mrclam(path: Path, duration: float | None, estimators: list[str], timeout: float) -> dict[str, Any]:
-    from swarmloc.estimators import make_team
-    from swarmloc.experiments.evaluate import node_options
+    from swarmloc.estimators import make_team, node_options
     from swarmloc.experiments.sources import load_source
     from swarmloc.net.team import run_team
     from swarmloc.runner import run

@@ -7,14 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarmloc.estimators import make_team
+from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Detection, Odometry
-from swarmloc.experiments.evaluate import node_options
-from swarmloc.experiments.sources import sim_source
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.runner import run
 from swarmloc.sim.scenarios import cooperative_positioning
+from swarmloc.sim.source import sim_source
 
 
 def test_move_and_stop_protocol():

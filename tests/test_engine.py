@@ -6,18 +6,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from swarmloc.datasets.source import Source
 from swarmloc.engine import Detections, Engine, core, fusion_step, run_engine, soa, swarm_run
 from swarmloc.engine.core import levels
 from swarmloc.engine.swarm import neighbour_pairs
-from swarmloc.estimators import make_team
-from swarmloc.experiments.evaluate import node_options
-from swarmloc.experiments.sources import Source, sim_source
+from swarmloc.estimators import make_team, node_options
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult, run
 from swarmloc.sensors import models
 from swarmloc.sim import AbsoluteSensor, RelativeSensor, random_team
+from swarmloc.sim.source import sim_source
 
 TOL = 1e-10
 COUNTS = ("detections", "fused", "gated", "rejected", "unknown", "odometry", "odometry_used", "recorded")

@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from swarmloc.estimators import make_team
+from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.metrics import errors
 from swarmloc.evaluation.observability import SUPPORTED, information_along, unobservable_information
-from swarmloc.experiments.evaluate import node_options
 from swarmloc.experiments.sources import load_source
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2

@@ -251,7 +251,7 @@ def test_mrclam_dataset6_beats_dead_reckoning():
     """The first 120 s of MRCLAM dataset 6 (5 robots, landmark and robot detections, default configuration, 200
     particles): the team position RMSE is below 0.6 of dead reckoning's on the same events (measured: 0.25 m vs
     0.61 m)."""
-    from swarmloc.experiments.evaluate import node_options
+    from swarmloc.estimators import node_options
     from swarmloc.experiments.sources import load_source
 
     src = load_source(f"mrclam:{DS6}", duration=120)

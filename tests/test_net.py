@@ -23,9 +23,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from swarmloc.estimators import make_team
+from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Odometry
-from swarmloc.experiments.evaluate import node_options
 from swarmloc.experiments.sources import load_source
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlUpdate, flat
 from swarmloc.net.faults import Faults, parse_faults

@@ -109,7 +109,7 @@ def test_shuffled_real_data_gives_the_ordered_result(name: str):
     """The same on 30 s of MRCLAM dataset 6 (landmarks on, gate on): jitter up to 0.2 s, horizon 5 s."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
-    from swarmloc.experiments.evaluate import node_options
+    from swarmloc.estimators import node_options
     from swarmloc.experiments.mrclam import initial_beliefs
 
     data = load_mrclam(DS6)

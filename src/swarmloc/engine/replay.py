@@ -17,14 +17,15 @@ from typing import Any
 import numpy as np
 
 from swarmloc.config import Config
+from swarmloc.datasets.source import Source
 from swarmloc.engine.core import NO_TARGET, UNKNOWN_ROBOT, UNUSABLE, Detections, Engine
+from swarmloc.estimators import node_options
 from swarmloc.estimators.node import KIND_ORDER, detection_key, validate_detection
 from swarmloc.events import Detection, Odometry
-from swarmloc.experiments.evaluate import node_options
-from swarmloc.experiments.sources import Source, sim_source
 from swarmloc.lie import SE2
 from swarmloc.runner import RobotTrack, RunResult, truth_table
 from swarmloc.sim.simulator import SimResult
+from swarmloc.sim.source import sim_source
 
 
 def _stamp(e: Any) -> float | None:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarmloc.estimators.cekf import CentralizedEKF
 from swarmloc.estimators.ci import ExpCI
@@ -35,6 +35,9 @@ from swarmloc.estimators.mcl import MonteCarloLocalization
 from swarmloc.estimators.node import DEFAULT_HORIZON, Node, RobotNode
 from swarmloc.estimators.rdl import RecursiveDecentralized
 from swarmloc.gaussian import GroupGaussian
+
+if TYPE_CHECKING:
+    from swarmloc.config import Config
 
 ESTIMATORS: dict[str, type[Node]] = {
     "dr": DeadReckoning,
@@ -94,6 +97,21 @@ def options_for(estimator: str | type[Node], **candidates: Any) -> dict[str, Any
     return {k: v for k, v in candidates.items() if k in ok}
 
 
+def node_options(name: str, config: Config, landmarks: Mapping[int, Any] | None) -> dict[str, Any]:
+    """The options of estimator ``name`` taken from ``config`` (those the class accepts)."""
+    f = config.filter
+    return options_for(
+        name,
+        noise=config.motion.noise(),
+        landmarks=landmarks,
+        gate=f.gate,
+        horizon=f.horizon,
+        order=f.order,
+        iterations=f.iterations,
+        point_iterations=f.point_iterations,
+    )
+
+
 __all__ = [
     "DEFAULT_HORIZON",
     "ESTIMATORS",
@@ -112,5 +130,6 @@ __all__ = [
     "RobotNode",
     "accepted_options",
     "make_team",
+    "node_options",
     "options_for",
 ]

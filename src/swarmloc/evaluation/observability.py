@@ -79,8 +79,7 @@ def unobservable_information(estimator: str, source: Any, **options: Any) -> dic
     Source`) with its linearization log on, and measure the information gained along the team's unobservable
     directions (:func:`information_along`). ``options`` override the node options of the source's configuration.
     """
-    from swarmloc.estimators import ESTIMATORS, make_team
-    from swarmloc.experiments.evaluate import node_options
+    from swarmloc.estimators import ESTIMATORS, make_team, node_options
     from swarmloc.runner import run
 
     if estimator not in SUPPORTED:

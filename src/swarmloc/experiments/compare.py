@@ -37,8 +37,7 @@ __all__ = ["compare", "compare_table"]
 
 def _job(spec: str, estimator: str, seed: int, robots: int, duration: float | None) -> dict[str, Any]:
     """One estimator on one source: pooled error arrays and counters (runs in a worker process)."""
-    from swarmloc.estimators import make_team
-    from swarmloc.experiments.evaluate import node_options
+    from swarmloc.estimators import make_team, node_options
     from swarmloc.experiments.sources import load_source
     from swarmloc.runner import run
 

@@ -109,8 +109,7 @@ def _job(
     estimator: str, seed: int, robots: int, duration: float, landmarks: bool, sample_initial: bool
 ) -> dict[str, Any]:
     """One estimator on one seed: per-robot error arrays ``(n, K)`` on the record grid (runs in a worker)."""
-    from swarmloc.estimators import make_team
-    from swarmloc.experiments.evaluate import node_options
+    from swarmloc.estimators import make_team, node_options
     from swarmloc.experiments.sources import load_source
     from swarmloc.runner import run
 

@@ -19,28 +19,13 @@ import numpy as np
 
 from swarmloc.config import DEFAULTS, Config
 from swarmloc.datasets.tum import write_tum
-from swarmloc.estimators import ESTIMATORS, make_team, options_for
+from swarmloc.estimators import ESTIMATORS, make_team, node_options
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.runner import RunResult, TruthFn, run
 
 ALL = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl")
-
-
-def node_options(name: str, config: Config, landmarks: Mapping[int, Any] | None) -> dict[str, Any]:
-    """The options of estimator ``name`` taken from ``config`` (those the class accepts)."""
-    f = config.filter
-    return options_for(
-        name,
-        noise=config.motion.noise(),
-        landmarks=landmarks,
-        gate=f.gate,
-        horizon=f.horizon,
-        order=f.order,
-        iterations=f.iterations,
-        point_iterations=f.point_iterations,
-    )
 
 
 @contextlib.contextmanager

@@ -20,11 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmloc.estimators import make_team
-from swarmloc.experiments.evaluate import node_options
-from swarmloc.experiments.sources import sim_source
+from swarmloc.estimators import make_team, node_options
 from swarmloc.lie import SE2
 from swarmloc.runner import run
+from swarmloc.sim.source import sim_source
 
 __all__ = ["observability_figure", "observability_run"]
 

@@ -21,75 +21,15 @@ never calls it. Simulated sources are deterministic in ``seed``, so every proces
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-import numpy as np
-
-from swarmloc.config import DEFAULTS, Config, MotionConfig
-from swarmloc.events import Detection, Event, Odometry
-from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
-from swarmloc.runner import TruthFn
-from swarmloc.sim.simulator import SimResult
+from swarmloc.config import DEFAULTS, Config
+from swarmloc.datasets.source import Source
+from swarmloc.sim.source import sim_source
 
 __all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim_source"]
 
 SIM_SCENARIOS = ("random", "range_bearing", "landmarks")
-
-
-@dataclass
-class Source:
-    """A team's events (odometry and detections, sorted by stamp), initial beliefs, landmarks, span [s], truth
-    (evaluator only) and the configuration its models come from."""
-
-    spec: str
-    events: list[Event]
-    initial: dict[int, GroupGaussian]
-    landmarks: Mapping[int, Any] | None
-    t_start: float
-    t_end: float
-    truth: TruthFn | None
-    config: Config
-
-    @property
-    def robots(self) -> list[int]:
-        return sorted(self.initial)
-
-    def record_times(self) -> np.ndarray:
-        """Times [s] at which beliefs are recorded: every ``1 / config.record.rate`` s over ``[t_start, t_end)``."""
-        return np.arange(self.t_start, self.t_end, 1.0 / self.config.record.rate)
-
-    def own_events(self, robot: int) -> list[Event]:
-        """Robot ``robot``'s odometry and the detections it made, in stamp order."""
-        return [
-            e
-            for e in self.events
-            if (isinstance(e, Odometry) and e.robot == robot) or (isinstance(e, Detection) and e.observer == robot)
-        ]
-
-
-def sim_source(sim: SimResult, spec: str, config: Config | None = None) -> Source:
-    """A :class:`Source` of a simulation: its odometry and detections, initial beliefs at the true start with
-    ``config.initial``'s std, and truth interpolated on its grid. ``config`` defaults to :data:`DEFAULTS` with the
-    simulation's own process noise."""
-    from swarmloc.datasets.tum import interpolate
-
-    if config is None:
-        config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
-    cov = config.initial.cov()
-    initial = {r: GroupGaussian(SE2, SE2.from_xytheta(p), cov) for r, p in sim.initial_poses.items()}
-    events = [e for e in sim.events if isinstance(e, Odometry | Detection)]
-    col = {r: j for j, r in enumerate(sim.robot_ids)}
-
-    def truth(robot: int, times: np.ndarray) -> np.ndarray:
-        if robot not in col:
-            raise ValueError(f"no ground truth for robot {robot}")
-        return interpolate(sim.times, sim.truth[:, col[robot]], times)
-
-    return Source(spec, events, initial, None, float(sim.times[0]), float(sim.times[-1]), truth, config)
 
 
 def _sim(scenario: str, robots: int, duration: float, seed: int, config: Config | None) -> Source:

@@ -58,7 +58,7 @@ def distributed_class(estimator: str) -> type:
 
 def make_node(estimator: str, robot: int, initial: Any, config: Config, landmarks: Any) -> Any:
     """The node of ``robot`` for a distributed ``estimator`` with the options ``swarmloc evaluate`` uses."""
-    from swarmloc.experiments.evaluate import node_options
+    from swarmloc.estimators import node_options
 
     return distributed_class(estimator)(robot, initial, **node_options(estimator, config, landmarks))
 

@@ -25,14 +25,12 @@ from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 
+from swarmloc.datasets.source import TruthFn
 from swarmloc.estimators.node import Node
 from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery
 from swarmloc.runner.result import RobotTrack, RunResult
-
-TruthFn = Callable[[int, np.ndarray], np.ndarray]
-"""``truth(robot, times) -> (len(times), 3)`` world poses ``(x, y, theta)``; raises ValueError outside its span."""
 
 Progress = Callable[[int, int], None]
 """``progress(done, total)``, called every few thousand events (e.g. to drive a progress bar)."""

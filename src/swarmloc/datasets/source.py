@@ -1,0 +1,53 @@
+"""A team's recorded or simulated data as one object: :class:`Source` (what every driver and evaluation reads).
+
+Built by :func:`swarmloc.experiments.sources.load_source` from a spec (``sim:``, ``mrclam:``, ``events:``) or by
+:func:`swarmloc.sim.source.sim_source` from a simulation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from swarmloc.config import Config
+from swarmloc.events import Detection, Event, Odometry
+from swarmloc.gaussian import GroupGaussian
+
+__all__ = ["Source", "TruthFn"]
+
+TruthFn = Callable[[int, np.ndarray], np.ndarray]
+"""``truth(robot, times) -> (len(times), 3)`` world poses ``(x, y, theta)``; raises ValueError outside its span."""
+
+
+@dataclass
+class Source:
+    """A team's events (odometry and detections, sorted by stamp), initial beliefs, landmarks, span [s], truth
+    (evaluator only) and the configuration its models come from."""
+
+    spec: str
+    events: list[Event]
+    initial: dict[int, GroupGaussian]
+    landmarks: Mapping[int, Any] | None
+    t_start: float
+    t_end: float
+    truth: TruthFn | None
+    config: Config
+
+    @property
+    def robots(self) -> list[int]:
+        return sorted(self.initial)
+
+    def record_times(self) -> np.ndarray:
+        """Times [s] at which beliefs are recorded: every ``1 / config.record.rate`` s over ``[t_start, t_end)``."""
+        return np.arange(self.t_start, self.t_end, 1.0 / self.config.record.rate)
+
+    def own_events(self, robot: int) -> list[Event]:
+        """Robot ``robot``'s odometry and the detections it made, in stamp order."""
+        return [
+            e
+            for e in self.events
+            if (isinstance(e, Odometry) and e.robot == robot) or (isinstance(e, Detection) and e.observer == robot)
+        ]

@@ -1,0 +1,36 @@
+"""A simulation as a :class:`~swarmloc.datasets.source.Source`: :func:`sim_source`."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from swarmloc.config import DEFAULTS, Config, MotionConfig
+from swarmloc.datasets.source import Source
+from swarmloc.datasets.tum import interpolate
+from swarmloc.events import Detection, Odometry
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.lie import SE2
+from swarmloc.sim.simulator import SimResult
+
+__all__ = ["sim_source"]
+
+
+def sim_source(sim: SimResult, spec: str, config: Config | None = None) -> Source:
+    """A :class:`Source` of a simulation: its odometry and detections, initial beliefs at the true start with
+    ``config.initial``'s std, and truth interpolated on its grid. ``config`` defaults to :data:`DEFAULTS` with the
+    simulation's own process noise."""
+    if config is None:
+        config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
+    cov = config.initial.cov()
+    initial = {r: GroupGaussian(SE2, SE2.from_xytheta(p), cov) for r, p in sim.initial_poses.items()}
+    events = [e for e in sim.events if isinstance(e, Odometry | Detection)]
+    col = {r: j for j, r in enumerate(sim.robot_ids)}
+
+    def truth(robot: int, times: np.ndarray) -> np.ndarray:
+        if robot not in col:
+            raise ValueError(f"no ground truth for robot {robot}")
+        return interpolate(sim.times, sim.truth[:, col[robot]], times)
+
+    return Source(spec, events, initial, None, float(sim.times[0]), float(sim.times[-1]), truth, config)
