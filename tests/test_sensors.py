@@ -14,7 +14,7 @@ ATOL = 1e-7
 
 
 def _angles(kind: str) -> tuple[bool, ...]:
-    return models.ANGULAR[kind]
+    return models.MODELS[kind].angular
 
 
 def _fd(f, x: np.ndarray, ang: tuple[bool, ...]) -> np.ndarray:

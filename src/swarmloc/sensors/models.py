@@ -12,9 +12,17 @@ state ``(..., m, 3)`` for a robot, ``(..., m, 2)`` for a landmark.
 
 Range and bearing are undefined when the target sits on the observer (range 0): the Jacobians divide by the
 range. :func:`degenerate` tells the callers, which reject such a measurement instead of fusing NaNs.
+
+**One object per sensor kind.** :data:`MODELS` maps each measurement kind to its :class:`MeasurementModel`: the
+size of ``z``, which components are angles, what it may observe, its canonical order in a detection group, the
+prediction with Jacobians, the residual, the noise in the coordinates the prediction uses and a check of ``z``.
+Every estimator, the node's input checks, the event-file reader and the batched engine read these objects, so the
+table of kinds exists once.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -87,21 +95,19 @@ def bearing_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) 
     return h[..., 1:], Hi[..., 1:, :], Hk[..., 1:, :]
 
 
-MODELS = {"pose": relative_pose, "range_bearing": range_bearing, "range": range_only, "bearing": bearing_only}
-ANGULAR = {"pose": (False, False, True), "range_bearing": (False, True), "range": (False,), "bearing": (True,)}
-"""Which components of each measurement kind are angles (residuals wrapped)."""
+_PREDICT = {"pose": relative_pose, "range_bearing": range_bearing, "range": range_only, "bearing": bearing_only}
 
 
 def predict(kind: str, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dispatch on the measurement kind; ``xk`` with last dimension 2 is a landmark, 3 a robot."""
-    if kind not in MODELS:
-        raise ValueError(f"unknown measurement kind {kind!r}; expected one of {sorted(MODELS)}")
+    if kind not in _PREDICT:
+        raise ValueError(f"unknown measurement kind {kind!r}; expected one of {sorted(_PREDICT)}")
     xk = np.asarray(xk, dtype=float)
     if kind == "pose":
         if xk.shape[-1] != 3:
             raise ValueError("relative pose measurements need a robot target (x, y, theta)")
         return relative_pose(xi, xk)
-    return MODELS[kind](xi, xk)
+    return _PREDICT[kind](xi, xk)
 
 
 def degenerate(kind: str, xi: np.ndarray, xk: np.ndarray) -> np.ndarray:
@@ -115,7 +121,7 @@ def degenerate(kind: str, xi: np.ndarray, xk: np.ndarray) -> np.ndarray:
 def residual(kind: str, z: np.ndarray, h: np.ndarray) -> np.ndarray:
     """``z - h`` with angular components wrapped (batched)."""
     r = np.asarray(z, dtype=float) - h
-    for j, ang in enumerate(ANGULAR[kind]):
+    for j, ang in enumerate(MODELS[kind].angular):
         if ang:
             r[..., j] = wrap(r[..., j])
     return r
@@ -134,3 +140,81 @@ def pose_noise_to_cartesian(z: np.ndarray, cov_exp: np.ndarray) -> np.ndarray:
         return B @ cov_exp @ B.T
     B = _stack([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], z.shape[:-1])
     return B @ cov_exp @ np.swapaxes(B, -1, -2)
+
+
+@dataclass(frozen=True, slots=True)
+class MeasurementModel:
+    """One kind of detection (:class:`swarmloc.events.Detection`): everything a filter needs about it.
+
+    ``kind``: its name; ``size``: the dimension of ``z``; ``angular``: which components of ``z`` are angles
+    (residuals wrapped to (-pi, pi]); ``targets``: ``"self"`` (an absolute fix of the observer's own pose),
+    ``"robot"`` (only a robot: a relative pose) or ``"point"`` (a robot or a landmark); ``order``: its rank in the
+    canonical order of a detection group.
+    """
+
+    kind: str
+    size: int
+    angular: tuple[bool, ...]
+    targets: str
+    order: int
+
+    def predict(self, xi: np.ndarray, xk: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """``(h, H_i, H_k)`` at observer state ``xi`` (``(..., 3)``) and target ``xk`` (robot ``(..., 3)`` or
+        landmark ``(..., 2)``); an absolute fix observes ``xi`` itself (``H_i = I``, ``H_k`` None)."""
+        if self.targets == "self":
+            xi = np.asarray(xi, dtype=float)
+            return xi.copy(), np.broadcast_to(np.eye(3), (*xi.shape[:-1], 3, 3)).copy(), None
+        return predict(self.kind, xi, xk)
+
+    def residual(self, z: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """``z - h`` with the angular components wrapped (batched)."""
+        return residual(self.kind, z, h)
+
+    def degenerate(self, xi: np.ndarray, xk: np.ndarray | None) -> np.ndarray:
+        """True where the model is undefined at these states (a range/bearing target on the observer)."""
+        if xk is None or self.targets != "point":
+            return np.zeros(np.shape(xi)[:-1], dtype=bool)
+        return degenerate(self.kind, xi, xk)
+
+    def noise(self, z: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """The noise covariance of ``z`` in the coordinates :meth:`predict` uses: a relative pose's noise is given
+        on the exponential coordinates of ``m_true^-1 m_measured`` and mapped to Cartesian ones
+        (:func:`pose_noise_to_cartesian`); every other kind's is used as given."""
+        cov = np.asarray(cov, dtype=float)
+        if self.kind == "pose":
+            return pose_noise_to_cartesian(np.asarray(z, dtype=float), cov)
+        return cov
+
+    def problem(self, z: np.ndarray) -> str | None:
+        """Why a finite ``z`` of the right shape is not a possible measurement (None: it is): a range must be
+        positive."""
+        if self.kind in ("range_bearing", "range") and not float(z[0]) > 0:
+            return f"range must be positive, got {float(z[0])}"
+        return None
+
+
+MODELS: dict[str, MeasurementModel] = {
+    m.kind: m
+    for m in (
+        MeasurementModel("absolute", 3, (False, False, True), "self", 0),
+        MeasurementModel("pose", 3, (False, False, True), "robot", 1),
+        MeasurementModel("range_bearing", 2, (False, True), "point", 2),
+        MeasurementModel("range", 1, (False,), "point", 3),
+        MeasurementModel("bearing", 1, (True,), "point", 4),
+    )
+}
+"""The measurement model of every detection kind, by name (in canonical group order)."""
+
+KIND_ORDER: dict[str, int] = {k: m.order for k, m in MODELS.items()}
+"""Rank of each kind in the canonical order of a detection group."""
+
+SIZES: dict[str, int] = {k: m.size for k, m in MODELS.items()}
+"""Dimension of ``z`` for each kind."""
+
+
+def model(kind: str) -> MeasurementModel:
+    """The :class:`MeasurementModel` of ``kind``; ValueError naming the known kinds otherwise."""
+    try:
+        return MODELS[kind]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown measurement kind {kind!r}; expected one of {list(MODELS)}") from None
