@@ -133,7 +133,7 @@ def test_distributed_invariant_ekf_rejects_bad_broadcasts_and_keeps_running() ->
     assert node.counts["messages_rejected"] == len(bad)
     reasons = " ".join(node.reasons)
     assert "positive definite" in reasons and "finite" in reasons and "outside the team" in reasons
-    assert "not rdl's pairwise updates" in reasons
+    assert "diekf does not take RdlUpdate" in reasons
     after = node.belief_at(1.0)
     np.testing.assert_array_equal(after.mean, before.mean)
     np.testing.assert_array_equal(after.cov, before.cov)

@@ -25,7 +25,7 @@ import numpy as np
 
 from swarmloc.lie import SE2, SE3
 from swarmloc.lie.base import SEGroup
-from swarmloc.lie.checks import as_square, first_bad
+from swarmloc.lie.checks import as_element, as_square, first_bad
 
 _GROUPS: dict[str, type[SEGroup]] = {"SE2": SE2, "SE(2)": SE2, "se2": SE2, "SE3": SE3, "SE(3)": SE3, "se3": SE3}
 
@@ -273,3 +273,22 @@ class GroupGaussian:
 
         lines = contourpy.contour_generator(xs, ys, P).lines(level)
         return [np.asarray(seg) for seg in lines]
+
+
+def world_covariance(mean: object, cov: object) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, y, theta)`` of SE(2) poses ``mean`` ``(..., 3, 3)`` and the first-order covariance ``(..., 3, 3)`` of
+    ``(x, y, theta)`` in the world frame, for beliefs whose covariance ``cov`` is of the right-perturbation
+    exponential coordinates (``g = mean exp(xi^)``).
+
+    ``(x, y, theta)(mean exp(xi)) = (t + R v, theta + omega) + O(|xi|^2)``, so the Jacobian is ``J = blockdiag(R,
+    1)`` and the result ``J cov J^T`` (symmetrized; theta in (-pi, pi]). What ROS's ``PoseWithCovariance`` and the
+    filterpy-style ``node.P`` report. Raises ValueError for a mean outside SE(2) or a covariance of the wrong shape.
+    """
+    M = as_element(mean, 2, "world_covariance", "mean")
+    S = as_square(cov, 3, "world_covariance", "cov")
+    xyt = SE2.to_xytheta(M)
+    c, s = np.cos(xyt[..., 2]), np.sin(xyt[..., 2])
+    J = np.zeros(np.broadcast_shapes(M.shape, S.shape))
+    J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1], J[..., 2, 2] = c, -s, s, c, 1.0
+    C = J @ S @ np.swapaxes(J, -1, -2)
+    return xyt, 0.5 * (C + np.swapaxes(C, -1, -2))

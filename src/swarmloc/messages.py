@@ -4,7 +4,7 @@ Every exchange belongs to one detection instant of one observer, its **key**: th
 observer's robot id and a sub-key ``sub`` (``()`` for a whole detection group; the detection's canonical key
 when each detection has its own exchange, as in recursive decentralized fusion). A node answers a query with
 its state *before* that key: built from all of its inputs ordered before ``(t, observer, sub)`` and predicted
-to ``t`` with the command in force then (:class:`swarmloc.estimators.node.Node`). The answer is therefore the
+to ``t`` with the command in force then (:class:`swarmloc.node.base.Node`). The answer is therefore the
 same whenever it is asked; when a late input changes it, the node sends it again with a higher revision ``seq``
 and the asker re-fuses from ``t``. An answer or update with a ``seq`` lower than one already received is stale
 and dropped (and counted).
@@ -120,6 +120,15 @@ class RdlUpdate(Message, frozen=True, kw_only=True, tag="rdl_update"):
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         return np.array(self.x), np.reshape(self.P, (3, 3))
 
+    @property
+    def empty(self) -> bool:
+        """True for "no update follows" or a retraction."""
+        return not self.x
+
+    def retraction(self) -> RdlUpdate:
+        """This update, emptied: it takes back the update sent under the same key."""
+        return msgspec.structs.replace(self, x=(), P=())
+
 
 class TeamUpdate(Message, frozen=True, kw_only=True, tag="team_update"):
     """One joint update of the exact distributed invariant EKF (:mod:`swarmloc.estimators.diekf`), broadcast by
@@ -136,6 +145,15 @@ class TeamUpdate(Message, frozen=True, kw_only=True, tag="team_update"):
     nu: Floats = ()
     Pii: Floats = ()
     Pjj: Floats = ()
+
+    @property
+    def empty(self) -> bool:
+        """True for "the exchange is settled without an update" or a retraction."""
+        return not self.Hi
+
+    def retraction(self) -> TeamUpdate:
+        """This update, emptied: it takes back the update sent under the same key."""
+        return TeamUpdate(sender=self.sender, receiver=self.receiver, stamp=self.stamp, sub=self.sub)
 
 
 def _finite(xs: tuple, n: int) -> bool:

@@ -4,7 +4,7 @@
 SE(2) mean ``(N, 3, 3)`` and exponential-coordinate covariance ``(N, 3, 3)`` (right perturbation), for ``"dekf"``
 the Cartesian ``(x, y, theta)`` ``(N, 3)`` and covariance ``(N, 3, 3)`` (world frame); per robot its clock [s] and
 command ``(v [m/s], w [rad/s])``. It computes exactly what the per-robot nodes of :mod:`swarmloc.estimators`
-compute when the in-process runner drives them (:mod:`swarmloc.estimators.node`), batched:
+compute when the in-process runner drives them (:mod:`swarmloc.node`), batched:
 
 * **Clocks.** A robot is predicted from its clock to a stamp only when it has an input there (a detection group
   or a command), in one step with the command in force, as a node's history entry does. A neighbour's answer and a
@@ -41,14 +41,15 @@ import numpy as np
 from swarmloc.engine.backends import BACKENDS, make_ops
 from swarmloc.estimators.ci import ExpCI
 from swarmloc.estimators.expfusion import DEGENERATE, NUMERICAL
-from swarmloc.estimators.node import KIND_ORDER, chi2_ppf
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import ci as KCI
 from swarmloc.kernels import group as K
 from swarmloc.kernels.ci import ci_search
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise, odometry_increment
+from swarmloc.node import chi2_ppf
 from swarmloc.sensors import models
+from swarmloc.sensors.models import KIND_ORDER
 
 _CLOSED_FORM_CI = "pose_weight" in inspect.getsource(ExpCI._ci)
 """Whether :class:`~swarmloc.estimators.ExpCI` picks its weight in closed form (``kernels.ci.pose_weight``,
@@ -58,7 +59,7 @@ ENGINE_ESTIMATORS = ("expfusion", "dekf", "ci")
 """Estimators the engine runs (the per-robot nodes of the same names)."""
 
 KINDS = {v: k for k, v in KIND_ORDER.items()}
-"""Kind code (the canonical order of :data:`swarmloc.estimators.node.KIND_ORDER`) -> name."""
+"""Kind code (the canonical order of :data:`swarmloc.sensors.models.KIND_ORDER`) -> name."""
 ABSOLUTE, POSE = KIND_ORDER["absolute"], KIND_ORDER["pose"]
 ZDIM = {KIND_ORDER[k]: m for k, m in (("absolute", 3), ("pose", 3), ("range_bearing", 2), ("range", 1), ("bearing", 1))}
 
@@ -134,7 +135,7 @@ State = tuple[np.ndarray, np.ndarray]
 
 def usable(Cs: np.ndarray) -> np.ndarray:
     """``(B,)``: finite and positive definite (a Cholesky factorization exists), as the nodes'
-    :func:`~swarmloc.estimators.node.usable_covariance`, batched."""
+    :func:`~swarmloc.node.update.usable_covariance`, batched."""
     out = np.isfinite(Cs).all(axis=(-1, -2))
     idx = np.flatnonzero(out)
     if idx.size:

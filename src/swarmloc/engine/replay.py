@@ -3,7 +3,7 @@
 The events are checked as the nodes check them (malformed, duplicate and unusable input is rejected and counted
 the same way), put on one timeline of stamps, and each stamp is one :meth:`Engine.step`: the detection groups
 stamped ``t`` then the commands starting at ``t``; beliefs are recorded at the record times after every input
-stamped at or before them (what :meth:`~swarmloc.estimators.node.Node.belief_at` answers).
+stamped at or before them (what :meth:`~swarmloc.node.base.Node.belief_at` answers).
 """
 
 from __future__ import annotations
@@ -20,10 +20,11 @@ from swarmloc.config import Config
 from swarmloc.datasets.source import Source
 from swarmloc.engine.core import NO_TARGET, UNKNOWN_ROBOT, UNUSABLE, Detections, Engine
 from swarmloc.estimators import node_options
-from swarmloc.estimators.node import KIND_ORDER, detection_key, validate_detection
 from swarmloc.events import Detection, Odometry
 from swarmloc.lie import SE2
+from swarmloc.node import detection_key, validate_detection
 from swarmloc.runner import RobotTrack, RunResult, truth_table
+from swarmloc.sensors.models import KIND_ORDER
 from swarmloc.sim.simulator import SimResult
 from swarmloc.sim.source import sim_source
 

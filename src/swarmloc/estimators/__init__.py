@@ -1,4 +1,4 @@
-"""Estimators as nodes (:mod:`swarmloc.estimators.node`): one per robot for the distributed ones, one for the team
+"""Estimators as nodes (:mod:`swarmloc.node`): one per robot for the distributed ones, one for the team
 for the centralized one. :data:`ESTIMATORS` maps command-line names to node classes; :func:`make_team` builds the
 nodes of a team from each robot's initial belief.
 
@@ -32,9 +32,9 @@ from swarmloc.estimators.expfusion import ExpFusion
 from swarmloc.estimators.iekf import FirstEstimatesEKF, InvariantEKF
 from swarmloc.estimators.irdl import InvariantRDL
 from swarmloc.estimators.mcl import MonteCarloLocalization
-from swarmloc.estimators.node import DEFAULT_HORIZON, Node, RobotNode
 from swarmloc.estimators.rdl import RecursiveDecentralized
 from swarmloc.gaussian import GroupGaussian
+from swarmloc.node import DEFAULT_HORIZON, Node, RobotNode
 
 if TYPE_CHECKING:
     from swarmloc.config import Config

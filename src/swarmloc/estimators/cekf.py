@@ -19,14 +19,14 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, measurement_noise
-from swarmloc.estimators.node import FUSED, Group, Node, Outcome, check_model, usable_covariance
+from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors import models
+from swarmloc.node import FUSED, Group, Node, Outcome, check_model, gated_kalman
+from swarmloc.sensors.models import model
 
 
 class TeamState(NamedTuple):
@@ -101,7 +101,7 @@ class CentralizedEKF(Node):
     ----------
     initial: every robot's initial belief (SE(2) :class:`~swarmloc.gaussian.GroupGaussian`), by robot id.
     noise: process noise of the odometry (the same model for every robot).
-    Other keywords: see :class:`~swarmloc.estimators.node.Node`.
+    Other keywords: see :class:`~swarmloc.node.base.Node`.
     """
 
     name = "cekf"
@@ -166,11 +166,9 @@ class CentralizedEKF(Node):
 
     def _advance_commands(self, s: Any, cmds: Any) -> Any:
         """A run of odometry, each robot in one float loop (:func:`swarmloc.kernels.cartesian.predict_run`: the same
-        bits as one :meth:`_advance` per command, its pending ``(a, b, Q)`` composed as there); subclasses that
-        predict otherwise take the default."""
-        cls = type(self)
-        own = cls._advance is CentralizedEKF._advance and cls._set_command is CentralizedEKF._set_command
-        if self.measure_time or not own or self.lin_log is not None:  # the log records each prediction
+        bits as one :meth:`_advance` per command, its pending ``(a, b, Q)`` composed as there; tests/test_node.py
+        checks it for every estimator)."""
+        if self.measure_time or self.lin_log is not None:  # the log records each prediction
             return super()._advance_commands(s, cmds)
         per: dict[int, list[tuple[float, float, float]]] = {}
         for t, robot, v, w in cmds:
@@ -203,13 +201,17 @@ class CentralizedEKF(Node):
         return GroupGaussian(SE2, *C.to_group(s.X[i : i + 3], P), validate=False)
 
     def joint_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Joint Cartesian state ``(3n,)`` and covariance ``(3n, 3n)`` with every robot predicted to ``t`` [s]
-        (robots in increasing id order)."""
-        s = self._state_before((t, 3))
+        """Joint state ``(3n,)`` and covariance ``(3n, 3n)`` in the filter's error coordinates (Cartesian here;
+        world-frame errors for ``iekf``) with every robot predicted to ``t`` [s] (robots in increasing id order)."""
+        at = (t, 3, 0, ())
+        s = self._history.state_before(at)
         for r in self.robots:
-            s = self._adv(s, r, t)
+            s = self._adv(s, r, t, at)
         s = flush_pending(s)
         return s.X.copy(), s.P.copy()
+
+    def _joint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self.joint_at(t)
 
     # ------------------------------------------------------------------------------------------------ update
     def _robot_target(self, g: Group, d: Any, sub: tuple) -> tuple[str, Any]:
@@ -227,12 +229,13 @@ class CentralizedEKF(Node):
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
                 continue
-            R = measurement_noise(d)
+            m = model(d.kind)
+            R = m.noise(d.z, d.cov)
             xi = s.X[si]
             # H is zero but in the observer's (and the detected robot's) 3 columns: H holds those, cols says which
             if target[0] == "absolute":
-                H, cols = np.eye(3), own
-                r = models.residual("pose", d.z, xi)
+                h, H, _ = m.predict(xi)
+                cols, r = own, m.residual(d.z, h)
             else:
                 if target[0] == "robot":
                     s = self._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
@@ -240,26 +243,22 @@ class CentralizedEKF(Node):
                     xk, Ck = s.X[k : k + 3], None
                 else:
                     xk, Ck = target[1]
-                if models.degenerate(d.kind, xi, xk):
+                if m.degenerate(xi, xk):
                     outcomes.append(("rejected", DEGENERATE))
                     continue
-                h, Hi, Hk = models.predict(d.kind, xi, xk)
+                h, Hi, Hk = m.predict(xi, xk)
                 if Ck is None:
                     H, cols = np.hstack([Hi, Hk]), np.r_[own, k : k + 3]
                 else:
                     H, cols = Hi, own
                     R = R + Hk @ Ck @ Hk.T
-                r = models.residual(d.kind, d.z, h)
+                r = m.residual(d.z, h)
             sf = flush_pending(s)  # pending predictions applied only for an update (so a rejected one changes no bit)
-            X, P, nis, ok = C.kalman_update_blocks(sf.X, sf.P, r, H, cols, R, self._angles)
-            verdict = self._gated(float(nis), len(r))
-            if verdict is not None:
-                outcomes.append(verdict)
+            res = gated_kalman(sf.X, sf.P, r, H, R, self.gate, cols=cols, angles=self._angles)
+            if isinstance(res[0], str):
+                outcomes.append(res)
                 continue
-            if not (bool(ok) and usable_covariance(P)):
-                outcomes.append(("rejected", NUMERICAL))
-                continue
-            s = TeamState(X, P, sf.t, sf.cmd, sf.pend)
+            s = TeamState(*res, sf.t, sf.cmd, sf.pend)
             if self.lin_log is not None:
                 blocks = {g.observer: H[:, :3]}  # H holds the observer's columns, then the detected robot's
                 if target[0] == "robot":

@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 
 from swarmloc.estimators.expfusion import DEGENERATE, NUMERICAL, ExpFusion, ExpState
-from swarmloc.estimators.node import FUSED, Group, Outcome, usable_covariance
 from swarmloc.kernels import group as K
 from swarmloc.kernels.ci import point_weight, pose_weight
 from swarmloc.lie import SE2
 from swarmloc.messages import Message
+from swarmloc.node import FUSED, Group, Outcome, usable_covariance
 
 
 class ExpCI(ExpFusion):
@@ -52,7 +52,7 @@ class ExpCI(ExpFusion):
         pseudo = self._pseudo(d, target)
         if pseudo is None:
             return self._point(mean, cov, d, target)
-        if self.gate is not None:
+        if self.gate.p is not None:
             verdict = self._gated(float(K.pseudo_nis(SE2, mean, cov, *pseudo)), 3)
             if verdict is not None:
                 return verdict
@@ -69,7 +69,7 @@ class ExpCI(ExpFusion):
         order, its = self.order, self.iterations
         if d.kind == "pose":
             m = SE2.from_xytheta(d.z)
-            if self.gate is not None:
+            if self.gate.p is not None:
                 nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, m, R, order)
                 verdict = self._gated(float(K.pseudo_nis(SE2, mean, cov, nu, W)), 3)
                 if verdict is not None:

@@ -14,15 +14,14 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.node import FUSED, Group, Outcome, RobotNode, usable_covariance
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2
 from swarmloc.messages import Message
-from swarmloc.sensors import models
+from swarmloc.node import FUSED, Group, Outcome, RobotNode, gated_kalman
+from swarmloc.sensors.models import model
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position"
-NUMERICAL = "the update is not finite or not positive definite"
 
 
 class CartState(NamedTuple):
@@ -37,37 +36,27 @@ class CartState(NamedTuple):
 
 def measurement_noise(d: Any) -> np.ndarray:
     """Noise covariance of ``d.z`` in the coordinates the Cartesian models predict."""
-    cov = np.asarray(d.cov, dtype=float)
-    if d.kind == "pose":
-        return models.pose_noise_to_cartesian(np.asarray(d.z, dtype=float), cov)
-    return cov
+    return model(d.kind).noise(d.z, d.cov)
 
 
 def linearize(d: Any, x: np.ndarray, target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
-    """``(r, H_i, R_eff, H_k)`` of detection ``d`` at observer state ``x`` against a classified target: innovation,
-    Jacobian w.r.t. the observer, noise plus the target's propagated covariance, Jacobian w.r.t. the target.
-    Returns None for a degenerate geometry (range ~ 0)."""
-    R = measurement_noise(d)
+    """``(r, H_i, R_eff, H_k)`` of detection ``d`` at observer state ``x`` against a classified target (its
+    :class:`~swarmloc.sensors.models.MeasurementModel`): innovation, Jacobian w.r.t. the observer, noise plus the
+    target's propagated covariance, Jacobian w.r.t. the target. Returns None for a degenerate geometry (range ~ 0).
+    """
+    m = model(d.kind)
+    R = m.noise(d.z, d.cov)
     if target[0] == "absolute":
-        return models.residual("pose", d.z, x), np.eye(3), R, None
+        h, Hi, _ = m.predict(x)
+        return m.residual(d.z, h), Hi, R, None
     if target[0] == "robot":
         xk, Pk = C.from_group(*target[1].belief_arrays())
     else:
         xk, Pk = target[1]
-    if models.degenerate(d.kind, x, xk):
+    if m.degenerate(x, xk):
         return None
-    h, Hi, Hk = models.predict(d.kind, x, xk)
-    return models.residual(d.kind, d.z, h), Hi, R + Hk @ Pk @ Hk.T, Hk
-
-
-def _rdl_class(cls: type) -> type | None:
-    """The state class of :class:`~swarmloc.estimators.rdl.RecursiveDecentralized` when ``cls`` predicts as it does
-    (None otherwise)."""
-    from swarmloc.estimators.rdl import RdlFilter, RecursiveDecentralized
-
-    if cls._advance is RecursiveDecentralized._advance and cls._set_command is RecursiveDecentralized._set_command:
-        return RdlFilter
-    return None
+    h, Hi, Hk = m.predict(x, xk)
+    return m.residual(d.z, h), Hi, R + Hk @ Pk @ Hk.T, Hk
 
 
 class DistributedEKF(RobotNode):
@@ -92,27 +81,24 @@ class DistributedEKF(RobotNode):
 
     def _advance_commands(self, s: Any, cmds: Any) -> Any:
         """A run of odometry in one float loop (:func:`swarmloc.kernels.cartesian.predict_run`: the same bits as one
-        :meth:`_advance` per command), for this class and :class:`~swarmloc.estimators.rdl.RecursiveDecentralized`
-        (whose deferred shear of the factors is accumulated the same way); other subclasses take the default."""
-        cls = type(self)
-        rdl = _rdl_class(cls)
-        own = cls._advance is DistributedEKF._advance and cls._set_command is DistributedEKF._set_command
-        if self.measure_time or not (own or rdl is not None):
+        :meth:`_advance` per command; tests/test_node.py checks it for every estimator)."""
+        if self.measure_time:
             return super()._advance_commands(s, cmds)
+        x, P, t, (v, w), _ = self._predict_run(s, (0.0, 0.0), cmds)
+        return CartState(t, v, w, x, P)
+
+    def _predict_run(self, s: Any, shear: tuple[float, float], cmds: Any) -> tuple:
+        """:func:`~swarmloc.kernels.cartesian.predict_run` on a state with ``t, v, w, x, P``: the new ``(x, P, t,
+        (v, w), shear)`` (``x`` and ``P`` the same objects when nothing was predicted)."""
         p00, p01, p02, _, p11, p12, _, _, p22 = s.P.ravel().tolist()
-        shear = (s.sa, s.sb) if rdl is not None else (0.0, 0.0)
-        x, p, t, (v, w), (sa, sb) = C.predict_run(
+        x, p, t, cmd, shear = C.predict_run(
             tuple(s.x.tolist()), (p00, p01, p02, p11, p12, p22), s.t, (s.v, s.w), shear,
             [(tk, vk, wk) for tk, _, vk, wk in cmds], self.noise,
         )  # fmt: skip
         if t == s.t:  # no prediction: only the command changed
-            X, P = s.x, s.P
-        else:
-            p00, p01, p02, p11, p12, p22 = p
-            X, P = np.array(x), np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
-        if rdl is not None:
-            return rdl(t, v, w, X, P, s.ids, s.sigma, sa, sb)
-        return CartState(t, v, w, X, P)
+            return s.x, s.P, t, cmd, shear
+        p00, p01, p02, p11, p12, p22 = p
+        return np.array(x), np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]), t, cmd, shear
 
     def _belief(self, s: CartState, robot: int) -> GroupGaussian:
         return GroupGaussian(SE2, *C.to_group(s.x, s.P), validate=False)
@@ -130,14 +116,10 @@ class DistributedEKF(RobotNode):
                 outcomes.append(("rejected", DEGENERATE))
                 continue
             r, Hi, R_eff, _ = lin
-            xn, Pn, nis, ok = C.kalman_update(x, P, r, Hi, R_eff)
-            verdict = self._gated(float(nis), len(r))
-            if verdict is not None:
-                outcomes.append(verdict)
+            res = gated_kalman(x, P, r, Hi, R_eff, self.gate)
+            if isinstance(res[0], str):
+                outcomes.append(res)
                 continue
-            if not (bool(ok) and usable_covariance(Pn)):
-                outcomes.append(("rejected", NUMERICAL))
-                continue
-            x, P = xn, Pn
+            x, P = res
             outcomes.append(FUSED)
         return CartState(s.t, s.v, s.w, x, P), outcomes, []

@@ -35,8 +35,7 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, linearize, measurement_noise
-from swarmloc.estimators.node import FUSED, P_GROUP, Entry, Group, Outcome, usable_covariance
+from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.estimators.rdl import RecursiveDecentralized
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
@@ -47,11 +46,11 @@ from swarmloc.messages import (
     Message,
     RdlState,
     RdlStateQuery,
-    RdlUpdate,
     TeamUpdate,
     flat,
 )
-from swarmloc.sensors import models
+from swarmloc.node import FUSED, NUMERICAL, Group, Node, Outcome, usable_covariance
+from swarmloc.sensors.models import model
 
 __all__ = ["DistributedInvariantEKF", "TeamState"]
 
@@ -78,6 +77,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     name = "diekf"
     error_frame: ClassVar[str] = "world"
     over_network: ClassVar[bool] = False
+    update_types = (TeamUpdate,)
     lin_log: list | None = None
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), **kw: Any) -> None:
@@ -102,6 +102,8 @@ class DistributedInvariantEKF(RecursiveDecentralized):
 
     def _set_command(self, s: TeamState, robot: int, v: float, w: float) -> TeamState:
         return TeamState(s.t, v, w, s.x, s.P, s.Sigma)
+
+    _advance_commands = Node._advance_commands  # predicts in world-frame errors, not rdl's Cartesian run
 
     def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
         g = SE2.from_xytheta(s.x)
@@ -171,11 +173,12 @@ class DistributedInvariantEKF(RecursiveDecentralized):
             if j not in self._pos:
                 return ("unknown", f"robot {j} is not in this node's team {list(self.team)}")
             xj, Pjj, _ = a.arrays()
-            if models.degenerate(d.kind, s.x, xj):
+            mm = model(d.kind)
+            if mm.degenerate(s.x, xj):
                 return ("rejected", DEGENERATE)
-            h, Hi_c, Hj_c = models.predict(d.kind, s.x, xj)
+            h, Hi_c, Hj_c = mm.predict(s.x, xj)
             Hi, Hj = Hi_c @ I.world_basis(s.x), Hj_c @ I.world_basis(xj)
-            r, R = models.residual(d.kind, d.z, h), measurement_noise(d)
+            r, R = mm.residual(d.z, h), mm.noise(d.z, d.cov)
             Sij = s.Sigma[self._pos[i], self._pos[j]]
             S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
         else:
@@ -204,33 +207,12 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         return new, (j, Hi, Hj, Sinv, nu, s.P, Pjj)
 
     # ------------------------------------------------------------------------------------------------ broadcasts
-    def _on_message(self, m: Message) -> list[Message]:
-        if isinstance(m, TeamUpdate):
-            self.counts["messages"] += 1
-            return self._on_team_update(m)
-        if isinstance(m, RdlUpdate):  # a pairwise update of rdl: this filter's state has no factors to apply it to
-            self.counts["messages"] += 1
-            self._count_message_rejected("diekf takes team updates, not rdl's pairwise updates")
-            return []
-        return super()._on_message(m)
+    def _update_problem(self, u: Message) -> str | None:
+        if u.sender not in self._pos or (not u.empty and u.target not in self._pos):
+            return f"team update from or about a robot outside the team {list(self.team)}"
+        return None
 
-    def _on_team_update(self, u: TeamUpdate) -> list[Message]:
-        if self._refused(u, "team update"):
-            return []
-        if u.sender not in self._pos or (u.Hi and u.target not in self._pos):
-            self._count_message_rejected(f"team update from or about a robot outside the team {list(self.team)}")
-            return []
-        key = (float(u.stamp), P_GROUP, u.sender, tuple(u.sub))
-        why = self._too_old(key[0])
-        if why:
-            self._count_message_rejected(f"team update {why}")
-            return []
-        return self._file_update(key, u, "team", empty=not u.Hi)
-
-    def _apply(self, s: Any, e: Entry) -> tuple[Any, list[Message], bool]:
-        if e.kind != "team":
-            return super()._apply(s, e)
-        u: TeamUpdate = e.data
+    def _apply_update(self, s: TeamState, u: TeamUpdate) -> tuple[TeamState, bool]:
         # The detected robot is predicted to the stamp; a third party is not: a world-frame correction commutes
         # with the odometry (exp(d) g Delta), so it applies at the robot's own clock. This is what the
         # centralized filter does with its blocks (the same process-noise linearization points, same numbers).
@@ -240,4 +222,4 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         Hi, Hj = np.reshape(u.Hi, (m, 3)), np.reshape(u.Hj, (m, 3))
         Sinv, nu = np.reshape(u.Sinv, (m, m)), np.array(u.nu)
         Pii, Pjj = np.reshape(u.Pii, (3, 3)), np.reshape(u.Pjj, (3, 3))
-        return self._team_update(s, u.sender, u.target, Hi, Hj, Sinv, nu, Pii, Pjj), [], False
+        return self._team_update(s, u.sender, u.target, Hi, Hj, Sinv, nu, Pii, Pjj), True

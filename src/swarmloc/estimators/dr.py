@@ -9,10 +9,10 @@ from __future__ import annotations
 from typing import Any
 
 from swarmloc.estimators.expfusion import ExpFusion, ExpState
-from swarmloc.estimators.node import Group, Outcome
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
+from swarmloc.node import Group, Outcome
 
 UNUSED = "dead reckoning does not use detections"
 

@@ -31,38 +31,26 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from swarmloc.estimators.cekf import CentralizedEKF, TeamState, clock_and_pending, compose_pending, flush_pending
-from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, measurement_noise
-from swarmloc.estimators.node import FUSED, Group, Outcome, usable_covariance
+from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.messages import Message
-from swarmloc.sensors import models
+from swarmloc.node import FUSED, Group, Node, Outcome, gated_kalman
+from swarmloc.sensors.models import model
 
-__all__ = ["FirstEstimatesEKF", "InvariantEKF", "joint_update"]
+__all__ = ["FirstEstimatesEKF", "InvariantEKF", "joint_correction"]
 
 
-def joint_update(
-    P: np.ndarray, starts: list[int], blocks: list[np.ndarray], r: np.ndarray, R: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, float, bool]:
-    """Kalman update of a joint covariance ``P (n, n)`` by a measurement whose Jacobian is nonzero only in the
-    3-column blocks starting at ``starts`` (``blocks[k]`` of shape ``(m, 3)``): returns the correction ``K r (n,)``,
-    ``P+ = P - K (P H^T)^T`` (symmetrized), the NIS and whether everything is finite. Cost ``O(n^2 m)``."""
+def joint_correction(
+    P: np.ndarray, starts: list[int], blocks: list[np.ndarray], r: np.ndarray, R: np.ndarray, gate: Any
+) -> tuple[np.ndarray, np.ndarray] | Outcome:
+    """The gated Kalman update (:func:`~swarmloc.node.update.gated_kalman`, Joseph form) of a joint covariance
+    ``P (n, n)`` by a measurement whose Jacobian is nonzero only in the 3-column blocks starting at ``starts``
+    (``blocks[k]`` of shape ``(m, 3)``): the correction ``K r (n,)`` and ``P+``, or the outcome that stops it.
+    Cost ``O(n^2 m)``."""
     cols = np.concatenate([np.arange(i, i + 3) for i in starts])
-    H = np.hstack(blocks)
-    PHt = P[:, cols] @ H.T
-    S = H @ PHt[cols] + R
-    try:
-        S_inv = np.linalg.inv(S)
-    except np.linalg.LinAlgError:
-        return np.zeros(P.shape[0]), P, float("nan"), False
-    K = PHt @ S_inv
-    delta = K @ r
-    Pn = P - K @ PHt.T
-    Pn = 0.5 * (Pn + Pn.T)
-    nis = float(r @ S_inv @ r)
-    ok = bool(np.isfinite(nis) and np.isfinite(delta).all() and np.isfinite(Pn).all())
-    return delta, Pn, nis, ok
+    return gated_kalman(np.zeros(P.shape[0]), P, r, np.hstack(blocks), R, gate, cols=cols, angles=())
 
 
 class _LoggedCentral(CentralizedEKF):
@@ -73,6 +61,7 @@ class _LoggedCentral(CentralizedEKF):
     error_frame: ClassVar[str] = "cartesian"
     first_estimates: ClassVar[bool] = False
     lin_log: list | None = None
+    _advance_commands = Node._advance_commands  # each filter predicts its own way: no Cartesian run
 
     def _lin_point(self, s: Any, k: int) -> np.ndarray:
         """Where the Jacobians of the robot whose block starts at ``k`` are evaluated."""
@@ -98,11 +87,12 @@ class _LoggedCentral(CentralizedEKF):
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
                 continue
-            R = measurement_noise(d)
+            m = model(d.kind)
+            R = m.noise(d.z, d.cov)
             xi, li = s.X[i : i + 3], self._lin_point(s, i)
             if target[0] == "absolute":
                 starts, blocks = [i], [self._to_error(np.eye(3), li)]
-                r = models.residual("pose", d.z, xi)
+                r = m.residual(d.z, xi)
             else:
                 if target[0] == "robot":
                     s = self._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
@@ -111,28 +101,24 @@ class _LoggedCentral(CentralizedEKF):
                 else:
                     xk, Ck = target[1]
                     lk = xk
-                if models.degenerate(d.kind, xi, xk) or models.degenerate(d.kind, li, lk):
+                if m.degenerate(xi, xk) or m.degenerate(li, lk):
                     outcomes.append(("rejected", DEGENERATE))
                     continue
-                h, Hi, Hk = models.predict(d.kind, xi, xk)
+                h, Hi, Hk = m.predict(xi, xk)
                 if self.first_estimates:
-                    _, Hi, Hk = models.predict(d.kind, li, lk)
-                r = models.residual(d.kind, d.z, h)
+                    _, Hi, Hk = m.predict(li, lk)
+                r = m.residual(d.z, h)
                 if Ck is None:
                     starts, blocks = [i, k], [self._to_error(Hi, li), self._to_error(Hk, lk)]
                 else:
                     starts, blocks = [i], [self._to_error(Hi, li)]
                     R = R + Hk @ Ck @ Hk.T
             sf = self._flushed(s)
-            delta, P, nis, ok = joint_update(sf.P, starts, blocks, r, R)
-            verdict = self._gated(nis, len(r))
-            if verdict is not None:
-                outcomes.append(verdict)
+            res = joint_correction(sf.P, starts, blocks, r, R, self.gate)
+            if isinstance(res[0], str):
+                outcomes.append(res)
                 continue
-            if not (ok and usable_covariance(P)):
-                outcomes.append(("rejected", NUMERICAL))
-                continue
-            s = self._correct(sf, delta, P)
+            s = self._correct(sf, *res)
             self._log_update(g.t, starts, blocks, R)
             outcomes.append(FUSED)
         return s, outcomes, []
@@ -188,6 +174,14 @@ class InvariantEKF(_LoggedCentral):
 
     def _to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
         return H @ I.world_basis(x)
+
+    def _joint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Cartesian ``(x, P)``: the world-frame errors' covariance mapped by ``N(x_i)`` block by block."""
+        X, Pw = self.joint_at(t)
+        N = np.zeros_like(Pw)
+        for k in range(0, X.size, 3):
+            N[k : k + 3, k : k + 3] = I.world_basis(X[k : k + 3])
+        return X, N @ Pw @ N.T
 
     def _correct(self, s: TeamState, delta: np.ndarray, P: np.ndarray) -> TeamState:
         X = I.left_correct(s.X.reshape(-1, 3), delta.reshape(-1, 3)).reshape(-1)

@@ -27,16 +27,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, linearize, measurement_noise
-from swarmloc.estimators.iekf import joint_update
-from swarmloc.estimators.node import Group, usable_covariance
+from swarmloc.estimators.dekf import DEGENERATE, linearize
+from swarmloc.estimators.iekf import joint_correction
 from swarmloc.estimators.rdl import RdlFilter, RecursiveDecentralized, rescale_factors
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
 from swarmloc.messages import RdlState, RdlUpdate, flat
-from swarmloc.sensors import models
+from swarmloc.node import Group, Node
+from swarmloc.sensors.models import model
 
 __all__ = ["InvariantRDL"]
 
@@ -62,6 +62,8 @@ class InvariantRDL(RecursiveDecentralized):
         P = s.P + I.cartesian_to_world_cov(x, Qc)
         return RdlFilter(t, s.v, s.w, x, P, s.ids, s.sigma)
 
+    _advance_commands = Node._advance_commands  # predicts in world-frame errors, not rdl's Cartesian run
+
     def _belief(self, s: RdlFilter, robot: int) -> GroupGaussian:
         g = SE2.from_xytheta(s.x)
         return GroupGaussian(SE2, g, I.world_to_body(g, s.P), validate=False)
@@ -77,33 +79,29 @@ class InvariantRDL(RecursiveDecentralized):
             return ("rejected", DEGENERATE)
         r, Hi, R_eff, _ = lin
         Hw = Hi @ I.world_basis(s.x)
-        delta, P, nis, ok = joint_update(s.P, [0], [Hw], r, R_eff)
-        verdict = self._gated(nis, len(r))
-        if verdict is not None:
-            return verdict
-        if not (ok and usable_covariance(P)):
-            return ("rejected", NUMERICAL)
+        res = joint_correction(s.P, [0], [Hw], r, R_eff, self.gate)
+        if isinstance(res[0], str):
+            return res
+        delta, P = res
         self._log_update(d.t, {self.robot: Hw}, R_eff)
         return RdlFilter(s.t, s.v, s.w, I.left_correct(s.x, delta), P, s.ids, rescale_factors(s, P)), None
 
     def _pair(self, s: RdlFilter, g: Group, d: Any, sub: tuple, a: RdlState) -> Any:
         """The joint update of observer ``i`` and target ``j`` (world-frame errors) from ``j``'s answer ``a``."""
         j = d.target
+        m = model(d.kind)
         xj, Pjj, sig_ji = a.arrays()
-        if models.degenerate(d.kind, s.x, xj):
+        if m.degenerate(s.x, xj):
             return ("rejected", DEGENERATE)
         Pij = s.factor(j) @ sig_ji.T
-        h, Hi, Hj = models.predict(d.kind, s.x, xj)
+        h, Hi, Hj = m.predict(s.x, xj)
         blocks = [Hi @ I.world_basis(s.x), Hj @ I.world_basis(xj)]
         P = np.block([[s.P, Pij], [Pij.T, Pjj]])
-        r = models.residual(d.kind, d.z, h)
-        R = measurement_noise(d)
-        delta, Pn, nis, ok = joint_update(P, [0, 3], blocks, r, R)
-        verdict = self._gated(nis, len(r))
-        if verdict is not None:
-            return verdict
-        if not (ok and usable_covariance(Pn)):
-            return ("rejected", NUMERICAL)
+        R = m.noise(d.z, d.cov)
+        res = joint_correction(P, [0, 3], blocks, m.residual(d.z, h), R, self.gate)
+        if isinstance(res[0], str):
+            return res
+        delta, Pn = res
         self._log_update(g.t, {self.robot: blocks[0], j: blocks[1]}, R)
         xi_new, xj_new = I.left_correct(np.stack([s.x, xj]), delta.reshape(2, 3))
         Pi = Pn[:3, :3]

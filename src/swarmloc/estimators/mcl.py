@@ -70,12 +70,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.node import FUSED, Group, Outcome, RobotNode
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise, odometry_increment_terms
+from swarmloc.node import FUSED, Group, Outcome, RobotNode
 from swarmloc.sensors import models
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position for every particle"
@@ -207,7 +207,7 @@ class MonteCarloLocalization(RobotNode):
 
     Parameters
     ----------
-    robot, initial, noise: as :class:`~swarmloc.estimators.node.RobotNode` (``initial`` is sampled for the
+    robot, initial, noise: as :class:`~swarmloc.node.robot.RobotNode` (``initial`` is sampled for the
         initial particles unless ``initial_box`` is given).
     particles: number of particles (>= 2).
     seed: integer mixed into every random draw (with the robot id and the stamps).
@@ -218,7 +218,7 @@ class MonteCarloLocalization(RobotNode):
     initial_box: ``(xmin, xmax, ymin, ymax)`` [m]: start from particles uniform over this box (global localization).
     bounds: ``(xmin, xmax, ymin, ymax)`` [m] of the random particles; default ``initial_box``, else the landmarks'
         bounding box grown by :data:`BOUNDS_MARGIN`.
-    Other keywords: see :class:`~swarmloc.estimators.node.Node` (``t0``, ``horizon``, ``gate``, ``landmarks``,
+    Other keywords: see :class:`~swarmloc.node.base.Node` (``t0``, ``horizon``, ``gate``, ``landmarks``,
     ``use_relative``, ``use_landmarks``).
     """
 
@@ -410,7 +410,7 @@ class MonteCarloLocalization(RobotNode):
     @property
     def particle_counts(self) -> dict[str, int]:
         """Resamplings and injected particles so far (carried in the latest state: replays recount them)."""
-        s = self._entries[-1].state if self._entries else self._base
+        s = self._history.last_state()
         return {"resamples": s.resamples, "injected": s.injected} if s is not None else {"resamples": 0, "injected": 0}
 
     def injection_fraction(self, s: MclState) -> float:

@@ -23,11 +23,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, NUMERICAL, CartState, DistributedEKF, linearize, measurement_noise
-from swarmloc.estimators.node import FUSED, Group, Outcome, usable_covariance
+from swarmloc.estimators.dekf import DEGENERATE, CartState, DistributedEKF, linearize
 from swarmloc.kernels import cartesian as C
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
-from swarmloc.sensors import models
+from swarmloc.node import FUSED, Group, Outcome, gated_kalman, same
+from swarmloc.sensors.models import model
 
 _ZERO = np.zeros((3, 3))
 _ZERO.setflags(write=False)
@@ -95,6 +95,7 @@ class RecursiveDecentralized(DistributedEKF):
     """Recursive decentralized localization: pairwise exact updates, tracked correlations (module docstring)."""
 
     name = "rdl"
+    update_types = (RdlUpdate,)
 
     def _initial_state(self, t0: float) -> RdlFilter:
         s = super()._initial_state(t0)
@@ -109,6 +110,14 @@ class RecursiveDecentralized(DistributedEKF):
 
     def _set_command(self, s: RdlFilter, robot: int, v: float, w: float) -> RdlFilter:
         return RdlFilter(s.t, v, w, s.x, s.P, s.ids, s.sigma, s.sa, s.sb)
+
+    def _advance_commands(self, s: Any, cmds: Any) -> Any:
+        """A run of odometry in one float loop, the factors' deferred shear accumulated as :meth:`_advance` does
+        (the same bits as one :meth:`_advance` per command)."""
+        if self.measure_time:
+            return super(DistributedEKF, self)._advance_commands(s, cmds)
+        x, P, t, (v, w), (sa, sb) = self._predict_run(s, (s.sa, s.sb), cmds)
+        return RdlFilter(t, v, w, x, P, s.ids, s.sigma, sa, sb)
 
     def _belief(self, s: RdlFilter, robot: int) -> Any:
         return super()._belief(CartState(s.t, s.v, s.w, s.x, s.P), robot)
@@ -131,12 +140,28 @@ class RecursiveDecentralized(DistributedEKF):
             return super()._answer(s, q)
         return None
 
-    def _apply_update(self, s: RdlFilter, u: RdlUpdate) -> RdlFilter:
-        """A neighbour's joint update: new ``(x, P)``, ``sigma_ji <- I``, the other factors rescaled."""
+    def _update_problem(self, u: Message) -> str | None:
+        """An update must answer a state this node sent, in its latest revision."""
+        served = self._served.get(((float(u.stamp), 1, u.sender, tuple(u.sub)), u.sender, "RdlStateQuery"))
+        if served is None:
+            return "update for a state this node never sent"
+        if u.based_on != served.seq:
+            return "update computed from an outdated state (stale)"
+        return None
+
+    def _apply_update(self, s: RdlFilter, u: RdlUpdate) -> tuple[RdlFilter, bool]:
+        """A neighbour's joint update, while the state it was computed from is still the state before its key: new
+        ``(x, P)``, ``sigma_ji <- I``, the other factors rescaled."""
+        s = self._adv(s, u.receiver, u.stamp)
+        key = (float(u.stamp), 1, u.sender, tuple(u.sub))
+        served = self._served.get((key, u.sender, "RdlStateQuery"))
+        q = RdlStateQuery(sender=u.sender, receiver=u.receiver, stamp=u.stamp, sub=u.sub)
+        if served is None or served.seq != u.based_on or not same(served, self._answer(s, q)):
+            return s, False
         x, P = u.arrays()
         sigma = rescale_factors(s, P)
         ids, sigma = s.with_factor(u.sender, np.eye(3), sigma)
-        return RdlFilter(s.t, s.v, s.w, x, P, ids, sigma)
+        return RdlFilter(s.t, s.v, s.w, x, P, ids, sigma), True
 
     # ------------------------------------------------------------------------------------------------ update
     def _fuse_group(self, s: RdlFilter, g: Group) -> tuple[RdlFilter, list[Outcome], list[Message]]:
@@ -166,32 +191,28 @@ class RecursiveDecentralized(DistributedEKF):
         if lin is None:
             return ("rejected", DEGENERATE)
         r, Hi, R_eff, _ = lin
-        x, P, nis, ok = C.kalman_update(s.x, s.P, r, Hi, R_eff)
-        verdict = self._gated(float(nis), len(r))
-        if verdict is not None:
-            return verdict
-        if not (bool(ok) and usable_covariance(P)):
-            return ("rejected", NUMERICAL)
+        res = gated_kalman(s.x, s.P, r, Hi, R_eff, self.gate)
+        if isinstance(res[0], str):
+            return res
+        x, P = res
         return RdlFilter(s.t, s.v, s.w, x, P, s.ids, rescale_factors(s, P)), None
 
     def _pair(self, s: RdlFilter, g: Group, d: Any, sub: tuple, a: RdlState) -> Any:
         """The joint update of observer ``i`` and target ``j`` from ``j``'s answer ``a``."""
         j = d.target
+        m = model(d.kind)
         xj, Pjj, sig_ji = a.arrays()
-        if models.degenerate(d.kind, s.x, xj):
+        if m.degenerate(s.x, xj):
             return ("rejected", DEGENERATE)
         Pij = s.factor(j) @ sig_ji.T
-        h, Hi, Hj = models.predict(d.kind, s.x, xj)
+        h, Hi, Hj = m.predict(s.x, xj)
         X = np.concatenate([s.x, xj])
         P = np.block([[s.P, Pij], [Pij.T, Pjj]])
         H = np.hstack([Hi, Hj])
-        r = models.residual(d.kind, d.z, h)
-        Xn, Pn, nis, ok = C.kalman_update(X, P, r, H, measurement_noise(d), angles=(2, 5))
-        verdict = self._gated(float(nis), len(r))
-        if verdict is not None:
-            return verdict
-        if not (bool(ok) and usable_covariance(Pn)):
-            return ("rejected", NUMERICAL)
+        res = gated_kalman(X, P, m.residual(d.z, h), H, m.noise(d.z, d.cov), self.gate, angles=(2, 5))
+        if isinstance(res[0], str):
+            return res
+        Xn, Pn = res
         Pi = Pn[:3, :3]
         ids, sigma = s.with_factor(j, Pn[:3, 3:], rescale_factors(s, Pi))
         new = RdlFilter(s.t, s.v, s.w, Xn[:3], Pi, ids, sigma)

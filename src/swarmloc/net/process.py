@@ -1,4 +1,4 @@
-"""One robot = one process: a :class:`~swarmloc.estimators.node.Node` driven over a Zenoh session.
+"""One robot = one process: a :class:`~swarmloc.node.base.Node` driven over a Zenoh session.
 
 :class:`NetNode` is the network driver of the sans-I/O node. It reads the robot's own events from its source,
 steps the node, and carries the messages the node returns: a query to a neighbour is a Zenoh ``get`` on the
@@ -49,12 +49,12 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.estimators.node import Node
 from swarmloc.events import Detection, Event, Odometry
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.faults import Faults
 from swarmloc.net.schema import SERVER, Belief, Envelope, Progress, Rejected, Report, decode, encode
 from swarmloc.net.transport import alive_key, robot_key, robot_of, server_key
+from swarmloc.node import Node
 
 log = logging.getLogger(__name__)
 BLOCK: Any = None  # zenoh.CongestionControl.BLOCK, set when a session is opened (zenoh is imported lazily)

@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 def distributed_class(estimator: str) -> type:
     """The node class of a distributed ``estimator`` (one node per robot); ValueError naming the choices else."""
     from swarmloc.estimators import ESTIMATORS
-    from swarmloc.estimators.node import RobotNode
+    from swarmloc.node import RobotNode
 
     cls = ESTIMATORS.get(estimator)
     if cls is None:

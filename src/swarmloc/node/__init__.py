@@ -1,1 +1,52 @@
-"""The parts a node is made of (below the estimators that use them)."""
+"""The node: one robot's (or, centralized, the team's) filter as a sans-I/O state machine, in parts.
+
+:class:`Node` (:mod:`~swarmloc.node.base`) composes the parts; :class:`RobotNode` is the base of the distributed
+estimators (:mod:`swarmloc.estimators`). Parts: :mod:`~swarmloc.node.clock` (present, horizon, tolerance, clock
+jumps), :mod:`~swarmloc.node.inputs` (the input contract, odometry timelines), :mod:`~swarmloc.node.history`
+(entries, states, replay), :mod:`~swarmloc.node.protocol` (messages accepted, answered, refused, revised),
+:mod:`~swarmloc.node.accounting` (counters that add up), :mod:`~swarmloc.node.update` (the one Kalman update
+with its gate), :mod:`~swarmloc.node.keys` (history keys, entries, detection groups).
+"""
+
+from swarmloc.node.accounting import OUTCOMES, STAT_KEYS, Accounting
+from swarmloc.node.base import Node
+from swarmloc.node.clock import DEFAULT_CONFIRM, DEFAULT_HORIZON, DEFAULT_TOLERANCE, Clock
+from swarmloc.node.inputs import Landmarks, OdometryTimeline, landmark_state, odometry_problem, validate_detection
+from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
+from swarmloc.node.protocol import belief_answer, refusal, same
+from swarmloc.node.robot import RobotNode, check_model
+from swarmloc.node.update import FUSED, NUMERICAL, Gate, Outcome, chi2_ppf, gated_kalman, usable_covariance
+
+__all__ = [
+    "DEFAULT_CONFIRM",
+    "DEFAULT_HORIZON",
+    "DEFAULT_TOLERANCE",
+    "FUSED",
+    "NUMERICAL",
+    "OUTCOMES",
+    "P_GROUP",
+    "P_ODOMETRY",
+    "STAT_KEYS",
+    "Accounting",
+    "Clock",
+    "Entry",
+    "Gate",
+    "Group",
+    "Key",
+    "Landmarks",
+    "Node",
+    "OdometryTimeline",
+    "Outcome",
+    "RobotNode",
+    "belief_answer",
+    "check_model",
+    "chi2_ppf",
+    "detection_key",
+    "gated_kalman",
+    "landmark_state",
+    "odometry_problem",
+    "refusal",
+    "same",
+    "usable_covariance",
+    "validate_detection",
+]

@@ -3,11 +3,11 @@
 :func:`run` is a short loop. Each event goes to the node owning its robot (odometry by robot, detections by
 observer; consecutive detections of one observer at one instant go together); the messages a node returns go
 to the nodes they are addressed to until none are left (a query to a robot outside the team is answered "not
-found"). Nodes do the rest: time, replay, accounting (:mod:`swarmloc.estimators.node`).
+found"). Nodes do the rest: time, replay, accounting (:mod:`swarmloc.node`).
 
 Recording: at every ``Truth`` event (simulation) or at every ``record_times`` entry with a ``truth(robot, times)``
-function (datasets), the owning node's :meth:`~swarmloc.estimators.node.Node.belief_at` is taken once the belief
-at that time is final: once the node's watermark is a horizon past it (any later input that old would be
+function (datasets), the owning node's :meth:`~swarmloc.node.base.Node.belief_at` is taken once the belief
+at that time is final: once the node's present is a horizon past it (any later input that old would be
 rejected) or at the end of the run. So the record is the same whatever order the events came in, within the
 horizon.
 
@@ -26,10 +26,10 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 
 from swarmloc.datasets.source import TruthFn
-from swarmloc.estimators.node import Node
 from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery
+from swarmloc.node import Node
 from swarmloc.runner.result import RobotTrack, RunResult
 
 Progress = Callable[[int, int], None]
@@ -129,7 +129,7 @@ def run(
         """Resolve the records this input could no longer change, then step the node and route its messages."""
         h = rec.heap.get(id(node))
         if h and isinstance(stamp, float | int):
-            upto = max(node.watermark, stamp) - node.horizon
+            upto = max(node.present, stamp) - node.horizon
             if h[0][0] <= upto:
                 rec.resolve(node, upto)
         out = node.step(item)
@@ -163,12 +163,12 @@ def run(
                     stats["messages_undeliverable"] += 1
                 continue
             if not isinstance(m, BeliefQuery | RdlStateQuery):
-                rec.resolve(node, max(node.watermark, m.stamp) - node.horizon)
+                rec.resolve(node, max(node.present, m.stamp) - node.horizon)
             push(node.step(m))
 
     # odometry, the bulk of a log, goes straight to the node's fast path (Node._odometry_fast) when it takes it, with
     # the records resolved exactly as deliver() would: (node, its record heap, horizon, fast path) per robot
-    odo_route = {r: (n, rec.heap.setdefault(id(n), []), n.horizon, _fast_odometry(n)) for r, n in owner.items()}
+    odo_route = {r: (n, rec.heap.setdefault(id(n), []), n.horizon, n._odometry_fast) for r, n in owner.items()}
     t_wall = time.perf_counter()
     total = len(events)
     i = 0
@@ -187,10 +187,10 @@ def run(
             stamp = e.t0
             if type(stamp) is float:
                 if h:
-                    upto = max(node.watermark, stamp) - horizon
+                    upto = max(node.present, stamp) - horizon
                     if h[0][0] <= upto:
                         rec.resolve(node, upto)
-                if fast is not None and fast(e):
+                if fast(e):
                     continue
                 out = node.step(e)
                 if out:
@@ -243,14 +243,6 @@ def run(
     for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
         merged.setdefault(k, 0)
     return RunResult(name or team[0].name, rec.tracks(), wall, dict(merged), total, reasons, timing)
-
-
-def _fast_odometry(node: Node) -> Callable[[Odometry], bool] | None:
-    """The node's :meth:`~swarmloc.estimators.node.Node._odometry_fast`, unless its class handles inputs itself."""
-    cls = type(node)
-    if cls.step is Node.step and cls._on_odometry is Node._on_odometry:
-        return node._odometry_fast
-    return None
 
 
 def _xytheta(g: np.ndarray) -> np.ndarray:

@@ -7,7 +7,7 @@ trajectories, odometry and robot-to-robot detections stay exactly those of the s
   [m]: the box is cut into ``cols x rows`` cells (``cols / rows`` about the box's aspect ratio, ``cols * rows >=
   n``), ``n`` of them are drawn at random and each holds one landmark uniform in the cell. Ids ``first_id,
   first_id + 1, ...`` (default 100: never a robot id of a simulated team). The map is given to nodes as MRCLAM's
-  is: ``id -> (x, y, std_x, std_y)`` [m] (:data:`swarmloc.estimators.node.Landmarks`), ``std`` = ``map_std``
+  is: ``id -> (x, y, std_x, std_y)`` [m] (:data:`swarmloc.node.inputs.Landmarks`), ``std`` = ``map_std``
   (default 0: the simulated map is exact).
 * **Detections** (:func:`landmark_detections`, :class:`LandmarkSensor`): at ``rate`` Hz (on the odometry grid,
   where the truth is known), every robot ``i`` detects every landmark ``l`` whose position in ``i``'s frame

@@ -1,0 +1,87 @@
+"""A node's accounting: every input ends counted, and the counters always add up.
+
+Detections end in exactly one of ``fused``, ``gated`` (innovation beyond the chi-square gate), ``rejected``
+(with a reason) or ``unknown`` (target not known or not answering); until then they are ``pending`` (waiting for
+an answer, or held while the node decides whether its robot's clock jumped). A replay takes an entry's old
+outcomes back before counting the new ones, so nothing is counted twice. Odometry is ``odometry_used`` or
+``odometry_rejected`` (or pending while held). Messages in are counted, and ``messages_rejected`` with a reason.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from collections.abc import Iterable
+
+from swarmloc.node.update import Outcome
+
+log = logging.getLogger("swarmloc.node")
+
+__all__ = ["OUTCOMES", "STAT_KEYS", "Accounting"]
+
+OUTCOMES = ("fused", "gated", "rejected", "unknown")
+STAT_KEYS = (
+    "detections", *OUTCOMES, "pending", "odometry", "odometry_used", "odometry_rejected", "odometry_pending",
+    "odometry_stops", "late", "replayed", "future", "clock_resets", "clock_jumps", "messages",
+    "messages_rejected", "answers_sent", "not_yet_sent", "revisions_sent",
+)  # fmt: skip
+"""Keys of :meth:`Accounting.stats` (every one present, zeros included)."""
+
+
+class Accounting:
+    """Counters, reasons and the optional per-measurement ledger of one node (``name`` for log lines)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.counts: Counter[str] = Counter()
+        """Counters (see :meth:`stats`)."""
+        self.reasons: Counter[str] = Counter()
+        """Why inputs were rejected or unknown: ``"<outcome>: <reason>"`` -> count."""
+        self.ledger: Counter[tuple] | None = None
+        """Set to a Counter to track the outcome of every applied detection by measurement id: ``(observer, t,
+        detection key, outcome) -> count`` (replays take the old outcome back). A correct node has, for every
+        measurement, exactly one outcome counted once: nothing fused twice."""
+
+    def outcome(self, o: Outcome, sign: int = 1) -> None:
+        self.counts[o[0]] += sign
+        if o[1]:
+            self.reasons[f"{o[0]}: {o[1]}"] += sign
+
+    def recount(self, old: Iterable[Outcome], new: Iterable[Outcome]) -> None:
+        """An entry re-applied: its old outcomes taken back, its new ones counted."""
+        for o in old:
+            self.outcome(o, -1)
+        for o in new:
+            self.outcome(o)
+
+    def remark(self, old: Iterable[tuple], new: Iterable[tuple]) -> None:
+        """The ledger's marks of a re-applied group: the old ones taken back, the new ones counted."""
+        if self.ledger is not None:
+            for m in old:
+                self.ledger[m] -= 1
+            for m in new:
+                self.ledger[m] += 1
+
+    def detection_rejected(self, observer: object, t: object, reason: str, outcome: str = "rejected") -> None:
+        self.outcome((outcome, reason))
+        log.debug("%s: detection by %s at t=%s %s: %s", self.name, observer, t, outcome, reason)
+
+    def odometry_rejected(self, reason: str) -> None:
+        self.counts["odometry_rejected"] += 1
+        self.reasons[f"odometry rejected: {reason}"] += 1
+        log.debug("%s: odometry rejected: %s", self.name, reason)
+
+    def message_rejected(self, reason: str) -> None:
+        self.counts["messages_rejected"] += 1
+        self.reasons[f"message rejected: {reason}"] += 1
+        log.debug("%s: message rejected: %s", self.name, reason)
+
+    def stats(self, pending: int, odometry_pending: int) -> dict[str, int]:
+        """A copy of the counters, every key of :data:`STAT_KEYS` present, with the detections and odometry
+        still ``pending``: ``detections == fused + gated + rejected + unknown + pending`` and ``odometry ==
+        odometry_used + odometry_rejected + odometry_pending`` at all times."""
+        out = dict.fromkeys(STAT_KEYS, 0)
+        out.update(self.counts)
+        out["pending"] = pending
+        out["odometry_pending"] = odometry_pending
+        return out

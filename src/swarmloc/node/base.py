@@ -1,0 +1,837 @@
+"""A robot's filter as a **node**: it owns its filter state, clock, odometry commands and a bounded history.
+
+One node class runs in every driver: the in-process runner (:mod:`swarmloc.runner`), a network process (one robot
+per process) and, through the same kernels, a batched engine. A node never calls anybody: it consumes inputs with
+:meth:`Node.step` and returns the messages it wants sent (queries, answers, updates), so the driver decides how
+they travel (sans-I/O). It is made of parts with one job each:
+
+* :mod:`~swarmloc.node.clock`: the present, the horizon and tolerance, jumps of the robot's clock;
+* :mod:`~swarmloc.node.inputs`: what a detection and an odometry record must be, each robot's odometry timeline;
+* :mod:`~swarmloc.node.history`: stamped entries and states, replay of late input, the horizon;
+* :mod:`~swarmloc.node.protocol`: which messages are accepted, answered, refused and revised;
+* :mod:`~swarmloc.node.accounting`: counters that always add up;
+* :mod:`~swarmloc.node.update`: the one Kalman update with its gate (used by the filters).
+
+**State as a function of the inputs** (keys: :mod:`~swarmloc.node.keys`). The state after a history entry is the
+state after the previous one with every robot the entry involves predicted to the entry's stamp with the
+command in force, then the entry applied. Hence :meth:`Node.belief_at` ``(t)`` is the belief after all entries
+stamped ``<= t``, predicted to ``t``: the same whenever it is asked; a neighbour's query keyed ``q`` is answered
+from the state after all entries keyed before ``q`` (two robots that detect each other at one instant get a
+fixed, acyclic order); within the horizon the final state does not depend on the order the inputs came in.
+
+**Commands.** Odometry ``(robot, t0, t1, v, w)`` sets the robot's command ``(v, w)`` from ``t0``. Past ``t1``
+with no later odometry the node assumes the robot stopped (command ``(0, 0)``, the motion model's zero-speed
+diffusion keeps the covariance growing) and counts it (:mod:`~swarmloc.node.inputs`).
+
+Filters subclass :class:`Node` (one robot: :class:`~swarmloc.node.robot.RobotNode`; centralized: one node for the
+team) and provide ``_initial_state``, ``_advance``, ``_set_command``, ``_fuse_group``, ``_belief`` and, where they
+talk to neighbours, ``_requests``, ``_answer``, ``update_types`` and ``_apply_update``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Iterable, Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+
+from swarmloc.events import Detection, Odometry
+from swarmloc.gaussian import GroupGaussian, world_covariance
+from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery
+from swarmloc.node.accounting import Accounting
+from swarmloc.node.clock import DEFAULT_CONFIRM, DEFAULT_HORIZON, DEFAULT_TOLERANCE, FUTURE, Clock
+from swarmloc.node.history import History
+from swarmloc.node.inputs import (
+    CONTIGUOUS,
+    Landmarks,
+    OdometryTimeline,
+    landmark_state,
+    odometry_problem,
+    validate_detection,
+)
+from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
+from swarmloc.node.protocol import Served, not_found, query_of, refusal
+from swarmloc.node.update import Gate, Outcome
+
+log = logging.getLogger("swarmloc.node")
+
+__all__ = ["Node"]
+
+PRUNE_EVERY = 64
+"""Inputs between two prunings of the history (pruning costs a bisection and a slice)."""
+
+
+class Node:
+    """Base class of every estimator's node (see the module docstring).
+
+    Parameters common to all nodes
+    ------------------------------
+    t0: start time [s] of the initial belief; None: set by :meth:`start` or by the first input's stamp.
+    horizon: seconds of history kept for out-of-order input and exact past answers (> 0).
+    tolerance: seconds past the node's present an input may be stamped (> 0; :mod:`~swarmloc.node.clock`).
+    jump_inputs: inputs in a row, at distinct stamps, that confirm a jump of the robot's clock.
+    gate: chi-square gate probability in (0, 1) for innovations, or None (no gating).
+    landmarks: known landmarks ``id -> (x, y, std_x, std_y)`` [m].
+    use_relative, use_landmarks: whether detections of robots / of landmarks are fused (else rejected, counted).
+    """
+
+    name: ClassVar[str] = "node"
+    distributed: ClassVar[bool] = True
+    over_network: ClassVar[bool] = True
+    """False for an estimator whose messages the network driver (:mod:`swarmloc.net.process`) cannot carry."""
+    update_types: ClassVar[tuple[type, ...]] = ()
+    """Message types from neighbours this node files in its history (a neighbour's share of a joint update)."""
+    measure_time: bool = False
+    """Set True (on a node or a class) to accumulate ``timing``: seconds and counts of predictions and of
+    detection-group updates (Table 6.1). Off by default: the clock calls cost about 5% of a replay."""
+    lazy_odometry: ClassVar[bool] = False
+    """True: the state of a command appended in order is computed only when needed, for a run of commands at once
+    (:meth:`_advance_commands`); the result is the same as computing every command's state at once."""
+
+    def __init__(
+        self,
+        robots: Sequence[int],
+        *,
+        t0: float | None = None,
+        horizon: float = DEFAULT_HORIZON,
+        tolerance: float = DEFAULT_TOLERANCE,
+        jump_inputs: int = DEFAULT_CONFIRM,
+        gate: float | None = None,
+        landmarks: Landmarks | None = None,
+        use_relative: bool = True,
+        use_landmarks: bool = True,
+    ) -> None:
+        cls = type(self).__name__
+        self._clock = Clock(horizon, tolerance, jump_inputs, cls)
+        try:
+            self.gate = Gate(gate)
+        except ValueError as exc:
+            raise ValueError(f"{cls}: {exc}") from None
+        self.robots: tuple[int, ...] = tuple(robots)
+        self.landmarks = landmarks
+        self.use_relative = use_relative
+        self.use_landmarks = use_landmarks
+        self.accounting = Accounting(self.name)
+        self.timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
+        """With ``measure_time``: seconds and counts of predictions and of detection-group updates (net of the
+        predictions inside them)."""
+        self._history = History(self._advance_run, self.lazy_odometry)
+        self._timeline = OdometryTimeline()
+        self._served = Served()
+        self._pending: dict[Key, Group] = {}
+        self._neighbours: set[int] = set()
+        self._stops: set[tuple[int, float]] = set()
+        self._cursor: Key = (-math.inf, 0, 0, ())
+        self._since_prune = 0
+        if t0 is not None:
+            self.start(t0)
+
+    # ------------------------------------------------------------------------------------------------ public
+    @property
+    def counts(self) -> Any:
+        return self.accounting.counts
+
+    @property
+    def reasons(self) -> Any:
+        return self.accounting.reasons
+
+    @property
+    def ledger(self) -> Any:
+        return self.accounting.ledger
+
+    @ledger.setter
+    def ledger(self, value: Any) -> None:
+        self.accounting.ledger = value
+
+    @property
+    def started(self) -> bool:
+        return self._clock.t0 is not None
+
+    @property
+    def t0(self) -> float | None:
+        """Start time [s] of the initial belief (None until started)."""
+        return self._clock.t0
+
+    @property
+    def horizon(self) -> float:
+        return self._clock.horizon
+
+    @property
+    def tolerance(self) -> float:
+        return self._clock.tolerance
+
+    @property
+    def present(self) -> float:
+        """The node's present [s]: the latest stamp of an accepted input (``-inf`` before the start)."""
+        return self._clock.present
+
+    @property
+    def history_size(self) -> int:
+        """Entries kept in the history (about the inputs of one horizon, plus fewer than 64 not yet pruned)."""
+        return len(self._history)
+
+    @property
+    def neighbours(self) -> frozenset[int]:
+        """Robots this node has heard from in an accepted message (an answer that found a belief, an update)."""
+        return frozenset(self._neighbours)
+
+    @property
+    def pending(self) -> int:
+        """Detection groups waiting for neighbours' answers."""
+        return len(self._pending)
+
+    @property
+    def first_pending(self) -> Key | None:
+        """Key of the earliest detection group waiting for answers (None: none waits)."""
+        return min(self._pending) if self._pending else None
+
+    @property
+    def x(self) -> np.ndarray:
+        """``(x [m], y [m], theta [rad])`` of every robot of the node at its present, robots in id order, ``(3 n,)``
+        (a read-only copy; filterpy's ``x``)."""
+        return self._frozen_joint()[0]
+
+    @property
+    def P(self) -> np.ndarray:
+        """The covariance of :attr:`x` ``(3 n, 3 n)``: world frame, first order (a read-only copy; filterpy's ``P``;
+        :func:`swarmloc.gaussian.world_covariance` of the beliefs, with the cross-covariances a centralized
+        filter keeps)."""
+        return self._frozen_joint()[1]
+
+    def _frozen_joint(self) -> tuple[np.ndarray, np.ndarray]:
+        x, P = self._joint(self._present_or_start())
+        x, P = np.array(x, dtype=float), np.array(P, dtype=float)
+        x.setflags(write=False)
+        P.setflags(write=False)
+        return x, P
+
+    def _joint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, P)`` of every robot at ``t`` in world-frame ``(x, y, theta)``; the default knows no
+        cross-covariances (a distributed node holds one robot)."""
+        parts = [world_covariance(b.mean, b.cov) for b in (self.belief_at(t, r) for r in self.robots)]
+        x = np.concatenate([xk for xk, _ in parts])
+        P = np.zeros((x.size, x.size))
+        for k, (_, Pk) in enumerate(parts):
+            P[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = Pk
+        return x, P
+
+    def start(self, t0: float) -> None:
+        """Set the time [s] at which the initial belief holds (once)."""
+        if not (isinstance(t0, int | float | np.floating) and math.isfinite(t0)):
+            raise ValueError(f"{type(self).__name__}.start: t0 must be a finite time in seconds, got {t0!r}")
+        if self._clock.t0 is not None:
+            if float(t0) != self._clock.t0:
+                raise ValueError(f"{type(self).__name__}.start: already started at t0 = {self._clock.t0}, got {t0}")
+            return
+        self._clock.start(t0)
+        self._history.reset(self._initial_state(float(t0)), (float(t0), -1, -1, ()))
+
+    def step(self, item: Odometry | Detection | Iterable[Detection] | Message) -> list[Message]:
+        """Consume one input (odometry, one or several detections, or a message from a neighbour) and return the
+        messages to send. Never raises on bad data: it is refused and counted (``counts``, ``reasons``)."""
+        if isinstance(item, Odometry):
+            return self._on_odometry(item)
+        if isinstance(item, Detection):
+            return self._on_detections([item])
+        if isinstance(item, Message):
+            return self._on_message(item)
+        if isinstance(item, Iterable) and not isinstance(item, str | bytes):
+            items = list(item)
+            if items and all(isinstance(d, Detection) for d in items):
+                return self._on_detections(items)
+        self.counts["messages"] += 1
+        self.accounting.message_rejected(f"unsupported input of type {type(item).__name__}")
+        return []
+
+    def belief_at(self, t: float, robot: int | None = None) -> GroupGaussian:
+        """Belief of ``robot`` (default: the node's own) at time ``t`` [s]: after every entry stamped ``<= t``,
+        predicted to ``t`` with the command in force then. Raises ValueError for ``t`` before the kept history."""
+        robot = self._robot_arg(robot)
+        if self._clock.t0 is None:
+            raise ValueError(f"{type(self).__name__}.belief_at: the node has not started (no input yet, no t0)")
+        if not t >= self._history.base_key[0]:
+            raise ValueError(
+                f"{type(self).__name__}.belief_at: t = {t} is before the kept history (from "
+                f"{self._history.base_key[0]}); the horizon is {self.horizon} s"
+            )
+        at: Key = (t, 3, 0, ())
+        s = self._history.state_before(at)
+        return self._belief(self._adv(s, robot, t, at), robot)
+
+    def belief(self, t: float | None = None, robot: int | None = None) -> GroupGaussian:
+        """Belief of ``robot`` at ``t`` [s] (default: the node's present)."""
+        return self.belief_at(self._present_or_start() if t is None else t, robot)
+
+    def stats(self) -> dict[str, int]:
+        """Counters, every key present: ``detections == fused + gated + rejected + unknown + pending`` and
+        ``odometry == odometry_used + odometry_rejected + odometry_pending`` at all times
+        (:mod:`~swarmloc.node.accounting`)."""
+        held_det = sum(len(x) for _, _, x in self._clock.held if isinstance(x, list))
+        held_odo = sum(1 for _, _, x in self._clock.held if isinstance(x, Odometry))
+        pending = sum(len(g.detections) for g in self._pending.values()) + held_det
+        return self.accounting.stats(pending, held_odo)
+
+    def expire(self, before: float | None = None) -> list[Message]:
+        """Give up waiting for answers to groups stamped before ``before`` (default: all; their detections still
+        missing an answer end ``unknown``, "no answer"); with no ``before`` (the end of a run) inputs held as a
+        possible clock jump are refused too. Drivers call it on a timeout or at the end."""
+        out: list[Message] = []
+        if before is None:
+            self._refuse_held(self._clock.release())
+        for key in sorted(self._pending):
+            if before is None or key[0] < before:
+                out += self._commit_group(key, self._pending.pop(key))
+        return out
+
+    # ------------------------------------------------------------------------------------------------ hooks
+    def _initial_state(self, t0: float) -> Any:
+        raise NotImplementedError
+
+    def _advance(self, s: Any, robot: int, t: float) -> Any:
+        """State with ``robot`` predicted to ``t`` (unchanged, the same object, when it is already there)."""
+        raise NotImplementedError
+
+    def _set_command(self, s: Any, robot: int, v: float, w: float) -> Any:
+        raise NotImplementedError
+
+    def _advance_commands(self, s: Any, cmds: Sequence[tuple[float, int, float, float]]) -> Any:
+        """State after a run of command entries ``cmds = [(t [s], robot, v [m/s], w [rad/s]), ...]`` (key order):
+        each robot predicted to ``t``, then its command set. A filter may override it with a faster equivalent
+        (the same result to rounding: tests/test_node.py checks every estimator); the default applies
+        :meth:`_advance` and :meth:`_set_command` one by one."""
+        for t, robot, v, w in cmds:
+            s = self._set_command(self._timed_advance(s, robot, t), robot, v, w)
+        return s
+
+    def _fuse_group(self, s: Any, g: Group) -> tuple[Any, list[Outcome], list[Message]]:
+        """Apply a complete detection group to ``s`` (the observer already predicted to ``g.t``)."""
+        raise NotImplementedError
+
+    def _belief(self, s: Any, robot: int) -> GroupGaussian:
+        raise NotImplementedError
+
+    def _requests(self, g: Group) -> list[Message]:
+        """Queries a group needs before it can be applied (default: none)."""
+        return []
+
+    def _answer(self, s: Any, q: Message) -> Message | None:
+        """Answer a query from state ``s`` (predicted to the query's stamp); None: this node does not answer it."""
+        return None
+
+    def _update_problem(self, u: Message) -> str | None:
+        """Why a neighbour's update (one of :attr:`update_types`) cannot be filed, or None."""
+        return None
+
+    def _apply_update(self, s: Any, u: Message) -> tuple[Any, bool]:
+        """``(state after a neighbour's update, True)``, or ``(state, False)`` when the update no longer applies
+        (the entry becomes void)."""
+        raise NotImplementedError
+
+    def _restamp(self, s: Any, t: float) -> Any:
+        """The state ``s`` with every robot's clock set to ``t`` (after a jump of the robot's clock)."""
+        stamps = s.t
+        return s._replace(t=tuple(t for _ in stamps) if isinstance(stamps, tuple) else t)
+
+    # ------------------------------------------------------------------------------------------------ targets
+    def _needs_answer(self, g: Group, d: Detection) -> bool:
+        """True when fusing ``d`` needs the target robot's answer (distributed nodes)."""
+        return (
+            d.kind != "absolute" and d.target_is_robot and self.use_relative and d.target is not None
+            and d.target != g.observer
+        )  # fmt: skip
+
+    def _classify(self, g: Group, d: Detection, sub: tuple = ()) -> tuple[str, Any]:
+        """What ``d`` is of: ``("absolute", None)``, ``("robot", answer)``, ``("landmark", (p, C))``, or the outcome
+        ``("rejected" | "unknown", reason)`` when it cannot be fused."""
+        if d.kind == "absolute":
+            return ("absolute", None)
+        if d.target_is_robot:
+            if not self.use_relative:
+                return ("rejected", "relative measurements are switched off")
+            if d.target is None:
+                return ("rejected", "robot detection without a target id")
+            if d.target == g.observer:
+                return ("rejected", "the target is the observer itself")
+            return self._robot_target(g, d, sub)
+        if d.kind == "pose":
+            return ("rejected", "a landmark is a point: it has no relative pose")
+        if not self.use_landmarks:
+            return ("rejected", "landmark measurements are switched off")
+        lm = landmark_state(self.landmarks, d.target)
+        if lm is None:
+            return ("unknown", f"landmark {d.target} is not in the map")
+        return ("landmark", lm)
+
+    def _robot_target(self, g: Group, d: Detection, sub: tuple) -> tuple[str, Any]:
+        """A distributed node knows a neighbour only from its answer."""
+        a = g.answers.get((d.target, sub))
+        if a is None:
+            return ("unknown", f"no answer from robot {d.target}")
+        if not a.found:
+            return ("unknown", f"robot {d.target}: {a.reason}")
+        return ("robot", a)
+
+    def _gated(self, nis: float, m: int) -> Outcome | None:
+        """The gate's verdict on a normalized innovation squared ``nis`` of dimension ``m`` (None: it passes)."""
+        return self.gate.verdict(nis, m)
+
+    def _robot_arg(self, robot: int | None) -> int:
+        if robot is None:
+            if len(self.robots) != 1:
+                raise ValueError(f"{type(self).__name__}: say which robot ({list(self.robots)})")
+            return self.robots[0]
+        if robot not in self.robots:
+            raise KeyError(f"{type(self).__name__}: unknown robot id {robot!r} (this node has {list(self.robots)})")
+        return robot
+
+    def _present_or_start(self) -> float:
+        if self._clock.t0 is None:
+            raise ValueError(f"{type(self).__name__}: the node has not started (no input yet, no t0)")
+        return self._clock.present
+
+    # ------------------------------------------------------------------------------------------------ prediction
+    def _timed_advance(self, s: Any, robot: int, t: float) -> Any:
+        if not self.measure_time:
+            return self._advance(s, robot, t)
+        t_start = time.perf_counter()
+        s2 = self._advance(s, robot, t)
+        if s2 is not s:
+            self.timing["predict_s"] += time.perf_counter() - t_start
+            self.timing["predict_n"] += 1
+        return s2
+
+    def _adv(self, s: Any, robot: int, t: float, after: Key | None = None) -> Any:
+        """``s``, the state after the entries keyed before ``after`` (default: the entry being applied), with
+        ``robot`` predicted to ``t``; past the end of the odometry interval in force the robot is stopped there
+        (:mod:`~swarmloc.node.inputs`)."""
+        iv = self._timeline.in_force(robot, self._cursor if after is None else after)
+        if iv is not None and t > iv[1] + CONTIGUOUS:
+            s = self._set_command(self._timed_advance(s, robot, iv[1]), robot, 0.0, 0.0)
+            self._stopped(robot, iv[1])
+        return self._timed_advance(s, robot, t)
+
+    def _stopped(self, robot: int, t1: float) -> None:
+        """Count (once) that ``robot`` is predicted as stopped after its odometry interval ending at ``t1``."""
+        if (robot, t1) not in self._stops:
+            self._stops.add((robot, t1))
+            self.counts["odometry_stops"] += 1
+            log.info("%s: robot %s has no odometry from %.9g s: predicted as stopped", self.name, robot, t1)
+
+    def _advance_run(self, s: Any, run: Sequence[Entry]) -> Any:
+        """The state after a run of command entries (:meth:`_advance_commands` of :meth:`_command_run`)."""
+        return self._advance_commands(s, self._command_run(run))
+
+    def _command_run(self, run: Sequence[Entry]) -> list[tuple[float, int, float, float]]:
+        """The commands of a run of command entries, with a stop ``(t1, robot, 0, 0)`` before every command whose
+        robot's previous interval ended before it started (a gap in its odometry)."""
+        out = []
+        for e in run:
+            t0 = e.key[0]
+            robot = e.data[0]
+            iv = self._timeline.in_force(robot, e.key)
+            if iv is not None and t0 > iv[1] + CONTIGUOUS:
+                out.append((iv[1], robot, 0.0, 0.0))
+                self._stopped(robot, iv[1])
+            out.append((t0, *e.data))
+        return out
+
+    # ------------------------------------------------------------------------------------------------ clock
+    def _ensure_started(self, t: float) -> None:
+        if self._clock.t0 is None:
+            self.start(t)
+
+    def _admit(self, t: float, item: Any) -> list[Message] | None:
+        """Check an input of the node's own robots stamped ``t`` against the clock. None: file it (inputs held
+        before are then refused: the clock did not jump). Otherwise it is held as a possible clock jump and the
+        messages to send are returned (those of the held inputs, filed after a confirmed jump)."""
+        verdict = self._clock.side(t)
+        if verdict is None:
+            if self._clock.held:
+                self._refuse_held(self._clock.release())
+            return None
+        side = verdict[0]
+        self._refuse_held(self._clock.hold(t, side, item))
+        if self._clock.jumped():
+            return self._clock_jump(side)
+        return []
+
+    def _refuse_held(self, held: list[tuple[float, str, Any]]) -> None:
+        """Count inputs held as a possible clock jump, which it was not, as refused with their reason."""
+        for t, side, item in held:
+            why = self._clock.future(t) if side == FUTURE else self._clock.too_old(t)
+            why = why or f"stamp {t} did not agree with the node's clock when it came"
+            if side == FUTURE:
+                self.counts["future"] += 1 if isinstance(item, Odometry) else len(item)
+            if isinstance(item, Odometry):
+                self.accounting.odometry_rejected(why)
+            else:
+                for d in item:
+                    self.accounting.detection_rejected(d.observer, d.t, why)
+
+    def _clock_jump(self, side: str) -> list[Message]:
+        """The robot's clock jumped (the held inputs agree): keep the belief at the present, re-stamped at the
+        earliest held stamp; forget the history, the answers given, the groups waiting (``unknown``); then file
+        the held inputs."""
+        held = self._clock.release()
+        t_new = min(t for t, _, _ in held)
+        old = self._clock.present
+        s = self._history.last_state()
+        for r in self.robots:
+            s = self._adv(s, r, old, (math.inf,))
+        for key in sorted(self._pending):
+            g = self._pending.pop(key)
+            for d in g.detections:
+                self.accounting.detection_rejected(d.observer, d.t, "the robot's clock jumped", "unknown")
+        self._history.reset(self._restamp(s, t_new), (t_new, -1, -1, ()))
+        self._timeline.clear()
+        self._served.clear()
+        self._clock.restart(t_new)
+        self.counts["clock_jumps" if side == FUTURE else "clock_resets"] += 1
+        log.warning("%s: robot clock jumped %s from %.9g s to %.9g s: history reset, belief kept", self.name,
+                    "forward" if side == FUTURE else "back", old, t_new)  # fmt: skip
+        out: list[Message] = []
+        for t, _, item in sorted(held, key=lambda h: h[0]):
+            if isinstance(item, Odometry):
+                out += self._take_odometry(item)
+            else:
+                out += self._take_detections(int(item[0].observer), t, item)
+        return out
+
+    # ------------------------------------------------------------------------------------------------ odometry
+    def _odometry_fast(self, e: Odometry) -> bool:
+        """Consume ``e`` if it takes the common path: valid, in order (after every entry), contiguous with its
+        robot's last interval, inside the clock, nothing to revise and no pruning due; False (nothing changed)
+        otherwise, for :meth:`step` to handle it. The in-process runner calls it before :meth:`step`."""
+        t0, t1, v, w = e.t0, e.t1, e.v, e.w
+        clock = self._clock
+        if not (type(t0) is type(t1) is type(v) is type(w) is float) or self._since_prune >= PRUNE_EVERY - 1:
+            return False
+        robot = e.robot
+        start = clock.t0
+        if start is None or robot not in self.robots or not (start <= t0 <= t1) or clock.held:
+            return False
+        present = clock.present
+        if not (present - clock.horizon <= t0 and t1 <= max(present, t0) + clock.tolerance and math.isfinite(v)
+                and math.isfinite(w)):  # fmt: skip
+            return False
+        last = self._timeline.last(robot)
+        if last is not None and not (last[0] < t0 and abs(t0 - last[1]) <= CONTIGUOUS):
+            return False
+        key: Key = (t0, P_ODOMETRY, robot, ())
+        hist = self._history
+        latest = self._served.latest_key()
+        if (hist.keys and not hist.keys[-1] < key) or (latest is not None and latest > key):
+            return False
+        counts = self.counts
+        counts["odometry"] += 1
+        counts["odometry_used"] += 1
+        self._timeline.add(robot, t0, t1)
+        entry = Entry(key, "odometry", (robot, v, w))
+        if not self.lazy_odometry:
+            self._cursor = key
+            entry.state = self._set_command(self._adv(hist.last_state(), robot, t0), robot, v, w)
+        hist.append(entry)
+        if t0 > present:
+            clock.present = t0
+        self._since_prune += 1
+        return True
+
+    def _on_odometry(self, e: Odometry) -> list[Message]:
+        if self._odometry_fast(e):
+            return []
+        self.counts["odometry"] += 1
+        if e.robot not in self.robots:
+            self.accounting.odometry_rejected(f"robot {e.robot!r} is not a robot of this node")
+            return []
+        why = odometry_problem(e)
+        if why:
+            self.accounting.odometry_rejected(why)
+            return []
+        self._ensure_started(float(e.t0))
+        return self._take_odometry(e)
+
+    def _take_odometry(self, e: Odometry) -> list[Message]:
+        """File a well-formed odometry record of this node's robot (counted in): clock, duplicates, overlaps,
+        then the command and the stops its gaps need."""
+        held = self._admit(float(e.t0), e)
+        if held is not None:
+            return held
+        t0, t1 = float(e.t0), float(e.t1)
+        if t1 > max(self._clock.present, t0) + self.tolerance:
+            self.counts["future"] += 1
+            self.accounting.odometry_rejected(f"interval ends at {t1:.9g} s, {self._clock.future(t1)}")
+            return []
+        key: Key = (t0, P_ODOMETRY, e.robot, ())
+        pos = self._history.find(key)
+        if pos is not None:
+            _, v, w = self._history.entries[pos].data
+            why = "duplicate" if (v, w) == (e.v, e.w) else "a different command at the same t0"
+            self.accounting.odometry_rejected(why)
+            return []
+        why = self._timeline.overlap(e.robot, t0, t1)
+        if why:
+            self.accounting.odometry_rejected(why)
+            return []
+        self.counts["odometry_used"] += 1
+        self._timeline.add(e.robot, t0, t1)
+        return self._file([Entry(key, "odometry", (e.robot, float(e.v), float(e.w)))])
+
+    # ------------------------------------------------------------------------------------------------ detections
+    def _on_detections(self, dets: list[Detection]) -> list[Message]:
+        groups: dict[tuple[int, float], list[Detection]] = {}
+        for d in dets:
+            self.counts["detections"] += 1
+            why = validate_detection(d)
+            if why is None and d.observer not in self.robots:
+                why = f"observer {d.observer!r} is not a robot of this node"
+            if why is not None:
+                self.accounting.detection_rejected(d.observer, d.t, why)
+                continue
+            groups.setdefault((int(d.observer), float(d.t)), []).append(d)
+        out: list[Message] = []
+        for (obs, t), ds in groups.items():
+            self._ensure_started(t)
+            out += self._take_detections(obs, t, ds)
+        return out
+
+    def _take_detections(self, observer: int, t: float, ds: list[Detection]) -> list[Message]:
+        """File well-formed detections of one observer at one instant (counted in): clock, then the group."""
+        held = self._admit(t, ds)
+        if held is not None:
+            return held
+        return self._add_detections(observer, t, ds)
+
+    def _add_detections(self, observer: int, t: float, ds: list[Detection]) -> list[Message]:
+        key: Key = (t, P_GROUP, observer, ())
+        pending = self._pending.get(key)
+        g = pending if pending is not None else Group(observer, t)
+        pos = self._history.find(key)
+        applied: Group | None = self._history.entries[pos].data if pos is not None else None
+        added = []
+        for d in ds:
+            if (applied is not None and detection_key(d) in applied.keys) or not g.add(d):
+                self.accounting.detection_rejected(d.observer, d.t, "duplicate detection")
+            else:
+                added.append(d)
+        if not added:
+            return []
+        if applied is not None:  # the answers already received serve the new detections too
+            g.answers = {**applied.answers, **g.answers}
+        queries = [q for q in self._requests(g) if (q.receiver, q.sub) not in g.answers]
+        for q in queries:
+            g.answers[(q.receiver, q.sub)] = None
+        if queries or (pending is not None and g.waiting()):
+            self._pending[key] = g
+            return queries
+        self._pending.pop(key, None)
+        return self._commit_group(key, g)
+
+    def _commit_group(self, key: Key, g: Group) -> list[Message]:
+        """Put a group whose answers are all in (or given up) into the history and apply it."""
+        pos = self._history.find(key)
+        if pos is not None:  # merge into the applied group
+            old: Group = self._history.entries[pos].data
+            for d in g.detections:
+                old.add(d)
+            old.answers.update({k: v for k, v in g.answers.items() if v is not None})
+            return self._replay(pos, late=True)
+        if key[0] < self._clock.present - self.horizon:  # waited too long: beyond the horizon now
+            for d in g.detections:
+                self.accounting.detection_rejected(d.observer, d.t, "older than the history horizon")
+            return []
+        return self._file([Entry(key, "group", g)])
+
+    # ------------------------------------------------------------------------------------------------ messages
+    def _on_message(self, m: Message) -> list[Message]:
+        self.counts["messages"] += 1
+        what = type(m).__name__
+        why = refusal(m, self.robots, what)
+        if why is not None:
+            self.accounting.message_rejected(why)
+            return []
+        if isinstance(m, BeliefQuery | RdlStateQuery):
+            return self._on_query(m)
+        if isinstance(m, BeliefAnswer | RdlState):
+            return self._on_answer(m)
+        if isinstance(m, self.update_types):
+            return self._on_update(m)
+        self.accounting.message_rejected(f"{self.name} does not take {what}")
+        return []
+
+    def _query_state(self, key: Key, robot: int) -> Any:
+        """The state before ``key`` with ``robot`` predicted to its stamp: what a query keyed ``key`` is answered
+        from."""
+        return self._adv(self._history.state_before(key), robot, key[0], key)
+
+    def _on_query(self, q: Message) -> list[Message]:
+        key: Key = (float(q.stamp), P_GROUP, q.sender, tuple(q.sub))
+        if self._clock.t0 is None:
+            return [not_found(q, "the node has not started")]
+        why = self._clock.too_old(key[0])
+        if why is not None:
+            return [not_found(q, why)]
+        why = self._clock.future(key[0])
+        if why is not None:  # answered once, never stored or revised
+            self.counts["not_yet_sent"] += 1
+            return [not_found(q, f"not yet: {why}")]
+        ans = self._answer(self._query_state(key, q.receiver), q)
+        if ans is None:
+            return [not_found(q, f"{self.name} does not answer {type(q).__name__}")]
+        self.counts["answers_sent"] += 1
+        return [self._served.record((key, q.sender, type(q).__name__), ans)]
+
+    def _revise(self, after: Key) -> list[Message]:
+        """Recompute the answers given to queries keyed after ``after``; send those that changed, revised."""
+        out: list[Message] = []
+        for skey, old in list(self._served.after(after)):
+            key, asker, _ = skey
+            q = query_of(old, asker)
+            new = self._answer(self._query_state(key, q.receiver), q)
+            if new is not None and (new := self._served.revise(skey, new)) is not None:
+                self.counts["revisions_sent"] += 1
+                out.append(new)
+        return out
+
+    def _on_answer(self, a: Message) -> list[Message]:
+        key: Key = (float(a.stamp), P_GROUP, a.receiver, ())
+        slot = (a.sender, tuple(a.sub))
+        g = self._pending.get(key)
+        pos = None
+        if g is None or slot not in g.answers:
+            g, pos = None, self._history.find(key)
+            if pos is None or slot not in self._history.entries[pos].data.answers:
+                why = "older than the history horizon" if self._clock.too_old(key[0]) else "to no query of this node"
+                self.accounting.message_rejected(f"answer {why}")
+                return []
+        answers = g.answers if g is not None else self._history.entries[pos].data.answers
+        old = answers[slot]
+        if old is not None and a.seq <= old.seq:
+            self.accounting.message_rejected("stale or duplicate answer")
+            return []
+        answers[slot] = a
+        if a.found:
+            self._neighbours.add(a.sender)
+        if g is None:
+            return self._replay(pos, late=True)
+        if g.waiting():
+            return []
+        del self._pending[key]
+        return self._commit_group(key, g)
+
+    def _on_update(self, u: Message) -> list[Message]:
+        why = self._update_problem(u)
+        if why is None:
+            why = self._clock.too_old(float(u.stamp)) or self._clock.future(float(u.stamp))
+            why = None if why is None else f"update {why}"
+        if why is not None:
+            self.accounting.message_rejected(why)
+            return []
+        self._neighbours.add(u.sender)
+        key: Key = (float(u.stamp), P_GROUP, u.sender, tuple(u.sub))
+        pos = self._history.find(key)
+        if u.empty:  # no update follows (the neighbour did not fuse this exchange), or one filed is retracted
+            if pos is None:
+                self.counts["no_update"] += 1
+                return []
+            self._history.remove(pos)
+            return self._replay(pos, late=True, changed=key) if pos < len(self._history) else self._revise(key)
+        if pos is not None:
+            if self._history.entries[pos].data == u:
+                self.accounting.message_rejected("duplicate update")
+                return []
+            self._history.entries[pos].data = u
+            return self._replay(pos, late=True)
+        return self._file([Entry(key, "update", u)])
+
+    # ------------------------------------------------------------------------------------------------ history
+    def _file(self, entries: list[Entry]) -> list[Message]:
+        """Put new entries into the history and apply them (replaying what follows a late one)."""
+        hist = self._history
+        for e in entries:
+            self._clock.accept(e.key[0])
+        if len(entries) == 1 and (not hist.keys or hist.keys[-1] < entries[0].key):  # in order: the common case
+            entry = entries[0]
+            hist.append(entry)
+            out: list[Message] = []
+            if not (self.lazy_odometry and entry.kind == "odometry"):
+                entry.state, out, void = self._apply(hist.state_at(len(hist) - 2), entry)
+                if void:
+                    hist.remove(len(hist) - 1)
+            latest = self._served.latest_key()
+            if latest is not None and latest > entry.key:
+                out += self._revise(entry.key)
+        else:
+            for e in entries:
+                hist.insert(hist.position(e.key), e)
+            out = self._replay(min(hist.position(e.key) for e in entries), late=True)
+        self._since_prune += len(entries)
+        if self._since_prune >= PRUNE_EVERY:
+            self._prune()
+        return out
+
+    def _replay(self, pos: int, late: bool, changed: Key | None = None) -> list[Message]:
+        """Re-apply the entries from ``pos`` on, re-count their outcomes, and revise the answers they change
+        (those keyed after ``changed``, the first key whose state may differ: default the entry at ``pos``)."""
+        if changed is None:
+            changed = self._history.keys[pos]
+        out, replayed = self._history.replay(pos, self._apply)
+        if late:
+            self.counts["late"] += 1
+            self.counts["replayed"] += replayed
+        return out + self._revise(changed)
+
+    def _apply(self, s: Any, e: Entry) -> tuple[Any, list[Message], bool]:
+        """Apply one history entry to the state before it: ``(state after, messages, entry now void)``."""
+        self._cursor = e.key
+        if e.kind == "odometry":
+            robot, v, w = e.data
+            return self._set_command(self._adv(s, robot, e.key[0]), robot, v, w), [], False
+        if e.kind == "group":
+            return self._apply_group(s, e)
+        s, applies = self._apply_update(s, e.data)  # a neighbour's update
+        return s, [], not applies
+
+    def _apply_group(self, s: Any, e: Entry) -> tuple[Any, list[Message], bool]:
+        g: Group = e.data
+        s = self._adv(s, g.observer, g.t)
+        if self.measure_time:
+            t_start, p_before = time.perf_counter(), self.timing["predict_s"]
+            s, outcomes, msgs = self._fuse_group(s, g)
+            self.timing["fuse_s"] += time.perf_counter() - t_start - (self.timing["predict_s"] - p_before)
+            self.timing["fuse_n"] += 1
+        else:
+            s, outcomes, msgs = self._fuse_group(s, g)
+        self.accounting.recount(e.outcomes, outcomes)
+        e.outcomes = outcomes
+        if self.accounting.ledger is not None:
+            marks = [(g.observer, g.t, k, o[0]) for k, o in zip(g.keys, outcomes, strict=True)]
+            self.accounting.remark(e.marks, marks)
+            e.marks = marks
+        return s, self._changed(e, msgs), False
+
+    @staticmethod
+    def _changed(e: Entry, msgs: list[Message]) -> list[Message]:
+        """Messages a (re-)applied entry produced that differ from what it sent last time; an update it no longer
+        produces (e.g. now gated) is retracted with an empty one."""
+        out = []
+        new = {(m.receiver, m.sub): m for m in msgs}
+        for k, old in list(e.sent.items()):
+            if k not in new and not getattr(old, "empty", True):
+                e.sent[k] = old.retraction()
+                out.append(e.sent[k])
+        for k, m in new.items():
+            if e.sent.get(k) != m:
+                e.sent[k] = m
+                out.append(m)
+        return out
+
+    def _prune(self) -> None:
+        """Forget entries, answers given and odometry intervals stamped before ``present - horizon``."""
+        self._since_prune = 0
+        cutoff = self._clock.present - self.horizon
+        self._history.prune(cutoff)
+        self._served.prune(cutoff)
+        self._timeline.prune(cutoff)

@@ -1,0 +1,88 @@
+"""The vocabulary of a node's history: keys, entries and detection groups.
+
+Every input is filed in the history under a **key** ``(t, priority, robot, sub)``:
+
+* a command (odometry) of ``robot`` starting at ``t0``: ``(t0, P_ODOMETRY, robot, ())``;
+* the detections one observer made at one instant form one group: ``(t, P_GROUP, observer, ())``;
+* a neighbour's update keyed by its detection: ``(t, P_GROUP, neighbour, sub)``.
+
+Keys order the history: at one stamp, detection groups come before commands (a command starting at ``t`` moves
+the robot only after ``t``), and among groups the lower robot id first.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_left
+from collections.abc import Mapping
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from swarmloc.events import Detection
+from swarmloc.messages import Message
+from swarmloc.sensors.models import KIND_ORDER
+
+__all__ = ["P_GROUP", "P_ODOMETRY", "Entry", "Group", "Key", "detection_key"]
+
+Key = tuple[float, int, int, tuple]
+"""History key ``(stamp [s], priority, robot id, sub-key)``."""
+
+P_GROUP = 1
+P_ODOMETRY = 2
+
+def detection_key(d: Detection) -> tuple[float, ...]:
+    """Canonical order of the detections in a group (and the sub-key of per-detection exchanges)."""
+    target = -1.0 if d.target is None else float(d.target)
+    return (float(KIND_ORDER[d.kind]), 0.0 if d.target_is_robot else 1.0, target, *np.asarray(d.z, float).tolist())
+
+
+class Group:
+    """The detections one observer made at one instant, in canonical order, and the neighbours' answers."""
+
+    __slots__ = ("observer", "t", "detections", "keys", "answers")
+
+    def __init__(self, observer: int, t: float) -> None:
+        self.observer = observer
+        self.t = t
+        self.detections: list[Detection] = []
+        self.keys: list[tuple[float, ...]] = []
+        self.answers: dict[tuple[int, tuple], Message | None] = {}
+
+    @property
+    def key(self) -> Key:
+        return (self.t, P_GROUP, self.observer, ())
+
+    def add(self, d: Detection) -> bool:
+        """Insert ``d`` in canonical order; False when an identical detection is already there."""
+        k = detection_key(d)
+        i = bisect_left(self.keys, k)
+        if i < len(self.keys) and self.keys[i] == k:
+            return False
+        self.keys.insert(i, k)
+        self.detections.insert(i, d)
+        return True
+
+    def waiting(self) -> bool:
+        """True while an answer it asked for has not come."""
+        return any(v is None for v in self.answers.values())
+
+
+_NOTHING_SENT: Mapping = MappingProxyType({})  # only group entries send messages
+
+
+class Entry:
+    """One history entry: its key, what it is (``kind``: ``"odometry"``, ``"group"`` or ``"update"``, a
+    neighbour's), its data, and the filter state after it (None: not computed yet, a command of a node
+    whose filter predicts runs of commands at once; the history computes it when it is needed)."""
+
+    __slots__ = ("key", "kind", "data", "state", "outcomes", "sent", "marks")
+
+    def __init__(self, key: Key, kind: str, data: Any) -> None:
+        self.key = key
+        self.kind = kind
+        self.data = data
+        self.state: Any = None
+        self.outcomes: list[tuple[str, str]] | tuple = ()  # replaced, never appended to
+        self.sent: dict[tuple[int, tuple], Message] = {} if kind == "group" else _NOTHING_SENT
+        self.marks: list[tuple] | tuple = ()  # replaced, never appended to

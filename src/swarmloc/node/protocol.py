@@ -1,0 +1,151 @@
+"""A node's protocol with its neighbours: which messages it accepts, answers, refuses, and revises.
+
+* **Refused at receipt** (counted ``messages_rejected`` with the reason, never reaching the history): a message
+  that is not one of the declared types, with malformed numbers (:func:`swarmloc.messages.message_problem`),
+  addressed from a robot to itself, or to a robot this node does not own. A node learns a neighbour only from a
+  message it accepted.
+* **Queries** (``BeliefQuery``, ``RdlStateQuery``) are answered from the state before the asker's key. A query
+  stamped past the node's present plus its clock tolerance is answered "not yet" once and forgotten (never
+  stored, never revised); one before the kept history, or before the node started, "not found" with the reason.
+  Every other answer is remembered (:class:`Served`): when a late input changes it, the node sends it again
+  with a higher revision ``seq``.
+* **Answers** to the node's own queries complete its waiting detection groups; a stale or duplicate one (``seq``
+  not higher than the one held) is refused. **Updates** from neighbours are filed in the history by the
+  estimators that take them.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_left, bisect_right
+from collections.abc import Iterator, Sequence
+
+import msgspec
+
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, flat, message_problem
+from swarmloc.node.keys import Key
+
+__all__ = ["SAME_RTOL", "Served", "answer_type", "belief_answer", "not_found", "refusal", "same", "with_seq"]
+
+SAME_RTOL = 1e-10
+"""Answers whose numbers differ by less than this (relative, at least absolute for numbers below 1) are the same:
+a replay that re-derives a state along another path may change the last bits, and such a change must not start
+a revision (over a network, two nodes would otherwise send each other last-bit revisions forever)."""
+
+ServedKey = tuple[Key, int, str]
+"""``(query key, asker, query type name)``."""
+
+
+def refusal(m: Message, robots: Sequence[int], what: str) -> str | None:
+    """Why a received message must be refused before it reaches the node's history, or None: malformed
+    (:func:`~swarmloc.messages.message_problem`), sent by a robot to itself, or addressed to a robot the node does
+    not own."""
+    why = message_problem(m)
+    if why:
+        return why
+    if m.sender == m.receiver:
+        return f"{what} addressed from robot {m.sender} to itself"
+    if m.receiver not in robots:
+        return f"{what} addressed to robot {m.receiver}, not a robot of this node"
+    return None
+
+
+def answer_type(q: Message) -> type:
+    return BeliefAnswer if isinstance(q, BeliefQuery) else RdlState
+
+
+def not_found(q: Message, reason: str) -> Message:
+    """The answer to ``q`` saying that there is none, and why."""
+    return answer_type(q)(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, found=False, reason=reason)
+
+
+def belief_answer(q: Message, b: GroupGaussian) -> BeliefAnswer:
+    """The answer to a :class:`~swarmloc.messages.BeliefQuery` carrying belief ``b``."""
+    return BeliefAnswer(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, mean=flat(b.mean),
+                        cov=flat(b.cov))  # fmt: skip
+
+
+def same(a: Message | None, b: Message | None) -> bool:
+    """Equal apart from the revision number and last-bit differences of the numbers (:data:`SAME_RTOL`)."""
+    if a is None or b is None:
+        return a is b
+    if type(a) is not type(b):
+        return False
+    for f in a.__struct_fields__:
+        if f == "seq":
+            continue
+        x, y = getattr(a, f), getattr(b, f)
+        if x == y:
+            continue
+        if not (isinstance(x, tuple) and isinstance(y, tuple) and len(x) == len(y)):
+            return False
+        for u, v in zip(x, y, strict=True):
+            if abs(u - v) > SAME_RTOL * max(1.0, abs(u), abs(v)):
+                return False
+    return True
+
+
+def with_seq(m: Message, seq: int) -> Message:
+    return msgspec.structs.replace(m, seq=seq)
+
+
+def query_of(answer: Message, asker: int) -> Message:
+    """The query that ``answer`` (served to ``asker``) answers."""
+    q_type = BeliefQuery if isinstance(answer, BeliefAnswer) else RdlStateQuery
+    return q_type(sender=asker, receiver=answer.sender, stamp=answer.stamp, sub=answer.sub)
+
+
+class Served:
+    """The answers a node gave, by ``(query key, asker, query type)``, in key order: what a replay may revise."""
+
+    def __init__(self) -> None:
+        self.keys: list[ServedKey] = []
+        self.answers: dict[ServedKey, Message] = {}
+
+    def clear(self) -> None:
+        self.keys.clear()
+        self.answers.clear()
+
+    def get(self, skey: ServedKey) -> Message | None:
+        return self.answers.get(skey)
+
+    def latest_key(self) -> Key | None:
+        """The key of the latest answered query (None: none)."""
+        return self.keys[-1][0] if self.keys else None
+
+    def record(self, skey: ServedKey, ans: Message) -> Message:
+        """Remember ``ans`` as the answer under ``skey``: the one given before when it is the same, else with a
+        revision one higher than it."""
+        old = self.answers.get(skey)
+        if old is None:
+            self.keys.insert(bisect_left(self.keys, skey), skey)
+        elif same(old, ans):
+            ans = old
+        else:
+            ans = with_seq(ans, old.seq + 1)
+        self.answers[skey] = ans
+        return ans
+
+    def revise(self, skey: ServedKey, new: Message) -> Message | None:
+        """``new`` with the next revision when it differs from the answer given under ``skey`` (else None)."""
+        old = self.answers[skey]
+        if same(old, new):
+            return None
+        new = with_seq(new, old.seq + 1)
+        self.answers[skey] = new
+        return new
+
+    def after(self, key: Key) -> Iterator[tuple[ServedKey, Message]]:
+        """The answers keyed after ``key``, in key order."""
+        i = bisect_right(self.keys, (key, math.inf))
+        for skey in self.keys[i:]:
+            yield skey, self.answers[skey]
+
+    def prune(self, cutoff: float) -> None:
+        """Forget answers to queries stamped before ``cutoff``."""
+        m = bisect_left(self.keys, ((cutoff,),))
+        if m > 0:
+            for k in self.keys[:m]:
+                del self.answers[k]
+            del self.keys[:m]
