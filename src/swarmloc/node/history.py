@@ -20,7 +20,10 @@ from typing import Any
 from swarmloc.messages import Message
 from swarmloc.node.keys import Entry, Key
 
-__all__ = ["History"]
+__all__ = ["PRUNE_EVERY", "History"]
+
+PRUNE_EVERY = 64
+"""Inputs between two prunings of the history (pruning costs a bisection and a slice)."""
 
 AdvanceRun = Callable[[Any, Sequence[Entry]], Any]
 Apply = Callable[[Any, Entry], tuple[Any, list[Message], bool]]

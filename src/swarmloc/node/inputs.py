@@ -13,17 +13,35 @@
 
 from __future__ import annotations
 
+import logging
 import math
 from bisect import bisect_left
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
 from swarmloc.events import Detection, Odometry
 from swarmloc.gaussian import check_covariance
+from swarmloc.messages import Message
+from swarmloc.node.accounting import Accounting
+from swarmloc.node.clock import FUTURE, Clock
+from swarmloc.node.history import PRUNE_EVERY, History
+from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
 from swarmloc.sensors.models import MODELS
 
-__all__ = ["CONTIGUOUS", "Landmarks", "OdometryTimeline", "landmark_state", "odometry_problem", "validate_detection"]
+log = logging.getLogger("swarmloc.node")
+
+__all__ = [
+    "CONTIGUOUS",
+    "Intake",
+    "Landmarks",
+    "OdometryTimeline",
+    "landmark_state",
+    "odometry_problem",
+    "validate_detection",
+]
+
 
 CONTIGUOUS = 1e-9
 """[s] Odometry intervals that overlap by less than this are contiguous (rounding of stamps)."""
@@ -172,3 +190,223 @@ class OdometryTimeline:
             if n > 0:
                 del starts[:n]
                 del self._t1[robot][:n]
+
+
+class Intake:
+    """How a :class:`~swarmloc.node.base.Node` takes its own robots' odometry and detections: checked against the
+    input contract and the clock (:mod:`~swarmloc.node.clock`), then filed in the history (a part of the node: its
+    methods use the node's clock, history, timeline and accounting)."""
+
+    robots: tuple[int, ...]
+    accounting: Accounting
+    _clock: Clock
+    _history: History
+    _timeline: OdometryTimeline
+    _pending: dict[Key, Group]
+    _since_prune: int
+
+    # ------------------------------------------------------------------------------------------------ clock
+    def _ensure_started(self, t: float) -> None:
+        if self._clock.t0 is None:
+            self.start(t)
+
+    def _admit(self, t: float, item: Any) -> list[Message] | None:
+        """Check an input of the node's own robots stamped ``t`` against the clock. None: file it (inputs held
+        before are then refused: the clock did not jump). Otherwise it is held as a possible clock jump and the
+        messages to send are returned (those of the held inputs, filed after a confirmed jump)."""
+        verdict = self._clock.side(t)
+        if verdict is None:
+            if self._clock.held:
+                self._refuse_held(self._clock.release())
+            return None
+        side = verdict[0]
+        self._refuse_held(self._clock.hold(t, side, item))
+        if self._clock.jumped():
+            return self._clock_jump(side)
+        return []
+
+    def _refuse_held(self, held: list[tuple[float, str, Any]]) -> None:
+        """Count inputs held as a possible clock jump, which it was not, as refused with their reason."""
+        for t, side, item in held:
+            why = self._clock.future(t) if side == FUTURE else self._clock.too_old(t)
+            why = why or f"stamp {t} did not agree with the node's clock when it came"
+            if side == FUTURE:
+                self.counts["future"] += 1 if isinstance(item, Odometry) else len(item)
+            if isinstance(item, Odometry):
+                self.accounting.odometry_rejected(why)
+            else:
+                for d in item:
+                    self.accounting.detection_rejected(d.observer, d.t, why)
+
+    def _clock_jump(self, side: str) -> list[Message]:
+        """The robot's clock jumped (the held inputs agree): keep the belief at the present, re-stamped at the
+        earliest held stamp; forget the history, the answers given, the groups waiting (``unknown``); then file
+        the held inputs."""
+        held = self._clock.release()
+        t_new = min(t for t, _, _ in held)
+        old = self._clock.present
+        s = self._history.last_state()
+        for r in self.robots:
+            s = self._adv(s, r, old, (math.inf,))
+        for key in sorted(self._pending):
+            g = self._pending.pop(key)
+            for d in g.detections:
+                self.accounting.detection_rejected(d.observer, d.t, "the robot's clock jumped", "unknown")
+        self._history.reset(self._restamp(s, t_new), (t_new, -1, -1, ()))
+        self._timeline.clear()
+        self._served.clear()
+        self._clock.restart(t_new)
+        self.counts["clock_jumps" if side == FUTURE else "clock_resets"] += 1
+        log.warning("%s: robot clock jumped %s from %.9g s to %.9g s: history reset, belief kept", self.name,
+                    "forward" if side == FUTURE else "back", old, t_new)  # fmt: skip
+        out: list[Message] = []
+        for t, _, item in sorted(held, key=lambda h: h[0]):
+            if isinstance(item, Odometry):
+                out += self._take_odometry(item)
+            else:
+                out += self._take_detections(int(item[0].observer), t, item)
+        return out
+
+    # ------------------------------------------------------------------------------------------------ odometry
+    def _odometry_fast(self, e: Odometry) -> bool:
+        """Consume ``e`` if it takes the common path: valid, in order (after every entry), contiguous with its
+        robot's last interval, inside the clock, nothing to revise and no pruning due; False (nothing changed)
+        otherwise, for :meth:`step` to handle it. The in-process runner calls it before :meth:`step`."""
+        t0, t1, v, w = e.t0, e.t1, e.v, e.w
+        clock = self._clock
+        if not (type(t0) is type(t1) is type(v) is type(w) is float) or self._since_prune >= PRUNE_EVERY - 1:
+            return False
+        robot = e.robot
+        start = clock.t0
+        if start is None or robot not in self.robots or not (start <= t0 <= t1) or clock.held:
+            return False
+        present = clock.present
+        if not (present - clock.horizon <= t0 and t1 <= max(present, t0) + clock.tolerance and math.isfinite(v)
+                and math.isfinite(w)):  # fmt: skip
+            return False
+        last = self._timeline.last(robot)
+        if last is not None and not (last[0] < t0 and abs(t0 - last[1]) <= CONTIGUOUS):
+            return False
+        key: Key = (t0, P_ODOMETRY, robot, ())
+        hist = self._history
+        latest = self._served.latest_key()
+        if (hist.keys and not hist.keys[-1] < key) or (latest is not None and latest > key):
+            return False
+        counts = self.counts
+        counts["odometry"] += 1
+        counts["odometry_used"] += 1
+        self._timeline.add(robot, t0, t1)
+        entry = Entry(key, "odometry", (robot, v, w))
+        if not self.lazy_odometry:
+            self._cursor = key
+            entry.state = self._set_command(self._adv(hist.last_state(), robot, t0), robot, v, w)
+        hist.append(entry)
+        if t0 > present:
+            clock.present = t0
+        self._since_prune += 1
+        return True
+
+    def _on_odometry(self, e: Odometry) -> list[Message]:
+        if self._odometry_fast(e):
+            return []
+        self.counts["odometry"] += 1
+        if e.robot not in self.robots:
+            self.accounting.odometry_rejected(f"robot {e.robot!r} is not a robot of this node")
+            return []
+        why = odometry_problem(e)
+        if why:
+            self.accounting.odometry_rejected(why)
+            return []
+        self._ensure_started(float(e.t0))
+        return self._take_odometry(e)
+
+    def _take_odometry(self, e: Odometry) -> list[Message]:
+        """File a well-formed odometry record of this node's robot (counted in): clock, duplicates, overlaps,
+        then the command and the stops its gaps need."""
+        held = self._admit(float(e.t0), e)
+        if held is not None:
+            return held
+        t0, t1 = float(e.t0), float(e.t1)
+        if t1 > max(self._clock.present, t0) + self.tolerance:
+            self.counts["future"] += 1
+            self.accounting.odometry_rejected(f"interval ends at {t1:.9g} s, {self._clock.future(t1)}")
+            return []
+        key: Key = (t0, P_ODOMETRY, e.robot, ())
+        pos = self._history.find(key)
+        if pos is not None:
+            _, v, w = self._history.entries[pos].data
+            why = "duplicate" if (v, w) == (e.v, e.w) else "a different command at the same t0"
+            self.accounting.odometry_rejected(why)
+            return []
+        why = self._timeline.overlap(e.robot, t0, t1)
+        if why:
+            self.accounting.odometry_rejected(why)
+            return []
+        self.counts["odometry_used"] += 1
+        self._timeline.add(e.robot, t0, t1)
+        return self._file([Entry(key, "odometry", (e.robot, float(e.v), float(e.w)))])
+
+    # ------------------------------------------------------------------------------------------------ detections
+    def _on_detections(self, dets: list[Detection]) -> list[Message]:
+        groups: dict[tuple[int, float], list[Detection]] = {}
+        for d in dets:
+            self.counts["detections"] += 1
+            why = validate_detection(d)
+            if why is None and d.observer not in self.robots:
+                why = f"observer {d.observer!r} is not a robot of this node"
+            if why is not None:
+                self.accounting.detection_rejected(d.observer, d.t, why)
+                continue
+            groups.setdefault((int(d.observer), float(d.t)), []).append(d)
+        out: list[Message] = []
+        for (obs, t), ds in groups.items():
+            self._ensure_started(t)
+            out += self._take_detections(obs, t, ds)
+        return out
+
+    def _take_detections(self, observer: int, t: float, ds: list[Detection]) -> list[Message]:
+        """File well-formed detections of one observer at one instant (counted in): clock, then the group."""
+        held = self._admit(t, ds)
+        if held is not None:
+            return held
+        return self._add_detections(observer, t, ds)
+
+    def _add_detections(self, observer: int, t: float, ds: list[Detection]) -> list[Message]:
+        key: Key = (t, P_GROUP, observer, ())
+        pending = self._pending.get(key)
+        g = pending if pending is not None else Group(observer, t)
+        pos = self._history.find(key)
+        applied: Group | None = self._history.entries[pos].data if pos is not None else None
+        added = []
+        for d in ds:
+            if (applied is not None and detection_key(d) in applied.keys) or not g.add(d):
+                self.accounting.detection_rejected(d.observer, d.t, "duplicate detection")
+            else:
+                added.append(d)
+        if not added:
+            return []
+        if applied is not None:  # the answers already received serve the new detections too
+            g.answers = {**applied.answers, **g.answers}
+        queries = [q for q in self._requests(g) if (q.receiver, q.sub) not in g.answers]
+        for q in queries:
+            g.answers[(q.receiver, q.sub)] = None
+        if queries or (pending is not None and g.waiting()):
+            self._pending[key] = g
+            return queries
+        self._pending.pop(key, None)
+        return self._commit_group(key, g)
+
+    def _commit_group(self, key: Key, g: Group) -> list[Message]:
+        """Put a group whose answers are all in (or given up) into the history and apply it."""
+        pos = self._history.find(key)
+        if pos is not None:  # merge into the applied group
+            old: Group = self._history.entries[pos].data
+            for d in g.detections:
+                old.add(d)
+            old.answers.update({k: v for k, v in g.answers.items() if v is not None})
+            return self._replay(pos, late=True)
+        if key[0] < self._clock.present - self.horizon:  # waited too long: beyond the horizon now
+            for d in g.detections:
+                self.accounting.detection_rejected(d.observer, d.t, "older than the history horizon")
+            return []
+        return self._file([Entry(key, "group", g)])

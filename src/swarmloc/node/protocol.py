@@ -19,14 +19,25 @@ from __future__ import annotations
 import math
 from bisect import bisect_left, bisect_right
 from collections.abc import Iterator, Sequence
+from typing import Any
 
 import msgspec
 
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, flat, message_problem
-from swarmloc.node.keys import Key
+from swarmloc.node.keys import P_GROUP, Entry, Key
 
-__all__ = ["SAME_RTOL", "Served", "answer_type", "belief_answer", "not_found", "refusal", "same", "with_seq"]
+__all__ = [
+    "SAME_RTOL",
+    "Exchange",
+    "Served",
+    "answer_type",
+    "belief_answer",
+    "not_found",
+    "refusal",
+    "same",
+    "with_seq",
+]
 
 SAME_RTOL = 1e-10
 """Answers whose numbers differ by less than this (relative, at least absolute for numbers below 1) are the same:
@@ -149,3 +160,117 @@ class Served:
             for k in self.keys[:m]:
                 del self.answers[k]
             del self.keys[:m]
+
+
+class Exchange:
+    """How a :class:`~swarmloc.node.base.Node` takes messages from its neighbours (module docstring; a part of the
+    node: its methods use the node's clock, history, served answers and accounting)."""
+
+    robots: tuple[int, ...]
+    name: str
+    update_types: tuple[type, ...]
+    _served: Served
+    _pending: dict
+    _neighbours: set[int]
+
+    # ------------------------------------------------------------------------------------------------ messages
+    def _on_message(self, m: Message) -> list[Message]:
+        self.counts["messages"] += 1
+        what = type(m).__name__
+        why = refusal(m, self.robots, what)
+        if why is not None:
+            self.accounting.message_rejected(why)
+            return []
+        if isinstance(m, BeliefQuery | RdlStateQuery):
+            return self._on_query(m)
+        if isinstance(m, BeliefAnswer | RdlState):
+            return self._on_answer(m)
+        if isinstance(m, self.update_types):
+            return self._on_update(m)
+        self.accounting.message_rejected(f"{self.name} does not take {what}")
+        return []
+
+    def _query_state(self, key: Key, robot: int) -> Any:
+        """The state before ``key`` with ``robot`` predicted to its stamp: what a query keyed ``key`` is answered
+        from."""
+        return self._adv(self._history.state_before(key), robot, key[0], key)
+
+    def _on_query(self, q: Message) -> list[Message]:
+        key: Key = (float(q.stamp), P_GROUP, q.sender, tuple(q.sub))
+        if self._clock.t0 is None:
+            return [not_found(q, "the node has not started")]
+        why = self._clock.too_old(key[0])
+        if why is not None:
+            return [not_found(q, why)]
+        why = self._clock.future(key[0])
+        if why is not None:  # answered once, never stored or revised
+            self.counts["not_yet_sent"] += 1
+            return [not_found(q, f"not yet: {why}")]
+        ans = self._answer(self._query_state(key, q.receiver), q)
+        if ans is None:
+            return [not_found(q, f"{self.name} does not answer {type(q).__name__}")]
+        self.counts["answers_sent"] += 1
+        return [self._served.record((key, q.sender, type(q).__name__), ans)]
+
+    def _revise(self, after: Key) -> list[Message]:
+        """Recompute the answers given to queries keyed after ``after``; send those that changed, revised."""
+        out: list[Message] = []
+        for skey, old in list(self._served.after(after)):
+            key, asker, _ = skey
+            q = query_of(old, asker)
+            new = self._answer(self._query_state(key, q.receiver), q)
+            if new is not None and (new := self._served.revise(skey, new)) is not None:
+                self.counts["revisions_sent"] += 1
+                out.append(new)
+        return out
+
+    def _on_answer(self, a: Message) -> list[Message]:
+        key: Key = (float(a.stamp), P_GROUP, a.receiver, ())
+        slot = (a.sender, tuple(a.sub))
+        g = self._pending.get(key)
+        pos = None
+        if g is None or slot not in g.answers:
+            g, pos = None, self._history.find(key)
+            if pos is None or slot not in self._history.entries[pos].data.answers:
+                why = "older than the history horizon" if self._clock.too_old(key[0]) else "to no query of this node"
+                self.accounting.message_rejected(f"answer {why}")
+                return []
+        answers = g.answers if g is not None else self._history.entries[pos].data.answers
+        old = answers[slot]
+        if old is not None and a.seq <= old.seq:
+            self.accounting.message_rejected("stale or duplicate answer")
+            return []
+        answers[slot] = a
+        if a.found:
+            self._neighbours.add(a.sender)
+        if g is None:
+            return self._replay(pos, late=True)
+        if g.waiting():
+            return []
+        del self._pending[key]
+        return self._commit_group(key, g)
+
+    def _on_update(self, u: Message) -> list[Message]:
+        why = self._update_problem(u)
+        if why is None:
+            why = self._clock.too_old(float(u.stamp)) or self._clock.future(float(u.stamp))
+            why = None if why is None else f"update {why}"
+        if why is not None:
+            self.accounting.message_rejected(why)
+            return []
+        self._neighbours.add(u.sender)
+        key: Key = (float(u.stamp), P_GROUP, u.sender, tuple(u.sub))
+        pos = self._history.find(key)
+        if u.empty:  # no update follows (the neighbour did not fuse this exchange), or one filed is retracted
+            if pos is None:
+                self.counts["no_update"] += 1
+                return []
+            self._history.remove(pos)
+            return self._replay(pos, late=True, changed=key) if pos < len(self._history) else self._revise(key)
+        if pos is not None:
+            if self._history.entries[pos].data == u:
+                self.accounting.message_rejected("duplicate update")
+                return []
+            self._history.entries[pos].data = u
+            return self._replay(pos, late=True)
+        return self._file([Entry(key, "update", u)])

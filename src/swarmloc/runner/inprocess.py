@@ -28,8 +28,9 @@ import numpy as np
 from swarmloc.datasets.source import TruthFn
 from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.lie import SE2
-from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery
+from swarmloc.messages import BeliefQuery, Message, RdlStateQuery
 from swarmloc.node import Node
+from swarmloc.node.protocol import not_found
 from swarmloc.runner.result import RobotTrack, RunResult
 
 Progress = Callable[[int, int], None]
@@ -94,51 +95,75 @@ def run(
     team = [nodes] if isinstance(nodes, Node) else list(nodes)
     if not team:
         raise ValueError("run: no nodes")
-    owner: dict[int, Node] = {}
-    for n in team:
-        for r in n.robots:
-            if r in owner:
-                raise ValueError(f"run: robot {r} is owned by two nodes ({owner[r].name} and {n.name})")
-            owner[r] = n
     events = list(events)
-    first: dict[int, float] = {}
-    for e in events:
-        r = e.robot if isinstance(e, Odometry | Truth) else e.observer if isinstance(e, Detection) else None
-        n = owner.get(r)
-        s = e.stamp if n is not None else math.nan
-        if n is not None and isinstance(s, int | float) and math.isfinite(s) and s < first.get(id(n), math.inf):
-            first[id(n)] = s
-    for n in team:
-        if not n.started and id(n) in first:
-            n.start(first[id(n)])
-
-    stats: Counter[str] = Counter()
-    runner_reasons: Counter[str] = Counter()
-    rec = _Records()
+    drv = _Driver(team)
+    drv.start_nodes(events)
     if record_times is not None:
-        rt = np.asarray(record_times, dtype=float)
-        for r in sorted(owner):
+        drv.plan_records(np.asarray(record_times, dtype=float), truth)
+    t_wall = time.perf_counter()
+    drv.feed(events, record_truth=record_times is None, progress=progress)
+    drv.finish()
+    wall = time.perf_counter() - t_wall
+    if progress is not None:
+        progress(len(events), len(events))
+    return drv.result(name or team[0].name, wall, len(events))
+
+
+class _Driver:
+    """The state of one run: who owns which robot, the records waiting to be final, the runner's own counters."""
+
+    def __init__(self, team: list[Node]) -> None:
+        self.team = team
+        self.owner: dict[int, Node] = {}
+        for n in team:
+            for r in n.robots:
+                if r in self.owner:
+                    raise ValueError(f"run: robot {r} is owned by two nodes ({self.owner[r].name} and {n.name})")
+                self.owner[r] = n
+        self.stats: Counter[str] = Counter()
+        self.reasons: Counter[str] = Counter()
+        self.rec = _Records()
+        self.order = itertools.count()
+
+    def start_nodes(self, events: list[Event]) -> None:
+        """Start every node not started yet at the earliest stamp of the events it will receive."""
+        first: dict[int, float] = {}
+        for e in events:
+            r = e.robot if isinstance(e, Odometry | Truth) else e.observer if isinstance(e, Detection) else None
+            n = self.owner.get(r)
+            s = e.stamp if n is not None else math.nan
+            if n is not None and isinstance(s, int | float) and math.isfinite(s) and s < first.get(id(n), math.inf):
+                first[id(n)] = s
+        for n in self.team:
+            if not n.started and id(n) in first:
+                n.start(first[id(n)])
+
+    def plan_records(self, rt: np.ndarray, truth: TruthFn | None) -> None:
+        for r in sorted(self.owner):
             tr = truth_table(truth, r, rt)
             for t, row in zip(rt.tolist(), tr, strict=True):
                 if truth is not None and not np.isfinite(row).all():
-                    stats["truth_missing"] += 1
+                    self.stats["truth_missing"] += 1
                     continue
-                rec.add(owner[r], t, r, row)
+                self.rec.add(self.owner[r], t, r, row)
 
-    def deliver(node: Node, item: object, stamp: object) -> None:
-        """Resolve the records this input could no longer change, then step the node and route its messages."""
-        h = rec.heap.get(id(node))
-        if h and isinstance(stamp, float | int):
+    def resolve(self, node: Node, stamp: float) -> None:
+        """Record the beliefs this input can no longer change (a horizon before the node's present or ``stamp``)."""
+        h = self.rec.heap.get(id(node))
+        if h:
             upto = max(node.present, stamp) - node.horizon
             if h[0][0] <= upto:
-                rec.resolve(node, upto)
+                self.rec.resolve(node, upto)
+
+    def deliver(self, node: Node, item: object, stamp: object) -> None:
+        """Resolve the records this input could no longer change, then step the node and route its messages."""
+        if isinstance(stamp, float | int):
+            self.resolve(node, stamp)
         out = node.step(item)
         if out:
-            pump(out)
+            self.pump(out)
 
-    order = itertools.count()
-
-    def pump(msgs: list[Message]) -> None:
+    def pump(self, msgs: list[Message]) -> None:
         """Deliver messages until none are left, lowest key first (an answer at key ``q`` depends only on inputs
         before ``q``, so in this order no answer is revised twice for the same cause); among messages with one key
         the highest revision first, so that an older one arrives stale instead of causing a second replay."""
@@ -146,103 +171,96 @@ def run(
 
         def push(ms: list[Message]) -> None:
             for m in ms:
-                heapq.heappush(heap, (m.stamp, m.observer, m.sub, -getattr(m, "seq", 0), next(order), m))
+                heapq.heappush(heap, (m.stamp, m.observer, m.sub, -getattr(m, "seq", 0), next(self.order), m))
 
         push(msgs)
         while heap:
             m = heapq.heappop(heap)[-1]
-            stats["messages"] += 1
-            node = owner.get(m.receiver)
+            self.stats["messages"] += 1
+            node = self.owner.get(m.receiver)
             if node is None:
                 if isinstance(m, BeliefQuery | RdlStateQuery):
-                    kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
-                    reason = f"robot {m.receiver} is not in the team"
-                    push([kind(sender=m.receiver, receiver=m.sender, stamp=m.stamp, sub=m.sub, found=False,
-                               reason=reason)])  # fmt: skip
+                    push([not_found(m, f"robot {m.receiver} is not in the team")])
                 else:
-                    stats["messages_undeliverable"] += 1
+                    self.stats["messages_undeliverable"] += 1
                 continue
             if not isinstance(m, BeliefQuery | RdlStateQuery):
-                rec.resolve(node, max(node.present, m.stamp) - node.horizon)
+                self.rec.resolve(node, max(node.present, m.stamp) - node.horizon)
             push(node.step(m))
 
-    # odometry, the bulk of a log, goes straight to the node's fast path (Node._odometry_fast) when it takes it, with
-    # the records resolved exactly as deliver() would: (node, its record heap, horizon, fast path) per robot
-    odo_route = {r: (n, rec.heap.setdefault(id(n), []), n.horizon, n._odometry_fast) for r, n in owner.items()}
-    t_wall = time.perf_counter()
-    total = len(events)
-    i = 0
-    while i < total:
-        e = events[i]
-        if progress is not None and i % 4096 == 0:
-            progress(i, total)
-        i += 1
-        if type(e) is Odometry:
-            route = odo_route.get(e.robot)
-            if route is None:
-                stats["unknown_robot"] += 1
-                stats["odometry"] += 1
-                continue
-            node, h, horizon, fast = route
-            stamp = e.t0
-            if type(stamp) is float:
-                if h:
-                    upto = max(node.present, stamp) - horizon
-                    if h[0][0] <= upto:
-                        rec.resolve(node, upto)
-                if fast(e):
-                    continue
-                out = node.step(e)
-                if out:
-                    pump(out)
+    def feed(self, events: list[Event], record_truth: bool, progress: Progress | None) -> None:
+        """Hand every event to the node owning its robot; consecutive detections of one observer at one instant go
+        together. Odometry, the bulk of a log, goes straight to the node's fast path when it takes it."""
+        total, i = len(events), 0
+        while i < total:
+            e = events[i]
+            if progress is not None and i % 4096 == 0:
+                progress(i, total)
+            i += 1
+            if type(e) is Odometry:
+                self._odometry(e)
+            elif isinstance(e, Detection):
+                group = [e]
+                while i < total and isinstance(events[i], Detection) and events[i].observer == e.observer \
+                        and events[i].t == e.t:  # fmt: skip
+                    group.append(events[i])
+                    i += 1
+                self._detections(group)
+            elif isinstance(e, Truth):
+                node = self.owner.get(e.robot)
+                if node is None:
+                    self.stats["truth_unknown_robot"] += 1
+                elif record_truth:
+                    self.rec.add(node, float(e.t), e.robot, np.asarray(e.pose, dtype=float))
             else:
-                deliver(node, e, stamp)
-        elif isinstance(e, Detection):
-            group = [e]
-            while i < total and isinstance(events[i], Detection) and events[i].observer == e.observer \
-                    and events[i].t == e.t:  # fmt: skip
-                group.append(events[i])
-                i += 1
-            node = owner.get(e.observer)
-            if node is None:
-                stats["unknown_robot"] += len(group)
-                stats["detections"] += len(group)
-                stats["unknown"] += len(group)
-                runner_reasons[f"unknown: observer {e.observer!r} is not in the team"] += len(group)
-                continue
-            deliver(node, group, e.t)
-        elif isinstance(e, Truth):
-            node = owner.get(e.robot)
-            if node is None:
-                stats["truth_unknown_robot"] += 1
-            elif record_times is None:
-                rec.add(node, float(e.t), e.robot, np.asarray(e.pose, dtype=float))
-        else:
-            stats["unknown_event"] += 1
-    for n in team:
-        pump(n.expire())
-    for n in team:
-        rec.resolve(n, math.inf)
-    wall = time.perf_counter() - t_wall
-    if progress is not None:
-        progress(total, total)
+                self.stats["unknown_event"] += 1
 
-    merged: Counter[str] = Counter()
-    reasons: Counter[str] = Counter()
-    timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
-    for n in team:
-        merged.update(n.stats())
-        reasons.update(n.reasons)
-        for k in timing:
-            timing[k] += n.timing[k]
-    merged.update(stats)
-    reasons.update(runner_reasons)
-    merged["recorded"] = sum(len(v) for v in rec.rows.values())
-    if rec.too_old:
-        merged["record_too_old"] = rec.too_old
-    for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
-        merged.setdefault(k, 0)
-    return RunResult(name or team[0].name, rec.tracks(), wall, dict(merged), total, reasons, timing)
+    def _odometry(self, e: Odometry) -> None:
+        node = self.owner.get(e.robot)
+        if node is None:
+            self.stats["unknown_robot"] += 1
+            self.stats["odometry"] += 1
+            return
+        if type(e.t0) is float:
+            self.resolve(node, e.t0)
+            if node._odometry_fast(e):
+                return
+        self.deliver(node, e, e.t0)
+
+    def _detections(self, group: list[Detection]) -> None:
+        e = group[0]
+        node = self.owner.get(e.observer)
+        if node is None:
+            self.stats["unknown_robot"] += len(group)
+            self.stats["detections"] += len(group)
+            self.stats["unknown"] += len(group)
+            self.reasons[f"unknown: observer {e.observer!r} is not in the team"] += len(group)
+            return
+        self.deliver(node, group, e.t)
+
+    def finish(self) -> None:
+        for n in self.team:
+            self.pump(n.expire())
+        for n in self.team:
+            self.rec.resolve(n, math.inf)
+
+    def result(self, name: str, wall: float, n_events: int) -> RunResult:
+        merged: Counter[str] = Counter()
+        reasons: Counter[str] = Counter()
+        timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
+        for n in self.team:
+            merged.update(n.stats())
+            reasons.update(n.reasons)
+            for k in timing:
+                timing[k] += n.timing[k]
+        merged.update(self.stats)
+        reasons.update(self.reasons)
+        merged["recorded"] = sum(len(v) for v in self.rec.rows.values())
+        if self.rec.too_old:
+            merged["record_too_old"] = self.rec.too_old
+        for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
+            merged.setdefault(k, 0)
+        return RunResult(name, self.rec.tracks(), wall, dict(merged), n_events, reasons, timing)
 
 
 def _xytheta(g: np.ndarray) -> np.ndarray:
