@@ -32,6 +32,8 @@ Five sections, every key optional (a missing key keeps its default; defaults are
     [filter]
     gate = 0.997       # chi-square probability in (0, 1) of the innovation gate; false (or 0) disables it
     horizon = 5.0      # [s] how far back out-of-order input is replayed
+    clock_tolerance = 5.0  # [s] how far past a node's present an input may be stamped (capped at horizon)
+    clock_jump_inputs = 3  # inputs in a row, at distinct stamps, that confirm a jump of a robot's clock
     order = 2          # 1 or 2: order of the SE(2) convolution
     iterations = 2     # >= 1, iterations of the iterated update
     point_iterations = 3  # >= 1, iterations of a point (landmark) update
@@ -231,13 +233,17 @@ class FilterConfig:
 
     ``gate``: probability in ``(0, 1)`` of the chi-square gate on the normalized innovation squared, or None for
     no gate (TOML: ``gate = false`` or ``gate = 0``). ``horizon`` [s] ``> 0``: how far back out-of-order input is
-    replayed. ``order``: 1 or 2. ``iterations``, ``point_iterations``: integers ``>= 1``.
+    replayed. ``clock_tolerance`` [s] ``> 0`` (the nodes take at most ``horizon``) and ``clock_jump_inputs`` (an
+    integer in [1, 100]): the node's clock contract (:mod:`swarmloc.node.clock`). ``order``: 1 or 2.
+    ``iterations``, ``point_iterations``: integers ``>= 1``.
     """
 
     SECTION: ClassVar[str] = "filter"
     UNITS: ClassVar[dict[str, str]] = {
         "gate": "chi-square probability in (0, 1) of the innovation gate; false disables it",
         "horizon": "[s] how far back out-of-order input is replayed",
+        "clock_tolerance": "[s] how far past a node's present an input may be stamped (capped at horizon)",
+        "clock_jump_inputs": "inputs in a row, at distinct stamps, that confirm a jump of a robot's clock",
         "order": "1 or 2: order of the SE(2) convolution",
         "iterations": "iterations of the iterated update (>= 1)",
         "point_iterations": "iterations of a point (landmark) update (>= 1)",
@@ -245,6 +251,8 @@ class FilterConfig:
 
     gate: float | None = 0.997
     horizon: float = 5.0
+    clock_tolerance: float = 5.0
+    clock_jump_inputs: int = 3
     order: int = 2
     iterations: int = 2
     point_iterations: int = 3
@@ -262,6 +270,11 @@ class FilterConfig:
                 )
         _set(self, "gate", g)
         _set(self, "horizon", _positive(s, "horizon", self.horizon))
+        _set(self, "clock_tolerance", _positive(s, "clock_tolerance", self.clock_tolerance))
+        jumps = _integer(s, "clock_jump_inputs", self.clock_jump_inputs, None, 1, "an integer in [1, 100]")
+        if jumps > 100:
+            raise ConfigError(f"[{s}] clock_jump_inputs: expected an integer in [1, 100], got {jumps!r}")
+        _set(self, "clock_jump_inputs", jumps)
         _set(self, "order", _integer(s, "order", self.order, (1, 2), 1, "1 or 2 (an integer)"))
         _set(self, "iterations", _integer(s, "iterations", self.iterations, None, 1, "an integer >= 1"))
         _set(

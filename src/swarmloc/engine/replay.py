@@ -55,6 +55,8 @@ def run_engine(
     """
     src = source_or_sim if isinstance(source_or_sim, Source) else sim_source(source_or_sim, "sim", config)
     opts = {**node_options(estimator, src.config, src.landmarks), **options}
+    for clock_only in ("tolerance", "jump_inputs"):  # the engine replays a checked log: no clock contract to keep
+        opts.pop(clock_only, None)
     robots = src.robots
     col = {r: i for i, r in enumerate(robots)}
     n = len(robots)

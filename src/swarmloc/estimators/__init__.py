@@ -97,8 +97,11 @@ def options_for(estimator: str | type[Node], **candidates: Any) -> dict[str, Any
     return {k: v for k, v in candidates.items() if k in ok}
 
 
-def node_options(name: str, config: Config, landmarks: Mapping[int, Any] | None) -> dict[str, Any]:
-    """The options of estimator ``name`` taken from ``config`` (those the class accepts)."""
+def node_options(
+    name: str, config: Config, landmarks: Mapping[int, Any] | None, t0: float | None = None
+) -> dict[str, Any]:
+    """The options of estimator ``name`` taken from ``config`` (those the class accepts); ``t0`` [s]: when the
+    initial beliefs hold (the source's start), so that no input before it is taken."""
     f = config.filter
     return options_for(
         name,
@@ -106,9 +109,12 @@ def node_options(name: str, config: Config, landmarks: Mapping[int, Any] | None)
         landmarks=landmarks,
         gate=f.gate,
         horizon=f.horizon,
+        tolerance=min(f.clock_tolerance, f.horizon),  # the node takes no more (swarmloc.node.clock)
+        jump_inputs=f.clock_jump_inputs,
         order=f.order,
         iterations=f.iterations,
         point_iterations=f.point_iterations,
+        **({} if t0 is None else {"t0": t0}),
     )
 
 

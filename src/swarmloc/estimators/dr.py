@@ -20,8 +20,8 @@ UNUSED = "dead reckoning does not use detections"
 class DeadReckoning(ExpFusion):
     """Exponential-coordinate prediction only.
 
-    Parameters: ``robot``, ``initial``, ``noise``, ``order`` (1 or 2), ``t0``, ``horizon``; nothing else (an
-    unknown keyword raises TypeError).
+    Parameters: ``robot``, ``initial``, ``noise``, ``order`` (1 or 2), and the clock's ``t0``, ``horizon``,
+    ``tolerance``, ``jump_inputs``; nothing else (an unknown keyword raises TypeError).
     """
 
     name = "dr"
@@ -35,8 +35,11 @@ class DeadReckoning(ExpFusion):
         order: int = 2,
         t0: float | None = None,
         horizon: float | None = None,
+        tolerance: float | None = None,
+        jump_inputs: int | None = None,
     ) -> None:
-        kw: dict[str, Any] = {} if horizon is None else {"horizon": horizon}
+        clock = {"horizon": horizon, "tolerance": tolerance, "jump_inputs": jump_inputs}
+        kw: dict[str, Any] = {k: v for k, v in clock.items() if v is not None}
         super().__init__(robot, initial, noise=noise, order=order, t0=t0, use_relative=False, use_landmarks=False, **kw)
 
     def _requests(self, g: Group) -> list[Message]:

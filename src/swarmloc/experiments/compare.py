@@ -42,7 +42,7 @@ def _job(spec: str, estimator: str, seed: int, robots: int, duration: float | No
     from swarmloc.runner import run
 
     src = load_source(spec, robots=robots, duration=duration, seed=seed)
-    nodes = make_team(estimator, src.initial, **node_options(estimator, src.config, src.landmarks))
+    nodes = make_team(estimator, src.initial, **node_options(estimator, src.config, src.landmarks, src.t_start))
     for n in nodes:
         n.measure_time = True
     t = time.perf_counter()

@@ -116,7 +116,7 @@ def _job(
     spec = "sim:landmarks" if landmarks else "sim:random"
     src = load_source(spec, robots=robots, duration=duration, seed=seed)
     initial = sampled_initial(src, seed) if sample_initial else src.initial
-    nodes = make_team(estimator, initial, **node_options(estimator, src.config, src.landmarks))
+    nodes = make_team(estimator, initial, **node_options(estimator, src.config, src.landmarks, src.t_start))
     times = src.record_times()
     t = time.perf_counter()
     res = run(nodes, src.events, times, truth=src.truth, name=estimator)

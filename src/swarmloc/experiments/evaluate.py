@@ -83,7 +83,7 @@ def evaluate_stream(
     results: dict[str, RunResult] = {}
     with progress_bar(progress) as start:
         for name in estimators:
-            nodes = make_team(name, initial, **node_options(name, config, landmarks))
+            nodes = make_team(name, initial, **node_options(name, config, landmarks, t_start))
             cb = start(name) if start is not None else None
             res = run(nodes, events, record_times=record_times, truth=truth, progress=cb, name=name)
             results[name] = res

@@ -62,7 +62,8 @@ class Node(Intake, Exchange):
     ------------------------------
     t0: start time [s] of the initial belief; None: set by :meth:`start` or by the first input's stamp.
     horizon: seconds of history kept for out-of-order input and exact past answers (> 0).
-    tolerance: seconds past the node's present an input may be stamped (> 0; :mod:`~swarmloc.node.clock`).
+    tolerance: seconds past the node's present an input may be stamped (> 0, at most ``horizon``; default: the
+        horizon; :mod:`~swarmloc.node.clock`).
     jump_inputs: inputs in a row, at distinct stamps, that confirm a jump of the robot's clock.
     gate: chi-square gate probability in (0, 1) for innovations, or None (no gating).
     landmarks: known landmarks ``id -> (x, y, std_x, std_y)`` [m].
@@ -88,7 +89,7 @@ class Node(Intake, Exchange):
         *,
         t0: float | None = None,
         horizon: float = DEFAULT_HORIZON,
-        tolerance: float = DEFAULT_TOLERANCE,
+        tolerance: float | None = DEFAULT_TOLERANCE,
         jump_inputs: int = DEFAULT_CONFIRM,
         gate: float | None = None,
         landmarks: Landmarks | None = None,

@@ -3,7 +3,8 @@
 The **present** is the latest stamp of any input the node accepted (never before its start ``t0``). Against it:
 
 * an input stamped more than ``tolerance`` seconds after the present is from the future: it is refused and
-  counted (``future``), never taken as the present, so one input stamped 1e9 s cannot stop a node;
+  counted (``future``), never taken as the present, so one input stamped 1e9 s cannot stop a node (the tolerance
+  is at most the horizon, default equal to it, so an input taken ahead never makes the present's inputs too old);
 * an input stamped more than ``horizon`` seconds before the present (or before ``t0``) is too old: refused;
 * in between, an input is filed in the history (a late one is replayed).
 
@@ -25,8 +26,9 @@ __all__ = ["DEFAULT_CONFIRM", "DEFAULT_HORIZON", "DEFAULT_TOLERANCE", "Clock"]
 
 DEFAULT_HORIZON = 5.0
 """Default history horizon [s]: how far back out-of-order input is replayed instead of rejected."""
-DEFAULT_TOLERANCE = 5.0
-"""Default clock tolerance [s]: how far past the node's present an input may be stamped."""
+DEFAULT_TOLERANCE = None
+"""Default clock tolerance [s]: how far past the node's present an input may be stamped; None: the horizon (it
+may not be more: an input taken that far ahead would make the inputs of the present older than the history)."""
 DEFAULT_CONFIRM = 3
 """Inputs in a row that confirm a jump of a robot's clock."""
 
@@ -36,10 +38,16 @@ FUTURE, OLD = "future", "old"
 class Clock:
     """Start, present, horizon and tolerance of a node, and the inputs held while a clock jump is uncertain."""
 
-    def __init__(self, horizon: float, tolerance: float, confirm: int, owner: str = "node") -> None:
+    def __init__(self, horizon: float, tolerance: float | None, confirm: int, owner: str = "node") -> None:
+        tolerance = horizon if tolerance is None else tolerance
         for name, val in (("horizon", horizon), ("tolerance", tolerance)):
             if not (isinstance(val, int | float) and not isinstance(val, bool) and math.isfinite(val) and val > 0):
                 raise ValueError(f"{owner}: '{name}' must be a positive number of seconds, got {val!r}")
+        if tolerance > horizon:
+            raise ValueError(
+                f"{owner}: 'tolerance' ({tolerance:g} s) must not exceed the horizon ({horizon:g} s): an input taken "
+                "that far ahead would make the inputs of the present older than the history"
+            )
         if not (isinstance(confirm, int) and not isinstance(confirm, bool) and 1 <= confirm <= 100):
             raise ValueError(f"{owner}: 'jump_inputs' must be an integer in [1, 100], got {confirm!r}")
         self.horizon = float(horizon)

@@ -281,8 +281,8 @@ class Intake:
         if start is None or robot not in self.robots or not (start <= t0 <= t1) or clock.held:
             return False
         present = clock.present
-        if not (present - clock.horizon <= t0 and t1 <= max(present, t0) + clock.tolerance and math.isfinite(v)
-                and math.isfinite(w)):  # fmt: skip
+        if not (present - clock.horizon <= t0 <= present + clock.tolerance and t1 <= max(present, t0) + clock.tolerance
+                and math.isfinite(v) and math.isfinite(w)):  # fmt: skip
             return False
         last = self._timeline.last(robot)
         if last is not None and not (last[0] < t0 and abs(t0 - last[1]) <= CONTIGUOUS):
