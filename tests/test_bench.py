@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from swarmloc.cli import main
-from swarmloc.evaluation import bench as B
+from swarmloc.experiments import bench as B
 
 ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
 

@@ -411,11 +411,11 @@ def build_parser() -> argparse.ArgumentParser:
     cs.set_defaults(func=_consistency)
 
     def _bench(args: argparse.Namespace) -> int:
-        from swarmloc.evaluation.bench import run_command
+        from swarmloc.experiments.bench import run_command
 
         return run_command(args)
 
-    from swarmloc.evaluation.bench import add_arguments as _bench_arguments
+    from swarmloc.experiments.bench import add_arguments as _bench_arguments
 
     bp = sub.add_parser(
         "bench",
