@@ -15,11 +15,12 @@ from swarmloc.estimators import (
     ExpFusion,
     Node,
     RecursiveDecentralized,
+    RobotNode,
     make_team,
 )
 from swarmloc.events import Detection, Odometry, Truth
 from swarmloc.fusion import fuse_absolute, fuse_point_measurement, fuse_relative
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, world_covariance
 from swarmloc.lie import SE2, SE3
 from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RobotTrack, RunResult, run
@@ -38,6 +39,7 @@ __all__ = [
     "Node",
     "Odometry",
     "RecursiveDecentralized",
+    "RobotNode",
     "RobotTrack",
     "RunResult",
     "Truth",
@@ -47,5 +49,6 @@ __all__ = [
     "fuse_relative",
     "make_team",
     "run",
+    "world_covariance",
 ]
 __version__ = "0.1.0"
