@@ -22,10 +22,9 @@ import numpy as np
 from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
-from swarmloc.lie import SE2
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
-from swarmloc.node import FUSED, Group, Node, Outcome, check_model, gated_kalman
+from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, check_model, gated_kalman
 from swarmloc.sensors.models import model
 
 
@@ -198,7 +197,7 @@ class CentralizedEKF(Node):
             q = shear_upper((P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]), pd[1], -pd[0])
             q00, q01, q02, q11, q12, q22 = (u + w for u, w in zip(q, pd[2:], strict=True))
             P = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
-        return GroupGaussian(SE2, *C.to_group(s.X[i : i + 3], P), validate=False)
+        return belief_of(*C.to_group(s.X[i : i + 3], P))
 
     def joint_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Joint state ``(3n,)`` and covariance ``(3n, 3n)`` in the filter's error coordinates (Cartesian here;

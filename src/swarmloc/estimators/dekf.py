@@ -16,9 +16,8 @@ import numpy as np
 
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
-from swarmloc.lie import SE2
 from swarmloc.messages import Message
-from swarmloc.node import FUSED, Group, Outcome, RobotNode, gated_kalman
+from swarmloc.node import FUSED, Group, Outcome, RobotNode, belief_of, gated_kalman
 from swarmloc.sensors.models import model
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position"
@@ -101,7 +100,7 @@ class DistributedEKF(RobotNode):
         return np.array(x), np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]), t, cmd, shear
 
     def _belief(self, s: CartState, robot: int) -> GroupGaussian:
-        return GroupGaussian(SE2, *C.to_group(s.x, s.P), validate=False)
+        return belief_of(*C.to_group(s.x, s.P))
 
     def _fuse_group(self, s: CartState, g: Group) -> tuple[CartState, list[Outcome], list[Message]]:
         x, P = s.x, s.P

@@ -49,7 +49,7 @@ from swarmloc.messages import (
     TeamUpdate,
     flat,
 )
-from swarmloc.node import FUSED, NUMERICAL, Group, Node, Outcome, usable_covariance
+from swarmloc.node import FUSED, NUMERICAL, Group, Node, Outcome, belief_of, usable_covariance
 from swarmloc.sensors.models import model
 
 __all__ = ["DistributedInvariantEKF", "TeamState"]
@@ -107,7 +107,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
 
     def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
         g = SE2.from_xytheta(s.x)
-        return GroupGaussian(SE2, g, I.world_to_body(g, s.P), validate=False)
+        return belief_of(g, I.world_to_body(g, s.P))
 
     def _answer(self, s: TeamState, q: Message) -> Message | None:
         if isinstance(q, RdlStateQuery):

@@ -29,7 +29,7 @@ from swarmloc.kernels import group as K
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, Message
 from swarmloc.motion import UnicycleNoise, odometry_increment
-from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, usable_covariance
+from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position"
 
@@ -165,7 +165,7 @@ class ExpFusion(RobotNode):
         return ExpState(t, v, w, mu, 0.5 * (C + C.T))
 
     def _belief(self, s: ExpState, robot: int) -> GroupGaussian:
-        return GroupGaussian(SE2, s.mean, s.cov, validate=False)
+        return belief_of(s.mean, s.cov)
 
     # ------------------------------------------------------------------------------------------------ update
     def _pseudo(self, d: Any, target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:

@@ -36,7 +36,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.messages import Message
-from swarmloc.node import FUSED, Group, Node, Outcome, gated_kalman
+from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, gated_kalman
 from swarmloc.sensors.models import model
 
 __all__ = ["FirstEstimatesEKF", "InvariantEKF", "joint_correction"]
@@ -170,7 +170,7 @@ class InvariantEKF(_LoggedCentral):
             q00, q01, q02, q11, q12, q22 = pd[2:]
             P = P + np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
         g = SE2.from_xytheta(s.X[i : i + 3])
-        return GroupGaussian(SE2, g, I.world_to_body(g, P), validate=False)
+        return belief_of(g, I.world_to_body(g, P))
 
     def _to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
         return H @ I.world_basis(x)

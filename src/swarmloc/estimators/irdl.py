@@ -35,7 +35,7 @@ from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
 from swarmloc.messages import RdlState, RdlUpdate, flat
-from swarmloc.node import Group, Node
+from swarmloc.node import Group, Node, belief_of
 from swarmloc.sensors.models import model
 
 __all__ = ["InvariantRDL"]
@@ -66,7 +66,7 @@ class InvariantRDL(RecursiveDecentralized):
 
     def _belief(self, s: RdlFilter, robot: int) -> GroupGaussian:
         g = SE2.from_xytheta(s.x)
-        return GroupGaussian(SE2, g, I.world_to_body(g, s.P), validate=False)
+        return belief_of(g, I.world_to_body(g, s.P))
 
     def _log_update(self, t: float, blocks: dict[int, np.ndarray], R: np.ndarray) -> None:
         if self.lin_log is not None:

@@ -75,7 +75,7 @@ from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise, odometry_increment_terms
-from swarmloc.node import FUSED, Group, Outcome, RobotNode
+from swarmloc.node import FUSED, Group, Outcome, RobotNode, belief_of
 from swarmloc.sensors import models
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position for every particle"
@@ -338,7 +338,7 @@ class MonteCarloLocalization(RobotNode):
 
     def _belief(self, s: MclState, robot: int) -> GroupGaussian:
         mean, cov = fit_gaussian(s.particles, s.weights)
-        return GroupGaussian(SE2, mean, cov, validate=False)
+        return belief_of(mean, cov)
 
     def _fuse_group(self, s: MclState, g: Group) -> tuple[MclState, list[Outcome], list[Message]]:
         targets = [self._classify(g, d) for d in g.detections]

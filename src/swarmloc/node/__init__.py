@@ -9,7 +9,7 @@ with its gate), :mod:`~swarmloc.node.keys` (history keys, entries, detection gro
 """
 
 from swarmloc.node.accounting import OUTCOMES, STAT_KEYS, Accounting
-from swarmloc.node.base import Node
+from swarmloc.node.base import Node, belief_of
 from swarmloc.node.clock import DEFAULT_CONFIRM, DEFAULT_HORIZON, DEFAULT_TOLERANCE, Clock
 from swarmloc.node.inputs import Landmarks, OdometryTimeline, landmark_state, odometry_problem, validate_detection
 from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
@@ -39,6 +39,7 @@ __all__ = [
     "Outcome",
     "RobotNode",
     "belief_answer",
+    "belief_of",
     "check_model",
     "chi2_ppf",
     "detection_key",

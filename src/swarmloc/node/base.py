@@ -40,6 +40,7 @@ import numpy as np
 
 from swarmloc.events import Detection, Odometry
 from swarmloc.gaussian import GroupGaussian, world_covariance
+from swarmloc.lie import SE2
 from swarmloc.messages import Message
 from swarmloc.node.accounting import Accounting
 from swarmloc.node.clock import DEFAULT_CONFIRM, DEFAULT_HORIZON, DEFAULT_TOLERANCE, Clock
@@ -51,7 +52,14 @@ from swarmloc.node.update import Gate, Outcome
 
 log = logging.getLogger("swarmloc.node")
 
-__all__ = ["Node"]
+__all__ = ["Node", "belief_of"]
+
+
+def belief_of(mean: np.ndarray, cov: np.ndarray) -> GroupGaussian:
+    """A node's SE(2) belief from its filter's mean ``(3, 3)`` and covariance ``(3, 3)``, not validated again: a
+    filter state is valid by construction (every input is checked once, at the node's door, and every update's
+    result is checked by :func:`~swarmloc.node.update.gated_kalman` or the filter)."""
+    return GroupGaussian(SE2, mean, cov, validate=False)
 
 
 
