@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from swarmloc.datasets.source import Source
-from swarmloc.engine import Detections, Engine, core, fusion_step, run_engine, soa, swarm_run
+from swarmloc.engine import Detections, Engine, fuse_ekf, fusion_step, run_engine, soa, swarm_run
 from swarmloc.engine.core import levels
 from swarmloc.engine.swarm import neighbour_pairs
 from swarmloc.estimators import make_team, node_options
@@ -77,6 +77,52 @@ def test_engine_equals_nodes_range_bearing_and_fixes(estimator: str) -> None:
     assert ref.stats["fused"] > 50
 
 
+@pytest.mark.parametrize("kinds", [("pose",), ("range_bearing",)])
+def test_ci_weight_rule_is_the_class_attribute_and_both_drivers_follow_it(
+    monkeypatch: pytest.MonkeyPatch, kinds: tuple[str, ...]
+) -> None:
+    """``ExpCI.ci_weight`` decides the weight rule for the node and the engine alike: with ``"search"`` both give
+    the same result, and it differs from the closed form (so the attribute is not decoration)."""
+    from swarmloc.estimators.ci import ExpCI
+
+    src = _source(4, 6.0, 21, kinds=kinds)
+    closed = _nodes(src, "ci")
+    monkeypatch.setattr(ExpCI, "ci_weight", "search")
+    searched = _nodes(src, "ci")
+    _assert_same(searched, run_engine(src, "ci"))
+    diff = max(np.abs(searched.tracks[r].cov - closed.tracks[r].cov).max() for r in closed.tracks)
+    assert diff > 1e-8
+    monkeypatch.setattr(ExpCI, "ci_weight", "golden")
+    with pytest.raises(ValueError, match="golden"):
+        run_engine(src, "ci")
+
+
+@pytest.mark.parametrize("estimator", ["dekf", "expfusion"])
+def test_engine_keeps_the_nodes_odometry_contract(estimator: str) -> None:
+    """Gaps, an early end and an overlap in the odometry: the engine stops the robot at ``t1`` and refuses the
+    overlap as the nodes do, so both drivers still agree (and count the same stops and refusals)."""
+    import dataclasses
+
+    from swarmloc.events import Odometry
+
+    src = _source(4, 10.0, 31)
+    events, extra = [], None
+    for e in src.events:
+        if isinstance(e, Odometry) and ((e.robot == 1 and 3.0 <= e.t0 < 5.0) or (e.robot == 2 and e.t0 >= 6.0)):
+            continue  # a gap in robot 1's odometry; robot 2's odometry ends at 6 s
+        if isinstance(e, Odometry) and e.robot == 3 and extra is None and e.t0 >= 4.0:
+            extra = dataclasses.replace(e, t0=e.t0 + 0.5 * (e.t1 - e.t0), t1=e.t1 + 0.5 * (e.t1 - e.t0), v=2.0)
+            events += [e, extra]  # overlaps the record before it and the one after
+            continue
+        events.append(e)
+    src = dataclasses.replace(src, events=events)
+    ref, eng = _nodes(src, estimator), run_engine(src, estimator)
+    _assert_same(ref, eng)
+    assert ref.stats["odometry_stops"] == eng.stats["odometry_stops"] == 2
+    assert ref.stats["odometry_rejected"] == eng.stats["odometry_rejected"] == 1
+    assert any("overlaps" in k for k in eng.reasons)
+
+
 def test_engine_kernel_path_equals_nodes() -> None:
     """``fast=False``: the EKF through the stacked-matrix kernels of swarmloc.kernels.cartesian."""
     src = _source(5, 10.0, 12, kinds=("pose", "range_bearing"), fixes=True)
@@ -85,7 +131,7 @@ def test_engine_kernel_path_equals_nodes() -> None:
 
 def test_engine_structure_of_arrays_path_equals_nodes(monkeypatch: pytest.MonkeyPatch) -> None:
     """The numpy structure-of-arrays EKF path (taken by large batches only) on a small team."""
-    monkeypatch.setattr(core, "SOA_MIN_ROWS", 0)
+    monkeypatch.setattr(fuse_ekf, "SOA_MIN_ROWS", 0)
     src = _source(5, 10.0, 15, fixes=True)
     _assert_same(_nodes(src, "dekf"), run_engine(src, "dekf"))
 

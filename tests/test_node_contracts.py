@@ -182,8 +182,19 @@ def _self_addressed(robot: int) -> list:
         BeliefAnswer(sender=robot, receiver=robot, stamp=1.0, mean=mean, cov=SPD),
         RdlState(sender=robot, receiver=robot, stamp=1.0, x=(0.5, 0.0, 0.0), P=SPD, sigma=SPD),
         RdlUpdate(sender=robot, receiver=robot, stamp=1.5, x=(0.5, 0.0, 0.0), P=SPD),
-        TeamUpdate(sender=robot, receiver=robot, stamp=1.5, target=robot, m=3, Hi=eye, Hj=eye, Sinv=SPD,
-                   nu=(1.0, 1.0, 1.0), Pii=SPD, Pjj=SPD),  # fmt: skip
+        TeamUpdate(
+            sender=robot,
+            receiver=robot,
+            stamp=1.5,
+            target=robot,
+            m=3,
+            Hi=eye,
+            Hj=eye,
+            Sinv=SPD,
+            nu=(1.0, 1.0, 1.0),
+            Pii=SPD,
+            Pjj=SPD,
+        ),  # fmt: skip
     ]
 
 

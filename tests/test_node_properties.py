@@ -127,8 +127,19 @@ def junk(kind: str, rng: np.random.Generator, present: float, sent: list) -> obj
             RdlStateQuery(sender=0, receiver=0, stamp=present),
             BeliefAnswer(sender=0, receiver=0, stamp=present, mean=eye, cov=spd),
             RdlUpdate(sender=0, receiver=0, stamp=present, x=(0.0, 0.0, 0.0), P=spd),
-            TeamUpdate(sender=0, receiver=0, stamp=present, target=0, m=3, Hi=eye, Hj=eye, Sinv=spd,
-                       nu=(1.0, 1.0, 1.0), Pii=spd, Pjj=spd),  # fmt: skip
+            TeamUpdate(
+                sender=0,
+                receiver=0,
+                stamp=present,
+                target=0,
+                m=3,
+                Hi=eye,
+                Hj=eye,
+                Sinv=spd,
+                nu=(1.0, 1.0, 1.0),
+                Pii=spd,
+                Pjj=spd,
+            ),  # fmt: skip
         ]
         return choices[int(rng.integers(len(choices)))]
     if kind == "misaddressed":

@@ -17,9 +17,10 @@ from typing import Any
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from swarmloc.engine.core import ABSOLUTE, FUSED, GATED, PENDING, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, MODEL, PENDING, R_NONFINITE, R_NUMERICAL, REJECTED
 from swarmloc.engine.scalar import absolute_source, pose_source, predict_source
 from swarmloc.motion import UnicycleNoise
+from swarmloc.node.update import Gate
 
 
 class _Det:
@@ -111,7 +112,7 @@ def fuse_groups(x, P, px, pP, lo, lt, later, kind, z, R, status, reason, gate, t
                         status[q] = {REJECTED}
                         reason[q] = {R_NONFINITE}
                         continue
-                    if r[9] > thr:
+                    if r[9] > thr[kind[q]]:
                         status[q] = {GATED}
                         continue
                 if not r[10]:
@@ -170,8 +171,8 @@ class NumbaOps:
         det = _Det(np.array([0, 1]), np.array([1, 0]), np.array([1, 0]), z, P)
         status, reason = np.zeros(2, dtype=np.int8), np.zeros(2, dtype=np.int8)
         i = np.array([0, 1])
-        for thr in (None, 1.0):  # the serial variants; the parallel ones compile on their first large batch
-            self.fuse_groups((x.copy(), P.copy()), (x, P), det, i, i[::-1], status.copy(), reason.copy(), thr, i,
+        for gate in (Gate(), Gate(0.5)):  # the serial variants; the parallel ones compile on their first large batch
+            self.fuse_groups((x.copy(), P.copy()), (x, P), det, i, i[::-1], status.copy(), reason.copy(), gate, i,
                              i + 1, np.array([0, 1, 2]))  # fmt: skip
 
     def predict(self, x: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> tuple:
@@ -191,20 +192,22 @@ class NumbaOps:
         return xn, Pn, nis, ok, ok
 
     def fuse_groups(self, cur: tuple, prior: tuple, det: Any, lo: np.ndarray, lt: np.ndarray, status: np.ndarray,
-                    reason: np.ndarray, thr: float | None, g0: np.ndarray, g1: np.ndarray,
+                    reason: np.ndarray, gate: Gate, g0: np.ndarray, g1: np.ndarray,
                     bounds: np.ndarray) -> None:  # fmt: skip
         """Fuse the pending pose/absolute detections of one stamp in place (``cur``, ``status``, ``reason``).
 
         Group ``g`` is rows ``g0[g]:g1[g]`` (one observer, canonical order); groups ``bounds[l]:bounds[l+1]`` form
         level ``l``. Observer ``lo[r]`` is a row of the current states ``cur``; neighbour ``lt[r]`` is read there
         when its id is smaller (its group is in a lower level: done) and in the snapshot ``prior`` taken before
-        the stamp's groups otherwise. ``thr``: chi-square threshold (3 dof), None: no gate. Outcome rules of
+        the stamp's groups otherwise. ``gate``: the nodes' chi-square gate, its threshold for each kind's
+        measurement size (:data:`~swarmloc.engine.codes.MODEL`). Outcome rules of
         :class:`~swarmloc.estimators.DistributedEKF`."""
         f = np.ascontiguousarray
         later = f(det.target > det.observer)
         i64 = np.int64
         kernel = _pick(self.k, "fuse_groups", lo.shape[0])
-        gate, limit = thr is not None, 0.0 if thr is None else float(thr)
+        thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])  # by kind code
         kernel(cur[0], cur[1], f(prior[0]), f(prior[1]), f(lo, dtype=i64), f(lt, dtype=i64), later,
-               f(det.kind, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status, reason, gate, limit,
+               f(det.kind, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status, reason,
+               gate.p is not None, thr,
                f(g0, dtype=i64), f(g1, dtype=i64), f(bounds, dtype=i64))  # fmt: skip

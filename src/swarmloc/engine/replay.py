@@ -18,11 +18,14 @@ import numpy as np
 
 from swarmloc.config import Config
 from swarmloc.datasets.source import Source
-from swarmloc.engine.core import NO_TARGET, UNKNOWN_ROBOT, UNUSABLE, Detections, Engine
+from swarmloc.engine.codes import NO_TARGET, UNKNOWN_ROBOT, UNUSABLE
+from swarmloc.engine.core import Engine
+from swarmloc.engine.detections import Detections
 from swarmloc.estimators import node_options
 from swarmloc.events import Detection, Odometry
 from swarmloc.lie import SE2
 from swarmloc.node import detection_key, validate_detection
+from swarmloc.node.inputs import CONTIGUOUS, OdometryTimeline
 from swarmloc.runner import RobotTrack, RunResult, truth_table
 from swarmloc.sensors.models import KIND_ORDER
 from swarmloc.sim.simulator import SimResult
@@ -32,6 +35,14 @@ from swarmloc.sim.source import sim_source
 def _stamp(e: Any) -> float | None:
     s = e.stamp
     return float(s) if isinstance(s, int | float | np.floating) and math.isfinite(s) else None
+
+
+Groups = dict[float, dict[int, dict[tuple, tuple[Detection, int]]]]
+"""Checked detections: stamp -> observer row -> detection key -> ``(detection, target code)``."""
+Commands = dict[float, dict[int, tuple[float, float]]]
+"""Checked odometry: start time -> robot row -> ``(v [m/s], w [rad/s])``."""
+Row = tuple[float, np.ndarray, np.ndarray, np.ndarray]
+"""One record of a robot: ``(t, (x, y, theta), covariance, truth)``."""
 
 
 def run_engine(
@@ -48,10 +59,10 @@ def run_engine(
     :class:`~swarmloc.runner.RunResult` like :func:`swarmloc.runner.run` with the nodes of
     :func:`~swarmloc.estimators.make_team`.
 
-    ``source_or_sim``: a :class:`~swarmloc.experiments.sources.Source` or a simulation (turned into one by
-    :func:`~swarmloc.experiments.sources.sim_source` with ``config``); ``record_times`` default
-    ``Source.record_times()``; ``options``: the nodes' options, default
-    :func:`~swarmloc.experiments.evaluate.node_options` of the source's configuration (overridden by the given ones).
+    ``source_or_sim``: a :class:`~swarmloc.datasets.source.Source` or a simulation (turned into one by
+    :func:`~swarmloc.sim.source.sim_source` with ``config``); ``record_times`` default ``Source.record_times()``;
+    ``options``: the nodes' options, default :func:`~swarmloc.estimators.node_options` of the source's
+    configuration (overridden by the given ones).
     """
     src = source_or_sim if isinstance(source_or_sim, Source) else sim_source(source_or_sim, "sim", config)
     opts = {**node_options(estimator, src.config, src.landmarks), **options}
@@ -59,112 +70,15 @@ def run_engine(
         opts.pop(clock_only, None)
     robots = src.robots
     col = {r: i for i, r in enumerate(robots)}
-    n = len(robots)
-    counts: Counter[str] = Counter()
-    reasons: Counter[str] = Counter()
-
-    def reject(what: str, why: str, k: int = 1) -> None:
-        counts[what] += k
-        reasons[f"{what}: {why}"] += k
-
-    t0 = np.full(n, math.inf)
+    checked = _Checked(col, bool(src.landmarks))
     for e in src.events:
-        r = e.robot if isinstance(e, Odometry) else e.observer if isinstance(e, Detection) else None
-        s = _stamp(e)
-        if r in col and s is not None:
-            t0[col[r]] = min(t0[col[r]], s)
-
-    odo: dict[float, dict[int, tuple[float, float]]] = defaultdict(dict)
-    groups: dict[float, dict[int, dict[tuple, tuple[Detection, int]]]] = defaultdict(lambda: defaultdict(dict))
-    lm = src.landmarks
-    for e in src.events:
-        if isinstance(e, Odometry):
-            counts["odometry"] += 1
-            if e.robot not in col:
-                counts["unknown_robot"] += 1
-                continue
-            try:
-                finite = all(math.isfinite(a) for a in (e.t0, e.t1, e.v, e.w))
-            except TypeError:
-                finite = False
-            if not finite:
-                reject("odometry_rejected", "non-finite or non-numeric time or speed")
-            elif e.t1 < e.t0:
-                reject("odometry_rejected", "t1 before t0")
-            else:
-                slot = odo[float(e.t0)]
-                old = slot.get(col[e.robot])
-                if old is not None:
-                    same = old == (float(e.v), float(e.w))
-                    reject("odometry_rejected", "duplicate" if same else "a different command at the same t0")
-                else:
-                    slot[col[e.robot]] = (float(e.v), float(e.w))
-                    counts["odometry_used"] += 1
-        elif isinstance(e, Detection):
-            counts["detections"] += 1
-            if e.observer not in col:
-                counts["unknown_robot"] += 1
-                reject("unknown", f"observer {e.observer!r} is not in the team")
-                continue
-            why = validate_detection(e)
-            if why is not None:
-                reject("rejected", why)
-                continue
-            code = NO_TARGET if e.kind == "absolute" else col.get(e.target, UNKNOWN_ROBOT)
-            if e.kind != "absolute" and not e.target_is_robot:  # in the group (the observer moves to t), not fused
-                if lm:
-                    raise ValueError("run_engine: landmark detections are not supported; run the nodes")
-                code = UNUSABLE if e.kind == "pose" else UNKNOWN_ROBOT
-            elif e.kind != "absolute" and e.target is None:
-                code = UNUSABLE
-            group = groups[float(e.t)][col[e.observer]]
-            key = detection_key(e)
-            if key in group:
-                reject("rejected", "duplicate detection")
-                continue
-            group[key] = (e, code)
-
-    rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
-    truth_rows = {r: truth_table(src.truth, r, rt) for r in robots}
+        checked.add(e)
     initial = [src.initial[r] for r in robots]
-    eng = Engine(
-        estimator,
-        np.stack([b.mean for b in initial]),
-        np.stack([b.cov for b in initial]),
-        t0=t0,
-        backend=backend,
-        fast=fast,
-        **opts,
-    )
-    records: dict[float, list[int]] = defaultdict(list)
-    for k, t in enumerate(rt.tolist()):
-        records[t].append(k)
-    rows: dict[int, list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]] = {r: [] for r in robots}
-    stamps = sorted(set(odo) | set(groups) | set(records))
-    truth_missing = 0
-
-    wall = time.perf_counter()
-    for t in stamps:
-        det = _detections(groups[t]) if t in groups else None
-        cmd = None
-        if t in odo:
-            idx = np.fromiter(odo[t], dtype=np.int64)
-            vw = np.array(list(odo[t].values()), dtype=float).reshape(-1, 2)
-            cmd = (idx, vw[:, 0], vw[:, 1])
-        eng.step(t, det, cmd)
-        if t in records:
-            live = np.flatnonzero(t >= eng.t0)
-            mean, cov = eng.belief(t, live)
-            xyt = SE2.to_xytheta(mean)
-            for j, i in enumerate(live.tolist()):
-                r = robots[i]
-                for k in records[t]:
-                    tr = truth_rows[r][k]
-                    if src.truth is not None and not np.isfinite(tr).all():
-                        truth_missing += 1
-                        continue
-                    rows[r].append((t, xyt[j], cov[j], tr))
-    wall = time.perf_counter() - wall
+    eng = Engine(estimator, np.stack([b.mean for b in initial]), np.stack([b.cov for b in initial]),
+                 t0=_start_times(src.events, col), backend=backend, fast=fast, **opts)  # fmt: skip
+    rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
+    checked.stops(max([*checked.odo, *checked.groups, *rt.tolist()], default=-math.inf))
+    rows, truth_missing, wall = _replay(eng, src, checked, rt)
 
     tracks = {}
     for r in robots:
@@ -175,7 +89,7 @@ def run_engine(
             np.array([x[2] for x in rs]).reshape(-1, 3, 3),
             np.array([x[3] for x in rs]).reshape(-1, 3),
         )
-    stats: Counter[str] = Counter(counts)
+    stats: Counter[str] = Counter(checked.counts)
     for k in ("fused", "gated", "rejected", "unknown"):
         stats[k] += eng.counts[k]
     stats["recorded"] = sum(len(v) for v in rows.values())
@@ -183,9 +97,145 @@ def run_engine(
         stats["truth_missing"] = truth_missing
     for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
         stats.setdefault(k, 0)
+    reasons = Counter(checked.reasons)
     reasons.update(eng.reasons)
     timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
     return RunResult(f"{estimator}/engine", tracks, wall, dict(stats), len(src.events), reasons, timing)
+
+
+def _start_times(events: Sequence[Any], col: dict[Any, int]) -> np.ndarray:
+    """Each robot's first stamp (odometry or detection it made), ``inf`` for a robot without input."""
+    t0 = np.full(len(col), math.inf)
+    for e in events:
+        r = e.robot if isinstance(e, Odometry) else e.observer if isinstance(e, Detection) else None
+        s = _stamp(e)
+        if r in col and s is not None:
+            t0[col[r]] = min(t0[col[r]], s)
+    return t0
+
+
+class _Checked:
+    """A source's odometry and detections checked as the nodes check them (malformed, duplicate and unusable input
+    rejected and counted), filed by stamp: :attr:`odo` and :attr:`groups` (robots as rows of ``col``)."""
+
+    def __init__(self, col: dict[Any, int], landmarks: bool) -> None:
+        self.col = col
+        self.landmarks = landmarks
+        self.counts: Counter[str] = Counter()
+        self.reasons: Counter[str] = Counter()
+        self.odo: Commands = defaultdict(dict)
+        self.timeline = OdometryTimeline()
+        self.groups: Groups = defaultdict(lambda: defaultdict(dict))
+
+    def reject(self, what: str, why: str) -> None:
+        self.counts[what] += 1
+        self.reasons[f"{what}: {why}"] += 1
+
+    def add(self, e: Any) -> None:
+        if isinstance(e, Odometry):
+            self._odometry(e)
+        elif isinstance(e, Detection):
+            self._detection(e)
+
+    def _odometry(self, e: Odometry) -> None:
+        self.counts["odometry"] += 1
+        if e.robot not in self.col:
+            self.counts["unknown_robot"] += 1
+            return
+        try:
+            finite = all(math.isfinite(a) for a in (e.t0, e.t1, e.v, e.w))
+        except TypeError:
+            finite = False
+        if not finite:
+            self.reject("odometry_rejected", "non-finite or non-numeric time or speed")
+        elif e.t1 < e.t0:
+            self.reject("odometry_rejected", "t1 before t0")
+        else:
+            row, t0, t1 = self.col[e.robot], float(e.t0), float(e.t1)
+            old = self.odo.get(t0, {}).get(row)
+            if old is not None:
+                same = old == (float(e.v), float(e.w))
+                self.reject("odometry_rejected", "duplicate" if same else "a different command at the same t0")
+                return
+            why = self.timeline.overlap(row, t0, t1)
+            if why:
+                self.reject("odometry_rejected", why)
+                return
+            self.timeline.add(row, t0, t1)
+            self.odo[t0][row] = (float(e.v), float(e.w))
+            self.counts["odometry_used"] += 1
+
+    def stops(self, last: float) -> None:
+        """The nodes' policy past an interval's end ``t1`` with no odometry from there (:mod:`swarmloc.node.inputs`):
+        the robot is stopped, a command ``(0, 0)`` at ``t1``, when a gap follows or when the replay goes on past
+        ``t1`` (to ``last`` [s]); counted once per interval (``odometry_stops``)."""
+        for row, (starts, ends) in self.timeline.intervals().items():
+            for t1, nxt in zip(ends, [*starts[1:], math.inf], strict=True):
+                if nxt > t1 + CONTIGUOUS and last > t1 + CONTIGUOUS and row not in self.odo.get(t1, {}):
+                    self.odo[t1][row] = (0.0, 0.0)
+                    self.counts["odometry_stops"] += 1
+
+    def _detection(self, e: Detection) -> None:
+        self.counts["detections"] += 1
+        if e.observer not in self.col:
+            self.counts["unknown_robot"] += 1
+            self.reject("unknown", f"observer {e.observer!r} is not in the team")
+            return
+        why = validate_detection(e)
+        if why is not None:
+            self.reject("rejected", why)
+            return
+        code = NO_TARGET if e.kind == "absolute" else self.col.get(e.target, UNKNOWN_ROBOT)
+        if e.kind != "absolute" and not e.target_is_robot:  # in the group (the observer moves to t), not fused
+            if self.landmarks:
+                raise ValueError("run_engine: landmark detections are not supported; run the nodes")
+            code = UNUSABLE if e.kind == "pose" else UNKNOWN_ROBOT
+        elif e.kind != "absolute" and e.target is None:
+            code = UNUSABLE
+        group = self.groups[float(e.t)][self.col[e.observer]]
+        key = detection_key(e)
+        if key in group:
+            self.reject("rejected", "duplicate detection")
+            return
+        group[key] = (e, code)
+
+
+def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tuple[dict[Any, list[Row]], int, float]:
+    """Every stamp through ``eng`` (its groups, then its commands), beliefs recorded at the record times ``rt``
+    after every input stamped at or before them; returns each robot's records, the records without truth and the
+    wall time [s] of the loop over stamps."""
+    robots = src.robots
+    truth_rows = {r: truth_table(src.truth, r, rt) for r in robots}
+    records: dict[float, list[int]] = defaultdict(list)
+    for k, t in enumerate(rt.tolist()):
+        records[t].append(k)
+    rows: dict[Any, list[Row]] = {r: [] for r in robots}
+    odo, groups = checked.odo, checked.groups
+    truth_missing = 0
+    stamps = sorted(set(odo) | set(groups) | set(records))
+    wall = time.perf_counter()
+    for t in stamps:
+        det = _detections(groups[t]) if t in groups else None
+        cmd = None
+        if t in odo:
+            idx = np.fromiter(odo[t], dtype=np.int64)
+            vw = np.array(list(odo[t].values()), dtype=float).reshape(-1, 2)
+            cmd = (idx, vw[:, 0], vw[:, 1])
+        eng.step(t, det, cmd)
+        if t not in records:
+            continue
+        live = np.flatnonzero(t >= eng.t0)
+        mean, cov = eng.belief(t, live)
+        xyt = SE2.to_xytheta(mean)
+        for j, i in enumerate(live.tolist()):
+            r = robots[i]
+            for k in records[t]:
+                tr = truth_rows[r][k]
+                if src.truth is not None and not np.isfinite(tr).all():
+                    truth_missing += 1
+                    continue
+                rows[r].append((t, xyt[j], cov[j], tr))
+    return rows, truth_missing, time.perf_counter() - wall
 
 
 def _detections(by_observer: dict[int, dict[tuple, tuple[Detection, int]]]) -> Detections:

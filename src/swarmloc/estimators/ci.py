@@ -14,13 +14,14 @@ normally, one at a time.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import Any, ClassVar
 
 import numpy as np
 
 from swarmloc.estimators.expfusion import DEGENERATE, NUMERICAL, ExpFusion, ExpState
 from swarmloc.kernels import group as K
-from swarmloc.kernels.ci import point_weight, pose_weight
+from swarmloc.kernels.ci import ci_search, point_weight, pose_weight
 from swarmloc.lie import SE2
 from swarmloc.messages import Message
 from swarmloc.node import FUSED, Group, Outcome, usable_covariance
@@ -30,6 +31,10 @@ class ExpCI(ExpFusion):
     """Thesis-style exponential-coordinate estimator with covariance-intersection fusion of neighbours."""
 
     name = "ci"
+    ci_weight: ClassVar[str] = "closed_form"
+    """How :meth:`_ci` picks the weight ``w``: ``"closed_form"`` (the minimizer of the linearized posterior's
+    determinant) or ``"search"`` (the minimizer of the fused covariance's determinant over fusions at many weights,
+    :func:`swarmloc.kernels.ci.ci_search`). The batched engine follows the same attribute."""
 
     def _fuse_group(self, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
         mean, cov = s.mean, s.cov
@@ -74,19 +79,52 @@ class ExpCI(ExpFusion):
                 verdict = self._gated(float(K.pseudo_nis(SE2, mean, cov, nu, W)), 3)
                 if verdict is not None:
                     return verdict
-            w = float(pose_weight(mean, cov, m, R, nb_mean, nb_cov, order))
-            nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - w), m, R, order)
-            m2, c2 = K.fuse_pseudo(SE2, mean, cov / w, nu[None], W[None], order, its)
+            if self.ci_weight == "search":
+                m2, c2, _ = ci_search(self._pose_at(mean, cov, m, R, nb_mean, nb_cov))
+            else:
+                w = float(pose_weight(mean, cov, m, R, nb_mean, nb_cov, order))
+                nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - w), m, R, order)
+                m2, c2 = K.fuse_pseudo(SE2, mean, cov / w, nu[None], W[None], order, its)
         else:
             verdict = self._point_gate(mean, cov, d, nb_mean, nb_cov, True)
             if verdict is not None:
                 return verdict
-            w = float(point_weight(mean, cov, d.kind, d.z, R, nb_mean, nb_cov))
-            m2, c2, ok = K.point_update(
-                mean, cov / w, d.kind, d.z, R, nb_mean, nb_cov / (1 - w), True, self.point_iterations, order
-            )
+            if self.ci_weight == "search":
+                m2, c2, _ = ci_search(self._point_at(mean, cov, d, R, nb_mean, nb_cov))
+                ok = np.isfinite(c2).all()
+            else:
+                w = float(point_weight(mean, cov, d.kind, d.z, R, nb_mean, nb_cov))
+                m2, c2, ok = K.point_update(
+                    mean, cov / w, d.kind, d.z, R, nb_mean, nb_cov / (1 - w), True, self.point_iterations, order
+                )
             if not bool(ok):
                 return ("rejected", DEGENERATE)
         if not (np.isfinite(m2).all() and usable_covariance(c2)):
             return ("rejected", DEGENERATE if d.kind != "pose" else NUMERICAL)
         return m2, c2
+
+    def _pose_at(self, mean: np.ndarray, cov: np.ndarray, m: np.ndarray, R: np.ndarray, nb_mean: np.ndarray,
+                 nb_cov: np.ndarray) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+        """The relative-pose fusion at CI weights ``w (k,)`` for :func:`~swarmloc.kernels.ci.ci_search`."""
+
+        def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            wc = w[..., None, None]
+            nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - wc), m, R, self.order)
+            mu = np.broadcast_to(mean, (*w.shape, 3, 3))
+            return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], self.order,
+                                 self.iterations)  # fmt: skip
+
+        return fuse
+
+    def _point_at(self, mean: np.ndarray, cov: np.ndarray, d: Any, R: np.ndarray, nb_mean: np.ndarray,
+                  nb_cov: np.ndarray) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+        """The range/bearing point update at CI weights ``w (k,)`` (NaN covariance where degenerate)."""
+
+        def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            wc = w[..., None, None]
+            mu = np.broadcast_to(mean, (*w.shape, 3, 3))
+            m2, c2, ok = K.point_update(mu, cov / wc, d.kind, np.asarray(d.z, dtype=float), R, nb_mean,
+                                        nb_cov / (1 - wc), True, self.point_iterations, self.order)  # fmt: skip
+            return m2, np.where(np.asarray(ok)[..., None, None], c2, np.nan)
+
+        return fuse

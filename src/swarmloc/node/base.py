@@ -62,7 +62,6 @@ def belief_of(mean: np.ndarray, cov: np.ndarray) -> GroupGaussian:
     return GroupGaussian(SE2, mean, cov, validate=False)
 
 
-
 class Node(Intake, Exchange):
     """Base class of every estimator's node (see the module docstring).
 

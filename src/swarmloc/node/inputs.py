@@ -165,6 +165,10 @@ class OdometryTimeline:
         starts.insert(i, t0)
         ends.insert(i, t1)
 
+    def intervals(self) -> dict[int, tuple[list[float], list[float]]]:
+        """Every robot's intervals as ``(starts, ends)`` (sorted, read-only views of the timeline)."""
+        return {r: (self._t0[r], self._t1[r]) for r in self._t0}
+
     def last(self, robot: int) -> tuple[float, float] | None:
         """``robot``'s latest interval ``(t0, t1)``, or None."""
         starts = self._t0.get(robot)

@@ -31,6 +31,7 @@ Key = tuple[float, int, int, tuple]
 P_GROUP = 1
 P_ODOMETRY = 2
 
+
 def detection_key(d: Detection) -> tuple[float, ...]:
     """Canonical order of the detections in a group (and the sub-key of per-detection exchanges)."""
     target = -1.0 if d.target is None else float(d.target)

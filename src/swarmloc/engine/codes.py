@@ -1,0 +1,45 @@
+"""The codes every module of the engine shares, its compiled kernels included: detection kinds, target codes,
+outcomes and their reasons. The bottom layer of :mod:`swarmloc.engine`: it imports no other engine module.
+
+Kinds are numbered by their rank in a detection group's canonical order and described by the shared measurement
+models (:data:`swarmloc.sensors.models.MODELS`: size, angles, prediction, residual, noise): the engine keeps no
+table of kinds of its own.
+"""
+
+from __future__ import annotations
+
+from swarmloc.estimators.expfusion import DEGENERATE
+from swarmloc.node.update import NONFINITE, NUMERICAL
+from swarmloc.sensors.models import KIND_ORDER, MODELS, MeasurementModel
+
+KINDS: dict[int, str] = {code: kind for kind, code in KIND_ORDER.items()}
+"""Kind code (the canonical order :data:`swarmloc.sensors.models.KIND_ORDER`) -> name."""
+MODEL: dict[int, MeasurementModel] = {KIND_ORDER[kind]: m for kind, m in MODELS.items()}
+"""Kind code -> its :class:`~swarmloc.sensors.models.MeasurementModel`."""
+ABSOLUTE, POSE = KIND_ORDER["absolute"], KIND_ORDER["pose"]
+
+NO_TARGET = -1
+"""Target code of an absolute fix."""
+UNKNOWN_ROBOT = -2
+"""Target code of a robot outside the team or a landmark not in the map (the detection is counted ``unknown``)."""
+UNUSABLE = -3
+"""Target code of a detection its group holds but no filter can use (no target id, the pose of a landmark):
+counted ``rejected``."""
+
+PENDING, FUSED, GATED, REJECTED, UNKNOWN = range(5)
+OUTCOMES = ("pending", "fused", "gated", "rejected", "unknown")
+"""Outcome code -> the name the nodes count it under."""
+REASONS = (
+    "",
+    "the target is the observer itself",
+    "relative measurements are switched off",
+    "no answer: the robot is not in the team",
+    "no answer: the robot had not started",
+    "the observer had not started",
+    "no usable target (a robot detection without a target id, or the pose of a landmark)",
+    NONFINITE,
+    DEGENERATE,
+    NUMERICAL,
+)
+"""Reason code -> the nodes' text (0: none)."""
+R_SELF, R_OFF, R_TEAM, R_NOT_STARTED, R_OBSERVER, R_UNUSABLE, R_NONFINITE, R_DEGENERATE, R_NUMERICAL = range(1, 10)

@@ -1,0 +1,47 @@
+"""One stamp's detections as arrays (:class:`Detections`), robots as row indices."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarmloc.engine.codes import POSE
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Detections at one stamp, as arrays of length ``M``.
+
+    ``observer`` ``(M,)``: robot row; ``target`` ``(M,)``: robot row, :data:`~swarmloc.engine.codes.NO_TARGET`
+    (absolute fix) or :data:`~swarmloc.engine.codes.UNKNOWN_ROBOT`; ``kind`` ``(M,)``: code of
+    :data:`~swarmloc.engine.codes.KINDS`; ``z`` ``(M, 3)``: the measurement in its first ``m`` entries (``m`` the
+    kind's :attr:`~swarmloc.sensors.models.MeasurementModel.size`: pose ``(x [m], y [m], theta [rad])``, range [m]
+    / bearing [rad]); ``R`` ``(M, 3, 3)``: its noise covariance in the leading ``m x m`` block (conventions of
+    :class:`swarmloc.events.Detection`).
+    """
+
+    observer: np.ndarray
+    target: np.ndarray
+    kind: np.ndarray
+    z: np.ndarray
+    R: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.observer.shape[0])
+
+    def take(self, idx: np.ndarray) -> Detections:
+        return Detections(self.observer[idx], self.target[idx], self.kind[idx], self.z[idx], self.R[idx])
+
+    def canonical(self) -> Detections:
+        """Sorted by observer, then the nodes' canonical order within a group (kind, target, z)."""
+        z = self.z
+        order = np.lexsort((z[:, 2], z[:, 1], z[:, 0], self.target, self.kind, self.observer))
+        return self.take(order)
+
+    @classmethod
+    def poses(cls, observer: np.ndarray, target: np.ndarray, z: np.ndarray, R: np.ndarray) -> Detections:
+        """Relative-pose detections (``R`` ``(3, 3)`` or ``(M, 3, 3)``)."""
+        m = observer.shape[0]
+        kind = np.full(m, POSE, dtype=np.int64)
+        return cls(observer, target, kind, z, np.broadcast_to(R, (m, 3, 3)))

@@ -1,0 +1,124 @@
+"""Covariance intersection's fusion of one level (``"ci"``): :class:`~swarmloc.estimators.ExpCI`'s update, batched
+over the observers of the level.
+
+A neighbour's answer is fused by covariance intersection (the robot's belief scaled by ``1 / w``, the neighbour's
+by ``1 / (1 - w)``); absolute fixes are independent information, fused as the thesis estimator does. The weight
+``w`` follows the estimator's rule, :attr:`ExpCI.ci_weight <swarmloc.estimators.ExpCI.ci_weight>`
+(:data:`CI_WEIGHTS`): ``"closed_form"`` from the fusion linearized at the prior
+(:func:`~swarmloc.kernels.ci.pose_weight`, :func:`~swarmloc.kernels.ci.point_weight`, then one fusion) or
+``"search"``, the weight minimizing the fused covariance's determinant over fusions at many weights
+(:func:`~swarmloc.kernels.ci.ci_search`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from swarmloc.engine.codes import ABSOLUTE, MODEL, POSE, R_DEGENERATE, R_NUMERICAL, REJECTED
+from swarmloc.engine.fuse_exp import pseudo
+from swarmloc.engine.stamp import Sequential, Stamp
+from swarmloc.kernels import ci as KCI
+from swarmloc.kernels import group as K
+from swarmloc.lie import SE2
+from swarmloc.node.update import Gate
+from swarmloc.sensors.models import MeasurementModel
+
+CI_WEIGHTS = ("closed_form", "search")
+"""The rules for covariance intersection's weight an estimator may declare (``ci_weight``)."""
+
+Pair = tuple[np.ndarray, ...]
+"""``(mean, cov, nb_mean, nb_cov, meas, R)``: the observers' beliefs, the neighbours' answers, the measurements (an
+SE(2) matrix for a relative pose, ``z`` otherwise) and their noise, batched."""
+
+
+class CiFusion(Sequential):
+    """:class:`~swarmloc.estimators.ExpCI` on a level, with the weight rule ``weight`` (one of :data:`CI_WEIGHTS`)."""
+
+    def __init__(self, gate: Gate, weight: str = "closed_form", **options: Any) -> None:
+        if weight not in CI_WEIGHTS:
+            raise ValueError(f"unknown CI weight rule {weight!r}; choose from {list(CI_WEIGHTS)}")
+        super().__init__(gate, **options)
+        self.weight = weight
+
+    def update(self, st: Stamp, rows: np.ndarray, code: int) -> None:
+        if code == ABSOLUTE:
+            self._independent(st, rows)
+            return
+        model = MODEL[code]
+        m = model.size
+        lo = st.lo[rows]
+        z, R = st.det.z[rows, :m], st.det.R[rows, :m, :m]
+        pair = (st.cur[0][lo], st.cur[1][lo], *st.target(rows), SE2.from_xytheta(z) if code == POSE else z, R)
+        if self.gate.p is not None:
+            keep = self._gate(st, rows, model, pair)
+            rows, pair = rows[keep], tuple(a[keep] for a in pair)
+        if rows.size == 0:
+            return
+        why = R_NUMERICAL if code == POSE else R_DEGENERATE
+        if self.weight == "search":
+            m2, c2, _ = KCI.ci_search(self._fusion(model, pair), (rows.size,))
+            st.accept(rows, m2, c2, why)
+        elif code == POSE:
+            st.accept(rows, *self._closed_form_pose(pair), why)
+        else:
+            m2, c2, ok = self._closed_form_point(model, pair)
+            st.mark(rows[~ok], REJECTED, R_DEGENERATE)
+            st.accept(rows[ok], m2[ok], c2[ok], why)
+
+    def _independent(self, st: Stamp, rows: np.ndarray) -> None:
+        """Absolute fixes: the thesis estimator's update, gated against the prior."""
+        lo = st.lo[rows]
+        mean, cov = st.cur[0][lo], st.cur[1][lo]
+        nu, W = pseudo(st, rows, ABSOLUTE, self.order)
+        if self.gate.p is not None:
+            keep = st.gate(rows, K.pseudo_nis(SE2, mean, cov, nu, W), self.gate, 3)
+            rows, mean, cov, nu, W = (a[keep] for a in (rows, mean, cov, nu, W))
+        if rows.size:
+            m2, c2 = K.fuse_pseudo(SE2, mean, cov, nu[:, None], W[:, None], self.order, self.iterations)
+            st.accept(rows, m2, c2, R_NUMERICAL)
+
+    def _gate(self, st: Stamp, rows: np.ndarray, model: MeasurementModel, pair: Pair) -> np.ndarray:
+        """The gate on the fusion with the neighbour's belief as independent (relative poses: as a pseudo-observation;
+        range/bearing: the point update's innovation, non-finite where the geometry is degenerate)."""
+        mean, cov, nb_mean, nb_cov, meas, R = pair
+        if model.kind == "pose":
+            nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, meas, R, self.order)
+            return st.gate(rows, K.pseudo_nis(SE2, mean, cov, nu, W), self.gate, 3)
+        nis = K.point_nis(mean, cov, model.kind, meas, R, nb_mean, nb_cov, True)
+        return st.gate(rows, nis, self.gate, model.size, nonfinite=R_DEGENERATE)
+
+    def _closed_form_pose(self, pair: Pair) -> tuple[np.ndarray, np.ndarray]:
+        mean, cov, nb_mean, nb_cov, meas, R = pair
+        order = self.order
+        w = KCI.pose_weight(mean, cov, meas, R, nb_mean, nb_cov, order)[:, None, None]
+        nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - w), meas, R, order)
+        return K.fuse_pseudo(SE2, mean, cov / w, nu[:, None], W[:, None], order, self.iterations)
+
+    def _closed_form_point(self, model: MeasurementModel, pair: Pair) -> tuple[np.ndarray, ...]:
+        mean, cov, nb_mean, nb_cov, z, R = pair
+        w = KCI.point_weight(mean, cov, model.kind, z, R, nb_mean, nb_cov)[:, None, None]
+        return K.point_update(mean, cov / w, model.kind, z, R, nb_mean, nb_cov / (1 - w), True,
+                              self.point_iterations, self.order)  # fmt: skip
+
+    def _fusion(self, model: MeasurementModel, pair: Pair) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+        """The fusion at CI weights ``w (k, B)`` for :func:`~swarmloc.kernels.ci.ci_search`."""
+        mean, cov, nb_mean, nb_cov, meas, R = pair
+        order, its, point_its = self.order, self.iterations, self.point_iterations
+
+        def fuse_pose(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            wc = w[..., None, None]
+            nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - wc), meas, R, order)
+            mu = np.broadcast_to(mean, (*w.shape, 3, 3))
+            return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], order, its)
+
+        def fuse_point(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            wc = w[..., None, None]
+            mu = np.broadcast_to(mean, (*w.shape, 3, 3))
+            m2, c2, ok = K.point_update(mu, cov / wc, model.kind, meas, R, nb_mean, nb_cov / (1 - wc), True,
+                                        point_its, order)  # fmt: skip
+            return m2, np.where(ok[..., None, None], c2, np.nan)
+
+        return fuse_pose if model.kind == "pose" else fuse_point

@@ -1,0 +1,98 @@
+"""The distributed EKF's fusion of one level (``"dekf"``): :class:`~swarmloc.estimators.DistributedEKF`'s update,
+batched over the observers of the level.
+
+Each detection is linearized by its shared measurement model (:data:`swarmloc.sensors.models.MODELS`: prediction
+with Jacobians, residual, noise, degenerate geometry; the neighbour's covariance added to the noise), fused by the
+Joseph-form Kalman update (:func:`swarmloc.kernels.cartesian.kalman_update`), gated by the nodes'
+:class:`~swarmloc.node.update.Gate` and checked finite and positive definite: the steps of
+:func:`swarmloc.node.update.gated_kalman`, batched. The fast path (relative poses and absolute fixes) runs the same
+update as the structure-of-arrays formulas of :mod:`swarmloc.engine.soa` on an array backend
+(:mod:`swarmloc.engine.backends`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from swarmloc.engine.codes import ABSOLUTE, MODEL, POSE, R_DEGENERATE, R_NUMERICAL, REJECTED
+from swarmloc.engine.stamp import Sequential, Stamp, usable
+from swarmloc.kernels import cartesian as C
+from swarmloc.node.update import Gate
+from swarmloc.sensors.models import MeasurementModel
+
+SOA_MIN_ROWS = 2048
+"""On numpy, batches smaller than this take the stacked-matrix kernels even on the fast path: the
+structure-of-arrays forms make ~1400 array calls per update, a cost that only large batches amortize."""
+
+FAST_KINDS = (ABSOLUTE, POSE)
+"""Kinds the fast path fuses (the structure-of-arrays update is written for a 3-vector measurement)."""
+
+
+def kalman_rows(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`swarmloc.kernels.cartesian.kalman_update` batched, row by row where a singular innovation covariance
+    makes the batched inverse fail (the kernel then answers that row alone)."""
+    xn, Pn, nis, ok = C.kalman_update(x, P, r, H, R)
+    if not np.isnan(nis).all() or x.shape[0] <= 1:
+        return xn, Pn, nis, ok
+    rows = [C.kalman_update(x[i], P[i], r[i], H[i], R[i]) for i in range(x.shape[0])]
+    return tuple(np.array([row[k] for row in rows]) for k in range(4))
+
+
+def linearize(
+    model: MeasurementModel, x: np.ndarray, z: np.ndarray, Rz: np.ndarray, xk: np.ndarray | None, Pk: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(r, H, R_eff)`` of detections ``z`` (noise ``Rz``) at observer states ``x``, batched: residual, Jacobian
+    w.r.t. the observer, the model's noise plus the target's covariance ``Pk`` seen through its Jacobian (none for
+    an absolute fix: ``xk`` None), as the node's :func:`swarmloc.estimators.dekf.linearize`."""
+    h, H, Hk = model.predict(x, xk)
+    R = model.noise(z, Rz)
+    if Hk is not None:
+        R = R + Hk @ Pk @ np.swapaxes(Hk, -1, -2)
+    return model.residual(z, h), H, R
+
+
+class EkfFusion(Sequential):
+    """:class:`~swarmloc.estimators.DistributedEKF` on a level: one detection of each group at a time.
+
+    ``ops``: the fast path's kernels (:func:`swarmloc.engine.backends.make_ops`), None: the stacked-matrix kernels
+    for every kind; ``backend``: its name (numpy takes the fast path for batches of :data:`SOA_MIN_ROWS` or more).
+    """
+
+    def __init__(self, gate: Gate, ops: Any = None, backend: str = "numpy", **options: Any) -> None:
+        super().__init__(gate, **options)
+        self.ops = ops
+        self.backend = backend
+
+    def _fast(self, code: int, rows: int) -> bool:
+        return self.ops is not None and code in FAST_KINDS and (self.backend != "numpy" or rows >= SOA_MIN_ROWS)
+
+    def update(self, st: Stamp, rows: np.ndarray, code: int) -> None:
+        model = MODEL[code]
+        m = model.size
+        lo = st.lo[rows]
+        x, P = st.cur[0][lo], st.cur[1][lo]
+        z, Rz = st.det.z[rows, :m], st.det.R[rows, :m, :m]
+        if self._fast(code, rows.size):
+            if code == ABSOLUTE:
+                xn, Pn, nis, ok, pd = self.ops.absolute_update(x, P, z, Rz)
+            else:
+                xn, Pn, nis, ok, pd = self.ops.pose_update(x, P, *st.target(rows), z, Rz)
+            ok = ok & pd
+        else:
+            xk = Pk = None
+            if model.targets != "self":
+                xk, Pk = C.from_group(*C.to_group(*st.target(rows)))  # the answer travels as a group belief
+                bad = model.degenerate(x, xk)
+                if bad.any():
+                    st.mark(rows[bad], REJECTED, R_DEGENERATE)
+                    rows, x, P, z, Rz, xk, Pk = (a[~bad] for a in (rows, x, P, z, Rz, xk, Pk))
+                    if rows.size == 0:
+                        return
+            xn, Pn, nis, ok = kalman_rows(x, P, *linearize(model, x, z, Rz, xk, Pk))
+            ok = ok & usable(Pn)
+        keep = st.gate(rows, nis, self.gate, m)
+        st.mark(rows[keep & ~ok], REJECTED, R_NUMERICAL)
+        good = keep & ok
+        st.store(rows[good], xn[good], Pn[good])

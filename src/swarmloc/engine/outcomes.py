@@ -1,0 +1,101 @@
+"""The outcome of every detection of a stamp, as codes (:mod:`swarmloc.engine.codes`): the checks made before any
+fusion (:func:`screen`), the batched chi-square gate (:func:`gate_rows`), and the tally the nodes keep
+(:func:`tally`).
+
+``status`` and ``reason`` are ``(M,)`` int8 arrays over a stamp's detections, in canonical order; a detection is
+``PENDING`` until one of these functions or a fusion decides it.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+from swarmloc.engine.codes import (
+    ABSOLUTE,
+    FUSED,
+    GATED,
+    OUTCOMES,
+    PENDING,
+    R_NONFINITE,
+    R_NOT_STARTED,
+    R_OBSERVER,
+    R_OFF,
+    R_SELF,
+    R_TEAM,
+    R_UNUSABLE,
+    REASONS,
+    REJECTED,
+    UNKNOWN,
+    UNUSABLE,
+)
+from swarmloc.engine.detections import Detections
+from swarmloc.node.update import Gate
+
+
+def mark(status: np.ndarray, reason: np.ndarray, where: np.ndarray, outcome: int, why: int) -> None:
+    """Outcome and reason of the detections ``where`` (a mask or indices)."""
+    status[where] = outcome
+    reason[where] = why
+
+
+def screen(
+    det: Detections, t: float, t0: np.ndarray, use_relative: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What is decided before any fusion, as the nodes decide it: observers that had not started, relative
+    measurements switched off, unusable or self-addressed targets, and neighbours that cannot answer (outside the
+    team or not started; clocks ``t0``).
+
+    Returns ``(status, reason, obs_ok, needs)``: ``obs_ok`` the detections whose observer runs at ``t``, ``needs``
+    the pending ones that need their target's answer."""
+    m = len(det)
+    status = np.zeros(m, dtype=np.int8)
+    reason = np.zeros(m, dtype=np.int8)
+    obs, tgt = det.observer, det.target
+    robot = det.kind != ABSOLUTE
+    obs_ok = t >= t0[obs]
+    mark(status, reason, ~obs_ok, REJECTED, R_OBSERVER)
+    if not use_relative:
+        mark(status, reason, obs_ok & robot, REJECTED, R_OFF)
+    mark(status, reason, (status == PENDING) & robot & (tgt == UNUSABLE), REJECTED, R_UNUSABLE)
+    mark(status, reason, (status == PENDING) & robot & (tgt == obs), REJECTED, R_SELF)
+    mark(status, reason, (status == PENDING) & robot & (tgt < 0), UNKNOWN, R_TEAM)
+    started = t >= t0[np.clip(tgt, 0, t0.shape[0] - 1)]
+    mark(status, reason, (status == PENDING) & robot & ~started, UNKNOWN, R_NOT_STARTED)
+    return status, reason, obs_ok, (status == PENDING) & robot
+
+
+def gate_rows(
+    status: np.ndarray,
+    reason: np.ndarray,
+    rows: np.ndarray,
+    nis: np.ndarray,
+    gate: Gate,
+    m: int,
+    nonfinite: int = R_NONFINITE,
+) -> np.ndarray:
+    """:meth:`Gate.verdict <swarmloc.node.update.Gate.verdict>` on the detections ``rows`` (normalized innovations
+    squared ``nis`` of dimension ``m``), batched: beyond :meth:`Gate.threshold` they are ``GATED``, non-finite ones
+    ``REJECTED`` with reason ``nonfinite``. Returns the mask of the rows that pass (all of them without a gate)."""
+    if gate.p is None:
+        return np.ones(rows.size, dtype=bool)
+    bad = ~np.isfinite(nis)
+    with np.errstate(invalid="ignore"):
+        gated = ~bad & (nis > gate.threshold(m))
+    mark(status, reason, rows[bad], REJECTED, nonfinite)
+    status[rows[gated]] = GATED
+    return ~(bad | gated)
+
+
+def tally(counts: Counter[str], reasons: Counter[str], status: np.ndarray, reason: np.ndarray) -> None:
+    """Add a stamp's outcomes to ``counts`` (detections in, ``fused``, ``gated``, ``rejected``, ``unknown``) and
+    ``reasons`` (``"<outcome>: <reason>"``), as the nodes count."""
+    counts["detections"] += int(status.size)
+    per = np.bincount(status, minlength=len(OUTCOMES))
+    for code in (FUSED, GATED, REJECTED, UNKNOWN):
+        counts[OUTCOMES[code]] += int(per[code])
+    if reason.any():
+        pairs, n = np.unique(np.stack([status[reason > 0], reason[reason > 0]]), axis=1, return_counts=True)
+        for (s, r), k in zip(pairs.T, n, strict=True):
+            reasons[f"{OUTCOMES[s]}: {REASONS[r]}"] += int(k)
