@@ -125,7 +125,7 @@ def test_gate_values(tmp_path: Path, literal: str, gate: float | None) -> None:
         ("[filter]\norder = 2.0\n", ["[filter] order", "1 or 2"]),
         ("[filter]\niterations = 0\n", ["[filter] iterations", "integer >= 1"]),
         ("[filter]\npoint_iterations = false\n", ["[filter] point_iterations", "boolean"]),
-        ("[record]\nrate = 0.0\n", ["[record] rate", "> 0"]),
+        ("[record]\nrate = 0.0\n", ["[record] rate", "(0, 1000]"]),
     ],
 )
 def test_errors_name_file_section_key(tmp_path: Path, text: str, expected: list[str]) -> None:

@@ -57,7 +57,7 @@ def _all_kinds() -> list[Odometry | Detection]:
         _det(2, 0.3, "range", [2.0 / 3], [[0.1 * 0.1]], 1, True),
         Odometry(1, 0.3, 0.4, 0.25, 1e-17),
         _det(1, 0.35, "bearing", [-math.pi], [[0.0012]], 9, False),
-        _det(2, 0.35, "absolute", [1.248e9 + 0.1, -3.0, math.pi], np.diag([1e-4, 2e-4, 3e-4])),
+        _det(2, 0.35, "absolute", [4.0e5 + 0.1, -3.0, math.pi], np.diag([1e-4, 2e-4, 3e-4])),
         Odometry(2, 1.248e3, 1.248e3 + 0.05, -0.2, 0.0),
     ]
 
@@ -313,7 +313,7 @@ def test_strict_lists_every_bad_line(tmp_path: Path) -> None:
         "# a comment between",
         "",
         "detection,1.0,1,,,,2,robot,range,-1,0.1,",
-        ODO,
+        "odometry,2.0,1,1.0,0.5,0.1,,,,,,",
         "landmark,,,,,,7,landmark,,1,0.1 0.1,",
     )
     with pytest.raises(EventFileError) as ei:
@@ -338,7 +338,8 @@ def test_many_bad_lines_first_20_in_full_then_the_rest_by_number(tmp_path: Path)
     assert "25 bad lines" in msg
     assert msg.count("'v' must be a number") == 20
     assert "... and 5 more (lines 23, 24, 25, 26, 27)" in msg
-    assert len(ei.value.problems) == 25
+    assert len(ei.value.problems) == 21 and ei.value.n_bad == 25  # 20 messages, then one line for the others
+    assert ei.value.problems[-1] == "... and 5 more (lines 23, 24, 25, 26, 27)"
 
 
 def test_sort_order_and_ties(tmp_path: Path) -> None:
@@ -348,7 +349,7 @@ def test_sort_order_and_ties(tmp_path: Path) -> None:
         "detection,1.0,1,,,,2,robot,range,1.0,0.1,",  # B: detection at 1.0, robot 1
         "odometry,1.5,1,1.0,0.1,0,,,,,,",  # C: odometry stamped 1.0, robot 1
         "detection,1.0,0,,,,2,robot,range,2.0,0.1,",  # D: detection at 1.0, robot 0
-        "odometry,2.0,1,0.5,0.1,0,,,,,,",  # E: odometry stamped 0.5 (ends after the others start)
+        "odometry,2.0,3,0.5,0.1,0,,,,,,",  # E: odometry stamped 0.5 (ends after the others start)
         "detection,0.7,1,,,,2,robot,range,3.0,0.1,",  # F: detection at 0.7
         "detection,1.0,1,,,,2,robot,range,4.0,0.1,",  # G: same stamp, kind and robot as B: file order
     ]
@@ -356,7 +357,7 @@ def test_sort_order_and_ties(tmp_path: Path) -> None:
     tags = []
     for e in ef.events:
         if isinstance(e, Odometry):
-            tags.append({(2, 1.0): "A", (1, 1.0): "C", (1, 0.5): "E"}[(e.robot, e.t0)])
+            tags.append({(2, 1.0): "A", (1, 1.0): "C", (3, 0.5): "E"}[(e.robot, e.t0)])
         else:
             tags.append({1.0: "B", 2.0: "D", 3.0: "F", 4.0: "G"}[float(e.z[0])])
     assert tags == ["E", "F", "D", "B", "G", "C", "A"]

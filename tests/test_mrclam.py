@@ -304,3 +304,26 @@ def test_missing_folder_and_files(tmp_path: Path) -> None:
     with pytest.raises(MRCLAMError, match=r"Barcodes\.dat missing in .*MRCLAM_Syn \(available: .*Robot1_Odometry"):
         load_mrclam(folder)
     assert issubclass(MRCLAMError, ValueError)
+
+
+@pytest.mark.parametrize("landmarks", [True, False])
+def test_detections_of_unknown_subjects_are_counted_in_the_report(tmp_path: Path, landmarks: bool) -> None:
+    """A barcode of a subject that is neither a robot nor a mapped landmark (subject 8): its detections are
+    counted by subject in the report, and every measurement in the span is a node's detection or left out."""
+    from swarmloc.experiments.mrclam import evaluate_mrclam
+
+    folder = _synthetic(tmp_path / "MRCLAM_Syn")
+    _write(folder / "Barcodes.dat", ["1\t5", "2\t14", "3\t41", "4\t32", "5\t23", "6\t63", "7\t81", "8\t77"])
+    for r in (1, 2):
+        rows = [" ".join(x) for x in _data_lines(folder / f"Robot{r}_Measurement.dat")] + ["5.000\t77\t1.0\t0.0"]
+        _write(folder / f"Robot{r}_Measurement.dat", sorted(rows, key=lambda s: float(s.split()[0])))
+    report = evaluate_mrclam(folder, estimators=["dr", "dekf"], landmarks=landmarks)
+    assert report["unknown_subjects"] == {"8": 2}
+    in_span = 2 * 4  # per robot: landmark 6, robot 2 (or 1), robot 5, landmark 7 and subject 8, minus t < 1 s: none
+    left = sum(report["left_out"].values())
+    stats = report["estimators"]["dekf"]["stats"]
+    assert stats["detections"] + left == in_span + 2
+    if landmarks:
+        assert report["left_out"] == {} and stats["unknown"] >= 2
+    else:
+        assert report["left_out"] == {"landmarks (off)": 4, "unknown subjects": 2}

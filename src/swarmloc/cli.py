@@ -113,6 +113,9 @@ def _evaluate(args: argparse.Namespace) -> int:
             )  # fmt: skip
             for problem in report["problems"]:
                 print(f"skipped: {problem}", file=sys.stderr)
+            if report["n_bad"]:
+                n = report["n_bad"]
+                print(f"{where}: skipped {n} bad line{'s' if n != 1 else ''} in all", file=sys.stderr)
         else:
             print(f"swarmloc evaluate: unknown kind {args.what!r} (use 'mrclam' or 'events')", file=sys.stderr)
             return 2

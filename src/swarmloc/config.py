@@ -39,7 +39,7 @@ Five sections, every key optional (a missing key keeps its default; defaults are
     point_iterations = 3  # >= 1, iterations of a point (landmark) update
 
     [record]
-    rate = 4.0         # [Hz] rate at which beliefs are recorded
+    rate = 4.0         # [Hz] in (0, 1000]: rate at which beliefs are recorded
 
     [initial]
     std_xy = 0.01      # [m] initial-belief std of x and y
@@ -72,6 +72,8 @@ __all__ = [
     "ConfigError",
     "FilterConfig",
     "InitialConfig",
+    "MAX_RECORDS",
+    "MAX_RECORD_RATE",
     "MotionConfig",
     "RecordConfig",
     "SensorConfig",
@@ -284,9 +286,18 @@ class FilterConfig:
         )
 
 
+MAX_RECORD_RATE = 1000.0
+"""[Hz] Highest ``[record] rate``: beliefs are recorded to be scored, and no input here comes faster than about
+100 Hz (MRCLAM's odometry: 67 Hz), so a faster grid interpolates between the same inputs; 1 kHz leaves a margin."""
+
+MAX_RECORDS = 2_000_000
+"""Most beliefs one run records (record times x robots): each costs about 0.75 kB while a run is recorded (measured
+with tracemalloc), so at most about 1.5 GB. At 4 Hz that is 5 robots for 28 hours of data."""
+
+
 @dataclass(frozen=True)
 class RecordConfig:
-    """``rate`` [Hz] ``> 0``: how often beliefs are recorded."""
+    """``rate`` [Hz] in ``(0, MAX_RECORD_RATE]``: how often beliefs are recorded."""
 
     SECTION: ClassVar[str] = "record"
     UNITS: ClassVar[dict[str, str]] = {"rate": "[Hz] rate at which beliefs are recorded"}
@@ -294,7 +305,43 @@ class RecordConfig:
     rate: float = 4.0
 
     def __post_init__(self) -> None:
-        _set(self, "rate", _positive(self.SECTION, "rate", self.rate))
+        what = f"a number in (0, {MAX_RECORD_RATE:g}] Hz"
+        rate = _real(self.SECTION, "rate", self.rate, 0.0, True, what)
+        if rate > MAX_RECORD_RATE:
+            raise ConfigError(f"[{self.SECTION}] rate: expected {what} (beliefs are recorded to be scored; no input "
+                              f"comes faster than about 100 Hz), got {_describe(self.rate)}")  # fmt: skip
+        _set(self, "rate", rate)
+
+    def count(self, t_start: float, t_end: float, robots: int = 1, origin: str = "") -> int:
+        """How many record times :meth:`times` gives over ``[t_start, t_end)`` [s], checked before anything is
+        allocated: ValueError when the span is not finite, when ``robots`` times that many exceeds
+        :data:`MAX_RECORDS`, or when there is nothing to score (no record time after ``t_start``, where the belief
+        is the initial one). ``origin`` says where the span comes from, for the message."""
+        span = f"[{t_start!r}, {t_end!r}] s{origin}"
+        where = f"recording beliefs at [record] rate = {self.rate:g} Hz over {span}"
+        if not (math.isfinite(t_start) and math.isfinite(t_end)):
+            raise ValueError(f"{where}: the span is not finite")
+        step = 1.0 / self.rate
+        n = math.ceil((t_end - t_start) / step) if t_end > t_start and math.isfinite(step) else 0
+        if n * max(1, robots) > MAX_RECORDS:
+            raise ValueError(
+                f"{where}: {n:.4g} record times x {robots} robot(s) is more than {MAX_RECORDS} records (the bound on "
+                f"a run's memory): lower [record] rate or shorten the span"
+            )
+        if n < 2:
+            fix = "the span is empty"
+            if t_end > t_start:
+                fix = f"raise [record] rate above {1.0 / (t_end - t_start):.3g} Hz or use a longer span"
+            raise ValueError(
+                f"{where}: {n} record time(s), none after the start (where the belief is the initial one): nothing to "
+                f"score ({fix})"
+            )
+        return n
+
+    def times(self, t_start: float, t_end: float, robots: int = 1, origin: str = "") -> np.ndarray:
+        """Record times [s]: every ``1 / rate`` s over ``[t_start, t_end)``, after :meth:`count` checked them."""
+        self.count(t_start, t_end, robots, origin)
+        return np.arange(t_start, t_end, 1.0 / self.rate)
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,17 @@
 """A plain event file for your own robots: odometry, detections, landmarks and initial beliefs in CSV or JSON Lines.
 
-Format (version 1). One record per line (a CSV cell may not span lines); lines starting with ``#`` and blank lines
-are comments. The format follows the file's extension: ``.csv`` or ``.jsonl``. A CSV file's first other line is
-the header row naming the columns, in any order; columns a file does not use may be left out, unknown columns are
-an error; a row may stop after its last non-empty cell. A JSON Lines file holds one JSON object per line with the
-same field names (a missing field or ``null`` is an empty cell; numbers are JSON numbers, ``z``/``std``/``cov``
-JSON arrays or, for one number, a number).
+Format (version 1). One record per line (a CSV cell may not span lines; a line holds at most 65536 characters);
+lines starting with ``#`` and blank lines are comments. The format follows the file's extension: ``.csv`` or
+``.jsonl``. A CSV file's first other line is the header row naming the columns, in any order; columns a file does
+not use may be left out, unknown columns are an error; a row may stop after its last non-empty cell. A JSON Lines
+file holds one JSON object per line with the same field names (a missing field or ``null`` is an empty cell;
+numbers are JSON numbers, ``z``/``std``/``cov`` JSON arrays or, for one number, a number).
 Words (``type``, ``target_type``, ``kind``) are case-insensitive. Units: metres, radians, seconds; poses
 ``(x, y, theta)`` in the world frame, relative quantities in the observer's body frame (x forward, y left).
+
+Numbers in a CSV cell are plain decimals: optional sign, ASCII digits with an optional point, optional exponent
+(``1``, ``-0.5``, ``2.5e-3``; blanks around a cell are ignored). ``1_0``, ``0x1``, ``infinity`` or non-ASCII
+digits are bad values; ``inf`` and ``nan`` are bad values in every column (CSV and JSON).
 
 Columns::
 
@@ -23,9 +27,18 @@ Columns::
     std          noise standard deviations, one per number of z (a diagonal covariance)
     cov          full noise covariance, row-major: m*m numbers for a z of m numbers
 
+Bounds (:mod:`swarmloc.datasets.bounds`; physically generous, a value beyond one is a bad value): times
+``|t|, |t0| <= 1e10`` s; ids up to ``2**31 - 1``; ``|v| <= 1e3`` m/s, ``|w| <= 1e3`` rad/s; positions
+(``x``, ``y`` of a pose, a fix or a landmark) and ranges within ``1e6`` m; headings within ``1e4`` rad; standard
+deviations in ``[1e-12, 1e6]`` (a covariance's diagonal in their squares).
+
 Records (every other cell empty):
 
-* ``odometry``: ``t, robot, t0, v, w``; becomes ``Odometry(robot, t0, t, v, w)``.
+* ``odometry``: ``t, robot, t0, v, w``; becomes ``Odometry(robot, t0, t, v, w)``. A robot's intervals
+  ``[t0, t]`` may not overlap (1e-9 s of rounding is allowed; gaps are fine): of two that do, the one that starts
+  later (at equal starts, the later line) is a bad line. They may not start before the robot's initial stamp:
+  the ``t`` of its ``initial`` record, or, for a robot without one, the ``starts`` passed to
+  :func:`load_events` (e.g. the start of its ground truth).
 * ``detection``: ``t, robot, kind, z``; ``target, target_type`` (not for ``absolute``); ``std`` or ``cov``, or
   neither: then the reader's ``defaults`` for the kind apply. ``z`` per kind: ``pose`` the target's relative pose
   ``x y theta`` in the observer's frame (its noise: the exponential coordinates of ``m_true^-1 m_measured``);
@@ -53,11 +66,12 @@ The same range-bearing detection in ``events.jsonl``::
     {"type": "detection", "t": 0.1, "robot": 1, "target": 7, "target_type": "landmark", "kind": "range_bearing",
      "z": [4.2, 0.55], "std": [0.1, 0.035]}
 
-(on one line). :func:`load_events` checks every record and reports every bad line with the file name, the line
-number and the problem; :func:`write_events` writes the format so that it reads back exactly (floats as the
-shortest text that reads back to the same number). Events are sorted by their natural stamp: odometry by ``t0``
-(a commanded velocity is known when it starts), detections by ``t``; ties: detections before odometry, then by
-robot id, then file order.
+(on one line). :func:`load_events` reads the file as a stream and checks every record; it reports the bad lines
+with the file name, the line number and the problem: the first 20 in full, then how many more and which lines,
+in memory that does not grow with their number. :func:`write_events` writes the format so that it reads back
+exactly (floats as the shortest text that reads back to the same number). Events are sorted by their natural
+stamp: odometry by ``t0`` (a commanded velocity is known when it starts), detections by ``t``; ties: detections
+before odometry, then by robot id, then file order.
 """
 
 from __future__ import annotations
@@ -73,6 +87,16 @@ from pathlib import Path
 
 import numpy as np
 
+from swarmloc.datasets._eventfields import Bad, Record, check_point, check_pose, check_std, noise
+from swarmloc.datasets.bounds import (
+    MAX_LINE_CHARS,
+    MAX_POSITION,
+    MAX_SPEED,
+    MAX_STAMP,
+    MAX_YAW_RATE,
+    BadLines,
+    shorten,
+)
 from swarmloc.datasets.tum import read_tum
 from swarmloc.events import Detection, Odometry
 from swarmloc.gaussian import GroupGaussian, check_covariance
@@ -83,6 +107,7 @@ __all__ = [
     "EventFile",
     "EventFileError",
     "KIND_SIZES",
+    "ODOMETRY_TOL",
     "load_events",
     "load_truth_dir",
     "write_events",
@@ -96,25 +121,32 @@ KIND_SIZES: dict[str, int] = {"pose": 3, "range_bearing": 2, "range": 1, "bearin
 
 RECORD_TYPES: tuple[str, ...] = ("odometry", "detection", "landmark", "initial")
 
+ODOMETRY_TOL = 1e-9
+"""[s] Rounding allowed when odometry intervals meet each other or the robot's initial stamp."""
+
 _ALLOWED: dict[str, frozenset[str]] = {
     "odometry": frozenset({"t", "robot", "t0", "v", "w"}),
     "detection": frozenset({"t", "robot", "target", "target_type", "kind", "z", "std", "cov"}),
     "landmark": frozenset({"target", "target_type", "z", "std", "cov"}),  # cov: to say "use std"
     "initial": frozenset({"t", "robot", "z", "std", "cov"}),
 }
-_MAX_LISTED = 20
-_MAX_NUMBERS = 50
 _BEARING_TOL = 1e-9
+_STAMP = (MAX_STAMP, "s")
+_HINT = "skip them with strict=False, on the command line with --skip-bad-lines"
 
 EventList = list[Odometry | Detection]
+Span = tuple[tuple[float, int], tuple[float, int]]
+"""``((t_start, line), (t_end, line))``: the earliest stamp and the latest end [s], and the lines that hold them."""
 
 
 class EventFileError(ValueError):
-    """A problem with an event file. ``problems`` holds one message per bad line (empty for file-level errors)."""
+    """A problem with an event file. ``problems`` holds the bad lines' messages (the first 20, then one line for
+    the others; empty for file-level errors); ``n_bad`` counts them all."""
 
-    def __init__(self, message: str, problems: Sequence[str] = ()) -> None:
+    def __init__(self, message: str, problems: Sequence[str] = (), n_bad: int | None = None) -> None:
         super().__init__(message)
         self.problems = list(problems)
+        self.n_bad = len(self.problems) if n_bad is None else n_bad
 
 
 @dataclass
@@ -125,7 +157,8 @@ class EventFile:
     sy)`` [m]. ``initial``: ``robot -> (pose (3,), cov (3, 3))``, pose ``(x, y, theta)`` and covariance of the
     exponential coordinates (right perturbation); ``initial_times``: ``robot -> t`` for initial records with a
     time. ``robots``: sorted ids of every robot named (odometry, observer, initial, robot target). ``problems``:
-    one message per skipped bad line (``strict=False``).
+    the skipped bad lines (``strict=False``): the first 20 messages, then one line for the others; ``n_bad``: how
+    many in all. ``span``: where the events start and end (:data:`Span`), None without events.
     """
 
     path: Path
@@ -135,6 +168,8 @@ class EventFile:
     initial_times: dict[int, float] = field(default_factory=dict)
     robots: list[int] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
+    n_bad: int = 0
+    span: Span | None = None
 
     def initial_beliefs(self) -> dict[int, GroupGaussian]:
         """The ``initial`` records as SE(2) :class:`~swarmloc.gaussian.GroupGaussian` beliefs."""
@@ -145,126 +180,11 @@ class EventFile:
 # reading: one record -> typed values
 
 
-class _Bad(Exception):
-    """A problem with one record (becomes one message naming the line)."""
-
-
-def _shorten(text: str, n: int = 80) -> str:
-    return text if len(text) <= n else text[: n - 3] + "..."
-
-
-def _empty(v: object) -> bool:
-    return v is None or (isinstance(v, str) and not v.strip())
-
-
-class _Record:
-    """Accessors over one record's raw fields (CSV: strings; JSON: JSON values) with uniform error messages."""
-
-    def __init__(self, raw: Mapping[str, object], text: bool) -> None:
-        self.raw = raw
-        self.text = text
-
-    def has(self, key: str) -> bool:
-        return not _empty(self.raw.get(key))
-
-    def _get(self, key: str) -> object:
-        v = self.raw.get(key)
-        if _empty(v):
-            raise _Bad(f"'{key}' is required")
-        return v.strip() if isinstance(v, str) else v
-
-    def word(self, key: str) -> str:
-        v = self._get(key)
-        if not isinstance(v, str):
-            raise _Bad(f"'{key}' must be a string, got {v!r}")
-        return v.strip().lower()
-
-    def number(self, key: str) -> float:
-        v = self._get(key)
-        if isinstance(v, str) and self.text:
-            try:
-                x = float(v)
-            except ValueError:
-                raise _Bad(f"'{key}' must be a number, got {v!r}") from None
-        elif isinstance(v, int | float) and not isinstance(v, bool):
-            x = float(v) if isinstance(v, float) or abs(v) < 2**1000 else math.inf
-        else:
-            raise _Bad(f"'{key}' must be a number, got {v!r}")
-        if not math.isfinite(x):
-            raise _Bad(f"'{key}' must be finite, got {v!r}")
-        return x
-
-    def ident(self, key: str) -> int:
-        """A non-negative integer id (``3``; ``3.0`` is accepted, as spreadsheets and pandas write it)."""
-        v = self._get(key)
-        n: int | None = None
-        if isinstance(v, str) and self.text:
-            try:
-                n = int(v)
-            except ValueError:
-                try:
-                    x = float(v)
-                except ValueError:
-                    x = math.nan
-                n = int(x) if math.isfinite(x) and x == int(x) else None
-        elif isinstance(v, int) and not isinstance(v, bool):
-            n = v
-        elif isinstance(v, float) and math.isfinite(v) and v == int(v):
-            n = int(v)
-        if n is None or n < 0:
-            raise _Bad(f"'{key}' must be a non-negative integer id, got {v!r}")
-        return n
-
-    def vector(self, key: str) -> np.ndarray:
-        v = self._get(key)
-        if isinstance(v, str) and self.text:
-            parts = v.split()
-            try:
-                vals = [float(s) for s in parts]
-            except ValueError:
-                raise _Bad(f"'{key}' must be numbers separated by spaces, got {v!r}") from None
-        elif isinstance(v, list) and all(isinstance(x, int | float) and not isinstance(x, bool) for x in v):
-            vals = [float(x) if isinstance(x, float) or abs(x) < 2**1000 else math.inf for x in v]
-        elif isinstance(v, int | float) and not isinstance(v, bool) and not self.text:
-            vals = [float(v) if isinstance(v, float) or abs(v) < 2**1000 else math.inf]
-        else:
-            raise _Bad(f"'{key}' must be {'numbers separated by spaces' if self.text else 'an array of numbers'}")
-        arr = np.array(vals, dtype=float)
-        if not np.isfinite(arr).all():
-            raise _Bad(f"'{key}' must be finite, got {v!r}")
-        return arr
-
-
-def _noise(rec: _Record, m: int, what: str, default: np.ndarray | None) -> np.ndarray:
-    """The ``(m, m)`` noise covariance from ``std`` or ``cov`` (exactly one), else from ``default``."""
-    has_std, has_cov = rec.has("std"), rec.has("cov")
-    if has_std and has_cov:
-        raise _Bad("give either 'std' or 'cov', not both")
-    if has_std:
-        std = rec.vector("std")
-        if std.size != m:
-            raise _Bad(f"'std' of {what} must have {m} number{'s' if m > 1 else ''}, got {std.size}")
-        if (std <= 0).any():
-            raise _Bad(f"'std' must be positive, got {std.tolist()}")
-        return np.diag(std * std)
-    if has_cov:
-        c = rec.vector("cov")
-        if c.size != m * m:
-            raise _Bad(f"'cov' of {what} must have {m}*{m} = {m * m} numbers (row-major), got {c.size}")
-        try:
-            return check_covariance(c.reshape(m, m), m, "cov").copy()
-        except ValueError as exc:
-            raise _Bad(str(exc).replace("cov: argument 'cov'", "'cov'")) from None
-    if default is None:
-        raise _Bad(f"{what} has neither 'std' nor 'cov' and no default applies (pass defaults={{...}})")
-    return default.copy()
-
-
-def _check_fields(rec: _Record, rtype: str) -> None:
+def _check_fields(rec: Record, rtype: str) -> None:
     extra = [k for k in COLUMNS if k != "type" and k not in _ALLOWED[rtype] and rec.has(k)]
     if extra:
         names = ", ".join(f"'{k}'" for k in extra)
-        raise _Bad(f"{names} do{'es' if len(extra) == 1 else ''} not apply to {rtype} records (leave empty)")
+        raise Bad(f"{names} do{'es' if len(extra) == 1 else ''} not apply to {rtype} records (leave empty)")
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -294,31 +214,220 @@ def _normalize_defaults(defaults: Mapping[str, object] | None) -> dict[str, np.n
     return out
 
 
+class _Reader:
+    """One pass of :func:`load_events`: the records accepted so far (with their lines) and the bad lines."""
+
+    def __init__(self, label: str, dflt: dict[str, np.ndarray]) -> None:
+        self.dflt = dflt
+        self.keyed: list[tuple[tuple[float, int, int, int], int, Odometry | Detection]] = []  # (key, line, event)
+        self.landmarks: dict[int, tuple[float, float, float, float]] = {}
+        self.lm_line: dict[int, int] = {}
+        self.initial: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.init_t: dict[int, float] = {}
+        self.init_line: dict[int, int] = {}
+        self.bad = BadLines(label)
+
+    def record(self, rec: Record, line: int, seq: int) -> None:
+        """Check one record and keep what it says; raise :class:`Bad` naming the problem."""
+        rtype = rec.word("type")
+        if rtype not in _ALLOWED:
+            raise Bad(f"unknown record type {rtype!r}; expected one of {', '.join(RECORD_TYPES)}")
+        _check_fields(rec, rtype)
+        if rtype == "odometry":
+            t1, r, t0 = rec.number("t", _STAMP), rec.ident("robot"), rec.number("t0", _STAMP)
+            v, w = rec.number("v", (MAX_SPEED, "m/s")), rec.number("w", (MAX_YAW_RATE, "rad/s"))
+            if t1 < t0:
+                raise Bad(f"odometry must have t >= t0, got t = {t1!r} < t0 = {t0!r}")
+            self.keyed.append(((t0, 1, r, seq), line, Odometry(robot=r, t0=t0, t1=t1, v=v, w=w)))
+        elif rtype == "detection":
+            self.keyed.append(self._detection(rec, line, seq))
+        elif rtype == "landmark":
+            self._landmark(rec, line)
+        else:
+            self._initial(rec, line)
+
+    def _detection(self, rec: Record, line: int, seq: int) -> tuple[tuple[float, int, int, int], int, Detection]:
+        t, obs = rec.number("t", _STAMP), rec.ident("robot")
+        kind = rec.word("kind")
+        if kind not in KIND_SIZES:
+            raise Bad(f"unknown detection kind {kind!r}; expected one of {', '.join(KIND_SIZES)}")
+        m = KIND_SIZES[kind]
+        target: int | None = None
+        is_robot = True
+        if kind == "absolute":
+            if rec.has("target") or rec.has("target_type"):
+                raise Bad("an absolute detection (the observer's own pose) has no 'target' or 'target_type'")
+        else:
+            target = rec.ident("target")
+            ttype = rec.word("target_type")
+            if ttype not in ("robot", "landmark"):
+                raise Bad(f"'target_type' must be 'robot' or 'landmark', got {rec.raw['target_type']!r}")
+            is_robot = ttype == "robot"
+            if not is_robot and kind == "pose":
+                raise Bad("a landmark is a point: it has no relative pose (use range_bearing, range or bearing)")
+            if is_robot and target == obs:
+                raise Bad(f"robot {obs} cannot detect itself (target equals robot)")
+        z = rec.vector("z")
+        if z.size != m:
+            raise Bad(f"'z' of a {kind} detection must have {m} number{'s' if m > 1 else ''}, got {z.size}")
+        if kind in ("pose", "absolute"):
+            check_pose(z)
+        if kind in ("range_bearing", "range") and not 0 < z[0] <= MAX_POSITION:
+            raise Bad(f"range must be positive and at most {MAX_POSITION:g} m, got {z[0]!r}")
+        if kind in ("range_bearing", "bearing") and abs(z[-1]) > math.pi + _BEARING_TOL:
+            raise Bad(f"bearing must be in [-pi, pi] rad (degrees given?), got {z[-1]!r}")
+        cov = noise(rec, m, f"a {kind} detection", self.dflt.get(kind))
+        d = Detection(
+            observer=obs, t=t, kind=kind, z=_readonly(z), cov=_readonly(cov), target=target, target_is_robot=is_robot
+        )
+        return (t, 0, obs, seq), line, d
+
+    def _landmark(self, rec: Record, line: int) -> None:
+        lid = rec.ident("target")
+        if rec.has("target_type") and rec.word("target_type") != "landmark":
+            raise Bad(f"'target_type' of a landmark record must be 'landmark' or empty, got {rec.raw['target_type']!r}")
+        z = rec.vector("z")
+        if z.size != 2:
+            raise Bad(f"'z' of a landmark must be 'x y' (2 numbers), got {z.size}")
+        check_point(z)
+        if rec.has("cov"):
+            raise Bad("a landmark record takes 'std' (sx sy), not 'cov'")
+        if rec.has("std"):
+            std = rec.vector("std")
+            if std.size != 2:
+                raise Bad(f"'std' of a landmark must be 'sx sy' (2 numbers), got {std.size}")
+            check_std(std)
+        elif "landmark" in self.dflt:
+            std = self.dflt["landmark"]
+        else:
+            raise Bad("a landmark has no 'std' and no default applies (pass defaults={'landmark': [sx, sy]})")
+        val = (float(z[0]), float(z[1]), float(std[0]), float(std[1]))
+        if lid in self.landmarks and self.landmarks[lid] != val:
+            raise Bad(f"landmark {lid} already defined on line {self.lm_line[lid]} with different values")
+        self.landmarks.setdefault(lid, val)
+        self.lm_line.setdefault(lid, line)
+
+    def _initial(self, rec: Record, line: int) -> None:
+        r = rec.ident("robot")
+        t = rec.number("t", _STAMP) if rec.has("t") else None
+        z = rec.vector("z")
+        if z.size != 3:
+            raise Bad(f"'z' of an initial belief must be 'x y theta' (3 numbers), got {z.size}")
+        check_pose(z)
+        cov = noise(rec, 3, "an initial belief", self.dflt.get("initial"))
+        if r in self.initial:
+            z0, c0 = self.initial[r]
+            if not (np.array_equal(z0, z) and np.array_equal(c0, cov) and self.init_t.get(r) == t):
+                first = self.init_line[r]
+                raise Bad(f"initial belief of robot {r} already given on line {first} with different values")
+            return
+        self.initial[r] = (_readonly(z), _readonly(cov))
+        if t is not None:
+            self.init_t[r] = t
+        self.init_line[r] = line
+
+    def check_odometry(self, starts: Mapping[int, tuple[float, str]]) -> None:
+        """Make bad lines of the odometry records that start before their robot's initial stamp or overlap another
+        of the same robot (the one that starts later is bad; see the module doc), and drop them."""
+        per: dict[int, list[tuple[float, float, int, int]]] = {}
+        for i, (_, line, e) in enumerate(self.keyed):
+            if isinstance(e, Odometry):
+                per.setdefault(e.robot, []).append((e.t0, e.t1, line, i))
+        drop: set[int] = set()
+        for r, items in per.items():
+            start = self._start(r, starts)
+            last: tuple[float, float, int] | None = None  # the kept interval that ends last
+            for t0, t1, line, i in sorted(items, key=lambda x: (x[0], x[2])):
+                if start is not None and t0 < start[0] - ODOMETRY_TOL:
+                    problem = f"odometry of robot {r} starts at t0 = {t0!r} s, before its initial stamp {start[0]!r} s"
+                    problem += f" ({start[1]})"
+                elif last is not None and min(t1, last[1]) - t0 > ODOMETRY_TOL:
+                    problem = (
+                        f"odometry of robot {r} over [{t0!r}, {t1!r}] s overlaps its odometry on line {last[2]} over "
+                        f"[{last[0]!r}, {last[1]!r}] s (a robot's odometry intervals may not overlap)"
+                    )
+                else:
+                    if last is None or t1 > last[1]:
+                        last = (t0, t1, line)
+                    continue
+                self.bad.add(line, problem)
+                drop.add(i)
+        if drop:
+            self.keyed = [k for i, k in enumerate(self.keyed) if i not in drop]
+
+    def _start(self, robot: int, starts: Mapping[int, tuple[float, str]]) -> tuple[float, str] | None:
+        """``(initial stamp [s], where it comes from)`` of ``robot``, or None when it has none."""
+        if robot in self.initial:
+            t = self.init_t.get(robot)
+            return None if t is None else (t, f"the t of its initial record on line {self.init_line[robot]}")
+        return starts.get(robot)
+
+    def result(self, path: Path) -> EventFile:
+        """The :class:`EventFile` of what was accepted."""
+        self.keyed.sort(key=lambda k: k[0])
+        events = [e for _, _, e in self.keyed]
+        robots = set(self.initial)
+        span: Span | None = None
+        for key, line, e in self.keyed:
+            if isinstance(e, Odometry):
+                robots.add(e.robot)
+                end = e.t1
+            else:
+                robots.add(e.observer)
+                if e.target is not None and e.target_is_robot:
+                    robots.add(e.target)
+                end = e.t
+            if span is None:
+                span = ((key[0], line), (end, line))
+            elif end > span[1][0]:
+                span = (span[0], (end, line))
+        return EventFile(path, events, self.landmarks, self.initial, self.init_t, sorted(robots),
+                         self.bad.messages(), self.bad.n, span)  # fmt: skip
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # reading: lines -> records
 
+_TOO_LONG = f"line longer than {MAX_LINE_CHARS} characters (not a record)"
 
-def _lines(path: Path) -> Iterator[tuple[int, str]]:
-    """``(line number, text)`` of every line that is neither blank nor a ``#`` comment."""
+
+def _lines(path: Path) -> Iterator[tuple[int, str | None]]:
+    """``(line number, text)`` of every line that is neither blank nor a ``#`` comment; text None for a line longer
+    than ``MAX_LINE_CHARS`` (its text is skipped, never held)."""
     with open(path, encoding="utf-8-sig") as fh:  # -sig: a byte-order mark (as Excel writes) is skipped
-        for lineno, raw in enumerate(fh, start=1):
+        lineno = 0
+        while raw := fh.readline(MAX_LINE_CHARS + 1):
+            lineno += 1
+            if len(raw) > MAX_LINE_CHARS and not raw.endswith("\n"):
+                comment = raw.lstrip().startswith("#")
+                while raw and not raw.endswith("\n"):
+                    raw = fh.readline(MAX_LINE_CHARS + 1)
+                if not comment:
+                    yield lineno, None
+                continue
             text = raw.rstrip("\r\n")
             s = text.strip()
             if s and not s.startswith("#"):
                 yield lineno, text
 
 
-def _csv_rows(path: Path, label: str) -> Iterator[tuple[int, str, Mapping[str, object] | str]]:
-    """``(line number, text, fields or problem)`` per data line; the header is checked here."""
+Row = tuple[int, str, Mapping[str, object] | str]
+"""``(line number, text, fields or problem)``."""
+
+
+def _csv_rows(path: Path, label: str) -> Iterator[Row]:
+    """One :data:`Row` per data line; the header is checked here."""
     lines = _lines(path)
     first = next(lines, None)
     if first is None:
         raise EventFileError(f"{label}: empty file: expected a header row ({','.join(COLUMNS)})")
     hline, htext = first
+    if htext is None:
+        raise EventFileError(f"{label} line {hline}: bad header row: {_TOO_LONG}")
     try:
         header = [h.strip().lower() for h in next(csv.reader([htext], strict=True))]
     except csv.Error as exc:
-        raise EventFileError(f"{label} line {hline}: bad header row ({exc}), got {_shorten(htext)!r}") from None
+        raise EventFileError(f"{label} line {hline}: bad header row ({exc}), got {shorten(htext)!r}") from None
     unknown = [h for h in header if h not in COLUMNS]
     dup = sorted({h for h in header if header.count(h) > 1})
     if unknown or dup or "type" not in header:
@@ -331,9 +440,12 @@ def _csv_rows(path: Path, label: str) -> Iterator[tuple[int, str, Mapping[str, o
             what.append("no 'type' column")
         raise EventFileError(
             f"{label} line {hline}: bad header row: {'; '.join(what)}; known columns: {','.join(COLUMNS)}, "
-            f"got {_shorten(htext)!r}"
+            f"got {shorten(htext)!r}"
         )
     for lineno, text in lines:
+        if text is None:
+            yield lineno, "", _TOO_LONG
+            continue
         try:
             cells = next(csv.reader([text], strict=True))
         except csv.Error as exc:
@@ -345,19 +457,25 @@ def _csv_rows(path: Path, label: str) -> Iterator[tuple[int, str, Mapping[str, o
             yield lineno, text, dict(zip(header, cells, strict=False))
 
 
-def _jsonl_rows(path: Path) -> Iterator[tuple[int, str, Mapping[str, object] | str]]:
+def _jsonl_rows(path: Path) -> Iterator[Row]:
     for lineno, text in _lines(path):
+        if text is None:
+            yield lineno, "", _TOO_LONG
+            continue
         try:
             obj = json.loads(text)
         except json.JSONDecodeError as exc:
             yield lineno, text, f"not valid JSON ({exc.msg} at column {exc.colno})"
+            continue
+        except RecursionError:
+            yield lineno, text, "not valid JSON (nested too deeply)"
             continue
         if not isinstance(obj, dict):
             yield lineno, text, f"expected a JSON object, got a {type(obj).__name__}"
             continue
         unknown = [k for k in obj if k not in COLUMNS]
         if unknown:
-            yield lineno, text, "unknown field(s) " + ", ".join(repr(k) for k in unknown)
+            yield lineno, text, "unknown field(s) " + ", ".join(repr(shorten(k, 40)) for k in unknown[:5])
             continue
         yield lineno, text, obj
 
@@ -369,179 +487,55 @@ def _format(path: Path) -> str:
     return ext[1:]
 
 
-def _summary(label: str, problems: list[str], lines: list[int]) -> str:
-    """Every bad line: the first ``_MAX_LISTED`` messages in full, then the others' line numbers."""
-    n = len(problems)
-    head = f"{label}: {n} bad line{'s' if n != 1 else ''} (pass strict=False to skip bad lines):"
-    body = [f"  {p}" for p in problems[:_MAX_LISTED]]
-    rest = problems[_MAX_LISTED:]
-    if rest:
-        more = ", ".join(str(k) for k in lines[_MAX_LISTED : _MAX_LISTED + _MAX_NUMBERS])
-        more += ", ..." if len(rest) > _MAX_NUMBERS else ""
-        body.append(f"  ... and {len(rest)} more (lines {more})")
-    return "\n".join([head, *body])
-
-
 # ----------------------------------------------------------------------------------------------------------------
 # public API
 
 
 def load_events(
-    path: str | os.PathLike[str], defaults: Mapping[str, object] | None = None, strict: bool = True
+    path: str | os.PathLike[str],
+    defaults: Mapping[str, object] | None = None,
+    strict: bool = True,
+    starts: Mapping[int, tuple[float, str]] | None = None,
 ) -> EventFile:
-    """Read an event file (``.csv`` or ``.jsonl``; format in the module doc).
+    """Read an event file (``.csv`` or ``.jsonl``; format in the module doc), as a stream.
 
     ``defaults``: noise used when a record has neither ``std`` nor ``cov``, per key ``pose``, ``range_bearing``,
     ``range``, ``bearing``, ``absolute``, ``landmark``, ``initial``: a std vector (or, except for ``landmark``,
-    a covariance matrix); e.g. :meth:`swarmloc.config.Config.event_defaults`. With ``strict=True`` any bad line
-    raises :class:`EventFileError` listing every bad line; with ``strict=False`` bad lines are skipped and listed
-    in ``EventFile.problems``. A missing file, a bad header and a file without odometry always raise.
+    a covariance matrix); e.g. :meth:`swarmloc.config.Config.event_defaults`. ``starts``: ``robot -> (t [s],
+    where it comes from)``, the initial stamp of a robot without an ``initial`` record (e.g. the start of its
+    ground truth): its odometry may not start before. With ``strict=True`` any bad line raises
+    :class:`EventFileError` saying how many and listing the first 20; with ``strict=False`` bad lines are skipped
+    and listed in ``EventFile.problems`` (counted in ``n_bad``). A missing file, a bad header and a file without
+    odometry always raise.
     """
     p = Path(path).expanduser()
     label = p.name
     fmt = _format(p)
     if not p.is_file():
         raise EventFileError(f"event file not found: {p}" if not p.exists() else f"event path {p} is not a file")
-    dflt = _normalize_defaults(defaults)
-
-    keyed: list[tuple[tuple[float, int, int, int], Odometry | Detection]] = []
-    landmarks: dict[int, tuple[float, float, float, float]] = {}
-    lm_line: dict[int, int] = {}
-    initial: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    init_t: dict[int, float] = {}
-    init_line: dict[int, int] = {}
-    robots: set[int] = set()
-    problems: list[str] = []
-    bad_lines: list[int] = []
-
-    def parse(rec: _Record, lineno: int, seq: int) -> None:
-        rtype = rec.word("type")
-        if rtype not in _ALLOWED:
-            raise _Bad(f"unknown record type {rtype!r}; expected one of {', '.join(RECORD_TYPES)}")
-        _check_fields(rec, rtype)
-        if rtype == "odometry":
-            t1, r, t0, v, w = rec.number("t"), rec.ident("robot"), rec.number("t0"), rec.number("v"), rec.number("w")
-            if t1 < t0:
-                raise _Bad(f"odometry must have t >= t0, got t = {t1!r} < t0 = {t0!r}")
-            keyed.append(((t0, 1, r, seq), Odometry(robot=r, t0=t0, t1=t1, v=v, w=w)))
-            robots.add(r)
-        elif rtype == "detection":
-            _detection(rec, seq)
-        elif rtype == "landmark":
-            lid = rec.ident("target")
-            if rec.has("target_type") and rec.word("target_type") != "landmark":
-                raise _Bad(
-                    f"'target_type' of a landmark record must be 'landmark' or empty, got {rec.raw['target_type']!r}"
-                )
-            z = rec.vector("z")
-            if z.size != 2:
-                raise _Bad(f"'z' of a landmark must be 'x y' (2 numbers), got {z.size}")
-            if rec.has("cov"):
-                raise _Bad("a landmark record takes 'std' (sx sy), not 'cov'")
-            if rec.has("std"):
-                std = rec.vector("std")
-                if std.size != 2:
-                    raise _Bad(f"'std' of a landmark must be 'sx sy' (2 numbers), got {std.size}")
-                if (std <= 0).any():
-                    raise _Bad(f"'std' must be positive, got {std.tolist()}")
-            elif "landmark" in dflt:
-                std = dflt["landmark"]
-            else:
-                raise _Bad("a landmark has no 'std' and no default applies (pass defaults={'landmark': [sx, sy]})")
-            val = (float(z[0]), float(z[1]), float(std[0]), float(std[1]))
-            if lid in landmarks and landmarks[lid] != val:
-                raise _Bad(f"landmark {lid} already defined on line {lm_line[lid]} with different values")
-            landmarks.setdefault(lid, val)
-            lm_line.setdefault(lid, lineno)
-        else:  # initial
-            r = rec.ident("robot")
-            t = rec.number("t") if rec.has("t") else None
-            z = rec.vector("z")
-            if z.size != 3:
-                raise _Bad(f"'z' of an initial belief must be 'x y theta' (3 numbers), got {z.size}")
-            cov = _noise(rec, 3, "an initial belief", dflt.get("initial"))
-            if r in initial:
-                z0, c0 = initial[r]
-                if not (np.array_equal(z0, z) and np.array_equal(c0, cov) and init_t.get(r) == t):
-                    raise _Bad(
-                        f"initial belief of robot {r} already given on line {init_line[r]} with different values"
-                    )
-                return
-            initial[r] = (_readonly(z), _readonly(cov))
-            if t is not None:
-                init_t[r] = t
-            init_line[r] = lineno
-            robots.add(r)
-
-    def _detection(rec: _Record, seq: int) -> None:
-        t, obs = rec.number("t"), rec.ident("robot")
-        kind = rec.word("kind")
-        if kind not in KIND_SIZES:
-            raise _Bad(f"unknown detection kind {kind!r}; expected one of {', '.join(KIND_SIZES)}")
-        m = KIND_SIZES[kind]
-        target: int | None = None
-        is_robot = True
-        if kind == "absolute":
-            if rec.has("target") or rec.has("target_type"):
-                raise _Bad("an absolute detection (the observer's own pose) has no 'target' or 'target_type'")
-        else:
-            target = rec.ident("target")
-            ttype = rec.word("target_type")
-            if ttype not in ("robot", "landmark"):
-                raise _Bad(f"'target_type' must be 'robot' or 'landmark', got {rec.raw['target_type']!r}")
-            is_robot = ttype == "robot"
-            if not is_robot and kind == "pose":
-                raise _Bad("a landmark is a point: it has no relative pose (use range_bearing, range or bearing)")
-            if is_robot and target == obs:
-                raise _Bad(f"robot {obs} cannot detect itself (target equals robot)")
-        z = rec.vector("z")
-        if z.size != m:
-            raise _Bad(f"'z' of a {kind} detection must have {m} number{'s' if m > 1 else ''}, got {z.size}")
-        if kind in ("range_bearing", "range") and z[0] <= 0:
-            raise _Bad(f"range must be positive, got {z[0]!r}")
-        if kind in ("range_bearing", "bearing"):
-            b = z[-1]
-            if abs(b) > math.pi + _BEARING_TOL:
-                raise _Bad(f"bearing must be in [-pi, pi] rad (degrees given?), got {b!r}")
-        cov = _noise(rec, m, f"a {kind} detection", dflt.get(kind))
-        d = Detection(
-            observer=obs, t=t, kind=kind, z=_readonly(z), cov=_readonly(cov), target=target, target_is_robot=is_robot
-        )
-        keyed.append(((t, 0, obs, seq), d))
-        robots.add(obs)
-        if target is not None and is_robot:
-            robots.add(target)
-
+    reader = _Reader(label, _normalize_defaults(defaults))
     rows = _csv_rows(p, label) if fmt == "csv" else _jsonl_rows(p)
     try:
         for seq, (lineno, text, fields_or_problem) in enumerate(rows):
             try:
                 if isinstance(fields_or_problem, str):
-                    raise _Bad(fields_or_problem)
-                parse(_Record(fields_or_problem, text=fmt == "csv"), lineno, seq)
-            except _Bad as exc:
-                problems.append(f"{label} line {lineno}: {exc}, got {_shorten(text.strip())!r}")
-                bad_lines.append(lineno)
+                    raise Bad(fields_or_problem)
+                reader.record(Record(fields_or_problem, text=fmt == "csv"), lineno, seq)
+            except Bad as exc:
+                reader.bad.add(lineno, f"{exc}, got {shorten(text.strip())!r}" if text else str(exc))
     except UnicodeDecodeError as exc:
         raise EventFileError(f"{label}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     except OSError as exc:
         raise EventFileError(f"{label}: cannot read file ({exc.strerror or exc})") from None
-
-    if problems and strict:
-        raise EventFileError(_summary(label, problems, bad_lines), problems)
-    if not any(isinstance(e, Odometry) for _, e in keyed):
-        extra = f" ({len(problems)} bad lines skipped)" if problems else ""
-        raise EventFileError(f"{label}: no odometry records{extra}; an event file needs at least one", problems)
-    keyed.sort(key=lambda ke: ke[0])
-    return EventFile(
-        path=p,
-        events=[e for _, e in keyed],
-        landmarks=landmarks,
-        initial=initial,
-        initial_times=init_t,
-        robots=sorted(robots),
-        problems=problems,
-    )
+    reader.check_odometry(starts or {})
+    bad = reader.bad
+    if bad.n and strict:
+        raise EventFileError(bad.summary(_HINT), bad.messages(), bad.n)
+    if not any(isinstance(e, Odometry) for _, _, e in reader.keyed):
+        extra = f" ({bad.n} bad lines skipped)" if bad.n else ""
+        raise EventFileError(f"{label}: no odometry records{extra}; an event file needs at least one", bad.messages(),
+                             bad.n)  # fmt: skip
+    return reader.result(p)
 
 
 def _num(x: float) -> str:

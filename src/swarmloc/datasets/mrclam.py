@@ -24,6 +24,7 @@ import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -229,6 +230,24 @@ class MRCLAMData:
         if robot in self.truth:
             return self.truth_at(robot, self.t_start)[0]
         return np.zeros(3)
+
+    def subject_counts(self, t_start: float, t_end: float) -> dict[str, Any]:
+        """What the measurements stamped in ``[t_start, t_end]`` [s] saw: ``{"robots": n, "landmarks": n,
+        "unknown": {subject: n}}``; unknown: subjects (of a known barcode) that are neither robots 1-5 nor landmarks
+        of ``Landmark_Groundtruth.dat``. Each counted measurement is a detection a node counts (unknown subjects end
+        "unknown" there) or, with landmarks off, one the events leave out with the landmarks."""
+        out: dict[str, Any] = {"robots": 0, "landmarks": 0, "unknown": {}}
+        lm = np.array(sorted(self.landmarks), dtype=np.float64)
+        for m in self.measurements.values():
+            sub = m[(m[:, 0] >= t_start) & (m[:, 0] <= t_end), 1]
+            rob, land = np.isin(sub, ROBOT_SUBJECTS), np.isin(sub, lm)
+            out["robots"] += int(rob.sum())
+            out["landmarks"] += int(land.sum())
+            vals, counts = np.unique(sub[~rob & ~land].astype(np.int64), return_counts=True)
+            for v, n in zip(vals.tolist(), counts.tolist(), strict=True):
+                out["unknown"][v] = out["unknown"].get(v, 0) + n
+        out["unknown"] = dict(sorted(out["unknown"].items()))
+        return out
 
     def describe(self) -> str:
         """Short human-readable summary: robots, span, row counts, skipped barcodes, missing files, notes."""

@@ -41,8 +41,10 @@ class Source:
         return sorted(self.initial)
 
     def record_times(self) -> np.ndarray:
-        """Times [s] at which beliefs are recorded: every ``1 / config.record.rate`` s over ``[t_start, t_end)``."""
-        return np.arange(self.t_start, self.t_end, 1.0 / self.config.record.rate)
+        """Times [s] at which beliefs are recorded: every ``1 / config.record.rate`` s over ``[t_start, t_end)``.
+        Raises ValueError, before allocating, when they would be too many or none worth scoring
+        (:meth:`~swarmloc.config.RecordConfig.count`)."""
+        return self.config.record.times(self.t_start, self.t_end, len(self.initial), f" (source {self.spec})")
 
     def own_events(self, robot: int) -> list[Event]:
         """Robot ``robot``'s odometry and the detections it made, in stamp order."""

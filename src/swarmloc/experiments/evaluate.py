@@ -61,16 +61,19 @@ def evaluate_stream(
     estimators: Sequence[str] = ALL,
     config: Config = DEFAULTS,
     progress: bool = False,
+    span_origin: str = "",
 ) -> tuple[dict, dict[str, RunResult]]:
     """Run ``estimators`` on ``events`` and score them; returns ``(report, results)``.
 
-    Beliefs are recorded every ``1 / config.record.rate`` s over ``[t_start, t_end)``. Without ``truth`` the
-    report has wall times, counters and trajectories but no accuracy (``"truth": false``).
+    Beliefs are recorded every ``1 / config.record.rate`` s over ``[t_start, t_end)``; ValueError, before anything
+    runs, when those are too many or none is worth scoring (:meth:`~swarmloc.config.RecordConfig.count`; its
+    message names the span, and ``span_origin`` where it comes from). Without ``truth`` the report has wall times,
+    counters and trajectories but no accuracy (``"truth": false``).
     """
     unknown = [e for e in estimators if e not in ESTIMATORS]
     if unknown:
         raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
-    record_times = np.arange(t_start, t_end, 1.0 / config.record.rate)
+    record_times = config.record.times(t_start, t_end, len(initial), span_origin)
     duration = float(t_end - t_start)
     report: dict[str, Any] = {
         "robots": sorted(initial),

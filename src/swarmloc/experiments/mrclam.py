@@ -58,6 +58,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -230,9 +231,20 @@ def evaluate_mrclam(
         "landmarks": landmarks,
         "load_s": load_s,
         "skipped_barcodes": {str(k): v for k, v in data.skipped_barcodes.items()},
+        **_subjects(data, t_end, landmarks),
         "camera": camera.to_dict(),
         **report,
     }
     if out_dir is not None:
         write_report(out_dir, "mrclam", report, results, data.t_start)
     return report
+
+
+def _subjects(data: MRCLAMData, t_end: float, landmarks: bool) -> dict[str, Any]:
+    """The report's account of the measurements' subjects: ``unknown_subjects`` (subject -> count: neither a robot
+    nor a mapped landmark; the nodes count them "unknown" when landmarks are on) and ``left_out`` (detections the
+    events leave out: every landmark and unknown subject when landmarks are off)."""
+    seen = data.subject_counts(data.t_start, t_end)
+    unknown = {str(k): v for k, v in seen["unknown"].items()}
+    left = {} if landmarks else {"landmarks (off)": seen["landmarks"], "unknown subjects": sum(unknown.values())}
+    return {"unknown_subjects": unknown, "left_out": left}

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from swarmloc.config import DEFAULTS, Config, MotionConfig
-from swarmloc.datasets.eventfile import EventFileError, load_events, load_truth_dir, write_events
+from swarmloc.datasets.eventfile import EventFile, EventFileError, load_events, load_truth_dir, write_events
 from swarmloc.datasets.tum import interpolate, write_tum
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.evaluate import ALL, evaluate_stream, write_report
@@ -40,20 +41,39 @@ def load_event_source(
     path: Path, config: Config = DEFAULTS, truth_dir: str | os.PathLike[str] | None = None, strict: bool = True
 ) -> tuple[list, dict[int, GroupGaussian], dict | None, float, float, TruthFn | None]:
     """An event file as ``(events, initial, landmarks, t_start, t_end, truth)`` (see :func:`evaluate_event_file`);
-    ``truth`` is None unless every estimated robot has ground truth. The file's ``problems`` are dropped here."""
+    ``truth`` is None unless every estimated robot has ground truth. The file's ``problems`` are dropped here.
+    Raises ValueError when the record grid of ``config`` over the file's span is too large or empty."""
     ef, initial, truth, _, t_start, t_end = _read(Path(path), config, truth_dir, strict)
     return list(ef.events), initial, ef.landmarks, t_start, t_end, truth
 
 
-def _read(p: Path, config: Config, truth_dir: str | os.PathLike[str] | None, strict: bool):  # noqa: ANN202
-    ef = load_events(p, defaults=config.event_defaults(), strict=strict)
-    robots = sorted({e.robot for e in ef.events if isinstance(e, Odometry)})
-    if not robots:
-        raise EventFileError(f"{p.name}: no odometry records: nothing to estimate")
+_TRUTH_FILE = re.compile(r"truth_robot([0-9]+)\.tum")
+
+
+def _truth(p: Path, truth_dir: str | os.PathLike[str] | None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Every ``truth_robot<N>.tum`` in ``truth_dir`` (default: beside the event file ``p``)."""
     folder = Path(truth_dir) if truth_dir is not None else p.parent
-    truth = load_truth_dir(folder, robots) if truth_dir is not None or any(folder.glob("truth_robot*.tum")) else {}
-    stamps = [e.stamp for e in ef.events] + [e.t1 for e in ef.events if isinstance(e, Odometry)]
-    t_start, t_end = min(stamps), max(stamps)
+    ids = sorted(int(m.group(1)) for f in folder.glob("truth_robot*.tum") if (m := _TRUTH_FILE.fullmatch(f.name)))
+    return load_truth_dir(folder, ids) if truth_dir is not None or ids else {}
+
+
+def _span_origin(ef: EventFile) -> str:
+    """Where the file's span comes from, for messages: `` (events.csv: first stamp line 3, last end line 9)``."""
+    if ef.span is None:
+        return f" ({ef.path.name})"
+    (_, first), (_, last) = ef.span
+    return f" ({ef.path.name}: the first stamp on line {first}, the last end on line {last})"
+
+
+def _read(p: Path, config: Config, truth_dir: str | os.PathLike[str] | None, strict: bool):  # noqa: ANN202
+    truth = _truth(p, truth_dir)
+    starts = {r: (float(tr[0][0]), f"the start of its ground truth, truth_robot{r}.tum") for r, tr in truth.items()}
+    ef = load_events(p, defaults=config.event_defaults(), strict=strict, starts=starts)
+    robots = sorted({e.robot for e in ef.events if isinstance(e, Odometry)})
+    if not robots or ef.span is None:
+        raise EventFileError(f"{p.name}: no odometry records: nothing to estimate")
+    truth = {r: truth[r] for r in robots if r in truth}
+    (t_start, _), (t_end, _) = ef.span
     initial = {r: b for r, b in ef.initial_beliefs().items() if r in robots}
     missing = [r for r in robots if r not in initial]
     for r in list(missing):
@@ -66,6 +86,7 @@ def _read(p: Path, config: Config, truth_dir: str | os.PathLike[str] | None, str
             f"{p.name}: no initial belief for robot(s) {missing}: add an 'initial' record "
             "(type=initial, robot, z = 'x y theta', std) or ground truth covering the first stamp"
         )
+    config.record.count(t_start, t_end, len(robots), _span_origin(ef))
     truth_fn = _truth_fn(truth) if truth and all(r in truth for r in robots) else None
     return ef, initial, truth_fn, sorted(truth), t_start, t_end
 
@@ -84,8 +105,10 @@ def evaluate_event_file(
 
     The estimated robots are those with odometry. Each needs an initial belief: an ``initial`` record, or else its
     ground truth at the first stamp with ``config.initial``'s std. Detections without a noise of their own take
-    ``config.sensors``' (:meth:`~swarmloc.config.Config.event_defaults`). ``strict=False`` skips bad lines (they
-    are listed in the report's ``problems``) instead of refusing the file.
+    ``config.sensors``' (:meth:`~swarmloc.config.Config.event_defaults`). Ground truth: every
+    ``truth_robot<N>.tum`` of ``truth_dir`` (default: beside the file); a robot's odometry may not start before
+    its ground truth when its initial belief comes from there. ``strict=False`` skips bad lines (the report's
+    ``problems`` lists the first 20, ``n_bad`` counts them) instead of refusing the file.
     """
     p = Path(path)
     ef, initial, truth_fn, truth_robots, t_start, t_end = _read(p, config, truth_dir, strict)
@@ -99,8 +122,10 @@ def evaluate_event_file(
         estimators=estimators,
         config=config,
         progress=progress,
+        span_origin=_span_origin(ef),
     )
-    report = {"title": p.name, "file": str(p), "problems": ef.problems, "truth_robots": truth_robots, **report}
+    report = {"title": p.name, "file": str(p), "problems": ef.problems, "n_bad": ef.n_bad,
+              "truth_robots": truth_robots, **report}  # fmt: skip
     if out_dir is not None:
         write_report(out_dir, "events", report, results, t_start)
     return report

@@ -13,7 +13,15 @@ from dataclasses import replace
 import numpy as np
 
 from swarmloc.motion.diffdrive import DiffDrive
-from swarmloc.sim.simulator import AbsoluteSensor, RelativeSensor, SimConfig, SimResult, WheelSchedule, simulate
+from swarmloc.sim.simulator import (
+    AbsoluteSensor,
+    RelativeSensor,
+    SimConfig,
+    SimResult,
+    WheelSchedule,
+    check_size,
+    simulate,
+)
 
 THESIS_ROS_D = 5e-4
 """Default wheel-speed diffusion [rad^2/s] for the thesis' Gazebo scenarios (not given in the thesis).
@@ -138,6 +146,7 @@ def random_team(
     ``U(-max_turn_rate, max_turn_rate)`` [rad/s]. Default sensor: :class:`RelativeSensor` (1.5 m, full circle,
     10 Hz, 0.05 m / 1 deg). The layout and the simulation noise both derive from ``seed``.
     """
+    check_size(n_robots, duration, 1.0 / SimConfig.dt)  # before the commands are drawn
     layout_ss, sim_ss = np.random.SeedSequence(seed).spawn(2)
     rng = np.random.default_rng(layout_ss)
     drive = DiffDrive(D=D)

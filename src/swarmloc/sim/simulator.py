@@ -247,6 +247,26 @@ def _draws_at(rng: np.random.Generator, S: int, n_pairs: int, d: int, s: np.ndar
     return out
 
 
+MAX_SIM_STEPS = 50_000_000
+"""Most robot-steps (robots x internal steps) one simulation takes: its arrays hold about 0.2 kB per robot-step,
+so at most about 10 GB; 50 robots for one hour at the default 100 steps/s is 18 million."""
+
+
+def check_size(n_robots: int, duration: float, steps_per_s: float) -> None:
+    """ValueError, before anything is allocated, unless ``duration`` [s] is finite and positive, ``n_robots`` a
+    positive integer, and ``n_robots x duration x steps_per_s`` at most :data:`MAX_SIM_STEPS`."""
+    if not (isinstance(n_robots, int) and n_robots >= 1):
+        raise ValueError(f"simulate: robots must be a positive integer, got {n_robots!r}")
+    if not (isinstance(duration, int | float) and np.isfinite(duration) and duration > 0):
+        raise ValueError(f"simulate: duration must be a finite number of seconds > 0, got {duration!r}")
+    steps = n_robots * duration * steps_per_s
+    if steps > MAX_SIM_STEPS:
+        raise ValueError(
+            f"simulate: {n_robots} robot(s) x {duration:g} s x {steps_per_s:g} steps/s = {steps:.3g} robot-steps, more "
+            f"than {MAX_SIM_STEPS} (the bound on a simulation's memory): simulate fewer robots or a shorter span"
+        )
+
+
 def simulate(
     initial_poses: Mapping[int, Sequence[float]] | Sequence[Sequence[float]],
     commands: Mapping[int, WheelCommand] | Sequence[WheelCommand],
@@ -272,6 +292,7 @@ def simulate(
     n_sub = max(1, int(round(T / cfg.dt)))
     f = cfg.odom_rate * n_sub  # internal steps per second
     dt_f = 1.0 / f
+    check_size(n_rob, cfg.duration, f)
     n_int = int(round(cfg.duration * cfg.odom_rate))
     N = n_int * n_sub
     ss_motion, ss_rel, ss_abs = np.random.SeedSequence(seed).spawn(3)
