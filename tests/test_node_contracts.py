@@ -345,3 +345,17 @@ def test_the_first_odometry_stamped_far_in_the_future_is_refused_too():
     node.step(Odometry(0, 1e8, 1e8 + 0.1, 0.3, 0.0))
     node.step(_odo(0))
     assert node.stats()["odometry_used"] == 1 and node.stats()["future"] == 1 and node.present == 0.0
+
+
+def test_an_offline_run_refuses_odometry_before_the_sources_start() -> None:
+    """evaluate_stream starts the nodes at ``t_start``: odometry from t0 = -5 s is refused with its reason, not run
+    silently into an inconsistent result (it was ANEES 356 before)."""
+    from swarmloc.experiments.evaluate import evaluate_stream
+
+    initial = {0: GroupGaussian(SE2, SE2.identity(), np.diag([1e-4, 1e-4, 1e-4]))}
+    events = [Odometry(0, -5.0, 0.0, 0.5, 0.0), *(Odometry(0, k * 0.1, (k + 1) * 0.1, 0.2, 0.0) for k in range(50))]
+    report, _ = evaluate_stream(events, initial, t_start=0.0, t_end=5.0, truth=None, estimators=["dr", "dekf"])
+    for name in ("dr", "dekf"):
+        ev = report["estimators"][name]
+        assert ev["stats"]["odometry_rejected"] == 1 and ev["stats"]["odometry_used"] == 50
+        assert any("before the node's start time 0.0" in r for r in ev["reasons"])
