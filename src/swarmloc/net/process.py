@@ -613,7 +613,7 @@ class NetNode:
         """Publish the beliefs due: provisional ones up to the watermark, final ones a horizon before it (or before
         ``upto``: called before an input stamped ``upto`` is applied, whose pruning could drop them otherwise)."""
         rt = self.record_times
-        wm = max(self.node.watermark, upto)
+        wm = max(self.node.present, upto)
         while self._prov < rt.size and (end or rt[self._prov] <= wm):
             self._publish_belief(rt[self._prov], final=False)
             self._prov += 1
@@ -735,8 +735,8 @@ class NetNode:
         now = time.monotonic()
         if now - self._last_status > 2.0:
             self._last_status = now
-            log.info("robot %s: %d/%d inputs, watermark %.2f, pending %d, deferred %d, expecting %d, outstanding %d; "
-                     "node %s; net %s", self.robot, self._i, len(self.items), self.node.watermark, self.node.pending,
+            log.info("robot %s: %d/%d inputs, present %.2f, pending %d, deferred %d, expecting %d, outstanding %d; "
+                     "node %s; net %s", self.robot, self._i, len(self.items), self.node.present, self.node.pending,
                      len(self._deferred), len(self._expect), len(self._outstanding),
                      {k: v for k, v in self.node.stats().items() if v}, dict(self.counts))  # fmt: skip
 
