@@ -93,6 +93,8 @@ BAD_MEAN = flat(np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
         (_env(BeliefQuery(sender=7, receiver=0, stamp=1.0)), "outside the team's roster"),
         (_env(BeliefQuery(sender=2, receiver=0, stamp=1.0), from_robot=1), "in the name of robot 2"),
         (_env(BeliefQuery(sender=1, receiver=2, stamp=1.0)), "addressed to robot 2"),
+        (_env(BeliefQuery(sender=0, receiver=0, stamp=1.0)), "addressed from robot 0 to itself"),
+        (_env(RdlUpdate(sender=0, receiver=0, stamp=1.0, x=(0.0,) * 3, P=COV)), "addressed from robot 0 to itself"),
         (_env(BeliefQuery(sender=1, receiver=0, stamp=math.nan)), "stamp must be a finite"),
         (_env(BeliefAnswer(sender=1, receiver=0, stamp=1.0, mean=BAD_MEAN, cov=COV)), "not in SE(2)"),
         (_env(BeliefAnswer(sender=1, receiver=0, stamp=1.0, mean=I3, cov=flat(-np.eye(3)))), "positive definite"),
@@ -138,6 +140,81 @@ def test_fault_spec():
     plan = Faults(loss=0.3, dup=0.2, seed=1).plan(0)
     n = [len(plan.schedule()) for _ in range(4000)]
     assert abs(n.count(0) / 4000 - 0.3) < 0.03 and abs(n.count(2) / 4000 - 0.7 * 0.2) < 0.03
+
+
+# ------------------------------------------------------------------------------------------------ the driver, offline
+class _Payload:
+    def __init__(self, raw: bytes) -> None:
+        self.raw = raw
+
+    def to_bytes(self) -> bytes:
+        return self.raw
+
+
+class _Sample:
+    """What Zenoh hands a subscriber, a queryable (a query: ``reply_err`` and ``drop`` recorded) or a get's
+    callback (a reply: ``ok``)."""
+
+    def __init__(self, raw: bytes) -> None:
+        self.payload = _Payload(raw)
+        self.ok = self
+        self.errors: list[bytes] = []
+
+    def reply_err(self, reason: bytes) -> None:
+        self.errors.append(reason)
+
+    def drop(self) -> None:
+        pass
+
+
+class _Session:
+    """Records the gets and puts of a :class:`NetNode` that is never opened (no network)."""
+
+    def __init__(self) -> None:
+        self.gets: list[dict] = []
+        self.puts: list[str] = []
+
+    def get(self, key, **kw) -> None:
+        self.gets.append({"key": key, **kw})
+
+    def put(self, key, payload, **kw) -> None:
+        self.puts.append(key)
+
+
+def offline_net(robot: int = 0, est: str = "expfusion", **kw) -> NetNode:
+    """Robot ``robot`` of a simulated team of 3 in a :class:`NetNode` on a recording session (nothing sent)."""
+    src = load_source("sim:random", robots=3, duration=4.0, seed=0)
+    node = make_node(est, robot, src.initial[robot], src.config, src.landmarks)
+    node.start(src.t_start)
+    return NetNode(node, src.own_events(robot), session=_Session(), team="t", roster=src.robots,
+                   record_times=src.record_times(), **kw)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("body", "reason"),
+    [
+        (BeliefAnswer(sender=0, receiver=0, stamp=1.0, mean=I3, cov=COV), "BeliefAnswer addressed from robot 0 to "
+         "itself"),
+        (RdlUpdate(sender=0, receiver=0, stamp=1.0, x=(0.0,) * 3, P=COV), "RdlUpdate addressed from robot 0 to itself"),
+        (BeliefQuery(sender=0, receiver=0, stamp=1.0), "BeliefQuery addressed from robot 0 to itself"),
+        (BeliefAnswer(sender=1, receiver=2, stamp=1.0, mean=I3, cov=COV), "BeliefAnswer addressed to robot 2, "
+         "received by robot 0"),
+        (BeliefQuery(sender=1, receiver=2, stamp=1.0), "BeliefQuery addressed to robot 2, received by robot 0"),
+    ],
+)
+def test_driver_refuses_and_counts_self_addressed_and_misaddressed_messages_at_decode(body, reason):
+    """On every path a neighbour's message comes in (inbox, query, reply), a message from this robot to itself or
+    to another robot is dropped at decode and counted with its reason; it never reaches the node."""
+    net = offline_net(robot=0)
+    net._outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
+    query = _Sample(encode("t", body.sender, 1, body))
+    net._handle("inbox", _Sample(encode("t", body.sender, 0, body)))
+    net._handle("query", query)
+    net._handle("reply", 7, _Sample(encode("t", body.sender, 2, body)))
+    assert net.counts["rejected"] == 3 and net.reasons == Counter({reason: 3})
+    assert query.errors == [b"rejected"]  # the asker is told at once
+    assert net.node.counts["messages_rejected"] == 0 and not net._deferred and not net._held
+    assert net._outstanding[7][2] is False  # the query still waits for its real answer
 
 
 # ------------------------------------------------------------------------------------------------ threads
