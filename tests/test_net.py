@@ -193,12 +193,16 @@ def offline_net(robot: int = 0, est: str = "expfusion", **kw) -> NetNode:
 @pytest.mark.parametrize(
     ("body", "reason"),
     [
-        (BeliefAnswer(sender=0, receiver=0, stamp=1.0, mean=I3, cov=COV), "BeliefAnswer addressed from robot 0 to "
-         "itself"),
+        (
+            BeliefAnswer(sender=0, receiver=0, stamp=1.0, mean=I3, cov=COV),
+            "BeliefAnswer addressed from robot 0 to itself",
+        ),
         (RdlUpdate(sender=0, receiver=0, stamp=1.0, x=(0.0,) * 3, P=COV), "RdlUpdate addressed from robot 0 to itself"),
         (BeliefQuery(sender=0, receiver=0, stamp=1.0), "BeliefQuery addressed from robot 0 to itself"),
-        (BeliefAnswer(sender=1, receiver=2, stamp=1.0, mean=I3, cov=COV), "BeliefAnswer addressed to robot 2, "
-         "received by robot 0"),
+        (
+            BeliefAnswer(sender=1, receiver=2, stamp=1.0, mean=I3, cov=COV),
+            "BeliefAnswer addressed to robot 2, received by robot 0",
+        ),
         (BeliefQuery(sender=1, receiver=2, stamp=1.0), "BeliefQuery addressed to robot 2, received by robot 0"),
     ],
 )
