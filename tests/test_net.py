@@ -221,6 +221,38 @@ def test_driver_refuses_and_counts_self_addressed_and_misaddressed_messages_at_d
     assert net._outstanding[7][2] is False  # the query still waits for its real answer
 
 
+def test_each_timeout_governs_only_its_own_wait():
+    """``answer_timeout``: the wait for the reply to one of the node's queries; ``hold_timeout``: how long a
+    neighbour's query is held for the node's state to settle; ``update_timeout``: how long an ``rdl`` update is
+    expected. Each is set far from the other two, and only it decides its wait (no sleeping: the waits began in
+    the past). Before, ``answer_timeout`` was all three (the hold its half)."""
+    now = time.monotonic()
+    q = BeliefQuery(sender=1, receiver=0, stamp=1e6)  # keyed after the node's next input: not settled
+    held = offline_net(answer_timeout=100.0, update_timeout=100.0, hold_timeout=1.0)
+    assert held._unsettled((1e6, 1, 1, ())) is not None
+    assert held._ready(q, since=now - 5.0) and held.counts["answered_unsettled"] == 1
+    assert not held._ready(q, since=now)
+    assert not offline_net(answer_timeout=0.01, update_timeout=0.01, hold_timeout=100.0)._ready(q, since=now - 5.0)
+
+    key = (1.0, 1, 1, ())  # an update from robot 1 expected 5 s ago
+    for update_timeout, others, given_up in ((1.0, 100.0, True), (100.0, 0.01, False)):
+        net = offline_net(answer_timeout=others, hold_timeout=others, update_timeout=update_timeout)
+        net._expect[key] = now - 5.0
+        net._release()
+        assert (key not in net._expect) is given_up and net.counts["update_not_received"] == int(given_up)
+
+    asker = offline_net(answer_timeout=3.0, hold_timeout=0.5, update_timeout=7.0)
+    asker._ask(BeliefQuery(sender=0, receiver=1, stamp=1.0))
+    assert [(g["key"], g["timeout"]) for g in asker.session.gets] == [(robot_key("t", 1, "query"), 3.0)]
+
+
+@pytest.mark.parametrize("name", ["answer_timeout", "hold_timeout", "update_timeout", "start_timeout", "linger"])
+def test_a_negative_or_nan_timeout_is_refused(name):
+    for bad in (-1.0, math.nan):
+        with pytest.raises(ValueError, match=name):
+            offline_net(**{name: bad})
+
+
 # ------------------------------------------------------------------------------------------------ threads
 def thread_team(
     src, est: str, faults: Faults | None = None, ledger: bool = False, max_wall: float = 120.0, eps=None, **kw

@@ -96,13 +96,13 @@ class Lockstep:
         """A query is answered once nothing this node will still read or apply is keyed before it: its source has
         passed the query's key, no earlier detection group waits, no pairwise update it expects is keyed earlier,
         and every live teammate has read its source past the stamp (so no earlier exchange can still start). Then
-        the first answer is the final one and no revision follows (without faults). After half the asker's timeout
-        it is answered whatever the state (a revision follows if needed)."""
+        the first answer is the final one and no revision follows (without faults). Held ``hold_timeout`` s, it is
+        answered whatever the state (a revision follows if needed)."""
         qkey = (float(q.stamp), 1, q.sender, tuple(q.sub))
         why = self._unsettled(qkey)
         if why is None:
             return True
-        if time.monotonic() - since < self.answer_timeout / 2:
+        if time.monotonic() - since < self.hold_timeout:
             return False
         self.counts["answered_unsettled"] += 1
         log.debug("robot %s: answering %s at %s unsettled: %s", self.robot, type(q).__name__, qkey, why)
@@ -144,11 +144,11 @@ class Lockstep:
     def _release(self) -> None:
         """Give the node the answers to its own detection groups once no pairwise update keyed before the group is
         still expected (so the group is applied after it, not replayed under it); an expected update that does not
-        come within the answer timeout is given up (counted ``update_not_received``)."""
+        come within ``update_timeout`` s is given up (counted ``update_not_received``)."""
         if self._expect:
             now = time.monotonic()
             for k, since in list(self._expect.items()):
-                if now - since > self.answer_timeout:
+                if now - since > self.update_timeout:
                     del self._expect[k]
                     self.counts["update_not_received"] += 1
         if not self._held:

@@ -22,11 +22,27 @@ across the team in key order, as :func:`swarmloc.runner.run` applies them, the f
 and the networked run equals the in-process run on the same events (tested to 1e-6; measured: equal).
 
 **Missing answers.** A query that gets no valid reply within ``answer_timeout`` s is asked of the belief server
-(with ``use_server``); without an answer there either, the node gets a "not found" answer (revision ``-2``) with
-the reason, so the detection ends ``unknown`` instead of waiting forever; a real answer that arrives later
-(revision >= 0; the server's: -1) replaces it and is replayed if it is within the horizon. A query held longer
-than half the asker's timeout is answered as things stand, and revised if they change. With link faults,
-pushed revisions and updates are coalesced (the newest per exchange, every ``coalesce`` s).
+(with ``use_server``, which gets ``answer_timeout`` s too); without an answer there either, the node gets a "not
+found" answer (revision ``-2``) with the reason, so the detection ends ``unknown`` instead of waiting forever; a
+real answer that arrives later (revision >= 0; the server's: -1) replaces it and is replayed if it is within the
+horizon. A neighbour's query held ``hold_timeout`` s without its state settling is answered as things stand, and
+revised if they change. An ``rdl`` update expected for ``update_timeout`` s is given up. With link faults, pushed
+revisions and updates are coalesced (the newest per exchange, every ``coalesce`` s).
+
+**Timeouts**, one name per wait, all in seconds of wall time (``swarmloc node`` and ``swarmloc team`` take each
+as ``--<name>``, e.g. ``--hold-timeout``):
+
+* ``answer_timeout`` (2): how long a node waits for the reply to one of its own queries (a Zenoh ``get``; under
+  link faults plus twice their delay), from the neighbour and again from the belief server;
+* ``hold_timeout`` (1): how long a node holds a neighbour's query for its own state to settle before answering it
+  as things stand (counted ``answered_unsettled``); keep it below the askers' ``answer_timeout``, or their
+  queries end unanswered first;
+* ``update_timeout`` (2): how long a node that gave its ``rdl`` state waits for the observer's pairwise update,
+  holding its own later detection groups meanwhile (given up: counted ``update_not_received``);
+* ``start_timeout`` (30): how long a node waits at its start for the robots of ``wait_for`` to be alive (it then
+  starts without them, with a warning);
+* ``quiet`` (0.3) and ``linger`` (10): at the end (below);
+* ``max_wall`` (:meth:`NetNode.run`; ``--max-wall``): the node's whole run, whatever its state (default none).
 
 **Beliefs.** At each record time ``t`` the node publishes its belief once its history has passed ``t``
 (provisional) and again once it is final (the history is a horizon past ``t``, or the run ended); a final belief
@@ -88,11 +104,15 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
     record_times: times [s] at which the robot's belief is published.
     speed: 0 = as fast as lockstep allows; X > 0: X times real time.
     lag: [s] lockstep slack (well below the node's horizon).
-    answer_timeout: [s] wall time to wait for a neighbour's reply.
+    answer_timeout: [s] wall time this node waits for the reply to one of its queries (neighbour, then server).
+    hold_timeout: [s] wall time it holds a neighbour's query for its state to settle before answering as it stands.
+    update_timeout: [s] wall time it waits for an observer's ``rdl`` update after giving its state.
     use_server: ask the belief server when a neighbour does not answer.
     faults: link faults on the messages this node sends (:mod:`swarmloc.net.faults`).
-    wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot);
-    wait_timeout: [s] how long.
+    wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot).
+    start_timeout: [s] wall time it waits at the start for the robots of ``wait_for`` to be alive.
+    quiet: [s] wall time without traffic that counts as settled at the end.
+    linger: [s] wall time at most it keeps answering after it is done, while teammates are not.
     ros_domain: publish beliefs as ROS 2 messages too (rmw_zenoh layout, this domain id).
     """
 
@@ -108,10 +128,12 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         speed: float = 0.0,
         lag: float = 0.5,
         answer_timeout: float = 2.0,
+        hold_timeout: float = 1.0,
+        update_timeout: float = 2.0,
         use_server: bool = False,
         faults: Faults | None = None,
         wait_for: Iterable[int] | None = None,
-        wait_timeout: float = 30.0,
+        start_timeout: float = 30.0,
         quiet: float = 0.3,
         linger: float = 10.0,
         ros_domain: int | None = None,
@@ -119,6 +141,11 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
     ) -> None:
         if len(node.robots) != 1:
             raise ValueError("NetNode drives a node of one robot (a distributed estimator)")
+        waits = dict(answer_timeout=answer_timeout, hold_timeout=hold_timeout, update_timeout=update_timeout,
+                     start_timeout=start_timeout, quiet=quiet, linger=linger)  # fmt: skip
+        bad = {k: v for k, v in waits.items() if not float(v) >= 0.0}
+        if bad:
+            raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
         self.node = node
         self.robot = node.robots[0]
         self.items = _groups(events)
@@ -131,11 +158,13 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self.speed = float(speed)
         self.lag = float(lag)
         self.answer_timeout = float(answer_timeout)
+        self.hold_timeout = float(hold_timeout)
+        self.update_timeout = float(update_timeout)
         self.use_server = use_server
         self.faults = faults if faults is not None and faults.link else None
         self.link = self.faults.plan(self.robot) if self.faults else None
         self.wait_for = set(self.roster - {self.robot}) if wait_for is None else set(wait_for) - {self.robot}
-        self.wait_timeout = float(wait_timeout)
+        self.start_timeout = float(start_timeout)
         self.quiet = float(quiet)
         self.linger = float(linger)
         self.ros_domain = ros_domain
@@ -189,14 +218,14 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self._open()
         try:
             self._publish_progress(self.items[0][0] if self.items else math.inf, force=True)
-            t_wait = time.monotonic() + self.wait_timeout
+            t_wait = time.monotonic() + self.start_timeout
             while not self.wait_for <= self._alive and time.monotonic() < t_wait and not self._stop.is_set():
                 self._drain(0.05)
                 self._publish_progress(self._last_progress, force=True)
             missing = self.wait_for - self._alive
             if missing:
                 log.warning("robot %s: starting without robots %s (not alive after %.0f s)", self.robot,
-                            sorted(missing), self.wait_timeout)  # fmt: skip
+                            sorted(missing), self.start_timeout)  # fmt: skip
             self._main(deadline)
             if not self._stop.is_set():
                 self._finish(deadline)
