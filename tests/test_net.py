@@ -26,12 +26,13 @@ from hypothesis import strategies as st
 from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Odometry
 from swarmloc.experiments.sources import load_source
+from swarmloc.experiments.team import run_team, team_result
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlUpdate, flat
+from swarmloc.net.entry import make_node
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.process import NetNode
 from swarmloc.net.schema import SCHEMA_VERSION, Belief, Envelope, Progress, Rejected, decode, encode
 from swarmloc.net.server import BeliefServer
-from swarmloc.net.team import make_node, run_team, team_result
 from swarmloc.net.transport import free_ports, open_session, robot_key, server_key
 from swarmloc.runner import run
 
@@ -246,6 +247,31 @@ def test_each_timeout_governs_only_its_own_wait():
     assert [(g["key"], g["timeout"]) for g in asker.session.gets] == [(robot_key("t", 1, "query"), 3.0)]
 
 
+def test_every_timeout_reaches_every_node_under_its_own_name(monkeypatch, capsys):
+    """``swarmloc team`` gives every node process each timeout under its own option, and ``swarmloc node`` hands
+    each to the driver under its own name; the team's own limit is ``--max-wall`` (``--timeout`` still works)."""
+    from swarmloc.cli import build_parser, main
+    from swarmloc.net import entry
+    from swarmloc.net.schema import Report
+    from swarmloc.net.team import node_arguments
+
+    waits = {"answer_timeout": 3.5, "hold_timeout": 0.25, "update_timeout": 7.0, "start_timeout": 11.0}
+    args = node_arguments(source="sim:random", estimator="rdl", robots=3, duration=2.0, seed=0, config_file=None,
+                          speed=0.0, lag=0.5, use_server=False, faults=Faults(), ros_domain=None, verbose=False,
+                          **waits)  # fmt: skip
+    for name, value in waits.items():
+        flag = "--" + name.replace("_", "-")
+        assert args[args.index(flag) + 1] == str(value)
+    got: dict = {}
+    stats = dict.fromkeys(("detections", "fused", "gated", "rejected", "unknown"), 0)
+    monkeypatch.setattr(entry, "node_main", lambda **kw: got.update(kw) or Report(robot=kw["robot"], stats=stats))
+    assert main(["node", "--team", "t", "--robot", "1", *args]) == 0
+    assert {k: got[k] for k in waits} == waits and got["robot"] == 1 and got["src"].robots == [0, 1, 2]
+    assert "robot 1: 0 detections" in capsys.readouterr().out
+    for flag in ("--max-wall", "--timeout"):
+        assert build_parser().parse_args(["team", "--out", "o", flag, "5"]).max_wall == 5.0
+
+
 @pytest.mark.parametrize("name", ["answer_timeout", "hold_timeout", "update_timeout", "start_timeout", "linger"])
 def test_a_negative_or_nan_timeout_is_refused(name):
     for bad in (-1.0, math.nan):
@@ -291,7 +317,8 @@ def thread_team(
 def test_faults_never_crash_never_nan_never_fuse_twice():
     src = load_source("sim:random", robots=3, duration=10.0, seed=3)
     f = parse_faults("loss=0.2,delay=0.2,dup=0.1,reorder=0.2,seed=1")
-    nets, reports = thread_team(src, "rdl", faults=f, ledger=True, answer_timeout=0.4)
+    nets, reports = thread_team(src, "rdl", faults=f, ledger=True, answer_timeout=0.4, hold_timeout=0.2,
+                                update_timeout=0.4)  # fmt: skip
     injected = sum(r.net.get("lost", 0) + r.net.get("duplicated", 0) for r in reports.values())
     assert injected > 20  # the faults did happen
     for n in nets:
@@ -314,7 +341,7 @@ def test_networked_equals_in_process_on_a_simulated_team(est):
     src = load_source("sim:random", robots=3, duration=20.0, seed=1)
     team = f"eqsim{est}{os.getpid()}"
     tr = run_team(src=src, source="sim:random", robots=3, duration=20.0, seed=1, estimator=est, team=team,
-                  timeout=120)  # fmt: skip
+                  max_wall=120)  # fmt: skip
     assert not leftovers(team)
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, est)
@@ -329,7 +356,7 @@ def test_networked_equals_in_process_on_mrclam6_first_120s(est):
     spec = f"mrclam:{MRCLAM6}"
     src = load_source(spec, duration=120.0)
     team = f"eqmrclam{est}{os.getpid()}"
-    tr = run_team(src=src, source=spec, duration=120.0, estimator=est, team=team, timeout=300)
+    tr = run_team(src=src, source=spec, duration=120.0, estimator=est, team=team, max_wall=300)
     assert not leftovers(team)
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, est)
@@ -342,7 +369,7 @@ def test_kill_restart_and_late_join():
     src = load_source("sim:random", robots=3, duration=16.0, seed=2)
     team = f"killjoin{os.getpid()}"
     tr = run_team(src=src, source="sim:random", robots=3, duration=16.0, seed=2, estimator="expfusion", team=team,
-                  faults="kill=1@6,late=2@4", timeout=120, speed=2.0)  # fmt: skip
+                  faults="kill=1@6,late=2@4", max_wall=120, speed=2.0)  # fmt: skip
     assert not leftovers(team)
     assert tr.counts["killed"] == tr.counts["restarted"] == tr.counts["late_joined"] == 1
     res = team_result(tr, src, "expfusion")
@@ -357,7 +384,7 @@ def test_kill_restart_and_late_join():
 def test_team_stops_every_process_on_its_time_limit():
     team = f"limit{os.getpid()}"
     t = time.monotonic()
-    tr = run_team(source="sim:random", robots=3, duration=600.0, speed=1.0, estimator="dekf", team=team, timeout=4)
+    tr = run_team(source="sim:random", robots=3, duration=600.0, speed=1.0, estimator="dekf", team=team, max_wall=4)
     assert time.monotonic() - t < 30
     assert tr.counts["timed_out"] == 1
     assert not leftovers(team)

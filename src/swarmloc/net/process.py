@@ -29,20 +29,7 @@ horizon. A neighbour's query held ``hold_timeout`` s without its state settling 
 revised if they change. An ``rdl`` update expected for ``update_timeout`` s is given up. With link faults, pushed
 revisions and updates are coalesced (the newest per exchange, every ``coalesce`` s).
 
-**Timeouts**, one name per wait, all in seconds of wall time (``swarmloc node`` and ``swarmloc team`` take each
-as ``--<name>``, e.g. ``--hold-timeout``):
-
-* ``answer_timeout`` (2): how long a node waits for the reply to one of its own queries (a Zenoh ``get``; under
-  link faults plus twice their delay), from the neighbour and again from the belief server;
-* ``hold_timeout`` (1): how long a node holds a neighbour's query for its own state to settle before answering it
-  as things stand (counted ``answered_unsettled``); keep it below the askers' ``answer_timeout``, or their
-  queries end unanswered first;
-* ``update_timeout`` (2): how long a node that gave its ``rdl`` state waits for the observer's pairwise update,
-  holding its own later detection groups meanwhile (given up: counted ``update_not_received``);
-* ``start_timeout`` (30): how long a node waits at its start for the robots of ``wait_for`` to be alive (it then
-  starts without them, with a warning);
-* ``quiet`` (0.3) and ``linger`` (10): at the end (below);
-* ``max_wall`` (:meth:`NetNode.run`; ``--max-wall``): the node's whole run, whatever its state (default none).
+**Timeouts**, one name per wait, in seconds of wall time: :mod:`swarmloc.net.timeouts`.
 
 **Beliefs.** At each record time ``t`` the node publishes its belief once its history has passed ``t``
 (provisional) and again once it is final (the history is a horizon past ``t``, or the run ended); a final belief
@@ -75,6 +62,7 @@ from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Outbound
 from swarmloc.net.publishing import Publishing
 from swarmloc.net.schema import Belief, Progress, Report
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import robot_key
 from swarmloc.net.wiring import Wiring
 from swarmloc.node import Node
@@ -127,13 +115,13 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         record_times: Sequence[float] | np.ndarray = (),
         speed: float = 0.0,
         lag: float = 0.5,
-        answer_timeout: float = 2.0,
-        hold_timeout: float = 1.0,
-        update_timeout: float = 2.0,
+        answer_timeout: float = ANSWER_TIMEOUT,
+        hold_timeout: float = HOLD_TIMEOUT,
+        update_timeout: float = UPDATE_TIMEOUT,
         use_server: bool = False,
         faults: Faults | None = None,
         wait_for: Iterable[int] | None = None,
-        start_timeout: float = 30.0,
+        start_timeout: float = START_TIMEOUT,
         quiet: float = 0.3,
         linger: float = 10.0,
         ros_domain: int | None = None,
