@@ -14,8 +14,8 @@
    bytes of the same sizes (no encode / decode). The ratio swarmloc / bare is printed (latency above 1 and
    throughput below 1: the schema's cost). Replies are timed on arrival, with Zenoh's default consolidation (what
    a node's ``get`` uses).
-2. MRCLAM dataset 6 through 5 node processes (``swarmloc.net.team.run_team``, as ``swarmloc team`` runs it) per
-   estimator: data seconds / wall seconds ("x real time"; the team's wall includes starting the processes, the
+2. MRCLAM dataset 6 through 5 node processes (``swarmloc.experiments.team.run_team``, as ``swarmloc team`` runs
+   it) per estimator: data seconds / wall seconds ("x real time"; the team's wall includes starting the processes, the
    slowest node's own run loop excludes it) and each node's CPU seconds per data second (its run loop, from its
    report). Baseline in the same run: the in-process replay (``swarmloc.runner.run``) of the same events.
 
@@ -276,7 +276,7 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
 def bench_mrclam(path: Path, duration: float | None, estimators: list[str], timeout: float) -> dict[str, Any]:
     from swarmloc.estimators import make_team, node_options
     from swarmloc.experiments.sources import load_source
-    from swarmloc.net.team import run_team
+    from swarmloc.experiments.team import run_team
     from swarmloc.runner import run
 
     spec = f"mrclam:{path}"
@@ -289,7 +289,7 @@ def bench_mrclam(path: Path, duration: float | None, estimators: list[str], time
         run(nodes, src.events, src.record_times())
         wall_in, cpu_in = time.perf_counter() - w0, time.process_time() - c0
         print(f"  {est}: in-process {wall_in:.2f} s; live team ...", file=sys.stderr)
-        tr = run_team(src=src, source=spec, duration=duration, estimator=est, team=f"{TEAM}_{est}", timeout=timeout)
+        tr = run_team(src=src, source=spec, duration=duration, estimator=est, team=f"{TEAM}_{est}", max_wall=timeout)
         cpu = {r: rep.cpu_s / data_s for r, rep in sorted(tr.reports.items())}
         node_wall = max((rep.wall_s for rep in tr.reports.values()), default=math.nan)
         problems = []

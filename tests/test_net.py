@@ -26,12 +26,13 @@ from hypothesis import strategies as st
 from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Odometry
 from swarmloc.experiments.sources import load_source
+from swarmloc.experiments.team import run_team, team_result
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlUpdate, flat
+from swarmloc.net.entry import make_node
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.process import NetNode
 from swarmloc.net.schema import SCHEMA_VERSION, Belief, Envelope, Progress, Rejected, decode, encode
 from swarmloc.net.server import BeliefServer
-from swarmloc.net.team import make_node, run_team, team_result
 from swarmloc.net.transport import free_ports, open_session, robot_key, server_key
 from swarmloc.runner import run
 
@@ -93,6 +94,8 @@ BAD_MEAN = flat(np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
         (_env(BeliefQuery(sender=7, receiver=0, stamp=1.0)), "outside the team's roster"),
         (_env(BeliefQuery(sender=2, receiver=0, stamp=1.0), from_robot=1), "in the name of robot 2"),
         (_env(BeliefQuery(sender=1, receiver=2, stamp=1.0)), "addressed to robot 2"),
+        (_env(BeliefQuery(sender=0, receiver=0, stamp=1.0)), "addressed from robot 0 to itself"),
+        (_env(RdlUpdate(sender=0, receiver=0, stamp=1.0, x=(0.0,) * 3, P=COV)), "addressed from robot 0 to itself"),
         (_env(BeliefQuery(sender=1, receiver=0, stamp=math.nan)), "stamp must be a finite"),
         (_env(BeliefAnswer(sender=1, receiver=0, stamp=1.0, mean=BAD_MEAN, cov=COV)), "not in SE(2)"),
         (_env(BeliefAnswer(sender=1, receiver=0, stamp=1.0, mean=I3, cov=flat(-np.eye(3)))), "positive definite"),
@@ -140,6 +143,142 @@ def test_fault_spec():
     assert abs(n.count(0) / 4000 - 0.3) < 0.03 and abs(n.count(2) / 4000 - 0.7 * 0.2) < 0.03
 
 
+# ------------------------------------------------------------------------------------------------ the driver, offline
+class _Payload:
+    def __init__(self, raw: bytes) -> None:
+        self.raw = raw
+
+    def to_bytes(self) -> bytes:
+        return self.raw
+
+
+class _Sample:
+    """What Zenoh hands a subscriber, a queryable (a query: ``reply_err`` and ``drop`` recorded) or a get's
+    callback (a reply: ``ok``)."""
+
+    def __init__(self, raw: bytes) -> None:
+        self.payload = _Payload(raw)
+        self.ok = self
+        self.errors: list[bytes] = []
+
+    def reply_err(self, reason: bytes) -> None:
+        self.errors.append(reason)
+
+    def drop(self) -> None:
+        pass
+
+
+class _Session:
+    """Records the gets and puts of a :class:`NetNode` that is never opened (no network)."""
+
+    def __init__(self) -> None:
+        self.gets: list[dict] = []
+        self.puts: list[str] = []
+
+    def get(self, key, **kw) -> None:
+        self.gets.append({"key": key, **kw})
+
+    def put(self, key, payload, **kw) -> None:
+        self.puts.append(key)
+
+
+def offline_net(robot: int = 0, est: str = "expfusion", **kw) -> NetNode:
+    """Robot ``robot`` of a simulated team of 3 in a :class:`NetNode` on a recording session (nothing sent)."""
+    src = load_source("sim:random", robots=3, duration=4.0, seed=0)
+    node = make_node(est, robot, src.initial[robot], src.config, src.landmarks)
+    node.start(src.t_start)
+    return NetNode(node, src.own_events(robot), session=_Session(), team="t", roster=src.robots,
+                   record_times=src.record_times(), **kw)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("body", "reason"),
+    [
+        (
+            BeliefAnswer(sender=0, receiver=0, stamp=1.0, mean=I3, cov=COV),
+            "BeliefAnswer addressed from robot 0 to itself",
+        ),
+        (RdlUpdate(sender=0, receiver=0, stamp=1.0, x=(0.0,) * 3, P=COV), "RdlUpdate addressed from robot 0 to itself"),
+        (BeliefQuery(sender=0, receiver=0, stamp=1.0), "BeliefQuery addressed from robot 0 to itself"),
+        (
+            BeliefAnswer(sender=1, receiver=2, stamp=1.0, mean=I3, cov=COV),
+            "BeliefAnswer addressed to robot 2, received by robot 0",
+        ),
+        (BeliefQuery(sender=1, receiver=2, stamp=1.0), "BeliefQuery addressed to robot 2, received by robot 0"),
+    ],
+)
+def test_driver_refuses_and_counts_self_addressed_and_misaddressed_messages_at_decode(body, reason):
+    """On every path a neighbour's message comes in (inbox, query, reply), a message from this robot to itself or
+    to another robot is dropped at decode and counted with its reason; it never reaches the node."""
+    net = offline_net(robot=0)
+    net._outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
+    query = _Sample(encode("t", body.sender, 1, body))
+    net._handle("inbox", _Sample(encode("t", body.sender, 0, body)))
+    net._handle("query", query)
+    net._handle("reply", 7, _Sample(encode("t", body.sender, 2, body)))
+    assert net.counts["rejected"] == 3 and net.reasons == Counter({reason: 3})
+    assert query.errors == [b"rejected"]  # the asker is told at once
+    assert net.node.counts["messages_rejected"] == 0 and not net._deferred and not net._held
+    assert net._outstanding[7][2] is False  # the query still waits for its real answer
+
+
+def test_each_timeout_governs_only_its_own_wait():
+    """``answer_timeout``: the wait for the reply to one of the node's queries; ``hold_timeout``: how long a
+    neighbour's query is held for the node's state to settle; ``update_timeout``: how long an ``rdl`` update is
+    expected. Each is set far from the other two, and only it decides its wait (no sleeping: the waits began in
+    the past). Before, ``answer_timeout`` was all three (the hold its half)."""
+    now = time.monotonic()
+    q = BeliefQuery(sender=1, receiver=0, stamp=1e6)  # keyed after the node's next input: not settled
+    held = offline_net(answer_timeout=100.0, update_timeout=100.0, hold_timeout=1.0)
+    assert held._unsettled((1e6, 1, 1, ())) is not None
+    assert held._ready(q, since=now - 5.0) and held.counts["answered_unsettled"] == 1
+    assert not held._ready(q, since=now)
+    assert not offline_net(answer_timeout=0.01, update_timeout=0.01, hold_timeout=100.0)._ready(q, since=now - 5.0)
+
+    key = (1.0, 1, 1, ())  # an update from robot 1 expected 5 s ago
+    for update_timeout, others, given_up in ((1.0, 100.0, True), (100.0, 0.01, False)):
+        net = offline_net(answer_timeout=others, hold_timeout=others, update_timeout=update_timeout)
+        net._expect[key] = now - 5.0
+        net._release()
+        assert (key not in net._expect) is given_up and net.counts["update_not_received"] == int(given_up)
+
+    asker = offline_net(answer_timeout=3.0, hold_timeout=0.5, update_timeout=7.0)
+    asker._ask(BeliefQuery(sender=0, receiver=1, stamp=1.0))
+    assert [(g["key"], g["timeout"]) for g in asker.session.gets] == [(robot_key("t", 1, "query"), 3.0)]
+
+
+def test_every_timeout_reaches_every_node_under_its_own_name(monkeypatch, capsys):
+    """``swarmloc team`` gives every node process each timeout under its own option, and ``swarmloc node`` hands
+    each to the driver under its own name; the team's own limit is ``--max-wall`` (``--timeout`` still works)."""
+    from swarmloc.cli import build_parser, main
+    from swarmloc.net import entry
+    from swarmloc.net.schema import Report
+    from swarmloc.net.team import node_arguments
+
+    waits = {"answer_timeout": 3.5, "hold_timeout": 0.25, "update_timeout": 7.0, "start_timeout": 11.0}
+    args = node_arguments(source="sim:random", estimator="rdl", robots=3, duration=2.0, seed=0, config_file=None,
+                          speed=0.0, lag=0.5, use_server=False, faults=Faults(), ros_domain=None, verbose=False,
+                          **waits)  # fmt: skip
+    for name, value in waits.items():
+        flag = "--" + name.replace("_", "-")
+        assert args[args.index(flag) + 1] == str(value)
+    got: dict = {}
+    stats = dict.fromkeys(("detections", "fused", "gated", "rejected", "unknown"), 0)
+    monkeypatch.setattr(entry, "node_main", lambda **kw: got.update(kw) or Report(robot=kw["robot"], stats=stats))
+    assert main(["node", "--team", "t", "--robot", "1", *args]) == 0
+    assert {k: got[k] for k in waits} == waits and got["robot"] == 1 and got["src"].robots == [0, 1, 2]
+    assert "robot 1: 0 detections" in capsys.readouterr().out
+    for flag in ("--max-wall", "--timeout"):
+        assert build_parser().parse_args(["team", "--out", "o", flag, "5"]).max_wall == 5.0
+
+
+@pytest.mark.parametrize("name", ["answer_timeout", "hold_timeout", "update_timeout", "start_timeout", "linger"])
+def test_a_negative_or_nan_timeout_is_refused(name):
+    for bad in (-1.0, math.nan):
+        with pytest.raises(ValueError, match=name):
+            offline_net(**{name: bad})
+
+
 # ------------------------------------------------------------------------------------------------ threads
 def thread_team(
     src, est: str, faults: Faults | None = None, ledger: bool = False, max_wall: float = 120.0, eps=None, **kw
@@ -178,7 +317,8 @@ def thread_team(
 def test_faults_never_crash_never_nan_never_fuse_twice():
     src = load_source("sim:random", robots=3, duration=10.0, seed=3)
     f = parse_faults("loss=0.2,delay=0.2,dup=0.1,reorder=0.2,seed=1")
-    nets, reports = thread_team(src, "rdl", faults=f, ledger=True, answer_timeout=0.4)
+    nets, reports = thread_team(src, "rdl", faults=f, ledger=True, answer_timeout=0.4, hold_timeout=0.2,
+                                update_timeout=0.4)  # fmt: skip
     injected = sum(r.net.get("lost", 0) + r.net.get("duplicated", 0) for r in reports.values())
     assert injected > 20  # the faults did happen
     for n in nets:
@@ -201,7 +341,7 @@ def test_networked_equals_in_process_on_a_simulated_team(est):
     src = load_source("sim:random", robots=3, duration=20.0, seed=1)
     team = f"eqsim{est}{os.getpid()}"
     tr = run_team(src=src, source="sim:random", robots=3, duration=20.0, seed=1, estimator=est, team=team,
-                  timeout=120)  # fmt: skip
+                  max_wall=120)  # fmt: skip
     assert not leftovers(team)
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, est)
@@ -216,7 +356,7 @@ def test_networked_equals_in_process_on_mrclam6_first_120s(est):
     spec = f"mrclam:{MRCLAM6}"
     src = load_source(spec, duration=120.0)
     team = f"eqmrclam{est}{os.getpid()}"
-    tr = run_team(src=src, source=spec, duration=120.0, estimator=est, team=team, timeout=300)
+    tr = run_team(src=src, source=spec, duration=120.0, estimator=est, team=team, max_wall=300)
     assert not leftovers(team)
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, est)
@@ -229,7 +369,7 @@ def test_kill_restart_and_late_join():
     src = load_source("sim:random", robots=3, duration=16.0, seed=2)
     team = f"killjoin{os.getpid()}"
     tr = run_team(src=src, source="sim:random", robots=3, duration=16.0, seed=2, estimator="expfusion", team=team,
-                  faults="kill=1@6,late=2@4", timeout=120, speed=2.0)  # fmt: skip
+                  faults="kill=1@6,late=2@4", max_wall=120, speed=2.0)  # fmt: skip
     assert not leftovers(team)
     assert tr.counts["killed"] == tr.counts["restarted"] == tr.counts["late_joined"] == 1
     res = team_result(tr, src, "expfusion")
@@ -244,7 +384,7 @@ def test_kill_restart_and_late_join():
 def test_team_stops_every_process_on_its_time_limit():
     team = f"limit{os.getpid()}"
     t = time.monotonic()
-    tr = run_team(source="sim:random", robots=3, duration=600.0, speed=1.0, estimator="dekf", team=team, timeout=4)
+    tr = run_team(source="sim:random", robots=3, duration=600.0, speed=1.0, estimator="dekf", team=team, max_wall=4)
     assert time.monotonic() - t < 30
     assert tr.counts["timed_out"] == 1
     assert not leftovers(team)

@@ -189,17 +189,20 @@ def _net_logging(verbose: bool) -> None:
 
 def _node(args: argparse.Namespace) -> int:
     from swarmloc.config import ConfigError
-    from swarmloc.net.team import node_main
+    from swarmloc.experiments.sources import load_source
+    from swarmloc.net.entry import node_main
+    from swarmloc.net.transport import check_team
 
     _net_logging(args.verbose)
     try:
+        check_team(args.team)
+        config = _config(args) if args.config else None
+        src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
         report = node_main(
-            robot=args.robot, team=args.team, source=args.source, estimator=args.estimator,
-            config=_config(args) if args.config else None, robots=args.robots, duration=args.duration,
-            seed=args.seed, speed=args.speed, lag=args.lag, listen=_endpoints(args.listen),
-            connect=_endpoints(args.connect), zenoh_config=args.zenoh_config, use_server=args.use_server,
-            resume=args.resume, faults=args.faults, wait_for=_ids(args.wait_for),
-            answer_timeout=args.answer_timeout, ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out,
+            src=src, robot=args.robot, team=args.team, estimator=args.estimator, speed=args.speed, lag=args.lag,
+            listen=_endpoints(args.listen), connect=_endpoints(args.connect), zenoh_config=args.zenoh_config,
+            use_server=args.use_server, resume=args.resume, faults=args.faults, wait_for=_ids(args.wait_for),
+            ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, **_timeouts(args),
         )  # fmt: skip
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc node: {exc}", file=sys.stderr)
@@ -214,7 +217,7 @@ def _node(args: argparse.Namespace) -> int:
 
 
 def _server(args: argparse.Namespace) -> int:
-    from swarmloc.net.team import server_main
+    from swarmloc.net.entry import server_main
 
     _net_logging(args.verbose)
     try:
@@ -232,7 +235,7 @@ def _team(args: argparse.Namespace) -> int:
     from swarmloc.config import ConfigError
     from swarmloc.experiments.evaluate import markdown_table
     from swarmloc.experiments.sources import load_source
-    from swarmloc.net.team import run_team, write_team_report
+    from swarmloc.experiments.team import run_team, write_team_report
 
     _net_logging(args.verbose)
     import signal
@@ -247,8 +250,8 @@ def _team(args: argparse.Namespace) -> int:
         run = run_team(
             src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
             seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
-            lag=args.lag, timeout=args.timeout, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
-            verbose=args.verbose, connect_extra=_endpoints(args.connect), answer_timeout=args.answer_timeout,
+            lag=args.lag, max_wall=args.max_wall, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
+            verbose=args.verbose, connect_extra=_endpoints(args.connect), **_timeouts(args),
         )  # fmt: skip
         extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}
         report = write_team_report(run, src, args.estimator, args.out, extra)
@@ -295,6 +298,21 @@ def _net_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-config", default=None, help="a Zenoh JSON5 configuration file (TLS, access control)")
     p.add_argument("--max-wall", type=float, default=None, help="stop after this many wall-clock seconds")
     p.add_argument("--verbose", action="store_true", help="log the node's state every 2 s")
+
+
+def _timeout_args(p: argparse.ArgumentParser) -> None:
+    from swarmloc.net.timeouts import TIMEOUTS
+
+    for name, (default, meaning) in TIMEOUTS.items():
+        p.add_argument(
+            f"--{name.replace('_', '-')}", type=float, default=default, help=f"{meaning} (default {default:g})"
+        )
+
+
+def _timeouts(args: argparse.Namespace) -> dict[str, float]:
+    from swarmloc.net.timeouts import TIMEOUTS
+
+    return {name: getattr(args, name) for name in TIMEOUTS}
 
 
 def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:
@@ -372,7 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--use-server", action="store_true", help="ask the belief server when a neighbour is silent")
     n.add_argument("--resume", action="store_true", help="start from this robot's latest belief on the server")
     n.add_argument("--wait-for", default=None, help="robot ids to wait for before starting (default: the team)")
-    n.add_argument("--answer-timeout", type=float, default=2.0, help="seconds to wait for a neighbour's answer")
+    _timeout_args(n)
     n.add_argument("--out", default=None, help="folder for robot<N>.tum (final beliefs) and robot<N>.json (report)")
     n.set_defaults(func=_node)
 
@@ -431,10 +449,11 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")
-    t.add_argument("--answer-timeout", type=float, default=2.0, help="seconds a node waits for an answer")
+    _timeout_args(t)
     t.add_argument("--connect", default=None, help="endpoints every process also connects to (a Zenoh router)")
     t.add_argument("--bag", default=None, help="record the beliefs as a rosbag2 (folder to create)")
-    t.add_argument("--timeout", type=float, default=600.0, help="stop everything after this many seconds")
+    t.add_argument("--max-wall", "--timeout", dest="max_wall", type=float, default=600.0,
+                   help="stop every process after this many wall-clock seconds (default 600)")  # fmt: skip
     t.add_argument("--out", required=True, help="output folder (report, figures, TUM files, logs)")
     t.add_argument("--verbose", action="store_true", help="nodes log their state every 2 s (in OUT/logs)")
     t.set_defaults(func=_team)

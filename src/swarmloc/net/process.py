@@ -6,6 +6,11 @@ neighbour's ``query`` key (the reply is the answer), a revised answer or a pairw
 receiver's ``inbox``. Everything received is decoded and validated (:func:`swarmloc.net.schema.decode`) on the
 node's one thread; a bad message is dropped, counted with its reason, and logged; the node keeps running.
 
+Parts, one job each: :mod:`~swarmloc.net.wiring` (the Zenoh declarations), :mod:`~swarmloc.net.inbound` (the
+queue, decoding with its bounds, queries, pushed messages, replies), :mod:`~swarmloc.net.lockstep` (when to read an
+input, answer a query, release an answer), :mod:`~swarmloc.net.outbound` (sending: link faults, outbox, queries,
+timers), :mod:`~swarmloc.net.publishing` (progress and beliefs); this module holds the state and the loop.
+
 **Time and determinism.** Stamps are the source's (data) clock; wall time only paces. Lockstep: a node reads its
 next input (stamp ``s``) once every live teammate has announced (:class:`~swarmloc.net.schema.Progress`) that it
 has read its own source up to ``s - lag`` (the node with the lowest next stamp can always go on, so this never
@@ -17,11 +22,14 @@ across the team in key order, as :func:`swarmloc.runner.run` applies them, the f
 and the networked run equals the in-process run on the same events (tested to 1e-6; measured: equal).
 
 **Missing answers.** A query that gets no valid reply within ``answer_timeout`` s is asked of the belief server
-(with ``use_server``); without an answer there either, the node gets a "not found" answer (revision ``-2``) with
-the reason, so the detection ends ``unknown`` instead of waiting forever; a real answer that arrives later
-(revision >= 0; the server's: -1) replaces it and is replayed if it is within the horizon. A query held longer
-than half the asker's timeout is answered as things stand, and revised if they change. With link faults,
-pushed revisions and updates are coalesced (the newest per exchange, every ``coalesce`` s).
+(with ``use_server``, which gets ``answer_timeout`` s too); without an answer there either, the node gets a "not
+found" answer (revision ``-2``) with the reason, so the detection ends ``unknown`` instead of waiting forever; a
+real answer that arrives later (revision >= 0; the server's: -1) replaces it and is replayed if it is within the
+horizon. A neighbour's query held ``hold_timeout`` s without its state settling is answered as things stand, and
+revised if they change. An ``rdl`` update expected for ``update_timeout`` s is given up. With link faults, pushed
+revisions and updates are coalesced (the newest per exchange, every ``coalesce`` s).
+
+**Timeouts**, one name per wait, in seconds of wall time: :mod:`swarmloc.net.timeouts`.
 
 **Beliefs.** At each record time ``t`` the node publishes its belief once its history has passed ``t``
 (provisional) and again once it is final (the history is a horizon past ``t``, or the run ended); a final belief
@@ -36,8 +44,6 @@ until every live member is done and ``quiet`` s passed without traffic (at most 
 
 from __future__ import annotations
 
-import heapq
-import itertools
 import logging
 import math
 import queue
@@ -50,21 +56,18 @@ from typing import Any
 import numpy as np
 
 from swarmloc.events import Detection, Event, Odometry
-from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.faults import Faults
-from swarmloc.net.schema import SERVER, Belief, Envelope, Progress, Rejected, Report, decode, encode
-from swarmloc.net.transport import alive_key, robot_key, robot_of, server_key
+from swarmloc.net.inbound import Inbound
+from swarmloc.net.lockstep import Lockstep
+from swarmloc.net.outbound import Outbound
+from swarmloc.net.publishing import Publishing
+from swarmloc.net.schema import Belief, Progress, Report
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.transport import robot_key
+from swarmloc.net.wiring import Wiring
 from swarmloc.node import Node
 
 log = logging.getLogger(__name__)
-BLOCK: Any = None  # zenoh.CongestionControl.BLOCK, set when a session is opened (zenoh is imported lazily)
-
-NOT_FOUND_SEQ = -2
-SERVER_SEQ = -1
-
-
-def _stamp(e: Event) -> float:
-    return e.t0 if isinstance(e, Odometry) else e.t
 
 
 def _groups(events: Sequence[Event]) -> list[tuple[float, Any]]:
@@ -80,7 +83,7 @@ def _groups(events: Sequence[Event]) -> list[tuple[float, Any]]:
     return out
 
 
-class NetNode:
+class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
     """Drive ``node`` (owning one robot) over ``session`` with ``events`` (that robot's own, in stamp order).
 
     Parameters
@@ -89,11 +92,15 @@ class NetNode:
     record_times: times [s] at which the robot's belief is published.
     speed: 0 = as fast as lockstep allows; X > 0: X times real time.
     lag: [s] lockstep slack (well below the node's horizon).
-    answer_timeout: [s] wall time to wait for a neighbour's reply.
+    answer_timeout: [s] wall time this node waits for the reply to one of its queries (neighbour, then server).
+    hold_timeout: [s] wall time it holds a neighbour's query for its state to settle before answering as it stands.
+    update_timeout: [s] wall time it waits for an observer's ``rdl`` update after giving its state.
     use_server: ask the belief server when a neighbour does not answer.
     faults: link faults on the messages this node sends (:mod:`swarmloc.net.faults`).
-    wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot);
-    wait_timeout: [s] how long.
+    wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot).
+    start_timeout: [s] wall time it waits at the start for the robots of ``wait_for`` to be alive.
+    quiet: [s] wall time without traffic that counts as settled at the end.
+    linger: [s] wall time at most it keeps answering after it is done, while teammates are not.
     ros_domain: publish beliefs as ROS 2 messages too (rmw_zenoh layout, this domain id).
     """
 
@@ -108,11 +115,13 @@ class NetNode:
         record_times: Sequence[float] | np.ndarray = (),
         speed: float = 0.0,
         lag: float = 0.5,
-        answer_timeout: float = 2.0,
+        answer_timeout: float = ANSWER_TIMEOUT,
+        hold_timeout: float = HOLD_TIMEOUT,
+        update_timeout: float = UPDATE_TIMEOUT,
         use_server: bool = False,
         faults: Faults | None = None,
         wait_for: Iterable[int] | None = None,
-        wait_timeout: float = 30.0,
+        start_timeout: float = START_TIMEOUT,
         quiet: float = 0.3,
         linger: float = 10.0,
         ros_domain: int | None = None,
@@ -120,6 +129,11 @@ class NetNode:
     ) -> None:
         if len(node.robots) != 1:
             raise ValueError("NetNode drives a node of one robot (a distributed estimator)")
+        waits = dict(answer_timeout=answer_timeout, hold_timeout=hold_timeout, update_timeout=update_timeout,
+                     start_timeout=start_timeout, quiet=quiet, linger=linger)  # fmt: skip
+        bad = {k: v for k, v in waits.items() if not float(v) >= 0.0}
+        if bad:
+            raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
         self.node = node
         self.robot = node.robots[0]
         self.items = _groups(events)
@@ -132,11 +146,13 @@ class NetNode:
         self.speed = float(speed)
         self.lag = float(lag)
         self.answer_timeout = float(answer_timeout)
+        self.hold_timeout = float(hold_timeout)
+        self.update_timeout = float(update_timeout)
         self.use_server = use_server
         self.faults = faults if faults is not None and faults.link else None
         self.link = self.faults.plan(self.robot) if self.faults else None
         self.wait_for = set(self.roster - {self.robot}) if wait_for is None else set(wait_for) - {self.robot}
-        self.wait_timeout = float(wait_timeout)
+        self.start_timeout = float(start_timeout)
         self.quiet = float(quiet)
         self.linger = float(linger)
         self.ros_domain = ros_domain
@@ -146,499 +162,20 @@ class NetNode:
         ``delayed`` (injected), ``no_reply``, ``server_answers``, ``beliefs_published``..."""
         self.reasons: Counter[str] = Counter()
         self._inq: queue.SimpleQueue = queue.SimpleQueue()
-        self._seq = itertools.count()
-        self._progress: dict[int, float] = {}
-        self._progress_key: dict[int, tuple[float, int]] = {}
-        self._done: set[int] = set()
-        self._alive: set[int] = set()
-        self._outstanding: dict[int, tuple[Message, str, bool]] = {}
-        self._qids = itertools.count()
-        self._timers: list[tuple[float, int, Callable[[], None]]] = []
-        self._published: dict[float, Belief] = {}
-        self._prov = 0
-        self._final = 0
-        self._pruned_at = 0
-        self._last_progress = -math.inf
-        self._last_progress_wall = 0.0
-        self._last_key: tuple[float, int] = (-math.inf, 0)
+        """Everything received, as ``(kind, sample)``, handled on the node's one thread (:mod:`.inbound`)."""
         self._stop = threading.Event()
-        self._decl: list[Any] = []
-        self._ros_pub = None
-        self._i = 0
-        self._deferred: list[tuple[float, Message, Any]] = []
-        self._expect: dict[tuple, float] = {}
-        self._held: list[Message] = []
-        self._outbox: dict[tuple, Message] = {}
-        self._last_flush = 0.0
-        self.coalesce = 0.05
+        self._i = 0  # the index of the next input in ``items``
         self._last_status = 0.0
-
-    # ------------------------------------------------------------------------------------------- wiring
-    def _open(self) -> None:
-        import zenoh
-
-        global BLOCK
-        BLOCK = zenoh.CongestionControl.BLOCK
-
-        s, team, r = self.session, self.team, self.robot
-        put = self._inq.put
-        self._decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
-        self._decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
-        self._decl.append(
-            s.declare_subscriber(robot_key(team, "*", "progress"), handler=lambda x: put(("progress", x)))
-        )
-        self._decl.append(
-            s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
-        )
-        block = zenoh.CongestionControl.BLOCK  # never drop a belief or a progress announcement under load
-        self._pub_belief = s.declare_publisher(robot_key(team, r, "belief"), congestion_control=block)
-        self._pub_progress = s.declare_publisher(robot_key(team, r, "progress"), congestion_control=block)
-        if self.ros_domain is not None:
-            import hashlib
-
-            from swarmloc.net import ros
-
-            self.ros_topic = f"/swarmloc/{team.replace('-', '_')}/robot{r}/pose"
-            key = ros.ros_key(self.ros_topic, self.ros_domain)
-            self._ros_pub = s.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
-            self._ros_gid = hashlib.blake2b(key.encode(), digest_size=16).digest()
-            self._ros_seq = 0
-        self._token = s.liveliness().declare_token(alive_key(team, r))
-
-    def _close(self) -> None:
-        for d in [*self._decl, getattr(self, "_token", None)]:
-            if d is not None:
-                try:
-                    d.undeclare()
-                except Exception:  # noqa: BLE001 - closing: nothing left to do about it
-                    pass
-        self._decl.clear()
+        self._init_wiring()
+        self._init_lockstep()
+        self._init_outbound()
+        self._init_publishing()
 
     def stop(self) -> None:
         """Ask :meth:`run` to finish (from another thread or a signal handler)."""
         self._stop.set()
         self._inq.put(("wake", None))
 
-    # ------------------------------------------------------------------------------------------- sending
-    def _env(self, body: Any) -> bytes:
-        return encode(self.team, self.robot, next(self._seq), body)
-
-    def _faulty(self, send: Callable[[], None]) -> int:
-        """Send now, or as the link faults say (lost, delayed, duplicated); returns the copies sent."""
-        if self.link is None:
-            self.counts["sent"] += 1
-            send()
-            return 1
-        delays = self.link.schedule()
-        if not delays:
-            self.counts["lost"] += 1
-            return 0
-        if len(delays) > 1:
-            self.counts["duplicated"] += 1
-        for d in delays:
-            self.counts["sent"] += 1
-            if d <= 0:
-                send()
-            else:
-                self.counts["delayed"] += 1
-                heapq.heappush(self._timers, (time.monotonic() + d, next(self._qids), send))
-        return len(delays)
-
-    def _route(self, msgs: list[Message], query: Any = None, asked: Message | None = None) -> None:
-        for m in msgs:
-            if isinstance(m, BeliefQuery | RdlStateQuery):
-                self._ask(m)
-            elif (
-                query is not None
-                and isinstance(m, BeliefAnswer | RdlState)
-                and isinstance(asked, BeliefQuery | RdlStateQuery)
-                and (m.receiver, m.stamp, m.sub) == (asked.sender, asked.stamp, asked.sub)
-            ):
-                payload, q = self._env(m), query
-                query = None
-                if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
-                    self._expect[(float(m.stamp), 1, m.receiver, tuple(m.sub))] = time.monotonic()
-                self._faulty(lambda q=q, payload=payload: _reply(q, payload))
-            elif m.receiver in self.roster:
-                # pushed revisions and updates are coalesced: the newest per exchange goes out with the next flush
-                k = (type(m).__name__, m.receiver, m.stamp, m.sub)
-                if k in self._outbox:
-                    self.counts["coalesced"] += 1
-                self._outbox[k] = m
-            else:
-                self.counts["undeliverable"] += 1
-        if query is not None:  # the query was not answered by the node (cannot happen for a well-formed query)
-            _reply_err(query, "no answer")
-
-    def _flush(self, force: bool = False) -> None:
-        """Send the pushed messages waiting in the outbox: at once without faults (a revision or update is final
-        then), at most every ``coalesce`` s otherwise, so that a burst of revisions of one exchange (late and lost
-        messages make them) costs the neighbour one replay instead of one per revision."""
-        if not self._outbox:
-            return
-        now = time.monotonic()
-        if not force and self.link is not None and now - self._last_flush < self.coalesce:
-            return
-        self._last_flush = now
-        out, self._outbox = self._outbox, {}
-        for m in out.values():
-            payload, key = self._env(m), robot_key(self.team, m.receiver, "inbox")
-            self._faulty(lambda key=key, payload=payload: self.session.put(key, payload, congestion_control=BLOCK))
-
-    def _ask(self, m: Message, via_server: bool = False) -> None:
-        kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
-        if m.receiver not in self.roster:
-            self._feed_local(kind, m, f"robot {m.receiver} is not in the team")
-            return
-        qid = next(self._qids)
-        self._outstanding[qid] = (m, "server" if via_server else "robot", False)
-        key = server_key(self.team) if via_server else robot_key(self.team, m.receiver, "query")
-        payload = self._env(m)
-        timeout = self.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
-        put = self._inq.put
-
-        def send() -> None:
-            import zenoh
-
-            try:
-                self.session.get(
-                    key,
-                    payload=payload,
-                    timeout=timeout,
-                    handler=zenoh.handlers.Callback(
-                        lambda reply: put(("reply", qid, reply)), lambda: put(("reply_end", qid, None))
-                    ),
-                )
-            except Exception as exc:  # noqa: BLE001 - a failed get is a missing answer, not a crash
-                log.warning("robot %s: get %s failed: %s", self.robot, key, exc)
-                put(("reply_end", qid, None))
-
-        if via_server:
-            self.counts["sent"] += 1
-            send()
-        elif not self._faulty(send):
-            # a lost query: its get never goes out, so nothing will end it but a timer
-            heapq.heappush(
-                self._timers,
-                (time.monotonic() + timeout, next(self._qids), lambda qid=qid: put(("reply_end", qid, None))),
-            )
-
-    def _feed_local(self, kind: type, m: Message, reason: str, seq: int = NOT_FOUND_SEQ) -> None:
-        a = kind(sender=m.receiver, receiver=m.sender, stamp=m.stamp, sub=m.sub, found=False, reason=reason, seq=seq)
-        self._step(a)
-
-    # ------------------------------------------------------------------------------------------- receiving
-    def _step(self, item: Any, query: Any = None) -> None:
-        out = self.node.step(item)
-        if out or query is not None:
-            self._route(out, query, item)
-        self._flush()
-
-    def _reject(self, reason: str, where: str) -> None:
-        self.counts["rejected"] += 1
-        self.reasons[reason] += 1
-        if self.reasons[reason] == 1 and len(self.reasons) <= 20:  # the first of each of the first 20 reasons
-            log.warning("robot %s: dropped a %s: %s", self.robot, where, reason)
-        else:
-            log.debug("robot %s: dropped a %s: %s", self.robot, where, reason)
-
-    def _decode(self, payload: bytes | None, where: str) -> Envelope | None:
-        if payload is None:
-            self._reject("empty payload", where)
-            return None
-        try:
-            env = decode(payload, self.team, self.roster, to_robot=self.robot)
-        except Rejected as exc:
-            self._reject(exc.reason, where)
-            return None
-        b = env.body
-        if env.from_robot != SERVER and getattr(b, "seq", 0) < 0:
-            self._reject("negative revision from a robot", where)
-            return None
-        return env
-
-    def _handle(self, kind: str, x: Any, y: Any = None) -> None:
-        if kind == "query":
-            self.counts["received"] += 1
-            raw = x.payload.to_bytes() if x.payload is not None else None
-            env = self._decode(raw, "query")
-            if env is None or not isinstance(env.body, BeliefQuery | RdlStateQuery):
-                if env is not None:
-                    self._reject(f"{type(env.body).__name__} sent as a query", "query")
-                _reply_err(x, "rejected")
-                return
-            self._deferred.append((time.monotonic(), env.body, x))
-            self._answer_ready()
-        elif kind == "inbox":
-            self.counts["received"] += 1
-            env = self._decode(x.payload.to_bytes(), "pushed message")
-            if env is None:
-                return
-            if isinstance(env.body, BeliefQuery | RdlStateQuery | Belief | Progress | Report):
-                self._reject(f"{type(env.body).__name__} is not accepted on the inbox", "pushed message")
-                return
-            if isinstance(env.body, RdlUpdate):
-                self._expect.pop((float(env.body.stamp), 1, env.body.sender, tuple(env.body.sub)), None)
-                self._step(env.body)
-                self._release()
-                return
-            self._step(env.body)
-        elif kind == "reply":
-            self._on_reply(x, y)
-        elif kind == "reply_end":
-            self._on_reply_end(x)
-        elif kind == "progress":
-            try:
-                env = decode(x.payload.to_bytes(), self.team, self.roster, server_ok=False)
-            except Rejected as exc:
-                self._reject(exc.reason, "progress message")
-                return
-            p = env.body
-            if isinstance(p, Progress) and p.robot != self.robot:
-                self._progress[p.robot] = max(self._progress.get(p.robot, -math.inf), p.t)
-                self._progress_key[p.robot] = max(self._progress_key.get(p.robot, (-math.inf, 0)), (p.t, p.prio))
-                if p.done:
-                    self._done.add(p.robot)
-        elif kind == "alive":
-            import zenoh
-
-            r = robot_of(str(x.key_expr))
-            if r is None or r == self.robot:
-                return
-            if r not in self.roster:
-                self.counts["alive_outside_roster"] += 1
-                return
-            if x.kind == zenoh.SampleKind.PUT:
-                self._alive.add(r)
-                self._done.discard(r)
-            else:
-                self._alive.discard(r)
-                self._progress.pop(r, None)
-                self._progress_key.pop(r, None)
-                self.counts["peers_left"] += 1
-
-    def _ready(self, q: Message, since: float) -> bool:
-        """A query is answered once nothing this node will still read or apply is keyed before it: its source has
-        passed the query's key, no earlier detection group waits, no pairwise update it expects is keyed earlier,
-        and every live teammate has read its source past the stamp (so no earlier exchange can still start). Then
-        the first answer is the final one and no revision follows (without faults). After half the asker's timeout
-        it is answered whatever the state (a revision follows if needed)."""
-        qkey = (float(q.stamp), 1, q.sender, tuple(q.sub))
-        why = self._unsettled(qkey)
-        if why is None:
-            return True
-        if time.monotonic() - since < self.answer_timeout / 2:
-            return False
-        self.counts["answered_unsettled"] += 1
-        log.debug("robot %s: answering %s at %s unsettled: %s", self.robot, type(q).__name__, qkey, why)
-        return True
-
-    def _unsettled(self, qkey: tuple) -> str | None:
-        """What may still change the state before ``qkey``, or None."""
-        if self._i < len(self.items):
-            s, item = self.items[self._i]
-            nxt = (s, 2, self.robot, ()) if isinstance(item, Odometry) else (s, 1, self.robot, ())
-            if nxt < qkey:
-                return f"own source at {nxt}"
-        early = [k for k in self._expect if k < qkey]
-        if early:
-            return f"expects updates at {early[:3]}"
-        for r in self._alive:  # a teammate whose next input is keyed before the query may still start an exchange
-            if r not in self._done:
-                t, prio = self._progress_key.get(r, (-math.inf, 0))
-                if (t, prio, r) < qkey[:3]:
-                    return f"robot {r} has read its source only to {(t, prio)}"
-        first = self.node.first_pending
-        if first is not None and first < qkey:
-            return f"own detection group {first} waits for answers"
-        return None
-
-    def _answer_ready(self) -> None:
-        if not self._deferred:
-            return
-        keep = []
-        for since, q, zq in self._deferred:
-            if self._ready(q, since):
-                self._step(q, query=zq)
-            else:
-                keep.append((since, q, zq))
-        self.counts["queries_answered"] += len(self._deferred) - len(keep)
-        self._deferred = keep
-
-    def _on_reply(self, qid: int, reply: Any) -> None:
-        self.counts["received"] += 1
-        entry = self._outstanding.get(qid)
-        if entry is None:
-            return
-        m, via, _ = entry
-        ok = reply.ok
-        if ok is None:
-            self._reject(f"error reply: {reply.err.payload.to_bytes()[:80]!r}", "reply")
-            return
-        env = self._decode(ok.payload.to_bytes(), "reply")
-        if env is None:
-            return
-        a = env.body
-        if not isinstance(a, BeliefAnswer | RdlState) or (a.sender, a.receiver, a.stamp, a.sub) != (
-            m.receiver,
-            m.sender,
-            m.stamp,
-            m.sub,
-        ):
-            self._reject("reply does not answer the query", "reply")
-            return
-        if via == "server":
-            self.counts["server_answers"] += 1
-        self._outstanding[qid] = (m, via, True)
-        self._held.append(a)
-        self._release()
-
-    def _release(self) -> None:
-        """Give the node the answers to its own detection groups once no pairwise update keyed before the group is
-        still expected (so the group is applied after it, not replayed under it); an expected update that does not
-        come within the answer timeout is given up (counted ``update_not_received``)."""
-        if self._expect:
-            now = time.monotonic()
-            for k, since in list(self._expect.items()):
-                if now - since > self.answer_timeout:
-                    del self._expect[k]
-                    self.counts["update_not_received"] += 1
-        if not self._held:
-            return
-        keep = []
-        for a in self._held:
-            key = (float(a.stamp), 1, self.robot, ())
-            if any(k < key for k in self._expect):
-                keep.append(a)
-            else:
-                self._step(a)
-        self._held = keep
-
-    def _on_reply_end(self, qid: int) -> None:
-        entry = self._outstanding.pop(qid, None)
-        if entry is None:
-            return
-        m, via, answered = entry
-        if answered:
-            return
-        self.counts["no_reply"] += 1
-        if via == "robot" and self.use_server:
-            self._ask(m, via_server=True)
-            return
-        kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
-        who = "robot or server" if via == "server" else "robot"
-        self._feed_local(kind, m, f"no answer from the {who} within {self.answer_timeout:g} s")
-
-    def _drain(self, timeout: float) -> bool:
-        """Handle everything queued; wait up to ``timeout`` s for the first item. True if neighbours' traffic (queries,
-        replies, pushed messages) came: progress and liveliness do not count."""
-        got = False
-        try:
-            item = self._inq.get(timeout=timeout) if timeout > 0 else self._inq.get_nowait()
-        except queue.Empty:
-            item = None
-        while item is not None and not self._stop.is_set():
-            got = got or item[0] in ("query", "inbox", "reply", "reply_end")
-            if item[0] != "wake":
-                try:
-                    self._handle(*item)
-                    self._answer_ready()
-                except Exception as exc:  # a node must never die of one message
-                    log.exception("robot %s: error handling %s", self.robot, item[0])
-                    self._reject(f"internal error: {type(exc).__name__}: {exc}", item[0])
-            try:
-                item = self._inq.get_nowait()
-            except queue.Empty:
-                item = None
-        return got
-
-    def _run_timers(self) -> float:
-        """Send what is due; seconds until the next timer (inf if none)."""
-        now = time.monotonic()
-        while self._timers and self._timers[0][0] <= now:
-            _, _, fn = heapq.heappop(self._timers)
-            try:
-                fn()
-            except Exception as exc:  # noqa: BLE001 - e.g. the duplicate of a reply whose query is already closed
-                self.counts["send_failed"] += 1
-                log.debug("robot %s: delayed send failed: %s", self.robot, exc)
-        return self._timers[0][0] - now if self._timers else math.inf
-
-    # ------------------------------------------------------------------------------------------- beliefs
-    def _next_key(self) -> tuple[float, int]:
-        if self._i >= len(self.items):
-            return (math.inf, 3)
-        s, item = self.items[self._i]
-        return (s, 2 if isinstance(item, Odometry) else 1)
-
-    def _publish_progress(self, t: float, done: bool = False, force: bool = False) -> None:
-        """Announce the next input's key (rate-limited to every ``lag / 4`` s of data or 0.2 s of wall time unless
-        ``force``: a node about to wait forces it, since teammates may be waiting for it)."""
-        now = time.monotonic()
-        key = self._next_key()
-        if not force and t - self._last_progress < self.lag / 4 and now - self._last_progress_wall < 0.2:
-            return
-        if force and key == self._last_key and not done and now - self._last_progress_wall < 0.2:
-            return
-        self._last_progress = t
-        self._last_key = key
-        self._last_progress_wall = now
-        self._pub_progress.put(self._env(Progress(robot=self.robot, t=key[0], prio=key[1], done=done)))
-
-    def _publish_belief(self, t: float, final: bool) -> None:
-        try:
-            b = self.node.belief_at(float(t))
-        except ValueError:
-            self.counts["record_too_old"] += 1
-            return
-        old = self._published.get(t)
-        mean, cov = flat(b.mean), flat(b.cov)
-        if old is not None and old.mean == mean and old.cov == cov and (old.final or not final):
-            return  # nothing new: same numbers, and not a provisional belief becoming final
-        rev = 0 if old is None else old.rev + 1
-        msg = Belief(robot=self.robot, stamp=float(t), rev=rev, final=final, mean=mean, cov=cov)
-        self._published[t] = msg
-        self._pub_belief.put(self._env(msg))
-        self.counts["beliefs_published"] += 1
-        if self.on_belief is not None:
-            self.on_belief(msg)
-        if self._ros_pub is not None:
-            from swarmloc.net import ros
-
-            self._ros_seq += 1  # rmw_zenoh drops samples without its attachment (sequence, source time, gid)
-            att = ros.ros_attachment(self._ros_seq, time.time_ns(), self._ros_gid)
-            self._ros_pub.put(ros.to_cdr(ros.pose_message(t, b.mean, b.cov)), attachment=att)
-
-    def _publish_due(self, end: bool = False, upto: float = -math.inf) -> None:
-        """Publish the beliefs due: provisional ones up to the watermark, final ones a horizon before it (or before
-        ``upto``: called before an input stamped ``upto`` is applied, whose pruning could drop them otherwise)."""
-        rt = self.record_times
-        wm = max(self.node.watermark, upto)
-        while self._prov < rt.size and (end or rt[self._prov] <= wm):
-            self._publish_belief(rt[self._prov], final=False)
-            self._prov += 1
-        while self._final < rt.size and (end or rt[self._final] < wm - self.node.horizon):
-            self._publish_belief(rt[self._final], final=True)
-            self._final += 1
-        if self._final - self._pruned_at >= 256:  # forget beliefs no input can change any more (two horizons back)
-            self._pruned_at = self._final
-            cut = wm - 2 * self.node.horizon
-            for t in [t for t in self._published if t < cut]:
-                del self._published[t]
-
-    def _republish_changed(self) -> None:
-        """After the end: publish again every final belief a late message changed."""
-        for t in sorted(self._published):
-            old = self._published[t]
-            try:
-                b = self.node.belief_at(t)
-            except ValueError:
-                continue
-            if flat(b.mean) != old.mean or flat(b.cov) != old.cov:
-                self.counts["finals_revised"] += 1
-                self._publish_belief(t, final=True)
-
-    # ------------------------------------------------------------------------------------------- loop
     def _may_feed(self, s: float) -> bool:
         """Lockstep: every live teammate has read its source to ``s - lag``; and this node's oldest detection group
         still waiting for answers is less than half a horizon before ``s`` (reading on would push it beyond the
@@ -669,14 +206,14 @@ class NetNode:
         self._open()
         try:
             self._publish_progress(self.items[0][0] if self.items else math.inf, force=True)
-            t_wait = time.monotonic() + self.wait_timeout
+            t_wait = time.monotonic() + self.start_timeout
             while not self.wait_for <= self._alive and time.monotonic() < t_wait and not self._stop.is_set():
                 self._drain(0.05)
                 self._publish_progress(self._last_progress, force=True)
             missing = self.wait_for - self._alive
             if missing:
                 log.warning("robot %s: starting without robots %s (not alive after %.0f s)", self.robot,
-                            sorted(missing), self.wait_timeout)  # fmt: skip
+                            sorted(missing), self.start_timeout)  # fmt: skip
             self._main(deadline)
             if not self._stop.is_set():
                 self._finish(deadline)
@@ -685,7 +222,7 @@ class NetNode:
             try:
                 self._pub_progress.put(self._env(Progress(robot=self.robot, t=math.inf, done=True)))
                 self.session.put(
-                    robot_key(self.team, self.robot, "report"), self._env(report), congestion_control=BLOCK
+                    robot_key(self.team, self.robot, "report"), self._env(report), congestion_control=self._block
                 )
                 time.sleep(0.2)  # let Zenoh flush the report before the session closes
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
@@ -735,8 +272,8 @@ class NetNode:
         now = time.monotonic()
         if now - self._last_status > 2.0:
             self._last_status = now
-            log.info("robot %s: %d/%d inputs, watermark %.2f, pending %d, deferred %d, expecting %d, outstanding %d; "
-                     "node %s; net %s", self.robot, self._i, len(self.items), self.node.watermark, self.node.pending,
+            log.info("robot %s: %d/%d inputs, present %.2f, pending %d, deferred %d, expecting %d, outstanding %d; "
+                     "node %s; net %s", self.robot, self._i, len(self.items), self.node.present, self.node.pending,
                      len(self._deferred), len(self._expect), len(self._outstanding),
                      {k: v for k, v in self.node.stats().items() if v}, dict(self.counts))  # fmt: skip
 
@@ -792,19 +329,3 @@ class NetNode:
             wall_s=wall,
             cpu_s=cpu,
         )
-
-
-def _reply(query: Any, payload: bytes) -> None:
-    try:
-        query.reply(query.key_expr, payload)
-    finally:
-        query.drop()
-
-
-def _reply_err(query: Any, reason: str) -> None:
-    try:
-        query.reply_err(reason.encode())
-    except Exception:  # noqa: BLE001 - the asker may be gone
-        pass
-    finally:
-        query.drop()

@@ -8,10 +8,10 @@ the runtime messages below (a published :class:`Belief`, lockstep :class:`Progre
 
 :func:`decode` checks a received payload before anything reaches a node and says what is wrong: not MessagePack
 or not the schema (with msgspec's path to the bad field), another schema version or team, a sender outside the
-team's roster or impersonating another robot, a body addressed to somebody else, non-finite numbers, a mean
-outside SE(2), a covariance that is not symmetric positive definite. Stale and duplicate messages are caught
-where the state is: the node's history (``stale or duplicate answer``, ``duplicate update``) and the
-:class:`Dedup` filter for published beliefs and progress.
+team's roster or impersonating another robot, a body addressed to somebody else or from a robot to itself,
+non-finite numbers, a mean outside SE(2), a covariance that is not symmetric positive definite. Stale and
+duplicate messages are caught where the state is: the node's history (``stale or duplicate answer``,
+``duplicate update``) and the :class:`Dedup` filter for published beliefs and progress.
 
 Conventions: stamps in seconds of the source's (data) clock; SE(2) means as row-major 3x3 matrices and
 covariances of the right-perturbation exponential coordinates (as in :mod:`swarmloc.messages`).
@@ -128,8 +128,9 @@ def decode(
     to_robot: int | None = None,
     server_ok: bool = True,
 ) -> Envelope:
-    """Decode and validate a payload for a node of ``roster`` (``to_robot``: the receiving robot; bodies
-    addressed to another robot are refused). Raises :class:`Rejected` with the reason."""
+    """Decode and validate a payload for a node of ``roster`` (``to_robot``: the receiving robot; a neighbour
+    message addressed to another robot, or from the receiving robot to itself, is refused, as the node itself
+    refuses them: :func:`swarmloc.node.protocol.refusal`). Raises :class:`Rejected` with the reason."""
     try:
         env = _decoder.decode(payload)
     except (msgspec.DecodeError, msgspec.ValidationError) as exc:
@@ -145,8 +146,11 @@ def decode(
         raise Rejected(f"robot {env.from_robot} sent a message in the name of robot {sender_of(b)}")
     if env.from_robot == SERVER and sender_of(b) not in roster:
         raise Rejected(f"server message about robot {sender_of(b)}, outside the team's roster")
-    if to_robot is not None and not isinstance(b, Belief | Progress | Report) and b.receiver != to_robot:
-        raise Rejected(f"{type(b).__name__} addressed to robot {b.receiver}, received by robot {to_robot}")
+    if to_robot is not None and not isinstance(b, Belief | Progress | Report):
+        if b.receiver != to_robot:
+            raise Rejected(f"{type(b).__name__} addressed to robot {b.receiver}, received by robot {to_robot}")
+        if b.sender == b.receiver:
+            raise Rejected(f"{type(b).__name__} addressed from robot {b.sender} to itself")
     why = body_problem(b)
     if why:
         raise Rejected(why)

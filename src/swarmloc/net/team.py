@@ -1,9 +1,9 @@
-"""``swarmloc node``, ``swarmloc server`` and ``swarmloc team``: the processes of a live team and their launcher.
+"""``swarmloc team``'s launcher: a live team of node processes on 127.0.0.1, and what they publish.
 
-:func:`node_main` runs one robot (its own events of a source, one node of a distributed estimator) on a Zenoh
-peer; :func:`server_main` runs the belief server; :func:`run_team` starts ``N`` node processes (and the server)
-as Zenoh peers on 127.0.0.1, collects the beliefs they publish and scores them like ``swarmloc evaluate``. It
-stops every process it started when the team is done, on an error, on Ctrl-C and on its time limit.
+:func:`launch_team` starts one ``swarmloc node`` process per robot of a source (and the belief server) as Zenoh
+peers on 127.0.0.1, applies the process faults (a robot killed and restarted, a late joiner), collects the beliefs,
+reports and progress the nodes publish, and stops every process it started when the team is done, on an error, on
+Ctrl-C and on its time limit. Scoring the collected run is the evaluation's (:mod:`swarmloc.experiments.team`).
 """
 
 from __future__ import annotations
@@ -24,202 +24,19 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.config import Config
-from swarmloc.events import Event, Odometry
+from swarmloc.datasets.source import Source
+from swarmloc.net.entry import distributed_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import Belief, Progress, Rejected, Report, decode
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import check_team, free_ports, open_session, robot_key
 
 log = logging.getLogger(__name__)
 
 
-# ---------------------------------------------------------------------------------------------------- one node
-def distributed_class(estimator: str) -> type:
-    """The node class of a distributed ``estimator`` (one node per robot); ValueError naming the choices else."""
-    from swarmloc.estimators import ESTIMATORS
-    from swarmloc.node import RobotNode
-
-    cls = ESTIMATORS.get(estimator)
-    if cls is None:
-        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(ESTIMATORS)}")
-    networked = [k for k, c in ESTIMATORS.items() if issubclass(c, RobotNode) and c.distributed and c.over_network]
-    if not issubclass(cls, RobotNode) or not cls.distributed:
-        raise ValueError(
-            f"{estimator!r} is not a distributed estimator (one node per robot): run it in-process with "
-            f"'swarmloc evaluate'; over the network choose from {networked}"
-        )
-    if not cls.over_network:
-        raise ValueError(
-            f"{estimator!r} needs a broadcast to every teammate per update, which the network driver does not carry "
-            f"yet: run it in-process with 'swarmloc evaluate'; over the network choose from {networked}"
-        )
-    return cls
-
-
-def make_node(estimator: str, robot: int, initial: Any, config: Config, landmarks: Any) -> Any:
-    """The node of ``robot`` for a distributed ``estimator`` with the options ``swarmloc evaluate`` uses."""
-    from swarmloc.estimators import node_options
-
-    return distributed_class(estimator)(robot, initial, **node_options(estimator, config, landmarks))
-
-
-def resume_events(events: Sequence[Event], t: float) -> list[Event]:
-    """A robot's events from ``t`` on: the command in force at ``t`` clipped to start there, later ones as they are."""
-    out: list[Event] = []
-    for e in events:
-        if isinstance(e, Odometry):
-            if e.t0 >= t:
-                out.append(e)
-            elif e.t1 > t:
-                out.append(Odometry(e.robot, t, e.t1, e.v, e.w))
-        elif e.stamp >= t:
-            out.append(e)
-    return out
-
-
-def node_main(
-    *,
-    robot: int,
-    team: str,
-    source: str,
-    estimator: str,
-    config: Config | None = None,
-    robots: int = 3,
-    duration: float | None = None,
-    seed: int = 0,
-    speed: float = 0.0,
-    lag: float = 0.5,
-    listen: Sequence[str] = (),
-    connect: Sequence[str] = (),
-    zenoh_config: str | None = None,
-    use_server: bool = False,
-    resume: bool = False,
-    faults: str | Faults | None = None,
-    wait_for: Sequence[int] | None = None,
-    answer_timeout: float = 2.0,
-    ros_domain: int | None = None,
-    max_wall: float | None = None,
-    out: str | os.PathLike[str] | None = None,
-) -> Report:
-    """Run robot ``robot`` of ``source`` as one Zenoh peer until the team is done; returns its report. With
-    ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there."""
-    from swarmloc.experiments.sources import load_source
-    from swarmloc.gaussian import GroupGaussian
-    from swarmloc.lie import SE2
-    from swarmloc.net.process import NetNode
-
-    check_team(team)
-    src = load_source(source, robots=robots, duration=duration, seed=seed, config=config)
-    if robot not in src.initial:
-        raise ValueError(f"robot {robot} is not in source {source!r} (robots {src.robots})")
-    events = src.own_events(robot)
-    initial = src.initial[robot]
-    record_times = src.record_times()
-    session = open_session(listen, connect, zenoh_config)
-    finals: dict[float, Belief] = {}
-    try:
-        if resume:
-            b = _latest_from_server(session, team, src.robots, robot)
-            initial = GroupGaussian(SE2, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
-            events = resume_events(events, b.stamp)
-            record_times = record_times[record_times > b.stamp]
-            t0 = b.stamp
-            log.warning("robot %s: resumed from the server's belief at %.3f s", robot, t0)
-        else:
-            stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
-            t0 = min(stamps) if stamps else src.t_start
-        node = make_node(estimator, robot, initial, src.config, src.landmarks)
-        node.start(t0)
-        net = NetNode(
-            node,
-            events,
-            session=session,
-            team=team,
-            roster=src.robots,
-            record_times=record_times,
-            speed=speed,
-            lag=lag,
-            answer_timeout=answer_timeout,
-            use_server=use_server,
-            faults=parse_faults(faults) if isinstance(faults, str | None) else faults,
-            wait_for=wait_for,
-            ros_domain=ros_domain,
-            on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
-        )
-        _stop_on_sigterm(net.stop)
-        report = net.run(max_wall=max_wall)
-        if out is not None:
-            import json
-
-            import msgspec
-
-            from swarmloc.datasets.tum import write_tum
-
-            folder = Path(out)
-            folder.mkdir(parents=True, exist_ok=True)
-            bs = [finals[t] for t in sorted(finals)]
-            xyt = SE2.to_xytheta(np.array([b.mean for b in bs]).reshape(-1, 3, 3)).reshape(-1, 3)
-            write_tum(folder / f"robot{robot}.tum", np.array([b.stamp for b in bs]), xyt)
-            (folder / f"robot{robot}.json").write_text(json.dumps(msgspec.to_builtins(report), indent=2))
-        return report
-    finally:
-        session.close()
-
-
-def _latest_from_server(session: Any, team: str, roster: Sequence[int], robot: int, timeout: float = 5.0) -> Belief:
-    from swarmloc.net.transport import server_key
-
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        for reply in session.get(f"{server_key(team)}?latest={robot}", timeout=1.0):
-            if reply.ok is None:
-                continue
-            try:
-                env = decode(reply.ok.payload.to_bytes(), team, roster)
-            except Rejected:
-                continue
-            if isinstance(env.body, Belief) and env.body.robot == robot:
-                return env.body
-        time.sleep(0.1)
-    raise RuntimeError(f"robot {robot}: no belief to resume from on the belief server of team {team!r}")
-
-
-def server_main(
-    *,
-    team: str,
-    roster: Sequence[int],
-    listen: Sequence[str] = (),
-    connect: Sequence[str] = (),
-    zenoh_config: str | None = None,
-    max_wall: float | None = None,
-) -> None:
-    """Run the belief server of ``team`` until SIGTERM / Ctrl-C (or ``max_wall`` s)."""
-    from swarmloc.net.server import ServerProcess
-
-    check_team(team)
-    session = open_session(listen, connect, zenoh_config)
-    try:
-        sp = ServerProcess(session, team, roster)
-        _stop_on_sigterm(sp.stop)
-        try:
-            sp.run(max_wall=max_wall)
-        except KeyboardInterrupt:
-            pass
-    finally:
-        session.close()
-
-
-def _stop_on_sigterm(stop: Any) -> None:
-    import threading
-
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda *_: stop())
-
-
-# ---------------------------------------------------------------------------------------------------- the team
 @dataclass
 class TeamRun:
-    """What :func:`run_team` collected: the best belief per robot and stamp, the nodes' reports, and counts."""
+    """What :func:`launch_team` collected: the best belief per robot and stamp, the nodes' reports, and counts."""
 
     beliefs: dict[tuple[int, float], Belief] = field(default_factory=dict)
     reports: dict[int, Report] = field(default_factory=dict)
@@ -258,11 +75,11 @@ def _python() -> list[str]:
     return [sys.executable, "-m", "swarmloc.cli"]
 
 
-def run_team(
+def launch_team(
     *,
-    src: Any = None,
+    src: Source,
+    source: str | None = None,
     robots: int = 3,
-    source: str = "sim:random",
     estimator: str = "expfusion",
     duration: float | None = None,
     seed: int = 0,
@@ -271,165 +88,235 @@ def run_team(
     faults: str | None = None,
     speed: float = 0.0,
     lag: float = 0.5,
-    answer_timeout: float = 2.0,
+    answer_timeout: float = ANSWER_TIMEOUT,
+    hold_timeout: float = HOLD_TIMEOUT,
+    update_timeout: float = UPDATE_TIMEOUT,
+    start_timeout: float = START_TIMEOUT,
     team: str | None = None,
-    timeout: float = 600.0,
+    max_wall: float = 600.0,
     ros_domain: int | None = None,
     log_dir: str | os.PathLike[str] | None = None,
     verbose: bool = False,
     connect_extra: Sequence[str] = (),
 ) -> TeamRun:
-    """Start the team's processes on 127.0.0.1, collect their beliefs and reports, stop them all.
+    """Start the team of ``src`` on 127.0.0.1, collect its beliefs and reports, stop every process.
 
-    ``robots`` applies to simulated sources (a dataset's robots are its own). Faults: :mod:`swarmloc.net.faults`;
-    a kill fault needs the belief server (started automatically). ``connect_extra``: endpoints every process also
-    connects to (a Zenoh router, e.g. ROS 2's ``rmw_zenohd`` on ``tcp/127.0.0.1:7447``).
+    Each node process loads the source itself from ``source`` (its spec; default ``src.spec``), ``robots``,
+    ``duration``, ``seed`` and ``config_file``, as ``swarmloc node`` does; ``robots`` applies to simulated sources
+    (a dataset's robots are its own). Faults: :mod:`swarmloc.net.faults`; a kill fault needs the belief server
+    (started automatically). The timeouts [s] are every node's (:class:`~swarmloc.net.process.NetNode`);
+    ``max_wall`` [s] is the whole run's wall-clock limit. ``connect_extra``: endpoints every process also connects
+    to (a Zenoh router, e.g. ROS 2's ``rmw_zenohd`` on ``tcp/127.0.0.1:7447``).
     """
-    from swarmloc.experiments.sources import load_source
-
     f = parse_faults(faults)
     team = check_team(team or f"team{os.getpid()}")
     distributed_class(estimator)  # refuse a centralized or unknown estimator before starting anything
-    if src is None:
-        src = load_source(source, robots=robots, duration=duration, seed=seed)
-    src_robots = src.robots
     server = server or f.kill is not None
-    names = [f"robot{r}" for r in src_robots] + (["server"] if server else [])
-    ports = dict(zip([*names, "collector"], free_ports(len(names) + 1), strict=True))
-    ep = {k: f"tcp/127.0.0.1:{p}" for k, p in ports.items()}
-    common = ["--team", team]
+    for what, robot in (("late", f.late), ("killed", f.kill)):
+        if robot is not None and robot[0] not in src.robots:
+            raise ValueError(f"faults: {what} robot {robot[0]} is not in the team {src.robots}")
+    node_args = node_arguments(
+        source=src.spec if source is None else source, estimator=estimator, robots=robots, duration=duration,
+        seed=seed, config_file=config_file, speed=speed, lag=lag, answer_timeout=answer_timeout,
+        hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout, use_server=server,
+        faults=f, ros_domain=ros_domain, verbose=verbose,
+    )  # fmt: skip
+    launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir)
+    return launcher.run(src.t_start, max_wall)
 
-    def args_for(name: str, extra: Sequence[str] = ()) -> list[str]:
-        others = [ep[k] for k in ep if k != name] + list(connect_extra)  # e.g. a Zenoh router (ROS 2)
-        out = [*common, "--listen", ep[name], "--connect", ",".join(others)]
-        return [*out, *extra]
 
-    node_common = ["--source", source, "--estimator", estimator, "--robots", str(robots), "--seed", str(seed),
-                   "--speed", str(speed), "--lag", str(lag), "--answer-timeout", str(answer_timeout)]  # fmt: skip
+def node_arguments(
+    *,
+    source: str,
+    estimator: str,
+    robots: int,
+    duration: float | None,
+    seed: int,
+    config_file: str | None,
+    speed: float,
+    lag: float,
+    answer_timeout: float,
+    hold_timeout: float,
+    update_timeout: float,
+    start_timeout: float,
+    use_server: bool,
+    faults: Faults,
+    ros_domain: int | None,
+    verbose: bool,
+) -> list[str]:
+    """The ``swarmloc node`` options every node process of a team gets (the link faults only; a node's own
+    ``--robot``, ``--wait-for``, endpoints and ``--resume`` are the launcher's)."""
+    out = ["--source", source, "--estimator", estimator, "--robots", str(robots), "--seed", str(seed),
+           "--speed", str(speed), "--lag", str(lag), "--answer-timeout", str(answer_timeout),
+           "--hold-timeout", str(hold_timeout), "--update-timeout", str(update_timeout),
+           "--start-timeout", str(start_timeout)]  # fmt: skip
     if duration is not None:
-        node_common += ["--duration", str(duration)]
+        out += ["--duration", str(duration)]
     if config_file:
-        node_common += ["--config", str(config_file)]
-    if server:
-        node_common.append("--use-server")
+        out += ["--config", str(config_file)]
+    if use_server:
+        out.append("--use-server")
+    f = faults
     if f.link:
-        node_common += ["--faults", Faults(loss=f.loss, delay=f.delay, reorder=f.reorder, dup=f.dup,
-                                           seed=f.seed).to_spec()]  # fmt: skip
+        out += ["--faults", Faults(loss=f.loss, delay=f.delay, reorder=f.reorder, dup=f.dup, seed=f.seed).to_spec()]
     if ros_domain is not None:
-        node_common += ["--ros-domain", str(ros_domain)]
+        out += ["--ros-domain", str(ros_domain)]
     if verbose:
-        node_common.append("--verbose")
-    late = f.late[0] if f.late is not None else None
-    if late is not None and late not in src_robots:
-        raise ValueError(f"faults: late robot {late} is not in the team {src_robots}")
-    if f.kill is not None and f.kill[0] not in src_robots:
-        raise ValueError(f"faults: killed robot {f.kill[0]} is not in the team {src_robots}")
-    wait_for = [r for r in src_robots if r != late]
+        out.append("--verbose")
+    return out
 
-    logs = Path(log_dir) if log_dir is not None else None
-    if logs is not None:
-        logs.mkdir(parents=True, exist_ok=True)
-    procs: dict[str, subprocess.Popen] = {}
-    run = TeamRun()
 
-    def spawn(name: str, cmd: list[str]) -> None:
+class _Launcher:
+    """The processes of one team run: their endpoints and command lines, starting and stopping them, the process
+    faults (kill and restart, late join), and the collection of what they publish."""
+
+    def __init__(
+        self,
+        team: str,
+        robots: list[int],
+        node_args: list[str],
+        faults: Faults,
+        server: bool,
+        connect_extra: Sequence[str],
+        log_dir: str | os.PathLike[str] | None,
+    ) -> None:
+        self.team, self.robots, self.node_args, self.f, self.server = team, robots, node_args, faults, server
+        self.roster = frozenset(robots)
+        names = [f"robot{r}" for r in robots] + (["server"] if server else [])
+        ports = dict(zip([*names, "collector"], free_ports(len(names) + 1), strict=True))
+        self.ep = {k: f"tcp/127.0.0.1:{p}" for k, p in ports.items()}
+        self.connect_extra = list(connect_extra)  # e.g. a Zenoh router (ROS 2)
+        self.late = faults.late[0] if faults.late is not None else None
+        self.wait_for = [r for r in robots if r != self.late]
+        self.logs = Path(log_dir) if log_dir is not None else None
+        if self.logs is not None:
+            self.logs.mkdir(parents=True, exist_ok=True)
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.result = TeamRun()
+        self.progress: dict[int, float] = {}
+        self.inq: queue.SimpleQueue = queue.SimpleQueue()
+        self.killed = self.restarted = self.joined = False
+
+    # ------------------------------------------------------------------------------------------- processes
+    def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
+        others = [self.ep[k] for k in self.ep if k != name] + self.connect_extra
+        return ["--team", self.team, "--listen", self.ep[name], "--connect", ",".join(others), *extra]
+
+    def spawn(self, name: str, cmd: list[str]) -> None:
+        logs = self.logs
         out = open(logs / f"{name}.log", "ab") if logs is not None else subprocess.DEVNULL  # noqa: SIM115
-        procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT if logs else out,
-                                       start_new_session=True)  # fmt: skip
+        self.procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT if logs else out,
+                                            start_new_session=True)  # fmt: skip
         if logs is not None:
             out.close()
 
-    def node_cmd(r: int, resume: bool = False) -> list[str]:
+    def node_cmd(self, r: int, resume: bool = False) -> list[str]:
         # a restarted or late robot joins a running team: it waits for nobody
-        wait = "none" if resume or r == late else ",".join(map(str, wait_for)) or "none"
-        extra = [*node_common, "--robot", str(r), "--wait-for", wait]
-        return [*_python(), "node", *args_for(f"robot{r}", extra), *(["--resume"] if resume else [])]
+        wait = "none" if resume or r == self.late else ",".join(map(str, self.wait_for)) or "none"
+        extra = [*self.node_args, "--robot", str(r), "--wait-for", wait]
+        return [*_python(), "node", *self.args_for(f"robot{r}", extra), *(["--resume"] if resume else [])]
 
-    session = open_session([ep["collector"]], [ep[k] for k in ep if k != "collector"])
-    inq: queue.SimpleQueue = queue.SimpleQueue()
-    subs = [
-        session.declare_subscriber(robot_key(team, "*", what), handler=lambda x: inq.put(("sample", x)))
-        for what in ("belief", "report", "progress")
-    ]
-    roster = frozenset(src_robots)
-    progress: dict[int, float] = {}
+    def start(self) -> None:
+        if self.server:
+            roster = ",".join(map(str, self.robots))
+            self.spawn("server", [*_python(), "server", *self.args_for("server"), "--roster", roster])
+        for r in self.robots:
+            if r != self.late:
+                self.spawn(f"robot{r}", self.node_cmd(r))
 
-    def collect(sample: Any) -> None:
+    def apply_faults(self, t_first: float) -> None:
+        """Start the late robot once the others have read far enough (or are all gone); kill a robot once it has
+        read far enough, and restart it (``--resume``)."""
+        f, procs, counts = self.f, self.procs, self.result.counts
+        if f.late is not None and not self.joined:
+            others = [self.progress.get(r, -math.inf) for r in self.wait_for]
+            # join once the others have read that far, or once they are all gone (a join time past the end)
+            gone = all(procs[f"robot{r}"].poll() is not None for r in self.wait_for)
+            if (others and min(others) >= t_first + f.late[1]) or gone:
+                self.spawn(f"robot{self.late}", self.node_cmd(self.late))
+                self.joined = True
+                counts["late_joined"] = 1
+        if f.kill is not None and not self.killed:
+            k, tk = f.kill
+            if self.progress.get(k, -math.inf) >= t_first + tk:
+                procs[f"robot{k}"].kill()
+                procs[f"robot{k}"].wait()
+                self.killed = True
+                counts["killed"] = 1
+        if self.killed and not self.restarted:
+            time.sleep(0.5)
+            self.spawn(f"robot{f.kill[0]}", self.node_cmd(f.kill[0], resume=True))
+            self.restarted = True
+            counts["restarted"] = 1
+
+    def all_ended(self) -> bool:
+        """Every robot's process was started (the late one, the restarted one) and has ended."""
+        nodes = [p for n, p in self.procs.items() if n.startswith("robot")]
+        joined = self.late is None or self.joined
+        started = joined and (self.f.kill is None or self.restarted or self.killed is False)
+        return started and all(p.poll() is not None for p in nodes) and len(nodes) == len(self.robots)
+
+    # ------------------------------------------------------------------------------------------- collecting
+    def collect(self, sample: Any) -> None:
         """Keep a published belief, report or progress announcement (a bad payload is counted and dropped)."""
         try:
-            b = decode(sample.payload.to_bytes(), team, roster, server_ok=False).body
+            b = decode(sample.payload.to_bytes(), self.team, self.roster, server_ok=False).body
         except Rejected as exc:
-            run.counts["rejected"] += 1
+            self.result.counts["rejected"] += 1
             log.debug("team: dropped a message: %s", exc.reason)
             return
         if isinstance(b, Belief):
-            run.keep(b)
+            self.result.keep(b)
         elif isinstance(b, Report):
-            run.reports[b.robot] = b
+            self.result.reports[b.robot] = b
         elif isinstance(b, Progress) and math.isfinite(b.t):
-            progress[b.robot] = max(progress.get(b.robot, -math.inf), b.t)
+            self.progress[b.robot] = max(self.progress.get(b.robot, -math.inf), b.t)
 
-    t0 = time.monotonic()
-    killed = restarted = joined = False
-    t_first = src.t_start
-    try:
-        if server:
-            spawn("server", [*_python(), "server", *args_for("server"), "--roster", ",".join(map(str, src_robots))])
-        for r in src_robots:
-            if r != late:
-                spawn(f"robot{r}", node_cmd(r))
+    def watch(self, t_first: float, max_wall: float, t0: float) -> None:
+        """Collect and apply the faults until every node has ended (then collect what is still queued) or the run
+        has taken ``max_wall`` s."""
         while True:
-            if time.monotonic() - t0 > timeout:
-                run.counts["timed_out"] = 1
-                log.warning("team: time limit of %.0f s reached; stopping every process", timeout)
-                break
+            if time.monotonic() - t0 > max_wall:
+                self.result.counts["timed_out"] = 1
+                log.warning("team: time limit of %.0f s reached; stopping every process", max_wall)
+                return
             try:
-                kind, x = inq.get(timeout=0.1)
+                _, x = self.inq.get(timeout=0.1)
+                self.collect(x)
             except queue.Empty:
-                kind, x = None, None
-            if kind is not None:
-                collect(x)
-            if f.late is not None and not joined:
-                others = [progress.get(r, -math.inf) for r in wait_for]
-                # join once the others have read that far, or once they are all gone (a join time past the end)
-                gone = all(procs[f"robot{r}"].poll() is not None for r in wait_for)
-                if (others and min(others) >= t_first + f.late[1]) or gone:
-                    spawn(f"robot{late}", node_cmd(late))
-                    joined = True
-                    run.counts["late_joined"] = 1
-            if f.kill is not None and not killed:
-                k, tk = f.kill
-                if progress.get(k, -math.inf) >= t_first + tk:
-                    procs[f"robot{k}"].kill()
-                    procs[f"robot{k}"].wait()
-                    killed = True
-                    run.counts["killed"] = 1
-            if killed and not restarted:
-                time.sleep(0.5)
-                spawn(f"robot{f.kill[0]}", node_cmd(f.kill[0], resume=True))
-                restarted = True
-                run.counts["restarted"] = 1
-            nodes = [p for n, p in procs.items() if n.startswith("robot")]
-            all_started = (late is None or joined) and (f.kill is None or restarted or killed is False)
-            if all_started and all(p.poll() is not None for p in nodes) and len(nodes) == len(src_robots):
-                # drain what is still queued
+                pass
+            self.apply_faults(t_first)
+            if self.all_ended():
                 while True:  # what is still queued
                     try:
-                        collect(inq.get(timeout=0.3)[1])
+                        self.collect(self.inq.get(timeout=0.3)[1])
                     except queue.Empty:
-                        break
-                break
-    finally:
-        for s in subs:
-            try:
-                s.undeclare()
-            except Exception:  # noqa: BLE001
-                pass
-        stop_all(procs)
-        run.exit_codes = {n: p.returncode for n, p in procs.items()}
-        session.close()
-        run.wall_s = time.monotonic() - t0
-    return run
+                        return
+
+    def run(self, t_first: float, max_wall: float) -> TeamRun:
+        """Start the team, watch it, and stop every process it started, whatever happens (``t_first``: the
+        source's start, which the fault times count from)."""
+        session = open_session([self.ep["collector"]], [self.ep[k] for k in self.ep if k != "collector"])
+        put = self.inq.put
+        subs = [
+            session.declare_subscriber(robot_key(self.team, "*", what), handler=lambda x: put(("sample", x)))
+            for what in ("belief", "report", "progress")
+        ]
+        t0 = time.monotonic()
+        try:
+            self.start()
+            self.watch(t_first, max_wall, t0)
+        finally:
+            for s in subs:
+                try:
+                    s.undeclare()
+                except Exception:  # noqa: BLE001
+                    pass
+            stop_all(self.procs)
+            self.result.exit_codes = {n: p.returncode for n, p in self.procs.items()}
+            session.close()
+            self.result.wall_s = time.monotonic() - t0
+        return self.result
 
 
 def stop_all(procs: dict[str, subprocess.Popen] | Iterable[subprocess.Popen], grace: float = 3.0) -> None:
@@ -452,53 +339,3 @@ def stop_all(procs: dict[str, subprocess.Popen] | Iterable[subprocess.Popen], gr
             except ProcessLookupError:
                 pass
             p.wait()
-
-
-def team_result(run: TeamRun, src: Any, estimator: str) -> Any:
-    """The collected run as a :class:`~swarmloc.runner.RunResult` (node counters summed over the reports; network
-    counters under ``net_*``)."""
-    from swarmloc.runner.result import RunResult
-
-    stats: Counter[str] = Counter()
-    reasons: Counter[str] = Counter()
-    for rep in run.reports.values():
-        stats.update(rep.stats)
-        reasons.update(rep.reasons)
-        stats.update({f"net_{k}": v for k, v in rep.net.items()})
-        reasons.update({f"network: {k}": v for k, v in rep.net_reasons.items()})
-    for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
-        stats.setdefault(k, 0)
-    stats["recorded"] = len(run.beliefs)
-    stats["recorded_provisional_only"] = sum(not b.final for b in run.beliefs.values())
-    stats["reports"] = len(run.reports)
-    stats.update(run.counts)
-    return RunResult(estimator, run.tracks(src.truth), run.wall_s, dict(stats), len(src.events), reasons, {})
-
-
-def write_team_report(run: TeamRun, src: Any, estimator: str, out_dir: str | os.PathLike[str], extra: dict) -> dict:
-    """Score the run against the source's truth and write ``team.json``/``team.md``, TUM files and figures (the
-    layout of ``swarmloc evaluate``)."""
-    from swarmloc.evaluation.metrics import anees_bounds, evaluate
-    from swarmloc.experiments.evaluate import write_report
-
-    res = team_result(run, src, estimator)
-    truth = src.truth is not None
-    ev = evaluate(res) if truth else {"estimator": estimator, "robots": {}, "team": None}
-    duration = float(src.t_end - src.t_start)
-    ev.update(wall_time_s=run.wall_s, x_real_time=duration / run.wall_s if run.wall_s > 0 else math.inf,
-              stats=res.stats, reasons=dict(res.reasons), timing={}, accounted=res.accounted())  # fmt: skip
-    ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
-    n_rec = sum(tr.times.size for tr in res.tracks.values())
-    report = {
-        "title": f"live team over Zenoh: {src.spec}, {estimator}",
-        "robots": src.robots,
-        "duration_s": duration,
-        "n_events": len(src.events),
-        "config": src.config.to_dict(),
-        "truth": truth,
-        "estimators": {estimator: ev},
-        "anees_bounds_if_independent": anees_bounds(max(n_rec, 1)),
-        **extra,
-    }
-    write_report(out_dir, "team", report, {estimator: res}, src.t_start)
-    return report

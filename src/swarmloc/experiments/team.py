@@ -1,0 +1,89 @@
+"""``swarmloc team``'s evaluation side: a live team on a source named by its spec, scored like ``swarmloc evaluate``.
+
+:func:`run_team` loads the source (unless given) and runs the team (:func:`swarmloc.net.team.launch_team`: node
+processes on 127.0.0.1); :func:`team_result` turns what the team published into a
+:class:`~swarmloc.runner.RunResult`; :func:`write_team_report` scores it against the source's truth and writes
+the report. The network package below knows nothing of sources by spec, metrics or reports.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import Counter
+from typing import Any
+
+from swarmloc.datasets.source import Source
+from swarmloc.evaluation.metrics import anees_bounds, evaluate
+from swarmloc.experiments.evaluate import write_report
+from swarmloc.experiments.sources import load_source
+from swarmloc.net.entry import distributed_class
+from swarmloc.net.team import TeamRun, launch_team
+from swarmloc.runner.result import RunResult
+
+__all__ = ["TeamRun", "run_team", "team_result", "write_team_report"]
+
+
+def run_team(
+    *,
+    src: Source | None = None,
+    source: str = "sim:random",
+    robots: int = 3,
+    duration: float | None = None,
+    seed: int = 0,
+    estimator: str = "expfusion",
+    **launch: Any,
+) -> TeamRun:
+    """Run a live team on ``src``, or on the source ``source`` names (``robots``, ``duration``, ``seed``: as
+    :func:`~swarmloc.experiments.sources.load_source`); ``launch``: :func:`~swarmloc.net.team.launch_team`'s other
+    options (faults, speed, timeouts, ``max_wall``...). The node processes load the same source from its spec."""
+    if src is None:
+        distributed_class(estimator)  # refuse a centralized or unknown estimator before loading anything
+        src = load_source(source, robots=robots, duration=duration, seed=seed)
+    return launch_team(src=src, source=source, robots=robots, duration=duration, seed=seed, estimator=estimator,
+                       **launch)  # fmt: skip
+
+
+def team_result(run: TeamRun, src: Source, estimator: str) -> RunResult:
+    """The collected run as a :class:`~swarmloc.runner.RunResult` (node counters summed over the reports; network
+    counters under ``net_*``)."""
+    stats: Counter[str] = Counter()
+    reasons: Counter[str] = Counter()
+    for rep in run.reports.values():
+        stats.update(rep.stats)
+        reasons.update(rep.reasons)
+        stats.update({f"net_{k}": v for k, v in rep.net.items()})
+        reasons.update({f"network: {k}": v for k, v in rep.net_reasons.items()})
+    for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
+        stats.setdefault(k, 0)
+    stats["recorded"] = len(run.beliefs)
+    stats["recorded_provisional_only"] = sum(not b.final for b in run.beliefs.values())
+    stats["reports"] = len(run.reports)
+    stats.update(run.counts)
+    return RunResult(estimator, run.tracks(src.truth), run.wall_s, dict(stats), len(src.events), reasons, {})
+
+
+def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | os.PathLike[str], extra: dict) -> dict:
+    """Score the run against the source's truth and write ``team.json``/``team.md``, TUM files and figures (the
+    layout of ``swarmloc evaluate``)."""
+    res = team_result(run, src, estimator)
+    truth = src.truth is not None
+    ev = evaluate(res) if truth else {"estimator": estimator, "robots": {}, "team": None}
+    duration = float(src.t_end - src.t_start)
+    ev.update(wall_time_s=run.wall_s, x_real_time=duration / run.wall_s if run.wall_s > 0 else math.inf,
+              stats=res.stats, reasons=dict(res.reasons), timing={}, accounted=res.accounted())  # fmt: skip
+    ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
+    n_rec = sum(tr.times.size for tr in res.tracks.values())
+    report = {
+        "title": f"live team over Zenoh: {src.spec}, {estimator}",
+        "robots": src.robots,
+        "duration_s": duration,
+        "n_events": len(src.events),
+        "config": src.config.to_dict(),
+        "truth": truth,
+        "estimators": {estimator: ev},
+        "anees_bounds_if_independent": anees_bounds(max(n_rec, 1)),
+        **extra,
+    }
+    write_report(out_dir, "team", report, {estimator: res}, src.t_start)
+    return report

@@ -1,0 +1,228 @@
+"""``swarmloc node`` and ``swarmloc server``: the entry points of one robot's process and of the belief server's.
+
+:func:`node_main` runs one robot (its own events of a :class:`~swarmloc.datasets.source.Source`, one node of a
+distributed estimator) on a Zenoh peer until the team is done; :func:`server_main` runs the belief server. The
+caller builds the source (``swarmloc node`` loads it by its spec): a node process reads only its own robot's
+events of it, never the ground truth.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarmloc.config import Config
+from swarmloc.datasets.source import Source
+from swarmloc.events import Event, Odometry
+from swarmloc.net.faults import Faults, parse_faults
+from swarmloc.net.schema import Belief, Rejected, Report, decode
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.transport import check_team, open_session, server_key
+
+log = logging.getLogger(__name__)
+
+RESUME_TIMEOUT = 5.0
+"""[s] wall time a restarted node (``resume``) waits for its own latest belief from the belief server."""
+
+
+def distributed_class(estimator: str) -> type:
+    """The node class of a distributed ``estimator`` (one node per robot); ValueError naming the choices else."""
+    from swarmloc.estimators import ESTIMATORS
+    from swarmloc.node import RobotNode
+
+    cls = ESTIMATORS.get(estimator)
+    if cls is None:
+        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(ESTIMATORS)}")
+    networked = [k for k, c in ESTIMATORS.items() if issubclass(c, RobotNode) and c.distributed and c.over_network]
+    if not issubclass(cls, RobotNode) or not cls.distributed:
+        raise ValueError(
+            f"{estimator!r} is not a distributed estimator (one node per robot): run it in-process with "
+            f"'swarmloc evaluate'; over the network choose from {networked}"
+        )
+    if not cls.over_network:
+        raise ValueError(
+            f"{estimator!r} needs a broadcast to every teammate per update, which the network driver does not carry "
+            f"yet: run it in-process with 'swarmloc evaluate'; over the network choose from {networked}"
+        )
+    return cls
+
+
+def make_node(estimator: str, robot: int, initial: Any, config: Config, landmarks: Any) -> Any:
+    """The node of ``robot`` for a distributed ``estimator`` with the options ``swarmloc evaluate`` uses."""
+    from swarmloc.estimators import node_options
+
+    return distributed_class(estimator)(robot, initial, **node_options(estimator, config, landmarks))
+
+
+def resume_events(events: Sequence[Event], t: float) -> list[Event]:
+    """A robot's events from ``t`` on: the command in force at ``t`` clipped to start there, later ones as they are."""
+    out: list[Event] = []
+    for e in events:
+        if isinstance(e, Odometry):
+            if e.t0 >= t:
+                out.append(e)
+            elif e.t1 > t:
+                out.append(Odometry(e.robot, t, e.t1, e.v, e.w))
+        elif e.stamp >= t:
+            out.append(e)
+    return out
+
+
+def node_main(
+    *,
+    src: Source,
+    robot: int,
+    team: str,
+    estimator: str,
+    speed: float = 0.0,
+    lag: float = 0.5,
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    zenoh_config: str | None = None,
+    use_server: bool = False,
+    resume: bool = False,
+    faults: str | Faults | None = None,
+    wait_for: Sequence[int] | None = None,
+    answer_timeout: float = ANSWER_TIMEOUT,
+    hold_timeout: float = HOLD_TIMEOUT,
+    update_timeout: float = UPDATE_TIMEOUT,
+    start_timeout: float = START_TIMEOUT,
+    ros_domain: int | None = None,
+    max_wall: float | None = None,
+    out: str | os.PathLike[str] | None = None,
+) -> Report:
+    """Run robot ``robot`` of ``src`` as one Zenoh peer until the team is done; returns its report. With
+    ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there.
+
+    The timeouts [s] are :class:`~swarmloc.net.process.NetNode`'s; ``max_wall`` [s] stops the node whatever its
+    state (None: no limit)."""
+    from swarmloc.net.process import NetNode
+
+    check_team(team)
+    if robot not in src.initial:
+        raise ValueError(f"robot {robot} is not in source {src.spec!r} (robots {src.robots})")
+    session = open_session(listen, connect, zenoh_config)
+    finals: dict[float, Belief] = {}
+    try:
+        node, events, record_times = _start(session, src, robot, team, estimator, resume)
+        net = NetNode(
+            node,
+            events,
+            session=session,
+            team=team,
+            roster=src.robots,
+            record_times=record_times,
+            speed=speed,
+            lag=lag,
+            answer_timeout=answer_timeout,
+            hold_timeout=hold_timeout,
+            update_timeout=update_timeout,
+            start_timeout=start_timeout,
+            use_server=use_server,
+            faults=parse_faults(faults) if isinstance(faults, str | None) else faults,
+            wait_for=wait_for,
+            ros_domain=ros_domain,
+            on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
+        )
+        _stop_on_sigterm(net.stop)
+        report = net.run(max_wall=max_wall)
+        if out is not None:
+            _write_outputs(Path(out), robot, [finals[t] for t in sorted(finals)], report)
+        return report
+    finally:
+        session.close()
+
+
+def _start(session: Any, src: Source, robot: int, team: str, estimator: str, resume: bool) -> tuple:
+    """The started node of ``robot``, the events it reads and its record times: from the source's start, or with
+    ``resume`` from its latest belief on the team's belief server."""
+    from swarmloc.gaussian import GroupGaussian
+    from swarmloc.lie import SE2
+
+    events = src.own_events(robot)
+    initial = src.initial[robot]
+    record_times = src.record_times()
+    if resume:
+        b = _latest_from_server(session, team, src.robots, robot)
+        initial = GroupGaussian(SE2, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
+        events = resume_events(events, b.stamp)
+        record_times = record_times[record_times > b.stamp]
+        t0 = b.stamp
+        log.warning("robot %s: resumed from the server's belief at %.3f s", robot, t0)
+    else:
+        stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
+        t0 = min(stamps) if stamps else src.t_start
+    node = make_node(estimator, robot, initial, src.config, src.landmarks)
+    node.start(t0)
+    return node, events, record_times
+
+
+def _write_outputs(folder: Path, robot: int, finals: list[Belief], report: Report) -> None:
+    """``robot<N>.tum`` (the final beliefs) and ``robot<N>.json`` (the report) in ``folder``."""
+    import msgspec
+
+    from swarmloc.datasets.tum import write_tum
+    from swarmloc.lie import SE2
+
+    folder.mkdir(parents=True, exist_ok=True)
+    xyt = SE2.to_xytheta(np.array([b.mean for b in finals]).reshape(-1, 3, 3)).reshape(-1, 3)
+    write_tum(folder / f"robot{robot}.tum", np.array([b.stamp for b in finals]), xyt)
+    (folder / f"robot{robot}.json").write_text(json.dumps(msgspec.to_builtins(report), indent=2))
+
+
+def _latest_from_server(
+    session: Any, team: str, roster: Sequence[int], robot: int, timeout: float = RESUME_TIMEOUT
+) -> Belief:
+    """``robot``'s latest belief on the team's belief server, asked for until ``timeout`` s passed."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        for reply in session.get(f"{server_key(team)}?latest={robot}", timeout=1.0):
+            if reply.ok is None:
+                continue
+            try:
+                env = decode(reply.ok.payload.to_bytes(), team, roster)
+            except Rejected:
+                continue
+            if isinstance(env.body, Belief) and env.body.robot == robot:
+                return env.body
+        time.sleep(0.1)
+    raise RuntimeError(f"robot {robot}: no belief to resume from on the belief server of team {team!r}")
+
+
+def server_main(
+    *,
+    team: str,
+    roster: Sequence[int],
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    zenoh_config: str | None = None,
+    max_wall: float | None = None,
+) -> None:
+    """Run the belief server of ``team`` until SIGTERM / Ctrl-C (or ``max_wall`` s)."""
+    from swarmloc.net.server import ServerProcess
+
+    check_team(team)
+    session = open_session(listen, connect, zenoh_config)
+    try:
+        sp = ServerProcess(session, team, roster)
+        _stop_on_sigterm(sp.stop)
+        try:
+            sp.run(max_wall=max_wall)
+        except KeyboardInterrupt:
+            pass
+    finally:
+        session.close()
+
+
+def _stop_on_sigterm(stop: Any) -> None:
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, lambda *_: stop())

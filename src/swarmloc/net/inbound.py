@@ -1,0 +1,172 @@
+"""What a :class:`~swarmloc.net.process.NetNode` receives: its queue, decoded and validated, by kind.
+
+Every sample Zenoh hands the node waits on its one queue and is handled on the node's thread (:meth:`_drain`).
+A neighbour's message is decoded and validated before anything reaches the node (:meth:`_decode`: schema,
+team, roster, sender, addressee, numbers; a negative revision only from the server); a bad one is dropped,
+counted with its reason and logged, and the node keeps running, whatever the error.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import time
+from typing import Any
+
+from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate
+from swarmloc.net.outbound import reply_err
+from swarmloc.net.schema import SERVER, Belief, Envelope, Progress, Rejected, Report, decode
+
+log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
+
+
+class Inbound:
+    """Part of :class:`~swarmloc.net.process.NetNode`: its queue, the decoding with its bounds, and the handling of
+    queries, pushed messages and replies."""
+
+    def _drain(self, timeout: float) -> bool:
+        """Handle everything queued; wait up to ``timeout`` s for the first item. True if neighbours' traffic (queries,
+        replies, pushed messages) came: progress and liveliness do not count."""
+        got = False
+        try:
+            item = self._inq.get(timeout=timeout) if timeout > 0 else self._inq.get_nowait()
+        except queue.Empty:
+            item = None
+        while item is not None and not self._stop.is_set():
+            got = got or item[0] in ("query", "inbox", "reply", "reply_end")
+            if item[0] != "wake":
+                try:
+                    self._handle(*item)
+                    self._answer_ready()
+                except Exception as exc:  # a node must never die of one message
+                    log.exception("robot %s: error handling %s", self.robot, item[0])
+                    self._reject(f"internal error: {type(exc).__name__}: {exc}", item[0])
+            try:
+                item = self._inq.get_nowait()
+            except queue.Empty:
+                item = None
+        return got
+
+    def _handle(self, kind: str, x: Any, y: Any = None) -> None:
+        """Handle one item of the node's queue: ``(kind, sample)`` as :meth:`_open` queued it."""
+        if kind == "query":
+            self._on_query(x)
+        elif kind == "inbox":
+            self._on_inbox(x)
+        elif kind == "reply":
+            self._on_reply(x, y)
+        elif kind == "reply_end":
+            self._on_reply_end(x)
+        elif kind == "progress":
+            self._on_progress(x)
+        elif kind == "alive":
+            self._on_alive(x)
+
+    def _on_query(self, x: Any) -> None:
+        """A neighbour's query: held until the node may answer it (:meth:`_answer_ready`); anything else sent as a
+        query is refused at once."""
+        self.counts["received"] += 1
+        raw = x.payload.to_bytes() if x.payload is not None else None
+        env = self._decode(raw, "query")
+        if env is None or not isinstance(env.body, BeliefQuery | RdlStateQuery):
+            if env is not None:
+                self._reject(f"{type(env.body).__name__} sent as a query", "query")
+            reply_err(x, "rejected")
+            return
+        self._deferred.append((time.monotonic(), env.body, x))
+        self._answer_ready()
+
+    def _on_inbox(self, x: Any) -> None:
+        """A pushed message: a revised answer or a pairwise update (an expected update releases what waited for it)."""
+        self.counts["received"] += 1
+        env = self._decode(x.payload.to_bytes(), "pushed message")
+        if env is None:
+            return
+        if isinstance(env.body, BeliefQuery | RdlStateQuery | Belief | Progress | Report):
+            self._reject(f"{type(env.body).__name__} is not accepted on the inbox", "pushed message")
+            return
+        if isinstance(env.body, RdlUpdate):
+            self._expect.pop((float(env.body.stamp), 1, env.body.sender, tuple(env.body.sub)), None)
+            self._step(env.body)
+            self._release()
+            return
+        self._step(env.body)
+
+    def _step(self, item: Any, query: Any = None) -> None:
+        """Step the node with ``item`` (answering the Zenoh ``query`` with it if given) and send what it returns."""
+        out = self.node.step(item)
+        if out or query is not None:
+            self._route(out, query, item)
+        self._flush()
+
+    def _reject(self, reason: str, where: str) -> None:
+        """Count a dropped message with its reason (``rejected``, ``reasons``) and log the first of each reason."""
+        self.counts["rejected"] += 1
+        self.reasons[reason] += 1
+        if self.reasons[reason] == 1 and len(self.reasons) <= 20:  # the first of each of the first 20 reasons
+            log.warning("robot %s: dropped a %s: %s", self.robot, where, reason)
+        else:
+            log.debug("robot %s: dropped a %s: %s", self.robot, where, reason)
+
+    def _decode(self, payload: bytes | None, where: str) -> Envelope | None:
+        """A neighbour's (or the server's) message for this robot, validated (:func:`~swarmloc.net.schema.decode`:
+        team, roster, sender, addressee, numbers); None when it is dropped (counted with the reason)."""
+        if payload is None:
+            self._reject("empty payload", where)
+            return None
+        try:
+            env = decode(payload, self.team, self.roster, to_robot=self.robot)
+        except Rejected as exc:
+            self._reject(exc.reason, where)
+            return None
+        b = env.body
+        if env.from_robot != SERVER and getattr(b, "seq", 0) < 0:
+            self._reject("negative revision from a robot", where)
+            return None
+        return env
+
+    def _on_reply(self, qid: int, reply: Any) -> None:
+        """A reply to the node's query ``qid``: held for the node (:meth:`_release`) if it answers that query."""
+        self.counts["received"] += 1
+        entry = self._outstanding.get(qid)
+        if entry is None:
+            return
+        m, via, _ = entry
+        ok = reply.ok
+        if ok is None:
+            self._reject(f"error reply: {reply.err.payload.to_bytes()[:80]!r}", "reply")
+            return
+        env = self._decode(ok.payload.to_bytes(), "reply")
+        if env is None:
+            return
+        a = env.body
+        if not isinstance(a, BeliefAnswer | RdlState) or (a.sender, a.receiver, a.stamp, a.sub) != (
+            m.receiver,
+            m.sender,
+            m.stamp,
+            m.sub,
+        ):
+            self._reject("reply does not answer the query", "reply")
+            return
+        if via == "server":
+            self.counts["server_answers"] += 1
+        self._outstanding[qid] = (m, via, True)
+        self._held.append(a)
+        self._release()
+
+    def _on_reply_end(self, qid: int) -> None:
+        """The end of query ``qid`` (all replies in, or its ``answer_timeout`` passed): unanswered, it is asked of the
+        belief server (``use_server``) or answered "not found" with the reason."""
+        entry = self._outstanding.pop(qid, None)
+        if entry is None:
+            return
+        m, via, answered = entry
+        if answered:
+            return
+        self.counts["no_reply"] += 1
+        if via == "robot" and self.use_server:
+            self._ask(m, via_server=True)
+            return
+        kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
+        who = "robot or server" if via == "server" else "robot"
+        self._feed_local(kind, m, f"no answer from the {who} within {self.answer_timeout:g} s")

@@ -1,0 +1,163 @@
+"""The order of a :class:`~swarmloc.net.process.NetNode`: what makes the networked run equal the in-process one.
+
+A node reads its next input once every live teammate has announced that it has read its own source up to
+``lag`` s before it (:meth:`_may_feed`), and a detection group once every teammate has read up to the group's key
+and no pairwise update keyed before it is expected (:meth:`_group_may_go`). It answers a query once nothing keyed
+before it can still change the answer (:meth:`_ready`), and gives its own detection groups their answers once no
+update keyed before them is expected (:meth:`_release`). Teammates are known from their liveliness tokens and
+progress announcements (:meth:`_on_alive`, :meth:`_on_progress`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Any
+
+from swarmloc.events import Odometry
+from swarmloc.messages import Message
+from swarmloc.net.schema import Progress, Rejected, decode
+from swarmloc.net.transport import robot_of
+
+log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
+
+
+class Lockstep:
+    """Part of :class:`~swarmloc.net.process.NetNode`: the teammates' progress and the rules of when to read an
+    input, answer a query and release an answer."""
+
+    def _init_lockstep(self) -> None:
+        self._progress: dict[int, float] = {}  # per live teammate: the stamp of its next input
+        self._progress_key: dict[int, tuple[float, int]] = {}  # ... and its priority
+        self._done: set[int] = set()  # teammates that announced they are done
+        self._alive: set[int] = set()  # teammates whose liveliness token is up
+        self._deferred: list[tuple[float, Message, Any]] = []  # neighbours' queries held: (since, query, Zenoh query)
+        self._expect: dict[tuple, float] = {}  # pairwise updates expected, by key: since when
+        self._held: list[Message] = []  # answers to this node's queries not yet given to it
+
+    def _on_progress(self, x: Any) -> None:
+        """A teammate's progress announcement: how far it has read its source (and whether it is done)."""
+        try:
+            env = decode(x.payload.to_bytes(), self.team, self.roster, server_ok=False)
+        except Rejected as exc:
+            self._reject(exc.reason, "progress message")
+            return
+        p = env.body
+        if isinstance(p, Progress) and p.robot != self.robot:
+            self._progress[p.robot] = max(self._progress.get(p.robot, -math.inf), p.t)
+            self._progress_key[p.robot] = max(self._progress_key.get(p.robot, (-math.inf, 0)), (p.t, p.prio))
+            if p.done:
+                self._done.add(p.robot)
+
+    def _on_alive(self, x: Any) -> None:
+        """A teammate's liveliness token came or went: lockstep waits only for live teammates."""
+        import zenoh
+
+        r = robot_of(str(x.key_expr))
+        if r is None or r == self.robot:
+            return
+        if r not in self.roster:
+            self.counts["alive_outside_roster"] += 1
+            return
+        if x.kind == zenoh.SampleKind.PUT:
+            self._alive.add(r)
+            self._done.discard(r)
+        else:
+            self._alive.discard(r)
+            self._progress.pop(r, None)
+            self._progress_key.pop(r, None)
+            self.counts["peers_left"] += 1
+
+    def _may_feed(self, s: float) -> bool:
+        """Lockstep: every live teammate has read its source to ``s - lag``; and this node's oldest detection group
+        still waiting for answers is less than half a horizon before ``s`` (reading on would push it beyond the
+        horizon before its answers or their timeout come)."""
+        first = self.node.first_pending
+        if first is not None and s - first[0] > self.node.horizon / 2:
+            return False
+        need = s - self.lag
+        for r in self._alive:
+            if r not in self._done and self._progress.get(r, -math.inf) < need:
+                return False
+        return True
+
+    def _group_may_go(self, s: float) -> bool:
+        """A detection group (key ``(s, 1, robot)``) is read once every live teammate has read its source up to
+        ``s`` (their exchanges keyed before it have started) and no pairwise update keyed before it is still
+        expected, so that groups are applied across the team in key order, as the in-process runner does, and an
+        update never has to be replayed under a group applied before it."""
+        key = (s, 1, self.robot, ())
+        if any(k < key for k in self._expect):
+            return False
+        return all(r in self._done or (*self._progress_key.get(r, (-math.inf, 0)), r) > key[:3] for r in self._alive)
+
+    def _ready(self, q: Message, since: float) -> bool:
+        """A query is answered once nothing this node will still read or apply is keyed before it: its source has
+        passed the query's key, no earlier detection group waits, no pairwise update it expects is keyed earlier,
+        and every live teammate has read its source past the stamp (so no earlier exchange can still start). Then
+        the first answer is the final one and no revision follows (without faults). Held ``hold_timeout`` s, it is
+        answered whatever the state (a revision follows if needed)."""
+        qkey = (float(q.stamp), 1, q.sender, tuple(q.sub))
+        why = self._unsettled(qkey)
+        if why is None:
+            return True
+        if time.monotonic() - since < self.hold_timeout:
+            return False
+        self.counts["answered_unsettled"] += 1
+        log.debug("robot %s: answering %s at %s unsettled: %s", self.robot, type(q).__name__, qkey, why)
+        return True
+
+    def _unsettled(self, qkey: tuple) -> str | None:
+        """What may still change the state before ``qkey``, or None."""
+        if self._i < len(self.items):
+            s, item = self.items[self._i]
+            nxt = (s, 2, self.robot, ()) if isinstance(item, Odometry) else (s, 1, self.robot, ())
+            if nxt < qkey:
+                return f"own source at {nxt}"
+        early = [k for k in self._expect if k < qkey]
+        if early:
+            return f"expects updates at {early[:3]}"
+        for r in self._alive:  # a teammate whose next input is keyed before the query may still start an exchange
+            if r not in self._done:
+                t, prio = self._progress_key.get(r, (-math.inf, 0))
+                if (t, prio, r) < qkey[:3]:
+                    return f"robot {r} has read its source only to {(t, prio)}"
+        first = self.node.first_pending
+        if first is not None and first < qkey:
+            return f"own detection group {first} waits for answers"
+        return None
+
+    def _answer_ready(self) -> None:
+        """Answer the held queries that are ready (:meth:`_ready`), in the order they came."""
+        if not self._deferred:
+            return
+        keep = []
+        for since, q, zq in self._deferred:
+            if self._ready(q, since):
+                self._step(q, query=zq)
+            else:
+                keep.append((since, q, zq))
+        self.counts["queries_answered"] += len(self._deferred) - len(keep)
+        self._deferred = keep
+
+    def _release(self) -> None:
+        """Give the node the answers to its own detection groups once no pairwise update keyed before the group is
+        still expected (so the group is applied after it, not replayed under it); an expected update that does not
+        come within ``update_timeout`` s is given up (counted ``update_not_received``)."""
+        if self._expect:
+            now = time.monotonic()
+            for k, since in list(self._expect.items()):
+                if now - since > self.update_timeout:
+                    del self._expect[k]
+                    self.counts["update_not_received"] += 1
+        if not self._held:
+            return
+        keep = []
+        for a in self._held:
+            key = (float(a.stamp), 1, self.robot, ())
+            if any(k < key for k in self._expect):
+                keep.append(a)
+            else:
+                self._step(a)
+        self._held = keep

@@ -1,0 +1,185 @@
+"""What a :class:`~swarmloc.net.process.NetNode` sends, and how: envelopes, link faults, the outbox, queries.
+
+A query the node returns is a Zenoh ``get`` on the neighbour's ``query`` key (or the belief server's), waited for
+``answer_timeout`` s; the answer to a neighbour's query is the reply to its ``get``; a revised answer or a pairwise
+update goes to the receiver's ``inbox`` through the outbox, which coalesces them under link faults (the newest per
+exchange, every ``coalesce`` s). Link faults (:mod:`swarmloc.net.faults`) lose, delay and duplicate what is sent;
+delayed sends wait on the node's timers.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery
+from swarmloc.net.schema import encode
+from swarmloc.net.transport import robot_key, server_key
+
+log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
+
+NOT_FOUND_SEQ = -2
+"""Revision of the "not found" answer a node gives itself when a query got no answer (a real one replaces it)."""
+
+
+class Outbound:
+    """Part of :class:`~swarmloc.net.process.NetNode`: sending, with the link faults, the outbox and the timers."""
+
+    def _init_outbound(self) -> None:
+        self._seq = itertools.count()  # envelope sequence numbers
+        self._qids = itertools.count()  # ids of this node's queries (and timer tie-breakers)
+        self._outstanding: dict[int, tuple[Message, str, bool]] = {}  # qid: (query, "robot"/"server", answered)
+        self._timers: list[tuple[float, int, Callable[[], None]]] = []  # (due, id, send): delayed sends, lost gets
+        self._outbox: dict[tuple, Message] = {}  # pushed messages to send, the newest per exchange
+        self._last_flush = 0.0
+        self.coalesce = 0.05
+        """[s] with link faults: the outbox is sent at most this often."""
+
+    def _env(self, body: Any) -> bytes:
+        """``body`` in this robot's envelope, with its next sequence number."""
+        return encode(self.team, self.robot, next(self._seq), body)
+
+    def _faulty(self, send: Callable[[], None]) -> int:
+        """Send now, or as the link faults say (lost, delayed, duplicated); returns the copies sent."""
+        if self.link is None:
+            self.counts["sent"] += 1
+            send()
+            return 1
+        delays = self.link.schedule()
+        if not delays:
+            self.counts["lost"] += 1
+            return 0
+        if len(delays) > 1:
+            self.counts["duplicated"] += 1
+        for d in delays:
+            self.counts["sent"] += 1
+            if d <= 0:
+                send()
+            else:
+                self.counts["delayed"] += 1
+                heapq.heappush(self._timers, (time.monotonic() + d, next(self._qids), send))
+        return len(delays)
+
+    def _route(self, msgs: list[Message], query: Any = None, asked: Message | None = None) -> None:
+        """Carry what the node returned: a query is asked (:meth:`_ask`), the answer to ``asked`` is the reply to the
+        Zenoh ``query``, a revision or an update goes to the receiver's inbox (through the outbox)."""
+        for m in msgs:
+            if isinstance(m, BeliefQuery | RdlStateQuery):
+                self._ask(m)
+            elif (
+                query is not None
+                and isinstance(m, BeliefAnswer | RdlState)
+                and isinstance(asked, BeliefQuery | RdlStateQuery)
+                and (m.receiver, m.stamp, m.sub) == (asked.sender, asked.stamp, asked.sub)
+            ):
+                payload, q = self._env(m), query
+                query = None
+                if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
+                    self._expect[(float(m.stamp), 1, m.receiver, tuple(m.sub))] = time.monotonic()
+                self._faulty(lambda q=q, payload=payload: reply(q, payload))
+            elif m.receiver in self.roster:
+                # pushed revisions and updates are coalesced: the newest per exchange goes out with the next flush
+                k = (type(m).__name__, m.receiver, m.stamp, m.sub)
+                if k in self._outbox:
+                    self.counts["coalesced"] += 1
+                self._outbox[k] = m
+            else:
+                self.counts["undeliverable"] += 1
+        if query is not None:  # the query was not answered by the node (cannot happen for a well-formed query)
+            reply_err(query, "no answer")
+
+    def _flush(self, force: bool = False) -> None:
+        """Send the pushed messages waiting in the outbox: at once without faults (a revision or update is final
+        then), at most every ``coalesce`` s otherwise, so that a burst of revisions of one exchange (late and lost
+        messages make them) costs the neighbour one replay instead of one per revision."""
+        if not self._outbox:
+            return
+        now = time.monotonic()
+        if not force and self.link is not None and now - self._last_flush < self.coalesce:
+            return
+        self._last_flush = now
+        out, self._outbox = self._outbox, {}
+        put, block = self.session.put, self._block
+        for m in out.values():
+            payload, key = self._env(m), robot_key(self.team, m.receiver, "inbox")
+            self._faulty(lambda key=key, payload=payload: put(key, payload, congestion_control=block))
+
+    def _ask(self, m: Message, via_server: bool = False) -> None:
+        """Ask ``m`` of its receiver (or of the belief server) as a Zenoh get; its replies and its end come back on
+        the node's queue (:meth:`_on_reply`, :meth:`_on_reply_end`)."""
+        kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
+        if m.receiver not in self.roster:
+            self._feed_local(kind, m, f"robot {m.receiver} is not in the team")
+            return
+        qid = next(self._qids)
+        self._outstanding[qid] = (m, "server" if via_server else "robot", False)
+        key = server_key(self.team) if via_server else robot_key(self.team, m.receiver, "query")
+        payload = self._env(m)
+        timeout = self.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
+        put = self._inq.put
+
+        def send() -> None:
+            import zenoh
+
+            try:
+                self.session.get(
+                    key,
+                    payload=payload,
+                    timeout=timeout,
+                    handler=zenoh.handlers.Callback(
+                        lambda r: put(("reply", qid, r)), lambda: put(("reply_end", qid, None))
+                    ),
+                )
+            except Exception as exc:  # noqa: BLE001 - a failed get is a missing answer, not a crash
+                log.warning("robot %s: get %s failed: %s", self.robot, key, exc)
+                put(("reply_end", qid, None))
+
+        if via_server:
+            self.counts["sent"] += 1
+            send()
+        elif not self._faulty(send):
+            # a lost query: its get never goes out, so nothing will end it but a timer
+            heapq.heappush(
+                self._timers,
+                (time.monotonic() + timeout, next(self._qids), lambda qid=qid: put(("reply_end", qid, None))),
+            )
+
+    def _feed_local(self, kind: type, m: Message, reason: str, seq: int = NOT_FOUND_SEQ) -> None:
+        """Step the node with a "not found" answer to its own query ``m``, with the reason."""
+        a = kind(sender=m.receiver, receiver=m.sender, stamp=m.stamp, sub=m.sub, found=False, reason=reason, seq=seq)
+        self._step(a)
+
+    def _run_timers(self) -> float:
+        """Send what is due; seconds until the next timer (inf if none)."""
+        now = time.monotonic()
+        while self._timers and self._timers[0][0] <= now:
+            _, _, fn = heapq.heappop(self._timers)
+            try:
+                fn()
+            except Exception as exc:  # noqa: BLE001 - e.g. the duplicate of a reply whose query is already closed
+                self.counts["send_failed"] += 1
+                log.debug("robot %s: delayed send failed: %s", self.robot, exc)
+        return self._timers[0][0] - now if self._timers else math.inf
+
+
+def reply(query: Any, payload: bytes) -> None:
+    """Answer a neighbour's Zenoh query with ``payload`` and close it."""
+    try:
+        query.reply(query.key_expr, payload)
+    finally:
+        query.drop()
+
+
+def reply_err(query: Any, reason: str) -> None:
+    """Refuse a neighbour's Zenoh query with ``reason`` and close it (the asker may be gone: nothing then)."""
+    try:
+        query.reply_err(reason.encode())
+    except Exception:  # noqa: BLE001 - the asker may be gone
+        pass
+    finally:
+        query.drop()

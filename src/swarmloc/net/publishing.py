@@ -1,0 +1,107 @@
+"""What a :class:`~swarmloc.net.process.NetNode` publishes: its progress and its beliefs.
+
+**Progress.** The key of the node's next input (:class:`~swarmloc.net.schema.Progress`), which its teammates'
+lockstep waits on (:mod:`swarmloc.net.lockstep`).
+
+**Beliefs.** At each record time ``t`` the node publishes its belief once its history has passed ``t``
+(provisional) and again once it is final (the history is a horizon past ``t``, or the run ended); a final belief
+that a later message still changes is published again with a higher revision. With ``ros_domain`` each belief is
+also published as a ROS 2 ``geometry_msgs/msg/PoseWithCovarianceStamped`` under rmw_zenoh's key layout.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+from swarmloc.events import Odometry
+from swarmloc.messages import flat
+from swarmloc.net.schema import Belief, Progress
+
+
+class Publishing:
+    """Part of :class:`~swarmloc.net.process.NetNode`: announcing its progress and publishing its beliefs."""
+
+    def _init_publishing(self) -> None:
+        self._published: dict[float, Belief] = {}  # the latest belief published per record time (two horizons)
+        self._prov = 0  # record times published provisionally ...
+        self._final = 0  # ... and final
+        self._pruned_at = 0
+        self._last_progress = -math.inf  # the last progress announced: its stamp, wall time and key
+        self._last_progress_wall = 0.0
+        self._last_key: tuple[float, int] = (-math.inf, 0)
+
+    def _next_key(self) -> tuple[float, int]:
+        """``(stamp, priority)`` of the node's next input (a detection group 1, odometry 2; ``(inf, 3)``: none left)."""
+        if self._i >= len(self.items):
+            return (math.inf, 3)
+        s, item = self.items[self._i]
+        return (s, 2 if isinstance(item, Odometry) else 1)
+
+    def _publish_progress(self, t: float, done: bool = False, force: bool = False) -> None:
+        """Announce the next input's key (rate-limited to every ``lag / 4`` s of data or 0.2 s of wall time unless
+        ``force``: a node about to wait forces it, since teammates may be waiting for it)."""
+        now = time.monotonic()
+        key = self._next_key()
+        if not force and t - self._last_progress < self.lag / 4 and now - self._last_progress_wall < 0.2:
+            return
+        if force and key == self._last_key and not done and now - self._last_progress_wall < 0.2:
+            return
+        self._last_progress = t
+        self._last_key = key
+        self._last_progress_wall = now
+        self._pub_progress.put(self._env(Progress(robot=self.robot, t=key[0], prio=key[1], done=done)))
+
+    def _publish_belief(self, t: float, final: bool) -> None:
+        """Publish the belief at record time ``t`` unless the same was published (a new revision otherwise)."""
+        try:
+            b = self.node.belief_at(float(t))
+        except ValueError:
+            self.counts["record_too_old"] += 1
+            return
+        old = self._published.get(t)
+        mean, cov = flat(b.mean), flat(b.cov)
+        if old is not None and old.mean == mean and old.cov == cov and (old.final or not final):
+            return  # nothing new: same numbers, and not a provisional belief becoming final
+        rev = 0 if old is None else old.rev + 1
+        msg = Belief(robot=self.robot, stamp=float(t), rev=rev, final=final, mean=mean, cov=cov)
+        self._published[t] = msg
+        self._pub_belief.put(self._env(msg))
+        self.counts["beliefs_published"] += 1
+        if self.on_belief is not None:
+            self.on_belief(msg)
+        if self._ros_pub is not None:
+            from swarmloc.net import ros
+
+            self._ros_seq += 1  # rmw_zenoh drops samples without its attachment (sequence, source time, gid)
+            att = ros.ros_attachment(self._ros_seq, time.time_ns(), self._ros_gid)
+            self._ros_pub.put(ros.to_cdr(ros.pose_message(t, b.mean, b.cov)), attachment=att)
+
+    def _publish_due(self, end: bool = False, upto: float = -math.inf) -> None:
+        """Publish the beliefs due: provisional ones up to the node's present, final ones a horizon before it (or before
+        ``upto``: called before an input stamped ``upto`` is applied, whose pruning could drop them otherwise)."""
+        rt = self.record_times
+        wm = max(self.node.present, upto)
+        while self._prov < rt.size and (end or rt[self._prov] <= wm):
+            self._publish_belief(rt[self._prov], final=False)
+            self._prov += 1
+        while self._final < rt.size and (end or rt[self._final] < wm - self.node.horizon):
+            self._publish_belief(rt[self._final], final=True)
+            self._final += 1
+        if self._final - self._pruned_at >= 256:  # forget beliefs no input can change any more (two horizons back)
+            self._pruned_at = self._final
+            cut = wm - 2 * self.node.horizon
+            for t in [t for t in self._published if t < cut]:
+                del self._published[t]
+
+    def _republish_changed(self) -> None:
+        """After the end: publish again every final belief a late message changed."""
+        for t in sorted(self._published):
+            old = self._published[t]
+            try:
+                b = self.node.belief_at(t)
+            except ValueError:
+                continue
+            if flat(b.mean) != old.mean or flat(b.cov) != old.cov:
+                self.counts["finals_revised"] += 1
+                self._publish_belief(t, final=True)

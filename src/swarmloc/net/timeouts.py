@@ -1,0 +1,36 @@
+"""The waits of a networked node, one name per wait, all in seconds of wall time: defaults and meanings.
+
+* ``answer_timeout``: how long a node waits for the reply to one of its own queries (a Zenoh ``get``; under link
+  faults plus twice their delay), from the neighbour and, with ``use_server``, again from the belief server; then
+  the query ends unanswered (counted ``no_reply``) and its detection ``unknown``;
+* ``hold_timeout``: how long a node holds a neighbour's query for its own state to settle before answering it as
+  things stand (counted ``answered_unsettled``; a revision follows if the state changes); keep it below the
+  askers' ``answer_timeout``, or their queries end unanswered first;
+* ``update_timeout``: how long a node that gave its ``rdl`` state waits for the observer's pairwise update, holding
+  its own later detection groups meanwhile (then given up: counted ``update_not_received``);
+* ``start_timeout``: how long a node waits at its start for the robots it waits for to be alive (it then starts
+  without them, with a warning).
+
+Not here, each with its own name: ``quiet`` and ``linger`` (the end of a node's run,
+:class:`~swarmloc.net.process.NetNode`), ``max_wall`` (the wall-clock limit of a whole node, server or team run),
+``RESUME_TIMEOUT`` (a restarted node's wait for its belief on the server, :mod:`swarmloc.net.entry`) and
+``grace`` (:func:`swarmloc.net.team.stop_all`).
+"""
+
+from __future__ import annotations
+
+ANSWER_TIMEOUT = 2.0
+HOLD_TIMEOUT = 1.0
+UPDATE_TIMEOUT = 2.0
+START_TIMEOUT = 30.0
+
+TIMEOUTS: dict[str, tuple[float, str]] = {
+    "answer_timeout": (ANSWER_TIMEOUT, "seconds a node waits for the reply to one of its queries, from a neighbour "
+                       "(and again from the belief server)"),
+    "hold_timeout": (HOLD_TIMEOUT, "seconds a node holds a neighbour's query for its own state to settle before "
+                     "answering it as it stands (keep it below the askers' answer timeout)"),
+    "update_timeout": (UPDATE_TIMEOUT, "seconds a node that gave its rdl state waits for the observer's pairwise "
+                       "update"),
+    "start_timeout": (START_TIMEOUT, "seconds a node waits at its start for its teammates to be alive"),
+}  # fmt: skip
+"""Name: (default [s], meaning), as ``swarmloc node`` and ``swarmloc team`` take them (``--answer-timeout``...)."""

@@ -1,0 +1,62 @@
+"""The Zenoh side of a :class:`~swarmloc.net.process.NetNode`: what it declares on its session, and undeclares.
+
+Everything received is put on the node's one queue (``_inq``) as ``(kind, sample)`` and handled on the node's
+thread (:mod:`swarmloc.net.inbound`): queries on ``robot/<id>/query``, pushed messages on ``robot/<id>/inbox``,
+every teammate's ``progress``, and liveliness changes under ``alive``. It publishes its ``belief`` and
+``progress`` (and, with ``ros_domain``, a ROS 2 pose topic in rmw_zenoh's layout), and holds its liveliness token.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from swarmloc.net.transport import alive_key, robot_key
+
+
+class Wiring:
+    """Part of :class:`~swarmloc.net.process.NetNode`: opening and closing its Zenoh declarations."""
+
+    def _init_wiring(self) -> None:
+        self._decl: list[Any] = []
+        self._block: Any = None  # zenoh.CongestionControl.BLOCK once opened (zenoh is imported lazily)
+        self._ros_pub: Any = None
+
+    def _open(self) -> None:
+        """Declare the node's queryable, subscribers, publishers and liveliness token on its session."""
+        import zenoh
+
+        self._block = zenoh.CongestionControl.BLOCK  # never drop a belief, a progress announcement or a push
+
+        s, team, r = self.session, self.team, self.robot
+        put = self._inq.put
+        self._decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
+        self._decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
+        self._decl.append(
+            s.declare_subscriber(robot_key(team, "*", "progress"), handler=lambda x: put(("progress", x)))
+        )
+        self._decl.append(
+            s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
+        )
+        self._pub_belief = s.declare_publisher(robot_key(team, r, "belief"), congestion_control=self._block)
+        self._pub_progress = s.declare_publisher(robot_key(team, r, "progress"), congestion_control=self._block)
+        if self.ros_domain is not None:
+            import hashlib
+
+            from swarmloc.net import ros
+
+            self.ros_topic = f"/swarmloc/{team.replace('-', '_')}/robot{r}/pose"
+            key = ros.ros_key(self.ros_topic, self.ros_domain)
+            self._ros_pub = s.declare_publisher(key, congestion_control=self._block)
+            self._ros_gid = hashlib.blake2b(key.encode(), digest_size=16).digest()
+            self._ros_seq = 0
+        self._token = s.liveliness().declare_token(alive_key(team, r))
+
+    def _close(self) -> None:
+        """Undeclare everything :meth:`_open` declared (the session itself belongs to the caller)."""
+        for d in [*self._decl, getattr(self, "_token", None)]:
+            if d is not None:
+                try:
+                    d.undeclare()
+                except Exception:  # noqa: BLE001 - closing: nothing left to do about it
+                    pass
+        self._decl.clear()
