@@ -425,8 +425,10 @@ def test_cli_team_report_bag_and_ros_output(tmp_path):
     ("est", "why"),
     [("cekf", "not a distributed estimator"), ("nope", "unknown estimator"), ("diekf", "broadcast to every teammate")],
 )
-def test_team_refuses_a_non_distributed_estimator_before_starting_anything(est, why, capsys):
+def test_team_refuses_a_non_distributed_estimator_before_starting_anything(est, why, capsys, tmp_path):
     from swarmloc.cli import main
 
-    assert main(["team", "--estimator", est, "--duration", "2", "--out", "/nonexistent/never-written"]) == 2
+    out = tmp_path / "never-written"
+    assert main(["team", "--estimator", est, "--duration", "2", "--out", str(out)]) == 2
     assert why in capsys.readouterr().err
+    assert not out.exists()
