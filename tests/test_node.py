@@ -7,7 +7,6 @@ message validation, and the central claim: the result does not depend on the ord
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 
 import msgspec
@@ -27,8 +26,6 @@ from swarmloc.sim import RelativeSensor, random_team
 
 NOISE = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
 LANDMARKS = {10: (3.0, 1.0, 0.01, 0.01), 11: (-1.0, 2.0, 0.01, 0.01)}
-ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
-DS6 = ROOT / "MRCLAM_Dataset6"
 
 
 @pytest.fixture(autouse=True)
@@ -103,16 +100,15 @@ def test_shuffled_input_gives_the_ordered_result(name: str):
     assert shuffled.accounted() and ordered.accounted()
 
 
-@pytest.mark.skipif(not DS6.is_dir(), reason=f"MRCLAM data not found at {ROOT} (set SWARMLOC_MRCLAM)")
 @pytest.mark.parametrize("name", list(ESTIMATORS))
-def test_shuffled_real_data_gives_the_ordered_result(name: str):
+def test_shuffled_real_data_gives_the_ordered_result(name: str, mrclam6: Path):
     """The same on 30 s of MRCLAM dataset 6 (landmarks on, gate on): jitter up to 0.2 s, horizon 5 s."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
     from swarmloc.estimators import node_options
     from swarmloc.experiments.mrclam import initial_beliefs
 
-    data = load_mrclam(DS6)
+    data = load_mrclam(mrclam6)
     events = mrclam_events(data, duration=30.0, range_std=0.3, bearing_std=0.035)
     grid = np.arange(data.t_start, data.t_start + 30.0, 0.25)
 
