@@ -5,15 +5,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-from pathlib import Path
 
 import pytest
 
 from swarmloc.cli import main
 from swarmloc.experiments import bench as B
-
-ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
 
 
 def _positive(x: object) -> bool:
@@ -66,10 +62,9 @@ def test_loglog_slope():
     assert math.isnan(B.loglog_slope([1], [1]))
 
 
-def test_mrclam_replay_x_real_time():
-    ds = B.find_mrclam(ROOT)
-    if ds is None:
-        pytest.skip(f"MRCLAM data not found at {ROOT}")
+def test_mrclam_replay_x_real_time(mrclam_root, mrclam6):
+    ds = B.find_mrclam(mrclam_root)
+    assert ds == mrclam6  # the bench finds dataset 6 in the folder holding it
     d = B.mrclam_replay(ds, duration=3.0, estimators=("dekf", "cekf"), landmarks=(True, False))
     assert d["duration_s"] == pytest.approx(3.0, abs=0.05)
     for key in ("landmarks_on", "landmarks_off"):
@@ -78,7 +73,7 @@ def test_mrclam_replay_x_real_time():
         assert all(_positive(r["x_real_time"]) and _positive(r["wall_s"]) for r in rows.values())
 
 
-def test_report_and_json_from_a_tiny_config(capsys, monkeypatch):
+def test_report_and_json_from_a_tiny_config(capsys, monkeypatch, mrclam_root_if_expected):
     tiny = B.BenchConfig(
         engine_n=20, filterpy_n=5, repeats=1, copy_mb=1, matmul_n=32, swarm_sizes=(10, 20), swarm_steps=2,
         neighbour_sweep=(1, 3), sweep_n=20, isolate=False, replay_duration=2.0, estimators=("dekf",),
@@ -86,7 +81,8 @@ def test_report_and_json_from_a_tiny_config(capsys, monkeypatch):
     monkeypatch.setattr(B, "QUICK", tiny)
     rates = B.machine_rates
     monkeypatch.setattr(B, "machine_rates", lambda *a, **k: rates(1, 32, 1, single_thread=False))
-    assert main(["bench", "--quick", "--json", "--quiet", "--mrclam", str(ROOT)]) == 0
+    data = ["--mrclam", str(mrclam_root_if_expected)] if mrclam_root_if_expected else []  # section d without it
+    assert main(["bench", "--quick", "--json", "--quiet", *data]) == 0
     res = json.loads(capsys.readouterr().out)
     assert set(res) == {"machine", "config", "fusion_step", "swarms", "mrclam"}
     assert res["config"]["engine_n"] == 20

@@ -42,7 +42,11 @@ def logic_lines(source: str) -> set[int]:
 
 def sizes(path: Path) -> tuple[int, list[tuple[str, int]]]:
     """Logic lines of a module and of each of its functions (methods included), ``(name, lines)``."""
-    source = path.read_text()
+    return sizes_of(path.read_text())
+
+
+def sizes_of(source: str) -> tuple[int, list[tuple[str, int]]]:
+    """:func:`sizes` of a module's source text."""
     code = logic_lines(source)
     funcs = [
         (node.name, len([n for n in range(node.lineno, node.end_lineno + 1) if n in code]))
@@ -68,9 +72,3 @@ def test_the_counter_counts_logic_not_docstrings_or_comments() -> None:
     assert sorted(logic_lines(src)) == [5, 7, 8, 9]
     module, funcs = sizes_of(src)
     assert module == 4 and funcs == [("f", 4)]
-
-
-def sizes_of(source: str) -> tuple[int, list[tuple[str, int]]]:
-    p = Path(__import__("tempfile").mkdtemp()) / "m.py"
-    p.write_text(source)
-    return sizes(p)

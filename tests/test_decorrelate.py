@@ -4,11 +4,11 @@ Monte Carlo computation, recovery of the correlation from synthetic streams, cle
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _data import MRCLAM_DATASETS
 
 from swarmloc.config import DEFAULTS, Config, SensorConfig
 from swarmloc.events import Detection, Odometry
@@ -23,10 +23,6 @@ from swarmloc.sensors.decorrelate import (
     lag_correlation,
     snapshot_residuals,
 )
-
-ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
-DS6 = ROOT / "MRCLAM_Dataset6"
-needs_data = pytest.mark.skipif(not DS6.is_dir(), reason=f"MRCLAM data not found at {ROOT} (set SWARMLOC_MRCLAM)")
 
 
 def _cov(times: np.ndarray, phi: float, tau: float) -> np.ndarray:
@@ -253,15 +249,14 @@ def test_bad_streams_and_detections_are_named() -> None:
 # MRCLAM
 
 
-@needs_data
-@pytest.mark.parametrize("folder", sorted(p.name for p in ROOT.glob("MRCLAM_Dataset*")) if ROOT.is_dir() else [])
-def test_every_shared_mrclam_folder_gives_finite_plausible_constants(folder: str) -> None:
+@pytest.mark.parametrize("number", MRCLAM_DATASETS)
+def test_every_shared_mrclam_folder_gives_finite_plausible_constants(number: int, mrclam_dataset) -> None:
     """The same code on every dataset (with or without odometry and truth): finite constants in the range a
     camera of this kind can have; none of them reads ground truth."""
     from swarmloc.datasets.mrclam import load_mrclam
     from swarmloc.experiments.mrclam import camera_model
 
-    data = load_mrclam(ROOT / folder, require=("measurements",))
+    data = load_mrclam(mrclam_dataset(number), require=("measurements",))
     m = camera_model(data)
     assert m.source == "estimated (std and correlation)" and m.instants > 1000, m.source
     for c in (m.range, m.bearing):
@@ -270,12 +265,11 @@ def test_every_shared_mrclam_folder_gives_finite_plausible_constants(folder: str
     assert 0.03 <= m.range.std <= 0.5 and 0.001 <= m.bearing.std <= 0.05
 
 
-@needs_data
-def test_mrclam_evaluation_runs_with_the_calibrated_camera() -> None:
+def test_mrclam_evaluation_runs_with_the_calibrated_camera(mrclam6: Path) -> None:
     from swarmloc.experiments.mrclam import evaluate_mrclam
     from swarmloc.experiments.sources import load_source
 
-    rep = evaluate_mrclam(DS6, estimators=("cekf", "rdl"), duration=120.0)
+    rep = evaluate_mrclam(mrclam6, estimators=("cekf", "rdl"), duration=120.0)
     cam = rep["camera"]
     assert cam["source"] == "estimated (std and correlation)" and DEFAULTS.sensors.decorrelate == "calibrate"
     assert math.isfinite(cam["range"]["std"]) and math.isfinite(cam["bearing"]["tau"])
@@ -284,8 +278,8 @@ def test_mrclam_evaluation_runs_with_the_calibrated_camera() -> None:
         assert math.isfinite(t["pos_rmse"]) and t["pos_rmse"] < 0.5 and 0.2 < t["anees"] < 5.0, t
         assert ev["accounted"]
     off = Config(sensors=SensorConfig(decorrelate="off", range_std=0.3))
-    rep_off = evaluate_mrclam(DS6, estimators=("cekf",), duration=20.0, landmarks=False, config=off)
+    rep_off = evaluate_mrclam(mrclam6, estimators=("cekf",), duration=20.0, landmarks=False, config=off)
     assert rep_off["camera"]["source"] == "a priori, white" and rep_off["camera"]["range"]["std"] == 0.3
-    src = load_source(f"mrclam:{DS6}", duration=30.0)
+    src = load_source(f"mrclam:{mrclam6}", duration=30.0)
     covs = {float(e.cov[0, 0]) for e in src.events if isinstance(e, Detection)}
     assert len(covs) > 10  # one covariance per reading, not one for all

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -190,17 +189,12 @@ def test_invariant_ekf_is_consistent_without_landmarks_over_seeds() -> None:
     assert abs(anees["diekf"] - anees["iekf"]) < 1e-4 * anees["iekf"]  # equal up to rounding over 40 s
 
 
-_MRCLAM = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
-_DS6 = _MRCLAM / "MRCLAM_Dataset6"
-
-
-@pytest.mark.skipif(not _DS6.is_dir(), reason=f"MRCLAM data not found at {_MRCLAM} (set SWARMLOC_MRCLAM)")
-def test_mrclam_without_landmarks_the_distributed_invariant_ekf_is_accurate_and_consistent() -> None:
+def test_mrclam_without_landmarks_the_distributed_invariant_ekf_is_accurate_and_consistent(mrclam6: Path) -> None:
     """All of dataset 6, relative measurements only: the standard centralized EKF is over-confident (ANEES per dof
     above 2), the exact distributed invariant EKF is inside [0.5, 2] and more accurate."""
     from swarmloc.experiments.mrclam import evaluate_mrclam
 
-    rep = evaluate_mrclam(_DS6, estimators=["cekf", "diekf"], landmarks=False)["estimators"]
+    rep = evaluate_mrclam(mrclam6, estimators=["cekf", "diekf"], landmarks=False)["estimators"]
     team = {k: v.get("team", v) for k, v in rep.items()}
     assert team["cekf"]["anees"] > 2.0
     assert 0.5 <= team["diekf"]["anees"] <= 2.0

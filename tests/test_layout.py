@@ -47,14 +47,14 @@ def test_core_imports_no_plotting_tables_or_progress_bars():
     assert out.stdout.strip() == "ok"
 
 
-def _private_imports(path: Path) -> list[str]:
+def _private_imports(path: Path, root: Path = SRC.parent) -> list[str]:
     """Imports of another module's underscore names, and of a private module from outside its own package.
 
     ``from swarmloc.lie import _series`` inside ``swarmloc/lie/`` is a package using its own private module: allowed.
-    Dunder names (``__version__``) are public.
+    Dunder names (``__version__``) are public. ``root`` is the folder that holds the ``swarmloc`` package.
     """
     tree = ast.parse(path.read_text(), filename=str(path))
-    rel = path.relative_to(SRC.parent).with_suffix("")
+    rel = path.relative_to(root).with_suffix("")
     module = ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
     package = module if rel.name == "__init__" else module.rsplit(".", 1)[0]
 
@@ -72,7 +72,7 @@ def _private_imports(path: Path) -> list[str]:
             if not module_ok(target):
                 bad.append(f"{path.name}:{node.lineno} imports from private module {target}")
             for alias in node.names:
-                here = SRC.parent / target.replace(".", "/")
+                here = root / target.replace(".", "/")
                 own_module = target == package and (here / f"{alias.name}.py").is_file()
                 if private(alias.name) and not own_module:
                     bad.append(f"{path.name}:{node.lineno} imports {alias.name} from {target}")
@@ -91,15 +91,18 @@ def test_no_module_imports_another_modules_private_names():
 
 
 def test_the_private_import_check_catches_violations(tmp_path: Path):
-    """The rule above is not vacuous: it flags both kinds of violation."""
-    pkg = SRC / "estimators"
-    fake = pkg / "_probe_for_test.py"
+    """The rule above is not vacuous: it flags both kinds of violation, and lets a package use its own private
+    module. The probe package is built under tmp_path; nothing is written into src/."""
+    for sub in ("estimators", "lie"):
+        (tmp_path / "swarmloc" / sub).mkdir(parents=True)
+    (tmp_path / "swarmloc" / "lie" / "_series.py").write_text("def sinc(x):\n    return x\n")
+    fake = tmp_path / "swarmloc" / "estimators" / "probe.py"
     fake.write_text("from swarmloc.kernels.group import _bvec\nfrom swarmloc.lie._series import sinc\n")
-    try:
-        found = _private_imports(fake)
-    finally:
-        fake.unlink()
-    assert any("_bvec" in b for b in found) and any("lie._series" in b for b in found), found
+    found = _private_imports(fake, root=tmp_path)
+    assert len(found) == 2 and any("_bvec" in b for b in found) and any("lie._series" in b for b in found), found
+    own = tmp_path / "swarmloc" / "lie" / "probe.py"
+    own.write_text("from swarmloc.lie import _series\nfrom swarmloc.lie._series import sinc\n")
+    assert _private_imports(own, root=tmp_path) == []
 
 
 def test_one_meaning_of_estimators():

@@ -4,7 +4,6 @@ update from a neighbour's Gaussian answer, global localization, recovery from a 
 from __future__ import annotations
 
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -21,9 +20,6 @@ from swarmloc.messages import BeliefAnswer, BeliefQuery, flat, message_problem
 from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult
 from swarmloc.sim import RelativeSensor, random_team
-
-ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
-DS6 = ROOT / "MRCLAM_Dataset6"
 
 LANDMARKS = {
     20: (0.0, 0.0, 0.01, 0.01),
@@ -246,15 +242,14 @@ def test_kidnapped_robot_recovers_with_random_particles():
 
 
 # ------------------------------------------------------------------------------------------------ (d) MRCLAM
-@pytest.mark.skipif(not DS6.is_dir(), reason=f"MRCLAM data not found at {ROOT} (set SWARMLOC_MRCLAM)")
-def test_mrclam_dataset6_beats_dead_reckoning():
+def test_mrclam_dataset6_beats_dead_reckoning(mrclam6: Path):
     """The first 120 s of MRCLAM dataset 6 (5 robots, landmark and robot detections, default configuration, 200
     particles): the team position RMSE is below 0.6 of dead reckoning's on the same events (measured: 0.25 m vs
     0.61 m)."""
     from swarmloc.estimators import node_options
     from swarmloc.experiments.sources import load_source
 
-    src = load_source(f"mrclam:{DS6}", duration=120)
+    src = load_source(f"mrclam:{mrclam6}", duration=120)
     if "mcl" in ESTIMATORS:
         opts = node_options("mcl", src.config, src.landmarks)
     else:  # not registered yet: what node_options would pass, filtered by what the class accepts

@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-import os
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _data import MRCLAM_DATASETS
 
 from swarmloc.datasets import MRCLAMData, MRCLAMError, load_mrclam, mrclam_events
 from swarmloc.events import Detection, Odometry
-
-DATA = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"MRCLAM data folder {DATA} not present")
 
 HEADER = "# UTIAS test header\n# Format line\n"
 
@@ -65,19 +62,16 @@ def _synthetic(folder: Path, robots: tuple[int, ...] = (1, 2), truth: bool = Tru
 
 
 @pytest.fixture(scope="module")
-def ds6() -> MRCLAMData:
-    if not DATA.is_dir():
-        pytest.skip(f"MRCLAM data folder {DATA} not present")
-    return load_mrclam(DATA / "MRCLAM_Dataset6", require_truth=True)
+def ds6(mrclam6: Path) -> MRCLAMData:
+    return load_mrclam(mrclam6, require_truth=True)
 
 
-@needs_data
-def test_dataset6_loads_with_truth_and_counts(ds6: MRCLAMData) -> None:
+def test_dataset6_loads_with_truth_and_counts(ds6: MRCLAMData, mrclam6: Path) -> None:
     assert ds6.robots == [1, 2, 3, 4, 5]
     assert ds6.has_truth and sorted(ds6.truth) == [1, 2, 3, 4, 5]
     assert ds6.missing == []
     assert sorted(ds6.landmarks) == list(range(6, 21))
-    folder = DATA / "MRCLAM_Dataset6"
+    folder = mrclam6
     bc = {int(b): int(s) for s, b in _data_lines(folder / "Barcodes.dat")}
     assert ds6.barcode_to_subject == bc
     skipped: Counter[int] = Counter()
@@ -108,7 +102,6 @@ def test_dataset6_loads_with_truth_and_counts(ds6: MRCLAMData) -> None:
     assert "MRCLAM_Dataset6" in text and "skipped" in text
 
 
-@needs_data
 def test_dataset6_truth_at_samples_and_initial_pose(ds6: MRCLAMData) -> None:
     for r in ds6.robots:
         gt = ds6.truth[r]
@@ -125,10 +118,8 @@ def test_dataset6_truth_at_samples_and_initial_pose(ds6: MRCLAMData) -> None:
         ds6.truth_at(1, ds6.truth[1][-1, 0] + 10.0)
 
 
-@needs_data
-def test_every_shared_folder_loads_or_raises_mrclam_error() -> None:
-    folders = sorted(p for p in DATA.iterdir() if p.is_dir() and p.name.startswith("MRCLAM_Dataset"))
-    assert folders
+def test_every_shared_folder_loads_or_raises_mrclam_error(mrclam_dataset) -> None:
+    folders = [mrclam_dataset(n) for n in MRCLAM_DATASETS]
     for folder in folders:
         has_odo = any((folder / f"Robot{r}_Odometry.dat").is_file() for r in range(1, 6))
         try:
@@ -147,17 +138,17 @@ def test_every_shared_folder_loads_or_raises_mrclam_error() -> None:
             assert set(np.unique(d.measurements[r][:, 1]).astype(int)) <= set(d.barcode_to_subject.values())
         if folder.name == "MRCLAM_Dataset3" and not (folder / "Robot4_Odometry.dat").is_file():
             assert d.robots == [1, 2, 3, 5] and "Robot4_Odometry.dat" in d.missing
-    for name in ("MRCLAM_Dataset5", "MRCLAM_Dataset8"):
-        if (DATA / name).is_dir() and not (DATA / name / "Robot1_Odometry.dat").is_file():
+    for number in (5, 8):
+        folder = mrclam_dataset(number)
+        if not (folder / "Robot1_Odometry.dat").is_file():
             with pytest.raises(MRCLAMError, match="odometry"):
-                load_mrclam(DATA / name)
-            d = load_mrclam(DATA / name, require=("measurements",))  # measurement-only replay still possible
+                load_mrclam(folder)
+            d = load_mrclam(folder, require=("measurements",))  # measurement-only replay still possible
             assert d.robots == [1, 2, 3, 4, 5] and not d.odometry and d.t_end > d.t_start
-            if name == "MRCLAM_Dataset8":
+            if number == 8:
                 assert 61 not in d.barcode_to_subject and d.skipped_barcodes.get(61, 0) > 1000
 
 
-@needs_data
 def test_dataset6_events_sorted_and_tiling(ds6: MRCLAMData) -> None:
     events = mrclam_events(ds6)
     times = np.array([e.stamp for e in events])

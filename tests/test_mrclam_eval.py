@@ -4,29 +4,22 @@ consistency of the consistent estimators, JSON, TUM files, and clear errors on e
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _data import MRCLAM_DATASETS
 
 from swarmloc.cli import main
 from swarmloc.experiments.mrclam import evaluate_mrclam
 
-ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
-DS6 = ROOT / "MRCLAM_Dataset6"
-needs_data = pytest.mark.skipif(not DS6.is_dir(), reason=f"MRCLAM data not found at {ROOT} (set SWARMLOC_MRCLAM)")
-
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory) -> tuple[dict, Path]:
-    if not DS6.is_dir():
-        pytest.skip(f"MRCLAM data not found at {ROOT}")
+def report(tmp_path_factory, mrclam6: Path) -> tuple[dict, Path]:
     out = tmp_path_factory.mktemp("mrclam")
-    return evaluate_mrclam(DS6, out_dir=out), out
+    return evaluate_mrclam(mrclam6, out_dir=out), out
 
 
-@needs_data
 def test_every_estimator_reported_with_metrics(report):
     rep, out = report
     assert set(rep["estimators"]) == {"dr", "dekf", "cekf", "expfusion", "ci", "rdl"}
@@ -41,7 +34,6 @@ def test_every_estimator_reported_with_metrics(report):
     assert (out / "trajectories.png").stat().st_size > 10_000
 
 
-@needs_data
 def test_cooperation_beats_dead_reckoning_on_real_data(report):
     rep, _ = report
     rmse = {k: v["team"]["pos_rmse"] for k, v in rep["estimators"].items()}
@@ -52,7 +44,6 @@ def test_cooperation_beats_dead_reckoning_on_real_data(report):
     assert rmse["rdl"] < 1.2 * rmse["cekf"], rmse
 
 
-@needs_data
 def test_every_detection_is_accounted_for(report):
     """fused + gated + rejected + unknown = detections in, for every estimator, none pending (16832 detections)."""
     rep, _ = report
@@ -65,7 +56,6 @@ def test_every_detection_is_accounted_for(report):
     assert rep["estimators"]["dr"]["stats"]["rejected"] == 16832  # dead reckoning uses none, and says so
 
 
-@needs_data
 def test_consistent_estimators_are_consistent_with_landmarks(report):
     """Covariance intersection and recursive decentralized fusion: ANEES per dof in [0.5, 2] (measured 1.67 and
     1.44 with the calibrated camera model); the thesis estimator and the distributed EKF are over-confident
@@ -76,7 +66,6 @@ def test_consistent_estimators_are_consistent_with_landmarks(report):
     assert anees["expfusion"] > 2.5 and anees["dekf"] > 2.5, anees
 
 
-@needs_data
 def test_tum_files_are_evo_readable(report):
     _, out = report
     f = out / "tum" / "rdl_robot3.tum"
@@ -88,17 +77,15 @@ def test_tum_files_are_evo_readable(report):
     assert gt.shape == rows.shape
 
 
-@needs_data
-def test_cli_json_on_stdout(capsys):
-    rc = main(["evaluate", "mrclam", str(DS6), "--estimators", "dr,rdl", "--duration", "20", "--json", "--quiet"])
+def test_cli_json_on_stdout(capsys, mrclam6: Path):
+    rc = main(["evaluate", "mrclam", str(mrclam6), "--estimators", "dr,rdl", "--duration", "20", "--json", "--quiet"])
     assert rc == 0
     rep = json.loads(capsys.readouterr().out)
     assert set(rep["estimators"]) == {"dr", "rdl"}
 
 
-@needs_data
-def test_cli_rejects_unknown_estimator(capsys):
-    rc = main(["evaluate", "mrclam", str(DS6), "--estimators", "dr,nope", "--duration", "5", "--quiet"])
+def test_cli_rejects_unknown_estimator(capsys, mrclam6: Path):
+    rc = main(["evaluate", "mrclam", str(mrclam6), "--estimators", "dr,nope", "--duration", "5", "--quiet"])
     assert rc == 2
     assert "nope" in capsys.readouterr().err
 
@@ -110,20 +97,20 @@ def test_cli_missing_folder_is_one_clear_line(tmp_path, capsys):
     assert "MRCLAM_Dataset42" in err and "Traceback" not in err
 
 
-@pytest.mark.skipif(not ROOT.is_dir(), reason=f"MRCLAM data not found at {ROOT}")
-@pytest.mark.parametrize("folder", sorted(p.name for p in ROOT.glob("MRCLAM_Dataset*")) if ROOT.is_dir() else [])
-def test_every_shared_folder_evaluates_or_says_why(folder: str, capsys):
+@pytest.mark.parametrize("number", MRCLAM_DATASETS)
+def test_every_shared_folder_evaluates_or_says_why(number: int, mrclam_dataset, capsys):
     """Folders without odometry give a one-line reason (exit 2); with odometry but no ground truth they are
     replayed without metrics; dataset 6 is scored."""
-    rc = main(["evaluate", "mrclam", str(ROOT / folder), "--estimators", "dr,cekf,rdl", "--duration", "3", "--json"])
+    folder = mrclam_dataset(number)
+    rc = main(["evaluate", "mrclam", str(folder), "--estimators", "dr,cekf,rdl", "--duration", "3", "--json"])
     cap = capsys.readouterr()
-    has_odometry = any((ROOT / folder).glob("Robot*_Odometry.dat"))
+    has_odometry = any(folder.glob("Robot*_Odometry.dat"))
     if not has_odometry:
         assert rc == 2 and cap.err.count("\n") == 1 and "odometry" in cap.err.lower(), cap.err
         return
     assert rc == 0, cap.err
     rep = json.loads(cap.out)
-    has_truth = any((ROOT / folder).glob("Robot*_Groundtruth.dat"))
+    has_truth = any(folder.glob("Robot*_Groundtruth.dat"))
     assert rep["truth"] is has_truth
     for ev in rep["estimators"].values():
         assert (ev["team"] is not None) is has_truth

@@ -36,8 +36,6 @@ from swarmloc.net.server import BeliefServer
 from swarmloc.net.transport import free_ports, open_session, robot_key, server_key
 from swarmloc.runner import run
 
-MRCLAM_ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
-MRCLAM6 = MRCLAM_ROOT / "MRCLAM_Dataset6"
 DISTRIBUTED = ("expfusion", "dekf", "ci", "rdl")
 I3 = flat(np.eye(3))
 COV = flat(np.diag([0.01, 0.01, 0.001]))
@@ -350,10 +348,9 @@ def test_networked_equals_in_process_on_a_simulated_team(est):
     assert res.stats["fused"] > 50
 
 
-@pytest.mark.skipif(not MRCLAM6.is_dir(), reason=f"MRCLAM data not found at {MRCLAM_ROOT} (set SWARMLOC_MRCLAM)")
 @pytest.mark.parametrize("est", DISTRIBUTED)
-def test_networked_equals_in_process_on_mrclam6_first_120s(est):
-    spec = f"mrclam:{MRCLAM6}"
+def test_networked_equals_in_process_on_mrclam6_first_120s(est, mrclam6):
+    spec = f"mrclam:{mrclam6}"
     src = load_source(spec, duration=120.0)
     team = f"eqmrclam{est}{os.getpid()}"
     tr = run_team(src=src, source=spec, duration=120.0, estimator=est, team=team, max_wall=300)
@@ -565,8 +562,10 @@ def test_cli_team_report_bag_and_ros_output(tmp_path):
     ("est", "why"),
     [("cekf", "not a distributed estimator"), ("nope", "unknown estimator"), ("diekf", "broadcast to every teammate")],
 )
-def test_team_refuses_a_non_distributed_estimator_before_starting_anything(est, why, capsys):
+def test_team_refuses_a_non_distributed_estimator_before_starting_anything(est, why, capsys, tmp_path):
     from swarmloc.cli import main
 
-    assert main(["team", "--estimator", est, "--duration", "2", "--out", "/nonexistent/never-written"]) == 2
+    out = tmp_path / "never-written"
+    assert main(["team", "--estimator", est, "--duration", "2", "--out", str(out)]) == 2
     assert why in capsys.readouterr().err
+    assert not out.exists()

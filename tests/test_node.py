@@ -7,7 +7,6 @@ message validation, and the central claim: the result does not depend on the ord
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 
 import msgspec
@@ -27,8 +26,6 @@ from swarmloc.sim import RelativeSensor, random_team
 
 NOISE = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
 LANDMARKS = {10: (3.0, 1.0, 0.01, 0.01), 11: (-1.0, 2.0, 0.01, 0.01)}
-ROOT = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
-DS6 = ROOT / "MRCLAM_Dataset6"
 
 
 @pytest.fixture(autouse=True)
@@ -103,16 +100,15 @@ def test_shuffled_input_gives_the_ordered_result(name: str):
     assert shuffled.accounted() and ordered.accounted()
 
 
-@pytest.mark.skipif(not DS6.is_dir(), reason=f"MRCLAM data not found at {ROOT} (set SWARMLOC_MRCLAM)")
 @pytest.mark.parametrize("name", list(ESTIMATORS))
-def test_shuffled_real_data_gives_the_ordered_result(name: str):
+def test_shuffled_real_data_gives_the_ordered_result(name: str, mrclam6: Path):
     """The same on 30 s of MRCLAM dataset 6 (landmarks on, gate on): jitter up to 0.2 s, horizon 5 s."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
     from swarmloc.estimators import node_options
     from swarmloc.experiments.mrclam import initial_beliefs
 
-    data = load_mrclam(DS6)
+    data = load_mrclam(mrclam6)
     events = mrclam_events(data, duration=30.0, range_std=0.3, bearing_std=0.035)
     grid = np.arange(data.t_start, data.t_start + 30.0, 0.25)
 
@@ -339,20 +335,44 @@ def test_messages_round_trip_through_msgpack():
         assert dec.decode(msgspec.msgpack.encode(m)) == m
 
 
+def _rdl_exchanged_with(targets: tuple[int, ...]) -> tuple[RecursiveDecentralized, list]:
+    """An RDL node of robot 0 that measured each of ``targets`` once (at 1.0, 1.1, ...), with the answers in."""
+    node = RecursiveDecentralized(0, _belief(var=1e-2), noise=NOISE, t0=0.0)
+    sent = []
+    for k, target in enumerate(targets):
+        t = 1.0 + 0.1 * k
+        (q,) = node.step(Detection(0, t, "pose", np.array([1.0, 0.0, 0.0]), 1e-4 * np.eye(3), target=target))
+        sent += node.step(RdlState(sender=target, receiver=0, stamp=t, sub=q.sub, x=(1.0, 0.0, 0.0),
+                                   P=flat(1e-3 * np.eye(3)), sigma=flat(np.zeros((3, 3)))))  # fmt: skip
+    return node, sent
+
+
+def _measure_4_again(node: RecursiveDecentralized, sigma_40: np.ndarray) -> GroupGaussian:
+    """Robot 0 measures robot 4 at 1.2; robot 4 answers with its factor ``sigma_40``. The belief after."""
+    (q,) = node.step(Detection(0, 1.2, "pose", np.array([1.0, 0.0, 0.0]), 1e-4 * np.eye(3), target=4))
+    node.step(RdlState(sender=4, receiver=0, stamp=1.2, sub=q.sub, x=(1.05, 0.02, 0.0), P=flat(1e-3 * np.eye(3)),
+                       sigma=flat(sigma_40)))  # fmt: skip
+    assert node.stats()["fused"] == node.stats()["detections"]
+    return node.belief_at(1.2)
+
+
 def test_node_learns_neighbours_as_they_appear():
     """Built from its own belief alone; RDL adds a cross-covariance factor for each robot it exchanges with."""
     node = RecursiveDecentralized(0, _belief(var=1e-2), noise=NOISE, t0=0.0)
     assert node.robots == (0,) and node.neighbours == frozenset()
-    sent = []
-    for target, t in ((4, 1.0), (2, 1.1)):
-        (q,) = node.step(Detection(0, t, "pose", np.array([1.0, 0.0, 0.0]), 1e-4 * np.eye(3), target=target))
-        sent += node.step(RdlState(sender=target, receiver=0, stamp=t, sub=q.sub, x=(1.0, 0.0, 0.0),
-                                   P=flat(1e-3 * np.eye(3)), sigma=flat(np.zeros((3, 3)))))  # fmt: skip
+    node, sent = _rdl_exchanged_with((4, 2))
     assert node.neighbours == {2, 4}
     assert [(m.receiver, type(m)) for m in sent] == [(4, RdlUpdate), (2, RdlUpdate)]
-    # the cross-covariance with robot 4, tracked through the factor, makes robot 4's second exchange differ from a
-    # first one: the same detection of robot 4 again is fused against a correlated state
-    (q,) = node.step(Detection(0, 1.2, "pose", np.array([1.0, 0.0, 0.0]), 1e-4 * np.eye(3), target=4))
-    fresh = RecursiveDecentralized(0, _belief(var=1e-2), noise=NOISE, t0=0.0)
-    (q2,) = fresh.step(Detection(0, 1.2, "pose", np.array([1.0, 0.0, 0.0]), 1e-4 * np.eye(3), target=4))
-    assert q.sub == q2.sub
+    # the factor is kept and handed out: robot 4 asking gets the sigma_04 of the exchange, a robot never met zero
+    (to4,) = node.step(RdlStateQuery(sender=4, receiver=0, stamp=1.15))
+    (to3,) = node.step(RdlStateQuery(sender=3, receiver=0, stamp=1.15))
+    assert np.abs(to4.sigma).max() > 1e-4 and not np.any(to3.sigma)
+    # and used: measuring robot 4 again, the cross-covariance sigma_04 sigma_40^T changes the result with robot 4's
+    # factor (I, as it sets after the update) from the one with none; a node that never met 4 has sigma_04 = 0, so
+    # robot 4's factor cannot matter to it
+    correlated = _measure_4_again(_rdl_exchanged_with((4, 2))[0], np.eye(3))
+    independent = _measure_4_again(_rdl_exchanged_with((4, 2))[0], np.zeros((3, 3)))
+    assert np.abs(correlated.mean - independent.mean).max() > 1e-3  # measured 7e-3
+    assert np.abs(correlated.cov - independent.cov).max() > 1e-5  # measured 3e-4, of 1e-3
+    strangers = [_measure_4_again(_rdl_exchanged_with((2,))[0], f) for f in (np.eye(3), np.zeros((3, 3)))]
+    assert _same(*strangers)

@@ -24,19 +24,15 @@ known edges, mapped onto the anchors by the least-squares similarity: rotation, 
 sequential multilateration from the anchors (ambiguities resolved towards the MDS-MAP positions). Either alone
 ends in a local minimum (a folded part of the network) on a few per cent of random networks; see the tests.
 
-Localizability (:func:`rigidity_report`): the network is uniquely localizable iff the *grounded* graph (the
-measurement graph plus edges between all anchors) is globally rigid with at least 3 non-collinear anchors (Aspnes et
-al., IEEE TMC 2006). In the plane, for generic positions, global rigidity <=> 3-connected and redundantly rigid
-(Jackson & Jordan 2005), and rigidity <=> the rigidity matrix has rank ``2N - 3`` (``N`` nodes, anchors included).
-The ranks are computed at a configuration (the initial one, then again at the solution), so a degenerate geometry
-(e.g. nodes measured only from collinear nodes) is refused as well and told apart from a flexible graph.
+Localizability (:func:`rigidity_report`): the grounded graph must be globally rigid with at least 3 non-collinear
+anchors; the checks (on the graph and a configuration only) are in :mod:`swarmloc.estimators.network_rigidity`.
+This module validates the input, initializes and solves; :class:`RigidityReport` is importable from either.
 """
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from numbers import Integral
 from typing import Any, NamedTuple
 
@@ -44,6 +40,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
+
+from swarmloc.estimators.network_rigidity import RigidityReport, localizability
 
 __all__ = [
     "NetworkSolution",
@@ -54,11 +52,6 @@ __all__ = [
     "rigidity_report",
 ]
 
-RANK_RTOL = 1e-8
-"""Singular values below ``RANK_RTOL`` times the largest count as zero (rows are unit vectors, so well scaled)."""
-COLLINEAR_RTOL = 1e-6
-"""Anchors are collinear when their second principal spread is below ``COLLINEAR_RTOL`` times the first."""
-
 
 class RangeMeasurement(NamedTuple):
     """Node ``i`` measured the distance ``range`` [m] to node ``j`` with standard deviation ``std`` [m]."""
@@ -67,39 +60,6 @@ class RangeMeasurement(NamedTuple):
     j: int
     range: float
     std: float
-
-
-@dataclass(frozen=True)
-class RigidityReport:
-    """Whether a network is (uniquely) localizable, and if not why, naming the nodes.
-
-    ``problems`` are human-readable sentences; ``localizable`` is True when there are none. The named fields list the
-    offending nodes per check: ``unconnected`` (no path of measurements to an anchor), ``low_degree`` (free nodes
-    with fewer than 3 distinct measured neighbours, ``{id: count}``), ``flexible`` (free nodes that can move
-    infinitesimally with all ranges and anchors fixed), ``separating_pairs`` (``(a, b, nodes)``: ``nodes`` reach
-    the anchors only through ``a`` and ``b`` and can be reflected across the line through them),
-    ``non_redundant`` (node pairs whose measurement is needed for rigidity: without it the network flexes, so one
-    range can be satisfied by two shapes). ``rank``/``expected_rank``: rank of the grounded rigidity matrix and
-    ``2N - 3``; ``configuration``: positions (all nodes) where the ranks were evaluated (None when not evaluated).
-    """
-
-    localizable: bool
-    problems: tuple[str, ...]
-    anchor_ids: tuple[int, ...]
-    free_ids: tuple[int, ...]
-    unconnected: tuple[int, ...] = ()
-    low_degree: Mapping[int, int] = field(default_factory=dict)
-    flexible: tuple[int, ...] = ()
-    separating_pairs: tuple[tuple[int, int, tuple[int, ...]], ...] = ()
-    non_redundant: tuple[tuple[int, int], ...] = ()
-    rank: int | None = None
-    expected_rank: int | None = None
-    configuration: Mapping[int, np.ndarray] | None = None
-
-    def raise_if_unlocalizable(self) -> None:
-        """Raise ValueError listing every problem when the network is not localizable."""
-        if not self.localizable:
-            raise ValueError("sensor network not localizable: " + "; ".join(self.problems))
 
 
 @dataclass(frozen=True)
@@ -237,102 +197,6 @@ def _configuration(positions: Mapping[int, Any], anc: dict[int, np.ndarray], fre
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# graph helpers
-
-
-def _adjacency(pairs: Iterable[tuple[int, int]], ids: Iterable[int]) -> dict[int, set[int]]:
-    adj: dict[int, set[int]] = {k: set() for k in ids}
-    for i, j in pairs:
-        adj[i].add(j)
-        adj[j].add(i)
-    return adj
-
-
-def _reach(adj: Mapping[int, set[int]], start: Iterable[int], removed: frozenset[int] = frozenset()) -> set[int]:
-    seen = {s for s in start if s not in removed}
-    todo = deque(seen)
-    while todo:
-        u = todo.popleft()
-        for v in adj[u]:
-            if v not in seen and v not in removed:
-                seen.add(v)
-                todo.append(v)
-    return seen
-
-
-def _articulation_points(adj: Mapping[int, set[int]], removed: int) -> set[int]:
-    """Cut vertices of the graph without node ``removed`` (iterative Tarjan)."""
-    disc: dict[int, int] = {}
-    low: dict[int, int] = {}
-    cut: set[int] = set()
-    t = 0
-    for root in adj:
-        if root == removed or root in disc:
-            continue
-        disc[root] = low[root] = t
-        t += 1
-        children = 0
-        stack = [(root, -1, iter(adj[root]))]
-        while stack:
-            u, parent, it = stack[-1]
-            advanced = False
-            for v in it:
-                if v == removed:
-                    continue
-                if v not in disc:
-                    disc[v] = low[v] = t
-                    t += 1
-                    if u == root:
-                        children += 1
-                    stack.append((v, u, iter(adj[v])))
-                    advanced = True
-                    break
-                if v != parent:
-                    low[u] = min(low[u], disc[v])
-            if advanced:
-                continue
-            stack.pop()
-            if stack:
-                p = stack[-1][0]
-                low[p] = min(low[p], low[u])
-                if p != root and low[u] >= disc[p]:
-                    cut.add(p)
-        if children > 1:
-            cut.add(root)
-    return cut
-
-
-def _rigidity_rows(pairs: Sequence[tuple[int, int]], conf: Mapping[int, np.ndarray], col: Mapping[int, int], ncol):
-    """Rigidity matrix with unit-vector rows (columns 2*col[k], 2*col[k]+1 for nodes in ``col``)."""
-    R = np.zeros((len(pairs), ncol))
-    for r, (i, j) in enumerate(pairs):
-        d = conf[j] - conf[i]
-        n = np.linalg.norm(d)
-        u = d / n if n > 0 else np.zeros(2)
-        if i in col:
-            R[r, 2 * col[i] : 2 * col[i] + 2] = -u
-        if j in col:
-            R[r, 2 * col[j] : 2 * col[j] + 2] = u
-    return R
-
-
-def _svd_rank(R: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
-    U, s, Vt = np.linalg.svd(R, full_matrices=True)
-    rank = int(np.sum(s > RANK_RTOL * s[0])) if s.size and s[0] > 0 else 0
-    return rank, U, s, Vt
-
-
-def _flexible_nodes(pairs, conf, free) -> tuple[int, ...]:
-    """Free nodes that move in some infinitesimal motion keeping ranges and anchors fixed."""
-    col = {k: n for n, k in enumerate(free)}
-    R = _rigidity_rows(pairs, conf, col, 2 * len(free))
-    rank, _, _, Vt = _svd_rank(R)
-    null = Vt[rank:].T.reshape(len(free), 2, -1)
-    move = np.sqrt(np.sum(null**2, axis=(1, 2)))
-    return tuple(k for k, m in zip(free, move, strict=True) if m > 1e-6)
-
-
-# ---------------------------------------------------------------------------------------------------------------
 # initialization
 
 
@@ -464,156 +328,20 @@ def rigidity_report(
 
 
 def _report(meas, anc, free, conf, unique) -> RigidityReport:
-    problems: list[str] = []
-    ids = tuple(sorted(anc)) + free
+    """:func:`localizability` of the measured pairs, at ``conf`` or else at the MDS-MAP configuration."""
     pairs = sorted({(min(m.i, m.j), max(m.i, m.j)) for m in meas})
-    adj = _adjacency(pairs, ids)
-    base = {"anchor_ids": tuple(sorted(anc)), "free_ids": free}
-
-    anchors_ok = True
-    if len(anc) < 3:
-        anchors_ok = False
-        problems.append(
-            f"too few anchors: {len(anc)} (ids {sorted(anc)}); a unique planar frame needs at least 3 non-collinear"
-        )
-    else:
-        A = np.array(list(anc.values()))
-        s = np.linalg.svd(A - A.mean(axis=0), compute_uv=False)
-        if s[0] == 0 or s[1] <= COLLINEAR_RTOL * s[0]:
-            anchors_ok = False
-            problems.append(
-                f"anchors {sorted(anc)} are collinear (or coincide): the network can be reflected across their line"
-            )
-
-    unconnected: tuple[int, ...] = ()
-    if anc:
-        reached = _reach(adj, anc)
-        unconnected = tuple(k for k in free if k not in reached)
-        if unconnected:
-            problems.append(f"node(s) {list(unconnected)} not connected to any anchor by measurements")
-    need = 3 if unique else 2
-    low = {k: len(adj[k]) for k in free if len(adj[k]) < need and k not in unconnected}
-    if low:
-        listed = ", ".join(f"{k} ({n})" for k, n in low.items())
-        problems.append(
-            f"node(s) with fewer than {need} distinct measured neighbours: {listed}"
-            + ("; 2 ranges leave a mirror ambiguity" if unique else "")
-        )
-    if not anchors_ok or unconnected:
-        return RigidityReport(False, tuple(problems), low_degree=low, unconnected=unconnected, **base)
-
-    if conf is None:
-        conf = dict(_mds(meas, anc, free))
-        conf.update(anc)
-    akeys = sorted(anc)
-    virtual = [(a, b) for n, a in enumerate(akeys) for b in akeys[n + 1 :]]
-    grounded = pairs + virtual
-    col = {k: n for n, k in enumerate(ids)}
-    Rg = _rigidity_rows(grounded, conf, col, 2 * len(ids))
-    rank, U, _, _ = _svd_rank(Rg)
-    expected = 2 * len(ids) - 3
-    flexible: tuple[int, ...] = ()
-    if rank < expected:
-        flexible = _flexible_nodes(pairs, conf, free)
-        generic = _generic_rank(grounded, ids)
-        if generic < expected:
-            problems.append(
-                f"the network is not rigid (rank {rank} of the rigidity matrix < 2N-3 = {expected}): node(s) "
-                f"{list(flexible)} are not rigidly attached to the anchors (they can move keeping all ranges)"
-            )
-        else:
-            problems.append(
-                f"degenerate geometry: the rigidity matrix has rank {rank} < 2N-3 = {expected} at this configuration "
-                f"(the graph is generically rigid; e.g. collinear neighbours); node(s) {list(flexible)} are not "
-                "determined to first order"
-            )
-    seps: list[tuple[int, int, tuple[int, ...]]] = []
-    nonred: tuple[tuple[int, int], ...] = ()
-    if unique and not flexible:
-        gadj = _adjacency(grounded, ids)
-        for v in ids:
-            for a in _articulation_points(gadj, v):
-                pair = (min(v, a), max(v, a))
-                if any(p[:2] == pair for p in seps):
-                    continue
-                rest = _reach(gadj, anc, frozenset(pair))
-                cut = tuple(k for k in free if k not in rest and k not in pair)
-                if cut and not set(cut) <= set(low):
-                    seps.append((pair[0], pair[1], cut))
-        for a, b, cut in seps:
-            problems.append(
-                f"node(s) {list(cut)} reach the anchors only through nodes {a} and {b}: they can be reflected "
-                "across the line through them (the graph is not 3-connected)"
-            )
-        if not seps and rank == expected:
-            stresses = U[:, rank:]
-            nonred = tuple(
-                grounded[r]
-                for r in range(len(grounded))
-                if stresses.shape[1] == 0 or np.max(np.abs(stresses[r])) < 1e-8
-            )
-            if nonred:
-                problems.append(
-                    f"not redundantly rigid: the range(s) between node pairs {[list(p) for p in nonred]} are each "
-                    "needed for rigidity (anchor pairs count as known ranges), so the network may have another shape "
-                    "that fits all ranges"
-                )
-    return RigidityReport(
-        not problems,
-        tuple(problems),
-        unconnected=unconnected,
-        low_degree=low,
-        flexible=flexible,
-        separating_pairs=tuple(seps),
-        non_redundant=nonred,
-        rank=rank,
-        expected_rank=expected,
-        configuration={k: np.array(v) for k, v in conf.items()},
-        **base,
-    )
-
-
-def _generic_rank(pairs, ids) -> int:
-    rng = np.random.default_rng(12345)
-    conf = {k: rng.uniform(-1.0, 1.0, 2) for k in ids}
-    col = {k: n for n, k in enumerate(ids)}
-    return _svd_rank(_rigidity_rows(pairs, conf, col, 2 * len(ids)))[0]
+    if conf is None:  # MDS-MAP, computed only once the early checks pass (it needs every node connected)
+        return localizability(pairs, anc, free, lambda: {**_mds(meas, anc, free), **anc}, unique)
+    return localizability(pairs, anc, free, conf, unique)
 
 
 # ---------------------------------------------------------------------------------------------------------------
 # least squares
 
 
-def localize_network(
-    measurements: Iterable[Any],
-    anchors: Mapping[int, Any] | Iterable[tuple[int, Any]],
-    initial: Mapping[int, Any] | None = None,
-    *,
-    nodes: Iterable[int] | None = None,
-    unique: bool = True,
-    xtol: float = 1e-12,
-    ftol: float = 1e-12,
-    gtol: float = 1e-12,
-    max_nfev: int | None = None,
-) -> NetworkSolution:
-    """Weighted least-squares positions of the non-anchor nodes of a range network, anchors held fixed.
-
-    Arguments as in :func:`rigidity_report`; ``initial``: id -> ``(x, y)`` [m] for every free node (entries for
-    anchors are ignored). Without it, two starts are solved and the lower cost kept: :func:`mds_initialization`
-    (MDS-MAP) and sequential multilateration from the anchors (each node placed from its already placed neighbours,
-    ambiguities resolved towards the MDS-MAP position). The network is checked first (:func:`rigidity_report` at
-    the initial, resp. MDS-MAP, configuration) and refused with a ValueError naming the problem and the nodes; the
-    rank is checked again at the solution. Solved with :func:`scipy.optimize.least_squares` (trust region
-    reflective, analytic Jacobian, residuals ``(||p_j - p_i|| - z) / std``); the covariance is ``(J^T W J)^-1`` at the
-    solution. Tolerances and ``max_nfev`` go to ``least_squares``.
-    """
-    meas, anc, free = _setup(measurements, anchors, nodes)
-    conf = None if initial is None else _configuration(initial, anc, free, "initial")
-    report = _report(meas, anc, free, conf, unique)
-    report.raise_if_unlocalizable()
-    conf = report.configuration
-    assert conf is not None
-
+def _residuals(meas: list[RangeMeasurement], free: tuple[int, ...], conf: Mapping[int, np.ndarray]):
+    """``(fun, jac, w)``: the weighted residuals ``(||p_j - p_i|| - z) / std`` of the free nodes' stacked positions
+    ``x`` (order of ``free``; the anchors at ``conf``), their analytic Jacobian, and the weights ``1 / std``."""
     col = {k: n for n, k in enumerate(free)}
     I = np.array([m.i for m in meas])
     J = np.array([m.j for m in meas])
@@ -647,6 +375,40 @@ def localize_network(
             Jm[rows[ok], 2 * f[ok] + 1] += sign * u[ok, 1]
         return Jm
 
+    return fun, jac, w
+
+
+def localize_network(
+    measurements: Iterable[Any],
+    anchors: Mapping[int, Any] | Iterable[tuple[int, Any]],
+    initial: Mapping[int, Any] | None = None,
+    *,
+    nodes: Iterable[int] | None = None,
+    unique: bool = True,
+    xtol: float = 1e-12,
+    ftol: float = 1e-12,
+    gtol: float = 1e-12,
+    max_nfev: int | None = None,
+) -> NetworkSolution:
+    """Weighted least-squares positions of the non-anchor nodes of a range network, anchors held fixed.
+
+    Arguments as in :func:`rigidity_report`; ``initial``: id -> ``(x, y)`` [m] for every free node (entries for
+    anchors are ignored). Without it, two starts are solved and the lower cost kept: :func:`mds_initialization`
+    (MDS-MAP) and sequential multilateration from the anchors (each node placed from its already placed neighbours,
+    ambiguities resolved towards the MDS-MAP position). The network is checked first (:func:`rigidity_report` at
+    the initial, resp. MDS-MAP, configuration) and refused with a ValueError naming the problem and the nodes; the
+    rank is checked again at the solution. Solved with :func:`scipy.optimize.least_squares` (trust region
+    reflective, analytic Jacobian, residuals ``(||p_j - p_i|| - z) / std``); the covariance is ``(J^T W J)^-1`` at the
+    solution. Tolerances and ``max_nfev`` go to ``least_squares``.
+    """
+    meas, anc, free = _setup(measurements, anchors, nodes)
+    conf = None if initial is None else _configuration(initial, anc, free, "initial")
+    report = _report(meas, anc, free, conf, unique)
+    report.raise_if_unlocalizable()
+    conf = report.configuration
+    assert conf is not None
+
+    fun, jac, w = _residuals(meas, free, conf)
     starts = [np.concatenate([conf[k] for k in free])]
     if initial is None:
         lat = _multilateration(meas, anc, free, conf)
