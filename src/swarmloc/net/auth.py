@@ -72,7 +72,8 @@ MAX_SIGNED = 1 << 16
 MAX_AGE = 30.0
 """[s] default bound on a stamp's age (and lead): the members' clocks must agree to well within it."""
 REPLAY_WINDOW = 4096
-"""Sequence numbers remembered per sender; one more than the window below the newest accepted is refused."""
+"""Accepted sequence numbers remembered per sender (the newest); a number not above the newest one forgotten is
+refused, so a message overtaken by more than this many later ones of its sender is refused as a replay."""
 CONTEXT = b"swarmloc-signed-v1\0"
 ROSTER_FORMAT = 1
 MAX_ROSTER_BYTES = 1 << 20

@@ -203,7 +203,9 @@ def _latest_from_server(
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         selector = f"{server_key(team)}?latest={robot}"
-        for reply in session.get(selector, timeout=1.0, consolidation=zenoh.ConsolidationMode.NONE):
+        for reply in session.get(
+            selector, timeout=1.0, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE
+        ):
             if reply.ok is None:
                 continue
             try:

@@ -133,7 +133,10 @@ class Outbound:
                     key,
                     payload=payload,
                     timeout=timeout,
-                    consolidation=zenoh.ConsolidationMode.NONE,  # every reply: a forged one cannot hide the real one
+                    # every queryable on the key and every reply: another peer's "complete" queryable or a forged
+                    # reply cannot hide the real one (each reply is authenticated on its own)
+                    target=zenoh.QueryTarget.ALL,
+                    consolidation=zenoh.ConsolidationMode.NONE,
                     handler=zenoh.handlers.Callback(
                         lambda r: put(("reply", qid, r)), lambda: put(("reply_end", qid, None))
                     ),

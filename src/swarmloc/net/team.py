@@ -325,7 +325,8 @@ class _Launcher:
     def run(self, t_first: float, max_wall: float) -> TeamRun:
         """Start the team, watch it, and stop every process it started, whatever happens (``t_first``: the
         source's start, which the fault times count from)."""
-        session = open_session([self.ep["collector"]], [self.ep[k] for k in self.ep if k != "collector"])
+        others = [self.ep[k] for k in self.ep if k != "collector"] + self.connect_extra
+        session = open_session([self.ep["collector"]], others)
         put = self.inq.put
         subs = [
             session.declare_subscriber(robot_key(self.team, "*", what), handler=lambda x: put(("sample", x)))
