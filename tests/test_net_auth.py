@@ -33,7 +33,7 @@ from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.experiments.sources import load_source
 from swarmloc.experiments.team import run_team, team_result, write_team_report
-from swarmloc.messages import BeliefAnswer, RdlStateQuery, RdlUpdate, flat
+from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.auth import (
     CATEGORIES,
     COLLECTOR,
@@ -262,26 +262,49 @@ class _Session:
         pass
 
 
+def offline_node(auth: Auth | None) -> NetNode:
+    """Robot 0 of a simulated team of 3 (rdl) in a driver that is never opened (nothing sent)."""
+    src = load_source("sim:random", robots=3, duration=4.0, seed=0)
+    node = make_node("rdl", 0, src.initial[0], src.config, src.landmarks)
+    node.start(src.t_start)
+    return NetNode(node, src.own_events(0), session=_Session(), team=TEAM, roster=src.robots,
+                   record_times=src.record_times(), auth=auth)  # fmt: skip
+
+
+FORGED_QUERY = RdlStateQuery(sender=1, receiver=0, stamp=1.0)
+FORGED_UPDATE = RdlUpdate(sender=1, receiver=0, stamp=1.0, x=(100.0, 0.0, 0.0), P=COV)
+FORGED_DONE = Progress(robot=1, t=math.inf, done=True)
+FORGED_REPLY = BeliefAnswer(sender=1, receiver=0, stamp=1.0, mean=SHIFT, cov=COV)
+
+
+def test_unauthenticated_node_takes_forged_messages():
+    """The control, as every node was before: without ``auth`` the same forgeries, unsigned, are taken (the query
+    held for an answer, the update stepped, robot 1 taken for done, the reply held for the node)."""
+    net = offline_node(None)
+    net._handle("query", _Sample(robot_key(TEAM, 0, "query"), encode(TEAM, 1, 0, FORGED_QUERY)))
+    net._handle("inbox", _Sample(INBOX0, encode(TEAM, 1, 1, FORGED_UPDATE)))
+    net._handle("progress", _Sample(PROGRESS1, encode(TEAM, 1, 3, FORGED_DONE)))
+    net._outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
+    net._handle("reply", 7, _Sample(robot_key(TEAM, 1, "query"), encode(TEAM, 1, 4, FORGED_REPLY)))
+    assert net.counts["rejected"] == 0 and len(net._deferred) == 1 and 1 in net._done
+    assert net._outstanding[7][2] is True
+
+
 def test_node_refuses_and_counts_forged_messages_on_every_path(keys):
     """Robot 0 (offline, authenticated) receives, in robot 1's name with robot 2's key, a query, an update, a reply,
     a progress "done"; unsigned and replayed ones too: each is refused before decoding, counted by category, and
     nothing reaches the node (its state and lockstep unchanged)."""
-    src = load_source("sim:random", robots=3, duration=4.0, seed=0)
-    node = make_node("rdl", 0, src.initial[0], src.config, src.landmarks)
-    node.start(src.t_start)
-    net = NetNode(node, src.own_events(0), session=_Session(), team=TEAM, roster=src.robots,
-                  record_times=src.record_times(), auth=Auth.load(keys[1][0], keys[0], 0))  # fmt: skip
+    net = offline_node(Auth.load(keys[1][0], keys[0], 0))
+    node = net.node
     forged, genuine = signer(keys, 2, as_member=1), signer(keys, 1)
-    q = RdlStateQuery(sender=1, receiver=0, stamp=1.0)
-    u = RdlUpdate(sender=1, receiver=0, stamp=1.0, x=(100.0, 0.0, 0.0), P=COV)
+    q, u = FORGED_QUERY, FORGED_UPDATE
     query = _Sample(robot_key(TEAM, 0, "query"), forged.seal(robot_key(TEAM, 0, "query"), encode(TEAM, 1, 0, q)))
     net._handle("query", query)
     net._handle("inbox", _Sample(INBOX0, forged.seal(INBOX0, encode(TEAM, 1, 1, u))))
     net._handle("inbox", _Sample(INBOX0, encode(TEAM, 1, 2, u)))
-    done = encode(TEAM, 1, 3, Progress(robot=1, t=math.inf, done=True))
-    net._handle("progress", _Sample(PROGRESS1, forged.seal(PROGRESS1, done)))
-    net._outstanding[7] = (q, "robot", False)
-    reply = encode(TEAM, 1, 4, BeliefAnswer(sender=1, receiver=0, stamp=1.0, mean=SHIFT, cov=COV))
+    net._handle("progress", _Sample(PROGRESS1, forged.seal(PROGRESS1, encode(TEAM, 1, 3, FORGED_DONE))))
+    net._outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
+    reply = encode(TEAM, 1, 4, FORGED_REPLY)
     net._handle("reply", 7, _Sample(robot_key(TEAM, 1, "query"), forged.seal(robot_key(TEAM, 1, "query"), reply)))
     real = genuine.seal(PROGRESS1, encode(TEAM, 1, 5, Progress(robot=1, t=2.0)))
     net._handle("progress", _Sample(PROGRESS1, real))
