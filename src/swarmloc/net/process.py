@@ -3,8 +3,9 @@
 :class:`NetNode` is the network driver of the sans-I/O node. It reads the robot's own events from its source,
 steps the node, and carries the messages the node returns: a query to a neighbour is a Zenoh ``get`` on the
 neighbour's ``query`` key (the reply is the answer), a revised answer or a pairwise update is a ``put`` on the
-receiver's ``inbox``. Everything received is decoded and validated (:func:`swarmloc.net.schema.decode`) on the
-node's one thread; a bad message is dropped, counted with its reason, and logged; the node keeps running.
+receiver's ``inbox``. Everything received is authenticated (with ``auth``: signed by the member it names,
+:mod:`swarmloc.net.auth`), decoded and validated (:func:`swarmloc.net.schema.decode`) on the node's one thread;
+a bad message is dropped, counted with its reason, and logged; the node keeps running.
 
 Parts, one job each: :mod:`~swarmloc.net.wiring` (the Zenoh declarations), :mod:`~swarmloc.net.inbound` (the
 queue, decoding with its bounds, queries, pushed messages, replies), :mod:`~swarmloc.net.lockstep` (when to read an
