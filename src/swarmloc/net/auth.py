@@ -67,8 +67,10 @@ COLLECTOR = -2
 MAGIC = b"SLS1"
 HEADER = struct.Struct(">4siQq8s")  # magic, sender, seq, stamp [ns], key id
 SIG_SIZE = 64
-MAX_SIGNED = 1 << 16
-"""[bytes] the largest signed frame a receiver parses (the largest message of a run is a node's report, ~2 KiB)."""
+MAX_SIGNED = 1 << 20
+"""[bytes] the largest signed frame a receiver parses. A message is a few hundred bytes, a node's report a few KiB
+(tens under a flood of distinct refusals, each reason counted): the bound keeps a flood of large frames from costing
+more than a hash of 1 MiB each."""
 MAX_AGE = 30.0
 """[s] default bound on a stamp's age (and lead): the members' clocks must agree to well within it."""
 REPLAY_WINDOW = 4096
@@ -114,7 +116,7 @@ def member_id(name: str) -> int:
     ids = {v: k for k, v in NAMES.items()}
     if name in ids:
         return ids[name]
-    if not name.isdigit() or len(name) > 9:
+    if not (name.isascii() and name.isdigit()) or len(name) > 9:
         raise ValueError(f"roster: member {name!r} is neither a robot id (0, 1, ...) nor 'server' nor 'collector'")
     return int(name)
 
