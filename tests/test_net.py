@@ -263,9 +263,9 @@ def test_every_timeout_reaches_every_node_under_its_own_name(monkeypatch, capsys
     got: dict = {}
     stats = dict.fromkeys(("detections", "fused", "gated", "rejected", "unknown"), 0)
     monkeypatch.setattr(entry, "node_main", lambda **kw: got.update(kw) or Report(robot=kw["robot"], stats=stats))
-    assert main(["node", "--team", "t", "--robot", "1", *args]) == 0
+    assert main(["node", "--team", "t", "--robot", "1", "--no-auth", *args]) == 0
     assert {k: got[k] for k in waits} == waits and got["robot"] == 1 and got["src"].robots == [0, 1, 2]
-    assert "robot 1: 0 detections" in capsys.readouterr().out
+    assert got["auth"] is None and "robot 1: 0 detections" in capsys.readouterr().out
     for flag in ("--max-wall", "--timeout"):
         assert build_parser().parse_args(["team", "--out", "o", flag, "5"]).max_wall == 5.0
 

@@ -1,4 +1,4 @@
-"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | compare | node | server | team``.
+"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | compare | node | server | team | keys``.
 
 Every command writes its results (Markdown, JSON, PNG, TUM) to an output folder and prints a short summary; errors in
 the input (a missing dataset file, a malformed line, an unknown estimator, a bad configuration) are reported in
@@ -187,6 +187,21 @@ def _net_logging(verbose: bool) -> None:
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")  # fmt: skip
 
 
+def _auth(args: argparse.Namespace, member: int):  # noqa: ANN202
+    """The process's :class:`~swarmloc.net.auth.Auth` from ``--key`` and ``--roster``; None with ``--no-auth``."""
+    from swarmloc.net.auth import Auth
+
+    if args.no_auth:
+        if args.key or args.roster:
+            raise ValueError("--no-auth takes neither --key nor --roster")
+        print("warning: --no-auth: any process on the network can speak in any member's name", file=sys.stderr)
+        return None
+    if not (args.key and args.roster):
+        raise ValueError("give this process's --key FILE and the team's --roster FILE (make them with "
+                         "'swarmloc keys'), or --no-auth on a trusted network")  # fmt: skip
+    return Auth.load(args.key, args.roster, member)
+
+
 def _node(args: argparse.Namespace) -> int:
     from swarmloc.config import ConfigError
     from swarmloc.experiments.sources import load_source
@@ -196,13 +211,14 @@ def _node(args: argparse.Namespace) -> int:
     _net_logging(args.verbose)
     try:
         check_team(args.team)
+        auth = _auth(args, args.robot)
         config = _config(args) if args.config else None
         src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
         report = node_main(
             src=src, robot=args.robot, team=args.team, estimator=args.estimator, speed=args.speed, lag=args.lag,
             listen=_endpoints(args.listen), connect=_endpoints(args.connect), zenoh_config=args.zenoh_config,
             use_server=args.use_server, resume=args.resume, faults=args.faults, wait_for=_ids(args.wait_for),
-            ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, **_timeouts(args),
+            ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, auth=auth, **_timeouts(args),
         )  # fmt: skip
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc node: {exc}", file=sys.stderr)
@@ -218,12 +234,19 @@ def _node(args: argparse.Namespace) -> int:
 
 def _server(args: argparse.Namespace) -> int:
     from swarmloc.net.entry import server_main
+    from swarmloc.net.schema import SERVER
 
     _net_logging(args.verbose)
     try:
+        if args.roster and not args.key and all(c.isdigit() or c == "," for c in args.roster):
+            raise ValueError("--roster is the team's roster FILE (with --key); the robot ids go to --robots")
+        auth = _auth(args, SERVER)
+        robots = _ids(args.robots) if args.robots else (auth.roster.robots if auth is not None else None)
+        if not robots:
+            raise ValueError("--robots: the team's robot ids, comma-separated (default: the roster's robots)")
         server_main(
-            team=args.team, roster=_ids(args.roster) or [], listen=_endpoints(args.listen),
-            connect=_endpoints(args.connect), zenoh_config=args.zenoh_config, max_wall=args.max_wall,
+            team=args.team, roster=robots, listen=_endpoints(args.listen), connect=_endpoints(args.connect),
+            zenoh_config=args.zenoh_config, max_wall=args.max_wall, auth=auth,
         )  # fmt: skip
     except (ValueError, OSError) as exc:
         print(f"swarmloc server: {exc}", file=sys.stderr)
@@ -298,6 +321,56 @@ def _net_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-config", default=None, help="a Zenoh JSON5 configuration file (TLS, access control)")
     p.add_argument("--max-wall", type=float, default=None, help="stop after this many wall-clock seconds")
     p.add_argument("--verbose", action="store_true", help="log the node's state every 2 s")
+
+
+def _auth_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--key", default=None, help="this process's private key file (swarmloc keys new)")
+    p.add_argument("--roster", default=None, help="the team's roster file: member ids and public keys")
+    p.add_argument("--no-auth", action="store_true", help="send unsigned, accept unsigned (a trusted network only)")
+
+
+def _keys(args: argparse.Namespace) -> int:
+    import base64
+
+    from swarmloc.net import auth
+
+    try:
+        if args.keys_command == "new":
+            public = auth.new_key(args.file)
+            b64 = base64.b64encode(public).decode()
+            print(f"private key {args.file} (mode 0600); public key {args.file}.pub: {b64}")
+        elif args.keys_command == "roster":
+            members = dict(m.split("=", 1) for m in args.members if "=" in m)
+            if len(members) != len(args.members):
+                raise ValueError("members are MEMBER=KEY: 0=robot0.key.pub, server=server.key.pub ...")
+            keys = {auth.member_id(k.strip()): auth.public_key(v) for k, v in members.items()}
+            r = auth.Roster(keys, args.max_age)
+            r.save(args.out)
+            print(f"roster {args.out}: robots {r.robots}" + ", server" * (-1 in keys) + ", collector" * (-2 in keys))
+        else:
+            roster, files = auth.make_team_keys(args.out, _ids(args.robots) or [], args.max_age)
+            print(f"keys of robots {args.robots}, the server and the collector in {args.out}/; roster {roster}")
+    except (ValueError, OSError) as exc:
+        print(f"swarmloc keys: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _keys_parser(sub: argparse._SubParsersAction) -> None:
+    k = sub.add_parser("keys", help="make Ed25519 key pairs and the team's roster (authenticated senders)")
+    ks = k.add_subparsers(dest="keys_command", required=True)
+    n = ks.add_parser("new", help="a key pair: FILE (private, mode 0600) and FILE.pub (public, base64)")
+    n.add_argument("file")
+    r = ks.add_parser("roster", help="a roster from the members' public keys: 0=robot0.key.pub server=... ")
+    r.add_argument("members", nargs="+", help="MEMBER=KEY: a robot id, 'server' or 'collector' = a .pub file, "
+                   "a private key file or base64")  # fmt: skip
+    r.add_argument("--out", required=True, help="the roster file to write")
+    t = ks.add_parser("team", help="every key of a team and its roster in one folder (for one trusted machine)")
+    t.add_argument("--robots", required=True, help="robot ids, comma-separated")
+    t.add_argument("--out", required=True, help="folder for robot<id>.key, server.key, collector.key, roster.json")
+    for p in (r, t):
+        p.add_argument("--max-age", type=float, default=30.0, help="seconds a signed stamp may be old (default 30)")
+    k.set_defaults(func=_keys)
 
 
 def _timeout_args(p: argparse.ArgumentParser) -> None:
@@ -392,12 +465,15 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--wait-for", default=None, help="robot ids to wait for before starting (default: the team)")
     _timeout_args(n)
     n.add_argument("--out", default=None, help="folder for robot<N>.tum (final beliefs) and robot<N>.json (report)")
+    _auth_args(n)
     n.set_defaults(func=_node)
 
     sv = sub.add_parser("server", help="run the belief server of a team (stores every robot's Gaussian)")
     _net_args(sv)
-    sv.add_argument("--roster", required=True, help="the team's robot ids, comma-separated")
+    sv.add_argument("--robots", default=None, help="the team's robot ids, comma-separated (default: the roster's)")
+    _auth_args(sv)
     sv.set_defaults(func=_server)
+    _keys_parser(sub)
 
     cp = sub.add_parser("compare", help="every estimator on identical events: one table (sim scenario or dataset)")
     cp.add_argument("--scenario", default="sim:random", help="sim:random, sim:range_bearing, mrclam:PATH, events:PATH")

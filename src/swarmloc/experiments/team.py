@@ -46,7 +46,8 @@ def run_team(
 
 def team_result(run: TeamRun, src: Source, estimator: str) -> RunResult:
     """The collected run as a :class:`~swarmloc.runner.RunResult` (node counters summed over the reports; network
-    counters under ``net_*``)."""
+    counters under ``net_*``, e.g. ``net_auth_key_mismatch``; the collector's own under ``collector_*``, its reasons
+    as ``collector: <reason>``)."""
     stats: Counter[str] = Counter()
     reasons: Counter[str] = Counter()
     for rep in run.reports.values():
@@ -56,6 +57,7 @@ def team_result(run: TeamRun, src: Source, estimator: str) -> RunResult:
         reasons.update({f"network: {k}": v for k, v in rep.net_reasons.items()})
     for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
         stats.setdefault(k, 0)
+    reasons.update({f"collector: {k}": v for k, v in run.reasons.items()})
     stats["recorded"] = len(run.beliefs)
     stats["recorded_provisional_only"] = sum(not b.final for b in run.beliefs.values())
     stats["reports"] = len(run.reports)

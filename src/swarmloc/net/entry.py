@@ -3,7 +3,9 @@
 :func:`node_main` runs one robot (its own events of a :class:`~swarmloc.datasets.source.Source`, one node of a
 distributed estimator) on a Zenoh peer until the team is done; :func:`server_main` runs the belief server. The
 caller builds the source (``swarmloc node`` loads it by its spec): a node process reads only its own robot's
-events of it, never the ground truth.
+events of it, never the ground truth. With ``auth`` (:class:`~swarmloc.net.auth.Auth`: the process's key and the
+team's roster, ``swarmloc node --key FILE --roster FILE``) everything sent is signed and everything received
+authenticated (:mod:`swarmloc.net.auth`).
 """
 
 from __future__ import annotations
@@ -23,8 +25,9 @@ import numpy as np
 from swarmloc.config import Config
 from swarmloc.datasets.source import Source
 from swarmloc.events import Event, Odometry
+from swarmloc.net.auth import Auth, open_envelope
 from swarmloc.net.faults import Faults, parse_faults
-from swarmloc.net.schema import Belief, Rejected, Report, decode
+from swarmloc.net.schema import SERVER, Belief, Rejected, Report
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import check_team, open_session, server_key
 
@@ -99,21 +102,23 @@ def node_main(
     ros_domain: int | None = None,
     max_wall: float | None = None,
     out: str | os.PathLike[str] | None = None,
+    auth: Auth | None = None,
 ) -> Report:
     """Run robot ``robot`` of ``src`` as one Zenoh peer until the team is done; returns its report. With
     ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there.
 
     The timeouts [s] are :class:`~swarmloc.net.process.NetNode`'s; ``max_wall`` [s] stops the node whatever its
-    state (None: no limit)."""
+    state (None: no limit). ``auth``: robot ``robot``'s key and the team's roster (None: unauthenticated)."""
     from swarmloc.net.process import NetNode
 
     check_team(team)
     if robot not in src.initial:
         raise ValueError(f"robot {robot} is not in source {src.spec!r} (robots {src.robots})")
+    _check_roster(auth, src.robots)
     session = open_session(listen, connect, zenoh_config)
     finals: dict[float, Belief] = {}
     try:
-        node, events, record_times = _start(session, src, robot, team, estimator, resume)
+        node, events, record_times = _start(session, src, robot, team, estimator, resume, auth)
         net = NetNode(
             node,
             events,
@@ -132,6 +137,7 @@ def node_main(
             wait_for=wait_for,
             ros_domain=ros_domain,
             on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
+            auth=auth,
         )
         _stop_on_sigterm(net.stop)
         report = net.run(max_wall=max_wall)
@@ -142,7 +148,15 @@ def node_main(
         session.close()
 
 
-def _start(session: Any, src: Source, robot: int, team: str, estimator: str, resume: bool) -> tuple:
+def _check_roster(auth: Auth | None, robots: Sequence[int]) -> None:
+    """The team's roster must name every robot of the source (a robot left out could not be heard)."""
+    if auth is not None:
+        missing = sorted(set(robots) - set(auth.roster.robots))
+        if missing:
+            raise ValueError(f"the roster has no key for robots {missing} of the team {list(robots)}")
+
+
+def _start(session: Any, src: Source, robot: int, team: str, estimator: str, resume: bool, auth: Any) -> tuple:
     """The started node of ``robot``, the events it reads and its record times: from the source's start, or with
     ``resume`` from its latest belief on the team's belief server."""
     from swarmloc.gaussian import GroupGaussian
@@ -152,7 +166,7 @@ def _start(session: Any, src: Source, robot: int, team: str, estimator: str, res
     initial = src.initial[robot]
     record_times = src.record_times()
     if resume:
-        b = _latest_from_server(session, team, src.robots, robot)
+        b = _latest_from_server(session, team, src.robots, robot, auth)
         initial = GroupGaussian(SE2, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
         events = resume_events(events, b.stamp)
         record_times = record_times[record_times > b.stamp]
@@ -180,19 +194,26 @@ def _write_outputs(folder: Path, robot: int, finals: list[Belief], report: Repor
 
 
 def _latest_from_server(
-    session: Any, team: str, roster: Sequence[int], robot: int, timeout: float = RESUME_TIMEOUT
+    session: Any, team: str, roster: Sequence[int], robot: int, auth: Auth | None, timeout: float = RESUME_TIMEOUT
 ) -> Belief:
-    """``robot``'s latest belief on the team's belief server, asked for until ``timeout`` s passed."""
+    """``robot``'s latest belief on the team's belief server, asked for until ``timeout`` s passed (with ``auth``:
+    only a reply signed by the server)."""
+    import zenoh
+
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        for reply in session.get(f"{server_key(team)}?latest={robot}", timeout=1.0):
+        selector = f"{server_key(team)}?latest={robot}"
+        for reply in session.get(
+            selector, timeout=1.0, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE
+        ):
             if reply.ok is None:
                 continue
             try:
-                env = decode(reply.ok.payload.to_bytes(), team, roster)
-            except Rejected:
+                env = open_envelope(auth, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), team, roster)
+            except Rejected as exc:
+                log.warning("robot %s: refused a reply of the belief server: %s", robot, exc.reason)
                 continue
-            if isinstance(env.body, Belief) and env.body.robot == robot:
+            if env.from_robot == SERVER and isinstance(env.body, Belief) and env.body.robot == robot:
                 return env.body
         time.sleep(0.1)
     raise RuntimeError(f"robot {robot}: no belief to resume from on the belief server of team {team!r}")
@@ -206,14 +227,17 @@ def server_main(
     connect: Sequence[str] = (),
     zenoh_config: str | None = None,
     max_wall: float | None = None,
+    auth: Auth | None = None,
 ) -> None:
-    """Run the belief server of ``team`` until SIGTERM / Ctrl-C (or ``max_wall`` s)."""
+    """Run the belief server of ``team`` until SIGTERM / Ctrl-C (or ``max_wall`` s); ``auth``: the server's key and
+    the team's roster (None: unauthenticated)."""
     from swarmloc.net.server import ServerProcess
 
     check_team(team)
+    _check_roster(auth, roster)
     session = open_session(listen, connect, zenoh_config)
     try:
-        sp = ServerProcess(session, team, roster)
+        sp = ServerProcess(session, team, roster, auth=auth)
         _stop_on_sigterm(sp.stop)
         try:
             sp.run(max_wall=max_wall)

@@ -14,8 +14,9 @@ import time
 from typing import Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate
-from swarmloc.net.outbound import reply_err
-from swarmloc.net.schema import SERVER, Belief, Envelope, Progress, Rejected, Report, decode
+from swarmloc.net.auth import note_refusal, open_envelope
+from swarmloc.net.outbound import key_of, reply_err
+from swarmloc.net.schema import SERVER, Belief, Envelope, Progress, Rejected, Report
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
@@ -67,7 +68,7 @@ class Inbound:
         query is refused at once."""
         self.counts["received"] += 1
         raw = x.payload.to_bytes() if x.payload is not None else None
-        env = self._decode(raw, "query")
+        env = self._decode(raw, "query", key_of(x))
         if env is None or not isinstance(env.body, BeliefQuery | RdlStateQuery):
             if env is not None:
                 self._reject(f"{type(env.body).__name__} sent as a query", "query")
@@ -79,7 +80,7 @@ class Inbound:
     def _on_inbox(self, x: Any) -> None:
         """A pushed message: a revised answer or a pairwise update (an expected update releases what waited for it)."""
         self.counts["received"] += 1
-        env = self._decode(x.payload.to_bytes(), "pushed message")
+        env = self._decode(x.payload.to_bytes(), "pushed message", key_of(x))
         if env is None:
             return
         if isinstance(env.body, BeliefQuery | RdlStateQuery | Belief | Progress | Report):
@@ -108,16 +109,26 @@ class Inbound:
         else:
             log.debug("robot %s: dropped a %s: %s", self.robot, where, reason)
 
-    def _decode(self, payload: bytes | None, where: str) -> Envelope | None:
-        """A neighbour's (or the server's) message for this robot, validated (:func:`~swarmloc.net.schema.decode`:
+    def _refuse(self, exc: Rejected, where: str) -> None:
+        """Count a dropped message: an authentication failure also as ``auth_<category>``, logged with its detail
+        (:func:`~swarmloc.net.auth.note_refusal`)."""
+        if note_refusal(self.counts, exc, f"robot {self.robot}", where):
+            self.counts["rejected"] += 1
+            self.reasons[exc.reason] += 1
+        else:
+            self._reject(exc.reason, where)
+
+    def _decode(self, payload: bytes | None, where: str, key: str = "") -> Envelope | None:
+        """A neighbour's (or the server's) message for this robot received on ``key``, authenticated (with ``auth``:
+        signed by the sender it names, :mod:`swarmloc.net.auth`) and validated (:func:`~swarmloc.net.schema.decode`:
         team, roster, sender, addressee, numbers); None when it is dropped (counted with the reason)."""
         if payload is None:
             self._reject("empty payload", where)
             return None
         try:
-            env = decode(payload, self.team, self.roster, to_robot=self.robot)
+            env = open_envelope(self.auth, key, payload, self.team, self.roster, to_robot=self.robot)
         except Rejected as exc:
-            self._reject(exc.reason, where)
+            self._refuse(exc, where)
             return None
         b = env.body
         if env.from_robot != SERVER and getattr(b, "seq", 0) < 0:
@@ -136,7 +147,7 @@ class Inbound:
         if ok is None:
             self._reject(f"error reply: {reply.err.payload.to_bytes()[:80]!r}", "reply")
             return
-        env = self._decode(ok.payload.to_bytes(), "reply")
+        env = self._decode(ok.payload.to_bytes(), "reply", key_of(ok))
         if env is None:
             return
         a = env.body

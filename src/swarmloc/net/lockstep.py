@@ -17,7 +17,9 @@ from typing import Any
 
 from swarmloc.events import Odometry
 from swarmloc.messages import Message
-from swarmloc.net.schema import Progress, Rejected, decode
+from swarmloc.net.auth import open_envelope
+from swarmloc.net.outbound import key_of
+from swarmloc.net.schema import Progress, Rejected
 from swarmloc.net.transport import robot_of
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
@@ -39,9 +41,10 @@ class Lockstep:
     def _on_progress(self, x: Any) -> None:
         """A teammate's progress announcement: how far it has read its source (and whether it is done)."""
         try:
-            env = decode(x.payload.to_bytes(), self.team, self.roster, server_ok=False)
+            env = open_envelope(self.auth, key_of(x), x.payload.to_bytes(), self.team, self.roster, server_ok=False,
+                                publication=True)  # fmt: skip
         except Rejected as exc:
-            self._reject(exc.reason, "progress message")
+            self._refuse(exc, "progress message")
             return
         p = env.body
         if isinstance(p, Progress) and p.robot != self.robot:

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery
+from swarmloc.net.auth import seal
 from swarmloc.net.schema import encode
 from swarmloc.net.transport import robot_key, server_key
 
@@ -40,9 +41,9 @@ class Outbound:
         self.coalesce = 0.05
         """[s] with link faults: the outbox is sent at most this often."""
 
-    def _env(self, body: Any) -> bytes:
-        """``body`` in this robot's envelope, with its next sequence number."""
-        return encode(self.team, self.robot, next(self._seq), body)
+    def _env(self, body: Any, key: str) -> bytes:
+        """``body`` in this robot's envelope, with its next sequence number, signed for ``key`` (with ``auth``)."""
+        return seal(self.auth, key, encode(self.team, self.robot, next(self._seq), body))
 
     def _faulty(self, send: Callable[[], None]) -> int:
         """Send now, or as the link faults say (lost, delayed, duplicated); returns the copies sent."""
@@ -77,7 +78,7 @@ class Outbound:
                 and isinstance(asked, BeliefQuery | RdlStateQuery)
                 and (m.receiver, m.stamp, m.sub) == (asked.sender, asked.stamp, asked.sub)
             ):
-                payload, q = self._env(m), query
+                payload, q = self._env(m, key_of(query)), query
                 query = None
                 if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
                     self._expect[(float(m.stamp), 1, m.receiver, tuple(m.sub))] = time.monotonic()
@@ -106,7 +107,8 @@ class Outbound:
         out, self._outbox = self._outbox, {}
         put, block = self.session.put, self._block
         for m in out.values():
-            payload, key = self._env(m), robot_key(self.team, m.receiver, "inbox")
+            key = robot_key(self.team, m.receiver, "inbox")
+            payload = self._env(m, key)
             self._faulty(lambda key=key, payload=payload: put(key, payload, congestion_control=block))
 
     def _ask(self, m: Message, via_server: bool = False) -> None:
@@ -119,7 +121,7 @@ class Outbound:
         qid = next(self._qids)
         self._outstanding[qid] = (m, "server" if via_server else "robot", False)
         key = server_key(self.team) if via_server else robot_key(self.team, m.receiver, "query")
-        payload = self._env(m)
+        payload = self._env(m, key)
         timeout = self.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
         put = self._inq.put
 
@@ -131,6 +133,10 @@ class Outbound:
                     key,
                     payload=payload,
                     timeout=timeout,
+                    # every queryable on the key and every reply: another peer's "complete" queryable or a forged
+                    # reply cannot hide the real one (each reply is authenticated on its own)
+                    target=zenoh.QueryTarget.ALL,
+                    consolidation=zenoh.ConsolidationMode.NONE,
                     handler=zenoh.handlers.Callback(
                         lambda r: put(("reply", qid, r)), lambda: put(("reply_end", qid, None))
                     ),
@@ -165,6 +171,11 @@ class Outbound:
                 self.counts["send_failed"] += 1
                 log.debug("robot %s: delayed send failed: %s", self.robot, exc)
         return self._timers[0][0] - now if self._timers else math.inf
+
+
+def key_of(x: Any) -> str:
+    """The key expression of a Zenoh sample, query or reply sample (what a signature covers)."""
+    return str(getattr(x, "key_expr", ""))
 
 
 def reply(query: Any, payload: bytes) -> None:

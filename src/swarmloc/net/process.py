@@ -3,8 +3,9 @@
 :class:`NetNode` is the network driver of the sans-I/O node. It reads the robot's own events from its source,
 steps the node, and carries the messages the node returns: a query to a neighbour is a Zenoh ``get`` on the
 neighbour's ``query`` key (the reply is the answer), a revised answer or a pairwise update is a ``put`` on the
-receiver's ``inbox``. Everything received is decoded and validated (:func:`swarmloc.net.schema.decode`) on the
-node's one thread; a bad message is dropped, counted with its reason, and logged; the node keeps running.
+receiver's ``inbox``. Everything received is authenticated (with ``auth``: signed by the member it names,
+:mod:`swarmloc.net.auth`), decoded and validated (:func:`swarmloc.net.schema.decode`) on the node's one thread;
+a bad message is dropped, counted with its reason, and logged; the node keeps running.
 
 Parts, one job each: :mod:`~swarmloc.net.wiring` (the Zenoh declarations), :mod:`~swarmloc.net.inbound` (the
 queue, decoding with its bounds, queries, pushed messages, replies), :mod:`~swarmloc.net.lockstep` (when to read an
@@ -56,6 +57,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.events import Detection, Event, Odometry
+from swarmloc.net.auth import Auth
 from swarmloc.net.faults import Faults
 from swarmloc.net.inbound import Inbound
 from swarmloc.net.lockstep import Lockstep
@@ -102,6 +104,9 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
     quiet: [s] wall time without traffic that counts as settled at the end.
     linger: [s] wall time at most it keeps answering after it is done, while teammates are not.
     ros_domain: publish beliefs as ROS 2 messages too (rmw_zenoh layout, this domain id).
+    auth: this robot's key and the team's roster (:class:`~swarmloc.net.auth.Auth`): everything it sends is signed,
+        everything it receives must be signed by the member it claims to come from (refusals counted
+        ``auth_<category>``); None: an unauthenticated team (tests on one machine, a trusted network).
     """
 
     def __init__(
@@ -126,6 +131,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         linger: float = 10.0,
         ros_domain: int | None = None,
         on_belief: Callable[[Belief], None] | None = None,
+        auth: Auth | None = None,
     ) -> None:
         if len(node.robots) != 1:
             raise ValueError("NetNode drives a node of one robot (a distributed estimator)")
@@ -142,6 +148,9 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self.roster = frozenset(int(r) for r in roster)
         if self.robot not in self.roster:
             raise ValueError(f"robot {self.robot} is not in the roster {sorted(self.roster)}")
+        if auth is not None and (auth.signer is None or auth.signer.member != self.robot):
+            raise ValueError(f"robot {self.robot} needs its own key to sign what it sends")
+        self.auth = auth
         self.record_times = np.asarray(record_times, dtype=float)
         self.speed = float(speed)
         self.lag = float(lag)
@@ -220,10 +229,10 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         finally:
             report = self.report(time.perf_counter() - t_wall0, time.process_time() - t_cpu0)
             try:
-                self._pub_progress.put(self._env(Progress(robot=self.robot, t=math.inf, done=True)))
-                self.session.put(
-                    robot_key(self.team, self.robot, "report"), self._env(report), congestion_control=self._block
-                )
+                done = Progress(robot=self.robot, t=math.inf, done=True)
+                self._pub_progress.put(self._env(done, robot_key(self.team, self.robot, "progress")))
+                key = robot_key(self.team, self.robot, "report")
+                self.session.put(key, self._env(report, key), congestion_control=self._block)
                 time.sleep(0.2)  # let Zenoh flush the report before the session closes
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
                 log.debug("robot %s: final report not sent: %s", self.robot, exc)

@@ -17,6 +17,7 @@ import time
 from swarmloc.events import Odometry
 from swarmloc.messages import flat
 from swarmloc.net.schema import Belief, Progress
+from swarmloc.net.transport import robot_key
 
 
 class Publishing:
@@ -50,7 +51,8 @@ class Publishing:
         self._last_progress = t
         self._last_key = key
         self._last_progress_wall = now
-        self._pub_progress.put(self._env(Progress(robot=self.robot, t=key[0], prio=key[1], done=done)))
+        p = Progress(robot=self.robot, t=key[0], prio=key[1], done=done)
+        self._pub_progress.put(self._env(p, robot_key(self.team, self.robot, "progress")))
 
     def _publish_belief(self, t: float, final: bool) -> None:
         """Publish the belief at record time ``t`` unless the same was published (a new revision otherwise)."""
@@ -66,7 +68,7 @@ class Publishing:
         rev = 0 if old is None else old.rev + 1
         msg = Belief(robot=self.robot, stamp=float(t), rev=rev, final=final, mean=mean, cov=cov)
         self._published[t] = msg
-        self._pub_belief.put(self._env(msg))
+        self._pub_belief.put(self._env(msg, robot_key(self.team, self.robot, "belief")))
         self.counts["beliefs_published"] += 1
         if self.on_belief is not None:
             self.on_belief(msg)

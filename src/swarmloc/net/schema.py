@@ -13,6 +13,9 @@ non-finite numbers, a mean outside SE(2), a covariance that is not symmetric pos
 duplicate messages are caught where the state is: the node's history (``stale or duplicate answer``,
 ``duplicate update``) and the :class:`Dedup` filter for published beliefs and progress.
 
+Who sent a payload is established before it is decoded, by its Ed25519 signature against the team's roster
+(:mod:`swarmloc.net.auth`: the frame around the envelope); ``from_robot`` must name the signer.
+
 Conventions: stamps in seconds of the source's (data) clock; SE(2) means as row-major 3x3 matrices and
 covariances of the right-perturbation exponential coordinates (as in :mod:`swarmloc.messages`).
 """

@@ -9,7 +9,10 @@ asks it when a neighbour does not answer in time, and a restarted node asks it f
 
 :class:`ServerProcess` puts it behind Zenoh: it subscribes to every robot's ``belief`` key and declares the
 queryable ``swarmloc/<team>/server/query`` (a ``BeliefQuery`` in the payload; or the selector parameter
-``latest=<robot>``, answered with that robot's newest stored :class:`~swarmloc.net.schema.Belief`).
+``latest=<robot>``, answered with that robot's newest stored :class:`~swarmloc.net.schema.Belief`). With ``auth``
+(:mod:`swarmloc.net.auth`) it stores only beliefs signed by the robot they are of, answers only queries signed by
+the robot that asks, and signs its replies as the server; refusals are counted ``auth_<category>`` and logged, and
+its counters are logged when it stops.
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ from typing import Any
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
-from swarmloc.net.schema import SERVER, Belief, Rejected, decode, encode
+from swarmloc.net.auth import Auth, note_refusal, open_envelope, seal
+from swarmloc.net.schema import SERVER, Belief, Rejected, encode
 from swarmloc.net.transport import alive_key, robot_key, server_key
 
 __all__ = ["BeliefServer", "ServerProcess"]
@@ -114,7 +118,17 @@ class BeliefServer:
 class ServerProcess:
     """:class:`BeliefServer` on a Zenoh session for team ``team`` (robots ``roster``)."""
 
-    def __init__(self, session: Any, team: str, roster: Iterable[int], server: BeliefServer | None = None) -> None:
+    def __init__(
+        self,
+        session: Any,
+        team: str,
+        roster: Iterable[int],
+        server: BeliefServer | None = None,
+        auth: Auth | None = None,
+    ) -> None:
+        if auth is not None and (auth.signer is None or auth.signer.member != SERVER):
+            raise ValueError("the belief server needs the server's key to sign its replies")
+        self.auth = auth
         self.session = session
         self.team = team
         self.roster = frozenset(roster)
@@ -128,7 +142,9 @@ class ServerProcess:
         self._stop.set()
         self._q.put(("wake", None))
 
-    def _reject(self, reason: str) -> None:
+    def _reject(self, reason: str, exc: Rejected | None = None) -> None:
+        if exc is not None:
+            note_refusal(self.counts, exc, "belief server", "message")
         self.counts["rejected"] += 1
         self.reasons[reason] += 1
         log.debug("belief server: dropped a message: %s", reason)
@@ -159,13 +175,17 @@ class ServerProcess:
                     d.undeclare()
                 except Exception:  # noqa: BLE001
                     pass
+            level = logging.WARNING if self.counts["rejected"] else logging.INFO
+            log.log(level, "belief server: stopped; %s; store %s; refused %s", dict(self.counts),
+                    dict(self.server.counts), dict(self.reasons))  # fmt: skip
 
     def _handle(self, kind: str, x: Any) -> None:
         if kind == "belief":
             try:
-                env = decode(x.payload.to_bytes(), self.team, self.roster, server_ok=False)
+                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
+                                    server_ok=False, publication=True)  # fmt: skip
             except Rejected as exc:
-                self._reject(exc.reason)
+                self._reject(exc.reason, exc)
                 return
             if isinstance(env.body, Belief):
                 self.server.store(env.body)
@@ -190,16 +210,20 @@ class ServerProcess:
             if b is None:
                 q.reply_err(f"no belief of robot {robot}".encode())
             else:
-                q.reply(q.key_expr, encode(self.team, SERVER, 0, b))
+                q.reply(q.key_expr, self._sealed(str(q.key_expr), b))
             return
         try:
-            env = decode(q.payload.to_bytes() if q.payload is not None else b"", self.team, self.roster)
+            payload = q.payload.to_bytes() if q.payload is not None else b""
+            env = open_envelope(self.auth, str(q.key_expr), payload, self.team, self.roster, server_ok=False)
         except Rejected as exc:
-            self._reject(exc.reason)
+            self._reject(exc.reason, exc)
             q.reply_err(exc.reason.encode()[:200])
             return
         if not isinstance(env.body, BeliefQuery):
             self._reject(f"{type(env.body).__name__} is not a belief query")
             q.reply_err(b"only BeliefQuery")
             return
-        q.reply(q.key_expr, encode(self.team, SERVER, 0, self.server.answer(env.body)))
+        q.reply(q.key_expr, self._sealed(str(q.key_expr), self.server.answer(env.body)))
+
+    def _sealed(self, key: str, body: Any) -> bytes:
+        return seal(self.auth, key, encode(self.team, SERVER, 0, body))

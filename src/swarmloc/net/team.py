@@ -4,6 +4,11 @@
 peers on 127.0.0.1, applies the process faults (a robot killed and restarted, a late joiner), collects the beliefs,
 reports and progress the nodes publish, and stops every process it started when the team is done, on an error, on
 Ctrl-C and on its time limit. Scoring the collected run is the evaluation's (:mod:`swarmloc.experiments.team`).
+
+Every process gets its own key and the team's roster (:class:`~swarmloc.net.auth.TeamKeys`, made in a temporary
+folder unless ``keys_dir`` names one): what they send is signed, and the collector keeps only what a roster robot
+signed on its own keys, stamped at one of the run's record times (anything else is counted ``collector_rejected``,
+an authentication failure also ``collector_auth_<category>``, with its reason in ``reasons``).
 """
 
 from __future__ import annotations
@@ -25,9 +30,10 @@ from typing import Any
 import numpy as np
 
 from swarmloc.datasets.source import Source
+from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
 from swarmloc.net.entry import distributed_class
 from swarmloc.net.faults import Faults, parse_faults
-from swarmloc.net.schema import Belief, Progress, Rejected, Report, decode
+from swarmloc.net.schema import SERVER, Belief, Progress, Rejected, Report
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import check_team, free_ports, open_session, robot_key
 
@@ -36,11 +42,13 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class TeamRun:
-    """What :func:`launch_team` collected: the best belief per robot and stamp, the nodes' reports, and counts."""
+    """What :func:`launch_team` collected: the best belief per robot and stamp, the nodes' reports, and counts
+    (with the reasons of the messages the collector refused)."""
 
     beliefs: dict[tuple[int, float], Belief] = field(default_factory=dict)
     reports: dict[int, Report] = field(default_factory=dict)
     counts: Counter[str] = field(default_factory=Counter)
+    reasons: Counter[str] = field(default_factory=Counter)
     wall_s: float = 0.0
     exit_codes: dict[str, int | None] = field(default_factory=dict)
 
@@ -98,6 +106,7 @@ def launch_team(
     log_dir: str | os.PathLike[str] | None = None,
     verbose: bool = False,
     connect_extra: Sequence[str] = (),
+    keys_dir: str | os.PathLike[str] | None = None,
 ) -> TeamRun:
     """Start the team of ``src`` on 127.0.0.1, collect its beliefs and reports, stop every process.
 
@@ -106,7 +115,9 @@ def launch_team(
     (a dataset's robots are its own). Faults: :mod:`swarmloc.net.faults`; a kill fault needs the belief server
     (started automatically). The timeouts [s] are every node's (:class:`~swarmloc.net.process.NetNode`);
     ``max_wall`` [s] is the whole run's wall-clock limit. ``connect_extra``: endpoints every process also connects
-    to (a Zenoh router, e.g. ROS 2's ``rmw_zenohd`` on ``tcp/127.0.0.1:7447``).
+    to (a Zenoh router, e.g. ROS 2's ``rmw_zenohd`` on ``tcp/127.0.0.1:7447``). ``keys_dir``: the team's keys and
+    roster (:class:`~swarmloc.net.auth.TeamKeys`: made there unless its ``roster.json`` exists; default: a temporary
+    folder, removed at the end).
     """
     f = parse_faults(faults)
     team = check_team(team or f"team{os.getpid()}")
@@ -121,8 +132,12 @@ def launch_team(
         hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout, use_server=server,
         faults=f, ros_domain=ros_domain, verbose=verbose,
     )  # fmt: skip
-    launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir)
-    return launcher.run(src.t_start, max_wall)
+    keys = TeamKeys(src.robots, keys_dir)
+    try:
+        launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir, keys, src.record_times())
+        return launcher.run(src.t_start, max_wall)
+    finally:
+        keys.close()
 
 
 def node_arguments(
@@ -179,9 +194,13 @@ class _Launcher:
         server: bool,
         connect_extra: Sequence[str],
         log_dir: str | os.PathLike[str] | None,
+        keys: TeamKeys,
+        record_times: Iterable[float],
     ) -> None:
         self.team, self.robots, self.node_args, self.f, self.server = team, robots, node_args, faults, server
         self.roster = frozenset(robots)
+        self.keys, self.auth = keys, keys.auth(COLLECTOR)
+        self.record_times = frozenset(float(t) for t in record_times)
         names = [f"robot{r}" for r in robots] + (["server"] if server else [])
         ports = dict(zip([*names, "collector"], free_ports(len(names) + 1), strict=True))
         self.ep = {k: f"tcp/127.0.0.1:{p}" for k, p in ports.items()}
@@ -213,13 +232,14 @@ class _Launcher:
     def node_cmd(self, r: int, resume: bool = False) -> list[str]:
         # a restarted or late robot joins a running team: it waits for nobody
         wait = "none" if resume or r == self.late else ",".join(map(str, self.wait_for)) or "none"
-        extra = [*self.node_args, "--robot", str(r), "--wait-for", wait]
+        extra = [*self.node_args, "--robot", str(r), "--wait-for", wait, *self.keys.args(r)]
         return [*_python(), "node", *self.args_for(f"robot{r}", extra), *(["--resume"] if resume else [])]
 
     def start(self) -> None:
         if self.server:
             roster = ",".join(map(str, self.robots))
-            self.spawn("server", [*_python(), "server", *self.args_for("server"), "--roster", roster])
+            keys = self.keys.args(SERVER)
+            self.spawn("server", [*_python(), "server", *self.args_for("server", keys), "--robots", roster])
         for r in self.robots:
             if r != self.late:
                 self.spawn(f"robot{r}", self.node_cmd(r))
@@ -258,12 +278,21 @@ class _Launcher:
 
     # ------------------------------------------------------------------------------------------- collecting
     def collect(self, sample: Any) -> None:
-        """Keep a published belief, report or progress announcement (a bad payload is counted and dropped)."""
+        """Keep a published belief, report or progress announcement signed by the robot whose key it is published on
+        (a bad payload, or a belief stamped at no record time of the run, is counted and dropped)."""
+        counts = self.result.counts
         try:
-            b = decode(sample.payload.to_bytes(), self.team, self.roster, server_ok=False).body
+            key = str(sample.key_expr)
+            b = open_envelope(self.auth, key, sample.payload.to_bytes(), self.team, self.roster, server_ok=False,
+                              publication=True).body  # fmt: skip
+            if isinstance(b, Belief) and b.stamp not in self.record_times:
+                raise Rejected("belief stamped at no record time of the run")
         except Rejected as exc:
-            self.result.counts["rejected"] += 1
-            log.debug("team: dropped a message: %s", exc.reason)
+            counts["collector_rejected"] += 1
+            self.result.reasons[exc.reason] += 1
+            if not note_refusal(counts, exc, "collector", "message", prefix="collector_"):
+                log.log(logging.WARNING if self.result.reasons[exc.reason] == 1 else logging.DEBUG,
+                        "collector: refused a message: %s", exc.reason)  # fmt: skip
             return
         if isinstance(b, Belief):
             self.result.keep(b)
@@ -296,7 +325,8 @@ class _Launcher:
     def run(self, t_first: float, max_wall: float) -> TeamRun:
         """Start the team, watch it, and stop every process it started, whatever happens (``t_first``: the
         source's start, which the fault times count from)."""
-        session = open_session([self.ep["collector"]], [self.ep[k] for k in self.ep if k != "collector"])
+        others = [self.ep[k] for k in self.ep if k != "collector"] + self.connect_extra
+        session = open_session([self.ep["collector"]], others)
         put = self.inq.put
         subs = [
             session.declare_subscriber(robot_key(self.team, "*", what), handler=lambda x: put(("sample", x)))

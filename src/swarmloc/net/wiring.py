@@ -31,8 +31,9 @@ class Wiring:
         put = self._inq.put
         self._decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
         self._decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
-        self._decl.append(
-            s.declare_subscriber(robot_key(team, "*", "progress"), handler=lambda x: put(("progress", x)))
+        self._decl.append(  # the teammates' progress (not this session's own: it would be verified for nothing)
+            s.declare_subscriber(robot_key(team, "*", "progress"), handler=lambda x: put(("progress", x)),
+                                 allowed_origin=zenoh.Locality.REMOTE)  # fmt: skip
         )
         self._decl.append(
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
