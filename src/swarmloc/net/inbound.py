@@ -14,7 +14,7 @@ import time
 from typing import Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate
-from swarmloc.net.outbound import reply_err
+from swarmloc.net.outbound import close, reply_err
 from swarmloc.net.schema import SERVER, Belief, Envelope, Progress, Rejected, Report, decode
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
@@ -72,6 +72,9 @@ class Inbound:
             if env is not None:
                 self._reject(f"{type(env.body).__name__} sent as a query", "query")
             reply_err(x, "rejected")
+            return
+        if not self._first_copy(env):  # a duplicate of a query held or answered: answered once, this copy closed
+            close(x)
             return
         self._deferred.append((time.monotonic(), env.body, x))
         self._answer_ready()
@@ -131,7 +134,10 @@ class Inbound:
         entry = self._outstanding.get(qid)
         if entry is None:
             return
-        m, via, _ = entry
+        m, via, answered = entry
+        if answered:  # a duplicate reply (link faults): the first was taken
+            self.counts["duplicate_replies"] += 1
+            return
         ok = reply.ok
         if ok is None:
             self._reject(f"error reply: {reply.err.payload.to_bytes()[:80]!r}", "reply")
@@ -156,7 +162,12 @@ class Inbound:
 
     def _on_reply_end(self, qid: int) -> None:
         """The end of query ``qid`` (all replies in, or its ``answer_timeout`` passed): unanswered, it is asked of the
-        belief server (``use_server``) or answered "not found" with the reason."""
+        belief server (``use_server``) or answered "not found" with the reason. A query sent twice (link faults)
+        ends when both copies have."""
+        if self._gets.get(qid, 0) > 1:
+            self._gets[qid] -= 1
+            return
+        self._gets.pop(qid, None)
         entry = self._outstanding.pop(qid, None)
         if entry is None:
             return

@@ -13,11 +13,12 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import OrderedDict
 from typing import Any
 
 from swarmloc.events import Odometry
 from swarmloc.messages import Message
-from swarmloc.net.schema import Progress, Rejected, decode
+from swarmloc.net.schema import Envelope, Progress, Rejected, decode
 from swarmloc.net.transport import robot_of
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
@@ -35,6 +36,7 @@ class Lockstep:
         self._deferred: list[tuple[float, Message, Any]] = []  # neighbours' queries held: (since, query, Zenoh query)
         self._expect: dict[tuple, float] = {}  # pairwise updates expected, by key: since when
         self._held: list[Message] = []  # answers to this node's queries not yet given to it
+        self._queries_seen: OrderedDict[tuple, None] = OrderedDict()  # neighbours' queries held or answered (bounded)
 
     def _on_progress(self, x: Any) -> None:
         """A teammate's progress announcement: how far it has read its source (and whether it is done)."""
@@ -49,6 +51,20 @@ class Lockstep:
             self._progress_key[p.robot] = max(self._progress_key.get(p.robot, (-math.inf, 0)), (p.t, p.prio))
             if p.done:
                 self._done.add(p.robot)
+
+    def _first_copy(self, env: Envelope) -> bool:
+        """False for a copy of a neighbour's query this node already holds or answered (the same sender, sequence
+        number and query: link faults duplicate them), so that each query is answered once (counted
+        ``duplicate_queries``). The last 4096 queries are remembered."""
+        q = env.body
+        key = (env.from_robot, env.seq, type(q).__name__, float(q.stamp), tuple(q.sub))
+        if key in self._queries_seen:
+            self.counts["duplicate_queries"] += 1
+            return False
+        self._queries_seen[key] = None
+        if len(self._queries_seen) > 4096:
+            self._queries_seen.popitem(last=False)
+        return True
 
     def _on_alive(self, x: Any) -> None:
         """A teammate's liveliness token came or went: lockstep waits only for live teammates."""
