@@ -8,7 +8,12 @@ a deadline, none sleeps.
 
 from __future__ import annotations
 
+import json
+import logging
 import os
+import queue
+import threading
+import time
 
 from swarmloc.estimators import make_team, node_options
 from swarmloc.experiments.sources import load_source
@@ -16,7 +21,8 @@ from swarmloc.experiments.team import run_team, team_result
 from swarmloc.messages import BeliefQuery
 from swarmloc.net.entry import make_node
 from swarmloc.net.process import NetNode
-from swarmloc.net.schema import encode
+from swarmloc.net.schema import Progress, encode
+from swarmloc.net.transport import free_ports, open_session
 from swarmloc.runner import run
 
 OUTCOMES = ("detections", "fused", "gated", "rejected", "unknown", "pending")
@@ -109,3 +115,90 @@ def test_a_query_that_arrives_twice_is_answered_once_and_a_failing_reply_is_coun
     assert (first.replies, first.drops) == (1, 1) and (copy.replies, copy.drops) == (0, 1)
     assert net.counts["send_failed"] == 1 and net.counts["duplicate_queries"] == 1
     assert net.counts["queries_answered"] == 1 and not net._deferred
+
+
+class _Flood:
+    """A node's queue that never runs dry: a teammate's progress announcement, again and again."""
+
+    def __init__(self, raw: bytes) -> None:
+        self.sample = type("Sample", (), {"payload": _Payload(raw)})()
+
+    def get(self, timeout: float | None = None):
+        return ("progress", self.sample)
+
+    get_nowait = get
+
+    def put(self, item) -> None:
+        pass
+
+
+def test_a_flood_of_messages_never_keeps_a_node_from_its_deadlines():
+    """One ``_drain`` handles what is queued for a bounded slice of wall time and returns, so that the loops around
+    it check their deadlines and timers. Before, a queue that never ran dry kept it (and the node) forever."""
+    net = offline_net()
+    net._inq = _Flood(encode("t", 1, 0, Progress(robot=1, t=1.0)))
+    th = threading.Thread(target=net._drain, args=(0.0,), daemon=True)
+    t0 = time.monotonic()
+    th.start()
+    th.join(5.0)
+    returned = not th.is_alive()
+    net._stop.set()  # ends a drain that did not return by itself
+    th.join(5.0)
+    assert returned, "_drain did not return within 5 s under a flood"
+    assert time.monotonic() - t0 < 1.0
+
+
+def test_a_node_waits_for_its_teammates_no_longer_than_its_wall_time_bound(caplog):
+    """``max_wall`` bounds the start wait too: a node waiting (``start_timeout`` 30 s) for a teammate that never
+    comes stops at its bound, and says for whom it waited. Before, the start wait ran its 30 s whatever the bound."""
+    port = free_ports(1)[0]
+    session = open_session([f"tcp/127.0.0.1:{port}"], [])
+    try:
+        net = offline_net(start_timeout=30.0)
+        net.session = session
+        t0 = time.monotonic()
+        with caplog.at_level(logging.INFO, logger="swarmloc.net.process"):
+            net.run(max_wall=1.0)
+        elapsed = time.monotonic() - t0
+    finally:
+        session.close()
+    assert elapsed < 1.0 + 1.5, f"ran {elapsed:.1f} s with a bound of 1 s"
+    assert "waiting up to 30 s for robots [1, 2]" in caplog.text
+
+
+def test_a_team_returns_within_its_wall_time_bound(tmp_path):
+    """``swarmloc team --timeout 4`` on a source of 600 s at real time: the team (its nodes stopped, its report
+    written) returns within the bound plus the launcher's grace to stop its processes (3 s) and a margin."""
+    from swarmloc.cli import main
+
+    team = f"team{os.getpid()}"  # swarmloc team's default name
+    t0 = time.monotonic()
+    rc = main(["team", "--robots", "3", "--duration", "600", "--speed", "1", "--timeout", "4", "--out", str(tmp_path)])
+    elapsed = time.monotonic() - t0
+    assert not leftovers(team)
+    rep = json.loads((tmp_path / "team.json").read_text())
+    assert rc == 1 and rep["estimators"]["expfusion"]["stats"]["timed_out"] == 1
+    assert elapsed < 4 + 3 + 3, f"returned after {elapsed:.1f} s with a bound of 4 s"
+
+
+def test_the_collector_stops_at_the_wall_time_bound_whatever_keeps_coming():
+    """Once every node has ended, the launcher collects what is still queued, within the run's bound. Before, it
+    went on as long as anything came at least every 0.3 s (another team of the same name, a stray node)."""
+    from swarmloc.net.faults import Faults
+    from swarmloc.net.team import _Launcher
+
+    launcher = _Launcher("t", [], [], Faults(), False, (), None)  # no robots: every node has ended
+    until = time.monotonic() + 10.0
+    stray = type("Sample", (), {"payload": _Payload(b"not for this team")})()
+
+    class Trickle:  # a message every 0.1 s, for 10 s
+        def get(self, timeout: float | None = None):
+            if time.monotonic() > until:
+                raise queue.Empty
+            time.sleep(0.1)  # the pace of the stray traffic, not a wait of the test
+            return ("sample", stray)
+
+    launcher.inq = Trickle()
+    t0 = time.monotonic()
+    launcher.watch(0.0, 1.0, t0)
+    assert time.monotonic() - t0 < 1.0 + 0.5

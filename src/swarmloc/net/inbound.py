@@ -19,15 +19,20 @@ from swarmloc.net.schema import SERVER, Belief, Envelope, Progress, Rejected, Re
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
+DRAIN_SLICE = 0.1
+"""[s] wall time one :meth:`Inbound._drain` handles queued items at most (past its wait for the first)."""
+
 
 class Inbound:
     """Part of :class:`~swarmloc.net.process.NetNode`: its queue, the decoding with its bounds, and the handling of
     queries, pushed messages and replies."""
 
     def _drain(self, timeout: float) -> bool:
-        """Handle everything queued; wait up to ``timeout`` s for the first item. True if neighbours' traffic (queries,
-        replies, pushed messages) came: progress and liveliness do not count."""
+        """Handle what is queued, for at most ``DRAIN_SLICE`` s (the rest waits for the next call, so that a flood
+        never keeps the loops from their deadlines and timers); wait up to ``timeout`` s for the first item. True if
+        neighbours' traffic (queries, replies, pushed messages) came: progress and liveliness do not count."""
         got = False
+        end = time.monotonic() + max(timeout, 0.0) + DRAIN_SLICE
         try:
             item = self._inq.get(timeout=timeout) if timeout > 0 else self._inq.get_nowait()
         except queue.Empty:
@@ -41,6 +46,8 @@ class Inbound:
                 except Exception as exc:  # a node must never die of one message
                     log.exception("robot %s: error handling %s", self.robot, item[0])
                     self._reject(f"internal error: {type(exc).__name__}: {exc}", item[0])
+            if time.monotonic() > end:
+                break
             try:
                 item = self._inq.get_nowait()
             except queue.Empty:

@@ -176,29 +176,6 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self._stop.set()
         self._inq.put(("wake", None))
 
-    def _may_feed(self, s: float) -> bool:
-        """Lockstep: every live teammate has read its source to ``s - lag``; and this node's oldest detection group
-        still waiting for answers is less than half a horizon before ``s`` (reading on would push it beyond the
-        horizon before its answers or their timeout come)."""
-        first = self.node.first_pending
-        if first is not None and s - first[0] > self.node.horizon / 2:
-            return False
-        need = s - self.lag
-        for r in self._alive:
-            if r not in self._done and self._progress.get(r, -math.inf) < need:
-                return False
-        return True
-
-    def _group_may_go(self, s: float) -> bool:
-        """A detection group (key ``(s, 1, robot)``) is read once every live teammate has read its source up to
-        ``s`` (their exchanges keyed before it have started) and no pairwise update keyed before it is still
-        expected, so that groups are applied across the team in key order, as the in-process runner does, and an
-        update never has to be replayed under a group applied before it."""
-        key = (s, 1, self.robot, ())
-        if any(k < key for k in self._expect):
-            return False
-        return all(r in self._done or (*self._progress_key.get(r, (-math.inf, 0)), r) > key[:3] for r in self._alive)
-
     def run(self, max_wall: float | None = None) -> Report:
         """Run until the source is exhausted and the team settled (or :meth:`stop`, or ``max_wall`` s)."""
         t_wall0, t_cpu0 = time.perf_counter(), time.process_time()
@@ -206,14 +183,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self._open()
         try:
             self._publish_progress(self.items[0][0] if self.items else math.inf, force=True)
-            t_wait = time.monotonic() + self.start_timeout
-            while not self.wait_for <= self._alive and time.monotonic() < t_wait and not self._stop.is_set():
-                self._drain(0.05)
-                self._publish_progress(self._last_progress, force=True)
-            missing = self.wait_for - self._alive
-            if missing:
-                log.warning("robot %s: starting without robots %s (not alive after %.0f s)", self.robot,
-                            sorted(missing), self.start_timeout)  # fmt: skip
+            self._wait_start(deadline)
             self._main(deadline)
             if not self._stop.is_set():
                 self._finish(deadline)
@@ -229,6 +199,26 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
                 log.debug("robot %s: final report not sent: %s", self.robot, exc)
             self._close()
         return report
+
+    def _wait_start(self, deadline: float) -> None:
+        """Wait for the robots of ``wait_for`` to be alive: at most ``start_timeout`` s, and not past ``deadline``;
+        saying for which robots (a warning once 2 s passed, then every 5 s)."""
+        t0 = time.monotonic()
+        end, note = min(t0 + self.start_timeout, deadline), t0 + 2.0
+        if self.wait_for:
+            log.info("robot %s: waiting up to %.0f s for robots %s to be alive", self.robot, self.start_timeout,
+                     sorted(self.wait_for))  # fmt: skip
+        while not self.wait_for <= self._alive and time.monotonic() < end and not self._stop.is_set():
+            if time.monotonic() >= note:
+                note += 5.0
+                log.warning("robot %s: still waiting for robots %s to be alive (%.0f s left)", self.robot,
+                            sorted(self.wait_for - self._alive), end - time.monotonic())  # fmt: skip
+            self._drain(0.05)
+            self._publish_progress(self._last_progress, force=True)
+        missing = self.wait_for - self._alive
+        if missing:
+            log.warning("robot %s: starting without robots %s (not alive after %.1f s)", self.robot,
+                        sorted(missing), time.monotonic() - t0)  # fmt: skip
 
     def _main(self, deadline: float) -> None:
         items, n, i = self.items, len(self.items), 0

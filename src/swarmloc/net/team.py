@@ -33,6 +33,9 @@ from swarmloc.net.transport import check_team, free_ports, open_session, robot_k
 
 log = logging.getLogger(__name__)
 
+COLLECT_AFTER_END = 3.0
+"""[s] wall time at most the launcher collects what is still queued once every node has ended."""
+
 
 @dataclass
 class TeamRun:
@@ -196,6 +199,7 @@ class _Launcher:
         self.progress: dict[int, float] = {}
         self.inq: queue.SimpleQueue = queue.SimpleQueue()
         self.killed = self.restarted = self.joined = False
+        self.deadline = math.inf  # the run's end (monotonic), set when it starts
 
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
@@ -210,16 +214,20 @@ class _Launcher:
         if logs is not None:
             out.close()
 
+    def left(self) -> list[str]:
+        """``--max-wall`` with what is left of the run's time: a process bounds itself even without its launcher."""
+        return ["--max-wall", f"{max(1.0, self.deadline - time.monotonic()):.1f}"]
+
     def node_cmd(self, r: int, resume: bool = False) -> list[str]:
         # a restarted or late robot joins a running team: it waits for nobody
         wait = "none" if resume or r == self.late else ",".join(map(str, self.wait_for)) or "none"
-        extra = [*self.node_args, "--robot", str(r), "--wait-for", wait]
+        extra = [*self.node_args, "--robot", str(r), "--wait-for", wait, *self.left()]
         return [*_python(), "node", *self.args_for(f"robot{r}", extra), *(["--resume"] if resume else [])]
 
     def start(self) -> None:
         if self.server:
             roster = ",".join(map(str, self.robots))
-            self.spawn("server", [*_python(), "server", *self.args_for("server"), "--roster", roster])
+            self.spawn("server", [*_python(), "server", *self.args_for("server", self.left()), "--roster", roster])
         for r in self.robots:
             if r != self.late:
                 self.spawn(f"robot{r}", self.node_cmd(r))
@@ -273,10 +281,11 @@ class _Launcher:
             self.progress[b.robot] = max(self.progress.get(b.robot, -math.inf), b.t)
 
     def watch(self, t_first: float, max_wall: float, t0: float) -> None:
-        """Collect and apply the faults until every node has ended (then collect what is still queued) or the run
-        has taken ``max_wall`` s."""
+        """Collect and apply the faults until every node has ended (then collect what is still queued, for at most
+        ``COLLECT_AFTER_END`` s) or the run has taken ``max_wall`` s: nothing that keeps coming holds it longer."""
+        deadline = t0 + max_wall
         while True:
-            if time.monotonic() - t0 > max_wall:
+            if time.monotonic() > deadline:
                 self.result.counts["timed_out"] = 1
                 log.warning("team: time limit of %.0f s reached; stopping every process", max_wall)
                 return
@@ -287,11 +296,13 @@ class _Launcher:
                 pass
             self.apply_faults(t_first)
             if self.all_ended():
-                while True:  # what is still queued
+                end = min(deadline, time.monotonic() + COLLECT_AFTER_END)
+                while (left := end - time.monotonic()) > 0:  # what is still queued
                     try:
-                        self.collect(self.inq.get(timeout=0.3)[1])
+                        self.collect(self.inq.get(timeout=min(0.3, left))[1])
                     except queue.Empty:
                         return
+                return
 
     def run(self, t_first: float, max_wall: float) -> TeamRun:
         """Start the team, watch it, and stop every process it started, whatever happens (``t_first``: the
@@ -303,6 +314,7 @@ class _Launcher:
             for what in ("belief", "report", "progress")
         ]
         t0 = time.monotonic()
+        self.deadline = t0 + max_wall
         try:
             self.start()
             self.watch(t_first, max_wall, t0)
