@@ -202,3 +202,37 @@ def test_the_collector_stops_at_the_wall_time_bound_whatever_keeps_coming():
     t0 = time.monotonic()
     launcher.watch(0.0, 1.0, t0)
     assert time.monotonic() - t0 < 1.0 + 0.5
+
+
+def test_a_teammate_whose_token_outlives_it_is_declared_lost_and_the_node_goes_on(caplog):
+    """Robot 1's liveliness token is up but nothing of robot 1 ever progresses (a hung process, or a token that
+    outlived its process). After ``lost_timeout`` s robot 0 declares it lost (logged, counted), reads its whole
+    source and answers its own queries to robot 1 "not found" at once: every detection ends unknown, none pending.
+    Before, lockstep waited for robot 1 with no bound but the run's wall time (here 20 s)."""
+    from swarmloc.net.transport import alive_key
+
+    src = load_source("sim:random", robots=2, duration=10.0, seed=1)
+    ep0, ep1 = (f"tcp/127.0.0.1:{p}" for p in free_ports(2))
+    zombie = open_session([ep1], [ep0])
+    token = zombie.liveliness().declare_token(alive_key("t", 1))
+    session = open_session([ep0], [ep1])
+    try:
+        node = make_node("expfusion", 0, src.initial[0], src.config, src.landmarks)
+        node.start(src.t_start)
+        net = NetNode(node, src.own_events(0), session=session, team="t", roster=src.robots, lost_timeout=1.0,
+                      start_timeout=10.0)  # fmt: skip
+        t0 = time.monotonic()
+        with caplog.at_level(logging.WARNING, logger="swarmloc.net.process"):
+            report = net.run(max_wall=20.0)
+        elapsed = time.monotonic() - t0
+    finally:
+        token.undeclare()
+        zombie.close()
+        session.close()
+    assert elapsed < 1.0 + 3.0, f"ran {elapsed:.1f} s with a lost timeout of 1 s"
+    assert report.net["peers_lost"] == 1 and report.net["teammates_seen"] == 1
+    assert "robot 1 declared lost" in caplog.text
+    s = report.stats
+    assert net._i == len(net.items) and s["detections"] > 5
+    assert s["unknown"] == s["detections"] and s["pending"] == 0
+    assert report.net["asked_lost"] == s["detections"]

@@ -25,7 +25,7 @@ from swarmloc.datasets.source import Source
 from swarmloc.events import Event, Odometry
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import Belief, Rejected, Report, decode
-from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import check_team, open_session, server_key
 
 log = logging.getLogger(__name__)
@@ -96,6 +96,7 @@ def node_main(
     hold_timeout: float = HOLD_TIMEOUT,
     update_timeout: float = UPDATE_TIMEOUT,
     start_timeout: float = START_TIMEOUT,
+    lost_timeout: float = LOST_TIMEOUT,
     ros_domain: int | None = None,
     max_wall: float | None = None,
     out: str | os.PathLike[str] | None = None,
@@ -127,6 +128,7 @@ def node_main(
             hold_timeout=hold_timeout,
             update_timeout=update_timeout,
             start_timeout=start_timeout,
+            lost_timeout=lost_timeout,
             use_server=use_server,
             faults=parse_faults(faults) if isinstance(faults, str | None) else faults,
             wait_for=wait_for,

@@ -135,6 +135,13 @@ class Outbound:
         if m.receiver not in self.roster:
             self._feed_local(kind, m, f"robot {m.receiver} is not in the team")
             return
+        if m.receiver in self._lost and not via_server:
+            self.counts["asked_lost"] += 1
+            if self.use_server:
+                self._ask(m, via_server=True)
+            else:
+                self._feed_local(kind, m, f"robot {m.receiver} is lost (no progress for {self.lost_timeout:g} s)")
+            return
         qid = next(self._qids)
         self._outstanding[qid] = (m, "server" if via_server else "robot", False)
         key = server_key(self.team) if via_server else robot_key(self.team, m.receiver, "query")

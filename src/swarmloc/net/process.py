@@ -62,7 +62,7 @@ from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Outbound
 from swarmloc.net.publishing import Publishing
 from swarmloc.net.schema import Belief, Progress, Report
-from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import robot_key
 from swarmloc.net.wiring import Wiring
 from swarmloc.node import Node
@@ -99,6 +99,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
     faults: link faults on the messages this node sends (:mod:`swarmloc.net.faults`).
     wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot).
     start_timeout: [s] wall time it waits at the start for the robots of ``wait_for`` to be alive.
+    lost_timeout: [s] wall time it waits for a live teammate whose progress does not advance before declaring it
+        lost and going on without it.
     quiet: [s] wall time without traffic that counts as settled at the end.
     linger: [s] wall time at most it keeps answering after it is done, while teammates are not.
     ros_domain: publish beliefs as ROS 2 messages too (rmw_zenoh layout, this domain id).
@@ -122,6 +124,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         faults: Faults | None = None,
         wait_for: Iterable[int] | None = None,
         start_timeout: float = START_TIMEOUT,
+        lost_timeout: float = LOST_TIMEOUT,
         quiet: float = 0.3,
         linger: float = 10.0,
         ros_domain: int | None = None,
@@ -130,7 +133,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         if len(node.robots) != 1:
             raise ValueError("NetNode drives a node of one robot (a distributed estimator)")
         waits = dict(answer_timeout=answer_timeout, hold_timeout=hold_timeout, update_timeout=update_timeout,
-                     start_timeout=start_timeout, quiet=quiet, linger=linger)  # fmt: skip
+                     start_timeout=start_timeout, lost_timeout=lost_timeout, quiet=quiet, linger=linger)  # fmt: skip
         bad = {k: v for k, v in waits.items() if not float(v) >= 0.0}
         if bad:
             raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
@@ -153,6 +156,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self.link = self.faults.plan(self.robot) if self.faults else None
         self.wait_for = set(self.roster - {self.robot}) if wait_for is None else set(wait_for) - {self.robot}
         self.start_timeout = float(start_timeout)
+        self.lost_timeout = float(lost_timeout)
         self.quiet = float(quiet)
         self.linger = float(linger)
         self.ros_domain = ros_domain
@@ -242,6 +246,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
                     self._drain(min(due, wait, 0.05))
                     continue
             if not self._may_feed(s) or (isinstance(item, list) and not self._group_may_go(s)):
+                self._check_lost(s)
                 self._publish_progress(s, force=True)
                 self._drain(min(wait, 0.02))
                 continue
@@ -285,6 +290,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
             if got or not self._idle():
                 quiet_since = time.monotonic()
             all_read = all(self._progress.get(r, -math.inf) == math.inf or r in self._done for r in self._alive)
+            if not all_read:
+                self._check_lost(math.inf)
             if all_read and time.monotonic() - quiet_since >= self.quiet:
                 break
         self._route(self.node.expire())
@@ -307,7 +314,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
                 break
 
     def report(self, wall: float = 0.0, cpu: float = 0.0) -> Report:
-        net = dict(self.counts)
+        net = dict(self.counts, teammates_seen=len(self._seen))
         if self.link is not None:
             net.update(injected_lost=self.link.lost, injected_dup=self.link.duplicated)
         return Report(

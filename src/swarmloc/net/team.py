@@ -28,7 +28,7 @@ from swarmloc.datasets.source import Source
 from swarmloc.net.entry import distributed_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import Belief, Progress, Rejected, Report, decode
-from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import check_team, free_ports, open_session, robot_key
 
 log = logging.getLogger(__name__)
@@ -95,6 +95,7 @@ def launch_team(
     hold_timeout: float = HOLD_TIMEOUT,
     update_timeout: float = UPDATE_TIMEOUT,
     start_timeout: float = START_TIMEOUT,
+    lost_timeout: float = LOST_TIMEOUT,
     team: str | None = None,
     max_wall: float = 600.0,
     ros_domain: int | None = None,
@@ -121,8 +122,8 @@ def launch_team(
     node_args = node_arguments(
         source=src.spec if source is None else source, estimator=estimator, robots=robots, duration=duration,
         seed=seed, config_file=config_file, speed=speed, lag=lag, answer_timeout=answer_timeout,
-        hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout, use_server=server,
-        faults=f, ros_domain=ros_domain, verbose=verbose,
+        hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout,
+        lost_timeout=lost_timeout, use_server=server, faults=f, ros_domain=ros_domain, verbose=verbose,
     )  # fmt: skip
     launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir)
     return launcher.run(src.t_start, max_wall)
@@ -146,13 +147,14 @@ def node_arguments(
     faults: Faults,
     ros_domain: int | None,
     verbose: bool,
+    lost_timeout: float = LOST_TIMEOUT,
 ) -> list[str]:
     """The ``swarmloc node`` options every node process of a team gets (the link faults only; a node's own
     ``--robot``, ``--wait-for``, endpoints and ``--resume`` are the launcher's)."""
     out = ["--source", source, "--estimator", estimator, "--robots", str(robots), "--seed", str(seed),
            "--speed", str(speed), "--lag", str(lag), "--answer-timeout", str(answer_timeout),
            "--hold-timeout", str(hold_timeout), "--update-timeout", str(update_timeout),
-           "--start-timeout", str(start_timeout)]  # fmt: skip
+           "--start-timeout", str(start_timeout), "--lost-timeout", str(lost_timeout)]  # fmt: skip
     if duration is not None:
         out += ["--duration", str(duration)]
     if config_file:
