@@ -12,6 +12,8 @@ import json
 import logging
 import os
 import queue
+import subprocess
+import sys
 import threading
 import time
 
@@ -236,3 +238,16 @@ def test_a_teammate_whose_token_outlives_it_is_declared_lost_and_the_node_goes_o
     assert net._i == len(net.items) and s["detections"] > 5
     assert s["unknown"] == s["detections"] and s["pending"] == 0
     assert report.net["asked_lost"] == s["detections"]
+
+
+def test_a_lone_node_says_whom_it_waits_for_and_fails_when_no_teammate_ever_answered():
+    """A node whose teammates never come logs that it waits (for which robots), and exits 3 with a message saying
+    no teammate ever answered. Before, it waited silently and exited 0 with every detection unknown."""
+    port = free_ports(1)[0]
+    cmd = [sys.executable, "-m", "swarmloc.cli", "node", "--team", f"lone{os.getpid()}", "--robot", "0", "--source",
+           "sim:random", "--duration", "10", "--seed", "1", "--start-timeout", "3", "--listen",
+           f"tcp/127.0.0.1:{port}"]  # fmt: skip
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 3, p.stderr
+    assert "still waiting for robots [1, 2]" in p.stderr
+    assert "no teammate ever answered: none of robots [1, 2] was seen" in p.stderr

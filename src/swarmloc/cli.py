@@ -213,6 +213,12 @@ def _node(args: argparse.Namespace) -> int:
     print(f"robot {report.robot}: {s['detections']} detections: {s['fused']} fused, {s['gated']} gated, "
           f"{s['rejected']} rejected, {s['unknown']} unknown; {report.net.get('rejected', 0)} messages dropped; "
           f"{report.wall_s:.1f} s")  # fmt: skip
+    others = sorted(set(src.robots) - {args.robot})
+    if others and not report.net.get("teammates_seen"):
+        print(f"swarmloc node: robot {args.robot}: no teammate ever answered: none of robots {others} was seen "
+              f"(waited {args.start_timeout:g} s at the start, then ran alone; {s['unknown']} detections unknown); "
+              "check --connect and --team", file=sys.stderr)  # fmt: skip
+        return 3
     return 0
 
 
