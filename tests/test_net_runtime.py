@@ -12,6 +12,7 @@ import json
 import logging
 import os
 import queue
+import signal
 import subprocess
 import sys
 import threading
@@ -251,3 +252,52 @@ def test_a_lone_node_says_whom_it_waits_for_and_fails_when_no_teammate_ever_answ
     assert p.returncode == 3, p.stderr
     assert "still waiting for robots [1, 2]" in p.stderr
     assert "no teammate ever answered: none of robots [1, 2] was seen" in p.stderr
+
+
+def node_pids(team: str, robot: int | None = None) -> list[int]:
+    """Pids of the ``swarmloc node`` processes of ``team`` (of robot ``robot`` only, if given)."""
+    out = []
+    for pid in leftovers(team):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                cmd = f.read().decode().split("\0")
+        except OSError:
+            continue
+        if "node" in cmd and (robot is None or cmd[cmd.index("--robot") + 1] == str(robot)):
+            out.append(pid)
+    return out
+
+
+def test_a_node_killed_mid_run_is_named_in_the_report_and_its_detections_are_not_claimed(tmp_path):
+    """Robot 1's process is SIGKILLed once it reads its source. The others finish (rc 0); the report names robot 1
+    with exit code -9 and says its detections are missing from the totals, which are not claimed accounted.
+    Before, the report said nothing of it and claimed every detection accounted."""
+    from swarmloc.experiments.team import write_team_report
+
+    src = load_source("sim:random", robots=3, duration=20.0, seed=1)
+    team = f"killed{os.getpid()}"
+    out: dict = {}
+    th = threading.Thread(target=lambda: out.update(run=run_team(
+        src=src, source="sim:random", robots=3, duration=20.0, seed=1, team=team, speed=2.0, max_wall=120,
+        verbose=True, log_dir=tmp_path / "logs")))  # fmt: skip
+    th.start()
+    killed = None
+    t_end = time.monotonic() + 60
+    log1 = tmp_path / "logs" / "robot1.log"
+    while killed is None and th.is_alive() and time.monotonic() < t_end:
+        if log1.exists() and " inputs, present " in log1.read_text():  # robot 1 is in its main loop
+            (killed,) = node_pids(team, 1)
+            os.kill(killed, signal.SIGKILL)
+        th.join(0.05)
+    th.join(150)
+    assert killed is not None and not th.is_alive()
+    tr = out["run"]
+    assert not leftovers(team)
+    assert tr.exit_codes == {"robot0": 0, "robot1": -9, "robot2": 0}
+    assert tr.ended == [{"process": "robot1", "pid": killed, "exit_code": -9, "how": "died (SIGKILL)"}]
+    rep = write_team_report(tr, src, "expfusion", tmp_path / "out", {})
+    ev = rep["estimators"]["expfusion"]
+    assert ev["accounted"] is False and ev["detections_missing_of"] == [1]
+    md = (tmp_path / "out" / "team.md").read_text()
+    assert f"robot1 (pid {killed}) died (SIGKILL), exit code -9: its detections are missing from the totals" in md
+    assert sorted(tr.reports) == [0, 2] and ev["stats"]["pending"] == 0

@@ -46,6 +46,9 @@ class TeamRun:
     counts: Counter[str] = field(default_factory=Counter)
     wall_s: float = 0.0
     exit_codes: dict[str, int | None] = field(default_factory=dict)
+    ended: list[dict[str, Any]] = field(default_factory=list)
+    """Every process that ended with a non-zero exit code, in order: ``process`` (``robot<N>``, ``server``),
+    ``pid``, ``exit_code`` and ``how`` (died, killed by a fault and restarted, stopped by the launcher)."""
 
     def keep(self, b: Belief) -> None:
         k = (b.robot, b.stamp)
@@ -202,6 +205,7 @@ class _Launcher:
         self.inq: queue.SimpleQueue = queue.SimpleQueue()
         self.killed = self.restarted = self.joined = False
         self.deadline = math.inf  # the run's end (monotonic), set when it starts
+        self.noted: set[int] = set()  # pids of the processes in ``result.ended``
 
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
@@ -251,6 +255,7 @@ class _Launcher:
             if self.progress.get(k, -math.inf) >= t_first + tk:
                 procs[f"robot{k}"].kill()
                 procs[f"robot{k}"].wait()
+                self.note(f"robot{k}", procs[f"robot{k}"], f"killed by the fault kill={k}@{tk:g}, restarted")
                 self.killed = True
                 counts["killed"] = 1
         if self.killed and not self.restarted:
@@ -258,6 +263,22 @@ class _Launcher:
             self.spawn(f"robot{f.kill[0]}", self.node_cmd(f.kill[0], resume=True))
             self.restarted = True
             counts["restarted"] = 1
+
+    def note(self, name: str, p: subprocess.Popen, how: str = "") -> None:
+        """Record (once) and log a process that ended with a non-zero exit code: how, or by which signal."""
+        rc = p.returncode
+        if rc in (None, 0) or p.pid in self.noted:
+            return
+        self.noted.add(p.pid)
+        how = how or (f"died ({signal.Signals(-rc).name})" if -rc in signal.valid_signals() else "exited with an error")
+        self.result.ended.append({"process": name, "pid": p.pid, "exit_code": rc, "how": how})
+        log.warning("team: %s (pid %d) %s, exit code %d", name, p.pid, how, rc)
+
+    def note_ended(self, how: str = "") -> None:
+        """Record every process that has ended with a non-zero exit code since the last look."""
+        for name, p in self.procs.items():
+            if p.poll() is not None:
+                self.note(name, p, how)
 
     def all_ended(self) -> bool:
         """Every robot's process was started (the late one, the restarted one) and has ended."""
@@ -297,6 +318,7 @@ class _Launcher:
             except queue.Empty:
                 pass
             self.apply_faults(t_first)
+            self.note_ended()
             if self.all_ended():
                 end = min(deadline, time.monotonic() + COLLECT_AFTER_END)
                 while (left := end - time.monotonic()) > 0:  # what is still queued
@@ -326,7 +348,10 @@ class _Launcher:
                     s.undeclare()
                 except Exception:  # noqa: BLE001
                     pass
+            self.note_ended()  # those that ended by themselves, then those the launcher stops
             stop_all(self.procs)
+            limit = " at its time limit" if self.result.counts["timed_out"] else ""
+            self.note_ended(f"stopped by the launcher{limit}")
             self.result.exit_codes = {n: p.returncode for n, p in self.procs.items()}
             session.close()
             self.result.wall_s = time.monotonic() - t0
