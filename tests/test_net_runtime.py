@@ -301,3 +301,34 @@ def test_a_node_killed_mid_run_is_named_in_the_report_and_its_detections_are_not
     md = (tmp_path / "out" / "team.md").read_text()
     assert f"robot1 (pid {killed}) died (SIGKILL), exit code -9: its detections are missing from the totals" in md
     assert sorted(tr.reports) == [0, 2] and ev["stats"]["pending"] == 0
+
+
+def test_nodes_die_with_their_launcher(tmp_path):
+    """``swarmloc team`` SIGKILLed (it can clean nothing up): every node it started is gone within a few seconds
+    (the kernel's parent-death signal, and a watchdog on the parent pid). Before, they ran on to their end."""
+    cmd = [sys.executable, "-m", "swarmloc.cli", "team", "--robots", "3", "--duration", "600", "--speed", "1",
+           "--out", str(tmp_path)]  # fmt: skip
+    launcher = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    team = f"team{launcher.pid}"
+    pids: list[int] = []
+    try:
+        t_end = time.monotonic() + 60
+        while len(pids) < 3 and launcher.poll() is None and time.monotonic() < t_end:
+            pids = node_pids(team)
+            time.sleep(0.05)  # polling /proc, with a deadline
+        assert len(pids) == 3, f"the team's nodes did not start: {pids}"
+        launcher.kill()
+        launcher.wait()
+        t_kill = time.monotonic()
+        while node_pids(team) and time.monotonic() < t_kill + 10:
+            time.sleep(0.05)  # polling /proc, with a deadline
+        left = node_pids(team)
+        gone_after = time.monotonic() - t_kill
+    finally:
+        for pid in node_pids(team):
+            os.kill(pid, signal.SIGKILL)
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
+    assert not left, f"nodes {left} outlived their launcher by 10 s"
+    assert gone_after < 5.0

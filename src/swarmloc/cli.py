@@ -187,7 +187,15 @@ def _net_logging(verbose: bool) -> None:
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")  # fmt: skip
 
 
+def _die_with_launcher(args: argparse.Namespace) -> None:
+    if args.parent_pid is not None:  # first thing: a launcher killed meanwhile must not leave this process running
+        from swarmloc.net.lifeline import die_with_parent
+
+        die_with_parent(args.parent_pid)
+
+
 def _node(args: argparse.Namespace) -> int:
+    _die_with_launcher(args)
     from swarmloc.config import ConfigError
     from swarmloc.experiments.sources import load_source
     from swarmloc.net.entry import node_main
@@ -223,6 +231,7 @@ def _node(args: argparse.Namespace) -> int:
 
 
 def _server(args: argparse.Namespace) -> int:
+    _die_with_launcher(args)
     from swarmloc.net.entry import server_main
 
     _net_logging(args.verbose)
@@ -304,6 +313,8 @@ def _net_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-config", default=None, help="a Zenoh JSON5 configuration file (TLS, access control)")
     p.add_argument("--max-wall", type=float, default=None, help="stop after this many wall-clock seconds")
     p.add_argument("--verbose", action="store_true", help="log the node's state every 2 s")
+    p.add_argument("--parent-pid", type=int, default=None,
+                   help="stop when this process (the launcher that started this one) is gone")  # fmt: skip
 
 
 def _timeout_args(p: argparse.ArgumentParser) -> None:

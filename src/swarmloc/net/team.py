@@ -210,7 +210,8 @@ class _Launcher:
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
         others = [self.ep[k] for k in self.ep if k != name] + self.connect_extra
-        return ["--team", self.team, "--listen", self.ep[name], "--connect", ",".join(others), *extra]
+        return ["--team", self.team, "--listen", self.ep[name], "--connect", ",".join(others),
+                "--parent-pid", str(os.getpid()), *extra]  # fmt: skip
 
     def spawn(self, name: str, cmd: list[str]) -> None:
         logs = self.logs
