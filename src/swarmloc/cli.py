@@ -222,7 +222,7 @@ def _node(args: argparse.Namespace) -> int:
           f"{s['rejected']} rejected, {s['unknown']} unknown; {report.net.get('rejected', 0)} messages dropped; "
           f"{report.wall_s:.1f} s")  # fmt: skip
     others = sorted(set(src.robots) - {args.robot})
-    if others and not report.net.get("teammates_seen"):
+    if others and report.net.get("teammates_seen") == 0:  # the node counted them: it saw none
         print(f"swarmloc node: robot {args.robot}: no teammate ever answered: none of robots {others} was seen "
               f"(waited {args.start_timeout:g} s at the start, then ran alone; {s['unknown']} detections unknown); "
               "check --connect and --team", file=sys.stderr)  # fmt: skip
