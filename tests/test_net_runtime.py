@@ -17,6 +17,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import Counter
 
 from swarmloc.estimators import make_team, node_options
 from swarmloc.experiments.sources import load_source
@@ -332,3 +333,51 @@ def test_nodes_die_with_their_launcher(tmp_path):
             launcher.wait()
     assert not left, f"nodes {left} outlived their launcher by 10 s"
     assert gone_after < 5.0
+
+
+def test_two_teams_of_one_name_on_one_network_do_not_hear_each_other():
+    """Two teams named alike run at once on one network (six Zenoh peers, each connected to all the others). Each
+    run has its own id in its key expressions, so each team ends as it ends alone: the in-process outcomes, and
+    no message of the other team received (no duplicate query or reply, nothing dropped, no robot lost). Before
+    (no run id), each node heard its namesake's progress, queries and replies too. ``swarmloc team`` gives every
+    run an id of its own (checked last)."""
+    from swarmloc.events import Odometry
+    from swarmloc.net.faults import Faults
+    from swarmloc.net.team import _Launcher
+
+    src = load_source("sim:random", robots=3, duration=10.0, seed=1)
+    eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(6)]
+    sessions = [open_session([e], [o for o in eps if o != e]) for e in eps]
+    nets, reports = [], {}
+    try:
+        for i, s in enumerate(sessions):
+            r = src.robots[i % 3]
+            ev = src.own_events(r)
+            node = make_node("rdl", r, src.initial[r], src.config, src.landmarks)
+            node.start(min(e.t0 if isinstance(e, Odometry) else e.stamp for e in ev))
+            nets.append(NetNode(node, ev, session=s, team="same", roster=src.robots, record_times=src.record_times(),
+                                run_id=f"run{i // 3}"))  # fmt: skip
+        threads = [threading.Thread(target=lambda i=i, n=n: reports.__setitem__(i, n.run(max_wall=60)))
+                   for i, n in enumerate(nets)]  # fmt: skip
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(90)
+    finally:
+        for n in nets:
+            n.stop()
+        for s in sessions:
+            s.close()
+    assert sorted(reports) == list(range(6))
+    ref = reference_stats(src, "rdl")
+    for team in (0, 1):
+        got = Counter()
+        for i in range(3 * team, 3 * team + 3):
+            got.update({k: reports[i].stats[k] for k in OUTCOMES})
+            heard = {k: reports[i].net.get(k, 0) for k in ("duplicate_replies", "duplicate_queries", "rejected",
+                                                          "peers_lost")}  # fmt: skip
+            assert heard == dict.fromkeys(heard, 0), (i, heard, reports[i].net_reasons)
+            assert reports[i].stats.get("messages_rejected", 0) == 0, reports[i].reasons
+        assert dict(got) == {k: ref[k] for k in OUTCOMES}
+    a, b = (_Launcher("same", [0, 1], [], Faults(), False, (), None) for _ in range(2))
+    assert a.run_id != b.run_id and a.args_for("robot0")[:4] == ["--team", "same", "--run-id", a.run_id]

@@ -199,18 +199,18 @@ def _node(args: argparse.Namespace) -> int:
     from swarmloc.config import ConfigError
     from swarmloc.experiments.sources import load_source
     from swarmloc.net.entry import node_main
-    from swarmloc.net.transport import check_team
+    from swarmloc.net.transport import team_scope
 
     _net_logging(args.verbose)
     try:
-        check_team(args.team)
+        team_scope(args.team, args.run_id)  # a bad name or run id is refused before the source is loaded
         config = _config(args) if args.config else None
         src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
         report = node_main(
             src=src, robot=args.robot, team=args.team, estimator=args.estimator, speed=args.speed, lag=args.lag,
             listen=_endpoints(args.listen), connect=_endpoints(args.connect), zenoh_config=args.zenoh_config,
             use_server=args.use_server, resume=args.resume, faults=args.faults, wait_for=_ids(args.wait_for),
-            ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, **_timeouts(args),
+            ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, run_id=args.run_id, **_timeouts(args),
         )  # fmt: skip
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc node: {exc}", file=sys.stderr)
@@ -239,6 +239,7 @@ def _server(args: argparse.Namespace) -> int:
         server_main(
             team=args.team, roster=_ids(args.roster) or [], listen=_endpoints(args.listen),
             connect=_endpoints(args.connect), zenoh_config=args.zenoh_config, max_wall=args.max_wall,
+            run_id=args.run_id,
         )  # fmt: skip
     except (ValueError, OSError) as exc:
         print(f"swarmloc server: {exc}", file=sys.stderr)
@@ -266,7 +267,7 @@ def _team(args: argparse.Namespace) -> int:
             src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
             seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
             lag=args.lag, max_wall=args.max_wall, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
-            verbose=args.verbose, connect_extra=_endpoints(args.connect), **_timeouts(args),
+            team=args.team, verbose=args.verbose, connect_extra=_endpoints(args.connect), **_timeouts(args),
         )  # fmt: skip
         extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}
         report = write_team_report(run, src, args.estimator, args.out, extra)
@@ -313,6 +314,8 @@ def _net_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-config", default=None, help="a Zenoh JSON5 configuration file (TLS, access control)")
     p.add_argument("--max-wall", type=float, default=None, help="stop after this many wall-clock seconds")
     p.add_argument("--verbose", action="store_true", help="log the node's state every 2 s")
+    p.add_argument("--run-id", default=None, help="this run's id, in every key with the team's name (swarmloc team "
+                   "gives each run its own, so that two teams of one name never hear each other)")  # fmt: skip
     p.add_argument("--parent-pid", type=int, default=None,
                    help="stop when this process (the launcher that started this one) is gone")  # fmt: skip
 
@@ -466,6 +469,8 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")
+    t.add_argument("--team", default=None, help="the team's name (default team<PID>); each run also has an id of its "
+                   "own in every key, so that two teams of one name never hear each other")  # fmt: skip
     _timeout_args(t)
     t.add_argument("--connect", default=None, help="endpoints every process also connects to (a Zenoh router)")
     t.add_argument("--bag", default=None, help="record the beliefs as a rosbag2 (folder to create)")

@@ -110,6 +110,7 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
         "truth": truth,
         "estimators": {estimator: ev},
         "anees_bounds_if_independent": anees_bounds(max(n_rec, 1)),
+        "run_id": run.run_id,
         "processes_ended": run.ended,
         "notes": notes,
         **extra,

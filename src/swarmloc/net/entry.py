@@ -26,7 +26,7 @@ from swarmloc.events import Event, Odometry
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import Belief, Rejected, Report, decode
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
-from swarmloc.net.transport import check_team, open_session, server_key
+from swarmloc.net.transport import open_session, server_key, team_scope
 
 log = logging.getLogger(__name__)
 
@@ -100,21 +100,22 @@ def node_main(
     ros_domain: int | None = None,
     max_wall: float | None = None,
     out: str | os.PathLike[str] | None = None,
+    run_id: str | None = None,
 ) -> Report:
     """Run robot ``robot`` of ``src`` as one Zenoh peer until the team is done; returns its report. With
     ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there.
 
     The timeouts [s] are :class:`~swarmloc.net.process.NetNode`'s; ``max_wall`` [s] stops the node whatever its
-    state (None: no limit)."""
+    state (None: no limit); ``run_id``: the run's id in every key (:func:`~swarmloc.net.transport.team_scope`)."""
     from swarmloc.net.process import NetNode
 
-    check_team(team)
+    scope = team_scope(team, run_id)
     if robot not in src.initial:
         raise ValueError(f"robot {robot} is not in source {src.spec!r} (robots {src.robots})")
     session = open_session(listen, connect, zenoh_config)
     finals: dict[float, Belief] = {}
     try:
-        node, events, record_times = _start(session, src, robot, team, estimator, resume)
+        node, events, record_times = _start(session, src, robot, team, estimator, resume, scope)
         net = NetNode(
             node,
             events,
@@ -134,6 +135,7 @@ def node_main(
             wait_for=wait_for,
             ros_domain=ros_domain,
             on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
+            run_id=run_id,
         )
         _stop_on_sigterm(net.stop)
         report = net.run(max_wall=max_wall)
@@ -144,7 +146,7 @@ def node_main(
         session.close()
 
 
-def _start(session: Any, src: Source, robot: int, team: str, estimator: str, resume: bool) -> tuple:
+def _start(session: Any, src: Source, robot: int, team: str, estimator: str, resume: bool, scope: str) -> tuple:
     """The started node of ``robot``, the events it reads and its record times: from the source's start, or with
     ``resume`` from its latest belief on the team's belief server."""
     from swarmloc.gaussian import GroupGaussian
@@ -154,7 +156,7 @@ def _start(session: Any, src: Source, robot: int, team: str, estimator: str, res
     initial = src.initial[robot]
     record_times = src.record_times()
     if resume:
-        b = _latest_from_server(session, team, src.robots, robot)
+        b = _latest_from_server(session, team, src.robots, robot, scope)
         initial = GroupGaussian(SE2, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
         events = resume_events(events, b.stamp)
         record_times = record_times[record_times > b.stamp]
@@ -182,12 +184,13 @@ def _write_outputs(folder: Path, robot: int, finals: list[Belief], report: Repor
 
 
 def _latest_from_server(
-    session: Any, team: str, roster: Sequence[int], robot: int, timeout: float = RESUME_TIMEOUT
+    session: Any, team: str, roster: Sequence[int], robot: int, scope: str, timeout: float = RESUME_TIMEOUT
 ) -> Belief:
-    """``robot``'s latest belief on the team's belief server, asked for until ``timeout`` s passed."""
+    """``robot``'s latest belief on the team's belief server (its keys under ``scope``), asked for until ``timeout``
+    s passed."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        for reply in session.get(f"{server_key(team)}?latest={robot}", timeout=1.0):
+        for reply in session.get(f"{server_key(scope)}?latest={robot}", timeout=1.0):
             if reply.ok is None:
                 continue
             try:
@@ -208,14 +211,15 @@ def server_main(
     connect: Sequence[str] = (),
     zenoh_config: str | None = None,
     max_wall: float | None = None,
+    run_id: str | None = None,
 ) -> None:
-    """Run the belief server of ``team`` until SIGTERM / Ctrl-C (or ``max_wall`` s)."""
+    """Run the belief server of ``team`` (of its run ``run_id``) until SIGTERM / Ctrl-C (or ``max_wall`` s)."""
     from swarmloc.net.server import ServerProcess
 
-    check_team(team)
+    team_scope(team, run_id)  # refuse a bad name or run id before opening anything
     session = open_session(listen, connect, zenoh_config)
     try:
-        sp = ServerProcess(session, team, roster)
+        sp = ServerProcess(session, team, roster, run_id=run_id)
         _stop_on_sigterm(sp.stop)
         try:
             sp.run(max_wall=max_wall)

@@ -125,7 +125,7 @@ class Outbound:
         out, self._outbox = self._outbox, {}
         put, block = self.session.put, self._block
         for m in out.values():
-            payload, key = self._env(m), robot_key(self.team, m.receiver, "inbox")
+            payload, key = self._env(m), robot_key(self.scope, m.receiver, "inbox")
             self._faulty(lambda key=key, payload=payload: put(key, payload, congestion_control=block))
 
     def _ask(self, m: Message, via_server: bool = False) -> None:
@@ -144,7 +144,7 @@ class Outbound:
             return
         qid = next(self._qids)
         self._outstanding[qid] = (m, "server" if via_server else "robot", False)
-        key = server_key(self.team) if via_server else robot_key(self.team, m.receiver, "query")
+        key = server_key(self.scope) if via_server else robot_key(self.scope, m.receiver, "query")
         payload = self._env(m)
         timeout = self.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
         put = self._inq.put

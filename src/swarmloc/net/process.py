@@ -63,7 +63,7 @@ from swarmloc.net.outbound import Outbound
 from swarmloc.net.publishing import Publishing
 from swarmloc.net.schema import Belief, Progress, Report
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
-from swarmloc.net.transport import robot_key
+from swarmloc.net.transport import robot_key, team_scope
 from swarmloc.net.wiring import Wiring
 from swarmloc.node import Node
 
@@ -89,6 +89,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
     Parameters
     ----------
     team, roster: the team's name and robot ids (messages from anybody else are dropped).
+    run_id: this run's id, in every key expression with the team's name (:func:`~swarmloc.net.transport.team_scope`;
+        None: the name alone): two teams of one name with different run ids never hear each other.
     record_times: times [s] at which the robot's belief is published.
     speed: 0 = as fast as lockstep allows; X > 0: X times real time.
     lag: [s] lockstep slack (well below the node's horizon).
@@ -129,6 +131,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         linger: float = 10.0,
         ros_domain: int | None = None,
         on_belief: Callable[[Belief], None] | None = None,
+        run_id: str | None = None,
     ) -> None:
         if len(node.robots) != 1:
             raise ValueError("NetNode drives a node of one robot (a distributed estimator)")
@@ -142,6 +145,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self.items = _groups(events)
         self.session = session
         self.team = team
+        self.scope = team_scope(team, run_id)
         self.roster = frozenset(int(r) for r in roster)
         if self.robot not in self.roster:
             raise ValueError(f"robot {self.robot} is not in the roster {sorted(self.roster)}")
@@ -196,7 +200,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
             try:
                 self._pub_progress.put(self._env(Progress(robot=self.robot, t=math.inf, done=True)))
                 self.session.put(
-                    robot_key(self.team, self.robot, "report"), self._env(report), congestion_control=self._block
+                    robot_key(self.scope, self.robot, "report"), self._env(report), congestion_control=self._block
                 )
                 time.sleep(0.2)  # let Zenoh flush the report before the session closes
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)

@@ -27,7 +27,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
 from swarmloc.net.schema import SERVER, Belief, Rejected, decode, encode
-from swarmloc.net.transport import alive_key, robot_key, server_key
+from swarmloc.net.transport import alive_key, robot_key, server_key, team_scope
 
 __all__ = ["BeliefServer", "ServerProcess"]
 
@@ -114,9 +114,17 @@ class BeliefServer:
 class ServerProcess:
     """:class:`BeliefServer` on a Zenoh session for team ``team`` (robots ``roster``)."""
 
-    def __init__(self, session: Any, team: str, roster: Iterable[int], server: BeliefServer | None = None) -> None:
+    def __init__(
+        self,
+        session: Any,
+        team: str,
+        roster: Iterable[int],
+        server: BeliefServer | None = None,
+        run_id: str | None = None,
+    ) -> None:
         self.session = session
         self.team = team
+        self.scope = team_scope(team, run_id)  # keys: the team's name and the run's id (transport.team_scope)
         self.roster = frozenset(roster)
         self.server = server if server is not None else BeliefServer(self.roster)
         self.counts: Counter[str] = Counter()
@@ -137,10 +145,10 @@ class ServerProcess:
         """Serve until :meth:`stop` (or ``max_wall`` s)."""
         s, put = self.session, self._q.put
         decl = [
-            s.declare_subscriber(robot_key(self.team, "*", "belief"), handler=lambda x: put(("belief", x))),
-            s.declare_queryable(server_key(self.team), handler=lambda q: put(("query", q))),
+            s.declare_subscriber(robot_key(self.scope, "*", "belief"), handler=lambda x: put(("belief", x))),
+            s.declare_queryable(server_key(self.scope), handler=lambda q: put(("query", q))),
         ]
-        token = s.liveliness().declare_token(alive_key(self.team, "server"))
+        token = s.liveliness().declare_token(alive_key(self.scope, "server"))
         end = None if max_wall is None else time.monotonic() + max_wall
         try:
             while not self._stop.is_set() and (end is None or time.monotonic() < end):

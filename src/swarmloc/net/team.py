@@ -12,6 +12,7 @@ import logging
 import math
 import os
 import queue
+import secrets
 import signal
 import subprocess
 import sys
@@ -29,7 +30,7 @@ from swarmloc.net.entry import distributed_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import Belief, Progress, Rejected, Report, decode
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
-from swarmloc.net.transport import check_team, free_ports, open_session, robot_key
+from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, team_scope
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +47,8 @@ class TeamRun:
     counts: Counter[str] = field(default_factory=Counter)
     wall_s: float = 0.0
     exit_codes: dict[str, int | None] = field(default_factory=dict)
+    run_id: str = ""
+    """The run's id, in every key expression with the team's name (:func:`~swarmloc.net.transport.team_scope`)."""
     ended: list[dict[str, Any]] = field(default_factory=list)
     """Every process that ended with a non-zero exit code, in order: ``process`` (``robot<N>``, ``server``),
     ``pid``, ``exit_code`` and ``how`` (died, killed by a fault and restarted, stopped by the launcher)."""
@@ -189,6 +192,8 @@ class _Launcher:
         log_dir: str | os.PathLike[str] | None,
     ) -> None:
         self.team, self.robots, self.node_args, self.f, self.server = team, robots, node_args, faults, server
+        self.run_id = secrets.token_hex(6)  # in every key with the team's name: two teams of one name never meet
+        self.scope = team_scope(team, self.run_id)
         self.roster = frozenset(robots)
         names = [f"robot{r}" for r in robots] + (["server"] if server else [])
         ports = dict(zip([*names, "collector"], free_ports(len(names) + 1), strict=True))
@@ -200,7 +205,7 @@ class _Launcher:
         if self.logs is not None:
             self.logs.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, subprocess.Popen] = {}
-        self.result = TeamRun()
+        self.result = TeamRun(run_id=self.run_id)
         self.progress: dict[int, float] = {}
         self.inq: queue.SimpleQueue = queue.SimpleQueue()
         self.killed = self.restarted = self.joined = False
@@ -210,8 +215,8 @@ class _Launcher:
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
         others = [self.ep[k] for k in self.ep if k != name] + self.connect_extra
-        return ["--team", self.team, "--listen", self.ep[name], "--connect", ",".join(others),
-                "--parent-pid", str(os.getpid()), *extra]  # fmt: skip
+        return ["--team", self.team, "--run-id", self.run_id, "--listen", self.ep[name], "--connect",
+                ",".join(others), "--parent-pid", str(os.getpid()), *extra]  # fmt: skip
 
     def spawn(self, name: str, cmd: list[str]) -> None:
         logs = self.logs
@@ -335,7 +340,7 @@ class _Launcher:
         session = open_session([self.ep["collector"]], [self.ep[k] for k in self.ep if k != "collector"])
         put = self.inq.put
         subs = [
-            session.declare_subscriber(robot_key(self.team, "*", what), handler=lambda x: put(("sample", x)))
+            session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
             for what in ("belief", "report", "progress")
         ]
         t0 = time.monotonic()

@@ -6,7 +6,9 @@ endpoints named (tests and ``swarmloc team`` use 127.0.0.1 only). For a team on 
 the others' endpoints (``--listen``, ``--connect``) or a Zenoh configuration file (``--zenoh-config``): that file
 is where TLS and access control are set (see ``docs/network.md``).
 
-Key expressions (``<team>`` is the team's name)::
+Key expressions (``<team>`` is the team's name; one run of a team launched by ``swarmloc team`` is
+``<team>/run/<id>``, with a random id of its own, so that two teams of one name on one network never hear each other:
+:func:`team_scope`)::
 
     swarmloc/<team>/robot/<id>/query      queryable: BeliefQuery / RdlStateQuery -> answer (get, reply)
     swarmloc/<team>/robot/<id>/inbox      subscriber: pushed answers (revisions) and pairwise updates
@@ -35,6 +37,17 @@ def check_team(team: str) -> str:
     if not isinstance(team, str) or not _TEAM.match(team):
         raise ValueError(f"team name must be 1-64 letters, digits, '-' or '_', got {team!r}")
     return team
+
+
+def team_scope(team: str, run_id: str | None = None) -> str:
+    """The part of every key expression that names a team: ``<team>``, or ``<team>/run/<run_id>`` for one run of it
+    (the run id is 1-64 letters, digits, '-' or '_'). Pass it as ``team`` to the key functions below."""
+    check_team(team)
+    if run_id is None:
+        return team
+    if not isinstance(run_id, str) or not _TEAM.match(run_id):
+        raise ValueError(f"run id must be 1-64 letters, digits, '-' or '_', got {run_id!r}")
+    return f"{team}/run/{run_id}"
 
 
 def robot_key(team: str, robot: int | str, what: str) -> str:
