@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import queue
 import signal
@@ -381,3 +382,26 @@ def test_two_teams_of_one_name_on_one_network_do_not_hear_each_other():
         assert dict(got) == {k: ref[k] for k in OUTCOMES}
     a, b = (_Launcher("same", [0, 1], [], Faults(), False, (), None) for _ in range(2))
     assert a.run_id != b.run_id and a.args_for("robot0")[:4] == ["--team", "same", "--run-id", a.run_id]
+
+
+def test_traffic_that_never_settles_does_not_hold_a_node_at_its_end():
+    """At its end a node waits for the traffic to settle, now at most ``linger`` s once the team has read its
+    sources, then finishes (counted ``never_settled``). Before, a neighbour that never stopped sending held it
+    with no bound but the run's wall time."""
+    from types import SimpleNamespace
+
+    net = offline_net(linger=0.5)
+    net.session = net._pub_progress = net._pub_belief = SimpleNamespace(put=lambda *a, **k: None)
+    net._i = len(net.items)  # its source read; robots 1 and 2 not alive: the team has read its sources
+    flood = _Flood(b"not a message")
+    flood.get = flood.get_nowait = lambda timeout=None: ("inbox", flood.sample)  # neighbours' traffic, forever
+    net._inq = flood
+    th = threading.Thread(target=net._finish, args=(math.inf,), daemon=True)
+    t0 = time.monotonic()
+    th.start()
+    th.join(10.0)
+    returned = not th.is_alive()
+    net._stop.set()  # ends a wait that did not end by itself
+    th.join(5.0)
+    assert returned, "the node's end waited 10 s for traffic that never settles"
+    assert time.monotonic() - t0 < 2 * 0.5 + 1.0 and net.counts["never_settled"] == 1

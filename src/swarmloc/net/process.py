@@ -280,8 +280,9 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         return not (self._outstanding or self._timers or self._deferred or self._expect or self._held or self._outbox)
 
     def _finish(self, deadline: float) -> None:
-        """Wait for the team to finish its sources and the traffic to settle, then publish the final beliefs."""
-        quiet_since = time.monotonic()
+        """Wait for the team to finish its sources (a teammate that stops progressing is lost after ``lost_timeout``
+        s) and the traffic to settle (at most ``linger`` s once they have), then publish the final beliefs."""
+        quiet_since, all_read_since = time.monotonic(), math.inf
         while not self._stop.is_set() and time.monotonic() < deadline:
             got = self._drain(0.02)
             self._answer_ready()
@@ -296,7 +297,14 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
             all_read = all(self._progress.get(r, -math.inf) == math.inf or r in self._done for r in self._alive)
             if not all_read:
                 self._check_lost(math.inf)
-            if all_read and time.monotonic() - quiet_since >= self.quiet:
+            now = time.monotonic()
+            all_read_since = min(all_read_since, now) if all_read else math.inf
+            if all_read and now - quiet_since >= self.quiet:
+                break
+            if now - all_read_since > self.linger:
+                self.counts["never_settled"] += 1
+                log.warning("robot %s: traffic still not settled %.0f s after the team read its sources; finishing",
+                            self.robot, self.linger)  # fmt: skip
                 break
         self._route(self.node.expire())
         self._flush(force=True)
