@@ -46,6 +46,7 @@ I3 = flat(np.eye(3))
 class Attack:
     def __init__(self, a: argparse.Namespace) -> None:
         self.team = a.team
+        self.scope = a.team  # the team's keys: with a run id (swarmloc team), learnt from the progress it sniffs
         self.robots = [int(x) for x in a.robots.split(",")]
         keys = Path(a.keys)
         self.roster = Roster.load(keys / "roster.json")
@@ -72,12 +73,12 @@ class Attack:
         self.record_times = [float(t) for t in a.record_times.split(",")]
 
     def key(self, robot: int | str, what: str) -> str:
-        return robot_key(self.team, robot, what)
+        return robot_key(self.scope, robot, what)
 
     def receivers(self, key: str) -> list[str]:
         """Who receives a put on ``key`` (what the team's processes subscribe to)."""
         what, who = key.split("/")[-1], key.split("/")[-2]
-        if what in ("inbox", "query") and key.startswith(f"swarmloc/{self.team}/robot/"):
+        if what in ("inbox", "query") and key.startswith(f"swarmloc/{self.scope}/robot/"):
             return [f"robot {who}"]
         return {"progress": [f"robot {r}" for r in self.robots] + ["collector"], "belief": ["collector", "server"],
                 "report": ["collector"]}.get(what, ["server"])  # fmt: skip
@@ -139,7 +140,7 @@ class Attack:
         self.put(p1, self.forge(self.as1, p1, Progress(robot=1, t=math.inf, done=True)), "key_mismatch")
         r1 = self.key(1, "report")
         self.put(r1, self.forge(self.as1, r1, Report(robot=1, stats={"fused": 10**6})), "key_mismatch")
-        sq = server_key(self.team)
+        sq = server_key(self.scope)
         self.get(sq, self.forge(self.as1, sq, BeliefQuery(sender=1, receiver=0, stamp=t)), "key_mismatch")
 
     def replay(self, stale_after: float | None = None) -> None:
@@ -183,6 +184,7 @@ class Attack:
             r = int(what[-2])
             with self.lock:
                 self.progress[r] = time.monotonic()
+                self.scope = "/".join(what[1:-3])  # swarmloc/<scope>/robot/<r>/progress
         elif what[-1] == "inbox" and raw not in self.sent:
             sender = int.from_bytes(raw[4:8], "big", signed=True)
             with self.lock:
@@ -200,12 +202,14 @@ def main() -> None:
     a = p.parse_args()
     atk = Attack(a)
     s = atk.session
-    decl = [s.declare_subscriber(atk.key("*", "progress"), atk.on_sample, allowed_origin=zenoh.Locality.REMOTE),
-            s.declare_subscriber(atk.key(0, "inbox"), atk.on_sample, allowed_origin=zenoh.Locality.REMOTE)]  # fmt: skip
+    # the keys of a run of swarmloc team carry its run id (swarmloc/<team>/run/<id>/...): sniffed from the progress
+    progress = f"swarmloc/{atk.team}/**/robot/*/progress"
+    decl = [s.declare_subscriber(progress, atk.on_sample, allowed_origin=zenoh.Locality.REMOTE)]
     print("ready", flush=True)
     end = time.monotonic() + a.wait
     while len(atk.progress) < len(atk.robots) and time.monotonic() < end:
         time.sleep(0.05)
+    decl.append(s.declare_subscriber(atk.key(0, "inbox"), atk.on_sample, allowed_origin=zenoh.Locality.REMOTE))
     started = time.monotonic()
     fake = s.declare_queryable(atk.key(1, "query"), atk.on_query, complete=True)
     t = atk.record_times[len(atk.record_times) // 3]

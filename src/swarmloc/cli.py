@@ -202,15 +202,23 @@ def _auth(args: argparse.Namespace, member: int):  # noqa: ANN202
     return Auth.load(args.key, args.roster, member)
 
 
+def _die_with_launcher(args: argparse.Namespace) -> None:
+    if args.parent_pid is not None:  # first thing: a launcher killed meanwhile must not leave this process running
+        from swarmloc.net.lifeline import die_with_parent
+
+        die_with_parent(args.parent_pid)
+
+
 def _node(args: argparse.Namespace) -> int:
+    _die_with_launcher(args)
     from swarmloc.config import ConfigError
     from swarmloc.experiments.sources import load_source
     from swarmloc.net.entry import node_main
-    from swarmloc.net.transport import check_team
+    from swarmloc.net.transport import team_scope
 
     _net_logging(args.verbose)
     try:
-        check_team(args.team)
+        team_scope(args.team, args.run_id)  # a bad name or run id is refused before the source is loaded
         auth = _auth(args, args.robot)
         config = _config(args) if args.config else None
         src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
@@ -218,7 +226,8 @@ def _node(args: argparse.Namespace) -> int:
             src=src, robot=args.robot, team=args.team, estimator=args.estimator, speed=args.speed, lag=args.lag,
             listen=_endpoints(args.listen), connect=_endpoints(args.connect), zenoh_config=args.zenoh_config,
             use_server=args.use_server, resume=args.resume, faults=args.faults, wait_for=_ids(args.wait_for),
-            ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, auth=auth, **_timeouts(args),
+            ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, run_id=args.run_id, auth=auth,
+            **_timeouts(args),
         )  # fmt: skip
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc node: {exc}", file=sys.stderr)
@@ -229,10 +238,17 @@ def _node(args: argparse.Namespace) -> int:
     print(f"robot {report.robot}: {s['detections']} detections: {s['fused']} fused, {s['gated']} gated, "
           f"{s['rejected']} rejected, {s['unknown']} unknown; {report.net.get('rejected', 0)} messages dropped; "
           f"{report.wall_s:.1f} s")  # fmt: skip
+    others = sorted(set(src.robots) - {args.robot})
+    if others and report.net.get("teammates_seen") == 0:  # the node counted them: it saw none
+        print(f"swarmloc node: robot {args.robot}: no teammate ever answered: none of robots {others} was seen "
+              f"(waited {args.start_timeout:g} s at the start, then ran alone; {s['unknown']} detections unknown); "
+              "check --connect and --team", file=sys.stderr)  # fmt: skip
+        return 3
     return 0
 
 
 def _server(args: argparse.Namespace) -> int:
+    _die_with_launcher(args)
     from swarmloc.net.entry import server_main
     from swarmloc.net.schema import SERVER
 
@@ -246,7 +262,7 @@ def _server(args: argparse.Namespace) -> int:
             raise ValueError("--robots: the team's robot ids, comma-separated (default: the roster's robots)")
         server_main(
             team=args.team, roster=robots, listen=_endpoints(args.listen), connect=_endpoints(args.connect),
-            zenoh_config=args.zenoh_config, max_wall=args.max_wall, auth=auth,
+            zenoh_config=args.zenoh_config, max_wall=args.max_wall, auth=auth, run_id=args.run_id,
         )  # fmt: skip
     except (ValueError, OSError) as exc:
         print(f"swarmloc server: {exc}", file=sys.stderr)
@@ -274,7 +290,7 @@ def _team(args: argparse.Namespace) -> int:
             src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
             seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
             lag=args.lag, max_wall=args.max_wall, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
-            verbose=args.verbose, connect_extra=_endpoints(args.connect), **_timeouts(args),
+            team=args.team, verbose=args.verbose, connect_extra=_endpoints(args.connect), **_timeouts(args),
         )  # fmt: skip
         extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}
         report = write_team_report(run, src, args.estimator, args.out, extra)
@@ -321,6 +337,10 @@ def _net_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-config", default=None, help="a Zenoh JSON5 configuration file (TLS, access control)")
     p.add_argument("--max-wall", type=float, default=None, help="stop after this many wall-clock seconds")
     p.add_argument("--verbose", action="store_true", help="log the node's state every 2 s")
+    p.add_argument("--run-id", default=None, help="this run's id, in every key with the team's name (swarmloc team "
+                   "gives each run its own, so that two teams of one name never hear each other)")  # fmt: skip
+    p.add_argument("--parent-pid", type=int, default=None,
+                   help="stop when this process (the launcher that started this one) is gone")  # fmt: skip
 
 
 def _auth_args(p: argparse.ArgumentParser) -> None:
@@ -525,6 +545,8 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")
+    t.add_argument("--team", default=None, help="the team's name (default team<PID>); each run also has an id of its "
+                   "own in every key, so that two teams of one name never hear each other")  # fmt: skip
     _timeout_args(t)
     t.add_argument("--connect", default=None, help="endpoints every process also connects to (a Zenoh router)")
     t.add_argument("--bag", default=None, help="record the beliefs as a rosbag2 (folder to create)")

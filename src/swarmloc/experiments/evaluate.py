@@ -203,4 +203,7 @@ def markdown_table(report: dict) -> str:
             f"| {name} | {t['pos_rmse']:.3f} | {t['heading_rmse']:.3f} | {t['anees']:.2f} | {t['frac_in_95']:.2f} | "
             f"{acc} | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |"
         )
+    notes = report.get("notes") or []
+    if notes:
+        lines += ["", *(f"* {n}" for n in notes)]
     return "\n".join(lines) + "\n"

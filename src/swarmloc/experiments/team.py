@@ -65,6 +65,31 @@ def team_result(run: TeamRun, src: Source, estimator: str) -> RunResult:
     return RunResult(estimator, run.tracks(src.truth), run.wall_s, dict(stats), len(src.events), reasons, {})
 
 
+def ended_notes(run: TeamRun, robots: list[int]) -> tuple[list[str], list[int]]:
+    """What the totals leave out: a sentence per process that ended with a non-zero exit code (named, with the
+    code) and per robot without a report; and the robots whose detections are (partly) missing from the totals."""
+    notes, missing = [], []
+    for e in run.ended:
+        what = f"{e['process']} (pid {e['pid']}) {e['how']}, exit code {e['exit_code']}"
+        if e["process"] == "server":
+            notes.append(f"{what}.")
+            continue
+        r = int(e["process"].removeprefix("robot"))
+        if "restarted" in e["how"]:
+            missing.append(r)
+            notes.append(f"{what}: the detections it handled before are missing from the totals.")
+        elif r in run.reports:
+            notes.append(f"{what}; its report is in the totals.")
+        else:
+            missing.append(r)
+            notes.append(f"{what}: its detections are missing from the totals.")
+    for r in robots:
+        if r not in run.reports and r not in missing:
+            missing.append(r)
+            notes.append(f"robot{r} sent no report: its detections are missing from the totals.")
+    return notes, sorted(set(missing))
+
+
 def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | os.PathLike[str], extra: dict) -> dict:
     """Score the run against the source's truth and write ``team.json``/``team.md``, TUM files and figures (the
     layout of ``swarmloc evaluate``)."""
@@ -72,8 +97,10 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
     truth = src.truth is not None
     ev = evaluate(res) if truth else {"estimator": estimator, "robots": {}, "team": None}
     duration = float(src.t_end - src.t_start)
+    notes, missing = ended_notes(run, src.robots)
     ev.update(wall_time_s=run.wall_s, x_real_time=duration / run.wall_s if run.wall_s > 0 else math.inf,
-              stats=res.stats, reasons=dict(res.reasons), timing={}, accounted=res.accounted())  # fmt: skip
+              stats=res.stats, reasons=dict(res.reasons), timing={}, accounted=res.accounted() and not missing,
+              detections_missing_of=missing)  # fmt: skip
     ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
     n_rec = sum(tr.times.size for tr in res.tracks.values())
     report = {
@@ -85,6 +112,9 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
         "truth": truth,
         "estimators": {estimator: ev},
         "anees_bounds_if_independent": anees_bounds(max(n_rec, 1)),
+        "run_id": run.run_id,
+        "processes_ended": run.ended,
+        "notes": notes,
         **extra,
     }
     write_report(out_dir, "team", report, {estimator: res}, src.t_start)

@@ -28,8 +28,8 @@ from swarmloc.events import Event, Odometry
 from swarmloc.net.auth import Auth, open_envelope
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import SERVER, Belief, Rejected, Report
-from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
-from swarmloc.net.transport import check_team, open_session, server_key
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.transport import open_session, server_key, team_scope
 
 log = logging.getLogger(__name__)
 
@@ -99,26 +99,29 @@ def node_main(
     hold_timeout: float = HOLD_TIMEOUT,
     update_timeout: float = UPDATE_TIMEOUT,
     start_timeout: float = START_TIMEOUT,
+    lost_timeout: float = LOST_TIMEOUT,
     ros_domain: int | None = None,
     max_wall: float | None = None,
     out: str | os.PathLike[str] | None = None,
     auth: Auth | None = None,
+    run_id: str | None = None,
 ) -> Report:
     """Run robot ``robot`` of ``src`` as one Zenoh peer until the team is done; returns its report. With
     ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there.
 
     The timeouts [s] are :class:`~swarmloc.net.process.NetNode`'s; ``max_wall`` [s] stops the node whatever its
-    state (None: no limit). ``auth``: robot ``robot``'s key and the team's roster (None: unauthenticated)."""
+    state (None: no limit). ``auth``: robot ``robot``'s key and the team's roster (None: unauthenticated);
+    ``run_id``: the run's id in every key (:func:`~swarmloc.net.transport.team_scope`)."""
     from swarmloc.net.process import NetNode
 
-    check_team(team)
+    scope = team_scope(team, run_id)
     if robot not in src.initial:
         raise ValueError(f"robot {robot} is not in source {src.spec!r} (robots {src.robots})")
     _check_roster(auth, src.robots)
     session = open_session(listen, connect, zenoh_config)
     finals: dict[float, Belief] = {}
     try:
-        node, events, record_times = _start(session, src, robot, team, estimator, resume, auth)
+        node, events, record_times = _start(session, src, robot, team, estimator, resume, auth, scope)
         net = NetNode(
             node,
             events,
@@ -132,12 +135,14 @@ def node_main(
             hold_timeout=hold_timeout,
             update_timeout=update_timeout,
             start_timeout=start_timeout,
+            lost_timeout=lost_timeout,
             use_server=use_server,
             faults=parse_faults(faults) if isinstance(faults, str | None) else faults,
             wait_for=wait_for,
             ros_domain=ros_domain,
             on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
             auth=auth,
+            run_id=run_id,
         )
         _stop_on_sigterm(net.stop)
         report = net.run(max_wall=max_wall)
@@ -156,7 +161,9 @@ def _check_roster(auth: Auth | None, robots: Sequence[int]) -> None:
             raise ValueError(f"the roster has no key for robots {missing} of the team {list(robots)}")
 
 
-def _start(session: Any, src: Source, robot: int, team: str, estimator: str, resume: bool, auth: Any) -> tuple:
+def _start(
+    session: Any, src: Source, robot: int, team: str, estimator: str, resume: bool, auth: Any, scope: str
+) -> tuple:
     """The started node of ``robot``, the events it reads and its record times: from the source's start, or with
     ``resume`` from its latest belief on the team's belief server."""
     from swarmloc.gaussian import GroupGaussian
@@ -166,7 +173,7 @@ def _start(session: Any, src: Source, robot: int, team: str, estimator: str, res
     initial = src.initial[robot]
     record_times = src.record_times()
     if resume:
-        b = _latest_from_server(session, team, src.robots, robot, auth)
+        b = _latest_from_server(session, team, src.robots, robot, auth, scope)
         initial = GroupGaussian(SE2, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
         events = resume_events(events, b.stamp)
         record_times = record_times[record_times > b.stamp]
@@ -194,15 +201,21 @@ def _write_outputs(folder: Path, robot: int, finals: list[Belief], report: Repor
 
 
 def _latest_from_server(
-    session: Any, team: str, roster: Sequence[int], robot: int, auth: Auth | None, timeout: float = RESUME_TIMEOUT
+    session: Any,
+    team: str,
+    roster: Sequence[int],
+    robot: int,
+    auth: Auth | None,
+    scope: str,
+    timeout: float = RESUME_TIMEOUT,
 ) -> Belief:
-    """``robot``'s latest belief on the team's belief server, asked for until ``timeout`` s passed (with ``auth``:
-    only a reply signed by the server)."""
+    """``robot``'s latest belief on the team's belief server (its keys under ``scope``), asked for until ``timeout``
+    s passed (with ``auth``: only a reply signed by the server)."""
     import zenoh
 
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        selector = f"{server_key(team)}?latest={robot}"
+        selector = f"{server_key(scope)}?latest={robot}"
         for reply in session.get(
             selector, timeout=1.0, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE
         ):
@@ -228,16 +241,17 @@ def server_main(
     zenoh_config: str | None = None,
     max_wall: float | None = None,
     auth: Auth | None = None,
+    run_id: str | None = None,
 ) -> None:
-    """Run the belief server of ``team`` until SIGTERM / Ctrl-C (or ``max_wall`` s); ``auth``: the server's key and
-    the team's roster (None: unauthenticated)."""
+    """Run the belief server of ``team`` (of its run ``run_id``) until SIGTERM / Ctrl-C (or ``max_wall`` s);
+    ``auth``: the server's key and the team's roster (None: unauthenticated)."""
     from swarmloc.net.server import ServerProcess
 
-    check_team(team)
+    team_scope(team, run_id)  # refuse a bad name or run id before opening anything
     _check_roster(auth, roster)
     session = open_session(listen, connect, zenoh_config)
     try:
-        sp = ServerProcess(session, team, roster, auth=auth)
+        sp = ServerProcess(session, team, roster, auth=auth, run_id=run_id)
         _stop_on_sigterm(sp.stop)
         try:
             sp.run(max_wall=max_wall)

@@ -15,10 +15,13 @@ from typing import Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate
 from swarmloc.net.auth import note_refusal, open_envelope
-from swarmloc.net.outbound import key_of, reply_err
+from swarmloc.net.outbound import close, key_of, reply_err
 from swarmloc.net.schema import SERVER, Belief, Envelope, Progress, Rejected, Report
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
+
+DRAIN_SLICE = 0.1
+"""[s] wall time one :meth:`Inbound._drain` handles queued items at most (past its wait for the first)."""
 
 
 class Inbound:
@@ -26,9 +29,11 @@ class Inbound:
     queries, pushed messages and replies."""
 
     def _drain(self, timeout: float) -> bool:
-        """Handle everything queued; wait up to ``timeout`` s for the first item. True if neighbours' traffic (queries,
-        replies, pushed messages) came: progress and liveliness do not count."""
+        """Handle what is queued, for at most ``DRAIN_SLICE`` s (the rest waits for the next call, so that a flood
+        never keeps the loops from their deadlines and timers); wait up to ``timeout`` s for the first item. True if
+        neighbours' traffic (queries, replies, pushed messages) came: progress and liveliness do not count."""
         got = False
+        end = time.monotonic() + max(timeout, 0.0) + DRAIN_SLICE
         try:
             item = self._inq.get(timeout=timeout) if timeout > 0 else self._inq.get_nowait()
         except queue.Empty:
@@ -42,6 +47,8 @@ class Inbound:
                 except Exception as exc:  # a node must never die of one message
                     log.exception("robot %s: error handling %s", self.robot, item[0])
                     self._reject(f"internal error: {type(exc).__name__}: {exc}", item[0])
+            if time.monotonic() > end:
+                break
             try:
                 item = self._inq.get_nowait()
             except queue.Empty:
@@ -68,11 +75,18 @@ class Inbound:
         query is refused at once."""
         self.counts["received"] += 1
         raw = x.payload.to_bytes() if x.payload is not None else None
+        self._replayed = False
         env = self._decode(raw, "query", key_of(x))
+        if env is None and self._replayed:  # a copy of a query taken before (a duplicate, or replayed): no answer
+            close(x)
+            return
         if env is None or not isinstance(env.body, BeliefQuery | RdlStateQuery):
             if env is not None:
                 self._reject(f"{type(env.body).__name__} sent as a query", "query")
             reply_err(x, "rejected")
+            return
+        if not self._first_copy(env):  # a duplicate of a query held or answered: answered once, this copy closed
+            close(x)
             return
         self._deferred.append((time.monotonic(), env.body, x))
         self._answer_ready()
@@ -112,6 +126,7 @@ class Inbound:
     def _refuse(self, exc: Rejected, where: str) -> None:
         """Count a dropped message: an authentication failure also as ``auth_<category>``, logged with its detail
         (:func:`~swarmloc.net.auth.note_refusal`)."""
+        self._replayed = getattr(exc, "category", None) == "replay"
         if note_refusal(self.counts, exc, f"robot {self.robot}", where):
             self.counts["rejected"] += 1
             self.reasons[exc.reason] += 1
@@ -142,13 +157,17 @@ class Inbound:
         entry = self._outstanding.get(qid)
         if entry is None:
             return
-        m, via, _ = entry
+        m, via, answered = entry
         ok = reply.ok
         if ok is None:
-            self._reject(f"error reply: {reply.err.payload.to_bytes()[:80]!r}", "reply")
+            if not answered:
+                self._reject(f"error reply: {reply.err.payload.to_bytes()[:80]!r}", "reply")
             return
-        env = self._decode(ok.payload.to_bytes(), "reply", key_of(ok))
+        env = self._decode(ok.payload.to_bytes(), "reply", key_of(ok))  # authenticated first: a forgery is counted
         if env is None:
+            return
+        if answered:  # a duplicate reply (link faults): the first was taken
+            self.counts["duplicate_replies"] += 1
             return
         a = env.body
         if not isinstance(a, BeliefAnswer | RdlState) or (a.sender, a.receiver, a.stamp, a.sub) != (
@@ -167,7 +186,12 @@ class Inbound:
 
     def _on_reply_end(self, qid: int) -> None:
         """The end of query ``qid`` (all replies in, or its ``answer_timeout`` passed): unanswered, it is asked of the
-        belief server (``use_server``) or answered "not found" with the reason."""
+        belief server (``use_server``) or answered "not found" with the reason. A query sent twice (link faults)
+        ends when both copies have."""
+        if self._gets.get(qid, 0) > 1:
+            self._gets[qid] -= 1
+            return
+        self._gets.pop(qid, None)
         entry = self._outstanding.pop(qid, None)
         if entry is None:
             return

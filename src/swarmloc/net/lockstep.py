@@ -13,13 +13,14 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import OrderedDict
 from typing import Any
 
 from swarmloc.events import Odometry
 from swarmloc.messages import Message
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.outbound import key_of
-from swarmloc.net.schema import Progress, Rejected
+from swarmloc.net.schema import Envelope, Progress, Rejected
 from swarmloc.net.transport import robot_of
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
@@ -33,10 +34,14 @@ class Lockstep:
         self._progress: dict[int, float] = {}  # per live teammate: the stamp of its next input
         self._progress_key: dict[int, tuple[float, int]] = {}  # ... and its priority
         self._done: set[int] = set()  # teammates that announced they are done
-        self._alive: set[int] = set()  # teammates whose liveliness token is up
+        self._alive: set[int] = set()  # teammates whose liveliness token is up (and not declared lost)
+        self._lost: set[int] = set()  # teammates declared lost: no progress for lost_timeout s while waited for
+        self._heard: dict[int, float] = {}  # per live teammate: wall time its progress last advanced (or it came)
+        self._seen: set[int] = set()  # teammates ever seen alive or heard from
         self._deferred: list[tuple[float, Message, Any]] = []  # neighbours' queries held: (since, query, Zenoh query)
         self._expect: dict[tuple, float] = {}  # pairwise updates expected, by key: since when
         self._held: list[Message] = []  # answers to this node's queries not yet given to it
+        self._queries_seen: OrderedDict[tuple, None] = OrderedDict()  # neighbours' queries held or answered (bounded)
 
     def _on_progress(self, x: Any) -> None:
         """A teammate's progress announcement: how far it has read its source (and whether it is done)."""
@@ -48,10 +53,54 @@ class Lockstep:
             return
         p = env.body
         if isinstance(p, Progress) and p.robot != self.robot:
-            self._progress[p.robot] = max(self._progress.get(p.robot, -math.inf), p.t)
-            self._progress_key[p.robot] = max(self._progress_key.get(p.robot, (-math.inf, 0)), (p.t, p.prio))
+            r, old = p.robot, self._progress_key.get(p.robot, (-math.inf, 0))
+            self._seen.add(r)
+            if (p.t, p.prio) > old or (p.done and r not in self._done):
+                self._heard[r] = time.monotonic()
+                if r in self._lost:
+                    self._found(r, "it announced progress again")
+            self._progress[r] = max(self._progress.get(r, -math.inf), p.t)
+            self._progress_key[r] = max(old, (p.t, p.prio))
             if p.done:
-                self._done.add(p.robot)
+                self._done.add(r)
+
+    def _check_lost(self, s: float) -> None:
+        """Declare lost every live teammate this node waits for (not done, its source read only to before ``s``)
+        whose progress has not advanced for ``lost_timeout`` s: a process that hangs, or a token that outlived its
+        process. The node goes on without it (counted ``peers_lost``, logged); its queries to it are answered "not
+        found" at once. It is back if it announces progress again or its token comes anew."""
+        now = time.monotonic()
+        for r in sorted(self._alive):
+            if r in self._done or self._progress.get(r, -math.inf) >= s:
+                continue
+            if now - self._heard.setdefault(r, now) > self.lost_timeout:
+                self._alive.discard(r)
+                self._lost.add(r)
+                self.counts["peers_lost"] += 1
+                log.warning("robot %s: robot %s declared lost: its source read only to %.3f s, no progress for %.1f s "
+                            "(lost timeout); going on without it", self.robot, r, self._progress.get(r, -math.inf),
+                            now - self._heard[r])  # fmt: skip
+
+    def _found(self, r: int, why: str) -> None:
+        """A teammate declared lost is back: lockstep waits for it again."""
+        self._lost.discard(r)
+        self._alive.add(r)
+        self.counts["peers_back"] += 1
+        log.warning("robot %s: robot %s, declared lost, is back: %s", self.robot, r, why)
+
+    def _first_copy(self, env: Envelope) -> bool:
+        """False for a copy of a neighbour's query this node already holds or answered (the same sender, sequence
+        number and query: link faults duplicate them), so that each query is answered once (counted
+        ``duplicate_queries``). The last 4096 queries are remembered."""
+        q = env.body
+        key = (env.from_robot, env.seq, type(q).__name__, float(q.stamp), tuple(q.sub))
+        if key in self._queries_seen:
+            self.counts["duplicate_queries"] += 1
+            return False
+        self._queries_seen[key] = None
+        if len(self._queries_seen) > 4096:
+            self._queries_seen.popitem(last=False)
+        return True
 
     def _on_alive(self, x: Any) -> None:
         """A teammate's liveliness token came or went: lockstep waits only for live teammates."""
@@ -64,10 +113,15 @@ class Lockstep:
             self.counts["alive_outside_roster"] += 1
             return
         if x.kind == zenoh.SampleKind.PUT:
+            self._seen.add(r)
+            self._heard[r] = time.monotonic()
+            if r in self._lost:
+                self._found(r, "its token came anew")
             self._alive.add(r)
             self._done.discard(r)
         else:
             self._alive.discard(r)
+            self._lost.discard(r)
             self._progress.pop(r, None)
             self._progress_key.pop(r, None)
             self.counts["peers_left"] += 1

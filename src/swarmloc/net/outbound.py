@@ -35,6 +35,7 @@ class Outbound:
         self._seq = itertools.count()  # envelope sequence numbers
         self._qids = itertools.count()  # ids of this node's queries (and timer tie-breakers)
         self._outstanding: dict[int, tuple[Message, str, bool]] = {}  # qid: (query, "robot"/"server", answered)
+        self._gets: dict[int, int] = {}  # qid: copies of the query out (link faults duplicate them), each ends once
         self._timers: list[tuple[float, int, Callable[[], None]]] = []  # (due, id, send): delayed sends, lost gets
         self._outbox: dict[tuple, Message] = {}  # pushed messages to send, the newest per exchange
         self._last_flush = 0.0
@@ -45,26 +46,43 @@ class Outbound:
         """``body`` in this robot's envelope, with its next sequence number, signed for ``key`` (with ``auth``)."""
         return seal(self.auth, key, encode(self.team, self.robot, next(self._seq), body))
 
-    def _faulty(self, send: Callable[[], None]) -> int:
-        """Send now, or as the link faults say (lost, delayed, duplicated); returns the copies sent."""
-        if self.link is None:
-            self.counts["sent"] += 1
-            send()
-            return 1
-        delays = self.link.schedule()
+    def _faulty(self, send: Callable[[], None], finish: Callable[[], None] | None = None) -> int:
+        """Send now, or as the link faults say (lost, delayed, duplicated); returns the copies sent. ``finish`` runs
+        once the last copy is sent (at once if every copy is lost): closing the Zenoh query a reply answers, so that
+        a duplicate reply goes out on a query still open. A copy that fails to go out is counted (``send_failed``)
+        and logged; it never raises into the node's loop."""
+        delays = [0.0] if self.link is None else self.link.schedule()
         if not delays:
             self.counts["lost"] += 1
-            return 0
-        if len(delays) > 1:
+        elif len(delays) > 1:
             self.counts["duplicated"] += 1
+        left = [len(delays)]
+
+        def one() -> None:
+            try:
+                send()
+            except Exception as exc:  # noqa: BLE001 - e.g. the asker is gone: a missing answer, not a crash
+                self._send_failed(exc)
+            left[0] -= 1
+            if left[0] == 0 and finish is not None:
+                finish()
+
+        if not delays and finish is not None:
+            finish()
         for d in delays:
             self.counts["sent"] += 1
             if d <= 0:
-                send()
+                one()
             else:
                 self.counts["delayed"] += 1
-                heapq.heappush(self._timers, (time.monotonic() + d, next(self._qids), send))
+                heapq.heappush(self._timers, (time.monotonic() + d, next(self._qids), one))
         return len(delays)
+
+    def _send_failed(self, exc: Exception) -> None:
+        """Count a message that could not go out (``send_failed``) and log the first."""
+        self.counts["send_failed"] += 1
+        level = logging.WARNING if self.counts["send_failed"] == 1 else logging.DEBUG
+        log.log(level, "robot %s: a send failed (counted send_failed): %s: %s", self.robot, type(exc).__name__, exc)
 
     def _route(self, msgs: list[Message], query: Any = None, asked: Message | None = None) -> None:
         """Carry what the node returned: a query is asked (:meth:`_ask`), the answer to ``asked`` is the reply to the
@@ -82,7 +100,8 @@ class Outbound:
                 query = None
                 if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
                     self._expect[(float(m.stamp), 1, m.receiver, tuple(m.sub))] = time.monotonic()
-                self._faulty(lambda q=q, payload=payload: reply(q, payload))
+                answer = lambda q=q, payload=payload: q.reply(q.key_expr, payload)  # noqa: E731
+                self._faulty(answer, finish=lambda q=q: close(q))
             elif m.receiver in self.roster:
                 # pushed revisions and updates are coalesced: the newest per exchange goes out with the next flush
                 k = (type(m).__name__, m.receiver, m.stamp, m.sub)
@@ -107,7 +126,7 @@ class Outbound:
         out, self._outbox = self._outbox, {}
         put, block = self.session.put, self._block
         for m in out.values():
-            key = robot_key(self.team, m.receiver, "inbox")
+            key = robot_key(self.scope, m.receiver, "inbox")
             payload = self._env(m, key)
             self._faulty(lambda key=key, payload=payload: put(key, payload, congestion_control=block))
 
@@ -118,9 +137,16 @@ class Outbound:
         if m.receiver not in self.roster:
             self._feed_local(kind, m, f"robot {m.receiver} is not in the team")
             return
+        if m.receiver in self._lost and not via_server:
+            self.counts["asked_lost"] += 1
+            if self.use_server:
+                self._ask(m, via_server=True)
+            else:
+                self._feed_local(kind, m, f"robot {m.receiver} is lost (no progress for {self.lost_timeout:g} s)")
+            return
         qid = next(self._qids)
         self._outstanding[qid] = (m, "server" if via_server else "robot", False)
-        key = server_key(self.team) if via_server else robot_key(self.team, m.receiver, "query")
+        key = server_key(self.scope) if via_server else robot_key(self.scope, m.receiver, "query")
         payload = self._env(m, key)
         timeout = self.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
         put = self._inq.put
@@ -148,7 +174,10 @@ class Outbound:
         if via_server:
             self.counts["sent"] += 1
             send()
-        elif not self._faulty(send):
+            return
+        # every copy's get ends on the queue, handled on this thread after this returns: count them first
+        self._gets[qid] = copies = self._faulty(send)
+        if not copies:
             # a lost query: its get never goes out, so nothing will end it but a timer
             heapq.heappush(
                 self._timers,
@@ -167,9 +196,8 @@ class Outbound:
             _, _, fn = heapq.heappop(self._timers)
             try:
                 fn()
-            except Exception as exc:  # noqa: BLE001 - e.g. the duplicate of a reply whose query is already closed
-                self.counts["send_failed"] += 1
-                log.debug("robot %s: delayed send failed: %s", self.robot, exc)
+            except Exception as exc:  # noqa: BLE001 - a delayed send never raises into the loop (see _faulty)
+                self._send_failed(exc)
         return self._timers[0][0] - now if self._timers else math.inf
 
 
@@ -178,12 +206,12 @@ def key_of(x: Any) -> str:
     return str(getattr(x, "key_expr", ""))
 
 
-def reply(query: Any, payload: bytes) -> None:
-    """Answer a neighbour's Zenoh query with ``payload`` and close it."""
+def close(query: Any) -> None:
+    """Close a neighbour's Zenoh query (its asker's get ends); closing one already closed does nothing."""
     try:
-        query.reply(query.key_expr, payload)
-    finally:
         query.drop()
+    except Exception:  # noqa: BLE001 - already closed, or the session is gone
+        pass
 
 
 def reply_err(query: Any, reason: str) -> None:
@@ -192,5 +220,4 @@ def reply_err(query: Any, reason: str) -> None:
         query.reply_err(reason.encode())
     except Exception:  # noqa: BLE001 - the asker may be gone
         pass
-    finally:
-        query.drop()
+    close(query)

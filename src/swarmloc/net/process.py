@@ -64,8 +64,8 @@ from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Outbound
 from swarmloc.net.publishing import Publishing
 from swarmloc.net.schema import Belief, Progress, Report
-from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
-from swarmloc.net.transport import robot_key
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.transport import robot_key, team_scope
 from swarmloc.net.wiring import Wiring
 from swarmloc.node import Node
 
@@ -91,6 +91,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
     Parameters
     ----------
     team, roster: the team's name and robot ids (messages from anybody else are dropped).
+    run_id: this run's id, in every key expression with the team's name (:func:`~swarmloc.net.transport.team_scope`;
+        None: the name alone): two teams of one name with different run ids never hear each other.
     record_times: times [s] at which the robot's belief is published.
     speed: 0 = as fast as lockstep allows; X > 0: X times real time.
     lag: [s] lockstep slack (well below the node's horizon).
@@ -101,6 +103,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
     faults: link faults on the messages this node sends (:mod:`swarmloc.net.faults`).
     wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot).
     start_timeout: [s] wall time it waits at the start for the robots of ``wait_for`` to be alive.
+    lost_timeout: [s] wall time it waits for a live teammate whose progress does not advance before declaring it
+        lost and going on without it.
     quiet: [s] wall time without traffic that counts as settled at the end.
     linger: [s] wall time at most it keeps answering after it is done, while teammates are not.
     ros_domain: publish beliefs as ROS 2 messages too (rmw_zenoh layout, this domain id).
@@ -127,16 +131,18 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         faults: Faults | None = None,
         wait_for: Iterable[int] | None = None,
         start_timeout: float = START_TIMEOUT,
+        lost_timeout: float = LOST_TIMEOUT,
         quiet: float = 0.3,
         linger: float = 10.0,
         ros_domain: int | None = None,
         on_belief: Callable[[Belief], None] | None = None,
         auth: Auth | None = None,
+        run_id: str | None = None,
     ) -> None:
         if len(node.robots) != 1:
             raise ValueError("NetNode drives a node of one robot (a distributed estimator)")
         waits = dict(answer_timeout=answer_timeout, hold_timeout=hold_timeout, update_timeout=update_timeout,
-                     start_timeout=start_timeout, quiet=quiet, linger=linger)  # fmt: skip
+                     start_timeout=start_timeout, lost_timeout=lost_timeout, quiet=quiet, linger=linger)  # fmt: skip
         bad = {k: v for k, v in waits.items() if not float(v) >= 0.0}
         if bad:
             raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
@@ -145,6 +151,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self.items = _groups(events)
         self.session = session
         self.team = team
+        self.scope = team_scope(team, run_id)
         self.roster = frozenset(int(r) for r in roster)
         if self.robot not in self.roster:
             raise ValueError(f"robot {self.robot} is not in the roster {sorted(self.roster)}")
@@ -162,6 +169,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self.link = self.faults.plan(self.robot) if self.faults else None
         self.wait_for = set(self.roster - {self.robot}) if wait_for is None else set(wait_for) - {self.robot}
         self.start_timeout = float(start_timeout)
+        self.lost_timeout = float(lost_timeout)
         self.quiet = float(quiet)
         self.linger = float(linger)
         self.ros_domain = ros_domain
@@ -185,29 +193,6 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self._stop.set()
         self._inq.put(("wake", None))
 
-    def _may_feed(self, s: float) -> bool:
-        """Lockstep: every live teammate has read its source to ``s - lag``; and this node's oldest detection group
-        still waiting for answers is less than half a horizon before ``s`` (reading on would push it beyond the
-        horizon before its answers or their timeout come)."""
-        first = self.node.first_pending
-        if first is not None and s - first[0] > self.node.horizon / 2:
-            return False
-        need = s - self.lag
-        for r in self._alive:
-            if r not in self._done and self._progress.get(r, -math.inf) < need:
-                return False
-        return True
-
-    def _group_may_go(self, s: float) -> bool:
-        """A detection group (key ``(s, 1, robot)``) is read once every live teammate has read its source up to
-        ``s`` (their exchanges keyed before it have started) and no pairwise update keyed before it is still
-        expected, so that groups are applied across the team in key order, as the in-process runner does, and an
-        update never has to be replayed under a group applied before it."""
-        key = (s, 1, self.robot, ())
-        if any(k < key for k in self._expect):
-            return False
-        return all(r in self._done or (*self._progress_key.get(r, (-math.inf, 0)), r) > key[:3] for r in self._alive)
-
     def run(self, max_wall: float | None = None) -> Report:
         """Run until the source is exhausted and the team settled (or :meth:`stop`, or ``max_wall`` s)."""
         t_wall0, t_cpu0 = time.perf_counter(), time.process_time()
@@ -215,14 +200,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self._open()
         try:
             self._publish_progress(self.items[0][0] if self.items else math.inf, force=True)
-            t_wait = time.monotonic() + self.start_timeout
-            while not self.wait_for <= self._alive and time.monotonic() < t_wait and not self._stop.is_set():
-                self._drain(0.05)
-                self._publish_progress(self._last_progress, force=True)
-            missing = self.wait_for - self._alive
-            if missing:
-                log.warning("robot %s: starting without robots %s (not alive after %.0f s)", self.robot,
-                            sorted(missing), self.start_timeout)  # fmt: skip
+            self._wait_start(deadline)
             self._main(deadline)
             if not self._stop.is_set():
                 self._finish(deadline)
@@ -230,14 +208,34 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
             report = self.report(time.perf_counter() - t_wall0, time.process_time() - t_cpu0)
             try:
                 done = Progress(robot=self.robot, t=math.inf, done=True)
-                self._pub_progress.put(self._env(done, robot_key(self.team, self.robot, "progress")))
-                key = robot_key(self.team, self.robot, "report")
+                self._pub_progress.put(self._env(done, robot_key(self.scope, self.robot, "progress")))
+                key = robot_key(self.scope, self.robot, "report")
                 self.session.put(key, self._env(report, key), congestion_control=self._block)
                 time.sleep(0.2)  # let Zenoh flush the report before the session closes
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
                 log.debug("robot %s: final report not sent: %s", self.robot, exc)
             self._close()
         return report
+
+    def _wait_start(self, deadline: float) -> None:
+        """Wait for the robots of ``wait_for`` to be alive: at most ``start_timeout`` s, and not past ``deadline``;
+        saying for which robots (a warning once 2 s passed, then every 5 s)."""
+        t0 = time.monotonic()
+        end, note = min(t0 + self.start_timeout, deadline), t0 + 2.0
+        if self.wait_for:
+            log.info("robot %s: waiting up to %.0f s for robots %s to be alive", self.robot, self.start_timeout,
+                     sorted(self.wait_for))  # fmt: skip
+        while not self.wait_for <= self._alive and time.monotonic() < end and not self._stop.is_set():
+            if time.monotonic() >= note:
+                note += 5.0
+                log.warning("robot %s: still waiting for robots %s to be alive (%.0f s left)", self.robot,
+                            sorted(self.wait_for - self._alive), end - time.monotonic())  # fmt: skip
+            self._drain(0.05)
+            self._publish_progress(self._last_progress, force=True)
+        missing = self.wait_for - self._alive
+        if missing:
+            log.warning("robot %s: starting without robots %s (not alive after %.1f s)", self.robot,
+                        sorted(missing), time.monotonic() - t0)  # fmt: skip
 
     def _main(self, deadline: float) -> None:
         items, n, i = self.items, len(self.items), 0
@@ -261,6 +259,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
                     self._drain(min(due, wait, 0.05))
                     continue
             if not self._may_feed(s) or (isinstance(item, list) and not self._group_may_go(s)):
+                self._check_lost(s)
                 self._publish_progress(s, force=True)
                 self._drain(min(wait, 0.02))
                 continue
@@ -290,8 +289,9 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         return not (self._outstanding or self._timers or self._deferred or self._expect or self._held or self._outbox)
 
     def _finish(self, deadline: float) -> None:
-        """Wait for the team to finish its sources and the traffic to settle, then publish the final beliefs."""
-        quiet_since = time.monotonic()
+        """Wait for the team to finish its sources (a teammate that stops progressing is lost after ``lost_timeout``
+        s) and the traffic to settle (at most ``linger`` s once they have), then publish the final beliefs."""
+        quiet_since, all_read_since = time.monotonic(), math.inf
         while not self._stop.is_set() and time.monotonic() < deadline:
             got = self._drain(0.02)
             self._answer_ready()
@@ -304,7 +304,16 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
             if got or not self._idle():
                 quiet_since = time.monotonic()
             all_read = all(self._progress.get(r, -math.inf) == math.inf or r in self._done for r in self._alive)
-            if all_read and time.monotonic() - quiet_since >= self.quiet:
+            if not all_read:
+                self._check_lost(math.inf)
+            now = time.monotonic()
+            all_read_since = min(all_read_since, now) if all_read else math.inf
+            if all_read and now - quiet_since >= self.quiet:
+                break
+            if now - all_read_since > self.linger:
+                self.counts["never_settled"] += 1
+                log.warning("robot %s: traffic still not settled %.0f s after the team read its sources; finishing",
+                            self.robot, self.linger)  # fmt: skip
                 break
         self._route(self.node.expire())
         self._flush(force=True)
@@ -326,7 +335,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
                 break
 
     def report(self, wall: float = 0.0, cpu: float = 0.0) -> Report:
-        net = dict(self.counts)
+        net = dict(self.counts, teammates_seen=len(self._seen))
         if self.link is not None:
             net.update(injected_lost=self.link.lost, injected_dup=self.link.duplicated)
         return Report(

@@ -52,7 +52,7 @@ class Publishing:
         self._last_key = key
         self._last_progress_wall = now
         p = Progress(robot=self.robot, t=key[0], prio=key[1], done=done)
-        self._pub_progress.put(self._env(p, robot_key(self.team, self.robot, "progress")))
+        self._pub_progress.put(self._env(p, robot_key(self.scope, self.robot, "progress")))
 
     def _publish_belief(self, t: float, final: bool) -> None:
         """Publish the belief at record time ``t`` unless the same was published (a new revision otherwise)."""
@@ -68,7 +68,7 @@ class Publishing:
         rev = 0 if old is None else old.rev + 1
         msg = Belief(robot=self.robot, stamp=float(t), rev=rev, final=final, mean=mean, cov=cov)
         self._published[t] = msg
-        self._pub_belief.put(self._env(msg, robot_key(self.team, self.robot, "belief")))
+        self._pub_belief.put(self._env(msg, robot_key(self.scope, self.robot, "belief")))
         self.counts["beliefs_published"] += 1
         if self.on_belief is not None:
             self.on_belief(msg)

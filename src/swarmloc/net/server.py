@@ -31,7 +31,7 @@ from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
 from swarmloc.net.auth import Auth, note_refusal, open_envelope, seal
 from swarmloc.net.schema import SERVER, Belief, Rejected, encode
-from swarmloc.net.transport import alive_key, robot_key, server_key
+from swarmloc.net.transport import alive_key, robot_key, server_key, team_scope
 
 __all__ = ["BeliefServer", "ServerProcess"]
 
@@ -125,12 +125,14 @@ class ServerProcess:
         roster: Iterable[int],
         server: BeliefServer | None = None,
         auth: Auth | None = None,
+        run_id: str | None = None,
     ) -> None:
         if auth is not None and (auth.signer is None or auth.signer.member != SERVER):
             raise ValueError("the belief server needs the server's key to sign its replies")
         self.auth = auth
         self.session = session
         self.team = team
+        self.scope = team_scope(team, run_id)  # keys: the team's name and the run's id (transport.team_scope)
         self.roster = frozenset(roster)
         self.server = server if server is not None else BeliefServer(self.roster)
         self.counts: Counter[str] = Counter()
@@ -153,10 +155,10 @@ class ServerProcess:
         """Serve until :meth:`stop` (or ``max_wall`` s)."""
         s, put = self.session, self._q.put
         decl = [
-            s.declare_subscriber(robot_key(self.team, "*", "belief"), handler=lambda x: put(("belief", x))),
-            s.declare_queryable(server_key(self.team), handler=lambda q: put(("query", q))),
+            s.declare_subscriber(robot_key(self.scope, "*", "belief"), handler=lambda x: put(("belief", x))),
+            s.declare_queryable(server_key(self.scope), handler=lambda q: put(("query", q))),
         ]
-        token = s.liveliness().declare_token(alive_key(self.team, "server"))
+        token = s.liveliness().declare_token(alive_key(self.scope, "server"))
         end = None if max_wall is None else time.monotonic() + max_wall
         try:
             while not self._stop.is_set() and (end is None or time.monotonic() < end):

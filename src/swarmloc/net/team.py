@@ -17,6 +17,7 @@ import logging
 import math
 import os
 import queue
+import secrets
 import signal
 import subprocess
 import sys
@@ -34,10 +35,13 @@ from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
 from swarmloc.net.entry import distributed_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import SERVER, Belief, Progress, Rejected, Report
-from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
-from swarmloc.net.transport import check_team, free_ports, open_session, robot_key
+from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, team_scope
 
 log = logging.getLogger(__name__)
+
+COLLECT_AFTER_END = 3.0
+"""[s] wall time at most the launcher collects what is still queued once every node has ended."""
 
 
 @dataclass
@@ -51,6 +55,11 @@ class TeamRun:
     reasons: Counter[str] = field(default_factory=Counter)
     wall_s: float = 0.0
     exit_codes: dict[str, int | None] = field(default_factory=dict)
+    run_id: str = ""
+    """The run's id, in every key expression with the team's name (:func:`~swarmloc.net.transport.team_scope`)."""
+    ended: list[dict[str, Any]] = field(default_factory=list)
+    """Every process that ended with a non-zero exit code, in order: ``process`` (``robot<N>``, ``server``),
+    ``pid``, ``exit_code`` and ``how`` (died, killed by a fault and restarted, stopped by the launcher)."""
 
     def keep(self, b: Belief) -> None:
         k = (b.robot, b.stamp)
@@ -100,6 +109,7 @@ def launch_team(
     hold_timeout: float = HOLD_TIMEOUT,
     update_timeout: float = UPDATE_TIMEOUT,
     start_timeout: float = START_TIMEOUT,
+    lost_timeout: float = LOST_TIMEOUT,
     team: str | None = None,
     max_wall: float = 600.0,
     ros_domain: int | None = None,
@@ -129,8 +139,8 @@ def launch_team(
     node_args = node_arguments(
         source=src.spec if source is None else source, estimator=estimator, robots=robots, duration=duration,
         seed=seed, config_file=config_file, speed=speed, lag=lag, answer_timeout=answer_timeout,
-        hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout, use_server=server,
-        faults=f, ros_domain=ros_domain, verbose=verbose,
+        hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout,
+        lost_timeout=lost_timeout, use_server=server, faults=f, ros_domain=ros_domain, verbose=verbose,
     )  # fmt: skip
     keys = TeamKeys(src.robots, keys_dir)
     try:
@@ -158,13 +168,14 @@ def node_arguments(
     faults: Faults,
     ros_domain: int | None,
     verbose: bool,
+    lost_timeout: float = LOST_TIMEOUT,
 ) -> list[str]:
     """The ``swarmloc node`` options every node process of a team gets (the link faults only; a node's own
     ``--robot``, ``--wait-for``, endpoints and ``--resume`` are the launcher's)."""
     out = ["--source", source, "--estimator", estimator, "--robots", str(robots), "--seed", str(seed),
            "--speed", str(speed), "--lag", str(lag), "--answer-timeout", str(answer_timeout),
            "--hold-timeout", str(hold_timeout), "--update-timeout", str(update_timeout),
-           "--start-timeout", str(start_timeout)]  # fmt: skip
+           "--start-timeout", str(start_timeout), "--lost-timeout", str(lost_timeout)]  # fmt: skip
     if duration is not None:
         out += ["--duration", str(duration)]
     if config_file:
@@ -198,6 +209,8 @@ class _Launcher:
         record_times: Iterable[float],
     ) -> None:
         self.team, self.robots, self.node_args, self.f, self.server = team, robots, node_args, faults, server
+        self.run_id = secrets.token_hex(6)  # in every key with the team's name: two teams of one name never meet
+        self.scope = team_scope(team, self.run_id)
         self.roster = frozenset(robots)
         self.keys, self.auth = keys, keys.auth(COLLECTOR)
         self.record_times = frozenset(float(t) for t in record_times)
@@ -211,15 +224,18 @@ class _Launcher:
         if self.logs is not None:
             self.logs.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, subprocess.Popen] = {}
-        self.result = TeamRun()
+        self.result = TeamRun(run_id=self.run_id)
         self.progress: dict[int, float] = {}
         self.inq: queue.SimpleQueue = queue.SimpleQueue()
         self.killed = self.restarted = self.joined = False
+        self.deadline = math.inf  # the run's end (monotonic), set when it starts
+        self.noted: set[int] = set()  # pids of the processes in ``result.ended``
 
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
         others = [self.ep[k] for k in self.ep if k != name] + self.connect_extra
-        return ["--team", self.team, "--listen", self.ep[name], "--connect", ",".join(others), *extra]
+        return ["--team", self.team, "--run-id", self.run_id, "--listen", self.ep[name], "--connect",
+                ",".join(others), "--parent-pid", str(os.getpid()), *extra]  # fmt: skip
 
     def spawn(self, name: str, cmd: list[str]) -> None:
         logs = self.logs
@@ -229,16 +245,20 @@ class _Launcher:
         if logs is not None:
             out.close()
 
+    def left(self) -> list[str]:
+        """``--max-wall`` with what is left of the run's time: a process bounds itself even without its launcher."""
+        return ["--max-wall", f"{max(1.0, self.deadline - time.monotonic()):.1f}"]
+
     def node_cmd(self, r: int, resume: bool = False) -> list[str]:
         # a restarted or late robot joins a running team: it waits for nobody
         wait = "none" if resume or r == self.late else ",".join(map(str, self.wait_for)) or "none"
-        extra = [*self.node_args, "--robot", str(r), "--wait-for", wait, *self.keys.args(r)]
+        extra = [*self.node_args, "--robot", str(r), "--wait-for", wait, *self.keys.args(r), *self.left()]
         return [*_python(), "node", *self.args_for(f"robot{r}", extra), *(["--resume"] if resume else [])]
 
     def start(self) -> None:
         if self.server:
             roster = ",".join(map(str, self.robots))
-            keys = self.keys.args(SERVER)
+            keys = [*self.keys.args(SERVER), *self.left()]
             self.spawn("server", [*_python(), "server", *self.args_for("server", keys), "--robots", roster])
         for r in self.robots:
             if r != self.late:
@@ -261,6 +281,7 @@ class _Launcher:
             if self.progress.get(k, -math.inf) >= t_first + tk:
                 procs[f"robot{k}"].kill()
                 procs[f"robot{k}"].wait()
+                self.note(f"robot{k}", procs[f"robot{k}"], f"killed by the fault kill={k}@{tk:g}, restarted")
                 self.killed = True
                 counts["killed"] = 1
         if self.killed and not self.restarted:
@@ -268,6 +289,22 @@ class _Launcher:
             self.spawn(f"robot{f.kill[0]}", self.node_cmd(f.kill[0], resume=True))
             self.restarted = True
             counts["restarted"] = 1
+
+    def note(self, name: str, p: subprocess.Popen, how: str = "") -> None:
+        """Record (once) and log a process that ended with a non-zero exit code: how, or by which signal."""
+        rc = p.returncode
+        if rc in (None, 0) or p.pid in self.noted:
+            return
+        self.noted.add(p.pid)
+        how = how or (f"died ({signal.Signals(-rc).name})" if -rc in signal.valid_signals() else "exited with an error")
+        self.result.ended.append({"process": name, "pid": p.pid, "exit_code": rc, "how": how})
+        log.warning("team: %s (pid %d) %s, exit code %d", name, p.pid, how, rc)
+
+    def note_ended(self, how: str = "") -> None:
+        """Record every process that has ended with a non-zero exit code since the last look."""
+        for name, p in self.procs.items():
+            if p.poll() is not None:
+                self.note(name, p, how)
 
     def all_ended(self) -> bool:
         """Every robot's process was started (the late one, the restarted one) and has ended."""
@@ -302,10 +339,11 @@ class _Launcher:
             self.progress[b.robot] = max(self.progress.get(b.robot, -math.inf), b.t)
 
     def watch(self, t_first: float, max_wall: float, t0: float) -> None:
-        """Collect and apply the faults until every node has ended (then collect what is still queued) or the run
-        has taken ``max_wall`` s."""
+        """Collect and apply the faults until every node has ended (then collect what is still queued, for at most
+        ``COLLECT_AFTER_END`` s) or the run has taken ``max_wall`` s: nothing that keeps coming holds it longer."""
+        deadline = t0 + max_wall
         while True:
-            if time.monotonic() - t0 > max_wall:
+            if time.monotonic() > deadline:
                 self.result.counts["timed_out"] = 1
                 log.warning("team: time limit of %.0f s reached; stopping every process", max_wall)
                 return
@@ -315,12 +353,15 @@ class _Launcher:
             except queue.Empty:
                 pass
             self.apply_faults(t_first)
+            self.note_ended()
             if self.all_ended():
-                while True:  # what is still queued
+                end = min(deadline, time.monotonic() + COLLECT_AFTER_END)
+                while (left := end - time.monotonic()) > 0:  # what is still queued
                     try:
-                        self.collect(self.inq.get(timeout=0.3)[1])
+                        self.collect(self.inq.get(timeout=min(0.3, left))[1])
                     except queue.Empty:
                         return
+                return
 
     def run(self, t_first: float, max_wall: float) -> TeamRun:
         """Start the team, watch it, and stop every process it started, whatever happens (``t_first``: the
@@ -329,10 +370,11 @@ class _Launcher:
         session = open_session([self.ep["collector"]], others)
         put = self.inq.put
         subs = [
-            session.declare_subscriber(robot_key(self.team, "*", what), handler=lambda x: put(("sample", x)))
+            session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
             for what in ("belief", "report", "progress")
         ]
         t0 = time.monotonic()
+        self.deadline = t0 + max_wall
         try:
             self.start()
             self.watch(t_first, max_wall, t0)
@@ -342,7 +384,10 @@ class _Launcher:
                     s.undeclare()
                 except Exception:  # noqa: BLE001
                     pass
+            self.note_ended()  # those that ended by themselves, then those the launcher stops
             stop_all(self.procs)
+            limit = " at its time limit" if self.result.counts["timed_out"] else ""
+            self.note_ended(f"stopped by the launcher{limit}")
             self.result.exit_codes = {n: p.returncode for n, p in self.procs.items()}
             session.close()
             self.result.wall_s = time.monotonic() - t0

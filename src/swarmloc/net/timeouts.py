@@ -9,7 +9,11 @@
 * ``update_timeout``: how long a node that gave its ``rdl`` state waits for the observer's pairwise update, holding
   its own later detection groups meanwhile (then given up: counted ``update_not_received``);
 * ``start_timeout``: how long a node waits at its start for the robots it waits for to be alive (it then starts
-  without them, with a warning).
+  without them, with a warning);
+* ``lost_timeout``: how long a node waits for a live teammate (its liveliness token up) whose progress does not
+  advance, while lockstep waits for it, before declaring it lost and going on without it (counted ``peers_lost``,
+  logged; its queries to it are answered "not found" at once, or by the belief server); it is back if it announces
+  progress again. Keep it well above the other waits, which a teammate may legitimately spend.
 
 Not here, each with its own name: ``quiet`` and ``linger`` (the end of a node's run,
 :class:`~swarmloc.net.process.NetNode`), ``max_wall`` (the wall-clock limit of a whole node, server or team run),
@@ -23,6 +27,7 @@ ANSWER_TIMEOUT = 2.0
 HOLD_TIMEOUT = 1.0
 UPDATE_TIMEOUT = 2.0
 START_TIMEOUT = 30.0
+LOST_TIMEOUT = 10.0
 
 TIMEOUTS: dict[str, tuple[float, str]] = {
     "answer_timeout": (ANSWER_TIMEOUT, "seconds a node waits for the reply to one of its queries, from a neighbour "
@@ -32,5 +37,7 @@ TIMEOUTS: dict[str, tuple[float, str]] = {
     "update_timeout": (UPDATE_TIMEOUT, "seconds a node that gave its rdl state waits for the observer's pairwise "
                        "update"),
     "start_timeout": (START_TIMEOUT, "seconds a node waits at its start for its teammates to be alive"),
+    "lost_timeout": (LOST_TIMEOUT, "seconds a node waits for a live teammate whose progress does not advance "
+                     "before declaring it lost and going on without it"),
 }  # fmt: skip
 """Name: (default [s], meaning), as ``swarmloc node`` and ``swarmloc team`` take them (``--answer-timeout``...)."""

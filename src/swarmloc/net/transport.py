@@ -6,7 +6,9 @@ endpoints named (tests and ``swarmloc team`` use 127.0.0.1 only). For a team on 
 the others' endpoints (``--listen``, ``--connect``) or a Zenoh configuration file (``--zenoh-config``): that file
 is where TLS and access control are set (see ``docs/network.md``).
 
-Key expressions (``<team>`` is the team's name)::
+Key expressions (``<team>`` is the team's name; one run of a team launched by ``swarmloc team`` is
+``<team>/run/<id>``, with a random id of its own, so that two teams of one name on one network never hear each other:
+:func:`team_scope`)::
 
     swarmloc/<team>/robot/<id>/query      queryable: BeliefQuery / RdlStateQuery -> answer (get, reply)
     swarmloc/<team>/robot/<id>/inbox      subscriber: pushed answers (revisions) and pairwise updates
@@ -37,6 +39,17 @@ def check_team(team: str) -> str:
     return team
 
 
+def team_scope(team: str, run_id: str | None = None) -> str:
+    """The part of every key expression that names a team: ``<team>``, or ``<team>/run/<run_id>`` for one run of it
+    (the run id is 1-64 letters, digits, '-' or '_'). Pass it as ``team`` to the key functions below."""
+    check_team(team)
+    if run_id is None:
+        return team
+    if not isinstance(run_id, str) or not _TEAM.match(run_id):
+        raise ValueError(f"run id must be 1-64 letters, digits, '-' or '_', got {run_id!r}")
+    return f"{team}/run/{run_id}"
+
+
 def robot_key(team: str, robot: int | str, what: str) -> str:
     """``swarmloc/<team>/robot/<robot>/<what>`` (``robot`` may be ``*``)."""
     return f"{PREFIX}/{team}/robot/{robot}/{what}"
@@ -51,14 +64,12 @@ def server_key(team: str) -> str:
 
 
 def robot_of(key: str) -> int | None:
-    """The robot id in a ``.../robot/<id>/...`` or ``.../alive/<id>`` key, or None."""
+    """The robot id in a ``.../robot/<id>/<what>`` or ``.../alive/<id>`` key, or None. Read from the key's end, so
+    that a team or run named ``robot`` or ``alive`` does not fool it."""
     parts = str(key).split("/")
-    for i, p in enumerate(parts[:-1]):
-        if p in ("robot", "alive"):
-            try:
-                return int(parts[i + 1])
-            except ValueError:
-                return None
+    for n, word in ((3, "robot"), (2, "alive")):
+        if len(parts) >= n and parts[-n] == word and parts[1 - n].isascii() and parts[1 - n].isdigit():
+            return int(parts[1 - n])
     return None
 
 

@@ -27,13 +27,16 @@ class Wiring:
 
         self._block = zenoh.CongestionControl.BLOCK  # never drop a belief, a progress announcement or a push
 
-        s, team, r = self.session, self.team, self.robot
+        s, team, r = self.session, self.scope, self.robot  # keys: the team's scope (its name, and the run's id)
         put = self._inq.put
         self._decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
         self._decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
         self._decl.append(  # the teammates' progress (not this session's own: it would be verified for nothing)
-            s.declare_subscriber(robot_key(team, "*", "progress"), handler=lambda x: put(("progress", x)),
-                                 allowed_origin=zenoh.Locality.REMOTE)  # fmt: skip
+            s.declare_subscriber(
+                robot_key(team, "*", "progress"),
+                handler=lambda x: put(("progress", x)),
+                allowed_origin=zenoh.Locality.REMOTE,
+            )  # fmt: skip
         )
         self._decl.append(
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
