@@ -424,3 +424,26 @@ def test_traffic_that_never_settles_does_not_hold_a_node_at_its_end():
     th.join(5.0)
     assert returned, "the node's end waited 10 s for traffic that never settles"
     assert time.monotonic() - t0 < 2 * 0.5 + 1.0 and net.counts["never_settled"] == 1
+
+
+def test_a_process_that_fails_is_named_with_what_it_said_and_an_empty_run_still_gets_its_report(tmp_path):
+    """A node that exits with an error is named with the last lines it wrote, also without a log folder (before,
+    its output went to /dev/null and the team said only "exit code 2"); a run that collected nothing still writes
+    its report, saying whose detections are missing (before: a matplotlib error, "Number of columns must be a
+    positive integer, not 0", and no report)."""
+    from swarmloc.experiments.team import write_team_report
+    from swarmloc.net.auth import TeamKeys
+    from swarmloc.net.faults import Faults
+    from swarmloc.net.team import TeamRun, _Launcher
+
+    launcher = _Launcher("t", [0], [], Faults(), False, (), None, TeamKeys([0], tmp_path / "keys"), [])
+    said = "import sys; print('swarmloc node: the roster has no key for robots [0]', file=sys.stderr); sys.exit(2)"
+    launcher.spawn("robot0", [sys.executable, "-c", said])
+    launcher.procs["robot0"].wait(timeout=30)
+    launcher.note_ended()
+    assert launcher.result.ended[0]["exit_code"] == 2
+    assert "the roster has no key for robots [0]" in launcher.result.ended[0]["said"]
+    src = load_source("sim:random", robots=3, duration=6.0, seed=0)
+    rep = write_team_report(TeamRun(run_id="x"), src, "dekf", tmp_path / "o", {})
+    assert rep["figures"] == [] and rep["estimators"]["dekf"]["detections_missing_of"] == [0, 1, 2]
+    assert "robot0 sent no report" in (tmp_path / "o" / "team.md").read_text()

@@ -71,6 +71,7 @@ def ended_notes(run: TeamRun, robots: list[int]) -> tuple[list[str], list[int]]:
     notes, missing = [], []
     for e in run.ended:
         what = f"{e['process']} (pid {e['pid']}) {e['how']}, exit code {e['exit_code']}"
+        what += f" (it said: {e['said']})" if e.get("said") else ""
         if e["process"] == "server":
             notes.append(f"{what}.")
             continue

@@ -18,9 +18,11 @@ import math
 import os
 import queue
 import secrets
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections import Counter
 from collections.abc import Iterable, Sequence
@@ -59,7 +61,8 @@ class TeamRun:
     """The run's id, in every key expression with the team's name (:func:`~swarmloc.net.transport.team_scope`)."""
     ended: list[dict[str, Any]] = field(default_factory=list)
     """Every process that ended with a non-zero exit code, in order: ``process`` (``robot<N>``, ``server``),
-    ``pid``, ``exit_code`` and ``how`` (died, killed by a fault and restarted, stopped by the launcher)."""
+    ``pid``, ``exit_code``, ``how`` (died, killed by a fault and restarted, stopped by the launcher) and ``said``
+    (the last lines it wrote, for a process that exited with an error)."""
 
     def keep(self, b: Belief) -> None:
         k = (b.robot, b.stamp)
@@ -220,9 +223,11 @@ class _Launcher:
         self.connect_extra = list(connect_extra)  # e.g. a Zenoh router (ROS 2)
         self.late = faults.late[0] if faults.late is not None else None
         self.wait_for = [r for r in robots if r != self.late]
-        self.logs = Path(log_dir) if log_dir is not None else None
-        if self.logs is not None:
-            self.logs.mkdir(parents=True, exist_ok=True)
+        # each process's output goes to <logs>/<name>.log; without log_dir, to a temporary folder removed at the end,
+        # kept long enough to say why a process that failed did
+        self._temp_logs = log_dir is None
+        self.logs = Path(tempfile.mkdtemp(prefix="swarmloc-team-logs-") if log_dir is None else log_dir)
+        self.logs.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, subprocess.Popen] = {}
         self.result = TeamRun(run_id=self.run_id)
         self.progress: dict[int, float] = {}
@@ -238,12 +243,19 @@ class _Launcher:
                 ",".join(others), "--parent-pid", str(os.getpid()), *extra]  # fmt: skip
 
     def spawn(self, name: str, cmd: list[str]) -> None:
-        logs = self.logs
-        out = open(logs / f"{name}.log", "ab") if logs is not None else subprocess.DEVNULL  # noqa: SIM115
-        self.procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT if logs else out,
-                                            start_new_session=True)  # fmt: skip
-        if logs is not None:
-            out.close()
+        with open(self.logs / f"{name}.log", "ab") as out:
+            self.procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+
+    def last_words(self, name: str, lines: int = 3, limit: int = 600) -> str:
+        """The last ``lines`` non-empty lines a process wrote (at most ``limit`` characters), or ''."""
+        try:
+            with open(self.logs / f"{name}.log", "rb") as f:
+                f.seek(0, os.SEEK_END)
+                f.seek(max(0, f.tell() - 8192))
+                text = f.read().decode("utf-8", "replace")
+        except OSError:
+            return ""
+        return " | ".join([ln.strip() for ln in text.splitlines() if ln.strip()][-lines:])[-limit:]
 
     def left(self) -> list[str]:
         """``--max-wall`` with what is left of the run's time: a process bounds itself even without its launcher."""
@@ -297,8 +309,9 @@ class _Launcher:
             return
         self.noted.add(p.pid)
         how = how or (f"died ({signal.Signals(-rc).name})" if -rc in signal.valid_signals() else "exited with an error")
-        self.result.ended.append({"process": name, "pid": p.pid, "exit_code": rc, "how": how})
-        log.warning("team: %s (pid %d) %s, exit code %d", name, p.pid, how, rc)
+        said = self.last_words(name) if rc > 0 else ""
+        self.result.ended.append({"process": name, "pid": p.pid, "exit_code": rc, "how": how, "said": said})
+        log.warning("team: %s (pid %d) %s, exit code %d%s", name, p.pid, how, rc, f": {said}" if said else "")
 
     def note_ended(self, how: str = "") -> None:
         """Record every process that has ended with a non-zero exit code since the last look."""
@@ -390,6 +403,8 @@ class _Launcher:
             self.note_ended(f"stopped by the launcher{limit}")
             self.result.exit_codes = {n: p.returncode for n, p in self.procs.items()}
             session.close()
+            if self._temp_logs:
+                shutil.rmtree(self.logs, ignore_errors=True)
             self.result.wall_s = time.monotonic() - t0
         return self.result
 

@@ -48,7 +48,8 @@ class Wiring:
 
             from swarmloc.net import ros
 
-            self.ros_topic = f"/swarmloc/{team.replace('-', '_')}/robot{r}/pose"
+            # the ROS topic names the team, not the run: a run id may start with a digit, which ROS names refuse
+            self.ros_topic = f"/swarmloc/{self.team.replace('-', '_')}/robot{r}/pose"
             key = ros.ros_key(self.ros_topic, self.ros_domain)
             self._ros_pub = s.declare_publisher(key, congestion_control=self._block)
             self._ros_gid = hashlib.blake2b(key.encode(), digest_size=16).digest()
