@@ -1,0 +1,155 @@
+"""Association policies (swarmloc.association.policies) against independent computations: finite-difference
+innovation covariances, Monte Carlo chi-square statistics of true associations, and brute-force enumeration of the
+joint assignment (lecture slides 38-39, eqs. 8-9)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from swarmloc.association import AMBIGUOUS, CLUTTER, gate_threshold, innovation_costs, joint, nearest
+from swarmloc.sensors.models import MODELS
+
+
+def _h(kind: str, xo: np.ndarray, xt: np.ndarray) -> np.ndarray:
+    """The measurement written out by hand (independent of sensors.models)."""
+    dx, dy = xt[0] - xo[0], xt[1] - xo[1]
+    c, s = np.cos(xo[2]), np.sin(xo[2])
+    bx, by = c * dx + s * dy, -s * dx + c * dy
+    if kind == "range_bearing":
+        return np.array([np.hypot(bx, by), np.arctan2(by, bx)])
+    if kind == "pose":
+        return np.array([bx, by, np.angle(np.exp(1j * (xt[2] - xo[2])))])
+    if kind == "range":
+        return np.array([np.hypot(bx, by)])
+    return np.array([np.arctan2(by, bx)])
+
+
+def _wrap(kind: str, r: np.ndarray) -> np.ndarray:
+    ang = np.array(MODELS[kind].angular)
+    return np.where(ang, np.angle(np.exp(1j * r)), r)
+
+
+def _jac(kind: str, xo: np.ndarray, xt: np.ndarray, which: int, eps: float = 1e-6) -> np.ndarray:
+    cols = []
+    for j in range(3):
+        d = np.zeros(3)
+        d[j] = eps
+        a, b = (xo + d, xt) if which == 0 else (xo, xt + d)
+        a2, b2 = (xo - d, xt) if which == 0 else (xo, xt - d)
+        cols.append(_wrap(kind, _h(kind, a, b) - _h(kind, a2, b2)) / (2 * eps))
+    return np.stack(cols, axis=-1)
+
+
+def _spd(rng: np.random.Generator, scale: np.ndarray) -> np.ndarray:
+    A = rng.normal(size=(3, 3)) * 0.3
+    return np.diag(scale) + A @ A.T * scale.min()
+
+
+@pytest.mark.parametrize("kind", ["range_bearing", "range", "bearing", "pose"])
+def test_innovation_costs_equal_a_finite_difference_computation(kind):
+    rng = np.random.default_rng(1)
+    k = MODELS[kind].size
+    xo, Po = np.array([0.3, -0.2, 0.4]), _spd(rng, np.array([0.02, 0.03, 0.01]))
+    xt = rng.uniform(-4, 4, size=(5, 3))
+    Pt = np.stack([_spd(rng, np.array([0.05, 0.04, 0.02])) for _ in range(5)])
+    z = rng.normal(size=(4, k)) * 0.5 + np.stack([_h(kind, xo, xt[i]) for i in range(4)])
+    z[:, 0] = np.abs(z[:, 0]) if kind in ("range", "range_bearing") else z[:, 0]
+    R = np.stack([np.eye(k) * 0.01 * (i + 1) for i in range(4)])
+    got = innovation_costs(kind, z, R, xo, Po, xt, Pt)
+    want = np.empty((4, 5))
+    for i, j in itertools.product(range(4), range(5)):
+        Hi, Hj = _jac(kind, xo, xt[j], 0), _jac(kind, xo, xt[j], 1)
+        Rc = MODELS[kind].noise(z[i], R[i])  # a pose's noise is given in exponential coordinates
+        S = Hi @ Po @ Hi.T + Hj @ Pt[j] @ Hj.T + Rc
+        r = _wrap(kind, z[i] - _h(kind, xo, xt[j]))
+        want[i, j] = r @ np.linalg.solve(S, r)
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+
+
+def test_the_true_associations_cost_is_chi_square_with_the_measurements_dof():
+    """Monte Carlo: draw the observer's and the target's true states from their beliefs and a noisy range-bearing
+    detection; the squared distance to the true target is chi-square(2) (mean 2, 99% gate passed 99% of the time).
+    With the slides' P_jj alone (mapped into measurement space) it is not: it leaves out the observer's uncertainty
+    and the sensor noise, and its mean is far above 2, so a chi-square gate on it refuses true associations."""
+    rng = np.random.default_rng(7)
+    xo, Po = np.array([0.0, 0.0, 0.1]), np.diag([0.01, 0.01, 0.002])
+    xt, Pt = np.array([[3.0, 1.0, 0.5]]), np.diag([0.02, 0.03, 0.01])[None]
+    R = np.diag([0.05**2, 0.02**2])
+    n = 20000
+    d2, d2_pjj = np.empty(n), np.empty(n)
+    Hj = _jac("range_bearing", xo, xt[0], 1)
+    for s in range(n):
+        o = rng.multivariate_normal(xo, Po)
+        t = rng.multivariate_normal(xt[0], Pt[0])
+        z = _h("range_bearing", o, t) + rng.multivariate_normal(np.zeros(2), R)
+        d2[s] = innovation_costs("range_bearing", z[None], R[None], xo, Po, xt, Pt)[0, 0]
+        r = _wrap("range_bearing", z - _h("range_bearing", xo, xt[0]))
+        d2_pjj[s] = r @ np.linalg.solve(Hj @ Pt[0] @ Hj.T, r)  # eq. 8 as printed: the target's covariance only
+    se = np.sqrt(2 * 2 / n)  # standard error of the mean of chi2(2)
+    assert abs(d2.mean() - 2.0) < 5 * se + 0.03  # 0.03: first-order linearization
+    assert abs(np.mean(d2 <= gate_threshold(2, 0.99)) - 0.99) < 0.005
+    assert d2_pjj.mean() > 3.0
+
+
+def _brute_force(c: np.ndarray, gate: float) -> float:
+    """The least total cost over every partial injective assignment, clutter at ``gate`` each."""
+    m, n = c.shape
+    best = np.inf
+    for ident in itertools.product([-1, *range(n)], repeat=m):
+        used = [j for j in ident if j >= 0]
+        if len(used) != len(set(used)) or any(c[i, j] > gate for i, j in enumerate(ident) if j >= 0):
+            continue
+        best = min(best, sum(gate if j < 0 else c[i, j] for i, j in enumerate(ident)))
+    return best
+
+
+def test_joint_assignment_is_the_optimum_of_eq_9_with_clutter():
+    rng = np.random.default_rng(3)
+    gate = 9.21
+    for _ in range(200):
+        m, n = rng.integers(1, 5), rng.integers(1, 5)
+        c = rng.exponential(6.0, size=(m, n))
+        c[rng.random(size=(m, n)) < 0.1] = np.inf
+        a = joint(c, gate)
+        used = a.identity[a.identity >= 0]
+        assert len(used) == len(set(used.tolist()))
+        total = sum(gate if j < 0 else c[i, j] for i, j in enumerate(a.identity))
+        assert total == pytest.approx(_brute_force(c, gate), abs=1e-9)
+        assert np.all(np.isnan(a.cost[a.identity < 0]))
+
+
+def test_nearest_gates_and_refuses_ambiguity_joint_resolves_the_conflict():
+    # two detections both nearest to robot 0; robot 1 explains the second almost as well
+    c = np.array([[0.5, 30.0, 50.0], [1.0, 1.5, 40.0], [20.0, 25.0, 30.0]])
+    gate = gate_threshold(2, 0.99)  # 9.21
+    a = nearest(c, gate)
+    assert a.identity.tolist() == [0, 0, CLUTTER]  # the relaxed solution: robot 0 twice
+    assert nearest(c, gate, ambiguity=1.0).identity.tolist() == [0, AMBIGUOUS, CLUTTER]
+    b = joint(c, gate, expected=np.array([True, True, True]))
+    assert b.identity.tolist() == [0, 1, CLUTTER]
+    assert b.counts() == {"associated": 2, "clutter": 1, "ambiguous": 0, "missed": 1}
+    assert b.missed.tolist() == [2]
+
+
+def test_bad_input_is_refused_with_a_reason():
+    with pytest.raises(ValueError, match="non-negative, no NaN"):
+        joint(np.array([[np.nan]]), 9.0)
+    with pytest.raises(ValueError, match="gate must be positive"):
+        nearest(np.zeros((1, 1)), 0.0)
+    with pytest.raises(ValueError, match="not kind 'absolute'"):
+        innovation_costs("absolute", np.zeros((1, 3)), np.eye(3)[None], np.zeros(3), np.eye(3), np.zeros((1, 3)),
+                         np.eye(3)[None])  # fmt: skip
+    with pytest.raises(ValueError, match="gate probability"):
+        gate_threshold(2, 1.0)
+    on_top = innovation_costs("range_bearing", np.array([[1.0, 0.0]]), np.eye(2)[None] * 0.01, np.zeros(3),
+                              np.eye(3) * 0.01, np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
+                              np.stack([np.eye(3) * 0.01] * 2))  # fmt: skip
+    assert on_top[0, 0] == np.inf and on_top[0, 1] == pytest.approx(0.0)
+    assert joint(on_top, 9.0).identity.tolist() == [1]
+    assert joint(np.zeros((0, 3)), 9.0).identity.size == 0
+    assert nearest(np.zeros((2, 0)), 9.0).identity.tolist() == [CLUTTER, CLUTTER]
+    assert chi2.ppf(0.99, 2) == pytest.approx(gate_threshold(2))
