@@ -153,3 +153,96 @@ def test_bad_input_is_refused_with_a_reason():
     assert joint(np.zeros((0, 3)), 9.0).identity.size == 0
     assert nearest(np.zeros((2, 0)), 9.0).identity.tolist() == [CLUTTER, CLUTTER]
     assert chi2.ppf(0.99, 2) == pytest.approx(gate_threshold(2))
+
+
+# ---------------------------------------------------------------------------------------- anonymous detections
+def _source(robots: int, duration: float, seed: int):
+    from swarmloc.experiments.sources import load_source
+
+    return load_source("sim:random", robots=robots, duration=duration, seed=seed)
+
+
+def _run(src, events, **opts):
+    from swarmloc.estimators import make_team, node_options
+    from swarmloc.runner import run
+
+    base = node_options("cekf", src.config, src.landmarks, src.t_start)
+    return run(make_team("cekf", src.initial, **base, **opts), events, src.record_times(), src.truth)
+
+
+def _accuracy(res) -> tuple[int, int]:
+    right = sum(v for k, v in res.reasons.items() if "association right" in k or "(right)" in k)
+    wrong = sum(v for k, v in res.reasons.items() if "association wrong" in k or "(wrong)" in k)
+    return right, wrong
+
+
+def test_anonymize_hides_ids_misses_and_clutters_as_told():
+    from swarmloc.events import Detection
+    from swarmloc.sim.anonymous import anonymize
+
+    src = _source(4, 30.0, 0)
+    tagged = [e for e in src.events if isinstance(e, Detection)]
+    scans = {(d.observer, d.t) for d in tagged}
+    out = anonymize(src.events, p_detect=0.8, clutter=2.0, seed=3)
+    again = anonymize(src.events, p_detect=0.8, clutter=2.0, seed=3)  # same seed, same events
+    assert len(again) == len(out)
+    assert all(a is b or np.array_equal(a.z, b.z) for a, b in zip(out, again, strict=True))
+    dets = [e for e in out if isinstance(e, Detection)]
+    assert all(d.target is None for d in dets)
+    real = [d for d in dets if d.truth_target != -1]
+    clutter = [d for d in dets if d.truth_target == -1]
+    assert {(d.observer, d.t, d.truth_target) for d in real} <= {(d.observer, d.t, d.target) for d in tagged}
+    n = len(tagged)
+    assert abs(len(real) / n - 0.8) < 4 * np.sqrt(0.8 * 0.2 / n)
+    assert abs(len(clutter) / len(scans) - 2.0) < 4 * np.sqrt(2.0 / len(scans))
+    assert len(out) - len(dets) == len(src.events) - n  # odometry (and anything else) unchanged
+    for bad in ({"p_detect": 1.5}, {"clutter": -1.0}, {"max_range": np.inf}, {"fov": 0.0}):
+        with pytest.raises(ValueError):
+            anonymize(src.events, **bad)
+
+
+def test_joint_association_of_anonymous_detections_equals_the_tagged_run_when_every_identity_is_right():
+    """cekf with ``association="joint"`` on the same detections without their ids: where every association is right
+    the beliefs are the tagged run's, bit for bit (the choice predicts a copy of the state, not the filter's own)."""
+    from swarmloc.sim.anonymous import anonymize
+
+    src = _source(3, 30.0, 0)
+    tagged = _run(src, src.events)
+    anon = _run(src, anonymize(src.events), association="joint")
+    assert _accuracy(anon) == (190, 0)
+    for r in tagged.tracks:
+        np.testing.assert_array_equal(anon.tracks[r].mean, tagged.tracks[r].mean)
+        np.testing.assert_array_equal(anon.tracks[r].cov, tagged.tracks[r].cov)
+
+
+def test_under_clutter_and_misses_the_policies_keep_identities_and_consistency():
+    from swarmloc.evaluation.metrics import anees_bounds, evaluate
+    from swarmloc.sim.anonymous import anonymize
+
+    src = _source(5, 40.0, 1)
+    events = anonymize(src.events, p_detect=0.9, clutter=1.0, seed=2)
+    refused = _run(src, events)  # tags: an anonymous detection is refused, never fused as if tagged
+    assert refused.stats["fused"] == 0
+    assert refused.reasons["rejected: robot detection without a target id"] == refused.stats["detections"]
+    for policy in ("nearest", "joint"):
+        res = _run(src, events, association=policy)
+        s = res.stats
+        assert s["detections"] == s["fused"] + s["gated"] + s["rejected"] + s["unknown"]
+        right, wrong = _accuracy(res)
+        assert right + wrong + res.reasons.get("rejected: association: ambiguous", 0) == s["detections"]
+        assert right / (right + wrong) > 0.98, (policy, right, wrong)
+        team = evaluate(res)["team"]
+        lo, hi = anees_bounds(team["n"])
+        assert 0.5 < team["anees"] < 2.0, (policy, team["anees"], lo, hi)
+
+
+def test_association_options_are_checked():
+    src = _source(2, 5.0, 0)
+    with pytest.raises(ValueError, match="association must be one of"):
+        _run(src, src.events, association="psychic")
+    with pytest.raises(ValueError, match="gate probability"):
+        _run(src, src.events, association="joint", association_gate=1.0)
+    from swarmloc.estimators import make_team, node_options
+
+    with pytest.raises(ValueError, match="Cartesian error coordinates"):
+        make_team("iekf", src.initial, **node_options("iekf", src.config, None), association="joint")

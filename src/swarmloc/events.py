@@ -50,7 +50,9 @@ class Detection:
     * ``"range"``: ``z = (range,)``; ``"bearing"``: ``z = (bearing,)``;
     * ``"absolute"``: the observer's own world pose ``z = (x, y, theta)`` (GPS-like fix, ``target`` is None).
 
-    ``target`` is a robot id when ``target_is_robot`` else a landmark id. ``cov`` is the noise covariance
+    ``target`` is a robot id when ``target_is_robot`` else a landmark id; None for an *anonymous* robot detection
+    (a robot was seen, which one is not known): an estimator gives it an identity only with an association policy
+    (:mod:`swarmloc.association`), and refuses it otherwise. ``cov`` is the noise covariance
     of ``z`` (in the same coordinates; for ``"pose"``, of the exponential coordinates of the noise
     ``m_true^-1 m_measured``).
     """
@@ -62,6 +64,9 @@ class Detection:
     cov: np.ndarray
     target: int | None = None
     target_is_robot: bool = True
+    truth_target: int | None = None
+    """For scoring only, never read by an estimator: the robot an anonymous detection (``target`` None) truly saw,
+    or -1 for a false detection (clutter); None when not known."""
 
     @property
     def stamp(self) -> float:
