@@ -298,7 +298,7 @@ def test_a_node_killed_mid_run_is_named_in_the_report_and_its_detections_are_not
     tr = out["run"]
     assert not leftovers(team)
     assert tr.exit_codes == {"robot0": 0, "robot1": -9, "robot2": 0}
-    assert tr.ended == [{"process": "robot1", "pid": killed, "exit_code": -9, "how": "died (SIGKILL)"}]
+    assert tr.ended == [{"process": "robot1", "pid": killed, "exit_code": -9, "how": "died (SIGKILL)", "said": ""}]
     rep = write_team_report(tr, src, "expfusion", tmp_path / "out", {})
     ev = rep["estimators"]["expfusion"]
     assert ev["accounted"] is False and ev["detections_missing_of"] == [1]
