@@ -45,9 +45,9 @@ _ZERO = np.zeros((3, 3))
 _ZERO.setflags(write=False)
 _CI_WEIGHTS = np.linspace(0.02, 0.98, 49)
 UNKNOWN_CORRELATION = "the pair's correlation is unknown and the measurement too weak to bound it"
-NEAR_MAHALANOBIS = 0.1
+NEAR_MAHALANOBIS = 1e-4
 """[squared Mahalanobis] Largest change of an answer's mean for which an update computed before it still applies."""
-NEAR_RELATIVE = 0.1
+NEAR_RELATIVE = 1e-3
 """Largest relative change of an answer's covariance and factor for which an update computed before it applies."""
 
 
