@@ -19,13 +19,18 @@ unobservable) the approximation of the third-party correlations breaks down (REA
 outdated answer; the answer or the query lost) leaves the pair's bookkeeping unknown: the observer may have applied
 the joint update (keeping ``sigma_ij <- P_ij+``) while the target did not (``sigma_ji`` not reset). The target
 cannot tell which, so it refuses the correlation rather than guess: answering an ``RdlStateQuery`` files an
-:class:`Unconfirmed` placeholder at the exchange's key, which drops ``sigma_ji`` until the observer's update (which
-replaces it) or its "no update" (which removes it) comes. A pair of which exactly one side tracks a correlation
-then fuses as if the correlation were unknown: the joint prior is bounded by covariance intersection,
-``blockdiag(P_ii / w, P_jj / (1 - w))`` (:func:`ci_pair_prior`), valid whatever the true cross-covariance, and
-the factors restart from that update (observer ``sigma_ij <- P_ij+``, target ``sigma_ji <- I``). A restarted
-node (no factors) is fused the same way. Without faults every placeholder is replaced by its update before
-anything reads it, so the result is unchanged (``tests/test_net.py``: networked = in-process).
+:class:`Unconfirmed` placeholder at the exchange's key, which drops ``sigma_ji`` until the observer's update
+replaces it, or its "no update" (or its notice that no answer reached it: an empty update with ``based_on < 0``)
+removes it. A pair of which exactly one side tracks a correlation (or whose tracked joint covariance is not
+positive definite) fuses as if the correlation were unknown: the joint prior is bounded by covariance
+intersection, ``blockdiag(P_ii / w, P_jj / (1 - w))`` (:func:`ci_pair_prior`), valid whatever the true
+cross-covariance. When both robots gain from that update, both take it and the factors restart from it (observer
+``sigma_ij <- P_ij+``, target ``sigma_ji <- I``); else the observer alone takes its part and the target gets "no
+update" (the pair stays untracked); a measurement that helps neither is not fused (``gated``). A restarted node
+(no factors) is fused the same way. An update computed from a revision of the answer that differs from the latest
+by less than :func:`near` still applies (most revisions under delay are that small). Without faults every
+placeholder is replaced by its update before anything reads it, so the result is unchanged (``tests/test_net.py``:
+networked = in-process; ``tests/test_rdl_faults.py``).
 """
 
 from __future__ import annotations
