@@ -273,6 +273,8 @@ class RecursiveDecentralized(DistributedEKF):
         """Answer as every node does; an ``RdlStateQuery`` answered with this node's state also files an
         :class:`Unconfirmed` placeholder at the exchange's key (module docstring), unless an update is filed there."""
         out = self._keep(super()._on_query(q))
+        if RdlUpdate not in self.update_types:  # a subclass with another exchange (diekf broadcasts its updates)
+            return out
         if isinstance(q, RdlStateQuery) and len(out) == 1 and isinstance(out[0], RdlState) and out[0].found:
             key = (float(q.stamp), P_GROUP, q.sender, tuple(q.sub))
             if self._history.find(key) is None:
