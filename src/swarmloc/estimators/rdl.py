@@ -279,7 +279,7 @@ class RecursiveDecentralized(DistributedEKF):
             key = (float(q.stamp), P_GROUP, q.sender, tuple(q.sub))
             if self._history.find(key) is None:
                 self.counts["updates_missing"] += 1
-                out += self._file([Entry(key, "update", Unconfirmed(q.sender))])
+                out += self._file([Entry(key, "update", Unconfirmed(q.sender))], accept=False)
         return out
 
     def _placeholder(self, data: Any) -> bool:
