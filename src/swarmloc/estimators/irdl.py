@@ -103,7 +103,7 @@ class InvariantRDL(RecursiveDecentralized):
         h, Hi, Hj = m.predict(s.x, xj)
         blocks = [Hi @ I.world_basis(s.x), Hj @ I.world_basis(xj)]
         R = m.noise(d.z, d.cov)
-        prior = joint_prior(s.P, Pjj, fi, sig_ji, np.hstack(blocks), R)  # CI when the correlation is unknown
+        prior = joint_prior(s.P, Pjj, fi, sig_ji, np.hstack(blocks), R, j in s.ids)  # CI: correlation unknown
         if prior is None:
             return ("gated", UNKNOWN_CORRELATION)
         res = joint_correction(prior[0], [0, 3], blocks, m.residual(d.z, h), R, self.gate)

@@ -21,16 +21,17 @@ the joint update (keeping ``sigma_ij <- P_ij+``) while the target did not (``sig
 cannot tell which, so it refuses the correlation rather than guess: answering an ``RdlStateQuery`` files an
 :class:`Unconfirmed` placeholder at the exchange's key, which drops ``sigma_ji`` until the observer's update
 replaces it, or its "no update" (or its notice that no answer reached it: an empty update with ``based_on < 0``)
-removes it. A pair of which exactly one side tracks a correlation (or whose tracked joint covariance is not
-positive definite) fuses as if the correlation were unknown: the joint prior is bounded by covariance
-intersection, ``blockdiag(P_ii / w, P_jj / (1 - w))`` (:func:`ci_pair_prior`), valid whatever the true
-cross-covariance. When both robots gain from that update, both take it and the factors restart from it (observer
-``sigma_ij <- P_ij+``, target ``sigma_ji <- I``); else the observer alone takes its part and the target gets "no
-update" (the pair stays untracked); a measurement that helps neither is not fused (``gated``). A restarted node
-(no factors) is fused the same way. An update computed from a revision of the answer that differs from the latest
-by less than :func:`near` still applies (most revisions under delay are that small). Without faults every
-placeholder is replaced by its update before anything reads it, so the result is unchanged (``tests/test_net.py``:
-networked = in-process; ``tests/test_rdl_faults.py``).
+removes it (the robot stays in ``ids``, its factor zero: met, no longer tracked). A pair of which a side has
+dropped its factor, or whose target tracks a correlation the observer never had (a restart), or whose tracked joint
+covariance is not positive definite, fuses as if the correlation were unknown: the joint prior is bounded by
+covariance intersection, ``blockdiag(P_ii / w, P_jj / (1 - w))`` (:func:`ci_pair_prior`), valid whatever the
+true cross-covariance. When both robots gain from that update, both take it and the factors restart from it
+(observer ``sigma_ij <- P_ij+``, target ``sigma_ji <- I``); else the observer alone takes its part, drops its own
+factor, and the target gets "no update" (the pair stays untracked); a measurement that helps neither is not fused
+(``gated``). A restarted node (no factors) is fused the same way. An update computed from a revision of the
+answer that differs from the latest by less than :func:`near` still applies (most revisions under delay are that
+small). Without faults every placeholder is replaced by its update before anything reads it, so the result is
+unchanged (``tests/test_net.py``: networked = in-process; ``tests/test_rdl_faults.py``).
 """
 
 from __future__ import annotations
@@ -103,11 +104,14 @@ class RdlFilter(NamedTuple):
         return np.array([f[0] + self.sa * f[2], f[1] + self.sb * f[2], f[2]])
 
     def without_factor(self, robot: int) -> RdlFilter:
-        """The same filter with no factor for ``robot`` (its correlation with ``robot`` no longer tracked)."""
+        """The same filter with the factor for ``robot`` zero while ``robot`` stays in ``ids``: a robot met whose
+        correlation is no longer tracked (a robot never met is not in ``ids``)."""
         i = bisect_left(self.ids, robot)
         if not (i < len(self.ids) and self.ids[i] == robot):
             return self
-        return self._replace(ids=self.ids[:i] + self.ids[i + 1 :], sigma=np.delete(self.sigma, i, axis=0))
+        sigma = self.sigma.copy()
+        sigma[i] = 0.0
+        return self._replace(sigma=sigma)
 
     def with_factor(self, robot: int, value: np.ndarray, sigma: np.ndarray) -> tuple[tuple, np.ndarray]:
         """``(ids, sigma)`` with ``robot``'s factor set to ``value`` (added when new) in ``sigma`` (factors with no
@@ -145,20 +149,21 @@ def ci_pair_prior(Pii: np.ndarray, Pjj: np.ndarray, H: np.ndarray, R: np.ndarray
     return (P[k], False) if gi[k] > 0.0 else None
 
 
-def tracked(fi: np.ndarray, fj: np.ndarray) -> bool:
-    """Whether a pair's correlation is known from the observer's factor ``fi`` and the target's ``fj``: both track it
-    (non-zero) or neither does (never met: independent). One zero and one not: an exchange did not complete, or one
-    side restarted."""
-    return bool(fi.any()) == bool(fj.any())
+def tracked(fi: np.ndarray, fj: np.ndarray, met: bool) -> bool:
+    """Whether a pair's correlation is known from the observer's factor ``fi``, the target's ``fj``, and whether the
+    observer has met the target (exchanged with it, since its start): met, both sides must still track it (non-zero:
+    a zero factor was dropped by an exchange that did not complete); never met, the target must not track one either
+    (independent). Else an exchange did not complete, or one side restarted."""
+    return bool(fi.any()) and bool(fj.any()) if met else not fj.any()
 
 
 def joint_prior(
-    Pii: np.ndarray, Pjj: np.ndarray, fi: np.ndarray, fj: np.ndarray, H: np.ndarray, R: np.ndarray
+    Pii: np.ndarray, Pjj: np.ndarray, fi: np.ndarray, fj: np.ndarray, H: np.ndarray, R: np.ndarray, met: bool
 ) -> tuple[np.ndarray, bool] | None:
     """The pair's joint prior ``(6, 6)`` and whether the target takes its part: with the tracked cross-covariance
     ``fi fj^T`` when the correlation is known (:func:`tracked`) and the result positive definite, else bounded by
     covariance intersection (:func:`ci_pair_prior`; None: not worth fusing)."""
-    if tracked(fi, fj):
+    if tracked(fi, fj, met):
         Pij = fi @ fj.T
         P = np.block([[Pii, Pij], [Pij.T, Pjj]])
         try:
@@ -374,7 +379,7 @@ class RecursiveDecentralized(DistributedEKF):
         X = np.concatenate([s.x, xj])
         H = np.hstack([Hi, Hj])
         R = m.noise(d.z, d.cov)
-        prior = joint_prior(s.P, Pjj, fi, sig_ji, H, R)
+        prior = joint_prior(s.P, Pjj, fi, sig_ji, H, R, j in s.ids)
         if prior is None:
             return ("gated", UNKNOWN_CORRELATION)
         res = gated_kalman(X, prior[0], m.residual(d.z, h), H, R, self.gate, angles=(2, 5))
@@ -399,8 +404,8 @@ class RecursiveDecentralized(DistributedEKF):
         intersection that only the observer gains from), the observer alone, its factors rescaled, and the target
         gets "no update" (the pair's correlation stays unknown)."""
         Pi = Pn[:3, :3]
-        if not joint:
-            new = RdlFilter(s.t, s.v, s.w, xi, Pi, s.ids, rescale_factors(s, Pi))
+        if not joint:  # the observer's correlation with the target is unknown now: its factor dropped
+            new = RdlFilter(s.t, s.v, s.w, xi, Pi, s.ids, rescale_factors(s, Pi)).without_factor(a.sender)
             return new, RdlUpdate(sender=self.robot, receiver=a.sender, stamp=g.t, sub=sub, based_on=a.seq)
         ids, sigma = s.with_factor(a.sender, Pn[:3, 3:], rescale_factors(s, Pi))
         new = RdlFilter(s.t, s.v, s.w, xi, Pi, ids, sigma)
