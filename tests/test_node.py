@@ -15,6 +15,7 @@ import pytest
 
 from swarmloc import make_team, run
 from swarmloc.estimators import ESTIMATORS, DistributedEKF, ExpFusion, Node, RecursiveDecentralized, options_for
+from swarmloc.estimators.rdl import UNKNOWN_CORRELATION
 from swarmloc.events import Detection, Odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import group as K
@@ -347,12 +348,12 @@ def _rdl_exchanged_with(targets: tuple[int, ...]) -> tuple[RecursiveDecentralize
     return node, sent
 
 
-def _measure_4_again(node: RecursiveDecentralized, sigma_40: np.ndarray) -> GroupGaussian:
+def _measure_4_again(node: RecursiveDecentralized, sigma_40: np.ndarray, fused: bool = True) -> GroupGaussian:
     """Robot 0 measures robot 4 at 1.2; robot 4 answers with its factor ``sigma_40``. The belief after."""
     (q,) = node.step(Detection(0, 1.2, "pose", np.array([1.0, 0.0, 0.0]), 1e-4 * np.eye(3), target=4))
     node.step(RdlState(sender=4, receiver=0, stamp=1.2, sub=q.sub, x=(1.05, 0.02, 0.0), P=flat(1e-3 * np.eye(3)),
                        sigma=flat(sigma_40)))  # fmt: skip
-    assert node.stats()["fused"] == node.stats()["detections"]
+    assert (node.stats()["fused"] == node.stats()["detections"]) is fused
     return node.belief_at(1.2)
 
 
@@ -368,11 +369,16 @@ def test_node_learns_neighbours_as_they_appear():
     (to3,) = node.step(RdlStateQuery(sender=3, receiver=0, stamp=1.15))
     assert np.abs(to4.sigma).max() > 1e-4 and not np.any(to3.sigma)
     # and used: measuring robot 4 again, the cross-covariance sigma_04 sigma_40^T changes the result with robot 4's
-    # factor (I, as it sets after the update) from the one with none; a node that never met 4 has sigma_04 = 0, so
-    # robot 4's factor cannot matter to it
+    # factor (I, as it sets after the update) from the one with none. One side with a factor and the other without
+    # says that their last exchange did not complete (or one side restarted): the correlation is unknown, fused by
+    # covariance intersection only if that pays (for this precise observer it does not: gated), never as if the
+    # two were independent; so robot 4 answering with none while robot 0 keeps one, or robot 4 answering with
+    # one to a robot 0 that has none
     correlated = _measure_4_again(_rdl_exchanged_with((4, 2))[0], np.eye(3))
-    independent = _measure_4_again(_rdl_exchanged_with((4, 2))[0], np.zeros((3, 3)))
-    assert np.abs(correlated.mean - independent.mean).max() > 1e-3  # measured 7e-3
-    assert np.abs(correlated.cov - independent.cov).max() > 1e-5  # measured 3e-4, of 1e-3
+    node, _ = _rdl_exchanged_with((4, 2))
+    unknown = _measure_4_again(node, np.zeros((3, 3)), fused=False)
+    assert node.reasons[f"gated: {UNKNOWN_CORRELATION}"] == 1
+    assert np.abs(correlated.mean - unknown.mean).max() > 1e-3
+    assert np.abs(correlated.cov - unknown.cov).max() > 1e-5
     strangers = [_measure_4_again(_rdl_exchanged_with((2,))[0], f) for f in (np.eye(3), np.zeros((3, 3)))]
-    assert _same(*strangers)
+    assert not _same(*strangers)  # the first by covariance intersection, the second as independent (never met)

@@ -29,12 +29,18 @@ import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.estimators.iekf import joint_correction
-from swarmloc.estimators.rdl import RdlFilter, RecursiveDecentralized, rescale_factors
+from swarmloc.estimators.rdl import (
+    UNKNOWN_CORRELATION,
+    RdlFilter,
+    RecursiveDecentralized,
+    joint_prior,
+    rescale_factors,
+)
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
-from swarmloc.messages import RdlState, RdlUpdate, flat
+from swarmloc.messages import RdlState
 from swarmloc.node import Group, Node, belief_of
 from swarmloc.sensors.models import model
 
@@ -93,21 +99,17 @@ class InvariantRDL(RecursiveDecentralized):
         xj, Pjj, sig_ji = a.arrays()
         if m.degenerate(s.x, xj):
             return ("rejected", DEGENERATE)
-        Pij = s.factor(j) @ sig_ji.T
+        fi = s.factor(j)
         h, Hi, Hj = m.predict(s.x, xj)
         blocks = [Hi @ I.world_basis(s.x), Hj @ I.world_basis(xj)]
-        P = np.block([[s.P, Pij], [Pij.T, Pjj]])
         R = m.noise(d.z, d.cov)
-        res = joint_correction(P, [0, 3], blocks, m.residual(d.z, h), R, self.gate)
+        prior = joint_prior(s.P, Pjj, fi, sig_ji, np.hstack(blocks), R, j in s.ids)  # CI: correlation unknown
+        if prior is None:
+            return ("gated", UNKNOWN_CORRELATION)
+        res = joint_correction(prior[0], [0, 3], blocks, m.residual(d.z, h), R, self.gate)
         if isinstance(res[0], str):
             return res
         delta, Pn = res
         self._log_update(g.t, {self.robot: blocks[0], j: blocks[1]}, R)
         xi_new, xj_new = I.left_correct(np.stack([s.x, xj]), delta.reshape(2, 3))
-        Pi = Pn[:3, :3]
-        ids, sigma = s.with_factor(j, Pn[:3, 3:], rescale_factors(s, Pi))
-        new = RdlFilter(s.t, s.v, s.w, xi_new, Pi, ids, sigma)
-        update = RdlUpdate(
-            sender=self.robot, receiver=j, stamp=g.t, sub=sub, based_on=a.seq, x=flat(xj_new), P=flat(Pn[3:, 3:])
-        )
-        return new, update
+        return self._pair_result(s, g, sub, a, xi_new, xj_new, Pn, prior[1])

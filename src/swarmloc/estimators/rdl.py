@@ -14,6 +14,24 @@ updates with the same rescaling.
 It reaches close to the centralized EKF's accuracy while staying (approximately) consistent, with pairwise
 communication only; with two robots it equals the centralized EKF. Without landmarks (the team's pose
 unobservable) the approximation of the third-party correlations breaks down (README, MRCLAM table).
+
+**An exchange that does not complete** (the update lost, late past the horizon, refused as computed from an
+outdated answer; the answer or the query lost) leaves the pair's bookkeeping unknown: the observer may have applied
+the joint update (keeping ``sigma_ij <- P_ij+``) while the target did not (``sigma_ji`` not reset). The target
+cannot tell which, so it refuses the correlation rather than guess: answering an ``RdlStateQuery`` files an
+:class:`Unconfirmed` placeholder at the exchange's key, which drops ``sigma_ji`` until the observer's update
+replaces it, or its "no update" (or its notice that no answer reached it: an empty update with ``based_on < 0``)
+removes it (the robot stays in ``ids``, its factor zero: met, no longer tracked). A pair of which a side has
+dropped its factor, or whose target tracks a correlation the observer never had (a restart), or whose tracked joint
+covariance is not positive definite, fuses as if the correlation were unknown: the joint prior is bounded by
+covariance intersection, ``blockdiag(P_ii / w, P_jj / (1 - w))`` (:func:`ci_pair_prior`), valid whatever the
+true cross-covariance. When both robots gain from that update, both take it and the factors restart from it
+(observer ``sigma_ij <- P_ij+``, target ``sigma_ji <- I``); else the observer alone takes its part, drops its own
+factor, and the target gets "no update" (the pair stays untracked); a measurement that helps neither is not fused
+(``gated``). A restarted node (no factors) is fused the same way. An update computed from a revision of the
+answer that differs from the latest by less than :func:`near` still applies (most revisions under delay are that
+small). Without faults every placeholder is replaced by its update before anything reads it, so the result is
+unchanged (``tests/test_net.py``: networked = in-process; ``tests/test_rdl_faults.py``).
 """
 
 from __future__ import annotations
@@ -26,11 +44,24 @@ import numpy as np
 from swarmloc.estimators.dekf import DEGENERATE, CartState, DistributedEKF, linearize
 from swarmloc.kernels import cartesian as C
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
-from swarmloc.node import FUSED, Group, Outcome, gated_kalman, same
+from swarmloc.node import FUSED, P_GROUP, Entry, Group, Outcome, gated_kalman, same
 from swarmloc.sensors.models import model
 
 _ZERO = np.zeros((3, 3))
 _ZERO.setflags(write=False)
+_CI_WEIGHTS = np.linspace(0.02, 0.98, 49)
+UNKNOWN_CORRELATION = "the pair's correlation is unknown and the measurement too weak to bound it"
+NEAR_MAHALANOBIS = 1e-4
+"""[squared Mahalanobis] Largest change of an answer's mean for which an update computed before it still applies."""
+NEAR_RELATIVE = 1e-3
+"""Largest relative change of an answer's covariance and factor for which an update computed before it applies."""
+
+
+class Unconfirmed(NamedTuple):
+    """History placeholder of a pairwise exchange this node answered (as the target) whose update has not come: until
+    the observer's update replaces it or its "no update" removes it, the node forgets its factor for ``observer``."""
+
+    observer: int
 
 
 class RdlFilter(NamedTuple):
@@ -72,6 +103,16 @@ class RdlFilter(NamedTuple):
             return f
         return np.array([f[0] + self.sa * f[2], f[1] + self.sb * f[2], f[2]])
 
+    def without_factor(self, robot: int) -> RdlFilter:
+        """The same filter with the factor for ``robot`` zero while ``robot`` stays in ``ids``: a robot met whose
+        correlation is no longer tracked (a robot never met is not in ``ids``)."""
+        i = bisect_left(self.ids, robot)
+        if not (i < len(self.ids) and self.ids[i] == robot):
+            return self
+        sigma = self.sigma.copy()
+        sigma[i] = 0.0
+        return self._replace(sigma=sigma)
+
     def with_factor(self, robot: int, value: np.ndarray, sigma: np.ndarray) -> tuple[tuple, np.ndarray]:
         """``(ids, sigma)`` with ``robot``'s factor set to ``value`` (added when new) in ``sigma`` (factors with no
         pending shear, e.g. from :func:`rescale_factors`)."""
@@ -81,6 +122,78 @@ class RdlFilter(NamedTuple):
             sigma[i] = value
             return self.ids, sigma
         return (*self.ids[:i], robot, *self.ids[i:]), np.insert(sigma, i, value, axis=0)
+
+
+def ci_pair_prior(Pii: np.ndarray, Pjj: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, bool] | None:
+    """The pair's joint prior when their cross-covariance is unknown: ``blockdiag(Pii / w, Pjj / (1 - w))``, which
+    bounds the joint covariance for every ``w`` in (0, 1) and every cross-covariance (covariance intersection), and
+    whether both robots take the update. ``w`` (a grid of step 0.02) maximizes the smaller of the two robots' gains
+    ``log det P_prior - log det P_post`` of the joint update (``H (m, 6)``, ``R (m, m)``): ``(P, True)`` when both
+    gain. Else the observer alone takes it, ``w`` maximizing its own gain: ``(P, False)``; None when even that is a
+    loss (the measurement is too weak to pay for the bound)."""
+    w = _CI_WEIGHTS[:, None, None]
+    P = np.zeros((w.shape[0], 6, 6))
+    P[:, :3, :3] = Pii / w
+    P[:, 3:, 3:] = Pjj / (1.0 - w)
+    PHt = P @ H.T
+    S = H @ PHt + R
+    Pn = P - PHt @ np.linalg.solve(S, np.swapaxes(PHt, -1, -2))
+    gi = np.linalg.slogdet(Pii)[1] - np.linalg.slogdet(Pn[:, :3, :3])[1]
+    gj = np.linalg.slogdet(Pjj)[1] - np.linalg.slogdet(Pn[:, 3:, 3:])[1]
+    both = np.where(np.isfinite(gi) & np.isfinite(gj), np.minimum(gi, gj), -np.inf)
+    k = int(np.argmax(both))
+    if both[k] >= 0.0:
+        return P[k], True
+    gi = np.where(np.isfinite(gi), gi, -np.inf)
+    k = int(np.argmax(gi))
+    return (P[k], False) if gi[k] > 0.0 else None
+
+
+def tracked(fi: np.ndarray, fj: np.ndarray, met: bool) -> bool:
+    """Whether a pair's correlation is known from the observer's factor ``fi``, the target's ``fj``, and whether the
+    observer has met the target (exchanged with it, since its start): met, both sides must still track it (non-zero:
+    a zero factor was dropped by an exchange that did not complete); never met, the target must not track one either
+    (independent). Else an exchange did not complete, or one side restarted."""
+    return bool(fi.any()) and bool(fj.any()) if met else not fj.any()
+
+
+def joint_prior(
+    Pii: np.ndarray, Pjj: np.ndarray, fi: np.ndarray, fj: np.ndarray, H: np.ndarray, R: np.ndarray, met: bool
+) -> tuple[np.ndarray, bool] | None:
+    """The pair's joint prior ``(6, 6)`` and whether the target takes its part: with the tracked cross-covariance
+    ``fi fj^T`` when the correlation is known (:func:`tracked`) and the result positive definite, else bounded by
+    covariance intersection (:func:`ci_pair_prior`; None: not worth fusing)."""
+    if tracked(fi, fj, met):
+        Pij = fi @ fj.T
+        P = np.block([[Pii, Pij], [Pij.T, Pjj]])
+        try:
+            np.linalg.cholesky(P)
+            return P, True
+        except np.linalg.LinAlgError:
+            pass
+    return ci_pair_prior(Pii, Pjj, H, R)
+
+
+def near(a: RdlState, b: RdlState) -> bool:
+    """Whether two revisions of one answer differ so little that an update computed from one applies to the other:
+    the means by less than :data:`NEAR_MAHALANOBIS` (squared, in ``b``'s covariance), the covariances and the factors
+    by less than :data:`NEAR_RELATIVE` (relative). Most revisions under link faults are that small (late news of a
+    third robot); refusing their updates would leave most exchanges unconfirmed."""
+    if same(a, b):
+        return True
+    xa, Pa, sa = a.arrays()
+    xb, Pb, sb = b.arrays()
+    d = xa - xb
+    d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
+    try:
+        if d @ np.linalg.solve(Pb, d) > NEAR_MAHALANOBIS:
+            return False
+        if np.abs(np.linalg.solve(Pb, Pa) - np.eye(3)).max() > NEAR_RELATIVE:
+            return False
+    except np.linalg.LinAlgError:
+        return False
+    scale = max(float(np.abs(sb).max()), float(np.abs(sa).max()))
+    return bool(scale == 0.0 or np.abs(sa - sb).max() <= NEAR_RELATIVE * scale)
 
 
 def rescale_factors(s: RdlFilter, P_new: np.ndarray) -> np.ndarray:
@@ -140,24 +253,78 @@ class RecursiveDecentralized(DistributedEKF):
             return super()._answer(s, q)
         return None
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._answered: dict[tuple, RdlState] = {}
+        """Every revision of the states this node answered with, by ``(exchange key, revision)``: an update computed
+        from a revision that differs from the latest by less than :func:`near` still applies."""
+
+    def _revise(self, after: Any) -> list[Message]:
+        return self._keep(super()._revise(after))
+
+    def _keep(self, msgs: list[Message]) -> list[Message]:
+        for m in msgs:
+            if isinstance(m, RdlState) and m.found:
+                self._answered[((float(m.stamp), P_GROUP, m.receiver, tuple(m.sub)), m.seq)] = m
+        return msgs
+
+    def _prune(self) -> None:
+        super()._prune()
+        cutoff = self._clock.present - self.horizon
+        for k in [k for k in self._answered if k[0][0] < cutoff]:
+            del self._answered[k]
+
+    def _on_query(self, q: Message) -> list[Message]:
+        """Answer as every node does; an ``RdlStateQuery`` answered with this node's state also files an
+        :class:`Unconfirmed` placeholder at the exchange's key (module docstring), unless an update is filed there."""
+        out = self._keep(super()._on_query(q))
+        if RdlUpdate not in self.update_types:  # a subclass with another exchange (diekf broadcasts its updates)
+            return out
+        if isinstance(q, RdlStateQuery) and len(out) == 1 and isinstance(out[0], RdlState) and out[0].found:
+            key = (float(q.stamp), P_GROUP, q.sender, tuple(q.sub))
+            if self._history.find(key) is None:
+                self.counts["updates_missing"] += 1
+                out += self._file([Entry(key, "update", Unconfirmed(q.sender))], accept=False)
+        return out
+
+    def _placeholder(self, data: Any) -> bool:
+        return isinstance(data, Unconfirmed)
+
     def _update_problem(self, u: Message) -> str | None:
-        """An update must answer a state this node sent, in its latest revision."""
-        served = self._served.get(((float(u.stamp), 1, u.sender, tuple(u.sub)), u.sender, "RdlStateQuery"))
+        """An update (or "no update") must answer a state this node sent, in its latest revision; or be the
+        observer's notice that no answer reached it (empty, ``based_on < 0``), which only closes an exchange still
+        waiting for its update (its :class:`Unconfirmed` placeholder)."""
+        key = (float(u.stamp), 1, u.sender, tuple(u.sub))
+        served = self._served.get((key, u.sender, "RdlStateQuery"))
         if served is None:
             return "update for a state this node never sent"
+        pos = self._history.find(key)
+        filed = None if pos is None else self._history.entries[pos].data
+        if u.empty and u.based_on < 0:
+            if not isinstance(filed, Unconfirmed):
+                return "no-answer notice for an exchange that is not open"
+            return None
         if u.based_on != served.seq:
-            return "update computed from an outdated state (stale)"
+            basis = self._answered.get((key, u.based_on))
+            newer = isinstance(filed, RdlUpdate) and filed.based_on > u.based_on
+            if u.empty or newer or basis is None or not near(basis, served):
+                return "update computed from an outdated state (stale)"
         return None
 
-    def _apply_update(self, s: RdlFilter, u: RdlUpdate) -> tuple[RdlFilter, bool]:
+    def _apply_update(self, s: RdlFilter, u: RdlUpdate | Unconfirmed) -> tuple[RdlFilter, bool]:
         """A neighbour's joint update, while the state it was computed from is still the state before its key: new
-        ``(x, P)``, ``sigma_ji <- I``, the other factors rescaled."""
+        ``(x, P)``, ``sigma_ji <- I``, the other factors rescaled. A placeholder, or an update that no longer
+        applies (the state it was computed from changed: a revised answer went out, a new update may follow), drops
+        the factor for the observer and stays filed until that update replaces it."""
+        if isinstance(u, Unconfirmed):
+            return s.without_factor(u.observer), True
         s = self._adv(s, u.receiver, u.stamp)
         key = (float(u.stamp), 1, u.sender, tuple(u.sub))
         served = self._served.get((key, u.sender, "RdlStateQuery"))
         q = RdlStateQuery(sender=u.sender, receiver=u.receiver, stamp=u.stamp, sub=u.sub)
-        if served is None or served.seq != u.based_on or not same(served, self._answer(s, q)):
-            return s, False
+        basis = served if served is not None and served.seq == u.based_on else self._answered.get((key, u.based_on))
+        if basis is None or not near(basis, self._answer(s, q)):
+            return s.without_factor(u.sender), True  # a revised answer went out: its update will replace this
         x, P = u.arrays()
         sigma = rescale_factors(s, P)
         ids, sigma = s.with_factor(u.sender, np.eye(3), sigma)
@@ -171,6 +338,9 @@ class RecursiveDecentralized(DistributedEKF):
             target = self._classify(g, d, sub)
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
+                a = g.answers.get((d.target, sub)) if d.target_is_robot else None
+                if a is not None and not a.found and a.seq < 0:  # no answer reached this node: tell the target
+                    msgs.append(RdlUpdate(sender=self.robot, receiver=d.target, stamp=g.t, sub=sub, based_on=-1))
                 continue
             res = self._pair(s, g, d, sub, target[1]) if target[0] == "robot" else self._private(s, d, target)
             if isinstance(res[0], str):
@@ -204,19 +374,42 @@ class RecursiveDecentralized(DistributedEKF):
         xj, Pjj, sig_ji = a.arrays()
         if m.degenerate(s.x, xj):
             return ("rejected", DEGENERATE)
-        Pij = s.factor(j) @ sig_ji.T
+        fi = s.factor(j)
         h, Hi, Hj = m.predict(s.x, xj)
         X = np.concatenate([s.x, xj])
-        P = np.block([[s.P, Pij], [Pij.T, Pjj]])
         H = np.hstack([Hi, Hj])
-        res = gated_kalman(X, P, m.residual(d.z, h), H, m.noise(d.z, d.cov), self.gate, angles=(2, 5))
+        R = m.noise(d.z, d.cov)
+        prior = joint_prior(s.P, Pjj, fi, sig_ji, H, R, j in s.ids)
+        if prior is None:
+            return ("gated", UNKNOWN_CORRELATION)
+        res = gated_kalman(X, prior[0], m.residual(d.z, h), H, R, self.gate, angles=(2, 5))
         if isinstance(res[0], str):
             return res
         Xn, Pn = res
+        return self._pair_result(s, g, sub, a, Xn[:3], Xn[3:], Pn, prior[1])
+
+    def _pair_result(
+        self,
+        s: RdlFilter,
+        g: Group,
+        sub: tuple,
+        a: RdlState,
+        xi: np.ndarray,
+        xj: np.ndarray,
+        Pn: np.ndarray,
+        joint: bool,
+    ) -> tuple[RdlFilter, RdlUpdate]:
+        """The observer's new filter and the target's update from the joint posterior ``Pn (6, 6)``: both take their
+        part (``sigma_ij <- P_ij+``; the target sets ``sigma_ji <- I``), or, with ``joint`` False (a covariance
+        intersection that only the observer gains from), the observer alone, its factors rescaled, and the target
+        gets "no update" (the pair's correlation stays unknown)."""
         Pi = Pn[:3, :3]
-        ids, sigma = s.with_factor(j, Pn[:3, 3:], rescale_factors(s, Pi))
-        new = RdlFilter(s.t, s.v, s.w, Xn[:3], Pi, ids, sigma)
+        if not joint:  # the observer's correlation with the target is unknown now: its factor dropped
+            new = RdlFilter(s.t, s.v, s.w, xi, Pi, s.ids, rescale_factors(s, Pi)).without_factor(a.sender)
+            return new, RdlUpdate(sender=self.robot, receiver=a.sender, stamp=g.t, sub=sub, based_on=a.seq)
+        ids, sigma = s.with_factor(a.sender, Pn[:3, 3:], rescale_factors(s, Pi))
+        new = RdlFilter(s.t, s.v, s.w, xi, Pi, ids, sigma)
         update = RdlUpdate(
-            sender=self.robot, receiver=j, stamp=g.t, sub=sub, based_on=a.seq, x=flat(Xn[3:]), P=flat(Pn[3:, 3:])
+            sender=self.robot, receiver=a.sender, stamp=g.t, sub=sub, based_on=a.seq, x=flat(xj), P=flat(Pn[3:, 3:])
         )
         return new, update

@@ -76,7 +76,7 @@ def ended_notes(run: TeamRun, robots: list[int]) -> tuple[list[str], list[int]]:
             notes.append(f"{what}.")
             continue
         r = int(e["process"].removeprefix("robot"))
-        if "restarted" in e["how"]:
+        if e["how"].endswith(", restarted"):  # a kill fault's robot, restarted (killonly: "not restarted")
             missing.append(r)
             notes.append(f"{what}: the detections it handled before are missing from the totals.")
         elif r in run.reports:

@@ -122,6 +122,8 @@ def node_main(
     finals: dict[float, Belief] = {}
     try:
         node, events, record_times = _start(session, src, robot, team, estimator, resume, auth, scope)
+        faults = parse_faults(faults) if isinstance(faults, str | None) else faults
+        events = faults.jumped(robot, events)  # the jump fault: this robot's clock, not the source, is wrong
         net = NetNode(
             node,
             events,
@@ -137,7 +139,7 @@ def node_main(
             start_timeout=start_timeout,
             lost_timeout=lost_timeout,
             use_server=use_server,
-            faults=parse_faults(faults) if isinstance(faults, str | None) else faults,
+            faults=faults,
             wait_for=wait_for,
             ros_domain=ros_domain,
             on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,

@@ -1,5 +1,6 @@
-"""Injected network faults: message loss, delay, reordering, duplicates (on every message a node sends), and
-process faults that ``swarmloc team`` applies (a node killed and restarted, a late joiner).
+"""Injected network faults: message loss, delay, reordering, duplicates (on every message a node sends), process
+faults that ``swarmloc team`` applies (a node killed and restarted or not, a late joiner), and a robot's clock
+that jumps.
 
 Spec (``--faults``), comma-separated ``key=value``::
 
@@ -7,8 +8,12 @@ Spec (``--faults``), comma-separated ``key=value``::
     delay=0.5       delay each outgoing message by U(0, 0.5) s (0..1)
     reorder=0.1     hold a message back 20 ms longer with probability 0.1 (so later ones overtake it)
     dup=0.05        send a message twice with probability 0.05
-    kill=2@10       kill robot 2's process when its source reaches 10 s after the start, restart it at once
+    kill=2@10       kill robot 2's process (SIGKILL) when its source reaches 10 s after the start, restart it at once
+                    from the belief server (--resume)
+    killonly=2@10   the same kill, never restarted: the team goes on without robot 2
     late=3@5        start robot 3's process once the others have read 5 s of their sources
+    jump=1@10:30    robot 1's clock jumps by +30 s (or back, -30) 10 s after its first stamp: every input it reads
+                    from then on is stamped 30 s later than the source says (the node's clock contract decides)
     seed=0          random seed of the link faults (each robot draws from its own stream)
 
 Queries, answers, pushed revisions and pairwise updates are all subject to the link faults; published beliefs and
@@ -18,9 +23,12 @@ progress messages are not (they are the measurement apparatus of the run, not th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
+
+from swarmloc.events import Event, Odometry
 
 __all__ = ["Faults", "parse_faults"]
 
@@ -34,12 +42,18 @@ class Faults:
     kill: tuple[int, float] | None = None
     late: tuple[int, float] | None = None
     seed: int = 0
+    restart: bool = True
+    """Restart the killed robot (``kill``), or not (``killonly``)."""
+    jump: tuple[int, float, float] | None = None
+    """``(robot, after [s], shift [s])``: the robot's input stamps from ``after`` s past its first on are shifted."""
 
     def __post_init__(self) -> None:
         for name, hi in (("loss", 0.5), ("delay", 1.0), ("reorder", 1.0), ("dup", 1.0)):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and 0 <= v <= hi):
                 raise ValueError(f"faults: {name} must be a number in [0, {hi}], got {v!r}")
+        if self.jump is not None and not (0 < abs(self.jump[2]) <= 3600):
+            raise ValueError(f"faults: jump shifts by a non-zero number of seconds within +-3600, got {self.jump[2]!r}")
 
     @property
     def link(self) -> bool:
@@ -51,13 +65,39 @@ class Faults:
         for k in ("kill", "late"):
             v = getattr(self, k)
             if v is not None:
-                parts.append(f"{k}={v[0]}@{v[1]:g}")
+                parts.append(f"{'killonly' if k == 'kill' and not self.restart else k}={v[0]}@{v[1]:g}")
+        if self.jump is not None:
+            parts.append(f"jump={self.jump[0]}@{self.jump[1]:g}:{self.jump[2]:+g}")
         if self.seed:
             parts.append(f"seed={self.seed}")
         return ",".join(parts)
 
     def plan(self, robot: int) -> LinkFaults:
         return LinkFaults(self, robot)
+
+    def node_faults(self) -> Faults:
+        """What a node process applies itself: the link faults and the clock jump (not the launcher's kill, late)."""
+        return Faults(loss=self.loss, delay=self.delay, reorder=self.reorder, dup=self.dup, seed=self.seed,
+                      jump=self.jump)  # fmt: skip
+
+    def jumped(self, robot: int, events: Sequence[Event]) -> list[Event]:
+        """``robot``'s own ``events`` (stamp order) as its clock gives them with the ``jump`` fault: from ``after``
+        s past the first stamp on, every stamp shifted by ``shift`` s (unchanged without a jump for this robot)."""
+        if self.jump is None or self.jump[0] != robot or not events:
+            return list(events)
+        _, after, shift = self.jump
+        t_jump = min(_stamp(e) for e in events) + after
+        return [_shifted(e, shift) if _stamp(e) >= t_jump else e for e in events]
+
+
+def _stamp(e: Event) -> float:
+    return float(e.t0) if isinstance(e, Odometry) else float(e.t)
+
+
+def _shifted(e: Event, dt: float) -> Event:
+    if isinstance(e, Odometry):
+        return replace(e, t0=e.t0 + dt, t1=e.t1 + dt)
+    return replace(e, t=e.t + dt)
 
 
 class LinkFaults:
@@ -117,13 +157,27 @@ def parse_faults(spec: str | None) -> Faults:
                 kw[key] = float(v)
             except ValueError:
                 raise ValueError(f"faults: {key} must be a number, got {v!r}") from None
-        elif key in ("kill", "late"):
-            kw[key] = _robot_at(key, v)
+        elif key in ("kill", "killonly", "late"):
+            if key != "late" and "kill" in kw:
+                raise ValueError("faults: one kill (kill or killonly) per run")
+            kw["late" if key == "late" else "kill"] = _robot_at(key, v)
+            if key == "killonly":
+                kw["restart"] = False
+        elif key == "jump":
+            r, sep, shift = v.partition(":")
+            try:
+                kw[key] = (*_robot_at(key, r), float(shift))
+            except ValueError:
+                raise ValueError(f"faults: jump takes ROBOT@SECONDS:SHIFT (e.g. jump=1@10:30), got {v!r}") from None
+            if not sep or not math.isfinite(kw[key][2]):
+                raise ValueError(f"faults: jump takes ROBOT@SECONDS:SHIFT (e.g. jump=1@10:30), got {v!r}")
         elif key == "seed":
             try:
                 kw[key] = int(v)
             except ValueError:
                 raise ValueError(f"faults: seed must be an integer, got {v!r}") from None
         else:
-            raise ValueError(f"faults: unknown key {key!r} (loss, delay, reorder, dup, kill, late, seed)")
+            raise ValueError(
+                f"faults: unknown key {key!r} (loss, delay, reorder, dup, kill, killonly, late, jump, seed)"
+            )
     return Faults(**kw)

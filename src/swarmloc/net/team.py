@@ -135,7 +135,7 @@ def launch_team(
     f = parse_faults(faults)
     team = check_team(team or f"team{os.getpid()}")
     distributed_class(estimator)  # refuse a centralized or unknown estimator before starting anything
-    server = server or f.kill is not None
+    server = server or (f.kill is not None and f.restart)
     for what, robot in (("late", f.late), ("killed", f.kill)):
         if robot is not None and robot[0] not in src.robots:
             raise ValueError(f"faults: {what} robot {robot[0]} is not in the team {src.robots}")
@@ -186,8 +186,8 @@ def node_arguments(
     if use_server:
         out.append("--use-server")
     f = faults
-    if f.link:
-        out += ["--faults", Faults(loss=f.loss, delay=f.delay, reorder=f.reorder, dup=f.dup, seed=f.seed).to_spec()]
+    if f.link or f.jump is not None:
+        out += ["--faults", f.node_faults().to_spec()]
     if ros_domain is not None:
         out += ["--ros-domain", str(ros_domain)]
     if verbose:
@@ -293,10 +293,12 @@ class _Launcher:
             if self.progress.get(k, -math.inf) >= t_first + tk:
                 procs[f"robot{k}"].kill()
                 procs[f"robot{k}"].wait()
-                self.note(f"robot{k}", procs[f"robot{k}"], f"killed by the fault kill={k}@{tk:g}, restarted")
+                how = f"killed by the fault kill={k}@{tk:g}, restarted" if f.restart else \
+                    f"killed by the fault killonly={k}@{tk:g}, not restarted"  # fmt: skip
+                self.note(f"robot{k}", procs[f"robot{k}"], how)
                 self.killed = True
                 counts["killed"] = 1
-        if self.killed and not self.restarted:
+        if self.killed and not self.restarted and f.restart:
             time.sleep(0.5)
             self.spawn(f"robot{f.kill[0]}", self.node_cmd(f.kill[0], resume=True))
             self.restarted = True
@@ -323,7 +325,7 @@ class _Launcher:
         """Every robot's process was started (the late one, the restarted one) and has ended."""
         nodes = [p for n, p in self.procs.items() if n.startswith("robot")]
         joined = self.late is None or self.joined
-        started = joined and (self.f.kill is None or self.restarted or self.killed is False)
+        started = joined and (self.f.kill is None or self.restarted or self.killed is False or not self.f.restart)
         return started and all(p.poll() is not None for p in nodes) and len(nodes) == len(self.robots)
 
     # ------------------------------------------------------------------------------------------- collecting

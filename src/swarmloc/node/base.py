@@ -438,10 +438,11 @@ class Node(Intake, Exchange):
         return out
 
     # ------------------------------------------------------------------------------------------------ history
-    def _file(self, entries: list[Entry]) -> list[Message]:
-        """Put new entries into the history and apply them (replaying what follows a late one)."""
+    def _file(self, entries: list[Entry], accept: bool = True) -> list[Message]:
+        """Put new entries into the history and apply them (replaying what follows a late one); with ``accept``
+        their stamps move the node's present (not for a placeholder the node files itself)."""
         hist = self._history
-        for e in entries:
+        for e in entries if accept else ():
             self._clock.accept(e.key[0])
         if len(entries) == 1 and (not hist.keys or hist.keys[-1] < entries[0].key):  # in order: the common case
             entry = entries[0]

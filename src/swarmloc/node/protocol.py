@@ -265,12 +265,25 @@ class Exchange:
             if pos is None:
                 self.counts["no_update"] += 1
                 return []
+            if self._placeholder(self._history.entries[pos].data):
+                self.counts["updates_missing"] -= 1
+                self.counts["no_update"] += 1
             self._history.remove(pos)
             return self._replay(pos, late=True, changed=key) if pos < len(self._history) else self._revise(key)
         if pos is not None:
-            if self._history.entries[pos].data == u:
+            old = self._history.entries[pos].data
+            if old == u:
                 self.accounting.message_rejected("duplicate update")
                 return []
             self._history.entries[pos].data = u
+            if self._placeholder(old):  # the update a placeholder waited for: in order if nothing followed it
+                self.counts["updates_missing"] -= 1
+                return self._replay(pos, late=pos < len(self._history) - 1)
             return self._replay(pos, late=True)
         return self._file([Entry(key, "update", u)])
+
+    def _placeholder(self, data: Any) -> bool:
+        """Whether a history entry's ``data`` stands for an update not received yet (filed by the estimator when it
+        answers, e.g. :class:`~swarmloc.estimators.rdl.Unconfirmed`; counted ``updates_missing`` until replaced or
+        removed)."""
+        return False
