@@ -35,7 +35,9 @@ and covariance uncorrected, not overconfident). What it loses is replica agreeme
 from __future__ import annotations
 
 import logging
+import math
 import time
+from bisect import bisect_left
 from collections import OrderedDict
 from typing import Any
 
@@ -45,6 +47,7 @@ from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.schema import ALL, MAX_REPAIR, Broadcast, BroadcastHead, BroadcastRepair, Rejected
 from swarmloc.net.transport import robot_key
+from swarmloc.node.protocol import same
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
@@ -52,8 +55,9 @@ BUFFER = 4096
 """Broadcasts a sender keeps to answer repair requests (its latest)."""
 REPAIR_TRIES = 8
 """Requests for one missing broadcast before it is given up."""
-HEAD_EVERY = 0.25
-"""[s] wall time between two announcements of a sender's broadcast count (while it changes; 4 times slower else)."""
+HEAD_EVERY = 1.0
+"""[s] wall time between two announcements of a sender's head when it does not change (announced at once when it
+does)."""
 
 
 class _Peer:
@@ -90,8 +94,11 @@ class Broadcasting:
         self._bn = 0  # this node's next broadcast number
         self._bbuf: OrderedDict[int, Broadcast] = OrderedDict()  # its latest broadcasts, by number
         self._bout: dict[tuple, TeamUpdate] = {}  # updates to broadcast with the next flush, the newest per exchange
+        self._bsent: dict[tuple, TeamUpdate] = {}  # the last update broadcast per exchange (stamp, sub)
         self._bflush = 0.0
-        self._bhead = (-1.0, -1)  # (wall time, count) of the last head announced
+        self._bhead: tuple[float, tuple] = (-1.0, ())  # (wall time, (count, t, prio)) of the last head announced
+        self._heads: dict[int, tuple[int, float, int]] = {}  # per teammate: its latest head (count, t, prio)
+        self._group_at = [k for k, (_, item) in enumerate(self.items) if isinstance(item, list)]
         self._peers: dict[int, _Peer] = {}
         self._bkey: dict[tuple, int] = {}  # (sender, stamp, sub): the number of the update applied for the exchange
         self._bkey_pruned = 0.0
@@ -118,31 +125,70 @@ class Broadcasting:
         if self._bout and (force or self.link is None or now - self._bflush >= self.coalesce):
             self._bflush = now
             out, self._bout = self._bout, {}
-            for _, m in sorted(out.items()):
-                b = Broadcast(robot=self.robot, n=self._bn, update=msgspec.structs.replace(m, receiver=ALL))
+            for k, m in sorted(out.items()):
+                m = msgspec.structs.replace(m, receiver=ALL)
+                if same(self._bsent.get(k), m):  # a replay that changed only the last bits: nothing to send
+                    self.counts["broadcasts_unchanged"] += 1
+                    continue
+                self._bsent[k] = m
+                b = Broadcast(robot=self.robot, n=self._bn, update=m)
                 self._bn += 1
                 self._bbuf[b.n] = b
                 if len(self._bbuf) > BUFFER:
                     self._bbuf.popitem(last=False)
                 self.counts["broadcasts_sent"] += 1
                 self._publish_b(b)
-        if self._bn and (
-            (self._bhead[1] != self._bn and now - self._bhead[0] >= HEAD_EVERY)
-            or now - self._bhead[0] >= 4 * HEAD_EVERY
-        ):
-            self._bhead = (now, self._bn)
+        head = (self._bn, *self._settled())
+        if head != self._bhead[1] or now - self._bhead[0] >= HEAD_EVERY:
+            self._bhead = (now, head)
             self.counts["broadcast_heads_sent"] += 1
-            self._publish_b(BroadcastHead(robot=self.robot, n=self._bn))
+            self._publish_b(BroadcastHead(robot=self.robot, n=head[0], t=head[1], prio=head[2]), faults=False)
         if self._peers:
             self._ask_missing(now)
 
-    def _publish_b(self, body: Any) -> None:
+    def _settled(self) -> tuple[float, int]:
+        """``(t, prio)``: every update this node will broadcast for an exchange keyed before ``(t, prio, robot)`` is
+        published (its next detection group, its oldest group waiting for answers, and the updates not flushed yet
+        are not)."""
+        out = (math.inf, 0)
+        first = self.node.first_pending
+        if first is not None:
+            out = min(out, (first[0], first[1]))
+        if self._bout:
+            out = min(out, (min(k[0] for k in self._bout), 1))
+        k = bisect_left(self._group_at, self._i)
+        if k < len(self._group_at):
+            out = min(out, (self.items[self._group_at[k]][0], 1))
+        return out
+
+    def _broadcasts_unsettled(self, key: tuple) -> str | None:
+        """Why a teammate's broadcast keyed before ``key`` may still be missing here, or None: lockstep waits for
+        them before this node fuses a group or answers a query keyed ``key`` (:mod:`swarmloc.net.lockstep`)."""
+        if not self.broadcasts:
+            return None
+        for r in self._alive:
+            h = self._heads.get(r)
+            if h is None:
+                return f"no broadcast head from robot {r} yet"
+            n, t, prio = h
+            if (t, prio, r) < key[:3]:
+                return f"robot {r} may still broadcast updates keyed from {(t, prio)}"
+            p = self._peers.get(r)
+            if n > (p.low if p is not None else 0):
+                return f"robot {r}'s broadcasts below {n} not all here"
+        return None
+
+    def _publish_b(self, body: Any, faults: bool = True) -> None:
+        """``body`` on this robot's broadcast key: with the link faults, or (a head: lockstep's, like progress) not."""
         key = robot_key(self.scope, self.robot, "broadcast")
         payload = self._env(body, key)
         if self._bpub is None:
             self._bpub = self.session.declare_publisher(key, congestion_control=self._block)
             self._decl.append(self._bpub)
         pub = self._bpub
+        if not faults:
+            pub.put(payload)
+            return
         self._faulty(lambda: pub.put(payload))
 
     def _push(self, body: Any, to: int) -> None:
@@ -178,6 +224,7 @@ class Broadcasting:
             return
         b = env.body
         if isinstance(b, BroadcastHead):
+            self._heads[b.robot] = max(self._heads.get(b.robot, (-1, -math.inf, 0)), (b.n, b.t, b.prio))
             self._heard_of(b.robot, b.n - 1)
         elif isinstance(b, Broadcast) and b.to == ALL:
             self._on_broadcast(b)
@@ -229,6 +276,8 @@ class Broadcasting:
         cut = present - 2 * self.node.horizon
         for k in [k for k in self._bkey if k[1] < cut]:
             del self._bkey[k]
+        for k in [k for k in self._bsent if k[0] < cut]:
+            del self._bsent[k]
 
     def _ask_missing(self, now: float) -> None:
         """Ask each teammate again for its broadcasts missing longer than ``repair_wait`` s (retries spaced, then given

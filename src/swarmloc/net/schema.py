@@ -93,11 +93,15 @@ class Broadcast(msgspec.Struct, frozen=True, kw_only=True, tag="broadcast"):
 
 
 class BroadcastHead(msgspec.Struct, frozen=True, kw_only=True, tag="broadcast_head"):
-    """``robot`` has published broadcasts ``0 .. n - 1`` (announced now and then on its broadcast key, so that a
-    teammate that lost the last ones sees the gap)."""
+    """``robot`` has published broadcasts ``0 .. n - 1``, and every update it will broadcast for an exchange keyed
+    before ``(t, prio, robot)`` is among them (announced on its broadcast key whenever that changes: a teammate
+    waits for them before it fuses or answers anything keyed later, and sees the last ones missing if they were
+    lost)."""
 
     robot: int
     n: int
+    t: float = math.inf
+    prio: int = 0
 
 
 class BroadcastRepair(msgspec.Struct, frozen=True, kw_only=True, tag="broadcast_repair"):
@@ -166,6 +170,8 @@ def body_problem(b: Body) -> str | None:
             return "broadcast: its update must be from the broadcasting robot to the team (receiver -1)"
         return message_problem(u)
     if isinstance(b, BroadcastHead):
+        if math.isnan(b.t):
+            return "broadcast head: NaN time"
         return None if 0 <= b.n < MAX_BROADCAST_N else f"broadcast head: count {b.n} outside [0, 2^62)"
     if isinstance(b, BroadcastRepair):
         if not 0 <= b.first <= b.last < MAX_BROADCAST_N:
