@@ -95,6 +95,8 @@ class Broadcasting:
         self._bbuf: OrderedDict[int, Broadcast] = OrderedDict()  # its latest broadcasts, by number
         self._bout: dict[tuple, TeamUpdate] = {}  # updates to broadcast with the next flush, the newest per exchange
         self._bsent: dict[tuple, TeamUpdate] = {}  # the last update broadcast per exchange (stamp, sub)
+        self._rev_wait: dict[tuple, float] = {}  # (stamp, sub, target): since when a revised answer is expected
+        self._revised: set[tuple] = set()  # (stamp, sub, target): revised answers received
         self._bflush = 0.0
         self._bhead: tuple[float, tuple] = (-1.0, ())  # (wall time, (count, t, prio)) of the last head announced
         self._heads: dict[int, tuple[int, float, int]] = {}  # per teammate: its latest head (count, t, prio)
@@ -131,6 +133,7 @@ class Broadcasting:
                     self.counts["broadcasts_unchanged"] += 1
                     continue
                 self._bsent[k] = m
+                self._expect_revision(k, m, now)
                 b = Broadcast(robot=self.robot, n=self._bn, update=m)
                 self._bn += 1
                 self._bbuf[b.n] = b
@@ -138,6 +141,10 @@ class Broadcasting:
                     self._bbuf.popitem(last=False)
                 self.counts["broadcasts_sent"] += 1
                 self._publish_b(b)
+        for k, since in list(self._rev_wait.items()):
+            if now - since > 2 * self.repair_wait + 0.2:
+                del self._rev_wait[k]
+                self.counts["revision_not_received"] += 1
         head = (self._bn, *self._settled())
         if head != self._bhead[1] or now - self._bhead[0] >= HEAD_EVERY:
             self._bhead = (now, head)
@@ -156,10 +163,31 @@ class Broadcasting:
             out = min(out, (first[0], first[1]))
         if self._bout:
             out = min(out, (min(k[0] for k in self._bout), 1))
+        if self._rev_wait:
+            out = min(out, (min(k[0] for k in self._rev_wait), 1))
         k = bisect_left(self._group_at, self._i)
         if k < len(self._group_at):
             out = min(out, (self.items[self._group_at[k]][0], 1))
         return out
+
+    def _expect_revision(self, k: tuple, m: TeamUpdate, now: float) -> None:
+        """A group's answers are given from the state before each detection of it, so a target's answer to a later
+        detection does not yet include the group's earlier updates: once they reach it, the target revises that answer
+        (as in-process), the group is fused again and the later update broadcast again. Until that revision came
+        (or ``2 repair_wait + 0.2`` s passed: ``revision_not_received``) this node's head stays before the group, so
+        that no teammate fuses or answers anything keyed after it on the first numbers."""
+        t, sub = k
+        if m.empty or m.target == self.robot or (t, sub, m.target) in self._revised:
+            return
+        if any(kk[0] == t and kk[1] < sub and not u.empty for kk, u in self._bsent.items()):
+            self._rev_wait.setdefault((t, sub, m.target), now)
+
+    def _revision_came(self, a: Any) -> None:
+        """A revised answer to one of this node's queries (pushed to its inbox)."""
+        if a.seq >= 1:
+            k = (float(a.stamp), tuple(a.sub), a.sender)
+            self._revised.add(k)
+            self._rev_wait.pop(k, None)
 
     def _broadcasts_unsettled(self, key: tuple) -> str | None:
         """Why a teammate's broadcast keyed before ``key`` may still be missing here, or None: lockstep waits for
@@ -182,6 +210,7 @@ class Broadcasting:
         """``body`` on this robot's broadcast key: with the link faults, or (a head: lockstep's, like progress) not."""
         key = robot_key(self.scope, self.robot, "broadcast")
         payload = self._env(body, key)
+        self.counts["broadcast_bytes" if isinstance(body, Broadcast) else "broadcast_head_bytes"] += len(payload)
         if self._bpub is None:
             self._bpub = self.session.declare_publisher(key, congestion_control=self._block)
             self._decl.append(self._bpub)
@@ -195,6 +224,7 @@ class Broadcasting:
         """``body`` to robot ``to``'s inbox (link faults apply)."""
         key = robot_key(self.scope, to, "inbox")
         payload = self._env(body, key)
+        self.counts["repair_bytes"] += len(payload)
         put, block = self.session.put, self._block
         self._faulty(lambda: put(key, payload, congestion_control=block))
 
@@ -278,6 +308,7 @@ class Broadcasting:
             del self._bkey[k]
         for k in [k for k in self._bsent if k[0] < cut]:
             del self._bsent[k]
+        self._revised = {k for k in self._revised if k[0] >= cut}
 
     def _ask_missing(self, now: float) -> None:
         """Ask each teammate again for its broadcasts missing longer than ``repair_wait`` s (retries spaced, then given

@@ -125,6 +125,8 @@ class Inbound:
         if isinstance(env.body, BroadcastRepair):
             self._on_repair(env.body)
             return
+        if self.broadcasts and isinstance(env.body, RdlState):
+            self._revision_came(env.body)
         self._step(env.body)
 
     def _step(self, item: Any, query: Any = None) -> None:
