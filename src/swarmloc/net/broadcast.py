@@ -97,6 +97,7 @@ class Broadcasting:
         self._bsent: dict[tuple, TeamUpdate] = {}  # the last update broadcast per exchange (stamp, sub)
         self._rev_wait: dict[tuple, float] = {}  # (stamp, sub, target): since when a revised answer is expected
         self._revised: set[tuple] = set()  # (stamp, sub, target): revised answers received
+        self._quiet: dict[float, float] = {}  # group stamp: wall time of its last broadcast or revised answer
         self._bflush = 0.0
         self._bhead: tuple[float, tuple] = (-1.0, ())  # (wall time, (count, t, prio)) of the last head announced
         self._heads: dict[int, tuple[int, float, int]] = {}  # per teammate: its latest head (count, t, prio)
@@ -108,6 +109,9 @@ class Broadcasting:
         delay = self.faults.delay if self.faults else 0.0
         self.repair_wait = delay + 0.05
         """[s] wall time a missing broadcast number waits (for a late copy) before it is asked for."""
+        self.settle = delay + 0.02
+        """[s] wall time a group of this node must be quiet (no broadcast of it, no revised answer for it) before its
+        head passes it."""
 
     # ------------------------------------------------------------------------------------------------ sending
     def _queue_broadcast(self, m: TeamUpdate) -> None:
@@ -165,6 +169,12 @@ class Broadcasting:
             out = min(out, (min(k[0] for k in self._bout), 1))
         if self._rev_wait:
             out = min(out, (min(k[0] for k in self._rev_wait), 1))
+        if self._quiet:  # a group whose broadcasts or revised answers came less than `settle` s ago
+            now = time.monotonic()
+            for t in [t for t, w in self._quiet.items() if now - w >= self.settle]:
+                del self._quiet[t]
+            if self._quiet:
+                out = min(out, (min(self._quiet), 1))
         k = bisect_left(self._group_at, self._i)
         if k < len(self._group_at):
             out = min(out, (self.items[self._group_at[k]][0], 1))
@@ -177,6 +187,11 @@ class Broadcasting:
         (or ``2 repair_wait + 0.2`` s passed: ``revision_not_received``) this node's head stays before the group, so
         that no teammate fuses or answers anything keyed after it on the first numbers."""
         t, sub = k
+        self._quiet[t] = now
+        for (t2, sub2), u in self._bsent.items():  # a (re-)broadcast of this exchange: the later ones' answers change
+            if t2 == t and sub2 > sub and not u.empty and u.target != self.robot:
+                self._revised.discard((t, sub2, u.target))
+                self._rev_wait[(t, sub2, u.target)] = now
         if m.empty or m.target == self.robot or (t, sub, m.target) in self._revised:
             return
         if any(kk[0] == t and kk[1] < sub and not u.empty for kk, u in self._bsent.items()):
@@ -188,6 +203,7 @@ class Broadcasting:
             k = (float(a.stamp), tuple(a.sub), a.sender)
             self._revised.add(k)
             self._rev_wait.pop(k, None)
+            self._quiet[k[0]] = time.monotonic()
 
     def _broadcasts_unsettled(self, key: tuple) -> str | None:
         """Why a teammate's broadcast keyed before ``key`` may still be missing here, or None: lockstep waits for
