@@ -290,7 +290,7 @@ def thread_team(
             s = open_session([eps[i]], [e for e in eps if e != eps[i]])
             sessions.append(s)
             ev = src.own_events(r)
-            node = make_node(est, r, src.initial[r], src.config, src.landmarks)
+            node = make_node(est, r, src.initial[r], src.config, src.landmarks, team=src.robots)
             if ledger:
                 node.ledger = Counter()
             node.start(min(e.t0 if isinstance(e, Odometry) else e.stamp for e in ev))
@@ -564,7 +564,7 @@ def test_cli_team_report_bag_and_ros_output(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize(
     ("est", "why"),
-    [("cekf", "not a distributed estimator"), ("nope", "unknown estimator"), ("diekf", "broadcast to every teammate")],
+    [("cekf", "not a distributed estimator"), ("nope", "unknown estimator")],
 )
 def test_team_refuses_a_non_distributed_estimator_before_starting_anything(est, why, capsys, tmp_path):
     from swarmloc.cli import main

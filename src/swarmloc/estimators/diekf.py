@@ -25,7 +25,8 @@ approximation of third-party correlations fails. The price is communication and 
 ``O(m^2)`` numbers to all ``n - 1`` teammates per fused detection, ``O(n^2)`` memory and flops per robot per
 update, and a connected all-to-all channel (a lost broadcast leaves replicas different). Gated detections are
 broadcast as empty updates, so that every teammate knows the exchange is settled and a replay that gates a
-detection retracts what it sent before. In-process runs only: the network driver does not carry broadcasts yet.
+detection retracts what it sent before. Over the network each update is one broadcast to the team, numbered per
+sender, lost ones repaired (:mod:`swarmloc.net.broadcast`).
 """
 
 from __future__ import annotations
@@ -76,7 +77,6 @@ class DistributedInvariantEKF(RecursiveDecentralized):
 
     name = "diekf"
     error_frame: ClassVar[str] = "world"
-    over_network: ClassVar[bool] = False
     update_types = (TeamUpdate,)
     lin_log: list | None = None
 

@@ -59,11 +59,19 @@ def distributed_class(estimator: str) -> type:
     return cls
 
 
-def make_node(estimator: str, robot: int, initial: Any, config: Config, landmarks: Any) -> Any:
-    """The node of ``robot`` for a distributed ``estimator`` with the options ``swarmloc evaluate`` uses."""
-    from swarmloc.estimators import node_options
+def make_node(
+    estimator: str, robot: int, initial: Any, config: Config, landmarks: Any, team: Sequence[int] = ()
+) -> Any:
+    """The node of ``robot`` for a distributed ``estimator`` with the options ``swarmloc evaluate`` uses; ``team``:
+    every robot id of the team, for an estimator that keeps the whole team's correlations (``diekf``; default:
+    ``robot`` alone)."""
+    from swarmloc.estimators import accepted_options, node_options
 
-    return distributed_class(estimator)(robot, initial, **node_options(estimator, config, landmarks))
+    cls = distributed_class(estimator)
+    options = node_options(estimator, config, landmarks)
+    if "team" in accepted_options(cls):
+        options["team"] = tuple(team) or (robot,)
+    return cls(robot, initial, **options)
 
 
 def resume_events(events: Sequence[Event], t: float) -> list[Event]:
@@ -184,7 +192,7 @@ def _start(
     else:
         stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
         t0 = min(stamps) if stamps else src.t_start
-    node = make_node(estimator, robot, initial, src.config, src.landmarks)
+    node = make_node(estimator, robot, initial, src.config, src.landmarks, team=src.robots)
     node.start(t0)
     return node, events, record_times
 

@@ -16,7 +16,17 @@ from typing import Any
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate
 from swarmloc.net.auth import note_refusal, open_envelope
 from swarmloc.net.outbound import close, key_of, reply_err
-from swarmloc.net.schema import SERVER, Belief, Envelope, Progress, Rejected, Report
+from swarmloc.net.schema import (
+    SERVER,
+    Belief,
+    Broadcast,
+    BroadcastHead,
+    BroadcastRepair,
+    Envelope,
+    Progress,
+    Rejected,
+    Report,
+)
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
@@ -39,7 +49,7 @@ class Inbound:
         except queue.Empty:
             item = None
         while item is not None and not self._stop.is_set():
-            got = got or item[0] in ("query", "inbox", "reply", "reply_end")
+            got = got or item[0] in ("query", "inbox", "reply", "reply_end", "broadcast")
             if item[0] != "wake":
                 try:
                     self._handle(*item)
@@ -69,6 +79,8 @@ class Inbound:
             self._on_progress(x)
         elif kind == "alive":
             self._on_alive(x)
+        elif kind == "broadcast":
+            self._on_broadcast_sample(x)
 
     def _on_query(self, x: Any) -> None:
         """A neighbour's query: held until the node may answer it (:meth:`_answer_ready`); anything else sent as a
@@ -97,7 +109,9 @@ class Inbound:
         env = self._decode(x.payload.to_bytes(), "pushed message", key_of(x))
         if env is None:
             return
-        if isinstance(env.body, BeliefQuery | RdlStateQuery | Belief | Progress | Report):
+        if isinstance(env.body, BeliefQuery | RdlStateQuery | Belief | Progress | Report | BroadcastHead) or (
+            isinstance(env.body, Broadcast) and env.body.to != self.robot
+        ):
             self._reject(f"{type(env.body).__name__} is not accepted on the inbox", "pushed message")
             return
         if isinstance(env.body, RdlUpdate):
@@ -105,6 +119,14 @@ class Inbound:
             self._step(env.body)
             self._release()
             return
+        if isinstance(env.body, Broadcast):  # a repair of a teammate's broadcast (:mod:`swarmloc.net.broadcast`)
+            self._on_broadcast(env.body)
+            return
+        if isinstance(env.body, BroadcastRepair):
+            self._on_repair(env.body)
+            return
+        if self.broadcasts and isinstance(env.body, RdlState):
+            self._revision_came(env.body)
         self._step(env.body)
 
     def _step(self, item: Any, query: Any = None) -> None:

@@ -145,7 +145,7 @@ class Lockstep:
         expected, so that groups are applied across the team in key order, as the in-process runner does, and an
         update never has to be replayed under a group applied before it."""
         key = (s, 1, self.robot, ())
-        if any(k < key for k in self._expect):
+        if any(k < key for k in self._expect) or self._broadcasts_unsettled(key) is not None:
             return False
         return all(r in self._done or (*self._progress_key.get(r, (-math.inf, 0)), r) > key[:3] for r in self._alive)
 
@@ -175,6 +175,9 @@ class Lockstep:
         early = [k for k in self._expect if k < qkey]
         if early:
             return f"expects updates at {early[:3]}"
+        why = self._broadcasts_unsettled(qkey)
+        if why is not None:
+            return why
         for r in self._alive:  # a teammate whose next input is keyed before the query may still start an exchange
             if r not in self._done:
                 t, prio = self._progress_key.get(r, (-math.inf, 0))

@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery
+from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate
 from swarmloc.net.auth import seal
 from swarmloc.net.schema import encode
 from swarmloc.net.transport import robot_key, server_key
@@ -102,6 +102,8 @@ class Outbound:
                     self._expect[(float(m.stamp), 1, m.receiver, tuple(m.sub))] = time.monotonic()
                 answer = lambda q=q, payload=payload: q.reply(q.key_expr, payload)  # noqa: E731
                 self._faulty(answer, finish=lambda q=q: close(q))
+            elif isinstance(m, TeamUpdate):  # a teammate's copy of a broadcast (:mod:`swarmloc.net.broadcast`)
+                self._queue_broadcast(m)
             elif m.receiver in self.roster:
                 # pushed revisions and updates are coalesced: the newest per exchange goes out with the next flush
                 k = (type(m).__name__, m.receiver, m.stamp, m.sub)
@@ -116,7 +118,8 @@ class Outbound:
     def _flush(self, force: bool = False) -> None:
         """Send the pushed messages waiting in the outbox: at once without faults (a revision or update is final
         then), at most every ``coalesce`` s otherwise, so that a burst of revisions of one exchange (late and lost
-        messages make them) costs the neighbour one replay instead of one per revision."""
+        messages make them) costs the neighbour one replay instead of one per revision. Broadcasts likewise."""
+        self._flush_broadcasts(force)
         if not self._outbox:
             return
         now = time.monotonic()

@@ -57,7 +57,9 @@ from typing import Any
 import numpy as np
 
 from swarmloc.events import Detection, Event, Odometry
+from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import Auth
+from swarmloc.net.broadcast import Broadcasting
 from swarmloc.net.faults import Faults
 from swarmloc.net.inbound import Inbound
 from swarmloc.net.lockstep import Lockstep
@@ -85,7 +87,7 @@ def _groups(events: Sequence[Event]) -> list[tuple[float, Any]]:
     return out
 
 
-class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
+class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
     """Drive ``node`` (owning one robot) over ``session`` with ``events`` (that robot's own, in stamp order).
 
     Parameters
@@ -187,6 +189,9 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
         self._init_lockstep()
         self._init_outbound()
         self._init_publishing()
+        self.broadcasts = TeamUpdate in node.update_types
+        """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
+        self._init_broadcast()
 
     def stop(self) -> None:
         """Ask :meth:`run` to finish (from another thread or a signal handler)."""
@@ -286,7 +291,10 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing):
                      {k: v for k, v in self.node.stats().items() if v}, dict(self.counts))  # fmt: skip
 
     def _idle(self) -> bool:
-        return not (self._outstanding or self._timers or self._deferred or self._expect or self._held or self._outbox)
+        return not (
+            self._outstanding or self._timers or self._deferred or self._expect or self._held or self._outbox
+            or self._broadcast_busy()
+        )  # fmt: skip
 
     def _finish(self, deadline: float) -> None:
         """Wait for the team to finish its sources (a teammate that stops progressing is lost after ``lost_timeout``

@@ -4,7 +4,8 @@ An envelope names the schema version ``v``, the team, the sending robot (``from_
 server or the team launcher), a per-sender sequence number ``seq`` (increasing over the sender's life), and a
 ``body``: one of the neighbour-exchange messages of :mod:`swarmloc.messages` (queries, answers, pairwise
 updates: robot ids, key stamp and sub-key, revision, mean and covariance or the estimator's payload) or one of
-the runtime messages below (a published :class:`Belief`, lockstep :class:`Progress`, a final :class:`Report`).
+the runtime messages below (a published :class:`Belief`, lockstep :class:`Progress`, a final :class:`Report`, and a
+team estimator's :class:`Broadcast` with its :class:`BroadcastHead` and :class:`BroadcastRepair`).
 
 :func:`decode` checks a received payload before anything reaches a node and says what is wrong: not MessagePack
 or not the schema (with msgspec's path to the bad field), another schema version or team, a sender outside the
@@ -27,7 +28,7 @@ from collections.abc import Container
 
 import msgspec
 
-from swarmloc.messages import AnyMessage, Floats, message_problem
+from swarmloc.messages import AnyMessage, Floats, TeamUpdate, message_problem
 
 SCHEMA_VERSION = 1
 SERVER = -1
@@ -70,7 +71,50 @@ class Report(msgspec.Struct, frozen=True, kw_only=True, tag="report"):
     cpu_s: float = 0.0
 
 
-Body = AnyMessage | Belief | Progress | Report
+MAX_BROADCAST_N = 1 << 62
+"""Bound on a broadcast number (numbers count a sender's broadcasts over its life, from 0)."""
+MAX_REPAIR = 256
+"""The most broadcast numbers one :class:`BroadcastRepair` asks for."""
+ALL = -1
+"""``Broadcast.to`` of a broadcast published to the whole team (a repair names its one receiver)."""
+
+
+class Broadcast(msgspec.Struct, frozen=True, kw_only=True, tag="broadcast"):
+    """One update of a team estimator (``diekf``) for every teammate: ``robot``'s broadcast number ``n`` (0, 1, 2, ...
+    over its life, one per broadcast: a receiver that sees a gap asks for the missing ones), published on
+    ``robot/<robot>/broadcast`` (``to = -1``) or sent again to one teammate's inbox (``to``: a repair). ``update``:
+    the :class:`~swarmloc.messages.TeamUpdate` with ``receiver = -1`` (each receiver reads it as addressed to
+    itself); None in a repair: the sender no longer keeps broadcast ``n`` (it is beyond its buffer)."""
+
+    robot: int
+    n: int
+    to: int = ALL
+    update: TeamUpdate | None = None
+
+
+class BroadcastHead(msgspec.Struct, frozen=True, kw_only=True, tag="broadcast_head"):
+    """``robot`` has published broadcasts ``0 .. n - 1``, and every update it will broadcast for an exchange keyed
+    before ``(t, prio, robot)`` is among them (announced on its broadcast key whenever that changes: a teammate
+    waits for them before it fuses or answers anything keyed later, and sees the last ones missing if they were
+    lost)."""
+
+    robot: int
+    n: int
+    t: float = math.inf
+    prio: int = 0
+
+
+class BroadcastRepair(msgspec.Struct, frozen=True, kw_only=True, tag="broadcast_repair"):
+    """``sender`` asks ``receiver`` (on its inbox) for its broadcasts ``first .. last`` again (at most
+    :data:`MAX_REPAIR`)."""
+
+    sender: int
+    receiver: int
+    first: int
+    last: int
+
+
+Body = AnyMessage | Belief | Progress | Report | Broadcast | BroadcastHead | BroadcastRepair
 
 
 class Envelope(msgspec.Struct, frozen=True, kw_only=True):
@@ -116,12 +160,31 @@ def body_problem(b: Body) -> str | None:
         return None if not math.isnan(b.t) else "progress: NaN time"
     if isinstance(b, Report):
         return None
+    if isinstance(b, Broadcast):
+        if not 0 <= b.n < MAX_BROADCAST_N:
+            return f"broadcast: number {b.n} outside [0, 2^62)"
+        if b.update is None:
+            return None if b.to != ALL else "broadcast: no update (only a repair may say a broadcast is gone)"
+        u = b.update
+        if u.sender != b.robot or u.receiver != ALL:
+            return "broadcast: its update must be from the broadcasting robot to the team (receiver -1)"
+        return message_problem(u)
+    if isinstance(b, BroadcastHead):
+        if math.isnan(b.t):
+            return "broadcast head: NaN time"
+        return None if 0 <= b.n < MAX_BROADCAST_N else f"broadcast head: count {b.n} outside [0, 2^62)"
+    if isinstance(b, BroadcastRepair):
+        if not 0 <= b.first <= b.last < MAX_BROADCAST_N:
+            return f"broadcast repair: numbers {b.first}..{b.last} are not an interval in [0, 2^62)"
+        if b.last - b.first >= MAX_REPAIR:
+            return f"broadcast repair: at most {MAX_REPAIR} numbers at once, asked {b.last - b.first + 1}"
+        return None
     return message_problem(b)
 
 
 def sender_of(b: Body) -> int:
     """The robot a body speaks for."""
-    return b.robot if isinstance(b, Belief | Progress | Report) else b.sender
+    return b.robot if isinstance(b, Belief | Progress | Report | Broadcast | BroadcastHead) else b.sender
 
 
 def decode(
@@ -149,7 +212,12 @@ def decode(
         raise Rejected(f"robot {env.from_robot} sent a message in the name of robot {sender_of(b)}")
     if env.from_robot == SERVER and sender_of(b) not in roster:
         raise Rejected(f"server message about robot {sender_of(b)}, outside the team's roster")
-    if to_robot is not None and not isinstance(b, Belief | Progress | Report):
+    if to_robot is not None and isinstance(b, Broadcast):
+        if b.to not in (ALL, to_robot):
+            raise Rejected(f"broadcast repair addressed to robot {b.to}, received by robot {to_robot}")
+        if b.robot == to_robot:
+            raise Rejected(f"broadcast of robot {b.robot} received by itself")
+    elif to_robot is not None and not isinstance(b, Belief | Progress | Report | BroadcastHead):
         if b.receiver != to_robot:
             raise Rejected(f"{type(b).__name__} addressed to robot {b.receiver}, received by robot {to_robot}")
         if b.sender == b.receiver:

@@ -41,6 +41,14 @@ class Wiring:
         self._decl.append(
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
         )
+        if self.broadcasts:  # the teammates' broadcasts (a team estimator: :mod:`swarmloc.net.broadcast`)
+            self._decl.append(
+                s.declare_subscriber(
+                    robot_key(team, "*", "broadcast"),
+                    handler=lambda x: put(("broadcast", x)),
+                    allowed_origin=zenoh.Locality.REMOTE,
+                )  # fmt: skip
+            )
         self._pub_belief = s.declare_publisher(robot_key(team, r, "belief"), congestion_control=self._block)
         self._pub_progress = s.declare_publisher(robot_key(team, r, "progress"), congestion_control=self._block)
         if self.ros_domain is not None:

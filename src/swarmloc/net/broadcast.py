@@ -1,0 +1,357 @@
+"""A team estimator's broadcasts (``diekf``): all-to-all, numbered per sender, with repair of lost ones.
+
+In-process, a ``diekf`` node returns one :class:`~swarmloc.messages.TeamUpdate` per teammate for each update (the
+same numbers, one ``receiver`` each) and the runner hands each teammate its copy. Over the network the driver sends
+them once: the copies of one exchange (its key ``(stamp, sub)``) become one :class:`~swarmloc.net.schema.Broadcast`
+published on ``robot/<id>/broadcast`` with the sender's next **broadcast number** ``n`` (0, 1, 2, ...; a revision of
+an exchange is a new broadcast with a new number), and every teammate steps its node with that update addressed to
+itself: the very message the in-process runner would have delivered.
+
+**Receipt.** A broadcast is signed and checked like every other message, as a *publication*: only robot ``id`` may
+publish on ``robot/<id>/broadcast`` (:func:`~swarmloc.net.auth.open_envelope` with ``publication=True``; a signed
+frame replayed is refused by its signature's sequence number). Then, per sender: a number already received is a
+duplicate (link faults), counted ``broadcast_duplicates`` and not applied again; an update older than one already
+applied for the same exchange (a revision that overtook it) is counted ``broadcast_stale`` and dropped; anything
+else is applied (``broadcasts_applied``). Every broadcast received is counted ``broadcasts_received``.
+
+**Repair.** A receiver knows each sender's numbers received and the highest one it has heard of (from a broadcast
+or from the :class:`~swarmloc.net.schema.BroadcastHead` each sender announces now and then, so that the last ones
+lost are seen missing too). A number missing for ``repair_wait`` s (the link's delay, plus 50 ms) is asked again
+of its sender with a :class:`~swarmloc.net.schema.BroadcastRepair` on the sender's inbox (``repair_requests``),
+again every ``2 repair_wait + 0.2`` s, ``REPAIR_TRIES`` times at most. The sender keeps its last ``BUFFER``
+broadcasts and sends the ones asked for to the asker's inbox (``repairs_sent``); one it no longer keeps is
+answered *gone* (a ``Broadcast`` without update). A number that arrives after it was asked for is counted
+``broadcasts_repaired``.
+
+**Beyond repair** (gone, or not answered after ``REPAIR_TRIES`` requests; counted ``broadcasts_given_up``). The
+buffer holds far more broadcasts than one history horizon sees (a robot broadcasts a few per second; measured in
+``benchmarks/diekf_traffic.py``), so a broadcast beyond it is also beyond the node's horizon, where no input can be
+applied any more; and a receiver that misses an update of another robot keeps a consistent belief of its own: its
+error is the one before that update, whose covariance it still holds (an update it never saw leaves its own pose
+and covariance uncorrected, not overconfident). What it loses is replica agreement on the cross-covariances
+(``docs/network.md``): the count says how often that happened.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from bisect import bisect_left
+from collections import OrderedDict
+from typing import Any
+
+import msgspec
+
+from swarmloc.messages import TeamUpdate
+from swarmloc.net.auth import open_envelope
+from swarmloc.net.schema import ALL, MAX_REPAIR, Broadcast, BroadcastHead, BroadcastRepair, Rejected
+from swarmloc.net.transport import robot_key
+from swarmloc.node.protocol import same
+
+log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
+
+BUFFER = 4096
+"""Broadcasts a sender keeps to answer repair requests (its latest)."""
+REPAIR_TRIES = 8
+"""Requests for one missing broadcast before it is given up."""
+HEAD_EVERY = 1.0
+"""[s] wall time between two announcements of a sender's head when it does not change (announced at once when it
+does)."""
+
+
+class _Peer:
+    """What a receiver knows of one sender's broadcasts: numbers below ``low`` all received or given up, those above
+    it received (``got``), the highest number heard of (``top``) and the missing ones asked for (``asked``: number ->
+    (first seen missing, requests sent, last request) wall times and count)."""
+
+    def __init__(self) -> None:
+        self.low = 0
+        self.got: set[int] = set()
+        self.top = -1
+        self.missing_since: dict[int, float] = {}
+        self.asked: dict[int, tuple[int, float]] = {}
+
+    def has(self, n: int) -> bool:
+        return n < self.low or n in self.got
+
+    def mark(self, n: int) -> None:
+        self.got.add(n)
+        self.missing_since.pop(n, None)
+        self.asked.pop(n, None)
+        while self.low in self.got:
+            self.got.discard(self.low)
+            self.low += 1
+
+    def missing(self) -> list[int]:
+        return [n for n in range(self.low, self.top + 1) if n not in self.got]
+
+
+class Broadcasting:
+    """Part of :class:`~swarmloc.net.process.NetNode`: a team estimator's broadcasts (module docstring)."""
+
+    def _init_broadcast(self) -> None:
+        self._bn = 0  # this node's next broadcast number
+        self._bbuf: OrderedDict[int, Broadcast] = OrderedDict()  # its latest broadcasts, by number
+        self._bout: dict[tuple, TeamUpdate] = {}  # updates to broadcast with the next flush, the newest per exchange
+        self._bsent: dict[tuple, TeamUpdate] = {}  # the last update broadcast per exchange (stamp, sub)
+        self._rev_wait: dict[tuple, float] = {}  # (stamp, sub, target): since when a revised answer is expected
+        self._revised: set[tuple] = set()  # (stamp, sub, target): revised answers received
+        self._quiet: dict[float, float] = {}  # group stamp: wall time of its last broadcast or revised answer
+        self._bflush = 0.0
+        self._bhead: tuple[float, tuple] = (-1.0, ())  # (wall time, (count, t, prio)) of the last head announced
+        self._heads: dict[int, tuple[int, float, int]] = {}  # per teammate: its latest head (count, t, prio)
+        self._group_at = [k for k, (_, item) in enumerate(self.items) if isinstance(item, list)]
+        self._peers: dict[int, _Peer] = {}
+        self._bkey: dict[tuple, int] = {}  # (sender, stamp, sub): the number of the update applied for the exchange
+        self._bkey_pruned = 0.0
+        self._bpub: Any = None
+        delay = self.faults.delay if self.faults else 0.0
+        self.repair_wait = delay + 0.05
+        """[s] wall time a missing broadcast number waits (for a late copy) before it is asked for."""
+        self.settle = delay + 0.02
+        """[s] wall time a group of this node must be quiet (no broadcast of it, no revised answer for it) before its
+        head passes it."""
+
+    # ------------------------------------------------------------------------------------------------ sending
+    def _queue_broadcast(self, m: TeamUpdate) -> None:
+        """A teammate's copy of an update the node returned: one broadcast per exchange goes out with the next flush."""
+        k = (float(m.stamp), tuple(m.sub))
+        old = self._bout.get(k)
+        if old is not None and old.receiver != m.receiver:
+            return  # another teammate's copy of the same update
+        if old is not None:
+            self.counts["coalesced"] += 1
+        self._bout[k] = m
+
+    def _flush_broadcasts(self, force: bool = False) -> None:
+        """Publish the queued broadcasts (at once without faults, at most every ``coalesce`` s with them), announce
+        the count now and then, and ask for the missing ones of the teammates."""
+        now = time.monotonic()
+        if self._bout and (force or self.link is None or now - self._bflush >= self.coalesce):
+            self._bflush = now
+            out, self._bout = self._bout, {}
+            for k, m in sorted(out.items()):
+                m = msgspec.structs.replace(m, receiver=ALL)
+                if same(self._bsent.get(k), m):  # a replay that changed only the last bits: nothing to send
+                    self.counts["broadcasts_unchanged"] += 1
+                    continue
+                self._bsent[k] = m
+                self._expect_revision(k, m, now)
+                b = Broadcast(robot=self.robot, n=self._bn, update=m)
+                self._bn += 1
+                self._bbuf[b.n] = b
+                if len(self._bbuf) > BUFFER:
+                    self._bbuf.popitem(last=False)
+                self.counts["broadcasts_sent"] += 1
+                self._publish_b(b)
+        for k, since in list(self._rev_wait.items()):
+            if now - since > 2 * self.repair_wait + 0.2:
+                del self._rev_wait[k]
+                self.counts["revision_not_received"] += 1
+        head = (self._bn, *self._settled())
+        if head != self._bhead[1] or now - self._bhead[0] >= HEAD_EVERY:
+            self._bhead = (now, head)
+            self.counts["broadcast_heads_sent"] += 1
+            self._publish_b(BroadcastHead(robot=self.robot, n=head[0], t=head[1], prio=head[2]), faults=False)
+        if self._peers:
+            self._ask_missing(now)
+
+    def _settled(self) -> tuple[float, int]:
+        """``(t, prio)``: every update this node will broadcast for an exchange keyed before ``(t, prio, robot)`` is
+        published (its next detection group, its oldest group waiting for answers, and the updates not flushed yet
+        are not)."""
+        out = (math.inf, 0)
+        first = self.node.first_pending
+        if first is not None:
+            out = min(out, (first[0], first[1]))
+        if self._bout:
+            out = min(out, (min(k[0] for k in self._bout), 1))
+        if self._rev_wait:
+            out = min(out, (min(k[0] for k in self._rev_wait), 1))
+        if self._quiet:  # a group whose broadcasts or revised answers came less than `settle` s ago
+            now = time.monotonic()
+            for t in [t for t, w in self._quiet.items() if now - w >= self.settle]:
+                del self._quiet[t]
+            if self._quiet:
+                out = min(out, (min(self._quiet), 1))
+        k = bisect_left(self._group_at, self._i)
+        if k < len(self._group_at):
+            out = min(out, (self.items[self._group_at[k]][0], 1))
+        return out
+
+    def _expect_revision(self, k: tuple, m: TeamUpdate, now: float) -> None:
+        """A group's answers are given from the state before each detection of it, so a target's answer to a later
+        detection does not yet include the group's earlier updates: once they reach it, the target revises that answer
+        (as in-process), the group is fused again and the later update broadcast again. Until that revision came
+        (or ``2 repair_wait + 0.2`` s passed: ``revision_not_received``) this node's head stays before the group, so
+        that no teammate fuses or answers anything keyed after it on the first numbers."""
+        t, sub = k
+        self._quiet[t] = now
+        for (t2, sub2), u in self._bsent.items():  # a (re-)broadcast of this exchange: the later ones' answers change
+            if t2 == t and sub2 > sub and not u.empty and u.target != self.robot:
+                self._revised.discard((t, sub2, u.target))
+                self._rev_wait[(t, sub2, u.target)] = now
+        if m.empty or m.target == self.robot or (t, sub, m.target) in self._revised:
+            return
+        if any(kk[0] == t and kk[1] < sub and not u.empty for kk, u in self._bsent.items()):
+            self._rev_wait.setdefault((t, sub, m.target), now)
+
+    def _revision_came(self, a: Any) -> None:
+        """A revised answer to one of this node's queries (pushed to its inbox)."""
+        if a.seq >= 1:
+            k = (float(a.stamp), tuple(a.sub), a.sender)
+            self._revised.add(k)
+            self._rev_wait.pop(k, None)
+            self._quiet[k[0]] = time.monotonic()
+
+    def _broadcasts_unsettled(self, key: tuple) -> str | None:
+        """Why a teammate's broadcast keyed before ``key`` may still be missing here, or None: lockstep waits for
+        them before this node fuses a group or answers a query keyed ``key`` (:mod:`swarmloc.net.lockstep`)."""
+        if not self.broadcasts:
+            return None
+        for r in self._alive:
+            h = self._heads.get(r)
+            if h is None:
+                return f"no broadcast head from robot {r} yet"
+            n, t, prio = h
+            if (t, prio, r) < key[:3]:
+                return f"robot {r} may still broadcast updates keyed from {(t, prio)}"
+            p = self._peers.get(r)
+            if n > (p.low if p is not None else 0):
+                return f"robot {r}'s broadcasts below {n} not all here"
+        return None
+
+    def _publish_b(self, body: Any, faults: bool = True) -> None:
+        """``body`` on this robot's broadcast key: with the link faults, or (a head: lockstep's, like progress) not."""
+        key = robot_key(self.scope, self.robot, "broadcast")
+        payload = self._env(body, key)
+        self.counts["broadcast_bytes" if isinstance(body, Broadcast) else "broadcast_head_bytes"] += len(payload)
+        if self._bpub is None:
+            self._bpub = self.session.declare_publisher(key, congestion_control=self._block)
+            self._decl.append(self._bpub)
+        pub = self._bpub
+        if not faults:
+            pub.put(payload)
+            return
+        self._faulty(lambda: pub.put(payload))
+
+    def _push(self, body: Any, to: int) -> None:
+        """``body`` to robot ``to``'s inbox (link faults apply)."""
+        key = robot_key(self.scope, to, "inbox")
+        payload = self._env(body, key)
+        self.counts["repair_bytes"] += len(payload)
+        put, block = self.session.put, self._block
+        self._faulty(lambda: put(key, payload, congestion_control=block))
+
+    def _on_repair(self, r: BroadcastRepair) -> None:
+        """A teammate asks again for some of this node's broadcasts: the ones kept, or "gone"."""
+        self.counts["repair_requests_received"] += 1
+        for n in range(r.first, min(r.last, self._bn - 1) + 1):
+            b = self._bbuf.get(n)
+            if b is None:
+                self.counts["repairs_gone"] += 1
+                self._push(Broadcast(robot=self.robot, n=n, to=r.sender), r.sender)
+            else:
+                self.counts["repairs_sent"] += 1
+                self._push(msgspec.structs.replace(b, to=r.sender), r.sender)
+
+    # ------------------------------------------------------------------------------------------------ receiving
+    def _on_broadcast_sample(self, x: Any) -> None:
+        """A sample on a teammate's broadcast key: a broadcast or its head, published by that teammate only."""
+        from swarmloc.net.outbound import key_of
+
+        self.counts["received"] += 1
+        try:
+            env = open_envelope(self.auth, key_of(x), x.payload.to_bytes(), self.team, self.roster,
+                                to_robot=self.robot, server_ok=False, publication=True)  # fmt: skip
+        except Rejected as exc:
+            self._refuse(exc, "broadcast")
+            return
+        b = env.body
+        if isinstance(b, BroadcastHead):
+            self._heads[b.robot] = max(self._heads.get(b.robot, (-1, -math.inf, 0)), (b.n, b.t, b.prio))
+            self._heard_of(b.robot, b.n - 1)
+        elif isinstance(b, Broadcast) and b.to == ALL:
+            self._on_broadcast(b)
+        else:
+            self._reject(f"{type(b).__name__} is not accepted on a broadcast key", "broadcast")
+
+    def _heard_of(self, robot: int, top: int) -> None:
+        p = self._peers.setdefault(robot, _Peer())
+        if top > p.top:
+            now = time.monotonic()
+            for n in range(max(p.top + 1, p.low), top + 1):
+                if n not in p.got:
+                    p.missing_since.setdefault(n, now)
+            p.top = top
+
+    def _on_broadcast(self, b: Broadcast) -> None:
+        """A teammate's broadcast (published, or sent again on request): applied once, unless overtaken."""
+        self.counts["broadcasts_received"] += 1
+        p = self._peers.setdefault(b.robot, _Peer())
+        if p.has(b.n):
+            self.counts["broadcast_duplicates"] += 1
+            return
+        self._heard_of(b.robot, b.n)
+        if b.n in p.asked:
+            self.counts["broadcasts_repaired"] += 1
+        p.mark(b.n)
+        if b.update is None:
+            self.counts["broadcasts_given_up"] += 1
+            log.warning("robot %s: robot %s no longer keeps its broadcast %d: given up", self.robot, b.robot, b.n)
+            return
+        u = b.update
+        k = (b.robot, float(u.stamp), tuple(u.sub))
+        if self._bkey.get(k, -1) > b.n:
+            self.counts["broadcast_stale"] += 1
+            return
+        self._bkey[k] = b.n
+        self.counts["broadcasts_applied"] += 1
+        expected = self._expect.pop((float(u.stamp), 1, b.robot, tuple(u.sub)), None) is not None
+        self._step(msgspec.structs.replace(u, receiver=self.robot))
+        if expected:  # this node answered the observer's query: what waited for its update may go on
+            self._release()
+        self._prune_bkeys()
+
+    def _prune_bkeys(self) -> None:
+        present = self.node.present
+        if present - self._bkey_pruned < self.node.horizon:
+            return
+        self._bkey_pruned = present
+        cut = present - 2 * self.node.horizon
+        for k in [k for k in self._bkey if k[1] < cut]:
+            del self._bkey[k]
+        for k in [k for k in self._bsent if k[0] < cut]:
+            del self._bsent[k]
+        self._revised = {k for k in self._revised if k[0] >= cut}
+
+    def _ask_missing(self, now: float) -> None:
+        """Ask each teammate again for its broadcasts missing longer than ``repair_wait`` s (retries spaced, then given
+        up)."""
+        retry = 2 * self.repair_wait + 0.2
+        for r, p in self._peers.items():
+            due: list[int] = []
+            for n, since in list(p.missing_since.items()):
+                tries, last = p.asked.get(n, (0, since))
+                if now - (since if tries == 0 else last) < (self.repair_wait if tries == 0 else retry):
+                    continue
+                if tries >= REPAIR_TRIES:
+                    self.counts["broadcasts_given_up"] += 1
+                    log.warning("robot %s: robot %s's broadcast %d not repaired after %d requests: given up",
+                                self.robot, r, n, tries)  # fmt: skip
+                    p.mark(n)
+                    continue
+                p.asked[n] = (tries + 1, now)
+                due.append(n)
+            due.sort()
+            while due:
+                first = due[0]
+                run = [n for n in due if n - first < MAX_REPAIR]
+                due = due[len(run) :]
+                self.counts["repair_requests"] += 1
+                self._push(BroadcastRepair(sender=self.robot, receiver=r, first=first, last=run[-1]), r)
+
+    def _broadcast_busy(self) -> bool:
+        """Broadcasts still to send, or teammates' broadcasts still missing."""
+        return bool(self._bout) or any(p.missing_since for p in self._peers.values())

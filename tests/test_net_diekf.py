@@ -1,0 +1,235 @@
+"""``diekf`` over the network: its updates broadcast to the whole team, numbered per sender, lost ones repaired
+(:mod:`swarmloc.net.broadcast`).
+
+Offline (a :class:`NetNode` on a recording session, no network): numbering, duplicates applied once, an update
+overtaken by a newer revision of its exchange dropped, gaps asked for, the buffer answering repairs (or "gone"),
+the schema's bounds, and signatures (a broadcast on another robot's key, a replayed frame). Live (127.0.0.1 only):
+a team of three processes equals the in-process run to 1e-6; under link faults nothing is fused twice and lost
+broadcasts are repaired.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+
+import msgspec
+import numpy as np
+import pytest
+from test_net import _Payload, _Session, leftovers, max_diff, reference, thread_team
+
+from swarmloc.experiments.sources import load_source
+from swarmloc.experiments.team import run_team, team_result
+from swarmloc.messages import TeamUpdate, flat
+from swarmloc.net import broadcast as bc
+from swarmloc.net.auth import TeamKeys, seal
+from swarmloc.net.entry import distributed_class, make_node
+from swarmloc.net.faults import parse_faults
+from swarmloc.net.process import NetNode
+from swarmloc.net.schema import Broadcast, BroadcastHead, BroadcastRepair, Rejected, decode, encode
+from swarmloc.net.transport import robot_key
+
+COV = flat(np.diag([0.01, 0.01, 0.001]))
+
+
+class _Sample:
+    def __init__(self, raw: bytes, key: str = "") -> None:
+        self.payload = _Payload(raw)
+        self.key_expr = key
+
+
+class _Pub:
+    def __init__(self, sess: _BSession, key: str) -> None:
+        self.sess, self.key = sess, key
+
+    def put(self, payload: bytes, **kw) -> None:
+        self.sess.published.append((self.key, payload))
+
+    def undeclare(self) -> None:
+        pass
+
+
+class _BSession(_Session):
+    """A recording session that also declares publishers (broadcasts) and keeps what is pushed."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.published: list[tuple[str, bytes]] = []
+        self.pushed: list[tuple[str, bytes]] = []
+
+    def declare_publisher(self, key, **kw) -> _Pub:
+        return _Pub(self, key)
+
+    def put(self, key, payload, **kw) -> None:
+        super().put(key, payload)
+        self.pushed.append((key, payload))
+
+
+def offline_diekf(robot: int = 0, **kw) -> tuple[NetNode, object]:
+    src = load_source("sim:random", robots=3, duration=4.0, seed=0)
+    node = make_node("diekf", robot, src.initial[robot], src.config, src.landmarks, team=src.robots)
+    node.start(src.t_start)
+    net = NetNode(node, src.own_events(robot), session=_BSession(), team="t", roster=src.robots,
+                  record_times=src.record_times(), **kw)  # fmt: skip
+    return net, src
+
+
+def update(sender: int, t: float, sub: float = 0.0, nu: float = 0.1) -> TeamUpdate:
+    """A landmark update of ``sender`` (``target = sender``, ``H_j = 0``), as it travels: to the team."""
+    Hi = flat(np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+    return TeamUpdate(sender=sender, receiver=-1, stamp=t, sub=(sub,), target=sender, m=2, Hi=Hi,
+                      Hj=(0.0,) * 6, Sinv=flat(np.eye(2)), nu=(nu, 0.0), Pii=COV, Pjj=COV)  # fmt: skip
+
+
+def bsample(b, seq: int = 0) -> _Sample:
+    return _Sample(encode("t", b.robot, seq, b))
+
+
+def test_diekf_is_a_networked_estimator():
+    assert distributed_class("diekf").name == "diekf"
+    net, src = offline_diekf()
+    assert net.broadcasts and net.node.team == tuple(src.robots)
+
+
+def test_broadcasts_are_applied_once_in_number_order_and_gaps_are_asked_for():
+    net, src = offline_diekf(robot=0)
+    t = src.t_start + 0.5
+    net._handle("broadcast", bsample(Broadcast(robot=1, n=0, update=update(1, t))))
+    net._handle("broadcast", bsample(Broadcast(robot=1, n=0, update=update(1, t)), seq=1))  # a duplicate copy
+    assert net.counts["broadcasts_applied"] == 1 and net.counts["broadcast_duplicates"] == 1
+    assert net.node.counts["messages"] == 1  # the node saw it once
+    # number 2 comes before 1: applied; 1 is missing and asked for once it has waited repair_wait s
+    net._handle("broadcast", bsample(Broadcast(robot=1, n=2, update=update(1, t + 0.1, nu=0.2)), seq=2))
+    assert net._peers[1].missing() == [1] and net._broadcast_busy()
+    net._ask_missing(net._peers[1].missing_since[1] + net.repair_wait / 2)
+    assert net.counts["repair_requests"] == 0  # too early: a late copy may still come
+    net._ask_missing(net._peers[1].missing_since[1] + net.repair_wait + 1e-3)
+    assert net.counts["repair_requests"] == 1
+    key, raw = net.session.pushed[-1]
+    assert key == robot_key("t", 1, "inbox")
+    assert decode(raw, "t", src.robots, to_robot=1).body == BroadcastRepair(sender=0, receiver=1, first=1, last=1)
+    # the repair of number 1 comes on the inbox: an older revision of the exchange that number 2 revised
+    old = Broadcast(robot=1, n=1, to=0, update=update(1, t + 0.1, nu=0.3))
+    net._handle("inbox", bsample(old, seq=3))
+    assert net.counts["broadcasts_repaired"] == 1 and net.counts["broadcast_stale"] == 1
+    assert not net._broadcast_busy() and net._peers[1].low == 3
+    assert net.counts["broadcasts_received"] == 4 and net.counts["received"] == 4  # every one counted
+    assert net.node.counts["messages"] == 2  # n = 0 and 2, each once; the stale revision never reached the node
+
+
+def test_a_head_reveals_the_last_broadcasts_lost_and_holds_what_is_keyed_after_them():
+    net, src = offline_diekf(robot=0)
+    net._alive |= {1, 2}
+    key = (src.t_start + 1.0, 1, 0)
+    assert "no broadcast head from robot 1" in net._broadcasts_unsettled(key)
+    net._handle("broadcast", bsample(BroadcastHead(robot=1, n=0, t=src.t_start + 0.5, prio=1)))
+    net._handle("broadcast", bsample(BroadcastHead(robot=2, n=0, t=src.t_start + 2.0, prio=1)))
+    assert "robot 1 may still broadcast" in net._broadcasts_unsettled(key)
+    net._handle("broadcast", bsample(BroadcastHead(robot=1, n=2, t=src.t_start + 2.0, prio=1), seq=1))
+    assert net._peers[1].missing() == [0, 1]  # its two broadcasts never came
+    assert "robot 1's broadcasts below 2" in net._broadcasts_unsettled(key)
+    for n in (0, 1):
+        net._on_broadcast(Broadcast(robot=1, n=n, to=0, update=update(1, src.t_start + 0.2 * (n + 1))))
+    assert net._broadcasts_unsettled(key) is None
+
+
+def test_the_sender_answers_repairs_from_its_buffer_and_says_when_one_is_gone(monkeypatch):
+    monkeypatch.setattr(bc, "BUFFER", 2)
+    net, src = offline_diekf(robot=1)
+    t = src.t_start + 0.5
+    for k in range(3):  # the node's copies for teammates 0 and 2: one broadcast per exchange
+        for r in (0, 2):
+            net._queue_broadcast(msgspec.structs.replace(update(1, t + k), receiver=r))
+        net._flush_broadcasts()
+    sent = [decode(p, "t", src.robots).body for _, p in net.session.published]
+    assert [b.n for b in sent if isinstance(b, Broadcast)] == [0, 1, 2] and net.counts["broadcasts_sent"] == 3
+    assert all(b.update.receiver == -1 for b in sent if isinstance(b, Broadcast))
+    net._on_inbox(_Sample(encode("t", 0, 9, BroadcastRepair(sender=0, receiver=1, first=0, last=5))))
+    got = [decode(p, "t", src.robots, to_robot=0).body for _, p in net.session.pushed]
+    assert [(b.n, b.to, b.update is None) for b in got] == [(0, 0, True), (1, 0, False), (2, 0, False)]
+    assert net.counts["repairs_gone"] == 1 and net.counts["repairs_sent"] == 2
+    # the asker gives a gone broadcast up (counted) instead of asking for it forever
+    asker, _ = offline_diekf(robot=0)
+    asker._on_broadcast(got[0])
+    assert asker.counts["broadcasts_given_up"] == 1 and asker._peers[1].low == 1
+
+
+@pytest.mark.parametrize(
+    ("body", "reason"),
+    [
+        (Broadcast(robot=1, n=-1, update=update(1, 1.0)), "outside"),
+        (Broadcast(robot=1, n=0), "only a repair may say"),
+        (Broadcast(robot=1, n=0, update=update(2, 1.0)), "from the broadcasting robot"),
+        (Broadcast(robot=1, n=0, update=msgspec.structs.replace(update(1, 1.0), receiver=0)), "receiver -1"),
+        (Broadcast(robot=1, n=0, update=msgspec.structs.replace(update(1, 1.0), m=4)), "m must be 1, 2 or 3"),
+        (Broadcast(robot=1, n=0, update=msgspec.structs.replace(update(1, 1.0), nu=(np.nan, 0.0))), "finite"),
+        (Broadcast(robot=1, n=0, to=2, update=update(1, 1.0)), "addressed to robot 2"),
+        (Broadcast(robot=0, n=0, update=update(0, 1.0)), "received by itself"),
+        (BroadcastHead(robot=1, n=0, t=float("nan")), "NaN"),
+        (BroadcastRepair(sender=1, receiver=0, first=5, last=4), "not an interval"),
+        (BroadcastRepair(sender=1, receiver=0, first=0, last=10**6), "at most 256"),
+        (BroadcastRepair(sender=1, receiver=2, first=0, last=1), "addressed to robot 2"),
+    ],
+)
+def test_broadcast_schema_bounds(body, reason):
+    sender = body.sender if isinstance(body, BroadcastRepair) else body.robot
+    with pytest.raises(Rejected, match=reason):
+        decode(encode("t", sender, 0, body), "t", {0, 1, 2}, to_robot=0)
+
+
+def test_signed_broadcasts_owner_checked_and_replays_refused(tmp_path):
+    keys = TeamKeys([0, 1, 2], tmp_path / "keys")
+    net, src = offline_diekf(robot=0, auth=keys.auth(0))
+    k1 = robot_key("t", 1, "broadcast")
+    b = Broadcast(robot=2, n=0, update=update(2, src.t_start + 0.5))
+    forged = seal(keys.auth(2), k1, encode("t", 2, 0, b))  # robot 2 signs, on robot 1's broadcast key
+    net._handle("broadcast", _Sample(forged, k1))
+    assert net.counts["auth_not_owner"] == 1 and net.counts["broadcasts_applied"] == 0
+    k2 = robot_key("t", 2, "broadcast")
+    good = seal(keys.auth(2), k2, encode("t", 2, 0, b))
+    net._handle("broadcast", _Sample(good, k2))
+    net._handle("broadcast", _Sample(good, k2))  # the same frame again
+    assert net.counts["broadcasts_applied"] == 1 and net.counts["auth_replay"] == 1
+    assert net.counts["received"] == 3
+
+
+# ------------------------------------------------------------------------------------------------ live
+def test_diekf_networked_equals_in_process_on_a_simulated_team():
+    src = load_source("sim:random", robots=3, duration=20.0, seed=1)
+    team = f"eqdiekf{os.getpid()}"
+    tr = run_team(src=src, source="sim:random", robots=3, duration=20.0, seed=1, estimator="diekf", team=team,
+                  max_wall=120)  # fmt: skip
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, "diekf")
+    assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
+    assert max_diff(res, reference(src, "diekf")) <= 1e-6  # every recorded mean and covariance
+    assert res.stats["fused"] > 50
+    s = res.stats  # all to all: each broadcast applied by both teammates, none repaired or dropped
+    assert s["net_broadcasts_sent"] >= s["fused"] and s["net_broadcasts_applied"] == 2 * s["net_broadcasts_sent"]
+    assert s.get("net_repair_requests", 0) == 0 and s.get("net_broadcast_duplicates", 0) == 0
+
+
+def test_diekf_under_link_faults_fuses_nothing_twice_and_repairs_lost_broadcasts():
+    src = load_source("sim:random", robots=3, duration=4.0, seed=3)
+    f = parse_faults("loss=0.2,delay=0.2,dup=0.1,seed=1")
+    nets, reports = thread_team(src, "diekf", faults=f, ledger=True, max_wall=150)
+    net = Counter()
+    for r in reports.values():
+        net.update(r.net)
+    assert net["injected_lost"] > 10 and net["duplicated"] > 0  # the faults did happen
+    assert net["repair_requests"] > 0 and net["broadcasts_repaired"] > 0  # lost broadcasts were asked for and came
+    assert net["broadcast_duplicates"] > 0  # duplicated copies came, and were applied once
+    assert net["broadcasts_applied"] + net["broadcast_stale"] + net["broadcasts_given_up"] <= net["broadcasts_received"]
+    for n in nets:
+        st_ = n.node.stats()
+        assert st_["detections"] == st_["fused"] + st_["gated"] + st_["rejected"] + st_["unknown"] + st_["pending"]
+        assert st_["pending"] == 0
+        per_measurement: Counter = Counter()
+        for (obs, t, k, outcome), c in n.node.ledger.items():
+            assert c in (0, 1), f"measurement {(obs, t, k)} counted {c} times as {outcome}"
+            per_measurement[(obs, t, k)] += c
+        assert per_measurement and set(per_measurement.values()) == {1}  # one outcome each: none fused twice
+        for t in src.record_times()[-5:]:
+            b = n.node.belief_at(t)
+            assert np.isfinite(b.mean).all() and np.isfinite(b.cov).all()
