@@ -92,12 +92,17 @@ class MapLine:
         return np.asarray(points, dtype=float) @ _n_t(self.alpha)[1]
 
 
-def _innovation(rho: float, alpha: float, line: MapLine) -> np.ndarray:
-    """``(rho, alpha) - (line.rho, line.alpha)`` in whichever representation, ``(rho, alpha)`` or the flipped
-    ``(-rho, alpha + pi)``, has the smaller angle difference (wrapped)."""
+def _flip(cov: np.ndarray) -> np.ndarray:
+    """Covariance of ``(-rho, alpha + pi)`` from that of ``(rho, alpha)``: the cross term changes sign."""
+    return cov * np.array([[1.0, -1.0], [-1.0, 1.0]])
+
+
+def _innovation(rho: float, alpha: float, cov: np.ndarray, line: MapLine) -> tuple[np.ndarray, np.ndarray]:
+    """``(rho, alpha) - (line.rho, line.alpha)`` and the covariance of ``(rho, alpha)``, in whichever
+    representation, ``(rho, alpha)`` or the flipped ``(-rho, alpha + pi)``, has the smaller angle difference."""
     d1 = np.array([rho - line.rho, _wrap(alpha - line.alpha)])
     d2 = np.array([-rho - line.rho, _wrap(alpha + np.pi - line.alpha)])
-    return d1 if abs(d1[1]) <= abs(d2[1]) else d2
+    return (d1, cov) if abs(d1[1]) <= abs(d2[1]) else (d2, _flip(cov))
 
 
 class LineMap:
@@ -118,7 +123,7 @@ class LineMap:
     # ------------------------------------------------------------------ association
     def _compatible(self, rho: float, alpha: float, cov: np.ndarray, ends: np.ndarray, line: MapLine) -> float:
         """Squared Mahalanobis distance when both tests pass, else ``inf``."""
-        d = _innovation(rho, alpha, line)
+        d, cov = _innovation(rho, alpha, cov, line)
         m2 = float(d @ np.linalg.solve(cov + line.cov, d))
         if m2 > self._chi2:
             return np.inf
@@ -140,12 +145,16 @@ class LineMap:
     def _fuse(line: MapLine, rho: float, alpha: float, cov: np.ndarray, ends: np.ndarray) -> None:
         """Information-form fusion of ``(rho, alpha, cov)`` into ``line``, extent the union of both (in place)."""
         old_ends = line.endpoints()
-        x_obs = np.array([line.rho, line.alpha]) + _innovation(rho, alpha, line)
+        d, cov = _innovation(rho, alpha, cov, line)
+        x_obs = np.array([line.rho, line.alpha]) + d
         Im, Io = np.linalg.inv(line.cov), np.linalg.inv(cov)
         C = np.linalg.inv(Im + Io)
         x = C @ (Im @ np.array([line.rho, line.alpha]) + Io @ x_obs)
-        r, a = (float(x[0]), _wrap(float(x[1]))) if x[0] >= 0 else (float(-x[0]), _wrap(float(x[1]) + np.pi))
-        line.rho, line.alpha, line.cov = r, a, 0.5 * (C + C.T)
+        C = 0.5 * (C + C.T)
+        if x[0] >= 0:
+            line.rho, line.alpha, line.cov = float(x[0]), _wrap(float(x[1])), C
+        else:
+            line.rho, line.alpha, line.cov = float(-x[0]), _wrap(float(x[1]) + np.pi), _flip(C)
         s = line.project(np.concatenate([old_ends, ends]))
         line.s0, line.s1 = float(s.min()), float(s.max())
         line.n_obs += 1
@@ -160,8 +169,9 @@ class LineMap:
         k = self.associate(obs)
         if k is None:
             rho, alpha = (obs.rho, _wrap(obs.alpha)) if obs.rho >= 0 else (-obs.rho, _wrap(obs.alpha + np.pi))
+            cov = cov.copy() if obs.rho >= 0 else _flip(cov)
             s = ends @ _n_t(alpha)[1]
-            self.lines.append(MapLine(float(rho), alpha, cov.copy(), float(s.min()), float(s.max()), {obs.robot}))
+            self.lines.append(MapLine(float(rho), alpha, cov, float(s.min()), float(s.max()), {obs.robot}))
             self.counts["added"] += 1
             return len(self.lines) - 1
         self._fuse(self.lines[k], obs.rho, obs.alpha, cov, ends)
