@@ -542,6 +542,25 @@ def build_parser() -> argparse.ArgumentParser:
     _bench_arguments(bp)
     bp.set_defaults(func=_bench)
 
+    def _map(args: argparse.Namespace) -> int:
+        from swarmloc.experiments.mapping import run_command
+
+        return run_command(args)
+
+    mp = sub.add_parser(
+        "map",
+        help="the chapter's map-building experiment (robots H1, H2): line maps by dead reckoning, each robot alone "
+        "and the cooperative team, their error against the true walls; table, figure, GeoJSON/DXF",
+    )
+    mp.add_argument("--seeds", type=int, default=3, help="simulated runs (default 3)")
+    mp.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
+    mp.add_argument("--estimators", default="expfusion,diekf", help="cooperative estimators (default expfusion,diekf)")
+    mp.add_argument("--order", type=int, choices=[1, 2], default=2, help="line propagation order (default 2)")
+    mp.add_argument("--sigma", type=float, default=0.01, help="range noise std [m] (default 0.01)")
+    mp.add_argument("--D", type=float, default=0.005, help="wheel-speed diffusion [rad^2/s] (default 0.005)")
+    mp.add_argument("--out", default=None, help="folder for map.md, map.json, map.png, GeoJSON and DXF maps")
+    mp.set_defaults(func=_map)
+
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")
