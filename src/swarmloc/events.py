@@ -53,6 +53,12 @@ class Detection:
     ``target`` is a robot id when ``target_is_robot`` else a landmark id. ``cov`` is the noise covariance
     of ``z`` (in the same coordinates; for ``"pose"``, of the exponential coordinates of the noise
     ``m_true^-1 m_measured``).
+
+    *Anonymous* robot detection: ``target=None`` with ``target_is_robot=True`` (a robot, or something that looks
+    like one, was seen; not which). ``truth_target`` is the ground truth behind a detection (the robot's id, None
+    for clutter), for scoring only: no estimator reads it, it is not written to event files or sent over the
+    network. Nodes refuse anonymous detections (counted ``rejected``) until an association policy is chosen; see
+    :mod:`swarmloc.association` and :mod:`swarmloc.sim.anonymous`.
     """
 
     observer: int
@@ -62,6 +68,7 @@ class Detection:
     cov: np.ndarray
     target: int | None = None
     target_is_robot: bool = True
+    truth_target: int | None = None
 
     @property
     def stamp(self) -> float:

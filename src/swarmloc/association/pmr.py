@@ -43,6 +43,7 @@ from swarmloc.association.registration import (
     binary_register,
     compose_xyt,
     invert_xyt,
+    visible,
 )
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
@@ -121,6 +122,8 @@ def multiple_registration(
     consistency_gate: float = CHI2_3_999,
     max_unmatched: int = 0,
     max_range: float = np.inf,
+    fov: float = 2 * np.pi,
+    sigma_range: float | None = None,
     headings: Mapping[int, object] | None = None,
     sigma_heading: float = 0.05,
     beliefs: Mapping[int, GroupGaussian] | None = None,
@@ -132,7 +135,7 @@ def multiple_registration(
     ``observations``: robot id -> its anonymous points ``(m, 2)`` [m] in its own frame (ego's included);
     ``headings``: optional robot id -> measured headings ``(m,)`` [rad] of those points (NaN: unknown); ``beliefs``:
     optional robot id -> current belief of its pose in ego's frame (a :class:`GroupGaussian` on SE(2));
-    ``sigma``, ``gate``, ``max_unmatched``, ``max_range`` as in :func:`binary_register`.
+    ``sigma``, ``gate``, ``max_unmatched``, ``max_range``, ``fov``, ``sigma_range`` as in :func:`binary_register`.
     """
     if ego not in observations:
         raise ValueError(f"multiple_registration: no observation of ego robot {ego!r}")
@@ -145,8 +148,8 @@ def multiple_registration(
     for x, r in enumerate(ids):
         for s in ids[x + 1 :]:
             reg[(r, s)] = binary_register(
-                obs[r], obs[s], sigma, gate=gate, max_unmatched=max_unmatched, max_range=max_range,
-                headings_i=hd.get(r), headings_j=hd.get(s), sigma_heading=sigma_heading,
+                obs[r], obs[s], sigma, gate=gate, max_unmatched=max_unmatched, max_range=max_range, fov=fov,
+                sigma_range=sigma_range, headings_i=hd.get(r), headings_j=hd.get(s), sigma_heading=sigma_heading,
             )  # fmt: skip
     n_reg = len(reg)
 
@@ -222,8 +225,11 @@ def multiple_registration(
                 cpred = A @ covs[k] @ A.T + cj
                 cand = rels(k, j)
                 if not cand:
-                    dist = float(np.hypot(pred[0], pred[1]))
-                    if max_unmatched == 0 and dist <= max_range - 2 * gate * sigma:
+                    back = invert_xyt(pred)
+                    mutual = visible(pred[:2], max_range, fov, 2 * gate * sigma) and visible(
+                        back[:2], max_range, fov, 2 * gate * sigma
+                    )
+                    if max_unmatched == 0 and mutual:
                         ok = False
                         break
                     continue

@@ -36,6 +36,7 @@ __all__ = [
     "compose_xyt",
     "invert_xyt",
     "points_from_range_bearing",
+    "visible",
     "xyt_cov_to_exp",
 ]
 
@@ -136,6 +137,15 @@ def _fit_cov(pose: np.ndarray, pj: np.ndarray, var: np.ndarray) -> np.ndarray:
     return xyt_cov_to_exp(pose, np.linalg.inv(info))
 
 
+def visible(p: np.ndarray, max_range: float, fov: float, margin: np.ndarray) -> np.ndarray:
+    """Points ``(..., 2)`` inside range and field of view by at least ``margin`` [m] (expected to be seen)."""
+    r = np.hypot(p[..., 0], p[..., 1])
+    ok = r <= max_range - margin
+    if fov < 2 * np.pi:
+        ok &= np.abs(np.arctan2(p[..., 1], p[..., 0])) <= fov / 2 - margin / np.maximum(r, 1e-9)
+    return ok
+
+
 def binary_register(
     obs_i: object,
     obs_j: object,
@@ -144,6 +154,8 @@ def binary_register(
     gate: float = 5.0,
     max_unmatched: int = 0,
     max_range: float = np.inf,
+    fov: float = 2 * np.pi,
+    sigma_range: float | None = None,
     headings_i: object | None = None,
     headings_j: object | None = None,
     sigma_heading: float = 0.05,
@@ -152,7 +164,10 @@ def binary_register(
 
     ``sigma`` [m] > 0: point noise std per axis; ``gate``: in standard deviations; ``max_unmatched``: points each
     side may leave unmatched among those the other robot should see (0: the ideal all-see-all model);
-    ``max_range`` [m]: the sensors' range (points beyond it are not expected to match).
+    ``max_range`` [m], ``fov`` [rad] (centred ahead): the sensors' limits (points the other robot could not see are
+    not expected to match); ``sigma_range`` [m] (default ``sigma``): std of a measured range, for the test that
+    the two robots measured the same distance between them (a range-bearing sensor's range noise is often far
+    below its tangential noise).
     """
     Pi, Pj = as_points(obs_i, "binary_register: obs_i"), as_points(obs_j, "binary_register: obs_j")
     if not (np.isfinite(sigma) and sigma > 0):
@@ -167,7 +182,8 @@ def binary_register(
     ri, rj = np.hypot(Pi[:, 0], Pi[:, 1]), np.hypot(Pj[:, 0], Pj[:, 1])
     s2 = sigma * sigma
     # ---- candidate (a, b): equal ranges (both noisy: variance 2 sigma^2), positive ranges
-    A, B = np.nonzero((np.abs(ri[:, None] - rj[None, :]) <= gate * sigma * np.sqrt(2)) & (ri[:, None] > 0))
+    s_r = sigma if sigma_range is None else float(sigma_range)
+    A, B = np.nonzero((np.abs(ri[:, None] - rj[None, :]) <= gate * s_r * np.sqrt(2)) & (ri[:, None] > 0))
     A, B = A[rj[B] > 0], B[rj[B] > 0]
     th = _wrap(np.arctan2(-Pi[A, 1], -Pi[A, 0]) - np.arctan2(Pj[B, 1], Pj[B, 0]))
     if hi is not None:
@@ -201,11 +217,11 @@ def binary_register(
     within = D2 <= gate * gate
     # which points the other robot should have seen (inside its range by a margin of the gate)
     sd_j = np.sqrt(C[..., 0, 0] + C[..., 1, 1])
-    expect_j = (np.hypot(Q[..., 0], Q[..., 1]) <= max_range - gate * sd_j) & (np.arange(mj) != B[:, None])
+    expect_j = visible(Q, max_range, fov, gate * sd_j) & (np.arange(mj) != B[:, None])
     Pi_in_j = np.einsum("kba,kmb->kma", R, Pi[None, :, :] - Pi[A][:, None, :])  # O_i in frame j: R^T (p - t)
     lever = np.hypot(Pi_in_j[..., 0], Pi_in_j[..., 1])
     sd_i = sigma * np.sqrt(2 + (1 + lever / ri[A][:, None]) ** 2 + (lever / rj[B][:, None]) ** 2)
-    expect_i = (lever <= max_range - gate * sd_i) & (np.arange(mi) != A[:, None])
+    expect_i = visible(Pi_in_j, max_range, fov, gate * sd_i) & (np.arange(mi) != A[:, None])
     has_j = within.any(2)
     has_i = within.any(1)
     keep = ((expect_j & ~has_j).sum(1) <= max_unmatched) & ((expect_i & ~has_i).sum(1) <= max_unmatched)

@@ -351,7 +351,7 @@ class Node(Intake, Exchange):
             if not self.use_relative:
                 return ("rejected", "relative measurements are switched off")
             if d.target is None:
-                return ("rejected", "robot detection without a target id")
+                return ("rejected", "anonymous robot detection (no target id): no association policy, not fused")
             if d.target == g.observer:
                 return ("rejected", "the target is the observer itself")
             return self._robot_target(g, d, sub)
