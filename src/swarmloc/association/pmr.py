@@ -94,10 +94,10 @@ class PMRResult:
         return out
 
 
-def _maha2(pred: np.ndarray, ref: np.ndarray, cov: np.ndarray) -> float:
-    """``y^T cov^-1 y`` with ``y = log(ref^-1 pred)`` for planar poses ``(3,)``."""
-    y = SE2.log(SE2.from_xytheta(compose_xyt(invert_xyt(ref), pred)))
-    return float(y @ np.linalg.solve(cov, y))
+def _maha2(pred: np.ndarray, ref: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``y^T cov^-1 y`` with ``y = log(ref^-1 pred)`` for planar poses ``(..., 3)`` (batched over ``ref``/``cov``)."""
+    y = SE2.log(SE2.from_xytheta(compose_xyt(invert_xyt(ref), pred)), validate=False)
+    return np.einsum("...i,...i->...", y, np.linalg.solve(cov, y[..., None])[..., 0])
 
 
 def _ad(pose: np.ndarray) -> np.ndarray:
@@ -144,25 +144,44 @@ def multiple_registration(
     ids = [ego] + sorted(r for r in observations if r != ego)
     obs = {r: as_points(observations[r], f"multiple_registration: observation of robot {r}") for r in ids}
     hd = headings or {}
+    # beliefs of the poses in ego's frame (ego: exactly the identity) give each pair a prior for its registration
+    known: dict[int, tuple[np.ndarray, np.ndarray]] = {ego: (np.zeros(3), np.zeros((3, 3)))}
+    for r, b in (beliefs or {}).items():
+        if r in obs and r != ego:
+            known[r] = (SE2.to_xytheta(b.mean), np.asarray(b.cov, float))
     reg: dict[tuple[int, int], list[Registration]] = {}
     for x, r in enumerate(ids):
         for s in ids[x + 1 :]:
+            prior = None
+            if r in known and s in known:
+                rel = compose_xyt(invert_xyt(known[r][0]), known[s][0])
+                A = _ad(invert_xyt(rel))
+                prior = (rel, A @ known[r][1] @ A.T + known[s][1])
             reg[(r, s)] = binary_register(
                 obs[r], obs[s], sigma, gate=gate, max_unmatched=max_unmatched, max_range=max_range, fov=fov,
                 sigma_range=sigma_range, headings_i=hd.get(r), headings_j=hd.get(s), sigma_heading=sigma_heading,
+                prior=prior, prior_gate=belief_gate,
             )  # fmt: skip
     n_reg = len(reg)
 
+    cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, Registration]]] = {}
+    stacked: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
     def rels(k: int, j: int) -> list[tuple[np.ndarray, np.ndarray, Registration]]:
-        """Registrations of frame ``j`` in frame ``k`` (inverting the stored direction when needed)."""
-        if (k, j) in reg:
-            return [(r.pose, r.cov, r) for r in reg[(k, j)]]
-        out = []
-        for r in reg[(j, k)]:
-            inv = invert_xyt(r.pose)
-            A = _ad(r.pose)  # cov of T^-1 in right perturbation: Ad(T) cov Ad(T)^T
-            out.append((inv, A @ r.cov @ A.T, r))
-        return out
+        """Registrations of frame ``j`` in frame ``k`` (inverting the stored direction when needed), cached."""
+        if (k, j) not in cache:
+            if (k, j) in reg:
+                cache[(k, j)] = [(r.pose, r.cov, r) for r in reg[(k, j)]]
+            else:
+                out = []
+                for r in reg[(j, k)]:
+                    A = _ad(r.pose)  # cov of T^-1 in right perturbation: Ad(T) cov Ad(T)^T
+                    out.append((invert_xyt(r.pose), A @ r.cov @ A.T, r))
+                cache[(k, j)] = out
+            c = cache[(k, j)]
+            if c:
+                stacked[(k, j)] = (np.array([p for p, _, _ in c]), np.array([v for _, v, _ in c]))
+        return cache[(k, j)]
 
     # BFS order from ego over the graph of pairs with at least one registration
     parent: dict[int, int] = {}
@@ -214,7 +233,7 @@ def multiple_registration(
             if beliefs is not None and j in beliefs:
                 b = beliefs[j]
                 mu = SE2.to_xytheta(b.mean)
-                if _maha2(pj, mu, b.cov + cj) > belief_gate:
+                if float(_maha2(pj, mu, b.cov + cj)) > belief_gate:
                     continue
             ok = True
             for k in poses:
@@ -233,7 +252,8 @@ def multiple_registration(
                         ok = False
                         break
                     continue
-                if not any(_maha2(pred, p, cpred + c) <= consistency_gate for p, c, _ in cand):
+                P_kj, C_kj = stacked[(k, j)]
+                if not (_maha2(pred, P_kj, cpred + C_kj) <= consistency_gate).any():
                     ok = False
                     break
             if not ok:

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from swarmloc.lie import SE2
+
 __all__ = [
     "Registration",
     "as_points",
@@ -159,6 +161,8 @@ def binary_register(
     headings_i: object | None = None,
     headings_j: object | None = None,
     sigma_heading: float = 0.05,
+    prior: tuple[np.ndarray, np.ndarray] | None = None,
+    prior_gate: float = 16.266,
 ) -> list[Registration]:
     """Every feasible pose of frame ``j`` in frame ``i`` (module docstring), best (lowest cost) first.
 
@@ -167,7 +171,10 @@ def binary_register(
     ``max_range`` [m], ``fov`` [rad] (centred ahead): the sensors' limits (points the other robot could not see are
     not expected to match); ``sigma_range`` [m] (default ``sigma``): std of a measured range, for the test that
     the two robots measured the same distance between them (a range-bearing sensor's range noise is often far
-    below its tangential noise).
+    below its tangential noise). ``prior``: ``(pose (3,), cov (3, 3))``, a belief of the answer (exponential
+    coordinates, right perturbation): candidates farther than ``prior_gate`` (Mahalanobis squared, the rough
+    candidate's own uncertainty added) are dropped before they are matched and refined (slide 59's selection by the
+    current belief, applied early: it is what keeps PMR's cost down once the beliefs are good).
     """
     Pi, Pj = as_points(obs_i, "binary_register: obs_i"), as_points(obs_j, "binary_register: obs_j")
     if not (np.isfinite(sigma) and sigma > 0):
@@ -193,6 +200,16 @@ def binary_register(
     if hj is not None:
         d = np.abs(_wrap(th + hj[B]))
         ok = np.isnan(hj[B]) | (d <= gate * np.sqrt(sigma_heading**2 + s2 / ri[A] ** 2 + s2 / rj[B] ** 2))
+        A, B, th = A[ok], B[ok], th[ok]
+    if prior is not None and A.size:
+        mu, pc = np.asarray(prior[0], float).reshape(3), np.asarray(prior[1], float).reshape(3, 3)
+        cand = np.column_stack([Pi[A], th])
+        y = SE2.log(SE2.from_xytheta(compose_xyt(invert_xyt(mu)[None], cand)), validate=False)
+        C = pc + np.zeros((A.size, 3, 3))
+        C[:, 0, 0] += s2
+        C[:, 1, 1] += s2
+        C[:, 2, 2] += s2 / ri[A] ** 2 + s2 / rj[B] ** 2
+        ok = np.einsum("ki,ki->k", y, np.linalg.solve(C, y[..., None])[..., 0]) <= prior_gate
         A, B, th = A[ok], B[ok], th[ok]
     if A.size == 0:
         return []

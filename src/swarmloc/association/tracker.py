@@ -7,8 +7,8 @@ observations and their odometry (slide 42's communication: packets are signed, t
   :meth:`~ParticleFilterBank.predict_neighbour`) by its unicycle increment, applied at the end of its interval;
 * at every instant with anonymous detections (:func:`anonymous_scans`), PMR runs on all the robots' scans (a robot
   that saw nothing contributes an empty set), gated by the bank's unambiguous estimates (slide 59); when the gate
-  leaves no solution (a kidnapping) PMR runs again without it; every neighbour's filter is updated with its
-  hypotheses;
+  leaves no solution, or leaves a robot unplaced (a kidnapping, a lost filter), PMR runs again without it and those
+  robots take their hypotheses from that run; every neighbour's filter is updated with its hypotheses;
 * the estimates (:class:`~swarmloc.association.pfbank.BankEstimate`) are recorded after each scan.
 
 The point noise ``sigma`` [m] given to PMR stands for range-bearing noise: ``max(s_r, max_range s_b)`` is the
@@ -120,12 +120,17 @@ def track_anonymous(
             kw = dict(max_range=max_range, fov=fov, max_unmatched=max_unmatched, sigma_range=sigma_range)
             res = multiple_registration(scans[t], ego, sigma, beliefs=beliefs or None, **kw)
             counts["pmr_gated" if beliefs else "pmr_ungated"] += 1
-            if beliefs and not res.solutions:
-                res = multiple_registration(scans[t], ego, sigma, **kw)
+            hyps = {j: res.hypotheses(j) for j in robots if j != ego}
+            if beliefs and (not res.solutions or res.unreached):
+                # the belief left a robot (or everything) unexplained: kidnapped, or its filter is lost
+                free = multiple_registration(scans[t], ego, sigma, **kw)
                 counts["pmr_ungated"] += 1
-            for j in robots:
-                if j != ego:
-                    bank.update(j, res.hypotheses(j))
+                for j in hyps:
+                    if not hyps[j] or not res.solutions:
+                        hyps[j] = free.hypotheses(j)
+                res = res if res.solutions else free
+            for j, h in hyps.items():
+                bank.update(j, h)
             track.times.append(t)
             track.solutions.append(len(res.solutions))
             track.estimates.append({j: bank.estimate(j) for j in bank.known()})
