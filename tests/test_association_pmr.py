@@ -262,3 +262,15 @@ def test_pmr_reports_unreachable_robots_and_rejects_bad_input():
     big = observe(with_headings(polygon(6), np.random.default_rng(0)), np.random.default_rng(0))
     cut = multiple_registration(big, 0, 1e-6, max_solutions=10)
     assert cut.truncated and len(cut.solutions) == 10
+
+
+def test_a_prior_keeps_only_the_registrations_near_it():
+    rng = np.random.default_rng(11)
+    poses = with_headings(polygon(5), rng)
+    o = observe(poses, rng, 0.003)
+    assert len(binary_register(o[0], o[1], 0.003)) == 4  # the regular pentagon: 4 places for robot 1
+    truth = relative(poses, 0, 1)
+    near = binary_register(o[0], o[1], 0.003, prior=(truth + [0.02, -0.02, 0.03], np.diag([0.05**2] * 3)))
+    assert len(near) == 1 and pose_error(near[0].pose, truth)[0] < 0.01
+    far = compose_xyt(truth, np.array([0.0, 0.0, np.pi]))
+    assert binary_register(o[0], o[1], 0.003, prior=(far, np.diag([0.05**2] * 3))) == []
