@@ -18,6 +18,7 @@ Printed per ``n``: solutions, binary registrations (``n (n - 1) / 2``), partial 
 of ``--repeats``), and the ratios of the time and of the number of registrations to the baseline ``n``.
 
     python benchmarks/pmr.py --khepera             # the slides' experiment, simulated (seed 0)
+    python benchmarks/pmr.py --khepera --p-detect 0.9 --clutter 0.2   # with misses and false positives
 
 runs PMR and the particle-filter bank for robot 1 over the simulated Khepera III kidnapping
 (:func:`swarmloc.sim.khepera_kidnap`, :func:`swarmloc.association.track_anonymous`) and prints, per neighbour, the
@@ -88,23 +89,26 @@ def measure(regime: str, n: int, sigma: float, repeats: int, seed: int) -> dict:
             "branches": res.branches, "ms": 1e3 * best}  # fmt: skip
 
 
-def khepera(seed: int, n_particles: int) -> None:
+def khepera(seed: int, n_particles: int, p_detect: float, clutter: float) -> None:
     from swarmloc.association import track_anonymous
     from swarmloc.motion import UnicycleNoise
-    from swarmloc.sim import khepera_kidnap
+    from swarmloc.sim import AnonymousSensor, khepera_kidnap
 
-    sc = khepera_kidnap(seed=seed)
+    fov = float(np.deg2rad(240.0))
+    sc = khepera_kidnap(seed=seed, sensor=AnonymousSensor(p_detect, clutter, max_range=2.0, fov=fov))
+    noisy = p_detect < 1 or clutter > 0
     sim = sc.sim
     t0 = time.perf_counter()
     track = track_anonymous(
         sim.events, 1, sim.robot_ids, UnicycleNoise.from_diff_drive(sim.config.drive), 0.035, max_range=2.0,
-        fov=np.deg2rad(240.0), sigma_range=0.01, n_particles=n_particles, rng=seed,
+        fov=fov, sigma_range=0.01, max_unmatched=int(noisy), n_particles=n_particles, rng=seed,
     )  # fmt: skip
     wall = time.perf_counter() - t0
     col = {r: c for c, r in enumerate(sim.robot_ids)}
     k = np.searchsorted(sim.times, np.array(track.times) - 1e-9)
     print(f"Khepera III kidnapping (seed {seed}, {n_particles} particles per filter, kidnap of robot "
-          f"{sc.kidnapped} at {sc.kidnap_time:g} s): {track.counts}")  # fmt: skip
+          f"{sc.kidnapped} at {sc.kidnap_time:g} s, detection probability {p_detect:g}, {clutter:g} false positives "
+          f"per scan, max_unmatched {int(noisy)}): {track.counts}")  # fmt: skip
     print(f"{'robot':>5} {'pos median [m]':>15} {'pos p90 [m]':>12} {'heading median [rad]':>21}")
     for j in sim.robot_ids[1:]:
         truth = compose_xyt(invert_xyt(sim.truth[k, col[1]]), sim.truth[k, col[j]])
@@ -128,9 +132,11 @@ def main() -> None:
     ap.add_argument("--out", help="write the rows as JSON")
     ap.add_argument("--khepera", action="store_true", help="run the simulated Khepera III experiment instead")
     ap.add_argument("--particles", type=int, default=300, help="particles per filter (--khepera)")
+    ap.add_argument("--p-detect", type=float, default=1.0, help="detection probability (--khepera)")
+    ap.add_argument("--clutter", type=float, default=0.0, help="false positives per scan (--khepera)")
     a = ap.parse_args()
     if a.khepera:
-        khepera(a.seed, a.particles)
+        khepera(a.seed, a.particles, a.p_detect, a.clutter)
         return
     print(f"# {platform.machine()}, {os.cpu_count()} cores, {platform.python_implementation()} "
           f"{platform.python_version()}, numpy {np.__version__}; sigma {a.sigma} m, best of {a.repeats}")  # fmt: skip

@@ -133,6 +133,11 @@ def test_a_kidnapped_robot_resets_its_filter():
     assert np.allclose(SE2.to_xytheta(est.gaussian.mean), [-2.0, 1.0, 2.0], atol=0.01)
     assert bank.counts == {"initialized": 1, "updated": 1, "reset": 1}
     assert bank.update(4, []) == "none"
+    patient = ParticleFilterBank(500, rng=3, reset_after=3)
+    patient.update(4, [(np.array([1.0, 0.0, 0.0]), R)])
+    far = [(np.array([-2.0, 1.0, 2.0]), R)]
+    assert [patient.update(4, far) for _ in range(3)] == ["unexplained", "unexplained", "reset"]
+    assert patient.update(4, [(np.array([1.0, 0.0, 0.0]), R)]) == "unexplained"  # the count starts again
 
 
 def test_bank_rejects_bad_input():

@@ -105,15 +105,18 @@ def test_khepera_scenario_has_four_robots_two_metre_range_and_one_documented_kid
     assert len({(e.v, e.w) for e in odo4}) == 1  # its odometry never notices
 
 
-def test_pmr_and_the_bank_localize_the_khepera_team_and_recover_the_kidnapped_robot():
+@pytest.mark.parametrize("clutter", [False, True])
+def test_pmr_and_the_bank_localize_the_khepera_team_and_recover_the_kidnapped_robot(clutter: bool):
     """Slides 66-69 in simulation: robot 1 localizes 2, 3, 4 from anonymous scans; after the kidnapping of 4 at
-    60 s its filter resets and converges again."""
-    sc = khepera_kidnap(seed=0)
+    60 s its filter resets and converges again -- also with 10% misses and 0.2 false positives per scan."""
+    fov = np.deg2rad(240.0)
+    sensor = AnonymousSensor(p_detect=0.9, clutter_rate=0.2, max_range=2.0, fov=fov) if clutter else None
+    sc = khepera_kidnap(seed=0, sensor=sensor)
     sim = sc.sim
     noise = UnicycleNoise.from_diff_drive(sim.config.drive)
     track = track_anonymous(
-        sim.events, 1, sim.robot_ids, noise, 0.035, max_range=2.0, fov=np.deg2rad(240.0), sigma_range=0.01,
-        n_particles=300, rng=0,
+        sim.events, 1, sim.robot_ids, noise, 0.035, max_range=2.0, fov=fov, sigma_range=0.01,
+        max_unmatched=int(clutter), n_particles=300, rng=0,
     )  # fmt: skip
     assert track.counts["scans"] == 600 and track.counts["bank_reset"] >= 1
     col = {r: c for c, r in enumerate(sim.robot_ids)}

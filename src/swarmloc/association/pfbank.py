@@ -11,9 +11,10 @@ with covariances in exponential coordinates with right perturbation (the convent
   ``m ~ N(0, R_h)``): the likelihood of a particle is the mixture ``1/H sum_h N(log(q^-1 h); 0, R_h)`` (slide 63).
 
 A filter starts at the first hypotheses for its robot (particles drawn from the mixture, the measurement not
-reused). When no particle explains any hypothesis (every Mahalanobis distance beyond ``reset_nis``: a kidnapping or
-a lost track) it is re-initialized from them; each such reset is counted. Systematic resampling when the effective
-sample size drops below ``resample_ess`` of the particles.
+reused). When no particle explains any hypothesis (every Mahalanobis distance beyond ``reset_nis``) the update is
+skipped and counted ``unexplained``; after ``reset_after`` such updates in a row (a kidnapping or a lost track, not
+one spurious registration among clutter) the filter is re-initialized from the latest hypotheses, counted
+``reset``. Systematic resampling when the effective sample size drops below ``resample_ess`` of the particles.
 
 Estimate (:meth:`ParticleFilterBank.estimate`): the particles, embedded as ``(x, y, L cos theta, L sin theta)``,
 are split into *modes* (connected components of the graph linking particles closer than ``mode_radius``); modes
@@ -70,7 +71,8 @@ class ParticleFilterBank:
 
     ``n_particles`` per filter; ``mode_radius`` [m] links particles into modes, with headings scaled by
     ``angle_scale`` [m/rad]; ``ambiguity_mass``: smallest weight of a significant mode; ``reset_nis``: Mahalanobis
-    squared beyond which a hypothesis explains no particle; ``resample_ess``: fraction of ``n_particles``.
+    squared beyond which a hypothesis explains no particle; ``reset_after``: unexplained updates in a row before a
+    reset; ``resample_ess``: fraction of ``n_particles``.
     """
 
     def __init__(
@@ -82,6 +84,7 @@ class ParticleFilterBank:
         angle_scale: float = 0.3,
         ambiguity_mass: float = 0.05,
         reset_nis: float = 30.0,
+        reset_after: int = 1,
         resample_ess: float = 0.5,
     ) -> None:
         if not (isinstance(n_particles, int) and n_particles >= 10):
@@ -89,12 +92,16 @@ class ParticleFilterBank:
         for name, v in (("mode_radius", mode_radius), ("angle_scale", angle_scale), ("reset_nis", reset_nis)):
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"ParticleFilterBank: {name} must be a finite number > 0, got {v!r}")
+        if not (isinstance(reset_after, int) and reset_after >= 1):
+            raise ValueError(f"ParticleFilterBank: reset_after must be an integer >= 1, got {reset_after!r}")
         if not (0 < ambiguity_mass < 0.5 and 0 < resample_ess <= 1):
             raise ValueError("ParticleFilterBank: need 0 < ambiguity_mass < 0.5 and 0 < resample_ess <= 1")
         self.n = n_particles
         self.rng = np.random.default_rng(rng)
         self.mode_radius, self.angle_scale = float(mode_radius), float(angle_scale)
         self.ambiguity_mass, self.reset_nis, self.resample_ess = float(ambiguity_mass), float(reset_nis), resample_ess
+        self.reset_after = reset_after
+        self.unexplained: dict[int, int] = {}
         self.particles: dict[int, np.ndarray] = {}
         self.weights: dict[int, np.ndarray] = {}
         self.counts: Counter[str] = Counter()
@@ -124,7 +131,8 @@ class ParticleFilterBank:
     # ------------------------------------------------------------------------------------------ measurement
     def update(self, robot: int, hypotheses: Sequence[Hypothesis]) -> str:
         """Measurement update of ``robot``'s filter with PMR's hypotheses; returns what happened: ``"none"`` (no
-        hypothesis), ``"initialized"``, ``"reset"`` or ``"updated"`` (also counted in :attr:`counts`)."""
+        hypothesis), ``"initialized"``, ``"unexplained"``, ``"reset"`` or ``"updated"`` (also counted in
+        :attr:`counts`)."""
         if not hypotheses:
             self.counts["none"] += 1
             return "none"
@@ -140,9 +148,14 @@ class ParticleFilterBank:
         Ri = np.linalg.inv(R)
         m2 = np.einsum("nhi,hij,nhj->nh", y, Ri, y)
         if m2.min() > self.reset_nis:
+            self.unexplained[robot] = self.unexplained.get(robot, 0) + 1
+            if self.unexplained[robot] < self.reset_after:
+                self.counts["unexplained"] += 1
+                return "unexplained"
             self._init(robot, H, R)
             self.counts["reset"] += 1
             return "reset"
+        self.unexplained[robot] = 0
         ll = -0.5 * m2 - 0.5 * np.log(np.linalg.det(R))[None]
         ll = np.logaddexp.reduce(ll, axis=1)
         lw = np.log(np.maximum(w, 1e-300)) + ll
@@ -156,6 +169,7 @@ class ParticleFilterBank:
         return "updated"
 
     def _init(self, robot: int, H: np.ndarray, R: np.ndarray) -> None:
+        self.unexplained[robot] = 0
         pick = self.rng.integers(0, len(H), self.n)
         noise = np.einsum("nij,nj->ni", np.linalg.cholesky(R)[pick], self.rng.standard_normal((self.n, 3)))
         self.particles[robot] = compose_xyt(H[pick], _exp_xyt(noise))

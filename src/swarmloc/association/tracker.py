@@ -87,14 +87,16 @@ def track_anonymous(
     max_unmatched: int = 0,
     sigma_range: float | None = None,
     n_particles: int = 500,
+    reset_after: int = 6,
     rng: int | None = 0,
     motion_floor: float = 1e-3,
 ) -> AnonymousTrack:
     """Run PMR and a particle-filter bank for ``ego`` over ``events`` (module docstring). ``noise``: the odometry
-    noise model; ``motion_floor`` [m, rad]: std added to every increment (keeps the particles diverse)."""
+    noise model; ``motion_floor`` [m, rad]: std added to every increment (keeps the particles diverse);
+    ``reset_after``: the bank's unexplained updates in a row before a filter restarts."""
     if ego not in robots:
         raise ValueError(f"track_anonymous: ego {ego!r} is not one of the robots {list(robots)}")
-    bank = ParticleFilterBank(n_particles, rng=rng)
+    bank = ParticleFilterBank(n_particles, rng=rng, reset_after=reset_after)
     scans = anonymous_scans(events, robots)
     track = AnonymousTrack()
     counts = {"scans": 0, "pmr_gated": 0, "pmr_ungated": 0}
