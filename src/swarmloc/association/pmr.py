@@ -7,13 +7,15 @@ geometrically feasible *global solution*: a pose of every reachable neighbour in
 points each one is. A partial solution is extended with neighbour ``j`` by each registration of ``j`` against an
 already placed robot (its BFS parent in the graph of non-empty registrations); the extension is kept only if it is
 
-* *reconcilable* (slide 48): ``j`` is not put on the feature of another robot (same point of ego's observation,
-  or positions closer than the gate);
+* *reconcilable* (slide 48): ``j`` is not put on the feature of another robot (the same point of ego's
+  observation; for a robot ego does not see, a position within ``gate * sigma`` of another robot's);
 * *consistent* with every placed robot ``k``: the implied ``T_k^-1 T_j`` agrees (Mahalanobis, chi-square gate)
   with one of the registrations of the pair ``(k, j)``; when that pair has none, the two must be out of each
-  other's range, unless misses are allowed (``max_unmatched > 0``);
+  other's view (range, field of view), unless misses are allowed (``max_unmatched > 0``);
 * optionally *plausible under the current belief* (slide 59): ``log(mu_j^-1 T_j)`` within ``belief_gate`` of the
-  belief ``(mu_j, Sigma_j)`` with the registration's covariance added (a Gaussian gate).
+  belief ``(mu_j, Sigma_j)`` with the registration's covariance added (a Gaussian gate). The beliefs also give
+  every pair whose two robots both have one a prior for its binary registration, which drops the candidates far
+  from it before they are matched: with good beliefs PMR costs about its ``n (n - 1) / 2`` registrations.
 
 Rotational symmetry (slide 45). With perfect all-see-all measurements a configuration ``P`` of ``n >= 3`` robots
 has a unique solution iff ``P`` has no rotational symmetry, and never more than ``(n - 1)!``. Derivation of the
