@@ -55,6 +55,10 @@ class Detection:
     (:mod:`swarmloc.association`), and refuses it otherwise. ``cov`` is the noise covariance
     of ``z`` (in the same coordinates; for ``"pose"``, of the exponential coordinates of the noise
     ``m_true^-1 m_measured``).
+
+    ``truth_target`` is the ground truth behind an anonymous detection (the robot's id, -1 for clutter), for
+    scoring only: no estimator reads it, it is not written to event files or sent over the network
+    (:mod:`swarmloc.sim.anonymous`).
     """
 
     observer: int

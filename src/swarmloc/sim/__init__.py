@@ -1,5 +1,6 @@
 """Simulation: differential-drive teams with odometry, relative/absolute sensors, and ready-made scenarios."""
 
+from swarmloc.sim.anonymous import AnonymousSensor, anonymize, anonymize_sim, khepera_kidnap
 from swarmloc.sim.scenarios import (
     THESIS_ROS_D,
     THESIS_START,
@@ -22,10 +23,14 @@ __all__ = [
     "THESIS_ROS_D",
     "THESIS_START",
     "AbsoluteSensor",
+    "AnonymousSensor",
     "RelativeSensor",
     "SimConfig",
     "SimResult",
     "WheelSchedule",
+    "anonymize",
+    "anonymize_sim",
+    "khepera_kidnap",
     "random_team",
     "simulate",
     "thesis_ground_truth_neighbour",

@@ -1,0 +1,230 @@
+"""A bank of particle filters, one per robot met (Stegagno's slides 61-63): the filtering stage after PMR.
+
+Robot ``i`` (ego) keeps, for every robot ``j`` it has met, particles of ``q_j``, the pose of ``j`` in ego's frame
+(independence assumption of slide 62: the marginals, not the joint). Inputs, all as planar poses ``(x, y, theta)``
+with covariances in exponential coordinates with right perturbation (the convention of :mod:`swarmloc.gaussian`):
+
+* ego's motion ``delta_i`` (pose of ego's new frame in its old one) with noise ``cov``: every particle of every
+  filter becomes ``q_j <- (delta_i exp(n))^-1 q_j`` (slide 63's ``q_j (-) (delta_i (+) n)``);
+* ``j``'s motion ``delta_j`` (from communication): ``q_j <- q_j delta_j exp(n)``;
+* PMR's hypotheses for ``j`` (its pose in every global solution, each a Gaussian measurement ``h = q_j exp(m)``,
+  ``m ~ N(0, R_h)``): the likelihood of a particle is the mixture ``1/H sum_h N(log(q^-1 h); 0, R_h)`` (slide 63).
+
+A filter starts at the first hypotheses for its robot (particles drawn from the mixture, the measurement not
+reused). When no particle explains any hypothesis (every Mahalanobis distance beyond ``reset_nis``) the update is
+skipped and counted ``unexplained``; after ``reset_after`` such updates in a row (a kidnapping or a lost track, not
+one spurious registration among clutter) the filter is re-initialized from the latest hypotheses, counted
+``reset``. Systematic resampling when the effective sample size drops below ``resample_ess`` of the particles.
+
+Estimate (:meth:`ParticleFilterBank.estimate`): the particles, embedded as ``(x, y, L cos theta, L sin theta)``,
+are split into *modes* (connected components of the graph linking particles closer than ``mode_radius``); modes
+holding at least ``ambiguity_mass`` of the weight are significant, and the estimate is *ambiguous* while more than
+one persists. The Gaussian handed out is that of the heaviest mode: mean on SE(2) (iterated weighted mean of the
+exponential coordinates) and covariance of ``log(mu^-1 q)`` over the particles within a 99.9% chi-square gate of it.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarmloc.association.registration import compose_xyt, invert_xyt
+from swarmloc.gaussian import GroupGaussian, check_covariance
+from swarmloc.lie import SE2
+
+__all__ = ["BankEstimate", "ParticleFilterBank"]
+
+Hypothesis = tuple[np.ndarray, np.ndarray]
+"""A measurement of a neighbour's pose in ego's frame: ``(pose (3,) (x, y, theta), cov (3, 3))``."""
+
+
+@dataclass(frozen=True)
+class BankEstimate:
+    """One filter's estimate: ``gaussian`` of the heaviest mode (mean in SE(2), covariance in exponential
+    coordinates), ``ambiguous`` while more than one significant mode persists, ``modes``: ``(pose (3,), mass)`` of
+    every significant mode, heaviest first, and ``ess``: the effective sample size."""
+
+    robot: int
+    gaussian: GroupGaussian
+    ambiguous: bool
+    modes: list[tuple[np.ndarray, float]]
+    ess: float
+
+
+def _log_xyt(q: np.ndarray) -> np.ndarray:
+    return SE2.log(SE2.from_xytheta(q), validate=False)
+
+
+def _exp_xyt(y: np.ndarray) -> np.ndarray:
+    return SE2.to_xytheta(SE2.exp(y, validate=False))
+
+
+def _sample(rng: np.random.Generator, cov: np.ndarray, n: int) -> np.ndarray:
+    return rng.multivariate_normal(np.zeros(3), cov, size=n, method="cholesky")
+
+
+class ParticleFilterBank:
+    """Particle filters for the robots ego has met (module docstring).
+
+    ``n_particles`` per filter; ``mode_radius`` [m] links particles into modes, with headings scaled by
+    ``angle_scale`` [m/rad]; ``ambiguity_mass``: smallest weight of a significant mode; ``reset_nis``: Mahalanobis
+    squared beyond which a hypothesis explains no particle; ``reset_after``: unexplained updates in a row before a
+    reset; ``resample_ess``: fraction of ``n_particles``.
+    """
+
+    def __init__(
+        self,
+        n_particles: int = 1000,
+        rng: np.random.Generator | int | None = None,
+        *,
+        mode_radius: float = 0.1,
+        angle_scale: float = 0.3,
+        ambiguity_mass: float = 0.05,
+        reset_nis: float = 30.0,
+        reset_after: int = 1,
+        resample_ess: float = 0.5,
+    ) -> None:
+        if not (isinstance(n_particles, int) and n_particles >= 10):
+            raise ValueError(f"ParticleFilterBank: n_particles must be an integer >= 10, got {n_particles!r}")
+        for name, v in (("mode_radius", mode_radius), ("angle_scale", angle_scale), ("reset_nis", reset_nis)):
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"ParticleFilterBank: {name} must be a finite number > 0, got {v!r}")
+        if not (isinstance(reset_after, int) and reset_after >= 1):
+            raise ValueError(f"ParticleFilterBank: reset_after must be an integer >= 1, got {reset_after!r}")
+        if not (0 < ambiguity_mass < 0.5 and 0 < resample_ess <= 1):
+            raise ValueError("ParticleFilterBank: need 0 < ambiguity_mass < 0.5 and 0 < resample_ess <= 1")
+        self.n = n_particles
+        self.rng = np.random.default_rng(rng)
+        self.mode_radius, self.angle_scale = float(mode_radius), float(angle_scale)
+        self.ambiguity_mass, self.reset_nis, self.resample_ess = float(ambiguity_mass), float(reset_nis), resample_ess
+        self.reset_after = reset_after
+        self.unexplained: dict[int, int] = {}
+        self.particles: dict[int, np.ndarray] = {}
+        self.weights: dict[int, np.ndarray] = {}
+        self.counts: Counter[str] = Counter()
+
+    def known(self) -> list[int]:
+        """Robots with a filter."""
+        return sorted(self.particles)
+
+    # ------------------------------------------------------------------------------------------ motion
+    def predict_ego(self, delta: object, cov: object) -> None:
+        """Ego moved by ``delta`` ``(x, y, theta)`` with noise ``cov`` (3x3, right perturbation): every filter."""
+        d = np.asarray(delta, float).reshape(3)
+        C = check_covariance(cov, 3, "ParticleFilterBank.predict_ego")
+        for j, q in self.particles.items():
+            step = compose_xyt(d[None], _exp_xyt(_sample(self.rng, C, len(q))))
+            self.particles[j] = compose_xyt(invert_xyt(step), q)
+
+    def predict_neighbour(self, robot: int, delta: object, cov: object) -> None:
+        """Robot ``robot`` moved by ``delta`` with noise ``cov`` (its odometry, by communication)."""
+        if robot not in self.particles:
+            return
+        d = np.asarray(delta, float).reshape(3)
+        C = check_covariance(cov, 3, "ParticleFilterBank.predict_neighbour")
+        q = self.particles[robot]
+        self.particles[robot] = compose_xyt(compose_xyt(q, d[None]), _exp_xyt(_sample(self.rng, C, len(q))))
+
+    # ------------------------------------------------------------------------------------------ measurement
+    def update(self, robot: int, hypotheses: Sequence[Hypothesis]) -> str:
+        """Measurement update of ``robot``'s filter with PMR's hypotheses; returns what happened: ``"none"`` (no
+        hypothesis), ``"initialized"``, ``"unexplained"``, ``"reset"`` or ``"updated"`` (also counted in
+        :attr:`counts`)."""
+        if not hypotheses:
+            self.counts["none"] += 1
+            return "none"
+        H = np.array([np.asarray(h, float).reshape(3) for h, _ in hypotheses])
+        R = np.array([check_covariance(c, 3, "ParticleFilterBank.update", "hypothesis cov") for _, c in hypotheses])
+        if robot not in self.particles:
+            self._init(robot, H, R)
+            self.counts["initialized"] += 1
+            return "initialized"
+        q, w = self.particles[robot], self.weights[robot]
+        rel = compose_xyt(invert_xyt(q)[:, None, :], H[None])  # (N, H, 3): q^-1 h
+        y = _log_xyt(rel)
+        Ri = np.linalg.inv(R)
+        m2 = np.einsum("nhi,hij,nhj->nh", y, Ri, y)
+        if m2.min() > self.reset_nis:
+            self.unexplained[robot] = self.unexplained.get(robot, 0) + 1
+            if self.unexplained[robot] < self.reset_after:
+                self.counts["unexplained"] += 1
+                return "unexplained"
+            self._init(robot, H, R)
+            self.counts["reset"] += 1
+            return "reset"
+        self.unexplained[robot] = 0
+        ll = -0.5 * m2 - 0.5 * np.log(np.linalg.det(R))[None]
+        ll = np.logaddexp.reduce(ll, axis=1)
+        lw = np.log(np.maximum(w, 1e-300)) + ll
+        w = np.exp(lw - lw.max())
+        w /= w.sum()
+        self.weights[robot] = w
+        if 1.0 / (w * w).sum() < self.resample_ess * self.n:
+            idx = self._systematic(w)
+            self.particles[robot], self.weights[robot] = q[idx], np.full(self.n, 1.0 / self.n)
+        self.counts["updated"] += 1
+        return "updated"
+
+    def _init(self, robot: int, H: np.ndarray, R: np.ndarray) -> None:
+        self.unexplained[robot] = 0
+        pick = self.rng.integers(0, len(H), self.n)
+        noise = np.einsum("nij,nj->ni", np.linalg.cholesky(R)[pick], self.rng.standard_normal((self.n, 3)))
+        self.particles[robot] = compose_xyt(H[pick], _exp_xyt(noise))
+        self.weights[robot] = np.full(self.n, 1.0 / self.n)
+
+    def _systematic(self, w: np.ndarray) -> np.ndarray:
+        u = (self.rng.random() + np.arange(self.n)) / self.n
+        return np.minimum(np.searchsorted(np.cumsum(w), u), self.n - 1)
+
+    # ------------------------------------------------------------------------------------------ estimate
+    def modes(self, robot: int) -> list[tuple[np.ndarray, float]]:
+        """Every mode of ``robot``'s filter as ``(particle indices, mass)``, heaviest first (small ones included)."""
+        from scipy.sparse.csgraph import connected_components
+        from scipy.spatial import cKDTree
+
+        q, w = self.particles[robot], self.weights[robot]
+        L = self.angle_scale
+        emb = np.column_stack([q[:, 0], q[:, 1], L * np.cos(q[:, 2]), L * np.sin(q[:, 2])])
+        graph = cKDTree(emb).sparse_distance_matrix(cKDTree(emb), self.mode_radius, output_type="coo_matrix")
+        _, label = connected_components(graph, directed=False)
+        mass = np.bincount(label, weights=w)
+        order = np.argsort(-mass)
+        return [(np.nonzero(label == c)[0], float(mass[c])) for c in order]
+
+    def estimate(self, robot: int) -> BankEstimate:
+        """The Gaussian of ``robot``'s heaviest mode and the ambiguity flag (module docstring)."""
+        if robot not in self.particles:
+            raise KeyError(f"ParticleFilterBank: no filter for robot {robot!r} (met: {self.known()})")
+        q, w = self.particles[robot], self.weights[robot]
+        found = self.modes(robot)
+        significant = [(idx, m) for idx, m in found if m >= self.ambiguity_mass]
+        out = []
+        for idx, m in significant:
+            mu, _ = self._moments(q[idx], w[idx])
+            out.append((mu, m))
+        mu, C = self._moments(q[significant[0][0]], w[significant[0][0]])
+        for _ in range(2):  # widen to every particle within the gate of the mode (its tails)
+            y = _log_xyt(compose_xyt(invert_xyt(mu)[None], q))
+            inside = np.einsum("ni,ij,nj->n", y, np.linalg.inv(C), y) <= 16.266
+            mu, C = self._moments(q[inside], w[inside])
+        g = GroupGaussian(SE2, SE2.from_xytheta(mu), C)
+        return BankEstimate(robot, g, len(significant) > 1, out, float(1.0 / (w * w).sum()))
+
+    @staticmethod
+    def _moments(q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean on SE(2) (iterated in exponential coordinates) and covariance of ``log(mu^-1 q)``."""
+        w = w / w.sum()
+        mu = q[int(np.argmax(w))]
+        for _ in range(8):
+            y = _log_xyt(compose_xyt(invert_xyt(mu)[None], q))
+            step = w @ y
+            mu = compose_xyt(mu, _exp_xyt(step))
+            if np.abs(step).max() < 1e-12:
+                break
+        y = _log_xyt(compose_xyt(invert_xyt(mu)[None], q))
+        C = np.einsum("n,ni,nj->ij", w, y, y)
+        C = (C + C.T) / 2 + np.eye(3) * 1e-12
+        return mu, C

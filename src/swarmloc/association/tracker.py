@@ -1,0 +1,141 @@
+"""Mutual localization from anonymous detections over an event stream (slides 46 and 61: PMR, then the bank).
+
+:func:`track_anonymous` plays one robot (``ego``) of a team whose robots share, at every scan, their anonymous
+observations and their odometry (slide 42's communication: packets are signed, the perceptions are not):
+
+* every ``Odometry`` event moves the bank (ego's: :meth:`~ParticleFilterBank.predict_ego`; a neighbour's:
+  :meth:`~ParticleFilterBank.predict_neighbour`) by its unicycle increment, applied at the end of its interval;
+* at every instant with anonymous detections (:func:`anonymous_scans`), PMR runs on all the robots' scans (a robot
+  that saw nothing contributes an empty set), gated by the bank's unambiguous estimates (slide 59); when the gate
+  leaves no solution, or leaves a robot unplaced (a kidnapping, a lost filter), PMR runs again without it and those
+  robots take their hypotheses from that run; every neighbour's filter is updated with its hypotheses;
+* the estimates (:class:`~swarmloc.association.pfbank.BankEstimate`) are recorded after each scan.
+
+The point noise ``sigma`` [m] given to PMR stands for range-bearing noise: ``max(s_r, max_range s_b)`` is the
+conservative choice. Anonymous detections are recognized by :func:`is_anonymous_detection` only; ``truth_target``
+is never read.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from swarmloc.association.pfbank import BankEstimate, ParticleFilterBank
+from swarmloc.association.pmr import multiple_registration
+from swarmloc.association.registration import points_from_range_bearing
+from swarmloc.events import Detection, Event, Odometry
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.lie import SE2
+from swarmloc.motion import UnicycleNoise, odometry_increment
+
+__all__ = ["AnonymousTrack", "anonymous_scans", "is_anonymous_detection", "track_anonymous"]
+
+
+def is_anonymous_detection(e: object) -> bool:
+    """An anonymous range-bearing robot detection: ``target=None``, ``target_is_robot``."""
+    return isinstance(e, Detection) and e.kind == "range_bearing" and e.target_is_robot and e.target is None
+
+
+def anonymous_scans(events: Iterable[Event], robots: Sequence[int]) -> dict[float, dict[int, np.ndarray]]:
+    """Anonymous detections grouped by time: ``{t: {robot: points (m, 2) in its frame}}`` for every robot in
+    ``robots`` (empty arrays for those that saw nothing at ``t``)."""
+    out: dict[float, dict[int, list]] = {}
+    for e in events:
+        if is_anonymous_detection(e):
+            out.setdefault(float(e.t), {r: [] for r in robots}).setdefault(e.observer, []).append(e.z)
+    return {
+        t: {r: points_from_range_bearing(np.array(z)) if z else np.zeros((0, 2)) for r, z in scan.items()}
+        for t, scan in out.items()
+    }
+
+
+@dataclass
+class AnonymousTrack:
+    """What :func:`track_anonymous` recorded: per scan time, every met robot's estimate and the number of PMR
+    solutions; ``counts``: scans, gated and ungated PMR runs, and the bank's counters."""
+
+    times: list[float] = field(default_factory=list)
+    estimates: list[dict[int, BankEstimate]] = field(default_factory=list)
+    solutions: list[int] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+
+    def errors(self, robot: int, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(times, position errors [m], heading errors [rad])`` of ``robot`` against ``truth`` ``(len(times), 3)``
+        (its true pose in ego's frame at each recorded time; NaN rows where it was not yet met)."""
+        t = np.array(self.times)
+        pos, ang = np.full(len(t), np.nan), np.full(len(t), np.nan)
+        for k, est in enumerate(self.estimates):
+            if robot in est:
+                m = SE2.to_xytheta(est[robot].gaussian.mean)
+                pos[k] = np.hypot(m[0] - truth[k, 0], m[1] - truth[k, 1])
+                ang[k] = abs((m[2] - truth[k, 2] + np.pi) % (2 * np.pi) - np.pi)
+        return t, pos, ang
+
+
+def track_anonymous(
+    events: Sequence[Event],
+    ego: int,
+    robots: Sequence[int],
+    noise: UnicycleNoise,
+    sigma: float,
+    *,
+    max_range: float = np.inf,
+    fov: float = 2 * np.pi,
+    max_unmatched: int = 0,
+    sigma_range: float | None = None,
+    n_particles: int = 500,
+    reset_after: int = 6,
+    rng: int | None = 0,
+    motion_floor: float = 1e-3,
+) -> AnonymousTrack:
+    """Run PMR and a particle-filter bank for ``ego`` over ``events`` (module docstring). ``noise``: the odometry
+    noise model; ``motion_floor`` [m, rad]: std added to every increment (keeps the particles diverse);
+    ``reset_after``: the bank's unexplained updates in a row before a filter restarts."""
+    if ego not in robots:
+        raise ValueError(f"track_anonymous: ego {ego!r} is not one of the robots {list(robots)}")
+    bank = ParticleFilterBank(n_particles, rng=rng, reset_after=reset_after)
+    scans = anonymous_scans(events, robots)
+    track = AnonymousTrack()
+    counts = {"scans": 0, "pmr_gated": 0, "pmr_ungated": 0}
+    floor = np.eye(3) * motion_floor**2
+    done: set[float] = set()
+    for e in events:
+        if isinstance(e, Odometry) and e.robot in robots:
+            mean, cov = odometry_increment(float(e.v), float(e.w), float(e.dt), noise)
+            delta = SE2.to_xytheta(mean)
+            if e.robot == ego:
+                bank.predict_ego(delta, cov + floor)
+            else:
+                bank.predict_neighbour(e.robot, delta, cov + floor)
+        elif is_anonymous_detection(e) and float(e.t) not in done:
+            t = float(e.t)
+            done.add(t)
+            counts["scans"] += 1
+            beliefs = {}
+            for j in bank.known():
+                est = bank.estimate(j)
+                if not est.ambiguous:
+                    beliefs[j] = GroupGaussian(SE2, est.gaussian.mean, est.gaussian.cov)
+            kw = dict(max_range=max_range, fov=fov, max_unmatched=max_unmatched, sigma_range=sigma_range)
+            res = multiple_registration(scans[t], ego, sigma, beliefs=beliefs or None, **kw)
+            counts["pmr_gated" if beliefs else "pmr_ungated"] += 1
+            hyps = {j: res.hypotheses(j) for j in robots if j != ego}
+            if beliefs and (not res.solutions or res.unreached):
+                # the belief left a robot (or everything) unexplained: kidnapped, or its filter is lost
+                free = multiple_registration(scans[t], ego, sigma, **kw)
+                counts["pmr_ungated"] += 1
+                for j in hyps:
+                    if not hyps[j] or not res.solutions:
+                        hyps[j] = free.hypotheses(j)
+                res = res if res.solutions else free
+            for j, h in hyps.items():
+                bank.update(j, h)
+            track.times.append(t)
+            track.solutions.append(len(res.solutions))
+            track.estimates.append({j: bank.estimate(j) for j in bank.known()})
+    counts.update({f"bank_{k}": v for k, v in bank.counts.items()})
+    track.counts = counts
+    return track
