@@ -143,7 +143,7 @@ def initial_from_snapshots(
         if t0 - ts <= 0:
             out[r] = belief
             continue
-        mine = [e for e in events if e.robot == r and ts - 1.0 <= e.stamp <= t0]
+        mine = [e for e in events if e.robot == r and ts <= e.stamp <= t0]
         res = run(make_team("dr", {r: belief}, **node_options("dr", config, None, ts)), mine, record_times=[t0])
         tr = res.tracks[r]
         out[r] = GroupGaussian(SE2, SE2.from_xytheta(tr.mean[-1]), tr.cov[-1], validate=False)
