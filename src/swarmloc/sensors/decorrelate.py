@@ -70,14 +70,21 @@ __all__ = [
     "LAG_EDGES",
     "MIN_INSTANTS",
     "CameraModel",
+    "DetectionSet",
     "ErrorComponent",
     "ar1_information",
     "calibrate",
+    "calibrate_pooled",
     "decorrelate",
     "fit_correlation",
+    "heldout_residuals",
+    "heldout_score",
     "information_weights",
     "lag_correlation",
+    "snapshot_poses",
     "snapshot_residuals",
+    "stream_nll",
+    "truncated_variance",
 ]
 
 KAPPA_3SIGMA = 0.9733
@@ -97,6 +104,9 @@ PHI_MAX = 0.999
 
 W_MIN = 1e-6
 """Smallest information weight (a covariance at most 1e6 times the marginal one)."""
+
+MEDIAN_CHI2_1 = 0.454936
+"""Median of a chi-square variable with 1 degree of freedom."""
 
 MIN_REDUNDANCY = 0.05
 """Residuals with a smaller redundancy number say too little about their own error and are left out."""
@@ -290,9 +300,10 @@ def _fit_group(z: np.ndarray, p: np.ndarray, range_std: float, bearing_std: floa
     v, a = linearize(x)
     n = np.einsum("mik,i,mil->mkl", a, w, a)
     n += 1e-12 * np.trace(n, axis1=1, axis2=2)[:, None, None] * eye
-    red = 1.0 - np.einsum("mik,mkl,mil->mi", a, np.linalg.inv(n), a) * w
+    ninv = np.linalg.inv(n)
+    red = 1.0 - np.einsum("mik,mkl,mil->mi", a, ninv, a) * w
     ok = np.isfinite(v).all(axis=1) & np.isfinite(red).all(axis=1)
-    return v, red, ok
+    return v, red, ok, x, ninv
 
 
 @dataclass
@@ -355,10 +366,35 @@ def snapshot_residuals(
     return _residuals(snaps, range_std, bearing_std)
 
 
+def snapshot_poses(ds: DetectionSet, range_std: float, bearing_std: float) -> dict[str, np.ndarray]:
+    """The observer's pose fitted at every snapshot of ``ds`` (two or more landmarks at one instant), weighted by
+    the given std [m], [rad]: ``observer``, ``t`` [s], ``pose`` ``(m, 3)`` as ``(x, y, theta)`` and ``cov``
+    ``(m, 3, 3)`` (the fit's covariance of ``(x, y, theta)`` under those std), sorted by time."""
+    snaps, obs, tt, _ = ds.snapshots()
+    parts: dict[str, list[np.ndarray]] = {"observer": [], "t": [], "pose": [], "cov": []}
+    for z, p, idx in snaps.groups.values():
+        _, _, ok, x, ninv = _fit_group(z, p, range_std, bearing_std)
+        ok &= np.isfinite(x).all(axis=1)
+        parts["observer"].append(obs[idx[ok, 0]])
+        parts["t"].append(tt[idx[ok, 0]])
+        parts["pose"].append(np.column_stack([x[ok, :2], _wrap(x[ok, 2])]))
+        parts["cov"].append(ninv[ok])
+    if not parts["t"]:
+        return {
+            "observer": np.empty(0, np.int64),
+            "t": np.empty(0),
+            "pose": np.empty((0, 3)),
+            "cov": np.empty((0, 3, 3)),
+        }
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    order = np.argsort(out["t"], kind="stable")
+    return {k: v[order] for k, v in out.items()}
+
+
 def _residuals(snaps: _Snapshots, range_std: float, bearing_std: float) -> dict[str, np.ndarray]:
     out: dict[str, list[np.ndarray]] = {"row": [], "v_range": [], "r_range": [], "v_bearing": [], "r_bearing": []}
     for k, (z, p, idx) in sorted(snaps.groups.items()):
-        v, red, ok = _fit_group(z, p, range_std, bearing_std)
+        v, red, ok, _, _ = _fit_group(z, p, range_std, bearing_std)
         out["row"].append(idx[ok].ravel())
         out["v_range"].append(v[ok, :k].ravel())
         out["r_range"].append(red[ok, :k].ravel())
@@ -434,12 +470,40 @@ class CameraModel:
         }
 
 
-def _vce(values: np.ndarray, red: np.ndarray, std: float) -> tuple[float, np.ndarray]:
-    inl = np.abs(values) <= 3.0 * std * np.sqrt(np.maximum(red, 0.0))
-    den = KAPPA_3SIGMA * float(np.sum(red[inl]))
+def truncated_variance(cut: float) -> float:
+    """Variance of a standard normal variable cut at ``+-cut`` (``KAPPA_3SIGMA`` at 3; 1 for ``inf``)."""
+    if not (cut > 0):
+        raise ValueError(f"cut must be > 0, got {cut!r}")
+    if math.isinf(cut):
+        return 1.0
+    mass = math.erf(cut / math.sqrt(2.0))
+    return 1.0 - 2.0 * cut * math.exp(-0.5 * cut * cut) / math.sqrt(2.0 * math.pi) / mass
+
+
+def _vce(values: np.ndarray, red: np.ndarray, std: float, cut: float = 3.0) -> tuple[float, np.ndarray]:
+    inl = np.abs(values) <= cut * std * np.sqrt(np.maximum(red, 0.0))
+    den = truncated_variance(cut) * float(np.sum(red[inl]))
     if den <= 0:
         return std, inl
     return math.sqrt(float(np.sum(values[inl] ** 2)) / den), inl
+
+
+@dataclass(frozen=True)
+class DetectionSet:
+    """One recording's detections as arrays (``observer``, ``t`` [s], ``target``, ``z`` ``(n, 2)`` range [m] and
+    bearing [rad]) with its landmark map (id -> ``(x, y, ...)`` [m]); ``name`` labels it in messages."""
+
+    observer: np.ndarray
+    t: np.ndarray
+    target: np.ndarray
+    z: np.ndarray
+    landmarks: Mapping[int, Any]
+    name: str = ""
+
+    def snapshots(self) -> tuple[_Snapshots, np.ndarray, np.ndarray, np.ndarray]:
+        """The instants with two or more landmarks, and the checked observer, time and target arrays."""
+        obs, tt, tg, zz = _check_detections(self.observer, self.t, self.target, self.z)
+        return _snapshots(obs, tt, tg, zz, self.landmarks), obs, tt, tg
 
 
 def calibrate(
@@ -459,56 +523,185 @@ def calibrate(
     targets are ignored here); ``landmarks`` maps landmark id to ``(x, y, ...)`` [m]. ``range_std`` and
     ``bearing_std`` are the a-priori std: the start of the variance-component iteration, the std kept when
     ``estimate_std`` is false, and the fallback (with white noise) when fewer than :data:`MIN_INSTANTS` snapshots
-    exist. Raises ValueError on non-finite or mis-shaped input.
+    exist. Raises ValueError on non-finite or mis-shaped input. :func:`calibrate_pooled` of one set.
+    """
+    return calibrate_pooled(
+        [DetectionSet(observer, t, target, z, landmarks)], range_std, bearing_std, estimate_std, max_iterations
+    )
+
+
+def calibrate_pooled(
+    sets: Sequence[DetectionSet],
+    range_std: float = 0.1,
+    bearing_std: float = 0.035,
+    estimate_std: bool = True,
+    max_iterations: int = 100,
+    cut: float = 3.0,
+) -> CameraModel:
+    """One :class:`CameraModel` for several recordings of the same kind of camera (each with its own map).
+
+    The snapshot fits run per set; the variance components pool the residuals of all sets, and the lag
+    correlation pools the pairs of all sets' streams (a stream never spans two sets). ``cut`` is the inlier rule
+    of the variance components, ``|v| <= cut std sqrt(r)``, with the variance of a normal cut there as its
+    correction (:func:`truncated_variance`; 3 is the default convention; a larger cut lets more of the heavy tail
+    into the std). Otherwise as :func:`calibrate`.
     """
     if not (range_std > 0 and bearing_std > 0 and math.isfinite(range_std) and math.isfinite(bearing_std)):
         raise ValueError(f"a-priori std must be finite and > 0, got {range_std!r}, {bearing_std!r}")
-    obs, tt, tg, zz = _check_detections(observer, t, target, z)
-    snaps = _snapshots(obs, tt, tg, zz, landmarks)
-    if snaps.instants < MIN_INSTANTS:
+    if not sets:
+        raise ValueError("calibrate_pooled: no detection sets")
+    prepared = [ds.snapshots() for ds in sets]
+    instants = sum(p[0].instants for p in prepared)
+    if instants < MIN_INSTANTS:
         return CameraModel(
             ErrorComponent(range_std),
             ErrorComponent(bearing_std),
-            source=f"a priori, white (only {snaps.instants} instants with two or more landmarks, "
-            f"{MIN_INSTANTS} needed)",
-            instants=snaps.instants,
+            source=f"a priori, white (only {instants} instants with two or more landmarks, {MIN_INSTANTS} needed)",
+            instants=instants,
         )
     sr, sb = float(range_std), float(bearing_std)
     iterations = 0
-    res = _residuals(snaps, sr, sb)
+
+    def pooled(sr: float, sb: float) -> dict[str, np.ndarray]:
+        parts = [_residuals(p[0], sr, sb) for p in prepared]
+        out = {k: np.concatenate([q[k] for q in parts]) for k in ("v_range", "r_range", "v_bearing", "r_bearing")}
+        out["set"] = np.concatenate([np.full(q["row"].size, i) for i, q in enumerate(parts)])
+        out["row"] = np.concatenate([q["row"] for q in parts])
+        return out
+
+    res = pooled(sr, sb)
     if estimate_std:
         for iterations in range(1, max_iterations + 1):  # noqa: B007
-            nr, _ = _vce(res["v_range"], res["r_range"], sr)
-            nb, _ = _vce(res["v_bearing"], res["r_bearing"], sb)
+            nr, _ = _vce(res["v_range"], res["r_range"], sr, cut)
+            nb, _ = _vce(res["v_bearing"], res["r_bearing"], sb, cut)
             done = abs(nr - sr) <= 1e-3 * sr and abs(nb - sb) <= 1e-3 * sb  # the inlier set can cycle below that
             sr, sb = nr, nb
-            res = _residuals(snaps, sr, sb)
+            res = pooled(sr, sb)
             if done:
                 break
+    obs = np.concatenate([p[1][res["row"][res["set"] == i]] for i, p in enumerate(prepared)])
+    tt = np.concatenate([p[2][res["row"][res["set"] == i]] for i, p in enumerate(prepared)])
+    tg = np.concatenate([p[3][res["row"][res["set"] == i]] for i, p in enumerate(prepared)])
+    stream = (res["set"] * 1_000_003 + obs) * 1_000_003 + tg  # a stream never spans two sets
     comps = {}
-    diag: dict[str, list[float]] = {}
+    diag: dict[str, Any] = {}
     for name, std in (("range", sr), ("bearing", sb)):
         v, red = res[f"v_{name}"], res[f"r_{name}"]
-        use = (red >= MIN_REDUNDANCY) & (np.abs(v) <= 3.0 * std * np.sqrt(np.maximum(red, 0.0)))
+        use = (red >= MIN_REDUNDANCY) & (np.abs(v) <= cut * std * np.sqrt(np.maximum(red, 0.0)))
         u = np.where(use, v / np.sqrt(np.maximum(red, MIN_REDUNDANCY)), np.nan)
-        rows = res["row"]
-        stream = obs[rows] * 1_000_003 + tg[rows]
-        lc = lag_correlation(stream, tt[rows], u)
+        lc = lag_correlation(stream, tt, u)
         phi, tau = fit_correlation(lc["lag"], lc["rho"], lc["pairs"])
         comps[name] = ErrorComponent(std, phi, tau)
         diag["lag_s"] = [round(float(x), 3) for x in lc["lag"]]
         diag[f"rho_{name}"] = [None if not np.isfinite(x) else round(float(x), 4) for x in lc["rho"]]
         diag["pairs"] = [int(x) for x in lc["pairs"]]
     diag["vce_iterations"] = iterations
+    if len(sets) > 1 or cut != 3.0:
+        diag["sets"] = [ds.name for ds in sets]
+        diag["cut"] = cut
     source = "estimated (std and correlation)" if estimate_std else "a-priori std, estimated correlation"
     return CameraModel(
         comps["range"],
         comps["bearing"],
-        source=source,
-        instants=snaps.instants,
+        source=source if len(sets) == 1 else f"{source}, pooled over {len(sets)} recordings",
+        instants=instants,
         residuals=int(res["row"].size),
         diagnostics=diag,
     )
+
+
+def stream_nll(
+    stream: np.ndarray, times: np.ndarray, values: np.ndarray, component: ErrorComponent
+) -> tuple[float, int]:
+    """Exact Gaussian negative log-likelihood of residual streams under ``component``'s error model.
+
+    ``stream`` (integer labels), ``times`` [s] and ``values`` (residuals, NaN: missing) are 1-D arrays of equal
+    length; within a stream the values are ``component``'s error process (Ornstein-Uhlenbeck of variance ``phi
+    std^2`` and time constant ``tau`` plus white noise), streams independent. The likelihood is computed by the
+    prediction-error decomposition (a scalar Kalman filter per stream, all streams advanced together). Returns
+    ``(sum of -log p, number of values)``; the per-value mean is comparable between models on the same values.
+    """
+    stream = np.asarray(stream)
+    t = np.asarray(times, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    if not (stream.ndim == t.ndim == v.ndim == 1 and stream.size == t.size == v.size):
+        raise ValueError("stream, times and values must be 1-D arrays of equal length")
+    keep = np.isfinite(v) & np.isfinite(t)
+    stream, t, v = stream[keep], t[keep], v[keep]
+    if v.size == 0:
+        return 0.0, 0
+    order = np.lexsort((t, stream))
+    stream, t, v = stream[order], t[order], v[order]
+    sid = np.r_[0, np.cumsum(stream[1:] != stream[:-1])]
+    first = np.r_[0, np.flatnonzero(np.diff(sid)) + 1]
+    rank = np.arange(sid.size) - first[sid]
+    var, phi, tau = component.std**2, component.phi, component.tau
+    white = (1.0 - phi) * var
+    p = np.full(first.size, phi * var)
+    s_hat = np.zeros(first.size)
+    t_prev = np.full(first.size, np.nan)
+    total = 0.0
+    by_rank = np.argsort(rank, kind="stable")
+    bounds = np.searchsorted(rank[by_rank], np.arange(int(rank.max()) + 2))
+    for k in range(int(rank.max()) + 1):
+        rows = by_rank[bounds[k] : bounds[k + 1]]
+        j = sid[rows]
+        if k > 0:
+            a = np.exp(-np.maximum(t[rows] - t_prev[j], 0.0) / tau)
+            s_hat[j] *= a
+            p[j] = a * a * p[j] + phi * var * (1.0 - a * a)
+        sv = p[j] + white
+        e = v[rows] - s_hat[j]
+        total += float(np.sum(0.5 * (np.log(2.0 * np.pi * sv) + e * e / sv)))
+        gain = p[j] / sv
+        s_hat[j] += gain * e
+        p[j] -= gain * p[j]
+        t_prev[j] = t[rows]
+    return total, int(v.size)
+
+
+def heldout_residuals(
+    ds: DetectionSet, range_std: float = 0.1, bearing_std: float = 0.035, trim: float = 5.0
+) -> dict[str, np.ndarray]:
+    """Standardized snapshot residuals of ``ds`` for scoring camera models on data they were not fitted to.
+
+    The snapshot fits are weighted by fixed std (``range_std`` [m], ``bearing_std`` [rad]; every model is then
+    scored on the same values, so pass std that do not depend on the model scored);
+    ``u = v / sqrt(r)`` for residuals with redundancy at least :data:`MIN_REDUNDANCY`; values beyond ``trim``
+    times the set's own robust scale (``1.4826`` median ``|u|``) are set to NaN (outliers, the same for every
+    model). Returns ``stream``, ``t`` [s], ``u_range`` [m], ``u_bearing`` [rad] and ``instants``.
+    """
+    snaps, obs, tt, tg = ds.snapshots()
+    res = _residuals(snaps, range_std, bearing_std)
+    rows = res["row"]
+    out: dict[str, np.ndarray] = {"stream": obs[rows] * 1_000_003 + tg[rows], "t": tt[rows]}
+    for name in ("range", "bearing"):
+        v, red = res[f"v_{name}"], res[f"r_{name}"]
+        u = np.where(red >= MIN_REDUNDANCY, v / np.sqrt(np.maximum(red, MIN_REDUNDANCY)), np.nan)
+        scale = 1.4826 * float(np.nanmedian(np.abs(u))) if np.isfinite(u).any() else 0.0
+        out[f"u_{name}"] = np.where(np.abs(u) <= trim * scale, u, np.nan)
+    out["instants"] = np.array(snaps.instants)
+    return out
+
+
+def heldout_score(model: CameraModel, held: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """Truth-free scores of ``model`` on :func:`heldout_residuals` ``held`` of a recording it was not fitted to.
+
+    Per component: ``nll_<c>`` the mean negative log-likelihood per residual under the model's correlated error
+    process (:func:`stream_nll`; lower is better; comparable between models on the same ``held``), and
+    ``ratio_<c>`` the robust variance ratio ``median(u^2) / (0.4549 std^2)`` (1 when the model's std is right;
+    0.4549 is the median of chi-square with 1 dof). ``nll`` is the sum of the two components' means.
+    """
+    out: dict[str, float] = {}
+    for name in ("range", "bearing"):
+        comp: ErrorComponent = getattr(model, name)
+        u = held[f"u_{name}"]
+        total, n = stream_nll(held["stream"], held["t"], u, comp)
+        out[f"nll_{name}"] = total / max(n, 1)
+        out[f"ratio_{name}"] = float(np.nanmedian(u * u)) / (MEDIAN_CHI2_1 * comp.std**2) if n else float("nan")
+        out[f"n_{name}"] = n
+    out["nll"] = out["nll_range"] + out["nll_bearing"]
+    return out
 
 
 # ----------------------------------------------------------------------------------------------------------------
