@@ -235,6 +235,12 @@ def _node(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 130
     s = report.stats
+    if "forwards" in report.net or not s:  # a server-hosted estimator: this process forwards its measurements
+        n = report.net
+        print(f"robot {report.robot}: forwarded {n.get('forwarded_detections', 0)} detections and "
+              f"{n.get('forwarded_odometry', 0)} odometry records in {n.get('forwards', 0)} forwards "
+              f"({n.get('lost', 0)} lost on the way by faults); {report.wall_s:.1f} s")  # fmt: skip
+        return 0 if "forwards" in n else 3
     print(f"robot {report.robot}: {s['detections']} detections: {s['fused']} fused, {s['gated']} gated, "
           f"{s['rejected']} rejected, {s['unknown']} unknown; {report.net.get('rejected', 0)} messages dropped; "
           f"{report.wall_s:.1f} s")  # fmt: skip

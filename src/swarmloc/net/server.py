@@ -33,6 +33,8 @@ from collections import Counter
 from collections.abc import Iterable
 from typing import Any
 
+import msgspec
+
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
@@ -214,6 +216,8 @@ class ServerProcess:
                 log.info("belief server: hosted %s done: %s", h.node.name, dict(h.counts))
             self._reported = time.monotonic()
             rep = h.report(time.perf_counter() - self._wall0, time.process_time() - self._cpu0)
+            rep = msgspec.structs.replace(rep, net={**rep.net, **self.counts},
+                                          net_reasons={**rep.net_reasons, **self.reasons})  # fmt: skip
             self._pubs["report"].put(self._sealed(server_key(self.scope, "report"), rep))
 
     def _handle(self, kind: str, x: Any) -> None:
