@@ -212,10 +212,11 @@ class ServerProcess:
             self.server.store(b)
             self._pubs["belief"].put(self._sealed(server_key(self.scope, "belief"), b))
         if h.done and time.monotonic() - self._reported >= 1.0:
-            if self._reported == -math.inf:
+            if self._reported == -math.inf:  # wall and CPU seconds from the server's start to the estimator's end
                 log.info("belief server: hosted %s done: %s", h.node.name, dict(h.counts))
+                self._took = (time.perf_counter() - self._wall0, time.process_time() - self._cpu0)
             self._reported = time.monotonic()
-            rep = h.report(time.perf_counter() - self._wall0, time.process_time() - self._cpu0)
+            rep = h.report(*self._took)
             rep = msgspec.structs.replace(rep, net={**rep.net, **self.counts},
                                           net_reasons={**rep.net_reasons, **self.reasons})  # fmt: skip
             self._pubs["report"].put(self._sealed(server_key(self.scope, "report"), rep))
