@@ -10,13 +10,15 @@ node, each robot's stream put back in forward order, and the records.
 keyed at or after ``(upto, prio)``. The server fuses a measurement keyed ``k = (t, prio, robot)`` once every other
 robot's stream stands past ``k`` (the lowest key among the robots' next measurements and stream positions goes
 first): the node's history then receives its inputs in key order, whatever order the forwards of different robots
-arrived in, and the run equals the in-process run on the same events (tested to 1e-6; measured: equal to 1e-12).
+arrived in, and the run equals the in-process run on the same events (tested to 1e-6; measured: equal, difference 0).
 
-**Loss.** A forward missing from a robot's numbers is waited for ``gap_timeout`` s of wall time (it may be delayed,
-overtaken by a later one), then counted lost: the later forward's cumulative counts say exactly how many odometry
-records and detections it carried (``raw_lost_odometry``, ``raw_lost_detections``; the detections also end
-``unknown`` with the reason, so the report still accounts for every detection). A robot silent for
-``lost_timeout`` s while the merge waits on it is declared lost (``robots_lost``): the others go on without it.
+**Loss.** A forward missing from a robot's numbers is asked of its robot again (:class:`~swarmloc.net.schema.RawAck`
+on ``server/ack``, after ``repair_wait`` s and again every ``repair_wait`` s: the robot keeps its last :data:`KEEP`
+forwards and sends those asked for again); missing ``gap_timeout`` s of wall time, it is counted lost: the later
+forward's cumulative counts say exactly how many odometry records and detections it carried (``raw_lost_odometry``,
+``raw_lost_detections``; the detections also end ``unknown`` with the reason, so the report still accounts for every
+detection). A robot silent for ``lost_timeout`` s while the merge waits on it is declared lost (``robots_lost``):
+the others go on without it.
 
 **Records.** The belief of every robot at every record time is taken once final (the node's present a horizon past
 it, or the end), as :func:`swarmloc.runner.run` takes it, and returned as a final
@@ -28,6 +30,7 @@ from __future__ import annotations
 import heapq
 import logging
 import math
+import queue
 import threading
 import time
 from collections import Counter, deque
@@ -45,6 +48,7 @@ from swarmloc.net.schema import (
     Belief,
     Progress,
     Raw,
+    RawAck,
     RawDetection,
     RawOdometry,
     Rejected,
@@ -58,6 +62,8 @@ __all__ = ["Forwarder", "Fusion", "from_wire", "to_wire"]
 
 log = logging.getLogger(__name__)
 
+KEEP = 4096
+"""Forwards a robot keeps to send again when the server asks (older ones are lost if lost)."""
 LOST_REASON = "unknown: lost on the network before the server (a raw measurement forward lost)"
 Key = tuple[float, int, int]
 
@@ -97,6 +103,8 @@ class _Stream:
         self.first = math.inf
         self.odometry = self.detections = 0
         self.gap_since: float | None = None
+        self.asked = -math.inf  # when its missing forwards were last asked for
+        self.asked_for: set[int] = set()
         self.heard = -math.inf
         self.lost = False
 
@@ -115,10 +123,11 @@ class Fusion:
         node: Node,
         robots: Iterable[int],
         record_times: Sequence[float] | np.ndarray,
-        gap_timeout: float = 1.0,
+        gap_timeout: float = 5.0,
         lost_timeout: float = 10.0,
         start_timeout: float = 30.0,
         clock: Any = time.monotonic,
+        repair_wait: float = 0.2,
     ) -> None:
         self.node = node
         self.robots = sorted(robots)
@@ -126,6 +135,7 @@ class Fusion:
             raise ValueError(f"Fusion: the node owns robots {sorted(node.robots)}, the team is {self.robots}")
         self.streams = {r: _Stream() for r in self.robots}
         self.gap_timeout, self.lost_timeout = float(gap_timeout), float(lost_timeout)
+        self.repair_wait = float(repair_wait)
         self.clock = clock
         self.t_begin = clock()
         self.start_timeout = float(start_timeout)
@@ -154,6 +164,8 @@ class Fusion:
             self.counts["raw_repeats" if not raw.items else "raw_duplicate"] += 1
             return
         self.counts["raw_received"] += 1
+        if raw.n in s.asked_for:
+            self.counts["raw_repaired"] += 1
         s.ahead[raw.n] = raw
         self._advance(raw.robot, s)
 
@@ -196,6 +208,20 @@ class Fusion:
         s.upto = max(s.upto, (raw.upto, raw.prio))
         s.odometry, s.detections = raw.odometry, raw.detections
         s.next = raw.n + 1
+
+    def wanted(self) -> list[RawAck]:
+        """What to ask the robots for again: per robot with a gap seen ``repair_wait`` s ago (and not asked for in
+        the last ``repair_wait`` s), its missing forward numbers (at most 256)."""
+        now, out = self.clock(), []
+        for r, s in self.streams.items():
+            if s.gap_since is None or now - s.gap_since < self.repair_wait or now - s.asked < self.repair_wait:
+                continue
+            missing = tuple(n for n in range(s.next, max(s.ahead)) if n not in s.ahead)[:256]
+            s.asked = now
+            s.asked_for.update(missing)
+            self.counts["raw_repairs_asked"] += 1
+            out.append(RawAck(robot=r, next=s.next, missing=missing))
+        return out
 
     # ---------------------------------------------------------------------------------------- fusing
     def _mark(self, r: int, s: _Stream) -> Key:
@@ -336,6 +362,8 @@ class Forwarder:
         self._stop = threading.Event()
         self._delayed: list[tuple[float, int, str, bytes]] = []
         self._end: Raw | None = None  # the stream's end, repeated once everything is forwarded
+        self._kept: dict[int, Raw] = {}  # the last KEEP forwards, to send again when the server asks
+        self._asked: queue.SimpleQueue = queue.SimpleQueue()  # RawAck from the server, handled on the main thread
 
     def stop(self) -> None:
         self._stop.set()
@@ -353,6 +381,34 @@ class Forwarder:
             return
         if env.from_robot == SERVER and isinstance(env.body, Report):
             self._server_done.set()
+
+    def _on_ack(self, x: Any) -> None:
+        try:
+            env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster)
+        except Rejected as exc:
+            self.counts["rejected"] += 1
+            log.warning("robot %s: refused a message on the server's ack key: %s", self.robot, exc.reason)
+            return
+        if env.from_robot == SERVER and isinstance(env.body, RawAck) and env.body.robot == self.robot:
+            self._asked.put(env.body)
+
+    def _resend(self, key: str) -> None:
+        """Send again the forwards the server asked for (those still kept; the others stay lost)."""
+        while True:
+            try:
+                ack = self._asked.get_nowait()
+            except queue.Empty:
+                return
+            for n in ack.missing:
+                raw = self._kept.get(n)
+                self.counts["resent" if raw is not None else "asked_not_kept"] += 1
+                if raw is not None:
+                    self._send(key, raw)
+
+    def _keep(self, raw: Raw) -> Raw:
+        self._kept[raw.n] = raw
+        self._kept.pop(raw.n - KEEP, None)
+        return raw
 
     def _on_alive(self, x: Any) -> None:
         import zenoh
@@ -387,6 +443,7 @@ class Forwarder:
         s, sc, r = self.session, self.scope, self.robot
         decl = [
             s.declare_subscriber(server_key(sc, "report"), handler=self._on_report),
+            s.declare_subscriber(server_key(sc, "ack"), handler=self._on_ack),
             s.liveliness().declare_subscriber(alive_key(sc, "server"), history=True, handler=self._on_alive),
         ]
         token = s.liveliness().declare_token(alive_key(sc, r))
@@ -428,13 +485,15 @@ class Forwarder:
             nxt = _key(self.forwards[n + 1][0]) if n + 1 < len(self.forwards) else (math.inf, 1)
             d = sum(isinstance(e, Detection) for e in evs)
             odo, det = odo + len(evs) - d, det + d
-            self._send(key, Raw(robot=self.robot, n=n, first=self.first, upto=nxt[0], prio=nxt[1], odometry=odo,
-                                detections=det, items=tuple(to_wire(e) for e in evs)))  # fmt: skip
+            raw = Raw(robot=self.robot, n=n, first=self.first, upto=nxt[0], prio=nxt[1], odometry=odo, detections=det,
+                      items=tuple(to_wire(e) for e in evs))  # fmt: skip
+            self._send(key, self._keep(raw))
+            self._resend(key)
             self.session.put(pkey, self._seal(pkey, Progress(robot=self.robot, t=nxt[0], prio=nxt[1])))
             self._flush_delayed()
         self.counts.update(forwards=len(self.forwards), forwarded_odometry=odo, forwarded_detections=det)
-        self._end = Raw(robot=self.robot, n=len(self.forwards), first=self.first, upto=math.inf, odometry=odo,
-                        detections=det)  # fmt: skip
+        self._end = self._keep(Raw(robot=self.robot, n=len(self.forwards), first=self.first, upto=math.inf,
+                                   odometry=odo, detections=det))  # fmt: skip
 
     def _linger(self, end: float) -> None:
         """Repeat the stream's end every 0.25 s until the server has reported, or is gone ``lost_timeout`` s."""
@@ -445,6 +504,7 @@ class Forwarder:
         while not self._server_done.is_set() and not self._stop.is_set() and time.monotonic() < end:
             now = time.monotonic()
             self._flush_delayed()
+            self._resend(key)
             if now - last >= 0.25:
                 last = now
                 self._send(key, self._end)

@@ -158,7 +158,16 @@ class Raw(msgspec.Struct, frozen=True, kw_only=True, tag="raw"):
     items: tuple[RawOdometry | RawDetection, ...] = ()
 
 
-Body = AnyMessage | Belief | Progress | Report | Broadcast | BroadcastHead | BroadcastRepair | Raw
+class RawAck(msgspec.Struct, frozen=True, kw_only=True, tag="raw_ack"):
+    """The server to ``robot`` (on ``server/ack``): it has every forward of ``robot`` below ``next`` and asks for
+    ``missing`` again (at most :data:`MAX_REPAIR` numbers, each below the highest it has)."""
+
+    robot: int
+    next: int
+    missing: tuple[int, ...] = ()
+
+
+Body = AnyMessage | Belief | Progress | Report | Broadcast | BroadcastHead | BroadcastRepair | Raw | RawAck
 
 
 class Envelope(msgspec.Struct, frozen=True, kw_only=True):
@@ -206,6 +215,9 @@ def body_problem(b: Body) -> str | None:
         return None
     if isinstance(b, Raw):
         return raw_problem(b)
+    if isinstance(b, RawAck):
+        ok = 0 <= b.next < MAX_BROADCAST_N and len(b.missing) <= MAX_REPAIR
+        return None if ok and all(b.next <= n < MAX_BROADCAST_N for n in b.missing) else "raw ack: numbers out of range"
     if isinstance(b, Broadcast):
         if not 0 <= b.n < MAX_BROADCAST_N:
             return f"broadcast: number {b.n} outside [0, 2^62)"
@@ -259,7 +271,7 @@ def raw_problem(b: Raw) -> str | None:
 
 def sender_of(b: Body) -> int:
     """The robot a body speaks for."""
-    return b.robot if isinstance(b, Belief | Progress | Report | Broadcast | BroadcastHead | Raw) else b.sender
+    return b.robot if isinstance(b, Belief | Progress | Report | Broadcast | BroadcastHead | Raw | RawAck) else b.sender
 
 
 def decode(
@@ -292,7 +304,7 @@ def decode(
             raise Rejected(f"broadcast repair addressed to robot {b.to}, received by robot {to_robot}")
         if b.robot == to_robot:
             raise Rejected(f"broadcast of robot {b.robot} received by itself")
-    elif to_robot is not None and not isinstance(b, Belief | Progress | Report | BroadcastHead | Raw):
+    elif to_robot is not None and not isinstance(b, Belief | Progress | Report | BroadcastHead | Raw | RawAck):
         if b.receiver != to_robot:
             raise Rejected(f"{type(b).__name__} addressed to robot {b.receiver}, received by robot {to_robot}")
         if b.sender == b.receiver:

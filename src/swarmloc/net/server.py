@@ -16,9 +16,10 @@ its counters are logged when it stops.
 
 With ``hosted`` (a :class:`~swarmloc.net.central.Fusion`: ``swarmloc server --estimator cekf|iekf|fej``) it also
 runs the team's centralized estimator on the raw measurements the robots forward on ``robot/<id>/raw`` (each
-forward accepted only if signed by robot ``id``, refusals counted as above), stores its final beliefs, publishes them
-on ``server/belief`` and, once every robot's stream has ended, its report on ``server/report`` (again every second
-while it runs, for a robot or collector that missed it).
+forward accepted only if signed by robot ``id``, refusals counted as above), asks a robot again for forwards
+missing from its numbers (``server/ack``), stores its final beliefs, publishes them on ``server/belief`` and, once
+every robot's stream has ended, its report on ``server/report`` (again every second while it runs, for a robot or
+collector that missed it).
 """
 
 from __future__ import annotations
@@ -174,7 +175,7 @@ class ServerProcess:
         if self.hosted is not None:
             decl.append(s.declare_subscriber(robot_key(self.scope, "*", "raw"), handler=lambda x: put(("raw", x))))
             self._pubs = {w: s.declare_publisher(server_key(self.scope, w), congestion_control=_block())
-                          for w in ("belief", "report")}  # fmt: skip
+                          for w in ("belief", "report", "ack")}  # fmt: skip
             decl += list(self._pubs.values())
         token = s.liveliness().declare_token(alive_key(self.scope, "server"))
         end = None if max_wall is None else time.monotonic() + max_wall
@@ -211,6 +212,8 @@ class ServerProcess:
         for b in h.pump():
             self.server.store(b)
             self._pubs["belief"].put(self._sealed(server_key(self.scope, "belief"), b))
+        for ack in h.wanted():  # forwards missing: asked of their robot again
+            self._pubs["ack"].put(self._sealed(server_key(self.scope, "ack"), ack))
         if h.done and time.monotonic() - self._reported >= 1.0:
             if self._reported == -math.inf:  # wall and CPU seconds from the server's start to the estimator's end
                 log.info("belief server: hosted %s done: %s", h.node.name, dict(h.counts))
