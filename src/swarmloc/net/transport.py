@@ -20,6 +20,7 @@ Key expressions (``<team>`` is the team's name; one run of a team launched by ``
     swarmloc/<team>/server/query          queryable of the belief server
     swarmloc/<team>/server/belief         publisher: the beliefs of a server-hosted centralized estimator
     swarmloc/<team>/server/report         publisher: the server's report (hosted estimator)
+    swarmloc/<team>/server/ack            publisher: the server's requests for missing forwards (hosted estimator)
 """
 
 from __future__ import annotations
