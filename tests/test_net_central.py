@@ -188,6 +188,34 @@ def test_a_silent_robot_is_lost_and_the_others_go_on(src):
     assert f.done and f.counts["robots_lost"] == 1 and len(out) == 3 * src.record_times().size
 
 
+def test_a_paced_robot_heard_from_is_not_lost(src):
+    """A robot with nothing to forward for longer than ``lost_timeout`` but announcing its progress is waited for."""
+    now = [0.0]
+    f = fusion(src, "cekf", lost_timeout=5.0, clock=lambda: now[0])
+    fw = {r: forwards(src, r) for r in src.robots}
+    for r in src.robots:
+        f.offer(fw[r][0])
+    f.pump()
+    for t in (4.0, 8.0, 12.0):
+        now[0] = t
+        f.hear(1)
+        f.pump()
+    assert f.counts["robots_lost"] == 2 and not f.streams[1].lost  # robots 0 and 2 said nothing
+
+
+def test_batches_keep_groups_whole_and_bound_size_and_span(src):
+    evs = src.own_events(0)
+    for size, span in ((1, math.inf), (16, math.inf), (64, 0.2)):
+        bs = batches(evs, size, span)
+        assert [e for b in bs for e in b] == sorted(evs, key=lambda e: (e.stamp, 1 if isinstance(e, Detection) else 2))
+        for a, b in zip(bs, bs[1:], strict=False):  # a key (a detection group) never split across two forwards
+            assert (a[-1].stamp, type(a[-1])) != (b[0].stamp, type(b[0]))
+        for b in bs:  # beyond ``size`` only the rest of the group that filled it
+            assert len(b) <= size or len({(e.stamp, type(e)) for e in b[size - 1 :]}) == 1
+            assert b[-1].stamp - b[0].stamp <= span
+        assert span == math.inf or len(bs) > len(batches(evs, size))  # the span did cut
+
+
 def test_bad_forwards_are_refused_by_the_schema():
     ok = dict(robot=1, n=0, first=0.0, upto=5.0)
     det = RawDetection(1.0, "pose", (1.0, 0.0, 0.0), (0.01, 0, 0, 0, 0.01, 0, 0, 0, 0.001))

@@ -62,6 +62,8 @@ __all__ = ["Forwarder", "Fusion", "from_wire", "to_wire"]
 
 log = logging.getLogger(__name__)
 
+SPAN = 0.2
+"""[s] of data a paced robot's forward spans at most (its measurements reach the server that much late at most)."""
 KEEP = 4096
 """Forwards a robot keeps to send again when the server asks (older ones are lost if lost)."""
 LOST_REASON = "unknown: lost on the network before the server (a raw measurement forward lost)"
@@ -209,6 +211,12 @@ class Fusion:
         s.odometry, s.detections = raw.odometry, raw.detections
         s.next = raw.n + 1
 
+    def hear(self, robot: int) -> None:
+        """Robot ``robot`` is alive (its authenticated progress): not silent, though it has nothing to forward."""
+        s = self.streams.get(robot)
+        if s is not None:
+            s.heard = self.clock()
+
     def wanted(self) -> list[RawAck]:
         """What to ask the robots for again: per robot with a gap seen ``repair_wait`` s ago (and not asked for in
         the last ``repair_wait`` s), its missing forward numbers (at most 256)."""
@@ -308,14 +316,15 @@ class Fusion:
 
 
 # ------------------------------------------------------------------------------------------------ the robot's side
-def batches(events: Sequence[Event], size: int) -> list[list[Event]]:
-    """A robot's events in key order, cut into forwards of at most ``size`` items, never inside one key (a detection
-    group goes whole), except a key of more than ``size`` items."""
+def batches(events: Sequence[Event], size: int, span: float = math.inf) -> list[list[Event]]:
+    """A robot's events in key order, cut into forwards of at most ``size`` items spanning at most ``span`` s of data,
+    never inside one key (a detection group goes whole)."""
     evs = sorted(events, key=_key)
     out: list[list[Event]] = []
     cur: list[Event] = []
     for e in evs:
-        if len(cur) >= size and _key(cur[-1]) != _key(e):
+        full = len(cur) >= size or (cur and _key(e)[0] - _key(cur[0])[0] > span)
+        if full and _key(cur[-1]) != _key(e):
             out.append(cur)
             cur = []
         cur.append(e)
@@ -326,9 +335,11 @@ def batches(events: Sequence[Event], size: int) -> list[list[Event]]:
 
 class Forwarder:
     """Robot ``robot``'s process of a team whose estimator the server hosts: forwards its ``events`` (its own) to
-    the server, signed with ``auth``, subject to the link ``faults``; paced at ``speed`` x real time (0: at once),
-    after waiting up to ``start_timeout`` s for the server; then repeats its stream's end until the server has
-    reported (or is gone for ``lost_timeout`` s)."""
+    the server, signed with ``auth``, subject to the link ``faults``, at most ``batch`` measurements per forward; paced
+    at ``speed`` x real time (0: at once; paced, a forward spans at most ``SPAN`` s of data, and its progress is
+    announced every second while it waits, so that the server does not take it for silent), after waiting up to
+    ``start_timeout`` s for the server; then repeats its stream's end until the server has reported (or is gone for
+    ``lost_timeout`` s)."""
 
     def __init__(
         self,
@@ -351,7 +362,7 @@ class Forwarder:
         self.robot, self.session, self.team, self.auth = robot, session, team, auth
         self.scope = team_scope(team, run_id)
         self.roster = frozenset(roster)
-        self.forwards = batches(events, batch)
+        self.forwards = batches(events, batch, SPAN if speed > 0 else math.inf)
         self.first = min((_key(e)[0] for e in events), default=math.inf)
         self.link = faults.plan(robot) if faults is not None and faults.link else None
         self.speed, self.start_timeout, self.lost_timeout = float(speed), float(start_timeout), float(lost_timeout)
@@ -478,9 +489,14 @@ class Forwarder:
             if self._stop.is_set() or time.monotonic() > end:
                 return
             if self.speed > 0:
-                due = w0 + (_key(evs[-1])[0] - self.first) / self.speed
+                due, beat = w0 + (_key(evs[-1])[0] - self.first) / self.speed, time.monotonic()
                 while time.monotonic() < due and not self._stop.is_set():
                     self._flush_delayed()
+                    self._resend(key)
+                    if time.monotonic() - beat >= 1.0:  # alive, and where it stands
+                        beat = time.monotonic()
+                        k = _key(evs[0])
+                        self.session.put(pkey, self._seal(pkey, Progress(robot=self.robot, t=k[0], prio=k[1])))
                     time.sleep(min(0.02, max(0.0, due - time.monotonic())))
             nxt = _key(self.forwards[n + 1][0]) if n + 1 < len(self.forwards) else (math.inf, 1)
             d = sum(isinstance(e, Detection) for e in evs)

@@ -173,7 +173,8 @@ class ServerProcess:
             s.declare_queryable(server_key(self.scope), handler=lambda q: put(("query", q))),
         ]
         if self.hosted is not None:
-            decl.append(s.declare_subscriber(robot_key(self.scope, "*", "raw"), handler=lambda x: put(("raw", x))))
+            decl += [s.declare_subscriber(robot_key(self.scope, "*", w), handler=lambda x, w=w: put((w, x)))
+                     for w in ("raw", "progress")]  # fmt: skip
             self._pubs = {w: s.declare_publisher(server_key(self.scope, w), congestion_control=_block())
                           for w in ("belief", "report", "ack")}  # fmt: skip
             decl += list(self._pubs.values())
@@ -225,7 +226,15 @@ class ServerProcess:
             self._pubs["report"].put(self._sealed(server_key(self.scope, "report"), rep))
 
     def _handle(self, kind: str, x: Any) -> None:
-        if kind == "raw":
+        if kind == "progress":  # a forwarding robot is alive (hosted estimator)
+            try:
+                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
+                                    server_ok=False, publication=True)  # fmt: skip
+            except Rejected as exc:
+                self._reject(exc.reason, exc)
+                return
+            self.hosted.hear(env.from_robot)
+        elif kind == "raw":
             try:
                 env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
                                     server_ok=False, publication=True)  # fmt: skip
