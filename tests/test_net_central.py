@@ -216,6 +216,18 @@ def test_batches_keep_groups_whole_and_bound_size_and_span(src):
         assert span == math.inf or len(bs) > len(batches(evs, size))  # the span did cut
 
 
+def test_a_robot_with_nothing_to_forward_ends_its_stream(src):
+    """A robot without a single measurement forwards only its end (first stamp inf): the others are fused as usual."""
+    f = fusion(src, "cekf")
+    for r in (0, 1):
+        for raw in forwards(src, r):
+            f.offer(raw)
+    end = Raw(robot=2, n=0, first=math.inf, upto=math.inf)
+    f.offer(decode(encode("t", 2, 0, end), "t", {0, 1, 2}).body)
+    out = f.pump()
+    assert f.done and len(out) == 3 * src.record_times().size and f.counts["robots_lost"] == 0
+
+
 def test_bad_forwards_are_refused_by_the_schema():
     ok = dict(robot=1, n=0, first=0.0, upto=5.0)
     det = RawDetection(1.0, "pose", (1.0, 0.0, 0.0), (0.01, 0, 0, 0, 0.01, 0, 0, 0, 0.001))

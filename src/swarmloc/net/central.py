@@ -260,7 +260,8 @@ class Fusion:
             if any(s.next == 0 and not s.lost for s in self.streams.values()):
                 return []
             firsts = [s.first for s in self.streams.values() if math.isfinite(s.first)]
-            if not firsts:
+            if not firsts:  # every robot lost before its first forward (or forwarding nothing): nothing to fuse
+                self.done = all(s.ended for s in self.streams.values())
                 return []
             self.node.start(min(firsts))
         out: list[Belief] = []
@@ -275,8 +276,7 @@ class Fusion:
             self._merged = max(self._merged, mark)
             self._fuse(item, k[0], out)
         if all(s.ended and not s.items for s in self.streams.values()):
-            for m in self.node.expire():
-                self.counts["messages_undeliverable"] += 1 if m is not None else 0
+            self.counts["messages_undeliverable"] += len(self.node.expire() or ())
             self._resolve(math.inf, out)
             self.done = True
         return out

@@ -248,7 +248,8 @@ def raw_problem(b: Raw) -> str | None:
 
     if not 0 <= b.n < MAX_BROADCAST_N or b.odometry < 0 or b.detections < 0:
         return f"raw: number {b.n} or counts ({b.odometry}, {b.detections}) out of range"
-    if not (math.isfinite(b.first) and not math.isnan(b.upto) and b.prio in (1, 2)):
+    first_ok = math.isfinite(b.first) or (b.first == math.inf and not b.items)  # inf: a robot with nothing at all
+    if not (first_ok and not math.isnan(b.upto) and b.prio in (1, 2)):
         return "raw: first stamp not finite, upto NaN, or prio not 1 (detections) or 2 (odometry)"
     if len(b.items) > MAX_RAW_ITEMS:
         return f"raw: {len(b.items)} items, at most {MAX_RAW_ITEMS}"
