@@ -563,13 +563,16 @@ def test_cli_team_report_bag_and_ros_output(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize(
-    ("est", "why"),
-    [("cekf", "not a distributed estimator"), ("nope", "unknown estimator")],
+    ("est", "extra", "why"),
+    [
+        ("cekf", ["--faults", "kill=1@1"], "kill and late are for a distributed team"),  # hosted by the server
+        ("nope", [], "unknown estimator"),
+    ],
 )
-def test_team_refuses_a_non_distributed_estimator_before_starting_anything(est, why, capsys, tmp_path):
+def test_team_refuses_what_it_cannot_run_before_starting_anything(est, extra, why, capsys, tmp_path):
     from swarmloc.cli import main
 
     out = tmp_path / "never-written"
-    assert main(["team", "--estimator", est, "--duration", "2", "--out", str(out)]) == 2
+    assert main(["team", "--estimator", est, "--duration", "2", "--out", str(out), *extra]) == 2
     assert why in capsys.readouterr().err
     assert not out.exists()

@@ -13,12 +13,20 @@ queryable ``swarmloc/<team>/server/query`` (a ``BeliefQuery`` in the payload; or
 (:mod:`swarmloc.net.auth`) it stores only beliefs signed by the robot they are of, answers only queries signed by
 the robot that asks, and signs its replies as the server; refusals are counted ``auth_<category>`` and logged, and
 its counters are logged when it stops.
+
+With ``hosted`` (a :class:`~swarmloc.net.central.Fusion`: ``swarmloc server --estimator cekf|iekf|fej``) it also
+runs the team's centralized estimator on the raw measurements the robots forward on ``robot/<id>/raw`` (each
+forward accepted only if signed by robot ``id``, refusals counted as above), asks a robot again for forwards
+missing from its numbers (``server/ack``), stores its final beliefs, publishes them on ``server/belief`` and, once
+every robot's stream has ended, its report on ``server/report`` (again every second while it runs, for a robot or
+collector that missed it).
 """
 
 from __future__ import annotations
 
 import bisect
 import logging
+import math
 import queue
 import threading
 import time
@@ -26,11 +34,13 @@ from collections import Counter
 from collections.abc import Iterable
 from typing import Any
 
+import msgspec
+
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
 from swarmloc.net.auth import Auth, note_refusal, open_envelope, seal
-from swarmloc.net.schema import SERVER, Belief, Rejected, encode
+from swarmloc.net.schema import SERVER, Belief, Raw, Rejected, encode
 from swarmloc.net.transport import alive_key, robot_key, server_key, team_scope
 
 __all__ = ["BeliefServer", "ServerProcess"]
@@ -126,6 +136,7 @@ class ServerProcess:
         server: BeliefServer | None = None,
         auth: Auth | None = None,
         run_id: str | None = None,
+        hosted: Any = None,
     ) -> None:
         if auth is not None and (auth.signer is None or auth.signer.member != SERVER):
             raise ValueError("the belief server needs the server's key to sign its replies")
@@ -139,6 +150,9 @@ class ServerProcess:
         self.reasons: Counter[str] = Counter()
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
+        self.hosted = hosted
+        self._reported = -math.inf  # when the hosted estimator's report was last published (monotonic)
+        self._cpu0 = self._wall0 = 0.0
 
     def stop(self) -> None:
         self._stop.set()
@@ -158,16 +172,26 @@ class ServerProcess:
             s.declare_subscriber(robot_key(self.scope, "*", "belief"), handler=lambda x: put(("belief", x))),
             s.declare_queryable(server_key(self.scope), handler=lambda q: put(("query", q))),
         ]
+        if self.hosted is not None:
+            decl += [s.declare_subscriber(robot_key(self.scope, "*", w), handler=lambda x, w=w: put((w, x)))
+                     for w in ("raw", "progress")]  # fmt: skip
+            self._pubs = {w: s.declare_publisher(server_key(self.scope, w), congestion_control=_block())
+                          for w in ("belief", "report", "ack")}  # fmt: skip
+            decl += list(self._pubs.values())
         token = s.liveliness().declare_token(alive_key(self.scope, "server"))
         end = None if max_wall is None else time.monotonic() + max_wall
+        self._wall0, self._cpu0 = time.perf_counter(), time.process_time()
         try:
             while not self._stop.is_set() and (end is None or time.monotonic() < end):
                 try:
-                    kind, x = self._q.get(timeout=0.2)
+                    kind, x = self._q.get(timeout=0.05 if self.hosted is not None else 0.2)
                 except queue.Empty:
-                    continue
+                    kind = None
                 try:
-                    self._handle(kind, x)
+                    if kind is not None:
+                        self._handle(kind, x)
+                    if self.hosted is not None and (kind is None or self._q.empty()):
+                        self._host()
                 except Exception as exc:  # never die of one message
                     log.exception("belief server: error on %s", kind)
                     self._reject(f"internal error: {type(exc).__name__}")
@@ -180,9 +204,48 @@ class ServerProcess:
             level = logging.WARNING if self.counts["rejected"] else logging.INFO
             log.log(level, "belief server: stopped; %s; store %s; refused %s", dict(self.counts),
                     dict(self.server.counts), dict(self.reasons))  # fmt: skip
+            if self.hosted is not None:
+                log.log(level, "belief server: hosted %s: %s", self.hosted.node.name, dict(self.hosted.counts))
+
+    def _host(self) -> None:
+        """Fuse what the forwards allow; store and publish the beliefs that became final; the report at the end."""
+        h = self.hosted
+        for b in h.pump():
+            self.server.store(b)
+            self._pubs["belief"].put(self._sealed(server_key(self.scope, "belief"), b))
+        for ack in h.wanted():  # forwards missing: asked of their robot again
+            self._pubs["ack"].put(self._sealed(server_key(self.scope, "ack"), ack))
+        if h.done and time.monotonic() - self._reported >= 1.0:
+            if self._reported == -math.inf:  # wall and CPU seconds from the server's start to the estimator's end
+                log.info("belief server: hosted %s done: %s", h.node.name, dict(h.counts))
+                self._took = (time.perf_counter() - self._wall0, time.process_time() - self._cpu0)
+            self._reported = time.monotonic()
+            rep = h.report(*self._took)
+            rep = msgspec.structs.replace(rep, net={**rep.net, **self.counts},
+                                          net_reasons={**rep.net_reasons, **self.reasons})  # fmt: skip
+            self._pubs["report"].put(self._sealed(server_key(self.scope, "report"), rep))
 
     def _handle(self, kind: str, x: Any) -> None:
-        if kind == "belief":
+        if kind == "progress":  # a forwarding robot is alive (hosted estimator)
+            try:
+                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
+                                    server_ok=False, publication=True)  # fmt: skip
+            except Rejected as exc:
+                self._reject(exc.reason, exc)
+                return
+            self.hosted.hear(env.from_robot)
+        elif kind == "raw":
+            try:
+                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
+                                    server_ok=False, publication=True)  # fmt: skip
+            except Rejected as exc:
+                self._reject(exc.reason, exc)
+                return
+            if isinstance(env.body, Raw):
+                self.hosted.offer(env.body)
+            else:
+                self._reject(f"{type(env.body).__name__} on a raw key")
+        elif kind == "belief":
             try:
                 env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
                                     server_ok=False, publication=True)  # fmt: skip
@@ -229,3 +292,9 @@ class ServerProcess:
 
     def _sealed(self, key: str, body: Any) -> bytes:
         return seal(self.auth, key, encode(self.team, SERVER, 0, body))
+
+
+def _block() -> Any:
+    import zenoh
+
+    return zenoh.CongestionControl.BLOCK

@@ -34,11 +34,11 @@ import numpy as np
 
 from swarmloc.datasets.source import Source
 from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
-from swarmloc.net.entry import distributed_class
+from swarmloc.net.entry import hosted_class, network_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import SERVER, Belief, Progress, Rejected, Report
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
-from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, team_scope
+from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, server_key, team_scope
 
 log = logging.getLogger(__name__)
 
@@ -134,8 +134,11 @@ def launch_team(
     """
     f = parse_faults(faults)
     team = check_team(team or f"team{os.getpid()}")
-    distributed_class(estimator)  # refuse a centralized or unknown estimator before starting anything
-    server = server or (f.kill is not None and f.restart)
+    network_class(estimator)  # refuse an estimator a team cannot run before starting anything
+    hosted = hosted_class(estimator) is not None
+    if hosted and (f.kill is not None or f.late is not None):
+        raise ValueError(f"faults: kill and late are for a distributed team; {estimator!r} is hosted by the server")
+    server = server or hosted or (f.kill is not None and f.restart)
     for what, robot in (("late", f.late), ("killed", f.kill)):
         if robot is not None and robot[0] not in src.robots:
             raise ValueError(f"faults: {what} robot {robot[0]} is not in the team {src.robots}")
@@ -145,9 +148,11 @@ def launch_team(
         hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout,
         lost_timeout=lost_timeout, use_server=server, faults=f, ros_domain=ros_domain, verbose=verbose,
     )  # fmt: skip
+    server_args = server_arguments(node_args) if hosted else []
     keys = TeamKeys(src.robots, keys_dir)
     try:
         launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir, keys, src.record_times())
+        launcher.server_args = server_args
         return launcher.run(src.t_start, max_wall)
     finally:
         keys.close()
@@ -195,6 +200,13 @@ def node_arguments(
     return out
 
 
+def server_arguments(node_args: Sequence[str]) -> list[str]:
+    """The options of ``swarmloc server`` that host the team's estimator, taken from the nodes' (the source, the
+    estimator, and the waits for the robots)."""
+    keep = ("--source", "--estimator", "--seed", "--duration", "--config", "--start-timeout", "--lost-timeout")
+    return [x for i, a in enumerate(node_args) if a in keep for x in node_args[i : i + 2]]
+
+
 class _Launcher:
     """The processes of one team run: their endpoints and command lines, starting and stopping them, the process
     faults (kill and restart, late join), and the collection of what they publish."""
@@ -235,6 +247,7 @@ class _Launcher:
         self.killed = self.restarted = self.joined = False
         self.deadline = math.inf  # the run's end (monotonic), set when it starts
         self.noted: set[int] = set()  # pids of the processes in ``result.ended``
+        self.server_args: list[str] = []  # a hosted estimator's options for ``swarmloc server``
 
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
@@ -270,7 +283,7 @@ class _Launcher:
     def start(self) -> None:
         if self.server:
             roster = ",".join(map(str, self.robots))
-            keys = [*self.keys.args(SERVER), *self.left()]
+            keys = [*self.keys.args(SERVER), *self.server_args, *self.left()]
             self.spawn("server", [*_python(), "server", *self.args_for("server", keys), "--robots", roster])
         for r in self.robots:
             if r != self.late:
@@ -330,13 +343,18 @@ class _Launcher:
 
     # ------------------------------------------------------------------------------------------- collecting
     def collect(self, sample: Any) -> None:
-        """Keep a published belief, report or progress announcement signed by the robot whose key it is published on
-        (a bad payload, or a belief stamped at no record time of the run, is counted and dropped)."""
+        """Keep a published belief, report or progress announcement signed by the robot whose key it is published on,
+        or a belief or report signed by the server on its own keys (a hosted estimator's; a bad payload, or a belief
+        stamped at no record time of the run, is counted and dropped)."""
         counts = self.result.counts
         try:
             key = str(sample.key_expr)
-            b = open_envelope(self.auth, key, sample.payload.to_bytes(), self.team, self.roster, server_ok=False,
-                              publication=True).body  # fmt: skip
+            on_server = key in (server_key(self.scope, "belief"), server_key(self.scope, "report"))
+            env = open_envelope(self.auth, key, sample.payload.to_bytes(), self.team, self.roster, server_ok=on_server,
+                                publication=not on_server)  # fmt: skip
+            if on_server and env.from_robot != SERVER:
+                raise Rejected(f"robot {env.from_robot} published on the server's key")
+            b = env.body
             if isinstance(b, Belief) and b.stamp not in self.record_times:
                 raise Rejected("belief stamped at no record time of the run")
         except Rejected as exc:
@@ -387,7 +405,8 @@ class _Launcher:
         subs = [
             session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
             for what in ("belief", "report", "progress")
-        ]
+        ] + [session.declare_subscriber(server_key(self.scope, w), handler=lambda x: put(("sample", x)))
+             for w in ("belief", "report")]  # fmt: skip
         t0 = time.monotonic()
         self.deadline = t0 + max_wall
         try:
