@@ -263,6 +263,7 @@ def _server(args: argparse.Namespace) -> int:
         server_main(
             team=args.team, roster=robots, listen=_endpoints(args.listen), connect=_endpoints(args.connect),
             zenoh_config=args.zenoh_config, max_wall=args.max_wall, auth=auth, run_id=args.run_id,
+            map_out=args.map_out,
         )  # fmt: skip
     except (ValueError, OSError) as exc:
         print(f"swarmloc server: {exc}", file=sys.stderr)
@@ -294,6 +295,10 @@ def _team(args: argparse.Namespace) -> int:
         )  # fmt: skip
         extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}
         report = write_team_report(run, src, args.estimator, args.out, extra)
+        if run.map is not None:
+            from swarmloc.net.server import linemap_of
+
+            linemap_of(run.map).save_geojson(f"{args.out}/map.geojson")
         if args.bag:
             from swarmloc.net.ros import BagWriter
 
@@ -491,6 +496,7 @@ def build_parser() -> argparse.ArgumentParser:
     sv = sub.add_parser("server", help="run the belief server of a team (stores every robot's Gaussian)")
     _net_args(sv)
     sv.add_argument("--robots", default=None, help="the team's robot ids, comma-separated (default: the roster's)")
+    sv.add_argument("--map-out", default=None, help="save the fused line map there as GeoJSON when it stops")
     _auth_args(sv)
     sv.set_defaults(func=_server)
     _keys_parser(sub)

@@ -153,6 +153,7 @@ def node_main(
             on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
             auth=auth,
             run_id=run_id,
+            scans=_own_scans(src, robot, events),
         )
         _stop_on_sigterm(net.stop)
         report = net.run(max_wall=max_wall)
@@ -161,6 +162,18 @@ def node_main(
         return report
     finally:
         session.close()
+
+
+def _own_scans(src: Source, robot: int, events: Sequence[Event]) -> Any:
+    """``robot``'s range scans from its first event on (a resumed node's earlier ones were sent before), or None."""
+    if src.scans is None or robot not in src.scans:
+        return None
+    from swarmloc.mapping import ScanSeries
+
+    sc = src.scans[robot]
+    stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
+    keep = sc.times >= (min(stamps) if stamps else src.t_start)
+    return ScanSeries(sc.times[keep], sc.ranges[keep], sc.angles, sc.sigma)
 
 
 def _check_roster(auth: Auth | None, robots: Sequence[int]) -> None:
@@ -252,16 +265,18 @@ def server_main(
     max_wall: float | None = None,
     auth: Auth | None = None,
     run_id: str | None = None,
+    map_out: str | os.PathLike[str] | None = None,
 ) -> None:
     """Run the belief server of ``team`` (of its run ``run_id``) until SIGTERM / Ctrl-C (or ``max_wall`` s);
-    ``auth``: the server's key and the team's roster (None: unauthenticated)."""
+    ``auth``: the server's key and the team's roster (None: unauthenticated); ``map_out``: save its fused line map
+    there as GeoJSON when it stops."""
     from swarmloc.net.server import ServerProcess
 
     team_scope(team, run_id)  # refuse a bad name or run id before opening anything
     _check_roster(auth, roster)
     session = open_session(listen, connect, zenoh_config)
     try:
-        sp = ServerProcess(session, team, roster, auth=auth, run_id=run_id)
+        sp = ServerProcess(session, team, roster, auth=auth, run_id=run_id, map_out=map_out)
         _stop_on_sigterm(sp.stop)
         try:
             sp.run(max_wall=max_wall)

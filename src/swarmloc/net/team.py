@@ -36,7 +36,7 @@ from swarmloc.datasets.source import Source
 from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
 from swarmloc.net.entry import distributed_class
 from swarmloc.net.faults import Faults, parse_faults
-from swarmloc.net.schema import SERVER, Belief, Progress, Rejected, Report
+from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, team_scope
 
@@ -63,6 +63,10 @@ class TeamRun:
     """Every process that ended with a non-zero exit code, in order: ``process`` (``robot<N>``, ``server``),
     ``pid``, ``exit_code``, ``how`` (died, killed by a fault and restarted, stopped by the launcher) and ``said``
     (the last lines it wrote, for a process that exited with an error)."""
+    lines: list[Lines] = field(default_factory=list)
+    """Every robot's :class:`~swarmloc.net.schema.Lines` (a source with range scans), as received."""
+    map: MapAnswer | None = None
+    """The belief server's fused line map, asked for once every node has ended (None: no server, or no answer)."""
 
     def keep(self, b: Belief) -> None:
         k = (b.robot, b.stamp)
@@ -350,6 +354,8 @@ class _Launcher:
             self.result.keep(b)
         elif isinstance(b, Report):
             self.result.reports[b.robot] = b
+        elif isinstance(b, Lines):
+            self.result.lines.append(b)
         elif isinstance(b, Progress) and math.isfinite(b.t):
             self.progress[b.robot] = max(self.progress.get(b.robot, -math.inf), b.t)
 
@@ -378,6 +384,32 @@ class _Launcher:
                         return
                 return
 
+    def ask_map(self, session: Any, timeout: float = 5.0) -> MapAnswer | None:
+        """The belief server's map (signed by the server), once it has every :class:`Lines` collected: asked again
+        until ``timeout`` s have passed (then the last answer, or None)."""
+        import zenoh
+
+        from swarmloc.net.transport import server_key
+
+        want, last, end = len(self.result.lines), None, time.monotonic() + timeout
+        while time.monotonic() < end:
+            for reply in session.get(f"{server_key(self.scope)}?map", timeout=1.0, target=zenoh.QueryTarget.ALL):
+                if reply.ok is None:
+                    continue
+                try:
+                    env = open_envelope(self.auth, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), self.team,
+                                        self.roster)  # fmt: skip
+                except Rejected as exc:
+                    self.result.reasons[f"map answer: {exc.reason}"] += 1
+                    continue
+                if env.from_robot == SERVER and isinstance(env.body, MapAnswer):
+                    last = env.body
+            if last is not None and last.messages >= want:
+                return last
+            time.sleep(0.1)
+        self.result.counts["map_incomplete"] = 1
+        return last
+
     def run(self, t_first: float, max_wall: float) -> TeamRun:
         """Start the team, watch it, and stop every process it started, whatever happens (``t_first``: the
         source's start, which the fault times count from)."""
@@ -386,13 +418,15 @@ class _Launcher:
         put = self.inq.put
         subs = [
             session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
-            for what in ("belief", "report", "progress")
+            for what in ("belief", "report", "progress", "lines")
         ]
         t0 = time.monotonic()
         self.deadline = t0 + max_wall
         try:
             self.start()
             self.watch(t_first, max_wall, t0)
+            if self.server and not self.result.counts["timed_out"]:
+                self.result.map = self.ask_map(session)
         finally:
             for s in subs:
                 try:
