@@ -124,6 +124,7 @@ def launch_team(
     verbose: bool = False,
     connect_extra: Sequence[str] = (),
     keys_dir: str | os.PathLike[str] | None = None,
+    view: Any = None,
 ) -> TeamRun:
     """Start the team of ``src`` on 127.0.0.1, collect its beliefs and reports, stop every process.
 
@@ -134,7 +135,8 @@ def launch_team(
     ``max_wall`` [s] is the whole run's wall-clock limit. ``connect_extra``: endpoints every process also connects
     to (a Zenoh router, e.g. ROS 2's ``rmw_zenohd`` on ``tcp/127.0.0.1:7447``). ``keys_dir``: the team's keys and
     roster (:class:`~swarmloc.net.auth.TeamKeys`: made there unless its ``roster.json`` exists; default: a temporary
-    folder, removed at the end).
+    folder, removed at the end). ``view``: a :class:`~swarmloc.net.view.TeamView` shown every belief and line
+    collected (the caller closes it).
     """
     f = parse_faults(faults)
     team = check_team(team or f"team{os.getpid()}")
@@ -152,6 +154,7 @@ def launch_team(
     keys = TeamKeys(src.robots, keys_dir)
     try:
         launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir, keys, src.record_times())
+        launcher.view = view
         return launcher.run(src.t_start, max_wall)
     finally:
         keys.close()
@@ -239,6 +242,7 @@ class _Launcher:
         self.killed = self.restarted = self.joined = False
         self.deadline = math.inf  # the run's end (monotonic), set when it starts
         self.noted: set[int] = set()  # pids of the processes in ``result.ended``
+        self.view: Any = None  # a live view (swarmloc.net.view.TeamView) shown what is collected
 
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
@@ -350,6 +354,8 @@ class _Launcher:
                 log.log(logging.WARNING if self.result.reasons[exc.reason] == 1 else logging.DEBUG,
                         "collector: refused a message: %s", exc.reason)  # fmt: skip
             return
+        if self.view is not None:
+            self.view.observe(b)
         if isinstance(b, Belief):
             self.result.keep(b)
         elif isinstance(b, Report):
