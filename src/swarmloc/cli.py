@@ -279,7 +279,7 @@ def _server(args: argparse.Namespace) -> int:
             team=args.team, roster=[int(r) for r in robots], listen=_endpoints(args.listen),
             connect=_endpoints(args.connect), zenoh_config=args.zenoh_config, max_wall=args.max_wall, auth=auth,
             run_id=args.run_id, src=src, estimator=args.estimator, start_timeout=args.start_timeout,
-            lost_timeout=args.lost_timeout,
+            lost_timeout=args.lost_timeout, map_out=args.map_out,
         )  # fmt: skip
     except (ConfigError, ValueError, OSError) as exc:
         print(f"swarmloc server: {exc}", file=sys.stderr)
@@ -300,17 +300,32 @@ def _team(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)  # so that `kill` and time limits also stop every process started
+    view = None
     try:
         config = _config(args) if args.config else None
         src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
+        if args.view is not None or args.record:
+            from swarmloc.net.view import TeamView
+
+            view = TeamView(port=args.view, mcap=args.record, truth=src.truth, detections=src.events,
+                            roster=src.robots)  # fmt: skip
+            if view.url:
+                print(f"live view: open {view.url} in Foxglove (Open connection > Foxglove WebSocket)", flush=True)
         run = run_team(
             src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
             seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
             lag=args.lag, max_wall=args.max_wall, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
-            team=args.team, verbose=args.verbose, connect_extra=_endpoints(args.connect), **_timeouts(args),
+            team=args.team, verbose=args.verbose, connect_extra=_endpoints(args.connect), view=view,
+            **_timeouts(args),
         )  # fmt: skip
+        if view is not None:
+            view.close()
         extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}
         report = write_team_report(run, src, args.estimator, args.out, extra)
+        if run.map is not None:
+            from swarmloc.net.server import linemap_of
+
+            linemap_of(run.map).save_geojson(f"{args.out}/map.geojson")
         if args.bag:
             from swarmloc.net.ros import BagWriter
 
@@ -325,6 +340,9 @@ def _team(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("swarmloc team: interrupted; every process it started was stopped", file=sys.stderr)
         return 130
+    finally:
+        if view is not None:
+            view.close()
     print(markdown_table(report))
     print(f"results, figures and TUM trajectories in {args.out}/" + (f"; rosbag2 in {args.bag}" if args.bag else ""))
     bad = {n: c for n, c in run.exit_codes.items() if c not in (0, -15, None) and not n == "server"}
@@ -541,6 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --estimator: seconds a robot's stream may "
         "stay silent while the fusion waits on it before it is declared lost (default 10)",
     )
+    sv.add_argument("--map-out", default=None, help="save the fused line map there as GeoJSON when it stops")
     _auth_args(sv)
     sv.set_defaults(func=_server)
     _keys_parser(sub)
@@ -614,6 +633,9 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")
+    t.add_argument("--view", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="live view for Foxglove on ws://127.0.0.1:PORT (default 8765; 0: a free port)")  # fmt: skip
+    t.add_argument("--record", default=None, metavar="FILE.mcap", help="record the view as MCAP (Foxglove, ROS 2)")
     t.add_argument("--team", default=None, help="the team's name (default team<PID>); each run also has an id of its "
                    "own in every key, so that two teams of one name never hear each other")  # fmt: skip
     _timeout_args(t)

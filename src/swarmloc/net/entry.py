@@ -178,6 +178,7 @@ def node_main(
             on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
             auth=auth,
             run_id=run_id,
+            scans=_own_scans(src, robot, events),
         )
         _stop_on_sigterm(net.stop)
         report = net.run(max_wall=max_wall)
@@ -212,6 +213,18 @@ def _forward(
         return report
     finally:
         session.close()
+
+
+def _own_scans(src: Source, robot: int, events: Sequence[Event]) -> Any:
+    """``robot``'s range scans from its first event on (a resumed node's earlier ones were sent before), or None."""
+    if src.scans is None or robot not in src.scans:
+        return None
+    from swarmloc.mapping import ScanSeries
+
+    sc = src.scans[robot]
+    stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
+    keep = sc.times >= (min(stamps) if stamps else src.t_start)
+    return ScanSeries(sc.times[keep], sc.ranges[keep], sc.angles, sc.sigma)
 
 
 def _check_roster(auth: Auth | None, robots: Sequence[int]) -> None:
@@ -307,11 +320,13 @@ def server_main(
     estimator: str | None = None,
     start_timeout: float = START_TIMEOUT,
     lost_timeout: float = LOST_TIMEOUT,
+    map_out: str | os.PathLike[str] | None = None,
 ) -> None:
     """Run the belief server of ``team`` (of its run ``run_id``) until SIGTERM / Ctrl-C (or ``max_wall`` s);
     ``auth``: the server's key and the team's roster (None: unauthenticated). With ``estimator`` (centralized:
     ``cekf``, ``iekf``, ``fej``) it hosts that estimator for the team of ``src`` (whose initial beliefs, landmarks,
-    configuration and record times it takes; its events come from the robots, :mod:`swarmloc.net.central`)."""
+    configuration and record times it takes; its events come from the robots, :mod:`swarmloc.net.central`);
+    ``map_out``: save its fused line map there as GeoJSON when it stops."""
     from swarmloc.net.server import ServerProcess
 
     team_scope(team, run_id)  # refuse a bad name or run id before opening anything
@@ -321,7 +336,7 @@ def server_main(
         hosted = _hosted(estimator, src, roster, start_timeout, lost_timeout)
     session = open_session(listen, connect, zenoh_config)
     try:
-        sp = ServerProcess(session, team, roster, auth=auth, run_id=run_id, hosted=hosted)
+        sp = ServerProcess(session, team, roster, auth=auth, run_id=run_id, hosted=hosted, map_out=map_out)
         _stop_on_sigterm(sp.stop)
         try:
             sp.run(max_wall=max_wall)

@@ -5,7 +5,8 @@ server or the team launcher), a per-sender sequence number ``seq`` (increasing o
 ``body``: one of the neighbour-exchange messages of :mod:`swarmloc.messages` (queries, answers, pairwise
 updates: robot ids, key stamp and sub-key, revision, mean and covariance or the estimator's payload) or one of
 the runtime messages below (a published :class:`Belief`, lockstep :class:`Progress`, a final :class:`Report`, and a
-team estimator's :class:`Broadcast` with its :class:`BroadcastHead` and :class:`BroadcastRepair`).
+team estimator's :class:`Broadcast` with its :class:`BroadcastHead` and :class:`BroadcastRepair`, a robot's
+world-frame wall :class:`Lines` for the belief server's map and the server's :class:`MapAnswer`).
 
 :func:`decode` checks a received payload before anything reaches a node and says what is wrong: not MessagePack
 or not the schema (with msgspec's path to the bad field), another schema version or team, a sender outside the
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Container
+from typing import Annotated
 
 import msgspec
 
@@ -167,7 +169,68 @@ class RawAck(msgspec.Struct, frozen=True, kw_only=True, tag="raw_ack"):
     missing: tuple[int, ...] = ()
 
 
-Body = AnyMessage | Belief | Progress | Report | Broadcast | BroadcastHead | BroadcastRepair | Raw | RawAck
+MAX_LINES = 64
+"""The most lines one :class:`Lines` message carries (a scan yields a handful; the bound is checked on decoding)."""
+MAX_MAP_LINES = 4096
+"""The most lines a :class:`MapAnswer` carries."""
+LINE_FIELDS = 9
+"""A line on the wire: ``rho, alpha, c_rr, c_ra, c_aa, x0, y0, x1, y1`` (world frame, [m] and [rad])."""
+WireLine = Annotated[tuple[float, ...], msgspec.Meta(min_length=LINE_FIELDS, max_length=LINE_FIELDS)]
+
+
+class Lines(msgspec.Struct, frozen=True, kw_only=True, tag="lines"):
+    """Wall lines ``robot`` extracted from its range scan at ``stamp`` [s] and carried into the world frame with its
+    final belief there (:func:`swarmloc.mapping.scan_observations`), in extraction order; each line is
+    :data:`LINE_FIELDS` numbers: ``(rho, alpha)`` [m, rad], the covariance's ``c_rr, c_ra, c_aa``, the segment's end
+    points. At most :data:`MAX_LINES`; published on ``robot/<robot>/lines`` for the belief server."""
+
+    robot: int
+    stamp: float
+    lines: Annotated[tuple[WireLine, ...], msgspec.Meta(max_length=MAX_LINES)] = ()
+
+
+class FusedLine(msgspec.Struct, frozen=True, kw_only=True):
+    """One line of the server's map: ``line`` as in :class:`Lines`, the ``robots`` that saw it, ``n_obs``."""
+
+    line: WireLine
+    robots: tuple[int, ...] = ()
+    n_obs: int = 1
+
+
+class MapAnswer(msgspec.Struct, frozen=True, kw_only=True, tag="map"):
+    """The belief server's fused line map (its reply to a map query): ``lines``, and ``observations``: how many
+    line observations it has fused (from ``messages`` :class:`Lines` messages)."""
+
+    lines: Annotated[tuple[FusedLine, ...], msgspec.Meta(max_length=MAX_MAP_LINES)] = ()
+    observations: int = 0
+    messages: int = 0
+
+
+def line_problem(x: tuple[float, ...]) -> str | None:
+    """Why one wire line is unusable (non-finite, covariance not SPD, end points equal), or None."""
+    if not _finite(x, LINE_FIELDS):
+        return f"a line must be {LINE_FIELDS} finite numbers"
+    c_rr, c_ra, c_aa = x[2:5]
+    if not (c_rr > 0 and c_aa > 0 and c_rr * c_aa - c_ra * c_ra > 0):
+        return "a line's covariance is not positive definite"
+    if x[5] == x[7] and x[6] == x[8]:
+        return "a line's end points are equal"
+    return None
+
+
+Body = (
+    AnyMessage
+    | Belief
+    | Progress
+    | Report
+    | Broadcast
+    | BroadcastHead
+    | BroadcastRepair
+    | Raw
+    | RawAck
+    | Lines
+    | MapAnswer
+)
 
 
 class Envelope(msgspec.Struct, frozen=True, kw_only=True):
@@ -211,6 +274,20 @@ def body_problem(b: Body) -> str | None:
         return message_problem(BeliefAnswer(sender=b.robot, receiver=b.robot, stamp=b.stamp, mean=b.mean, cov=b.cov))
     if isinstance(b, Progress):
         return None if not math.isnan(b.t) else "progress: NaN time"
+    if isinstance(b, Lines):
+        if not math.isfinite(b.stamp):
+            return "lines: non-finite stamp"
+        for i, x in enumerate(b.lines):
+            why = line_problem(x)
+            if why:
+                return f"lines: line {i}: {why}"
+        return None
+    if isinstance(b, MapAnswer):
+        for i, fl in enumerate(b.lines):
+            why = line_problem(fl.line)
+            if why:
+                return f"map: line {i}: {why}"
+        return None
     if isinstance(b, Report):
         return None
     if isinstance(b, Raw):
@@ -271,8 +348,11 @@ def raw_problem(b: Raw) -> str | None:
 
 
 def sender_of(b: Body) -> int:
-    """The robot a body speaks for."""
-    return b.robot if isinstance(b, Belief | Progress | Report | Broadcast | BroadcastHead | Raw | RawAck) else b.sender
+    """The robot a body speaks for (the belief server, :data:`SERVER`, for its map)."""
+    if isinstance(b, MapAnswer):
+        return SERVER
+    speaks = Belief | Progress | Report | Broadcast | BroadcastHead | Raw | RawAck | Lines
+    return b.robot if isinstance(b, speaks) else b.sender
 
 
 def decode(
@@ -298,8 +378,11 @@ def decode(
     b = env.body
     if env.from_robot != SERVER and sender_of(b) != env.from_robot:
         raise Rejected(f"robot {env.from_robot} sent a message in the name of robot {sender_of(b)}")
-    if env.from_robot == SERVER and sender_of(b) not in roster and not (isinstance(b, Report) and b.robot == SERVER):
+    own = isinstance(b, MapAnswer) or (isinstance(b, Report) and b.robot == SERVER)  # the server's own
+    if env.from_robot == SERVER and not own and sender_of(b) not in roster:
         raise Rejected(f"server message about robot {sender_of(b)}, outside the team's roster")
+    if to_robot is not None and isinstance(b, Lines | MapAnswer):
+        raise Rejected(f"{type(b).__name__} is for the belief server's map, not for robot {to_robot}")
     if to_robot is not None and isinstance(b, Broadcast):
         if b.to not in (ALL, to_robot):
             raise Rejected(f"broadcast repair addressed to robot {b.to}, received by robot {to_robot}")
