@@ -13,8 +13,8 @@ the factors between them:
 * neighbours: the detected robot's pose is a variable of the window with the neighbour's answered marginal
   (:class:`~swarmloc.messages.BeliefQuery`) as its prior, tied to the observer's pose by the measurement factor.
 
-At every detection group the window is solved again by Levenberg-Marquardt from the previous estimates (so the
-odometry and measurement Jacobians are relinearized at the smoothed poses, which a filter cannot do). Poses older
+At every detection group the window is solved again by Gauss-Newton (GTSAM's sparse elimination) from the
+previous estimates (so the odometry and measurement Jacobians are relinearized at the smoothed poses, which a filter cannot do). Poses older
 than ``lag`` seconds before the newest one leave the window: the factors that touch them are linearized at the
 current estimate and eliminated (GTSAM :class:`gtsam.Marginals` of that sub-graph), which leaves a Gaussian prior
 on the oldest pose kept. Between detections the node predicts its present from the newest pose's marginal.
@@ -189,12 +189,14 @@ class FixedLagSmoother(RobotNode):
     Parameters (besides :class:`~swarmloc.node.robot.RobotNode`'s)
     ---------------------------------------------------------------
     lag: seconds [s] of poses kept in the window behind the newest one (> 0).
-    max_iterations: Levenberg-Marquardt iterations per solve (>= 1).
+    max_iterations: Gauss-Newton iterations per solve (>= 1), always all of them: a solve that stopped at a
+        convergence threshold would make the result jump with rounding, and the history's replay of late input
+        must give the ordered run's result.
     """
 
     name = "fls"
 
-    def __init__(self, robot: int, initial: GroupGaussian, *, lag: float = 2.0, max_iterations: int = 5,
+    def __init__(self, robot: int, initial: GroupGaussian, *, lag: float = 2.0, max_iterations: int = 3,
                  **kw: Any) -> None:  # fmt: skip
         if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
             raise ValueError(f"FixedLagSmoother: 'lag' must be a positive number of seconds, got {lag!r}")
@@ -290,7 +292,7 @@ class FixedLagSmoother(RobotNode):
         return FlsState(s.t, s.v, s.w, x, P, _ZERO3, _ZERO33, win3), outcomes, []
 
     def _solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
-        """Solve the window (Levenberg-Marquardt from its estimates), take the newest pose's marginal and
+        """Solve the window (Gauss-Newton from its estimates), take the newest pose's marginal and
         marginalize the poses older than ``t - lag``: ``(window, x (3,), P (3, 3) Cartesian)`` or None when the
         solve fails (not finite, or a singular marginal)."""
         g = self._g
@@ -298,10 +300,10 @@ class FixedLagSmoother(RobotNode):
         values = g.Values()
         for k, xk in win.est.items():
             values.insert(k, _pose2(g, xk))
-        params = g.LevenbergMarquardtParams()
-        params.setMaxIterations(self.max_iterations)
         try:
-            result = g.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            result = values
+            for _ in range(self.max_iterations):  # a fixed count: the result is a smooth function of the inputs
+                result = result.retract(graph.linearize(result).optimize())
             est = {k: _xyt(result.atPose2(k)) for k in win.est}
             if not all(np.isfinite(v).all() for v in est.values()):
                 return None
