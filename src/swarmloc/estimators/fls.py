@@ -13,11 +13,12 @@ the factors between them:
 * neighbours: the detected robot's pose is a variable of the window with the neighbour's answered marginal
   (:class:`~swarmloc.messages.BeliefQuery`) as its prior, tied to the observer's pose by the measurement factor.
 
-At every detection group the window is solved again by Gauss-Newton (GTSAM's sparse elimination) from the
-previous estimates (so the odometry and measurement Jacobians are relinearized at the smoothed poses, which a filter cannot do). Poses older
-than ``lag`` seconds before the newest one leave the window: the factors that touch them are linearized at the
-current estimate and eliminated (GTSAM :class:`gtsam.Marginals` of that sub-graph), which leaves a Gaussian prior
-on the oldest pose kept. Between detections the node predicts its present from the newest pose's marginal.
+At every detection group the window is solved again by Gauss-Newton (GTSAM's sparse elimination) from the previous
+estimates (so the odometry and measurement Jacobians are relinearized at the smoothed poses, which a filter cannot
+do). Poses older than ``lag`` seconds before the newest one leave the window: the factors that touch them are
+linearized at the current estimate and eliminated (GTSAM :class:`gtsam.Marginals` of that sub-graph), which leaves a
+Gaussian prior on the oldest pose kept. Between detections the node predicts its present from the newest pose's
+marginal.
 
 **Handoff without double counting: covariance intersection on the exchanged marginals.** A neighbour's answer may
 already hold information that came from this robot (earlier answers, through any chain of robots), in unknown
