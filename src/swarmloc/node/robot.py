@@ -70,7 +70,7 @@ class RobotNode(Node):
         if association != "tags" and not self.associates:
             raise ValueError(
                 f"{cls}: association {association!r} is not supported by {self.name} (its exchanges need the "
-                f"target's identity first); use association='tags', or dekf, expfusion, ci, mcl or cekf"
+                f"target's identity first); use association='tags', or dekf, expfusion, ci, mcl, cekf, iekf or fej"
             )
         if sensor_range is not None and not sensor_range > 0:
             raise ValueError(f"{cls}: sensor_range must be > 0 m or None, got {sensor_range!r}")
