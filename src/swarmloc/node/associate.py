@@ -38,7 +38,7 @@ import numpy as np
 from swarmloc.association import AMBIGUOUS, CLUTTER, gate_threshold, innovation_costs, joint, nearest
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian, world_covariance
-from swarmloc.node.keys import Group
+from swarmloc.node.keys import Group, detection_key
 from swarmloc.node.update import Outcome
 from swarmloc.sensors.models import MODELS
 
@@ -82,18 +82,25 @@ def is_anonymous(d: Detection) -> bool:
 
 @dataclass
 class AssociationView:
-    """One group with identities given: ``group`` (the detections with their targets set, same order, keys and
-    answers as the original), ``left`` (index -> outcome of a detection left without an identity), ``given``
-    (indices of detections given one), ``missed`` (teammates expected and not given a detection)."""
+    """One group with identities given: ``group`` (the detections with their targets set, in the canonical order
+    of their new keys, as a tagged group would be fused; the original's answers), ``order`` (``group``'s detection
+    ``k`` is the original's ``order[k]``), ``detections`` (the identified detections in the original order),
+    ``left`` (original index -> outcome of a detection left without an identity), ``given`` (original indices of
+    detections given one), ``missed`` (teammates expected and not given a detection)."""
 
     group: Group
+    order: list[int]
+    detections: list[Detection]
     left: dict[int, Outcome]
     given: list[int]
     missed: int
 
     def outcomes(self, fused: Sequence[Outcome]) -> tuple[list[Outcome], Counter[str]]:
-        """The filter's outcomes with the association's marks, and the group's association counters."""
-        out = list(fused)
+        """The filter's outcomes (in ``group``'s order) in the original group's order with the association's
+        marks, and the group's association counters."""
+        out: list[Outcome] = [("rejected", "")] * len(fused)
+        for k, o in enumerate(fused):
+            out[self.order[k]] = o
         c: Counter[str] = Counter()
         c["association_missed"] = self.missed
         for i, o in self.left.items():
@@ -104,7 +111,7 @@ class AssociationView:
             elif o[1].endswith("(wrong)"):
                 c["association_wrong"] += 1
         for i in self.given:
-            d = self.group.detections[i]
+            d = self.detections[i]
             c["association_associated"] += 1
             if out[i][0] == "gated":
                 c["association_gated"] += 1
@@ -167,9 +174,11 @@ def associate(
     if sensor_range is not None and ids:
         near = np.hypot(xt[:, 0] - xo[0], xt[:, 1] - xo[1]) <= sensor_range
         missed = sum(1 for r, ok in zip(ids, near.tolist(), strict=True) if ok and r not in got)
+    keys = [detection_key(d) for d in dets]
+    order = sorted(range(len(dets)), key=lambda i: keys[i])
     view = Group(g.observer, g.t)
-    view.detections, view.keys, view.answers = dets, g.keys, g.answers
-    return AssociationView(view, left, sorted(given), missed)
+    view.detections, view.keys, view.answers = [dets[i] for i in order], [keys[i] for i in order], g.answers
+    return AssociationView(view, order, dets, left, sorted(given), missed)
 
 
 def answered_beliefs(g: Group, robots: Sequence[int]) -> dict[int, GroupGaussian]:
