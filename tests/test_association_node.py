@@ -132,3 +132,18 @@ def test_anonymous_policy_hands_the_bank_estimates_to_the_filter():
     bank = evaluate(_run(src, ev, "cekf"))["team"]["pos_rmse"]
     dr = evaluate(_run(src, odo, "cekf"))["team"]["pos_rmse"]
     assert bank < 0.6 * dr, (bank, dr)
+
+
+def test_joint_ambiguity_margin_refuses_a_close_second_assignment_only():
+    """``joint(ambiguity=...)``: a detection whose best assignment to another robot costs nearly as much is refused
+    as ambiguous; one far from every other robot is kept even when its cost is near the gate (clutter is the gate's
+    business); without the margin the plain eq. 9 answer."""
+    from swarmloc.association import AMBIGUOUS, gate_threshold, joint
+
+    g = gate_threshold(2)
+    assert joint(np.array([[1.0, 1.5]]), g).identity.tolist() == [0]
+    assert joint(np.array([[1.0, 1.5]]), g, ambiguity=2.0).identity.tolist() == [AMBIGUOUS]
+    assert joint(np.array([[g - 0.5, 50.0]]), g, ambiguity=2.0).identity.tolist() == [0]
+    # two detections, two robots: swapping them costs 0.5 more in total -> both ambiguous; 20 more -> both kept
+    assert joint(np.array([[1.0, 1.2], [1.0, 1.3]]), g, ambiguity=2.0).identity.tolist() == [AMBIGUOUS, AMBIGUOUS]
+    assert joint(np.array([[1.0, 9.0], [9.0, 1.0]]), 20.0, ambiguity=2.0).identity.tolist() == [0, 1]

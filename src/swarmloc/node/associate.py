@@ -57,8 +57,9 @@ ASSOCIATIONS = ("tags", "nearest", "joint")
 """Policies a node runs: ``tags`` refuses anonymous detections (the identity must be given), ``nearest`` (slide 38,
 eq. 8, with an ambiguity margin) and ``joint`` (slide 39, eq. 9) give them one (:mod:`swarmloc.association`)."""
 AMBIGUITY = 2.0
-"""``nearest``: a detection whose second-best robot costs less than this much more (squared Mahalanobis distance,
-a likelihood ratio below e) is refused as ambiguous."""
+"""A detection whose second-best robot (``nearest``), or whose best joint assignment without its robot
+(``joint``), costs less than this much more (squared Mahalanobis distance, a likelihood ratio below e) is refused
+as ambiguous."""
 ASSOCIATION_KEYS = tuple(
     f"association_{k}" for k in ("associated", "clutter", "ambiguous", "missed", "gated", "right", "wrong")
 )
@@ -159,7 +160,7 @@ def associate(
         z, R = np.stack([dets[i].z for i in idx]), np.stack([dets[i].cov for i in idx])
         costs = innovation_costs(kind, z, R, xo, Po, xt, Pt)
         gate = gate_threshold(MODELS[kind].size, gate_probability)
-        a = joint(costs, gate) if policy == "joint" else nearest(costs, gate, AMBIGUITY)
+        a = joint(costs, gate, ambiguity=AMBIGUITY) if policy == "joint" else nearest(costs, gate, AMBIGUITY)
         for i, j in zip(idx, a.identity.tolist(), strict=True):
             truth = dets[i].truth_target
             if j >= 0:
