@@ -20,7 +20,8 @@ Estimate (:meth:`ParticleFilterBank.estimate`): the particles, embedded as ``(x,
 are split into *modes* (connected components of the graph linking particles closer than ``mode_radius``); modes
 holding at least ``ambiguity_mass`` of the weight are significant, and the estimate is *ambiguous* while more than
 one persists, or while none does (particles scattered over many small modes: a lost filter). The Gaussian handed
-out is that of the heaviest mode: mean on SE(2) (iterated weighted mean of the exponential coordinates) and covariance of ``log(mu^-1 q)`` over the particles within a 99.9% chi-square gate of it.
+out is that of the heaviest mode: mean on SE(2) (iterated weighted mean of the exponential coordinates) and
+covariance of ``log(mu^-1 q)`` over the particles within a 99.9% chi-square gate of it.
 """
 
 from __future__ import annotations
