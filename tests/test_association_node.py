@@ -208,3 +208,30 @@ def test_khepera_kidnap_the_bank_re_disambiguates_and_nearest_does_not():
     assert np.median(err_n[tn < 30]) < 0.05  # before the kidnap nearest tracks robot 4
     assert kk.back_after(tn, err_n, 30.0, 0.1) is None and np.median(err_n[tn > 40]) > 0.3
     assert res.stats["association_clutter"] > 20  # robot 4's detections, outside every gate
+
+
+def test_distributed_association_over_zenoh_equals_the_in_process_run():
+    """Three dekf nodes on their own Zenoh sessions (127.0.0.1), anonymous detections with misses and clutter,
+    ``nearest`` from the configuration: each node asks its teammates over the network, and the beliefs and the
+    association counters are the in-process runner's."""
+    from test_net import thread_team
+
+    from swarmloc.lie import SE2
+
+    src = load_source("sim:random", robots=3, duration=15.0, seed=3)
+    anon, _ = association_events(src.events, "nearest", sorted(src.initial), src.config.motion.noise(), clutter=0.5,
+                                 p_detect=0.9, seed=1)  # fmt: skip
+    cfg = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association="nearest"))
+    src = dataclasses.replace(src, events=anon, config=cfg)
+    ref = run(make_team("dekf", src.initial, **node_options("dekf", cfg, src.landmarks, src.t_start)), anon,
+              src.record_times(), src.truth)  # fmt: skip
+    assert ref.stats["association_associated"] > 100
+    nets, _ = thread_team(src, "dekf", max_wall=60.0, team=f"assoc{np.random.default_rng().integers(1 << 30)}")
+    keys = ("detections", "fused", "association_associated", "association_clutter", "association_right")
+    total = {k: sum(n.node.stats()[k] for n in nets) for k in keys}
+    assert total == {k: ref.stats[k] for k in keys}
+    t = src.record_times()[-1]
+    for n in nets:
+        assert n.node.stats()["pending"] == 0
+        exp = ref.tracks[n.robot]
+        np.testing.assert_allclose(SE2.to_xytheta(n.node.belief_at(t).mean), exp.mean[-1], atol=1e-6)
