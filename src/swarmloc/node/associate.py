@@ -23,7 +23,7 @@ outcomes): ``association_associated``, ``_clutter``, ``_ambiguous``, ``_missed``
 ``sensor_range`` of the observer that no detection was given to: only for scans with anonymous detections, and
 only when ``sensor_range`` is set), ``_gated`` (associated, then refused by the filter's innovation gate),
 ``_right`` and ``_wrong`` (the truth ``truth_target`` is read **only** for these marks, never for a choice; it is
-not sent over the network, so there they stay zero).
+never sent: a node reads it from its own detections where its source has it, a simulation, and else they stay 0).
 """
 
 from __future__ import annotations
