@@ -1,64 +1,100 @@
-"""Association of anonymous detections in the centralized EKF: tags vs nearest vs joint, against clutter.
+"""Association of anonymous robot detections: tags vs nearest vs joint vs anonymous, against density and clutter.
 
-    python benchmarks/association.py                        # 6 robots, 60 s, seeds 0-2, clutter 0, 1, 3 per scan
-    python benchmarks/association.py --robots 10 --seeds 5 --clutter 0,2
+    python benchmarks/association.py                  # README table: 4/8/16 robots x clutter 0/1/3, 10 seeds, 20 s
+    python benchmarks/association.py --robots 6 --clutter 0,2 --seeds 3 --estimator ci
 
-Each seed's simulated team (``sim:random``) is run by ``cekf`` on its tagged detections (``tags``, the reference)
-and on the same detections made anonymous with detection probability ``--p-detect`` and Poisson clutter per scan
-(:func:`swarmloc.sim.anonymous.anonymize`) with ``nearest`` and ``joint``. Printed per setting, summed or averaged
-over the seeds: association accuracy (detections given their true identity, clutter refused as clutter, over all
-detections), team position RMSE [m], ANEES per dof, and the fused / rejected counts.
+Each seed's simulated team (``sim:range_bearing``: robots in one 3 m arena, so more robots is a denser crowd;
+range-bearing detections at 5 Hz) is run by ``--estimator`` (default ``cekf``) with the same misses
+(``--p-detect``) and Poisson clutter per scan (:func:`swarmloc.experiments.association.association_events`):
+
+* ``tags``: identities given, the untagged clutter refused (the reference);
+* ``nearest``, ``joint``: identities hidden, chosen by the nodes (:mod:`swarmloc.node.associate`);
+* ``anonymous``: identities hidden, PMR + a particle-filter bank per robot hands tagged relative poses to the
+  filter (:func:`swarmloc.association.tracker.bank_detections`); only up to ``--anonymous-max`` robots (its
+  cost: about 5 s per 20 s run of 4 robots, 36 s of 8, on this machine).
+
+Printed per setting, over the seeds: association accuracy (anonymous detections given their true identity, a false
+one refused as clutter counted right; ``-`` where the policy has none to score), team position RMSE [m] (pooled),
+ANEES per dof (pooled), and the fused / rejected detections summed. Runs in ``--jobs`` worker processes.
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import platform
+import time
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from swarmloc.estimators import make_team, node_options
-from swarmloc.evaluation.metrics import evaluate
-from swarmloc.experiments.sources import load_source
-from swarmloc.runner import run
-from swarmloc.sim.anonymous import anonymize
+POLICIES = ("tags", "nearest", "joint", "anonymous")
 
 
-def one(src, events, policy: str) -> dict:
-    opts = node_options("cekf", src.config, src.landmarks, src.t_start)
-    extra = {} if policy == "tags" else {"association": policy}
-    res = run(make_team("cekf", src.initial, **opts, **extra), events, src.record_times(), src.truth)
-    right = sum(v for k, v in res.reasons.items() if "association right" in k or "(right)" in k)
-    team = evaluate(res)["team"]
-    return {"right": right, "n": res.stats["detections"], "rmse": team["pos_rmse"], "anees": team["anees"],
-            "fused": res.stats["fused"], "rejected": res.stats["rejected"]}  # fmt: skip
+def one(robots: int, clutter: float, seed: int, policy: str, estimator: str, duration: float, p_detect: float):
+    """One run: ``(sum of squared position errors, of NEES, records, right, wrong, fused, rejected)``."""
+    from swarmloc.estimators import make_team, node_options
+    from swarmloc.evaluation.metrics import errors
+    from swarmloc.experiments.association import association_events
+    from swarmloc.experiments.sources import load_source
+    from swarmloc.runner import run
+
+    src = load_source("sim:range_bearing", robots=robots, duration=duration, seed=seed)
+    events, _ = association_events(src.events, policy, sorted(src.initial), src.config.motion.noise(),
+                                   clutter=clutter, p_detect=p_detect, max_range=5.0, seed=seed)  # fmt: skip
+    opts = node_options(estimator, src.config, src.landmarks, src.t_start)
+    if policy in ("nearest", "joint"):
+        opts["association"] = policy
+    res = run(make_team(estimator, src.initial, **opts), events, src.record_times(), src.truth)
+    se = nees = 0.0
+    n = 0
+    for tr in res.tracks.values():
+        e = errors(tr)
+        se += float(np.sum(e["pos"] ** 2))
+        nees += float(np.sum(e["nees"]))
+        n += e["pos"].size
+    s = res.stats
+    return se, nees, n, s["association_right"], s["association_wrong"], s["fused"], s["rejected"]
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--robots", type=int, default=6)
-    p.add_argument("--duration", type=float, default=60.0)
-    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--robots", default="4,8,16", help="team sizes in the same arena, comma-separated")
     p.add_argument("--clutter", default="0,1,3", help="mean false detections per scan, comma-separated")
+    p.add_argument("--seeds", type=int, default=10)
+    p.add_argument("--duration", type=float, default=20.0)
     p.add_argument("--p-detect", type=float, default=0.9)
+    p.add_argument("--estimator", default="cekf")
+    p.add_argument("--anonymous-max", type=int, default=4, help="largest team run with 'anonymous' (its cost)")
+    p.add_argument("--jobs", type=int, default=2)
     a = p.parse_args()
-    print(f"# {a.robots} robots, {a.duration:g} s, seeds 0-{a.seeds - 1}, p_detect {a.p_detect}; "
-          f"{platform.machine()}, python {platform.python_version()}")  # fmt: skip
-    print("| clutter/scan | policy | accuracy | team pos RMSE [m] | ANEES/dof | fused | rejected |")
-    print("|---|---|---|---|---|---|---|")
-    for clutter in [float(c) for c in a.clutter.split(",")]:
-        rows: dict[str, list[dict]] = {"tags": [], "nearest": [], "joint": []}
-        for seed in range(a.seeds):
-            src = load_source("sim:random", robots=a.robots, duration=a.duration, seed=seed)
-            anon = anonymize(src.events, p_detect=a.p_detect, clutter=clutter, seed=seed)
-            rows["tags"].append(one(src, src.events, "tags"))
-            for policy in ("nearest", "joint"):
-                rows[policy].append(one(src, anon, policy))
-        for policy, rs in rows.items():
-            acc = "-" if policy == "tags" else f"{sum(r['right'] for r in rs) / sum(r['n'] for r in rs):.3f}"
-            print(f"| {clutter:g} | {policy} | {acc} | {np.mean([r['rmse'] for r in rs]):.3f} | "
-                  f"{np.mean([r['anees'] for r in rs]):.2f} | {sum(r['fused'] for r in rs)} | "
-                  f"{sum(r['rejected'] for r in rs)} |")  # fmt: skip
+    sizes = [int(r) for r in a.robots.split(",")]
+    clutters = [float(c) for c in a.clutter.split(",")]
+    tasks = [
+        (n, c, s, pol, a.estimator, a.duration, a.p_detect)
+        for n in sizes for c in clutters for pol in POLICIES for s in range(a.seeds)
+        if pol != "anonymous" or n <= a.anonymous_max
+    ]  # fmt: skip
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(a.jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
+        out = dict(zip(tasks, ex.map(one, *zip(*tasks, strict=True), chunksize=1), strict=True))
+    print(f"# {a.estimator}, sim:range_bearing (3 m arena), {a.duration:g} s, seeds 0-{a.seeds - 1}, p_detect "
+          f"{a.p_detect}; {time.perf_counter() - t0:.0f} s wall with {a.jobs} jobs; {platform.machine()}, "
+          f"python {platform.python_version()}")  # fmt: skip
+    print(
+        "| robots | clutter/scan | policy | association accuracy | team pos RMSE [m] | ANEES/dof | fused | rejected |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for n in sizes:
+        for c in clutters:
+            for pol in POLICIES:
+                rs = [out[t] for t in tasks if t[:2] == (n, c) and t[3] == pol]
+                if not rs:
+                    continue
+                se, nees, k, right, wrong, fused, rej = (sum(x) for x in zip(*rs, strict=True))
+                acc = f"{right / (right + wrong):.3f}" if right + wrong else "-"
+                print(f"| {n} | {c:g} | {pol} | {acc} | {np.sqrt(se / k):.3f} | {nees / k / 3:.2f} | {fused} | "
+                      f"{rej} |")  # fmt: skip
 
 
 if __name__ == "__main__":

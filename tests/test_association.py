@@ -167,7 +167,7 @@ def _run(src, events, **opts):
     from swarmloc.runner import run
 
     base = node_options("cekf", src.config, src.landmarks, src.t_start)
-    return run(make_team("cekf", src.initial, **base, **opts), events, src.record_times(), src.truth)
+    return run(make_team("cekf", src.initial, **{**base, **opts}), events, src.record_times(), src.truth)
 
 
 def _accuracy(res) -> tuple[int, int]:
@@ -244,5 +244,10 @@ def test_association_options_are_checked():
         _run(src, src.events, association="joint", association_gate=1.0)
     from swarmloc.estimators import make_team, node_options
 
-    with pytest.raises(ValueError, match="Cartesian error coordinates"):
-        make_team("iekf", src.initial, **node_options("iekf", src.config, None), association="joint")
+    with pytest.raises(ValueError, match="not supported by rdl"):
+        make_team("rdl", src.initial, **node_options("rdl", src.config, None), association="joint")
+    with pytest.raises(ValueError, match="association_gate"):
+        make_team("dekf", src.initial, **{**node_options("dekf", src.config, None), "association": "nearest",
+                                          "association_gate": 0.0})  # fmt: skip
+    iekf = make_team("iekf", src.initial, **node_options("iekf", src.config, None), association="joint")
+    assert iekf[0].association == "joint"  # any centralized filter: the choice reads beliefs, not coordinates

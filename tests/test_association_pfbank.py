@@ -153,3 +153,15 @@ def test_bank_rejects_bad_input():
     bank.update(1, [(np.zeros(3), np.eye(3) * 1e-4)])
     with pytest.raises(ValueError, match="positive definite"):
         bank.predict_ego(np.zeros(3), -np.eye(3))
+
+
+def test_a_scattered_filter_is_ambiguous_not_an_error():
+    """Particles spread so thin that no mode holds ``ambiguity_mass`` (seen on MRCLAM dataset 6): the estimate is
+    the heaviest mode's, flagged ambiguous (it raised IndexError before)."""
+    bank = ParticleFilterBank(400, rng=1)
+    R = np.diag([0.01**2, 0.01**2, 0.02**2])
+    bank.update(2, [(np.array([1.0, 0.0, 0.0]), R)])
+    rng = np.random.default_rng(0)
+    bank.particles[2] = np.column_stack([rng.uniform(-20, 20, (400, 2)), rng.uniform(-np.pi, np.pi, 400)])
+    est = bank.estimate(2)
+    assert est.ambiguous and np.all(np.isfinite(est.gaussian.cov))

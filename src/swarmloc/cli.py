@@ -85,6 +85,23 @@ def _with_gate(config, gate: float | None):  # noqa: ANN001, ANN202
     return dataclasses.replace(config, filter=dataclasses.replace(config.filter, gate=None if gate <= 0 else gate))
 
 
+ASSOCIATION_CHOICES = ("tags", "nearest", "joint", "anonymous")
+ASSOCIATION_HELP = (
+    "robot detections' identities: tags (given); nearest, joint (robot ids hidden, chosen from the beliefs: dekf, "
+    "expfusion, ci, mcl and the centralized filters); anonymous (ids hidden, PMR + particle-filter bank per robot "
+    "hands tagged relative poses to any estimator; range-bearing detections)"
+)
+
+
+def _with_association(config, association: str | None):  # noqa: ANN001, ANN202
+    """``--association`` overrides the configuration's ``[filter] association``."""
+    if association is None:
+        return config
+    import dataclasses
+
+    return dataclasses.replace(config, filter=dataclasses.replace(config.filter, association=association))
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     from swarmloc.config import ConfigError
     from swarmloc.datasets.eventfile import EventFileError
@@ -95,7 +112,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     where = f"swarmloc evaluate {args.what}"
     names = [e.strip() for e in args.estimators.split(",") if e.strip()]
     try:
-        config = _with_gate(_config(args), args.gate)
+        config = _with_association(_with_gate(_config(args), args.gate), args.association)
         progress = not (args.quiet or args.json)
         if args.what == "mrclam":
             from swarmloc.experiments.mrclam import evaluate_mrclam
@@ -355,7 +372,8 @@ def _compare(args: argparse.Namespace) -> int:
     names = [e.strip() for e in args.estimators.split(",") if e.strip()]
     try:
         summary = compare(args.scenario, names, runs=args.runs, robots=args.robots, duration=args.duration,
-                          out_dir=args.out, jobs=args.jobs, progress=not args.quiet)  # fmt: skip
+                          out_dir=args.out, jobs=args.jobs, progress=not args.quiet, association=args.association,
+                          clutter=args.clutter, p_detect=args.p_detect)  # fmt: skip
     except (ValueError, OSError) as exc:
         print(f"swarmloc compare: {exc}", file=sys.stderr)
         return 2
@@ -495,6 +513,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--config", default=None, help="TOML file of model and filter settings (swarmloc config)")
     e.add_argument("--gate", type=float, default=None, help="override the chi-square gate probability; 0 disables")
     e.add_argument("--landmarks", choices=["on", "off"], default="on", help="mrclam: use landmark measurements")
+    e.add_argument("--association", choices=ASSOCIATION_CHOICES, default=None,
+                   help=ASSOCIATION_HELP + " (default: the configuration's [filter] association)")  # fmt: skip
     e.add_argument("--duration", type=float, default=None, help="mrclam: seconds from the start (default: all)")
     e.add_argument("--truth", default=None, help="events: folder of truth_robot<N>.tum (default: beside the file)")
     e.add_argument("--skip-bad-lines", action="store_true", help="events: skip bad records (listed) instead of stop")
@@ -572,6 +592,9 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--duration", type=float, default=None, help="seconds (sim default 30; dataset: all)")
     cp.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     cp.add_argument("--out", default=None, help="output folder for compare.md / compare.json")
+    cp.add_argument("--association", choices=ASSOCIATION_CHOICES, default="tags", help=ASSOCIATION_HELP)
+    cp.add_argument("--clutter", type=float, default=0.0, help="false robot detections per scan, Poisson (default 0)")
+    cp.add_argument("--p-detect", type=float, default=1.0, help="robot detection probability (default 1)")
     cp.add_argument("--quiet", action="store_true", help="no progress bar")
     cp.set_defaults(func=_compare)
 

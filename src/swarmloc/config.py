@@ -37,6 +37,9 @@ Five sections, every key optional (a missing key keeps its default; defaults are
     order = 2          # 1 or 2: order of the SE(2) convolution
     iterations = 2     # >= 1, iterations of the iterated update
     point_iterations = 3  # >= 1, iterations of a point (landmark) update
+    association = "tags"  # robot detections' identities: tags (given), nearest, joint (chosen from the beliefs,
+                          # ids hidden), anonymous (PMR + particle-filter bank, ids hidden; swarmloc.association)
+    association_gate = 0.99  # chi-square probability in (0, 1) of the association gate
 
     [record]
     rate = 4.0         # [Hz] in (0, 1000]: rate at which beliefs are recorded
@@ -237,7 +240,9 @@ class FilterConfig:
     no gate (TOML: ``gate = false`` or ``gate = 0``). ``horizon`` [s] ``> 0``: how far back out-of-order input is
     replayed. ``clock_tolerance`` [s] ``> 0`` (the nodes take at most ``horizon``) and ``clock_jump_inputs`` (an
     integer in [1, 100]): the node's clock contract (:mod:`swarmloc.node.clock`). ``order``: 1 or 2.
-    ``iterations``, ``point_iterations``: integers ``>= 1``.
+    ``iterations``, ``point_iterations``: integers ``>= 1``. ``association`` (one of :attr:`ASSOCIATIONS`) and
+    ``association_gate`` (a probability in ``(0, 1)``): how robot detections get their identity
+    (:mod:`swarmloc.experiments.association`).
     """
 
     SECTION: ClassVar[str] = "filter"
@@ -249,7 +254,10 @@ class FilterConfig:
         "order": "1 or 2: order of the SE(2) convolution",
         "iterations": "iterations of the iterated update (>= 1)",
         "point_iterations": "iterations of a point (landmark) update (>= 1)",
+        "association": "tags, nearest, joint or anonymous: how robot detections get their identity",
+        "association_gate": "chi-square probability in (0, 1) of the association gate",
     }
+    ASSOCIATIONS: ClassVar[tuple[str, ...]] = ("tags", "nearest", "joint", "anonymous")
 
     gate: float | None = 0.997
     horizon: float = 5.0
@@ -258,9 +266,18 @@ class FilterConfig:
     order: int = 2
     iterations: int = 2
     point_iterations: int = 3
+    association: str = "tags"
+    association_gate: float = 0.99
 
     def __post_init__(self) -> None:
         s = self.SECTION
+        if self.association not in self.ASSOCIATIONS:
+            choices = ", ".join(f'"{c}"' for c in self.ASSOCIATIONS)
+            raise ConfigError(f"[{s}] association: expected one of {choices}, got {_describe(self.association)}")
+        a = _real(s, "association_gate", self.association_gate, 0.0, True, "a probability in (0, 1)")
+        if not a < 1.0:
+            raise ConfigError(f"[{s}] association_gate: expected a probability in (0, 1), got {a!r}")
+        _set(self, "association_gate", a)
         g = self.gate
         if g is False or (not isinstance(g, bool) and isinstance(g, int | float) and g == 0):
             g = None

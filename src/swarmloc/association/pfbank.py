@@ -19,8 +19,9 @@ one spurious registration among clutter) the filter is re-initialized from the l
 Estimate (:meth:`ParticleFilterBank.estimate`): the particles, embedded as ``(x, y, L cos theta, L sin theta)``,
 are split into *modes* (connected components of the graph linking particles closer than ``mode_radius``); modes
 holding at least ``ambiguity_mass`` of the weight are significant, and the estimate is *ambiguous* while more than
-one persists. The Gaussian handed out is that of the heaviest mode: mean on SE(2) (iterated weighted mean of the
-exponential coordinates) and covariance of ``log(mu^-1 q)`` over the particles within a 99.9% chi-square gate of it.
+one persists, or while none does (particles scattered over many small modes: a lost filter). The Gaussian handed
+out is that of the heaviest mode: mean on SE(2) (iterated weighted mean of the exponential coordinates) and
+covariance of ``log(mu^-1 q)`` over the particles within a 99.9% chi-square gate of it.
 """
 
 from __future__ import annotations
@@ -205,13 +206,15 @@ class ParticleFilterBank:
         for idx, m in significant:
             mu, _ = self._moments(q[idx], w[idx])
             out.append((mu, m))
-        mu, C = self._moments(q[significant[0][0]], w[significant[0][0]])
+        spread = not significant  # no mode holds ambiguity_mass: the particles are scattered (a lost filter)
+        heaviest = found[0][0]
+        mu, C = self._moments(q[heaviest], w[heaviest])
         for _ in range(2):  # widen to every particle within the gate of the mode (its tails)
             y = _log_xyt(compose_xyt(invert_xyt(mu)[None], q))
             inside = np.einsum("ni,ij,nj->n", y, np.linalg.inv(C), y) <= 16.266
             mu, C = self._moments(q[inside], w[inside])
         g = GroupGaussian(SE2, SE2.from_xytheta(mu), C)
-        return BankEstimate(robot, g, len(significant) > 1, out, float(1.0 / (w * w).sum()))
+        return BankEstimate(robot, g, spread or len(significant) > 1, out, float(1.0 / (w * w).sum()))
 
     @staticmethod
     def _moments(q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -139,21 +139,37 @@ def nearest(costs: np.ndarray, gate: float, ambiguity: float = 0.0, expected: np
     return Association(ident, cost, _missed(ident, expected, n))
 
 
-def joint(costs: np.ndarray, gate: float, expected: np.ndarray | None = None) -> Association:
+def joint(costs: np.ndarray, gate: float, expected: np.ndarray | None = None, ambiguity: float = 0.0) -> Association:
     """Eq. 9 with a gate: distinct robots for the detections of one scan, minimising the total cost, where a
     detection may also be declared clutter at the cost ``gate`` (so no pair outside the gate is ever made, and a
     pair inside it is made whenever that lowers the total). Solved exactly as a rectangular assignment over the
-    robots plus one clutter column per detection. ``expected``: robots ``(n,)`` in view, for the ``missed`` count."""
+    robots plus one clutter column per detection. ``expected``: robots ``(n,)`` in view, for the ``missed`` count.
+
+    With ``ambiguity > 0`` (beyond the slides) a detection ``i`` given robot ``j`` is :data:`AMBIGUOUS` when the
+    best assignment that gives ``i`` *another robot* costs less than ``ambiguity`` more in total (a likelihood ratio
+    of the two joint hypotheses below ``exp(ambiguity / 2)``): the joint analogue of :func:`nearest`'s margin, one
+    more assignment per associated detection."""
     c = _check_costs(costs, gate)
     m, n = c.shape
     big = gate * (m + 1) + 1.0  # dearer than declaring every detection clutter: never chosen
     pair = np.where(c <= gate, c, big)
     clutter = np.full((m, m), big)
     np.fill_diagonal(clutter, gate)
-    rows, cols = linear_sum_assignment(np.hstack([pair, clutter]))
+    full = np.hstack([pair, clutter])
+    rows, cols = linear_sum_assignment(full)
+    best = float(full[rows, cols].sum())
     ident = np.full(m, CLUTTER)
     real = cols < n
     ident[rows[real]] = cols[real]
     ident[(ident >= 0) & (c[np.arange(m), np.maximum(ident, 0)] > gate)] = CLUTTER
+    if ambiguity > 0:
+        final = ident.copy()
+        for i in np.flatnonzero(ident >= 0):
+            alt = full.copy()
+            alt[i, ident[i]] = alt[i, n + i] = big * 2  # i gets another robot (clutter is the gate's business)
+            r2, c2 = linear_sum_assignment(alt)
+            if float(alt[r2, c2].sum()) - best < ambiguity:
+                final[i] = AMBIGUOUS
+        ident = final
     cost = np.where(ident >= 0, c[np.arange(m), np.maximum(ident, 0)], np.nan)
     return Association(ident, cost, _missed(ident, expected, n))

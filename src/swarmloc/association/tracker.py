@@ -31,7 +31,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise, odometry_increment
 
-__all__ = ["AnonymousTrack", "anonymous_scans", "is_anonymous_detection", "track_anonymous"]
+__all__ = ["AnonymousTrack", "anonymous_scans", "bank_detections", "is_anonymous_detection", "track_anonymous"]
 
 
 def is_anonymous_detection(e: object) -> bool:
@@ -139,3 +139,53 @@ def track_anonymous(
     counts.update({f"bank_{k}": v for k, v in bank.counts.items()})
     track.counts = counts
     return track
+
+
+def bank_detections(
+    events: Sequence[Event],
+    robots: Sequence[int],
+    noise: UnicycleNoise,
+    sigma: float,
+    *,
+    every: float = 1.0,
+    inflate: float = 1.0,
+    **kw: object,
+) -> tuple[list[Event], dict[int, dict[str, int]]]:
+    """The ``anonymous`` association policy as an input to any estimator: every robot runs :func:`track_anonymous`
+    on the team's anonymous range-bearing detections and odometry, and its bank's **unambiguous** estimate of each
+    met robot ``j`` becomes a tagged relative-pose :class:`~swarmloc.events.Detection` (``kind="pose"``, target
+    ``j``: the identity is the one communication gives, the robot whose scan registered) with the bank's
+    covariance times ``inflate``, at most one per ``(observer, j)`` every ``every`` [s]. The anonymous
+    range-bearing detections are replaced by these; everything else passes unchanged. The bank's estimates are
+    correlated in time (each is the filter of all scans so far), which a filter fusing them as independent
+    measurements does not know: ``every`` and ``inflate`` trade that overconfidence against information.
+    Returns ``(events, counts per robot)`` (the tracker's counters plus ``emitted``); ``kw`` goes to
+    :func:`track_anonymous`."""
+    if not every >= 0 or not inflate >= 1.0:
+        raise ValueError(f"bank_detections: need every >= 0 s and inflate >= 1, got {every!r}, {inflate!r}")
+    out = [e for e in events if not is_anonymous_detection(e)]
+    counts: dict[int, dict[str, int]] = {}
+    new: list[Detection] = []
+    for ego in robots:
+        tr = track_anonymous(events, ego, robots, noise, sigma, **kw)  # type: ignore[arg-type]
+        last: dict[int, float] = {}
+        emitted = 0
+        for t, est in zip(tr.times, tr.estimates, strict=True):
+            for j, b in est.items():
+                if b.ambiguous or j == ego or t - last.get(j, -np.inf) < every:
+                    continue
+                cov = np.asarray(b.gaussian.cov, dtype=float) * inflate
+                cov = 0.5 * (cov + cov.T)
+                if not np.all(np.linalg.eigvalsh(cov) > 1e-12):
+                    continue
+                z = SE2.to_xytheta(b.gaussian.mean).astype(float)
+                z.setflags(write=False)
+                cov.setflags(write=False)
+                new.append(Detection(ego, t, "pose", z, cov, target=int(j)))
+                last[j] = t
+                emitted += 1
+        counts[ego] = {**tr.counts, "emitted": emitted}
+    out += new
+    order = {Odometry: 0, Detection: 1}
+    out.sort(key=lambda e: (e.t, order.get(type(e), 2)))
+    return out, counts

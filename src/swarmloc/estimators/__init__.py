@@ -117,6 +117,9 @@ def node_options(
         order=f.order,
         iterations=f.iterations,
         point_iterations=f.point_iterations,
+        # "anonymous" hands the nodes tagged relative poses (swarmloc.experiments.association): they run "tags"
+        **({} if f.association in ("tags", "anonymous") else {"association": f.association}),
+        association_gate=f.association_gate,
         **({} if t0 is None else {"t0": t0}),
     )
 

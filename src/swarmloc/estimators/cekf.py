@@ -14,28 +14,19 @@ detection instead of ``O(n^3)``); a run of odometry is predicted in one float lo
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from swarmloc.association import gate_threshold, innovation_costs, joint, nearest
 from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, check_model, gated_kalman
-from swarmloc.sensors.models import MODELS, model
-
-ASSOCIATIONS = ("tags", "nearest", "joint")
-"""Association policies for anonymous robot detections (``target`` None): ``tags`` refuses them (the identity must
-be given), ``nearest`` (slide 38, eq. 8, with an ambiguity margin) and ``joint`` (slide 39, eq. 9) give them one
-(:mod:`swarmloc.association`)."""
-AMBIGUITY = 2.0
-"""``nearest``: a detection whose second-best robot costs less than this much more (squared Mahalanobis distance,
-a likelihood ratio below e) is refused as ambiguous."""
+from swarmloc.node.associate import AssociationView, associate, check_association, is_anonymous
+from swarmloc.sensors.models import model
 
 
 class TeamState(NamedTuple):
@@ -127,18 +118,18 @@ class CentralizedEKF(Node):
         noise: UnicycleNoise,
         association: str = "tags",
         association_gate: float = 0.99,
+        sensor_range: float | None = None,
         **kw: Any,
     ) -> None:
         cls = type(self).__name__
         if not isinstance(initial, Mapping) or not initial:
             raise ValueError(f"{cls}: 'initial' must map each robot id to its initial belief (at least one robot)")
-        if association not in ASSOCIATIONS:
-            raise ValueError(f"{cls}: association must be one of {ASSOCIATIONS}, got {association!r}")
-        if association != "tags" and self.error_frame != "cartesian":
-            raise ValueError(f"{cls}: association policies need Cartesian error coordinates (use cekf)")
+        check_association(cls, association, association_gate)
+        if sensor_range is not None and not sensor_range > 0:
+            raise ValueError(f"{cls}: sensor_range must be > 0 m or None, got {sensor_range!r}")
         self.association = association
         self.association_gate = float(association_gate)
-        gate_threshold(2, self.association_gate)  # a bad probability is refused here
+        self.sensor_range = sensor_range
         check_model(cls, initial, noise)
         self.initial = dict(initial)
         self.noise = noise
@@ -243,59 +234,26 @@ class CentralizedEKF(Node):
             return ("unknown", f"robot {d.target} is not in the team")
         return ("robot", d.target)
 
-    def _identify(self, s: TeamState, g: Group) -> tuple[TeamState, list[Any], dict[int, Outcome]]:
-        """Give the group's anonymous robot detections an identity with the association policy: the state
-        (unchanged), the detections with their targets set, and the outcome of each left without one (by index:
-        clutter or ambiguous, counted ``rejected``). The costs use the robots' marginals predicted to the group's
-        stamp (the joint's cross-covariances are left out of the choice, not of the update)."""
-        dets = list(g.detections)
-        anon = [i for i, d in enumerate(dets) if d.target is None and d.target_is_robot and d.kind != "absolute"]
-        if not anon or self.association == "tags":
-            return s, dets, {}
+    def _associate(self, s: TeamState, g: Group) -> AssociationView | None:
+        """Identities for the group's anonymous robot detections (:mod:`swarmloc.node.associate`) from every
+        robot's marginal predicted to the group's stamp (the joint's cross-covariances are left out of the choice,
+        not of the update); the prediction is for the choice only, the filter's own steps stay as with tags."""
+        if self.association == "tags" or not self.use_relative or not any(is_anonymous(d) for d in g.detections):
+            return None
+        sf = s
         others = [r for r in self.robots if r != g.observer]
-        sf = s  # the robots predicted to the stamp for the choice only: the filter's own steps stay as with tags
         for r in others:
             sf = self._adv(sf, r, g.t)
-        sf = flush_pending(sf)
-        io = self._idx[g.observer]
-        cols = [self._idx[r] for r in others]
-        xt = np.stack([sf.X[c : c + 3] for c in cols]) if cols else np.zeros((0, 3))
-        Pt = np.stack([sf.P[c : c + 3, c : c + 3] for c in cols]) if cols else np.zeros((0, 3, 3))
-        left: dict[int, Outcome] = {}
-        for kind in sorted({dets[i].kind for i in anon}):
-            idx = [i for i in anon if dets[i].kind == kind]
-            z, R = np.stack([dets[i].z for i in idx]), np.stack([dets[i].cov for i in idx])
-            costs = innovation_costs(kind, z, R, sf.X[io : io + 3], sf.P[io : io + 3, io : io + 3], xt, Pt)
-            gate = gate_threshold(MODELS[kind].size, self.association_gate)
-            a = joint(costs, gate) if self.association == "joint" else nearest(costs, gate, AMBIGUITY)
-            for i, j in zip(idx, a.identity.tolist(), strict=True):
-                truth = dets[i].truth_target
-                if j >= 0:
-                    dets[i] = dataclasses.replace(dets[i], target=others[j])
-                else:
-                    what = "clutter" if j == -1 else "ambiguous"
-                    verdict = "" if truth is None else (" (right)" if truth == -1 else " (wrong)")
-                    left[i] = ("rejected", f"association: {what}{verdict}")
-        return s, dets, left
-
-    @staticmethod
-    def _scored(o: Outcome, d: Any) -> Outcome:
-        """A fused or gated outcome of an associated anonymous detection, marked right or wrong where the truth is
-        known (the reasons ``fused: association right`` etc. give the association accuracy)."""
-        if d.truth_target is None or o[0] not in ("fused", "gated"):
-            return o
-        return (o[0], "association right" if d.truth_target == d.target else "association wrong")
+        cands = {r: self._belief(sf, r) for r in others}
+        return associate(g, self.association, self.association_gate, self._belief(s, g.observer), cands,
+                         self.sensor_range)  # fmt: skip
 
     def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
         outcomes: list[Outcome] = []
         i = self._idx[g.observer]
         si = slice(i, i + 3)
         own = np.arange(i, i + 3)
-        s, dets, left = self._identify(s, g)
-        for n_d, d in enumerate(dets):
-            if n_d in left:
-                outcomes.append(left[n_d])
-                continue
+        for d in g.detections:
             target = self._classify(g, d)
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
@@ -327,7 +285,7 @@ class CentralizedEKF(Node):
             sf = flush_pending(s)  # pending predictions applied only for an update (so a rejected one changes no bit)
             res = gated_kalman(sf.X, sf.P, r, H, R, self.gate, cols=cols, angles=self._angles)
             if isinstance(res[0], str):
-                outcomes.append(self._scored(res, d))
+                outcomes.append(res)
                 continue
             s = TeamState(*res, sf.t, sf.cmd, sf.pend)
             if self.lin_log is not None:
@@ -335,5 +293,5 @@ class CentralizedEKF(Node):
                 if target[0] == "robot":
                     blocks[target[1]] = H[:, 3:6]
                 self.lin_log.append(("update", g.t, blocks, R))
-            outcomes.append(self._scored(FUSED, d))
+            outcomes.append(FUSED)
         return s, outcomes, []

@@ -75,6 +75,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     """Exact distributed invariant EKF (module docstring). ``team``: every robot id of the team (``make_team``
     passes it)."""
 
+    associates = False
     name = "diekf"
     error_frame: ClassVar[str] = "world"
     update_types = (TeamUpdate,)
@@ -83,7 +84,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), **kw: Any) -> None:
         self.team = tuple(sorted({int(r) for r in team} | {int(robot)}))
         self._pos = {r: k for k, r in enumerate(self.team)}
-        super().__init__(robot, initial, **kw)
+        super().__init__(robot, initial, team=self.team, **kw)
 
     # ------------------------------------------------------------------------------------------------ filter
     def _initial_state(self, t0: float) -> TeamState:

@@ -24,6 +24,7 @@ class DeadReckoning(ExpFusion):
     ``tolerance``, ``jump_inputs``; nothing else (an unknown keyword raises TypeError).
     """
 
+    associates = False
     name = "dr"
 
     def __init__(

@@ -207,6 +207,7 @@ def rescale_factors(s: RdlFilter, P_new: np.ndarray) -> np.ndarray:
 class RecursiveDecentralized(DistributedEKF):
     """Recursive decentralized localization: pairwise exact updates, tracked correlations (module docstring)."""
 
+    associates = False
     name = "rdl"
     update_types = (RdlUpdate,)
 

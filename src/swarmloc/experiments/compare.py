@@ -31,22 +31,38 @@ from typing import Any
 import numpy as np
 
 from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
+from swarmloc.experiments.association import association_accuracy
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.lie import SE2
+
+_ONE = GroupGaussian(SE2, SE2.identity(), 0.01 * np.eye(3))
+"""A belief to build a throwaway team with (the up-front check of the estimators' options)."""
 
 __all__ = ["compare", "compare_table"]
 
 
-def _job(spec: str, estimator: str, seed: int, robots: int, duration: float | None) -> dict[str, Any]:
-    """One estimator on one source: pooled error arrays and counters (runs in a worker process)."""
+def _job(
+    spec: str, estimator: str, seed: int, robots: int, duration: float | None, assoc: tuple = ("tags", 0.0, 1.0)
+) -> dict[str, Any]:
+    """One estimator on one source: pooled error arrays and counters (runs in a worker process). ``assoc``:
+    ``(policy, clutter per scan, detection probability)`` (:mod:`swarmloc.experiments.association`)."""
+    import dataclasses
+
     from swarmloc.estimators import make_team, node_options
+    from swarmloc.experiments.association import association_events
     from swarmloc.experiments.sources import load_source
     from swarmloc.runner import run
 
     src = load_source(spec, robots=robots, duration=duration, seed=seed)
-    nodes = make_team(estimator, src.initial, **node_options(estimator, src.config, src.landmarks, src.t_start))
+    policy, clutter, p_detect = assoc
+    config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
+    events, _ = association_events(src.events, policy, sorted(src.initial), config.motion.noise(), clutter=clutter,
+                                   p_detect=p_detect, seed=seed)  # fmt: skip
+    nodes = make_team(estimator, src.initial, **node_options(estimator, config, src.landmarks, src.t_start))
     for n in nodes:
         n.measure_time = True
     t = time.perf_counter()
-    res = run(nodes, src.events, src.record_times(), truth=src.truth, name=estimator)
+    res = run(nodes, events, src.record_times(), truth=src.truth, name=estimator)
     wall = time.perf_counter() - t
     pos, head, nees = [], [], []
     for tr in res.tracks.values():
@@ -81,19 +97,34 @@ def compare(
     out_dir: str | os.PathLike[str] | None = None,
     jobs: int = 2,
     progress: bool = False,
+    association: str = "tags",
+    clutter: float = 0.0,
+    p_detect: float = 1.0,
 ) -> dict[str, Any]:
     """Run ``estimators`` on ``scenario`` (``runs`` seeds for a simulation) and return the summary per estimator;
-    with ``out_dir`` also write ``compare.md`` and ``compare.json``."""
-    from swarmloc.estimators import ESTIMATORS
+    with ``out_dir`` also write ``compare.md`` and ``compare.json``. ``association`` (with ``clutter`` false
+    detections per scan and detection probability ``p_detect``): how robot detections get their identity
+    (:mod:`swarmloc.experiments.association`; every policy but ``tags`` hides the ids)."""
+    import dataclasses
+
+    from swarmloc.config import DEFAULTS
+    from swarmloc.estimators import ESTIMATORS, make_team, node_options
+    from swarmloc.experiments.association import POLICIES
 
     unknown = [e for e in estimators if e not in ESTIMATORS]
     if unknown:
         raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
     if runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
+    if association not in POLICIES:
+        raise ValueError(f"association must be one of {POLICIES}, got {association!r}")
+    cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, association=association))
+    for e in estimators:  # an estimator that cannot run the policy is refused before anything runs
+        make_team(e, {0: _ONE, 1: _ONE}, **node_options(e, cfg, None, 0.0))
     sim = scenario.startswith("sim:")
     seeds = list(range(runs)) if sim else [0]
-    tasks = [(scenario, e, s, robots, duration) for e in estimators for s in seeds]
+    assoc = (association, float(clutter), float(p_detect))
+    tasks = [(scenario, e, s, robots, duration, assoc) for e in estimators for s in seeds]
     results: list[dict] = []
     t0 = time.perf_counter()
     bar = None
@@ -126,6 +157,9 @@ def compare(
         "robots": results[0]["robots"] if results else 0,
         "duration_s": results[0]["data_s"] if results else 0.0,
         "wall_s": time.perf_counter() - t0,
+        "association": association,
+        "clutter_per_scan": float(clutter),
+        "p_detect": float(p_detect),
         "estimators": {},
     }
     from scipy.stats import chi2
@@ -156,6 +190,8 @@ def compare(
             "predict_us": 1e6 * tm["predict_s"] / tm["predict_n"] if tm["predict_n"] else 0.0,
             "messages_per_robot_s": st.get("messages", 0) / robot_s if robot_s else 0.0,
             "detections": {k: st.get(k, 0) for k in ("detections", "fused", "gated", "rejected", "unknown")},
+            "association": {k[12:]: st.get(k, 0) for k in st if k.startswith("association_")},
+            "association_accuracy": association_accuracy(st),
             "x_real_time": sum(r["data_s"] for r in rs) / sum(r["wall_s"] for r in rs),
         }
     if out_dir is not None:
@@ -170,18 +206,23 @@ def compare_table(summary: dict[str, Any]) -> str:
     """The summary as Markdown."""
     s = summary
     lines = [
-        f"# {s['scenario']}: {s['runs']} run(s), {s['robots']} robots, {s['duration_s']:.0f} s each",
+        f"# {s['scenario']}: {s['runs']} run(s), {s['robots']} robots, {s['duration_s']:.0f} s each"
+        + ("" if s.get("association", "tags") == "tags" and not s.get("clutter_per_scan") and s.get("p_detect", 1) == 1
+           else f"; association {s['association']}, clutter {s['clutter_per_scan']:g}/scan, "
+                f"p_detect {s['p_detect']:g}"),
         "",
         "| estimator | pos RMSE [m] | heading RMSE [rad] | ANEES/dof (95% band if independent) | in 95% band | "
-        "update [us] | predict [us] | messages / robot / s | fused / gated / rejected / unknown |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
+        "update [us] | predict [us] | messages / robot / s | fused / gated / rejected / unknown | "
+        "association accuracy |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]  # fmt: skip
     for name, e in s["estimators"].items():
         d = e["detections"]
         lo, hi = e["anees_band_95"]
+        a = e.get("association_accuracy")
         lines.append(
             f"| {name} | {e['pos_rmse']:.3f} | {e['heading_rmse']:.3f} | {e['anees']:.2f} ({lo:.2f}-{hi:.2f}) | "
             f"{e['frac_in_95']:.2f} | {e['update_us']:.0f} | {e['predict_us']:.0f} | {e['messages_per_robot_s']:.1f} "
-            f"| {d['fused']} / {d['gated']} / {d['rejected']} / {d['unknown']} |"
+            f"| {d['fused']} / {d['gated']} / {d['rejected']} / {d['unknown']} | {'-' if a is None else f'{a:.3f}'} |"
         )
     return "\n".join(lines) + "\n"

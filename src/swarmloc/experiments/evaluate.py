@@ -22,6 +22,7 @@ from swarmloc.datasets.tum import write_tum
 from swarmloc.estimators import ESTIMATORS, make_team, node_options
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
+from swarmloc.experiments.association import association_accuracy, association_events
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.runner import RunResult, TruthFn, run
 
@@ -74,6 +75,12 @@ def evaluate_stream(
     if unknown:
         raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
     record_times = config.record.times(t_start, t_end, len(initial), span_origin)
+    policy = config.filter.association
+    for name in estimators:  # a policy an estimator cannot run is refused before anything runs
+        make_team(name, initial, **node_options(name, config, landmarks, t_start))
+    notes: dict[str, Any] = {}
+    if policy != "tags":
+        events, notes = association_events(events, policy, sorted(initial), config.motion.noise())
     duration = float(t_end - t_start)
     report: dict[str, Any] = {
         "robots": sorted(initial),
@@ -81,6 +88,8 @@ def evaluate_stream(
         "n_events": len(events),
         "config": config.to_dict(),
         "truth": truth is not None,
+        "association": policy,
+        **({"association_notes": notes} if notes else {}),
         "estimators": {},
     }
     results: dict[str, RunResult] = {}
@@ -94,6 +103,7 @@ def evaluate_stream(
             ev["wall_time_s"] = res.wall_time
             ev["x_real_time"] = duration / res.wall_time if res.wall_time > 0 else float("inf")
             ev["stats"] = res.stats
+            ev["association_accuracy"] = association_accuracy(res.stats)
             ev["reasons"] = dict(res.reasons)
             ev["timing"] = res.timing
             ev["accounted"] = res.accounted()
@@ -191,19 +201,25 @@ def markdown_table(report: dict) -> str:
         + ("" if report.get("truth", True) else " (no ground truth: replay only)"),
         "",
         "| estimator | team pos RMSE [m] | heading RMSE [rad] | ANEES (per dof) | in 95% NEES band | detections "
-        "fused / gated / rejected / unknown | wall [s] | x real time |",
-        "|---|---|---|---|---|---|---|---|",
+        "fused / gated / rejected / unknown | association accuracy | wall [s] | x real time |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
+    if report.get("association", "tags") != "tags":
+        lines[0] += f", association {report['association']} (robot ids hidden)"
     for name, ev in report["estimators"].items():
         s = ev["stats"]
         acc = f"{s['detections']}: {s['fused']} / {s['gated']} / {s['rejected']} / {s['unknown']}"
+        a = ev.get("association_accuracy")
+        assoc = "-" if a is None else f"{a:.3f}"
         t = ev["team"]
         if t is None or "pos_rmse" not in t:  # no ground truth, or nothing recorded to score
-            lines.append(f"| {name} | - | - | - | - | {acc} | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |")
+            lines.append(
+                f"| {name} | - | - | - | - | {acc} | {assoc} | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |"
+            )
             continue
         lines.append(
             f"| {name} | {t['pos_rmse']:.3f} | {t['heading_rmse']:.3f} | {t['anees']:.2f} | {t['frac_in_95']:.2f} | "
-            f"{acc} | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |"
+            f"{acc} | {assoc} | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |"
         )
     notes = report.get("notes") or []
     if notes:

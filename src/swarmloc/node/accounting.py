@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
+from swarmloc.node.associate import ASSOCIATION_KEYS
 from swarmloc.node.update import Outcome
 
 log = logging.getLogger("swarmloc.node")
@@ -23,7 +24,7 @@ OUTCOMES = ("fused", "gated", "rejected", "unknown")
 STAT_KEYS = (
     "detections", *OUTCOMES, "pending", "odometry", "odometry_used", "odometry_rejected", "odometry_pending",
     "odometry_stops", "late", "replayed", "future", "clock_resets", "clock_jumps", "messages",
-    "messages_rejected", "answers_sent", "not_yet_sent", "revisions_sent",
+    "messages_rejected", "answers_sent", "not_yet_sent", "revisions_sent", *ASSOCIATION_KEYS,
 )  # fmt: skip
 """Keys of :meth:`Accounting.stats` (every one present, zeros included)."""
 
@@ -53,6 +54,13 @@ class Accounting:
             self.outcome(o, -1)
         for o in new:
             self.outcome(o)
+
+    def recount_counters(self, old: Mapping[str, int], new: Mapping[str, int]) -> None:
+        """Counters of a re-applied entry (e.g. its association's): the old ones taken back, the new ones counted."""
+        for k, v in old.items():
+            self.counts[k] -= v
+        for k, v in new.items():
+            self.counts[k] += v
 
     def remark(self, old: Iterable[tuple], new: Iterable[tuple]) -> None:
         """The ledger's marks of a re-applied group: the old ones taken back, the new ones counted."""

@@ -43,6 +43,7 @@ from swarmloc.gaussian import GroupGaussian, world_covariance
 from swarmloc.lie import SE2
 from swarmloc.messages import Message
 from swarmloc.node.accounting import Accounting
+from swarmloc.node.associate import AssociationView
 from swarmloc.node.clock import DEFAULT_CONFIRM, DEFAULT_HORIZON, DEFAULT_TOLERANCE, Clock
 from swarmloc.node.history import PRUNE_EVERY, History
 from swarmloc.node.inputs import CONTIGUOUS, Intake, Landmarks, OdometryTimeline, landmark_state
@@ -334,6 +335,12 @@ class Node(Intake, Exchange):
         stamps = s.t
         return s._replace(t=tuple(t for _ in stamps) if isinstance(stamps, tuple) else t)
 
+    def _associate(self, s: Any, g: Group) -> AssociationView | None:
+        """The group with identities given to its anonymous robot detections (the observer predicted to ``g.t`` in
+        ``s``), or None to fuse it as it is (default: a node without an association policy;
+        :mod:`~swarmloc.node.associate`)."""
+        return None
+
     # ------------------------------------------------------------------------------------------------ targets
     def _needs_answer(self, g: Group, d: Detection) -> bool:
         """True when fusing ``d`` needs the target robot's answer (distributed nodes)."""
@@ -489,13 +496,18 @@ class Node(Intake, Exchange):
     def _apply_group(self, s: Any, e: Entry) -> tuple[Any, list[Message], bool]:
         g: Group = e.data
         s = self._adv(s, g.observer, g.t)
+        view = self._associate(s, g)
         if self.measure_time:
             t_start, p_before = time.perf_counter(), self.timing["predict_s"]
-            s, outcomes, msgs = self._fuse_group(s, g)
+            s, outcomes, msgs = self._fuse_group(s, g if view is None else view.group)
             self.timing["fuse_s"] += time.perf_counter() - t_start - (self.timing["predict_s"] - p_before)
             self.timing["fuse_n"] += 1
         else:
-            s, outcomes, msgs = self._fuse_group(s, g)
+            s, outcomes, msgs = self._fuse_group(s, g if view is None else view.group)
+        if view is not None or e.assoc:
+            outcomes, assoc = view.outcomes(outcomes) if view is not None else (outcomes, {})
+            self.accounting.recount_counters(e.assoc, assoc)
+            e.assoc = assoc
         self.accounting.recount(e.outcomes, outcomes)
         e.outcomes = outcomes
         if self.accounting.ledger is not None:

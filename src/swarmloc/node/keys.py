@@ -77,7 +77,7 @@ class Entry:
     neighbour's), its data, and the filter state after it (None: not computed yet, a command of a node
     whose filter predicts runs of commands at once; the history computes it when it is needed)."""
 
-    __slots__ = ("key", "kind", "data", "state", "outcomes", "sent", "marks")
+    __slots__ = ("key", "kind", "data", "state", "outcomes", "sent", "marks", "assoc")
 
     def __init__(self, key: Key, kind: str, data: Any) -> None:
         self.key = key
@@ -87,3 +87,4 @@ class Entry:
         self.outcomes: list[tuple[str, str]] | tuple = ()  # replaced, never appended to
         self.sent: dict[tuple[int, tuple], Message] = {} if kind == "group" else _NOTHING_SENT
         self.marks: list[tuple] | tuple = ()  # replaced, never appended to
+        self.assoc: Mapping[str, int] = _NOTHING_SENT  # association counters of a group (swarmloc.node.associate)

@@ -1,0 +1,83 @@
+"""Robot detections without their identities, for ``swarmloc evaluate`` / ``compare --association`` and benchmarks.
+
+:func:`association_events` turns a source's events into what a team with the policy ``[filter] association``
+(:class:`~swarmloc.config.FilterConfig`) sees:
+
+* ``tags``: the identities are given (the reference); with ``clutter`` > 0 the false detections carry no tag and
+  every node refuses them, with ``p_detect`` < 1 the same detections are missed as for the other policies;
+* ``nearest``, ``joint``: robot detections lose their ``target`` (:func:`swarmloc.sim.anonymous.anonymize`, the
+  truth kept in ``truth_target`` for scoring only), misses and Poisson clutter per scan added; the nodes choose
+  identities (:mod:`swarmloc.node.associate`);
+* ``anonymous``: the same anonymous detections (range-bearing only) go through PMR and a particle-filter bank per
+  robot (:func:`swarmloc.association.tracker.bank_detections`), whose unambiguous estimates reach the nodes as
+  tagged relative poses with their covariance, once a second.
+
+:func:`association_accuracy` is the share of anonymous detections given their true identity (a false detection
+refused as clutter or ambiguous counts as right), from a run's counters.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from swarmloc.association.tracker import bank_detections
+from swarmloc.events import Detection, Event
+from swarmloc.motion import UnicycleNoise
+from swarmloc.sim.anonymous import anonymize
+
+__all__ = ["POLICIES", "association_accuracy", "association_events"]
+
+POLICIES = ("tags", "nearest", "joint", "anonymous")
+
+BANK_DEFAULTS: dict[str, Any] = {"n_particles": 200, "max_unmatched": 2, "every": 1.0}
+"""The bank's settings for ``anonymous`` (200 particles per met robot, two unmatched points per registration for
+misses and clutter, one relative pose a second per pair)."""
+
+
+def association_events(
+    events: Sequence[Event],
+    policy: str,
+    robots: Sequence[int],
+    noise: UnicycleNoise,
+    *,
+    clutter: float = 0.0,
+    p_detect: float = 1.0,
+    max_range: float = 5.0,
+    seed: int = 0,
+    bank: Mapping[str, Any] | None = None,
+) -> tuple[list[Event], dict[str, Any]]:
+    """The events as the team with ``policy`` sees them (module docstring) and notes for the report (the
+    tracker's counters for ``anonymous``). ``clutter``: mean false detections per scan; ``p_detect``: detection
+    probability; ``max_range`` [m]: the clutter's range; ``seed``: of misses and clutter."""
+    if policy not in POLICIES:
+        raise ValueError(f"association must be one of {POLICIES}, got {policy!r}")
+    kw = dict(p_detect=p_detect, clutter=clutter, max_range=max_range, seed=seed)
+    if policy == "tags":
+        if clutter == 0 and p_detect == 1:
+            return list(events), {}
+        return anonymize(events, hide_ids=False, **kw), {}
+    anon = anonymize(events, **kw)
+    if policy != "anonymous":
+        return anon, {}
+    if not any(isinstance(e, Detection) and e.kind == "range_bearing" and e.target_is_robot for e in anon):
+        raise ValueError(
+            "association 'anonymous' needs range-bearing robot detections (PMR registers points): use a source "
+            "that has them (sim:range_bearing, mrclam:PATH)"
+        )
+    opts = {**BANK_DEFAULTS, **(bank or {})}
+    sigma = opts.pop("sigma", None)
+    if sigma is None:  # the point noise PMR is given: max(s_r, range s_b) of the detections (tracker docstring)
+        covs = [e.cov for e in anon if isinstance(e, Detection) and e.kind == "range_bearing" and e.target_is_robot]
+        s = np.sqrt(np.median([[c[0][0], c[1][1]] for c in covs], axis=0))
+        sigma = float(max(s[0], 2.0 * s[1]))
+    out, counts = bank_detections(anon, list(robots), noise, sigma, **opts)
+    return out, {"bank": {str(r): c for r, c in counts.items()}, "bank_sigma_m": sigma}
+
+
+def association_accuracy(stats: Mapping[str, int]) -> float | None:
+    """``right / (right + wrong)`` of a run's association counters; None when no detection was scored."""
+    right, wrong = int(stats.get("association_right", 0)), int(stats.get("association_wrong", 0))
+    return right / (right + wrong) if right + wrong else None
