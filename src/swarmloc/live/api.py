@@ -120,6 +120,12 @@ class LiveNode:
         except Exception:  # noqa: BLE001 - reported, never silent: the thread has nobody else to tell
             log.exception("robot %s: the live driver stopped on an error", self.robot)
 
+    def end(self) -> None:
+        """End the input stream (returns at once): the node reads what is left and, once its teammates have read
+        theirs, settles. Several nodes in one process: end them all, then :meth:`close` them (a node's ``close``
+        waits for its teammates, which wait for their own streams to end)."""
+        self.feed.end()
+
     def close(self, timeout: float = 30.0) -> Report | None:
         """End the input stream and wait (up to ``timeout`` s) for the team to settle; returns the report."""
         self.feed.end()

@@ -113,13 +113,16 @@ def node_main(
     out: str | os.PathLike[str] | None = None,
     auth: Auth | None = None,
     run_id: str | None = None,
+    live: Any = None,
 ) -> Report:
     """Run robot ``robot`` of ``src`` as one Zenoh peer until the team is done; returns its report. With
     ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there.
 
     The timeouts [s] are :class:`~swarmloc.net.process.NetNode`'s; ``max_wall`` [s] stops the node whatever its
     state (None: no limit). ``auth``: robot ``robot``'s key and the team's roster (None: unauthenticated);
-    ``run_id``: the run's id in every key (:func:`~swarmloc.net.transport.team_scope`)."""
+    ``run_id``: the run's id in every key (:func:`~swarmloc.net.transport.team_scope`). ``live``: read the robot's
+    inputs live, not ``src``'s events: ``live(session, robot, t0) -> (feed, close)``
+    (:func:`swarmloc.live.source.live_inputs`; ``src`` still gives the team, initial beliefs and record times)."""
     from swarmloc.net.process import NetNode
 
     scope = team_scope(team, run_id)
@@ -128,10 +131,16 @@ def node_main(
     _check_roster(auth, src.robots)
     session = open_session(listen, connect, zenoh_config)
     finals: dict[float, Belief] = {}
+    close_live = None
     try:
         node, events, record_times = _start(session, src, robot, team, estimator, resume, auth, scope)
         faults = parse_faults(faults) if isinstance(faults, str | None) else faults
-        events = faults.jumped(robot, events)  # the jump fault: this robot's clock, not the source, is wrong
+        if live is not None:
+            if resume:
+                raise ValueError("a live source cannot resume from the belief server")
+            events, close_live = live(session, robot, float(node.t0))
+        else:
+            events = faults.jumped(robot, events)  # the jump fault: this robot's clock, not the source, is wrong
         net = NetNode(
             node,
             events,
@@ -160,6 +169,8 @@ def node_main(
             _write_outputs(Path(out), robot, [finals[t] for t in sorted(finals)], report)
         return report
     finally:
+        if close_live is not None:
+            close_live()
         session.close()
 
 
