@@ -156,14 +156,6 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
         self.node = node
         self.robot = node.robots[0]
-        self.feed = events if isinstance(events, LiveFeed) else None
-        """A live source (:mod:`swarmloc.net.feed`): ``items`` grows as it releases inputs; None: a recording."""
-        self.items = [] if self.feed is not None else _groups(events)
-        self._feed_w = -math.inf  # the feed's watermark at the last take: every input not yet taken is at or after it
-        self._feed_hi = -math.inf  # the latest time an input taken is known at (odometry: its end)
-        self.record_rate = None if record_rate is None else float(record_rate)
-        if self.record_rate is not None and not (math.isfinite(self.record_rate) and self.record_rate > 0):
-            raise ValueError(f"NetNode: record_rate must be > 0 Hz, got {record_rate!r}")
         self.session = session
         self.team = team
         self.scope = team_scope(team, run_id)
@@ -202,15 +194,27 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self._init_lockstep()
         self._init_outbound()
         self._init_publishing()
-        if self.feed is not None:
-            if node.t0 is None:
-                raise ValueError("NetNode: with a live feed, start the node first (node.start(t0))")
-            self._feed_w = float(node.t0)
-            self.speed = 0.0  # a live source is paced by its arrivals
-            self.feed.on_push = lambda: self._inq.put(("wake", None))
+        self._init_feed(events, record_rate)
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
         self._init_broadcast()
+
+    def _init_feed(self, events: Sequence[Event] | LiveFeed, record_rate: float | None) -> None:
+        """``items`` from a recording, or an empty list that a live feed fills (:meth:`_pull`)."""
+        self.feed = events if isinstance(events, LiveFeed) else None
+        """A live source (:mod:`swarmloc.net.feed`): ``items`` grows as it releases inputs; None: a recording."""
+        self.items = [] if self.feed is not None else _groups(events)
+        self._feed_w = -math.inf  # the feed's watermark at the last take: every input not yet taken is at or after it
+        self._feed_hi = -math.inf  # the latest time an input taken is known at (odometry: its end)
+        self.record_rate = None if record_rate is None else float(record_rate)
+        if self.record_rate is not None and not (math.isfinite(self.record_rate) and self.record_rate > 0):
+            raise ValueError(f"NetNode: record_rate must be > 0 Hz, got {record_rate!r}")
+        if self.feed is not None:
+            if self.node.t0 is None:
+                raise ValueError("NetNode: with a live feed, start the node first (node.start(t0))")
+            self._feed_w = float(self.node.t0)
+            self.speed = 0.0  # a live source is paced by its arrivals
+            self.feed.on_push = lambda: self._inq.put(("wake", None))
 
     def stop(self) -> None:
         """Ask :meth:`run` to finish (from another thread or a signal handler)."""
