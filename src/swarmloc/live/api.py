@@ -60,6 +60,9 @@ class LiveNode:
     record_rate: [Hz] belief record times from ``t0``.
     window, max_ahead, max_items: the feed's bounds (:class:`~swarmloc.net.feed.LiveFeed`).
     on_belief: called with each published :class:`~swarmloc.net.schema.Belief`.
+    inputs: also subscribe the robot's inputs on the session: ``"zenoh"`` (swarmloc's input keys,
+        :mod:`~swarmloc.live.zenoh_input`) or ``"ros2"`` (ROS 2 topics in domain ``input_domain``,
+        :mod:`~swarmloc.live.ros_input`); None: only what is pushed here.
     net: further :class:`~swarmloc.net.process.NetNode` options (``auth``, ``run_id``, ``ros_domain``, timeouts).
     """
 
@@ -82,6 +85,8 @@ class LiveNode:
         max_ahead: float = 60.0,
         max_items: int = 100_000,
         on_belief: Callable[[Belief], None] | None = None,
+        inputs: str | None = None,
+        input_domain: int = 0,
         start: bool = True,
         **net: Any,
     ) -> None:
@@ -104,6 +109,12 @@ class LiveNode:
         """The driver's report once :meth:`close` returned."""
         self.net = NetNode(node, self.feed, session=self.session, team=team, roster=self.roster,
                            record_rate=record_rate, on_belief=self._keep, **net)  # fmt: skip
+        self._close_inputs: Callable[[], None] | None = None
+        if inputs is not None:
+            from swarmloc.live.source import attach
+
+            self._close_inputs = attach(inputs, self.session, self.feed, team=team, run_id=net.get("run_id"),
+                                        domain=input_domain)  # fmt: skip
         self._thread = threading.Thread(target=self._run, name=f"swarmloc-live-{robot}", daemon=True)
         if start:
             self.start()
@@ -134,6 +145,8 @@ class LiveNode:
             log.warning("robot %s: not settled after %.0f s; stopping", self.robot, timeout)
             self.net.stop()
             self._thread.join(10.0)
+        if self._close_inputs is not None:
+            self._close_inputs()
         if self._own_session:
             self.session.close()
         return self.report

@@ -34,17 +34,24 @@ def live_inputs(
 
     def open_inputs(session: Any, robot: int, t0: float) -> tuple[LiveFeed, Callable[[], None]]:
         feed = LiveFeed(robot, t0, window=window)
-        if kind == "zenoh":
-            from swarmloc.live.zenoh_input import ZenohInput
-
-            sub: Any = ZenohInput(session, feed, team_scope(team, run_id))
-        elif kind == "ros2":
-            from swarmloc.live.ros_input import RosInput
-
-            sub = RosInput(session, feed, team=team, domain=domain)
-        else:
-            raise ValueError(f"unknown live source {kind!r}; choose from {list(LIVE_KINDS)}")
-        sub.open()
-        return feed, sub.close
+        return feed, attach(kind, session, feed, team=team, run_id=run_id, domain=domain)
 
     return open_inputs
+
+
+def attach(
+    kind: str, session: Any, feed: LiveFeed, *, team: str, run_id: str | None = None, domain: int = 0
+) -> Callable[[], None]:
+    """Subscribe ``feed.robot``'s live inputs of ``kind`` on ``session`` into ``feed``; returns the closer."""
+    if kind == "zenoh":
+        from swarmloc.live.zenoh_input import ZenohInput
+
+        sub: Any = ZenohInput(session, feed, team_scope(team, run_id))
+    elif kind == "ros2":
+        from swarmloc.live.ros_input import RosInput
+
+        sub = RosInput(session, feed, team=team, domain=domain)
+    else:
+        raise ValueError(f"unknown live input {kind!r}; choose from {list(LIVE_KINDS)}")
+    sub.open()
+    return sub.close
