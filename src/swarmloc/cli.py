@@ -415,7 +415,8 @@ def _timeouts(args: argparse.Namespace) -> dict[str, float]:
 
 def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:
     p.add_argument("--source", default=default, required=default is None,
-                   help="sim:SCENARIO (random, range_bearing), mrclam:PATH or events:PATH")  # fmt: skip
+                   help="sim:SCENARIO (random, range_bearing), mrclam:PATH or events:PATH; swarmloc node also "
+                        "zenoh:SPEC or ros2:SPEC (inputs live, the team from SPEC)")  # fmt: skip
     p.add_argument("--estimator", default="expfusion", help="a distributed estimator: expfusion, dekf, ci, rdl")
     p.add_argument("--config", default=None, help="TOML file of model and filter settings")
     p.add_argument("--robots", type=int, default=3, help="sim: team size (default 3)")

@@ -16,6 +16,7 @@ Key expressions (``<team>`` is the team's name; one run of a team launched by ``
     swarmloc/<team>/robot/<id>/progress   publisher: how far the node has read its source (lockstep)
     swarmloc/<team>/robot/<id>/report     publisher: the node's counters when it stops
     swarmloc/<team>/alive/<id>            liveliness token of a running node
+    swarmloc/<team>/input/<id>/<what>     a robot's live inputs (odom, det, progress: :mod:`swarmloc.live.zenoh_input`)
     swarmloc/<team>/server/query          queryable of the belief server
 """
 
