@@ -318,7 +318,9 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self._feed_w = max(self._feed_w, w)
         if not new:
             return
-        self.items.extend(_groups(new))
+        base, groups = len(self.items), _groups(new)
+        self.items.extend(groups)
+        self._group_at.extend(base + k for k, (_, item) in enumerate(groups) if isinstance(item, list))
         for e in new:
             self._feed_hi = max(self._feed_hi, float(e.t))
         if self.record_rate is not None:
