@@ -19,7 +19,8 @@ Topics of robot ``N`` (``<ns>`` the namespace, default ``/swarmloc/<team>``; eac
   covariance swarmloc's ``"pose"`` measurement uses (:class:`~swarmloc.events.Detection`). Detections at one stamp
   form one group.
 * **Progress**: a ``Header`` stamped ``t`` says every input stamped before ``t`` was sent (the feed's explicit
-  watermark); ``frame_id`` ``end`` ends the stream.
+  watermark); ``frame_id`` ``end`` ends the stream, ``end:<n>`` once ``n`` odometry and detection messages in all
+  have come (the topics are separate keys, so the end may overtake the last of them; at most 5 s of wall time).
 
 The attachment rmw_zenoh adds (sequence number, source time, gid; :func:`swarmloc.net.ros.parse_ros_attachment`)
 is read when present: a repeated sequence number of one publisher is dropped (``duplicate``). Every sample is
@@ -111,9 +112,11 @@ def detection_cdr(d: Detection) -> bytes:
     return bytes(ros.typestore().serialize_cdr(msg, DET))
 
 
-def progress_cdr(t: float, end: bool = False) -> bytes:
-    """CDR of the ``std_msgs/msg/Header`` announcing progress to ``t`` [s] (``end``: the stream is over)."""
-    return bytes(ros.typestore().serialize_cdr(_header(t, "end" if end else "progress"), PROGRESS))
+def progress_cdr(t: float, end: bool = False, count: int | None = None) -> bytes:
+    """CDR of the ``std_msgs/msg/Header`` announcing progress to ``t`` [s] (``end``: the stream is over, after
+    ``count`` odometry and detection messages in all when given: frame_id ``end:<count>``)."""
+    frame = "progress" if not end else "end" if count is None else f"end:{int(count)}"
+    return bytes(ros.typestore().serialize_cdr(_header(t, frame), PROGRESS))
 
 
 # ------------------------------------------------------------------------------------------------ decoding
@@ -163,11 +166,12 @@ def decode_detection(payload: bytes, observer: int) -> Detection:
     return Detection(observer, _stamp(m), "pose", z, cov, int(hit.group(2)), hit.group(1) == "robot")
 
 
-def decode_progress(payload: bytes) -> tuple[float, bool]:
-    """``(t [s], end)`` of a progress ``Header`` sample."""
+def decode_progress(payload: bytes) -> tuple[float, bool, int | None]:
+    """``(t [s], end, count)`` of a progress ``Header`` sample."""
     m = _decode(payload, PROGRESS)
     t = ros.ros_to_stamp(m.stamp.sec, m.stamp.nanosec)
-    return t, m.frame_id == "end"
+    hit = re.match(r"^end(?::([0-9]{1,12}))?$", m.frame_id)
+    return t, hit is not None, None if hit is None or hit.group(1) is None else int(hit.group(1))
 
 
 def decoded_events(robot: int, t0: float, odom: list[bytes], dets: list[bytes]) -> list[Event]:
@@ -227,9 +231,9 @@ class RosInput:
                 self._check_attachment(sample)
                 self._handle(what, sample.payload.to_bytes())
             except Bad as exc:
-                self._bad(exc.reason, f"{what}: {exc}")
+                self._bad(exc.reason, f"{what}: {exc}", what)
             except Exception as exc:  # noqa: BLE001 - a live node never dies of one message
-                self._bad("internal_error", f"{what}: {type(exc).__name__}: {exc}")
+                self._bad("internal_error", f"{what}: {type(exc).__name__}: {exc}", what)
 
     def _check_attachment(self, sample: Any) -> None:
         att = sample.attachment
@@ -250,18 +254,21 @@ class RosInput:
             if t <= self._prev:
                 if t < self._prev:
                     raise Bad("stale", f"odometry stamped {t} before the previous one {self._prev}")
+                self.feed.dropped()
                 return  # a message at the start only marks it
             ok = self.feed.push(Odometry(self.robot, self._prev, t, v, w))
             self._prev = t  # a refused interval is lost; the next one starts after it, not before
         elif what == "detections":
             ok = self.feed.push(decode_detection(raw, self.robot))
         else:
-            t, end = decode_progress(raw)
-            self.feed.end() if end else self.feed.advance(t)
+            t, end, count = decode_progress(raw)
+            self.feed.end(count) if end else self.feed.advance(t)
             ok = True
         self.counts["pushed" if ok else "refused_by_feed"] += 1
 
-    def _bad(self, reason: str, detail: str) -> None:
+    def _bad(self, reason: str, detail: str, what: str) -> None:
+        if what != "input_progress":
+            self.feed.dropped()  # it counts towards the end's count
         self.counts["rejected"] += 1
         self.reasons[reason] += 1
         if self.reasons[reason] == 1:
@@ -301,7 +308,9 @@ class RosInputPublisher:
         self._put("detections", detection_cdr(d))
 
     def progress(self, t: float, end: bool = False) -> None:
-        self._put("input_progress", progress_cdr(t, end))
+        """Every input stamped before ``t`` [s] was sent; ``end``: the stream is over (with the count sent)."""
+        sent = self._seq["odom"] + self._seq["detections"]
+        self._put("input_progress", progress_cdr(t, end, sent if end else None))
 
     def close(self) -> None:
         for p in self._pubs.values():

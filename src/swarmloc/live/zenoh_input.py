@@ -5,7 +5,8 @@ Keys (``<scope>`` the team's, :func:`~swarmloc.net.transport.team_scope`), paylo
     swarmloc/<scope>/input/<robot>/odom      {"t0": s, "t1": s, "v": m/s, "w": rad/s}
     swarmloc/<scope>/input/<robot>/det       {"t": s, "kind": "pose", "z": [...], "cov": [... n*n row-major],
                                               "target": id or null, "target_is_robot": true}
-    swarmloc/<scope>/input/<robot>/progress  {"t": s} (every input stamped before t was sent) or {"end": true}
+    swarmloc/<scope>/input/<robot>/progress  {"t": s} (every input stamped before t was sent) or
+                                              {"end": true, "count": n} (over once the n inputs sent came; 5 s at most)
 
 The fields are those of :class:`~swarmloc.events.Odometry` and :class:`~swarmloc.events.Detection` (``z`` of
 ``kind``'s length: pose 3, range_bearing 2, range 1, bearing 1, absolute 3; ``cov`` symmetric positive definite).
@@ -51,9 +52,10 @@ class DetIn(msgspec.Struct, forbid_unknown_fields=True):
     target_is_robot: bool = True
 
 
-class ProgressIn(msgspec.Struct, forbid_unknown_fields=True):
+class ProgressIn(msgspec.Struct, forbid_unknown_fields=True, omit_defaults=True):
     t: float | None = None
     end: bool = False
+    count: int | None = None
 
 
 _TYPES = {"odom": OdomIn, "det": DetIn, "progress": ProgressIn}
@@ -133,17 +135,19 @@ class ZenohInput:
             try:
                 x = decode_input(what, sample.payload.to_bytes(), self.robot)
                 if isinstance(x, ProgressIn):
-                    self.feed.end() if x.end else self.feed.advance(x.t if x.t is not None else float("nan"))
+                    self.feed.end(x.count) if x.end else self.feed.advance(x.t if x.t is not None else float("nan"))
                     ok = True
                 else:
                     ok = self.feed.push(x)
                 self.counts["pushed" if ok else "refused_by_feed"] += 1
             except Refused as exc:
-                self._bad(exc.reason, f"{what}: {exc}")
+                self._bad(exc.reason, f"{what}: {exc}", what)
             except Exception as exc:  # noqa: BLE001 - a live node never dies of one message
-                self._bad("internal_error", f"{what}: {type(exc).__name__}: {exc}")
+                self._bad("internal_error", f"{what}: {type(exc).__name__}: {exc}", what)
 
-    def _bad(self, reason: str, detail: str) -> None:
+    def _bad(self, reason: str, detail: str, what: str) -> None:
+        if what in ("odom", "det"):
+            self.feed.dropped()  # it counts towards the end's count
         self.counts["rejected"] += 1
         self.reasons[reason] += 1
         if self.reasons[reason] == 1:
@@ -156,16 +160,19 @@ class InputPublisher:
     def __init__(self, session: Any, scope: str, robot: int) -> None:
         self.robot = int(robot)
         self._pubs = {w: session.declare_publisher(input_key(scope, self.robot, w)) for w in _TYPES}
+        self.sent = 0
 
     def push(self, e: Event) -> None:
         what, payload = encode_event(e)
         self._pubs[what].put(payload)
+        self.sent += 1
 
     def progress(self, t: float) -> None:
         self._pubs["progress"].put(msgspec.json.encode(ProgressIn(t=float(t))))
 
     def end(self) -> None:
-        self._pubs["progress"].put(msgspec.json.encode(ProgressIn(end=True)))
+        """The stream is over, after the ``sent`` inputs (which may still be on their way: other keys)."""
+        self._pubs["progress"].put(msgspec.json.encode(ProgressIn(end=True, count=self.sent)))
 
     def close(self) -> None:
         for p in self._pubs.values():

@@ -34,6 +34,7 @@ import itertools
 import logging
 import math
 import threading
+import time
 from collections import Counter
 from typing import Any
 
@@ -42,6 +43,9 @@ import numpy as np
 from swarmloc.events import Detection, Event, Odometry
 
 log = logging.getLogger(__name__)
+
+END_GRACE = 5.0
+"""[s] wall time an end announced with a count waits for inputs still on their way."""
 
 MAX_ITEMS = 100_000
 """Inputs waiting in one feed at most (a robot at 100 Hz odometry and detections holds far fewer)."""
@@ -96,6 +100,8 @@ class LiveFeed:
         self._explicit = -math.inf
         self._released_to = -math.inf  # the watermark the driver has read up to
         self._ended = False
+        self._seen = 0  # inputs received: pushed (accepted or refused) or dropped by an input layer
+        self._end_at: tuple[int, float] | None = None  # an announced end: (inputs sent, wall deadline)
         self._wake = threading.Event()
         self.on_push: Any = None
         """Called (no argument) after each accepted push or watermark change: the driver's wake-up."""
@@ -106,6 +112,7 @@ class LiveFeed:
         if not isinstance(event, Odometry | Detection):
             raise TypeError(f"LiveFeed.push takes an Odometry or a Detection, got {type(event).__name__}")
         with self._lock:
+            self._seen += 1
             why = self._problem(event)
             if why is None:
                 prio = 1 if isinstance(event, Detection) else 2
@@ -116,9 +123,10 @@ class LiveFeed:
                 self._latest = max(self._latest, float(event.t))
         if why is not None:
             self._refuse(why, event)
-            return False
+        with self._lock:
+            self._check_end()
         self._notify()
-        return True
+        return why is None
 
     def advance(self, t: float) -> None:
         """Announce that every input stamped before ``t`` [s] has been pushed (a publisher's progress)."""
@@ -130,12 +138,40 @@ class LiveFeed:
             self._explicit = max(self._explicit, t)
         self._notify()
 
-    def end(self) -> None:
-        """The stream is over: everything waiting is released, later pushes are refused (``ended``)."""
+    def end(self, count: int | None = None, grace: float = END_GRACE) -> None:
+        """The stream is over: everything waiting is released, later pushes are refused (``ended``). With ``count``
+        (the inputs the sender sent), the end waits until that many came (pushed or :meth:`dropped`: a sender's
+        messages on several keys may overtake each other), at most ``grace`` s of wall time (the shortfall is
+        counted ``missing``)."""
         with self._lock:
-            self._ended = True
-            self._explicit = math.inf
+            if count is None:
+                self._close_stream()
+            else:
+                self._end_at = (int(count), time.monotonic() + float(grace))
+                self._check_end()
         self._notify()
+
+    def dropped(self) -> None:
+        """An input that an input layer received but refused before pushing it (it counts towards an end's count)."""
+        with self._lock:
+            self._seen += 1
+            self._check_end()
+
+    def _close_stream(self) -> None:
+        self._ended = True
+        self._explicit = math.inf
+        self._end_at = None
+
+    def _check_end(self) -> None:
+        """End the stream once an announced end's count has come or its grace ran out (called with the lock)."""
+        if self._end_at is None or self._ended:
+            return
+        count, deadline = self._end_at
+        if self._seen >= count or time.monotonic() > deadline:
+            if self._seen < count:
+                self.counts["missing"] += count - self._seen
+                log.warning("robot %s: the stream ended with %d of %d inputs", self.robot, self._seen, count)
+            self._close_stream()
 
     def _problem(self, e: Event) -> str | None:
         """Why ``e`` is refused, or None (called with the lock held)."""
@@ -195,6 +231,7 @@ class LiveFeed:
     def exhausted(self) -> bool:
         """Ended and everything released."""
         with self._lock:
+            self._check_end()
             return self._ended and not self._heap
 
     def take(self) -> tuple[list[Event], float]:
@@ -202,6 +239,7 @@ class LiveFeed:
         that watermark: every input not yet taken is stamped at or after it."""
         out: list[Event] = []
         with self._lock:
+            self._check_end()
             w = self._watermark()
             self._released_to = max(self._released_to, w)
             while self._heap and self._heap[0][0] < w:
