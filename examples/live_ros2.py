@@ -53,9 +53,8 @@ nodes = {
     for i, r in enumerate(src.robots)
 }
 pubs = {r: RosInputPublisher(driver, r, team=TEAM) for r in src.robots}
-end = time.monotonic() + 10  # wait for the nodes' subscriptions (their MS tokens) before sending
-while sum(e.kind == "MS" for e in graph.values()) < 9 and time.monotonic() < end:
-    time.sleep(0.05)
+for p in pubs.values():  # the nodes' subscriptions match (what is sent before is lost)
+    p.wait_matched(timeout=10)
 known = sorted((e.t, i, e) for i, e in enumerate(src.events) if isinstance(e, Odometry | Detection))
 w0 = time.monotonic()
 for t, _, e in known:

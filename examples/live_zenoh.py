@@ -18,7 +18,7 @@ from swarmloc.lie import SE2
 from swarmloc.live.zenoh_input import InputPublisher
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.schema import Belief
-from swarmloc.net.transport import alive_key, free_ports, open_session, robot_key
+from swarmloc.net.transport import free_ports, open_session, robot_key
 
 SPEED, TEAM = 2.0, "zexample"
 src = load_source("sim:random", robots=3, duration=4.0, seed=1)
@@ -70,13 +70,8 @@ def show(sample) -> None:
 
 sub = session.declare_subscriber(robot_key(TEAM, "*", "belief"), handler=show)
 pubs = {r: InputPublisher(session, TEAM, r) for r in src.robots}
-alive: set = set()  # a node's liveliness token comes after its input subscription: wait for the three
-tok = session.liveliness().declare_subscriber(
-    alive_key(TEAM), history=True, handler=lambda s: alive.add(str(s.key_expr))
-)
-end = time.monotonic() + 30
-while len(alive) < 3 and time.monotonic() < end:
-    time.sleep(0.05)
+for p in pubs.values():  # the node processes start (imports, Zenoh): what is sent before they subscribe is lost
+    p.wait_matched(timeout=30)
 known = sorted((e.t, i, e) for i, e in enumerate(src.events) if isinstance(e, Odometry | Detection))
 w0 = time.monotonic()
 for t, _, e in known:
@@ -87,5 +82,4 @@ for p in pubs.values():
 codes = [n.wait(timeout=60) for n in nodes]
 print("node exit codes:", codes)
 sub.undeclare()
-tok.undeclare()
 session.close()

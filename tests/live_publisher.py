@@ -48,7 +48,9 @@ def main() -> int:
         print(f"nodes not ready: only {sorted(ready)}", file=sys.stderr)
         return 2
     pubs = {r: RosInputPublisher(session, r, team=a.team) for r in src.robots}
-    time.sleep(0.5)  # let the publishers' declarations reach the nodes
+    if not all(p.wait_matched(10.0) for p in pubs.values()):
+        print("the nodes' subscriptions do not match", file=sys.stderr)
+        return 2
     known = sorted((e.t, i, e) for i, e in enumerate(src.events) if isinstance(e, Odometry | Detection))
     w0 = time.monotonic()
     for t, _, e in known:

@@ -31,7 +31,7 @@ from swarmloc.net.feed import LiveFeed
 from swarmloc.net.rosgraph import Entity, entity_key, parse_entity_key, qos_key
 from swarmloc.net.schema import Belief, Report
 from swarmloc.net.team import TeamRun
-from swarmloc.net.transport import alive_key, free_ports, open_session, robot_key
+from swarmloc.net.transport import free_ports, open_session, robot_key
 from swarmloc.runner import run
 
 HERE = Path(__file__).resolve().parent
@@ -187,7 +187,8 @@ def test_malformed_cdr_is_counted_and_the_node_keeps_reading():
         pub = RosInputPublisher(b, 0, team="lab")
         raw = b.declare_publisher(ri_key(ri, "odom"))
         jpub = b.declare_publisher(input_key("lab", 0, "det"))
-        time.sleep(0.5)  # the declarations reach the other peer (nothing to poll for)
+        assert pub.wait_matched(10.0)
+        wait_for(lambda: raw.matching_status.matching and jpub.matching_status.matching, 10.0, "the subscriptions")
         pub.odometry(0.1, 0.2, 0.0)
         for junk in (b"", b"\x00\x01\x00\x00" + b"\xff" * 3, os.urandom(200), b"\x00" * 5000):
             raw.put(junk)
@@ -347,10 +348,7 @@ def test_three_nodes_localize_from_swarmlocs_own_input_keys_as_the_in_process_ru
     }
     try:
         pubs = {r: InputPublisher(sender, team, r) for r in src.robots}
-        alive: set = set()
-        tok = sender.liveliness().declare_subscriber(alive_key(team), history=True,
-                                                     handler=lambda s: alive.add(str(s.key_expr)))  # fmt: skip
-        wait_for(lambda: len(alive) == 3, 20.0, "the nodes' liveliness tokens (declared after their subscriptions)")
+        assert all(p.wait_matched(20.0) for p in pubs.values()), "the nodes' input subscriptions do not match"
         known = sorted((e.t, i, e) for i, e in enumerate(src.events) if isinstance(e, Odometry | Detection))
         w0 = time.monotonic()
         for t, _, e in known:
@@ -359,7 +357,6 @@ def test_three_nodes_localize_from_swarmlocs_own_input_keys_as_the_in_process_ru
         for p in pubs.values():
             p.end()
         reports = {r: n.close(timeout=60) for r, n in nodes.items()}
-        tok.undeclare()
     finally:
         for n in nodes.values():
             n.close(timeout=1)

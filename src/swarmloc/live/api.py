@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
@@ -138,9 +139,14 @@ class LiveNode:
         self.feed.end()
 
     def close(self, timeout: float = 30.0) -> Report | None:
-        """End the input stream and wait (up to ``timeout`` s) for the team to settle; returns the report."""
-        self.feed.end()
-        self._thread.join(timeout)
+        """End the input stream and wait (up to ``timeout`` s) for the team to settle; returns the report. With
+        ``inputs`` subscribed, the sender ends the stream: its end is waited for (within ``timeout``) first."""
+        deadline = time.monotonic() + timeout
+        while self._close_inputs is not None and not self.feed.ending and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if not self.feed.ending:
+            self.feed.end()
+        self._thread.join(max(0.0, deadline - time.monotonic()))
         if self._thread.is_alive():
             log.warning("robot %s: not settled after %.0f s; stopping", self.robot, timeout)
             self.net.stop()

@@ -293,6 +293,12 @@ class RosInputPublisher:
             self._gids[what] = hashlib.blake2b(key.encode(), digest_size=16).digest()
             self.graph.publisher(self.topics[what], dds_name(msgtype), ros.typestore().hash_rihs01(msgtype))
 
+    def wait_matched(self, timeout: float = 10.0) -> bool:
+        """Wait (up to ``timeout`` s) until a subscriber matches each of its topics (what is put before is lost)."""
+        from swarmloc.live.zenoh_input import _wait_matched
+
+        return _wait_matched(self._pubs.values(), timeout)
+
     def _put(self, what: str, payload: bytes) -> None:
         import time
 

@@ -154,6 +154,17 @@ class ZenohInput:
             log.warning("robot %s: input refused (%s): %s (further ones counted)", self.robot, reason, detail[:200])
 
 
+def _wait_matched(pubs: Any, timeout: float) -> bool:
+    import time
+
+    end = time.monotonic() + timeout
+    while not all(p.matching_status.matching for p in pubs):
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.01)
+    return True
+
+
 class InputPublisher:
     """Publish robot ``robot``'s inputs for a :class:`ZenohInput` of team scope ``scope``."""
 
@@ -161,6 +172,10 @@ class InputPublisher:
         self.robot = int(robot)
         self._pubs = {w: session.declare_publisher(input_key(scope, self.robot, w)) for w in _TYPES}
         self.sent = 0
+
+    def wait_matched(self, timeout: float = 10.0) -> bool:
+        """Wait (up to ``timeout`` s) until a subscriber matches each of its keys (what is put before is lost)."""
+        return _wait_matched(self._pubs.values(), timeout)
 
     def push(self, e: Event) -> None:
         what, payload = encode_event(e)

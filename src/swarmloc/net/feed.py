@@ -151,6 +151,12 @@ class LiveFeed:
                 self._check_end()
         self._notify()
 
+    @property
+    def ending(self) -> bool:
+        """An end was announced (it may still wait for its count)."""
+        with self._lock:
+            return self._ended or self._end_at is not None
+
     def dropped(self) -> None:
         """An input that an input layer received but refused before pushing it (it counts towards an end's count)."""
         with self._lock:
