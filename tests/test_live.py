@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 
 from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Detection, Odometry
@@ -155,6 +156,33 @@ def test_an_end_with_a_count_waits_for_the_inputs_still_on_their_way():
     assert g.exhausted and g.counts["missing"] == 2
 
 
+def test_the_api_turns_velocities_and_wheel_travel_into_odometry_and_refuses_what_is_wrong():
+    node = LiveNode(0, ((0.0, 0.0, 0.0), np.eye(3) * 0.01), team="unit", roster=[0, 1], t0=5.0, start=False)
+    try:
+        assert node.velocity(5.1, 0.3, 0.1)  # [5.0, 5.1]
+        assert node.wheels(5.3, 0.05, 0.07, track=0.4)  # [5.1, 5.3]: v = 0.06 / 0.2, w = 0.02 / 0.4 / 0.2
+        assert node.detection(5.2, (1.0, 0.0, 0.1), np.eye(3) * 0.01, target=1)
+        assert not node.wheels(5.3, 0.1, 0.1, track=0.4)  # no time passed since the last interval
+        assert not node.detection(4.0, (1.0, 0.0, 0.1), np.eye(3) * 0.01, target=1)  # before the start
+        assert not node.odometry(5.3, 5.4, math.inf, 0.0)
+        assert dict(node.feed.reasons) == {"bad_value": 2, "stale": 1}
+        node.end()
+        taken, _ = node.feed.take()
+        assert [type(e).__name__ for e in taken] == ["Odometry", "Odometry", "Detection"]
+        assert taken[1].t0 == 5.1 and taken[1].t1 == 5.3
+        assert taken[1].v == pytest.approx(0.3) and taken[1].w == pytest.approx(0.25)
+        assert node.latest is None and node.x is None and node.P is None
+        with pytest.raises(KeyError):
+            node.belief(5.0)
+    finally:
+        node.session.close()
+    now = LiveNode(0, ((0.0, 0.0, 0.0), np.eye(3) * 0.01), team="unit", roster=[0], start=False)
+    try:
+        assert abs(now.feed.t0 - time.time()) < 5.0  # t0 None: the system clock's now
+    finally:
+        now.session.close()
+
+
 def test_inputs_decode_and_malformed_ones_are_refused_with_their_reason():
     d = Detection(1, 2.0, "pose", np.array([1.0, 2.0, 0.3]), np.diag([0.01, 0.01, 0.001]), 2)
     what, raw = encode_event(d)
@@ -285,12 +313,16 @@ def test_three_node_processes_localize_live_from_a_ros2_publisher_process_as_the
             reports[b.robot] = b
 
     reports: dict = {}
+    graph: list = []
     sub = watch.declare_subscriber(robot_key(team, "*", "*"), handler=collect)
+    tokens = watch.liveliness().declare_subscriber("@ros2_lv/0/**", history=True, handler=lambda x: graph.append(
+        parse_entity_key(str(x.key_expr))) if x.kind == zenoh.SampleKind.PUT else None)  # fmt: skip
     procs = []
     try:
         for i, r in enumerate(src.robots):
             cmd = py + ["node", "--robot", str(r), "--team", team, "--source", "ros2:sim:random", "--robots", "3",
                         "--duration", "4", "--seed", "1", "--estimator", "rdl", "--no-auth", "--max-wall", "90",
+                        "--ros-domain", "0",
                         "--listen", eps[i], "--connect", ",".join(e for e in eps if e != eps[i])]  # fmt: skip
             procs.append(subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
         pub = subprocess.Popen([sys.executable, str(HERE / "live_publisher.py"), "--connect", ",".join(eps[:3]),
@@ -306,7 +338,16 @@ def test_three_node_processes_localize_live_from_a_ros2_publisher_process_as_the
                 p.kill()
                 p.wait()
         sub.undeclare()
+        tokens.undeclare()
         watch.close()
+    # each node was in the ROS graph: its node with its pose publisher, its input node with its 3 subscriptions
+    ns = f"/swarmloc/{team}"
+    for r in src.robots:
+        mine = [e for e in graph if e.namespace == ns and e.node in (f"robot{r}", f"robot{r}_input")]
+        assert sorted((e.kind, e.topic) for e in mine) == sorted(
+            [("NN", None), ("MP", f"{ns}/robot{r}/pose"), ("NN", None)]
+            + [("MS", f"{ns}/robot{r}/{w}") for w in ("detections", "input_progress", "odom")]
+        )
     # the replay: the same messages, decoded as the nodes decode them
     events = []
     for r in src.robots:

@@ -55,7 +55,9 @@ class LiveNode:
     robot, initial: the robot's id and its belief at ``t0`` (a GroupGaussian or ``((x, y, theta), cov)``).
     team, roster: the team's name and every robot id in it.
     estimator: a distributed estimator (``rdl`` default; see ``swarmloc node``).
-    t0: [s] the start of the robot's clock: nothing stamped before it is accepted.
+    t0: [s] the start, on the clock the inputs are stamped with: nothing stamped before it is accepted, nothing
+        more than ``max_ahead`` past the latest input (or ``t0``). None: now, ``time.time()`` (inputs stamped with
+        the system clock, as ROS stamps are).
     config, landmarks: the models' configuration (default :data:`~swarmloc.config.DEFAULTS`) and known landmarks.
     session: an open Zenoh session to use (the caller closes it); else one is opened on ``listen``/``connect``.
     record_rate: [Hz] belief record times from ``t0``.
@@ -75,7 +77,7 @@ class LiveNode:
         team: str,
         roster: Iterable[int],
         estimator: str = "rdl",
-        t0: float = 0.0,
+        t0: float | None = None,
         config: Config | None = None,
         landmarks: Any = None,
         session: Any = None,
@@ -94,6 +96,7 @@ class LiveNode:
         from swarmloc.net.process import NetNode
 
         self.robot = int(robot)
+        t0 = time.time() if t0 is None else float(t0)
         self.roster = sorted(int(r) for r in roster)
         self.feed = LiveFeed(self.robot, t0, window=window, max_ahead=max_ahead, max_items=max_items)
         config = DEFAULTS if config is None else config
