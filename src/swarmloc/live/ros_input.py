@@ -33,7 +33,7 @@ from __future__ import annotations
 import logging
 import re
 import threading
-from collections import Counter
+from collections import Counter, OrderedDict
 from typing import Any
 
 import numpy as np
@@ -49,6 +49,8 @@ ODOM, DET, PROGRESS = "nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseWithCovari
 TOPICS = {"odom": ODOM, "detections": DET, "input_progress": PROGRESS}
 MAX_BYTES = 4096
 """Largest sample accepted [bytes] (an Odometry is about 700, a detection about 350)."""
+MAX_PUBLISHERS = 1024
+"""Publishers whose sequence numbers a :class:`RosInput` remembers at most."""
 _TARGET = re.compile(r"^(robot|landmark)([0-9]{1,9})$")
 
 
@@ -201,7 +203,7 @@ class RosInput:
         self.reasons: Counter[str] = Counter()
         self._lock = threading.Lock()
         self._prev = feed.t0  # the previous odometry stamp: the next interval starts there
-        self._seqs: dict[bytes, int] = {}
+        self._seqs: OrderedDict[bytes, int] = OrderedDict()  # per publisher gid: its latest sequence number
         self._subs: list[Any] = []
         self.graph: RosGraph | None = None
 
@@ -247,6 +249,9 @@ class RosInput:
         if seq <= self._seqs.get(gid, 0):
             raise Bad("duplicate", f"sequence number {seq} of publisher {gid.hex()} again")
         self._seqs[gid] = seq
+        self._seqs.move_to_end(gid)
+        if len(self._seqs) > MAX_PUBLISHERS:  # bounded: the publishers heard longest ago are forgotten
+            self._seqs.popitem(last=False)
 
     def _handle(self, what: str, raw: bytes) -> None:
         if what == "odom":
@@ -290,14 +295,17 @@ class RosInputPublisher:
         for what, msgtype in TOPICS.items():
             key = topic_key(self.topics[what], msgtype, self.domain)
             self._pubs[what] = session.declare_publisher(key)
-            self._gids[what] = hashlib.blake2b(key.encode(), digest_size=16).digest()
+            # unique per publisher and session (as rmw_zenoh's, hashed from a token key holding the session id), so a
+            # restarted publisher's sequence numbers, counted from 1 again, are not taken for duplicates
+            zid = str(session.info.zid())
+            self._gids[what] = hashlib.blake2b(f"{zid}/{key}".encode(), digest_size=16).digest()
             self.graph.publisher(self.topics[what], dds_name(msgtype), ros.typestore().hash_rihs01(msgtype))
 
     def wait_matched(self, timeout: float = 10.0) -> bool:
         """Wait (up to ``timeout`` s) until a subscriber matches each of its topics (what is put before is lost)."""
-        from swarmloc.live.zenoh_input import _wait_matched
+        from swarmloc.live.zenoh_input import wait_matched_all
 
-        return _wait_matched(self._pubs.values(), timeout)
+        return wait_matched_all(self._pubs.values(), timeout)
 
     def _put(self, what: str, payload: bytes) -> None:
         import time

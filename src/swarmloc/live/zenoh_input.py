@@ -154,7 +154,8 @@ class ZenohInput:
             log.warning("robot %s: input refused (%s): %s (further ones counted)", self.robot, reason, detail[:200])
 
 
-def _wait_matched(pubs: Any, timeout: float) -> bool:
+def wait_matched_all(pubs: Any, timeout: float) -> bool:
+    """Wait (up to ``timeout`` s) until every Zenoh publisher of ``pubs`` has a matching subscriber."""
     import time
 
     end = time.monotonic() + timeout
@@ -175,7 +176,7 @@ class InputPublisher:
 
     def wait_matched(self, timeout: float = 10.0) -> bool:
         """Wait (up to ``timeout`` s) until a subscriber matches each of its keys (what is put before is lost)."""
-        return _wait_matched(self._pubs.values(), timeout)
+        return wait_matched_all(self._pubs.values(), timeout)
 
     def push(self, e: Event) -> None:
         what, payload = encode_event(e)
