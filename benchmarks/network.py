@@ -13,11 +13,16 @@
    (throughput). Baseline in the same run, between the asker and ONE responder: a bare Zenoh get/reply with raw
    bytes of the same sizes (no encode / decode). The ratio swarmloc / bare is printed (latency above 1 and
    throughput below 1: the schema's cost). Replies are timed on arrival, with Zenoh's default consolidation (what
-   a node's ``get`` uses).
+   a node's ``get`` uses). Path "signed": the same round trip as the nodes make it now (authenticated senders,
+   :mod:`swarmloc.net.auth`): the asker signs its query with robot 0's Ed25519 key, the responder verifies it against
+   the team's roster before decoding, signs its answer, and the asker verifies that.
 2. MRCLAM dataset 6 through 5 node processes (``swarmloc.experiments.team.run_team``, as ``swarmloc team`` runs
    it) per estimator: data seconds / wall seconds ("x real time"; the team's wall includes starting the processes, the
    slowest node's own run loop excludes it) and each node's CPU seconds per data second (its run loop, from its
    report). Baseline in the same run: the in-process replay (``swarmloc.runner.run``) of the same events.
+   A centralized estimator (``cekf``, ``iekf``, ``fej``) runs hosted by the belief server (:mod:`swarmloc.net.central`):
+   the 5 robot processes forward their measurements, the server fuses; "slowest node" is then the server (from its
+   start to its estimator's end) and the CPU per node is listed for the server and the forwarders apart.
 
 Every process started is stopped (SIGTERM, SIGKILL after 3 s) also on an error or Ctrl-C; networking is on
 127.0.0.1 only. Results are printed, and written as JSON with ``--out``.
@@ -60,6 +65,10 @@ def bare_key(team: str, robot: int) -> str:
     return f"swarmloc/{team}/bench/{robot}/bare"
 
 
+def signed_key(team: str, robot: int) -> str:
+    return f"swarmloc/{team}/bench/{robot}/signed"
+
+
 def answer_body(sender: int, receiver: int, stamp: float, sub: tuple = ()) -> Any:
     from swarmloc.messages import BeliefAnswer, flat
 
@@ -82,8 +91,10 @@ def wire_sizes(team: str) -> tuple[int, int]:
 
 
 # ---------------------------------------------------------------------------------------------------- responder
-def responder_main(robot: int, team: str, ports: list[int], parent: int) -> None:
-    """One responder process: serve the swarmloc and the bare queryable until SIGTERM (or the parent is gone)."""
+def responder_main(robot: int, team: str, ports: list[int], parent: int, keys: str) -> None:
+    """One responder process: serve the swarmloc, the signed and the bare queryable until SIGTERM (or the parent is
+    gone); ``keys``: the folder of the team's keys (:class:`~swarmloc.net.auth.TeamKeys`)."""
+    from swarmloc.net.auth import TeamKeys, open_envelope
     from swarmloc.net.schema import Rejected, decode, encode
     from swarmloc.net.transport import open_session, robot_key
 
@@ -93,6 +104,7 @@ def responder_main(robot: int, team: str, ports: list[int], parent: int) -> None
     roster = frozenset(range(len(ports)))
     seq = itertools.count()
     bare_answer = bytes(wire_sizes(team)[1])
+    auth = TeamKeys(range(len(ports)), keys).auth(robot)
     session = open_session([endpoint(ports[robot])], [endpoint(p) for i, p in enumerate(ports) if i != robot])
 
     def on_query(q: Any) -> None:
@@ -107,6 +119,21 @@ def responder_main(robot: int, team: str, ports: list[int], parent: int) -> None
         finally:
             q.drop()
 
+    def on_signed(q: Any) -> None:
+        try:
+            key = str(q.key_expr)
+            try:
+                payload = q.payload.to_bytes() if q.payload is not None else b""
+                env = open_envelope(auth, key, payload, team, roster, to_robot=robot)
+            except Rejected as exc:
+                q.reply_err(exc.reason.encode())
+                return
+            m = env.body
+            body = encode(team, robot, next(seq), answer_body(robot, m.sender, m.stamp, m.sub))
+            q.reply(q.key_expr, auth.seal(key, body))
+        finally:
+            q.drop()
+
     def on_bare(q: Any) -> None:
         try:
             if q.payload is not None:
@@ -117,6 +144,7 @@ def responder_main(robot: int, team: str, ports: list[int], parent: int) -> None
 
     try:
         decl = [session.declare_queryable(robot_key(team, robot, "query"), handler=on_query),
+                session.declare_queryable(signed_key(team, robot), handler=on_signed),
                 session.declare_queryable(bare_key(team, robot), handler=on_bare)]  # fmt: skip
         while not stop.wait(1.0):
             if os.getppid() != parent:  # orphaned: the benchmark is gone
@@ -139,12 +167,13 @@ def tail(path: Path, n: int = 2000) -> str:
 def round_trips(
     session: Any,
     targets: list[tuple[str, Callable[[int], bytes]]],
-    check: Callable[[bytes], bool],
+    check: Callable[[bytes, str], bool],
     n: int,
     window: int,
 ) -> dict[str, float]:
     """``n`` gets round-robin over ``targets`` (key, payload for query ``i``), ``window`` in flight (1: each waits
-    for its reply). A reply counts once ``check`` accepts its payload. Latencies in ms, throughput in queries/s."""
+    for its reply). A reply counts once ``check`` accepts its payload (and key). Latencies in ms, throughput in
+    queries/s."""
     import zenoh
 
     lat = np.full(n, np.nan)
@@ -169,7 +198,7 @@ def round_trips(
 
         def on_reply(reply: Any) -> None:
             ok = reply.ok
-            if ok is not None and check(ok.payload.to_bytes()):
+            if ok is not None and check(ok.payload.to_bytes(), str(ok.key_expr)):
                 finish(time.perf_counter() - t0)
             else:
                 finish(None, "rejected")
@@ -197,8 +226,9 @@ def round_trips(
 
 
 def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -> dict[str, Any]:
-    """One asker (this process) and ``procs - 1`` responder processes; the swarmloc and the bare paths."""
-    from swarmloc.net.schema import Rejected, decode
+    """One asker (this process) and ``procs - 1`` responder processes; the swarmloc, signed and bare paths."""
+    from swarmloc.net.auth import TeamKeys, open_envelope, seal
+    from swarmloc.net.schema import Rejected, decode, encode
     from swarmloc.net.team import stop_all
     from swarmloc.net.transport import free_ports, open_session, robot_key
 
@@ -212,12 +242,15 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
     session = None
     with tempfile.TemporaryDirectory() as tmp:
         logs = {r: Path(tmp) / f"responder{r}.log" for r in responders}
+        keys = TeamKeys(range(procs), Path(tmp) / "keys")
+        auth = keys.auth(0)
         try:
             for r in responders:
                 with open(logs[r], "wb") as out:
                     children.append(subprocess.Popen(
                         [sys.executable, __file__, "--responder", str(r), "--team", team,
-                         "--ports", ",".join(map(str, ports)), "--parent", str(os.getpid())],
+                         "--ports", ",".join(map(str, ports)), "--parent", str(os.getpid()), "--keys",
+                         str(keys.folder)],
                         stdout=out, stderr=subprocess.STDOUT, env=CHILD_ENV, start_new_session=True,
                     ))  # fmt: skip
             session = open_session([endpoint(ports[0])], [endpoint(p) for p in ports[1:]])
@@ -236,20 +269,35 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
                 time.sleep(0.05)
             connect_s = time.monotonic() - t0
 
-            def check(b: bytes) -> bool:
+            def check(b: bytes, key: str) -> bool:
                 try:
                     decode(b, team, roster, to_robot=0)
                 except Rejected:
                     return False
                 return True
 
+            def check_signed(b: bytes, key: str) -> bool:
+                try:
+                    open_envelope(auth, key, b, team, roster, to_robot=0)
+                except Rejected:
+                    return False
+                return True
+
+            def signed_query(r: int) -> bytes:
+                from swarmloc.messages import BeliefQuery
+
+                q = BeliefQuery(sender=0, receiver=r, stamp=1000.0 + next(seqs) * 0.01)
+                return seal(auth, signed_key(team, r), encode(team, 0, 0, q))
+
             seqs = itertools.count()
             swarm = [
                 (robot_key(team, r, "query"), lambda i, r=r: query_payload(team, next(seqs), r)) for r in responders
             ]
+            signed = [(signed_key(team, r), lambda i, r=r: signed_query(r)) for r in responders]
             bare = [(bare_key(team, responders[0]), lambda i: bare_query)]
-            # the queryables are declared once every responder answers both paths (bounded)
-            for target, chk in [(t, check) for t in swarm] + [(bare[0], lambda b: True)]:
+            yes = lambda b, k: True  # noqa: E731
+            # the queryables are declared once every responder answers every path (bounded)
+            for target, chk in [(t, check) for t in swarm] + [(t, check_signed) for t in signed] + [(bare[0], yes)]:
                 while math.isnan(round_trips(session, [target], chk, 1, 1)["p50_ms"]):
                     dead()
                     if time.monotonic() - t0 > ready_timeout:
@@ -257,19 +305,22 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
                     time.sleep(0.05)
             warm = min(200, queries)
             round_trips(session, swarm, check, warm, 1)
-            round_trips(session, bare, lambda b: True, warm, 1)
+            round_trips(session, signed, check_signed, warm, 1)
+            round_trips(session, bare, yes, warm, 1)
             rows: dict[str, Any] = {"procs": procs, "connect_s": connect_s, "query_bytes": q_size,
                                     "answer_bytes": a_size}  # fmt: skip
             for mode, w in (("sequential", 1), (f"window {window}", window)):
                 rows[mode] = {
-                    "bare": round_trips(session, bare, lambda b: True, queries, w),
+                    "bare": round_trips(session, bare, yes, queries, w),
                     "swarmloc": round_trips(session, swarm, check, queries, w),
+                    "signed": round_trips(session, signed, check_signed, queries, w),
                 }
             return rows
         finally:
             if session is not None:
                 session.close()
             stop_all(children, grace=GRACE)
+            keys.close()
 
 
 # ---------------------------------------------------------------------------------------------------- MRCLAM
@@ -277,6 +328,8 @@ def bench_mrclam(path: Path, duration: float | None, estimators: list[str], time
     from swarmloc.estimators import make_team, node_options
     from swarmloc.experiments.sources import load_source
     from swarmloc.experiments.team import run_team
+    from swarmloc.net.entry import hosted_class
+    from swarmloc.net.schema import SERVER
     from swarmloc.runner import run
 
     spec = f"mrclam:{path}"
@@ -290,13 +343,15 @@ def bench_mrclam(path: Path, duration: float | None, estimators: list[str], time
         wall_in, cpu_in = time.perf_counter() - w0, time.process_time() - c0
         print(f"  {est}: in-process {wall_in:.2f} s; live team ...", file=sys.stderr)
         tr = run_team(src=src, source=spec, duration=duration, estimator=est, team=f"{TEAM}_{est}", max_wall=timeout)
-        cpu = {r: rep.cpu_s / data_s for r, rep in sorted(tr.reports.items())}
+        cpu = {r: rep.cpu_s / data_s for r, rep in sorted(tr.reports.items()) if r >= 0}
+        server = tr.reports.get(SERVER)  # a hosted estimator's: the server's wall and CPU to its estimator's end
         node_wall = max((rep.wall_s for rep in tr.reports.values()), default=math.nan)
         problems = []
         if tr.counts.get("timed_out"):
             problems.append(f"timed out after {timeout:.0f} s")
-        if len(tr.reports) != len(src.robots):
-            problems.append(f"{len(tr.reports)} of {len(src.robots)} reports")
+        hosted = hosted_class(est) is not None
+        if len(cpu) != len(src.robots) or (hosted and server is None):
+            problems.append(f"{len(tr.reports)} of {len(src.robots) + hosted} reports")
         bad = {n: c for n, c in tr.exit_codes.items() if c != 0}
         if bad:
             problems.append(f"exit codes {bad}")
@@ -305,7 +360,9 @@ def bench_mrclam(path: Path, duration: float | None, estimators: list[str], time
             "inprocess_cpu_per_data_s": cpu_in / data_s,
             "team_wall_s": tr.wall_s, "team_x_real": data_s / tr.wall_s, "slowest_node_wall_s": node_wall,
             "node_x_real": data_s / node_wall, "node_cpu_per_data_s": {str(r): v for r, v in cpu.items()},
-            "team_cpu_per_data_s": sum(cpu.values()), "problems": problems,
+            "team_cpu_per_data_s": sum(cpu.values()) + (server.cpu_s / data_s if server else 0.0),
+            "server_cpu_per_data_s": server.cpu_s / data_s if server else None,
+            "server_wall_s": server.wall_s if server else None, "problems": problems,
         }  # fmt: skip
     return out
 
@@ -337,13 +394,15 @@ def print_queries(res: list[dict[str, Any]], queries: int, window: int) -> None:
     )
     for r in res:
         for mode in ("sequential", f"window {window}"):
-            for path in ("bare", "swarmloc"):
+            for path in ("bare", "swarmloc", "signed"):
                 m = r[mode][path]
                 print(f"{r['procs']:>5} {mode:<11} {path:<9} {m['p50_ms']:8.3f} {m['p99_ms']:8.3f} {m['max_ms']:8.2f} "
                       f"{m['qps']:10.0f} {m['lost'] + m['rejected']:5d}")  # fmt: skip
-            s, b = r[mode]["swarmloc"], r[mode]["bare"]
-            print(f"{'':>5} {'':<11} {'ratio':<9} {s['p50_ms'] / b['p50_ms']:7.2f}x {s['p99_ms'] / b['p99_ms']:7.2f}x "
-                  f"{s['max_ms'] / b['max_ms']:7.2f}x {s['qps'] / b['qps']:9.2f}x   (swarmloc / bare)")  # fmt: skip
+            for path in ("swarmloc", "signed"):
+                s, b = r[mode][path], r[mode]["bare"]
+                print(f"{'':>5} {'':<11} {'ratio':<9} {s['p50_ms'] / b['p50_ms']:7.2f}x "
+                      f"{s['p99_ms'] / b['p99_ms']:7.2f}x {s['max_ms'] / b['max_ms']:7.2f}x {s['qps'] / b['qps']:9.2f}x"
+                      f"   ({path} / bare)")  # fmt: skip
     sizes = res[0]
     print(
         f"query {sizes['query_bytes']} B, answer {sizes['answer_bytes']} B; all responders reachable after "
@@ -362,6 +421,10 @@ def print_mrclam(res: dict[str, Any]) -> None:
         print(f"{est:<10} {e['inprocess_x_real']:6.1f}x real {e['team_x_real']:5.1f}x real "
               f"{e['team_x_real'] / e['inprocess_x_real']:11.3f}x {e['node_x_real']:7.1f}x real {mean:26.4f} {mx:6.4f} "
               f"{e['team_cpu_per_data_s']:6.4f} {e['inprocess_cpu_per_data_s']:8.4f}")  # fmt: skip
+        if e.get("server_cpu_per_data_s") is not None:
+            print(f"{'':<10} hosted by the server: the node columns are the forwarding robots'; the server took "
+                  f"{e['server_cpu_per_data_s']:.4f} CPU s / data s ({res['data_s'] / e['server_wall_s']:.1f}x real "
+                  "from its start to its estimator's end)")  # fmt: skip
         if e["problems"]:
             print(f"  WARNING {est}: " + "; ".join(e["problems"]))
     print("team: the launcher's wall, starting and stopping the processes included; slowest node: its run loop only")
@@ -384,9 +447,10 @@ def main() -> None:
     ap.add_argument("--team", help=argparse.SUPPRESS)
     ap.add_argument("--ports", help=argparse.SUPPRESS)
     ap.add_argument("--parent", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--keys", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.responder is not None:
-        responder_main(args.responder, args.team, [int(p) for p in args.ports.split(",")], args.parent)
+        responder_main(args.responder, args.team, [int(p) for p in args.ports.split(",")], args.parent, args.keys)
         return
     # SIGTERM unwinds like Ctrl-C, so that every process started is stopped (the finally blocks run)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(128 + signal.SIGTERM))

@@ -348,6 +348,21 @@ def test_networked_equals_in_process_on_a_simulated_team(est):
     assert res.stats["fused"] > 50
 
 
+def test_fls_networked_equals_in_process_on_a_simulated_team():
+    """The fixed-lag smoother (GTSAM window, covariance intersection on BeliefAnswer marginals) through 3 node
+    processes equals the in-process run, 3 robots, 10 s."""
+    src = load_source("sim:random", robots=3, duration=10.0, seed=1)
+    team = f"eqsimfls{os.getpid()}"
+    tr = run_team(src=src, source="sim:random", robots=3, duration=10.0, seed=1, estimator="fls", team=team,
+                  max_wall=120)  # fmt: skip
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, "fls")
+    assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
+    assert max_diff(res, reference(src, "fls")) <= 1e-6
+    assert res.stats["fused"] > 50
+
+
 @pytest.mark.parametrize("est", DISTRIBUTED)
 def test_networked_equals_in_process_on_mrclam6_first_120s(est, mrclam6):
     spec = f"mrclam:{mrclam6}"
@@ -563,13 +578,16 @@ def test_cli_team_report_bag_and_ros_output(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize(
-    ("est", "why"),
-    [("cekf", "not a distributed estimator"), ("nope", "unknown estimator")],
+    ("est", "extra", "why"),
+    [
+        ("cekf", ["--faults", "kill=1@1"], "kill and late are for a distributed team"),  # hosted by the server
+        ("nope", [], "unknown estimator"),
+    ],
 )
-def test_team_refuses_a_non_distributed_estimator_before_starting_anything(est, why, capsys, tmp_path):
+def test_team_refuses_what_it_cannot_run_before_starting_anything(est, extra, why, capsys, tmp_path):
     from swarmloc.cli import main
 
     out = tmp_path / "never-written"
-    assert main(["team", "--estimator", est, "--duration", "2", "--out", str(out)]) == 2
+    assert main(["team", "--estimator", est, "--duration", "2", "--out", str(out), *extra]) == 2
     assert why in capsys.readouterr().err
     assert not out.exists()

@@ -240,6 +240,12 @@ def _node(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 130
     s = report.stats
+    if "forwards" in report.net or not s:  # a server-hosted estimator: this process forwards its measurements
+        n = report.net
+        print(f"robot {report.robot}: forwarded {n.get('forwarded_detections', 0)} detections and "
+              f"{n.get('forwarded_odometry', 0)} odometry records in {n.get('forwards', 0)} forwards "
+              f"({n.get('lost', 0)} lost on the way by faults); {report.wall_s:.1f} s")  # fmt: skip
+        return 0 if "forwards" in n else 3
     print(f"robot {report.robot}: {s['detections']} detections: {s['fused']} fused, {s['gated']} gated, "
           f"{s['rejected']} rejected, {s['unknown']} unknown; {report.net.get('rejected', 0)} messages dropped; "
           f"{report.wall_s:.1f} s")  # fmt: skip
@@ -254,6 +260,7 @@ def _node(args: argparse.Namespace) -> int:
 
 def _server(args: argparse.Namespace) -> int:
     _die_with_launcher(args)
+    from swarmloc.config import ConfigError
     from swarmloc.net.entry import server_main
     from swarmloc.net.schema import SERVER
 
@@ -265,11 +272,21 @@ def _server(args: argparse.Namespace) -> int:
         robots = _ids(args.robots) if args.robots else (auth.roster.robots if auth is not None else None)
         if not robots:
             raise ValueError("--robots: the team's robot ids, comma-separated (default: the roster's robots)")
+        src = None
+        if args.estimator is not None:
+            from swarmloc.experiments.sources import load_source
+
+            if args.source is None:
+                raise ValueError("--estimator needs --source (the team's initial beliefs and configuration)")
+            config = _config(args) if args.config else None
+            src = load_source(args.source, robots=len(robots), duration=args.duration, seed=args.seed, config=config)
         server_main(
-            team=args.team, roster=robots, listen=_endpoints(args.listen), connect=_endpoints(args.connect),
-            zenoh_config=args.zenoh_config, max_wall=args.max_wall, auth=auth, run_id=args.run_id,
+            team=args.team, roster=[int(r) for r in robots], listen=_endpoints(args.listen),
+            connect=_endpoints(args.connect), zenoh_config=args.zenoh_config, max_wall=args.max_wall, auth=auth,
+            run_id=args.run_id, src=src, estimator=args.estimator, start_timeout=args.start_timeout,
+            lost_timeout=args.lost_timeout, map_out=args.map_out,
         )  # fmt: skip
-    except (ValueError, OSError) as exc:
+    except (ConfigError, ValueError, OSError) as exc:
         print(f"swarmloc server: {exc}", file=sys.stderr)
         return 2
     return 0
@@ -288,17 +305,32 @@ def _team(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)  # so that `kill` and time limits also stop every process started
+    view = None
     try:
         config = _config(args) if args.config else None
         src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
+        if args.view is not None or args.record:
+            from swarmloc.net.view import TeamView
+
+            view = TeamView(port=args.view, mcap=args.record, truth=src.truth, detections=src.events,
+                            roster=src.robots)  # fmt: skip
+            if view.url:
+                print(f"live view: open {view.url} in Foxglove (Open connection > Foxglove WebSocket)", flush=True)
         run = run_team(
             src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
             seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
             lag=args.lag, max_wall=args.max_wall, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
-            team=args.team, verbose=args.verbose, connect_extra=_endpoints(args.connect), **_timeouts(args),
+            team=args.team, verbose=args.verbose, connect_extra=_endpoints(args.connect), view=view,
+            **_timeouts(args),
         )  # fmt: skip
+        if view is not None:
+            view.close()
         extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}
         report = write_team_report(run, src, args.estimator, args.out, extra)
+        if run.map is not None:
+            from swarmloc.net.server import linemap_of
+
+            linemap_of(run.map).save_geojson(f"{args.out}/map.geojson")
         if args.bag:
             from swarmloc.net.ros import BagWriter
 
@@ -313,6 +345,9 @@ def _team(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("swarmloc team: interrupted; every process it started was stopped", file=sys.stderr)
         return 130
+    finally:
+        if view is not None:
+            view.close()
     print(markdown_table(report))
     print(f"results, figures and TUM trajectories in {args.out}/" + (f"; rosbag2 in {args.bag}" if args.bag else ""))
     bad = {n: c for n, c in run.exit_codes.items() if c not in (0, -15, None) and not n == "server"}
@@ -417,7 +452,12 @@ def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:
     p.add_argument("--source", default=default, required=default is None,
                    help="sim:SCENARIO (random, range_bearing), mrclam:PATH or events:PATH; swarmloc node also "
                         "zenoh:SPEC or ros2:SPEC (inputs live, the team from SPEC)")  # fmt: skip
-    p.add_argument("--estimator", default="expfusion", help="a distributed estimator: expfusion, dekf, ci, rdl")
+    p.add_argument(
+        "--estimator",
+        default="expfusion",
+        help="a distributed estimator (expfusion, dekf, ci, rdl, "
+        "irdl, diekf) or a centralized one the belief server hosts (cekf, iekf, fej)",
+    )
     p.add_argument("--config", default=None, help="TOML file of model and filter settings")
     p.add_argument("--robots", type=int, default=3, help="sim: team size (default 3)")
     p.add_argument("--duration", type=float, default=None, help="seconds of the source (sim default 30)")
@@ -497,6 +537,35 @@ def build_parser() -> argparse.ArgumentParser:
     sv = sub.add_parser("server", help="run the belief server of a team (stores every robot's Gaussian)")
     _net_args(sv)
     sv.add_argument("--robots", default=None, help="the team's robot ids, comma-separated (default: the roster's)")
+    sv.add_argument(
+        "--estimator",
+        default=None,
+        help="host a centralized estimator (cekf, iekf, fej) fed by the "
+        "robots' forwarded measurements ('swarmloc node --estimator' the same on every robot)",
+    )
+    sv.add_argument(
+        "--source",
+        default=None,
+        help="with --estimator: the team's source (initial beliefs, landmarks, "
+        "configuration, record times; its events come from the robots)",
+    )
+    sv.add_argument("--config", default=None, help="with --estimator: TOML file of model and filter settings")
+    sv.add_argument("--duration", type=float, default=None, help="with --estimator: seconds of the source")
+    sv.add_argument("--seed", type=int, default=0, help="with --estimator, sim: seed")
+    sv.add_argument(
+        "--start-timeout",
+        type=float,
+        default=30.0,
+        help="with --estimator: seconds it waits for every robot's first forward (default 30)",
+    )
+    sv.add_argument(
+        "--lost-timeout",
+        type=float,
+        default=10.0,
+        help="with --estimator: seconds a robot's stream may "
+        "stay silent while the fusion waits on it before it is declared lost (default 10)",
+    )
+    sv.add_argument("--map-out", default=None, help="save the fused line map there as GeoJSON when it stops")
     _auth_args(sv)
     sv.set_defaults(func=_server)
     _keys_parser(sub)
@@ -570,6 +639,9 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")
+    t.add_argument("--view", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="live view for Foxglove on ws://127.0.0.1:PORT (default 8765; 0: a free port)")  # fmt: skip
+    t.add_argument("--record", default=None, metavar="FILE.mcap", help="record the view as MCAP (Foxglove, ROS 2)")
     t.add_argument("--team", default=None, help="the team's name (default team<PID>); each run also has an id of its "
                    "own in every key, so that two teams of one name never hear each other")  # fmt: skip
     _timeout_args(t)

@@ -15,6 +15,7 @@ import numpy as np
 from swarmloc.config import Config
 from swarmloc.events import Detection, Event, Odometry
 from swarmloc.gaussian import GroupGaussian
+from swarmloc.mapping.observe import ScanSeries
 
 __all__ = ["Source", "TruthFn"]
 
@@ -25,7 +26,8 @@ TruthFn = Callable[[int, np.ndarray], np.ndarray]
 @dataclass
 class Source:
     """A team's events (odometry and detections, sorted by stamp), initial beliefs, landmarks, span [s], truth
-    (evaluator only) and the configuration its models come from."""
+    (evaluator only) and the configuration its models come from; ``scans``: each robot's range scans when the
+    source has a range finder (None otherwise)."""
 
     spec: str
     events: list[Event]
@@ -35,6 +37,7 @@ class Source:
     t_end: float
     truth: TruthFn | None
     config: Config
+    scans: Mapping[int, ScanSeries] | None = None
 
     @property
     def robots(self) -> list[int]:

@@ -15,6 +15,7 @@ nodes of a team from each robot's initial belief.
 | ``iekf`` | :class:`InvariantEKF` | centralized invariant EKF, world-frame errors (observability-preserving) |
 | ``fej`` | :class:`FirstEstimatesEKF` | centralized EKF with first-estimates Jacobians (observability-preserving) |
 | ``mcl`` | :class:`MonteCarloLocalization` | multi-robot Monte Carlo localization (distributed, particles) |
+| ``fls`` | :class:`FixedLagSmoother` | per-robot fixed-lag smoother (GTSAM), covariance intersection with neighbours |
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from swarmloc.estimators.dekf import DistributedEKF
 from swarmloc.estimators.diekf import DistributedInvariantEKF
 from swarmloc.estimators.dr import DeadReckoning
 from swarmloc.estimators.expfusion import ExpFusion
+from swarmloc.estimators.fls import FixedLagSmoother
 from swarmloc.estimators.iekf import FirstEstimatesEKF, InvariantEKF
 from swarmloc.estimators.irdl import InvariantRDL
 from swarmloc.estimators.mcl import MonteCarloLocalization
@@ -51,6 +53,7 @@ ESTIMATORS: dict[str, type[Node]] = {
     "irdl": InvariantRDL,
     "diekf": DistributedInvariantEKF,
     "mcl": MonteCarloLocalization,
+    "fls": FixedLagSmoother,
 }
 """Node classes by their command-line name."""
 
@@ -128,6 +131,7 @@ __all__ = [
     "ExpCI",
     "ExpFusion",
     "FirstEstimatesEKF",
+    "FixedLagSmoother",
     "InvariantEKF",
     "InvariantRDL",
     "MonteCarloLocalization",

@@ -27,7 +27,7 @@ import numpy as np
 
 from swarmloc.estimators import make_team, node_options
 from swarmloc.lie import SE2
-from swarmloc.mapping import LineMap, LineObservation, extract_lines, line_to_world, map_error
+from swarmloc.mapping import LineMap, map_error, scan_observations
 from swarmloc.runner import run
 from swarmloc.sim.lab import chapter_team
 from swarmloc.sim.source import sim_source
@@ -46,16 +46,10 @@ def build_map(scans: Scans, robots: tuple[int, ...], beliefs: Beliefs, order: in
     col = {r: j for j, r in enumerate(scans.robot_ids)}
     for s in range(scans.times.size):
         for r in robots:
-            fits = extract_lines(scans.ranges[s, col[r]], scans.angles, scans.sigma)
-            if not fits:
-                continue
             mean, cov = beliefs[r][0][s], beliefs[r][1][s]
-            g = SE2.from_xytheta(mean)
-            rho, alpha, C = line_to_world([f.rho for f in fits], [f.alpha for f in fits],
-                                          np.array([f.cov for f in fits]), g, cov, order)  # fmt: skip
-            for k, f in enumerate(fits):
-                ends = f.endpoints @ g[:2, :2].T + g[:2, 2]
-                lm.add(LineObservation(float(rho[k]), float(alpha[k]), C[k], ends, r, float(scans.times[s])))
+            for obs in scan_observations(scans.ranges[s, col[r]], scans.angles, scans.sigma, SE2.from_xytheta(mean),
+                                         cov, r, float(scans.times[s]), order):  # fmt: skip
+                lm.add(obs)
     return lm
 
 

@@ -7,6 +7,9 @@ A source spec is one of
 * ``sim:range_bearing``: the same team, measuring range and bearing instead of relative pose;
 * ``sim:landmarks``: the ``sim:random`` team (the same events) plus 6 known landmarks and range-bearing detections
   of them (:func:`swarmloc.sim.landmarks.add_landmarks`: 2 Hz, up to 4 m, 0.05 m / 2 deg; ``Source.landmarks``);
+* ``sim:corridor``: ``robots`` robots driving along the corridor of :func:`swarmloc.sim.walls.office_walls` at
+  0.15 m/s, in two lanes, each with a range finder (:class:`swarmloc.sim.walls.RangeFinder` defaults: 61 beams over
+  120 deg, 3 m, 1 cm, 2 Hz; ``Source.scans``) and the chapter's robot-to-robot camera; for the belief server's map;
 * ``mrclam:PATH``: a UTIAS MRCLAM dataset folder (``duration`` truncates it; landmarks on unless told otherwise;
   detection covariances from the camera model that ``config.sensors.decorrelate`` names,
   :func:`swarmloc.experiments.mrclam.mrclam_stream`);
@@ -29,12 +32,40 @@ from swarmloc.sim.source import sim_source
 
 __all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim_source"]
 
-SIM_SCENARIOS = ("random", "range_bearing", "landmarks")
+SIM_SCENARIOS = ("random", "range_bearing", "landmarks", "corridor")
+
+
+def _corridor(robots: int, duration: float, seed: int, config: Config | None) -> Source:
+    """``robots`` robots (ids 0 ..) in a column along the office corridor (``y`` 2.75 and 3.25 m alternately),
+    each driving ``+x`` at about 0.15 m/s for ``duration`` s (to ``x <= 9.6`` m), scanning the walls."""
+    import numpy as np
+
+    from swarmloc.mapping import ScanSeries
+    from swarmloc.motion.diffdrive import DiffDrive
+    from swarmloc.sim.lab import axis_schedule
+    from swarmloc.sim.simulator import RelativeSensor, SimConfig, simulate
+    from swarmloc.sim.walls import RangeFinder, office_walls, scan_team
+
+    drive = DiffDrive(D=0.005)
+    starts, schedules = {}, {}
+    for r in range(robots):
+        x0, y = 0.4 + 0.5 * (robots - 1 - r), (2.75, 3.25)[r % 2]
+        x1 = min(9.6, x0 + 0.15 * duration)
+        starts[r], schedules[r], _ = axis_schedule(((x0, y), (x1, y)), drive, (), 0.15)
+    sensor = RelativeSensor(rate=2.0, max_range=3.0, fov=float(np.deg2rad(120)), sigma_xy=0.03,
+                            sigma_theta=float(np.deg2rad(2.0)))  # fmt: skip
+    sim = simulate(starts, schedules, SimConfig(duration=duration, drive=drive, odom_rate=10.0, sensor=sensor), seed)
+    scans = scan_team(sim, office_walls(), RangeFinder(), seed)
+    series = {r: ScanSeries(scans.times, scans.ranges[:, j], scans.angles, scans.sigma)
+              for j, r in enumerate(scans.robot_ids)}  # fmt: skip
+    return dataclasses.replace(sim_source(sim, "sim:corridor", config), scans=series)
 
 
 def _sim(scenario: str, robots: int, duration: float, seed: int, config: Config | None) -> Source:
     from swarmloc.sim import RelativeSensor, random_team
 
+    if scenario == "corridor":
+        return _corridor(robots, duration, seed, config)
     kinds = ("range_bearing",) if scenario == "range_bearing" else ("pose",)
     sim = random_team(robots, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0, kinds=kinds))
     if scenario != "landmarks":

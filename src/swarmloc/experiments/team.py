@@ -17,7 +17,7 @@ from swarmloc.datasets.source import Source
 from swarmloc.evaluation.metrics import anees_bounds, evaluate
 from swarmloc.experiments.evaluate import write_report
 from swarmloc.experiments.sources import load_source
-from swarmloc.net.entry import distributed_class
+from swarmloc.net.entry import network_class
 from swarmloc.net.team import TeamRun, launch_team
 from swarmloc.runner.result import RunResult
 
@@ -38,7 +38,7 @@ def run_team(
     :func:`~swarmloc.experiments.sources.load_source`); ``launch``: :func:`~swarmloc.net.team.launch_team`'s other
     options (faults, speed, timeouts, ``max_wall``...). The node processes load the same source from its spec."""
     if src is None:
-        distributed_class(estimator)  # refuse a centralized or unknown estimator before loading anything
+        network_class(estimator)  # refuse an estimator a team cannot run before loading anything
         src = load_source(source, robots=robots, duration=duration, seed=seed)
     return launch_team(src=src, source=source, robots=robots, duration=duration, seed=seed, estimator=estimator,
                        **launch)  # fmt: skip

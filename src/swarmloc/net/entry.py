@@ -37,6 +37,24 @@ RESUME_TIMEOUT = 5.0
 """[s] wall time a restarted node (``resume``) waits for its own latest belief from the belief server."""
 
 
+def hosted_class(estimator: str) -> type | None:
+    """The node class of a centralized ``estimator`` the belief server can host (``cekf``, ``iekf``, ``fej``: one
+    node for the team, fed by the robots' forwarded measurements, :mod:`swarmloc.net.central`); None for another
+    known one; ValueError naming the choices for an unknown one."""
+    from swarmloc.estimators import ESTIMATORS
+
+    cls = ESTIMATORS.get(estimator)
+    if cls is None:
+        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(ESTIMATORS)}")
+    return None if cls.distributed else cls
+
+
+def network_class(estimator: str) -> type:
+    """The node class of an estimator a networked team can run: distributed (one node per robot process) or
+    centralized, hosted by the server (:func:`hosted_class`); ValueError naming the choices else."""
+    return hosted_class(estimator) or distributed_class(estimator)
+
+
 def distributed_class(estimator: str) -> type:
     """The node class of a distributed ``estimator`` (one node per robot); ValueError naming the choices else."""
     from swarmloc.estimators import ESTIMATORS
@@ -47,9 +65,11 @@ def distributed_class(estimator: str) -> type:
         raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(ESTIMATORS)}")
     networked = [k for k, c in ESTIMATORS.items() if issubclass(c, RobotNode) and c.distributed and c.over_network]
     if not issubclass(cls, RobotNode) or not cls.distributed:
+        hosted = sorted(k for k, c in ESTIMATORS.items() if not c.distributed)
         raise ValueError(
             f"{estimator!r} is not a distributed estimator (one node per robot): run it in-process with "
-            f"'swarmloc evaluate'; over the network choose from {networked}"
+            f"'swarmloc evaluate', or hosted by the belief server ('swarmloc server --estimator', 'swarmloc team "
+            f"--estimator'; centralized: {hosted}); one node per robot process: choose from {networked}"
         )
     if not cls.over_network:
         raise ValueError(
@@ -129,18 +149,20 @@ def node_main(
     if robot not in src.initial:
         raise ValueError(f"robot {robot} is not in source {src.spec!r} (robots {src.robots})")
     _check_roster(auth, src.robots)
+    if hosted_class(estimator) is not None:
+        if live is not None:
+            raise ValueError(f"a live source needs a distributed estimator, not the server-hosted {estimator!r}")
+        if resume or use_server:
+            log.info("robot %s: --resume and --use-server do not apply to a server-hosted estimator", robot)
+        return _forward(src, robot, team, listen, connect, zenoh_config, faults, speed, start_timeout, lost_timeout,
+                        max_wall, out, auth, run_id)  # fmt: skip
     session = open_session(listen, connect, zenoh_config)
     finals: dict[float, Belief] = {}
     close_live = None
     try:
         node, events, record_times = _start(session, src, robot, team, estimator, resume, auth, scope)
         faults = parse_faults(faults) if isinstance(faults, str | None) else faults
-        if live is not None:
-            if resume:
-                raise ValueError("a live source cannot resume from the belief server")
-            events, close_live = live(session, robot, float(node.t0))
-        else:
-            events = faults.jumped(robot, events)  # the jump fault: this robot's clock, not the source, is wrong
+        events, close_live = _inputs(live, session, robot, node, events, faults, resume)
         net = NetNode(
             node,
             events,
@@ -162,6 +184,7 @@ def node_main(
             on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
             auth=auth,
             run_id=run_id,
+            scans=None if live is not None else _own_scans(src, robot, events),  # live: no recorded scans
         )
         _stop_on_sigterm(net.stop)
         report = net.run(max_wall=max_wall)
@@ -172,6 +195,54 @@ def node_main(
         if close_live is not None:
             close_live()
         session.close()
+
+
+def _inputs(live: Any, session: Any, robot: int, node: Any, events: Any, faults: Faults, resume: bool) -> tuple:
+    """``(what the node reads, closer or None)``: the live feed (``live``), or the source's events with the jump
+    fault (this robot's clock, not the source, is wrong)."""
+    if live is None:
+        return faults.jumped(robot, events), None
+    if resume:
+        raise ValueError("a live source cannot resume from the belief server")
+    return live(session, robot, float(node.t0))
+
+
+def _forward(
+    src: Source, robot: int, team: str, listen: Sequence[str], connect: Sequence[str], zenoh_config: str | None,
+    faults: str | Faults | None, speed: float, start_timeout: float, lost_timeout: float, max_wall: float | None,
+    out: str | os.PathLike[str] | None, auth: Auth | None, run_id: str | None,
+) -> Report:  # fmt: skip
+    """Robot ``robot``'s process for a server-hosted estimator: forward its own events (:mod:`.central`)."""
+    import msgspec
+
+    from swarmloc.net.central import Forwarder
+
+    faults = parse_faults(faults) if isinstance(faults, str | None) else faults
+    session = open_session(listen, connect, zenoh_config)
+    try:
+        fw = Forwarder(robot, faults.jumped(robot, src.own_events(robot)), session=session, team=team,
+                       roster=src.robots, auth=auth, run_id=run_id, faults=faults, speed=speed,
+                       start_timeout=start_timeout, lost_timeout=lost_timeout)  # fmt: skip
+        _stop_on_sigterm(fw.stop)
+        report = fw.run(max_wall=max_wall)
+        if out is not None:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            (Path(out) / f"robot{robot}.json").write_text(json.dumps(msgspec.to_builtins(report), indent=2))
+        return report
+    finally:
+        session.close()
+
+
+def _own_scans(src: Source, robot: int, events: Sequence[Event]) -> Any:
+    """``robot``'s range scans from its first event on (a resumed node's earlier ones were sent before), or None."""
+    if src.scans is None or robot not in src.scans:
+        return None
+    from swarmloc.mapping import ScanSeries
+
+    sc = src.scans[robot]
+    stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
+    keep = sc.times >= (min(stamps) if stamps else src.t_start)
+    return ScanSeries(sc.times[keep], sc.ranges[keep], sc.angles, sc.sigma)
 
 
 def _check_roster(auth: Auth | None, robots: Sequence[int]) -> None:
@@ -263,16 +334,27 @@ def server_main(
     max_wall: float | None = None,
     auth: Auth | None = None,
     run_id: str | None = None,
+    src: Source | None = None,
+    estimator: str | None = None,
+    start_timeout: float = START_TIMEOUT,
+    lost_timeout: float = LOST_TIMEOUT,
+    map_out: str | os.PathLike[str] | None = None,
 ) -> None:
     """Run the belief server of ``team`` (of its run ``run_id``) until SIGTERM / Ctrl-C (or ``max_wall`` s);
-    ``auth``: the server's key and the team's roster (None: unauthenticated)."""
+    ``auth``: the server's key and the team's roster (None: unauthenticated). With ``estimator`` (centralized:
+    ``cekf``, ``iekf``, ``fej``) it hosts that estimator for the team of ``src`` (whose initial beliefs, landmarks,
+    configuration and record times it takes; its events come from the robots, :mod:`swarmloc.net.central`);
+    ``map_out``: save its fused line map there as GeoJSON when it stops."""
     from swarmloc.net.server import ServerProcess
 
     team_scope(team, run_id)  # refuse a bad name or run id before opening anything
     _check_roster(auth, roster)
+    hosted = None
+    if estimator is not None:
+        hosted = _hosted(estimator, src, roster, start_timeout, lost_timeout)
     session = open_session(listen, connect, zenoh_config)
     try:
-        sp = ServerProcess(session, team, roster, auth=auth, run_id=run_id)
+        sp = ServerProcess(session, team, roster, auth=auth, run_id=run_id, hosted=hosted, map_out=map_out)
         _stop_on_sigterm(sp.stop)
         try:
             sp.run(max_wall=max_wall)
@@ -280,6 +362,23 @@ def server_main(
             pass
     finally:
         session.close()
+
+
+def _hosted(estimator: str, src: Source | None, roster: Sequence[int], start_timeout: float,
+            lost_timeout: float) -> Any:  # fmt: skip
+    """The :class:`~swarmloc.net.central.Fusion` of a server-hosted centralized ``estimator`` for ``src``'s team."""
+    from swarmloc.estimators import make_team, node_options
+    from swarmloc.net.central import Fusion
+
+    if hosted_class(estimator) is None:
+        raise ValueError(f"the server hosts a centralized estimator (cekf, iekf, fej), not {estimator!r}: a "
+                         "distributed one runs in the robots' processes (swarmloc node)")  # fmt: skip
+    if src is None:
+        raise ValueError("a hosted estimator needs the team's source (its initial beliefs and configuration)")
+    if sorted(roster) != src.robots:
+        raise ValueError(f"--robots {sorted(roster)} is not the source's team {src.robots}")
+    (node,) = make_team(estimator, src.initial, **node_options(estimator, src.config, src.landmarks))
+    return Fusion(node, src.robots, src.record_times(), lost_timeout=lost_timeout, start_timeout=start_timeout)
 
 
 def _stop_on_sigterm(stop: Any) -> None:

@@ -119,7 +119,8 @@ class Outbound:
         """Send the pushed messages waiting in the outbox: at once without faults (a revision or update is final
         then), at most every ``coalesce`` s otherwise, so that a burst of revisions of one exchange (late and lost
         messages make them) costs the neighbour one replay instead of one per revision. Broadcasts likewise."""
-        self._flush_broadcasts(force)
+        if self.broadcasts:  # only a team estimator's node broadcasts (and announces heads)
+            self._flush_broadcasts(force)
         if not self._outbox:
             return
         now = time.monotonic()

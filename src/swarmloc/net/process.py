@@ -145,6 +145,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         on_belief: Callable[[Belief], None] | None = None,
         auth: Auth | None = None,
         run_id: str | None = None,
+        scans: Any = None,
         record_rate: float | None = None,
     ) -> None:
         if len(node.robots) != 1:
@@ -181,6 +182,9 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self.linger = float(linger)
         self.ros_domain = ros_domain
         self.on_belief = on_belief
+        self.scans = scans
+        """This robot's range scans (:class:`~swarmloc.mapping.ScanSeries`; None: no range finder): each scan's
+        world lines are published for the belief server's map (:mod:`.publishing`)."""
         self.counts: Counter[str] = Counter()
         """Network counters: ``received``, ``rejected`` (with ``reasons``), ``sent``, ``lost``/``duplicated``/
         ``delayed`` (injected), ``no_reply``, ``server_answers``, ``beliefs_published``..."""

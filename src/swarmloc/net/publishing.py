@@ -7,6 +7,11 @@ lockstep waits on (:mod:`swarmloc.net.lockstep`).
 (provisional) and again once it is final (the history is a horizon past ``t``, or the run ended); a final belief
 that a later message still changes is published again with a higher revision. With ``ros_domain`` each belief is
 also published as a ROS 2 ``geometry_msgs/msg/PoseWithCovarianceStamped`` under rmw_zenoh's key layout.
+
+**Lines.** With range scans (``scans``), once the node's belief at a scan's time is final (the same horizon rule),
+the scan's lines carried into the world with that belief (:func:`swarmloc.mapping.scan_observations`, second
+order) are published once as :class:`~swarmloc.net.schema.Lines` on ``robot/<id>/lines`` for the belief server's
+map (at most :data:`~swarmloc.net.schema.MAX_LINES`; a scan without lines publishes nothing).
 """
 
 from __future__ import annotations
@@ -14,9 +19,11 @@ from __future__ import annotations
 import math
 import time
 
+import numpy as np
+
 from swarmloc.events import Odometry
 from swarmloc.messages import flat
-from swarmloc.net.schema import Belief, Progress
+from swarmloc.net.schema import MAX_LINES, Belief, Lines, Progress
 from swarmloc.net.transport import robot_key
 
 
@@ -31,6 +38,7 @@ class Publishing:
         self._last_progress = -math.inf  # the last progress announced: its stamp, wall time and key
         self._last_progress_wall = 0.0
         self._last_key: tuple[float, int] = (-math.inf, 0)
+        self._scan_i = 0  # scans whose lines are published (or had none)
 
     def _next_key(self) -> tuple[float, int]:
         """``(stamp, priority)`` of the node's next input (a detection group 1, odometry 2; ``(inf, 3)``: none left).
@@ -82,6 +90,25 @@ class Publishing:
             att = ros.ros_attachment(self._ros_seq, time.time_ns(), self._ros_gid)
             self._ros_pub.put(ros.to_cdr(ros.pose_message(t, b.mean, b.cov)), attachment=att)
 
+    def _publish_lines(self, k: int) -> None:
+        """Publish the world lines of scan ``k`` with the node's (final) belief at its time."""
+        from swarmloc.mapping import scan_observations
+
+        sc, t = self.scans, float(self.scans.times[k])
+        try:
+            b = self.node.belief_at(t)
+        except ValueError:
+            self.counts["scan_too_old"] += 1
+            return
+        obs = scan_observations(sc.ranges[k], sc.angles, sc.sigma, b.mean, b.cov, self.robot, t)[:MAX_LINES]
+        if not obs:
+            return
+        lines = tuple((o.rho, o.alpha, float(o.cov[0, 0]), float(o.cov[0, 1]), float(o.cov[1, 1]),
+                       *map(float, np.ravel(o.endpoints))) for o in obs)  # fmt: skip
+        key = robot_key(self.scope, self.robot, "lines")
+        self._pub_lines.put(self._env(Lines(robot=self.robot, stamp=t, lines=lines), key))
+        self.counts["lines_published"] += len(lines)
+
     def _publish_due(self, end: bool = False, upto: float = -math.inf) -> None:
         """Publish the beliefs due: provisional ones up to the node's present, final ones a horizon before it (or before
         ``upto``: called before an input stamped ``upto`` is applied, whose pruning could drop them otherwise)."""
@@ -93,6 +120,11 @@ class Publishing:
         while self._final < rt.size and (end or rt[self._final] < wm - self.node.horizon):
             self._publish_belief(rt[self._final], final=True)
             self._final += 1
+        if self.scans is not None:
+            sc = self.scans
+            while self._scan_i < sc.times.size and (end or sc.times[self._scan_i] < wm - self.node.horizon):
+                self._publish_lines(self._scan_i)
+                self._scan_i += 1
         if self._final - self._pruned_at >= 256:  # forget beliefs no input can change any more (two horizons back)
             self._pruned_at = self._final
             cut = wm - 2 * self.node.horizon

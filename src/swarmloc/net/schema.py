@@ -5,7 +5,8 @@ server or the team launcher), a per-sender sequence number ``seq`` (increasing o
 ``body``: one of the neighbour-exchange messages of :mod:`swarmloc.messages` (queries, answers, pairwise
 updates: robot ids, key stamp and sub-key, revision, mean and covariance or the estimator's payload) or one of
 the runtime messages below (a published :class:`Belief`, lockstep :class:`Progress`, a final :class:`Report`, and a
-team estimator's :class:`Broadcast` with its :class:`BroadcastHead` and :class:`BroadcastRepair`).
+team estimator's :class:`Broadcast` with its :class:`BroadcastHead` and :class:`BroadcastRepair`, a robot's
+world-frame wall :class:`Lines` for the belief server's map and the server's :class:`MapAnswer`).
 
 :func:`decode` checks a received payload before anything reaches a node and says what is wrong: not MessagePack
 or not the schema (with msgspec's path to the bad field), another schema version or team, a sender outside the
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Container
+from typing import Annotated
 
 import msgspec
 
@@ -114,7 +116,121 @@ class BroadcastRepair(msgspec.Struct, frozen=True, kw_only=True, tag="broadcast_
     last: int
 
 
-Body = AnyMessage | Belief | Progress | Report | Broadcast | BroadcastHead | BroadcastRepair
+MAX_RAW_ITEMS = 512
+"""The most measurements one :class:`Raw` forward carries."""
+
+
+class RawOdometry(msgspec.Struct, frozen=True, array_like=True, tag="o"):
+    """A forwarded odometry command of the forwarding robot: ``(v [m/s], w [rad/s])`` over ``[t0, t1]`` [s]."""
+
+    t0: float
+    t1: float
+    v: float
+    w: float
+
+
+class RawDetection(msgspec.Struct, frozen=True, array_like=True, tag="d"):
+    """A forwarded detection of the forwarding robot (:class:`~swarmloc.events.Detection` without its scoring-only
+    truth): stamp [s], kind, ``z`` and its noise covariance ``cov`` (row-major), target id (None: anonymous)."""
+
+    t: float
+    kind: str
+    z: Floats
+    cov: Floats
+    target: int | None = None
+    target_is_robot: bool = True
+
+
+class Raw(msgspec.Struct, frozen=True, kw_only=True, tag="raw"):
+    """``robot``'s forward number ``n`` (0, 1, 2, ... over its run) to the server-hosted centralized estimator
+    (:mod:`swarmloc.net.central`), on ``robot/<robot>/raw``: its next measurements in stamp order (``items``), and
+    where its stream then stands: every measurement it will forward later is keyed at or after ``(upto, prio)``
+    (``upto = inf``: it has forwarded everything); ``first`` [s]: its stream's first stamp; ``odometry`` and
+    ``detections``: how many it has forwarded in forwards ``0 .. n`` (so that the server counts exactly what a
+    lost forward carried). A forward with no items repeats where the stream stands (its end, until the server has
+    reported)."""
+
+    robot: int
+    n: int
+    first: float
+    upto: float
+    prio: int = 1
+    odometry: int = 0
+    detections: int = 0
+    items: tuple[RawOdometry | RawDetection, ...] = ()
+
+
+class RawAck(msgspec.Struct, frozen=True, kw_only=True, tag="raw_ack"):
+    """The server to ``robot`` (on ``server/ack``): it has every forward of ``robot`` below ``next`` and asks for
+    ``missing`` again (at most :data:`MAX_REPAIR` numbers, each below the highest it has)."""
+
+    robot: int
+    next: int
+    missing: tuple[int, ...] = ()
+
+
+MAX_LINES = 64
+"""The most lines one :class:`Lines` message carries (a scan yields a handful; the bound is checked on decoding)."""
+MAX_MAP_LINES = 4096
+"""The most lines a :class:`MapAnswer` carries."""
+LINE_FIELDS = 9
+"""A line on the wire: ``rho, alpha, c_rr, c_ra, c_aa, x0, y0, x1, y1`` (world frame, [m] and [rad])."""
+WireLine = Annotated[tuple[float, ...], msgspec.Meta(min_length=LINE_FIELDS, max_length=LINE_FIELDS)]
+
+
+class Lines(msgspec.Struct, frozen=True, kw_only=True, tag="lines"):
+    """Wall lines ``robot`` extracted from its range scan at ``stamp`` [s] and carried into the world frame with its
+    final belief there (:func:`swarmloc.mapping.scan_observations`), in extraction order; each line is
+    :data:`LINE_FIELDS` numbers: ``(rho, alpha)`` [m, rad], the covariance's ``c_rr, c_ra, c_aa``, the segment's end
+    points. At most :data:`MAX_LINES`; published on ``robot/<robot>/lines`` for the belief server."""
+
+    robot: int
+    stamp: float
+    lines: Annotated[tuple[WireLine, ...], msgspec.Meta(max_length=MAX_LINES)] = ()
+
+
+class FusedLine(msgspec.Struct, frozen=True, kw_only=True):
+    """One line of the server's map: ``line`` as in :class:`Lines`, the ``robots`` that saw it, ``n_obs``."""
+
+    line: WireLine
+    robots: tuple[int, ...] = ()
+    n_obs: int = 1
+
+
+class MapAnswer(msgspec.Struct, frozen=True, kw_only=True, tag="map"):
+    """The belief server's fused line map (its reply to a map query): ``lines``, and ``observations``: how many
+    line observations it has fused (from ``messages`` :class:`Lines` messages)."""
+
+    lines: Annotated[tuple[FusedLine, ...], msgspec.Meta(max_length=MAX_MAP_LINES)] = ()
+    observations: int = 0
+    messages: int = 0
+
+
+def line_problem(x: tuple[float, ...]) -> str | None:
+    """Why one wire line is unusable (non-finite, covariance not SPD, end points equal), or None."""
+    if not _finite(x, LINE_FIELDS):
+        return f"a line must be {LINE_FIELDS} finite numbers"
+    c_rr, c_ra, c_aa = x[2:5]
+    if not (c_rr > 0 and c_aa > 0 and c_rr * c_aa - c_ra * c_ra > 0):
+        return "a line's covariance is not positive definite"
+    if x[5] == x[7] and x[6] == x[8]:
+        return "a line's end points are equal"
+    return None
+
+
+Body = (
+    AnyMessage
+    | Belief
+    | Progress
+    | Report
+    | Broadcast
+    | BroadcastHead
+    | BroadcastRepair
+    | Raw
+    | RawAck
+    | Lines
+    | MapAnswer
+)
 
 
 class Envelope(msgspec.Struct, frozen=True, kw_only=True):
@@ -158,8 +274,27 @@ def body_problem(b: Body) -> str | None:
         return message_problem(BeliefAnswer(sender=b.robot, receiver=b.robot, stamp=b.stamp, mean=b.mean, cov=b.cov))
     if isinstance(b, Progress):
         return None if not math.isnan(b.t) else "progress: NaN time"
+    if isinstance(b, Lines):
+        if not math.isfinite(b.stamp):
+            return "lines: non-finite stamp"
+        for i, x in enumerate(b.lines):
+            why = line_problem(x)
+            if why:
+                return f"lines: line {i}: {why}"
+        return None
+    if isinstance(b, MapAnswer):
+        for i, fl in enumerate(b.lines):
+            why = line_problem(fl.line)
+            if why:
+                return f"map: line {i}: {why}"
+        return None
     if isinstance(b, Report):
         return None
+    if isinstance(b, Raw):
+        return raw_problem(b)
+    if isinstance(b, RawAck):
+        ok = 0 <= b.next < MAX_BROADCAST_N and len(b.missing) <= MAX_REPAIR
+        return None if ok and all(b.next <= n < MAX_BROADCAST_N for n in b.missing) else "raw ack: numbers out of range"
     if isinstance(b, Broadcast):
         if not 0 <= b.n < MAX_BROADCAST_N:
             return f"broadcast: number {b.n} outside [0, 2^62)"
@@ -182,9 +317,42 @@ def body_problem(b: Body) -> str | None:
     return message_problem(b)
 
 
+def raw_problem(b: Raw) -> str | None:
+    """Why a :class:`Raw` forward is unusable: numbers out of range, stamps not finite or not in order, an item
+    before where the stream stood, sizes of ``z`` and ``cov`` that do not fit the kind. (What a measurement says is
+    the estimator's to judge: a bad one is rejected and counted there.)"""
+    from swarmloc.sensors.models import MODELS
+
+    if not 0 <= b.n < MAX_BROADCAST_N or b.odometry < 0 or b.detections < 0:
+        return f"raw: number {b.n} or counts ({b.odometry}, {b.detections}) out of range"
+    first_ok = math.isfinite(b.first) or (b.first == math.inf and not b.items)  # inf: a robot with nothing at all
+    if not (first_ok and not math.isnan(b.upto) and b.prio in (1, 2)):
+        return "raw: first stamp not finite, upto NaN, or prio not 1 (detections) or 2 (odometry)"
+    if len(b.items) > MAX_RAW_ITEMS:
+        return f"raw: {len(b.items)} items, at most {MAX_RAW_ITEMS}"
+    last: tuple[float, int] = (-math.inf, 0)
+    for it in b.items:
+        if isinstance(it, RawOdometry):
+            t, p, ok = it.t0, 2, all(math.isfinite(x) for x in (it.t0, it.t1, it.v, it.w)) and it.t1 >= it.t0
+        else:
+            m = MODELS.get(it.kind)
+            d = None if m is None else m.size
+            t, p, ok = it.t, 1, d is not None and len(it.z) == d and len(it.cov) == d * d and math.isfinite(it.t)
+            ok = ok and all(math.isfinite(x) for x in (*it.z, *it.cov))
+        if not ok:
+            return f"raw: bad {type(it).__name__} at {t!r} (non-finite numbers, t1 < t0, or sizes that do not fit)"
+        if (t, p) < last or t < b.first or (t, p) >= (b.upto, b.prio):
+            return f"raw: item stamped {t!r} out of order (first {b.first!r}, upto {b.upto!r})"
+        last = (t, p)
+    return None
+
+
 def sender_of(b: Body) -> int:
-    """The robot a body speaks for."""
-    return b.robot if isinstance(b, Belief | Progress | Report | Broadcast | BroadcastHead) else b.sender
+    """The robot a body speaks for (the belief server, :data:`SERVER`, for its map)."""
+    if isinstance(b, MapAnswer):
+        return SERVER
+    speaks = Belief | Progress | Report | Broadcast | BroadcastHead | Raw | RawAck | Lines
+    return b.robot if isinstance(b, speaks) else b.sender
 
 
 def decode(
@@ -210,14 +378,17 @@ def decode(
     b = env.body
     if env.from_robot != SERVER and sender_of(b) != env.from_robot:
         raise Rejected(f"robot {env.from_robot} sent a message in the name of robot {sender_of(b)}")
-    if env.from_robot == SERVER and sender_of(b) not in roster:
+    own = isinstance(b, MapAnswer) or (isinstance(b, Report) and b.robot == SERVER)  # the server's own
+    if env.from_robot == SERVER and not own and sender_of(b) not in roster:
         raise Rejected(f"server message about robot {sender_of(b)}, outside the team's roster")
+    if to_robot is not None and isinstance(b, Lines | MapAnswer):
+        raise Rejected(f"{type(b).__name__} is for the belief server's map, not for robot {to_robot}")
     if to_robot is not None and isinstance(b, Broadcast):
         if b.to not in (ALL, to_robot):
             raise Rejected(f"broadcast repair addressed to robot {b.to}, received by robot {to_robot}")
         if b.robot == to_robot:
             raise Rejected(f"broadcast of robot {b.robot} received by itself")
-    elif to_robot is not None and not isinstance(b, Belief | Progress | Report | BroadcastHead):
+    elif to_robot is not None and not isinstance(b, Belief | Progress | Report | BroadcastHead | Raw | RawAck):
         if b.receiver != to_robot:
             raise Rejected(f"{type(b).__name__} addressed to robot {b.receiver}, received by robot {to_robot}")
         if b.sender == b.receiver:

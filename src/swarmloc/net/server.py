@@ -13,27 +13,48 @@ queryable ``swarmloc/<team>/server/query`` (a ``BeliefQuery`` in the payload; or
 (:mod:`swarmloc.net.auth`) it stores only beliefs signed by the robot they are of, answers only queries signed by
 the robot that asks, and signs its replies as the server; refusals are counted ``auth_<category>`` and logged, and
 its counters are logged when it stops.
+
+With ``hosted`` (a :class:`~swarmloc.net.central.Fusion`: ``swarmloc server --estimator cekf|iekf|fej``) it also
+runs the team's centralized estimator on the raw measurements the robots forward on ``robot/<id>/raw`` (each
+forward accepted only if signed by robot ``id``, refusals counted as above), asks a robot again for forwards
+missing from its numbers (``server/ack``), stores its final beliefs, publishes them on ``server/belief`` and, once
+every robot's stream has ended, its report on ``server/report`` (again every second while it runs, for a robot or
+collector that missed it).
+**Line map** (the chapter's line fusion on the server). :class:`MapStore` keeps every robot's world-frame wall
+lines (:class:`~swarmloc.net.schema.Lines`, published on ``robot/<id>/lines`` by a node with a range finder; with
+``auth`` only those signed by the robot whose key they are on) and fuses them into one
+:class:`~swarmloc.mapping.LineMap` in a fixed order, ``(stamp, robot, line index)``, whatever order they arrive in
+(a message that arrives behind one already fused makes the map be rebuilt at the next query), so the server's map
+is the in-process fusion of the same lines. A query ``swarmloc/<team>/server/query?map`` is answered with the fused
+map (:class:`~swarmloc.net.schema.MapAnswer`, signed by the server; like ``latest=`` it needs no signature: the map
+is no secret). With ``map_out`` the map is saved as GeoJSON when the server stops.
 """
 
 from __future__ import annotations
 
 import bisect
 import logging
+import math
 import queue
 import threading
 import time
 from collections import Counter
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
+
+import msgspec
+import numpy as np
 
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
+from swarmloc.mapping import LineMap, LineObservation
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
 from swarmloc.net.auth import Auth, note_refusal, open_envelope, seal
-from swarmloc.net.schema import SERVER, Belief, Rejected, encode
+from swarmloc.net.schema import MAX_MAP_LINES, SERVER, Belief, FusedLine, Lines, MapAnswer, Raw, Rejected, encode
 from swarmloc.net.transport import alive_key, robot_key, server_key, team_scope
 
-__all__ = ["BeliefServer", "ServerProcess"]
+__all__ = ["BeliefServer", "MapStore", "ServerProcess", "linemap_of", "observations_of", "wire_line"]
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +136,103 @@ class BeliefServer:
         )
 
 
+def observations_of(msg: Lines) -> list[LineObservation]:
+    """The :class:`~swarmloc.mapping.LineObservation` of each line of ``msg``, in order."""
+    out = []
+    for x in msg.lines:
+        cov = np.array([[x[2], x[3]], [x[3], x[4]]])
+        out.append(LineObservation(x[0], x[1], cov, np.reshape(x[5:9], (2, 2)), msg.robot, msg.stamp))
+    return out
+
+
+def wire_line(rho: float, alpha: float, cov: np.ndarray, ends: np.ndarray) -> tuple[float, ...]:
+    """A line as :data:`~swarmloc.net.schema.LINE_FIELDS` numbers (``rho, alpha, c_rr, c_ra, c_aa, x0, y0, x1, y1``)."""
+    return (float(rho), float(alpha), float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1]),
+            *map(float, np.ravel(ends)))  # fmt: skip
+
+
+def linemap_of(answer: MapAnswer) -> LineMap:
+    """A :class:`LineMap` holding the lines of a server's ``answer`` (to save or draw it)."""
+    from swarmloc.mapping import MapLine
+
+    lm = LineMap()
+    for fl in answer.lines:
+        x = fl.line
+        cov = np.array([[x[2], x[3]], [x[3], x[4]]])
+        ln = MapLine(x[0], x[1], cov, 0.0, 0.0, set(fl.robots), fl.n_obs)
+        s = ln.project(np.reshape(x[5:9], (2, 2)))
+        ln.s0, ln.s1 = float(s.min()), float(s.max())
+        lm.lines.append(ln)
+    return lm
+
+
+class MapStore:
+    """The server's line map: every robot's :class:`Lines` (one message per robot and stamp; at most ``max_obs``
+    line observations), fused in ``(stamp, robot, index)`` order into a :class:`LineMap` (``map_kw``)."""
+
+    def __init__(self, roster: Iterable[int] | None = None, max_obs: int = 200_000, **map_kw: Any) -> None:
+        self.roster = None if roster is None else frozenset(roster)
+        self.max_obs = max_obs
+        self.map_kw = map_kw
+        self.map = LineMap(**map_kw)
+        self._obs: list[tuple[tuple[float, int, int], LineObservation]] = []
+        self._fused = 0  # observations (a prefix of ``_obs``) already in ``map``
+        self._seen: set[tuple[int, float]] = set()
+        self.messages = 0
+        self.counts: Counter[str] = Counter()
+
+    def store(self, msg: Lines) -> bool:
+        """Keep ``msg``'s lines unless its robot is outside the roster, it repeats a (robot, stamp) already stored,
+        a line is unusable (the whole message is refused) or the store is full; counted either way."""
+        if self.roster is not None and msg.robot not in self.roster:
+            self.counts["lines_unknown_robot"] += 1
+            return False
+        if (msg.robot, msg.stamp) in self._seen:
+            self.counts["lines_duplicate"] += 1
+            return False
+        if len(self._obs) + len(msg.lines) > self.max_obs:
+            self.counts["lines_full"] += 1
+            return False
+        obs = observations_of(msg)
+        try:
+            for o in obs:
+                o.check()
+        except ValueError:
+            self.counts["lines_unusable"] += 1
+            return False
+        self._seen.add((msg.robot, msg.stamp))
+        for i, o in enumerate(obs):
+            key = (msg.stamp, msg.robot, i)
+            at = bisect.bisect_left(self._obs, key, key=lambda e: e[0])
+            if at < self._fused:
+                self._fused = -1  # arrived behind the fused prefix: rebuild at the next query
+                self.counts["lines_out_of_order"] += 1
+            self._obs.insert(at, (key, o))
+        self.messages += 1
+        self.counts["lines_stored"] += len(obs)
+        return True
+
+    def current(self) -> LineMap:
+        """The map of every line stored, fused in order (incrementally, or rebuilt after an out-of-order one)."""
+        if self._fused < 0:
+            self.map, self._fused = LineMap(**self.map_kw), 0
+            self.counts["map_rebuilt"] += 1
+        for _, o in self._obs[self._fused :]:
+            self.map.offer(o)
+        self._fused = len(self._obs)
+        return self.map
+
+    def answer(self) -> MapAnswer:
+        """The current map as a :class:`MapAnswer` (its first :data:`MAX_MAP_LINES` lines)."""
+        lm = self.current()
+        lines = tuple(
+            FusedLine(line=wire_line(ln.rho, ln.alpha, ln.cov, ln.endpoints()), robots=tuple(sorted(ln.robots)),
+                      n_obs=ln.n_obs)
+            for ln in lm.lines[:MAX_MAP_LINES]
+        )  # fmt: skip
+        return MapAnswer(lines=lines, observations=len(self._obs), messages=self.messages)
+
+
 class ServerProcess:
     """:class:`BeliefServer` on a Zenoh session for team ``team`` (robots ``roster``)."""
 
@@ -126,6 +244,8 @@ class ServerProcess:
         server: BeliefServer | None = None,
         auth: Auth | None = None,
         run_id: str | None = None,
+        hosted: Any = None,
+        map_out: str | Path | None = None,
     ) -> None:
         if auth is not None and (auth.signer is None or auth.signer.member != SERVER):
             raise ValueError("the belief server needs the server's key to sign its replies")
@@ -135,10 +255,15 @@ class ServerProcess:
         self.scope = team_scope(team, run_id)  # keys: the team's name and the run's id (transport.team_scope)
         self.roster = frozenset(roster)
         self.server = server if server is not None else BeliefServer(self.roster)
+        self.maps = MapStore(self.roster)
+        self.map_out = map_out
         self.counts: Counter[str] = Counter()
         self.reasons: Counter[str] = Counter()
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
+        self.hosted = hosted
+        self._reported = -math.inf  # when the hosted estimator's report was last published (monotonic)
+        self._cpu0 = self._wall0 = 0.0
 
     def stop(self) -> None:
         self._stop.set()
@@ -156,18 +281,29 @@ class ServerProcess:
         s, put = self.session, self._q.put
         decl = [
             s.declare_subscriber(robot_key(self.scope, "*", "belief"), handler=lambda x: put(("belief", x))),
+            s.declare_subscriber(robot_key(self.scope, "*", "lines"), handler=lambda x: put(("lines", x))),
             s.declare_queryable(server_key(self.scope), handler=lambda q: put(("query", q))),
         ]
+        if self.hosted is not None:
+            decl += [s.declare_subscriber(robot_key(self.scope, "*", w), handler=lambda x, w=w: put((w, x)))
+                     for w in ("raw", "progress")]  # fmt: skip
+            self._pubs = {w: s.declare_publisher(server_key(self.scope, w), congestion_control=_block())
+                          for w in ("belief", "report", "ack")}  # fmt: skip
+            decl += list(self._pubs.values())
         token = s.liveliness().declare_token(alive_key(self.scope, "server"))
         end = None if max_wall is None else time.monotonic() + max_wall
+        self._wall0, self._cpu0 = time.perf_counter(), time.process_time()
         try:
             while not self._stop.is_set() and (end is None or time.monotonic() < end):
                 try:
-                    kind, x = self._q.get(timeout=0.2)
+                    kind, x = self._q.get(timeout=0.05 if self.hosted is not None else 0.2)
                 except queue.Empty:
-                    continue
+                    kind = None
                 try:
-                    self._handle(kind, x)
+                    if kind is not None:
+                        self._handle(kind, x)
+                    if self.hosted is not None and (kind is None or self._q.empty()):
+                        self._host()
                 except Exception as exc:  # never die of one message
                     log.exception("belief server: error on %s", kind)
                     self._reject(f"internal error: {type(exc).__name__}")
@@ -177,12 +313,56 @@ class ServerProcess:
                     d.undeclare()
                 except Exception:  # noqa: BLE001
                     pass
+            if self.map_out is not None:
+                try:
+                    self.maps.current().save_geojson(self.map_out)
+                except Exception:  # noqa: BLE001 - stopping: say so, nothing else to do
+                    log.exception("belief server: could not save the map to %s", self.map_out)
             level = logging.WARNING if self.counts["rejected"] else logging.INFO
-            log.log(level, "belief server: stopped; %s; store %s; refused %s", dict(self.counts),
-                    dict(self.server.counts), dict(self.reasons))  # fmt: skip
+            log.log(level, "belief server: stopped; %s; store %s; map %s; refused %s", dict(self.counts),
+                    dict(self.server.counts), dict(self.maps.counts), dict(self.reasons))  # fmt: skip
+            if self.hosted is not None:
+                log.log(level, "belief server: hosted %s: %s", self.hosted.node.name, dict(self.hosted.counts))
+
+    def _host(self) -> None:
+        """Fuse what the forwards allow; store and publish the beliefs that became final; the report at the end."""
+        h = self.hosted
+        for b in h.pump():
+            self.server.store(b)
+            self._pubs["belief"].put(self._sealed(server_key(self.scope, "belief"), b))
+        for ack in h.wanted():  # forwards missing: asked of their robot again
+            self._pubs["ack"].put(self._sealed(server_key(self.scope, "ack"), ack))
+        if h.done and time.monotonic() - self._reported >= 1.0:
+            if self._reported == -math.inf:  # wall and CPU seconds from the server's start to the estimator's end
+                log.info("belief server: hosted %s done: %s", h.node.name, dict(h.counts))
+                self._took = (time.perf_counter() - self._wall0, time.process_time() - self._cpu0)
+            self._reported = time.monotonic()
+            rep = h.report(*self._took)
+            rep = msgspec.structs.replace(rep, net={**rep.net, **self.counts},
+                                          net_reasons={**rep.net_reasons, **self.reasons})  # fmt: skip
+            self._pubs["report"].put(self._sealed(server_key(self.scope, "report"), rep))
 
     def _handle(self, kind: str, x: Any) -> None:
-        if kind == "belief":
+        if kind == "progress":  # a forwarding robot is alive (hosted estimator)
+            try:
+                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
+                                    server_ok=False, publication=True)  # fmt: skip
+            except Rejected as exc:
+                self._reject(exc.reason, exc)
+                return
+            self.hosted.hear(env.from_robot)
+        elif kind == "raw":
+            try:
+                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
+                                    server_ok=False, publication=True)  # fmt: skip
+            except Rejected as exc:
+                self._reject(exc.reason, exc)
+                return
+            if isinstance(env.body, Raw):
+                self.hosted.offer(env.body)
+            else:
+                self._reject(f"{type(env.body).__name__} on a raw key")
+        elif kind == "belief":
             try:
                 env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
                                     server_ok=False, publication=True)  # fmt: skip
@@ -193,6 +373,17 @@ class ServerProcess:
                 self.server.store(env.body)
             else:
                 self._reject(f"{type(env.body).__name__} on a belief key")
+        elif kind == "lines":
+            try:
+                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
+                                    server_ok=False, publication=True)  # fmt: skip
+            except Rejected as exc:
+                self._reject(exc.reason, exc)
+                return
+            if not isinstance(env.body, Lines):
+                self._reject(f"{type(env.body).__name__} on a lines key")
+            elif not self.maps.store(env.body):
+                self._reject("lines not stored (see the map's counts)")
         elif kind == "query":
             try:
                 self._query(x)
@@ -200,6 +391,10 @@ class ServerProcess:
                 x.drop()
 
     def _query(self, q: Any) -> None:
+        if q.parameters is not None and "map" in q.parameters:
+            self.counts["map_queries"] += 1
+            q.reply(q.key_expr, self._sealed(str(q.key_expr), self.maps.answer()))
+            return
         latest = q.parameters.get("latest") if q.parameters is not None else None
         if latest is not None:
             try:
@@ -229,3 +424,9 @@ class ServerProcess:
 
     def _sealed(self, key: str, body: Any) -> bytes:
         return seal(self.auth, key, encode(self.team, SERVER, 0, body))
+
+
+def _block() -> Any:
+    import zenoh
+
+    return zenoh.CongestionControl.BLOCK

@@ -34,11 +34,11 @@ import numpy as np
 
 from swarmloc.datasets.source import Source
 from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
-from swarmloc.net.entry import distributed_class
+from swarmloc.net.entry import hosted_class, network_class
 from swarmloc.net.faults import Faults, parse_faults
-from swarmloc.net.schema import SERVER, Belief, Progress, Rejected, Report
+from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
-from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, team_scope
+from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, server_key, team_scope
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +63,10 @@ class TeamRun:
     """Every process that ended with a non-zero exit code, in order: ``process`` (``robot<N>``, ``server``),
     ``pid``, ``exit_code``, ``how`` (died, killed by a fault and restarted, stopped by the launcher) and ``said``
     (the last lines it wrote, for a process that exited with an error)."""
+    lines: list[Lines] = field(default_factory=list)
+    """Every robot's :class:`~swarmloc.net.schema.Lines` (a source with range scans), as received."""
+    map: MapAnswer | None = None
+    """The belief server's fused line map, asked for once every node has ended (None: no server, or no answer)."""
 
     def keep(self, b: Belief) -> None:
         k = (b.robot, b.stamp)
@@ -120,6 +124,7 @@ def launch_team(
     verbose: bool = False,
     connect_extra: Sequence[str] = (),
     keys_dir: str | os.PathLike[str] | None = None,
+    view: Any = None,
 ) -> TeamRun:
     """Start the team of ``src`` on 127.0.0.1, collect its beliefs and reports, stop every process.
 
@@ -130,12 +135,16 @@ def launch_team(
     ``max_wall`` [s] is the whole run's wall-clock limit. ``connect_extra``: endpoints every process also connects
     to (a Zenoh router, e.g. ROS 2's ``rmw_zenohd`` on ``tcp/127.0.0.1:7447``). ``keys_dir``: the team's keys and
     roster (:class:`~swarmloc.net.auth.TeamKeys`: made there unless its ``roster.json`` exists; default: a temporary
-    folder, removed at the end).
+    folder, removed at the end). ``view``: a :class:`~swarmloc.net.view.TeamView` shown every belief and line
+    collected (the caller closes it).
     """
     f = parse_faults(faults)
     team = check_team(team or f"team{os.getpid()}")
-    distributed_class(estimator)  # refuse a centralized or unknown estimator before starting anything
-    server = server or (f.kill is not None and f.restart)
+    network_class(estimator)  # refuse an estimator a team cannot run before starting anything
+    hosted = hosted_class(estimator) is not None
+    if hosted and (f.kill is not None or f.late is not None):
+        raise ValueError(f"faults: kill and late are for a distributed team; {estimator!r} is hosted by the server")
+    server = server or hosted or (f.kill is not None and f.restart)
     for what, robot in (("late", f.late), ("killed", f.kill)):
         if robot is not None and robot[0] not in src.robots:
             raise ValueError(f"faults: {what} robot {robot[0]} is not in the team {src.robots}")
@@ -145,9 +154,12 @@ def launch_team(
         hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout,
         lost_timeout=lost_timeout, use_server=server, faults=f, ros_domain=ros_domain, verbose=verbose,
     )  # fmt: skip
+    server_args = server_arguments(node_args) if hosted else []
     keys = TeamKeys(src.robots, keys_dir)
     try:
         launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir, keys, src.record_times())
+        launcher.server_args = server_args
+        launcher.view = view
         return launcher.run(src.t_start, max_wall)
     finally:
         keys.close()
@@ -195,6 +207,13 @@ def node_arguments(
     return out
 
 
+def server_arguments(node_args: Sequence[str]) -> list[str]:
+    """The options of ``swarmloc server`` that host the team's estimator, taken from the nodes' (the source, the
+    estimator, and the waits for the robots)."""
+    keep = ("--source", "--estimator", "--seed", "--duration", "--config", "--start-timeout", "--lost-timeout")
+    return [x for i, a in enumerate(node_args) if a in keep for x in node_args[i : i + 2]]
+
+
 class _Launcher:
     """The processes of one team run: their endpoints and command lines, starting and stopping them, the process
     faults (kill and restart, late join), and the collection of what they publish."""
@@ -235,6 +254,8 @@ class _Launcher:
         self.killed = self.restarted = self.joined = False
         self.deadline = math.inf  # the run's end (monotonic), set when it starts
         self.noted: set[int] = set()  # pids of the processes in ``result.ended``
+        self.server_args: list[str] = []  # a hosted estimator's options for ``swarmloc server``
+        self.view: Any = None  # a live view (swarmloc.net.view.TeamView) shown what is collected
 
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
@@ -270,7 +291,7 @@ class _Launcher:
     def start(self) -> None:
         if self.server:
             roster = ",".join(map(str, self.robots))
-            keys = [*self.keys.args(SERVER), *self.left()]
+            keys = [*self.keys.args(SERVER), *self.server_args, *self.left()]
             self.spawn("server", [*_python(), "server", *self.args_for("server", keys), "--robots", roster])
         for r in self.robots:
             if r != self.late:
@@ -330,13 +351,18 @@ class _Launcher:
 
     # ------------------------------------------------------------------------------------------- collecting
     def collect(self, sample: Any) -> None:
-        """Keep a published belief, report or progress announcement signed by the robot whose key it is published on
-        (a bad payload, or a belief stamped at no record time of the run, is counted and dropped)."""
+        """Keep a published belief, report or progress announcement signed by the robot whose key it is published on,
+        or a belief or report signed by the server on its own keys (a hosted estimator's; a bad payload, or a belief
+        stamped at no record time of the run, is counted and dropped)."""
         counts = self.result.counts
         try:
             key = str(sample.key_expr)
-            b = open_envelope(self.auth, key, sample.payload.to_bytes(), self.team, self.roster, server_ok=False,
-                              publication=True).body  # fmt: skip
+            on_server = key in (server_key(self.scope, "belief"), server_key(self.scope, "report"))
+            env = open_envelope(self.auth, key, sample.payload.to_bytes(), self.team, self.roster, server_ok=on_server,
+                                publication=not on_server)  # fmt: skip
+            if on_server and env.from_robot != SERVER:
+                raise Rejected(f"robot {env.from_robot} published on the server's key")
+            b = env.body
             if isinstance(b, Belief) and b.stamp not in self.record_times:
                 raise Rejected("belief stamped at no record time of the run")
         except Rejected as exc:
@@ -346,10 +372,14 @@ class _Launcher:
                 log.log(logging.WARNING if self.result.reasons[exc.reason] == 1 else logging.DEBUG,
                         "collector: refused a message: %s", exc.reason)  # fmt: skip
             return
+        if self.view is not None:
+            self.view.observe(b)
         if isinstance(b, Belief):
             self.result.keep(b)
         elif isinstance(b, Report):
             self.result.reports[b.robot] = b
+        elif isinstance(b, Lines):
+            self.result.lines.append(b)
         elif isinstance(b, Progress) and math.isfinite(b.t):
             self.progress[b.robot] = max(self.progress.get(b.robot, -math.inf), b.t)
 
@@ -378,6 +408,32 @@ class _Launcher:
                         return
                 return
 
+    def ask_map(self, session: Any, timeout: float = 5.0) -> MapAnswer | None:
+        """The belief server's map (signed by the server), once it has every :class:`Lines` collected: asked again
+        until ``timeout`` s have passed (then the last answer, or None)."""
+        import zenoh
+
+        from swarmloc.net.transport import server_key
+
+        want, last, end = len(self.result.lines), None, time.monotonic() + timeout
+        while time.monotonic() < end:
+            for reply in session.get(f"{server_key(self.scope)}?map", timeout=1.0, target=zenoh.QueryTarget.ALL):
+                if reply.ok is None:
+                    continue
+                try:
+                    env = open_envelope(self.auth, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), self.team,
+                                        self.roster)  # fmt: skip
+                except Rejected as exc:
+                    self.result.reasons[f"map answer: {exc.reason}"] += 1
+                    continue
+                if env.from_robot == SERVER and isinstance(env.body, MapAnswer):
+                    last = env.body
+            if last is not None and last.messages >= want:
+                return last
+            time.sleep(0.1)
+        self.result.counts["map_incomplete"] = 1
+        return last
+
     def run(self, t_first: float, max_wall: float) -> TeamRun:
         """Start the team, watch it, and stop every process it started, whatever happens (``t_first``: the
         source's start, which the fault times count from)."""
@@ -386,13 +442,16 @@ class _Launcher:
         put = self.inq.put
         subs = [
             session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
-            for what in ("belief", "report", "progress")
-        ]
+            for what in ("belief", "report", "progress", "lines")
+        ] + [session.declare_subscriber(server_key(self.scope, w), handler=lambda x: put(("sample", x)))
+             for w in ("belief", "report")]  # fmt: skip
         t0 = time.monotonic()
         self.deadline = t0 + max_wall
         try:
             self.start()
             self.watch(t_first, max_wall, t0)
+            if self.server and not self.result.counts["timed_out"]:
+                self.result.map = self.ask_map(session)
         finally:
             for s in subs:
                 try:

@@ -16,8 +16,12 @@ Key expressions (``<team>`` is the team's name; one run of a team launched by ``
     swarmloc/<team>/robot/<id>/progress   publisher: how far the node has read its source (lockstep)
     swarmloc/<team>/robot/<id>/report     publisher: the node's counters when it stops
     swarmloc/<team>/alive/<id>            liveliness token of a running node
+    swarmloc/<team>/robot/<id>/raw        publisher: raw measurements forwarded to a server-hosted estimator
     swarmloc/<team>/input/<id>/<what>     a robot's live inputs (odom, det, progress: :mod:`swarmloc.live.zenoh_input`)
     swarmloc/<team>/server/query          queryable of the belief server
+    swarmloc/<team>/server/belief         publisher: the beliefs of a server-hosted centralized estimator
+    swarmloc/<team>/server/report         publisher: the server's report (hosted estimator)
+    swarmloc/<team>/server/ack            publisher: the server's requests for missing forwards (hosted estimator)
 """
 
 from __future__ import annotations
@@ -60,8 +64,10 @@ def alive_key(team: str, robot: int | str = "*") -> str:
     return f"{PREFIX}/{team}/alive/{robot}"
 
 
-def server_key(team: str) -> str:
-    return f"{PREFIX}/{team}/server/query"
+def server_key(team: str, what: str = "query") -> str:
+    """``swarmloc/<team>/server/<what>``: ``query`` (its queryable); with a hosted estimator also ``belief`` and
+    ``report`` (its publications, signed by the server)."""
+    return f"{PREFIX}/{team}/server/{what}"
 
 
 def robot_of(key: str) -> int | None:

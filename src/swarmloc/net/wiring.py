@@ -53,6 +53,8 @@ class Wiring:
             )
         self._pub_belief = s.declare_publisher(robot_key(team, r, "belief"), congestion_control=self._block)
         self._pub_progress = s.declare_publisher(robot_key(team, r, "progress"), congestion_control=self._block)
+        if self.scans is not None:  # each scan's world lines, for the belief server's map
+            self._pub_lines = s.declare_publisher(robot_key(team, r, "lines"), congestion_control=self._block)
         if self.ros_domain is not None:
             import hashlib
 

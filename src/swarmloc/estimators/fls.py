@@ -1,0 +1,346 @@
+"""A per-robot fixed-lag smoother (``"fls"``): the robot's recent poses re-estimated by GTSAM at every detection.
+
+Each node keeps a **window**: its robot's poses (``Pose2``) at its recent detection instants, newest last, and
+the factors between them:
+
+* a prior on the oldest pose: what the poses that left the window knew (their marginal, below);
+* odometry: between consecutive poses, the unicycle increment and its covariance as the motion model gives them
+  (:func:`swarmloc.kernels.cartesian.predict_one` from a zero covariance in the older pose's frame, the same
+  prediction ``dekf`` uses, turned to the ``Pose2`` tangent by :func:`~swarmloc.kernels.cartesian.to_group`);
+* landmarks and absolute fixes: one factor per detection on the pose it was made at, with the measurement models
+  of :mod:`swarmloc.sensors.models` (range-bearing, range, bearing, relative pose, absolute; a landmark's
+  position covariance added to the noise, as the filters do);
+* neighbours: the detected robot's pose is a variable of the window with the neighbour's answered marginal
+  (:class:`~swarmloc.messages.BeliefQuery`) as its prior, tied to the observer's pose by the measurement factor.
+
+At every detection group the window is solved again by Gauss-Newton (GTSAM's sparse elimination) from the previous
+estimates (so the odometry and measurement Jacobians are relinearized at the smoothed poses, which a filter cannot
+do). Poses older than ``lag`` seconds before the newest one leave the window: the factors that touch them are
+linearized at the current estimate and eliminated (GTSAM :class:`gtsam.Marginals` of that sub-graph), which leaves a
+Gaussian prior on the oldest pose kept. Between detections the node predicts its present from the newest pose's
+marginal.
+
+**Handoff without double counting: covariance intersection on the exchanged marginals.** A neighbour's answer may
+already hold information that came from this robot (earlier answers, through any chain of robots), in unknown
+amounts. As ``ci`` does for a filter, the node fuses it by covariance intersection: for a weight ``w``,
+``blockdiag(Sigma_i / w, Sigma_k / (1 - w))`` bounds the joint covariance of the robot's and the neighbour's
+estimates whatever their correlation (Julier & Uhlmann 1997). On a window this is exact and cheap: every factor
+already in the window has its information multiplied by ``w`` (so the window's marginal of any pose is divided by
+``w``, and so is its joint with every other pose of the window), the neighbour's prior has covariance
+``Sigma_k / (1 - w)``, and the measurement noise, independent of both, is kept. ``w`` is ``ci``'s closed form,
+computed at the node's present belief (:func:`swarmloc.kernels.ci.point_weight`,
+:func:`~swarmloc.kernels.ci.pose_weight`). The answers the node gives are its present marginal, like every
+``BeliefQuery`` estimator's; nothing else is exchanged, so the node runs over the network as ``ci`` does.
+
+**History and replay.** A window is plain data (poses, estimates, factor records with their information scale),
+never a live GTSAM object: the node's history keeps the window after each entry, a late input is replayed from
+the window before it, and the result is a function of the inputs alone (GTSAM's solves are deterministic).
+GTSAM's ``BatchFixedLagSmoother`` / ``IncrementalFixedLagSmoother`` (exposed by the 4.3 wheel) hold mutable C++
+state that the history would have to copy after every entry; rebuilding the window's graph costs about as much as
+one of their updates for windows of this size and makes the replay exact by construction.
+
+**Causal.** ``belief_at(t)`` is the belief after the inputs stamped ``<= t`` (the node's contract), i.e. the
+smoother's estimate of the newest pose, predicted to ``t``: a filtered estimate with relinearized history, not
+the (better) smoothed estimate of a past pose that a lagged output would give.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from swarmloc.estimators.dekf import DEGENERATE, linearize
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.kernels import cartesian as C
+from swarmloc.kernels.ci import point_weight, pose_weight
+from swarmloc.lie import SE2
+from swarmloc.messages import Message
+from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
+from swarmloc.sensors.models import model
+
+__all__ = ["FixedLagSmoother", "FlsState", "Window"]
+
+_ZERO3 = np.zeros(3)
+_ZERO33 = np.zeros((3, 3))
+_TINY = 1e-12
+"""Variance [m^2, rad^2] added to the diagonal of an odometry factor's covariance (a zero-length increment)."""
+
+
+def _gtsam() -> Any:
+    try:
+        import gtsam
+    except ImportError as exc:  # pragma: no cover - gtsam is a dependency of the 'fls' and 'dev' extras
+        raise ImportError("the 'fls' estimator needs GTSAM: pip install 'swarmloc[fls]' (gtsam>=4.3)") from exc
+    return gtsam
+
+
+class Factor(NamedTuple):
+    """One factor of a window. ``kind``: ``"odometry"`` (between poses ``a`` and ``b``: ``z`` the increment
+    ``(x, y, theta)`` in ``a``'s frame, ``R`` its ``Pose2``-tangent covariance), ``"unary"`` (a detection of a
+    landmark or an absolute fix made at pose ``a``: ``z``, the model's noise ``R`` plus the landmark's
+    covariance, ``target`` the landmark's ``(x, y)`` or None) or ``"neighbour"`` (a detection of robot ``b``'s
+    pose variable, which has ``target``, the answered ``(mean (3, 3), cov (3, 3))``, as its prior).
+    ``scale``: the multiplier of its information (covariance intersection); ``meas``: the detection kind."""
+
+    kind: str
+    a: int
+    b: int
+    meas: str
+    z: np.ndarray
+    R: np.ndarray
+    target: Any
+    scale: float
+
+
+class Window(NamedTuple):
+    """The smoother's window: pose variable ids and stamps [s] (oldest first), the estimate of every variable
+    (``id -> (x, y, theta)``; neighbour variables included), the prior on the oldest pose (``mean (x, y, theta)``,
+    ``Pose2``-tangent covariance, information scale), the factors, and the next free variable id."""
+
+    poses: tuple[int, ...]
+    stamps: tuple[float, ...]
+    est: dict[int, np.ndarray]
+    prior: tuple[np.ndarray, np.ndarray, float]
+    factors: tuple[Factor, ...]
+    next_id: int
+
+
+class FlsState(NamedTuple):
+    """A node's state: time [s], command ``(v, w)``, the present belief (Cartesian ``x (3,)``, ``P (3, 3)``), the
+    increment since the newest pose of the window (``rel (3,)`` in that pose's frame, covariance ``Q (3, 3)``)
+    and the window."""
+
+    t: float
+    v: float
+    w: float
+    x: np.ndarray
+    P: np.ndarray
+    rel: np.ndarray
+    Q: np.ndarray
+    win: Window
+
+
+# ---------------------------------------------------------------------------------------------------- GTSAM
+def _pose2(g: Any, x: np.ndarray) -> Any:
+    return g.Pose2(float(x[0]), float(x[1]), float(x[2]))
+
+
+def _xyt(p: Any) -> np.ndarray:
+    return np.array([p.x(), p.y(), p.theta()])
+
+
+def _body(H: np.ndarray, theta: float) -> np.ndarray:
+    """A Jacobian w.r.t. world ``(x, y, theta)`` turned into one w.r.t. ``Pose2``'s tangent (body-frame right
+    perturbation: ``dp = R(theta) d_xy``, ``dtheta = d_theta``)."""
+    c, s = math.cos(theta), math.sin(theta)
+    out = H.copy()
+    out[:, 0] = H[:, 0] * c + H[:, 1] * s
+    out[:, 1] = -H[:, 0] * s + H[:, 1] * c
+    return out
+
+
+def _measurement_factor(g: Any, f: Factor, keys: list[int]) -> Any:
+    """A :class:`gtsam.CustomFactor` for a unary or neighbour factor, error ``h(x) - z`` (wrapped) with the
+    model's Jacobians of :mod:`swarmloc.sensors.models`."""
+    m = model(f.meas)
+    z = f.z
+    landmark = f.target if f.kind == "unary" else None
+
+    def error(this: Any, values: Any, H: Any) -> np.ndarray:
+        xi = _xyt(values.atPose2(this.keys()[0]))
+        if f.kind == "neighbour":
+            xk = _xyt(values.atPose2(this.keys()[1]))
+            h, Hi, Hk = m.predict(xi, xk)
+        else:
+            h, Hi, Hk = m.predict(xi, landmark) if landmark is not None else m.predict(xi)
+        e = -np.asarray(m.residual(z, h), dtype=float)  # h - z, angles wrapped
+        if H is not None:
+            H[0] = _body(np.asarray(Hi, dtype=float), xi[2])
+            if f.kind == "neighbour":
+                H[1] = _body(np.asarray(Hk, dtype=float), xk[2])
+        return e
+
+    return g.CustomFactor(g.noiseModel.Gaussian.Covariance(f.R / f.scale), keys, error)
+
+
+def _graph(g: Any, win: Window, factors: tuple[Factor, ...] | None = None, prior: bool = True) -> Any:
+    """The window's factor graph (``factors``: a subset, default all; ``prior``: include the oldest pose's)."""
+    graph = g.NonlinearFactorGraph()
+    if prior:
+        mean, cov, scale = win.prior
+        graph.add(g.PriorFactorPose2(win.poses[0], _pose2(g, mean), g.noiseModel.Gaussian.Covariance(cov / scale)))
+    for f in win.factors if factors is None else factors:
+        if f.kind == "odometry":
+            noise = g.noiseModel.Gaussian.Covariance(f.R / f.scale)
+            graph.add(g.BetweenFactorPose2(f.a, f.b, _pose2(g, f.z), noise))
+        elif f.kind == "unary":
+            graph.add(_measurement_factor(g, f, [f.a]))
+        else:
+            graph.add(_measurement_factor(g, f, [f.a, f.b]))
+            mean, cov = f.target
+            graph.add(g.PriorFactorPose2(f.b, _pose2(g, mean), g.noiseModel.Gaussian.Covariance(cov / f.scale)))
+    return graph
+
+
+class FixedLagSmoother(RobotNode):
+    """Per-robot fixed-lag smoother over its recent poses (GTSAM), covariance intersection with neighbours.
+
+    Parameters (besides :class:`~swarmloc.node.robot.RobotNode`'s)
+    ---------------------------------------------------------------
+    lag: seconds [s] of poses kept in the window behind the newest one (> 0).
+    max_iterations: Gauss-Newton iterations per solve (>= 1), always all of them: a solve that stopped at a
+        convergence threshold would make the result jump with rounding, and the history's replay of late input
+        must give the ordered run's result.
+    """
+
+    name = "fls"
+
+    def __init__(self, robot: int, initial: GroupGaussian, *, lag: float = 2.0, max_iterations: int = 3,
+                 **kw: Any) -> None:  # fmt: skip
+        if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
+            raise ValueError(f"FixedLagSmoother: 'lag' must be a positive number of seconds, got {lag!r}")
+        if not (isinstance(max_iterations, int) and max_iterations >= 1):
+            raise ValueError(f"FixedLagSmoother: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
+        self.lag = float(lag)
+        self.max_iterations = max_iterations
+        self._g = _gtsam()
+        super().__init__(robot, initial, **kw)
+
+    # ------------------------------------------------------------------------------------------------ filter
+    def _initial_state(self, t0: float) -> FlsState:
+        x, P = C.from_group(self.initial.mean, self.initial.cov)
+        win = Window((0,), (t0,), {0: x}, (x, np.array(self.initial.cov, dtype=float), 1.0), (), 1)
+        return FlsState(t0, 0.0, 0.0, x, P, _ZERO3, _ZERO33, win)
+
+    def _advance(self, s: FlsState, robot: int, t: float) -> FlsState:
+        dt = t - s.t
+        if dt <= 0:
+            return s
+        x, P, _, _ = C.predict_one(s.x, s.P, s.v, s.w, dt, self.noise)
+        rel, Q, _, _ = C.predict_one(s.rel, s.Q, s.v, s.w, dt, self.noise)
+        return FlsState(t, s.v, s.w, x, P, rel, Q, s.win)
+
+    def _set_command(self, s: FlsState, robot: int, v: float, w: float) -> FlsState:
+        return s._replace(v=v, w=w)
+
+    def _belief(self, s: FlsState, robot: int) -> GroupGaussian:
+        return belief_of(*C.to_group(s.x, s.P))
+
+    def _fuse_group(self, s: FlsState, g: Group) -> tuple[FlsState, list[Outcome], list[Message]]:
+        win = s.win
+        mean_i, cov_i = C.to_group(s.x, s.P)
+        new_pose = win.stamps[-1] != g.t
+        pid = win.next_id if new_pose else win.poses[-1]
+        next_id = win.next_id + 1 if new_pose else win.next_id
+        est = dict(win.est)
+        factors = list(win.factors)
+        prior_scale = win.prior[2]
+        if new_pose:
+            _, Qg = C.to_group(s.rel, s.Q)
+            factors.append(Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + _TINY * np.eye(3), None, 1.0))
+            est[pid] = s.x
+        outcomes: list[Outcome] = []
+        fused = 0
+        for d in g.detections:
+            target = self._classify(g, d)
+            if target[0] in ("rejected", "unknown"):
+                outcomes.append(target)
+                continue
+            lin = linearize(d, s.x, target)
+            if lin is None:
+                outcomes.append(("rejected", DEGENERATE))
+                continue
+            r, Hi, R_eff, _ = lin
+            if self.gate.p is not None:
+                verdict = self._gated(float(r @ np.linalg.solve(Hi @ s.P @ Hi.T + R_eff, r)), len(r))
+                if verdict is not None:
+                    outcomes.append(verdict)
+                    continue
+            z = np.asarray(d.z, dtype=float)
+            if target[0] != "robot":
+                lm = None if target[0] == "absolute" else np.asarray(target[1][0], dtype=float)
+                factors.append(Factor("unary", pid, -1, d.kind, z, R_eff, lm, 1.0))
+            else:
+                nb_mean, nb_cov = target[1].belief_arrays()
+                R = np.asarray(d.cov, dtype=float)
+                if d.kind == "pose":
+                    w = float(pose_weight(mean_i, cov_i, SE2.from_xytheta(z), R, nb_mean, nb_cov))
+                else:
+                    w = float(point_weight(mean_i, cov_i, d.kind, z, R, nb_mean, nb_cov))
+                # covariance intersection: every factor already in the window keeps w of its information
+                factors = [f._replace(scale=f.scale * w) for f in factors]
+                prior_scale *= w
+                nid = next_id
+                next_id += 1
+                est[nid] = C.from_group(nb_mean, nb_cov)[0]
+                m = model(d.kind)
+                factors.append(
+                    Factor("neighbour", pid, nid, d.kind, z, m.noise(z, R), (est[nid], nb_cov / (1 - w)), 1.0)
+                )
+            outcomes.append(FUSED)
+            fused += 1
+        if fused == 0:
+            return s, outcomes, []
+        stamps = win.stamps + ((g.t,) if new_pose else ())
+        poses = win.poses + ((pid,) if new_pose else ())
+        win2 = Window(poses, stamps, est, (win.prior[0], win.prior[1], prior_scale), tuple(factors), next_id)
+        solved = self._solve(win2, pid, g.t)
+        if solved is None:
+            return s, [("rejected", NUMERICAL) if o == FUSED else o for o in outcomes], []
+        win3, x, P = solved
+        return FlsState(s.t, s.v, s.w, x, P, _ZERO3, _ZERO33, win3), outcomes, []
+
+    def _solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
+        """Solve the window (Gauss-Newton from its estimates), take the newest pose's marginal and
+        marginalize the poses older than ``t - lag``: ``(window, x (3,), P (3, 3) Cartesian)`` or None when the
+        solve fails (not finite, or a singular marginal)."""
+        g = self._g
+        graph = _graph(g, win)
+        values = g.Values()
+        for k, xk in win.est.items():
+            values.insert(k, _pose2(g, xk))
+        try:
+            result = values
+            for _ in range(self.max_iterations):  # a fixed count: the result is a smooth function of the inputs
+                result = result.retract(graph.linearize(result).optimize())
+            est = {k: _xyt(result.atPose2(k)) for k in win.est}
+            if not all(np.isfinite(v).all() for v in est.values()):
+                return None
+            cov = g.Marginals(graph, result).marginalCovariance(newest)
+            x = est[newest]
+            P = _cartesian_cov(x[2], cov)
+            if not usable_covariance(P):
+                return None
+            win = win._replace(est=est)
+            cutoff = t - self.lag
+            k0 = next(i for i, ts in enumerate(win.stamps) if ts >= cutoff or i == len(win.stamps) - 1)
+            if k0 > 0:
+                win = self._marginalize(win, k0, result)
+        except RuntimeError:  # GTSAM: an indeterminant system
+            return None
+        return win, x, P
+
+    def _marginalize(self, win: Window, k0: int, values: Any) -> Window:
+        """Eliminate the window's first ``k0`` poses (and the neighbour variables tied to them): the factors
+        touching them, linearized at ``values``, become a Gaussian prior on the pose ``k0``."""
+        g = self._g
+        drop = set(win.poses[:k0])
+        keep = win.poses[k0]
+        out = [f for f in win.factors if f.a in drop]
+        gone = drop | {f.b for f in out if f.kind == "neighbour"}
+        sub = _graph(g, win, tuple(out))
+        cov = g.Marginals(sub, values).marginalCovariance(keep)
+        delta = sub.linearize(values).optimize()
+        mean = _xyt(values.atPose2(keep).retract(delta.at(keep)))
+        est = {k: v for k, v in win.est.items() if k not in gone}
+        factors = tuple(f for f in win.factors if f.a not in drop)
+        return Window(win.poses[k0:], win.stamps[k0:], est, (mean, np.array(cov), 1.0), factors, win.next_id)
+
+
+def _cartesian_cov(theta: float, cov: np.ndarray) -> np.ndarray:
+    """A ``Pose2``-tangent (body-frame) covariance as a world-frame Cartesian ``(x, y, theta)`` one."""
+    c, s = math.cos(theta), math.sin(theta)
+    B = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return B @ cov @ B.T
