@@ -245,7 +245,7 @@ def ri_key(ri: RosInput, what: str) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ the Python API
-@pytest.mark.parametrize("est", ["rdl", "dekf", "ci", "expfusion", "diekf"])
+@pytest.mark.parametrize("est", ["rdl", "dekf", "ci", "expfusion", "diekf", "irdl", "fls", "mcl"])
 def test_python_api_three_live_nodes_equal_the_in_process_run(est):
     src = load_source("sim:random", **SIM)
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(3)]
