@@ -230,6 +230,7 @@ def _node(args: argparse.Namespace) -> int:
     _die_with_launcher(args)
     from swarmloc.config import ConfigError
     from swarmloc.experiments.sources import load_source
+    from swarmloc.live.source import live_inputs, split_live
     from swarmloc.net.entry import node_main
     from swarmloc.net.transport import team_scope
 
@@ -238,13 +239,17 @@ def _node(args: argparse.Namespace) -> int:
         team_scope(args.team, args.run_id)  # a bad name or run id is refused before the source is loaded
         auth = _auth(args, args.robot)
         config = _config(args) if args.config else None
-        src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
+        live_kind, spec = split_live(args.source)
+        src = load_source(spec, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
+        live = None
+        if live_kind is not None:
+            live = live_inputs(live_kind, team=args.team, run_id=args.run_id, domain=args.ros_domain or 0)
         report = node_main(
             src=src, robot=args.robot, team=args.team, estimator=args.estimator, speed=args.speed, lag=args.lag,
             listen=_endpoints(args.listen), connect=_endpoints(args.connect), zenoh_config=args.zenoh_config,
             use_server=args.use_server, resume=args.resume, faults=args.faults, wait_for=_ids(args.wait_for),
             ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, run_id=args.run_id, auth=auth,
-            **_timeouts(args),
+            live=live, **_timeouts(args),
         )  # fmt: skip
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc node: {exc}", file=sys.stderr)
@@ -463,7 +468,8 @@ def _timeouts(args: argparse.Namespace) -> dict[str, float]:
 
 def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:
     p.add_argument("--source", default=default, required=default is None,
-                   help="sim:SCENARIO (random, range_bearing), mrclam:PATH or events:PATH")  # fmt: skip
+                   help="sim:SCENARIO (random, range_bearing), mrclam:PATH or events:PATH; swarmloc node also "
+                        "zenoh:SPEC or ros2:SPEC (inputs live, the team from SPEC)")  # fmt: skip
     p.add_argument(
         "--estimator",
         default="expfusion",

@@ -178,6 +178,8 @@ class Broadcasting:
         k = bisect_left(self._group_at, self._i)
         if k < len(self._group_at):
             out = min(out, (self.items[self._group_at[k]][0], 1))
+        if self.feed is not None and not self.feed.exhausted:  # a live feed's groups to come: at its watermark or later
+            out = min(out, (self._feed_w, 1))
         return out
 
     def _expect_revision(self, k: tuple, m: TeamUpdate, now: float) -> None:

@@ -133,13 +133,16 @@ def node_main(
     out: str | os.PathLike[str] | None = None,
     auth: Auth | None = None,
     run_id: str | None = None,
+    live: Any = None,
 ) -> Report:
     """Run robot ``robot`` of ``src`` as one Zenoh peer until the team is done; returns its report. With
     ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there.
 
     The timeouts [s] are :class:`~swarmloc.net.process.NetNode`'s; ``max_wall`` [s] stops the node whatever its
     state (None: no limit). ``auth``: robot ``robot``'s key and the team's roster (None: unauthenticated);
-    ``run_id``: the run's id in every key (:func:`~swarmloc.net.transport.team_scope`)."""
+    ``run_id``: the run's id in every key (:func:`~swarmloc.net.transport.team_scope`). ``live``: read the robot's
+    inputs live, not ``src``'s events: ``live(session, robot, t0) -> (feed, close)``
+    (:func:`swarmloc.live.source.live_inputs`; ``src`` still gives the team, initial beliefs and record times)."""
     from swarmloc.net.process import NetNode
 
     scope = team_scope(team, run_id)
@@ -147,16 +150,19 @@ def node_main(
         raise ValueError(f"robot {robot} is not in source {src.spec!r} (robots {src.robots})")
     _check_roster(auth, src.robots)
     if hosted_class(estimator) is not None:
+        if live is not None:
+            raise ValueError(f"a live source needs a distributed estimator, not the server-hosted {estimator!r}")
         if resume or use_server:
             log.info("robot %s: --resume and --use-server do not apply to a server-hosted estimator", robot)
         return _forward(src, robot, team, listen, connect, zenoh_config, faults, speed, start_timeout, lost_timeout,
                         max_wall, out, auth, run_id)  # fmt: skip
     session = open_session(listen, connect, zenoh_config)
     finals: dict[float, Belief] = {}
+    close_live = None
     try:
         node, events, record_times = _start(session, src, robot, team, estimator, resume, auth, scope)
         faults = parse_faults(faults) if isinstance(faults, str | None) else faults
-        events = faults.jumped(robot, events)  # the jump fault: this robot's clock, not the source, is wrong
+        events, close_live = _inputs(live, session, robot, node, events, faults, resume)
         net = NetNode(
             node,
             events,
@@ -178,7 +184,7 @@ def node_main(
             on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
             auth=auth,
             run_id=run_id,
-            scans=_own_scans(src, robot, events),
+            scans=None if live is not None else _own_scans(src, robot, events),  # live: no recorded scans
         )
         _stop_on_sigterm(net.stop)
         report = net.run(max_wall=max_wall)
@@ -186,7 +192,19 @@ def node_main(
             _write_outputs(Path(out), robot, [finals[t] for t in sorted(finals)], report)
         return report
     finally:
+        if close_live is not None:
+            close_live()
         session.close()
+
+
+def _inputs(live: Any, session: Any, robot: int, node: Any, events: Any, faults: Faults, resume: bool) -> tuple:
+    """``(what the node reads, closer or None)``: the live feed (``live``), or the source's events with the jump
+    fault (this robot's clock, not the source, is wrong)."""
+    if live is None:
+        return faults.jumped(robot, events), None
+    if resume:
+        raise ValueError("a live source cannot resume from the belief server")
+    return live(session, robot, float(node.t0))
 
 
 def _forward(

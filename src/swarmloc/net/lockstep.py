@@ -16,7 +16,6 @@ import time
 from collections import OrderedDict
 from typing import Any
 
-from swarmloc.events import Odometry
 from swarmloc.messages import Message
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.outbound import key_of
@@ -167,11 +166,9 @@ class Lockstep:
 
     def _unsettled(self, qkey: tuple) -> str | None:
         """What may still change the state before ``qkey``, or None."""
-        if self._i < len(self.items):
-            s, item = self.items[self._i]
-            nxt = (s, 2, self.robot, ()) if isinstance(item, Odometry) else (s, 1, self.robot, ())
-            if nxt < qkey:
-                return f"own source at {nxt}"
+        s, prio = self._next_key()  # the key of the next own input (a lower bound of it with a live feed)
+        if (s, prio, self.robot, ()) < qkey:
+            return f"own source at {(s, prio)}"
         early = [k for k in self._expect if k < qkey]
         if early:
             return f"expects updates at {early[:3]}"

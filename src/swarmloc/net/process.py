@@ -61,6 +61,7 @@ from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import Auth
 from swarmloc.net.broadcast import Broadcasting
 from swarmloc.net.faults import Faults
+from swarmloc.net.feed import LiveFeed
 from swarmloc.net.inbound import Inbound
 from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Outbound
@@ -110,6 +111,10 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
     quiet: [s] wall time without traffic that counts as settled at the end.
     linger: [s] wall time at most it keeps answering after it is done, while teammates are not.
     ros_domain: publish beliefs as ROS 2 messages too (rmw_zenoh layout, this domain id).
+    events: the robot's own events, or a :class:`~swarmloc.net.feed.LiveFeed` its inputs are pushed to as they happen
+        (the run ends once the feed has ended and everything in it was read).
+    record_rate: [Hz] with a live feed: record times every ``1 / record_rate`` s from the node's start, added as the
+        inputs come (None: ``record_times`` alone).
     auth: this robot's key and the team's roster (:class:`~swarmloc.net.auth.Auth`): everything it sends is signed,
         everything it receives must be signed by the member it claims to come from (refusals counted
         ``auth_<category>``); None: an unauthenticated team (tests on one machine, a trusted network).
@@ -118,7 +123,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
     def __init__(
         self,
         node: Node,
-        events: Sequence[Event],
+        events: Sequence[Event] | LiveFeed,
         *,
         session: Any,
         team: str,
@@ -141,6 +146,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         auth: Auth | None = None,
         run_id: str | None = None,
         scans: Any = None,
+        record_rate: float | None = None,
     ) -> None:
         if len(node.robots) != 1:
             raise ValueError("NetNode drives a node of one robot (a distributed estimator)")
@@ -151,7 +157,6 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
         self.node = node
         self.robot = node.robots[0]
-        self.items = _groups(events)
         self.session = session
         self.team = team
         self.scope = team_scope(team, run_id)
@@ -193,9 +198,27 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self._init_lockstep()
         self._init_outbound()
         self._init_publishing()
+        self._init_feed(events, record_rate)
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
         self._init_broadcast()
+
+    def _init_feed(self, events: Sequence[Event] | LiveFeed, record_rate: float | None) -> None:
+        """``items`` from a recording, or an empty list that a live feed fills (:meth:`_pull`)."""
+        self.feed = events if isinstance(events, LiveFeed) else None
+        """A live source (:mod:`swarmloc.net.feed`): ``items`` grows as it releases inputs; None: a recording."""
+        self.items = [] if self.feed is not None else _groups(events)
+        self._feed_w = -math.inf  # the feed's watermark at the last take: every input not yet taken is at or after it
+        self._feed_hi = -math.inf  # the latest time an input taken is known at (odometry: its end)
+        self.record_rate = None if record_rate is None else float(record_rate)
+        if self.record_rate is not None and not (math.isfinite(self.record_rate) and self.record_rate > 0):
+            raise ValueError(f"NetNode: record_rate must be > 0 Hz, got {record_rate!r}")
+        if self.feed is not None:
+            if self.node.t0 is None:
+                raise ValueError("NetNode: with a live feed, start the node first (node.start(t0))")
+            self._feed_w = float(self.node.t0)
+            self.speed = 0.0  # a live source is paced by its arrivals
+            self.feed.on_push = lambda: self._inq.put(("wake", None))
 
     def stop(self) -> None:
         """Ask :meth:`run` to finish (from another thread or a signal handler)."""
@@ -247,12 +270,16 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
                         sorted(missing), time.monotonic() - t0)  # fmt: skip
 
     def _main(self, deadline: float) -> None:
-        items, n, i = self.items, len(self.items), 0
+        items, i = self.items, 0
         t_start = items[0][0] if items else 0.0
         w0 = time.monotonic()
-        while i < n and not self._stop.is_set():
+        while not self._stop.is_set():
+            if self.feed is not None:
+                self._pull()
+            if i >= len(items) and (self.feed is None or self.feed.exhausted):
+                break
             if time.monotonic() > deadline:
-                log.warning("robot %s: wall-time limit reached at %d/%d inputs", self.robot, i, n)
+                log.warning("robot %s: wall-time limit reached at %d/%d inputs", self.robot, i, len(items))
                 self._stop.set()
                 break
             self._drain(0)
@@ -261,6 +288,10 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             self._flush()
             self._status()
             wait = self._run_timers()
+            if i >= len(items):  # a live feed with nothing released yet: tell the team how far it is, wait
+                self._publish_progress(self._feed_w)
+                self._drain(min(wait, 0.02))
+                continue
             s, item = items[i]
             if self.speed > 0:
                 due = w0 + (s - t_start) / self.speed - time.monotonic()
@@ -278,12 +309,30 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             i += 1
             self._i = i
             self._answer_ready()
-            nxt = items[i][0] if i < n else math.inf
+            nxt = items[i][0] if i < len(items) else self._feed_w if self.feed is not None else math.inf
             self._publish_progress(nxt)
             self._publish_due()
-        self._i = n
+        self._i = len(items)
         self._answer_ready()
         self._publish_progress(math.inf, force=True)
+
+    def _pull(self) -> None:
+        """Take what the live feed released: append it to ``items`` (grouped), extend the record times."""
+        new, w = self.feed.take()
+        self._feed_w = max(self._feed_w, w)
+        if not new:
+            return
+        base, groups = len(self.items), _groups(new)
+        self.items.extend(groups)
+        self._group_at.extend(base + k for k, (_, item) in enumerate(groups) if isinstance(item, list))
+        for e in new:
+            self._feed_hi = max(self._feed_hi, float(e.t))
+        if self.record_rate is not None:
+            rt, t0 = self.record_times, self.node.t0
+            k0 = rt.size
+            k1 = math.floor((self._feed_hi - t0) * self.record_rate + 1e-9) + 1
+            if k1 > k0:
+                self.record_times = np.concatenate([rt, t0 + np.arange(k0, k1) / self.record_rate])
 
     def _status(self) -> None:
         now = time.monotonic()

@@ -41,8 +41,11 @@ class Publishing:
         self._scan_i = 0  # scans whose lines are published (or had none)
 
     def _next_key(self) -> tuple[float, int]:
-        """``(stamp, priority)`` of the node's next input (a detection group 1, odometry 2; ``(inf, 3)``: none left)."""
+        """``(stamp, priority)`` of the node's next input (a detection group 1, odometry 2; ``(inf, 3)``: none left).
+        With a live feed and nothing read yet, a lower bound of it: ``(watermark, 1)``."""
         if self._i >= len(self.items):
+            if self.feed is not None and not self.feed.exhausted:
+                return (self._feed_w, 1)
             return (math.inf, 3)
         s, item = self.items[self._i]
         return (s, 2 if isinstance(item, Odometry) else 1)

@@ -54,9 +54,9 @@ rmw_zenoh derives the gid from an XXH3-128 hash of the publisher's liveliness to
 unique per publisher serve subscribers (they only report it in ``rmw_message_info_t``). Older rmw_zenoh_cpp
 releases used other attachment encodings (zenoh-c 0.11 key/value pairs; an interim one with string keys).
 
-Not implemented here: the liveliness tokens (``@ros2_lv/<domain>/<zid>/<nid>/<id>/MP/<enclave>/<ns>/<node>/
-<topic>/<type>/<hash>/<qos>``) that make the publisher appear in ``ros2 topic list``/``ros2 node list``; a ROS
-subscriber receives the data without them, but QoS matching events and graph queries will not see us.
+The liveliness tokens (``@ros2_lv/<domain>/<zid>/<nid>/<id>/MP/<enclave>/<ns>/<node>/<topic>/<type>/<hash>/<qos>``)
+that make the publisher appear in ``ros2 topic list``/``ros2 node list`` are :mod:`swarmloc.net.rosgraph`'s; a
+node publishing with ``ros_domain`` declares them.
 """
 
 from __future__ import annotations

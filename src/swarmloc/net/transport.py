@@ -17,6 +17,7 @@ Key expressions (``<team>`` is the team's name; one run of a team launched by ``
     swarmloc/<team>/robot/<id>/report     publisher: the node's counters when it stops
     swarmloc/<team>/alive/<id>            liveliness token of a running node
     swarmloc/<team>/robot/<id>/raw        publisher: raw measurements forwarded to a server-hosted estimator
+    swarmloc/<team>/input/<id>/<what>     a robot's live inputs (odom, det, progress: :mod:`swarmloc.live.zenoh_input`)
     swarmloc/<team>/server/query          queryable of the belief server
     swarmloc/<team>/server/belief         publisher: the beliefs of a server-hosted centralized estimator
     swarmloc/<team>/server/report         publisher: the server's report (hosted estimator)

@@ -3,7 +3,8 @@
 Everything received is put on the node's one queue (``_inq``) as ``(kind, sample)`` and handled on the node's
 thread (:mod:`swarmloc.net.inbound`): queries on ``robot/<id>/query``, pushed messages on ``robot/<id>/inbox``,
 every teammate's ``progress``, and liveliness changes under ``alive``. It publishes its ``belief`` and
-``progress`` (and, with ``ros_domain``, a ROS 2 pose topic in rmw_zenoh's layout), and holds its liveliness token.
+``progress`` (and, with ``ros_domain``, a ROS 2 pose topic in rmw_zenoh's layout, with the node's and the publisher's
+rmw_zenoh liveliness tokens: :mod:`swarmloc.net.rosgraph`), and holds its liveliness token.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ class Wiring:
         self._decl: list[Any] = []
         self._block: Any = None  # zenoh.CongestionControl.BLOCK once opened (zenoh is imported lazily)
         self._ros_pub: Any = None
+        self._ros_graph: Any = None
 
     def _open(self) -> None:
         """Declare the node's queryable, subscribers, publishers and liveliness token on its session."""
@@ -64,6 +66,10 @@ class Wiring:
             self._ros_pub = s.declare_publisher(key, congestion_control=self._block)
             self._ros_gid = hashlib.blake2b(key.encode(), digest_size=16).digest()
             self._ros_seq = 0
+            from swarmloc.net.rosgraph import RosGraph  # in the ROS graph: ros2 node list / topic list see it
+
+            self._ros_graph = RosGraph(s, self.ros_domain, f"/swarmloc/{self.team.replace('-', '_')}", f"robot{r}")
+            self._ros_graph.publisher(self.ros_topic, ros.DDS_TYPE_NAME, ros.type_hash())
         self._token = s.liveliness().declare_token(alive_key(team, r))
 
     def _close(self) -> None:
@@ -75,3 +81,5 @@ class Wiring:
                 except Exception:  # noqa: BLE001 - closing: nothing left to do about it
                     pass
         self._decl.clear()
+        if self._ros_graph is not None:
+            self._ros_graph.close()
