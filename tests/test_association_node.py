@@ -235,3 +235,29 @@ def test_distributed_association_over_zenoh_equals_the_in_process_run():
         assert n.node.stats()["pending"] == 0
         exp = ref.tracks[n.robot]
         np.testing.assert_allclose(SE2.to_xytheta(n.node.belief_at(t).mean), exp.mean[-1], atol=1e-6)
+
+
+@pytest.mark.parametrize("est", ["dekf", "cekf"])
+def test_a_team_of_processes_with_association_equals_the_in_process_run(est):
+    """``swarmloc team --association nearest``: every node process (and, for cekf, the server hosting it) hides the
+    robot ids of the same source and associates; the collected beliefs equal the in-process run of the same hidden
+    events to 1e-6, the ids were hidden (every detection went through association) and no process is left."""
+    import os
+
+    from test_net import leftovers, max_diff
+
+    from swarmloc.experiments.association import with_association
+    from swarmloc.experiments.team import run_team, team_result
+
+    src = with_association(load_source("sim:random", robots=3, duration=10.0, seed=4), "nearest")
+    assert all(d.target is None for d in src.events if getattr(d, "target_is_robot", False) and d.kind != "absolute")
+    ref = _run(src, src.events, est)
+    assert ref.stats["association_associated"] > 20
+    team = f"assocteam{est}{os.getpid()}"
+    tr = run_team(src=src, source="sim:random", robots=3, duration=10.0, seed=4, estimator=est, team=team,
+                  association="nearest", max_wall=120)  # fmt: skip
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, est)
+    assert max_diff(res, ref) <= 1e-6
+    assert res.stats["association_associated"] == ref.stats["association_associated"]

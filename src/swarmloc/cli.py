@@ -229,6 +229,7 @@ def _die_with_launcher(args: argparse.Namespace) -> None:
 def _node(args: argparse.Namespace) -> int:
     _die_with_launcher(args)
     from swarmloc.config import ConfigError
+    from swarmloc.experiments.association import with_association
     from swarmloc.experiments.sources import load_source
     from swarmloc.live.source import live_inputs, split_live
     from swarmloc.net.entry import node_main
@@ -241,6 +242,7 @@ def _node(args: argparse.Namespace) -> int:
         config = _config(args) if args.config else None
         live_kind, spec = split_live(args.source)
         src = load_source(spec, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
+        src = with_association(src, args.association)
         live = None
         if live_kind is not None:
             live = live_inputs(live_kind, team=args.team, run_id=args.run_id, domain=args.ros_domain or 0)
@@ -297,6 +299,9 @@ def _server(args: argparse.Namespace) -> int:
                 raise ValueError("--estimator needs --source (the team's initial beliefs and configuration)")
             config = _config(args) if args.config else None
             src = load_source(args.source, robots=len(robots), duration=args.duration, seed=args.seed, config=config)
+            from swarmloc.experiments.association import with_association
+
+            src = with_association(src, args.association)
         server_main(
             team=args.team, roster=[int(r) for r in robots], listen=_endpoints(args.listen),
             connect=_endpoints(args.connect), zenoh_config=args.zenoh_config, max_wall=args.max_wall, auth=auth,
@@ -311,6 +316,7 @@ def _server(args: argparse.Namespace) -> int:
 
 def _team(args: argparse.Namespace) -> int:
     from swarmloc.config import ConfigError
+    from swarmloc.experiments.association import with_association
     from swarmloc.experiments.evaluate import markdown_table
     from swarmloc.experiments.sources import load_source
     from swarmloc.experiments.team import run_team, write_team_report
@@ -326,6 +332,7 @@ def _team(args: argparse.Namespace) -> int:
     try:
         config = _config(args) if args.config else None
         src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
+        src = with_association(src, args.association)
         if args.view is not None or args.record:
             from swarmloc.net.view import TeamView
 
@@ -337,6 +344,7 @@ def _team(args: argparse.Namespace) -> int:
             src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
             seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
             lag=args.lag, max_wall=args.max_wall, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
+            association=src.config.filter.association,
             team=args.team, verbose=args.verbose, connect_extra=_endpoints(args.connect), view=view,
             **_timeouts(args),
         )  # fmt: skip
@@ -484,6 +492,8 @@ def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:
     p.add_argument("--lag", type=float, default=0.5, help="lockstep slack in seconds of data time")
     p.add_argument("--faults", default=None, help="loss=P,delay=S,reorder=P,dup=P,kill=R@T,late=R@T,seed=N")
     p.add_argument("--ros-domain", type=int, default=None, help="also publish ROS 2 poses (rmw_zenoh, this domain)")
+    p.add_argument("--association", choices=ASSOCIATION_CHOICES, default=None,
+                   help=ASSOCIATION_HELP + " (default: the configuration's [filter] association)")  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -572,6 +582,8 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--config", default=None, help="with --estimator: TOML file of model and filter settings")
     sv.add_argument("--duration", type=float, default=None, help="with --estimator: seconds of the source")
     sv.add_argument("--seed", type=int, default=0, help="with --estimator, sim: seed")
+    sv.add_argument("--association", choices=ASSOCIATION_CHOICES, default=None,
+                    help="with --estimator: " + ASSOCIATION_HELP)  # fmt: skip
     sv.add_argument(
         "--start-timeout",
         type=float,

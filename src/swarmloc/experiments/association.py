@@ -18,17 +18,19 @@ refused as clutter or ambiguous counts as right), from a run's counters.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from swarmloc.association.tracker import bank_detections
+from swarmloc.datasets.source import Source
 from swarmloc.events import Detection, Event
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sim.anonymous import anonymize
 
-__all__ = ["POLICIES", "association_accuracy", "association_events"]
+__all__ = ["POLICIES", "association_accuracy", "association_events", "with_association"]
 
 POLICIES = ("tags", "nearest", "joint", "anonymous")
 
@@ -81,3 +83,18 @@ def association_accuracy(stats: Mapping[str, int]) -> float | None:
     """``right / (right + wrong)`` of a run's association counters; None when no detection was scored."""
     right, wrong = int(stats.get("association_right", 0)), int(stats.get("association_wrong", 0))
     return right / (right + wrong) if right + wrong else None
+
+
+def with_association(src: Source, policy: str | None = None) -> Source:
+    """``src`` as a team with the association ``policy`` (None: its configuration's ``[filter] association``) sees
+    it: for every policy but ``tags`` the robot ids hidden (no clutter, no misses added), the configuration's policy
+    set. What ``swarmloc node`` / ``team`` / ``server`` do with ``--association``: every process of a team applies it
+    to the same source, so they all see the same events."""
+    policy = src.config.filter.association if policy is None else policy
+    if policy not in POLICIES:
+        raise ValueError(f"association must be one of {POLICIES}, got {policy!r}")
+    config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
+    if policy == "tags":
+        return dataclasses.replace(src, config=config)
+    events, _ = association_events(src.events, policy, src.robots, config.motion.noise())
+    return dataclasses.replace(src, events=events, config=config)

@@ -112,6 +112,7 @@ def launch_team(
     faults: str | None = None,
     speed: float = 0.0,
     lag: float = 0.5,
+    association: str = "tags",
     answer_timeout: float = ANSWER_TIMEOUT,
     hold_timeout: float = HOLD_TIMEOUT,
     update_timeout: float = UPDATE_TIMEOUT,
@@ -153,6 +154,7 @@ def launch_team(
         seed=seed, config_file=config_file, speed=speed, lag=lag, answer_timeout=answer_timeout,
         hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout,
         lost_timeout=lost_timeout, use_server=server, faults=f, ros_domain=ros_domain, verbose=verbose,
+        association=association,
     )  # fmt: skip
     server_args = server_arguments(node_args) if hosted else []
     keys = TeamKeys(src.robots, keys_dir)
@@ -184,6 +186,7 @@ def node_arguments(
     ros_domain: int | None,
     verbose: bool,
     lost_timeout: float = LOST_TIMEOUT,
+    association: str = "tags",
 ) -> list[str]:
     """The ``swarmloc node`` options every node process of a team gets (the link faults only; a node's own
     ``--robot``, ``--wait-for``, endpoints and ``--resume`` are the launcher's)."""
@@ -195,6 +198,8 @@ def node_arguments(
         out += ["--duration", str(duration)]
     if config_file:
         out += ["--config", str(config_file)]
+    if association != "tags":  # the ids hidden in every process alike (swarmloc.experiments.association)
+        out += ["--association", association]
     if use_server:
         out.append("--use-server")
     f = faults
@@ -210,7 +215,8 @@ def node_arguments(
 def server_arguments(node_args: Sequence[str]) -> list[str]:
     """The options of ``swarmloc server`` that host the team's estimator, taken from the nodes' (the source, the
     estimator, and the waits for the robots)."""
-    keep = ("--source", "--estimator", "--seed", "--duration", "--config", "--start-timeout", "--lost-timeout")
+    keep = ("--source", "--estimator", "--seed", "--duration", "--config", "--start-timeout", "--lost-timeout",
+            "--association")  # fmt: skip
     return [x for i, a in enumerate(node_args) if a in keep for x in node_args[i : i + 2]]
 
 
