@@ -10,6 +10,7 @@ import time
 import numpy as np
 
 from swarmloc.experiments.sources import load_source
+from swarmloc.live.zenoh_input import wait_matched_all
 from swarmloc.mapping import LineMap, map_error
 from swarmloc.net.auth import TeamKeys, open_envelope, seal
 from swarmloc.net.schema import MAX_LINES, SERVER, Lines, MapAnswer, Rejected, decode, encode
@@ -96,17 +97,19 @@ def test_server_refuses_malformed_and_forged_lines_and_answers_the_map(tmp_path)
                 seal(signed[0], k0, encode("mapt", 0, 2, Lines(robot=0, stamp=4.0, lines=(LINE,) * (MAX_LINES + 1)))),
             ),  # fmt: skip
         ]
+        pub = c.declare_publisher(k0)  # put only once the server's subscriber is reachable (else lost under load)
+        assert wait_matched_all([pub], 10.0), "the server's line subscriber never matched"
         for _, payload in bad:
-            c.put(k0, payload)
+            pub.put(payload)
         assert _until(lambda: sp.counts["rejected"] >= len(bad), th), (sp.counts, sp.reasons)
         assert sp.counts["auth_unsigned"] == 1 and sp.counts["auth_not_owner"] == 1
         assert any("line 0: a line must be 9 finite numbers" in r for r in sp.reasons)
         assert any("not positive definite" in r for r in sp.reasons)
         assert any("malformed" in r and "length" in r for r in sp.reasons), sp.reasons
         assert sp.maps.messages == 0 and not sp.maps.current().lines
-        c.put(k0, seal(signed[0], k0, encode("mapt", 0, 3, good)))
+        pub.put(seal(signed[0], k0, encode("mapt", 0, 3, good)))
         assert _until(lambda: sp.maps.messages == 1, th)
-        c.put(k0, seal(signed[0], k0, encode("mapt", 0, 4, good)))  # the same (robot, stamp) again
+        pub.put(seal(signed[0], k0, encode("mapt", 0, 4, good)))  # the same (robot, stamp) again
         assert _until(lambda: sp.maps.counts["lines_duplicate"] == 1, th)
         answer = None
         for reply in c.get(f"{server_key('mapt')}?map", timeout=5.0):

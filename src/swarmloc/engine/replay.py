@@ -68,6 +68,9 @@ def run_engine(
     opts = {**node_options(estimator, src.config, src.landmarks), **options}
     for clock_only in ("tolerance", "jump_inputs"):  # the engine replays a checked log: no clock contract to keep
         opts.pop(clock_only, None)
+    opts.pop("association_gate", None)
+    if opts.pop("association", "tags") != "tags":
+        raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
     robots = src.robots
     col = {r: i for i, r in enumerate(robots)}
     checked = _Checked(col, bool(src.landmarks))
