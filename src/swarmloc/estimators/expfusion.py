@@ -243,7 +243,9 @@ class ExpFusion(RobotNode):
                 points.append((i, d, target))
                 continue
             G = self.group
-            verdict = None if self.gate.p is None else self._gated(float(K.pseudo_nis(G, s.mean, s.cov, *pseudo)), G.dim)
+            verdict = (
+                None if self.gate.p is None else self._gated(float(K.pseudo_nis(G, s.mean, s.cov, *pseudo)), G.dim)
+            )
             if verdict is not None:
                 outcomes[i] = verdict
                 continue

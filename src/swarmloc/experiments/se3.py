@@ -90,7 +90,8 @@ def se3_table(
 def se3_markdown(table: dict[str, Any]) -> str:
     """The table of :func:`se3_table` in Markdown."""
     lines = [
-        "| scenario | estimator | pos RMSE [m] | rot RMSE [deg] | ANEES/dof (mean over seeds) | min - max | seeds in [0.5, 2] |",
+        "| scenario | estimator | pos RMSE [m] | rot RMSE [deg] | ANEES/dof (mean over seeds) | min - max "
+        "| seeds in [0.5, 2] |",
         "|---|---|---|---|---|---|---|",
     ]
     for v in table["summary"].values():

@@ -24,7 +24,7 @@ def check_model(where: str, initial: Mapping[int, Any], noise: object, groups: t
     """Every initial belief is one :class:`GroupGaussian` on a group of ``groups`` (default SE(2) only), all on
     the same group, and ``noise`` a :class:`UnicycleNoise` (SE(2)) or a
     :class:`~swarmloc.motion.twist3.TwistNoise` (SE(3))."""
-    names = " or ".join(g.name for g in groups)
+    names = "SE(2)" if groups == (SE2,) else "SE(2) GroupGaussian or an SE(3)"
     for r, b in initial.items():
         if not isinstance(b, GroupGaussian) or b.group not in groups or b.batch_shape:
             raise ValueError(f"{where}: initial belief of robot {r} must be one {names} GroupGaussian, got {b!r}")
