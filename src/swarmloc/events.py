@@ -11,12 +11,15 @@ from typing import Literal
 
 import numpy as np
 
-MeasurementKind = Literal["pose", "range_bearing", "range", "bearing", "absolute"]
+MeasurementKind = Literal["pose", "range_bearing", "range", "bearing", "absolute", "pose3"]
 
 
 @dataclass(frozen=True, slots=True)
 class Odometry:
-    """Body-frame forward speed ``v`` [m/s] and yaw rate ``w`` [rad/s], held constant over ``[t0, t1]``."""
+    """Body-frame forward speed ``v`` [m/s] and yaw rate ``w`` [rad/s], held constant over ``[t0, t1]``.
+
+    A 3-D robot (SE(3) team) carries its body twist instead: ``v`` the linear velocity ``(vx, vy, vz)`` and ``w``
+    the angular velocity ``(wx, wy, wz)``, tuples of 3 floats (:func:`twist_odometry`)."""
 
     robot: int
     t0: float
@@ -39,6 +42,14 @@ class Odometry:
         return self.t1 - self.t0
 
 
+def twist_odometry(robot: int, t0: float, t1: float, twist: object) -> Odometry:
+    """Odometry of a 3-D robot: body twist ``(v1, v2, v3, w1, w2, w3)`` [m/s, rad/s] held over ``[t0, t1]``."""
+    h = [float(x) for x in np.asarray(twist, dtype=float).ravel()]
+    if len(h) != 6:
+        raise ValueError(f"twist_odometry: 'twist' must have 6 components, got {len(h)}")
+    return Odometry(robot, float(t0), float(t1), tuple(h[:3]), tuple(h[3:]))  # type: ignore[arg-type]
+
+
 @dataclass(frozen=True, slots=True)
 class Detection:
     """One exteroceptive measurement taken by ``observer`` at time ``t``.
@@ -48,7 +59,10 @@ class Detection:
     * ``"pose"``: relative pose of the target in the observer's frame, ``z = (x, y, theta)``;
     * ``"range_bearing"``: ``z = (range [m], bearing [rad])``;
     * ``"range"``: ``z = (range,)``; ``"bearing"``: ``z = (bearing,)``;
-    * ``"absolute"``: the observer's own world pose ``z = (x, y, theta)`` (GPS-like fix, ``target`` is None).
+    * ``"absolute"``: the observer's own world pose ``z = (x, y, theta)`` (GPS-like fix, ``target`` is None);
+    * ``"pose3"`` (3-D teams): relative pose of the target in the observer's frame, ``z = (x, y, z, rx, ry, rz)``:
+      translation [m] and rotation vector [rad] (``R = exp(r^)``); ``cov`` ``(6, 6)`` of the SE(3) exponential
+      coordinates of ``m_true^-1 m_measured`` (translation first).
 
     ``target`` is a robot id when ``target_is_robot`` else a landmark id; None for an *anonymous* robot detection
     (a robot was seen, which one is not known): an estimator gives it an identity only with an association policy
@@ -79,7 +93,8 @@ class Detection:
 
 @dataclass(frozen=True, slots=True)
 class Truth:
-    """Ground-truth world pose ``(x, y, theta)`` of ``robot`` at time ``t``."""
+    """Ground-truth world pose ``(x, y, theta)`` of ``robot`` at time ``t`` (3-D teams: ``(x, y, z, qx, qy, qz,
+    qw)``, the TUM order, unit quaternion)."""
 
     robot: int
     t: float

@@ -76,11 +76,13 @@ class BeliefAnswer(Message, frozen=True, kw_only=True, tag="belief_answer"):
         return self.receiver
 
     def belief(self) -> GroupGaussian:
-        """The answered belief as an SE(2) :class:`GroupGaussian` (not validated)."""
+        """The answered belief as an SE(2) or SE(3) :class:`GroupGaussian` (not validated)."""
         return GroupGaussian(self.group, *self.belief_arrays(), validate=False)
 
     def belief_arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """The answered mean ``(3, 3)`` and covariance ``(3, 3)`` as arrays."""
+        """The answered mean ``(3, 3)`` and covariance ``(3, 3)`` as arrays (SE(3): ``(4, 4)`` and ``(6, 6)``)."""
+        if self.group == "SE3":
+            return np.reshape(np.array(self.mean), (4, 4)), np.reshape(np.array(self.cov), (6, 6))
         return np.reshape(np.array(self.mean), (3, 3)), np.reshape(np.array(self.cov), (3, 3))
 
 
@@ -179,6 +181,25 @@ def _se2(m: tuple) -> bool:
     )  # fmt: skip
 
 
+def _se3_belief_problem(name: str, mean: tuple, cov: tuple) -> str | None:
+    """Why an SE(3) belief (16 row-major numbers of a ``4 x 4`` pose, 36 of a ``6 x 6`` covariance) is unusable."""
+    if not (_finite(mean, 16) and _finite(cov, 36)):
+        return f"{name}: an SE3 mean and cov must be 16 and 36 finite numbers"
+    g = np.reshape(np.array(mean, dtype=float), (4, 4))
+    R = g[:3, :3]
+    if not (np.array_equal(g[3], [0.0, 0.0, 0.0, 1.0]) and np.abs(R.T @ R - np.eye(3)).max() <= 1e-6
+            and np.linalg.det(R) > 0):  # fmt: skip
+        return f"{name}: mean is not in SE(3)"
+    C = np.reshape(np.array(cov, dtype=float), (6, 6))
+    if np.abs(C - C.T).max() > 1e-9 * max(1.0, float(np.abs(C).max())):
+        return f"{name}: cov is not symmetric positive definite"
+    try:
+        np.linalg.cholesky(C)
+    except np.linalg.LinAlgError:
+        return f"{name}: cov is not symmetric positive definite"
+    return None
+
+
 def message_problem(m: Message) -> str | None:
     """Why a received message cannot be used, or None: ids not integers, a non-finite stamp or sub-key, and for
     answers and updates the shape, finiteness, SE(2) membership and positive definiteness of their numbers."""
@@ -194,8 +215,10 @@ def message_problem(m: Message) -> str | None:
     if isinstance(m, BeliefAnswer):
         if not m.found:
             return None
+        if m.group == "SE3":
+            return _se3_belief_problem(name, m.mean, m.cov)
         if m.group != "SE2":
-            return f"{name}: group {m.group!r} is not supported (SE2)"
+            return f"{name}: group {m.group!r} is not supported (SE2, SE3)"
         if not (_finite(m.mean, 9) and _finite(m.cov, 9)):
             return f"{name}: mean and cov must be 9 finite numbers each"
         if not _se2(m.mean):

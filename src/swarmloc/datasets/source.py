@@ -38,6 +38,11 @@ class Source:
     truth: TruthFn | None
     config: Config
     scans: Mapping[int, ScanSeries] | None = None
+    noise: Any = None
+    """The process noise the nodes take when it is not ``config.motion``'s (an SE(3) team's
+    :class:`~swarmloc.motion.twist3.TwistNoise`), or None."""
+    truth_events: list[Event] | None = None
+    """The simulation's ``Truth`` events (3-D teams), for recording at the simulator's truth instants; or None."""
 
     @property
     def robots(self) -> list[int]:

@@ -17,6 +17,9 @@ positions with nine decimals (``%.9f``), the quaternion with twelve (``%.12f``: 
 pose that is not planar: ``|z| > PLANAR_TOL_Z`` metres or a tilt (combined roll and pitch, the angle between the
 body and world z axes) above ``PLANAR_TOL_TILT`` radians.
 
+3-D teams (SE(3)) write full poses with :func:`write_tum3` (``(x, y, z, qx, qy, qz, qw)`` rows, :func:`pose7`
+converts a ``4 x 4`` pose; the quaternion's sign is chosen with ``qw >= 0``).
+
 Every problem raises :class:`TUMError` (a ``ValueError``) naming the file and, for bad lines, every bad line
 number with its content.
 """
@@ -29,7 +32,18 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["PLANAR_TOL_TILT", "PLANAR_TOL_Z", "QUAT_NORM_TOL", "TUMError", "interpolate", "read_tum", "write_tum"]
+__all__ = [
+    "PLANAR_TOL_TILT",
+    "PLANAR_TOL_Z",
+    "QUAT_NORM_TOL",
+    "TUMError",
+    "interpolate",
+    "pose7",
+    "pose_from7",
+    "read_tum",
+    "write_tum",
+    "write_tum3",
+]
 
 PLANAR_TOL_Z = 1e-6
 """Largest ``|z|`` [m] of a planar pose."""
@@ -176,4 +190,45 @@ def interpolate(times: np.ndarray, xytheta: np.ndarray, query: np.ndarray | floa
     out[:, 1] = np.interp(tq, times, xytheta[:, 1])
     th = np.interp(tq, times, np.unwrap(xytheta[:, 2]))
     out[:, 2] = np.pi - np.mod(np.pi - th, 2 * np.pi)
+    return out
+
+
+def pose7(g: np.ndarray) -> np.ndarray:
+    """SE(3) pose(s) ``(..., 4, 4)`` -> ``(..., 7)`` ``(x, y, z, qx, qy, qz, qw)`` (unit quaternion, ``qw >= 0``)."""
+    from scipy.spatial.transform import Rotation
+
+    g = np.asarray(g, dtype=float)
+    q = Rotation.from_matrix(g[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(*g.shape[:-2], 4)
+    q = np.where(q[..., 3:] < 0, -q, q)
+    return np.concatenate([g[..., :3, 3], q], axis=-1)
+
+
+def pose_from7(p: np.ndarray) -> np.ndarray:
+    """``(..., 7)`` ``(x, y, z, qx, qy, qz, qw)`` -> SE(3) pose(s) ``(..., 4, 4)`` (the quaternion is normalized)."""
+    from scipy.spatial.transform import Rotation
+
+    p = np.asarray(p, dtype=float)
+    R = Rotation.from_quat(p[..., 3:].reshape(-1, 4)).as_matrix().reshape(*p.shape[:-1], 3, 3)
+    g = np.zeros((*p.shape[:-1], 4, 4))
+    g[..., :3, :3] = R
+    g[..., :3, 3] = p[..., :3]
+    g[..., 3, 3] = 1.0
+    return g
+
+
+def write_tum3(path: str | os.PathLike[str], times: np.ndarray, poses: np.ndarray) -> Path:
+    """Write a 3-D trajectory as a TUM file: ``times (N,)`` [s] strictly increasing, ``poses (N, 7)``
+    ``(x, y, z, qx, qy, qz, qw)`` or ``(N, 4, 4)``. Returns the path written (what ``evo_ape tum`` reads)."""
+    t = np.asarray(times, dtype=float)
+    P = np.asarray(poses, dtype=float)
+    if P.ndim == 3 and P.shape[1:] == (4, 4):
+        P = pose7(P)
+    if t.ndim != 1 or P.shape != (t.size, 7):
+        raise ValueError(f"write_tum3: want times (N,) and poses (N, 7) or (N, 4, 4), got {t.shape} and {P.shape}")
+    if not (np.isfinite(t).all() and np.isfinite(P).all()):
+        raise ValueError("write_tum3: 'times' and 'poses' must be finite")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("write_tum3: 'times' must be strictly increasing")
+    out = Path(path)
+    np.savetxt(out, np.column_stack([t, P]), fmt=["%.9f"] * 4 + ["%.12f"] * 4, header=HEADER, comments="# ")
     return out

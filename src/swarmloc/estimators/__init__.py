@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 from swarmloc.estimators.cekf import CentralizedEKF
 from swarmloc.estimators.ci import ExpCI
 from swarmloc.estimators.dekf import DistributedEKF
+from swarmloc.estimators.dekf3 import DistributedEKF3
 from swarmloc.estimators.diekf import DistributedInvariantEKF
 from swarmloc.estimators.dr import DeadReckoning
 from swarmloc.estimators.expfusion import ExpFusion
@@ -36,6 +37,7 @@ from swarmloc.estimators.irdl import InvariantRDL
 from swarmloc.estimators.mcl import MonteCarloLocalization
 from swarmloc.estimators.rdl import RecursiveDecentralized
 from swarmloc.gaussian import GroupGaussian
+from swarmloc.lie import SE3
 from swarmloc.node import DEFAULT_HORIZON, Node, RobotNode
 
 if TYPE_CHECKING:
@@ -56,6 +58,31 @@ ESTIMATORS: dict[str, type[Node]] = {
     "fls": FixedLagSmoother,
 }
 """Node classes by their command-line name."""
+
+ESTIMATORS_SE3: dict[str, type[Node]] = {
+    "dr": DeadReckoning,
+    "expfusion": ExpFusion,
+    "dekf": DistributedEKF3,
+    "ci": ExpCI,
+}
+"""The estimators with an SE(3) form (3-D teams), by name: :func:`make_team` picks from this table when the initial
+beliefs are on SE(3). ``dr``, ``expfusion`` and ``ci`` are the planar classes on the SE(3) kernels; ``dekf`` is
+:class:`~swarmloc.estimators.dekf3.DistributedEKF3`."""
+
+
+def estimator_class(estimator: str | type[Node], initial: Mapping[int, GroupGaussian] | None = None) -> type[Node]:
+    """The node class of ``estimator`` for a team with these initial beliefs (SE(3) beliefs: :data:`ESTIMATORS_SE3`);
+    ValueError for an unknown name or one without an SE(3) form."""
+    if not isinstance(estimator, str):
+        return estimator
+    se3 = initial is not None and any(b.group is SE3 for b in initial.values())
+    table = ESTIMATORS_SE3 if se3 else ESTIMATORS
+    cls = table.get(estimator)
+    if cls is None:
+        if se3 and estimator in ESTIMATORS:
+            raise ValueError(f"estimator {estimator!r} has no SE(3) form; for a 3-D team choose from {sorted(table)}")
+        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(table)}")
+    return cls
 
 
 def accepted_options(cls: type[Node]) -> set[str]:
@@ -78,9 +105,7 @@ def make_team(estimator: str | type[Node], initial: Mapping[int, GroupGaussian],
     ``options``: keyword arguments of the class (``noise`` is required). An option the class does not take raises
     TypeError naming it (use :func:`options_for` to pick a common configuration's options per class).
     """
-    cls = ESTIMATORS.get(estimator) if isinstance(estimator, str) else estimator
-    if cls is None:
-        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(ESTIMATORS)}")
+    cls = estimator_class(estimator, initial)
     extra = set(options) - accepted_options(cls)
     if extra:
         raise TypeError(
@@ -127,9 +152,11 @@ def node_options(
 __all__ = [
     "DEFAULT_HORIZON",
     "ESTIMATORS",
+    "ESTIMATORS_SE3",
     "CentralizedEKF",
     "DeadReckoning",
     "DistributedEKF",
+    "DistributedEKF3",
     "DistributedInvariantEKF",
     "ExpCI",
     "ExpFusion",
@@ -142,6 +169,7 @@ __all__ = [
     "RecursiveDecentralized",
     "RobotNode",
     "accepted_options",
+    "estimator_class",
     "make_team",
     "node_options",
     "options_for",

@@ -22,9 +22,10 @@ import numpy as np
 from swarmloc.estimators.expfusion import DEGENERATE, NUMERICAL, ExpFusion, ExpState
 from swarmloc.kernels import group as K
 from swarmloc.kernels.ci import ci_search, point_weight, pose_weight
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
 from swarmloc.node import FUSED, Group, Outcome, usable_covariance
+from swarmloc.sensors.models3 import pose3_matrix
 
 
 class ExpCI(ExpFusion):
@@ -56,12 +57,15 @@ class ExpCI(ExpFusion):
         """Absolute fixes and landmarks: the usual (thesis / point) update."""
         pseudo = self._pseudo(d, target)
         if pseudo is None:
+            if self.group is SE3:
+                return ("rejected", f"kind {d.kind!r} is not supported on {self.group.name}")
             return self._point(mean, cov, d, target)
+        G = self.group
         if self.gate.p is not None:
-            verdict = self._gated(float(K.pseudo_nis(SE2, mean, cov, *pseudo)), 3)
+            verdict = self._gated(float(K.pseudo_nis(G, mean, cov, *pseudo)), G.dim)
             if verdict is not None:
                 return verdict
-        m2, c2 = K.fuse_pseudo(SE2, mean, cov, pseudo[0][None], pseudo[1][None], self.order, self.iterations)
+        m2, c2 = K.fuse_pseudo(G, mean, cov, pseudo[0][None], pseudo[1][None], self.order, self.iterations)
         if not (np.isfinite(m2).all() and usable_covariance(c2)):
             return ("rejected", NUMERICAL)
         return m2, c2
@@ -72,6 +76,8 @@ class ExpCI(ExpFusion):
         nb_mean, nb_cov = target[1].belief_arrays()
         R = np.asarray(d.cov, dtype=float)
         order, its = self.order, self.iterations
+        if self.group is SE3 or d.kind == "pose3":
+            return self._ci3(mean, cov, d, nb_mean, nb_cov, R)
         if d.kind == "pose":
             m = SE2.from_xytheta(d.z)
             if self.gate.p is not None:
@@ -101,6 +107,26 @@ class ExpCI(ExpFusion):
                 return ("rejected", DEGENERATE)
         if not (np.isfinite(m2).all() and usable_covariance(c2)):
             return ("rejected", DEGENERATE if d.kind != "pose" else NUMERICAL)
+        return m2, c2
+
+    def _ci3(self, mean: np.ndarray, cov: np.ndarray, d: Any, nb_mean: np.ndarray, nb_cov: np.ndarray,
+             R: np.ndarray) -> Any:  # fmt: skip
+        """Covariance intersection of an SE(3) relative pose (``"pose3"``) with the neighbour's SE(3) answer: the
+        weight in closed form (:func:`~swarmloc.kernels.ci.pose_weight` on SE(3)), then one fusion."""
+        if d.kind != "pose3" or self.group is not SE3 or nb_mean.shape != (4, 4):
+            return ("rejected", f"kind {d.kind!r} is not supported on {self.group.name}")
+        m = pose3_matrix(d.z)
+        order, its = self.order, self.iterations
+        if self.gate.p is not None:
+            nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov, m, R, order)
+            verdict = self._gated(float(K.pseudo_nis(SE3, mean, cov, nu, W)), 6)
+            if verdict is not None:
+                return verdict
+        w = float(pose_weight(mean, cov, m, R, nb_mean, nb_cov, order, group=SE3))
+        nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov / (1 - w), m, R, order)
+        m2, c2 = K.fuse_pseudo(SE3, mean, cov / w, nu[None], W[None], order, its)
+        if not (np.isfinite(m2).all() and usable_covariance(c2)):
+            return ("rejected", NUMERICAL)
         return m2, c2
 
     def _pose_at(self, mean: np.ndarray, cov: np.ndarray, m: np.ndarray, R: np.ndarray, nb_mean: np.ndarray,

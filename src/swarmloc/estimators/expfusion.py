@@ -12,6 +12,11 @@ Each node holds its robot's Gaussian on SE(2) ``(mu, Sigma)`` (right perturbatio
   for) are fused by an iterated update on the group that includes the target's uncertainty
   (:func:`swarmloc.kernels.group.point_update`).
 
+**SE(3).** With an SE(3) initial belief the same node runs on SE(3) (``self.group``): odometry carries the body
+twist (:func:`swarmloc.events.twist_odometry`), the increment is :func:`swarmloc.motion.twist3.twist_increment`
+(its noise a :class:`~swarmloc.motion.twist3.TwistNoise`), relative poses are ``"pose3"`` detections; the
+prediction and fusion kernels are the group-generic ones. Range/bearing and absolute fixes are planar only.
+
 The fusion assumes the neighbour's belief is independent of the robot's own. When two robots measure each other
 again and again this is false (their beliefs become correlated through earlier fusions) and the estimator
 becomes over-confident: the NEES shows it. :mod:`swarmloc.estimators.ci` and :mod:`swarmloc.estimators.rdl`
@@ -26,10 +31,12 @@ import numpy as np
 
 from swarmloc.gaussian import GroupGaussian, convolution_F_tensor
 from swarmloc.kernels import group as K
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
 from swarmloc.messages import BeliefAnswer, Message
 from swarmloc.motion import UnicycleNoise, odometry_increment
+from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
+from swarmloc.sensors.models3 import pose3_matrix
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position"
 
@@ -80,7 +87,8 @@ def _step_map(
 
 
 class ExpState(NamedTuple):
-    """A node's filter state: time [s], command ``(v [m/s], w [rad/s])``, mean ``(3, 3)``, covariance ``(3, 3)``."""
+    """A node's filter state: time [s], command ``(v [m/s], w [rad/s])``, mean ``(3, 3)``, covariance ``(3, 3)``
+    (SE(3): ``v``, ``w`` the linear and angular velocity tuples, mean ``(4, 4)``, covariance ``(6, 6)``)."""
 
     t: float
     v: float
@@ -102,6 +110,7 @@ class ExpFusion(RobotNode):
 
     name = "expfusion"
     lazy_odometry = True
+    groups = (SE2, SE3)
 
     def __init__(
         self,
@@ -131,8 +140,11 @@ class ExpFusion(RobotNode):
         dt = t - s.t
         if dt <= 0:
             return s
-        inc_mean, inc_cov = odometry_increment(s.v, s.w, dt, self.noise)
-        mean, cov = K.predict(SE2, s.mean, s.cov, inc_mean, inc_cov, self.order)
+        if self.group is SE3:
+            inc_mean, inc_cov = twist_increment(as_twist(s.v, s.w), dt, self.noise)
+        else:
+            inc_mean, inc_cov = odometry_increment(s.v, s.w, dt, self.noise)
+        mean, cov = K.predict(self.group, s.mean, s.cov, inc_mean, inc_cov, self.order)
         return ExpState(t, s.v, s.w, mean, cov)
 
     def _set_command(self, s: ExpState, robot: int, v: float, w: float) -> ExpState:
@@ -142,7 +154,7 @@ class ExpFusion(RobotNode):
         """A run of odometry with each step an affine map of the covariance (:func:`_step_map`, memoized): one
         ``9 x 9`` product per step instead of a convolution; equal to :meth:`_advance` per command to rounding
         (tests/test_node.py checks it for every estimator)."""
-        if self.measure_time:
+        if self.measure_time or self.group is SE3:
             return super()._advance_commands(s, cmds)
         cache = _step_cache(self.noise, self.order)
         t, v, w = s.t, s.v, s.w
@@ -170,6 +182,13 @@ class ExpFusion(RobotNode):
     # ------------------------------------------------------------------------------------------------ update
     def _pseudo(self, d: Any, target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
         """Pseudo-observation ``(nu, W)`` of the robot's own pose (absolute fix or relative pose of a robot)."""
+        if self.group is SE3:
+            if target[0] == "robot" and d.kind == "pose3":
+                mean, cov = target[1].belief_arrays()
+                if mean.shape != (4, 4):
+                    return None
+                return K.relative_to_pseudo(SE3, mean, cov, pose3_matrix(d.z), np.asarray(d.cov, float), self.order)
+            return None
         if target[0] == "absolute":
             return K.absolute_to_pseudo(d.z, np.asarray(d.cov, float))
         if target[0] == "robot" and d.kind == "pose":
@@ -223,7 +242,10 @@ class ExpFusion(RobotNode):
             if pseudo is None:
                 points.append((i, d, target))
                 continue
-            verdict = None if self.gate.p is None else self._gated(float(K.pseudo_nis(SE2, s.mean, s.cov, *pseudo)), 3)
+            G = self.group
+            verdict = (
+                None if self.gate.p is None else self._gated(float(K.pseudo_nis(G, s.mean, s.cov, *pseudo)), G.dim)
+            )
             if verdict is not None:
                 outcomes[i] = verdict
                 continue
@@ -232,13 +254,16 @@ class ExpFusion(RobotNode):
             idx.append(i)
         mean, cov = s.mean, s.cov
         if nus:
-            m2, c2 = K.fuse_pseudo(SE2, mean, cov, np.stack(nus), np.stack(Ws), self.order, self.iterations)
+            m2, c2 = K.fuse_pseudo(self.group, mean, cov, np.stack(nus), np.stack(Ws), self.order, self.iterations)
             ok = np.isfinite(m2).all() and usable_covariance(c2)
             if ok:
                 mean, cov = m2, c2
             for i in idx:
                 outcomes[i] = FUSED if ok else ("rejected", NUMERICAL)
         for i, d, target in points:
+            if self.group is SE3 or d.kind == "pose3":
+                outcomes[i] = ("rejected", f"kind {d.kind!r} is not supported on {self.group.name}")
+                continue
             res = self._point(mean, cov, d, target)
             if isinstance(res[0], str):
                 outcomes[i] = res

@@ -19,7 +19,9 @@ DOF = 3
 
 
 def errors(track: RobotTrack) -> dict[str, np.ndarray]:
-    """Per-record position error [m], heading error [rad] and NEES."""
+    """Per-record position error [m], heading error [rad] and NEES (SE(3) tracks: :func:`errors_se3`)."""
+    if track.mean.shape[-1] == 7:
+        return errors_se3(track)
     ep = np.linalg.norm(track.mean[:, :2] - track.truth[:, :2], axis=1)
     eh = wrap(track.mean[:, 2] - track.truth[:, 2])
     y = SE2.log(
@@ -29,25 +31,45 @@ def errors(track: RobotTrack) -> dict[str, np.ndarray]:
     return {"pos": ep, "heading": eh, "nees": nees}
 
 
+def errors_se3(track: RobotTrack) -> dict[str, np.ndarray]:
+    """SE(3) track (means and truth ``(x, y, z, qx, qy, qz, qw)``): position error [m] (3-D), rotation error
+    ``|log(R_est^T R_true)|`` [rad] (under the key ``heading``, so that pooled tables read the same) and the NEES
+    of the exponential coordinates ``log(mu^-1 g)`` (6 dof)."""
+    from swarmloc.datasets.tum import pose_from7
+    from swarmloc.lie import SE3
+
+    ep = np.linalg.norm(track.mean[:, :3] - track.truth[:, :3], axis=1)
+    y = SE3.log(SE3.inverse(pose_from7(track.mean), validate=False) @ pose_from7(track.truth), validate=False)
+    er = np.linalg.norm(y[:, 3:], axis=1)
+    nees = np.einsum("ni,ni->n", y, np.linalg.solve(track.cov, y[..., None])[..., 0])
+    return {"pos": ep, "heading": er, "nees": nees}
+
+
 def anees_bounds(n: int, dof: int = DOF, p: float = 0.95) -> tuple[float, float]:
     """Two-sided ``p`` bounds of the per-dof ANEES of ``n`` *independent* NEES values."""
     a = (1 - p) / 2
     return float(chi2.ppf(a, n * dof) / (n * dof)), float(chi2.ppf(1 - a, n * dof) / (n * dof))
 
 
-def summarize(errs: dict[str, np.ndarray]) -> dict[str, float]:
+def summarize(errs: dict[str, np.ndarray], dof: int = DOF) -> dict[str, float]:
+    """RMSE of position and heading (SE(3): rotation angle; also as ``rot_rmse``), per-dof ANEES (``dof`` 3 on
+    SE(2), 6 on SE(3)), median NEES per dof and the fraction of NEES inside the two-sided 95% band."""
     n = errs["pos"].size
     if n == 0:
         return {"n": 0}
-    lo, hi = chi2.ppf([0.025, 0.975], DOF)
-    return {
+    lo, hi = chi2.ppf([0.025, 0.975], dof)
+    out = {
         "n": int(n),
         "pos_rmse": float(np.sqrt(np.mean(errs["pos"] ** 2))),
         "heading_rmse": float(np.sqrt(np.mean(errs["heading"] ** 2))),
-        "anees": float(np.mean(errs["nees"]) / DOF),
-        "nees_median": float(np.median(errs["nees"]) / DOF),
+        "anees": float(np.mean(errs["nees"]) / dof),
+        "nees_median": float(np.median(errs["nees"]) / dof),
         "frac_in_95": float(np.mean((errs["nees"] >= lo) & (errs["nees"] <= hi))),
     }
+    if dof != DOF:
+        out["rot_rmse"] = out["heading_rmse"]
+        out["dof"] = dof
+    return out
 
 
 def evaluate(result: RunResult, robots: list[int] | None = None) -> dict:
@@ -55,15 +77,17 @@ def evaluate(result: RunResult, robots: list[int] | None = None) -> dict:
     robots = sorted(result.tracks) if robots is None else robots
     per = {}
     pooled: dict[str, list[np.ndarray]] = {"pos": [], "heading": [], "nees": []}
+    dof = DOF
     for r in robots:
         tr = result.tracks.get(r)
         if tr is None or tr.times.size == 0:
             continue
+        dof = 6 if tr.mean.shape[-1] == 7 else DOF
         e = errors(tr)
-        per[r] = summarize(e)
+        per[r] = summarize(e, dof)
         for k in pooled:
             pooled[k].append(e[k])
-    team = summarize({k: np.concatenate(v) if v else np.zeros(0) for k, v in pooled.items()})
+    team = summarize({k: np.concatenate(v) if v else np.zeros(0) for k, v in pooled.items()}, dof)
     return {"estimator": result.estimator, "robots": per, "team": team, "wall_time": result.wall_time}
 
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE2
+from swarmloc.lie.base import SEGroup
 
 W_BOUNDS = (1e-3, 1 - 1e-3)
 """Range searched for the CI weight ``w`` of the robot's own belief."""
@@ -162,20 +163,23 @@ def pose_weight(
     nb_cov: np.ndarray,
     order: int = 2,
     bounds: tuple[float, float] = W_BOUNDS,
+    group: type[SEGroup] = SE2,
 ) -> np.ndarray:
     """CI weight of the robot's own belief for a relative-pose measurement ``meas`` (``(..., 3, 3)``, noise
-    covariance ``R``) of a neighbour, batched; returns ``(...)``.
+    covariance ``R``) of a neighbour, batched; returns ``(...)``. ``group``: SE2 (default) or SE3 (``meas``
+    ``(..., 4, 4)``, covariances ``(..., 6, 6)``).
 
     The neighbour becomes a pseudo-observation of the robot's pose (:func:`swarmloc.kernels.group.relative_to_pseudo`)
     whose covariance is ``W(w) = W_R + W_k / (1 - w)`` (linear in the neighbour's covariance); linearized at the
     prior (``Gamma`` of the residual), the posterior ``log det`` is, up to a constant,
     ``log det W(w) - log det(I + w W(w) A')`` with ``A' = Gamma^-T Sigma_i^-1 Gamma^-1``.
     """
-    nu, W1 = K.relative_to_pseudo(SE2, nb_mean, nb_cov, meas, R, order)
-    _, W0 = K.relative_to_pseudo(SE2, nb_mean, np.zeros_like(np.asarray(nb_cov, dtype=float)), meas, R, order)
+    nu, W1 = K.relative_to_pseudo(group, nb_mean, nb_cov, meas, R, order)
+    _, W0 = K.relative_to_pseudo(group, nb_mean, np.zeros_like(np.asarray(nb_cov, dtype=float)), meas, R, order)
     Wk = W1 - W0
-    x = SE2.log(SE2.inverse(nu, validate=False) @ mean, validate=False)
-    Gi = np.linalg.inv(K.gamma(SE2, x, order))
+    x = group.log(group.inverse(nu, validate=False) @ mean, validate=False)
+    Gi = np.linalg.inv(K.gamma(group, x, order))
+    eye = np.eye(group.dim)
     A = np.swapaxes(Gi, -1, -2) @ np.linalg.inv(cov) @ Gi
     batch = A.shape[:-2]
 
@@ -183,7 +187,7 @@ def pose_weight(
         wc = w[..., None, None]
         W = W0 + Wk / (1 - wc)
         s1, l1 = np.linalg.slogdet(W)
-        s2, l2 = np.linalg.slogdet(np.eye(3) + wc * (W @ A))
+        s2, l2 = np.linalg.slogdet(eye + wc * (W @ A))
         return np.where((s1 > 0) & (s2 > 0), l1 - l2, np.inf)
 
     return _minimize_on_grid(cost, batch, bounds)

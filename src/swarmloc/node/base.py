@@ -40,7 +40,7 @@ import numpy as np
 
 from swarmloc.events import Detection, Odometry
 from swarmloc.gaussian import GroupGaussian, world_covariance
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
 from swarmloc.node.accounting import Accounting
 from swarmloc.node.associate import AssociationView
@@ -57,10 +57,11 @@ __all__ = ["Node", "belief_of"]
 
 
 def belief_of(mean: np.ndarray, cov: np.ndarray) -> GroupGaussian:
-    """A node's SE(2) belief from its filter's mean ``(3, 3)`` and covariance ``(3, 3)``, not validated again: a
+    """A node's SE(2) belief from its filter's mean ``(3, 3)`` and covariance ``(3, 3)`` (SE(3): ``(4, 4)`` and
+    ``(6, 6)``), not validated again: a
     filter state is valid by construction (every input is checked once, at the node's door, and every update's
     result is checked by :func:`~swarmloc.node.update.gated_kalman` or the filter)."""
-    return GroupGaussian(SE2, mean, cov, validate=False)
+    return GroupGaussian(SE2 if mean.shape[-1] == 3 else SE3, mean, cov, validate=False)
 
 
 class Node(Intake, Exchange):

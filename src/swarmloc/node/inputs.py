@@ -29,6 +29,7 @@ from swarmloc.node.clock import FUTURE, Clock
 from swarmloc.node.history import PRUNE_EVERY, History
 from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
 from swarmloc.sensors.models import MODELS
+from swarmloc.sensors.models3 import MODELS3
 
 log = logging.getLogger("swarmloc.node")
 
@@ -79,7 +80,7 @@ def validate_detection(d: Detection) -> str | None:
         cov = np.asarray(d.cov, dtype=float)
     except (TypeError, ValueError) as exc:
         return f"z or cov is not numeric: {exc}"
-    model = MODELS.get(d.kind) if isinstance(d.kind, str) else None
+    model = (MODELS.get(d.kind) or MODELS3.get(d.kind)) if isinstance(d.kind, str) else None
     if model is None:
         return f"unknown measurement kind {d.kind!r}"
     want = model.size
@@ -109,10 +110,24 @@ def validate_detection(d: Detection) -> str | None:
     return None
 
 
+def _components(x: object) -> tuple:
+    """A command's numbers: ``(x,)`` for a planar speed, the 3 components of a 3-D velocity (a tuple)."""
+    if isinstance(x, tuple):
+        if len(x) != 3:
+            raise TypeError("a 3-D velocity has 3 components")
+        return x
+    return (x,)
+
+
+def command_value(x: object) -> float | tuple[float, ...]:
+    """A command's value as filed: a float (planar), or a tuple of 3 floats (a 3-D velocity)."""
+    return tuple(float(c) for c in x) if isinstance(x, tuple) else float(x)  # type: ignore[arg-type]
+
+
 def odometry_problem(e: Odometry) -> str | None:
     """Why an odometry record is malformed (non-numeric or non-finite numbers, ``t1 < t0``), or None."""
     try:
-        finite = all(math.isfinite(x) for x in (e.t0, e.t1, e.v, e.w))
+        finite = all(math.isfinite(x) for x in (e.t0, e.t1, *_components(e.v), *_components(e.w)))
     except TypeError:
         finite = False
     if not finite:
@@ -348,7 +363,7 @@ class Intake:
             return []
         self.counts["odometry_used"] += 1
         self._timeline.add(e.robot, t0, t1)
-        return self._file([Entry(key, "odometry", (e.robot, float(e.v), float(e.w)))])
+        return self._file([Entry(key, "odometry", (e.robot, command_value(e.v), command_value(e.w)))])
 
     # ------------------------------------------------------------------------------------------------ detections
     def _on_detections(self, dets: list[Detection]) -> list[Message]:

@@ -22,6 +22,7 @@ import numpy as np
 from swarmloc.events import Detection
 from swarmloc.messages import Message
 from swarmloc.sensors.models import KIND_ORDER
+from swarmloc.sensors.models3 import KIND_ORDER3
 
 __all__ = ["P_GROUP", "P_ODOMETRY", "Entry", "Group", "Key", "detection_key"]
 
@@ -35,7 +36,8 @@ P_ODOMETRY = 2
 def detection_key(d: Detection) -> tuple[float, ...]:
     """Canonical order of the detections in a group (and the sub-key of per-detection exchanges)."""
     target = -1.0 if d.target is None else float(d.target)
-    return (float(KIND_ORDER[d.kind]), 0.0 if d.target_is_robot else 1.0, target, *np.asarray(d.z, float).tolist())
+    order = KIND_ORDER[d.kind] if d.kind in KIND_ORDER else KIND_ORDER3[d.kind]
+    return (float(order), 0.0 if d.target_is_robot else 1.0, target, *np.asarray(d.z, float).tolist())
 
 
 class Group:

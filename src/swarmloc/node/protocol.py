@@ -73,6 +73,9 @@ def not_found(q: Message, reason: str) -> Message:
 
 def belief_answer(q: Message, b: GroupGaussian) -> BeliefAnswer:
     """The answer to a :class:`~swarmloc.messages.BeliefQuery` carrying belief ``b``."""
+    if b.group.dim == 6:
+        return BeliefAnswer(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, group="SE3",
+                            mean=flat(b.mean), cov=flat(b.cov))  # fmt: skip
     return BeliefAnswer(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, mean=flat(b.mean),
                         cov=flat(b.cov))  # fmt: skip
 

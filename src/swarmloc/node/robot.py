@@ -8,9 +8,10 @@ from typing import Any, ClassVar
 import numpy as np
 
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
 from swarmloc.messages import BeliefQuery, Message
 from swarmloc.motion import UnicycleNoise
+from swarmloc.motion.twist3 import TwistNoise
 from swarmloc.node.associate import AssociationView, answered_beliefs, associate, check_association, is_anonymous
 from swarmloc.node.base import Node
 from swarmloc.node.keys import Group
@@ -19,12 +20,21 @@ from swarmloc.node.protocol import belief_answer
 __all__ = ["RobotNode", "check_model"]
 
 
-def check_model(where: str, initial: Mapping[int, Any], noise: object) -> None:
-    """Every initial belief is one SE(2) :class:`GroupGaussian` and ``noise`` a :class:`UnicycleNoise`."""
+def check_model(where: str, initial: Mapping[int, Any], noise: object, groups: tuple = (SE2,)) -> None:
+    """Every initial belief is one :class:`GroupGaussian` on a group of ``groups`` (default SE(2) only), all on
+    the same group, and ``noise`` a :class:`UnicycleNoise` (SE(2)) or a
+    :class:`~swarmloc.motion.twist3.TwistNoise` (SE(3))."""
+    names = "SE(2)" if groups == (SE2,) else "SE(2) GroupGaussian or an SE(3)"
     for r, b in initial.items():
-        if not isinstance(b, GroupGaussian) or b.group is not SE2 or b.batch_shape:
-            raise ValueError(f"{where}: initial belief of robot {r} must be one SE(2) GroupGaussian, got {b!r}")
-    if not isinstance(noise, UnicycleNoise):
+        if not isinstance(b, GroupGaussian) or b.group not in groups or b.batch_shape:
+            raise ValueError(f"{where}: initial belief of robot {r} must be one {names} GroupGaussian, got {b!r}")
+    kinds = {b.group for b in initial.values()}
+    if len(kinds) > 1:
+        raise ValueError(f"{where}: initial beliefs mix {sorted(g.name for g in kinds)}")
+    if kinds == {SE3}:
+        if not isinstance(noise, TwistNoise):
+            raise ValueError(f"{where}: 'noise' of an SE(3) team must be a TwistNoise, got {type(noise).__name__}")
+    elif not isinstance(noise, UnicycleNoise):
         raise ValueError(f"{where}: 'noise' must be a UnicycleNoise, got {type(noise).__name__}")
 
 
@@ -46,6 +56,9 @@ class RobotNode(Node):
     asked for their belief (:class:`~swarmloc.messages.BeliefQuery`) and never read otherwise.
     """
 
+    groups: ClassVar[tuple[type, ...]] = (SE2,)
+    """The groups this estimator's state can live on (``(SE2, SE3)`` for the estimators with an SE(3) form); the
+    initial belief picks one."""
     associates: ClassVar[bool] = True
     """False for an estimator whose exchanges need the target's identity before the belief is asked (pairwise
     updates, broadcasts keyed by the detection): it refuses an association policy other than ``tags``."""
@@ -65,7 +78,9 @@ class RobotNode(Node):
         cls = type(self).__name__
         if not isinstance(robot, int | np.integer) or isinstance(robot, bool):
             raise ValueError(f"{cls}: 'robot' must be an integer id, got {robot!r}")
-        check_model(cls, {robot: initial}, noise)
+        check_model(cls, {robot: initial}, noise, self.groups)
+        if initial.group is SE3 and association != "tags":
+            raise ValueError(f"{cls}: an SE(3) team has no association policy; use association='tags'")
         check_association(cls, association, association_gate)
         if association != "tags" and not self.associates:
             raise ValueError(
@@ -76,6 +91,8 @@ class RobotNode(Node):
             raise ValueError(f"{cls}: sensor_range must be > 0 m or None, got {sensor_range!r}")
         self.robot = int(robot)
         self.initial = initial
+        self.group = initial.group
+        """The group of the robot's pose (SE(2) or SE(3)), from the initial belief."""
         self.noise = noise
         self.team = tuple(sorted({int(r) for r in team} | {self.robot}))
         self.association = association

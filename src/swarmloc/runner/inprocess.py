@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 
 from swarmloc.datasets.source import TruthFn
+from swarmloc.datasets.tum import pose7
 from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefQuery, Message, RdlStateQuery
@@ -68,11 +69,12 @@ class _Records:
         out = {}
         for r, rows in sorted(self.rows.items()):
             rows.sort(key=lambda x: x[0])
+            w, d = (rows[0][1].size, rows[0][2].shape[-1]) if rows else (3, 3)  # SE(3): 7 and 6
             out[r] = RobotTrack(
                 np.array([x[0] for x in rows]),
-                np.array([x[1] for x in rows]).reshape(-1, 3),
-                np.array([x[2] for x in rows]).reshape(-1, 3, 3),
-                np.array([x[3] for x in rows]).reshape(-1, 3),
+                np.array([x[1] for x in rows]).reshape(-1, w),
+                np.array([x[2] for x in rows]).reshape(-1, d, d),
+                np.array([x[3] for x in rows]).reshape(-1, w),
             )
         return out
 
@@ -264,7 +266,10 @@ class _Driver:
 
 
 def _xytheta(g: np.ndarray) -> np.ndarray:
-    """:meth:`SE2.to_xytheta` of one pose, in floats (the same numbers, a quarter of the time)."""
+    """:meth:`SE2.to_xytheta` of one pose, in floats (the same numbers, a quarter of the time); an SE(3) pose
+    ``(4, 4)`` as ``(x, y, z, qx, qy, qz, qw)`` (:func:`swarmloc.datasets.tum.pose7`)."""
+    if g.shape == (4, 4):
+        return pose7(g)
     if g.shape != (3, 3):
         return SE2.to_xytheta(g)
     th = float(np.arctan2(g[1, 0], g[0, 0]))  # numpy's arctan2, not math.atan2: they may differ in the last bit
@@ -276,7 +281,7 @@ def truth_table(truth: TruthFn | None, robot: int, times: np.ndarray) -> np.ndar
     if truth is None:
         return np.full((times.size, 3), np.nan)
     try:
-        return np.asarray(truth(robot, times), dtype=float).reshape(times.size, 3)
+        return np.asarray(truth(robot, times), dtype=float).reshape(times.size, -1)
     except ValueError:
         out = np.full((times.size, 3), np.nan)
         for k in range(times.size):

@@ -11,7 +11,8 @@ import numpy as np
 @dataclass
 class RobotTrack:
     """Recorded beliefs of one robot: times ``(T,)`` [s], means ``(T, 3)`` as ``(x, y, theta)``,
-    exponential-coordinate covariances ``(T, 3, 3)`` (right perturbation) and truth ``(T, 3)`` (NaN when unknown)."""
+    exponential-coordinate covariances ``(T, 3, 3)`` (right perturbation) and truth ``(T, 3)`` (NaN when unknown).
+    SE(3) teams: means and truth ``(T, 7)`` as ``(x, y, z, qx, qy, qz, qw)``, covariances ``(T, 6, 6)``."""
 
     times: np.ndarray
     mean: np.ndarray
