@@ -31,6 +31,7 @@ from swarmloc.estimators.diekf import DistributedInvariantEKF
 from swarmloc.estimators.dr import DeadReckoning
 from swarmloc.estimators.expfusion import ExpFusion
 from swarmloc.estimators.fls import FixedLagSmoother
+from swarmloc.estimators.fls_team import TeamFixedLagSmoother
 from swarmloc.estimators.iekf import FirstEstimatesEKF, InvariantEKF
 from swarmloc.estimators.irdl import InvariantRDL
 from swarmloc.estimators.mcl import MonteCarloLocalization
@@ -54,6 +55,7 @@ ESTIMATORS: dict[str, type[Node]] = {
     "diekf": DistributedInvariantEKF,
     "mcl": MonteCarloLocalization,
     "fls": FixedLagSmoother,
+    "flsx": TeamFixedLagSmoother,
 }
 """Node classes by their command-line name."""
 
