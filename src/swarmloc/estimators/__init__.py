@@ -16,6 +16,7 @@ nodes of a team from each robot's initial belief.
 | ``fej`` | :class:`FirstEstimatesEKF` | centralized EKF with first-estimates Jacobians (observability-preserving) |
 | ``mcl`` | :class:`MonteCarloLocalization` | multi-robot Monte Carlo localization (distributed, particles) |
 | ``fls`` | :class:`FixedLagSmoother` | per-robot fixed-lag smoother (GTSAM), covariance intersection with neighbours |
+| ``flsd`` | :class:`TeamFixedLagSmoother` | fixed-lag smoother of own landmarks (GTSAM) on ``diekf``'s exchange |
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ ESTIMATORS: dict[str, type[Node]] = {
     "diekf": DistributedInvariantEKF,
     "mcl": MonteCarloLocalization,
     "fls": FixedLagSmoother,
-    "flsx": TeamFixedLagSmoother,
+    "flsd": TeamFixedLagSmoother,
 }
 """Node classes by their command-line name."""
 
@@ -137,6 +138,7 @@ __all__ = [
     "ExpFusion",
     "FirstEstimatesEKF",
     "FixedLagSmoother",
+    "TeamFixedLagSmoother",
     "InvariantEKF",
     "InvariantRDL",
     "MonteCarloLocalization",

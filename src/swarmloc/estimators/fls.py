@@ -82,6 +82,8 @@ class Factor(NamedTuple):
     landmark or an absolute fix made at pose ``a``: ``z``, the model's noise ``R`` plus the landmark's
     covariance, ``target`` the landmark's ``(x, y)`` or None) or ``"neighbour"`` (a detection of robot ``b``'s
     pose variable, which has ``target``, the answered ``(mean (3, 3), cov (3, 3))``, as its prior).
+    ``"pseudo"`` (a linear Gaussian factor on pose ``a``, error ``R (x - z) - target`` with ``x`` the Cartesian pose:
+    what :mod:`swarmloc.estimators.fls_team` files for its filter's other updates).
     ``scale``: the multiplier of its information (covariance intersection); ``meas``: the detection kind."""
 
     kind: str
@@ -167,7 +169,7 @@ def _measurement_factor(g: Any, f: Factor, keys: list[int]) -> Any:
 
 def _pseudo_factor(g: Any, f: Factor) -> Any:
     """A :class:`gtsam.CustomFactor` for a linear Gaussian factor on pose ``a``: error ``A (x - z) - b`` (``x``
-    Cartesian, the angle of ``x - z`` wrapped; ``A = f.R (3, 3)`` whitened, ``b = f.target (3,)``)."""
+    Cartesian, the angle of ``x - z`` wrapped; ``A = f.R (m, 3)`` whitened, ``b = f.target (m,)``)."""
     A = f.R
     b = f.target
 
@@ -179,7 +181,7 @@ def _pseudo_factor(g: Any, f: Factor) -> Any:
             H[0] = _body(A, x[2])
         return A @ d - b
 
-    return g.CustomFactor(g.noiseModel.Unit.Create(3), [f.a], error)
+    return g.CustomFactor(g.noiseModel.Unit.Create(len(b)), [f.a], error)
 
 
 def _graph(g: Any, win: Window, factors: tuple[Factor, ...] | None = None, prior: bool = True) -> Any:

@@ -1,4 +1,4 @@
-"""A fixed-lag smoother on the exact distributed invariant EKF's exchange (``"flsx"``).
+"""A fixed-lag smoother on the exact distributed invariant EKF's exchange (``"flsd"``).
 
 The node is a :class:`~swarmloc.estimators.diekf.DistributedInvariantEKF` (its pose ``x_i``, world-frame covariance
 ``P_ii`` and replica of the team's cross-covariances, its ``RdlStateQuery`` exchange and its ``TeamUpdate``
@@ -75,39 +75,35 @@ def world_delta(x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
     return SE2.log(SE2.from_xytheta(x1) @ SE2.inverse(SE2.from_xytheta(x0), validate=False))
 
 
-def _psd(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalues (negative ones set to 0) and eigenvectors of the symmetric part of ``M``."""
-    lam, V = np.linalg.eigh(0.5 * (M + M.T))
-    return np.maximum(lam, 0.0), V
-
-
-def _sym(M: np.ndarray) -> np.ndarray:
-    return 0.5 * (M + M.T)
-
-
-def pseudo_factor(pose: int, x0: np.ndarray, P0: np.ndarray, x1: np.ndarray, P1: np.ndarray,
+def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
                   at: np.ndarray) -> Factor | None:  # fmt: skip
-    """The linear factor on ``pose`` that turns the Gaussian ``(x0, P0)`` (world-frame error) into ``(x1, P1)``:
-    information ``L = P1^-1 - P0^-1`` (clipped at 0) about the world-frame error, centred so that the mean moves to
-    ``x1``, written in the Cartesian pose around ``at`` (the pose's estimate that ``x0`` corresponds to). None when
-    it carries nothing."""
-    P1i = np.linalg.inv(P1)
-    lam, V = _psd(P1i - np.linalg.inv(P0))
-    lam = np.where(lam > 1e-12 * lam.max(), lam, 0.0)
-    if not (lam > 0).any():
+    """The linear factor on ``pose`` equivalent to a team update's effect on this robot's pose: the update moved
+    the world-frame error of the estimate ``at`` (covariance ``P0``) by ``G nu`` and its covariance by ``-G Sinv
+    G^T`` (``G = Gamma_me (3, m)``, :mod:`swarmloc.estimators.diekf`). That is the Kalman update of the measurement
+    ``J xi = r + noise(R')`` with ``J = G^T P0^-1``, ``r = S nu``, ``R' = S - G^T P0^-1 G`` (the innovation's
+    covariance given this pose; positive definite), written whitened in the Cartesian pose around ``at``. None
+    when the update does not reach this pose (``G = 0``)."""
+    if not G.any():
         return None
-    rhs = V.T @ (P1i @ world_delta(x0, x1))  # L c = P1^-1 delta, in L's eigenbasis
-    sq = np.sqrt(lam)
-    b = np.where(lam > 0, rhs / np.where(sq > 0, sq, 1.0), 0.0)
-    A = (sq[:, None] * V.T) @ I.world_basis_inv(at)
-    return Factor("pseudo", pose, -1, "", np.asarray(at, dtype=float), A, b, 1.0)
+    S = np.linalg.inv(Sinv)
+    J = G.T @ np.linalg.inv(P0)
+    Rp = S - J @ G
+    Rp = 0.5 * (Rp + Rp.T)
+    try:
+        C_ = np.linalg.cholesky(Rp)
+    except np.linalg.LinAlgError:  # rounding: R' is a conditional covariance, at least the sensor's noise
+        lam, V = np.linalg.eigh(Rp)
+        C_ = V * np.sqrt(np.maximum(lam, 1e-12 * max(float(lam.max()), 1e-300)))
+    W = np.linalg.inv(C_)  # W^T W = R'^-1 (up to an orthogonal factor)
+    A = W @ J @ I.world_basis_inv(at)
+    return Factor("pseudo", pose, -1, "", np.asarray(at, dtype=float), A, W @ (S @ nu), 1.0)
 
 
 class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
     """``diekf`` whose own landmark updates come from a fixed-lag smoother of its recent poses (module
     docstring). ``lag`` [s] and ``max_iterations`` as :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s."""
 
-    name = "flsx"
+    name = "flsd"
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), lag: float = 2.0,
                  max_iterations: int = 3, **kw: Any) -> None:  # fmt: skip
@@ -139,14 +135,24 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
     def _set_command(self, s: TeamFlsState, robot: int, v: float, w: float) -> TeamFlsState:
         return s._replace(v=v, w=w)
 
-    def _team_update(self, s: TeamFlsState, *args: Any) -> TeamFlsState:  # type: ignore[override]
-        new = super()._team_update(s, *args)
-        return s._replace(x=new.x, P=new.P, Sigma=new.Sigma)
-
-    def _newest_anchor(self, s: TeamFlsState) -> np.ndarray:
-        """The window's newest pose as the filter's present pose implies it (``x`` less the increment ``rel``)."""
-        g = SE2.from_xytheta(s.x) @ SE2.inverse(SE2.from_xytheta(s.rel), validate=False)
-        return np.array([g[0, 2], g[1, 2], math.atan2(g[1, 0], g[0, 0])])
+    def _team_update(
+        self, s: TeamFlsState, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
+        Pii: np.ndarray, Pjj: np.ndarray,
+    ) -> TeamFlsState:  # type: ignore[override]  # fmt: skip
+        """``diekf``'s update; the change of this robot's pose is also filed in the window (:func:`pseudo_factor`)
+        unless the update is the node's own landmark update (``i == j == robot``: the window holds its factors)."""
+        new = super()._team_update(s, i, j, Hi, Hj, Sinv, nu, Pii, Pjj)
+        out = s._replace(x=new.x, P=new.P, Sigma=new.Sigma)
+        me = self.robot
+        if i == j == me:
+            return out
+        Ci = Pii if me == i else s.Sigma[self._pos[me], self._pos[i]]
+        Cj = Ci if j == i else (Pjj if me == j else s.Sigma[self._pos[me], self._pos[j]])
+        G = Ci @ Hi.T + Cj @ Hj.T
+        s = self._posed(s)  # the pose at the update's instant: its change is about it
+        f = pseudo_factor(s.win.poses[-1], s.P, G, Sinv, nu, s.x)
+        win = s.win if f is None else s.win._replace(factors=(*s.win.factors, f))
+        return out._replace(rel=s.rel, Q=s.Q, win=win)
 
     def _posed(self, s: TeamFlsState) -> TeamFlsState:
         """``s`` with a window pose at its time ``s.t`` (added with its odometry factor when the newest is older)."""
@@ -164,26 +170,9 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
                 win = solved[0]
         return s._replace(rel=_ZERO3, Q=_ZERO33, win=win)
 
-    def _fold(self, before: TeamFlsState, after: TeamFlsState) -> TeamFlsState:
-        """``after`` with the change of the filter's own pose since ``before`` filed in the window as a
-        pseudo-factor on its newest pose."""
-        if np.array_equal(before.x, after.x) and np.array_equal(before.P, after.P):
-            return after
-        win = after.win
-        f = pseudo_factor(win.poses[-1], before.x, before.P, after.x, after.P, self._newest_anchor(before))
-        if f is None:
-            return after
-        return after._replace(win=win._replace(factors=(*win.factors, f)))
-
     def _apply_update(self, s: TeamFlsState, u: TeamUpdate) -> tuple[TeamFlsState, bool]:
-        if u.target == self.robot:
-            s = self._adv(s, self.robot, u.stamp)
-        new, ok = super()._apply_update(s, u)
-        if np.array_equal(s.x, new.x) and np.array_equal(s.P, new.P):
-            return new, ok
-        s = self._posed(s)
-        new = new._replace(rel=s.rel, Q=s.Q, win=s.win)
-        return self._fold(s, new), ok
+        s = self._adv(s, self.robot, u.stamp)  # the pose at the update's stamp: a function of the inputs only
+        return super()._apply_update(s, u)
 
     # ------------------------------------------------------------------------------------------------ update
     def _fuse_group(self, s: TeamFlsState, g: Group) -> tuple[TeamFlsState, list[Outcome], list[Message]]:
@@ -191,7 +180,6 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
         mates = [r for r in self.team if r != i]
         outcomes: list[Outcome | None] = []
         msgs: list[Message] = []
-        pseudo: list[tuple[TeamFlsState, TeamFlsState]] = []
         landmarks: list[tuple[int, tuple, Factor]] = []  # (outcome slot, key, factor)
         for d, sub in zip(g.detections, g.keys, strict=True):
             target = self._classify(g, d, sub)
@@ -204,9 +192,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
                     outcomes.append(res)
                     msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
                     continue
-                new, (j, Hi, Hj, Sinv, nu, Pii, Pjj) = res
-                pseudo.append((s, new))
-                s = new
+                s, (j, Hi, Hj, Sinv, nu, Pii, Pjj) = res
                 body = dict(
                     target=j, m=len(nu), Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv), nu=flat(nu), Pii=flat(Pii),
                     Pjj=flat(Pjj),
@@ -234,50 +220,41 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
             z = np.asarray(d.z, dtype=float)
             landmarks.append((len(outcomes), sub, Factor("unary", -1, -1, d.kind, z, R, lm, 1.0)))
             outcomes.append(None)
-        if not pseudo and not landmarks:
-            return s, list(outcomes), msgs  # type: ignore[arg-type]
-        # the pose at this group's instant, the observer's updates on it
-        s = self._posed(s)
-        win = s.win
-        pid = win.poses[-1]
-        factors = list(win.factors)
-        for before, after in pseudo:
-            f = pseudo_factor(pid, before.x, before.P, after.x, after.P, before.x)
-            if f is not None:
-                factors.append(f)
-        win = win._replace(est={**win.est, pid: s.x}, factors=tuple(factors))
         if not landmarks:
-            return s._replace(win=win), list(outcomes), msgs  # type: ignore[arg-type]
-        win2 = win._replace(factors=(*win.factors, *(f._replace(a=pid) for _, _, f in landmarks)))
-        solved = self._solve(win2, pid, g.t)
-        if solved is None:
-            for k, sub, _ in landmarks:
-                outcomes[k] = ("rejected", NUMERICAL)
-                msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
-            return s._replace(win=win), list(outcomes), msgs  # type: ignore[arg-type]
-        win3, xw, Pc = solved
-        Lam = np.zeros((3, 3))  # the new factors' information about the newest pose, at its smoothed estimate
-        for _, _, f in landmarks:
-            m = model(f.meas)
-            Hc = (m.predict(xw, f.target) if f.target is not None else m.predict(xw))[1]
-            Hw = np.asarray(Hc, dtype=float) @ I.world_basis(xw)
-            Lam += Hw.T @ np.linalg.solve(f.R, Hw)
-        Pinv = np.linalg.inv(s.P)
-        D = s.P - np.linalg.inv(Pinv + Lam)
-        Sinv = Pinv @ D @ Pinv
-        Sinv = 0.5 * (Sinv + Sinv.T)
-        nu = Pinv @ world_delta(s.x, xw)
-        Pii = s.P
-        eye = np.eye(3)
-        new = self._team_update(s, i, i, eye, np.zeros((3, 3)), Sinv, nu, Pii, Pii)
-        if not (np.isfinite(new.x).all() and usable_covariance(new.P) and np.isfinite(new.Sigma).all()):
-            for k, sub, _ in landmarks:
-                outcomes[k] = ("rejected", NUMERICAL)
-                msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
-            return s._replace(win=win), list(outcomes), msgs  # type: ignore[arg-type]
-        body = dict(target=i, m=3, Hi=_EYE, Hj=_ZEROS, Sinv=flat(Sinv), nu=flat(nu), Pii=flat(Pii), Pjj=flat(Pii))
-        for n, (k, sub, _) in enumerate(landmarks):
-            outcomes[k] = FUSED
-            extra = body if n == 0 else {}
-            msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub, **extra) for r in mates]
-        return new._replace(win=win3), list(outcomes), msgs  # type: ignore[arg-type]
+            return s, list(outcomes), msgs  # type: ignore[arg-type]
+        s = self._posed(s)  # the pose at this group's instant (its robot detections made it already)
+        pid = s.win.poses[-1]
+        win = s.win._replace(est={**s.win.est, pid: s.x})
+        solved = self._solve(win._replace(factors=(*win.factors, *(f._replace(a=pid) for _, _, f in landmarks))),
+                             pid, g.t)  # fmt: skip
+        if solved is not None:
+            win3, xw, _ = solved
+            new = s
+            updates = []
+            for _, _, f in landmarks:  # each detection linearized at the smoothed pose, applied to the filter
+                m = model(f.meas)
+                h, Hc, _ = m.predict(xw, f.target) if f.target is not None else m.predict(xw)
+                Hw = np.asarray(Hc, dtype=float) @ I.world_basis(xw)
+                r = m.residual(f.z, h) - Hw @ world_delta(xw, new.x)
+                try:
+                    Sinv = np.linalg.inv(Hw @ new.P @ Hw.T + f.R)
+                except np.linalg.LinAlgError:
+                    break
+                Sinv = 0.5 * (Sinv + Sinv.T)
+                nu = Sinv @ r
+                updates.append((Hw, Sinv, nu, new.P))
+                new = self._team_update(new, i, i, Hw, np.zeros_like(Hw), Sinv, nu, new.P, new.P)
+            else:
+                if np.isfinite(new.x).all() and usable_covariance(new.P) and np.isfinite(new.Sigma).all():
+                    for (k, sub, _), (Hw, Sinv, nu, Pii) in zip(landmarks, updates, strict=True):
+                        outcomes[k] = FUSED
+                        body = dict(
+                            target=i, m=len(nu), Hi=flat(Hw), Hj=flat(np.zeros_like(Hw)), Sinv=flat(Sinv),
+                            nu=flat(nu), Pii=flat(Pii), Pjj=flat(Pii),
+                        )  # fmt: skip
+                        msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub, **body) for r in mates]
+                    return new._replace(win=win3), list(outcomes), msgs  # type: ignore[arg-type]
+        for k, sub, _ in landmarks:
+            outcomes[k] = ("rejected", NUMERICAL)
+            msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
+        return s._replace(win=win), list(outcomes), msgs  # type: ignore[arg-type]
