@@ -2,29 +2,27 @@
 
 The node is a :class:`~swarmloc.estimators.diekf.DistributedInvariantEKF` (its pose ``x_i``, world-frame covariance
 ``P_ii`` and replica of the team's cross-covariances, its ``RdlStateQuery`` exchange and its ``TeamUpdate``
-broadcasts, unchanged) whose **own landmark and absolute detections go through a window** of its recent poses, as
-:class:`~swarmloc.estimators.fls.FixedLagSmoother`'s: odometry ``BetweenFactorPose2`` between the poses at its
-detection instants, one nonlinear factor per landmark detection, poses older than ``lag`` marginalized into a
-prior. At a detection group the window is solved (Gauss-Newton, relinearizing the landmark and odometry factors of
-the last ``lag`` seconds) and its newest pose's marginal ``(x+, P+)`` replaces the filter's ``(x, P)``, as one
-linear update of the team filter with ``H_i = I``:
+broadcasts, unchanged) that also keeps a **window** of its robot's recent poses, as
+:class:`~swarmloc.estimators.fls.FixedLagSmoother` does: odometry ``BetweenFactorPose2`` between consecutive poses,
+one nonlinear factor per own landmark (or absolute) detection, poses older than ``lag`` marginalized into a prior.
 
-``S^-1 = P^-1 D P^-1`` with ``D = P - P+`` (its negative eigenvalues clipped to 0), ``nu = P^-1 delta`` with
-``exp(delta) x = x+``: the filter moves to ``x+`` and ``P - D``, every cross-covariance ``Sigma_il`` to
-``(P - D) P^-1 Sigma_il``, what a private measurement of that information does. It is broadcast as ``diekf``'s
-landmark updates are (one ``TeamUpdate`` per group, under the first fused landmark detection's key, empty ones
-under the others), so every replica applies it exactly as ``diekf`` would.
+* **Own landmarks.** At a detection group the window, with the group's landmark factors added, is solved (Gauss-Newton,
+  relinearizing the factors of the last ``lag`` seconds). Each detection is then applied to the filter as a
+  ``diekf`` landmark update linearized at the *smoothed* pose ``x_w`` instead of the filter's (the iterated EKF's
+  step: ``H = H(x_w)``, ``r = z - h(x_w) - H xi`` with ``exp(xi) x_w = x``) and broadcast as ``diekf`` broadcasts
+  it, so every replica applies it exactly.
+* **Everything else that moves the robot's pose** (its updates as the observer of a robot, and every teammate's
+  broadcast, which reaches it through the cross-covariances) enters the window as a **pseudo-factor** on the pose at
+  the update's stamp (:func:`pseudo_factor`): the update ``xi <- xi + G nu``, ``P <- P - G S^-1 G^T`` is the Kalman
+  update of the measurement ``G^T P^-1 xi = S nu`` with noise ``S - G^T P^-1 G`` (the innovation's covariance
+  given the pose), linear in the pose. So the window's newest marginal follows the filter's and the window's
+  solve weighs its landmark factors as the filter would. (Differences of information matrices instead, clipped to
+  positive semi-definite, made a near-null direction come and go with rounding: replayed input then differed by
+  1e-6.)
 
-Every other change of the filter's own pose (its updates as observer of a robot, and the teammates' broadcasts,
-which move it through the cross-covariances) enters the window as a **pseudo-factor**: the Gaussian in the
-world-frame error that turns the filter's ``(x, P)`` before into the one after (information ``P+^-1 - P^-1``,
-clipped at 0), linear in the Cartesian pose, on the pose at the detection's instant (the observer's updates) or on
-the window's newest pose (received broadcasts: a world-frame correction commutes with the odometry, as ``diekf``
-uses; attaching it before the odometry since then only adds variance). So the window's newest marginal follows the
-filter, and the next solve's ``D`` is the new landmark information plus what relinearization changed.
-
-Everything else (answers, queries, broadcasts, replay, the networked driver) is ``diekf``'s: the node needs the
-whole team's all-to-all channel, as ``diekf`` does.
+The estimates and covariances answered and recorded are the filter's; what the window adds is the
+linearization point of the landmark updates. Everything else (answers, queries, broadcasts, replay, the networked
+driver) is ``diekf``'s: the node needs the whole team's all-to-all channel, as ``diekf`` does.
 """
 
 from __future__ import annotations
