@@ -212,6 +212,9 @@ class WindowSolver:
     _g: Any
     lag: float
     max_iterations: int
+    lagged_log: dict | None = None
+    """A diagnostic (None: off): set it to a dict and every pose leaving the window is filed there, ``stamp [s] ->
+    (x, y, theta)``, its smoothed estimate then (``lag`` seconds of later inputs; the latest replay's)."""
 
     def _solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
         """Solve the window (Gauss-Newton from its estimates), take the newest pose's marginal and
@@ -247,6 +250,9 @@ class WindowSolver:
         """Eliminate the window's first ``k0`` poses (and the neighbour variables tied to them): the factors
         touching them, linearized at ``values``, become a Gaussian prior on the pose ``k0``."""
         g = self._g
+        if self.lagged_log is not None:
+            for pid, ts in zip(win.poses[:k0], win.stamps[:k0], strict=True):
+                self.lagged_log[ts] = _xyt(values.atPose2(pid))
         drop = set(win.poses[:k0])
         keep = win.poses[k0]
         out = [f for f in win.factors if f.a in drop]
