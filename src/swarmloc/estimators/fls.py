@@ -60,15 +60,15 @@ from swarmloc.messages import Message
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
 from swarmloc.sensors.models import model
 
-__all__ = ["FixedLagSmoother", "FlsState", "Window"]
+__all__ = ["TINY_VARIANCE", "Factor", "FixedLagSmoother", "FlsState", "Window", "WindowSolver", "load_gtsam"]
 
 _ZERO3 = np.zeros(3)
 _ZERO33 = np.zeros((3, 3))
-_TINY = 1e-12
+TINY_VARIANCE = 1e-12
 """Variance [m^2, rad^2] added to the diagonal of an odometry factor's covariance (a zero-length increment)."""
 
 
-def _gtsam() -> Any:
+def load_gtsam() -> Any:
     try:
         import gtsam
     except ImportError as exc:  # pragma: no cover - gtsam is a dependency of the 'fls' and 'dev' extras
@@ -287,7 +287,7 @@ class FixedLagSmoother(WindowSolver, RobotNode):
             raise ValueError(f"FixedLagSmoother: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
         self.lag = float(lag)
         self.max_iterations = max_iterations
-        self._g = _gtsam()
+        self._g = load_gtsam()
         super().__init__(robot, initial, **kw)
 
     # ------------------------------------------------------------------------------------------------ filter
@@ -321,7 +321,7 @@ class FixedLagSmoother(WindowSolver, RobotNode):
         prior_scale = win.prior[2]
         if new_pose:
             _, Qg = C.to_group(s.rel, s.Q)
-            factors.append(Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + _TINY * np.eye(3), None, 1.0))
+            factors.append(Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + TINY_VARIANCE * np.eye(3), None, 1.0))
             est[pid] = s.x
         outcomes: list[Outcome] = []
         fused = 0

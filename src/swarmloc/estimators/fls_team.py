@@ -35,7 +35,7 @@ import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.estimators.diekf import DistributedInvariantEKF
-from swarmloc.estimators.fls import _TINY, Factor, Window, WindowSolver, _gtsam
+from swarmloc.estimators.fls import TINY_VARIANCE, Factor, Window, WindowSolver, load_gtsam
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
@@ -111,7 +111,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
             raise ValueError(f"{type(self).__name__}: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
         self.lag = float(lag)
         self.max_iterations = max_iterations
-        self._g = _gtsam()
+        self._g = load_gtsam()
         super().__init__(robot, initial, team=team, **kw)
 
     # ------------------------------------------------------------------------------------------------ filter
@@ -159,7 +159,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
             return s
         pid = win.next_id
         _, Qg = C.to_group(s.rel, s.Q)
-        odo = Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + _TINY * np.eye(3), None, 1.0)
+        odo = Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + TINY_VARIANCE * np.eye(3), None, 1.0)
         win = Window((*win.poses, pid), (*win.stamps, s.t), {**win.est, pid: s.x}, win.prior,
                      (*win.factors, odo), pid + 1)  # fmt: skip
         if win.stamps[0] < s.t - 2 * self.lag:  # no landmark solve for a while: marginalize the old poses
