@@ -176,6 +176,7 @@ def test_pseudo_factor_reproduces_the_team_update_it_stands_for():
     np.testing.assert_allclose(I.cartesian_to_world_cov(x, P), P1, rtol=0, atol=1e-4 * float(np.abs(P1).max()))
     assert np.abs(P1 - P0).max() > 1e-3 and np.abs(x1 - x0).max() > 1e-6  # not negligible: the checks can fail
     assert pseudo_factor(0, P0, np.zeros((3, 2)), np.linalg.inv(S), nu, x0) is None
+    assert pseudo_factor(0, P0, G, np.zeros((2, 2)), nu, x0) is None  # a malformed update: no crash, no factor
 
 
 def _team_scores(spec: str, names: tuple[str, ...], **kw) -> dict:

@@ -80,10 +80,13 @@ def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu
     G^T`` (``G = Gamma_me (3, m)``, :mod:`swarmloc.estimators.diekf`). That is the Kalman update of the measurement
     ``J xi = r + noise(R')`` with ``J = G^T P0^-1``, ``r = S nu``, ``R' = S - G^T P0^-1 G`` (the innovation's
     covariance given this pose; positive definite), written whitened in the Cartesian pose around ``at``. None
-    when the update does not reach this pose (``G = 0``)."""
+    when the update does not reach this pose (``G = 0``) or ``Sinv`` is singular (no update of ours sends one)."""
     if not G.any():
         return None
-    S = np.linalg.inv(Sinv)
+    try:
+        S = np.linalg.inv(Sinv)
+    except np.linalg.LinAlgError:  # a teammate's malformed update: the filter takes it as diekf does, not the window
+        return None
     J = G.T @ np.linalg.inv(P0)
     Rp = S - J @ G
     Rp = 0.5 * (Rp + Rp.T)
