@@ -393,6 +393,21 @@ def test_networked_equals_in_process_on_mrclam6_first_120s(est, mrclam6):
     assert res.stats["fused"] > 1000
 
 
+def test_flsd_networked_equals_in_process_on_mrclam6_first_60s(mrclam6):
+    """flsd through 5 node processes on real data with landmarks (windows with every teammate's broadcast as a
+    pseudo-factor): the in-process result (measured: difference 0)."""
+    spec = f"mrclam:{mrclam6}"
+    src = load_source(spec, duration=60.0)
+    team = f"eqmrclamflsd{os.getpid()}"
+    tr = run_team(src=src, source=spec, duration=60.0, estimator="flsd", team=team, max_wall=300)
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, "flsd")
+    assert res.stats["reports"] == 5
+    assert max_diff(res, reference(src, "flsd")) <= 1e-9
+    assert res.stats["fused"] > 1000
+
+
 def test_kill_restart_and_late_join():
     src = load_source("sim:random", robots=3, duration=16.0, seed=2)
     team = f"killjoin{os.getpid()}"
