@@ -48,8 +48,6 @@ __all__ = ["TeamFixedLagSmoother", "TeamFlsState"]
 
 _ZERO3 = np.zeros(3)
 _ZERO33 = np.zeros((3, 3))
-_EYE = flat(np.eye(3))
-_ZEROS = flat(np.zeros((3, 3)))
 
 
 class TeamFlsState(NamedTuple):
@@ -94,7 +92,9 @@ def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu
         C_ = np.linalg.cholesky(Rp)
     except np.linalg.LinAlgError:  # rounding: R' is a conditional covariance, at least the sensor's noise
         lam, V = np.linalg.eigh(Rp)
-        C_ = V * np.sqrt(np.maximum(lam, 1e-12 * max(float(lam.max()), 1e-300)))
+        if not lam.max() > 0:  # not a covariance at all: a malformed update
+            return None
+        C_ = V * np.sqrt(np.maximum(lam, 1e-12 * float(lam.max())))
     W = np.linalg.inv(C_)  # W^T W = R'^-1 (up to an orthogonal factor)
     A = W @ J @ I.world_basis_inv(at)
     return Factor("pseudo", pose, -1, "", np.asarray(at, dtype=float), A, W @ (S @ nu), 1.0)
