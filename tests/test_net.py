@@ -363,6 +363,22 @@ def test_fls_networked_equals_in_process_on_a_simulated_team():
     assert res.stats["fused"] > 50
 
 
+def test_flsd_networked_equals_in_process_on_a_simulated_team_with_landmarks():
+    """The fixed-lag smoother on diekf's exchange (window of own landmark factors, TeamUpdate broadcasts, team
+    pseudo-factors) through 3 node processes equals the in-process run, 3 robots with landmarks, 10 s."""
+    src = load_source("sim:landmarks", robots=3, duration=10.0, seed=2)
+    team = f"eqsimflsd{os.getpid()}"
+    tr = run_team(src=src, source="sim:landmarks", robots=3, duration=10.0, seed=2, estimator="flsd", team=team,
+                  max_wall=120)  # fmt: skip
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, "flsd")
+    ref = reference(src, "flsd")
+    assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
+    assert max_diff(res, ref) <= 1e-9
+    assert res.stats["fused"] > 100 and ref.stats["fused"] == res.stats["fused"]
+
+
 @pytest.mark.parametrize("est", DISTRIBUTED)
 def test_networked_equals_in_process_on_mrclam6_first_120s(est, mrclam6):
     spec = f"mrclam:{mrclam6}"
@@ -374,6 +390,21 @@ def test_networked_equals_in_process_on_mrclam6_first_120s(est, mrclam6):
     res = team_result(tr, src, est)
     assert res.stats["reports"] == 5
     assert max_diff(res, reference(src, est)) <= 1e-6
+    assert res.stats["fused"] > 1000
+
+
+def test_flsd_networked_equals_in_process_on_mrclam6_first_60s(mrclam6):
+    """flsd through 5 node processes on real data with landmarks (windows with every teammate's broadcast as a
+    pseudo-factor): the in-process result (measured: difference 0)."""
+    spec = f"mrclam:{mrclam6}"
+    src = load_source(spec, duration=60.0)
+    team = f"eqmrclamflsd{os.getpid()}"
+    tr = run_team(src=src, source=spec, duration=60.0, estimator="flsd", team=team, max_wall=300)
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, "flsd")
+    assert res.stats["reports"] == 5
+    assert max_diff(res, reference(src, "flsd")) <= 1e-9
     assert res.stats["fused"] > 1000
 
 

@@ -16,6 +16,7 @@ nodes of a team from each robot's initial belief.
 | ``fej`` | :class:`FirstEstimatesEKF` | centralized EKF with first-estimates Jacobians (observability-preserving) |
 | ``mcl`` | :class:`MonteCarloLocalization` | multi-robot Monte Carlo localization (distributed, particles) |
 | ``fls`` | :class:`FixedLagSmoother` | per-robot fixed-lag smoother (GTSAM), covariance intersection with neighbours |
+| ``flsd`` | :class:`TeamFixedLagSmoother` | fixed-lag smoother of own landmarks (GTSAM) on ``diekf``'s exchange |
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from swarmloc.estimators.diekf import DistributedInvariantEKF
 from swarmloc.estimators.dr import DeadReckoning
 from swarmloc.estimators.expfusion import ExpFusion
 from swarmloc.estimators.fls import FixedLagSmoother
+from swarmloc.estimators.fls_team import TeamFixedLagSmoother
 from swarmloc.estimators.iekf import FirstEstimatesEKF, InvariantEKF
 from swarmloc.estimators.irdl import InvariantRDL
 from swarmloc.estimators.mcl import MonteCarloLocalization
@@ -56,6 +58,7 @@ ESTIMATORS: dict[str, type[Node]] = {
     "diekf": DistributedInvariantEKF,
     "mcl": MonteCarloLocalization,
     "fls": FixedLagSmoother,
+    "flsd": TeamFixedLagSmoother,
 }
 """Node classes by their command-line name."""
 
@@ -162,6 +165,7 @@ __all__ = [
     "ExpFusion",
     "FirstEstimatesEKF",
     "FixedLagSmoother",
+    "TeamFixedLagSmoother",
     "InvariantEKF",
     "InvariantRDL",
     "MonteCarloLocalization",

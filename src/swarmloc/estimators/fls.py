@@ -60,15 +60,15 @@ from swarmloc.messages import Message
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
 from swarmloc.sensors.models import model
 
-__all__ = ["FixedLagSmoother", "FlsState", "Window"]
+__all__ = ["TINY_VARIANCE", "Factor", "FixedLagSmoother", "FlsState", "Window", "WindowSolver", "load_gtsam"]
 
 _ZERO3 = np.zeros(3)
 _ZERO33 = np.zeros((3, 3))
-_TINY = 1e-12
+TINY_VARIANCE = 1e-12
 """Variance [m^2, rad^2] added to the diagonal of an odometry factor's covariance (a zero-length increment)."""
 
 
-def _gtsam() -> Any:
+def load_gtsam() -> Any:
     try:
         import gtsam
     except ImportError as exc:  # pragma: no cover - gtsam is a dependency of the 'fls' and 'dev' extras
@@ -82,6 +82,8 @@ class Factor(NamedTuple):
     landmark or an absolute fix made at pose ``a``: ``z``, the model's noise ``R`` plus the landmark's
     covariance, ``target`` the landmark's ``(x, y)`` or None) or ``"neighbour"`` (a detection of robot ``b``'s
     pose variable, which has ``target``, the answered ``(mean (3, 3), cov (3, 3))``, as its prior).
+    ``"pseudo"`` (a linear Gaussian factor on pose ``a``, error ``R (x - z) - target`` with ``x`` the Cartesian pose:
+    what :mod:`swarmloc.estimators.fls_team` files for its filter's other updates).
     ``scale``: the multiplier of its information (covariance intersection); ``meas``: the detection kind."""
 
     kind: str
@@ -165,6 +167,23 @@ def _measurement_factor(g: Any, f: Factor, keys: list[int]) -> Any:
     return g.CustomFactor(g.noiseModel.Gaussian.Covariance(f.R / f.scale), keys, error)
 
 
+def _pseudo_factor(g: Any, f: Factor) -> Any:
+    """A :class:`gtsam.CustomFactor` for a linear Gaussian factor on pose ``a``: error ``A (x - z) - b`` (``x``
+    Cartesian, the angle of ``x - z`` wrapped; ``A = f.R (m, 3)`` whitened, ``b = f.target (m,)``)."""
+    A = f.R
+    b = f.target
+
+    def error(this: Any, values: Any, H: Any) -> np.ndarray:
+        x = _xyt(values.atPose2(this.keys()[0]))
+        d = x - f.z
+        d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
+        if H is not None:
+            H[0] = _body(A, x[2])
+        return A @ d - b
+
+    return g.CustomFactor(g.noiseModel.Unit.Create(len(b)), [f.a], error)
+
+
 def _graph(g: Any, win: Window, factors: tuple[Factor, ...] | None = None, prior: bool = True) -> Any:
     """The window's factor graph (``factors``: a subset, default all; ``prior``: include the oldest pose's)."""
     graph = g.NonlinearFactorGraph()
@@ -177,6 +196,8 @@ def _graph(g: Any, win: Window, factors: tuple[Factor, ...] | None = None, prior
             graph.add(g.BetweenFactorPose2(f.a, f.b, _pose2(g, f.z), noise))
         elif f.kind == "unary":
             graph.add(_measurement_factor(g, f, [f.a]))
+        elif f.kind == "pseudo":
+            graph.add(_pseudo_factor(g, f))
         else:
             graph.add(_measurement_factor(g, f, [f.a, f.b]))
             mean, cov = f.target
@@ -184,7 +205,68 @@ def _graph(g: Any, win: Window, factors: tuple[Factor, ...] | None = None, prior
     return graph
 
 
-class FixedLagSmoother(RobotNode):
+class WindowSolver:
+    """The window's solve and marginalization, shared by the smoother nodes: needs ``_g`` (the gtsam module),
+    ``lag`` [s] and ``max_iterations``."""
+
+    _g: Any
+    lag: float
+    max_iterations: int
+    lagged_log: dict | None = None
+    """A diagnostic (None: off): set it to a dict and every pose leaving the window is filed there, ``stamp [s] ->
+    (x, y, theta)``, its smoothed estimate then (``lag`` seconds of later inputs; the latest replay's)."""
+
+    def _solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
+        """Solve the window (Gauss-Newton from its estimates), take the newest pose's marginal and
+        marginalize the poses older than ``t - lag``: ``(window, x (3,), P (3, 3) Cartesian)`` or None when the
+        solve fails (not finite, or a singular marginal)."""
+        g = self._g
+        graph = _graph(g, win)
+        values = g.Values()
+        for k, xk in win.est.items():
+            values.insert(k, _pose2(g, xk))
+        try:
+            result = values
+            for _ in range(self.max_iterations):  # a fixed count: the result is a smooth function of the inputs
+                result = result.retract(graph.linearize(result).optimize())
+            est = {k: _xyt(result.atPose2(k)) for k in win.est}
+            if not all(np.isfinite(v).all() for v in est.values()):
+                return None
+            cov = g.Marginals(graph, result).marginalCovariance(newest)
+            x = est[newest]
+            P = _cartesian_cov(x[2], cov)
+            if not usable_covariance(P):
+                return None
+            win = win._replace(est=est)
+            cutoff = t - self.lag
+            k0 = next(i for i, ts in enumerate(win.stamps) if ts >= cutoff or i == len(win.stamps) - 1)
+            if k0 > 0:
+                win = self._marginalize(win, k0, result)
+        except RuntimeError:  # GTSAM: an indeterminant system
+            return None
+        return win, x, P
+
+    def _marginalize(self, win: Window, k0: int, values: Any) -> Window:
+        """Eliminate the window's first ``k0`` poses (and the neighbour variables tied to them): the factors
+        touching them, linearized at ``values``, become a Gaussian prior on the pose ``k0``."""
+        g = self._g
+        if self.lagged_log is not None:
+            for pid, ts in zip(win.poses[:k0], win.stamps[:k0], strict=True):
+                self.lagged_log[ts] = _xyt(values.atPose2(pid))
+        drop = set(win.poses[:k0])
+        keep = win.poses[k0]
+        out = [f for f in win.factors if f.a in drop]
+        gone = drop | {f.b for f in out if f.kind == "neighbour"}
+        sub = _graph(g, win, tuple(out))
+        cov = g.Marginals(sub, values).marginalCovariance(keep)
+        delta = sub.linearize(values).optimize()
+        mean = _xyt(values.atPose2(keep).retract(delta.at(keep)))
+        est = {k: v for k, v in win.est.items() if k not in gone}
+        factors = tuple(f for f in win.factors if f.a not in drop)
+        return Window(win.poses[k0:], win.stamps[k0:], est, (mean, np.array(cov), 1.0), factors, win.next_id)
+
+
+class FixedLagSmoother(WindowSolver, RobotNode):
     """Per-robot fixed-lag smoother over its recent poses (GTSAM), covariance intersection with neighbours.
 
     Parameters (besides :class:`~swarmloc.node.robot.RobotNode`'s)
@@ -205,7 +287,7 @@ class FixedLagSmoother(RobotNode):
             raise ValueError(f"FixedLagSmoother: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
         self.lag = float(lag)
         self.max_iterations = max_iterations
-        self._g = _gtsam()
+        self._g = load_gtsam()
         super().__init__(robot, initial, **kw)
 
     # ------------------------------------------------------------------------------------------------ filter
@@ -239,7 +321,7 @@ class FixedLagSmoother(RobotNode):
         prior_scale = win.prior[2]
         if new_pose:
             _, Qg = C.to_group(s.rel, s.Q)
-            factors.append(Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + _TINY * np.eye(3), None, 1.0))
+            factors.append(Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + TINY_VARIANCE * np.eye(3), None, 1.0))
             est[pid] = s.x
         outcomes: list[Outcome] = []
         fused = 0
@@ -291,52 +373,6 @@ class FixedLagSmoother(RobotNode):
             return s, [("rejected", NUMERICAL) if o == FUSED else o for o in outcomes], []
         win3, x, P = solved
         return FlsState(s.t, s.v, s.w, x, P, _ZERO3, _ZERO33, win3), outcomes, []
-
-    def _solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
-        """Solve the window (Gauss-Newton from its estimates), take the newest pose's marginal and
-        marginalize the poses older than ``t - lag``: ``(window, x (3,), P (3, 3) Cartesian)`` or None when the
-        solve fails (not finite, or a singular marginal)."""
-        g = self._g
-        graph = _graph(g, win)
-        values = g.Values()
-        for k, xk in win.est.items():
-            values.insert(k, _pose2(g, xk))
-        try:
-            result = values
-            for _ in range(self.max_iterations):  # a fixed count: the result is a smooth function of the inputs
-                result = result.retract(graph.linearize(result).optimize())
-            est = {k: _xyt(result.atPose2(k)) for k in win.est}
-            if not all(np.isfinite(v).all() for v in est.values()):
-                return None
-            cov = g.Marginals(graph, result).marginalCovariance(newest)
-            x = est[newest]
-            P = _cartesian_cov(x[2], cov)
-            if not usable_covariance(P):
-                return None
-            win = win._replace(est=est)
-            cutoff = t - self.lag
-            k0 = next(i for i, ts in enumerate(win.stamps) if ts >= cutoff or i == len(win.stamps) - 1)
-            if k0 > 0:
-                win = self._marginalize(win, k0, result)
-        except RuntimeError:  # GTSAM: an indeterminant system
-            return None
-        return win, x, P
-
-    def _marginalize(self, win: Window, k0: int, values: Any) -> Window:
-        """Eliminate the window's first ``k0`` poses (and the neighbour variables tied to them): the factors
-        touching them, linearized at ``values``, become a Gaussian prior on the pose ``k0``."""
-        g = self._g
-        drop = set(win.poses[:k0])
-        keep = win.poses[k0]
-        out = [f for f in win.factors if f.a in drop]
-        gone = drop | {f.b for f in out if f.kind == "neighbour"}
-        sub = _graph(g, win, tuple(out))
-        cov = g.Marginals(sub, values).marginalCovariance(keep)
-        delta = sub.linearize(values).optimize()
-        mean = _xyt(values.atPose2(keep).retract(delta.at(keep)))
-        est = {k: v for k, v in win.est.items() if k not in gone}
-        factors = tuple(f for f in win.factors if f.a not in drop)
-        return Window(win.poses[k0:], win.stamps[k0:], est, (mean, np.array(cov), 1.0), factors, win.next_id)
 
 
 def _cartesian_cov(theta: float, cov: np.ndarray) -> np.ndarray:

@@ -1,0 +1,261 @@
+"""A fixed-lag smoother on the exact distributed invariant EKF's exchange (``"flsd"``).
+
+The node is a :class:`~swarmloc.estimators.diekf.DistributedInvariantEKF` (its pose ``x_i``, world-frame covariance
+``P_ii`` and replica of the team's cross-covariances, its ``RdlStateQuery`` exchange and its ``TeamUpdate``
+broadcasts, unchanged) that also keeps a **window** of its robot's recent poses, as
+:class:`~swarmloc.estimators.fls.FixedLagSmoother` does: odometry ``BetweenFactorPose2`` between consecutive poses,
+one nonlinear factor per own landmark (or absolute) detection, poses older than ``lag`` marginalized into a prior.
+
+* **Own landmarks.** At a detection group the window, with the group's landmark factors added, is solved (Gauss-Newton,
+  relinearizing the factors of the last ``lag`` seconds). Each detection is then applied to the filter as a
+  ``diekf`` landmark update linearized at the *smoothed* pose ``x_w`` instead of the filter's (the iterated EKF's
+  step: ``H = H(x_w)``, ``r = z - h(x_w) - H xi`` with ``exp(xi) x_w = x``) and broadcast as ``diekf`` broadcasts
+  it, so every replica applies it exactly.
+* **Everything else that moves the robot's pose** (its updates as the observer of a robot, and every teammate's
+  broadcast, which reaches it through the cross-covariances) enters the window as a **pseudo-factor** on the pose at
+  the update's stamp (:func:`pseudo_factor`): the update ``xi <- xi + G nu``, ``P <- P - G S^-1 G^T`` is the Kalman
+  update of the measurement ``G^T P^-1 xi = S nu`` with noise ``S - G^T P^-1 G`` (the innovation's covariance
+  given the pose), linear in the pose. So the window's newest marginal follows the filter's and the window's
+  solve weighs its landmark factors as the filter would. (Differences of information matrices instead, clipped to
+  positive semi-definite, made a near-null direction come and go with rounding: replayed input then differed by
+  1e-6.)
+
+The estimates and covariances answered and recorded are the filter's; what the window adds is the
+linearization point of the landmark updates. Everything else (answers, queries, broadcasts, replay, the networked
+driver) is ``diekf``'s: the node needs the whole team's all-to-all channel, as ``diekf`` does.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from swarmloc.estimators.dekf import DEGENERATE, linearize
+from swarmloc.estimators.diekf import DistributedInvariantEKF
+from swarmloc.estimators.fls import TINY_VARIANCE, Factor, Window, WindowSolver, load_gtsam
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.kernels import cartesian as C
+from swarmloc.kernels import invariant as I
+from swarmloc.lie import SE2
+from swarmloc.messages import Message, TeamUpdate, flat
+from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, usable_covariance
+from swarmloc.sensors.models import model
+
+__all__ = ["TeamFixedLagSmoother", "TeamFlsState"]
+
+_ZERO3 = np.zeros(3)
+_ZERO33 = np.zeros((3, 3))
+
+
+class TeamFlsState(NamedTuple):
+    """A node's state: ``diekf``'s (time [s], command ``(v, w)``, pose ``x (3,)``, world-frame ``P (3, 3)``,
+    replica ``Sigma (n, n, 3, 3)``), the Cartesian increment since the window's newest pose (``rel (3,)`` in its
+    frame, covariance ``Q (3, 3)``) and the window."""
+
+    t: float
+    v: float
+    w: float
+    x: np.ndarray
+    P: np.ndarray
+    Sigma: np.ndarray
+    rel: np.ndarray
+    Q: np.ndarray
+    win: Window
+
+
+def world_delta(x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+    """The world-frame correction ``delta`` with ``exp(hat(delta)) g(x0) = g(x1)``."""
+    return SE2.log(SE2.from_xytheta(x1) @ SE2.inverse(SE2.from_xytheta(x0), validate=False))
+
+
+def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
+                  at: np.ndarray) -> Factor | None:  # fmt: skip
+    """The linear factor on ``pose`` equivalent to a team update's effect on this robot's pose: the update moved
+    the world-frame error of the estimate ``at`` (covariance ``P0``) by ``G nu`` and its covariance by ``-G Sinv
+    G^T`` (``G = Gamma_me (3, m)``, :mod:`swarmloc.estimators.diekf`). That is the Kalman update of the measurement
+    ``J xi = r + noise(R')`` with ``J = G^T P0^-1``, ``r = S nu``, ``R' = S - G^T P0^-1 G`` (the innovation's
+    covariance given this pose; positive definite), written whitened in the Cartesian pose around ``at``. None
+    when the update does not reach this pose (``G = 0``) or ``Sinv`` is singular (no update of ours sends one)."""
+    if not G.any():
+        return None
+    try:
+        S = np.linalg.inv(Sinv)
+    except np.linalg.LinAlgError:  # a teammate's malformed update: the filter takes it as diekf does, not the window
+        return None
+    J = G.T @ np.linalg.inv(P0)
+    Rp = S - J @ G
+    Rp = 0.5 * (Rp + Rp.T)
+    try:
+        C_ = np.linalg.cholesky(Rp)
+    except np.linalg.LinAlgError:  # rounding: R' is a conditional covariance, at least the sensor's noise
+        lam, V = np.linalg.eigh(Rp)
+        if not lam.max() > 0:  # not a covariance at all: a malformed update
+            return None
+        C_ = V * np.sqrt(np.maximum(lam, 1e-12 * float(lam.max())))
+    W = np.linalg.inv(C_)  # W^T W = R'^-1 (up to an orthogonal factor)
+    A = W @ J @ I.world_basis_inv(at)
+    return Factor("pseudo", pose, -1, "", np.asarray(at, dtype=float), A, W @ (S @ nu), 1.0)
+
+
+class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
+    """``diekf`` whose own landmark updates come from a fixed-lag smoother of its recent poses (module
+    docstring). ``lag`` [s] and ``max_iterations`` as :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s."""
+
+    name = "flsd"
+
+    def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), lag: float = 2.0,
+                 max_iterations: int = 3, **kw: Any) -> None:  # fmt: skip
+        if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
+            raise ValueError(f"{type(self).__name__}: 'lag' must be a positive number of seconds, got {lag!r}")
+        if not (isinstance(max_iterations, int) and max_iterations >= 1):
+            raise ValueError(f"{type(self).__name__}: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
+        self.lag = float(lag)
+        self.max_iterations = max_iterations
+        self._g = load_gtsam()
+        super().__init__(robot, initial, team=team, **kw)
+
+    # ------------------------------------------------------------------------------------------------ filter
+    def _initial_state(self, t0: float) -> TeamFlsState:
+        s = super()._initial_state(t0)
+        win = Window((0,), (t0,), {0: s.x}, (s.x, np.array(self.initial.cov, dtype=float), 1.0), (), 1)
+        return TeamFlsState(s.t, s.v, s.w, s.x, s.P, s.Sigma, _ZERO3, _ZERO33, win)
+
+    def _advance(self, s: TeamFlsState, robot: int, t: float) -> TeamFlsState:
+        dt = t - s.t
+        if dt <= 0:
+            return s
+        x0, y0, th, _, _, q00, q01, q02, q11, q12, q22 = C.increment_terms(s.x, s.v, s.w, dt, self.noise)
+        x = np.array([x0, y0, th])
+        Qc = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+        rel, Q, _, _ = C.predict_one(s.rel, s.Q, s.v, s.w, dt, self.noise)
+        return s._replace(t=t, x=x, P=s.P + I.cartesian_to_world_cov(x, Qc), rel=rel, Q=Q)
+
+    def _set_command(self, s: TeamFlsState, robot: int, v: float, w: float) -> TeamFlsState:
+        return s._replace(v=v, w=w)
+
+    def _team_update(
+        self, s: TeamFlsState, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
+        Pii: np.ndarray, Pjj: np.ndarray,
+    ) -> TeamFlsState:  # type: ignore[override]  # fmt: skip
+        """``diekf``'s update; the change of this robot's pose is also filed in the window (:func:`pseudo_factor`)
+        unless the update is the node's own landmark update (``i == j == robot``: the window holds its factors)."""
+        new = super()._team_update(s, i, j, Hi, Hj, Sinv, nu, Pii, Pjj)
+        out = s._replace(x=new.x, P=new.P, Sigma=new.Sigma)
+        me = self.robot
+        if i == j == me:
+            return out
+        Ci = Pii if me == i else s.Sigma[self._pos[me], self._pos[i]]
+        Cj = Ci if j == i else (Pjj if me == j else s.Sigma[self._pos[me], self._pos[j]])
+        G = Ci @ Hi.T + Cj @ Hj.T
+        s = self._posed(s)  # the pose at the update's instant: its change is about it
+        f = pseudo_factor(s.win.poses[-1], s.P, G, Sinv, nu, s.x)
+        win = s.win if f is None else s.win._replace(factors=(*s.win.factors, f))
+        return out._replace(rel=s.rel, Q=s.Q, win=win)
+
+    def _posed(self, s: TeamFlsState) -> TeamFlsState:
+        """``s`` with a window pose at its time ``s.t`` (added with its odometry factor when the newest is older)."""
+        win = s.win
+        if win.stamps[-1] >= s.t:
+            return s
+        pid = win.next_id
+        _, Qg = C.to_group(s.rel, s.Q)
+        odo = Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + TINY_VARIANCE * np.eye(3), None, 1.0)
+        win = Window((*win.poses, pid), (*win.stamps, s.t), {**win.est, pid: s.x}, win.prior,
+                     (*win.factors, odo), pid + 1)  # fmt: skip
+        if win.stamps[0] < s.t - 2 * self.lag:  # no landmark solve for a while: marginalize the old poses
+            solved = self._solve(win, pid, s.t)
+            if solved is not None:
+                win = solved[0]
+        return s._replace(rel=_ZERO3, Q=_ZERO33, win=win)
+
+    def _apply_update(self, s: TeamFlsState, u: TeamUpdate) -> tuple[TeamFlsState, bool]:
+        s = self._adv(s, self.robot, u.stamp)  # the pose at the update's stamp: a function of the inputs only
+        return super()._apply_update(s, u)
+
+    # ------------------------------------------------------------------------------------------------ update
+    def _fuse_group(self, s: TeamFlsState, g: Group) -> tuple[TeamFlsState, list[Outcome], list[Message]]:
+        i = self.robot
+        mates = [r for r in self.team if r != i]
+        outcomes: list[Outcome | None] = []
+        msgs: list[Message] = []
+        landmarks: list[tuple[int, tuple, Factor]] = []  # (outcome slot, key, factor)
+        for d, sub in zip(g.detections, g.keys, strict=True):
+            target = self._classify(g, d, sub)
+            if target[0] in ("rejected", "unknown"):
+                outcomes.append(target)
+                continue
+            if target[0] == "robot":
+                res = self._one(s, g, d, target)
+                if isinstance(res[0], str):
+                    outcomes.append(res)
+                    msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
+                    continue
+                s, (j, Hi, Hj, Sinv, nu, Pii, Pjj) = res
+                body = dict(
+                    target=j, m=len(nu), Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv), nu=flat(nu), Pii=flat(Pii),
+                    Pjj=flat(Pjj),
+                )  # fmt: skip
+                msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub, **body) for r in mates]
+                outcomes.append(FUSED)
+                continue
+            lin = linearize(d, s.x, target)
+            if lin is None:
+                outcomes.append(("rejected", DEGENERATE))
+                continue
+            r, Hi_c, R, _ = lin
+            Hw = Hi_c @ I.world_basis(s.x)
+            try:
+                nis = float(r @ np.linalg.solve(Hw @ s.P @ Hw.T + R, r))
+            except np.linalg.LinAlgError:
+                outcomes.append(("rejected", NUMERICAL))
+                continue
+            verdict = self._gated(nis, len(r))
+            if verdict is not None:
+                outcomes.append(verdict)
+                msgs += [TeamUpdate(sender=i, receiver=rr, stamp=g.t, sub=sub) for rr in mates]
+                continue
+            lm = None if target[0] == "absolute" else np.asarray(target[1][0], dtype=float)
+            z = np.asarray(d.z, dtype=float)
+            landmarks.append((len(outcomes), sub, Factor("unary", -1, -1, d.kind, z, R, lm, 1.0)))
+            outcomes.append(None)
+        if not landmarks:
+            return s, list(outcomes), msgs  # type: ignore[arg-type]
+        s = self._posed(s)  # the pose at this group's instant (its robot detections made it already)
+        pid = s.win.poses[-1]
+        win = s.win._replace(est={**s.win.est, pid: s.x})
+        solved = self._solve(win._replace(factors=(*win.factors, *(f._replace(a=pid) for _, _, f in landmarks))),
+                             pid, g.t)  # fmt: skip
+        if solved is not None:
+            win3, xw, _ = solved
+            new = s
+            updates = []
+            for _, _, f in landmarks:  # each detection linearized at the smoothed pose, applied to the filter
+                m = model(f.meas)
+                h, Hc, _ = m.predict(xw, f.target) if f.target is not None else m.predict(xw)
+                Hw = np.asarray(Hc, dtype=float) @ I.world_basis(xw)
+                r = m.residual(f.z, h) - Hw @ world_delta(xw, new.x)
+                try:
+                    Sinv = np.linalg.inv(Hw @ new.P @ Hw.T + f.R)
+                except np.linalg.LinAlgError:
+                    break
+                Sinv = 0.5 * (Sinv + Sinv.T)
+                nu = Sinv @ r
+                updates.append((Hw, Sinv, nu, new.P))
+                new = self._team_update(new, i, i, Hw, np.zeros_like(Hw), Sinv, nu, new.P, new.P)
+            else:
+                if np.isfinite(new.x).all() and usable_covariance(new.P) and np.isfinite(new.Sigma).all():
+                    for (k, sub, _), (Hw, Sinv, nu, Pii) in zip(landmarks, updates, strict=True):
+                        outcomes[k] = FUSED
+                        body = dict(
+                            target=i, m=len(nu), Hi=flat(Hw), Hj=flat(np.zeros_like(Hw)), Sinv=flat(Sinv),
+                            nu=flat(nu), Pii=flat(Pii), Pjj=flat(Pii),
+                        )  # fmt: skip
+                        msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub, **body) for r in mates]
+                    return new._replace(win=win3), list(outcomes), msgs  # type: ignore[arg-type]
+        for k, sub, _ in landmarks:
+            outcomes[k] = ("rejected", NUMERICAL)
+            msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
+        return s._replace(win=win), list(outcomes), msgs  # type: ignore[arg-type]
