@@ -176,6 +176,30 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
         return super()._apply_update(s, u)
 
     # ------------------------------------------------------------------------------------------------ update
+    def _smoothed_landmarks(
+        self, s: TeamFlsState, factors: list[Factor], xw: np.ndarray
+    ) -> tuple[TeamFlsState, list] | None:
+        """Each landmark factor linearized at the smoothed pose ``xw`` and applied to the filter in turn, with the
+        ``(Hw, Sinv, nu, Pii)`` of each update to broadcast; None when an innovation covariance is singular or the
+        result is not a usable state."""
+        new, updates = s, []
+        for f in factors:
+            m = model(f.meas)
+            h, Hc, _ = m.predict(xw, f.target) if f.target is not None else m.predict(xw)
+            Hw = np.asarray(Hc, dtype=float) @ I.world_basis(xw)
+            r = m.residual(f.z, h) - Hw @ world_delta(xw, new.x)
+            try:
+                Sinv = np.linalg.inv(Hw @ new.P @ Hw.T + f.R)
+            except np.linalg.LinAlgError:
+                return None
+            Sinv = 0.5 * (Sinv + Sinv.T)
+            nu = Sinv @ r
+            updates.append((Hw, Sinv, nu, new.P))
+            new = self._team_update(new, self.robot, self.robot, Hw, np.zeros_like(Hw), Sinv, nu, new.P, new.P)
+        if not (np.isfinite(new.x).all() and usable_covariance(new.P) and np.isfinite(new.Sigma).all()):
+            return None
+        return new, updates
+
     def _fuse_group(self, s: TeamFlsState, g: Group) -> tuple[TeamFlsState, list[Outcome], list[Message]]:
         i = self.robot
         mates = [r for r in self.team if r != i]
@@ -228,33 +252,17 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
         win = s.win._replace(est={**s.win.est, pid: s.x})
         solved = self._solve(win._replace(factors=(*win.factors, *(f._replace(a=pid) for _, _, f in landmarks))),
                              pid, g.t)  # fmt: skip
-        if solved is not None:
-            win3, xw, _ = solved
-            new = s
-            updates = []
-            for _, _, f in landmarks:  # each detection linearized at the smoothed pose, applied to the filter
-                m = model(f.meas)
-                h, Hc, _ = m.predict(xw, f.target) if f.target is not None else m.predict(xw)
-                Hw = np.asarray(Hc, dtype=float) @ I.world_basis(xw)
-                r = m.residual(f.z, h) - Hw @ world_delta(xw, new.x)
-                try:
-                    Sinv = np.linalg.inv(Hw @ new.P @ Hw.T + f.R)
-                except np.linalg.LinAlgError:
-                    break
-                Sinv = 0.5 * (Sinv + Sinv.T)
-                nu = Sinv @ r
-                updates.append((Hw, Sinv, nu, new.P))
-                new = self._team_update(new, i, i, Hw, np.zeros_like(Hw), Sinv, nu, new.P, new.P)
-            else:
-                if np.isfinite(new.x).all() and usable_covariance(new.P) and np.isfinite(new.Sigma).all():
-                    for (k, sub, _), (Hw, Sinv, nu, Pii) in zip(landmarks, updates, strict=True):
-                        outcomes[k] = FUSED
-                        body = dict(
-                            target=i, m=len(nu), Hi=flat(Hw), Hj=flat(np.zeros_like(Hw)), Sinv=flat(Sinv),
-                            nu=flat(nu), Pii=flat(Pii), Pjj=flat(Pii),
-                        )  # fmt: skip
-                        msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub, **body) for r in mates]
-                    return new._replace(win=win3), list(outcomes), msgs  # type: ignore[arg-type]
+        applied = None if solved is None else self._smoothed_landmarks(s, [f for _, _, f in landmarks], solved[1])
+        if applied is not None:
+            new, updates = applied
+            for (k, sub, _), (Hw, Sinv, nu, Pii) in zip(landmarks, updates, strict=True):
+                outcomes[k] = FUSED
+                body = dict(
+                    target=i, m=len(nu), Hi=flat(Hw), Hj=flat(np.zeros_like(Hw)), Sinv=flat(Sinv),
+                    nu=flat(nu), Pii=flat(Pii), Pjj=flat(Pii),
+                )  # fmt: skip
+                msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub, **body) for r in mates]
+            return new._replace(win=solved[0]), list(outcomes), msgs  # type: ignore[arg-type,index]
         for k, sub, _ in landmarks:
             outcomes[k] = ("rejected", NUMERICAL)
             msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
