@@ -68,6 +68,10 @@ def run_engine(
     opts = {**node_options(estimator, src.config, src.landmarks), **options}
     for clock_only in ("tolerance", "jump_inputs"):  # the engine replays a checked log: no clock contract to keep
         opts.pop(clock_only, None)
+    opts.pop("association_gate", None)  # the engine fuses tagged detections only (no association step)
+    if opts.get("association", "tags") != "tags":
+        raise ValueError(f"run_engine: association {opts['association']!r} is not supported (tagged detections only)")
+    opts.pop("association", None)
     robots = src.robots
     col = {r: i for i, r in enumerate(robots)}
     checked = _Checked(col, bool(src.landmarks))
