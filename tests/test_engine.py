@@ -321,3 +321,34 @@ def test_numba_in_place_kernels_equal_numpy_on_every_outcome(monkeypatch: pytest
     assert engines["numpy"].reasons == engines["numba"].reasons
     assert all(engines["numba"].counts[k] >= 5 for k in ("fused", "gated", "rejected", "unknown"))
     assert len(engines["numba"].reasons) >= 4
+
+
+def test_jax_compiles_once_per_power_of_two_bucket() -> None:
+    """Batches of 1 to 300 rows (every size, in random order) compile each kernel once per padded size: the
+    powers of two from 8 to 512 (7 buckets), not once per batch size; the padded rows do not reach the results."""
+    from swarmloc.engine.backends import JaxOps, NumpyOps
+
+    rng = np.random.default_rng(4)
+    noise = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
+    jx, ref = JaxOps(noise), NumpyOps(noise)
+    sizes = rng.permutation(np.arange(1, 301))
+    for b in sizes[:60].tolist() + [1, 8, 9, 300]:
+        x = np.column_stack([rng.normal(size=(b, 2)), rng.uniform(-3, 3, b)])
+        A = rng.normal(size=(b, 3, 3))
+        P = 1e-2 * A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)
+        v, w, dt = rng.uniform(0, 1, b), rng.uniform(-1, 1, b), np.full(b, 0.1)
+        for got, want in zip(jx.predict(x, P, v, w, dt), ref.predict(x, P, v, w, dt), strict=True):
+            assert got.shape == want.shape
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+        got = jx.pose_update(x, P, x[::-1], P[::-1], x, P)
+        want = ref.pose_update(x, P, x[::-1], P[::-1], x, P)
+        for g, r in zip(got, want, strict=True):
+            np.testing.assert_allclose(g, r, rtol=0, atol=1e-9)
+        jx.absolute_update(x, P, x + 0.1, P)
+    buckets = {max(8, 1 << (int(b) - 1).bit_length()) for b in [*sizes[:60].tolist(), 1, 8, 9, 300]}
+    assert len(buckets) <= 7
+    assert jx.compiles == {"predict": len(buckets), "pose": len(buckets), "absolute": len(buckets)}
+    x, P, v, w, dt = x[:8], P[:8], v[:8], w[:8], dt[:8]  # a full bucket: nothing padded
+    jx.predict(x, P, v.astype(np.float32), w, dt)  # another dtype is cast, not compiled again
+    jx.predict(x, P, (100 * v).astype(np.int64), w, dt)
+    assert jx.compiles["predict"] == len(buckets)
