@@ -157,7 +157,14 @@ class TeamUpdate(Message, frozen=True, kw_only=True, tag="team_update"):
 
 
 def _finite(xs: tuple, n: int) -> bool:
-    return len(xs) == n and all(isinstance(x, float | int) and math.isfinite(x) for x in xs)
+    if len(xs) != n:
+        return False
+    if set(map(type, xs)) <= _PLAIN:  # the common case, checked without a Python-level loop
+        return all(map(math.isfinite, xs))
+    return all(isinstance(x, float | int) and math.isfinite(x) for x in xs)
+
+
+_PLAIN = {float, int}
 
 
 def _spd3(c: tuple) -> bool:

@@ -55,11 +55,12 @@ def increment_terms(
 ) -> tuple[float, float, float, float, float, float, float, float, float, float]:
     """One robot's step in floats: new ``(x, y, theta)``, ``(dx, dy)`` and the process covariance's upper triangle
     ``(q00, q01, q02, q11, q12, q22)`` (module docstring)."""
-    c, s, tx, ty, S11, S12, S13, S22, S23, S33 = odometry_increment_terms(v, w, dt, noise)
+    # memoized (increment_cached): the same numbers as odometry_increment_terms, its (cos, sin) kept as the angle
+    alpha, tx, ty, S11, S12, S13, S22, S23, S33 = increment_cached(increment_cache(noise), v, w, dt, noise)
     x0, y0, th0 = x.tolist()
     ct, st = math.cos(th0), math.sin(th0)
     dx, dy = ct * tx - st * ty, st * tx + ct * ty
-    th = math.pi - (math.pi - (th0 + math.atan2(s, c))) % (2 * math.pi)  # wrapped to (-pi, pi]
+    th = math.pi - (math.pi - (th0 + alpha)) % (2 * math.pi)  # wrapped to (-pi, pi]
     cn, sn = math.cos(th), math.sin(th)
     cc, ss, cs = cn * cn, sn * sn, cn * sn
     return (
