@@ -220,7 +220,8 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         if u.target == self.robot:
             s = self._adv(s, self.robot, u.stamp)
         m = u.m
-        Hi, Hj = np.reshape(u.Hi, (m, 3)), np.reshape(u.Hj, (m, 3))
-        Sinv, nu = np.reshape(u.Sinv, (m, m)), np.array(u.nu)
-        Pii, Pjj = np.reshape(u.Pii, (3, 3)), np.reshape(u.Pjj, (3, 3))
+        A = np.array  # np.array(t).reshape: what np.reshape(t) makes of a tuple, without its dispatch
+        Hi, Hj = A(u.Hi).reshape(m, 3), A(u.Hj).reshape(m, 3)
+        Sinv, nu = A(u.Sinv).reshape(m, m), A(u.nu)
+        Pii, Pjj = A(u.Pii).reshape(3, 3), A(u.Pjj).reshape(3, 3)
         return self._team_update(s, u.sender, u.target, Hi, Hj, Sinv, nu, Pii, Pjj), True

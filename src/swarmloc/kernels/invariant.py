@@ -26,9 +26,11 @@ import numpy as np
 
 from swarmloc.lie import SE2, wrap_angle
 
+
 def _T(a: np.ndarray, i: int, j: int) -> np.ndarray:
     """``np.swapaxes`` as the array method (the same view, without the function's dispatch)."""
     return a.swapaxes(i, j)
+
 
 __all__ = [
     "body_to_world",
