@@ -247,9 +247,11 @@ def _kernels(noise: UnicycleNoise) -> dict[str, Any]:
     return out
 
 
-PARALLEL_MIN = 200_000
-"""Rows below which the kernels run on one thread: starting the thread pool once per level costs more (measured
-on the shared 2-core machine: at 30k rows per stamp the parallel path was 4x slower than one thread)."""
+PARALLEL_MIN = 1_000_000
+"""Rows (detections of a stamp, or robots predicted) below which the kernels run on one thread, in place (measured
+on the shared 2-core machine, relative-pose swarms with 3 neighbours, robot-updates/s with one thread in place /
+two threads by levels: 2.7e6 / 3.2e6 at 10k robots, but 2.7e6 / 1.4e6 per CPU second; 2.6e6 / 2.3e6 at 100k
+robots; 1.2e6 / 1.4e6 at 1M robots, where the neighbours' states no longer fit in the cache)."""
 
 
 def _serial(rows: int) -> bool:
