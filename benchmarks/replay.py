@@ -1,7 +1,8 @@
-"""MRCLAM dataset 6 replay speed per estimator, this checkout against a baseline git revision, in one run.
+"""MRCLAM replay speed per estimator, this checkout against a baseline git revision, in one run.
 
-    python benchmarks/replay.py                       # full 756 s, landmarks on, against 9bda81e, 3 rounds
+    python benchmarks/replay.py                       # dataset 6, full 756 s, landmarks on, against 9bda81e, 3 rounds
     python benchmarks/replay.py --duration 120 --rounds 5 --baseline HEAD~3
+    python benchmarks/replay.py --datasets 6,9 --estimators dekf,cekf,rdl,diekf,ci,expfusion --baseline aa78436
 
 The baseline's ``src/`` is exported with ``git archive`` into a temporary folder; every round runs the baseline and
 this checkout in fresh subprocesses, one after the other, each calling its own
@@ -51,10 +52,17 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3, help="rounds; the best time per estimator is kept")
     ap.add_argument("--estimators", default=",".join(ESTIMATORS))
     ap.add_argument("--landmarks", choices=["on", "off"], default="on")
+    ap.add_argument("--datasets", default="6", help="MRCLAM dataset numbers, comma-separated (default 6)")
     args = ap.parse_args()
-    ds = DATA / "MRCLAM_Dataset6"
-    if not ds.is_dir():
-        sys.exit(f"MRCLAM dataset 6 not found at {ds} (set SWARMLOC_MRCLAM)")
+    for number in args.datasets.split(","):
+        ds = DATA / f"MRCLAM_Dataset{number}"
+        if not ds.is_dir():
+            sys.exit(f"MRCLAM dataset {number} not found at {ds} (set SWARMLOC_MRCLAM)")
+        compare(args, ds, number)
+
+
+def compare(args: argparse.Namespace, ds: Path, number: str) -> None:
+    """Baseline and current, alternately in fresh processes, ``args.rounds`` times; print the best of each."""
     names = [e for e in args.estimators.split(",") if e]
     with tempfile.TemporaryDirectory() as tmp:
         archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.baseline, "src"], check=True,
@@ -69,9 +77,10 @@ def main() -> None:
                 for k, (wall, dur) in res.items():
                     span = dur
                     best[label][k] = min(best[label].get(k, float("inf")), wall)
-            print(f"round {r + 1}/{args.rounds} done", file=sys.stderr)
-    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}")
-    print(f"MRCLAM dataset 6, {span:.0f} s, landmarks {args.landmarks}; best of {args.rounds} rounds; "
+            print(f"dataset {number}: round {r + 1}/{args.rounds} done", file=sys.stderr)
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}, "
+          f"load average {os.getloadavg()[0]:.2f} (1 min)")  # fmt: skip
+    print(f"MRCLAM dataset {number}, {span:.0f} s, landmarks {args.landmarks}; best of {args.rounds} rounds; "
           f"baseline {args.baseline}")  # fmt: skip
     print(f"{'estimator':<10} {'baseline':>16} {'current':>16} {'current / baseline speed':>26}")
     for k in names:

@@ -255,3 +255,100 @@ def test_swarm_run_and_fusion_step() -> None:
     assert out["pos_rmse_m"] < 0.2
     fs = fusion_step(200, repeats=1)
     assert fs["n"] == 200 and fs["robot_updates_per_s"] > 0 and fs["levels"] >= 1
+
+
+def _outcome_mix(x: np.ndarray, m: int, rng: np.random.Generator) -> Detections:
+    """Detections of every screening outcome for robots at ``x (n, 3)``: absolute fixes and relative poses near
+    the truth ``x`` (a fifth of them 5 m off, for the gate), poses of the observer itself, of an unusable target and
+    of an unknown robot; canonically sorted."""
+    n = x.shape[0]
+    from swarmloc.engine.codes import ABSOLUTE, NO_TARGET, POSE, UNKNOWN_ROBOT, UNUSABLE
+
+    obs = rng.integers(0, n, m)
+    tgt = rng.integers(0, n, m)
+    special = rng.random(m)
+    tgt = np.where(special < 0.1, UNUSABLE, np.where(special < 0.2, UNKNOWN_ROBOT, tgt))
+    tgt = np.where((special > 0.2) & (special < 0.25), obs, tgt)
+    absolute = special > 0.85
+    tgt = np.where(absolute, NO_TARGET, tgt)
+    kind = np.where(absolute, ABSOLUTE, POSE).astype(np.int64)
+    j = np.where(tgt >= 0, tgt, obs)
+    c, s = np.cos(x[obs, 2]), np.sin(x[obs, 2])
+    dx, dy = x[j, 0] - x[obs, 0], x[j, 1] - x[obs, 1]
+    rel = np.column_stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(x[j, 2] - x[obs, 2])])
+    z = np.where(absolute[:, None], x[obs], rel) + rng.normal(scale=0.03, size=(m, 3))
+    z += np.where(rng.random((m, 1)) < 0.2, 5.0, 0.0)
+    A = rng.normal(size=(m, 3, 3))
+    R = 1e-3 * A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)
+    return Detections(obs, tgt, kind, z, R).canonical()
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+def test_numba_in_place_kernels_equal_numpy_on_every_outcome(monkeypatch: pytest.MonkeyPatch, parallel: bool) -> None:
+    """The numba backend's in-place path (screening, prediction and fusion in one kernel, Gauss-Seidel without
+    levels) and its level-parallel path equal numpy: states, clocks, outcome and reason codes, counts, levels."""
+    from swarmloc.engine import numba_ops
+
+    if parallel:
+        monkeypatch.setattr(numba_ops, "PARALLEL_MIN", 0)
+    rng = np.random.default_rng(3)
+    n = 9
+    mean = SE2.from_xytheta(np.column_stack([rng.normal(size=(n, 2)), rng.uniform(-3, 3, n)]))
+    A = rng.normal(size=(n, 3, 3))
+    cov = 1e-2 * A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)
+    t0 = np.zeros(n)
+    t0[7], t0[8] = 2.5, np.inf  # starts late; never starts
+    noise = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
+    engines = {b: Engine("dekf", mean, cov, noise=noise, t0=t0, gate=0.99, backend=b) for b in ("numpy", "numba")}
+    for k in range(1, 7):
+        t = 0.5 * k
+        det = _outcome_mix(engines["numpy"].a, 25, rng)
+        some = np.sort(rng.choice(n, 4, replace=False))  # commands for some robots; the others keep theirs
+        cmd = (some, rng.uniform(0, 1, 4), rng.uniform(-1, 1, 4))
+        status = {}
+        for b, eng in engines.items():
+            eng.predict(some, t)
+            status[b] = eng.fuse(t, det, presorted=True)
+            eng.set_command(*cmd)
+        np.testing.assert_array_equal(status["numpy"], status["numba"])
+        one, two = engines["numpy"], engines["numba"]
+        assert one.last_levels == two.last_levels
+        np.testing.assert_array_equal(one.t, two.t)
+        np.testing.assert_allclose(one.a, two.a, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(one.b, two.b, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(one.v, two.v)
+    assert engines["numpy"].counts == engines["numba"].counts
+    assert engines["numpy"].reasons == engines["numba"].reasons
+    assert all(engines["numba"].counts[k] >= 5 for k in ("fused", "gated", "rejected", "unknown"))
+    assert len(engines["numba"].reasons) >= 4
+
+
+def test_jax_compiles_once_per_power_of_two_bucket() -> None:
+    """Batches of 1 to 300 rows (every size, in random order) compile each kernel once per padded size: the
+    powers of two from 8 to 512 (7 buckets), not once per batch size; the padded rows do not reach the results."""
+    from swarmloc.engine.backends import JaxOps, NumpyOps
+
+    rng = np.random.default_rng(4)
+    noise = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
+    jx, ref = JaxOps(noise), NumpyOps(noise)
+    sizes = rng.permutation(np.arange(1, 301))
+    for b in sizes[:60].tolist() + [1, 8, 9, 300]:
+        x = np.column_stack([rng.normal(size=(b, 2)), rng.uniform(-3, 3, b)])
+        A = rng.normal(size=(b, 3, 3))
+        P = 1e-2 * A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)
+        v, w, dt = rng.uniform(0, 1, b), rng.uniform(-1, 1, b), np.full(b, 0.1)
+        for got, want in zip(jx.predict(x, P, v, w, dt), ref.predict(x, P, v, w, dt), strict=True):
+            assert got.shape == want.shape
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+        got = jx.pose_update(x, P, x[::-1], P[::-1], x, P)
+        want = ref.pose_update(x, P, x[::-1], P[::-1], x, P)
+        for g, r in zip(got, want, strict=True):
+            np.testing.assert_allclose(g, r, rtol=0, atol=1e-9)
+        jx.absolute_update(x, P, x + 0.1, P)
+    buckets = {max(8, 1 << (int(b) - 1).bit_length()) for b in [*sizes[:60].tolist(), 1, 8, 9, 300]}
+    assert len(buckets) <= 7
+    assert jx.compiles == {"predict": len(buckets), "pose": len(buckets), "absolute": len(buckets)}
+    x, P, v, w, dt = x[:8], P[:8], v[:8], w[:8], dt[:8]  # a full bucket: nothing padded
+    jx.predict(x, P, v.astype(np.float32), w, dt)  # another dtype is cast, not compiled again
+    jx.predict(x, P, (100 * v).astype(np.int64), w, dt)
+    assert jx.compiles["predict"] == len(buckets)

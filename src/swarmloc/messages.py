@@ -159,12 +159,19 @@ class TeamUpdate(Message, frozen=True, kw_only=True, tag="team_update"):
 
 
 def _finite(xs: tuple, n: int) -> bool:
-    return len(xs) == n and all(isinstance(x, float | int) and math.isfinite(x) for x in xs)
+    if len(xs) != n:
+        return False
+    if set(map(type, xs)) <= _PLAIN:  # the common case, checked without a Python-level loop
+        return all(map(math.isfinite, xs))
+    return all(isinstance(x, float | int) and math.isfinite(x) for x in xs)
+
+
+_PLAIN = {float, int}
 
 
 def _spd3(c: tuple) -> bool:
     """A row-major 3x3 matrix is symmetric (to 1e-9 relative) and positive definite (leading minors > 0)."""
-    scale = max(1.0, max(abs(x) for x in c))
+    scale = max(1.0, max(map(abs, c)))
     if abs(c[1] - c[3]) > 1e-9 * scale or abs(c[2] - c[6]) > 1e-9 * scale or abs(c[5] - c[7]) > 1e-9 * scale:
         return False
     m2 = c[0] * c[4] - c[1] * c[3]

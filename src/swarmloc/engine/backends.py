@@ -9,6 +9,7 @@ batch to a power of two (at least 8) so that a run compiles each function for a 
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -85,6 +86,8 @@ def _bucket(n: int) -> int:
 
 
 def _pad(a: np.ndarray, size: int, fill: np.ndarray | float) -> np.ndarray:
+    """``a`` as float64 with ``size`` rows, the rows past its own set to ``fill`` (masked: their results are cut)."""
+    a = np.asarray(a, dtype=float)  # one dtype: an integer array would compile another version
     if a.shape[0] == size:
         return a
     out = np.empty((size, *a.shape[1:]))
@@ -111,9 +114,20 @@ class JaxOps:
 
         self.noise = noise
         self._jnp = jnp
-        self._predict = jax.jit(lambda x, P, v, w, dt: _predict(jnp, noise, x, P, v, w, dt))
-        self._pose = jax.jit(lambda *a: _pose(jnp, *a))
-        self._absolute = jax.jit(lambda *a: _absolute(jnp, *a))
+        self.compiles: Counter[str] = Counter()
+        """Compilations per kernel (``predict``, ``pose``, ``absolute``): one per padded batch size (bucket)."""
+        self._predict = self._jit("predict", lambda x, P, v, w, dt: _predict(jnp, noise, x, P, v, w, dt))
+        self._pose = self._jit("pose", lambda *a: _pose(jnp, *a))
+        self._absolute = self._jit("absolute", lambda *a: _absolute(jnp, *a))
+
+    def _jit(self, name: str, fn: Any) -> Any:
+        import jax
+
+        def traced(*args: Any) -> Any:
+            self.compiles[name] += 1  # runs when jax traces: once per new argument shape, then never again
+            return fn(*args)
+
+        return jax.jit(traced)
 
     @staticmethod
     def _out(res: tuple, n: int) -> Arrays:

@@ -124,7 +124,7 @@ class Engine:
         self.v = np.zeros(n)
         self.w = np.zeros(n)
         if estimator == "dekf":
-            self.a, self.b = C.from_group(mean, cov)
+            self.a, self.b = (np.ascontiguousarray(s, dtype=float) for s in C.from_group(mean, cov))
         else:
             self.a, self.b = mean.copy(), cov.copy()
         self.counts: Counter[str] = Counter()
@@ -161,6 +161,9 @@ class Engine:
     def predict(self, robots: np.ndarray, t: float) -> None:
         """Predict ``robots`` (rows) to ``t`` [s] and store it (robots already there, or not started, unchanged)."""
         robots = np.asarray(robots, dtype=np.int64)
+        if self._serial_numba(robots.size):  # in place, no gather or scatter
+            self.ops.predict_into(self.a, self.b, self.t, self.v, self.w, robots, t)
+            return
         dt = t - self.t[robots]
         go = robots[dt > 0]
         if go.size == 0:
@@ -173,6 +176,9 @@ class Engine:
 
     def set_command(self, robots: np.ndarray, v: np.ndarray, w: np.ndarray) -> None:
         """Odometry ``(v [m/s], w [rad/s])`` in force from each robot's clock on (call :meth:`predict` first)."""
+        if self._serial_numba(len(robots)):
+            self.ops.scatter2(self.v, self.w, robots, v, w)
+            return
         self.v[robots] = v
         self.w[robots] = w
 
@@ -215,6 +221,14 @@ class Engine:
             det = det.canonical()
         if len(det) == 0:
             return np.zeros(0, dtype=np.int8)
+        if self._serial_numba(len(det)):  # screened and fused in place, on one thread
+            status, reason = np.zeros(len(det), dtype=np.int8), np.zeros(len(det), dtype=np.int8)
+            lv = self.ops.fuse_serial(self.a, self.b, self.t, self.t0, self.v, self.w, t, self.use_relative, det,
+                                      status, reason, self.fusion.gate)  # fmt: skip
+            if lv >= 0:
+                self.last_levels = lv
+                tally(self.counts, self.reasons, status, reason)
+                return status
         status, reason, obs_ok, needs = screen(det, t, self.t0, self.use_relative)
         starts, pos = runs(det.observer)
         observers = det.observer[starts][obs_ok[starts]]
@@ -223,6 +237,10 @@ class Engine:
             self._fuse_groups(t, det, status, reason, pos, starts, obs_ok, needs, observers)
         tally(self.counts, self.reasons, status, reason)
         return status
+
+    def _serial_numba(self, rows: int) -> bool:
+        """The numba backend with ``rows`` rows on one thread: the in-place kernels (no gather, copy or levels)."""
+        return self.backend == "numba" and self.ops.serial(rows)
 
     def _fuse_groups(
         self,

@@ -17,7 +17,25 @@ from typing import Any
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, MODEL, PENDING, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import (
+    ABSOLUTE,
+    FUSED,
+    GATED,
+    MODEL,
+    PENDING,
+    POSE,
+    R_NONFINITE,
+    R_NOT_STARTED,
+    R_NUMERICAL,
+    R_OBSERVER,
+    R_OFF,
+    R_SELF,
+    R_TEAM,
+    R_UNUSABLE,
+    REJECTED,
+    UNKNOWN,
+    UNUSABLE,
+)
 from swarmloc.engine.scalar import absolute_source, pose_source, predict_source
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
@@ -91,6 +109,93 @@ def absolute_rows(x, P, z, R):
     return ox, oP, nis, ok
 
 
+def predict_into(x, P, tc, v, w, robots, t):
+    for k in range(robots.shape[0]):
+        i = robots[k]
+        if tc[i] < t:
+            r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
+{_store("x", "P", "i", 12)}
+            tc[i] = t
+
+
+def fuse_serial(x, P, tc, t0, v, w, t, relative, obs, tgt, kind, z, R, status, reason, gate, thr, lev):
+    m = obs.shape[0]
+    n = x.shape[0]
+    for q in range(m):
+        if kind[q] != {ABSOLUTE} and kind[q] != {POSE}:
+            return -1  # nothing done: the caller takes the general path
+    top = -1
+    for q in range(m):
+        i = obs[q]
+        if not t >= t0[i]:  # screen(): the checks before any fusion, in its order
+            status[q] = {REJECTED}
+            reason[q] = {R_OBSERVER}
+            continue
+        j = tgt[q]
+        robot = kind[q] != {ABSOLUTE}
+        needs = False
+        if robot:
+            if not relative:
+                status[q] = {REJECTED}
+                reason[q] = {R_OFF}
+            elif j == {UNUSABLE}:
+                status[q] = {REJECTED}
+                reason[q] = {R_UNUSABLE}
+            elif j == i:
+                status[q] = {REJECTED}
+                reason[q] = {R_SELF}
+            elif j < 0:
+                status[q] = {UNKNOWN}
+                reason[q] = {R_TEAM}
+            elif not t >= t0[min(j, n - 1)]:
+                status[q] = {UNKNOWN}
+                reason[q] = {R_NOT_STARTED}
+            else:
+                needs = True
+        if tc[i] < t:  # the observer moves to t at its group (stored)
+            r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
+{_store("x", "P", "i", 12)}
+            tc[i] = t
+        if lev[i] < 0:
+            lev[i] = 0
+        if needs and j < i and lev[j] >= 0 and lev[j] + 1 > lev[i]:
+            lev[i] = lev[j] + 1
+        if lev[i] > top:
+            top = lev[i]
+        if status[q] != {PENDING}:
+            continue
+        if not robot:
+            r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
+        elif tc[j] < t:  # a neighbour without input at t: its answer predicted, not stored
+            k = predict({_args("x", "j")}, {_args("P", "j", True)}, v[j], w[j], t - tc[j])
+            r = pose({_args("x", "i")}, {_args("P", "i", True)}, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7],
+                     k[8], {_args("z", "q")}, {_args("R", "q", True)})
+        else:  # j < i: after its own group at t; j > i: its group is still to come (Gauss-Seidel, as the nodes)
+            r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("x", "j")}, {_args("P", "j", True)},
+                     {_args("z", "q")}, {_args("R", "q", True)})
+        if gate:
+            if not math.isfinite(r[9]):
+                status[q] = {REJECTED}
+                reason[q] = {R_NONFINITE}
+                continue
+            if r[9] > thr[kind[q]]:
+                status[q] = {GATED}
+                continue
+        if not r[10]:
+            status[q] = {REJECTED}
+            reason[q] = {R_NUMERICAL}
+            continue
+{_store("x", "P", "i", 8)}
+        status[q] = {FUSED}
+    return top + 1
+
+
+def scatter2(a, b, rows, va, vb):
+    for k in range(rows.shape[0]):
+        a[rows[k]] = va[k]
+        b[rows[k]] = vb[k]
+
+
 def fuse_groups(x, P, px, pP, lo, lt, later, kind, z, R, status, reason, gate, thr, g0, g1, bounds):
     for lv in range(bounds.shape[0] - 1):
         for g in prange(bounds[lv], bounds[lv + 1]):
@@ -137,16 +242,25 @@ def _kernels(noise: UnicycleNoise) -> dict[str, Any]:
     for name in ("predict_rows", "pose_rows", "absolute_rows", "fuse_groups"):
         out[name] = njit(parallel=True, error_model="numpy")(ns[name])
         out[name + "_serial"] = njit(error_model="numpy")(ns[name])  # prange runs as range
+    for name in ("predict_into", "fuse_serial", "scatter2"):  # in place, one thread
+        out[name] = njit(error_model="numpy")(ns[name])
     return out
 
 
-PARALLEL_MIN = 200_000
-"""Rows below which the kernels run on one thread: starting the thread pool once per level costs more (measured
-on the shared 2-core machine: at 30k rows per stamp the parallel path was 4x slower than one thread)."""
+PARALLEL_MIN = 1_000_000
+"""Rows (detections of a stamp, or robots predicted) below which the kernels run on one thread, in place (measured
+on the shared 2-core machine, relative-pose swarms with 3 neighbours, robot-updates/s with one thread in place /
+two threads by levels: 2.7e6 / 3.2e6 at 10k robots, but 2.7e6 / 1.4e6 per CPU second; 2.6e6 / 2.3e6 at 100k
+robots; 1.2e6 / 1.4e6 at 1M robots, where the neighbours' states no longer fit in the cache)."""
+
+
+def _serial(rows: int) -> bool:
+    """Whether ``rows`` rows run on one thread (below :data:`PARALLEL_MIN`, or one numba thread)."""
+    return rows < PARALLEL_MIN or get_num_threads() <= 1
 
 
 def _pick(k: dict[str, Any], name: str, rows: int) -> Any:
-    return k[name] if rows >= PARALLEL_MIN and get_num_threads() > 1 else k[name + "_serial"]
+    return k[name + "_serial"] if _serial(rows) else k[name]
 
 
 class NumbaOps:
@@ -174,6 +288,10 @@ class NumbaOps:
         for gate in (Gate(), Gate(0.5)):  # the serial variants; the parallel ones compile on their first large batch
             self.fuse_groups((x.copy(), P.copy()), (x, P), det, i, i[::-1], status.copy(), reason.copy(), gate, i,
                              i + 1, np.array([0, 1, 2]))  # fmt: skip
+            self.fuse_serial(x.copy(), P.copy(), np.zeros(2), np.zeros(2), one, one, 1.0, True, det, status.copy(),
+                             reason.copy(), gate)  # fmt: skip
+        self.predict_into(x.copy(), P.copy(), np.zeros(2), one, one, i, 1.0)
+        self.scatter2(one.copy(), one.copy(), i, one, one)
 
     def predict(self, x: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> tuple:
         f = np.ascontiguousarray
@@ -190,6 +308,47 @@ class NumbaOps:
         f = np.ascontiguousarray
         xn, Pn, nis, ok = _pick(self.k, "absolute_rows", x.shape[0])(f(x), f(P), f(z), f(Rz))
         return xn, Pn, nis, ok, ok
+
+    def serial(self, rows: int) -> bool:
+        """Whether ``rows`` rows run on one thread (then the engine takes :meth:`predict_into` and
+        :meth:`fuse_serial`)."""
+        return _serial(rows)
+
+    def predict_into(self, x: np.ndarray, P: np.ndarray, tc: np.ndarray, v: np.ndarray, w: np.ndarray,
+                     robots: np.ndarray, t: float) -> None:  # fmt: skip
+        """Predict rows ``robots`` of ``(x, P)`` (clocks ``tc`` [s], commands ``v``, ``w``) to ``t`` [s] in place
+        (rows already at or past ``t`` unchanged); one thread, no gather or scatter."""
+        self.k["predict_into"](x, P, tc, v, w, np.asarray(robots, dtype=np.int64), float(t))
+
+    def fuse_serial(self, x: np.ndarray, P: np.ndarray, tc: np.ndarray, t0: np.ndarray, v: np.ndarray,
+                    w: np.ndarray, t: float, use_relative: bool, det: Any, status: np.ndarray, reason: np.ndarray,
+                    gate: Gate) -> int:  # fmt: skip
+        """A stamp's detections screened and their groups fused in place on one thread, in canonical (observer)
+        order: what the nodes do.
+
+        ``(x, P, tc)``: the engine's states and clocks (all robots), updated in place; ``t0``: start times [s]. Each
+        detection is screened as :func:`swarmloc.engine.outcomes.screen` does, its observer (if started) predicted
+        to ``t`` [s] and stored; a neighbour without input at ``t`` answers with its state predicted to ``t`` (not
+        stored). Read in this order, a neighbour with a smaller id has already fused its own group and one with a
+        larger id has not: the Gauss-Seidel order of the nodes, with no snapshot and no levels to schedule.
+        Outcome rules of :class:`~swarmloc.estimators.DistributedEKF`; outcomes in ``status`` and ``reason``.
+
+        Returns the number of levels the batched schedule would have (:func:`swarmloc.engine.stamp.levels`: the
+        engine's ``last_levels``), or -1, having changed nothing, when a detection is of a kind other than a
+        relative pose or an absolute fix (the caller takes the general path)."""
+        f = np.ascontiguousarray
+        i64 = np.int64
+        thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
+        lev = np.full(x.shape[0], -1, dtype=i64)
+        return int(self.k["fuse_serial"](x, P, tc, t0, v, w, float(t), bool(use_relative), f(det.observer, dtype=i64),
+                                         f(det.target, dtype=i64), f(det.kind, dtype=i64), f(det.z, dtype=float),
+                                         f(det.R, dtype=float), status, reason, gate.p is not None, thr,
+                                         lev))  # fmt: skip
+
+    def scatter2(self, a: np.ndarray, b: np.ndarray, rows: np.ndarray, va: np.ndarray, vb: np.ndarray) -> None:
+        """``a[rows] = va; b[rows] = vb`` (float arrays, in place)."""
+        self.k["scatter2"](a, b, np.asarray(rows, dtype=np.int64), np.asarray(va, dtype=float),
+                           np.asarray(vb, dtype=float))  # fmt: skip
 
     def fuse_groups(self, cur: tuple, prior: tuple, det: Any, lo: np.ndarray, lt: np.ndarray, status: np.ndarray,
                     reason: np.ndarray, gate: Gate, g0: np.ndarray, g1: np.ndarray,

@@ -8,6 +8,7 @@ So the numba backend runs the very formulas of the numpy and jax backends.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -18,6 +19,8 @@ from swarmloc.motion import UnicycleNoise
 class _Builder:
     def __init__(self) -> None:
         self.lines: list[str] = []
+        self.wheres: dict[str, tuple[str, str, str]] = {}
+        """Temporaries made by ``where``: name -> (condition, value if true, value if false)."""
 
     def emit(self, expr: str) -> _Sym:
         name = f"t{len(self.lines)}"
@@ -96,7 +99,9 @@ class _XP:
         self.b = b
 
     def where(self, c: Any, a: Any, d: Any) -> _Sym:
-        return self.b.emit(f"{_s(a)} if {_s(c)} else {_s(d)}")
+        sym = self.b.emit(f"{_s(a)} if {_s(c)} else {_s(d)}")
+        self.b.wheres[sym.name] = (_s(c), _s(a), _s(d))
+        return sym
 
     def _f(self, fn: str, *args: Any) -> _Sym:
         return self.b.emit(f"{fn}({', '.join(_s(a) for a in args)})")
@@ -111,7 +116,8 @@ class _XP:
         return self._f("math.atan2", a, c)
 
     def mod(self, a: Any, c: Any) -> _Sym:
-        return self._f("np.mod", a, c)
+        # np.mod(a, c) is a itself for 0 < a < c (fmod is exact): skip the call there (same bits)
+        return self.b.emit(f"{_s(a)} if 0.0 < {_s(a)} < {_s(c)} else np.mod({_s(a)}, {_s(c)})")
 
     def abs(self, a: Any) -> _Sym:
         return self._f("abs", a)
@@ -120,12 +126,68 @@ class _XP:
         return self._f("math.isfinite", a)
 
 
+_TEMP = re.compile(r"\bt\d+\b")
+
+
+def _branches(b: _Builder, outs: list[str]) -> list[str]:
+    """The traced lines with every ``where`` turned into an ``if``/``else`` that computes only the branch taken.
+
+    A temporary moves into a branch when every use of it is inside that branch (its *exclusive cone*); the same
+    expressions are evaluated in the same order, so the results are the same bits, without the work of the branch
+    not taken (the trigonometric forms of the odometry increment where its Taylor series is used, and back)."""
+    lines = [ln.strip() for ln in b.lines]
+    names = [ln.split(" = ", 1)[0] for ln in lines]
+    index = {n: i for i, n in enumerate(names)}
+    deps = [[index[d] for d in _TEMP.findall(ln.split(" = ", 1)[1]) if d in index] for ln in lines]
+    users: list[set[int]] = [set() for _ in lines]
+    for i, ds in enumerate(deps):
+        for d in ds:
+            users[d].add(i)
+    pinned = {index[o] for o in outs if o in index}  # returned: computed on every path
+    owner: dict[int, tuple[int, bool]] = {}  # line -> (where line, branch); the innermost where wins
+    for w, n in enumerate(names):
+        if n not in b.wheres:
+            continue
+        cond, yes, no = b.wheres[n]
+        for side, root in ((True, yes), (False, no)):
+            if root not in index or index[root] in pinned or users[index[root]] != {w}:
+                continue
+            cone = {index[root]}
+            grew = True
+            while grew:
+                grew = False
+                for m in list(cone):
+                    for d in deps[m]:
+                        if d not in cone and d not in pinned and names[d] != cond and users[d] <= cone | {w}:
+                            cone.add(d)
+                            grew = True
+            for m in cone:
+                if m not in owner or owner[m][0] > w:
+                    owner[m] = (w, side)
+
+    def emit(members: list[int], pad: str) -> list[str]:
+        out = []
+        for i in members:
+            if names[i] in b.wheres:
+                cond, yes, no = b.wheres[names[i]]
+                inner = {side: [m for m in range(i) if owner.get(m) == (i, side)] for side in (True, False)}
+                out.append(f"{pad}if {cond}:")
+                out += emit(inner[True], pad + "    ") + [f"{pad}    {names[i]} = {yes}"]
+                out.append(f"{pad}else:")
+                out += emit(inner[False], pad + "    ") + [f"{pad}    {names[i]} = {no}"]
+            else:
+                out.append(pad + lines[i])
+        return out
+
+    return emit([i for i in range(len(lines)) if i not in owner], "    ")
+
+
 def _generate(name: str, n_in: int, body: Callable[[Any, list[_Sym]], list[Any]]) -> str:
     b = _Builder()
     args = [_Sym(f"a{i}", b) for i in range(n_in)]
-    outs = body(_XP(b), args)
+    outs = [_s(o) for o in body(_XP(b), args)]
     head = f"def {name}({', '.join(a.name for a in args)}):"
-    return "\n".join([head, *b.lines, f"    return ({', '.join(_s(o) for o in outs)},)"]) + "\n"
+    return "\n".join([head, *_branches(b, outs), f"    return ({', '.join(outs)},)"]) + "\n"
 
 
 def predict_source(noise: UnicycleNoise) -> str:

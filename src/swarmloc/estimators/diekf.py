@@ -96,15 +96,36 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         dt = t - s.t
         if dt <= 0:
             return s
-        x0, y0, th, _, _, q00, q01, q02, q11, q12, q22 = C.increment_terms(s.x, s.v, s.w, dt, self.noise)
-        x = np.array([x0, y0, th])
+        x0, y0, th, P = self._step(*s.x.tolist(), s.P, s.v, s.w, dt)
+        return TeamState(t, s.v, s.w, np.array([x0, y0, th]), P, s.Sigma)
+
+    def _step(self, x0: float, y0: float, th0: float, P: np.ndarray, v: float, w: float,
+              dt: float) -> tuple[float, float, float, np.ndarray]:  # fmt: skip
+        """One prediction over ``dt`` [s] > 0: the new pose (floats) and world-frame covariance ``P + N^-1 Q N^-T``
+        (:func:`swarmloc.kernels.invariant.cartesian_to_world_cov` at the new pose, its products inlined)."""
+        x0, y0, th, _, _, q00, q01, q02, q11, q12, q22 = C.increment_terms_xy(x0, y0, th0, v, w, dt, self.noise)
         Qc = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
-        return TeamState(t, s.v, s.w, x, s.P + I.cartesian_to_world_cov(x, Qc), s.Sigma)
+        Ni = np.array([[1.0, 0.0, y0], [0.0, 1.0, -x0], [0.0, 0.0, 1.0]])  # I.world_basis_inv
+        return x0, y0, th, P + Ni @ Qc @ Ni.T
 
     def _set_command(self, s: TeamState, robot: int, v: float, w: float) -> TeamState:
         return TeamState(s.t, v, w, s.x, s.P, s.Sigma)
 
-    _advance_commands = Node._advance_commands  # predicts in world-frame errors, not rdl's Cartesian run
+    def _advance_commands(self, s: Any, cmds: Any) -> Any:
+        """A run of odometry: :meth:`_advance` and :meth:`_set_command` one by one (predicting in world-frame errors,
+        not rdl's Cartesian run), the pose kept in floats between steps (the same numbers)."""
+        if self.measure_time:
+            return Node._advance_commands(self, s, cmds)
+        t0, v, w, P = s.t, s.v, s.w, s.P
+        x0, y0, th = s.x.tolist()
+        for t, _, vk, wk in cmds:
+            dt = t - t0
+            if dt > 0:
+                x0, y0, th, P = self._step(x0, y0, th, P, v, w, dt)
+                t0 = t
+            v, w = vk, wk
+        x = s.x if P is s.P else np.array([x0, y0, th])
+        return TeamState(t0, v, w, x, P, s.Sigma)
 
     def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
         g = SE2.from_xytheta(s.x)
@@ -220,7 +241,8 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         if u.target == self.robot:
             s = self._adv(s, self.robot, u.stamp)
         m = u.m
-        Hi, Hj = np.reshape(u.Hi, (m, 3)), np.reshape(u.Hj, (m, 3))
-        Sinv, nu = np.reshape(u.Sinv, (m, m)), np.array(u.nu)
-        Pii, Pjj = np.reshape(u.Pii, (3, 3)), np.reshape(u.Pjj, (3, 3))
+        A = np.array  # np.array(t).reshape: what np.reshape(t) makes of a tuple, without its dispatch
+        Hi, Hj = A(u.Hi).reshape(m, 3), A(u.Hj).reshape(m, 3)
+        Sinv, nu = A(u.Sinv).reshape(m, m), A(u.nu)
+        Pii, Pjj = A(u.Pii).reshape(3, 3), A(u.Pjj).reshape(3, 3)
         return self._team_update(s, u.sender, u.target, Hi, Hj, Sinv, nu, Pii, Pjj), True

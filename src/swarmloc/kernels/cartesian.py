@@ -55,11 +55,19 @@ def increment_terms(
 ) -> tuple[float, float, float, float, float, float, float, float, float, float]:
     """One robot's step in floats: new ``(x, y, theta)``, ``(dx, dy)`` and the process covariance's upper triangle
     ``(q00, q01, q02, q11, q12, q22)`` (module docstring)."""
-    c, s, tx, ty, S11, S12, S13, S22, S23, S33 = odometry_increment_terms(v, w, dt, noise)
     x0, y0, th0 = x.tolist()
+    return increment_terms_xy(x0, y0, th0, v, w, dt, noise)
+
+
+def increment_terms_xy(
+    x0: float, y0: float, th0: float, v: float, w: float, dt: float, noise: UnicycleNoise
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
+    """:func:`increment_terms` of the pose ``(x0 [m], y0 [m], th0 [rad])`` given as floats."""
+    # memoized (increment_cached): the same numbers as odometry_increment_terms, its (cos, sin) kept as the angle
+    alpha, tx, ty, S11, S12, S13, S22, S23, S33 = increment_cached(increment_cache(noise), v, w, dt, noise)
     ct, st = math.cos(th0), math.sin(th0)
     dx, dy = ct * tx - st * ty, st * tx + ct * ty
-    th = math.pi - (math.pi - (th0 + math.atan2(s, c))) % (2 * math.pi)  # wrapped to (-pi, pi]
+    th = math.pi - (math.pi - (th0 + alpha)) % (2 * math.pi)  # wrapped to (-pi, pi]
     cn, sn = math.cos(th), math.sin(th)
     cc, ss, cs = cn * cn, sn * sn, cn * sn
     return (

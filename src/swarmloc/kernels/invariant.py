@@ -26,7 +26,11 @@ import numpy as np
 
 from swarmloc.lie import SE2, wrap_angle
 
-_T = np.swapaxes
+
+def _T(a: np.ndarray, i: int, j: int) -> np.ndarray:
+    """``np.swapaxes`` as the array method (the same view, without the function's dispatch)."""
+    return a.swapaxes(i, j)
+
 
 __all__ = [
     "body_to_world",
@@ -42,6 +46,8 @@ __all__ = [
 def world_basis(x: np.ndarray) -> np.ndarray:
     """``N(x) (..., 3, 3)``: Cartesian change ``dx`` of the pose ``x (..., 3)`` under the world-frame error ``xi``."""
     x = np.asarray(x, dtype=float)
+    if x.shape == (3,):  # one pose: the same matrix, built directly
+        return np.array([[1.0, 0.0, -x[1]], [0.0, 1.0, x[0]], [0.0, 0.0, 1.0]])
     N = np.broadcast_to(np.eye(3), (*x.shape[:-1], 3, 3)).copy()
     N[..., 0, 2] = -x[..., 1]
     N[..., 1, 2] = x[..., 0]
@@ -51,6 +57,8 @@ def world_basis(x: np.ndarray) -> np.ndarray:
 def world_basis_inv(x: np.ndarray) -> np.ndarray:
     """``N(x)^-1``."""
     x = np.asarray(x, dtype=float)
+    if x.shape == (3,):
+        return np.array([[1.0, 0.0, x[1]], [0.0, 1.0, -x[0]], [0.0, 0.0, 1.0]])
     N = np.broadcast_to(np.eye(3), (*x.shape[:-1], 3, 3)).copy()
     N[..., 0, 2] = x[..., 1]
     N[..., 1, 2] = -x[..., 0]

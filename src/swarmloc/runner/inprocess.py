@@ -223,11 +223,17 @@ class _Driver:
             self.stats["unknown_robot"] += 1
             self.stats["odometry"] += 1
             return
-        if type(e.t0) is float:
-            self.resolve(node, e.t0)
+        t0 = e.t0
+        if type(t0) is float:
+            h = self.rec.heap.get(id(node))  # resolve(), inlined: this runs once per odometry record
+            if h:
+                clock = node._clock
+                upto = (t0 if t0 > clock.present else clock.present) - clock.horizon  # max(present, t0)
+                if h[0][0] <= upto:
+                    self.rec.resolve(node, upto)
             if node._odometry_fast(e):
                 return
-        self.deliver(node, e, e.t0)
+        self.deliver(node, e, t0)
 
     def _detections(self, group: list[Detection]) -> None:
         e = group[0]
