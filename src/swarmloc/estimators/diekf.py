@@ -114,8 +114,8 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     def _advance_commands(self, s: Any, cmds: Any) -> Any:
         """A run of odometry: :meth:`_advance` and :meth:`_set_command` one by one (predicting in world-frame errors,
         not rdl's Cartesian run), the pose kept in floats between steps (the same numbers)."""
-        if self.measure_time:
-            return Node._advance_commands(self, s, cmds)
+        if self.measure_time or type(self)._advance is not DistributedInvariantEKF._advance:
+            return Node._advance_commands(self, s, cmds)  # timed, or a subclass that carries more state (flsd)
         t0, v, w, P = s.t, s.v, s.w, s.P
         x0, y0, th = s.x.tolist()
         for t, _, vk, wk in cmds:
