@@ -104,7 +104,10 @@ class Publishing:
             return
         lines = tuple(wire_line(o.rho, o.alpha, o.cov, o.endpoints, o.end_var, o.closed) for o in obs)
         key = robot_key(self.scope, self.robot, "lines")
-        self._pub_lines.put(self._env(Lines(robot=self.robot, stamp=t, lines=lines), key))
+        msg = Lines(robot=self.robot, stamp=t, lines=lines)
+        self._pub_lines.put(self._env(msg, key))
+        if self.on_lines is not None:
+            self.on_lines(msg)
         self.counts["lines_published"] += len(lines)
 
     def _publish_due(self, end: bool = False, upto: float = -math.inf) -> None:
