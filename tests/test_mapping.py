@@ -11,7 +11,7 @@ from scipy.stats import chi2
 
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, wrap_angle
-from swarmloc.mapping import LineMap, LineObservation, extract_lines, fit_line, line_to_world, map_error
+from swarmloc.mapping import LineMap, LineObservation, MapLine, extract_lines, fit_line, line_to_world, map_error
 from swarmloc.sim.walls import RangeFinder, Walls, cast_rays, chapter_lab, office_walls
 
 
@@ -227,3 +227,61 @@ def test_map_command_writes_a_table_figure_and_maps(tmp_path, capsys) -> None:
     assert json.loads((tmp_path / "team_expfusion.geojson").read_text())["features"]
     assert "team, expfusion" in capsys.readouterr().out
     assert chapter_lab().length > 10
+
+
+def test_line_ends_are_closed_at_corners_and_wall_ends_open_at_the_fov_and_behind_occluders() -> None:
+    rng = np.random.default_rng(5)
+    # a corner ahead-left (walls x = 2 and y = 1.5 meeting at (2, 1.5)), and a short wall x = 1 for y in [-0.9, -0.3]
+    # in front of the far wall x = 2 on the right
+    walls = Walls(np.array([[[2.0, -3.0], [2.0, 1.5]], [[2.0, 1.5], [-1.0, 1.5]], [[1.0, -0.9], [1.0, -0.3]]]))
+    finder = RangeFinder(n_beams=121, fov=np.deg2rad(120), max_range=5.0, sigma=0.005)
+    fits = extract_lines(_scan((0.0, 0.0, 0.0), walls, finder, rng), finder.angles, finder.sigma)
+
+    def ends_near(f, x=None, y=None):
+        return [bool((x is None or abs(p[0] - x) < 0.02) and (y is None or abs(p[1] - y) < 0.02)) for p in f.endpoints]
+
+    short = [f for f in fits if abs(f.rho - 1.0) < 0.02]
+    assert len(short) == 1 and short[0].closed == (True, True)  # beams past both its ends hit the far wall
+    # its ends were put half a beam spacing outwards: within 2 cm of the true ends (a beam spacing here is 3.5 cm)
+    assert sorted(np.round(short[0].endpoints[:, 1], 1)) == [-0.9, -0.3]
+    top = [f for f in fits if abs(f.rho - 1.5) < 0.02]
+    assert len(top) == 1
+    assert [c for c, near in zip(top[0].closed, ends_near(top[0], x=2.0), strict=True) if near] == [True]  # corner
+    assert [c for c, near in zip(top[0].closed, ends_near(top[0], x=2.0), strict=True) if not near] == [False]  # FOV
+    far = [f for f in fits if abs(f.rho - 2.0) < 0.02]
+    # the far wall: pieces below and above the occluder; every end next to the occluder or the FOV edge is open,
+    # the one at the corner closed
+    assert len(far) == 2
+    flags = {(round(float(p[1]), 1), c) for f in far for p, c in zip(f.endpoints, f.closed, strict=True)}
+    assert (1.5, True) in flags and all(not c for y, c in flags if y != 1.5), flags
+    assert all(v > 0 for f in fits for v in f.end_var)
+
+
+def test_closed_ends_are_averaged_where_the_union_of_extents_would_overshoot() -> None:
+    """200 sightings of the whole wall y = 1, x in [0, 4], each with a 5 cm pose error along the wall: the union of
+    their extents is the farthest sighting (about 2.7 standard deviations out); averaging closed ends is not."""
+    rng = np.random.default_rng(6)
+    C = np.diag([1e-4, 1e-4])
+
+    def build(closed: bool) -> MapLine:
+        lm = LineMap()
+        for _ in range(200):
+            dx = 0.05 * rng.standard_normal()
+            lm.add(LineObservation(1.0, np.pi / 2, C, np.array([[dx, 1.0], [4.0 + dx, 1.0]]), 1, 0.0,
+                                   (closed, closed), (0.05**2, 0.05**2)))  # fmt: skip
+        assert len(lm.lines) == 1
+        return lm.lines[0]
+
+    ends = np.sort(build(True).endpoints()[:, 0])
+    np.testing.assert_allclose(ends, [0.0, 4.0], atol=0.015)
+    union = np.sort(build(False).endpoints()[:, 0])  # open ends: the union, as before ends were classified
+    assert union[0] < -0.08 and union[1] > 4.08
+    # an open sighting further out than the closed ends' spread extends the line; one within it does not
+    lm = LineMap()
+    lm.add(LineObservation(1.0, np.pi / 2, C, np.array([[0.0, 1.0], [4.0, 1.0]]), 1, 0.0, (True, True), (1e-4, 1e-4)))
+    lm.add(LineObservation(1.0, np.pi / 2, C, np.array([[3.0, 1.0], [4.02, 1.0]]), 2, 0.0, (True, False), (1e-4, 1e-4)))
+    assert np.sort(lm.lines[0].endpoints()[:, 0]).tolist() == pytest.approx([0.0, 4.0])
+    lm.add(LineObservation(1.0, np.pi / 2, C, np.array([[3.0, 1.0], [4.5, 1.0]]), 2, 0.0, (True, False), (1e-4, 1e-4)))
+    assert np.sort(lm.lines[0].endpoints()[:, 0]).tolist() == pytest.approx([0.0, 4.5])
+    with pytest.raises(ValueError, match="end_var"):
+        lm.add(LineObservation(1.0, np.pi / 2, C, np.array([[0.0, 1.0], [4.0, 1.0]]), 1, 0.0, (True, True), (-1, 0)))

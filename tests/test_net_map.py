@@ -103,7 +103,7 @@ def test_server_refuses_malformed_and_forged_lines_and_answers_the_map(tmp_path)
             pub.put(payload)
         assert _until(lambda: sp.counts["rejected"] >= len(bad), th), (sp.counts, sp.reasons)
         assert sp.counts["auth_unsigned"] == 1 and sp.counts["auth_not_owner"] == 1
-        assert any("line 0: a line must be 9 finite numbers" in r for r in sp.reasons)
+        assert any("line 0: a line must be 9 or 13 finite numbers" in r for r in sp.reasons)
         assert any("not positive definite" in r for r in sp.reasons)
         assert any("malformed" in r and "length" in r for r in sp.reasons), sp.reasons
         assert sp.maps.messages == 0 and not sp.maps.current().lines

@@ -12,6 +12,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from swarmloc import __version__
 
@@ -236,6 +237,7 @@ def _node(args: argparse.Namespace) -> int:
     from swarmloc.net.transport import team_scope
 
     _net_logging(args.verbose)
+    view = None
     try:
         team_scope(args.team, args.run_id)  # a bad name or run id is refused before the source is loaded
         auth = _auth(args, args.robot)
@@ -246,18 +248,22 @@ def _node(args: argparse.Namespace) -> int:
         live = None
         if live_kind is not None:
             live = live_inputs(live_kind, team=args.team, run_id=args.run_id, domain=args.ros_domain or 0)
+        view = _node_view(args, src)
         report = node_main(
             src=src, robot=args.robot, team=args.team, estimator=args.estimator, speed=args.speed, lag=args.lag,
             listen=_endpoints(args.listen), connect=_endpoints(args.connect), zenoh_config=args.zenoh_config,
             use_server=args.use_server, resume=args.resume, faults=args.faults, wait_for=_ids(args.wait_for),
             ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, run_id=args.run_id, auth=auth,
-            live=live, **_timeouts(args),
+            live=live, view=view, **_timeouts(args),
         )  # fmt: skip
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc node: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+    finally:
+        if view is not None:
+            view.close()
     s = report.stats
     if "forwards" in report.net or not s:  # a server-hosted estimator: this process forwards its measurements
         n = report.net
@@ -275,6 +281,22 @@ def _node(args: argparse.Namespace) -> int:
               "check --connect and --team", file=sys.stderr)  # fmt: skip
         return 3
     return 0
+
+
+def _node_view(args: argparse.Namespace, src: Any) -> Any:
+    """``node --view/--record``: a :class:`~swarmloc.net.view.TeamView` of this robot (its beliefs, detections, ground
+    truth where the source has it, its lines and the belief server's map), or None."""
+    if args.view is None and not args.record:
+        return None
+    from swarmloc.events import Detection
+    from swarmloc.net.view import TeamView
+
+    dets = [e for e in src.own_events(args.robot) if isinstance(e, Detection) and e.observer == args.robot]
+    view = TeamView(port=args.view, mcap=args.record, truth=src.truth, detections=dets, roster=src.robots,
+                    name=f"swarmloc node {args.robot}")  # fmt: skip
+    if view.url:
+        print(f"live view: open {view.url} in Foxglove (Open connection > Foxglove WebSocket)", flush=True)
+    return view
 
 
 def _server(args: argparse.Namespace) -> int:
@@ -561,6 +583,10 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--wait-for", default=None, help="robot ids to wait for before starting (default: the team)")
     _timeout_args(n)
     n.add_argument("--out", default=None, help="folder for robot<N>.tum (final beliefs) and robot<N>.json (report)")
+    n.add_argument("--view", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="live view of this robot (and the server's map) for Foxglove on ws://127.0.0.1:PORT "
+                   "(default 8765; 0: a free port)")  # fmt: skip
+    n.add_argument("--record", default=None, metavar="FILE.mcap", help="record the view as MCAP (Foxglove, ROS 2)")
     _auth_args(n)
     n.set_defaults(func=_node)
 

@@ -12,7 +12,14 @@ fusion block" on the server). Each observation (:class:`LineObservation`, world 
 2. **fused** in information form: ``I = C_map^-1 + C_obs^-1``, ``x = I^-1 (C_map^-1 x_map + C_obs^-1 x_obs)``
    (the two treated as independent, as in the chapter's parallel fusion; observations that share a robot's pose
    error are correlated, so the fused covariance is optimistic: the association gate keeps ``C_obs`` in);
-3. **extended**: the extent becomes the union of both segments' projections onto the fused line;
+3. **extended**, end by end (projected onto the fused line): two *closed* ends (where the scan saw the wall end,
+   :func:`swarmloc.mapping.extract_lines`) within 3 standard deviations of each other are averaged, weighted by
+   their inverse variances along the line (the variance kept is the smaller one, not the fused one: successive
+   ends seen by one robot share its pose error); an *open* end (the wall may go on unseen) moves the end outwards
+   only where it lies more than 3 standard deviations beyond a closed one; two open ends: the farther. Without end
+   information (all ends open) this is the union of both segments' projections. Why: the union of many noisy
+   extents is their farthest, biased outwards by the largest pose error along the wall (measured on ``swarmloc map``:
+   README "Cooperative maps");
 4. otherwise **added** as a new line. After a fusion the grown line is tested against the other lines with the
    same two tests and merged with any that pass (two robots seeing two ends of one wall end as one line).
 
@@ -54,6 +61,9 @@ class LineObservation:
     endpoints: np.ndarray
     robot: int = 0
     t: float = 0.0
+    closed: tuple[bool, bool] = (False, False)
+    end_var: tuple[float, float] = (0.0, 0.0)
+    """Whether each end point is where the wall ends (``closed``) and its variance along the line [m^2]."""
 
     def check(self) -> None:
         """ValueError naming what is wrong."""
@@ -67,6 +77,11 @@ class LineObservation:
             raise ValueError("LineObservation: cov must be positive definite")
         if E.shape != (2, 2) or not np.isfinite(E).all() or np.hypot(*(E[1] - E[0])) <= 0:
             raise ValueError("LineObservation: endpoints must be two distinct finite points, shape (2, 2)")
+        v = np.asarray(self.end_var, dtype=float)
+        if v.shape != (2,) or not np.isfinite(v).all() or (v < 0).any():
+            raise ValueError("LineObservation: end_var must be two finite variances >= 0")
+        if np.shape(self.closed) != (2,):
+            raise ValueError("LineObservation: closed must be two flags")
 
 
 @dataclass
@@ -81,6 +96,8 @@ class MapLine:
     s1: float
     robots: set[int] = field(default_factory=set)
     n_obs: int = 1
+    ends: tuple[_End, _End] | None = field(default=None, repr=False)
+    """The low and high end's estimates (None: both open at ``s0``, ``s1``, variance 0)."""
 
     def endpoints(self) -> np.ndarray:
         """The segment's end points ``(2, 2)`` [m]."""
@@ -90,6 +107,39 @@ class MapLine:
     def project(self, points: np.ndarray) -> np.ndarray:
         """Tangential coordinates [m] of ``points`` ``(k, 2)`` on this line."""
         return np.asarray(points, dtype=float) @ _n_t(self.alpha)[1]
+
+
+@dataclass(frozen=True)
+class _End:
+    """One end of a map line: a world point ``(2,)`` [m]; ``closed`` (the wall ends there); ``var`` along the line
+    [m^2]; for a closed end the sums of the weights ``w`` and weighted points ``wp`` that ``point`` averages."""
+
+    point: np.ndarray
+    closed: bool
+    var: float
+    w: float = 0.0
+    wp: np.ndarray | None = None
+
+    @staticmethod
+    def of(point: np.ndarray, closed: bool, var: float) -> _End:
+        v = max(float(var), 1e-12)
+        return _End(point, closed, v, 1 / v, point / v) if closed else _End(point, False, v)
+
+
+def _combine(a: _End, b: _End, s: Any, out: float) -> _End:
+    """The end of a line from ends ``a`` and ``b`` (module docstring, step 3); ``s`` projects a point onto the line,
+    ``out`` is -1 for the low end and +1 for the high end."""
+    beyond = out * (s(b.point) - s(a.point))  # > 0: b lies further out than a
+    gate = 3.0 * np.sqrt(a.var + b.var)
+    if a.closed and b.closed:
+        if abs(beyond) <= gate:
+            w, wp = a.w + b.w, a.wp + b.wp
+            return _End(wp / w, True, min(a.var, b.var), w, wp)
+        return b if beyond > 0 else a
+    if a.closed != b.closed:
+        c, o = (a, b) if a.closed else (b, a)
+        return o if out * (s(o.point) - s(c.point)) > gate else c
+    return b if beyond > 0 else a
 
 
 def _flip(cov: np.ndarray) -> np.ndarray:
@@ -103,6 +153,19 @@ def _innovation(rho: float, alpha: float, cov: np.ndarray, line: MapLine) -> tup
     d1 = np.array([rho - line.rho, _wrap(alpha - line.alpha)])
     d2 = np.array([-rho - line.rho, _wrap(alpha + np.pi - line.alpha)])
     return (d1, cov) if abs(d1[1]) <= abs(d2[1]) else (d2, _flip(cov))
+
+
+def _obs_ends(obs: LineObservation) -> tuple[_End, _End]:
+    E = np.asarray(obs.endpoints, dtype=float)
+    return (_End.of(E[0], bool(obs.closed[0]), obs.end_var[0]), _End.of(E[1], bool(obs.closed[1]), obs.end_var[1]))
+
+
+def _ends_of(line: MapLine) -> tuple[_End, _End]:
+    """``line``'s ends, or open ones at its extent when it has none."""
+    if line.ends is not None:
+        return line.ends
+    E = line.endpoints()
+    return _End.of(E[0], False, 0.0), _End.of(E[1], False, 0.0)
 
 
 class LineMap:
@@ -142,9 +205,10 @@ class LineMap:
 
     # ------------------------------------------------------------------ fusion
     @staticmethod
-    def _fuse(line: MapLine, rho: float, alpha: float, cov: np.ndarray, ends: np.ndarray) -> None:
-        """Information-form fusion of ``(rho, alpha, cov)`` into ``line``, extent the union of both (in place)."""
-        old_ends = line.endpoints()
+    def _fuse(line: MapLine, rho: float, alpha: float, cov: np.ndarray, ends: tuple[_End, _End]) -> None:
+        """Information-form fusion of ``(rho, alpha, cov)`` into ``line``, its ends combined with ``ends`` (a
+        segment's, as :class:`_End`: module docstring, step 3) (in place)."""
+        old = _ends_of(line)
         d, cov = _innovation(rho, alpha, cov, line)
         x_obs = np.array([line.rho, line.alpha]) + d
         Im, Io = np.linalg.inv(line.cov), np.linalg.inv(cov)
@@ -155,8 +219,20 @@ class LineMap:
             line.rho, line.alpha, line.cov = float(x[0]), _wrap(float(x[1])), C
         else:
             line.rho, line.alpha, line.cov = float(-x[0]), _wrap(float(x[1]) + np.pi), _flip(C)
-        s = line.project(np.concatenate([old_ends, ends]))
-        line.s0, line.s1 = float(s.min()), float(s.max())
+        t = _n_t(line.alpha)[1]
+
+        def s(p: np.ndarray) -> float:
+            return float(p @ t)
+
+        new = sorted(ends, key=lambda e: s(e.point))
+        lo, hi = sorted(old, key=lambda e: s(e.point))
+        lo, hi = _combine(lo, new[0], s, -1.0), _combine(hi, new[1], s, 1.0)
+        if s(lo.point) >= s(hi.point):  # ends crossed (closed ends of a very short line): the union, open
+            pts = [e.point for e in (*old, *ends)]
+            lo = _End.of(min(pts, key=s), False, 0.0)
+            hi = _End.of(max(pts, key=s), False, 0.0)
+        line.ends = (lo, hi)
+        line.s0, line.s1 = s(lo.point), s(hi.point)
         line.n_obs += 1
 
     def add(self, obs: LineObservation) -> int:
@@ -171,10 +247,13 @@ class LineMap:
             rho, alpha = (obs.rho, _wrap(obs.alpha)) if obs.rho >= 0 else (-obs.rho, _wrap(obs.alpha + np.pi))
             cov = cov.copy() if obs.rho >= 0 else _flip(cov)
             s = ends @ _n_t(alpha)[1]
-            self.lines.append(MapLine(float(rho), alpha, cov, float(s.min()), float(s.max()), {obs.robot}))
+            line = MapLine(float(rho), alpha, cov, float(s.min()), float(s.max()), {obs.robot})
+            e = sorted(_obs_ends(obs), key=lambda e: float(e.point @ _n_t(alpha)[1]))
+            line.ends = (e[0], e[1])
+            self.lines.append(line)
             self.counts["added"] += 1
             return len(self.lines) - 1
-        self._fuse(self.lines[k], obs.rho, obs.alpha, cov, ends)
+        self._fuse(self.lines[k], obs.rho, obs.alpha, cov, _obs_ends(obs))
         self.lines[k].robots.add(obs.robot)
         self.counts["fused"] += 1
         return self._merge_from(k)
@@ -203,7 +282,7 @@ class LineMap:
             if j_best is None:
                 return k
             other = self.lines[j_best]
-            self._fuse(line, other.rho, other.alpha, other.cov, other.endpoints())
+            self._fuse(line, other.rho, other.alpha, other.cov, _ends_of(other))
             line.robots |= other.robots
             line.n_obs += other.n_obs - 1
             del self.lines[j_best]

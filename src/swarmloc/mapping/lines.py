@@ -18,6 +18,15 @@ differentiation gives ``d theta / d p_i = -A^-1 B_i`` with ``A = [[-N, N t.pbar]
 ``S_tt = sum (t . p_i)^2`` and ``B_i = [n^T; (t . p_i) n^T + d_i t^T]``; a point at range ``r_i`` and bearing
 ``phi_i`` has covariance ``sigma_r^2 u u^T + sigma_phi^2 r_i^2 v v^T`` (``u = (cos phi_i, sin phi_i)``,
 ``v = (-sin phi_i, cos phi_i)``), so ``C = sum_i J_i C_i J_i^T``. Checked against Monte Carlo in the tests.
+
+**End points** (:func:`extract_lines`). A segment's end is *closed* when the scan shows where the wall ends, *open*
+when the wall may go on unseen. Closed: a corner (the split point that two runs of split-and-merge share, where
+two walls meet) or a jump edge (the next beam returns from *behind* the line: the wall ends between the two
+beams; the end is then put half a beam spacing past the last point, the middle of where it can be). Open: the
+scan's first or last beam, a next beam without a return (out of range, or a teammate), or one that returns from in
+front of the line (an occluder hides the rest). Each end has a variance [m^2] along the line: the quantization of
+one beam spacing ``d`` (uniform: ``d^2 / 12``) plus the range noise. :class:`~swarmloc.mapping.LineMap` averages
+closed ends and extends open ones (union), instead of the union of all extents (the farthest of many noisy ends).
 """
 
 from __future__ import annotations
@@ -39,6 +48,10 @@ class LineFit:
     cov: np.ndarray
     endpoints: np.ndarray
     n: int
+    closed: tuple[bool, bool] = (False, False)
+    end_var: tuple[float, float] = (0.0, 0.0)
+    """Whether each end (first, last point in scan order) is where the wall ends, and its variance along the line
+    [m^2] from the beam spacing and range noise (module docstring)."""
 
 
 def _normal(alpha: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
@@ -154,10 +167,36 @@ def extract_lines(
     tol = max(0.02, 4 * sigma_r) if tol is None else tol
     pts = ranges[:, None] * np.stack([np.cos(angles), np.sin(angles)], -1)
     out = []
-    for lo, hi in split_and_merge(pts, tol, max_gap):
+    runs = split_and_merge(pts, tol, max_gap)
+    starts, stops = {lo for lo, _ in runs}, {hi - 1 for _, hi in runs}
+    for lo, hi in runs:
         if hi - lo < min_points:
             continue
         f = fit_line(ranges[lo:hi], angles[lo:hi], sigma_r, sigma_phi)
         if np.hypot(*(f.endpoints[1] - f.endpoints[0])) >= min_length:
-            out.append(f)
+            out.append(_with_ends(f, pts, lo, hi, lo in stops, hi - 1 in starts, tol, sigma_r))
     return out
+
+
+def _with_ends(f: LineFit, pts: np.ndarray, lo: int, hi: int, corner0: bool, corner1: bool, tol: float,
+               sigma_r: float) -> LineFit:  # fmt: skip
+    """``f`` with its ends classified (closed or open), jump-edge ends moved half a beam spacing outwards, and the
+    ends' variances along the line (module docstring). ``corner0``/``corner1``: the end point is shared with the
+    neighbouring run."""
+    n, t = _normal(f.alpha)
+    ends = f.endpoints.copy()
+    closed, var = [False, False], [0.0, 0.0]
+    for e, (last, inner, nxt, corner) in enumerate(((lo, lo + 1, lo - 1, corner0), (hi - 1, hi - 2, hi, corner1))):
+        d = float(np.hypot(*(pts[last] - pts[inner])))  # beam spacing at this end [m]
+        var[e] = d * d / 12 + sigma_r**2
+        if corner:
+            closed[e] = True
+        elif 0 <= nxt < pts.shape[0] and np.isfinite(pts[nxt]).all():
+            u = pts[nxt] / np.hypot(*pts[nxt])
+            cos_in = float(u @ n)  # the next beam meets the line at range rho / cos_in, if cos_in > 0
+            behind = cos_in <= 0 or np.hypot(*pts[nxt]) > f.rho / cos_in + tol
+            if behind:
+                closed[e] = True
+                out = 1.0 if (ends[e] - ends[1 - e]) @ t > 0 else -1.0
+                ends[e] = ends[e] + 0.5 * d * out * t
+    return LineFit(f.rho, f.alpha, f.cov, ends, f.n, (closed[0], closed[1]), (var[0], var[1]))

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarmloc.mapping.linemap import LineObservation
-from swarmloc.mapping.lines import extract_lines
+from swarmloc.mapping.lines import LineFit, extract_lines
 from swarmloc.mapping.transform import line_to_world
 
 __all__ = ["ScanSeries", "scan_observations"]
@@ -59,9 +59,33 @@ def scan_observations(
     if not fits:
         return []
     g = np.asarray(pose_mean, dtype=float)
+    S = np.asarray(pose_cov, dtype=float)
     rho, alpha, C = line_to_world([f.rho for f in fits], [f.alpha for f in fits], np.array([f.cov for f in fits]),
-                                  g, np.asarray(pose_cov, dtype=float), order)  # fmt: skip
+                                  g, S, order)  # fmt: skip
     return [
-        LineObservation(float(rho[k]), float(alpha[k]), C[k], f.endpoints @ g[:2, :2].T + g[:2, 2], robot, float(t))
+        LineObservation(
+            float(rho[k]),
+            float(alpha[k]),
+            C[k],
+            f.endpoints @ g[:2, :2].T + g[:2, 2],
+            robot,
+            float(t),
+            f.closed,
+            _end_var(f, S),
+        )  # fmt: skip
         for k, f in enumerate(fits)
     ]
+
+
+def _end_var(f: LineFit, pose_cov: np.ndarray) -> tuple[float, float]:
+    """Variance [m^2] of each end of ``f`` along its line, in the world: the fit's own (beam spacing, range noise)
+    plus the pose's, first order: an end ``p`` (robot frame) is at ``mu (p + xi_xy + xi_th J p)``, ``J p = (-p_y,
+    p_x)``, so along the line's tangent ``t`` (robot frame; the world rotation keeps lengths) its variance is
+    ``a^T Sigma a`` with ``a = (t_x, t_y, t . J p)``."""
+    t = np.array([-np.sin(f.alpha), np.cos(f.alpha)])
+    out = []
+    for e in range(2):
+        p = f.endpoints[e]
+        a = np.array([t[0], t[1], t[0] * -p[1] + t[1] * p[0]])
+        out.append(float(f.end_var[e] + a @ pose_cov @ a))
+    return out[0], out[1]

@@ -27,7 +27,7 @@ from swarmloc.datasets.source import Source
 from swarmloc.events import Event, Odometry
 from swarmloc.net.auth import Auth, open_envelope
 from swarmloc.net.faults import Faults, parse_faults
-from swarmloc.net.schema import SERVER, Belief, Rejected, Report
+from swarmloc.net.schema import SERVER, Belief, MapAnswer, Rejected, Report
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import open_session, server_key, team_scope
 
@@ -134,6 +134,7 @@ def node_main(
     auth: Auth | None = None,
     run_id: str | None = None,
     live: Any = None,
+    view: Any = None,
 ) -> Report:
     """Run robot ``robot`` of ``src`` as one Zenoh peer until the team is done; returns its report. With
     ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there.
@@ -142,7 +143,9 @@ def node_main(
     state (None: no limit). ``auth``: robot ``robot``'s key and the team's roster (None: unauthenticated);
     ``run_id``: the run's id in every key (:func:`~swarmloc.net.transport.team_scope`). ``live``: read the robot's
     inputs live, not ``src``'s events: ``live(session, robot, t0) -> (feed, close)``
-    (:func:`swarmloc.live.source.live_inputs`; ``src`` still gives the team, initial beliefs and record times)."""
+    (:func:`swarmloc.live.source.live_inputs`; ``src`` still gives the team, initial beliefs and record times).
+    ``view``: a :class:`~swarmloc.net.view.TeamView` shown this robot's beliefs and lines, and the belief server's
+    map, asked for every second while the node runs and once at its end (not with a server-hosted estimator)."""
     from swarmloc.net.process import NetNode
 
     scope = team_scope(team, run_id)
@@ -181,13 +184,19 @@ def node_main(
             faults=faults,
             wait_for=wait_for,
             ros_domain=ros_domain,
-            on_belief=lambda b: finals.__setitem__(b.stamp, b) if b.final else None,
+            on_belief=lambda b: _on_belief(b, finals, view),
+            on_lines=None if view is None else view.observe,
             auth=auth,
             run_id=run_id,
             scans=None if live is not None else _own_scans(src, robot, events),  # live: no recorded scans
         )
         _stop_on_sigterm(net.stop)
-        report = net.run(max_wall=max_wall)
+        poller = None if view is None else _MapPoller(session, scope, team, src.robots, auth, view)
+        try:
+            report = net.run(max_wall=max_wall)
+        finally:
+            if poller is not None:
+                poller.finish()
         if out is not None:
             _write_outputs(Path(out), robot, [finals[t] for t in sorted(finals)], report)
         return report
@@ -195,6 +204,58 @@ def node_main(
         if close_live is not None:
             close_live()
         session.close()
+
+
+def _on_belief(b: Belief, finals: dict[float, Belief], view: Any) -> None:
+    if b.final:
+        finals[b.stamp] = b
+    if view is not None:
+        view.observe(b)
+
+
+class _MapPoller(threading.Thread):
+    """Asks the belief server for its map every ``every`` s [wall] and shows each answer (signed by the server when
+    ``auth``) in ``view``; :meth:`finish` asks once more (the lines of the node's end) and stops it."""
+
+    def __init__(self, session: Any, scope: str, team: str, roster: Sequence[int], auth: Auth | None, view: Any,
+                 every: float = 1.0) -> None:  # fmt: skip
+        super().__init__(daemon=True, name="map poller")
+        self.session, self.scope, self.team, self.roster, self.auth = session, scope, team, roster, auth
+        self.view, self.every = view, every
+        self.stopped = threading.Event()
+        self.answers = 0
+        self.start()
+
+    def ask(self) -> None:
+        import zenoh
+
+        try:
+            replies = list(self.session.get(f"{server_key(self.scope)}?map", timeout=1.0,
+                                            target=zenoh.QueryTarget.ALL))  # fmt: skip
+        except Exception as exc:  # noqa: BLE001 - a closed session or a network error: the view only misses a map
+            log.debug("map poller: %s", exc)
+            return
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            try:
+                env = open_envelope(self.auth, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), self.team,
+                                    self.roster)  # fmt: skip
+            except Rejected as exc:
+                log.warning("map poller: refused a reply: %s", exc.reason)
+                continue
+            if env.from_robot == SERVER and isinstance(env.body, MapAnswer):
+                self.view.show_map(env.body)
+                self.answers += 1
+
+    def run(self) -> None:
+        while not self.stopped.wait(self.every):
+            self.ask()
+
+    def finish(self) -> None:
+        self.stopped.set()
+        self.join()
+        self.ask()
 
 
 def _inputs(live: Any, session: Any, robot: int, node: Any, events: Any, faults: Faults, resume: bool) -> tuple:

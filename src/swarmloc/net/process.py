@@ -66,7 +66,7 @@ from swarmloc.net.inbound import Inbound
 from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Outbound
 from swarmloc.net.publishing import Publishing
-from swarmloc.net.schema import Belief, Progress, Report
+from swarmloc.net.schema import Belief, Lines, Progress, Report
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
 from swarmloc.net.transport import robot_key, team_scope
 from swarmloc.net.wiring import Wiring
@@ -143,6 +143,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         linger: float = 10.0,
         ros_domain: int | None = None,
         on_belief: Callable[[Belief], None] | None = None,
+        on_lines: Callable[[Lines], None] | None = None,
         auth: Auth | None = None,
         run_id: str | None = None,
         scans: Any = None,
@@ -182,6 +183,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self.linger = float(linger)
         self.ros_domain = ros_domain
         self.on_belief = on_belief
+        self.on_lines = on_lines
+        """Called with every :class:`~swarmloc.net.schema.Lines` message this node publishes (a live view)."""
         self.scans = scans
         """This robot's range scans (:class:`~swarmloc.mapping.ScanSeries`; None: no range finder): each scan's
         world lines are published for the belief server's map (:mod:`.publishing`)."""

@@ -19,8 +19,6 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
-
 from swarmloc.events import Odometry
 from swarmloc.messages import flat
 from swarmloc.net.schema import MAX_LINES, Belief, Lines, Progress
@@ -93,6 +91,7 @@ class Publishing:
     def _publish_lines(self, k: int) -> None:
         """Publish the world lines of scan ``k`` with the node's (final) belief at its time."""
         from swarmloc.mapping import scan_observations
+        from swarmloc.net.server import wire_line
 
         sc, t = self.scans, float(self.scans.times[k])
         try:
@@ -103,10 +102,12 @@ class Publishing:
         obs = scan_observations(sc.ranges[k], sc.angles, sc.sigma, b.mean, b.cov, self.robot, t)[:MAX_LINES]
         if not obs:
             return
-        lines = tuple((o.rho, o.alpha, float(o.cov[0, 0]), float(o.cov[0, 1]), float(o.cov[1, 1]),
-                       *map(float, np.ravel(o.endpoints))) for o in obs)  # fmt: skip
+        lines = tuple(wire_line(o.rho, o.alpha, o.cov, o.endpoints, o.end_var, o.closed) for o in obs)
         key = robot_key(self.scope, self.robot, "lines")
-        self._pub_lines.put(self._env(Lines(robot=self.robot, stamp=t, lines=lines), key))
+        msg = Lines(robot=self.robot, stamp=t, lines=lines)
+        self._pub_lines.put(self._env(msg, key))
+        if self.on_lines is not None:
+            self.on_lines(msg)
         self.counts["lines_published"] += len(lines)
 
     def _publish_due(self, end: bool = False, upto: float = -math.inf) -> None:

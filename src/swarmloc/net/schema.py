@@ -175,7 +175,10 @@ MAX_MAP_LINES = 4096
 """The most lines a :class:`MapAnswer` carries."""
 LINE_FIELDS = 9
 """A line on the wire: ``rho, alpha, c_rr, c_ra, c_aa, x0, y0, x1, y1`` (world frame, [m] and [rad])."""
-WireLine = Annotated[tuple[float, ...], msgspec.Meta(min_length=LINE_FIELDS, max_length=LINE_FIELDS)]
+LINE_END_FIELDS = 4
+"""Optional after them: ``v0, v1, k0, k1``: each end's variance along the line [m^2] and whether it is closed (1.0,
+the wall ends there) or open (0.0); a line without them has open ends (:class:`swarmloc.mapping.LineMap`)."""
+WireLine = Annotated[tuple[float, ...], msgspec.Meta(min_length=LINE_FIELDS, max_length=LINE_FIELDS + LINE_END_FIELDS)]
 
 
 class Lines(msgspec.Struct, frozen=True, kw_only=True, tag="lines"):
@@ -208,8 +211,10 @@ class MapAnswer(msgspec.Struct, frozen=True, kw_only=True, tag="map"):
 
 def line_problem(x: tuple[float, ...]) -> str | None:
     """Why one wire line is unusable (non-finite, covariance not SPD, end points equal), or None."""
-    if not _finite(x, LINE_FIELDS):
-        return f"a line must be {LINE_FIELDS} finite numbers"
+    if not (_finite(x, LINE_FIELDS) or _finite(x, LINE_FIELDS + LINE_END_FIELDS)):
+        return f"a line must be {LINE_FIELDS} or {LINE_FIELDS + LINE_END_FIELDS} finite numbers"
+    if len(x) > LINE_FIELDS and not (min(x[9:11]) >= 0 and set(x[11:13]) <= {0.0, 1.0}):
+        return "a line's end variances must be >= 0 and its end flags 0 or 1"
     c_rr, c_ra, c_aa = x[2:5]
     if not (c_rr > 0 and c_aa > 0 and c_rr * c_aa - c_ra * c_ra > 0):
         return "a line's covariance is not positive definite"

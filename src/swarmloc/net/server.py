@@ -141,14 +141,25 @@ def observations_of(msg: Lines) -> list[LineObservation]:
     out = []
     for x in msg.lines:
         cov = np.array([[x[2], x[3]], [x[3], x[4]]])
-        out.append(LineObservation(x[0], x[1], cov, np.reshape(x[5:9], (2, 2)), msg.robot, msg.stamp))
+        end = {} if len(x) < 13 else {"end_var": (x[9], x[10]), "closed": (x[11] == 1.0, x[12] == 1.0)}
+        out.append(LineObservation(x[0], x[1], cov, np.reshape(x[5:9], (2, 2)), msg.robot, msg.stamp, **end))
     return out
 
 
-def wire_line(rho: float, alpha: float, cov: np.ndarray, ends: np.ndarray) -> tuple[float, ...]:
-    """A line as :data:`~swarmloc.net.schema.LINE_FIELDS` numbers (``rho, alpha, c_rr, c_ra, c_aa, x0, y0, x1, y1``)."""
-    return (float(rho), float(alpha), float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1]),
-            *map(float, np.ravel(ends)))  # fmt: skip
+def wire_line(
+    rho: float,
+    alpha: float,
+    cov: np.ndarray,
+    ends: np.ndarray,
+    end_var: tuple[float, float] | None = None,
+    closed: tuple[bool, bool] = (False, False),
+) -> tuple[float, ...]:
+    """A line as :data:`~swarmloc.net.schema.LINE_FIELDS` numbers (``rho, alpha, c_rr, c_ra, c_aa, x0, y0, x1, y1``),
+    with ``end_var``: four more (``v0, v1, k0, k1``: the ends' variances and closed flags)."""
+    x = (float(rho), float(alpha), float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1]), *map(float, np.ravel(ends)))
+    if end_var is None:
+        return x
+    return (*x, float(end_var[0]), float(end_var[1]), float(bool(closed[0])), float(bool(closed[1])))
 
 
 def linemap_of(answer: MapAnswer) -> LineMap:

@@ -12,7 +12,8 @@ MCAP recording (the ROS 2 bag format), fed with what ``swarmloc team`` collects.
   observer's belief; None for a kind without a position);
 * ``/swarmloc/map`` (JSON): the fused line map (:class:`~swarmloc.net.server.MapStore` of every robot's
   :class:`~swarmloc.net.schema.Lines`, the belief server's fusion), ``lines`` as ``rho, alpha, cov, ends, robots,
-  n_obs``, at most every ``map_every`` s of wall time and at :meth:`close`;
+  n_obs``, at most every ``map_every`` s of wall time and at :meth:`close`; or the belief server's own answer,
+  given to :meth:`show_map` (``swarmloc node --view``: the node asks the server for it);
 * ``/swarmloc/scene`` (``foxglove.SceneUpdate``, Foxglove's 3D panel): per robot an arrow at its belief, its
   covariance ellipse and its true pose; the map's lines.
 
@@ -35,7 +36,7 @@ import numpy as np
 
 from swarmloc.events import Detection
 from swarmloc.lie import SE2
-from swarmloc.net.schema import Belief, Lines
+from swarmloc.net.schema import Belief, Lines, MapAnswer
 from swarmloc.net.server import MapStore
 
 __all__ = ["TOPICS", "TeamView", "ellipse"]
@@ -78,6 +79,7 @@ class TeamView:
         detections: Iterable[Any] = (),
         roster: Sequence[int] | None = None,
         map_every: float = 0.5,
+        name: str = "swarmloc team",
     ) -> None:
         import foxglove
         from foxglove.channels import SceneUpdateChannel
@@ -99,7 +101,7 @@ class TeamView:
         self.mcap = None if mcap is None else foxglove.open_mcap(str(mcap), allow_overwrite=True, context=self.ctx)
         self.server = None
         if port is not None:
-            self.server = foxglove.start_server(name="swarmloc team", host=host, port=port, context=self.ctx,
+            self.server = foxglove.start_server(name=name, host=host, port=port, context=self.ctx,
                                                 server_listener=_Listener())  # fmt: skip
         self.port = None if self.server is None else self.server.port
         obj = {"type": "object"}
@@ -110,6 +112,7 @@ class TeamView:
         self.map_every = map_every
         self._map_logged = -math.inf
         self._map_dirty = False
+        self._server_map = False  # a map from the belief server was shown: the own lines' map no longer is
         self._last_t = 0.0
         self._det: dict[int, list[Detection]] = {}
         for e in detections:
@@ -135,7 +138,7 @@ class TeamView:
         with self._lock:
             if isinstance(body, Belief):
                 self._belief(body)
-            elif isinstance(body, Lines) and self.maps.store(body):
+            elif isinstance(body, Lines) and self.maps.store(body) and not self._server_map:
                 self._map_dirty = True
             if self._map_dirty and time.monotonic() - self._map_logged >= self.map_every:
                 self._log_map()
@@ -204,10 +207,18 @@ class TeamView:
         self.scene.log(SceneUpdate(entities=[ent]), log_time=max(0, int(round(t * 1e9))))
         self.counts[TOPICS[4]] += 1
 
-    def _log_map(self) -> None:
+    def show_map(self, answer: MapAnswer) -> None:
+        """Show the belief server's map ``answer`` (a node's view: the team's fused map, which from then on replaces
+        the map of the lines given to :meth:`observe`). Thread-safe."""
+        with self._lock:
+            self._server_map = True
+            self._map_dirty = False
+            self._log_map(answer)
+
+    def _log_map(self, answer: MapAnswer | None = None) -> None:
         from foxglove.messages import Color, LinePrimitive, LinePrimitiveLineType, Point3, SceneEntity, SceneUpdate
 
-        ans = self.maps.answer()
+        ans = self.maps.answer() if answer is None else answer
         lines = [{"rho": fl.line[0], "alpha": fl.line[1], "cov": list(fl.line[2:5]), "ends": list(fl.line[5:9]),
                   "robots": list(fl.robots), "n_obs": fl.n_obs} for fl in ans.lines]  # fmt: skip
         self._log("/swarmloc/map", {"lines": lines, "observations": ans.observations, "messages": ans.messages},
