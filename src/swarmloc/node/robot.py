@@ -60,8 +60,9 @@ class RobotNode(Node):
     """The groups this estimator's state can live on (``(SE2, SE3)`` for the estimators with an SE(3) form); the
     initial belief picks one."""
     associates: ClassVar[bool] = True
-    """False for an estimator whose exchanges need the target's identity before the belief is asked (pairwise
-    updates, broadcasts keyed by the detection): it refuses an association policy other than ``tags``."""
+    """False for an estimator that cannot give anonymous detections an identity: it refuses an association policy
+    other than ``tags`` (none of :data:`swarmloc.estimators.ESTIMATORS` does: the pairwise ``rdl``, ``irdl`` and
+    the broadcasting ``diekf``, ``flsd`` ask every teammate with their own query, :mod:`~swarmloc.estimators.rdl`)."""
 
     def __init__(
         self,
@@ -84,8 +85,7 @@ class RobotNode(Node):
         check_association(cls, association, association_gate)
         if association != "tags" and not self.associates:
             raise ValueError(
-                f"{cls}: association {association!r} is not supported by {self.name} (its exchanges need the "
-                f"target's identity first); use association='tags', or dekf, expfusion, ci, mcl, cekf, iekf or fej"
+                f"{cls}: association {association!r} is not supported by {self.name}; use association='tags'"
             )
         if sensor_range is not None and not sensor_range > 0:
             raise ValueError(f"{cls}: sensor_range must be > 0 m or None, got {sensor_range!r}")
@@ -112,12 +112,18 @@ class RobotNode(Node):
         targets = sorted({d.target for d in g.detections if self._needs_answer(g, d)} | set(self._teammates(g)))
         return [BeliefQuery(sender=self.robot, receiver=t, stamp=g.t) for t in targets]
 
+    def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
+        """The teammates' beliefs at ``g``'s stamp among which its anonymous detections are associated: from their
+        answers to the group's queries (default: the :class:`~swarmloc.messages.BeliefQuery` ones, sub-key ``()``;
+        an estimator that asks with its own query reads its answers)."""
+        return answered_beliefs(g, mates)
+
     def _associate(self, s: Any, g: Group) -> AssociationView | None:
         mates = self._teammates(g)
         if not mates:
             return None
         own = self._belief(s, self.robot)
-        return associate(g, self.association, self.association_gate, own, answered_beliefs(g, mates),
+        return associate(g, self.association, self.association_gate, own, self._candidates(g, mates),
                          self.sensor_range)  # fmt: skip
 
     def _answer(self, s: Any, q: Message) -> Message | None:
