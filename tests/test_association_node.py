@@ -95,6 +95,35 @@ def test_dead_reckoning_takes_a_policy_and_associates_nothing():
         make_team("dr", src.initial, noise=src.config.motion.noise(), association="psychic")
 
 
+@pytest.mark.parametrize("est", ["dekf", "cekf", "rdl"])
+def test_compare_counts_the_teammates_a_scan_missed_within_the_simulated_sensor(est):
+    """``compare`` hands the nodes the simulated sensor's reach (``Source.sensor``: 1.5 m, all round), so
+    ``association_missed`` counts something (it was 0: no range was set). Against the truth: the teammates truly
+    within 1.5 m of the observer at each scan with anonymous detections that the scan did not detect (p_detect 0.7);
+    the node also counts a teammate whose detection it refused (clutter / ambiguous), and one near the range's edge
+    may fall either side (its predicted position is not the truth): at most 2 of those."""
+    from collections import defaultdict
+
+    from swarmloc.experiments.compare import _job
+
+    spec, robots, duration, seed, p_detect = "sim:random", 4, 20.0, 1, 0.7
+    src = load_source(spec, robots=robots, duration=duration, seed=seed)
+    assert src.sensor == (1.5, 2 * np.pi)
+    noise = src.config.motion.noise()
+    ev, _ = association_events(src.events, "joint", src.robots, noise, p_detect=p_detect, seed=seed)  # _job's events
+    scans = defaultdict(set)
+    for e in ev:
+        if getattr(e, "target_is_robot", False) and e.target is None:
+            scans[(e.observer, e.t)].add(e.truth_target)
+    truth = 0
+    for (o, t), seen in scans.items():
+        at = {r: src.truth(r, np.array([t]))[0, :2] for r in src.robots}
+        truth += sum(1 for r in src.robots if r != o and r not in seen and np.hypot(*(at[r] - at[o])) <= 1.5)
+    st = _job(spec, est, seed, robots, duration, ("joint", 0.0, p_detect))["stats"]
+    refused = st["association_clutter"] + st["association_ambiguous"]
+    assert truth > 15 and truth <= st["association_missed"] <= truth + refused + 2, (truth, st["association_missed"])
+
+
 def test_without_a_policy_a_distributed_node_refuses_anonymous_detections():
     src = load_source("sim:random", robots=3, duration=5.0, seed=0)
     res = _run(src, anonymize(src.events), "dekf")

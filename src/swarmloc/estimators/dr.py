@@ -27,8 +27,9 @@ class DeadReckoning(ExpFusion):
     """Exponential-coordinate prediction only.
 
     Parameters: ``robot``, ``initial``, ``noise``, ``order`` (1 or 2), the clock's ``t0``, ``horizon``,
-    ``tolerance``, ``jump_inputs``, and ``team``, ``association``, ``association_gate``, ``sensor_range`` (checked as
-    every node checks them, then unused: module docstring); nothing else (an unknown keyword raises TypeError).
+    ``tolerance``, ``jump_inputs``, and ``team``, ``association``, ``association_gate``, ``sensor_range``,
+    ``sensor_fov`` (checked as every node checks them, then unused: module docstring); nothing else (an unknown
+    keyword raises TypeError).
     """
 
     name = "dr"
@@ -48,12 +49,13 @@ class DeadReckoning(ExpFusion):
         association: str = "tags",
         association_gate: float = 0.99,
         sensor_range: float | None = None,
+        sensor_fov: float | None = None,
     ) -> None:
         clock = {"horizon": horizon, "tolerance": tolerance, "jump_inputs": jump_inputs}
         kw: dict[str, Any] = {k: v for k, v in clock.items() if v is not None}
         super().__init__(robot, initial, noise=noise, order=order, t0=t0, use_relative=False, use_landmarks=False,
                          team=team, association=association, association_gate=association_gate,
-                         sensor_range=sensor_range, **kw)  # fmt: skip
+                         sensor_range=sensor_range, sensor_fov=sensor_fov, **kw)  # fmt: skip
 
     def _requests(self, g: Group) -> list[Message]:
         return []

@@ -12,7 +12,14 @@ from swarmloc.lie import SE2, SE3
 from swarmloc.messages import BeliefQuery, Message
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.twist3 import TwistNoise
-from swarmloc.node.associate import AssociationView, answered_beliefs, associate, check_association, is_anonymous
+from swarmloc.node.associate import (
+    AssociationView,
+    answered_beliefs,
+    associate,
+    check_association,
+    check_sensor,
+    is_anonymous,
+)
 from swarmloc.node.base import Node
 from swarmloc.node.keys import Group
 from swarmloc.node.protocol import belief_answer
@@ -51,7 +58,8 @@ class RobotNode(Node):
         (:mod:`~swarmloc.node.associate`: the node asks every teammate for its belief at the stamp of a scan with
         anonymous detections, then gives each one an identity); association_gate: the chi-square probability of
         the association gate; sensor_range [m]: teammates predicted within it and given no detection of a scan
-        are counted ``association_missed`` (None: not counted).
+        are counted ``association_missed`` (None: not counted), those within ``sensor_fov`` [rad] of the heading only
+        when it is set (total width; None: all round).
     Other keywords: see :class:`~swarmloc.node.base.Node`. Neighbours are learnt as they are detected; they are
     asked for their belief (:class:`~swarmloc.messages.BeliefQuery`) and never read otherwise.
     """
@@ -74,6 +82,7 @@ class RobotNode(Node):
         association: str = "tags",
         association_gate: float = 0.99,
         sensor_range: float | None = None,
+        sensor_fov: float | None = None,
         **kw: Any,
     ) -> None:
         cls = type(self).__name__
@@ -87,8 +96,7 @@ class RobotNode(Node):
             raise ValueError(
                 f"{cls}: association {association!r} is not supported by {self.name}; use association='tags'"
             )
-        if sensor_range is not None and not sensor_range > 0:
-            raise ValueError(f"{cls}: sensor_range must be > 0 m or None, got {sensor_range!r}")
+        check_sensor(cls, sensor_range, sensor_fov)
         self.robot = int(robot)
         self.initial = initial
         self.group = initial.group
@@ -98,6 +106,7 @@ class RobotNode(Node):
         self.association = association
         self.association_gate = float(association_gate)
         self.sensor_range = sensor_range
+        self.sensor_fov = sensor_fov
         if association != "tags" and len(self.team) < 2:
             raise ValueError(f"{cls}: association {association!r} needs the team's robot ids ('team')")
         super().__init__((self.robot,), **kw)
@@ -124,7 +133,7 @@ class RobotNode(Node):
             return None
         own = self._belief(s, self.robot)
         return associate(g, self.association, self.association_gate, own, self._candidates(g, mates),
-                         self.sensor_range)  # fmt: skip
+                         self.sensor_range, self.sensor_fov)  # fmt: skip
 
     def _answer(self, s: Any, q: Message) -> Message | None:
         if isinstance(q, BeliefQuery):
