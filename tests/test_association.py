@@ -242,10 +242,16 @@ def test_association_options_are_checked():
         _run(src, src.events, association="psychic")
     with pytest.raises(ValueError, match="gate probability"):
         _run(src, src.events, association="joint", association_gate=1.0)
-    from swarmloc.estimators import make_team, node_options
+    from swarmloc.estimators import DistributedEKF, make_team, node_options
 
-    with pytest.raises(ValueError, match="not supported by rdl"):
-        make_team("rdl", src.initial, **node_options("rdl", src.config, None), association="joint")
+    class Tagged(DistributedEKF):  # an estimator that declares it cannot associate (none of ESTIMATORS does)
+        name = "tagged"
+        associates = False
+
+    with pytest.raises(ValueError, match="not supported by tagged"):
+        make_team(Tagged, src.initial, **node_options("dekf", src.config, None), association="joint")
+    assert make_team("rdl", src.initial, **node_options("rdl", src.config, None), association="joint")[0].association \
+        == "joint"  # fmt: skip
     with pytest.raises(ValueError, match="association_gate"):
         make_team("dekf", src.initial, **{**node_options("dekf", src.config, None), "association": "nearest",
                                           "association_gate": 0.0})  # fmt: skip

@@ -88,9 +88,9 @@ def _with_gate(config, gate: float | None):  # noqa: ANN001, ANN202
 
 ASSOCIATION_CHOICES = ("tags", "nearest", "joint", "anonymous")
 ASSOCIATION_HELP = (
-    "robot detections' identities: tags (given); nearest, joint (robot ids hidden, chosen from the beliefs: dekf, "
-    "expfusion, ci, mcl and the centralized filters); anonymous (ids hidden, PMR + particle-filter bank per robot "
-    "hands tagged relative poses to any estimator; range-bearing detections)"
+    "robot detections' identities: tags (given); nearest, joint (robot ids hidden, chosen from the beliefs by every "
+    "estimator; dr fuses no detection); anonymous (ids hidden, PMR + particle-filter bank per robot hands tagged "
+    "relative poses to any estimator; range-bearing detections)"
 )
 
 

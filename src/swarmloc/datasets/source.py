@@ -43,6 +43,10 @@ class Source:
     :class:`~swarmloc.motion.twist3.TwistNoise`), or None."""
     truth_events: list[Event] | None = None
     """The simulation's ``Truth`` events (3-D teams), for recording at the simulator's truth instants; or None."""
+    sensor: tuple[float | None, float | None] = (None, None)
+    """The robot detector's reach: ``(range [m], field of view [rad], total width centred ahead)``; None where
+    unknown. An association policy's nodes count the teammates within it that a scan missed
+    (``association_missed``, :mod:`swarmloc.node.associate`)."""
 
     @property
     def robots(self) -> list[int]:

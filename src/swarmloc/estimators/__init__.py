@@ -129,11 +129,18 @@ def options_for(estimator: str | type[Node], **candidates: Any) -> dict[str, Any
 
 
 def node_options(
-    name: str, config: Config, landmarks: Mapping[int, Any] | None, t0: float | None = None
+    name: str,
+    config: Config,
+    landmarks: Mapping[int, Any] | None,
+    t0: float | None = None,
+    sensor: tuple[float | None, float | None] = (None, None),
 ) -> dict[str, Any]:
     """The options of estimator ``name`` taken from ``config`` (those the class accepts); ``t0`` [s]: when the
-    initial beliefs hold (the source's start), so that no input before it is taken."""
+    initial beliefs hold (the source's start), so that no input before it is taken; ``sensor``: the robot
+    detector's ``(range [m], field of view [rad])`` (:attr:`swarmloc.datasets.source.Source.sensor`), given to the
+    nodes with an association policy ``nearest`` / ``joint`` for their ``association_missed`` count."""
     f = config.filter
+    choose = f.association not in ("tags", "anonymous")
     return options_for(
         name,
         noise=config.motion.noise(),
@@ -146,8 +153,10 @@ def node_options(
         iterations=f.iterations,
         point_iterations=f.point_iterations,
         # "anonymous" hands the nodes tagged relative poses (swarmloc.experiments.association): they run "tags"
-        **({} if f.association in ("tags", "anonymous") else {"association": f.association}),
+        **({"association": f.association} if choose else {}),
         association_gate=f.association_gate,
+        **({"sensor_range": sensor[0]} if choose and sensor[0] is not None else {}),
+        **({"sensor_fov": sensor[1]} if choose and sensor[1] is not None else {}),
         **({} if t0 is None else {"t0": t0}),
     )
 

@@ -25,7 +25,7 @@ from swarmloc.kernels import cartesian as C
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, check_model, gated_kalman
-from swarmloc.node.associate import AssociationView, associate, check_association, is_anonymous
+from swarmloc.node.associate import AssociationView, associate, check_association, check_sensor, is_anonymous
 from swarmloc.sensors.models import model
 
 
@@ -101,7 +101,9 @@ class CentralizedEKF(Node):
     ----------
     initial: every robot's initial belief (SE(2) :class:`~swarmloc.gaussian.GroupGaussian`), by robot id.
     noise: process noise of the odometry (the same model for every robot).
-    Other keywords: see :class:`~swarmloc.node.base.Node`.
+    association, association_gate, sensor_range [m], sensor_fov [rad]: as
+    :class:`~swarmloc.node.robot.RobotNode`'s (the marginals are the candidates). Other keywords: see
+    :class:`~swarmloc.node.base.Node`.
     """
 
     name = "cekf"
@@ -119,17 +121,18 @@ class CentralizedEKF(Node):
         association: str = "tags",
         association_gate: float = 0.99,
         sensor_range: float | None = None,
+        sensor_fov: float | None = None,
         **kw: Any,
     ) -> None:
         cls = type(self).__name__
         if not isinstance(initial, Mapping) or not initial:
             raise ValueError(f"{cls}: 'initial' must map each robot id to its initial belief (at least one robot)")
         check_association(cls, association, association_gate)
-        if sensor_range is not None and not sensor_range > 0:
-            raise ValueError(f"{cls}: sensor_range must be > 0 m or None, got {sensor_range!r}")
+        check_sensor(cls, sensor_range, sensor_fov)
         self.association = association
         self.association_gate = float(association_gate)
         self.sensor_range = sensor_range
+        self.sensor_fov = sensor_fov
         check_model(cls, initial, noise)
         self.initial = dict(initial)
         self.noise = noise
@@ -246,7 +249,7 @@ class CentralizedEKF(Node):
             sf = self._adv(sf, r, g.t)
         cands = {r: self._belief(sf, r) for r in others}
         return associate(g, self.association, self.association_gate, self._belief(s, g.observer), cands,
-                         self.sensor_range)  # fmt: skip
+                         self.sensor_range, self.sensor_fov)  # fmt: skip
 
     def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
         outcomes: list[Outcome] = []

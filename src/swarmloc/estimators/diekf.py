@@ -27,6 +27,13 @@ update, and a connected all-to-all channel (a lost broadcast leaves replicas dif
 broadcast as empty updates, so that every teammate knows the exchange is settled and a replay that gates a
 detection retracts what it sent before. Over the network each update is one broadcast to the team, numbered per
 sender, lost ones repaired (:mod:`swarmloc.net.broadcast`).
+
+Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
+``RdlStateQuery`` keyed as the detection would be were it of that teammate
+(:func:`~swarmloc.estimators.rdl.anonymous_sub`), as ``rdl`` does; the detection given a robot is broadcast under
+that key, so where the identity is right the broadcast is the tagged run's. Every other teammate's exchange is
+settled by an empty broadcast under its key (:meth:`DistributedInvariantEKF._settle`), as a gated detection's: an
+answerer over the network waits for the broadcast keyed by the query it answered before it goes on.
 """
 
 from __future__ import annotations
@@ -75,7 +82,6 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     """Exact distributed invariant EKF (module docstring). ``team``: every robot id of the team (``make_team``
     passes it)."""
 
-    associates = False
     name = "diekf"
     error_frame: ClassVar[str] = "world"
     update_types = (TeamUpdate,)
@@ -229,6 +235,17 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         return new, (j, Hi, Hj, Sinv, nu, s.P, Pjj)
 
     # ------------------------------------------------------------------------------------------------ broadcasts
+    def _settle(self, g: Group) -> list[Message]:
+        """An empty broadcast under the key of every found answer that no detection used (:meth:`_unused`): the
+        answerer knows the exchange is settled (each teammate counts it ``no_update``)."""
+        mates = [r for r in self.team if r != self.robot]
+        return [
+            TeamUpdate(sender=self.robot, receiver=m, stamp=g.t, sub=k)
+            for _, k, a in self._unused(g)
+            if a.found
+            for m in mates
+        ]
+
     def _update_problem(self, u: Message) -> str | None:
         if u.sender not in self._pos or (not u.empty and u.target not in self._pos):
             return f"team update from or about a robot outside the team {list(self.team)}"

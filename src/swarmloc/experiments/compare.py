@@ -58,7 +58,8 @@ def _job(
     config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
     events, _ = association_events(src.events, policy, sorted(src.initial), config.motion.noise(), clutter=clutter,
                                    p_detect=p_detect, seed=seed)  # fmt: skip
-    nodes = make_team(estimator, src.initial, **node_options(estimator, config, src.landmarks, src.t_start))
+    nodes = make_team(estimator, src.initial, **node_options(estimator, config, src.landmarks, src.t_start,
+                                                             src.sensor))  # fmt: skip
     for n in nodes:
         n.measure_time = True
     t = time.perf_counter()

@@ -63,13 +63,16 @@ def evaluate_stream(
     config: Config = DEFAULTS,
     progress: bool = False,
     span_origin: str = "",
+    sensor: tuple[float | None, float | None] = (None, None),
 ) -> tuple[dict, dict[str, RunResult]]:
     """Run ``estimators`` on ``events`` and score them; returns ``(report, results)``.
 
     Beliefs are recorded every ``1 / config.record.rate`` s over ``[t_start, t_end)``; ValueError, before anything
     runs, when those are too many or none is worth scoring (:meth:`~swarmloc.config.RecordConfig.count`; its
     message names the span, and ``span_origin`` where it comes from). Without ``truth`` the report has wall times,
-    counters and trajectories but no accuracy (``"truth": false``).
+    counters and trajectories but no accuracy (``"truth": false``). ``sensor``: the robot detector's ``(range [m],
+    field of view [rad])`` where known, for the nodes' ``association_missed`` count
+    (:func:`~swarmloc.estimators.node_options`).
     """
     unknown = [e for e in estimators if e not in ESTIMATORS]
     if unknown:
@@ -77,7 +80,7 @@ def evaluate_stream(
     record_times = config.record.times(t_start, t_end, len(initial), span_origin)
     policy = config.filter.association
     for name in estimators:  # a policy an estimator cannot run is refused before anything runs
-        make_team(name, initial, **node_options(name, config, landmarks, t_start))
+        make_team(name, initial, **node_options(name, config, landmarks, t_start, sensor))
     notes: dict[str, Any] = {}
     if policy != "tags":
         events, notes = association_events(events, policy, sorted(initial), config.motion.noise())
@@ -89,13 +92,14 @@ def evaluate_stream(
         "config": config.to_dict(),
         "truth": truth is not None,
         "association": policy,
+        "sensor": {"range_m": sensor[0], "fov_rad": sensor[1]},
         **({"association_notes": notes} if notes else {}),
         "estimators": {},
     }
     results: dict[str, RunResult] = {}
     with progress_bar(progress) as start:
         for name in estimators:
-            nodes = make_team(name, initial, **node_options(name, config, landmarks, t_start))
+            nodes = make_team(name, initial, **node_options(name, config, landmarks, t_start, sensor))
             cb = start(name) if start is not None else None
             res = run(nodes, events, record_times=record_times, truth=truth, progress=cb, name=name)
             results[name] = res

@@ -126,14 +126,15 @@ def load_source(
         return _sim(scenario, robots, 30.0 if duration is None else float(duration), seed, config)
     if kind == "mrclam":
         from swarmloc.datasets.mrclam import load_mrclam
-        from swarmloc.experiments.mrclam import initial_beliefs, mrclam_stream
+        from swarmloc.experiments.mrclam import detector_reach, initial_beliefs, mrclam_stream
 
         config = DEFAULTS if config is None else config
         data = load_mrclam(Path(arg))
         events, _ = mrclam_stream(data, config, duration, landmarks)  # camera model: config.sensors.decorrelate
         t_end = data.t_end if duration is None else min(data.t_end, data.t_start + duration)
         truth = data.truth_at if data.has_truth else None
-        return Source(spec, events, initial_beliefs(data, config), data.landmarks, data.t_start, t_end, truth, config)
+        return Source(spec, events, initial_beliefs(data, config), data.landmarks, data.t_start, t_end, truth, config,
+                      sensor=detector_reach(data))  # fmt: skip
     if kind == "events":
         from swarmloc.experiments.own_robots import load_event_source
 

@@ -13,17 +13,21 @@ A robot detection with ``target=None`` (:mod:`swarmloc.sim.anonymous`) is given 
   answers "not found", is no candidate. The last belief each teammate published, predicted, would cost no
   round trip, but its covariance is stale by the prediction's age and a node does not have a teammate's
   command; the exchange keeps the identities exactly those of the tagged run whenever the policy is right
-  (tests/test_association_node.py).
+  (tests/test_association_node.py). ``rdl``, ``irdl``, ``diekf`` and ``flsd`` ask with their own exchange's query
+  instead, one per anonymous detection and teammate (:mod:`swarmloc.estimators.rdl`), and read the candidates
+  from its answers (:meth:`~swarmloc.node.robot.RobotNode._candidates`); ``dr`` associates nothing.
 
 Outcomes (:class:`AssociationView`): a detection given an identity is fused by the filter as a tagged one and
 its outcome marked ``association right`` / ``association wrong`` where the truth is known; one left without is
 ``rejected`` with ``association: clutter`` or ``association: ambiguous`` (``(right)`` / ``(wrong)`` appended where
 the truth is known). Counters (:data:`ASSOCIATION_KEYS`, taken back and counted again on a replay like the
 outcomes): ``association_associated``, ``_clutter``, ``_ambiguous``, ``_missed`` (teammates predicted within
-``sensor_range`` of the observer that no detection was given to: only for scans with anonymous detections, and
-only when ``sensor_range`` is set), ``_gated`` (associated, then refused by the filter's innovation gate),
-``_right`` and ``_wrong`` (the truth ``truth_target`` is read **only** for these marks, never for a choice; it is
-never sent: a node reads it from its own detections where its source has it, a simulation, and else they stay 0).
+``sensor_range`` of the observer, and within ``sensor_fov`` of its heading when that is set, that no detection was
+given to: only for scans with anonymous detections, and only when ``sensor_range`` is set; ``evaluate`` and
+``compare`` set both from the source, :attr:`swarmloc.datasets.source.Source.sensor`), ``_gated`` (associated,
+then refused by the filter's innovation gate), ``_right`` and ``_wrong`` (the truth ``truth_target`` is read
+**only** for these marks, never for a choice; it is never sent: a node reads it from its own detections where
+its source has it, a simulation, and else they stay 0).
 """
 
 from __future__ import annotations
@@ -50,6 +54,7 @@ __all__ = [
     "answered_beliefs",
     "associate",
     "check_association",
+    "check_sensor",
     "is_anonymous",
 ]
 
@@ -74,6 +79,14 @@ def check_association(where: str, association: str, gate: float) -> None:
         gate_threshold(2, gate)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: association_gate: {exc}") from None
+
+
+def check_sensor(where: str, sensor_range: float | None, sensor_fov: float | None) -> None:
+    """Raise ValueError unless ``sensor_range`` is None or > 0 [m] and ``sensor_fov`` None or in ``(0, 2 pi]``."""
+    if sensor_range is not None and not sensor_range > 0:
+        raise ValueError(f"{where}: sensor_range must be > 0 m or None, got {sensor_range!r}")
+    if sensor_fov is not None and not 0 < sensor_fov <= 2 * np.pi:
+        raise ValueError(f"{where}: sensor_fov must be in (0, 2 pi] rad or None, got {sensor_fov!r}")
 
 
 def is_anonymous(d: Detection) -> bool:
@@ -131,11 +144,13 @@ def associate(
     observer: GroupGaussian,
     candidates: Mapping[int, GroupGaussian],
     sensor_range: float | None = None,
+    sensor_fov: float | None = None,
 ) -> AssociationView | None:
     """Give the anonymous robot detections of ``g`` identities among ``candidates`` (robot id -> belief at ``g.t``)
     seen from ``observer`` (the observer's belief at ``g.t``) with ``policy`` (``nearest`` or ``joint``), per
     measurement kind; None when the group has none. Beliefs are SE(2) Gaussians (right-perturbation exponential
-    coordinates), compared in world ``(x, y, theta)`` to first order."""
+    coordinates), compared in world ``(x, y, theta)`` to first order. ``sensor_range`` [m] and ``sensor_fov`` [rad]
+    (total width centred on the observer's heading; None: all round): the detector's reach, for the missed count."""
     dets = list(g.detections)
     anon = [i for i, d in enumerate(dets) if is_anonymous(d)]
     if not anon:
@@ -173,7 +188,11 @@ def associate(
                 left[i] = ("rejected", f"association: {what}{verdict}")
     missed = 0
     if sensor_range is not None and ids:
-        near = np.hypot(xt[:, 0] - xo[0], xt[:, 1] - xo[1]) <= sensor_range
+        dx, dy = xt[:, 0] - xo[0], xt[:, 1] - xo[1]
+        near = np.hypot(dx, dy) <= sensor_range
+        if sensor_fov is not None:
+            bearing = (np.arctan2(dy, dx) - xo[2] + np.pi) % (2 * np.pi) - np.pi
+            near &= np.abs(bearing) <= sensor_fov / 2
         missed = sum(1 for r, ok in zip(ids, near.tolist(), strict=True) if ok and r not in got)
     keys = [detection_key(d) for d in dets]
     order = sorted(range(len(dets)), key=lambda i: keys[i])

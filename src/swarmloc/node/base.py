@@ -336,6 +336,11 @@ class Node(Intake, Exchange):
         stamps = s.t
         return s._replace(t=tuple(t for _ in stamps) if isinstance(stamps, tuple) else t)
 
+    def _settle(self, g: Group) -> list[Message]:
+        """Messages that close the exchanges a group with identities given (``g``) asked for and did not use (a
+        teammate asked about an anonymous detection given another robot: ``rdl``'s "no update"; default: none)."""
+        return []
+
     def _associate(self, s: Any, g: Group) -> AssociationView | None:
         """The group with identities given to its anonymous robot detections (the observer predicted to ``g.t`` in
         ``s``), or None to fuse it as it is (default: a node without an association policy;
@@ -505,6 +510,8 @@ class Node(Intake, Exchange):
             self.timing["fuse_n"] += 1
         else:
             s, outcomes, msgs = self._fuse_group(s, g if view is None else view.group)
+        if view is not None:
+            msgs = msgs + self._settle(view.group)
         if view is not None or e.assoc:
             outcomes, assoc = view.outcomes(outcomes) if view is not None else (outcomes, {})
             self.accounting.recount_counters(e.assoc, assoc)

@@ -12,7 +12,14 @@ from swarmloc.lie import SE2, SE3
 from swarmloc.messages import BeliefQuery, Message
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.twist3 import TwistNoise
-from swarmloc.node.associate import AssociationView, answered_beliefs, associate, check_association, is_anonymous
+from swarmloc.node.associate import (
+    AssociationView,
+    answered_beliefs,
+    associate,
+    check_association,
+    check_sensor,
+    is_anonymous,
+)
 from swarmloc.node.base import Node
 from swarmloc.node.keys import Group
 from swarmloc.node.protocol import belief_answer
@@ -51,7 +58,8 @@ class RobotNode(Node):
         (:mod:`~swarmloc.node.associate`: the node asks every teammate for its belief at the stamp of a scan with
         anonymous detections, then gives each one an identity); association_gate: the chi-square probability of
         the association gate; sensor_range [m]: teammates predicted within it and given no detection of a scan
-        are counted ``association_missed`` (None: not counted).
+        are counted ``association_missed`` (None: not counted), those within ``sensor_fov`` [rad] of the heading only
+        when it is set (total width; None: all round).
     Other keywords: see :class:`~swarmloc.node.base.Node`. Neighbours are learnt as they are detected; they are
     asked for their belief (:class:`~swarmloc.messages.BeliefQuery`) and never read otherwise.
     """
@@ -60,8 +68,9 @@ class RobotNode(Node):
     """The groups this estimator's state can live on (``(SE2, SE3)`` for the estimators with an SE(3) form); the
     initial belief picks one."""
     associates: ClassVar[bool] = True
-    """False for an estimator whose exchanges need the target's identity before the belief is asked (pairwise
-    updates, broadcasts keyed by the detection): it refuses an association policy other than ``tags``."""
+    """False for an estimator that cannot give anonymous detections an identity: it refuses an association policy
+    other than ``tags`` (none of :data:`swarmloc.estimators.ESTIMATORS` does: the pairwise ``rdl``, ``irdl`` and
+    the broadcasting ``diekf``, ``flsd`` ask every teammate with their own query, :mod:`~swarmloc.estimators.rdl`)."""
 
     def __init__(
         self,
@@ -73,6 +82,7 @@ class RobotNode(Node):
         association: str = "tags",
         association_gate: float = 0.99,
         sensor_range: float | None = None,
+        sensor_fov: float | None = None,
         **kw: Any,
     ) -> None:
         cls = type(self).__name__
@@ -84,11 +94,9 @@ class RobotNode(Node):
         check_association(cls, association, association_gate)
         if association != "tags" and not self.associates:
             raise ValueError(
-                f"{cls}: association {association!r} is not supported by {self.name} (its exchanges need the "
-                f"target's identity first); use association='tags', or dekf, expfusion, ci, mcl, cekf, iekf or fej"
+                f"{cls}: association {association!r} is not supported by {self.name}; use association='tags'"
             )
-        if sensor_range is not None and not sensor_range > 0:
-            raise ValueError(f"{cls}: sensor_range must be > 0 m or None, got {sensor_range!r}")
+        check_sensor(cls, sensor_range, sensor_fov)
         self.robot = int(robot)
         self.initial = initial
         self.group = initial.group
@@ -98,6 +106,7 @@ class RobotNode(Node):
         self.association = association
         self.association_gate = float(association_gate)
         self.sensor_range = sensor_range
+        self.sensor_fov = sensor_fov
         if association != "tags" and len(self.team) < 2:
             raise ValueError(f"{cls}: association {association!r} needs the team's robot ids ('team')")
         super().__init__((self.robot,), **kw)
@@ -112,13 +121,19 @@ class RobotNode(Node):
         targets = sorted({d.target for d in g.detections if self._needs_answer(g, d)} | set(self._teammates(g)))
         return [BeliefQuery(sender=self.robot, receiver=t, stamp=g.t) for t in targets]
 
+    def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
+        """The teammates' beliefs at ``g``'s stamp among which its anonymous detections are associated: from their
+        answers to the group's queries (default: the :class:`~swarmloc.messages.BeliefQuery` ones, sub-key ``()``;
+        an estimator that asks with its own query reads its answers)."""
+        return answered_beliefs(g, mates)
+
     def _associate(self, s: Any, g: Group) -> AssociationView | None:
         mates = self._teammates(g)
         if not mates:
             return None
         own = self._belief(s, self.robot)
-        return associate(g, self.association, self.association_gate, own, answered_beliefs(g, mates),
-                         self.sensor_range)  # fmt: skip
+        return associate(g, self.association, self.association_gate, own, self._candidates(g, mates),
+                         self.sensor_range, self.sensor_fov)  # fmt: skip
 
     def _answer(self, s: Any, q: Message) -> Message | None:
         if isinstance(q, BeliefQuery):

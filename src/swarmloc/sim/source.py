@@ -20,7 +20,7 @@ __all__ = ["sim_source"]
 def sim_source(sim: SimResult, spec: str, config: Config | None = None) -> Source:
     """A :class:`Source` of a simulation: its odometry and detections, initial beliefs at the true start with
     ``config.initial``'s std, and truth interpolated on its grid. ``config`` defaults to :data:`DEFAULTS` with the
-    simulation's own process noise."""
+    simulation's own process noise; ``sensor``: its robot sensor's range and field of view."""
     if config is None:
         config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
     cov = config.initial.cov()
@@ -33,4 +33,7 @@ def sim_source(sim: SimResult, spec: str, config: Config | None = None) -> Sourc
             raise ValueError(f"no ground truth for robot {robot}")
         return interpolate(sim.times, sim.truth[:, col[robot]], times)
 
-    return Source(spec, events, initial, None, float(sim.times[0]), float(sim.times[-1]), truth, config)
+    sen = sim.config.sensor
+    reach = (None, None) if sen is None else (float(sen.max_range), float(sen.fov))
+    return Source(spec, events, initial, None, float(sim.times[0]), float(sim.times[-1]), truth, config,
+                  sensor=reach)  # fmt: skip
