@@ -30,6 +30,7 @@ from swarmloc.estimators.ci import ExpCI
 from swarmloc.estimators.dekf import DistributedEKF
 from swarmloc.estimators.dekf3 import DistributedEKF3
 from swarmloc.estimators.diekf import DistributedInvariantEKF
+from swarmloc.estimators.diekf3 import DistributedInvariantEKF3
 from swarmloc.estimators.dr import DeadReckoning
 from swarmloc.estimators.expfusion import ExpFusion
 from swarmloc.estimators.fls import FixedLagSmoother
@@ -67,10 +68,12 @@ ESTIMATORS_SE3: dict[str, type[Node]] = {
     "expfusion": ExpFusion,
     "dekf": DistributedEKF3,
     "ci": ExpCI,
+    "diekf": DistributedInvariantEKF3,
 }
 """The estimators with an SE(3) form (3-D teams), by name: :func:`make_team` picks from this table when the initial
 beliefs are on SE(3). ``dr``, ``expfusion`` and ``ci`` are the planar classes on the SE(3) kernels; ``dekf`` is
-:class:`~swarmloc.estimators.dekf3.DistributedEKF3`."""
+:class:`~swarmloc.estimators.dekf3.DistributedEKF3`, ``diekf``
+:class:`~swarmloc.estimators.diekf3.DistributedInvariantEKF3` (world-frame errors)."""
 
 
 def estimator_class(estimator: str | type[Node], initial: Mapping[int, GroupGaussian] | None = None) -> type[Node]:
@@ -161,6 +164,7 @@ __all__ = [
     "DistributedEKF",
     "DistributedEKF3",
     "DistributedInvariantEKF",
+    "DistributedInvariantEKF3",
     "ExpCI",
     "ExpFusion",
     "FirstEstimatesEKF",

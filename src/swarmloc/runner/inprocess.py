@@ -74,8 +74,8 @@ class _Records:
                 np.array([x[0] for x in rows]),
                 np.array([x[1] for x in rows]).reshape(-1, w),
                 np.array([x[2] for x in rows]).reshape(-1, d, d),
-                np.array([x[3] for x in rows]).reshape(-1, w),
-            )
+                np.array([x[3] if x[3].size == w else np.full(w, np.nan) for x in rows]).reshape(-1, w),
+            )  # truth unknown (NaN, 3 wide) on an SE(3) team: NaN 7 wide
         return out
 
 
