@@ -283,7 +283,7 @@ def message_problem(m: Message) -> str | None:
         if not (isinstance(d, int) and d in (3, 6)):
             return f"{name}: n must be 3 (SE(2)) or 6 (SE(3)), got {d!r}"
         if not (isinstance(k, int) and 1 <= k <= d):
-            return f"{name}: m must be 1 .. {d}, got {k!r}"
+            return f"{name}: m must be " + ("1, 2 or 3" if d == 3 else "1 .. 6") + f", got {k!r}"
         sizes = (d * k, d * k, k * k, k, d * d, d * d)
         if not all(_finite(v, n) for v, n in zip((m.Hi, m.Hj, m.Sinv, m.nu, m.Pii, m.Pjj), sizes, strict=True)):
             return f"{name}: Hi, Hj, Sinv, nu, Pii, Pjj must be {sizes} finite numbers"

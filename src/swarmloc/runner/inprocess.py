@@ -289,10 +289,15 @@ def truth_table(truth: TruthFn | None, robot: int, times: np.ndarray) -> np.ndar
     try:
         return np.asarray(truth(robot, times), dtype=float).reshape(times.size, -1)
     except ValueError:
-        out = np.full((times.size, 3), np.nan)
+        rows: list[np.ndarray | None] = []
         for k in range(times.size):
             try:
-                out[k] = np.asarray(truth(robot, times[k : k + 1]), dtype=float)[0]
+                rows.append(np.asarray(truth(robot, times[k : k + 1]), dtype=float).reshape(-1))
             except ValueError:
-                pass
+                rows.append(None)
+        w = next((row.size for row in rows if row is not None), 3)  # 3 (x, y, theta) or 7 (SE(3), pose7)
+        out = np.full((times.size, w), np.nan)
+        for k, row in enumerate(rows):
+            if row is not None and row.size == w:
+                out[k] = row
         return out
