@@ -67,7 +67,7 @@ def _job(args: tuple[str, str, int, int, float]) -> dict[str, Any]:
 
 def se3_table(
     specs: tuple[str, ...] = ("sim:3d", "sim:3d_rot"),
-    estimators: tuple[str, ...] = ("expfusion", "dekf", "ci", "dr"),
+    estimators: tuple[str, ...] = ("expfusion", "dekf", "ci", "diekf", "cekf", "dr"),
     seeds: int = 20,
     robots: int = 4,
     duration: float = 60.0,
