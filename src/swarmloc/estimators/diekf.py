@@ -81,6 +81,8 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     update_types = (TeamUpdate,)
     lin_log: list | None = None
     dim: ClassVar[int] = 3
+    _state: ClassVar[type] = TeamState
+    """The state :meth:`_team_update` returns (``flsd`` keeps its own fields from it; SE(3): ``TeamState3``)."""
     """Dimension of a robot's error (3: SE(2); 6: SE(3), :mod:`swarmloc.estimators.diekf3`)."""
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), **kw: Any) -> None:
@@ -162,7 +164,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         Sigma = s.Sigma - np.einsum("aim,bjm->abij", G, Gam)
         P = s.P - G[me] @ Gam[me].T
         P = 0.5 * (P + P.T)
-        return type(s)(s.t, s.v, s.w, self._correct(s.x, Gam[me] @ nu), P, Sigma)
+        return self._state(s.t, s.v, s.w, self._correct(s.x, Gam[me] @ nu), P, Sigma)
 
     def _correct(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """The pose ``x`` corrected by the world-frame ``delta``: ``exp(hat(delta)) g(x)``."""

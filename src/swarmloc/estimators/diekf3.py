@@ -83,6 +83,7 @@ class DistributedInvariantEKF3(DistributedInvariantEKF):
     groups = (SE3,)
     lazy_odometry = False
     dim = 6
+    _state = TeamState3
 
     def _initial_state(self, t0: float) -> TeamState3:
         g = np.asarray(self.initial.mean, dtype=float)
