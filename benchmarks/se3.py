@@ -1,5 +1,6 @@
 """The thesis' second-order estimator against the first-order EKF on 3-D teams (issue 22): ``sim:3d`` and
-``sim:3d_rot`` (large rotational uncertainty), ``expfusion``, ``dekf``, ``ci`` and ``dr`` over 20 seeds.
+``sim:3d_rot`` (large rotational uncertainty), ``expfusion``, ``dekf``, ``ci``, ``diekf``, ``cekf`` and ``dr`` over 20
+seeds.
 
     PYTHONPATH=src python benchmarks/se3.py --seeds 20 --out se3   # writes se3.md and se3.json
 """
@@ -19,7 +20,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--robots", type=int, default=4)
     ap.add_argument("--duration", type=float, default=60.0)
-    ap.add_argument("--estimators", default="expfusion,dekf,ci,dr")
+    ap.add_argument("--estimators", default="expfusion,dekf,ci,diekf,cekf,dr")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=Path("se3"))
     a = ap.parse_args()

@@ -87,7 +87,10 @@ BAD_MEAN = flat(np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
     [
         (b"\x93\x01\x02", "malformed"),
         (b"not msgpack at all", "malformed"),
-        (_env(BeliefQuery(sender=1, receiver=0, stamp=1.0), v=2), "schema version 2"),
+        (
+            _env(BeliefQuery(sender=1, receiver=0, stamp=1.0), v=SCHEMA_VERSION + 1),
+            f"schema version {SCHEMA_VERSION + 1}",
+        ),
         (_env(BeliefQuery(sender=1, receiver=0, stamp=1.0), team="other"), "team 'other'"),
         (_env(BeliefQuery(sender=7, receiver=0, stamp=1.0)), "outside the team's roster"),
         (_env(BeliefQuery(sender=2, receiver=0, stamp=1.0), from_robot=1), "in the name of robot 2"),

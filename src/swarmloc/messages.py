@@ -35,7 +35,9 @@ from swarmloc.gaussian import GroupGaussian
 
 Floats = tuple[float, ...]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+"""Version of these messages' wire format (kept equal to :data:`swarmloc.net.schema.SCHEMA_VERSION`). 2: SE(3)
+states in :class:`RdlState`, the error dimension ``n`` of :class:`TeamUpdate`, the group of a published belief."""
 
 
 def flat(a: np.ndarray) -> Floats:
@@ -92,7 +94,8 @@ class RdlStateQuery(Message, frozen=True, kw_only=True, tag="rdl_state_query"):
 
 class RdlState(Message, frozen=True, kw_only=True, tag="rdl_state"):
     """``j``'s Cartesian state ``x`` (3), covariance ``P`` (9) and factor ``sigma`` (9) for the asker ``i``, so that
-    ``Sigma_ij = sigma_ij sigma_ji^T``; ``seq`` is the revision of this answer."""
+    ``Sigma_ij = sigma_ij sigma_ji^T``; ``seq`` is the revision of this answer. An SE(3) state (``diekf`` on a 3-D
+    team) has ``x`` the pose (16, row-major ``4 x 4``), ``P`` (36) and ``sigma`` (36)."""
 
     seq: int = 0
     found: bool = True
@@ -106,6 +109,8 @@ class RdlState(Message, frozen=True, kw_only=True, tag="rdl_state"):
         return self.receiver
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if len(self.x) == 16:  # an SE(3) state
+            return np.reshape(self.x, (4, 4)), np.reshape(self.P, (6, 6)), np.reshape(self.sigma, (6, 6))
         return np.array(self.x), np.reshape(self.P, (3, 3)), np.reshape(self.sigma, (3, 3))
 
 
@@ -135,12 +140,14 @@ class RdlUpdate(Message, frozen=True, kw_only=True, tag="rdl_update"):
 class TeamUpdate(Message, frozen=True, kw_only=True, tag="team_update"):
     """One joint update of the exact distributed invariant EKF (:mod:`swarmloc.estimators.diekf`), broadcast by
     the observer (``sender``) to every teammate: the detected robot ``target``, the measurement's world-frame
-    Jacobians ``Hi``, ``Hj`` (``m x 3`` each), ``Sinv`` (``m x m``, the inverse innovation covariance), ``nu =
-    S^-1 r`` (``m``) and the pair's covariances before the update ``Pii``, ``Pjj`` (9 each). Empty ``Hi``: the
-    update sent earlier under this key is retracted."""
+    Jacobians ``Hi``, ``Hj`` (``m x n`` each), ``Sinv`` (``m x m``, the inverse innovation covariance), ``nu =
+    S^-1 r`` (``m``) and the pair's covariances before the update ``Pii``, ``Pjj`` (``n x n`` each); ``n`` the
+    dimension of a robot's error (3: SE(2), 6: SE(3)). Empty ``Hi``: the update sent earlier under this key is
+    retracted."""
 
     target: int = -1
     m: int = 0
+    n: int = 3
     Hi: Floats = ()
     Hj: Floats = ()
     Sinv: Floats = ()
@@ -207,6 +214,27 @@ def _se3_belief_problem(name: str, mean: tuple, cov: tuple) -> str | None:
     return None
 
 
+def _spd(c: tuple) -> bool:
+    """A row-major square matrix of finite numbers is symmetric (to 1e-9 relative) and positive definite."""
+    k = math.isqrt(len(c))
+    C = np.reshape(np.array(c, dtype=float), (k, k))
+    if np.abs(C - C.T).max() > 1e-9 * max(1.0, float(np.abs(C).max())):
+        return False
+    try:
+        np.linalg.cholesky(C)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def _se3_state_problem(name: str, x: tuple, P: tuple, sigma: tuple) -> str | None:
+    """Why an SE(3) :class:`RdlState` (pose 16, covariance 36, factor 36 numbers) is unusable."""
+    if not (_finite(x, 16) and _finite(P, 36) and _finite(sigma, 36)):
+        return f"{name}: an SE(3) state's x, P, sigma must be 16, 36 and 36 finite numbers"
+    why = _se3_belief_problem(name, x, P)
+    return None if why is None else why.replace("cov is", "P is")
+
+
 def message_problem(m: Message) -> str | None:
     """Why a received message cannot be used, or None: ids not integers, a non-finite stamp or sub-key, and for
     answers and updates the shape, finiteness, SE(2) membership and positive definiteness of their numbers."""
@@ -235,6 +263,8 @@ def message_problem(m: Message) -> str | None:
     elif isinstance(m, RdlState):
         if not m.found:
             return None
+        if len(m.x) == 16:
+            return _se3_state_problem(name, m.x, m.P, m.sigma)
         if not (_finite(m.x, 3) and _finite(m.P, 9) and _finite(m.sigma, 9)):
             return f"{name}: x, P, sigma must be 3, 9 and 9 finite numbers"
         if not _spd3(m.P):
@@ -249,13 +279,16 @@ def message_problem(m: Message) -> str | None:
     elif isinstance(m, TeamUpdate):
         if not m.Hi:
             return None  # a retraction
-        k = m.m
-        if not (isinstance(k, int) and 1 <= k <= 3):
-            return f"{name}: m must be 1, 2 or 3, got {k!r}"
-        sizes = (3 * k, 3 * k, k * k, k, 9, 9)
+        k, d = m.m, m.n
+        if not (isinstance(d, int) and d in (3, 6)):
+            return f"{name}: n must be 3 (SE(2)) or 6 (SE(3)), got {d!r}"
+        if not (isinstance(k, int) and 1 <= k <= d):
+            return f"{name}: m must be " + ("1, 2 or 3" if d == 3 else "1 .. 6") + f", got {k!r}"
+        sizes = (d * k, d * k, k * k, k, d * d, d * d)
         if not all(_finite(v, n) for v, n in zip((m.Hi, m.Hj, m.Sinv, m.nu, m.Pii, m.Pjj), sizes, strict=True)):
             return f"{name}: Hi, Hj, Sinv, nu, Pii, Pjj must be {sizes} finite numbers"
-        if not (_spd3(m.Pii) and _spd3(m.Pjj)):
+        spd = _spd3 if d == 3 else _spd
+        if not (spd(m.Pii) and spd(m.Pjj)):
             return f"{name}: Pii and Pjj must be symmetric positive definite"
     return None
 

@@ -26,10 +26,12 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from swarmloc.estimators.cekf import CentralizedEKF
+from swarmloc.estimators.cekf3 import CentralizedEKF3
 from swarmloc.estimators.ci import ExpCI
 from swarmloc.estimators.dekf import DistributedEKF
 from swarmloc.estimators.dekf3 import DistributedEKF3
 from swarmloc.estimators.diekf import DistributedInvariantEKF
+from swarmloc.estimators.diekf3 import DistributedInvariantEKF3
 from swarmloc.estimators.dr import DeadReckoning
 from swarmloc.estimators.expfusion import ExpFusion
 from swarmloc.estimators.fls import FixedLagSmoother
@@ -67,10 +69,14 @@ ESTIMATORS_SE3: dict[str, type[Node]] = {
     "expfusion": ExpFusion,
     "dekf": DistributedEKF3,
     "ci": ExpCI,
+    "diekf": DistributedInvariantEKF3,
+    "cekf": CentralizedEKF3,
 }
 """The estimators with an SE(3) form (3-D teams), by name: :func:`make_team` picks from this table when the initial
 beliefs are on SE(3). ``dr``, ``expfusion`` and ``ci`` are the planar classes on the SE(3) kernels; ``dekf`` is
-:class:`~swarmloc.estimators.dekf3.DistributedEKF3`."""
+:class:`~swarmloc.estimators.dekf3.DistributedEKF3`, ``diekf``
+:class:`~swarmloc.estimators.diekf3.DistributedInvariantEKF3` (world-frame errors), ``cekf``
+:class:`~swarmloc.estimators.cekf3.CentralizedEKF3`."""
 
 
 def estimator_class(estimator: str | type[Node], initial: Mapping[int, GroupGaussian] | None = None) -> type[Node]:
@@ -166,10 +172,12 @@ __all__ = [
     "ESTIMATORS",
     "ESTIMATORS_SE3",
     "CentralizedEKF",
+    "CentralizedEKF3",
     "DeadReckoning",
     "DistributedEKF",
     "DistributedEKF3",
     "DistributedInvariantEKF",
+    "DistributedInvariantEKF3",
     "ExpCI",
     "ExpFusion",
     "FirstEstimatesEKF",

@@ -22,6 +22,7 @@ import numpy as np
 from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
+from swarmloc.lie import SE2
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, check_model, gated_kalman
@@ -112,6 +113,10 @@ class CentralizedEKF(Node):
     error_frame: ClassVar[str] = "cartesian"
     lin_log: list | None = None
     """Set to a list to record every applied linearization (:mod:`swarmloc.evaluation.observability`)."""
+    groups: ClassVar[tuple[type, ...]] = (SE2,)
+    """The group of every robot's pose (SE(3): :class:`~swarmloc.estimators.cekf3.CentralizedEKF3`)."""
+    dim: ClassVar[int] = 3
+    """Size of one robot's block of the joint state."""
 
     def __init__(
         self,
@@ -133,11 +138,11 @@ class CentralizedEKF(Node):
         self.association_gate = float(association_gate)
         self.sensor_range = sensor_range
         self.sensor_fov = sensor_fov
-        check_model(cls, initial, noise)
+        check_model(cls, initial, noise, self.groups)
         self.initial = dict(initial)
         self.noise = noise
         robots = sorted(initial)
-        self._idx = {r: 3 * i for i, r in enumerate(robots)}
+        self._idx = {r: self.dim * i for i, r in enumerate(robots)}
         self._angles = tuple(range(2, 3 * len(robots), 3))
         super().__init__(robots, **kw)
 

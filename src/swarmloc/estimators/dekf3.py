@@ -7,7 +7,8 @@ the planar filter's ``(x, y, theta)`` error (:mod:`swarmloc.estimators.dekf`). E
 * prediction over a constant body twist with increment ``(t_inc, R_inc) = exp(dt h^)`` and increment noise
   ``Sigma_inc`` (:func:`swarmloc.motion.twist3.twist_increment`): ``p' = p + R t_inc``, ``R' = R R_inc``,
   ``F = [[I, -R t_inc^], [0, R_inc^T]]``, ``G = diag(R R_inc, I)``, ``P' = F P F^T + G Sigma_inc G^T``;
-* relative pose of neighbour ``k``: ``h = (R^T (p_k - p), R^T R_k)``, residual ``(t_z - h_t, log(h_R^T R_z))``,
+* relative pose of neighbour ``k`` (:class:`~swarmloc.sensors.models3.Model3`): ``h = (R^T (p_k - p), R^T R_k)``,
+  residual ``(t_z - h_t, log(h_R^T R_z))``,
   Jacobians ``d h_t / d(dp, dtheta) = (-R^T, h_t^)``, ``d h_R / d(dp, dtheta) = (0, -h_R^T)``, and for the
   neighbour ``(R^T, 0)``, ``(0, I)``; the neighbour's answered belief (converted to this error) and the measurement
   noise (``diag(R_z, I) Sigma_z diag(R_z, I)^T``) enter the innovation covariance; the cross-correlation is
@@ -25,11 +26,11 @@ import numpy as np
 
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3
-from swarmloc.lie.se3 import skew, so3_exp, so3_log
+from swarmloc.lie.se3 import skew, so3_exp
 from swarmloc.messages import Message
 from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import FUSED, Group, Outcome, RobotNode, belief_of, gated_kalman
-from swarmloc.sensors.models3 import pose3_matrix
+from swarmloc.sensors.models3 import model3
 
 
 class Cart3State(NamedTuple):
@@ -50,6 +51,27 @@ def to_error(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     J[:3, :3] = R
     P = J @ cov @ J.T
     return mean[:3, 3].copy(), R.copy(), 0.5 * (P + P.T)
+
+
+def transition(R: np.ndarray, inc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(F, G)`` of the step ``p' = p + R t_inc``, ``R' = R R_inc`` (increment ``inc (4, 4)``) in the error
+    ``(dp, dtheta)``: ``F = [[I, -R t_inc^], [0, R_inc^T]]`` maps the error before to the error after, ``G =
+    diag(R R_inc, I)`` the increment's right-perturbation noise to it (first order; tests/test_se3_cekf.py checks
+    both against finite differences)."""
+    Ri, ti = inc[:3, :3], inc[:3, 3]
+    F = np.eye(6)
+    F[:3, 3:] = -R @ skew(ti)
+    F[3:, 3:] = Ri.T
+    G = np.eye(6)
+    G[:3, :3] = R @ Ri
+    return F, G
+
+
+def _pose(p: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The ``4 x 4`` pose of position ``p`` and attitude ``R``."""
+    g = np.eye(4)
+    g[:3, :3], g[:3, 3] = R, p
+    return g
 
 
 def to_group(p: np.ndarray, R: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -79,11 +101,7 @@ class DistributedEKF3(RobotNode):
             return s
         inc, S = twist_increment(as_twist(s.v, s.w), dt, self.noise)
         Ri, ti = inc[:3, :3], inc[:3, 3]
-        F = np.eye(6)
-        F[:3, 3:] = -s.R @ skew(ti)
-        F[3:, 3:] = Ri.T
-        G = np.eye(6)
-        G[:3, :3] = s.R @ Ri
+        F, G = transition(s.R, inc)
         P = F @ s.P @ F.T + G @ S @ G.T
         return Cart3State(t, s.v, s.w, s.p + s.R @ ti, s.R @ Ri, 0.5 * (P + P.T))
 
@@ -109,20 +127,10 @@ class DistributedEKF3(RobotNode):
                 outcomes.append(("rejected", "the neighbour's answer is not an SE(3) belief"))
                 continue
             pk, Rk, Pk = to_error(nb_mean, nb_cov)
-            mz = pose3_matrix(d.z)
-            ht = R.T @ (pk - p)
-            hR = R.T @ Rk
-            r = np.concatenate([mz[:3, 3] - ht, so3_log(hR.T @ mz[:3, :3])])
-            Hi = np.zeros((6, 6))
-            Hi[:3, :3] = -R.T
-            Hi[:3, 3:] = skew(ht)
-            Hi[3:, 3:] = -hR.T
-            Hk = np.zeros((6, 6))
-            Hk[:3, :3] = R.T
-            Hk[3:, 3:] = np.eye(3)
-            Jz = np.eye(6)
-            Jz[:3, :3] = mz[:3, :3]
-            Rn = Jz @ np.asarray(d.cov, float) @ Jz.T + Hk @ Pk @ Hk.T
+            m3 = model3("pose3")
+            h, Hi, Hk = m3.predict(_pose(p, R), _pose(pk, Rk))
+            r = m3.residual(d.z, h)
+            Rn = m3.noise(d.z, d.cov) + Hk @ Pk @ Hk.T
             res = gated_kalman(np.zeros(6), P, r, Hi, 0.5 * (Rn + Rn.T), self.gate, angles=())
             if isinstance(res[0], str):
                 outcomes.append(res)

@@ -86,6 +86,10 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     error_frame: ClassVar[str] = "world"
     update_types = (TeamUpdate,)
     lin_log: list | None = None
+    dim: ClassVar[int] = 3
+    _state: ClassVar[type] = TeamState
+    """The state :meth:`_team_update` returns (``flsd`` keeps its own fields from it; SE(3): ``TeamState3``)."""
+    """Dimension of a robot's error (3: SE(2); 6: SE(3), :mod:`swarmloc.estimators.diekf3`)."""
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), **kw: Any) -> None:
         self.team = tuple(sorted({int(r) for r in team} | {int(robot)}))
@@ -166,7 +170,11 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         Sigma = s.Sigma - np.einsum("aim,bjm->abij", G, Gam)
         P = s.P - G[me] @ Gam[me].T
         P = 0.5 * (P + P.T)
-        return TeamState(s.t, s.v, s.w, I.left_correct(s.x, Gam[me] @ nu), P, Sigma)
+        return self._state(s.t, s.v, s.w, self._correct(s.x, Gam[me] @ nu), P, Sigma)
+
+    def _correct(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """The pose ``x`` corrected by the world-frame ``delta``: ``exp(hat(delta)) g(x)``."""
+        return I.left_correct(x, delta)
 
     # ------------------------------------------------------------------------------------------------ update
     def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
@@ -185,7 +193,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
                 continue
             s, (j, Hi, Hj, Sinv, nu, Pii, Pjj) = res
             body = dict(
-                target=j, m=len(nu), Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv), nu=flat(nu), Pii=flat(Pii),
+                target=j, m=len(nu), n=self.dim, Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv), nu=flat(nu), Pii=flat(Pii),
                 Pjj=flat(Pjj),
             )  # fmt: skip
             msgs += [TeamUpdate(sender=self.robot, receiver=r, stamp=g.t, sub=sub, **body) for r in mates]
@@ -249,6 +257,8 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     def _update_problem(self, u: Message) -> str | None:
         if u.sender not in self._pos or (not u.empty and u.target not in self._pos):
             return f"team update from or about a robot outside the team {list(self.team)}"
+        if not u.empty and u.n != self.dim:
+            return f"team update of a {u.n}-dof error; this node's error has {self.dim} dof"
         return None
 
     def _apply_update(self, s: TeamState, u: TeamUpdate) -> tuple[TeamState, bool]:
@@ -257,9 +267,9 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         # centralized filter does with its blocks (the same process-noise linearization points, same numbers).
         if u.target == self.robot:
             s = self._adv(s, self.robot, u.stamp)
-        m = u.m
+        m, n = u.m, u.n
         A = np.array  # np.array(t).reshape: what np.reshape(t) makes of a tuple, without its dispatch
-        Hi, Hj = A(u.Hi).reshape(m, 3), A(u.Hj).reshape(m, 3)
+        Hi, Hj = A(u.Hi).reshape(m, n), A(u.Hj).reshape(m, n)
         Sinv, nu = A(u.Sinv).reshape(m, m), A(u.nu)
-        Pii, Pjj = A(u.Pii).reshape(3, 3), A(u.Pjj).reshape(3, 3)
+        Pii, Pjj = A(u.Pii).reshape(n, n), A(u.Pjj).reshape(n, n)
         return self._team_update(s, u.sender, u.target, Hi, Hj, Sinv, nu, Pii, Pjj), True

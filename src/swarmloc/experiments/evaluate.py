@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.config import DEFAULTS, Config
-from swarmloc.datasets.tum import write_tum
+from swarmloc.datasets.tum import write_tum, write_tum3
 from swarmloc.estimators import ESTIMATORS, make_team, node_options
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
@@ -125,12 +125,16 @@ def write_report(out_dir: str | Path, stem: str, report: dict, results: dict[str
     tum = out / "tum"
     tum.mkdir(exist_ok=True)
     first = next(iter(results.values()), None)
+
+    def _tum(path: Path, times: np.ndarray, poses: np.ndarray) -> None:
+        (write_tum3 if poses.shape[-1] == 7 else write_tum)(path, times, poses)  # SE(3): full quaternions
+
     if first is not None and report["truth"]:
         for r, tr in first.tracks.items():
-            write_tum(tum / f"groundtruth_robot{r}.tum", tr.times, tr.truth)
+            _tum(tum / f"groundtruth_robot{r}.tum", tr.times, tr.truth)
     for name, res in results.items():
         for r, tr in res.tracks.items():
-            write_tum(tum / f"{name}_robot{r}.tum", tr.times, tr.mean)
+            _tum(tum / f"{name}_robot{r}.tum", tr.times, tr.mean)
     report["figures"] = figures(out, results, t_start) if results and report["truth"] else []
     (out / f"{stem}.json").write_text(json.dumps(report, indent=2, default=json_default))
     (out / f"{stem}.md").write_text(markdown_table(report))

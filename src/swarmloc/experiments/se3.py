@@ -19,10 +19,11 @@ from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import write_tum3
 from swarmloc.estimators import make_team
 from swarmloc.evaluation.metrics import anees_bounds, evaluate
+from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.experiments.sources import load_source
 from swarmloc.runner import RunResult, run
 
-__all__ = ["run_se3", "se3_markdown", "se3_table", "write_tum_tracks"]
+__all__ = ["run_se3", "se3_markdown", "se3_table", "with_truth", "write_tum_tracks"]
 
 
 def run_se3(source: Source, estimator: str, **options: Any) -> RunResult:
@@ -30,7 +31,18 @@ def run_se3(source: Source, estimator: str, **options: Any) -> RunResult:
     if source.noise is None:
         raise ValueError(f"run_se3: source {source.spec!r} is not a 3-D team (no twist noise)")
     nodes = make_team(estimator, source.initial, **{"noise": source.noise, "t0": source.t_start, **options})
-    return run(nodes, [*source.events, *(source.truth_events or [])], name=estimator)
+    return run(nodes, with_truth(source), name=estimator)
+
+
+_PRIO = {Odometry: 0, Detection: 1, Truth: 2}
+
+
+def with_truth(source: Source) -> list[Event]:
+    """The source's events with its truth instants merged in stamp order (at one stamp: odometry, detections,
+    truth; the other events keep their order). Appended after the other events instead, a truth instant reaches
+    the runner when the nodes' history has moved past it and is not recorded (``record_too_old``): a 20-s run
+    scored only its last 76 of 164 instants."""
+    return sorted([*source.events, *(source.truth_events or [])], key=lambda e: (e.stamp, _PRIO[type(e)]))
 
 
 def write_tum_tracks(result: RunResult, out: str | Path) -> list[Path]:
@@ -55,7 +67,7 @@ def _job(args: tuple[str, str, int, int, float]) -> dict[str, Any]:
 
 def se3_table(
     specs: tuple[str, ...] = ("sim:3d", "sim:3d_rot"),
-    estimators: tuple[str, ...] = ("expfusion", "dekf", "ci", "dr"),
+    estimators: tuple[str, ...] = ("expfusion", "dekf", "ci", "diekf", "cekf", "dr"),
     seeds: int = 20,
     robots: int = 4,
     duration: float = 60.0,

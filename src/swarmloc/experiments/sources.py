@@ -57,7 +57,10 @@ def sim3d_source(robots: int, duration: float, seed: int, large_rotation: bool =
     events = [e for e in sim.events if not isinstance(e, Truth)]
     truths = [e for e in sim.events if isinstance(e, Truth)]
     spec = "sim:3d_rot" if large_rotation else "sim:3d"
-    return Source(spec, events, sim.initial, None, float(sim.times[0]), float(sim.times[-1]), sim.truth, DEFAULTS,
+    # beliefs recorded where the simulator has truth (its truth instants, on the odometry grid): a networked team
+    # records at the configuration's rate and is scored there
+    config = dataclasses.replace(DEFAULTS, record=dataclasses.replace(DEFAULTS.record, rate=cfg.truth_rate))
+    return Source(spec, events, sim.initial, None, float(sim.times[0]), float(sim.times[-1]), sim.truth, config,
                   noise=sim.noise, truth_events=truths)  # fmt: skip
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.linalg import expm
@@ -66,8 +67,16 @@ def as_twist(v: object, w: object) -> np.ndarray:
 
 def twist_increment(twist: np.ndarray, dt: float, noise: TwistNoise) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian increment ``(mean (4, 4), cov (6, 6))`` of the body twist ``(6,)`` held over ``dt`` [s] with
-    diffusion ``noise.Q(twist)``: ``mean = exp(dt twist^)``, ``cov`` the Van Loan closed form (module doc)."""
-    h = np.asarray(twist, dtype=float)
+    diffusion ``noise.Q(twist)``: ``mean = exp(dt twist^)``, ``cov`` the Van Loan closed form (module doc).
+
+    Memoized on the exact numbers (a node's history replays the same odometry many times; the ``12 x 12`` matrix
+    exponential dominates a 3-D team's run otherwise): the arrays returned are read-only and shared."""
+    return _increment_cached(tuple(np.asarray(twist, dtype=float).tolist()), float(dt), noise)
+
+
+@lru_cache(maxsize=1 << 14)
+def _increment_cached(twist: tuple[float, ...], dt: float, noise: TwistNoise) -> tuple[np.ndarray, np.ndarray]:
+    h = np.array(twist, dtype=float)
     Q = noise.Q(h)
     ad = SE3.ad(h, validate=False)
     M = np.zeros((12, 12))
@@ -76,4 +85,7 @@ def twist_increment(twist: np.ndarray, dt: float, noise: TwistNoise) -> tuple[np
     M[6:, 6:] = -ad.T
     E = expm(M * float(dt))
     S = E[6:, 6:].T @ E[:6, 6:]
-    return SE3.exp(dt * h, validate=False), 0.5 * (S + S.T)
+    mean, cov = SE3.exp(dt * h, validate=False), 0.5 * (S + S.T)
+    mean.setflags(write=False)
+    cov.setflags(write=False)
+    return mean, cov

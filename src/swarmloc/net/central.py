@@ -54,6 +54,7 @@ from swarmloc.net.schema import (
     Rejected,
     Report,
     encode,
+    group_tag,
 )
 from swarmloc.net.transport import alive_key, robot_key, server_key, team_scope
 from swarmloc.node import Node
@@ -299,7 +300,7 @@ class Fusion:
             except ValueError:
                 self.counts["record_too_old"] += 1
                 continue
-            out.append(Belief(robot=r, stamp=t, final=True, mean=flat(b.mean), cov=flat(b.cov)))
+            out.append(Belief(robot=r, stamp=t, final=True, mean=flat(b.mean), cov=flat(b.cov), group=group_tag(b)))
 
     def report(self, wall: float = 0.0, cpu: float = 0.0) -> Report:
         """The server's report (``robot`` -1): the node's counters, the lost detections among them as ``unknown``."""

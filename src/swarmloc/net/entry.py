@@ -55,17 +55,23 @@ def network_class(estimator: str) -> type:
     return hosted_class(estimator) or distributed_class(estimator)
 
 
-def distributed_class(estimator: str) -> type:
-    """The node class of a distributed ``estimator`` (one node per robot); ValueError naming the choices else."""
-    from swarmloc.estimators import ESTIMATORS
+def distributed_class(estimator: str, initial: Any = None) -> type:
+    """The node class of a distributed ``estimator`` (one node per robot) for a robot with this ``initial`` belief
+    (an SE(3) one picks from :data:`~swarmloc.estimators.ESTIMATORS_SE3`); ValueError naming the choices else."""
+    from swarmloc.estimators import ESTIMATORS, ESTIMATORS_SE3, estimator_class
+    from swarmloc.lie import SE3
     from swarmloc.node import RobotNode
 
-    cls = ESTIMATORS.get(estimator)
+    table = ESTIMATORS
+    if initial is not None and getattr(initial, "group", None) is SE3:
+        table = ESTIMATORS_SE3  # the table of a 3-D team
+        estimator_class(estimator, {0: initial})  # an unknown name, or one without an SE(3) form: its own error
+    cls = table.get(estimator)
     if cls is None:
-        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(ESTIMATORS)}")
-    networked = [k for k, c in ESTIMATORS.items() if issubclass(c, RobotNode) and c.distributed and c.over_network]
+        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(table)}")
+    networked = [k for k, c in table.items() if issubclass(c, RobotNode) and c.distributed and c.over_network]
     if not issubclass(cls, RobotNode) or not cls.distributed:
-        hosted = sorted(k for k, c in ESTIMATORS.items() if not c.distributed)
+        hosted = sorted(k for k, c in table.items() if not c.distributed)
         raise ValueError(
             f"{estimator!r} is not a distributed estimator (one node per robot): run it in-process with "
             f"'swarmloc evaluate', or hosted by the belief server ('swarmloc server --estimator', 'swarmloc team "
@@ -80,15 +86,25 @@ def distributed_class(estimator: str) -> type:
 
 
 def make_node(
-    estimator: str, robot: int, initial: Any, config: Config, landmarks: Any, team: Sequence[int] = ()
+    estimator: str,
+    robot: int,
+    initial: Any,
+    config: Config,
+    landmarks: Any,
+    team: Sequence[int] = (),
+    noise: Any = None,
 ) -> Any:
     """The node of ``robot`` for a distributed ``estimator`` with the options ``swarmloc evaluate`` uses; ``team``:
     every robot id of the team, for an estimator that keeps the whole team's correlations (``diekf``; default:
-    ``robot`` alone)."""
+    ``robot`` alone); ``noise``: the source's process noise when it is not ``config.motion``'s (an SE(3) team's
+    :class:`~swarmloc.motion.twist3.TwistNoise`). The class follows the initial belief's group."""
     from swarmloc.estimators import accepted_options, node_options
 
-    cls = distributed_class(estimator)
+    cls = distributed_class(estimator, initial)
     options = node_options(estimator, config, landmarks)
+    if noise is not None:
+        options["noise"] = noise
+    options = {k: v for k, v in options.items() if k in accepted_options(cls)}
     if "team" in accepted_options(cls):
         options["team"] = tuple(team) or (robot,)
     return cls(robot, initial, **options)
@@ -326,6 +342,8 @@ def _start(
     initial = src.initial[robot]
     record_times = src.record_times()
     if resume:
+        if initial.group.dim != 3:
+            raise ValueError("resume is for SE(2) teams: an SE(3) team starts from its source's initial beliefs")
         b = _latest_from_server(session, team, src.robots, robot, auth, scope)
         initial = GroupGaussian(SE2, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
         events = resume_events(events, b.stamp)
@@ -335,7 +353,7 @@ def _start(
     else:
         stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
         t0 = min(stamps) if stamps else src.t_start
-    node = make_node(estimator, robot, initial, src.config, src.landmarks, team=src.robots)
+    node = make_node(estimator, robot, initial, src.config, src.landmarks, team=src.robots, noise=src.noise)
     node.start(t0)
     return node, events, record_times
 
@@ -348,6 +366,13 @@ def _write_outputs(folder: Path, robot: int, finals: list[Belief], report: Repor
     from swarmloc.lie import SE2
 
     folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"robot{robot}.json").write_text(json.dumps(msgspec.to_builtins(report), indent=2))
+    if finals and finals[0].group == "SE3":  # full quaternions (swarmloc.datasets.tum.write_tum3)
+        from swarmloc.datasets.tum import write_tum3
+
+        poses = np.array([b.mean for b in finals]).reshape(-1, 4, 4)
+        write_tum3(folder / f"robot{robot}.tum", np.array([b.stamp for b in finals]), poses)
+        return
     xyt = SE2.to_xytheta(np.array([b.mean for b in finals]).reshape(-1, 3, 3)).reshape(-1, 3)
     write_tum(folder / f"robot{robot}.tum", np.array([b.stamp for b in finals]), xyt)
     (folder / f"robot{robot}.json").write_text(json.dumps(msgspec.to_builtins(report), indent=2))

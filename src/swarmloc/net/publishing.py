@@ -21,7 +21,7 @@ import time
 
 from swarmloc.events import Odometry
 from swarmloc.messages import flat
-from swarmloc.net.schema import MAX_LINES, Belief, Lines, Progress
+from swarmloc.net.schema import MAX_LINES, Belief, Lines, Progress, group_tag
 from swarmloc.net.transport import robot_key
 
 
@@ -75,7 +75,7 @@ class Publishing:
         if old is not None and old.mean == mean and old.cov == cov and (old.final or not final):
             return  # nothing new: same numbers, and not a provisional belief becoming final
         rev = 0 if old is None else old.rev + 1
-        msg = Belief(robot=self.robot, stamp=float(t), rev=rev, final=final, mean=mean, cov=cov)
+        msg = Belief(robot=self.robot, stamp=float(t), rev=rev, final=final, mean=mean, cov=cov, group=group_tag(b))
         self._published[t] = msg
         self._pub_belief.put(self._env(msg, robot_key(self.scope, self.robot, "belief")))
         self.counts["beliefs_published"] += 1

@@ -30,9 +30,8 @@ from typing import Annotated
 
 import msgspec
 
-from swarmloc.messages import AnyMessage, Floats, TeamUpdate, message_problem
+from swarmloc.messages import SCHEMA_VERSION, AnyMessage, Floats, TeamUpdate, message_problem
 
-SCHEMA_VERSION = 1
 SERVER = -1
 """``from_robot`` of the belief server and the team launcher."""
 
@@ -48,6 +47,12 @@ class Belief(msgspec.Struct, frozen=True, kw_only=True, tag="belief"):
     final: bool = False
     mean: Floats = ()
     cov: Floats = ()
+    group: str = "SE2"
+
+
+def group_tag(b: object) -> str:
+    """The wire name of a belief's group (``"SE2"`` or ``"SE3"``) for :class:`Belief`."""
+    return "SE3" if b.group.dim == 6 else "SE2"  # type: ignore[attr-defined]
 
 
 class Progress(msgspec.Struct, frozen=True, kw_only=True, tag="progress"):
@@ -271,12 +276,14 @@ def body_problem(b: Body) -> str | None:
     if isinstance(b, Belief):
         if not math.isfinite(b.stamp):
             return "belief: non-finite stamp"
-        if not (_finite(b.mean, 9) and _finite(b.cov, 9)):
+        if b.group == "SE2" and not (_finite(b.mean, 9) and _finite(b.cov, 9)):
             return "belief: mean and cov must be 9 finite numbers each"
         from swarmloc.messages import BeliefAnswer
 
-        # the same SE(2) / SPD checks as an answer
-        return message_problem(BeliefAnswer(sender=b.robot, receiver=b.robot, stamp=b.stamp, mean=b.mean, cov=b.cov))
+        # the same SE(2) / SE(3) / SPD checks as an answer
+        return message_problem(
+            BeliefAnswer(sender=b.robot, receiver=b.robot, stamp=b.stamp, group=b.group, mean=b.mean, cov=b.cov)
+        )
     if isinstance(b, Progress):
         return None if not math.isnan(b.t) else "progress: NaN time"
     if isinstance(b, Lines):

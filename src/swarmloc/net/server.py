@@ -51,7 +51,18 @@ from swarmloc.lie import SE2
 from swarmloc.mapping import LineMap, LineObservation
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
 from swarmloc.net.auth import Auth, note_refusal, open_envelope, seal
-from swarmloc.net.schema import MAX_MAP_LINES, SERVER, Belief, FusedLine, Lines, MapAnswer, Raw, Rejected, encode
+from swarmloc.net.schema import (
+    MAX_MAP_LINES,
+    SERVER,
+    Belief,
+    FusedLine,
+    Lines,
+    MapAnswer,
+    Raw,
+    Rejected,
+    encode,
+    group_tag,
+)
 from swarmloc.net.transport import alive_key, robot_key, server_key, team_scope
 
 __all__ = ["BeliefServer", "MapStore", "ServerProcess", "linemap_of", "observations_of", "wire_line"]
@@ -93,7 +104,8 @@ class BeliefServer:
 
     def put(self, robot: int, t: float, belief: GroupGaussian, final: bool = True) -> bool:
         """Store an SE(2) belief of ``robot`` at ``t`` [s] (in-process use)."""
-        b = Belief(robot=robot, stamp=float(t), final=final, mean=flat(belief.mean), cov=flat(belief.cov))
+        b = Belief(robot=robot, stamp=float(t), final=final, mean=flat(belief.mean), cov=flat(belief.cov),
+                   group=group_tag(belief))  # fmt: skip
         return self.store(b)
 
     def robots(self) -> list[int]:

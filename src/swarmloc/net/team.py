@@ -76,6 +76,7 @@ class TeamRun:
 
     def tracks(self, truth: Any = None) -> dict[int, Any]:
         """Recorded beliefs per robot as :class:`~swarmloc.runner.RobotTrack` (truth NaN unless ``truth``)."""
+        from swarmloc.datasets.tum import pose7
         from swarmloc.lie import SE2
         from swarmloc.runner.result import RobotTrack
 
@@ -83,12 +84,17 @@ class TeamRun:
         for r in sorted({k[0] for k in self.beliefs}):
             bs = sorted((b for k, b in self.beliefs.items() if k[0] == r), key=lambda b: b.stamp)
             times = np.array([b.stamp for b in bs])
-            means = SE2.to_xytheta(np.array([b.mean for b in bs]).reshape(-1, 3, 3)).reshape(-1, 3)
-            covs = np.array([b.cov for b in bs]).reshape(-1, 3, 3)
-            tr = np.full((times.size, 3), np.nan)
+            if bs and bs[0].group == "SE3":  # an SE(3) team: (x, y, z, qx, qy, qz, qw) and 6 x 6, as in-process
+                means = pose7(np.array([b.mean for b in bs]).reshape(-1, 4, 4)).reshape(-1, 7)
+                covs = np.array([b.cov for b in bs]).reshape(-1, 6, 6)
+            else:
+                means = SE2.to_xytheta(np.array([b.mean for b in bs]).reshape(-1, 3, 3)).reshape(-1, 3)
+                covs = np.array([b.cov for b in bs]).reshape(-1, 3, 3)
+            w = means.shape[-1]
+            tr = np.full((times.size, w), np.nan)
             if truth is not None and times.size:
                 try:
-                    tr = np.asarray(truth(r, times), dtype=float).reshape(-1, 3)
+                    tr = np.asarray(truth(r, times), dtype=float).reshape(-1, w)
                 except ValueError:
                     pass
             out[r] = RobotTrack(times, means, covs, tr)

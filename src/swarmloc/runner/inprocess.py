@@ -74,8 +74,8 @@ class _Records:
                 np.array([x[0] for x in rows]),
                 np.array([x[1] for x in rows]).reshape(-1, w),
                 np.array([x[2] for x in rows]).reshape(-1, d, d),
-                np.array([x[3] for x in rows]).reshape(-1, w),
-            )
+                np.array([x[3] if x[3].size == w else np.full(w, np.nan) for x in rows]).reshape(-1, w),
+            )  # truth unknown (NaN, 3 wide) on an SE(3) team: NaN 7 wide
         return out
 
 
@@ -289,10 +289,15 @@ def truth_table(truth: TruthFn | None, robot: int, times: np.ndarray) -> np.ndar
     try:
         return np.asarray(truth(robot, times), dtype=float).reshape(times.size, -1)
     except ValueError:
-        out = np.full((times.size, 3), np.nan)
+        rows: list[np.ndarray | None] = []
         for k in range(times.size):
             try:
-                out[k] = np.asarray(truth(robot, times[k : k + 1]), dtype=float)[0]
+                rows.append(np.asarray(truth(robot, times[k : k + 1]), dtype=float).reshape(-1))
             except ValueError:
-                pass
+                rows.append(None)
+        w = next((row.size for row in rows if row is not None), 3)  # 3 (x, y, theta) or 7 (SE(3), pose7)
+        out = np.full((times.size, w), np.nan)
+        for k, row in enumerate(rows):
+            if row is not None and row.size == w:
+                out[k] = row
         return out
