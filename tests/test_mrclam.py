@@ -10,7 +10,10 @@ import pytest
 from _data import MRCLAM_DATASETS
 
 from swarmloc.datasets import MRCLAMData, MRCLAMError, load_mrclam, mrclam_events
+from swarmloc.datasets.mrclam import MAX_YAW_RATE
 from swarmloc.events import Detection, Odometry
+from swarmloc.experiments.lodo import detection_set
+from swarmloc.sensors.decorrelate import snapshot_poses, snapshot_residuals
 
 HEADER = "# UTIAS test header\n# Format line\n"
 
@@ -318,3 +321,101 @@ def test_detections_of_unknown_subjects_are_counted_in_the_report(tmp_path: Path
         assert report["left_out"] == {} and stats["unknown"] >= 2
     else:
         assert report["left_out"] == {"landmarks (off)": 4, "unknown subjects": 2}
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# known defects of the recordings, corrected on loading (module docstring of swarmloc.datasets.mrclam)
+
+
+def test_yaw_rates_beyond_the_limit_are_clipped_and_noted(tmp_path: Path) -> None:
+    folder = _synthetic(tmp_path / "MRCLAM_Syn", robots=(1,), truth=False)
+    _write(
+        folder / "Robot1_Odometry.dat", ["0.0\t0.165\t0.902", "0.5\t0.142\t0.0", "1.0\t0.165\t-1.003", "1.5\t0\t0.3"]
+    )
+    d = load_mrclam(folder)
+    np.testing.assert_array_equal(d.odometry[1][:, 2], [MAX_YAW_RATE, 0.0, -MAX_YAW_RATE, 0.3])
+    np.testing.assert_array_equal(d.odometry[1][:, 1], [0.165, 0.142, 0.165, 0.0])  # speeds untouched
+    assert any("yaw rate of 2 of 4 rows clipped" in n for n in d.notes)
+    raw = load_mrclam(folder, corrections=False)
+    np.testing.assert_array_equal(raw.odometry[1][:, 2], [0.902, 0.0, -1.003, 0.3])
+    assert not any("clipped" in n for n in raw.notes)
+
+
+@pytest.mark.parametrize("shifted", [False, True])
+def test_known_barcode_swap_applies_only_to_the_known_files(tmp_path: Path, shifted: bool) -> None:
+    folder = _synthetic(tmp_path / "MRCLAM_Syn", robots=(1,), truth=False)
+    _write(folder / "Barcodes.dat", ["1\t5", "2\t14", "3\t41", "4\t32", "5\t23", "11\t18", "17\t61"])
+    x11 = 3.15071999 + (0.01 if shifted else 0.0)  # another map: no swap
+    _write(folder / "Landmark_Groundtruth.dat", [f"11 {x11} 2.38294871 0.0001 0.0001", "17 0.03596156 -2.84396626 0 0"])
+    _write(folder / "Robot1_Measurement.dat", ["2.0\t18\t1.5\t0.1", "3.0\t61\t2.0\t0.0"])
+    d = load_mrclam(folder)
+    want = (11, 17) if shifted else (17, 11)
+    assert d.measurements[1][:, 1].tolist() == list(want)
+    assert (d.barcode_to_subject[18], d.barcode_to_subject[61]) == want
+    assert any("barcodes 18 and 61 swapped" in n for n in d.notes) is not shifted
+    assert load_mrclam(folder, corrections=False).measurements[1][:, 1].tolist() == [11, 17]
+
+
+def _far_landmark_share(d: MRCLAMData) -> float:
+    """Share of dataset ``d``'s landmark range residuals beyond 0.5 m in the per-instant pose fits."""
+    parts = [np.column_stack([np.full(len(m), r), m]) for r, m in sorted(d.measurements.items())]
+    a = np.concatenate(parts)
+    res = snapshot_residuals(a[:, 0], a[:, 1], a[:, 2].astype(int), a[:, 3:5], d.landmarks, 0.1, 0.035)
+    return float(np.mean(np.abs(res["v_range"]) > 0.5))
+
+
+def test_dataset1_readings_fit_its_map_once_barcodes_18_and_61_are_swapped(mrclam_dataset) -> None:
+    folder = mrclam_dataset(1)
+    fixed = load_mrclam(folder, require=("measurements",))
+    raw = load_mrclam(folder, require=("measurements",), corrections=False)
+    assert (fixed.barcode_to_subject[18], fixed.barcode_to_subject[61]) == (17, 11)
+    assert _far_landmark_share(raw) > 0.05  # the defect: landmarks 11 and 17 read where the other one is
+    assert _far_landmark_share(fixed) < 0.02
+
+
+def _turn_ratios(d: MRCLAMData) -> np.ndarray:
+    """Per commanded turn of ``d`` (|w| > 0.5 rad/s from straight driving) with landmark snapshots in the 3 s of
+    straight driving before it and within 3 s after it: the heading change between the snapshots' median headings
+    over the loaded odometry's heading change of the turn."""
+    poses = snapshot_poses(detection_set(d), 0.1, 0.035)
+    out = []
+    for r, o in d.odometry.items():
+        t, w = o[:, 0], o[:, 2]
+        sel = poses["observer"] == r
+        ts, th = poses["t"][sel], poses["pose"][sel, 2]
+        raw_turn = np.abs(w) > 0.5  # turn commands: 0.662 to 1.003 rad/s (clipped: 0.6), straight: 0
+        for s in np.flatnonzero(raw_turn[1:] & ~raw_turn[:-1]) + 1:
+            e = s
+            while e < len(w) - 1 and raw_turn[e]:
+                e += 1
+            cmd = float(np.sum(w[s:e] * np.diff(t[s : e + 1])))
+            before = (ts > t[s] - 3) & (ts < t[s] - 0.05)
+            after = (ts > t[e] + 0.4) & (ts < t[e] + 3)
+            k0 = np.searchsorted(t, t[s] - 3)
+            if abs(cmd) < 0.2 or abs(cmd) > 2.5 or raw_turn[k0:s].any() or not before.any() or not after.any():
+                continue
+            nxt = np.flatnonzero(raw_turn[e:])
+            if nxt.size and t[e + nxt[0]] < t[e] + 3:
+                continue
+            act = float(np.angle(np.exp(1j * (np.median(th[after]) - np.median(th[before])))))
+            out.append(act / cmd)
+    return np.array(out)
+
+
+def test_dataset9_odometry_turns_as_far_as_the_landmark_snapshots_say(mrclam_dataset) -> None:
+    folder = mrclam_dataset(9)
+    fixed, raw = load_mrclam(folder), load_mrclam(folder, corrections=False)
+    assert np.abs(raw.odometry[1][:, 2]).max() > 0.9 and np.abs(fixed.odometry[1][:, 2]).max() == MAX_YAW_RATE
+    r_raw, r_fixed = _turn_ratios(raw), _turn_ratios(fixed)
+    assert r_raw.size > 50 and r_fixed.size > 50
+    assert np.median(r_raw) < 0.75  # the commands turn the robots 1.5 times as far as they went
+    assert 0.9 < np.median(r_fixed) < 1.15
+
+
+def test_corrections_leave_the_datasets_without_the_defects_unchanged(mrclam_dataset) -> None:
+    for k in (2, 6):
+        fixed, raw = load_mrclam(mrclam_dataset(k)), load_mrclam(mrclam_dataset(k), corrections=False)
+        assert fixed.notes == raw.notes and fixed.barcode_to_subject == raw.barcode_to_subject
+        for r in raw.robots:
+            np.testing.assert_array_equal(fixed.odometry[r], raw.odometry[r])
+            np.testing.assert_array_equal(fixed.measurements[r], raw.measurements[r])

@@ -15,6 +15,21 @@ Vicon world frame with ``theta`` in ``(-pi, pi]``; bearings are in the observer'
 
 Every problem with the data raises :class:`MRCLAMError` (a ``ValueError``) with a one-line message naming the file
 (and the line number for a malformed line).
+
+Two known defects of the recordings are corrected on loading, each reported in :attr:`MRCLAMData.notes` (pass
+``corrections=False`` to :func:`load_mrclam` for the files as they are):
+
+* **Dataset 1 swaps the barcodes of landmarks 11 and 17.** Its ``Barcodes.dat`` gives subject 11 barcode 18 and
+  subject 17 barcode 61, but the readings of barcode 18 fit the map position of subject 17 and those of barcode 61
+  that of subject 11 (each landmark located from the robots' readings of it, with the observer's pose fitted at the
+  same instant from the other landmarks it saw: 6.0 and 6.1 m from their map entries; after the swap all 15 lie
+  within 0.19 m of theirs). Recognised by content (those two barcode rows and those two map positions), not by
+  folder name: :data:`BARCODE_SWAPS`.
+* **Turn commands beyond the robots' yaw rate.** The odometry files log *commanded* velocities. In dataset 9 the
+  turn commands are +0.902 and -1.003 rad/s, but the robots turned at 0.60 rad/s (median over 109 turns with
+  landmark snapshots before and after; quartiles 0.53, 0.70; the same for both commands), i.e. two thirds of the
+  commanded angle. The yaw rate is clipped to :data:`MAX_YAW_RATE`; no other dataset commands more than
+  0.57 rad/s, so they load unchanged.
 """
 
 from __future__ import annotations
@@ -33,8 +48,10 @@ from swarmloc.datasets.tum import interpolate
 from swarmloc.events import Detection, Event, Odometry
 
 __all__ = [
+    "BARCODE_SWAPS",
     "DEFAULT_BEARING_STD",
     "DEFAULT_RANGE_STD",
+    "MAX_YAW_RATE",
     "MRCLAMData",
     "MRCLAMError",
     "ROBOT_SUBJECTS",
@@ -50,6 +67,17 @@ DEFAULT_RANGE_STD = 0.1
 
 DEFAULT_BEARING_STD = 0.035
 """Default bearing noise std [rad] (about 2 degrees) for :func:`mrclam_events` (a generic default)."""
+
+MAX_YAW_RATE = 0.6
+"""[rad/s] the yaw rate the MRCLAM robots executed at most: commanded yaw rates beyond it are clipped on loading
+(dataset 9's turn commands of 0.902 and 1.003 rad/s were executed at 0.60 rad/s; module docstring)."""
+
+BARCODE_SWAPS: tuple[tuple[int, int, tuple[float, float], tuple[float, float]], ...] = (
+    (18, 61, (3.15071999, 2.38294871), (0.03596156, -2.84396626)),
+)
+"""Known barcode swaps ``(barcode a, barcode b, map xy [m] of a's subject, map xy [m] of b's subject)``: when
+``Barcodes.dat`` and ``Landmark_Groundtruth.dat`` hold exactly these (to 1 mm), the subjects of barcodes ``a`` and
+``b`` are exchanged (dataset 1, landmarks 11 and 17; module docstring)."""
 
 _KINDS = ("odometry", "measurements", "truth")
 _FILE_SUFFIX = {"odometry": "Odometry", "measurements": "Measurement", "truth": "Groundtruth"}
@@ -282,6 +310,22 @@ class MRCLAMData:
 # loading
 
 
+def _swap_barcodes(
+    barcode_to_subject: dict[int, int], landmarks: dict[int, tuple[float, float, float, float]], notes: list[str]
+) -> None:
+    """Apply :data:`BARCODE_SWAPS` in place where the files hold exactly the known defect; note each swap."""
+    for a, b, xy_a, xy_b in BARCODE_SWAPS:
+        sa, sb = barcode_to_subject.get(a), barcode_to_subject.get(b)
+        if sa is None or sb is None or sa not in landmarks or sb not in landmarks:
+            continue
+        if np.allclose(landmarks[sa][:2], xy_a, atol=1e-3) and np.allclose(landmarks[sb][:2], xy_b, atol=1e-3):
+            barcode_to_subject[a], barcode_to_subject[b] = sb, sa
+            notes.append(
+                f"barcodes {a} and {b} swapped (subjects {sa} and {sb}): the readings of each fit the other's map "
+                "position (known defect of MRCLAM dataset 1)"
+            )
+
+
 def _available(folder: Path) -> str:
     try:
         names = sorted(p.name for p in folder.iterdir())
@@ -307,6 +351,7 @@ def load_mrclam(
     robots: Iterable[int] | None = None,
     require: Iterable[str] = ("odometry", "measurements"),
     require_truth: bool = False,
+    corrections: bool = True,
 ) -> MRCLAMData:
     """Load one MRCLAM dataset folder (e.g. ``.../MRCLAM_Dataset6``).
 
@@ -316,6 +361,8 @@ def load_mrclam(
     list must all have them. Files not required are loaded when present. ``Barcodes.dat`` and
     ``Landmark_Groundtruth.dat`` are always required. Raises :class:`MRCLAMError` naming the folder, the missing
     file(s) and what is available when the folder or a required file is missing, or when no robot qualifies.
+    ``corrections``: apply the known corrections of the module docstring (:data:`BARCODE_SWAPS`, yaw rates clipped
+    to :data:`MAX_YAW_RATE`), each listed in ``notes``; ``False`` loads the files as they are.
     """
     folder = Path(path).expanduser()
     kinds = _require_kinds(require, require_truth)
@@ -412,6 +459,9 @@ def load_mrclam(
         for s, row in zip(lm_subjects.tolist(), lm, strict=True)
     }
 
+    if corrections:
+        _swap_barcodes(barcode_to_subject, landmarks, notes)
+
     odometry: dict[int, np.ndarray] = {}
     measurements: dict[int, np.ndarray] = {}
     truth: dict[int, np.ndarray] = {}
@@ -426,6 +476,14 @@ def load_mrclam(
             arr = _sort_by_time(p, _read_table(p, 3), notes)
             if arr.shape[0] == 0:
                 raise MRCLAMError(f"{_label(p)}: no data rows")
+            if corrections:
+                fast = np.abs(arr[:, 2]) > MAX_YAW_RATE
+                if fast.any():
+                    arr[:, 2] = np.clip(arr[:, 2], -MAX_YAW_RATE, MAX_YAW_RATE)
+                    notes.append(
+                        f"{_label(p)}: yaw rate of {int(fast.sum())} of {arr.shape[0]} rows clipped to "
+                        f"+-{MAX_YAW_RATE} rad/s (commands beyond what the robots turned)"
+                    )
             odometry[r] = arr
         if "truth" in files:
             p = files["truth"]

@@ -105,7 +105,8 @@ def model_scores(sets: dict[int, DetectionSet], cuts: Sequence[float] = CUTS) ->
         models[k] = cands
         folds[k] = {name: {**heldout_score(m, held[k]), **_consts(m)} for name, m in cands.items()}
     lodo_names = [n for n in next(iter(folds.values())) if n.startswith("pooled")]
-    # the median over the folds: one recording whose map does not fit its readings (dataset 1) must not choose
+    # the median over the folds: one recording whose map does not fit its readings must not choose alone (dataset 1
+    # did, before the loader corrected its swapped barcodes)
     mean_nll = {n: float(np.median([folds[k][n]["nll"] for k in folds])) for n in lodo_names}
     chosen = min(mean_nll, key=mean_nll.get)
     return {"folds": folds, "mean_nll": mean_nll, "chosen": chosen, "models": models}
