@@ -11,12 +11,18 @@ from __future__ import annotations
 from swarmloc.estimators.expfusion import DEGENERATE
 from swarmloc.node.update import NONFINITE, NUMERICAL
 from swarmloc.sensors.models import KIND_ORDER, MODELS, MeasurementModel
+from swarmloc.sensors.models3 import KIND_ORDER3
 
 KINDS: dict[int, str] = {code: kind for kind, code in KIND_ORDER.items()}
 """Kind code (the canonical order :data:`swarmloc.sensors.models.KIND_ORDER`) -> name."""
 MODEL: dict[int, MeasurementModel] = {KIND_ORDER[kind]: m for kind, m in MODELS.items()}
 """Kind code -> its :class:`~swarmloc.sensors.models.MeasurementModel`."""
 ABSOLUTE, POSE = KIND_ORDER["absolute"], KIND_ORDER["pose"]
+POSE3 = KIND_ORDER3["pose3"]
+"""Kind code of an SE(3) relative pose (``"pose3"``, :data:`swarmloc.sensors.models3.MODELS3`): the one kind an SE(3)
+team's engine fuses."""
+KIND_NAMES: dict[int, str] = {**KINDS, POSE3: "pose3"}
+"""Kind code -> name, the planar kinds and ``"pose3"``."""
 
 NO_TARGET = -1
 """Target code of an absolute fix."""

@@ -6,6 +6,16 @@ the Cartesian ``(x, y, theta)`` ``(N, 3)`` and covariance ``(N, 3, 3)`` (world f
 command ``(v [m/s], w [rad/s])``. It computes exactly what the per-robot nodes of :mod:`swarmloc.estimators`
 compute when the in-process runner drives them (:mod:`swarmloc.node`), batched:
 
+* **SE(3) teams** (initial means ``(N, 4, 4)``, covariances ``(N, 6, 6)``; the group is the beliefs'): the nodes of
+  :data:`~swarmloc.estimators.ESTIMATORS_SE3`. ``"expfusion"`` and ``"ci"`` keep the SE(3) mean and covariance,
+  ``"dekf"`` the pose ``(N, 4, 4)`` and the covariance ``(N, 6, 6)`` of its ``(dp, dtheta)`` error
+  (:mod:`swarmloc.estimators.dekf3`); the command is the body twist, ``v (N, 3)`` [m/s] and ``w (N, 3)`` [rad/s]
+  (a scalar per robot, a stop, broadcasts to the three axes), the noise a
+  :class:`~swarmloc.motion.twist3.TwistNoise`; the increments, prediction and ``"pose3"`` model are
+  :mod:`swarmloc.engine.se3` (numpy only), the fusions :mod:`~swarmloc.engine.fuse_exp` and
+  :mod:`~swarmloc.engine.fuse_ci` on SE(3) and :mod:`~swarmloc.engine.fuse_ekf3`. Other kinds are rejected as the
+  nodes reject them (``kind ... is not supported on SE(3)``).
+
 * **Clocks.** A robot is predicted from its clock to a stamp only when it has an input there (a detection group
   or a command), in one step with the command in force, as a node's history entry does. A neighbour's answer and a
   recorded belief are its state predicted to the stamp *without* storing it (:meth:`Engine.belief`).
@@ -28,8 +38,9 @@ engine trusts its input: a driver validates it (:func:`swarmloc.engine.run_engin
 Landmarks are not supported (use the nodes); ``"rdl"`` neither: its pairwise updates change the *target's* state too.
 
 The engine's modules are layers, each importing only modules below it (an import-linter contract in pyproject.toml):
-``replay``, ``swarm`` -> ``core`` -> ``fuse_ci`` -> ``fuse_exp``, ``fuse_ekf`` -> ``stamp`` -> ``outcomes`` ->
-``detections``; ``core`` -> ``backends`` -> ``numba_ops`` -> ``scalar`` -> ``soa``; and all of them -> ``codes``.
+``replay``, ``swarm`` -> ``core`` -> ``fuse_ci`` -> ``fuse_exp``, ``fuse_ekf``, ``fuse_ekf3`` -> ``stamp`` ->
+``outcomes`` -> ``detections``; ``fuse_ekf3`` -> ``se3``; ``core`` -> ``backends`` -> ``numba_ops`` -> ``scalar`` ->
+``soa``; and all of them -> ``codes``.
 """
 
 from __future__ import annotations
@@ -39,18 +50,21 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.engine import se3 as E3
 from swarmloc.engine.backends import BACKENDS, make_ops
-from swarmloc.engine.codes import PENDING
+from swarmloc.engine.codes import KIND_NAMES, PENDING, POSE3, REJECTED
 from swarmloc.engine.detections import Detections
 from swarmloc.engine.fuse_ci import CiFusion
 from swarmloc.engine.fuse_ekf import FAST_KINDS, EkfFusion
+from swarmloc.engine.fuse_ekf3 import Ekf3Fusion
 from swarmloc.engine.fuse_exp import ExpFusionLevel
 from swarmloc.engine.outcomes import screen, tally
 from swarmloc.engine.stamp import Fusion, Stamp, State, levels, runs
 from swarmloc.estimators.ci import ExpCI
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import group as K
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
+from swarmloc.lie.base import SEGroup
 from swarmloc.motion import UnicycleNoise, odometry_increment
 from swarmloc.node.update import Gate
 
@@ -67,14 +81,15 @@ class Engine:
     ----------
     estimator: ``"expfusion"``, ``"dekf"`` or ``"ci"``.
     mean, cov: initial beliefs ``(N, 3, 3)`` each: SE(2) means and exponential-coordinate covariances (as the
-        nodes' initial :class:`~swarmloc.gaussian.GroupGaussian`).
-    noise: process noise of the odometry.
+        nodes' initial :class:`~swarmloc.gaussian.GroupGaussian`); an SE(3) team: ``(N, 4, 4)`` and ``(N, 6, 6)``.
+    noise: process noise of the odometry (:class:`~swarmloc.motion.twist3.TwistNoise` for an SE(3) team).
     t0: start time(s) [s] of the initial beliefs, scalar or ``(N,)``; ``inf``: a robot that never starts (it
         answers nobody, like a node without input).
     gate, order, iterations, point_iterations, use_relative: as the nodes (:class:`~swarmloc.estimators.ExpFusion`,
         :class:`~swarmloc.estimators.Node`); the gate is the nodes' :class:`~swarmloc.node.update.Gate`.
     backend: ``"numpy"``, ``"jax"`` or ``"numba"`` (the last two: fast EKF path only, ``estimator="dekf"``,
-        ``fast=True``; with numba the groups of one level fuse in parallel threads, ``NUMBA_NUM_THREADS``).
+        ``fast=True``, SE(2) teams; with numba the groups of one level fuse in parallel threads,
+        ``NUMBA_NUM_THREADS``).
     fast: EKF relative poses and absolute fixes through :mod:`swarmloc.engine.soa` instead of the stacked-matrix
         kernels (same results to rounding, several times faster).
     landmarks, horizon, use_landmarks: accepted so that the nodes' options can be passed; a non-empty
@@ -100,11 +115,11 @@ class Engine:
         horizon: float | None = None,
         use_landmarks: bool = True,
     ) -> None:
-        gating = _check_options(estimator, backend, fast, landmarks, gate, order)
         mean = np.asarray(mean, dtype=float)
         cov = np.asarray(cov, dtype=float)
-        if mean.ndim != 3 or mean.shape[1:] != (3, 3) or cov.shape != mean.shape:
-            raise ValueError(f"Engine: mean and cov must be (N, 3, 3), got {mean.shape} and {cov.shape}")
+        self.group: type[SEGroup] = _group_of(mean, cov)
+        """The team's group, SE2 or SE3 (from the beliefs' shapes)."""
+        gating = _check_options(estimator, backend, fast, landmarks, gate, order, self.group)
         n = mean.shape[0]
         self.estimator = estimator
         self.n = n
@@ -114,16 +129,19 @@ class Engine:
         self.iterations = iterations
         self.point_iterations = point_iterations
         self.use_relative = use_relative
-        self.fast = bool(fast) and estimator == "dekf"
+        self.fast = bool(fast) and estimator == "dekf" and self.group is SE2
         self.backend = backend
         self.ops = make_ops(backend, noise) if self.fast else None
-        self.fusion = _fusion(estimator, gating, self.ops, backend, order, iterations, point_iterations)
+        self.fusion = _fusion(estimator, gating, self.ops, backend, order, iterations, point_iterations, self.group)
         """The fusion of one level of a stamp's groups (:mod:`swarmloc.engine.fuse_ekf`, ``fuse_exp``, ``fuse_ci``)."""
         self.t0 = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
         self.t = self.t0.copy()
-        self.v = np.zeros(n)
-        self.w = np.zeros(n)
-        if estimator == "dekf":
+        cmd = (n, 3) if self.group is SE3 else (n,)
+        self.v = np.zeros(cmd)
+        self.w = np.zeros(cmd)
+        if estimator == "dekf" and self.group is SE3:
+            self.a, self.b = E3.to_error(mean, cov)
+        elif estimator == "dekf":
             self.a, self.b = (np.ascontiguousarray(s, dtype=float) for s in C.from_group(mean, cov))
         else:
             self.a, self.b = mean.copy(), cov.copy()
@@ -147,12 +165,20 @@ class Engine:
             move = slice(None)
         if self.fast:
             a[move], b[move] = self.ops.predict(s[0][move], s[1][move], v[move], w[move], dt[move])
+        elif self.group is SE3:
+            a[move], b[move] = self._advance3(s[0][move], s[1][move], v[move], w[move], dt[move])
         elif self.estimator == "dekf":
             a[move], b[move], _ = C.predict(s[0][move], s[1][move], v[move], w[move], dt[move], self.noise)
         else:
             inc_mean, inc_cov = odometry_increment(v[move], w[move], dt[move], self.noise)
             a[move], b[move] = K.predict(SE2, s[0][move], s[1][move], inc_mean, inc_cov, self.order)
         return a, b
+
+    def _advance3(self, a: np.ndarray, b: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> State:
+        """SE(3) rows predicted over ``dt > 0`` [s] with their body twists (:mod:`swarmloc.engine.se3`)."""
+        if self.estimator == "dekf":
+            return E3.predict_error(a, b, v, w, dt, self.noise)
+        return E3.predict_group(a, b, v, w, dt, self.noise, self.order)
 
     def _rows(self, idx: np.ndarray, t: float) -> State:
         """States of robots ``idx`` predicted to ``t`` (not stored)."""
@@ -179,14 +205,19 @@ class Engine:
         if self._serial_numba(len(robots)):
             self.ops.scatter2(self.v, self.w, robots, v, w)
             return
+        if self.group is SE3:  # (k, 3) each; a scalar per robot (a stop) on all three axes, as the nodes
+            v, w = (np.asarray(x, dtype=float).reshape(len(robots), -1) for x in (v, w))
         self.v[robots] = v
         self.w[robots] = w
 
     def belief(self, t: float, robots: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Beliefs of ``robots`` (default all) at ``t`` [s], predicted from their clocks and not stored:
-        SE(2) means ``(B, 3, 3)`` and exponential-coordinate covariances ``(B, 3, 3)`` (the nodes' ``belief_at``)."""
+        SE(2) means ``(B, 3, 3)`` and exponential-coordinate covariances ``(B, 3, 3)`` (the nodes' ``belief_at``;
+        SE(3): ``(B, 4, 4)`` and ``(B, 6, 6)``)."""
         idx = np.arange(self.n) if robots is None else np.asarray(robots, dtype=np.int64)
         a, b = self._rows(idx, t)
+        if self.estimator == "dekf" and self.group is SE3:
+            return E3.to_group(a, b)
         if self.estimator == "dekf":
             return C.to_group(a, b)
         return a, b
@@ -230,6 +261,8 @@ class Engine:
                 tally(self.counts, self.reasons, status, reason)
                 return status
         status, reason, obs_ok, needs = screen(det, t, self.t0, self.use_relative)
+        if self.group is SE3:
+            needs &= ~self._refuse_kinds(det, status)
         starts, pos = runs(det.observer)
         observers = det.observer[starts][obs_ok[starts]]
         if observers.size:
@@ -237,6 +270,17 @@ class Engine:
             self._fuse_groups(t, det, status, reason, pos, starts, obs_ok, needs, observers)
         tally(self.counts, self.reasons, status, reason)
         return status
+
+    def _refuse_kinds(self, det: Detections, status: np.ndarray) -> np.ndarray:
+        """An SE(3) team's pending detections of kinds other than ``"pose3"``: rejected, counted under the nodes'
+        reason (``kind '<kind>' is not supported on SE(3)``); returns their mask."""
+        bad = (status == PENDING) & (det.kind != POSE3)
+        if bad.any():
+            status[bad] = REJECTED
+            codes, count = np.unique(det.kind[bad], return_counts=True)
+            for code, k in zip(codes.tolist(), count.tolist(), strict=True):
+                self.reasons[f"rejected: kind {KIND_NAMES[code]!r} is not supported on {SE3.name}"] += k
+        return bad
 
     def _serial_numba(self, rows: int) -> bool:
         """The numba backend with ``rows`` rows on one thread: the in-place kernels (no gather, copy or levels)."""
@@ -299,13 +343,30 @@ class Engine:
             self.b[done] = cur[1][is_obs]
 
 
-def _check_options(estimator: str, backend: str, fast: bool, landmarks: Any, gate: float | None, order: int) -> Gate:
+def _group_of(mean: np.ndarray, cov: np.ndarray) -> type[SEGroup]:
+    """The team's group from the beliefs' shapes: ``(N, 3, 3)`` both (SE(2)), ``(N, 4, 4)`` and ``(N, 6, 6)``
+    (SE(3))."""
+    if mean.ndim == 3 and cov.ndim == 3 and mean.shape[0] == cov.shape[0]:
+        if mean.shape[1:] == (3, 3) and cov.shape[1:] == (3, 3):
+            return SE2
+        if mean.shape[1:] == (4, 4) and cov.shape[1:] == (6, 6):
+            return SE3
+    raise ValueError(
+        f"Engine: mean and cov must be (N, 3, 3) (SE(2)) or (N, 4, 4) and (N, 6, 6) (SE(3)), got {mean.shape} and "
+        f"{cov.shape}"
+    )
+
+
+def _check_options(estimator: str, backend: str, fast: bool, landmarks: Any, gate: float | None, order: int,
+                   group: type[SEGroup] = SE2) -> Gate:  # fmt: skip
     """The engine's refusals (what it cannot run, options out of range); returns the nodes' gate."""
     if estimator not in ENGINE_ESTIMATORS:
         why = " (its pairwise updates change the target's state: use the nodes)" if estimator == "rdl" else ""
         raise ValueError(f"Engine: unsupported estimator {estimator!r}{why}; choose from {list(ENGINE_ESTIMATORS)}")
     if backend not in BACKENDS:
         raise ValueError(f"Engine: unknown backend {backend!r}; choose from {list(BACKENDS)}")
+    if group is SE3 and backend != "numpy":
+        raise ValueError(f"Engine: backend {backend!r} runs SE(2) teams only; an SE(3) team runs on backend='numpy'")
     if backend != "numpy" and not (estimator == "dekf" and fast):
         raise ValueError(f"Engine: backend {backend!r} runs the fast EKF path only (estimator='dekf', fast=True)")
     if landmarks:
@@ -319,12 +380,15 @@ def _check_options(estimator: str, backend: str, fast: bool, landmarks: Any, gat
 
 
 def _fusion(estimator: str, gate: Gate, ops: Any, backend: str, order: int, iterations: int,
-            point_iterations: int) -> Fusion:  # fmt: skip
-    """The fusion of one level for ``estimator``; covariance intersection follows the weight rule the estimator
-    declares (:attr:`ExpCI.ci_weight <swarmloc.estimators.ExpCI.ci_weight>`)."""
+            point_iterations: int, group: type[SEGroup] = SE2) -> Fusion:  # fmt: skip
+    """The fusion of one level for ``estimator`` on ``group``; covariance intersection follows the weight rule the
+    estimator declares (:attr:`ExpCI.ci_weight <swarmloc.estimators.ExpCI.ci_weight>`; on SE(3) the node takes the
+    closed form, and so does the engine)."""
     options = {"order": order, "iterations": iterations, "point_iterations": point_iterations}
+    if estimator == "dekf" and group is SE3:
+        return Ekf3Fusion(gate, **options)
     if estimator == "dekf":
         return EkfFusion(gate, ops, backend, **options)
     if estimator == "ci":
         return CiFusion(gate, ExpCI.ci_weight, **options)
-    return ExpFusionLevel(gate, **options)
+    return ExpFusionLevel(gate, group, **options)

@@ -18,7 +18,8 @@ class Detections:
     :data:`~swarmloc.engine.codes.KINDS`; ``z`` ``(M, 3)``: the measurement in its first ``m`` entries (``m`` the
     kind's :attr:`~swarmloc.sensors.models.MeasurementModel.size`: pose ``(x [m], y [m], theta [rad])``, range [m]
     / bearing [rad]); ``R`` ``(M, 3, 3)``: its noise covariance in the leading ``m x m`` block (conventions of
-    :class:`swarmloc.events.Detection`).
+    :class:`swarmloc.events.Detection`). An SE(3) team's detections are 6 wide: ``z`` ``(M, 6)``, ``R``
+    ``(M, 6, 6)`` (``"pose3"``: translation [m] and rotation vector [rad]).
     """
 
     observer: np.ndarray
@@ -36,7 +37,7 @@ class Detections:
     def canonical(self) -> Detections:
         """Sorted by observer, then the nodes' canonical order within a group (kind, target, z)."""
         z = self.z
-        order = np.lexsort((z[:, 2], z[:, 1], z[:, 0], self.target, self.kind, self.observer))
+        order = np.lexsort((*(z[:, k] for k in range(z.shape[1] - 1, -1, -1)), self.target, self.kind, self.observer))
         return self.take(order)
 
     @classmethod

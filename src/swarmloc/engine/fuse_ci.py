@@ -17,14 +17,15 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.engine.codes import ABSOLUTE, MODEL, POSE, R_DEGENERATE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import ABSOLUTE, MODEL, POSE, POSE3, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.fuse_exp import pseudo
 from swarmloc.engine.stamp import Sequential, Stamp
 from swarmloc.kernels import ci as KCI
 from swarmloc.kernels import group as K
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import MeasurementModel
+from swarmloc.sensors.models3 import pose3_matrix
 
 CI_WEIGHTS = ("closed_form", "search")
 """The rules for covariance intersection's weight an estimator may declare (``ci_weight``)."""
@@ -47,6 +48,9 @@ class CiFusion(Sequential):
         if code == ABSOLUTE:
             self._independent(st, rows)
             return
+        if code == POSE3:
+            self._pose3(st, rows)
+            return
         model = MODEL[code]
         m = model.size
         lo = st.lo[rows]
@@ -67,6 +71,26 @@ class CiFusion(Sequential):
             m2, c2, ok = self._closed_form_point(model, pair)
             st.mark(rows[~ok], REJECTED, R_DEGENERATE)
             st.accept(rows[ok], m2[ok], c2[ok], why)
+
+    def _pose3(self, st: Stamp, rows: np.ndarray) -> None:
+        """SE(3) relative poses (``"pose3"``): gated as an independent pseudo-observation, the weight in closed form
+        (:func:`~swarmloc.kernels.ci.pose_weight` on SE(3)), one fusion; the node
+        (:meth:`ExpCI._ci3 <swarmloc.estimators.ExpCI._ci3>`) takes the closed form whatever ``ci_weight`` says."""
+        lo = st.lo[rows]
+        mean, cov = st.cur[0][lo], st.cur[1][lo]
+        nb_mean, nb_cov = st.target(rows)
+        meas, R = pose3_matrix(st.det.z[rows, :6]), st.det.R[rows, :6, :6]
+        order = self.order
+        if self.gate.p is not None:
+            nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov, meas, R, order)
+            keep = st.gate(rows, K.pseudo_nis(SE3, mean, cov, nu, W), self.gate, 6)
+            rows, mean, cov, nb_mean, nb_cov, meas, R = (a[keep] for a in (rows, mean, cov, nb_mean, nb_cov, meas, R))
+        if rows.size == 0:
+            return
+        w = KCI.pose_weight(mean, cov, meas, R, nb_mean, nb_cov, order, group=SE3)[:, None, None]
+        nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov / (1 - w), meas, R, order)
+        m2, c2 = K.fuse_pseudo(SE3, mean, cov / w, nu[:, None], W[:, None], order, self.iterations)
+        st.accept(rows, m2, c2, R_NUMERICAL)
 
     def _independent(self, st: Stamp, rows: np.ndarray) -> None:
         """Absolute fixes: the thesis estimator's update, gated against the prior."""

@@ -1,5 +1,5 @@
 """The thesis estimator's fusion of one level (``"expfusion"``): :class:`~swarmloc.estimators.ExpFusion`'s update on
-SE(2), batched over the observers of the level through :mod:`swarmloc.kernels.group`.
+SE(2) or SE(3) (``group``), batched over the observers of the level through :mod:`swarmloc.kernels.group`.
 
 A group's pose pseudo-observations (absolute fixes, relative poses) are fused at once, gated against the prior;
 then its range/bearing detections one at a time, gated and updated by the iterated point update.
@@ -7,15 +7,20 @@ then its range/bearing detections one at a time, gated and updated by the iterat
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from swarmloc.engine.codes import ABSOLUTE, FUSED, MODEL, PENDING, POSE, R_DEGENERATE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import ABSOLUTE, FUSED, MODEL, PENDING, POSE, POSE3, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.stamp import Fusion, Stamp, runs, usable
 from swarmloc.kernels import group as K
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
+from swarmloc.lie.base import SEGroup
+from swarmloc.node.update import Gate
+from swarmloc.sensors.models3 import pose3_matrix
 
-PSEUDO_KINDS = (ABSOLUTE, POSE)
-"""Kinds fused as pseudo-observations of the observer's own pose."""
+PSEUDO_KINDS = (ABSOLUTE, POSE, POSE3)
+"""Kinds fused as pseudo-observations of the observer's own pose (``"pose3"``: an SE(3) team's)."""
 
 
 def pseudo(st: Stamp, rows: np.ndarray, code: int, order: int) -> tuple[np.ndarray, np.ndarray]:
@@ -24,11 +29,18 @@ def pseudo(st: Stamp, rows: np.ndarray, code: int, order: int) -> tuple[np.ndarr
     if code == ABSOLUTE:
         return K.absolute_to_pseudo(det.z[rows], det.R[rows])
     tm, tc = st.target(rows)
+    if code == POSE3:
+        return K.relative_to_pseudo(SE3, tm, tc, pose3_matrix(det.z[rows]), det.R[rows], order)
     return K.relative_to_pseudo(SE2, tm, tc, SE2.from_xytheta(det.z[rows]), det.R[rows], order)
 
 
 class ExpFusionLevel(Fusion):
-    """:class:`~swarmloc.estimators.ExpFusion` on a level."""
+    """:class:`~swarmloc.estimators.ExpFusion` on a level; ``group``: the team's, SE(2) or SE(3) (whose groups hold
+    ``"pose3"`` detections only: the engine rejects the other kinds before fusion, as the nodes do)."""
+
+    def __init__(self, gate: Gate, group: type[SEGroup] = SE2, **options: Any) -> None:
+        super().__init__(gate, **options)
+        self.group = group
 
     def fuse_level(self, st: Stamp, rows: np.ndarray) -> None:
         det = st.det
@@ -49,15 +61,16 @@ class ExpFusionLevel(Fusion):
     def _fuse_pseudo(self, st: Stamp, rows: np.ndarray) -> None:
         """All pose pseudo-observations of each group at once, gated one by one against the prior."""
         det = st.det
-        nu = np.empty((rows.size, 3, 3))
-        W = np.empty((rows.size, 3, 3))
+        G = self.group
+        nu = np.empty((rows.size, G.n + 1, G.n + 1))
+        W = np.empty((rows.size, G.dim, G.dim))
         for code in PSEUDO_KINDS:
             sel = det.kind[rows] == code
             if sel.any():
                 nu[sel], W[sel] = pseudo(st, rows[sel], code, self.order)
         if self.gate.p is not None:
             lo = st.lo[rows]
-            keep = st.gate(rows, K.pseudo_nis(SE2, st.cur[0][lo], st.cur[1][lo], nu, W), self.gate, 3)
+            keep = st.gate(rows, K.pseudo_nis(G, st.cur[0][lo], st.cur[1][lo], nu, W), self.gate, G.dim)
             rows, nu, W = rows[keep], nu[keep], W[keep]
         if rows.size == 0:
             return
@@ -67,7 +80,7 @@ class ExpFusionLevel(Fusion):
             first = starts[count == c]
             idx = first[:, None] + np.arange(c)  # (B, c): each observer's pseudo-observations in order
             lo = st.lo[rows[first]]
-            m2, c2 = K.fuse_pseudo(SE2, st.cur[0][lo], st.cur[1][lo], nu[idx], W[idx], self.order, self.iterations)
+            m2, c2 = K.fuse_pseudo(G, st.cur[0][lo], st.cur[1][lo], nu[idx], W[idx], self.order, self.iterations)
             ok = np.isfinite(m2).all(axis=(-1, -2)) & usable(c2)
             st.cur[0][lo[ok]] = m2[ok]
             st.cur[1][lo[ok]] = c2[ok]

@@ -4,6 +4,10 @@ The events are checked as the nodes check them (malformed, duplicate and unusabl
 the same way), put on one timeline of stamps, and each stamp is one :meth:`Engine.step`: the detection groups
 stamped ``t`` then the commands starting at ``t``; beliefs are recorded at the record times after every input
 stamped at or before them (what :meth:`~swarmloc.node.base.Node.belief_at` answers).
+
+An SE(3) team (initial beliefs on SE(3), e.g. ``sim:3d``) runs on the engine's SE(3) path: body-twist odometry
+(:func:`swarmloc.events.twist_odometry`), ``"pose3"`` detections, the source's twist noise (``Source.noise``), tracks
+recorded as ``(x, y, z, qx, qy, qz, qw)`` with ``(6, 6)`` covariances, as :func:`swarmloc.runner.run` records them.
 """
 
 from __future__ import annotations
@@ -18,16 +22,18 @@ import numpy as np
 
 from swarmloc.config import Config
 from swarmloc.datasets.source import Source
+from swarmloc.datasets.tum import pose7
 from swarmloc.engine.codes import NO_TARGET, UNKNOWN_ROBOT, UNUSABLE
 from swarmloc.engine.core import Engine
 from swarmloc.engine.detections import Detections
 from swarmloc.estimators import node_options
 from swarmloc.events import Detection, Odometry
-from swarmloc.lie import SE2
-from swarmloc.node import detection_key, validate_detection
-from swarmloc.node.inputs import CONTIGUOUS, OdometryTimeline
+from swarmloc.lie import SE2, SE3
+from swarmloc.node import detection_key, odometry_problem, validate_detection
+from swarmloc.node.inputs import CONTIGUOUS, OdometryTimeline, command_value
 from swarmloc.runner import RobotTrack, RunResult, truth_table
 from swarmloc.sensors.models import KIND_ORDER
+from swarmloc.sensors.models3 import KIND_ORDER3
 from swarmloc.sim.simulator import SimResult
 from swarmloc.sim.source import sim_source
 
@@ -39,8 +45,9 @@ def _stamp(e: Any) -> float | None:
 
 Groups = dict[float, dict[int, dict[tuple, tuple[Detection, int]]]]
 """Checked detections: stamp -> observer row -> detection key -> ``(detection, target code)``."""
-Commands = dict[float, dict[int, tuple[float, float]]]
-"""Checked odometry: start time -> robot row -> ``(v [m/s], w [rad/s])``."""
+Commands = dict[float, dict[int, tuple[Any, Any]]]
+"""Checked odometry: start time -> robot row -> ``(v [m/s], w [rad/s])`` (an SE(3) team: tuples of 3, or a stop's
+``(0.0, 0.0)``)."""
 Row = tuple[float, np.ndarray, np.ndarray, np.ndarray]
 """One record of a robot: ``(t, (x, y, theta), covariance, truth)``."""
 
@@ -65,7 +72,8 @@ def run_engine(
     configuration (overridden by the given ones).
     """
     src = source_or_sim if isinstance(source_or_sim, Source) else sim_source(source_or_sim, "sim", config)
-    opts = {**node_options(estimator, src.config, src.landmarks), **options}
+    own_noise = {} if src.noise is None else {"noise": src.noise}  # an SE(3) team's twist noise
+    opts = {**node_options(estimator, src.config, src.landmarks), **own_noise, **options}
     for clock_only in ("tolerance", "jump_inputs"):  # the engine replays a checked log: no clock contract to keep
         opts.pop(clock_only, None)
     opts.pop("association_gate", None)
@@ -84,13 +92,14 @@ def run_engine(
     rows, truth_missing, wall = _replay(eng, src, checked, rt)
 
     tracks = {}
+    w, d = (7, 6) if eng.group is SE3 else (3, 3)  # (x, y, z, quaternion) and 6 dof, or (x, y, theta) and 3
     for r in robots:
         rs = rows[r]
         tracks[r] = RobotTrack(
             np.array([x[0] for x in rs]),
-            np.array([x[1] for x in rs]).reshape(-1, 3),
-            np.array([x[2] for x in rs]).reshape(-1, 3, 3),
-            np.array([x[3] for x in rs]).reshape(-1, 3),
+            np.array([x[1] for x in rs]).reshape(-1, w),
+            np.array([x[2] for x in rs]).reshape(-1, d, d),
+            np.array([x[3] if x[3].size == w else np.full(w, np.nan) for x in rs]).reshape(-1, w),
         )
     stats: Counter[str] = Counter(checked.counts)
     for k in ("fused", "gated", "rejected", "unknown"):
@@ -145,19 +154,14 @@ class _Checked:
         if e.robot not in self.col:
             self.counts["unknown_robot"] += 1
             return
-        try:
-            finite = all(math.isfinite(a) for a in (e.t0, e.t1, e.v, e.w))
-        except TypeError:
-            finite = False
-        if not finite:
-            self.reject("odometry_rejected", "non-finite or non-numeric time or speed")
-        elif e.t1 < e.t0:
-            self.reject("odometry_rejected", "t1 before t0")
+        why = odometry_problem(e)  # planar speeds, or an SE(3) team's 3-vectors
+        if why is not None:
+            self.reject("odometry_rejected", why)
         else:
             row, t0, t1 = self.col[e.robot], float(e.t0), float(e.t1)
             old = self.odo.get(t0, {}).get(row)
             if old is not None:
-                same = old == (float(e.v), float(e.w))
+                same = old == (command_value(e.v), command_value(e.w))
                 self.reject("odometry_rejected", "duplicate" if same else "a different command at the same t0")
                 return
             why = self.timeline.overlap(row, t0, t1)
@@ -165,7 +169,7 @@ class _Checked:
                 self.reject("odometry_rejected", why)
                 return
             self.timeline.add(row, t0, t1)
-            self.odo[t0][row] = (float(e.v), float(e.w))
+            self.odo[t0][row] = (command_value(e.v), command_value(e.w))
             self.counts["odometry_used"] += 1
 
     def stops(self, last: float) -> None:
@@ -214,22 +218,28 @@ def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tupl
         records[t].append(k)
     rows: dict[Any, list[Row]] = {r: [] for r in robots}
     odo, groups = checked.odo, checked.groups
+    se3 = eng.group is SE3
     truth_missing = 0
     stamps = sorted(set(odo) | set(groups) | set(records))
     wall = time.perf_counter()
     for t in stamps:
-        det = _detections(groups[t]) if t in groups else None
+        det = _detections(groups[t], 6 if se3 else 3) if t in groups else None
         cmd = None
         if t in odo:
             idx = np.fromiter(odo[t], dtype=np.int64)
-            vw = np.array(list(odo[t].values()), dtype=float).reshape(-1, 2)
-            cmd = (idx, vw[:, 0], vw[:, 1])
+            if se3:  # body twists (k, 6); a stop (0, 0) on every axis
+                vw = np.array([np.broadcast_to(v, 3).tolist() + np.broadcast_to(w, 3).tolist()
+                               for v, w in odo[t].values()], dtype=float)  # fmt: skip
+                cmd = (idx, vw[:, :3], vw[:, 3:])
+            else:
+                vw = np.array(list(odo[t].values()), dtype=float).reshape(-1, 2)
+                cmd = (idx, vw[:, 0], vw[:, 1])
         eng.step(t, det, cmd)
         if t not in records:
             continue
         live = np.flatnonzero(t >= eng.t0)
         mean, cov = eng.belief(t, live)
-        xyt = SE2.to_xytheta(mean)
+        xyt = pose7(mean) if se3 else SE2.to_xytheta(mean)
         for j, i in enumerate(live.tolist()):
             r = robots[i]
             for k in records[t]:
@@ -241,19 +251,21 @@ def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tupl
     return rows, truth_missing, time.perf_counter() - wall
 
 
-def _detections(by_observer: dict[int, dict[tuple, tuple[Detection, int]]]) -> Detections:
-    """One stamp's checked detections as arrays (robots as rows)."""
+def _detections(by_observer: dict[int, dict[tuple, tuple[Detection, int]]], width: int = 3) -> Detections:
+    """One stamp's checked detections as arrays (robots as rows), ``z`` ``width`` wide (6: an SE(3) team's)."""
     obs, tgt, kind, zs, Rs = [], [], [], [], []
     for o, group in by_observer.items():
         for d, code in group.values():
             m = len(d.z)
-            z = np.zeros(3)
+            if m > width:  # a 3-D detection in a planar team: no planar filter takes it
+                raise ValueError(f"run_engine: a {d.kind!r} detection in an SE(2) team; run the nodes")
+            z = np.zeros(width)
             z[:m] = d.z
-            R = np.zeros((3, 3))
+            R = np.zeros((width, width))
             R[:m, :m] = d.cov
             obs.append(o)
             tgt.append(code)
-            kind.append(KIND_ORDER[d.kind])
+            kind.append(KIND_ORDER[d.kind] if d.kind in KIND_ORDER else KIND_ORDER3[d.kind])
             zs.append(z)
             Rs.append(R)
     return Detections(

@@ -1,0 +1,129 @@
+"""SE(3) teams in the engine: the per-robot nodes' 3-D prediction and first-order model, batched over robots.
+
+The formulas are those of the nodes (:mod:`swarmloc.estimators.expfusion` on SE(3), :mod:`swarmloc.estimators.dekf3`,
+:mod:`swarmloc.motion.twist3`, :mod:`swarmloc.sensors.models3`) on stacked arrays: poses ``(B, 4, 4)``, covariances
+``(B, 6, 6)`` (translation first), commands ``v (B, 3)`` [m/s] and ``w (B, 3)`` [rad/s] (the body twist), intervals
+``dt (B,)`` [s].
+
+* :func:`twist_increments`: the Gaussian increments of constant body twists, Van Loan's closed form with one
+  batched ``12 x 12`` matrix exponential (``scipy.linalg.expm`` on a stack);
+* :func:`predict_group`: the thesis estimator's (and covariance intersection's) prediction on the group;
+* :func:`predict_error`, :func:`to_error`, :func:`to_group`: the first-order EKF's state ``(pose, P)``, ``P`` the
+  covariance of ``(dp, dtheta)`` (world-frame position, body-frame attitude);
+* :func:`pose3_linearize`: the ``"pose3"`` model's residual, Jacobian and effective noise for the EKF.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import expm
+
+from swarmloc.kernels import group as K
+from swarmloc.lie import SE3
+from swarmloc.lie.se3 import skew, so3_exp, so3_log
+from swarmloc.motion.twist3 import TwistNoise
+from swarmloc.sensors.models3 import pose3_matrix
+
+_T = np.swapaxes
+
+
+def _sym(C: np.ndarray) -> np.ndarray:
+    return 0.5 * (C + _T(C, -1, -2))
+
+
+def twist_increments(v: np.ndarray, w: np.ndarray, dt: np.ndarray, noise: TwistNoise) -> tuple[np.ndarray, ...]:
+    """Increments ``(mean (B, 4, 4), cov (B, 6, 6))`` of the body twists ``(v, w)`` held over ``dt`` [s] with
+    diffusion ``noise.Q``: :func:`swarmloc.motion.twist3.twist_increment`, batched."""
+    h = np.concatenate([v, w], axis=-1)
+    ql = noise.q_lin0 + noise.q_lin1 * np.linalg.norm(h[:, :3], axis=-1)
+    qa = noise.q_ang0 + noise.q_ang1 * np.linalg.norm(h[:, 3:], axis=-1)
+    ad = SE3.ad(h, validate=False)
+    M = np.zeros((h.shape[0], 12, 12))
+    M[:, :6, :6] = ad
+    idx = np.arange(6)
+    M[:, idx, 6 + idx] = np.concatenate([np.repeat(ql[:, None], 3, 1), np.repeat(qa[:, None], 3, 1)], axis=1)
+    M[:, 6:, 6:] = -_T(ad, -1, -2)
+    E = expm(M * dt[:, None, None])
+    S = _T(E[:, 6:, 6:], -1, -2) @ E[:, :6, 6:]
+    return SE3.exp(dt[:, None] * h, validate=False), _sym(S)
+
+
+def predict_group(
+    mean: np.ndarray, cov: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray, noise: TwistNoise, order: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Beliefs ``(mean, cov)`` on SE(3) convolved with their increments (:func:`swarmloc.kernels.group.predict`)."""
+    inc_mean, inc_cov = twist_increments(v, w, dt, noise)
+    return K.predict(SE3, mean, cov, inc_mean, inc_cov, order)
+
+
+def predict_error(
+    g: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray, noise: TwistNoise
+) -> tuple[np.ndarray, np.ndarray]:
+    """The first-order EKF's prediction (:class:`~swarmloc.estimators.dekf3.DistributedEKF3`): ``p' = p + R t_inc``,
+    ``R' = R R_inc``, ``P' = F P F^T + G Sigma_inc G^T`` (:func:`swarmloc.estimators.dekf3.transition`)."""
+    inc, S = twist_increments(v, w, dt, noise)
+    R, Ri, ti = g[:, :3, :3], inc[:, :3, :3], inc[:, :3, 3]
+    B = g.shape[0]
+    F = np.broadcast_to(np.eye(6), (B, 6, 6)).copy()
+    F[:, :3, 3:] = -R @ skew(ti)
+    F[:, 3:, 3:] = _T(Ri, -1, -2)
+    G = np.broadcast_to(np.eye(6), (B, 6, 6)).copy()
+    G[:, :3, :3] = R @ Ri
+    Pn = F @ P @ _T(F, -1, -2) + G @ S @ _T(G, -1, -2)
+    out = g.copy()
+    out[:, :3, 3] = g[:, :3, 3] + np.einsum("bij,bj->bi", R, ti)
+    out[:, :3, :3] = R @ Ri
+    return out, _sym(Pn)
+
+
+def _blockdiag_R(R: np.ndarray) -> np.ndarray:
+    """``diag(R, I)`` ``(B, 6, 6)``."""
+    J = np.broadcast_to(np.eye(6), (*R.shape[:-2], 6, 6)).copy()
+    J[..., :3, :3] = R
+    return J
+
+
+def to_error(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(pose, P)`` of right-perturbation beliefs: ``P = J cov J^T``, ``J = diag(R, I)``
+    (:func:`swarmloc.estimators.dekf3.to_error`)."""
+    J = _blockdiag_R(mean[..., :3, :3])
+    return mean.copy(), _sym(J @ cov @ _T(J, -1, -2))
+
+
+def to_group(g: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`to_error`: the beliefs ``(mean, cov)`` the EKF's nodes answer and record."""
+    Ji = _blockdiag_R(_T(g[..., :3, :3], -1, -2))
+    return g.copy(), _sym(Ji @ P @ _T(Ji, -1, -2))
+
+
+def pose3_linearize(
+    g: np.ndarray, gk: np.ndarray, Pk: np.ndarray, z: np.ndarray, Rz: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(r (B, 6), H (B, 6, 6), R_eff (B, 6, 6))`` of ``"pose3"`` detections ``z (B, 6)`` (noise ``Rz``) of
+    neighbours ``(gk, Pk)`` from observers ``g``: :class:`swarmloc.sensors.models3.Model3`'s prediction, residual
+    and noise plus the neighbour's covariance seen through its Jacobian, batched."""
+    Ri = g[:, :3, :3]
+    RiT = _T(Ri, -1, -2)
+    ht = np.einsum("bij,bj->bi", RiT, gk[:, :3, 3] - g[:, :3, 3])
+    hR = RiT @ gk[:, :3, :3]
+    B = g.shape[0]
+    H = np.zeros((B, 6, 6))
+    H[:, :3, :3] = -RiT
+    H[:, :3, 3:] = skew(ht)
+    H[:, 3:, 3:] = -_T(hR, -1, -2)
+    Hk = np.zeros((B, 6, 6))
+    Hk[:, :3, :3] = RiT
+    Hk[:, 3:, 3:] = np.eye(3)
+    mz = pose3_matrix(z)
+    r = np.concatenate([mz[:, :3, 3] - ht, so3_log(_T(hR, -1, -2) @ mz[:, :3, :3])], axis=-1)
+    J = _blockdiag_R(so3_exp(z[:, 3:]))
+    Rn = J @ Rz @ _T(J, -1, -2) + Hk @ Pk @ _T(Hk, -1, -2)
+    return r, H, _sym(Rn)
+
+
+def correct(g: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """Poses corrected by ``dx = (dp, dtheta)`` on the group: ``p + dp``, ``R exp(dtheta^)``."""
+    out = g.copy()
+    out[:, :3, 3] = g[:, :3, 3] + dx[:, :3]
+    out[:, :3, :3] = g[:, :3, :3] @ so3_exp(dx[:, 3:])
+    return out
