@@ -207,12 +207,7 @@ def node_main(
             scans=None if live is not None else _own_scans(src, robot, events),  # live: no recorded scans
         )
         _stop_on_sigterm(net.stop)
-        poller = None if view is None else _MapPoller(session, scope, team, src.robots, auth, view)
-        try:
-            report = net.run(max_wall=max_wall)
-        finally:
-            if poller is not None:
-                poller.finish()
+        report = _run_viewed(net, max_wall, view, session, scope, team, src.robots, auth)
         if out is not None:
             _write_outputs(Path(out), robot, [finals[t] for t in sorted(finals)], report)
         return report
@@ -220,6 +215,17 @@ def node_main(
         if close_live is not None:
             close_live()
         session.close()
+
+
+def _run_viewed(net: Any, max_wall: float | None, view: Any, *poll: Any) -> Report:
+    """``net.run(max_wall=...)``, with the belief server's map polled for ``view`` meanwhile (``poll``:
+    :class:`_MapPoller`'s arguments before ``view``) and once at the end."""
+    poller = None if view is None else _MapPoller(*poll, view)
+    try:
+        return net.run(max_wall=max_wall)
+    finally:
+        if poller is not None:
+            poller.finish()
 
 
 def _on_belief(b: Belief, finals: dict[float, Belief], view: Any) -> None:
