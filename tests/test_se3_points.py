@@ -207,3 +207,26 @@ def test_bad_values_refused() -> None:
     assert "elevation" in validate_detection(Detection(0, 1.0, "bearing3", np.array([0.0, 2.0]), cov3[1:, 1:], 1))
     assert validate_detection(Detection(0, 1.0, "rbe3", np.array([1.0, 3.0, -1.5]), cov3, target=1)) is None
     assert DEGENERATE3.startswith("degenerate")
+
+
+@pytest.mark.parametrize(("spec", "est"), [("sim:3d_rbe", "dekf"), ("sim:3d_landmarks", "diekf")])
+def test_networked_equals_in_process_with_points(spec: str, est: str) -> None:
+    """Three node processes on 127.0.0.1 record the in-process run's means and covariances to 1e-6 with point
+    detections of teammates (``dekf``, ``"rbe3"``) and of 3-D landmarks (``diekf``: each landmark update is one
+    team broadcast)."""
+    import os
+
+    from test_net import leftovers, max_diff
+    from test_net_se3 import reference3
+
+    from swarmloc.experiments.team import run_team, team_result
+
+    src = load_source(spec, robots=3, duration=6.0, seed=1)
+    team = f"pts{est}{os.getpid()}"
+    tr = run_team(src=src, source=spec, robots=3, duration=6.0, seed=1, estimator=est, team=team, max_wall=120)
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, est)
+    ref = reference3(src, est)
+    assert max_diff(res, ref) <= 1e-6
+    assert res.stats["fused"] == ref.stats["fused"] == res.stats["detections"] > 50
