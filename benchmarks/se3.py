@@ -21,11 +21,12 @@ def main() -> None:
     ap.add_argument("--robots", type=int, default=4)
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--estimators", default="expfusion,dekf,ci,diekf,cekf,dr")
+    ap.add_argument("--specs", default="sim:3d,sim:3d_rot", help="comma-separated 3-D sources (e.g. sim:3d_rbe)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=Path("se3"))
     a = ap.parse_args()
-    table = se3_table(estimators=tuple(a.estimators.split(",")), seeds=a.seeds, robots=a.robots,
-                      duration=a.duration, workers=a.workers)  # fmt: skip
+    table = se3_table(specs=tuple(a.specs.split(",")), estimators=tuple(a.estimators.split(",")), seeds=a.seeds,
+                      robots=a.robots, duration=a.duration, workers=a.workers)  # fmt: skip
     md = se3_markdown(table)
     a.out.with_suffix(".md").write_text(md + "\n")
     a.out.with_suffix(".json").write_text(json.dumps(table, default=json_default, indent=1))

@@ -11,7 +11,7 @@ from typing import Literal
 
 import numpy as np
 
-MeasurementKind = Literal["pose", "range_bearing", "range", "bearing", "absolute", "pose3"]
+MeasurementKind = Literal["pose", "range_bearing", "range", "bearing", "absolute", "pose3", "rbe3", "bearing3"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,7 +62,10 @@ class Detection:
     * ``"absolute"``: the observer's own world pose ``z = (x, y, theta)`` (GPS-like fix, ``target`` is None);
     * ``"pose3"`` (3-D teams): relative pose of the target in the observer's frame, ``z = (x, y, z, rx, ry, rz)``:
       translation [m] and rotation vector [rad] (``R = exp(r^)``); ``cov`` ``(6, 6)`` of the SE(3) exponential
-      coordinates of ``m_true^-1 m_measured`` (translation first).
+      coordinates of ``m_true^-1 m_measured`` (translation first);
+    * ``"rbe3"`` (3-D): range [m], azimuth and elevation [rad] of the target's position (a robot, or a 3-D
+      landmark) in the observer's body frame; ``"bearing3"``: azimuth and elevation only
+      (:mod:`swarmloc.sensors.models3`).
 
     ``target`` is a robot id when ``target_is_robot`` else a landmark id; None for an *anonymous* robot detection
     (a robot was seen, which one is not known): an estimator gives it an identity only with an association policy

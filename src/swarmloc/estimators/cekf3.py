@@ -11,8 +11,10 @@ correction is applied on the group (``p + dp``, ``R exp(dtheta^)``). First order
 * prediction of robot ``k`` over a constant body twist (increment ``(t_inc, R_inc)``, noise ``Sigma_inc``,
   :func:`swarmloc.motion.twist3.twist_increment`): ``F = [[I, -R t_inc^], [0, R_inc^T]]`` on its rows and columns
   of ``P`` (its cross-covariances move with it), plus ``G Sigma_inc G^T``, ``G = diag(R R_inc, I)``;
-* a ``"pose3"`` detection: :class:`~swarmloc.sensors.models3.Model3` (prediction, Jacobians, residual, noise),
-  the same model as the distributed ``dekf``.
+* a ``"pose3"``, ``"rbe3"`` or ``"bearing3"`` detection of a robot, or a ``"rbe3"`` / ``"bearing3"`` one of a known
+  3-D landmark (only the observer's columns; the map's uncertainty joins the noise):
+  :class:`~swarmloc.sensors.models3.Model3` (prediction, Jacobians, residual with wrapped angles, noise, the
+  singular vertical direction), the same models as the distributed ``dekf``.
 
 It tracks every correlation, so it does not double count; its Jacobians are evaluated at the current estimates, so
 without absolute information it may still gain spurious information along the team's unobservable rigid motion
@@ -34,7 +36,7 @@ from swarmloc.lie.se3 import so3_exp
 from swarmloc.messages import Message
 from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, gated_kalman
-from swarmloc.sensors.models3 import model3
+from swarmloc.sensors.models3 import DEGENERATE3, model3
 
 __all__ = ["CentralizedEKF3", "Team3State"]
 
@@ -57,7 +59,8 @@ def _pose(p: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 class CentralizedEKF3(CentralizedEKF):
-    """Centralized EKF of a 3-D team (module docstring); takes ``"pose3"`` detections of robots."""
+    """Centralized EKF of a 3-D team (module docstring); takes ``"pose3"``, ``"rbe3"`` and ``"bearing3"``
+    detections of robots and ``"rbe3"`` / ``"bearing3"`` ones of known 3-D landmarks."""
 
     groups: ClassVar[tuple[type, ...]] = (SE3,)
     dim: ClassVar[int] = 6
@@ -130,16 +133,34 @@ class CentralizedEKF3(CentralizedEKF):
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
                 continue
-            if d.kind != "pose3" or target[0] != "robot":
-                outcomes.append(("rejected", f"kind {d.kind!r} is not supported on SE(3)"))
-                continue
-            s = self._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
-            kt = self._idx[target[1]] // 6
             m3 = model3(d.kind)
-            h, Hi, Hk = m3.predict(_pose(s.p[ko], s.R[ko]), _pose(s.p[kt], s.R[kt]))
-            cols = np.r_[6 * ko : 6 * ko + 6, 6 * kt : 6 * kt + 6]
-            res = gated_kalman(np.zeros(6 * len(self.robots)), s.P, m3.residual(d.z, h), np.hstack([Hi, Hk]),
-                               m3.noise(d.z, d.cov), self.gate, cols=cols, angles=())  # fmt: skip
+            gi = _pose(s.p[ko], s.R[ko])
+            if target[0] == "robot":
+                s = self._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
+                kt = self._idx[target[1]] // 6
+                gk, Ck = _pose(s.p[kt], s.R[kt]), None
+                cols = np.r_[6 * ko : 6 * ko + 6, 6 * kt : 6 * kt + 6]
+            elif target[0] == "landmark" and m3.targets == "point" and np.shape(target[1][0]) == (3,):
+                gk, Ck = target[1]
+                cols = np.r_[6 * ko : 6 * ko + 6]
+            else:
+                outcomes.append(("rejected", f"kind {d.kind!r} of a {target[0]} is not supported on SE(3)"))
+                continue
+            if m3.kind == "pose3":
+                h, Hi, Hk = m3.predict(gi, gk)
+                r, Rn = m3.residual(d.z, h), m3.noise(d.z, d.cov)
+            else:
+                lin = m3.linearize(d.z, d.cov, gi, gk)
+                if lin is None:
+                    outcomes.append(("rejected", DEGENERATE3))
+                    continue
+                r, Hi, Hk, Rn = lin
+            if Ck is None:
+                H = np.hstack([Hi, Hk])
+            else:  # a landmark: its map uncertainty joins the noise
+                H, Rn = Hi, Rn + Hk @ Ck @ Hk.T
+            res = gated_kalman(np.zeros(6 * len(self.robots)), s.P, r, H, 0.5 * (Rn + Rn.T), self.gate, cols=cols,
+                               angles=())  # fmt: skip
             if isinstance(res[0], str):
                 outcomes.append(res)
                 continue

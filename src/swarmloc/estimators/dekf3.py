@@ -12,7 +12,11 @@ the planar filter's ``(x, y, theta)`` error (:mod:`swarmloc.estimators.dekf`). E
   Jacobians ``d h_t / d(dp, dtheta) = (-R^T, h_t^)``, ``d h_R / d(dp, dtheta) = (0, -h_R^T)``, and for the
   neighbour ``(R^T, 0)``, ``(0, I)``; the neighbour's answered belief (converted to this error) and the measurement
   noise (``diag(R_z, I) Sigma_z diag(R_z, I)^T``) enter the innovation covariance; the cross-correlation is
-  ignored (as in the planar DEKF). The correction is applied on the group (``R exp(dtheta^)``), no reset Jacobian.
+  ignored (as in the planar DEKF). The correction is applied on the group (``R exp(dtheta^)``), no reset Jacobian;
+* range-bearing-elevation (``"rbe3"``) and bearing-only (``"bearing3"``) detections of a neighbour's position or
+  of a known 3-D landmark: the same with :class:`~swarmloc.sensors.models3.Model3`'s point models (angles wrapped;
+  at the vertical the azimuth is not used, :meth:`~swarmloc.sensors.models3.Model3.linearize`); a landmark's map
+  uncertainty enters the noise as a neighbour's does.
 
 The belief a node answers and records is the right-perturbation Gaussian of the same first-order error:
 ``cov = J^-1 P J^-T`` with ``J = diag(R, I)`` (``g exp(xi)`` moves the position by ``R v`` to first order).
@@ -30,7 +34,7 @@ from swarmloc.lie.se3 import skew, so3_exp
 from swarmloc.messages import Message
 from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import FUSED, Group, Outcome, RobotNode, belief_of, gated_kalman
-from swarmloc.sensors.models3 import model3
+from swarmloc.sensors.models3 import DEGENERATE3, model3
 
 
 class Cart3State(NamedTuple):
@@ -86,7 +90,8 @@ def to_group(p: np.ndarray, R: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, n
 
 
 class DistributedEKF3(RobotNode):
-    """Distributed first-order EKF on SE(3) (module doc); takes ``"pose3"`` detections of robots."""
+    """Distributed first-order EKF on SE(3) (module doc); takes ``"pose3"``, ``"rbe3"`` and ``"bearing3"``
+    detections of robots and ``"rbe3"`` / ``"bearing3"`` ones of known 3-D landmarks."""
 
     name = "dekf"
     groups = (SE3,)
@@ -111,6 +116,30 @@ class DistributedEKF3(RobotNode):
     def _belief(self, s: Cart3State, robot: int) -> GroupGaussian:
         return belief_of(*to_group(s.p, s.R, s.P))
 
+    def _linearize(self, gi: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
+        """``(r, H_i, R)`` of detection ``d`` of ``target`` (a neighbour's answered belief, its uncertainty folded
+        into ``R``, or a landmark ``(p, C)``) from pose ``gi``; or an outcome when it cannot be fused."""
+        m3 = model3(d.kind)
+        if target[0] == "robot":
+            nb_mean, nb_cov = target[1].belief_arrays()
+            if nb_mean.shape != (4, 4):
+                return ("rejected", "the neighbour's answer is not an SE(3) belief")
+            pk, Rk, Pk = to_error(nb_mean, nb_cov)
+            gk, Ck = _pose(pk, Rk), Pk
+        elif target[0] == "landmark" and m3.targets == "point" and np.shape(target[1][0]) == (3,):
+            gk, Ck = target[1]
+        else:
+            return ("rejected", f"kind {d.kind!r} of a {target[0]} is not supported on SE(3)")
+        if m3.kind == "pose3":
+            h, Hi, Hk = m3.predict(gi, gk)
+            r, Rn = m3.residual(d.z, h), m3.noise(d.z, d.cov)
+        else:
+            lin = m3.linearize(d.z, d.cov, gi, gk)
+            if lin is None:
+                return ("rejected", DEGENERATE3)
+            r, Hi, Hk, Rn = lin
+        return r, Hi, Rn + Hk @ Ck @ Hk.T
+
     def _fuse_group(self, s: Cart3State, g: Group) -> tuple[Cart3State, list[Outcome], list[Message]]:
         p, R, P = s.p, s.R, s.P
         outcomes: list[Outcome] = []
@@ -119,18 +148,11 @@ class DistributedEKF3(RobotNode):
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
                 continue
-            if d.kind != "pose3" or target[0] != "robot":
-                outcomes.append(("rejected", f"kind {d.kind!r} is not supported on SE(3)"))
+            lin = self._linearize(_pose(p, R), d, target)
+            if isinstance(lin[0], str):
+                outcomes.append(lin)
                 continue
-            nb_mean, nb_cov = target[1].belief_arrays()
-            if nb_mean.shape != (4, 4):
-                outcomes.append(("rejected", "the neighbour's answer is not an SE(3) belief"))
-                continue
-            pk, Rk, Pk = to_error(nb_mean, nb_cov)
-            m3 = model3("pose3")
-            h, Hi, Hk = m3.predict(_pose(p, R), _pose(pk, Rk))
-            r = m3.residual(d.z, h)
-            Rn = m3.noise(d.z, d.cov) + Hk @ Pk @ Hk.T
+            r, Hi, Rn = lin
             res = gated_kalman(np.zeros(6), P, r, Hi, 0.5 * (Rn + Rn.T), self.gate, angles=())
             if isinstance(res[0], str):
                 outcomes.append(res)

@@ -19,6 +19,15 @@ exchange and broadcast with 6-dof poses, in the right-invariant (world-frame) er
   information along them (the body-frame error gives ``H_i = -Ad(z^^-1)``, ``H_j = I``, and unobservable
   directions ``Ad(g^_k^-1) log T`` that move with the estimate, the inconsistency of Huang et al. 2011).
 
+**Point detections** (``"rbe3"``, ``"bearing3"``: a teammate's position or a known 3-D landmark seen in the
+observer's body frame): not autonomous in any error, so their Jacobians depend on the estimates: the Cartesian
+ones of :class:`~swarmloc.sensors.models3.Model3` times :func:`world_basis3` (``H_i = H_i^c B(g^_i)``, ``H_j =
+H_j^c B(g^_j)``, a landmark: ``j = i``, ``H_j = 0``, map noise added). The invariance that matters survives: a rigid
+motion of the whole team moves no body-frame point of a teammate, so ``H_i xi + H_j xi = 0`` for a common ``xi``
+exactly, whatever the estimates (``H_j = -H_i`` on ``[I; I]``): the filter still gains no information along the
+team's unobservable motion. What it loses against ``"pose3"`` is the constant Jacobian (its linearization error
+is that of the EKF's, at the current estimates).
+
 So the filter uses the world-frame error, as the planar ``diekf`` does. Each robot keeps its pose ``g_i (4, 4)``,
 ``P_ii (6, 6)`` and a replica ``Sigma (n, n, 6, 6)`` of the team's cross-covariances; an update of observer ``i``
 detecting ``j``: ``i`` asks ``j`` for ``(g_j, P_jj)`` (:class:`~swarmloc.messages.RdlState` with 16 + 36 numbers),
@@ -42,12 +51,13 @@ import numpy as np
 from swarmloc.estimators.diekf import DistributedInvariantEKF
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3
+from swarmloc.lie.se3 import skew
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, flat
 from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import NUMERICAL, Group, Node, belief_of, usable_covariance
-from swarmloc.sensors.models3 import pose3_matrix
+from swarmloc.sensors.models3 import DEGENERATE3, model3, pose3_matrix
 
-__all__ = ["DistributedInvariantEKF3", "TeamState3", "relative_pose3_world"]
+__all__ = ["DistributedInvariantEKF3", "TeamState3", "relative_pose3_world", "world_basis3"]
 
 _EYE6 = flat(np.eye(6))
 
@@ -77,8 +87,18 @@ def relative_pose3_world(
     return r, -np.eye(6), np.eye(6), 0.5 * (R + R.T)
 
 
+def world_basis3(g: np.ndarray) -> np.ndarray:
+    """``B (6, 6)`` mapping a world-frame error ``xi = (v, w)`` of pose ``g`` (``exp(xi^) g``) to the Cartesian error
+    ``(dp, dtheta)`` of :mod:`swarmloc.estimators.dekf3` to first order: ``dp = v - p^ w``, ``dtheta = R^T w``."""
+    B = np.eye(6)
+    B[:3, 3:] = -skew(g[:3, 3])
+    B[3:, 3:] = g[:3, :3].T
+    return B
+
+
 class DistributedInvariantEKF3(DistributedInvariantEKF):
-    """Exact distributed invariant EKF on SE(3) (module docstring); takes ``"pose3"`` detections of robots."""
+    """Exact distributed invariant EKF on SE(3) (module docstring); takes ``"pose3"``, ``"rbe3"`` and ``"bearing3"``
+    detections of robots and ``"rbe3"`` / ``"bearing3"`` ones of known 3-D landmarks."""
 
     groups = (SE3,)
     lazy_odometry = False
@@ -126,18 +146,38 @@ class DistributedInvariantEKF3(DistributedInvariantEKF):
     def _one(self, s: TeamState3, g: Group, d: Any, target: tuple[str, Any]) -> Any:
         """One detection: the new state and the broadcast's numbers, or an outcome."""
         i = self.robot
-        if d.kind != "pose3" or target[0] != "robot":
-            return ("rejected", f"kind {d.kind!r} is not supported on SE(3)")
-        a: RdlState = target[1]
-        j = d.target
-        if j not in self._pos:
-            return ("unknown", f"robot {j} is not in this node's team {list(self.team)}")
-        xj, Pjj, _ = a.arrays()
-        if xj.shape != (4, 4):
-            return ("rejected", "the neighbour's answer is not an SE(3) state")
-        r, Hi, Hj, R = relative_pose3_world(s.x, xj, d.z, d.cov)
-        Sij = s.Sigma[self._pos[i], self._pos[j]]
-        S = s.P - Sij - Sij.T + Pjj + R  # H P H^T with H_i = -I, H_j = I
+        m3 = model3(d.kind)
+        if target[0] == "landmark" and m3.targets == "point" and np.shape(target[1][0]) == (3,):
+            pl, Cl = target[1]
+            lin = m3.linearize(d.z, d.cov, s.x, pl)
+            if lin is None:
+                return ("rejected", DEGENERATE3)
+            r, Hi_c, Hl, R = lin
+            j, Pjj = i, s.P
+            Hi = Hi_c @ world_basis3(s.x)
+            Hj = np.zeros_like(Hi)
+            S = Hi @ s.P @ Hi.T + R + Hl @ Cl @ Hl.T
+        elif target[0] == "robot":
+            a: RdlState = target[1]
+            j = d.target
+            if j not in self._pos:
+                return ("unknown", f"robot {j} is not in this node's team {list(self.team)}")
+            xj, Pjj, _ = a.arrays()
+            if xj.shape != (4, 4):
+                return ("rejected", "the neighbour's answer is not an SE(3) state")
+            Sij = s.Sigma[self._pos[i], self._pos[j]]
+            if d.kind == "pose3":
+                r, Hi, Hj, R = relative_pose3_world(s.x, xj, d.z, d.cov)
+                S = s.P - Sij - Sij.T + Pjj + R  # H P H^T with H_i = -I, H_j = I
+            else:
+                lin = m3.linearize(d.z, d.cov, s.x, xj)
+                if lin is None:
+                    return ("rejected", DEGENERATE3)
+                r, Hi_c, Hj_c, R = lin
+                Hi, Hj = Hi_c @ world_basis3(s.x), Hj_c @ world_basis3(xj)
+                S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
+        else:
+            return ("rejected", f"kind {d.kind!r} of a {target[0]} is not supported on SE(3)")
         try:
             Sinv = np.linalg.inv(0.5 * (S + S.T))
         except np.linalg.LinAlgError:

@@ -17,7 +17,7 @@ import numpy as np
 
 from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import write_tum3
-from swarmloc.estimators import make_team
+from swarmloc.estimators import accepted_options, estimator_class, make_team
 from swarmloc.evaluation.metrics import anees_bounds, evaluate
 from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.experiments.sources import load_source
@@ -30,7 +30,10 @@ def run_se3(source: Source, estimator: str, **options: Any) -> RunResult:
     """One estimator on a 3-D team's source; ``options`` go to the nodes (``noise`` defaults to ``source.noise``)."""
     if source.noise is None:
         raise ValueError(f"run_se3: source {source.spec!r} is not a 3-D team (no twist noise)")
-    nodes = make_team(estimator, source.initial, **{"noise": source.noise, "t0": source.t_start, **options})
+    base: dict[str, Any] = {"noise": source.noise, "t0": source.t_start}
+    if source.landmarks and "landmarks" in accepted_options(estimator_class(estimator, source.initial)):
+        base["landmarks"] = source.landmarks
+    nodes = make_team(estimator, source.initial, **{**base, **options})
     return run(nodes, with_truth(source), name=estimator)
 
 

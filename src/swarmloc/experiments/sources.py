@@ -16,8 +16,13 @@ A source spec is one of
 * ``sim:3d``: a 3-D team (:func:`swarmloc.sim.sim3d.simulate3d`, ``robots`` quadrotor-like robots on SE(3), body
   twist odometry at 10 Hz, relative poses ``"pose3"`` at 2 Hz within 12 m, 5 cm / 2 deg; initial beliefs drawn
   about the truth with 10 cm / 3 deg); ``sim:3d_rot``: the same with large rotational uncertainty (30 deg per
-  axis at the start). ``Source.noise`` is the team's :class:`~swarmloc.motion.twist3.TwistNoise`;
-  :func:`swarmloc.estimators.make_team` picks the SE(3) estimators (``dr``, ``expfusion``, ``dekf``, ``ci``);
+  axis at the start); ``sim:3d_rbe``: the ``sim:3d`` team (same trajectories, odometry and initial beliefs)
+  measuring range, azimuth and elevation of teammates (``"rbe3"``, 5 cm / 1 deg) instead of relative poses;
+  ``sim:3d_bearing``: the same with azimuth and elevation only (``"bearing3"``, 1 deg); ``sim:3d_landmarks``:
+  the ``sim:3d`` team (the same events) plus 8 known 3-D landmarks detected by ``"rbe3"`` at 2 Hz within 8 m
+  (``Source.landmarks`` ``id -> (x, y, z, 0, 0, 0)``). ``Source.noise`` is the team's
+  :class:`~swarmloc.motion.twist3.TwistNoise`; :func:`swarmloc.estimators.make_team` picks the SE(3) estimators
+  (``dr``, ``expfusion``, ``dekf``, ``ci``, ``diekf``, ``cekf``);
 * ``events:PATH``: your own event file (:mod:`swarmloc.datasets.eventfile`), truth from ``truth_robot<N>.tum``
   beside it when present.
 
@@ -37,31 +42,52 @@ from swarmloc.sim.source import sim_source
 
 __all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim3d_source", "sim_source"]
 
-SIM_SCENARIOS = ("random", "range_bearing", "landmarks", "corridor", "3d", "3d_rot")
+SIM_SCENARIOS = (
+    "random",
+    "range_bearing",
+    "landmarks",
+    "corridor",
+    "3d",
+    "3d_rot",
+    "3d_rbe",
+    "3d_bearing",
+    "3d_landmarks",
+)
+
+SIM3D_VARIANTS = {
+    "3d": {},
+    "3d_rot": {},
+    "3d_rbe": {"detection": "rbe3"},
+    "3d_bearing": {"detection": "bearing3"},
+    "3d_landmarks": {"landmarks": 8},
+}
+"""The ``sim:3d`` scenarios and their :class:`~swarmloc.sim.sim3d.Sim3Config` fields."""
 
 LARGE_ROTATION = 30.0
 """[deg] Initial rotational standard deviation per axis of ``sim:3d_rot``."""
 
 
-def sim3d_source(robots: int, duration: float, seed: int, large_rotation: bool = False) -> Source:
-    """``sim:3d`` (``large_rotation``: ``sim:3d_rot``) as a :class:`Source` (see the module docstring)."""
+def sim3d_source(robots: int, duration: float, seed: int, large_rotation: bool = False, scenario: str = "3d") -> Source:
+    """``sim:3d`` (``large_rotation``: ``sim:3d_rot``; ``scenario`` one of :data:`SIM3D_VARIANTS`) as a
+    :class:`Source` (see the module docstring)."""
     import numpy as np
 
     from swarmloc.events import Truth
     from swarmloc.sim.sim3d import Sim3Config, simulate3d
 
-    cfg = Sim3Config(robots=robots, duration=duration)
+    large_rotation = large_rotation or scenario == "3d_rot"
+    cfg = Sim3Config(robots=robots, duration=duration, **SIM3D_VARIANTS[scenario])
     if large_rotation:
         cfg = dataclasses.replace(cfg, init_rot=float(np.deg2rad(LARGE_ROTATION)))
     sim = simulate3d(cfg, seed)
     events = [e for e in sim.events if not isinstance(e, Truth)]
     truths = [e for e in sim.events if isinstance(e, Truth)]
-    spec = "sim:3d_rot" if large_rotation else "sim:3d"
+    spec = "sim:3d_rot" if large_rotation else f"sim:{scenario}"
     # beliefs recorded where the simulator has truth (its truth instants, on the odometry grid): a networked team
     # records at the configuration's rate and is scored there
     config = dataclasses.replace(DEFAULTS, record=dataclasses.replace(DEFAULTS.record, rate=cfg.truth_rate))
-    return Source(spec, events, sim.initial, None, float(sim.times[0]), float(sim.times[-1]), sim.truth, config,
-                  noise=sim.noise, truth_events=truths)  # fmt: skip
+    return Source(spec, events, sim.initial, sim.landmarks or None, float(sim.times[0]), float(sim.times[-1]),
+                  sim.truth, config, noise=sim.noise, truth_events=truths)  # fmt: skip
 
 
 def _corridor(robots: int, duration: float, seed: int, config: Config | None) -> Source:
@@ -95,8 +121,8 @@ def _sim(scenario: str, robots: int, duration: float, seed: int, config: Config 
 
     if scenario == "corridor":
         return _corridor(robots, duration, seed, config)
-    if scenario in ("3d", "3d_rot"):
-        return sim3d_source(robots, duration, seed, scenario == "3d_rot")
+    if scenario in SIM3D_VARIANTS:
+        return sim3d_source(robots, duration, seed, scenario=scenario)
     kinds = ("range_bearing",) if scenario == "range_bearing" else ("pose",)
     sim = random_team(robots, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0, kinds=kinds))
     if scenario != "landmarks":

@@ -47,8 +47,8 @@ __all__ = [
 CONTIGUOUS = 1e-9
 """[s] Odometry intervals that overlap by less than this are contiguous (rounding of stamps)."""
 
-Landmarks = Mapping[int, tuple[float, float, float, float]]
-"""Landmark id -> (x, y, std_x, std_y) in metres."""
+Landmarks = Mapping[int, tuple[float, ...]]
+"""Landmark id -> (x, y, std_x, std_y) in metres; a 3-D landmark (3-D teams): (x, y, z, std_x, std_y, std_z)."""
 
 _VALID_COVS: dict[tuple[int, bytes], bool] = {}
 """Detection covariances already found valid, by ``(dimension, bytes)`` (sensors repeat one covariance)."""
@@ -138,11 +138,14 @@ def odometry_problem(e: Odometry) -> str | None:
 
 
 def landmark_state(landmarks: Landmarks | None, lid: int | None) -> tuple[np.ndarray, np.ndarray] | None:
-    """Position ``(2,)`` and covariance ``(2, 2)`` of a known landmark, or None."""
+    """Position ``(2,)`` and covariance ``(2, 2)`` of a known landmark (a 3-D one: ``(3,)`` and ``(3, 3)``), or
+    None."""
     if landmarks is None or lid is None or lid not in landmarks:
         return None
-    lx, ly, sx, sy = landmarks[lid]
-    return np.array([lx, ly], dtype=float), np.diag([sx * sx, sy * sy])
+    row = landmarks[lid]
+    d = len(row) // 2
+    std = np.asarray(row[d:], dtype=float)
+    return np.asarray(row[:d], dtype=float), np.diag(std * std)
 
 
 class OdometryTimeline:

@@ -10,9 +10,17 @@ first-order linearization in the noise.
 
 At ``sensor_rate`` every robot measures the pose of each teammate within ``max_range`` (``"pose3"``:
 ``m = (g_i^-1 g_k) exp(n)``, ``n ~ N(0, diag(sigma_pos^2 I3, sigma_rot^2 I3))``, reported as translation and
-rotation vector). Initial beliefs are drawn consistently: ``mean = g_true exp(-y)``, ``y ~ N(0, Sigma0)``
-(``Sigma0 = diag(init_pos^2 I3, init_rot^2 I3)``), so the truth is a sample of the belief; ``init_rot`` large is
-the "large rotational uncertainty" case. Everything is deterministic in ``seed``.
+rotation vector). With ``detection="rbe3"`` it measures instead the range, azimuth and elevation of the teammate's
+position in its body frame, ``"bearing3"`` the azimuth and elevation only (:mod:`swarmloc.sensors.models3`):
+additive noise ``N(0, diag(sigma_range^2, sigma_angle^2, sigma_angle^2))``, azimuth wrapped to (-pi, pi]; a noisy
+elevation past +-90 deg is reported as the same direction (``pi - e``, azimuth + pi). The noise is drawn from the same
+stream as the relative poses' (6 numbers per detection), so the three kinds share trajectories, odometry and
+initial beliefs for a seed. ``landmarks > 0`` adds that many known 3-D point landmarks (ids 100, 101, ...; uniform
+in the box the team's true positions cover grown by 1 m; the map ``id -> (x, y, z, 0, 0, 0)`` is exact), each
+detected by ``"rbe3"`` at ``landmark_rate`` within ``landmark_range``, from their own random stream (the team's
+events stay those of the seed without landmarks). Initial beliefs are drawn consistently: ``mean = g_true
+exp(-y)``, ``y ~ N(0, Sigma0)`` (``Sigma0 = diag(init_pos^2 I3, init_rot^2 I3)``), so the truth is a sample of the
+belief; ``init_rot`` large is the "large rotational uncertainty" case. Everything is deterministic in ``seed``.
 """
 
 from __future__ import annotations
@@ -23,11 +31,20 @@ import numpy as np
 
 from swarmloc.events import Detection, Event, Odometry, Truth, twist_odometry
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE3
+from swarmloc.lie import SE3, wrap_angle
 from swarmloc.motion.twist3 import TwistNoise
 from swarmloc.sensors.models3 import pose3_vector
 
-__all__ = ["Sim3Config", "Sim3Result", "simulate3d"]
+__all__ = ["DETECTIONS3", "LANDMARK_FIRST_ID", "Sim3Config", "Sim3Result", "measure3", "simulate3d"]
+
+DETECTIONS3 = ("pose3", "rbe3", "bearing3")
+"""What a robot of :func:`simulate3d` measures of a teammate."""
+
+LANDMARK_FIRST_ID = 100
+"""Id of the first simulated 3-D landmark."""
+
+LANDMARK_STREAM = 3
+"""``SeedSequence([seed, LANDMARK_STREAM])`` draws the landmarks' map and detection noise."""
 
 
 @dataclass(frozen=True)
@@ -48,12 +65,23 @@ class Sim3Config:
     init_pos: float = 0.1
     init_rot: float = float(np.deg2rad(3.0))
     truth_rate: float = 2.0
+    detection: str = "pose3"
+    sigma_range: float = 0.05
+    sigma_angle: float = float(np.deg2rad(1.0))
+    landmarks: int = 0
+    landmark_rate: float = 2.0
+    landmark_range: float = 8.0
 
     def __post_init__(self) -> None:
+        if self.detection not in DETECTIONS3:
+            raise ValueError(f"Sim3Config: detection must be one of {DETECTIONS3}, got {self.detection!r}")
+        if not (isinstance(self.landmarks, int) and self.landmarks >= 0):
+            raise ValueError(f"Sim3Config: landmarks must be an integer >= 0, got {self.landmarks!r}")
         if not (isinstance(self.robots, int) and self.robots >= 1):
             raise ValueError(f"Sim3Config: robots must be a positive integer, got {self.robots!r}")
         for name in ("duration", "odom_rate", "sensor_rate", "max_range", "sigma_pos", "sigma_rot", "init_pos",
-                     "init_rot", "truth_rate"):  # fmt: skip
+                     "init_rot", "truth_rate", "sigma_range", "sigma_angle", "landmark_rate",
+                     "landmark_range"):  # fmt: skip
             val = getattr(self, name)
             if not (isinstance(val, int | float) and np.isfinite(val) and val > 0):
                 raise ValueError(f"Sim3Config: {name} must be a finite number > 0, got {val!r}")
@@ -64,7 +92,16 @@ class Sim3Config:
         return np.diag([self.init_pos**2] * 3 + [self.init_rot**2] * 3)
 
     def sensor_cov(self) -> np.ndarray:
+        """Covariance of a teammate detection of kind :attr:`detection`."""
+        if self.detection == "rbe3":
+            return self.rbe_cov()
+        if self.detection == "bearing3":
+            return np.diag([self.sigma_angle**2] * 2)
         return np.diag([self.sigma_pos**2] * 3 + [self.sigma_rot**2] * 3)
+
+    def rbe_cov(self) -> np.ndarray:
+        """Covariance of a range-bearing-elevation detection (of a teammate or a landmark)."""
+        return np.diag([self.sigma_range**2] + [self.sigma_angle**2] * 2)
 
 
 @dataclass
@@ -77,6 +114,8 @@ class Sim3Result:
     times: np.ndarray
     poses: np.ndarray
     config: Sim3Config
+    landmarks: dict[int, tuple[float, ...]] = field(default_factory=dict)
+    """Known 3-D landmarks ``id -> (x, y, z, std_x, std_y, std_z)`` [m] (empty without landmarks)."""
 
     @property
     def noise(self) -> TwistNoise:
@@ -108,6 +147,54 @@ def _twists(rng: np.random.Generator, cfg: Sim3Config, t: np.ndarray) -> np.ndar
     h[:, 4] = 0.05 * s[:, 4]
     h[:, 5] = cfg.yaw_rate * (1 + 0.5 * s[:, 5])
     return h
+
+
+def measure3(kind: str, gi: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The noise-free measurement of ``kind`` of ``target`` (a pose ``(4, 4)`` or, for ``"rbe3"`` / ``"bearing3"``,
+    a point ``(3,)``) by the robot at pose ``gi (4, 4)``: computed from the homogeneous transform ``gi^-1``, apart
+    from the filters' models (:mod:`swarmloc.sensors.models3`)."""
+    if kind == "pose3":
+        return pose3_vector(SE3.between(gi, target, validate=False))
+    target = np.asarray(target, dtype=float)
+    q = np.append(target if target.shape == (3,) else target[:3, 3], 1.0)
+    x, y, z = (np.linalg.inv(gi) @ q)[:3]
+    rbe = np.array([np.sqrt(x * x + y * y + z * z), np.arctan2(y, x), np.arctan2(z, np.sqrt(x * x + y * y))])
+    return rbe if kind == "rbe3" else rbe[1:]
+
+
+def _noisy(kind: str, clean: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """``clean + n`` of a ``"rbe3"`` / ``"bearing3"`` value: azimuth wrapped, an elevation past +-pi/2 folded."""
+    z = clean + n
+    el = z[-1]
+    if abs(el) > np.pi / 2:
+        z[-1] = np.sign(el) * np.pi - el
+        z[-2] += np.pi
+    z[-2] = wrap_angle(z[-2])
+    return z
+
+
+def _landmarks(cfg: Sim3Config, g: np.ndarray, times: np.ndarray, seed: int) -> tuple[dict, list]:
+    """The landmarks' map and their ``"rbe3"`` detections ``(stamp, 1, robot, Detection)``."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, LANDMARK_STREAM]))
+    lo, hi = g[:, :, :3, 3].min(axis=(0, 1)) - 1.0, g[:, :, :3, 3].max(axis=(0, 1)) + 1.0
+    pts = lo + (hi - lo) * rng.uniform(size=(cfg.landmarks, 3))
+    lms = {LANDMARK_FIRST_ID + k: (*map(float, p), 0.0, 0.0, 0.0) for k, p in enumerate(pts)}
+    R3 = cfg.rbe_cov()
+    sd = np.sqrt(np.diag(R3))
+    out: list = []
+    every = max(1, int(round(cfg.odom_rate / cfg.landmark_rate)))
+    for k in range(every, times.size, every):
+        for i in range(g.shape[1]):
+            noise = rng.standard_normal((cfg.landmarks, 3)) * sd  # drawn whether seen or not
+            for m, p in enumerate(pts):
+                clean = measure3("rbe3", g[k, i], p)
+                if clean[0] > cfg.landmark_range:
+                    continue
+                z = _noisy("rbe3", clean, noise[m])
+                d = Detection(i, float(times[k]), "rbe3", z, R3.copy(), target=LANDMARK_FIRST_ID + m,
+                              target_is_robot=False)  # fmt: skip
+                out.append((times[k], 1, i, d))
+    return lms, out
 
 
 def simulate3d(cfg: Sim3Config | None = None, seed: int = 0) -> Sim3Result:
@@ -149,20 +236,28 @@ def simulate3d(cfg: Sim3Config | None = None, seed: int = 0) -> Sim3Result:
                 m = SE3.between(g[k, i], g[k, j], validate=False)
                 if np.linalg.norm(m[:3, 3]) > cfg.max_range:
                     continue
-                meas = m @ SE3.exp(Ls @ rng.standard_normal(6), validate=False)
-                z = pose3_vector(meas)
-                events.append((times[k], 1, i, Detection(i, float(times[k]), "pose3", z, R6.copy(), target=j)))
+                n6 = rng.standard_normal(6)
+                if cfg.detection == "pose3":
+                    z = pose3_vector(m @ SE3.exp(Ls @ n6, validate=False))
+                else:
+                    clean = measure3(cfg.detection, g[k, i], g[k, j])
+                    z = _noisy(cfg.detection, clean, (Ls @ n6[: Ls.shape[0]])[: clean.size])
+                events.append((times[k], 1, i, Detection(i, float(times[k]), cfg.detection, z, R6.copy(), target=j)))
     from swarmloc.datasets.tum import pose7
 
     tevery = max(1, int(round(cfg.odom_rate / cfg.truth_rate)))
     for k in range(0, steps + 1, tevery):
         for r in range(n):
             events.append((times[k], 2, r, Truth(r, float(times[k]), pose7(g[k, r]))))
+    lms: dict[int, tuple[float, ...]] = {}
+    if cfg.landmarks:
+        lms, seen = _landmarks(cfg, g, times, seed)
+        events += seen
     events.sort(key=lambda e: (e[0], e[1], e[2]))
     S0 = cfg.initial_cov()
     L0 = np.linalg.cholesky(S0)
     initial = {r: GroupGaussian(SE3, g[0, r] @ SE3.exp(-(L0 @ rng.standard_normal(6))), S0) for r in range(n)}
-    return Sim3Result([e[3] for e in events], initial, times, g, cfg)
+    return Sim3Result([e[3] for e in events], initial, times, g, cfg, lms)
 
 
 def is_odometry(e: Event) -> bool:
