@@ -184,3 +184,18 @@ def test_run_se3_records_every_truth_instant() -> None:
     assert res.stats["recorded"] == len(src.truth_events) == 164
     assert res.stats.get("record_too_old", 0) == 0
     assert sorted(np.concatenate([tr.times for tr in res.tracks.values()]))[0] == src.t_start
+
+
+def test_se3_figures_draw_top_side_views_and_nees_over_time(tmp_path):
+    """The 3-D figures: two PNGs from a short run of two estimators; a run that recorded nothing is refused."""
+    from swarmloc.experiments.se3 import se3_figures
+    from swarmloc.runner import RunResult
+
+    src = load_source("sim:3d", robots=3, duration=4.0, seed=0)
+    results = {e: run_se3(src, e) for e in ("expfusion", "dr")}
+    paths = se3_figures(tmp_path, results, src.t_start or 0.0)
+    assert [p.name for p in paths] == ["trajectories3d.png", "error_nees3d.png"]
+    for p in paths:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000
+    with pytest.raises(ValueError, match="nothing was recorded"):
+        se3_figures(tmp_path, {"dr": RunResult("dr", {}, 0.0)})

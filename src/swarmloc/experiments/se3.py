@@ -18,12 +18,12 @@ import numpy as np
 from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import write_tum3
 from swarmloc.estimators import accepted_options, estimator_class, make_team
-from swarmloc.evaluation.metrics import anees_bounds, evaluate
+from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.experiments.sources import load_source
 from swarmloc.runner import RunResult, run
 
-__all__ = ["run_se3", "se3_markdown", "se3_table", "with_truth", "write_tum_tracks"]
+__all__ = ["run_se3", "se3_figures", "se3_markdown", "se3_table", "with_truth", "write_tum_tracks"]
 
 
 def run_se3(source: Source, estimator: str, **options: Any) -> RunResult:
@@ -119,3 +119,63 @@ def se3_markdown(table: dict[str, Any]) -> str:
     lines.append("")
     lines.append(f"95% band of one run's ANEES/dof if its {n} records were independent: [{lo:.2f}, {hi:.2f}].")
     return "\n".join(lines)
+
+
+def se3_figures(out: str | Path, results: dict[str, RunResult], t_start: float = 0.0) -> list[Path]:
+    """Figures of one 3-D run per estimator (PNG in ``out``): ``trajectories3d.png``, every robot's truth and
+    estimates from above (x-y) and from the side (x-z); ``error_nees3d.png``, the team's mean position error [m],
+    rotation error [deg] and NEES per dof (6 dof) over time, with the 95% band of the team's per-time NEES."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    first = next(iter(results.values()))
+    robots = sorted(r for r, tr in first.tracks.items() if tr.times.size)
+    if not robots:
+        raise ValueError("se3_figures: nothing was recorded (no track with a record)")
+    fig, (top, side) = plt.subplots(1, 2, figsize=(11, 4.5))
+    for ax, (i, j, name) in zip((top, side), ((0, 1, "y"), (0, 2, "z")), strict=True):
+        for k, r in enumerate(robots):
+            tru = first.tracks[r].truth
+            ax.plot(tru[:, i], tru[:, j], "k-", lw=2, label="truth" if k == 0 else None)
+            for c, (est, res) in enumerate(results.items()):
+                tr = res.tracks.get(r)
+                if tr is not None and tr.times.size:
+                    ax.plot(tr.mean[:, i], tr.mean[:, j], lw=0.8, color=f"C{c}", label=est if k == 0 else None)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel(f"{name} [m]")
+        ax.set_title("from above (x-y)" if name == "y" else "from the side (x-z)")
+        ax.set_aspect("equal", adjustable="datalim")
+    top.legend(fontsize=7)
+    fig.tight_layout()
+    paths = [out / "trajectories3d.png"]
+    fig.savefig(paths[0], dpi=110)
+    plt.close(fig)
+
+    fig, (a1, a2, a3) = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    for est, res in results.items():
+        tracks = [res.tracks[r] for r in robots if r in res.tracks and res.tracks[r].times.size]
+        if not tracks:
+            continue
+        n = min(tr.times.size for tr in tracks)
+        errs = [errors(tr) for tr in tracks]
+        t = tracks[0].times[:n] - t_start
+        a1.plot(t, np.mean([e["pos"][:n] for e in errs], axis=0), lw=0.8, label=est)
+        a2.plot(t, np.degrees(np.mean([e["heading"][:n] for e in errs], axis=0)), lw=0.8, label=est)
+        a3.semilogy(t, np.mean([e["nees"][:n] / 6 for e in errs], axis=0), lw=0.8, label=est)
+    lo, hi = anees_bounds(len(robots), 6)
+    a3.axhspan(lo, hi, color="0.85", label="95% band (team, per time)")
+    a1.set_ylabel("team mean position error [m]")
+    a2.set_ylabel("team mean rotation error [deg]")
+    a3.set_ylabel("team NEES per dof")
+    a3.set_ylim(1e-2, 1e3)
+    a3.set_xlabel("time since start [s]")
+    a1.legend(fontsize=7, ncol=3)
+    fig.tight_layout()
+    paths.append(out / "error_nees3d.png")
+    fig.savefig(paths[1], dpi=110)
+    plt.close(fig)
+    return paths
