@@ -90,10 +90,18 @@ def track_anonymous(
     reset_after: int = 6,
     rng: int | None = 0,
     motion_floor: float = 1e-3,
+    every: float | None = None,
+    registrations: dict[float, dict] | None = None,
 ) -> AnonymousTrack:
     """Run PMR and a particle-filter bank for ``ego`` over ``events`` (module docstring). ``noise``: the odometry
     noise model; ``motion_floor`` [m, rad]: std added to every increment (keeps the particles diverse);
-    ``reset_after``: the bank's unexplained updates in a row before a filter restarts."""
+    ``reset_after``: the bank's unexplained updates in a row before a filter restarts.
+
+    ``every`` [s]: record only what a consumer of one unambiguous estimate per robot every ``every`` s reads (robot
+    ``j``'s estimate is computed at a scan only once ``every`` has passed since the last one kept, and kept only when
+    unambiguous with a positive definite covariance); None: every estimate at every scan. ``registrations``: a
+    dict shared by the robots of one team over the same events and settings (scan time -> PMR's ``cache``), so that
+    each scan's binary registrations are computed once for the team, not once per robot."""
     if ego not in robots:
         raise ValueError(f"track_anonymous: ego {ego!r} is not one of the robots {list(robots)}")
     bank = ParticleFilterBank(n_particles, rng=rng, reset_after=reset_after)
@@ -102,6 +110,7 @@ def track_anonymous(
     counts = {"scans": 0, "pmr_gated": 0, "pmr_ungated": 0}
     floor = np.eye(3) * motion_floor**2
     done: set[float] = set()
+    last: dict[int, float] = {}
     for e in events:
         if isinstance(e, Odometry) and e.robot in robots:
             mean, cov = odometry_increment(float(e.v), float(e.w), float(e.dt), noise)
@@ -120,12 +129,13 @@ def track_anonymous(
                 if not est.ambiguous:
                     beliefs[j] = GroupGaussian(SE2, est.gaussian.mean, est.gaussian.cov)
             kw = dict(max_range=max_range, fov=fov, max_unmatched=max_unmatched, sigma_range=sigma_range)
-            res = multiple_registration(scans[t], ego, sigma, beliefs=beliefs or None, **kw)
+            cache = None if registrations is None else registrations.setdefault(t, {})
+            res = multiple_registration(scans[t], ego, sigma, beliefs=beliefs or None, cache=cache, **kw)
             counts["pmr_gated" if beliefs else "pmr_ungated"] += 1
             hyps = {j: res.hypotheses(j) for j in robots if j != ego}
             if beliefs and (not res.solutions or res.unreached):
                 # the belief left a robot (or everything) unexplained: kidnapped, or its filter is lost
-                free = multiple_registration(scans[t], ego, sigma, **kw)
+                free = multiple_registration(scans[t], ego, sigma, cache=cache, **kw)
                 counts["pmr_ungated"] += 1
                 for j in hyps:
                     if not hyps[j] or not res.solutions:
@@ -135,7 +145,18 @@ def track_anonymous(
                 bank.update(j, h)
             track.times.append(t)
             track.solutions.append(len(res.solutions))
-            track.estimates.append({j: bank.estimate(j) for j in bank.known()})
+            if every is None:
+                track.estimates.append({j: bank.estimate(j) for j in bank.known()})
+                continue
+            kept = {}
+            for j in bank.known():
+                if t - last.get(j, -np.inf) < every:
+                    continue
+                est = bank.estimate(j)
+                if not est.ambiguous and np.all(np.linalg.eigvalsh(est.gaussian.cov) > 1e-12):
+                    kept[j] = est
+                    last[j] = t
+            track.estimates.append(kept)
     counts.update({f"bank_{k}": v for k, v in bank.counts.items()})
     track.counts = counts
     return track
@@ -166,8 +187,9 @@ def bank_detections(
     out = [e for e in events if not is_anonymous_detection(e)]
     counts: dict[int, dict[str, int]] = {}
     new: list[Detection] = []
+    shared: dict[float, dict] = {}  # the team's binary registrations per scan, computed once
     for ego in robots:
-        tr = track_anonymous(events, ego, robots, noise, sigma, **kw)  # type: ignore[arg-type]
+        tr = track_anonymous(events, ego, robots, noise, sigma, every=every, registrations=shared, **kw)  # type: ignore[arg-type]
         last: dict[int, float] = {}
         emitted = 0
         for t, est in zip(tr.times, tr.estimates, strict=True):
