@@ -83,6 +83,21 @@ def _components(adj: np.ndarray) -> np.ndarray:
         label = new
 
 
+def _compose_exp(mu: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``mu exp(y)`` for one pose ``mu`` and one tangent vector ``y`` ``(3,)`` (scalar math)."""
+    x0, x1, a = float(y[0]), float(y[1]), float(y[2])
+    if abs(a) < 0.05:
+        a2 = a * a
+        A = (((a2 / 362880 - 1 / 5040) * a2 + 1 / 120) * a2 - 1 / 6) * a2 + 1.0
+        B = a * ((((a2 / 3628800 - 1 / 40320) * a2 + 1 / 720) * a2 - 1 / 24) * a2 + 0.5)
+    else:
+        A, B = math.sin(a) / a, (1.0 - math.cos(a)) / a
+    dx, dy = A * x0 - B * x1, B * x0 + A * x1
+    c, s = math.cos(mu[2]), math.sin(mu[2])
+    th = (mu[2] + a + math.pi) % (2 * math.pi) - math.pi
+    return np.array([mu[0] + c * dx - s * dy, mu[1] + s * dx + c * dy, th])
+
+
 def _log_rel(mu: np.ndarray, q: np.ndarray) -> np.ndarray:
     """``log(mu^-1 q)`` ``(n, 3)`` for one pose ``mu`` ``(3,)`` and particles ``q`` ``(n, 3)``
     (:func:`~swarmloc.association.registration.log_between_xyt` with ``mu``'s sine and cosine computed once)."""
@@ -253,10 +268,13 @@ class ParticleFilterBank:
     def _moments(q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean on SE(2) (iterated in exponential coordinates) and covariance of ``log(mu^-1 q)``."""
         w = w / w.sum()
-        mu = q[int(np.argmax(w))]
+        # start at the weighted mean of the positions and the circular mean of the headings (near the fixed point:
+        # about 3 iterations instead of 6-8 from the heaviest particle)
+        th = math.atan2(float(w @ np.sin(q[:, 2])), float(w @ np.cos(q[:, 2])))
+        mu = np.array([float(w @ q[:, 0]), float(w @ q[:, 1]), th])
         for _ in range(8):
             step = w @ _log_rel(mu, q)
-            mu = compose_xyt(mu, _exp_xyt(step))
+            mu = _compose_exp(mu, step)
             if np.abs(step).max() < 1e-12:
                 break
         y = _log_rel(mu, q)

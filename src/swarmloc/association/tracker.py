@@ -162,6 +162,36 @@ def track_anonymous(
     return track
 
 
+def _odometry_noise(events: Sequence[Event], robots: Sequence[int], noise: UnicycleNoise, floor: float):
+    """Per robot: odometry stamps and the running sum of its increments' covariances (plus ``floor^2 I``), so that
+    the motion noise between two instants is a difference of two rows."""
+    out = {}
+    for r in robots:
+        odo = [e for e in events if isinstance(e, Odometry) and e.robot == r]
+        covs = [odometry_increment(float(e.v), float(e.w), float(e.dt), noise)[1] + np.eye(3) * floor**2 for e in odo]
+        t = np.array([float(e.t) for e in odo])
+        out[r] = (t, np.concatenate([np.zeros((1, 3, 3)), np.cumsum(np.array(covs).reshape(-1, 3, 3), 0)]))
+    return out
+
+
+def _between(table: tuple[np.ndarray, np.ndarray], t0: float, t1: float) -> np.ndarray:
+    t, cum = table
+    return cum[np.searchsorted(t, t1, side="right")] - cum[np.searchsorted(t, t0, side="right")]
+
+
+def _new_information(cov: np.ndarray, prev: np.ndarray, motion: np.ndarray) -> np.ndarray | None:
+    """Covariance of the information ``cov^-1 - (prev + motion)^-1`` gained since the last hand-off (whose bank
+    covariance was ``prev``, moved by the motion noise ``motion`` since); None when nothing was gained. Directions
+    without gain get a variance 1e6 times the best one's."""
+    info = np.linalg.inv(cov) - np.linalg.inv(prev + motion)
+    lam, V = np.linalg.eigh(0.5 * (info + info.T))
+    if lam[-1] <= 0:
+        return None
+    lam = np.maximum(lam, lam[-1] * 1e-6)
+    out = (V / lam) @ V.T
+    return 0.5 * (out + out.T)
+
+
 def bank_detections(
     events: Sequence[Event],
     robots: Sequence[int],
@@ -170,43 +200,64 @@ def bank_detections(
     *,
     every: float = 1.0,
     inflate: float = 1.0,
+    handoff: str = "full",
     **kw: object,
 ) -> tuple[list[Event], dict[int, dict[str, int]]]:
     """The ``anonymous`` association policy as an input to any estimator: every robot runs :func:`track_anonymous`
     on the team's anonymous range-bearing detections and odometry, and its bank's **unambiguous** estimate of each
     met robot ``j`` becomes a tagged relative-pose :class:`~swarmloc.events.Detection` (``kind="pose"``, target
-    ``j``: the identity is the one communication gives, the robot whose scan registered) with the bank's
-    covariance times ``inflate``, at most one per ``(observer, j)`` every ``every`` [s]. The anonymous
-    range-bearing detections are replaced by these; everything else passes unchanged. The bank's estimates are
-    correlated in time (each is the filter of all scans so far), which a filter fusing them as independent
-    measurements does not know: ``every`` and ``inflate`` trade that overconfidence against information.
-    Returns ``(events, counts per robot)`` (the tracker's counters plus ``emitted``); ``kw`` goes to
+    ``j``: the identity is the one communication gives, the robot whose scan registered), at most one per
+    ``(observer, j)`` every ``every`` [s]. The anonymous range-bearing detections are replaced by these; everything
+    else passes unchanged.
+
+    The bank's estimates are correlated in time (each is the filter of all scans so far), and a filter fusing them
+    as independent measurements counts the same scans again at every hand-off. ``handoff="new"`` hands
+    the bank's mean with the covariance of only the information gained since the last hand-off of the pair,
+    ``(P_t^-1 - (P_prev + Q)^-1)^-1`` (``P``: the bank's covariances then and now, ``Q``: the odometry noise of
+    both robots in between, ego's carried to ``j``'s frame), and skips the hand-off when nothing was gained;
+    ``handoff="full"`` (default): the bank's covariance ``P_t`` as is. Measured (README), "new" did not make the
+    team filter consistent: most of its excess NEES comes from wrong hand-offs (a filter locked on a wrong PMR
+    solution), not from the correlation. Either is multiplied by ``inflate``.
+    Returns ``(events, counts per robot)`` (the tracker's counters plus ``emitted`` and ``no_gain``); ``kw`` goes to
     :func:`track_anonymous`."""
     if not every >= 0 or not inflate >= 1.0:
         raise ValueError(f"bank_detections: need every >= 0 s and inflate >= 1, got {every!r}, {inflate!r}")
+    if handoff not in ("new", "full"):
+        raise ValueError(f"bank_detections: handoff must be 'new' or 'full', got {handoff!r}")
     out = [e for e in events if not is_anonymous_detection(e)]
     counts: dict[int, dict[str, int]] = {}
     new: list[Detection] = []
     shared: dict[float, dict] = {}  # the team's binary registrations per scan, computed once
+    motion = _odometry_noise(events, robots, noise, float(kw.get("motion_floor", 1e-3)))  # type: ignore[arg-type]
     for ego in robots:
         tr = track_anonymous(events, ego, robots, noise, sigma, every=every, registrations=shared, **kw)  # type: ignore[arg-type]
-        last: dict[int, float] = {}
-        emitted = 0
+        last: dict[int, tuple[float, np.ndarray]] = {}
+        emitted = no_gain = 0
         for t, est in zip(tr.times, tr.estimates, strict=True):
             for j, b in est.items():
-                if b.ambiguous or j == ego or t - last.get(j, -np.inf) < every:
+                if b.ambiguous or j == ego or t - last.get(j, (-np.inf,))[0] < every:
                     continue
-                cov = np.asarray(b.gaussian.cov, dtype=float) * inflate
+                P = np.asarray(b.gaussian.cov, dtype=float)
+                z = SE2.to_xytheta(b.gaussian.mean).astype(float)
+                cov: np.ndarray | None = P
+                if handoff == "new" and j in last:
+                    t0, prev = last[j]
+                    A = SE2.Ad(SE2.inverse(b.gaussian.mean))  # ego's noise (left) as a right perturbation of q_j
+                    Q = _between(motion[j], t0, t) + A @ _between(motion[ego], t0, t) @ A.T
+                    cov = _new_information(P, prev, Q)
+                if cov is None:
+                    no_gain += 1
+                    continue
+                cov = cov * inflate
                 cov = 0.5 * (cov + cov.T)
                 if not np.all(np.linalg.eigvalsh(cov) > 1e-12):
                     continue
-                z = SE2.to_xytheta(b.gaussian.mean).astype(float)
                 z.setflags(write=False)
                 cov.setflags(write=False)
                 new.append(Detection(ego, t, "pose", z, cov, target=int(j)))
-                last[j] = t
+                last[j] = (t, P)
                 emitted += 1
-        counts[ego] = {**tr.counts, "emitted": emitted}
+        counts[ego] = {**tr.counts, "emitted": emitted, "no_gain": no_gain}
     out += new
     order = {Odometry: 0, Detection: 1}
     out.sort(key=lambda e: (e.t, order.get(type(e), 2)))
