@@ -33,6 +33,7 @@ POLICIES = ("tags", "nearest", "joint", "anonymous")
 def one(
     robots: int, clutter: float, seed: int, policy: str, estimator: str, duration: float, p_detect: float,
     handoff: str = "full",
+    fresh: int = 0,
 ):  # fmt: skip
     """One run: ``(sum of squared position errors, of NEES, records, right, wrong, fused, rejected)``."""
     from swarmloc.estimators import make_team, node_options
@@ -44,7 +45,7 @@ def one(
     src = load_source("sim:range_bearing", robots=robots, duration=duration, seed=seed)
     events, _ = association_events(src.events, policy, sorted(src.initial), src.config.motion.noise(),
                                    clutter=clutter, p_detect=p_detect, max_range=5.0, seed=seed,
-                                   bank={"handoff": handoff})  # fmt: skip
+                                   bank={"handoff": handoff, "fresh": None if fresh < 0 else fresh})  # fmt: skip
     opts = node_options(estimator, src.config, src.landmarks, src.t_start)
     if policy in ("nearest", "joint"):
         opts["association"] = policy
@@ -70,6 +71,12 @@ def main() -> None:
     p.add_argument("--estimator", default="cekf")
     p.add_argument("--anonymous-max", type=int, default=16, help="largest team run with 'anonymous' (its cost)")
     p.add_argument("--policies", default=",".join(POLICIES), help="comma-separated subset of " + ",".join(POLICIES))
+    p.add_argument(
+        "--fresh",
+        type=int,
+        default=0,
+        help="anonymous: hand off only filters PMR confirmed within this many scans (-1: no condition)",
+    )
     p.add_argument("--handoff", default="full", choices=("new", "full"), help="anonymous: the bank's hand-off")
     p.add_argument("--jobs", type=int, default=2)
     a = p.parse_args()
@@ -77,7 +84,7 @@ def main() -> None:
     clutters = [float(c) for c in a.clutter.split(",")]
     policies = [q for q in POLICIES if q in a.policies.split(",")]
     tasks = [
-        (n, c, s, pol, a.estimator, a.duration, a.p_detect, a.handoff)
+        (n, c, s, pol, a.estimator, a.duration, a.p_detect, a.handoff, a.fresh)
         for n in sizes for c in clutters for pol in policies for s in range(a.seeds)
         if pol != "anonymous" or n <= a.anonymous_max
     ]  # fmt: skip
@@ -85,8 +92,8 @@ def main() -> None:
     with ProcessPoolExecutor(a.jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
         out = dict(zip(tasks, ex.map(one, *zip(*tasks, strict=True), chunksize=1), strict=True))
     print(f"# {a.estimator}, sim:range_bearing (3 m arena), {a.duration:g} s, seeds 0-{a.seeds - 1}, p_detect "
-          f"{a.p_detect}, anonymous hand-off {a.handoff!r}; {time.perf_counter() - t0:.0f} s wall with {a.jobs} "
-          f"jobs; {platform.machine()}, python {platform.python_version()}")  # fmt: skip
+          f"{a.p_detect}, anonymous hand-off {a.handoff!r} fresh {a.fresh}; {time.perf_counter() - t0:.0f} s wall "
+          f"with {a.jobs} jobs; {platform.machine()}, python {platform.python_version()}")  # fmt: skip
     print(
         "| robots | clutter/scan | policy | association accuracy | team pos RMSE [m] | ANEES/dof | fused | rejected |"
     )

@@ -61,6 +61,8 @@ class AnonymousTrack:
     estimates: list[dict[int, BankEstimate]] = field(default_factory=list)
     solutions: list[int] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
+    updates: list[dict[int, str]] = field(default_factory=list)
+    """Per scan time: what the bank's update did to each neighbour's filter (:meth:`ParticleFilterBank.update`)."""
 
     def errors(self, robot: int, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(times, position errors [m], heading errors [rad])`` of ``robot`` against ``truth`` ``(len(times), 3)``
@@ -92,6 +94,7 @@ def track_anonymous(
     motion_floor: float = 1e-3,
     every: float | None = None,
     registrations: dict[float, dict] | None = None,
+    fresh: int | None = None,
 ) -> AnonymousTrack:
     """Run PMR and a particle-filter bank for ``ego`` over ``events`` (module docstring). ``noise``: the odometry
     noise model; ``motion_floor`` [m, rad]: std added to every increment (keeps the particles diverse);
@@ -101,7 +104,9 @@ def track_anonymous(
     ``j``'s estimate is computed at a scan only once ``every`` has passed since the last one kept, and kept only when
     unambiguous with a positive definite covariance); None: every estimate at every scan. ``registrations``: a
     dict shared by the robots of one team over the same events and settings (scan time -> PMR's ``cache``), so that
-    each scan's binary registrations are computed once for the team, not once per robot."""
+    each scan's binary registrations are computed once for the team, not once per robot. ``fresh`` (with
+    ``every``): keep an estimate only when PMR confirmed its filter (an ``"updated"``, not an initialization or a
+    reset) at most ``fresh`` scans before; None: no such condition."""
     if ego not in robots:
         raise ValueError(f"track_anonymous: ego {ego!r} is not one of the robots {list(robots)}")
     bank = ParticleFilterBank(n_particles, rng=rng, reset_after=reset_after)
@@ -111,6 +116,7 @@ def track_anonymous(
     floor = np.eye(3) * motion_floor**2
     done: set[float] = set()
     last: dict[int, float] = {}
+    stale: dict[int, int] = {}  # scans since PMR last confirmed each filter
     for e in events:
         if isinstance(e, Odometry) and e.robot in robots:
             mean, cov = odometry_increment(float(e.v), float(e.w), float(e.dt), noise)
@@ -141,8 +147,14 @@ def track_anonymous(
                     if not hyps[j] or not res.solutions:
                         hyps[j] = free.hypotheses(j)
                 res = res if res.solutions else free
-            for j, h in hyps.items():
-                bank.update(j, h)
+            track.updates.append({j: bank.update(j, h) for j, h in hyps.items()})
+            for j, u in track.updates[-1].items():
+                if u == "updated":
+                    stale[j] = 0
+                elif u in ("initialized", "reset"):
+                    stale[j] = 10**9  # drawn from PMR's hypotheses: nothing confirmed it yet
+                else:
+                    stale[j] = stale.get(j, 10**9) + 1
             track.times.append(t)
             track.solutions.append(len(res.solutions))
             if every is None:
@@ -150,7 +162,7 @@ def track_anonymous(
                 continue
             kept = {}
             for j in bank.known():
-                if t - last.get(j, -np.inf) < every:
+                if t - last.get(j, -np.inf) < every or (fresh is not None and stale.get(j, 10**9) > fresh):
                     continue
                 est = bank.estimate(j)
                 if not est.ambiguous and np.all(np.linalg.eigvalsh(est.gaussian.cov) > 1e-12):
