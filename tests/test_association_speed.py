@@ -5,6 +5,7 @@ graph; and the "new information" hand-off covariance."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -134,3 +135,26 @@ def test_hand_offs_from_confirmed_filters_only_are_rarely_wrong():
     fresh, n_fresh = _handoff_outside_gate({}, range(2))  # the default: fresh=0
     assert loose > 0.2 and n_loose > 100
     assert fresh < 0.12 and n_fresh > 30
+
+
+def test_binned_scans_carry_each_point_to_the_bin_end_and_merge_repeats():
+    from swarmloc.association.tracker import binned_scans
+    from swarmloc.events import Odometry
+    from swarmloc.motion import UnicycleNoise
+
+    cov = np.diag([0.01, 1e-4])
+    odo = [Odometry(1, 0.1 * k, 0.1 * (k + 1), 1.0, 0.0) for k in range(10)]  # robot 1: 1 m/s straight ahead
+    odo += [Odometry(2, 0.1 * k, 0.1 * (k + 1), 0.0, 0.0) for k in range(10)]  # robot 2 still, 3 m ahead of 1
+    det = [
+        Detection(1, 0.1, "range_bearing", np.array([2.9, 0.0]), cov, target=None),  # 1 at x = 0.1 sees 2 at x = 3
+        Detection(1, 0.2, "range_bearing", np.array([2.8, 0.0]), cov, target=None),  # the same robot again
+        Detection(2, 0.3, "range_bearing", np.array([2.7, np.pi]), cov, target=None),  # 2 sees 1 at x = 0.3 behind it
+    ]
+    events = sorted(odo + det, key=lambda e: e.t)
+    scans = binned_scans(events, [1, 2], 0.55, UnicycleNoise(), merge=0.1)
+    (tb,) = scans  # one bin, counted from the first event (t = 0.1): it ends at 0.65, robot 1 at x = 0.6 then
+    assert tb == pytest.approx(0.65)
+    # at the bin's end robot 1 is at x = 0.6: robot 2 is 2.4 m ahead; one point, the repeat merged
+    assert np.allclose(scans[tb][1], [[2.4, 0.0]], atol=1e-9)
+    assert np.allclose(scans[tb][2], [[-2.7, 0.0]], atol=1e-9)  # robot 2 did not move: its point as measured
+    assert len(binned_scans(events, [1, 2], 0.55, UnicycleNoise())[tb][1]) == 2  # without merging: both frames

@@ -25,13 +25,20 @@ import numpy as np
 
 from swarmloc.association.pfbank import BankEstimate, ParticleFilterBank
 from swarmloc.association.pmr import multiple_registration
-from swarmloc.association.registration import points_from_range_bearing
+from swarmloc.association.registration import compose_xyt, invert_xyt, points_from_range_bearing
 from swarmloc.events import Detection, Event, Odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise, odometry_increment
 
-__all__ = ["AnonymousTrack", "anonymous_scans", "bank_detections", "is_anonymous_detection", "track_anonymous"]
+__all__ = [
+    "AnonymousTrack",
+    "anonymous_scans",
+    "bank_detections",
+    "binned_scans",
+    "is_anonymous_detection",
+    "track_anonymous",
+]
 
 
 def is_anonymous_detection(e: object) -> bool:
@@ -49,6 +56,47 @@ def anonymous_scans(events: Iterable[Event], robots: Sequence[int]) -> dict[floa
     return {
         t: {r: points_from_range_bearing(np.array(z)) if z else np.zeros((0, 2)) for r, z in scan.items()}
         for t, scan in out.items()
+    }
+
+
+def binned_scans(
+    events: Sequence[Event], robots: Sequence[int], width: float, noise: UnicycleNoise, merge: float = 0.0
+) -> dict[float, dict[int, np.ndarray]]:
+    """Anonymous detections binned in time, for robots whose detections are stamped each on its own (MRCLAM):
+    ``{t_b: {robot: points (m, 2)}}`` with ``t_b`` the end of a bin ``width`` [s] wide (bins counted from the first
+    event), every point carried into its observer's frame at ``t_b`` by the observer's own odometry (dead reckoning
+    from the detection's stamp to ``t_b``; the robot seen is assumed still over that time, an error of its speed times
+    at most ``width``). A robot seen again within a bin (several camera frames) would be two points where PMR
+    expects one: a point closer than ``merge`` [m] to a later one of the same observer and bin is dropped."""
+    if not (np.isfinite(width) and width > 0):
+        raise ValueError(f"binned_scans: width must be a finite number > 0 s, got {width!r}")
+    t_first = min(float(e.t) for e in events)
+    dr: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for r in robots:  # dead-reckoned pose after each odometry event, from the start
+        odo = [e for e in events if isinstance(e, Odometry) and e.robot == r]
+        pose = np.zeros(3)
+        poses = [pose]
+        for e in odo:
+            pose = compose_xyt(pose, SE2.to_xytheta(odometry_increment(float(e.v), float(e.w), float(e.dt), noise)[0]))
+            poses.append(pose)
+        dr[r] = (np.array([float(e.t) for e in odo]), np.array(poses))
+
+    def at(r: int, t: float) -> np.ndarray:
+        ts, ps = dr[r]
+        return ps[np.searchsorted(ts, t, side="right")]
+
+    out: dict[float, dict[int, list]] = {}
+    for e in events:
+        if is_anonymous_detection(e):
+            tb = t_first + (np.floor((float(e.t) - t_first) / width) + 1) * width
+            delta = compose_xyt(invert_xyt(at(e.observer, float(e.t))), at(e.observer, tb))
+            p = points_from_range_bearing(np.asarray(e.z))[0]
+            q = compose_xyt(invert_xyt(delta), np.array([p[0], p[1], 0.0]))[:2]
+            pts = out.setdefault(float(tb), {r: [] for r in robots}).setdefault(e.observer, [])
+            pts[:] = [x for x in pts if np.hypot(*(x - q)) >= merge] + [q]
+    return {
+        t: {r: np.array(z).reshape(-1, 2) if z else np.zeros((0, 2)) for r, z in scan.items()}
+        for t, scan in sorted(out.items())
     }
 
 
@@ -95,6 +143,7 @@ def track_anonymous(
     every: float | None = None,
     registrations: dict[float, dict] | None = None,
     fresh: int | None = None,
+    bin_width: float | None = None,
 ) -> AnonymousTrack:
     """Run PMR and a particle-filter bank for ``ego`` over ``events`` (module docstring). ``noise``: the odometry
     noise model; ``motion_floor`` [m, rad]: std added to every increment (keeps the particles diverse);
@@ -106,18 +155,70 @@ def track_anonymous(
     dict shared by the robots of one team over the same events and settings (scan time -> PMR's ``cache``), so that
     each scan's binary registrations are computed once for the team, not once per robot. ``fresh`` (with
     ``every``): keep an estimate only when PMR confirmed its filter (an ``"updated"``, not an initialization or a
-    reset) at most ``fresh`` scans before; None: no such condition."""
+    reset) at most ``fresh`` scans before; None: no such condition. ``bin_width`` [s]: PMR on
+    :func:`binned_scans` (the detections of each bin carried to its end, processed once the stream passes it) instead
+    of the detections that share a stamp."""
     if ego not in robots:
         raise ValueError(f"track_anonymous: ego {ego!r} is not one of the robots {list(robots)}")
     bank = ParticleFilterBank(n_particles, rng=rng, reset_after=reset_after)
-    scans = anonymous_scans(events, robots)
+    if bin_width is None:
+        scans = anonymous_scans(events, robots)
+    else:
+        scans = binned_scans(events, robots, bin_width, noise, merge=sigma)
+    pending = sorted(scans) if bin_width is not None else []
     track = AnonymousTrack()
     counts = {"scans": 0, "pmr_gated": 0, "pmr_ungated": 0}
     floor = np.eye(3) * motion_floor**2
     done: set[float] = set()
     last: dict[int, float] = {}
     stale: dict[int, int] = {}  # scans since PMR last confirmed each filter
+
+    def scan(t: float) -> None:
+        counts["scans"] += 1
+        beliefs = {}
+        for j in bank.known():
+            est = bank.estimate(j)
+            if not est.ambiguous:
+                beliefs[j] = GroupGaussian(SE2, est.gaussian.mean, est.gaussian.cov)
+        kw = dict(max_range=max_range, fov=fov, max_unmatched=max_unmatched, sigma_range=sigma_range)
+        cache = None if registrations is None else registrations.setdefault(t, {})
+        res = multiple_registration(scans[t], ego, sigma, beliefs=beliefs or None, cache=cache, **kw)
+        counts["pmr_gated" if beliefs else "pmr_ungated"] += 1
+        hyps = {j: res.hypotheses(j) for j in robots if j != ego}
+        if beliefs and (not res.solutions or res.unreached):
+            # the belief left a robot (or everything) unexplained: kidnapped, or its filter is lost
+            free = multiple_registration(scans[t], ego, sigma, cache=cache, **kw)
+            counts["pmr_ungated"] += 1
+            for j in hyps:
+                if not hyps[j] or not res.solutions:
+                    hyps[j] = free.hypotheses(j)
+            res = res if res.solutions else free
+        track.updates.append({j: bank.update(j, h) for j, h in hyps.items()})
+        for j, u in track.updates[-1].items():
+            if u == "updated":
+                stale[j] = 0
+            elif u in ("initialized", "reset"):
+                stale[j] = 10**9  # drawn from PMR's hypotheses: nothing confirmed it yet
+            else:
+                stale[j] = stale.get(j, 10**9) + 1
+        track.times.append(t)
+        track.solutions.append(len(res.solutions))
+        if every is None:
+            track.estimates.append({j: bank.estimate(j) for j in bank.known()})
+            return
+        kept = {}
+        for j in bank.known():
+            if t - last.get(j, -np.inf) < every or (fresh is not None and stale.get(j, 10**9) > fresh):
+                continue
+            est = bank.estimate(j)
+            if not est.ambiguous and np.all(np.linalg.eigvalsh(est.gaussian.cov) > 1e-12):
+                kept[j] = est
+                last[j] = t
+        track.estimates.append(kept)
+
     for e in events:
+        while pending and pending[0] < float(e.t):  # binned: a bin's scan once the stream has passed its end
+            scan(pending.pop(0))
         if isinstance(e, Odometry) and e.robot in robots:
             mean, cov = odometry_increment(float(e.v), float(e.w), float(e.dt), noise)
             delta = SE2.to_xytheta(mean)
@@ -125,50 +226,11 @@ def track_anonymous(
                 bank.predict_ego(delta, cov + floor)
             else:
                 bank.predict_neighbour(e.robot, delta, cov + floor)
-        elif is_anonymous_detection(e) and float(e.t) not in done:
-            t = float(e.t)
-            done.add(t)
-            counts["scans"] += 1
-            beliefs = {}
-            for j in bank.known():
-                est = bank.estimate(j)
-                if not est.ambiguous:
-                    beliefs[j] = GroupGaussian(SE2, est.gaussian.mean, est.gaussian.cov)
-            kw = dict(max_range=max_range, fov=fov, max_unmatched=max_unmatched, sigma_range=sigma_range)
-            cache = None if registrations is None else registrations.setdefault(t, {})
-            res = multiple_registration(scans[t], ego, sigma, beliefs=beliefs or None, cache=cache, **kw)
-            counts["pmr_gated" if beliefs else "pmr_ungated"] += 1
-            hyps = {j: res.hypotheses(j) for j in robots if j != ego}
-            if beliefs and (not res.solutions or res.unreached):
-                # the belief left a robot (or everything) unexplained: kidnapped, or its filter is lost
-                free = multiple_registration(scans[t], ego, sigma, cache=cache, **kw)
-                counts["pmr_ungated"] += 1
-                for j in hyps:
-                    if not hyps[j] or not res.solutions:
-                        hyps[j] = free.hypotheses(j)
-                res = res if res.solutions else free
-            track.updates.append({j: bank.update(j, h) for j, h in hyps.items()})
-            for j, u in track.updates[-1].items():
-                if u == "updated":
-                    stale[j] = 0
-                elif u in ("initialized", "reset"):
-                    stale[j] = 10**9  # drawn from PMR's hypotheses: nothing confirmed it yet
-                else:
-                    stale[j] = stale.get(j, 10**9) + 1
-            track.times.append(t)
-            track.solutions.append(len(res.solutions))
-            if every is None:
-                track.estimates.append({j: bank.estimate(j) for j in bank.known()})
-                continue
-            kept = {}
-            for j in bank.known():
-                if t - last.get(j, -np.inf) < every or (fresh is not None and stale.get(j, 10**9) > fresh):
-                    continue
-                est = bank.estimate(j)
-                if not est.ambiguous and np.all(np.linalg.eigvalsh(est.gaussian.cov) > 1e-12):
-                    kept[j] = est
-                    last[j] = t
-            track.estimates.append(kept)
+        elif bin_width is None and is_anonymous_detection(e) and float(e.t) not in done:
+            done.add(float(e.t))
+            scan(float(e.t))
+    for t in pending:
+        scan(t)
     counts.update({f"bank_{k}": v for k, v in bank.counts.items()})
     track.counts = counts
     return track
