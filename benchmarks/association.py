@@ -10,8 +10,7 @@ range-bearing detections at 5 Hz) is run by ``--estimator`` (default ``cekf``) w
 * ``tags``: identities given, the untagged clutter refused (the reference);
 * ``nearest``, ``joint``: identities hidden, chosen by the nodes (:mod:`swarmloc.node.associate`);
 * ``anonymous``: identities hidden, PMR + a particle-filter bank per robot hands tagged relative poses to the
-  filter (:func:`swarmloc.association.tracker.bank_detections`); only up to ``--anonymous-max`` robots (its
-  cost: about 5 s per 20 s run of 4 robots, 36 s of 8, on this machine).
+  filter (:func:`swarmloc.association.tracker.bank_detections`, ``--handoff``); up to ``--anonymous-max`` robots.
 
 Printed per setting, over the seeds: association accuracy (anonymous detections given their true identity, a false
 one refused as clutter counted right; ``-`` where the policy has none to score), team position RMSE [m] (pooled),
@@ -31,7 +30,11 @@ import numpy as np
 POLICIES = ("tags", "nearest", "joint", "anonymous")
 
 
-def one(robots: int, clutter: float, seed: int, policy: str, estimator: str, duration: float, p_detect: float):
+def one(
+    robots: int, clutter: float, seed: int, policy: str, estimator: str, duration: float, p_detect: float,
+    handoff: str = "full",
+    fresh: int = 0,
+):  # fmt: skip
     """One run: ``(sum of squared position errors, of NEES, records, right, wrong, fused, rejected)``."""
     from swarmloc.estimators import make_team, node_options
     from swarmloc.evaluation.metrics import errors
@@ -41,7 +44,8 @@ def one(robots: int, clutter: float, seed: int, policy: str, estimator: str, dur
 
     src = load_source("sim:range_bearing", robots=robots, duration=duration, seed=seed)
     events, _ = association_events(src.events, policy, sorted(src.initial), src.config.motion.noise(),
-                                   clutter=clutter, p_detect=p_detect, max_range=5.0, seed=seed)  # fmt: skip
+                                   clutter=clutter, p_detect=p_detect, max_range=5.0, seed=seed,
+                                   bank={"handoff": handoff, "fresh": None if fresh < 0 else fresh})  # fmt: skip
     opts = node_options(estimator, src.config, src.landmarks, src.t_start)
     if policy in ("nearest", "joint"):
         opts["association"] = policy
@@ -65,29 +69,38 @@ def main() -> None:
     p.add_argument("--duration", type=float, default=20.0)
     p.add_argument("--p-detect", type=float, default=0.9)
     p.add_argument("--estimator", default="cekf")
-    p.add_argument("--anonymous-max", type=int, default=4, help="largest team run with 'anonymous' (its cost)")
+    p.add_argument("--anonymous-max", type=int, default=16, help="largest team run with 'anonymous' (its cost)")
+    p.add_argument("--policies", default=",".join(POLICIES), help="comma-separated subset of " + ",".join(POLICIES))
+    p.add_argument(
+        "--fresh",
+        type=int,
+        default=0,
+        help="anonymous: hand off only filters PMR confirmed within this many scans (-1: no condition)",
+    )
+    p.add_argument("--handoff", default="full", choices=("new", "full"), help="anonymous: the bank's hand-off")
     p.add_argument("--jobs", type=int, default=2)
     a = p.parse_args()
     sizes = [int(r) for r in a.robots.split(",")]
     clutters = [float(c) for c in a.clutter.split(",")]
+    policies = [q for q in POLICIES if q in a.policies.split(",")]
     tasks = [
-        (n, c, s, pol, a.estimator, a.duration, a.p_detect)
-        for n in sizes for c in clutters for pol in POLICIES for s in range(a.seeds)
+        (n, c, s, pol, a.estimator, a.duration, a.p_detect, a.handoff, a.fresh)
+        for n in sizes for c in clutters for pol in policies for s in range(a.seeds)
         if pol != "anonymous" or n <= a.anonymous_max
     ]  # fmt: skip
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
         out = dict(zip(tasks, ex.map(one, *zip(*tasks, strict=True), chunksize=1), strict=True))
     print(f"# {a.estimator}, sim:range_bearing (3 m arena), {a.duration:g} s, seeds 0-{a.seeds - 1}, p_detect "
-          f"{a.p_detect}; {time.perf_counter() - t0:.0f} s wall with {a.jobs} jobs; {platform.machine()}, "
-          f"python {platform.python_version()}")  # fmt: skip
+          f"{a.p_detect}, anonymous hand-off {a.handoff!r} fresh {a.fresh}; {time.perf_counter() - t0:.0f} s wall "
+          f"with {a.jobs} jobs; {platform.machine()}, python {platform.python_version()}")  # fmt: skip
     print(
         "| robots | clutter/scan | policy | association accuracy | team pos RMSE [m] | ANEES/dof | fused | rejected |"
     )
     print("|---|---|---|---|---|---|---|---|")
     for n in sizes:
         for c in clutters:
-            for pol in POLICIES:
+            for pol in policies:
                 rs = [out[t] for t in tasks if t[:2] == (n, c) and t[3] == pol]
                 if not rs:
                     continue

@@ -44,6 +44,7 @@ from swarmloc.association.registration import (
     as_points,
     binary_register,
     compose_xyt,
+    gate_by_prior,
     invert_xyt,
     visible,
 )
@@ -131,6 +132,7 @@ def multiple_registration(
     beliefs: Mapping[int, GroupGaussian] | None = None,
     belief_gate: float = CHI2_3_999,
     max_solutions: int = 100_000,
+    cache: dict[tuple[int, int], list[Registration]] | None = None,
 ) -> PMRResult:
     """Every feasible global solution for ``ego`` (module docstring).
 
@@ -138,6 +140,10 @@ def multiple_registration(
     ``headings``: optional robot id -> measured headings ``(m,)`` [rad] of those points (NaN: unknown); ``beliefs``:
     optional robot id -> current belief of its pose in ego's frame (a :class:`GroupGaussian` on SE(2));
     ``sigma``, ``gate``, ``max_unmatched``, ``max_range``, ``fov``, ``sigma_range`` as in :func:`binary_register`.
+    ``cache``: a dict kept by the caller for *these observations and settings* (one scan): each ordered pair's
+    registration without a prior is computed once into it and gated by each call's beliefs
+    (:func:`~swarmloc.association.registration.gate_by_prior`: the same lists as registering with the prior), so the
+    robots of a team running PMR on one scan share the binary registrations.
     """
     if ego not in observations:
         raise ValueError(f"multiple_registration: no observation of ego robot {ego!r}")
@@ -159,11 +165,15 @@ def multiple_registration(
                 rel = compose_xyt(invert_xyt(known[r][0]), known[s][0])
                 A = _ad(invert_xyt(rel))
                 prior = (rel, A @ known[r][1] @ A.T + known[s][1])
-            reg[(r, s)] = binary_register(
-                obs[r], obs[s], sigma, gate=gate, max_unmatched=max_unmatched, max_range=max_range, fov=fov,
-                sigma_range=sigma_range, headings_i=hd.get(r), headings_j=hd.get(s), sigma_heading=sigma_heading,
-                prior=prior, prior_gate=belief_gate,
-            )  # fmt: skip
+            kw = dict(gate=gate, max_unmatched=max_unmatched, max_range=max_range, fov=fov, sigma_range=sigma_range,
+                      headings_i=hd.get(r), headings_j=hd.get(s), sigma_heading=sigma_heading)  # fmt: skip
+            if cache is None:
+                reg[(r, s)] = binary_register(obs[r], obs[s], sigma, prior=prior, prior_gate=belief_gate, **kw)
+                continue
+            if (r, s) not in cache:
+                cache[(r, s)] = binary_register(obs[r], obs[s], sigma, **kw)
+            full = cache[(r, s)]
+            reg[(r, s)] = full if prior is None else gate_by_prior(full, obs[r], obs[s], sigma, prior, belief_gate)
     n_reg = len(reg)
 
     cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, Registration]]] = {}

@@ -36,7 +36,11 @@ __all__ = [
     "as_points",
     "binary_register",
     "compose_xyt",
+    "exp_xyt",
+    "gate_by_prior",
     "invert_xyt",
+    "log_between_xyt",
+    "log_xyt",
     "points_from_range_bearing",
     "visible",
     "xyt_cov_to_exp",
@@ -92,17 +96,67 @@ def compose_xyt(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a b`` for planar poses ``(..., 3)`` ``(x, y, theta)`` (batched, broadcast)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack(
-        [a[..., 0] + c * b[..., 0] - s * b[..., 1], a[..., 1] + s * b[..., 0] + c * b[..., 1],
-         _wrap(a[..., 2] + b[..., 2])], -1,
-    )  # fmt: skip
+    b0, b1 = b[..., 0], b[..., 1]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 0] + c * b0 - s * b1
+    out[..., 1] = a[..., 1] + s * b0 + c * b1
+    out[..., 2] = _wrap(a[..., 2] + b[..., 2])
+    return out
 
 
 def invert_xyt(a: np.ndarray) -> np.ndarray:
     """``a^-1`` for planar poses ``(..., 3)``."""
     a = np.asarray(a, float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], _wrap(-a[..., 2])], -1)
+    out = np.empty(a.shape)
+    out[..., 0] = -c * a[..., 0] - s * a[..., 1]
+    out[..., 1] = s * a[..., 0] - c * a[..., 1]
+    out[..., 2] = _wrap(-a[..., 2])
+    return out
+
+
+def _series(a: np.ndarray, exact, taylor: tuple[float, ...]) -> np.ndarray:
+    """A coefficient of the angle: ``exact`` beyond 0.05 rad, its Taylor polynomial in ``a^2`` below (as
+    :class:`~swarmloc.lie.SE2` computes it)."""
+    near = np.abs(a) < 0.05
+    t2 = a * a
+    poly = np.zeros_like(a)
+    for c in reversed(taylor):
+        poly = poly * t2 + c
+    return np.where(near, poly, exact(np.where(near, 1.0, a)))
+
+
+def log_xyt(q: np.ndarray) -> np.ndarray:
+    """Exponential coordinates ``(v_x, v_y, alpha)`` of planar poses ``(..., 3)`` (``SE2.log`` without building the
+    matrices; the angle as given, wrapped to [-pi, pi))."""
+    q = np.asarray(q, float)
+    a = _wrap(q[..., 2])
+    k = _series(a, lambda t: (t / 2) / np.tan(t / 2), (1.0, -1 / 12, -1 / 720, -1 / 30240, -1 / 1209600))
+    h = 0.5 * a
+    t1, t2 = q[..., 0], q[..., 1]
+    out = np.empty(q.shape)
+    out[..., 0] = k * t1 + h * t2
+    out[..., 1] = -h * t1 + k * t2
+    out[..., 2] = a
+    return out
+
+
+def exp_xyt(y: np.ndarray) -> np.ndarray:
+    """Planar poses ``(..., 3)`` of exponential coordinates ``(..., 3)`` (``SE2.exp`` without the matrices)."""
+    y = np.asarray(y, float)
+    a = y[..., 2]
+    A = _series(a, lambda t: np.sin(t) / t, (1.0, -1 / 6, 1 / 120, -1 / 5040, 1 / 362880))
+    B = a * _series(a, lambda t: 2.0 * np.sin(t / 2) ** 2 / (t * t), (1 / 2, -1 / 24, 1 / 720, -1 / 40320, 1 / 3628800))
+    out = np.empty(y.shape)
+    out[..., 0] = A * y[..., 0] - B * y[..., 1]
+    out[..., 1] = B * y[..., 0] + A * y[..., 1]
+    out[..., 2] = _wrap(a)
+    return out
+
+
+def log_between_xyt(mu: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``log(mu^-1 q)`` for planar poses (``mu`` ``(3,)`` or broadcast against ``q`` ``(..., 3)``)."""
+    return log_xyt(compose_xyt(invert_xyt(mu), q))
 
 
 def xyt_cov_to_exp(pose: np.ndarray, cov_xyt: np.ndarray) -> np.ndarray:
@@ -146,6 +200,44 @@ def visible(p: np.ndarray, max_range: float, fov: float, margin: np.ndarray) -> 
     if fov < 2 * np.pi:
         ok &= np.abs(np.arctan2(p[..., 1], p[..., 0])) <= fov / 2 - margin / np.maximum(r, 1e-9)
     return ok
+
+
+def _rough_theta(Pi: np.ndarray, Pj: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Rotation of candidate ``(a, b)`` from the mutual detection alone: ``R(theta) O_j[b]`` points opposite
+    ``O_i[a]``."""
+    return _wrap(np.arctan2(-Pi[A, 1], -Pi[A, 0]) - np.arctan2(Pj[B, 1], Pj[B, 0]))
+
+
+def _prior_ok(
+    Pi: np.ndarray, Pj: np.ndarray, A: np.ndarray, B: np.ndarray, th: np.ndarray, s2: float,
+    prior: tuple[np.ndarray, np.ndarray], prior_gate: float,
+) -> np.ndarray:  # fmt: skip
+    """Which rough candidates ``(O_i[A], th)`` lie within ``prior_gate`` of the prior (its covariance plus the
+    candidate's own from the noise ``s2`` [m^2] of the two mutual detections)."""
+    ri, rj = np.hypot(Pi[A, 0], Pi[A, 1]), np.hypot(Pj[B, 0], Pj[B, 1])
+    mu, pc = np.asarray(prior[0], float).reshape(3), np.asarray(prior[1], float).reshape(3, 3)
+    cand = np.column_stack([Pi[A], th])
+    y = SE2.log(SE2.from_xytheta(compose_xyt(invert_xyt(mu)[None], cand)), validate=False)
+    C = pc + np.zeros((A.size, 3, 3))
+    C[:, 0, 0] += s2
+    C[:, 1, 1] += s2
+    C[:, 2, 2] += s2 / ri**2 + s2 / rj**2
+    return np.einsum("ki,ki->k", y, np.linalg.solve(C, y[..., None])[..., 0]) <= prior_gate
+
+
+def gate_by_prior(
+    regs: list[Registration], obs_i: object, obs_j: object, sigma: float,
+    prior: tuple[np.ndarray, np.ndarray], prior_gate: float = 16.266,
+) -> list[Registration]:  # fmt: skip
+    """The registrations of :func:`binary_register` without a prior that it returns with ``prior``: the prior
+    drops rough candidates one by one, before they are matched, so gating a computed list afterwards gives the same
+    list (lets one unprimed registration of a scan serve every robot's own belief)."""
+    if not regs:
+        return []
+    Pi, Pj = as_points(obs_i, "gate_by_prior: obs_i"), as_points(obs_j, "gate_by_prior: obs_j")
+    A, B = np.array([r.a for r in regs]), np.array([r.b for r in regs])
+    ok = _prior_ok(Pi, Pj, A, B, _rough_theta(Pi, Pj, A, B), sigma * sigma, prior, prior_gate)
+    return [r for r, k in zip(regs, ok, strict=True) if k]
 
 
 def binary_register(
@@ -192,7 +284,7 @@ def binary_register(
     s_r = sigma if sigma_range is None else float(sigma_range)
     A, B = np.nonzero((np.abs(ri[:, None] - rj[None, :]) <= gate * s_r * np.sqrt(2)) & (ri[:, None] > 0))
     A, B = A[rj[B] > 0], B[rj[B] > 0]
-    th = _wrap(np.arctan2(-Pi[A, 1], -Pi[A, 0]) - np.arctan2(Pj[B, 1], Pj[B, 0]))
+    th = _rough_theta(Pi, Pj, A, B)
     if hi is not None:
         d = np.abs(_wrap(th - hi[A]))
         ok = np.isnan(hi[A]) | (d <= gate * np.sqrt(sigma_heading**2 + s2 / ri[A] ** 2 + s2 / rj[B] ** 2))
@@ -202,14 +294,7 @@ def binary_register(
         ok = np.isnan(hj[B]) | (d <= gate * np.sqrt(sigma_heading**2 + s2 / ri[A] ** 2 + s2 / rj[B] ** 2))
         A, B, th = A[ok], B[ok], th[ok]
     if prior is not None and A.size:
-        mu, pc = np.asarray(prior[0], float).reshape(3), np.asarray(prior[1], float).reshape(3, 3)
-        cand = np.column_stack([Pi[A], th])
-        y = SE2.log(SE2.from_xytheta(compose_xyt(invert_xyt(mu)[None], cand)), validate=False)
-        C = pc + np.zeros((A.size, 3, 3))
-        C[:, 0, 0] += s2
-        C[:, 1, 1] += s2
-        C[:, 2, 2] += s2 / ri[A] ** 2 + s2 / rj[B] ** 2
-        ok = np.einsum("ki,ki->k", y, np.linalg.solve(C, y[..., None])[..., 0]) <= prior_gate
+        ok = _prior_ok(Pi, Pj, A, B, th, s2, prior, prior_gate)
         A, B, th = A[ok], B[ok], th[ok]
     if A.size == 0:
         return []

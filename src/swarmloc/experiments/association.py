@@ -10,7 +10,7 @@
   identities (:mod:`swarmloc.node.associate`);
 * ``anonymous``: the same anonymous detections (range-bearing only) go through PMR and a particle-filter bank per
   robot (:func:`swarmloc.association.tracker.bank_detections`), whose unambiguous estimates reach the nodes as
-  tagged relative poses with their covariance, once a second.
+  tagged relative poses with their covariance, once a second, from filters PMR confirmed at that scan.
 
 :func:`association_accuracy` is the share of anonymous detections given their true identity (a false detection
 refused as clutter or ambiguous counts as right), from a run's counters.
@@ -34,9 +34,11 @@ __all__ = ["POLICIES", "association_accuracy", "association_events", "with_assoc
 
 POLICIES = ("tags", "nearest", "joint", "anonymous")
 
-BANK_DEFAULTS: dict[str, Any] = {"n_particles": 200, "max_unmatched": 2, "every": 1.0}
+BANK_DEFAULTS: dict[str, Any] = {"n_particles": 200, "max_unmatched": 2, "every": 1.0, "fresh": 0}
 """The bank's settings for ``anonymous`` (200 particles per met robot, two unmatched points per registration for
-misses and clutter, one relative pose a second per pair)."""
+misses and clutter, one relative pose a second per pair, handed off only from a filter PMR confirmed at that scan:
+a filter just drawn from PMR's hypotheses or coasting without one was wrong in about 40% of its hand-offs, measured
+on 5 seeds of 4 robots)."""
 
 
 def association_events(
