@@ -113,19 +113,23 @@ def test_new_information_hand_off_covariance():
 def _handoff_outside_gate(policy_bank: dict, seeds: range) -> tuple[float, int]:
     """Share of the anonymous policy's hand-offs whose NEES against the true relative pose exceeds the 99.9%
     chi-square gate (3 dof), and their number, on 4 robots with one false detection per scan."""
-    from swarmloc.experiments.association import association_events
+    from swarmloc.experiments.association import association_events, handoff_accuracy
 
     bad = n = 0
     for seed in seeds:
         src = load_source("sim:range_bearing", robots=4, duration=20.0, seed=seed)
         events, _ = association_events(src.events, "anonymous", sorted(src.initial), src.config.motion.noise(),
                                        clutter=1.0, p_detect=0.9, seed=seed, bank=policy_bank)  # fmt: skip
+        right, wrong = handoff_accuracy(events, src.truth)
+        ref = 0  # the same count pose by pose, as the scoring is defined
         for e in events:
             if isinstance(e, Detection) and e.kind == "pose":
                 a, b = src.truth(e.observer, np.array([e.t]))[0], src.truth(e.target, np.array([e.t]))[0]
                 y = log_xyt(compose_xyt(invert_xyt(np.asarray(e.z)), compose_xyt(invert_xyt(a), b)))
-                bad += int(y @ np.linalg.solve(e.cov, y) > 16.266)
-                n += 1
+                ref += int(y @ np.linalg.solve(e.cov, y) > 16.266)
+        assert wrong == ref
+        bad += wrong
+        n += right + wrong
     return bad / n, n
 
 

@@ -13,7 +13,9 @@
   tagged relative poses with their covariance, once a second, from filters PMR confirmed at that scan.
 
 :func:`association_accuracy` is the share of anonymous detections given their true identity (a false detection
-refused as clutter or ambiguous counts as right), from a run's counters.
+refused as clutter or ambiguous counts as right), from a run's counters; for ``anonymous``, which gives no
+detection an identity but hands off relative poses of named robots, :func:`handoff_accuracy` scores the hand-offs
+against the truth instead.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from swarmloc.events import Detection, Event
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sim.anonymous import anonymize
 
-__all__ = ["POLICIES", "association_accuracy", "association_events", "with_association"]
+__all__ = ["POLICIES", "association_accuracy", "association_events", "handoff_accuracy", "with_association"]
 
 POLICIES = ("tags", "nearest", "joint", "anonymous")
 
@@ -85,6 +87,30 @@ def association_accuracy(stats: Mapping[str, int]) -> float | None:
     """``right / (right + wrong)`` of a run's association counters; None when no detection was scored."""
     right, wrong = int(stats.get("association_right", 0)), int(stats.get("association_wrong", 0))
     return right / (right + wrong) if right + wrong else None
+
+
+def handoff_accuracy(events: Sequence[Event], truth: Any, gate: float = 0.999) -> tuple[int, int]:
+    """``(right, wrong)`` of the ``anonymous`` policy's hand-offs in ``events`` (its tagged ``"pose"`` detections):
+    right when the NEES of the true relative pose of the named robot, ``log(z^-1 (x_i^-1 x_j))`` under the hand-off's
+    covariance, is inside the ``gate`` chi-square probability (3 dof; 0.999: 16.27), i.e. the bank named the robot
+    that is there. ``truth(robot, times)`` gives ``(T, 3)`` true poses ``(x, y, theta)`` (``Source.truth``)."""
+    from scipy.stats import chi2
+
+    from swarmloc.lie import SE2
+
+    poses = [e for e in events if isinstance(e, Detection) and e.kind == "pose" and e.target is not None]
+    if not poses:
+        return 0, 0
+    t = [np.array([e.t]) for e in poses]
+    a = np.array([truth(e.observer, ti)[0] for e, ti in zip(poses, t, strict=True)])
+    b = np.array([truth(e.target, ti)[0] for e, ti in zip(poses, t, strict=True)])
+    z = SE2.from_xytheta(np.array([e.z for e in poses], dtype=float))
+    rel = SE2.inverse(SE2.from_xytheta(a), validate=False) @ SE2.from_xytheta(b)
+    y = SE2.log(SE2.inverse(z, validate=False) @ rel, validate=False)
+    cov = np.array([e.cov for e in poses], dtype=float)
+    nees = np.einsum("ni,ni->n", y, np.linalg.solve(cov, y[..., None])[..., 0])
+    right = int(np.sum(nees <= chi2.ppf(gate, 3)))
+    return right, len(poses) - right
 
 
 def with_association(src: Source, policy: str | None = None) -> Source:
