@@ -230,3 +230,22 @@ def test_networked_equals_in_process_with_points(spec: str, est: str) -> None:
     ref = reference3(src, est)
     assert max_diff(res, ref) <= 1e-6
     assert res.stats["fused"] == ref.stats["fused"] == res.stats["detections"] > 50
+
+
+@pytest.mark.parametrize("estimator", ["dekf", "cekf", "diekf", "expfusion", "ci"])
+def test_planar_kinds_in_a_3d_team_are_refused_not_raised(estimator: str) -> None:
+    """A planar detection (range-bearing of a teammate, an absolute fix) reaching an SE(3) node is rejected with the
+    reason the engine uses, counted, and the run goes on (it raised ValueError 'unknown 3-D measurement kind' in the
+    EKF-family SE(3) nodes after the point kinds came in)."""
+    from swarmloc.runner import run
+
+    src = load_source("sim:3d", robots=3, duration=4.0, seed=0)
+    bad = [
+        Detection(1, 2.0, "range_bearing", np.array([2.0, 0.3]), np.diag([0.01, 0.001]), target=2),
+        Detection(0, 2.0, "absolute", np.array([0.0, 0.0, 0.0]), np.eye(3) * 1e-2),
+    ]
+    events = sorted([*src.events, *bad], key=lambda e: e.stamp)
+    res = run(make_team(estimator, src.initial, noise=src.noise, t0=src.t_start), events)
+    assert res.accounted()
+    for kind in ("range_bearing", "absolute"):
+        assert res.reasons[f"rejected: kind {kind!r} is not supported on SE(3)"] == 1, dict(res.reasons)

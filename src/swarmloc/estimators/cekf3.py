@@ -36,7 +36,7 @@ from swarmloc.lie.se3 import so3_exp
 from swarmloc.messages import Message
 from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, gated_kalman
-from swarmloc.sensors.models3 import DEGENERATE3, model3
+from swarmloc.sensors.models3 import DEGENERATE3, MODELS3, model3
 
 __all__ = ["CentralizedEKF3", "Team3State"]
 
@@ -132,6 +132,9 @@ class CentralizedEKF3(CentralizedEKF):
             target = self._classify(g, d)
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
+                continue
+            if d.kind not in MODELS3:  # a planar kind in a 3-D team
+                outcomes.append(("rejected", f"kind {d.kind!r} is not supported on SE(3)"))
                 continue
             m3 = model3(d.kind)
             gi = _pose(s.p[ko], s.R[ko])

@@ -34,7 +34,7 @@ from swarmloc.lie.se3 import skew, so3_exp
 from swarmloc.messages import Message
 from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import FUSED, Group, Outcome, RobotNode, belief_of, gated_kalman
-from swarmloc.sensors.models3 import DEGENERATE3, model3
+from swarmloc.sensors.models3 import DEGENERATE3, MODELS3, model3
 
 
 class Cart3State(NamedTuple):
@@ -119,6 +119,8 @@ class DistributedEKF3(RobotNode):
     def _linearize(self, gi: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
         """``(r, H_i, R)`` of detection ``d`` of ``target`` (a neighbour's answered belief, its uncertainty folded
         into ``R``, or a landmark ``(p, C)``) from pose ``gi``; or an outcome when it cannot be fused."""
+        if d.kind not in MODELS3:  # a planar kind in a 3-D team
+            return ("rejected", f"kind {d.kind!r} is not supported on SE(3)")
         m3 = model3(d.kind)
         if target[0] == "robot":
             nb_mean, nb_cov = target[1].belief_arrays()

@@ -55,7 +55,7 @@ from swarmloc.lie.se3 import skew
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, flat
 from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import NUMERICAL, Group, Node, belief_of, usable_covariance
-from swarmloc.sensors.models3 import DEGENERATE3, model3, pose3_matrix
+from swarmloc.sensors.models3 import DEGENERATE3, MODELS3, model3, pose3_matrix
 
 __all__ = ["DistributedInvariantEKF3", "TeamState3", "relative_pose3_world", "world_basis3"]
 
@@ -146,6 +146,8 @@ class DistributedInvariantEKF3(DistributedInvariantEKF):
     def _one(self, s: TeamState3, g: Group, d: Any, target: tuple[str, Any]) -> Any:
         """One detection: the new state and the broadcast's numbers, or an outcome."""
         i = self.robot
+        if d.kind not in MODELS3:  # a planar kind in a 3-D team
+            return ("rejected", f"kind {d.kind!r} is not supported on SE(3)")
         m3 = model3(d.kind)
         if target[0] == "landmark" and m3.targets == "point" and np.shape(target[1][0]) == (3,):
             pl, Cl = target[1]
