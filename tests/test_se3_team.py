@@ -199,3 +199,16 @@ def test_se3_figures_draw_top_side_views_and_nees_over_time(tmp_path):
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000
     with pytest.raises(ValueError, match="nothing was recorded"):
         se3_figures(tmp_path, {"dr": RunResult("dr", {}, 0.0)})
+
+
+def test_se3_table_rows_per_estimator_and_seed_and_summary_means():
+    """One row per (scenario, estimator, seed) although a seed's estimators share one job; the summary is their
+    mean."""
+    from swarmloc.experiments.se3 import se3_table
+
+    t = se3_table(specs=("sim:3d",), estimators=("dr", "ci"), seeds=2, robots=3, duration=3.0, workers=1)
+    assert sorted((r["estimator"], r["seed"]) for r in t["rows"]) == [("ci", 0), ("ci", 1), ("dr", 0), ("dr", 1)]
+    for e in ("dr", "ci"):
+        rs = [r for r in t["rows"] if r["estimator"] == e]
+        assert t["summary"][f"sim:3d {e}"]["anees"] == pytest.approx(np.mean([r["anees"] for r in rs]), rel=1e-12)
+        assert all(r["accounted"] for r in rs)
