@@ -9,6 +9,7 @@ each robot's estimate and truth as TUM files with full quaternions (``evo_ape tu
 
 from __future__ import annotations
 
+import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -84,8 +85,17 @@ def se3_table(
     """Every (scenario, estimator) over ``seeds`` seeds: mean over seeds of the team's position RMSE [m], rotation
     RMSE [rad] and ANEES/dof, with the per-seed rows."""
     jobs = [(s, tuple(estimators), k, robots, duration) for s in specs for k in range(seeds)]
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    if workers <= 1:  # in this process: no fork of a process that may hold threads (JAX, BLAS)
+        return _summary(specs, estimators, seeds, robots, duration, [r for j in jobs for r in _job(j)])
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         rows = [r for rs in pool.map(_job, jobs) for r in rs]
+    return _summary(specs, estimators, seeds, robots, duration, rows)
+
+
+def _summary(
+    specs: tuple[str, ...], estimators: tuple[str, ...], seeds: int, robots: int, duration: float, rows: list
+) -> dict[str, Any]:
+    """:func:`se3_table`'s result from its per-seed ``rows``."""
     summary: dict[str, Any] = {}
     for s in specs:
         for e in estimators:
