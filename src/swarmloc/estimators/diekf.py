@@ -226,6 +226,17 @@ class DistributedInvariantEKF(RecursiveDecentralized):
             Hi = Hi_c @ I.world_basis(s.x)
             Hj = np.zeros_like(Hi)
             S = Hi @ s.P @ Hi.T + R
+        out = self._gated_update(s, i, j, Hi, Hj, S, r, Pjj)
+        if self.lin_log is not None and not isinstance(out[0], str):
+            self.lin_log.append(("update", g.t, {i: Hi, j: Hj} if j != i else {i: Hi}, R))
+        return out
+
+    def _gated_update(
+        self, s: Any, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, S: np.ndarray, r: np.ndarray, Pjj: np.ndarray
+    ) -> Any:
+        """The gated team update of one detection with innovation ``r``, its covariance ``S`` and Jacobians
+        ``Hi``, ``Hj`` (the SE(2) and SE(3) forms share it): ``(new state, the broadcast's numbers)``, or an
+        outcome (gated, or rejected when ``S`` is singular or the result not finite)."""
         try:
             Sinv = np.linalg.inv(S)
         except np.linalg.LinAlgError:
@@ -238,8 +249,6 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         new = self._team_update(s, i, j, Hi, Hj, Sinv, nu, s.P, Pjj)
         if not (np.isfinite(new.x).all() and usable_covariance(new.P) and np.isfinite(new.Sigma).all()):
             return ("rejected", NUMERICAL)
-        if self.lin_log is not None:
-            self.lin_log.append(("update", g.t, {i: Hi, j: Hj} if j != i else {i: Hi}, R))
         return new, (j, Hi, Hj, Sinv, nu, s.P, Pjj)
 
     # ------------------------------------------------------------------------------------------------ broadcasts

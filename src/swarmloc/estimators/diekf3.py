@@ -54,7 +54,7 @@ from swarmloc.lie import SE3
 from swarmloc.lie.se3 import skew
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, flat
 from swarmloc.motion.twist3 import as_twist, twist_increment
-from swarmloc.node import NUMERICAL, Group, Node, belief_of, usable_covariance
+from swarmloc.node import Group, Node, belief_of
 from swarmloc.sensors.models3 import DEGENERATE3, MODELS3, model3, pose3_matrix
 
 __all__ = ["DistributedInvariantEKF3", "TeamState3", "relative_pose3_world", "world_basis3"]
@@ -180,16 +180,4 @@ class DistributedInvariantEKF3(DistributedInvariantEKF):
                 S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
         else:
             return ("rejected", f"kind {d.kind!r} of a {target[0]} is not supported on SE(3)")
-        try:
-            Sinv = np.linalg.inv(0.5 * (S + S.T))
-        except np.linalg.LinAlgError:
-            return ("rejected", NUMERICAL)
-        Sinv = 0.5 * (Sinv + Sinv.T)
-        nu = Sinv @ r
-        verdict = self._gated(float(r @ nu), len(r))
-        if verdict is not None:
-            return verdict
-        new = self._team_update(s, i, j, Hi, Hj, Sinv, nu, s.P, Pjj)
-        if not (np.isfinite(new.x).all() and usable_covariance(new.P) and np.isfinite(new.Sigma).all()):
-            return ("rejected", NUMERICAL)
-        return new, (j, Hi, Hj, Sinv, nu, s.P, Pjj)
+        return self._gated_update(s, i, j, Hi, Hj, 0.5 * (S + S.T), r, Pjj)
