@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _se3 import fd, perturb
 
 from swarmloc.estimators import CentralizedEKF3, make_team
 from swarmloc.estimators.dekf3 import transition
@@ -12,33 +13,14 @@ from swarmloc.evaluation.metrics import evaluate
 from swarmloc.experiments.se3 import run_se3
 from swarmloc.experiments.sources import load_source
 from swarmloc.lie import SE3
-from swarmloc.lie.se3 import so3_exp, so3_log
+from swarmloc.lie.se3 import so3_log
 from swarmloc.sensors.models3 import model3, pose3_matrix, pose3_vector
 from swarmloc.sim.sim3d import Sim3Config, simulate3d
-
-EPS = 1e-6
-
-
-def _perturb(g: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """The pose with error ``e = (dp, dtheta)``: ``p + dp``, ``R exp(dtheta^)``."""
-    out = g.copy()
-    out[:3, 3] += e[:3]
-    out[:3, :3] = g[:3, :3] @ so3_exp(e[3:])
-    return out
 
 
 def _error(g: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """``(dp, dtheta)`` of ``g`` relative to ``ref``."""
     return np.concatenate([g[:3, 3] - ref[:3, 3], so3_log(ref[:3, :3].T @ g[:3, :3])])
-
-
-def _fd(f, n: int = 6) -> np.ndarray:
-    cols = []
-    for c in range(n):
-        e = np.zeros(n)
-        e[c] = EPS
-        cols.append((f(e) - f(-e)) / (2 * EPS))
-    return np.stack(cols, axis=-1)
 
 
 def test_pose3_model_jacobians_finite_differences() -> None:
@@ -53,12 +35,12 @@ def _check_pose3_at(gi: np.ndarray, gk: np.ndarray, noise: np.ndarray) -> None:
     m = model3("pose3")
     z0 = pose3_vector(SE3.between(gi, gk))
     _, Hi, Hk = m.predict(gi, gk)
-    Ji = _fd(lambda e: m.residual(z0, m.predict(_perturb(gi, e), gk)[0]))
-    Jk = _fd(lambda e: m.residual(z0, m.predict(gi, _perturb(gk, e))[0]))
+    Ji = fd(lambda e: m.residual(z0, m.predict(perturb(gi, e), gk)[0]))
+    Jk = fd(lambda e: m.residual(z0, m.predict(gi, perturb(gk, e))[0]))
     assert np.abs(Ji + Hi).max() < 1e-6 and np.abs(Jk + Hk).max() < 1e-6
     z = pose3_vector(SE3.between(gi, gk) @ SE3.exp(noise))
     h = m.predict(gi, gk)[0]
-    Jn = _fd(lambda n: m.residual(pose3_vector(pose3_matrix(z0) @ SE3.exp(n)), h))
+    Jn = fd(lambda n: m.residual(pose3_vector(pose3_matrix(z0) @ SE3.exp(n)), h))
     cov = np.diag([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
     assert np.allclose(Jn @ cov @ Jn.T, m.noise(z0, cov), atol=1e-6)
     assert np.allclose(m.noise(z, cov), m.noise(z, cov).T) and m.residual(z, h).shape == (6,)
@@ -72,8 +54,8 @@ def test_transition_finite_differences() -> None:
     inc = SE3.exp(np.array([0.3, -0.1, 0.2, 0.2, -0.3, 0.5]))
     F, G = transition(g[:3, :3], inc)
     after = g @ inc
-    JF = _fd(lambda e: _error(_perturb(g, e) @ inc, after))
-    JG = _fd(lambda w: _error(g @ inc @ SE3.exp(w), after))
+    JF = fd(lambda e: _error(perturb(g, e) @ inc, after))
+    JG = fd(lambda w: _error(g @ inc @ SE3.exp(w), after))
     assert np.abs(JF - F).max() < 1e-6
     assert np.abs(JG - G).max() < 1e-6
 

@@ -9,6 +9,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from _se3 import fd, perturb
 
 from swarmloc.estimators import make_team
 from swarmloc.estimators.diekf3 import world_basis3
@@ -17,29 +18,10 @@ from swarmloc.events import Detection
 from swarmloc.experiments.se3 import run_se3
 from swarmloc.experiments.sources import load_source
 from swarmloc.lie import SE3
-from swarmloc.lie.se3 import so3_exp, so3_log
+from swarmloc.lie.se3 import so3_log
 from swarmloc.runner import RunResult
 from swarmloc.sensors.models3 import DEGENERATE3, model3
 from swarmloc.sim.sim3d import Sim3Config, measure3, simulate3d
-
-EPS = 1e-6
-
-
-def _perturb(g: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """The pose with Cartesian error ``e = (dp, dtheta)``: ``p + dp``, ``R exp(dtheta^)``."""
-    out = g.copy()
-    out[:3, 3] += e[:3]
-    out[:3, :3] = g[:3, :3] @ so3_exp(e[3:])
-    return out
-
-
-def _fd(f, n: int) -> np.ndarray:
-    cols = []
-    for c in range(n):
-        e = np.zeros(n)
-        e[c] = EPS
-        cols.append((f(e) - f(-e)) / (2 * EPS))
-    return np.stack(cols, axis=-1)
 
 
 @pytest.mark.parametrize("kind", ["rbe3", "bearing3"])
@@ -59,12 +41,12 @@ def _check_point_at(kind: str, gi: np.ndarray, gk: np.ndarray) -> None:
     z = measure3(kind, gi, gk)
     h, Hi, Hk = m.predict(gi, gk)
     assert np.abs(m.residual(z, h)).max() < 1e-12
-    Ji = _fd(lambda e: m.residual(z, m.predict(_perturb(gi, e), gk)[0]), 6)
-    Jk = _fd(lambda e: m.residual(z, m.predict(gi, _perturb(gk, e))[0]), 6)
+    Ji = fd(lambda e: m.residual(z, m.predict(perturb(gi, e), gk)[0]), 6)
+    Jk = fd(lambda e: m.residual(z, m.predict(gi, perturb(gk, e))[0]), 6)
     assert np.abs(Ji + Hi).max() < 1e-6 and np.abs(Jk + Hk).max() < 1e-6
     p = gk[:3, 3]
     _, _, Hl = m.predict(gi, p)
-    Jl = _fd(lambda e: m.residual(z, m.predict(gi, p + e)[0]), 3)
+    Jl = fd(lambda e: m.residual(z, m.predict(gi, p + e)[0]), 3)
     assert Hl.shape == (m.size, 3) and np.abs(Jl + Hl).max() < 1e-6
 
 
@@ -72,7 +54,7 @@ def test_world_basis_finite_differences() -> None:
     """``world_basis3`` maps a world-frame error (``exp(xi^) g``) to the Cartesian one, to first order."""
     rng = np.random.default_rng(6)
     g = SE3.random(rng, (), scale=3.0)
-    J = _fd(lambda xi: np.concatenate([(SE3.exp(xi) @ g)[:3, 3] - g[:3, 3],
+    J = fd(lambda xi: np.concatenate([(SE3.exp(xi) @ g)[:3, 3] - g[:3, 3],
                                        so3_log(g[:3, :3].T @ (SE3.exp(xi) @ g)[:3, :3])]), 6)  # fmt: skip
     assert np.abs(J - world_basis3(g)).max() < 1e-6
 
