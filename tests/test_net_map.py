@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 
+from swarmloc.events import Odometry
 from swarmloc.experiments.sources import load_source
 from swarmloc.live.zenoh_input import wait_matched_all
 from swarmloc.mapping import LineMap, map_error
@@ -161,3 +162,45 @@ def _answer_of(lm: LineMap, messages: int) -> MapAnswer:
     lines = tuple(FusedLine(line=wire_line(ln.rho, ln.alpha, ln.cov, ln.endpoints()), robots=tuple(sorted(ln.robots)),
                             n_obs=ln.n_obs) for ln in lm.lines)  # fmt: skip
     return MapAnswer(lines=lines, observations=messages, messages=messages)
+
+
+def test_a_node_with_a_range_finder_waits_for_a_late_server_so_that_no_lines_are_lost(tmp_path):
+    """A robot that publishes its scans' lines to the belief server starts only once the server is alive (lines
+    published before the server subscribed would never reach it: the map would stay incomplete)."""
+    from swarmloc.net.entry import _own_scans, make_node
+    from swarmloc.net.process import NetNode
+
+    src = load_source("sim:corridor", robots=2, duration=3.0, seed=3)
+    keys = TeamKeys([0], tmp_path / "keys")
+    port_n, port_s = free_ports(2)
+    ep_n, ep_s = f"tcp/127.0.0.1:{port_n}", f"tcp/127.0.0.1:{port_s}"
+    sn = open_session([ep_n], [ep_s])
+    ss = None
+    events = [e for e in src.own_events(0) if isinstance(e, Odometry)]  # robot 0 alone: no teammate to ask
+    node = make_node("rdl", 0, src.initial[0], src.config, src.landmarks)
+    node.start(src.t_start)
+    net = NetNode(node, events, session=sn, team="late", roster=[0], record_times=src.record_times(), wait_for=[],
+                  use_server=True, auth=keys.auth(0), scans=_own_scans(src, 0, events), start_timeout=20.0)  # fmt: skip
+    reports = {}
+    th = threading.Thread(target=lambda: reports.setdefault(0, net.run(max_wall=60.0)))
+    th.start()
+    try:
+        th.join(1.5)  # the node is running, the server not yet
+        assert th.is_alive() and net.counts["lines_published"] == 0, dict(net.counts)
+        ss = open_session([ep_s], [ep_n])
+        sp = ServerProcess(ss, "late", [0], auth=keys.auth(SERVER))
+        ts = threading.Thread(target=sp.run, kwargs={"max_wall": 60})
+        ts.start()
+        th.join(60)
+        assert not th.is_alive()
+        assert net.counts["lines_published"] >= 10, dict(net.counts)
+        assert _until(lambda: sp.maps.counts["lines_stored"] == net.counts["lines_published"], ts), (
+            dict(sp.maps.counts), dict(net.counts))  # fmt: skip
+    finally:
+        net.stop()
+        if ss is not None:
+            sp.stop()
+            ts.join(10)
+            ss.close()
+        sn.close()
+        keys.close()

@@ -37,6 +37,7 @@ class Lockstep:
         self._lost: set[int] = set()  # teammates declared lost: no progress for lost_timeout s while waited for
         self._heard: dict[int, float] = {}  # per live teammate: wall time its progress last advanced (or it came)
         self._seen: set[int] = set()  # teammates ever seen alive or heard from
+        self._server_up = False  # the belief server's liveliness token is up
         self._deferred: list[tuple[float, Message, Any]] = []  # neighbours' queries held: (since, query, Zenoh query)
         self._expect: dict[tuple, float] = {}  # pairwise updates expected, by key: since when
         self._held: list[Message] = []  # answers to this node's queries not yet given to it
@@ -105,7 +106,11 @@ class Lockstep:
         """A teammate's liveliness token came or went: lockstep waits only for live teammates."""
         import zenoh
 
-        r = robot_of(str(x.key_expr))
+        key = str(x.key_expr)
+        if key.endswith("/alive/server"):  # the belief server (its subscribers are declared before its token)
+            self._server_up = x.kind == zenoh.SampleKind.PUT
+            return
+        r = robot_of(key)
         if r is None or r == self.robot:
             return
         if r not in self.roster:

@@ -102,7 +102,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
     answer_timeout: [s] wall time this node waits for the reply to one of its queries (neighbour, then server).
     hold_timeout: [s] wall time it holds a neighbour's query for its state to settle before answering as it stands.
     update_timeout: [s] wall time it waits for an observer's ``rdl`` update after giving its state.
-    use_server: ask the belief server when a neighbour does not answer.
+    use_server: ask the belief server when a neighbour does not answer (and wait for it at the start).
     faults: link faults on the messages this node sends (:mod:`swarmloc.net.faults`).
     wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot).
     start_timeout: [s] wall time it waits at the start for the robots of ``wait_for`` to be alive.
@@ -253,24 +253,29 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         return report
 
     def _wait_start(self, deadline: float) -> None:
-        """Wait for the robots of ``wait_for`` to be alive: at most ``start_timeout`` s, and not past ``deadline``;
-        saying for which robots (a warning once 2 s passed, then every 5 s)."""
+        """Wait for the robots of ``wait_for`` (and, with ``use_server``, the belief server) to be alive: at most
+        ``start_timeout`` s, and not past ``deadline``; saying for whom (a warning once 2 s passed, then every 5 s).
+        The server is waited for because what is published before it subscribed (a scan's lines) never reaches it."""
         t0 = time.monotonic()
         end, note = min(t0 + self.start_timeout, deadline), t0 + 2.0
-        if self.wait_for:
-            log.info("robot %s: waiting up to %.0f s for robots %s to be alive", self.robot, self.start_timeout,
-                     sorted(self.wait_for))  # fmt: skip
-        while not self.wait_for <= self._alive and time.monotonic() < end and not self._stop.is_set():
+
+        def missing() -> list[str]:
+            out = [f"robot {r}" for r in sorted(self.wait_for - self._alive)]
+            return out + (["the belief server"] if self.use_server and not self._server_up else [])
+
+        if missing():
+            log.info("robot %s: waiting up to %.0f s for %s to be alive", self.robot, self.start_timeout,
+                     ", ".join(missing()))  # fmt: skip
+        while missing() and time.monotonic() < end and not self._stop.is_set():
             if time.monotonic() >= note:
                 note += 5.0
-                log.warning("robot %s: still waiting for robots %s to be alive (%.0f s left)", self.robot,
-                            sorted(self.wait_for - self._alive), end - time.monotonic())  # fmt: skip
+                log.warning("robot %s: still waiting for %s to be alive (%.0f s left)", self.robot,
+                            ", ".join(missing()), end - time.monotonic())  # fmt: skip
             self._drain(0.05)
             self._publish_progress(self._last_progress, force=True)
-        missing = self.wait_for - self._alive
-        if missing:
-            log.warning("robot %s: starting without robots %s (not alive after %.1f s)", self.robot,
-                        sorted(missing), time.monotonic() - t0)  # fmt: skip
+        if missing():
+            log.warning("robot %s: starting without %s (not alive after %.1f s)", self.robot, ", ".join(missing()),
+                        time.monotonic() - t0)  # fmt: skip
 
     def _main(self, deadline: float) -> None:
         items, i = self.items, 0
