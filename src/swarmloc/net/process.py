@@ -259,22 +259,21 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         t0 = time.monotonic()
         end, note = min(t0 + self.start_timeout, deadline), t0 + 2.0
 
-        def missing() -> list[str]:
-            out = [f"robot {r}" for r in sorted(self.wait_for - self._alive)]
-            return out + (["the belief server"] if self.use_server and not self._server_up else [])
+        def missing() -> str:
+            who = [f"robots {sorted(self.wait_for - self._alive)}"] if not self.wait_for <= self._alive else []
+            return " and ".join(who + (["the belief server"] if self.use_server and not self._server_up else []))
 
         if missing():
-            log.info("robot %s: waiting up to %.0f s for %s to be alive", self.robot, self.start_timeout,
-                     ", ".join(missing()))  # fmt: skip
+            log.info("robot %s: waiting up to %.0f s for %s to be alive", self.robot, self.start_timeout, missing())
         while missing() and time.monotonic() < end and not self._stop.is_set():
             if time.monotonic() >= note:
                 note += 5.0
-                log.warning("robot %s: still waiting for %s to be alive (%.0f s left)", self.robot,
-                            ", ".join(missing()), end - time.monotonic())  # fmt: skip
+                log.warning("robot %s: still waiting for %s to be alive (%.0f s left)", self.robot, missing(),
+                            end - time.monotonic())  # fmt: skip
             self._drain(0.05)
             self._publish_progress(self._last_progress, force=True)
         if missing():
-            log.warning("robot %s: starting without %s (not alive after %.1f s)", self.robot, ", ".join(missing()),
+            log.warning("robot %s: starting without %s (not alive after %.1f s)", self.robot, missing(),
                         time.monotonic() - t0)  # fmt: skip
 
     def _main(self, deadline: float) -> None:
