@@ -10,13 +10,16 @@ Only dataset 6 has ground truth here, so every dataset is scored without it, by 
 * **filter score** (datasets with odometry: 1, 2, 3, 4, 6, 9): each estimator runs on the left-out dataset with
   the model fitted on the others; at every landmark reading the observer's belief an instant before it (1 us) is
   pushed through the range-bearing model, and the *normalized innovation squared* ``NIS = r' (H P H' + R + L)^-1
-  r`` (``R`` the model's marginal camera variance, ``L`` the landmark's map std) is compared with chi-square of 2
-  dof. Reported: the robust ratio ``median(NIS) / 1.386`` per dof (1: consistent; above: over-confident), and the
-  share of readings beyond the 0.997 gate (heavy tails, barcode misreads). With landmarks off the landmark
-  readings never enter the filter, so the NIS tests the pose covariance alone; with landmarks on, earlier readings
-  of the same landmark, whose errors correlate with this one, are already in the belief, which makes the NIS
-  smaller than a consistent filter's would be (an under-statement of over-confidence that the score cannot
-  remove). On dataset 6 position RMSE and ANEES per dof against the truth are given too.
+  r`` (``R`` the reading's variance, ``L`` the landmark's map std) is compared with chi-square of 2 dof. Reported:
+  the robust ratio ``median(NIS) / 1.386`` per dof (1: consistent; above: over-confident), and the share of
+  readings beyond the 0.997 gate (heavy tails, barcode misreads). Only readings that never entered the belief are
+  scored: with landmarks off, all of them; with landmarks on, the landmarks are split into folds and each fold's
+  readings are scored against a run without that fold (earlier readings of the same landmark, whose errors
+  correlate with this one, would otherwise be in the belief). ``R`` is taken twice: the model's std, and the
+  left-out dataset's own std from its snapshot residuals (truth-free; the filter never uses it). With landmarks
+  the belief's ``H P H'`` is of the order of ``R``, so a model std that is too large for the recording would make
+  the NIS small whatever ``P`` is; the second ``R`` takes that out, so the score tests the belief's covariance. On
+  dataset 6 position RMSE and ANEES per dof against the truth are given too.
 
 Initial beliefs are truth-free on every dataset (dataset 6 included, so that its row is run as the others are):
 each robot's first landmark snapshot gives its pose by the weighted fit of
@@ -55,7 +58,16 @@ from swarmloc.sensors.decorrelate import (
     snapshot_poses,
 )
 
-__all__ = ["CUTS", "DATASETS", "detection_set", "filter_scores", "landmark_nis", "lodo", "lodo_markdown"]
+__all__ = [
+    "CUTS",
+    "DATASETS",
+    "detection_set",
+    "filter_scores",
+    "landmark_folds",
+    "landmark_nis",
+    "lodo",
+    "lodo_markdown",
+]
 
 DATASETS: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 9)
 CUTS: tuple[float, ...] = (2.5, 3.0, 4.0)
@@ -153,9 +165,10 @@ def initial_from_snapshots(
 
 
 def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, dets: Sequence[Detection],
-                 landmarks: dict[int, Any], model: CameraModel) -> np.ndarray:  # fmt: skip
+                 landmarks: dict[int, Any], std: tuple[float, float]) -> np.ndarray:  # fmt: skip
     """Predictive NIS (2 dof) of landmark readings ``dets`` of one observer against its beliefs recorded
-    :data:`RECORD_LEAD` s before each (``mean`` ``(T, 3)``, right-perturbation ``cov`` ``(T, 3, 3)``)."""
+    :data:`RECORD_LEAD` s before each (``mean`` ``(T, 3)``, right-perturbation ``cov`` ``(T, 3, 3)``), with the
+    reading's error std ``std`` = (range [m], bearing [rad]) and each landmark's map std."""
     if not dets:
         return np.empty(0)
     t = np.array([d.t for d in dets])
@@ -177,9 +190,32 @@ def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, det
     rot_t = np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], axis=1)  # d q / d landmark
     jl = jq @ rot_t
     L = jl @ (np.eye(2)[None] * np.square(lm[:, 2:4])[:, :, None]) @ np.swapaxes(jl, 1, 2)
-    S = H @ P @ np.swapaxes(H, 1, 2) + np.diag([model.range.std**2, model.bearing.std**2])[None] + L
+    S = H @ P @ np.swapaxes(H, 1, 2) + np.diag([std[0] ** 2, std[1] ** 2])[None] + L
     nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
     return np.where(ok, nis, np.nan)
+
+
+def _nis_of(res: Any, readings: Sequence[Detection], data: MRCLAMData, std: tuple[float, float]) -> np.ndarray:
+    """The finite predictive NIS of ``readings`` against the beliefs of run ``res`` (every observer)."""
+    nis = np.concatenate([np.empty(0)] + [
+        landmark_nis(tr.times, tr.mean, tr.cov, [d for d in readings if d.observer == rb], data.landmarks, std)
+        for rb, tr in res.tracks.items()
+    ])  # fmt: skip
+    return nis[np.isfinite(nis)]
+
+
+def _nis_row(nis: np.ndarray, suffix: str = "") -> dict[str, Any]:
+    return {
+        f"nis_ratio{suffix}": float(np.median(nis) / MEDIAN_CHI2_2) if nis.size else float("nan"),
+        f"beyond_gate{suffix}": float(np.mean(nis > GATE_2DOF)) if nis.size else float("nan"),
+        f"readings{suffix}": int(nis.size),
+    }
+
+
+def landmark_folds(ids: Sequence[int], k: int) -> list[frozenset[int]]:
+    """``k`` folds of the landmark ids (every ``k``-th of the sorted ids, so that each fold spreads over the map)."""
+    ids = sorted(ids)
+    return [frozenset(ids[f::k]) for f in range(k)]
 
 
 def filter_scores(
@@ -189,9 +225,20 @@ def filter_scores(
     landmarks: bool,
     duration: float,
     config: Config = DEFAULTS,
+    holdout: int = 3,
+    reference_std: tuple[float, float] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run ``estimators`` on ``duration`` s of ``data`` with camera ``model`` (truth-free start) and return per
-    estimator the landmark-reading NIS scores, and RMSE/ANEES when ``data`` has truth."""
+    estimator the landmark-reading NIS scores, and RMSE/ANEES when ``data`` has truth.
+
+    Scored readings are ones that never entered the belief they are scored against. With landmarks off that is
+    every reading. With ``landmarks`` and ``holdout`` = k > 1 each estimator runs k more times, each with one fold
+    of the landmarks (:func:`landmark_folds`) left out of the filter, and each fold's readings are scored against
+    its run (``anees_folds``: the folds' mean ANEES with truth). ``nis_ratio`` uses the model's std as the
+    reading's noise; ``nis_ratio_ref`` uses ``reference_std`` (range [m], bearing [rad]; :func:`lodo` passes the
+    left-out dataset's own snapshot-residual std, a truth-free estimate of how noisy its readings are, so that the
+    score tests the belief's covariance rather than the model's std). ``nis_ratio_all``, landmarks on only: every
+    reading against the run with every landmark, readings already in the belief (it under-states)."""
     ds = detection_set(data)
     t0, initial = initial_from_snapshots(data, ds, config)
     t1 = min(data.t_end, t0 + duration)
@@ -201,29 +248,43 @@ def filter_scores(
     readings = [e for e in lm_events if isinstance(e, Detection) and not e.target_is_robot and t0 < e.t <= t1]
     record = np.unique(np.array([d.t for d in readings]) - RECORD_LEAD)
     truth = data.truth_at if data.has_truth else None
+    std = (model.range.std, model.bearing.std)
+    ref = std if reference_std is None else reference_std
+    folds = landmark_folds(data.landmarks, holdout) if landmarks and holdout > 1 else []
     out: dict[str, dict[str, Any]] = {}
     for name in estimators:
         nodes = make_team(name, initial, **node_options(name, config, data.landmarks, t0))
         wall = time.perf_counter()
         res = run(nodes, events, record_times=record, truth=truth, name=name)
         wall = time.perf_counter() - wall
-        nis = np.concatenate([
-            landmark_nis(tr.times, tr.mean, tr.cov, [d for d in readings if d.observer == rb], data.landmarks, model)
-            for rb, tr in res.tracks.items()
-        ])  # fmt: skip
-        nis = nis[np.isfinite(nis)]
-        row: dict[str, Any] = {
-            "nis_ratio": float(np.median(nis) / MEDIAN_CHI2_2) if nis.size else float("nan"),
-            "beyond_gate": float(np.mean(nis > GATE_2DOF)) if nis.size else float("nan"),
-            "readings": int(nis.size),
-            "wall_s": wall,
-            "fused": int(res.stats.get("fused", 0)),
-        }
+        row: dict[str, Any] = {"wall_s": wall, "fused": int(res.stats.get("fused", 0))}
         if truth is not None:
             team = evaluate(res)["team"]
             row.update(pos_rmse=team["pos_rmse"], heading_rmse=team["heading_rmse"], anees=team["anees"])
+        scored: list[tuple[Any, list[Detection]]] = []
+        if not folds:  # landmarks off (or no folds: every reading against the run with every landmark)
+            scored = [(res, readings)]
+        else:
+            row.update(_nis_row(_nis_of(res, readings, data, std), "_all"))
+            anees = []
+            for fold in folds:
+                lm_out = [e for e in events if not (isinstance(e, Detection) and not e.target_is_robot
+                                                    and e.target in fold)]  # fmt: skip
+                mine = [d for d in readings if d.target in fold]
+                nodes = make_team(name, initial, **node_options(name, config, data.landmarks, t0))
+                rec = np.unique(np.array([d.t for d in mine]) - RECORD_LEAD) if mine else record[:1]
+                res_f = run(nodes, lm_out, record_times=rec, truth=truth, name=name)
+                scored.append((res_f, mine))
+                if truth is not None:
+                    anees.append(evaluate(res_f)["team"]["anees"])
+            if anees:
+                row["anees_folds"] = float(np.mean(anees))
+        if scored:
+            row.update(_nis_row(np.concatenate([_nis_of(r, d, data, std) for r, d in scored])))
+            row.update(_nis_row(np.concatenate([_nis_of(r, d, data, ref) for r, d in scored]), "_ref"))
         out[name] = row
     out["_span"] = {"t0": t0 - data.t_start, "duration_s": t1 - t0}
+    out["_reference_std"] = {"range": ref[0], "bearing": ref[1]}
     return out
 
 
@@ -235,9 +296,11 @@ def lodo(
     cuts: Sequence[float] = CUTS,
     filter_datasets: Sequence[int] | None = None,
     progress: bool = False,
+    holdout: int = 3,
 ) -> dict[str, Any]:
     """The whole LODO check (module docstring): model scores on every dataset of ``datasets`` found under
-    ``root``, the chosen candidate, and filter scores with landmarks on and off on the ones with odometry."""
+    ``root``, the chosen candidate, and filter scores with landmarks on and off on the ones with odometry
+    (``holdout``: the landmark folds of :func:`filter_scores`)."""
     root = Path(root)
     datas = {k: load_mrclam(root / f"MRCLAM_Dataset{k}", require=("measurements",)) for k in datasets}
     sets = {k: detection_set(d) for k, d in datas.items()}
@@ -253,11 +316,13 @@ def lodo(
         for lm in (True, False):
             if progress:
                 print(f"dataset {k}, landmarks {'on' if lm else 'off'}", flush=True)
+            m, fold = ms["models"][k][chosen], ms["folds"][k][chosen]
+            ref = (m.range.std * math.sqrt(fold["ratio_range"]), m.bearing.std * math.sqrt(fold["ratio_bearing"]))
             runs[f"{k}/{'on' if lm else 'off'}"] = filter_scores(
-                data, ms["models"][k][chosen], estimators, lm, duration
+                data, m, estimators, lm, duration, holdout=holdout, reference_std=ref
             )
     return {"model": {k: v for k, v in ms.items() if k != "models"}, "filters": runs, "duration_s": duration,
-            "models": {k: ms["models"][k][chosen].to_dict() for k in ms["models"]}}  # fmt: skip
+            "models": {k: ms["models"][k][chosen].to_dict() for k in ms["models"]}, "holdout": holdout}  # fmt: skip
 
 
 def lodo_markdown(rep: dict[str, Any]) -> str:
@@ -271,15 +336,19 @@ def lodo_markdown(rep: dict[str, Any]) -> str:
     mean = rep["model"]["mean_nll"]
     lines.append("| median NLL | " + " | ".join(f"{mean[n]:.3f}" if n in mean else "-" for n in names) + " |")
     lines += ["", f"chosen: {rep['model']['chosen']}", ""]
-    lines.append("| left out | landmarks | estimator | pos RMSE [m] | ANEES/dof | NIS ratio | beyond gate | readings |")
-    lines.append("|---|---|---|---|---|---|---|---|")
+    lines.append(
+        "| left out | landmarks | estimator | pos RMSE [m] | ANEES/dof | ANEES/dof, folds "
+        "| NIS ratio, own std | NIS ratio, model std | beyond gate | readings | NIS ratio, every reading in |"
+    )
+    lines.append("|---" * 11 + "|")
     for key, rows in rep["filters"].items():
         k, lm = key.split("/")
         for est, r in rows.items():
             if est.startswith("_"):
                 continue
             acc = (f"{r['pos_rmse']:.3f} | {r['anees']:.2f}") if "anees" in r else "- | -"
-            lines.append(
-                f"| {k} | {lm} | {est} | {acc} | {r['nis_ratio']:.2f} | {r['beyond_gate']:.3f} | {r['readings']} |"
-            )
+            folds = f"{r['anees_folds']:.2f}" if "anees_folds" in r else "-"
+            every = f"{r['nis_ratio_all']:.2f}" if "nis_ratio_all" in r else "-"
+            lines.append(f"| {k} | {lm} | {est} | {acc} | {folds} | {r['nis_ratio_ref']:.2f} | {r['nis_ratio']:.2f} | "
+                         f"{r['beyond_gate_ref']:.3f} | {r['readings']} | {every} |")  # fmt: skip
     return "\n".join(lines) + "\n"

@@ -1,0 +1,81 @@
+"""The LODO filter score (issue 21, :mod:`swarmloc.experiments.lodo`): the predictive landmark NIS against Monte
+Carlo draws of the pose, the map entry and the reading, and the landmark folds."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from swarmloc.events import Detection
+from swarmloc.experiments.lodo import RECORD_LEAD, landmark_folds, landmark_nis
+from swarmloc.lie import SE2
+
+STD = (0.08, 0.01)  # [m], [rad]
+MAP_STD = (0.03, 0.05)  # [m]
+
+
+def _draw(n: int, scale: float, seed: int = 0):
+    """``n`` beliefs (mean, cov) and a reading each, drawn from the model with the pose error drawn from
+    ``scale`` times the belief's covariance (1: consistent)."""
+    rng = np.random.default_rng(seed)
+    mean = np.column_stack([rng.uniform(-3, 3, n), rng.uniform(-3, 3, n), rng.uniform(-np.pi, np.pi, n)])
+    a = rng.normal(size=(n, 3, 3)) * np.array([0.06, 0.06, 0.03])[:, None]
+    cov = a @ np.swapaxes(a, 1, 2) + np.diag([1e-4, 1e-4, 1e-5])
+    xi = np.einsum("nij,nj->ni", np.linalg.cholesky(scale * cov), rng.normal(size=(n, 3)))
+    true = SE2.to_xytheta(SE2.from_xytheta(mean) @ SE2.exp(xi))  # right perturbation
+    lm_true = true[:, :2] + rng.uniform(1.0, 4.0, (n, 1)) * np.column_stack(
+        [np.cos(a := rng.uniform(-1, 1, n) + true[:, 2]), np.sin(a)]
+    )
+    lm_map = lm_true + rng.normal(size=(n, 2)) * MAP_STD
+    d = lm_true - true[:, :2]
+    z = np.column_stack([np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0]) - true[:, 2]])
+    z += rng.normal(size=(n, 2)) * STD
+    times = np.arange(n, dtype=float)
+    landmarks = {i: (*lm_map[i], *MAP_STD) for i in range(n)}
+    dets = [Detection(0, times[i] + RECORD_LEAD, "range_bearing", z[i], np.diag(np.square(STD)), i, False)
+            for i in range(n)]  # fmt: skip
+    return times, mean, cov, dets, landmarks
+
+
+def test_landmark_nis_is_chi_square_2_for_a_consistent_belief_and_grows_for_an_overconfident_one():
+    nis = landmark_nis(*_draw(20_000, 1.0), STD)
+    assert np.isfinite(nis).all()
+    assert abs(nis.mean() - 2.0) < 0.08, nis.mean()  # std of the mean: 2 / sqrt(20000) = 0.014
+    assert stats.kstest(nis, stats.chi2(2).cdf).pvalue > 1e-3
+    over = landmark_nis(*_draw(20_000, 9.0), STD)  # errors three times the belief's std
+    assert over.mean() > 5.0
+
+
+def test_landmark_nis_is_nan_where_no_belief_was_recorded_just_before_the_reading():
+    times, mean, cov, dets, lms = _draw(10, 1.0)
+    nis = landmark_nis(times + 0.5, mean, cov, dets, lms, STD)
+    assert np.isnan(nis).all()
+
+
+@pytest.mark.parametrize("k", [2, 3, 5])
+def test_landmark_folds_partition_the_ids_and_spread_over_them(k):
+    ids = list(range(6, 21))
+    folds = landmark_folds(ids[::-1], k)
+    assert len(folds) == k and set().union(*folds) == set(ids) and sum(map(len, folds)) == len(ids)
+    assert max(map(len, folds)) - min(map(len, folds)) <= 1
+    assert all(max(f) - min(f) >= len(ids) - 2 * k + 1 for f in folds)  # each reaches across the ids
+
+
+def test_filter_scores_score_every_reading_once_against_a_run_without_its_landmark(mrclam6):
+    """With landmarks on, the folds' runs score every landmark reading of the span exactly once (the all-in run
+    scores the same readings); with the model's std as the reference both scores are the same number; a larger
+    reference std can only lower the score."""
+    from swarmloc.datasets.mrclam import load_mrclam
+    from swarmloc.experiments.lodo import filter_scores
+    from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent
+
+    data = load_mrclam(mrclam6)
+    model = CameraModel(ErrorComponent(0.15), ErrorComponent(0.005), source="test")
+    same = filter_scores(data, model, ["rdl"], True, 40.0, holdout=3, reference_std=(0.15, 0.005))["rdl"]
+    assert same["readings"] == same["readings_all"] > 200
+    assert same["nis_ratio_ref"] == same["nis_ratio"] and np.isfinite(same["anees_folds"])
+    wide = filter_scores(data, model, ["rdl"], True, 40.0, holdout=3, reference_std=(0.3, 0.01))["rdl"]
+    assert wide["nis_ratio"] == same["nis_ratio"] and wide["nis_ratio_ref"] < same["nis_ratio"]
+    off = filter_scores(data, model, ["rdl"], False, 40.0)["rdl"]
+    assert off["readings"] == same["readings"] and "readings_all" not in off and "anees_folds" not in off
