@@ -269,3 +269,33 @@ def test_mrclam_dataset6_beats_dead_reckoning(mrclam6: Path):
     print(f"MRCLAM 6, 120 s: MCL RMSE {rmse(mcl):.3f} m, DR {rmse(dr):.3f} m, MCL {wall:.1f} s ({120 / wall:.1f}x)")
     assert mcl.accounted() and mcl.stats["fused"] > 1000
     assert rmse(mcl) < 0.6 * rmse(dr)
+
+
+# ------------------------------------------------------------------------------------------------ (e) roughening
+def test_roughening_and_the_regularised_summary():
+    """Roughening (Gordon et al. 1993) widens the particle set after each resampling, deterministically (a replay
+    gives the same particles); the regularised summary is the fitted covariance times 1 + h^2 (Silverman's h for
+    3 dof); bad values are refused."""
+    for bad in ({"roughen": -0.1}, {"roughen": 1.5}, {"roughen": True}, {"regularise": "yes"}):
+        with pytest.raises(ValueError):
+            MonteCarloLocalization(0, _belief((0, 0, 0)), noise=NOISE, **bad)
+    events, times, _ = _drive(6.0, (2.0, 2.0, 0.3), seed=4)
+
+    def go(**kw):
+        (node,) = make_team(MonteCarloLocalization, {0: _belief((2.0, 2.0, 0.3), 1e-3)}, noise=NOISE,
+                            landmarks=LANDMARKS, particles=300, seed=2, resample_threshold=1.0, **kw)  # fmt: skip
+        res = run([node], events, times)
+        return node, res
+
+    plain, res_plain = go()
+    rough, res_rough = go(roughen=0.6)
+    again, res_again = go(roughen=0.6)
+    assert _max_diff(res_rough, res_again) == 0.0
+    assert rough.particle_counts["resamples"] > 20
+    # the same resamplings, each followed by a jitter: the set is wider on average over the run
+    spread_plain = np.mean([np.trace(c) for c in res_plain.tracks[0].cov[10:]])
+    spread_rough = np.mean([np.trace(c) for c in res_rough.tracks[0].cov[10:]])
+    assert spread_rough > 1.2 * spread_plain, (spread_rough, spread_plain)
+    reg, res_reg = go(regularise=True)
+    h2 = (4.0 / (5.0 * 300)) ** (2.0 / 7.0)
+    np.testing.assert_allclose(res_reg.tracks[0].cov, res_plain.tracks[0].cov * (1.0 + h2), rtol=1e-12)

@@ -218,6 +218,11 @@ class MonteCarloLocalization(RobotNode):
     initial_box: ``(xmin, xmax, ymin, ymax)`` [m]: start from particles uniform over this box (global localization).
     bounds: ``(xmin, xmax, ymin, ymax)`` [m] of the random particles; default ``initial_box``, else the landmarks'
         bounding box grown by :data:`BOUNDS_MARGIN`.
+    roughen: Gordon, Salmond & Smith's (1993) roughening after each resampling: every particle moves by a normal
+        draw of std ``roughen * E_d * N^(-1/3)`` in each of ``x``, ``y``, ``theta`` (``E_d``: the resampled set's
+        extent in that coordinate); 0 (default): none.
+    regularise: the belief is the Gaussian of the set's Gaussian-kernel density estimate with Silverman's bandwidth
+        (regularised particle filter): the fitted covariance times ``1 + h^2``, ``h = (4 / (5 N))^(1/7)``.
     Other keywords: see :class:`~swarmloc.node.base.Node` (``t0``, ``horizon``, ``gate``, ``landmarks``,
     ``use_relative``, ``use_landmarks``).
     """
@@ -236,6 +241,8 @@ class MonteCarloLocalization(RobotNode):
         random_fraction: float = 0.0,
         initial_box: Sequence[float] | None = None,
         bounds: Sequence[float] | None = None,
+        roughen: float = 0.0,
+        regularise: bool = False,
         **kw: Any,
     ) -> None:
         cls = type(self).__name__
@@ -247,6 +254,12 @@ class MonteCarloLocalization(RobotNode):
             raise ValueError(f"{cls}: 'resample_threshold' must be in [0, 1], got {resample_threshold!r}")
         if not (isinstance(random_fraction, int | float) and 0 <= random_fraction <= 1):
             raise ValueError(f"{cls}: 'random_fraction' must be in [0, 1], got {random_fraction!r}")
+        if not (isinstance(roughen, int | float) and not isinstance(roughen, bool) and 0 <= roughen <= 1):
+            raise ValueError(f"{cls}: 'roughen' must be in [0, 1], got {roughen!r}")
+        if not isinstance(regularise, bool):
+            raise ValueError(f"{cls}: 'regularise' must be True or False, got {regularise!r}")
+        self.roughen = float(roughen)
+        self.regularise = regularise
         self.n_particles = int(particles)
         self.seed = int(seed)
         self.resample_threshold = float(resample_threshold)
@@ -338,6 +351,8 @@ class MonteCarloLocalization(RobotNode):
 
     def _belief(self, s: MclState, robot: int) -> GroupGaussian:
         mean, cov = fit_gaussian(s.particles, s.weights)
+        if self.regularise:
+            cov = cov * (1.0 + (4.0 / (5.0 * s.particles.shape[0])) ** (2.0 / 7.0))
         return belief_of(mean, cov)
 
     def _fuse_group(self, s: MclState, g: Group) -> tuple[MclState, list[Outcome], list[Message]]:
@@ -403,6 +418,11 @@ class MonteCarloLocalization(RobotNode):
             p = p[idx]
             w = np.full(n, 1.0 / n)
             resamples += 1
+            if self.roughen > 0:
+                ext = np.ptp(p, axis=0)
+                ext[2] = np.ptp(wrap_angle(p[:, 2] - p[0, 2]))  # the heading's extent around one of the particles
+                p = p + rng.normal(size=p.shape) * (self.roughen * ext * n ** (-1.0 / 3.0))
+                p[:, 2] = wrap_angle(p[:, 2])
         if p is not s.particles:
             p = _frozen(np.array(p))
         return MclState(s.t, s.v, s.w, p, _frozen(w), resamples, injected, w_slow, w_fast), outcomes, []
