@@ -63,6 +63,12 @@ def _node(lag: float) -> FixedLagSmoother:
 def _batch(events: list, stamps: list[float]) -> tuple[np.ndarray, np.ndarray]:
     """Independent solve of the whole problem (scipy least squares over world ``(x, y, theta)`` of the pose at t0
     and at every detection instant): the last pose's mean and world covariance ``(J^T J)^-1``."""
+    xs, cov = _batch_all(events, stamps)
+    return xs[-1], cov[-3:, -3:]
+
+
+def _batch_all(events: list, stamps: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_batch`'s solve: every pose ``(len(stamps) + 1, 3)`` and the joint world covariance."""
     ts = [0.0, *stamps]
     odo = [e for e in events if isinstance(e, Odometry)]
     incs = []  # the motion model's increment and covariance between consecutive instants, in the older frame
@@ -102,7 +108,7 @@ def _batch(events: list, stamps: list[float]) -> tuple[np.ndarray, np.ndarray]:
     guess = np.tile(X0, len(ts))
     sol = least_squares(residuals, guess, xtol=1e-14, ftol=1e-14, gtol=1e-14)
     cov = np.linalg.inv(sol.jac.T @ sol.jac)
-    return sol.x[-3:], cov[-3:, -3:]
+    return sol.x.reshape(-1, 3), cov
 
 
 @pytest.mark.parametrize(("lag", "tol"), [(100.0, 1e-7), (1.1, 2e-3)])
@@ -123,6 +129,54 @@ def test_window_marginal_matches_batch_least_squares(lag: float, tol: float):
     np.testing.assert_allclose(P, Pb, rtol=tol, atol=tol * float(np.abs(Pb).max()))
     if lag < 10:  # the marginalization is what the difference comes from: it is not zero
         assert float(np.abs(P - Pb).max()) > 1e-12
+
+
+def test_lagged_output_is_the_smoothed_marginal_of_the_inputs_so_far():
+    """The delayed (smoothed) output: with a 1.1 s lag the first pose (t = 0) leaves the window at the detections
+    of t = 2, so its filed estimate and covariance are the batch least-squares marginal of pose 0 given the inputs
+    up to t = 2 (1e-7), and it differs from what the node believed at t = 0 (the prior), which it must improve."""
+    events, stamps = _scene()
+    node = _node(1.1)
+    node.lagged_log = {}
+    for e in events:
+        node.step(e)
+    assert sorted(node.lagged_log) == [0.0, 1.0, 2.0]  # the poses that left; 3 and 4 are still in the window
+    upto = [e for e in events if (e.t1 if isinstance(e, Odometry) else e[0].t) <= stamps[1] + 1e-12]
+    xs, cov = _batch_all(upto, stamps[:2])
+    x, P = node.lagged_log[0.0]
+    np.testing.assert_allclose(x, xs[0], atol=1e-7)
+    np.testing.assert_allclose(P, cov[:3, :3], rtol=1e-7, atol=1e-7 * float(np.abs(cov[:3, :3]).max()))
+    assert float(np.abs(x - X0).max()) > 1e-3 and np.linalg.det(P) < np.linalg.det(COV0)
+
+
+def test_flsd_lagged_output_beats_its_causal_belief_and_stays_consistent():
+    """3 robots with landmarks, 20 s, lag 2 s: at the instants of the poses that left the window, the smoothed
+    estimate filed then is more accurate than the causal belief recorded at the same instant, and its ANEES per
+    dof is in [0.5, 2] (measured at 114 instants: 0.00576 m against 0.00663 m, ANEES/dof 0.63)."""
+    src = load_source("sim:landmarks", robots=3, duration=20.0, seed=2)
+    nodes = make_team("flsd", src.initial, **node_options("flsd", src.config, src.landmarks))
+    for n in nodes:
+        n.lagged_log = {}
+    stamps = sorted({float(d.t) for e in src.events for d in (e if isinstance(e, list) else [e])
+                     if isinstance(d, Detection)})  # fmt: skip
+    res = run(nodes, src.events, stamps, truth=src.truth)
+    err_c, err_s, nees = [], [], []
+    for n in nodes:
+        tr = res.tracks[n.robot]
+        at = {float(t): k for k, t in enumerate(tr.times)}
+        for ts, (x, P) in n.lagged_log.items():
+            k = at.get(float(ts))
+            if k is None:
+                continue
+            err_c.append(np.hypot(*(tr.mean[k][:2] - tr.truth[k][:2])))
+            err_s.append(np.hypot(*(x[:2] - tr.truth[k][:2])))
+            g, cov = C.to_group(np.asarray(x), np.asarray(P))
+            y = SE2.log(SE2.inverse(g) @ SE2.from_xytheta(tr.truth[k]))
+            nees.append(float(y @ np.linalg.solve(cov, y)))
+    assert len(err_s) > 100
+    rmse_c, rmse_s = np.sqrt(np.mean(np.square(err_c))), np.sqrt(np.mean(np.square(err_s)))
+    assert rmse_s < rmse_c, (rmse_s, rmse_c)
+    assert 0.5 <= np.mean(nees) / 3 <= 2.0, np.mean(nees) / 3
 
 
 def test_fls_on_a_small_team_is_at_least_as_accurate_as_ci_and_consistent():

@@ -213,8 +213,9 @@ class WindowSolver:
     lag: float
     max_iterations: int
     lagged_log: dict | None = None
-    """A diagnostic (None: off): set it to a dict and every pose leaving the window is filed there, ``stamp [s] ->
-    (x, y, theta)``, its smoothed estimate then (``lag`` seconds of later inputs; the latest replay's)."""
+    """The smoothed (delayed) output, None: off. Set it to a dict and every pose leaving the window is filed there,
+    ``stamp [s] -> (x (3,), P (3, 3))``: its estimate ``(x, y, theta)`` and Cartesian marginal covariance from the
+    whole window's solve at that moment (at least ``lag`` seconds of later inputs; the latest replay's)."""
 
     def _solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
         """Solve the window (Gauss-Newton from its estimates), take the newest pose's marginal and
@@ -232,15 +233,19 @@ class WindowSolver:
             est = {k: _xyt(result.atPose2(k)) for k in win.est}
             if not all(np.isfinite(v).all() for v in est.values()):
                 return None
-            cov = g.Marginals(graph, result).marginalCovariance(newest)
+            marginals = g.Marginals(graph, result)
             x = est[newest]
-            P = _cartesian_cov(x[2], cov)
+            P = _cartesian_cov(x[2], marginals.marginalCovariance(newest))
             if not usable_covariance(P):
                 return None
             win = win._replace(est=est)
             cutoff = t - self.lag
             k0 = next(i for i, ts in enumerate(win.stamps) if ts >= cutoff or i == len(win.stamps) - 1)
             if k0 > 0:
+                if self.lagged_log is not None:
+                    for pid, ts in zip(win.poses[:k0], win.stamps[:k0], strict=True):
+                        xs = est[pid]
+                        self.lagged_log[ts] = (xs, _cartesian_cov(xs[2], marginals.marginalCovariance(pid)))
                 win = self._marginalize(win, k0, result)
         except RuntimeError:  # GTSAM: an indeterminant system
             return None
@@ -250,9 +255,6 @@ class WindowSolver:
         """Eliminate the window's first ``k0`` poses (and the neighbour variables tied to them): the factors
         touching them, linearized at ``values``, become a Gaussian prior on the pose ``k0``."""
         g = self._g
-        if self.lagged_log is not None:
-            for pid, ts in zip(win.poses[:k0], win.stamps[:k0], strict=True):
-                self.lagged_log[ts] = _xyt(values.atPose2(pid))
         drop = set(win.poses[:k0])
         keep = win.poses[k0]
         out = [f for f in win.factors if f.a in drop]
