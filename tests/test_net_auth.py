@@ -64,6 +64,7 @@ I3 = flat(np.eye(3))
 COV = flat(np.diag([0.01, 0.01, 0.001]))
 SHIFT = flat(np.array([[1.0, 0.0, 100.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
 ATTACKER = Path(__file__).with_name("net_attacker.py")
+DIEKF_ATTACKER = Path(__file__).with_name("net_diekf_attacker.py")
 INBOX0 = robot_key(TEAM, 0, "inbox")
 PROGRESS1 = robot_key(TEAM, 1, "progress")
 
@@ -449,3 +450,49 @@ def test_attacker_with_robot_2s_key_changes_nothing(tmp_path):
         expected[f"robot {r}"].get("key_mismatch", 0) for r in src.robots
     )
     assert not (tmp_path / "keys").joinpath("robot0.key").stat().st_mode & 0o077
+
+
+def test_attacker_on_diekf_broadcasts_with_robot_2s_key_changes_nothing(tmp_path):
+    """A diekf team of 3 and an attacker process holding robot 2's valid key, publishing on robot 1's broadcast key
+    team updates in robot 1's name that would pull robot 1 by 100 m (signed with robot 2's key, with robot 1's key
+    id, unsigned, from outside the roster, robot 2's own) and robot 1's genuine broadcasts again. Every robot that
+    receives them (the teammates subscribe to every broadcast key) refuses and counts each by category; the
+    beliefs equal the in-process run on the same events to 1e-9."""
+    src = load_source("sim:random", robots=3, duration=20.0, seed=1)
+    team = f"attackd{os.getpid()}"
+    make_team_keys(tmp_path / "keys", src.robots, max_age=4.0)
+    ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
+    out = tmp_path / "attacker.json"
+    cmd = [sys.executable, str(DIEKF_ATTACKER), "--listen", ep, "--team", team, "--keys", str(tmp_path / "keys"),
+           "--robots", "0,1,2", "--out", str(out)]  # fmt: skip
+    attacker = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})  # fmt: skip
+    try:
+        assert attacker.stdout.readline().strip() == "ready", attacker.stderr.read()
+        tr = run_team(src=src, source="sim:random", robots=3, duration=20.0, seed=1, estimator="diekf", team=team,
+                      speed=2.0, max_wall=120, connect_extra=[ep], keys_dir=tmp_path / "keys",
+                      log_dir=tmp_path / "logs")  # fmt: skip
+        attacker.wait(timeout=60)
+    finally:
+        if attacker.poll() is None:
+            attacker.kill()
+            attacker.wait()
+    assert attacker.returncode == 0, attacker.stderr.read()
+    sent = json.loads(out.read_text())["sent"]
+    assert sent["replay"] > 0 and sent["key_mismatch"] == 8
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    for r in src.robots:
+        got = {k[len("auth_") :]: v for k, v in tr.reports[r].net.items() if k.startswith("auth_")}
+        if r == 1:  # its own broadcasts and heads played back to it: refused as its own, not as replays
+            own = {k: v for k, v in tr.reports[r].net_reasons.items() if "of robot 1 received by itself" in k}
+            assert got == {k: v for k, v in sent.items() if k != "replay"} and 0 < sum(own.values()) <= sent["replay"]
+            assert not tr.reports[r].net.get("repair_requests") and not tr.reports[r].net.get("broadcasts_given_up")
+        else:
+            assert got == sent, f"robot {r}"
+    res = team_result(tr, src, "diekf")
+    ref = reference(src, "diekf")
+    assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
+    for r, t in ref.tracks.items():
+        a = res.tracks[r]
+        np.testing.assert_array_equal(a.times, t.times)
+        assert np.abs(a.mean - t.mean).max() <= 1e-9 and np.abs(a.cov - t.cov).max() <= 1e-9, f"robot {r}"
