@@ -326,7 +326,7 @@ def test_three_node_processes_localize_live_from_a_ros2_publisher_process_as_the
                         "--listen", eps[i], "--connect", ",".join(e for e in eps if e != eps[i])]  # fmt: skip
             procs.append(subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
         pub = subprocess.Popen([sys.executable, str(HERE / "live_publisher.py"), "--connect", ",".join(eps[:3]),
-                                "--team", team, "--speed", "2", "--duration", "4", "--seed", "1"],
+                                "--team", team, "--speed", "1", "--duration", "4", "--seed", "1"],
                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
         procs.append(pub)
         outs = [p.communicate(timeout=120) for p in procs]
