@@ -125,6 +125,32 @@ def test_a_robot_clock_jump(shift):
     assert all(jumped[r]["fused"] > 0 for r in (0, 2))
 
 
+@pytest.mark.parametrize("spec", ["dup=0.5,seed=2", "jump=1@3:30", "jump=1@3:-30"])
+def test_duplicates_and_a_clock_jump_in_node_processes_finish_and_leave_nothing_behind(spec):
+    """The same faults as the threaded tests above, in node processes started by the launcher: every process
+    exits 0, every detection has one outcome in the counts, the beliefs are finite, the fault did happen, and no
+    process is left behind."""
+    src = load_source("sim:random", robots=3, duration=10.0, seed=3)
+    team = f"faultproc{threading.get_native_id()}"
+    try:
+        tr = run_team(src=src, source="sim:random", robots=3, duration=10.0, seed=3, estimator="rdl", faults=spec,
+                      max_wall=120, team=team, answer_timeout=0.5, hold_timeout=0.25, update_timeout=0.5)  # fmt: skip
+        assert all(c == 0 for c in tr.exit_codes.values()) and sorted(tr.reports) == src.robots, tr.exit_codes
+        for rep in tr.reports.values():
+            s = rep.stats
+            assert s["detections"] == s["fused"] + s["gated"] + s["rejected"] + s["unknown"] and s["pending"] == 0
+        res = team_result(tr, src, "rdl")
+        assert all(np.isfinite(t.mean).all() and np.isfinite(t.cov).all() for t in res.tracks.values())
+        if spec.startswith("dup"):
+            assert sum(r.net.get("duplicated", 0) for r in tr.reports.values()) > 20
+        else:
+            key = "clock_jumps" if ":30" in spec else "clock_resets"
+            assert tr.reports[1].stats[key] == 1 and all(tr.reports[r].stats["fused"] > 0 for r in (0, 2))
+    finally:
+        left = leftovers(team)
+    assert not left, f"processes {left} left behind"
+
+
 def test_a_robot_killed_and_not_restarted(tmp_path):
     """killonly: robot 1's process is SIGKILLed and stays down; the others finish (rc 0) with every detection
     accounted, the report names robot 1 (not restarted) and its detections as missing; no process is left."""
