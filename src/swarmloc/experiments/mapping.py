@@ -131,16 +131,17 @@ def markdown(report: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def figure(path: Path, res: dict[str, Any], coop: str) -> None:
+def figure(path: Path, res: dict[str, Any], coop: tuple[str, ...]) -> None:
     """Maps side by side like the chapter's Figs 8 and 10: H1 alone (dead reckoning), the team with dead
-    reckoning, and the team with cooperative localization ``coop``; true walls dotted."""
+    reckoning, and the team with each cooperative estimator of ``coop``; true walls dotted."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = [("H1 alone", ("dr",), (1,)), ("team, dr", ("dr",), (1, 2)), (f"team, {coop}", (coop,), (1, 2))]
-    fig, axes = plt.subplots(1, 3, figsize=(13, 6.2))
+    panels = [("H1 alone", ("dr",), (1,)), ("team, dr", ("dr",), (1, 2))]
+    panels += [(f"team, {c}", (c,), (1, 2)) for c in coop]
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.4 * len(panels), 6.2))
     walls: Walls = res["walls"]
     for ax, (name, (src,), robots) in zip(axes, panels, strict=True):
         for seg in walls.segments:
@@ -175,5 +176,5 @@ def run_command(args: argparse.Namespace) -> int:
             stem = name.replace(", ", "_").replace(" ", "_")
             lm.save_geojson(out / f"{stem}.geojson")
             lm.save_dxf(out / f"{stem}.dxf")
-        figure(out / "map.png", first, ests[0])
+        figure(out / "map.png", first, ests)
     return 0
