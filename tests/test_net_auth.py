@@ -19,13 +19,12 @@ import math
 import os
 import re
 import struct
-import subprocess
-import sys
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _attacker import attacker_process
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -383,6 +382,14 @@ def test_forged_beliefs_leave_the_collectors_report_unchanged(tmp_path, keys):
 
 
 # ------------------------------------------------------------------------------------------------ a live attack
+def assert_tracks_equal(res, ref, tol: float) -> None:
+    """Every robot's recorded times equal and its means and covariances within ``tol`` of the reference run."""
+    for r, t in ref.tracks.items():
+        a = res.tracks[r]
+        np.testing.assert_array_equal(a.times, t.times)
+        assert np.abs(a.mean - t.mean).max() <= tol and np.abs(a.cov - t.cov).max() <= tol, f"robot {r}"
+
+
 def _server_counts(log: Path) -> dict:
     m = re.search(r"belief server: stopped; (\{.*?\}); store", log.read_text())
     assert m, f"no summary in the belief server's log:\n{log.read_text()[-2000:]}"
@@ -402,21 +409,12 @@ def test_attacker_with_robot_2s_key_changes_nothing(tmp_path):
     ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
     out = tmp_path / "attacker.json"
     rts = ",".join(repr(float(t)) for t in src.record_times())
-    cmd = [sys.executable, str(ATTACKER), "--listen", ep, "--team", team, "--keys", str(tmp_path / "keys"),
-           "--robots", "0,1,2", "--out", str(out), "--record-times", rts]  # fmt: skip
-    attacker = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})  # fmt: skip
-    try:
-        assert attacker.stdout.readline().strip() == "ready", attacker.stderr.read()
+    args = ["--listen", ep, "--team", team, "--keys", str(tmp_path / "keys"), "--robots", "0,1,2", "--out", str(out),
+            "--record-times", rts]  # fmt: skip
+    with attacker_process(ATTACKER, args):
         tr = run_team(src=src, source="sim:random", robots=3, duration=30.0, seed=1, estimator="rdl", team=team,
                       server=True, speed=2.0, max_wall=120, connect_extra=[ep], keys_dir=tmp_path / "keys",
                       log_dir=tmp_path / "logs")  # fmt: skip
-        attacker.wait(timeout=60)
-    finally:
-        if attacker.poll() is None:
-            attacker.kill()
-            attacker.wait()
-    assert attacker.returncode == 0, attacker.stderr.read()
     sent = json.loads(out.read_text())
     expected = sent["expected"]
     rounds = 8
@@ -440,10 +438,7 @@ def test_attacker_with_robot_2s_key_changes_nothing(tmp_path):
     res = team_result(tr, src, "rdl")
     ref = reference(src, "rdl")
     assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
-    for r, t in ref.tracks.items():
-        a = res.tracks[r]
-        np.testing.assert_array_equal(a.times, t.times)
-        assert np.abs(a.mean - t.mean).max() <= 1e-9 and np.abs(a.cov - t.cov).max() <= 1e-9, f"robot {r}"
+    assert_tracks_equal(res, ref, 1e-9)
     rep = write_team_report(tr, src, "rdl", tmp_path / "report", {})
     assert rep["estimators"]["rdl"]["team"]["pos_rmse"] == pytest.approx(evaluate(ref)["team"]["pos_rmse"], abs=1e-9)
     assert rep["estimators"]["rdl"]["stats"]["net_auth_key_mismatch"] == sum(
@@ -463,21 +458,11 @@ def test_attacker_on_diekf_broadcasts_with_robot_2s_key_changes_nothing(tmp_path
     make_team_keys(tmp_path / "keys", src.robots, max_age=4.0)
     ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
     out = tmp_path / "attacker.json"
-    cmd = [sys.executable, str(DIEKF_ATTACKER), "--listen", ep, "--team", team, "--keys", str(tmp_path / "keys"),
-           "--robots", "0,1,2", "--out", str(out)]  # fmt: skip
-    attacker = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})  # fmt: skip
-    try:
-        assert attacker.stdout.readline().strip() == "ready", attacker.stderr.read()
+    args = ["--listen", ep, "--team", team, "--keys", str(tmp_path / "keys"), "--robots", "0,1,2", "--out", str(out)]
+    with attacker_process(DIEKF_ATTACKER, args):
         tr = run_team(src=src, source="sim:random", robots=3, duration=20.0, seed=1, estimator="diekf", team=team,
                       speed=2.0, max_wall=120, connect_extra=[ep], keys_dir=tmp_path / "keys",
                       log_dir=tmp_path / "logs")  # fmt: skip
-        attacker.wait(timeout=60)
-    finally:
-        if attacker.poll() is None:
-            attacker.kill()
-            attacker.wait()
-    assert attacker.returncode == 0, attacker.stderr.read()
     sent = json.loads(out.read_text())["sent"]
     assert sent["replay"] > 0 and sent["key_mismatch"] == 8
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
@@ -492,7 +477,4 @@ def test_attacker_on_diekf_broadcasts_with_robot_2s_key_changes_nothing(tmp_path
     res = team_result(tr, src, "diekf")
     ref = reference(src, "diekf")
     assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
-    for r, t in ref.tracks.items():
-        a = res.tracks[r]
-        np.testing.assert_array_equal(a.times, t.times)
-        assert np.abs(a.mean - t.mean).max() <= 1e-9 and np.abs(a.cov - t.cov).max() <= 1e-9, f"robot {r}"
+    assert_tracks_equal(res, ref, 1e-9)

@@ -18,12 +18,11 @@ import math
 import os
 import random
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _attacker import attacker_process
 
 from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Detection
@@ -315,19 +314,9 @@ def test_forged_forwards_in_another_robots_name_change_nothing(src, tmp_path):
     make_team_keys(tmp_path / "keys", src.robots)
     ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
     out = tmp_path / "attacker.json"
-    cmd = [sys.executable, str(ATTACKER), "--listen", ep, "--team", team, "--keys", str(tmp_path / "keys"),
-           "--out", str(out)]  # fmt: skip
-    attacker = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})  # fmt: skip
-    try:
-        assert attacker.stdout.readline().strip() == "ready", attacker.stderr.read()
+    args = ["--listen", ep, "--team", team, "--keys", str(tmp_path / "keys"), "--out", str(out)]
+    with attacker_process(ATTACKER, args):
         tr, res = _live(src, "cekf", tmp_path, team=team, speed=3.0, connect_extra=[ep], keys_dir=tmp_path / "keys")
-        attacker.wait(timeout=60)
-    finally:
-        if attacker.poll() is None:
-            attacker.kill()
-            attacker.wait()
-    assert attacker.returncode == 0, attacker.stderr.read()
     expected = json.loads(out.read_text())["expected"]
     got = _server_refusals(tmp_path / "logs" / "server.log")
     for category in ("key_mismatch", "not_owner", "unsigned", "sender_mismatch"):
