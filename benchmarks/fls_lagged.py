@@ -5,9 +5,10 @@
 
 The nodes' belief (``belief_at(t)``, what every estimator is scored on) is causal: inputs stamped up to ``t``. A
 window pose leaving the window has been re-estimated with at least ``lag`` seconds of later inputs: the smoothers'
-delayed output (:attr:`swarmloc.estimators.fls.WindowSolver.lagged_log`, estimate and marginal covariance). This
-prints, at the same instants (the window's poses that have ground truth), the team position RMSE [m] and ANEES
-per dof of the causal belief and of the delayed output. The delayed output answers ``lag`` seconds (or more) late.
+delayed output (:attr:`swarmloc.estimators.fls.WindowSolver.lagged_log`, estimate and marginal covariance;
+paired with the beliefs by :func:`swarmloc.evaluation.delayed.delayed_tracks`). This prints, at the same
+instants (the window's poses that have ground truth), the team position RMSE [m] and ANEES per dof of the causal
+belief and of the delayed output. The delayed output answers ``lag`` seconds (or more) late.
 """
 
 from __future__ import annotations
@@ -15,13 +16,11 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 from swarmloc.estimators import make_team, node_options
+from swarmloc.evaluation.delayed import delayed_tracks
+from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection
 from swarmloc.experiments.sources import load_source
-from swarmloc.kernels import cartesian as C
-from swarmloc.lie import SE2
 from swarmloc.runner import run
 
 
@@ -43,28 +42,12 @@ def main() -> None:
     t0 = time.perf_counter()
     res = run(nodes, src.events, stamps, truth=src.truth)
     wall = time.perf_counter() - t0
-    causal, lagged = [], []  # per instant: (position error [m], NEES)
-    for n in nodes:
-        tr = res.tracks[n.robot]
-        at = {float(t): k for k, t in enumerate(tr.times)}
-        for ts, (x, P) in n.lagged_log.items():
-            k = at.get(float(ts))
-            if k is None or not np.isfinite(tr.truth[k]).all():
-                continue
-            truth = tr.truth[k]
-            causal.append(_scores(tr.mean[k], tr.cov[k], truth))
-            mean, cov = C.to_group(np.asarray(x), np.asarray(P))
-            lagged.append(_scores(SE2.to_xytheta(mean), cov, truth))
-    print(f"{a.estimator}, lag {a.lag:g} s, {src.t_end - src.t_start:.0f} s, {len(causal)} instants, {wall:.0f} s wall")
-    for name, e in (("causal belief", causal), ("lagged (smoothed)", lagged)):
-        e = np.asarray(e)
-        print(f"{name:18s} pos RMSE [m] {np.sqrt(np.mean(e[:, 0] ** 2)):.4f}  ANEES/dof {np.mean(e[:, 1]) / 3:.3f}")
-
-
-def _scores(mean: np.ndarray, cov: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """Position error [m] and NEES (exponential coordinates, right perturbation) of one belief."""
-    y = SE2.log(SE2.inverse(SE2.from_xytheta(mean)) @ SE2.from_xytheta(truth), validate=False)
-    return float(np.hypot(*(mean[:2] - truth[:2]))), float(y @ np.linalg.solve(cov, y))
+    causal, delayed = delayed_tracks(nodes, res)
+    n = sum(t.times.size for t in causal.tracks.values())
+    print(f"{a.estimator}, lag {a.lag:g} s, {src.t_end - src.t_start:.0f} s, {n} instants, {wall:.0f} s wall")
+    for name, r in (("causal belief", causal), ("lagged (smoothed)", delayed)):
+        team = evaluate(r)["team"]
+        print(f"{name:18s} pos RMSE [m] {team['pos_rmse']:.4f}  ANEES/dof {team['anees']:.3f}")
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ from scipy.optimize import least_squares
 from swarmloc.estimators import make_team, node_options
 from swarmloc.estimators.fls import FixedLagSmoother, Window
 from swarmloc.estimators.fls_team import TeamFixedLagSmoother, pseudo_factor
+from swarmloc.evaluation.delayed import delayed_tracks
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
@@ -160,23 +161,10 @@ def test_flsd_lagged_output_beats_its_causal_belief_and_stays_consistent():
     stamps = sorted({float(d.t) for e in src.events for d in (e if isinstance(e, list) else [e])
                      if isinstance(d, Detection)})  # fmt: skip
     res = run(nodes, src.events, stamps, truth=src.truth)
-    err_c, err_s, nees = [], [], []
-    for n in nodes:
-        tr = res.tracks[n.robot]
-        at = {float(t): k for k, t in enumerate(tr.times)}
-        for ts, (x, P) in n.lagged_log.items():
-            k = at.get(float(ts))
-            if k is None:
-                continue
-            err_c.append(np.hypot(*(tr.mean[k][:2] - tr.truth[k][:2])))
-            err_s.append(np.hypot(*(x[:2] - tr.truth[k][:2])))
-            g, cov = C.to_group(np.asarray(x), np.asarray(P))
-            y = SE2.log(SE2.inverse(g) @ SE2.from_xytheta(tr.truth[k]))
-            nees.append(float(y @ np.linalg.solve(cov, y)))
-    assert len(err_s) > 100
-    rmse_c, rmse_s = np.sqrt(np.mean(np.square(err_c))), np.sqrt(np.mean(np.square(err_s)))
-    assert rmse_s < rmse_c, (rmse_s, rmse_c)
-    assert 0.5 <= np.mean(nees) / 3 <= 2.0, np.mean(nees) / 3
+    causal, delayed = (evaluate(r)["team"] for r in delayed_tracks(nodes, res))
+    assert delayed["n"] == causal["n"] > 100
+    assert delayed["pos_rmse"] < causal["pos_rmse"], (delayed, causal)
+    assert 0.5 <= delayed["anees"] <= 2.0, delayed
 
 
 def test_fls_on_a_small_team_is_at_least_as_accurate_as_ci_and_consistent():

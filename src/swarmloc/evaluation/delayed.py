@@ -1,0 +1,42 @@
+"""The fixed-lag smoothers' delayed output scored beside their causal belief at the same instants.
+
+A smoother node with ``lagged_log`` set (:attr:`swarmloc.estimators.fls.WindowSolver.lagged_log`) files every pose
+leaving its window, ``stamp -> (x (3,), P (3, 3))`` Cartesian. :func:`delayed_tracks` pairs those with the run's
+recorded (causal) beliefs at the same stamps, so that :func:`~swarmloc.evaluation.metrics.evaluate` scores both
+on the same instants.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from swarmloc.kernels import cartesian as C
+from swarmloc.lie import SE2
+from swarmloc.runner import RobotTrack, RunResult
+
+__all__ = ["delayed_tracks"]
+
+
+def delayed_tracks(nodes: Iterable[Any], result: RunResult) -> tuple[RunResult, RunResult]:
+    """``(causal, delayed)``: per robot, the recorded beliefs of ``result`` at the stamps of its node's
+    ``lagged_log`` that were recorded and have finite truth, and the delayed output at those stamps (means
+    ``(x, y, theta)``, exponential-coordinate covariances, as every track). Record the run at the detection
+    stamps for the two to meet."""
+    causal: dict[int, RobotTrack] = {}
+    delayed: dict[int, RobotTrack] = {}
+    for n in nodes:
+        tr = result.tracks[n.robot]
+        at = {float(t): k for k, t in enumerate(tr.times)}
+        rows = [(at[float(ts)], xp) for ts, xp in sorted(n.lagged_log.items()) if float(ts) in at]
+        rows = [(k, xp) for k, xp in rows if np.isfinite(tr.truth[k]).all()]
+        idx = np.array([k for k, _ in rows], dtype=int)
+        causal[n.robot] = RobotTrack(tr.times[idx], tr.mean[idx], tr.cov[idx], tr.truth[idx])
+        x = np.array([xp[0] for _, xp in rows], dtype=float).reshape(-1, 3)
+        P = np.array([xp[1] for _, xp in rows], dtype=float).reshape(-1, 3, 3)
+        g, cov = C.to_group(x, P) if len(rows) else (np.zeros((0, 3, 3)), P)
+        delayed[n.robot] = RobotTrack(tr.times[idx], SE2.to_xytheta(g).reshape(-1, 3), cov, tr.truth[idx])
+    name = result.estimator
+    return RunResult(name, causal, result.wall_time), RunResult(f"{name} (delayed)", delayed, result.wall_time)
