@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 import time
 from pathlib import Path
 
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
-from swarmloc.experiments.lodo import DATASETS, detection_set, filter_scores, model_scores
+from swarmloc.experiments.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -49,7 +48,7 @@ def main() -> None:
     for k in (int(x) for x in a.datasets.split(",")):
         data = load_mrclam(a.mrclam / f"MRCLAM_Dataset{k}")
         m, fold = ms["models"][k][chosen], ms["folds"][k][chosen]
-        ref = (m.range.std * math.sqrt(fold["ratio_range"]), m.bearing.std * math.sqrt(fold["ratio_bearing"]))
+        ref = own_std(m, fold)
         for s in (float(x) for x in a.scales.split(",")):
             cfg = dataclasses.replace(
                 DEFAULTS, motion=dataclasses.replace(base, **{n: getattr(base, n) * s for n in terms})

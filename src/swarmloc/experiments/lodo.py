@@ -67,6 +67,7 @@ __all__ = [
     "landmark_nis",
     "lodo",
     "lodo_markdown",
+    "own_std",
 ]
 
 DATASETS: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 9)
@@ -288,6 +289,12 @@ def filter_scores(
     return out
 
 
+def own_std(model: CameraModel, fold: dict[str, Any]) -> tuple[float, float]:
+    """The left-out recording's own (range [m], bearing [rad]) std: ``model``'s std times the square root of the
+    robust variance ratios of its held-out score ``fold`` (:func:`model_scores`)."""
+    return model.range.std * math.sqrt(fold["ratio_range"]), model.bearing.std * math.sqrt(fold["ratio_bearing"])
+
+
 def lodo(
     root: str | Path,
     estimators: Sequence[str] = ("dekf", "ci", "rdl", "diekf", "iekf"),
@@ -317,7 +324,7 @@ def lodo(
             if progress:
                 print(f"dataset {k}, landmarks {'on' if lm else 'off'}", flush=True)
             m, fold = ms["models"][k][chosen], ms["folds"][k][chosen]
-            ref = (m.range.std * math.sqrt(fold["ratio_range"]), m.bearing.std * math.sqrt(fold["ratio_bearing"]))
+            ref = own_std(m, fold)
             runs[f"{k}/{'on' if lm else 'off'}"] = filter_scores(
                 data, m, estimators, lm, duration, holdout=holdout, reference_std=ref
             )
