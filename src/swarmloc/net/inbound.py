@@ -130,7 +130,12 @@ class Inbound:
         self._step(env.body)
 
     def _step(self, item: Any, query: Any = None) -> None:
-        """Step the node with ``item`` (answering the Zenoh ``query`` with it if given) and send what it returns."""
+        """Step the node with ``item`` (answering the Zenoh ``query`` with it if given) and send what it returns.
+        A message stamped past the node's present moves it: the beliefs that become final are published first,
+        before the history's pruning can drop what they are computed from (as before a source input)."""
+        stamp = getattr(item, "stamp", None)
+        if isinstance(stamp, int | float) and stamp > self.node.present:
+            self._publish_due(upto=stamp)
         out = self.node.step(item)
         if out or query is not None:
             self._route(out, query, item)
