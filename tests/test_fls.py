@@ -167,6 +167,45 @@ def test_flsd_lagged_output_beats_its_causal_belief_and_stays_consistent():
     assert 0.5 <= delayed["anees"] <= 2.0, delayed
 
 
+def test_delayed_output_from_the_configuration_is_scored_in_its_own_row(tmp_path):
+    """``[filter] delayed_output = true`` with ``smoother_lag = 1.5``: ``evaluate_stream`` gives each smoother a row
+    ``<name>_delayed`` that is the nodes' own filings (a team built with ``delayed=True, lag=1.5`` and run by hand:
+    equal), at detection instants only, scored against the truth there, with the causal run's counts; the report
+    writes its TUM files; the default configuration gives no such row."""
+    import dataclasses
+
+    from swarmloc.evaluation.delayed import delayed_output
+    from swarmloc.experiments.evaluate import evaluate_stream, write_report
+
+    src = load_source("sim:landmarks", robots=3, duration=8.0, seed=2)
+    cfg = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, delayed_output=True,
+                                                                      smoother_lag=1.5))  # fmt: skip
+    kw = dict(t_start=src.t_start, t_end=src.t_end, truth=src.truth, landmarks=src.landmarks)
+    rep, res = evaluate_stream(src.events, src.initial, estimators=["fls", "flsd"], config=cfg, **kw)
+    assert list(rep["estimators"]) == ["fls", "fls_delayed", "flsd", "flsd_delayed"]
+    nodes = make_team("flsd", src.initial, **{**node_options("flsd", src.config, src.landmarks, src.t_start),
+                                              "delayed": True, "lag": 1.5})  # fmt: skip
+    run(nodes, src.events, src.record_times(), truth=src.truth)
+    by_hand = delayed_output(nodes, src.truth, "flsd")
+    detections = {float(e.stamp) for e in src.events if isinstance(e, Detection)}
+    for r, tr in by_hand.tracks.items():
+        got = res["flsd_delayed"].tracks[r]
+        assert tr.times.size > 5 and set(tr.times[1:].tolist()) <= detections  # t0, then detection instants
+        np.testing.assert_array_equal(got.times, tr.times)
+        np.testing.assert_array_equal(got.mean, tr.mean)
+        np.testing.assert_array_equal(got.cov, tr.cov)
+        np.testing.assert_allclose(got.truth, src.truth(r, tr.times))
+    row = rep["estimators"]["flsd_delayed"]
+    assert row["team"] == evaluate(by_hand)["team"] and row["delayed_s"] == 1.5
+    assert row["stats"] == rep["estimators"]["flsd"]["stats"] and row["instants"] == row["team"]["n"]
+    write_report(tmp_path, "t", rep, res, src.t_start)
+    assert (tmp_path / "tum" / "flsd_delayed_robot0.tum").is_file()
+    rep0, _ = evaluate_stream(src.events, src.initial, estimators=["flsd"], config=src.config, **kw)
+    assert list(rep0["estimators"]) == ["flsd"]
+    with pytest.raises(ValueError, match="'delayed' must be true or false"):
+        make_team("fls", src.initial, delayed=1)
+
+
 def test_fls_on_a_small_team_is_at_least_as_accurate_as_ci_and_consistent():
     """3 robots, 6 landmarks, 20 s: fls's position RMSE within 1% of covariance intersection's (same exchange,
     same weights, relinearized window; measured 0.00685 against 0.00682 m: this scene is nearly linear, so the

@@ -23,10 +23,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from swarmloc.config import load_config
 from swarmloc.estimators import make_team, node_options
+from swarmloc.evaluation.delayed import delayed_output
 from swarmloc.events import Odometry
 from swarmloc.experiments.sources import load_source
-from swarmloc.experiments.team import run_team, team_result
+from swarmloc.experiments.team import delayed_team_result, run_team, team_result
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlUpdate, flat
 from swarmloc.net.entry import make_node
 from swarmloc.net.faults import Faults, parse_faults
@@ -366,20 +368,29 @@ def test_fls_networked_equals_in_process_on_a_simulated_team():
     assert res.stats["fused"] > 50
 
 
-def test_flsd_networked_equals_in_process_on_a_simulated_team_with_landmarks():
+def test_flsd_networked_equals_in_process_on_a_simulated_team_with_landmarks(tmp_path):
     """The fixed-lag smoother on diekf's exchange (window of own landmark factors, TeamUpdate broadcasts, team
-    pseudo-factors) through 3 node processes equals the in-process run, 3 robots with landmarks, 10 s."""
-    src = load_source("sim:landmarks", robots=3, duration=10.0, seed=2)
+    pseudo-factors) through 3 node processes equals the in-process run, 3 robots with landmarks, 10 s; with
+    ``delayed_output`` on (``smoother_lag = 1.5``) its delayed output too: every pose that left a window, published
+    once final on ``robot/<id>/delayed``, equals the in-process nodes' filings (measured: difference 0)."""
+    cfg = tmp_path / "delayed.toml"
+    cfg.write_text("[filter]\ndelayed_output = true\nsmoother_lag = 1.5\n")
+    src = load_source("sim:landmarks", robots=3, duration=10.0, seed=2, config=load_config(cfg))
     team = f"eqsimflsd{os.getpid()}"
     tr = run_team(src=src, source="sim:landmarks", robots=3, duration=10.0, seed=2, estimator="flsd", team=team,
-                  max_wall=120)  # fmt: skip
+                  max_wall=120, config_file=str(cfg))  # fmt: skip
     assert not leftovers(team)
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, "flsd")
-    ref = reference(src, "flsd")
+    nodes = make_team("flsd", src.initial, **node_options("flsd", src.config, src.landmarks))
+    ref = run(nodes, src.events, src.record_times(), truth=src.truth)
     assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
     assert max_diff(res, ref) <= 1e-9
     assert res.stats["fused"] > 100 and ref.stats["fused"] == res.stats["fused"]
+    late, late_ref = delayed_team_result(tr, src, "flsd"), delayed_output(nodes, src.truth, "flsd")
+    assert sum(t.times.size for t in late_ref.tracks.values()) > 40
+    assert res.stats["net_delayed_published"] == tr.counts["delayed_collected"] == len(tr.delayed)
+    assert max_diff(late, late_ref) <= 1e-9
 
 
 @pytest.mark.parametrize("est", DISTRIBUTED)

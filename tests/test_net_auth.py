@@ -323,6 +323,39 @@ def _launcher(tk: TeamKeys, src) -> _Launcher:
     return _Launcher(TEAM, src.robots, [], Faults(), False, [], None, tk, src.record_times())
 
 
+def test_the_collector_keeps_delayed_output_at_detection_instants_only(tmp_path):
+    """A smoother's delayed output (``robot/<id>/delayed``) is kept apart from the beliefs, at the run's start or a
+    detection instant only; one stamped elsewhere (a record time without a detection, or far off), one signed with
+    another robot's key, and an SE(3) one are refused with their reasons; a higher revision replaces the first."""
+    from swarmloc.events import Detection
+    from swarmloc.net.team import pose_stamps
+
+    src = load_source("sim:landmarks", robots=3, duration=4.0, seed=2)
+    tk = TeamKeys(src.robots, tmp_path / "keys")
+    lr = _Launcher(TEAM, src.robots, [], Faults(), False, [], None, tk, src.record_times(), pose_stamps(src))
+    own, forged = Signer(1, load_private(tk.files[1])), Signer(1, load_private(tk.files[2]))
+
+    def sample(s: Signer, b: Belief) -> _Sample:
+        key = robot_key(TEAM, 1, "delayed")
+        return _Sample(key, s.seal(key, encode(TEAM, s.member, 0, b)))
+
+    t_det = next(float(e.stamp) for e in src.events if isinstance(e, Detection) and e.observer == 1)
+    t_rec = next(float(t) for t in src.record_times() if float(t) not in pose_stamps(src))
+    lr.collect(sample(own, Belief(robot=1, stamp=t_det, final=True, mean=I3, cov=COV)))
+    lr.collect(sample(own, Belief(robot=1, stamp=t_det, rev=1, final=True, mean=SHIFT, cov=COV)))
+    for t in (t_rec, 1e6):
+        lr.collect(sample(own, Belief(robot=1, stamp=t, final=True, mean=I3, cov=COV)))
+    lr.collect(sample(forged, Belief(robot=1, stamp=src.t_start, rev=5, final=True, mean=SHIFT, cov=COV)))
+    se3 = Belief(robot=1, stamp=src.t_start, final=True, mean=flat(np.eye(4)), cov=flat(np.eye(6) * 1e-2), group="SE3")
+    lr.collect(sample(own, se3))
+    got = lr.result
+    assert list(got.delayed) == [(1, t_det)] and got.delayed[(1, t_det)].mean == SHIFT and not got.beliefs
+    assert got.counts["delayed_collected"] == 2 and got.counts["collector_rejected"] == 4
+    assert got.reasons["delayed output that is no SE(2) belief at a detection instant of the run"] == 3
+    assert got.counts["collector_auth_key_mismatch"] == 1
+    tk.close()
+
+
 def reference(src, est: str):
     nodes = make_team(est, src.initial, **node_options(est, src.config, src.landmarks))
     return run(nodes, src.events, src.record_times(), truth=src.truth)

@@ -242,7 +242,10 @@ class FilterConfig:
     integer in [1, 100]): the node's clock contract (:mod:`swarmloc.node.clock`). ``order``: 1 or 2.
     ``iterations``, ``point_iterations``: integers ``>= 1``. ``association`` (one of :attr:`ASSOCIATIONS`) and
     ``association_gate`` (a probability in ``(0, 1)``): how robot detections get their identity
-    (:mod:`swarmloc.experiments.association`).
+    (:mod:`swarmloc.experiments.association`). ``smoother_lag`` [s] ``> 0``: the window of the fixed-lag smoothers
+    ``fls`` and ``flsd``; ``delayed_output`` (a boolean): they also give their smoothed estimate of each pose as it
+    leaves the window (``smoother_lag`` s late), scored beside the causal belief as ``"<name>_delayed"`` and
+    published by network nodes (:mod:`swarmloc.evaluation.delayed`).
     """
 
     SECTION: ClassVar[str] = "filter"
@@ -256,6 +259,8 @@ class FilterConfig:
         "point_iterations": "iterations of a point (landmark) update (>= 1)",
         "association": "tags, nearest, joint or anonymous: how robot detections get their identity",
         "association_gate": "chi-square probability in (0, 1) of the association gate",
+        "smoother_lag": "[s] window of the fixed-lag smoothers fls and flsd",
+        "delayed_output": "true or false: fls and flsd also output each pose as it leaves the window",
     }
     ASSOCIATIONS: ClassVar[tuple[str, ...]] = ("tags", "nearest", "joint", "anonymous")
 
@@ -268,9 +273,14 @@ class FilterConfig:
     point_iterations: int = 3
     association: str = "tags"
     association_gate: float = 0.99
+    smoother_lag: float = 2.0
+    delayed_output: bool = False
 
     def __post_init__(self) -> None:
         s = self.SECTION
+        _set(self, "smoother_lag", _positive(s, "smoother_lag", self.smoother_lag))
+        if not isinstance(self.delayed_output, bool):
+            raise ConfigError(f"[{s}] delayed_output: expected true or false, got {_describe(self.delayed_output)}")
         if self.association not in self.ASSOCIATIONS:
             choices = ", ".join(f'"{c}"' for c in self.ASSOCIATIONS)
             raise ConfigError(f"[{s}] association: expected one of {choices}, got {_describe(self.association)}")

@@ -158,6 +158,8 @@ def node_options(
         order=f.order,
         iterations=f.iterations,
         point_iterations=f.point_iterations,
+        lag=f.smoother_lag,
+        delayed=f.delayed_output,
         # "anonymous" hands the nodes tagged relative poses (swarmloc.experiments.association): they run "tags"
         **({"association": f.association} if choose else {}),
         association_gate=f.association_gate,

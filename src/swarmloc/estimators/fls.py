@@ -41,7 +41,10 @@ one of their updates for windows of this size and makes the replay exact by cons
 
 **Causal.** ``belief_at(t)`` is the belief after the inputs stamped ``<= t`` (the node's contract), i.e. the
 smoother's estimate of the newest pose, predicted to ``t``: a filtered estimate with relinearized history, not
-the (better) smoothed estimate of a past pose that a lagged output would give.
+the (better) smoothed estimate of a past pose. That one is the **delayed output** (option ``delayed=True``,
+``[filter] delayed_output``): each pose as it leaves the window, ``lag`` s late, with its marginal covariance
+(:attr:`WindowSolver.lagged_log`); reports score it as ``"<name>_delayed"`` (:mod:`swarmloc.evaluation.delayed`)
+and network nodes publish it (:mod:`swarmloc.net.publishing`).
 """
 
 from __future__ import annotations
@@ -213,9 +216,30 @@ class WindowSolver:
     lag: float
     max_iterations: int
     lagged_log: dict | None = None
-    """The smoothed (delayed) output, None: off. Set it to a dict and every pose leaving the window is filed there,
-    ``stamp [s] -> (x (3,), P (3, 3))``: its estimate ``(x, y, theta)`` and Cartesian marginal covariance from the
-    whole window's solve at that moment (at least ``lag`` seconds of later inputs; the latest replay's)."""
+    """The smoothed (delayed) output, None: off (the option ``delayed=True`` or a dict set here turns it on). Every
+    pose leaving the window is filed there, ``stamp [s] -> (x (3,), P (3, 3))``: its estimate ``(x, y, theta)`` and
+    Cartesian marginal covariance from the whole window's solve at that moment (at least ``lag`` seconds of later
+    inputs; the latest replay's)."""
+    lagged_when: dict | None = None
+    """``stamp [s] -> t [s]``: when each pose of :attr:`lagged_log` was filed (the solve's stamp). A filing is final
+    once the node's history has passed ``t`` by a horizon: no late input replays that solve any more."""
+    lagged_fresh: list | None = None
+    """None, or a list a driver empties: the stamps filed (or filed again by a replay) since it last did."""
+
+    def _init_delayed(self, delayed: bool) -> None:
+        if not isinstance(delayed, bool):
+            raise ValueError(f"{type(self).__name__}: 'delayed' must be true or false, got {delayed!r}")
+        if delayed:
+            self.lagged_log = {}
+
+    def _file_lagged(self, ts: float, x: np.ndarray, P: np.ndarray, t: float) -> None:
+        """File pose ``ts``'s smoothed estimate and marginal, solved at ``t``, in the delayed output."""
+        self.lagged_log[ts] = (x, P)  # type: ignore[index]
+        if self.lagged_when is None:
+            self.lagged_when = {}
+        self.lagged_when[ts] = t
+        if self.lagged_fresh is not None:
+            self.lagged_fresh.append(ts)
 
     def _solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
         """Solve the window (Gauss-Newton from its estimates), take the newest pose's marginal and
@@ -245,7 +269,7 @@ class WindowSolver:
                 if self.lagged_log is not None:
                     for pid, ts in zip(win.poses[:k0], win.stamps[:k0], strict=True):
                         xs = est[pid]
-                        self.lagged_log[ts] = (xs, _cartesian_cov(xs[2], marginals.marginalCovariance(pid)))
+                        self._file_lagged(ts, xs, _cartesian_cov(xs[2], marginals.marginalCovariance(pid)), t)
                 win = self._marginalize(win, k0, result)
         except RuntimeError:  # GTSAM: an indeterminant system
             return None
@@ -277,18 +301,20 @@ class FixedLagSmoother(WindowSolver, RobotNode):
     max_iterations: Gauss-Newton iterations per solve (>= 1), always all of them: a solve that stopped at a
         convergence threshold would make the result jump with rounding, and the history's replay of late input
         must give the ordered run's result.
+    delayed: keep the smoothed (delayed) output in :attr:`~WindowSolver.lagged_log` (default off).
     """
 
     name = "fls"
 
     def __init__(self, robot: int, initial: GroupGaussian, *, lag: float = 2.0, max_iterations: int = 3,
-                 **kw: Any) -> None:  # fmt: skip
+                 delayed: bool = False, **kw: Any) -> None:  # fmt: skip
         if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
             raise ValueError(f"FixedLagSmoother: 'lag' must be a positive number of seconds, got {lag!r}")
         if not (isinstance(max_iterations, int) and max_iterations >= 1):
             raise ValueError(f"FixedLagSmoother: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
         self.lag = float(lag)
         self.max_iterations = max_iterations
+        self._init_delayed(delayed)
         self._g = load_gtsam()
         super().__init__(robot, initial, **kw)
 

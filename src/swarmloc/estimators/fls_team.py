@@ -102,18 +102,20 @@ def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu
 
 class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
     """``diekf`` whose own landmark updates come from a fixed-lag smoother of its recent poses (module
-    docstring). ``lag`` [s] and ``max_iterations`` as :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s."""
+    docstring). ``lag`` [s], ``max_iterations`` and ``delayed`` as
+    :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s."""
 
     name = "flsd"
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), lag: float = 2.0,
-                 max_iterations: int = 3, **kw: Any) -> None:  # fmt: skip
+                 max_iterations: int = 3, delayed: bool = False, **kw: Any) -> None:  # fmt: skip
         if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
             raise ValueError(f"{type(self).__name__}: 'lag' must be a positive number of seconds, got {lag!r}")
         if not (isinstance(max_iterations, int) and max_iterations >= 1):
             raise ValueError(f"{type(self).__name__}: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
         self.lag = float(lag)
         self.max_iterations = max_iterations
+        self._init_delayed(delayed)
         self._g = load_gtsam()
         super().__init__(robot, initial, team=team, **kw)
 

@@ -20,6 +20,7 @@ import numpy as np
 from swarmloc.config import DEFAULTS, Config
 from swarmloc.datasets.tum import write_tum, write_tum3
 from swarmloc.estimators import ESTIMATORS, make_team, node_options
+from swarmloc.evaluation.delayed import delayed_output
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
 from swarmloc.experiments.association import association_accuracy, association_events
@@ -113,9 +114,23 @@ def evaluate_stream(
             ev["accounted"] = res.accounted()
             ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
             report["estimators"][name] = ev
+            if getattr(nodes[0], "lagged_log", None) is not None:  # a smoother's delayed output, its own row
+                late = delayed_output(nodes, truth, name, res.wall_time)
+                results[late.estimator] = late
+                report["estimators"][late.estimator] = delayed_row(late, ev, truth is not None, nodes[0].lag)
     n_rec = sum(tr.times.size for tr in next(iter(results.values())).tracks.values()) if results else 0
     report["anees_bounds_if_independent"] = anees_bounds(max(n_rec, 1))
     return report, results
+
+
+def delayed_row(late: RunResult, causal: dict, scored: bool, lag: float) -> dict:
+    """The report's row of a delayed output: its accuracy at its own stamps, the causal run's counts and speed."""
+    ev = evaluate(late) if scored else {"estimator": late.estimator, "robots": {}, "team": None}
+    ev.update({k: v for k, v in causal.items() if k not in ("estimator", "robots", "team")})
+    ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
+    ev["delayed_s"] = lag
+    ev["instants"] = int(sum(tr.times.size for tr in late.tracks.values()))
+    return ev
 
 
 def write_report(out_dir: str | Path, stem: str, report: dict, results: dict[str, RunResult], t_start: float) -> None:
@@ -180,8 +195,8 @@ def figures(out: Path, results: dict[str, RunResult], t_start: float) -> list[st
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     for name, res in results.items():
         tracks = [tr for tr in res.tracks.values() if tr.times.size]
-        if not tracks:
-            continue
+        if not tracks or any(not np.array_equal(tr.times, tracks[0].times) for tr in tracks):
+            continue  # a team mean over time needs common stamps (a delayed output has each robot's own)
         n = min(tr.times.size for tr in tracks)
         errs = [errors(tr) for tr in tracks]
         t = tracks[0].times[:n] - t_start

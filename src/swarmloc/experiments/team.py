@@ -13,15 +13,17 @@ import os
 from collections import Counter
 from typing import Any
 
+import numpy as np
+
 from swarmloc.datasets.source import Source
 from swarmloc.evaluation.metrics import anees_bounds, evaluate
-from swarmloc.experiments.evaluate import write_report
+from swarmloc.experiments.evaluate import delayed_row, write_report
 from swarmloc.experiments.sources import load_source
 from swarmloc.net.entry import network_class
 from swarmloc.net.team import TeamRun, launch_team
-from swarmloc.runner.result import RunResult
+from swarmloc.runner.result import RobotTrack, RunResult
 
-__all__ = ["TeamRun", "run_team", "team_result", "write_team_report"]
+__all__ = ["TeamRun", "delayed_team_result", "run_team", "team_result", "write_team_report"]
 
 
 def run_team(
@@ -63,6 +65,20 @@ def team_result(run: TeamRun, src: Source, estimator: str) -> RunResult:
     stats["reports"] = len(run.reports)
     stats.update(run.counts)
     return RunResult(estimator, run.tracks(src.truth), run.wall_s, dict(stats), len(src.events), reasons, {})
+
+
+def delayed_team_result(run: TeamRun, src: Source, estimator: str) -> RunResult | None:
+    """A smoother team's delayed output as a :class:`~swarmloc.runner.RunResult` named ``"<estimator>_delayed"``
+    (as :func:`swarmloc.evaluation.delayed.delayed_output` names the in-process one; with truth, the stamps
+    without it left out, as there); None when the team published none."""
+    if not run.delayed:
+        return None
+    tracks = run.tracks(src.truth, delayed=True)
+    if src.truth is not None:
+        for r, tr in tracks.items():
+            ok = np.isfinite(tr.truth).all(axis=1)
+            tracks[r] = RobotTrack(tr.times[ok], tr.mean[ok], tr.cov[ok], tr.truth[ok])
+    return RunResult(f"{estimator}_delayed", tracks, run.wall_s)
 
 
 def ended_notes(run: TeamRun, robots: list[int]) -> tuple[list[str], list[int]]:
@@ -118,5 +134,10 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
         "notes": notes,
         **extra,
     }
-    write_report(out_dir, "team", report, {estimator: res}, src.t_start)
+    results = {estimator: res}
+    late = delayed_team_result(run, src, estimator)
+    if late is not None:  # a smoother's delayed output: its own row, the team's counts and speed
+        results[late.estimator] = late
+        report["estimators"][late.estimator] = delayed_row(late, ev, truth, src.config.filter.smoother_lag)
+    write_report(out_dir, "team", report, results, src.t_start)
     return report

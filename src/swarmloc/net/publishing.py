@@ -8,6 +8,13 @@ lockstep waits on (:mod:`swarmloc.net.lockstep`).
 that a later message still changes is published again with a higher revision. With ``ros_domain`` each belief is
 also published as a ROS 2 ``geometry_msgs/msg/PoseWithCovarianceStamped`` under rmw_zenoh's key layout.
 
+**Delayed output.** A smoother node with its delayed output on (``fls`` / ``flsd`` with ``delayed=True``,
+:attr:`swarmloc.estimators.fls.WindowSolver.lagged_log`) files each pose as it leaves the window; once that filing
+is final (the history is a horizon past the solve that filed it, or the run ended) it is published once as a final
+:class:`~swarmloc.net.schema.Belief` stamped at the pose's instant on ``robot/<id>/delayed`` (a filing that a
+replay changes later is published again with a higher revision), then dropped from the node: what a long run keeps
+stays bounded.
+
 **Lines.** With range scans (``scans``), once the node's belief at a scan's time is final (the same horizon rule),
 the scan's lines carried into the world with that belief (:func:`swarmloc.mapping.scan_observations`, second
 order) are published once as :class:`~swarmloc.net.schema.Lines` on ``robot/<id>/lines`` for the belief server's
@@ -20,6 +27,7 @@ import math
 import time
 
 from swarmloc.events import Odometry
+from swarmloc.kernels import cartesian as C
 from swarmloc.messages import flat
 from swarmloc.net.schema import MAX_LINES, Belief, Lines, Progress, group_tag
 from swarmloc.net.transport import robot_key
@@ -37,6 +45,11 @@ class Publishing:
         self._last_progress_wall = 0.0
         self._last_key: tuple[float, int] = (-math.inf, 0)
         self._scan_i = 0  # scans whose lines are published (or had none)
+        lagging = getattr(self.node, "lagged_log", None) is not None
+        self._delayed: dict[float, Belief] | None = {} if lagging else None  # the delayed poses published (pruned)
+        self._delayed_due: dict[float, None] = {}  # stamps filed whose filing is not final yet
+        if lagging:
+            self.node.lagged_fresh = []
 
     def _next_key(self) -> tuple[float, int]:
         """``(stamp, priority)`` of the node's next input (a detection group 1, odometry 2; ``(inf, 3)``: none left).
@@ -110,6 +123,31 @@ class Publishing:
             self.on_lines(msg)
         self.counts["lines_published"] += len(lines)
 
+    def _publish_delayed(self, end: bool, wm: float) -> None:
+        """Publish the delayed poses whose filing is final (``end``: all filed), then drop them from the node."""
+        node = self.node
+        for ts in node.lagged_fresh:
+            self._delayed_due[ts] = None
+        node.lagged_fresh.clear()
+        cut = wm - node.horizon
+        for ts in [ts for ts in self._delayed_due if end or node.lagged_when[ts] < cut]:
+            del self._delayed_due[ts]
+            x, P = node.lagged_log.pop(ts)
+            node.lagged_when.pop(ts)
+            g, cov = C.to_group(x, P)
+            mean, cov = flat(g), flat(cov)
+            old = self._delayed.get(ts)  # type: ignore[union-attr]
+            if old is not None and old.mean == mean and old.cov == cov:
+                continue
+            rev = 0 if old is None else old.rev + 1
+            msg = Belief(robot=self.robot, stamp=float(ts), rev=rev, final=True, mean=mean, cov=cov)
+            self._delayed[ts] = msg  # type: ignore[index]
+            self._pub_delayed.put(self._env(msg, robot_key(self.scope, self.robot, "delayed")))
+            self.counts["delayed_published"] += 1
+        if len(self._delayed) > 4096:  # type: ignore[arg-type]  # forget poses filed two horizons back
+            for ts in [t for t in self._delayed if t < cut - node.horizon - node.lag]:  # type: ignore[union-attr]
+                del self._delayed[ts]  # type: ignore[union-attr]
+
     def _publish_due(self, end: bool = False, upto: float = -math.inf) -> None:
         """Publish the beliefs due: provisional ones up to the node's present, final ones a horizon before it (or before
         ``upto``: called before an input stamped ``upto`` is applied, whose pruning could drop them otherwise)."""
@@ -126,6 +164,8 @@ class Publishing:
             while self._scan_i < sc.times.size and (end or sc.times[self._scan_i] < wm - self.node.horizon):
                 self._publish_lines(self._scan_i)
                 self._scan_i += 1
+        if self._delayed is not None:
+            self._publish_delayed(end, wm)
         if self._final - self._pruned_at >= 256:  # forget beliefs no input can change any more (two horizons back)
             self._pruned_at = self._final
             cut = wm - 2 * self.node.horizon
@@ -133,7 +173,9 @@ class Publishing:
                 del self._published[t]
 
     def _republish_changed(self) -> None:
-        """After the end: publish again every final belief a late message changed."""
+        """After the end: publish again every final belief (and delayed pose) a late message changed."""
+        if self._delayed is not None:
+            self._publish_delayed(True, self.node.present)
         for t in sorted(self._published):
             old = self._published[t]
             try:

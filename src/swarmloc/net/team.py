@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.datasets.source import Source
+from swarmloc.events import Detection
 from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
 from swarmloc.net.entry import hosted_class, network_class
 from swarmloc.net.faults import Faults, parse_faults
@@ -67,22 +68,28 @@ class TeamRun:
     """Every robot's :class:`~swarmloc.net.schema.Lines` (a source with range scans), as received."""
     map: MapAnswer | None = None
     """The belief server's fused line map, asked for once every node has ended (None: no server, or no answer)."""
+    delayed: dict[tuple[int, float], Belief] = field(default_factory=dict)
+    """A smoother team's delayed output (``fls`` / ``flsd`` with ``delayed_output``): the latest revision per robot
+    and pose stamp (:mod:`swarmloc.net.publishing`)."""
 
-    def keep(self, b: Belief) -> None:
+    def keep(self, b: Belief, delayed: bool = False) -> None:
+        into = self.delayed if delayed else self.beliefs
         k = (b.robot, b.stamp)
-        old = self.beliefs.get(k)
+        old = into.get(k)
         if old is None or (b.final, b.rev) > (old.final, old.rev):
-            self.beliefs[k] = b
+            into[k] = b
 
-    def tracks(self, truth: Any = None) -> dict[int, Any]:
-        """Recorded beliefs per robot as :class:`~swarmloc.runner.RobotTrack` (truth NaN unless ``truth``)."""
+    def tracks(self, truth: Any = None, delayed: bool = False) -> dict[int, Any]:
+        """Recorded beliefs (``delayed``: the delayed output) per robot as :class:`~swarmloc.runner.RobotTrack`
+        (truth NaN unless ``truth``)."""
         from swarmloc.datasets.tum import pose7
         from swarmloc.lie import SE2
         from swarmloc.runner.result import RobotTrack
 
         out = {}
-        for r in sorted({k[0] for k in self.beliefs}):
-            bs = sorted((b for k, b in self.beliefs.items() if k[0] == r), key=lambda b: b.stamp)
+        beliefs = self.delayed if delayed else self.beliefs
+        for r in sorted({k[0] for k in beliefs}):
+            bs = sorted((b for k, b in beliefs.items() if k[0] == r), key=lambda b: b.stamp)
             times = np.array([b.stamp for b in bs])
             if bs and bs[0].group == "SE3":  # an SE(3) team: (x, y, z, qx, qy, qz, qw) and 6 x 6, as in-process
                 means = pose7(np.array([b.mean for b in bs]).reshape(-1, 4, 4)).reshape(-1, 7)
@@ -165,12 +172,20 @@ def launch_team(
     server_args = server_arguments(node_args) if hosted else []
     keys = TeamKeys(src.robots, keys_dir)
     try:
-        launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir, keys, src.record_times())
+        launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir, keys, src.record_times(),
+                             pose_stamps(src))  # fmt: skip
         launcher.server_args = server_args
         launcher.view = view
         return launcher.run(src.t_start, max_wall)
     finally:
         keys.close()
+
+
+def pose_stamps(src: Source) -> frozenset[float]:
+    """The stamps a smoother's window can hold a pose at, so its delayed output's: the source's start and every
+    detection instant (a pose per group; ``flsd``'s also at its teammates')."""
+    out = {float(e.stamp) for e in src.events if isinstance(e, Detection) and isinstance(e.stamp, int | float)}
+    return frozenset({float(src.t_start), *out})
 
 
 def node_arguments(
@@ -241,6 +256,7 @@ class _Launcher:
         log_dir: str | os.PathLike[str] | None,
         keys: TeamKeys,
         record_times: Iterable[float],
+        pose_stamps: frozenset[float] = frozenset(),
     ) -> None:
         self.team, self.robots, self.node_args, self.f, self.server = team, robots, node_args, faults, server
         self.run_id = secrets.token_hex(6)  # in every key with the team's name: two teams of one name never meet
@@ -248,6 +264,7 @@ class _Launcher:
         self.roster = frozenset(robots)
         self.keys, self.auth = keys, keys.auth(COLLECTOR)
         self.record_times = frozenset(float(t) for t in record_times)
+        self.pose_stamps = pose_stamps  # where a delayed pose may be stamped (:func:`pose_stamps`)
         names = [f"robot{r}" for r in robots] + (["server"] if server else [])
         ports = dict(zip([*names, "collector"], free_ports(len(names) + 1), strict=True))
         self.ep = {k: f"tcp/127.0.0.1:{p}" for k, p in ports.items()}
@@ -375,7 +392,10 @@ class _Launcher:
             if on_server and env.from_robot != SERVER:
                 raise Rejected(f"robot {env.from_robot} published on the server's key")
             b = env.body
-            if isinstance(b, Belief) and b.stamp not in self.record_times:
+            delayed = key.endswith("/delayed")
+            if delayed and not (isinstance(b, Belief) and b.stamp in self.pose_stamps and b.group == "SE2"):
+                raise Rejected("delayed output that is no SE(2) belief at a detection instant of the run")
+            if isinstance(b, Belief) and not delayed and b.stamp not in self.record_times:
                 raise Rejected("belief stamped at no record time of the run")
         except Rejected as exc:
             counts["collector_rejected"] += 1
@@ -384,9 +404,12 @@ class _Launcher:
                 log.log(logging.WARNING if self.result.reasons[exc.reason] == 1 else logging.DEBUG,
                         "collector: refused a message: %s", exc.reason)  # fmt: skip
             return
-        if self.view is not None:
+        if self.view is not None and not delayed:
             self.view.observe(b)
-        if isinstance(b, Belief):
+        if isinstance(b, Belief) and delayed:
+            self.result.keep(b, delayed=True)
+            self.result.counts["delayed_collected"] += 1
+        elif isinstance(b, Belief):
             self.result.keep(b)
         elif isinstance(b, Report):
             self.result.reports[b.robot] = b
@@ -454,7 +477,7 @@ class _Launcher:
         put = self.inq.put
         subs = [
             session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
-            for what in ("belief", "report", "progress", "lines")
+            for what in ("belief", "report", "progress", "lines", "delayed")
         ] + [session.declare_subscriber(server_key(self.scope, w), handler=lambda x: put(("sample", x)))
              for w in ("belief", "report")]  # fmt: skip
         t0 = time.monotonic()

@@ -3,8 +3,9 @@
 Everything received is put on the node's one queue (``_inq``) as ``(kind, sample)`` and handled on the node's
 thread (:mod:`swarmloc.net.inbound`): queries on ``robot/<id>/query``, pushed messages on ``robot/<id>/inbox``,
 every teammate's ``progress``, and liveliness changes under ``alive``. It publishes its ``belief`` and
-``progress`` (and, with ``ros_domain``, a ROS 2 pose topic in rmw_zenoh's layout, with the node's and the publisher's
-rmw_zenoh liveliness tokens: :mod:`swarmloc.net.rosgraph`), and holds its liveliness token.
+``progress`` (a smoother's ``delayed`` output too; and, with ``ros_domain``, a ROS 2 pose topic in rmw_zenoh's
+layout, with the node's and the publisher's rmw_zenoh liveliness tokens: :mod:`swarmloc.net.rosgraph`), and holds
+its liveliness token.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ class Wiring:
             )
         self._pub_belief = s.declare_publisher(robot_key(team, r, "belief"), congestion_control=self._block)
         self._pub_progress = s.declare_publisher(robot_key(team, r, "progress"), congestion_control=self._block)
+        if self._delayed is not None:  # a smoother's delayed output (:mod:`.publishing`)
+            self._pub_delayed = s.declare_publisher(robot_key(team, r, "delayed"), congestion_control=self._block)
         if self.scans is not None:  # each scan's world lines, for the belief server's map
             self._pub_lines = s.declare_publisher(robot_key(team, r, "lines"), congestion_control=self._block)
         if self.ros_domain is not None:
