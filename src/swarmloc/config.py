@@ -245,7 +245,9 @@ class FilterConfig:
     (:mod:`swarmloc.experiments.association`). ``smoother_lag`` [s] ``> 0``: the window of the fixed-lag smoothers
     ``fls`` and ``flsd``; ``delayed_output`` (a boolean): they also give their smoothed estimate of each pose as it
     leaves the window (``smoother_lag`` s late), scored beside the causal belief as ``"<name>_delayed"`` and
-    published by network nodes (:mod:`swarmloc.evaluation.delayed`).
+    published by network nodes (:mod:`swarmloc.evaluation.delayed`). ``diekf_cluster`` (an integer ``>= 0``): robots
+    per ``diekf`` cluster, 0 for the exact filter over the whole team (:mod:`swarmloc.estimators.diekf`, in-process
+    only).
     """
 
     SECTION: ClassVar[str] = "filter"
@@ -261,6 +263,7 @@ class FilterConfig:
         "association_gate": "chi-square probability in (0, 1) of the association gate",
         "smoother_lag": "[s] window of the fixed-lag smoothers fls and flsd",
         "delayed_output": "true or false: fls and flsd also output each pose as it leaves the window",
+        "diekf_cluster": "robots per diekf cluster (0: the exact filter over the whole team)",
     }
     ASSOCIATIONS: ClassVar[tuple[str, ...]] = ("tags", "nearest", "joint", "anonymous")
 
@@ -275,9 +278,11 @@ class FilterConfig:
     association_gate: float = 0.99
     smoother_lag: float = 2.0
     delayed_output: bool = False
+    diekf_cluster: int = 0
 
     def __post_init__(self) -> None:
         s = self.SECTION
+        _set(self, "diekf_cluster", _integer(s, "diekf_cluster", self.diekf_cluster, None, 0, "an integer >= 0"))
         _set(self, "smoother_lag", _positive(s, "smoother_lag", self.smoother_lag))
         if not isinstance(self.delayed_output, bool):
             raise ConfigError(f"[{s}] delayed_output: expected true or false, got {_describe(self.delayed_output)}")

@@ -142,8 +142,9 @@ class TeamUpdate(Message, frozen=True, kw_only=True, tag="team_update"):
     the observer (``sender``) to every teammate: the detected robot ``target``, the measurement's world-frame
     Jacobians ``Hi``, ``Hj`` (``m x n`` each), ``Sinv`` (``m x m``, the inverse innovation covariance), ``nu =
     S^-1 r`` (``m``) and the pair's covariances before the update ``Pii``, ``Pjj`` (``n x n`` each); ``n`` the
-    dimension of a robot's error (3: SE(2), 6: SE(3)). Empty ``Hi``: the update sent earlier under this key is
-    retracted."""
+    dimension of a robot's error (3: SE(2), 6: SE(3)). ``scale``: 1 for an exact update; ``w`` in (0, 1) for a
+    clustered team's covariance-intersection update of a robot outside the cluster (every receiver divides its
+    covariances by ``w`` first). Empty ``Hi``: the update sent earlier under this key is retracted."""
 
     target: int = -1
     m: int = 0
@@ -154,6 +155,7 @@ class TeamUpdate(Message, frozen=True, kw_only=True, tag="team_update"):
     nu: Floats = ()
     Pii: Floats = ()
     Pjj: Floats = ()
+    scale: float = 1.0
 
     @property
     def empty(self) -> bool:
@@ -290,6 +292,9 @@ def message_problem(m: Message) -> str | None:
         spd = _spd3 if d == 3 else _spd
         if not (spd(m.Pii) and spd(m.Pjj)):
             return f"{name}: Pii and Pjj must be symmetric positive definite"
+        w = m.scale
+        if isinstance(w, bool) or not isinstance(w, int | float) or not 0.0 < w <= 1.0:
+            return f"{name}: scale must be a number in (0, 1], got {w!r}"
     return None
 
 

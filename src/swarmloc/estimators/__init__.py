@@ -160,6 +160,7 @@ def node_options(
         point_iterations=f.point_iterations,
         lag=f.smoother_lag,
         delayed=f.delayed_output,
+        cluster=f.diekf_cluster,
         # "anonymous" hands the nodes tagged relative poses (swarmloc.experiments.association): they run "tags"
         **({"association": f.association} if choose else {}),
         association_gate=f.association_gate,

@@ -104,6 +104,7 @@ class DistributedInvariantEKF3(DistributedInvariantEKF):
     lazy_odometry = False
     dim = 6
     _state = TeamState3
+    clusters = False  # the covariance-intersection weight of an outsider is SE(2)'s
 
     def _initial_state(self, t0: float) -> TeamState3:
         g = np.asarray(self.initial.mean, dtype=float)

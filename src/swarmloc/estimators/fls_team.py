@@ -106,6 +106,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
     :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s."""
 
     name = "flsd"
+    clusters = False  # its pseudo-factors are the exact update's
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), lag: float = 2.0,
                  max_iterations: int = 3, delayed: bool = False, **kw: Any) -> None:  # fmt: skip
@@ -140,10 +141,11 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
 
     def _team_update(
         self, s: TeamFlsState, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
-        Pii: np.ndarray, Pjj: np.ndarray,
+        Pii: np.ndarray, Pjj: np.ndarray, w: float = 1.0,
     ) -> TeamFlsState:  # type: ignore[override]  # fmt: skip
         """``diekf``'s update; the change of this robot's pose is also filed in the window (:func:`pseudo_factor`)
-        unless the update is the node's own landmark update (``i == j == robot``: the window holds its factors)."""
+        unless the update is the node's own landmark update (``i == j == robot``: the window holds its factors).
+        No clusters here (``w`` is always 1)."""
         new = super()._team_update(s, i, j, Hi, Hj, Sinv, nu, Pii, Pjj)
         out = s._replace(x=new.x, P=new.P, Sigma=new.Sigma)
         me = self.robot
@@ -219,7 +221,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
                     outcomes.append(res)
                     msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
                     continue
-                s, (j, Hi, Hj, Sinv, nu, Pii, Pjj) = res
+                s, (j, Hi, Hj, Sinv, nu, Pii, Pjj, _) = res
                 body = dict(
                     target=j, m=len(nu), Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv), nu=flat(nu), Pii=flat(Pii),
                     Pjj=flat(Pjj),

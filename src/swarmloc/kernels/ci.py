@@ -154,6 +154,23 @@ def point_weight(
     return _minimize_on_grid(cost, batch, bounds)
 
 
+def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int,
+                 bounds: tuple[float, float] = W_BOUNDS) -> float:  # fmt: skip
+    """CI weight for a measurement of a neighbour by one robot of a ``dof``-dimensional state (a cluster of robots
+    whose joint covariance is bounded by ``Sigma / w``): ``A = H_i P_ii H_i^T`` and ``B = H_j P_jj H_j^T``
+    (``m x m``, the two sides' uncertainty seen by the measurement), ``R`` its noise. Minimizes the posterior
+    ``log det`` of the whole state, ``-dof log w - log det(S_w + A / w) + log det S_w`` with ``S_w = R + B / (1 - w)``
+    (the determinant lemma, as :func:`point_weight` with ``dof = 3``): a large state pays ``dof log w`` for every
+    inflation, so its weight stays near 1 unless the neighbour is worth it."""
+
+    def cost(w: np.ndarray) -> np.ndarray:
+        wc = w[..., None, None]
+        S = R + B / (1 - wc)
+        return -dof * np.log(w) - _logdet_small(S + A / wc) + _logdet_small(S)
+
+    return float(_minimize_on_grid(cost, (), bounds))
+
+
 def pose_weight(
     mean: np.ndarray,
     cov: np.ndarray,
