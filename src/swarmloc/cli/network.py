@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from swarmloc.cli.offline import _config
+from swarmloc.cli.offline import run_config
 
 
 def _ids(text: str | None) -> list[int] | None:
@@ -51,7 +51,7 @@ def _die_with_launcher(args: argparse.Namespace) -> None:
         die_with_parent(args.parent_pid)
 
 
-def _node(args: argparse.Namespace) -> int:
+def cmd_node(args: argparse.Namespace) -> int:
     _die_with_launcher(args)
     from swarmloc.config import ConfigError
     from swarmloc.experiments.association import with_association
@@ -65,7 +65,7 @@ def _node(args: argparse.Namespace) -> int:
     try:
         team_scope(args.team, args.run_id)  # a bad name or run id is refused before the source is loaded
         auth = _auth(args, args.robot)
-        config = _config(args) if args.config else None
+        config = run_config(args) if args.config else None
         live_kind, spec = split_live(args.source)
         src = load_source(spec, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
         src = with_association(src, args.association)
@@ -123,7 +123,7 @@ def _node_view(args: argparse.Namespace, src: Any) -> Any:
     return view
 
 
-def _server(args: argparse.Namespace) -> int:
+def cmd_server(args: argparse.Namespace) -> int:
     _die_with_launcher(args)
     from swarmloc.config import ConfigError
     from swarmloc.net.entry import server_main
@@ -143,7 +143,7 @@ def _server(args: argparse.Namespace) -> int:
 
             if args.source is None:
                 raise ValueError("--estimator needs --source (the team's initial beliefs and configuration)")
-            config = _config(args) if args.config else None
+            config = run_config(args) if args.config else None
             src = load_source(args.source, robots=len(robots), duration=args.duration, seed=args.seed, config=config)
             from swarmloc.experiments.association import with_association
 
@@ -160,7 +160,7 @@ def _server(args: argparse.Namespace) -> int:
     return 0
 
 
-def _team(args: argparse.Namespace) -> int:
+def cmd_team(args: argparse.Namespace) -> int:
     from swarmloc.config import ConfigError
     from swarmloc.experiments.association import with_association
     from swarmloc.experiments.evaluate import markdown_table
@@ -176,7 +176,7 @@ def _team(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _terminate)  # so that `kill` and time limits also stop every process started
     view = None
     try:
-        config = _config(args) if args.config else None
+        config = run_config(args) if args.config else None
         src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
         src = with_association(src, args.association)
         if args.view is not None or args.record:
@@ -225,7 +225,7 @@ def _team(args: argparse.Namespace) -> int:
     return 1 if bad or run.counts.get("timed_out") else 0
 
 
-def _keys(args: argparse.Namespace) -> int:
+def cmd_keys(args: argparse.Namespace) -> int:
     import base64
 
     from swarmloc.net import auth

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 
-def _demo(args: argparse.Namespace) -> int:
+def cmd_demo(args: argparse.Namespace) -> int:
     from swarmloc.experiments.thesis_static import run_demo
 
     t = time.perf_counter()
@@ -18,7 +18,7 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _reproduce(args: argparse.Namespace) -> int:
+def cmd_reproduce(args: argparse.Namespace) -> int:
     if args.what == "tables":
         from swarmloc.experiments.thesis_static.pooled import pooled_tables
 
@@ -61,7 +61,7 @@ def _reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-def _config(args: argparse.Namespace):  # noqa: ANN202
+def run_config(args: argparse.Namespace):  # noqa: ANN202
     from swarmloc.config import DEFAULTS, load_config
 
     return load_config(args.config) if args.config else DEFAULTS
@@ -93,7 +93,7 @@ def _with_association(config, association: str | None):  # noqa: ANN001, ANN202
     return dataclasses.replace(config, filter=dataclasses.replace(config.filter, association=association))
 
 
-def _evaluate(args: argparse.Namespace) -> int:
+def cmd_evaluate(args: argparse.Namespace) -> int:
     from swarmloc.config import ConfigError
     from swarmloc.datasets.eventfile import EventFileError
     from swarmloc.datasets.mrclam import MRCLAMError
@@ -103,7 +103,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     where = f"swarmloc evaluate {args.what}"
     names = [e.strip() for e in args.estimators.split(",") if e.strip()]
     try:
-        config = _with_association(_with_gate(_config(args), args.gate), args.association)
+        config = _with_association(_with_gate(run_config(args), args.gate), args.association)
         progress = not (args.quiet or args.json)
         if args.what == "mrclam":
             from swarmloc.experiments.mrclam import evaluate_mrclam
@@ -141,7 +141,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _simulate(args: argparse.Namespace) -> int:
+def cmd_simulate(args: argparse.Namespace) -> int:
     from swarmloc.experiments.own_robots import simulate_to_files
 
     if args.robots < 1 or args.duration <= 0:
@@ -157,7 +157,7 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _config_cmd(args: argparse.Namespace) -> int:
+def cmd_config(args: argparse.Namespace) -> int:
     from swarmloc.config import DEFAULTS, ConfigError, load_config
 
     if args.check:
@@ -175,7 +175,7 @@ def _config_cmd(args: argparse.Namespace) -> int:
     return 2
 
 
-def _compare(args: argparse.Namespace) -> int:
+def cmd_compare(args: argparse.Namespace) -> int:
     from swarmloc.experiments.compare import compare, compare_table
 
     names = [e.strip() for e in args.estimators.split(",") if e.strip()]

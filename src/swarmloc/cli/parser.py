@@ -5,16 +5,16 @@ from __future__ import annotations
 import argparse
 
 from swarmloc import __version__
-from swarmloc.cli.network import _keys, _node, _server, _team
+from swarmloc.cli.network import cmd_keys, cmd_node, cmd_server, cmd_team
 from swarmloc.cli.offline import (
     ASSOCIATION_CHOICES,
     ASSOCIATION_HELP,
-    _compare,
-    _config_cmd,
-    _demo,
-    _evaluate,
-    _reproduce,
-    _simulate,
+    cmd_compare,
+    cmd_config,
+    cmd_demo,
+    cmd_evaluate,
+    cmd_reproduce,
+    cmd_simulate,
 )
 
 EST_DEFAULT = "dr,dekf,cekf,expfusion,ci,rdl"
@@ -53,7 +53,7 @@ def _keys_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--out", required=True, help="folder for robot<id>.key, server.key, collector.key, roster.json")
     for p in (r, t):
         p.add_argument("--max-age", type=float, default=30.0, help="seconds a signed stamp may be old (default 30)")
-    k.set_defaults(func=_keys)
+    k.set_defaults(func=cmd_keys)
 
 
 def _timeout_args(p: argparse.ArgumentParser) -> None:
@@ -96,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="swarmloc-demo", help="output folder (default: swarmloc-demo)")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--quiet", action="store_true", help="no progress bar")
-    d.set_defaults(func=_demo)
+    d.set_defaults(func=cmd_demo)
 
     r = sub.add_parser(
         "reproduce",
@@ -111,7 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--first-seed", type=int, default=100, help="tables: first of the pooled seeds (default 100)")
     r.add_argument("--quick", action="store_true", help="few seeds and short runs (a smoke test)")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
-    r.set_defaults(func=_reproduce)
+    r.set_defaults(func=cmd_reproduce)
 
     e = sub.add_parser("evaluate", help="evaluate estimators on data: 'mrclam FOLDER' or 'events FILE'")
     e.add_argument("what", choices=["mrclam", "events"], help="mrclam (a UTIAS MRCLAM folder) or events (your file)")
@@ -128,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     e.add_argument("--out", default=None, help="output folder for JSON, Markdown, figures, TUM files")
     e.add_argument("--quiet", action="store_true", help="no progress bar")
-    e.set_defaults(func=_evaluate)
+    e.set_defaults(func=cmd_evaluate)
 
     s = sub.add_parser("simulate", help="simulate a random team and write it as an event file + TUM truth")
     s.add_argument("--robots", type=int, default=4)
@@ -136,12 +136,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--format", choices=["csv", "jsonl"], default="csv")
     s.add_argument("--out", required=True, help="output folder")
-    s.set_defaults(func=_simulate)
+    s.set_defaults(func=cmd_simulate)
 
     c = sub.add_parser("config", help="print the default configuration, or check a TOML file")
     c.add_argument("--defaults", action="store_true", help="print every default as TOML")
     c.add_argument("--check", metavar="FILE", help="read FILE and print the full configuration it gives")
-    c.set_defaults(func=_config_cmd)
+    c.set_defaults(func=cmd_config)
 
     n = sub.add_parser("node", help="run one robot of a team as a Zenoh peer (one process per robot)")
     n.add_argument("--robot", type=int, required=True, help="this robot's id in the source")
@@ -157,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default 8765; 0: a free port)")  # fmt: skip
     n.add_argument("--record", default=None, metavar="FILE.mcap", help="record the view as MCAP (Foxglove, ROS 2)")
     _auth_args(n)
-    n.set_defaults(func=_node)
+    n.set_defaults(func=cmd_node)
 
     sv = sub.add_parser("server", help="run the belief server of a team (stores every robot's Gaussian)")
     _net_args(sv)
@@ -194,7 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sv.add_argument("--map-out", default=None, help="save the fused line map there as GeoJSON when it stops")
     _auth_args(sv)
-    sv.set_defaults(func=_server)
+    sv.set_defaults(func=cmd_server)
     _keys_parser(sub)
 
     cp = sub.add_parser("compare", help="every estimator on identical events: one table (sim scenario or dataset)")
@@ -209,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--clutter", type=float, default=0.0, help="false robot detections per scan, Poisson (default 0)")
     cp.add_argument("--p-detect", type=float, default=1.0, help="robot detection probability (default 1)")
     cp.add_argument("--quiet", action="store_true", help="no progress bar")
-    cp.set_defaults(func=_compare)
+    cp.set_defaults(func=cmd_compare)
 
     def _consistency(args: argparse.Namespace) -> int:
         from swarmloc.experiments.consistency import run_command
@@ -281,5 +281,5 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stop every process after this many wall-clock seconds (default 600)")  # fmt: skip
     t.add_argument("--out", required=True, help="output folder (report, figures, TUM files, logs)")
     t.add_argument("--verbose", action="store_true", help="nodes log their state every 2 s (in OUT/logs)")
-    t.set_defaults(func=_team)
+    t.set_defaults(func=cmd_team)
     return p
