@@ -21,6 +21,7 @@ import re
 import struct
 from collections import Counter
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -267,8 +268,10 @@ def offline_node(auth: Auth | None) -> NetNode:
     src = load_source("sim:random", robots=3, duration=4.0, seed=0)
     node = make_node("rdl", 0, src.initial[0], src.config, src.landmarks)
     node.start(src.t_start)
-    return NetNode(node, src.own_events(0), session=_Session(), team=TEAM, roster=src.robots,
-                   record_times=src.record_times(), auth=auth)  # fmt: skip
+    net = NetNode(node, src.own_events(0), session=_Session(), team=TEAM, roster=src.robots,
+                  record_times=src.record_times(), auth=auth)  # fmt: skip
+    net._pub_belief = SimpleNamespace(put=lambda *a, **k: None)  # never opened: beliefs go nowhere
+    return net
 
 
 FORGED_QUERY = RdlStateQuery(sender=1, receiver=0, stamp=1.0)

@@ -71,6 +71,7 @@ def offline_diekf(robot: int = 0, **kw) -> tuple[NetNode, object]:
     node.start(src.t_start)
     net = NetNode(node, src.own_events(robot), session=_BSession(), team="t", roster=src.robots,
                   record_times=src.record_times(), **kw)  # fmt: skip
+    net._pub_belief = _Pub(net.session, "belief")  # never opened: the beliefs it publishes are recorded
     return net, src
 
 
@@ -241,7 +242,6 @@ def test_a_broadcast_stamped_ahead_publishes_the_beliefs_it_makes_final_first():
     Before: nothing was published there, and on all of MRCLAM 6 (``flsd``, 5 processes) 22 of 15,120 records stayed
     provisional, 11 of them different from the in-process run."""
     net, src = offline_diekf(robot=0)
-    net._pub_belief = _Pub(net.session, "belief")
     t = src.t_start + 3.0
     for e in src.own_events(0):
         if e.stamp <= t:
