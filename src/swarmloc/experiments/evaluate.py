@@ -195,9 +195,9 @@ def figures(out: Path, results: dict[str, RunResult], t_start: float) -> list[st
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     for name, res in results.items():
         tracks = [tr for tr in res.tracks.values() if tr.times.size]
-        if not tracks or any(not np.array_equal(tr.times, tracks[0].times) for tr in tracks):
+        n = min((tr.times.size for tr in tracks), default=0)
+        if not n or any(not np.array_equal(tr.times[:n], tracks[0].times[:n]) for tr in tracks):
             continue  # a team mean over time needs common stamps (a delayed output has each robot's own)
-        n = min(tr.times.size for tr in tracks)
         errs = [errors(tr) for tr in tracks]
         t = tracks[0].times[:n] - t_start
         a1.plot(t, np.mean([e["pos"][:n] for e in errs], axis=0), lw=0.8, label=name)
