@@ -2,12 +2,11 @@
 covariance intersection with robots outside it. Checked here: a cluster as large as the team is the exact filter;
 one outside update equals an independent Kalman update of the stacked cluster state with the CI-bounded covariance
 (Jacobians by finite differences, the weight by a scalar search over the 6 x 6 posterior determinant); a clustered
-team stays consistent and keeps its replica at the cluster's size; bad options and a network team are refused.
+team stays consistent and keeps its replica at the cluster's size; bad options are refused. (Networked = in-process:
+tests/test_net_diekf.py.)
 (The cost per robot against team size and the accuracy cost: ``benchmarks/diekf_cluster.py``.)"""
 
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 import pytest
@@ -21,7 +20,7 @@ from swarmloc.experiments.sources import load_source
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
-from swarmloc.messages import RdlState, TeamUpdate, flat
+from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlStateQuery, TeamUpdate, flat
 from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import run
 from swarmloc.sensors.models import model
@@ -87,7 +86,8 @@ def test_an_outside_detection_is_the_kalman_update_of_the_ci_bounded_cluster() -
     R = np.diag([0.05**2, 0.03**2])
     z = _h("range_bearing", x0, x2) + np.array([0.07, -0.02])
     d = Detection(0, 1.0, "range_bearing", z, R, target=2)
-    answer = RdlState(sender=2, receiver=0, stamp=1.0, x=flat(x2), P=flat(P2), sigma=flat(np.eye(3)))
+    g2 = SE2.from_xytheta(x2)  # robot 2 answers its belief (group mean, body-frame covariance)
+    answer = BeliefAnswer(sender=2, receiver=0, stamp=1.0, mean=flat(g2), cov=flat(I.world_to_body(g2, P2)))
     new0, (j, Hi, Hj, Sinv, nu, Pii, Pjj, w) = n0._one(s0, None, d, ("robot", answer))
     assert j == 0 and not Hj.any() and 0.001 < w < 0.999
     u = TeamUpdate(sender=0, receiver=1, stamp=1.0, target=j, m=2, Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv),
@@ -144,9 +144,23 @@ def test_a_clustered_team_is_consistent_and_keeps_its_replica_at_the_cluster_siz
     assert got["pos_rmse"] <= 2.0 * exact["pos_rmse"], (got, exact)
 
 
-def test_bad_cluster_options_and_a_network_team_are_refused(tmp_path) -> None:
-    from swarmloc.config import DEFAULTS, ConfigError, load_config
-    from swarmloc.net.entry import check_network_options
+def test_outsiders_are_asked_their_belief_and_cluster_mates_their_state() -> None:
+    """With clusters a robot outside the cluster gets a ``BeliefQuery`` (one per group, whatever the number of its
+    detections: its answerer waits for no broadcast), a cluster mate the exact filter's ``RdlStateQuery``."""
+    src = load_source("sim:random", robots=4, duration=2.0, seed=1)
+    node = _team(src, 2)[0]
+    assert node.team == (0, 1)
+    node.start(0.0)
+    R = np.diag([0.01, 0.001])
+    dets = [Detection(0, 0.5, "range_bearing", np.array([1.0, 0.1]), R, target=t) for t in (1, 2, 2, 3)]
+    out = node.step(dets)
+    assert sorted((type(q).__name__, q.receiver) for q in out) == [
+        ("BeliefQuery", 2), ("BeliefQuery", 3), ("RdlStateQuery", 1)]  # fmt: skip
+    assert all(isinstance(q, BeliefQuery | RdlStateQuery) and q.stamp == 0.5 for q in out)
+
+
+def test_bad_cluster_options_are_refused(tmp_path) -> None:
+    from swarmloc.config import ConfigError, load_config
 
     src = load_source("sim:random", robots=3, duration=2.0, seed=1)
     for bad in (-1, True, 1.5):
@@ -158,10 +172,6 @@ def test_bad_cluster_options_and_a_network_team_are_refused(tmp_path) -> None:
     cfg.write_text("[filter]\ndiekf_cluster = -2\n")
     with pytest.raises(ConfigError, match=r"\[filter\] diekf_cluster: expected an integer >= 0"):
         load_config(cfg)
-    clustered = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, diekf_cluster=2))
-    with pytest.raises(ValueError, match="runs in-process only"):
-        check_network_options("diekf", clustered)
-    check_network_options("rdl", clustered)  # other estimators take no clusters
     bad_scale = TeamUpdate(sender=1, receiver=0, stamp=1.0, target=1, m=1, Hi=(1.0, 0.0, 0.0), Hj=(0.0,) * 3,
                            Sinv=(1.0,), nu=(0.1,), Pii=flat(np.eye(3)), Pjj=flat(np.eye(3)), scale=0.0)  # fmt: skip
     node = _team(src, 0)[0]

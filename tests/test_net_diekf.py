@@ -211,6 +211,30 @@ def test_diekf_networked_equals_in_process_on_a_simulated_team():
     assert s.get("net_repair_requests", 0) == 0 and s.get("net_broadcast_duplicates", 0) == 0
 
 
+def test_diekf_in_clusters_networked_equals_in_process(tmp_path):
+    """``[filter] diekf_cluster = 2`` on 5 node processes (clusters {0, 1}, {2, 3}, {4}): each node subscribes to its
+    cluster's broadcasts only, asks outsiders their belief, and the run equals the in-process one; every broadcast
+    is applied by the sender's cluster mates only (none by robot 4, alone in its cluster)."""
+    from swarmloc.config import load_config
+
+    cfg = tmp_path / "clusters.toml"
+    cfg.write_text("[filter]\ndiekf_cluster = 2\n")
+    src = load_source("sim:random", robots=5, duration=8.0, seed=1, config=load_config(cfg))
+    team = f"eqdiekfcl{os.getpid()}"
+    tr = run_team(src=src, source="sim:random", robots=5, duration=8.0, seed=1, estimator="diekf", team=team,
+                  max_wall=180, config_file=str(cfg))  # fmt: skip
+    assert not leftovers(team)
+    assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
+    res = team_result(tr, src, "diekf")
+    assert res.stats["reports"] == 5 and res.stats["recorded_provisional_only"] == 0
+    assert max_diff(res, reference(src, "diekf")) <= 1e-6
+    assert res.stats["fused"] > 100
+    sent = {r: rep.net.get("broadcasts_sent", 0) for r, rep in tr.reports.items()}
+    applied = {r: rep.net.get("broadcasts_applied", 0) for r, rep in tr.reports.items()}
+    assert applied[0] == sent[1] and applied[1] == sent[0] and applied[2] == sent[3] and applied[3] == sent[2]
+    assert applied[4] == 0 and sent[0] > 0 and sent[2] > 0
+
+
 def test_diekf_under_link_faults_fuses_nothing_twice_and_repairs_lost_broadcasts():
     src = load_source("sim:random", robots=3, duration=4.0, seed=3)
     f = parse_faults("loss=0.2,delay=0.2,dup=0.1,seed=1")

@@ -246,8 +246,7 @@ class FilterConfig:
     ``fls`` and ``flsd``; ``delayed_output`` (a boolean): they also give their smoothed estimate of each pose as it
     leaves the window (``smoother_lag`` s late), scored beside the causal belief as ``"<name>_delayed"`` and
     published by network nodes (:mod:`swarmloc.evaluation.delayed`). ``diekf_cluster`` (an integer ``>= 0``): robots
-    per ``diekf`` cluster, 0 for the exact filter over the whole team (:mod:`swarmloc.estimators.diekf`, in-process
-    only).
+    per ``diekf`` cluster, 0 for the exact filter over the whole team (:mod:`swarmloc.estimators.diekf`).
     """
 
     SECTION: ClassVar[str] = "filter"

@@ -28,13 +28,14 @@ broadcast as empty updates, so that every teammate knows the exchange is settled
 detection retracts what it sent before. Over the network each update is one broadcast to the team, numbered per
 sender, lost ones repaired (:mod:`swarmloc.net.broadcast`).
 
-**Clusters** (``cluster = K``, ``[filter] diekf_cluster``; in-process only). The team is cut into clusters of
-``K`` robots in id order; each robot keeps the replica of its own cluster only and broadcasts to it, so memory is
-``O(K^2)`` and the work per detection ``O(K^2)`` per robot whatever the team's size. Inside a cluster the filter is
-exact; a detection of a robot outside it is fused by covariance intersection (:meth:`DistributedInvariantEKF.
-_outsider`): consistent whatever the two clusters' correlation, one-sided (the outsider is not updated), and
-conservative. ``K >= n`` is the exact filter. The accuracy cost and the cost per robot against team size:
-``benchmarks/diekf_cluster.py``.
+**Clusters** (``cluster = K``, ``[filter] diekf_cluster``). The team is cut into clusters of ``K`` robots in id
+order; each robot keeps the replica of its own cluster only and broadcasts to it, so memory is ``O(K^2)`` and the
+work per detection ``O(K^2)`` per robot whatever the team's size. Inside a cluster the filter is exact; a robot
+outside it is asked a ``BeliefQuery`` and its detection fused by covariance intersection
+(:meth:`DistributedInvariantEKF._outsider`): consistent whatever the two clusters' correlation, one-sided (the
+outsider is not updated), and conservative. Over the network a node subscribes to its cluster's broadcasts only
+and its lockstep waits for theirs only (:mod:`swarmloc.net.broadcast`). ``K >= n`` is the exact filter. The
+accuracy cost and the cost per robot against team size: ``benchmarks/diekf_cluster.py``.
 
 Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
 ``RdlStateQuery`` keyed as the detection would be were it of that teammate
@@ -59,6 +60,7 @@ from swarmloc.kernels import invariant as I
 from swarmloc.kernels.ci import joint_weight
 from swarmloc.lie import SE2
 from swarmloc.messages import (
+    BeliefAnswer,
     BeliefQuery,
     Message,
     RdlState,
@@ -91,7 +93,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     """Exact distributed invariant EKF (module docstring). ``team``: every robot id of the team (``make_team``
     passes it). ``cluster``: 0 (default) for the exact filter over the whole team, or ``K >= 1`` robots per
     cluster (module docstring, "Clusters"): replica and broadcasts over the robot's cluster only, covariance
-    intersection with robots outside it; in-process only."""
+    intersection with robots outside it."""
 
     name = "diekf"
     error_frame: ClassVar[str] = "world"
@@ -264,7 +266,26 @@ class DistributedInvariantEKF(RecursiveDecentralized):
             self.lin_log.append(("update", g.t, {i: Hi, j: Hj} if j != i else {i: Hi}, R))
         return out
 
-    def _outsider(self, s: TeamState, i: int, d: Any, a: RdlState) -> Any:
+    def _requests(self, g: Group) -> list[Message]:
+        """``rdl``'s queries; with clusters, a robot outside the cluster is asked a ``BeliefQuery`` instead (its
+        belief is all :meth:`_outsider` needs, and an answerer outside the cluster waits for no broadcast)."""
+        out = super()._requests(g)
+        if not self.cluster:
+            return out
+        kept: dict[tuple, Message] = {}
+        for q in out:
+            if q.receiver in self._pos:
+                kept[(q.receiver, tuple(q.sub))] = q
+            else:
+                kept.setdefault((q.receiver, ()), BeliefQuery(sender=self.robot, receiver=q.receiver, stamp=q.stamp))
+        return list(kept.values())
+
+    def _robot_target(self, g: Group, d: Any, sub: tuple) -> tuple[str, Any]:
+        if self.cluster and d.target not in self._pos:
+            sub = ()  # the BeliefQuery's answer (:meth:`_requests`)
+        return super()._robot_target(g, d, sub)
+
+    def _outsider(self, s: TeamState, i: int, d: Any, a: Any) -> Any:
         """A detection of robot ``d.target`` outside this robot's cluster, by covariance intersection: for a weight
         ``w`` in (0, 1), ``blockdiag(Sigma_cluster / w, P_jj / (1 - w))`` bounds the joint covariance of the cluster
         and the outsider whatever their correlation; the update is the cluster's exact one with the outsider's
@@ -273,7 +294,11 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         (:func:`~swarmloc.kernels.ci.joint_weight`): chosen for ``i`` alone it inflated every cluster mate at each
         of ``i``'s outside detections, and clusters of 2 diverged (2.1 m on ``sim:random``, 6 robots). The outsider
         is not updated."""
-        xj, Pjj, _ = a.arrays()
+        if not isinstance(a, BeliefAnswer):
+            return ("rejected", f"the answer of robot {d.target}, outside the cluster, is not a belief")
+        gj, bj = a.belief_arrays()  # checked as a message: an SE(2) element, a covariance
+        A = SE2.Ad(gj, validate=False)
+        xj, Pjj = SE2.to_xytheta(gj), A @ bj @ A.T  # I.body_to_world, without checking gj again
         mm = model(d.kind)
         if mm.degenerate(s.x, xj):
             return ("rejected", DEGENERATE)

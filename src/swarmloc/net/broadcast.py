@@ -212,7 +212,10 @@ class Broadcasting:
         them before this node fuses a group or answers a query keyed ``key`` (:mod:`swarmloc.net.lockstep`)."""
         if not self.broadcasts:
             return None
+        mates = self.node.team  # diekf in clusters: the cluster, whose broadcasts alone this node receives
         for r in self._alive:
+            if r not in mates:
+                continue
             h = self._heads.get(r)
             if h is None:
                 return f"no broadcast head from robot {r} yet"

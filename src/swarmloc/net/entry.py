@@ -85,14 +85,6 @@ def distributed_class(estimator: str, initial: Any = None) -> type:
     return cls
 
 
-def check_network_options(estimator: str, config: Config) -> None:
-    """ValueError for settings a network team cannot run: ``diekf`` clusters (the answerer of a query from outside
-    its cluster would wait for a broadcast it never receives)."""
-    if config.filter.diekf_cluster and estimator in ("diekf", "flsd"):
-        raise ValueError(f"{estimator}: [filter] diekf_cluster = {config.filter.diekf_cluster} runs in-process only; "
-                         "a network team runs the exact filter (diekf_cluster = 0)")  # fmt: skip
-
-
 def make_node(
     estimator: str,
     robot: int,
@@ -113,7 +105,6 @@ def make_node(
     if noise is not None:
         options["noise"] = noise
     options = {k: v for k, v in options.items() if k in accepted_options(cls)}
-    check_network_options(estimator, config)
     if "team" in accepted_options(cls):
         options["team"] = tuple(team) or (robot,)
     return cls(robot, initial, **options)

@@ -35,7 +35,7 @@ import numpy as np
 from swarmloc.datasets.source import Source
 from swarmloc.events import Detection
 from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
-from swarmloc.net.entry import check_network_options, hosted_class, network_class
+from swarmloc.net.entry import hosted_class, network_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
 from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
@@ -155,7 +155,6 @@ def launch_team(
     f = parse_faults(faults)
     team = check_team(team or f"team{os.getpid()}")
     network_class(estimator)  # refuse an estimator a team cannot run before starting anything
-    check_network_options(estimator, src.config)
     hosted = hosted_class(estimator) is not None
     if hosted and (f.kill is not None or f.late is not None):
         raise ValueError(f"faults: kill and late are for a distributed team; {estimator!r} is hosted by the server")

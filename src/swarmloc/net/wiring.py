@@ -45,13 +45,17 @@ class Wiring:
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
         )
         if self.broadcasts:  # the teammates' broadcasts (a team estimator: :mod:`swarmloc.net.broadcast`)
-            self._decl.append(
-                s.declare_subscriber(
-                    robot_key(team, "*", "broadcast"),
-                    handler=lambda x: put(("broadcast", x)),
-                    allowed_origin=zenoh.Locality.REMOTE,
-                )  # fmt: skip
-            )
+            # diekf in clusters: its cluster's only (each a key of its own), so that what a node takes in is flat
+            # in the team's size; otherwise one subscription to every teammate's
+            mates = [str(m) for m in self.node.team if m != r] if getattr(self.node, "cluster", 0) else ["*"]
+            for m in mates:
+                self._decl.append(
+                    s.declare_subscriber(
+                        robot_key(team, m, "broadcast"),
+                        handler=lambda x: put(("broadcast", x)),
+                        allowed_origin=zenoh.Locality.REMOTE,
+                    )  # fmt: skip
+                )
         self._pub_belief = s.declare_publisher(robot_key(team, r, "belief"), congestion_control=self._block)
         self._pub_progress = s.declare_publisher(robot_key(team, r, "progress"), congestion_control=self._block)
         if self._delayed is not None:  # a smoother's delayed output (:mod:`.publishing`)
