@@ -89,6 +89,16 @@ class TeamState(NamedTuple):
     Sigma: np.ndarray
 
 
+def _pair(d: Any, xi: np.ndarray, xj: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    """A robot detection ``d`` linearized at the two poses in world-frame errors: ``(r, H_i, H_j, R)`` (innovation,
+    Jacobians, noise), or None for a degenerate geometry."""
+    mm = model(d.kind)
+    if mm.degenerate(xi, xj):
+        return None
+    h, Hi_c, Hj_c = mm.predict(xi, xj)
+    return mm.residual(d.z, h), Hi_c @ I.world_basis(xi), Hj_c @ I.world_basis(xj), mm.noise(d.z, d.cov)
+
+
 class DistributedInvariantEKF(RecursiveDecentralized):
     """Exact distributed invariant EKF (module docstring). ``team``: every robot id of the team (``make_team``
     passes it). ``cluster``: 0 (default) for the exact filter over the whole team, or ``K >= 1`` robots per
@@ -244,12 +254,10 @@ class DistributedInvariantEKF(RecursiveDecentralized):
                     return self._outsider(s, i, d, a)
                 return ("unknown", f"robot {j} is not in this node's team {list(self.team)}")
             xj, Pjj, _ = a.arrays()
-            mm = model(d.kind)
-            if mm.degenerate(s.x, xj):
+            lin = _pair(d, s.x, xj)
+            if lin is None:
                 return ("rejected", DEGENERATE)
-            h, Hi_c, Hj_c = mm.predict(s.x, xj)
-            Hi, Hj = Hi_c @ I.world_basis(s.x), Hj_c @ I.world_basis(xj)
-            r, R = mm.residual(d.z, h), mm.noise(d.z, d.cov)
+            r, Hi, Hj, R = lin
             Sij = s.Sigma[self._pos[i], self._pos[j]]
             S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
         else:
@@ -297,14 +305,12 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         if not isinstance(a, BeliefAnswer):
             return ("rejected", f"the answer of robot {d.target}, outside the cluster, is not a belief")
         gj, bj = a.belief_arrays()  # checked as a message: an SE(2) element, a covariance
-        A = SE2.Ad(gj, validate=False)
-        xj, Pjj = SE2.to_xytheta(gj), A @ bj @ A.T  # I.body_to_world, without checking gj again
-        mm = model(d.kind)
-        if mm.degenerate(s.x, xj):
+        Ad = SE2.Ad(gj, validate=False)
+        xj, Pjj = SE2.to_xytheta(gj), Ad @ bj @ Ad.T  # I.body_to_world, without checking gj again
+        lin = _pair(d, s.x, xj)
+        if lin is None:
             return ("rejected", DEGENERATE)
-        h, Hi_c, Hj_c = mm.predict(s.x, xj)
-        Hi, Hj = Hi_c @ I.world_basis(s.x), Hj_c @ I.world_basis(xj)
-        r, R = mm.residual(d.z, h), mm.noise(d.z, d.cov)
+        r, Hi, Hj, R = lin
         A, B = Hi @ s.P @ Hi.T, Hj @ Pjj @ Hj.T
         w = joint_weight(A, B, R, self.dim * len(self.team))
         S = A / w + B / (1.0 - w) + R

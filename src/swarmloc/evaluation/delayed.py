@@ -33,8 +33,14 @@ def lagged_track(log: Mapping[float, tuple[np.ndarray, np.ndarray]], robot: int,
     if truth is not None:
         ok = np.isfinite(tr).all(axis=1)
         ts, x, P, tr = ts[ok], x[ok], P[ok], tr[ok]
-    g, cov = C.to_group(x, P) if ts.size else (np.zeros((0, 3, 3)), P)
-    return RobotTrack(ts, SE2.to_xytheta(g).reshape(-1, 3), cov, tr)
+    return RobotTrack(ts, *_track_arrays(x, P), tr)
+
+
+def _track_arrays(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cartesian ``x (k, 3)``, ``P (k, 3, 3)`` as a track's means ``(x, y, theta)`` and exponential-coordinate
+    covariances."""
+    g, cov = C.to_group(x, P) if len(x) else (np.zeros((0, 3, 3)), P)
+    return SE2.to_xytheta(g).reshape(-1, 3), cov
 
 
 def delayed_output(nodes: Iterable[Any], truth: TruthFn | None, name: str, wall_time: float = 0.0) -> RunResult:
@@ -60,7 +66,6 @@ def delayed_tracks(nodes: Iterable[Any], result: RunResult) -> tuple[RunResult, 
         causal[n.robot] = RobotTrack(tr.times[idx], tr.mean[idx], tr.cov[idx], tr.truth[idx])
         x = np.array([xp[0] for _, xp in rows], dtype=float).reshape(-1, 3)
         P = np.array([xp[1] for _, xp in rows], dtype=float).reshape(-1, 3, 3)
-        g, cov = C.to_group(x, P) if len(rows) else (np.zeros((0, 3, 3)), P)
-        delayed[n.robot] = RobotTrack(tr.times[idx], SE2.to_xytheta(g).reshape(-1, 3), cov, tr.truth[idx])
+        delayed[n.robot] = RobotTrack(tr.times[idx], *_track_arrays(x, P), tr.truth[idx])
     name = result.estimator
     return RunResult(name, causal, result.wall_time), RunResult(f"{name}_delayed", delayed, result.wall_time)

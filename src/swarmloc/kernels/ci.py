@@ -146,12 +146,7 @@ def point_weight(
     R = np.asarray(R, dtype=float)
     batch = np.broadcast_shapes(Gi.shape[:-2], R.shape[:-2])
 
-    def cost(w: np.ndarray) -> np.ndarray:
-        wc = w[..., None, None]
-        S = R + C / (1 - wc)
-        return -3 * np.log(w) - _logdet_small(S + Gi / wc) + _logdet_small(S)
-
-    return _minimize_on_grid(cost, batch, bounds)
+    return _minimize_on_grid(_joint_cost(Gi, C, R, 3), batch, bounds)
 
 
 def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int,
@@ -162,13 +157,20 @@ def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int,
     ``log det`` of the whole state, ``-dof log w - log det(S_w + A / w) + log det S_w`` with ``S_w = R + B / (1 - w)``
     (the determinant lemma, as :func:`point_weight` with ``dof = 3``): a large state pays ``dof log w`` for every
     inflation, so its weight stays near 1 unless the neighbour is worth it."""
+    return float(_minimize_on_grid(_joint_cost(A, B, R, dof), (), bounds))
+
+
+def _joint_cost(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> Callable[[np.ndarray], np.ndarray]:
+    """``w -> -dof log w - log det(S_w + A / w) + log det S_w``, ``S_w = R + B / (1 - w)``: the posterior log det of
+    a ``dof``-dimensional state, up to a constant, under the CI weight ``w`` (:func:`point_weight`,
+    :func:`joint_weight`)."""
 
     def cost(w: np.ndarray) -> np.ndarray:
         wc = w[..., None, None]
         S = R + B / (1 - wc)
         return -dof * np.log(w) - _logdet_small(S + A / wc) + _logdet_small(S)
 
-    return float(_minimize_on_grid(cost, (), bounds))
+    return cost
 
 
 def pose_weight(
