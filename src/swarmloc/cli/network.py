@@ -253,6 +253,7 @@ def cmd_keys(args: argparse.Namespace) -> int:
 
 
 def _timeouts(args: argparse.Namespace) -> dict[str, float]:
+    """The node's waits [s] and its ``answer_retries`` (a count) from the command line."""
     from swarmloc.net.timeouts import TIMEOUTS
 
-    return {name: getattr(args, name) for name in TIMEOUTS}
+    return {**{name: getattr(args, name) for name in TIMEOUTS}, "answer_retries": args.answer_retries}

@@ -57,12 +57,15 @@ def _keys_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _timeout_args(p: argparse.ArgumentParser) -> None:
-    from swarmloc.net.timeouts import TIMEOUTS
+    from swarmloc.net.timeouts import ANSWER_RETRIES, TIMEOUTS
 
     for name, (default, meaning) in TIMEOUTS.items():
         p.add_argument(
             f"--{name.replace('_', '-')}", type=float, default=default, help=f"{meaning} (default {default:g})"
         )
+    p.add_argument("--answer-retries", type=int, default=ANSWER_RETRIES,
+                   help="how many more times a node asks a query that went unanswered, while its robot is alive "
+                        f"(default {ANSWER_RETRIES})")  # fmt: skip
 
 
 def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:

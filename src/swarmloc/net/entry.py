@@ -28,7 +28,14 @@ from swarmloc.events import Event, Odometry
 from swarmloc.net.auth import Auth, open_envelope
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import SERVER, Belief, MapAnswer, Rejected, Report
-from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.timeouts import (
+    ANSWER_RETRIES,
+    ANSWER_TIMEOUT,
+    HOLD_TIMEOUT,
+    LOST_TIMEOUT,
+    START_TIMEOUT,
+    UPDATE_TIMEOUT,
+)
 from swarmloc.net.transport import open_session, server_key, team_scope
 
 log = logging.getLogger(__name__)
@@ -142,6 +149,7 @@ def node_main(
     answer_timeout: float = ANSWER_TIMEOUT,
     hold_timeout: float = HOLD_TIMEOUT,
     update_timeout: float = UPDATE_TIMEOUT,
+    answer_retries: int = ANSWER_RETRIES,
     start_timeout: float = START_TIMEOUT,
     lost_timeout: float = LOST_TIMEOUT,
     ros_domain: int | None = None,
@@ -194,6 +202,7 @@ def node_main(
             answer_timeout=answer_timeout,
             hold_timeout=hold_timeout,
             update_timeout=update_timeout,
+            answer_retries=answer_retries,
             start_timeout=start_timeout,
             lost_timeout=lost_timeout,
             use_server=use_server,

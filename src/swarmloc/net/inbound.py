@@ -220,6 +220,7 @@ class Inbound:
             return
         self._gets.pop(qid, None)
         entry = self._outstanding.pop(qid, None)
+        again = self._again.pop(qid, 0)
         if entry is None:
             return
         m, via, answered = entry
@@ -227,8 +228,10 @@ class Inbound:
             return
         self.counts["no_reply"] += 1
         if via == "robot" and self.use_server:
-            self._ask(m, via_server=True)
+            self._ask(m, via_server=True, again=again)
             return
-        kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
-        who = "robot or server" if via == "server" else "robot"
-        self._feed_local(kind, m, f"no answer from the {who} within {self.answer_timeout:g} s")
+        if not again:  # asked again, it was given its "not found" answer the first time
+            kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
+            who = "robot or server" if via == "server" else "robot"
+            self._feed_local(kind, m, f"no answer from the {who} within {self.answer_timeout:g} s")
+        self._ask_again(m, again + 1)

@@ -38,6 +38,7 @@ class Outbound:
         self._gets: dict[int, int] = {}  # qid: copies of the query out (link faults duplicate them), each ends once
         self._timers: list[tuple[float, int, Callable[[], None]]] = []  # (due, id, send): delayed sends, lost gets
         self._outbox: dict[tuple, Message] = {}  # pushed messages to send, the newest per exchange
+        self._again: dict[int, int] = {}  # qid: how many times its query had been asked before, unanswered
         self._last_flush = 0.0
         self.coalesce = 0.05
         """[s] with link faults: the outbox is sent at most this often."""
@@ -134,9 +135,10 @@ class Outbound:
             payload = self._env(m, key)
             self._faulty(lambda key=key, payload=payload: put(key, payload, congestion_control=block))
 
-    def _ask(self, m: Message, via_server: bool = False) -> None:
+    def _ask(self, m: Message, via_server: bool = False, again: int = 0) -> None:
         """Ask ``m`` of its receiver (or of the belief server) as a Zenoh get; its replies and its end come back on
-        the node's queue (:meth:`_on_reply`, :meth:`_on_reply_end`)."""
+        the node's queue (:meth:`_on_reply`, :meth:`_on_reply_end`). ``again``: how many times it was asked before
+        and went unanswered (:meth:`_ask_again`)."""
         kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
         if m.receiver not in self.roster:
             self._feed_local(kind, m, f"robot {m.receiver} is not in the team")
@@ -150,6 +152,8 @@ class Outbound:
             return
         qid = next(self._qids)
         self._outstanding[qid] = (m, "server" if via_server else "robot", False)
+        if again:
+            self._again[qid] = again
         key = server_key(self.scope) if via_server else robot_key(self.scope, m.receiver, "query")
         payload = self._env(m, key)
         timeout = self.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
@@ -187,6 +191,22 @@ class Outbound:
                 self._timers,
                 (time.monotonic() + timeout, next(self._qids), lambda qid=qid: put(("reply_end", qid, None))),
             )
+
+    def _ask_again(self, m: Message, again: int) -> None:
+        """Ask query ``m``, asked ``again`` times already and unanswered each time, of its robot once more: at
+        most ``answer_retries`` times, while the robot is alive and ``m``'s stamp is within the node's horizon. A
+        reply that a get missed (the neighbour held the query, or was stalled, past ``answer_timeout``: a Zenoh get
+        drops a reply that comes after its timeout, and the neighbour does not know) then replaces the "not found"
+        answer the node was given, as a late answer does, instead of being lost for good."""
+        if (
+            again > self.answer_retries
+            or m.receiver not in self._alive
+            or m.receiver in self._lost
+            or m.stamp < self.node.present - self.node.horizon
+        ):
+            return
+        self.counts["asked_again"] += 1
+        self._ask(m, again=again)
 
     def _feed_local(self, kind: type, m: Message, reason: str, seq: int = NOT_FOUND_SEQ) -> None:
         """Step the node with a "not found" answer to its own query ``m``, with the reason."""

@@ -26,8 +26,10 @@ and the networked run equals the in-process run on the same events (tested to 1e
 (with ``use_server``, which gets ``answer_timeout`` s too); without an answer there either, the node gets a "not
 found" answer (revision ``-2``) with the reason, so the detection ends ``unknown`` instead of waiting forever; a
 real answer that arrives later (revision >= 0; the server's: -1) replaces it and is replayed if it is within the
-horizon. A neighbour's query held ``hold_timeout`` s without its state settling is answered as things stand, and
-revised if they change. An ``rdl`` update expected for ``update_timeout`` s is given up. With link faults, pushed
+horizon. The query is asked again meanwhile, up to ``answer_retries`` times while its robot is alive: a Zenoh get
+drops a reply that comes after its timeout, so an answer held or stalled past ``answer_timeout`` would be lost.
+A neighbour's query held ``hold_timeout`` s without its state settling is answered as things stand, and revised if
+they change. An ``rdl`` update expected for ``update_timeout`` s is given up. With link faults, pushed
 revisions and updates are coalesced (the newest per exchange, every ``coalesce`` s).
 
 **Timeouts**, one name per wait, in seconds of wall time: :mod:`swarmloc.net.timeouts`.
@@ -67,7 +69,14 @@ from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Outbound
 from swarmloc.net.publishing import Publishing
 from swarmloc.net.schema import Belief, Lines, Progress, Report
-from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.timeouts import (
+    ANSWER_RETRIES,
+    ANSWER_TIMEOUT,
+    HOLD_TIMEOUT,
+    LOST_TIMEOUT,
+    START_TIMEOUT,
+    UPDATE_TIMEOUT,
+)
 from swarmloc.net.transport import robot_key, team_scope
 from swarmloc.net.wiring import Wiring
 from swarmloc.node import Node
@@ -102,6 +111,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
     answer_timeout: [s] wall time this node waits for the reply to one of its queries (neighbour, then server).
     hold_timeout: [s] wall time it holds a neighbour's query for its state to settle before answering as it stands.
     update_timeout: [s] wall time it waits for an observer's ``rdl`` update after giving its state.
+    answer_retries: how many more times it asks a query that went unanswered (while its robot is alive).
     use_server: ask the belief server when a neighbour does not answer (and wait for it at the start).
     faults: link faults on the messages this node sends (:mod:`swarmloc.net.faults`).
     wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot).
@@ -134,6 +144,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         answer_timeout: float = ANSWER_TIMEOUT,
         hold_timeout: float = HOLD_TIMEOUT,
         update_timeout: float = UPDATE_TIMEOUT,
+        answer_retries: int = ANSWER_RETRIES,
         use_server: bool = False,
         faults: Faults | None = None,
         wait_for: Iterable[int] | None = None,
@@ -173,6 +184,9 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self.answer_timeout = float(answer_timeout)
         self.hold_timeout = float(hold_timeout)
         self.update_timeout = float(update_timeout)
+        if isinstance(answer_retries, bool) or not isinstance(answer_retries, int) or not 0 <= answer_retries <= 100:
+            raise ValueError(f"NetNode: answer_retries is a count from 0 to 100, got {answer_retries!r}")
+        self.answer_retries = answer_retries
         self.use_server = use_server
         self.faults = faults if faults is not None and faults.link else None
         self.link = self.faults.plan(self.robot) if self.faults else None

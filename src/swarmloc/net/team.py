@@ -38,7 +38,14 @@ from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
 from swarmloc.net.entry import hosted_class, network_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
-from swarmloc.net.timeouts import ANSWER_TIMEOUT, HOLD_TIMEOUT, LOST_TIMEOUT, START_TIMEOUT, UPDATE_TIMEOUT
+from swarmloc.net.timeouts import (
+    ANSWER_RETRIES,
+    ANSWER_TIMEOUT,
+    HOLD_TIMEOUT,
+    LOST_TIMEOUT,
+    START_TIMEOUT,
+    UPDATE_TIMEOUT,
+)
 from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, server_key, team_scope
 
 log = logging.getLogger(__name__)
@@ -129,6 +136,7 @@ def launch_team(
     answer_timeout: float = ANSWER_TIMEOUT,
     hold_timeout: float = HOLD_TIMEOUT,
     update_timeout: float = UPDATE_TIMEOUT,
+    answer_retries: int = ANSWER_RETRIES,
     start_timeout: float = START_TIMEOUT,
     lost_timeout: float = LOST_TIMEOUT,
     team: str | None = None,
@@ -167,7 +175,7 @@ def launch_team(
         seed=seed, config_file=config_file, speed=speed, lag=lag, answer_timeout=answer_timeout,
         hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout,
         lost_timeout=lost_timeout, use_server=server, faults=f, ros_domain=ros_domain, verbose=verbose,
-        association=association,
+        association=association, answer_retries=answer_retries,
     )  # fmt: skip
     server_args = server_arguments(node_args) if hosted else []
     keys = TeamKeys(src.robots, keys_dir)
@@ -208,13 +216,15 @@ def node_arguments(
     verbose: bool,
     lost_timeout: float = LOST_TIMEOUT,
     association: str = "tags",
+    answer_retries: int = ANSWER_RETRIES,
 ) -> list[str]:
     """The ``swarmloc node`` options every node process of a team gets (the link faults only; a node's own
     ``--robot``, ``--wait-for``, endpoints and ``--resume`` are the launcher's)."""
     out = ["--source", source, "--estimator", estimator, "--robots", str(robots), "--seed", str(seed),
            "--speed", str(speed), "--lag", str(lag), "--answer-timeout", str(answer_timeout),
            "--hold-timeout", str(hold_timeout), "--update-timeout", str(update_timeout),
-           "--start-timeout", str(start_timeout), "--lost-timeout", str(lost_timeout)]  # fmt: skip
+           "--start-timeout", str(start_timeout), "--lost-timeout", str(lost_timeout),
+           "--answer-retries", str(answer_retries)]  # fmt: skip
     if duration is not None:
         out += ["--duration", str(duration)]
     if config_file:

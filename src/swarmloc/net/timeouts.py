@@ -15,6 +15,10 @@
   logged; its queries to it are answered "not found" at once, or by the belief server); it is back if it announces
   progress again. Keep it well above the other waits, which a teammate may legitimately spend.
 
+A query that ends unanswered is asked again, up to ``ANSWER_RETRIES`` more times, while its robot is alive: the node
+goes on with its "not found" answer meanwhile, and a reply to a later ask replaces it (a Zenoh get drops a reply that
+comes after its timeout, so without asking again an answer held or stalled past ``answer_timeout`` is lost).
+
 Not here, each with its own name: ``quiet`` and ``linger`` (the end of a node's run,
 :class:`~swarmloc.net.process.NetNode`), ``max_wall`` (the wall-clock limit of a whole node, server or team run),
 ``RESUME_TIMEOUT`` (a restarted node's wait for its belief on the server, :mod:`swarmloc.net.entry`) and
@@ -28,6 +32,8 @@ HOLD_TIMEOUT = 1.0
 UPDATE_TIMEOUT = 2.0
 START_TIMEOUT = 30.0
 LOST_TIMEOUT = 10.0
+ANSWER_RETRIES = 2
+"""How many more times a node asks a query that went unanswered (not a wait: a count; ``--answer-retries``)."""
 
 TIMEOUTS: dict[str, tuple[float, str]] = {
     "answer_timeout": (ANSWER_TIMEOUT, "seconds a node waits for the reply to one of its queries, from a neighbour "
