@@ -76,6 +76,7 @@ from swarmloc.net.timeouts import (
     LOST_TIMEOUT,
     START_TIMEOUT,
     UPDATE_TIMEOUT,
+    check_retries,
 )
 from swarmloc.net.transport import robot_key, team_scope
 from swarmloc.net.wiring import Wiring
@@ -184,9 +185,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self.answer_timeout = float(answer_timeout)
         self.hold_timeout = float(hold_timeout)
         self.update_timeout = float(update_timeout)
-        if isinstance(answer_retries, bool) or not isinstance(answer_retries, int) or not 0 <= answer_retries <= 100:
-            raise ValueError(f"NetNode: answer_retries is a count from 0 to 100, got {answer_retries!r}")
-        self.answer_retries = answer_retries
+        self.answer_retries = check_retries(answer_retries)
         self.use_server = use_server
         self.faults = faults if faults is not None and faults.link else None
         self.link = self.faults.plan(self.robot) if self.faults else None

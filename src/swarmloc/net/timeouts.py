@@ -47,3 +47,10 @@ TIMEOUTS: dict[str, tuple[float, str]] = {
                      "before declaring it lost and going on without it"),
 }  # fmt: skip
 """Name: (default [s], meaning), as ``swarmloc node`` and ``swarmloc team`` take them (``--answer-timeout``...)."""
+
+
+def check_retries(n: object) -> int:
+    """``n`` as a node's ``answer_retries``: an int from 0 to 100; ValueError naming it otherwise."""
+    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= 100:
+        raise ValueError(f"NetNode: answer_retries is a count from 0 to 100, got {n!r}")
+    return n
