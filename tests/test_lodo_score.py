@@ -8,7 +8,7 @@ import pytest
 from scipy import stats
 
 from swarmloc.events import Detection
-from swarmloc.experiments.lodo import RECORD_LEAD, landmark_folds, landmark_nis
+from swarmloc.experiments.lodo import RECORD_LEAD, landmark_folds, landmark_nis, nis_summary
 from swarmloc.lie import SE2
 
 STD = (0.08, 0.01)  # [m], [rad]
@@ -47,6 +47,20 @@ def test_landmark_nis_is_chi_square_2_for_a_consistent_belief_and_grows_for_an_o
     assert over.mean() > 5.0
 
 
+def test_the_median_score_and_the_mean_anis_part_on_heavy_tails_only():
+    """``nis_ratio`` (median / 1.386) and ``anis`` (mean / 2) both read 1 on chi-square-2 draws; on a scale mixture
+    with the same mean (90 % of the errors at 0.2 of the claimed variance, 10 % at 8.2: a covariance that covers a
+    few large errors, as on MRCLAM dataset 9) the mean stays at 1 and the median reads about 0.2."""
+    rng = np.random.default_rng(3)
+    x = stats.chi2(2).rvs(size=200_000, random_state=rng)
+    row = nis_summary(x)
+    assert abs(row["anis"] - 1.0) < 0.02 and abs(row["nis_ratio"] - 1.0) < 0.02
+    mix = x * np.where(rng.random(x.size) < 0.9, 0.2, 8.2)
+    row = nis_summary(mix)
+    assert abs(row["anis"] - 1.0) < 0.05 and row["nis_ratio"] < 0.3
+    assert row["beyond_gate"] > 0.01 and row["readings"] == x.size
+
+
 def test_landmark_nis_is_nan_where_no_belief_was_recorded_just_before_the_reading():
     times, mean, cov, dets, lms = _draw(10, 1.0)
     nis = landmark_nis(times + 0.5, mean, cov, dets, lms, STD)
@@ -75,7 +89,9 @@ def test_filter_scores_score_every_reading_once_against_a_run_without_its_landma
     same = filter_scores(data, model, ["rdl"], True, 40.0, holdout=3, reference_std=(0.15, 0.005))["rdl"]
     assert same["readings"] == same["readings_all"] > 200
     assert same["nis_ratio_ref"] == same["nis_ratio"] and np.isfinite(same["anees_folds"])
+    assert same["anis_ref"] == same["anis"] > 0
     wide = filter_scores(data, model, ["rdl"], True, 40.0, holdout=3, reference_std=(0.3, 0.01))["rdl"]
     assert wide["nis_ratio"] == same["nis_ratio"] and wide["nis_ratio_ref"] < same["nis_ratio"]
+    assert wide["anis_ref"] < same["anis"]
     off = filter_scores(data, model, ["rdl"], False, 40.0)["rdl"]
     assert off["readings"] == same["readings"] and "readings_all" not in off and "anees_folds" not in off
