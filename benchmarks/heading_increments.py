@@ -11,6 +11,11 @@ unexecuted turns), the fits' heading variance (median of the two summed) and the
 interval (``[motion]`` defaults, median).
 
     python benchmarks/heading_increments.py --datasets 1,2,4,6,9
+    python benchmarks/heading_increments.py --datasets 1,2,3,4,6,9 --lodo-yaw 9,6,4   # + filter scores, ~5 min
+
+``--lodo-yaw``: the yaw terms ``q_w0, q_w2, q_wv`` fitted by maximum likelihood to each dataset's residuals (a free
+scale on the fits' variance per dataset; residuals beyond 0.5 rad left out), and for each dataset named, the
+filters (rdl, diekf) scored as in :mod:`swarmloc.experiments.lodo` with the median of the *other* datasets' fits.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import minimize
 
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
@@ -38,10 +44,11 @@ def held_integral(t: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 def increments(data, range_std: float, bearing_std: float) -> dict[str, np.ndarray]:
     """Per consecutive snapshot pair of one robot 1-4 s apart: heading residual [rad], the fits' summed heading
-    variance [rad^2], the model's yaw diffusion [rad^2] and the commanded turn [rad] over the interval."""
+    variance [rad^2], the model's yaw diffusion [rad^2], the commanded turn [rad] and ``phi`` = (duration [s],
+    integral of w^2 [rad^2/s], distance [m]) over the interval."""
     m = DEFAULTS.motion
     sp = snapshot_poses(detection_set(data), range_std, bearing_std)
-    out: dict[str, list[float]] = {"res": [], "fit": [], "model": [], "turn": []}
+    out: dict[str, list] = {"res": [], "fit": [], "model": [], "turn": [], "phi": []}
     for r, od in data.odometry.items():
         od = np.asarray(od)
         t, v, w = od[:, 0], od[:, 1], od[:, 2]
@@ -55,7 +62,51 @@ def increments(data, range_std: float, bearing_std: float) -> dict[str, np.ndarr
         out["fit"] += list((cs[:-1, 2, 2] + cs[1:, 2, 2])[ok])
         out["model"] += list(np.diff(diff)[ok])
         out["turn"] += list(np.diff(turn)[ok])
+        phi = np.stack([np.interp(ts, t, held_integral(t, x)) for x in (np.ones_like(w), w * w, np.abs(v))], -1)
+        out["phi"] += list(np.diff(phi, axis=0)[ok])  # T, int w^2, int |v| over the interval
     return {k: np.asarray(v) for k, v in out.items()}
+
+
+def fit_yaw(inc: dict[str, np.ndarray]) -> np.ndarray:
+    """``(scale of the fits' variance, q_w0, q_w2, q_wv)`` maximizing the Gaussian likelihood of the residuals
+    within 0.5 rad, variance ``scale * fits' variance + q_w0 T + q_w2 int w^2 + q_wv int |v|``."""
+    ok = np.abs(inc["res"]) < 0.5
+    r, f, phi = inc["res"][ok], inc["fit"][ok], inc["phi"][ok]
+
+    def nll(p: np.ndarray) -> float:
+        var = np.exp(p[0]) * f + phi @ np.exp(p[1:])
+        return 0.5 * float(np.sum(np.log(var) + r * r / var))
+
+    starts = ([0.0, np.log(1e-3), np.log(0.05), np.log(0.02)], [-1.0, -9.0, -5.0, -6.0])
+    opts = {"maxiter": 4000, "xatol": 1e-4, "fatol": 1e-6}
+    best = min((minimize(nll, x0, method="Nelder-Mead", options=opts) for x0 in starts), key=lambda o: o.fun)
+    return np.exp(best.x)
+
+
+def lodo_yaw(root: Path, fitted: list[int], scored: list[int]) -> None:
+    """Print the per-dataset yaw fits, then the filter scores of each dataset of ``scored`` with the median of the
+    other fitted datasets' yaw terms."""
+    import dataclasses
+
+    from swarmloc.experiments.lodo import DATASETS, filter_scores, model_scores, own_std
+
+    fits = {k: fit_yaw(increments(load_mrclam(root / f"MRCLAM_Dataset{k}"), 0.158, 0.0046)) for k in fitted}
+    for k, p in fits.items():
+        print(f"dataset {k}: fits' variance x{p[0]:.2f}, q_w0 {p[1]:.2e}, q_w2 {p[2]:.3f}, q_wv {p[3]:.2e}")
+    sets = {k: detection_set(load_mrclam(root / f"MRCLAM_Dataset{k}", require=("measurements",))) for k in DATASETS}
+    ms = model_scores(sets)
+    for k in scored:
+        q = np.median([fits[j][1:] for j in fits if j != k], axis=0)
+        motion = dataclasses.replace(DEFAULTS.motion, q_w0=float(q[0]), q_w2=float(q[1]), q_wv=float(q[2]))
+        data = load_mrclam(root / f"MRCLAM_Dataset{k}")
+        m, fold = ms["models"][k][ms["chosen"]], ms["folds"][k][ms["chosen"]]
+        cfg = dataclasses.replace(DEFAULTS, motion=motion)
+        rows = filter_scores(data, m, ["rdl", "diekf"], True, 200.0, config=cfg, reference_std=own_std(m, fold))
+        for e in ("rdl", "diekf"):
+            r = rows[e]
+            truth = f", RMSE {r['pos_rmse']:.3f} m, ANEES/dof {r['anees']:.2f}" if "anees" in r else ""
+            print(f"left out {k}, yaw terms ({q[0]:.1e}, {q[1]:.3f}, {q[2]:.1e}), {e}: score {r['nis_ratio_ref']:.2f}, "
+                  f"beyond gate {r['beyond_gate_ref']:.3f}{truth}", flush=True)  # fmt: skip
 
 
 def main() -> None:
@@ -66,6 +117,7 @@ def main() -> None:
     ap.add_argument("--datasets", default="1,2,4,6,9")
     ap.add_argument("--range-std", type=float, default=0.158, help="[m] the snapshot fits' range std")
     ap.add_argument("--bearing-std", type=float, default=0.0046, help="[rad] the snapshot fits' bearing std")
+    ap.add_argument("--lodo-yaw", default=None, help="datasets to score with yaw terms fitted on the others")
     a = ap.parse_args()
     print("| dataset | intervals | n | residual var (robust) [rad^2] | fits' var [rad^2] | model diffusion [rad^2] "
           "| beyond 0.5 rad |")  # fmt: skip
@@ -77,6 +129,8 @@ def main() -> None:
             print(f"| {k} | {name} | {keep.sum()} | {np.median(inc['res'][keep] ** 2) / CHI2_1_MEDIAN:.4f} | "
                   f"{np.median(inc['fit'][keep]):.4f} | {np.median(inc['model'][keep]):.4f} | "
                   f"{np.mean(np.abs(inc['res'][s]) >= 0.5):.3f} |", flush=True)  # fmt: skip
+    if a.lodo_yaw:
+        lodo_yaw(a.mrclam, [int(x) for x in a.datasets.split(",")], [int(x) for x in a.lodo_yaw.split(",")])
 
 
 if __name__ == "__main__":
