@@ -45,6 +45,7 @@ from swarmloc.net.timeouts import (
     LOST_TIMEOUT,
     START_TIMEOUT,
     UPDATE_TIMEOUT,
+    check_retries,
 )
 from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, server_key, team_scope
 
@@ -161,6 +162,7 @@ def launch_team(
     collected (the caller closes it).
     """
     f = parse_faults(faults)
+    check_retries(answer_retries)  # refused here, not by every node process
     team = check_team(team or f"team{os.getpid()}")
     network_class(estimator)  # refuse an estimator a team cannot run before starting anything
     hosted = hosted_class(estimator) is not None

@@ -52,5 +52,5 @@ TIMEOUTS: dict[str, tuple[float, str]] = {
 def check_retries(n: object) -> int:
     """``n`` as a node's ``answer_retries``: an int from 0 to 100; ValueError naming it otherwise."""
     if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= 100:
-        raise ValueError(f"NetNode: answer_retries is a count from 0 to 100, got {n!r}")
+        raise ValueError(f"answer_retries is a count from 0 to 100, got {n!r}")
     return n
