@@ -254,9 +254,9 @@ def test_a_query_that_ends_unanswered_is_asked_again_while_its_robot_is_alive():
     """A Zenoh get drops a reply that comes after its timeout, and the neighbour does not know: its answer, held or
     stalled past the asker's ``answer_timeout``, was lost for good (``benchmarks/short_waits.py``, rdl on MRCLAM 6
     with 0.02-0.03 s waits: 24-61 detections ended ``unknown``, 0.08-0.14 from in-process, now 0 and 8e-11; CI
-    once: 0.125 with the 2 s default). Now the node is
-    given its "not found" answer once and the query is asked again, ``answer_retries`` times at most, only while
-    its robot is alive and the stamp within the horizon; a reply to a later ask reaches the node as a late answer."""
+    once: 0.125 with the 2 s default). Now the node is given its "not found" answer once and the query is asked
+    again, ``answer_retries`` times at most, only while its robot is alive and the stamp within the horizon; a
+    reply to a later ask reaches the node as a late answer."""
     net = offline_net(robot=0, answer_retries=2)
     fed: list = []
     step = net.node.step
