@@ -21,6 +21,7 @@ filters (rdl, diekf) scored as in :mod:`swarmloc.experiments.lodo` with the medi
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 from pathlib import Path
 
@@ -29,7 +30,7 @@ from scipy.optimize import minimize
 
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
-from swarmloc.experiments.lodo import detection_set
+from swarmloc.experiments.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
 from swarmloc.lie import wrap_angle
 from swarmloc.sensors.decorrelate import snapshot_poses
 
@@ -86,10 +87,6 @@ def fit_yaw(inc: dict[str, np.ndarray]) -> np.ndarray:
 def lodo_yaw(root: Path, fitted: list[int], scored: list[int]) -> None:
     """Print the per-dataset yaw fits, then the filter scores of each dataset of ``scored`` with the median of the
     other fitted datasets' yaw terms."""
-    import dataclasses
-
-    from swarmloc.experiments.lodo import DATASETS, filter_scores, model_scores, own_std
-
     fits = {k: fit_yaw(increments(load_mrclam(root / f"MRCLAM_Dataset{k}"), 0.158, 0.0046)) for k in fitted}
     for k, p in fits.items():
         print(f"dataset {k}: fits' variance x{p[0]:.2f}, q_w0 {p[1]:.2e}, q_w2 {p[2]:.3f}, q_wv {p[3]:.2e}")
