@@ -87,7 +87,8 @@ class Engine:
         answers nobody, like a node without input).
     gate, order, iterations, point_iterations, use_relative: as the nodes (:class:`~swarmloc.estimators.ExpFusion`,
         :class:`~swarmloc.estimators.Node`); the gate is the nodes' :class:`~swarmloc.node.update.Gate`.
-    backend: ``"numpy"``, ``"jax"`` or ``"numba"`` (the last two: fast EKF path only, ``estimator="dekf"``,
+    backend: ``"numpy"``, ``"jax"`` (float64), ``"jax32"`` (float32 kernels on jax's device, float64 states) or
+        ``"numba"`` (all but numpy: fast EKF path only, ``estimator="dekf"``,
         ``fast=True``, SE(2) teams; with numba the groups of one level fuse in parallel threads,
         ``NUMBA_NUM_THREADS``).
     fast: EKF relative poses and absolute fixes through :mod:`swarmloc.engine.soa` instead of the stacked-matrix

@@ -211,6 +211,15 @@ def swarm_run(
     }
 
 
+def _step_scene(n: int, neighbours: int, seed: int) -> tuple[Swarm, Detections, np.ndarray, np.ndarray]:
+    """The swarm, its detections (each robot sees its ``neighbours`` nearest robots) and commands of one step."""
+    sw = Swarm(n, seed=seed)
+    meas_cov = np.diag([0.05**2, 0.05**2, np.deg2rad(1.0) ** 2])
+    det = sw.sense(neighbours, math.inf, meas_cov, neighbour_pairs(sw.pose[:, :2], neighbours, math.inf))
+    v, w = sw.commands(0.1)
+    return sw, det, v, w
+
+
 def fusion_step(
     n: int, *, backend: str = "numpy", neighbours: int = 3, repeats: int = 5, seed: int = 0
 ) -> dict[str, Any]:
@@ -224,8 +233,7 @@ def fusion_step(
     ``kernel_robot_updates_per_s``: the same arithmetic on all robots at once without scheduling (one
     prediction and ``neighbours`` batched update calls: the kernels' ceiling).
     """
-    sw = Swarm(n, seed=seed)
-    meas_cov = np.diag([0.05**2, 0.05**2, np.deg2rad(1.0) ** 2])
+    sw, det, v, w = _step_scene(n, neighbours, seed)
     eng = Engine(
         "dekf",
         SE2.from_xytheta(sw.pose),
@@ -234,13 +242,11 @@ def fusion_step(
         gate=None,
         backend=backend,
     )
-    pairs = neighbour_pairs(sw.pose[:, :2], neighbours, math.inf)
-    det = sw.sense(neighbours, math.inf, meas_cov, pairs)
     robots = np.arange(n)
-    v, w = sw.commands(0.1)
-    eng.step(0.0, det, (robots, v, w), presorted=True)  # warm-up (jax compiles)
+    for k in (0, 1):  # warm-up: jax compiles the updates at the first stamp, the prediction at the second
+        eng.step(0.1 * k, det, (robots, v, w), presorted=True)
     times, cpus = [], []
-    for k in range(1, max(1, repeats) + 1):
+    for k in range(2, max(1, repeats) + 2):
         t0, c0 = time.perf_counter(), time.process_time()
         eng.step(0.1 * k, det, (robots, v, w), presorted=True)
         times.append(time.perf_counter() - t0)
@@ -279,3 +285,39 @@ def fusion_step(
         "levels": levels,
         "kernel_robot_updates_per_s": n / float(np.median(ktimes)),
     }
+
+
+def device_step(
+    n: int, *, dtype: str = "float64", neighbours: int = 3, repeats: int = 5, seed: int = 0
+) -> dict[str, Any]:
+    """The step of :func:`fusion_step`'s scene (same swarm, detections and commands) as one jitted JAX function on
+    arrays kept on jax's default device (:func:`swarmloc.engine.backends.jax_team_step`: no scheduling, no host
+    copies) in ``dtype`` (``"float64"`` or ``"float32"``): the device's ceiling for this step.
+
+    Returns ``robot_updates_per_s`` (``n`` / median step time), ``step_s``, ``compile_s`` (the first call, compile
+    included), ``device`` and ``dtype``. Needs jax.
+    """
+    import jax
+
+    from swarmloc.engine.backends import jax_team_step
+
+    if dtype not in ("float64", "float32"):
+        raise ValueError(f"device_step: dtype must be 'float64' or 'float32', not {dtype!r}")
+    sw, det, v, w = _step_scene(n, neighbours, seed)
+    f = jax_team_step(SWARM_NOISE)
+    host = (sw.pose, np.broadcast_to(1e-4 * np.eye(3), (n, 3, 3)), v, w, np.full(n, 0.1),
+            det.z.reshape(n, neighbours, 3), det.R.reshape(n, neighbours, 3, 3))  # fmt: skip
+    args = [jax.device_put(np.asarray(a, dtype=dtype)) for a in host]
+    args.append(jax.device_put(det.target.reshape(n, neighbours)))
+    t0 = time.perf_counter()
+    jax.block_until_ready(f(*args))
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        jax.block_until_ready(f(*args))
+        times.append(time.perf_counter() - t0)
+    step = float(np.median(times))
+    dev = args[0].devices() if hasattr(args[0], "devices") else jax.devices()
+    return {"n": n, "dtype": dtype, "neighbours": neighbours, "device": str(next(iter(dev))), "step_s": step,
+            "robot_updates_per_s": n / step, "compile_s": compile_s}  # fmt: skip
