@@ -1,6 +1,6 @@
 """``swarmloc bench``: how fast swarmloc runs on this machine, every figure measured in the same run.
 
-Four sections (each a function, all called by :func:`run_bench`):
+Five sections (each a function, called by :func:`run_bench`; ``--sections`` picks them, a-d by default):
 
 a. **Fusion step** (:func:`fusion_comparison`): robot-updates per second of one SE(2) step, a prediction and
    ``neighbours`` (3) relative-pose updates per robot (distributed EKF: the neighbour's covariance as noise, Joseph
@@ -17,6 +17,9 @@ c. **Swarms** (:func:`swarm_scaling`): :func:`swarmloc.engine.swarm_run` for swa
 d. **MRCLAM replay** (:func:`mrclam_replay`): dataset 6 through the in-process runner, ``x`` real time per
    estimator (replayed seconds / wall seconds of the event loop, as ``swarmloc evaluate mrclam`` reports it),
    landmarks on and off.
+e. **Accelerator** (:func:`swarmloc.experiments.accelerator.accelerator_rates`, only when asked): the fusion step
+   on jax's default device, the engine's ``"jax"`` and ``"jax32"`` backends against the same step in plain JAX
+   (float64 and float32) and the numba engine, at 1e4, 1e5 and 1e6 robots.
 
 Times are wall-clock seconds on a machine that may be shared: best (or median, as each section says) of a few
 repeats. ``--quick`` (:data:`QUICK`) shrinks every section (under a minute); the default (:data:`FULL`) takes
@@ -79,12 +82,13 @@ class BenchConfig:
     replay_rounds: int = 1
     estimators: tuple[str, ...] = REPLAY_ESTIMATORS
     landmarks: tuple[bool, ...] = (True, False)
+    accelerator_sizes: tuple[int, ...] = (10_000, 100_000, 1_000_000)
 
 
 FULL = BenchConfig()
 QUICK = BenchConfig(
     engine_n=2_000, filterpy_n=200, repeats=3, copy_mb=64, matmul_n=1024, swarm_sizes=(100, 1_000), swarm_steps=100,
-    sweep_n=300, isolate=False, replay_duration=60.0,
+    sweep_n=300, isolate=False, replay_duration=60.0, accelerator_sizes=(1_000, 10_000),
 )  # fmt: skip
 
 Tick = Callable[[str], None]
@@ -446,31 +450,51 @@ def mrclam_replay(
 
 
 # ------------------------------------------------------------------------------------------------ all
-def _work_items(cfg: BenchConfig, replay: bool) -> int:
+SECTIONS = "abcd"
+"""Sections run by default; ``e`` (the accelerator, :mod:`swarmloc.experiments.accelerator`) runs when asked."""
+
+
+def _work_items(cfg: BenchConfig, replay: bool, sections: str = SECTIONS) -> int:
     swarms = len(cfg.swarm_sizes) + len([k for k in cfg.neighbour_sweep if not (
         k == cfg.neighbours and cfg.sweep_n in cfg.swarm_sizes)])  # fmt: skip
-    return 1 + 2 + swarms + (len(cfg.estimators) * len(cfg.landmarks) if replay else 0)
+    counts = {"b": 1, "a": 2, "c": swarms, "d": len(cfg.estimators) * len(cfg.landmarks) if replay else 0,
+              "e": 5 * len(cfg.accelerator_sizes)}  # fmt: skip
+    return sum(counts[k] for k in sections)
 
 
-def run_bench(cfg: BenchConfig = FULL, mrclam: str | Path | None = None, progress: bool = False) -> dict:
-    """All four sections with the sizes of ``cfg``; section d when the dataset is found (:func:`find_mrclam`)."""
-    ds = find_mrclam(mrclam)
-    res: dict[str, Any] = {
-        "machine": {"platform": platform.platform(), "python": platform.python_version(), "numpy": np.__version__},
-        "config": asdict(cfg),
-    }
-    with _progress(progress, _work_items(cfg, ds is not None)) as tick:
-        m = machine_rates(cfg.copy_mb, cfg.matmul_n)
-        res["machine"].update(m)
-        tick("machine: bandwidth and FLOP rate")
-        res["fusion_step"] = fusion_comparison(cfg.engine_n, cfg.filterpy_n, cfg.neighbours, cfg.repeats, m, tick)
-        res["swarms"] = swarm_scaling(cfg.swarm_sizes, cfg.swarm_steps, cfg.neighbour_sweep, cfg.sweep_n,
-                                      cfg.neighbours, cfg.isolate, tick)  # fmt: skip
-        if ds is None:
+def run_bench(
+    cfg: BenchConfig = FULL, mrclam: str | Path | None = None, progress: bool = False, sections: str = SECTIONS
+) -> dict:
+    """The ``sections`` (letters of ``abcde``; a needs b's rates for its fractions and runs b with it) with the
+    sizes of ``cfg``; section d when the dataset is found (:func:`find_mrclam`)."""
+    bad = sorted(set(sections) - set("abcde"))
+    if bad or not sections:
+        raise ValueError(f"bench: sections are letters of 'abcde', not {sections!r}")
+    if "a" in sections and "b" not in sections:
+        sections += "b"
+    ds = find_mrclam(mrclam) if "d" in sections else None
+    machine = {"platform": platform.platform(), "python": platform.python_version(), "numpy": np.__version__}
+    res: dict[str, Any] = {"machine": {**machine, "cpu_count": os.cpu_count()}, "config": asdict(cfg)}
+    with _progress(progress, _work_items(cfg, ds is not None, sections)) as tick:
+        if "b" in sections:
+            m = machine_rates(cfg.copy_mb, cfg.matmul_n)
+            res["machine"].update(m)
+            tick("machine: bandwidth and FLOP rate")
+        if "a" in sections:
+            res["fusion_step"] = fusion_comparison(cfg.engine_n, cfg.filterpy_n, cfg.neighbours, cfg.repeats, m,
+                                                   tick)  # fmt: skip
+        if "c" in sections:
+            res["swarms"] = swarm_scaling(cfg.swarm_sizes, cfg.swarm_steps, cfg.neighbour_sweep, cfg.sweep_n,
+                                          cfg.neighbours, cfg.isolate, tick)  # fmt: skip
+        if "d" in sections and ds is None:
             res["mrclam"] = {"skipped": f"MRCLAM_Dataset6 not found (pass --mrclam or set {MRCLAM_ENV})"}
-        else:
+        elif "d" in sections:
             res["mrclam"] = mrclam_replay(ds, cfg.replay_duration, cfg.estimators, cfg.landmarks, cfg.replay_rounds,
                                           tick)  # fmt: skip
+        if "e" in sections:
+            from swarmloc.experiments.accelerator import accelerator_rates
+
+            res["accelerator"] = accelerator_rates(cfg.accelerator_sizes, cfg.neighbours, cfg.repeats, tick)
     return res
 
 
@@ -502,18 +526,36 @@ def _fmt_rate(x: float) -> str:
 
 
 def format_report(res: dict) -> str:
-    """The results as plain text tables (what ``swarmloc bench`` prints)."""
+    """The results as plain text tables (what ``swarmloc bench`` prints), the sections that ran."""
     m = res["machine"]
-    out = [f"machine: {m['platform']}, {m['cpu_count']} cores, python {m['python']}, numpy {m['numpy']}", ""]
+    out = [f"machine: {m['platform']}, {m['cpu_count']} cores, python {m['python']}, numpy {m['numpy']}"]
+    if "bandwidth_gb_s" in m:
+        out += ["", *_format_machine(m)]
+    if "fusion_step" in res:
+        out += ["", *_format_fusion(res["fusion_step"])]
+    if "swarms" in res:
+        out += ["", *_format_swarms(res["swarms"])]
+    if "mrclam" in res:
+        out += ["", *_format_replay(res["mrclam"])]
+    if "accelerator" in res:
+        from swarmloc.experiments.accelerator import format_accelerator
+
+        out += ["", *format_accelerator(res["accelerator"])]
+    return "\n".join(out)
+
+
+def _format_machine(m: dict) -> list[str]:
     one = m.get("gflops_one_thread")
-    out += [
+    return [
         "b. machine",
         f"  memory bandwidth (numpy copy of {m['copy_mb']} MB, read + write): {m['bandwidth_gb_s']:.1f} GB/s",
         f"  float64 matmul {m['matmul_n']}^2: {m['gflops']:.1f} GFLOP/s (BLAS threads: {m['blas_threads_env']})"
         + (f", {one:.1f} GFLOP/s on one thread" if one else ""),
     ]
-    f = res["fusion_step"]
-    out += ["", f"a. fusion step: prediction + {f['neighbours']} relative-pose updates per robot (SE(2) EKF)"]
+
+
+def _format_fusion(f: dict) -> list[str]:
+    out = [f"a. fusion step: prediction + {f['neighbours']} relative-pose updates per robot (SE(2) EKF)"]
     rows = [("filterpy EKF, per-robot loop", f["filterpy"])]
     rows += [(f"swarmloc engine, {b}", r) for b, r in f.get("backends", {"numpy": f["engine"]}).items()]
     for label, r in rows:
@@ -532,37 +574,41 @@ def format_report(res: dict) -> str:
             f"{f['achieved_gflops']:.3f} GFLOP/s = {100 * f['fraction_of_flops']:.2f}% of the FLOP rate"
             + (f" ({100 * frac1:.2f}% of one thread's)" if frac1 else "")
         )
-    s = res["swarms"]
+    return out
+
+
+def _format_swarms(s: dict) -> list[str]:
     backend = s.get("by_size", [{}])[0].get("backend", "numpy") if "skipped" not in s else ""
-    out += ["", f"c. swarms (engine, distributed EKF, {backend})"]
+    out = [f"c. swarms (engine, distributed EKF, {backend})"]
     if "skipped" in s:
-        out.append(f"  skipped: {s['skipped']}")
-    else:
-        cols = ("robots", "nb", "steps", "sim [s]", "est [s]", "us/robot-step", "peak MB")
-        widths = (7, 3, 6, 8, 8, 14, 8)
-        out.append("  " + " ".join(f"{c:>{w}}" for c, w in zip(cols, widths, strict=True)))
-        for r in [*s["by_size"], *[r for r in s["by_neighbours"] if r not in s["by_size"]]]:
-            vals = (f"{r['n']:,}", r["neighbours"], r["steps"], f"{r['wall_sim_s']:.2f}", f"{r['wall_est_s']:.2f}",
-                    f"{r['us_per_robot_step']:.2f}", f"{r['peak_mem_bytes'] / 2**20:.0f}")  # fmt: skip
-            out.append("  " + " ".join(f"{v:>{w}}" for v, w in zip(vals, widths, strict=True)))
-        out.append(
-            f"  log-log slopes: cost per robot vs team size {s['slope_cost_per_robot_vs_size']:+.2f} (wall vs size "
-            f"{s['slope_wall_vs_size']:+.2f}), cost per robot vs neighbours "
-            f"{s['slope_cost_per_robot_vs_neighbours']:+.2f}"
-        )
-        src = {r.get("peak_mem_source", "") for r in s["by_size"]}
-        out.append(f"  (peak memory: resident, interpreter included; {', '.join(sorted(src))})")
-    d = res["mrclam"]
-    out += ["", "d. MRCLAM replay (x real time = replayed seconds / wall seconds of the event loop)"]
+        return [*out, f"  skipped: {s['skipped']}"]
+    cols = ("robots", "nb", "steps", "sim [s]", "est [s]", "us/robot-step", "peak MB")
+    widths = (7, 3, 6, 8, 8, 14, 8)
+    out.append("  " + " ".join(f"{c:>{w}}" for c, w in zip(cols, widths, strict=True)))
+    for r in [*s["by_size"], *[r for r in s["by_neighbours"] if r not in s["by_size"]]]:
+        vals = (f"{r['n']:,}", r["neighbours"], r["steps"], f"{r['wall_sim_s']:.2f}", f"{r['wall_est_s']:.2f}",
+                f"{r['us_per_robot_step']:.2f}", f"{r['peak_mem_bytes'] / 2**20:.0f}")  # fmt: skip
+        out.append("  " + " ".join(f"{v:>{w}}" for v, w in zip(vals, widths, strict=True)))
+    out.append(
+        f"  log-log slopes: cost per robot vs team size {s['slope_cost_per_robot_vs_size']:+.2f} (wall vs size "
+        f"{s['slope_wall_vs_size']:+.2f}), cost per robot vs neighbours "
+        f"{s['slope_cost_per_robot_vs_neighbours']:+.2f}"
+    )
+    src = {r.get("peak_mem_source", "") for r in s["by_size"]}
+    out.append(f"  (peak memory: resident, interpreter included; {', '.join(sorted(src))})")
+    return out
+
+
+def _format_replay(d: dict) -> list[str]:
+    out = ["d. MRCLAM replay (x real time = replayed seconds / wall seconds of the event loop)"]
     if "skipped" in d:
-        out.append(f"  skipped: {d['skipped']}")
-        return "\n".join(out)
+        return [*out, f"  skipped: {d['skipped']}"]
     out.append(f"  {d['dataset']}, {d['duration_s']:.0f} s, best of {d['rounds']}")
     keys = [k for k in ("landmarks_on", "landmarks_off") if k in d]
     out.append(f"  {'estimator':<10}" + "".join(f"{k.replace('_', ' '):>16}" for k in keys))
     for n in d[keys[0]]["estimators"] if keys else ():
         out.append(f"  {n:<10}" + "".join(f"{d[k]['estimators'][n]['x_real_time']:>15.0f}x" for k in keys))
-    return "\n".join(out)
+    return out
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
@@ -574,6 +620,10 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--rounds", type=int, default=None, help="replay: rounds, the best kept (default 1)")
     ap.add_argument("--estimators", default=None, help="replay: comma-separated names (default all six)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--sections", default=SECTIONS, help="letters of the sections to run (default abcd; e: the "
+                    "fusion step on jax's device, float64 and float32, against plain JAX)")  # fmt: skip
+    ap.add_argument("--accelerator-sizes", default=None, help="section e: team sizes, comma-separated (default "
+                    "10000,100000,1000000; --quick 1000,10000)")  # fmt: skip
 
 
 def config_from_args(args: argparse.Namespace) -> BenchConfig:
@@ -584,17 +634,37 @@ def config_from_args(args: argparse.Namespace) -> BenchConfig:
         cfg = replace(cfg, replay_rounds=max(1, args.rounds))
     if args.estimators:
         cfg = replace(cfg, estimators=tuple(e for e in args.estimators.split(",") if e))
+    if getattr(args, "accelerator_sizes", None):
+        cfg = replace(cfg, accelerator_sizes=_sizes(args.accelerator_sizes))
     return cfg
+
+
+def _sizes(text: str) -> tuple[int, ...]:
+    try:
+        sizes = tuple(int(float(s)) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise ValueError(f"bench: --accelerator-sizes must be comma-separated team sizes, not {text!r}") from None
+    if not sizes or min(sizes) < 1 or max(sizes) > 100_000_000:
+        raise ValueError(f"bench: --accelerator-sizes must be 1 to 100,000,000 robots each, not {text!r}")
+    return sizes
 
 
 def run_command(args: argparse.Namespace) -> int:
     """``swarmloc bench``: run, then print the tables or the JSON."""
-    cfg = config_from_args(args)
+    try:
+        cfg = config_from_args(args)
+    except ValueError as exc:
+        print(f"swarmloc {exc}", file=sys.stderr)
+        return 2
     unknown = [e for e in cfg.estimators if e not in REPLAY_ESTIMATORS]
     if unknown:
         print(f"swarmloc bench: unknown estimator(s) {unknown}; choose from {list(REPLAY_ESTIMATORS)}", file=sys.stderr)
         return 2
-    res = run_bench(cfg, args.mrclam, progress=not args.quiet)  # the bar goes to stderr
+    sections = getattr(args, "sections", SECTIONS)
+    if not sections or set(sections) - set("abcde"):
+        print(f"swarmloc bench: --sections takes letters of 'abcde', not {sections!r}", file=sys.stderr)
+        return 2
+    res = run_bench(cfg, args.mrclam, progress=not args.quiet, sections=sections)  # the bar goes to stderr
     print(json.dumps(res, indent=2, default=float) if args.json else format_report(res))
     return 0
 
