@@ -32,6 +32,16 @@ UNUSABLE = -3
 """Target code of a detection its group holds but no filter can use (no target id, the pose of a landmark):
 counted ``rejected``."""
 
+NO_LANDMARK = -4
+"""Target code of a landmark detection whose landmark is not in the engine's map (counted ``unknown``). A landmark
+in the map, at row ``k`` of the map's sorted ids, has code ``NO_LANDMARK - 1 - k`` (:func:`landmark_code`)."""
+
+
+def landmark_code(k: int) -> int:
+    """Target code of the landmark at row ``k`` of the engine's map (``-5, -6, ...``)."""
+    return NO_LANDMARK - 1 - k
+
+
 PENDING, FUSED, GATED, REJECTED, UNKNOWN = range(5)
 OUTCOMES = ("pending", "fused", "gated", "rejected", "unknown")
 """Outcome code -> the name the nodes count it under."""
@@ -46,6 +56,9 @@ REASONS = (
     NONFINITE,
     DEGENERATE,
     NUMERICAL,
+    "landmark measurements are switched off",
+    "the landmark is not in the map",
 )
 """Reason code -> the nodes' text (0: none)."""
 R_SELF, R_OFF, R_TEAM, R_NOT_STARTED, R_OBSERVER, R_UNUSABLE, R_NONFINITE, R_DEGENERATE, R_NUMERICAL = range(1, 10)
+R_LANDMARKS_OFF, R_NO_LANDMARK = 10, 11

@@ -35,7 +35,10 @@ compute when the in-process runner drives them (:mod:`swarmloc.node`), batched:
 
 Detections are given as :class:`~swarmloc.engine.detections.Detections` (arrays, robots as row indices). The
 engine trusts its input: a driver validates it (:func:`swarmloc.engine.run_engine` applies the nodes' checks).
-Landmarks are not supported (use the nodes); ``"rdl"`` neither: its pairwise updates change the *target's* state too.
+**Landmarks** (a map ``id -> (x, y, std_x, std_y)``, the nodes' option) run with ``"dekf"`` on SE(2): a landmark
+detection's target is its row in the map (:meth:`Engine.landmark_code`), its state the map's position and
+covariance (:func:`swarmloc.node.landmark_state`), fused by the stacked-matrix kernels as the node fuses it; the
+other estimators refuse a map. ``"rdl"`` is not supported: its pairwise updates change the *target's* state too.
 
 The engine's modules are layers, each importing only modules below it (an import-linter contract in pyproject.toml):
 ``replay``, ``swarm`` -> ``core`` -> ``fuse_ci`` -> ``fuse_exp``, ``fuse_ekf``, ``fuse_ekf3`` -> ``stamp`` ->
@@ -52,7 +55,7 @@ import numpy as np
 
 from swarmloc.engine import se3 as E3
 from swarmloc.engine.backends import BACKENDS, make_ops
-from swarmloc.engine.codes import KIND_NAMES, PENDING, POSE3, REJECTED
+from swarmloc.engine.codes import KIND_NAMES, NO_LANDMARK, PENDING, POSE3, REJECTED, landmark_code
 from swarmloc.engine.detections import Detections
 from swarmloc.engine.fuse_ci import CiFusion
 from swarmloc.engine.fuse_ekf import FAST_KINDS, EkfFusion
@@ -66,6 +69,7 @@ from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, SE3
 from swarmloc.lie.base import SEGroup
 from swarmloc.motion import UnicycleNoise, odometry_increment
+from swarmloc.node.inputs import landmark_state
 from swarmloc.node.update import Gate
 
 __all__ = ["ENGINE_ESTIMATORS", "Detections", "Engine", "levels"]
@@ -93,8 +97,9 @@ class Engine:
         ``NUMBA_NUM_THREADS``).
     fast: EKF relative poses and absolute fixes through :mod:`swarmloc.engine.soa` instead of the stacked-matrix
         kernels (same results to rounding, several times faster).
-    landmarks, horizon, use_landmarks: accepted so that the nodes' options can be passed; a non-empty
-        ``landmarks`` map raises (not supported), the horizon plays no role (input comes in stamp order).
+    landmarks, use_landmarks: the nodes' map of point landmarks ``id -> (x [m], y [m], std_x [m], std_y [m])`` and
+        whether to fuse their detections (``"dekf"`` on SE(2) only; another estimator raises on a non-empty map).
+    horizon: accepted so that the nodes' options can be passed; it plays no role (input comes in stamp order).
     """
 
     def __init__(
@@ -135,6 +140,11 @@ class Engine:
         self.ops = make_ops(backend, noise) if self.fast else None
         self.fusion = _fusion(estimator, gating, self.ops, backend, order, iterations, point_iterations, self.group)
         """The fusion of one level of a stamp's groups (:mod:`swarmloc.engine.fuse_ekf`, ``fuse_exp``, ``fuse_ci``)."""
+        self.use_landmarks = bool(use_landmarks)
+        self.landmark_rows, table = landmark_table(landmarks)
+        """Landmark id -> its row in the map (sorted ids); :meth:`landmark_code` gives a detection's target code."""
+        if table is not None:
+            self.fusion.landmarks = table
         self.t0 = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
         self.t = self.t0.copy()
         cmd = (n, 3) if self.group is SE3 else (n,)
@@ -152,6 +162,12 @@ class Engine:
         """``"<outcome>: <reason>"`` -> count for rejected and unknown detections."""
         self.last_levels = 0
         """Levels the last :meth:`fuse` scheduled (diagnostics)."""
+
+    def landmark_code(self, lid: Any) -> int:
+        """Target code of a detection of landmark ``lid``: :func:`~swarmloc.engine.codes.landmark_code` of its row
+        in the map, or :data:`~swarmloc.engine.codes.NO_LANDMARK` (not in the map: counted ``unknown``)."""
+        k = self.landmark_rows.get(lid)
+        return NO_LANDMARK if k is None else landmark_code(k)
 
     # ------------------------------------------------------------------------------------------------ state
     def _advance(self, s: State, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> State:
@@ -253,7 +269,7 @@ class Engine:
             det = det.canonical()
         if len(det) == 0:
             return np.zeros(0, dtype=np.int8)
-        if self._serial_numba(len(det)):  # screened and fused in place, on one thread
+        if self._serial_numba(len(det)) and not (det.target <= NO_LANDMARK).any():  # in place, on one thread
             status, reason = np.zeros(len(det), dtype=np.int8), np.zeros(len(det), dtype=np.int8)
             lv = self.ops.fuse_serial(self.a, self.b, self.t, self.t0, self.v, self.w, t, self.use_relative, det,
                                       status, reason, self.fusion.gate)  # fmt: skip
@@ -261,7 +277,7 @@ class Engine:
                 self.last_levels = lv
                 tally(self.counts, self.reasons, status, reason)
                 return status
-        status, reason, obs_ok, needs = screen(det, t, self.t0, self.use_relative)
+        status, reason, obs_ok, needs = screen(det, t, self.t0, self.use_relative, self.use_landmarks)
         if self.group is SE3:
             needs &= ~self._refuse_kinds(det, status)
         starts, pos = runs(det.observer)
@@ -370,14 +386,30 @@ def _check_options(estimator: str, backend: str, fast: bool, landmarks: Any, gat
         raise ValueError(f"Engine: backend {backend!r} runs SE(2) teams only; an SE(3) team runs on backend='numpy'")
     if backend != "numpy" and not (estimator == "dekf" and fast):
         raise ValueError(f"Engine: backend {backend!r} runs the fast EKF path only (estimator='dekf', fast=True)")
-    if landmarks:
-        raise ValueError("Engine: landmarks are not supported; run the nodes (swarmloc.runner.run)")
+    if landmarks and (estimator != "dekf" or group is not SE2):
+        raise ValueError(f"Engine: landmarks run with 'dekf' on SE(2) only, not {estimator!r} on {group.name}; run "
+                         "the nodes (swarmloc.runner.run)")  # fmt: skip
     if order not in (1, 2):
         raise ValueError(f"Engine: 'order' must be 1 or 2, got {order!r}")
     try:
         return Gate(gate)
     except ValueError as exc:
         raise ValueError(f"Engine: {exc}") from None
+
+
+def landmark_table(landmarks: Any) -> tuple[dict[Any, int], tuple[np.ndarray, np.ndarray] | None]:
+    """A landmark map ``id -> (x, y, std_x, std_y)`` as the engine keeps it: ``(rows, (xy (L, 2), cov (L, 2, 2)))``,
+    rows in the order of the sorted ids, positions and covariances as the nodes take them
+    (:func:`swarmloc.node.landmark_state`); ``({}, None)`` for no map."""
+    if not landmarks:
+        return {}, None
+    ids = sorted(landmarks)
+    states = [landmark_state(landmarks, lid) for lid in ids]
+    if any(s is None or s[0].shape != (2,) for s in states):
+        raise ValueError("Engine: landmarks must be planar, id -> (x, y, std_x, std_y)")
+    xy = np.stack([s[0] for s in states])
+    cov = np.stack([s[1] for s in states])
+    return {lid: k for k, lid in enumerate(ids)}, (xy, cov)
 
 
 def _fusion(estimator: str, gate: Gate, ops: Any, backend: str, order: int, iterations: int,

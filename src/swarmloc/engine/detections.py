@@ -6,7 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarmloc.engine.codes import POSE
+from swarmloc.engine.codes import NO_LANDMARK, POSE
+
+_LANDMARKS_LAST = 1 << 40
+"""Sort key offset of landmark targets: after every robot row, in the order of the map's ids (the nodes' order)."""
 
 
 @dataclass(frozen=True)
@@ -14,7 +17,9 @@ class Detections:
     """Detections at one stamp, as arrays of length ``M``.
 
     ``observer`` ``(M,)``: robot row; ``target`` ``(M,)``: robot row, :data:`~swarmloc.engine.codes.NO_TARGET`
-    (absolute fix) or :data:`~swarmloc.engine.codes.UNKNOWN_ROBOT`; ``kind`` ``(M,)``: code of
+    (absolute fix), :data:`~swarmloc.engine.codes.UNKNOWN_ROBOT`, a landmark's code
+    (:func:`~swarmloc.engine.codes.landmark_code` of its row in the engine's map, :meth:`Engine.landmark_code
+    <swarmloc.engine.Engine.landmark_code>`) or :data:`~swarmloc.engine.codes.NO_LANDMARK`; ``kind`` ``(M,)``: code of
     :data:`~swarmloc.engine.codes.KINDS`; ``z`` ``(M, 3)``: the measurement in its first ``m`` entries (``m`` the
     kind's :attr:`~swarmloc.sensors.models.MeasurementModel.size`: pose ``(x [m], y [m], theta [rad])``, range [m]
     / bearing [rad]); ``R`` ``(M, 3, 3)``: its noise covariance in the leading ``m x m`` block (conventions of
@@ -35,9 +40,11 @@ class Detections:
         return Detections(self.observer[idx], self.target[idx], self.kind[idx], self.z[idx], self.R[idx])
 
     def canonical(self) -> Detections:
-        """Sorted by observer, then the nodes' canonical order within a group (kind, target, z)."""
+        """Sorted by observer, then the nodes' canonical order within a group (kind, robots before landmarks,
+        target, z)."""
         z = self.z
-        order = np.lexsort((*(z[:, k] for k in range(z.shape[1] - 1, -1, -1)), self.target, self.kind, self.observer))
+        tgt = np.where(self.target <= NO_LANDMARK, _LANDMARKS_LAST + NO_LANDMARK - self.target, self.target)
+        order = np.lexsort((*(z[:, k] for k in range(z.shape[1] - 1, -1, -1)), tgt, self.kind, self.observer))
         return self.take(order)
 
     @classmethod

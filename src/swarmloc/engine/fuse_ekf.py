@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.engine.codes import ABSOLUTE, MODEL, POSE, R_DEGENERATE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import ABSOLUTE, MODEL, NO_LANDMARK, POSE, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.stamp import Sequential, Stamp, usable
 from swarmloc.kernels import cartesian as C
 from swarmloc.node.update import Gate
@@ -58,12 +58,14 @@ class EkfFusion(Sequential):
 
     ``ops``: the fast path's kernels (:func:`swarmloc.engine.backends.make_ops`), None: the stacked-matrix kernels
     for every kind; ``backend``: its name (numpy takes the fast path for batches of :data:`SOA_MIN_ROWS` or more).
+    :attr:`landmarks`: the map's positions and covariances, ``(xy (L, 2), cov (L, 2, 2))``, or None.
     """
 
     def __init__(self, gate: Gate, ops: Any = None, backend: str = "numpy", **options: Any) -> None:
         super().__init__(gate, **options)
         self.ops = ops
         self.backend = backend
+        self.landmarks: tuple[np.ndarray, np.ndarray] | None = None
 
     def _fast(self, code: int, rows: int) -> bool:
         return self.ops is not None and code in FAST_KINDS and (self.backend != "numpy" or rows >= SOA_MIN_ROWS)
@@ -82,8 +84,17 @@ class EkfFusion(Sequential):
             ok = ok & pd
         else:
             xk = Pk = None
-            if model.targets != "self":
+            landmark = st.det.target[rows] <= NO_LANDMARK
+            if landmark.any() and not landmark.all():  # different observers: independent, in either order
+                self.update(st, rows[landmark], code)
+                self.update(st, rows[~landmark], code)
+                return
+            if landmark.any():  # the map's position (2,) and covariance (2, 2), as the node's landmark_state
+                k = NO_LANDMARK - 1 - st.det.target[rows]
+                xk, Pk = self.landmarks[0][k], self.landmarks[1][k]
+            elif model.targets != "self":
                 xk, Pk = C.from_group(*C.to_group(*st.target(rows)))  # the answer travels as a group belief
+            if xk is not None:
                 bad = model.degenerate(x, xk)
                 if bad.any():
                     st.mark(rows[bad], REJECTED, R_DEGENERATE)

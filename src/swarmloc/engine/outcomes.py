@@ -16,8 +16,11 @@ from swarmloc.engine.codes import (
     ABSOLUTE,
     FUSED,
     GATED,
+    NO_LANDMARK,
     OUTCOMES,
     PENDING,
+    R_LANDMARKS_OFF,
+    R_NO_LANDMARK,
     R_NONFINITE,
     R_NOT_STARTED,
     R_OBSERVER,
@@ -41,23 +44,27 @@ def mark(status: np.ndarray, reason: np.ndarray, where: np.ndarray, outcome: int
 
 
 def screen(
-    det: Detections, t: float, t0: np.ndarray, use_relative: bool
+    det: Detections, t: float, t0: np.ndarray, use_relative: bool, use_landmarks: bool = True
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """What is decided before any fusion, as the nodes decide it: observers that had not started, relative
-    measurements switched off, unusable or self-addressed targets, and neighbours that cannot answer (outside the
-    team or not started; clocks ``t0``).
+    """What is decided before any fusion, as the nodes decide it: observers that had not started, relative or
+    landmark measurements switched off, unusable or self-addressed targets, neighbours that cannot answer (outside
+    the team or not started; clocks ``t0``) and landmarks not in the map.
 
     Returns ``(status, reason, obs_ok, needs)``: ``obs_ok`` the detections whose observer runs at ``t``, ``needs``
-    the pending ones that need their target's answer."""
+    the pending ones that need their target's answer (robots; a landmark's state is the map's)."""
     m = len(det)
     status = np.zeros(m, dtype=np.int8)
     reason = np.zeros(m, dtype=np.int8)
     obs, tgt = det.observer, det.target
-    robot = det.kind != ABSOLUTE
+    landmark = tgt <= NO_LANDMARK
+    robot = (det.kind != ABSOLUTE) & ~landmark
     obs_ok = t >= t0[obs]
     mark(status, reason, ~obs_ok, REJECTED, R_OBSERVER)
     if not use_relative:
         mark(status, reason, obs_ok & robot, REJECTED, R_OFF)
+    if not use_landmarks:
+        mark(status, reason, obs_ok & landmark, REJECTED, R_LANDMARKS_OFF)
+    mark(status, reason, (status == PENDING) & (tgt == NO_LANDMARK), UNKNOWN, R_NO_LANDMARK)
     mark(status, reason, (status == PENDING) & robot & (tgt == UNUSABLE), REJECTED, R_UNUSABLE)
     mark(status, reason, (status == PENDING) & robot & (tgt == obs), REJECTED, R_SELF)
     mark(status, reason, (status == PENDING) & robot & (tgt < 0), UNKNOWN, R_TEAM)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -81,12 +81,12 @@ def run_engine(
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
     robots = src.robots
     col = {r: i for i, r in enumerate(robots)}
-    checked = _Checked(col, bool(src.landmarks))
-    for e in src.events:
-        checked.add(e)
     initial = [src.initial[r] for r in robots]
     eng = Engine(estimator, np.stack([b.mean for b in initial]), np.stack([b.cov for b in initial]),
                  t0=_start_times(src.events, col), backend=backend, fast=fast, **opts)  # fmt: skip
+    checked = _Checked(col, eng.landmark_code)
+    for e in src.events:
+        checked.add(e)
     rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
     checked.stops(max([*checked.odo, *checked.groups, *rt.tolist()], default=-math.inf))
     rows, truth_missing, wall = _replay(eng, src, checked, rt)
@@ -128,11 +128,12 @@ def _start_times(events: Sequence[Any], col: dict[Any, int]) -> np.ndarray:
 
 class _Checked:
     """A source's odometry and detections checked as the nodes check them (malformed, duplicate and unusable input
-    rejected and counted), filed by stamp: :attr:`odo` and :attr:`groups` (robots as rows of ``col``)."""
+    rejected and counted), filed by stamp: :attr:`odo` and :attr:`groups` (robots as rows of ``col``, landmarks as
+    the codes ``landmark_code`` gives: :meth:`Engine.landmark_code`)."""
 
-    def __init__(self, col: dict[Any, int], landmarks: bool) -> None:
+    def __init__(self, col: dict[Any, int], landmark_code: Callable[[Any], int]) -> None:
         self.col = col
-        self.landmarks = landmarks
+        self.landmark_code = landmark_code
         self.counts: Counter[str] = Counter()
         self.reasons: Counter[str] = Counter()
         self.odo: Commands = defaultdict(dict)
@@ -193,10 +194,8 @@ class _Checked:
             self.reject("rejected", why)
             return
         code = NO_TARGET if e.kind == "absolute" else self.col.get(e.target, UNKNOWN_ROBOT)
-        if e.kind != "absolute" and not e.target_is_robot:  # in the group (the observer moves to t), not fused
-            if self.landmarks:
-                raise ValueError("run_engine: landmark detections are not supported; run the nodes")
-            code = UNUSABLE if e.kind == "pose" else UNKNOWN_ROBOT
+        if e.kind != "absolute" and not e.target_is_robot:  # a landmark (the pose of one: in the group, not fused)
+            code = UNUSABLE if e.kind == "pose" else self.landmark_code(e.target)
         elif e.kind != "absolute" and e.target is None:
             code = UNUSABLE
         group = self.groups[float(e.t)][self.col[e.observer]]
