@@ -31,6 +31,10 @@ def _up(P: Any) -> tuple[Any, ...]:
     return tuple(P[..., i, j] for i, j in _UPPER)
 
 
+def _up2(L: Any) -> tuple[Any, ...]:
+    return L[..., 0, 0], L[..., 0, 1], L[..., 1, 1]
+
+
 def _full(xp: Any, p: tuple[Any, ...]) -> Any:
     p00, p01, p02, p11, p12, p22 = p
     return xp.stack([xp.stack([p00, p01, p02], -1), xp.stack([p01, p11, p12], -1), xp.stack([p02, p12, p22], -1)], -2)
@@ -58,6 +62,11 @@ def _absolute(xp: Any, x: Any, P: Any, z: Any, Rz: Any) -> tuple[Any, ...]:
     return _finish(xp, soa.absolute_update(xp, _cols(x), _up(P), _cols(z), _up(Rz)))
 
 
+def _landmark(xp: Any, x: Any, P: Any, lk: Any, L: Any, z: Any, Rz: Any) -> tuple[Any, ...]:
+    lk2, z2 = (lk[..., 0], lk[..., 1]), (z[..., 0], z[..., 1])
+    return _finish(xp, soa.landmark_update(xp, _cols(x), _up(P), lk2, _up2(L), z2, _up2(Rz)))
+
+
 class NumpyOps:
     """The fast EKF kernels on numpy arrays."""
 
@@ -83,6 +92,14 @@ class NumpyOps:
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             return _absolute(np, x, P, z, Rz)
 
+    def landmark_update(
+        self, x: np.ndarray, P: np.ndarray, lk: np.ndarray, L: np.ndarray, z: np.ndarray, Rz: np.ndarray
+    ) -> Arrays:
+        """``(x+, P+, nis, ok, positive definite)`` of range-bearing detections ``z (B, 2)``, noise ``Rz (B, 2, 2)``,
+        of map landmarks at ``lk (B, 2)`` with covariance ``L (B, 2, 2)`` (:func:`soa.landmark_update`)."""
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            return _landmark(np, x, P, lk, L, z, Rz)
+
 
 def _bucket(n: int) -> int:
     return max(8, 1 << max(0, (n - 1).bit_length()))
@@ -105,6 +122,7 @@ def _host(a: Any) -> np.ndarray:
 
 
 _EYE = np.eye(3)
+_EYE2 = np.eye(2)
 
 
 def _import_jax() -> Any:
@@ -131,10 +149,11 @@ class JaxOps:
         self.noise = noise
         self._jnp = jnp
         self.compiles: Counter[str] = Counter()
-        """Compilations per kernel (``predict``, ``pose``, ``absolute``): one per padded batch size (bucket)."""
+        """Compilations per kernel (``predict``, ``pose``, ``absolute``, ``landmark``): one per padded batch size."""
         self._predict = self._jit("predict", lambda x, P, v, w, dt: _predict(jnp, noise, x, P, v, w, dt))
         self._pose = self._jit("pose", lambda *a: _pose(jnp, *a))
         self._absolute = self._jit("absolute", lambda *a: _absolute(jnp, *a))
+        self._landmark = self._jit("landmark", lambda *a: _landmark(jnp, *a))
 
     def _jit(self, name: str, fn: Any) -> Any:
         import jax
@@ -178,6 +197,21 @@ class JaxOps:
         b = _bucket(n)
         args = (self._in(x, b, 0.0), self._in(P, b, _EYE), self._in(z, b, 0.0), self._in(Rz, b, _EYE))
         return self._out(self._absolute(*args), n)
+
+    def landmark_update(
+        self, x: np.ndarray, P: np.ndarray, lk: np.ndarray, L: np.ndarray, z: np.ndarray, Rz: np.ndarray
+    ) -> Arrays:
+        n = x.shape[0]
+        b = _bucket(n)
+        args = (
+            self._in(x, b, 0.0),
+            self._in(P, b, _EYE),
+            self._in(lk, b, 1.0),  # a padded row's landmark 1.4 m from its observer: finite
+            self._in(L, b, _EYE2),
+            self._in(z, b, 1.0),
+            self._in(Rz, b, _EYE2),
+        )
+        return self._out(self._landmark(*args), n)
 
 
 def make_ops(backend: str, noise: UnicycleNoise) -> Any:

@@ -37,8 +37,9 @@ Detections are given as :class:`~swarmloc.engine.detections.Detections` (arrays,
 engine trusts its input: a driver validates it (:func:`swarmloc.engine.run_engine` applies the nodes' checks).
 **Landmarks** (a map ``id -> (x, y, std_x, std_y)``, the nodes' option) run with ``"dekf"`` on SE(2): a landmark
 detection's target is its row in the map (:meth:`Engine.landmark_code`), its state the map's position and
-covariance (:func:`swarmloc.node.landmark_state`), fused by the stacked-matrix kernels as the node fuses it; the
-other estimators refuse a map. ``"rdl"`` is not supported: its pairwise updates change the *target's* state too.
+covariance (:func:`swarmloc.node.landmark_state`), fused as the node fuses it (a range-bearing detection on the
+fast path, :func:`swarmloc.engine.soa.landmark_update`); the other estimators refuse a map. ``"rdl"`` is not
+supported: its pairwise updates change the *target's* state too.
 
 The engine's modules are layers, each importing only modules below it (an import-linter contract in pyproject.toml):
 ``replay``, ``swarm`` -> ``core`` -> ``fuse_ci`` -> ``fuse_exp``, ``fuse_ekf``, ``fuse_ekf3`` -> ``stamp`` ->

@@ -20,14 +20,17 @@ from swarmloc.engine.codes import ABSOLUTE, MODEL, NO_LANDMARK, POSE, R_DEGENERA
 from swarmloc.engine.stamp import Sequential, Stamp, usable
 from swarmloc.kernels import cartesian as C
 from swarmloc.node.update import Gate
-from swarmloc.sensors.models import MeasurementModel
+from swarmloc.sensors.models import KIND_ORDER, MeasurementModel
 
 SOA_MIN_ROWS = 2048
 """On numpy, batches smaller than this take the stacked-matrix kernels even on the fast path: the
 structure-of-arrays forms make ~1400 array calls per update, a cost that only large batches amortize."""
 
 FAST_KINDS = (ABSOLUTE, POSE)
-"""Kinds the fast path fuses (the structure-of-arrays update is written for a 3-vector measurement)."""
+"""Kinds the fast path fuses between robots (and absolute fixes)."""
+RANGE_BEARING = KIND_ORDER["range_bearing"]
+"""The kind the fast path fuses for map landmarks (:func:`swarmloc.engine.soa.landmark_update`); a robot's
+range-bearing detection and the range-only and bearing-only kinds take the stacked-matrix kernels."""
 
 
 def kalman_rows(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -67,8 +70,8 @@ class EkfFusion(Sequential):
         self.backend = backend
         self.landmarks: tuple[np.ndarray, np.ndarray] | None = None
 
-    def _fast(self, code: int, rows: int) -> bool:
-        return self.ops is not None and code in FAST_KINDS and (self.backend != "numpy" or rows >= SOA_MIN_ROWS)
+    def _fast(self, code: int, rows: int, kinds: tuple[int, ...] = FAST_KINDS) -> bool:
+        return self.ops is not None and code in kinds and (self.backend != "numpy" or rows >= SOA_MIN_ROWS)
 
     def update(self, st: Stamp, rows: np.ndarray, code: int) -> None:
         model = MODEL[code]
@@ -101,8 +104,12 @@ class EkfFusion(Sequential):
                     rows, x, P, z, Rz, xk, Pk = (a[~bad] for a in (rows, x, P, z, Rz, xk, Pk))
                     if rows.size == 0:
                         return
-            xn, Pn, nis, ok = kalman_rows(x, P, *linearize(model, x, z, Rz, xk, Pk))
-            ok = ok & usable(Pn)
+            if landmark.any() and self._fast(code, rows.size, (RANGE_BEARING,)):
+                xn, Pn, nis, ok, pd = self.ops.landmark_update(x, P, xk, Pk, z, Rz)
+                ok = ok & pd
+            else:
+                xn, Pn, nis, ok = kalman_rows(x, P, *linearize(model, x, z, Rz, xk, Pk))
+                ok = ok & usable(Pn)
         keep = st.gate(rows, nis, self.gate, m)
         st.mark(rows[keep & ~ok], REJECTED, R_NUMERICAL)
         good = keep & ok

@@ -36,7 +36,7 @@ from swarmloc.engine.codes import (
     UNKNOWN,
     UNUSABLE,
 )
-from swarmloc.engine.scalar import absolute_source, pose_source, predict_source
+from swarmloc.engine.scalar import absolute_source, landmark_source, pose_source, predict_source
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
 
@@ -50,10 +50,12 @@ class _Det:
 
 _UP = "{a}[{i}, 0, 0], {a}[{i}, 0, 1], {a}[{i}, 0, 2], {a}[{i}, 1, 1], {a}[{i}, 1, 2], {a}[{i}, 2, 2]"
 _X = "{a}[{i}, 0], {a}[{i}, 1], {a}[{i}, 2]"
+_UP2 = "{a}[{i}, 0, 0], {a}[{i}, 0, 1], {a}[{i}, 1, 1]"
+_X2 = "{a}[{i}, 0], {a}[{i}, 1]"
 
 
-def _args(a: str, i: str, up: bool = False) -> str:
-    return (_UP if up else _X).format(a=a, i=i)
+def _args(a: str, i: str, up: bool = False, two: bool = False) -> str:
+    return ((_UP2 if up else _X2) if two else (_UP if up else _X)).format(a=a, i=i)
 
 
 _STORE = """
@@ -92,6 +94,18 @@ def pose_rows(x, P, xk, Pk, z, R):
     for i in prange(n):
         r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("xk", "i")}, {_args("Pk", "i", True)},
                  {_args("z", "i")}, {_args("R", "i", True)})
+{_store("ox", "oP", "i", 8)}
+        nis[i] = r[9]
+        ok[i] = r[10]
+    return ox, oP, nis, ok
+
+
+def landmark_rows(x, P, lk, L, z, R):
+    n = x.shape[0]
+    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
+    for i in prange(n):
+        r = landmark({_args("x", "i")}, {_args("P", "i", True)}, {_args("lk", "i", two=True)},
+                     {_args("L", "i", True, True)}, {_args("z", "i", two=True)}, {_args("R", "i", True, True)})
 {_store("ox", "oP", "i", 8)}
         nis[i] = r[9]
         ok[i] = r[10]
@@ -233,13 +247,13 @@ def fuse_groups(x, P, px, pP, lo, lt, later, kind, z, R, status, reason, gate, t
 def _kernels(noise: UnicycleNoise) -> dict[str, Any]:
     """Compile the generated scalar functions and the loops around them (once per noise model)."""
     ns: dict[str, Any] = {"math": math, "np": np, "prange": prange}
-    for src in (predict_source(noise), pose_source(), absolute_source()):
+    for src in (predict_source(noise), pose_source(), absolute_source(), landmark_source()):
         exec(src, ns)  # noqa: S102 - our own generated code
-    for name in ("predict", "pose", "absolute"):
+    for name in ("predict", "pose", "absolute", "landmark"):
         ns[name] = njit(error_model="numpy")(ns[name])
     exec(_LOOPS, ns)  # noqa: S102
     out = {}
-    for name in ("predict_rows", "pose_rows", "absolute_rows", "fuse_groups"):
+    for name in ("predict_rows", "pose_rows", "absolute_rows", "landmark_rows", "fuse_groups"):
         out[name] = njit(parallel=True, error_model="numpy")(ns[name])
         out[name + "_serial"] = njit(error_model="numpy")(ns[name])  # prange runs as range
     for name in ("predict_into", "fuse_serial", "scatter2"):  # in place, one thread
@@ -281,6 +295,7 @@ class NumbaOps:
         self.predict(x, P, one, one, one)
         self.pose_update(x, P, x + 1.0, P, x + 1.0, P)
         self.absolute_update(x, P, x, P)
+        self.landmark_update(x, P, x[:, :2] + 1.0, P[:, :2, :2], x[:, :2] + 1.0, P[:, :2, :2])
         z = np.zeros((2, 3))
         det = _Det(np.array([0, 1]), np.array([1, 0]), np.array([1, 0]), z, P)
         status, reason = np.zeros(2, dtype=np.int8), np.zeros(2, dtype=np.int8)
@@ -307,6 +322,12 @@ class NumbaOps:
     def absolute_update(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, Rz: np.ndarray) -> tuple:
         f = np.ascontiguousarray
         xn, Pn, nis, ok = _pick(self.k, "absolute_rows", x.shape[0])(f(x), f(P), f(z), f(Rz))
+        return xn, Pn, nis, ok, ok
+
+    def landmark_update(self, x: np.ndarray, P: np.ndarray, lk: np.ndarray, L: np.ndarray, z: np.ndarray,
+                        Rz: np.ndarray) -> tuple:  # fmt: skip
+        f = np.ascontiguousarray
+        xn, Pn, nis, ok = _pick(self.k, "landmark_rows", x.shape[0])(f(x), f(P), f(lk), f(L), f(z), f(Rz))
         return xn, Pn, nis, ok, ok
 
     def serial(self, rows: int) -> bool:

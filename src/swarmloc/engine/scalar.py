@@ -112,6 +112,9 @@ class _XP:
     def sin(self, a: Any) -> _Sym:
         return self._f("math.sin", a)
 
+    def sqrt(self, a: Any) -> _Sym:
+        return self._f("math.sqrt", a)
+
     def arctan2(self, a: Any, c: Any) -> _Sym:
         return self._f("math.atan2", a, c)
 
@@ -219,3 +222,14 @@ def absolute_source() -> str:
         return [*xs, *ps, nis, ok & soa.positive_definite(xp, ps)]
 
     return _generate("absolute", 18, body)
+
+
+def landmark_source() -> str:
+    """``landmark(x(3), P(6), lk(2), L(3), z(2), R(3)) -> (x+(3), P+(6), nis, ok and positive definite)``."""
+
+    def body(xp: Any, a: list) -> list:
+        xs, ps, nis, ok = soa.landmark_update(xp, tuple(a[0:3]), tuple(a[3:9]), tuple(a[9:11]), tuple(a[11:14]),
+                                              tuple(a[14:16]), tuple(a[16:19]))  # fmt: skip
+        return [*xs, *ps, nis, ok & soa.positive_definite(xp, ps)]
+
+    return _generate("landmark", 19, body)

@@ -9,7 +9,8 @@ rounding (tests/test_engine.py checks 1e-12 against the kernels and 1e-10 agains
 
 * :func:`predict`: :func:`swarmloc.kernels.cartesian.predict_one` (increment of
   :func:`swarmloc.motion.odometry_increment_terms`, Taylor branches ``swarmloc.motion.SERIES``);
-* :func:`update`: :func:`swarmloc.sensors.models.relative_pose` (``kind="pose"``) or a GPS-like absolute fix,
+* :func:`pose_update`, :func:`absolute_update`, :func:`landmark_update`: :func:`swarmloc.sensors.models.relative_pose`
+  (``kind="pose"``), a GPS-like absolute fix or :func:`swarmloc.sensors.models.range_bearing` of a map landmark,
   :func:`swarmloc.sensors.models.pose_noise_to_cartesian` and :func:`swarmloc.kernels.cartesian.kalman_update`
   (Joseph form), plus the gate's normalized innovation squared and the positive-definiteness test of the nodes.
 
@@ -296,3 +297,32 @@ def absolute_update(
     """GPS-like fix ``z = (x, y, theta)`` with additive Cartesian noise ``rz`` (upper triangle): ``H = I``."""
     r = [z[0] - x[0], z[1] - x[1], wrap(xp, z[2] - x[2])]
     return kalman(xp, x, p, r, eye(3), sym3(rz))
+
+
+def landmark_update(
+    xp: Any,
+    x: tuple[Entry, ...],
+    p: tuple[Entry, ...],
+    lk: tuple[Entry, ...],
+    lp: tuple[Entry, ...],
+    z: tuple[Entry, ...],
+    rz: tuple[Entry, ...],
+) -> tuple[tuple[Entry, ...], tuple[Entry, ...], Entry, Entry]:
+    """Range-bearing update of observer ``(x, P)`` by a map landmark at ``lk = (x, y)`` [m] with map covariance
+    ``lp = (l00, l01, l11)``; ``z = (range [m], bearing [rad])``, noise ``rz = (r00, r01, r11)``: the node's
+    :func:`swarmloc.estimators.dekf.linearize` with :func:`swarmloc.sensors.models.range_bearing` of a 2-D target,
+    ``R_eff = R + Hk L Hk^T``. A landmark within ``MIN_RANGE`` of the observer is the caller's to reject (the
+    Jacobians divide by the range). Returns ``(x+, P+, nis, ok)`` (see :func:`kalman`)."""
+    x0, x1, x2 = x
+    dx, dy = lk[0] - x0, lk[1] - x1
+    c, s = xp.cos(x2), xp.sin(x2)
+    bx, by = c * dx + s * dy, -s * dx + c * dy
+    q = dx * dx + dy * dy
+    rng = xp.sqrt(q)
+    bearing = wrap(xp, xp.arctan2(by, bx))
+    Hi = [[-dx / rng, -dy / rng, 0.0], [dy / q, -dx / q, -1.0]]
+    Hk = [[-Hi[0][0], -Hi[0][1]], [-Hi[1][0], -Hi[1][1]]]
+    L = [[lp[0], lp[1]], [lp[1], lp[2]]]
+    R_eff = madd([[rz[0], rz[1]], [rz[1], rz[2]]], mm(mm(Hk, L), tr(Hk)))
+    r = [z[0] - rng, wrap(xp, z[1] - bearing)]
+    return kalman(xp, x, p, r, Hi, R_eff)
