@@ -32,6 +32,8 @@ def test_fusion_comparison_rates_ratio_and_fractions(machine):
     for key in ("filterpy", "engine"):  # filterpy and the engine are installed with the dev extra
         assert _positive(f[key]["robot_updates_per_s"]), f[key]
     assert f["filterpy"]["n"] == 8 and f["engine"]["n"] == 30
+    lm = f["backends"]["numba, 1 landmark"]  # the step with one map landmark per robot as well
+    assert lm["landmarks"] == 1 and _positive(lm["robot_updates_per_s"])
     for b in ("numpy", "numba", "jax"):
         r = f["backends"][b]
         assert r["over_filterpy"] == pytest.approx(r["robot_updates_per_s"] / f["filterpy"]["robot_updates_per_s"])

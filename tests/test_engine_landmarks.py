@@ -141,3 +141,96 @@ def test_the_jax_engine_fuses_landmarks_on_its_kernels(monkeypatch) -> None:
     monkeypatch.setattr(replay, "Engine", keep)
     _assert_same(_nodes(src), run_engine(src, "dekf", backend="jax"))
     assert made[0].ops.compiles["landmark"] >= 1
+
+
+def _landmark_mix(x: np.ndarray, lxy: np.ndarray, m: int, rng: np.random.Generator) -> Detections:
+    """Range-bearing detections of map landmarks by random observers at ``x (n, 3)``: near the truth, a fifth 3 m
+    off (for the gate), a tenth of landmarks missing from the map; robot 0 sees landmark 0 only (at its own
+    position: degenerate)."""
+    from swarmloc.lie import wrap_angle
+
+    obs = np.r_[0, rng.integers(1, x.shape[0], m - 1)]
+    k = np.r_[0, rng.integers(0, lxy.shape[0], m - 1)]
+    tgt = np.array([landmark_code(int(i)) for i in k])
+    tgt = np.where(rng.random(m) < 0.1, NO_LANDMARK, tgt)
+    tgt[0] = landmark_code(0)
+    c, s = np.cos(x[obs, 2]), np.sin(x[obs, 2])
+    dx, dy = lxy[k, 0] - x[obs, 0], lxy[k, 1] - x[obs, 1]
+    z = np.zeros((m, 3))
+    z[:, 0] = np.hypot(dx, dy) + rng.normal(scale=0.03, size=m) + np.where(rng.random(m) < 0.2, 3.0, 0.0)
+    z[:, 1] = wrap_angle(np.arctan2(-s * dx + c * dy, c * dx + s * dy) + rng.normal(scale=0.01, size=m))
+    R = np.zeros((m, 3, 3))
+    R[:, 0, 0], R[:, 1, 1], R[:, 0, 1] = 0.03**2, 0.01**2, 1e-5
+    R[:, 1, 0] = R[:, 0, 1]
+    return Detections(obs, tgt, np.full(m, KIND_ORDER["range_bearing"]), z, R)
+
+
+@pytest.mark.parametrize("use_landmarks", [True, False])
+@pytest.mark.parametrize("parallel", [False, True])
+def test_numba_kernels_equal_numpy_with_landmarks_on_every_outcome(monkeypatch, parallel, use_landmarks) -> None:
+    """The numba backend's in-place kernel (screening, prediction and fusion in one loop) and its level path with
+    landmark detections mixed in (fused, gated, missing from the map, degenerate, switched off) equal numpy: states,
+    clocks, outcome and reason codes, counts, levels."""
+    from test_engine import _outcome_mix
+
+    from swarmloc.engine import numba_ops
+    from swarmloc.lie import SE2
+
+    if parallel:
+        monkeypatch.setattr(numba_ops, "PARALLEL_MIN", 0)
+    rng = np.random.default_rng(5)
+    n = 9
+    xyt = np.column_stack([rng.normal(size=(n, 2)), rng.uniform(-3, 3, n)])
+    A = rng.normal(size=(n, 3, 3))
+    cov = 1e-2 * A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)
+    t0 = np.zeros(n)
+    t0[7], t0[8] = 2.5, np.inf
+    lxy = np.r_[xyt[:1, :2], rng.uniform(-4, 4, (5, 2))]  # landmark 0 where robot 0 stays (it gets no command)
+    lmap = {10 + i: (*lxy[i], 0.02, 0.03) for i in range(6)}
+    noise = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
+    engines = {b: Engine("dekf", SE2.from_xytheta(xyt), cov, noise=noise, t0=t0, gate=0.99, backend=b, landmarks=lmap,
+                         use_landmarks=use_landmarks) for b in ("numpy", "numba")}  # fmt: skip
+    for k in range(1, 7):
+        t = 0.5 * k
+        x = engines["numpy"].a
+        poses, marks = _outcome_mix(x, 20, rng), _landmark_mix(x, lxy, 12, rng)
+        poses = poses.take(np.flatnonzero(poses.observer != 0))  # robot 0's estimate stays on landmark 0
+        det = Detections(*(np.concatenate([getattr(poses, f), getattr(marks, f)]) for f in ("observer", "target",
+                         "kind", "z", "R"))).canonical()  # fmt: skip
+        some = np.sort(rng.choice(np.arange(1, n), 4, replace=False))
+        cmd = (some, rng.uniform(0, 1, 4), rng.uniform(-1, 1, 4))
+        status = {}
+        for b, eng in engines.items():
+            eng.predict(some, t)
+            status[b] = eng.fuse(t, det, presorted=True)
+            eng.set_command(*cmd)
+        np.testing.assert_array_equal(status["numpy"], status["numba"])
+        one, two = engines["numpy"], engines["numba"]
+        assert one.last_levels == two.last_levels
+        np.testing.assert_array_equal(one.t, two.t)
+        np.testing.assert_allclose(one.a, two.a, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(one.b, two.b, rtol=0, atol=1e-12)
+    assert engines["numpy"].counts == engines["numba"].counts
+    reasons = engines["numba"].reasons
+    assert engines["numpy"].reasons == reasons
+    if use_landmarks:
+        assert reasons["unknown: the landmark is not in the map"] > 0
+        assert reasons["rejected: degenerate geometry: the target is at the observer's position"] > 0
+        assert engines["numba"].counts["gated"] > 5
+    else:
+        assert reasons["rejected: landmark measurements are switched off"] >= 50  # the observer started
+
+
+def test_the_swarm_landmark_scene_is_consistent_with_its_map() -> None:
+    """fusion_step's landmark detections (:func:`swarmloc.engine.swarm._landmark_scene`) are of the right landmarks:
+    through a 0.999 gate at the true poses nearly all pass (a wrong landmark would be metres off)."""
+    from swarmloc.engine.swarm import Swarm, _landmark_scene
+    from swarmloc.lie import SE2
+
+    sw = Swarm(2000, seed=3)
+    lmap, det = _landmark_scene(sw, 2, 3)
+    assert len(lmap) == 80 and len(det) == 4000
+    eng = Engine("dekf", SE2.from_xytheta(sw.pose), np.broadcast_to(1e-8 * np.eye(3), (2000, 3, 3)).copy(),
+                 noise=UnicycleNoise(), gate=0.999, landmarks=lmap)  # fmt: skip
+    status = eng.fuse(0.0, det.canonical(), presorted=True)
+    assert (status == 1).mean() > 0.99 and eng.counts["gated"] < 20

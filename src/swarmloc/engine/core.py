@@ -270,10 +270,11 @@ class Engine:
             det = det.canonical()
         if len(det) == 0:
             return np.zeros(0, dtype=np.int8)
-        if self._serial_numba(len(det)) and not (det.target <= NO_LANDMARK).any():  # in place, on one thread
+        if self._serial_numba(len(det)):  # screened and fused in place, on one thread
             status, reason = np.zeros(len(det), dtype=np.int8), np.zeros(len(det), dtype=np.int8)
             lv = self.ops.fuse_serial(self.a, self.b, self.t, self.t0, self.v, self.w, t, self.use_relative, det,
-                                      status, reason, self.fusion.gate)  # fmt: skip
+                                      status, reason, self.fusion.gate, self.fusion.landmarks,
+                                      self.use_landmarks)  # fmt: skip
             if lv >= 0:
                 self.last_levels = lv
                 tally(self.counts, self.reasons, status, reason)

@@ -22,8 +22,12 @@ from swarmloc.engine.codes import (
     FUSED,
     GATED,
     MODEL,
+    NO_LANDMARK,
     PENDING,
     POSE,
+    R_DEGENERATE,
+    R_LANDMARKS_OFF,
+    R_NO_LANDMARK,
     R_NONFINITE,
     R_NOT_STARTED,
     R_NUMERICAL,
@@ -39,6 +43,7 @@ from swarmloc.engine.codes import (
 from swarmloc.engine.scalar import absolute_source, landmark_source, pose_source, predict_source
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
+from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
 
 
 class _Det:
@@ -77,6 +82,8 @@ def _store(o: str, oP: str, i: str, indent: int) -> str:
     pad = " " * indent
     return "\n".join(pad + line for line in _STORE.format(o=o, oP=oP, i=i).strip().splitlines())
 
+
+RANGE_BEARING = KIND_ORDER["range_bearing"]
 
 _LOOPS = f"""
 def predict_rows(x, P, v, w, dt):
@@ -132,12 +139,16 @@ def predict_into(x, P, tc, v, w, robots, t):
             tc[i] = t
 
 
-def fuse_serial(x, P, tc, t0, v, w, t, relative, obs, tgt, kind, z, R, status, reason, gate, thr, lev):
+def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason, gate, thr,
+                lev):
     m = obs.shape[0]
     n = x.shape[0]
     for q in range(m):
-        if kind[q] != {ABSOLUTE} and kind[q] != {POSE}:
-            return -1  # nothing done: the caller takes the general path
+        if kind[q] == {RANGE_BEARING}:
+            if tgt[q] > {NO_LANDMARK}:
+                return -1  # a robot's range-bearing: nothing done, the caller takes the general path
+        elif kind[q] != {ABSOLUTE} and kind[q] != {POSE} or tgt[q] <= {NO_LANDMARK}:
+            return -1
     top = -1
     for q in range(m):
         i = obs[q]
@@ -146,9 +157,17 @@ def fuse_serial(x, P, tc, t0, v, w, t, relative, obs, tgt, kind, z, R, status, r
             reason[q] = {R_OBSERVER}
             continue
         j = tgt[q]
-        robot = kind[q] != {ABSOLUTE}
+        at_lm = j <= {NO_LANDMARK}  # a landmark's range-bearing (kinds checked above)
+        robot = kind[q] != {ABSOLUTE} and not at_lm
         needs = False
-        if robot:
+        if at_lm:
+            if not lm_on:
+                status[q] = {REJECTED}
+                reason[q] = {R_LANDMARKS_OFF}
+            elif j == {NO_LANDMARK}:
+                status[q] = {UNKNOWN}
+                reason[q] = {R_NO_LANDMARK}
+        elif robot:
             if not relative:
                 status[q] = {REJECTED}
                 reason[q] = {R_OFF}
@@ -178,7 +197,15 @@ def fuse_serial(x, P, tc, t0, v, w, t, relative, obs, tgt, kind, z, R, status, r
             top = lev[i]
         if status[q] != {PENDING}:
             continue
-        if not robot:
+        if at_lm:
+            k = {NO_LANDMARK} - 1 - j
+            if math.hypot(lxy[k, 0] - x[i, 0], lxy[k, 1] - x[i, 1]) < {MIN_RANGE!r}:
+                status[q] = {REJECTED}
+                reason[q] = {R_DEGENERATE}
+                continue
+            r = landmark({_args("x", "i")}, {_args("P", "i", True)}, {_args("lxy", "k", two=True)},
+                         {_args("lcov", "k", True, True)}, z[q, 0], z[q, 1], R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])
+        elif not robot:
             r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
         elif tc[j] < t:  # a neighbour without input at t: its answer predicted, not stored
             k = predict({_args("x", "j")}, {_args("P", "j", True)}, v[j], w[j], t - tc[j])
@@ -304,7 +331,7 @@ class NumbaOps:
             self.fuse_groups((x.copy(), P.copy()), (x, P), det, i, i[::-1], status.copy(), reason.copy(), gate, i,
                              i + 1, np.array([0, 1, 2]))  # fmt: skip
             self.fuse_serial(x.copy(), P.copy(), np.zeros(2), np.zeros(2), one, one, 1.0, True, det, status.copy(),
-                             reason.copy(), gate)  # fmt: skip
+                             reason.copy(), gate, (x[:, :2] + 1.0, P[:, :2, :2]))  # fmt: skip
         self.predict_into(x.copy(), P.copy(), np.zeros(2), one, one, i, 1.0)
         self.scatter2(one.copy(), one.copy(), i, one, one)
 
@@ -343,7 +370,8 @@ class NumbaOps:
 
     def fuse_serial(self, x: np.ndarray, P: np.ndarray, tc: np.ndarray, t0: np.ndarray, v: np.ndarray,
                     w: np.ndarray, t: float, use_relative: bool, det: Any, status: np.ndarray, reason: np.ndarray,
-                    gate: Gate) -> int:  # fmt: skip
+                    gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+                    use_landmarks: bool = True) -> int:  # fmt: skip
         """A stamp's detections screened and their groups fused in place on one thread, in canonical (observer)
         order: what the nodes do.
 
@@ -356,12 +384,16 @@ class NumbaOps:
 
         Returns the number of levels the batched schedule would have (:func:`swarmloc.engine.stamp.levels`: the
         engine's ``last_levels``), or -1, having changed nothing, when a detection is of a kind other than a
-        relative pose or an absolute fix (the caller takes the general path)."""
+        relative pose, an absolute fix or the range-bearing of a landmark (the caller takes the general path).
+        ``landmarks``: the engine's map ``(xy (L, 2), cov (L, 2, 2))`` (:func:`swarmloc.engine.core.landmark_table`),
+        landmark ``k`` a detection's target code :func:`~swarmloc.engine.codes.landmark_code` ``(k)``."""
         f = np.ascontiguousarray
         i64 = np.int64
         thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
         lev = np.full(x.shape[0], -1, dtype=i64)
-        return int(self.k["fuse_serial"](x, P, tc, t0, v, w, float(t), bool(use_relative), f(det.observer, dtype=i64),
+        lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
+        return int(self.k["fuse_serial"](x, P, tc, t0, v, w, float(t), bool(use_relative), bool(use_landmarks),
+                                         f(lxy, dtype=float), f(lcov, dtype=float), f(det.observer, dtype=i64),
                                          f(det.target, dtype=i64), f(det.kind, dtype=i64), f(det.z, dtype=float),
                                          f(det.R, dtype=float), status, reason, gate.p is not None, thr,
                                          lev))  # fmt: skip

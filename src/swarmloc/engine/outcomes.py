@@ -19,6 +19,7 @@ from swarmloc.engine.codes import (
     NO_LANDMARK,
     OUTCOMES,
     PENDING,
+    POSE,
     R_LANDMARKS_OFF,
     R_NO_LANDMARK,
     R_NONFINITE,
@@ -56,7 +57,7 @@ def screen(
     status = np.zeros(m, dtype=np.int8)
     reason = np.zeros(m, dtype=np.int8)
     obs, tgt = det.observer, det.target
-    landmark = tgt <= NO_LANDMARK
+    landmark = (tgt <= NO_LANDMARK) & (det.kind != ABSOLUTE)
     robot = (det.kind != ABSOLUTE) & ~landmark
     obs_ok = t >= t0[obs]
     mark(status, reason, ~obs_ok, REJECTED, R_OBSERVER)
@@ -64,7 +65,8 @@ def screen(
         mark(status, reason, obs_ok & robot, REJECTED, R_OFF)
     if not use_landmarks:
         mark(status, reason, obs_ok & landmark, REJECTED, R_LANDMARKS_OFF)
-    mark(status, reason, (status == PENDING) & (tgt == NO_LANDMARK), UNKNOWN, R_NO_LANDMARK)
+    mark(status, reason, (status == PENDING) & landmark & (tgt == NO_LANDMARK), UNKNOWN, R_NO_LANDMARK)
+    mark(status, reason, (status == PENDING) & landmark & (det.kind == POSE), REJECTED, R_UNUSABLE)  # a point
     mark(status, reason, (status == PENDING) & robot & (tgt == UNUSABLE), REJECTED, R_UNUSABLE)
     mark(status, reason, (status == PENDING) & robot & (tgt == obs), REJECTED, R_SELF)
     mark(status, reason, (status == PENDING) & robot & (tgt < 0), UNKNOWN, R_TEAM)

@@ -220,35 +220,61 @@ def _step_scene(n: int, neighbours: int, seed: int) -> tuple[Swarm, Detections, 
     return sw, det, v, w
 
 
+def _landmark_scene(sw: Swarm, k: int, seed: int) -> tuple[dict[int, tuple[float, ...]], Detections]:
+    """A map of one landmark per 25 robots spread over the swarm's square (std 5 cm) and each robot's range-bearing
+    detections of its ``k`` nearest landmarks (noise 5 cm and 1 degree), as the engine takes them."""
+    from swarmloc.engine.codes import landmark_code
+    from swarmloc.sensors.models import KIND_ORDER
+
+    rng = np.random.default_rng([seed, 25])
+    m = max(k, sw.n // 25)
+    xy = rng.uniform(0, sw.side, (m, 2))
+    lmap = {i: (float(xy[i, 0]), float(xy[i, 1]), 0.05, 0.05) for i in range(m)}
+    _, near = cKDTree(xy).query(sw.pose[:, :2], k=k)
+    near = near.reshape(sw.n, k)
+    obs = np.repeat(np.arange(sw.n), k)
+    d = xy[near.ravel()] - sw.pose[obs, :2]
+    c, s = np.cos(sw.pose[obs, 2]), np.sin(sw.pose[obs, 2])
+    z = np.zeros((obs.size, 3))
+    z[:, 0] = np.hypot(d[:, 0], d[:, 1]) + rng.normal(scale=0.05, size=obs.size)
+    z[:, 1] = wrap_angle(np.arctan2(-s * d[:, 0] + c * d[:, 1], c * d[:, 0] + s * d[:, 1])
+                         + rng.normal(scale=np.deg2rad(1.0), size=obs.size))  # fmt: skip
+    R = np.zeros((obs.size, 3, 3))
+    R[:, 0, 0], R[:, 1, 1] = 0.05**2, np.deg2rad(1.0) ** 2
+    tgt = landmark_code(0) - near.ravel()  # landmark_code(k) = landmark_code(0) - k
+    return lmap, Detections(obs, tgt, np.full(obs.size, KIND_ORDER["range_bearing"]), z, R)
+
+
 def fusion_step(
-    n: int, *, backend: str = "numpy", neighbours: int = 3, repeats: int = 5, seed: int = 0
+    n: int, *, backend: str = "numpy", neighbours: int = 3, repeats: int = 5, seed: int = 0, landmarks: int = 0
 ) -> dict[str, Any]:
     """Micro-benchmark of one engine step of the distributed EKF (Cartesian, ``"dekf"``, fast path) for ``n``
     robots: predict every robot and fuse ``neighbours`` relative-pose detections per robot (its nearest robots, no
-    range limit, no gate: every update is computed), Gauss-Seidel levels included.
+    range limit, no gate: every update is computed), Gauss-Seidel levels included; with ``landmarks``, also that
+    many range-bearing detections of map landmarks per robot (:func:`_landmark_scene`), one robot-update then
+    counting them too.
 
     Returns ``robot_updates_per_s`` (``n`` / median step time; one robot-update = one prediction + its
     ``neighbours`` updates), ``best_robot_updates_per_s``, ``step_s`` (median), ``robot_updates_per_cpu_s`` (``n``
     / median CPU seconds of a step, all threads: what an idle machine would give per core), ``levels`` and
     ``kernel_robot_updates_per_s``: the same arithmetic on all robots at once without scheduling (one
-    prediction and ``neighbours`` batched update calls: the kernels' ceiling).
+    prediction and ``neighbours`` batched update calls, relative poses only: the kernels' ceiling).
     """
     sw, det, v, w = _step_scene(n, neighbours, seed)
-    eng = Engine(
-        "dekf",
-        SE2.from_xytheta(sw.pose),
-        np.broadcast_to(np.diag([1e-4, 1e-4, 1e-4]), (n, 3, 3)).copy(),
-        noise=SWARM_NOISE,
-        gate=None,
-        backend=backend,
-    )
+    lmap, every = None, det
+    if landmarks > 0:
+        lmap, seen = _landmark_scene(sw, landmarks, seed)
+        every = Detections(*(np.concatenate([getattr(det, f), getattr(seen, f)]) for f in ("observer", "target",
+                           "kind", "z", "R"))).canonical()  # fmt: skip
+    eng = Engine("dekf", SE2.from_xytheta(sw.pose), np.broadcast_to(np.diag([1e-4, 1e-4, 1e-4]), (n, 3, 3)).copy(),
+                 noise=SWARM_NOISE, gate=None, backend=backend, landmarks=lmap)  # fmt: skip
     robots = np.arange(n)
     for k in (0, 1):  # warm-up: jax compiles the updates at the first stamp, the prediction at the second
-        eng.step(0.1 * k, det, (robots, v, w), presorted=True)
+        eng.step(0.1 * k, every, (robots, v, w), presorted=True)
     times, cpus = [], []
     for k in range(2, max(1, repeats) + 2):
         t0, c0 = time.perf_counter(), time.process_time()
-        eng.step(0.1 * k, det, (robots, v, w), presorted=True)
+        eng.step(0.1 * k, every, (robots, v, w), presorted=True)
         times.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
     levels = eng.last_levels
@@ -276,6 +302,7 @@ def fusion_step(
         "n": n,
         "backend": backend,
         "neighbours": neighbours,
+        "landmarks": landmarks,
         "estimator": "dekf (Cartesian EKF, structure-of-arrays kernels)",
         "step_s": step,
         "robot_updates_per_s": n / step,

@@ -271,7 +271,8 @@ def fusion_comparison(
     machine: dict | None = None, tick: Tick = _no_tick,
 ) -> dict:  # fmt: skip
     """Section a (and the fractions of section b when ``machine`` is given): the engine's
-    :func:`~swarmloc.engine.fusion_step` and :func:`filterpy_fusion`, robot-updates/s and their ratio."""
+    :func:`~swarmloc.engine.fusion_step` and :func:`filterpy_fusion`, robot-updates/s and their ratio; also the
+    step with one map landmark per robot on the fastest installed CPU backend (numba, else numpy)."""
     out: dict[str, Any] = {"neighbours": neighbours}
     try:
         out["filterpy"] = filterpy_fusion(filterpy_n, neighbours, max(1, min(repeats, 3)))
@@ -294,6 +295,9 @@ def fusion_comparison(
         out["engine"] = out["backends"]["numpy"]
         rates = {b: r["robot_updates_per_s"] for b, r in out["backends"].items() if "robot_updates_per_s" in r}
         out["best_backend"] = max(rates, key=rates.get)
+        lm = eng.fusion_step(engine_n, backend=swarm_backend(), neighbours=neighbours, repeats=repeats, landmarks=1)
+        out["backends"][f"{swarm_backend()}, 1 landmark"] = {k: v for k, v in lm.items() if
+                                                                   isinstance(v, int | float | str)}  # fmt: skip
     tick("fusion step: engine")
     fp, en = out["filterpy"].get("robot_updates_per_s"), out["engine"].get("robot_updates_per_s")
     if fp and en:
@@ -560,11 +564,11 @@ def _format_fusion(f: dict) -> list[str]:
     rows += [(f"swarmloc engine, {b}", r) for b, r in f.get("backends", {"numpy": f["engine"]}).items()]
     for label, r in rows:
         if "skipped" in r:
-            out.append(f"  {label:<32} skipped: {r['skipped']}")
+            out.append(f"  {label:<36} skipped: {r['skipped']}")
             continue
         rate = _fmt_rate(r["robot_updates_per_s"])
         ratio = f"  {r['over_filterpy']:,.0f}x filterpy" if "over_filterpy" in r else ""
-        out.append(f"  {label:<32} {r['n']:>7,} robots {rate:>12} robot-updates/s{ratio}")
+        out.append(f"  {label:<36} {r['n']:>7,} robots {rate:>12} robot-updates/s{ratio}")
     if "fraction_of_bandwidth" in f:
         frac1 = f.get("fraction_of_flops_one_thread")
         out.append(f"  work estimate per robot-update: {f['bytes_per_update']} B, {f['flops_per_update']} flop")
