@@ -7,11 +7,10 @@ from __future__ import annotations
 
 import json
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from test_engine import COUNTS, _source
 
 from swarmloc.cli import main
 from swarmloc.engine import run_engine
@@ -19,9 +18,6 @@ from swarmloc.engine.backends import JaxOps, NumpyOps, jax_team_step, team_step
 from swarmloc.engine.swarm import SWARM_NOISE, Swarm, device_step, neighbour_pairs
 from swarmloc.experiments import bench as B
 from swarmloc.lie import wrap_angle
-
-sys.path.insert(0, str(Path(__file__).parent))
-from test_engine import COUNTS, _source  # noqa: E402
 
 
 def _worst(a, b) -> tuple[float, float]:

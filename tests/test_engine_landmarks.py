@@ -4,11 +4,9 @@ switched off, or of landmarks missing from the map, end as the nodes end them.""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from test_engine import _assert_same, _outcome_mix
 
 from swarmloc.engine import Detections, Engine, run_engine
 from swarmloc.engine.codes import NO_LANDMARK, POSE, landmark_code
@@ -17,9 +15,6 @@ from swarmloc.experiments.sources import load_source
 from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult, run
 from swarmloc.sensors.models import KIND_ORDER
-
-sys.path.insert(0, str(Path(__file__).parent))
-from test_engine import _assert_same  # noqa: E402
 
 
 def _nodes(src, **options) -> RunResult:
@@ -171,8 +166,6 @@ def test_numba_kernels_equal_numpy_with_landmarks_on_every_outcome(monkeypatch, 
     """The numba backend's in-place kernel (screening, prediction and fusion in one loop) and its level path with
     landmark detections mixed in (fused, gated, missing from the map, degenerate, switched off) equal numpy: states,
     clocks, outcome and reason codes, counts, levels."""
-    from test_engine import _outcome_mix
-
     from swarmloc.engine import numba_ops
     from swarmloc.lie import SE2
 
