@@ -164,54 +164,30 @@ class JaxOps:
 
         return jax.jit(traced)
 
-    def _in(self, a: np.ndarray, size: int, fill: np.ndarray | float) -> np.ndarray:
-        return _pad(a, size, fill, self.dtype)
-
-    @staticmethod
-    def _out(res: tuple, n: int) -> Arrays:
+    def _call(self, kernel: Any, *padded: tuple[np.ndarray, np.ndarray | float]) -> Arrays:
+        """``kernel`` on the arrays of ``padded`` (``(array, fill)`` pairs), each cast to the dtype and padded to the
+        bucket of the first one's rows with its fill; the results cut back to those rows, as numpy float64."""
+        n = padded[0][0].shape[0]
+        b = _bucket(n)
+        res = kernel(*(_pad(a, b, fill, self.dtype) for a, fill in padded))
         return tuple(_host(r[:n]) for r in res)  # writable numpy copies, floats as float64
 
     def predict(self, x: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> Arrays:
-        n = x.shape[0]
-        b = _bucket(n)
-        res = self._predict(*(self._in(a, b, f) for a, f in ((x, 0.0), (P, _EYE), (v, 0.0), (w, 0.0), (dt, 0.0))))
-        return self._out(res, n)
+        return self._call(self._predict, (x, 0.0), (P, _EYE), (v, 0.0), (w, 0.0), (dt, 0.0))
 
     def pose_update(
         self, x: np.ndarray, P: np.ndarray, xk: np.ndarray, Pk: np.ndarray, z: np.ndarray, Rz: np.ndarray
     ) -> Arrays:
-        n = x.shape[0]
-        b = _bucket(n)
-        args = (
-            self._in(x, b, 0.0),
-            self._in(P, b, _EYE),
-            self._in(xk, b, 1.0),
-            self._in(Pk, b, _EYE),
-            self._in(z, b, 1.0),
-            self._in(Rz, b, _EYE),
-        )
-        return self._out(self._pose(*args), n)
+        return self._call(self._pose, (x, 0.0), (P, _EYE), (xk, 1.0), (Pk, _EYE), (z, 1.0), (Rz, _EYE))
 
     def absolute_update(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, Rz: np.ndarray) -> Arrays:
-        n = x.shape[0]
-        b = _bucket(n)
-        args = (self._in(x, b, 0.0), self._in(P, b, _EYE), self._in(z, b, 0.0), self._in(Rz, b, _EYE))
-        return self._out(self._absolute(*args), n)
+        return self._call(self._absolute, (x, 0.0), (P, _EYE), (z, 0.0), (Rz, _EYE))
 
     def landmark_update(
         self, x: np.ndarray, P: np.ndarray, lk: np.ndarray, L: np.ndarray, z: np.ndarray, Rz: np.ndarray
     ) -> Arrays:
-        n = x.shape[0]
-        b = _bucket(n)
-        args = (
-            self._in(x, b, 0.0),
-            self._in(P, b, _EYE),
-            self._in(lk, b, 1.0),  # a padded row's landmark 1.4 m from its observer: finite
-            self._in(L, b, _EYE2),
-            self._in(z, b, 1.0),
-            self._in(Rz, b, _EYE2),
-        )
-        return self._out(self._landmark(*args), n)
+        # a padded row's landmark 1.4 m from its observer: finite
+        return self._call(self._landmark, (x, 0.0), (P, _EYE), (lk, 1.0), (L, _EYE2), (z, 1.0), (Rz, _EYE2))
 
 
 def make_ops(backend: str, noise: UnicycleNoise) -> Any:
