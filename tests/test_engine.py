@@ -283,6 +283,23 @@ def _outcome_mix(x: np.ndarray, m: int, rng: np.random.Generator) -> Detections:
     return Detections(obs, tgt, kind, z, R).canonical()
 
 
+def step_both_and_compare(engines: dict[str, Engine], t: float, det: Detections, cmd: tuple) -> None:
+    """One stamp ``t`` through the ``"numpy"`` and ``"numba"`` engines (the robots of ``cmd`` predicted, ``det``
+    fused, then ``cmd`` set); their outcomes, levels, clocks, states (1e-12) and commands must agree."""
+    status = {}
+    for b, eng in engines.items():
+        eng.predict(cmd[0], t)
+        status[b] = eng.fuse(t, det, presorted=True)
+        eng.set_command(*cmd)
+    np.testing.assert_array_equal(status["numpy"], status["numba"])
+    one, two = engines["numpy"], engines["numba"]
+    assert one.last_levels == two.last_levels
+    np.testing.assert_array_equal(one.t, two.t)
+    np.testing.assert_allclose(one.a, two.a, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(one.b, two.b, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(one.v, two.v)
+
+
 @pytest.mark.parametrize("parallel", [False, True])
 def test_numba_in_place_kernels_equal_numpy_on_every_outcome(monkeypatch: pytest.MonkeyPatch, parallel: bool) -> None:
     """The numba backend's in-place path (screening, prediction and fusion in one kernel, Gauss-Seidel without
@@ -305,18 +322,7 @@ def test_numba_in_place_kernels_equal_numpy_on_every_outcome(monkeypatch: pytest
         det = _outcome_mix(engines["numpy"].a, 25, rng)
         some = np.sort(rng.choice(n, 4, replace=False))  # commands for some robots; the others keep theirs
         cmd = (some, rng.uniform(0, 1, 4), rng.uniform(-1, 1, 4))
-        status = {}
-        for b, eng in engines.items():
-            eng.predict(some, t)
-            status[b] = eng.fuse(t, det, presorted=True)
-            eng.set_command(*cmd)
-        np.testing.assert_array_equal(status["numpy"], status["numba"])
-        one, two = engines["numpy"], engines["numba"]
-        assert one.last_levels == two.last_levels
-        np.testing.assert_array_equal(one.t, two.t)
-        np.testing.assert_allclose(one.a, two.a, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(one.b, two.b, rtol=0, atol=1e-12)
-        np.testing.assert_array_equal(one.v, two.v)
+        step_both_and_compare(engines, t, det, cmd)
     assert engines["numpy"].counts == engines["numba"].counts
     assert engines["numpy"].reasons == engines["numba"].reasons
     assert all(engines["numba"].counts[k] >= 5 for k in ("fused", "gated", "rejected", "unknown"))

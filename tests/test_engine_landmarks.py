@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_engine import _assert_same, _outcome_mix
+from test_engine import _assert_same, _outcome_mix, step_both_and_compare
 
 from swarmloc.engine import Detections, Engine, run_engine
 from swarmloc.engine.codes import NO_LANDMARK, POSE, landmark_code
@@ -188,21 +188,9 @@ def test_numba_kernels_equal_numpy_with_landmarks_on_every_outcome(monkeypatch, 
         x = engines["numpy"].a
         poses, marks = _outcome_mix(x, 20, rng), _landmark_mix(x, lxy, 12, rng)
         poses = poses.take(np.flatnonzero(poses.observer != 0))  # robot 0's estimate stays on landmark 0
-        det = Detections(*(np.concatenate([getattr(poses, f), getattr(marks, f)]) for f in ("observer", "target",
-                         "kind", "z", "R"))).canonical()  # fmt: skip
+        det = Detections.concat(poses, marks).canonical()
         some = np.sort(rng.choice(np.arange(1, n), 4, replace=False))
-        cmd = (some, rng.uniform(0, 1, 4), rng.uniform(-1, 1, 4))
-        status = {}
-        for b, eng in engines.items():
-            eng.predict(some, t)
-            status[b] = eng.fuse(t, det, presorted=True)
-            eng.set_command(*cmd)
-        np.testing.assert_array_equal(status["numpy"], status["numba"])
-        one, two = engines["numpy"], engines["numba"]
-        assert one.last_levels == two.last_levels
-        np.testing.assert_array_equal(one.t, two.t)
-        np.testing.assert_allclose(one.a, two.a, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(one.b, two.b, rtol=0, atol=1e-12)
+        step_both_and_compare(engines, t, det, (some, rng.uniform(0, 1, 4), rng.uniform(-1, 1, 4)))
     assert engines["numpy"].counts == engines["numba"].counts
     reasons = engines["numba"].reasons
     assert engines["numpy"].reasons == reasons

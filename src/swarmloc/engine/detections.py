@@ -39,6 +39,11 @@ class Detections:
     def take(self, idx: np.ndarray) -> Detections:
         return Detections(self.observer[idx], self.target[idx], self.kind[idx], self.z[idx], self.R[idx])
 
+    @classmethod
+    def concat(cls, *parts: Detections) -> Detections:
+        """The detections of ``parts`` one after the other (not sorted: :meth:`canonical` sorts them)."""
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("observer", "target", "kind", "z", "R")))
+
     def canonical(self) -> Detections:
         """Sorted by observer, then the nodes' canonical order within a group (kind, robots before landmarks,
         target, z)."""

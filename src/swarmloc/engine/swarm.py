@@ -264,8 +264,7 @@ def fusion_step(
     lmap, every = None, det
     if landmarks > 0:
         lmap, seen = _landmark_scene(sw, landmarks, seed)
-        every = Detections(*(np.concatenate([getattr(det, f), getattr(seen, f)]) for f in ("observer", "target",
-                           "kind", "z", "R"))).canonical()  # fmt: skip
+        every = Detections.concat(det, seen).canonical()
     eng = Engine("dekf", SE2.from_xytheta(sw.pose), np.broadcast_to(np.diag([1e-4, 1e-4, 1e-4]), (n, 3, 3)).copy(),
                  noise=SWARM_NOISE, gate=None, backend=backend, landmarks=lmap)  # fmt: skip
     robots = np.arange(n)
