@@ -453,6 +453,7 @@ def test_attacker_with_robot_2s_key_changes_nothing(tmp_path):
                       log_dir=tmp_path / "logs")  # fmt: skip
     sent = json.loads(out.read_text())
     expected = sent["expected"]
+    assert sent["server_seen"]  # the attacker sent nothing before the server's token reached it
     rounds = 8
     assert sent["schema_bad"] == rounds  # only the message as the collector: the schema has no collector
     assert sent["schema_ok"] >= 15 * rounds  # every other forgery passes the schema's checks: only signatures stop it
