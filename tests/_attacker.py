@@ -1,11 +1,13 @@
 """Start a test attacker script as its own process (its own Zenoh session) and stop it: shared by the networked
-authentication tests (tests/test_net_auth.py, tests/test_net_central.py)."""
+authentication tests (tests/test_net_auth.py, tests/test_net_central.py); and, for the attacker scripts, a wait for a
+process's liveliness token."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,3 +29,13 @@ def attacker_process(script: Path, args: Sequence[str], wait: float = 60.0) -> I
             proc.kill()
             proc.wait()
     assert proc.returncode == 0, proc.stderr.read()
+
+
+def wait_alive(session, key: str, end: float) -> bool:
+    """Ask ``session`` for the liveliness token ``key`` until one answers or ``time.monotonic()`` passes ``end``;
+    whether it was seen. A process declares its token after its subscribers: before the token is seen, a put to it
+    may find no route yet (the belief server starts beside the robots: their progress alone does not vouch for it)."""
+    while time.monotonic() < end:
+        if any(r.ok for r in session.liveliness().get(key, timeout=1.0)):
+            return True
+    return False

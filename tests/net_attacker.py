@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
+from _attacker import wait_alive
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.auth import COLLECTOR, Roster, Signer, key_id, load_private
@@ -209,12 +210,7 @@ def main() -> None:
     end = time.monotonic() + a.wait
     while len(atk.progress) < len(atk.robots) and time.monotonic() < end:
         time.sleep(0.05)
-    # the belief server's token comes after its subscribers: until it is seen here, a put to it may find no route
-    # (a round lost to the server and its counts short of what is expected, as one CI run saw)
-    server_alive = alive_key(atk.scope, "server")
-    server_seen = False
-    while time.monotonic() < end and not server_seen:
-        server_seen = any(r.ok for r in s.liveliness().get(server_alive, timeout=1.0))
+    server_seen = wait_alive(s, alive_key(atk.scope, "server"), end)  # (a CI run lost a round to the server without)
     decl.append(s.declare_subscriber(atk.key(0, "inbox"), atk.on_sample, allowed_origin=zenoh.Locality.REMOTE))
     started = time.monotonic()
     fake = s.declare_queryable(atk.key(1, "query"), atk.on_query, complete=True)

@@ -4,12 +4,13 @@ own process with its own Zenoh session:
     python tests/net_raw_attacker.py --listen tcp/127.0.0.1:PORT --team T --keys DIR --out FILE
 
 It listens on 127.0.0.1 (the team connects to it: ``launch_team(connect_extra=...)``), prints ``ready``, learns the
-run's keys from the robots' progress, and then, for ``--rounds`` rounds, forwards in robot 1's name a detection of
-robot 0 100 m off (as forward 0, a duplicate, and as forward 10^6, past a gap): signed with robot 2's key under robot
-1's name (``key_mismatch``), as robot 2 on robot 1's raw key (``not_owner``), unsigned (``unsigned``), as robot 2
-with robot 1 inside the envelope (``sender_mismatch``), and as robot 2 on its own key with robot 1's forward inside
-(refused by the schema: robot 2 speaking in robot 1's name). Every forward it forges passes the schema's checks of
-its body. It writes the refusals it expects at the server, by category, as JSON.
+run's keys from the robots' progress, waits for the belief server's liveliness token, and then, for ``--rounds`` rounds,
+forwards in robot 1's name a detection of robot 0 100 m off (as forward 0, a duplicate, and as forward 10^6, past a
+gap): signed with robot 2's key under robot 1's name (``key_mismatch``), as robot 2 on robot 1's raw key
+(``not_owner``), unsigned (``unsigned``), as robot 2 with robot 1 inside the envelope (``sender_mismatch``), and as
+robot 2 on its own key with robot 1's forward inside (refused by the schema: robot 2 speaking in robot 1's name). Every
+forward it forges passes the schema's checks of its body. It writes the refusals it expects at the server, by category,
+as JSON.
 """
 
 from __future__ import annotations
@@ -23,11 +24,12 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
+from _attacker import wait_alive
 
 from swarmloc.messages import flat
 from swarmloc.net.auth import Roster, Signer, load_private
 from swarmloc.net.schema import Raw, RawDetection, decode, encode
-from swarmloc.net.transport import open_session, robot_key
+from swarmloc.net.transport import alive_key, open_session, robot_key
 
 NAME_REFUSED = "robot 2 sent a message in the name of robot 1"
 
@@ -57,6 +59,7 @@ def main() -> None:
     while len(seen) < len(roster.robots) and time.monotonic() < end:
         time.sleep(0.02)
     scope = next(iter(seen.values()))
+    server_seen = wait_alive(session, alive_key(scope, "server"), end)
     raw1, raw2 = robot_key(scope, 1, "raw"), robot_key(scope, 2, "raw")
     far = RawDetection(1.0, "pose", (100.0, 0.0, 0.0), flat(np.diag([0.01, 0.01, 0.001])), 0, True)
     expected: Counter[str] = Counter()
@@ -80,7 +83,9 @@ def main() -> None:
     expected["not_owner"] = expected.pop("sender_mismatch_or_not_owner")  # robot 2 on robot 1's key: not_owner
     time.sleep(0.5)
     sub.undeclare()
-    Path(a.out).write_text(json.dumps({"expected": expected, "schema_ok": schema_ok, "scope": scope}, indent=1))
+    Path(a.out).write_text(
+        json.dumps({"expected": expected, "schema_ok": schema_ok, "scope": scope, "server_seen": server_seen}, indent=1)
+    )
     session.close()
 
 

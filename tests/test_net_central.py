@@ -317,7 +317,9 @@ def test_forged_forwards_in_another_robots_name_change_nothing(src, tmp_path):
     args = ["--listen", ep, "--team", team, "--keys", str(tmp_path / "keys"), "--out", str(out)]
     with attacker_process(ATTACKER, args):
         tr, res = _live(src, "cekf", tmp_path, team=team, speed=3.0, connect_extra=[ep], keys_dir=tmp_path / "keys")
-    expected = json.loads(out.read_text())["expected"]
+    sent = json.loads(out.read_text())
+    expected = sent["expected"]
+    assert sent["server_seen"]  # the attacker forged nothing before the server's token reached it
     got = _server_refusals(tmp_path / "logs" / "server.log")
     for category in ("key_mismatch", "not_owner", "unsigned", "sender_mismatch"):
         assert got[f"auth_{category}"] == expected[category] > 0, category
