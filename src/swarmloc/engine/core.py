@@ -57,7 +57,7 @@ import numpy as np
 from swarmloc.engine import se3 as E3
 from swarmloc.engine.backends import BACKENDS, make_ops
 from swarmloc.engine.codes import KIND_NAMES, NO_LANDMARK, PENDING, POSE3, REJECTED, landmark_code
-from swarmloc.engine.detections import Detections
+from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.fuse_ci import CiFusion
 from swarmloc.engine.fuse_ekf import FAST_KINDS, EkfFusion
 from swarmloc.engine.fuse_ekf3 import Ekf3Fusion
@@ -167,8 +167,7 @@ class Engine:
     def landmark_code(self, lid: Any) -> int:
         """Target code of a detection of landmark ``lid``: :func:`~swarmloc.engine.codes.landmark_code` of its row
         in the map, or :data:`~swarmloc.engine.codes.NO_LANDMARK` (not in the map: counted ``unknown``)."""
-        k = self.landmark_rows.get(lid)
-        return NO_LANDMARK if k is None else landmark_code(k)
+        return map_code(self.landmark_rows, lid)
 
     # ------------------------------------------------------------------------------------------------ state
     def _advance(self, s: State, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> State:
@@ -228,6 +227,11 @@ class Engine:
         self.v[robots] = v
         self.w[robots] = w
 
+    def state(self, t: float, robots: np.ndarray) -> State:
+        """The filter states of ``robots`` (rows) at ``t`` [s] as the engine keeps them (``dekf``: Cartesian
+        ``(B, 3)`` and ``(B, 3, 3)``), predicted from their clocks and not stored."""
+        return self._rows(np.asarray(robots, dtype=np.int64), t)
+
     def belief(self, t: float, robots: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Beliefs of ``robots`` (default all) at ``t`` [s], predicted from their clocks and not stored:
         SE(2) means ``(B, 3, 3)`` and exponential-coordinate covariances ``(B, 3, 3)`` (the nodes' ``belief_at``;
@@ -260,6 +264,26 @@ class Engine:
             self.fuse(t, detections, presorted=presorted)
         if commands is not None:
             self.set_command(*commands)
+
+    def compiled_replay(self, rows: int) -> bool:
+        """Whether :meth:`replay_timeline` runs here: ``dekf`` on SE(2), fast, numba, at most ``rows`` detections
+        or commands per stamp on one thread."""
+        return self.fast and self._serial_numba(rows) and hasattr(self.ops, "replay_serial")
+
+    def replay_timeline(self, tl: Timeline, s0: int, out: tuple) -> tuple[int, int]:
+        """Stamps ``s0:`` of ``tl`` in one compiled call (:meth:`NumbaOps.replay_serial
+        <swarmloc.engine.numba_ops.NumbaOps.replay_serial>`; only where :meth:`compiled_replay`): what a
+        :meth:`step` per stamp does, outcomes counted the same, beliefs of the record stamps appended to ``out``.
+        Returns ``(stop, records)``: ``stop < len(tl)`` is a stamp with a detection the compiled kernel does not
+        take, not done (the caller steps it with :meth:`step` and goes on from ``stop + 1``)."""
+        m = len(tl.det)
+        status, reason = np.zeros(m, dtype=np.int8), np.zeros(m, dtype=np.int8)
+        state = (self.a, self.b, self.t, self.t0, self.v, self.w)
+        stop, k = self.ops.replay_serial(state, tl, s0, self.use_relative, status, reason, self.fusion.gate,
+                                         self.fusion.landmarks, self.use_landmarks, out)  # fmt: skip
+        done = slice(int(tl.d0[s0]), int(tl.d0[stop]))
+        tally(self.counts, self.reasons, status[done], reason[done])
+        return stop, k
 
     # ------------------------------------------------------------------------------------------------ fusion
     def fuse(self, t: float, det: Detections, *, presorted: bool = False) -> np.ndarray:
@@ -397,6 +421,13 @@ def _check_options(estimator: str, backend: str, fast: bool, landmarks: Any, gat
         return Gate(gate)
     except ValueError as exc:
         raise ValueError(f"Engine: {exc}") from None
+
+
+def map_code(rows: dict[Any, int], lid: Any) -> int:
+    """Target code of landmark ``lid`` in a map whose ids have rows ``rows`` (:func:`landmark_table`):
+    :func:`~swarmloc.engine.codes.landmark_code` of its row, or :data:`~swarmloc.engine.codes.NO_LANDMARK`."""
+    k = rows.get(lid)
+    return NO_LANDMARK if k is None else landmark_code(k)
 
 
 def landmark_table(landmarks: Any) -> tuple[dict[Any, int], tuple[np.ndarray, np.ndarray] | None]:

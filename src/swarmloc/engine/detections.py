@@ -1,4 +1,5 @@
-"""One stamp's detections as arrays (:class:`Detections`), robots as row indices."""
+"""One stamp's detections as arrays (:class:`Detections`), robots as row indices; a run of stamps as arrays
+(:class:`Timeline`)."""
 
 from __future__ import annotations
 
@@ -44,13 +45,13 @@ class Detections:
         """The detections of ``parts`` one after the other (not sorted: :meth:`canonical` sorts them)."""
         return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("observer", "target", "kind", "z", "R")))
 
-    def canonical(self) -> Detections:
+    def canonical(self, first: np.ndarray | None = None) -> Detections:
         """Sorted by observer, then the nodes' canonical order within a group (kind, robots before landmarks,
-        target, z)."""
+        target, z); with ``first`` ``(M,)`` (e.g. a stamp index), by ``first`` before all of these."""
         z = self.z
         tgt = np.where(self.target <= NO_LANDMARK, _LANDMARKS_LAST + NO_LANDMARK - self.target, self.target)
-        order = np.lexsort((*(z[:, k] for k in range(z.shape[1] - 1, -1, -1)), tgt, self.kind, self.observer))
-        return self.take(order)
+        keys = (*(z[:, k] for k in range(z.shape[1] - 1, -1, -1)), tgt, self.kind, self.observer)
+        return self.take(np.lexsort(keys if first is None else (*keys, first)))
 
     @classmethod
     def poses(cls, observer: np.ndarray, target: np.ndarray, z: np.ndarray, R: np.ndarray) -> Detections:
@@ -58,3 +59,26 @@ class Detections:
         m = observer.shape[0]
         kind = np.full(m, POSE, dtype=np.int64)
         return cls(observer, target, kind, z, np.broadcast_to(R, (m, 3, 3)))
+
+
+@dataclass(frozen=True)
+class Timeline:
+    """A run of ``S`` stamps as arrays, for a compiled replay (:meth:`swarmloc.engine.Engine.replay_timeline`).
+
+    ``stamps`` ``(S,)``: increasing [s]. Stamp ``s``'s detections are rows ``d0[s]:d0[s + 1]`` of ``det``
+    (canonical order within the stamp, :meth:`Detections.canonical`); its commands rows ``c0[s]:c0[s + 1]`` of
+    ``robot`` (row), ``v`` [m/s] and ``w`` [rad/s], in force from ``s`` on; ``record`` ``(S,)``: whether every
+    started robot's belief is recorded after the stamp's input.
+    """
+
+    stamps: np.ndarray
+    det: Detections
+    d0: np.ndarray
+    c0: np.ndarray
+    robot: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+    record: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.stamps.shape[0])

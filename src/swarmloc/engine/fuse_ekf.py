@@ -30,7 +30,8 @@ FAST_KINDS = (ABSOLUTE, POSE)
 """Kinds the fast path fuses between robots (and absolute fixes)."""
 RANGE_BEARING = KIND_ORDER["range_bearing"]
 """The kind the fast path fuses for map landmarks (:func:`swarmloc.engine.soa.landmark_update`); a robot's
-range-bearing detection and the range-only and bearing-only kinds take the stacked-matrix kernels."""
+range-bearing detection and the range-only and bearing-only kinds take the stacked-matrix kernels here (numba's
+in-place kernel fuses a robot's range-bearing as a landmark's at the neighbour's position and covariance)."""
 
 
 def kalman_rows(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:

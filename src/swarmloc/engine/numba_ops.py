@@ -40,6 +40,7 @@ from swarmloc.engine.codes import (
     UNKNOWN,
     UNUSABLE,
 )
+from swarmloc.engine.detections import Timeline
 from swarmloc.engine.scalar import absolute_source, landmark_source, pose_source, predict_source
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
@@ -144,11 +145,8 @@ def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
     m = obs.shape[0]
     n = x.shape[0]
     for q in range(m):
-        if kind[q] == {RANGE_BEARING}:
-            if tgt[q] > {NO_LANDMARK}:
-                return -1  # a robot's range-bearing: nothing done, the caller takes the general path
-        elif kind[q] != {ABSOLUTE} and kind[q] != {POSE} or tgt[q] <= {NO_LANDMARK}:
-            return -1
+        if kind[q] != {RANGE_BEARING} and (kind[q] != {ABSOLUTE} and kind[q] != {POSE} or tgt[q] <= {NO_LANDMARK}):
+            return -1  # another kind (or a pose of a landmark code): nothing done, the caller takes the general path
     top = -1
     for q in range(m):
         i = obs[q]
@@ -207,6 +205,18 @@ def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
                          {_args("lcov", "k", True, True)}, z[q, 0], z[q, 1], R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])
         elif not robot:
             r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
+        elif kind[q] == {RANGE_BEARING}:  # a robot's: its position and covariance as an uncertain landmark's
+            if tc[j] < t:  # (answered as below: predicted, not stored, when it has no input at t)
+                a = predict({_args("x", "j")}, {_args("P", "j", True)}, v[j], w[j], t - tc[j])
+                a0, a1, c00, c01, c11 = a[0], a[1], a[3], a[4], a[6]
+            else:
+                a0, a1, c00, c01, c11 = x[j, 0], x[j, 1], P[j, 0, 0], P[j, 0, 1], P[j, 1, 1]
+            if math.hypot(a0 - x[i, 0], a1 - x[i, 1]) < {MIN_RANGE!r}:
+                status[q] = {REJECTED}
+                reason[q] = {R_DEGENERATE}
+                continue
+            r = landmark({_args("x", "i")}, {_args("P", "i", True)}, a0, a1, c00, c01, c11, z[q, 0], z[q, 1],
+                         R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])
         elif tc[j] < t:  # a neighbour without input at t: its answer predicted, not stored
             k = predict({_args("x", "j")}, {_args("P", "j", True)}, v[j], w[j], t - tc[j])
             r = pose({_args("x", "i")}, {_args("P", "i", True)}, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7],
@@ -229,6 +239,47 @@ def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
 {_store("x", "P", "i", 8)}
         status[q] = {FUSED}
     return top + 1
+
+
+def replay_serial(x, P, tc, t0, v, w, stamps, s0, relative, lm_on, lxy, lcov, d0, obs, tgt, kind, z, R, status,
+                  reason, gate, thr, lev, c0, crow, cv, cw, rec, out_robot, out_stamp, out_x, out_P, nout):
+    n = x.shape[0]
+    k = nout[0]
+    for s in range(s0, stamps.shape[0]):
+        t = stamps[s]
+        for c in range(c0[s], c0[s + 1]):  # robots with a command at t move to t first
+            i = crow[c]
+            if tc[i] < t:
+                r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
+{_store("x", "P", "i", 16)}
+                tc[i] = t
+        a, b = d0[s], d0[s + 1]
+        if b > a:
+            lv = fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs[a:b], tgt[a:b], kind[a:b],
+                             z[a:b], R[a:b], status[a:b], reason[a:b], gate, thr, lev)
+            for q in range(a, b):
+                lev[obs[q]] = -1
+            if lv < 0:
+                nout[0] = k
+                return s
+        for c in range(c0[s], c0[s + 1]):
+            v[crow[c]] = cv[c]
+            w[crow[c]] = cw[c]
+        if rec[s]:
+            for i in range(n):
+                if not t >= t0[i]:
+                    continue
+                if tc[i] < t:  # the belief at t: predicted, not stored
+                    r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
+{_store("out_x", "out_P", "k", 20)}
+                else:
+                    out_x[k] = x[i]
+                    out_P[k] = P[i]
+                out_robot[k] = i
+                out_stamp[k] = s
+                k += 1
+    nout[0] = k
+    return stamps.shape[0]
 
 
 def scatter2(a, b, rows, va, vb):
@@ -283,8 +334,8 @@ def _kernels(noise: UnicycleNoise) -> dict[str, Any]:
     for name in ("predict_rows", "pose_rows", "absolute_rows", "landmark_rows", "fuse_groups"):
         out[name] = njit(parallel=True, error_model="numpy")(ns[name])
         out[name + "_serial"] = njit(error_model="numpy")(ns[name])  # prange runs as range
-    for name in ("predict_into", "fuse_serial", "scatter2"):  # in place, one thread
-        out[name] = njit(error_model="numpy")(ns[name])
+    for name in ("predict_into", "fuse_serial", "scatter2", "replay_serial"):  # in place, one thread
+        out[name] = ns[name] = njit(error_model="numpy")(ns[name])  # replay_serial calls fuse_serial compiled
     return out
 
 
@@ -384,7 +435,9 @@ class NumbaOps:
 
         Returns the number of levels the batched schedule would have (:func:`swarmloc.engine.stamp.levels`: the
         engine's ``last_levels``), or -1, having changed nothing, when a detection is of a kind other than a
-        relative pose, an absolute fix or the range-bearing of a landmark (the caller takes the general path).
+        relative pose, an absolute fix or a range-bearing (the caller takes the general path). A robot's
+        range-bearing is fused as a landmark's whose position and covariance are the neighbour's (the node's
+        ``R + Hk Pk Hk^T``: the bearing and range of a position do not depend on its heading).
         ``landmarks``: the engine's map ``(xy (L, 2), cov (L, 2, 2))`` (:func:`swarmloc.engine.core.landmark_table`),
         landmark ``k`` a detection's target code :func:`~swarmloc.engine.codes.landmark_code` ``(k)``."""
         f = np.ascontiguousarray
@@ -397,6 +450,33 @@ class NumbaOps:
                                          f(det.target, dtype=i64), f(det.kind, dtype=i64), f(det.z, dtype=float),
                                          f(det.R, dtype=float), status, reason, gate.p is not None, thr,
                                          lev))  # fmt: skip
+
+    def replay_serial(self, state: tuple, tl: Timeline, s0: int, use_relative: bool, status: np.ndarray,
+                      reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
+                      use_landmarks: bool, out: tuple) -> tuple[int, int]:  # fmt: skip
+        """Stamps ``s0:`` of ``tl`` in one compiled loop on one thread: per stamp, the robots with a command moved
+        to it, its detections through :meth:`fuse_serial` (outcomes into ``status`` and ``reason``, rows of
+        ``tl.det``), its commands set, and with ``tl.record`` every started robot's state at the stamp (predicted,
+        not stored) appended to ``out = (robot (K,), stamp index (K,), x (K, 3), P (K, 3, 3), count (1,))`` from
+        row ``count[0]`` on. ``state = (x, P, tc, t0, v, w)``: the engine's arrays, updated in place.
+
+        Returns ``(stop, records)``: ``stop`` the first stamp not done, ``len(tl)`` or a stamp with a detection of
+        a kind :meth:`fuse_serial` does not take (nothing of it done: the caller steps it), and the records so
+        far."""
+        f = np.ascontiguousarray
+        i64 = np.int64
+        thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
+        lev = np.full(state[0].shape[0], -1, dtype=i64)
+        lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
+        d = tl.det
+        stop = self.k["replay_serial"](*state, f(tl.stamps, dtype=float), int(s0), bool(use_relative),
+                                       bool(use_landmarks), f(lxy, dtype=float), f(lcov, dtype=float),
+                                       f(tl.d0, dtype=i64), f(d.observer, dtype=i64), f(d.target, dtype=i64),
+                                       f(d.kind, dtype=i64), f(d.z, dtype=float), f(d.R, dtype=float), status,
+                                       reason, gate.p is not None, thr, lev, f(tl.c0, dtype=i64),
+                                       f(tl.robot, dtype=i64), f(tl.v, dtype=float), f(tl.w, dtype=float),
+                                       f(tl.record, dtype=np.bool_), *out)  # fmt: skip
+        return int(stop), int(out[-1][0])
 
     def scatter2(self, a: np.ndarray, b: np.ndarray, rows: np.ndarray, va: np.ndarray, vb: np.ndarray) -> None:
         """``a[rows] = va; b[rows] = vb`` (float arrays, in place)."""

@@ -5,6 +5,14 @@ the same way), put on one timeline of stamps, and each stamp is one :meth:`Engin
 stamped ``t`` then the commands starting at ``t``; beliefs are recorded at the record times after every input
 stamped at or before them (what :meth:`~swarmloc.node.base.Node.belief_at` answers).
 
+**Compiled replay.** With ``backend="numba"`` a planar ``dekf`` team (the in-place kernels' case: fewer than
+:data:`~swarmloc.engine.numba_ops.PARALLEL_MIN` rows a stamp) is not stepped stamp by stamp from Python: every stamp
+is packed into one :class:`~swarmloc.engine.detections.Timeline` and run in one compiled loop
+(:meth:`Engine.replay_timeline`), which does what :meth:`Engine.step` does per stamp and records the beliefs in
+place; a stamp with a detection the loop does not take (range-only, bearing-only) is stepped, and the loop goes on
+after it. The input checks are the nodes' either way; a robot's odometry that no sequential check could refuse
+(plain finite numbers, ``t0`` increasing, no overlap) is checked as arrays (:meth:`_Checked.add_all`).
+
 An SE(3) team (initial beliefs on SE(3), e.g. ``sim:3d``) runs on the engine's SE(3) path: body-twist odometry
 (:func:`swarmloc.events.twist_odometry`), ``"pose3"`` detections, the source's twist noise (``Source.noise``), tracks
 recorded as ``(x, y, z, qx, qy, qz, qw)`` with ``(6, 6)`` covariances, as :func:`swarmloc.runner.run` records them.
@@ -16,6 +24,7 @@ import math
 import time
 from collections import Counter, defaultdict
 from collections.abc import Callable, Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -24,10 +33,11 @@ from swarmloc.config import Config
 from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import pose7
 from swarmloc.engine.codes import NO_TARGET, UNKNOWN_ROBOT, UNUSABLE
-from swarmloc.engine.core import Engine
-from swarmloc.engine.detections import Detections
+from swarmloc.engine.core import Engine, landmark_table, map_code
+from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.estimators import node_options
 from swarmloc.events import Detection, Odometry
+from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, SE3
 from swarmloc.node import detection_key, odometry_problem, validate_detection
 from swarmloc.node.inputs import CONTIGUOUS, OdometryTimeline, command_value
@@ -82,13 +92,12 @@ def run_engine(
     robots = src.robots
     col = {r: i for i, r in enumerate(robots)}
     initial = [src.initial[r] for r in robots]
+    checked = _Checked(col, partial(map_code, landmark_table(opts.get("landmarks"))[0]))
+    checked.add_all(src.events)
     eng = Engine(estimator, np.stack([b.mean for b in initial]), np.stack([b.cov for b in initial]),
-                 t0=_start_times(src.events, col), backend=backend, fast=fast, **opts)  # fmt: skip
-    checked = _Checked(col, eng.landmark_code)
-    for e in src.events:
-        checked.add(e)
+                 t0=checked.start_times(), backend=backend, fast=fast, **opts)  # fmt: skip
     rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
-    checked.stops(max([*checked.odo, *checked.groups, *rt.tolist()], default=-math.inf))
+    checked.stops(max([checked.last_command(), *checked.groups, *rt.tolist()], default=-math.inf))
     rows, truth_missing, wall = _replay(eng, src, checked, rt)
 
     tracks = {}
@@ -115,17 +124,6 @@ def run_engine(
     return RunResult(f"{estimator}/engine", tracks, wall, dict(stats), len(src.events), reasons, timing)
 
 
-def _start_times(events: Sequence[Any], col: dict[Any, int]) -> np.ndarray:
-    """Each robot's first stamp (odometry or detection it made), ``inf`` for a robot without input."""
-    t0 = np.full(len(col), math.inf)
-    for e in events:
-        r = e.robot if isinstance(e, Odometry) else e.observer if isinstance(e, Detection) else None
-        s = _stamp(e)
-        if r in col and s is not None:
-            t0[col[r]] = min(t0[col[r]], s)
-    return t0
-
-
 class _Checked:
     """A source's odometry and detections checked as the nodes check them (malformed, duplicate and unusable input
     rejected and counted), filed by stamp: :attr:`odo` and :attr:`groups` (robots as rows of ``col``, landmarks as
@@ -139,6 +137,87 @@ class _Checked:
         self.odo: Commands = defaultdict(dict)
         self.timeline = OdometryTimeline()
         self.groups: Groups = defaultdict(lambda: defaultdict(dict))
+        self.bulk: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        """Odometry filed in bulk (:meth:`add_all`): chunks ``(t0 [s], row, v [m/s], w [rad/s])``."""
+        self.bulk_rows: set[int] = set()
+        self.first: dict[Any, float] = {}  # robot -> its first finite stamp (filed or not)
+
+    def add_all(self, events: Sequence[Any]) -> None:
+        """Every event of ``events``, as :meth:`add` one after the other would file and count them. A robot's
+        odometry that is all plain finite numbers, in increasing ``t0`` and without overlaps (the sequential
+        checks could not refuse one) is checked as arrays and filed in bulk (:attr:`bulk`); another robot's, one
+        record at a time."""
+        odometry: dict[Any, list[Odometry]] = defaultdict(list)
+        for e in events:
+            if isinstance(e, Odometry):
+                odometry[e.robot].append(e)
+            elif isinstance(e, Detection):
+                self._first(e.observer, e)
+                self._detection(e)
+        for robot, mine in odometry.items():
+            row = self.col.get(robot)
+            if row is None or not self._bulk(row, mine):
+                for e in mine:
+                    self._first(robot, e)
+                    self._odometry(e)
+
+    def _first(self, robot: Any, e: Any) -> None:
+        s = _stamp(e)
+        if s is not None and robot in self.col:
+            self.first[robot] = min(self.first.get(robot, math.inf), s)
+
+    def start_times(self) -> np.ndarray:
+        """Each robot's first stamp (an odometry record or a detection it made, filed or not), ``inf`` for a robot
+        without input: where its belief starts (rows of ``col``)."""
+        t0 = np.full(len(self.col), math.inf)
+        for r, s in self.first.items():
+            t0[self.col[r]] = s
+        return t0
+
+    def _bulk(self, row: int, mine: list[Odometry]) -> bool:
+        """File robot ``row``'s odometry ``mine`` (arrival order) in bulk where no sequential check could refuse a
+        record of it; False (nothing filed) otherwise."""
+        if self.timeline.last(row) is not None:
+            return False
+        try:  # plain numbers (float, int, bool, numpy's) give a float or int array; strings, None, tuples do not
+            a = np.array([(e.t0, e.t1, e.v, e.w) for e in mine])
+        except ValueError:
+            return False
+        if a.ndim != 2 or a.dtype.kind not in "fiub":
+            return False
+        t0, t1, v, w = a.astype(float).T
+        if not (np.isfinite(t0).all() and np.isfinite(t1).all() and np.isfinite(v).all() and np.isfinite(w).all()):
+            return False
+        # the sequential overlap check against the interval filed just before (intervals in order, t0 increasing)
+        overlap = (t0[1:] < t1[:-1] - CONTIGUOUS) & (t0[:-1] < t1[1:] - CONTIGUOUS)
+        if (t1 < t0).any() or (np.diff(t0) <= 0).any() or overlap.any():
+            return False
+        self.timeline.extend(row, t0.tolist(), t1.tolist())
+        self.bulk.append((t0, np.full(t0.shape, row, dtype=np.int64), v, w))
+        self.bulk_rows.add(row)
+        self.first[mine[0].robot] = min(self.first.get(mine[0].robot, math.inf), float(t0[0]))
+        self.counts["odometry"] += len(mine)
+        self.counts["odometry_used"] += len(mine)
+        return True
+
+    def last_command(self) -> float:
+        """The latest command start filed [s] (``-inf`` for none)."""
+        return max([*self.odo, *(float(b[0][-1]) for b in self.bulk if b[0].size)], default=-math.inf)
+
+    def commands(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every command filed, ``(t0 [s], row, v, w)`` as arrays (unsorted)."""
+        flat = [(t, row, v, w) for t, cmds in self.odo.items() for row, (v, w) in cmds.items()]
+        a = np.array(flat, dtype=float).reshape(-1, 4)
+        parts = [*self.bulk, (a[:, 0], a[:, 1].astype(np.int64), a[:, 2], a[:, 3])]
+        return tuple(np.concatenate([p[k] for p in parts]) for k in range(4))  # type: ignore[return-value]
+
+    def by_stamp(self) -> Commands:
+        """:attr:`odo` with the bulk commands filed in it too (start time -> row -> ``(v, w)``)."""
+        for t0, rows, v, w in self.bulk:
+            for t, row, vk, wk in zip(t0.tolist(), rows.tolist(), v.tolist(), w.tolist(), strict=True):
+                self.odo[t][row] = (vk, wk)
+        self.bulk.clear()
+        return self.odo
 
     def reject(self, what: str, why: str) -> None:
         self.counts[what] += 1
@@ -176,10 +255,20 @@ class _Checked:
     def stops(self, last: float) -> None:
         """The nodes' policy past an interval's end ``t1`` with no odometry from there (:mod:`swarmloc.node.inputs`):
         the robot is stopped, a command ``(0, 0)`` at ``t1``, when a gap follows or when the replay goes on past
-        ``t1`` (to ``last`` [s]); counted once per interval (``odometry_stops``)."""
+        ``t1`` (to ``last`` [s]); counted once per interval (``odometry_stops``). An interval of no length
+        (``t0 = t1``) is followed by its stop too: the stop replaces its command at ``t1``, which lasted no time."""
         for row, (starts, ends) in self.timeline.intervals().items():
+            if row in self.bulk_rows:  # the same rule on arrays (filed after the bulk: it replaces a command at t1)
+                t1a = np.array(ends)
+                nxt = np.append(np.array(starts[1:]), math.inf)
+                at = t1a[(nxt > t1a + CONTIGUOUS) & (last > t1a + CONTIGUOUS)]
+                if at.size:
+                    zero = np.zeros(at.shape)
+                    self.bulk.append((at, np.full(at.shape, row, dtype=np.int64), zero, zero))
+                    self.counts["odometry_stops"] += int(at.size)
+                continue
             for t1, nxt in zip(ends, [*starts[1:], math.inf], strict=True):
-                if nxt > t1 + CONTIGUOUS and last > t1 + CONTIGUOUS and row not in self.odo.get(t1, {}):
+                if nxt > t1 + CONTIGUOUS and last > t1 + CONTIGUOUS:
                     self.odo[t1][row] = (0.0, 0.0)
                     self.counts["odometry_stops"] += 1
 
@@ -215,9 +304,14 @@ def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tupl
     records: dict[float, list[int]] = defaultdict(list)
     for k, t in enumerate(rt.tolist()):
         records[t].append(k)
-    rows: dict[Any, list[Row]] = {r: [] for r in robots}
-    odo, groups = checked.odo, checked.groups
     se3 = eng.group is SE3
+    most = max([eng.n, *(sum(map(len, g.values())) for g in checked.groups.values())])  # rows of a stamp, at most
+    if not se3 and eng.compiled_replay(most):
+        wall = time.perf_counter()
+        rows, truth_missing = _replay_compiled(eng, src, checked, records, truth_rows)
+        return rows, truth_missing, time.perf_counter() - wall
+    rows: dict[Any, list[Row]] = {r: [] for r in robots}
+    odo, groups = checked.by_stamp(), checked.groups
     truth_missing = 0
     stamps = sorted(set(odo) | set(groups) | set(records))
     wall = time.perf_counter()
@@ -248,6 +342,76 @@ def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tupl
                     continue
                 rows[r].append((t, xyt[j], cov[j], tr))
     return rows, truth_missing, time.perf_counter() - wall
+
+
+def _timeline(checked: _Checked, records: dict[float, list[int]]) -> Timeline:
+    """Every stamp's checked detections and commands as one :class:`Timeline` (planar team)."""
+    t_cmd, c_row, c_v, c_w = checked.commands()
+    obs, tgt, kind, zs, Rs, t_det = [], [], [], [], [], []
+    for t, by_observer in checked.groups.items():
+        for o, group in by_observer.items():
+            for d, code in group.values():
+                m = len(d.z)
+                if m > 3:  # a 3-D detection in a planar team: no planar filter takes it
+                    raise ValueError(f"run_engine: a {d.kind!r} detection in an SE(2) team; run the nodes")
+                R = np.zeros((3, 3))
+                R[:m, :m] = d.cov
+                obs.append(o)
+                tgt.append(code)
+                kind.append(KIND_ORDER[d.kind])
+                zs.append([*d.z, *(0.0,) * (3 - m)])
+                Rs.append(R)
+                t_det.append(t)
+    t_rec = np.array(list(records), dtype=float)
+    stamps = np.unique(np.concatenate([t_cmd, np.array(t_det, dtype=float), t_rec]))
+    at_det = np.searchsorted(stamps, t_det)
+    det = Detections(np.array(obs, dtype=np.int64), np.array(tgt, dtype=np.int64), np.array(kind, dtype=np.int64),
+                     np.array(zs, dtype=float).reshape(-1, 3), np.array(Rs).reshape(-1, 3, 3))  # fmt: skip
+    at_cmd = np.searchsorted(stamps, t_cmd)
+    order = np.argsort(at_cmd, kind="stable")
+    bounds = np.arange(stamps.size + 1)
+    d0, c0 = np.searchsorted(np.sort(at_det), bounds), np.searchsorted(at_cmd[order], bounds)
+    return Timeline(stamps, det.canonical(at_det), d0, c0, c_row[order], c_v[order], c_w[order], np.isin(stamps, t_rec))
+
+
+def _replay_compiled(
+    eng: Engine, src: Source, checked: _Checked, records: dict[float, list[int]], truth_rows: dict
+) -> tuple[dict[Any, list[Row]], int]:
+    """:func:`_replay`'s loop as compiled calls over the whole :class:`Timeline` (:meth:`Engine.replay_timeline`),
+    a stamp the compiled kernel does not take stepped by :meth:`Engine.step`; the same records."""
+    tl = _timeline(checked, records)
+    k = int(tl.record.sum()) * eng.n
+    out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)),
+           np.zeros(1, dtype=np.int64))  # fmt: skip
+    s = 0
+    while s < len(tl):
+        s, _ = eng.replay_timeline(tl, s, out)
+        if s == len(tl):
+            break
+        t = float(tl.stamps[s])
+        a, b, c, e = int(tl.d0[s]), int(tl.d0[s + 1]), int(tl.c0[s]), int(tl.c0[s + 1])
+        eng.step(t, tl.det.take(np.arange(a, b)), (tl.robot[c:e], tl.v[c:e], tl.w[c:e]), presorted=True)
+        if tl.record[s]:
+            live = np.flatnonzero(t >= eng.t0)
+            x, P = eng.state(t, live)
+            n0, n1 = int(out[4][0]), int(out[4][0]) + live.size
+            out[0][n0:n1], out[1][n0:n1], out[2][n0:n1], out[3][n0:n1] = live, s, x, P
+            out[4][0] = n1
+        s += 1
+    n = int(out[4][0])
+    mean, cov = C.to_group(out[2][:n], out[3][:n])
+    xyt = SE2.to_xytheta(mean)
+    rows: dict[Any, list[Row]] = {r: [] for r in src.robots}
+    truth_missing = 0
+    for j, (i, s) in enumerate(zip(out[0][:n].tolist(), out[1][:n].tolist(), strict=True)):
+        r, t = src.robots[i], float(tl.stamps[s])
+        for k in records[t]:
+            tr = truth_rows[r][k]
+            if src.truth is not None and not np.isfinite(tr).all():
+                truth_missing += 1
+                continue
+            rows[r].append((t, xyt[j], cov[j], tr))
+    return rows, truth_missing
 
 
 def _detections(by_observer: dict[int, dict[tuple, tuple[Detection, int]]], width: int = 3) -> Detections:

@@ -183,6 +183,15 @@ class OdometryTimeline:
         starts.insert(i, t0)
         ends.insert(i, t1)
 
+    def extend(self, robot: int, t0: list[float], t1: list[float]) -> None:
+        """File ``robot``'s intervals ``[t0[k], t1[k]]``, sorted and non-overlapping, all after its last one (the
+        caller has checked them)."""
+        starts = self._t0.setdefault(robot, [])
+        if starts and t0 and t0[0] <= starts[-1]:
+            raise ValueError("OdometryTimeline.extend: intervals must come after the robot's last one")
+        starts.extend(t0)
+        self._t1.setdefault(robot, []).extend(t1)
+
     def intervals(self) -> dict[int, tuple[list[float], list[float]]]:
         """Every robot's intervals as ``(starts, ends)`` (sorted, read-only views of the timeline)."""
         return {r: (self._t0[r], self._t1[r]) for r in self._t0}
