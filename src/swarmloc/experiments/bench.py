@@ -420,7 +420,8 @@ def mrclam_replay(
     """Section d: every estimator on the MRCLAM dataset at ``path`` (first ``duration`` s, default all), with and
     without landmarks, through :func:`swarmloc.experiments.evaluate.evaluate_stream` (the events built once per
     setting, as ``swarmloc evaluate mrclam`` builds them). ``x_real_time``: replayed seconds / best wall time of the
-    event loop over ``rounds``."""
+    event loop over ``rounds``. With ``dekf``, also a row ``dekf/engine``: the same run through the batched
+    engine's compiled replay (numba; :func:`swarmloc.experiments.mrclam.engine_replay`, the whole call timed)."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam
     from swarmloc.experiments import mrclam as M
@@ -451,6 +452,9 @@ def mrclam_replay(
             rows[name] = {"wall_s": best, "x_real_time": out["duration_s"] / best, "pos_rmse_m": team.get("pos_rmse"),
                           "anees": team.get("anees")}  # fmt: skip
             tick(f"replay {name}, landmarks {'on' if lm else 'off'}")
+        eng = M.engine_replay(data, events, t_end, lm, rounds) if "dekf" in estimators else None
+        if eng is not None:  # the same dekf through the engine's compiled replay, every call timed whole
+            rows["dekf/engine"] = eng
         out[key] = {"events": len(events), "estimators": rows}
     return out
 
