@@ -1,6 +1,7 @@
 """The engine's compiled replay (numba, ``dekf``: a whole timeline of stamps in one compiled loop) equals the nodes;
-its in-place kernel fuses a robot's range-bearing as numpy's general path does, on every outcome; the bulk odometry
-check files and counts exactly what the record-by-record check does."""
+its in-place kernel, numpy's structure-of-arrays path and JAX fuse a robot's range-bearing as numpy's general path
+and the nodes do, on every outcome; the bulk odometry check files and counts exactly what the record-by-record check
+does."""
 
 from __future__ import annotations
 
@@ -196,3 +197,26 @@ def test_bulk_odometry_check_files_and_counts_what_the_sequential_one_does(monke
     calls = _count_steps(monkeypatch)
     _assert_same(_nodes(src, "dekf"), run_engine(src, "dekf", backend="numba"))
     assert calls["step"] == 0
+
+
+@pytest.mark.parametrize("backend", ["numpy", "jax"])
+def test_fast_paths_fuse_a_robots_range_bearing_as_the_nodes(monkeypatch: pytest.MonkeyPatch, backend) -> None:
+    """numpy's structure-of-arrays path (forced for every batch) and JAX fuse a robot's range-bearing with the
+    landmark kernel at the neighbour's position and covariance: equal to the nodes (1e-10, same counts)."""
+    from swarmloc.engine import backends, fuse_ekf
+
+    monkeypatch.setattr(fuse_ekf, "SOA_MIN_ROWS", 0)
+    ops = backends.NumpyOps if backend == "numpy" else backends.JaxOps
+    rows = []
+    kernel = ops.landmark_update
+
+    def counted(self, x, *a, **k):
+        rows.append(x.shape[0])
+        return kernel(self, x, *a, **k)
+
+    monkeypatch.setattr(ops, "landmark_update", counted)
+    src = _source(4, 10.0, 11, kinds=("pose", "range_bearing"), fixes=True)
+    ref = _nodes(src, "dekf")
+    _assert_same(ref, run_engine(src, "dekf", backend=backend))
+    n_rb = sum(1 for e in src.events if isinstance(e, Detection) and e.kind == "range_bearing")
+    assert 0.95 * n_rb <= sum(rows) <= n_rb  # the robots' range-bearings went through the landmark kernel

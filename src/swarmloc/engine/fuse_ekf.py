@@ -29,9 +29,10 @@ structure-of-arrays forms make ~1400 array calls per update, a cost that only la
 FAST_KINDS = (ABSOLUTE, POSE)
 """Kinds the fast path fuses between robots (and absolute fixes)."""
 RANGE_BEARING = KIND_ORDER["range_bearing"]
-"""The kind the fast path fuses for map landmarks (:func:`swarmloc.engine.soa.landmark_update`); a robot's
-range-bearing detection and the range-only and bearing-only kinds take the stacked-matrix kernels here (numba's
-in-place kernel fuses a robot's range-bearing as a landmark's at the neighbour's position and covariance)."""
+"""The kind the fast path fuses with :func:`swarmloc.engine.soa.landmark_update`: a map landmark's range-bearing,
+and a robot's as a landmark's at the neighbour's position and covariance (the node's ``R + Hk Pk Hk^T``; range and
+bearing of a position do not depend on its heading). The range-only and bearing-only kinds take the
+stacked-matrix kernels."""
 
 
 def kalman_rows(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -105,8 +106,9 @@ class EkfFusion(Sequential):
                     rows, x, P, z, Rz, xk, Pk = (a[~bad] for a in (rows, x, P, z, Rz, xk, Pk))
                     if rows.size == 0:
                         return
-            if landmark.any() and self._fast(code, rows.size, (RANGE_BEARING,)):
-                xn, Pn, nis, ok, pd = self.ops.landmark_update(x, P, xk, Pk, z, Rz)
+            if self._fast(code, rows.size, (RANGE_BEARING,)):  # a landmark's, or a robot's at its position
+                lk, L = (xk, Pk) if landmark.any() else (xk[:, :2], Pk[:, :2, :2])
+                xn, Pn, nis, ok, pd = self.ops.landmark_update(x, P, lk, L, z, Rz)
                 ok = ok & pd
             else:
                 xn, Pn, nis, ok = kalman_rows(x, P, *linearize(model, x, z, Rz, xk, Pk))
