@@ -101,10 +101,12 @@ def test_numba_robot_range_bearing_equals_numpy_on_every_outcome(monkeypatch: py
 def test_compiled_replay_equals_the_nodes_and_steps_what_it_cannot_take(monkeypatch: pytest.MonkeyPatch) -> None:
     """Poses, range-bearings and absolute fixes run compiled; a stamp with a range-only or bearing-only detection
     (kinds the compiled kernel leaves to the general path) is stepped, and the compiled loop goes on after it. The
-    result equals the nodes' (1e-10, the same counts and reasons)."""
+    result equals the nodes' (1e-10, the same counts and reasons: a detection of a robot outside the team is named
+    as the nodes name it)."""
     src = _source(5, 10.0, 17, kinds=("pose", "range_bearing"), fixes=True)
     extra = [
         Detection(0, 2.25, "range", np.array([1.0]), np.array([[0.01]]), target=1),
+        Detection(1, 3.0, "pose", np.array([1.0, 0.0, 0.0]), 0.01 * np.eye(3), target=42),  # not in the team
         Detection(3, 4.75, "bearing", np.array([0.3]), np.array([[0.01]]), target=4),
         Detection(2, 7.5, "range", np.array([2.0]), np.array([[0.04]]), target=0),
     ]
@@ -113,6 +115,7 @@ def test_compiled_replay_equals_the_nodes_and_steps_what_it_cannot_take(monkeypa
     ref, eng = _nodes(src, "dekf"), run_engine(src, "dekf", backend="numba")
     _assert_same(ref, eng)
     assert ref.reasons == eng.reasons
+    assert eng.reasons["unknown: robot 42: robot 42 is not in the team"] == 1  # named as the nodes name it
     assert calls["step"] == 3 and calls["compiled"] == 4  # resumed after each stepped stamp
     assert ref.stats["fused"] > 100
 

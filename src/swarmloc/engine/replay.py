@@ -32,7 +32,7 @@ import numpy as np
 from swarmloc.config import Config
 from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import pose7
-from swarmloc.engine.codes import NO_TARGET, UNKNOWN_ROBOT, UNUSABLE
+from swarmloc.engine.codes import NO_TARGET, R_TEAM, REASONS, UNKNOWN_ROBOT, UNUSABLE
 from swarmloc.engine.core import Engine, landmark_table, map_code
 from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.estimators import node_options
@@ -120,8 +120,26 @@ def run_engine(
         stats.setdefault(k, 0)
     reasons = Counter(checked.reasons)
     reasons.update(eng.reasons)
+    _name_unknown_robots(reasons, checked, eng)
     timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
     return RunResult(f"{estimator}/engine", tracks, wall, dict(stats), len(src.events), reasons, timing)
+
+
+def _name_unknown_robots(reasons: Counter[str], checked: _Checked, eng: Engine) -> None:
+    """The engine counts a detection of a robot outside the team under one text (``unknown: no answer: the robot
+    is not in the team``); the nodes name the robot (``unknown: robot 4: robot 4 is not in the team``, the answer the
+    runner gives a query to it). Where every such detection ended there (relative measurements on, each observer
+    started: the screening refused none before), the count is split by robot under the nodes' text."""
+    generic = f"unknown: {REASONS[R_TEAM]}"
+    named: Counter[str] = Counter()
+    for t, by_observer in checked.groups.items():
+        for row, group in by_observer.items():
+            for d, code in group.values():
+                if code == UNKNOWN_ROBOT and t >= eng.t0[row]:
+                    named[f"unknown: robot {d.target}: robot {d.target} is not in the team"] += 1
+    if eng.use_relative and named and sum(named.values()) == reasons.get(generic, 0):
+        del reasons[generic]
+        reasons.update(named)
 
 
 class _Checked:
