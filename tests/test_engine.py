@@ -257,18 +257,25 @@ def test_swarm_run_and_fusion_step() -> None:
     assert fs["n"] == 200 and fs["robot_updates_per_s"] > 0 and fs["levels"] >= 1
 
 
-def _outcome_mix(x: np.ndarray, m: int, rng: np.random.Generator) -> Detections:
-    """Detections of every screening outcome for robots at ``x (n, 3)``: absolute fixes and relative poses near
-    the truth ``x`` (a fifth of them 5 m off, for the gate), poses of the observer itself, of an unusable target and
-    of an unknown robot; canonically sorted."""
-    n = x.shape[0]
-    from swarmloc.engine.codes import ABSOLUTE, NO_TARGET, POSE, UNKNOWN_ROBOT, UNUSABLE
+def mixed_targets(n: int, m: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``m`` observers and targets among ``n`` robots, a tenth of the targets unusable, a tenth unknown, a twentieth
+    the observer itself; and the uniform draw ``special`` that chose them (for further kinds of detection)."""
+    from swarmloc.engine.codes import UNKNOWN_ROBOT, UNUSABLE
 
     obs = rng.integers(0, n, m)
     tgt = rng.integers(0, n, m)
     special = rng.random(m)
     tgt = np.where(special < 0.1, UNUSABLE, np.where(special < 0.2, UNKNOWN_ROBOT, tgt))
-    tgt = np.where((special > 0.2) & (special < 0.25), obs, tgt)
+    return obs, np.where((special > 0.2) & (special < 0.25), obs, tgt), special
+
+
+def _outcome_mix(x: np.ndarray, m: int, rng: np.random.Generator) -> Detections:
+    """Detections of every screening outcome for robots at ``x (n, 3)``: absolute fixes and relative poses near
+    the truth ``x`` (a fifth of them 5 m off, for the gate), poses of the observer itself, of an unusable target and
+    of an unknown robot; canonically sorted."""
+    from swarmloc.engine.codes import ABSOLUTE, NO_TARGET, POSE
+
+    obs, tgt, special = mixed_targets(x.shape[0], m, rng)
     absolute = special > 0.85
     tgt = np.where(absolute, NO_TARGET, tgt)
     kind = np.where(absolute, ABSOLUTE, POSE).astype(np.int64)

@@ -10,10 +10,10 @@ import math
 
 import numpy as np
 import pytest
-from test_engine import _assert_same, _nodes, _source, step_both_and_compare
+from test_engine import _assert_same, _nodes, _source, mixed_targets, step_both_and_compare
 
 from swarmloc.engine import Detections, Engine, run_engine
-from swarmloc.engine.codes import UNKNOWN_ROBOT, UNUSABLE
+from swarmloc.engine.codes import UNKNOWN_ROBOT
 from swarmloc.engine.core import Engine as CoreEngine
 from swarmloc.engine.replay import _Checked
 from swarmloc.events import Detection, Odometry
@@ -47,12 +47,7 @@ def _rb_mix(x: np.ndarray, m: int, rng: np.random.Generator) -> Detections:
     """Range-bearing detections of robots at ``x (n, 3)`` with every outcome: near the truth (a fifth 5 m off, for
     the gate), of the observer itself, of an unusable target, of an unknown robot, and (robots 1 and 2 stand on one
     spot) degenerate; canonically sorted."""
-    n = x.shape[0]
-    obs = rng.integers(0, n, m)
-    tgt = rng.integers(0, n, m)
-    special = rng.random(m)
-    tgt = np.where(special < 0.1, UNUSABLE, np.where(special < 0.2, UNKNOWN_ROBOT, tgt))
-    tgt = np.where((special > 0.2) & (special < 0.25), obs, tgt)
+    obs, tgt, special = mixed_targets(x.shape[0], m, rng)
     pair = (special > 0.25) & (special < 0.35)
     obs, tgt = np.where(pair, 1, obs), np.where(pair, 2, tgt)
     j = np.where(tgt >= 0, tgt, obs)

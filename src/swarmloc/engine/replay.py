@@ -131,13 +131,15 @@ def _name_unknown_robots(reasons: Counter[str], checked: _Checked, eng: Engine) 
     runner gives a query to it). Where every such detection ended there (relative measurements on, each observer
     started: the screening refused none before), the count is split by robot under the nodes' text."""
     generic = f"unknown: {REASONS[R_TEAM]}"
+    if not eng.use_relative or generic not in reasons:
+        return
     named: Counter[str] = Counter()
     for t, by_observer in checked.groups.items():
         for row, group in by_observer.items():
             for d, code in group.values():
                 if code == UNKNOWN_ROBOT and t >= eng.t0[row]:
                     named[f"unknown: robot {d.target}: robot {d.target} is not in the team"] += 1
-    if eng.use_relative and named and sum(named.values()) == reasons.get(generic, 0):
+    if named and sum(named.values()) == reasons[generic]:
         del reasons[generic]
         reasons.update(named)
 
@@ -334,7 +336,7 @@ def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tupl
     stamps = sorted(set(odo) | set(groups) | set(records))
     wall = time.perf_counter()
     for t in stamps:
-        det = _detections(groups[t], 6 if se3 else 3) if t in groups else None
+        det = _detections(list(groups[t].items()), 6 if se3 else 3) if t in groups else None
         cmd = None
         if t in odo:
             idx = np.fromiter(odo[t], dtype=np.int64)
@@ -352,39 +354,32 @@ def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tupl
         mean, cov = eng.belief(t, live)
         xyt = pose7(mean) if se3 else SE2.to_xytheta(mean)
         for j, i in enumerate(live.tolist()):
-            r = robots[i]
-            for k in records[t]:
-                tr = truth_rows[r][k]
-                if src.truth is not None and not np.isfinite(tr).all():
-                    truth_missing += 1
-                    continue
-                rows[r].append((t, xyt[j], cov[j], tr))
+            truth_missing += _file(rows, src, truth_rows, robots[i], t, records[t], xyt[j], cov[j])
     return rows, truth_missing, time.perf_counter() - wall
+
+
+def _file(rows: dict[Any, list[Row]], src: Source, truth_rows: dict, r: Any, t: float, keys: list[int],
+          xyt: np.ndarray, cov: np.ndarray) -> int:  # fmt: skip
+    """File robot ``r``'s belief at ``t`` once per record index in ``keys`` with its truth row; returns the records
+    left out because the source's truth is missing there."""
+    missing = 0
+    for k in keys:
+        tr = truth_rows[r][k]
+        if src.truth is not None and not np.isfinite(tr).all():
+            missing += 1
+            continue
+        rows[r].append((t, xyt, cov, tr))
+    return missing
 
 
 def _timeline(checked: _Checked, records: dict[float, list[int]]) -> Timeline:
     """Every stamp's checked detections and commands as one :class:`Timeline` (planar team)."""
     t_cmd, c_row, c_v, c_w = checked.commands()
-    obs, tgt, kind, zs, Rs, t_det = [], [], [], [], [], []
-    for t, by_observer in checked.groups.items():
-        for o, group in by_observer.items():
-            for d, code in group.values():
-                m = len(d.z)
-                if m > 3:  # a 3-D detection in a planar team: no planar filter takes it
-                    raise ValueError(f"run_engine: a {d.kind!r} detection in an SE(2) team; run the nodes")
-                R = np.zeros((3, 3))
-                R[:m, :m] = d.cov
-                obs.append(o)
-                tgt.append(code)
-                kind.append(KIND_ORDER[d.kind])
-                zs.append([*d.z, *(0.0,) * (3 - m)])
-                Rs.append(R)
-                t_det.append(t)
+    t_det = [t for t, by_observer in checked.groups.items() for group in by_observer.values() for _ in group]
+    det = _detections([g for by_observer in checked.groups.values() for g in by_observer.items()])
     t_rec = np.array(list(records), dtype=float)
     stamps = np.unique(np.concatenate([t_cmd, np.array(t_det, dtype=float), t_rec]))
     at_det = np.searchsorted(stamps, t_det)
-    det = Detections(np.array(obs, dtype=np.int64), np.array(tgt, dtype=np.int64), np.array(kind, dtype=np.int64),
-                     np.array(zs, dtype=float).reshape(-1, 3), np.array(Rs).reshape(-1, 3, 3))  # fmt: skip
     at_cmd = np.searchsorted(stamps, t_cmd)
     order = np.argsort(at_cmd, kind="stable")
     bounds = np.arange(stamps.size + 1)
@@ -422,20 +417,16 @@ def _replay_compiled(
     rows: dict[Any, list[Row]] = {r: [] for r in src.robots}
     truth_missing = 0
     for j, (i, s) in enumerate(zip(out[0][:n].tolist(), out[1][:n].tolist(), strict=True)):
-        r, t = src.robots[i], float(tl.stamps[s])
-        for k in records[t]:
-            tr = truth_rows[r][k]
-            if src.truth is not None and not np.isfinite(tr).all():
-                truth_missing += 1
-                continue
-            rows[r].append((t, xyt[j], cov[j], tr))
+        t = float(tl.stamps[s])
+        truth_missing += _file(rows, src, truth_rows, src.robots[i], t, records[t], xyt[j], cov[j])
     return rows, truth_missing
 
 
-def _detections(by_observer: dict[int, dict[tuple, tuple[Detection, int]]], width: int = 3) -> Detections:
-    """One stamp's checked detections as arrays (robots as rows), ``z`` ``width`` wide (6: an SE(3) team's)."""
+def _detections(groups: Sequence[tuple[int, dict[tuple, tuple[Detection, int]]]], width: int = 3) -> Detections:
+    """Checked detection groups ``(observer row, group)`` as arrays, in that order (robots as rows), ``z``
+    ``width`` wide (6: an SE(3) team's)."""
     obs, tgt, kind, zs, Rs = [], [], [], [], []
-    for o, group in by_observer.items():
+    for o, group in groups:
         for d, code in group.values():
             m = len(d.z)
             if m > width:  # a 3-D detection in a planar team: no planar filter takes it
@@ -451,5 +442,5 @@ def _detections(by_observer: dict[int, dict[tuple, tuple[Detection, int]]], widt
             Rs.append(R)
     return Detections(
         np.array(obs, dtype=np.int64), np.array(tgt, dtype=np.int64), np.array(kind, dtype=np.int64),
-        np.array(zs), np.array(Rs),
+        np.array(zs).reshape(-1, width), np.array(Rs).reshape(-1, width, width),
     )  # fmt: skip
