@@ -32,15 +32,11 @@ from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
 from swarmloc.experiments.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
 from swarmloc.lie import wrap_angle
+from swarmloc.motion.calibrate import held_integral
 from swarmloc.sensors.decorrelate import snapshot_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 CHI2_1_MEDIAN = 0.4549
-
-
-def held_integral(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The integral of a command held from each stamp of ``t`` to the next, at every stamp (0 at the first)."""
-    return np.concatenate([[0.0], np.cumsum(x[:-1] * np.diff(t))])
 
 
 def increments(data, range_std: float, bearing_std: float) -> dict[str, np.ndarray]:

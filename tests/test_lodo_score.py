@@ -95,3 +95,42 @@ def test_filter_scores_score_every_reading_once_against_a_run_without_its_landma
     assert wide["anis_ref"] < same["anis"]
     off = filter_scores(data, model, ["rdl"], False, 40.0)["rdl"]
     assert off["readings"] == same["readings"] and "readings_all" not in off and "anees_folds" not in off
+
+
+def test_filter_scores_calibrate_the_yaw_diffusion_without_the_scored_span_or_the_held_out_fold(mrclam6, monkeypatch):
+    """``calibrate_yaw``: the run with every landmark uses the scale fitted outside the scored span, each fold's run
+    the scale fitted without that fold's readings; the scales reach the filters (the score moves) and landmarks
+    off is left as it is (nothing to calibrate from that the score does not use)."""
+    import swarmloc.experiments.lodo as lodo_module
+    from swarmloc.config import DEFAULTS
+    from swarmloc.datasets.mrclam import load_mrclam
+    from swarmloc.experiments.lodo import detection_set, filter_scores, yaw_calibration
+    from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent
+
+    data = load_mrclam(mrclam6)
+    model = CameraModel(ErrorComponent(0.15), ErrorComponent(0.005), source="test")
+    seen: list[float] = []  # the yaw term each run's nodes get, in run order (every landmark, then the folds)
+    options = lodo_module.node_options
+
+    def record(name, config, *a):  # noqa: ANN001, ANN202
+        if name == "rdl":  # (the truth-free start dead-reckons with "dr")
+            seen.append(config.motion.q_w2)
+        return options(name, config, *a)
+
+    monkeypatch.setattr(lodo_module, "node_options", record)
+    res = filter_scores(data, model, ["rdl"], True, 40.0, holdout=3, calibrate_yaw=True)
+    row = res["rdl"]
+    t0 = data.t_start + res["_span"]["t0"]
+    span = (t0, t0 + res["_span"]["duration_s"])
+    ds, noise = detection_set(data), DEFAULTS.motion.noise()
+    assert row["yaw_scale"] == yaw_calibration(data, ds, model, noise, frozenset(), span).scale
+    want = [yaw_calibration(data, ds, model, noise, f, span).scale for f in landmark_folds(data.landmarks, 3)]
+    assert row["yaw_scale_folds"] == want and len(set(want)) == 3
+    q_w2 = DEFAULTS.motion.q_w2
+    assert seen == pytest.approx([q_w2 * s for s in [row["yaw_scale"], *want]], rel=1e-12)
+    assert row["yaw_scale"] != yaw_calibration(data, ds, model, noise).scale  # the span is left out
+    plain = filter_scores(data, model, ["rdl"], True, 40.0, holdout=3)["rdl"]
+    assert "yaw_scale" not in plain and plain["readings"] == row["readings"]
+    assert plain["nis_ratio"] != row["nis_ratio"] and plain["pos_rmse"] != row["pos_rmse"]
+    off = filter_scores(data, model, ["rdl"], False, 40.0, calibrate_yaw=True)["rdl"]
+    assert "yaw_scale" not in off

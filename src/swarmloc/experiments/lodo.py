@@ -28,6 +28,13 @@ each robot's first landmark snapshot gives its pose by the weighted fit of
 :mod:`swarmloc.sensors.decorrelate` (covariance from the a-priori std 0.1 m, 0.035 rad), dead-reckoned (``dr``)
 to the latest of the robots' first snapshots, where the run starts. Runs cover ``duration`` s from there (part of
 each dataset, for compute).
+
+**Yaw diffusion calibrated on the recording itself** (run ``on+yaw``): the motion model's yaw terms scaled by the
+factor :func:`yaw_calibration` fits to the left-out recording's own snapshot heading increments
+(:mod:`swarmloc.motion.calibrate`; truth-free, camera std of the held-out model). The fit never sees what scores
+it: pairs with an end in the scored span are left out, and a run that holds a landmark fold out calibrates without
+that fold's readings. The camera model stays held out; the robots' own motion is what is calibrated, as a user
+would calibrate from a log of their robots before a run.
 """
 
 from __future__ import annotations
@@ -41,13 +48,15 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.config import DEFAULTS, Config
+from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, wrap_angle
+from swarmloc.motion import UnicycleNoise
+from swarmloc.motion.calibrate import YawScale, fit_yaw_scale, heading_increments, scale_yaw
 from swarmloc.runner import run
 from swarmloc.sensors.decorrelate import (
     CameraModel,
@@ -71,6 +80,7 @@ __all__ = [
     "lodo_markdown",
     "nis_summary",
     "own_std",
+    "yaw_calibration",
 ]
 
 DATASETS: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 9)
@@ -225,6 +235,20 @@ def landmark_folds(ids: Sequence[int], k: int) -> list[frozenset[int]]:
     return [frozenset(ids[f::k]) for f in range(k)]
 
 
+def yaw_calibration(
+    data: MRCLAMData, ds: DetectionSet, model: CameraModel, noise: UnicycleNoise, without: frozenset[int] = frozenset(),
+    span: tuple[float, float] | None = None,
+) -> YawScale:  # fmt: skip
+    """The yaw-diffusion scale of ``noise`` fitted to ``data``'s own snapshot heading increments
+    (:mod:`swarmloc.motion.calibrate`; truth-free): snapshots from the landmarks of ``ds`` other than ``without``
+    (a held-out fold must not calibrate the run that scores it), fitted at ``model``'s std, pairs with an end in
+    ``span`` ``(t0, t1)`` [s] left out (the scored span)."""
+    keep = ~np.isin(ds.target, sorted(without))
+    sub = dataclasses.replace(ds, observer=ds.observer[keep], t=ds.t[keep], target=ds.target[keep], z=ds.z[keep])
+    snaps = snapshot_poses(sub, model.range.std, model.bearing.std)
+    return fit_yaw_scale(heading_increments(data.odometry, snaps, noise, exclude=span))
+
+
 def filter_scores(
     data: MRCLAMData,
     model: CameraModel,
@@ -234,6 +258,7 @@ def filter_scores(
     config: Config = DEFAULTS,
     holdout: int = 3,
     reference_std: tuple[float, float] | None = None,
+    calibrate_yaw: bool = False,
 ) -> dict[str, dict[str, Any]]:
     """Run ``estimators`` on ``duration`` s of ``data`` with camera ``model`` (truth-free start) and return per
     estimator the landmark-reading NIS scores, and RMSE/ANEES when ``data`` has truth.
@@ -245,7 +270,11 @@ def filter_scores(
     reading's noise; ``nis_ratio_ref`` uses ``reference_std`` (range [m], bearing [rad]; :func:`lodo` passes the
     left-out dataset's own snapshot-residual std, a truth-free estimate of how noisy its readings are, so that the
     score tests the belief's covariance rather than the model's std). ``nis_ratio_all``, landmarks on only: every
-    reading against the run with every landmark, readings already in the belief (it under-states)."""
+    reading against the run with every landmark, readings already in the belief (it under-states).
+
+    ``calibrate_yaw`` (landmarks on): each run's yaw diffusion is scaled by :func:`yaw_calibration` from the
+    recording's own snapshots outside the scored span, without the fold that run leaves out (``yaw_scale``: the
+    scale of the run with every landmark, ``yaw_scale_folds``: the folds' runs')."""
     ds = detection_set(data)
     t0, initial = initial_from_snapshots(data, ds, config)
     t1 = min(data.t_end, t0 + duration)
@@ -258,9 +287,15 @@ def filter_scores(
     std = (model.range.std, model.bearing.std)
     ref = std if reference_std is None else reference_std
     folds = landmark_folds(data.landmarks, holdout) if landmarks and holdout > 1 else []
+    configs = {frozenset(): config} | {f: config for f in folds}
+    if calibrate_yaw and landmarks:
+        noise = config.motion.noise()
+        scales = {f: yaw_calibration(data, ds, model, noise, f, (t0, t1)).scale for f in configs}
+        configs = {f: dataclasses.replace(config, motion=MotionConfig.from_noise(scale_yaw(noise, s)))
+                   for f, s in scales.items()}  # fmt: skip
     out: dict[str, dict[str, Any]] = {}
     for name in estimators:
-        nodes = make_team(name, initial, **node_options(name, config, data.landmarks, t0))
+        nodes = make_team(name, initial, **node_options(name, configs[frozenset()], data.landmarks, t0))
         wall = time.perf_counter()
         res = run(nodes, events, record_times=record, truth=truth, name=name)
         wall = time.perf_counter() - wall
@@ -278,7 +313,7 @@ def filter_scores(
                 lm_out = [e for e in events if not (isinstance(e, Detection) and not e.target_is_robot
                                                     and e.target in fold)]  # fmt: skip
                 mine = [d for d in readings if d.target in fold]
-                nodes = make_team(name, initial, **node_options(name, config, data.landmarks, t0))
+                nodes = make_team(name, initial, **node_options(name, configs[fold], data.landmarks, t0))
                 rec = np.unique(np.array([d.t for d in mine]) - RECORD_LEAD) if mine else record[:1]
                 res_f = run(nodes, lm_out, record_times=rec, truth=truth, name=name)
                 scored.append((res_f, mine))
@@ -289,6 +324,9 @@ def filter_scores(
         if scored:
             row.update(nis_summary(np.concatenate([_nis_of(r, d, data, std) for r, d in scored])))
             row.update(nis_summary(np.concatenate([_nis_of(r, d, data, ref) for r, d in scored]), "_ref"))
+        if calibrate_yaw and landmarks:
+            row["yaw_scale"] = scales[frozenset()]
+            row["yaw_scale_folds"] = [scales[f] for f in folds]
         out[name] = row
     out["_span"] = {"t0": t0 - data.t_start, "duration_s": t1 - t0}
     out["_reference_std"] = {"range": ref[0], "bearing": ref[1]}
@@ -310,10 +348,12 @@ def lodo(
     filter_datasets: Sequence[int] | None = None,
     progress: bool = False,
     holdout: int = 3,
+    calibrate_yaw: bool = True,
 ) -> dict[str, Any]:
     """The whole LODO check (module docstring): model scores on every dataset of ``datasets`` found under
     ``root``, the chosen candidate, and filter scores with landmarks on and off on the ones with odometry
-    (``holdout``: the landmark folds of :func:`filter_scores`)."""
+    (``holdout``: the landmark folds of :func:`filter_scores`); with ``calibrate_yaw`` also landmarks on with the
+    yaw diffusion calibrated from the recording's own snapshots (run keys ``k/on``, ``k/on+yaw``, ``k/off``)."""
     root = Path(root)
     datas = {k: load_mrclam(root / f"MRCLAM_Dataset{k}", require=("measurements",)) for k in datasets}
     sets = {k: detection_set(d) for k, d in datas.items()}
@@ -326,13 +366,15 @@ def lodo(
         if not d.odometry:
             continue
         data = load_mrclam(root / f"MRCLAM_Dataset{k}")  # the robots with odometry
-        for lm in (True, False):
+        variants = [(True, False), (True, True), (False, False)] if calibrate_yaw else [(True, False), (False, False)]
+        for lm, cal in variants:
+            key = f"{k}/{'on' if lm else 'off'}{'+yaw' if cal else ''}"
             if progress:
-                print(f"dataset {k}, landmarks {'on' if lm else 'off'}", flush=True)
+                print(f"dataset {k}, landmarks {key.split('/')[1]}", flush=True)
             m, fold = ms["models"][k][chosen], ms["folds"][k][chosen]
             ref = own_std(m, fold)
-            runs[f"{k}/{'on' if lm else 'off'}"] = filter_scores(
-                data, m, estimators, lm, duration, holdout=holdout, reference_std=ref
+            runs[key] = filter_scores(
+                data, m, estimators, lm, duration, holdout=holdout, reference_std=ref, calibrate_yaw=cal
             )
     return {"model": {k: v for k, v in ms.items() if k != "models"}, "filters": runs, "duration_s": duration,
             "models": {k: ms["models"][k][chosen].to_dict() for k in ms["models"]}, "holdout": holdout}  # fmt: skip
@@ -352,9 +394,9 @@ def lodo_markdown(rep: dict[str, Any]) -> str:
     lines.append(
         "| left out | landmarks | estimator | pos RMSE [m] | ANEES/dof | ANEES/dof, folds "
         "| NIS ratio, own std | ANIS/dof, own std | NIS ratio, model std | beyond gate | readings "
-        "| NIS ratio, every reading in |"
+        "| NIS ratio, every reading in | yaw scale |"
     )
-    lines.append("|---" * 12 + "|")
+    lines.append("|---" * 13 + "|")
     for key, rows in rep["filters"].items():
         k, lm = key.split("/")
         for est, r in rows.items():
@@ -363,7 +405,12 @@ def lodo_markdown(rep: dict[str, Any]) -> str:
             acc = (f"{r['pos_rmse']:.3f} | {r['anees']:.2f}") if "anees" in r else "- | -"
             folds = f"{r['anees_folds']:.2f}" if "anees_folds" in r else "-"
             every = f"{r['nis_ratio_all']:.2f}" if "nis_ratio_all" in r else "-"
+            yaw = (
+                "-"
+                if "yaw_scale" not in r
+                else (f"{r['yaw_scale']:.3f} (" + ", ".join(f"{x:.3f}" for x in r["yaw_scale_folds"]) + ")")
+            )
             lines.append(f"| {k} | {lm} | {est} | {acc} | {folds} | {r['nis_ratio_ref']:.2f} | "
                          f"{r['anis_ref']:.2f} | {r['nis_ratio']:.2f} | {r['beyond_gate_ref']:.3f} | {r['readings']} "
-                         f"| {every} |")  # fmt: skip
+                         f"| {every} | {yaw} |")  # fmt: skip
     return "\n".join(lines) + "\n"
