@@ -2,6 +2,7 @@
 
 Conventions: SE(2) exponential coordinates ``(v1, v2, alpha)``, right perturbation ``g = mu exp(y^)``, body twist
 ``h = (forward speed, lateral speed, yaw rate)``, diffusion ``Q = H H^T`` per second; all batched over leading axes.
+:mod:`swarmloc.motion.calibrate` fits the yaw diffusion's scale to a recording's own pose snapshots (no truth).
 """
 
 from swarmloc.motion._stable import SERIES, SERIES_BELOW
