@@ -84,6 +84,33 @@ def test_cli_json_on_stdout(capsys, mrclam6: Path):
     assert set(rep["estimators"]) == {"dr", "rdl"}
 
 
+def test_cli_calibrate_yaw_scales_the_yaw_terms_as_the_recording_says(capsys, mrclam6: Path):
+    """``--calibrate-yaw``: the scale is the one :func:`yaw_calibrated` fits on the whole recording at the camera
+    model's std, the four yaw terms are the defaults times it (the other terms unchanged), the estimators run
+    with them (the result moves), and the text output names them; an event file is refused with a reason."""
+    from swarmloc.config import DEFAULTS
+    from swarmloc.datasets.mrclam import load_mrclam
+    from swarmloc.experiments.mrclam import camera_model, detection_set, yaw_calibration
+
+    args = ["evaluate", "mrclam", str(mrclam6), "--estimators", "dekf", "--duration", "20", "--json", "--quiet"]
+    assert main([*args, "--calibrate-yaw"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert main(args) == 0
+    plain = json.loads(capsys.readouterr().out)
+    data = load_mrclam(mrclam6)
+    fit = yaw_calibration(data, detection_set(data), camera_model(data), DEFAULTS.motion.noise())
+    y = rep["yaw_calibration"]
+    assert y["scale"] == fit.scale and y["pairs"] == fit.pairs > 100 and 0.1 < fit.scale < 2.0
+    m = DEFAULTS.motion
+    assert y["motion"] == pytest.approx({k: getattr(m, k) * fit.scale for k in ("q_w0", "q_w1", "q_w2", "q_wv")})
+    assert "yaw_calibration" not in plain
+    assert rep["estimators"]["dekf"]["team"]["anees"] != plain["estimators"]["dekf"]["team"]["anees"]
+    assert main([*args[:-2], "--quiet", "--calibrate-yaw"]) == 0
+    assert f"x{fit.scale:.3g}" in capsys.readouterr().out
+    assert main(["evaluate", "events", str(mrclam6 / "x.csv"), "--calibrate-yaw", "--quiet"]) == 2
+    assert "--calibrate-yaw needs an MRCLAM recording" in capsys.readouterr().err
+
+
 def test_cli_rejects_unknown_estimator(capsys, mrclam6: Path):
     rc = main(["evaluate", "mrclam", str(mrclam6), "--estimators", "dr,nope", "--duration", "5", "--quiet"])
     assert rc == 2

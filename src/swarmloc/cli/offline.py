@@ -110,8 +110,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
             report = evaluate_mrclam(
                 args.path, estimators=names, landmarks=args.landmarks == "on", duration=args.duration,
-                out_dir=args.out, config=config, progress=progress,
+                out_dir=args.out, config=config, progress=progress, calibrate_yaw=args.calibrate_yaw,
             )  # fmt: skip
+        elif args.calibrate_yaw:
+            print(f"{where}: --calibrate-yaw needs an MRCLAM recording (its landmark snapshots)", file=sys.stderr)
+            return 2
         elif args.what == "events":
             from swarmloc.experiments.own_robots import evaluate_event_file
 
@@ -135,6 +138,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
         print(json.dumps(report, indent=2, default=json_default))
     else:
+        if "yaw_calibration" in report:
+            y = report["yaw_calibration"]
+            terms = ", ".join(f"{k} = {v:.4g}" for k, v in y["motion"].items())
+            print(f"yaw diffusion calibrated on the recording: x{y['scale']:.3g} (log std {y['log_std']:.2f}, "
+                  f"{y['pairs']} snapshot pairs): {terms}")  # fmt: skip
         print(markdown_table(report))
         if args.out:
             print(f"results, figures and TUM trajectories in {args.out}/")

@@ -53,10 +53,10 @@ from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection
+from swarmloc.experiments.mrclam import detection_set, yaw_calibration
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, wrap_angle
-from swarmloc.motion import UnicycleNoise
-from swarmloc.motion.calibrate import YawScale, fit_yaw_scale, heading_increments, scale_yaw
+from swarmloc.motion.calibrate import scale_yaw
 from swarmloc.runner import run
 from swarmloc.sensors.decorrelate import (
     CameraModel,
@@ -89,15 +89,6 @@ CUTS: tuple[float, ...] = (2.5, 3.0, 4.0)
 GATE_2DOF = 11.618  # chi-square 0.997 quantile, 2 dof
 MEDIAN_CHI2_2 = 1.386294  # 2 ln 2
 RECORD_LEAD = 1e-6  # [s] beliefs are recorded this long before each landmark reading
-
-
-def detection_set(data: MRCLAMData) -> DetectionSet:
-    """Every robot's detections in ``data`` (whole recording) as a :class:`DetectionSet`."""
-    parts = [np.column_stack([np.full(len(m), r), m]) for r, m in sorted(data.measurements.items()) if len(m)]
-    a = np.concatenate(parts) if parts else np.empty((0, 5))
-    order = np.argsort(a[:, 1], kind="stable")
-    a = a[order]
-    return DetectionSet(a[:, 0], a[:, 1], a[:, 2], a[:, 3:5], data.landmarks, data.name)
 
 
 def white_model(model: CameraModel) -> CameraModel:
@@ -233,20 +224,6 @@ def landmark_folds(ids: Sequence[int], k: int) -> list[frozenset[int]]:
     """``k`` folds of the landmark ids (every ``k``-th of the sorted ids, so that each fold spreads over the map)."""
     ids = sorted(ids)
     return [frozenset(ids[f::k]) for f in range(k)]
-
-
-def yaw_calibration(
-    data: MRCLAMData, ds: DetectionSet, model: CameraModel, noise: UnicycleNoise, without: frozenset[int] = frozenset(),
-    span: tuple[float, float] | None = None,
-) -> YawScale:  # fmt: skip
-    """The yaw-diffusion scale of ``noise`` fitted to ``data``'s own snapshot heading increments
-    (:mod:`swarmloc.motion.calibrate`; truth-free): snapshots from the landmarks of ``ds`` other than ``without``
-    (a held-out fold must not calibrate the run that scores it), fitted at ``model``'s std, pairs with an end in
-    ``span`` ``(t0, t1)`` [s] left out (the scored span)."""
-    keep = ~np.isin(ds.target, sorted(without))
-    sub = dataclasses.replace(ds, observer=ds.observer[keep], t=ds.t[keep], target=ds.target[keep], z=ds.z[keep])
-    snaps = snapshot_poses(sub, model.range.std, model.bearing.std)
-    return fit_yaw_scale(heading_increments(data.odometry, snaps, noise, exclude=span))
 
 
 def filter_scores(

@@ -55,6 +55,7 @@ with the command in force at its time.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -63,13 +64,22 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.config import DEFAULTS, Config
+from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.events import Event
 from swarmloc.experiments.evaluate import ALL, evaluate_stream, markdown_table, write_report
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
-from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent, calibrate, decorrelate
+from swarmloc.motion import UnicycleNoise
+from swarmloc.motion.calibrate import YawScale, fit_yaw_scale, heading_increments, scale_yaw
+from swarmloc.sensors.decorrelate import (
+    CameraModel,
+    DetectionSet,
+    ErrorComponent,
+    calibrate,
+    decorrelate,
+    snapshot_poses,
+)
 
 RANGE_STD = DEFAULTS.sensors.range_std
 BEARING_STD = DEFAULTS.sensors.bearing_std
@@ -82,6 +92,7 @@ __all__ = [
     "MRCLAM_NOISE",
     "RANGE_STD",
     "camera_model",
+    "detection_set",
     "detector_reach",
     "evaluate_mrclam",
     "initial_beliefs",
@@ -89,6 +100,8 @@ __all__ = [
     "measurement_errors",
     "mrclam_stream",
     "robust_std",
+    "yaw_calibrated",
+    "yaw_calibration",
 ]
 
 
@@ -141,6 +154,29 @@ def camera_model(data: MRCLAMData, config: Config = DEFAULTS, t_end: float | Non
         a[:, 0], a[:, 1], a[:, 2], a[:, 3:5], data.landmarks, s.range_std, s.bearing_std,
         estimate_std=s.decorrelate == "calibrate",
     )  # fmt: skip
+
+
+def detection_set(data: MRCLAMData) -> DetectionSet:
+    """Every robot's detections in ``data`` (whole recording) as a :class:`DetectionSet`."""
+    parts = [np.column_stack([np.full(len(m), r), m]) for r, m in sorted(data.measurements.items()) if len(m)]
+    a = np.concatenate(parts) if parts else np.empty((0, 5))
+    order = np.argsort(a[:, 1], kind="stable")
+    a = a[order]
+    return DetectionSet(a[:, 0], a[:, 1], a[:, 2], a[:, 3:5], data.landmarks, data.name)
+
+
+def yaw_calibration(
+    data: MRCLAMData, ds: DetectionSet, model: CameraModel, noise: UnicycleNoise, without: frozenset[int] = frozenset(),
+    span: tuple[float, float] | None = None,
+) -> YawScale:  # fmt: skip
+    """The yaw-diffusion scale of ``noise`` fitted to ``data``'s own snapshot heading increments
+    (:mod:`swarmloc.motion.calibrate`; truth-free): snapshots from the landmarks of ``ds`` other than ``without``
+    (a held-out fold must not calibrate the run that scores it), fitted at ``model``'s std, pairs with an end in
+    ``span`` ``(t0, t1)`` [s] left out (the scored span)."""
+    keep = ~np.isin(ds.target, sorted(without))
+    sub = dataclasses.replace(ds, observer=ds.observer[keep], t=ds.t[keep], target=ds.target[keep], z=ds.z[keep])
+    snaps = snapshot_poses(sub, model.range.std, model.bearing.std)
+    return fit_yaw_scale(heading_increments(data.odometry, snaps, noise, exclude=span))
 
 
 def mrclam_stream(
@@ -237,6 +273,15 @@ def robust_std(e: np.ndarray, keep: float = 0.98) -> dict[str, float]:
     }
 
 
+def yaw_calibrated(data: MRCLAMData, camera: CameraModel, config: Config) -> tuple[Config, dict[str, Any]]:
+    """``config`` with its yaw diffusion scaled by :func:`yaw_calibration` on the whole of ``data`` (snapshots fitted
+    at ``camera``'s std), and the report's account of it: the fit and the ``[motion]`` yaw terms used."""
+    fit = yaw_calibration(data, detection_set(data), camera, config.motion.noise())
+    motion = MotionConfig.from_noise(scale_yaw(config.motion.noise(), fit.scale))
+    terms = {k: getattr(motion, k) for k in ("q_w0", "q_w1", "q_w2", "q_wv")}
+    return dataclasses.replace(config, motion=motion), {**dataclasses.asdict(fit), "motion": terms}
+
+
 def evaluate_mrclam(
     path: str | Path,
     estimators: Sequence[str] = ALL,
@@ -245,16 +290,22 @@ def evaluate_mrclam(
     out_dir: str | Path | None = None,
     config: Config = DEFAULTS,
     progress: bool = False,
+    calibrate_yaw: bool = False,
 ) -> dict:
     """Run ``estimators`` on the MRCLAM dataset at ``path`` and return (and write) per-robot and team metrics.
 
     ``config`` holds the models (``DEFAULTS``: the values in the module docstring). A dataset without ground truth
     is replayed for speed and robustness only: wall time and trajectories are reported, accuracy and consistency
-    are not (``"truth": false`` in the report).
+    are not (``"truth": false`` in the report). ``calibrate_yaw``: the yaw diffusion is scaled as the recording's
+    own landmark snapshots say (:func:`yaw_calibrated`, on the whole recording as the camera model is; no ground
+    truth; ``"yaw_calibration"`` in the report).
     """
     t_load = time.perf_counter()
     data = load_mrclam(path)
     events, camera = mrclam_stream(data, config, duration, landmarks)
+    yaw: dict[str, Any] = {}
+    if calibrate_yaw:
+        config, yaw = yaw_calibrated(data, camera, config)
     load_s = time.perf_counter() - t_load
     t_end = data.t_end if duration is None else min(data.t_end, data.t_start + duration)
     report, results = evaluate_stream(
@@ -277,6 +328,7 @@ def evaluate_mrclam(
         "skipped_barcodes": {str(k): v for k, v in data.skipped_barcodes.items()},
         **_subjects(data, t_end, landmarks),
         "camera": camera.to_dict(),
+        **({"yaw_calibration": yaw} if yaw else {}),
         **report,
     }
     if out_dir is not None:
