@@ -118,10 +118,10 @@ def fit_yaw_scale(
 ) -> YawScale:
     """Maximum a-posteriori ``(s, c)`` of ``Var r = c fit + s model`` over the pairs of :func:`heading_increments`
     with ``|r| < cut`` [rad], the residuals Gaussian truncated at the cut, ``log s ~ N(0, prior_std^2)`` (``inf``:
-    maximum likelihood in ``s``) and ``log c ~ N(0, FIT_PRIOR_STD^2)``. ``log_std`` is the curvature's at the mode found
-    and takes the pairs as independent (consecutive pairs share a snapshot: it overstates the spread somewhat where
-    the fits' error matters). Raises
-    ValueError with fewer than ``min_pairs`` such pairs (too little to calibrate)."""
+    maximum likelihood in ``s``) and ``log c ~ N(0, FIT_PRIOR_STD^2)``. ``log_std`` is the curvature's at the mode
+    found and takes the pairs as independent (consecutive pairs share a snapshot: it overstates the spread somewhat
+    where the fits' error matters). ``outliers`` counts the pairs left out (beyond the cut, or without a positive
+    variance). Raises ValueError with fewer than ``min_pairs`` pairs kept (too little to calibrate)."""
     if not (cut > 0 and prior_std > 0):
         raise ValueError(f"fit_yaw_scale: cut and prior_std must be > 0, got {cut!r}, {prior_std!r}")
     res, fit, model = (np.asarray(inc[k], dtype=float) for k in ("res", "fit", "model"))
