@@ -1,7 +1,7 @@
 """Truth-free calibration of the yaw diffusion from a robot's own pose snapshots (issue 21).
 
 A *snapshot* is the robot's pose fitted at one instant from two or more landmarks read together
-(:func:`swarmloc.sensors.decorrelate.snapshot_poses` gives them, with the fit's covariance). For two snapshots of one
+(:func:`swarmloc.sensors.snapshots.snapshot_poses` gives them, with the fit's covariance). For two snapshots of one
 robot ``t_a < t_b``, the fitted heading change minus the integral of the odometry's yaw rate over ``[t_a, t_b]``
 (each command held until the next record, as the filters do) is a residual
 
@@ -63,7 +63,7 @@ def heading_increments(
 
     ``odometry``: robot id -> ``(n, 3)`` records ``(t [s], v [m/s], w [rad/s])``, time-increasing; ``snapshots``:
     ``observer``, ``t`` [s], ``pose`` ``(m, 3)`` ``(x, y, theta)``, ``cov`` ``(m, 3, 3)`` sorted by time (as
-    :func:`~swarmloc.sensors.decorrelate.snapshot_poses` returns them). Pairs with either end in ``exclude``
+    :func:`~swarmloc.sensors.snapshots.snapshot_poses` returns them). Pairs with either end in ``exclude``
     ``(t0, t1)`` are left out, as are pairs outside a robot's odometry span. Returns ``robot``, ``t`` (the pair's
     end), ``res`` [rad], ``fit`` (the two fits' heading variances summed) [rad^2], ``model`` (the yaw diffusion
     over the interval) [rad^2] and ``turn`` (commanded turn, ``int |w| dt``) [rad].
