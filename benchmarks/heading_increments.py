@@ -31,8 +31,8 @@ from scipy.optimize import minimize
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
 from swarmloc.experiments.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
-from swarmloc.lie import wrap_angle
-from swarmloc.motion.calibrate import held_integral
+from swarmloc.motion import UnicycleNoise
+from swarmloc.motion.calibrate import heading_increments
 from swarmloc.sensors.decorrelate import snapshot_poses
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,28 +40,16 @@ CHI2_1_MEDIAN = 0.4549
 
 
 def increments(data, range_std: float, bearing_std: float) -> dict[str, np.ndarray]:
-    """Per consecutive snapshot pair of one robot 1-4 s apart: heading residual [rad], the fits' summed heading
-    variance [rad^2], the model's yaw diffusion [rad^2], the commanded turn [rad] and ``phi`` = (duration [s],
-    integral of w^2 [rad^2/s], distance [m]) over the interval."""
-    m = DEFAULTS.motion
+    """Per consecutive snapshot pair of one robot 1-4 s apart (:func:`swarmloc.motion.calibrate.heading_increments`
+    under the ``[motion]`` defaults): heading residual [rad], the fits' summed heading variance [rad^2], the model's
+    yaw diffusion [rad^2], the commanded turn [rad] and ``phi`` = (duration [s], integral of w^2 [rad^2/s],
+    distance [m]) over the interval (the same function under unit noises of one term each)."""
     sp = snapshot_poses(detection_set(data), range_std, bearing_std)
-    out: dict[str, list] = {"res": [], "fit": [], "model": [], "turn": [], "phi": []}
-    for r, od in data.odometry.items():
-        od = np.asarray(od)
-        t, v, w = od[:, 0], od[:, 1], od[:, 2]
-        q = m.q_w0 + m.q_w1 * np.abs(w) + m.q_w2 * w * w + m.q_wv * np.abs(v)
-        sel = np.flatnonzero(sp["observer"] == r)
-        ts, ps, cs = sp["t"][sel], sp["pose"][sel], sp["cov"][sel]
-        yaw, diff, turn = (np.interp(ts, t, held_integral(t, x)) for x in (w, q, np.abs(w)))
-        g = np.diff(ts)
-        ok = (g >= 1.0) & (g <= 4.0)
-        out["res"] += list(wrap_angle(np.diff(ps[:, 2]) - np.diff(yaw))[ok])
-        out["fit"] += list((cs[:-1, 2, 2] + cs[1:, 2, 2])[ok])
-        out["model"] += list(np.diff(diff)[ok])
-        out["turn"] += list(np.diff(turn)[ok])
-        phi = np.stack([np.interp(ts, t, held_integral(t, x)) for x in (np.ones_like(w), w * w, np.abs(v))], -1)
-        out["phi"] += list(np.diff(phi, axis=0)[ok])  # T, int w^2, int |v| over the interval
-    return {k: np.asarray(v) for k, v in out.items()}
+    inc = heading_increments(data.odometry, sp, DEFAULTS.motion.noise(), max_gap=4.0)
+    units = (UnicycleNoise(q_v0=0.0, q_w0=1.0), UnicycleNoise(q_v0=0.0, q_w0=0.0, q_w2=1.0),
+             UnicycleNoise(q_v0=0.0, q_w0=0.0, q_wv=1.0))  # fmt: skip
+    phi = [heading_increments(data.odometry, sp, u, max_gap=4.0)["model"] for u in units]
+    return {**inc, "phi": np.stack(phi, axis=-1)}
 
 
 def fit_yaw(inc: dict[str, np.ndarray]) -> np.ndarray:
