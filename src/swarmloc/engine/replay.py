@@ -13,6 +13,11 @@ place; a stamp with a detection the loop does not take (range-only, bearing-only
 after it. The input checks are the nodes' either way; a robot's odometry that no sequential check could refuse
 (plain finite numbers, ``t0`` increasing, no overlap) is checked as arrays (:meth:`_Checked.add_all`).
 
+**The centralized EKF.** ``estimator="cekf"`` (``backend="numba"``, planar teams) keeps one joint state for the
+team, not the :class:`Engine`'s per-robot rows: the same checked timeline runs through
+:func:`swarmloc.engine.joint.replay_joint`, every detection kind in one compiled call, as the ``cekf`` node
+(:class:`~swarmloc.estimators.CentralizedEKF`) computes it; its reasons are worded as that node words them.
+
 An SE(3) team (initial beliefs on SE(3), e.g. ``sim:3d``) runs on the engine's SE(3) path: body-twist odometry
 (:func:`swarmloc.events.twist_odometry`), ``"pose3"`` detections, the source's twist noise (``Source.noise``), tracks
 recorded as ``(x, y, z, qx, qy, qz, qw)`` with ``(6, 6)`` covariances, as :func:`swarmloc.runner.run` records them.
@@ -32,9 +37,20 @@ import numpy as np
 from swarmloc.config import Config
 from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import pose7
-from swarmloc.engine.codes import NO_TARGET, R_TEAM, REASONS, UNKNOWN_ROBOT, UNUSABLE
+from swarmloc.engine.codes import (
+    NO_LANDMARK,
+    NO_TARGET,
+    R_DEGENERATE,
+    R_NONFINITE,
+    R_NUMERICAL,
+    R_TEAM,
+    REASONS,
+    UNKNOWN_ROBOT,
+    UNUSABLE,
+)
 from swarmloc.engine.core import Engine, landmark_table, map_code
 from swarmloc.engine.detections import Detections, Timeline
+from swarmloc.engine.outcomes import tally
 from swarmloc.estimators import node_options
 from swarmloc.events import Detection, Odometry
 from swarmloc.kernels import cartesian as C
@@ -72,9 +88,9 @@ def run_engine(
     config: Config | None = None,
     **options: Any,
 ) -> RunResult:
-    """Run ``estimator`` on a source's events with the batched :class:`Engine`; returns a
-    :class:`~swarmloc.runner.RunResult` like :func:`swarmloc.runner.run` with the nodes of
-    :func:`~swarmloc.estimators.make_team`.
+    """Run ``estimator`` on a source's events with the batched :class:`Engine` (``"cekf"``: the joint-state replay
+    of :mod:`swarmloc.engine.joint`, ``backend="numba"``); returns a :class:`~swarmloc.runner.RunResult` like
+    :func:`swarmloc.runner.run` with the nodes of :func:`~swarmloc.estimators.make_team`.
 
     ``source_or_sim``: a :class:`~swarmloc.datasets.source.Source` or a simulation (turned into one by
     :func:`~swarmloc.sim.source.sim_source` with ``config``); ``record_times`` default ``Source.record_times()``;
@@ -89,6 +105,8 @@ def run_engine(
     opts.pop("association_gate", None)
     if opts.pop("association", "tags") != "tags":
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
+    if estimator == "cekf":
+        return _run_joint(src, backend, record_times, opts)
     robots = src.robots
     col = {r: i for i, r in enumerate(robots)}
     initial = [src.initial[r] for r in robots]
@@ -100,9 +118,20 @@ def run_engine(
     checked.stops(max([checked.last_command(), *checked.groups, *rt.tolist()], default=-math.inf))
     rows, truth_missing, wall = _replay(eng, src, checked, rt)
 
+    reasons = Counter(checked.reasons)
+    reasons.update(eng.reasons)
+    _name_unknown_robots(reasons, checked, eng)
+    return _result(f"{estimator}/engine", src, rows, checked, eng.counts, reasons, wall, truth_missing,
+                   eng.group is SE3)  # fmt: skip
+
+
+def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: _Checked, counts: Counter[str],
+            reasons: Counter[str], wall: float, truth_missing: int, se3: bool = False) -> RunResult:  # fmt: skip
+    """The :class:`~swarmloc.runner.RunResult` of a replay: each robot's records as a track, the input checks'
+    counts with the fusions' ``counts``, ``reasons`` as the nodes word them."""
     tracks = {}
-    w, d = (7, 6) if eng.group is SE3 else (3, 3)  # (x, y, z, quaternion) and 6 dof, or (x, y, theta) and 3
-    for r in robots:
+    w, d = (7, 6) if se3 else (3, 3)  # (x, y, z, quaternion) and 6 dof, or (x, y, theta) and 3
+    for r in src.robots:
         rs = rows[r]
         tracks[r] = RobotTrack(
             np.array([x[0] for x in rs]),
@@ -112,17 +141,98 @@ def run_engine(
         )
     stats: Counter[str] = Counter(checked.counts)
     for k in ("fused", "gated", "rejected", "unknown"):
-        stats[k] += eng.counts[k]
+        stats[k] += counts[k]
     stats["recorded"] = sum(len(v) for v in rows.values())
     if truth_missing:
         stats["truth_missing"] = truth_missing
     for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
         stats.setdefault(k, 0)
-    reasons = Counter(checked.reasons)
-    reasons.update(eng.reasons)
-    _name_unknown_robots(reasons, checked, eng)
     timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
-    return RunResult(f"{estimator}/engine", tracks, wall, dict(stats), len(src.events), reasons, timing)
+    return RunResult(name, tracks, wall, dict(stats), len(src.events), reasons, timing)
+
+
+_JOINT_OPTIONS = frozenset({"noise", "gate", "landmarks", "use_relative", "use_landmarks", "horizon"})
+"""The nodes' options the centralized EKF takes on the engine (``horizon`` plays no role: input comes in order)."""
+
+
+def _run_joint(src: Source, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
+    """``cekf`` (one joint state for the team) through :func:`swarmloc.engine.joint.replay_joint`: the same input
+    checks and timeline as the other estimators, the whole replay in one compiled call (numba, planar teams)."""
+    if backend != "numba":
+        raise ValueError("run_engine: 'cekf' runs on the engine's compiled replay only: pass backend='numba'")
+    if src.noise is not None or any(np.shape(b.mean) != (3, 3) for b in src.initial.values()):
+        raise ValueError("run_engine: 'cekf' on the engine takes planar (SE(2)) teams; run the nodes")
+    if set(opts) - _JOINT_OPTIONS:
+        raise TypeError(f"run_engine: 'cekf' on the engine takes no option {sorted(set(opts) - _JOINT_OPTIONS)}")
+    from swarmloc.engine.joint import replay_joint  # numba
+
+    col = {r: i for i, r in enumerate(src.robots)}
+    lm_rows, lm = landmark_table(opts.get("landmarks"))
+    checked = _Checked(col, partial(map_code, lm_rows))
+    checked.add_all(src.events)
+    t0 = float(checked.start_times().min(initial=math.inf))  # the node starts at the team's first input
+    rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
+    checked.stops(max([checked.last_command(), *checked.groups, *rt.tolist()], default=-math.inf))
+    records: dict[float, list[int]] = defaultdict(list)
+    for k, t in enumerate(rt.tolist()):
+        records[t].append(k)
+    tl = _timeline(checked, records)
+    x, P = C.from_group(np.stack([src.initial[r].mean for r in src.robots]),
+                        np.stack([src.initial[r].cov for r in src.robots]))  # fmt: skip
+    use_relative, use_landmarks = bool(opts.get("use_relative", True)), bool(opts.get("use_landmarks", True))
+    wall = time.perf_counter()
+    status, reason, (o_robot, o_stamp, o_x, o_P) = replay_joint(
+        tl, x, P, t0, opts["noise"], gate=opts.get("gate"), use_relative=use_relative, use_landmarks=use_landmarks,
+        landmarks=lm,
+    )  # fmt: skip
+    wall = time.perf_counter() - wall
+    counts: Counter[str] = Counter()
+    reasons: Counter[str] = Counter()
+    dynamic = np.isin(reason, (R_DEGENERATE, R_NONFINITE, R_NUMERICAL))
+    tally(counts, reasons, status, np.where(dynamic, reason, 0).astype(np.int8))
+    reasons.update(checked.reasons)
+    reasons.update(_joint_reasons(checked, t0, use_relative, use_landmarks))
+    truth_rows = {r: truth_table(src.truth, r, rt) for r in src.robots}
+    mean, cov = C.to_group(o_x, o_P)
+    xyt = SE2.to_xytheta(mean)
+    rows: dict[Any, list[Row]] = {r: [] for r in src.robots}
+    truth_missing = 0
+    for j, (i, s) in enumerate(zip(o_robot.tolist(), o_stamp.tolist(), strict=True)):
+        t = float(tl.stamps[s])
+        truth_missing += _file(rows, src, truth_rows, src.robots[i], t, records[t], xyt[j], cov[j])
+    return _result("cekf/engine", src, rows, checked, counts, reasons, wall, truth_missing)
+
+
+def _joint_reasons(checked: _Checked, t0: float, use_relative: bool, use_landmarks: bool) -> Counter[str]:
+    """The outcomes of the centralized node decided before it reads a state, in its words
+    (:meth:`~swarmloc.node.base.Node._classify`, :meth:`~swarmloc.estimators.CentralizedEKF._robot_target`)."""
+    out: Counter[str] = Counter()
+    for t, by_observer in checked.groups.items():
+        for group in by_observer.values():
+            for d, code in group.values() if t >= t0 else ():
+                why = _static_reason(d, code, use_relative, use_landmarks)
+                if why is not None:
+                    out[why] += 1
+    return out
+
+
+def _static_reason(d: Detection, code: int, use_relative: bool, use_landmarks: bool) -> str | None:
+    """``"<outcome>: <reason>"`` of a detection the centralized node refuses before it reads a state, or None."""
+    if d.kind == "absolute":
+        return None
+    if d.target_is_robot:
+        if not use_relative:
+            return "rejected: relative measurements are switched off"
+        if d.target is None:
+            return "rejected: robot detection without a target id"
+        if d.target == d.observer:
+            return "rejected: the target is the observer itself"
+        return f"unknown: robot {d.target} is not in the team" if code == UNKNOWN_ROBOT else None
+    if d.kind == "pose":
+        return "rejected: a landmark is a point: it has no relative pose"
+    if not use_landmarks:
+        return "rejected: landmark measurements are switched off"
+    return f"unknown: landmark {d.target} is not in the map" if code == NO_LANDMARK else None
 
 
 def _name_unknown_robots(reasons: Counter[str], checked: _Checked, eng: Engine) -> None:

@@ -49,6 +49,8 @@ import numpy as np
 from swarmloc.experiments.bench_report import format_report
 
 REPLAY_ESTIMATORS = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl")
+ENGINE_REPLAY = ("dekf", "cekf")
+"""Estimators section d also replays through the engine's compiled loop (numba): a row ``<name>/engine`` each."""
 MRCLAM_ENV = "SWARMLOC_MRCLAM"
 """Environment variable: a folder holding ``MRCLAM_Dataset6`` (or the dataset folder itself)."""
 
@@ -420,8 +422,9 @@ def mrclam_replay(
     """Section d: every estimator on the MRCLAM dataset at ``path`` (first ``duration`` s, default all), with and
     without landmarks, through :func:`swarmloc.experiments.evaluate.evaluate_stream` (the events built once per
     setting, as ``swarmloc evaluate mrclam`` builds them). ``x_real_time``: replayed seconds / best wall time of the
-    event loop over ``rounds``. With ``dekf``, also a row ``dekf/engine``: the same run through the batched
-    engine's compiled replay (numba; :func:`swarmloc.experiments.mrclam.engine_replay`, the whole call timed)."""
+    event loop over ``rounds``. With ``dekf`` or ``cekf``, also a row ``dekf/engine`` or ``cekf/engine``: the same
+    run through the batched engine's compiled replay (numba; :func:`swarmloc.experiments.mrclam.engine_replay`, the
+    whole call timed)."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam
     from swarmloc.experiments import mrclam as M
@@ -452,9 +455,11 @@ def mrclam_replay(
             rows[name] = {"wall_s": best, "x_real_time": out["duration_s"] / best, "pos_rmse_m": team.get("pos_rmse"),
                           "anees": team.get("anees")}  # fmt: skip
             tick(f"replay {name}, landmarks {'on' if lm else 'off'}")
-        eng = M.engine_replay(data, events, t_end, lm, rounds) if "dekf" in estimators else None
-        if eng is not None:  # the same dekf through the engine's compiled replay, every call timed whole
-            rows["dekf/engine"] = eng
+        for name in ENGINE_REPLAY:  # the same filter through the engine's compiled replay, every call timed whole
+            eng = M.engine_replay(data, events, t_end, lm, rounds, estimator=name) if name in estimators else None
+            if eng is not None:
+                rows[f"{name}/engine"] = eng
+                tick(f"replay {name}/engine, landmarks {'on' if lm else 'off'}")
         out[key] = {"events": len(events), "estimators": rows}
     return out
 
@@ -467,7 +472,8 @@ SECTIONS = "abcd"
 def _work_items(cfg: BenchConfig, replay: bool, sections: str = SECTIONS) -> int:
     swarms = len(cfg.swarm_sizes) + len([k for k in cfg.neighbour_sweep if not (
         k == cfg.neighbours and cfg.sweep_n in cfg.swarm_sizes)])  # fmt: skip
-    counts = {"b": 1, "a": 2, "c": swarms, "d": len(cfg.estimators) * len(cfg.landmarks) if replay else 0,
+    replays = len(cfg.estimators) + len(set(ENGINE_REPLAY) & set(cfg.estimators))  # the engine rows too
+    counts = {"b": 1, "a": 2, "c": swarms, "d": replays * len(cfg.landmarks) if replay else 0,
               "e": 5 * len(cfg.accelerator_sizes)}  # fmt: skip
     return sum(counts[k] for k in sections)
 

@@ -94,6 +94,7 @@ def _format_replay(d: dict) -> list[str]:
     out.append(f"  {'estimator':<12}" + "".join(f"{k.replace('_', ' '):>16}" for k in keys))
     for n in d[keys[0]]["estimators"] if keys else ():
         out.append(f"  {n:<12}" + "".join(f"{d[k]['estimators'][n]['x_real_time']:>15.0f}x" for k in keys))
-    if keys and "dekf/engine" in d[keys[0]]["estimators"]:
-        out.append("  (dekf/engine: dekf through the engine's compiled replay, numba; the whole call timed)")
+    engines = [n for n in d[keys[0]]["estimators"] if n.endswith("/engine")] if keys else []
+    if engines:
+        out.append(f"  ({', '.join(engines)}: through the engine's compiled replay, numba; the whole call timed)")
     return out

@@ -200,12 +200,14 @@ def mrclam_stream(
 
 
 def engine_replay(
-    data: MRCLAMData, events: list[Event], t_end: float, landmarks: bool, rounds: int = 1, config: Config = DEFAULTS
-) -> dict[str, Any] | None:
-    """``dekf`` on ``events`` of ``data`` (up to ``t_end``) through the batched engine's compiled replay
-    (:func:`swarmloc.engine.run_engine`, ``backend="numba"``): ``wall_s`` the best of ``rounds`` timed calls after
-    an untimed one (numba compiles in it), each call timed whole (the input checks, packing the timeline, the
-    compiled loop, the tracks), ``x_real_time`` and the team's ``pos_rmse_m`` / ``anees``; None without numba."""
+    data: MRCLAMData, events: list[Event], t_end: float, landmarks: bool, rounds: int = 1, config: Config = DEFAULTS,
+    estimator: str = "dekf",
+) -> dict[str, Any] | None:  # fmt: skip
+    """``estimator`` (``dekf`` or ``cekf``) on ``events`` of ``data`` (up to ``t_end``) through the batched engine's
+    compiled replay (:func:`swarmloc.engine.run_engine`, ``backend="numba"``): ``wall_s`` the best of ``rounds``
+    timed calls after an untimed one (numba compiles in it), each call timed whole (the input checks, packing the
+    timeline, the compiled loop, the tracks), ``x_real_time`` and the team's ``pos_rmse_m`` / ``anees``; None
+    without numba."""
     import importlib.util
 
     if importlib.util.find_spec("numba") is None:
@@ -217,11 +219,11 @@ def engine_replay(
     truth = data.truth_at if data.has_truth else None
     src = Source(f"mrclam:{data.name}", events, initial_beliefs(data, config), data.landmarks, data.t_start, t_end,
                  truth, config)  # fmt: skip
-    run_engine(src, "dekf", backend="numba", use_landmarks=landmarks)
+    run_engine(src, estimator, backend="numba", use_landmarks=landmarks)
     best, res = math.inf, None
     for _ in range(max(1, rounds)):
         t = time.perf_counter()
-        res = run_engine(src, "dekf", backend="numba", use_landmarks=landmarks)
+        res = run_engine(src, estimator, backend="numba", use_landmarks=landmarks)
         best = min(best, time.perf_counter() - t)
     team = evaluate(res)["team"] if truth is not None else {}
     return {"wall_s": best, "x_real_time": (t_end - data.t_start) / best, "pos_rmse_m": team.get("pos_rmse"),
