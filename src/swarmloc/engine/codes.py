@@ -9,6 +9,7 @@ table of kinds of its own.
 from __future__ import annotations
 
 from swarmloc.estimators.expfusion import DEGENERATE
+from swarmloc.estimators.rdl import UNKNOWN_CORRELATION
 from swarmloc.node.update import NONFINITE, NUMERICAL
 from swarmloc.sensors.models import KIND_ORDER, MODELS, MeasurementModel
 from swarmloc.sensors.models3 import KIND_ORDER3
@@ -58,7 +59,8 @@ REASONS = (
     NUMERICAL,
     "landmark measurements are switched off",
     "the landmark is not in the map",
+    UNKNOWN_CORRELATION,
 )
 """Reason code -> the nodes' text (0: none)."""
 R_SELF, R_OFF, R_TEAM, R_NOT_STARTED, R_OBSERVER, R_UNUSABLE, R_NONFINITE, R_DEGENERATE, R_NUMERICAL = range(1, 10)
-R_LANDMARKS_OFF, R_NO_LANDMARK = 10, 11
+R_LANDMARKS_OFF, R_NO_LANDMARK, R_CORRELATION = 10, 11, 12

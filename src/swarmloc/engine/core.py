@@ -38,8 +38,10 @@ engine trusts its input: a driver validates it (:func:`swarmloc.engine.run_engin
 **Landmarks** (a map ``id -> (x, y, std_x, std_y)``, the nodes' option) run with ``"dekf"`` on SE(2): a landmark
 detection's target is its row in the map (:meth:`Engine.landmark_code`), its state the map's position and
 covariance (:func:`swarmloc.node.landmark_state`), fused as the node fuses it (a range-bearing detection on the
-fast path, :func:`swarmloc.engine.soa.landmark_update`); the other estimators refuse a map. ``"rdl"`` is not
-supported: its pairwise updates change the *target's* state too.
+fast path, :func:`swarmloc.engine.soa.landmark_update`); the other estimators refuse a map. ``"rdl"`` is not an
+estimator of this class (its pairwise updates change the *target's* state too, and it keeps factors per pair): it
+and the centralized ``"cekf"`` replay compiled, :mod:`swarmloc.engine.pairs` and :mod:`swarmloc.engine.joint`
+(:func:`swarmloc.engine.run_engine`).
 
 The engine's modules are layers, each importing only modules below it (an import-linter contract in pyproject.toml):
 ``replay``, ``swarm`` -> ``core`` -> ``fuse_ci`` -> ``fuse_exp``, ``fuse_ekf``, ``fuse_ekf3`` -> ``stamp`` ->

@@ -64,7 +64,8 @@ _TAU = 2 * math.pi
 
 
 @njit(error_model="numpy")
-def _wrap(a: float) -> float:
+def wrap(a: float) -> float:
+    """An angle [rad] wrapped to (-pi, pi] (the formula of :func:`swarmloc.lie.wrap_angle`), compiled."""
     return _PI - (_PI - a) % _TAU
 
 
@@ -120,7 +121,7 @@ def _flush(P: np.ndarray, pend: np.ndarray, has: np.ndarray) -> None:
 
 
 @njit(error_model="numpy")
-def _inverse(S: np.ndarray) -> tuple[np.ndarray, bool]:
+def inverse(S: np.ndarray) -> tuple[np.ndarray, bool]:
     """Inverse of a 1x1, 2x2 or 3x3 ``S`` by cofactors; ``(S, False)`` when it is singular."""
     m = S.shape[0]
     out = np.empty_like(S)
@@ -147,7 +148,7 @@ def _inverse(S: np.ndarray) -> tuple[np.ndarray, bool]:
 
 
 @njit(error_model="numpy")
-def _usable(P: np.ndarray) -> bool:
+def usable(P: np.ndarray) -> bool:
     """Finite and positive definite (:func:`swarmloc.node.update.usable_covariance`: a Cholesky factorization)."""
     N = P.shape[0]
     if N == 3 and np.isfinite(P).all():  # the node's leading minors with a margin, for a team of one
@@ -176,7 +177,7 @@ def _usable(P: np.ndarray) -> bool:
 
 
 @njit(error_model="numpy")
-def _measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq: np.ndarray
+def measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Residual ``r (m,)``, Jacobian ``H (m, 3 + len(xk))`` (observer's columns, then the target's) and noise
     ``R (m, m)`` of a detection of ``kind`` by the robot at rows ``i:i+3`` of ``X`` of a target at ``xk``
@@ -184,7 +185,7 @@ def _measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, R
     x0, y0, th = X[i], X[i + 1], X[i + 2]
     if kind == ABSOLUTE:
         H = np.eye(3)
-        r = np.array([zq[0] - x0, zq[1] - y0, _wrap(zq[2] - th)])
+        r = np.array([zq[0] - x0, zq[1] - y0, wrap(zq[2] - th)])
         return r, H, Rq[:3, :3].copy()
     dx, dy = xk[0] - x0, xk[1] - y0
     c, s = math.cos(th), math.sin(th)
@@ -194,7 +195,7 @@ def _measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, R
         H = np.zeros((3, w))
         H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], H[2, 2] = -c, -s, by, s, -c, -bx, -1.0
         H[0, 3], H[0, 4], H[1, 3], H[1, 4], H[2, 5] = c, s, -s, c, 1.0
-        r = np.array([zq[0] - bx, zq[1] - by, _wrap(zq[2] - _wrap(xk[2] - th))])
+        r = np.array([zq[0] - bx, zq[1] - by, wrap(zq[2] - wrap(xk[2] - th))])
         cz, sz = math.cos(zq[2]), math.sin(zq[2])
         B = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
         return r, H, B @ Rq[:3, :3].copy() @ B.T
@@ -203,11 +204,11 @@ def _measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, R
     full = np.zeros((2, w))
     full[0, 0], full[0, 1], full[1, 0], full[1, 1], full[1, 2] = -dx / rng, -dy / rng, dy / q, -dx / q, -1.0
     full[:, 3:5] = -full[:, 0:2]
-    res = np.array([zq[0] - rng, _wrap(zq[1] - _wrap(math.atan2(by, bx)))])
+    res = np.array([zq[0] - rng, wrap(zq[1] - wrap(math.atan2(by, bx)))])
     if kind == RANGE_BEARING:
         return res, full, Rq[:2, :2].copy()
     j = 0 if kind == RANGE else 1
-    r1 = np.array([zq[0] - rng]) if j == 0 else np.array([_wrap(zq[0] - _wrap(math.atan2(by, bx)))])
+    r1 = np.array([zq[0] - rng]) if j == 0 else np.array([wrap(zq[0] - wrap(math.atan2(by, bx)))])
     return r1, full[j : j + 1].copy(), Rq[:1, :1].copy()
 
 
@@ -217,14 +218,14 @@ def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np
     """:func:`swarmloc.kernels.cartesian.kalman_update_blocks` (every robot's heading wrapped)."""
     U = P[:, cols] @ H.T
     S = H @ U[cols] + R
-    S_inv, regular = _inverse(S)
+    S_inv, regular = inverse(S)
     if not regular:
         return X, P, math.nan, False
     nis = r @ S_inv @ r
     K = U @ S_inv
     xn = X + K @ r
     for a in range(2, xn.shape[0], 3):
-        xn[a] = _wrap(xn[a])
+        xn[a] = wrap(xn[a])
     Pn = P - K @ U.T - (U - K @ S) @ K.T
     Pn = 0.5 * (Pn + Pn.T)
     ok = math.isfinite(nis) and np.isfinite(xn).all() and np.isfinite(Pn).all()
@@ -286,7 +287,7 @@ def _kernels(noise: UnicycleNoise) -> Any:
                                                          else np.zeros(0))  # fmt: skip
         if kind >= RANGE_BEARING and math.hypot(xk[0] - X[3 * i], xk[1] - X[3 * i + 1]) < MIN_RANGE:
             return REJECTED, R_DEGENERATE
-        r, H, Rm = _measure(kind, X, 3 * i, xk, z[q], R[q])
+        r, H, Rm = measure(kind, X, 3 * i, xk, z[q], R[q])
         own = np.arange(3 * i, 3 * i + 3)
         if j >= 0:
             cols = np.concatenate((own, np.arange(3 * j, 3 * j + 3)))
@@ -303,7 +304,7 @@ def _kernels(noise: UnicycleNoise) -> Any:
                 return REJECTED, R_NONFINITE
             if nis > thr[kind]:
                 return GATED, 0
-        if not (ok and _usable(Pn)):
+        if not (ok and usable(Pn)):
             return REJECTED, R_NUMERICAL
         X[:] = xn
         P[:, :] = Pn

@@ -13,10 +13,12 @@ place; a stamp with a detection the loop does not take (range-only, bearing-only
 after it. The input checks are the nodes' either way; a robot's odometry that no sequential check could refuse
 (plain finite numbers, ``t0`` increasing, no overlap) is checked as arrays (:meth:`_Checked.add_all`).
 
-**The centralized EKF.** ``estimator="cekf"`` (``backend="numba"``, planar teams) keeps one joint state for the
-team, not the :class:`Engine`'s per-robot rows: the same checked timeline runs through
-:func:`swarmloc.engine.joint.replay_joint`, every detection kind in one compiled call, as the ``cekf`` node
-(:class:`~swarmloc.estimators.CentralizedEKF`) computes it; its reasons are worded as that node words them.
+**The centralized EKF and recursive decentralized localization.** ``estimator="cekf"`` and ``"rdl"``
+(``backend="numba"``, planar teams) keep other state than the :class:`Engine`'s per-robot rows (a joint state; a
+filter and a factor per pair): the same checked timeline runs through
+:func:`swarmloc.engine.joint.replay_joint` or :func:`swarmloc.engine.pairs.replay_rdl`, every detection kind in one
+compiled call, as the ``cekf`` node (:class:`~swarmloc.estimators.CentralizedEKF`) or the ``rdl`` nodes exchanging
+their messages compute it; reasons are worded as those nodes word them.
 
 An SE(3) team (initial beliefs on SE(3), e.g. ``sim:3d``) runs on the engine's SE(3) path: body-twist odometry
 (:func:`swarmloc.events.twist_odometry`), ``"pose3"`` detections, the source's twist noise (``Source.noise``), tracks
@@ -41,6 +43,7 @@ from swarmloc.engine.codes import (
     NO_LANDMARK,
     NO_TARGET,
     R_DEGENERATE,
+    R_NO_LANDMARK,
     R_NONFINITE,
     R_NUMERICAL,
     R_TEAM,
@@ -88,9 +91,10 @@ def run_engine(
     config: Config | None = None,
     **options: Any,
 ) -> RunResult:
-    """Run ``estimator`` on a source's events with the batched :class:`Engine` (``"cekf"``: the joint-state replay
-    of :mod:`swarmloc.engine.joint`, ``backend="numba"``); returns a :class:`~swarmloc.runner.RunResult` like
-    :func:`swarmloc.runner.run` with the nodes of :func:`~swarmloc.estimators.make_team`.
+    """Run ``estimator`` on a source's events with the batched :class:`Engine` (``"cekf"``, ``"rdl"``: the compiled
+    replays of :mod:`swarmloc.engine.joint` and :mod:`swarmloc.engine.pairs`, ``backend="numba"``); returns a
+    :class:`~swarmloc.runner.RunResult` like :func:`swarmloc.runner.run` with the nodes of
+    :func:`~swarmloc.estimators.make_team`.
 
     ``source_or_sim``: a :class:`~swarmloc.datasets.source.Source` or a simulation (turned into one by
     :func:`~swarmloc.sim.source.sim_source` with ``config``); ``record_times`` default ``Source.record_times()``;
@@ -105,8 +109,8 @@ def run_engine(
     opts.pop("association_gate", None)
     if opts.pop("association", "tags") != "tags":
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
-    if estimator == "cekf":
-        return _run_joint(src, backend, record_times, opts)
+    if estimator in _COMPILED_ONLY:
+        return _run_compiled(src, estimator, backend, record_times, opts)
     robots = src.robots
     col = {r: i for i, r in enumerate(robots)}
     initial = [src.initial[r] for r in robots]
@@ -120,7 +124,7 @@ def run_engine(
 
     reasons = Counter(checked.reasons)
     reasons.update(eng.reasons)
-    _name_unknown_robots(reasons, checked, eng)
+    _name_unknown(reasons, checked, eng.use_relative, eng.t0)
     return _result(f"{estimator}/engine", src, rows, checked, eng.counts, reasons, wall, truth_missing,
                    eng.group is SE3)  # fmt: skip
 
@@ -151,26 +155,32 @@ def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: _Checke
     return RunResult(name, tracks, wall, dict(stats), len(src.events), reasons, timing)
 
 
-_JOINT_OPTIONS = frozenset({"noise", "gate", "landmarks", "use_relative", "use_landmarks", "horizon"})
-"""The nodes' options the centralized EKF takes on the engine (``horizon`` plays no role: input comes in order)."""
+_COMPILED_ONLY = ("cekf", "rdl")
+"""Estimators the engine runs only as a compiled replay of their own state (numba): ``cekf``'s joint state
+(:mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
+_COMPILED_OPTIONS = frozenset({"noise", "gate", "landmarks", "use_relative", "use_landmarks", "horizon"})
+"""The nodes' options those replays take (``horizon`` plays no role: input comes in order)."""
 
 
-def _run_joint(src: Source, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
-    """``cekf`` (one joint state for the team) through :func:`swarmloc.engine.joint.replay_joint`: the same input
-    checks and timeline as the other estimators, the whole replay in one compiled call (numba, planar teams)."""
+def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
+    """``cekf`` or ``rdl`` through their compiled replay: the same input checks and timeline as the other
+    estimators, the whole replay in one call (numba, planar teams)."""
     if backend != "numba":
-        raise ValueError("run_engine: 'cekf' runs on the engine's compiled replay only: pass backend='numba'")
+        raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only: pass backend='numba'")
     if src.noise is not None or any(np.shape(b.mean) != (3, 3) for b in src.initial.values()):
-        raise ValueError("run_engine: 'cekf' on the engine takes planar (SE(2)) teams; run the nodes")
-    if set(opts) - _JOINT_OPTIONS:
-        raise TypeError(f"run_engine: 'cekf' on the engine takes no option {sorted(set(opts) - _JOINT_OPTIONS)}")
+        raise ValueError(f"run_engine: {estimator!r} on the engine takes planar (SE(2)) teams; run the nodes")
+    extra = sorted(set(opts) - _COMPILED_OPTIONS)
+    if extra:
+        raise TypeError(f"run_engine: {estimator!r} on the engine takes no option {extra}")
     from swarmloc.engine.joint import replay_joint  # numba
+    from swarmloc.engine.pairs import replay_rdl
 
     col = {r: i for i, r in enumerate(src.robots)}
     lm_rows, lm = landmark_table(opts.get("landmarks"))
     checked = _Checked(col, partial(map_code, lm_rows))
     checked.add_all(src.events)
-    t0 = float(checked.start_times().min(initial=math.inf))  # the node starts at the team's first input
+    starts = checked.start_times()
+    t0 = float(starts.min(initial=math.inf))  # the centralized node starts at the team's first input
     rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
     checked.stops(max([checked.last_command(), *checked.groups, *rt.tolist()], default=-math.inf))
     records: dict[float, list[int]] = defaultdict(list)
@@ -180,18 +190,22 @@ def _run_joint(src: Source, backend: str, record_times: Any, opts: dict[str, Any
     x, P = C.from_group(np.stack([src.initial[r].mean for r in src.robots]),
                         np.stack([src.initial[r].cov for r in src.robots]))  # fmt: skip
     use_relative, use_landmarks = bool(opts.get("use_relative", True)), bool(opts.get("use_landmarks", True))
+    kw = {"gate": opts.get("gate"), "use_relative": use_relative, "use_landmarks": use_landmarks, "landmarks": lm}
     wall = time.perf_counter()
-    status, reason, (o_robot, o_stamp, o_x, o_P) = replay_joint(
-        tl, x, P, t0, opts["noise"], gate=opts.get("gate"), use_relative=use_relative, use_landmarks=use_landmarks,
-        landmarks=lm,
-    )  # fmt: skip
+    if estimator == "cekf":
+        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_joint(tl, x, P, t0, opts["noise"], **kw)
+    else:
+        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_rdl(tl, x, P, starts, opts["noise"], **kw)
     wall = time.perf_counter() - wall
     counts: Counter[str] = Counter()
-    reasons: Counter[str] = Counter()
-    dynamic = np.isin(reason, (R_DEGENERATE, R_NONFINITE, R_NUMERICAL))
-    tally(counts, reasons, status, np.where(dynamic, reason, 0).astype(np.int8))
-    reasons.update(checked.reasons)
-    reasons.update(_joint_reasons(checked, t0, use_relative, use_landmarks))
+    reasons: Counter[str] = Counter(checked.reasons)
+    if estimator == "cekf":  # the centralized node's own words for what it refuses before reading a state
+        dynamic = np.isin(reason, (R_DEGENERATE, R_NONFINITE, R_NUMERICAL))
+        tally(counts, reasons, status, np.where(dynamic, reason, 0).astype(np.int8))
+        reasons.update(_joint_reasons(checked, t0, use_relative, use_landmarks))
+    else:
+        tally(counts, reasons, status, reason)
+        _name_unknown(reasons, checked, use_relative, starts)
     truth_rows = {r: truth_table(src.truth, r, rt) for r in src.robots}
     mean, cov = C.to_group(o_x, o_P)
     xyt = SE2.to_xytheta(mean)
@@ -200,7 +214,7 @@ def _run_joint(src: Source, backend: str, record_times: Any, opts: dict[str, Any
     for j, (i, s) in enumerate(zip(o_robot.tolist(), o_stamp.tolist(), strict=True)):
         t = float(tl.stamps[s])
         truth_missing += _file(rows, src, truth_rows, src.robots[i], t, records[t], xyt[j], cov[j])
-    return _result("cekf/engine", src, rows, checked, counts, reasons, wall, truth_missing)
+    return _result(f"{estimator}/engine", src, rows, checked, counts, reasons, wall, truth_missing)
 
 
 def _joint_reasons(checked: _Checked, t0: float, use_relative: bool, use_landmarks: bool) -> Counter[str]:
@@ -235,23 +249,29 @@ def _static_reason(d: Detection, code: int, use_relative: bool, use_landmarks: b
     return f"unknown: landmark {d.target} is not in the map" if code == NO_LANDMARK else None
 
 
-def _name_unknown_robots(reasons: Counter[str], checked: _Checked, eng: Engine) -> None:
-    """The engine counts a detection of a robot outside the team under one text (``unknown: no answer: the robot
-    is not in the team``); the nodes name the robot (``unknown: robot 4: robot 4 is not in the team``, the answer the
-    runner gives a query to it). Where every such detection ended there (relative measurements on, each observer
-    started: the screening refused none before), the count is split by robot under the nodes' text."""
-    generic = f"unknown: {REASONS[R_TEAM]}"
-    if not eng.use_relative or generic not in reasons:
-        return
-    named: Counter[str] = Counter()
-    for t, by_observer in checked.groups.items():
-        for row, group in by_observer.items():
-            for d, code in group.values():
-                if code == UNKNOWN_ROBOT and t >= eng.t0[row]:
-                    named[f"unknown: robot {d.target}: robot {d.target} is not in the team"] += 1
-    if named and sum(named.values()) == reasons[generic]:
-        del reasons[generic]
-        reasons.update(named)
+def _name_unknown(reasons: Counter[str], checked: _Checked, use_relative: bool, t0: np.ndarray) -> None:
+    """The engine counts a detection of a robot outside the team, or of a landmark not in the map, under one text
+    (``unknown: no answer: the robot is not in the team``, ``unknown: the landmark is not in the map``); the nodes
+    name it (``unknown: robot 4: robot 4 is not in the team``, the answer the runner gives a query to it;
+    ``unknown: landmark 7 is not in the map``). Where every such detection ended there (each observer started, and
+    for robots relative measurements on: the screening refused none before), the count is split by id under the
+    nodes' text."""
+    robot, landmark = "unknown: robot {0}: robot {0} is not in the team", "unknown: landmark {0} is not in the map"
+    for generic, code, text, on in (
+        (f"unknown: {REASONS[R_TEAM]}", UNKNOWN_ROBOT, robot, use_relative),
+        (f"unknown: {REASONS[R_NO_LANDMARK]}", NO_LANDMARK, landmark, True),
+    ):
+        if not on or generic not in reasons:
+            continue
+        named: Counter[str] = Counter()
+        for t, by_observer in checked.groups.items():
+            for row, group in by_observer.items():
+                for d, c in group.values():
+                    if c == code and t >= t0[row] and (code != NO_LANDMARK or not d.target_is_robot):
+                        named[text.format(d.target)] += 1
+        if named and sum(named.values()) == reasons[generic]:
+            del reasons[generic]
+            reasons.update(named)
 
 
 class _Checked:

@@ -70,7 +70,8 @@ _ZERO = np.zeros((3, 3))
 _ZERO.setflags(write=False)
 _NO_FACTORS = np.zeros((0, 3, 3))
 _NO_FACTORS.setflags(write=False)
-_CI_WEIGHTS = np.linspace(0.02, 0.98, 49)
+CI_WEIGHTS = np.linspace(0.02, 0.98, 49)
+"""The covariance-intersection weights :func:`ci_pair_prior` tries."""
 UNKNOWN_CORRELATION = "the pair's correlation is unknown and the measurement too weak to bound it"
 NEAR_MAHALANOBIS = 1e-4
 """[squared Mahalanobis] Largest change of an answer's mean for which an update computed before it still applies."""
@@ -158,7 +159,7 @@ def ci_pair_prior(Pii: np.ndarray, Pjj: np.ndarray, H: np.ndarray, R: np.ndarray
     ``log det P_prior - log det P_post`` of the joint update (``H (m, 6)``, ``R (m, m)``): ``(P, True)`` when both
     gain. Else the observer alone takes it, ``w`` maximizing its own gain: ``(P, False)``; None when even that is a
     loss (the measurement is too weak to pay for the bound)."""
-    w = _CI_WEIGHTS[:, None, None]
+    w = CI_WEIGHTS[:, None, None]
     P = np.zeros((w.shape[0], 6, 6))
     P[:, :3, :3] = Pii / w
     P[:, 3:, 3:] = Pjj / (1.0 - w)

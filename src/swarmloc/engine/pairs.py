@@ -1,0 +1,365 @@
+"""Recursive decentralized localization (``rdl``) on the engine: every robot's filter and its pairwise exchanges
+replayed in one compiled loop (numba).
+
+Each robot ``k`` keeps what its :class:`~swarmloc.estimators.RecursiveDecentralized` node keeps: Cartesian ``x``,
+``P``, and for every robot ``l`` it has exchanged with (``met[k, l]``) a factor ``sigma_kl`` of the
+cross-covariance ``Sigma_kl = sigma_kl sigma_lk^T``, with the shear its predictions since its last update owe the
+factors (``sa``, ``sb``: :class:`~swarmloc.estimators.rdl.RdlFilter`). :func:`replay_rdl` does, over a whole
+:class:`~swarmloc.engine.detections.Timeline`, what the nodes do when every exchange completes (the in-process
+runner, no faults), in the order of their history keys:
+
+* at a stamp, the detection groups in observer order (Gauss-Seidel: a teammate with a smaller id answers after its
+  own group at the stamp), each detection in the group's canonical order, then the commands;
+* a robot's detection of teammate ``j``: ``j``'s answer is its state predicted to the stamp (not stored); the pair's
+  joint prior with the tracked cross-covariance, or bounded by covariance intersection when the correlation is not
+  tracked or not positive definite (:func:`~swarmloc.estimators.rdl.joint_prior`,
+  :func:`~swarmloc.estimators.rdl.ci_pair_prior`); the joint Joseph update, its gate and check; the observer keeps
+  its part (``sigma_ij <- P_ij+``, its other factors rescaled by ``P_ii+ P_ii-^-1``); when both take it the target
+  moves to the stamp and takes its part (``sigma_ji <- I``, its factors rescaled), else the observer drops its
+  factor for the target and the target is untouched ("no update");
+* absolute fixes and map landmarks: private updates of the observer, its factors rescaled.
+
+Results equal the nodes' to rounding (tests/test_engine_rdl.py). Units: metres, radians, seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from swarmloc.engine.codes import (
+    ABSOLUTE,
+    FUSED,
+    GATED,
+    NO_LANDMARK,
+    R_CORRELATION,
+    R_DEGENERATE,
+    R_LANDMARKS_OFF,
+    R_NO_LANDMARK,
+    R_NONFINITE,
+    R_NOT_STARTED,
+    R_NUMERICAL,
+    R_OFF,
+    R_SELF,
+    R_TEAM,
+    R_UNUSABLE,
+    REJECTED,
+    UNKNOWN,
+    UNKNOWN_ROBOT,
+)
+from swarmloc.engine.detections import Timeline
+from swarmloc.engine.joint import RANGE_BEARING, inverse, measure, usable, wrap
+from swarmloc.engine.scalar import predict_source
+from swarmloc.estimators.rdl import CI_WEIGHTS
+from swarmloc.motion import UnicycleNoise
+from swarmloc.node.update import Gate
+from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE, MODELS
+
+
+@njit(error_model="numpy")
+def _kalman(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
+    """:func:`swarmloc.kernels.cartesian.kalman_update` for one state (Joseph form), every third component (the
+    headings) wrapped."""
+    PHt = P @ H.T
+    S = H @ PHt + R
+    S_inv, regular = inverse(S)
+    if not regular:
+        return x, P, math.nan, False
+    Sr = S_inv @ r
+    nis = r @ Sr
+    K = PHt @ S_inv
+    xn = x + PHt @ Sr
+    for a in range(2, xn.shape[0], 3):
+        if math.isfinite(xn[a]):
+            xn[a] = wrap(xn[a])
+    IKH = np.eye(x.shape[0]) - K @ H
+    Pn = IKH @ P @ IKH.T + K @ R @ K.T
+    Pn = 0.5 * (Pn + Pn.T)
+    ok = math.isfinite(nis) and np.isfinite(xn).all() and np.isfinite(Pn).all()
+    return xn, Pn, nis, ok
+
+
+@njit(error_model="numpy")
+def _factor(sig: np.ndarray, met: np.ndarray, sa: float, sb: float, k: int, l: int) -> np.ndarray:
+    """``sigma_kl`` with robot ``k``'s pending shear ``(sa, sb)`` applied (zero for a robot never met)."""
+    f = np.zeros((3, 3))
+    if met[k, l]:
+        f[:, :] = sig[k, l]
+        f[0] += sa * sig[k, l, 2]
+        f[1] += sb * sig[k, l, 2]
+    return f
+
+
+@njit(error_model="numpy")
+def _rescale(sig: np.ndarray, met: np.ndarray, sa: np.ndarray, sb: np.ndarray, k: int, P_new: np.ndarray,
+             P_old: np.ndarray) -> None:  # fmt: skip
+    """Robot ``k``'s factors ``sigma_kl <- P_new P_old^-1 sigma_kl`` (:func:`~swarmloc.estimators.rdl.
+    rescale_factors`), its pending shear cleared."""
+    if met[k].any():
+        inv, _ = inverse(P_old)
+        M = P_new @ inv
+        for l in range(met.shape[1]):
+            if met[k, l]:
+                sig[k, l] = M @ _factor(sig, met, sa[k], sb[k], k, l)
+    sa[k] = 0.0
+    sb[k] = 0.0
+
+
+@njit(error_model="numpy")
+def _logdet(A: np.ndarray) -> float:
+    return np.linalg.slogdet(A)[1]
+
+
+@njit(error_model="numpy")
+def _ci_prior(Pi: np.ndarray, Pj: np.ndarray, H: np.ndarray, R: np.ndarray, weights: np.ndarray
+              ) -> tuple[np.ndarray, int]:  # fmt: skip
+    """:func:`~swarmloc.estimators.rdl.ci_pair_prior`: ``(P (6, 6), 1)`` when both robots gain, ``(P, 0)`` when
+    only the observer does, ``(P, -1)`` when neither does."""
+    nw = weights.shape[0]
+    gi, gj = np.empty(nw), np.empty(nw)
+    Ps = np.zeros((nw, 6, 6))
+    li, lj = _logdet(Pi), _logdet(Pj)
+    for k in range(nw):
+        Ps[k, :3, :3] = Pi / weights[k]
+        Ps[k, 3:, 3:] = Pj / (1.0 - weights[k])
+        PHt = Ps[k] @ H.T
+        S_inv, _ = inverse(H @ PHt + R)
+        Pn = Ps[k] - PHt @ (S_inv @ PHt.T)
+        gi[k] = li - _logdet(Pn[:3, :3].copy())
+        gj[k] = lj - _logdet(Pn[3:, 3:].copy())
+    best, kb = -math.inf, 0
+    for k in range(nw):
+        both = min(gi[k], gj[k]) if math.isfinite(gi[k]) and math.isfinite(gj[k]) else -math.inf
+        if both > best:
+            best, kb = both, k
+    if best >= 0.0:
+        return Ps[kb].copy(), 1
+    best, kb = -math.inf, 0
+    for k in range(nw):
+        g = gi[k] if math.isfinite(gi[k]) else -math.inf
+        if g > best:
+            best, kb = g, k
+    return Ps[kb].copy(), (0 if best > 0.0 else -1)
+
+
+@njit(error_model="numpy")
+def _joint_prior(Pi: np.ndarray, Pj: np.ndarray, fi: np.ndarray, fj: np.ndarray, met: bool, H: np.ndarray,
+                 R: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, int]:  # fmt: skip
+    """:func:`~swarmloc.estimators.rdl.joint_prior` (the tracked cross-covariance when known and positive definite,
+    else :func:`_ci_prior`), with :func:`_ci_prior`'s flag."""
+    known = (fi.any() and fj.any()) if met else not fj.any()
+    if known:
+        P = np.zeros((6, 6))
+        P[:3, :3] = Pi
+        P[3:, 3:] = Pj
+        Pij = fi @ fj.T
+        P[:3, 3:] = Pij
+        P[3:, :3] = Pij.T
+        if usable(P):
+            return P, 1
+    return _ci_prior(Pi, Pj, H, R, weights)
+
+
+@njit(error_model="numpy")
+def _screen(kind: int, i: int, j: int, t: float, t0: np.ndarray, relative: bool, lm_on: bool) -> tuple[int, int]:
+    """``(outcome, reason)`` decided before any state is read (0, 0: go on), as the nodes decide it."""
+    if kind == ABSOLUTE:
+        return 0, 0
+    if j <= NO_LANDMARK:
+        if not lm_on:
+            return REJECTED, R_LANDMARKS_OFF
+        return (UNKNOWN, R_NO_LANDMARK) if j == NO_LANDMARK else (0, 0)
+    if not relative:
+        return REJECTED, R_OFF
+    if j == UNKNOWN_ROBOT:
+        return UNKNOWN, R_TEAM
+    if j < 0:
+        return REJECTED, R_UNUSABLE
+    if j == i:
+        return REJECTED, R_SELF
+    return (UNKNOWN, R_NOT_STARTED) if not t >= t0[j] else (0, 0)
+
+
+@cache
+def _kernels(noise: UnicycleNoise) -> Any:
+    """Compile the replay loop with the noise model's prediction (once per process and noise model)."""
+    ns: dict[str, Any] = {"math": math, "np": np}
+    exec(predict_source(noise), ns)  # noqa: S102 - our own generated code
+    predict = njit(error_model="numpy")(ns["predict"])
+
+    @njit(error_model="numpy")
+    def predicted(x, P, tc, v, w, k, t):  # noqa: ANN001, ANN202
+        """Robot ``k``'s ``(x, P, dx, dy)`` predicted to ``t`` (``dx = dy = 0``: already there)."""
+        dt = t - tc[k]
+        xk, Pk = x[k].copy(), P[k].copy()
+        if not dt > 0:
+            return xk, Pk, 0.0, 0.0
+        r = predict(xk[0], xk[1], xk[2], Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2], v[k], w[k], dt)
+        out = np.array([[r[3], r[4], r[5]], [r[4], r[6], r[7]], [r[5], r[7], r[8]]])
+        return np.array([r[0], r[1], r[2]]), out, r[0] - xk[0], r[1] - xk[1]
+
+    @njit(error_model="numpy")
+    def advance(st, k, t):  # noqa: ANN001, ANN202
+        x, P, tc, v, w, sa, sb, met, sig = st
+        xk, Pk, dx, dy = predicted(x, P, tc, v, w, k, t)
+        if t > tc[k]:
+            x[k], P[k], tc[k] = xk, Pk, t
+            sa[k] -= dy
+            sb[k] += dx
+
+    return _loop(predicted, advance)
+
+
+def _loop(predicted: Any, advance: Any) -> Any:
+    """The exchanges and the loop over the stamps, around the compiled steps of :func:`_kernels`."""
+
+    @njit(error_model="numpy")
+    def pair(st, i, j, kind, zq, Rq, t, thr, gate):  # noqa: ANN001, ANN202
+        x, P, tc, v, w, sa, sb, met, sig = st
+        xj, Pj, dx, dy = predicted(x, P, tc, v, w, j, t)  # the target's answer (not stored)
+        if kind >= RANGE_BEARING and math.hypot(xj[0] - x[i, 0], xj[1] - x[i, 1]) < MIN_RANGE:
+            return REJECTED, R_DEGENERATE
+        fj = _factor(sig, met, sa[j] - dy, sb[j] + dx, j, i)
+        fi = _factor(sig, met, sa[i], sb[i], i, j)
+        X = np.concatenate((x[i], xj))
+        r, H, Rm = measure(kind, X, 0, xj, zq, Rq)
+        prior, both = _joint_prior(P[i].copy(), Pj, fi, fj, met[i, j], H, Rm, CI_WEIGHTS)
+        if both < 0:
+            return GATED, R_CORRELATION
+        Xn, Pn, nis, ok = _kalman(X, prior, r, H, Rm)
+        if gate:
+            if not math.isfinite(nis):
+                return REJECTED, R_NONFINITE
+            if nis > thr[kind]:
+                return GATED, 0
+        if not (ok and usable(Pn)):
+            return REJECTED, R_NUMERICAL
+        Pi_old = P[i].copy()
+        x[i], P[i] = Xn[:3], Pn[:3, :3]
+        _rescale(sig, met, sa, sb, i, P[i], Pi_old)
+        if both == 0:  # only the observer gains: its correlation with the target is unknown now
+            sig[i, j] = 0.0
+            return FUSED, 0
+        sig[i, j], met[i, j] = Pn[:3, 3:], True
+        advance(st, j, t)  # the target takes its part at the stamp
+        Pj_old = P[j].copy()
+        x[j], P[j] = Xn[3:], Pn[3:, 3:]
+        _rescale(sig, met, sa, sb, j, P[j], Pj_old)
+        sig[j, i], met[j, i] = np.eye(3), True
+        return FUSED, 0
+
+    @njit(error_model="numpy")
+    def replay(st, t0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
+        x, P, tc, v, w, sa, sb, met, sig = st
+        obs, tgt, kind, z, R = det
+        c0, crow, cv, cw = cmd
+        out_robot, out_stamp, out_x, out_P = out
+        o = 0
+        for s in range(stamps.shape[0]):
+            t = stamps[s]
+            for q in range(d0[s], d0[s + 1]):
+                i, j = obs[q], tgt[q]
+                advance(st, i, t)  # the observer moves to its group's stamp
+                res, why = _screen(kind[q], i, j, t, t0, relative, lm_on)
+                if res == 0 and (kind[q] == ABSOLUTE or j <= NO_LANDMARK):
+                    res, why = _private(st, i, kind[q], j, z[q], R[q], lxy, lcov, thr, gate)
+                elif res == 0:
+                    res, why = pair(st, i, j, kind[q], z[q], R[q], t, thr, gate)
+                status[q], reason[q] = res, why
+            for c in range(c0[s], c0[s + 1]):
+                advance(st, crow[c], t)
+                v[crow[c]] = cv[c]
+                w[crow[c]] = cw[c]
+            if rec[s]:
+                for k in range(tc.shape[0]):
+                    if t >= t0[k]:
+                        xr, Pr, _, _ = predicted(x, P, tc, v, w, k, t)
+                        out_x[o], out_P[o] = xr, Pr
+                        out_robot[o], out_stamp[o] = k, s
+                        o += 1
+        return o
+
+    return replay
+
+
+@njit(error_model="numpy")
+def _private(st: Any, i: int, kind: int, j: int, zq: np.ndarray, Rq: np.ndarray, lxy: np.ndarray, lcov: np.ndarray,
+             thr: np.ndarray, gate: bool) -> tuple[int, int]:  # fmt: skip
+    """An absolute fix or a map landmarks detection by robot ``i``: a private update, its factors rescaled."""
+    x, P, tc, v, w, sa, sb, met, sig = st
+    X = x[i].copy()
+    lm = NO_LANDMARK - 1 - j
+    xk = lxy[lm].copy() if kind != ABSOLUTE else np.zeros(0)
+    if kind >= RANGE_BEARING and math.hypot(xk[0] - X[0], xk[1] - X[1]) < MIN_RANGE:
+        return REJECTED, R_DEGENERATE
+    r, H, Rm = measure(kind, X, 0, xk, zq, Rq)
+    if kind != ABSOLUTE:
+        Hk = H[:, 3:5].copy()
+        Rm = Rm + Hk @ lcov[lm] @ Hk.T
+        H = H[:, :3].copy()
+    xn, Pn, nis, ok = _kalman(X, P[i].copy(), r, H, Rm)
+    return _commit_private(st, i, xn, Pn, nis, ok, thr[kind], gate)
+
+
+@njit(error_model="numpy")
+def _commit_private(st: Any, i: int, xn: np.ndarray, Pn: np.ndarray, nis: float, ok: bool, thr: float, gate: bool
+                    ) -> tuple[int, int]:  # fmt: skip
+    """The gate and check of a private update of robot ``i``, then its state and rescaled factors."""
+    x, P, tc, v, w, sa, sb, met, sig = st
+    if gate:
+        if not math.isfinite(nis):
+            return REJECTED, R_NONFINITE
+        if nis > thr:
+            return GATED, 0
+    if not (ok and usable(Pn)):
+        return REJECTED, R_NUMERICAL
+    P_old = P[i].copy()
+    x[i], P[i] = xn, Pn
+    _rescale(sig, met, sa, sb, i, Pn, P_old)
+    return FUSED, 0
+
+
+def replay_rdl(
+    tl: Timeline,
+    x: np.ndarray,
+    P: np.ndarray,
+    t0: np.ndarray,
+    noise: UnicycleNoise,
+    *,
+    gate: float | None = None,
+    use_relative: bool = True,
+    use_landmarks: bool = True,
+    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """``rdl`` over ``tl`` (robots as rows, the engine's codes) from Cartesian beliefs ``x (n, 3)``, ``P (n, 3, 3)``
+    at each robot's start ``t0 (n,)`` [s] (``inf``: never starts).
+
+    ``gate``: the nodes' gate probability (None: none); ``landmarks``: ``(xy (L, 2), cov (L, 2, 2))`` as
+    :func:`swarmloc.engine.core.landmark_table` gives them. Returns ``(status, reason, records)`` as
+    :func:`swarmloc.engine.joint.replay_joint`: records of every started robot at every recorded stamp.
+    """
+    n = x.shape[0]
+    g = Gate(gate)
+    thr = np.array([g.threshold(MODELS[name].size) for name in sorted(KIND_ORDER, key=KIND_ORDER.get)])
+    lxy, lcov = landmarks if landmarks is not None else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
+    m = len(tl.det)
+    status, reason = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
+    t0 = np.asarray(t0, dtype=float)
+    k = int(sum(np.count_nonzero(tl.stamps[tl.record] >= s) for s in t0.tolist()))
+    out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
+    clock = np.where(np.isfinite(t0), t0, 0.0)
+    state = (np.array(x, dtype=float), np.array(P, dtype=float), clock, np.zeros(n), np.zeros(n), np.zeros(n),
+             np.zeros(n), np.zeros((n, n), dtype=np.bool_), np.zeros((n, n, 3, 3)))  # fmt: skip
+    d = tl.det
+    det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
+    _kernels(noise)(
+        state, t0, tl.stamps, tl.d0, det, status, reason, g.p is not None, thr, bool(use_relative),
+        bool(use_landmarks), np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
+        (tl.c0, tl.robot, tl.v, tl.w), tl.record, out,
+    )  # fmt: skip
+    return status.astype(np.int8), reason.astype(np.int8), out

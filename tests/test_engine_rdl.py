@@ -1,0 +1,138 @@
+"""Recursive decentralized localization on the engine (``run_engine(source, "rdl", backend="numba")``: every
+robot's filter, factors and pairwise exchanges replayed in one compiled loop, :mod:`swarmloc.engine.pairs`) equals
+the ``rdl`` nodes exchanging messages through the in-process runner: every recorded belief, every outcome count and
+reason, over every detection kind, robots and landmarks; its pair prior (tracked cross-covariance or covariance
+intersection) equals the node's on every branch."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import pytest
+from test_engine import _assert_same, _source
+from test_engine_cekf import _with
+
+from swarmloc.engine import run_engine
+from swarmloc.engine.pairs import _joint_prior
+from swarmloc.estimators import make_team, node_options
+from swarmloc.estimators.rdl import CI_WEIGHTS, joint_prior
+from swarmloc.events import Detection
+from swarmloc.experiments.sources import load_source
+from swarmloc.runner import RunResult, run
+
+
+def _nodes(src, **options) -> RunResult:
+    opts = {**node_options("rdl", src.config, src.landmarks), **options}
+    return run(make_team("rdl", src.initial, **opts), src.events, record_times=src.record_times(), truth=src.truth)
+
+
+def _reasons(res: RunResult) -> Counter[str]:
+    """The detections' reasons (the nodes also count refused messages: revisions under late input), zeros dropped."""
+    return +Counter({k: v for k, v in res.reasons.items() if not k.startswith("message")})
+
+
+def _same(ref: RunResult, eng: RunResult) -> None:
+    _assert_same(ref, eng)
+    assert _reasons(ref) == _reasons(eng)
+
+
+def test_rdl_engine_equals_the_nodes_on_robots_of_every_kind() -> None:
+    """Relative poses, range-bearing, range-only, bearing-only of robots and absolute fixes (the exchanges revised
+    under late input in the nodes: their final state is the engine's), with a robot outside the team, the observer
+    itself and a far-off fix; and with relative measurements off."""
+    src = _source(5, 10.0, 17, kinds=("pose", "range_bearing"), fixes=True)
+    eye = 0.01 * np.eye(3)
+    extra = [
+        Detection(1, 3.0, "pose", np.array([1.0, 0.0, 0.0]), eye, target=42),  # not in the team
+        Detection(2, 4.0, "pose", np.array([0.0, 0.0, 0.0]), eye, target=2),  # itself
+        Detection(4, 7.0, "absolute", np.array([-9.0, 9.0, 0.0]), eye),  # far off: gated
+    ]
+    src = _with(src, extra)
+    ref, eng = _nodes(src), run_engine(src, "rdl", backend="numba")
+    _same(ref, eng)
+    assert eng.reasons["unknown: robot 42: robot 42 is not in the team"] == 1
+    assert eng.stats["gated"] >= 1 and eng.stats["fused"] > 500
+    off_ref, off = _nodes(src, use_relative=False), run_engine(src, "rdl", backend="numba", use_relative=False)
+    _same(off_ref, off)
+    assert off.reasons["rejected: relative measurements are switched off"] > 500
+
+
+def test_rdl_engine_equals_the_nodes_with_landmarks() -> None:
+    """Landmarks' range-bearing, range and bearing (private updates, factors rescaled), a map without two of them,
+    a landmark at the observer's position (degenerate), and landmarks switched off."""
+    src = load_source("sim:landmarks", robots=4, duration=12.0, seed=6)
+    ids = sorted(src.landmarks)
+    x0, y0 = src.initial[0].mean[:2, 2]
+    rb = np.array([0.5, 0.0])
+    extra = [Detection(0, src.t_start, "range_bearing", rb, 0.01 * np.eye(2), target=999, target_is_robot=False)]
+    part = {k: v for k, v in src.landmarks.items() if k not in ids[:2]}
+    src = _with(src, extra, landmarks={**part, 999: (float(x0), float(y0), 0.0, 0.0)})
+    ref, eng = _nodes(src), run_engine(src, "rdl", backend="numba")
+    _same(ref, eng)
+    assert eng.reasons["rejected: degenerate geometry: the target is at the observer's position"] == 1
+    assert sum(v for k, v in eng.reasons.items() if k.startswith("unknown: landmark")) > 10
+    assert eng.stats["fused"] > 350
+    off_ref, off = _nodes(src, use_landmarks=False), run_engine(src, "rdl", backend="numba", use_landmarks=False)
+    _same(off_ref, off)
+
+
+@pytest.mark.parametrize("use_landmarks", [True, False])
+def test_rdl_engine_equals_the_nodes_on_mrclam6(mrclam6, use_landmarks) -> None:
+    src = load_source(f"mrclam:{mrclam6}", duration=120.0)
+    ref = _nodes(src, use_landmarks=use_landmarks)
+    eng = run_engine(src, "rdl", backend="numba", use_landmarks=use_landmarks)
+    for r, a in ref.tracks.items():
+        b = eng.tracks[r]
+        np.testing.assert_array_equal(a.times, b.times)
+        np.testing.assert_allclose(b.mean, a.mean, rtol=1e-9, atol=1e-11)
+        np.testing.assert_allclose(b.cov, a.cov, rtol=1e-9, atol=1e-13)
+    counts = ("detections", "fused", "gated", "rejected", "unknown", "odometry", "odometry_used", "recorded")
+    assert {k: ref.stats[k] for k in counts} == {k: eng.stats[k] for k in counts}
+    assert _reasons(ref) == _reasons(eng)
+    assert eng.stats["fused"] > (2000 if use_landmarks else 300)
+
+
+def _spd(rng: np.random.Generator, scale: float) -> np.ndarray:
+    A = rng.normal(size=(3, 3))
+    return scale * (A @ A.T + 0.1 * np.eye(3))
+
+
+def test_pair_prior_equals_the_nodes_on_every_branch() -> None:
+    """The compiled pair prior against :func:`swarmloc.estimators.rdl.joint_prior`: a tracked positive-definite
+    cross-covariance, a tracked one that is not (covariance intersection), a met pair with a dropped factor, a
+    target tracking a pair the observer never met; both gain, only the observer, neither (a weak measurement)."""
+    rng = np.random.default_rng(3)
+    seen = {"tracked": 0, 1: 0, 0: 0, -1: 0}
+    for k in range(300):
+        Pi, Pj = _spd(rng, 0.05), _spd(rng, 0.05 * 10 ** rng.uniform(-2, 2))
+        case = k % 4
+        fi, fj = rng.normal(scale=0.1, size=(3, 3)), rng.normal(scale=0.1, size=(3, 3))
+        met = case != 3
+        if case == 1:
+            fi *= 30.0  # far too large a cross-covariance: not positive definite
+        elif case == 2:
+            fi = np.zeros((3, 3))  # the observer dropped its factor
+        m = 2 + k % 2
+        H = rng.normal(size=(m, 6))
+        R = (10 ** rng.uniform(-3, 3)) * np.eye(m)
+        ref = joint_prior(Pi, Pj, fi, fj, H, R, met)
+        P, flag = _joint_prior(Pi, Pj, fi, fj, met, H, R, CI_WEIGHTS)
+        if ref is None:
+            assert flag == -1
+        else:
+            np.testing.assert_allclose(P, ref[0], rtol=1e-12, atol=1e-15)
+            assert flag == int(ref[1])
+            if ref[1] and np.allclose(P[:3, 3:], fi @ fj.T):
+                seen["tracked"] += 1
+                continue
+        seen[flag] += 1
+    assert min(seen.values()) >= 5, seen
+
+
+def test_rdl_engine_refuses_what_it_does_not_run() -> None:
+    src = _source(3, 2.0, 3)
+    with pytest.raises(ValueError, match="backend='numba'"):
+        run_engine(src, "rdl")
+    with pytest.raises(ValueError, match="association"):
+        run_engine(src, "rdl", backend="numba", association="nearest")
