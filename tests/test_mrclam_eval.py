@@ -111,6 +111,32 @@ def test_cli_calibrate_yaw_scales_the_yaw_terms_as_the_recording_says(capsys, mr
     assert "--calibrate-yaw needs an MRCLAM recording" in capsys.readouterr().err
 
 
+def test_cli_engine_flag_runs_the_compiled_replays_with_the_nodes_results(capsys, mrclam6: Path):
+    """``--engine``: dekf, cekf and rdl through the engine's compiled replays score as the nodes do (same counts,
+    RMSE and ANEES to 1e-9), their rows say so; another estimator, an association policy or an event file is
+    refused with the reason (exit 2)."""
+    args = ["evaluate", "mrclam", str(mrclam6), "--estimators", "dekf,cekf,rdl", "--duration", "20", "--json",
+            "--quiet"]  # fmt: skip
+    assert main([*args, "--engine"]) == 0
+    eng = json.loads(capsys.readouterr().out)["estimators"]
+    assert main(args) == 0
+    nodes = json.loads(capsys.readouterr().out)["estimators"]
+    for name in ("dekf", "cekf", "rdl"):
+        e, n = eng[name], nodes[name]
+        assert e["driver"].startswith("engine") and "driver" not in n and e["compile_s"] >= 0
+        assert e["team"]["pos_rmse"] == pytest.approx(n["team"]["pos_rmse"], rel=1e-9)
+        assert e["team"]["anees"] == pytest.approx(n["team"]["anees"], rel=1e-9)
+        assert {k: e["stats"][k] for k in ("fused", "gated", "rejected", "unknown")} == {
+            k: n["stats"][k] for k in ("fused", "gated", "rejected", "unknown")}  # fmt: skip
+        assert e["stats"]["fused"] > 100
+    assert main([*args[:4], "dekf,ci", *args[5:], "--engine"]) == 2
+    assert "compiled replays run ['dekf', 'cekf', 'rdl'], not ['ci']" in capsys.readouterr().err
+    assert main([*args, "--engine", "--association", "nearest"]) == 2
+    assert "tagged detections only" in capsys.readouterr().err
+    assert main(["evaluate", "events", str(mrclam6 / "x.csv"), "--engine", "--quiet"]) == 2
+    assert "--engine needs an MRCLAM recording" in capsys.readouterr().err
+
+
 def test_cli_rejects_unknown_estimator(capsys, mrclam6: Path):
     rc = main(["evaluate", "mrclam", str(mrclam6), "--estimators", "dr,nope", "--duration", "5", "--quiet"])
     assert rc == 2

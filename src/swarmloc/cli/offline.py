@@ -111,9 +111,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             report = evaluate_mrclam(
                 args.path, estimators=names, landmarks=args.landmarks == "on", duration=args.duration,
                 out_dir=args.out, config=config, progress=progress, calibrate_yaw=args.calibrate_yaw,
+                engine=args.engine,
             )  # fmt: skip
-        elif args.calibrate_yaw:
-            print(f"{where}: --calibrate-yaw needs an MRCLAM recording (its landmark snapshots)", file=sys.stderr)
+        elif args.calibrate_yaw or args.engine:
+            flag = "--calibrate-yaw" if args.calibrate_yaw else "--engine"
+            print(f"{where}: {flag} needs an MRCLAM recording (evaluate mrclam)", file=sys.stderr)
             return 2
         elif args.what == "events":
             from swarmloc.experiments.own_robots import evaluate_event_file

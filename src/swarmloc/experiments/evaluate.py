@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.config import DEFAULTS, Config
+from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import write_tum, write_tum3
 from swarmloc.estimators import ESTIMATORS, make_team, node_options
 from swarmloc.evaluation.delayed import delayed_output
@@ -65,6 +66,7 @@ def evaluate_stream(
     progress: bool = False,
     span_origin: str = "",
     sensor: tuple[float | None, float | None] = (None, None),
+    engine: bool = False,
 ) -> tuple[dict, dict[str, RunResult]]:
     """Run ``estimators`` on ``events`` and score them; returns ``(report, results)``.
 
@@ -73,13 +75,17 @@ def evaluate_stream(
     message names the span, and ``span_origin`` where it comes from). Without ``truth`` the report has wall times,
     counters and trajectories but no accuracy (``"truth": false``). ``sensor``: the robot detector's ``(range [m],
     field of view [rad])`` where known, for the nodes' ``association_missed`` count
-    (:func:`~swarmloc.estimators.node_options`).
+    (:func:`~swarmloc.estimators.node_options`). ``engine``: run them through the engine's compiled replays
+    (:data:`ENGINE_DRIVEN`, :func:`engine_run`) instead of the in-process nodes: the same results, each row's wall
+    time the whole call after an untimed warm-up (``compile_s``).
     """
     unknown = [e for e in estimators if e not in ESTIMATORS]
     if unknown:
         raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
     record_times = config.record.times(t_start, t_end, len(initial), span_origin)
     policy = config.filter.association
+    if engine:
+        _check_engine(estimators, policy)
     for name in estimators:  # a policy an estimator cannot run is refused before anything runs
         make_team(name, initial, **node_options(name, config, landmarks, t_start, sensor))
     notes: dict[str, Any] = {}
@@ -102,9 +108,15 @@ def evaluate_stream(
         for name in estimators:
             nodes = make_team(name, initial, **node_options(name, config, landmarks, t_start, sensor))
             cb = start(name) if start is not None else None
-            res = run(nodes, events, record_times=record_times, truth=truth, progress=cb, name=name)
+            if engine:
+                src = Source(f"stream:{name}", list(events), dict(initial), landmarks, t_start, t_end, truth, config)
+                res, compile_s = engine_run(src, name, record_times)
+            else:
+                res = run(nodes, events, record_times=record_times, truth=truth, progress=cb, name=name)
             results[name] = res
             ev = evaluate(res) if truth is not None else {"estimator": name, "robots": {}, "team": None}
+            if engine:
+                ev.update(driver="engine (numba, compiled replay)", compile_s=compile_s)
             ev["wall_time_s"] = res.wall_time
             ev["x_real_time"] = duration / res.wall_time if res.wall_time > 0 else float("inf")
             ev["stats"] = res.stats
@@ -114,13 +126,50 @@ def evaluate_stream(
             ev["accounted"] = res.accounted()
             ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
             report["estimators"][name] = ev
-            if getattr(nodes[0], "lagged_log", None) is not None:  # a smoother's delayed output, its own row
+            smoother = not engine and getattr(nodes[0], "lagged_log", None) is not None
+            if smoother:  # a smoother's delayed output, its own row
                 late = delayed_output(nodes, truth, name, res.wall_time)
                 results[late.estimator] = late
                 report["estimators"][late.estimator] = delayed_row(late, ev, truth is not None, nodes[0].lag)
     n_rec = sum(tr.times.size for tr in next(iter(results.values())).tracks.values()) if results else 0
     report["anees_bounds_if_independent"] = anees_bounds(max(n_rec, 1))
     return report, results
+
+
+ENGINE_DRIVEN = ("dekf", "cekf", "rdl")
+"""Estimators :func:`evaluate_stream` can run through the engine's compiled replays (numba; ``swarmloc evaluate
+... --engine``)."""
+
+
+def _check_engine(estimators: Sequence[str], policy: str) -> None:
+    """Refuse, before anything runs, what the engine's compiled replays do not run."""
+    import importlib.util
+
+    other = [e for e in estimators if e not in ENGINE_DRIVEN]
+    if other:
+        raise ValueError(f"the engine's compiled replays run {list(ENGINE_DRIVEN)}, not {other}")
+    if policy != "tags":
+        raise ValueError(f"the engine fuses tagged detections only, not association {policy!r}: run the nodes")
+    if importlib.util.find_spec("numba") is None:
+        raise ValueError("the engine's compiled replays need numba: pip install 'swarmloc[numba]'")
+
+
+def engine_run(src: Source, name: str, record_times: np.ndarray) -> tuple[RunResult, float]:
+    """``name`` on ``src`` through :func:`swarmloc.engine.run_engine` (numba): the result, its ``wall_time`` the
+    whole call [s], and the seconds of an untimed warm-up on the first second of the events (numba compiles its
+    kernels there, once per process and noise model)."""
+    import dataclasses
+    import time
+
+    from swarmloc.engine import run_engine
+
+    t = time.perf_counter()
+    first = [e for e in src.events if e.stamp < src.t_start + 1.0]
+    run_engine(dataclasses.replace(src, events=first), name, backend="numba", record_times=record_times[:1])
+    compile_s = time.perf_counter() - t
+    t = time.perf_counter()
+    res = run_engine(src, name, backend="numba", record_times=record_times)
+    return dataclasses.replace(res, estimator=name, wall_time=time.perf_counter() - t), compile_s
 
 
 def delayed_row(late: RunResult, causal: dict, scored: bool, lag: float) -> dict:

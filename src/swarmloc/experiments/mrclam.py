@@ -293,6 +293,7 @@ def evaluate_mrclam(
     config: Config = DEFAULTS,
     progress: bool = False,
     calibrate_yaw: bool = False,
+    engine: bool = False,
 ) -> dict:
     """Run ``estimators`` on the MRCLAM dataset at ``path`` and return (and write) per-robot and team metrics.
 
@@ -300,7 +301,8 @@ def evaluate_mrclam(
     is replayed for speed and robustness only: wall time and trajectories are reported, accuracy and consistency
     are not (``"truth": false`` in the report). ``calibrate_yaw``: the yaw diffusion is scaled as the recording's
     own landmark snapshots say (:func:`yaw_calibrated`, on the whole recording as the camera model is; no ground
-    truth; ``"yaw_calibration"`` in the report).
+    truth; ``"yaw_calibration"`` in the report). ``engine``: through the engine's compiled replays
+    (:func:`swarmloc.experiments.evaluate.evaluate_stream`).
     """
     t_load = time.perf_counter()
     data = load_mrclam(path)
@@ -321,6 +323,7 @@ def evaluate_mrclam(
         config=config,
         progress=progress,
         sensor=detector_reach(data),
+        engine=engine,
     )
     report = {
         "title": f"{data.name}, landmarks {'on' if landmarks else 'off'}",
