@@ -32,6 +32,7 @@ import time
 from collections import Counter, defaultdict
 from collections.abc import Callable, Sequence
 from functools import partial
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -79,6 +80,8 @@ Commands = dict[float, dict[int, tuple[Any, Any]]]
 ``(0.0, 0.0)``)."""
 Row = tuple[float, np.ndarray, np.ndarray, np.ndarray]
 """One record of a robot: ``(t, (x, y, theta), covariance, truth)``."""
+_T0_T1_V_W = attrgetter("t0", "t1", "v", "w")
+"""An odometry record's ``(t0, t1, v, w)``."""
 
 
 def run_engine(
@@ -330,7 +333,7 @@ class _Checked:
         if self.timeline.last(row) is not None:
             return False
         try:  # plain numbers (float, int, bool, numpy's) give a float or int array; strings, None, tuples do not
-            a = np.array([(e.t0, e.t1, e.v, e.w) for e in mine])
+            a = np.array(list(map(_T0_T1_V_W, mine)))
         except ValueError:
             return False
         if a.ndim != 2 or a.dtype.kind not in "fiub":
@@ -555,22 +558,19 @@ def _replay_compiled(
 def _detections(groups: Sequence[tuple[int, dict[tuple, tuple[Detection, int]]]], width: int = 3) -> Detections:
     """Checked detection groups ``(observer row, group)`` as arrays, in that order (robots as rows), ``z``
     ``width`` wide (6: an SE(3) team's)."""
-    obs, tgt, kind, zs, Rs = [], [], [], [], []
-    for o, group in groups:
-        for d, code in group.values():
-            m = len(d.z)
-            if m > width:  # a 3-D detection in a planar team: no planar filter takes it
-                raise ValueError(f"run_engine: a {d.kind!r} detection in an SE(2) team; run the nodes")
-            z = np.zeros(width)
-            z[:m] = d.z
-            R = np.zeros((width, width))
-            R[:m, :m] = d.cov
-            obs.append(o)
-            tgt.append(code)
-            kind.append(KIND_ORDER[d.kind] if d.kind in KIND_ORDER else KIND_ORDER3[d.kind])
-            zs.append(z)
-            Rs.append(R)
+    items = [(o, d, code) for o, group in groups for d, code in group.values()]
+    z, R = np.zeros((len(items), width)), np.zeros((len(items), width, width))
+    sizes: dict[int, list[int]] = defaultdict(list)  # the rows of each size of z, filled in one call each
+    for k, (_, d, _) in enumerate(items):
+        m = len(d.z)
+        if m > width:  # a 3-D detection in a planar team: no planar filter takes it
+            raise ValueError(f"run_engine: a {d.kind!r} detection in an SE(2) team; run the nodes")
+        sizes[m].append(k)
+    for m, rows in sizes.items():
+        z[rows, :m] = np.array([items[k][1].z for k in rows], dtype=float).reshape(-1, m)
+        R[rows, :m, :m] = np.array([items[k][1].cov for k in rows], dtype=float).reshape(-1, m, m)
+    kind = [KIND_ORDER[d.kind] if d.kind in KIND_ORDER else KIND_ORDER3[d.kind] for _, d, _ in items]
     return Detections(
-        np.array(obs, dtype=np.int64), np.array(tgt, dtype=np.int64), np.array(kind, dtype=np.int64),
-        np.array(zs).reshape(-1, width), np.array(Rs).reshape(-1, width, width),
+        np.array([o for o, _, _ in items], dtype=np.int64), np.array([c for _, _, c in items], dtype=np.int64),
+        np.array(kind, dtype=np.int64), z, R,
     )  # fmt: skip
