@@ -290,7 +290,7 @@ def _loop(predicted: Any, advance: Any) -> Any:
 @njit(error_model="numpy")
 def _private(st: Any, i: int, kind: int, j: int, zq: np.ndarray, Rq: np.ndarray, lxy: np.ndarray, lcov: np.ndarray,
              thr: np.ndarray, gate: bool) -> tuple[int, int]:  # fmt: skip
-    """An absolute fix or a map landmarks detection by robot ``i``: a private update, its factors rescaled."""
+    """An absolute fix or a map landmark's detection by robot ``i``: a private update, its factors rescaled."""
     x, P, tc, v, w, sa, sb, met, sig = st
     X = x[i].copy()
     lm = NO_LANDMARK - 1 - j
