@@ -6,12 +6,10 @@ intersection) equals the node's on every branch."""
 
 from __future__ import annotations
 
-from collections import Counter
-
 import numpy as np
 import pytest
-from test_engine import _assert_same, _source
-from test_engine_cekf import _with
+from test_engine import _source
+from test_engine_cekf import _same, _same_on_mrclam, _with
 
 from swarmloc.engine import run_engine
 from swarmloc.engine.pairs import _joint_prior
@@ -25,16 +23,6 @@ from swarmloc.runner import RunResult, run
 def _nodes(src, **options) -> RunResult:
     opts = {**node_options("rdl", src.config, src.landmarks), **options}
     return run(make_team("rdl", src.initial, **opts), src.events, record_times=src.record_times(), truth=src.truth)
-
-
-def _reasons(res: RunResult) -> Counter[str]:
-    """The detections' reasons (the nodes also count refused messages: revisions under late input), zeros dropped."""
-    return +Counter({k: v for k, v in res.reasons.items() if not k.startswith("message")})
-
-
-def _same(ref: RunResult, eng: RunResult) -> None:
-    _assert_same(ref, eng)
-    assert _reasons(ref) == _reasons(eng)
 
 
 def test_rdl_engine_equals_the_nodes_on_robots_of_every_kind() -> None:
@@ -82,14 +70,7 @@ def test_rdl_engine_equals_the_nodes_on_mrclam6(mrclam6, use_landmarks) -> None:
     src = load_source(f"mrclam:{mrclam6}", duration=120.0)
     ref = _nodes(src, use_landmarks=use_landmarks)
     eng = run_engine(src, "rdl", backend="numba", use_landmarks=use_landmarks)
-    for r, a in ref.tracks.items():
-        b = eng.tracks[r]
-        np.testing.assert_array_equal(a.times, b.times)
-        np.testing.assert_allclose(b.mean, a.mean, rtol=1e-9, atol=1e-11)
-        np.testing.assert_allclose(b.cov, a.cov, rtol=1e-9, atol=1e-13)
-    counts = ("detections", "fused", "gated", "rejected", "unknown", "odometry", "odometry_used", "recorded")
-    assert {k: ref.stats[k] for k in counts} == {k: eng.stats[k] for k in counts}
-    assert _reasons(ref) == _reasons(eng)
+    _same_on_mrclam(ref, eng)
     assert eng.stats["fused"] > (2000 if use_landmarks else 300)
 
 

@@ -251,11 +251,18 @@ def _screen(kind: int, i: int, j: int, relative: bool, lm_on: bool) -> tuple[int
 
 
 @cache
-def _kernels(noise: UnicycleNoise) -> Any:
-    """Compile the replay loop with the noise model's prediction (once per process and noise model)."""
+def predict_kernel(noise: UnicycleNoise) -> Any:
+    """The engine's scalar prediction for ``noise`` (:func:`swarmloc.engine.scalar.predict_source`) compiled:
+    ``predict(x0, x1, x2, p00, p01, p02, p11, p12, p22, v, w, dt) -> (x (3), P upper triangle (6))``."""
     ns: dict[str, Any] = {"math": math, "np": np}
     exec(predict_source(noise), ns)  # noqa: S102 - our own generated code
-    predict = njit(error_model="numpy")(ns["predict"])
+    return njit(error_model="numpy")(ns["predict"])
+
+
+@cache
+def _kernels(noise: UnicycleNoise) -> Any:
+    """Compile the replay loop with the noise model's prediction (once per process and noise model)."""
+    predict = predict_kernel(noise)
 
     @njit(error_model="numpy")
     def advance(X, pend, has, tc, v, w, k, t):  # noqa: ANN001, ANN202

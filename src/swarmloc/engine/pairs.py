@@ -52,8 +52,7 @@ from swarmloc.engine.codes import (
     UNKNOWN_ROBOT,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import RANGE_BEARING, inverse, measure, usable, wrap
-from swarmloc.engine.scalar import predict_source
+from swarmloc.engine.joint import RANGE_BEARING, inverse, measure, predict_kernel, usable, wrap
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
@@ -188,9 +187,7 @@ def _screen(kind: int, i: int, j: int, t: float, t0: np.ndarray, relative: bool,
 @cache
 def _kernels(noise: UnicycleNoise) -> Any:
     """Compile the replay loop with the noise model's prediction (once per process and noise model)."""
-    ns: dict[str, Any] = {"math": math, "np": np}
-    exec(predict_source(noise), ns)  # noqa: S102 - our own generated code
-    predict = njit(error_model="numpy")(ns["predict"])
+    predict = predict_kernel(noise)
 
     @njit(error_model="numpy")
     def predicted(x, P, tc, v, w, k, t):  # noqa: ANN001, ANN202

@@ -114,15 +114,10 @@ def run_engine(
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
     if estimator in _COMPILED_ONLY:
         return _run_compiled(src, estimator, backend, record_times, opts)
-    robots = src.robots
-    col = {r: i for i, r in enumerate(robots)}
-    initial = [src.initial[r] for r in robots]
-    checked = _Checked(col, partial(map_code, landmark_table(opts.get("landmarks"))[0]))
-    checked.add_all(src.events)
+    initial = [src.initial[r] for r in src.robots]
+    checked, rt = _check(src, opts, record_times)
     eng = Engine(estimator, np.stack([b.mean for b in initial]), np.stack([b.cov for b in initial]),
                  t0=checked.start_times(), backend=backend, fast=fast, **opts)  # fmt: skip
-    rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
-    checked.stops(max([checked.last_command(), *checked.groups, *rt.tolist()], default=-math.inf))
     rows, truth_missing, wall = _replay(eng, src, checked, rt)
 
     reasons = Counter(checked.reasons)
@@ -178,18 +173,12 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
     from swarmloc.engine.joint import replay_joint  # numba
     from swarmloc.engine.pairs import replay_rdl
 
-    col = {r: i for i, r in enumerate(src.robots)}
-    lm_rows, lm = landmark_table(opts.get("landmarks"))
-    checked = _Checked(col, partial(map_code, lm_rows))
-    checked.add_all(src.events)
+    checked, rt = _check(src, opts, record_times)
     starts = checked.start_times()
     t0 = float(starts.min(initial=math.inf))  # the centralized node starts at the team's first input
-    rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
-    checked.stops(max([checked.last_command(), *checked.groups, *rt.tolist()], default=-math.inf))
-    records: dict[float, list[int]] = defaultdict(list)
-    for k, t in enumerate(rt.tolist()):
-        records[t].append(k)
+    records = _record_index(rt)
     tl = _timeline(checked, records)
+    lm = landmark_table(opts.get("landmarks"))[1]
     x, P = C.from_group(np.stack([src.initial[r].mean for r in src.robots]),
                         np.stack([src.initial[r].cov for r in src.robots]))  # fmt: skip
     use_relative, use_landmarks = bool(opts.get("use_relative", True)), bool(opts.get("use_landmarks", True))
@@ -210,14 +199,42 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
         tally(counts, reasons, status, reason)
         _name_unknown(reasons, checked, use_relative, starts)
     truth_rows = {r: truth_table(src.truth, r, rt) for r in src.robots}
-    mean, cov = C.to_group(o_x, o_P)
+    rows, truth_missing = _file_all(src, tl, records, truth_rows, o_robot, o_stamp, o_x, o_P)
+    return _result(f"{estimator}/engine", src, rows, checked, counts, reasons, wall, truth_missing)
+
+
+def _check(src: Source, opts: dict[str, Any], record_times: Any) -> tuple[_Checked, np.ndarray]:
+    """``src``'s events checked as the nodes check them (robots as rows, landmarks by the map of ``opts``), with
+    the stops the replay to the last input or record time implies; and the record times (default the source's)."""
+    col = {r: i for i, r in enumerate(src.robots)}
+    checked = _Checked(col, partial(map_code, landmark_table(opts.get("landmarks"))[0]))
+    checked.add_all(src.events)
+    rt = src.record_times() if record_times is None else np.asarray(record_times, dtype=float)
+    checked.stops(max([checked.last_command(), *checked.groups, *rt.tolist()], default=-math.inf))
+    return checked, rt
+
+
+def _record_index(rt: np.ndarray) -> dict[float, list[int]]:
+    """Record time -> the indices of ``rt`` at that time."""
+    records: dict[float, list[int]] = defaultdict(list)
+    for k, t in enumerate(rt.tolist()):
+        records[t].append(k)
+    return records
+
+
+def _file_all(src: Source, tl: Timeline, records: dict[float, list[int]], truth_rows: dict, robot: np.ndarray,
+              stamp: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[dict[Any, list[Row]], int]:  # fmt: skip
+    """A compiled replay's records (robot rows, stamp indices of ``tl``, Cartesian ``x (K, 3)``, ``P (K, 3, 3)``)
+    filed by robot as beliefs on the group (:func:`_file`); returns them and the records left out for missing
+    truth."""
+    mean, cov = C.to_group(x, P)
     xyt = SE2.to_xytheta(mean)
     rows: dict[Any, list[Row]] = {r: [] for r in src.robots}
     truth_missing = 0
-    for j, (i, s) in enumerate(zip(o_robot.tolist(), o_stamp.tolist(), strict=True)):
+    for j, (i, s) in enumerate(zip(robot.tolist(), stamp.tolist(), strict=True)):
         t = float(tl.stamps[s])
         truth_missing += _file(rows, src, truth_rows, src.robots[i], t, records[t], xyt[j], cov[j])
-    return _result(f"{estimator}/engine", src, rows, checked, counts, reasons, wall, truth_missing)
+    return rows, truth_missing
 
 
 def _joint_reasons(checked: _Checked, t0: float, use_relative: bool, use_landmarks: bool) -> Counter[str]:
@@ -454,9 +471,7 @@ def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tupl
     wall time [s] of the loop over stamps."""
     robots = src.robots
     truth_rows = {r: truth_table(src.truth, r, rt) for r in robots}
-    records: dict[float, list[int]] = defaultdict(list)
-    for k, t in enumerate(rt.tolist()):
-        records[t].append(k)
+    records = _record_index(rt)
     se3 = eng.group is SE3
     most = max([eng.n, *(sum(map(len, g.values())) for g in checked.groups.values())])  # rows of a stamp, at most
     if not se3 and eng.compiled_replay(most):
@@ -545,14 +560,7 @@ def _replay_compiled(
             out[4][0] = n1
         s += 1
     n = int(out[4][0])
-    mean, cov = C.to_group(out[2][:n], out[3][:n])
-    xyt = SE2.to_xytheta(mean)
-    rows: dict[Any, list[Row]] = {r: [] for r in src.robots}
-    truth_missing = 0
-    for j, (i, s) in enumerate(zip(out[0][:n].tolist(), out[1][:n].tolist(), strict=True)):
-        t = float(tl.stamps[s])
-        truth_missing += _file(rows, src, truth_rows, src.robots[i], t, records[t], xyt[j], cov[j])
-    return rows, truth_missing
+    return _file_all(src, tl, records, truth_rows, out[0][:n], out[1][:n], out[2][:n], out[3][:n])
 
 
 def _detections(groups: Sequence[tuple[int, dict[tuple, tuple[Detection, int]]]], width: int = 3) -> Detections:
