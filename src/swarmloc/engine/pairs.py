@@ -202,12 +202,19 @@ def _kernels(noise: UnicycleNoise) -> Any:
 
     @njit(error_model="numpy")
     def advance(st, k, t):  # noqa: ANN001, ANN202
+        """Robot ``k`` predicted to ``t`` in place (as :func:`predicted`, no arrays made: once per command)."""
         x, P, tc, v, w, sa, sb, met, sig = st
-        xk, Pk, dx, dy = predicted(x, P, tc, v, w, k, t)
-        if t > tc[k]:
-            x[k], P[k], tc[k] = xk, Pk, t
-            sa[k] -= dy
-            sb[k] += dx
+        dt = t - tc[k]
+        if not dt > 0:
+            return
+        xk, Pk = x[k], P[k]
+        r = predict(xk[0], xk[1], xk[2], Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2], v[k], w[k], dt)
+        sa[k] -= r[1] - xk[1]
+        sb[k] += r[0] - xk[0]
+        xk[0], xk[1], xk[2] = r[0], r[1], r[2]
+        Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2] = r[3], r[4], r[5], r[6], r[7], r[8]
+        Pk[1, 0], Pk[2, 0], Pk[2, 1] = r[4], r[5], r[7]
+        tc[k] = t
 
     return _loop(predicted, advance)
 

@@ -60,7 +60,7 @@ from swarmloc.events import Detection, Odometry
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, SE3
 from swarmloc.node import detection_key, odometry_problem, validate_detection
-from swarmloc.node.inputs import CONTIGUOUS, OdometryTimeline, command_value
+from swarmloc.node.inputs import CONTIGUOUS, OdometryTimeline, brief, clearly_valid, command_value, finite_number
 from swarmloc.runner import RobotTrack, RunResult, truth_table
 from swarmloc.sensors.models import KIND_ORDER
 from swarmloc.sensors.models3 import KIND_ORDER3
@@ -70,7 +70,7 @@ from swarmloc.sim.source import sim_source
 
 def _stamp(e: Any) -> float | None:
     s = e.stamp
-    return float(s) if isinstance(s, int | float | np.floating) and math.isfinite(s) else None
+    return float(s) if finite_number(s) else None
 
 
 Groups = dict[float, dict[int, dict[tuple, tuple[Detection, int]]]]
@@ -80,8 +80,8 @@ Commands = dict[float, dict[int, tuple[Any, Any]]]
 ``(0.0, 0.0)``)."""
 Row = tuple[float, np.ndarray, np.ndarray, np.ndarray]
 """One record of a robot: ``(t, (x, y, theta), covariance, truth)``."""
-_T0_T1_V_W = attrgetter("t0", "t1", "v", "w")
-"""An odometry record's ``(t0, t1, v, w)``."""
+_T0_T1_V_W = tuple(map(attrgetter, ("t0", "t1", "v", "w")))
+"""An odometry record's ``t0``, ``t1``, ``v`` and ``w``, one getter each."""
 
 
 def run_engine(
@@ -198,7 +198,7 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
     else:
         tally(counts, reasons, status, reason)
         _name_unknown(reasons, checked, use_relative, starts)
-    truth_rows = {r: truth_table(src.truth, r, rt) for r in src.robots}
+    truth_rows = _truth_rows(src, rt)
     rows, truth_missing = _file_all(src, tl, records, truth_rows, o_robot, o_stamp, o_x, o_P)
     return _result(f"{estimator}/engine", src, rows, checked, counts, reasons, wall, truth_missing)
 
@@ -233,7 +233,7 @@ def _file_all(src: Source, tl: Timeline, records: dict[float, list[int]], truth_
     truth_missing = 0
     for j, (i, s) in enumerate(zip(robot.tolist(), stamp.tolist(), strict=True)):
         t = float(tl.stamps[s])
-        truth_missing += _file(rows, src, truth_rows, src.robots[i], t, records[t], xyt[j], cov[j])
+        truth_missing += _file(rows, truth_rows, src.robots[i], t, records[t], xyt[j], cov[j])
     return rows, truth_missing
 
 
@@ -318,21 +318,24 @@ class _Checked:
         checks could not refuse one) is checked as arrays and filed in bulk (:attr:`bulk`); another robot's, one
         record at a time."""
         odometry: dict[Any, list[Odometry]] = defaultdict(list)
+        detections: list[Detection] = []
         for e in events:
             if isinstance(e, Odometry):
                 odometry[e.robot].append(e)
             elif isinstance(e, Detection):
-                self._first(e.observer, e)
-                self._detection(e)
+                detections.append(e)
+        for e, sure in zip(detections, clearly_valid(detections).tolist(), strict=True):
+            self._first(e.observer, float(e.t) if sure else _stamp(e))
+            self._detection(e, sure)
         for robot, mine in odometry.items():
             row = self.col.get(robot)
             if row is None or not self._bulk(row, mine):
                 for e in mine:
-                    self._first(robot, e)
+                    self._first(robot, _stamp(e))
                     self._odometry(e)
 
-    def _first(self, robot: Any, e: Any) -> None:
-        s = _stamp(e)
+    def _first(self, robot: Any, s: float | None) -> None:
+        """Robot ``robot``'s first stamp so far, with an input at ``s`` [s] (None: not a finite number)."""
         if s is not None and robot in self.col:
             self.first[robot] = min(self.first.get(robot, math.inf), s)
 
@@ -349,13 +352,16 @@ class _Checked:
         record of it; False (nothing filed) otherwise."""
         if self.timeline.last(row) is not None:
             return False
-        try:  # plain numbers (float, int, bool, numpy's) give a float or int array; strings, None, tuples do not
-            a = np.array(list(map(_T0_T1_V_W, mine)))
-        except ValueError:
-            return False
-        if a.ndim != 2 or a.dtype.kind not in "fiub":
-            return False
-        t0, t1, v, w = a.astype(float).T
+        columns = []
+        for field in _T0_T1_V_W:  # plain numbers (float, int, bool, numpy's) give a float or int array; strings,
+            try:  # None, tuples do not
+                a = np.array(list(map(field, mine)))
+            except (ValueError, TypeError, OverflowError):
+                return False
+            if a.shape != (len(mine),) or a.dtype.kind not in "fiub":
+                return False
+            columns.append(a.astype(float))
+        t0, t1, v, w = columns
         if not (np.isfinite(t0).all() and np.isfinite(t1).all() and np.isfinite(v).all() and np.isfinite(w).all()):
             return False
         # the sequential overlap check against the interval filed just before (intervals in order, t0 increasing)
@@ -442,13 +448,14 @@ class _Checked:
                     self.odo[t1][row] = (0.0, 0.0)
                     self.counts["odometry_stops"] += 1
 
-    def _detection(self, e: Detection) -> None:
+    def _detection(self, e: Detection, sure: bool = False) -> None:
+        """File ``e`` (``sure``: :func:`~swarmloc.node.inputs.clearly_valid` found it well formed)."""
         self.counts["detections"] += 1
         if e.observer not in self.col:
             self.counts["unknown_robot"] += 1
-            self.reject("unknown", f"observer {e.observer!r} is not in the team")
+            self.reject("unknown", f"observer {brief(e.observer)} is not in the team")
             return
-        why = validate_detection(e)
+        why = None if sure else validate_detection(e)
         if why is not None:
             self.reject("rejected", why)
             return
@@ -470,7 +477,7 @@ def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tupl
     after every input stamped at or before them; returns each robot's records, the records without truth and the
     wall time [s] of the loop over stamps."""
     robots = src.robots
-    truth_rows = {r: truth_table(src.truth, r, rt) for r in robots}
+    truth_rows = _truth_rows(src, rt)
     records = _record_index(rt)
     se3 = eng.group is SE3
     most = max([eng.n, *(sum(map(len, g.values())) for g in checked.groups.values())])  # rows of a stamp, at most
@@ -502,37 +509,50 @@ def _replay(eng: Engine, src: Source, checked: _Checked, rt: np.ndarray) -> tupl
         mean, cov = eng.belief(t, live)
         xyt = pose7(mean) if se3 else SE2.to_xytheta(mean)
         for j, i in enumerate(live.tolist()):
-            truth_missing += _file(rows, src, truth_rows, robots[i], t, records[t], xyt[j], cov[j])
+            truth_missing += _file(rows, truth_rows, robots[i], t, records[t], xyt[j], cov[j])
     return rows, truth_missing, time.perf_counter() - wall
 
 
-def _file(rows: dict[Any, list[Row]], src: Source, truth_rows: dict, r: Any, t: float, keys: list[int],
-          xyt: np.ndarray, cov: np.ndarray) -> int:  # fmt: skip
-    """File robot ``r``'s belief at ``t`` once per record index in ``keys`` with its truth row; returns the records
-    left out because the source's truth is missing there."""
+def _truth_rows(src: Source, rt: np.ndarray) -> dict[Any, tuple[np.ndarray, list[bool]]]:
+    """Robot -> its truth at every record time ``rt`` and whether a record there is kept (its truth is finite, or
+    the source has no truth: NaN rows)."""
+    out = {}
+    for r in src.robots:
+        table = truth_table(src.truth, r, rt)
+        keep = np.isfinite(table).all(axis=1) if src.truth is not None else np.ones(rt.shape[0], dtype=bool)
+        out[r] = (table, keep.tolist())
+    return out
+
+
+def _file(rows: dict[Any, list[Row]], truth_rows: dict, r: Any, t: float, keys: list[int], xyt: np.ndarray,
+          cov: np.ndarray) -> int:  # fmt: skip
+    """File robot ``r``'s belief at ``t`` once per record index in ``keys`` with its truth row (:func:`_truth_rows`);
+    returns the records left out because the source's truth is missing there."""
+    table, keep = truth_rows[r]
     missing = 0
     for k in keys:
-        tr = truth_rows[r][k]
-        if src.truth is not None and not np.isfinite(tr).all():
+        if not keep[k]:
             missing += 1
             continue
-        rows[r].append((t, xyt, cov, tr))
+        rows[r].append((t, xyt, cov, table[k]))
     return missing
 
 
 def _timeline(checked: _Checked, records: dict[float, list[int]]) -> Timeline:
     """Every stamp's checked detections and commands as one :class:`Timeline` (planar team)."""
     t_cmd, c_row, c_v, c_w = checked.commands()
-    t_det = [t for t, by_observer in checked.groups.items() for group in by_observer.values() for _ in group]
+    t_det = np.array([t for t, by_obs in checked.groups.items() for group in by_obs.values() for _ in group], float)
     det = _detections([g for by_observer in checked.groups.values() for g in by_observer.items()])
     t_rec = np.array(list(records), dtype=float)
-    stamps = np.unique(np.concatenate([t_cmd, np.array(t_det, dtype=float), t_rec]))
+    stamps = np.unique(np.concatenate([t_cmd, t_det, t_rec]))
     at_det = np.searchsorted(stamps, t_det)
     at_cmd = np.searchsorted(stamps, t_cmd)
     order = np.argsort(at_cmd, kind="stable")
     bounds = np.arange(stamps.size + 1)
     d0, c0 = np.searchsorted(np.sort(at_det), bounds), np.searchsorted(at_cmd[order], bounds)
-    return Timeline(stamps, det.canonical(at_det), d0, c0, c_row[order], c_v[order], c_w[order], np.isin(stamps, t_rec))
+    record = np.zeros(stamps.size, dtype=bool)
+    record[np.searchsorted(stamps, t_rec)] = True  # every record time is a stamp
+    return Timeline(stamps, det.canonical(at_det), d0, c0, c_row[order], c_v[order], c_w[order], record)
 
 
 def _replay_compiled(

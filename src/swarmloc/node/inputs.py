@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import math
 from bisect import bisect_left
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,6 +38,9 @@ __all__ = [
     "Intake",
     "Landmarks",
     "OdometryTimeline",
+    "brief",
+    "clearly_valid",
+    "finite_number",
     "landmark_state",
     "odometry_problem",
     "validate_detection",
@@ -66,11 +69,28 @@ def _clearly_valid(cov: np.ndarray) -> bool:
     a, b, c, d = cov.ravel().tolist()
     if not (b == c and math.isfinite(a) and math.isfinite(b) and math.isfinite(d) and a > 0 and d > 0):
         return False
-    return a * d - b * b > 1e-9 * (a + d) ** 2
+    return a * d - b * b > 1e-9 * (a + d) * (a + d)  # not ** 2: a Python float's power raises on overflow
+
+
+_NUMBER = frozenset({float, np.float64})  # not int: one too large for a float is checked one by one
+_INTEGER = frozenset({int, np.int64})
+_ID = 2**63  # ids are integers of 64 bits (:func:`_integer`)
+
+
+def finite_number(x: object) -> bool:
+    """True when ``x`` is a plain real number (int, float, numpy's floating) and finite (an int too large for a
+    float is not: ``math.isfinite`` would raise on it)."""
+    if not isinstance(x, int | float | np.floating):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
 
 
 def _integer(x: object) -> bool:
-    return isinstance(x, int | np.integer) and not isinstance(x, bool)
+    """An id: an int (not a bool) of 64 bits (as messages carry ids)."""
+    return isinstance(x, int | np.integer) and not isinstance(x, bool) and -_ID <= x < _ID
 
 
 def validate_detection(d: Detection) -> str | None:
@@ -82,14 +102,14 @@ def validate_detection(d: Detection) -> str | None:
         return f"z or cov is not numeric: {exc}"
     model = (MODELS.get(d.kind) or MODELS3.get(d.kind)) if isinstance(d.kind, str) else None
     if model is None:
-        return f"unknown measurement kind {d.kind!r}"
+        return f"unknown measurement kind {brief(d.kind)}"
     want = model.size
     if z.shape != (want,):
-        return f"z has shape {z.shape}, expected ({want},) for kind {d.kind!r}"
+        return f"z has shape {z.shape}, expected ({want},) for kind {brief(d.kind)}"
     if not np.isfinite(z).all():
         return "z contains NaN or inf"
-    if not (isinstance(d.t, int | float | np.floating) and math.isfinite(d.t)):
-        return f"time stamp {d.t!r} is not a finite number"
+    if not finite_number(d.t):
+        return f"time stamp {brief(d.t)} is not a finite number"
     seen = (want, cov.tobytes()) if cov.shape == (want, want) else None
     if seen is None or not (_clearly_valid(cov) or seen in _VALID_COVS):
         try:
@@ -104,10 +124,61 @@ def validate_detection(d: Detection) -> str | None:
     if why is not None:
         return why
     if d.target is not None and not _integer(d.target):
-        return f"target id must be an integer, got {d.target!r}"
+        return f"target id must be an integer of 64 bits, got {brief(d.target)}"
     if not _integer(d.observer):
-        return f"observer id must be an integer, got {d.observer!r}"
+        return f"observer id must be an integer of 64 bits, got {brief(d.observer)}"
     return None
+
+
+def clearly_valid(ds: Sequence[Detection]) -> np.ndarray:
+    """``(len(ds),)`` bool: True where :func:`validate_detection` certainly finds detection ``ds[k]`` well formed,
+    decided on arrays per kind: a planar kind, ``z`` and ``cov`` numeric numpy arrays of the kind's sizes, finite,
+    a positive range, a float or int stamp, finite, int ids, the covariance checked as :func:`_clearly_valid`
+    checks it. False means "not sure": call :func:`validate_detection`, which says why. For checking many
+    detections at once (a replay's): one odd detection leaves the others' screen as it is."""
+    ok = np.zeros(len(ds), dtype=bool)
+    by_kind: dict[str, list[int]] = {}
+    for k, d in enumerate(ds):
+        model = MODELS.get(d.kind) if type(d.kind) is str else None
+        if model is None:
+            continue
+        m, z, cov = model.size, d.z, d.cov
+        if (type(z) is np.ndarray and type(cov) is np.ndarray and z.shape == (m,) and cov.shape == (m, m)
+                and z.dtype.kind in "fi" and cov.dtype.kind in "fi" and type(d.t) in _NUMBER
+                and type(d.observer) in _INTEGER and -_ID <= d.observer < _ID
+                and (d.target is None or (type(d.target) in _INTEGER and -_ID <= d.target < _ID))):  # fmt: skip
+            by_kind.setdefault(d.kind, []).append(k)
+    for kind, rows in by_kind.items():
+        z = np.array([ds[k].z for k in rows], dtype=float)
+        cov = np.array([ds[k].cov for k in rows], dtype=float)
+        t = np.array([ds[k].t for k in rows], dtype=float)
+        good = np.isfinite(z).all(axis=1) & np.isfinite(t) & _clearly_valid_batch(cov)
+        if kind in ("range_bearing", "range"):
+            good &= z[:, 0] > 0
+        ok[rows] = good
+    return ok
+
+
+def _clearly_valid_batch(cov: np.ndarray) -> np.ndarray:
+    """:func:`_clearly_valid` over ``cov (k, m, m)`` (``m`` 1 or 2; False for other sizes)."""
+    if cov.shape[1:] == (1, 1):
+        a = cov[:, 0, 0]
+        return np.isfinite(a) & (a > 0)
+    if cov.shape[1:] != (2, 2):
+        return np.zeros(cov.shape[0], dtype=bool)
+    a, b, c, d = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 0], cov[:, 1, 1]
+    finite = np.isfinite(a) & np.isfinite(b) & np.isfinite(d)
+    with np.errstate(invalid="ignore", over="ignore"):
+        return finite & (b == c) & (a > 0) & (d > 0) & (a * d - b * b > 1e-9 * (a + d) * (a + d))
+
+
+def brief(x: object) -> str:
+    """``repr(x)`` for a message, at most 40 characters (an int of 5000 digits has no repr at all)."""
+    try:
+        text = repr(x)
+    except ValueError:
+        return f"<{type(x).__name__} too large to show>"
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _components(x: object) -> tuple:
@@ -128,7 +199,7 @@ def odometry_problem(e: Odometry) -> str | None:
     """Why an odometry record is malformed (non-numeric or non-finite numbers, ``t1 < t0``), or None."""
     try:
         finite = all(math.isfinite(x) for x in (e.t0, e.t1, *_components(e.v), *_components(e.w)))
-    except TypeError:
+    except (TypeError, OverflowError):  # not a number; an int too large for a float
         finite = False
     if not finite:
         return "non-finite or non-numeric time or speed"
@@ -342,7 +413,7 @@ class Intake:
             return []
         self.counts["odometry"] += 1
         if e.robot not in self.robots:
-            self.accounting.odometry_rejected(f"robot {e.robot!r} is not a robot of this node")
+            self.accounting.odometry_rejected(f"robot {brief(e.robot)} is not a robot of this node")
             return []
         why = odometry_problem(e)
         if why:
@@ -384,7 +455,7 @@ class Intake:
             self.counts["detections"] += 1
             why = validate_detection(d)
             if why is None and d.observer not in self.robots:
-                why = f"observer {d.observer!r} is not a robot of this node"
+                why = f"observer {brief(d.observer)} is not a robot of this node"
             if why is not None:
                 self.accounting.detection_rejected(d.observer, d.t, why)
                 continue

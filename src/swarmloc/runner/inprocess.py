@@ -31,6 +31,7 @@ from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.lie import SE2
 from swarmloc.messages import BeliefQuery, Message, RdlStateQuery
 from swarmloc.node import Node
+from swarmloc.node.inputs import brief, finite_number
 from swarmloc.node.protocol import not_found
 from swarmloc.runner.result import RobotTrack, RunResult
 
@@ -134,7 +135,7 @@ class _Driver:
             r = e.robot if isinstance(e, Odometry | Truth) else e.observer if isinstance(e, Detection) else None
             n = self.owner.get(r)
             s = e.stamp if n is not None else math.nan
-            if n is not None and isinstance(s, int | float) and math.isfinite(s) and s < first.get(id(n), math.inf):
+            if n is not None and finite_number(s) and s < first.get(id(n), math.inf):
                 first[id(n)] = s
         for n in self.team:
             if not n.started and id(n) in first:
@@ -150,17 +151,20 @@ class _Driver:
                 self.rec.add(self.owner[r], t, r, row)
 
     def resolve(self, node: Node, stamp: float) -> None:
-        """Record the beliefs this input can no longer change (a horizon before the node's present or ``stamp``)."""
+        """Record the beliefs no input can change once this one, stamped ``stamp``, is taken: up to a horizon before
+        the node's present or ``stamp``, but never past a horizon before ``present + tolerance`` (a node refuses an
+        input stamped later: one stamped 1e12 s or inf would otherwise record every belief before the inputs that
+        follow it)."""
         h = self.rec.heap.get(id(node))
         if h:
-            upto = max(node.present, stamp) - node.horizon
+            upto = _final(node.present, stamp, node.tolerance, node.horizon)
             if h[0][0] <= upto:
                 self.rec.resolve(node, upto)
 
     def deliver(self, node: Node, item: object, stamp: object) -> None:
         """Resolve the records this input could no longer change, then step the node and route its messages."""
-        if isinstance(stamp, float | int):
-            self.resolve(node, stamp)
+        if finite_number(stamp):
+            self.resolve(node, stamp)  # type: ignore[arg-type]
         out = node.step(item)
         if out:
             self.pump(out)
@@ -186,8 +190,8 @@ class _Driver:
                 else:
                     self.stats["messages_undeliverable"] += 1
                 continue
-            if not isinstance(m, BeliefQuery | RdlStateQuery):
-                self.rec.resolve(node, max(node.present, m.stamp) - node.horizon)
+            if not isinstance(m, BeliefQuery | RdlStateQuery) and finite_number(m.stamp):
+                self.rec.resolve(node, _final(node.present, m.stamp, node.tolerance, node.horizon))
             push(node.step(m))
 
     def feed(self, events: list[Event], record_truth: bool, progress: Progress | None) -> None:
@@ -228,7 +232,7 @@ class _Driver:
             h = self.rec.heap.get(id(node))  # resolve(), inlined: this runs once per odometry record
             if h:
                 clock = node._clock
-                upto = (t0 if t0 > clock.present else clock.present) - clock.horizon  # max(present, t0)
+                upto = _final(clock.present, t0, clock.tolerance, clock.horizon)
                 if h[0][0] <= upto:
                     self.rec.resolve(node, upto)
             if node._odometry_fast(e):
@@ -242,7 +246,7 @@ class _Driver:
             self.stats["unknown_robot"] += len(group)
             self.stats["detections"] += len(group)
             self.stats["unknown"] += len(group)
-            self.reasons[f"unknown: observer {e.observer!r} is not in the team"] += len(group)
+            self.reasons[f"unknown: observer {brief(e.observer)} is not in the team"] += len(group)
             return
         self.deliver(node, group, e.t)
 
@@ -269,6 +273,14 @@ class _Driver:
         for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
             merged.setdefault(k, 0)
         return RunResult(name, self.rec.tracks(), wall, dict(merged), n_events, reasons, timing)
+
+
+def _final(present: float, stamp: float, tolerance: float, horizon: float) -> float:
+    """[s] The time up to which a node's beliefs are final once an input stamped ``stamp`` is taken: a horizon
+    before the later of its present and ``stamp``, ``stamp`` counted at most ``tolerance`` past the present (the
+    node refuses a later one, so it moves nothing)."""
+    ahead = present + tolerance
+    return (stamp if stamp < ahead else ahead if stamp > present else present) - horizon
 
 
 def _xytheta(g: np.ndarray) -> np.ndarray:
