@@ -214,15 +214,15 @@ def _check(src: Source, opts: dict[str, Any], record_times: Any) -> tuple[_Check
     return checked, rt
 
 
-def _record_index(rt: np.ndarray) -> dict[float, list[int]]:
-    """Record time -> the indices of ``rt`` at that time."""
-    records: dict[float, list[int]] = defaultdict(list)
+def _record_index(rt: np.ndarray) -> dict[float, tuple[int, ...]]:
+    """Record time -> the indices of ``rt`` at that time (tuples of ints: the garbage collector untracks them)."""
+    records: dict[float, tuple[int, ...]] = {}
     for k, t in enumerate(rt.tolist()):
-        records[t].append(k)
+        records[t] = (*records.get(t, ()), k)
     return records
 
 
-def _file_all(src: Source, tl: Timeline, records: dict[float, list[int]], truth_rows: dict, robot: np.ndarray,
+def _file_all(src: Source, tl: Timeline, records: dict[float, tuple[int, ...]], truth_rows: dict, robot: np.ndarray,
               stamp: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[dict[Any, list[Row]], int]:  # fmt: skip
     """A compiled replay's records (robot rows, stamp indices of ``tl``, Cartesian ``x (K, 3)``, ``P (K, 3, 3)``)
     filed by robot as beliefs on the group (:func:`_file`); returns them and the records left out for missing
@@ -524,7 +524,7 @@ def _truth_rows(src: Source, rt: np.ndarray) -> dict[Any, tuple[np.ndarray, list
     return out
 
 
-def _file(rows: dict[Any, list[Row]], truth_rows: dict, r: Any, t: float, keys: list[int], xyt: np.ndarray,
+def _file(rows: dict[Any, list[Row]], truth_rows: dict, r: Any, t: float, keys: tuple[int, ...], xyt: np.ndarray,
           cov: np.ndarray) -> int:  # fmt: skip
     """File robot ``r``'s belief at ``t`` once per record index in ``keys`` with its truth row (:func:`_truth_rows`);
     returns the records left out because the source's truth is missing there."""
@@ -538,7 +538,7 @@ def _file(rows: dict[Any, list[Row]], truth_rows: dict, r: Any, t: float, keys: 
     return missing
 
 
-def _timeline(checked: _Checked, records: dict[float, list[int]]) -> Timeline:
+def _timeline(checked: _Checked, records: dict[float, tuple[int, ...]]) -> Timeline:
     """Every stamp's checked detections and commands as one :class:`Timeline` (planar team)."""
     t_cmd, c_row, c_v, c_w = checked.commands()
     t_det = np.array([t for t, by_obs in checked.groups.items() for group in by_obs.values() for _ in group], float)
@@ -556,7 +556,7 @@ def _timeline(checked: _Checked, records: dict[float, list[int]]) -> Timeline:
 
 
 def _replay_compiled(
-    eng: Engine, src: Source, checked: _Checked, records: dict[float, list[int]], truth_rows: dict
+    eng: Engine, src: Source, checked: _Checked, records: dict[float, tuple[int, ...]], truth_rows: dict
 ) -> tuple[dict[Any, list[Row]], int]:
     """:func:`_replay`'s loop as compiled calls over the whole :class:`Timeline` (:meth:`Engine.replay_timeline`),
     a stamp the compiled kernel does not take stepped by :meth:`Engine.step`; the same records."""
@@ -586,19 +586,24 @@ def _replay_compiled(
 def _detections(groups: Sequence[tuple[int, dict[tuple, tuple[Detection, int]]]], width: int = 3) -> Detections:
     """Checked detection groups ``(observer row, group)`` as arrays, in that order (robots as rows), ``z``
     ``width`` wide (6: an SE(3) team's)."""
-    items = [(o, d, code) for o, group in groups for d, code in group.values()]
-    z, R = np.zeros((len(items), width)), np.zeros((len(items), width, width))
+    obs: list[int] = []
+    dets: list[Detection] = []
+    codes: list[int] = []  # three flat lists, no tuple per detection (fewer objects for the garbage collector)
+    for o, group in groups:
+        for d, code in group.values():
+            obs.append(o)
+            dets.append(d)
+            codes.append(code)
+    z, R = np.zeros((len(dets), width)), np.zeros((len(dets), width, width))
     sizes: dict[int, list[int]] = defaultdict(list)  # the rows of each size of z, filled in one call each
-    for k, (_, d, _) in enumerate(items):
+    for k, d in enumerate(dets):
         m = len(d.z)
         if m > width:  # a 3-D detection in a planar team: no planar filter takes it
             raise ValueError(f"run_engine: a {d.kind!r} detection in an SE(2) team; run the nodes")
         sizes[m].append(k)
     for m, rows in sizes.items():
-        z[rows, :m] = np.array([items[k][1].z for k in rows], dtype=float).reshape(-1, m)
-        R[rows, :m, :m] = np.array([items[k][1].cov for k in rows], dtype=float).reshape(-1, m, m)
-    kind = [KIND_ORDER[d.kind] if d.kind in KIND_ORDER else KIND_ORDER3[d.kind] for _, d, _ in items]
-    return Detections(
-        np.array([o for o, _, _ in items], dtype=np.int64), np.array([c for _, _, c in items], dtype=np.int64),
-        np.array(kind, dtype=np.int64), z, R,
-    )  # fmt: skip
+        z[rows, :m] = np.array([dets[k].z for k in rows], dtype=float).reshape(-1, m)
+        R[rows, :m, :m] = np.array([dets[k].cov for k in rows], dtype=float).reshape(-1, m, m)
+    kind = [KIND_ORDER[d.kind] if d.kind in KIND_ORDER else KIND_ORDER3[d.kind] for d in dets]
+    return Detections(np.array(obs, dtype=np.int64), np.array(codes, dtype=np.int64), np.array(kind, dtype=np.int64),
+                      z, R)  # fmt: skip

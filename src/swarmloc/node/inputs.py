@@ -133,7 +133,7 @@ def validate_detection(d: Detection) -> str | None:
 def clearly_valid(ds: Sequence[Detection]) -> np.ndarray:
     """``(len(ds),)`` bool: True where :func:`validate_detection` certainly finds detection ``ds[k]`` well formed,
     decided on arrays per kind: a planar kind, ``z`` and ``cov`` numeric numpy arrays of the kind's sizes, finite,
-    a positive range, a float or int stamp, finite, int ids, the covariance checked as :func:`_clearly_valid`
+    a positive range, a finite float stamp, 64-bit int ids, the covariance checked as :func:`_clearly_valid`
     checks it. False means "not sure": call :func:`validate_detection`, which says why. For checking many
     detections at once (a replay's): one odd detection leaves the others' screen as it is."""
     ok = np.zeros(len(ds), dtype=bool)

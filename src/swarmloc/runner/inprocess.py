@@ -279,8 +279,10 @@ def _final(present: float, stamp: float, tolerance: float, horizon: float) -> fl
     """[s] The time up to which a node's beliefs are final once an input stamped ``stamp`` is taken: a horizon
     before the later of its present and ``stamp``, ``stamp`` counted at most ``tolerance`` past the present (the
     node refuses a later one, so it moves nothing)."""
-    ahead = present + tolerance
-    return (stamp if stamp < ahead else ahead if stamp > present else present) - horizon
+    if stamp > present:  # (not a NaN)
+        ahead = present + tolerance
+        return (stamp if stamp < ahead else ahead) - horizon
+    return present - horizon
 
 
 def _xytheta(g: np.ndarray) -> np.ndarray:
