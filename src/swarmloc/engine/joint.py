@@ -215,20 +215,61 @@ def measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq
 @njit(error_model="numpy")
 def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
-    """:func:`swarmloc.kernels.cartesian.kalman_update_blocks` (every robot's heading wrapped)."""
-    U = P[:, cols] @ H.T
-    S = H @ U[cols] + R
+    """:func:`swarmloc.kernels.cartesian.kalman_update_blocks` (every robot's heading wrapped): ``U = P[:, cols]
+    H^T``, ``S = H U[cols] + R``, ``K = U S^-1``, ``P+ = P - K U^T - (U - K S) K^T`` symmetrized, written as loops
+    (the matrices are 3n x m, m <= 3: no temporaries of 3n x 3n but ``P+`` itself)."""
+    N, m, c = P.shape[0], H.shape[0], cols.shape[0]
+    U = np.zeros((N, m))
+    for a in range(N):
+        for k in range(m):
+            acc = 0.0
+            for b in range(c):
+                acc += P[a, cols[b]] * H[k, b]
+            U[a, k] = acc
+    S = R.copy()
+    for k in range(m):
+        for ll in range(m):
+            acc = 0.0
+            for b in range(c):
+                acc += H[k, b] * U[cols[b], ll]
+            S[k, ll] += acc
     S_inv, regular = inverse(S)
     if not regular:
         return X, P, math.nan, False
-    nis = r @ S_inv @ r
-    K = U @ S_inv
-    xn = X + K @ r
-    for a in range(2, xn.shape[0], 3):
+    nis = 0.0
+    for k in range(m):
+        for ll in range(m):
+            nis += r[k] * S_inv[k, ll] * r[ll]
+    K = np.zeros((N, m))
+    W = U.copy()  # U - K S
+    xn = np.empty(N)
+    for a in range(N):
+        step = 0.0
+        for k in range(m):
+            acc = 0.0
+            for ll in range(m):
+                acc += U[a, ll] * S_inv[ll, k]
+            K[a, k] = acc
+            step += acc * r[k]
+        xn[a] = X[a] + step
+        for k in range(m):
+            for ll in range(m):
+                W[a, k] -= K[a, ll] * S[ll, k]
+    for a in range(2, N, 3):
         xn[a] = wrap(xn[a])
-    Pn = P - K @ U.T - (U - K @ S) @ K.T
-    Pn = 0.5 * (Pn + Pn.T)
-    ok = math.isfinite(nis) and np.isfinite(xn).all() and np.isfinite(Pn).all()
+    Pn = np.empty((N, N))
+    ok = math.isfinite(nis)
+    for a in range(N):
+        ok = ok and math.isfinite(xn[a])
+        for b in range(a, N):
+            ab, ba = P[a, b], P[b, a]
+            for k in range(m):
+                ab -= K[a, k] * U[b, k] + W[a, k] * K[b, k]
+                ba -= K[b, k] * U[a, k] + W[b, k] * K[a, k]
+            val = 0.5 * (ab + ba)
+            Pn[a, b] = val
+            Pn[b, a] = val
+            ok = ok and math.isfinite(val)
     return xn, Pn, nis, ok
 
 

@@ -63,23 +63,78 @@ from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE, MODELS
 def _kalman(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
     """:func:`swarmloc.kernels.cartesian.kalman_update` for one state (Joseph form), every third component (the
-    headings) wrapped."""
-    PHt = P @ H.T
-    S = H @ PHt + R
+    headings) wrapped: ``S = H P H^T + R``, ``K = P H^T S^-1``, ``P+ = (I - K H) P (I - K H)^T + K R K^T``
+    symmetrized, written as loops (the states are 3 or 6 long: a matrix product's call costs more than its work)."""
+    N, m = P.shape[0], H.shape[0]
+    PHt = np.zeros((N, m))
+    for a in range(N):
+        for k in range(m):
+            acc = 0.0
+            for b in range(N):
+                acc += P[a, b] * H[k, b]
+            PHt[a, k] = acc
+    S = R.copy()
+    for k in range(m):
+        for ll in range(m):
+            acc = 0.0
+            for b in range(N):
+                acc += H[k, b] * PHt[b, ll]
+            S[k, ll] += acc
     S_inv, regular = inverse(S)
     if not regular:
         return x, P, math.nan, False
-    Sr = S_inv @ r
-    nis = r @ Sr
-    K = PHt @ S_inv
-    xn = x + PHt @ Sr
-    for a in range(2, xn.shape[0], 3):
+    Sr = np.zeros(m)
+    nis = 0.0
+    for k in range(m):
+        for ll in range(m):
+            Sr[k] += S_inv[k, ll] * r[ll]
+        nis += r[k] * Sr[k]
+    K = np.zeros((N, m))
+    xn = np.empty(N)
+    for a in range(N):
+        step = 0.0
+        for k in range(m):
+            step += PHt[a, k] * Sr[k]
+            for ll in range(m):
+                K[a, k] += PHt[a, ll] * S_inv[ll, k]
+        xn[a] = x[a] + step
+    for a in range(2, N, 3):
         if math.isfinite(xn[a]):
             xn[a] = wrap(xn[a])
-    IKH = np.eye(x.shape[0]) - K @ H
-    Pn = IKH @ P @ IKH.T + K @ R @ K.T
-    Pn = 0.5 * (Pn + Pn.T)
-    ok = math.isfinite(nis) and np.isfinite(xn).all() and np.isfinite(Pn).all()
+    IKH = np.zeros((N, N))
+    KR = np.zeros((N, m))
+    for a in range(N):
+        for b in range(N):
+            acc = 1.0 if a == b else 0.0
+            for k in range(m):
+                acc -= K[a, k] * H[k, b]
+            IKH[a, b] = acc
+        for k in range(m):
+            for ll in range(m):
+                KR[a, k] += K[a, ll] * R[ll, k]
+    T = np.zeros((N, N))  # (I - K H) P
+    for a in range(N):
+        for b in range(N):
+            acc = 0.0
+            for c in range(N):
+                acc += IKH[a, c] * P[c, b]
+            T[a, b] = acc
+    Pn = np.empty((N, N))
+    ok = math.isfinite(nis)
+    for a in range(N):
+        ok = ok and math.isfinite(xn[a])
+        for b in range(a, N):
+            ab, ba = 0.0, 0.0
+            for c in range(N):
+                ab += T[a, c] * IKH[b, c]
+                ba += T[b, c] * IKH[a, c]
+            for k in range(m):
+                ab += KR[a, k] * K[b, k]
+                ba += KR[b, k] * K[a, k]
+            val = 0.5 * (ab + ba)
+            Pn[a, b] = val
+            Pn[b, a] = val
+            ok = ok and math.isfinite(val)
     return xn, Pn, nis, ok
 
 
