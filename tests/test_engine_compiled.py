@@ -13,9 +13,9 @@ import pytest
 from test_engine import _assert_same, _nodes, _source, mixed_targets, step_both_and_compare
 
 from swarmloc.engine import Detections, Engine, run_engine
+from swarmloc.engine.checks import Checked
 from swarmloc.engine.codes import UNKNOWN_ROBOT
 from swarmloc.engine.core import Engine as CoreEngine
-from swarmloc.engine.replay import _Checked
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
 from swarmloc.lie import SE2, wrap_angle
@@ -172,7 +172,7 @@ def _messy_odometry(src):
 def test_bulk_odometry_check_files_and_counts_what_the_sequential_one_does(monkeypatch: pytest.MonkeyPatch) -> None:
     src = _messy_odometry(_source(5, 6.0, 23))
     col = {r: i for i, r in enumerate(src.robots)}
-    one, bulk = _Checked(col, lambda lid: UNKNOWN_ROBOT), _Checked(col, lambda lid: UNKNOWN_ROBOT)
+    one, bulk = Checked(col, lambda lid: UNKNOWN_ROBOT), Checked(col, lambda lid: UNKNOWN_ROBOT)
     for e in src.events:
         one.add(e)
     bulk.add_all(src.events)

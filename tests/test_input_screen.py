@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from swarmloc.engine.checks import Checked
 from swarmloc.engine.codes import UNKNOWN_ROBOT
-from swarmloc.engine.replay import _Checked
 from swarmloc.events import Detection, Odometry
 from swarmloc.node.inputs import clearly_valid, validate_detection
 
@@ -110,7 +110,7 @@ def test_a_covariance_too_large_to_square_is_checked_not_a_crash(scale: float) -
 
 
 def test_the_engine_checks_detections_in_bulk_as_one_by_one() -> None:
-    """:meth:`_Checked.add_all` (screen first) and :meth:`_Checked.add` on each: the same counts, reasons, filed
+    """:meth:`Checked.add_all` (screen first) and :meth:`Checked.add` on each: the same counts, reasons, filed
     groups and start times, on clean detections mixed with every flaw (and duplicates, an observer outside the
     team)."""
     rng = np.random.default_rng(11)
@@ -131,7 +131,7 @@ def test_the_engine_checks_detections_in_bulk_as_one_by_one() -> None:
     ]
     rng.shuffle(events)  # type: ignore[arg-type]
     col = {r: r for r in range(4)}
-    one, bulk = _Checked(col, lambda lid: UNKNOWN_ROBOT), _Checked(col, lambda lid: UNKNOWN_ROBOT)
+    one, bulk = Checked(col, lambda lid: UNKNOWN_ROBOT), Checked(col, lambda lid: UNKNOWN_ROBOT)
     for e in events:
         one._first(e.observer, float(e.t) if math.isfinite(e.t) else None)
         one.add(e)
@@ -192,3 +192,15 @@ def test_one_bad_stamp_or_id_is_counted_and_changes_no_record(estimator: str, ca
     extra = res[1].reasons - res[0].reasons
     assert sum(extra.values()) == 1 and res[1].accounted(), extra
     assert len(next(iter(extra))) < 160
+
+
+def test_a_node_started_at_an_int_too_large_for_a_float_gets_a_clear_error() -> None:
+    from swarmloc.estimators import make_team, options_for
+    from swarmloc.gaussian import GroupGaussian
+    from swarmloc.lie import SE2
+    from swarmloc.motion import UnicycleNoise
+
+    init = {0: GroupGaussian(SE2, SE2.from_xytheta([0.0, 0.0, 0.0]), 1e-2 * np.eye(3))}
+    node = make_team("dekf", init, **options_for("dekf", noise=UnicycleNoise()))[0]
+    with pytest.raises(ValueError, match="t0 must be a finite time in seconds, got 1000"):
+        node.start(10**400)

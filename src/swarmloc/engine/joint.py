@@ -213,11 +213,10 @@ def measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq
 
 
 @njit(error_model="numpy")
-def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
-    """:func:`swarmloc.kernels.cartesian.kalman_update_blocks` (every robot's heading wrapped): ``U = P[:, cols]
-    H^T``, ``S = H U[cols] + R``, ``K = U S^-1``, ``P+ = P - K U^T - (U - K S) K^T`` symmetrized, written as loops
-    (the matrices are 3n x m, m <= 3: no temporaries of 3n x 3n but ``P+`` itself)."""
+def innovation(P: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(U, S)`` of a Kalman update on the columns ``cols`` of ``P (N, N)``: ``U = P[:, cols] H^T`` ``(N, m)`` and
+    ``S = H U[cols] + R`` ``(m, m)``, written as loops (small matrices: a matrix product's call costs more than its
+    work)."""
     N, m, c = P.shape[0], H.shape[0], cols.shape[0]
     U = np.zeros((N, m))
     for a in range(N):
@@ -233,6 +232,17 @@ def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np
             for b in range(c):
                 acc += H[k, b] * U[cols[b], ll]
             S[k, ll] += acc
+    return U, S
+
+
+@njit(error_model="numpy")
+def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
+    """:func:`swarmloc.kernels.cartesian.kalman_update_blocks` (every robot's heading wrapped): ``U = P[:, cols]
+    H^T``, ``S = H U[cols] + R`` (:func:`innovation`), ``K = U S^-1``, ``P+ = P - K U^T - (U - K S) K^T``
+    symmetrized, written as loops (the matrices are 3n x m, m <= 3: no temporaries of 3n x 3n but ``P+`` itself)."""
+    N, m = P.shape[0], H.shape[0]
+    U, S = innovation(P, H, cols, R)
     S_inv, regular = inverse(S)
     if not regular:
         return X, P, math.nan, False

@@ -52,7 +52,7 @@ from swarmloc.engine.codes import (
     UNKNOWN_ROBOT,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import RANGE_BEARING, inverse, measure, predict_kernel, usable, wrap
+from swarmloc.engine.joint import RANGE_BEARING, innovation, inverse, measure, predict_kernel, usable, wrap
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
@@ -66,20 +66,7 @@ def _kalman(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.nd
     headings) wrapped: ``S = H P H^T + R``, ``K = P H^T S^-1``, ``P+ = (I - K H) P (I - K H)^T + K R K^T``
     symmetrized, written as loops (the states are 3 or 6 long: a matrix product's call costs more than its work)."""
     N, m = P.shape[0], H.shape[0]
-    PHt = np.zeros((N, m))
-    for a in range(N):
-        for k in range(m):
-            acc = 0.0
-            for b in range(N):
-                acc += P[a, b] * H[k, b]
-            PHt[a, k] = acc
-    S = R.copy()
-    for k in range(m):
-        for ll in range(m):
-            acc = 0.0
-            for b in range(N):
-                acc += H[k, b] * PHt[b, ll]
-            S[k, ll] += acc
+    PHt, S = innovation(P, H, np.arange(N), R)
     S_inv, regular = inverse(S)
     if not regular:
         return x, P, math.nan, False

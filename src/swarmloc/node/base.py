@@ -46,7 +46,15 @@ from swarmloc.node.accounting import Accounting
 from swarmloc.node.associate import AssociationView
 from swarmloc.node.clock import DEFAULT_CONFIRM, DEFAULT_HORIZON, DEFAULT_TOLERANCE, Clock
 from swarmloc.node.history import PRUNE_EVERY, History
-from swarmloc.node.inputs import CONTIGUOUS, Intake, Landmarks, OdometryTimeline, landmark_state
+from swarmloc.node.inputs import (
+    CONTIGUOUS,
+    Intake,
+    Landmarks,
+    OdometryTimeline,
+    brief,
+    finite_number,
+    landmark_state,
+)
 from swarmloc.node.keys import Entry, Group, Key
 from swarmloc.node.protocol import Exchange, Served
 from swarmloc.node.update import Gate, Outcome
@@ -221,8 +229,8 @@ class Node(Intake, Exchange):
 
     def start(self, t0: float) -> None:
         """Set the time [s] at which the initial belief holds (once)."""
-        if not (isinstance(t0, int | float | np.floating) and math.isfinite(t0)):
-            raise ValueError(f"{type(self).__name__}.start: t0 must be a finite time in seconds, got {t0!r}")
+        if not finite_number(t0):  # (an int too large for a float too: math.isfinite would raise on it)
+            raise ValueError(f"{type(self).__name__}.start: t0 must be a finite time in seconds, got {brief(t0)}")
         if self._clock.t0 is not None:
             if float(t0) != self._clock.t0:
                 raise ValueError(f"{type(self).__name__}.start: already started at t0 = {self._clock.t0}, got {t0}")
