@@ -67,13 +67,14 @@ def test_loglog_slope():
 def test_mrclam_replay_x_real_time(mrclam_root, mrclam6):
     ds = B.find_mrclam(mrclam_root)
     assert ds == mrclam6  # the bench finds dataset 6 in the folder holding it
-    d = B.mrclam_replay(ds, duration=3.0, estimators=("dekf", "cekf", "rdl"), landmarks=(True, False))
+    d = B.mrclam_replay(ds, duration=3.0, estimators=("dekf", "cekf", "rdl", "diekf"), landmarks=(True, False))
     assert d["duration_s"] == pytest.approx(3.0, abs=0.05)
     for key in ("landmarks_on", "landmarks_off"):
         rows = d[key]["estimators"]
-        assert set(rows) == {"dekf", "cekf", "rdl", "dekf/engine", "cekf/engine", "rdl/engine"}  # numba: the dev extra
+        names = ("dekf", "cekf", "rdl", "diekf")
+        assert set(rows) == {*names, *(f"{n}/engine" for n in names)}  # numba: the dev extra
         assert all(_positive(r["x_real_time"]) and _positive(r["wall_s"]) for r in rows.values())
-        for name in ("dekf", "cekf", "rdl"):
+        for name in names:
             eng, nodes = rows[f"{name}/engine"], rows[name]  # the same filter on the same events, another driver
             assert eng["pos_rmse_m"] == pytest.approx(nodes["pos_rmse_m"], abs=1e-9)
             assert eng["anees"] == pytest.approx(nodes["anees"], rel=1e-9)

@@ -129,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--calibrate-yaw", action="store_true",
                    help="mrclam: yaw diffusion scaled as the recording's landmark snapshots say")  # fmt: skip
     e.add_argument("--engine", action="store_true",
-                   help="mrclam: dekf, cekf, rdl by the engine's compiled replays (numba; same results)")  # fmt: skip
+                   help="mrclam: dekf, cekf, iekf, rdl, diekf by the engine's compiled replays (numba)")  # fmt: skip
     e.add_argument("--truth", default=None, help="events: folder of truth_robot<N>.tum (default: beside the file)")
     e.add_argument("--skip-bad-lines", action="store_true", help="events: skip bad records (listed) instead of stop")
     e.add_argument("--json", action="store_true", help="print the results as JSON on stdout")

@@ -1,4 +1,5 @@
-"""The centralized EKF (``cekf``) on the engine: the team's joint state replayed in one compiled loop (numba).
+"""The centralized EKFs (``cekf``, ``iekf``) and ``diekf`` on the engine: the team's joint state replayed in one
+compiled loop (numba).
 
 :class:`swarmloc.estimators.CentralizedEKF` keeps the joint Cartesian state ``X = (x_1, y_1, theta_1, ...)`` of
 the ``n`` robots and its ``3n x 3n`` covariance; this module does what that node does over a whole
@@ -20,8 +21,18 @@ recording replays without a Python step per input:
   and map landmarks), then the gate and the finite, positive-definite check of
   :func:`swarmloc.node.update.gated_kalman`.
 
-Results equal the node's to rounding (tests/test_engine_cekf.py: 1e-9 on simulated teams and MRCLAM, every
-outcome count). Units: metres, radians, seconds; angles wrapped to (-pi, pi].
+**The invariant EKFs** (``invariant=True``). The same loop in world-frame errors
+(:mod:`swarmloc.kernels.invariant`): a prediction adds ``N^-1 Q N^-T`` to the robot's block and nothing else (no
+shear), Jacobian blocks are ``H_c N(x)``, and the correction moves each robot on the group, ``exp(hat(K r)) g``:
+the centralized :class:`~swarmloc.estimators.InvariantEKF` (``iekf``). With each robot's start (``t0 (n,)``) it is
+``diekf``'s team (:class:`~swarmloc.estimators.DistributedInvariantEKF`): its nodes' replicas together are this
+joint state, so only what the nodes decide apart from the filter differs: a robot starts at its own first input and
+is asked only from then on (:func:`screen_started`), and a detected robot moves to the stamp only when it takes the
+update (a gated or refused detection leaves it where it was).
+
+Results equal the nodes' to rounding (tests/test_engine_cekf.py, tests/test_engine_invariant.py: 1e-10 on
+simulated teams, 1e-9 relative on MRCLAM, every outcome count and reason). Units: metres, radians, seconds; angles
+wrapped to (-pi, pi].
 """
 
 from __future__ import annotations
@@ -43,6 +54,7 @@ from swarmloc.engine.codes import (
     R_LANDMARKS_OFF,
     R_NO_LANDMARK,
     R_NONFINITE,
+    R_NOT_STARTED,
     R_NUMERICAL,
     R_OFF,
     R_SELF,
@@ -51,9 +63,11 @@ from swarmloc.engine.codes import (
     REJECTED,
     UNKNOWN,
     UNKNOWN_ROBOT,
+    UNUSABLE,
 )
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.scalar import predict_source
+from swarmloc.kernels.invariant import cartesian_to_world_cov
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE, MODELS
@@ -99,14 +113,15 @@ def _flush(P: np.ndarray, pend: np.ndarray, has: np.ndarray) -> None:
             continue
         i = 3 * k
         a, b = pend[k, 0], pend[k, 1]
-        for c in range(N):
-            row = P[i + 2, c]
-            P[i, c] += a * row
-            P[i + 1, c] += b * row
-        for r in range(N):
-            col = P[r, i + 2]
-            P[r, i] += a * col
-            P[r, i + 1] += b * col
+        if a != 0.0 or b != 0.0:  # no shear (the invariant filters' predictions): only the noise
+            for c in range(N):
+                row = P[i + 2, c]
+                P[i, c] += a * row
+                P[i + 1, c] += b * row
+            for r in range(N):
+                col = P[r, i + 2]
+                P[r, i] += a * col
+                P[r, i + 1] += b * col
         u = pend[k, 2:]
         P[i, i] += u[0]
         P[i, i + 1] += u[1]
@@ -213,6 +228,57 @@ def measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq
 
 
 @njit(error_model="numpy")
+def _sinc(t: float) -> float:
+    """``sin(t) / t`` with the Taylor branch of :func:`swarmloc.lie.SE2.exp` below 0.05 (the same coefficients)."""
+    if abs(t) < 0.05:
+        t2 = t * t
+        return (((t2 / 362880.0 - 1.0 / 5040.0) * t2 + 1.0 / 120.0) * t2 - 1.0 / 6.0) * t2 + 1.0
+    return math.sin(t) / t
+
+
+@njit(error_model="numpy")
+def _one_minus_cos_over_t(t: float) -> float:
+    """``(1 - cos t) / t`` with the Taylor branch of :func:`swarmloc.lie.SE2.exp` below 0.05."""
+    if abs(t) < 0.05:
+        t2 = t * t
+        return t * ((((t2 / 3628800.0 - 1.0 / 40320.0) * t2 + 1.0 / 720.0) * t2 - 1.0 / 24.0) * t2 + 0.5)
+    return t * (2.0 * math.sin(t / 2) ** 2 / (t * t))
+
+
+@njit(error_model="numpy")
+def left_correct(X: np.ndarray, delta: np.ndarray) -> None:
+    """Every robot's pose ``X[3k:3k+3]`` corrected by its world-frame ``delta[3k:3k+3]``, written into ``delta``:
+    the Cartesian pose of ``exp(hat(delta_k)) g(x_k)`` (:func:`swarmloc.kernels.invariant.left_correct`)."""
+    for i in range(0, X.shape[0], 3):
+        d0, d1, d2 = delta[i], delta[i + 1], delta[i + 2]
+        c, s = math.cos(d2), math.sin(d2)
+        A, B = _sinc(d2), _one_minus_cos_over_t(d2)
+        x, y, ct, st = X[i], X[i + 1], math.cos(X[i + 2]), math.sin(X[i + 2])
+        delta[i] = c * x - s * y + (A * d0 - B * d1)
+        delta[i + 1] = s * x + c * y + (B * d0 + A * d1)
+        delta[i + 2] = wrap(math.atan2(s * ct + c * st, c * ct - s * st))
+
+
+@njit(error_model="numpy")
+def to_world(H: np.ndarray, c: int, x: float, y: float) -> None:
+    """The Cartesian Jacobian block ``H[:, c:c+3]`` of a pose at ``(x, y)`` made one of its world-frame error, in
+    place: ``H N`` with ``N = [[1, 0, -y], [0, 1, x], [0, 0, 1]]`` (:func:`swarmloc.kernels.invariant.world_basis`)."""
+    for k in range(H.shape[0]):
+        H[k, c + 2] += -y * H[k, c] + x * H[k, c + 1]
+
+
+@njit(error_model="numpy")
+def world_noise(x: float, y: float, q: np.ndarray) -> np.ndarray:
+    """A step's Cartesian process noise (upper triangle ``q00, q01, q02, q11, q12, q22``) at the new pose ``(x, y)``
+    as the world-frame error's, ``N^-1 Q N^-T`` (:func:`swarmloc.kernels.invariant.cartesian_to_world_cov`; the
+    products of :class:`swarmloc.estimators.InvariantEKF`'s prediction)."""
+    q00, q01, q02, q11, q12, q22 = q[0], q[1], q[2], q[3], q[4], q[5]
+    a02, a12 = q02 + y * q22, q12 - x * q22
+    return np.array([q00 + 2 * y * q02 + y * y * q22, q01 - x * q02 + y * a12, a02,
+                     q11 - 2 * x * q12 + x * x * q22, a12, q22])  # fmt: skip
+
+
+@njit(error_model="numpy")
 def innovation(P: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(U, S)`` of a Kalman update on the columns ``cols`` of ``P (N, N)``: ``U = P[:, cols] H^T`` ``(N, m)`` and
     ``S = H U[cols] + R`` ``(m, m)``, written as loops (small matrices: a matrix product's call costs more than its
@@ -236,11 +302,13 @@ def innovation(P: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray) ->
 
 
 @njit(error_model="numpy")
-def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
+def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray,
+            invariant: bool = False) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
     """:func:`swarmloc.kernels.cartesian.kalman_update_blocks` (every robot's heading wrapped): ``U = P[:, cols]
     H^T``, ``S = H U[cols] + R`` (:func:`innovation`), ``K = U S^-1``, ``P+ = P - K U^T - (U - K S) K^T``
-    symmetrized, written as loops (the matrices are 3n x m, m <= 3: no temporaries of 3n x 3n but ``P+`` itself)."""
+    symmetrized, written as loops (the matrices are 3n x m, m <= 3: no temporaries of 3n x 3n but ``P+`` itself).
+    ``invariant``: ``P`` is of world-frame errors and each robot's pose is corrected on the group,
+    ``exp(hat(K r)) g`` (:func:`left_correct`), not by ``x + K r``."""
     N, m = P.shape[0], H.shape[0]
     U, S = innovation(P, H, cols, R)
     S_inv, regular = inverse(S)
@@ -261,12 +329,15 @@ def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np
                 acc += U[a, ll] * S_inv[ll, k]
             K[a, k] = acc
             step += acc * r[k]
-        xn[a] = X[a] + step
+        xn[a] = step if invariant else X[a] + step
         for k in range(m):
             for ll in range(m):
                 W[a, k] -= K[a, ll] * S[ll, k]
-    for a in range(2, N, 3):
-        xn[a] = wrap(xn[a])
+    if invariant:
+        left_correct(X, xn)
+    else:
+        for a in range(2, N, 3):
+            xn[a] = wrap(xn[a])
     Pn = np.empty((N, N))
     ok = math.isfinite(nis)
     for a in range(N):
@@ -281,6 +352,28 @@ def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np
             Pn[b, a] = val
             ok = ok and math.isfinite(val)
     return xn, Pn, nis, ok
+
+
+@njit(error_model="numpy")
+def screen_started(kind: int, i: int, j: int, t: float, t0: np.ndarray, relative: bool, lm_on: bool
+                   ) -> tuple[int, int]:  # fmt: skip
+    """``(outcome, reason)`` decided before any state is read (0, 0: go on), as the distributed nodes decide it
+    (:meth:`~swarmloc.node.base.Node._classify`; a teammate answers only from its start ``t0[j]`` on)."""
+    if kind == ABSOLUTE:
+        return 0, 0
+    if j <= NO_LANDMARK:
+        if not lm_on:
+            return REJECTED, R_LANDMARKS_OFF
+        return (UNKNOWN, R_NO_LANDMARK) if j == NO_LANDMARK else (0, 0)
+    if j == UNUSABLE:  # worded from the detection by the caller (relative off, no target id, a landmark's pose)
+        return REJECTED, R_UNUSABLE
+    if not relative:
+        return REJECTED, R_OFF
+    if j == UNKNOWN_ROBOT:
+        return UNKNOWN, R_TEAM
+    if j == i:
+        return REJECTED, R_SELF
+    return (UNKNOWN, R_NOT_STARTED) if not t >= t0[j] else (0, 0)
 
 
 @njit(error_model="numpy")
@@ -311,8 +404,12 @@ def predict_kernel(noise: UnicycleNoise) -> Any:
 
 
 @cache
-def _kernels(noise: UnicycleNoise) -> Any:
-    """Compile the replay loop with the noise model's prediction (once per process and noise model)."""
+def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = False) -> Any:
+    """Compile the replay loop with the noise model's prediction (once per process, noise model and form).
+    ``invariant``: world-frame errors (``iekf``, ``diekf``). ``distributed`` (with ``invariant``: ``diekf``'s nodes):
+    each robot starts at its own first input and answers from then on (:func:`screen_started`), and a detected
+    robot moves to the detection's stamp only when it takes the update (its node answers a query from a prediction
+    it does not store; it moves when the broadcast updates it)."""
     predict = predict_kernel(noise)
 
     @njit(error_model="numpy")
@@ -322,9 +419,13 @@ def _kernels(noise: UnicycleNoise) -> Any:
             return
         i = 3 * k
         r = predict(X[i], X[i + 1], X[i + 2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, v[k], w[k], dt)
-        dx, dy = r[0] - X[i], r[1] - X[i + 1]
+        q = np.array([r[3], r[4], r[5], r[6], r[7], r[8]])
+        if invariant:  # the error transition is the identity: no shear, the noise in world-frame errors
+            dx, dy, q = 0.0, 0.0, world_noise(r[0], r[1], q)
+        else:
+            dx, dy = r[0] - X[i], r[1] - X[i + 1]
         X[i], X[i + 1], X[i + 2] = r[0], r[1], r[2]
-        _compose(pend, has, k, dx, dy, np.array([r[3], r[4], r[5], r[6], r[7], r[8]]))
+        _compose(pend, has, k, dx, dy, q)
         tc[k] = t
 
     @njit(error_model="numpy")
@@ -335,10 +436,25 @@ def _kernels(noise: UnicycleNoise) -> Any:
         M = P[i : i + 3, i : i + 3].copy()
         _flush(M, pd, hs)
         out_x[o] = x
+        if invariant:  # recorded Cartesian: N M N^T
+            N = np.array([[1.0, 0.0, -x[1]], [0.0, 1.0, x[0]], [0.0, 0.0, 1.0]])
+            M = N @ M @ N.T
         out_P[o] = M
 
     @njit(error_model="numpy")
     def fuse(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate):  # noqa: ANN001, ANN202
+        if not (distributed and j >= 0):
+            return update(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
+        _flush(P, pend, has)  # (world-frame noise: additive) the target's step to t is then all it has pending
+        k = 3 * j
+        xj, tj, Pjj = X[k : k + 3].copy(), tc[j], P[k : k + 3, k : k + 3].copy()
+        st, why = update(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
+        if st != FUSED:  # not taken: the target stays where it was
+            X[k : k + 3], tc[j], P[k : k + 3, k : k + 3], has[j] = xj, tj, Pjj, False
+        return st, why
+
+    @njit(error_model="numpy")
+    def update(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate):  # noqa: ANN001, ANN202
         if j >= 0:  # a robot: predicted to the stamp (and kept there) before anything is read of it
             advance(X, pend, has, tc, v, w, j, t)
         xk = X[3 * j : 3 * j + 3].copy() if j >= 0 else (lxy[NO_LANDMARK - 1 - j].copy() if kind != ABSOLUTE
@@ -349,14 +465,18 @@ def _kernels(noise: UnicycleNoise) -> Any:
         own = np.arange(3 * i, 3 * i + 3)
         if j >= 0:
             cols = np.concatenate((own, np.arange(3 * j, 3 * j + 3)))
+            if invariant:
+                to_world(H, 3, xk[0], xk[1])
         else:
             cols = own
             if kind != ABSOLUTE:  # a map landmark: its covariance enters the noise
                 Hk = H[:, 3:5].copy()
                 Rm = Rm + Hk @ lcov[NO_LANDMARK - 1 - j] @ Hk.T
             H = H[:, :3].copy()
+        if invariant:
+            to_world(H, 0, X[3 * i], X[3 * i + 1])
         _flush(P, pend, has)
-        xn, Pn, nis, ok = _kalman(X, P, r, H, cols, Rm)
+        xn, Pn, nis, ok = _kalman(X, P, r, H, cols, Rm, invariant)
         if gate:
             if not math.isfinite(nis):
                 return REJECTED, R_NONFINITE
@@ -368,14 +488,14 @@ def _kernels(noise: UnicycleNoise) -> Any:
         P[:, :] = Pn
         return FUSED, 0
 
-    return _loop(advance, marginal, fuse)
+    return _loop(advance, marginal, fuse, distributed)
 
 
-def _loop(advance: Any, marginal: Any, fuse: Any) -> Any:
+def _loop(advance: Any, marginal: Any, fuse: Any, distributed: bool) -> Any:
     """The compiled loop over the stamps of a timeline, around the compiled steps of :func:`_kernels`."""
 
     @njit(error_model="numpy")
-    def replay(state, T0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
+    def replay(state, t0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
         X, P, pend, has, tc, v, w = state
         obs, tgt, kind, z, R = det
         c0, crow, cv, cw = cmd
@@ -387,7 +507,10 @@ def _loop(advance: Any, marginal: Any, fuse: Any) -> Any:
             for q in range(d0[s], d0[s + 1]):
                 i = obs[q]
                 advance(X, pend, has, tc, v, w, i, t)  # the observer moves to its group's stamp
-                st, why = _screen(kind[q], i, tgt[q], relative, lm_on)
+                if distributed:
+                    st, why = screen_started(kind[q], i, tgt[q], t, t0, relative, lm_on)
+                else:
+                    st, why = _screen(kind[q], i, tgt[q], relative, lm_on)
                 if st == 0:
                     st, why = fuse(X, P, pend, has, tc, v, w, t, q, i, tgt[q], kind[q], z, R, lxy, lcov, thr, gate)
                 status[q], reason[q] = st, why
@@ -395,12 +518,13 @@ def _loop(advance: Any, marginal: Any, fuse: Any) -> Any:
                 advance(X, pend, has, tc, v, w, crow[c], t)  # move every correlated heading) and starts its command
                 v[crow[c]] = cv[c]
                 w[crow[c]] = cw[c]
-            if rec[s] and t >= T0:
+            if rec[s]:
                 for k in range(n):
-                    marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)
-                    out_robot[o] = k
-                    out_stamp[o] = s
-                    o += 1
+                    if t >= t0[k]:
+                        marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)
+                        out_robot[o] = k
+                        out_stamp[o] = s
+                        o += 1
         return o
 
     return replay
@@ -410,24 +534,37 @@ def replay_joint(
     tl: Timeline,
     x: np.ndarray,
     P: np.ndarray,
-    t0: float,
+    t0: float | np.ndarray,
     noise: UnicycleNoise,
     *,
     gate: float | None = None,
     use_relative: bool = True,
     use_landmarks: bool = True,
     landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+    invariant: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """The centralized EKF over ``tl`` (robots as rows, the engine's codes) from Cartesian beliefs ``x (n, 3)``,
-    ``P (n, 3, 3)`` (uncorrelated) at ``t0`` [s], every robot's clock.
+    ``P (n, 3, 3)`` (uncorrelated) at ``t0`` [s]: one float, every robot's clock (the centralized nodes), or each
+    robot's start ``(n,)`` (``inf``: never starts), with ``invariant`` only: ``diekf``'s nodes (:func:`_kernels`,
+    ``distributed``).
 
     ``gate``: the nodes' gate probability (None: none); ``landmarks``: the map as :func:`swarmloc.engine.core.
-    landmark_table` gives it, ``(xy (L, 2), cov (L, 2, 2))``. Returns ``(status, reason, records)``: each
-    detection's outcome and reason code (rows of ``tl.det``) and the records ``(robot row, stamp index, x (K, 3),
-    P (K, 3, 3))``, every robot at every recorded stamp from ``t0`` on, in stamp then row order.
+    landmark_table` gives it, ``(xy (L, 2), cov (L, 2, 2))``; ``invariant``: the invariant EKF (world-frame errors,
+    :class:`~swarmloc.estimators.InvariantEKF`; with per-robot starts the distributed one,
+    :class:`~swarmloc.estimators.DistributedInvariantEKF`, whose replicas together are its joint state).
+    Returns ``(status, reason, records)``: each detection's outcome and reason code (rows of ``tl.det``) and the
+    records ``(robot row, stamp index, x (K, 3), P (K, 3, 3))`` (Cartesian), every started robot at every recorded
+    stamp, in stamp then row order.
     """
     n = x.shape[0]
-    X = np.ascontiguousarray(x, dtype=float).reshape(3 * n).copy()
+    distributed = np.ndim(t0) == 1
+    if distributed and not invariant:
+        raise ValueError("replay_joint: per-robot starts are diekf's (invariant=True); cekf starts at one t0")
+    starts = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
+    x = np.ascontiguousarray(x, dtype=float)
+    if invariant:  # world-frame error covariances: N^-1 P N^-T
+        P = cartesian_to_world_cov(x, np.asarray(P, dtype=float))
+    X = x.reshape(3 * n).copy()
     J = np.zeros((3 * n, 3 * n))
     for k in range(n):
         J[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = P[k]
@@ -436,13 +573,14 @@ def replay_joint(
     lxy, lcov = landmarks if landmarks is not None else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
     m = len(tl.det)
     status, reason = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
-    k = int(np.count_nonzero(tl.record & (tl.stamps >= t0))) * n
+    k = int(sum(np.count_nonzero(tl.stamps[tl.record] >= s) for s in starts.tolist()))
     out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
     d = tl.det
-    state = (X, J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), np.full(n, float(t0)), np.zeros(n), np.zeros(n))
+    clock = np.where(np.isfinite(starts), starts, 0.0)
+    state = (X, J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
     det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
-    _kernels(noise)(
-        state, float(t0), tl.stamps, tl.d0, det, status, reason, g.p is not None, thr, bool(use_relative),
+    _kernels(noise, bool(invariant), bool(distributed))(
+        state, starts, tl.stamps, tl.d0, det, status, reason, g.p is not None, thr, bool(use_relative),
         bool(use_landmarks), np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
         (tl.c0, tl.robot, tl.v, tl.w), tl.record, out,
     )  # fmt: skip

@@ -38,21 +38,21 @@ from swarmloc.engine.codes import (
     NO_LANDMARK,
     R_CORRELATION,
     R_DEGENERATE,
-    R_LANDMARKS_OFF,
-    R_NO_LANDMARK,
     R_NONFINITE,
-    R_NOT_STARTED,
     R_NUMERICAL,
-    R_OFF,
-    R_SELF,
-    R_TEAM,
-    R_UNUSABLE,
     REJECTED,
-    UNKNOWN,
-    UNKNOWN_ROBOT,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import RANGE_BEARING, innovation, inverse, measure, predict_kernel, usable, wrap
+from swarmloc.engine.joint import (
+    RANGE_BEARING,
+    innovation,
+    inverse,
+    measure,
+    predict_kernel,
+    screen_started,
+    usable,
+    wrap,
+)
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
@@ -206,26 +206,6 @@ def _joint_prior(Pi: np.ndarray, Pj: np.ndarray, fi: np.ndarray, fj: np.ndarray,
     return _ci_prior(Pi, Pj, H, R, weights)
 
 
-@njit(error_model="numpy")
-def _screen(kind: int, i: int, j: int, t: float, t0: np.ndarray, relative: bool, lm_on: bool) -> tuple[int, int]:
-    """``(outcome, reason)`` decided before any state is read (0, 0: go on), as the nodes decide it."""
-    if kind == ABSOLUTE:
-        return 0, 0
-    if j <= NO_LANDMARK:
-        if not lm_on:
-            return REJECTED, R_LANDMARKS_OFF
-        return (UNKNOWN, R_NO_LANDMARK) if j == NO_LANDMARK else (0, 0)
-    if not relative:
-        return REJECTED, R_OFF
-    if j == UNKNOWN_ROBOT:
-        return UNKNOWN, R_TEAM
-    if j < 0:
-        return REJECTED, R_UNUSABLE
-    if j == i:
-        return REJECTED, R_SELF
-    return (UNKNOWN, R_NOT_STARTED) if not t >= t0[j] else (0, 0)
-
-
 @cache
 def _kernels(noise: UnicycleNoise) -> Any:
     """Compile the replay loop with the noise model's prediction (once per process and noise model)."""
@@ -311,7 +291,7 @@ def _loop(predicted: Any, advance: Any) -> Any:
             for q in range(d0[s], d0[s + 1]):
                 i, j = obs[q], tgt[q]
                 advance(st, i, t)  # the observer moves to its group's stamp
-                res, why = _screen(kind[q], i, j, t, t0, relative, lm_on)
+                res, why = screen_started(kind[q], i, j, t, t0, relative, lm_on)
                 if res == 0 and (kind[q] == ABSOLUTE or j <= NO_LANDMARK):
                     res, why = _private(st, i, kind[q], j, z[q], R[q], lxy, lcov, thr, gate)
                 elif res == 0:

@@ -13,12 +13,13 @@ place; a stamp with a detection the loop does not take (range-only, bearing-only
 after it. The input checks are the nodes' either way (:class:`swarmloc.engine.checks.Checked`: detections screened
 in bulk, a robot's odometry that no sequential check could refuse checked as arrays).
 
-**The centralized EKF and recursive decentralized localization.** ``estimator="cekf"`` and ``"rdl"``
-(``backend="numba"``, planar teams) keep other state than the :class:`Engine`'s per-robot rows (a joint state; a
-filter and a factor per pair): the same checked timeline runs through
-:func:`swarmloc.engine.joint.replay_joint` or :func:`swarmloc.engine.pairs.replay_rdl`, every detection kind in one
-compiled call, as the ``cekf`` node (:class:`~swarmloc.estimators.CentralizedEKF`) or the ``rdl`` nodes exchanging
-their messages compute it; reasons are worded as those nodes word them.
+**The centralized EKFs, the invariant ones and recursive decentralized localization.** ``estimator="cekf"``,
+``"iekf"``, ``"diekf"`` and ``"rdl"`` (``backend="numba"``, planar teams) keep other state than the
+:class:`Engine`'s per-robot rows (a joint state; a filter and a factor per pair): the same checked timeline runs
+through :func:`swarmloc.engine.joint.replay_joint` or :func:`swarmloc.engine.pairs.replay_rdl`, every detection kind
+in one compiled call, as the ``cekf`` or ``iekf`` node, the ``diekf`` nodes exchanging their broadcasts (whose
+replicas are the invariant EKF's joint state; ``cluster = 0`` only) or the ``rdl`` nodes compute it; reasons are
+worded as those nodes word them.
 
 An SE(3) team (initial beliefs on SE(3), e.g. ``sim:3d``) runs on the engine's SE(3) path: body-twist odometry
 (:func:`swarmloc.events.twist_odometry`), ``"pose3"`` detections, the source's twist noise (``Source.noise``), tracks
@@ -45,10 +46,13 @@ from swarmloc.engine.codes import (
     R_DEGENERATE,
     R_NO_LANDMARK,
     R_NONFINITE,
+    R_NOT_STARTED,
     R_NUMERICAL,
     R_TEAM,
+    R_UNUSABLE,
     REASONS,
     UNKNOWN_ROBOT,
+    UNUSABLE,
 )
 from swarmloc.engine.core import Engine, landmark_table, map_code
 from swarmloc.engine.detections import Detections, Timeline
@@ -77,8 +81,9 @@ def run_engine(
     config: Config | None = None,
     **options: Any,
 ) -> RunResult:
-    """Run ``estimator`` on a source's events with the batched :class:`Engine` (``"cekf"``, ``"rdl"``: the compiled
-    replays of :mod:`swarmloc.engine.joint` and :mod:`swarmloc.engine.pairs`, ``backend="numba"``); returns a
+    """Run ``estimator`` on a source's events with the batched :class:`Engine` (``"cekf"``, ``"iekf"``, ``"diekf"``,
+    ``"rdl"``: the compiled replays of :mod:`swarmloc.engine.joint` and :mod:`swarmloc.engine.pairs`,
+    ``backend="numba"``); returns a
     :class:`~swarmloc.runner.RunResult` like :func:`swarmloc.runner.run` with the nodes of
     :func:`~swarmloc.estimators.make_team`.
 
@@ -136,16 +141,20 @@ def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: Checked
     return RunResult(name, tracks, wall, dict(stats), len(src.events), reasons, timing)
 
 
-_COMPILED_ONLY = ("cekf", "rdl")
-"""Estimators the engine runs only as a compiled replay of their own state (numba): ``cekf``'s joint state
-(:mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
-_COMPILED_OPTIONS = frozenset({"noise", "gate", "landmarks", "use_relative", "use_landmarks", "horizon"})
-"""The nodes' options those replays take (``horizon`` plays no role: input comes in order)."""
+_COMPILED_ONLY = ("cekf", "iekf", "rdl", "diekf")
+"""Estimators the engine runs only as a compiled replay of their own state (numba): ``cekf``'s and ``iekf``'s
+joint state, ``diekf``'s too (the nodes' replicas together are the invariant EKF's joint state,
+:mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
+_COMPILED_OPTIONS = frozenset({"noise", "gate", "landmarks", "use_relative", "use_landmarks", "horizon", "cluster"})
+"""The nodes' options those replays take (``horizon`` plays no role: input comes in order; ``cluster``: 0 only,
+``diekf``'s exact filter)."""
+_CENTRAL = ("cekf", "iekf")
+"""Compiled replays of a centralized node: it starts at the team's first input and words its own refusals."""
 
 
 def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
-    """``cekf`` or ``rdl`` through their compiled replay: the same input checks and timeline as the other
-    estimators, the whole replay in one call (numba, planar teams)."""
+    """``cekf``, ``iekf``, ``rdl`` or ``diekf`` through their compiled replay: the same input checks and timeline as
+    the other estimators, the whole replay in one call (numba, planar teams)."""
     if backend != "numba":
         raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only: pass backend='numba'")
     if src.noise is not None or any(np.shape(b.mean) != (3, 3) for b in src.initial.values()):
@@ -153,6 +162,8 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
     extra = sorted(set(opts) - _COMPILED_OPTIONS)
     if extra:
         raise TypeError(f"run_engine: {estimator!r} on the engine takes no option {extra}")
+    if opts.pop("cluster", 0):
+        raise ValueError(f"run_engine: {estimator!r} with clusters runs on the nodes only (cluster = 0 here)")
     from swarmloc.engine.joint import replay_joint  # numba
     from swarmloc.engine.pairs import replay_rdl
 
@@ -167,20 +178,24 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
     use_relative, use_landmarks = bool(opts.get("use_relative", True)), bool(opts.get("use_landmarks", True))
     kw = {"gate": opts.get("gate"), "use_relative": use_relative, "use_landmarks": use_landmarks, "landmarks": lm}
     wall = time.perf_counter()
-    if estimator == "cekf":
-        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_joint(tl, x, P, t0, opts["noise"], **kw)
-    else:
+    if estimator == "rdl":
         status, reason, (o_robot, o_stamp, o_x, o_P) = replay_rdl(tl, x, P, starts, opts["noise"], **kw)
+    else:
+        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_joint(
+            tl, x, P, t0 if estimator in _CENTRAL else starts, opts["noise"], invariant=estimator != "cekf", **kw
+        )
     wall = time.perf_counter() - wall
     counts: Counter[str] = Counter()
     reasons: Counter[str] = Counter(checked.reasons)
-    if estimator == "cekf":  # the centralized node's own words for what it refuses before reading a state
+    if estimator in _CENTRAL:  # the centralized node's own words for what it refuses before reading a state
         dynamic = np.isin(reason, (R_DEGENERATE, R_NONFINITE, R_NUMERICAL))
         tally(counts, reasons, status, np.where(dynamic, reason, 0).astype(np.int8))
         reasons.update(_joint_reasons(checked, t0, use_relative, use_landmarks))
     else:
         tally(counts, reasons, status, reason)
         _name_unknown(reasons, checked, use_relative, starts)
+        _name_unusable(reasons, checked, starts, use_relative, use_landmarks)
+        _name_not_started(reasons, checked, starts, src.robots)
     truth_rows = _truth_rows(src, rt)
     rows, truth_missing = _file_all(src, tl, records, truth_rows, o_robot, o_stamp, o_x, o_P)
     return _result(f"{estimator}/engine", src, rows, checked, counts, reasons, wall, truth_missing)
@@ -250,6 +265,43 @@ def _static_reason(d: Detection, code: int, use_relative: bool, use_landmarks: b
     if not use_landmarks:
         return "rejected: landmark measurements are switched off"
     return f"unknown: landmark {d.target} is not in the map" if code == NO_LANDMARK else None
+
+
+def _name_unusable(reasons: Counter[str], checked: Checked, t0: np.ndarray, use_relative: bool, use_landmarks: bool
+                   ) -> None:  # fmt: skip
+    """The distributed replays count a detection no filter can use (code ``UNUSABLE``) under one text; the nodes say
+    why (:meth:`~swarmloc.node.base.Node._classify`: relative measurements off, no target id, the pose of a
+    landmark). Each such detection of a started observer is worded as the nodes word it."""
+    generic = f"rejected: {REASONS[R_UNUSABLE]}"
+    if generic not in reasons:
+        return
+    named: Counter[str] = Counter()
+    for t, by_observer in checked.groups.items():
+        for row, group in by_observer.items():
+            for d, code in group.values():
+                if code == UNUSABLE and t >= t0[row]:
+                    named[_static_reason(d, code, use_relative, use_landmarks) or generic] += 1
+    if sum(named.values()) == reasons[generic]:
+        del reasons[generic]
+        reasons.update(named)
+
+
+def _name_not_started(reasons: Counter[str], checked: Checked, t0: np.ndarray, robots: Sequence[Any]) -> None:
+    """The distributed replays count a detection of a teammate before its start under one text; the runner answers
+    each query with the teammate's clock's words (:class:`~swarmloc.node.clock.Clock`: ``unknown: robot 2: stamp
+    0.2 is before the node's start time 4.0``). Each such detection (of a started observer) is worded so."""
+    generic = f"unknown: {REASONS[R_NOT_STARTED]}"
+    if generic not in reasons:
+        return
+    named: Counter[str] = Counter()
+    for t, by_observer in checked.groups.items():
+        for row, group in by_observer.items():
+            for _, code in group.values():
+                if 0 <= code != row and t >= t0[row] and not t >= t0[code]:
+                    named[f"unknown: robot {robots[code]}: stamp {t} is before the node's start time {t0[code]}"] += 1
+    if sum(named.values()) == reasons[generic]:
+        del reasons[generic]
+        reasons.update(named)
 
 
 def _name_unknown(reasons: Counter[str], checked: Checked, use_relative: bool, t0: np.ndarray) -> None:

@@ -48,8 +48,8 @@ import numpy as np
 
 from swarmloc.experiments.bench_report import format_report
 
-REPLAY_ESTIMATORS = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl")
-ENGINE_REPLAY = ("dekf", "cekf", "rdl")
+REPLAY_ESTIMATORS = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl", "diekf")
+ENGINE_REPLAY = ("dekf", "cekf", "iekf", "rdl", "diekf")
 """Estimators section d also replays through the engine's compiled loop (numba): a row ``<name>/engine`` each."""
 MRCLAM_ENV = "SWARMLOC_MRCLAM"
 """Environment variable: a folder holding ``MRCLAM_Dataset6`` (or the dataset folder itself)."""
@@ -422,8 +422,9 @@ def mrclam_replay(
     """Section d: every estimator on the MRCLAM dataset at ``path`` (first ``duration`` s, default all), with and
     without landmarks, through :func:`swarmloc.experiments.evaluate.evaluate_stream` (the events built once per setting,
     as ``swarmloc evaluate mrclam`` builds them). ``x_real_time``: replayed seconds / best wall time of the event loop
-    over ``rounds``. With ``dekf``, ``cekf`` or ``rdl``, also a row ``<name>/engine``: the same run through the batched
-    engine's compiled replay (numba; :func:`swarmloc.experiments.mrclam.engine_replay`, the whole call timed)."""
+    over ``rounds``. With ``dekf``, ``cekf``, ``iekf``, ``rdl`` or ``diekf``, also a row ``<name>/engine``: the same
+    run through the batched engine's compiled replay (numba; :func:`swarmloc.experiments.mrclam.engine_replay`, the
+    whole call timed)."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam
     from swarmloc.experiments import mrclam as M

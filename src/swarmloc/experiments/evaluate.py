@@ -136,7 +136,7 @@ def evaluate_stream(
     return report, results
 
 
-ENGINE_DRIVEN = ("dekf", "cekf", "rdl")
+ENGINE_DRIVEN = ("dekf", "cekf", "iekf", "rdl", "diekf")
 """Estimators :func:`evaluate_stream` can run through the engine's compiled replays (numba; ``swarmloc evaluate
 ... --engine``)."""
 

@@ -203,11 +203,11 @@ def engine_replay(
     data: MRCLAMData, events: list[Event], t_end: float, landmarks: bool, rounds: int = 1, config: Config = DEFAULTS,
     estimator: str = "dekf",
 ) -> dict[str, Any] | None:  # fmt: skip
-    """``estimator`` (``dekf``, ``cekf`` or ``rdl``) on ``events`` of ``data`` (up to ``t_end``) through the batched
-    engine's compiled replay (:func:`swarmloc.engine.run_engine`, ``backend="numba"``): ``wall_s`` the best of
-    ``rounds`` timed calls after an untimed one (numba compiles in it), each call timed whole (the input checks, packing
-    the timeline, the compiled loop, the tracks), ``x_real_time`` and the team's ``pos_rmse_m`` / ``anees``; None
-    without numba."""
+    """``estimator`` (one of :data:`~swarmloc.experiments.evaluate.ENGINE_DRIVEN`) on ``events`` of ``data`` (up to
+    ``t_end``) through the batched engine's compiled replay (:func:`swarmloc.engine.run_engine`, ``backend="numba"``):
+    ``wall_s`` the best of ``rounds`` timed calls after an untimed one (numba compiles in it), each call timed whole
+    (the input checks, packing the timeline, the compiled loop, the tracks), ``x_real_time`` and the team's
+    ``pos_rmse_m`` / ``anees``; None without numba."""
     import importlib.util
 
     if importlib.util.find_spec("numba") is None:

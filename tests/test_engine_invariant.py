@@ -1,0 +1,145 @@
+"""The invariant EKFs on the engine (``run_engine(source, "iekf" | "diekf", backend="numba")``: the joint state in
+world-frame errors replayed in one compiled loop, :mod:`swarmloc.engine.joint`) equal their nodes: the centralized
+``iekf`` node, and the ``diekf`` nodes exchanging their queries and team broadcasts through the in-process runner
+(their replicas together are the invariant EKF's joint state). Every recorded belief (1e-10 on simulated teams, 1e-9
+relative on MRCLAM), every outcome count and reason, every detection kind of robots and landmarks, a robot that
+starts late; and the compiled pieces against the library's own formulas."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from test_engine import _source
+from test_engine_cekf import _same, _same_on_mrclam, _with
+
+from swarmloc.engine import run_engine
+from swarmloc.engine.joint import left_correct, to_world, world_noise
+from swarmloc.estimators import make_team, node_options
+from swarmloc.events import Detection, Odometry
+from swarmloc.experiments.sources import load_source
+from swarmloc.kernels import invariant as I
+from swarmloc.runner import RunResult, run
+
+INVARIANT = ("iekf", "diekf")
+
+
+def _nodes(estimator: str, src, **options) -> RunResult:
+    opts = {**node_options(estimator, src.config, src.landmarks), **options}
+    return run(make_team(estimator, src.initial, **opts), src.events, record_times=src.record_times(),
+               truth=src.truth)  # fmt: skip
+
+
+@pytest.mark.parametrize("estimator", INVARIANT)
+def test_invariant_engine_equals_the_nodes_on_robots_of_every_kind(estimator) -> None:
+    """Relative poses, range-bearing, range-only, bearing-only of robots and absolute fixes, with a robot outside the
+    team, the observer itself, no target id and far-off readings (gated); and with relative measurements off."""
+    src = _source(5, 10.0, 17, kinds=("pose", "range_bearing"), fixes=True)
+    eye = 0.01 * np.eye(3)
+    extra = [
+        Detection(1, 3.0, "pose", np.array([1.0, 0.0, 0.0]), eye, target=42),  # not in the team
+        Detection(2, 4.0, "pose", np.array([0.0, 0.0, 0.0]), eye, target=2),  # itself
+        Detection(3, 5.0, "range_bearing", np.array([1.0, 0.1]), eye[:2, :2], target=None),  # no target id
+        Detection(0, 6.0, "pose", np.array([9.0, -9.0, 3.0]), eye, target=1),  # far off: gated
+        Detection(4, 7.0, "absolute", np.array([-9.0, 9.0, 0.0]), eye),  # far off: gated
+    ]
+    src = _with(src, extra)
+    ref, eng = _nodes(estimator, src), run_engine(src, estimator, backend="numba")
+    _same(ref, eng)
+    assert eng.estimator == f"{estimator}/engine"
+    assert sum(v for k, v in eng.reasons.items() if "robot 42" in k) == 1
+    assert eng.reasons["rejected: the target is the observer itself"] == 1
+    assert eng.reasons["rejected: robot detection without a target id"] == 1
+    assert eng.stats["gated"] >= 2 and eng.stats["fused"] > 500
+    off_ref, off = _nodes(estimator, src, use_relative=False), run_engine(src, estimator, backend="numba",
+                                                                           use_relative=False)  # fmt: skip
+    _same(off_ref, off)
+    assert off.reasons["rejected: relative measurements are switched off"] > 500
+
+
+@pytest.mark.parametrize("estimator", INVARIANT)
+def test_invariant_engine_equals_the_nodes_with_landmarks(estimator) -> None:
+    """Landmarks' range-bearing, range and bearing, a map without two of them (``unknown``), a landmark at the
+    observer's position (degenerate), and landmarks switched off."""
+    src = load_source("sim:landmarks", robots=4, duration=12.0, seed=5)
+    ids = sorted(src.landmarks)
+    x0, y0 = src.initial[0].mean[:2, 2]
+    rb = np.array([0.5, 0.0])
+    extra = [Detection(0, src.t_start, "range_bearing", rb, 0.01 * np.eye(2), target=999, target_is_robot=False)]
+    part = {k: v for k, v in src.landmarks.items() if k not in ids[:2]}
+    src = _with(src, extra, landmarks={**part, 999: (float(x0), float(y0), 0.0, 0.0)})
+    ref, eng = _nodes(estimator, src), run_engine(src, estimator, backend="numba")
+    _same(ref, eng)
+    assert eng.reasons["rejected: degenerate geometry: the target is at the observer's position"] == 1
+    assert sum(v for k, v in eng.reasons.items() if k.startswith("unknown: landmark")) > 10
+    assert eng.stats["fused"] > 350
+    off_ref, off = _nodes(estimator, src, use_landmarks=False), run_engine(src, estimator, backend="numba",
+                                                                            use_landmarks=False)  # fmt: skip
+    _same(off_ref, off)
+    assert off.reasons["rejected: landmark measurements are switched off"] > 400
+
+
+def test_diekf_engine_equals_the_nodes_when_a_robot_starts_late() -> None:
+    """Robot 2's own inputs begin at 4 s: its node starts there (its teammates' detections of it before are
+    ``unknown``, no answer), the centralized ``iekf`` starts everyone at the team's first input; the engine follows
+    each."""
+    src = _source(4, 10.0, 23, kinds=("pose", "range_bearing"))
+    own = [(isinstance(e, Odometry) and e.robot == 2) or (isinstance(e, Detection) and e.observer == 2)
+           for e in src.events]  # fmt: skip
+    late = [e for e, mine in zip(src.events, own, strict=True) if not (mine and e.stamp < 4.0)]
+    src = dataclasses.replace(src, events=late)
+    for estimator in INVARIANT:
+        ref, eng = _nodes(estimator, src), run_engine(src, estimator, backend="numba")
+        _same(ref, eng)
+        early = sum(v for k, v in eng.reasons.items() if k.startswith("unknown: robot 2: stamp"))
+        assert (early > 10) if estimator == "diekf" else (early == 0)
+        assert eng.tracks[2].times.min() >= (4.0 if estimator == "diekf" else 0.0)
+
+
+@pytest.mark.parametrize("estimator", INVARIANT)
+@pytest.mark.parametrize("use_landmarks", [True, False])
+def test_invariant_engine_equals_the_nodes_on_mrclam6(mrclam6, estimator, use_landmarks) -> None:
+    """The first 120 s of MRCLAM dataset 6."""
+    src = load_source(f"mrclam:{mrclam6}", duration=120.0)
+    ref = _nodes(estimator, src, use_landmarks=use_landmarks)
+    eng = run_engine(src, estimator, backend="numba", use_landmarks=use_landmarks)
+    _same_on_mrclam(ref, eng)
+    assert eng.stats["fused"] > (2000 if use_landmarks else 300)
+
+
+def test_diekf_engine_refuses_clusters() -> None:
+    src = _source(4, 2.0, 3)
+    with pytest.raises(ValueError, match="clusters"):
+        run_engine(src, "diekf", backend="numba", cluster=2)
+    with pytest.raises(ValueError, match="backend='numba'"):
+        run_engine(src, "diekf")
+
+
+def test_compiled_invariant_pieces_equal_the_library() -> None:
+    """The group correction ``exp(hat(delta)) g(x)`` (small and large angles: both branches of the series), the
+    world-frame Jacobian ``H N(x)`` and the world-frame process noise ``N^-1 Q N^-T`` against
+    :mod:`swarmloc.kernels.invariant`."""
+    rng = np.random.default_rng(4)
+    for scale in (1e-6, 0.02, 0.3, 2.5):
+        X = rng.uniform(-5, 5, size=12)
+        X[2::3] = rng.uniform(-math.pi, math.pi, size=4)
+        delta = rng.normal(scale=scale, size=12)
+        out = delta.copy()
+        left_correct(X, out)
+        ref = I.left_correct(X.reshape(4, 3), delta.reshape(4, 3)).reshape(-1)
+        np.testing.assert_allclose(out, ref, rtol=0, atol=1e-13)
+    x = rng.uniform(-5, 5, size=3)
+    H = rng.normal(size=(2, 6))
+    Hw = H.copy()
+    to_world(Hw, 3, x[0], x[1])
+    np.testing.assert_allclose(Hw[:, 3:], H[:, 3:] @ I.world_basis(x), atol=1e-14)
+    np.testing.assert_array_equal(Hw[:, :3], H[:, :3])
+    A = rng.normal(size=(3, 3))
+    Q = A @ A.T
+    q = world_noise(x[0], x[1], Q[np.triu_indices(3)])
+    W = np.zeros((3, 3))
+    W[np.triu_indices(3)] = q
+    W = W + np.triu(W, 1).T
+    np.testing.assert_allclose(W, I.cartesian_to_world_cov(x, Q), atol=1e-13)
