@@ -68,11 +68,16 @@ def test_invariant_engine_equals_the_nodes_with_landmarks(estimator) -> None:
     ids = sorted(src.landmarks)
     x0, y0 = src.initial[0].mean[:2, 2]
     rb = np.array([0.5, 0.0])
-    extra = [Detection(0, src.t_start, "range_bearing", rb, 0.01 * np.eye(2), target=999, target_is_robot=False)]
+    eye = 0.01 * np.eye(3)
+    extra = [
+        Detection(0, src.t_start, "range_bearing", rb, eye[:2, :2], target=999, target_is_robot=False),
+        Detection(1, 2.0, "pose", np.array([1.0, 0.0, 0.0]), eye, target=ids[3], target_is_robot=False),
+    ]  # fmt: skip
     part = {k: v for k, v in src.landmarks.items() if k not in ids[:2]}
     src = _with(src, extra, landmarks={**part, 999: (float(x0), float(y0), 0.0, 0.0)})
     ref, eng = _nodes(estimator, src), run_engine(src, estimator, backend="numba")
     _same(ref, eng)
+    assert eng.reasons["rejected: a landmark is a point: it has no relative pose"] == 1
     assert eng.reasons["rejected: degenerate geometry: the target is at the observer's position"] == 1
     assert sum(v for k, v in eng.reasons.items() if k.startswith("unknown: landmark")) > 10
     assert eng.stats["fused"] > 350
@@ -80,6 +85,10 @@ def test_invariant_engine_equals_the_nodes_with_landmarks(estimator) -> None:
                                                                             use_landmarks=False)  # fmt: skip
     _same(off_ref, off)
     assert off.reasons["rejected: landmark measurements are switched off"] > 400
+    no_rel_ref, no_rel = _nodes(estimator, src, use_relative=False), run_engine(src, estimator, backend="numba",
+                                                                                 use_relative=False)  # fmt: skip
+    _same(no_rel_ref, no_rel)  # the pose of a landmark is still one, not a relative measurement switched off
+    assert no_rel.reasons["rejected: a landmark is a point: it has no relative pose"] == 1
 
 
 def test_diekf_engine_equals_the_nodes_when_a_robot_starts_late() -> None:

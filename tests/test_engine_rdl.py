@@ -34,12 +34,14 @@ def test_rdl_engine_equals_the_nodes_on_robots_of_every_kind() -> None:
     extra = [
         Detection(1, 3.0, "pose", np.array([1.0, 0.0, 0.0]), eye, target=42),  # not in the team
         Detection(2, 4.0, "pose", np.array([0.0, 0.0, 0.0]), eye, target=2),  # itself
+        Detection(3, 5.0, "range_bearing", np.array([1.0, 0.1]), eye[:2, :2], target=None),  # no target id
         Detection(4, 7.0, "absolute", np.array([-9.0, 9.0, 0.0]), eye),  # far off: gated
     ]
     src = _with(src, extra)
     ref, eng = _nodes(src), run_engine(src, "rdl", backend="numba")
     _same(ref, eng)
     assert eng.reasons["unknown: robot 42: robot 42 is not in the team"] == 1
+    assert eng.reasons["rejected: robot detection without a target id"] == 1
     assert eng.stats["gated"] >= 1 and eng.stats["fused"] > 500
     off_ref, off = _nodes(src, use_relative=False), run_engine(src, "rdl", backend="numba", use_relative=False)
     _same(off_ref, off)

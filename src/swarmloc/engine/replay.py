@@ -83,9 +83,8 @@ def run_engine(
 ) -> RunResult:
     """Run ``estimator`` on a source's events with the batched :class:`Engine` (``"cekf"``, ``"iekf"``, ``"diekf"``,
     ``"rdl"``: the compiled replays of :mod:`swarmloc.engine.joint` and :mod:`swarmloc.engine.pairs`,
-    ``backend="numba"``); returns a
-    :class:`~swarmloc.runner.RunResult` like :func:`swarmloc.runner.run` with the nodes of
-    :func:`~swarmloc.estimators.make_team`.
+    ``backend="numba"``); returns a :class:`~swarmloc.runner.RunResult` like :func:`swarmloc.runner.run` with the
+    nodes of :func:`~swarmloc.estimators.make_team`.
 
     ``source_or_sim``: a :class:`~swarmloc.datasets.source.Source` or a simulation (turned into one by
     :func:`~swarmloc.sim.source.sim_source` with ``config``); ``record_times`` default ``Source.record_times()``;
