@@ -93,8 +93,8 @@ def test_invariant_engine_equals_the_nodes_with_landmarks(estimator) -> None:
 
 def test_diekf_engine_equals_the_nodes_when_a_robot_starts_late() -> None:
     """Robot 2's own inputs begin at 4 s: its node starts there (its teammates' detections of it before are
-    ``unknown``, no answer), the centralized ``iekf`` starts everyone at the team's first input; the engine follows
-    each."""
+    ``unknown``, in its clock's words), the centralized ``iekf`` starts everyone at the team's first input; the
+    engine follows each."""
     src = _source(4, 10.0, 23, kinds=("pose", "range_bearing"))
     own = [(isinstance(e, Odometry) and e.robot == 2) or (isinstance(e, Detection) and e.observer == 2)
            for e in src.events]  # fmt: skip
