@@ -112,16 +112,16 @@ def test_cli_calibrate_yaw_scales_the_yaw_terms_as_the_recording_says(capsys, mr
 
 
 def test_cli_engine_flag_runs_the_compiled_replays_with_the_nodes_results(capsys, mrclam6: Path):
-    """``--engine``: dekf, cekf and rdl through the engine's compiled replays score as the nodes do (same counts,
-    RMSE and ANEES to 1e-9), their rows say so; another estimator, an association policy or an event file is
-    refused with the reason (exit 2)."""
-    args = ["evaluate", "mrclam", str(mrclam6), "--estimators", "dekf,cekf,rdl", "--duration", "20", "--json",
+    """``--engine``: dekf, cekf, rdl and diekf through the engine's compiled replays score as the nodes do (same
+    counts, RMSE and ANEES to 1e-9), their rows say so; another estimator, an association policy or an event file
+    is refused with the reason (exit 2)."""
+    args = ["evaluate", "mrclam", str(mrclam6), "--estimators", "dekf,cekf,rdl,diekf", "--duration", "20", "--json",
             "--quiet"]  # fmt: skip
     assert main([*args, "--engine"]) == 0
     eng = json.loads(capsys.readouterr().out)["estimators"]
     assert main(args) == 0
     nodes = json.loads(capsys.readouterr().out)["estimators"]
-    for name in ("dekf", "cekf", "rdl"):
+    for name in ("dekf", "cekf", "rdl", "diekf"):
         e, n = eng[name], nodes[name]
         assert e["driver"].startswith("engine") and "driver" not in n and e["compile_s"] >= 0
         assert e["team"]["pos_rmse"] == pytest.approx(n["team"]["pos_rmse"], rel=1e-9)
@@ -130,7 +130,7 @@ def test_cli_engine_flag_runs_the_compiled_replays_with_the_nodes_results(capsys
             k: n["stats"][k] for k in ("fused", "gated", "rejected", "unknown")}  # fmt: skip
         assert e["stats"]["fused"] > 100
     assert main([*args[:4], "dekf,ci", *args[5:], "--engine"]) == 2
-    assert "compiled replays run ['dekf', 'cekf', 'rdl'], not ['ci']" in capsys.readouterr().err
+    assert "compiled replays run ['dekf', 'cekf', 'iekf', 'rdl', 'diekf'], not ['ci']" in capsys.readouterr().err
     assert main([*args, "--engine", "--association", "nearest"]) == 2
     assert "tagged detections only" in capsys.readouterr().err
     assert main(["evaluate", "events", str(mrclam6 / "x.csv"), "--engine", "--quiet"]) == 2
