@@ -2,8 +2,8 @@
 world-frame errors replayed in one compiled loop, :mod:`swarmloc.engine.joint`) equal their nodes: the centralized
 ``iekf`` node, and the ``diekf`` nodes exchanging their queries and team broadcasts through the in-process runner
 (their replicas together are the invariant EKF's joint state). Every recorded belief (1e-10 on simulated teams, 1e-9
-relative on MRCLAM), every outcome count and reason, every detection kind of robots and landmarks, a robot that
-starts late; and the compiled pieces against the library's own formulas."""
+relative on MRCLAM 6, 1e-8 on MRCLAM 9), every outcome count and reason, every detection kind of robots and
+landmarks, a robot that starts late; and the compiled pieces against the library's own formulas."""
 
 from __future__ import annotations
 
