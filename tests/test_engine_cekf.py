@@ -43,6 +43,19 @@ def _with(src, extra: list, **changes):
     return dataclasses.replace(src, events=events, **changes)
 
 
+def robot_extras(far_pose: bool = True) -> list[Detection]:
+    """Detections for a 5-robot team (ids 0-4) that end before any update: of a robot outside the team (42), of the
+    observer itself, without a target id; and far off (gated): a fix and, with ``far_pose``, a relative pose."""
+    eye = 0.01 * np.eye(3)
+    return [
+        Detection(1, 3.0, "pose", np.array([1.0, 0.0, 0.0]), eye, target=42),  # not in the team
+        Detection(2, 4.0, "pose", np.array([0.0, 0.0, 0.0]), eye, target=2),  # itself
+        Detection(3, 5.0, "range_bearing", np.array([1.0, 0.1]), eye[:2, :2], target=None),  # no target id
+        *([Detection(0, 6.0, "pose", np.array([9.0, -9.0, 3.0]), eye, target=1)] if far_pose else []),  # gated
+        Detection(4, 7.0, "absolute", np.array([-9.0, 9.0, 0.0]), eye),  # far off: gated
+    ]
+
+
 def _reasons(res: RunResult) -> Counter[str]:
     """The detections' reasons (nodes also count refused messages, e.g. revisions under late input), zeros dropped."""
     return +Counter({k: v for k, v in res.reasons.items() if not k.startswith("message")})
@@ -69,16 +82,7 @@ def _same_on_mrclam(ref: RunResult, eng: RunResult) -> None:
 def test_cekf_engine_equals_the_node_on_robots_of_every_kind() -> None:
     """Relative poses, range-bearing, range-only, bearing-only of robots and absolute fixes, with detections of a
     robot outside the team, of the observer itself, without a target id, and far off (gated)."""
-    src = _source(5, 10.0, 17, kinds=("pose", "range_bearing"), fixes=True)
-    eye = 0.01 * np.eye(3)
-    extra = [
-        Detection(1, 3.0, "pose", np.array([1.0, 0.0, 0.0]), eye, target=42),  # not in the team
-        Detection(2, 4.0, "pose", np.array([0.0, 0.0, 0.0]), eye, target=2),  # itself
-        Detection(3, 5.0, "range_bearing", np.array([1.0, 0.1]), eye[:2, :2], target=None),  # no target id
-        Detection(0, 6.0, "pose", np.array([9.0, -9.0, 3.0]), eye, target=1),  # far off: gated
-        Detection(4, 7.0, "absolute", np.array([-9.0, 9.0, 0.0]), eye),  # far off: gated
-    ]
-    src = _with(src, extra)
+    src = _with(_source(5, 10.0, 17, kinds=("pose", "range_bearing"), fixes=True), robot_extras())
     kinds = {e.kind for e in src.events if isinstance(e, Detection)}
     assert kinds == {"pose", "range_bearing", "range", "bearing", "absolute"}
     ref, eng = _node(src), run_engine(src, "cekf", backend="numba")

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 from test_engine import COUNTS, _source
-from test_engine_cekf import _reasons, _same, _same_on_mrclam, _with
+from test_engine_cekf import _reasons, _same, _same_on_mrclam, _with, robot_extras
 
 from swarmloc.engine import run_engine
 from swarmloc.engine.joint import left_correct, to_world, world_noise
@@ -37,16 +37,7 @@ def _nodes(estimator: str, src, **options) -> RunResult:
 def test_invariant_engine_equals_the_nodes_on_robots_of_every_kind(estimator) -> None:
     """Relative poses, range-bearing, range-only, bearing-only of robots and absolute fixes, with a robot outside the
     team, the observer itself, no target id and far-off readings (gated); and with relative measurements off."""
-    src = _source(5, 10.0, 17, kinds=("pose", "range_bearing"), fixes=True)
-    eye = 0.01 * np.eye(3)
-    extra = [
-        Detection(1, 3.0, "pose", np.array([1.0, 0.0, 0.0]), eye, target=42),  # not in the team
-        Detection(2, 4.0, "pose", np.array([0.0, 0.0, 0.0]), eye, target=2),  # itself
-        Detection(3, 5.0, "range_bearing", np.array([1.0, 0.1]), eye[:2, :2], target=None),  # no target id
-        Detection(0, 6.0, "pose", np.array([9.0, -9.0, 3.0]), eye, target=1),  # far off: gated
-        Detection(4, 7.0, "absolute", np.array([-9.0, 9.0, 0.0]), eye),  # far off: gated
-    ]
-    src = _with(src, extra)
+    src = _with(_source(5, 10.0, 17, kinds=("pose", "range_bearing"), fixes=True), robot_extras())
     ref, eng = _nodes(estimator, src), run_engine(src, estimator, backend="numba")
     _same(ref, eng)
     assert eng.estimator == f"{estimator}/engine"

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_engine import _source
-from test_engine_cekf import _same, _same_on_mrclam, _with
+from test_engine_cekf import _same, _same_on_mrclam, _with, robot_extras
 
 from swarmloc.engine import run_engine
 from swarmloc.engine.pairs import _joint_prior
@@ -29,15 +29,7 @@ def test_rdl_engine_equals_the_nodes_on_robots_of_every_kind() -> None:
     """Relative poses, range-bearing, range-only, bearing-only of robots and absolute fixes (the exchanges revised
     under late input in the nodes: their final state is the engine's), with a robot outside the team, the observer
     itself and a far-off fix; and with relative measurements off."""
-    src = _source(5, 10.0, 17, kinds=("pose", "range_bearing"), fixes=True)
-    eye = 0.01 * np.eye(3)
-    extra = [
-        Detection(1, 3.0, "pose", np.array([1.0, 0.0, 0.0]), eye, target=42),  # not in the team
-        Detection(2, 4.0, "pose", np.array([0.0, 0.0, 0.0]), eye, target=2),  # itself
-        Detection(3, 5.0, "range_bearing", np.array([1.0, 0.1]), eye[:2, :2], target=None),  # no target id
-        Detection(4, 7.0, "absolute", np.array([-9.0, 9.0, 0.0]), eye),  # far off: gated
-    ]
-    src = _with(src, extra)
+    src = _with(_source(5, 10.0, 17, kinds=("pose", "range_bearing"), fixes=True), robot_extras(far_pose=False))
     ref, eng = _nodes(src), run_engine(src, "rdl", backend="numba")
     _same(ref, eng)
     assert eng.reasons["unknown: robot 42: robot 42 is not in the team"] == 1

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
 
@@ -266,41 +266,49 @@ def _static_reason(d: Detection, code: int, use_relative: bool, use_landmarks: b
     return f"unknown: landmark {d.target} is not in the map" if code == NO_LANDMARK else None
 
 
+def _rename(reasons: Counter[str], checked: Checked, t0: np.ndarray, generic: str,
+            words: Callable[[float, int, Detection, int], str | None]) -> None:  # fmt: skip
+    """Replace the count under the engine's ``generic`` text by the nodes' own texts ``words(t, row, d, code)`` (None:
+    not such a detection) of the detections of started observers, where those account for all of it."""
+    if generic not in reasons:
+        return
+    named: Counter[str] = Counter()
+    for t, by_observer in checked.groups.items():
+        for row, group in by_observer.items():
+            if t >= t0[row]:
+                for d, code in group.values():
+                    text = words(t, row, d, code)
+                    if text is not None:
+                        named[text] += 1
+    if named and sum(named.values()) == reasons[generic]:
+        del reasons[generic]
+        reasons.update(named)
+
+
 def _name_unusable(reasons: Counter[str], checked: Checked, t0: np.ndarray, use_relative: bool, use_landmarks: bool
                    ) -> None:  # fmt: skip
     """The distributed replays count a detection no filter can use (code ``UNUSABLE``) under one text; the nodes say
     why (:meth:`~swarmloc.node.base.Node._classify`: relative measurements off, no target id, the pose of a
     landmark). Each such detection of a started observer is worded as the nodes word it."""
     generic = f"rejected: {REASONS[R_UNUSABLE]}"
-    if generic not in reasons:
-        return
-    named: Counter[str] = Counter()
-    for t, by_observer in checked.groups.items():
-        for row, group in by_observer.items():
-            for d, code in group.values():
-                if code == UNUSABLE and t >= t0[row]:
-                    named[_static_reason(d, code, use_relative, use_landmarks) or generic] += 1
-    if sum(named.values()) == reasons[generic]:
-        del reasons[generic]
-        reasons.update(named)
+
+    def words(t: float, row: int, d: Detection, code: int) -> str | None:
+        return (_static_reason(d, code, use_relative, use_landmarks) or generic) if code == UNUSABLE else None
+
+    _rename(reasons, checked, t0, generic, words)
 
 
 def _name_not_started(reasons: Counter[str], checked: Checked, t0: np.ndarray, robots: Sequence[Any]) -> None:
     """The distributed replays count a detection of a teammate before its start under one text; the runner answers
     each query with the teammate's clock's words (:class:`~swarmloc.node.clock.Clock`: ``unknown: robot 2: stamp
     0.2 is before the node's start time 4.0``). Each such detection (of a started observer) is worded so."""
-    generic = f"unknown: {REASONS[R_NOT_STARTED]}"
-    if generic not in reasons:
-        return
-    named: Counter[str] = Counter()
-    for t, by_observer in checked.groups.items():
-        for row, group in by_observer.items():
-            for _, code in group.values():
-                if 0 <= code != row and t >= t0[row] and not t >= t0[code]:
-                    named[f"unknown: robot {robots[code]}: stamp {t} is before the node's start time {t0[code]}"] += 1
-    if sum(named.values()) == reasons[generic]:
-        del reasons[generic]
-        reasons.update(named)
+
+    def words(t: float, row: int, d: Detection, code: int) -> str | None:
+        if 0 <= code != row and not t >= t0[code]:
+            return f"unknown: robot {robots[code]}: stamp {t} is before the node's start time {t0[code]}"
+        return None
+
+    _rename(reasons, checked, t0, f"unknown: {REASONS[R_NOT_STARTED]}", words)
 
 
 def _name_unknown(reasons: Counter[str], checked: Checked, use_relative: bool, t0: np.ndarray) -> None:
@@ -315,17 +323,12 @@ def _name_unknown(reasons: Counter[str], checked: Checked, use_relative: bool, t
         (f"unknown: {REASONS[R_TEAM]}", UNKNOWN_ROBOT, robot, use_relative),
         (f"unknown: {REASONS[R_NO_LANDMARK]}", NO_LANDMARK, landmark, True),
     ):
-        if not on or generic not in reasons:
-            continue
-        named: Counter[str] = Counter()
-        for t, by_observer in checked.groups.items():
-            for row, group in by_observer.items():
-                for d, c in group.values():
-                    if c == code and t >= t0[row] and (code != NO_LANDMARK or not d.target_is_robot):
-                        named[text.format(d.target)] += 1
-        if named and sum(named.values()) == reasons[generic]:
-            del reasons[generic]
-            reasons.update(named)
+        if on:
+
+            def words(t: float, row: int, d: Detection, c: int, code: int = code, text: str = text) -> str | None:
+                return text.format(d.target) if c == code and (code != NO_LANDMARK or not d.target_is_robot) else None
+
+            _rename(reasons, checked, t0, generic, words)
 
 
 def _replay(eng: Engine, src: Source, checked: Checked, rt: np.ndarray) -> tuple[dict[Any, list[Row]], int, float]:

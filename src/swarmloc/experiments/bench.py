@@ -422,9 +422,8 @@ def mrclam_replay(
     """Section d: every estimator on the MRCLAM dataset at ``path`` (first ``duration`` s, default all), with and
     without landmarks, through :func:`swarmloc.experiments.evaluate.evaluate_stream` (the events built once per setting,
     as ``swarmloc evaluate mrclam`` builds them). ``x_real_time``: replayed seconds / best wall time of the event loop
-    over ``rounds``. With ``dekf``, ``cekf``, ``iekf``, ``rdl`` or ``diekf``, also a row ``<name>/engine``: the same
-    run through the batched engine's compiled replay (numba; :func:`swarmloc.experiments.mrclam.engine_replay`, the
-    whole call timed)."""
+    over ``rounds``. With an estimator of :data:`ENGINE_REPLAY`, also a row ``<name>/engine``: the same run through
+    the batched engine's compiled replay (numba; :func:`swarmloc.experiments.mrclam.engine_replay`, whole call)."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam
     from swarmloc.experiments import mrclam as M
