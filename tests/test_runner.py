@@ -178,6 +178,39 @@ def test_a_truth_event_older_than_the_history_is_counted_not_fatal():
     assert res.stats["record_too_old"] == 2 and res.stats["recorded"] == 2 * (sim.times.size - 1)
 
 
+def test_a_message_superseded_before_its_delivery_is_not_delivered():
+    """``diekf`` on 5 robots that detect each other at shared stamps, robot 0's absolute fixes fed after the other
+    robots' groups at their stamp (each a late input keyed before all of them): the runner delivers only the newest
+    message of each exchange. When it delivered every one, these 9 s replayed 229,687 history entries (328 per
+    detection, 36 s of wall time), every node replaying and revising again for each outdated message; now 6.5 per
+    detection. The beliefs equal those of the same events fed in key order (no fix late) to 1e-10 (measured:
+    bitwise), with every detection's outcome."""
+    from test_engine import _source
+    from test_engine_cekf import _with, robot_extras
+
+    from swarmloc.estimators import node_options
+
+    src = _with(_source(5, 9.0, 17, kinds=("pose", "range_bearing"), fixes=True), robot_extras())
+    keyed = sorted(src.events, key=lambda e: (e.stamp, isinstance(e, Detection), getattr(e, "observer", -1)))
+    assert keyed != src.events
+
+    def nodes() -> list[Node]:
+        return make_team("diekf", src.initial, **node_options("diekf", src.config, src.landmarks))
+
+    fed, ordered = (run(nodes(), ev, record_times=src.record_times(), truth=src.truth) for ev in (src.events, keyed))
+    assert fed.stats["messages_superseded"] > 1000 and fed.stats["revisions_sent"] > 500
+    assert fed.stats["replayed"] <= 10 * fed.stats["detections"]
+    assert fed.stats["fused"] > 600
+    for k in ("detections", "fused", "gated", "rejected", "unknown", "recorded"):
+        assert fed.stats[k] == ordered.stats[k], k
+    for r, ta in ordered.tracks.items():
+        tb = fed.tracks[r]
+        np.testing.assert_array_equal(ta.times, tb.times)
+        np.testing.assert_allclose(tb.mean, ta.mean, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(tb.cov, ta.cov, rtol=0, atol=1e-10)
+    assert fed.accounted() and ordered.accounted()
+
+
 def test_progress_callback_reaches_the_end():
     sim = random_team(2, 3.0, seed=1)
     calls: list[tuple[int, int]] = []

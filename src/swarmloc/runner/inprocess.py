@@ -172,16 +172,31 @@ class _Driver:
     def pump(self, msgs: list[Message]) -> None:
         """Deliver messages until none are left, lowest key first (an answer at key ``q`` depends only on inputs
         before ``q``, so in this order no answer is revised twice for the same cause); among messages with one key
-        the highest revision first, so that an older one arrives stale instead of causing a second replay."""
+        the highest revision first, so that an older one arrives stale instead of causing a second replay.
+
+        A message superseded before its delivery by a newer one of the same exchange (same type, sender, receiver,
+        stamp and sub-key: a revised answer, a re-sent or retracted update) is not delivered (counted
+        ``messages_superseded``): its receiver would take the newer one in its place anyway (answers by revision,
+        updates replacing the one filed under their key), and delivering it made every node replay, re-send and
+        revise once more for it. A late input at a stamp where all robots detect each other made such rounds grow
+        without bound: ``diekf`` on 5 robots sharing stamps replayed 229,687 history entries in 9 s of data (36 s of
+        wall time) where the newest messages alone need 4,543 (2.6 s), with the same beliefs."""
         heap: list[tuple] = []
+        latest: dict[tuple, int] = {}
 
         def push(ms: list[Message]) -> None:
             for m in ms:
-                heapq.heappush(heap, (m.stamp, m.observer, m.sub, -getattr(m, "seq", 0), next(self.order), m))
+                n = next(self.order)
+                latest[(type(m), m.sender, m.receiver, m.stamp, m.sub)] = n
+                heapq.heappush(heap, (m.stamp, m.observer, m.sub, -getattr(m, "seq", 0), n, m))
 
         push(msgs)
         while heap:
-            m = heapq.heappop(heap)[-1]
+            _, _, _, _, n, m = heapq.heappop(heap)
+            if latest.get(k := (type(m), m.sender, m.receiver, m.stamp, m.sub)) != n:
+                self.stats["messages_superseded"] += 1
+                continue
+            del latest[k]
             self.stats["messages"] += 1
             node = self.owner.get(m.receiver)
             if node is None:
