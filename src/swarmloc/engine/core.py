@@ -61,7 +61,7 @@ from swarmloc.engine.backends import BACKENDS, make_ops
 from swarmloc.engine.codes import KIND_NAMES, NO_LANDMARK, PENDING, POSE3, REJECTED, landmark_code
 from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.fuse_ci import CiFusion
-from swarmloc.engine.fuse_ekf import FAST_KINDS, EkfFusion
+from swarmloc.engine.fuse_ekf import EkfFusion, compiled_kinds
 from swarmloc.engine.fuse_ekf3 import Ekf3Fusion
 from swarmloc.engine.fuse_exp import ExpFusionLevel
 from swarmloc.engine.outcomes import screen, tally
@@ -365,7 +365,8 @@ class Engine:
         level = levels(U.size, lt[edge], lo[edge])
         row_level = np.where(obs_ok, level[np.where(obs_ok, lo, 0)], -1)
         self.last_levels = int(row_level.max()) + 1
-        if self.backend == "numba" and np.isin(det.kind[status == PENDING], FAST_KINDS).all():
+        pending = status == PENDING
+        if self.backend == "numba" and compiled_kinds(det.kind[pending], det.target[pending]).all():
             # compiled: groups of a level in parallel threads, levels in order
             ok_groups = starts[obs_ok[starts]]
             ends = np.r_[starts[1:], len(det)][obs_ok[starts]]
@@ -373,7 +374,8 @@ class Engine:
             order = np.argsort(g_level, kind="stable")
             bounds = np.searchsorted(g_level[order], np.arange(self.last_levels + 1))
             self.ops.fuse_groups(cur, prior, det, np.where(obs_ok, lo, 0), np.where(needs, lt, 0), status, reason,
-                                 self.fusion.gate, ok_groups[order], ends[order], bounds)  # fmt: skip
+                                 self.fusion.gate, ok_groups[order], ends[order], bounds,
+                                 self.fusion.landmarks)  # fmt: skip
         else:
             st = Stamp(det, status, reason, pos, lo, lt, prior, cur)
             order = np.argsort(row_level, kind="stable")

@@ -3,7 +3,7 @@
 The per-robot functions are the formulas of :mod:`swarmloc.engine.soa` turned into straight-line scalar code
 (:mod:`swarmloc.engine.scalar`) and compiled by numba, so the three fast backends share one formula source. Around
 them, loops over robots (``numba.prange``: ``NUMBA_NUM_THREADS`` threads) and :meth:`NumbaOps.fuse_groups`, which
-fuses every pose/absolute detection of one stamp level by level (the Gauss-Seidel levels of
+fuses every pose, absolute and map-landmark detection of one stamp level by level (the Gauss-Seidel levels of
 :mod:`swarmloc.engine.core`), the groups of one level in parallel. Compiled once per process and noise model
 (a few seconds). Units: m, rad, s.
 """
@@ -288,7 +288,7 @@ def scatter2(a, b, rows, va, vb):
         b[rows[k]] = vb[k]
 
 
-def fuse_groups(x, P, px, pP, lo, lt, later, kind, z, R, status, reason, gate, thr, g0, g1, bounds):
+def fuse_groups(x, P, px, pP, lo, lt, later, kind, tgt, z, R, status, reason, gate, thr, g0, g1, bounds, lxy, lcov):
     for lv in range(bounds.shape[0] - 1):
         for g in prange(bounds[lv], bounds[lv + 1]):
             for q in range(g0[g], g1[g]):
@@ -298,6 +298,14 @@ def fuse_groups(x, P, px, pP, lo, lt, later, kind, z, R, status, reason, gate, t
                 j = lt[q]
                 if kind[q] == {ABSOLUTE}:
                     r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
+                elif tgt[q] < {NO_LANDMARK}:  # a map landmark's range-bearing (screened: in the map, landmarks on)
+                    k = {NO_LANDMARK} - 1 - tgt[q]
+                    if math.hypot(lxy[k, 0] - x[i, 0], lxy[k, 1] - x[i, 1]) < {MIN_RANGE!r}:
+                        status[q] = {REJECTED}
+                        reason[q] = {R_DEGENERATE}
+                        continue
+                    r = landmark({_args("x", "i")}, {_args("P", "i", True)}, {_args("lxy", "k", two=True)},
+                                 {_args("lcov", "k", True, True)}, z[q, 0], z[q, 1], R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])
                 elif later[q]:
                     r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("px", "j")}, {_args("pP", "j", True)},
                              {_args("z", "q")}, {_args("R", "q", True)})
@@ -484,22 +492,25 @@ class NumbaOps:
                            np.asarray(vb, dtype=float))  # fmt: skip
 
     def fuse_groups(self, cur: tuple, prior: tuple, det: Any, lo: np.ndarray, lt: np.ndarray, status: np.ndarray,
-                    reason: np.ndarray, gate: Gate, g0: np.ndarray, g1: np.ndarray,
-                    bounds: np.ndarray) -> None:  # fmt: skip
-        """Fuse the pending pose/absolute detections of one stamp in place (``cur``, ``status``, ``reason``).
+                    reason: np.ndarray, gate: Gate, g0: np.ndarray, g1: np.ndarray, bounds: np.ndarray,
+                    landmarks: tuple[np.ndarray, np.ndarray] | None = None) -> None:  # fmt: skip
+        """Fuse the pending pose, absolute and map-landmark range-bearing detections of one stamp in place (``cur``,
+        ``status``, ``reason``; :func:`compiled_kinds` says which rows these are).
 
         Group ``g`` is rows ``g0[g]:g1[g]`` (one observer, canonical order); groups ``bounds[l]:bounds[l+1]`` form
         level ``l``. Observer ``lo[r]`` is a row of the current states ``cur``; neighbour ``lt[r]`` is read there
         when its id is smaller (its group is in a lower level: done) and in the snapshot ``prior`` taken before
         the stamp's groups otherwise. ``gate``: the nodes' chi-square gate, its threshold for each kind's
-        measurement size (:data:`~swarmloc.engine.codes.MODEL`). Outcome rules of
-        :class:`~swarmloc.estimators.DistributedEKF`."""
+        measurement size (:data:`~swarmloc.engine.codes.MODEL`). ``landmarks``: the map ``(xy (L, 2), cov (L, 2,
+        2))``, a landmark's row ``k`` read at target code :func:`~swarmloc.engine.codes.landmark_code` ``(k)``
+        (:meth:`fuse_serial`). Outcome rules of :class:`~swarmloc.estimators.DistributedEKF`."""
         f = np.ascontiguousarray
         later = f(det.target > det.observer)
         i64 = np.int64
         kernel = _pick(self.k, "fuse_groups", lo.shape[0])
         thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])  # by kind code
+        lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
         kernel(cur[0], cur[1], f(prior[0]), f(prior[1]), f(lo, dtype=i64), f(lt, dtype=i64), later,
-               f(det.kind, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status, reason,
-               gate.p is not None, thr,
-               f(g0, dtype=i64), f(g1, dtype=i64), f(bounds, dtype=i64))  # fmt: skip
+               f(det.kind, dtype=i64), f(det.target, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status,
+               reason, gate.p is not None, thr, f(g0, dtype=i64), f(g1, dtype=i64), f(bounds, dtype=i64),
+               f(lxy, dtype=float), f(lcov, dtype=float))  # fmt: skip
