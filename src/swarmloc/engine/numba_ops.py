@@ -84,6 +84,21 @@ def _store(o: str, oP: str, i: str, indent: int) -> str:
     return "\n".join(pad + line for line in _STORE.format(o=o, oP=oP, i=i).strip().splitlines())
 
 
+def _map_landmark(target: str, indent: int) -> str:
+    """Code of a map landmark's range-bearing update of observer ``i`` (detection ``q``, target code ``target``):
+    rejected as degenerate at the landmark's position, else ``r`` the landmark kernel's result."""
+    lines = [
+        f"k = {NO_LANDMARK} - 1 - {target}",
+        f"if math.hypot(lxy[k, 0] - x[i, 0], lxy[k, 1] - x[i, 1]) < {MIN_RANGE!r}:",
+        f"    status[q] = {REJECTED}",
+        f"    reason[q] = {R_DEGENERATE}",
+        "    continue",
+        f"r = landmark({_args('x', 'i')}, {_args('P', 'i', True)}, {_args('lxy', 'k', two=True)}, "
+        f"{_args('lcov', 'k', True, True)}, z[q, 0], z[q, 1], R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])",
+    ]
+    return "\n".join(" " * indent + line for line in lines)
+
+
 RANGE_BEARING = KIND_ORDER["range_bearing"]
 
 _LOOPS = f"""
@@ -196,13 +211,7 @@ def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
         if status[q] != {PENDING}:
             continue
         if at_lm:
-            k = {NO_LANDMARK} - 1 - j
-            if math.hypot(lxy[k, 0] - x[i, 0], lxy[k, 1] - x[i, 1]) < {MIN_RANGE!r}:
-                status[q] = {REJECTED}
-                reason[q] = {R_DEGENERATE}
-                continue
-            r = landmark({_args("x", "i")}, {_args("P", "i", True)}, {_args("lxy", "k", two=True)},
-                         {_args("lcov", "k", True, True)}, z[q, 0], z[q, 1], R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])
+{_map_landmark("j", 12)}
         elif not robot:
             r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
         elif kind[q] == {RANGE_BEARING}:  # a robot's: its position and covariance as an uncertain landmark's
@@ -299,13 +308,7 @@ def fuse_groups(x, P, px, pP, lo, lt, later, kind, tgt, z, R, status, reason, ga
                 if kind[q] == {ABSOLUTE}:
                     r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
                 elif tgt[q] < {NO_LANDMARK}:  # a map landmark's range-bearing (screened: in the map, landmarks on)
-                    k = {NO_LANDMARK} - 1 - tgt[q]
-                    if math.hypot(lxy[k, 0] - x[i, 0], lxy[k, 1] - x[i, 1]) < {MIN_RANGE!r}:
-                        status[q] = {REJECTED}
-                        reason[q] = {R_DEGENERATE}
-                        continue
-                    r = landmark({_args("x", "i")}, {_args("P", "i", True)}, {_args("lxy", "k", two=True)},
-                                 {_args("lcov", "k", True, True)}, z[q, 0], z[q, 1], R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])
+{_map_landmark("tgt[q]", 20)}
                 elif later[q]:
                     r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("px", "j")}, {_args("pP", "j", True)},
                              {_args("z", "q")}, {_args("R", "q", True)})
