@@ -11,7 +11,8 @@ import pytest
 
 import swarmloc.datasets.eventfile as eventfile_module
 from swarmloc.config import DEFAULTS
-from swarmloc.datasets.eventfile import COLUMNS, EventFileError, load_events, load_truth_dir, write_events
+from swarmloc.datasets.eventfile import COLUMNS, EventFileError, load_events, load_truth_dir
+from swarmloc.datasets.eventwrite import write_events
 from swarmloc.datasets.tum import TUMError, write_tum
 from swarmloc.events import Detection, Odometry, Truth
 from swarmloc.gaussian import GroupGaussian

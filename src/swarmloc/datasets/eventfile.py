@@ -68,16 +68,15 @@ The same range-bearing detection in ``events.jsonl``::
 
 (on one line). :func:`load_events` reads the file as a stream and checks every record; it reports the bad lines
 with the file name, the line number and the problem: the first 20 in full, then how many more and which lines,
-in memory that does not grow with their number. :func:`write_events` writes the format so that it reads back
-exactly (floats as the shortest text that reads back to the same number). Events are sorted by their natural
-stamp: odometry by ``t0`` (a commanded velocity is known when it starts), detections by ``t``; ties: detections
-before odometry, then by robot id, then file order.
+in memory that does not grow with their number. :func:`~swarmloc.datasets.eventwrite.write_events` writes the
+format so that it reads back exactly (floats as the shortest text that reads back to the same number). Events are
+sorted by their natural stamp: odometry by ``t0`` (a commanded velocity is known when it starts), detections by
+``t``; ties: detections before odometry, then by robot id, then file order.
 """
 
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
 import os
@@ -110,11 +109,11 @@ __all__ = [
     "ODOMETRY_TOL",
     "load_events",
     "load_truth_dir",
-    "write_events",
+    "file_format",
 ]
 
 COLUMNS: tuple[str, ...] = ("type", "t", "robot", "t0", "v", "w", "target", "target_type", "kind", "z", "std", "cov")
-"""The columns of the CSV format, in the order :func:`write_events` writes them."""
+"""The columns of the CSV format, in the order :func:`~swarmloc.datasets.eventwrite.write_events` writes them."""
 
 KIND_SIZES: dict[str, int] = {"pose": 3, "range_bearing": 2, "range": 1, "bearing": 1, "absolute": 3}
 """Length of ``z`` per detection kind."""
@@ -480,7 +479,8 @@ def _jsonl_rows(path: Path) -> Iterator[Row]:
         yield lineno, text, obj
 
 
-def _format(path: Path) -> str:
+def file_format(path: Path) -> str:
+    """``"csv"`` or ``"jsonl"`` by the file's extension (anything else raises :class:`EventFileError`)."""
     ext = path.suffix.lower()
     if ext not in (".csv", ".jsonl"):
         raise EventFileError(f"{path.name}: unknown event file extension {path.suffix!r}; use .csv or .jsonl")
@@ -510,7 +510,7 @@ def load_events(
     """
     p = Path(path).expanduser()
     label = p.name
-    fmt = _format(p)
+    fmt = file_format(p)
     if not p.is_file():
         raise EventFileError(f"event file not found: {p}" if not p.exists() else f"event path {p} is not a file")
     reader = _Reader(label, _normalize_defaults(defaults))
@@ -536,97 +536,6 @@ def load_events(
         raise EventFileError(f"{label}: no odometry records{extra}; an event file needs at least one", bad.messages(),
                              bad.n)  # fmt: skip
     return reader.result(p)
-
-
-def _num(x: float) -> str:
-    """Shortest text that reads back to exactly the same float (Python's ``repr``)."""
-    return repr(float(x))
-
-
-def _noise_fields(cov: np.ndarray) -> dict[str, list[float]]:
-    """``{"std": [...]}`` when ``cov`` is diagonal and each variance is exactly a std squared, else ``{"cov": ...}``."""
-    c = np.asarray(cov, dtype=float)
-    d = np.diag(c)
-    std = np.sqrt(d)
-    if np.count_nonzero(c - np.diag(d)) == 0 and np.array_equal(std * std, d) and (d > 0).all():
-        return {"std": [float(s) for s in std]}
-    return {"cov": [float(x) for x in c.ravel()]}
-
-
-def _records(
-    events: Iterable[Odometry | Detection],
-    landmarks: Mapping[int, Sequence[float]] | None,
-    initial: Mapping[int, tuple[object, object]] | None,
-    initial_times: Mapping[int, float] | None,
-) -> Iterator[dict[str, object]]:
-    """Records as ``{field: int | float | str | list[float]}`` in file order: landmarks, initial, events."""
-    for lid, lm in sorted((landmarks or {}).items()):
-        x, y, sx, sy = (float(v) for v in lm)
-        yield {"type": "landmark", "target": int(lid), "target_type": "landmark", "z": [x, y], "std": [sx, sy]}
-    for r, (pose, cov) in sorted((initial or {}).items()):
-        rec: dict[str, object] = {"type": "initial"}
-        if initial_times and r in initial_times:
-            rec["t"] = float(initial_times[r])
-        rec["robot"] = int(r)
-        rec["z"] = [float(v) for v in np.asarray(pose, dtype=float).ravel()]
-        rec.update(_noise_fields(np.asarray(cov, dtype=float)))
-        yield rec
-    for e in events:
-        if isinstance(e, Odometry):
-            yield {"type": "odometry", "t": float(e.t1), "robot": int(e.robot), "t0": float(e.t0),
-                   "v": float(e.v), "w": float(e.w)}  # fmt: skip
-        elif isinstance(e, Detection):
-            rec = {"type": "detection", "t": float(e.t), "robot": int(e.observer)}
-            if e.target is not None:
-                rec["target"] = int(e.target)
-                rec["target_type"] = "robot" if e.target_is_robot else "landmark"
-            rec["kind"] = e.kind
-            rec["z"] = [float(v) for v in np.asarray(e.z, dtype=float).ravel()]
-            rec.update(_noise_fields(e.cov))
-            yield rec
-        else:
-            raise ValueError(
-                f"write_events: only Odometry and Detection events can be written, got {type(e).__name__} "
-                "(write ground truth with swarmloc.datasets.tum.write_tum)"
-            )
-
-
-def _cell(v: object) -> str:
-    if isinstance(v, list):
-        return " ".join(_num(x) for x in v)
-    if isinstance(v, float):
-        return _num(v)
-    return str(v)
-
-
-def write_events(
-    path: str | os.PathLike[str],
-    events: Iterable[Odometry | Detection],
-    landmarks: Mapping[int, Sequence[float]] | None = None,
-    initial: Mapping[int, tuple[object, object]] | None = None,
-    initial_times: Mapping[int, float] | None = None,
-) -> Path:
-    """Write an event file (``.csv`` or ``.jsonl`` by extension) that :func:`load_events` reads back exactly.
-
-    ``landmarks``: ``id -> (x, y, sx, sy)``; ``initial``: ``robot -> (pose (3,), cov (3, 3))``; ``initial_times``:
-    ``robot -> t`` (optional). A diagonal noise covariance is written as ``std`` when that is exact, else as
-    ``cov``. Floats are written as the shortest text that reads back to the same number. Returns the path.
-    """
-    p = Path(path)
-    fmt = _format(p)
-    recs = list(_records(events, landmarks, initial, initial_times))
-    buf = io.StringIO()
-    buf.write("# swarmloc event file, format 1 (see swarmloc.datasets.eventfile)\n")
-    if fmt == "csv":
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow(COLUMNS)
-        for rec in recs:
-            w.writerow([_cell(rec[c]) if c in rec else "" for c in COLUMNS])
-    else:
-        for rec in recs:
-            buf.write(json.dumps(rec, allow_nan=False) + "\n")
-    p.write_text(buf.getvalue(), encoding="utf-8")
-    return p
 
 
 def load_truth_dir(folder: str | os.PathLike[str], robots: Iterable[int]) -> dict[int, tuple[np.ndarray, np.ndarray]]:

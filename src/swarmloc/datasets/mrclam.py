@@ -34,7 +34,6 @@ Two known defects of the recordings are corrected on loading, each reported in :
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -42,8 +41,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
+from swarmloc.datasets.tables import file_label, integer_column, line_of_row, read_table, sort_by_time
 from swarmloc.datasets.tum import interpolate
 from swarmloc.events import Detection, Event, Odometry
 
@@ -86,97 +85,6 @@ _NCOLS = {"odometry": 3, "measurements": 4, "truth": 4}
 
 class MRCLAMError(ValueError):
     """A problem with MRCLAM data: missing folder or file, malformed line, no usable time span, no ground truth."""
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# low-level parsing
-
-
-def _label(path: Path) -> str:
-    """``MRCLAM_Dataset6/Robot1_Odometry.dat``: the name used in messages."""
-    return f"{path.parent.name}/{path.name}" if path.parent.name else path.name
-
-
-def _find_bad_line(path: Path, ncols: int) -> tuple[int, str, str] | None:
-    """Scan ``path`` line by line; return ``(line number, stripped content, problem)`` of the first bad data line."""
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for lineno, raw in enumerate(fh, start=1):
-            content = raw.split("#", 1)[0].strip()
-            if not content:
-                continue
-            parts = content.split()
-            if len(parts) != ncols:
-                return lineno, content, f"expected {ncols} numeric columns"
-            for p in parts:
-                try:
-                    x = float(p)
-                except ValueError:
-                    return lineno, content, f"expected {ncols} numeric columns"
-                if not math.isfinite(x):
-                    return lineno, content, f"expected {ncols} finite numeric columns"
-    return None
-
-
-def _line_of_row(path: Path, row: int) -> tuple[int, str]:
-    """File line number (1-based) and content of data row ``row`` (0-based, headers and blank lines skipped)."""
-    k = -1
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for lineno, raw in enumerate(fh, start=1):
-            content = raw.split("#", 1)[0].strip()
-            if content:
-                k += 1
-                if k == row:
-                    return lineno, content
-    return -1, ""  # pragma: no cover - row always exists when called
-
-
-def _read_table(path: Path, ncols: int) -> np.ndarray:
-    """Read a whitespace-separated numeric table with ``#`` comments as a float64 ``(n, ncols)`` array.
-
-    Fast path: ``pandas.read_csv``. When it fails or yields the wrong shape or non-finite values, the file is
-    scanned line by line to name the first bad line.
-    """
-    try:
-        df = pd.read_csv(path, sep=r"\s+", comment="#", header=None, dtype=np.float64, engine="c")
-        arr = df.to_numpy(dtype=np.float64)
-        ok = arr.ndim == 2 and arr.shape[1] == ncols and bool(np.isfinite(arr).all())
-    except pd.errors.EmptyDataError:
-        return np.empty((0, ncols))
-    except OSError as exc:
-        raise MRCLAMError(f"{_label(path)}: cannot read file ({exc.strerror or exc})") from None
-    except (ValueError, pd.errors.ParserError, UnicodeDecodeError):
-        arr, ok = None, False
-    if ok:
-        return arr
-    try:
-        bad = _find_bad_line(path, ncols)
-    except OSError as exc:  # pragma: no cover - file vanished between the two reads
-        raise MRCLAMError(f"{_label(path)}: cannot read file ({exc.strerror or exc})") from None
-    if bad is not None:
-        lineno, content, problem = bad
-        shown = content if len(content) <= 80 else content[:77] + "..."
-        raise MRCLAMError(f"{_label(path)} line {lineno}: {problem}, got {shown!r}")
-    raise MRCLAMError(f"{_label(path)}: could not parse as a table of {ncols} numeric columns")  # pragma: no cover
-
-
-def _integer_column(path: Path, arr: np.ndarray, col: int, what: str) -> np.ndarray:
-    """Column ``col`` of ``arr`` as int64; raise naming the line when a value is not an integer."""
-    x = arr[:, col]
-    bad = np.flatnonzero(x != np.round(x))
-    if bad.size:
-        lineno, content = _line_of_row(path, int(bad[0]))
-        raise MRCLAMError(f"{_label(path)} line {lineno}: {what} must be an integer, got {content!r}")
-    return x.astype(np.int64)
-
-
-def _sort_by_time(path: Path, arr: np.ndarray, notes: list[str]) -> np.ndarray:
-    """Stable sort of rows by column 0; records a note when the file was not in time order."""
-    if arr.shape[0] > 1:
-        back = int(np.count_nonzero(np.diff(arr[:, 0]) < 0))
-        if back:
-            notes.append(f"{_label(path)}: {back} time step(s) backwards, rows sorted by time")
-            arr = arr[np.argsort(arr[:, 0], kind="stable")]
-    return arr
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -436,24 +344,24 @@ def load_mrclam(
 
     # barcodes: subject -> barcode
     bc_path = folder / "Barcodes.dat"
-    bc = _read_table(bc_path, 2)
+    bc = read_table(bc_path, 2, MRCLAMError)
     if bc.shape[0] == 0:
-        raise MRCLAMError(f"{_label(bc_path)}: no data rows")
-    subjects = _integer_column(bc_path, bc, 0, "subject")
-    codes = _integer_column(bc_path, bc, 1, "barcode")
+        raise MRCLAMError(f"{file_label(bc_path)}: no data rows")
+    subjects = integer_column(bc_path, bc, 0, "subject", MRCLAMError)
+    codes = integer_column(bc_path, bc, 1, "barcode", MRCLAMError)
     barcode_to_subject: dict[int, int] = {}
     for i, (s, b) in enumerate(zip(subjects.tolist(), codes.tolist(), strict=True)):
         if b in barcode_to_subject and barcode_to_subject[b] != s:
-            lineno, content = _line_of_row(bc_path, i)
+            lineno, content = line_of_row(bc_path, i)
             raise MRCLAMError(
-                f"{_label(bc_path)} line {lineno}: barcode {b} already assigned to subject {barcode_to_subject[b]}"
+                f"{file_label(bc_path)} line {lineno}: barcode {b} already assigned to subject {barcode_to_subject[b]}"
             )
         barcode_to_subject[b] = s
 
     # landmarks
     lm_path = folder / "Landmark_Groundtruth.dat"
-    lm = _read_table(lm_path, 5)
-    lm_subjects = _integer_column(lm_path, lm, 0, "subject")
+    lm = read_table(lm_path, 5, MRCLAMError)
+    lm_subjects = integer_column(lm_path, lm, 0, "subject", MRCLAMError)
     landmarks: dict[int, tuple[float, float, float, float]] = {
         int(s): (float(row[1]), float(row[2]), float(row[3]), float(row[4]))
         for s, row in zip(lm_subjects.tolist(), lm, strict=True)
@@ -473,28 +381,28 @@ def load_mrclam(
         files = present[r]
         if "odometry" in files:
             p = files["odometry"]
-            arr = _sort_by_time(p, _read_table(p, 3), notes)
+            arr = sort_by_time(p, read_table(p, 3, MRCLAMError), notes)
             if arr.shape[0] == 0:
-                raise MRCLAMError(f"{_label(p)}: no data rows")
+                raise MRCLAMError(f"{file_label(p)}: no data rows")
             if corrections:
                 fast = np.abs(arr[:, 2]) > MAX_YAW_RATE
                 if fast.any():
                     arr[:, 2] = np.clip(arr[:, 2], -MAX_YAW_RATE, MAX_YAW_RATE)
                     notes.append(
-                        f"{_label(p)}: yaw rate of {int(fast.sum())} of {arr.shape[0]} rows clipped to "
+                        f"{file_label(p)}: yaw rate of {int(fast.sum())} of {arr.shape[0]} rows clipped to "
                         f"+-{MAX_YAW_RATE} rad/s (commands beyond what the robots turned)"
                     )
             odometry[r] = arr
         if "truth" in files:
             p = files["truth"]
-            arr = _sort_by_time(p, _read_table(p, 4), notes)
+            arr = sort_by_time(p, read_table(p, 4, MRCLAMError), notes)
             if arr.shape[0] == 0:
-                raise MRCLAMError(f"{_label(p)}: no data rows")
+                raise MRCLAMError(f"{file_label(p)}: no data rows")
             truth[r] = arr
         if "measurements" in files:
             p = files["measurements"]
-            arr = _read_table(p, 4)
-            code = _integer_column(p, arr, 1, "barcode")
+            arr = read_table(p, 4, MRCLAMError)
+            code = integer_column(p, arr, 1, "barcode", MRCLAMError)
             if known.size:
                 pos_c = np.minimum(np.searchsorted(known, code), known.size - 1)
                 ok = known[pos_c] == code
@@ -506,7 +414,7 @@ def load_mrclam(
                     skipped[b] = skipped.get(b, 0) + n
             arr = arr[ok].copy()
             arr[:, 1] = mapped[pos_c[ok]]
-            measurements[r] = _sort_by_time(p, arr, notes)
+            measurements[r] = sort_by_time(p, arr, notes)
 
     # common time span
     if odometry:

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from swarmloc.config import DEFAULTS, Config, MotionConfig
-from swarmloc.datasets.eventfile import EventFile, EventFileError, load_events, load_truth_dir, write_events
+from swarmloc.datasets.eventfile import EventFile, EventFileError, load_events, load_truth_dir
+from swarmloc.datasets.eventwrite import write_events
 from swarmloc.datasets.tum import interpolate, write_tum
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.evaluate import ALL, evaluate_stream, write_report
