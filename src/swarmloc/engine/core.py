@@ -61,7 +61,7 @@ from swarmloc.engine.backends import BACKENDS, make_ops
 from swarmloc.engine.codes import KIND_NAMES, NO_LANDMARK, PENDING, POSE3, REJECTED, landmark_code
 from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.fuse_ci import CiFusion
-from swarmloc.engine.fuse_ekf import EkfFusion, compiled_kinds
+from swarmloc.engine.fuse_ekf import EkfFusion
 from swarmloc.engine.fuse_ekf3 import Ekf3Fusion
 from swarmloc.engine.fuse_exp import ExpFusionLevel
 from swarmloc.engine.outcomes import screen, tally
@@ -296,11 +296,11 @@ class Engine:
             det = det.canonical()
         if len(det) == 0:
             return np.zeros(0, dtype=np.int8)
-        if self._serial_numba(len(det)):  # screened and fused in place, on one thread
+        if self.backend == "numba" and self.fast:  # screened and fused in place, on one thread or by levels
             status, reason = np.zeros(len(det), dtype=np.int8), np.zeros(len(det), dtype=np.int8)
-            lv = self.ops.fuse_serial(self.a, self.b, self.t, self.t0, self.v, self.w, t, self.use_relative, det,
-                                      status, reason, self.fusion.gate, self.fusion.landmarks,
-                                      self.use_landmarks)  # fmt: skip
+            kernel = self.ops.fuse_serial if self.ops.serial(len(det)) else self.ops.fuse_levels
+            lv = kernel(self.a, self.b, self.t, self.t0, self.v, self.w, t, self.use_relative, det, status, reason,
+                        self.fusion.gate, self.fusion.landmarks, self.use_landmarks)  # fmt: skip
             if lv >= 0:
                 self.last_levels = lv
                 tally(self.counts, self.reasons, status, reason)
@@ -365,25 +365,13 @@ class Engine:
         level = levels(U.size, lt[edge], lo[edge])
         row_level = np.where(obs_ok, level[np.where(obs_ok, lo, 0)], -1)
         self.last_levels = int(row_level.max()) + 1
-        pending = status == PENDING
-        if self.backend == "numba" and compiled_kinds(det.kind[pending], det.target[pending]).all():
-            # compiled: groups of a level in parallel threads, levels in order
-            ok_groups = starts[obs_ok[starts]]
-            ends = np.r_[starts[1:], len(det)][obs_ok[starts]]
-            g_level = row_level[ok_groups]
-            order = np.argsort(g_level, kind="stable")
-            bounds = np.searchsorted(g_level[order], np.arange(self.last_levels + 1))
-            self.ops.fuse_groups(cur, prior, det, np.where(obs_ok, lo, 0), np.where(needs, lt, 0), status, reason,
-                                 self.fusion.gate, ok_groups[order], ends[order], bounds,
-                                 self.fusion.landmarks)  # fmt: skip
-        else:
-            st = Stamp(det, status, reason, pos, lo, lt, prior, cur)
-            order = np.argsort(row_level, kind="stable")
-            bounds = np.searchsorted(row_level[order], np.arange(self.last_levels + 1))
-            for lv in range(self.last_levels):
-                rows = order[bounds[lv] : bounds[lv + 1]]
-                if rows.size:
-                    self.fusion.fuse_level(st, rows)
+        st = Stamp(det, status, reason, pos, lo, lt, prior, cur)
+        order = np.argsort(row_level, kind="stable")
+        bounds = np.searchsorted(row_level[order], np.arange(self.last_levels + 1))
+        for lv in range(self.last_levels):
+            rows = order[bounds[lv] : bounds[lv + 1]]
+            if rows.size:
+                self.fusion.fuse_level(st, rows)
         if cur[0] is not self.a:  # the observers' fused states (the neighbours' predicted answers are not stored)
             done = U[is_obs]
             self.a[done] = cur[0][is_obs]

@@ -35,14 +35,6 @@ bearing of a position do not depend on its heading). The range-only and bearing-
 stacked-matrix kernels."""
 
 
-def compiled_kinds(kind: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Which detections (kind and target codes) numba's level kernel fuses by itself (``NumbaOps.fuse_groups``):
-    robots' relative poses, absolute fixes, and map landmarks' range-bearing; a robot's range-bearing and the
-    range-only and bearing-only kinds take :meth:`EkfFusion.update` level by level."""
-    lm = target <= NO_LANDMARK
-    return (np.isin(kind, FAST_KINDS) & ~lm) | ((kind == RANGE_BEARING) & (target < NO_LANDMARK))
-
-
 def kalman_rows(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
     """:func:`swarmloc.kernels.cartesian.kalman_update` batched, row by row where a singular innovation covariance
     makes the batched inverse fail (the kernel then answers that row alone)."""

@@ -2,10 +2,11 @@
 
 The per-robot functions are the formulas of :mod:`swarmloc.engine.soa` turned into straight-line scalar code
 (:mod:`swarmloc.engine.scalar`) and compiled by numba, so the three fast backends share one formula source. Around
-them, loops over robots (``numba.prange``: ``NUMBA_NUM_THREADS`` threads) and :meth:`NumbaOps.fuse_groups`, which
-fuses every pose, absolute and map-landmark detection of one stamp level by level (the Gauss-Seidel levels of
-:mod:`swarmloc.engine.core`), the groups of one level in parallel. Compiled once per process and noise model
-(a few seconds). Units: m, rad, s.
+them, loops over robots (``numba.prange``: ``NUMBA_NUM_THREADS`` threads), and the kernels that screen and fuse a
+stamp's pose, absolute and range-bearing detections in place: :meth:`NumbaOps.fuse_serial` in canonical order on
+one thread, :meth:`NumbaOps.fuse_levels` level by level (the Gauss-Seidel levels of :mod:`swarmloc.engine.stamp`),
+the groups of one level in parallel; both from one template (``_SCREEN``, ``_FUSE``). Compiled once per process
+and noise model (a few seconds). Units: m, rad, s.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
 
 
 class _Det:
-    """Detection arrays for the warm-up (the fields :meth:`NumbaOps.fuse_groups` reads)."""
+    """Detection arrays for the warm-up (the fields :meth:`NumbaOps.fuse_serial` reads)."""
 
     def __init__(self, observer: np.ndarray, target: np.ndarray, kind: np.ndarray, z: np.ndarray, R: np.ndarray):
         self.observer, self.target, self.kind, self.z, self.R = observer, target, kind, z, R
@@ -100,6 +101,108 @@ def _map_landmark(target: str, indent: int) -> str:
 
 
 RANGE_BEARING = KIND_ORDER["range_bearing"]
+
+
+def _indent(code: str, extra: int) -> str:
+    return "\n".join(" " * extra + line if line else line for line in code.splitlines())
+
+
+_KINDS = f"""
+    for q in range(m):
+        if kind[q] != {RANGE_BEARING} and (kind[q] != {ABSOLUTE} and kind[q] != {POSE} or tgt[q] <= {NO_LANDMARK}):
+            return -1  # another kind (or a pose of a landmark code): nothing done; the caller takes the general path
+"""[1:-1]
+"""Template of the in-place kernels: a stamp with a detection of a kind they do not take is left to the caller."""
+
+_SCREEN = f"""
+        i = obs[q]
+        if not t >= t0[i]:  # screen(): the checks before any fusion, in its order
+            status[q] = {REJECTED}
+            reason[q] = {R_OBSERVER}
+            continue
+        j = tgt[q]
+        at_lm = j <= {NO_LANDMARK}  # a landmark's range-bearing (kinds checked above)
+        robot = kind[q] != {ABSOLUTE} and not at_lm
+        needs = False
+        if at_lm:
+            if not lm_on:
+                status[q] = {REJECTED}
+                reason[q] = {R_LANDMARKS_OFF}
+            elif j == {NO_LANDMARK}:
+                status[q] = {UNKNOWN}
+                reason[q] = {R_NO_LANDMARK}
+        elif robot:
+            if not relative:
+                status[q] = {REJECTED}
+                reason[q] = {R_OFF}
+            elif j == {UNUSABLE}:
+                status[q] = {REJECTED}
+                reason[q] = {R_UNUSABLE}
+            elif j == i:
+                status[q] = {REJECTED}
+                reason[q] = {R_SELF}
+            elif j < 0:
+                status[q] = {UNKNOWN}
+                reason[q] = {R_TEAM}
+            elif not t >= t0[min(j, n - 1)]:
+                status[q] = {UNKNOWN}
+                reason[q] = {R_NOT_STARTED}
+            else:
+                needs = True
+        if tc[i] < t:  # the observer moves to t at its group (stored)
+            r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
+{_store("x", "P", "i", 12)}
+            tc[i] = t
+        if lev[i] < 0:
+            lev[i] = 0
+        if needs and j < i and lev[j] >= 0 and lev[j] + 1 > lev[i]:
+            lev[i] = lev[j] + 1
+        if lev[i] > top:
+            top = lev[i]"""[1:]
+"""Template of the in-place kernels (loop over rows ``q``): row ``q`` screened as
+:func:`swarmloc.engine.outcomes.screen` does, its observer ``i`` moved to ``t`` and stored, its level (``lev``)."""
+
+_FUSE = f"""
+        if at_lm:
+{_map_landmark("j", 12)}
+        elif not robot:
+            r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
+        elif kind[q] == {RANGE_BEARING}:  # a robot's: its position and covariance as an uncertain landmark's
+            if tc[j] < t:  # (answered as below: predicted, not stored, when it has no input at t)
+                a = predict({_args("nx", "j")}, {_args("nP", "j", True)}, v[j], w[j], t - tc[j])
+                a0, a1, c00, c01, c11 = a[0], a[1], a[3], a[4], a[6]
+            else:
+                a0, a1, c00, c01, c11 = nx[j, 0], nx[j, 1], nP[j, 0, 0], nP[j, 0, 1], nP[j, 1, 1]
+            if math.hypot(a0 - x[i, 0], a1 - x[i, 1]) < {MIN_RANGE!r}:
+                status[q] = {REJECTED}
+                reason[q] = {R_DEGENERATE}
+                continue
+            r = landmark({_args("x", "i")}, {_args("P", "i", True)}, a0, a1, c00, c01, c11, z[q, 0], z[q, 1],
+                         R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])
+        elif tc[j] < t:  # a neighbour without input at t: its answer predicted, not stored
+            k = predict({_args("nx", "j")}, {_args("nP", "j", True)}, v[j], w[j], t - tc[j])
+            r = pose({_args("x", "i")}, {_args("P", "i", True)}, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7],
+                     k[8], {_args("z", "q")}, {_args("R", "q", True)})
+        else:  # j < i: after its own group at t; j > i: before its group (Gauss-Seidel, as the nodes)
+            r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("nx", "j")}, {_args("nP", "j", True)},
+                     {_args("z", "q")}, {_args("R", "q", True)})
+        if gate:
+            if not math.isfinite(r[9]):
+                status[q] = {REJECTED}
+                reason[q] = {R_NONFINITE}
+                continue
+            if r[9] > thr[kind[q]]:
+                status[q] = {GATED}
+                continue
+        if not r[10]:
+            status[q] = {REJECTED}
+            reason[q] = {R_NUMERICAL}
+            continue
+{_store("x", "P", "i", 8)}
+        status[q] = {FUSED}"""[1:]
+"""Template of the in-place kernels: pending row ``q`` of observer ``i`` fused into ``(x, P)``, its neighbour ``j``
+read in ``(nx, nP)``; its outcome in ``status`` and ``reason``."""
+
 
 _LOOPS = f"""
 def predict_rows(x, P, v, w, dt):
@@ -159,94 +262,63 @@ def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
                 lev):
     m = obs.shape[0]
     n = x.shape[0]
-    for q in range(m):
-        if kind[q] != {RANGE_BEARING} and (kind[q] != {ABSOLUTE} and kind[q] != {POSE} or tgt[q] <= {NO_LANDMARK}):
-            return -1  # another kind (or a pose of a landmark code): nothing done, the caller takes the general path
+{_KINDS}
     top = -1
     for q in range(m):
-        i = obs[q]
-        if not t >= t0[i]:  # screen(): the checks before any fusion, in its order
-            status[q] = {REJECTED}
-            reason[q] = {R_OBSERVER}
-            continue
-        j = tgt[q]
-        at_lm = j <= {NO_LANDMARK}  # a landmark's range-bearing (kinds checked above)
-        robot = kind[q] != {ABSOLUTE} and not at_lm
-        needs = False
-        if at_lm:
-            if not lm_on:
-                status[q] = {REJECTED}
-                reason[q] = {R_LANDMARKS_OFF}
-            elif j == {NO_LANDMARK}:
-                status[q] = {UNKNOWN}
-                reason[q] = {R_NO_LANDMARK}
-        elif robot:
-            if not relative:
-                status[q] = {REJECTED}
-                reason[q] = {R_OFF}
-            elif j == {UNUSABLE}:
-                status[q] = {REJECTED}
-                reason[q] = {R_UNUSABLE}
-            elif j == i:
-                status[q] = {REJECTED}
-                reason[q] = {R_SELF}
-            elif j < 0:
-                status[q] = {UNKNOWN}
-                reason[q] = {R_TEAM}
-            elif not t >= t0[min(j, n - 1)]:
-                status[q] = {UNKNOWN}
-                reason[q] = {R_NOT_STARTED}
-            else:
-                needs = True
-        if tc[i] < t:  # the observer moves to t at its group (stored)
-            r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
-{_store("x", "P", "i", 12)}
-            tc[i] = t
-        if lev[i] < 0:
-            lev[i] = 0
-        if needs and j < i and lev[j] >= 0 and lev[j] + 1 > lev[i]:
-            lev[i] = lev[j] + 1
-        if lev[i] > top:
-            top = lev[i]
+{_SCREEN}
         if status[q] != {PENDING}:
             continue
-        if at_lm:
-{_map_landmark("j", 12)}
-        elif not robot:
-            r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
-        elif kind[q] == {RANGE_BEARING}:  # a robot's: its position and covariance as an uncertain landmark's
-            if tc[j] < t:  # (answered as below: predicted, not stored, when it has no input at t)
-                a = predict({_args("x", "j")}, {_args("P", "j", True)}, v[j], w[j], t - tc[j])
-                a0, a1, c00, c01, c11 = a[0], a[1], a[3], a[4], a[6]
-            else:
-                a0, a1, c00, c01, c11 = x[j, 0], x[j, 1], P[j, 0, 0], P[j, 0, 1], P[j, 1, 1]
-            if math.hypot(a0 - x[i, 0], a1 - x[i, 1]) < {MIN_RANGE!r}:
-                status[q] = {REJECTED}
-                reason[q] = {R_DEGENERATE}
-                continue
-            r = landmark({_args("x", "i")}, {_args("P", "i", True)}, a0, a1, c00, c01, c11, z[q, 0], z[q, 1],
-                         R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])
-        elif tc[j] < t:  # a neighbour without input at t: its answer predicted, not stored
-            k = predict({_args("x", "j")}, {_args("P", "j", True)}, v[j], w[j], t - tc[j])
-            r = pose({_args("x", "i")}, {_args("P", "i", True)}, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7],
-                     k[8], {_args("z", "q")}, {_args("R", "q", True)})
-        else:  # j < i: after its own group at t; j > i: its group is still to come (Gauss-Seidel, as the nodes)
-            r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("x", "j")}, {_args("P", "j", True)},
-                     {_args("z", "q")}, {_args("R", "q", True)})
-        if gate:
-            if not math.isfinite(r[9]):
-                status[q] = {REJECTED}
-                reason[q] = {R_NONFINITE}
-                continue
-            if r[9] > thr[kind[q]]:
-                status[q] = {GATED}
-                continue
-        if not r[10]:
-            status[q] = {REJECTED}
-            reason[q] = {R_NUMERICAL}
-            continue
-{_store("x", "P", "i", 8)}
-        status[q] = {FUSED}
+        nx, nP = x, P  # a neighbour j > i has not fused its own group yet
+{_FUSE}
+    return top + 1
+
+
+def fuse_levels(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason, gate, thr,
+                lev, px, pP):
+    m = obs.shape[0]
+    n = x.shape[0]
+{_KINDS}
+    top = -1
+    groups = 0
+    for q in range(m):  # screened, observers moved to t and their levels, in canonical order on one thread
+{_SCREEN}
+        if q == 0 or obs[q - 1] != i:  # a group's first row: its observer's state before the stamp's groups
+            for a in range(3):
+                px[i, a] = x[i, a]
+                for b in range(3):
+                    pP[i, a, b] = P[i, a, b]
+            groups += 1
+    bounds = np.zeros(top + 2, dtype=np.int64)  # groups by level (a counting sort, canonical order within a level)
+    for q in range(m):
+        if lev[obs[q]] >= 0 and (q == 0 or obs[q - 1] != obs[q]):
+            bounds[lev[obs[q]] + 1] += 1
+    for lv in range(top + 1):
+        bounds[lv + 1] += bounds[lv]
+    fill = bounds[:-1].copy()
+    g0, g1 = np.empty(groups, dtype=np.int64), np.empty(groups, dtype=np.int64)
+    for q in range(m):
+        i = obs[q]
+        if lev[i] >= 0 and (q == 0 or obs[q - 1] != i):
+            e = q + 1
+            while e < m and obs[e] == i:
+                e += 1
+            g = fill[lev[i]]
+            g0[g], g1[g] = q, e
+            fill[lev[i]] += 1
+    for lv in range(top + 1):  # levels in order, the groups of one level in parallel
+        for g in prange(bounds[lv], bounds[lv + 1]):
+            for q in range(g0[g], g1[g]):
+                if status[q] != {PENDING}:
+                    continue
+                i = obs[q]
+                j = tgt[q]
+                at_lm = j <= {NO_LANDMARK}
+                robot = kind[q] != {ABSOLUTE} and not at_lm
+                if robot and j > i and lev[j] >= 0:  # an observer with a larger id: its snapshot
+                    nx, nP = px, pP
+                else:  # a smaller id (its level is done), or a robot without a group here (not changed)
+                    nx, nP = x, P
+{_indent(_FUSE, 8)}
     return top + 1
 
 
@@ -295,40 +367,6 @@ def scatter2(a, b, rows, va, vb):
     for k in range(rows.shape[0]):
         a[rows[k]] = va[k]
         b[rows[k]] = vb[k]
-
-
-def fuse_groups(x, P, px, pP, lo, lt, later, kind, tgt, z, R, status, reason, gate, thr, g0, g1, bounds, lxy, lcov):
-    for lv in range(bounds.shape[0] - 1):
-        for g in prange(bounds[lv], bounds[lv + 1]):
-            for q in range(g0[g], g1[g]):
-                if status[q] != {PENDING}:
-                    continue
-                i = lo[q]
-                j = lt[q]
-                if kind[q] == {ABSOLUTE}:
-                    r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
-                elif tgt[q] < {NO_LANDMARK}:  # a map landmark's range-bearing (screened: in the map, landmarks on)
-{_map_landmark("tgt[q]", 20)}
-                elif later[q]:
-                    r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("px", "j")}, {_args("pP", "j", True)},
-                             {_args("z", "q")}, {_args("R", "q", True)})
-                else:
-                    r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("x", "j")}, {_args("P", "j", True)},
-                             {_args("z", "q")}, {_args("R", "q", True)})
-                if gate:
-                    if not math.isfinite(r[9]):
-                        status[q] = {REJECTED}
-                        reason[q] = {R_NONFINITE}
-                        continue
-                    if r[9] > thr[kind[q]]:
-                        status[q] = {GATED}
-                        continue
-                if not r[10]:
-                    status[q] = {REJECTED}
-                    reason[q] = {R_NUMERICAL}
-                    continue
-{_store("x", "P", "i", 16)}
-                status[q] = {FUSED}
 """
 
 
@@ -342,19 +380,21 @@ def _kernels(noise: UnicycleNoise) -> dict[str, Any]:
         ns[name] = njit(error_model="numpy")(ns[name])
     exec(_LOOPS, ns)  # noqa: S102
     out = {}
-    for name in ("predict_rows", "pose_rows", "absolute_rows", "landmark_rows", "fuse_groups"):
+    for name in ("predict_rows", "pose_rows", "absolute_rows", "landmark_rows"):
         out[name] = njit(parallel=True, error_model="numpy")(ns[name])
         out[name + "_serial"] = njit(error_model="numpy")(ns[name])  # prange runs as range
+    out["fuse_levels"] = njit(parallel=True, error_model="numpy")(ns["fuse_levels"])  # compiled at its first call
     for name in ("predict_into", "fuse_serial", "scatter2", "replay_serial"):  # in place, one thread
         out[name] = ns[name] = njit(error_model="numpy")(ns[name])  # replay_serial calls fuse_serial compiled
     return out
 
 
-PARALLEL_MIN = 1_000_000
-"""Rows (detections of a stamp, or robots predicted) below which the kernels run on one thread, in place (measured
-on the shared 2-core machine, relative-pose swarms with 3 neighbours, robot-updates/s with one thread in place /
-two threads by levels: 2.7e6 / 3.2e6 at 10k robots, but 2.7e6 / 1.4e6 per CPU second; 2.6e6 / 2.3e6 at 100k
-robots; 1.2e6 / 1.4e6 at 1M robots, where the neighbours' states no longer fit in the cache)."""
+PARALLEL_MIN = 50_000
+"""Rows (detections of a stamp, or robots predicted) below which the kernels run on one thread, in place; from it
+on, :meth:`NumbaOps.fuse_levels` and the parallel row kernels. Measured on the shared 2-core machine on one slow
+day (``fusion_step``, relative-pose swarms with 3 neighbours, robot-updates/s, one thread / two threads): 1.7e6 /
+1.7-2.0e6 at 10k robots (30k rows) at twice the CPU time; 1.0e6 / 1.5-1.6e6 at 30k robots (90k rows); 1.2-1.3e6 /
+1.7-1.9e6 at 100k robots; 0.87e6 / 0.88-0.93e6 at 1M robots (the neighbours' states out of the cache)."""
 
 
 def _serial(rows: int) -> bool:
@@ -368,13 +408,15 @@ def _pick(k: dict[str, Any], name: str, rows: int) -> Any:
 
 class NumbaOps:
     """The fast EKF kernels compiled with numba (the interface of :class:`~swarmloc.engine.backends.NumpyOps`,
-    plus :meth:`fuse_groups`)."""
+    plus a stamp's screening and fusion in place: :meth:`fuse_serial` on one thread, :meth:`fuse_levels` on
+    several, and :meth:`replay_serial`)."""
 
     name = "numba"
 
     def __init__(self, noise: UnicycleNoise) -> None:
         self.noise = noise
         self.k = _kernels(noise)
+        self._snapshot = (np.zeros((0, 3)), np.zeros((0, 3, 3)))  # fuse_levels' rows, kept between stamps
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -390,8 +432,6 @@ class NumbaOps:
         status, reason = np.zeros(2, dtype=np.int8), np.zeros(2, dtype=np.int8)
         i = np.array([0, 1])
         for gate in (Gate(), Gate(0.5)):  # the serial variants; the parallel ones compile on their first large batch
-            self.fuse_groups((x.copy(), P.copy()), (x, P), det, i, i[::-1], status.copy(), reason.copy(), gate, i,
-                             i + 1, np.array([0, 1, 2]))  # fmt: skip
             self.fuse_serial(x.copy(), P.copy(), np.zeros(2), np.zeros(2), one, one, 1.0, True, det, status.copy(),
                              reason.copy(), gate, (x[:, :2] + 1.0, P[:, :2, :2]))  # fmt: skip
         self.predict_into(x.copy(), P.copy(), np.zeros(2), one, one, i, 1.0)
@@ -451,16 +491,38 @@ class NumbaOps:
         ``R + Hk Pk Hk^T``: the bearing and range of a position do not depend on its heading).
         ``landmarks``: the engine's map ``(xy (L, 2), cov (L, 2, 2))`` (:func:`swarmloc.engine.core.landmark_table`),
         landmark ``k`` a detection's target code :func:`~swarmloc.engine.codes.landmark_code` ``(k)``."""
+        return self._in_place("fuse_serial", (x, P, tc, t0, v, w), t, use_relative, det, status, reason, gate,
+                              landmarks, use_landmarks, ())  # fmt: skip
+
+    def fuse_levels(self, x: np.ndarray, P: np.ndarray, tc: np.ndarray, t0: np.ndarray, v: np.ndarray,
+                    w: np.ndarray, t: float, use_relative: bool, det: Any, status: np.ndarray, reason: np.ndarray,
+                    gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+                    use_landmarks: bool = True) -> int:  # fmt: skip
+        """:meth:`fuse_serial` on ``NUMBA_NUM_THREADS`` threads, the same outcomes and states to the bit: one
+        thread screens the rows, moves the observers to ``t`` and gives each group its level (the Gauss-Seidel
+        schedule of :func:`swarmloc.engine.stamp.levels`) while copying each observer's state before the stamp's
+        groups; then, level by level, the groups of a level fuse in parallel, a neighbour with a larger id read in
+        that copy (its group may have run in an earlier level), one with a smaller id in the current states (its
+        level is done), one without a group at ``t`` predicted, not stored. Returns the number of levels, or -1
+        for a kind :meth:`fuse_serial` does not take (nothing done)."""
+        n = x.shape[0]
+        if self._snapshot[0].shape[0] != n:
+            self._snapshot = (np.empty((n, 3)), np.empty((n, 3, 3)))
+        return self._in_place("fuse_levels", (x, P, tc, t0, v, w), t, use_relative, det, status, reason, gate,
+                              landmarks, use_landmarks, self._snapshot)  # fmt: skip
+
+    def _in_place(self, name: str, state: tuple, t: float, use_relative: bool, det: Any, status: np.ndarray,
+                  reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
+                  use_landmarks: bool, extra: tuple) -> int:  # fmt: skip
         f = np.ascontiguousarray
         i64 = np.int64
         thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
-        lev = np.full(x.shape[0], -1, dtype=i64)
+        lev = np.full(state[0].shape[0], -1, dtype=i64)
         lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
-        return int(self.k["fuse_serial"](x, P, tc, t0, v, w, float(t), bool(use_relative), bool(use_landmarks),
-                                         f(lxy, dtype=float), f(lcov, dtype=float), f(det.observer, dtype=i64),
-                                         f(det.target, dtype=i64), f(det.kind, dtype=i64), f(det.z, dtype=float),
-                                         f(det.R, dtype=float), status, reason, gate.p is not None, thr,
-                                         lev))  # fmt: skip
+        return int(self.k[name](*state, float(t), bool(use_relative), bool(use_landmarks), f(lxy, dtype=float),
+                                f(lcov, dtype=float), f(det.observer, dtype=i64), f(det.target, dtype=i64),
+                                f(det.kind, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status, reason,
+                                gate.p is not None, thr, lev, *extra))  # fmt: skip
 
     def replay_serial(self, state: tuple, tl: Timeline, s0: int, use_relative: bool, status: np.ndarray,
                       reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
@@ -493,27 +555,3 @@ class NumbaOps:
         """``a[rows] = va; b[rows] = vb`` (float arrays, in place)."""
         self.k["scatter2"](a, b, np.asarray(rows, dtype=np.int64), np.asarray(va, dtype=float),
                            np.asarray(vb, dtype=float))  # fmt: skip
-
-    def fuse_groups(self, cur: tuple, prior: tuple, det: Any, lo: np.ndarray, lt: np.ndarray, status: np.ndarray,
-                    reason: np.ndarray, gate: Gate, g0: np.ndarray, g1: np.ndarray, bounds: np.ndarray,
-                    landmarks: tuple[np.ndarray, np.ndarray] | None = None) -> None:  # fmt: skip
-        """Fuse the pending pose, absolute and map-landmark range-bearing detections of one stamp in place (``cur``,
-        ``status``, ``reason``; :func:`compiled_kinds` says which rows these are).
-
-        Group ``g`` is rows ``g0[g]:g1[g]`` (one observer, canonical order); groups ``bounds[l]:bounds[l+1]`` form
-        level ``l``. Observer ``lo[r]`` is a row of the current states ``cur``; neighbour ``lt[r]`` is read there
-        when its id is smaller (its group is in a lower level: done) and in the snapshot ``prior`` taken before
-        the stamp's groups otherwise. ``gate``: the nodes' chi-square gate, its threshold for each kind's
-        measurement size (:data:`~swarmloc.engine.codes.MODEL`). ``landmarks``: the map ``(xy (L, 2), cov (L, 2,
-        2))``, a landmark's row ``k`` read at target code :func:`~swarmloc.engine.codes.landmark_code` ``(k)``
-        (:meth:`fuse_serial`). Outcome rules of :class:`~swarmloc.estimators.DistributedEKF`."""
-        f = np.ascontiguousarray
-        later = f(det.target > det.observer)
-        i64 = np.int64
-        kernel = _pick(self.k, "fuse_groups", lo.shape[0])
-        thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])  # by kind code
-        lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
-        kernel(cur[0], cur[1], f(prior[0]), f(prior[1]), f(lo, dtype=i64), f(lt, dtype=i64), later,
-               f(det.kind, dtype=i64), f(det.target, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status,
-               reason, gate.p is not None, thr, f(g0, dtype=i64), f(g1, dtype=i64), f(bounds, dtype=i64),
-               f(lxy, dtype=float), f(lcov, dtype=float))  # fmt: skip
