@@ -216,3 +216,43 @@ def test_the_swarm_landmark_scene_is_consistent_with_its_map() -> None:
                  noise=UnicycleNoise(), gate=0.999, landmarks=lmap)  # fmt: skip
     status = eng.fuse(0.0, det.canonical(), presorted=True)
     assert (status == 1).mean() > 0.99 and eng.counts["gated"] < 20
+
+
+def test_numba_level_kernel_equals_the_one_thread_kernel_to_the_bit_on_a_swarm(monkeypatch) -> None:
+    """``NumbaOps.fuse_levels`` (screening on one thread, then the groups of each Gauss-Seidel level in parallel,
+    a neighbour with a larger id read in the snapshot) gives the states, clocks, outcomes and levels of the
+    one-thread kernel ``fuse_serial`` to the bit: 3,000 robots, 3 neighbours and 1 map landmark each, gated, five
+    stamps with new commands."""
+    from swarmloc.engine import numba_ops
+    from swarmloc.engine.swarm import SWARM_NOISE, _landmark_scene, _step_scene
+    from swarmloc.lie import SE2
+
+    n = 3000
+    sw, det, v, w = _step_scene(n, 3, 4)
+    lmap, seen = _landmark_scene(sw, 1, 4)
+    every = Detections.concat(det, seen).canonical()
+    cov = np.broadcast_to(np.diag([1e-3, 1e-3, 1e-3]), (n, 3, 3)).copy()
+    engines, status, calls = {}, {}, []
+    levels = numba_ops.NumbaOps.fuse_levels
+    monkeypatch.setattr(numba_ops.NumbaOps, "fuse_levels", lambda self, *a: calls.append(1) or levels(self, *a))
+    for name, threshold in (("serial", 10**9), ("levels", 0)):
+        monkeypatch.setattr(numba_ops, "PARALLEL_MIN", threshold)
+        eng = engines[name] = Engine("dekf", SE2.from_xytheta(sw.pose), cov, noise=SWARM_NOISE, gate=0.99,
+                                     backend="numba", landmarks=lmap)  # fmt: skip
+        rng = np.random.default_rng(1)
+        status[name] = []
+        for k in range(5):
+            some = np.sort(rng.choice(n, n // 2, replace=False))
+            eng.predict(some, 0.1 * k)
+            status[name].append(eng.fuse(0.1 * k, every, presorted=True))
+            eng.set_command(some, v[some] * rng.uniform(0.5, 1.5), w[some])
+    assert len(calls) == 5  # the second engine's stamps, each on the level kernel (this needs two numba threads)
+    one, two = engines["serial"], engines["levels"]
+    for a, b in zip(status["serial"], status["levels"], strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(one.a, two.a)
+    np.testing.assert_array_equal(one.b, two.b)
+    np.testing.assert_array_equal(one.t, two.t)
+    assert one.counts == two.counts and one.reasons == two.reasons
+    assert one.last_levels == two.last_levels >= 4
+    assert one.counts["fused"] > 10 * n and one.counts["gated"] > 0
