@@ -296,7 +296,7 @@ class Engine:
             det = det.canonical()
         if len(det) == 0:
             return np.zeros(0, dtype=np.int8)
-        if self.backend == "numba" and self.fast:  # screened and fused in place, on one thread or by levels
+        if self.backend == "numba":  # screened and fused in place, on one thread or by levels
             status, reason = np.zeros(len(det), dtype=np.int8), np.zeros(len(det), dtype=np.int8)
             kernel = self.ops.fuse_serial if self.ops.serial(len(det)) else self.ops.fuse_levels
             lv = kernel(self.a, self.b, self.t, self.t0, self.v, self.w, t, self.use_relative, det, status, reason,

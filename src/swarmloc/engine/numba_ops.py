@@ -12,6 +12,7 @@ and noise model (a few seconds). Units: m, rad, s.
 from __future__ import annotations
 
 import math
+import textwrap
 from functools import cache
 from typing import Any
 
@@ -101,10 +102,6 @@ def _map_landmark(target: str, indent: int) -> str:
 
 
 RANGE_BEARING = KIND_ORDER["range_bearing"]
-
-
-def _indent(code: str, extra: int) -> str:
-    return "\n".join(" " * extra + line if line else line for line in code.splitlines())
 
 
 _KINDS = f"""
@@ -280,6 +277,7 @@ def fuse_levels(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
 {_KINDS}
     top = -1
     groups = 0
+    g0, g1 = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)  # rows g0[g]:g1[g] of group g
     for q in range(m):  # screened, observers moved to t and their levels, in canonical order on one thread
 {_SCREEN}
         if q == 0 or obs[q - 1] != i:  # a group's first row: its observer's state before the stamp's groups
@@ -287,26 +285,23 @@ def fuse_levels(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
                 px[i, a] = x[i, a]
                 for b in range(3):
                     pP[i, a, b] = P[i, a, b]
+            g0[groups] = q
             groups += 1
+        g1[groups - 1] = q + 1
     bounds = np.zeros(top + 2, dtype=np.int64)  # groups by level (a counting sort, canonical order within a level)
-    for q in range(m):
-        if lev[obs[q]] >= 0 and (q == 0 or obs[q - 1] != obs[q]):
-            bounds[lev[obs[q]] + 1] += 1
+    for g in range(groups):
+        bounds[lev[obs[g0[g]]] + 1] += 1
     for lv in range(top + 1):
         bounds[lv + 1] += bounds[lv]
     fill = bounds[:-1].copy()
-    g0, g1 = np.empty(groups, dtype=np.int64), np.empty(groups, dtype=np.int64)
-    for q in range(m):
-        i = obs[q]
-        if lev[i] >= 0 and (q == 0 or obs[q - 1] != i):
-            e = q + 1
-            while e < m and obs[e] == i:
-                e += 1
-            g = fill[lev[i]]
-            g0[g], g1[g] = q, e
-            fill[lev[i]] += 1
+    order = np.empty(groups, dtype=np.int64)
+    for g in range(groups):
+        lv = lev[obs[g0[g]]]
+        order[fill[lv]] = g
+        fill[lv] += 1
     for lv in range(top + 1):  # levels in order, the groups of one level in parallel
-        for g in prange(bounds[lv], bounds[lv + 1]):
+        for h in prange(bounds[lv], bounds[lv + 1]):
+            g = order[h]
             for q in range(g0[g], g1[g]):
                 if status[q] != {PENDING}:
                     continue
@@ -318,7 +313,7 @@ def fuse_levels(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
                     nx, nP = px, pP
                 else:  # a smaller id (its level is done), or a robot without a group here (not changed)
                     nx, nP = x, P
-{_indent(_FUSE, 8)}
+{textwrap.indent(_FUSE, " " * 8)}
     return top + 1
 
 
