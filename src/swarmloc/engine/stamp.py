@@ -44,6 +44,28 @@ def levels(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
         level = new
 
 
+def schedule(n: int, det: Detections, needs: np.ndarray, obs_ok: np.ndarray, observers: np.ndarray) -> tuple:
+    """The robots a stamp involves and its levels: ``(U, lo, lt, is_obs, row_level)``, ``U`` the rows of the
+    observers ``observers`` (the running ones) and of the neighbours the pending detections ``needs`` ask, ``lo``,
+    ``lt`` each detection's observer and target as rows of ``U`` (a target that is no robot: clipped, unused),
+    ``is_obs`` which rows of ``U`` are observers, ``row_level`` each detection's level (-1 where its observer does not
+    run); ``n`` robots in the team."""
+    mark = np.zeros(n, dtype=bool)  # robots involved: observers and answering neighbours, O(N)
+    mark[observers] = True
+    mark[det.target[needs]] = True
+    U = np.flatnonzero(mark)
+    local = np.cumsum(mark) - 1  # robot row -> row of U
+    lo = local[det.observer]
+    lt = local[np.clip(det.target, 0, n - 1)]
+    observer = np.zeros(n, dtype=bool)
+    observer[observers] = True
+    is_obs = observer[U]
+    edge = needs & (det.target < det.observer) & is_obs[np.where(needs, lt, 0)]
+    level = levels(U.size, lt[edge], lo[edge])
+    row_level = np.where(obs_ok, level[np.where(obs_ok, lo, 0)], -1)
+    return U, lo, lt, is_obs, row_level
+
+
 def usable(Cs: np.ndarray) -> np.ndarray:
     """``(B,)``: finite and positive definite (a Cholesky factorization exists), as the nodes'
     :func:`~swarmloc.node.update.usable_covariance`, batched."""
