@@ -199,22 +199,31 @@ def test_bulk_odometry_check_files_and_counts_what_the_sequential_one_does(monke
 
 @pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_fast_paths_fuse_a_robots_range_bearing_as_the_nodes(monkeypatch: pytest.MonkeyPatch, backend) -> None:
-    """numpy's structure-of-arrays path (forced for every batch) and JAX fuse a robot's range-bearing with the
-    landmark kernel at the neighbour's position and covariance: equal to the nodes (1e-10, same counts)."""
-    from swarmloc.engine import backends, fuse_ekf
+    """numpy's structure-of-arrays path (forced for every batch) and JAX's device stamp fuse a robot's range-bearing
+    with the landmark formulas at the neighbour's position and covariance: equal to the nodes (1e-10, same counts)."""
+    from swarmloc.engine import backends, fuse_ekf, jax_stamp
+    from swarmloc.sensors.models import KIND_ORDER
 
     monkeypatch.setattr(fuse_ekf, "SOA_MIN_ROWS", 0)
-    ops = backends.NumpyOps if backend == "numpy" else backends.JaxOps
     rows = []
-    kernel = ops.landmark_update
+    if backend == "numpy":  # the landmark kernel's rows
+        kernel = backends.NumpyOps.landmark_update
 
-    def counted(self, x, *a, **k):
-        rows.append(x.shape[0])
-        return kernel(self, x, *a, **k)
+        def counted(self, x, *a, **k):
+            rows.append(x.shape[0])
+            return kernel(self, x, *a, **k)
 
-    monkeypatch.setattr(ops, "landmark_update", counted)
+        monkeypatch.setattr(backends.NumpyOps, "landmark_update", counted)
+    else:  # the device stamp's range-bearing rows
+        stamp = jax_stamp.DeviceStamp.__call__
+
+        def counted(self, state, t, move, det, *a, **k):
+            rows.append(int((det.kind == KIND_ORDER["range_bearing"]).sum()))
+            return stamp(self, state, t, move, det, *a, **k)
+
+        monkeypatch.setattr(jax_stamp.DeviceStamp, "__call__", counted)
     src = _source(4, 10.0, 11, kinds=("pose", "range_bearing"), fixes=True)
     ref = _nodes(src, "dekf")
     _assert_same(ref, run_engine(src, "dekf", backend=backend))
     n_rb = sum(1 for e in src.events if isinstance(e, Detection) and e.kind == "range_bearing")
-    assert 0.95 * n_rb <= sum(rows) <= n_rb  # the robots' range-bearings went through the landmark kernel
+    assert 0.95 * n_rb <= sum(rows) <= n_rb  # the robots' range-bearings went through the landmark formulas

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.engine import soa
+from swarmloc.engine.jax_stamp import device_stamp
 from swarmloc.motion import UnicycleNoise
 
 BACKENDS = ("numpy", "jax", "jax32", "numba")
@@ -154,6 +155,9 @@ class JaxOps:
         self._pose = self._jit("pose", lambda *a: _pose(jnp, *a))
         self._absolute = self._jit("absolute", lambda *a: _absolute(jnp, *a))
         self._landmark = self._jit("landmark", lambda *a: _landmark(jnp, *a))
+        self.stamp = device_stamp(noise, self.dtype)
+        """A whole stamp in one device call (:mod:`swarmloc.engine.jax_stamp`), shared by the engines of this noise and
+        dtype; its ``compiles`` count its shapes, its ``calls`` the stamps."""
 
     def _jit(self, name: str, fn: Any) -> Any:
         import jax

@@ -64,8 +64,9 @@ from swarmloc.engine.fuse_ci import CiFusion
 from swarmloc.engine.fuse_ekf import EkfFusion
 from swarmloc.engine.fuse_ekf3 import Ekf3Fusion
 from swarmloc.engine.fuse_exp import ExpFusionLevel
+from swarmloc.engine.jax_stamp import covered
 from swarmloc.engine.outcomes import screen, tally
-from swarmloc.engine.stamp import Fusion, Stamp, State, levels, runs
+from swarmloc.engine.stamp import Fusion, Stamp, State, levels, runs, schedule
 from swarmloc.estimators.ci import ExpCI
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import group as K
@@ -260,10 +261,10 @@ class Engine:
         ``presorted``: the detections are already in :meth:`Detections.canonical` order.
         """
         t = float(t)
-        if commands is not None:
-            self.predict(commands[0], t)
         if detections is not None and len(detections):
-            self.fuse(t, detections, presorted=presorted)
+            self._fuse(t, detections, presorted, None if commands is None else commands[0])
+        elif commands is not None:
+            self.predict(commands[0], t)
         if commands is not None:
             self.set_command(*commands)
 
@@ -292,8 +293,24 @@ class Engine:
         """Fuse every detection group stamped ``t`` [s] (observers predicted to ``t`` first); returns the outcome
         code of each detection (:data:`~swarmloc.engine.codes.OUTCOMES`), in the order of ``det`` once sorted
         canonically."""
+        return self._fuse(float(t), det, presorted, None)
+
+    def _fuse(self, t: float, det: Detections, presorted: bool, move: np.ndarray | None) -> np.ndarray:
+        """:meth:`fuse`, the robots ``move`` (rows, or None: none) predicted to ``t`` first (a command's)."""
         if not presorted:
             det = det.canonical()
+        if self.backend in ("jax", "jax32") and len(det) and covered(det):  # the stamp in one device call
+            mask = np.zeros(self.n, dtype=bool)
+            if move is not None:
+                mask[move] = True
+            state = (self.a, self.b, self.t, self.t0, self.v, self.w)
+            g = self.fusion
+            self.a, self.b, self.t, status, reason, self.last_levels = self.ops.stamp(
+                state, t, mask, det, g.gate, self.use_relative, self.use_landmarks, g.landmarks)  # fmt: skip
+            tally(self.counts, self.reasons, status, reason)
+            return status
+        if move is not None:
+            self.predict(move, t)
         if len(det) == 0:
             return np.zeros(0, dtype=np.int8)
         if self.backend == "numba":  # screened and fused in place, on one thread or by levels
@@ -345,25 +362,13 @@ class Engine:
     ) -> None:
         """The groups of the running ``observers`` (runs ``starts`` of ``det``), level by level; the outcomes go to
         ``status`` and ``reason``, the observers' fused states to the engine's."""
-        mark = np.zeros(self.n, dtype=bool)  # robots involved: observers and answering neighbours, O(N)
-        mark[observers] = True
-        mark[det.target[needs]] = True
-        U = np.flatnonzero(mark)
-        local = np.cumsum(mark) - 1  # robot row -> row of U
-        lo = local[det.observer]
-        lt = local[np.clip(det.target, 0, self.n - 1)]
-        observer = np.zeros(self.n, dtype=bool)
-        observer[observers] = True
-        is_obs = observer[U]
+        U, lo, lt, is_obs, row_level = schedule(self.n, det, needs, obs_ok, observers)
         if U.size == self.n and not np.any(self.t < t):  # everybody at t already: fuse in place
             cur = (self.a, self.b)
             prior = (self.a.copy(), self.b.copy())
         else:
             prior = self._rows(U, t)  # observers already at t; others' answers predicted, not stored
             cur = (prior[0].copy(), prior[1].copy())
-        edge = needs & (det.target < det.observer) & is_obs[np.where(needs, lt, 0)]
-        level = levels(U.size, lt[edge], lo[edge])
-        row_level = np.where(obs_ok, level[np.where(obs_ok, lo, 0)], -1)
         self.last_levels = int(row_level.max()) + 1
         st = Stamp(det, status, reason, pos, lo, lt, prior, cur)
         order = np.argsort(row_level, kind="stable")

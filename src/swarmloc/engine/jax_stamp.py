@@ -1,0 +1,324 @@
+"""A whole stamp of the engine's fast EKF path as one compiled JAX call (backends ``"jax"`` and ``"jax32"``).
+
+The host uploads the team's states and the stamp's detections (canonical order) and gets back the states, clocks,
+each detection's outcome and reason, and the number of levels; in between, on the device and in this order: the
+screening of :func:`swarmloc.engine.outcomes.screen` (:func:`_screen`), the prediction to ``t`` of the observers,
+of the neighbours they ask and of the robots given a command at ``t`` (the observers' and those robots' stored),
+the Gauss-Seidel levels of :mod:`swarmloc.engine.stamp` (:func:`_levels`), the pending rows sorted by (level,
+position in the group, kind), and their fusion segment by segment inside a ``lax.while_loop``: a segment is one
+level's groups at one position, all of one kind, so its rows touch distinct observers and fuse at once. Each chunk
+of a segment runs in a branch (``lax.switch``) compiled for its kind and the smallest of a few static sizes that
+holds it (:data:`SIZE_STEPS`), so a short late level does not cost a long one's work.
+
+A row's fusion is the fast path's: relative poses, absolute fixes and range-bearing detections of map landmarks or
+of robots (the robot's position and covariance as a landmark's) by the formulas of :mod:`swarmloc.engine.soa`,
+gated and checked as :func:`swarmloc.engine.outcomes.gate_rows` and :class:`swarmloc.engine.fuse_ekf.EkfFusion`
+do (degenerate range-bearing geometry, gate, non-finite NIS, numerical failure). A neighbour with a smaller id is
+read after its own group, one with a larger id before it (the nodes' order).
+
+On the device the states are ``(N, 9)`` rows: ``x [m], y [m], theta [rad]`` and the covariance's upper triangle
+``P00, P01, P02, P11, P12, P22``; the detections are padded to a power of two, so a run compiles once per team size
+and bucket of detections (:func:`device_stamp` shares the compilations between engines).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from swarmloc.engine import soa
+from swarmloc.engine.codes import (
+    ABSOLUTE,
+    FUSED,
+    GATED,
+    MODEL,
+    NO_LANDMARK,
+    PENDING,
+    POSE,
+    R_DEGENERATE,
+    R_LANDMARKS_OFF,
+    R_NO_LANDMARK,
+    R_NONFINITE,
+    R_NOT_STARTED,
+    R_NUMERICAL,
+    R_OBSERVER,
+    R_OFF,
+    R_SELF,
+    R_TEAM,
+    R_UNUSABLE,
+    REJECTED,
+    UNKNOWN,
+    UNUSABLE,
+)
+from swarmloc.motion import UnicycleNoise
+from swarmloc.node.update import Gate
+from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
+
+RANGE_BEARING = KIND_ORDER["range_bearing"]
+DEVICE_KINDS = (ABSOLUTE, POSE, RANGE_BEARING)
+"""Kinds the device stamp fuses; a stamp with another pending kind takes the level path."""
+CHUNK = 4
+SIZE_STEPS = 3
+"""Static sizes of a stamp's chunks: the bucket of its rows or robots (the smaller) divided by :data:`CHUNK`, then
+by 4 and 16 (not below 8); a segment longer than the first runs as several chunks. Each size is a compiled branch
+per kind: more sizes waste less work on short segments and take longer to compile (on a 2-core CPU at 10,000
+robots 8 s with 2 sizes, 14 s with 4, 23 s with 7, for the same step time)."""
+_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+_KIND_INDEX = np.zeros(len(MODEL), dtype=np.int64)
+_KIND_INDEX[list(DEVICE_KINDS)] = np.arange(len(DEVICE_KINDS))
+_FILLS = (0, -1, POSE, 0.0, np.eye(3))
+"""Padded detection rows: robot 0 seeing an absent target with a relative pose, the identity noise (never pending)."""
+DEVICE_PAD = 1 << 16
+"""Detections from this many on are padded on the device (no host copy); fewer on the host (no compilation)."""
+_COVERED = np.zeros(len(MODEL), dtype=bool)
+_COVERED[list(DEVICE_KINDS)] = True
+
+
+def bucket(n: int) -> int:
+    """The power of two (at least 8) an array of ``n`` rows is padded to."""
+    return max(8, 1 << max(0, (int(n) - 1).bit_length()))
+
+
+def _segment(jnp: Any, code: int, size: int, carry: tuple, rows: tuple, start: Any, count: Any,
+             const: tuple) -> tuple:  # fmt: skip
+    """Fuse rows ``start : start + count`` (at most ``size``, all of kind ``code``) of the sorted pending rows into
+    ``carry``."""
+    from jax import lax
+
+    cur, status, reason = carry
+    prior, thr, gate_on, lxy, lcov = const
+    at, lo, lt, lmk, after, z, R = (lax.dynamic_slice_in_dim(a, start, size) for a in rows)
+    valid = jnp.arange(size) < count
+    X = cur[lo]
+    x, p = tuple(X[:, i] for i in range(3)), tuple(X[:, 3 + i] for i in range(6))
+    if code != ABSOLUTE:
+        nb = jnp.where(after[:, None], cur[lt], prior[lt])
+        xk, pk = tuple(nb[:, i] for i in range(3)), tuple(nb[:, 3 + i] for i in range(6))
+    degenerate = jnp.zeros(size, dtype=bool)
+    zs, rs = tuple(z[:, i] for i in range(3)), tuple(R[:, i] for i in range(6))
+    if code == POSE:
+        xn, pn, nis, ok = soa.pose_update(jnp, x, p, xk, pk, zs, rs)
+    elif code == ABSOLUTE:
+        xn, pn, nis, ok = soa.absolute_update(jnp, x, p, zs, rs)
+    else:  # range-bearing of a map landmark, or of a robot at its position with its covariance
+        on_map = lmk >= 0
+        k = jnp.maximum(lmk, 0)
+        lk = tuple(jnp.where(on_map, lxy[k, i], xk[i]) for i in range(2))
+        lp = (jnp.where(on_map, lcov[k, 0], pk[0]), jnp.where(on_map, lcov[k, 1], pk[1]),
+              jnp.where(on_map, lcov[k, 2], pk[3]))  # fmt: skip
+        degenerate = jnp.hypot(lk[0] - x[0], lk[1] - x[1]) < MIN_RANGE
+        lk = tuple(jnp.where(degenerate, 1.0 + a, a) for a in lk)  # finite; a degenerate row's result is discarded
+        xn, pn, nis, ok = soa.landmark_update(jnp, x, p, lk, lp, zs[:2], (rs[0], rs[1], rs[3]))
+    ok = ok & soa.positive_definite(jnp, pn)
+    bad = gate_on & ~jnp.isfinite(nis)
+    gated = gate_on & ~bad & (nis > thr[code])
+    out = jnp.where(degenerate | bad, REJECTED, jnp.where(gated, GATED, jnp.where(ok, FUSED, REJECTED)))
+    why = jnp.where(degenerate, R_DEGENERATE, jnp.where(bad, R_NONFINITE, jnp.where(gated | ok, 0, R_NUMERICAL)))
+    commit = valid & (out == FUSED)
+    new = jnp.stack((*xn, *pn), -1).astype(cur.dtype)
+    cur = cur.at[jnp.where(commit, lo, cur.shape[0])].set(new, mode="drop")
+    at = jnp.where(valid, at, status.shape[0])
+    status = status.at[at].set(out.astype(status.dtype), mode="drop")
+    reason = reason.at[at].set(why.astype(reason.dtype), mode="drop")
+    return cur, status, reason
+
+
+def _screen(jnp: Any, obs: Any, tgt: Any, kind: Any, valid: Any, t: Any, t0: Any, relative: Any, lm_on: Any,
+            ) -> tuple:  # fmt: skip
+    """:func:`swarmloc.engine.outcomes.screen` on the device: ``(status, reason, obs_ok, needs)``; padded rows
+    (``valid`` False) are neither pending nor running."""
+    n = t0.shape[0]
+    status = jnp.zeros(obs.shape[0], jnp.int8)
+    reason = jnp.zeros(obs.shape[0], jnp.int8)
+
+    def mark(where: Any, outcome: int, why: int) -> tuple:
+        return jnp.where(where, jnp.int8(outcome), status), jnp.where(where, jnp.int8(why), reason)
+
+    landmark = (tgt <= NO_LANDMARK) & (kind != ABSOLUTE)
+    robot = (kind != ABSOLUTE) & ~landmark
+    obs_ok = valid & (t >= t0[obs])
+    status, reason = mark(~obs_ok, REJECTED, R_OBSERVER)
+    status, reason = mark(obs_ok & robot & ~relative, REJECTED, R_OFF)
+    status, reason = mark(obs_ok & landmark & ~lm_on, REJECTED, R_LANDMARKS_OFF)
+    status, reason = mark((status == PENDING) & landmark & (tgt == NO_LANDMARK), UNKNOWN, R_NO_LANDMARK)
+    status, reason = mark((status == PENDING) & landmark & (kind == POSE), REJECTED, R_UNUSABLE)
+    status, reason = mark((status == PENDING) & robot & (tgt == UNUSABLE), REJECTED, R_UNUSABLE)
+    status, reason = mark((status == PENDING) & robot & (tgt == obs), REJECTED, R_SELF)
+    status, reason = mark((status == PENDING) & robot & (tgt < 0), UNKNOWN, R_TEAM)
+    started = t >= t0[jnp.clip(tgt, 0, n - 1)]
+    status, reason = mark((status == PENDING) & robot & ~started, UNKNOWN, R_NOT_STARTED)
+    return status, reason, obs_ok, (status == PENDING) & robot
+
+
+def _levels(jnp: Any, n: int, edge: Any, src: Any, dst: Any) -> Any:
+    """:func:`swarmloc.engine.stamp.levels` on the device: longest-path levels of ``n`` robots over the ``edge``
+    rows' ``src -> dst``."""
+    from jax import lax
+
+    dst = jnp.where(edge, dst, n)
+
+    def step(c: tuple) -> tuple:
+        level, _ = c
+        new = jnp.zeros(n, level.dtype).at[dst].max(level[src] + 1, mode="drop")
+        return new, jnp.any(new != level)
+
+    return lax.while_loop(lambda c: c[1], step, (jnp.zeros(n, jnp.int32), jnp.asarray(True)))[0]
+
+
+def stamp_kernel(jnp: Any, noise: UnicycleNoise, sizes: tuple[int, ...], dtype: Any) -> Any:
+    """The device stamp for chunks of at most ``sizes[0]`` rows (the ``sizes`` descending) computing in ``dtype``,
+    a function of the arguments of :meth:`DeviceStamp.__call__` as jax arrays (float64 states and detections, the
+    detections padded, ``m`` of them real) returning ``(x, P, clock, status, reason, levels)`` (states float64)."""
+    from jax import lax
+
+    def run(x: Any, P: Any, tc: Any, t0: Any, v: Any, w: Any, t: Any, move: Any, det: tuple, m: Any, thr: Any,
+            flags: Any, lxy: Any, lcov: Any) -> tuple:  # fmt: skip
+        n, mb = tc.shape[0], det[0].shape[0]
+        gate_on, relative, lm_on = flags[0], flags[1], flags[2]
+        x, P, v, w, thr, lxy, lcov = (a.astype(dtype) for a in (x, P, v, w, thr, lxy, lcov))
+        obs, tgt, kind = (a.astype(jnp.int32) for a in det[:3])
+        z, R = det[3].astype(dtype), jnp.stack([det[4][:, i, j] for i, j in _UPPER], -1).astype(dtype)
+        valid = jnp.arange(mb) < m
+        status, reason, obs_ok, needs = _screen(jnp, obs, tgt, kind, valid, t, t0, relative, lm_on)
+        observer = jnp.zeros(n, bool).at[jnp.where(obs_ok, obs, n)].set(True, mode="drop")
+        involved = (observer | move).at[jnp.where(needs, tgt, n)].set(True, mode="drop")
+        stored = observer | move
+        dt = jnp.where(involved, t - tc, 0.0)
+        xs, ps = soa.predict(jnp, tuple(x[:, i] for i in range(3)), tuple(P[:, i, j] for i, j in _UPPER), v, w,
+                             dt.astype(x.dtype), noise)  # fmt: skip
+        prior = jnp.stack(xs + ps, -1)
+        clock = jnp.where(stored & (dt > 0), t, tc)
+        safe = jnp.clip(tgt, 0, n - 1)
+        edge = needs & (tgt < obs) & observer[safe]
+        level = _levels(jnp, n, edge, safe, obs)
+        row_level = jnp.where(obs_ok, level[obs], -1)
+        idx = jnp.arange(mb)
+        first = jnp.concatenate([jnp.ones(1, bool), obs[1:] != obs[:-1]])
+        pos = idx - lax.cummax(jnp.where(first, idx, 0))
+        pend = status == PENDING
+        width = jnp.max(jnp.where(pend, pos, 0)) + 1
+        big = jnp.iinfo(jnp.int64).max  # 64 bits: levels x positions x kinds cannot overflow
+        rank = jnp.asarray(_KIND_INDEX, dtype=jnp.int64)[kind]
+        key = jnp.where(pend, (row_level.astype(jnp.int64) * width + pos) * len(DEVICE_KINDS) + rank, big)
+        order = jnp.argsort(key, stable=True)  # (level, position, kind); not pending last
+        ks = key[order]
+        new = (ks != big) & jnp.concatenate([jnp.ones(1, bool), ks[1:] != ks[:-1]])
+        npend = jnp.sum(pend)
+        seg = jnp.nonzero(new, size=mb + 1, fill_value=npend)[0]
+        nseg = jnp.sum(new)
+        segkind = ks[jnp.minimum(seg, mb - 1)] % len(DEVICE_KINDS)
+        lmk = jnp.where(tgt <= NO_LANDMARK, NO_LANDMARK - 1 - tgt, -1)
+        rows = tuple(jnp.concatenate([a, a]) for a in (order, *(b[order] for b in (obs, safe, lmk, tgt < obs, z, R))))
+        const = (prior, thr, gate_on, lxy, lcov)
+        branches = [lambda c, a, k, kk=kk, s=s: _segment(jnp, kk, s, c, rows, a, k, const)
+                    for kk in DEVICE_KINDS for s in sizes]  # fmt: skip
+        small = jnp.asarray(sizes[1:] or (0,))
+
+        def body(c: tuple) -> tuple:  # chunk ``off`` of segment ``i``: at most sizes[0] rows
+            i, off, carry = c
+            start = seg[i] + off
+            count = jnp.minimum(seg[i + 1] - start, sizes[0])
+            which = jnp.sum(count <= small) if len(sizes) > 1 else 0  # the smallest size that holds the chunk
+            carry = lax.switch(segkind[i] * len(sizes) + which, branches, carry, start, count)
+            done = start + count >= seg[i + 1]
+            return jnp.where(done, i + 1, i), jnp.where(done, 0, off + count), carry
+
+        zero = jnp.zeros((), seg.dtype)
+        _, _, (cur, status, reason) = lax.while_loop(lambda c: c[0] < nseg, body, (zero, zero, (prior, status, reason)))
+        S = jnp.where(stored[:, None], cur, jnp.stack((*(x[:, i] for i in range(3)),
+                                                       *(P[:, i, j] for i, j in _UPPER)), -1))  # fmt: skip
+        c = [S[:, 3 + i] for i in range(6)]
+        full = jnp.stack([jnp.stack([c[0], c[1], c[2]], -1), jnp.stack([c[1], c[3], c[4]], -1),
+                          jnp.stack([c[2], c[4], c[5]], -1)], -2)  # fmt: skip
+        f64 = jnp.float64
+        return S[:, :3].astype(f64), full.astype(f64), clock, status, reason, jnp.max(row_level) + 1
+
+    return run
+
+
+@cache
+def device_stamp(noise: UnicycleNoise, dtype: Any) -> DeviceStamp:
+    """The :class:`DeviceStamp` of ``noise`` and ``dtype``, one per process: engines of the same noise share its
+    compilations."""
+    return DeviceStamp(noise, dtype)
+
+
+class DeviceStamp:
+    """The compiled device stamps of one noise model and dtype (one per static shape; :func:`device_stamp` shares
+    them between engines): :attr:`compiles` counts the compilations per chunk sizes, :attr:`calls` the stamps."""
+
+    def __init__(self, noise: UnicycleNoise, dtype: Any) -> None:
+        import jax
+        import jax.numpy as jnp
+
+        self.noise, self.dtype, self._jax, self._jnp = noise, np.dtype(dtype), jax, jnp
+        self.compiles: Counter[tuple[int, ...]] = Counter()
+        self.calls = 0
+        self._fns: dict[tuple[int, ...], Any] = {}
+        grow = lambda a, fill, size: jnp.concatenate([a, jnp.broadcast_to(fill, (size - a.shape[0], *a.shape[1:]))])  # noqa: E731
+        self._grow = jax.jit(grow, static_argnums=2)
+
+    def _fn(self, sizes: tuple[int, ...]) -> Any:
+        if sizes not in self._fns:
+            kernel = stamp_kernel(self._jnp, self.noise, sizes, self.dtype)
+
+            def traced(*args: Any) -> Any:
+                self.compiles[sizes] += 1  # once per new argument shape
+                return kernel(*args)
+
+            self._fns[sizes] = self._jax.jit(traced)
+        return self._fns[sizes]
+
+    def __call__(self, state: tuple, t: float, move: np.ndarray, det: Any, gate: Gate, relative: bool, lm_on: bool,
+                 landmarks: tuple | None) -> tuple:  # fmt: skip
+        """One stamp: ``(x, P, clock, status, reason, levels)``, numpy arrays (states float64).
+
+        ``state = (x (N, 3), P (N, 3, 3), clock (N,), t0 (N,), v (N,), w (N,))``: the team before the stamp;
+        ``move (N,)``: robots to move to ``t`` besides the observers (a command's); ``det``: the stamp's
+        detections (canonical order, all of :data:`DEVICE_KINDS`), screened, scheduled and fused on the device;
+        ``gate``, ``relative``, ``lm_on`` as the engine's; ``landmarks`` its map ``(xy (L, 2), cov (L, 2, 2))`` or
+        None. The detections are padded to a power of two; the segments' static sizes follow from it and ``N``."""
+        self.calls += 1
+        m = len(det)
+        mb = bucket(m)
+        top = max(8, bucket(min(mb, state[2].shape[0])) // CHUNK)
+        sizes = tuple(s for s in (top >> (2 * i) for i in range(SIZE_STEPS)) if s >= 8) or (8,)
+        thr = np.array([gate.threshold(MODEL[c].size) if gate.p is not None else np.inf for c in range(len(MODEL))])
+        if landmarks is None:
+            lxy, lcov = np.zeros((8, 2)), np.tile([1.0, 0.0, 1.0], (8, 1))
+        else:
+            nl = landmarks[0].shape[0]
+            lxy = _pad(landmarks[0], bucket(nl), 0.0)
+            lcov = _pad(landmarks[1][:, [0, 0, 1], [0, 1, 1]], bucket(nl), np.array([1.0, 0.0, 1.0]))
+        flags = np.array([gate.p is not None, relative, lm_on])
+        rows = tuple(self._rows(a, fill, mb) for a, fill in zip((det.observer, det.target, det.kind, det.z[:, :3],
+                                                                   det.R[:, :3, :3]), _FILLS, strict=True))  # fmt: skip
+        out = self._fn(sizes)(*state, np.float64(t), move, rows, np.int64(m), thr, flags, lxy, lcov)
+        xn, Pn, clock, st, why, levels = (np.array(a) for a in out)
+        return xn, Pn, clock, st[:m], why[:m], int(levels)
+
+    def _rows(self, a: np.ndarray, fill: Any, size: int) -> Any:
+        """``a`` padded to ``size`` rows with ``fill``: on the host when small, else on the device (one transfer of
+        ``a`` as it is, no host copy; the padding compiles once per row count)."""
+        if a.shape[0] == size or a.shape[0] < DEVICE_PAD:
+            return _pad(a, size, fill)
+        return self._grow(self._jax.device_put(np.ascontiguousarray(a)), np.asarray(fill, dtype=a.dtype), size)
+
+
+def covered(det: Any) -> bool:
+    """Whether every detection of the stamp is of a kind the device stamp fuses (:data:`DEVICE_KINDS`)."""
+    return bool(_COVERED[det.kind].all())
+
+
+def _pad(x: np.ndarray, size: int, fill: Any) -> np.ndarray:
+    """``x`` with ``size`` rows, the rows past its own set to ``fill`` (``x`` itself when it has them)."""
+    x = np.asarray(x)
+    if x.shape[0] == size:
+        return x
+    out = np.empty((size, *x.shape[1:]), dtype=x.dtype)
+    out[: x.shape[0]] = x
+    out[x.shape[0] :] = fill
+    return out
