@@ -95,7 +95,9 @@ class Engine:
         answers nobody, like a node without input).
     gate, order, iterations, point_iterations, use_relative: as the nodes (:class:`~swarmloc.estimators.ExpFusion`,
         :class:`~swarmloc.estimators.Node`); the gate is the nodes' :class:`~swarmloc.node.update.Gate`.
-    backend: ``"numpy"``, ``"jax"`` (float64), ``"jax32"`` (float32 kernels on jax's device, float64 states) or
+    backend: ``"numpy"``, ``"jax"`` (float64), ``"jax32"`` (float32 kernels on jax's device, float64 states; both
+        run a stamp of poses, fixes and range-bearing detections as one device call,
+        :mod:`swarmloc.engine.jax_stamp`) or
         ``"numba"`` (all but numpy: fast EKF path only, ``estimator="dekf"``,
         ``fast=True``, SE(2) teams; with numba the groups of one level fuse in parallel threads,
         ``NUMBA_NUM_THREADS``).
