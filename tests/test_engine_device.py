@@ -129,3 +129,21 @@ def test_device_stamp_compiles_per_shape_bucket_not_per_stamp() -> None:
     stamp = engines["jax"].ops.stamp
     assert 1 <= stamp.compiles.total() - before <= 4, stamp.compiles
     assert engines["jax"].counts == engines["numpy"].counts
+
+
+def test_a_stamp_where_no_observer_runs_leaves_the_level_count_as_every_backend() -> None:
+    """Detections only by a robot that never starts: all rejected (the observer had not started) on numpy, numba
+    and jax alike, states and clocks untouched but for the robots given a command, ``last_levels`` that of the
+    stamp before."""
+    rng = np.random.default_rng(13)
+    engines, _ = _engines(rng, ("numpy", "numba", "jax"))
+    x = engines["numpy"].a
+    _step(engines, 0.5, _outcome_mix(x, 20, rng), (np.arange(1, 5), np.full(4, 0.3), np.full(4, 0.1)))
+    before = engines["numpy"].last_levels
+    key = "rejected: the observer had not started"
+    late = engines["numpy"].reasons[key]
+    det = _outcome_mix(x, 10, rng)
+    det = Detections(np.full(len(det), 8), det.target, det.kind, det.z, det.R).canonical()  # robot 8: t0 = inf
+    _step(engines, 1.0, det, (np.arange(1, 3), np.full(2, 0.2), np.full(2, 0.0)))
+    assert before >= 1 and all(e.last_levels == before for e in engines.values())
+    assert all(e.reasons[key] == late + 10 for e in engines.values())

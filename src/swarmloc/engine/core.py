@@ -307,8 +307,9 @@ class Engine:
                 mask[move] = True
             state = (self.a, self.b, self.t, self.t0, self.v, self.w)
             g = self.fusion
-            self.a, self.b, self.t, status, reason, self.last_levels = self.ops.stamp(
+            self.a, self.b, self.t, status, reason, levels = self.ops.stamp(
                 state, t, mask, det, g.gate, self.use_relative, self.use_landmarks, g.landmarks)  # fmt: skip
+            self.last_levels = levels or self.last_levels  # as the level path: unchanged when no observer runs
             tally(self.counts, self.reasons, status, reason)
             return status
         if move is not None:
@@ -321,7 +322,7 @@ class Engine:
             lv = kernel(self.a, self.b, self.t, self.t0, self.v, self.w, t, self.use_relative, det, status, reason,
                         self.fusion.gate, self.fusion.landmarks, self.use_landmarks)  # fmt: skip
             if lv >= 0:
-                self.last_levels = lv
+                self.last_levels = lv or self.last_levels  # unchanged when no observer runs, as the level path
                 tally(self.counts, self.reasons, status, reason)
                 return status
         status, reason, obs_ok, needs = screen(det, t, self.t0, self.use_relative, self.use_landmarks)

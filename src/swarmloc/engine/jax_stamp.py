@@ -59,7 +59,7 @@ from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
 
 RANGE_BEARING = KIND_ORDER["range_bearing"]
 DEVICE_KINDS = (ABSOLUTE, POSE, RANGE_BEARING)
-"""Kinds the device stamp fuses; a stamp with another pending kind takes the level path."""
+"""Kinds the device stamp fuses; a stamp holding a detection of another kind takes the per-level kernels."""
 CHUNK = 4
 SIZE_STEPS = 3
 """Static sizes of a stamp's chunks: the bucket of its rows or robots (the smaller) divided by :data:`CHUNK`, then
@@ -303,6 +303,8 @@ class DeviceStamp:
     def _rows(self, a: np.ndarray, fill: Any, size: int) -> Any:
         """``a`` padded to ``size`` rows with ``fill``: on the host when small, else on the device (one transfer of
         ``a`` as it is, no host copy; the padding compiles once per row count)."""
+        if a.dtype.kind in "iu" and a.dtype != np.int64:  # one integer type: another would compile again
+            a = a.astype(np.int64)
         if a.shape[0] == size or a.shape[0] < DEVICE_PAD:
             return _pad(a, size, fill)
         return self._grow(self._jax.device_put(np.ascontiguousarray(a)), np.asarray(fill, dtype=a.dtype), size)
