@@ -147,3 +147,22 @@ def test_a_stamp_where_no_observer_runs_leaves_the_level_count_as_every_backend(
     _step(engines, 1.0, det, (np.arange(1, 3), np.full(2, 0.2), np.full(2, 0.0)))
     assert before >= 1 and all(e.last_levels == before for e in engines.values())
     assert all(e.reasons[key] == late + 10 for e in engines.values())
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba", "jax"])
+def test_rows_outside_the_team_are_refused_before_anything_changes(backend: str) -> None:
+    """An observer or robot target that is no row of the team raises a ValueError naming it, on every backend (the
+    compiled paths do not index-check: numba would read out of bounds, JAX clamp), and the engine is untouched."""
+    rng = np.random.default_rng(17)
+    engines, _ = _engines(rng, (backend,))
+    eng = engines[backend]
+    det = _outcome_mix(eng.a, 10, rng)
+    before = (eng.a.copy(), eng.b.copy(), eng.t.copy(), dict(eng.counts))
+    for obs, tgt in ((9, 1), (-1, 1), (2, 9)):
+        bad = Detections(np.r_[det.observer[:-1], obs], np.r_[det.target[:-1], tgt], det.kind, det.z, det.R)
+        with pytest.raises(ValueError, match=r"robot rows must be in \[0, 9\)"):
+            eng.fuse(1.0, bad)
+    np.testing.assert_array_equal(eng.a, before[0])
+    np.testing.assert_array_equal(eng.b, before[1])
+    np.testing.assert_array_equal(eng.t, before[2])
+    assert dict(eng.counts) == before[3]

@@ -301,6 +301,7 @@ class Engine:
         """:meth:`fuse`, the robots ``move`` (rows, or None: none) predicted to ``t`` first (a command's)."""
         if not presorted:
             det = det.canonical()
+        _check_rows(det, self.n)
         if self.backend in ("jax", "jax32") and len(det) and covered(det):  # the stamp in one device call
             mask = np.zeros(self.n, dtype=bool)
             if move is not None:
@@ -398,6 +399,15 @@ def _group_of(mean: np.ndarray, cov: np.ndarray) -> type[SEGroup]:
         f"Engine: mean and cov must be (N, 3, 3) (SE(2)) or (N, 4, 4) and (N, 6, 6) (SE(3)), got {mean.shape} and "
         f"{cov.shape}"
     )
+
+
+def _check_rows(det: Detections, n: int) -> None:
+    """Refuse detections whose observer or robot target is no row of a team of ``n`` (the compiled paths would not
+    index-check them: numba reads out of bounds, JAX clamps)."""
+    if len(det) and (det.observer.min() < 0 or det.observer.max() >= n or det.target.max() >= n):
+        bad = np.flatnonzero((det.observer < 0) | (det.observer >= n) | (det.target >= n))[0]
+        raise ValueError(f"Engine.fuse: detection {bad} (canonical order) has observer {det.observer[bad]} and target "
+                         f"{det.target[bad]}: robot rows must be in [0, {n})")  # fmt: skip
 
 
 def _check_options(estimator: str, backend: str, fast: bool, landmarks: Any, gate: float | None, order: int,
