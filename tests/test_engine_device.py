@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_engine import _outcome_mix
-from test_engine_landmarks import _landmark_mix
+from test_engine_landmarks import _landmark_mix, range_bearing
 
 from swarmloc.engine import Detections, Engine
-from swarmloc.lie import SE2, wrap_angle
+from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import KIND_ORDER
 
@@ -26,14 +26,7 @@ def _robot_ranges(x: np.ndarray, m: int, rng: np.random.Generator, kind: str = "
     tgt = (obs + rng.integers(1, n - 1, m)) % n
     tgt = np.where(tgt == 0, 1 + (obs % (n - 1)), tgt)
     tgt = np.where(tgt == obs, 1 + (tgt % (n - 1)), tgt)
-    c, s = np.cos(x[obs, 2]), np.sin(x[obs, 2])
-    dx, dy = x[tgt, 0] - x[obs, 0], x[tgt, 1] - x[obs, 1]
-    z = np.zeros((m, 3))
-    z[:, 0] = np.hypot(dx, dy) + rng.normal(scale=0.03, size=m) + np.where(rng.random(m) < 0.2, 3.0, 0.0)
-    z[:, 1] = wrap_angle(np.arctan2(-s * dx + c * dy, c * dx + s * dy) + rng.normal(scale=0.01, size=m))
-    R = np.zeros((m, 3, 3))
-    R[:, 0, 0], R[:, 1, 1], R[:, 0, 1] = 0.03**2, 0.01**2, 1e-5
-    R[:, 1, 0] = R[:, 0, 1]
+    z, R = range_bearing(x[obs], x[tgt, :2], rng)
     if kind != "range_bearing":
         z[:, 0] = z[:, 1] if kind == "bearing" else z[:, 0]
         R[:, 0, 0] = R[:, 1, 1] if kind == "bearing" else R[:, 0, 0]

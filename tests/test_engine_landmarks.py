@@ -12,6 +12,7 @@ from swarmloc.engine import Detections, Engine, run_engine
 from swarmloc.engine.codes import NO_LANDMARK, POSE, landmark_code
 from swarmloc.estimators import make_team, node_options
 from swarmloc.experiments.sources import load_source
+from swarmloc.lie import wrap_angle
 from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult, run
 from swarmloc.sensors.models import KIND_ORDER
@@ -144,22 +145,28 @@ def _landmark_mix(x: np.ndarray, lxy: np.ndarray, m: int, rng: np.random.Generat
     """Range-bearing detections of map landmarks by random observers at ``x (n, 3)``: near the truth, a fifth 3 m
     off (for the gate), a tenth of landmarks missing from the map; robot 0 sees landmark 0 only (at its own
     position: degenerate)."""
-    from swarmloc.lie import wrap_angle
-
     obs = np.r_[0, rng.integers(1, x.shape[0], m - 1)]
     k = np.r_[0, rng.integers(0, lxy.shape[0], m - 1)]
     tgt = np.array([landmark_code(int(i)) for i in k])
     tgt = np.where(rng.random(m) < 0.1, NO_LANDMARK, tgt)
     tgt[0] = landmark_code(0)
-    c, s = np.cos(x[obs, 2]), np.sin(x[obs, 2])
-    dx, dy = lxy[k, 0] - x[obs, 0], lxy[k, 1] - x[obs, 1]
+    z, R = range_bearing(x[obs], lxy[k], rng)
+    return Detections(obs, tgt, np.full(m, KIND_ORDER["range_bearing"]), z, R)
+
+
+def range_bearing(pose: np.ndarray, xy: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``(z (m, 3), R (m, 3, 3))``: range-bearing of points ``xy (m, 2)`` from poses ``(m, 3)``, noise 0.03 m and 0.01
+    rad, a fifth of the ranges 3 m off (for the gate)."""
+    m = pose.shape[0]
+    c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    dx, dy = xy[:, 0] - pose[:, 0], xy[:, 1] - pose[:, 1]
     z = np.zeros((m, 3))
     z[:, 0] = np.hypot(dx, dy) + rng.normal(scale=0.03, size=m) + np.where(rng.random(m) < 0.2, 3.0, 0.0)
     z[:, 1] = wrap_angle(np.arctan2(-s * dx + c * dy, c * dx + s * dy) + rng.normal(scale=0.01, size=m))
     R = np.zeros((m, 3, 3))
     R[:, 0, 0], R[:, 1, 1], R[:, 0, 1] = 0.03**2, 0.01**2, 1e-5
     R[:, 1, 0] = R[:, 0, 1]
-    return Detections(obs, tgt, np.full(m, KIND_ORDER["range_bearing"]), z, R)
+    return z, R
 
 
 @pytest.mark.parametrize("use_landmarks", [True, False])

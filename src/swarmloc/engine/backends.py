@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.engine import soa
-from swarmloc.engine.jax_stamp import device_stamp
+from swarmloc.engine.jax_stamp import bucket, device_stamp, pad_rows
 from swarmloc.motion import UnicycleNoise
 
 BACKENDS = ("numpy", "jax", "jax32", "numba")
@@ -104,19 +104,9 @@ class NumpyOps:
             return _landmark(np, x, P, lk, L, z, Rz)
 
 
-def _bucket(n: int) -> int:
-    return max(8, 1 << max(0, (n - 1).bit_length()))
-
-
 def _pad(a: np.ndarray, size: int, fill: np.ndarray | float, dtype: Any = np.float64) -> np.ndarray:
-    """``a`` as ``dtype`` with ``size`` rows, the rows past its own set to ``fill`` (masked: their results are cut)."""
-    a = np.asarray(a, dtype=dtype)  # one dtype: an integer array would compile another version
-    if a.shape[0] == size:
-        return a
-    out = np.empty((size, *a.shape[1:]), dtype=dtype)
-    out[: a.shape[0]] = a
-    out[a.shape[0] :] = fill
-    return out
+    """``a`` as ``dtype`` padded to ``size`` rows with ``fill`` (:func:`~swarmloc.engine.jax_stamp.pad_rows`)."""
+    return pad_rows(np.asarray(a, dtype=dtype), size, fill)  # one dtype: an integer array would compile again
 
 
 def _host(a: Any) -> np.ndarray:
@@ -174,7 +164,7 @@ class JaxOps:
         """``kernel`` on the arrays of ``padded`` (``(array, fill)`` pairs), each cast to the dtype and padded to the
         bucket of the first one's rows with its fill; the results cut back to those rows, as numpy float64."""
         n = padded[0][0].shape[0]
-        b = _bucket(n)
+        b = bucket(n)
         res = kernel(*(_pad(a, b, fill, self.dtype) for a, fill in padded))
         return tuple(_host(r[:n]) for r in res)  # writable numpy copies, floats as float64
 

@@ -258,7 +258,10 @@ class DeviceStamp:
         self.compiles: Counter[tuple[int, ...]] = Counter()
         self.calls = 0
         self._fns: dict[tuple[int, ...], Any] = {}
-        grow = lambda a, fill, size: jnp.concatenate([a, jnp.broadcast_to(fill, (size - a.shape[0], *a.shape[1:]))])  # noqa: E731
+
+        def grow(a: Any, fill: Any, size: int) -> Any:  # pad_rows on the device
+            return jnp.concatenate([a, jnp.broadcast_to(fill, (size - a.shape[0], *a.shape[1:]))])
+
         self._grow = jax.jit(grow, static_argnums=2)
 
     def _fn(self, sizes: tuple[int, ...]) -> Any:
@@ -291,8 +294,8 @@ class DeviceStamp:
             lxy, lcov = np.zeros((8, 2)), np.tile([1.0, 0.0, 1.0], (8, 1))
         else:
             nl = landmarks[0].shape[0]
-            lxy = _pad(landmarks[0], bucket(nl), 0.0)
-            lcov = _pad(landmarks[1][:, [0, 0, 1], [0, 1, 1]], bucket(nl), np.array([1.0, 0.0, 1.0]))
+            lxy = pad_rows(landmarks[0], bucket(nl), 0.0)
+            lcov = pad_rows(landmarks[1][:, [0, 0, 1], [0, 1, 1]], bucket(nl), np.array([1.0, 0.0, 1.0]))
         flags = np.array([gate.p is not None, relative, lm_on])
         rows = tuple(self._rows(a, fill, mb) for a, fill in zip((det.observer, det.target, det.kind, det.z[:, :3],
                                                                    det.R[:, :3, :3]), _FILLS, strict=True))  # fmt: skip
@@ -306,7 +309,7 @@ class DeviceStamp:
         if a.dtype.kind in "iu" and a.dtype != np.int64:  # one integer type: another would compile again
             a = a.astype(np.int64)
         if a.shape[0] == size or a.shape[0] < DEVICE_PAD:
-            return _pad(a, size, fill)
+            return pad_rows(a, size, fill)
         return self._grow(self._jax.device_put(np.ascontiguousarray(a)), np.asarray(fill, dtype=a.dtype), size)
 
 
@@ -315,8 +318,9 @@ def covered(det: Any) -> bool:
     return bool(_COVERED[det.kind].all())
 
 
-def _pad(x: np.ndarray, size: int, fill: Any) -> np.ndarray:
-    """``x`` with ``size`` rows, the rows past its own set to ``fill`` (``x`` itself when it has them)."""
+def pad_rows(x: np.ndarray, size: int, fill: Any) -> np.ndarray:
+    """``x`` with ``size`` rows, the rows past its own set to ``fill`` (``x`` itself when it has them; padded rows
+    are masked: their results are cut)."""
     x = np.asarray(x)
     if x.shape[0] == size:
         return x
