@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.engine import soa
-from swarmloc.engine.jax_stamp import bucket, device_stamp, pad_rows
+from swarmloc.engine.jax_stamp import bucket, device_stamp, import_jax, pad_rows
 from swarmloc.motion import UnicycleNoise
 
 BACKENDS = ("numpy", "jax", "jax32", "numba")
@@ -118,21 +118,12 @@ _EYE = np.eye(3)
 _EYE2 = np.eye(2)
 
 
-def _import_jax() -> Any:
-    try:
-        import jax
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError("backend 'jax' needs jax: pip install 'swarmloc[jax]'") from exc
-    jax.config.update("jax_enable_x64", True)  # float64 where asked; float32 arrays stay float32
-    return jax
-
-
 class JaxOps:
     """The same kernels in ``jax.numpy``, jit-compiled, in ``dtype`` (float64: ``"jax"``, float32: ``"jax32"``;
     ``jax_enable_x64`` is switched on). Inputs are cast to ``dtype``, results returned as numpy float64."""
 
     def __init__(self, noise: UnicycleNoise, dtype: Any = np.float64) -> None:
-        _import_jax()
+        import_jax()
         import jax.numpy as jnp
 
         self.dtype = np.dtype(dtype)
@@ -224,7 +215,7 @@ def team_step(xp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt:
 def jax_team_step(noise: UnicycleNoise) -> Any:
     """:func:`team_step` as one ``jax.jit`` function ``f(x, P, v, w, dt, z, R, t) -> (x, P)`` on jax arrays (their
     dtype, float64 or float32, is the computation's); it compiles once per shape and dtype."""
-    jax = _import_jax()
+    jax = import_jax()
     import jax.numpy as jnp
 
     return jax.jit(lambda *a: team_step(jnp, noise, *a, barrier=jax.lax.optimization_barrier))

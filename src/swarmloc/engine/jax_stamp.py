@@ -77,6 +77,16 @@ _COVERED = np.zeros(len(MODEL), dtype=bool)
 _COVERED[list(DEVICE_KINDS)] = True
 
 
+def import_jax() -> Any:
+    """``jax``, with ``jax_enable_x64`` switched on (float64 where asked; float32 arrays stay float32)."""
+    try:
+        import jax
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError("backend 'jax' needs jax: pip install 'swarmloc[jax]'") from exc
+    jax.config.update("jax_enable_x64", True)
+    return jax
+
+
 def bucket(n: int) -> int:
     """The power of two (at least 8) an array of ``n`` rows is padded to."""
     return max(8, 1 << max(0, (int(n) - 1).bit_length()))

@@ -33,7 +33,7 @@ import time
 from collections import Counter, defaultdict
 from collections.abc import Callable, Sequence
 from functools import partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -92,13 +92,7 @@ def run_engine(
     configuration (overridden by the given ones).
     """
     src = source_or_sim if isinstance(source_or_sim, Source) else sim_source(source_or_sim, "sim", config)
-    own_noise = {} if src.noise is None else {"noise": src.noise}  # an SE(3) team's twist noise
-    opts = {**node_options(estimator, src.config, src.landmarks), **own_noise, **options}
-    for clock_only in ("tolerance", "jump_inputs"):  # the engine replays a checked log: no clock contract to keep
-        opts.pop(clock_only, None)
-    opts.pop("association_gate", None)
-    if opts.pop("association", "tags") != "tags":
-        raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
+    opts = _options(src, estimator, options)
     if estimator in _COMPILED_ONLY:
         return _run_compiled(src, estimator, backend, record_times, opts)
     initial = [src.initial[r] for r in src.robots]
@@ -112,6 +106,19 @@ def run_engine(
     _name_unknown(reasons, checked, eng.use_relative, eng.t0)
     return _result(f"{estimator}/engine", src, rows, checked, eng.counts, reasons, wall, truth_missing,
                    eng.group is SE3)  # fmt: skip
+
+
+def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, Any]:
+    """The nodes' options of ``estimator`` for ``src`` (:func:`~swarmloc.estimators.node_options`, overridden by
+    ``options``) that the engine keeps."""
+    own_noise = {} if src.noise is None else {"noise": src.noise}  # an SE(3) team's twist noise
+    opts = {**node_options(estimator, src.config, src.landmarks), **own_noise, **options}
+    for clock_only in ("tolerance", "jump_inputs"):  # the engine replays a checked log: no clock contract to keep
+        opts.pop(clock_only, None)
+    opts.pop("association_gate", None)
+    if opts.pop("association", "tags") != "tags":
+        raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
+    return opts
 
 
 def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: Checked, counts: Counter[str],
@@ -141,21 +148,45 @@ def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: Checked
 
 
 _COMPILED_ONLY = ("cekf", "iekf", "rdl", "diekf")
-"""Estimators the engine runs only as a compiled replay of their own state (numba): ``cekf``'s and ``iekf``'s
-joint state, ``diekf``'s too (the nodes' replicas together are the invariant EKF's joint state,
-:mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
+"""Estimators the engine runs only as a compiled replay of their own state (numba; JAX too but for ``rdl``):
+``cekf``'s and ``iekf``'s joint state, ``diekf``'s too (the nodes' replicas together are the invariant EKF's joint
+state, :mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
 _COMPILED_OPTIONS = frozenset({"noise", "gate", "landmarks", "use_relative", "use_landmarks", "horizon", "cluster"})
 """The nodes' options those replays take (``horizon`` plays no role: input comes in order; ``cluster``: 0 only,
 ``diekf``'s exact filter)."""
+_JAX = ("cekf", "iekf", "diekf")
+"""Compiled replays JAX runs too (:mod:`swarmloc.engine.jax_joint`, ``backend="jax"``)."""
 _CENTRAL = ("cekf", "iekf")
 """Compiled replays of a centralized node: it starts at the team's first input and words its own refusals."""
 
 
-def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
-    """``cekf``, ``iekf``, ``rdl`` or ``diekf`` through their compiled replay: the same input checks and timeline as
-    the other estimators, the whole replay in one call (numba, planar teams)."""
-    if backend != "numba":
-        raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only: pass backend='numba'")
+class JointInputs(NamedTuple):
+    """A source as the compiled joint replays take it (:func:`joint_inputs`): ``replay(timeline, x, P, t0, noise,
+    invariant=..., **options)`` of :func:`swarmloc.engine.joint.replay_joint` or
+    :func:`swarmloc.engine.jax_joint.replay_joint_jax`."""
+
+    timeline: Timeline
+    x: np.ndarray
+    """Cartesian initial beliefs ``(n, 3)`` and ``P (n, 3, 3)``."""
+    P: np.ndarray
+    t0: Any
+    """The team's start (centralized filters) or each robot's ``(n,)`` (``diekf``, ``rdl``)."""
+    noise: Any
+    options: dict[str, Any]
+    """``gate``, ``use_relative``, ``use_landmarks``, ``landmarks``."""
+    checked: Checked
+    record_times: np.ndarray
+    records: dict[float, tuple[int, ...]]
+
+
+def joint_inputs(src: Source, estimator: str = "diekf", record_times: Any = None, **options: Any) -> JointInputs:
+    """``src``'s events checked and packed as :func:`run_engine` packs them for ``estimator``'s compiled replay
+    (``cekf``, ``iekf``, ``diekf``, ``rdl``; planar teams): a Monte Carlo sweep's runs for
+    :func:`swarmloc.engine.jax_joint.replay_joint_batch`."""
+    return _joint_inputs(src, estimator, record_times, _options(src, estimator, options))
+
+
+def _joint_inputs(src: Source, estimator: str, record_times: Any, opts: dict[str, Any]) -> JointInputs:
     if src.noise is not None or any(np.shape(b.mean) != (3, 3) for b in src.initial.values()):
         raise ValueError(f"run_engine: {estimator!r} on the engine takes planar (SE(2)) teams; run the nodes")
     extra = sorted(set(opts) - _COMPILED_OPTIONS)
@@ -163,40 +194,55 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
         raise TypeError(f"run_engine: {estimator!r} on the engine takes no option {extra}")
     if opts.pop("cluster", 0):
         raise ValueError(f"run_engine: {estimator!r} with clusters runs on the nodes only (cluster = 0 here)")
-    from swarmloc.engine.joint import replay_joint  # numba
-    from swarmloc.engine.pairs import replay_rdl
-
     checked, rt = _check(src, opts, record_times)
     starts = checked.start_times()
-    t0 = float(starts.min(initial=math.inf))  # the centralized node starts at the team's first input
-    records = _record_index(rt)
-    tl = _timeline(checked, records)
-    lm = landmark_table(opts.get("landmarks"))[1]
+    t0 = float(starts.min(initial=math.inf)) if estimator in _CENTRAL else starts  # a centralized node: the first
+    records = _record_index(rt)  # input of the team
     x, P = C.from_group(np.stack([src.initial[r].mean for r in src.robots]),
                         np.stack([src.initial[r].cov for r in src.robots]))  # fmt: skip
-    use_relative, use_landmarks = bool(opts.get("use_relative", True)), bool(opts.get("use_landmarks", True))
-    kw = {"gate": opts.get("gate"), "use_relative": use_relative, "use_landmarks": use_landmarks, "landmarks": lm}
+    kw = {"gate": opts.get("gate"), "use_relative": bool(opts.get("use_relative", True)),
+          "use_landmarks": bool(opts.get("use_landmarks", True)),
+          "landmarks": landmark_table(opts.get("landmarks"))[1]}  # fmt: skip
+    return JointInputs(_timeline(checked, records), x, P, t0, opts["noise"], kw, checked, rt, records)
+
+
+def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
+    """``cekf``, ``iekf``, ``rdl`` or ``diekf`` through their compiled replay: the same input checks and timeline as
+    the other estimators, the whole replay in one call (numba; ``cekf``, ``iekf`` and ``diekf`` with JAX too: planar
+    teams)."""
+    jax = backend == "jax" and estimator in _JAX
+    if backend != "numba" and not jax:
+        raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only: pass backend='numba'"
+                         + (" or 'jax'" if estimator in _JAX else ""))  # fmt: skip
+    inp = _joint_inputs(src, estimator, record_times, opts)
+    tl, checked, kw = inp.timeline, inp.checked, inp.options
     wall = time.perf_counter()
     if estimator == "rdl":
-        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_rdl(tl, x, P, starts, opts["noise"], **kw)
+        from swarmloc.engine.pairs import replay_rdl  # numba
+
+        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_rdl(tl, inp.x, inp.P, inp.t0, inp.noise, **kw)
     else:
-        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_joint(
-            tl, x, P, t0 if estimator in _CENTRAL else starts, opts["noise"], invariant=estimator != "cekf", **kw
-        )
+        if jax:
+            from swarmloc.engine.jax_joint import replay_joint_jax as replay_joint
+        else:
+            from swarmloc.engine.joint import replay_joint  # numba
+        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_joint(tl, inp.x, inp.P, inp.t0, inp.noise,
+                                                                    invariant=estimator != "cekf", **kw)  # fmt: skip
     wall = time.perf_counter() - wall
     counts: Counter[str] = Counter()
     reasons: Counter[str] = Counter(checked.reasons)
+    use_relative, use_landmarks = kw["use_relative"], kw["use_landmarks"]
     if estimator in _CENTRAL:  # the centralized node's own words for what it refuses before reading a state
         dynamic = np.isin(reason, (R_DEGENERATE, R_NONFINITE, R_NUMERICAL))
         tally(counts, reasons, status, np.where(dynamic, reason, 0).astype(np.int8))
-        reasons.update(_joint_reasons(checked, t0, use_relative, use_landmarks))
+        reasons.update(_joint_reasons(checked, inp.t0, use_relative, use_landmarks))
     else:
         tally(counts, reasons, status, reason)
-        _name_unknown(reasons, checked, use_relative, starts)
-        _name_unusable(reasons, checked, starts, use_relative, use_landmarks)
-        _name_not_started(reasons, checked, starts, src.robots)
-    truth_rows = _truth_rows(src, rt)
-    rows, truth_missing = _file_all(src, tl, records, truth_rows, o_robot, o_stamp, o_x, o_P)
+        _name_unknown(reasons, checked, use_relative, inp.t0)
+        _name_unusable(reasons, checked, inp.t0, use_relative, use_landmarks)
+        _name_not_started(reasons, checked, inp.t0, src.robots)
+    rows, truth_missing = _file_all(src, tl, inp.records, _truth_rows(src, inp.record_times), o_robot, o_stamp, o_x,
+                                    o_P)  # fmt: skip
     return _result(f"{estimator}/engine", src, rows, checked, counts, reasons, wall, truth_missing)
 
 

@@ -1,0 +1,126 @@
+"""The joint replays (``cekf``, ``iekf``, ``diekf``) with JAX against numba's compiled loop, measured in one run:
+MRCLAM replay in x real time per estimator, dataset and landmark setting, and a Monte Carlo sweep (simulated teams,
+one seed per run) in runs per second: numba one run after another, JAX all runs in one vmapped call.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/joint_jax.py                                # datasets 6 and 9, sweeps
+    python benchmarks/joint_jax.py --datasets 6 --duration 120 --batches 1,4 --rounds 1  # a quick check
+
+Timed: each ``run_engine`` call whole (input checks, packing, the replay, the tracks), best of ``--rounds`` after an
+untimed call that compiles (its time printed as ``first``); the sweep's replays only (inputs packed beforehand),
+best of ``--rounds``. The device is jax's default one (``jax.devices()[0]``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+
+from swarmloc.engine import joint_inputs, run_engine  # noqa: E402
+from swarmloc.evaluation.metrics import evaluate  # noqa: E402
+from swarmloc.experiments.sources import load_source  # noqa: E402
+
+
+def _best(fn, rounds: int) -> tuple[float, float, object]:  # noqa: ANN001
+    """``(first call's wall, best of rounds after it, last result)``."""
+    t = time.perf_counter()
+    out = fn()
+    first, best = time.perf_counter() - t, math.inf
+    for _ in range(rounds):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return first, best, out
+
+
+def replay_rows(folder: Path, datasets: list[str], estimators: list[str], duration: float | None, rounds: int) -> None:
+    print(
+        "| dataset | landmarks | estimator | numba x real time | jax x real time | jax / numba | jax first call [s] "
+        "| pos RMSE numba / jax [m] |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for d in datasets:
+        src = load_source(f"mrclam:{folder / f'MRCLAM_Dataset{d}'}", duration=duration)
+        span = src.t_end - src.t_start
+        for lm in (True, False):
+            for est in estimators:
+                row = {}
+                for backend in ("numba", "jax"):
+
+                    def call(b=backend, src=src, est=est, lm=lm):  # noqa: ANN001, ANN202
+                        return run_engine(src, est, backend=b, use_landmarks=lm)
+
+                    row[backend] = _best(call, rounds)
+                rmse = [evaluate(row[b][2])["team"]["pos_rmse"] for b in ("numba", "jax")]
+                xn, xj = span / row["numba"][1], span / row["jax"][1]
+                print(
+                    f"| {d} ({span:.0f} s) | {'on' if lm else 'off'} | {est} | {xn:.0f}x | {xj:.0f}x | {xj / xn:.3f} "
+                    f"| {row['jax'][0]:.1f} | {rmse[0]:.6f} / {rmse[1]:.6f} |",
+                    flush=True,
+                )
+
+
+def sweep_rows(batches: list[int], robots: int, duration: float, rounds: int) -> None:
+    from swarmloc.engine.jax_joint import replay_joint_batch, replay_joint_jax
+    from swarmloc.engine.joint import replay_joint
+
+    print(f"\nMonte Carlo sweep: diekf, sim:random, {robots} robots, {duration:g} s each, one seed per run")
+    print(
+        "| runs | numba, one after another [runs/s] | jax, one vmapped call [runs/s] | jax / numba "
+        "| jax first call [s] |"
+    )
+    print("|---|---|---|---|---|")
+    for b in batches:
+        runs = [joint_inputs(load_source("sim:random", robots=robots, duration=duration, seed=s)) for s in range(b)]
+        kw = {**runs[0].options, "invariant": True}
+
+        def numba_all(runs=runs, kw=kw) -> None:  # noqa: ANN001
+            for r in runs:
+                replay_joint(r.timeline, r.x, r.P, r.t0, r.noise, **kw)
+
+        def jax_all(runs=runs, kw=kw) -> None:  # noqa: ANN001
+            if len(runs) == 1:
+                replay_joint_jax(runs[0].timeline, runs[0].x, runs[0].P, runs[0].t0, runs[0].noise, **kw)
+                return
+            replay_joint_batch([r.timeline for r in runs], np.stack([r.x for r in runs]),
+                               np.stack([r.P for r in runs]), [r.t0 for r in runs], runs[0].noise, **kw)  # fmt: skip
+
+        _, tn, _ = _best(numba_all, rounds)
+        first, tj, _ = _best(jax_all, rounds)
+        print(f"| {b} | {b / tn:.1f} | {b / tj:.1f} | {tn / tj:.3f} | {first:.1f} |", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    default = os.environ.get("SWARMLOC_MRCLAM", str(Path(__file__).resolve().parents[2] / "shared/data/mrclam"))
+    ap.add_argument("--mrclam", default=default, help="folder holding MRCLAM_Dataset<k>")
+    ap.add_argument("--datasets", default="6,9")
+    ap.add_argument("--estimators", default="cekf,iekf,diekf")
+    ap.add_argument("--duration", type=float, default=None, help="first seconds of each dataset (default all)")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--batches", default="1,8,32", help="Monte Carlo runs per call, comma-separated ('' for none)")
+    ap.add_argument("--sweep-robots", type=int, default=5)
+    ap.add_argument("--sweep-duration", type=float, default=60.0)
+    args = ap.parse_args()
+    import jax
+
+    from swarmloc.engine.jax_stamp import import_jax
+
+    import_jax()
+    print(f"device: {jax.devices()[0]} (jax {jax.__version__}), {os.cpu_count()} CPUs\n")
+    if args.datasets:
+        replay_rows(Path(args.mrclam), args.datasets.split(","), args.estimators.split(","), args.duration,
+                    args.rounds)  # fmt: skip
+    if args.batches:
+        sweep_rows([int(b) for b in args.batches.split(",")], args.sweep_robots, args.sweep_duration, args.rounds)
+
+
+if __name__ == "__main__":
+    main()
