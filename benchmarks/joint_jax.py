@@ -1,4 +1,4 @@
-"""The joint replays (``cekf``, ``iekf``, ``diekf``) with JAX against numba's compiled loop, measured in one run:
+"""The compiled replays (``cekf``, ``iekf``, ``diekf``, ``rdl``) with JAX against numba's loops, measured in one run:
 MRCLAM replay in x real time per estimator, dataset and landmark setting, and a Monte Carlo sweep (simulated teams,
 one seed per run) in runs per second: numba one run after another, JAX all runs in one vmapped call.
 
@@ -69,32 +69,38 @@ def replay_rows(folder: Path, datasets: list[str], estimators: list[str], durati
 
 def sweep_rows(batches: list[int], robots: int, duration: float, rounds: int) -> None:
     from swarmloc.engine.jax_joint import replay_joint_batch, replay_joint_jax
+    from swarmloc.engine.jax_pairs import replay_rdl_batch, replay_rdl_jax
     from swarmloc.engine.joint import replay_joint
+    from swarmloc.engine.pairs import replay_rdl
 
-    print(f"\nMonte Carlo sweep: diekf, sim:random, {robots} robots, {duration:g} s each, one seed per run")
+    print(f"\nMonte Carlo sweep: sim:random, {robots} robots, {duration:g} s each, one seed per run")
     print(
-        "| runs | numba, one after another [runs/s] | jax, one vmapped call [runs/s] | jax / numba "
+        "| estimator | runs | numba, one after another [runs/s] | jax, one vmapped call [runs/s] | jax / numba "
         "| jax first call [s] |"
     )
-    print("|---|---|---|---|---|")
-    for b in batches:
-        runs = [joint_inputs(load_source("sim:random", robots=robots, duration=duration, seed=s)) for s in range(b)]
-        kw = {**runs[0].options, "invariant": True}
+    print("|---|---|---|---|---|---|")
+    forms = {"diekf": (replay_joint, replay_joint_jax, replay_joint_batch, {"invariant": True}),
+             "rdl": (replay_rdl, replay_rdl_jax, replay_rdl_batch, {})}  # fmt: skip
+    for est, (numba, one, many, extra) in forms.items():
+        for b in batches:
+            runs = [joint_inputs(load_source("sim:random", robots=robots, duration=duration, seed=s), est)
+                    for s in range(b)]  # fmt: skip
+            kw = {**runs[0].options, **extra}
 
-        def numba_all(runs=runs, kw=kw) -> None:  # noqa: ANN001
-            for r in runs:
-                replay_joint(r.timeline, r.x, r.P, r.t0, r.noise, **kw)
+            def numba_all(runs=runs, kw=kw, numba=numba) -> None:  # noqa: ANN001
+                for r in runs:
+                    numba(r.timeline, r.x, r.P, r.t0, r.noise, **kw)
 
-        def jax_all(runs=runs, kw=kw) -> None:  # noqa: ANN001
-            if len(runs) == 1:
-                replay_joint_jax(runs[0].timeline, runs[0].x, runs[0].P, runs[0].t0, runs[0].noise, **kw)
-                return
-            replay_joint_batch([r.timeline for r in runs], np.stack([r.x for r in runs]),
-                               np.stack([r.P for r in runs]), [r.t0 for r in runs], runs[0].noise, **kw)  # fmt: skip
+            def jax_all(runs=runs, kw=kw, one=one, many=many) -> None:  # noqa: ANN001
+                if len(runs) == 1:
+                    one(runs[0].timeline, runs[0].x, runs[0].P, runs[0].t0, runs[0].noise, **kw)
+                    return
+                many([r.timeline for r in runs], np.stack([r.x for r in runs]), np.stack([r.P for r in runs]),
+                     [r.t0 for r in runs], runs[0].noise, **kw)  # fmt: skip
 
-        _, tn, _ = _best(numba_all, rounds)
-        first, tj, _ = _best(jax_all, rounds)
-        print(f"| {b} | {b / tn:.1f} | {b / tj:.1f} | {tn / tj:.3f} | {first:.1f} |", flush=True)
+            _, tn, _ = _best(numba_all, rounds)
+            first, tj, _ = _best(jax_all, rounds)
+            print(f"| {est} | {b} | {b / tn:.1f} | {b / tj:.1f} | {tn / tj:.3f} | {first:.1f} |", flush=True)
 
 
 def main() -> None:
@@ -102,7 +108,7 @@ def main() -> None:
     default = os.environ.get("SWARMLOC_MRCLAM", str(Path(__file__).resolve().parents[2] / "shared/data/mrclam"))
     ap.add_argument("--mrclam", default=default, help="folder holding MRCLAM_Dataset<k>")
     ap.add_argument("--datasets", default="6,9")
-    ap.add_argument("--estimators", default="cekf,iekf,diekf")
+    ap.add_argument("--estimators", default="cekf,iekf,diekf,rdl")
     ap.add_argument("--duration", type=float, default=None, help="first seconds of each dataset (default all)")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--batches", default="1,8,32", help="Monte Carlo runs per call, comma-separated ('' for none)")

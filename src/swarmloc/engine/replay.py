@@ -148,14 +148,12 @@ def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: Checked
 
 
 _COMPILED_ONLY = ("cekf", "iekf", "rdl", "diekf")
-"""Estimators the engine runs only as a compiled replay of their own state (numba; JAX too but for ``rdl``):
-``cekf``'s and ``iekf``'s joint state, ``diekf``'s too (the nodes' replicas together are the invariant EKF's joint
-state, :mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
+"""Estimators the engine runs only as a compiled replay of their own state (numba, or JAX: ``jax_joint``,
+``jax_pairs``): ``cekf``'s and ``iekf``'s joint state, ``diekf``'s too (the nodes' replicas together are the invariant
+EKF's joint state, :mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
 _COMPILED_OPTIONS = frozenset({"noise", "gate", "landmarks", "use_relative", "use_landmarks", "horizon", "cluster"})
 """The nodes' options those replays take (``horizon`` plays no role: input comes in order; ``cluster``: 0 only,
 ``diekf``'s exact filter)."""
-_JAX = ("cekf", "iekf", "diekf")
-"""Compiled replays JAX runs too (:mod:`swarmloc.engine.jax_joint`, ``backend="jax"``)."""
 _CENTRAL = ("cekf", "iekf")
 """Compiled replays of a centralized node: it starts at the team's first input and words its own refusals."""
 
@@ -208,18 +206,19 @@ def _joint_inputs(src: Source, estimator: str, record_times: Any, opts: dict[str
 
 def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
     """``cekf``, ``iekf``, ``rdl`` or ``diekf`` through their compiled replay: the same input checks and timeline as
-    the other estimators, the whole replay in one call (numba; ``cekf``, ``iekf`` and ``diekf`` with JAX too: planar
-    teams)."""
-    jax = backend == "jax" and estimator in _JAX
-    if backend != "numba" and not jax:
+    the other estimators, the whole replay in one call (numba or JAX; planar teams)."""
+    if backend not in ("numba", "jax"):
         raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only: pass backend='numba'"
-                         + (" or 'jax'" if estimator in _JAX else ""))  # fmt: skip
+                         " or 'jax'")  # fmt: skip
+    jax = backend == "jax"
     inp = _joint_inputs(src, estimator, record_times, opts)
     tl, checked, kw = inp.timeline, inp.checked, inp.options
     wall = time.perf_counter()
     if estimator == "rdl":
-        from swarmloc.engine.pairs import replay_rdl  # numba
-
+        if jax:
+            from swarmloc.engine.jax_pairs import replay_rdl_jax as replay_rdl
+        else:
+            from swarmloc.engine.pairs import replay_rdl  # numba
         status, reason, (o_robot, o_stamp, o_x, o_P) = replay_rdl(tl, inp.x, inp.P, inp.t0, inp.noise, **kw)
     else:
         if jax:

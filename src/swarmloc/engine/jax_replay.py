@@ -1,0 +1,279 @@
+"""What the JAX replays of a whole timeline share (:mod:`swarmloc.engine.jax_joint`: ``cekf``, ``iekf``, ``diekf``;
+:mod:`swarmloc.engine.jax_pairs`: ``rdl``): the events, one ``lax.scan`` around a form's kernels, the measurement
+models and screening as traced code, and the host side of a batch of runs.
+
+A :class:`~swarmloc.engine.detections.Timeline` becomes **steps** and **commands** in the order the compiled numba
+loops take them: at each stamp its detections (canonical order), then its commands, then its record. The scan runs
+one step (a detection or a record) per iteration, in a branch for its type (``lax.cond``), after the commands that
+come before it in a tight inner loop (``lax.fori_loop``, no branch: on a CPU an XLA conditional costs more than a
+command's prediction). A form gives three kernels on its state (a tuple whose first five entries are the poses,
+the covariances, the clocks and the commands ``v``, ``w``): ``advance(state, k, t)``, ``detection(state, step)
+-> (state, outcome, reason)`` and ``marginals(state, t) -> (x (n, 3), P (n, 3, 3))``, Cartesian.
+
+Steps and commands are padded to powers of two (:func:`swarmloc.engine.jax_stamp.bucket`), so a team size compiles
+once per bucket (:data:`COMPILES` counts the traces); many runs of one team size run in one call vectorized over
+the runs (``jax.vmap``: a Monte Carlo sweep). float64 only. Units: m, rad, s.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable, Sequence
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from swarmloc.engine import soa
+from swarmloc.engine.codes import (
+    ABSOLUTE,
+    NO_LANDMARK,
+    POSE,
+    R_LANDMARKS_OFF,
+    R_NO_LANDMARK,
+    R_NOT_STARTED,
+    R_OFF,
+    R_SELF,
+    R_TEAM,
+    R_UNUSABLE,
+    REJECTED,
+    UNKNOWN,
+    UNKNOWN_ROBOT,
+    UNUSABLE,
+)
+from swarmloc.engine.detections import Timeline
+from swarmloc.engine.jax_stamp import bucket, import_jax, pad_rows
+from swarmloc.node.update import Gate
+from swarmloc.sensors.models import KIND_ORDER, MODELS
+
+DET, CMD, REC, NOOP = range(4)
+"""Event types: a detection, a command, a record of every robot, padding."""
+RANGE_BEARING, RANGE, BEARING = KIND_ORDER["range_bearing"], KIND_ORDER["range"], KIND_ORDER["bearing"]
+COMPILES: Counter[tuple] = Counter()
+"""Traces per ``(form, robots, steps, commands, record slots, landmarks, runs)``: one per shape."""
+Kernels = tuple[Callable[..., Any], Callable[..., Any], Callable[..., Any]]
+"""``(advance, detection, marginals)`` of a form (the module's docstring)."""
+
+
+def events(tl: Timeline, size: int | None = None, csize: int | None = None) -> tuple[dict, dict]:
+    """``tl`` as the scan's events: ``(steps, commands)``.
+
+    ``steps``: the detections and records in the loop's order, then one padding step, padded to ``size`` rows
+    (default :func:`bucket` of their count): ``type``, ``t`` [s], ``a`` (observer, or record slot), ``b`` (target
+    code), ``kind``, ``z (E, 3)``, ``R (E, 3, 3)``, ``q`` (detection row, -1 for a record), and ``c0``, ``c1``: the
+    commands the loop takes before the step (rows of ``commands``). ``commands``: ``a`` (robot), ``t`` [s], ``v``
+    [m/s], ``w`` [rad/s], in the loop's order, padded to ``csize`` rows (default :func:`bucket`)."""
+    m, c, s = len(tl.det), tl.robot.size, len(tl)
+    rec = np.flatnonzero(tl.record)
+    stamp = np.concatenate([np.repeat(np.arange(s), np.diff(tl.d0)), np.repeat(np.arange(s), np.diff(tl.c0)), rec])
+    typ = np.concatenate([np.full(m, DET), np.full(c, CMD), np.full(rec.size, REC)])
+    idx = np.concatenate([np.arange(m), np.arange(c), np.arange(rec.size)])
+    order = np.lexsort((idx, typ, stamp))
+    typ, idx, stamp = typ[order], idx[order], stamp[order]
+    cmd = typ == CMD
+    qc = idx[cmd]
+    commands = {"a": tl.robot[qc], "t": tl.stamps[stamp[cmd]].astype(float), "v": tl.v[qc], "w": tl.w[qc]}
+    before = np.cumsum(cmd) - cmd  # commands before each event
+    step = ~cmd
+    typ, idx, stamp, c1 = (np.append(a[step], fill) for a, fill in ((typ, NOOP), (idx, 0), (stamp, 0), (before, c)))
+    det = typ == DET
+    qd, e = idx[det], typ.size
+    steps = {"type": typ, "t": np.append(tl.stamps, 0.0)[np.where(typ == NOOP, -1, stamp)].astype(float),
+             "a": idx.copy(), "b": np.zeros(e, dtype=np.int64), "kind": np.zeros(e, dtype=np.int64),
+             "z": np.zeros((e, 3)), "R": np.zeros((e, 3, 3)), "q": np.where(det, idx, -1),
+             "c0": np.concatenate([[0], c1[:-1]]), "c1": c1}  # fmt: skip
+    steps["a"][det], steps["b"][det], steps["kind"][det] = tl.det.observer[qd], tl.det.target[qd], tl.det.kind[qd]
+    steps["z"][det], steps["R"][det] = tl.det.z[qd], tl.det.R[qd]
+    size, csize = bucket(e) if size is None else size, bucket(c) if csize is None else csize
+    fill = {"type": NOOP, "q": -1, "c0": c, "c1": c}
+    return ({k: pad_rows(v, size, fill.get(k, 0)) for k, v in steps.items()},
+            {k: pad_rows(v, csize, 0) for k, v in commands.items()})  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------------------ traced pieces
+def wrap(jnp: Any, a: Any) -> Any:
+    return soa.wrap(jnp, a)
+
+
+def sym(jnp: Any, q: Any) -> Any:
+    """The symmetric 3x3 of an upper triangle ``(q00, q01, q02, q11, q12, q22)``."""
+    q00, q01, q02, q11, q12, q22 = q
+    return jnp.stack([jnp.stack([q00, q01, q02]), jnp.stack([q01, q11, q12]), jnp.stack([q02, q12, q22])])
+
+
+def screen(jnp: Any, distributed: bool, kind: Any, i: Any, j: Any, t: Any, t0: Any, relative: Any,
+            lm_on: Any) -> tuple:  # fmt: skip
+    """``(outcome, reason)`` decided before a state is read (0, 0: go on): :func:`swarmloc.engine.joint._screen`,
+    or with ``distributed`` :func:`swarmloc.engine.joint.screen_started`; the first rule that holds decides."""
+    n = t0.shape[0]
+    lm = j <= NO_LANDMARK
+    lm_rule = (lm & ~lm_on, REJECTED, R_LANDMARKS_OFF), (j == NO_LANDMARK, UNKNOWN, R_NO_LANDMARK), (lm, 0, 0)
+    if distributed:
+        started = t >= t0[jnp.where(j >= 0, j, j + n) % n]
+        rules = [(j == UNUSABLE, REJECTED, R_UNUSABLE), (~relative, REJECTED, R_OFF),
+                 (j == UNKNOWN_ROBOT, UNKNOWN, R_TEAM), (j == i, REJECTED, R_SELF),
+                 (~started, UNKNOWN, R_NOT_STARTED)]  # fmt: skip
+    else:
+        rules = [(j == UNKNOWN_ROBOT, jnp.where(relative, UNKNOWN, REJECTED), jnp.where(relative, R_TEAM, R_OFF)),
+                 (j < 0, REJECTED, R_UNUSABLE), (~relative, REJECTED, R_OFF), (j == i, REJECTED, R_SELF)]  # fmt: skip
+    st, why = jnp.int32(0), jnp.int32(0)
+    for cond, s, r in reversed([(kind == ABSOLUTE, 0, 0), *lm_rule, *rules]):
+        st, why = jnp.where(cond, s, st), jnp.where(cond, r, why)
+    return st, why
+
+
+def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> tuple:
+    """Residual ``r (3,)``, Jacobian ``H (3, 6)`` (observer's columns, then the target's) and noise ``Rm (3, 3)``
+    of :func:`swarmloc.engine.joint.measure`, a 1- or 2-row measurement padded with rows that change nothing."""
+    x0, y0, th = xi[0], xi[1], xi[2]
+    dx, dy = xk[0] - x0, xk[1] - y0
+    c, s = jnp.cos(th), jnp.sin(th)
+    bx, by = c * dx + s * dy, -s * dx + c * dy
+    o, e = jnp.zeros(()), jnp.ones(())
+    eye = jnp.eye(3)
+    h_abs = jnp.concatenate([eye, jnp.zeros((3, 3))], 1)
+    r_abs = jnp.stack([z[0] - x0, z[1] - y0, wrap(jnp, z[2] - th)])
+    h_pose = jnp.stack([jnp.stack([-c, -s, by, c, s, o]), jnp.stack([s, -c, -bx, -s, c, o]),
+                        jnp.stack([o, o, -e, o, o, e])])  # fmt: skip
+    r_pose = jnp.stack([z[0] - bx, z[1] - by, wrap(jnp, z[2] - wrap(jnp, xk[2] - th))])
+    cz, sz = jnp.cos(z[2]), jnp.sin(z[2])
+    B = jnp.stack([jnp.stack([cz, -sz, o]), jnp.stack([sz, cz, o]), jnp.stack([o, o, e])])
+    q = dx * dx + dy * dy
+    rng = jnp.sqrt(q)
+    row0 = jnp.stack([-dx / rng, -dy / rng, o, dx / rng, dy / rng, o])
+    row1 = jnp.stack([dy / q, -dx / q, -e, -dy / q, dx / q, o])
+    bearing = wrap(jnp, z[1] - wrap(jnp, jnp.arctan2(by, bx)))
+    zero6 = jnp.zeros(6)
+    h_rb = jnp.stack([row0, row1, zero6])
+    r_rb = jnp.stack([z[0] - rng, bearing, o])
+    R_rb = jnp.zeros((3, 3)).at[:2, :2].set(R[:2, :2]).at[2, 2].set(1.0)
+    R_one = jnp.diag(jnp.stack([R[0, 0], e, e]))
+    h_r, h_b = jnp.stack([row0, zero6, zero6]), jnp.stack([row1, zero6, zero6])
+    r_r = jnp.stack([z[0] - rng, o, o])
+    r_b = jnp.stack([wrap(jnp, z[0] - wrap(jnp, jnp.arctan2(by, bx))), o, o])
+    pick = [kind == ABSOLUTE, kind == POSE, kind == RANGE_BEARING, kind == RANGE]
+    H = jnp.select(pick, [h_abs, h_pose, h_rb, h_r], h_b)
+    r = jnp.select(pick, [r_abs, r_pose, r_rb, r_r], r_b)
+    Rm = jnp.select(pick, [R, B @ R @ B.T, R_rb, R_one], R_one)
+    return r, H, Rm
+
+
+def inverse(jnp: Any, S: Any) -> tuple:
+    """3x3 inverses by cofactors (:func:`swarmloc.engine.joint.inverse`) of ``S (..., 3, 3)`` and whether each is
+    regular."""
+    co = [[S[..., (c + 1) % 3, (r + 1) % 3] * S[..., (c + 2) % 3, (r + 2) % 3] - S[..., (c + 1) % 3, (r + 2) % 3]
+           * S[..., (c + 2) % 3, (r + 1) % 3] for c in range(3)] for r in range(3)]  # fmt: skip
+    adj = jnp.stack([jnp.stack(row, -1) for row in co], -2)
+    det = S[..., 0, 0] * adj[..., 0, 0] + S[..., 0, 1] * adj[..., 1, 0] + S[..., 0, 2] * adj[..., 2, 0]
+    regular = det != 0.0
+    return adj / jnp.where(regular, det, 1.0)[..., None, None], regular
+
+
+# ------------------------------------------------------------------------------------------------ the scan
+def _scan(jnp: Any, lax: Any, kernels: Kernels, state: tuple, ev: dict, cmd: dict, slots: int) -> tuple:
+    """The steps of one run: ``(outcomes, reasons)`` per step and the records ``(slots, n, 3)``, ``(slots, n, 3,
+    3)``."""
+    advance, detection, marginals = kernels
+    n = state[0].shape[0]
+    nothing = (jnp.zeros((n, 3)), jnp.zeros((n, 3, 3)))
+    no = jnp.int32(0)
+
+    def command(c, state):  # noqa: ANN001, ANN202
+        k = cmd["a"][c]
+        s = advance(state, k, cmd["t"][c])
+        return (*s[:3], s[3].at[k].set(cmd["v"][c]), s[4].at[k].set(cmd["w"][c]), *s[5:])
+
+    def found(state, ev):  # noqa: ANN001, ANN202
+        return (*detection(state, ev), *nothing)
+
+    def record(state, ev):  # noqa: ANN001, ANN202
+        return state, no, no, *marginals(state, ev["t"])
+
+    def pad(state, ev):  # noqa: ANN001, ANN202, ARG001
+        return state, no, no, *nothing
+
+    def other(state, ev):  # noqa: ANN001, ANN202
+        return lax.cond(ev["type"] == REC, record, pad, state, ev)
+
+    def body(carry, ev):  # noqa: ANN001, ANN202
+        state, ox, oP = carry
+        state = lax.fori_loop(ev["c0"], ev["c1"], command, state)  # the commands before the step: no branch
+        state, st, why, mx, mP = lax.cond(ev["type"] == DET, found, other, state, ev)
+        slot = jnp.where(ev["type"] == REC, ev["a"], slots)  # the last slot takes the other steps' zeros
+        ox = lax.dynamic_update_slice(ox, mx[None], (slot, 0, 0))
+        oP = lax.dynamic_update_slice(oP, mP[None], (slot, 0, 0, 0))
+        return (state, ox, oP), (jnp.int8(st), jnp.int8(why))
+
+    carry = (state, jnp.zeros((slots + 1, n, 3)), jnp.zeros((slots + 1, n, 3, 3)))
+    (_, ox, oP), (st, why) = lax.scan(body, carry, ev)
+    return st, why, ox[:slots], oP[:slots]
+
+
+@cache
+def compiled(form: Any, make: Callable[..., Kernels], batched: bool) -> Any:
+    """The jitted scan of a form (``make(jnp, lax, t0, const) -> kernels``; ``form`` names it in
+    :data:`COMPILES`), over one run or (``batched``) over runs: ``fn(state, steps, commands, t0, const, slots=)``."""
+    jax = import_jax()
+    import jax.numpy as jnp
+    from jax import lax
+
+    def run(state, ev, cmd, t0, const, slots):  # noqa: ANN001, ANN202
+        return _scan(jnp, lax, make(jnp, lax, t0, const), state, ev, cmd, slots)
+
+    def traced(state, ev, cmd, t0, const, *, slots):  # noqa: ANN001, ANN202
+        runs = state[0].shape[0] if batched else 1
+        COMPILES[(form, state[2].shape[-1], ev["t"].shape[-1], cmd["t"].shape[-1], slots, const[-2].shape[0],
+                  runs)] += 1  # fmt: skip
+        if batched:
+            return jax.vmap(lambda s, e, c, t: run(s, e, c, t, const, slots))(state, ev, cmd, t0)
+        return run(state, ev, cmd, t0, const, slots)
+
+    return jax.jit(traced, static_argnames=("slots",))
+
+
+def run_batch(fn: Any, tls: Sequence[Timeline], states: Sequence[tuple], t0s: Sequence[np.ndarray], const: tuple,
+              single: bool) -> list[tuple[np.ndarray, np.ndarray, tuple]]:  # fmt: skip
+    """Runs through ``fn`` (:func:`compiled`; ``single``: its one-run form, one run): each run's timeline, state at
+    its start (numpy) and each robot's start ``(n,)`` [s]; returns each run's ``(status, reason, records)`` as
+    :func:`swarmloc.engine.joint.replay_joint` gives them. The runs' steps and commands are padded to one bucket."""
+    size = bucket(max(len(tl.det) + int(tl.record.sum()) + 1 for tl in tls))
+    csize = bucket(max(tl.robot.size for tl in tls))
+    slots = bucket(max(int(tl.record.sum()) for tl in tls))
+    both = [events(tl, size, csize) for tl in tls]
+    ev = {k: np.stack([e[0][k] for e in both]) for k in both[0][0]}
+    cmd = {k: np.stack([e[1][k] for e in both]) for k in both[0][1]}
+    state = tuple(np.stack(a) for a in zip(*states, strict=True))
+    t0 = np.stack(t0s)
+    if single:
+        first = (tuple(a[0] for a in state), {k: a[0] for k, a in ev.items()}, {k: a[0] for k, a in cmd.items()})
+        res = tuple(np.asarray(a)[None] for a in fn(*first, t0[0], const, slots=slots))
+    else:
+        res = tuple(np.asarray(a) for a in fn(state, ev, cmd, t0, const, slots=slots))
+    out = []
+    for b, tl in enumerate(tls):
+        m = len(tl.det)
+        status, reason = np.zeros(m, dtype=np.int8), np.zeros(m, dtype=np.int8)
+        q = ev["q"][b]
+        det = q >= 0
+        status[q[det]], reason[q[det]] = res[0][b][det], res[1][b][det]
+        out.append((status, reason, _records(tl, t0[b], res[2][b], res[3][b])))
+    return out
+
+
+def _records(tl: Timeline, starts: np.ndarray, ox: np.ndarray, oP: np.ndarray) -> tuple:
+    """``(robot, stamp index, x, P)`` of every started robot at every recorded stamp, stamp then row order."""
+    rec = np.flatnonzero(tl.record)
+    live = tl.stamps[rec][:, None] >= starts[None, :]
+    slot, robot = np.nonzero(live)
+    return robot.astype(np.int64), rec[slot].astype(np.int64), ox[slot, robot], oP[slot, robot]
+
+
+def constants(gate: float | None, use_relative: bool, use_landmarks: bool, landmarks: Any) -> tuple:
+    """``(gate thresholds by kind, gate on, relative on, landmarks on, landmark xy (L, 2), cov (L, 2, 2))``."""
+    g = Gate(gate)
+    thr = np.array([g.threshold(MODELS[name].size) for name in sorted(KIND_ORDER, key=KIND_ORDER.get)])
+    lxy, lcov = landmarks if landmarks is not None else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
+    if len(lxy) == 0:
+        lxy, lcov = np.zeros((1, 2)), np.zeros((1, 2, 2))
+    return (thr, np.bool_(g.p is not None), np.bool_(use_relative), np.bool_(use_landmarks),
+            np.asarray(lxy, dtype=float), np.asarray(lcov, dtype=float))  # fmt: skip
