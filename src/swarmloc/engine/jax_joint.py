@@ -28,11 +28,13 @@ from swarmloc.engine.jax_replay import (
     RANGE_BEARING,
     compiled,
     constants,
+    first_rule,
     inverse,
     measure,
     run_batch,
     screen,
     sym,
+    usable,
     wrap,
 )
 from swarmloc.kernels.invariant import cartesian_to_world_cov
@@ -86,12 +88,12 @@ def _marginals(jnp: Any, noise: UnicycleNoise, invariant: bool, state: tuple, t:
     M = P.reshape(n, 3, n, 3)[idx, :, idx, :]
     one, zero = jnp.ones(n), jnp.zeros(n)
     if invariant:
-        M = M + jnp.moveaxis(sym(jnp, q), -1, 0)
+        M = M + sym(jnp, q)
         A = jnp.stack([jnp.stack([one, zero, -xn[:, 1]], -1), jnp.stack([zero, one, xn[:, 0]], -1),
                        jnp.stack([zero, zero, one], -1)], -2)  # fmt: skip
         return xn, A @ M @ jnp.swapaxes(A, -1, -2)
     A = jnp.stack([jnp.stack([one, zero, a], -1), jnp.stack([zero, one, b], -1), jnp.stack([zero, zero, one], -1)], -2)
-    return xn, A @ M @ jnp.swapaxes(A, -1, -2) + jnp.moveaxis(sym(jnp, q), -1, 0)
+    return xn, A @ M @ jnp.swapaxes(A, -1, -2) + sym(jnp, q)
 
 
 def _left_correct(jnp: Any, X: Any, delta: Any) -> Any:
@@ -158,17 +160,13 @@ def _detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: t
         H = H.at[:, 5].add(jnp.where(robot, -xk[1] * H[:, 3] + xk[0] * H[:, 4], 0.0))
         H = H.at[:, 2].add(-X[i, 1] * H[:, 0] + X[i, 0] * H[:, 1])
     xn, Pn, nis, ok = _kalman(jnp, lax, invariant, X, P, r, H, Rm, i, jr)
-    usable = jnp.isfinite(jnp.linalg.cholesky(Pn)).all()
-    rules = [
+    st, why = first_rule(jnp, [
         (st0 != 0, st0, why0),
         (degenerate, REJECTED, R_DEGENERATE),
         (gate_on & ~jnp.isfinite(nis), REJECTED, R_NONFINITE),
         (gate_on & (nis > thr[kind]), GATED, 0),
-        (~(ok & usable), REJECTED, R_NUMERICAL),
-    ]
-    st, why = jnp.int32(FUSED), jnp.int32(0)
-    for cond, s, w in reversed(rules):
-        st, why = jnp.where(cond, s, st), jnp.where(cond, w, why)
+        (~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL),
+    ], FUSED)  # fmt: skip
     fused = st == FUSED
     keep = state if distributed else tuple(jnp.where(st0 != 0, a, b) for a, b in zip(state, s1, strict=True))
     out = (xn, Pn, *s1[2:])

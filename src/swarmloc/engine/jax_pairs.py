@@ -32,7 +32,19 @@ from swarmloc.engine.codes import (
     REJECTED,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, constants, inverse, measure, run_batch, screen, wrap
+from swarmloc.engine.jax_replay import (
+    RANGE_BEARING,
+    compiled,
+    constants,
+    first_rule,
+    inverse,
+    measure,
+    run_batch,
+    screen,
+    sym,
+    usable,
+    wrap,
+)
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
@@ -40,17 +52,11 @@ from swarmloc.sensors.models import MIN_RANGE
 _UP = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
-def _full(jnp: Any, p: tuple) -> Any:
-    p00, p01, p02, p11, p12, p22 = p
-    return jnp.stack([jnp.stack([p00, p01, p02], -1), jnp.stack([p01, p11, p12], -1), jnp.stack([p02, p12, p22], -1)],
-                     -2)  # fmt: skip
-
-
 def _predicted(jnp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt: Any) -> tuple:
     """A robot's (or a batch's) ``(x, P, dx, dy)`` predicted over ``dt`` (unchanged for ``dt <= 0``)."""
     xs, ps = soa.predict(jnp, (x[..., 0], x[..., 1], x[..., 2]), tuple(P[..., a, b] for a, b in _UP), v, w, dt, noise)
     xn = jnp.stack(xs, -1)
-    return xn, _full(jnp, ps), xn[..., 0] - x[..., 0], xn[..., 1] - x[..., 1]
+    return xn, sym(jnp, ps), xn[..., 0] - x[..., 0], xn[..., 1] - x[..., 1]
 
 
 def _advance(jnp: Any, noise: UnicycleNoise, st: tuple, k: Any, t: Any) -> tuple:
@@ -94,10 +100,6 @@ def _kalman(jnp: Any, x: Any, P: Any, r: Any, H: Any, R: Any) -> tuple:
     return xn, Pn, nis, regular & jnp.isfinite(nis) & jnp.isfinite(xn).all() & jnp.isfinite(Pn).all()
 
 
-def _usable(jnp: Any, P: Any) -> Any:
-    return jnp.isfinite(P).all() & jnp.isfinite(jnp.linalg.cholesky(P)).all()
-
-
 def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: Any) -> tuple:
     """:func:`swarmloc.engine.pairs._joint_prior`: ``(P (6, 6), 1)`` with the tracked cross-covariance (known and
     positive definite), else covariance intersection's prior with ``1`` (both gain), ``0`` (the observer only) or
@@ -121,22 +123,14 @@ def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: An
     ki = jnp.argmax(gi)
     ci = jnp.where(both[kb] >= 0.0, 1, jnp.where(gi[ki] > 0.0, 0, -1))
     ci_P = Ps[jnp.where(both[kb] >= 0.0, kb, ki)]
-    use = known & _usable(jnp, tracked)
+    use = known & usable(jnp, tracked)
     return jnp.where(use, tracked, ci_P), jnp.where(use, 1, ci)
-
-
-def _outcome(jnp: Any, rules: list) -> tuple:
-    """``(outcome, reason)``: the first rule ``(condition, outcome, reason)`` that holds, else fused."""
-    st, why = jnp.int32(FUSED), jnp.int32(0)
-    for cond, s, r in reversed(rules):
-        st, why = jnp.where(cond, s, st), jnp.where(cond, r, why)
-    return st, why
 
 
 def _checks(jnp: Any, gate_on: Any, nis: Any, thr: Any, ok: Any, Pn: Any) -> list:
     """The rules after an update: the gate (a non-finite NIS, then the threshold) and the positive-definite check."""
     return [(gate_on & ~jnp.isfinite(nis), REJECTED, R_NONFINITE), (gate_on & (nis > thr), GATED, 0),
-            (~(ok & _usable(jnp, Pn)), REJECTED, R_NUMERICAL)]  # fmt: skip
+            (~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL)]  # fmt: skip
 
 
 def _pick(jnp: Any, cond: Any, a: tuple, b: tuple) -> tuple:
@@ -156,8 +150,8 @@ def _pair(jnp: Any, noise: UnicycleNoise, st: tuple, i: Any, j: Any, ev: dict, c
     r, H, Rm = measure(jnp, kind, x[i], xj, ev["z"], ev["R"])
     prior, both = _prior(jnp, P[i], Pj, fi, fj, met[i, j], H, Rm)
     Xn, Pn, nis, ok = _kalman(jnp, jnp.concatenate([x[i], xj]), prior, r, H, Rm)
-    code = _outcome(jnp, [(degenerate, REJECTED, R_DEGENERATE), (both < 0, GATED, R_CORRELATION),
-                          *_checks(jnp, gate_on, nis, thr[kind], ok, Pn)])  # fmt: skip
+    code = first_rule(jnp, [(degenerate, REJECTED, R_DEGENERATE), (both < 0, GATED, R_CORRELATION),
+                          *_checks(jnp, gate_on, nis, thr[kind], ok, Pn)], FUSED)  # fmt: skip
     s = (x.at[i].set(Xn[:3]), P.at[i].set(Pn[:3, :3]), *st[2:])
     s = _rescale(jnp, s, i, Pn[:3, :3], P[i])
     alone = (*s[:8], s[8].at[i, j].set(0.0))  # only the observer gains: its correlation with j is unknown now
@@ -182,7 +176,8 @@ def _private(jnp: Any, st: Any, i: Any, j: Any, ev: dict, const: tuple) -> tuple
     Hk = H[:, 3:5]
     Rm = jnp.where(kind != ABSOLUTE, Rm + Hk @ lcov[lk] @ Hk.T, Rm)  # a map landmark's covariance
     xn, Pn, nis, ok = _kalman(jnp, x[i], P[i], r, H[:, :3], Rm)
-    code = _outcome(jnp, [(degenerate, REJECTED, R_DEGENERATE), *_checks(jnp, gate_on, nis, thr[kind], ok, Pn)])
+    code = first_rule(jnp, [(degenerate, REJECTED, R_DEGENERATE), *_checks(jnp, gate_on, nis, thr[kind], ok, Pn)],
+                      FUSED)  # fmt: skip
     s = _rescale(jnp, (x.at[i].set(xn), P.at[i].set(Pn), *st[2:]), i, Pn, P[i])
     return _pick(jnp, code[0] == FUSED, s, st), *code
 

@@ -96,9 +96,10 @@ def wrap(jnp: Any, a: Any) -> Any:
 
 
 def sym(jnp: Any, q: Any) -> Any:
-    """The symmetric 3x3 of an upper triangle ``(q00, q01, q02, q11, q12, q22)``."""
+    """The symmetric ``(..., 3, 3)`` of an upper triangle ``(q00, q01, q02, q11, q12, q22)`` (entries ``(...)``)."""
     q00, q01, q02, q11, q12, q22 = q
-    return jnp.stack([jnp.stack([q00, q01, q02]), jnp.stack([q01, q11, q12]), jnp.stack([q02, q12, q22])])
+    return jnp.stack([jnp.stack([q00, q01, q02], -1), jnp.stack([q01, q11, q12], -1), jnp.stack([q02, q12, q22], -1)],
+                     -2)  # fmt: skip
 
 
 def screen(jnp: Any, distributed: bool, kind: Any, i: Any, j: Any, t: Any, t0: Any, relative: Any,
@@ -116,10 +117,21 @@ def screen(jnp: Any, distributed: bool, kind: Any, i: Any, j: Any, t: Any, t0: A
     else:
         rules = [(j == UNKNOWN_ROBOT, jnp.where(relative, UNKNOWN, REJECTED), jnp.where(relative, R_TEAM, R_OFF)),
                  (j < 0, REJECTED, R_UNUSABLE), (~relative, REJECTED, R_OFF), (j == i, REJECTED, R_SELF)]  # fmt: skip
-    st, why = jnp.int32(0), jnp.int32(0)
-    for cond, s, r in reversed([(kind == ABSOLUTE, 0, 0), *lm_rule, *rules]):
+    return first_rule(jnp, [(kind == ABSOLUTE, 0, 0), *lm_rule, *rules], 0)
+
+
+def first_rule(jnp: Any, rules: list, otherwise: int) -> tuple:
+    """``(outcome, reason)`` of the first rule ``(condition, outcome, reason)`` that holds, else ``(otherwise,
+    0)``."""
+    st, why = jnp.int32(otherwise), jnp.int32(0)
+    for cond, s, r in reversed(rules):
         st, why = jnp.where(cond, s, st), jnp.where(cond, r, why)
     return st, why
+
+
+def usable(jnp: Any, P: Any) -> Any:
+    """Finite and positive definite (a Cholesky factorization: :func:`swarmloc.node.update.usable_covariance`)."""
+    return jnp.isfinite(P).all() & jnp.isfinite(jnp.linalg.cholesky(P)).all()
 
 
 def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> tuple:

@@ -159,9 +159,10 @@ _CENTRAL = ("cekf", "iekf")
 
 
 class JointInputs(NamedTuple):
-    """A source as the compiled joint replays take it (:func:`joint_inputs`): ``replay(timeline, x, P, t0, noise,
-    invariant=..., **options)`` of :func:`swarmloc.engine.joint.replay_joint` or
-    :func:`swarmloc.engine.jax_joint.replay_joint_jax`."""
+    """A source as the compiled replays take it (:func:`joint_inputs`): ``replay(timeline, x, P, t0, noise,
+    **options)`` of :func:`swarmloc.engine.pairs.replay_rdl` and :func:`swarmloc.engine.jax_pairs.replay_rdl_jax`, or
+    with ``invariant=...`` of :func:`swarmloc.engine.joint.replay_joint` and
+    :func:`swarmloc.engine.jax_joint.replay_joint_jax`; their ``*_batch`` forms take many."""
 
     timeline: Timeline
     x: np.ndarray
@@ -179,8 +180,8 @@ class JointInputs(NamedTuple):
 
 def joint_inputs(src: Source, estimator: str = "diekf", record_times: Any = None, **options: Any) -> JointInputs:
     """``src``'s events checked and packed as :func:`run_engine` packs them for ``estimator``'s compiled replay
-    (``cekf``, ``iekf``, ``diekf``, ``rdl``; planar teams): a Monte Carlo sweep's runs for
-    :func:`swarmloc.engine.jax_joint.replay_joint_batch`."""
+    (``cekf``, ``iekf``, ``diekf``, ``rdl``; planar teams): e.g. a Monte Carlo sweep's runs for
+    :func:`swarmloc.engine.jax_joint.replay_joint_batch` or :func:`swarmloc.engine.jax_pairs.replay_rdl_batch`."""
     return _joint_inputs(src, estimator, record_times, _options(src, estimator, options))
 
 
@@ -194,8 +195,9 @@ def _joint_inputs(src: Source, estimator: str, record_times: Any, opts: dict[str
         raise ValueError(f"run_engine: {estimator!r} with clusters runs on the nodes only (cluster = 0 here)")
     checked, rt = _check(src, opts, record_times)
     starts = checked.start_times()
-    t0 = float(starts.min(initial=math.inf)) if estimator in _CENTRAL else starts  # a centralized node: the first
-    records = _record_index(rt)  # input of the team
+    # a centralized node starts at the team's first input, the others each at its own
+    t0 = float(starts.min(initial=math.inf)) if estimator in _CENTRAL else starts
+    records = _record_index(rt)
     x, P = C.from_group(np.stack([src.initial[r].mean for r in src.robots]),
                         np.stack([src.initial[r].cov for r in src.robots]))  # fmt: skip
     kw = {"gate": opts.get("gate"), "use_relative": bool(opts.get("use_relative", True)),
