@@ -225,7 +225,9 @@ def test_malformed_cdr_is_counted_and_the_node_keeps_reading():
         pub.odometry(0.15, 0.2, 0.0)  # before the previous one
         det = Detection(0, 0.18, "pose", np.array([1.0, 0.0, 0.0]), np.eye(3) * 0.01, 1)
         pub.detection(det)
-        wait_for(lambda: ri.counts["received"] >= 8 and zi.counts["received"] >= 1, 10.0, "every sample")
+        # every sample decided, not only received: the input counts it received before it decodes and pushes it
+        decided = lambda c: c["pushed"] + c["refused_by_feed"] + c["rejected"]  # noqa: E731
+        wait_for(lambda: decided(ri.counts) >= 8 and decided(zi.counts) >= 1, 10.0, "every sample")
         assert dict(ri.reasons) == {"bad_cdr": 3, "too_large": 1, "stale": 1}
         assert dict(zi.reasons) == {"bad_schema": 1}
         assert ri.counts["no_attachment"] == 4 and ri.counts["pushed"] == 3
