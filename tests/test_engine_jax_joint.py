@@ -14,7 +14,7 @@ from test_engine import _source
 from test_engine_cekf import _same, _same_on_mrclam, _with, robot_extras
 from test_engine_invariant import _nodes
 from test_engine_rdl import _nodes as _rdl_nodes
-from test_engine_rdl import _spd
+from test_engine_rdl import pair_cases
 
 from swarmloc.engine import jax_replay, joint_inputs, run_engine
 from swarmloc.engine.jax_joint import replay_joint_batch, replay_joint_jax
@@ -100,20 +100,9 @@ def test_jax_pair_prior_equals_the_nodes_on_every_branch() -> None:
     a tracked positive-definite cross-covariance, one that is not (covariance intersection), a met pair with a
     dropped factor, a target tracking a pair the observer never met; both gain, only the observer, neither. Two-row
     measurements padded to three rows as the scan pads them."""
-    rng = np.random.default_rng(3)
     seen = {"tracked": 0, 1: 0, 0: 0, -1: 0}
-    for k in range(120):
-        Pi, Pj = _spd(rng, 0.05), _spd(rng, 0.05 * 10 ** rng.uniform(-2, 2))
-        case = k % 4
-        fi, fj = rng.normal(scale=0.1, size=(3, 3)), rng.normal(scale=0.1, size=(3, 3))
-        met = case != 3
-        if case == 1:
-            fi *= 30.0
-        elif case == 2:
-            fi = np.zeros((3, 3))
-        m = 2 + k % 2
-        H = rng.normal(size=(m, 6))
-        R = (10 ** rng.uniform(-3, 3)) * np.eye(m)
+    for Pi, Pj, fi, fj, met, H, R in pair_cases(120):
+        m = H.shape[0]
         H3, R3 = np.zeros((3, 6)), np.eye(3)
         H3[:m], R3[:m, :m] = H, R
         P, flag = (np.asarray(a) for a in _prior(jnp, Pi, Pj, fi, fj, met, H3, R3))

@@ -73,24 +73,30 @@ def _spd(rng: np.random.Generator, scale: float) -> np.ndarray:
     return scale * (A @ A.T + 0.1 * np.eye(3))
 
 
-def test_pair_prior_equals_the_nodes_on_every_branch() -> None:
-    """The compiled pair prior against :func:`swarmloc.estimators.rdl.joint_prior`: a tracked positive-definite
-    cross-covariance, a tracked one that is not (covariance intersection), a met pair with a dropped factor, a
-    target tracking a pair the observer never met; both gain, only the observer, neither (a weak measurement)."""
+def pair_cases(count: int):
+    """``count`` pair-prior cases ``(Pi, Pj, fi, fj, met, H, R)`` (seeded): a tracked cross-covariance, one far too
+    large to be positive definite, a met pair whose observer dropped its factor, a pair the observer never met; two-
+    and three-row measurements of noise from 1e-3 to 1e3."""
     rng = np.random.default_rng(3)
-    seen = {"tracked": 0, 1: 0, 0: 0, -1: 0}
-    for k in range(300):
+    for k in range(count):
         Pi, Pj = _spd(rng, 0.05), _spd(rng, 0.05 * 10 ** rng.uniform(-2, 2))
         case = k % 4
         fi, fj = rng.normal(scale=0.1, size=(3, 3)), rng.normal(scale=0.1, size=(3, 3))
-        met = case != 3
         if case == 1:
             fi *= 30.0  # far too large a cross-covariance: not positive definite
         elif case == 2:
             fi = np.zeros((3, 3))  # the observer dropped its factor
         m = 2 + k % 2
         H = rng.normal(size=(m, 6))
-        R = (10 ** rng.uniform(-3, 3)) * np.eye(m)
+        yield Pi, Pj, fi, fj, case != 3, H, (10 ** rng.uniform(-3, 3)) * np.eye(m)
+
+
+def test_pair_prior_equals_the_nodes_on_every_branch() -> None:
+    """The compiled pair prior against :func:`swarmloc.estimators.rdl.joint_prior`: a tracked positive-definite
+    cross-covariance, a tracked one that is not (covariance intersection), a met pair with a dropped factor, a
+    target tracking a pair the observer never met; both gain, only the observer, neither (a weak measurement)."""
+    seen = {"tracked": 0, 1: 0, 0: 0, -1: 0}
+    for Pi, Pj, fi, fj, met, H, R in pair_cases(300):
         ref = joint_prior(Pi, Pj, fi, fj, H, R, met)
         P, flag = _joint_prior(Pi, Pj, fi, fj, met, H, R, CI_WEIGHTS)
         if ref is None:
