@@ -114,7 +114,7 @@ def _left_correct(jnp: Any, X: Any, delta: Any) -> Any:
 
 
 def _kalman(jnp: Any, lax: Any, invariant: bool, X: Any, P: Any, r: Any, H: Any, Rm: Any, i: Any, jj: Any) -> tuple:
-    """:func:`swarmloc.engine.joint._kalman` on the columns of robots ``i`` and ``jj``: ``(X+, P+, nis, ok)``."""
+    """:func:`swarmloc.engine.joint.kalman` on the columns of robots ``i`` and ``jj``: ``(X+, P+, nis, ok)``."""
     N = P.shape[0]
     Pc = jnp.concatenate([lax.dynamic_slice(P, (0, 3 * i), (N, 3)), lax.dynamic_slice(P, (0, 3 * jj), (N, 3))], 1)
     U = Pc @ H.T

@@ -105,7 +105,7 @@ def _compose(pend: np.ndarray, has: np.ndarray, k: int, dx: float, dy: float, q:
 
 
 @njit(error_model="numpy")
-def _flush(P: np.ndarray, pend: np.ndarray, has: np.ndarray) -> None:
+def flush(P: np.ndarray, pend: np.ndarray, has: np.ndarray) -> None:
     """Every robot's pending prediction applied to the joint ``P`` (:func:`~swarmloc.estimators.cekf.flush_pending`)."""
     N = P.shape[0]
     for k in range(has.shape[0]):
@@ -302,7 +302,7 @@ def innovation(P: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray) ->
 
 
 @njit(error_model="numpy")
-def _kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray,
+def kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray,
             invariant: bool = False) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
     """:func:`swarmloc.kernels.cartesian.kalman_update_blocks` (every robot's heading wrapped): ``U = P[:, cols]
     H^T``, ``S = H U[cols] + R`` (:func:`innovation`), ``K = U S^-1``, ``P+ = P - K U^T - (U - K S) K^T``
@@ -410,6 +410,17 @@ def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = 
     each robot starts at its own first input and answers from then on (:func:`screen_started`), and a detected
     robot moves to the detection's stamp only when it takes the update (its node answers a query from a prediction
     it does not store; it moves when the broadcast updates it)."""
+    return _loop(*steps(noise, invariant, distributed), distributed)
+
+
+@cache
+def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = False) -> tuple[Any, Any, Any]:
+    """The compiled steps of the replay loop (:func:`_kernels`): ``advance(X, pend, has, tc, v, w, k, t)`` (robot
+    ``k`` to ``t``, its prediction pending), ``marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)`` (robot
+    ``k``'s Cartesian belief at ``t`` into record ``o``, nothing stored) and ``fuse(X, P, pend, has, tc, v, w, t, q,
+    i, j, kind, z, R, lxy, lcov, thr, gate) -> (outcome, reason)`` (detection ``q`` of observer ``i``, target ``j``:
+    a robot's index, or a landmark's code). They index robots by their rows of the arrays passed, so a cluster's
+    views of them run the same steps (:mod:`swarmloc.engine.joint_clusters`)."""
     predict = predict_kernel(noise)
 
     @njit(error_model="numpy")
@@ -434,7 +445,7 @@ def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = 
         x, pd, hs, clock = X[i : i + 3].copy(), pend[k : k + 1].copy(), has[k : k + 1].copy(), tc[k : k + 1].copy()
         advance(x, pd, hs, clock, v[k : k + 1], w[k : k + 1], 0, t)
         M = P[i : i + 3, i : i + 3].copy()
-        _flush(M, pd, hs)
+        flush(M, pd, hs)
         out_x[o] = x
         if invariant:  # recorded Cartesian: N M N^T
             N = np.array([[1.0, 0.0, -x[1]], [0.0, 1.0, x[0]], [0.0, 0.0, 1.0]])
@@ -445,7 +456,7 @@ def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = 
     def fuse(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate):  # noqa: ANN001, ANN202
         if not (distributed and j >= 0):
             return update(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
-        _flush(P, pend, has)  # (world-frame noise: additive) the target's step to t is then all it has pending
+        flush(P, pend, has)  # (world-frame noise: additive) the target's step to t is then all it has pending
         k = 3 * j
         xj, tj, Pjj = X[k : k + 3].copy(), tc[j], P[k : k + 3, k : k + 3].copy()
         st, why = update(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
@@ -475,8 +486,8 @@ def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = 
             H = H[:, :3].copy()
         if invariant:
             to_world(H, 0, X[3 * i], X[3 * i + 1])
-        _flush(P, pend, has)
-        xn, Pn, nis, ok = _kalman(X, P, r, H, cols, Rm, invariant)
+        flush(P, pend, has)
+        xn, Pn, nis, ok = kalman(X, P, r, H, cols, Rm, invariant)
         if gate:
             if not math.isfinite(nis):
                 return REJECTED, R_NONFINITE
@@ -488,7 +499,7 @@ def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = 
         P[:, :] = Pn
         return FUSED, 0
 
-    return _loop(advance, marginal, fuse, distributed)
+    return advance, marginal, fuse
 
 
 def _loop(advance: Any, marginal: Any, fuse: Any, distributed: bool) -> Any:
@@ -560,14 +571,30 @@ def replay_joint(
     distributed = np.ndim(t0) == 1
     if distributed and not invariant:
         raise ValueError("replay_joint: per-robot starts are diekf's (invariant=True); cekf starts at one t0")
-    starts = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
-    x = np.ascontiguousarray(x, dtype=float)
-    if invariant:  # world-frame error covariances: N^-1 P N^-T
-        P = cartesian_to_world_cov(x, np.asarray(P, dtype=float))
-    X = x.reshape(3 * n).copy()
+    X, blocks, starts, args, out = prepare(tl, x, P, t0, gate, landmarks, invariant)
     J = np.zeros((3 * n, 3 * n))
     for k in range(n):
-        J[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = P[k]
+        J[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = blocks[k]
+    state = (X, J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), np.where(np.isfinite(starts), starts, 0.0),
+             np.zeros(n), np.zeros(n))  # fmt: skip
+    status, reason = args[3], args[4]
+    _kernels(noise, bool(invariant), bool(distributed))(
+        state, starts, *args[:7], bool(use_relative), bool(use_landmarks), *args[7:], tl.record, out
+    )
+    return status.astype(np.int8), reason.astype(np.int8), out
+
+
+def prepare(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, gate: float | None,
+            landmarks: tuple[np.ndarray, np.ndarray] | None, invariant: bool) -> tuple[Any, ...]:  # fmt: skip
+    """What :func:`replay_joint`'s loop takes besides the covariance: ``(X (3n,), P blocks (n, 3, 3)`` (world-frame
+    with ``invariant``), ``starts (n,), (stamps, d0, detections, status, reason, gate?, thresholds, lxy, lcov,
+    commands), records)``, the records' arrays sized for every started robot at every recorded stamp."""
+    n = x.shape[0]
+    starts = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
+    x = np.ascontiguousarray(x, dtype=float)
+    P = np.asarray(P, dtype=float)
+    if invariant:  # world-frame error covariances: N^-1 P N^-T
+        P = cartesian_to_world_cov(x, P)
     g = Gate(gate)
     thr = np.array([g.threshold(MODELS[name].size) for name in sorted(KIND_ORDER, key=KIND_ORDER.get)])
     lxy, lcov = landmarks if landmarks is not None else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
@@ -576,12 +603,7 @@ def replay_joint(
     k = int(sum(np.count_nonzero(tl.stamps[tl.record] >= s) for s in starts.tolist()))
     out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
     d = tl.det
-    clock = np.where(np.isfinite(starts), starts, 0.0)
-    state = (X, J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
     det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
-    _kernels(noise, bool(invariant), bool(distributed))(
-        state, starts, tl.stamps, tl.d0, det, status, reason, g.p is not None, thr, bool(use_relative),
-        bool(use_landmarks), np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
-        (tl.c0, tl.robot, tl.v, tl.w), tl.record, out,
-    )  # fmt: skip
-    return status.astype(np.int8), reason.astype(np.int8), out
+    args = (tl.stamps, tl.d0, det, status, reason, g.p is not None, thr, np.ascontiguousarray(lxy, dtype=float),
+            np.ascontiguousarray(lcov, dtype=float), (tl.c0, tl.robot, tl.v, tl.w))  # fmt: skip
+    return x.reshape(3 * n).copy(), P, starts, args, out
