@@ -18,7 +18,8 @@ in bulk, a robot's odometry that no sequential check could refuse checked as arr
 :class:`Engine`'s per-robot rows (a joint state; a filter and a factor per pair): the same checked timeline runs
 through :func:`swarmloc.engine.joint.replay_joint` or :func:`swarmloc.engine.pairs.replay_rdl`, every detection kind
 in one compiled call, as the ``cekf`` or ``iekf`` node, the ``diekf`` nodes exchanging their broadcasts (whose
-replicas are the invariant EKF's joint state; ``cluster = 0`` only) or the ``rdl`` nodes compute it; reasons are
+replicas are the invariant EKF's joint state; with ``cluster = K``, each cluster's, through
+:func:`swarmloc.engine.joint_clusters.replay_clusters`, numba only) or the ``rdl`` nodes compute it; reasons are
 worded as those nodes word them.
 
 An SE(3) team (initial beliefs on SE(3), e.g. ``sim:3d``) runs on the engine's SE(3) path: body-twist odometry
@@ -152,8 +153,8 @@ _COMPILED_ONLY = ("cekf", "iekf", "rdl", "diekf")
 ``jax_pairs``): ``cekf``'s and ``iekf``'s joint state, ``diekf``'s too (the nodes' replicas together are the invariant
 EKF's joint state, :mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
 _COMPILED_OPTIONS = frozenset({"noise", "gate", "landmarks", "use_relative", "use_landmarks", "horizon", "cluster"})
-"""The nodes' options those replays take (``horizon`` plays no role: input comes in order; ``cluster``: 0 only,
-``diekf``'s exact filter)."""
+"""The nodes' options those replays take (``horizon`` plays no role: input comes in order; ``cluster``: ``diekf``'s
+only)."""
 _CENTRAL = ("cekf", "iekf")
 """Compiled replays of a centralized node: it starts at the team's first input and words its own refusals."""
 
@@ -172,7 +173,8 @@ class JointInputs(NamedTuple):
     """The team's start (centralized filters) or each robot's ``(n,)`` (``diekf``, ``rdl``)."""
     noise: Any
     options: dict[str, Any]
-    """``gate``, ``use_relative``, ``use_landmarks``, ``landmarks``."""
+    """``gate``, ``use_relative``, ``use_landmarks``, ``landmarks``; ``cluster`` for ``diekf`` in clusters (then for
+    :func:`swarmloc.engine.joint_clusters.replay_clusters`, which the batches do not take)."""
     checked: Checked
     record_times: np.ndarray
     records: dict[float, tuple[int, ...]]
@@ -191,8 +193,9 @@ def _joint_inputs(src: Source, estimator: str, record_times: Any, opts: dict[str
     extra = sorted(set(opts) - _COMPILED_OPTIONS)
     if extra:
         raise TypeError(f"run_engine: {estimator!r} on the engine takes no option {extra}")
-    if opts.pop("cluster", 0):
-        raise ValueError(f"run_engine: {estimator!r} with clusters runs on the nodes only (cluster = 0 here)")
+    cluster = opts.pop("cluster", 0)
+    if cluster and estimator != "diekf":
+        raise ValueError(f"run_engine: {estimator!r} has no clusters (cluster = 0; diekf's nodes take one)")
     checked, rt = _check(src, opts, record_times)
     starts = checked.start_times()
     # a centralized node starts at the team's first input, the others each at its own
@@ -203,6 +206,8 @@ def _joint_inputs(src: Source, estimator: str, record_times: Any, opts: dict[str
     kw = {"gate": opts.get("gate"), "use_relative": bool(opts.get("use_relative", True)),
           "use_landmarks": bool(opts.get("use_landmarks", True)),
           "landmarks": landmark_table(opts.get("landmarks"))[1]}  # fmt: skip
+    if cluster:
+        kw["cluster"] = cluster
     return JointInputs(_timeline(checked, records), x, P, t0, opts["noise"], kw, checked, rt, records)
 
 
@@ -222,6 +227,15 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
         else:
             from swarmloc.engine.pairs import replay_rdl  # numba
         status, reason, (o_robot, o_stamp, o_x, o_P) = replay_rdl(tl, inp.x, inp.P, inp.t0, inp.noise, **kw)
+    elif "cluster" in kw:
+        if jax:
+            raise ValueError("run_engine: diekf in clusters runs on backend='numba' (the JAX replay has no clusters)")
+        from swarmloc.engine.joint_clusters import replay_clusters
+
+        kw = dict(kw)
+        cluster = kw.pop("cluster")
+        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_clusters(tl, inp.x, inp.P, inp.t0, inp.noise, cluster,
+                                                                       **kw)  # fmt: skip
     else:
         if jax:
             from swarmloc.engine.jax_joint import replay_joint_jax as replay_joint

@@ -1,0 +1,228 @@
+"""``diekf`` in clusters on the engine: each cluster's joint state replayed in one compiled loop (numba).
+
+With ``cluster = K`` the :class:`~swarmloc.estimators.DistributedInvariantEKF` nodes are cut into clusters of ``K``
+robots in id order (module docstring of :mod:`swarmloc.estimators.diekf`, "Clusters"): the replicas of a cluster's
+robots together are the invariant EKF's joint state of that cluster, and no cluster's state is correlated with
+another's. This loop keeps exactly that: one ``3K x 3K`` world-frame covariance per cluster (``(n / K, 3K, 3K)``,
+the last cluster possibly smaller), so memory is ``O(n K)`` and each update costs ``O(K^2)`` (the Cholesky check
+``O(K^3)``) whatever the team's size.
+
+* A detection inside a cluster (of a cluster mate, a landmark, an absolute fix) is :func:`swarmloc.engine.joint.
+  replay_joint`'s ``diekf`` step (:func:`swarmloc.engine.joint.steps`) run on the cluster's views of the state.
+* A detection of a robot outside the observer's cluster is the node's covariance-intersection update
+  (:meth:`DistributedInvariantEKF._outsider <swarmloc.estimators.DistributedInvariantEKF._outsider>`): the
+  outsider's belief at the stamp (predicted, not stored: its node answers a ``BeliefQuery``), ``A = H_i P_ii
+  H_i^T``, ``B = H_j P_jj H_j^T``, the weight ``w`` minimizing the cluster's posterior log det
+  (:func:`joint_weight`, :func:`swarmloc.kernels.ci.joint_weight` compiled), then the Kalman update of the cluster's
+  covariance divided by ``w`` with the noise ``R + B / (1 - w)`` on the observer's columns. The outsider is not
+  updated.
+
+Results equal the nodes' to rounding (tests/test_engine_clusters.py). Units: metres, radians, seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from swarmloc.engine.codes import FUSED, GATED, R_DEGENERATE, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.engine.detections import Timeline
+from swarmloc.engine.joint import (
+    RANGE_BEARING,
+    flush,
+    kalman,
+    measure,
+    prepare,
+    screen_started,
+    steps,
+    to_world,
+    usable,
+)
+from swarmloc.kernels.ci import W_BOUNDS, WEIGHT_GRID
+from swarmloc.motion import UnicycleNoise
+from swarmloc.sensors.models import MIN_RANGE
+
+_W_LO, _W_HI = W_BOUNDS
+
+
+@njit(error_model="numpy")
+def _logdet(S: np.ndarray) -> float:
+    """``log det`` of a 1x1, 2x2 or 3x3 ``S`` (NaN where the determinant is not positive)."""
+    m = S.shape[0]
+    if m == 1:
+        d = S[0, 0]
+    elif m == 2:
+        d = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+    else:
+        d = (S[0, 0] * (S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1]) - S[0, 1] * (S[1, 0] * S[2, 2] - S[1, 2] * S[2, 0])
+             + S[0, 2] * (S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0]))  # fmt: skip
+    return math.log(d) if d > 0 else math.nan
+
+
+@njit(error_model="numpy")
+def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> float:
+    """:func:`swarmloc.kernels.ci.joint_weight` compiled: the CI weight in ``W_BOUNDS`` minimizing ``-dof log w -
+    log det(S_w + A / w) + log det S_w``, ``S_w = R + B / (1 - w)``, on the same grid of ``WEIGHT_GRID`` points,
+    then the vertex of the parabola through the best point and its neighbours (within one grid step)."""
+    g = WEIGHT_GRID
+    step = (_W_HI - _W_LO) / (g - 1)
+    c = np.empty(g)
+    for k in range(g):
+        w = _W_HI if k == g - 1 else k * step + _W_LO  # np.linspace's points
+        S = R + B / (1 - w)
+        v = -dof * math.log(w) - _logdet(S + A / w) + _logdet(S)
+        c[k] = v if math.isfinite(v) else math.inf
+    j = int(np.argmin(c))
+    c0, c1, c2 = c[max(j - 1, 0)], c[j], c[min(j + 1, g - 1)]
+    den = c0 - 2 * c1 + c2
+    shift = 0.0
+    if 0 < j < g - 1 and math.isfinite(c0 + c1 + c2) and den > 0:
+        shift = min(max(0.5 * step * (c0 - c2) / den, -step), step)
+    return min(max(_W_LO + step * j + shift, _W_LO), _W_HI)
+
+
+@cache
+def _kernels(noise: UnicycleNoise) -> Any:
+    """Compile the cluster loop around :func:`swarmloc.engine.joint.steps` (``diekf``'s, once per noise model)."""
+    advance, marginal, fuse = steps(noise, True, True)
+
+    @njit(error_model="numpy")
+    def belief(X, P, pend, has, tc, v, w, k, t):  # noqa: ANN001, ANN202
+        """Robot ``k``'s world-frame belief ``(x (3,), P (3, 3))`` at ``t``, nothing stored (a node's answer)."""
+        i = 3 * k
+        x, pd, hs, clock = X[i : i + 3].copy(), pend[k : k + 1].copy(), has[k : k + 1].copy(), tc[k : k + 1].copy()
+        advance(x, pd, hs, clock, v[k : k + 1], w[k : k + 1], 0, t)
+        M = P[i : i + 3, i : i + 3].copy()
+        flush(M, pd, hs)
+        return x, M
+
+    @njit(error_model="numpy")
+    def outsider(X, P, pend, has, i, xj, Pj, kind, z, R, thr, gate, asleep):  # noqa: ANN001, ANN202
+        """Observer ``i`` of the cluster ``(X, P, ...)`` (views) detects a robot of another cluster at ``(xj, Pj)``:
+        the covariance-intersection update of the module docstring; ``(outcome, reason)``. ``asleep``: the cluster
+        mates not started yet, whose nodes take no broadcast (their covariance is not divided by ``w``; uncorrelated
+        with the cluster, the update leaves them as they are)."""
+        a = 3 * i
+        if kind >= RANGE_BEARING and math.hypot(xj[0] - X[a], xj[1] - X[a + 1]) < MIN_RANGE:
+            return REJECTED, R_DEGENERATE
+        r, H, Rm = measure(kind, X, a, xj, z, R)
+        to_world(H, 3, xj[0], xj[1])
+        to_world(H, 0, X[a], X[a + 1])
+        Hi, Hj = H[:, :3].copy(), H[:, 3:].copy()
+        flush(P, pend, has)
+        A = Hi @ P[a : a + 3, a : a + 3].copy() @ Hi.T
+        B = Hj @ Pj @ Hj.T
+        wt = joint_weight(A, B, Rm, P.shape[0])
+        Pw = P / wt
+        for k in range(asleep.shape[0]):
+            if asleep[k]:
+                Pw[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = P[3 * k : 3 * k + 3, 3 * k : 3 * k + 3]
+        xn, Pn, nis, ok = kalman(X, Pw, r, Hi, np.arange(a, a + 3), Rm + B / (1 - wt), True)
+        if gate:
+            if not math.isfinite(nis):
+                return REJECTED, R_NONFINITE
+            if nis > thr[kind]:
+                return GATED, 0
+        if not (ok and usable(Pn)):
+            return REJECTED, R_NUMERICAL
+        X[:] = xn
+        P[:, :] = Pn
+        return FUSED, 0
+
+    return _loop(advance, marginal, fuse, belief, outsider)
+
+
+@njit(error_model="numpy")
+def _span(k: int, K: int, n: int) -> tuple[int, int, int]:
+    """Robot row ``k``'s cluster of ``K`` in a team of ``n``: ``(its index, first row, one past its last row)``."""
+    b = k // K
+    return b, b * K, min(b * K + K, n)
+
+
+def _loop(advance: Any, marginal: Any, fuse: Any, belief: Any, outsider: Any) -> Any:
+    """The compiled loop over the stamps of a timeline (:func:`swarmloc.engine.joint.replay_joint`'s order), each
+    robot's steps run on its cluster's views of the state."""
+
+    @njit(error_model="numpy")
+    def replay(state, K, t0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
+        X, P, pend, has, tc, v, w = state
+        obs, tgt, kind, z, R = det
+        c0, crow, cv, cw = cmd
+        out_robot, out_stamp, out_x, out_P = out
+        n = tc.shape[0]
+        o = 0
+        for s in range(stamps.shape[0]):
+            t = stamps[s]
+            for q in range(d0[s], d0[s + 1]):
+                i, j = obs[q], tgt[q]
+                advance(X, pend, has, tc, v, w, i, t)  # the observer moves to its group's stamp
+                st, why = screen_started(kind[q], i, j, t, t0, relative, lm_on)
+                if st == 0:
+                    b, lo, hi = _span(i, K, n)
+                    m = 3 * (hi - lo)
+                    Xc, Pc, pc, hc = X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi]
+                    if j >= 0 and j // K != b:  # a robot of another cluster
+                        bj, lj, hj = _span(j, K, n)
+                        mj = 3 * (hj - lj)
+                        xj, Pj = belief(X[3 * lj : 3 * hj], P[bj, :mj, :mj], pend[lj:hj], has[lj:hj], tc[lj:hj],
+                                        v[lj:hj], w[lj:hj], j - lj, t)  # fmt: skip
+                        st, why = outsider(Xc, Pc, pc, hc, i - lo, xj, Pj, kind[q], z[q], R[q], thr, gate,
+                                           ~(t >= t0[lo:hi]))  # fmt: skip
+                    else:
+                        st, why = fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo,
+                                       j - lo if j >= 0 else j, kind[q], z, R, lxy, lcov, thr, gate)  # fmt: skip
+                status[q], reason[q] = st, why
+            for c in range(c0[s], c0[s + 1]):  # then the commands (joint.py's order)
+                advance(X, pend, has, tc, v, w, crow[c], t)
+                v[crow[c]] = cv[c]
+                w[crow[c]] = cw[c]
+            if rec[s]:
+                for k in range(n):
+                    if t >= t0[k]:
+                        b, lo, hi = _span(k, K, n)
+                        m = 3 * (hi - lo)
+                        marginal(X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi], tc[lo:hi], v[lo:hi],
+                                 w[lo:hi], k - lo, t, out_x, out_P, o)  # fmt: skip
+                        out_robot[o] = k
+                        out_stamp[o] = s
+                        o += 1
+        return o
+
+    return replay
+
+
+def replay_clusters(
+    tl: Timeline,
+    x: np.ndarray,
+    P: np.ndarray,
+    t0: np.ndarray,
+    noise: UnicycleNoise,
+    cluster: int,
+    *,
+    gate: float | None = None,
+    use_relative: bool = True,
+    use_landmarks: bool = True,
+    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """``diekf``'s nodes in clusters of ``cluster`` robots (rows in id order) over ``tl``, from Cartesian beliefs
+    ``x (n, 3)``, ``P (n, 3, 3)`` and each robot's start ``t0 (n,)`` (``inf``: never starts); the rest as
+    :func:`swarmloc.engine.joint.replay_joint` (``invariant=True``), which it equals for ``cluster >= n``. Returns
+    ``(status, reason, records)`` as that does."""
+    if isinstance(cluster, bool) or not isinstance(cluster, int | np.integer) or cluster < 1:
+        raise ValueError(f"replay_clusters: 'cluster' must be an integer >= 1, got {cluster!r}")
+    n = x.shape[0]
+    if np.ndim(t0) != 1:
+        raise ValueError("replay_clusters: t0 must be each robot's start (n,), as diekf's nodes start")
+    K = min(int(cluster), max(n, 1))
+    X, blocks, starts, args, out = prepare(tl, x, P, t0, gate, landmarks, True)
+    J = np.zeros((-(-n // K), 3 * K, 3 * K))
+    for k in range(n):
+        J[k // K, 3 * (k % K) : 3 * (k % K) + 3, 3 * (k % K) : 3 * (k % K) + 3] = blocks[k]
+    state = (X, J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), np.where(np.isfinite(starts), starts, 0.0),
+             np.zeros(n), np.zeros(n))  # fmt: skip
+    _kernels(noise)(state, K, starts, *args[:7], bool(use_relative), bool(use_landmarks), *args[7:], tl.record, out)
+    return args[3].astype(np.int8), args[4].astype(np.int8), out
