@@ -3,6 +3,12 @@ accuracy and consistency paid for it.
 
     python benchmarks/diekf_cluster.py                                   # 5..80 robots, clusters of 5, 10 s
     python benchmarks/diekf_cluster.py --robots 5,10,20 --cluster 3,5 --duration 20 --exact-up-to 10
+    python benchmarks/diekf_cluster.py --engine --spread --robots 10,100,1000,3000 --exact-up-to 100
+
+``--engine``: the engine's compiled replay (``run_engine(src, "diekf", backend="numba", cluster=K)``, equal to the
+nodes: tests/test_engine_clusters.py) instead of the in-process nodes, timed as the wall of its replay (after an
+untimed run that compiles). ``--spread``: the arena grows with the team (side ``3 m sqrt(n / 5)``), so a robot sees
+as many teammates in every team (constant density; without it, ``sim:random``'s 3 m arena).
 
 ``sim:random`` teams (seed 1), every robot a node of the in-process runner; CPU time of the run
 (``time.process_time``, one process, one thread: ``OPENBLAS_NUM_THREADS=1`` is set before numpy loads). The exact
@@ -26,19 +32,36 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from swarmloc.datasets.source import Source  # noqa: E402
+from swarmloc.engine import run_engine  # noqa: E402
 from swarmloc.estimators import make_team, node_options  # noqa: E402
 from swarmloc.evaluation.metrics import evaluate  # noqa: E402
 from swarmloc.experiments.sources import load_source  # noqa: E402
 from swarmloc.runner import run  # noqa: E402
+from swarmloc.sim import RelativeSensor, random_team  # noqa: E402
+from swarmloc.sim.source import sim_source  # noqa: E402
 
 
-def measure(n: int, cluster: int, duration: float, seed: int) -> dict:
-    src = load_source("sim:random", robots=n, duration=duration, seed=seed)
+def scene(n: int, duration: float, seed: int, spread: bool) -> Source:
+    """``sim:random`` (``spread``: in an arena of side ``3 m sqrt(n / 5)``, the density of 5 robots in 3 m)."""
+    if not spread:
+        return load_source("sim:random", robots=n, duration=duration, seed=seed)
+    sim = random_team(n, duration, seed=seed, area=3.0 * math.sqrt(n / 5), sensor=RelativeSensor(rate=5.0))
+    return sim_source(sim, "sim:random (spread)")
+
+
+def measure(n: int, cluster: int, duration: float, seed: int, engine: bool = False, spread: bool = False) -> dict:
+    src = scene(n, duration, seed, spread)
     options = {**node_options("diekf", src.config, src.landmarks), "cluster": cluster}
-    nodes = make_team("diekf", src.initial, **options)
-    t = time.process_time()
-    res = run(nodes, src.events, src.record_times(), truth=src.truth)
-    cpu = time.process_time() - t
+    if engine:  # the replay's own wall (RunResult.wall_time), after a run that compiles
+        run_engine(scene(min(n, 6), 2.0, seed, spread), "diekf", backend="numba", **options)
+        res = run_engine(src, "diekf", backend="numba", **options)
+        cpu = res.wall_time
+    else:
+        nodes = make_team("diekf", src.initial, **options)
+        t = time.process_time()
+        res = run(nodes, src.events, src.record_times(), truth=src.truth)
+        cpu = time.process_time() - t
     team = evaluate(res)["team"]
     fused = res.stats["fused"]
     return {
@@ -55,11 +78,14 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--exact-up-to", type=int, default=20, help="largest team the exact filter runs (default 20)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--engine", action="store_true", help="the engine's compiled replay instead of the nodes")
+    ap.add_argument("--spread", action="store_true", help="the arena grows with the team (constant density)")
     args = ap.parse_args()
     sizes = [int(x) for x in args.robots.split(",")]
     clusters = [0] + [int(x) for x in args.cluster.split(",") if x]
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}; "
-          f"sim:random seed {args.seed}, {args.duration:g} s")  # fmt: skip
+          f"sim:random{' spread' if args.spread else ''} seed {args.seed}, {args.duration:g} s; "
+          f"{'engine (numba), wall of the replay' if args.engine else 'nodes in process, CPU time'}")  # fmt: skip
     print(f"{'robots':>6} {'cluster':>8} {'det/robot/s':>11} {'ms/detection':>12} {'ms/robot/s':>10} "
           f"{'RMSE [m]':>9} {'ANEES/dof':>9}")  # fmt: skip
     rows: dict[int, list[dict]] = {c: [] for c in clusters}
@@ -67,7 +93,7 @@ def main() -> None:
         for c in clusters:
             if c == 0 and n > args.exact_up_to:
                 continue
-            r = measure(n, c, args.duration, args.seed)
+            r = measure(n, c, args.duration, args.seed, args.engine, args.spread)
             rows[c].append(r)
             name = "exact" if c == 0 else str(c)
             print(f"{n:>6} {name:>8} {r['det_per_robot_s']:>11.1f} {r['ms_per_detection']:>12.3f} "
