@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -571,24 +571,41 @@ def replay_joint(
     distributed = np.ndim(t0) == 1
     if distributed and not invariant:
         raise ValueError("replay_joint: per-robot starts are diekf's (invariant=True); cekf starts at one t0")
-    X, blocks, starts, args, out = prepare(tl, x, P, t0, gate, landmarks, invariant)
+    p = prepare(tl, x, P, t0, gate, landmarks, invariant)
     J = np.zeros((3 * n, 3 * n))
     for k in range(n):
-        J[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = blocks[k]
-    state = (X, J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), np.where(np.isfinite(starts), starts, 0.0),
-             np.zeros(n), np.zeros(n))  # fmt: skip
-    status, reason = args[3], args[4]
+        J[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = p.blocks[k]
     _kernels(noise, bool(invariant), bool(distributed))(
-        state, starts, *args[:7], bool(use_relative), bool(use_landmarks), *args[7:], tl.record, out
+        (p.X, J, *p.robots), p.starts, *p.head, bool(use_relative), bool(use_landmarks), *p.tail, tl.record, p.out
     )
-    return status.astype(np.int8), reason.astype(np.int8), out
+    return p.status.astype(np.int8), p.reason.astype(np.int8), p.out
+
+
+class Prepared(NamedTuple):
+    """A replay's inputs as the compiled loops take them (:func:`prepare`)."""
+
+    X: np.ndarray
+    """Every robot's pose, ``(3n,)``."""
+    blocks: np.ndarray
+    """Every robot's covariance ``(n, 3, 3)`` (world-frame errors for the invariant filters)."""
+    starts: np.ndarray
+    """Each robot's start ``(n,)``."""
+    robots: tuple
+    """The rest of the state: pending predictions ``(n, 8)`` and their flags, clocks, commands ``v``, ``w``."""
+    head: tuple
+    """``(stamps, d0, detections, status, reason, gate on, thresholds)``: the loop's arguments before the switches."""
+    tail: tuple
+    """``(landmarks' xy, their covariances, commands)``: its arguments after them."""
+    out: tuple
+    """The records' arrays, sized for every started robot at every recorded stamp."""
+    status: np.ndarray
+    reason: np.ndarray
 
 
 def prepare(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, gate: float | None,
-            landmarks: tuple[np.ndarray, np.ndarray] | None, invariant: bool) -> tuple[Any, ...]:  # fmt: skip
-    """What :func:`replay_joint`'s loop takes besides the covariance: ``(X (3n,), P blocks (n, 3, 3)`` (world-frame
-    with ``invariant``), ``starts (n,), (stamps, d0, detections, status, reason, gate?, thresholds, lxy, lcov,
-    commands), records)``, the records' arrays sized for every started robot at every recorded stamp."""
+            landmarks: tuple[np.ndarray, np.ndarray] | None, invariant: bool) -> Prepared:  # fmt: skip
+    """What :func:`replay_joint`'s loop takes but the joint covariance (:class:`Prepared`): the beliefs ``x (n, 3)``,
+    ``P (n, 3, 3)`` (Cartesian; made world-frame with ``invariant``), the starts ``t0``, the gate and the map."""
     n = x.shape[0]
     starts = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
     x = np.ascontiguousarray(x, dtype=float)
@@ -604,6 +621,9 @@ def prepare(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, 
     out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
     d = tl.det
     det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
-    args = (tl.stamps, tl.d0, det, status, reason, g.p is not None, thr, np.ascontiguousarray(lxy, dtype=float),
-            np.ascontiguousarray(lcov, dtype=float), (tl.c0, tl.robot, tl.v, tl.w))  # fmt: skip
-    return x.reshape(3 * n).copy(), P, starts, args, out
+    robots = (np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), np.where(np.isfinite(starts), starts, 0.0), np.zeros(n),
+              np.zeros(n))  # fmt: skip
+    head = (tl.stamps, tl.d0, det, status, reason, g.p is not None, thr)
+    tail = (np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
+            (tl.c0, tl.robot, tl.v, tl.w))  # fmt: skip
+    return Prepared(x.reshape(3 * n).copy(), P, starts, robots, head, tail, out, status, reason)

@@ -218,11 +218,11 @@ def replay_clusters(
     if np.ndim(t0) != 1:
         raise ValueError("replay_clusters: t0 must be each robot's start (n,), as diekf's nodes start")
     K = min(int(cluster), max(n, 1))
-    X, blocks, starts, args, out = prepare(tl, x, P, t0, gate, landmarks, True)
+    p = prepare(tl, x, P, t0, gate, landmarks, True)
     J = np.zeros((-(-n // K), 3 * K, 3 * K))
     for k in range(n):
-        J[k // K, 3 * (k % K) : 3 * (k % K) + 3, 3 * (k % K) : 3 * (k % K) + 3] = blocks[k]
-    state = (X, J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), np.where(np.isfinite(starts), starts, 0.0),
-             np.zeros(n), np.zeros(n))  # fmt: skip
-    _kernels(noise)(state, K, starts, *args[:7], bool(use_relative), bool(use_landmarks), *args[7:], tl.record, out)
-    return args[3].astype(np.int8), args[4].astype(np.int8), out
+        b = 3 * (k % K)
+        J[k // K, b : b + 3, b : b + 3] = p.blocks[k]
+    _kernels(noise)((p.X, J, *p.robots), K, p.starts, *p.head, bool(use_relative), bool(use_landmarks), *p.tail,
+                    tl.record, p.out)  # fmt: skip
+    return p.status.astype(np.int8), p.reason.astype(np.int8), p.out
