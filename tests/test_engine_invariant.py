@@ -16,7 +16,7 @@ from test_engine import COUNTS, _source
 from test_engine_cekf import _reasons, _same, _same_on_mrclam, _with, robot_extras
 
 from swarmloc.engine import run_engine
-from swarmloc.engine.joint import left_correct, to_world, world_noise
+from swarmloc.engine.joint_math import left_correct, to_world, world_noise
 from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source

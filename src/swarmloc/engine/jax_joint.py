@@ -44,7 +44,7 @@ from swarmloc.sensors.models import MIN_RANGE
 
 # ------------------------------------------------------------------------------------------------ the pieces
 def _world_noise(x: Any, y: Any, q: tuple) -> tuple:
-    """:func:`swarmloc.engine.joint.world_noise`: ``N^-1 Q N^-T`` at ``(x, y)``, upper triangles."""
+    """:func:`swarmloc.engine.joint_math.world_noise`: ``N^-1 Q N^-T`` at ``(x, y)``, upper triangles."""
     q00, q01, q02, q11, q12, q22 = q
     a02, a12 = q02 + y * q22, q12 - x * q22
     return (q00 + 2 * y * q02 + y * y * q22, q01 - x * q02 + y * a12, a02, q11 - 2 * x * q12 + x * x * q22, a12, q22)
@@ -114,7 +114,7 @@ def _left_correct(jnp: Any, X: Any, delta: Any) -> Any:
 
 
 def _kalman(jnp: Any, lax: Any, invariant: bool, X: Any, P: Any, r: Any, H: Any, Rm: Any, i: Any, jj: Any) -> tuple:
-    """:func:`swarmloc.engine.joint.kalman` on the columns of robots ``i`` and ``jj``: ``(X+, P+, nis, ok)``."""
+    """:func:`swarmloc.engine.joint_math.kalman` on the columns of robots ``i`` and ``jj``: ``(X+, P+, nis, ok)``."""
     N = P.shape[0]
     Pc = jnp.concatenate([lax.dynamic_slice(P, (0, 3 * i), (N, 3)), lax.dynamic_slice(P, (0, 3 * jj), (N, 3))], 1)
     U = Pc @ H.T

@@ -136,7 +136,7 @@ def usable(jnp: Any, P: Any) -> Any:
 
 def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> tuple:
     """Residual ``r (3,)``, Jacobian ``H (3, 6)`` (observer's columns, then the target's) and noise ``Rm (3, 3)``
-    of :func:`swarmloc.engine.joint.measure`, a 1- or 2-row measurement padded with rows that change nothing."""
+    of :func:`swarmloc.engine.joint_math.measure`, a 1- or 2-row measurement padded with rows that change nothing."""
     x0, y0, th = xi[0], xi[1], xi[2]
     dx, dy = xk[0] - x0, xk[1] - y0
     c, s = jnp.cos(th), jnp.sin(th)
@@ -171,7 +171,7 @@ def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> tuple:
 
 
 def inverse(jnp: Any, S: Any) -> tuple:
-    """3x3 inverses by cofactors (:func:`swarmloc.engine.joint.inverse`) of ``S (..., 3, 3)`` and whether each is
+    """3x3 inverses by cofactors (:func:`swarmloc.engine.joint_math.inverse`) of ``S (..., 3, 3)`` and whether each is
     regular."""
     co = [[S[..., (c + 1) % 3, (r + 1) % 3] * S[..., (c + 2) % 3, (r + 2) % 3] - S[..., (c + 1) % 3, (r + 2) % 3]
            * S[..., (c + 2) % 3, (r + 1) % 3] for c in range(3)] for r in range(3)]  # fmt: skip

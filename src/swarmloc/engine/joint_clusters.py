@@ -29,19 +29,10 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from swarmloc.engine.codes import FUSED, GATED, R_DEGENERATE, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import FUSED, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import (
-    RANGE_BEARING,
-    flush,
-    kalman,
-    measure,
-    prepare,
-    screen_started,
-    steps,
-    to_world,
-    usable,
-)
+from swarmloc.engine.joint import flush, prepare, screen_started, steps
+from swarmloc.engine.joint_math import RANGE_BEARING, kalman, measure, to_world, verdict
 from swarmloc.kernels.ci import W_BOUNDS, WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
@@ -122,13 +113,9 @@ def _kernels(noise: UnicycleNoise) -> Any:
             if asleep[k]:
                 Pw[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = P[3 * k : 3 * k + 3, 3 * k : 3 * k + 3]
         xn, Pn, nis, ok = kalman(X, Pw, r, Hi, np.arange(a, a + 3), Rm + B / (1 - wt), True)
-        if gate:
-            if not math.isfinite(nis):
-                return REJECTED, R_NONFINITE
-            if nis > thr[kind]:
-                return GATED, 0
-        if not (ok and usable(Pn)):
-            return REJECTED, R_NUMERICAL
+        st, why = verdict(nis, ok, Pn, thr[kind], gate)
+        if st:
+            return st, why
         X[:] = xn
         P[:, :] = Pn
         return FUSED, 0

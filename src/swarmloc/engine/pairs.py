@@ -38,21 +38,11 @@ from swarmloc.engine.codes import (
     NO_LANDMARK,
     R_CORRELATION,
     R_DEGENERATE,
-    R_NONFINITE,
-    R_NUMERICAL,
     REJECTED,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import (
-    RANGE_BEARING,
-    innovation,
-    inverse,
-    measure,
-    predict_kernel,
-    screen_started,
-    usable,
-    wrap,
-)
+from swarmloc.engine.joint import predict_kernel, screen_started
+from swarmloc.engine.joint_math import RANGE_BEARING, innovation, inverse, measure, usable, verdict, wrap
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
@@ -258,13 +248,9 @@ def _loop(predicted: Any, advance: Any) -> Any:
         if both < 0:
             return GATED, R_CORRELATION
         Xn, Pn, nis, ok = _kalman(X, prior, r, H, Rm)
-        if gate:
-            if not math.isfinite(nis):
-                return REJECTED, R_NONFINITE
-            if nis > thr[kind]:
-                return GATED, 0
-        if not (ok and usable(Pn)):
-            return REJECTED, R_NUMERICAL
+        out = verdict(nis, ok, Pn, thr[kind], gate)
+        if out[0]:
+            return out
         Pi_old = P[i].copy()
         x[i], P[i] = Xn[:3], Pn[:3, :3]
         _rescale(sig, met, sa, sb, i, P[i], Pi_old)
@@ -337,13 +323,9 @@ def _commit_private(st: Any, i: int, xn: np.ndarray, Pn: np.ndarray, nis: float,
                     ) -> tuple[int, int]:  # fmt: skip
     """The gate and check of a private update of robot ``i``, then its state and rescaled factors."""
     x, P, tc, v, w, sa, sb, met, sig = st
-    if gate:
-        if not math.isfinite(nis):
-            return REJECTED, R_NONFINITE
-        if nis > thr:
-            return GATED, 0
-    if not (ok and usable(Pn)):
-        return REJECTED, R_NUMERICAL
+    out = verdict(nis, ok, Pn, thr, gate)
+    if out[0]:
+        return out
     P_old = P[i].copy()
     x[i], P[i] = xn, Pn
     _rescale(sig, met, sa, sb, i, Pn, P_old)

@@ -1,0 +1,259 @@
+"""The compiled pieces the engine's replays share (numba): a detection's residual, Jacobian and noise
+(:func:`measure`), small inverses, the positive-definite check, the world-frame pieces of the invariant filters, the
+Kalman update on a few columns of a joint covariance (:func:`kalman`) and the order of its outcomes
+(:func:`verdict`). :mod:`swarmloc.engine.joint`, :mod:`swarmloc.engine.joint_clusters` and
+:mod:`swarmloc.engine.pairs` build their loops from them. Units: metres, radians; angles wrapped to (-pi, pi]."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from swarmloc.engine.codes import ABSOLUTE, GATED, POSE, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.sensors.models import KIND_ORDER
+
+RANGE_BEARING, RANGE, BEARING = KIND_ORDER["range_bearing"], KIND_ORDER["range"], KIND_ORDER["bearing"]
+_PI = math.pi
+_TAU = 2 * math.pi
+
+
+@njit(error_model="numpy")
+def wrap(a: float) -> float:
+    """An angle [rad] wrapped to (-pi, pi] (the formula of :func:`swarmloc.lie.wrap_angle`), compiled."""
+    return _PI - (_PI - a) % _TAU
+
+
+@njit(error_model="numpy")
+def inverse(S: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Inverse of a 1x1, 2x2 or 3x3 ``S`` by cofactors; ``(S, False)`` when it is singular."""
+    m = S.shape[0]
+    out = np.empty_like(S)
+    if m == 1:
+        det = S[0, 0]
+        if det == 0.0:
+            return S, False
+        out[0, 0] = 1.0 / det
+        return out, True
+    if m == 2:
+        det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+        if det == 0.0:
+            return S, False
+        out[0, 0], out[0, 1], out[1, 0], out[1, 1] = S[1, 1] / det, -S[0, 1] / det, -S[1, 0] / det, S[0, 0] / det
+        return out, True
+    for r in range(3):
+        for c in range(3):
+            r1, r2, c1, c2 = (c + 1) % 3, (c + 2) % 3, (r + 1) % 3, (r + 2) % 3
+            out[r, c] = S[r1, c1] * S[r2, c2] - S[r1, c2] * S[r2, c1]
+    det = S[0, 0] * out[0, 0] + S[0, 1] * out[1, 0] + S[0, 2] * out[2, 0]
+    if det == 0.0:
+        return S, False
+    return out / det, True
+
+
+@njit(error_model="numpy")
+def usable(P: np.ndarray) -> bool:
+    """Finite and positive definite (:func:`swarmloc.node.update.usable_covariance`: a Cholesky factorization)."""
+    N = P.shape[0]
+    if N == 3 and np.isfinite(P).all():  # the node's leading minors with a margin, for a team of one
+        m2 = P[0, 0] * P[1, 1] - P[1, 0] * P[1, 0]
+        m3 = (P[0, 0] * (P[1, 1] * P[2, 2] - P[2, 1] * P[2, 1]) - P[1, 0] * (P[1, 0] * P[2, 2] - P[2, 1] * P[2, 0])
+              + P[2, 0] * (P[1, 0] * P[2, 1] - P[1, 1] * P[2, 0]))  # fmt: skip
+        tr = P[0, 0] + P[1, 1] + P[2, 2]
+        if P[0, 0] > 0 and m2 > 1e-9 * tr * tr and m3 > 1e-9 * tr * tr * tr:
+            return True
+    if not np.isfinite(P).all():
+        return False
+    L = np.zeros_like(P)
+    for j in range(N):
+        d = P[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0:
+            return False
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, N):
+            s = P[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    return True
+
+
+@njit(error_model="numpy")
+def measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Residual ``r (m,)``, Jacobian ``H (m, 3 + len(xk))`` (observer's columns, then the target's) and noise
+    ``R (m, m)`` of a detection of ``kind`` by the robot at rows ``i:i+3`` of ``X`` of a target at ``xk``
+    (:mod:`swarmloc.sensors.models`: predictions, residuals wrapped, a relative pose's noise made Cartesian)."""
+    x0, y0, th = X[i], X[i + 1], X[i + 2]
+    if kind == ABSOLUTE:
+        H = np.eye(3)
+        r = np.array([zq[0] - x0, zq[1] - y0, wrap(zq[2] - th)])
+        return r, H, Rq[:3, :3].copy()
+    dx, dy = xk[0] - x0, xk[1] - y0
+    c, s = math.cos(th), math.sin(th)
+    bx, by = c * dx + s * dy, -s * dx + c * dy
+    w = 3 + xk.shape[0]
+    if kind == POSE:
+        H = np.zeros((3, w))
+        H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], H[2, 2] = -c, -s, by, s, -c, -bx, -1.0
+        H[0, 3], H[0, 4], H[1, 3], H[1, 4], H[2, 5] = c, s, -s, c, 1.0
+        r = np.array([zq[0] - bx, zq[1] - by, wrap(zq[2] - wrap(xk[2] - th))])
+        cz, sz = math.cos(zq[2]), math.sin(zq[2])
+        B = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+        return r, H, B @ Rq[:3, :3].copy() @ B.T
+    q = dx * dx + dy * dy
+    rng = math.sqrt(q)
+    full = np.zeros((2, w))
+    full[0, 0], full[0, 1], full[1, 0], full[1, 1], full[1, 2] = -dx / rng, -dy / rng, dy / q, -dx / q, -1.0
+    full[:, 3:5] = -full[:, 0:2]
+    res = np.array([zq[0] - rng, wrap(zq[1] - wrap(math.atan2(by, bx)))])
+    if kind == RANGE_BEARING:
+        return res, full, Rq[:2, :2].copy()
+    j = 0 if kind == RANGE else 1
+    r1 = np.array([zq[0] - rng]) if j == 0 else np.array([wrap(zq[0] - wrap(math.atan2(by, bx)))])
+    return r1, full[j : j + 1].copy(), Rq[:1, :1].copy()
+
+
+@njit(error_model="numpy")
+def _sinc(t: float) -> float:
+    """``sin(t) / t`` with the Taylor branch of :func:`swarmloc.lie.SE2.exp` below 0.05 (the same coefficients)."""
+    if abs(t) < 0.05:
+        t2 = t * t
+        return (((t2 / 362880.0 - 1.0 / 5040.0) * t2 + 1.0 / 120.0) * t2 - 1.0 / 6.0) * t2 + 1.0
+    return math.sin(t) / t
+
+
+@njit(error_model="numpy")
+def _one_minus_cos_over_t(t: float) -> float:
+    """``(1 - cos t) / t`` with the Taylor branch of :func:`swarmloc.lie.SE2.exp` below 0.05."""
+    if abs(t) < 0.05:
+        t2 = t * t
+        return t * ((((t2 / 3628800.0 - 1.0 / 40320.0) * t2 + 1.0 / 720.0) * t2 - 1.0 / 24.0) * t2 + 0.5)
+    return t * (2.0 * math.sin(t / 2) ** 2 / (t * t))
+
+
+@njit(error_model="numpy")
+def left_correct(X: np.ndarray, delta: np.ndarray) -> None:
+    """Every robot's pose ``X[3k:3k+3]`` corrected by its world-frame ``delta[3k:3k+3]``, written into ``delta``:
+    the Cartesian pose of ``exp(hat(delta_k)) g(x_k)`` (:func:`swarmloc.kernels.invariant.left_correct`)."""
+    for i in range(0, X.shape[0], 3):
+        d0, d1, d2 = delta[i], delta[i + 1], delta[i + 2]
+        c, s = math.cos(d2), math.sin(d2)
+        A, B = _sinc(d2), _one_minus_cos_over_t(d2)
+        x, y, ct, st = X[i], X[i + 1], math.cos(X[i + 2]), math.sin(X[i + 2])
+        delta[i] = c * x - s * y + (A * d0 - B * d1)
+        delta[i + 1] = s * x + c * y + (B * d0 + A * d1)
+        delta[i + 2] = wrap(math.atan2(s * ct + c * st, c * ct - s * st))
+
+
+@njit(error_model="numpy")
+def to_world(H: np.ndarray, c: int, x: float, y: float) -> None:
+    """The Cartesian Jacobian block ``H[:, c:c+3]`` of a pose at ``(x, y)`` made one of its world-frame error, in
+    place: ``H N`` with ``N = [[1, 0, -y], [0, 1, x], [0, 0, 1]]`` (:func:`swarmloc.kernels.invariant.world_basis`)."""
+    for k in range(H.shape[0]):
+        H[k, c + 2] += -y * H[k, c] + x * H[k, c + 1]
+
+
+@njit(error_model="numpy")
+def world_noise(x: float, y: float, q: np.ndarray) -> np.ndarray:
+    """A step's Cartesian process noise (upper triangle ``q00, q01, q02, q11, q12, q22``) at the new pose ``(x, y)``
+    as the world-frame error's, ``N^-1 Q N^-T`` (:func:`swarmloc.kernels.invariant.cartesian_to_world_cov`; the
+    products of :class:`swarmloc.estimators.InvariantEKF`'s prediction)."""
+    q00, q01, q02, q11, q12, q22 = q[0], q[1], q[2], q[3], q[4], q[5]
+    a02, a12 = q02 + y * q22, q12 - x * q22
+    return np.array([q00 + 2 * y * q02 + y * y * q22, q01 - x * q02 + y * a12, a02,
+                     q11 - 2 * x * q12 + x * x * q22, a12, q22])  # fmt: skip
+
+
+@njit(error_model="numpy")
+def innovation(P: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(U, S)`` of a Kalman update on the columns ``cols`` of ``P (N, N)``: ``U = P[:, cols] H^T`` ``(N, m)`` and
+    ``S = H U[cols] + R`` ``(m, m)``, written as loops (small matrices: a matrix product's call costs more than its
+    work)."""
+    N, m, c = P.shape[0], H.shape[0], cols.shape[0]
+    U = np.zeros((N, m))
+    for a in range(N):
+        for k in range(m):
+            acc = 0.0
+            for b in range(c):
+                acc += P[a, cols[b]] * H[k, b]
+            U[a, k] = acc
+    S = R.copy()
+    for k in range(m):
+        for ll in range(m):
+            acc = 0.0
+            for b in range(c):
+                acc += H[k, b] * U[cols[b], ll]
+            S[k, ll] += acc
+    return U, S
+
+
+@njit(error_model="numpy")
+def kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray,
+            invariant: bool = False) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
+    """:func:`swarmloc.kernels.cartesian.kalman_update_blocks` (every robot's heading wrapped): ``U = P[:, cols]
+    H^T``, ``S = H U[cols] + R`` (:func:`innovation`), ``K = U S^-1``, ``P+ = P - K U^T - (U - K S) K^T``
+    symmetrized, written as loops (the matrices are 3n x m, m <= 3: no temporaries of 3n x 3n but ``P+`` itself).
+    ``invariant``: ``P`` is of world-frame errors and each robot's pose is corrected on the group,
+    ``exp(hat(K r)) g`` (:func:`left_correct`), not by ``x + K r``."""
+    N, m = P.shape[0], H.shape[0]
+    U, S = innovation(P, H, cols, R)
+    S_inv, regular = inverse(S)
+    if not regular:
+        return X, P, math.nan, False
+    nis = 0.0
+    for k in range(m):
+        for ll in range(m):
+            nis += r[k] * S_inv[k, ll] * r[ll]
+    K = np.zeros((N, m))
+    W = U.copy()  # U - K S
+    xn = np.empty(N)
+    for a in range(N):
+        step = 0.0
+        for k in range(m):
+            acc = 0.0
+            for ll in range(m):
+                acc += U[a, ll] * S_inv[ll, k]
+            K[a, k] = acc
+            step += acc * r[k]
+        xn[a] = step if invariant else X[a] + step
+        for k in range(m):
+            for ll in range(m):
+                W[a, k] -= K[a, ll] * S[ll, k]
+    if invariant:
+        left_correct(X, xn)
+    else:
+        for a in range(2, N, 3):
+            xn[a] = wrap(xn[a])
+    Pn = np.empty((N, N))
+    ok = math.isfinite(nis)
+    for a in range(N):
+        ok = ok and math.isfinite(xn[a])
+        for b in range(a, N):
+            ab, ba = P[a, b], P[b, a]
+            for k in range(m):
+                ab -= K[a, k] * U[b, k] + W[a, k] * K[b, k]
+                ba -= K[b, k] * U[a, k] + W[b, k] * K[a, k]
+            val = 0.5 * (ab + ba)
+            Pn[a, b] = val
+            Pn[b, a] = val
+            ok = ok and math.isfinite(val)
+    return xn, Pn, nis, ok
+
+
+@njit(error_model="numpy")
+def verdict(nis: float, ok: bool, Pn: np.ndarray, threshold: float, gate: bool) -> tuple[int, int]:
+    """The outcome of a Kalman update as :func:`swarmloc.node.update.gated_kalman` decides it, in its order: with the
+    gate on, a non-finite NIS is rejected and one above ``threshold`` gated; then a result that is not finite or
+    not positive definite (:func:`usable`) is rejected; ``(0, 0)``: take it."""
+    if gate:
+        if not math.isfinite(nis):
+            return REJECTED, R_NONFINITE
+        if nis > threshold:
+            return GATED, 0
+    if not (ok and usable(Pn)):
+        return REJECTED, R_NUMERICAL
+    return 0, 0
