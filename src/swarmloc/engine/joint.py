@@ -185,17 +185,19 @@ def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = 
     each robot starts at its own first input and answers from then on (:func:`screen_started`), and a detected
     robot moves to the detection's stamp only when it takes the update (its node answers a query from a prediction
     it does not store; it moves when the broadcast updates it)."""
-    return _loop(*steps(noise, invariant, distributed), distributed)
+    return _loop(*steps(noise, invariant, distributed)[:3], distributed)
 
 
 @cache
-def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = False) -> tuple[Any, Any, Any]:
+def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = False) -> tuple[Any, Any, Any, Any]:
     """The compiled steps of the replay loop (:func:`_kernels`): ``advance(X, pend, has, tc, v, w, k, t)`` (robot
     ``k`` to ``t``, its prediction pending), ``marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)`` (robot
-    ``k``'s Cartesian belief at ``t`` into record ``o``, nothing stored) and ``fuse(X, P, pend, has, tc, v, w, t, q,
+    ``k``'s Cartesian belief at ``t`` into record ``o``, nothing stored), ``fuse(X, P, pend, has, tc, v, w, t, q,
     i, j, kind, z, R, lxy, lcov, thr, gate) -> (outcome, reason)`` (detection ``q`` of observer ``i``, target ``j``:
-    a robot's index, or a landmark's code). They index robots by their rows of the arrays passed, so a cluster's
-    views of them run the same steps (:mod:`swarmloc.engine.joint_clusters`)."""
+    a robot's index, or a landmark's code) and ``belief(X, P, pend, has, tc, v, w, k, t) -> (x, P)`` (robot ``k``
+    at ``t`` in the filter's error frame, nothing stored: what ``marginal`` records). They index robots by their
+    rows of the arrays passed, so a cluster's views of them run the same steps
+    (:mod:`swarmloc.engine.joint_clusters`)."""
     predict = predict_kernel(noise)
 
     @njit(error_model="numpy")
@@ -215,12 +217,18 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
         tc[k] = t
 
     @njit(error_model="numpy")
-    def marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
+    def belief(X, P, pend, has, tc, v, w, k, t):  # noqa: ANN001, ANN202
+        """Robot ``k``'s ``(x (3,), P (3, 3))`` at ``t`` (its filter's error frame), nothing stored."""
         i = 3 * k
         x, pd, hs, clock = X[i : i + 3].copy(), pend[k : k + 1].copy(), has[k : k + 1].copy(), tc[k : k + 1].copy()
         advance(x, pd, hs, clock, v[k : k + 1], w[k : k + 1], 0, t)
         M = P[i : i + 3, i : i + 3].copy()
         flush(M, pd, hs)
+        return x, M
+
+    @njit(error_model="numpy")
+    def marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
+        x, M = belief(X, P, pend, has, tc, v, w, k, t)
         out_x[o] = x
         if invariant:  # recorded Cartesian: N M N^T
             N = np.array([[1.0, 0.0, -x[1]], [0.0, 1.0, x[0]], [0.0, 0.0, 1.0]])
@@ -270,7 +278,7 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
         P[:, :] = Pn
         return FUSED, 0
 
-    return advance, marginal, fuse
+    return advance, marginal, fuse, belief
 
 
 def _loop(advance: Any, marginal: Any, fuse: Any, distributed: bool) -> Any:

@@ -79,17 +79,7 @@ def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> float
 @cache
 def _kernels(noise: UnicycleNoise) -> Any:
     """Compile the cluster loop around :func:`swarmloc.engine.joint.steps` (``diekf``'s, once per noise model)."""
-    advance, marginal, fuse = steps(noise, True, True)
-
-    @njit(error_model="numpy")
-    def belief(X, P, pend, has, tc, v, w, k, t):  # noqa: ANN001, ANN202
-        """Robot ``k``'s world-frame belief ``(x (3,), P (3, 3))`` at ``t``, nothing stored (a node's answer)."""
-        i = 3 * k
-        x, pd, hs, clock = X[i : i + 3].copy(), pend[k : k + 1].copy(), has[k : k + 1].copy(), tc[k : k + 1].copy()
-        advance(x, pd, hs, clock, v[k : k + 1], w[k : k + 1], 0, t)
-        M = P[i : i + 3, i : i + 3].copy()
-        flush(M, pd, hs)
-        return x, M
+    advance, marginal, fuse, belief = steps(noise, True, True)
 
     @njit(error_model="numpy")
     def outsider(X, P, pend, has, i, xj, Pj, kind, z, R, thr, gate, asleep):  # noqa: ANN001, ANN202
