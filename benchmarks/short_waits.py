@@ -4,6 +4,7 @@ difference of any recorded belief (mean or covariance entry).
 
     python benchmarks/short_waits.py --answer-timeout 0.02 --hold-timeout 1 --update-timeout 0.01 --answer-retries 0
     python benchmarks/short_waits.py --answer-timeout 0.02 --hold-timeout 1 --update-timeout 0.01   # retries: 2
+    python benchmarks/short_waits.py --answer-timeout 0.02 --hold-timeout 0.05 --update-timeout 0.02
 """
 
 from __future__ import annotations

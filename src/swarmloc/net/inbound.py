@@ -213,8 +213,8 @@ class Inbound:
 
     def _on_reply_end(self, qid: int) -> None:
         """The end of query ``qid`` (all replies in, or its ``answer_timeout`` passed): unanswered, it is asked of the
-        belief server (``use_server``) or answered "not found" with the reason. A query sent twice (link faults)
-        ends when both copies have."""
+        belief server (``use_server``), else of its robot again while asks are left (:meth:`_ask_again`), else
+        answered "not found" with the reason. A query sent twice (link faults) ends when both copies have."""
         if self._gets.get(qid, 0) > 1:
             self._gets[qid] -= 1
             return
@@ -230,8 +230,9 @@ class Inbound:
         if via == "robot" and self.use_server:
             self._ask(m, via_server=True, again=again)
             return
-        if not again:  # asked again, it was given its "not found" answer the first time
-            kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
-            who = "robot or server" if via == "server" else "robot"
-            self._feed_local(kind, m, f"no answer from the {who} within {self.answer_timeout:g} s")
-        self._ask_again(m, again + 1)
+        if self._ask_again(m, again + 1):  # the node waits on: its group is held, as lockstep holds it anyway
+            return
+        kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
+        who = "robot or server" if via == "server" else "robot"
+        asks = f" ({again + 1} asks)" if again else ""
+        self._feed_local(kind, m, f"no answer from the {who} within {self.answer_timeout:g} s{asks}")

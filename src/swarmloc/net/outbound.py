@@ -192,21 +192,23 @@ class Outbound:
                 (time.monotonic() + timeout, next(self._qids), lambda qid=qid: put(("reply_end", qid, None))),
             )
 
-    def _ask_again(self, m: Message, again: int) -> None:
+    def _ask_again(self, m: Message, again: int) -> bool:
         """Ask query ``m``, asked ``again`` times already and unanswered each time, of its robot once more: at
-        most ``answer_retries`` times, while the robot is alive and ``m``'s stamp is within the node's horizon. A
-        reply that a get missed (the neighbour held the query, or was stalled, past ``answer_timeout``: a Zenoh get
-        drops a reply that comes after its timeout, and the neighbour does not know) then replaces the "not found"
-        answer the node was given, as a late answer does, instead of being lost for good."""
+        most ``answer_retries`` times, while the robot is alive and ``m``'s stamp is within the node's horizon;
+        whether it was asked. A reply that a get missed (the neighbour held the query, or was stalled, past
+        ``answer_timeout``: a Zenoh get drops a reply that comes after its timeout, and the neighbour does not know)
+        is then taken by the next ask instead of being lost for good; the node gets its "not found" answer only
+        once no ask is left, so a stalled but live neighbour costs a wait, not a replay of the team."""
         if (
             again > self.answer_retries
             or m.receiver not in self._alive
             or m.receiver in self._lost
             or m.stamp < self.node.present - self.node.horizon
         ):
-            return
+            return False
         self.counts["asked_again"] += 1
         self._ask(m, again=again)
+        return True
 
     def _feed_local(self, kind: type, m: Message, reason: str, seq: int = NOT_FOUND_SEQ) -> None:
         """Step the node with a "not found" answer to its own query ``m``, with the reason."""

@@ -15,9 +15,10 @@
   logged; its queries to it are answered "not found" at once, or by the belief server); it is back if it announces
   progress again. Keep it well above the other waits, which a teammate may legitimately spend.
 
-A query that ends unanswered is asked again, up to ``ANSWER_RETRIES`` more times, while its robot is alive: the node
-goes on with its "not found" answer meanwhile, and a reply to a later ask replaces it (a Zenoh get drops a reply that
-comes after its timeout, so without asking again an answer held or stalled past ``answer_timeout`` is lost).
+A query that ends unanswered is asked again, up to ``ANSWER_RETRIES`` more times, while its robot is alive: its
+detection group waits meanwhile, and the node gets its "not found" answer only once no ask is left (a Zenoh get drops
+a reply that comes after its timeout, so without asking again an answer held or stalled past ``answer_timeout`` is
+lost).
 
 Not here, each with its own name: ``quiet`` and ``linger`` (the end of a node's run,
 :class:`~swarmloc.net.process.NetNode`), ``max_wall`` (the wall-clock limit of a whole node, server or team run),
