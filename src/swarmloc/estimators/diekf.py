@@ -16,7 +16,9 @@ An update of observer ``i`` detecting ``j`` (or a landmark: ``j = i``, ``H_j = 0
    S^-1 r, P_ii, P_jj)`` (:class:`~swarmloc.messages.TeamUpdate`) to every teammate;
 3. every robot ``a`` (``i`` included) computes ``Gamma_b = Sigma_bi H_i^T + Sigma_bj H_j^T`` for every ``b`` from
    its replica and the broadcast, corrects its own pose ``x_a <- exp(hat(Gamma_a S^-1 r)) x_a`` and covariance
-   ``P_aa <- P_aa - Gamma_a S^-1 Gamma_a^T``, and its replica ``Sigma_ab <- Sigma_ab - Gamma_a S^-1 Gamma_b^T``.
+   ``P_aa <- P_aa - Gamma_a S^-1 Gamma_a^T``, and its replica ``Sigma_ab <- Sigma_ab - Gamma_a S^-1 Gamma_b^T``
+   (then symmetrized, ``Sigma_ba = Sigma_ab^T`` to the bit: apart, rounding parted the two blocks and clusters'
+   covariance-intersection divisions inflated the part, README).
 
 Every robot applies the broadcasts in key order (the node's history replays a late one), so all replicas agree and
 the estimates equal the centralized invariant EKF's (tested to 1e-9). Nothing is approximated: no correlation is
@@ -213,6 +215,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         Gam = Ci @ Hi.T + Cj @ Hj.T  # (n, 3, m)
         G = Gam @ Sinv
         Sigma = s.Sigma - np.einsum("aim,bjm->abij", G, Gam)
+        Sigma = 0.5 * (Sigma + Sigma.transpose(1, 0, 3, 2))  # Sigma_ba = Sigma_ab^T, as P's symmetrization below
         P = s.P - G[me] @ Gam[me].T
         P = 0.5 * (P + P.T)
         return self._state(s.t, s.v, s.w, self._correct(s.x, Gam[me] @ nu), P, Sigma)
