@@ -198,7 +198,7 @@ class Outbound:
         whether it was asked. A reply that a get missed (the neighbour held the query, or was stalled, past
         ``answer_timeout``: a Zenoh get drops a reply that comes after its timeout, and the neighbour does not know)
         is then taken by the next ask instead of being lost for good; the node gets its "not found" answer only
-        once no ask is left, so a stalled but live neighbour costs a wait, not a replay of the team."""
+        once no ask is left, so a stalled but live neighbour costs a wait and its answer is applied as in-process."""
         if (
             again > self.answer_retries
             or m.receiver not in self._alive
