@@ -299,6 +299,27 @@ def test_a_query_that_ends_unanswered_is_asked_again_while_its_robot_is_alive():
         offline_net(answer_retries=-1)
 
 
+def test_what_one_batch_of_received_messages_pushes_goes_out_once_per_exchange():
+    """Each message handled made the node revise its answer to robot 2; handled in one batch of the queue
+    (:meth:`NetNode._drain`), only the newest revision goes out, once, at the batch's end (under load a batch is
+    long: its revisions of one exchange cost the neighbour one replay, not one each). Outside a batch (the node's own
+    input) a pushed message goes out at once, as before."""
+    net = offline_net(robot=0)
+    sent: list = []
+    net.session.put = lambda key, payload, **kw: sent.append((key, decode(payload, "t", [0, 1, 2], to_robot=2)))
+    t = net.node.present
+    revisions = iter(BeliefAnswer(sender=0, receiver=2, stamp=t, mean=I3, cov=COV, seq=k) for k in range(1, 5))
+    net.node.step = lambda item: [next(revisions)]
+    for k in range(3):
+        answer = BeliefAnswer(sender=1, receiver=0, stamp=t, mean=I3, cov=COV, seq=k)
+        net._inq.put(("inbox", _Sample(encode("t", 1, k, answer))))
+    net._drain(0)
+    assert [(key, env.body.seq) for key, env in sent] == [(robot_key("t", 2, "inbox"), 3)]
+    assert net.counts["coalesced"] == 2 and not net._outbox
+    net._step(Odometry(t0=t, t1=t + 0.1, robot=0, v=0.0, w=0.0))
+    assert [env.body.seq for _, env in sent] == [3, 4]
+
+
 def test_every_timeout_reaches_every_node_under_its_own_name(monkeypatch, capsys):
     """``swarmloc team`` gives every node process each timeout under its own option, and ``swarmloc node`` hands
     each to the driver under its own name; the team's own limit is ``--max-wall`` (``--timeout`` still works)."""

@@ -40,29 +40,36 @@ class Inbound:
 
     def _drain(self, timeout: float) -> bool:
         """Handle what is queued, for at most ``DRAIN_SLICE`` s (the rest waits for the next call, so that a flood
-        never keeps the loops from their deadlines and timers); wait up to ``timeout`` s for the first item. True if
-        neighbours' traffic (queries, replies, pushed messages) came: progress and liveliness do not count."""
+        never keeps the loops from their deadlines and timers); wait up to ``timeout`` s for the first item. What
+        the batch pushes (revisions, updates, broadcasts) goes out once at its end, the newest per exchange: under
+        load a batch is long and its revisions of one exchange are sent as one. True if neighbours' traffic
+        (queries, replies, pushed messages) came: progress and liveliness do not count."""
         got = False
         end = time.monotonic() + max(timeout, 0.0) + DRAIN_SLICE
         try:
             item = self._inq.get(timeout=timeout) if timeout > 0 else self._inq.get_nowait()
         except queue.Empty:
             item = None
-        while item is not None and not self._stop.is_set():
-            got = got or item[0] in ("query", "inbox", "reply", "reply_end", "broadcast")
-            if item[0] != "wake":
+        self._draining = True
+        try:
+            while item is not None and not self._stop.is_set():
+                got = got or item[0] in ("query", "inbox", "reply", "reply_end", "broadcast")
+                if item[0] != "wake":
+                    try:
+                        self._handle(*item)
+                        self._answer_ready()
+                    except Exception as exc:  # a node must never die of one message
+                        log.exception("robot %s: error handling %s", self.robot, item[0])
+                        self._reject(f"internal error: {type(exc).__name__}: {exc}", item[0])
+                if time.monotonic() > end:
+                    break
                 try:
-                    self._handle(*item)
-                    self._answer_ready()
-                except Exception as exc:  # a node must never die of one message
-                    log.exception("robot %s: error handling %s", self.robot, item[0])
-                    self._reject(f"internal error: {type(exc).__name__}: {exc}", item[0])
-            if time.monotonic() > end:
-                break
-            try:
-                item = self._inq.get_nowait()
-            except queue.Empty:
-                item = None
+                    item = self._inq.get_nowait()
+                except queue.Empty:
+                    item = None
+        finally:
+            self._draining = False
+        self._flush()
         return got
 
     def _handle(self, kind: str, x: Any, y: Any = None) -> None:
@@ -139,7 +146,8 @@ class Inbound:
         out = self.node.step(item)
         if out or query is not None:
             self._route(out, query, item)
-        self._flush()
+        if not self._draining:  # within a drain, what the batch pushes goes out once at its end (:meth:`_drain`)
+            self._flush()
 
     def _reject(self, reason: str, where: str) -> None:
         """Count a dropped message with its reason (``rejected``, ``reasons``) and log the first of each reason."""

@@ -40,6 +40,7 @@ class Outbound:
         self._outbox: dict[tuple, Message] = {}  # pushed messages to send, the newest per exchange
         self._again: dict[int, int] = {}  # qid: how many times its query had been asked before, unanswered
         self._last_flush = 0.0
+        self._draining = False  # handling a batch of the queue: pushes wait for its end (Inbound._drain)
         self.coalesce = 0.05
         """[s] with link faults: the outbox is sent at most this often."""
 
@@ -117,9 +118,11 @@ class Outbound:
             reply_err(query, "no answer")
 
     def _flush(self, force: bool = False) -> None:
-        """Send the pushed messages waiting in the outbox: at once without faults (a revision or update is final
-        then), at most every ``coalesce`` s otherwise, so that a burst of revisions of one exchange (late and lost
-        messages make them) costs the neighbour one replay instead of one per revision. Broadcasts likewise."""
+        """Send the pushed messages waiting in the outbox: without faults at once, or at the end of the batch of
+        received messages being handled (:meth:`~swarmloc.net.inbound.Inbound._drain`), so that the revisions one
+        batch makes of one exchange go out as one; with faults at most every ``coalesce`` s, so that a burst of
+        revisions of one exchange (late and lost messages make them) costs the neighbour one replay instead of one
+        per revision. Broadcasts likewise."""
         if self.broadcasts:  # only a team estimator's node broadcasts (and announces heads)
             self._flush_broadcasts(force)
         if not self._outbox:
