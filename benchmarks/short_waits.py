@@ -3,12 +3,8 @@ against the in-process run of the same events: detections left ``unknown``, quer
 pushes coalesced, and the largest difference of any recorded belief (mean or covariance entry; a heading unwrapped).
 
     python benchmarks/short_waits.py --answer-timeout 0.02 --hold-timeout 1 --update-timeout 0.01 --answer-retries 0
-    python benchmarks/short_waits.py --answer-timeout 0.02 --hold-timeout 1 --update-timeout 0.01 --answer-retries 2
+    python benchmarks/short_waits.py --answer-timeout 0.02 --hold-timeout 1 --update-timeout 0.01   # retries: 2
     python benchmarks/short_waits.py --answer-timeout 0.02 --hold-timeout 0.05 --update-timeout 0.02
-    python benchmarks/short_waits.py --answer-timeout 0.01 --hold-timeout 0.01 --update-timeout 0.01 --answer-retries 2
-    python benchmarks/short_waits.py --answer-timeout 0.01 --hold-timeout 0.01 --update-timeout 0.01  # until lost
-
-(README's figures for the last two: 10 runs each with ``python -c 'while 1: pass'`` beside, a loaded machine.)
 """
 
 from __future__ import annotations

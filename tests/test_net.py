@@ -254,12 +254,10 @@ def test_a_query_that_ends_unanswered_is_asked_again_while_its_robot_is_alive():
     """A Zenoh get drops a reply that comes after its timeout, and the neighbour does not know: its answer, held or
     stalled past the asker's ``answer_timeout``, was lost for good (``benchmarks/short_waits.py``, rdl on MRCLAM 6
     with 0.02-0.03 s waits: 24-61 detections ended ``unknown``, 0.08-0.14 from in-process). So the query is asked
-    again while its robot is alive, the stamp within the horizon and less than ``lost_timeout`` s since the first
-    ask (``answer_retries`` times at most when given), and the node gets its "not found" answer only once no ask is
-    left: given at the first timeout, it let the group go on without the answer, which the later ask did not always
-    undo (CI once: 0.084 from in-process with the 2 s default, rdl on MRCLAM 6). Three asks were too few for a node
-    stalled by a loaded machine (0.03 s waits with a busy core beside: 2 detections ``unknown``, 0.155 off); a live
-    teammate may now stall as long for an answer as lockstep waits for it."""
+    again, ``answer_retries`` times at most, only while its robot is alive and the stamp within the horizon, and the
+    node gets its "not found" answer only once no ask is left: given at the first timeout, it let the group go on
+    without the answer, which the later ask did not always undo (CI once: 0.084 from in-process with the 2 s
+    default, rdl on MRCLAM 6; short waits 0.02 / 0.05 / 0.02 s: 3 of 8 runs 0.11-0.22 off, now 8 of 8 equal)."""
     net = offline_net(robot=0, answer_retries=2)
     fed: list = []
     step = net.node.step
@@ -284,25 +282,6 @@ def test_a_query_that_ends_unanswered_is_asked_again_while_its_robot_is_alive():
     assert [(a.found, a.seq) for a in fed[1:]] == [(True, 0)] and net.counts["asked_again"] == 3
     assert not net._outstanding and not net._again
 
-    net = offline_net(robot=0, lost_timeout=10.0)  # the default: no count, asked until lost_timeout has passed
-    fed = []
-    step = net.node.step
-    net.node.step = lambda item, step=step: fed.append(item) or step(item)
-    net._alive.add(1)
-    net._ask(q)
-    for qid in range(50):  # far more asks than any count before
-        net._handle("reply_end", qid)
-    assert not fed and len(net.session.gets) == 51 and net.counts["asked_again"] == 50
-    again, first = net._again[50]
-    assert again == 50 and time.monotonic() - first < 10.0
-    net._again[50] = (again, first - 9.0)  # 9 s since the first ask: still asked
-    net._handle("reply_end", 50)
-    assert not fed and len(net.session.gets) == 52
-    net._again[51] = (51, first - 10.0)  # lost_timeout since the first ask: no ask left
-    net._handle("reply_end", 51)
-    assert [(a.found, a.seq) for a in fed] == [(False, -2)] and "(52 asks)" in fed[0].reason
-    assert len(net.session.gets) == 52 and not net._outstanding and not net._again
-
     for why in ("not alive", "lost", "past the horizon"):
         net = offline_net(robot=0)
         stamp = t - 2 * net.node.horizon if why == "past the horizon" else t
@@ -316,10 +295,8 @@ def test_a_query_that_ends_unanswered_is_asked_again_while_its_robot_is_alive():
         net._handle("reply_end", 0)
         assert not net.session.gets and net.counts["asked_again"] == 0, why
         assert [(a.found, a.seq) for a in fed] == [(False, -2)] and "asks" not in fed[0].reason, why  # at once
-    for bad in (-1, 1001, 2.5, True):
-        with pytest.raises(ValueError, match="answer_retries"):
-            offline_net(answer_retries=bad)
-    assert offline_net().answer_retries is None
+    with pytest.raises(ValueError, match="answer_retries"):
+        offline_net(answer_retries=-1)
 
 
 def test_what_one_batch_of_received_messages_pushes_goes_out_once_per_exchange():

@@ -64,8 +64,8 @@ def _timeout_args(p: argparse.ArgumentParser) -> None:
             f"--{name.replace('_', '-')}", type=float, default=default, help=f"{meaning} (default {default:g})"
         )
     p.add_argument("--answer-retries", type=int, default=ANSWER_RETRIES,
-                   help="how many more times at most a node asks a query that went unanswered (asked again while "
-                        "its robot is alive and the lost timeout allows; default: no count)")  # fmt: skip
+                   help="how many more times a node asks a query that went unanswered, while its robot is alive "
+                        f"(default {ANSWER_RETRIES})")  # fmt: skip
 
 
 def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:

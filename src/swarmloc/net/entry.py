@@ -149,7 +149,7 @@ def node_main(
     answer_timeout: float = ANSWER_TIMEOUT,
     hold_timeout: float = HOLD_TIMEOUT,
     update_timeout: float = UPDATE_TIMEOUT,
-    answer_retries: int | None = ANSWER_RETRIES,
+    answer_retries: int = ANSWER_RETRIES,
     start_timeout: float = START_TIMEOUT,
     lost_timeout: float = LOST_TIMEOUT,
     ros_domain: int | None = None,

@@ -137,7 +137,7 @@ def launch_team(
     answer_timeout: float = ANSWER_TIMEOUT,
     hold_timeout: float = HOLD_TIMEOUT,
     update_timeout: float = UPDATE_TIMEOUT,
-    answer_retries: int | None = ANSWER_RETRIES,
+    answer_retries: int = ANSWER_RETRIES,
     start_timeout: float = START_TIMEOUT,
     lost_timeout: float = LOST_TIMEOUT,
     team: str | None = None,
@@ -218,16 +218,15 @@ def node_arguments(
     verbose: bool,
     lost_timeout: float = LOST_TIMEOUT,
     association: str = "tags",
-    answer_retries: int | None = ANSWER_RETRIES,
+    answer_retries: int = ANSWER_RETRIES,
 ) -> list[str]:
     """The ``swarmloc node`` options every node process of a team gets (the link faults only; a node's own
     ``--robot``, ``--wait-for``, endpoints and ``--resume`` are the launcher's)."""
     out = ["--source", source, "--estimator", estimator, "--robots", str(robots), "--seed", str(seed),
            "--speed", str(speed), "--lag", str(lag), "--answer-timeout", str(answer_timeout),
            "--hold-timeout", str(hold_timeout), "--update-timeout", str(update_timeout),
-           "--start-timeout", str(start_timeout), "--lost-timeout", str(lost_timeout)]  # fmt: skip
-    if answer_retries is not None:
-        out += ["--answer-retries", str(answer_retries)]
+           "--start-timeout", str(start_timeout), "--lost-timeout", str(lost_timeout),
+           "--answer-retries", str(answer_retries)]  # fmt: skip
     if duration is not None:
         out += ["--duration", str(duration)]
     if config_file:

@@ -15,11 +15,10 @@
   logged; its queries to it are answered "not found" at once, or by the belief server); it is back if it announces
   progress again. Keep it well above the other waits, which a teammate may legitimately spend.
 
-A query that ends unanswered is asked again while its robot is alive (not declared lost), its stamp within the
-horizon, and less than ``lost_timeout`` s have passed since its first ask (at most ``answer_retries`` more times when
-that is given): its detection group waits meanwhile, and the node gets its "not found" answer only once no ask is
-left (a Zenoh get drops a reply that comes after its timeout, so without asking again an answer held or stalled past
-``answer_timeout`` is lost). A live teammate may thus stall as long for an answer as for lockstep.
+A query that ends unanswered is asked again, up to ``ANSWER_RETRIES`` more times, while its robot is alive: its
+detection group waits meanwhile, and the node gets its "not found" answer only once no ask is left (a Zenoh get drops
+a reply that comes after its timeout, so without asking again an answer held or stalled past ``answer_timeout`` is
+lost).
 
 Not here, each with its own name: ``quiet`` and ``linger`` (the end of a node's run,
 :class:`~swarmloc.net.process.NetNode`), ``max_wall`` (the wall-clock limit of a whole node, server or team run),
@@ -34,9 +33,8 @@ HOLD_TIMEOUT = 1.0
 UPDATE_TIMEOUT = 2.0
 START_TIMEOUT = 30.0
 LOST_TIMEOUT = 10.0
-ANSWER_RETRIES: int | None = None
-"""How many more times a node asks a query that went unanswered at most (not a wait: a count; ``--answer-retries``);
-None: no count, as long as ``lost_timeout`` allows."""
+ANSWER_RETRIES = 2
+"""How many more times a node asks a query that went unanswered (not a wait: a count; ``--answer-retries``)."""
 
 TIMEOUTS: dict[str, tuple[float, str]] = {
     "answer_timeout": (ANSWER_TIMEOUT, "seconds a node waits for the reply to one of its queries, from a neighbour "
@@ -52,11 +50,8 @@ TIMEOUTS: dict[str, tuple[float, str]] = {
 """Name: (default [s], meaning), as ``swarmloc node`` and ``swarmloc team`` take them (``--answer-timeout``...)."""
 
 
-def check_retries(n: object) -> int | None:
-    """``n`` as a node's ``answer_retries``: None (no count) or an int from 0 to 1000; ValueError naming it
-    otherwise."""
-    if n is None:
-        return None
-    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= 1000:
-        raise ValueError(f"answer_retries is a count from 0 to 1000 (or None), got {n!r}")
+def check_retries(n: object) -> int:
+    """``n`` as a node's ``answer_retries``: an int from 0 to 100; ValueError naming it otherwise."""
+    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= 100:
+        raise ValueError(f"answer_retries is a count from 0 to 100, got {n!r}")
     return n
