@@ -179,13 +179,22 @@ _PLAIN = {float, int}
 
 
 def _spd3(c: tuple) -> bool:
-    """A row-major 3x3 matrix is symmetric (to 1e-9 relative) and positive definite (leading minors > 0)."""
+    """A row-major 3x3 matrix is symmetric (to 1e-9 relative) and positive definite: the pivots of its Cholesky
+    (LDL^T) factorization are > 0, as ``numpy.linalg.cholesky`` decides. (The leading minors, with the determinant
+    expanded along a row, refused well-conditioned-enough SPD matrices: a world-frame covariance far from the origin
+    cancels in that expansion; 3.1% of random ones that Cholesky accepts, ``tests/test_messages.py``.)"""
     scale = max(1.0, max(map(abs, c)))
     if abs(c[1] - c[3]) > 1e-9 * scale or abs(c[2] - c[6]) > 1e-9 * scale or abs(c[5] - c[7]) > 1e-9 * scale:
         return False
-    m2 = c[0] * c[4] - c[1] * c[3]
-    det = c[0] * (c[4] * c[8] - c[5] * c[7]) - c[1] * (c[3] * c[8] - c[5] * c[6]) + c[2] * (c[3] * c[7] - c[4] * c[6])
-    return c[0] > 0 and m2 > 0 and det > 0
+    d1 = c[0]
+    if not d1 > 0:
+        return False
+    l10, l20 = c[3] / d1, c[6] / d1
+    d2 = c[4] - l10 * c[3]
+    if not d2 > 0:
+        return False
+    l21 = (c[7] - l20 * c[3]) / d2
+    return c[8] - l20 * c[6] - l21 * l21 * d2 > 0
 
 
 def _se2(m: tuple) -> bool:
