@@ -181,8 +181,8 @@ _PLAIN = {float, int}
 def _spd3(c: tuple) -> bool:
     """A row-major 3x3 matrix is symmetric (to 1e-9 relative) and positive definite: the pivots of its Cholesky
     (LDL^T) factorization are > 0, as ``numpy.linalg.cholesky`` decides. (The leading minors, with the determinant
-    expanded along a row, refused well-conditioned-enough SPD matrices: a world-frame covariance far from the origin
-    cancels in that expansion; 3.1% of random ones that Cholesky accepts, ``tests/test_messages.py``.)"""
+    expanded along a row, refused SPD matrices that Cholesky accepts: the expansion cancels for a badly conditioned
+    world-frame covariance, 3.2% of the random ones in ``tests/test_messages.py``.)"""
     scale = max(1.0, max(map(abs, c)))
     if abs(c[1] - c[3]) > 1e-9 * scale or abs(c[2] - c[6]) > 1e-9 * scale or abs(c[5] - c[7]) > 1e-9 * scale:
         return False
