@@ -319,6 +319,13 @@ def test_what_one_batch_of_received_messages_pushes_goes_out_once_per_exchange()
     net._step(Odometry(t0=t, t1=t + 0.1, robot=0, v=0.0, w=0.0))
     assert [env.body.seq for _, env in sent] == [3, 4]
 
+    def failing(force: bool = False) -> None:
+        raise RuntimeError("session closed")
+
+    net._flush = failing  # the batch's one flush failing is counted (send_failed), not raised into the node's loop
+    net._drain(0)
+    assert net.counts["send_failed"] == 1
+
 
 def test_every_timeout_reaches_every_node_under_its_own_name(monkeypatch, capsys):
     """``swarmloc team`` gives every node process each timeout under its own option, and ``swarmloc node`` hands

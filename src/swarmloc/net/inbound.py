@@ -69,7 +69,10 @@ class Inbound:
                     item = None
         finally:
             self._draining = False
-        self._flush()
+        try:  # outside the per-item guard now: a failing send is counted, never raised into the loop
+            self._flush()
+        except Exception as exc:  # noqa: BLE001
+            self._send_failed(exc)
         return got
 
     def _handle(self, kind: str, x: Any, y: Any = None) -> None:
