@@ -245,6 +245,52 @@ def test_a_teammate_whose_token_outlives_it_is_declared_lost_and_the_node_goes_o
     assert report.net["asked_lost"] == s["detections"]
 
 
+def test_a_teammate_that_waits_announcing_is_not_lost_one_that_falls_silent_or_never_advances_is(monkeypatch):
+    """Robot 0 waits for robot 1 (lost timeout 1 s, on a clock of the test's own). Robot 1 repeats the same
+    progress every 0.2 s for 4 s (it waits itself, for answers lost on the link): not declared lost (before, its
+    progress not advancing for 1 s was read as hung: lost at 1 s, and its detections ended "robot 1 is lost").
+    Silent for more than 1 s it is declared lost, and back as soon as it announces again. Announcing without
+    advancing, it is declared lost after ``STALL_TIMEOUTS`` lost timeouts, and back only once it advances."""
+    from types import SimpleNamespace
+
+    from swarmloc.net import lockstep
+    from swarmloc.net.timeouts import STALL_TIMEOUTS
+
+    clock = SimpleNamespace(t=100.0)
+    monkeypatch.setattr(lockstep, "time", SimpleNamespace(monotonic=lambda: clock.t))
+    net = offline_net(lost_timeout=1.0)
+    key = robot_key(team_scope("t"), 1, "progress")
+    seq = iter(range(1, 10**6))
+
+    def announce(t: float) -> None:
+        raw = encode("t", 1, next(seq), Progress(robot=1, t=t, prio=2))
+        net._on_progress(type("Sample", (), {"key_expr": key, "payload": _Payload(raw)})())
+
+    def run(seconds: float, t: float | None) -> None:  # 0.05 s steps; robot 1 announces t every 0.2 s (None: not)
+        for k in range(round(seconds / 0.05)):
+            clock.t += 0.05
+            if t is not None and k % 4 == 3:
+                announce(t)
+            net._check_lost(5.0)  # robot 0's next input at 5 s: it waits for robot 1
+
+    net._alive.add(1)
+    announce(0.5)
+    run(4.0, 0.5)
+    assert net.counts["peers_lost"] == 0 and 1 in net._alive
+    run(1.2, None)
+    assert net.counts["peers_lost"] == 1 and 1 in net._lost and net._lost_why[1] == "silent for 1 s"
+    announce(0.5)
+    assert 1 in net._alive and 1 not in net._lost and net.counts["peers_back"] == 1
+    run(STALL_TIMEOUTS - 5.2 - 0.15, 0.5)  # announcing, no advance since the first announcement 5.2 s ago ...
+    assert net.counts["peers_lost"] == 1 and 1 in net._alive
+    run(0.3, 0.5)  # ... and past STALL_TIMEOUTS lost timeouts
+    assert net.counts["peers_lost"] == 2 and net._lost_why[1] == f"no progress for {STALL_TIMEOUTS:g} s"
+    announce(0.5)  # announcing alone does not bring a stalled teammate back
+    assert 1 in net._lost
+    announce(0.6)
+    assert 1 in net._alive and 1 not in net._lost and net.counts["peers_back"] == 2
+
+
 def test_a_lone_node_says_whom_it_waits_for_and_fails_when_no_teammate_ever_answered():
     """A node whose teammates never come logs that it waits (for which robots), and exits 3 with a message saying
     no teammate ever answered. Before, it waited silently and exited 0 with every detection unknown."""

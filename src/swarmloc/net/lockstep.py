@@ -20,6 +20,7 @@ from swarmloc.messages import Message
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.outbound import key_of
 from swarmloc.net.schema import Envelope, Progress, Rejected
+from swarmloc.net.timeouts import STALL_TIMEOUTS
 from swarmloc.net.transport import robot_of
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
@@ -34,8 +35,10 @@ class Lockstep:
         self._progress_key: dict[int, tuple[float, int]] = {}  # ... and its priority
         self._done: set[int] = set()  # teammates that announced they are done
         self._alive: set[int] = set()  # teammates whose liveliness token is up (and not declared lost)
-        self._lost: set[int] = set()  # teammates declared lost: no progress for lost_timeout s while waited for
+        self._lost: set[int] = set()  # teammates declared lost while waited for: silent, or stalled (see _check_lost)
+        self._lost_why: dict[int, str] = {}  # ... why, as the "not found" answers to queries to them say
         self._heard: dict[int, float] = {}  # per live teammate: wall time its progress last advanced (or it came)
+        self._beat: dict[int, float] = {}  # per live teammate: wall time of its last announcement (repeated or not)
         self._seen: set[int] = set()  # teammates ever seen alive or heard from
         self._server_up = False  # the belief server's liveliness token is up
         self._deferred: list[tuple[float, Message, Any]] = []  # neighbours' queries held: (since, query, Zenoh query)
@@ -55,10 +58,14 @@ class Lockstep:
         if isinstance(p, Progress) and p.robot != self.robot:
             r, old = p.robot, self._progress_key.get(p.robot, (-math.inf, 0))
             self._seen.add(r)
+            now = time.monotonic()
+            self._beat[r] = now
             if (p.t, p.prio) > old or (p.done and r not in self._done):
-                self._heard[r] = time.monotonic()
+                self._heard[r] = now
                 if r in self._lost:
                     self._found(r, "it announced progress again")
+            elif r in self._lost and self._lost_why.get(r, "").startswith("silent"):
+                self._found(r, "it announces again (waiting, not hung)")
             self._progress[r] = max(self._progress.get(r, -math.inf), p.t)
             self._progress_key[r] = max(old, (p.t, p.prio))
             if p.done:
@@ -66,24 +73,35 @@ class Lockstep:
 
     def _check_lost(self, s: float) -> None:
         """Declare lost every live teammate this node waits for (not done, its source read only to before ``s``)
-        whose progress has not advanced for ``lost_timeout`` s: a process that hangs, or a token that outlived its
-        process. The node goes on without it (counted ``peers_lost``, logged); its queries to it are answered "not
-        found" at once. It is back if it announces progress again or its token comes anew."""
+        that is **silent** (no announcement, not even a repeated one, for ``lost_timeout`` s: a process that hangs,
+        or a token that outlived its process) or **stalled** (announcing, but its progress has not advanced for
+        ``STALL_TIMEOUTS`` lost timeouts). A node waiting announces its unchanged progress every 0.2 s, so a
+        teammate that waits legitimately (for answers lost on the link, asked again) is neither: before, its
+        progress not advancing for ``lost_timeout`` s was read as hung. The node goes on without a lost teammate
+        (counted ``peers_lost``, logged); its queries to it are answered "not found" at once. It is back if it
+        announces progress again (a silent one: if it announces at all) or its token comes anew."""
         now = time.monotonic()
+        stall = STALL_TIMEOUTS * self.lost_timeout
         for r in sorted(self._alive):
             if r in self._done or self._progress.get(r, -math.inf) >= s:
                 continue
-            if now - self._heard.setdefault(r, now) > self.lost_timeout:
+            quiet, still = now - self._beat.setdefault(r, now), now - self._heard.setdefault(r, now)
+            if quiet > self.lost_timeout or still > stall:
+                why = (f"silent for {self.lost_timeout:g} s" if quiet > self.lost_timeout
+                       else f"no progress for {stall:g} s")  # fmt: skip
                 self._alive.discard(r)
                 self._lost.add(r)
+                self._lost_why[r] = why
+                self.counts["peers_lost_silent" if quiet > self.lost_timeout else "peers_lost_stalled"] += 1
                 self.counts["peers_lost"] += 1
-                log.warning("robot %s: robot %s declared lost: its source read only to %.3f s, no progress for %.1f s "
-                            "(lost timeout); going on without it", self.robot, r, self._progress.get(r, -math.inf),
-                            now - self._heard[r])  # fmt: skip
+                log.warning("robot %s: robot %s declared lost: %s (its source read only to %.3f s, last announced "
+                            "%.1f s ago, progress %.1f s ago); going on without it", self.robot, r, why,
+                            self._progress.get(r, -math.inf), quiet, still)  # fmt: skip
 
     def _found(self, r: int, why: str) -> None:
         """A teammate declared lost is back: lockstep waits for it again."""
         self._lost.discard(r)
+        self._lost_why.pop(r, None)
         self._alive.add(r)
         self.counts["peers_back"] += 1
         log.warning("robot %s: robot %s, declared lost, is back: %s", self.robot, r, why)
@@ -118,7 +136,7 @@ class Lockstep:
             return
         if x.kind == zenoh.SampleKind.PUT:
             self._seen.add(r)
-            self._heard[r] = time.monotonic()
+            self._heard[r] = self._beat[r] = time.monotonic()
             if r in self._lost:
                 self._found(r, "its token came anew")
             self._alive.add(r)
@@ -126,6 +144,7 @@ class Lockstep:
         else:
             self._alive.discard(r)
             self._lost.discard(r)
+            self._lost_why.pop(r, None)
             self._progress.pop(r, None)
             self._progress_key.pop(r, None)
             self.counts["peers_left"] += 1

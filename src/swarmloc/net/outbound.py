@@ -151,7 +151,8 @@ class Outbound:
             if self.use_server:
                 self._ask(m, via_server=True)
             else:
-                self._feed_local(kind, m, f"robot {m.receiver} is lost (no progress for {self.lost_timeout:g} s)")
+                why = self._lost_why.get(m.receiver, "declared lost")
+                self._feed_local(kind, m, f"robot {m.receiver} is lost ({why})")
             return
         qid = next(self._qids)
         self._outstanding[qid] = (m, "server" if via_server else "robot", False)

@@ -121,8 +121,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
     faults: link faults on the messages this node sends (:mod:`swarmloc.net.faults`).
     wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot).
     start_timeout: [s] wall time it waits at the start for the robots of ``wait_for`` to be alive.
-    lost_timeout: [s] wall time it waits for a live teammate whose progress does not advance before declaring it
-        lost and going on without it.
+    lost_timeout: [s] wall time it waits for a live teammate that is silent (no announcement) before declaring it
+        lost and going on without it; one that announces but does not advance: ``STALL_TIMEOUTS`` times as long.
     quiet: [s] wall time without traffic that counts as settled at the end.
     linger: [s] wall time at most it keeps answering after it is done, while teammates are not.
     ros_domain: publish beliefs as ROS 2 messages too (rmw_zenoh layout, this domain id).
@@ -320,6 +320,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             if self.speed > 0:
                 due = w0 + (s - t_start) / self.speed - time.monotonic()
                 if due > 0:
+                    self._publish_progress(self._last_progress)  # every 0.2 s: a paced node is not silent
                     self._drain(min(due, wait, 0.05))
                     continue
             if not self._may_feed(s) or (isinstance(item, list) and not self._group_may_go(s)):
@@ -374,8 +375,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         )  # fmt: skip
 
     def _finish(self, deadline: float) -> None:
-        """Wait for the team to finish its sources (a teammate that stops progressing is lost after ``lost_timeout``
-        s) and the traffic to settle (at most ``linger`` s once they have), then publish the final beliefs."""
+        """Wait for the team to finish its sources (a teammate that goes silent is lost after ``lost_timeout`` s) and
+        the traffic to settle (at most ``linger`` s once they have), then publish the final beliefs."""
         quiet_since, all_read_since = time.monotonic(), math.inf
         while not self._stop.is_set() and time.monotonic() < deadline:
             got = self._drain(0.02)

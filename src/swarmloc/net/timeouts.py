@@ -10,10 +10,11 @@
   its own later detection groups meanwhile (then given up: counted ``update_not_received``);
 * ``start_timeout``: how long a node waits at its start for the robots it waits for to be alive (it then starts
   without them, with a warning);
-* ``lost_timeout``: how long a node waits for a live teammate (its liveliness token up) whose progress does not
-  advance, while lockstep waits for it, before declaring it lost and going on without it (counted ``peers_lost``,
-  logged; its queries to it are answered "not found" at once, or by the belief server); it is back if it announces
-  progress again. Keep it well above the other waits, which a teammate may legitimately spend.
+* ``lost_timeout``: how long a node waits for a live teammate (its liveliness token up) that is silent (no
+  announcement of its progress, which a waiting node repeats every 0.2 s), while lockstep waits for it, before
+  declaring it lost and going on without it (counted ``peers_lost``, logged; its queries to it are answered "not
+  found" at once, or by the belief server); one that announces but whose progress does not advance (it waits
+  itself) is declared lost after ``STALL_TIMEOUTS`` times as long. It is back if it announces progress again.
 
 A query that ends unanswered is asked again, up to ``ANSWER_RETRIES`` more times, while its robot is alive: its
 detection group waits meanwhile, and the node gets its "not found" answer only once no ask is left (a Zenoh get drops
@@ -35,6 +36,9 @@ START_TIMEOUT = 30.0
 LOST_TIMEOUT = 10.0
 ANSWER_RETRIES = 2
 """How many more times a node asks a query that went unanswered (not a wait: a count; ``--answer-retries``)."""
+STALL_TIMEOUTS = 6
+"""A teammate that announces but does not advance is declared lost after this many ``lost_timeout`` (a bound against
+a node that loops without progress; a legitimate wait, for answers lost on the link, is far shorter)."""
 
 TIMEOUTS: dict[str, tuple[float, str]] = {
     "answer_timeout": (ANSWER_TIMEOUT, "seconds a node waits for the reply to one of its queries, from a neighbour "
@@ -44,8 +48,9 @@ TIMEOUTS: dict[str, tuple[float, str]] = {
     "update_timeout": (UPDATE_TIMEOUT, "seconds a node that gave its rdl state waits for the observer's pairwise "
                        "update"),
     "start_timeout": (START_TIMEOUT, "seconds a node waits at its start for its teammates to be alive"),
-    "lost_timeout": (LOST_TIMEOUT, "seconds a node waits for a live teammate whose progress does not advance "
-                     "before declaring it lost and going on without it"),
+    "lost_timeout": (LOST_TIMEOUT, "seconds a node waits for a live teammate that is silent (a hung process) "
+                     "before declaring it lost and going on without it; one that announces but does not advance: "
+                     f"{STALL_TIMEOUTS} times as long"),
 }  # fmt: skip
 """Name: (default [s], meaning), as ``swarmloc node`` and ``swarmloc team`` take them (``--answer-timeout``...)."""
 
