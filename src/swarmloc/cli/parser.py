@@ -65,7 +65,7 @@ def _timeout_args(p: argparse.ArgumentParser) -> None:
         )
     p.add_argument("--answer-retries", type=int, default=ANSWER_RETRIES,
                    help="how many more times a node asks a query that went unanswered, while its robot is alive "
-                        f"(default {ANSWER_RETRIES})")  # fmt: skip
+                        f"(default {ANSWER_RETRIES}); more while within the lost timeout of the first ask")  # fmt: skip
 
 
 def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:

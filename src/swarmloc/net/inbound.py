@@ -231,7 +231,7 @@ class Inbound:
             return
         self._gets.pop(qid, None)
         entry = self._outstanding.pop(qid, None)
-        again = self._again.pop(qid, 0)
+        again, first = self._again.pop(qid, (0, None))
         if entry is None:
             return
         m, via, answered = entry
@@ -239,9 +239,9 @@ class Inbound:
             return
         self.counts["no_reply"] += 1
         if via == "robot" and self.use_server:
-            self._ask(m, via_server=True, again=again)
+            self._ask(m, via_server=True, again=again, first=first)
             return
-        if self._ask_again(m, again + 1):  # the node waits on: its group is held, as lockstep holds it anyway
+        if first is not None and self._ask_again(m, again + 1, first):  # the node waits on: lockstep holds its group
             return
         kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
         who = "robot or server" if via == "server" else "robot"

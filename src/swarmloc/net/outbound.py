@@ -38,7 +38,7 @@ class Outbound:
         self._gets: dict[int, int] = {}  # qid: copies of the query out (link faults duplicate them), each ends once
         self._timers: list[tuple[float, int, Callable[[], None]]] = []  # (due, id, send): delayed sends, lost gets
         self._outbox: dict[tuple, Message] = {}  # pushed messages to send, the newest per exchange
-        self._again: dict[int, int] = {}  # qid: how many times its query had been asked before, unanswered
+        self._again: dict[int, tuple[int, float]] = {}  # qid: (asks of its query before, unanswered; the first's time)
         self._last_flush = 0.0
         self._draining = False  # handling a batch of the queue: pushes wait for its end (Inbound._drain)
         self.coalesce = 0.05
@@ -138,10 +138,10 @@ class Outbound:
             payload = self._env(m, key)
             self._faulty(lambda key=key, payload=payload: put(key, payload, congestion_control=block))
 
-    def _ask(self, m: Message, via_server: bool = False, again: int = 0) -> None:
+    def _ask(self, m: Message, via_server: bool = False, again: int = 0, first: float | None = None) -> None:
         """Ask ``m`` of its receiver (or of the belief server) as a Zenoh get; its replies and its end come back on
         the node's queue (:meth:`_on_reply`, :meth:`_on_reply_end`). ``again``: how many times it was asked before
-        and went unanswered (:meth:`_ask_again`)."""
+        and went unanswered, ``first``: the monotonic time of its first ask (None: this one) (:meth:`_ask_again`)."""
         kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
         if m.receiver not in self.roster:
             self._feed_local(kind, m, f"robot {m.receiver} is not in the team")
@@ -156,8 +156,7 @@ class Outbound:
             return
         qid = next(self._qids)
         self._outstanding[qid] = (m, "server" if via_server else "robot", False)
-        if again:
-            self._again[qid] = again
+        self._again[qid] = (again, time.monotonic() if first is None else first)
         key = server_key(self.scope) if via_server else robot_key(self.scope, m.receiver, "query")
         payload = self._env(m, key)
         timeout = self.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
@@ -196,22 +195,24 @@ class Outbound:
                 (time.monotonic() + timeout, next(self._qids), lambda qid=qid: put(("reply_end", qid, None))),
             )
 
-    def _ask_again(self, m: Message, again: int) -> bool:
-        """Ask query ``m``, asked ``again`` times already and unanswered each time, of its robot once more: at
-        most ``answer_retries`` times, while the robot is alive and ``m``'s stamp is within the node's horizon;
-        whether it was asked. A reply that a get missed (the neighbour held the query, or was stalled, past
-        ``answer_timeout``: a Zenoh get drops a reply that comes after its timeout, and the neighbour does not know)
-        is then taken by the next ask instead of being lost for good; the node gets its "not found" answer only
-        once no ask is left, so a stalled but live neighbour costs a wait and its answer is applied as in-process."""
+    def _ask_again(self, m: Message, again: int, first: float) -> bool:
+        """Ask query ``m``, asked ``again`` times already (the first at monotonic time ``first``) and unanswered each
+        time, of its robot once more, while the robot is alive (not declared lost) and ``m``'s stamp is within the
+        node's horizon: ``answer_retries`` times, and beyond that while less than ``lost_timeout`` s have passed
+        since the first ask (as long as a silent teammate is waited for); whether it was asked.
+        A reply that a get missed (the neighbour held the query, or was stalled, past ``answer_timeout``: a Zenoh get
+        drops a reply that comes after its timeout, and the neighbour does not know) is then taken by the next ask
+        instead of being lost for good; the node gets its "not found" answer only once no ask is left, so a stalled
+        but live neighbour costs a wait and its answer is applied as in-process."""
         if (
-            again > self.answer_retries
+            (again > self.answer_retries and time.monotonic() - first >= self.lost_timeout)
             or m.receiver not in self._alive
             or m.receiver in self._lost
             or m.stamp < self.node.present - self.node.horizon
         ):
             return False
         self.counts["asked_again"] += 1
-        self._ask(m, again=again)
+        self._ask(m, again=again, first=first)
         return True
 
     def _feed_local(self, kind: type, m: Message, reason: str, seq: int = NOT_FOUND_SEQ) -> None:

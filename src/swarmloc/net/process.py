@@ -23,14 +23,15 @@ across the team in key order, as :func:`swarmloc.runner.run` applies them, the f
 and the networked run equals the in-process run on the same events (tested to 1e-6; measured: equal).
 
 **Missing answers.** A query that gets no valid reply within ``answer_timeout`` s is asked of the belief server
-(with ``use_server``, which gets ``answer_timeout`` s too), then of its robot again, up to ``answer_retries`` times
-while the robot is alive and the stamp within the horizon (a Zenoh get drops a reply that comes after its timeout,
-so an answer held or stalled past ``answer_timeout`` would be lost); the detection group waits meanwhile, as
-lockstep holds it. Only when no ask is left does the node get a "not found" answer (revision ``-2``) with the
-reason, so the detection ends ``unknown`` instead of waiting forever; a real answer that still arrives later
-(revision >= 0; the server's: -1) replaces it and is replayed if it is within the horizon. (A "not found" given at
-the first timeout let the group go on without the answer, which the answer to a later ask did not always undo:
-``rdl`` on MRCLAM 6 once 0.084 m from the in-process run in CI; ``benchmarks/short_waits.py``, README.)
+(with ``use_server``, which gets ``answer_timeout`` s too), then of its robot again while the robot is alive and the
+stamp within the horizon: ``answer_retries`` times, and more while less than ``lost_timeout`` s have passed since
+the first ask (a Zenoh get drops a reply that comes after its timeout, so an answer held or stalled past
+``answer_timeout`` would be lost); the detection group waits meanwhile, as lockstep holds it. Only when no ask is
+left does the node get a "not found" answer (revision ``-2``) with the reason, so the detection ends ``unknown``
+instead of waiting forever; a real answer that still arrives later (revision >= 0; the server's: -1) replaces it
+and is replayed if it is within the horizon. (A "not found" given at the first timeout let the group go on without
+the answer, which the answer to a later ask did not always undo: ``rdl`` on MRCLAM 6 once 0.084 m from the
+in-process run in CI; ``benchmarks/short_waits.py``, README.)
 A neighbour's query held ``hold_timeout`` s without its state settling is answered as things stand, and revised if
 they change. An ``rdl`` update expected for ``update_timeout`` s is given up. Pushed revisions and updates are
 coalesced, the newest per exchange: those one batch of received messages makes (:meth:`_drain`), and with link
@@ -116,7 +117,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
     answer_timeout: [s] wall time this node waits for the reply to one of its queries (neighbour, then server).
     hold_timeout: [s] wall time it holds a neighbour's query for its state to settle before answering as it stands.
     update_timeout: [s] wall time it waits for an observer's ``rdl`` update after giving its state.
-    answer_retries: how many more times it asks a query that went unanswered (while its robot is alive).
+    answer_retries: how many more times it asks a query that went unanswered (while its robot is alive), more while
+        within ``lost_timeout`` s of the first ask.
     use_server: ask the belief server when a neighbour does not answer (and wait for it at the start).
     faults: link faults on the messages this node sends (:mod:`swarmloc.net.faults`).
     wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot).

@@ -16,10 +16,11 @@
   found" at once, or by the belief server); one that announces but whose progress does not advance (it waits
   itself) is declared lost after ``STALL_TIMEOUTS`` times as long. It is back if it announces progress again.
 
-A query that ends unanswered is asked again, up to ``ANSWER_RETRIES`` more times, while its robot is alive: its
-detection group waits meanwhile, and the node gets its "not found" answer only once no ask is left (a Zenoh get drops
-a reply that comes after its timeout, so without asking again an answer held or stalled past ``answer_timeout`` is
-lost).
+A query that ends unanswered is asked again while its robot is alive (not declared lost): ``ANSWER_RETRIES`` more
+times, and beyond that while less than ``lost_timeout`` s have passed since its first ask (as long as a silent
+teammate is waited for); its detection group waits meanwhile, and the node gets its "not found" answer only once no
+ask is left (a Zenoh get drops a reply that comes after its timeout, so without asking again an answer held or
+stalled past ``answer_timeout`` is lost).
 
 Not here, each with its own name: ``quiet`` and ``linger`` (the end of a node's run,
 :class:`~swarmloc.net.process.NetNode`), ``max_wall`` (the wall-clock limit of a whole node, server or team run),
@@ -35,7 +36,8 @@ UPDATE_TIMEOUT = 2.0
 START_TIMEOUT = 30.0
 LOST_TIMEOUT = 10.0
 ANSWER_RETRIES = 2
-"""How many more times a node asks a query that went unanswered (not a wait: a count; ``--answer-retries``)."""
+"""How many more times a node asks a query that went unanswered at least (not a wait: a count; ``--answer-retries``);
+more while within ``lost_timeout`` s of the first ask."""
 STALL_TIMEOUTS = 6
 """A teammate that announces but does not advance is declared lost after this many ``lost_timeout`` (a bound against
 a node that loops without progress; a legitimate wait, for answers lost on the link, is far shorter)."""
