@@ -299,6 +299,40 @@ def test_a_query_that_ends_unanswered_is_asked_again_while_its_robot_is_alive():
         offline_net(answer_retries=-1)
 
 
+def test_a_node_paced_by_speed_announces_its_progress_while_it_waits_for_its_clock(monkeypatch):
+    """Teammates declare a silent node lost after ``lost_timeout``; a node paced by ``speed`` that waits for its
+    clock (here 100 s of wall for its next input) repeats its progress every 0.2 s, so it is not silent (a clock of
+    the test's own, 3 s of it: 13 announcements while its inputs wait; before, 1, after its first input)."""
+    from types import SimpleNamespace
+
+    from swarmloc.net import process, publishing
+
+    clock = SimpleNamespace(t=100.0)
+    fake = SimpleNamespace(monotonic=lambda: clock.t)
+    monkeypatch.setattr(process, "time", fake)
+    monkeypatch.setattr(publishing, "time", fake)
+    net = offline_net(speed=0.001)  # its next input 0.1 s of data after the first ones: 100 s of wall
+    announced: list[float] = []  # wall times of its announcements while inputs are left to read
+
+    def announce(raw: bytes) -> None:
+        if net._i < len(net.items):
+            announced.append(clock.t)
+
+    net._pub_progress = SimpleNamespace(put=announce)
+    net._pub_belief = SimpleNamespace(put=lambda raw: None)
+
+    def drain(timeout: float) -> bool:  # nothing comes; the wait passes on the test's clock
+        clock.t += max(timeout, 0.01)
+        if clock.t > 103.0:
+            net._stop.set()
+        return False
+
+    net._drain = drain
+    net._main(math.inf)
+    gaps = np.diff(announced)
+    assert len(announced) >= 12 and gaps.max() <= 0.3 and announced[-1] > 102.5, announced
+
+
 def test_a_query_is_asked_again_beyond_answer_retries_while_within_lost_timeout_of_its_first_ask(monkeypatch):
     """Three asks were too few for a teammate stalled by a loaded machine (0.01 s waits and a busy core beside: 10
     of 10 rdl runs on MRCLAM 6 off the in-process run, 4-34 detections unknown). A live teammate's answer is now
