@@ -9,6 +9,7 @@ counted with its reason and logged, and the node keeps running, whatever the err
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import time
 from typing import Any
@@ -231,7 +232,7 @@ class Inbound:
             return
         self._gets.pop(qid, None)
         entry = self._outstanding.pop(qid, None)
-        again, first = self._again.pop(qid, (0, None))
+        again, first = self._again.pop(qid, (0, -math.inf))  # (every ask records it; -inf: by count alone)
         if entry is None:
             return
         m, via, answered = entry
@@ -241,7 +242,7 @@ class Inbound:
         if via == "robot" and self.use_server:
             self._ask(m, via_server=True, again=again, first=first)
             return
-        if first is not None and self._ask_again(m, again + 1, first):  # the node waits on: lockstep holds its group
+        if self._ask_again(m, again + 1, first):  # the node waits on: lockstep holds its group
             return
         kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
         who = "robot or server" if via == "server" else "robot"

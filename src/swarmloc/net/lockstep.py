@@ -37,6 +37,7 @@ class Lockstep:
         self._alive: set[int] = set()  # teammates whose liveliness token is up (and not declared lost)
         self._lost: set[int] = set()  # teammates declared lost while waited for: silent, or stalled (see _check_lost)
         self._lost_why: dict[int, str] = {}  # ... why, as the "not found" answers to queries to them say
+        self._lost_silent: set[int] = set()  # ... of them, those declared for silence (back on any announcement)
         self._heard: dict[int, float] = {}  # per live teammate: wall time its progress last advanced (or it came)
         self._beat: dict[int, float] = {}  # per live teammate: wall time of its last announcement (repeated or not)
         self._seen: set[int] = set()  # teammates ever seen alive or heard from
@@ -64,7 +65,7 @@ class Lockstep:
                 self._heard[r] = now
                 if r in self._lost:
                     self._found(r, "it announced progress again")
-            elif r in self._lost and self._lost_why.get(r, "").startswith("silent"):
+            elif r in self._lost_silent:
                 self._found(r, "it announces again (waiting, not hung)")
             self._progress[r] = max(self._progress.get(r, -math.inf), p.t)
             self._progress_key[r] = max(old, (p.t, p.prio))
@@ -86,13 +87,15 @@ class Lockstep:
             if r in self._done or self._progress.get(r, -math.inf) >= s:
                 continue
             quiet, still = now - self._beat.setdefault(r, now), now - self._heard.setdefault(r, now)
-            if quiet > self.lost_timeout or still > stall:
-                why = (f"silent for {self.lost_timeout:g} s" if quiet > self.lost_timeout
-                       else f"no progress for {stall:g} s")  # fmt: skip
+            silent = quiet > self.lost_timeout
+            if silent or still > stall:
+                why = f"silent for {self.lost_timeout:g} s" if silent else f"no progress for {stall:g} s"
                 self._alive.discard(r)
                 self._lost.add(r)
                 self._lost_why[r] = why
-                self.counts["peers_lost_silent" if quiet > self.lost_timeout else "peers_lost_stalled"] += 1
+                if silent:
+                    self._lost_silent.add(r)
+                self.counts["peers_lost_silent" if silent else "peers_lost_stalled"] += 1
                 self.counts["peers_lost"] += 1
                 log.warning("robot %s: robot %s declared lost: %s (its source read only to %.3f s, last announced "
                             "%.1f s ago, progress %.1f s ago); going on without it", self.robot, r, why,
@@ -102,6 +105,7 @@ class Lockstep:
         """A teammate declared lost is back: lockstep waits for it again."""
         self._lost.discard(r)
         self._lost_why.pop(r, None)
+        self._lost_silent.discard(r)
         self._alive.add(r)
         self.counts["peers_back"] += 1
         log.warning("robot %s: robot %s, declared lost, is back: %s", self.robot, r, why)
@@ -145,6 +149,7 @@ class Lockstep:
             self._alive.discard(r)
             self._lost.discard(r)
             self._lost_why.pop(r, None)
+            self._lost_silent.discard(r)
             self._progress.pop(r, None)
             self._progress_key.pop(r, None)
             self.counts["peers_left"] += 1
