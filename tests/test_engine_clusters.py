@@ -105,10 +105,8 @@ def test_compiled_joint_weight_equals_the_library() -> None:
     assert min(seen) < 0.2 and max(seen) > 0.99  # inner minima and the upper bound both taken
 
 
-def test_clusters_run_on_numba_and_only_for_diekf() -> None:
+def test_clusters_run_on_a_compiled_backend_and_only_for_diekf() -> None:
     src = _source(4, 2.0, 3)
-    with pytest.raises(ValueError, match="backend='numba'"):
-        run_engine(src, "diekf", backend="jax", cluster=2)
     with pytest.raises(ValueError, match="'rdl' has no clusters"):
         run_engine(src, "rdl", backend="numba", cluster=2)
     with pytest.raises(ValueError, match="backend='numba'"):

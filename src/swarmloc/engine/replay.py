@@ -229,8 +229,9 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
         status, reason, (o_robot, o_stamp, o_x, o_P) = replay_rdl(tl, inp.x, inp.P, inp.t0, inp.noise, **kw)
     elif "cluster" in kw:
         if jax:
-            raise ValueError("run_engine: diekf in clusters runs on backend='numba' (the JAX replay has no clusters)")
-        from swarmloc.engine.joint_clusters import replay_clusters
+            from swarmloc.engine.jax_clusters import replay_clusters_jax as replay_clusters
+        else:
+            from swarmloc.engine.joint_clusters import replay_clusters  # numba
 
         kw = dict(kw)
         cluster = kw.pop("cluster")

@@ -1,0 +1,266 @@
+"""``diekf`` in clusters replayed with JAX: :mod:`swarmloc.engine.joint_clusters`' loop as one compiled scan
+(``run_engine(source, "diekf", backend="jax", cluster=K)``, :func:`replay_clusters_jax`), and many runs of one team
+size at once (:func:`replay_clusters_batch`, ``jax.vmap``: Monte Carlo sweeps).
+
+The state is one ``3K x 3K`` world-frame covariance per cluster, ``(ceil(n / K), 3K, 3K)``; the team is padded to a
+whole number of clusters with robots that never start (identity covariance, no correlation, never a target, never
+recorded), so every cluster's view has one shape and is taken with ``lax.dynamic_slice``. Per detection, in the
+numba loop's order:
+
+* inside the observer's cluster (a cluster mate, a landmark, an absolute fix): :mod:`swarmloc.engine.jax_joint`'s
+  ``diekf`` detection on the cluster's view (the cluster's poses, covariance, clocks and commands; its robots'
+  starts), written back;
+* a robot of another cluster: the node's covariance-intersection update
+  (:meth:`DistributedInvariantEKF._outsider <swarmloc.estimators.DistributedInvariantEKF._outsider>`): the
+  outsider's world-frame belief predicted to the stamp (not stored), ``A = H_i P_ii H_i^T``, ``B = H_j P_jj
+  H_j^T``, the weight minimizing the cluster's posterior log det (:func:`_weight`, the grid and parabola of
+  :func:`swarmloc.kernels.ci.joint_weight`; ``dof`` the cluster's real size), the cluster's covariance divided by
+  it (not the blocks of mates not started yet, nor the padding), and the Kalman update on the observer's columns
+  with noise ``R + B / (1 - w)``.
+
+A 1- or 2-row measurement is padded to 3 rows that are zero in ``H`` and one in the noise
+(:func:`swarmloc.engine.jax_replay.measure`): they add ``log 1 = 0`` to the weight's cost, so the weight is the
+numba loop's. Results equal the numba loop's to rounding (``tests/test_engine_jax_clusters.py``). Units: m, rad, s.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from swarmloc.engine.codes import FUSED, GATED, R_DEGENERATE, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.engine.detections import Timeline
+from swarmloc.engine.jax_joint import _detection, _kalman, _step
+from swarmloc.engine.jax_replay import (
+    RANGE_BEARING,
+    compiled,
+    constants,
+    first_rule,
+    measure,
+    run_batch,
+    screen,
+    sym,
+    usable,
+)
+from swarmloc.kernels.ci import W_BOUNDS, WEIGHT_GRID
+from swarmloc.kernels.invariant import cartesian_to_world_cov
+from swarmloc.motion import UnicycleNoise
+from swarmloc.sensors.models import MIN_RANGE
+
+__all__ = ["replay_clusters_batch", "replay_clusters_jax"]
+
+
+# ------------------------------------------------------------------------------------------------ the pieces
+def _logdet(jnp: Any, S: Any) -> Any:
+    """``log det`` of ``(..., 3, 3)`` by the numba loop's cofactor formula (NaN where not positive)."""
+    d = (S[..., 0, 0] * (S[..., 1, 1] * S[..., 2, 2] - S[..., 1, 2] * S[..., 2, 1])
+         - S[..., 0, 1] * (S[..., 1, 0] * S[..., 2, 2] - S[..., 1, 2] * S[..., 2, 0])
+         + S[..., 0, 2] * (S[..., 1, 0] * S[..., 2, 1] - S[..., 1, 1] * S[..., 2, 0]))  # fmt: skip
+    return jnp.log(jnp.where(d > 0, d, jnp.nan))
+
+
+def _weight(jnp: Any, A: Any, B: Any, R: Any, dof: Any) -> Any:
+    """:func:`swarmloc.engine.joint_clusters.joint_weight` traced: the CI weight in ``W_BOUNDS`` minimizing ``-dof
+    log w - log det(S_w + A / w) + log det S_w``, ``S_w = R + B / (1 - w)``, on the same grid, then the vertex of the
+    parabola through the best point and its neighbours (within one grid step)."""
+    lo, hi = W_BOUNDS
+    g = WEIGHT_GRID
+    step = (hi - lo) / (g - 1)
+    k = jnp.arange(g)
+    w = jnp.where(k == g - 1, hi, k * step + lo)
+    wc = w[:, None, None]
+    S = R + B / (1 - wc)
+    v = -dof * jnp.log(w) - _logdet(jnp, S + A / wc) + _logdet(jnp, S)
+    c = jnp.where(jnp.isfinite(v), v, jnp.inf)
+    j = jnp.argmin(c)
+    c0, c1, c2 = c[jnp.maximum(j - 1, 0)], c[j], c[jnp.minimum(j + 1, g - 1)]
+    den = c0 - 2 * c1 + c2
+    inner = (j > 0) & (j < g - 1) & jnp.isfinite(c0 + c1 + c2) & (den > 0)
+    shift = jnp.where(inner, jnp.clip(0.5 * step * (c0 - c2) / jnp.where(inner, den, 1.0), -step, step), 0.0)
+    return jnp.clip(lo + step * j + shift, lo, hi)
+
+
+def _view(lax: Any, state: tuple, lo: Any, b: Any, K: int) -> tuple:
+    """The cluster ``b`` (its first robot ``lo``) as a joint state of ``K`` robots: ``(X, P, clocks, v, w)``."""
+    X, PC, tc, v, w = state
+    rows = [lax.dynamic_slice(a, (lo,), (K,)) for a in (tc, v, w)]
+    return (lax.dynamic_slice(X, (lo, 0), (K, 3)), lax.dynamic_index_in_dim(PC, b, keepdims=False), *rows)
+
+
+def _put(lax: Any, state: tuple, view: tuple, lo: Any, b: Any) -> tuple:
+    """``state`` with the cluster ``b`` (first robot ``lo``) replaced by ``view``."""
+    X, PC, tc, v, w = state
+    Xv, Pv, tv, vv, wv = view
+    return (lax.dynamic_update_slice(X, Xv, (lo, 0)), lax.dynamic_update_slice(PC, Pv[None], (b, 0, 0)),
+            lax.dynamic_update_slice(tc, tv, (lo,)), lax.dynamic_update_slice(v, vv, (lo,)),
+            lax.dynamic_update_slice(w, wv, (lo,)))  # fmt: skip
+
+
+def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, k: Any, t: Any) -> tuple:
+    """Robot ``k`` moved to ``t`` (not before its clock): its pose, and its block of its cluster's covariance given
+    the world-frame process noise."""
+    X, PC, tc, v, w = state
+    xn, _, _, q = _step(jnp, noise, True, X[k], v[k], w[k], t - tc[k])
+    at = (k // K, 3 * (k % K), 3 * (k % K))
+    block = lax.dynamic_slice(PC, at, (1, 3, 3)) + sym(jnp, q)[None]
+    return X.at[k].set(xn), lax.dynamic_update_slice(PC, block, at), tc.at[k].set(jnp.maximum(tc[k], t)), v, w
+
+
+def _marginals(jnp: Any, noise: UnicycleNoise, state: tuple, t: Any) -> tuple:
+    """Every robot's Cartesian marginal predicted to ``t`` (not stored): ``x (N, 3)``, ``P (N, 3, 3)``."""
+    X, PC, tc, v, w = state
+    N, K = X.shape[0], PC.shape[1] // 3
+    xn, _, _, q = _step(jnp, noise, True, X, v, w, t - tc)
+    M = jnp.moveaxis(jnp.diagonal(PC.reshape(-1, K, 3, K, 3), axis1=1, axis2=3), -1, 1).reshape(N, 3, 3)
+    M = M + sym(jnp, q)
+    one, zero = jnp.ones(N), jnp.zeros(N)
+    A = jnp.stack([jnp.stack([one, zero, -xn[:, 1]], -1), jnp.stack([zero, one, xn[:, 0]], -1),
+                   jnp.stack([zero, zero, one], -1)], -2)  # fmt: skip
+    return xn, A @ M @ jnp.swapaxes(A, -1, -2)
+
+
+def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev: dict, const: tuple) -> tuple:
+    """Observer ``ev["a"]`` detects robot ``ev["b"]`` of another cluster: the module docstring's covariance
+    intersection; ``(state, outcome, reason)``."""
+    t0, n, thr, gate_on = const
+    X, PC, tc, v, w = state
+    i, j, kind, t = ev["a"], ev["b"], ev["kind"], ev["t"]
+    b, lo = i // K, (i // K) * K
+    xj, _, _, q = _step(jnp, noise, True, X[j], v[j], w[j], t - tc[j])
+    Pj = lax.dynamic_slice(PC, (j // K, 3 * (j % K), 3 * (j % K)), (1, 3, 3))[0] + sym(jnp, q)
+    view = _view(lax, state, lo, b, K)
+    Xv, Pv = view[0], view[1]
+    li = i - lo
+    xi = X[i]
+    degenerate = (kind >= RANGE_BEARING) & (jnp.hypot(xj[0] - xi[0], xj[1] - xi[1]) < MIN_RANGE)
+    r, H, Rm = measure(jnp, kind, xi, xj, ev["z"], ev["R"])
+    H = H.at[:, 5].add(-xj[1] * H[:, 3] + xj[0] * H[:, 4])  # world-frame error columns: H N
+    H = H.at[:, 2].add(-xi[1] * H[:, 0] + xi[0] * H[:, 1])
+    Hi, Hj = H[:, :3], H[:, 3:]
+    A = Hi @ lax.dynamic_slice(Pv, (3 * li, 3 * li), (3, 3)) @ Hi.T
+    B = Hj @ Pj @ Hj.T
+    size = jnp.minimum(K, n - lo)  # the cluster's robots, the padding not counted
+    wt = _weight(jnp, A, B, Rm, 3 * size)
+    rows = jnp.arange(3 * K) // 3
+    asleep = ~(t >= lax.dynamic_slice(t0, (lo,), (K,)))  # mates not started yet, and the padding (start inf)
+    keep = asleep[rows][:, None] & (rows[:, None] == rows[None, :])
+    Pw = jnp.where(keep, Pv, Pv / wt)
+    xn, Pn, nis, ok = _kalman(jnp, lax, True, Xv, Pw, r, H.at[:, 3:].set(0.0), Rm + B / (1 - wt), li, li)
+    st, why = first_rule(jnp, [
+        (degenerate, REJECTED, R_DEGENERATE),
+        (gate_on & ~jnp.isfinite(nis), REJECTED, R_NONFINITE),
+        (gate_on & (nis > thr[kind]), GATED, 0),
+        (~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL),
+    ], FUSED)  # fmt: skip
+    new = _put(lax, state, (xn, Pn, *view[2:]), lo, b)
+    return tuple(jnp.where(st == FUSED, a, c) for a, c in zip(new, state, strict=True)), st, why
+
+
+def _detection_c(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev: dict, const: tuple) -> tuple:
+    """A detection: the observer moved to its stamp, the screening of ``diekf``'s nodes, then a robot of another
+    cluster by :func:`_outsider`, anything else by ``jax_joint``'s ``diekf`` detection on the observer's cluster."""
+    t0, n, thr, gate_on, relative, lm_on, lxy, lcov = const
+    i, j, kind, t = ev["a"], ev["b"], ev["kind"], ev["t"]
+    state = _advance(jnp, lax, noise, K, state, i, t)
+    st0, why0 = screen(jnp, True, kind, i, j, t, t0, relative, lm_on)
+    b = i // K
+    lo = b * K
+
+    def outside(state):  # noqa: ANN001, ANN202
+        return _outsider(jnp, lax, noise, K, state, ev, (t0, n, thr, gate_on))
+
+    def inside(state):  # noqa: ANN001, ANN202
+        local = {**ev, "a": i - lo, "b": jnp.where(j >= 0, j - lo, j)}
+        t0v = lax.dynamic_slice(t0, (lo,), (K,))
+        view, st, why = _detection(jnp, lax, (noise, True, True), _view(lax, state, lo, b, K), local,
+                                   (t0v, thr, gate_on, relative, lm_on, lxy, lcov))  # fmt: skip
+        return _put(lax, state, view, lo, b), st, why
+
+    def screened(state):  # noqa: ANN001, ANN202
+        return state, st0, why0
+
+    branch = jnp.where(st0 != 0, 0, jnp.where((j >= 0) & (j // K != b), 1, 2))
+    return lax.switch(branch, (screened, outside, inside), state)
+
+
+@cache
+def _kernels(noise: UnicycleNoise, K: int, n: int) -> Any:
+    """``make(jnp, lax, t0, const)`` of :func:`swarmloc.engine.jax_replay.compiled` for clusters of ``K`` of a team of
+    ``n`` robots."""
+
+    def make(jnp, lax, t0, const):  # noqa: ANN001, ANN202
+        thr, gate_on, relative, lm_on, lxy, lcov = const
+        full = (t0, n, thr, gate_on, relative, lm_on, lxy, lcov)
+        return (
+            lambda s, k, t: _advance(jnp, lax, noise, K, s, k, t),
+            lambda s, ev: _detection_c(jnp, lax, noise, K, s, ev, full),
+            lambda s, t: _marginals(jnp, noise, s, t),
+        )
+
+    return make
+
+
+def _start(x: np.ndarray, P: np.ndarray, t0: np.ndarray, K: int) -> tuple:
+    """The clusters' state from Cartesian beliefs ``x (n, 3)``, ``P (n, 3, 3)`` and starts ``t0 (n,)``, the team
+    padded to ``N = K ceil(n / K)`` robots: ``((X (N, 3), PC, clocks, v, w), starts (N,))``."""
+    n = x.shape[0]
+    N = K * -(-n // K)
+    starts = np.full(N, np.inf)
+    starts[:n] = np.asarray(t0, dtype=float)
+    X = np.zeros((N, 3))
+    X[:n] = x
+    blocks = np.broadcast_to(np.eye(3), (N, 3, 3)).copy()
+    blocks[:n] = cartesian_to_world_cov(np.ascontiguousarray(x, dtype=float), np.asarray(P, dtype=float))
+    PC = np.zeros((N // K, 3 * K, 3 * K))
+    for k in range(N):
+        c = 3 * (k % K)
+        PC[k // K, c : c + 3, c : c + 3] = blocks[k]
+    clock = np.where(np.isfinite(starts), starts, 0.0)
+    return (X, PC, clock, np.zeros(N), np.zeros(N)), starts
+
+
+def replay_clusters_jax(
+    tl: Timeline,
+    x: np.ndarray,
+    P: np.ndarray,
+    t0: np.ndarray,
+    noise: UnicycleNoise,
+    cluster: int,
+    **kw: Any,
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """:func:`swarmloc.engine.joint_clusters.replay_clusters` (the same arguments and results) as one JAX call."""
+    return replay_clusters_batch([tl], x[None], P[None], [t0], noise, cluster, _single=True, **kw)[0]
+
+
+def replay_clusters_batch(
+    tls: Sequence[Timeline],
+    x: np.ndarray,
+    P: np.ndarray,
+    t0: Sequence[np.ndarray],
+    noise: UnicycleNoise,
+    cluster: int,
+    *,
+    gate: float | None = None,
+    use_relative: bool = True,
+    use_landmarks: bool = True,
+    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+    _single: bool = False,
+) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
+    """Runs of one team of ``n`` robots in clusters of ``cluster`` (``x (B, n, 3)``, ``P (B, n, 3, 3)``, each run its
+    own timeline and starts ``t0[b] (n,)``, every other argument shared) in one call vectorized over the runs
+    (``jax.vmap``). Each run's result is :func:`replay_clusters_jax`'s."""
+    if isinstance(cluster, bool) or not isinstance(cluster, int | np.integer) or cluster < 1:
+        raise ValueError(f"replay_clusters: 'cluster' must be an integer >= 1, got {cluster!r}")
+    if len(tls) != x.shape[0] or len(t0) != x.shape[0]:
+        raise ValueError(f"replay_clusters_batch: {len(tls)} timelines, {x.shape[0]} initial states, {len(t0)} starts")
+    if any(np.ndim(s) != 1 for s in t0):
+        raise ValueError("replay_clusters: t0 must be each robot's start (n,), as diekf's nodes start")
+    n = x.shape[1]
+    K = min(int(cluster), max(n, 1))
+    starts = [_start(x[b], P[b], t0[b], K) for b in range(len(tls))]
+    fn = compiled(("clusters", noise, K, n), _kernels(noise, K, n), not _single)
+    const = constants(gate, use_relative, use_landmarks, landmarks)
+    return run_batch(fn, tls, [s[0] for s in starts], [s[1] for s in starts], const, _single)
