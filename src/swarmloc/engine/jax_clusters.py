@@ -33,7 +33,7 @@ import numpy as np
 
 from swarmloc.engine.codes import FUSED, GATED, R_DEGENERATE, R_NONFINITE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_joint import _detection, _kalman, _step
+from swarmloc.engine.jax_joint import detection, kalman_columns, predict_step
 from swarmloc.engine.jax_replay import (
     RANGE_BEARING,
     compiled,
@@ -103,7 +103,7 @@ def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, k: 
     """Robot ``k`` moved to ``t`` (not before its clock): its pose, and its block of its cluster's covariance given
     the world-frame process noise."""
     X, PC, tc, v, w = state
-    xn, _, _, q = _step(jnp, noise, True, X[k], v[k], w[k], t - tc[k])
+    xn, _, _, q = predict_step(jnp, noise, True, X[k], v[k], w[k], t - tc[k])
     at = (k // K, 3 * (k % K), 3 * (k % K))
     block = lax.dynamic_slice(PC, at, (1, 3, 3)) + sym(jnp, q)[None]
     return X.at[k].set(xn), lax.dynamic_update_slice(PC, block, at), tc.at[k].set(jnp.maximum(tc[k], t)), v, w
@@ -113,7 +113,7 @@ def _marginals(jnp: Any, noise: UnicycleNoise, state: tuple, t: Any) -> tuple:
     """Every robot's Cartesian marginal predicted to ``t`` (not stored): ``x (N, 3)``, ``P (N, 3, 3)``."""
     X, PC, tc, v, w = state
     N, K = X.shape[0], PC.shape[1] // 3
-    xn, _, _, q = _step(jnp, noise, True, X, v, w, t - tc)
+    xn, _, _, q = predict_step(jnp, noise, True, X, v, w, t - tc)
     M = jnp.moveaxis(jnp.diagonal(PC.reshape(-1, K, 3, K, 3), axis1=1, axis2=3), -1, 1).reshape(N, 3, 3)
     M = M + sym(jnp, q)
     one, zero = jnp.ones(N), jnp.zeros(N)
@@ -129,7 +129,7 @@ def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev
     X, PC, tc, v, w = state
     i, j, kind, t = ev["a"], ev["b"], ev["kind"], ev["t"]
     b, lo = i // K, (i // K) * K
-    xj, _, _, q = _step(jnp, noise, True, X[j], v[j], w[j], t - tc[j])
+    xj, _, _, q = predict_step(jnp, noise, True, X[j], v[j], w[j], t - tc[j])
     Pj = lax.dynamic_slice(PC, (j // K, 3 * (j % K), 3 * (j % K)), (1, 3, 3))[0] + sym(jnp, q)
     view = _view(lax, state, lo, b, K)
     Xv, Pv = view[0], view[1]
@@ -148,7 +148,7 @@ def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev
     asleep = ~(t >= lax.dynamic_slice(t0, (lo,), (K,)))  # mates not started yet, and the padding (start inf)
     keep = asleep[rows][:, None] & (rows[:, None] == rows[None, :])
     Pw = jnp.where(keep, Pv, Pv / wt)
-    xn, Pn, nis, ok = _kalman(jnp, lax, True, Xv, Pw, r, H.at[:, 3:].set(0.0), Rm + B / (1 - wt), li, li)
+    xn, Pn, nis, ok = kalman_columns(jnp, lax, True, Xv, Pw, r, H.at[:, 3:].set(0.0), Rm + B / (1 - wt), li, li)
     st, why = first_rule(jnp, [
         (degenerate, REJECTED, R_DEGENERATE),
         (gate_on & ~jnp.isfinite(nis), REJECTED, R_NONFINITE),
@@ -175,7 +175,7 @@ def _detection_c(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple,
     def inside(state):  # noqa: ANN001, ANN202
         local = {**ev, "a": i - lo, "b": jnp.where(j >= 0, j - lo, j)}
         t0v = lax.dynamic_slice(t0, (lo,), (K,))
-        view, st, why = _detection(jnp, lax, (noise, True, True), _view(lax, state, lo, b, K), local,
+        view, st, why = detection(jnp, lax, (noise, True, True), _view(lax, state, lo, b, K), local,
                                    (t0v, thr, gate_on, relative, lm_on, lxy, lcov))  # fmt: skip
         return _put(lax, state, view, lo, b), st, why
 

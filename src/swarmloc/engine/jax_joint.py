@@ -50,7 +50,7 @@ def _world_noise(x: Any, y: Any, q: tuple) -> tuple:
     return (q00 + 2 * y * q02 + y * y * q22, q01 - x * q02 + y * a12, a02, q11 - 2 * x * q12 + x * x * q22, a12, q22)
 
 
-def _step(jnp: Any, noise: UnicycleNoise, invariant: bool, x: Any, v: Any, w: Any, dt: Any) -> tuple:
+def predict_step(jnp: Any, noise: UnicycleNoise, invariant: bool, x: Any, v: Any, w: Any, dt: Any) -> tuple:
     """One robot's (or a batch's) prediction over ``dt``: the new pose, its shear ``(a, b)`` and process noise
     (upper triangle; world-frame with ``invariant``, and no shear); ``dt <= 0`` changes nothing."""
     z = jnp.zeros_like(x[..., 0])
@@ -65,7 +65,7 @@ def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, invariant: bool, state: t
     given the process noise (the numba loop's pending prediction, applied at once)."""
     X, P, tc, v, w = state
     N = P.shape[0]
-    xn, a, b, q = _step(jnp, noise, invariant, X[k], v[k], w[k], t - tc[k])
+    xn, a, b, q = predict_step(jnp, noise, invariant, X[k], v[k], w[k], t - tc[k])
     i = 3 * k
     if not invariant:
         rows = lax.dynamic_slice(P, (i, 0), (3, N))
@@ -83,7 +83,7 @@ def _marginals(jnp: Any, noise: UnicycleNoise, invariant: bool, state: tuple, t:
     """Every robot's Cartesian marginal predicted to ``t`` (not stored): ``x (n, 3)``, ``P (n, 3, 3)``."""
     X, P, tc, v, w = state
     n = X.shape[0]
-    xn, a, b, q = _step(jnp, noise, invariant, X, v, w, t - tc)
+    xn, a, b, q = predict_step(jnp, noise, invariant, X, v, w, t - tc)
     idx = jnp.arange(n)
     M = P.reshape(n, 3, n, 3)[idx, :, idx, :]
     one, zero = jnp.ones(n), jnp.zeros(n)
@@ -113,7 +113,9 @@ def _left_correct(jnp: Any, X: Any, delta: Any) -> Any:
     return jnp.stack([c * x - s * y + (A * d0 - B * d1), s * x + c * y + (B * d0 + A * d1), th], -1)
 
 
-def _kalman(jnp: Any, lax: Any, invariant: bool, X: Any, P: Any, r: Any, H: Any, Rm: Any, i: Any, jj: Any) -> tuple:
+def kalman_columns(
+    jnp: Any, lax: Any, invariant: bool, X: Any, P: Any, r: Any, H: Any, Rm: Any, i: Any, jj: Any
+) -> tuple:
     """:func:`swarmloc.engine.joint_math.kalman` on the columns of robots ``i`` and ``jj``: ``(X+, P+, nis, ok)``."""
     N = P.shape[0]
     Pc = jnp.concatenate([lax.dynamic_slice(P, (0, 3 * i), (N, 3)), lax.dynamic_slice(P, (0, 3 * jj), (N, 3))], 1)
@@ -136,7 +138,7 @@ def _kalman(jnp: Any, lax: Any, invariant: bool, X: Any, P: Any, r: Any, H: Any,
 
 
 # ------------------------------------------------------------------------------------------------ the events
-def _detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tuple) -> tuple:
+def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tuple) -> tuple:
     """A detection: the observer moved to its stamp, the screening, the target (a robot: moved to the stamp too;
     ``diekf``: only if it takes the update), the measurement, the update and its outcome."""
     noise, invariant, distributed = form
@@ -159,7 +161,7 @@ def _detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: t
     if invariant:  # world-frame error columns: H N
         H = H.at[:, 5].add(jnp.where(robot, -xk[1] * H[:, 3] + xk[0] * H[:, 4], 0.0))
         H = H.at[:, 2].add(-X[i, 1] * H[:, 0] + X[i, 0] * H[:, 1])
-    xn, Pn, nis, ok = _kalman(jnp, lax, invariant, X, P, r, H, Rm, i, jr)
+    xn, Pn, nis, ok = kalman_columns(jnp, lax, invariant, X, P, r, H, Rm, i, jr)
     st, why = first_rule(jnp, [
         (st0 != 0, st0, why0),
         (degenerate, REJECTED, R_DEGENERATE),
@@ -181,7 +183,7 @@ def _kernels(noise: UnicycleNoise, invariant: bool, distributed: bool) -> Any:
         form = (noise, invariant, distributed)
         return (
             lambda s, k, t: _advance(jnp, lax, noise, invariant, s, k, t),
-            lambda s, ev: _detection(jnp, lax, form, s, ev, (t0, *const)),
+            lambda s, ev: detection(jnp, lax, form, s, ev, (t0, *const)),
             lambda s, t: _marginals(jnp, noise, invariant, s, t),
         )
 

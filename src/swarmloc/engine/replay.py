@@ -19,8 +19,8 @@ in bulk, a robot's odometry that no sequential check could refuse checked as arr
 through :func:`swarmloc.engine.joint.replay_joint` or :func:`swarmloc.engine.pairs.replay_rdl`, every detection kind
 in one compiled call, as the ``cekf`` or ``iekf`` node, the ``diekf`` nodes exchanging their broadcasts (whose
 replicas are the invariant EKF's joint state; with ``cluster = K``, each cluster's, through
-:func:`swarmloc.engine.joint_clusters.replay_clusters`, numba only) or the ``rdl`` nodes compute it; reasons are
-worded as those nodes word them.
+:func:`swarmloc.engine.joint_clusters.replay_clusters`, or with JAX :mod:`swarmloc.engine.jax_clusters`) or the
+``rdl`` nodes compute it; reasons are worded as those nodes word them.
 
 An SE(3) team (initial beliefs on SE(3), e.g. ``sim:3d``) runs on the engine's SE(3) path: body-twist odometry
 (:func:`swarmloc.events.twist_odometry`), ``"pose3"`` detections, the source's twist noise (``Source.noise``), tracks
@@ -174,7 +174,8 @@ class JointInputs(NamedTuple):
     noise: Any
     options: dict[str, Any]
     """``gate``, ``use_relative``, ``use_landmarks``, ``landmarks``; ``cluster`` for ``diekf`` in clusters (then for
-    :func:`swarmloc.engine.joint_clusters.replay_clusters`, which the batches do not take)."""
+    :func:`swarmloc.engine.joint_clusters.replay_clusters`, or :func:`swarmloc.engine.jax_clusters.
+    replay_clusters_batch` with the cluster size as its own argument)."""
     checked: Checked
     record_times: np.ndarray
     records: dict[float, tuple[int, ...]]
