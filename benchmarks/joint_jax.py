@@ -4,6 +4,7 @@ one seed per run) in runs per second: numba one run after another, JAX all runs 
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/joint_jax.py                                # datasets 6 and 9, sweeps
     python benchmarks/joint_jax.py --datasets 6 --duration 120 --batches 1,4 --rounds 1  # a quick check
+    python benchmarks/joint_jax.py --estimators diekf --cluster 2                       # diekf in clusters of 2
 
 Timed: each ``run_engine`` call whole (input checks, packing, the replay, the tracks), best of ``--rounds`` after an
 untimed call that compiles (its time printed as ``first``); the sweep's replays only (inputs packed beforehand),
@@ -39,7 +40,12 @@ def _best(fn, rounds: int) -> tuple[float, float, object]:  # noqa: ANN001
     return first, best, out
 
 
-def replay_rows(folder: Path, datasets: list[str], estimators: list[str], duration: float | None, rounds: int) -> None:
+def _name(estimator: str, cluster: int) -> str:
+    return f"{estimator} (clusters of {cluster})" if cluster and estimator == "diekf" else estimator
+
+
+def replay_rows(folder: Path, datasets: list[str], estimators: list[str], duration: float | None, rounds: int,
+                cluster: int = 0) -> None:  # fmt: skip
     print(
         "| dataset | landmarks | estimator | numba x real time | jax x real time | jax / numba | jax first call [s] "
         "| max mean difference [m] |"
@@ -54,23 +60,26 @@ def replay_rows(folder: Path, datasets: list[str], estimators: list[str], durati
                 for backend in ("numba", "jax"):
 
                     def call(b=backend, src=src, est=est, lm=lm):  # noqa: ANN001, ANN202
-                        return run_engine(src, est, backend=b, use_landmarks=lm)
+                        extra = {"cluster": cluster} if cluster and est == "diekf" else {}
+                        return run_engine(src, est, backend=b, use_landmarks=lm, **extra)
 
                     row[backend] = _best(call, rounds)
                 a, b = row["numba"][2].tracks, row["jax"][2].tracks
                 diff = max(float(np.abs(a[r].mean[:, :2] - b[r].mean[:, :2]).max(initial=0.0)) for r in a)
                 xn, xj = span / row["numba"][1], span / row["jax"][1]
                 print(
-                    f"| {d} ({span:.0f} s) | {'on' if lm else 'off'} | {est} | {xn:.0f}x | {xj:.0f}x | {xj / xn:.3f} "
-                    f"| {row['jax'][0]:.1f} | {diff:.1e} |",
+                    f"| {d} ({span:.0f} s) | {'on' if lm else 'off'} | {_name(est, cluster)} | {xn:.0f}x | {xj:.0f}x "
+                    f"| {xj / xn:.3f} | {row['jax'][0]:.1f} | {diff:.1e} |",
                     flush=True,
                 )
 
 
-def sweep_rows(batches: list[int], robots: int, duration: float, rounds: int) -> None:
+def sweep_rows(batches: list[int], robots: int, duration: float, rounds: int, cluster: int = 0) -> None:
+    from swarmloc.engine.jax_clusters import replay_clusters_batch, replay_clusters_jax
     from swarmloc.engine.jax_joint import replay_joint_batch, replay_joint_jax
     from swarmloc.engine.jax_pairs import replay_rdl_batch, replay_rdl_jax
     from swarmloc.engine.joint import replay_joint
+    from swarmloc.engine.joint_clusters import replay_clusters
     from swarmloc.engine.pairs import replay_rdl
 
     print(f"\nMonte Carlo sweep: sim:random, {robots} robots, {duration:g} s each, one seed per run")
@@ -81,6 +90,12 @@ def sweep_rows(batches: list[int], robots: int, duration: float, rounds: int) ->
     print("|---|---|---|---|---|---|")
     forms = {"diekf": (replay_joint, replay_joint_jax, replay_joint_batch, {"invariant": True}),
              "rdl": (replay_rdl, replay_rdl_jax, replay_rdl_batch, {})}  # fmt: skip
+    if cluster:  # diekf in clusters: the cluster size is the replays' sixth argument
+
+        def size(f):  # noqa: ANN001, ANN202
+            return lambda *a, **kw: f(*a, cluster, **kw)
+
+        forms["diekf"] = (size(replay_clusters), size(replay_clusters_jax), size(replay_clusters_batch), {})
     for est, (numba, one, many, extra) in forms.items():
         for b in batches:
             runs = [joint_inputs(load_source("sim:random", robots=robots, duration=duration, seed=s), est)
@@ -100,7 +115,8 @@ def sweep_rows(batches: list[int], robots: int, duration: float, rounds: int) ->
 
             _, tn, _ = _best(numba_all, rounds)
             first, tj, _ = _best(jax_all, rounds)
-            print(f"| {est} | {b} | {b / tn:.1f} | {b / tj:.1f} | {tn / tj:.3f} | {first:.1f} |", flush=True)
+            name = _name(est, cluster)
+            print(f"| {name} | {b} | {b / tn:.1f} | {b / tj:.1f} | {tn / tj:.3f} | {first:.1f} |", flush=True)
 
 
 def main() -> None:
@@ -114,6 +130,7 @@ def main() -> None:
     ap.add_argument("--batches", default="1,8,32", help="Monte Carlo runs per call, comma-separated ('' for none)")
     ap.add_argument("--sweep-robots", type=int, default=5)
     ap.add_argument("--sweep-duration", type=float, default=60.0)
+    ap.add_argument("--cluster", type=int, default=0, help="diekf in clusters of this many robots (0: exact)")
     args = ap.parse_args()
     import jax
 
@@ -123,9 +140,10 @@ def main() -> None:
     print(f"device: {jax.devices()[0]} (jax {jax.__version__}), {os.cpu_count()} CPUs\n")
     if args.datasets:
         replay_rows(Path(args.mrclam), args.datasets.split(","), args.estimators.split(","), args.duration,
-                    args.rounds)  # fmt: skip
+                    args.rounds, args.cluster)  # fmt: skip
     if args.batches:
-        sweep_rows([int(b) for b in args.batches.split(",")], args.sweep_robots, args.sweep_duration, args.rounds)
+        sweep_rows([int(b) for b in args.batches.split(",")], args.sweep_robots, args.sweep_duration, args.rounds,
+                   args.cluster)  # fmt: skip
 
 
 if __name__ == "__main__":
