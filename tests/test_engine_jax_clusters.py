@@ -13,6 +13,7 @@ import pytest
 from test_engine import _source
 from test_engine_cekf import _same, _same_on_mrclam, _with, robot_extras
 from test_engine_clusters import _nodes, _outside
+from test_engine_jax_joint import batch_equals_alone
 
 from swarmloc.engine import jax_replay, joint_inputs, run_engine
 from swarmloc.engine.jax_clusters import _weight, replay_clusters_batch, replay_clusters_jax
@@ -114,13 +115,6 @@ def test_jax_clusters_compile_once_per_bucket_and_run_many_teams_at_once() -> No
     batch = replay_clusters_batch([r[0] for r in runs], np.stack([r[1] for r in runs]),
                                   np.stack([r[2] for r in runs]), [r[3] for r in runs], runs[0][4], 2,
                                   **runs[0][5])  # fmt: skip
-    assert len(batch) == 3
-    for (s1, r1, rec1), (s2, r2, rec2) in zip(alone, batch, strict=True):
-        np.testing.assert_array_equal(s1, s2)
-        np.testing.assert_array_equal(r1, r2)
-        assert (s1 == 1).sum() > 100  # fused
-        for a, b in zip(rec1, rec2, strict=True):
-            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
-    assert not np.array_equal(alone[0][2][2][:10], alone[1][2][2][:10])
+    batch_equals_alone(alone, batch)
     with pytest.raises(ValueError, match="'cluster' must be an integer >= 1"):
         replay_clusters_jax(*runs[0][:5], 0, **runs[0][5])

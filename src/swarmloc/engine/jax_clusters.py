@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import FUSED, GATED, R_DEGENERATE, R_NONFINITE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_joint import detection, kalman_columns, predict_step
@@ -160,19 +161,19 @@ def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev
 
 
 def _detection_c(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev: dict, const: tuple) -> tuple:
-    """A detection: the observer moved to its stamp, the screening of ``diekf``'s nodes, then a robot of another
-    cluster by :func:`_outsider`, anything else by ``jax_joint``'s ``diekf`` detection on the observer's cluster."""
+    """A detection: the screening of ``diekf``'s nodes, then a robot of another cluster by :func:`_outsider`,
+    anything else by ``jax_joint``'s ``diekf`` detection on the observer's cluster; the observer moved to its stamp
+    whatever the outcome (once: in each branch)."""
     t0, n, thr, gate_on, relative, lm_on, lxy, lcov = const
     i, j, kind, t = ev["a"], ev["b"], ev["kind"], ev["t"]
-    state = _advance(jnp, lax, noise, K, state, i, t)
-    st0, why0 = screen(jnp, True, kind, i, j, t, t0, relative, lm_on)
+    st0, why0 = screen(jnp, True, kind, i, j, t, t0, relative, lm_on)  # reads no state
     b = i // K
     lo = b * K
 
     def outside(state):  # noqa: ANN001, ANN202
-        return _outsider(jnp, lax, noise, K, state, ev, (t0, n, thr, gate_on))
+        return _outsider(jnp, lax, noise, K, _advance(jnp, lax, noise, K, state, i, t), ev, (t0, n, thr, gate_on))
 
-    def inside(state):  # noqa: ANN001, ANN202
+    def inside(state):  # noqa: ANN001, ANN202 - the detection moves the observer on the view
         local = {**ev, "a": i - lo, "b": jnp.where(j >= 0, j - lo, j)}
         t0v = lax.dynamic_slice(t0, (lo,), (K,))
         view, st, why = detection(jnp, lax, (noise, True, True), _view(lax, state, lo, b, K), local,
@@ -180,7 +181,7 @@ def _detection_c(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple,
         return _put(lax, state, view, lo, b), st, why
 
     def screened(state):  # noqa: ANN001, ANN202
-        return state, st0, why0
+        return _advance(jnp, lax, noise, K, state, i, t), st0, why0
 
     branch = jnp.where(st0 != 0, 0, jnp.where((j >= 0) & (j // K != b), 1, 2))
     return lax.switch(branch, (screened, outside, inside), state)
@@ -252,14 +253,10 @@ def replay_clusters_batch(
     """Runs of one team of ``n`` robots in clusters of ``cluster`` (``x (B, n, 3)``, ``P (B, n, 3, 3)``, each run its
     own timeline and starts ``t0[b] (n,)``, every other argument shared) in one call vectorized over the runs
     (``jax.vmap``). Each run's result is :func:`replay_clusters_jax`'s."""
-    if isinstance(cluster, bool) or not isinstance(cluster, int | np.integer) or cluster < 1:
-        raise ValueError(f"replay_clusters: 'cluster' must be an integer >= 1, got {cluster!r}")
     if len(tls) != x.shape[0] or len(t0) != x.shape[0]:
         raise ValueError(f"replay_clusters_batch: {len(tls)} timelines, {x.shape[0]} initial states, {len(t0)} starts")
-    if any(np.ndim(s) != 1 for s in t0):
-        raise ValueError("replay_clusters: t0 must be each robot's start (n,), as diekf's nodes start")
     n = x.shape[1]
-    K = min(int(cluster), max(n, 1))
+    K = cluster_size(cluster, n, t0)
     starts = [_start(x[b], P[b], t0[b], K) for b in range(len(tls))]
     fn = compiled(("clusters", noise, K, n), _kernels(noise, K, n), not _single)
     const = constants(gate, use_relative, use_landmarks, landmarks)

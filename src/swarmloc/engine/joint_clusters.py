@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import FUSED, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import flush, prepare, screen_started, steps
@@ -189,12 +190,8 @@ def replay_clusters(
     ``x (n, 3)``, ``P (n, 3, 3)`` and each robot's start ``t0 (n,)`` (``inf``: never starts); the rest as
     :func:`swarmloc.engine.joint.replay_joint` (``invariant=True``), which it equals for ``cluster >= n``. Returns
     ``(status, reason, records)`` as that does."""
-    if isinstance(cluster, bool) or not isinstance(cluster, int | np.integer) or cluster < 1:
-        raise ValueError(f"replay_clusters: 'cluster' must be an integer >= 1, got {cluster!r}")
     n = x.shape[0]
-    if np.ndim(t0) != 1:
-        raise ValueError("replay_clusters: t0 must be each robot's start (n,), as diekf's nodes start")
-    K = min(int(cluster), max(n, 1))
+    K = cluster_size(cluster, n, [t0])
     p = prepare(tl, x, P, t0, gate, landmarks, True)
     J = np.zeros((-(-n // K), 3 * K, 3 * K))
     for k in range(n):
