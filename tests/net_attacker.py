@@ -98,7 +98,7 @@ class Attack:
 
     def put(self, key: str, payload: bytes, category: str | None, receivers: list[str] | None = None) -> None:
         self.sent.add(payload)
-        self.session.put(key, payload)
+        self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)  # counted: never dropped
         for r in receivers if receivers is not None else self.receivers(key):
             if category is not None:
                 self.expected[r][category] += 1

@@ -84,7 +84,7 @@ def main() -> None:
 
     def put(payload: bytes, category: str) -> None:
         mine.add(payload)
-        s.put(b1, payload)
+        s.put(b1, payload, congestion_control=zenoh.CongestionControl.BLOCK)  # counted: never dropped
         sent[category] += 1
 
     for i in range(a.rounds):

@@ -77,7 +77,7 @@ def main() -> None:
                 (raw2, honest.seal(raw2, env1), "sender_mismatch"),
                 (raw2, honest.seal(raw2, env2), NAME_REFUSED),
             ):
-                session.put(key, payload)
+                session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)  # counted: never dropped
                 expected[category] += 1
         time.sleep(0.2 if i else 0.05)
     expected["not_owner"] = expected.pop("sender_mismatch_or_not_owner")  # robot 2 on robot 1's key: not_owner

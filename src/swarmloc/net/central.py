@@ -466,7 +466,8 @@ class Forwarder:
             report = Report(robot=r, net={k: int(v) for k, v in self.counts.items()},
                             wall_s=time.perf_counter() - t_wall0, cpu_s=time.process_time() - t_cpu0)  # fmt: skip
             try:
-                self.session.put(robot_key(sc, r, "report"), self._seal(robot_key(sc, r, "report"), report))
+                rkey = robot_key(sc, r, "report")
+                self.session.put(rkey, self._seal(rkey, report), congestion_control=self._block)
                 time.sleep(0.2)  # let Zenoh flush the report
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
                 log.debug("robot %s: final report not sent: %s", r, exc)
@@ -497,7 +498,11 @@ class Forwarder:
                     if time.monotonic() - beat >= 1.0:  # alive, and where it stands
                         beat = time.monotonic()
                         k = _key(evs[0])
-                        self.session.put(pkey, self._seal(pkey, Progress(robot=self.robot, t=k[0], prio=k[1])))
+                        self.session.put(
+                            pkey,
+                            self._seal(pkey, Progress(robot=self.robot, t=k[0], prio=k[1])),
+                            congestion_control=self._block,
+                        )
                     time.sleep(min(0.02, max(0.0, due - time.monotonic())))
             nxt = _key(self.forwards[n + 1][0]) if n + 1 < len(self.forwards) else (math.inf, 1)
             d = sum(isinstance(e, Detection) for e in evs)
@@ -506,7 +511,11 @@ class Forwarder:
                       items=tuple(to_wire(e) for e in evs))  # fmt: skip
             self._send(key, self._keep(raw))
             self._resend(key)
-            self.session.put(pkey, self._seal(pkey, Progress(robot=self.robot, t=nxt[0], prio=nxt[1])))
+            self.session.put(
+                pkey,
+                self._seal(pkey, Progress(robot=self.robot, t=nxt[0], prio=nxt[1])),
+                congestion_control=self._block,
+            )
             self._flush_delayed()
         self.counts.update(forwards=len(self.forwards), forwarded_odometry=odo, forwarded_detections=det)
         self._end = self._keep(Raw(robot=self.robot, n=len(self.forwards), first=self.first, upto=math.inf,
@@ -526,7 +535,9 @@ class Forwarder:
                 last = now
                 self._send(key, self._end)
                 self.counts["end_sent"] += 1
-                self.session.put(pkey, self._seal(pkey, Progress(robot=self.robot, t=math.inf)))
+                self.session.put(
+                    pkey, self._seal(pkey, Progress(robot=self.robot, t=math.inf)), congestion_control=self._block
+                )
             gone_since = None if self._server_alive.is_set() else (gone_since or now)
             if gone_since is not None and now - gone_since > self.lost_timeout:
                 log.warning("robot %s: the server is gone; stopping without its report", self.robot)
