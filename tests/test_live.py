@@ -213,8 +213,9 @@ def test_malformed_cdr_is_counted_and_the_node_keeps_reading():
         zi = ZenohInput(a, feed, "lab")
         zi.open()
         pub = RosInputPublisher(b, 0, team="lab")
-        raw = b.declare_publisher(ri_key(ri, "odom"))
-        jpub = b.declare_publisher(input_key("lab", 0, "det"))
+        block = zenoh.CongestionControl.BLOCK  # each junk sample is counted: none may be dropped under load
+        raw = b.declare_publisher(ri_key(ri, "odom"), congestion_control=block)
+        jpub = b.declare_publisher(input_key("lab", 0, "det"), congestion_control=block)
         assert pub.wait_matched(10.0)
         wait_for(lambda: raw.matching_status.matching and jpub.matching_status.matching, 10.0, "the subscriptions")
         pub.odometry(0.1, 0.2, 0.0)

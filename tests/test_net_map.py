@@ -98,7 +98,10 @@ def test_server_refuses_malformed_and_forged_lines_and_answers_the_map(tmp_path)
                 seal(signed[0], k0, encode("mapt", 0, 2, Lines(robot=0, stamp=4.0, lines=(LINE,) * (MAX_LINES + 1)))),
             ),  # fmt: skip
         ]
-        pub = c.declare_publisher(k0)  # put only once the server's subscriber is reachable (else lost under load)
+        import zenoh
+
+        # put only once the server's subscriber is reachable, and never dropped (else lost under load)
+        pub = c.declare_publisher(k0, congestion_control=zenoh.CongestionControl.BLOCK)
         assert wait_matched_all([pub], 10.0), "the server's line subscriber never matched"
         for _, payload in bad:
             pub.put(payload)
