@@ -620,6 +620,8 @@ def _payloads():
 def test_fuzz_live_nodes_keep_publishing_correct_beliefs():
     """> 10,000 malformed or hostile messages to the inboxes of two live nodes (and malformed queries to their
     queryables); every one is dropped with a reason, and the beliefs equal the undisturbed in-process run."""
+    import zenoh
+
     src = load_source("sim:random", robots=2, duration=60.0, seed=5)
     published: dict = {}
     lock = threading.Lock()
@@ -646,8 +648,6 @@ def test_fuzz_live_nodes_keep_publishing_correct_beliefs():
     t_team_end = math.inf
     th = threading.Thread(target=team)
     th.start()
-    import zenoh
-
     fuzzer = open_session([], eps)
     t_wait = time.monotonic() + 15
     while len(list(fuzzer.info.peers_zid())) < 2 and time.monotonic() < t_wait:
