@@ -27,7 +27,7 @@ import numpy as np
 
 from swarmloc.events import Detection, Event, Odometry
 from swarmloc.net.feed import LiveFeed
-from swarmloc.net.transport import PREFIX
+from swarmloc.net.transport import PREFIX, block
 
 log = logging.getLogger(__name__)
 
@@ -171,7 +171,8 @@ class InputPublisher:
 
     def __init__(self, session: Any, scope: str, robot: int) -> None:
         self.robot = int(robot)
-        self._pubs = {w: session.declare_publisher(input_key(scope, self.robot, w)) for w in _TYPES}
+        self._pubs = {w: session.declare_publisher(input_key(scope, self.robot, w), congestion_control=block())
+                      for w in _TYPES}  # fmt: skip
         self.sent = 0
 
     def wait_matched(self, timeout: float = 10.0) -> bool:

@@ -63,7 +63,7 @@ from swarmloc.net.schema import (
     encode,
     group_tag,
 )
-from swarmloc.net.transport import alive_key, robot_key, server_key, team_scope
+from swarmloc.net.transport import alive_key, block, robot_key, server_key, team_scope
 
 __all__ = ["BeliefServer", "MapStore", "ServerProcess", "linemap_of", "observations_of", "wire_line"]
 
@@ -310,7 +310,7 @@ class ServerProcess:
         if self.hosted is not None:
             decl += [s.declare_subscriber(robot_key(self.scope, "*", w), handler=lambda x, w=w: put((w, x)))
                      for w in ("raw", "progress")]  # fmt: skip
-            self._pubs = {w: s.declare_publisher(server_key(self.scope, w), congestion_control=_block())
+            self._pubs = {w: s.declare_publisher(server_key(self.scope, w), congestion_control=block())
                           for w in ("belief", "report", "ack")}  # fmt: skip
             decl += list(self._pubs.values())
         token = s.liveliness().declare_token(alive_key(self.scope, "server"))
@@ -447,9 +447,3 @@ class ServerProcess:
 
     def _sealed(self, key: str, body: Any) -> bytes:
         return seal(self.auth, key, encode(self.team, SERVER, 0, body))
-
-
-def _block() -> Any:
-    import zenoh
-
-    return zenoh.CongestionControl.BLOCK
