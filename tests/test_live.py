@@ -202,6 +202,21 @@ def test_inputs_decode_and_malformed_ones_are_refused_with_their_reason():
         assert exc.value.reason == reason
 
 
+def test_input_publishers_block_instead_of_dropping():
+    """Every input publisher waits for room in the link's queue: Zenoh's default (DROP) loses puts on a loaded
+    machine, and an input stream ends with the count of what was sent."""
+    s = open_session([f"tcp/127.0.0.1:{free_ports(1)[0]}"])
+    try:
+        ros_pub, json_pub = RosInputPublisher(s, 0, team="lab"), InputPublisher(s, "lab", 0)
+        pubs = [*ros_pub._pubs.values(), *json_pub._pubs.values()]
+        assert len(pubs) >= 4
+        assert all(p.congestion_control == zenoh.CongestionControl.BLOCK for p in pubs)
+        ros_pub.close()
+        json_pub.close()
+    finally:
+        s.close()
+
+
 def test_malformed_cdr_is_counted_and_the_node_keeps_reading():
     p = free_ports(2)
     a = open_session([f"tcp/127.0.0.1:{p[0]}"])
