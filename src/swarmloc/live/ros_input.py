@@ -295,7 +295,7 @@ class RosInputPublisher:
         self._pubs, self._gids, self._seq = {}, {}, Counter()
         for what, msgtype in TOPICS.items():
             key = topic_key(self.topics[what], msgtype, self.domain)
-            self._pubs[what] = session.declare_publisher(key, congestion_control=block())  # reliable, keep all
+            self._pubs[what] = session.declare_publisher(key, congestion_control=block())  # wait, never drop
             # unique per publisher and session (as rmw_zenoh's, hashed from a token key holding the session id), so a
             # restarted publisher's sequence numbers, counted from 1 again, are not taken for duplicates
             zid = str(session.info.zid())
