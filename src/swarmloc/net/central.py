@@ -56,7 +56,7 @@ from swarmloc.net.schema import (
     encode,
     group_tag,
 )
-from swarmloc.net.transport import alive_key, robot_key, server_key, team_scope
+from swarmloc.net.transport import alive_key, block, robot_key, server_key, team_scope
 from swarmloc.node import Node
 
 __all__ = ["Forwarder", "Fusion", "from_wire", "to_wire"]
@@ -440,6 +440,10 @@ class Forwarder:
             else:
                 self.session.put(key, payload, congestion_control=self._block)
 
+    def _put(self, key: str, body: Any) -> None:
+        """``body`` sealed and put on ``key``, never dropped (not subject to the link faults: progress, report)."""
+        self.session.put(key, self._seal(key, body), congestion_control=self._block)
+
     def _flush_delayed(self) -> None:
         while self._delayed and self._delayed[0][0] <= time.monotonic():
             _, _, key, payload = heapq.heappop(self._delayed)
@@ -447,9 +451,7 @@ class Forwarder:
 
     def run(self, max_wall: float | None = None) -> Report:
         """Forward everything, then wait for the server's report; returns this robot's report."""
-        import zenoh
-
-        self._block = zenoh.CongestionControl.BLOCK
+        self._block = block()
         t_wall0, t_cpu0 = time.perf_counter(), time.process_time()
         end = math.inf if max_wall is None else time.monotonic() + max_wall
         s, sc, r = self.session, self.scope, self.robot
@@ -466,8 +468,7 @@ class Forwarder:
             report = Report(robot=r, net={k: int(v) for k, v in self.counts.items()},
                             wall_s=time.perf_counter() - t_wall0, cpu_s=time.process_time() - t_cpu0)  # fmt: skip
             try:
-                rkey = robot_key(sc, r, "report")
-                self.session.put(rkey, self._seal(rkey, report), congestion_control=self._block)
+                self._put(robot_key(sc, r, "report"), report)
                 time.sleep(0.2)  # let Zenoh flush the report
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
                 log.debug("robot %s: final report not sent: %s", r, exc)
@@ -498,11 +499,7 @@ class Forwarder:
                     if time.monotonic() - beat >= 1.0:  # alive, and where it stands
                         beat = time.monotonic()
                         k = _key(evs[0])
-                        self.session.put(
-                            pkey,
-                            self._seal(pkey, Progress(robot=self.robot, t=k[0], prio=k[1])),
-                            congestion_control=self._block,
-                        )
+                        self._put(pkey, Progress(robot=self.robot, t=k[0], prio=k[1]))
                     time.sleep(min(0.02, max(0.0, due - time.monotonic())))
             nxt = _key(self.forwards[n + 1][0]) if n + 1 < len(self.forwards) else (math.inf, 1)
             d = sum(isinstance(e, Detection) for e in evs)
@@ -511,11 +508,7 @@ class Forwarder:
                       items=tuple(to_wire(e) for e in evs))  # fmt: skip
             self._send(key, self._keep(raw))
             self._resend(key)
-            self.session.put(
-                pkey,
-                self._seal(pkey, Progress(robot=self.robot, t=nxt[0], prio=nxt[1])),
-                congestion_control=self._block,
-            )
+            self._put(pkey, Progress(robot=self.robot, t=nxt[0], prio=nxt[1]))
             self._flush_delayed()
         self.counts.update(forwards=len(self.forwards), forwarded_odometry=odo, forwarded_detections=det)
         self._end = self._keep(Raw(robot=self.robot, n=len(self.forwards), first=self.first, upto=math.inf,
@@ -535,9 +528,7 @@ class Forwarder:
                 last = now
                 self._send(key, self._end)
                 self.counts["end_sent"] += 1
-                self.session.put(
-                    pkey, self._seal(pkey, Progress(robot=self.robot, t=math.inf)), congestion_control=self._block
-                )
+                self._put(pkey, Progress(robot=self.robot, t=math.inf))
             gone_since = None if self._server_alive.is_set() else (gone_since or now)
             if gone_since is not None and now - gone_since > self.lost_timeout:
                 log.warning("robot %s: the server is gone; stopping without its report", self.robot)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from swarmloc.net.transport import alive_key, robot_key
+from swarmloc.net.transport import alive_key, block, robot_key
 
 
 class Wiring:
@@ -28,7 +28,7 @@ class Wiring:
         """Declare the node's queryable, subscribers, publishers and liveliness token on its session."""
         import zenoh
 
-        self._block = zenoh.CongestionControl.BLOCK  # never drop a belief, a progress announcement or a push
+        self._block = block()  # never drop a belief, a progress announcement or a push
 
         s, team, r = self.session, self.scope, self.robot  # keys: the team's scope (its name, and the run's id)
         put = self._inq.put
