@@ -44,14 +44,17 @@ TOPIC_PARAMS = ("odom_topic", "detections_topic", "initialpose_topic", "odometry
                 "diagnostics_topic")  # fmt: skip
 
 
-def initial_belief(p: RosParams) -> GroupGaussian:
-    """The robot's belief at its start from ``initial_state`` and ``initial_covariance`` (world-frame ``(x, y,
-    yaw)`` covariance, carried to the right-perturbation exponential coordinates to first order)."""
+def initial_belief(p: RosParams, given: tuple[np.ndarray, np.ndarray] | None = None) -> GroupGaussian:
+    """The robot's belief at its start: ``given`` ``(x, y, yaw)`` and world-frame covariance (an ``/initialpose``
+    before the start), else ``initial_state`` and ``initial_covariance``; the covariance carried to the
+    right-perturbation exponential coordinates to first order."""
     from swarmloc.kernels.group import absolute_to_pseudo
 
-    c = np.asarray(p.initial_covariance, dtype=float)
-    C = np.diag(c) if c.size == 3 else c.reshape(3, 3)
-    mean, cov = absolute_to_pseudo(np.asarray(p.initial_state, dtype=float), 0.5 * (C + C.T))
+    if given is None:
+        c = np.asarray(p.initial_covariance, dtype=float)
+        given = (np.asarray(p.initial_state, dtype=float), np.diag(c) if c.size == 3 else c.reshape(3, 3))
+    xyt, C = given
+    mean, cov = absolute_to_pseudo(xyt, 0.5 * (C + C.T))
     return GroupGaussian(SE2, mean, cov)
 
 
@@ -105,7 +108,7 @@ class RosNode:
         self.topics["tf"] = args.resolve("/tf", self.namespace, self.name)
         self.topics["clock"] = args.resolve("/clock", self.namespace, self.name)
         self.config = p.config()
-        self.initial = initial_belief(p)
+        initial_belief(p)  # a bad initial state or covariance is refused now, not at the first odometry
         self.timeline = InputTimeline(self.robot, base_frame=p.base_link_frame, world_frame=p.world_frame,
                                       mounts={k: tuple(v) for k, v in p.sensor_mounts.items()},  # type: ignore[misc]
                                       robots=frozenset(p.team_ids))  # fmt: skip
@@ -237,7 +240,8 @@ class RosNode:
         from swarmloc.net.transport import open_session
 
         p = self.params
-        node = make_node(p.estimator, self.robot, self.initial, self.config, p.landmark_table(), team=p.team_ids)
+        initial = initial_belief(p, self.timeline.initial)
+        node = make_node(p.estimator, self.robot, initial, self.config, p.landmark_table(), team=p.team_ids)
         node.start(float(self.timeline.t0))  # type: ignore[arg-type]
         if self._team_session is None:
             self._team_session = open_session(p.team_listen, p.team_connect)

@@ -265,14 +265,13 @@ def _check(p: RosParams) -> None:
 
 def defaults_yaml(node: str = "swarmloc") -> str:
     """Every parameter with its default, as a ``ros__parameters`` YAML with each one's meaning as a comment."""
-    import yaml
+    import json
 
     lines = [f"{node}:", "  ros__parameters:"]
     for f, doc in zip(msgspec.structs.fields(RosParams), _docs(), strict=True):
         value = f.default if f.default is not msgspec.NODEFAULT else f.default_factory()
-        text = yaml.safe_dump({f.name: value}, default_flow_style=True, width=1000).strip().strip("{}")
         lines.append(f"    # {doc}")
-        lines.append(f"    {text}")
+        lines.append(f"    {f.name}: {json.dumps(value)}")  # JSON is YAML's flow style
     return "\n".join(lines) + "\n"
 
 

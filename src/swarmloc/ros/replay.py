@@ -80,7 +80,7 @@ def replay_messages(
         res.timelines[r] = tl
         if tl.t0 is None:
             continue
-        node = make_node(p.estimator, r, initial_belief(p), p.config(), p.landmark_table(), team=p.team_ids)
+        node = make_node(p.estimator, r, initial_belief(p, tl.initial), p.config(), p.landmark_table(), team=p.team_ids)
         node.start(tl.t0)
         nodes.append(node)
         events += evs

@@ -1,8 +1,10 @@
 """One robot's ROS inputs as swarmloc events, in one place for the live node and the replay of a recording.
 
-The robot's start ``t0`` is the stamp of its first odometry message (its belief there is ``initial_state``); each
-later odometry message closes an interval (:mod:`swarmloc.ros.convert`). Detections and initial poses stamped
-before ``t0`` are refused (``before_start``); those that arrive before the first odometry wait for it (at most
+The robot's start ``t0`` is the stamp of its first odometry message (its belief there is ``initial_state``, or
+the last ``/initialpose`` that came before it); each later odometry message closes an interval
+(:mod:`swarmloc.ros.convert`). An ``/initialpose`` after the start is an absolute fix of the robot's pose, fused
+(and gated) like any measurement: the team's correlations stay consistent, which a hard reset of one robot's
+belief would break. Detections stamped before ``t0`` are refused (``before_start``); those that arrive before the first odometry wait for it (at most
 :data:`MAX_EARLY`). The odometry samples are kept (a bounded window) for the ``map -> odom`` transform and the
 output's twist. Every message ends counted: turned into events, or refused with its reason.
 """
@@ -44,6 +46,8 @@ class InputTimeline:
         self.mounts = dict(mounts or {})
         self.robots = robots
         self.t0: float | None = None
+        self.initial: tuple[np.ndarray, np.ndarray] | None = None
+        """``(x, y, yaw)`` and its world-frame covariance from an ``/initialpose`` before the start (None: none)."""
         self.samples: deque[OdomSample] = deque(maxlen=MAX_SAMPLES)
         self._times: deque[float] = deque(maxlen=MAX_SAMPLES)
         self._early: deque[Any] = deque()
@@ -105,7 +109,11 @@ class InputTimeline:
         except Refused as exc:
             self.reasons[f"initialpose_{exc.reason}"] += 1
             return []
-        if self.t0 is None or d.t < self.t0:
+        if self.t0 is None:
+            self.initial = (np.asarray(d.z, dtype=float), np.asarray(d.cov, dtype=float))
+            self.counts["initialpose_initial"] += 1
+            return []
+        if d.t < self.t0:
             self.reasons["initialpose_before_start"] += 1
             return []
         self.counts["events"] += 1
