@@ -24,8 +24,10 @@ def header(t: float, frame: str) -> Any:
 def pose(xyt: Any) -> Any:
     T = typestore().types
     qx, qy, qz, qw = rosmsg.yaw_to_quaternion(float(xyt[2]))
-    return T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(xyt[0]), y=float(xyt[1]), z=0.0),
-                                       orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))
+    return T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=float(xyt[0]), y=float(xyt[1]), z=0.0),
+        orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+    )
 
 
 def odometry(t: float, v: float, w: float, xyt: Any) -> Any:
@@ -33,9 +35,11 @@ def odometry(t: float, v: float, w: float, xyt: Any) -> Any:
     v3 = T["geometry_msgs/msg/Vector3"]
     tw = T["geometry_msgs/msg/Twist"](linear=v3(x=float(v), y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=float(w)))
     return T["nav_msgs/msg/Odometry"](
-        header=header(t, "odom"), child_frame_id="base_link",
+        header=header(t, "odom"),
+        child_frame_id="base_link",
         pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(xyt), covariance=np.zeros(36)),
-        twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=np.diag([0.01] * 6).reshape(36)))
+        twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=np.diag([0.01] * 6).reshape(36)),
+    )
 
 
 def detections(t: float, dets: list[Detection], frame: str = "base_link") -> Any:
@@ -53,8 +57,11 @@ def detections(t: float, dets: list[Detection], frame: str = "base_link") -> Any
         cov6[2, 2] = cov6[3, 3] = cov6[4, 4] = 1e6
         hyp = T["vision_msgs/msg/ObjectHypothesisWithPose"](
             hypothesis=T["vision_msgs/msg/ObjectHypothesis"](class_id=f"robot{d.target}", score=1.0),
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(z), covariance=cov6.reshape(36)))
-        bbox = T["vision_msgs/msg/BoundingBox3D"](center=pose(z), size=T["geometry_msgs/msg/Vector3"](x=0.3, y=0.3, z=0.2))
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(z), covariance=cov6.reshape(36)),
+        )
+        bbox = T["vision_msgs/msg/BoundingBox3D"](
+            center=pose(z), size=T["geometry_msgs/msg/Vector3"](x=0.3, y=0.3, z=0.2)
+        )
         out.append(T["vision_msgs/msg/Detection3D"](header=header(t, frame), results=[hyp], bbox=bbox, id=""))
     return T["vision_msgs/msg/Detection3DArray"](header=header(t, frame), detections=out)
 

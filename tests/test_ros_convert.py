@@ -12,7 +12,6 @@ from _ros_sim import detections, odometry
 from scipy.linalg import logm
 
 from swarmloc.events import Detection
-from swarmloc.lie import SE2
 from swarmloc.rmw import typestore
 from swarmloc.ros import convert as cv
 from swarmloc.ros.timeline import InputTimeline, record_times
@@ -34,7 +33,8 @@ def _array(z, C6, cls="robot2", frame="cam", t=10.0):
 
     hyp = T["vision_msgs/msg/ObjectHypothesisWithPose"](
         hypothesis=T["vision_msgs/msg/ObjectHypothesis"](class_id=cls, score=0.9),
-        pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(z), covariance=np.asarray(C6, float).reshape(36)))
+        pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(z), covariance=np.asarray(C6, float).reshape(36)),
+    )
     bbox = T["vision_msgs/msg/BoundingBox3D"](center=pose(z), size=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0))
     det = T["vision_msgs/msg/Detection3D"](header=header(t, frame), results=[hyp], bbox=bbox, id="")
     return T["vision_msgs/msg/Detection3DArray"](header=header(t, frame), detections=[det])

@@ -36,21 +36,43 @@ def test_three_ros_nodes_on_a_bus_equal_the_replay_of_their_messages():
         from swarmloc.lie import SE2
 
         xyt = SE2.to_xytheta(np.asarray(x0.mean))
-        p = load_params([], {"robot_id": r, "team_robots": list(src.robots), "no_auth": True, "frequency": 5.0,
-                             "initial_state": [float(v) for v in xyt], "window": 0.3, "team": "rostest",
-                             "initial_covariance": [1e-4, 1e-4, 1e-4],
-                             "odom_frame": f"robot{r}/odom", "base_link_frame": f"robot{r}/base_link"}, "swarmloc", f"/robot{r}")
+        p = load_params(
+            [],
+            {
+                "robot_id": r,
+                "team_robots": list(src.robots),
+                "no_auth": True,
+                "frequency": 5.0,
+                "initial_state": [float(v) for v in xyt],
+                "window": 0.3,
+                "team": "rostest",
+                "initial_covariance": [1e-4, 1e-4, 1e-4],
+                "odom_frame": f"robot{r}/odom",
+                "base_link_frame": f"robot{r}/base_link",
+            },
+            "swarmloc",
+            f"/robot{r}",
+        )
         params[r] = p
-        nodes[r] = RosNode(p, name="swarmloc", namespace=f"/robot{r}", args=RosArgs(), middleware=bus.middleware(),
-                           team_session=sessions[k])
+        nodes[r] = RosNode(
+            p,
+            name="swarmloc",
+            namespace=f"/robot{r}",
+            args=RosArgs(),
+            middleware=bus.middleware(),
+            team_session=sessions[k],
+        )
     threads = [threading.Thread(target=n.run, kwargs={"max_wall": 60}, daemon=True) for n in nodes.values()]
     for th in threads:
         th.start()
     offset = time.time() + 1.0
     msgs = team_messages(src, offset, "robot{r}/base_link")
     pub = bus.middleware()
-    pubs = {(r, kind): pub.publisher(f"/robot{r}/{'odom' if kind == 'odometry' else 'detections'}", "")
-            for r in src.robots for kind in ("odometry", "detections")}
+    pubs = {
+        (r, kind): pub.publisher(f"/robot{r}/{'odom' if kind == 'odometry' else 'detections'}", "")
+        for r in src.robots
+        for kind in ("odometry", "detections")
+    }
     sent = {r: [] for r in src.robots}
     for t, r, kind, m in msgs:
         delay = t - time.time()

@@ -43,8 +43,16 @@ def test_ros_args_remaps_params_and_files():
     assert ros.resolve("/robot1/odom", "/robot1", "swarmloc") == "/robot1/wheel/odom"  # matched when expanded
 
 
-@pytest.mark.parametrize("argv", [["--ros-args", "-r", "odom"], ["--ros-args", "-p"], ["--ros-args", "-x", "a:=b"],
-                                  ["--ros-args", "-r", "__ns:=robot1"], ["--ros-args", "-r", "odom:=1bad"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--ros-args", "-r", "odom"],
+        ["--ros-args", "-p"],
+        ["--ros-args", "-x", "a:=b"],
+        ["--ros-args", "-r", "__ns:=robot1"],
+        ["--ros-args", "-r", "odom:=1bad"],
+    ],
+)
 def test_bad_ros_args_are_refused(argv):
     with pytest.raises(RosArgsError):
         parse_ros_args(argv)
@@ -52,12 +60,24 @@ def test_bad_ros_args_are_refused(argv):
 
 def test_params_file_sections_wildcards_and_overrides(tmp_path):
     f = tmp_path / "team.yaml"
-    f.write_text(yaml.safe_dump({
-        "/**": {"ros__parameters": {"team": "lab", "team_robots": [0, 1, 2], "frequency": 20.0,
-                                    "motion": {"q_v0": 0.001}}},
-        "/robot1/swarmloc": {"ros__parameters": {"robot_id": 1, "sensor_mounts": {"robot1/camera": [0.1, 0, 0]}}},
-        "/robot2/swarmloc": {"ros__parameters": {"robot_id": 2}},
-    }))
+    f.write_text(
+        yaml.safe_dump(
+            {
+                "/**": {
+                    "ros__parameters": {
+                        "team": "lab",
+                        "team_robots": [0, 1, 2],
+                        "frequency": 20.0,
+                        "motion": {"q_v0": 0.001},
+                    }
+                },
+                "/robot1/swarmloc": {
+                    "ros__parameters": {"robot_id": 1, "sensor_mounts": {"robot1/camera": [0.1, 0, 0]}}
+                },
+                "/robot2/swarmloc": {"ros__parameters": {"robot_id": 2}},
+            }
+        )
+    )
     p = load_params([str(f)], {"frequency": 5}, "swarmloc", "/robot1")
     assert (p.robot_id, p.team, p.frequency, p.team_ids) == (1, "lab", 5.0, [0, 1, 2])
     assert p.config().motion.q_v0 == 0.001 and p.sensor_mounts == {"robot1/camera": [0.1, 0.0, 0.0]}

@@ -82,12 +82,13 @@ def _run(args: argparse.Namespace, ros: Any) -> int:
     signal.signal(signal.SIGTERM, lambda *_: node.stop())
     signal.signal(signal.SIGINT, lambda *_: node.stop())
     t = node.topics
-    print(f"swarmloc ros: robot {params.robot_id} of team {params.team} ({params.estimator}, {params.middleware} domain "
-          f"{params.domain_id}): in {t['odom_topic']}, {t['detections_topic']}, {t['initialpose_topic']}; out "
-          f"{t['odometry_topic']}, {t['pose_topic']}" + (", /tf" if params.publish_tf else "")
-          + f", {t['diagnostics_topic']}; waiting for the first odometry", flush=True)  # fmt: skip
+    outs = [t["odometry_topic"], t["pose_topic"], *(["/tf"] if params.publish_tf else []), t["diagnostics_topic"]]
+    print(f"swarmloc ros: robot {params.robot_id} of team {params.team} ({params.estimator}, {params.middleware}, "
+          f"domain {params.domain_id}): in {t['odom_topic']}, {t['detections_topic']}, {t['initialpose_topic']}; "
+          f"out {', '.join(outs)}; waiting for the first odometry", flush=True)  # fmt: skip
     report = node.run(max_wall=args.max_wall)
     d = node.diagnostics()
-    print(f"swarmloc ros: robot {params.robot_id}: {d.get('output_odometry', 0)} outputs; {d.get('fused', 0)} detections "
-          f"fused, {d.get('gated', 0)} gated, {d.get('unknown', 0)} unknown" + ("" if report else "; no odometry came"))
+    print(f"swarmloc ros: robot {params.robot_id}: {d.get('output_odometry', 0)} outputs; {d.get('fused', 0)} "
+          f"detections fused, {d.get('gated', 0)} gated, {d.get('unknown', 0)} unknown"
+          + ("" if report else "; no odometry came"))  # fmt: skip
     return 0

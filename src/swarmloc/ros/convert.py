@@ -116,7 +116,9 @@ def _target(best: Any) -> tuple[int | None, bool]:
     """``(target id or None, is a robot)`` of a hypothesis's class id."""
     hit = _TARGET.match(str(best.hypothesis.class_id))
     if hit is None:
-        raise Refused("unknown_class", f"class id {str(best.hypothesis.class_id)[:40]!r} is not robot<N> or landmark<N>")
+        raise Refused(
+            "unknown_class", f"class id {str(best.hypothesis.class_id)[:40]!r} is not robot<N> or landmark<N>"
+        )
     is_robot = hit.group(1) == "robot"
     if hit.group(2) is None and not is_robot:
         raise Refused("unknown_class", "a landmark needs its number (landmark<N>)")

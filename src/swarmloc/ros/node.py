@@ -84,8 +84,8 @@ class RosNode:
 
     ``name``/``namespace``: the node's ROS name (``args`` may remap them and its topics); ``middleware``: an open
     :class:`~swarmloc.rmw.Middleware` (None: opened from the parameters); ``team_session``: an open Zenoh session for
-    the team's network (None: opened on ``team_listen``/``team_connect``); ``auth``: the team's :class:`~swarmloc.net.auth.Auth`
-    (None: loaded from ``key_file``/``roster_file``; unsigned with ``no_auth``).
+    the team's network (None: opened on ``team_listen``/``team_connect``); ``auth``: the team's
+    :class:`~swarmloc.net.auth.Auth` (None: loaded from ``key_file``/``roster_file``; unsigned with ``no_auth``).
     """
 
     def __init__(
@@ -225,8 +225,11 @@ class RosNode:
         refused = sum(v for k, v in d.items() if k.startswith(("refused_", "late_", "frames_refused")))
         if d.get("teammates_lost") or refused:
             level = 1
-        msg = ("waiting for the first odometry" if self.net is None else
-               f"{d.get('fused', 0)} detections fused, {d.get('gated', 0)} gated, {d.get('unknown', 0)} unknown")
+        msg = (
+            "waiting for the first odometry"
+            if self.net is None
+            else f"{d.get('fused', 0)} detections fused, {d.get('gated', 0)} gated, {d.get('unknown', 0)} unknown"
+        )
         now = self.clock.now() or time.time()
         self._pubs["diagnostics"].publish(cv.diagnostics_out(now, f"swarmloc: robot{self.robot} localization",
                                                              f"robot{self.robot}", level, msg, d))  # fmt: skip

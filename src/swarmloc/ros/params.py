@@ -211,9 +211,7 @@ def read_params_file(path: str | os.PathLike[str], node: str, fqn: str) -> dict[
     return out
 
 
-def load_params(
-    files: list[str], overrides: dict[str, Any], node: str = "swarmloc", namespace: str = "/"
-) -> RosParams:
+def load_params(files: list[str], overrides: dict[str, Any], node: str = "swarmloc", namespace: str = "/") -> RosParams:
     """The node's :class:`RosParams` from ``files`` (in order) then ``overrides`` (``-p NAME:=VALUE``)."""
     fqn = f"{namespace.rstrip('/')}/{node}"
     flat: dict[str, Any] = {}

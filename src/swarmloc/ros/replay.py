@@ -120,8 +120,8 @@ def replay_bag(bag: str, params_file: str, out: str | None = None, args: RosArgs
     remapped as live); with ``out``, write the outputs (``Odometry``, ``/tf``) to a new rosbag2 there."""
     from rosbags.highlevel import AnyReader
 
-    from swarmloc.ros.params import load_params
     from swarmloc.rmw import typestore
+    from swarmloc.ros.params import load_params
 
     args = args or RosArgs()
     params: dict[int, RosParams] = {}
