@@ -6,7 +6,8 @@ the last ``/initialpose`` that came before it); each later odometry message clos
 (and gated) like any measurement: the team's correlations stay consistent, which a hard reset of one robot's
 belief would break. Detections stamped before ``t0`` are refused (``before_start``); those that arrive before the
 first odometry wait for it (at most :data:`MAX_EARLY`). The odometry samples are kept (a bounded window) for the
-``map -> odom`` transform and the output's twist. Every message ends counted: turned into events, or refused with its reason.
+``map -> odom`` transform and the output's twist. Every message ends counted: turned into events, or refused
+with its reason.
 """
 
 from __future__ import annotations
