@@ -113,3 +113,22 @@ def test_the_defaults_listing_is_every_parameter_and_reads_back():
     assert list(got) == [f for f in RosParams.__struct_fields__]
     assert load_params([], got) == RosParams()
     assert text.count("    # ") == len(got) and "    # \n" not in text  # every parameter has its meaning
+
+
+def test_the_shipped_example_params_and_launch_lines_load_for_every_robot():
+    import ast
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parents[1] / "examples" / "ros2"
+    launch = (here / "team.launch.py").read_text()
+    ast.parse(launch)
+    for r in range(3):
+        argv = ["ros", "--ros-args", "--params-file", str(here / "team.yaml"), "-r", f"__ns:=/robot{r}",
+                "-r", "odom:=wheel/odom", "-r", "detections:=camera/detections"]  # fmt: skip
+        ros, rest = parse_ros_args(argv)
+        assert rest == ["ros"]
+        p = load_params(ros.params_files, ros.params, "swarmloc", ros.namespace)
+        assert (p.robot_id, p.team_ids, p.estimator, p.base_link_frame) == (r, [0, 1, 2], "diekf", f"robot{r}/base_link")
+        assert ros.resolve(p.odom_topic, ros.namespace, "swarmloc") == f"/robot{r}/wheel/odom"
+        assert ros.resolve(p.odometry_topic, ros.namespace, "swarmloc") == f"/robot{r}/odometry/filtered"
+    assert '"odom:=wheel/odom"' in launch and '"detections:=camera/detections"' in launch
