@@ -286,3 +286,37 @@ def _docs() -> list[str]:
         if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant):
             docs[a.target.id] = " ".join(str(b.value.value).split())  # type: ignore[union-attr]
     return [docs.get(f.name, "") for f in msgspec.structs.fields(RosParams)]
+
+
+def params_markdown() -> str:
+    """Every parameter as a Markdown table (name, type and range, default, meaning): the documentation's table."""
+    import json
+    import typing
+
+    rows = ["| parameter | type | default | meaning |", "|---|---|---|---|"]
+    for f, doc in zip(msgspec.structs.fields(RosParams), _docs(), strict=True):
+        value = f.default if f.default is not msgspec.NODEFAULT else f.default_factory()
+        rows.append(f"| `{f.name}` | {_type_text(f.type, typing)} | `{json.dumps(value)}` | {doc.replace('|', '/')} |")
+    return "\n".join(rows) + "\n"
+
+
+def _type_text(tp: Any, typing: Any) -> str:
+    """``float, > 0, <= 1000`` / ``list of float (3)`` / one of the literals."""
+    if typing.get_origin(tp) is Annotated:
+        base, *meta = typing.get_args(tp)
+        marks = []
+        for m in meta:
+            for key, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+                v = getattr(m, key, None)
+                if v is not None:
+                    marks.append(f"{sym} {v if isinstance(v, int) else format(v, 'g')}")
+            if getattr(m, "min_length", None) is not None and m.min_length == m.max_length:
+                marks.append(f"{m.min_length} items")
+            elif getattr(m, "max_length", None) is not None and typing.get_origin(base) is list:
+                marks.append(f"{m.min_length or 0}-{m.max_length} items")
+        return ", ".join([_type_text(base, typing), *marks])
+    if typing.get_origin(tp) is Literal:
+        return " / ".join(f"`{a}`" for a in typing.get_args(tp))
+    if typing.get_origin(tp) in (list, dict):
+        return f"{typing.get_origin(tp).__name__} of {_type_text(typing.get_args(tp)[-1], typing)}"
+    return "map" if tp is Any else getattr(tp, "__name__", str(tp))
