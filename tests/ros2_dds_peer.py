@@ -12,9 +12,10 @@ Modes (each exits on its own after ``--duration`` seconds at most)::
 
     ros2_dds_peer.py publish --input msgs.jsonl [--sent sent.jsonl]
         Lines {"topic": "/r1/odom", "type": "nav_msgs/msg/Odometry", "msg": {...}, "at": 0.5}: waits until every
-        topic's writer has a matched reader (``--match-timeout``), then publishes each message at ``at`` seconds
-        (default: one after the other), writing each line it sent, with its wall time ("sent_ns"), to ``--sent``;
-        then stays ``--linger`` seconds so reliable data is acknowledged. Prints "matched" when it starts sending.
+        topic's writer has ``--readers`` matched readers (``--match-timeout``), then publishes each message at
+        ``at`` seconds (default: one after the other), writing each line it sent, with its wall time ("sent_ns"),
+        to ``--sent``; then stays ``--linger`` seconds so reliable data is acknowledged. Prints "matched" when it
+        starts sending.
     ros2_dds_peer.py echo --topic /r1/odom:nav_msgs/msg/Odometry [...] [--out got.jsonl] [--count N]
         Subscribes and writes each sample as a line {"topic", "type", "msg", "source_ns"} (stdout if no --out),
         stops after ``--count`` samples in all. Prints "ready" on stderr once its readers exist.
@@ -47,8 +48,8 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
 # ---------------------------------------------------------------------------------------- ROS 2 types, by hand
-# builtin_interfaces, std_msgs, geometry_msgs, nav_msgs, sensor_msgs, tf2_msgs, diagnostic_msgs, rosgraph_msgs
-# (ROS 2 Jazzy) and vision_msgs 4.1.1.
+# builtin_interfaces, std_msgs, geometry_msgs, nav_msgs, sensor_msgs, tf2_msgs, diagnostic_msgs, rosgraph_msgs,
+# rmw_dds_common (ROS 2 Jazzy) and vision_msgs 4.1.1.
 
 
 @final
@@ -234,6 +235,28 @@ class Detection3DArray(IdlStruct, typename="vision_msgs::msg::dds_::Detection3DA
     detections: t.sequence[Detection3D] = field(default_factory=list)
 
 
+@final
+@dataclass
+class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: t.array[t.uint8, 16] = field(default_factory=lambda: [0] * 16)  # char[16]: IDL uint8
+
+
+@final
+@dataclass
+class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: t.bounded_str[256] = ""
+    node_name: t.bounded_str[256] = ""
+    reader_gid_seq: t.sequence[Gid] = field(default_factory=list)
+    writer_gid_seq: t.sequence[Gid] = field(default_factory=list)
+
+
+@final
+@dataclass
+class ParticipantEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
+    gid: Gid = field(default_factory=Gid)
+    node_entities_info_seq: t.sequence[NodeEntitiesInfo] = field(default_factory=list)
+
+
 TYPES = {
     "nav_msgs/msg/Odometry": Odometry,
     "geometry_msgs/msg/PoseWithCovarianceStamped": PoseWithCovarianceStamped,
@@ -243,6 +266,7 @@ TYPES = {
     "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray,
     "rosgraph_msgs/msg/Clock": Clock,
     "vision_msgs/msg/Detection3DArray": Detection3DArray,
+    "rmw_dds_common/msg/ParticipantEntitiesInfo": ParticipantEntitiesInfo,
 }
 
 
@@ -325,7 +349,7 @@ def publish(args: argparse.Namespace) -> int:
             topic = Topic(dp, ros_topic(k[0]), TYPES[k[1]])
             writers[k] = DataWriter(dp, topic, qos=endpoint_qos(args.qos == "best_effort", args.typehash))
     deadline = time.monotonic() + args.match_timeout
-    while any(not w.get_matched_subscriptions() for w in writers.values()):
+    while any(len(w.get_matched_subscriptions()) < args.readers for w in writers.values()):
         if time.monotonic() > deadline:
             print("no reader matched", file=sys.stderr)
             return 1
@@ -389,6 +413,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--input", default="-")
     ap.add_argument("--sent", default=None)
     ap.add_argument("--match-timeout", type=float, default=15.0)
+    ap.add_argument("--readers", type=int, default=1, help="publish once each writer has this many matched readers")
     ap.add_argument("--linger", type=float, default=1.0)
     ap.add_argument("--topic", action="append", default=[], help="TOPIC:TYPE to echo (repeatable)")
     ap.add_argument("--out", default=None)
