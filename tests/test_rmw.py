@@ -391,11 +391,11 @@ def test_ros_discovery_info_names_the_node_and_its_endpoints():
         rd = DataReader(dp, Topic(dp, "ros_discovery_info", peer.ParticipantEntitiesInfo), qos=qos)
         latest: list[Any] = []
 
-        def announced() -> bool:
+        def announced(writers: int) -> bool:
             latest.extend(s for s in rd.take(N=16) if s.sample_info.valid_data)
-            return bool(latest) and len(latest[-1].node_entities_info_seq[0].writer_gid_seq) == 1
+            return bool(latest) and len(latest[-1].node_entities_info_seq[0].writer_gid_seq) == writers
 
-        _until(announced, "the discovery info")
+        _until(lambda: announced(1), "the discovery info")
         info = latest[-1]
         assert bytes(info.gid.data) == mw.gid
         (node,) = info.node_entities_info_seq
@@ -403,6 +403,10 @@ def test_ros_discovery_info_names_the_node_and_its_endpoints():
         assert [bytes(g.data) for g in node.reader_gid_seq] == [sub.gid]
         assert [bytes(g.data) for g in node.writer_gid_seq] == [pub.gid]
         assert dp.guid.bytes != mw.gid
+        pub.close()  # a closed writer leaves the announcement
+        latest.clear()
+        _until(lambda: announced(0), "the writer's removal")
+        assert [bytes(g.data) for g in latest[-1].node_entities_info_seq[0].reader_gid_seq] == [sub.gid]
     finally:
         mw.close()
 
@@ -515,6 +519,9 @@ def test_zenoh_round_trip_with_an_rmw_zenoh_layout_peer(tmp_path):
         for k in (1, 2):
             pub.publish(odometry(k))
         echoed = [json.loads(x) for x in _finish(echo).splitlines()]
+        assert pub.token in mw.graph.keys
+        pub.close()  # its MP liveliness token goes with it
+        assert pub.token not in mw.graph.keys and any("/NN/" in k for k in mw.graph.keys)
         assert [e["msg"] for e in echoed] == [as_json(odometry(1)), as_json(odometry(2))]
         assert [e["seq"] for e in echoed] == [1, 2] and {e["gid"] for e in echoed} == {pub.gid.hex()}
 
