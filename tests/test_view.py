@@ -33,6 +33,7 @@ import websockets
 from mcap.reader import make_reader
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
 
 from swarmloc.evaluation.metrics import errors
 from swarmloc.experiments.sources import load_source
@@ -261,6 +262,10 @@ def test_team_view_streams_ros2_messages_to_the_ws_protocol_client_and_records_t
         assert reader.get_header().profile == "ros2"
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
     assert float(meta["swarmloc"]["epoch"]) == view.epoch
+    # and as rosbag2 sees a bag (rosbags reads the file as its storage plugin does: types from the schemas)
+    with AnyReader([tmp_path / "team.mcap"]) as bag:
+        assert Counter(c.topic for c, _, raw in bag.messages() if bag.deserialize(raw, c.msgtype)) == view.counts
+        assert {c.topic: c.msgtype for c in bag.connections} == {t: channel_type(t) for t in view.counts}
 
 
 def _ros_ns(t: float) -> int:

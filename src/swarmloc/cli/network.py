@@ -169,6 +169,7 @@ def _linger(view: Any, args: argparse.Namespace) -> None:
         print(f"live view: the run has ended; still serving {view.url} {until}", flush=True)
         try:
             view.wait(seconds)
+            print("live view: closed", flush=True)
         except KeyboardInterrupt:
             print("live view: stopped", flush=True)
     finally:
