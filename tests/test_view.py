@@ -403,6 +403,35 @@ def test_view_refuses_other_subprotocols_and_bad_client_messages_and_keeps_servi
         view.close()
 
 
+def test_a_late_subscriber_gets_the_channels_bounded_history_then_the_new_messages():
+    """History per channel: at most ``history`` messages and ``history_bytes`` payload bytes, oldest dropped."""
+    from swarmloc.net.foxglove_ws import FoxgloveServer
+
+    server = FoxgloveServer(port=0, history=3, history_bytes=250)
+    try:
+        a, b = server.add_channel("/a", "std_msgs/msg/String", "string data"), server.add_channel("/b", "x", "")
+        for i in range(5):
+            server.publish(a, i, bytes([i]) * 10)  # 5 messages: the last 3 kept
+            server.publish(b, i, bytes([i]) * 100)  # 500 bytes: the last 2 kept
+
+        async def late():
+            async with websockets.connect(f"ws://127.0.0.1:{server.port}", subprotocols=["foxglove.sdk.v1"]) as ws:
+                await ws.recv(), await ws.recv()  # server info, advertisements
+                subs = [{"id": 7, "channelId": a}, {"id": 8, "channelId": b}]
+                await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                got = [await asyncio.wait_for(ws.recv(), 10) for _ in range(5)]
+                server.publish(a, 99, b"new")
+                got.append(await asyncio.wait_for(ws.recv(), 10))
+                return [(*struct.unpack_from("<BIQ", m)[1:], m[13:]) for m in got]
+
+        got = asyncio.run(late())
+    finally:
+        server.close()
+    assert got == [(7, i, bytes([i]) * 10) for i in (2, 3, 4)] + [(8, i, bytes([i]) * 100) for i in (3, 4)] + [
+        (7, 99, b"new")
+    ]
+
+
 def test_the_shipped_layout_names_only_the_views_channels():
     """The layout is JSON in Foxglove's layout format (panels by id, a split tree of them) and names only channels
     the view publishes (the team run above checks each has messages)."""

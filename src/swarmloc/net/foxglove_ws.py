@@ -10,13 +10,15 @@ accepts both and speaks the part of v1 a viewer needs:
 * sent on connect: ``serverInfo`` (no optional capability; ``metadata`` as given) and ``advertise`` of every
   channel; later ``advertise`` for channels added while clients are connected;
 * from clients: ``subscribe`` / ``unsubscribe``; each subscription gets the channel's **history** first (its
-  last ``history`` messages, so that a client connecting after the team ended still sees the run), then every new
-  message as a binary Message Data frame ``0x01 | uint32 subscription id | uint64 log time [ns] | payload``;
+  last ``history`` messages, at most ``history_bytes`` of them, so that a client connecting after the team ended
+  still sees the run), then every new message as a binary Message Data frame ``0x01 | uint32 subscription id |
+  uint64 log time [ns] | payload``;
 * anything else a client sends (other ops, client binary frames, malformed JSON, unknown channels, reused ids) is
   refused with a ``status`` message (level 1 warning or 2 error), counted in :attr:`FoxgloveServer.refused` by
   reason and logged once per reason; the connection stays up. A client frame is at most 64 KiB and a subscribe
   message at most :data:`MAX_SUBSCRIPTIONS` entries; a client's outgoing queue holds at most ``queue_bytes``
-  bytes of data frames (the frames that do not fit are dropped and counted: a slow viewer never stalls the team).
+  bytes of data and status frames (those that do not fit are dropped and counted: a slow viewer, or one that sends
+  without reading, never stalls the team nor grows the server's memory).
 
 A client offering neither subprotocol gets HTTP 400 "invalid subprotocol; expected one of ..." (the names).
 The server runs its own asyncio loop in a daemon thread; :meth:`FoxgloveServer.add_channel` and
@@ -32,7 +34,7 @@ import struct
 import threading
 from collections import Counter, deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeGuard
 
 __all__ = ["MAX_SUBSCRIPTIONS", "SUBPROTOCOLS", "Channel", "FoxgloveServer"]
 
@@ -68,8 +70,8 @@ class Channel:
 class _Client:
     ws: Any
     wake: asyncio.Event = field(default_factory=asyncio.Event)
-    frames: deque[bytes | str] = field(default_factory=deque)
-    queued: int = 0  # bytes of data frames in ``frames``
+    frames: deque[tuple[bytes, bool]] = field(default_factory=deque)  # (frame, is text)
+    queued: int = 0  # bytes in ``frames``
     subs: dict[int, int] = field(default_factory=dict)  # subscription id -> channel id
     dropped: int = 0
 
@@ -77,18 +79,20 @@ class _Client:
 class FoxgloveServer:
     """A Foxglove WebSocket (v1) server on ``host:port`` (0: a free port, then :attr:`port`) named ``name``.
 
-    ``history``: messages kept per channel for clients that subscribe later; ``queue_bytes``: most bytes of data
-    frames waiting per client; ``metadata``: the ``serverInfo`` metadata (strings). Raises OSError when the
-    address cannot be bound. :meth:`close` stops it."""
+    ``history``, ``history_bytes``: most messages and payload bytes kept per channel for clients that subscribe
+    later; ``queue_bytes``: most bytes of frames waiting per client; ``metadata``: the ``serverInfo`` metadata
+    (strings). Raises OSError when the address cannot be bound. :meth:`close` stops it."""
 
     def __init__(self, *, host: str = "127.0.0.1", port: int = 8765, name: str = "swarmloc",
-                 history: int = 10_000, queue_bytes: int = 64 * 2**20,
+                 history: int = 10_000, history_bytes: int = 16 * 2**20, queue_bytes: int = 64 * 2**20,
                  metadata: dict[str, str] | None = None) -> None:  # fmt: skip
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port < 65536:
             raise ValueError(f"port must be an integer in [0, 65535], got {port!r}")
-        if history < 0 or queue_bytes < 1:
-            raise ValueError(f"history must be >= 0 and queue_bytes >= 1, got {history!r}, {queue_bytes!r}")
+        if not (history >= 0 and history_bytes >= 0 and queue_bytes >= 1):
+            raise ValueError(f"history and history_bytes must be >= 0 and queue_bytes >= 1, got {history!r}, "
+                             f"{history_bytes!r}, {queue_bytes!r}")  # fmt: skip
         self.name, self.history, self.queue_bytes = name, int(history), int(queue_bytes)
+        self.history_bytes = int(history_bytes)
         self.metadata = dict(metadata or {})
         self.channels: dict[int, Channel] = {}
         self.subscriptions = 0
@@ -96,8 +100,9 @@ class FoxgloveServer:
         self.refused: Counter[str] = Counter()
         """Client messages refused, by reason."""
         self.dropped = 0
-        """Data frames dropped because a client's queue was full."""
+        """Frames (data, status) not sent because a client's queue was full."""
         self._history: dict[int, deque[tuple[int, bytes]]] = {}
+        self._kept: Counter[int] = Counter()  # payload bytes in each channel's history
         self._clients: set[_Client] = set()
         self._next_id = 1
         self._ids = threading.Lock()
@@ -154,7 +159,7 @@ class FoxgloveServer:
     # ------------------------------------------------------------------------------------------ loop thread
     def _advertise(self, ch: Channel) -> None:
         self.channels[ch.id] = ch
-        self._history[ch.id] = deque(maxlen=self.history)
+        self._history[ch.id] = deque()
         for c in self._clients:
             self._control(c, {"op": "advertise", "channels": [ch.advertised()]})
 
@@ -163,24 +168,29 @@ class FoxgloveServer:
         if history is None:  # not advertised (an id this server never gave)
             return
         history.append((log_time, payload))
+        self._kept[channel] += len(payload)
+        while history and (len(history) > self.history or self._kept[channel] > self.history_bytes):
+            self._kept[channel] -= len(history.popleft()[1])
         for c in self._clients:
             for sub, ch in c.subs.items():
                 if ch == channel:
                     self._data(c, sub, log_time, payload)
 
-    def _control(self, c: _Client, msg: dict[str, Any]) -> None:
-        c.frames.append(json.dumps(msg))
-        c.wake.set()
+    def _control(self, c: _Client, msg: dict[str, Any], droppable: bool = False) -> None:
+        """Queue a JSON message (server info and advertisements always, a status only while the queue has room)."""
+        self._queue(c, json.dumps(msg).encode(), text=True, droppable=droppable)
 
     def _data(self, c: _Client, sub: int, log_time: int, payload: bytes) -> None:
-        frame = _DATA.pack(1, sub, log_time) + payload
-        if c.queued + len(frame) > self.queue_bytes:
+        self._queue(c, _DATA.pack(1, sub, log_time) + payload, text=False, droppable=True)
+
+    def _queue(self, c: _Client, frame: bytes, *, text: bool, droppable: bool) -> None:
+        if droppable and c.queued + len(frame) > self.queue_bytes:
             c.dropped += 1
             self.dropped += 1
             if c.dropped == 1:
-                log.warning("foxglove view: a client is too slow, its queue is full: dropping data frames")
+                log.warning("foxglove view: a client does not keep up, its queue is full: dropping frames")
             return
-        c.frames.append(frame)
+        c.frames.append((frame, text))
         c.queued += len(frame)
         c.wake.set()
 
@@ -188,7 +198,8 @@ class FoxgloveServer:
         self.refused[reason] += 1
         if self.refused[reason] == 1:
             log.warning("foxglove view: refused a client message: %s%s", reason, f" ({detail})" if detail else "")
-        self._control(c, {"op": "status", "level": level, "message": f"{reason}{': ' + detail if detail else ''}"})
+        msg = {"op": "status", "level": level, "message": f"{reason}{': ' + detail if detail else ''}"}
+        self._control(c, msg, droppable=True)
 
     async def _session(self, ws: Any) -> None:
         c = _Client(ws)
@@ -213,10 +224,9 @@ class FoxgloveServer:
             await c.wake.wait()
             c.wake.clear()
             while c.frames:
-                frame = c.frames.popleft()
-                if isinstance(frame, bytes):
-                    c.queued -= len(frame)
-                await c.ws.send(frame)
+                frame, text = c.frames.popleft()
+                c.queued -= len(frame)
+                await c.ws.send(frame.decode() if text else frame)
 
     def _on_message(self, c: _Client, raw: str | bytes) -> None:
         if isinstance(raw, bytes):
@@ -265,5 +275,5 @@ class FoxgloveServer:
                 self._refuse(c, "unknown subscription id", repr(sub)[:20])
 
 
-def _uint32(x: Any) -> bool:
+def _uint32(x: Any) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool) and 0 <= x < _UINT32

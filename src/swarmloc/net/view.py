@@ -38,6 +38,7 @@ in the MCAP metadata record ``swarmloc`` (``epoch``) and the server's ``serverIn
 from __future__ import annotations
 
 import importlib
+import logging
 import math
 import re
 import threading
@@ -58,6 +59,8 @@ from swarmloc.runner import RobotTrack
 __all__ = ["CHANNELS", "LAYOUT", "ROBOT_CHANNELS", "VIEW_EXTRA", "TeamView", "ViewUnavailable", "channel_type",
            "ellipse", "require_view", "robot_topic"]  # fmt: skip
 
+log = logging.getLogger(__name__)
+
 MARKERS = "visualization_msgs/msg/MarkerArray"
 CHANNELS: dict[str, str] = {
     "/tf": "tf2_msgs/msg/TFMessage",
@@ -71,7 +74,6 @@ CHANNELS: dict[str, str] = {
 ROBOT_CHANNELS: dict[str, str] = {"pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
                                   "truth": "geometry_msgs/msg/PoseStamped"}  # fmt: skip
 """Each robot's channels ``/swarmloc/robot<r>/<name>``: name -> ROS 2 message type."""
-TRUTH_CHANNELS = ("/swarmloc/truth", "/swarmloc/nees", "truth")
 LAYOUT = Path(__file__).with_name("foxglove_layout.json")
 """The Foxglove/Lichtblick layout shipped with swarmloc (3D panel, NEES and error plots of these channels)."""
 VIEW_EXTRA = "pip install 'swarmloc[view]'"
@@ -221,9 +223,9 @@ class TeamView:
 
     def _topics(self, roster: Sequence[int] | None) -> list[str]:
         """The channels advertised from the start (the truth ones only with truth, NEES only with a score too)."""
-        skip = set() if self.truth is not None else set(TRUTH_CHANNELS)
-        if self.score is None:
-            skip.add("/swarmloc/nees")
+        skip = set() if self.score is not None else {"/swarmloc/nees"}
+        if self.truth is None:
+            skip |= {"/swarmloc/truth", "/swarmloc/nees", "truth"}  # "truth": each robot's truth channel
         names = [t for t in CHANNELS if t not in skip]
         robots = [robot_topic(r, n) for r in roster or () for n in ROBOT_CHANNELS if n not in skip]
         return names + robots
@@ -279,7 +281,10 @@ class TeamView:
                 try:
                     self._belief(body)
                 except ValueError as exc:
-                    self.refused[str(exc).split(",")[0][:80]] += 1
+                    reason = str(exc).split(",")[0][:80]
+                    self.refused[reason] += 1
+                    if self.refused[reason] == 1:
+                        log.warning("live view: a belief of robot %s not shown: %s", body.robot, exc)
             elif isinstance(body, Lines) and self.maps.store(body) and not self._server_map:
                 self._map_dirty = True
             if self._map_dirty and time.monotonic() - self._map_logged >= self.map_every:
@@ -358,7 +363,7 @@ class TeamView:
         return _types()[MARKERS](markers=markers)
 
     def _marker(self, stamp: Any, ns: str, mid: int, kind: int, *, pose: Any = None, scale: Sequence[float] = (1, 1, 1),
-                color: Sequence[float] = _GREY, points: Iterable[Sequence[float]] = (), text: str = "",
+                color: Sequence[float] = _GREY, points: Iterable[Any] = (), text: str = "",
                 lifetime: float = 0.0, action: int = _ADD) -> Any:  # fmt: skip
         """One ``visualization_msgs/msg/Marker`` in frame ``map`` (``points`` in the plane, z = 0)."""
         T = _types()
