@@ -67,7 +67,7 @@ def js_client() -> Path:
     return JS / "view_client.js"
 
 
-class Lines(threading.Thread):
+class StdoutLines(threading.Thread):
     """Collects a process's stdout, one JSON line (or text line) per item; :meth:`wait_for` waits on a
     condition with a bound."""
 
@@ -173,7 +173,7 @@ def test_team_view_streams_ros2_messages_to_the_ws_protocol_client_and_records_t
                     roster=src.robots)  # fmt: skip
     assert before - 1 <= view.epoch <= time.time() and view.epoch == int(view.epoch)  # this start, whole seconds
     node = subprocess.Popen(["node", str(js_client), view.url], stdout=subprocess.PIPE, text=True)
-    out = Lines(node)
+    out = StdoutLines(node)
     try:
         assert out.wait_for(lambda x: any("subscribed" in i for i in x), 30), out.items
         run = launch_team(src=src, robots=2, duration=6.0, seed=1, server=True, max_wall=150.0, view=view)
@@ -182,7 +182,11 @@ def test_team_view_streams_ros2_messages_to_the_ws_protocol_client_and_records_t
         assert out.wait_for(lambda x: sum("topic" in i for i in x) >= total, 30)
     finally:
         view.close()  # the client's connection closes: it exits
-        node.wait(20)
+        try:
+            node.wait(20)
+        finally:
+            if node.poll() is None:
+                node.kill()
     assert node.returncode == 0 and not run.counts["timed_out"] and run.beliefs and run.lines
     info = out.items[0]
     assert info["protocol"] == "foxglove.websocket.v1" and info["serverInfo"]["metadata"]["epoch"] == repr(view.epoch)
@@ -450,19 +454,21 @@ def test_the_shipped_layout_names_only_the_views_channels():
 
 
 # ---------------------------------------------------------------------------------------------------- the command
-def _swarmloc(*args: str, **kw) -> subprocess.Popen:
+def _swarmloc(*args: str, stderr=subprocess.PIPE) -> subprocess.Popen:
+    """``swarmloc ARGS`` in a process of its own, stdin and stdout not a terminal (stdout piped)."""
     env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
     return subprocess.Popen([sys.executable, "-m", "swarmloc.cli", *args], env=env, text=True,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)  # fmt: skip
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=stderr)  # fmt: skip
 
 
 def test_team_command_view_lingers_until_interrupted_and_a_late_client_gets_the_run(tmp_path):
-    rec = tmp_path / "team.mcap"
-    proc = _swarmloc("team", "--source", "sim:corridor", "--robots", "2", "--duration", "4", "--server",
-                     "--view", "0", "--record", str(rec), "--linger", "--out", str(tmp_path / "out"))  # fmt: skip
-    out = Lines(proc, parse=False)
+    rec, err = tmp_path / "team.mcap", open(tmp_path / "stderr", "w")  # noqa: SIM115 - closed below
+    proc = _swarmloc("team", "--source", "sim:corridor", "--robots", "2", "--duration", "4", "--server", "--view",
+                     "0", "--record", str(rec), "--linger", "--out", str(tmp_path / "out"), stderr=err)  # fmt: skip
+    out = StdoutLines(proc, parse=False)
     try:
-        assert out.wait_for(lambda x: any("still serving" in s for s in x), 180), (out.items, proc.stderr.read())
+        started = out.wait_for(lambda x: any("still serving" in s for s in x), 180)
+        assert started, (out.items, (tmp_path / "stderr").read_text())
         first = out.items[0]
         url = re.search(r"ws://127\.0\.0\.1:\d+", first).group(0)
         layout = Path(first.split("layout: ")[1])
@@ -485,6 +491,7 @@ def test_team_command_view_lingers_until_interrupted_and_a_late_client_gets_the_
         if proc.poll() is None:
             proc.kill()
             proc.wait(10)
+        err.close()
     out.join(10)
     assert out.items[-1] == "live view: stopped"
 
