@@ -203,9 +203,22 @@ def pose_from_message(msg: Any) -> tuple[float, np.ndarray, np.ndarray]:
 
 
 def to_cdr(msg: Any) -> bytes:
-    """CDR bytes (little-endian, with the 4-byte encapsulation header) of a ``PoseWithCovarianceStamped``:
-    what rmw_zenoh puts in the sample payload and rosbag2 stores with ``serialization_format: cdr``."""
-    return bytes(typestore().serialize_cdr(msg, MSGTYPE))
+    """CDR bytes (little-endian, with the 4-byte encapsulation header) of a typestore message (e.g. a
+    ``PoseWithCovarianceStamped``): what rmw_zenoh puts in the sample payload and rosbag2 stores with
+    ``serialization_format: cdr``."""
+    return bytes(typestore().serialize_cdr(msg, msg.__msgtype__))
+
+
+def msgdef(msgtype: str) -> str:
+    """The ``ros2msg`` definition of ``msgtype`` with every type it uses (the concatenated text rosbag2 writes as an
+    MCAP schema and Foxglove's ROS 2 bridge advertises: the type's fields, then ``MSG: <type>`` sections)."""
+    return typestore().generate_msgdef(msgtype, ros_version=2)[0]
+
+
+def ros_time(stamp: float) -> Any:
+    """A ``builtin_interfaces/msg/Time`` of ``stamp`` [s] (:func:`stamp_to_ros`)."""
+    sec, nsec = stamp_to_ros(stamp)
+    return typestore().types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
 
 
 def from_cdr(data: bytes) -> tuple[float, np.ndarray, np.ndarray]:
