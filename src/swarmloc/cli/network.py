@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from typing import Any
 
@@ -61,8 +62,9 @@ def cmd_node(args: argparse.Namespace) -> int:
     from swarmloc.net.transport import team_scope
 
     _net_logging(args.verbose)
-    view = None
+    view, ran = None, False
     try:
+        _check_view(args)
         team_scope(args.team, args.run_id)  # a bad name or run id is refused before the source is loaded
         auth = _auth(args, args.robot)
         config = run_config(args) if args.config else None
@@ -72,7 +74,7 @@ def cmd_node(args: argparse.Namespace) -> int:
         live = None
         if live_kind is not None:
             live = live_inputs(live_kind, team=args.team, run_id=args.run_id, domain=args.ros_domain or 0)
-        view = _node_view(args, src)
+        view = _node_view(args, src, live_kind is not None)
         report = node_main(
             src=src, robot=args.robot, team=args.team, estimator=args.estimator, speed=args.speed, lag=args.lag,
             listen=_endpoints(args.listen), connect=_endpoints(args.connect), zenoh_config=args.zenoh_config,
@@ -80,14 +82,23 @@ def cmd_node(args: argparse.Namespace) -> int:
             ros_domain=args.ros_domain, max_wall=args.max_wall, out=args.out, run_id=args.run_id, auth=auth,
             live=live, view=view, **_timeouts(args),
         )  # fmt: skip
+        ran = True
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc node: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
     finally:
-        if view is not None:
+        if view is not None and not ran:
             view.close()
+    rc = _node_summary(args, src, report)
+    if view is not None:
+        _linger(view, args)
+    return rc
+
+
+def _node_summary(args: argparse.Namespace, src: Any, report: Any) -> int:
+    """Print a node's result; its exit status (3: nothing forwarded, or no teammate ever answered)."""
     s = report.stats
     if "forwards" in report.net or not s:  # a server-hosted estimator: this process forwards its measurements
         n = report.net
@@ -107,20 +118,62 @@ def cmd_node(args: argparse.Namespace) -> int:
     return 0
 
 
-def _node_view(args: argparse.Namespace, src: Any) -> Any:
+def _node_view(args: argparse.Namespace, src: Any, live: bool) -> Any:
     """``node --view/--record``: a :class:`~swarmloc.net.view.TeamView` of this robot (its beliefs, detections, ground
-    truth where the source has it, its lines and the belief server's map), or None."""
+    truth where the source has it, its lines and the belief server's map), or None. ``live``: the source's stamps
+    are Unix times already (no epoch added)."""
     if args.view is None and not args.record:
         return None
     from swarmloc.events import Detection
-    from swarmloc.net.view import TeamView
 
     dets = [e for e in src.own_events(args.robot) if isinstance(e, Detection) and e.observer == args.robot]
-    view = TeamView(port=args.view, mcap=args.record, truth=src.truth, detections=dets, roster=src.robots,
-                    name=f"swarmloc node {args.robot}")  # fmt: skip
+    return _open_view(args, src, dets, f"swarmloc node {args.robot}", epoch=0.0 if live else None)
+
+
+def _check_view(args: argparse.Namespace) -> None:
+    """Refuse a bad ``--linger``, and ``--view``/``--record`` without the ``view`` extra (one line naming the
+    install command), before anything starts."""
+    if args.linger is not None and not args.linger >= 0:
+        raise ValueError(f"--linger: seconds >= 0 (or none: until Ctrl-C), got {args.linger:g}")
+    if args.view is not None or args.record:
+        from swarmloc.net.view import require_view
+
+        require_view(args.view is not None, bool(args.record))
+
+
+def _open_view(args: argparse.Namespace, src: Any, detections: Any, name: str, epoch: float | None = None) -> Any:
+    """The :class:`~swarmloc.net.view.TeamView` of ``--view``/``--record`` (truth and NEES where the source has
+    truth); prints where to connect and where the layout is."""
+    from swarmloc.evaluation.metrics import errors
+    from swarmloc.net.view import LAYOUT, TeamView
+
+    view = TeamView(port=args.view, mcap=args.record, truth=src.truth, score=errors, detections=detections,
+                    roster=src.robots, name=name, epoch=epoch)  # fmt: skip
     if view.url:
-        print(f"live view: open {view.url} in Foxglove (Open connection > Foxglove WebSocket)", flush=True)
+        print(f"live view: open {view.url} in Foxglove or Lichtblick (Open connection > Foxglove WebSocket); "
+              f"layout: {LAYOUT}", flush=True)  # fmt: skip
     return view
+
+
+def _linger(view: Any, args: argparse.Namespace) -> None:
+    """After the run: finish the recording, keep the live view up for ``--linger`` seconds (default: until Ctrl-C
+    when stdin and stdout are a terminal, else not at all), then close it. Ctrl-C (or SIGTERM) ends the wait."""
+    try:
+        view.end_recording()
+        seconds = args.linger
+        if seconds is None:
+            seconds = math.inf if sys.stdin.isatty() and sys.stdout.isatty() else 0.0
+        if view.url is None or seconds <= 0:
+            return
+        until = "until Ctrl-C" if math.isinf(seconds) else f"for {seconds:g} s (Ctrl-C ends it sooner)"
+        print(f"live view: the run has ended; still serving {view.url} {until}", flush=True)
+        try:
+            view.wait(seconds)
+            print("live view: closed", flush=True)
+        except KeyboardInterrupt:
+            print("live view: stopped", flush=True)
+    finally:
+        view.close()
 
 
 def cmd_server(args: argparse.Namespace) -> int:
@@ -174,18 +227,14 @@ def cmd_team(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)  # so that `kill` and time limits also stop every process started
-    view = None
+    view, ran = None, False
     try:
+        _check_view(args)
         config = run_config(args) if args.config else None
         src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
         src = with_association(src, args.association)
         if args.view is not None or args.record:
-            from swarmloc.net.view import TeamView
-
-            view = TeamView(port=args.view, mcap=args.record, truth=src.truth, detections=src.events,
-                            roster=src.robots)  # fmt: skip
-            if view.url:
-                print(f"live view: open {view.url} in Foxglove (Open connection > Foxglove WebSocket)", flush=True)
+            view = _open_view(args, src, src.events, "swarmloc team")
         run = run_team(
             src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
             seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
@@ -195,7 +244,7 @@ def cmd_team(args: argparse.Namespace) -> int:
             **_timeouts(args),
         )  # fmt: skip
         if view is not None:
-            view.close()
+            view.end_recording()
         extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}
         report = write_team_report(run, src, args.estimator, args.out, extra)
         if run.map is not None:
@@ -210,6 +259,7 @@ def cmd_team(args: argparse.Namespace) -> int:
                     import numpy as np
 
                     bag.write(f"/swarmloc/robot{r}/pose", t, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
+        ran = True
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc team: {exc}", file=sys.stderr)
         return 2
@@ -217,10 +267,13 @@ def cmd_team(args: argparse.Namespace) -> int:
         print("swarmloc team: interrupted; every process it started was stopped", file=sys.stderr)
         return 130
     finally:
-        if view is not None:
-            view.close()
+        if view is not None and not ran:
+            view.close()  # the view lingers only after a run that went through
     print(markdown_table(report))
-    print(f"results, figures and TUM trajectories in {args.out}/" + (f"; rosbag2 in {args.bag}" if args.bag else ""))
+    print(f"results, figures and TUM trajectories in {args.out}/" + (f"; rosbag2 in {args.bag}" if args.bag else "")
+          + (f"; MCAP in {args.record}" if args.record else ""))  # fmt: skip
+    if view is not None:
+        _linger(view, args)
     bad = {n: c for n, c in run.exit_codes.items() if c not in (0, -15, None) and not n == "server"}
     return 1 if bad or run.counts.get("timed_out") else 0
 

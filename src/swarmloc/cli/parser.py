@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from swarmloc import __version__
 from swarmloc.cli.network import cmd_keys, cmd_node, cmd_server, cmd_team
@@ -54,6 +55,17 @@ def _keys_parser(sub: argparse._SubParsersAction) -> None:
     for p in (r, t):
         p.add_argument("--max-age", type=float, default=30.0, help="seconds a signed stamp may be old (default 30)")
     k.set_defaults(func=cmd_keys)
+
+
+def _view_args(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--view", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help=f"live view {what} for Foxglove or Lichtblick (Foxglove WebSocket) on ws://127.0.0.1:PORT "
+                   "(default 8765; 0: a free port)")  # fmt: skip
+    p.add_argument("--record", default=None, metavar="FILE.mcap",
+                   help="record the view as MCAP of ROS 2 messages (Foxglove, Lichtblick, ros2 bag play)")  # fmt: skip
+    p.add_argument("--linger", type=float, nargs="?", const=math.inf, default=None, metavar="SECONDS",
+                   help="keep the live view up after the run ends: SECONDS, or until Ctrl-C without a number; 0: "
+                   "stop with the run (default: until Ctrl-C when run from a terminal, else 0)")  # fmt: skip
 
 
 def _timeout_args(p: argparse.ArgumentParser) -> None:
@@ -159,10 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--wait-for", default=None, help="robot ids to wait for before starting (default: the team)")
     _timeout_args(n)
     n.add_argument("--out", default=None, help="folder for robot<N>.tum (final beliefs) and robot<N>.json (report)")
-    n.add_argument("--view", type=int, nargs="?", const=8765, default=None, metavar="PORT",
-                   help="live view of this robot (and the server's map) for Foxglove on ws://127.0.0.1:PORT "
-                   "(default 8765; 0: a free port)")  # fmt: skip
-    n.add_argument("--record", default=None, metavar="FILE.mcap", help="record the view as MCAP (Foxglove, ROS 2)")
+    _view_args(n, "of this robot (and the server's map)")
     _auth_args(n)
     n.set_defaults(func=cmd_node)
 
@@ -279,9 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")
-    t.add_argument("--view", type=int, nargs="?", const=8765, default=None, metavar="PORT",
-                   help="live view for Foxglove on ws://127.0.0.1:PORT (default 8765; 0: a free port)")  # fmt: skip
-    t.add_argument("--record", default=None, metavar="FILE.mcap", help="record the view as MCAP (Foxglove, ROS 2)")
+    _view_args(t, "of the team")
     t.add_argument("--team", default=None, help="the team's name (default team<PID>); each run also has an id of its "
                    "own in every key, so that two teams of one name never hear each other")  # fmt: skip
     _timeout_args(t)

@@ -56,15 +56,13 @@ _TARGET = re.compile(r"^(robot|landmark)([0-9]{1,9})$")
 
 
 def dds_name(msgtype: str) -> str:
-    """``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_`` (rmw_zenoh's type name in keys)."""
-    pkg, sub, name = msgtype.split("/")
-    return f"{pkg}::{sub}::dds_::{name}_"
+    """``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_`` (rmw_zenoh's type name in keys; :func:`ros.dds_type_name`)."""
+    return ros.dds_type_name(msgtype)
 
 
 def topic_key(topic: str, msgtype: str, domain: int = 0) -> str:
-    """The Zenoh key rmw_zenoh publishes ``topic`` of ``msgtype`` on in ``domain``."""
-    name = topic.strip("/")
-    return f"{int(domain)}/{name}/{dds_name(msgtype)}/{ros.typestore().hash_rihs01(msgtype)}"
+    """The Zenoh key rmw_zenoh publishes ``topic`` of ``msgtype`` on in ``domain`` (:func:`ros.ros_key`)."""
+    return ros.ros_key(topic, domain, msgtype)
 
 
 def robot_topics(namespace: str, robot: int) -> dict[str, str]:

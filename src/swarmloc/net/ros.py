@@ -21,7 +21,8 @@ rows/columns ``(0, 1, 5)`` (x, y, yaw) of the 6x6 matrix.
   :func:`stamp_to_ros` rounds to the nearest nanosecond and carries, so ``0 <= nanosec < 1e9`` always (a time
   of ``1.9999999999`` is ``(2, 0)``). Negative times and times past the int32 range are refused.
 * Message definitions and type hash come from rosbags' typestore for **ROS 2 Jazzy** (``Stores.ROS2_JAZZY``,
-  created once and cached). ``PoseWithCovarianceStamped`` is the same in Humble and Jazzy (same RIHS01 hash).
+  created once and cached, with vision_msgs added: :mod:`swarmloc.net.rosmsgs`). ``PoseWithCovarianceStamped``
+  is the same in Humble and Jazzy (same RIHS01 hash).
 * rosbags is imported only inside the functions here, so ``import swarmloc.net.ros`` works without it.
 
 rmw_zenoh (source read: github.com/ros2/rmw_zenoh, rolling, ``rmw_zenoh_cpp/src/detail/``)
@@ -64,7 +65,6 @@ from __future__ import annotations
 import math
 import re
 import struct
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +72,7 @@ import numpy as np
 
 from swarmloc.lie.checks import as_element, as_square
 from swarmloc.lie.se2 import SE2, wrap_angle
+from swarmloc.net.rosmsgs import typestore  # noqa: F401 - ros.typestore() is the project's one typestore
 
 MSGTYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 DDS_TYPE_NAME = "geometry_msgs::msg::dds_::PoseWithCovarianceStamped_"
@@ -82,12 +83,14 @@ _INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 _TOKEN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
-@lru_cache(maxsize=1)
-def typestore() -> Any:
-    """The rosbags typestore used for every message here (ROS 2 Jazzy, created once)."""
-    from rosbags.typesys import Stores, get_typestore
-
-    return get_typestore(Stores.ROS2_JAZZY)
+def dds_type_name(msgtype: str = MSGTYPE) -> str:
+    """``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_``: the type name ROS 2 gives a message type on DDS and in rmw_zenoh's
+    keys (rmw_zenoh ``type_support_common.cpp``, ``_create_type_name``; rosidl's DDS IDL mapping)."""
+    parts = msgtype.split("/") if isinstance(msgtype, str) else []
+    if len(parts) != 3 or not all(_TOKEN.match(p) for p in parts):
+        raise ValueError(f"msgtype must be 'package/msg/Name', got {msgtype!r}")
+    pkg, sub, name = parts
+    return f"{pkg}::{sub}::dds_::{name}_"
 
 
 # ------------------------------------------------------------------------------------------------ geometry
@@ -200,9 +203,22 @@ def pose_from_message(msg: Any) -> tuple[float, np.ndarray, np.ndarray]:
 
 
 def to_cdr(msg: Any) -> bytes:
-    """CDR bytes (little-endian, with the 4-byte encapsulation header) of a ``PoseWithCovarianceStamped``:
-    what rmw_zenoh puts in the sample payload and rosbag2 stores with ``serialization_format: cdr``."""
-    return bytes(typestore().serialize_cdr(msg, MSGTYPE))
+    """CDR bytes (little-endian, with the 4-byte encapsulation header) of a typestore message (e.g. a
+    ``PoseWithCovarianceStamped``): what rmw_zenoh puts in the sample payload and rosbag2 stores with
+    ``serialization_format: cdr``."""
+    return bytes(typestore().serialize_cdr(msg, msg.__msgtype__))
+
+
+def msgdef(msgtype: str) -> str:
+    """The ``ros2msg`` definition of ``msgtype`` with every type it uses (the concatenated text rosbag2 writes as an
+    MCAP schema and Foxglove's ROS 2 bridge advertises: the type's fields, then ``MSG: <type>`` sections)."""
+    return typestore().generate_msgdef(msgtype, ros_version=2)[0]
+
+
+def ros_time(stamp: float) -> Any:
+    """A ``builtin_interfaces/msg/Time`` of ``stamp`` [s] (:func:`stamp_to_ros`)."""
+    sec, nsec = stamp_to_ros(stamp)
+    return typestore().types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
 
 
 def from_cdr(data: bytes) -> tuple[float, np.ndarray, np.ndarray]:
@@ -211,13 +227,16 @@ def from_cdr(data: bytes) -> tuple[float, np.ndarray, np.ndarray]:
 
 
 # ------------------------------------------------------------------------------------------------ rmw_zenoh
-def type_hash() -> str:
-    """``RIHS01_<64 hex>`` of ``geometry_msgs/msg/PoseWithCovarianceStamped`` (REP 2011, computed by rosbags)."""
-    return typestore().hash_rihs01(MSGTYPE)
+def type_hash(msgtype: str = MSGTYPE) -> str:
+    """``RIHS01_<64 hex>`` of ``msgtype`` (default ``geometry_msgs/msg/PoseWithCovarianceStamped``; REP 2011,
+    computed by rosbags from :func:`typestore`'s definitions)."""
+    if msgtype not in typestore().fielddefs:
+        raise ValueError(f"unknown message type {msgtype!r} (not in the ROS 2 Jazzy typestore)")
+    return typestore().hash_rihs01(msgtype)
 
 
-def ros_key(topic: str, domain_id: int = 0) -> str:
-    """The Zenoh key expression rmw_zenoh publishes a ``PoseWithCovarianceStamped`` topic on.
+def ros_key(topic: str, domain_id: int = 0, msgtype: str = MSGTYPE) -> str:
+    """The Zenoh key expression rmw_zenoh publishes ``topic`` of ``msgtype`` on (default ``PoseWithCovarianceStamped``).
 
     ``topic`` is a fully qualified ROS name (``/robot1/pose``; a missing leading slash is read as the root
     namespace): ``<domain_id>/robot1/pose/geometry_msgs::msg::dds_::PoseWithCovarianceStamped_/RIHS01_<hex>``.
@@ -234,7 +253,7 @@ def ros_key(topic: str, domain_id: int = 0) -> str:
         )
     if isinstance(domain_id, bool) or not isinstance(domain_id, int | np.integer) or domain_id < 0:
         raise ValueError(f"domain_id must be an integer >= 0, got {domain_id!r}")
-    return f"{int(domain_id)}/{name}/{DDS_TYPE_NAME}/{type_hash()}"
+    return f"{int(domain_id)}/{name}/{dds_type_name(msgtype)}/{type_hash(msgtype)}"
 
 
 def ros_attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:

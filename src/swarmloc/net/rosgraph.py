@@ -146,6 +146,13 @@ class RosGraph:
         """Declare an ``MS`` token for ``topic``; returns its key."""
         return self._topic("MS", topic, type_name, type_hash, qos or qos_key())
 
+    def undeclare(self, key: str) -> None:
+        """Undeclare the token of ``key`` (one entity gone: a closed publisher or subscription)."""
+        if key in self.keys:
+            i = self.keys.index(key)
+            self.keys.pop(i)
+            self._tokens.pop(i).undeclare()
+
     def close(self) -> None:
         for t in self._tokens:
             try:
@@ -153,3 +160,4 @@ class RosGraph:
             except Exception:  # noqa: BLE001 - closing: the session may be gone already
                 pass
         self._tokens.clear()
+        self.keys.clear()

@@ -1,48 +1,119 @@
-"""A live view of a team through Foxglove's SDK (``foxglove-sdk``): a WebSocket server for Foxglove Studio and an
-MCAP recording (the ROS 2 bag format), fed with what ``swarmloc team`` collects.
+"""A live view of a team for Foxglove and Lichtblick, and its MCAP recording: ROS 2 messages, one set of channels.
 
-:class:`TeamView` logs, on the data clock (log time = stamp in ns):
+:class:`TeamView` turns what ``swarmloc team`` (or one ``swarmloc node``) collects into ROS 2 messages (CDR with
+``ros2msg`` schemas, frame ``map``, Jazzy definitions from rosbags' typestore) and hands every message, the same
+bytes, to the live server (:class:`~swarmloc.net.foxglove_ws.FoxgloveServer`) and to the MCAP file. The channels
+are defined here once, :data:`CHANNELS` and :data:`ROBOT_CHANNELS`, with the methods that build their messages:
 
-* ``/swarmloc/beliefs`` (JSON): every belief a robot publishes: ``robot, stamp, rev, final, x, y, theta`` [m, rad],
-  ``cov`` (9 numbers, exponential coordinates, row-major) and ``ellipse``: the 95% position ellipse of its
-  ``(x, y)`` marginal, 24 world points [m];
-* ``/swarmloc/truth`` (JSON, where the source has ground truth): ``robot, stamp, x, y, theta`` at each final belief;
-* ``/swarmloc/detections`` (JSON): each detection of the source, ``observer, target, stamp, kind, z``, logged once the
-  observer's final belief has passed its stamp, with ``at``: where it puts the target (world [m], by the
-  observer's belief; None for a kind without a position);
-* ``/swarmloc/map`` (JSON): the fused line map (:class:`~swarmloc.net.server.MapStore` of every robot's
-  :class:`~swarmloc.net.schema.Lines`, the belief server's fusion), ``lines`` as ``rho, alpha, cov, ends, robots,
-  n_obs``, at most every ``map_every`` s of wall time and at :meth:`close`; or the belief server's own answer,
-  given to :meth:`show_map` (``swarmloc node --view``: the node asks the server for it);
-* ``/swarmloc/scene`` (``foxglove.SceneUpdate``, Foxglove's 3D panel): per robot an arrow at its belief, its
-  covariance ellipse and its true pose; the map's lines.
+* ``/tf`` (``tf2_msgs/msg/TFMessage``): ``map -> robot<r>`` at every belief (its mean);
+* ``/swarmloc/robot<r>/pose`` (``geometry_msgs/msg/PoseWithCovarianceStamped``): every belief of robot ``r``,
+  the covariance in ROS's world-frame convention (:func:`swarmloc.net.ros.pose_message`);
+* ``/swarmloc/beliefs`` (``visualization_msgs/msg/MarkerArray``): per robot an arrow at its belief, its 95%
+  position ellipse (24 points, closed) and a label; markers ``ns`` ``belief`` / ``ellipse`` / ``label``, id ``r``;
+* where the source has ground truth (the evaluator's side): ``/swarmloc/robot<r>/truth``
+  (``geometry_msgs/msg/PoseStamped``) and ``/swarmloc/truth`` (green arrows, ``ns`` ``truth``) at each final
+  belief, and ``/swarmloc/nees`` (``geometry_msgs/msg/Vector3Stamped``, given ``score``): ``header.frame_id``
+  ``robot<r>``, ``vector`` = (NEES of the final belief against truth, 3 dof; position error [m]; heading error
+  [rad]) as :func:`swarmloc.evaluation.metrics.errors` computes them;
+* ``/swarmloc/detections`` (MarkerArray): each detection of the source once the observer's final belief has passed
+  its stamp, an arrow from the observer to where the detection puts the target (kinds with a position), 1 s life;
+* ``/swarmloc/map`` (MarkerArray, ``ns`` ``map``): the fused line map as a line list (the belief server's fusion,
+  :class:`~swarmloc.net.server.MapStore`, at most every ``map_every`` s of wall time and at the end), or the
+  belief server's own answer given to :meth:`TeamView.show_map` (``swarmloc node --view``).
 
-Open it live in Foxglove Studio ("Open connection", Foxglove WebSocket, ``ws://127.0.0.1:<port>``), or open the
-MCAP file afterwards.
+Why ROS 2 messages for everything: Foxglove, Lichtblick, rviz2 and ``ros2 bag play`` all read them, live and
+recorded alike, so one layout (:data:`LAYOUT`) serves the live view and the file. rosbag2 refuses a bag whose
+topics mix serialization formats, so a JSON or protobuf channel beside them would make ``ros2 bag play`` refuse
+the whole recording. foxglove-sdk is therefore not used: its server refuses ``foxglove.websocket.v1`` clients
+(:mod:`swarmloc.net.foxglove_ws` says why), and its typed messages are Foxglove's own schemas; rosbags already
+gives swarmloc the ROS types, their definitions and CDR (:mod:`swarmloc.net.ros`), the ``mcap`` library writes
+the file (profile ``ros2``).
+
+Stamps: header stamps and log times are ROS times, ``data stamp + epoch`` [s]. A recorded or simulated source's
+data clock starts at 0, so ``epoch`` is by default the view's start wall time rounded down to a whole second (the
+data's fractions stay exact); a live source's stamps are Unix times already (``epoch=0``). The epoch is written
+in the MCAP metadata record ``swarmloc`` (``epoch``) and the server's ``serverInfo`` metadata.
 """
 
 from __future__ import annotations
 
-import json
+import importlib
+import logging
 import math
+import re
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from swarmloc.events import Detection
-from swarmloc.lie import SE2
+from swarmloc.net.ros import msgdef, pose_covariance_world, pose_message, ros_time, stamp_to_ros, to_cdr, typestore
 from swarmloc.net.schema import Belief, Lines, MapAnswer
 from swarmloc.net.server import MapStore
+from swarmloc.runner import RobotTrack
 
-__all__ = ["TOPICS", "TeamView", "ellipse"]
+__all__ = ["CHANNELS", "LAYOUT", "ROBOT_CHANNELS", "VIEW_EXTRA", "TeamView", "ViewUnavailable", "channel_type",
+           "ellipse", "require_view", "robot_topic"]  # fmt: skip
 
-TOPICS = ("/swarmloc/beliefs", "/swarmloc/truth", "/swarmloc/detections", "/swarmloc/map", "/swarmloc/scene")
+log = logging.getLogger(__name__)
+
+MARKERS = "visualization_msgs/msg/MarkerArray"
+CHANNELS: dict[str, str] = {
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/swarmloc/beliefs": MARKERS,
+    "/swarmloc/truth": MARKERS,
+    "/swarmloc/nees": "geometry_msgs/msg/Vector3Stamped",
+    "/swarmloc/detections": MARKERS,
+    "/swarmloc/map": MARKERS,
+}
+"""The team's channels: topic -> ROS 2 message type."""
+ROBOT_CHANNELS: dict[str, str] = {"pose": "geometry_msgs/msg/PoseWithCovarianceStamped",
+                                  "truth": "geometry_msgs/msg/PoseStamped"}  # fmt: skip
+"""Each robot's channels ``/swarmloc/robot<r>/<name>``: name -> ROS 2 message type."""
+LAYOUT = Path(__file__).with_name("foxglove_layout.json")
+"""The Foxglove/Lichtblick layout shipped with swarmloc (3D panel, NEES and error plots of these channels)."""
+VIEW_EXTRA = "pip install 'swarmloc[view]'"
 CHI2_95_2DOF = 5.991464547107979
+DETECTION_LIFE = 1.0  # [s] a detection arrow's marker lifetime
+_ROBOT_TOPIC = re.compile(r"^/swarmloc/robot(\d+)/(\w+)$")
+_BLUE, _GREEN, _ORANGE, _GREY = (0.1, 0.4, 1.0, 1.0), (0.1, 0.8, 0.2, 1.0), (1.0, 0.6, 0.1, 0.9), (0.6, 0.6, 0.6, 1.0)
+_ARROW, _LINE_STRIP, _LINE_LIST, _TEXT = 0, 4, 5, 9
+_ADD, _DELETE = 0, 2
+
+
+class ViewUnavailable(RuntimeError):
+    """The live view or the recording was asked for without the ``view`` extra installed."""
+
+
+def require_view(live: bool, record: bool) -> None:
+    """Raise :class:`ViewUnavailable` (one line naming ``pip install 'swarmloc[view]'``) unless the libraries of
+    a live view (``websockets``) and of a recording (``mcap``) are importable, as far as they are asked for."""
+    for wanted, module in ((live, "websockets"), (record, "mcap")):
+        if wanted:
+            try:
+                importlib.import_module(module)
+            except ImportError:
+                raise ViewUnavailable(f"--view and --record need the 'view' extra (the {module} package is "
+                                      f"missing): {VIEW_EXTRA}") from None  # fmt: skip
+
+
+def robot_topic(robot: int, name: str) -> str:
+    """``/swarmloc/robot<robot>/<name>`` (``name`` in :data:`ROBOT_CHANNELS`)."""
+    return f"/swarmloc/robot{int(robot)}/{name}"
+
+
+def channel_type(topic: str) -> str:
+    """The ROS 2 message type of a view channel; ValueError for a topic the view does not publish."""
+    if topic in CHANNELS:
+        return CHANNELS[topic]
+    m = _ROBOT_TOPIC.match(topic)
+    if m is None or m.group(2) not in ROBOT_CHANNELS:
+        raise ValueError(f"{topic!r} is not a channel of the view")
+    return ROBOT_CHANNELS[m.group(2)]
 
 
 def ellipse(mean_xy: np.ndarray, cov_xy: np.ndarray, n: int = 24, chi2: float = CHI2_95_2DOF) -> np.ndarray:
@@ -52,7 +123,7 @@ def ellipse(mean_xy: np.ndarray, cov_xy: np.ndarray, n: int = 24, chi2: float = 
     return mean_xy + (np.stack([np.cos(a), np.sin(a)], -1) * np.sqrt(np.maximum(w, 0) * chi2)) @ V.T
 
 
-def _target_at(d: Detection, g: np.ndarray) -> list[float] | None:
+def _target_at(d: Detection, g: np.ndarray) -> np.ndarray | None:
     """Where detection ``d`` puts its target in the world, seen from observer pose ``g`` (SE(2) matrix)."""
     z = np.asarray(d.z, dtype=float)
     if d.kind == "pose":
@@ -61,13 +132,31 @@ def _target_at(d: Detection, g: np.ndarray) -> list[float] | None:
         p = z[0] * np.array([np.cos(z[1]), np.sin(z[1])])
     else:
         return None
-    return (g[:2, :2] @ p + g[:2, 2]).tolist()
+    return g[:2, :2] @ p + g[:2, 2]
+
+
+def _types() -> Any:
+    return typestore().types
+
+
+def _quaternion(theta: float) -> Any:
+    return _types()["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2))
+
+
+def _pose(x: float, y: float, theta: float, z: float = 0.0) -> Any:
+    T = _types()
+    return T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=z),
+                                       orientation=_quaternion(float(theta)))  # fmt: skip
 
 
 class TeamView:
-    """Foxglove WebSocket server on ``host:port`` (None: none; 0: a free port, :attr:`port`) and/or an MCAP
-    recording at ``mcap`` (None: none). ``truth(robot, times)``: ground truth (evaluator side; None: none);
-    ``detections``: the source's events (its detections are shown). Feed it with :meth:`observe`; :meth:`close`."""
+    """Live server on ``host:port`` (None: none; 0: a free port, :attr:`port`) and/or an MCAP recording at
+    ``mcap`` (None: none). ``truth(robot, times) -> (n, 3)``: ground truth (evaluator side; None: none);
+    ``score(RobotTrack) -> {"nees", "pos", "heading"}`` (:func:`swarmloc.evaluation.metrics.errors`; with truth,
+    the ``/swarmloc/nees`` channel); ``detections``: the source's events (its detections are shown); ``roster``:
+    the robots (their channels are advertised from the start; others when first seen); ``epoch`` [s]: added to
+    data stamps (None: this start's wall time, whole seconds); ``history``: messages per channel a late client
+    is sent. Feed it with :meth:`observe`; :meth:`end_recording` finishes the file, :meth:`close` everything."""
 
     def __init__(
         self,
@@ -75,138 +164,226 @@ class TeamView:
         port: int | None = 8765,
         host: str = "127.0.0.1",
         mcap: str | Path | None = None,
-        truth: Any = None,
+        truth: Callable[[int, np.ndarray], np.ndarray] | None = None,
+        score: Callable[[RobotTrack], dict[str, np.ndarray]] | None = None,
         detections: Iterable[Any] = (),
         roster: Sequence[int] | None = None,
         map_every: float = 0.5,
         name: str = "swarmloc team",
+        epoch: float | None = None,
+        history: int = 10_000,
     ) -> None:
-        import foxglove
-        from foxglove.channels import SceneUpdateChannel
-
         if port is None and mcap is None:
             raise ValueError("TeamView: give a port for the live view, an MCAP path to record, or both")
-        self.ctx = foxglove.Context()
-        self.subscriptions = 0
-        view = self
-
-        class _Listener(foxglove.ServerListener):
-            def on_subscribe(self, client: Any, channel: Any) -> None:
-                view.subscriptions += 1
-
-            def on_unsubscribe(self, client: Any, channel: Any) -> None:
-                view.subscriptions -= 1
-
-        self._lock = threading.Lock()
-        self.mcap = None if mcap is None else foxglove.open_mcap(str(mcap), allow_overwrite=True, context=self.ctx)
-        self.server = None
-        if port is not None:
-            self.server = foxglove.start_server(name=name, host=host, port=port, context=self.ctx,
-                                                server_listener=_Listener())  # fmt: skip
-        self.port = None if self.server is None else self.server.port
-        obj = {"type": "object"}
-        self.ch = {t: foxglove.Channel(t, message_encoding="json", schema=obj, context=self.ctx) for t in TOPICS[:4]}
-        self.scene = SceneUpdateChannel(TOPICS[4], context=self.ctx)
-        self.truth = truth
+        require_view(port is not None, mcap is not None)
+        self.epoch = float(math.floor(time.time())) if epoch is None else float(epoch)
+        if not (math.isfinite(self.epoch) and self.epoch >= 0):
+            raise ValueError(f"TeamView: epoch must be a finite time >= 0 s, got {epoch!r}")
+        self.truth, self.score = truth, score
         self.maps = MapStore(roster)
         self.map_every = map_every
-        self._map_logged = -math.inf
-        self._map_dirty = False
-        self._server_map = False  # a map from the belief server was shown: the own lines' map no longer is
-        self._last_t = 0.0
-        self._det: dict[int, list[Detection]] = {}
-        for e in detections:
-            if isinstance(e, Detection):
-                self._det.setdefault(e.observer, []).append(e)
-        for v in self._det.values():
-            v.sort(key=lambda d: d.t)
-        self._det_i: Counter[int] = Counter()
         self.counts: Counter[str] = Counter()
-        """Messages logged per topic."""
+        """Messages published per topic."""
+        self.refused: Counter[str] = Counter()
+        """Beliefs not shown, by reason."""
+        self._lock = threading.RLock()
+        self._closed = threading.Event()
+        self._channels: dict[str, tuple[int, int]] = {}  # topic -> (server channel id, MCAP channel id)
+        self._schemas: dict[str, int] = {}
+        self._map_logged, self._map_dirty, self._server_map, self._last_t = -math.inf, False, False, 0.0
+        self._det = _by_observer(detections)
+        self._det_i: Counter[int] = Counter()
+        meta = {"epoch": repr(self.epoch), "stamps": "ROS time = data stamp + epoch [s]", "frame": "map"}
+        self.server = None
+        self._mcap: Any = None
+        self._file: Any = None
+        try:
+            if port is not None:
+                from swarmloc.net.foxglove_ws import FoxgloveServer
+
+                self.server = FoxgloveServer(host=host, port=port, name=name, history=history, metadata=meta)
+            if mcap is not None:
+                self._open_mcap(Path(mcap), meta)
+            for topic in self._topics(roster):
+                self._channel(topic)
+        except BaseException:
+            self.close()
+            raise
+        self.port = None if self.server is None else self.server.port
+
+    def _open_mcap(self, path: Path, meta: dict[str, str]) -> None:
+        from mcap.writer import Writer
+
+        from swarmloc import __version__
+
+        self._file = open(path, "wb")  # noqa: SIM115 - closed by end_recording
+        self._mcap = Writer(self._file)
+        self._mcap.start(profile="ros2", library=f"swarmloc {__version__}")
+        self._mcap.add_metadata("swarmloc", meta)
+
+    def _topics(self, roster: Sequence[int] | None) -> list[str]:
+        """The channels advertised from the start (the truth ones only with truth, NEES only with a score too)."""
+        skip = set() if self.score is not None else {"/swarmloc/nees"}
+        if self.truth is None:
+            skip |= {"/swarmloc/truth", "/swarmloc/nees", "truth"}  # "truth": each robot's truth channel
+        names = [t for t in CHANNELS if t not in skip]
+        robots = [robot_topic(r, n) for r in roster or () for n in ROBOT_CHANNELS if n not in skip]
+        return names + robots
 
     @property
     def url(self) -> str | None:
-        """The WebSocket URL to open in Foxglove Studio (None without a live server)."""
+        """The WebSocket URL to open in Foxglove or Lichtblick (None without a live server)."""
         return None if self.port is None else f"ws://127.0.0.1:{self.port}"
 
-    def _log(self, topic: str, msg: dict[str, Any], t: float) -> None:
-        self.ch[topic].log(json.dumps(msg), log_time=max(0, int(round(t * 1e9))))
+    @property
+    def topics(self) -> list[str]:
+        """Every channel advertised (or recorded) so far."""
+        return list(self._channels)
+
+    @property
+    def subscriptions(self) -> int:
+        """Subscriptions of the live clients now (0 without a server)."""
+        return 0 if self.server is None else self.server.subscriptions
+
+    # ------------------------------------------------------------------------------------------ channels
+    def _channel(self, topic: str) -> tuple[int, int]:
+        ch = self._channels.get(topic)
+        if ch is None:
+            kind = channel_type(topic)
+            text = msgdef(kind)
+            ws = -1 if self.server is None else self.server.add_channel(topic, kind, text)
+            rec = -1
+            if self._mcap is not None:
+                if kind not in self._schemas:
+                    self._schemas[kind] = self._mcap.register_schema(kind, "ros2msg", text.encode())
+                rec = self._mcap.register_channel(topic, "cdr", self._schemas[kind])
+            ch = self._channels[topic] = (ws, rec)
+        return ch
+
+    def _publish(self, topic: str, t: float, msg: Any) -> None:
+        """Publish ``msg`` on ``topic`` live and into the recording, log time ``t`` [s, ROS time]."""
+        sec, nsec = stamp_to_ros(t)
+        ns = sec * 1_000_000_000 + nsec
+        data = to_cdr(msg)
+        ws, rec = self._channel(topic)
+        if self._mcap is not None:
+            self._mcap.add_message(rec, log_time=ns, publish_time=ns, data=data, sequence=self.counts[topic])
+        if self.server is not None:
+            self.server.publish(ws, ns, data)
         self.counts[topic] += 1
 
+    # ------------------------------------------------------------------------------------------ input
     def observe(self, body: Any) -> None:
-        """Show a collected :class:`Belief` or :class:`Lines` (anything else is ignored). Thread-safe."""
+        """Show a collected :class:`Belief` or :class:`Lines` (anything else is ignored). Thread-safe; a belief
+        that cannot be shown (SE(3), a stamp outside ROS time) is counted in :attr:`refused`."""
         with self._lock:
             if isinstance(body, Belief):
-                self._belief(body)
+                try:
+                    self._belief(body)
+                except ValueError as exc:
+                    reason = str(exc).split(",")[0][:80]
+                    self.refused[reason] += 1
+                    if self.refused[reason] == 1:
+                        log.warning("live view: a belief of robot %s not shown: %s", body.robot, exc)
             elif isinstance(body, Lines) and self.maps.store(body) and not self._server_map:
                 self._map_dirty = True
             if self._map_dirty and time.monotonic() - self._map_logged >= self.map_every:
                 self._log_map()
 
     def _belief(self, b: Belief) -> None:
-        g = np.reshape(b.mean, (3, 3))
-        cov = np.reshape(b.cov, (3, 3))
-        x, y, th = (float(v) for v in SE2.to_xytheta(g))
-        R = g[:2, :2]
-        cxy = R @ cov[:2, :2] @ R.T  # the position block, rotated into the world (right perturbation)
-        ell = ellipse(np.array([x, y]), cxy)
+        if b.group != "SE2" or len(b.mean) != 9 or len(b.cov) != 9:
+            raise ValueError(f"{b.group} beliefs are not shown (SE(2) only)")
+        g, cov = np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3))
+        t = b.stamp + self.epoch
+        stamp = ros_time(t)  # ValueError outside ROS time: nothing of it is published
+        xyt, C = pose_covariance_world(g, cov)
+        x, y, th = (float(v) for v in xyt)
         self._last_t = max(self._last_t, b.stamp)
-        msg = {"robot": b.robot, "stamp": b.stamp, "rev": b.rev, "final": b.final, "x": x, "y": y, "theta": th,
-               "cov": list(b.cov), "ellipse": ell.tolist()}  # fmt: skip
-        self._log("/swarmloc/beliefs", msg, b.stamp)
+        T, r = _types(), b.robot
+        self._publish(robot_topic(r, "pose"), t, pose_message(t, g, cov, frame_id="map"))
+        tf = T["geometry_msgs/msg/TransformStamped"](
+            header=self._header(stamp), child_frame_id=f"robot{r}",
+            transform=T["geometry_msgs/msg/Transform"](translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0),
+                                                       rotation=_quaternion(th)))  # fmt: skip
+        self._publish("/tf", t, T["tf2_msgs/msg/TFMessage"](transforms=[tf]))
+        ring = ellipse(np.array([x, y]), C[:2, :2])
+        self._publish("/swarmloc/beliefs", t, self._markers([
+            self._marker(stamp, "belief", r, _ARROW, pose=_pose(x, y, th), scale=(0.3, 0.06, 0.06), color=_BLUE),
+            self._marker(stamp, "ellipse", r, _LINE_STRIP, scale=(0.02, 0, 0), color=_BLUE,
+                         points=[*ring, ring[0]]),
+            self._marker(stamp, "label", r, _TEXT, pose=_pose(x, y, 0.0, 0.3), scale=(0, 0, 0.2), color=_BLUE,
+                         text=f"robot {r}"),
+        ]))  # fmt: skip
+        if b.final:
+            self._final(b, g, xyt, cov, stamp)
+
+    def _final(self, b: Belief, g: np.ndarray, xyt: np.ndarray, cov: np.ndarray, stamp: Any) -> None:
+        """Truth, NEES and the detections up to a final belief's stamp."""
+        t, r = b.stamp + self.epoch, b.robot
         true = None
-        if b.final and self.truth is not None:
+        if self.truth is not None:
             try:
-                true = np.asarray(self.truth(b.robot, np.array([b.stamp])), dtype=float).reshape(3)
+                true = np.asarray(self.truth(r, np.array([b.stamp])), dtype=float).reshape(3)
             except ValueError:
                 true = None
-            if true is not None:
-                self._log("/swarmloc/truth", {"robot": b.robot, "stamp": b.stamp, "x": float(true[0]),
-                                              "y": float(true[1]), "theta": float(true[2])}, b.stamp)  # fmt: skip
-        if b.final:
-            dets, i = self._det.get(b.robot, []), self._det_i[b.robot]
-            while i < len(dets) and dets[i].t <= b.stamp:
-                d = dets[i]
-                self._log("/swarmloc/detections", {"observer": d.observer, "target": d.target, "stamp": d.t,
-                                                   "kind": d.kind, "z": [float(v) for v in d.z],
-                                                   "at": _target_at(d, g)}, d.t)  # fmt: skip
-                i += 1
-            self._det_i[b.robot] = i
-        self._scene_robot(b.robot, b.stamp, g, ell, true)
-
-    def _scene_robot(self, r: int, t: float, g: np.ndarray, ell: np.ndarray, true: np.ndarray | None) -> None:
-        from foxglove.messages import (
-            ArrowPrimitive,
-            Color,
-            LinePrimitive,
-            LinePrimitiveLineType,
-            Point3,
-            Pose,
-            Quaternion,
-            SceneEntity,
-            SceneUpdate,
-            Timestamp,
-            Vector3,
-        )
-
-        def pose(x: float, y: float, th: float) -> Pose:
-            return Pose(position=Vector3(x=x, y=y, z=0.0),
-                        orientation=Quaternion(x=0.0, y=0.0, z=math.sin(th / 2), w=math.cos(th / 2)))  # fmt: skip
-
-        ts = Timestamp(int(t), int(round((t % 1) * 1e9)) % 1_000_000_000)
-        x, y, th = (float(v) for v in SE2.to_xytheta(g))
-        blue, green = Color(r=0.1, g=0.4, b=1.0, a=1.0), Color(r=0.1, g=0.8, b=0.2, a=1.0)
-        arrows = [ArrowPrimitive(pose=pose(x, y, th), shaft_length=0.2, shaft_diameter=0.04, head_length=0.08,
-                                 head_diameter=0.1, color=blue)]  # fmt: skip
         if true is not None:
-            arrows.append(ArrowPrimitive(pose=pose(*map(float, true)), shaft_length=0.2, shaft_diameter=0.04,
-                                         head_length=0.08, head_diameter=0.1, color=green))  # fmt: skip
-        loop = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.02, color=blue,
-                             points=[Point3(x=float(px), y=float(py)) for px, py in ell])  # fmt: skip
-        ent = SceneEntity(timestamp=ts, frame_id="world", id=f"robot{r}", arrows=arrows, lines=[loop])
-        self.scene.log(SceneUpdate(entities=[ent]), log_time=max(0, int(round(t * 1e9))))
-        self.counts[TOPICS[4]] += 1
+            T = _types()
+            self._publish(robot_topic(r, "truth"), t, T["geometry_msgs/msg/PoseStamped"](
+                header=self._header(stamp), pose=_pose(*true)))  # fmt: skip
+            arrow = self._marker(stamp, "truth", r, _ARROW, pose=_pose(*true), scale=(0.3, 0.06, 0.06), color=_GREEN)
+            self._publish("/swarmloc/truth", t, self._markers([arrow]))
+            if self.score is not None:
+                err = self.score(RobotTrack(times=np.array([b.stamp]), mean=xyt[None], cov=cov[None],
+                                            truth=true[None]))  # fmt: skip
+                vec = T["geometry_msgs/msg/Vector3"](x=float(err["nees"][0]), y=float(err["pos"][0]),
+                                                     z=float(err["heading"][0]))  # fmt: skip
+                self._publish("/swarmloc/nees", t, T["geometry_msgs/msg/Vector3Stamped"](
+                    header=self._header(stamp, f"robot{r}"), vector=vec))  # fmt: skip
+        self._detections(b, g)
 
+    def _detections(self, b: Belief, g: np.ndarray) -> None:
+        dets, i = self._det.get(b.robot, []), self._det_i[b.robot]
+        arrows = []
+        while i < len(dets) and dets[i].t <= b.stamp:
+            d, at = dets[i], _target_at(dets[i], g)
+            if at is not None:
+                arrows.append(self._marker(ros_time(d.t + self.epoch), f"robot{d.observer}", i % 2**31, _ARROW,
+                                           scale=(0.02, 0.05, 0.08), color=_ORANGE, points=[g[:2, 2], at],
+                                           lifetime=DETECTION_LIFE))  # fmt: skip
+            i += 1
+        self._det_i[b.robot] = i
+        if arrows:
+            self._publish("/swarmloc/detections", b.stamp + self.epoch, self._markers(arrows))
+
+    # ------------------------------------------------------------------------------------------ messages
+    def _header(self, stamp: Any, frame_id: str = "map") -> Any:
+        return _types()["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+
+    def _markers(self, markers: list[Any]) -> Any:
+        return _types()[MARKERS](markers=markers)
+
+    def _marker(self, stamp: Any, ns: str, mid: int, kind: int, *, pose: Any = None, scale: Sequence[float] = (1, 1, 1),
+                color: Sequence[float] = _GREY, points: Iterable[Any] = (), text: str = "",
+                lifetime: float = 0.0, action: int = _ADD) -> Any:  # fmt: skip
+        """One ``visualization_msgs/msg/Marker`` in frame ``map`` (``points`` in the plane, z = 0)."""
+        T = _types()
+        P, V, C = T["geometry_msgs/msg/Point"], T["geometry_msgs/msg/Vector3"], T["std_msgs/msg/ColorRGBA"]
+        life_s = math.floor(lifetime)
+        return T["visualization_msgs/msg/Marker"](
+            header=self._header(stamp), ns=ns, id=int(mid), type=kind, action=action,
+            pose=_pose(0.0, 0.0, 0.0) if pose is None else pose,
+            scale=V(x=float(scale[0]), y=float(scale[1]), z=float(scale[2])),
+            color=C(r=color[0], g=color[1], b=color[2], a=color[3]),
+            lifetime=T["builtin_interfaces/msg/Duration"](sec=life_s, nanosec=round((lifetime - life_s) * 1e9)),
+            frame_locked=False, points=[P(x=float(p[0]), y=float(p[1]), z=0.0) for p in points], colors=[],
+            texture_resource="", texture=T["sensor_msgs/msg/CompressedImage"](
+                header=self._header(stamp), format="", data=np.zeros(0, np.uint8)),
+            uv_coordinates=[], text=text, mesh_resource="",
+            mesh_file=T["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
+            mesh_use_embedded_materials=False,
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------------------------------ the map
     def show_map(self, answer: MapAnswer) -> None:
         """Show the belief server's map ``answer`` (a node's view: the team's fused map, which from then on replaces
         the map of the lines given to :meth:`observe`). Thread-safe."""
@@ -216,19 +393,12 @@ class TeamView:
             self._log_map(answer)
 
     def _log_map(self, answer: MapAnswer | None = None) -> None:
-        from foxglove.messages import Color, LinePrimitive, LinePrimitiveLineType, Point3, SceneEntity, SceneUpdate
-
         ans = self.maps.answer() if answer is None else answer
-        lines = [{"rho": fl.line[0], "alpha": fl.line[1], "cov": list(fl.line[2:5]), "ends": list(fl.line[5:9]),
-                  "robots": list(fl.robots), "n_obs": fl.n_obs} for fl in ans.lines]  # fmt: skip
-        self._log("/swarmloc/map", {"lines": lines, "observations": ans.observations, "messages": ans.messages},
-                  self._last_t)  # fmt: skip
-        pts = [Point3(x=e[i], y=e[i + 1]) for ln in lines for e in [ln["ends"]] for i in (0, 2)]
-        black = Color(r=0.0, g=0.0, b=0.0, a=1.0)
-        prim = LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=0.03, color=black, points=pts)
-        ent = SceneEntity(frame_id="world", id="map", lines=[prim])
-        self.scene.log(SceneUpdate(entities=[ent]), log_time=max(0, int(round(self._last_t * 1e9))))
-        self.counts[TOPICS[4]] += 1
+        pts = [p for fl in ans.lines for p in (fl.line[5:7], fl.line[7:9])]
+        t = self._last_t + self.epoch
+        marker = self._marker(ros_time(t), "map", 0, _LINE_LIST, scale=(0.03, 0, 0), color=_GREY, points=pts,
+                              action=_ADD if pts else _DELETE)  # fmt: skip
+        self._publish("/swarmloc/map", t, self._markers([marker]))
         self._map_logged = time.monotonic()
         self._map_dirty = False
 
@@ -238,19 +408,46 @@ class TeamView:
             if self._map_dirty:
                 self._log_map()
 
-    def close(self) -> None:
-        """Log the final map (:meth:`flush`), finish the MCAP file and stop the server."""
+    # ------------------------------------------------------------------------------------------ the end
+    def end_recording(self) -> None:
+        """Log the last map (:meth:`flush`) and finish the MCAP file; the live server stays up."""
         self.flush()
         with self._lock:
-            if self.mcap is not None:
-                self.mcap.close()
-                self.mcap = None
-            if self.server is not None:
-                self.server.stop()
-                self.server = None
+            if self._mcap is not None:
+                self._mcap.finish()
+                self._mcap = None
+            if self._file is not None:
+                self._file.close()
+                self._file = None
+
+    def wait(self, seconds: float = math.inf) -> bool:
+        """Block for ``seconds`` (inf: until :meth:`close` or Ctrl-C); True if the view was closed meanwhile."""
+        return self._closed.wait(None if math.isinf(seconds) else max(0.0, seconds))
+
+    def close(self) -> None:
+        """:meth:`end_recording`, then stop the live server (its clients are disconnected)."""
+        try:
+            self.end_recording()
+        finally:
+            with self._lock:
+                if self.server is not None:
+                    self.server.close()
+                    self.server = None
+            self._closed.set()
 
     def __enter__(self) -> TeamView:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _by_observer(events: Iterable[Any]) -> dict[int, list[Detection]]:
+    """The detections among ``events``, per observer, in time order."""
+    out: dict[int, list[Detection]] = {}
+    for e in events:
+        if isinstance(e, Detection):
+            out.setdefault(e.observer, []).append(e)
+    for v in out.values():
+        v.sort(key=lambda d: d.t)
+    return out
