@@ -33,7 +33,7 @@ def team_params(src, **extra):
     out = {}
     for r in src.robots:
         xyt = SE2.to_xytheta(np.asarray(src.initial[r].mean))
-        over = {"robot_id": r, "team_robots": list(src.robots), "no_auth": True, "frequency": 5.0, "window": 0.3,
+        over = {"robot_id": r, "team_robots": list(src.robots), "no_auth": True, "frequency": 5.0, "window": 1.0,
                 "initial_state": [float(v) for v in xyt], "team": "rostest", "initial_covariance": [1e-4] * 3,
                 "odom_frame": f"robot{r}/odom", "base_link_frame": f"robot{r}/base_link", **extra}  # fmt: skip
         out[r] = load_params([], over, "swarmloc", f"/robot{r}")
@@ -90,6 +90,8 @@ def test_three_ros_nodes_on_a_bus_equal_the_replay_of_their_messages(sim_time):
     got = {r: [m for topic, m in bus.log if topic == f"/robot{r}/odometry/filtered"] for r in src.robots}
     tfs = {(tr.child_frame_id, cv.stamp_of(tr.header)): tr for topic, m in bus.log if topic == "/tf"
            for tr in m.transforms}  # fmt: skip
+    late = {r: n.diagnostics().get("late_stale", 0) for r, n in nodes.items()}
+    assert not any(late.values()), f"inputs later than the window behind ROS time (a loaded machine?): {late}"
     ref = replay_messages(sent, params)
     assert ref.stats["fused"] > 10 and ref.stats["unknown"] == 0, ref.stats
     assert sum(n.diagnostics()["fused"] for n in nodes.values()) == ref.stats["fused"]

@@ -22,7 +22,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-_TOKEN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _NODE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -32,22 +31,22 @@ class RosArgsError(ValueError):
 
 def check_name(name: str, what: str = "name") -> str:
     """``name`` if it is a valid ROS 2 name (absolute, relative or private; module docstring), else
-    :class:`RosArgsError` saying why."""
+    :class:`RosArgsError` saying why. The token rules are :mod:`swarmloc.rmw.names`' (of a fully qualified name)."""
+    from swarmloc.rmw.names import check_namespace
+
     if not isinstance(name, str) or not name:
         raise RosArgsError(f"{what}: a ROS name must be a non-empty string, got {name!r}")
     body = name[1:] if name.startswith("/") else name
-    if body in ("~",):
+    if body == "~":
         return name
     if body.startswith("~/"):
         body = body[2:]
-    elif "~" in body:
-        raise RosArgsError(f"{what} {name!r}: '~' only at the start ('~' or '~/...')")
-    if body == "" or body.endswith("/") or "//" in body:
-        raise RosArgsError(f"{what} {name!r}: empty token, repeated '/' or trailing '/'")
-    for tok in body.split("/"):
-        if not _TOKEN.match(tok) or "__" in tok:
-            raise RosArgsError(f"{what} {name!r}: token {tok!r} must be letters, digits and single '_', "
-                               "not starting with a digit")  # fmt: skip
+    try:
+        check_namespace("/" + body)
+    except ValueError as exc:
+        raise RosArgsError(f"{what} {name!r}: {exc}") from None
+    if body == "" or "~" in body:
+        raise RosArgsError(f"{what} {name!r}: empty, or '~' not at the start ('~' or '~/...')")
     return name
 
 

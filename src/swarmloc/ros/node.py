@@ -133,7 +133,7 @@ class RosNode:
 
         p = self.params
         return open_middleware(p.middleware, domain=p.domain_id, scope=p.discovery_range, node_name=self.name,
-                               namespace=self.namespace, endpoints=p.ros_endpoints or None)  # fmt: skip
+                               namespace=self.namespace, endpoints=tuple(p.ros_endpoints))  # fmt: skip
 
     def _declare(self) -> dict[str, Any]:
         from swarmloc.rmw import DEFAULT, TF
