@@ -29,6 +29,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import msgspec
@@ -72,6 +74,32 @@ def input_counts(net: dict) -> dict:
     """A report's refusals of inputs (input layer and feed), the zero ones left out."""
     kept = ("input_seen", "input_accepted")
     return {k: v for k, v in net.items() if k.startswith(("input_", "feed_")) and k not in kept and v}
+
+
+@contextmanager
+def processes() -> Iterator[list[subprocess.Popen]]:
+    """A list to start processes into; those still running at the end are killed."""
+    procs: list[subprocess.Popen] = []
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+
+
+def start_node(robot: int, team: str, source: str, out: Path, listen: str, connect: str, *extra: str):  # noqa: ANN201
+    """``swarmloc node`` for ``robot`` of the 3-robot, 4 s ``sim:random`` team (seed 1, ``rdl``) from ``source``."""
+    cmd = PY + ["node", "--robot", str(robot), "--team", team, "--source", source, "--robots", "3", "--duration", "4",
+                "--seed", "1", "--estimator", "rdl", "--max-wall", "90", "--out", str(out), "--listen", listen,
+                "--connect", connect, *extra]  # fmt: skip
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def all_exit_0(procs: list[subprocess.Popen], timeout: float = 120.0) -> None:
+    outs = [p.communicate(timeout=timeout) for p in procs]
+    assert [p.returncode for p in procs] == [0] * len(procs), [o[1][-800:] for o in outs]
 
 
 class Finals:
@@ -233,27 +261,19 @@ def test_a_stranger_moves_no_zenoh_input_of_signed_node_processes(tmp_path, keys
     team = f"zauth{os.getpid()}"
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(4)]
     out = tmp_path / "out"
-    procs = []
     sender = open_session([eps[3]], eps[:3])
     finals = Finals(sender, team, src.robots, keys.roster)
     try:
-        for i, r in enumerate(src.robots):
-            cmd = PY + ["node", "--robot", str(r), "--team", team, "--source", "zenoh:sim:random", "--robots", "3",
-                        "--duration", "4", "--seed", "1", "--estimator", "rdl", "--max-wall", "90", "--out", str(out),
-                        "--listen", eps[i], "--connect", ",".join(e for e in eps[:3] if e != eps[i]),
-                        *keys.args(r)]  # fmt: skip
-            procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
-        pubs = {r: InputPublisher(sender, team, r, auth=keys.auth(r)) for r in src.robots}
-        assert all(p.wait_matched(30.0) for p in pubs.values()), "the nodes' input subscriptions do not match"
-        got = attack("zenoh", eps[:3], src.robots, src, "--scope", team, "--forge")
-        stream(pubs, src)
-        outs = [p.communicate(timeout=120) for p in procs]
-        assert [p.returncode for p in procs] == [0, 0, 0], [o[1][-800:] for o in outs]
+        with processes() as procs:
+            for i, r in enumerate(src.robots):
+                others = ",".join(e for e in eps[:3] if e != eps[i])
+                procs.append(start_node(r, team, "zenoh:sim:random", out, eps[i], others, *keys.args(r)))
+            pubs = {r: InputPublisher(sender, team, r, auth=keys.auth(r)) for r in src.robots}
+            assert all(p.wait_matched(30.0) for p in pubs.values()), "the nodes' input subscriptions do not match"
+            got = attack("zenoh", eps[:3], src.robots, src, "--scope", team, "--forge")
+            stream(pubs, src)
+            all_exit_0(procs)
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
-                p.wait()
         finals.sub.undeclare()
         sender.close()
     for r in src.robots:
@@ -276,19 +296,11 @@ def test_a_stranger_and_robot_2s_key_move_no_input_of_live_nodes(keys):
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(4)]
     sender = open_session([eps[3]], eps[:3])
     finals = Finals(sender, team, src.robots, keys.roster)
+    same = dict(team=team, roster=src.robots, t0=src.t_start, config=src.config, inputs="zenoh")
     nodes = {
         r: LiveNode(
-            r,
-            src.initial[r],
-            team=team,
-            roster=src.robots,
-            t0=src.t_start,
-            config=src.config,
-            inputs="zenoh",
-            auth=keys.auth(r),
-            listen=[eps[i]],
-            connect=[e for e in eps[:3] if e != eps[i]],
-        )  # fmt: skip
+            r, src.initial[r], auth=keys.auth(r), listen=[eps[i]], connect=[e for e in eps[:3] if e != eps[i]], **same
+        )
         for i, r in enumerate(src.robots)
     }
     try:
@@ -326,8 +338,7 @@ def test_a_stranger_off_host_moves_no_ros2_input(tmp_path, keys):
     src = load_source("sim:random", **SIM)
     team = f"rauth{os.getpid()}"
     out = tmp_path / "out"
-    procs = []
-    with stranger_host() as ns:
+    with stranger_host() as ns, processes() as procs:
         local = [f"tcp/127.0.0.1:{p}" for p in free_ports(4)]
         shared = [f"tcp/{ns.here}:{p}" for p in free_ports(3, host=ns.here)]
         inputs = [f"tcp/127.0.0.1:{p}" for p in free_ports(3)]
@@ -335,25 +346,17 @@ def test_a_stranger_off_host_moves_no_ros2_input(tmp_path, keys):
         finals = Finals(watch, team, src.robots, keys.roster)
         try:
             for i, r in enumerate(src.robots):
-                cmd = PY + ["node", "--robot", str(r), "--team", team, "--source", "ros2:sim:random", "--robots", "3",
-                            "--duration", "4", "--seed", "1", "--estimator", "rdl", "--max-wall", "90",
-                            "--out", str(out), "--listen", f"{local[i]},{shared[i]}",
-                            "--connect", ",".join(e for e in local[:3] if e != local[i]),
-                            "--input-listen", inputs[i], *keys.args(r)]  # fmt: skip
-                procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+                others = ",".join(e for e in local[:3] if e != local[i])
+                procs.append(start_node(r, team, "ros2:sim:random", out, f"{local[i]},{shared[i]}", others,
+                                        "--input-listen", inputs[i], *keys.args(r)))  # fmt: skip
             probes = ",".join(f"{ns.here}:{e.rsplit(':', 1)[1]}" for e in inputs)
             got = attack("ros2", shared, src.robots, src, "--team", team, "--probe", probes, run=ns.run)
             pub = subprocess.Popen([sys.executable, str(HERE / "live_publisher.py"), "--connect", ",".join(inputs),
                                     "--team", team, "--speed", "2", "--duration", "4", "--seed", "1"],
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
             procs.append(pub)
-            outs = [p.communicate(timeout=120) for p in procs]
-            assert [p.returncode for p in procs] == [0, 0, 0, 0], [o[1][-800:] for o in outs]
+            all_exit_0(procs)
         finally:
-            for p in procs:
-                if p.poll() is None:
-                    p.kill()
-                    p.wait()
             finals.sub.undeclare()
             watch.close()
     print(f"ros2 stranger: {got}")

@@ -211,9 +211,10 @@ class InputPublisher:
 
     def __init__(self, session: Any, scope: str, robot: int, auth: Auth | None = None) -> None:
         self.robot = int(robot)
-        if auth is not None and (auth.signer is None or auth.signer.member != self.robot):
+        signer = None if auth is None else auth.signer
+        if auth is not None and (signer is None or signer.member != self.robot):
             raise ValueError(f"InputPublisher: auth must hold robot {self.robot}'s own key to sign its inputs")
-        self._signer = None if auth is None else auth.signer.for_context(INPUT_CONTEXT)
+        self._signer = None if signer is None else signer.for_context(INPUT_CONTEXT)
         self._keys = {w: input_key(scope, self.robot, w) for w in _TYPES}
         self._pubs = {w: session.declare_publisher(k, congestion_control=block()) for w, k in self._keys.items()}
         self.sent = 0
