@@ -315,9 +315,10 @@ def test_python_api_three_live_nodes_equal_the_in_process_run(est):
 def test_three_node_processes_localize_live_from_a_ros2_publisher_process_as_the_replay_does():
     src = load_source("sim:random", **SIM)
     team = f"liveros{os.getpid()}"
-    ports = free_ports(7)
-    eps = [f"tcp/127.0.0.1:{p}" for p in ports[:4]]
-    inputs = [f"tcp/127.0.0.1:{p}" for p in ports[4:]]  # each node's ROS input session (loopback, its own)
+    eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(4)]
+    # each node's ROS input session (loopback, its own), on 127.0.0.2: the connections between 127.0.0.1 endpoints
+    # that start meanwhile never take one of its ports (nor connect a socket to itself there)
+    inputs = [f"tcp/127.0.0.2:{p}" for p in free_ports(3, host="127.0.0.2")]
     env = dict(os.environ)
     py = [sys.executable, "-m", "swarmloc.cli"]
     finals: dict = {}

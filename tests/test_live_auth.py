@@ -341,7 +341,7 @@ def test_a_stranger_off_host_moves_no_ros2_input(tmp_path, keys):
     with stranger_host() as ns, processes() as procs:
         local = [f"tcp/127.0.0.1:{p}" for p in free_ports(4)]
         shared = [f"tcp/{ns.here}:{p}" for p in free_ports(3, host=ns.here)]
-        inputs = [f"tcp/127.0.0.1:{p}" for p in free_ports(3)]
+        inputs = [f"tcp/127.0.0.2:{p}" for p in free_ports(3, host="127.0.0.2")]  # no race with 127.0.0.1's connections
         watch = open_session([local[3]], local[:3])
         finals = Finals(watch, team, src.robots, keys.roster)
         try:
