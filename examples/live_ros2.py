@@ -1,9 +1,11 @@
 """Live inputs as ROS 2 messages over Zenoh (rmw_zenoh's key layout, CDR): a driver session publishes a simulated
 team's ``nav_msgs/msg/Odometry`` and detections (``geometry_msgs/msg/PoseWithCovarianceStamped``, frame_id
 ``robot<id>``) as they happen (2x real time, 4 s of data); three nodes (LiveNode with ``inputs="ros2"``, Zenoh
-peers on 127.0.0.1) localize from them and publish their poses as ROS 2 ``PoseWithCovarianceStamped``. The script
-prints the ROS graph as rmw_zenoh's liveliness tokens show it (what ``ros2 node list`` / ``ros2 topic list`` read)
-and the final poses read back from the ROS topics.
+peers on 127.0.0.1) localize from them and publish their poses as ROS 2 ``PoseWithCovarianceStamped``. Each node
+reads its ROS inputs on a loopback endpoint of its own (``input_listen``: only this host can write a robot's
+inputs), where the driver connects; the poses are on the team's network. The script prints the ROS graph as
+rmw_zenoh's liveliness tokens show it (what ``ros2 node list`` / ``ros2 topic list`` read) and the final poses read
+back from the ROS topics.
 
     PYTHONPATH=src python examples/live_ros2.py
 """
@@ -21,16 +23,21 @@ from swarmloc.net.transport import free_ports, open_session
 SPEED, TEAM = 2.0, "rexample"
 src = load_source("sim:random", robots=3, duration=4.0, seed=1)
 eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(4)]
-driver = open_session([eps[3]], eps[:3])
+inputs = [f"tcp/127.0.0.1:{p}" for p in free_ports(3)]  # each node's ROS input endpoint (loopback)
+driver = open_session([], inputs)  # the robots' drivers: their inputs
+viewer = open_session([eps[3]], eps[:3])  # on the team's network: the poses
 graph: dict[str, object] = {}
-tokens = driver.liveliness().declare_subscriber(
-    "@ros2_lv/0/**",
-    history=True,
-    handler=lambda s: graph.__setitem__(str(s.key_expr), parse_entity_key(str(s.key_expr))),
-)
+tokens = [
+    s.liveliness().declare_subscriber(
+        "@ros2_lv/0/**",
+        history=True,
+        handler=lambda s: graph.__setitem__(str(s.key_expr), parse_entity_key(str(s.key_expr))),
+    )
+    for s in (driver, viewer)
+]
 poses: dict[int, tuple] = {}
 pose_subs = [
-    driver.declare_subscriber(
+    viewer.declare_subscriber(
         ros.ros_key(f"/swarmloc/{TEAM}/robot{r}/pose"),
         handler=lambda s, r=r: poses.__setitem__(r, ros.from_cdr(s.payload.to_bytes())),
     )  # fmt: skip
@@ -48,6 +55,7 @@ nodes = {
         listen=[eps[i]],
         connect=[e for e in eps if e != eps[i]],
         inputs="ros2",
+        input_listen=[inputs[i]],
         ros_domain=0,
     )  # fmt: skip
     for i, r in enumerate(src.robots)
@@ -73,8 +81,9 @@ for n in nodes.values():
 for r, (t, xyt, cov) in sorted(poses.items()):
     print(f"robot {r}: last ROS pose at {t:.2f} s: x={xyt[0]:.3f} y={xyt[1]:.3f} yaw={xyt[2]:.3f} "
           f"var_x={cov[0, 0]:.2e}")  # fmt: skip
-for s in [tokens, *pose_subs]:
+for s in [*tokens, *pose_subs]:
     s.undeclare()
 for p in pubs.values():
     p.close()
 driver.close()
+viewer.close()

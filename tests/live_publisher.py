@@ -1,7 +1,9 @@
 """A simulated team's robots streaming their inputs as ROS 2 messages (CDR, rmw_zenoh layout), run as its own
-process (tests/test_live.py)::
+process (tests/test_live.py, tests/test_live_auth.py)::
 
     python tests/live_publisher.py --connect tcp/127.0.0.1:P1,... --team T --robots 3 --duration 4 --seed 1 --speed 2
+
+``--connect``: the nodes' ROS 2 input endpoints (``swarmloc node --input-listen``, on this host's loopback).
 
 It waits (at most 30 s) until every robot's node has declared its ROS subscriptions (their rmw_zenoh liveliness
 tokens), then publishes each robot's odometry (at the end of each interval: the twist averaged over it) and

@@ -315,12 +315,15 @@ def test_python_api_three_live_nodes_equal_the_in_process_run(est):
 def test_three_node_processes_localize_live_from_a_ros2_publisher_process_as_the_replay_does():
     src = load_source("sim:random", **SIM)
     team = f"liveros{os.getpid()}"
-    ports = free_ports(4)
-    eps = [f"tcp/127.0.0.1:{p}" for p in ports]
+    eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(4)]
+    # each node's ROS input session (loopback, its own), on 127.0.0.2: the connections between 127.0.0.1 endpoints
+    # that start meanwhile never take one of its ports (nor connect a socket to itself there)
+    inputs = [f"tcp/127.0.0.2:{p}" for p in free_ports(3, host="127.0.0.2")]
     env = dict(os.environ)
     py = [sys.executable, "-m", "swarmloc.cli"]
     finals: dict = {}
     watch = open_session([eps[3]], eps[:3])
+    watch_inputs = open_session([], inputs)  # the input nodes' tokens are on the input sessions
 
     def collect(sample) -> None:
         b = open_envelope(None, str(sample.key_expr), sample.payload.to_bytes(), team, src.robots, server_ok=False,
@@ -333,17 +336,18 @@ def test_three_node_processes_localize_live_from_a_ros2_publisher_process_as_the
     reports: dict = {}
     graph: list = []
     sub = watch.declare_subscriber(robot_key(team, "*", "*"), handler=collect)
-    tokens = watch.liveliness().declare_subscriber("@ros2_lv/0/**", history=True, handler=lambda x: graph.append(
-        parse_entity_key(str(x.key_expr))) if x.kind == zenoh.SampleKind.PUT else None)  # fmt: skip
+    tokens = [w.liveliness().declare_subscriber("@ros2_lv/0/**", history=True, handler=lambda x: graph.append(
+        parse_entity_key(str(x.key_expr))) if x.kind == zenoh.SampleKind.PUT else None)
+        for w in (watch, watch_inputs)]  # fmt: skip
     procs = []
     try:
         for i, r in enumerate(src.robots):
             cmd = py + ["node", "--robot", str(r), "--team", team, "--source", "ros2:sim:random", "--robots", "3",
                         "--duration", "4", "--seed", "1", "--estimator", "rdl", "--no-auth", "--max-wall", "90",
-                        "--ros-domain", "0",
+                        "--ros-domain", "0", "--input-listen", inputs[i],
                         "--listen", eps[i], "--connect", ",".join(e for e in eps if e != eps[i])]  # fmt: skip
             procs.append(subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
-        pub = subprocess.Popen([sys.executable, str(HERE / "live_publisher.py"), "--connect", ",".join(eps[:3]),
+        pub = subprocess.Popen([sys.executable, str(HERE / "live_publisher.py"), "--connect", ",".join(inputs),
                                 "--team", team, "--speed", "1", "--duration", "4", "--seed", "1"],
                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
         procs.append(pub)
@@ -356,7 +360,9 @@ def test_three_node_processes_localize_live_from_a_ros2_publisher_process_as_the
                 p.kill()
                 p.wait()
         sub.undeclare()
-        tokens.undeclare()
+        for t in tokens:
+            t.undeclare()
+        watch_inputs.close()
         watch.close()
     # each node was in the ROS graph: its node with its pose publisher, its input node with its 3 subscriptions
     ns = f"/swarmloc/{team}"

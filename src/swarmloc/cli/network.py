@@ -37,7 +37,8 @@ def _auth(args: argparse.Namespace, member: int):  # noqa: ANN202
     if args.no_auth:
         if args.key or args.roster:
             raise ValueError("--no-auth takes neither --key nor --roster")
-        print("warning: --no-auth: any process on the network can speak in any member's name", file=sys.stderr)
+        print("warning: --no-auth: any process on the network can speak in any member's name (and write a "
+              "zenoh: source's live inputs)", file=sys.stderr)  # fmt: skip
         return None
     if not (args.key and args.roster):
         raise ValueError("give this process's --key FILE and the team's --roster FILE (make them with "
@@ -73,7 +74,9 @@ def cmd_node(args: argparse.Namespace) -> int:
         src = with_association(src, args.association)
         live = None
         if live_kind is not None:
-            live = live_inputs(live_kind, team=args.team, run_id=args.run_id, domain=args.ros_domain or 0)
+            live = live_inputs(live_kind, team=args.team, run_id=args.run_id, domain=args.ros_domain or 0,
+                               roster=None if auth is None else auth.roster, input_listen=_endpoints(args.input_listen),
+                               input_connect=_endpoints(args.input_connect))  # fmt: skip
         view = _node_view(args, src, live_kind is not None)
         report = node_main(
             src=src, robot=args.robot, team=args.team, estimator=args.estimator, speed=args.speed, lag=args.lag,

@@ -169,6 +169,12 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--use-server", action="store_true", help="ask the belief server when a neighbour is silent")
     n.add_argument("--resume", action="store_true", help="start from this robot's latest belief on the server")
     n.add_argument("--wait-for", default=None, help="robot ids to wait for before starting (default: the team)")
+    n.add_argument("--input-listen", default=None,
+                   help="ros2: the loopback endpoints the robot's ROS 2 publishers connect to, comma-separated "
+                        "(default tcp/127.0.0.1:7448; only this host can reach them)")  # fmt: skip
+    n.add_argument("--input-connect", default=None,
+                   help="ros2: loopback endpoints to connect the input session to (a local rmw_zenoh router "
+                        "listening on loopback only)")  # fmt: skip
     _timeout_args(n)
     n.add_argument("--out", default=None, help="folder for robot<N>.tum (final beliefs) and robot<N>.json (report)")
     _view_args(n, "of this robot (and the server's map)")

@@ -63,9 +63,11 @@ class LiveNode:
     record_rate: [Hz] belief record times from ``t0``.
     window, max_ahead, max_items: the feed's bounds (:class:`~swarmloc.net.feed.LiveFeed`).
     on_belief: called with each published :class:`~swarmloc.net.schema.Belief`.
-    inputs: also subscribe the robot's inputs on the session: ``"zenoh"`` (swarmloc's input keys,
-        :mod:`~swarmloc.live.zenoh_input`) or ``"ros2"`` (ROS 2 topics in domain ``input_domain``,
-        :mod:`~swarmloc.live.ros_input`); None: only what is pushed here.
+    inputs: also subscribe the robot's inputs: ``"zenoh"`` (swarmloc's input keys on the session,
+        :mod:`~swarmloc.live.zenoh_input`: with ``auth`` in ``net`` only frames signed by this robot are taken) or
+        ``"ros2"`` (ROS 2 topics in domain ``input_domain``, :mod:`~swarmloc.live.ros_input`, on a session of their
+        own on loopback endpoints ``input_listen`` / ``input_connect``: :mod:`~swarmloc.live.source`); None: only
+        what is pushed here.
     net: further :class:`~swarmloc.net.process.NetNode` options (``auth``, ``run_id``, ``ros_domain``, timeouts).
     """
 
@@ -90,6 +92,8 @@ class LiveNode:
         on_belief: Callable[[Belief], None] | None = None,
         inputs: str | None = None,
         input_domain: int = 0,
+        input_listen: Sequence[str] = (),
+        input_connect: Sequence[str] = (),
         start: bool = True,
         **net: Any,
     ) -> None:
@@ -117,8 +121,12 @@ class LiveNode:
         if inputs is not None:
             from swarmloc.live.source import attach
 
+            auth = net.get("auth")
+            if auth is None and inputs == "zenoh":
+                log.warning("robot %s: zenoh inputs without auth: anybody on the network can write them", robot)
             self._close_inputs = attach(inputs, self.session, self.feed, team=team, run_id=net.get("run_id"),
-                                        domain=input_domain)  # fmt: skip
+                                        domain=input_domain, roster=None if auth is None else auth.roster,
+                                        input_listen=input_listen, input_connect=input_connect)  # fmt: skip
         self._thread = threading.Thread(target=self._run, name=f"swarmloc-live-{robot}", daemon=True)
         if start:
             self.start()

@@ -271,8 +271,7 @@ class RosInput:
         self.counts["pushed" if ok else "refused_by_feed"] += 1
 
     def _bad(self, reason: str, detail: str, what: str) -> None:
-        if what != "input_progress":
-            self.feed.dropped()  # it counts towards the end's count
+        self.feed.refused_input(reason, counted=what != "input_progress")  # inputs count towards the end's count
         self.counts["rejected"] += 1
         self.reasons[reason] += 1
         if self.reasons[reason] == 1:

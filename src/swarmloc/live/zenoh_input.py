@@ -13,6 +13,24 @@ The fields are those of :class:`~swarmloc.events.Odometry` and :class:`~swarmloc
 A payload over :data:`MAX_BYTES`, not JSON, with an unknown or missing field, a wrong length or a bad number is
 refused, counted with its reason (:attr:`ZenohInput.reasons`) and logged once per reason; the node goes on.
 :class:`InputPublisher` is the sending side.
+
+**Signed inputs.** These keys are on the team's network, where anybody who reaches it could write a robot's
+inputs (one unsigned end of stream, and the robot reads none of its odometry). In a team with a roster, every
+payload is a signed frame of the robot itself (:mod:`swarmloc.net.auth`: :class:`InputPublisher` with the robot's
+``auth`` seals it, :class:`ZenohInput` with the ``roster`` opens it before decoding), signed in the inputs' own
+context :data:`~swarmloc.net.auth.INPUT_CONTEXT` on the input's key: a frame not signed with *that robot's* key is
+refused (``auth_unsigned``, ``auth_key_mismatch``, ``auth_bad_signature``...; robot 2's key on robot 1's inputs:
+``auth_not_owner``), as are a replay (``auth_replay``) and a stamp older or further ahead than the roster's
+``max_age_s`` (``auth_stale``, ``auth_future``). A frame refused by its signature never counts towards the end's
+count: a stranger cannot end the stream, nor race the robot's odometry into ``overlap`` refusals.
+
+*Replay state.* The robot's driver (which publishes its inputs) and its node (which signs the team's frames) both
+hold the robot's key, each in its own process with its own sequence numbers. They never meet in one replay window:
+the inputs are signed with a :class:`~swarmloc.net.auth.Signer` of their own
+(:meth:`~swarmloc.net.auth.Signer.for_context`), and the :class:`ZenohInput` opens them with a
+:class:`~swarmloc.net.auth.Verifier` of its own, not the node's; the contexts differ, so neither verifier accepts
+the other's frames. One input publisher per robot: its sequence numbers are the input verifier's window for it.
+Without a roster (``--no-auth``: a trusted network) plain JSON is accepted, as before.
 """
 
 from __future__ import annotations
@@ -26,6 +44,7 @@ import msgspec
 import numpy as np
 
 from swarmloc.events import Detection, Event, Odometry
+from swarmloc.net.auth import HEADER, INPUT_CONTEXT, SIG_SIZE, Auth, AuthRejected, Roster, Verifier, note_refusal
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.transport import PREFIX, block
 
@@ -111,12 +130,16 @@ def decode_input(what: str, payload: bytes, robot: int) -> Event | ProgressIn:
 
 
 class ZenohInput:
-    """Subscribe to robot ``feed.robot``'s input keys under ``scope`` on ``session`` and push them to ``feed``."""
+    """Subscribe to robot ``feed.robot``'s input keys under ``scope`` on ``session`` and push them to ``feed``;
+    with ``roster`` (a team with keys) only frames signed by that robot are taken (module docstring)."""
 
-    def __init__(self, session: Any, feed: LiveFeed, scope: str) -> None:
+    def __init__(self, session: Any, feed: LiveFeed, scope: str, roster: Roster | None = None) -> None:
         self.session, self.feed, self.scope, self.robot = session, feed, scope, feed.robot
+        self.verifier = None if roster is None else Verifier(roster, context=INPUT_CONTEXT)
+        """The inputs' own verifier (its own replay windows: not the node's), None without a roster."""
         self.counts: Counter[str] = Counter()
         self.reasons: Counter[str] = Counter()
+        """Refusals by reason: ``auth_<category>`` (:data:`swarmloc.net.auth.CATEGORIES`), ``bad_schema``..."""
         self._lock = threading.Lock()
         self._sub: Any = None
 
@@ -129,25 +152,41 @@ class ZenohInput:
             self._sub = None
 
     def _on(self, sample: Any) -> None:
-        what = str(sample.key_expr).rsplit("/", 1)[-1]
+        key = str(sample.key_expr)
+        what = key.rsplit("/", 1)[-1]
         with self._lock:
             self.counts["received"] += 1
+            opened = False  # authenticated (or no roster): a refusal from now on counts towards the end's count
             try:
-                x = decode_input(what, sample.payload.to_bytes(), self.robot)
+                payload = self._open(key, what, sample.payload.to_bytes())
+                opened = True
+                x = decode_input(what, payload, self.robot)
                 if isinstance(x, ProgressIn):
                     self.feed.end(x.count) if x.end else self.feed.advance(x.t if x.t is not None else float("nan"))
                     ok = True
                 else:
                     ok = self.feed.push(x)
                 self.counts["pushed" if ok else "refused_by_feed"] += 1
+            except AuthRejected as exc:
+                self.counts["rejected"] += 1
+                note_refusal(self.reasons, exc, f"robot {self.robot}", f"{what} input")
+                self.feed.refused_input(f"auth_{exc.category}", counted=False)  # not the robot's: not in its count
             except Refused as exc:
-                self._bad(exc.reason, f"{what}: {exc}", what)
+                self._bad(exc.reason, f"{what}: {exc}", opened and what in ("odom", "det"))
             except Exception as exc:  # noqa: BLE001 - a live node never dies of one message
-                self._bad("internal_error", f"{what}: {type(exc).__name__}: {exc}", what)
+                self._bad("internal_error", f"{what}: {type(exc).__name__}: {exc}", opened and what in ("odom", "det"))
 
-    def _bad(self, reason: str, detail: str, what: str) -> None:
-        if what in ("odom", "det"):
-            self.feed.dropped()  # it counts towards the end's count
+    def _open(self, key: str, what: str, data: bytes) -> bytes:
+        """The JSON payload of ``data`` received on ``key``: as it is without a roster, else out of its signed frame
+        (robot ``robot``'s own: :class:`~swarmloc.net.auth.AuthRejected` otherwise)."""
+        if self.verifier is None:
+            return data
+        if what in _TYPES and len(data) > MAX_BYTES + HEADER.size + SIG_SIZE:  # bounded before the signature's hash
+            raise Refused("too_large", f"{len(data)} bytes > {MAX_BYTES} and a signed frame's")
+        return self.verifier.open(key, data, publication=True)[1]
+
+    def _bad(self, reason: str, detail: str, counted: bool) -> None:
+        self.feed.refused_input(reason, counted)  # counted: the robot's own input, in its end's count
         self.counts["rejected"] += 1
         self.reasons[reason] += 1
         if self.reasons[reason] == 1:
@@ -167,29 +206,36 @@ def wait_matched_all(pubs: Any, timeout: float) -> bool:
 
 
 class InputPublisher:
-    """Publish robot ``robot``'s inputs for a :class:`ZenohInput` of team scope ``scope``."""
+    """Publish robot ``robot``'s inputs for a :class:`ZenohInput` of team scope ``scope``; with ``auth`` (the
+    robot's own key and the team's roster) each is a signed frame of the robot (module docstring)."""
 
-    def __init__(self, session: Any, scope: str, robot: int) -> None:
+    def __init__(self, session: Any, scope: str, robot: int, auth: Auth | None = None) -> None:
         self.robot = int(robot)
-        self._pubs = {w: session.declare_publisher(input_key(scope, self.robot, w), congestion_control=block())
-                      for w in _TYPES}  # fmt: skip
+        signer = None if auth is None else auth.signer
+        if auth is not None and (signer is None or signer.member != self.robot):
+            raise ValueError(f"InputPublisher: auth must hold robot {self.robot}'s own key to sign its inputs")
+        self._signer = None if signer is None else signer.for_context(INPUT_CONTEXT)
+        self._keys = {w: input_key(scope, self.robot, w) for w in _TYPES}
+        self._pubs = {w: session.declare_publisher(k, congestion_control=block()) for w, k in self._keys.items()}
         self.sent = 0
 
     def wait_matched(self, timeout: float = 10.0) -> bool:
         """Wait (up to ``timeout`` s) until a subscriber matches each of its keys (what is put before is lost)."""
         return wait_matched_all(self._pubs.values(), timeout)
 
+    def _put(self, what: str, payload: bytes) -> None:
+        self._pubs[what].put(payload if self._signer is None else self._signer.seal(self._keys[what], payload))
+
     def push(self, e: Event) -> None:
-        what, payload = encode_event(e)
-        self._pubs[what].put(payload)
+        self._put(*encode_event(e))
         self.sent += 1
 
     def progress(self, t: float) -> None:
-        self._pubs["progress"].put(msgspec.json.encode(ProgressIn(t=float(t))))
+        self._put("progress", msgspec.json.encode(ProgressIn(t=float(t))))
 
     def end(self) -> None:
         """The stream is over, after the ``sent`` inputs (which may still be on their way: other keys)."""
-        self._pubs["progress"].put(msgspec.json.encode(ProgressIn(end=True, count=self.sent)))
+        self._put("progress", msgspec.json.encode(ProgressIn(end=True, count=self.sent)))
 
     def close(self) -> None:
         for p in self._pubs.values():

@@ -22,6 +22,8 @@ the roster's key of the member it claims to come from. See ``docs/network.md`` f
     32      n     the schema envelope (MessagePack, :func:`swarmloc.net.schema.encode`)
     32 + n  64    Ed25519 signature of  b"swarmloc-signed-v1\\0" + key expression (UTF-8) + b"\\0" + bytes 0 .. 32 + n
 
+(A robot's live inputs, :mod:`swarmloc.live.zenoh_input`, are signed frames too, with the context
+``b"swarmloc-input-v1\\0"`` in place of ``b"swarmloc-signed-v1\\0"``: :data:`INPUT_CONTEXT`.)
 The key expression is the one the message is sent on (a put's key, a get's selector key, a reply's key), so a
 message cannot be moved to another key (another robot's inbox) without breaking its signature; the team's name is
 part of it. The frame is bounded (``MAX_SIGNED`` bytes) before anything is parsed.
@@ -32,7 +34,8 @@ frame: too short or no magic), ``unknown_sender`` (not a roster member), ``key_m
 the claimed sender's key: signed with another member's key, or an unknown one), ``bad_signature``, ``stale`` (stamp
 more than ``max_age`` s old), ``future`` (stamp more than ``max_age`` s ahead), ``replay`` (a sequence number
 already accepted from that sender, or older than the replay window), ``not_owner`` (a publication, belief,
-progress or report, on another member's key: ``robot/<id>/belief`` only from robot ``id``), ``sender_mismatch``
+progress or report, or a live input, on another member's key: ``robot/<id>/belief`` and ``input/<id>/odom`` only
+from robot ``id``), ``sender_mismatch``
 (the schema envelope inside names another sender than the signed frame).
 """
 
@@ -77,6 +80,10 @@ REPLAY_WINDOW = 4096
 """Accepted sequence numbers remembered per sender (the newest); a number not above the newest one forgotten is
 refused, so a message overtaken by more than this many later ones of its sender is refused as a replay."""
 CONTEXT = b"swarmloc-signed-v1\0"
+"""Signing context of the team's frames (beliefs, queries, answers, progress...)."""
+INPUT_CONTEXT = b"swarmloc-input-v1\0"
+"""Signing context of a robot's live inputs (:mod:`swarmloc.live.zenoh_input`): a frame signed in one context never
+verifies in the other, and each is opened by a :class:`Verifier` of its own (its own replay windows)."""
 ROSTER_FORMAT = 1
 MAX_ROSTER_BYTES = 1 << 20
 NAMES = {SERVER: "server", COLLECTOR: "collector"}
@@ -233,21 +240,29 @@ def make_team_keys(
 
 
 # ------------------------------------------------------------------------------------------------ sealing and opening
-def _signed_bytes(key_expr: str, frame: bytes | memoryview) -> bytes:
-    return b"".join((CONTEXT, key_expr.encode(), b"\0", frame))
+def _signed_bytes(context: bytes, key_expr: str, frame: bytes | memoryview) -> bytes:
+    return b"".join((context, key_expr.encode(), b"\0", frame))
 
 
 class Signer:
-    """Seals what ``member`` sends with its ``private`` key (thread-safe: one sequence for the whole process)."""
+    """Seals what ``member`` sends with its ``private`` key (thread-safe: one sequence for the whole process) in
+    signing ``context`` (:data:`CONTEXT`: the team's frames; :data:`INPUT_CONTEXT`: a robot's live inputs)."""
 
-    def __init__(self, member: int, private: Any, clock: Callable[[], int] = time.time_ns) -> None:
+    def __init__(
+        self, member: int, private: Any, clock: Callable[[], int] = time.time_ns, context: bytes = CONTEXT
+    ) -> None:
         self.member = member
         self._key = private
         self.public = _public_raw(private)
         self.key_id = key_id(self.public)
+        self.context = context
         self._clock = clock
         self._seq = clock()
         self._lock = threading.Lock()
+
+    def for_context(self, context: bytes) -> Signer:
+        """A signer with the same member and key in another signing ``context``, with a sequence of its own."""
+        return Signer(self.member, self._key, self._clock, context)
 
     def seal(self, key_expr: str, payload: bytes) -> bytes:
         """``payload`` (a schema envelope) in a signed frame for ``key_expr``."""
@@ -255,7 +270,7 @@ class Signer:
             self._seq += 1
             seq = self._seq
         frame = HEADER.pack(MAGIC, self.member, seq, self._clock(), self.key_id) + payload
-        return frame + self._key.sign(_signed_bytes(key_expr, frame))
+        return frame + self._key.sign(_signed_bytes(self.context, key_expr, frame))
 
 
 class _Window:
@@ -278,10 +293,18 @@ class _Window:
 
 
 class Verifier:
-    """Opens frames against ``roster``, remembering each sender's accepted sequence numbers (one per receiver)."""
+    """Opens frames signed in ``context`` against ``roster``, remembering each sender's accepted sequence numbers
+    (one per receiver)."""
 
-    def __init__(self, roster: Roster, clock: Callable[[], int] = time.time_ns, window: int = REPLAY_WINDOW) -> None:
+    def __init__(
+        self,
+        roster: Roster,
+        clock: Callable[[], int] = time.time_ns,
+        window: int = REPLAY_WINDOW,
+        context: bytes = CONTEXT,
+    ) -> None:
         self.roster = roster
+        self.context = context
         self._pub = {m: Ed25519PublicKey.from_public_bytes(k) for m, k in roster.keys.items()}
         self._kid = {m: key_id(k) for m, k in roster.keys.items()}
         self._owner_of = {kid: m for m, kid in self._kid.items()}
@@ -304,7 +327,7 @@ class Verifier:
         if kid != self._kid[sender]:
             raise AuthRejected("key_mismatch", f"{who}: {self._signed_by(kid, key_expr, data, frame)}")
         try:
-            self._pub[sender].verify(data[-SIG_SIZE:], _signed_bytes(key_expr, frame))
+            self._pub[sender].verify(data[-SIG_SIZE:], _signed_bytes(self.context, key_expr, frame))
         except InvalidSignature:
             raise AuthRejected("bad_signature", who) from None
         age = self._clock() - stamp
@@ -325,7 +348,7 @@ class Verifier:
         if m is None:
             return "signed with a key outside the roster"
         try:
-            self._pub[m].verify(data[-SIG_SIZE:], _signed_bytes(key_expr, frame))
+            self._pub[m].verify(data[-SIG_SIZE:], _signed_bytes(self.context, key_expr, frame))
         except InvalidSignature:
             return f"key id of {member_name(m)}, signature invalid"
         return f"signed with the key of {member_name(m)} (verified)"

@@ -92,6 +92,9 @@ class LiveFeed:
         self.reasons: Counter[str] = Counter()
         """Refusals by reason (``stale``, ``future``, ``overlap``, ``queue_full``, ``bad_value``, ``not_own``,
         ``ended``)."""
+        self.input_reasons: Counter[str] = Counter()
+        """What the input layer in front of the feed (:mod:`swarmloc.live`) refused before pushing, by reason
+        (``auth_unsigned``, ``bad_schema``, ``bad_cdr``...: :meth:`refused_input`)."""
         self._lock = threading.Lock()
         self._heap: list[tuple[float, int, int, Event]] = []  # (stamp, prio, arrival, event)
         self._seq = itertools.count()
@@ -140,9 +143,9 @@ class LiveFeed:
 
     def end(self, count: int | None = None, grace: float = END_GRACE) -> None:
         """The stream is over: everything waiting is released, later pushes are refused (``ended``). With ``count``
-        (the inputs the sender sent), the end waits until that many came (pushed or :meth:`dropped`: a sender's
-        messages on several keys may overtake each other), at most ``grace`` s of wall time (the shortfall is
-        counted ``missing``)."""
+        (the inputs the sender sent), the end waits until that many came (pushed, :meth:`dropped` or
+        :meth:`refused_input`: a sender's messages on several keys may overtake each other), at most ``grace`` s of
+        wall time (the shortfall is counted ``missing``)."""
         with self._lock:
             if count is None:
                 self._close_stream()
@@ -158,10 +161,30 @@ class LiveFeed:
             return self._ended or self._end_at is not None
 
     def dropped(self) -> None:
-        """An input that an input layer received but refused before pushing it (it counts towards an end's count)."""
+        """An input of the robot's sender that the input layer received but did not push (it counts towards an end's
+        count): refused (:meth:`refused_input`), or a message that only marks the start."""
         with self._lock:
             self._seen += 1
             self._check_end()
+
+    def refused_input(self, reason: str, counted: bool) -> None:
+        """An input that the input layer received and refused before pushing it, for ``reason``. ``counted``: its
+        sender counted it towards an end's count (the robot's own odometry or detection; not a progress message, not
+        a frame refused as not the robot's: a stranger's inputs must not end the stream early)."""
+        with self._lock:
+            self.input_reasons[reason] += 1
+        if counted:
+            self.dropped()
+
+    def summary(self) -> dict[str, int]:
+        """The feed's counters for a node's report: ``input_seen`` (the robot's own odometry and detections received:
+        pushed or refused), ``input_accepted``, ``input_<reason>`` of what the input layer refused,
+        ``feed_<reason>`` of what the feed refused, ``input_missing`` (inputs an end's count still waited for)."""
+        with self._lock:
+            out = {"input_seen": self._seen, "input_accepted": self.counts["accepted"]}
+            out["input_missing"] = self.counts["missing"]
+            out |= {f"input_{k}": v for k, v in self.input_reasons.items()}
+            return out | {f"feed_{k}": v for k, v in self.reasons.items()}
 
     def _close_stream(self) -> None:
         self._ended = True

@@ -71,10 +71,10 @@ def server_key(team: str, what: str = "query") -> str:
 
 
 def robot_of(key: str) -> int | None:
-    """The robot id in a ``.../robot/<id>/<what>`` or ``.../alive/<id>`` key, or None. Read from the key's end, so
-    that a team or run named ``robot`` or ``alive`` does not fool it."""
+    """The robot id in a ``.../robot/<id>/<what>``, ``.../input/<id>/<what>`` or ``.../alive/<id>`` key, or None.
+    Read from the key's end, so that a team or run named ``robot`` or ``alive`` does not fool it."""
     parts = str(key).split("/")
-    for n, word in ((3, "robot"), (2, "alive")):
+    for n, word in ((3, "robot"), (3, "input"), (2, "alive")):
         if len(parts) >= n and parts[-n] == word and parts[1 - n].isascii() and parts[1 - n].isdigit():
             return int(parts[1 - n])
     return None
