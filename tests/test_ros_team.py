@@ -1,0 +1,171 @@
+"""Three ``swarmloc ros`` processes on a stock ROS 2 graph: a separate process that imports no swarmloc (cyclonedds
+with the ROS 2 message IDL written out by hand, tests/ros2_dds_peer.py; or eclipse-zenoh + rosbags in rmw_zenoh's
+layout, tests/ros2_zenoh_peer.py) publishes three simulated robots' odometry and detections under ROS 2 topic names
+in real time, stamped with ROS time; the nodes, started from a params YAML with their topics remapped and the team's
+traffic signed, localize; the ``nav_msgs/Odometry`` and ``/tf`` they publish, received by that process, equal the
+offline replay of the messages it sent to 1e-9."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from _ros_sim import from_json, team_messages, to_json
+
+from swarmloc.experiments.sources import load_source
+from swarmloc.lie import SE2
+from swarmloc.net.auth import make_team_keys
+from swarmloc.net.transport import free_ports
+from swarmloc.ros import convert as cv
+from swarmloc.ros.params import load_params
+from swarmloc.ros.replay import replay_messages
+
+HERE = Path(__file__).resolve().parent
+ROBOTS = (0, 1, 2)
+TOPIC = {"odometry": "/robot{r}/wheel/odom", "detections": "/robot{r}/camera/detections"}
+TYPE = {"odometry": cv.ODOMETRY, "detections": cv.DETECTIONS}
+
+
+def write_params(tmp: Path, src, middleware: str, domain: int, ros_endpoints: list[str]) -> Path:
+    """The team's params file: a /** section and one per robot, the team's traffic signed with its keys."""
+    roster, files = make_team_keys(tmp / "keys", list(ROBOTS))
+    eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(len(ROBOTS))]
+    doc = {"/**": {"ros__parameters": {
+        "team": "rosteam", "team_robots": list(ROBOTS), "frequency": 5.0, "window": 1.0, "middleware": middleware,
+        "domain_id": domain, "roster_file": str(roster), "initial_covariance": [1e-4] * 3,
+        "ros_endpoints": ros_endpoints, "start_timeout": 20.0}}}  # fmt: skip
+    for k, r in enumerate(ROBOTS):
+        xyt = SE2.to_xytheta(np.asarray(src.initial[r].mean))
+        doc[f"/robot{r}/swarmloc"] = {"ros__parameters": {
+            "robot_id": r, "key_file": str(files[r]), "initial_state": [float(v) for v in xyt],
+            "odom_frame": f"robot{r}/odom", "base_link_frame": f"robot{r}/base_link",
+            "team_listen": [eps[k]], "team_connect": eps[:k]}}  # fmt: skip
+    path = tmp / "team.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def start_nodes(params: Path) -> list[subprocess.Popen]:
+    procs = []
+    for r in ROBOTS:
+        cmd = [sys.executable, "-m", "swarmloc.cli", "ros", "--max-wall", "120", "--ros-args", "--params-file",
+               str(params), "-r", f"__ns:=/robot{r}", "-r", "odom:=wheel/odom", "-r", "detections:=camera/detections"]
+        procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))  # fmt: skip
+    for p in procs:  # each says so once its ROS graph is up
+        line = p.stdout.readline()
+        assert "waiting for the first odometry" in line, line
+    return procs
+
+
+def stop_nodes(procs: list[subprocess.Popen]) -> list[str]:
+    for p in procs:
+        p.send_signal(signal.SIGINT)
+    outs = []
+    for p in procs:
+        try:
+            outs.append(p.communicate(timeout=60)[0])
+        except subprocess.TimeoutExpired:
+            p.kill()
+            outs.append(p.communicate()[0])
+        assert p.returncode == 0, outs[-1]
+    return outs
+
+
+def compare_to_replay(tmp: Path, params_file: Path, sent: Path, got: Path) -> dict[int, int]:
+    """The outputs received equal the replay of the messages sent to 1e-9; returns outputs compared per robot."""
+    route = {TOPIC[k].format(r=r): (r, k) for r in ROBOTS for k in TOPIC}
+    messages: dict[int, list] = {r: [] for r in ROBOTS}
+    for line in sent.read_text().splitlines():
+        rec = json.loads(line)
+        r, kind = route[rec["topic"]]
+        messages[r].append((kind, from_json(rec["type"], rec["msg"])))
+    params = {r: load_params([str(params_file)], {}, "swarmloc", f"/robot{r}") for r in ROBOTS}
+    ref = replay_messages(messages, params)
+    assert ref.stats["fused"] > 10 and ref.stats["unknown"] == 0, ref.stats
+    odo: dict[int, dict[float, dict]] = {r: {} for r in ROBOTS}
+    tfs: dict[tuple[str, float], dict] = {}
+    for line in got.read_text().splitlines():
+        rec = json.loads(line)
+        m = rec["msg"]
+        if rec["topic"] == "/tf":
+            for tr in m["transforms"]:
+                st = tr["header"]["stamp"]
+                tfs[(tr["child_frame_id"], round(st["sec"] + 1e-9 * st["nanosec"], 6))] = tr
+        else:
+            r = int(rec["topic"].split("/")[1][5:])
+            odo[r][m["header"]["stamp"]["sec"] + 1e-9 * m["header"]["stamp"]["nanosec"]] = m
+    compared = {}
+    for r in ROBOTS:
+        want = {round(t, 6): (o, tf) for t, o, tf in ref.outputs(r, params[r])}
+        live = {round(t, 6): m for t, m in odo[r].items()}
+        common = sorted(set(live) & set(want))
+        assert len(common) >= 0.9 * len(want) > 5, (r, len(live), len(want))
+        for t in common:
+            a, (b, tf) = live[t], want[t]
+            pa, pb = a["pose"]["pose"], to_json(b.pose.pose)
+            va = [pa["position"]["x"], pa["position"]["y"], pa["orientation"]["z"], pa["orientation"]["w"]]
+            vb = [pb["position"]["x"], pb["position"]["y"], pb["orientation"]["z"], pb["orientation"]["w"]]
+            assert np.abs(np.subtract(va, vb)).max() < 1e-9, (r, t)
+            assert np.abs(np.subtract(a["pose"]["covariance"], b.pose.covariance)).max() < 1e-9, (r, t)
+            assert a["child_frame_id"] == f"robot{r}/base_link" and a["header"]["frame_id"] == "map"
+            if tf is not None:
+                ta, tb = tfs[(f"robot{r}/odom", t)], tf.transforms[0].transform
+                xa = [ta["transform"]["translation"]["x"], ta["transform"]["translation"]["y"],
+                      ta["transform"]["rotation"]["z"], ta["transform"]["rotation"]["w"]]  # fmt: skip
+                xb = [tb.translation.x, tb.translation.y, tb.rotation.z, tb.rotation.w]
+                assert np.abs(np.subtract(xa, xb)).max() < 1e-9, (r, t)
+        compared[r] = len(common)
+    return compared
+
+
+def messages_file(tmp: Path, src) -> Path:
+    path = tmp / "msgs.jsonl"
+    with path.open("w") as f:
+        for t, r, kind, m in team_messages(src, 0.0, "robot{r}/base_link"):
+            rec = {"topic": TOPIC[kind].format(r=r), "type": TYPE[kind], "msg": to_json(m), "at": t}
+            f.write(json.dumps(rec) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("middleware", ["cyclonedds", "zenoh"])
+def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middleware):
+    src = load_source("sim:random", robots=3, duration=4.0, seed=1)
+    domain = random.randrange(1, 200)
+    hub = f"tcp/127.0.0.1:{free_ports(1)[0]}"
+    params = write_params(tmp_path, src, middleware, domain, [hub] if middleware == "zenoh" else [])
+    msgs, sent, got = messages_file(tmp_path, src), tmp_path / "sent.jsonl", tmp_path / "got.jsonl"
+    echo = [a for r in ROBOTS for a in ("--topic", f"/robot{r}/odometry/filtered:{cv.ODOMETRY}")]
+    echo += ["--topic", f"/tf:{cv.TF}"]
+    if middleware == "cyclonedds":
+        peer = [sys.executable, str(HERE / "ros2_dds_peer.py"), "publish", "--domain", str(domain), "--readers", "1"]
+    else:  # the peer is the ROS graph's hub (a router's place): the nodes connect to it
+        peer = [sys.executable, str(HERE / "ros2_zenoh_peer.py"), "publish", "--domain", str(domain), "--listen", hub]
+    peer += ["--input", str(msgs), "--sent", str(sent), "--restamp", "--out", str(got), "--linger", "5",
+             "--duration", "60", "--match-timeout", "40", *echo]  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHONPATH")}  # the peer: no swarmloc on its path
+    if middleware == "zenoh":  # the hub first, so the nodes have something to connect to
+        peer_proc = subprocess.Popen(peer, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        nodes = start_nodes(params)
+    else:
+        nodes = start_nodes(params)
+        peer_proc = subprocess.Popen(peer, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = peer_proc.communicate(timeout=120)
+    finally:
+        if peer_proc.poll() is None:
+            peer_proc.kill()
+        logs = stop_nodes(nodes)
+    assert peer_proc.returncode == 0, (out, err, logs)
+    compared = compare_to_replay(tmp_path, params, sent, got)
+    print("outputs compared per robot:", compared)
+    assert min(compared.values()) > 5, compared
+    for log in logs:  # every node says what it did: outputs, detections fused
+        assert "outputs;" in log and "detections fused" in log, log
