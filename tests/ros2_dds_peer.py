@@ -336,7 +336,12 @@ _domains: list[Domain] = []  # the configured domain lives as long as the proces
 
 
 def participant(args: argparse.Namespace) -> DomainParticipant:
-    if args.scope in CONFIGS:
+    if args.peer:  # unicast discovery of the given hosts only (a participant on another host aiming at this one)
+        peers = "".join(f'<Peer address="{a}"/>' for a in args.peer)
+        _domains.append(Domain(args.domain, "<CycloneDDS><Domain><General><AllowMulticast>false</AllowMulticast>"
+                               "</General><Discovery><ParticipantIndex>auto</ParticipantIndex><Peers>"
+                               f"{peers}</Peers></Discovery></Domain></CycloneDDS>"))
+    elif args.scope in CONFIGS:
         _domains.append(Domain(args.domain, CONFIGS[args.scope]))
     return DomainParticipant(args.domain, qos=Qos(Policy.Userdata(b"enclave=/;")))
 
@@ -438,6 +443,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--domain", type=int, default=0)
     ap.add_argument("--scope", choices=("loopback", "localhost", "subnet"), default="loopback")
     ap.add_argument("--qos", choices=("reliable", "best_effort"), default="reliable")
+    ap.add_argument("--peer", action="append", default=[], help="discover only these hosts, by unicast (repeatable)")
     ap.add_argument("--typehash", default=None, help="RIHS01_... to announce in the endpoints' USER_DATA")
     ap.add_argument("--duration", type=float, default=30.0, help="longest run [s]")
     ap.add_argument("--input", default="-")

@@ -34,10 +34,12 @@ TOPIC = {"odometry": "/robot{r}/wheel/odom", "detections": "/robot{r}/camera/det
 TYPE = {"odometry": cv.ODOMETRY, "detections": cv.DETECTIONS}
 
 
-def write_params(tmp: Path, src, middleware: str, domain: int, ros_endpoints: list[str]) -> Path:
-    """The team's params file: a /** section and one per robot, the team's traffic signed with its keys."""
+def write_params(tmp: Path, src, middleware: str, domain: int, ros_endpoints: list[str],
+                 team_host: str = "127.0.0.1") -> Path:  # fmt: skip
+    """The team's params file: a /** section and one per robot, the team's traffic signed with its keys, the
+    team's sessions on ``team_host``."""
     roster, files = make_team_keys(tmp / "keys", list(ROBOTS))
-    eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(len(ROBOTS))]
+    eps = [f"tcp/{team_host}:{p}" for p in free_ports(len(ROBOTS), team_host)]
     doc = {"/**": {"ros__parameters": {
         "team": "rosteam", "team_robots": list(ROBOTS), "frequency": 5.0, "window": 1.0, "middleware": middleware,
         "domain_id": domain, "roster_file": str(roster), "initial_covariance": [1e-4] * 3,
@@ -169,3 +171,107 @@ def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middle
     assert min(compared.values()) > 5, compared
     for log in logs:  # every node says what it did: outputs, detections fused
         assert "outputs;" in log and "detections fused" in log, log
+
+
+ATTACK = 1  # the robot the stranger writes for
+
+
+def stranger_messages(tmp: Path, src) -> Path:
+    """What a stranger on another host writes for robot ``ATTACK``: odometry at +5 m/s over the whole run (a race
+    with the genuine intervals), detections of robot 0 where it is not, and an initial pose far away."""
+    from _ros_sim import detections, odometry
+
+    from swarmloc.events import Detection
+    from swarmloc.net.ros import pose_message
+
+    out = []
+    for k in range(41):
+        t = 0.1 * k
+        out.append(("odometry", odometry(t, 5.0, 0.0, (0.5 * k, 0.0, 0.0)), t))
+    for k in range(8):
+        t = 0.5 * k + 0.05
+        d = Detection(ATTACK, t, "pose", np.array([30.0, 0.0, 0.0]), 1e-4 * np.eye(3), 0)
+        out.append(("detections", detections(t, [d], f"robot{ATTACK}/base_link"), t))
+    out.append(("initialpose", pose_message(1.0, SE2.from_xytheta(np.array([50.0, 50.0, 0.0])), 1e-4 * np.eye(3)), 1.0))
+    topic = {"odometry": TOPIC["odometry"], "detections": TOPIC["detections"], "initialpose": "/robot{r}/initialpose"}
+    kinds = {**TYPE, "initialpose": cv.POSE}
+    path = tmp / "stranger.jsonl"
+    with path.open("w") as f:
+        for kind, m, t in sorted(out, key=lambda x: x[2]):
+            rec = {"topic": topic[kind].format(r=ATTACK), "type": kinds[kind], "msg": to_json(m), "at": t}
+            f.write(json.dumps(rec) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(("middleware", "where"), [("cyclonedds", "elsewhere"), ("zenoh", "elsewhere"),
+                                                   ("cyclonedds", "this host")])  # fmt: skip
+def test_a_stranger_on_another_host_writes_no_ros_input(tmp_path, middleware, where):
+    """The nodes' team sessions listen on an address a second host (a network namespace) reaches; from there a
+    process without a key writes robot 1's odometry (a race at +5 m/s), detections and an initial pose, aiming at
+    the robot's host: its writers never match a reader (DDS) or subscriber (Zenoh: the ROS graph's hub listens on
+    loopback only; the team's session carries no ROS topic), every node reads exactly the genuine inputs, and the
+    outputs equal the replay of the genuine messages to 1e-9. The control: the same stranger process run on the
+    robot's own host (inside its trust boundary) does get its odometry in: what stops it elsewhere is the binding."""
+    from _netns import stranger_host
+
+    src = load_source("sim:random", robots=3, duration=4.0, seed=1)
+    domain = random.randrange(1, 200)
+    with stranger_host() as ns:
+        hub = f"tcp/127.0.0.1:{free_ports(1)[0]}"
+        params = write_params(tmp_path, src, middleware, domain, [hub] if middleware == "zenoh" else [],
+                              team_host=ns.here)  # fmt: skip
+        doc = yaml.safe_load(params.read_text())
+        team_eps = [e for sec in doc.values() for e in sec["ros__parameters"].get("team_listen", [])]
+        msgs, sent, got = messages_file(tmp_path, src), tmp_path / "sent.jsonl", tmp_path / "got.jsonl"
+        bad = stranger_messages(tmp_path, src)
+        echo = [a for r in ROBOTS for a in ("--topic", f"/robot{r}/odometry/filtered:{cv.ODOMETRY}")]
+        echo += ["--topic", f"/tf:{cv.TF}"]
+        env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHONPATH")}
+        common = ["--input", str(msgs), "--sent", str(sent), "--restamp", "--out", str(got), "--linger", "5",
+                  "--duration", "60", "--match-timeout", "40", *echo]  # fmt: skip
+        dds = [sys.executable, str(HERE / "ros2_dds_peer.py"), "publish", "--domain", str(domain), "--readers", "1"]
+        zen = [sys.executable, str(HERE / "ros2_zenoh_peer.py"), "publish", "--domain", str(domain)]
+        if middleware == "cyclonedds":  # the stranger discovers by unicast the host's address it can reach
+            peer, attack = dds, [*dds, "--peer", ns.here] if where == "elsewhere" else dds
+        else:  # the stranger reaches the team's session of robot ATTACK (the ROS graph's hub is on loopback)
+            peer, attack = [*zen, "--listen", hub], [*zen, "--connect", team_eps[ATTACK]]
+        attack += ["--input", str(bad), "--restamp", "--match-timeout", "20", "--duration", "40"]
+        if middleware == "zenoh":
+            peer_proc = subprocess.Popen([*peer, *common], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                         text=True)  # fmt: skip
+            nodes = start_nodes(params)
+        else:
+            nodes = start_nodes(params)
+            peer_proc = subprocess.Popen([*peer, *common], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                         text=True)  # fmt: skip
+        run = ns.popen if where == "elsewhere" else subprocess.Popen
+        stranger = run(attack, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        port = int(hub.rsplit(":", 1)[1])
+        probe = ns.run([sys.executable, "-c", f"import socket; socket.create_connection(('{ns.here}', {port}), 5)"])
+        assert probe.returncode != 0 and "refused" in probe.stderr.lower(), probe.stderr  # the hub: loopback only
+        try:
+            out, err = peer_proc.communicate(timeout=120)
+            s_out, s_err = stranger.communicate(timeout=60)
+        finally:
+            for p in (peer_proc, stranger):
+                if p.poll() is None:
+                    p.kill()
+            logs = stop_nodes(nodes)
+    assert peer_proc.returncode == 0, (out, err, logs)
+    if where == "this host":  # the control: the attack is real
+        assert stranger.returncode == 0 and "matched" in s_out, (s_out, s_err)
+        line = next(x for x in logs[ATTACK].splitlines() if "inputs {" in x)
+        assert eval(line.split("inputs ", 1)[1].split("; refused")[0])["odometry"] > 41, line  # noqa: S307
+        return
+    assert stranger.returncode == 1 and "matched" in s_err and "matched" not in s_out, (s_out, s_err)
+    compare_to_replay(tmp_path, params, sent, got)
+    genuine = {r: {"odometry": 0, "detections": 0} for r in ROBOTS}
+    for line in sent.read_text().splitlines():
+        rec = json.loads(line)
+        r = int(rec["topic"].split("/")[1][5:])
+        genuine[r]["odometry" if rec["type"] == cv.ODOMETRY else "detections"] += 1
+    for r, log in zip(ROBOTS, logs, strict=True):
+        line = next(x for x in log.splitlines() if "inputs {" in x)
+        seen = eval(line.split("inputs ", 1)[1].split("; refused")[0])  # noqa: S307 - our own dict's repr
+        assert {k: seen.get(k, 0) for k in genuine[r]} == genuine[r], (r, line)
+        assert "initialpose" not in seen, line

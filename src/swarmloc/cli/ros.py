@@ -91,4 +91,7 @@ def _run(args: argparse.Namespace, ros: Any) -> int:
     print(f"swarmloc ros: robot {params.robot_id}: {d.get('output_odometry', 0)} outputs; {d.get('fused', 0)} "
           f"detections fused, {d.get('gated', 0)} gated, {d.get('unknown', 0)} unknown"
           + ("" if report else "; no odometry came"))  # fmt: skip
+    counts = {k[6:]: v for k, v in d.items() if k.startswith("input_")}
+    refused = {k: v for k, v in d.items() if k.startswith(("refused_", "late_", "frames_")) and v}
+    print(f"swarmloc ros: robot {params.robot_id}: inputs {counts}; refused {refused or 'none'}")
     return 0
