@@ -1,6 +1,6 @@
 """Association of anonymous robot detections: tags vs nearest vs joint vs anonymous, against density and clutter.
 
-    python benchmarks/association.py                  # README table: 4/8/16 robots x clutter 0/1/3, 10 seeds, 20 s
+    python benchmarks/association.py                  # docs/association.md: 4/8/16 robots x clutter 0/1/3, 10 seeds
     python benchmarks/association.py --robots 6 --clutter 0,2 --seeds 3 --estimator ci
 
 Each seed's simulated team (``sim:range_bearing``: robots in one 3 m arena, so more robots is a denser crowd;

@@ -1,7 +1,7 @@
 """swarmloc benchmarks: `python benchmarks/run.py` (about a minute).
 
 Each line prints a time and a ratio against a baseline measured in the same run, so numbers from different
-machines compare by their ratios. Results for this repository's machine are in README.md.
+machines compare by their ratios. Results for this repository's machine are in docs/benchmarks.md.
 """
 
 from __future__ import annotations

@@ -248,7 +248,7 @@ def test_joint_ambiguity_margin_refuses_a_close_second_assignment_only():
 def test_mrclam6_with_robot_barcodes_hidden_joint_is_within_10_percent_of_tagged(mrclam6):
     """MRCLAM dataset 6, first 200 s, landmarks on, the robots' barcodes hidden: ``joint`` gives the true identity
     to more than 95% of the robot detections and the team RMSE is within 10% of the tagged run's (full run:
-    README)."""
+    docs/association.md)."""
     from swarmloc.config import DEFAULTS
     from swarmloc.experiments.evaluate import markdown_table
     from swarmloc.experiments.mrclam import evaluate_mrclam
@@ -269,7 +269,7 @@ def test_mrclam6_with_robot_barcodes_hidden_joint_is_within_10_percent_of_tagged
 def test_khepera_kidnap_the_bank_re_disambiguates_and_nearest_does_not():
     """The slides' kidnapping (robot 4 moved at 30 s of a 60 s run): robot 1's bank has robot 4 back within 0.1 m
     in a few seconds; the centralized EKF with ``nearest`` refuses robot 4's detections as clutter and never
-    recovers (benchmarks/khepera_kidnap.py over 5 seeds of the full run: README)."""
+    recovers (benchmarks/khepera_kidnap.py over 5 seeds of the full run: docs/association.md)."""
     import importlib.util
     import pathlib
 

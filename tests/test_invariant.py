@@ -177,7 +177,7 @@ def test_information_along_follows_the_transition_matrices() -> None:
 
 def test_invariant_ekf_is_consistent_without_landmarks_over_seeds() -> None:
     """ANEES over 8 seeds x 4 robots x 40 s, no absolute information, for the centralized and the distributed
-    invariant filters (a falsifiable check; the 50-seed table is in the README)."""
+    invariant filters (a falsifiable check; the 50-seed table is in docs/estimators.md)."""
     nees = {"iekf": [], "diekf": []}
     for seed in range(8):
         src = load_source("sim:random", robots=4, duration=40.0, seed=100 + seed)

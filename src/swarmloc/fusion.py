@@ -70,7 +70,7 @@ def fuse_relative(
     order: 2 (thesis, second order) or 1 (first-order variant: no ``F`` term, ``Gamma = I``).
     iterations: 1 is the closed form (thesis 4.16-4.19 as corrected in the module docstring); the default 2
         re-linearizes once about the updated mean (Gauss-Newton), which removes most of the mean error left
-        by the single step when uncertainties are large (see tests/test_fusion.py and the README).
+        by the single step when uncertainties are large (see tests/test_fusion.py and docs/verification.md).
 
     With no measurements the prior is returned unchanged. The kernels are
     :func:`swarmloc.kernels.group.relative_to_pseudo` and :func:`swarmloc.kernels.group.fuse_pseudo`.

@@ -289,8 +289,8 @@ def bank_detections(
     the bank's mean with the covariance of only the information gained since the last hand-off of the pair,
     ``(P_t^-1 - (P_prev + Q)^-1)^-1`` (``P``: the bank's covariances then and now, ``Q``: the odometry noise of
     both robots in between, ego's carried to ``j``'s frame), and skips the hand-off when nothing was gained;
-    ``handoff="full"`` (default): the bank's covariance ``P_t`` as is. Measured (README), "new" did not make the
-    team filter consistent: most of its excess NEES comes from wrong hand-offs (a filter locked on a wrong PMR
+    ``handoff="full"`` (default): the bank's covariance ``P_t`` as is. Measured (docs/association.md), "new" did not
+    make the team filter consistent: most of its excess NEES comes from wrong hand-offs (a filter locked on a wrong PMR
     solution), not from the correlation. Either is multiplied by ``inflate``.
     Returns ``(events, counts per robot)`` (the tracker's counters plus ``emitted`` and ``no_gain``); ``kw`` goes to
     :func:`track_anonymous`."""

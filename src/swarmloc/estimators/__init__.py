@@ -2,21 +2,28 @@
 for the centralized one. :data:`ESTIMATORS` maps command-line names to node classes; :func:`make_team` builds the
 nodes of a team from each robot's initial belief.
 
-| name | class | kind |
-|---|---|---|
-| ``dr`` | :class:`DeadReckoning` | prediction only |
-| ``expfusion`` | :class:`ExpFusion` | the thesis estimator (distributed) |
-| ``dekf`` | :class:`DistributedEKF` | distributed EKF (thesis baseline) |
-| ``ci`` | :class:`ExpCI` | covariance intersection in exponential coordinates (distributed, consistent) |
-| ``rdl`` | :class:`RecursiveDecentralized` | recursive decentralized localization (distributed, pairwise) |
-| ``irdl`` | :class:`InvariantRDL` | ``rdl`` in world-frame errors (pairwise; third parties still approximated) |
-| ``diekf`` | :class:`DistributedInvariantEKF` | ``iekf`` computed by the robots (exact, a broadcast per update) |
-| ``cekf`` | :class:`CentralizedEKF` | centralized EKF (reference) |
-| ``iekf`` | :class:`InvariantEKF` | centralized invariant EKF, world-frame errors (observability-preserving) |
-| ``fej`` | :class:`FirstEstimatesEKF` | centralized EKF with first-estimates Jacobians (observability-preserving) |
-| ``mcl`` | :class:`MonteCarloLocalization` | multi-robot Monte Carlo localization (distributed, particles) |
-| ``fls`` | :class:`FixedLagSmoother` | per-robot fixed-lag smoother (GTSAM), covariance intersection with neighbours |
-| ``flsd`` | :class:`TeamFixedLagSmoother` | fixed-lag smoother of own landmarks (GTSAM) on ``diekf``'s exchange |
+=============  ================================  =======================================================================
+name           class                             kind
+=============  ================================  =======================================================================
+``dr``         :class:`DeadReckoning`            prediction only
+``expfusion``  :class:`ExpFusion`                the thesis estimator (distributed)
+``dekf``       :class:`DistributedEKF`           distributed EKF (thesis baseline)
+``ci``         :class:`ExpCI`                    covariance intersection in exponential coordinates (distributed,
+                                                 consistent)
+``rdl``        :class:`RecursiveDecentralized`   recursive decentralized localization (distributed, pairwise)
+``irdl``       :class:`InvariantRDL`             ``rdl`` in world-frame errors (pairwise; third parties still
+                                                 approximated)
+``diekf``      :class:`DistributedInvariantEKF`  ``iekf`` computed by the robots (exact, a broadcast per update)
+``cekf``       :class:`CentralizedEKF`           centralized EKF (reference)
+``iekf``       :class:`InvariantEKF`             centralized invariant EKF, world-frame errors
+                                                 (observability-preserving)
+``fej``        :class:`FirstEstimatesEKF`        centralized EKF with first-estimates Jacobians
+                                                 (observability-preserving)
+``mcl``        :class:`MonteCarloLocalization`   multi-robot Monte Carlo localization (distributed, particles)
+``fls``        :class:`FixedLagSmoother`         per-robot fixed-lag smoother (GTSAM), covariance intersection with
+                                                 neighbours
+``flsd``       :class:`TeamFixedLagSmoother`     fixed-lag smoother of own landmarks (GTSAM) on ``diekf``'s exchange
+=============  ================================  =======================================================================
 """
 
 from __future__ import annotations

@@ -103,8 +103,9 @@ class CentralizedEKF(Node):
     initial: every robot's initial belief (SE(2) :class:`~swarmloc.gaussian.GroupGaussian`), by robot id.
     noise: process noise of the odometry (the same model for every robot).
     association, association_gate, sensor_range [m], sensor_fov [rad]: as
-    :class:`~swarmloc.node.robot.RobotNode`'s (the marginals are the candidates). Other keywords: see
-    :class:`~swarmloc.node.base.Node`.
+        :class:`~swarmloc.node.robot.RobotNode`'s (the marginals are the candidates).
+
+    Other keywords: see :class:`~swarmloc.node.base.Node`.
     """
 
     name = "cekf"

@@ -18,7 +18,7 @@ An update of observer ``i`` detecting ``j`` (or a landmark: ``j = i``, ``H_j = 0
    its replica and the broadcast, corrects its own pose ``x_a <- exp(hat(Gamma_a S^-1 r)) x_a`` and covariance
    ``P_aa <- P_aa - Gamma_a S^-1 Gamma_a^T``, and its replica ``Sigma_ab <- Sigma_ab - Gamma_a S^-1 Gamma_b^T``
    (then symmetrized, ``Sigma_ba = Sigma_ab^T`` to the bit: apart, rounding parted the two blocks and clusters'
-   covariance-intersection divisions inflated the part, README).
+   covariance-intersection divisions inflated the part, docs/benchmarks.md).
 
 Every robot applies the broadcasts in key order (the node's history replays a late one), so all replicas agree and
 the estimates equal the centralized invariant EKF's (tested to 1e-9). Nothing is approximated: no correlation is

@@ -20,8 +20,8 @@ Robots 2011). :mod:`swarmloc.evaluation.observability` measures that information
   measurement Jacobians annihilate (Huang et al. 2011, FEJ-EKF). Residuals use the current estimate.
 
 Both keep the joint ``3n x 3n`` covariance like ``cekf`` and only touch the rows and columns a detection involves
-(one rank-``m`` correction). Which one to use: see the README's consistency tables (the invariant EKF is the
-default recommendation there, on the evidence of the Monte Carlo runs and MRCLAM).
+(one rank-``m`` correction). Which one to use: see the consistency tables of docs/estimators.md (the invariant EKF
+is the default recommendation there, on the evidence of the Monte Carlo runs and MRCLAM).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ updates with the same rescaling.
 
 It reaches close to the centralized EKF's accuracy while staying (approximately) consistent, with pairwise
 communication only; with two robots it equals the centralized EKF. Without landmarks (the team's pose
-unobservable) the approximation of the third-party correlations breaks down (README, MRCLAM table).
+unobservable) the approximation of the third-party correlations breaks down (docs/mrclam.md, MRCLAM table).
 
 **An exchange that does not complete** (the update lost, late past the horizon, refused as computed from an
 outdated answer; the answer or the query lost) leaves the pair's bookkeeping unknown: the observer may have applied

@@ -3,7 +3,7 @@
 :func:`run_se3` runs one estimator on one :class:`~swarmloc.datasets.source.Source` of a 3-D team (beliefs recorded
 at the simulator's truth instants, scored by :func:`swarmloc.evaluation.metrics.evaluate`: 3-D position RMSE,
 rotation-angle RMSE, ANEES per dof over the 6 dof); :func:`se3_table` runs a grid of scenarios x estimators x
-seeds (in a process pool) and :func:`se3_markdown` writes it as the README's table. ``write_tum_tracks`` writes
+seeds (in a process pool) and :func:`se3_markdown` writes it as the table of docs/se3.md. ``write_tum_tracks`` writes
 each robot's estimate and truth as TUM files with full quaternions (``evo_ape tum truth.tum estimate.tum``).
 """
 

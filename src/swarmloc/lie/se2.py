@@ -153,7 +153,7 @@ class SE2(SEGroup):
 
     @classmethod
     def left_jacobian_inv(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
-        """Inverse of the left Jacobian (singular only at |alpha| = 2 pi)."""
+        """Inverse of the left Jacobian (singular only at ``|alpha| = 2 pi``)."""
         if validate:
             x = cls.check_tangent(x, "SE2.left_jacobian_inv")
         x = np.asarray(x, dtype=float)

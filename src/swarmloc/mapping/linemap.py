@@ -19,7 +19,7 @@ fusion block" on the server). Each observation (:class:`LineObservation`, world 
    only where it lies more than 3 standard deviations beyond a closed one; two open ends: the farther. Without end
    information (all ends open) this is the union of both segments' projections. Why: the union of many noisy
    extents is their farthest, biased outwards by the largest pose error along the wall (measured on ``swarmloc map``:
-   README "Cooperative maps");
+   docs/maps.md);
 4. otherwise **added** as a new line. After a fusion the grown line is tested against the other lines with the
    same two tests and merged with any that pass (two robots seeing two ends of one wall end as one line).
 

@@ -12,7 +12,7 @@ two independent Gaussians on SE(2): the frame ``f = mu h exp(zeta^)`` has ``zeta
 * ``order=2``: ``A + B + F(A, B)``, the second-order convolution used by the estimators
   (:func:`swarmloc.gaussian.convolve_moments`, thesis eqs. 3.22-3.28). It adds the heading-times-lever-arm terms
   that the first order drops; with a heading std of 0.2-0.3 rad and a lever arm of metres the first order
-  underestimates the variance of ``rho`` (see the tests and ``docs`` numbers in README "Maps").
+  underestimates the variance of ``rho`` (see the tests and docs/maps.md).
 
 From ``zeta`` to the world line (first order, exact in ``alpha``): with ``o`` the frame's origin and ``beta`` its
 heading, ``rho_w = n(beta + z3) . (o + R_beta (z1, z2)) = rho_0 + z1 + s z3 + O(2)``, ``s = o . t(beta)``,

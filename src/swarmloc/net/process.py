@@ -31,7 +31,7 @@ left does the node get a "not found" answer (revision ``-2``) with the reason, s
 instead of waiting forever; a real answer that still arrives later (revision >= 0; the server's: -1) replaces it
 and is replayed if it is within the horizon. (A "not found" given at the first timeout let the group go on without
 the answer, which the answer to a later ask did not always undo: ``rdl`` on MRCLAM 6 once 0.084 m from the
-in-process run in CI; ``benchmarks/short_waits.py``, README.)
+in-process run in CI; ``benchmarks/short_waits.py``, docs/benchmarks.md.)
 A neighbour's query held ``hold_timeout`` s without its state settling is answered as things stand, and revised if
 they change. An ``rdl`` update expected for ``update_timeout`` s is given up. Pushed revisions and updates are
 coalesced, the newest per exchange: those one batch of received messages makes (:meth:`_drain`), and with link
