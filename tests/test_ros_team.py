@@ -55,10 +55,11 @@ def write_params(tmp: Path, src, middleware: str, domain: int, ros_endpoints: li
     return path
 
 
-def start_nodes(params: Path) -> list[subprocess.Popen]:
+def start_nodes(params: Path, extra: dict[int, list[str]] | None = None) -> list[subprocess.Popen]:
     procs = []
     for r in ROBOTS:
-        cmd = [sys.executable, "-m", "swarmloc.cli", "ros", "--max-wall", "120", "--ros-args", "--params-file",
+        cmd = [sys.executable, "-m", "swarmloc.cli", "ros", "--max-wall", "120", *(extra or {}).get(r, []),
+               "--ros-args", "--params-file",
                str(params), "-r", f"__ns:=/robot{r}", "-r", "odom:=wheel/odom", "-r", "detections:=camera/detections"]
         procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))  # fmt: skip
     for p in procs:  # each says so once its ROS graph is up
@@ -153,11 +154,12 @@ def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middle
     peer += ["--input", str(msgs), "--sent", str(sent), "--restamp", "--out", str(got), "--linger", "5",
              "--duration", "60", "--match-timeout", "40", *echo]  # fmt: skip
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHONPATH")}  # the peer: no swarmloc on its path
+    rec = {0: ["--record", str(tmp_path / "robot0.mcap")]}  # robot 0 also records its beliefs as ROS 2 messages
     if middleware == "zenoh":  # the hub first, so the nodes have something to connect to
         peer_proc = subprocess.Popen(peer, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        nodes = start_nodes(params)
+        nodes = start_nodes(params, rec)
     else:
-        nodes = start_nodes(params)
+        nodes = start_nodes(params, rec)
         peer_proc = subprocess.Popen(peer, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         out, err = peer_proc.communicate(timeout=120)
@@ -171,6 +173,26 @@ def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middle
     assert min(compared.values()) > 5, compared
     for log in logs:  # every node says what it did: outputs, detections fused
         assert "outputs;" in log and "detections fused" in log, log
+    check_recording(tmp_path / "robot0.mcap", sent)
+
+
+def check_recording(path: Path, sent: Path) -> None:
+    """The node's MCAP, read by mcap-ros2-support (not swarmloc): ROS 2 poses of robot 0 stamped in the run's ROS
+    time (the stamps the peer sent), with a positive definite covariance."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    stamps = [json.loads(x)["msg"]["header"]["stamp"] for x in sent.read_text().splitlines()]
+    lo, hi = (f(s["sec"] + 1e-9 * s["nanosec"] for s in stamps) for f in (min, max))
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        poses = list(reader.iter_decoded_messages(topics=["/swarmloc/robot0/pose"]))
+    assert len(poses) > 10 and poses[0].schema.name == cv.POSE
+    for _, _, _, msg in poses:
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        assert lo - 1e-6 <= t <= hi + 10.0, (t, lo, hi)  # ROS time went on while the peer lingered
+        C = np.asarray(msg.pose.covariance).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))]
+        assert np.all(np.linalg.eigvalsh(C) > 0)
 
 
 ATTACK = 1  # the robot the stranger writes for

@@ -24,6 +24,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--out", default=None, help="replay: write the outputs to this new rosbag2")
     r.add_argument("--max-wall", type=float, default=None, help="run: stop after this many wall-clock seconds")
     r.add_argument("--verbose", action="store_true", help="log the team node's state every 2 s")
+    r.add_argument("--view", type=int, default=None, metavar="PORT",
+                   help="run: serve this robot's beliefs to Foxglove or Lichtblick on ws://127.0.0.1:PORT (0: a free "
+                        "port), as long as the node runs")  # fmt: skip
+    r.add_argument("--record", default=None, metavar="FILE.mcap",
+                   help="run: record this robot's beliefs as ROS 2 messages in an MCAP file")
     r.set_defaults(func=cmd_ros)
 
 
@@ -46,7 +51,7 @@ def cmd_ros(args: argparse.Namespace) -> int:
             print(f"{HINT} ({exc.name} is missing)", file=sys.stderr)
             return 2
         raise
-    except (ParamsError, RosArgsError, ValueError, OSError) as exc:
+    except (ParamsError, RosArgsError, ValueError, OSError, RuntimeError) as exc:
         print(f"swarmloc ros: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -67,6 +72,20 @@ def _replay(args: argparse.Namespace, ros: Any) -> int:
     return 0
 
 
+def _view(args: argparse.Namespace, params: Any) -> Any:
+    """The robot's :class:`~swarmloc.net.view.TeamView` (``--view``/``--record``), or None; its stamps are ROS time."""
+    if args.view is None and not args.record:
+        return None
+    from swarmloc.net.view import LAYOUT, TeamView, require_view
+
+    require_view(args.view is not None, bool(args.record))
+    view = TeamView(port=args.view, mcap=args.record, roster=params.team_ids, name=f"swarmloc ros {params.robot_id}",
+                    epoch=0.0)  # fmt: skip
+    if view.url:
+        print(f"live view: open {view.url} in Foxglove or Lichtblick; layout {LAYOUT}", flush=True)
+    return view
+
+
 def _run(args: argparse.Namespace, ros: Any) -> int:
     import logging
     import signal
@@ -78,7 +97,8 @@ def _run(args: argparse.Namespace, ros: Any) -> int:
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")  # fmt: skip
     name, ns = ros.node or "swarmloc", ros.namespace or "/"
     params = load_params(ros.params_files, ros.params, name, ns)
-    node = RosNode(params, name=name, namespace=ns, args=ros)
+    view = _view(args, params)
+    node = RosNode(params, name=name, namespace=ns, args=ros, on_belief=None if view is None else view.observe)
     signal.signal(signal.SIGTERM, lambda *_: node.stop())
     signal.signal(signal.SIGINT, lambda *_: node.stop())
     t = node.topics
@@ -86,7 +106,11 @@ def _run(args: argparse.Namespace, ros: Any) -> int:
     print(f"swarmloc ros: robot {params.robot_id} of team {params.team} ({params.estimator}, {params.middleware}, "
           f"domain {params.domain_id}): in {t['odom_topic']}, {t['detections_topic']}, {t['initialpose_topic']}; "
           f"out {', '.join(outs)}; waiting for the first odometry", flush=True)  # fmt: skip
-    report = node.run(max_wall=args.max_wall)
+    try:
+        report = node.run(max_wall=args.max_wall)
+    finally:
+        if view is not None:
+            view.close()
     d = node.diagnostics()
     print(f"swarmloc ros: robot {params.robot_id}: {d.get('output_odometry', 0)} outputs; {d.get('fused', 0)} "
           f"detections fused, {d.get('gated', 0)} gated, {d.get('unknown', 0)} unknown"

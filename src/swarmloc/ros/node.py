@@ -98,6 +98,7 @@ class RosNode:
         middleware: Any = None,
         team_session: Any = None,
         auth: Any = None,
+        on_belief: Any = None,
     ) -> None:
         args = args or RosArgs()
         self.name = args.node or name
@@ -122,6 +123,7 @@ class RosNode:
         self.net: Any = None
         self.report: Any = None
         self._auth = auth if auth is not None else _load_auth(p)
+        self._on_belief = on_belief
         self._team_session = team_session
         self._own_mw = middleware is None
         self.mw = middleware if middleware is not None else self._open_middleware()
@@ -251,7 +253,8 @@ class RosNode:
             self._own_session = True
         self.net = NetNode(node, self.feed, session=self._team_session, team=p.team, roster=p.team_ids,
                            record_rate=p.frequency, on_settled=self._on_settled, auth=self._auth,
-                           run_id=p.run_id or None, start_timeout=p.start_timeout)  # fmt: skip
+                           run_id=p.run_id or None, start_timeout=p.start_timeout,
+                           on_belief=self._on_belief)  # fmt: skip
         self._thread = threading.Thread(target=self._run_team, name=f"swarmloc-ros-{self.robot}", daemon=True)
         self._thread.start()
 
