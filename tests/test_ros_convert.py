@@ -8,7 +8,6 @@ import math
 
 import numpy as np
 import pytest
-from _ros_sim import detections, odometry
 from scipy.linalg import logm
 
 from swarmloc.events import Detection
@@ -29,15 +28,14 @@ def vee(X):
 
 
 def _array(z, C6, cls="robot2", frame="cam", t=10.0):
-    from _ros_sim import header, pose
-
     hyp = T["vision_msgs/msg/ObjectHypothesisWithPose"](
         hypothesis=T["vision_msgs/msg/ObjectHypothesis"](class_id=cls, score=0.9),
-        pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(z), covariance=np.asarray(C6, float).reshape(36)),
+        pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=cv.pose_msg(z), covariance=np.asarray(C6).reshape(36)),
     )
-    bbox = T["vision_msgs/msg/BoundingBox3D"](center=pose(z), size=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0))
-    det = T["vision_msgs/msg/Detection3D"](header=header(t, frame), results=[hyp], bbox=bbox, id="")
-    return T["vision_msgs/msg/Detection3DArray"](header=header(t, frame), detections=[det])
+    size = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    bbox = T["vision_msgs/msg/BoundingBox3D"](center=cv.pose_msg(z), size=size)
+    det = T["vision_msgs/msg/Detection3D"](header=cv.header(t, frame), results=[hyp], bbox=bbox, id="")
+    return T["vision_msgs/msg/Detection3DArray"](header=cv.header(t, frame), detections=[det])
 
 
 def test_a_pose_detection_in_a_mounted_sensor_frame_matches_monte_carlo():
@@ -94,10 +92,10 @@ def test_odometry_intervals_interpolation_and_the_map_to_odom_transform():
     tl = InputTimeline(3)
     v, w = 0.5, 0.4
     arc = lambda t: np.array([v / w * math.sin(w * t), v / w * (1 - math.cos(w * t)), w * t])  # noqa: E731
-    assert tl.odometry(odometry(100.0, 0.0, 0.0, arc(0.0))) == [] and tl.t0 == 100.0
-    (o,) = tl.odometry(odometry(101.0, v, w, arc(1.0)))
+    assert tl.odometry(cv.odometry_msg(100.0, 0.0, 0.0, arc(0.0))) == [] and tl.t0 == 100.0
+    (o,) = tl.odometry(cv.odometry_msg(101.0, v, w, arc(1.0)))
     assert (o.robot, o.t0, o.t1, o.v, o.w) == (3, 100.0, 101.0, v, w)
-    assert tl.odometry(odometry(100.5, v, w, arc(0.5))) == [] and tl.reasons["odometry_not_after_previous"] == 1
+    assert tl.odometry(cv.odometry_msg(100.5, v, w, arc(0.5))) == [] and tl.reasons["odometry_not_after_previous"] == 1
     pose, sample = tl.odom_at(100.3)
     np.testing.assert_allclose(pose, arc(0.3), atol=1e-12)  # constant twist: the geodesic is the arc
     assert sample.t == 101.0 and sample.v == v
@@ -128,7 +126,7 @@ def test_initialpose_before_the_start_sets_the_initial_belief_after_it_is_a_fix(
     msg = pose_message(0.0, se2(3.0, 1.0, 0.2), np.diag([0.01, 0.01, 0.001]))
     assert tl.initialpose(msg) == [] and tl.initial is not None
     np.testing.assert_allclose(tl.initial[0], [3.0, 1.0, 0.2], atol=1e-12)
-    tl.odometry(odometry(50.0, 0.0, 0.0, (0, 0, 0)))
+    tl.odometry(cv.odometry_msg(50.0, 0.0, 0.0, (0, 0, 0)))
     (d,) = tl.initialpose(msg)  # stamp 0: taken at the latest odometry's stamp
     assert isinstance(d, Detection) and d.kind == "absolute" and d.t == 50.0
     wrong = pose_message(60.0, se2(0, 0, 0), np.eye(3))
@@ -140,8 +138,8 @@ def test_detections_wait_for_the_first_odometry_and_those_before_it_are_refused(
     from swarmloc.events import Detection as D
 
     tl = InputTimeline(1, robots=frozenset({1, 2}))
-    early = detections(9.0, [D(1, 9.0, "pose", np.array([1.0, 0, 0]), np.eye(3) * 1e-3, 2)])
-    late = detections(10.5, [D(1, 10.5, "pose", np.array([1.0, 0, 0]), np.eye(3) * 1e-3, 2)])
+    early = cv.detections_msg(9.0, [D(1, 9.0, "pose", np.array([1.0, 0, 0]), np.eye(3) * 1e-3, 2)], "base_link")
+    late = cv.detections_msg(10.5, [D(1, 10.5, "pose", np.array([1.0, 0, 0]), np.eye(3) * 1e-3, 2)], "base_link")
     assert tl.detections(early) == [] and tl.detections(late) == []
-    got = tl.odometry(odometry(10.0, 0.0, 0.0, (0, 0, 0)))
+    got = tl.odometry(cv.odometry_msg(10.0, 0.0, 0.0, (0, 0, 0)))
     assert [d.t for d in got] == [10.5] and tl.reasons["before_start"] == 1

@@ -11,7 +11,6 @@ import time
 import numpy as np
 import pytest
 from _fake_rmw import Bus
-from _ros_sim import header, team_messages
 
 from swarmloc.experiments.sources import load_source
 from swarmloc.lie import SE2
@@ -22,6 +21,7 @@ from swarmloc.ros.args import RosArgs
 from swarmloc.ros.node import RosNode
 from swarmloc.ros.params import load_params
 from swarmloc.ros.replay import replay_messages
+from swarmloc.ros.simulate import team_messages
 
 
 def _xyt_cov(msg):
@@ -56,20 +56,20 @@ def run_team_on_bus(src, params, offset, clock=None):
             for r in src.robots for kind in ("odometry", "detections")}  # fmt: skip
     tick = pub.publisher("/clock", "")
     sent = {r: [] for r in src.robots}
-    msgs = team_messages(src, offset, "robot{r}/base_link")
+    msgs = team_messages(src, offset)
     w0, t_first = time.time() + 0.5, msgs[0][0]
     for t, r, kind, m in msgs:
         delay = w0 + (t - t_first) - time.time()
         if delay > 0:
             time.sleep(delay)
         if clock is not None:
-            tick.publish(typestore().types[cv.CLOCK](clock=header(t, "").stamp))
+            tick.publish(typestore().types[cv.CLOCK](clock=cv.header(t, "").stamp))
         pubs[(r, kind)].publish(m)
         sent[r].append((kind, m))
     if clock is not None:  # time goes on past the last input, as a played bag's clock does
         for k in range(1, 11):
             time.sleep(0.1)
-            tick.publish(typestore().types[cv.CLOCK](clock=header(msgs[-1][0] + 0.1 * k, "").stamp))
+            tick.publish(typestore().types[cv.CLOCK](clock=cv.header(msgs[-1][0] + 0.1 * k, "").stamp))
     else:
         time.sleep(1.0)
     for n in nodes.values():

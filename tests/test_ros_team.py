@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from _ros_sim import from_json, team_messages, to_json
+from _ros_json import from_json, to_json
 
 from swarmloc.experiments.sources import load_source
 from swarmloc.lie import SE2
@@ -27,6 +27,7 @@ from swarmloc.net.transport import free_ports
 from swarmloc.ros import convert as cv
 from swarmloc.ros.params import load_params
 from swarmloc.ros.replay import replay_messages
+from swarmloc.ros.simulate import team_messages
 
 HERE = Path(__file__).resolve().parent
 ROBOTS = (0, 1, 2)
@@ -132,7 +133,7 @@ def compare_to_replay(tmp: Path, params_file: Path, sent: Path, got: Path) -> di
 def messages_file(tmp: Path, src) -> Path:
     path = tmp / "msgs.jsonl"
     with path.open("w") as f:
-        for t, r, kind, m in team_messages(src, 0.0, "robot{r}/base_link"):
+        for t, r, kind, m in team_messages(src, 0.0):
             rec = {"topic": TOPIC[kind].format(r=r), "type": TYPE[kind], "msg": to_json(m), "at": t}
             f.write(json.dumps(rec) + "\n")
     return path
@@ -201,19 +202,17 @@ ATTACK = 1  # the robot the stranger writes for
 def stranger_messages(tmp: Path, src) -> Path:
     """What a stranger on another host writes for robot ``ATTACK``: odometry at +5 m/s over the whole run (a race
     with the genuine intervals), detections of robot 0 where it is not, and an initial pose far away."""
-    from _ros_sim import detections, odometry
-
     from swarmloc.events import Detection
     from swarmloc.net.ros import pose_message
 
     out = []
     for k in range(41):
         t = 0.1 * k
-        out.append(("odometry", odometry(t, 5.0, 0.0, (0.5 * k, 0.0, 0.0)), t))
+        out.append(("odometry", cv.odometry_msg(t, 5.0, 0.0, (0.5 * k, 0.0, 0.0)), t))
     for k in range(8):
         t = 0.5 * k + 0.05
         d = Detection(ATTACK, t, "pose", np.array([30.0, 0.0, 0.0]), 1e-4 * np.eye(3), 0)
-        out.append(("detections", detections(t, [d], f"robot{ATTACK}/base_link"), t))
+        out.append(("detections", cv.detections_msg(t, [d], f"robot{ATTACK}/base_link"), t))
     out.append(("initialpose", pose_message(1.0, SE2.from_xytheta(np.array([50.0, 50.0, 0.0])), 1e-4 * np.eye(3)), 1.0))
     topic = {"odometry": TOPIC["odometry"], "detections": TOPIC["detections"], "initialpose": "/robot{r}/initialpose"}
     kinds = {**TYPE, "initialpose": cv.POSE}

@@ -17,9 +17,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``ros`` command and its subcommands."""
     r = sub.add_parser("ros", help="a robot's localization as a ROS 2 node (DDS or rmw_zenoh), or a bag replayed",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    r.add_argument("action", nargs="?", default="run", choices=("run", "replay", "params"),
+    r.add_argument("action", nargs="?", default="run", choices=("run", "replay", "params", "sim"),
                    help="run (default): the live node, until Ctrl-C; replay BAG: localize a rosbag2 offline for every "
-                        "node of the params file; params: print every parameter with its default")  # fmt: skip
+                        "node of the params file; params: print every parameter with its default; sim: simulated "
+                        "robots publishing their odometry and detections (write the nodes' params with --params-out)")
+    r.add_argument("--robots", type=int, default=3, help="sim: robots (default 3)")
+    r.add_argument("--duration", type=float, default=60.0, help="sim: seconds of driving (default 60)")
+    r.add_argument("--seed", type=int, default=1, help="sim: the simulation's seed")
+    r.add_argument("--params-out", default=None, metavar="FILE",
+                   help="sim: write the nodes' params file (team, initial poses, frames, keys beside it) and exit")
     r.add_argument("bag", nargs="?", default=None, help="replay: the rosbag2 folder (or .mcap) to read")
     r.add_argument("--out", default=None, help="replay: write the outputs to this new rosbag2")
     r.add_argument("--max-wall", type=float, default=None, help="run: stop after this many wall-clock seconds")
@@ -45,6 +51,8 @@ def cmd_ros(args: argparse.Namespace) -> int:
             return 0
         if args.action == "replay":
             return _replay(args, ros)
+        if args.action == "sim":
+            return _sim(args, ros)
         return _run(args, ros)
     except ModuleNotFoundError as exc:
         if exc.name in ("cyclonedds", "yaml"):
@@ -70,6 +78,51 @@ def _replay(args: argparse.Namespace, ros: Any) -> int:
     print(f"fused {res.stats.get('fused', 0)}, gated {res.stats.get('gated', 0)}, unknown {res.stats.get('unknown', 0)}"
           + (f"; outputs in {args.out}" if args.out else ""))  # fmt: skip
     return 0
+
+
+def _sim_source(args: argparse.Namespace) -> Any:
+    from swarmloc.experiments.sources import load_source
+
+    return load_source("sim:random", robots=args.robots, duration=args.duration, seed=args.seed)
+
+
+def _sim(args: argparse.Namespace, ros: Any) -> int:
+    """``ros sim``: with ``--params-out``, write the nodes' params file and exit; else play the robots' inputs."""
+    from pathlib import Path
+
+    src = _sim_source(args)
+    if args.params_out:
+        import yaml
+
+        from swarmloc.net.auth import make_team_keys
+        from swarmloc.net.transport import free_ports
+        from swarmloc.ros.simulate import node_params
+
+        out = Path(args.params_out).resolve()
+        roster, keys = make_team_keys(out.with_suffix(".keys"), src.robots)
+        doc, eps = node_params(src), [f"tcp/127.0.0.1:{p}" for p in free_ports(len(src.robots))]
+        doc["/**"]["ros__parameters"].update(team="sim", roster_file=str(roster))
+        for k, r in enumerate(src.robots):
+            doc[f"/robot{r}/swarmloc"]["ros__parameters"].update(key_file=str(keys[r]), team_listen=[eps[k]],
+                                                                 team_connect=eps[:k])  # fmt: skip
+        out.write_text(yaml.safe_dump(doc, sort_keys=False))
+        print(f"swarmloc ros sim: the params of {len(src.robots)} nodes in {out} (team keys in {roster.parent})")
+        return 0
+    from swarmloc.rmw import open_middleware
+    from swarmloc.ros.params import load_params
+    from swarmloc.ros.simulate import play
+
+    p = load_params(ros.params_files, {**ros.params, "no_auth": True}, "swarmloc_sim", "/")  # the ROS graph only
+    mw = open_middleware(p.middleware, domain=p.domain_id, scope=p.discovery_range, node_name="swarmloc_sim",
+                         endpoints=tuple(p.ros_endpoints))  # fmt: skip
+    try:
+        print(f"swarmloc ros sim: {len(src.robots)} robots on /robot<N>/odom and /robot<N>/detections "
+              f"({p.middleware}, domain {p.domain_id}); waiting for their nodes", flush=True)  # fmt: skip
+        n, _ = play(mw, src)
+    finally:
+        mw.close()
+    print(f"swarmloc ros sim: published {n} messages over {args.duration:g} s")
+    return 0 if n else 1
 
 
 def _view(args: argparse.Namespace, params: Any) -> Any:

@@ -222,10 +222,57 @@ def initialpose_in(msg: Any, robot: int, world_frame: str, now: float) -> Detect
 
 
 # ------------------------------------------------------------------------------------------------ outputs
-def _header(t: float, frame: str) -> Any:
+def header(t: float, frame: str) -> Any:
+    """A ``std_msgs/msg/Header`` stamped ``t`` [s] in ``frame``."""
     T = typestore().types
     sec, nsec = rosmsg.stamp_to_ros(t)
     return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame)
+
+
+def pose_msg(xyt: Any) -> Any:
+    """A ``geometry_msgs/msg/Pose`` of the planar pose ``(x, y, yaw)``."""
+    T = typestore().types
+    qx, qy, qz, qw = rosmsg.yaw_to_quaternion(float(xyt[2]))
+    point = T["geometry_msgs/msg/Point"](x=float(xyt[0]), y=float(xyt[1]), z=0.0)
+    turn = T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)
+    return T["geometry_msgs/msg/Pose"](position=point, orientation=turn)
+
+
+def odometry_msg(t: float, v: float, w: float, xyt: Any, frame: str = "odom", child: str = "base_link",
+                 twist_var: float = 0.01) -> Any:  # fmt: skip
+    """What a robot publishes as its wheel odometry (the input of :func:`odometry_in`): stamped ``t`` [s], the twist
+    ``(v, w)`` over the interval ending at ``t``, the pose ``xyt`` integrated in ``frame``."""
+    T = typestore().types
+    v3 = T["geometry_msgs/msg/Vector3"]
+    tw = T["geometry_msgs/msg/Twist"](linear=v3(x=float(v), y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=float(w)))
+    return T[ODOMETRY](header=header(t, frame), child_frame_id=child,
+                       pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose_msg(xyt), covariance=np.zeros(36)),
+                       twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                           twist=tw, covariance=np.diag([twist_var] * 6).reshape(36)))  # fmt: skip
+
+
+def detections_msg(t: float, dets: list[Detection], frame: str) -> Any:
+    """The ``Detection3DArray`` of identified ``"pose"`` detections taken at ``t`` by a sensor at ``base_link``
+    (``frame``): the inverse of :func:`detections_in`, each covariance carried back to ROS's additive one,
+    ``C = T^-1 S T^-T``, and the unused z, roll, pitch variances large."""
+    T = typestore().types
+    out = []
+    for d in dets:
+        if d.kind != "pose" or d.target is None:
+            raise ValueError(f"detections_msg: identified 'pose' detections only, got {d.kind!r} of {d.target}")
+        z = np.asarray(d.z, dtype=float)
+        c, s = np.cos(z[2]), np.sin(z[2])
+        Ti = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        cov6 = np.diag([0.0, 0.0, 1e6, 1e6, 1e6, 0.0])
+        cov6[np.ix_((0, 1, 5), (0, 1, 5))] = Ti @ np.asarray(d.cov, dtype=float) @ Ti.T
+        name = f"{'robot' if d.target_is_robot else 'landmark'}{int(d.target)}"
+        hyp = T["vision_msgs/msg/ObjectHypothesisWithPose"](
+            hypothesis=T["vision_msgs/msg/ObjectHypothesis"](class_id=name, score=1.0),
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose_msg(z), covariance=cov6.reshape(36)))
+        size = T["geometry_msgs/msg/Vector3"](x=0.3, y=0.3, z=0.2)
+        bbox = T["vision_msgs/msg/BoundingBox3D"](center=pose_msg(z), size=size)
+        out.append(T["vision_msgs/msg/Detection3D"](header=header(t, frame), results=[hyp], bbox=bbox, id=name))
+    return T[DETECTIONS](header=header(t, frame), detections=out)
 
 
 def pose_out(t: float, mean: np.ndarray, cov: np.ndarray, frame: str, unused_variance: float = 0.0) -> Any:
@@ -264,7 +311,7 @@ def transform_out(t: float, parent: str, child: str, xyt: np.ndarray) -> Any:
         translation=T["geometry_msgs/msg/Vector3"](x=float(xyt[0]), y=float(xyt[1]), z=0.0),
         rotation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
     )
-    return T["geometry_msgs/msg/TransformStamped"](header=_header(t, parent), child_frame_id=child, transform=tr)
+    return T["geometry_msgs/msg/TransformStamped"](header=header(t, parent), child_frame_id=child, transform=tr)
 
 
 def map_to_odom(mean: np.ndarray, odom_pose: np.ndarray) -> np.ndarray:
@@ -291,4 +338,4 @@ def diagnostics_out(t: float, name: str, hardware_id: str, level: int, message: 
     kv = [T["diagnostic_msgs/msg/KeyValue"](key=str(k), value=str(v)) for k, v in values.items()]
     status = T["diagnostic_msgs/msg/DiagnosticStatus"](level=int(level), name=name, message=message,
                                                        hardware_id=hardware_id, values=kv)  # fmt: skip
-    return T[DIAGNOSTICS](header=_header(t, ""), status=[status])
+    return T[DIAGNOSTICS](header=header(t, ""), status=[status])
