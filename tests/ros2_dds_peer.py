@@ -338,9 +338,14 @@ _domains: list[Domain] = []  # the configured domain lives as long as the proces
 def participant(args: argparse.Namespace) -> DomainParticipant:
     if args.peer:  # unicast discovery of the given hosts only (a participant on another host aiming at this one)
         peers = "".join(f'<Peer address="{a}"/>' for a in args.peer)
-        _domains.append(Domain(args.domain, "<CycloneDDS><Domain><General><AllowMulticast>false</AllowMulticast>"
-                               "</General><Discovery><ParticipantIndex>auto</ParticipantIndex><Peers>"
-                               f"{peers}</Peers></Discovery></Domain></CycloneDDS>"))
+        _domains.append(
+            Domain(
+                args.domain,
+                "<CycloneDDS><Domain><General><AllowMulticast>false</AllowMulticast>"
+                "</General><Discovery><ParticipantIndex>auto</ParticipantIndex><Peers>"
+                f"{peers}</Peers></Discovery></Domain></CycloneDDS>",
+            )
+        )
     elif args.scope in CONFIGS:
         _domains.append(Domain(args.domain, CONFIGS[args.scope]))
     return DomainParticipant(args.domain, qos=Qos(Policy.Userdata(b"enclave=/;")))

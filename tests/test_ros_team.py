@@ -59,9 +59,24 @@ def write_params(tmp: Path, src, middleware: str, domain: int, ros_endpoints: li
 def start_nodes(params: Path, extra: dict[int, list[str]] | None = None) -> list[subprocess.Popen]:
     procs = []
     for r in ROBOTS:
-        cmd = [sys.executable, "-m", "swarmloc.cli", "ros", "--max-wall", "120", *(extra or {}).get(r, []),
-               "--ros-args", "--params-file",
-               str(params), "-r", f"__ns:=/robot{r}", "-r", "odom:=wheel/odom", "-r", "detections:=camera/detections"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "swarmloc.cli",
+            "ros",
+            "--max-wall",
+            "120",
+            *(extra or {}).get(r, []),
+            "--ros-args",
+            "--params-file",
+            str(params),
+            "-r",
+            f"__ns:=/robot{r}",
+            "-r",
+            "odom:=wheel/odom",
+            "-r",
+            "detections:=camera/detections",
+        ]
         procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))  # fmt: skip
     for p in procs:  # each says so once its ROS graph is up
         line = p.stdout.readline()

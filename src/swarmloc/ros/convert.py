@@ -268,7 +268,8 @@ def detections_msg(t: float, dets: list[Detection], frame: str) -> Any:
         name = f"{'robot' if d.target_is_robot else 'landmark'}{int(d.target)}"
         hyp = T["vision_msgs/msg/ObjectHypothesisWithPose"](
             hypothesis=T["vision_msgs/msg/ObjectHypothesis"](class_id=name, score=1.0),
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose_msg(z), covariance=cov6.reshape(36)))
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose_msg(z), covariance=cov6.reshape(36)),
+        )
         size = T["geometry_msgs/msg/Vector3"](x=0.3, y=0.3, z=0.2)
         bbox = T["vision_msgs/msg/BoundingBox3D"](center=pose_msg(z), size=size)
         out.append(T["vision_msgs/msg/Detection3D"](header=header(t, frame), results=[hyp], bbox=bbox, id=name))
