@@ -177,9 +177,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         if bad:
             raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
         self.node = node
-        self.robot = node.robots[0]
-        self.session = session
-        self.team = team
+        self.robot, self.session, self.team = node.robots[0], session, team
         self.scope = team_scope(team, run_id)
         self.roster = frozenset(int(r) for r in roster)
         if self.robot not in self.roster:
@@ -202,14 +200,13 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self.lost_timeout = float(lost_timeout)
         self.quiet = float(quiet)
         self.linger = float(linger)
-        self.ros_domain = ros_domain
-        self.on_belief = on_belief
+        self.ros_domain, self.on_belief = ros_domain, on_belief
         self.on_lines = on_lines
+        """Called with every :class:`~swarmloc.net.schema.Lines` message this node publishes (a live view)."""
         self.on_settled = on_settled
         """Called as ``on_settled(t, belief)`` once per record time ``t``, in order, as soon as nothing the team will
         still read can change the belief at ``t`` (:meth:`~.publishing.Publishing._publish_settled`): the output of
         a node that must answer at once and never take back (a ROS node's Odometry and TF)."""
-        """Called with every :class:`~swarmloc.net.schema.Lines` message this node publishes (a live view)."""
         self.scans = scans
         """This robot's range scans (:class:`~swarmloc.mapping.ScanSeries`; None: no range finder): each scan's
         world lines are published for the belief server's map (:mod:`.publishing`)."""
