@@ -31,7 +31,7 @@ extensions = [
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
-exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
+exclude_patterns = ["_build", "_generated", "Thumbs.db", ".DS_Store"]
 
 # Markdown: `$...$` maths, `:::` fences, definition lists; headings get anchors for [text](page.md#anchor) links.
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
@@ -59,3 +59,18 @@ intersphinx_timeout = 5
 
 html_theme = "furo"
 html_title = "swarmloc"
+
+
+def _generated() -> None:
+    """Pages made from the code's one declaration of a thing: the ROS node's parameters (``ros.md`` includes it)."""
+    from swarmloc.ros.params import params_markdown
+
+    out = ROOT / "docs" / "_generated"
+    out.mkdir(exist_ok=True)
+    text = params_markdown()
+    path = out / "ros_params.md"
+    if not path.exists() or path.read_text() != text:  # rewritten only when it changed: no needless rebuild
+        path.write_text(text)
+
+
+_generated()

@@ -5,11 +5,12 @@
         out = ns.run([sys.executable, "attacker.py", "--connect", f"tcp/{ns.here}:{port}"], timeout=60)
 
 A process run in the namespace (:meth:`NetNs.run`, :meth:`NetNs.popen`) has its own interfaces: its own loopback
-(``127.0.0.1`` there is not this host's) and the veth end ``there``, which reaches ``here`` and nothing else of this
-host; it shares the file system, so it can run this repository's Python. Names are unique per process and call (a
-namespace ``stranger-<pid>-<n>``, veths ``sv<n><pid>a``/``b``), the /30 subnet is the first of ``10.231.<k>.0/30``
-not already on an interface (so parallel runs do not collide), and everything is torn down on exit, processes
-started with :meth:`NetNs.popen` killed first.
+(``127.0.0.1`` there is not this host's) and the veth end ``there``, with a default route through ``here``: it
+reaches every address of this host (a stranger on the network routes to the host's other interfaces too), never
+this host's loopback; it shares the file system, so it can run this repository's Python. Names are unique per
+process and call (a namespace ``stranger-<pid>-<n>``, veths ``sv<n><pid>a``/``b``), the /30 subnet is the first of
+``10.231.<k>.0/30`` not already on an interface (so parallel runs do not collide), and everything is torn down on
+exit, processes started with :meth:`NetNs.popen` killed first.
 """
 
 from __future__ import annotations
@@ -86,6 +87,7 @@ def stranger_host(prefix: str = "stranger") -> Iterator[NetNs]:
         _ip("-n", ns.name, "addr", "add", f"{ns.there}/30", "dev", b)
         _ip("-n", ns.name, "link", "set", b, "up")
         _ip("-n", ns.name, "link", "set", "lo", "up")
+        _ip("-n", ns.name, "route", "add", "default", "via", ns.here)  # every address of this host, not only here
         yield ns
     finally:
         for p in ns.procs:

@@ -16,6 +16,9 @@ Modes (each exits on its own after ``--duration`` seconds at most)::
         ``at`` seconds (default: one after the other), writing each line it sent, with its wall time ("sent_ns"),
         to ``--sent``; then stays ``--linger`` seconds so reliable data is acknowledged. Prints "matched" when it
         starts sending.
+        With ``--restamp`` every ``header.stamp`` (nested ones too) is set to the wall time publishing began plus
+        ``at``: ROS time, as a live robot stamps its messages. With ``--topic``/``--out`` it also echoes those topics
+        (below) on the same participant while publishing and lingering: one process, a robot's both sides.
     ros2_dds_peer.py echo --topic /r1/odom:nav_msgs/msg/Odometry [...] [--out got.jsonl] [--count N]
         Subscribes and writes each sample as a line {"topic", "type", "msg", "source_ns"} (stdout if no --out),
         stops after ``--count`` samples in all. Prints "ready" on stderr once its readers exist.
@@ -333,15 +336,38 @@ _domains: list[Domain] = []  # the configured domain lives as long as the proces
 
 
 def participant(args: argparse.Namespace) -> DomainParticipant:
-    if args.scope in CONFIGS:
+    if args.peer:  # unicast discovery of the given hosts only (a participant on another host aiming at this one)
+        peers = "".join(f'<Peer address="{a}"/>' for a in args.peer)
+        _domains.append(
+            Domain(
+                args.domain,
+                "<CycloneDDS><Domain><General><AllowMulticast>false</AllowMulticast>"
+                "</General><Discovery><ParticipantIndex>auto</ParticipantIndex><Peers>"
+                f"{peers}</Peers></Discovery></Domain></CycloneDDS>",
+            )
+        )
+    elif args.scope in CONFIGS:
         _domains.append(Domain(args.domain, CONFIGS[args.scope]))
     return DomainParticipant(args.domain, qos=Qos(Policy.Userdata(b"enclave=/;")))
+
+
+def restamp(obj: typing.Any, sec: int, nanosec: int) -> typing.Any:
+    """``obj`` (a message as JSON) with every ``header.stamp`` set to ``(sec, nanosec)``."""
+    if isinstance(obj, dict):
+        out = {k: restamp(v, sec, nanosec) for k, v in obj.items()}
+        if isinstance(out.get("header"), dict) and "stamp" in out["header"]:
+            out["header"] = {**out["header"], "stamp": {"sec": sec, "nanosec": nanosec}}
+        return out
+    if isinstance(obj, list):
+        return [restamp(v, sec, nanosec) for v in obj]
+    return obj
 
 
 def publish(args: argparse.Namespace) -> int:
     src = sys.stdin if args.input == "-" else open(args.input)  # noqa: SIM115
     lines = [json.loads(line) for line in src if line.strip()]
     dp = participant(args)
+    echoing = start_readers(dp, args) if args.topic else None
     writers: dict[tuple[str, str], DataWriter] = {}
     for rec in lines:
         k = (rec["topic"], rec["type"])
@@ -356,23 +382,30 @@ def publish(args: argparse.Namespace) -> int:
         time.sleep(0.02)
     print("matched", flush=True)
     out = open(args.sent, "w") if args.sent else None  # noqa: SIM115
-    t0 = time.monotonic()
+    t0, base_ns = time.monotonic(), (time.time_ns() // 1_000_000 + 200) * 1_000_000  # a whole ms, 0.2 s ahead
+    t0 += 0.2
     for rec in lines:
-        delay = float(rec.get("at", 0.0)) - (time.monotonic() - t0)
+        at = float(rec.get("at", 0.0))
+        delay = at - (time.monotonic() - t0)
         if delay > 0:
             time.sleep(delay)
         if time.monotonic() - t0 > args.duration:
             return 1
+        if args.restamp:
+            ns = base_ns + round(at * 1e9)
+            rec = {**rec, "msg": restamp(rec["msg"], ns // 1_000_000_000, ns % 1_000_000_000)}
         writers[(rec["topic"], rec["type"])].write(from_json(TYPES[rec["type"]], rec["msg"]))
         if out:
             out.write(json.dumps({**rec, "sent_ns": time.time_ns()}) + "\n")
             out.flush()
     time.sleep(args.linger)
+    if echoing is not None:
+        echoing.set()
     return 0
 
 
-def echo(args: argparse.Namespace) -> int:
-    dp = participant(args)
+def start_readers(dp: DomainParticipant, args: argparse.Namespace) -> threading.Event:
+    """Readers of ``--topic`` writing each sample to ``--out`` (stdout); the event is set once ``--count`` came."""
     out = open(args.out, "w") if args.out else sys.stdout  # noqa: SIM115
     lock, done, n = threading.Lock(), threading.Event(), [0]
 
@@ -391,13 +424,20 @@ def echo(args: argparse.Namespace) -> int:
 
         return on_data
 
-    readers = []
     for spec in args.topic:
         name, typ = spec.split(":", 1)
         topic = Topic(dp, ros_topic(name), TYPES[typ])
         qos = endpoint_qos(args.qos == "best_effort", args.typehash)
-        readers.append(DataReader(dp, topic, qos=qos, listener=Listener(on_data_available=handler(name, typ))))
+        _readers.append(DataReader(dp, topic, qos=qos, listener=Listener(on_data_available=handler(name, typ))))
     print("ready", file=sys.stderr, flush=True)
+    return done
+
+
+_readers: list[DataReader] = []  # readers live as long as the process
+
+
+def echo(args: argparse.Namespace) -> int:
+    done = start_readers(participant(args), args)
     done.wait(args.duration)
     return 0 if (not args.count or done.is_set()) else 1
 
@@ -408,6 +448,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--domain", type=int, default=0)
     ap.add_argument("--scope", choices=("loopback", "localhost", "subnet"), default="loopback")
     ap.add_argument("--qos", choices=("reliable", "best_effort"), default="reliable")
+    ap.add_argument("--peer", action="append", default=[], help="discover only these hosts, by unicast (repeatable)")
     ap.add_argument("--typehash", default=None, help="RIHS01_... to announce in the endpoints' USER_DATA")
     ap.add_argument("--duration", type=float, default=30.0, help="longest run [s]")
     ap.add_argument("--input", default="-")
@@ -418,6 +459,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--topic", action="append", default=[], help="TOPIC:TYPE to echo (repeatable)")
     ap.add_argument("--out", default=None)
     ap.add_argument("--count", type=int, default=0)
+    ap.add_argument("--restamp", action="store_true", help="publish: header stamps = start wall time + at")
     args = ap.parse_args(argv)
     return publish(args) if args.mode == "publish" else echo(args)
 

@@ -9,7 +9,10 @@ rmw_zenoh's layout, written out here from its source (rmw_zenoh_cpp ``liveliness
 Modes (each exits on its own after ``--duration`` seconds at most)::
 
     ros2_zenoh_peer.py publish --input msgs.jsonl --connect tcp/127.0.0.1:PORT
-        Lines {"topic", "type", "msg"}: waits until each key has a matching subscriber, then puts each message.
+        Lines {"topic", "type", "msg", "at"}: waits until each key has a matching subscriber, then puts each message
+        at ``at`` s (default one after the other), writing what it sent to ``--sent``; ``--restamp`` sets every
+        ``header.stamp`` to the wall time publishing began plus ``at``; with ``--topic``/``--out`` it also echoes
+        (below) on the same session while publishing and lingering.
     ros2_zenoh_peer.py echo --topic /r1/odom:nav_msgs/msg/Odometry --listen tcp/127.0.0.1:PORT --count N
         Writes each sample as {"topic", "type", "msg", "seq", "source_ns", "gid"} (stdout, or --out); "ready" on stderr.
 
@@ -27,10 +30,20 @@ import time
 
 import numpy as np
 import zenoh
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
+VISION = {  # vision_msgs 4.1.1 (ROS 2 Jazzy), from its .msg files
+    "vision_msgs/msg/ObjectHypothesis": "string class_id\nfloat64 score\n",
+    "vision_msgs/msg/ObjectHypothesisWithPose": "vision_msgs/ObjectHypothesis hypothesis\n"
+    "geometry_msgs/PoseWithCovariance pose\n",
+    "vision_msgs/msg/BoundingBox3D": "geometry_msgs/Pose center\ngeometry_msgs/Vector3 size\n",
+    "vision_msgs/msg/Detection3D": "std_msgs/Header header\nvision_msgs/ObjectHypothesisWithPose[] results\n"
+    "vision_msgs/BoundingBox3D bbox\nstring id\n",
+    "vision_msgs/msg/Detection3DArray": "std_msgs/Header header\nvision_msgs/Detection3D[] detections\n",
+}
+STORE.register({k: v for name, text in VISION.items() for k, v in get_types_from_msg(text, name).items()})
 
 
 def key(domain: int, topic: str, msgtype: str) -> str:
@@ -73,9 +86,23 @@ def session(args):
     return zenoh.open(cfg)
 
 
+def restamp(obj, sec, nanosec):
+    """``obj`` (a message as JSON) with every ``header.stamp`` set to ``(sec, nanosec)``."""
+    if isinstance(obj, dict):
+        out = {k: restamp(v, sec, nanosec) for k, v in obj.items()}
+        if isinstance(out.get("header"), dict) and "stamp" in out["header"]:
+            out["header"] = {**out["header"], "stamp": {"sec": sec, "nanosec": nanosec}}
+        return out
+    if isinstance(obj, list):
+        return [restamp(v, sec, nanosec) for v in obj]
+    return obj
+
+
 def publish(args) -> int:
     lines = [json.loads(x) for x in open(args.input) if x.strip()]
     s = session(args)
+    if args.topic:
+        start_echo(s, args)  # echoes while publishing and lingering, until the session closes
     pubs, seqs = {}, {}
     for rec in lines:
         k = key(args.domain, rec["topic"], rec["type"])
@@ -87,19 +114,32 @@ def publish(args) -> int:
             print("no subscriber matched", file=sys.stderr)
             return 1
         time.sleep(0.02)
+    print("matched", flush=True)
+    sent = open(args.sent, "w") if args.sent else None
+    t0, base_ns = time.monotonic() + 0.2, (time.time_ns() // 1_000_000 + 200) * 1_000_000
     for rec in lines:
+        at = float(rec.get("at", 0.0))
+        delay = at - (time.monotonic() - t0)
+        if delay > 0:
+            time.sleep(delay)
+        if args.restamp:
+            ns = base_ns + round(at * 1e9)
+            rec = {**rec, "msg": restamp(rec["msg"], ns // 1_000_000_000, ns % 1_000_000_000)}
         k = key(args.domain, rec["topic"], rec["type"])
         gid = hashlib.sha256(f"{s.info.zid()}/{k}".encode()).digest()[:16]
         seqs[k] = seqs.get(k, 0) + 1
         payload = bytes(STORE.serialize_cdr(build(rec["type"], rec["msg"]), rec["type"]))
         pubs[k].put(payload, attachment=struct.pack("<qqB", seqs[k], time.time_ns(), 16) + gid)
+        if sent:
+            sent.write(json.dumps({**rec, "sent_ns": time.time_ns()}) + "\n")
+            sent.flush()
     time.sleep(args.linger)
     s.close()
     return 0
 
 
-def echo(args) -> int:
-    s = session(args)
+def start_echo(s, args):
+    """Subscribers of ``--topic`` writing each sample to ``--out`` (stdout); the event is set once ``--count`` came."""
     out = open(args.out, "w") if args.out else sys.stdout
     lock, done, n = threading.Lock(), threading.Event(), [0]
 
@@ -119,11 +159,19 @@ def echo(args) -> int:
 
         return on
 
-    subs = []
     for spec in args.topic:
         topic, typ = spec.split(":", 1)
-        subs.append(s.declare_subscriber(key(args.domain, topic, typ), handler(topic, typ)))
+        _subs.append(s.declare_subscriber(key(args.domain, topic, typ), handler(topic, typ)))
     print("ready", file=sys.stderr, flush=True)
+    return done
+
+
+_subs = []  # subscribers live as long as the session
+
+
+def echo(args) -> int:
+    s = session(args)
+    done = start_echo(s, args)
     done.wait(args.duration)
     s.close()
     return 0 if (not args.count or done.is_set()) else 1
@@ -142,6 +190,8 @@ def main(argv=None) -> int:
     ap.add_argument("--topic", action="append", default=[])
     ap.add_argument("--out", default=None)
     ap.add_argument("--count", type=int, default=0)
+    ap.add_argument("--sent", default=None)
+    ap.add_argument("--restamp", action="store_true", help="publish: header stamps = start wall time + at")
     args = ap.parse_args(argv)
     return publish(args) if args.mode == "publish" else echo(args)
 

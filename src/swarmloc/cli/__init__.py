@@ -1,11 +1,13 @@
-"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | compare | node | server | team | keys``.
+"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | compare | node | server | team | keys |
+ros``.
 
 Every command writes its results (Markdown, JSON, PNG, TUM) to an output folder and prints a short summary; errors in
 the input (a missing dataset file, a malformed line, an unknown estimator, a bad configuration) are reported in
 one line (or one line per bad record) with exit status 2, never as a traceback.
 
 Parts: :mod:`.parser` (the commands, their options and help), :mod:`.offline` (the commands that run in one process),
-:mod:`.network` (a robot's process, the belief server, a team, keys). ``python -m swarmloc.cli`` runs :func:`main`.
+:mod:`.network` (a robot's process, the belief server, a team, keys), :mod:`.ros` (the ROS 2 node).
+``python -m swarmloc.cli`` runs :func:`main`.
 """
 
 from __future__ import annotations
@@ -16,5 +18,18 @@ __all__ = ["build_parser", "main"]
 
 
 def main(argv: list[str] | None = None) -> int:
+    import sys
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros = None
+    if "--ros-args" in argv:  # ROS's own arguments (swarmloc ros), read as rcl reads them
+        from swarmloc.ros.args import RosArgsError, parse_ros_args
+
+        try:
+            ros, argv = parse_ros_args(argv)
+        except RosArgsError as exc:
+            print(f"swarmloc: {exc}", file=sys.stderr)
+            return 2
     args = build_parser().parse_args(argv)
+    args.ros_args = ros
     return int(args.func(args))

@@ -288,6 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--out", default=None, help="folder for map.md, map.json, map.png, GeoJSON and DXF maps")
     mp.set_defaults(func=_map)
 
+    from swarmloc.cli import ros
+
+    ros.add_parser(sub)
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
     _source_args(t, "sim:random")
     t.add_argument("--server", action="store_true", help="also start the belief server")

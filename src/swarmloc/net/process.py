@@ -132,6 +132,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         (the run ends once the feed has ended and everything in it was read).
     record_rate: [Hz] with a live feed: record times every ``1 / record_rate`` s from the node's start, added as the
         inputs come (None: ``record_times`` alone).
+    on_settled: called with each record time's belief once it is settled (see the attribute).
     auth: this robot's key and the team's roster (:class:`~swarmloc.net.auth.Auth`): everything it sends is signed,
         everything it receives must be signed by the member it claims to come from (refusals counted
         ``auth_<category>``); None: an unauthenticated team (tests on one machine, a trusted network).
@@ -162,6 +163,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         ros_domain: int | None = None,
         on_belief: Callable[[Belief], None] | None = None,
         on_lines: Callable[[Lines], None] | None = None,
+        on_settled: Callable[[float, Any], None] | None = None,
         auth: Auth | None = None,
         run_id: str | None = None,
         scans: Any = None,
@@ -175,9 +177,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         if bad:
             raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
         self.node = node
-        self.robot = node.robots[0]
-        self.session = session
-        self.team = team
+        self.robot, self.session, self.team = node.robots[0], session, team
         self.scope = team_scope(team, run_id)
         self.roster = frozenset(int(r) for r in roster)
         if self.robot not in self.roster:
@@ -200,10 +200,13 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self.lost_timeout = float(lost_timeout)
         self.quiet = float(quiet)
         self.linger = float(linger)
-        self.ros_domain = ros_domain
-        self.on_belief = on_belief
+        self.ros_domain, self.on_belief = ros_domain, on_belief
         self.on_lines = on_lines
         """Called with every :class:`~swarmloc.net.schema.Lines` message this node publishes (a live view)."""
+        self.on_settled = on_settled
+        """Called as ``on_settled(t, belief)`` once per record time ``t``, in order, as soon as nothing the team will
+        still read can change the belief at ``t`` (:meth:`~.publishing.Publishing._publish_settled`): the output of
+        a node that must answer at once and never take back (a ROS node's Odometry and TF)."""
         self.scans = scans
         """This robot's range scans (:class:`~swarmloc.mapping.ScanSeries`; None: no range finder): each scan's
         world lines are published for the belief server's map (:mod:`.publishing`)."""
@@ -312,6 +315,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             self._answer_ready()
             self._release()
             self._flush()
+            self._publish_settled()
             self._status()
             wait = self._run_timers()
             if i >= len(items):  # a live feed with nothing released yet: tell the team how far it is, wait
@@ -347,17 +351,18 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         """Take what the live feed released: append it to ``items`` (grouped), extend the record times."""
         new, w = self.feed.take()
         self._feed_w = max(self._feed_w, w)
-        if not new:
-            return
-        base, groups = len(self.items), _groups(new)
-        self.items.extend(groups)
-        self._group_at.extend(base + k for k, (_, item) in enumerate(groups) if isinstance(item, list))
-        for e in new:
-            self._feed_hi = max(self._feed_hi, float(e.t))
-        if self.record_rate is not None:
-            rt, t0 = self.record_times, self.node.t0
+        if new:
+            base, groups = len(self.items), _groups(new)
+            self.items.extend(groups)
+            self._group_at.extend(base + k for k, (_, item) in enumerate(groups) if isinstance(item, list))
+            for e in new:
+                self._feed_hi = max(self._feed_hi, float(e.t))
+        if self.record_rate is not None:  # record times up to the latest input, or the watermark (time went on)
+            rt, t0 = self.record_times, self.node.t0  # ... but not more than the feed's max_ahead past the input
+            w = self._feed_w if math.isfinite(self._feed_w) else -math.inf  # inf: the stream ended
+            hi = max(self._feed_hi, min(w, max(self._feed_hi, t0) + self.feed.max_ahead))
             k0 = rt.size
-            k1 = math.floor((self._feed_hi - t0) * self.record_rate + 1e-9) + 1
+            k1 = math.floor((hi - t0) * self.record_rate + 1e-9) + 1
             if k1 > k0:
                 self.record_times = np.concatenate([rt, t0 + np.arange(k0, k1) / self.record_rate])
 
@@ -406,6 +411,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self._route(self.node.expire())
         self._flush(force=True)
         self._publish_due(end=True)
+        self._publish_settled(end=True)
         self._publish_progress(math.inf, done=True, force=True)
         t_end = time.monotonic() + self.linger
         quiet_since = time.monotonic()

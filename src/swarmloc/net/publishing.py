@@ -45,6 +45,7 @@ class Publishing:
         self._last_progress_wall = 0.0
         self._last_key: tuple[float, int] = (-math.inf, 0)
         self._scan_i = 0  # scans whose lines are published (or had none)
+        self._settled_at = 0  # record times handed to on_settled
         lagging = getattr(self.node, "lagged_log", None) is not None
         self._delayed: dict[float, Belief] | None = {} if lagging else None  # the delayed poses published (pruned)
         self._delayed_due: dict[float, None] = {}  # stamps filed whose filing is not final yet
@@ -147,6 +148,27 @@ class Publishing:
         if len(self._delayed) > 4096:  # type: ignore[arg-type]  # forget poses filed two horizons back
             for ts in [t for t in self._delayed if t < cut - node.horizon - node.lag]:  # type: ignore[union-attr]
                 del self._delayed[ts]  # type: ignore[union-attr]
+
+    def _publish_settled(self, end: bool = False) -> None:
+        """Hand ``on_settled`` the belief at each record time, in order, once it is settled: the node's own source
+        has passed it, and :meth:`~.lockstep.Lockstep._unsettled` finds nothing keyed at or before it that the team
+        may still read or apply (teammates' progress and broadcasts, updates expected, own groups waiting). Without
+        faults the belief is then final; at the end (``end``) every record time left is handed over as it stands."""
+        if self.on_settled is None:
+            return
+        rt = self.record_times
+        while self._settled_at < rt.size:
+            t = float(rt[self._settled_at])
+            if not end and self._unsettled((t, 3, -1, ())) is not None:
+                return
+            try:
+                b = self.node.belief_at(t)
+            except ValueError:
+                self.counts["settled_too_old"] += 1
+            else:
+                self.on_settled(t, b)
+                self.counts["settled_published"] += 1
+            self._settled_at += 1
 
     def _publish_due(self, end: bool = False, upto: float = -math.inf) -> None:
         """Publish the beliefs due: provisional ones up to the node's present, final ones a horizon before it (or before
