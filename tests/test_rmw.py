@@ -4,7 +4,6 @@ rosbags with rmw_zenoh's layout written out), and a hand-written XCDR1 reader.""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import struct
@@ -18,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from _ros_json import to_json
 
 from swarmloc.net.transport import free_ports
 from swarmloc.rmw import (
@@ -147,17 +147,6 @@ SAMPLES = {
 }
 
 
-def as_json(msg: Any) -> Any:
-    """A rosbags message as plain JSON values (the form both peers read and write)."""
-    if dataclasses.is_dataclass(msg):  # the message's fields, not its constants
-        return {k: as_json(getattr(msg, k)) for k, _ in typestore().fielddefs[msg.__msgtype__][1]}
-    if isinstance(msg, np.ndarray):
-        return msg.tolist()
-    if isinstance(msg, list | tuple):
-        return [as_json(x) for x in msg]
-    return msg
-
-
 # ------------------------------------------------------------------------------------------------ names, QoS
 def test_topic_names_follow_the_ros2_design_article():
     for ok in ("/foo", "/bar/baz", "/_private/thing", "/public_namespace/_private/thing", "/robot1/odom", "/foo_"):
@@ -203,8 +192,8 @@ def test_generated_and_hand_written_idl_serialize_exactly_as_rosbags(msgtype):
     msg = SAMPLES[msgtype]() if msgtype in SAMPLES else discovery_info()
     cdr = bytes(typestore().serialize_cdr(msg, msgtype))
     assert cdr[:4] == b"\x00\x01\x00\x00"
-    generated = peer.from_json(idl_class(msgtype), as_json(msg)).serialize()
-    hand = peer.from_json(peer.TYPES[msgtype], as_json(msg)).serialize()
+    generated = peer.from_json(idl_class(msgtype), to_json(msg)).serialize()
+    hand = peer.from_json(peer.TYPES[msgtype], to_json(msg)).serialize()
     assert generated == cdr
     assert hand == cdr
     assert idl_class(msgtype).__idl_typename__ == peer.TYPES[msgtype].__idl_typename__
@@ -306,14 +295,14 @@ def test_dds_peer_receives_what_swarmloc_publishes():
     finally:
         mw.close()
     by_topic = {t: [g["msg"] for g in got if g["topic"] == t] for t in topics}
-    assert by_topic == {t: [as_json(m) for m in msgs] for t, msgs in sent.items()}
+    assert by_topic == {t: [to_json(m) for m in msgs] for t, msgs in sent.items()}
 
 
 def test_swarmloc_receives_what_the_dds_peer_publishes(tmp_path):
     dom = _domain(2)
     msgs = [("/r1/odom", "nav_msgs/msg/Odometry", odometry(k)) for k in range(3)]
     msgs.append(("/r1/detections", "vision_msgs/msg/Detection3DArray", detections()))
-    lines = [{"topic": t, "type": ty, "msg": as_json(m)} for t, ty, m in msgs]
+    lines = [{"topic": t, "type": ty, "msg": to_json(m)} for t, ty, m in msgs]
     (tmp_path / "in.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines))
     got: list[tuple[str, Any, Received]] = []
     done = threading.Event()
@@ -338,7 +327,7 @@ def test_swarmloc_receives_what_the_dds_peer_publishes(tmp_path):
     finally:
         mw.close()
     for t in ("/r1/odom", "/r1/detections"):
-        assert [as_json(m) for tt, m, _ in got if tt == t] == [as_json(m) for tt, _, m in msgs if tt == t]
+        assert [to_json(m) for tt, m, _ in got if tt == t] == [to_json(m) for tt, _, m in msgs if tt == t]
     for _, _, rx in got:
         assert len(rx.publisher) == 16 and rx.publisher != bytes(16)
         assert before <= rx.source_time_ns <= time.time_ns()
@@ -349,7 +338,7 @@ def test_swarmloc_receives_what_the_dds_peer_publishes(tmp_path):
 def test_dds_qos_matching_best_effort_reader_matches_reliable_writer_not_the_reverse(tmp_path):
     dom = _domain(3)
     # three samples 0.3 s apart: a best-effort reader may miss the first if it matched the writer a moment later
-    lines = [{"topic": "/q/odom", "type": "nav_msgs/msg/Odometry", "msg": as_json(odometry(k)), "at": 0.3 * k}
+    lines = [{"topic": "/q/odom", "type": "nav_msgs/msg/Odometry", "msg": to_json(odometry(k)), "at": 0.3 * k}
              for k in range(3)]  # fmt: skip
     (tmp_path / "in.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines))
     got: dict[str, list[Any]] = {"reliable": [], "best_effort": []}
@@ -441,9 +430,9 @@ def test_dds_refuses_oversize_counts_callback_errors_and_keeps_going():
         _until(lambda: sub.matched() and wr.get_matched_subscriptions(), "the raw writer")
         big = odometry(0)
         big.child_frame_id = "x" * 2000
-        ddspy_write(wr._ref, peer.from_json(peer.Odometry, as_json(big)).serialize())  # valid, but 2.7 kB
+        ddspy_write(wr._ref, peer.from_json(peer.Odometry, to_json(big)).serialize())  # valid, but 2.7 kB
         for k in (1, 2):
-            wr.write(peer.from_json(peer.Odometry, as_json(odometry(k))))
+            wr.write(peer.from_json(peer.Odometry, to_json(odometry(k))))
         _until(lambda: mw.counts["received"] == 3, "three samples")
     finally:
         mw.close()
@@ -522,11 +511,11 @@ def test_zenoh_round_trip_with_an_rmw_zenoh_layout_peer(tmp_path):
         assert pub.token in mw.graph.keys
         pub.close()  # its MP liveliness token goes with it
         assert pub.token not in mw.graph.keys and any("/NN/" in k for k in mw.graph.keys)
-        assert [e["msg"] for e in echoed] == [as_json(odometry(1)), as_json(odometry(2))]
+        assert [e["msg"] for e in echoed] == [to_json(odometry(1)), to_json(odometry(2))]
         assert [e["seq"] for e in echoed] == [1, 2] and {e["gid"] for e in echoed} == {pub.gid.hex()}
 
         mw.subscription("/r1/odom_in", "nav_msgs/msg/Odometry", lambda m, rx: (got.append((m, rx)), done.set()))
-        line = {"topic": "/r1/odom_in", "type": "nav_msgs/msg/Odometry", "msg": as_json(odometry(5))}
+        line = {"topic": "/r1/odom_in", "type": "nav_msgs/msg/Odometry", "msg": to_json(odometry(5))}
         (tmp_path / "in.jsonl").write_text(json.dumps(line) + "\n")
         before = time.time_ns()
         p = _spawn([str(ZENOH_PEER), "publish", "--connect", f"tcp/127.0.0.1:{b}", "--input",
@@ -536,7 +525,7 @@ def test_zenoh_round_trip_with_an_rmw_zenoh_layout_peer(tmp_path):
     finally:
         mw.close()
     ((msg, rx),) = got
-    assert as_json(msg) == as_json(odometry(5))
+    assert to_json(msg) == to_json(odometry(5))
     assert rx.publisher != bytes(16) and before <= rx.source_time_ns <= time.time_ns()
 
 
