@@ -26,8 +26,9 @@ log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whic
 
 NOT_FOUND_SEQ = -2
 """Revision of the "not found" answer a node gives itself when a query got no answer (a real one replaces it)."""
-MIN_REASK = 0.05
-"""[s] the least spacing of a query's asks, whatever ``answer_timeout`` (:meth:`Outbound._ask_again`)."""
+REASK_SPACING = (0.05, 0.25)
+"""[s] the spacing of a query's asks beyond ``answer_retries``: ``answer_timeout`` within these bounds
+(:meth:`Outbound._ask_again`)."""
 
 
 class Outbound:
@@ -208,12 +209,13 @@ class Outbound:
         drops a reply that comes after its timeout, and the neighbour does not know) is then taken by the next ask
         instead of being lost for good; the node gets its "not found" answer only once no ask is left, so a stalled
         but live neighbour costs a wait and its answer is applied as in-process.
-        **Bounded by rate and count**: the ``k``-th ask goes out no sooner than ``k`` spacings (``answer_timeout``,
-        at least ``MIN_REASK`` s) after the first, so a get that ends at once (a liveliness token without a process
-        behind it, no queryable to answer) waits on a timer instead of being asked again at once (counted
-        ``asked_again_later``; before, one query was asked 22,662 times while a fake token lasted), and a query is
-        asked at most ``answer_retries + ceil(lost_timeout / spacing) + 1`` times."""
-        now, spacing = time.monotonic(), max(self.answer_timeout, MIN_REASK)
+        **Bounded by count and rate**: beyond ``answer_retries``, the ``k``-th ask goes out no sooner than ``k``
+        spacings after the first (``answer_timeout``, within ``REASK_SPACING``), so a get that ends at once (a
+        liveliness token without a process behind it: no queryable to answer) waits on a timer instead of being
+        asked again at once (counted ``asked_again_later``; before, one query was asked 22,662 times while a fake
+        token lasted), and a query is asked at most ``answer_retries + ceil(lost_timeout / spacing) + 1`` times."""
+        lo, hi = REASK_SPACING
+        now, spacing = time.monotonic(), min(max(self.answer_timeout, lo), hi)
         if (
             (again > self.answer_retries and now - first >= self.lost_timeout)
             or again > self.answer_retries + math.ceil(self.lost_timeout / spacing) + 1
@@ -223,7 +225,7 @@ class Outbound:
         ):
             return False
         self.counts["asked_again"] += 1
-        due = first + again * spacing
+        due = first + again * spacing if again > self.answer_retries else now
         if due > now:
             self.counts["asked_again_later"] += 1
             heapq.heappush(self._timers, (due, next(self._qids), lambda: self._ask(m, again=again, first=first)))
