@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
+from _attacker import team_scope_of
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.auth import Auth
@@ -40,29 +41,24 @@ COV = flat(np.diag([0.01, 0.01, 0.001]))
 I3 = flat(np.eye(3))
 
 
-def main() -> None:
+def arguments() -> argparse.Namespace:
     p = argparse.ArgumentParser()
     for name in ("--listen", "--team", "--keys", "--robots", "--out", "--record-times"):
         p.add_argument(name, required=True)
     p.add_argument("--queries", type=int, default=2000)
     p.add_argument("--wait", type=float, default=60.0)
-    a = p.parse_args()
+    return p.parse_args()
+
+
+def main() -> None:
+    a = arguments()
     robots = [int(x) for x in a.robots.split(",")]
     record_times = [float(t) for t in a.record_times.split(",")]
     keys = Path(a.keys)
     auth = Auth.load(keys / "robot2.key", keys / "roster.json", 2)
     lock = threading.Lock()
-    seen: dict[int, float] = {}
-    scope: list[str] = []
     received: Counter[str] = Counter()
     answers: Counter[str] = Counter()
-
-    def on_progress(x) -> None:
-        what = str(x.key_expr).split("/")
-        with lock:
-            seen[int(what[-2])] = time.monotonic()
-            if not scope:
-                scope.append("/".join(what[1:-3]))  # swarmloc/<scope>/robot/<r>/progress
 
     def on_query(q) -> None:
         """A teammate's query to robot 2, answered 100 m off (in robot 2's name: its key)."""
@@ -81,16 +77,11 @@ def main() -> None:
             q.drop()
 
     s = open_session([a.listen], [])
-    decl = [s.declare_subscriber(f"swarmloc/{a.team}/**/robot/*/progress", on_progress,
-                                 allowed_origin=zenoh.Locality.REMOTE)]  # fmt: skip
     print("ready", flush=True)
-    end = time.monotonic() + a.wait
-    while len(seen) < len(robots) and time.monotonic() < end:
-        time.sleep(0.05)
-    sc = scope[0]
+    sc = team_scope_of(s, a.team, robots, time.monotonic() + a.wait)
     attach(auth, s, sc)  # robot 2's handshake, from a second process
     token = s.liveliness().declare_token(alive_key(sc, 2))
-    decl.append(s.declare_queryable(robot_key(sc, 2, "query"), on_query, complete=True))
+    decl = [s.declare_queryable(robot_key(sc, 2, "query"), on_query, complete=True)]
 
     def send(key: str, body, receivers: list[str]) -> None:
         s.put(key, auth.seal(key, encode(a.team, 2, 0, body)), congestion_control=zenoh.CongestionControl.BLOCK)

@@ -532,29 +532,26 @@ class Pairing:
 
     def _twin(self, member: int, kept: str, incarnation: bytes, other: str) -> None:
         """Note a second process of ``member``'s key (its frames are refused as ``twin`` from now on)."""
+        if self._note_twin(member, incarnation, other, "twins"):
+            log.warning("%s: two processes hold the key of %s: %s, kept, and %s, refused (its frames are counted "
+                        "auth_twin)", member_name(self.member), member_name(member), kept, other)  # fmt: skip
+
+    def _twin_of_self(self, incarnation: bytes, other: str) -> None:
+        """Note another process holding this process's own key (its frames are refused as ``twin``)."""
+        if self._note_twin(self.member, incarnation, other, "twins_of_self"):
+            log.warning("%s: another process holds this member's key: %s (this one is process %s)",
+                        member_name(self.member), other, self.incarnation.hex())  # fmt: skip
+
+    def _note_twin(self, member: int, incarnation: bytes, other: str, counter: str) -> bool:
+        """Remember ``member``'s process ``incarnation`` as a twin (the latest ``MAX_TWINS``); whether it is new."""
         with self._cv:
             twins = self._twins.setdefault(member, OrderedDict())
             new = incarnation not in twins
             twins[incarnation] = other
             if len(twins) > MAX_TWINS:
                 twins.popitem(last=False)
-            self.counts["twins"] += new
-        if new:
-            log.warning("%s: two processes hold the key of %s: %s, kept, and %s, refused (its frames are counted "
-                        "auth_twin)", member_name(self.member), member_name(member), kept, other)  # fmt: skip
-
-    def _twin_of_self(self, incarnation: bytes, other: str) -> None:
-        """Note another process holding this process's own key (its frames are refused as ``twin``)."""
-        with self._cv:
-            twins = self._twins.setdefault(self.member, OrderedDict())
-            new = incarnation not in twins
-            twins[incarnation] = other
-            if len(twins) > MAX_TWINS:
-                twins.popitem(last=False)
-            self.counts["twins_of_self"] += new
-        if new:
-            log.warning("%s: another process holds this member's key: %s (this one is process %s)",
-                        member_name(self.member), other, self.incarnation.hex())  # fmt: skip
+            self.counts[counter] += new
+        return new
 
     def close(self) -> None:
         """Stop answering hellos and asking (the sessions stay: late frames still open)."""
