@@ -8,9 +8,12 @@ published belief), in one process and one run: the baseline is what every messag
 ``encode`` on the sender and ``decode`` (MessagePack plus validation: SE(2) mean, SPD covariance...) on the receiver;
 the signed path adds :meth:`swarmloc.net.auth.Signer.seal` on the sender and :meth:`swarmloc.net.auth.Verifier.open`
 (key id, signature, stamp, replay window) on the receiver. Printed per message in microseconds, the ratio signed /
-unsigned, and the bytes on the wire (the frame adds 96: a 32-byte header and a 64-byte signature). Each timing is the
-best of ``--repeats`` loops over ``--n`` messages (every frame opened once: the replay window refuses a second
-opening). The network itself (a Zenoh put or get on 127.0.0.1: ~50-100 us, ``benchmarks/network.py``) is not in it.
+unsigned, and the bytes on the wire (the signed frame adds 104: a 40-byte header and a 64-byte signature). Each
+timing is the best of ``--repeats`` loops over ``--n`` messages (every frame opened once: the replay window refuses a
+second opening). Beside it, the MACed frame that members in a per-pair session send each other
+(:mod:`swarmloc.net.pairing`, :mod:`swarmloc.net.macframe`; it adds 48 bytes: a 32-byte header and a 16-byte keyed
+BLAKE2b tag): sealing and opening it (session, MAC, stamp, replay window), in isolation. The network itself (a
+Zenoh put or get on 127.0.0.1: ~50-100 us, ``benchmarks/network.py``) is not in it.
 
 In context (``--team``, on by default): a simulated team of 3 (``--estimator``, ``--duration`` s) run as three
 :class:`~swarmloc.net.process.NetNode` threads of this process, each on its own Zenoh session on 127.0.0.1, as fast as
@@ -33,6 +36,7 @@ import numpy as np
 
 from swarmloc.messages import BeliefAnswer, RdlState, RdlUpdate, flat
 from swarmloc.net.auth import Auth, Roster, Signer, Verifier, load_private, make_team_keys
+from swarmloc.net.pairing import Pairing
 from swarmloc.net.schema import Belief, Progress, decode, encode
 
 TEAM = "bench"
@@ -58,7 +62,8 @@ def best(fn: Callable[[], None], repeats: int, n: int) -> float:
     return min(out) / n * 1e6
 
 
-def measure(name: str, body, signer: Signer, roster: Roster, n: int, repeats: int) -> dict:
+def measure(name: str, body, signer: Signer, roster: Roster, n: int, repeats: int, pair: tuple) -> dict:
+    """One message's costs; ``pair``: robot 1's and robot 0's :class:`Pairing`, in session with each other."""
     to = 0 if not isinstance(body, Progress | Belief) else None
     raw = encode(TEAM, 1, 0, body)
     t_enc = best(lambda: [encode(TEAM, 1, i, body) for i in range(n)], repeats, n)
@@ -73,10 +78,22 @@ def measure(name: str, body, signer: Signer, roster: Roster, n: int, repeats: in
             v.open(KEY, f)
         opens.append((time.perf_counter() - t) / n * 1e6)
     t_open = min(opens)
+    one, zero = pair
+    t_mac = best(lambda: [one.seal(KEY, raw, to=0) for _ in range(n)], repeats, n)
+    macs = []
+    for _ in range(repeats):
+        maced = [one.seal(KEY, raw, to=0) for _ in range(n)]
+        t = time.perf_counter()
+        for f in maced:
+            zero.open(KEY, f)
+        macs.append((time.perf_counter() - t) / n * 1e6)
+    t_mac_open = min(macs)
     unsigned, signed = t_enc + t_dec, t_enc + t_seal + t_open + t_dec
+    maced_us = t_enc + t_mac + t_mac_open + t_dec
     return {"message": name, "bytes": len(raw), "bytes_signed": len(frames[0]), "encode_us": t_enc,
             "decode_us": t_dec, "seal_us": t_seal, "open_us": t_open, "unsigned_us": unsigned, "signed_us": signed,
-            "ratio": signed / unsigned}  # fmt: skip
+            "ratio": signed / unsigned, "bytes_maced": len(maced[0]), "mac_seal_us": t_mac, "mac_open_us": t_mac_open,
+            "maced_us": maced_us, "mac_ratio": maced_us / unsigned}  # fmt: skip
 
 
 def team_run(src, est: str, auth: bool, folder: str) -> dict:
@@ -133,13 +150,24 @@ def main() -> None:
     roster = Roster.load(roster_file)
     signer = Signer(1, load_private(files[1]))
     Auth(roster, signer)  # the key is robot 1's in the roster
-    rows = [measure(name, body, signer, roster, a.n, a.repeats) for name, body in MESSAGES.items()]
+    one = Pairing(Auth(roster, Signer(1, load_private(files[1]))), TEAM)  # per-pair sessions, without Zenoh
+    zero = Pairing(Auth(roster, Signer(0, load_private(files[0]))), TEAM)
+    one.install(0, zero.incarnation, zero.eph)
+    zero.install(1, one.incarnation, one.eph)
+    rows = [measure(name, body, signer, roster, a.n, a.repeats, (one, zero)) for name, body in MESSAGES.items()]
     print(f"{'message':<13} {'bytes':>11} {'encode':>7} {'decode':>7} {'sign':>7} {'verify':>7} "
           f"{'unsigned':>9} {'signed':>8} {'ratio':>6}   (microseconds per message)")  # fmt: skip
     for r in rows:
         print(f"{r['message']:<13} {r['bytes']:>4} -> {r['bytes_signed']:<4} {r['encode_us']:>7.2f} "
               f"{r['decode_us']:>7.2f} {r['seal_us']:>7.2f} {r['open_us']:>7.2f} {r['unsigned_us']:>9.2f} "
               f"{r['signed_us']:>8.2f} {r['ratio']:>6.1f}")  # fmt: skip
+    print(f"\n{'message':<13} {'bytes':>11} {'MAC':>7} {'check':>7} {'unsigned':>9} {'maced':>8} {'ratio':>6}   "
+          "(per-pair session: MACed frame, microseconds per message)")  # fmt: skip
+    for r in rows:
+        print(
+            f"{r['message']:<13} {r['bytes']:>4} -> {r['bytes_maced']:<4} {r['mac_seal_us']:>7.2f} "
+            f"{r['mac_open_us']:>7.2f} {r['unsigned_us']:>9.2f} {r['maced_us']:>8.2f} {r['mac_ratio']:>6.1f}"
+        )
     env = {"python": platform.python_version(), "machine": platform.machine(), "processor": platform.processor(),
            "cryptography": importlib.metadata.version("cryptography"),
            "msgspec": importlib.metadata.version("msgspec"), "n": a.n, "repeats": a.repeats}  # fmt: skip

@@ -13,9 +13,12 @@
    (throughput). Baseline in the same run, between the asker and ONE responder: a bare Zenoh get/reply with raw
    bytes of the same sizes (no encode / decode). The ratio swarmloc / bare is printed (latency above 1 and
    throughput below 1: the schema's cost). Replies are timed on arrival, with Zenoh's default consolidation (what
-   a node's ``get`` uses). Path "signed": the same round trip as the nodes make it now (authenticated senders,
-   :mod:`swarmloc.net.auth`): the asker signs its query with robot 0's Ed25519 key, the responder verifies it against
-   the team's roster before decoding, signs its answer, and the asker verifies that.
+   a node's ``get`` uses). Path "signed": authenticated senders with an Ed25519 signature per frame
+   (:mod:`swarmloc.net.auth`; how every query went before per-pair sessions): the asker signs its query with robot
+   0's key, the responder verifies it against the team's roster before decoding, signs its answer, and the asker
+   verifies that. Path "mac": the same round trip as the nodes make it now, between members in session
+   (:mod:`swarmloc.net.pairing`: every responder answers the handshake, the asker makes a session with each before
+   the timing): query and answer MACed with the pair's session key (BLAKE2b), each checked before decoding.
 2. MRCLAM dataset 6 through 5 node processes (``swarmloc.experiments.team.run_team``, as ``swarmloc team`` runs
    it) per estimator: data seconds / wall seconds ("x real time"; the team's wall includes starting the processes, the
    slowest node's own run loop excludes it) and each node's CPU seconds per data second (its run loop, from its
@@ -69,6 +72,10 @@ def signed_key(team: str, robot: int) -> str:
     return f"swarmloc/{team}/bench/{robot}/signed"
 
 
+def mac_key(team: str, robot: int) -> str:
+    return f"swarmloc/{team}/bench/{robot}/mac"
+
+
 def answer_body(sender: int, receiver: int, stamp: float, sub: tuple = ()) -> Any:
     from swarmloc.messages import BeliefAnswer, flat
 
@@ -95,6 +102,7 @@ def responder_main(robot: int, team: str, ports: list[int], parent: int, keys: s
     """One responder process: serve the swarmloc, the signed and the bare queryable until SIGTERM (or the parent is
     gone); ``keys``: the folder of the team's keys (:class:`~swarmloc.net.auth.TeamKeys`)."""
     from swarmloc.net.auth import TeamKeys, open_envelope
+    from swarmloc.net.pairing import attach
     from swarmloc.net.schema import Rejected, decode, encode
     from swarmloc.net.transport import open_session, robot_key
 
@@ -106,6 +114,7 @@ def responder_main(robot: int, team: str, ports: list[int], parent: int, keys: s
     bare_answer = bytes(wire_sizes(team)[1])
     auth = TeamKeys(range(len(ports)), keys).auth(robot)
     session = open_session([endpoint(ports[robot])], [endpoint(p) for i, p in enumerate(ports) if i != robot])
+    attach(auth, session, team, hello=False)  # answers the asker's handshake (the "mac" path)
 
     def on_query(q: Any) -> None:
         try:
@@ -119,7 +128,7 @@ def responder_main(robot: int, team: str, ports: list[int], parent: int, keys: s
         finally:
             q.drop()
 
-    def on_signed(q: Any) -> None:
+    def on_signed(q: Any, mac: bool = False) -> None:
         try:
             key = str(q.key_expr)
             try:
@@ -130,7 +139,7 @@ def responder_main(robot: int, team: str, ports: list[int], parent: int, keys: s
                 return
             m = env.body
             body = encode(team, robot, next(seq), answer_body(robot, m.sender, m.stamp, m.sub))
-            q.reply(q.key_expr, auth.seal(key, body))
+            q.reply(q.key_expr, auth.seal(key, body, to=m.sender) if mac else auth.signer.seal(key, body))
         finally:
             q.drop()
 
@@ -145,6 +154,7 @@ def responder_main(robot: int, team: str, ports: list[int], parent: int, keys: s
     try:
         decl = [session.declare_queryable(robot_key(team, robot, "query"), handler=on_query),
                 session.declare_queryable(signed_key(team, robot), handler=on_signed),
+                session.declare_queryable(mac_key(team, robot), handler=lambda q: on_signed(q, mac=True)),
                 session.declare_queryable(bare_key(team, robot), handler=on_bare)]  # fmt: skip
         while not stop.wait(1.0):
             if os.getppid() != parent:  # orphaned: the benchmark is gone
@@ -226,8 +236,9 @@ def round_trips(
 
 
 def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -> dict[str, Any]:
-    """One asker (this process) and ``procs - 1`` responder processes; the swarmloc, signed and bare paths."""
-    from swarmloc.net.auth import TeamKeys, open_envelope, seal
+    """One asker (this process) and ``procs - 1`` responder processes; the swarmloc, signed, mac and bare paths."""
+    from swarmloc.net.auth import TeamKeys, open_envelope
+    from swarmloc.net.pairing import attach
     from swarmloc.net.schema import Rejected, decode, encode
     from swarmloc.net.team import stop_all
     from swarmloc.net.transport import free_ports, open_session, robot_key
@@ -268,6 +279,13 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
                                        f"reachable after {ready_timeout:.0f} s")  # fmt: skip
                 time.sleep(0.05)
             connect_s = time.monotonic() - t0
+            attach(auth, session, team)  # a session with every responder (those not up yet: below, one by one)
+            for r in responders:
+                while not auth.sessions.ensure(r):  # a handshake at most every second while one is missing
+                    dead()
+                    if time.monotonic() - t0 > ready_timeout:
+                        raise RuntimeError(f"no session with responder {r} after {ready_timeout:.0f} s")
+                    time.sleep(0.05)
 
             def check(b: bytes, key: str) -> bool:
                 try:
@@ -283,21 +301,23 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
                     return False
                 return True
 
-            def signed_query(r: int) -> bytes:
+            def signed_query(r: int, mac: bool = False) -> bytes:
                 from swarmloc.messages import BeliefQuery
 
-                q = BeliefQuery(sender=0, receiver=r, stamp=1000.0 + next(seqs) * 0.01)
-                return seal(auth, signed_key(team, r), encode(team, 0, 0, q))
+                q = encode(team, 0, 0, BeliefQuery(sender=0, receiver=r, stamp=1000.0 + next(seqs) * 0.01))
+                return auth.seal(mac_key(team, r), q, to=r) if mac else auth.signer.seal(signed_key(team, r), q)
 
             seqs = itertools.count()
             swarm = [
                 (robot_key(team, r, "query"), lambda i, r=r: query_payload(team, next(seqs), r)) for r in responders
             ]
             signed = [(signed_key(team, r), lambda i, r=r: signed_query(r)) for r in responders]
+            mac = [(mac_key(team, r), lambda i, r=r: signed_query(r, mac=True)) for r in responders]
             bare = [(bare_key(team, responders[0]), lambda i: bare_query)]
             yes = lambda b, k: True  # noqa: E731
             # the queryables are declared once every responder answers every path (bounded)
-            for target, chk in [(t, check) for t in swarm] + [(t, check_signed) for t in signed] + [(bare[0], yes)]:
+            targets = [(t, check) for t in swarm] + [(t, check_signed) for t in signed + mac] + [(bare[0], yes)]
+            for target, chk in targets:
                 while math.isnan(round_trips(session, [target], chk, 1, 1)["p50_ms"]):
                     dead()
                     if time.monotonic() - t0 > ready_timeout:
@@ -306,6 +326,7 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
             warm = min(200, queries)
             round_trips(session, swarm, check, warm, 1)
             round_trips(session, signed, check_signed, warm, 1)
+            round_trips(session, mac, check_signed, warm, 1)
             round_trips(session, bare, yes, warm, 1)
             rows: dict[str, Any] = {"procs": procs, "connect_s": connect_s, "query_bytes": q_size,
                                     "answer_bytes": a_size}  # fmt: skip
@@ -314,6 +335,7 @@ def bench_queries(procs: int, queries: int, window: int, ready_timeout: float) -
                     "bare": round_trips(session, bare, yes, queries, w),
                     "swarmloc": round_trips(session, swarm, check, queries, w),
                     "signed": round_trips(session, signed, check_signed, queries, w),
+                    "mac": round_trips(session, mac, check_signed, queries, w),
                 }
             return rows
         finally:
@@ -387,18 +409,19 @@ def machine() -> dict[str, Any]:
 
 def print_queries(res: list[dict[str, Any]], queries: int, window: int) -> None:
     print(f"\nbelief query round trip over Zenoh on 127.0.0.1, {queries} queries per row after a warm-up; "
-          f"window {window}: gets in flight\nswarmloc: round-robin over the N-1 responders, encode + decode both ways; "
-          "bare: raw bytes to ONE responder")  # fmt: skip
+          f"window {window}: gets in flight\nswarmloc: round-robin over the N-1 responders, encode + decode both ways, "
+          "unauthenticated; signed: + an Ed25519 signature and its check both ways; mac: + the pair's session MAC "
+          "both ways (what nodes in session send); bare: raw bytes to ONE responder")  # fmt: skip
     print(
         f"{'procs':>5} {'mode':<11} {'path':<9} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'queries/s':>10} {'lost':>5}"
     )
     for r in res:
         for mode in ("sequential", f"window {window}"):
-            for path in ("bare", "swarmloc", "signed"):
+            for path in ("bare", "swarmloc", "signed", "mac"):
                 m = r[mode][path]
                 print(f"{r['procs']:>5} {mode:<11} {path:<9} {m['p50_ms']:8.3f} {m['p99_ms']:8.3f} {m['max_ms']:8.2f} "
                       f"{m['qps']:10.0f} {m['lost'] + m['rejected']:5d}")  # fmt: skip
-            for path in ("swarmloc", "signed"):
+            for path in ("swarmloc", "signed", "mac"):
                 s, b = r[mode][path], r[mode]["bare"]
                 print(f"{'':>5} {'':<11} {'ratio':<9} {s['p50_ms'] / b['p50_ms']:7.2f}x "
                       f"{s['p99_ms'] / b['p99_ms']:7.2f}x {s['max_ms'] / b['max_ms']:7.2f}x {s['qps'] / b['qps']:9.2f}x"
@@ -408,6 +431,10 @@ def print_queries(res: list[dict[str, Any]], queries: int, window: int) -> None:
         f"query {sizes['query_bytes']} B, answer {sizes['answer_bytes']} B; all responders reachable after "
         + ", ".join(f"{r['connect_s']:.1f} s ({r['procs']} procs)" for r in res)
     )
+    for r in res:  # the 1, 5 and 15 min load averages before and after each run (another program's load shows here)
+        before, after = r["load"]
+        print(f"load average with {r['procs']} procs: before {before[0]:.2f} {before[1]:.2f} {before[2]:.2f}, "
+              f"after {after[0]:.2f} {after[1]:.2f} {after[2]:.2f} ({os.cpu_count()} cores)")  # fmt: skip
 
 
 def print_mrclam(res: dict[str, Any]) -> None:
@@ -469,7 +496,9 @@ def main() -> None:
     if "queries" not in args.skip:
         for n in procs:
             print(f"round trips with {n} processes ...", file=sys.stderr)
+            load0 = os.getloadavg()
             results["round_trip"].append(bench_queries(n, args.queries, args.window, args.ready_timeout))
+            results["round_trip"][-1]["load"] = [load0, os.getloadavg()]  # the machine may be shared: say so
     if "mrclam" not in args.skip:
         print(f"MRCLAM through {','.join(estimators)} ...", file=sys.stderr)
         results["mrclam"] = bench_mrclam(args.mrclam, args.duration, estimators, args.timeout)

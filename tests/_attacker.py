@@ -31,6 +31,32 @@ def attacker_process(script: Path, args: Sequence[str], wait: float = 60.0) -> I
     assert proc.returncode == 0, proc.stderr.read()
 
 
+def team_scope_of(session, team: str, robots: Sequence[int], end: float) -> str:
+    """The key scope of the run of ``team`` (``<team>`` or ``<team>/run/<id>``) that ``session`` hears, once every
+    robot of ``robots`` has announced progress (or ``time.monotonic()`` passed ``end``: then what was heard)."""
+    import threading
+
+    import zenoh
+
+    seen: dict[int, str] = {}
+    lock = threading.Lock()
+
+    def on_progress(x) -> None:
+        parts = str(x.key_expr).split("/")
+        with lock:
+            seen[int(parts[-2])] = "/".join(parts[1:-3])  # swarmloc/<scope>/robot/<r>/progress
+
+    sub = session.declare_subscriber(f"swarmloc/{team}/**/robot/*/progress", on_progress,
+                                     allowed_origin=zenoh.Locality.REMOTE)  # fmt: skip
+    try:
+        while len(seen) < len(robots) and time.monotonic() < end:
+            time.sleep(0.05)
+    finally:
+        sub.undeclare()
+    with lock:
+        return next(iter(seen.values()), team)
+
+
 def wait_alive(session, key: str, end: float) -> bool:
     """Ask ``session`` for the liveliness token ``key`` until one answers or ``time.monotonic()`` passes ``end``;
     whether it was seen. A process declares its token after its subscribers: before the token is seen, a put to it

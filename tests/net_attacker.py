@@ -9,9 +9,11 @@ robot 0 and an ``RdlUpdate`` shifted 100 m; also a ``BeliefQuery``, a far-off be
 one stamped outside the run), robot 1's progress "done", robot 1's report, a query to the belief server, and messages as
 the belief server and as the collector. Each is sent signed with robot 2's key under robot 1's name (``key_mismatch``),
 with robot 1's key id (``bad_signature``), unsigned, from an id outside the roster, or as robot 2 with robot 1 inside
-the envelope (``sender_mismatch``); robot 2's own belief on robot 1's key (``not_owner``) and stamped outside the run.
-It replays robot 1's genuine pushes to robot 0 as they are (``replay``), moved to robot 2's inbox (``bad_signature``)
-and, after the roster's ``max_age``, again (``stale``). A queryable it declares ("complete") on robot 1's query key
+the envelope; robot 2's own belief on robot 1's key (``not_owner``) and stamped outside the run. Signed as robot 2,
+from this process (not robot 2's process of the run: no session vouches for it), what is not refused before is
+``other_run``. It replays robot 1's genuine pushes to robot 0 (MACed under their pair's session) as they are
+(``replay``), moved to robot 2's inbox (``other_run``: not a session of robot 2's) and, after the roster's
+``max_age``, again (``stale``). A queryable it declares ("complete") on robot 1's query key
 answers every query to robot 1 with a forged answer (``key_mismatch`` at the asker).
 
 Every inner envelope it forges passes the schema's checks (:func:`swarmloc.net.schema.decode`): only the
@@ -36,6 +38,7 @@ from _attacker import wait_alive
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.auth import COLLECTOR, Roster, Signer, key_id, load_private
+from swarmloc.net.macframe import envelope_of
 from swarmloc.net.schema import SERVER, Belief, Progress, Report, decode, encode
 from swarmloc.net.transport import alive_key, open_session, robot_key, server_key
 
@@ -123,7 +126,8 @@ class Attack:
         for signer, category in ((self.as1, "key_mismatch"), (self.as1_kid1, "bad_signature"), (None, "unsigned"),
                                  (self.outsider, "unknown_sender")):  # fmt: skip
             self.put(inbox0, self.forge(signer, inbox0, u, to=0), category)
-        self.put(inbox0, self.forge(self.honest, inbox0, u, to=0), "sender_mismatch")  # robot 2 frames robot 1's
+        # robot 2's key, signed as robot 2 by this process, not robot 2's process of the run: another run's
+        self.put(inbox0, self.forge(self.honest, inbox0, u, to=0), "other_run")
         a = BeliefAnswer(sender=1, receiver=0, stamp=t, seq=-1, mean=SHIFT, cov=COV)
         self.put(inbox0, self.forge(self.as_server, inbox0, a, frm=SERVER, to=0), "key_mismatch")
         self.put(inbox0, self.forge(self.as_collector, inbox0, a, frm=COLLECTOR, to=0), "key_mismatch")
@@ -134,9 +138,9 @@ class Attack:
                  "key_mismatch")  # fmt: skip
         b2 = Belief(robot=2, stamp=rt, rev=99, final=True, mean=SHIFT, cov=COV)
         self.put(b1, self.forge(self.honest, b1, b2), "not_owner")
-        own = self.key(2, "belief")  # robot 2 lying as itself, at a stamp outside the run: the collector's own check
+        own = self.key(2, "belief")  # robot 2's key on its own belief, from a process that is not the run's robot 2
         self.put(own, self.forge(self.honest, own, Belief(robot=2, stamp=-1e6, final=True, mean=SHIFT, cov=COV)),
-                 None)  # fmt: skip
+                 "other_run")  # fmt: skip
         p1 = self.key(1, "progress")
         self.put(p1, self.forge(self.as1, p1, Progress(robot=1, t=math.inf, done=True)), "key_mismatch")
         r1 = self.key(1, "report")
@@ -157,7 +161,7 @@ class Attack:
             grabbed, self.captured = self.captured, []
         for _, key, payload in grabbed:
             self.put(key, payload, "replay")
-            self.put(self.key(2, "inbox"), payload, "bad_signature")
+            self.put(self.key(2, "inbox"), payload, "other_run")  # MACed for robot 0: no session of robot 2
         self.replayed += grabbed
 
     def on_query(self, q) -> None:
@@ -165,7 +169,7 @@ class Attack:
         try:
             raw = q.payload.to_bytes()
             asker = int.from_bytes(raw[4:8], "big", signed=True)
-            env = decode(raw[32:-64], self.team, set(self.robots))
+            env = decode(envelope_of(raw), self.team, set(self.robots))
             m = env.body
             kind = RdlState if isinstance(m, RdlStateQuery) else BeliefAnswer
             fields = dict(x=(100.0, 0.0, 0.0), P=COV, sigma=I3) if kind is RdlState else dict(mean=SHIFT, cov=COV)
@@ -181,7 +185,7 @@ class Attack:
     def on_sample(self, x) -> None:
         what = str(x.key_expr).split("/")
         raw = x.payload.to_bytes()
-        if what[-1] == "progress" and raw[:4] == b"SLS1":
+        if what[-1] == "progress" and raw[:3] == b"SLS":
             r = int(what[-2])
             with self.lock:
                 self.progress[r] = time.monotonic()

@@ -7,10 +7,11 @@ It listens on 127.0.0.1 (the team connects to it: ``launch_team(connect_extra=..
 run's keys from the robots' progress, waits for the belief server's liveliness token, and then, for ``--rounds`` rounds,
 forwards in robot 1's name a detection of robot 0 100 m off (as forward 0, a duplicate, and as forward 10^6, past a
 gap): signed with robot 2's key under robot 1's name (``key_mismatch``), as robot 2 on robot 1's raw key
-(``not_owner``), unsigned (``unsigned``), as robot 2 with robot 1 inside the envelope (``sender_mismatch``), and as
-robot 2 on its own key with robot 1's forward inside (refused by the schema: robot 2 speaking in robot 1's name). Every
-forward it forges passes the schema's checks of its body. It writes the refusals it expects at the server, by category,
-as JSON.
+(``not_owner``), unsigned (``unsigned``), as robot 2 with robot 1 inside the envelope, and as robot 2 on its own key
+with robot 1's forward inside: signed by this process, which is not robot 2's process of the run (no session vouches
+for it), both ``other_run`` (before runs were bound, ``sender_mismatch`` and a refusal of the schema). Every forward
+it forges passes the schema's checks of its body. It writes the refusals it expects at the server, by category, as
+JSON.
 """
 
 from __future__ import annotations
@@ -30,8 +31,6 @@ from swarmloc.messages import flat
 from swarmloc.net.auth import Roster, Signer, load_private
 from swarmloc.net.schema import Raw, RawDetection, decode, encode
 from swarmloc.net.transport import alive_key, open_session, robot_key
-
-NAME_REFUSED = "robot 2 sent a message in the name of robot 1"
 
 
 def main() -> None:
@@ -74,8 +73,8 @@ def main() -> None:
                 (raw1, as1.seal(raw1, env1), "key_mismatch"),
                 (raw1, honest.seal(raw1, env1), "sender_mismatch_or_not_owner"),
                 (raw1, env1, "unsigned"),
-                (raw2, honest.seal(raw2, env1), "sender_mismatch"),
-                (raw2, honest.seal(raw2, env2), NAME_REFUSED),
+                (raw2, honest.seal(raw2, env1), "other_run"),
+                (raw2, honest.seal(raw2, env2), "other_run"),
             ):
                 session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)  # counted: never dropped
                 expected[category] += 1

@@ -98,8 +98,8 @@ PROGRESS = encode(TEAM, 1, 0, Progress(robot=1, t=1.0))
 def test_sealed_frame_opens_to_its_sender_and_payload(keys):
     s, v = signer(keys, 1), verifier(keys)
     data = s.seal(PROGRESS1, PROGRESS)
-    magic, sender, seq, stamp, kid = HEADER.unpack_from(data)
-    assert (magic, sender, kid) == (b"SLS1", 1, key_id(Roster.load(keys[0]).keys[1]))
+    magic, sender, seq, stamp, kid, incarnation = HEADER.unpack_from(data)
+    assert (magic, sender, kid, incarnation) == (b"SLS2", 1, key_id(Roster.load(keys[0]).keys[1]), s.incarnation)
     assert len(data) == HEADER.size + len(PROGRESS) + 64
     assert v.open(PROGRESS1, data, publication=True) == (1, PROGRESS)
     env = open_envelope(Auth(Roster.load(keys[0])), PROGRESS1, s.seal(PROGRESS1, PROGRESS), TEAM, {0, 1, 2})
@@ -460,7 +460,7 @@ def test_attacker_with_robot_2s_key_changes_nothing(tmp_path):
     assert sent["answers"] and not [a for a in sent["answers"] if a.startswith("ok")]
     r0 = expected["robot 0"]
     assert r0["replay"] > 0 and r0["stale"] > 0 and r0["key_mismatch"] >= 6 * rounds
-    assert set(r0) == {"key_mismatch", "bad_signature", "unsigned", "unknown_sender", "sender_mismatch", "replay",
+    assert set(r0) == {"key_mismatch", "bad_signature", "unsigned", "unknown_sender", "other_run", "replay",
                        "stale"}  # fmt: skip
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     for r in src.robots:
@@ -468,7 +468,7 @@ def test_attacker_with_robot_2s_key_changes_nothing(tmp_path):
         assert got == expected.get(f"robot {r}", {}), f"robot {r}"
     got = {k[len("collector_auth_") :]: v for k, v in tr.counts.items() if k.startswith("collector_auth_")}
     assert got == expected["collector"]
-    assert tr.reasons["belief stamped at no record time of the run"] == rounds  # robot 2's own, outside the run
+    assert expected["collector"]["other_run"] == rounds  # robot 2's key on its own belief, not from its process
     server = {k[len("auth_"):]: v for k, v in _server_counts(tmp_path / "logs" / "server.log").items()
               if k.startswith("auth_")}  # fmt: skip
     assert server == expected["server"]

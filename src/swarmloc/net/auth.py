@@ -13,30 +13,44 @@ the roster's key of the member it claims to come from. See ``docs/network.md`` f
 **Signed frame** (big-endian; ``n`` = length of the schema envelope)::
 
     offset  size  field
-    0       4     magic  b"SLS1"  (swarmloc signed, version 1)
+    0       4     magic  b"SLS2"  (swarmloc signed, version 2)
     4       4     sender  int32: robot id >= 0, -1 the belief server, -2 the collector
     8       8     seq     uint64, strictly increasing per sender; starts at the sender's wall clock in ns, so it
                           keeps increasing across a restart of the sender's process
     16      8     stamp   int64, the sender's wall clock when it signed, ns since the Unix epoch
     24      8     key id  the first 8 bytes of SHA-256(sender's raw 32-byte public key)
-    32      n     the schema envelope (MessagePack, :func:`swarmloc.net.schema.encode`)
-    32 + n  64    Ed25519 signature of  b"swarmloc-signed-v1\\0" + key expression (UTF-8) + b"\\0" + bytes 0 .. 32 + n
+    32      8     incarnation  8 random bytes of the sending process (one per process: its run)
+    40      n     the schema envelope (MessagePack, :func:`swarmloc.net.schema.encode`)
+    40 + n  64    Ed25519 signature of  b"swarmloc-signed-v1\\0" + key expression (UTF-8) + b"\\0" + bytes 0 .. 40 + n
 
+(Version 1, ``SLS1``, had no incarnation: a 32-byte header. It is still read, as a frame that names no run.)
 (A robot's live inputs, :mod:`swarmloc.live.zenoh_input`, are signed frames too, with the context
 ``b"swarmloc-input-v1\\0"`` in place of ``b"swarmloc-signed-v1\\0"``: :data:`INPUT_CONTEXT`.)
 The key expression is the one the message is sent on (a put's key, a get's selector key, a reply's key), so a
 message cannot be moved to another key (another robot's inbox) without breaking its signature; the team's name is
 part of it. The frame is bounded (``MAX_SIGNED`` bytes) before anything is parsed.
 
+**Runs and sessions.** A process whose :class:`Auth` is attached to its Zenoh session
+(:func:`swarmloc.net.pairing.attach`) makes a session with each member it meets by a signed handshake: it then
+sends the frames addressed to one member (queries, answers, pushes) MACed under their pair's session key, and it
+accepts a signed frame (a publication: belief, progress, broadcast...) only from the incarnation of its sender
+that the handshake vouched for. A frame of another run (a process of before, replayed) is refused
+(``other_run``), and so is one of a second process holding a member's key (``twin``). See
+:mod:`swarmloc.net.pairing`.
+
 **Refusal categories** (counted as ``auth_<category>`` by nodes, ``collector_auth_<category>`` by the collector,
 ``auth_<category>`` by the belief server; each logged with its reason): ``oversize``, ``unsigned`` (no signed
 frame: too short or no magic), ``unknown_sender`` (not a roster member), ``key_mismatch`` (the frame's key id is not
-the claimed sender's key: signed with another member's key, or an unknown one), ``bad_signature``, ``stale`` (stamp
+the claimed sender's key: signed with another member's key, or an unknown one; a MACed frame under the session of
+another pair than its sender's), ``bad_signature`` (the signature, or the MAC, does not verify), ``stale`` (stamp
 more than ``max_age`` s old), ``future`` (stamp more than ``max_age`` s ahead), ``replay`` (a sequence number
-already accepted from that sender, or older than the replay window), ``not_owner`` (a publication, belief,
+already accepted from that sender's process, or older than the replay window), ``not_owner`` (a publication, belief,
 progress or report, or a live input, on another member's key: ``robot/<id>/belief`` and ``input/<id>/odom`` only
-from robot ``id``), ``sender_mismatch``
-(the schema envelope inside names another sender than the signed frame).
+from robot ``id``), ``other_run`` (signed by a process of the sender that is not the one of this run, MACed under a
+session this receiver does not hold, or a frame that names no run), ``no_session`` (from a member this process
+has no session with yet, and could not make one at once), ``twin`` (signed by a second process holding the sender's
+key, which the handshake found beside the first), ``sender_mismatch`` (the schema envelope inside names another
+sender than the signed frame).
 """
 
 from __future__ import annotations
@@ -50,11 +64,11 @@ import os
 import struct
 import threading
 import time
-from collections import Counter
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Container, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import serialization
@@ -67,9 +81,12 @@ log = logging.getLogger(__name__)
 
 COLLECTOR = -2
 """Member id of the collector of ``swarmloc team`` (it receives beliefs, progress and reports; it sends nothing)."""
-MAGIC = b"SLS1"
-HEADER = struct.Struct(">4siQq8s")  # magic, sender, seq, stamp [ns], key id
+MAGIC = b"SLS2"
+HEADER = struct.Struct(">4siQq8s8s")  # magic, sender, seq, stamp [ns], key id, incarnation
+MAGIC_V1 = b"SLS1"
+HEADER_V1 = struct.Struct(">4siQq8s")  # version 1: no incarnation (read as a frame that names no run)
 SIG_SIZE = 64
+INCARNATION_SIZE = 8
 MAX_SIGNED = 1 << 20
 """[bytes] the largest signed frame a receiver parses. A message is a few hundred bytes, a node's report a few KiB
 (tens under a flood of distinct refusals, each reason counted): the bound keeps a flood of large frames from costing
@@ -79,6 +96,8 @@ MAX_AGE = 30.0
 REPLAY_WINDOW = 4096
 """Accepted sequence numbers remembered per sender (the newest); a number not above the newest one forgotten is
 refused, so a message overtaken by more than this many later ones of its sender is refused as a replay."""
+INCARNATIONS = 4
+"""Processes (incarnations) per sender whose replay windows a :class:`Verifier` keeps (the latest ones heard)."""
 CONTEXT = b"swarmloc-signed-v1\0"
 """Signing context of the team's frames (beliefs, queries, answers, progress...)."""
 INPUT_CONTEXT = b"swarmloc-input-v1\0"
@@ -98,6 +117,9 @@ CATEGORIES = {
     "future": "stamp too far ahead",
     "replay": "sequence number already accepted from that sender (replayed)",
     "not_owner": "published on another member's key",
+    "other_run": "not from the sender's process of this run (another run's, replayed, or another pair's session)",
+    "no_session": "from a member this process has no session with",
+    "twin": "from a second process holding the sender's key",
     "sender_mismatch": "the envelope names another sender than the signed frame",
 }
 """Refusal category -> the reason counted (``auth: <reason>``) and logged."""
@@ -246,34 +268,48 @@ def _signed_bytes(context: bytes, key_expr: str, frame: bytes | memoryview) -> b
 
 class Signer:
     """Seals what ``member`` sends with its ``private`` key (thread-safe: one sequence for the whole process) in
-    signing ``context`` (:data:`CONTEXT`: the team's frames; :data:`INPUT_CONTEXT`: a robot's live inputs)."""
+    signing ``context`` (:data:`CONTEXT`: the team's frames; :data:`INPUT_CONTEXT`: a robot's live inputs).
+    ``incarnation``: the 8 bytes that name this process in every frame (default: random)."""
 
     def __init__(
-        self, member: int, private: Any, clock: Callable[[], int] = time.time_ns, context: bytes = CONTEXT
+        self,
+        member: int,
+        private: Any,
+        clock: Callable[[], int] = time.time_ns,
+        context: bytes = CONTEXT,
+        incarnation: bytes | None = None,
     ) -> None:
         self.member = member
         self._key = private
         self.public = _public_raw(private)
         self.key_id = key_id(self.public)
         self.context = context
-        self._clock = clock
+        self.incarnation = os.urandom(INCARNATION_SIZE) if incarnation is None else bytes(incarnation)
+        if len(self.incarnation) != INCARNATION_SIZE:
+            raise ValueError(f"Signer: incarnation must be {INCARNATION_SIZE} bytes")
+        self.clock = clock
         self._seq = clock()
         self._lock = threading.Lock()
 
     def for_context(self, context: bytes) -> Signer:
-        """A signer with the same member and key in another signing ``context``, with a sequence of its own."""
-        return Signer(self.member, self._key, self._clock, context)
+        """A signer with the same member, key and incarnation in another signing ``context``, with a sequence of its
+        own."""
+        return Signer(self.member, self._key, self.clock, context, self.incarnation)
+
+    def next_seq(self) -> int:
+        """The next number of this signer's sequence (also numbers the MACed frames of :mod:`.pairing`)."""
+        with self._lock:
+            self._seq += 1
+            return self._seq
 
     def seal(self, key_expr: str, payload: bytes) -> bytes:
         """``payload`` (a schema envelope) in a signed frame for ``key_expr``."""
-        with self._lock:
-            self._seq += 1
-            seq = self._seq
-        frame = HEADER.pack(MAGIC, self.member, seq, self._clock(), self.key_id) + payload
+        head = HEADER.pack(MAGIC, self.member, self.next_seq(), self.clock(), self.key_id, self.incarnation)
+        frame = head + payload
         return frame + self._key.sign(_signed_bytes(self.context, key_expr, frame))
 
 
-class _Window:
+class ReplayWindow:
     """The sequence numbers accepted from one sender: those above ``floor``, at most ``size`` of them."""
 
     def __init__(self, size: int) -> None:
@@ -292,9 +328,28 @@ class _Window:
             self.seen.discard(self.floor)
 
 
+class Opened(NamedTuple):
+    """A frame opened by :meth:`Verifier.open_frame`: its sender, the sender's incarnation (b"" for a version 1
+    frame) and the schema envelope it carries."""
+
+    sender: int
+    incarnation: bytes
+    payload: bytes
+
+
+def check_stamp(age_ns: int, max_age_ns: int, who: str) -> None:
+    """Refuse a frame stamped more than ``max_age_ns`` ago (``stale``) or ahead (``future``)."""
+    if age_ns > max_age_ns:
+        raise AuthRejected("stale", f"{who}: stamped {age_ns / 1e9:.1f} s ago")
+    if -age_ns > max_age_ns:
+        raise AuthRejected("future", f"{who}: stamped {-age_ns / 1e9:.1f} s ahead")
+
+
 class Verifier:
-    """Opens frames signed in ``context`` against ``roster``, remembering each sender's accepted sequence numbers
-    (one per receiver)."""
+    """Opens frames signed in ``context`` against ``roster``, remembering the accepted sequence numbers of each
+    sender's process (one per receiver; thread-safe). ``runs``: once set (:mod:`.pairing`), called as
+    ``runs(sender, incarnation)`` for every frame that verifies, returns a refusal category when the frame's
+    process is not its sender's of this run (None: it is)."""
 
     def __init__(
         self,
@@ -308,18 +363,29 @@ class Verifier:
         self._pub = {m: Ed25519PublicKey.from_public_bytes(k) for m, k in roster.keys.items()}
         self._kid = {m: key_id(k) for m, k in roster.keys.items()}
         self._owner_of = {kid: m for m, kid in self._kid.items()}
-        self._clock = clock
-        self._max_age_ns = int(roster.max_age * 1e9)
-        self._windows = {m: _Window(window) for m in roster.keys}
+        self.clock = clock
+        self.max_age_ns = int(roster.max_age * 1e9)
+        self._size = window
+        self._windows: dict[int, OrderedDict[bytes, ReplayWindow]] = {m: OrderedDict() for m in roster.keys}
+        self._lock = threading.Lock()
+        self.runs: Callable[[int, bytes], str | None] | None = None
 
     def open(self, key_expr: str, data: bytes, publication: bool = False) -> tuple[int, bytes]:
         """``(sender, schema envelope)`` of a frame received on ``key_expr``, or :class:`AuthRejected`.
         ``publication``: ``key_expr`` is a member's own (``robot/<id>/belief``...): only ``id`` may send on it."""
+        opened = self.open_frame(key_expr, data, publication)
+        return opened.sender, opened.payload
+
+    def open_frame(self, key_expr: str, data: bytes, publication: bool = False) -> Opened:
+        """:meth:`open`, with the sender's incarnation."""
         if len(data) > MAX_SIGNED:
             raise AuthRejected("oversize", f"{len(data)} bytes on {key_expr}")
-        if len(data) < HEADER.size + SIG_SIZE or data[:4] != MAGIC:
+        head = HEADER if data[:4] == MAGIC else HEADER_V1 if data[:4] == MAGIC_V1 else None
+        if head is None or len(data) < head.size + SIG_SIZE:
             raise AuthRejected("unsigned", f"{len(data)} bytes on {key_expr}")
-        _, sender, seq, stamp, kid = HEADER.unpack_from(data)
+        fields = head.unpack_from(data)
+        sender, seq, stamp, kid = fields[1:5]
+        incarnation = fields[5] if head is HEADER else b""
         who = f"claimed sender {member_name(sender)} on {key_expr}"
         if sender not in self._pub:
             raise AuthRejected("unknown_sender", who)
@@ -330,17 +396,29 @@ class Verifier:
             self._pub[sender].verify(data[-SIG_SIZE:], _signed_bytes(self.context, key_expr, frame))
         except InvalidSignature:
             raise AuthRejected("bad_signature", who) from None
-        age = self._clock() - stamp
-        if age > self._max_age_ns:
-            raise AuthRejected("stale", f"{who}: stamped {age / 1e9:.1f} s ago")
-        if -age > self._max_age_ns:
-            raise AuthRejected("future", f"{who}: stamped {-age / 1e9:.1f} s ahead")
-        if not self._windows[sender].fresh(seq):
-            raise AuthRejected("replay", f"{who}: sequence number {seq}")
+        check_stamp(self.clock() - stamp, self.max_age_ns, who)
         if publication and robot_of(key_expr) != sender:
             raise AuthRejected("not_owner", who)
-        self._windows[sender].accept(seq)
-        return sender, bytes(frame[HEADER.size :])
+        refusal = None if self.runs is None else self.runs(sender, incarnation)
+        if refusal is not None:
+            raise AuthRejected(refusal, f"{who}: its process {incarnation.hex() or '(none named)'}")
+        with self._lock:
+            win = self._window(sender, incarnation)
+            if not win.fresh(seq):
+                raise AuthRejected("replay", f"{who}: sequence number {seq}")
+            win.accept(seq)
+        return Opened(sender, incarnation, bytes(frame[head.size :]))
+
+    def _window(self, sender: int, incarnation: bytes) -> ReplayWindow:
+        """The replay window of ``sender``'s process ``incarnation`` (the latest ``INCARNATIONS`` of a sender)."""
+        wins = self._windows[sender]
+        win = wins.get(incarnation)
+        if win is None:
+            win = wins[incarnation] = ReplayWindow(self._size)
+            if len(wins) > INCARNATIONS:
+                wins.popitem(last=False)
+        wins.move_to_end(incarnation)
+        return win
 
     def _signed_by(self, kid: bytes, key_expr: str, data: bytes, frame: memoryview) -> str:
         """Who signed a frame whose key id is not its claimed sender's: a member (verified), or nobody known."""
@@ -363,6 +441,11 @@ class Auth:
         self.roster = roster
         self.signer = signer
         self.verifier = Verifier(roster)
+        self.sessions: Any = None
+        """The process's per-pair sessions once attached to its Zenoh session (a
+        :class:`~swarmloc.net.pairing.Pairing`, :func:`~swarmloc.net.pairing.attach`): frames to a member it has a
+        session with are MACed, and a frame is accepted only from its sender's process of this run. None: frames
+        are signed, and opened whatever process of the sender signed them."""
 
     @classmethod
     def load(cls, key_file: str | os.PathLike[str], roster_file: str | os.PathLike[str], member: int) -> Auth:
@@ -372,18 +455,27 @@ class Auth:
             raise ValueError(f"{member_name(member)} is not in the roster {roster_file}")
         return cls(roster, Signer(member, load_private(key_file)))
 
-    def seal(self, key_expr: str, payload: bytes) -> bytes:
+    def seal(self, key_expr: str, payload: bytes, to: int | None = None) -> bytes:
+        """``payload`` framed for ``key_expr``: MACed for member ``to`` (default: the member whose inbox or query
+        key it is) when this process has a session with it, else signed."""
         if self.signer is None:
             raise RuntimeError("this process has no key: it cannot send")
+        if self.sessions is not None:
+            return self.sessions.seal(key_expr, payload, to)
         return self.signer.seal(key_expr, payload)
 
     def open(self, key_expr: str, data: bytes, publication: bool = False) -> tuple[int, bytes]:
-        return self.verifier.open(key_expr, data, publication)
+        return (self.verifier if self.sessions is None else self.sessions).open(key_expr, data, publication)
+
+    def session_counts(self) -> dict[str, int]:
+        """The per-pair sessions' counters (handshakes, renewals, twins...; empty when not attached)."""
+        return {} if self.sessions is None else self.sessions.snapshot()
 
 
-def seal(auth: Auth | None, key_expr: str, payload: bytes) -> bytes:
-    """``payload`` sealed for ``key_expr`` (as it is without ``auth``: an unauthenticated team)."""
-    return payload if auth is None else auth.seal(key_expr, payload)
+def seal(auth: Auth | None, key_expr: str, payload: bytes, to: int | None = None) -> bytes:
+    """``payload`` sealed for ``key_expr`` (and member ``to``: :meth:`Auth.seal`); as it is without ``auth``: an
+    unauthenticated team."""
+    return payload if auth is None else auth.seal(key_expr, payload, to)
 
 
 def open_envelope(

@@ -43,6 +43,7 @@ from swarmloc.events import Detection, Event, Odometry
 from swarmloc.messages import flat
 from swarmloc.net.auth import Auth, open_envelope, seal
 from swarmloc.net.faults import Faults
+from swarmloc.net.pairing import attach
 from swarmloc.net.schema import (
     SERVER,
     Belief,
@@ -455,17 +456,21 @@ class Forwarder:
         t_wall0, t_cpu0 = time.perf_counter(), time.process_time()
         end = math.inf if max_wall is None else time.monotonic() + max_wall
         s, sc, r = self.session, self.scope, self.robot
+        attach(self.auth, s, sc, hello=False)  # the per-pair handshake answered first (:mod:`.pairing`)
         decl = [
             s.declare_subscriber(server_key(sc, "report"), handler=self._on_report),
             s.declare_subscriber(server_key(sc, "ack"), handler=self._on_ack),
             s.liveliness().declare_subscriber(alive_key(sc, "server"), history=True, handler=self._on_alive),
         ]
+        if self.auth is not None:  # a session with every member up now (the server's replies are opened on
+            self.auth.sessions.hello_all()  # Zenoh's threads, which never wait for a handshake)
         token = s.liveliness().declare_token(alive_key(sc, r))
         try:
             self._forward(end)
             self._linger(end)
         finally:
-            report = Report(robot=r, net={k: int(v) for k, v in self.counts.items()},
+            net = {**self.counts, **(self.auth.session_counts() if self.auth is not None else {})}
+            report = Report(robot=r, net={k: int(v) for k, v in net.items()},
                             wall_s=time.perf_counter() - t_wall0, cpu_s=time.process_time() - t_cpu0)  # fmt: skip
             try:
                 self._put(robot_key(sc, r, "report"), report)
@@ -477,6 +482,8 @@ class Forwarder:
                     d.undeclare()
                 except Exception:  # noqa: BLE001
                     pass
+            if self.auth is not None:
+                self.auth.sessions.close()
         return report
 
     def _forward(self, end: float) -> None:
@@ -486,6 +493,8 @@ class Forwarder:
         if not self._server_alive.is_set():
             log.warning("robot %s: the server is not alive after %.0f s; forwarding anyway", self.robot,
                         self.start_timeout)  # fmt: skip
+        elif self.auth is not None:  # in session with the server before its acks and report come
+            self.auth.sessions.ensure(SERVER)
         key, pkey = robot_key(self.scope, self.robot, "raw"), robot_key(self.scope, self.robot, "progress")
         w0, odo, det = time.monotonic(), 0, 0
         for n, evs in enumerate(self.forwards):

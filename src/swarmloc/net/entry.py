@@ -341,6 +341,9 @@ def _start(
     if resume:
         if initial.group.dim != 3:
             raise ValueError("resume is for SE(2) teams: an SE(3) team starts from its source's initial beliefs")
+        from swarmloc.net.pairing import attach
+
+        attach(auth, session, scope, hello=False)  # the server's reply is opened in session with it
         b = _latest_from_server(session, team, src.robots, robot, auth, scope)
         initial = GroupGaussian(SE2, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
         events = resume_events(events, b.stamp)

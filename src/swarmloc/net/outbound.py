@@ -26,6 +26,9 @@ log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whic
 
 NOT_FOUND_SEQ = -2
 """Revision of the "not found" answer a node gives itself when a query got no answer (a real one replaces it)."""
+REASK_SPACING = (0.05, 0.25)
+"""[s] the spacing of a query's asks beyond ``answer_retries``: ``answer_timeout`` within these bounds
+(:meth:`Outbound._ask_again`)."""
 
 
 class Outbound:
@@ -44,9 +47,11 @@ class Outbound:
         self.coalesce = 0.05
         """[s] with link faults: the outbox is sent at most this often."""
 
-    def _env(self, body: Any, key: str) -> bytes:
-        """``body`` in this robot's envelope, with its next sequence number, signed for ``key`` (with ``auth``)."""
-        return seal(self.auth, key, encode(self.team, self.robot, next(self._seq), body))
+    def _env(self, body: Any, key: str, to: int | None = None) -> bytes:
+        """``body`` in this robot's envelope, with its next sequence number, sealed for ``key`` and member ``to``
+        (with ``auth``: MACed for a member in session, else signed; ``to`` defaults to the inbox's or query's
+        member)."""
+        return seal(self.auth, key, encode(self.team, self.robot, next(self._seq), body), to)
 
     def _faulty(self, send: Callable[[], None], finish: Callable[[], None] | None = None) -> int:
         """Send now, or as the link faults say (lost, delayed, duplicated); returns the copies sent. ``finish`` runs
@@ -98,7 +103,7 @@ class Outbound:
                 and isinstance(asked, BeliefQuery | RdlStateQuery)
                 and (m.receiver, m.stamp, m.sub) == (asked.sender, asked.stamp, asked.sub)
             ):
-                payload, q = self._env(m, key_of(query)), query
+                payload, q = self._env(m, key_of(query), to=m.receiver), query
                 query = None
                 if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
                     self._expect[(float(m.stamp), 1, m.receiver, tuple(m.sub))] = time.monotonic()
@@ -203,16 +208,29 @@ class Outbound:
         A reply that a get missed (the neighbour held the query, or was stalled, past ``answer_timeout``: a Zenoh get
         drops a reply that comes after its timeout, and the neighbour does not know) is then taken by the next ask
         instead of being lost for good; the node gets its "not found" answer only once no ask is left, so a stalled
-        but live neighbour costs a wait and its answer is applied as in-process."""
+        but live neighbour costs a wait and its answer is applied as in-process.
+        **Bounded by count and rate**: beyond ``answer_retries``, the ``k``-th ask goes out no sooner than ``k``
+        spacings after the first (``answer_timeout``, within ``REASK_SPACING``), so a get that ends at once (a
+        liveliness token without a process behind it: no queryable to answer) waits on a timer instead of being
+        asked again at once (counted ``asked_again_later``; before, one query was asked 22,662 times while a fake
+        token lasted), and a query is asked at most ``answer_retries + ceil(lost_timeout / spacing) + 1`` times."""
+        lo, hi = REASK_SPACING
+        now, spacing = time.monotonic(), min(max(self.answer_timeout, lo), hi)
         if (
-            (again > self.answer_retries and time.monotonic() - first >= self.lost_timeout)
+            (again > self.answer_retries and now - first >= self.lost_timeout)
+            or again > self.answer_retries + math.ceil(self.lost_timeout / spacing) + 1
             or m.receiver not in self._alive
             or m.receiver in self._lost
             or m.stamp < self.node.present - self.node.horizon
         ):
             return False
         self.counts["asked_again"] += 1
-        self._ask(m, again=again, first=first)
+        due = first + again * spacing if again > self.answer_retries else now
+        if due > now:
+            self.counts["asked_again_later"] += 1
+            heapq.heappush(self._timers, (due, next(self._qids), lambda: self._ask(m, again=again, first=first)))
+        else:
+            self._ask(m, again=again, first=first)
         return True
 
     def _feed_local(self, kind: type, m: Message, reason: str, seq: int = NOT_FOUND_SEQ) -> None:

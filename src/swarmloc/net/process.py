@@ -430,6 +430,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
 
     def report(self, wall: float = 0.0, cpu: float = 0.0) -> Report:
         net = dict(self.counts, teammates_seen=len(self._seen))
+        if self.auth is not None:  # the per-pair sessions' counters (handshakes, renewals, twins)
+            net.update(self.auth.session_counts())
         if self.feed is not None:  # a live source: what its inputs brought, and what was refused (by reason)
             net.update(self.feed.summary())
         if self.link is not None:

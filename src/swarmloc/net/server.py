@@ -51,6 +51,7 @@ from swarmloc.lie import SE2
 from swarmloc.mapping import LineMap, LineObservation
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
 from swarmloc.net.auth import Auth, note_refusal, open_envelope, seal
+from swarmloc.net.pairing import attach
 from swarmloc.net.schema import (
     MAX_MAP_LINES,
     SERVER,
@@ -302,6 +303,7 @@ class ServerProcess:
     def run(self, max_wall: float | None = None) -> None:
         """Serve until :meth:`stop` (or ``max_wall`` s)."""
         s, put = self.session, self._q.put
+        attach(self.auth, s, self.scope, hello=False)  # the per-pair handshake answered first (:mod:`.pairing`)
         decl = [
             s.declare_subscriber(robot_key(self.scope, "*", "belief"), handler=lambda x: put(("belief", x))),
             s.declare_subscriber(robot_key(self.scope, "*", "lines"), handler=lambda x: put(("lines", x))),
@@ -313,6 +315,8 @@ class ServerProcess:
             self._pubs = {w: s.declare_publisher(server_key(self.scope, w), congestion_control=block())
                           for w in ("belief", "report", "ack")}  # fmt: skip
             decl += list(self._pubs.values())
+        if self.auth is not None:  # a session with every member up now, before the team hears of the server
+            self.auth.sessions.hello_all()
         token = s.liveliness().declare_token(alive_key(self.scope, "server"))
         end = None if max_wall is None else time.monotonic() + max_wall
         self._wall0, self._cpu0 = time.perf_counter(), time.process_time()
@@ -336,6 +340,9 @@ class ServerProcess:
                     d.undeclare()
                 except Exception:  # noqa: BLE001
                     pass
+            if self.auth is not None:
+                self.counts.update(self.auth.session_counts())
+                self.auth.sessions.close()
             if self.map_out is not None:
                 try:
                     self.maps.current().save_geojson(self.map_out)
@@ -443,7 +450,8 @@ class ServerProcess:
             self._reject(f"{type(env.body).__name__} is not a belief query")
             q.reply_err(b"only BeliefQuery")
             return
-        q.reply(q.key_expr, self._sealed(str(q.key_expr), self.server.answer(env.body)))
+        q.reply(q.key_expr, self._sealed(str(q.key_expr), self.server.answer(env.body), to=env.from_robot))
 
-    def _sealed(self, key: str, body: Any) -> bytes:
-        return seal(self.auth, key, encode(self.team, SERVER, 0, body))
+    def _sealed(self, key: str, body: Any, to: int | None = None) -> bytes:
+        """``body`` signed by the server for ``key`` (MACed for robot ``to`` when in session with it)."""
+        return seal(self.auth, key, encode(self.team, SERVER, 0, body), to)

@@ -37,6 +37,7 @@ from swarmloc.events import Detection
 from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
 from swarmloc.net.entry import hosted_class, network_class
 from swarmloc.net.faults import Faults, parse_faults
+from swarmloc.net.pairing import attach
 from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
 from swarmloc.net.timeouts import (
     ANSWER_RETRIES,
@@ -486,6 +487,7 @@ class _Launcher:
         source's start, which the fault times count from)."""
         others = [self.ep[k] for k in self.ep if k != "collector"] + self.connect_extra
         session = open_session([self.ep["collector"]], others)
+        attach(self.auth, session, self.scope, hello=False)  # the nodes make their sessions with it as they start
         put = self.inq.put
         subs = [
             session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
@@ -510,6 +512,8 @@ class _Launcher:
             limit = " at its time limit" if self.result.counts["timed_out"] else ""
             self.note_ended(f"stopped by the launcher{limit}")
             self.result.exit_codes = {n: p.returncode for n, p in self.procs.items()}
+            self.result.counts.update({f"collector_{k}": v for k, v in self.auth.session_counts().items()})
+            self.auth.sessions.close()
             session.close()
             if self._temp_logs:
                 shutil.rmtree(self.logs, ignore_errors=True)

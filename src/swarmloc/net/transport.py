@@ -22,6 +22,8 @@ Key expressions (``<team>`` is the team's name; one run of a team launched by ``
     swarmloc/<team>/server/belief         publisher: the beliefs of a server-hosted centralized estimator
     swarmloc/<team>/server/report         publisher: the server's report (hosted estimator)
     swarmloc/<team>/server/ack            publisher: the server's requests for missing forwards (hosted estimator)
+    swarmloc/<team>/hello/<member>        queryable: the per-pair handshake of each member (a robot id, ``server``,
+                                          ``collector``; :mod:`swarmloc.net.pairing`)
 """
 
 from __future__ import annotations
@@ -62,6 +64,12 @@ def robot_key(team: str, robot: int | str, what: str) -> str:
 
 def alive_key(team: str, robot: int | str = "*") -> str:
     return f"{PREFIX}/{team}/alive/{robot}"
+
+
+def hello_key(team: str, member: str) -> str:
+    """``swarmloc/<team>/hello/<member>``: a member's handshake queryable (``member``: a robot id, ``server``,
+    ``collector``, or ``*`` for every member's)."""
+    return f"{PREFIX}/{team}/hello/{member}"
 
 
 def server_key(team: str, what: str = "query") -> str:

@@ -5,13 +5,15 @@ thread (:mod:`swarmloc.net.inbound`): queries on ``robot/<id>/query``, pushed me
 every teammate's ``progress``, and liveliness changes under ``alive``. It publishes its ``belief`` and
 ``progress`` (a smoother's ``delayed`` output too; and, with ``ros_domain``, a ROS 2 pose topic in rmw_zenoh's
 layout, with the node's and the publisher's rmw_zenoh liveliness tokens: :mod:`swarmloc.net.rosgraph`), and holds
-its liveliness token.
+its liveliness token. With ``auth`` it first answers the per-pair handshake, and makes a session with every member
+up before it declares its token (:mod:`swarmloc.net.pairing`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from swarmloc.net.pairing import attach
 from swarmloc.net.transport import alive_key, block, robot_key
 
 
@@ -31,6 +33,8 @@ class Wiring:
         self._block = block()  # never drop a belief, a progress announcement or a push
 
         s, team, r = self.session, self.scope, self.robot  # keys: the team's scope (its name, and the run's id)
+        # per-pair sessions (:mod:`swarmloc.net.pairing`): answer the handshake before anything else is declared
+        attach(self.auth, s, team, hello=False)
         put = self._inq.put
         self._decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
         self._decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
@@ -77,6 +81,8 @@ class Wiring:
 
             self._ros_graph = RosGraph(s, self.ros_domain, f"/swarmloc/{self.team.replace('-', '_')}", f"robot{r}")
             self._ros_graph.publisher(self.ros_topic, ros.DDS_TYPE_NAME, ros.type_hash())
+        if self.auth is not None:  # a session with every member up now, before the team hears of this process
+            self.auth.sessions.hello_all()
         self._token = s.liveliness().declare_token(alive_key(team, r))
 
     def _close(self) -> None:
@@ -88,5 +94,7 @@ class Wiring:
                 except Exception:  # noqa: BLE001 - closing: nothing left to do about it
                     pass
         self._decl.clear()
+        if self.auth is not None and self.auth.sessions is not None:
+            self.auth.sessions.close()
         if self._ros_graph is not None:
             self._ros_graph.close()
