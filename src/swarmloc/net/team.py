@@ -37,6 +37,7 @@ from swarmloc.events import Detection
 from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
 from swarmloc.net.entry import hosted_class, network_class
 from swarmloc.net.faults import Faults, parse_faults
+from swarmloc.net.intake import COLLECTOR_BUDGET, Intake, vouch_for
 from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
 from swarmloc.net.timeouts import (
     ANSWER_RETRIES,
@@ -291,7 +292,8 @@ class _Launcher:
         self.procs: dict[str, subprocess.Popen] = {}
         self.result = TeamRun(run_id=self.run_id)
         self.progress: dict[int, float] = {}
-        self.inq: queue.SimpleQueue = queue.SimpleQueue()
+        self._intake = self.inq = Intake(self.roster | {SERVER}, COLLECTOR_BUDGET, signed=True,
+                                         vouch=vouch_for(self.auth))  # fmt: skip
         self.killed = self.restarted = self.joined = False
         self.deadline = math.inf  # the run's end (monotonic), set when it starts
         self.noted: set[int] = set()  # pids of the processes in ``result.ended``
@@ -444,6 +446,7 @@ class _Launcher:
                 self.collect(x)
             except queue.Empty:
                 pass
+            self._intake.fold(self.result.counts, self.result.reasons, prefix="collector_")
             self.apply_faults(t_first)
             self.note_ended()
             if self.all_ended():
@@ -486,7 +489,7 @@ class _Launcher:
         source's start, which the fault times count from)."""
         others = [self.ep[k] for k in self.ep if k != "collector"] + self.connect_extra
         session = open_session([self.ep["collector"]], others)
-        put = self.inq.put
+        put = self.inq.offer  # within the collector's budgets (:mod:`swarmloc.net.intake`)
         subs = [
             session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
             for what in ("belief", "report", "progress", "lines", "delayed")
@@ -505,6 +508,7 @@ class _Launcher:
                     s.undeclare()
                 except Exception:  # noqa: BLE001
                     pass
+            self._intake.fold(self.result.counts, self.result.reasons, prefix="collector_")
             self.note_ended()  # those that ended by themselves, then those the launcher stops
             stop_all(self.procs)
             limit = " at its time limit" if self.result.counts["timed_out"] else ""
