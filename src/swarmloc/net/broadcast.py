@@ -297,6 +297,7 @@ class Broadcasting:
             return
         b = env.body
         if isinstance(b, BroadcastHead):
+            self.counts["broadcast_heads_received"] += 1
             if not self._in_window(b.robot, b.n - 1):
                 return
             self._heads[b.robot] = max(self._heads.get(b.robot, (-1, -math.inf, 0)), (b.n, b.t, b.prio))
