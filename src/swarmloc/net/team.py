@@ -93,6 +93,7 @@ class TeamRun:
         (truth NaN unless ``truth``)."""
         from swarmloc.datasets.tum import pose7
         from swarmloc.lie import SE2
+        from swarmloc.runner.inprocess import truth_table
         from swarmloc.runner.result import RobotTrack
 
         out = {}
@@ -107,13 +108,8 @@ class TeamRun:
                 means = SE2.to_xytheta(np.array([b.mean for b in bs]).reshape(-1, 3, 3)).reshape(-1, 3)
                 covs = np.array([b.cov for b in bs]).reshape(-1, 3, 3)
             w = means.shape[-1]
-            tr = np.full((times.size, w), np.nan)
-            if truth is not None and times.size:
-                try:
-                    tr = np.asarray(truth(r, times), dtype=float).reshape(-1, w)
-                except ValueError:
-                    pass
-            out[r] = RobotTrack(times, means, covs, tr)
+            tr = truth_table(truth, r, times) if times.size else np.full((0, w), np.nan)  # NaN where truth is not
+            out[r] = RobotTrack(times, means, covs, tr if tr.shape == (times.size, w) else np.full_like(means, np.nan))
         return out
 
 
