@@ -10,26 +10,28 @@ queued, in this order (every frame dropped is counted by reason and by sender: :
 1. **size**: a frame larger than ``max_frame`` (a node: 64 KiB; what a node receives is a few hundred bytes,
    a team broadcast about one KiB) is dropped before its bytes are copied (``oversize``);
 2. **rate, per sender**: each sender has a token bucket of frames and bytes per second (``frames_per_s``,
-   ``bytes_per_s``, ``burst_s`` seconds of them banked: ten times and more the busiest sender measured, a teammate
-   of a 5-robot ``diekf`` team at full speed, about 100 frames and 34 KB per second). The sender of a frame is
-   only a *claim* until its signature is verified (the signed frame's sender field; for an unsigned team, the
-   key's robot for a publication, else ``anyone``), and Zenoh vouches for no transport source either (a sample's
-   source info and a session's id are set by the sender). So a frame over its claimed sender's budget is
-   **verified here**, on the Zenoh thread of the link it came on, before it is queued: a genuine one is queued
-   (``vouched``), a forgery dropped (``unvouched``). A flood in a teammate's name therefore never crowds out that
-   teammate's genuine frames: it costs one verification each, on the flooding link's own thread (which slows that
-   link, not the others), and the receiver's thread handles at most the budget of it. Frames claiming no roster
-   member (``unsigned``, ``unknown``: never genuine in a signed team) have a twentieth of a member's budget and
-   nothing to verify: past it they are dropped (``rate``).
-3. **memory**: a sender's frames queued at once hold at most ``sender_bytes``, all senders' ``queue_bytes``
-   (``backlog``, ``queue_full``); each frame is charged its size plus ``ITEM_OVERHEAD`` for the objects around
-   it.
+   ``bytes_per_s``: 400 and 512 KiB for a node, ``burst_s`` = 2 s of them banked; the busiest sender measured, a
+   teammate of a 5-robot ``diekf`` team at full speed on the 2-core test machine, sent about 100 frames and 34 KB
+   a second). The sender of a frame is only a *claim* until its signature is verified (the signed frame's sender
+   field; for an unsigned team, the key's robot for a publication, else ``anyone``), and Zenoh vouches for no
+   transport source either (a sample's source info and a session's id are set by the sender). So a frame over its
+   claimed sender's budget is **verified here**, on the Zenoh thread of the link it came on, before it is queued: a
+   genuine one is queued (``vouched``: a busy genuine sender loses nothing, it costs a second verification), a
+   forgery dropped (``unvouched``). A flood in a teammate's name therefore never crowds out that teammate's genuine
+   frames: it costs one verification a frame, on the flooding link's thread (which slows that link), and the
+   receiver's own thread handles at most the budget's worth of it. Frames claiming no roster member
+   (``unsigned``, ``unknown``: never genuine in a signed team) have a twentieth of a member's budget and nothing to
+   verify: past it they are dropped (``rate``).
+3. **memory**: a sender's frames queued at once hold at most ``sender_bytes`` (8 MiB), all senders'
+   ``queue_bytes`` (``backlog``, ``queue_full``); each frame is charged its size plus ``ITEM_OVERHEAD`` for the
+   objects around it.
 
-**The bound.** What waits in a receiver's queue holds at most ``queue_bytes`` (32 MiB for a node), whatever
-arrives; Zenoh's own reassembly of one message is bounded by
-:data:`~swarmloc.net.transport.MAX_MESSAGE` (2 MiB). The rest of a node's memory is its own state (a horizon of
-history; every count from a message bounded against it: :mod:`swarmloc.net.schema`), so a node's resident memory
-stays within its size without a flood plus these 34 MiB (measured: ``tests/test_net_flood.py``).
+**The bound.** What waits in a node's queue holds at most ``queue_bytes`` (32 MiB), whatever arrives; Zenoh's own
+reassembly of one message is bounded by :data:`~swarmloc.net.transport.MAX_MESSAGE` (2 MiB). The rest of a node's
+memory is its own state (a horizon of history; every number from a message bounded against it before it drives a
+loop or an allocation), so a node's resident memory stays within its size without a flood plus the queue's 32 MiB
+and Zenoh's buffers (measured under a flood of 1 MiB and small frames, 20 s: +26 to +30 MiB over 132 MiB;
+``tests/test_net_flood.py`` allows +64 MiB).
 
 What the receiver itself puts on the queue (timers' wake-ups, the end of its own queries) is never dropped.
 """

@@ -11,7 +11,10 @@ world-frame wall :class:`Lines` for the belief server's map and the server's :cl
 :func:`decode` checks a received payload before anything reaches a node and says what is wrong: not MessagePack
 or not the schema (with msgspec's path to the bad field), another schema version or team, a sender outside the
 team's roster or impersonating another robot, a body addressed to somebody else or from a robot to itself,
-non-finite numbers, a mean outside SE(2), a covariance that is not symmetric positive definite. Stale and
+non-finite numbers, a mean outside SE(2), a covariance that is not symmetric positive definite, a revision outside
+``[-2, 2^31)``. Sizes are bounded while decoding, before a field is built: at most
+:data:`~swarmloc.messages.MAX_FLOATS` numbers a field, :data:`~swarmloc.messages.MAX_TEXT` characters a text, 64 a
+team's name, :data:`MAX_RAW_ITEMS` measurements a forward, :data:`MAX_COUNTERS` counters a report. Stale and
 duplicate messages are caught where the state is: the node's history (``stale or duplicate answer``,
 ``duplicate update``) and the :class:`Dedup` filter for published beliefs and progress.
 
