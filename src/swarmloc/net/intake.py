@@ -19,9 +19,11 @@ queued, in this order (every frame dropped is counted by reason and by sender: :
    genuine one is queued (``vouched``: a busy genuine sender loses nothing, it costs a second verification), a
    forgery dropped (``unvouched``). A flood in a teammate's name therefore never crowds out that teammate's genuine
    frames: it costs one verification a frame, on the flooding link's thread (which slows that link), and the
-   receiver's own thread handles at most the budget's worth of it. Frames claiming no roster member
-   (``unsigned``, ``unknown``: never genuine in a signed team) have a twentieth of a member's budget and nothing to
-   verify: past it they are dropped (``rate``).
+   receiver's own thread handles at most the budget's worth of it. Frames claiming no roster member (``unsigned``,
+   ``unknown``: never genuine in a signed team) share a twentieth of a member's budget; past it they are checked
+   alike (refused before any signature is computed: no magic, or a sender outside the roster). Without keys (an
+   unsigned team) nothing can be verified: past its budget a frame is dropped (``rate``), as are liveliness changes
+   past theirs (each robot's tokens have a budget of their own).
 3. **memory**: a sender's frames queued at once hold at most ``sender_bytes`` (8 MiB), all senders'
    ``queue_bytes`` (``backlog``, ``queue_full``); each frame is charged its size plus ``ITEM_OVERHEAD`` for the
    objects around it.
@@ -38,7 +40,7 @@ What the receiver itself puts on the queue (timers' wake-ups, the end of its own
 
 from __future__ import annotations
 
-import collections
+import queue
 import struct
 import threading
 import time
@@ -47,6 +49,8 @@ from collections.abc import Callable, Container
 from dataclasses import dataclass
 from typing import Any
 
+from swarmloc.net.auth import MAGIC, Verifier
+from swarmloc.net.schema import Rejected
 from swarmloc.net.transport import robot_of
 
 KIB, MIB = 1024, 1024 * 1024
@@ -116,9 +120,8 @@ class TokenBucket:
 
 
 def claimed_sender(data: bytes, signed: bool) -> int | str:
-    """Whom a frame claims to come from: the sender field of a signed frame (``signed``), else ``"unsigned"``."""
-    from swarmloc.net.auth import MAGIC
-
+    """Whom a frame claims to come from: the sender field of a signed frame, else ``"unsigned"`` (``"anyone"`` in an
+    unsigned team)."""
     if len(data) >= _CLAIM.size:
         magic, sender = _CLAIM.unpack_from(data)
         if magic == MAGIC:
@@ -129,9 +132,6 @@ def claimed_sender(data: bytes, signed: bool) -> int | str:
 def vouch_for(auth: Any) -> Callable[[str, bytes], bool]:
     """A check that a frame verifies under the roster key of the member it claims (a :class:`Verifier` of its own,
     under a lock: the receiver's verifier and its replay windows stay its thread's alone)."""
-    from swarmloc.net.auth import Verifier
-    from swarmloc.net.schema import Rejected
-
     verifier = Verifier(auth.roster, context=auth.verifier.context)
     lock = threading.Lock()
 
@@ -171,8 +171,10 @@ class Intake:
     ) -> None:
         self.members, self.budget, self.signed, self.vouch, self.clock = members, budget, signed, vouch, clock
         self.team_size = max(1, team_size)  # an unsigned team's inbox traffic shares one claim: "anyone"
-        self._items: collections.deque[tuple[Any, Any, int]] = collections.deque()
-        self._ready = threading.Condition(threading.Lock())
+        # what waits, as (item, claim, bytes charged): a SimpleQueue, whose put is reentrant (the receiver's own put
+        # may come from a signal handler: ``stop``); the budgets' state under a lock of its own (Zenoh's threads)
+        self._items: queue.SimpleQueue[tuple[Any, Any, int]] = queue.SimpleQueue()
+        self._lock = threading.Lock()
         self._queued = 0  # bytes charged for what waits
         self._by: Counter[Any] = Counter()  # ... per claim
         self._buckets: dict[Any, tuple[TokenBucket, TokenBucket]] = {}
@@ -184,9 +186,7 @@ class Intake:
     # ------------------------------------------------------------------------------------------------ Zenoh's side
     def put(self, item: Any) -> None:
         """The receiver's own item (a wake-up, the end of one of its queries): queued, never dropped."""
-        with self._ready:
-            self._items.append((item, None, 0))
-            self._ready.notify()
+        self._items.put((item, None, 0))
 
     def offer(self, item: tuple) -> bool:
         """A sample Zenoh handed over, as ``(kind, sample)`` or ``("reply", qid, reply)``: queued within the
@@ -197,9 +197,9 @@ class Intake:
         payload = getattr(s, "payload", None)
         size = 0 if payload is None else len(payload)
         data = b""
-        if item[0] == "alive":  # a liveliness token: no payload, nothing to verify (past the budget: dropped)
+        if item[0] == "alive":  # a liveliness token: no payload, nothing to verify (past its budget: dropped)
             claim: Any = robot_of(key)
-            claim = claim if claim in self.members else "unknown"
+            claim = f"alive_robot{claim}" if claim in self.members else "unknown"  # a budget of its own
         elif size > self.budget.max_frame:  # dropped before its bytes are copied: its claim is not read
             return self._drop("oversize", "unread", x, item[0])
         else:
@@ -211,14 +211,14 @@ class Intake:
             elif isinstance(claim, int) and claim not in self.members:
                 claim = "unknown"
         charge = size + ITEM_OVERHEAD
-        with self._ready:
+        with self._lock:
             if self._within(claim, size):
                 return self._queue(item, claim, charge, x)
-        if self.vouch is None or not isinstance(claim, int) or item[0] == "alive":
+        if self.vouch is None or item[0] == "alive":
             return self._drop("rate", who(claim), x, item[0])
         if not self.vouch(key, data):  # on this link's thread, outside the queue's lock
             return self._drop("unvouched", who(claim), x, item[0])
-        with self._ready:
+        with self._lock:
             self.vouched += 1
             return self._queue(item, claim, charge, x)
 
@@ -247,15 +247,14 @@ class Intake:
             self._drops[(why, who(claim))] += 1
             _close(x, item[0])
             return False
-        self._items.append((item, claim, charge))
         self._queued += charge
         self._by[claim] += charge
         self.peak = max(self.peak, self._queued)
-        self._ready.notify()
+        self._items.put((item, claim, charge))
         return True
 
     def _drop(self, why: str, sender: str, x: Any, kind: str) -> bool:
-        with self._ready:
+        with self._lock:
             self._drops[(why, sender)] += 1
         _close(x, kind)
         return False
@@ -263,24 +262,20 @@ class Intake:
     # ------------------------------------------------------------------------------------------------ the receiver's
     def get(self, timeout: float | None = None) -> Any:
         """The next item, waiting up to ``timeout`` s (None: for ever); :class:`queue.Empty` if none came."""
-        import queue
-
-        with self._ready:
-            if not self._items and not self._ready.wait_for(lambda: bool(self._items), timeout):
-                raise queue.Empty
-            item, claim, charge = self._items.popleft()
-            if charge:
+        item, claim, charge = self._items.get(timeout=timeout) if timeout != 0 else self._items.get_nowait()
+        if charge:
+            with self._lock:
                 self._queued -= charge
                 self._by[claim] -= charge
                 if not self._by[claim]:
                     del self._by[claim]
-            return item
+        return item
 
     def get_nowait(self) -> Any:
         return self.get(timeout=0)
 
     def empty(self) -> bool:
-        return not self._items
+        return self._items.empty()
 
     @property
     def queued(self) -> int:
@@ -292,7 +287,7 @@ class Intake:
         ``intake_<reason>`` and ``intake_<reason>_<sender>`` in ``counts`` (each name after ``prefix``),
         ``intake: <meaning>`` in ``reasons``; and ``intake_vouched``, ``intake_peak_bytes``. Returns how many drops
         it moved."""
-        with self._ready:
+        with self._lock:
             drops, self._drops = self._drops, Counter()
             vouched, self.vouched = self.vouched, 0
             peak = self.peak
