@@ -25,6 +25,7 @@ import pytest
 from _attacker import attacker_process
 from test_net import reference
 from test_net_auth import assert_tracks_equal
+from test_net_runtime import node_pids
 
 from swarmloc.experiments.sources import load_source
 from swarmloc.experiments.team import run_team, team_result
@@ -179,19 +180,6 @@ def test_zenoh_reassembles_no_message_over_its_bound():
 
 
 # ------------------------------------------------------------------------------------------------ a live flood
-def _node_pids(team: str) -> list[int]:
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                cmd = (d / "cmdline").read_bytes().split(b"\0")
-            except OSError:
-                continue
-            if team.encode() in cmd and b"node" in cmd and b"swarmloc.cli" in cmd:
-                out.append(int(d.name))
-    return out
-
-
 def _rss(pid: int) -> int | None:
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -213,7 +201,7 @@ def test_a_keyless_flood_costs_a_bounded_memory_is_counted_and_changes_nothing(t
 
     def monitor() -> None:
         while not stop.is_set():
-            for pid in _node_pids(team):
+            for pid in node_pids(team):
                 rss = _rss(pid)
                 if rss is not None:
                     samples.setdefault(pid, []).append((time.time(), rss))
@@ -249,8 +237,11 @@ def test_a_keyless_flood_costs_a_bounded_memory_is_counted_and_changes_nothing(t
     on_progress = sent["progress of robot 1"]["bad_signature"]
     for r in src.robots:
         mine, net = sent[f"robot {r}"], tr.reports[r].net
-        print(f"robot {r}: sent {mine} + {on_progress} on robot 1's progress; counted "
-              f"{ {k: v for k, v in net.items() if k.startswith(('intake', 'auth', 'rejected'))} }")  # fmt: skip
+        rep = tr.reports[r]
+        print(
+            f"robot {r} (cpu {rep.cpu_s:.1f} s, wall {rep.wall_s:.1f} s): sent {mine} + {on_progress} on robot 1's "
+            f"progress; counted { {k: v for k, v in net.items() if k.startswith(('intake', 'auth', 'rejected'))} }"
+        )
         # a few 1 MiB frames may never reach a node under this load (Zenoh's own loss of a fragmented message: 8 of
         # 1,041 once); what reaches it is counted
         big = net.get("intake_oversize", 0)
