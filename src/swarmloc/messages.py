@@ -27,13 +27,20 @@ without hooks. Conventions: SE(2) means as 3x3 homogeneous matrices, covariances
 from __future__ import annotations
 
 import math
+from typing import Annotated
 
 import msgspec
 import numpy as np
 
 from swarmloc.gaussian import GroupGaussian
 
-Floats = tuple[float, ...]
+MAX_FLOATS = 36
+"""The most numbers one field of a message carries (a ``6 x 6`` covariance); checked on decoding, before the
+tuple is built, so that no field of a received message costs more than that."""
+MAX_TEXT = 512
+"""The most characters of a message's text (a reason, a group's name), checked on decoding likewise."""
+Floats = Annotated[tuple[float, ...], msgspec.Meta(max_length=MAX_FLOATS)]
+Text = Annotated[str, msgspec.Meta(max_length=MAX_TEXT)]
 
 SCHEMA_VERSION = 2
 """Version of these messages' wire format (kept equal to :data:`swarmloc.net.schema.SCHEMA_VERSION`). 2: SE(3)
@@ -68,10 +75,10 @@ class BeliefAnswer(Message, frozen=True, kw_only=True, tag="belief_answer"):
 
     seq: int = 0
     found: bool = True
-    group: str = "SE2"
+    group: Text = "SE2"
     mean: Floats = ()
     cov: Floats = ()
-    reason: str = ""
+    reason: Text = ""
 
     @property
     def observer(self) -> int:
@@ -102,7 +109,7 @@ class RdlState(Message, frozen=True, kw_only=True, tag="rdl_state"):
     x: Floats = ()
     P: Floats = ()
     sigma: Floats = ()
-    reason: str = ""
+    reason: Text = ""
 
     @property
     def observer(self) -> int:

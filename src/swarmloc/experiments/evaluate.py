@@ -183,15 +183,21 @@ def delayed_row(late: RunResult, causal: dict, scored: bool, lag: float) -> dict
 
 
 def write_report(out_dir: str | Path, stem: str, report: dict, results: dict[str, RunResult], t_start: float) -> None:
-    """``<stem>.json``, ``<stem>.md``, ``tum/<estimator>_robot<N>.tum`` (+ ground truth) and, with truth, figures."""
+    """``<stem>.json``, ``<stem>.md``, ``tum/<estimator>_robot<N>.tum`` (+ ground truth) and, with truth, figures.
+    Whatever the results hold, the report is written: a row that is not finite is left out of its TUM file (the
+    format has no NaN) and counted in ``tum_rows_left_out`` with a note; figures that cannot be drawn are a note."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     tum = out / "tum"
     tum.mkdir(exist_ok=True)
     first = next(iter(results.values()), None)
+    left: dict[str, int] = {}
 
     def _tum(path: Path, times: np.ndarray, poses: np.ndarray) -> None:
-        (write_tum3 if poses.shape[-1] == 7 else write_tum)(path, times, poses)  # SE(3): full quaternions
+        ok = np.isfinite(times) & np.isfinite(poses).reshape(times.size, -1).all(axis=1)
+        if not ok.all():
+            left[f"tum/{path.name}"] = int((~ok).sum())
+        (write_tum3 if poses.shape[-1] == 7 else write_tum)(path, times[ok], poses[ok])  # SE(3): full quaternions
 
     if first is not None and report["truth"]:
         for r, tr in first.tracks.items():
@@ -199,7 +205,15 @@ def write_report(out_dir: str | Path, stem: str, report: dict, results: dict[str
     for name, res in results.items():
         for r, tr in res.tracks.items():
             _tum(tum / f"{name}_robot{r}.tum", tr.times, tr.mean)
-    report["figures"] = figures(out, results, t_start) if results and report["truth"] else []
+    notes = report.setdefault("notes", [])
+    if left:
+        report["tum_rows_left_out"] = left
+        notes += [f"{f}: {n} rows not finite, left out of the file (TUM has no NaN)" for f, n in left.items()]
+    try:
+        report["figures"] = figures(out, results, t_start) if results and report["truth"] else []
+    except Exception as exc:  # noqa: BLE001 - the report is written whatever the figures meet; it says why
+        report["figures"] = []
+        notes.append(f"figures not drawn: {type(exc).__name__}: {exc}")
     (out / f"{stem}.json").write_text(json.dumps(report, indent=2, default=json_default))
     (out / f"{stem}.md").write_text(markdown_table(report))
 

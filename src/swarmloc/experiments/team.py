@@ -23,7 +23,7 @@ from swarmloc.net.entry import network_class
 from swarmloc.net.team import TeamRun, launch_team
 from swarmloc.runner.result import RobotTrack, RunResult
 
-__all__ = ["TeamRun", "delayed_team_result", "run_team", "team_result", "write_team_report"]
+__all__ = ["TeamRun", "delayed_team_result", "run_team", "team_result", "with_truth", "write_team_report"]
 
 
 def run_team(
@@ -64,7 +64,23 @@ def team_result(run: TeamRun, src: Source, estimator: str) -> RunResult:
     stats["recorded_provisional_only"] = sum(not b.final for b in run.beliefs.values())
     stats["reports"] = len(run.reports)
     stats.update(run.counts)
-    return RunResult(estimator, run.tracks(src.truth), run.wall_s, dict(stats), len(src.events), reasons, {})
+    tracks, missing = with_truth(run.tracks(src.truth), src.truth is not None)
+    if missing:
+        stats["truth_missing"] += missing
+    return RunResult(estimator, tracks, run.wall_s, dict(stats), len(src.events), reasons, {})
+
+
+def with_truth(tracks: dict[int, RobotTrack], truth: bool) -> tuple[dict[int, RobotTrack], int]:
+    """With ``truth``, each track's rows where the truth is known (as the in-process runner records them: a source
+    whose odometry runs past its ground truth has record times without it), and how many rows were left out."""
+    if not truth:
+        return tracks, 0
+    out, missing = {}, 0
+    for r, tr in tracks.items():
+        ok = np.isfinite(tr.truth).all(axis=1)
+        missing += int(ok.size - ok.sum())
+        out[r] = RobotTrack(tr.times[ok], tr.mean[ok], tr.cov[ok], tr.truth[ok])
+    return out, missing
 
 
 def delayed_team_result(run: TeamRun, src: Source, estimator: str) -> RunResult | None:
@@ -73,11 +89,7 @@ def delayed_team_result(run: TeamRun, src: Source, estimator: str) -> RunResult 
     without it left out, as there); None when the team published none."""
     if not run.delayed:
         return None
-    tracks = run.tracks(src.truth, delayed=True)
-    if src.truth is not None:
-        for r, tr in tracks.items():
-            ok = np.isfinite(tr.truth).all(axis=1)
-            tracks[r] = RobotTrack(tr.times[ok], tr.mean[ok], tr.cov[ok], tr.truth[ok])
+    tracks, _ = with_truth(run.tracks(src.truth, delayed=True), src.truth is not None)
     return RunResult(f"{estimator}_delayed", tracks, run.wall_s)
 
 
@@ -112,9 +124,15 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
     layout of ``swarmloc evaluate``)."""
     res = team_result(run, src, estimator)
     truth = src.truth is not None
-    ev = evaluate(res) if truth else {"estimator": estimator, "robots": {}, "team": None}
-    duration = float(src.t_end - src.t_start)
     notes, missing = ended_notes(run, src.robots)
+    ev = {"estimator": estimator, "robots": {}, "team": None}
+    try:
+        ev = evaluate(res) if truth else ev
+    except Exception as exc:  # noqa: BLE001 - the report is written whatever the scoring meets; it says what
+        notes.append(f"scoring failed: {type(exc).__name__}: {exc}")
+    if res.stats.get("truth_missing"):
+        notes.append(f"{res.stats['truth_missing']} record times have no ground truth (past its end): not scored")
+    duration = float(src.t_end - src.t_start)
     ev.update(wall_time_s=run.wall_s, x_real_time=duration / run.wall_s if run.wall_s > 0 else math.inf,
               stats=res.stats, reasons=dict(res.reasons), timing={}, accounted=res.accounted() and not missing,
               detections_missing_of=missing)  # fmt: skip

@@ -9,10 +9,13 @@ itself: the very message the in-process runner would have delivered.
 
 **Receipt.** A broadcast is signed and checked like every other message, as a *publication*: only robot ``id`` may
 publish on ``robot/<id>/broadcast`` (:func:`~swarmloc.net.auth.open_envelope` with ``publication=True``; a signed
-frame replayed is refused by its signature's sequence number). Then, per sender: a number already received is a
-duplicate (link faults), counted ``broadcast_duplicates`` and not applied again; an update older than one already
-applied for the same exchange (a revision that overtook it) is counted ``broadcast_stale`` and dropped; anything
-else is applied (``broadcasts_applied``). Every broadcast received is counted ``broadcasts_received``.
+frame replayed is refused by its signature's sequence number). Then, per sender: a number (or a head's count)
+more than ``WINDOW`` past the first one missing from that sender is refused and counted (``rejected``; before, one
+head announcing 2^62 made every teammate track and allocate toward it: 2.7 GB, then ``MemoryError``); a number
+already received is a duplicate (link faults), counted ``broadcast_duplicates`` and not applied again; an update
+older than one already applied for the same exchange (a revision that overtook it) is counted ``broadcast_stale``
+and dropped; anything else is applied (``broadcasts_applied``). Every broadcast received is counted
+``broadcasts_received``.
 
 **Repair.** A receiver knows each sender's numbers received and the highest one it has heard of (from a broadcast
 or from the :class:`~swarmloc.net.schema.BroadcastHead` each sender announces now and then, so that the last ones
@@ -20,8 +23,8 @@ lost are seen missing too). A number missing for ``repair_wait`` s (the link's d
 of its sender with a :class:`~swarmloc.net.schema.BroadcastRepair` on the sender's inbox (``repair_requests``),
 again every ``2 repair_wait + 0.2`` s, ``REPAIR_TRIES`` times at most. The sender keeps its last ``BUFFER``
 broadcasts and sends the ones asked for to the asker's inbox (``repairs_sent``); one it no longer keeps is
-answered *gone* (a ``Broadcast`` without update). A number that arrives after it was asked for is counted
-``broadcasts_repaired``.
+answered *gone* (a ``Broadcast`` without update), at most ``REPAIR_RATE`` numbers per asker and second (past it
+a request is refused and counted). A number that arrives after it was asked for is counted ``broadcasts_repaired``.
 
 **Beyond repair** (gone, or not answered after ``REPAIR_TRIES`` requests; counted ``broadcasts_given_up``). The
 buffer holds far more broadcasts than one history horizon sees (a robot broadcasts a few per second; measured in
@@ -45,6 +48,7 @@ import msgspec
 
 from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import open_envelope
+from swarmloc.net.intake import TokenBucket
 from swarmloc.net.schema import ALL, MAX_REPAIR, Broadcast, BroadcastHead, BroadcastRepair, Rejected
 from swarmloc.net.transport import robot_key
 from swarmloc.node.protocol import same
@@ -53,6 +57,14 @@ log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whic
 
 BUFFER = 4096
 """Broadcasts a sender keeps to answer repair requests (its latest)."""
+WINDOW = BUFFER
+"""A receiver takes a broadcast number (or a head's count) at most this far past the first number of its sender it
+misses: what a sender announces further ahead is refused and counted, so that one message cannot make a receiver
+track (and ask for) more numbers than the sender keeps. A receiver that first hears of a sender far into its
+numbers (a late joiner) starts a window before them: those earlier are beyond the sender's buffer anyway."""
+REPAIR_RATE = 2 * BUFFER
+"""Broadcast numbers a sender sends again to one asker per second at most (``2 * REPAIR_RATE`` banked); a request
+past it is refused and counted (it is asked again later), so that requests cannot make a node send without bound."""
 REPAIR_TRIES = 8
 """Requests for one missing broadcast before it is given up."""
 HEAD_EVERY = 1.0
@@ -65,10 +77,10 @@ class _Peer:
     it received (``got``), the highest number heard of (``top``) and the missing ones asked for (``asked``: number ->
     (first seen missing, requests sent, last request) wall times and count)."""
 
-    def __init__(self) -> None:
-        self.low = 0
+    def __init__(self, low: int = 0) -> None:
+        self.low = low
         self.got: set[int] = set()
-        self.top = -1
+        self.top = low - 1
         self.missing_since: dict[int, float] = {}
         self.asked: dict[int, tuple[int, float]] = {}
 
@@ -106,6 +118,7 @@ class Broadcasting:
         self._bkey: dict[tuple, int] = {}  # (sender, stamp, sub): the number of the update applied for the exchange
         self._bkey_pruned = 0.0
         self._bpub: Any = None
+        self._repair_budget: dict[int, TokenBucket] = {}  # per asker: broadcast numbers it may still have again
         delay = self.faults.delay if self.faults else 0.0
         self.repair_wait = delay + 0.05
         """[s] wall time a missing broadcast number waits (for a late copy) before it is asked for."""
@@ -200,8 +213,10 @@ class Broadcasting:
             self._rev_wait.setdefault((t, sub, m.target), now)
 
     def _revision_came(self, a: Any) -> None:
-        """A revised answer to one of this node's queries (pushed to its inbox)."""
-        if a.seq >= 1:
+        """A revised answer to one of this node's queries (pushed to its inbox), stamped where the node still takes
+        inputs (between a horizon before its present and its clock tolerance past it: else nothing is remembered)."""
+        now = self.node.present
+        if a.seq >= 1 and now - self.node.horizon <= float(a.stamp) <= now + self.node.tolerance:
             k = (float(a.stamp), tuple(a.sub), a.sender)
             self._revised.add(k)
             self._rev_wait.pop(k, None)
@@ -250,9 +265,16 @@ class Broadcasting:
         self._faulty(lambda: put(key, payload, congestion_control=block))
 
     def _on_repair(self, r: BroadcastRepair) -> None:
-        """A teammate asks again for some of this node's broadcasts: the ones kept, or "gone"."""
+        """A teammate asks again for some of this node's broadcasts: the ones kept, or "gone" (within the asker's
+        budget, :data:`REPAIR_RATE`)."""
         self.counts["repair_requests_received"] += 1
-        for n in range(r.first, min(r.last, self._bn - 1) + 1):
+        last = min(r.last, self._bn - 1)
+        now = time.monotonic()
+        budget = self._repair_budget.setdefault(r.sender, TokenBucket(REPAIR_RATE, 2 * REPAIR_RATE, now))
+        if last >= r.first and not budget.take(last - r.first + 1, now):
+            self._reject("broadcast repair request past its asker's budget", "pushed message")
+            return
+        for n in range(r.first, last + 1):
             b = self._bbuf.get(n)
             if b is None:
                 self.counts["repairs_gone"] += 1
@@ -275,12 +297,27 @@ class Broadcasting:
             return
         b = env.body
         if isinstance(b, BroadcastHead):
+            self.counts["broadcast_heads_received"] += 1
+            if not self._in_window(b.robot, b.n - 1):
+                return
             self._heads[b.robot] = max(self._heads.get(b.robot, (-1, -math.inf, 0)), (b.n, b.t, b.prio))
             self._heard_of(b.robot, b.n - 1)
         elif isinstance(b, Broadcast) and b.to == ALL:
             self._on_broadcast(b)
         else:
             self._reject(f"{type(b).__name__} is not accepted on a broadcast key", "broadcast")
+
+    def _in_window(self, robot: int, top: int) -> bool:
+        """Whether broadcast number ``top`` of ``robot`` is within :data:`WINDOW` of the first one this node misses
+        (on first hearing of ``robot``, a window before ``top`` is opened); if not, it is refused and counted."""
+        p = self._peers.get(robot)
+        if p is None:
+            self._peers[robot] = _Peer(low=max(0, top + 1 - WINDOW))
+            return True
+        if top - p.low < WINDOW:
+            return True
+        self._reject(f"broadcast number more than {WINDOW} past the first one missing from its sender", "broadcast")
+        return False
 
     def _heard_of(self, robot: int, top: int) -> None:
         p = self._peers.setdefault(robot, _Peer())
@@ -294,7 +331,9 @@ class Broadcasting:
     def _on_broadcast(self, b: Broadcast) -> None:
         """A teammate's broadcast (published, or sent again on request): applied once, unless overtaken."""
         self.counts["broadcasts_received"] += 1
-        p = self._peers.setdefault(b.robot, _Peer())
+        if not self._in_window(b.robot, b.n):
+            return
+        p = self._peers[b.robot]
         if p.has(b.n):
             self.counts["broadcast_duplicates"] += 1
             return
@@ -311,7 +350,8 @@ class Broadcasting:
         if self._bkey.get(k, -1) > b.n:
             self.counts["broadcast_stale"] += 1
             return
-        self._bkey[k] = b.n
+        if k[1] <= self.node.present + self.node.tolerance:  # past it the node refuses it (future): not remembered
+            self._bkey[k] = b.n
         self.counts["broadcasts_applied"] += 1
         expected = self._expect.pop((float(u.stamp), 1, b.robot, tuple(u.sub)), None) is not None
         self._step(msgspec.structs.replace(u, receiver=self.robot))

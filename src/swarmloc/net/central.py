@@ -28,6 +28,7 @@ it, or the end), as :func:`swarmloc.runner.run` takes it, and returned as a fina
 from __future__ import annotations
 
 import heapq
+import itertools
 import logging
 import math
 import queue
@@ -45,6 +46,8 @@ from swarmloc.net.auth import Auth, open_envelope, seal
 from swarmloc.net.faults import Faults
 from swarmloc.net.pairing import attach
 from swarmloc.net.schema import (
+    MAX_RAW_ITEMS,
+    MAX_REPAIR,
     SERVER,
     Belief,
     Progress,
@@ -67,7 +70,12 @@ log = logging.getLogger(__name__)
 SPAN = 0.2
 """[s] of data a paced robot's forward spans at most (its measurements reach the server that much late at most)."""
 KEEP = 4096
-"""Forwards a robot keeps to send again when the server asks (older ones are lost if lost)."""
+"""Forwards a robot keeps to send again when the server asks (older ones are lost if lost). The server takes a
+forward numbered at most this far past the first one it misses from that robot (one further ahead is refused and
+counted ``raw_too_far_ahead``: it could never be waited for)."""
+AHEAD_ITEMS = 65536
+"""Measurements the server holds at most per robot in forwards ahead of a gap (a forward past it is refused and
+counted ``raw_ahead_full``; the robot sends it again when the server asks for it)."""
 LOST_REASON = "unknown: lost on the network before the server (a raw measurement forward lost)"
 Key = tuple[float, int, int]
 
@@ -101,6 +109,7 @@ class _Stream:
 
     def __init__(self) -> None:
         self.ahead: dict[int, Raw] = {}
+        self.held = 0  # measurements in ``ahead``
         self.next = 0  # the next forward number expected
         self.items: deque[tuple[tuple[float, int], Any]] = deque()  # (key, Odometry or a detection group)
         self.upto: tuple[float, int] = (-math.inf, 0)
@@ -160,6 +169,11 @@ class Fusion:
         if s is None:
             self.counts["raw_unknown_robot"] += 1
             return
+        if raw.n >= s.next + KEEP or (raw.n > s.next and s.held + len(raw.items) > AHEAD_ITEMS):
+            why = "raw_too_far_ahead" if raw.n >= s.next + KEEP else "raw_ahead_full"
+            self.counts[why] += 1
+            self.reasons[f"{why}: forward of robot {raw.robot} refused"] += 1
+            return
         s.heard = self.clock()
         if s.lost:
             s.lost = False
@@ -171,13 +185,14 @@ class Fusion:
         if raw.n in s.asked_for:
             self.counts["raw_repaired"] += 1
         s.ahead[raw.n] = raw
+        s.held += len(raw.items)
         self._advance(raw.robot, s)
 
     def _advance(self, robot: int, s: _Stream) -> None:
         """Consume the forwards in number order; past a gap waited for ``gap_timeout`` s, count it lost."""
         while s.ahead:
             if s.next in s.ahead:
-                self._consume(robot, s, s.ahead.pop(s.next))
+                self._consume(robot, s, self._take(s, s.next))
                 s.gap_since = None
                 continue
             now = self.clock()
@@ -186,10 +201,11 @@ class Fusion:
             if now - s.gap_since < self.gap_timeout:
                 return
             n = min(s.ahead)
-            raw = s.ahead.pop(n)
+            raw = self._take(s, n)
             odo = sum(isinstance(i, RawOdometry) for i in raw.items)
-            lost_odo = raw.odometry - odo - s.odometry
-            lost_det = raw.detections - (len(raw.items) - odo) - s.detections
+            most = (n - s.next) * MAX_RAW_ITEMS  # what the lost forwards can have carried (the counts are the robot's)
+            lost_odo = min(raw.odometry - odo - s.odometry, most)
+            lost_det = min(raw.detections - (len(raw.items) - odo) - s.detections, most)
             self.counts["raw_lost_forwards"] += n - s.next
             self.counts["raw_lost_odometry"] += max(lost_odo, 0)
             self.counts["raw_lost_detections"] += max(lost_det, 0)
@@ -198,6 +214,12 @@ class Fusion:
             s.next = n
             s.gap_since = None
             self._consume(robot, s, raw)
+
+    @staticmethod
+    def _take(s: _Stream, n: int) -> Raw:
+        raw = s.ahead.pop(n)
+        s.held -= len(raw.items)
+        return raw
 
     def _consume(self, robot: int, s: _Stream, raw: Raw) -> None:
         s.first = min(s.first, raw.first)
@@ -226,7 +248,7 @@ class Fusion:
         for r, s in self.streams.items():
             if s.gap_since is None or now - s.gap_since < self.repair_wait or now - s.asked < self.repair_wait:
                 continue
-            missing = tuple(n for n in range(s.next, max(s.ahead)) if n not in s.ahead)[:256]
+            missing = tuple(itertools.islice((n for n in range(s.next, max(s.ahead)) if n not in s.ahead), MAX_REPAIR))
             s.asked = now
             s.asked_for.update(missing)
             self.counts["raw_repairs_asked"] += 1

@@ -28,11 +28,17 @@ from swarmloc.net.schema import (
     Rejected,
     Report,
 )
+from swarmloc.node.accounting import reason_key
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
 DRAIN_SLICE = 0.1
 """[s] wall time one :meth:`Inbound._drain` handles queued items at most (past its wait for the first)."""
+MAX_HELD_FROM = 256
+"""Neighbours' queries a node holds at once from one robot (a robot asks about one detection group at a time, a few
+queries each); one more is refused ("busy") and counted."""
+MAX_HELD = 1024
+"""... and from all robots together."""
 
 
 class Inbound:
@@ -47,6 +53,7 @@ class Inbound:
         (queries, replies, pushed messages) came: progress and liveliness do not count."""
         got = False
         end = time.monotonic() + max(timeout, 0.0) + DRAIN_SLICE
+        self._intake.fold(self.counts, self.reasons)  # what the intake dropped since (:mod:`.intake`)
         try:
             item = self._inq.get(timeout=timeout) if timeout > 0 else self._inq.get_nowait()
         except queue.Empty:
@@ -111,6 +118,11 @@ class Inbound:
         if not self._first_copy(env):  # a duplicate of a query held or answered: answered once, this copy closed
             close(x)
             return
+        asker = env.body.sender
+        if len(self._deferred) >= MAX_HELD or sum(q.sender == asker for _, q, _ in self._deferred) >= MAX_HELD_FROM:
+            self._reject(f"more than {MAX_HELD_FROM} queries of one robot (or {MAX_HELD} in all) held", "query")
+            reply_err(x, "busy")
+            return
         self._deferred.append((time.monotonic(), env.body, x))
         self._answer_ready()
 
@@ -144,8 +156,8 @@ class Inbound:
         """Step the node with ``item`` (answering the Zenoh ``query`` with it if given) and send what it returns.
         A message stamped past the node's present moves it: the beliefs that become final are published first,
         before the history's pruning can drop what they are computed from (as before a source input)."""
-        stamp = getattr(item, "stamp", None)
-        if isinstance(stamp, int | float) and stamp > self.node.present:
+        stamp, now = getattr(item, "stamp", None), self.node.present
+        if isinstance(stamp, int | float) and now < stamp <= now + self.node.tolerance:  # past it: refused (future)
             self._publish_due(upto=stamp)
         out = self.node.step(item)
         if out or query is not None:
@@ -154,8 +166,10 @@ class Inbound:
             self._flush()
 
     def _reject(self, reason: str, where: str) -> None:
-        """Count a dropped message with its reason (``rejected``, ``reasons``) and log the first of each reason."""
+        """Count a dropped message with its reason (``rejected``, ``reasons``: at most 256 distinct,
+        :func:`~swarmloc.node.accounting.reason_key`) and log the first of each reason."""
         self.counts["rejected"] += 1
+        reason = reason_key(self.reasons, reason)
         self.reasons[reason] += 1
         if self.reasons[reason] == 1 and len(self.reasons) <= 20:  # the first of each of the first 20 reasons
             log.warning("robot %s: dropped a %s: %s", self.robot, where, reason)
@@ -168,7 +182,7 @@ class Inbound:
         self._replayed = getattr(exc, "category", None) == "replay"
         if note_refusal(self.counts, exc, f"robot {self.robot}", where):
             self.counts["rejected"] += 1
-            self.reasons[exc.reason] += 1
+            self.reasons[reason_key(self.reasons, exc.reason)] += 1
         else:
             self._reject(exc.reason, where)
 

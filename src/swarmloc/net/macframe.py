@@ -140,6 +140,20 @@ def open_mac(
     return sender, bytes(frame[MAC_HEADER.size :])
 
 
+def mac_vouches(key_expr: str, data: bytes, context: bytes, session_of: Callable[[bytes], Session | None]) -> bool:
+    """Whether a MACed frame's MAC verifies under the session it names, with that session's peer as its sender: the
+    intake's check of a frame over its sender's budget (:mod:`swarmloc.net.intake`). Stamp and replay window are
+    the receiver's own thread's to check (:func:`open_mac`); nothing here changes any state."""
+    if not MAC_HEADER.size + TAG_SIZE <= len(data) <= MAX_SIGNED or data[:4] != MAC_MAGIC:
+        return False
+    _, sender, _, _, sid = MAC_HEADER.unpack_from(data)
+    s = session_of(sid)
+    if s is None or s.peer != sender:
+        return False
+    frame = memoryview(data)[: len(data) - TAG_SIZE]
+    return hmac.compare_digest(tag(s.key, context, key_expr, frame), data[-TAG_SIZE:])
+
+
 def envelope_of(data: bytes) -> bytes:
     """The schema envelope inside a MACed or a signed frame, unverified (for tools that read the traffic)."""
     if data[:4] == MAC_MAGIC:

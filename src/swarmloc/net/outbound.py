@@ -179,8 +179,8 @@ class Outbound:
                     # reply cannot hide the real one (each reply is authenticated on its own)
                     target=zenoh.QueryTarget.ALL,
                     consolidation=zenoh.ConsolidationMode.NONE,
-                    handler=zenoh.handlers.Callback(
-                        lambda r: put(("reply", qid, r)), lambda: put(("reply_end", qid, None))
+                    handler=zenoh.handlers.Callback(  # replies within the intake's budgets; the end always
+                        lambda r: self._inq.offer(("reply", qid, r)), lambda: put(("reply_end", qid, None))
                     ),
                 )
             except Exception as exc:  # noqa: BLE001 - a failed get is a missing answer, not a crash

@@ -66,7 +66,17 @@ from cryptography.hazmat.primitives.asymmetric.x25519 import X25519PrivateKey, X
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
 from swarmloc.net.auth import CONTEXT, NAMES, REPLAY_WINDOW, Auth, AuthRejected, ReplayWindow, Verifier, member_name
-from swarmloc.net.macframe import MAC_HEADER, MAC_MAGIC, TAG_SIZE, Session, mac_frame, mac_payload, open_mac, recipient
+from swarmloc.net.macframe import (
+    MAC_HEADER,
+    MAC_MAGIC,
+    TAG_SIZE,
+    Session,
+    mac_frame,
+    mac_payload,
+    mac_vouches,
+    open_mac,
+    recipient,
+)
 from swarmloc.net.transport import hello_key
 
 log = logging.getLogger(__name__)
@@ -186,6 +196,10 @@ class Pairing:
             return v.open(key_expr, data, publication)
         return open_mac(key_expr, data, CONTEXT, self.roster.keys, self._sids.get, v.clock(), v.max_age_ns, self._cv,
                         publication)  # fmt: skip
+
+    def vouches(self, key_expr: str, data: bytes) -> bool:
+        """Whether a MACed frame verifies under one of this process's sessions (thread-safe, changes nothing)."""
+        return mac_vouches(key_expr, data, CONTEXT, self._sids.get)
 
     def check(self, sender: int, incarnation: bytes) -> str | None:
         """Whether a signed frame of ``sender``'s process ``incarnation`` is of this run: None, or the refusal's

@@ -54,7 +54,6 @@ from __future__ import annotations
 
 import logging
 import math
-import queue
 import threading
 import time
 from collections import Counter
@@ -70,10 +69,11 @@ from swarmloc.net.broadcast import Broadcasting
 from swarmloc.net.faults import Faults
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.inbound import Inbound
+from swarmloc.net.intake import Intake, vouch_for
 from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Outbound
 from swarmloc.net.publishing import Publishing
-from swarmloc.net.schema import Belief, Lines, Progress, Report
+from swarmloc.net.schema import SERVER, Belief, Lines, Progress, Report
 from swarmloc.net.timeouts import (
     ANSWER_RETRIES,
     ANSWER_TIMEOUT,
@@ -214,8 +214,10 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         """Network counters: ``received``, ``rejected`` (with ``reasons``), ``sent``, ``lost``/``duplicated``/
         ``delayed`` (injected), ``no_reply``, ``server_answers``, ``beliefs_published``..."""
         self.reasons: Counter[str] = Counter()
-        self._inq: queue.SimpleQueue = queue.SimpleQueue()
-        """Everything received, as ``(kind, sample)``, handled on the node's one thread (:mod:`.inbound`)."""
+        self._intake = self._inq = Intake(self.roster | {SERVER}, signed=auth is not None, team_size=len(self.roster),
+                                          vouch=None if auth is None else vouch_for(auth))  # fmt: skip
+        """Everything received, as ``(kind, sample)``, within its budgets (:mod:`.intake`), handled on the node's one
+        thread (:mod:`.inbound`)."""
         self._stop = threading.Event()
         self._i = 0  # the index of the next input in ``items``
         self._last_status = 0.0
@@ -429,6 +431,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
                 break
 
     def report(self, wall: float = 0.0, cpu: float = 0.0) -> Report:
+        self._intake.fold(self.counts, self.reasons)
         net = dict(self.counts, teammates_seen=len(self._seen))
         if self.auth is not None:  # the per-pair sessions' counters (handshakes, renewals, twins)
             net.update(self.auth.session_counts())

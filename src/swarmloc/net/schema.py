@@ -11,7 +11,10 @@ world-frame wall :class:`Lines` for the belief server's map and the server's :cl
 :func:`decode` checks a received payload before anything reaches a node and says what is wrong: not MessagePack
 or not the schema (with msgspec's path to the bad field), another schema version or team, a sender outside the
 team's roster or impersonating another robot, a body addressed to somebody else or from a robot to itself,
-non-finite numbers, a mean outside SE(2), a covariance that is not symmetric positive definite. Stale and
+non-finite numbers, a mean outside SE(2), a covariance that is not symmetric positive definite, a revision outside
+``[-2, 2^31)``. Sizes are bounded while decoding, before a field is built: at most
+:data:`~swarmloc.messages.MAX_FLOATS` numbers a field, :data:`~swarmloc.messages.MAX_TEXT` characters a text, 64 a
+team's name, :data:`MAX_RAW_ITEMS` measurements a forward, :data:`MAX_COUNTERS` counters a report. Stale and
 duplicate messages are caught where the state is: the node's history (``stale or duplicate answer``,
 ``duplicate update``) and the :class:`Dedup` filter for published beliefs and progress.
 
@@ -30,10 +33,26 @@ from typing import Annotated
 
 import msgspec
 
-from swarmloc.messages import SCHEMA_VERSION, AnyMessage, Floats, TeamUpdate, message_problem
+from swarmloc.messages import (
+    SCHEMA_VERSION,
+    AnyMessage,
+    BeliefAnswer,
+    Floats,
+    RdlState,
+    RdlUpdate,
+    TeamUpdate,
+    Text,
+    message_problem,
+)
 
 SERVER = -1
 """``from_robot`` of the belief server and the team launcher."""
+MAX_REVISION = 1 << 31
+"""Bound on a revision number (an answer's ``seq``, an update's ``based_on``, a belief's ``rev``): a node revises an
+answer once per replay that changes it, far fewer times than this."""
+MAX_COUNTERS = 4096
+"""The most counters (and reasons) one :class:`Report` carries."""
+Counts = Annotated[dict[Text, int], msgspec.Meta(max_length=MAX_COUNTERS)]
 
 
 class Belief(msgspec.Struct, frozen=True, kw_only=True, tag="belief"):
@@ -47,7 +66,7 @@ class Belief(msgspec.Struct, frozen=True, kw_only=True, tag="belief"):
     final: bool = False
     mean: Floats = ()
     cov: Floats = ()
-    group: str = "SE2"
+    group: Text = "SE2"
 
 
 def group_tag(b: object) -> str:
@@ -70,10 +89,10 @@ class Report(msgspec.Struct, frozen=True, kw_only=True, tag="report"):
     """A node's counters when it stops (node counters and network counters, and the reasons behind them)."""
 
     robot: int
-    stats: dict[str, int] = {}
-    reasons: dict[str, int] = {}
-    net: dict[str, int] = {}
-    net_reasons: dict[str, int] = {}
+    stats: Counts = {}
+    reasons: Counts = {}
+    net: Counts = {}
+    net_reasons: Counts = {}
     wall_s: float = 0.0
     cpu_s: float = 0.0
 
@@ -139,7 +158,7 @@ class RawDetection(msgspec.Struct, frozen=True, array_like=True, tag="d"):
     truth): stamp [s], kind, ``z`` and its noise covariance ``cov`` (row-major), target id (None: anonymous)."""
 
     t: float
-    kind: str
+    kind: Text
     z: Floats
     cov: Floats
     target: int | None = None
@@ -162,7 +181,7 @@ class Raw(msgspec.Struct, frozen=True, kw_only=True, tag="raw"):
     prio: int = 1
     odometry: int = 0
     detections: int = 0
-    items: tuple[RawOdometry | RawDetection, ...] = ()
+    items: Annotated[tuple[RawOdometry | RawDetection, ...], msgspec.Meta(max_length=MAX_RAW_ITEMS)] = ()
 
 
 class RawAck(msgspec.Struct, frozen=True, kw_only=True, tag="raw_ack"):
@@ -171,7 +190,7 @@ class RawAck(msgspec.Struct, frozen=True, kw_only=True, tag="raw_ack"):
 
     robot: int
     next: int
-    missing: tuple[int, ...] = ()
+    missing: Annotated[tuple[int, ...], msgspec.Meta(max_length=MAX_REPAIR)] = ()
 
 
 MAX_LINES = 64
@@ -201,7 +220,7 @@ class FusedLine(msgspec.Struct, frozen=True, kw_only=True):
     """One line of the server's map: ``line`` as in :class:`Lines`, the ``robots`` that saw it, ``n_obs``."""
 
     line: WireLine
-    robots: tuple[int, ...] = ()
+    robots: Annotated[tuple[int, ...], msgspec.Meta(max_length=MAX_COUNTERS)] = ()
     n_obs: int = 1
 
 
@@ -245,7 +264,7 @@ Body = (
 
 class Envelope(msgspec.Struct, frozen=True, kw_only=True):
     v: int
-    team: str
+    team: Annotated[str, msgspec.Meta(max_length=64)]
     from_robot: int
     seq: int
     body: Body
@@ -271,15 +290,28 @@ def _finite(xs: tuple, n: int) -> bool:
     return len(xs) == n and all(math.isfinite(x) for x in xs)
 
 
+def number_problem(b: Body) -> str | None:
+    """Why a revision or priority of ``b`` is out of range (revisions in ``[-2, 2^31)``: -2 a node's own "not
+    found", -1 the belief server's; priorities in ``[0, 3]``), or None."""
+    rev = b.seq if isinstance(b, BeliefAnswer | RdlState) else b.based_on if isinstance(b, RdlUpdate) else None
+    rev = b.rev if isinstance(b, Belief) else rev
+    if rev is not None and not -2 <= rev < MAX_REVISION:
+        return f"{type(b).__name__}: revision {rev} outside [-2, 2^31)"
+    if isinstance(b, Progress | BroadcastHead) and not 0 <= b.prio <= 3:
+        return f"{type(b).__name__}: priority {b.prio} outside [0, 3]"
+    return None
+
+
 def body_problem(b: Body) -> str | None:
     """Why a body's content is unusable (see the module docstring), or None."""
+    why = number_problem(b)
+    if why:
+        return why
     if isinstance(b, Belief):
         if not math.isfinite(b.stamp):
             return "belief: non-finite stamp"
         if b.group == "SE2" and not (_finite(b.mean, 9) and _finite(b.cov, 9)):
             return "belief: mean and cov must be 9 finite numbers each"
-        from swarmloc.messages import BeliefAnswer
-
         # the same SE(2) / SE(3) / SPD checks as an answer
         return message_problem(
             BeliefAnswer(sender=b.robot, receiver=b.robot, stamp=b.stamp, group=b.group, mean=b.mean, cov=b.cov)

@@ -51,6 +51,7 @@ from swarmloc.lie import SE2
 from swarmloc.mapping import LineMap, LineObservation
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
 from swarmloc.net.auth import Auth, note_refusal, open_envelope, seal
+from swarmloc.net.intake import SERVER_BUDGET, Intake, vouch_for
 from swarmloc.net.pairing import attach
 from swarmloc.net.schema import (
     MAX_MAP_LINES,
@@ -214,6 +215,9 @@ class MapStore:
         if (msg.robot, msg.stamp) in self._seen:
             self.counts["lines_duplicate"] += 1
             return False
+        if not msg.lines:  # a node publishes none for a scan without lines: remembered, it would cost without bound
+            self.counts["lines_empty"] += 1
+            return False
         if len(self._obs) + len(msg.lines) > self.max_obs:
             self.counts["lines_full"] += 1
             return False
@@ -283,7 +287,9 @@ class ServerProcess:
         self.map_out = map_out
         self.counts: Counter[str] = Counter()
         self.reasons: Counter[str] = Counter()
-        self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._q = Intake(self.roster, SERVER_BUDGET, signed=auth is not None, team_size=len(self.roster),
+                         vouch=None if auth is None else vouch_for(auth))  # fmt: skip
+        """What the server receives, within its budgets (:mod:`swarmloc.net.intake`)."""
         self._stop = threading.Event()
         self.hosted = hosted
         self._reported = -math.inf  # when the hosted estimator's report was last published (monotonic)
@@ -302,7 +308,7 @@ class ServerProcess:
 
     def run(self, max_wall: float | None = None) -> None:
         """Serve until :meth:`stop` (or ``max_wall`` s)."""
-        s, put = self.session, self._q.put
+        s, put = self.session, self._q.offer  # within the server's budgets (:mod:`swarmloc.net.intake`)
         attach(self.auth, s, self.scope, hello=False)  # the per-pair handshake answered first (:mod:`.pairing`)
         decl = [
             s.declare_subscriber(robot_key(self.scope, "*", "belief"), handler=lambda x: put(("belief", x))),
@@ -326,6 +332,7 @@ class ServerProcess:
                     kind, x = self._q.get(timeout=0.05 if self.hosted is not None else 0.2)
                 except queue.Empty:
                     kind = None
+                self._q.fold(self.counts, self.reasons)
                 try:
                     if kind is not None:
                         self._handle(kind, x)

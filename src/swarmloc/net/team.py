@@ -37,6 +37,7 @@ from swarmloc.events import Detection
 from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
 from swarmloc.net.entry import hosted_class, network_class
 from swarmloc.net.faults import Faults, parse_faults
+from swarmloc.net.intake import COLLECTOR_BUDGET, Intake, vouch_for
 from swarmloc.net.pairing import attach
 from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
 from swarmloc.net.timeouts import (
@@ -93,6 +94,7 @@ class TeamRun:
         (truth NaN unless ``truth``)."""
         from swarmloc.datasets.tum import pose7
         from swarmloc.lie import SE2
+        from swarmloc.runner.inprocess import truth_table
         from swarmloc.runner.result import RobotTrack
 
         out = {}
@@ -107,13 +109,8 @@ class TeamRun:
                 means = SE2.to_xytheta(np.array([b.mean for b in bs]).reshape(-1, 3, 3)).reshape(-1, 3)
                 covs = np.array([b.cov for b in bs]).reshape(-1, 3, 3)
             w = means.shape[-1]
-            tr = np.full((times.size, w), np.nan)
-            if truth is not None and times.size:
-                try:
-                    tr = np.asarray(truth(r, times), dtype=float).reshape(-1, w)
-                except ValueError:
-                    pass
-            out[r] = RobotTrack(times, means, covs, tr)
+            tr = truth_table(truth, r, times) if times.size else np.full((0, w), np.nan)  # NaN where truth is not
+            out[r] = RobotTrack(times, means, covs, tr if tr.shape == (times.size, w) else np.full_like(means, np.nan))
         return out
 
 
@@ -292,7 +289,8 @@ class _Launcher:
         self.procs: dict[str, subprocess.Popen] = {}
         self.result = TeamRun(run_id=self.run_id)
         self.progress: dict[int, float] = {}
-        self.inq: queue.SimpleQueue = queue.SimpleQueue()
+        self._intake = self.inq = Intake(self.roster | {SERVER}, COLLECTOR_BUDGET, signed=True,
+                                         vouch=vouch_for(self.auth))  # fmt: skip
         self.killed = self.restarted = self.joined = False
         self.deadline = math.inf  # the run's end (monotonic), set when it starts
         self.noted: set[int] = set()  # pids of the processes in ``result.ended``
@@ -445,6 +443,7 @@ class _Launcher:
                 self.collect(x)
             except queue.Empty:
                 pass
+            self._intake.fold(self.result.counts, self.result.reasons, prefix="collector_")
             self.apply_faults(t_first)
             self.note_ended()
             if self.all_ended():
@@ -488,7 +487,7 @@ class _Launcher:
         others = [self.ep[k] for k in self.ep if k != "collector"] + self.connect_extra
         session = open_session([self.ep["collector"]], others)
         attach(self.auth, session, self.scope, hello=False)  # the nodes make their sessions with it as they start
-        put = self.inq.put
+        put = self.inq.offer  # within the collector's budgets (:mod:`swarmloc.net.intake`)
         subs = [
             session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
             for what in ("belief", "report", "progress", "lines", "delayed")
@@ -507,6 +506,7 @@ class _Launcher:
                     s.undeclare()
                 except Exception:  # noqa: BLE001
                     pass
+            self._intake.fold(self.result.counts, self.result.reasons, prefix="collector_")
             self.note_ended()  # those that ended by themselves, then those the launcher stops
             stop_all(self.procs)
             limit = " at its time limit" if self.result.counts["timed_out"] else ""

@@ -36,6 +36,11 @@ from collections.abc import Sequence
 from typing import Any
 
 PREFIX = "swarmloc"
+MAX_MESSAGE = 2 * 1024 * 1024
+"""[bytes] the largest Zenoh message a session reassembles (Zenoh's default, 1 GiB, let one peer make a receiver
+buffer that much before any check of ours; a signed frame is at most 1 MiB): set unless a configuration file
+sets its own."""
+_ZENOH_DEFAULT_MAX_MESSAGE = 1 << 30
 _TEAM = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
 
 
@@ -134,6 +139,8 @@ def zenoh_config(
         cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if connect:
         cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if json.loads(cfg.get_json("transport/link/rx/max_message_size")) == _ZENOH_DEFAULT_MAX_MESSAGE:
+        cfg.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE))
     for k, v in (extra or {}).items():
         cfg.insert_json5(k, json.dumps(v))
     return cfg

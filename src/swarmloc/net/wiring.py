@@ -1,8 +1,9 @@
 """The Zenoh side of a :class:`~swarmloc.net.process.NetNode`: what it declares on its session, and undeclares.
 
-Everything received is put on the node's one queue (``_inq``) as ``(kind, sample)`` and handled on the node's
-thread (:mod:`swarmloc.net.inbound`): queries on ``robot/<id>/query``, pushed messages on ``robot/<id>/inbox``,
-every teammate's ``progress``, and liveliness changes under ``alive``. It publishes its ``belief`` and
+Everything received is put on the node's one queue (``_inq``, within its budgets: :mod:`swarmloc.net.intake`) as
+``(kind, sample)`` and handled on the node's thread (:mod:`swarmloc.net.inbound`): queries on
+``robot/<id>/query``, pushed messages on ``robot/<id>/inbox``, every teammate's ``progress``, and liveliness
+changes under ``alive``. It publishes its ``belief`` and
 ``progress`` (a smoother's ``delayed`` output too; and, with ``ros_domain``, a ROS 2 pose topic in rmw_zenoh's
 layout, with the node's and the publisher's rmw_zenoh liveliness tokens: :mod:`swarmloc.net.rosgraph`), and holds
 its liveliness token. With ``auth`` it first answers the per-pair handshake, and makes a session with every member
@@ -35,7 +36,7 @@ class Wiring:
         s, team, r = self.session, self.scope, self.robot  # keys: the team's scope (its name, and the run's id)
         # per-pair sessions (:mod:`swarmloc.net.pairing`): answer the handshake before anything else is declared
         attach(self.auth, s, team, hello=False)
-        put = self._inq.put
+        put = self._inq.offer  # within the budgets of what a node takes in (:mod:`.intake`)
         self._decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
         self._decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
         self._decl.append(  # the teammates' progress (not this session's own: it would be verified for nothing)

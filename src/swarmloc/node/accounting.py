@@ -18,7 +18,23 @@ from swarmloc.node.update import Outcome
 
 log = logging.getLogger("swarmloc.node")
 
-__all__ = ["OUTCOMES", "STAT_KEYS", "Accounting"]
+__all__ = ["MAX_REASONS", "OTHER_REASONS", "OUTCOMES", "STAT_KEYS", "Accounting", "reason_key"]
+
+MAX_REASONS = 256
+"""The most distinct reasons a counter of reasons keeps: a reason may quote the numbers of what it refuses (a
+stamp), so that a stream of refused messages would otherwise grow it without bound; past it a new reason is counted
+under :data:`OTHER_REASONS`."""
+MAX_REASON_CHARS = 300
+"""A reason is counted under its first this many characters."""
+OTHER_REASONS = "(other reasons: more than 256 distinct)"
+
+
+def reason_key(reasons: Mapping[str, int], reason: str) -> str:
+    """The key to count ``reason`` under in ``reasons``: itself (its first :data:`MAX_REASON_CHARS` characters) while
+    fewer than :data:`MAX_REASONS` distinct ones are counted, else :data:`OTHER_REASONS`."""
+    reason = reason[:MAX_REASON_CHARS]
+    return reason if reason in reasons or len(reasons) < MAX_REASONS else OTHER_REASONS
+
 
 OUTCOMES = ("fused", "gated", "rejected", "unknown")
 STAT_KEYS = (
@@ -80,8 +96,9 @@ class Accounting:
         log.debug("%s: odometry rejected: %s", self.name, reason)
 
     def message_rejected(self, reason: str) -> None:
+        """A neighbour's message refused (its reason counted: :func:`reason_key`, a message's numbers in it)."""
         self.counts["messages_rejected"] += 1
-        self.reasons[f"message rejected: {reason}"] += 1
+        self.reasons[reason_key(self.reasons, f"message rejected: {reason}")] += 1
         log.debug("%s: message rejected: %s", self.name, reason)
 
     def stats(self, pending: int, odometry_pending: int) -> dict[str, int]:
