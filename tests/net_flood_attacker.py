@@ -53,7 +53,7 @@ def main() -> None:
     def on_progress(x) -> None:
         parts, raw = str(x.key_expr).split("/"), x.payload.to_bytes()
         with lock:
-            if raw[:4] == MAGIC and len(raw) >= HEADER.size:
+            if raw[:4] in (MAGIC, b"SLS2") and len(raw) >= HEADER.size:  # version 2 adds the incarnation after
                 _, sender, _, _, kid = HEADER.unpack_from(raw)
                 kids.setdefault(sender, kid)
             if not scope:
