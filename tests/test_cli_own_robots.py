@@ -38,11 +38,11 @@ def test_evaluate_events_scores_every_estimator(sim_dir: Path, tmp_path: Path, c
     rep = json.loads(capsys.readouterr().out)
     assert rep["truth"] is True and rep["robots"] == [0, 1, 2, 3]
     rmse = {k: v["team"]["pos_rmse"] for k, v in rep["estimators"].items()}
-    assert set(rmse) == {"dr", "dekf", "cekf", "expfusion", "ci", "rdl"}
+    assert set(rmse) == {"dr", "dekf", "cekf", "iekf", "expfusion", "ci", "rdl", "diekf"}  # the CLI's default list
     assert rmse["cekf"] < rmse["dr"] and rmse["rdl"] < rmse["dr"], rmse
     for name, ev in rep["estimators"].items():
         assert ev["accounted"] and ev["stats"]["detections"] > 50
-        if name in ("dr", "cekf", "ci", "rdl"):  # the consistent ones (dekf and expfusion double count)
+        if name in ("dr", "cekf", "iekf", "ci", "rdl", "diekf"):  # the consistent ones (dekf, expfusion double count)
             assert 0.2 < ev["team"]["anees"] < 3.0, (name, ev["team"]["anees"])
     for f in ("events.json", "events.md", "trajectories.png", "error_nees_over_time.png", "tum/rdl_robot2.tum",
               "tum/groundtruth_robot0.tum"):  # fmt: skip
