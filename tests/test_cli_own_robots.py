@@ -84,6 +84,32 @@ def test_bad_event_file_names_every_bad_line(tmp_path: Path, capsys):
     assert rc == 0 and cap.err.count("skipped:") == 3
 
 
+def test_a_detection_of_a_robot_outside_the_team_is_refused_with_its_line(tmp_path: Path, capsys):
+    """A detection of robot 7 in a file whose team is robots 0 and 1 (those with odometry) is refused with its line
+    number. Before, the file passed its check and the detection silently ended ``unknown``."""
+    f = tmp_path / "events.csv"
+    f.write_text(
+        "type,t,robot,t0,v,w,target,target_type,kind,z,std\n"
+        "initial,0.0,0,,,,,,,0 0 0,0.01 0.01 0.01\n"
+        "initial,0.0,1,,,,,,,1 0 0,0.01 0.01 0.01\n"
+        "odometry,0.5,0,0.0,0.5,0.0,,,,,\n"
+        "odometry,0.5,1,0.0,0.5,0.0,,,,,\n"
+        "detection,0.2,0,,,,1,robot,range_bearing,1.0 0.0,0.1 0.035\n"
+        "detection,0.3,0,,,,7,robot,range_bearing,2.0 0.1,0.1 0.035\n"  # line 7: robot 7 is not in the team
+        "detection,0.4,5,,,,0,robot,range_bearing,2.0 0.1,0.1 0.035\n"  # line 8: nor is observer 5
+    )
+    rc = main(["evaluate", "events", str(f), "--quiet", "--estimators", "dr"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "Traceback" not in err
+    assert "line 7: a detection of robot 7, which is not in the team (robots [0, 1]" in err, err
+    assert "line 8: a detection by robot 5, which is not in the team (robots [0, 1]" in err, err
+    rc = main(["evaluate", "events", str(f), "--quiet", "--skip-bad-lines", "--estimators", "dr", "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0 and cap.err.count("skipped:") == 2
+    stats = json.loads(cap.out)["estimators"]["dr"]["stats"]
+    assert stats["detections"] == 1 and stats["unknown"] == 0
+
+
 def test_missing_initial_belief_is_one_clear_line(tmp_path: Path, capsys):
     f = tmp_path / "events.csv"
     f.write_text("type,t,robot,t0,v,w\nodometry,0.1,3,0.0,0.5,0.0\n")
