@@ -61,3 +61,14 @@ def mrclam_dataset(mrclam_root: Path) -> Callable[[int], Path]:
 def mrclam6(mrclam_dataset: Callable[[int], Path]) -> Path:
     """Dataset 6, the one with ground truth for every robot."""
     return mrclam_dataset(6)
+
+
+# ------------------------------------------------------------------------------------------------ progress bars
+@pytest.fixture
+def terminal_progress(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The commands' progress bars (swarmloc.experiments.progress) drawn as on a terminal, on stderr: under pytest
+    stderr is no terminal, where rich draws nothing; read them with ``capsys.readouterr().err``."""
+    from rich.console import Console
+
+    monkeypatch.setattr("swarmloc.experiments.progress.stderr_console",
+                        lambda: Console(stderr=True, force_terminal=True, width=120))  # fmt: skip

@@ -147,3 +147,13 @@ def test_config_changes_the_run(sim_dir: Path, tmp_path: Path, capsys):
     tight = json.loads(capsys.readouterr().out)["estimators"]["rdl"]["stats"]
     assert tight["gated"] > loose["gated"] + 10
     assert np.isclose(tight["detections"], loose["detections"])
+
+
+def test_evaluate_and_compare_show_progress_on_stderr_not_stdout(sim_dir: Path, capsys, terminal_progress):
+    """The tables on stdout, the progress bars on stderr (before, rich drew them on stdout)."""
+    assert main(["evaluate", "events", str(sim_dir / "events.csv"), "--estimators", "dr"]) == 0
+    out, err = capsys.readouterr()
+    assert "| dr |" in out and "dr" in err and "\x1b[" not in out
+    assert main(["compare", "--estimators", "dr", "--robots", "2", "--duration", "3", "--jobs", "1"]) == 0
+    out, err = capsys.readouterr()
+    assert "| dr |" in out and "compare sim:random" in err and "1/1" in err and "\x1b[" not in out

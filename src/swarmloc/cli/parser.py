@@ -276,6 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--sigma", type=float, default=0.01, help="range noise std [m] (default 0.01)")
     mp.add_argument("--D", type=float, default=0.005, help="wheel-speed diffusion [rad^2/s] (default 0.005)")
     mp.add_argument("--out", default=None, help="folder for map.md, map.json, map.png, GeoJSON and DXF maps")
+    mp.add_argument("--quiet", action="store_true", help="no progress bar")
     mp.set_defaults(func=_map)
 
     t = sub.add_parser("team", help="start a live team on this machine (127.0.0.1), collect and score it")
@@ -293,5 +294,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stop every process after this many wall-clock seconds (default 600)")  # fmt: skip
     t.add_argument("--out", required=True, help="output folder (report, figures, TUM files, logs)")
     t.add_argument("--verbose", action="store_true", help="nodes log their state every 2 s (in OUT/logs)")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_team)
     return p

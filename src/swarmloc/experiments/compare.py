@@ -33,6 +33,7 @@ import numpy as np
 from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
 from swarmloc.experiments.association import association_accuracy
 from swarmloc.experiments.evaluate import association_text
+from swarmloc.experiments.progress import steps
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, SE3
 
@@ -165,30 +166,18 @@ def compare(
     tasks = [(scenario, e, s, robots, duration, assoc) for e in estimators for s in seeds]
     results: list[dict] = []
     t0 = time.perf_counter()
-    bar = None
-    if progress:
-        from rich.progress import Progress
-
-        bar = Progress()
-        bar.start()
-        task_id = bar.add_task(f"compare {scenario}", total=len(tasks))
-    try:
+    with steps(progress, len(tasks), f"compare {scenario}") as tick:
         if jobs <= 1 or len(tasks) == 1:
             for t in tasks:
                 results.append(_job(*t))
-                if bar is not None:
-                    bar.advance(task_id)
+                tick(f"{t[1]} seed {t[2]}")
         else:
             # spawned, not forked: a process that imported JAX (the engine's backend) is multithreaded
             with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
                 futs = [ex.submit(_job, *t) for t in tasks]
                 for f in as_completed(futs):
                     results.append(f.result())
-                    if bar is not None:
-                        bar.advance(task_id)
-    finally:
-        if bar is not None:
-            bar.stop()
+                    tick(f"{results[-1]['estimator']} seed {results[-1]['seed']}")
     summary: dict[str, Any] = {
         "scenario": scenario,
         "runs": len(seeds),

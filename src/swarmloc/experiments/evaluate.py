@@ -9,9 +9,8 @@ in-process runner; beliefs are recorded on a regular grid and scored with :mod:`
 
 from __future__ import annotations
 
-import contextlib
 import json
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,32 +24,11 @@ from swarmloc.evaluation.delayed import delayed_output
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
 from swarmloc.experiments.association import association_accuracy, association_events
+from swarmloc.experiments.progress import progress_bar
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.runner import RunResult, TruthFn, run
 
 ALL = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl")
-
-
-@contextlib.contextmanager
-def progress_bar(enabled: bool) -> Iterator[Callable[[str], Callable[[int, int], None]] | None]:
-    """A rich progress bar; yields ``start(description) -> callback(done, total)``, or None when disabled."""
-    if not enabled:
-        yield None
-        return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  transient=True) as bar:  # fmt: skip
-
-        def start(description: str) -> Callable[[int, int], None]:
-            task = bar.add_task(description, total=None)
-
-            def cb(done: int, total: int) -> None:
-                bar.update(task, completed=done, total=total)
-
-            return cb
-
-        yield start
 
 
 def evaluate_stream(
