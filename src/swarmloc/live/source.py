@@ -44,13 +44,15 @@ def attach(
 ) -> Callable[[], None]:
     """Subscribe ``feed.robot``'s live inputs of ``kind`` on ``session`` into ``feed``; returns the closer."""
     if kind == "zenoh":
-        from swarmloc.live.zenoh_input import ZenohInput
+        from swarmloc.live.zenoh_input import ZenohInput, input_key
 
         sub: Any = ZenohInput(session, feed, team_scope(team, run_id))
+        feed.listens_on = f"Zenoh keys {input_key(team_scope(team, run_id), feed.robot, '*')}"
     elif kind == "ros2":
         from swarmloc.live.ros_input import RosInput
 
         sub = RosInput(session, feed, team=team, domain=domain)
+        feed.listens_on = f"ROS 2 topics {', '.join(sub.topics.values())} (domain {sub.domain})"
     else:
         raise ValueError(f"unknown live input {kind!r}; choose from {list(LIVE_KINDS)}")
     sub.open()
