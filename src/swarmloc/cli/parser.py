@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from swarmloc import __version__
+from swarmloc.cli.data import add_parser as add_data_parser
 from swarmloc.cli.network import cmd_keys, cmd_node, cmd_server, cmd_team
 from swarmloc.cli.offline import (
     ASSOCIATION_CHOICES,
@@ -296,4 +297,5 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--verbose", action="store_true", help="nodes log their state every 2 s (in OUT/logs)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_team)
+    add_data_parser(sub)
     return p
