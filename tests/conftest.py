@@ -5,8 +5,15 @@ where OpenBLAS worker threads only spin. On the 2-core development machine under
 tests/test_lie.py alone take ~50 s instead of ~3 s. Must run before numpy is first imported; an explicit
 setting in the environment wins.
 
-Also: hypothesis' storage under pytest's temporary directory, and the fixtures through which every test finds the
-MRCLAM dataset (mrclam_root, mrclam_dataset, mrclam6; the rule is in tests/_data.py).
+Also: hypothesis' storage under pytest's temporary directory, the fixtures through which every test finds the
+MRCLAM dataset (mrclam_root, mrclam_dataset, mrclam6; the rule is in tests/_data.py), and the tiers.
+
+Tiers (markers, registered in pyproject.toml; ``--strict-markers``): every test is ``unit`` (no data, no network),
+``data`` (reads MRCLAM) or ``network`` (starts Zenoh peers or processes), one of them at least, most by its
+module's ``pytestmark``; ``slow`` marks those over about 20 s. ``python -m pytest -q -m "not slow"`` is the quick
+tier. Under pytest-xdist (``-n``, ``--dist loadgroup`` in pyproject's addopts) the tests of one module run in one
+worker (its module-scoped fixtures are built once) and every ``network`` test in one worker, one at a time: their
+processes pick free ports, and two teams starting at once on a 2-core machine could take each other's.
 """
 
 import functools
@@ -72,3 +79,33 @@ def terminal_progress(monkeypatch: pytest.MonkeyPatch) -> None:
 
     monkeypatch.setattr("swarmloc.experiments.progress.stderr_console",
                         lambda: Console(stderr=True, force_terminal=True, width=120))  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------------------ tiers
+KINDS = ("unit", "data", "network")
+MRCLAM_FIXTURES = frozenset({"mrclam_root", "mrclam_root_if_expected", "mrclam_dataset", "mrclam6"})
+
+
+def tier_problems(items: list[pytest.Item]) -> list[str]:
+    """Tests without a kind (unit, data, network), and tests that read MRCLAM (a fixture of tests/_data.py) without
+    the ``data`` marker."""
+    problems = []
+    for item in items:
+        kinds = {m.name for m in item.iter_markers()} & set(KINDS)
+        if not kinds:
+            problems.append(f"{item.nodeid}: no tier marker (pytestmark = pytest.mark.unit, data or network)")
+        elif MRCLAM_FIXTURES & set(getattr(item, "fixturenames", ())) and "data" not in kinds:
+            problems.append(f"{item.nodeid}: reads MRCLAM but is not marked data")
+    return problems
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Refuse a run with a test that has no tier; group the tests for xdist (module docstring)."""
+    problems = tier_problems(items)
+    if problems:
+        more = f"\n... and {len(problems) - 20} more" if len(problems) > 20 else ""
+        raise pytest.UsageError("tests without their tier:\n" + "\n".join(problems[:20]) + more)
+    for item in items:
+        network = item.get_closest_marker("network") is not None
+        item.add_marker(pytest.mark.xdist_group("network" if network else item.nodeid.split("::", 1)[0]))

@@ -19,6 +19,8 @@ from swarmloc.engine.swarm import SWARM_NOISE, Swarm, device_step, neighbour_pai
 from swarmloc.experiments import bench as B
 from swarmloc.lie import wrap_angle
 
+pytestmark = pytest.mark.unit
+
 
 def _worst(a, b) -> tuple[float, float]:
     """Largest mean difference [m or rad] and covariance difference relative to sqrt(P_ii P_jj) over all tracks."""

@@ -15,6 +15,8 @@ from swarmloc.node.associate import ASSOCIATION_KEYS
 from swarmloc.runner import run
 from swarmloc.sim.anonymous import anonymize
 
+pytestmark = pytest.mark.data
+
 
 def _run(src, events, est, **kw):
     opts = node_options(est, src.config, src.landmarks, src.t_start)
@@ -306,6 +308,7 @@ def test_khepera_kidnap_the_bank_re_disambiguates_and_nearest_does_not():
     assert res.stats["association_clutter"] > 20  # robot 4's detections, outside every gate
 
 
+@pytest.mark.network  # starts a team of node processes
 def test_distributed_association_over_zenoh_equals_the_in_process_run():
     """Three dekf nodes on their own Zenoh sessions (127.0.0.1), anonymous detections with misses and clutter,
     ``nearest`` from the configuration: each node asks its teammates over the network, and the beliefs and the

@@ -13,6 +13,8 @@ import pytest
 from swarmloc.cli import main
 from swarmloc.config import DEFAULTS, Config
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def sim_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -9,6 +9,8 @@ import pytest
 from swarmloc.cli import main
 from swarmloc.experiments.compare import compare
 
+pytestmark = pytest.mark.unit
+
 
 def test_compare_identical_events_and_workers_do_not_change_results():
     est = ["dr", "cekf", "rdl"]

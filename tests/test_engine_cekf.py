@@ -18,6 +18,8 @@ from swarmloc.events import Detection
 from swarmloc.experiments.sources import load_source
 from swarmloc.runner import RunResult, run
 
+pytestmark = pytest.mark.data
+
 
 def _node(src, **options) -> RunResult:
     opts = {**node_options("cekf", src.config, src.landmarks), **options}

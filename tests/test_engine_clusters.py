@@ -20,6 +20,8 @@ from swarmloc.experiments.sources import load_source
 from swarmloc.kernels import ci as KCI
 from swarmloc.runner import RunResult, run
 
+pytestmark = pytest.mark.data
+
 
 def _nodes(src, **options) -> RunResult:
     opts = {**node_options("diekf", src.config, src.landmarks), **options}

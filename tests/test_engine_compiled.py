@@ -22,6 +22,9 @@ from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import KIND_ORDER
 
+pytestmark = pytest.mark.data
+
+
 RB = KIND_ORDER["range_bearing"]
 
 

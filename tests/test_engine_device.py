@@ -15,6 +15,9 @@ from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import KIND_ORDER
 
+pytestmark = pytest.mark.unit
+
+
 NOISE = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
 
 

@@ -24,6 +24,9 @@ from swarmloc.kernels import invariant as I
 from swarmloc.lie import wrap_angle
 from swarmloc.runner import RunResult, run
 
+pytestmark = pytest.mark.data
+
+
 INVARIANT = ("iekf", "diekf")
 
 

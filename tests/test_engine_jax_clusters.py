@@ -22,6 +22,9 @@ from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
 from swarmloc.kernels import ci as KCI
 
+pytestmark = pytest.mark.data
+
+
 import_jax()  # float64
 import jax.numpy as jnp  # noqa: E402
 

@@ -24,6 +24,9 @@ from swarmloc.estimators.rdl import joint_prior
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
 
+pytestmark = pytest.mark.data
+
+
 import_jax()  # float64
 import jax.numpy as jnp  # noqa: E402
 

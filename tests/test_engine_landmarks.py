@@ -17,6 +17,8 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult, run
 from swarmloc.sensors.models import KIND_ORDER
 
+pytestmark = pytest.mark.data
+
 
 def _nodes(src, **options) -> RunResult:
     opts = {**node_options("dekf", src.config, src.landmarks), **options}

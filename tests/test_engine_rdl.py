@@ -19,6 +19,8 @@ from swarmloc.events import Detection
 from swarmloc.experiments.sources import load_source
 from swarmloc.runner import RunResult, run
 
+pytestmark = pytest.mark.data
+
 
 def _nodes(src, **options) -> RunResult:
     opts = {**node_options("rdl", src.config, src.landmarks), **options}

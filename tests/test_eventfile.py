@@ -17,6 +17,9 @@ from swarmloc.datasets.tum import TUMError, write_tum
 from swarmloc.events import Detection, Odometry, Truth
 from swarmloc.gaussian import GroupGaussian
 
+pytestmark = pytest.mark.unit
+
+
 HEADER = ",".join(COLUMNS)
 ODO = "odometry,1.0,1,0.0,0.5,0.1,,,,,,"  # a good line
 

@@ -21,6 +21,9 @@ from swarmloc.lie import SE2
 from swarmloc.runner import run
 from swarmloc.sim import thesis_two_robot
 
+pytestmark = pytest.mark.unit
+
+
 COOPERATIVE = ("dekf", "expfusion", "expfusion1", "cekf")
 
 

@@ -25,6 +25,9 @@ from swarmloc.experiments.thesis_static import (
 from swarmloc.lie import SE2
 from swarmloc.motion import thesis_circular_cov, thesis_straight_cov
 
+pytestmark = pytest.mark.unit
+
+
 SMALL = {"n_samples": 200, "progress": False, "n_reference": 2_000}
 
 

@@ -14,6 +14,8 @@ from swarmloc.lie import SE2, wrap_angle
 from swarmloc.mapping import LineMap, LineObservation, MapLine, extract_lines, fit_line, line_to_world, map_error
 from swarmloc.sim.walls import RangeFinder, Walls, cast_rays, chapter_lab, office_walls
 
+pytestmark = pytest.mark.unit
+
 
 def _scan(pose: tuple[float, float, float], walls: Walls, finder: RangeFinder, rng: np.random.Generator):
     """One noisy scan from ``pose`` (no other robots)."""

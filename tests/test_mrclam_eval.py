@@ -13,6 +13,8 @@ from _data import MRCLAM_DATASETS
 from swarmloc.cli import main
 from swarmloc.experiments.mrclam import evaluate_mrclam
 
+pytestmark = pytest.mark.data
+
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory, mrclam6: Path) -> tuple[dict, Path]:

@@ -38,6 +38,9 @@ from swarmloc.net.server import BeliefServer
 from swarmloc.net.transport import free_ports, open_session, robot_key, server_key
 from swarmloc.runner import run
 
+pytestmark = [pytest.mark.network, pytest.mark.data]
+
+
 DISTRIBUTED = ("expfusion", "dekf", "ci", "rdl")
 I3 = flat(np.eye(3))
 COV = flat(np.diag([0.01, 0.01, 0.001]))

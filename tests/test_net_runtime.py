@@ -20,6 +20,8 @@ import threading
 import time
 from collections import Counter
 
+import pytest
+
 from swarmloc.estimators import make_team, node_options
 from swarmloc.experiments.sources import load_source
 from swarmloc.experiments.team import run_team, team_result
@@ -29,6 +31,9 @@ from swarmloc.net.process import NetNode
 from swarmloc.net.schema import Progress, encode
 from swarmloc.net.transport import alive_key, free_ports, open_session, robot_key, robot_of, team_scope
 from swarmloc.runner import run
+
+pytestmark = pytest.mark.network
+
 
 OUTCOMES = ("detections", "fused", "gated", "rejected", "unknown", "pending")
 

@@ -11,6 +11,9 @@ import pytest
 
 from swarmloc.experiments.observability import observability_figure, observability_run
 
+pytestmark = pytest.mark.unit
+
+
 SEEDS = range(4)
 
 

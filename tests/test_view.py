@@ -11,6 +11,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 import websockets
 from mcap.reader import make_reader
 
@@ -19,6 +20,8 @@ from swarmloc.lie import SE2
 from swarmloc.net.server import MapStore
 from swarmloc.net.team import launch_team
 from swarmloc.net.view import TOPICS, TeamView
+
+pytestmark = pytest.mark.network
 
 
 class Client(threading.Thread):
