@@ -10,10 +10,12 @@ MRCLAM dataset (mrclam_root, mrclam_dataset, mrclam6; the rule is in tests/_data
 
 Tiers (markers, registered in pyproject.toml; ``--strict-markers``): every test is ``unit`` (no data, no network),
 ``data`` (reads MRCLAM) or ``network`` (starts Zenoh peers or processes), one of them at least, most by its
-module's ``pytestmark``; ``slow`` marks those over about 20 s. ``python -m pytest -q -m "not slow"`` is the quick
-tier. Under pytest-xdist (``-n``, ``--dist loadgroup`` in pyproject's addopts) the tests of one module run in one
-worker (its module-scoped fixtures are built once) and every ``network`` test in one worker, one at a time: their
-processes pick free ports, and two teams starting at once on a 2-core machine could take each other's.
+module's ``pytestmark``; ``slow`` marks those that took over 3 s in a measured run (listed in tests/slow_tests.txt,
+made by tests/_tiers.py) or are marked so in their module. ``python -m pytest -q -m "not slow"`` is the quick tier
+(under 3 minutes on two cores). Under pytest-xdist (``-n``, ``--dist loadgroup`` in pyproject's addopts) the
+tests of one module run in one worker (its module-scoped fixtures are built once) and every ``network`` test in
+one worker, one at a time: their processes pick free ports, and two teams starting at once on a 2-core machine
+could take each other's.
 """
 
 import functools
@@ -23,6 +25,7 @@ from pathlib import Path
 
 import pytest  # does not import numpy
 from _data import REPO_ROOT, mrclam_dataset_or_fail, mrclam_root_or_none, mrclam_root_or_skip
+from _tiers import read_list
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -106,6 +109,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if problems:
         more = f"\n... and {len(problems) - 20} more" if len(problems) > 20 else ""
         raise pytest.UsageError("tests without their tier:\n" + "\n".join(problems[:20]) + more)
+    slow = read_list()
     for item in items:
+        if item.nodeid in slow:
+            item.add_marker(pytest.mark.slow)
         network = item.get_closest_marker("network") is not None
         item.add_marker(pytest.mark.xdist_group("network" if network else item.nodeid.split("::", 1)[0]))
