@@ -12,10 +12,12 @@ Tiers (markers, registered in pyproject.toml; ``--strict-markers``): every test 
 ``data`` (reads MRCLAM) or ``network`` (starts Zenoh peers or processes), one of them at least, most by its
 module's ``pytestmark``; ``slow`` marks those that took over 3 s in a measured run (listed in tests/slow_tests.txt,
 made by tests/_tiers.py) or are marked so in their module. ``python -m pytest -q -m "not slow"`` is the quick tier
-(under 3 minutes on two cores). Under pytest-xdist (``-n``, ``--dist loadgroup`` in pyproject's addopts) the
-tests of one module run in one worker (its module-scoped fixtures are built once) and every ``network`` test in
-one worker, one at a time: their processes pick free ports, and two teams starting at once on a 2-core machine
-could take each other's.
+(under 3 minutes on two cores). Under pytest-xdist (``-n``, ``--dist loadfile`` in pyproject's addopts) the
+tests of one module run in one worker, so its module-scoped fixtures are built once. Each worker picks the free
+ports of its teams in a range of its own (``SWARMLOC_PORT_RANGE``, :func:`swarmloc.net.transport.free_ports`),
+below the OS's ephemeral range: two teams starting at once in two workers never take each other's ports, nor a
+port the OS hands to an outgoing connection. (``--dist loadgroup`` would keep the network tests in one worker, but
+pytest-xdist 3.8's groups are lost with pytest 9.2's node ids: they ran spread over both workers.)
 """
 
 import functools
@@ -102,9 +104,8 @@ def tier_problems(items: list[pytest.Item]) -> list[str]:
     return problems
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Refuse a run with a test that has no tier; group the tests for xdist (module docstring)."""
+    """Refuse a run with a test that has no tier; mark the measured slow ones (module docstring)."""
     problems = tier_problems(items)
     if problems:
         more = f"\n... and {len(problems) - 20} more" if len(problems) > 20 else ""
@@ -113,5 +114,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.nodeid in slow:
             item.add_marker(pytest.mark.slow)
-        network = item.get_closest_marker("network") is not None
-        item.add_marker(pytest.mark.xdist_group("network" if network else item.nodeid.split("::", 1)[0]))
+
+
+PORTS_FROM, PORTS_PER_WORKER = 10_000, 500
+"""Worker ``gwK`` picks its ports in ``[10000 + 500 K, 10000 + 500 K + 499]``: 45 workers stay below 32768, where
+Linux's ephemeral range starts by default."""
+
+
+def worker_port_range(worker: str) -> str:
+    """``LO-HI`` of an xdist worker (``gw3``)."""
+    k = int(worker.removeprefix("gw"))
+    lo = PORTS_FROM + PORTS_PER_WORKER * (k % 45)
+    return f"{lo}-{lo + PORTS_PER_WORKER - 1}"
+
+
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+if _WORKER.startswith("gw") and _WORKER[2:].isdigit():  # set before any test (or process it starts) picks a port
+    os.environ.setdefault("SWARMLOC_PORT_RANGE", worker_port_range(_WORKER))

@@ -51,7 +51,7 @@ def test_markers_are_registered_strict_and_xdist_runs_in_readmes_command():
     names = {m.split(":", 1)[0] for m in ini["markers"]}
     assert names == {*KINDS, "slow"}
     opts = ini["addopts"].split()
-    assert "--strict-markers" in opts and "-n" in opts and "--dist" in opts and "--durations=25" in opts
+    assert "--strict-markers" in opts and "-n" in opts and "loadfile" in opts and "--durations=25" in opts
     dev = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]["dev"]
     assert any(d.startswith("pytest-xdist") for d in dev)
 
