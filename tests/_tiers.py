@@ -17,10 +17,10 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 SLOW_LIST = HERE / "slow_tests.txt"
-THRESHOLD = 3.0
+THRESHOLD = 2.0
 """[s] A test that took longer (setup, call and teardown, on the measuring machine) is slow."""
 HEADER = (
-    "# Tests marked slow (tests/conftest.py): over 3 s in a measured run (python tests/_tiers.py run.xml makes this\n"
+    "# Tests marked slow (tests/conftest.py): over 2 s in a measured run (python tests/_tiers.py run.xml makes this\n"
     "# list from a run's JUnit XML). One pytest node id per line.\n"
 )
 

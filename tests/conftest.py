@@ -10,7 +10,7 @@ MRCLAM dataset (mrclam_root, mrclam_dataset, mrclam6; the rule is in tests/_data
 
 Tiers (markers, registered in pyproject.toml; ``--strict-markers``): every test is ``unit`` (no data, no network),
 ``data`` (reads MRCLAM) or ``network`` (starts Zenoh peers or processes), one of them at least, most by its
-module's ``pytestmark``; ``slow`` marks those that took over 3 s in a measured run (listed in tests/slow_tests.txt,
+module's ``pytestmark``; ``slow`` marks those that took over 2 s in a measured run (listed in tests/slow_tests.txt,
 made by tests/_tiers.py) or are marked so in their module. ``python -m pytest -q -m "not slow"`` is the quick tier
 (under 3 minutes on two cores). Under pytest-xdist (``-n``, ``--dist loadfile`` in pyproject's addopts) the
 tests of one module run in one worker, so its module-scoped fixtures are built once. Each worker picks the free

@@ -19,7 +19,8 @@ from swarmloc.engine.swarm import SWARM_NOISE, Swarm, device_step, neighbour_pai
 from swarmloc.experiments import bench as B
 from swarmloc.lie import wrap_angle
 
-pytestmark = pytest.mark.unit
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.unit, pytest.mark.slow]
 
 
 def _worst(a, b) -> tuple[float, float]:

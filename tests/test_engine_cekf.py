@@ -18,7 +18,8 @@ from swarmloc.events import Detection
 from swarmloc.experiments.sources import load_source
 from swarmloc.runner import RunResult, run
 
-pytestmark = pytest.mark.data
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
 
 
 def _node(src, **options) -> RunResult:

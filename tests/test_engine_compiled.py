@@ -22,7 +22,8 @@ from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import KIND_ORDER
 
-pytestmark = pytest.mark.data
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
 
 
 RB = KIND_ORDER["range_bearing"]

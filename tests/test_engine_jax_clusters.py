@@ -22,7 +22,8 @@ from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
 from swarmloc.kernels import ci as KCI
 
-pytestmark = pytest.mark.data
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
 
 
 import_jax()  # float64

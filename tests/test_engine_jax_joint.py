@@ -24,7 +24,8 @@ from swarmloc.estimators.rdl import joint_prior
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
 
-pytestmark = pytest.mark.data
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
 
 
 import_jax()  # float64

@@ -17,7 +17,8 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult, run
 from swarmloc.sensors.models import KIND_ORDER
 
-pytestmark = pytest.mark.data
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
 
 
 def _nodes(src, **options) -> RunResult:

@@ -13,7 +13,8 @@ from _data import MRCLAM_DATASETS
 from swarmloc.cli import main
 from swarmloc.experiments.mrclam import evaluate_mrclam
 
-pytestmark = pytest.mark.data
+# slow: its module fixture evaluates every estimator on all of dataset 6 (about a minute)
+pytestmark = [pytest.mark.data, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
