@@ -19,6 +19,9 @@ from swarmloc.engine.swarm import SWARM_NOISE, Swarm, device_step, neighbour_pai
 from swarmloc.experiments import bench as B
 from swarmloc.lie import wrap_angle
 
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.unit, pytest.mark.slow]
+
 
 def _worst(a, b) -> tuple[float, float]:
     """Largest mean difference [m or rad] and covariance difference relative to sqrt(P_ii P_jj) over all tracks."""

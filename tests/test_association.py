@@ -13,6 +13,8 @@ from scipy.stats import chi2
 from swarmloc.association import AMBIGUOUS, CLUTTER, gate_threshold, innovation_costs, joint, nearest
 from swarmloc.sensors.models import MODELS
 
+pytestmark = pytest.mark.unit
+
 
 def _h(kind: str, xo: np.ndarray, xt: np.ndarray) -> np.ndarray:
     """The measurement written out by hand (independent of sensors.models)."""

@@ -11,6 +11,8 @@ from swarmloc.association import solution_count_theory
 from swarmloc.association.bearing import bearing_registration
 from swarmloc.association.registration import compose_xyt, invert_xyt
 
+pytestmark = pytest.mark.unit
+
 
 def bearings(poses: np.ndarray, rng: np.random.Generator, sigma: float = 0.0) -> dict[int, np.ndarray]:
     out = {}

@@ -12,6 +12,8 @@ from swarmloc.association.pfbank import ParticleFilterBank
 from swarmloc.association.registration import compose_xyt, invert_xyt
 from swarmloc.lie import SE2
 
+pytestmark = pytest.mark.unit
+
 
 def exp_xyt(y: np.ndarray) -> np.ndarray:
     return SE2.to_xytheta(SE2.exp(y))

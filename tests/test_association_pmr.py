@@ -19,6 +19,8 @@ from swarmloc.association.registration import compose_xyt, invert_xyt
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 
+pytestmark = pytest.mark.unit
+
 
 def observe(poses: np.ndarray, rng: np.random.Generator, sigma: float = 0.0, max_range: float = np.inf) -> dict:
     """Every robot's anonymous observation of the others (its own frame), shuffled, with isotropic noise."""

@@ -17,6 +17,8 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.sim import RelativeSensor, random_team
 from swarmloc.sim.anonymous import CLUTTER_TRUTH, AnonymousSensor, anonymize_sim, is_anonymous, khepera_kidnap
 
+pytestmark = pytest.mark.unit
+
 
 def team(duration: float = 20.0, seed: int = 0):
     sensor = RelativeSensor(rate=5.0, max_range=3.0, kinds=("pose", "range_bearing"))

@@ -24,6 +24,8 @@ from swarmloc.experiments.sources import load_source
 from swarmloc.lie import SE2
 from swarmloc.sim.anonymous import anonymize
 
+pytestmark = pytest.mark.unit
+
 
 def test_planar_log_exp_and_the_relative_log_equal_the_matrix_forms():
     rng = np.random.default_rng(0)

@@ -11,6 +11,8 @@ import pytest
 from swarmloc.cli import main
 from swarmloc.experiments import bench as B
 
+pytestmark = pytest.mark.data
+
 
 def _positive(x: object) -> bool:
     return isinstance(x, int | float) and math.isfinite(x) and x > 0

@@ -13,6 +13,8 @@ import pytest
 from swarmloc.cli import main
 from swarmloc.config import DEFAULTS, Config
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def sim_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
@@ -38,11 +40,11 @@ def test_evaluate_events_scores_every_estimator(sim_dir: Path, tmp_path: Path, c
     rep = json.loads(capsys.readouterr().out)
     assert rep["truth"] is True and rep["robots"] == [0, 1, 2, 3]
     rmse = {k: v["team"]["pos_rmse"] for k, v in rep["estimators"].items()}
-    assert set(rmse) == {"dr", "dekf", "cekf", "expfusion", "ci", "rdl"}
+    assert set(rmse) == {"dr", "dekf", "cekf", "iekf", "expfusion", "ci", "rdl", "diekf"}  # the CLI's default list
     assert rmse["cekf"] < rmse["dr"] and rmse["rdl"] < rmse["dr"], rmse
     for name, ev in rep["estimators"].items():
         assert ev["accounted"] and ev["stats"]["detections"] > 50
-        if name in ("dr", "cekf", "ci", "rdl"):  # the consistent ones (dekf and expfusion double count)
+        if name in ("dr", "cekf", "iekf", "ci", "rdl", "diekf"):  # the consistent ones (dekf, expfusion double count)
             assert 0.2 < ev["team"]["anees"] < 3.0, (name, ev["team"]["anees"])
     for f in ("events.json", "events.md", "trajectories.png", "error_nees_over_time.png", "tum/rdl_robot2.tum",
               "tum/groundtruth_robot0.tum"):  # fmt: skip
@@ -84,6 +86,32 @@ def test_bad_event_file_names_every_bad_line(tmp_path: Path, capsys):
     assert rc == 0 and cap.err.count("skipped:") == 3
 
 
+def test_a_detection_of_a_robot_outside_the_team_is_refused_with_its_line(tmp_path: Path, capsys):
+    """A detection of robot 7 in a file whose team is robots 0 and 1 (those with odometry) is refused with its line
+    number. Before, the file passed its check and the detection silently ended ``unknown``."""
+    f = tmp_path / "events.csv"
+    f.write_text(
+        "type,t,robot,t0,v,w,target,target_type,kind,z,std\n"
+        "initial,0.0,0,,,,,,,0 0 0,0.01 0.01 0.01\n"
+        "initial,0.0,1,,,,,,,1 0 0,0.01 0.01 0.01\n"
+        "odometry,0.5,0,0.0,0.5,0.0,,,,,\n"
+        "odometry,0.5,1,0.0,0.5,0.0,,,,,\n"
+        "detection,0.2,0,,,,1,robot,range_bearing,1.0 0.0,0.1 0.035\n"
+        "detection,0.3,0,,,,7,robot,range_bearing,2.0 0.1,0.1 0.035\n"  # line 7: robot 7 is not in the team
+        "detection,0.4,5,,,,0,robot,range_bearing,2.0 0.1,0.1 0.035\n"  # line 8: nor is observer 5
+    )
+    rc = main(["evaluate", "events", str(f), "--quiet", "--estimators", "dr"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "Traceback" not in err
+    assert "line 7: a detection of robot 7, which is not in the team (robots [0, 1]" in err, err
+    assert "line 8: a detection by robot 5, which is not in the team (robots [0, 1]" in err, err
+    rc = main(["evaluate", "events", str(f), "--quiet", "--skip-bad-lines", "--estimators", "dr", "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0 and cap.err.count("skipped:") == 2
+    stats = json.loads(cap.out)["estimators"]["dr"]["stats"]
+    assert stats["detections"] == 1 and stats["unknown"] == 0
+
+
 def test_missing_initial_belief_is_one_clear_line(tmp_path: Path, capsys):
     f = tmp_path / "events.csv"
     f.write_text("type,t,robot,t0,v,w\nodometry,0.1,3,0.0,0.5,0.0\n")
@@ -121,3 +149,13 @@ def test_config_changes_the_run(sim_dir: Path, tmp_path: Path, capsys):
     tight = json.loads(capsys.readouterr().out)["estimators"]["rdl"]["stats"]
     assert tight["gated"] > loose["gated"] + 10
     assert np.isclose(tight["detections"], loose["detections"])
+
+
+def test_evaluate_and_compare_show_progress_on_stderr_not_stdout(sim_dir: Path, capsys, terminal_progress):
+    """The tables on stdout, the progress bars on stderr (before, rich drew them on stdout)."""
+    assert main(["evaluate", "events", str(sim_dir / "events.csv"), "--estimators", "dr"]) == 0
+    out, err = capsys.readouterr()
+    assert "| dr |" in out and "dr" in err and "\x1b[" not in out
+    assert main(["compare", "--estimators", "dr", "--robots", "2", "--duration", "3", "--jobs", "1"]) == 0
+    out, err = capsys.readouterr()
+    assert "| dr |" in out and "compare sim:random" in err and "1/1" in err and "\x1b[" not in out

@@ -11,6 +11,9 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.unit
+
+
 SRC = Path(__file__).resolve().parents[1] / "src" / "swarmloc"
 PACKAGES = ("node", "estimators", "engine", "net", "runner")
 MAX_MODULE = 500

@@ -24,6 +24,8 @@ from swarmloc.config import (
 )
 from swarmloc.motion import UnicycleNoise
 
+pytestmark = pytest.mark.unit
+
 
 def _write(tmp_path: Path, text: str, name: str = "swarm.toml") -> Path:
     p = tmp_path / name

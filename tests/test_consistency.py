@@ -18,6 +18,9 @@ from swarmloc.lie import wrap_angle
 from swarmloc.sim import random_team
 from swarmloc.sim.landmarks import LandmarkSensor, add_landmarks, landmark_detections, place_landmarks
 
+pytestmark = pytest.mark.unit
+
+
 SMALL = {"seeds": 3, "robots": 3, "duration": 10.0}
 
 

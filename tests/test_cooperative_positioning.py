@@ -15,6 +15,8 @@ from swarmloc.runner import run
 from swarmloc.sim.scenarios import cooperative_positioning
 from swarmloc.sim.source import sim_source
 
+pytestmark = pytest.mark.unit
+
 
 def test_move_and_stop_protocol():
     sim = cooperative_positioning(n_a=2, n_b=3, phases=4, phase_s=2.0, seed=1)

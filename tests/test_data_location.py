@@ -19,6 +19,8 @@ from _data import (
     shared_mrclam,
 )
 
+pytestmark = pytest.mark.unit
+
 
 def _dataset(root: Path, number: int = 6) -> Path:
     folder = root / f"MRCLAM_Dataset{number}"

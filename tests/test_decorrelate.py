@@ -24,6 +24,8 @@ from swarmloc.sensors.decorrelate import (
     snapshot_residuals,
 )
 
+pytestmark = pytest.mark.data
+
 
 def _cov(times: np.ndarray, phi: float, tau: float) -> np.ndarray:
     """Error covariance (unit variance) of readings at ``times``: OU part ``phi`` plus white part ``1 - phi``."""

@@ -25,6 +25,8 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import run
 from swarmloc.sensors.models import model
 
+pytestmark = pytest.mark.unit
+
 
 def _team(src, cluster: int, estimator: str = "diekf"):
     options = node_options(estimator, src.config, src.landmarks)

@@ -19,6 +19,9 @@ from swarmloc.sensors import models
 from swarmloc.sim import AbsoluteSensor, RelativeSensor, random_team
 from swarmloc.sim.source import sim_source
 
+pytestmark = pytest.mark.unit
+
+
 TOL = 1e-10
 COUNTS = ("detections", "fused", "gated", "rejected", "unknown", "odometry", "odometry_used", "recorded")
 

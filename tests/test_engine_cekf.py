@@ -18,6 +18,9 @@ from swarmloc.events import Detection
 from swarmloc.experiments.sources import load_source
 from swarmloc.runner import RunResult, run
 
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
+
 
 def _node(src, **options) -> RunResult:
     opts = {**node_options("cekf", src.config, src.landmarks), **options}

@@ -22,6 +22,10 @@ from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import KIND_ORDER
 
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
+
+
 RB = KIND_ORDER["range_bearing"]
 
 

@@ -15,6 +15,10 @@ from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import KIND_ORDER
 
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.unit, pytest.mark.slow]
+
+
 NOISE = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
 
 

@@ -24,6 +24,10 @@ from swarmloc.kernels import invariant as I
 from swarmloc.lie import wrap_angle
 from swarmloc.runner import RunResult, run
 
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
+
+
 INVARIANT = ("iekf", "diekf")
 
 

@@ -22,6 +22,10 @@ from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
 from swarmloc.kernels import ci as KCI
 
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
+
+
 import_jax()  # float64
 import jax.numpy as jnp  # noqa: E402
 

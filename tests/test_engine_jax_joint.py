@@ -24,6 +24,10 @@ from swarmloc.estimators.rdl import joint_prior
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
 
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
+
+
 import_jax()  # float64
 import jax.numpy as jnp  # noqa: E402
 

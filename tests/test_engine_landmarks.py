@@ -17,6 +17,9 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult, run
 from swarmloc.sensors.models import KIND_ORDER
 
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
+
 
 def _nodes(src, **options) -> RunResult:
     opts = {**node_options("dekf", src.config, src.landmarks), **options}

@@ -19,6 +19,9 @@ from swarmloc.events import Detection
 from swarmloc.experiments.sources import load_source
 from swarmloc.runner import RunResult, run
 
+# slow: the first test of the module compiles the engine's numba/JAX kernels
+pytestmark = [pytest.mark.data, pytest.mark.slow]
+
 
 def _nodes(src, **options) -> RunResult:
     opts = {**node_options("rdl", src.config, src.landmarks), **options}

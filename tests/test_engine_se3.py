@@ -21,6 +21,9 @@ from swarmloc.motion.twist3 import TwistNoise, twist_increment
 from swarmloc.runner import RunResult, run
 from swarmloc.sensors.models3 import pose3_vector
 
+pytestmark = pytest.mark.unit
+
+
 TOL = 1e-9
 COUNTS = ("detections", "fused", "gated", "rejected", "unknown", "odometry", "odometry_used", "odometry_rejected",
           "odometry_stops", "recorded")  # fmt: skip

@@ -29,6 +29,9 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult
 from swarmloc.sim import RelativeSensor, random_team, thesis_two_robot
 
+pytestmark = pytest.mark.unit
+
+
 TINY_Q = UnicycleNoise(q_v0=1e-12, q_lat0=1e-12, q_w0=1e-12)
 VARIANTS = {  # name -> (registry name, extra options)
     "dr": ("dr", {}),

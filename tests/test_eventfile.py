@@ -17,6 +17,9 @@ from swarmloc.datasets.tum import TUMError, write_tum
 from swarmloc.events import Detection, Odometry, Truth
 from swarmloc.gaussian import GroupGaussian
 
+pytestmark = pytest.mark.unit
+
+
 HEADER = ",".join(COLUMNS)
 ODO = "odometry,1.0,1,0.0,0.5,0.1,,,,,,"  # a good line
 
@@ -465,3 +468,23 @@ def test_load_truth_dir(tmp_path: Path) -> None:
     (tmp_path / "truth_robot2.tum").write_text("0 0 0 0 0 0 0 1\n0 0 0 0 0 0 0 1\n")
     with pytest.raises(TUMError, match="truth_robot2.tum line 2: times must be strictly increasing"):
         load_truth_dir(tmp_path, [2])
+
+
+def test_a_team_given_refuses_detections_by_or_of_other_robots(tmp_path: Path) -> None:
+    """``team=[ids]``: a detection by or of another robot is a bad line with its number; ``team="odometry"``: the
+    robots with odometry; None (the reader's default): any robot."""
+    p = _csv(tmp_path, HEADER, ODO, "detection,0.5,1,,,,2,robot,range,1.5,0.1,",
+             "detection,0.6,3,,,,1,robot,range,1.5,0.1,")  # fmt: skip
+    assert len(load_events(p).events) == 3
+    with pytest.raises(EventFileError) as exc:
+        load_events(p, team="odometry")
+    assert exc.value.problems == [
+        "events.csv line 3: a detection of robot 2, which is not in the team (robots [1]: the robots with odometry "
+        "in the file)",
+        "events.csv line 4: a detection by robot 3, which is not in the team (robots [1]: the robots with odometry "
+        "in the file)",
+    ]
+    ef = load_events(p, team=[1, 2], strict=False)
+    assert ef.n_bad == 1 and "line 4: a detection by robot 3" in ef.problems[0] and len(ef.events) == 2
+    with pytest.raises(ValueError, match="team must be robot ids or 'odometry'"):
+        load_events(p, team="all")

@@ -21,6 +21,10 @@ from swarmloc.lie import SE2
 from swarmloc.runner import run
 from swarmloc.sim import thesis_two_robot
 
+# slow: its module fixture runs the thesis' dynamic experiments (half a minute)
+pytestmark = [pytest.mark.unit, pytest.mark.slow]
+
+
 COOPERATIVE = ("dekf", "expfusion", "expfusion1", "cekf")
 
 

@@ -25,6 +25,9 @@ from swarmloc.experiments.thesis_static import (
 from swarmloc.lie import SE2
 from swarmloc.motion import thesis_circular_cov, thesis_straight_cov
 
+pytestmark = pytest.mark.unit
+
+
 SMALL = {"n_samples": 200, "progress": False, "n_reference": 2_000}
 
 
@@ -185,3 +188,27 @@ def test_pooled_tables_use_the_trials_of_run_tables_and_the_thesis_sampling_erro
     assert r2["z"] == pytest.approx(r2["diff"] / np.hypot(r2["se"], r2["se_thesis_60"]))
     assert rows[0]["thesis"] is None and "z" not in rows[0]
     assert 0 <= res["motions"]["circular"]["joint"]["p"] <= 1
+
+
+def test_demo_command_prints_its_summary_once_and_says_how_to_read_it(tmp_path: Path, monkeypatch, capsys):
+    """``swarmloc demo``: one closing line (it printed 'wrote ...' and 'demo written ...'), and the table is
+    followed by how to read it: which row is the thesis' second-order method and what 'better' means there."""
+    import functools
+
+    import swarmloc.experiments.thesis_static as static
+    from swarmloc.cli import main
+
+    small = {**SMALL, "n_importance": 2000, "figures": False}
+    small.pop("progress")
+    monkeypatch.setattr(static, "run_demo", functools.partial(static.run_demo, **small))
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    closing = [ln for ln in out.splitlines() if "wrote" in ln or "written" in ln]
+    assert closing == [f"demo written to {tmp_path}/ in {closing[0].rsplit(' in ', 1)[1]}"], out
+    assert "the thesis' method is the row 'posterior, order 2'" in " ".join(out.split())
+    res = json.loads((tmp_path / "demo.json").read_text())
+    for name in ("straight", "circular"):
+        q2, q1 = (res["cases"][name][f"posterior_order{o}"] for o in (2, 1))
+        winner = "order 2" if q2["mean_offset_vs_importance"] < q1["mean_offset_vs_importance"] else "order 1"
+        assert f"{name}: mean closer to IS with {winner}" in out
+    assert "How to read it" in (tmp_path / "demo.md").read_text()

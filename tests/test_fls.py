@@ -25,6 +25,9 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import run
 from swarmloc.sensors.models import model
 
+pytestmark = pytest.mark.data
+
+
 LANDMARKS = {10: (3.0, 1.0, 0.0, 0.0), 11: (1.0, 3.0, 0.0, 0.0), 12: (4.0, -2.0, 0.0, 0.0)}
 NOISE = UnicycleNoise(q_v0=4e-3, q_w0=4e-3)
 X0 = np.array([0.1, -0.2, 0.3])

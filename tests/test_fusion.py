@@ -28,6 +28,9 @@ from swarmloc.evaluation.montecarlo import group_mean, importance_posterior
 from swarmloc.kernels.group import relative_to_pseudo
 from swarmloc.lie import SE2, SE3
 
+pytestmark = pytest.mark.unit
+
+
 REPLICATES = 8
 REP_SAMPLES = 250_000  # per replicate: 2e6 samples per reference
 IS_STAGES = 2
@@ -146,6 +149,12 @@ ACCURACY_CASES = [
     *(Case(SE3, K, "moderate", mean_tol=0.005, cov_tol=0.03, cov_separates=False) for K in (1, 2)),
     Case(SE3, 1, "large", mean_tol=0.015, cov_tol=0.03, cov_separates=False),
 ]
+QUICK_CASES = ("SE2-1nb-moderate", "SE2-1nb-large")
+"""The cases the quick tier runs (each reference costs 2e6 importance samples: 10 to 80 s); the rest are ``slow``."""
+
+
+def _cases() -> list:
+    return [c if str(c) in QUICK_CASES else pytest.param(c, marks=pytest.mark.slow) for c in ACCURACY_CASES]
 
 
 class Reference(NamedTuple):
@@ -189,7 +198,7 @@ ITERATIONS = pytest.mark.parametrize("iterations", [2, 1], ids=["gauss-newton", 
 
 
 @ITERATIONS
-@pytest.mark.parametrize("case", ACCURACY_CASES, ids=str)
+@pytest.mark.parametrize("case", _cases(), ids=str)
 def test_second_order_fusion_vs_importance_sampling(case, iterations):
     merr, cerr, ref = fusion_errors(case, iterations=iterations)
     assert ref.ess >= MIN_ESS  # every replicate of the reference is trustworthy
@@ -201,7 +210,7 @@ def test_second_order_fusion_vs_importance_sampling(case, iterations):
 
 
 @ITERATIONS
-@pytest.mark.parametrize("case", ACCURACY_CASES, ids=str)
+@pytest.mark.parametrize("case", _cases(), ids=str)
 def test_first_order_fusion_fails_the_same_tolerance(case, iterations):
     """The tolerances above are tight enough to tell the orders apart: the first order misses them clearly."""
     merr, cerr, ref = fusion_errors(case, order=1, iterations=iterations)
@@ -223,7 +232,7 @@ PSEUDO_CASES = {  # (mu_k, Sigma_k, m_ik, Sigma_ik, tolerance): large heading an
 PSEUDO_CHUNKS, PSEUDO_CHUNK = 4, 1_000_000
 
 
-@pytest.mark.parametrize("name", list(PSEUDO_CASES))
+@pytest.mark.parametrize("name", ["SE2", pytest.param("SE3", marks=pytest.mark.slow)])
 def test_pseudo_measurement_covariance_vs_monte_carlo(name):
     """Steps 1-2 of fusion.py on their own: ``g_i = g_k exp(-n) m_ik^-1`` has covariance W about ``nu`` (Monte
     Carlo). Here the second-order term F of the convolution decides; in the fused posterior its effect is below the

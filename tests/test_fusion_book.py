@@ -19,6 +19,8 @@ from swarmloc.fusion_book import (
     serial_jacobian,
 )
 
+pytestmark = pytest.mark.unit
+
 
 def _random_spd(rng: np.random.Generator, d: int, scale: float = 1.0, cond: float = 50.0) -> np.ndarray:
     Q, _ = np.linalg.qr(rng.standard_normal((d, d)))

@@ -10,6 +10,8 @@ from swarmloc import SE2, GroupGaussian
 from swarmloc.evaluation.montecarlo import importance_posterior_point
 from swarmloc.fusion import fuse_point_measurement, point_innovation
 
+pytestmark = pytest.mark.unit
+
 
 def _rel(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))

@@ -17,6 +17,9 @@ from swarmloc.evaluation.montecarlo import convolution_mc
 from swarmloc.gaussian import check_covariance
 from swarmloc.lie import SE2, SE3
 
+pytestmark = pytest.mark.unit
+
+
 GROUPS = [SE2, SE3]
 
 

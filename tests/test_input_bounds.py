@@ -13,6 +13,9 @@ from swarmloc.config import ConfigError, load_config
 from swarmloc.datasets.eventfile import COLUMNS, EventFileError, load_events
 from swarmloc.experiments.own_robots import evaluate_event_file
 
+pytestmark = pytest.mark.unit
+
+
 HEADER = ",".join(COLUMNS)
 INIT = "initial,0.0,1,,,,,,,0 0 0,0.01 0.01 0.01,"
 

@@ -18,6 +18,9 @@ from swarmloc.engine.codes import UNKNOWN_ROBOT
 from swarmloc.events import Detection, Odometry
 from swarmloc.node.inputs import clearly_valid, validate_detection
 
+pytestmark = pytest.mark.unit
+
+
 KINDS = ("range_bearing", "range", "bearing", "pose", "absolute", "rbe3", "sonar", 3)
 SIZE = {"range_bearing": 2, "range": 1, "bearing": 1, "pose": 3, "absolute": 3, "rbe3": 3}
 

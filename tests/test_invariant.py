@@ -18,6 +18,8 @@ from swarmloc.messages import RdlUpdate, TeamUpdate
 from swarmloc.runner import run
 from swarmloc.sensors import models
 
+pytestmark = pytest.mark.data
+
 
 def _xyt(g: np.ndarray) -> np.ndarray:
     return np.array([g[0, 2], g[1, 2], np.arctan2(g[1, 0], g[0, 0])])

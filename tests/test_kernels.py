@@ -14,6 +14,9 @@ from swarmloc.kernels.ci import W_BOUNDS, ci_search
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise, _stable, odometry_increment
 
+pytestmark = pytest.mark.unit
+
+
 NOISE = UnicycleNoise(q_v0=1e-4, q_v2=0.05, q_lat0=1e-4, q_lat1=0.01, q_w0=1e-3, q_w2=0.05, q_wv=0.02)
 N = 64
 

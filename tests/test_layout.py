@@ -8,6 +8,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.unit
+
+
 SRC = Path(__file__).resolve().parents[1] / "src" / "swarmloc"
 HEAVY = ("matplotlib", "pandas", "rich")
 

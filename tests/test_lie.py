@@ -18,6 +18,9 @@ from hypothesis import strategies as st
 
 from swarmloc.lie import SE2, SE3
 
+pytestmark = pytest.mark.unit
+
+
 GROUPS = [SE2, SE3]
 TOL = 1e-10  # max abs error of every exact identity
 FD_TOL = 1e-6  # Jacobians vs central finite differences

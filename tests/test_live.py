@@ -35,6 +35,9 @@ from swarmloc.net.team import TeamRun
 from swarmloc.net.transport import free_ports, open_session, robot_key
 from swarmloc.runner import run
 
+pytestmark = pytest.mark.network
+
+
 HERE = Path(__file__).resolve().parent
 SIM = dict(robots=3, duration=4.0, seed=1)
 

@@ -49,6 +49,8 @@ from swarmloc.net.feed import LiveFeed
 from swarmloc.net.schema import Belief
 from swarmloc.net.transport import alive_key, free_ports, open_session, robot_key
 
+pytestmark = [pytest.mark.network, pytest.mark.slow]
+
 HERE = Path(__file__).resolve().parent
 ATTACKER = HERE / "live_attacker.py"
 PY = [sys.executable, "-m", "swarmloc.cli"]

@@ -23,6 +23,8 @@ from swarmloc.sensors.decorrelate import (
     truncated_variance,
 )
 
+pytestmark = pytest.mark.unit
+
 
 def _set(seed: int, sr: float, sb: float, phi: float, tau: float, shift: float = 0.0) -> DetectionSet:
     a, lm = _synthetic_landmark_detections(seed, sr, sb, phi, tau)

@@ -11,6 +11,9 @@ from swarmloc.events import Detection
 from swarmloc.experiments.lodo import RECORD_LEAD, landmark_folds, landmark_nis, nis_summary
 from swarmloc.lie import SE2
 
+pytestmark = pytest.mark.data
+
+
 STD = (0.08, 0.01)  # [m], [rad]
 MAP_STD = (0.03, 0.05)  # [m]
 

@@ -14,6 +14,8 @@ from swarmloc.lie import SE2, wrap_angle
 from swarmloc.mapping import LineMap, LineObservation, MapLine, extract_lines, fit_line, line_to_world, map_error
 from swarmloc.sim.walls import RangeFinder, Walls, cast_rays, chapter_lab, office_walls
 
+pytestmark = pytest.mark.unit
+
 
 def _scan(pose: tuple[float, float, float], walls: Walls, finder: RangeFinder, rng: np.random.Generator):
     """One noisy scan from ``pose`` (no other robots)."""
@@ -213,7 +215,9 @@ def test_bad_observations_are_refused_or_counted() -> None:
     np.testing.assert_allclose(gj["features"][0]["geometry"]["coordinates"], [[1, 0], [1, 1]], atol=1e-12)
 
 
-def test_map_command_writes_a_table_figure_and_maps(tmp_path, capsys) -> None:
+def test_map_command_writes_a_table_figure_and_maps(tmp_path, capsys, terminal_progress) -> None:
+    """...and shows its progress on stderr, one step per estimator run (before, it printed nothing until the end:
+    2.5 minutes with its defaults)."""
     from swarmloc.cli import main
 
     assert main(["map", "--seeds", "1", "--estimators", "expfusion", "--out", str(tmp_path)]) == 0
@@ -225,7 +229,9 @@ def test_map_command_writes_a_table_figure_and_maps(tmp_path, capsys) -> None:
     for f in ("map.md", "map.png", "team_expfusion.geojson", "H1_alone.dxf"):
         assert (tmp_path / f).stat().st_size > 0
     assert json.loads((tmp_path / "team_expfusion.geojson").read_text())["features"]
-    assert "team, expfusion" in capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert "team, expfusion" in out and "2/2" not in out  # the table on stdout, the bar on stderr
+    assert "map: seed 0, expfusion" in err and "2/2" in err  # dead reckoning, then expfusion
     assert chapter_lab().length > 10
 
 

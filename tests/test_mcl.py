@@ -21,6 +21,9 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult
 from swarmloc.sim import RelativeSensor, random_team
 
+pytestmark = pytest.mark.data
+
+
 LANDMARKS = {
     20: (0.0, 0.0, 0.01, 0.01),
     21: (8.0, 0.5, 0.01, 0.01),

@@ -4,8 +4,12 @@ exactly when it is symmetric positive definite, as ``numpy.linalg.cholesky`` dec
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from swarmloc.messages import BeliefAnswer, message_problem
+
+pytestmark = pytest.mark.unit
+
 
 I3 = tuple(np.eye(3).ravel())
 

@@ -25,6 +25,9 @@ from swarmloc.motion import (
     unicycle_cov,
 )
 
+pytestmark = pytest.mark.unit
+
+
 DD = DiffDrive(r=0.033, l=0.2, D=5.0)
 # thesis sec. 5.1
 STRAIGHT = (0.5 / 0.033, 0.5 / 0.033, 1.3)

@@ -13,6 +13,9 @@ from scipy.integrate import quad
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.calibrate import fit_yaw_scale, heading_increments, held_integral, scale_yaw
 
+pytestmark = pytest.mark.data
+
+
 NOISE = UnicycleNoise(q_v0=1e-4, q_w0=1e-3, q_w1=0.004, q_w2=0.05, q_wv=0.02)
 
 

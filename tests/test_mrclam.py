@@ -15,6 +15,9 @@ from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.lodo import detection_set
 from swarmloc.sensors.decorrelate import snapshot_poses, snapshot_residuals
 
+pytestmark = pytest.mark.data
+
+
 HEADER = "# UTIAS test header\n# Format line\n"
 
 

@@ -13,6 +13,9 @@ from _data import MRCLAM_DATASETS
 from swarmloc.cli import main
 from swarmloc.experiments.mrclam import evaluate_mrclam
 
+# slow: its module fixture evaluates every estimator on all of dataset 6 (about a minute)
+pytestmark = [pytest.mark.data, pytest.mark.slow]
+
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory, mrclam6: Path) -> tuple[dict, Path]:

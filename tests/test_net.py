@@ -38,6 +38,9 @@ from swarmloc.net.server import BeliefServer
 from swarmloc.net.transport import free_ports, open_session, robot_key, server_key
 from swarmloc.runner import run
 
+pytestmark = [pytest.mark.network, pytest.mark.data]
+
+
 DISTRIBUTED = ("expfusion", "dekf", "ci", "rdl")
 I3 = flat(np.eye(3))
 COV = flat(np.diag([0.01, 0.01, 0.001]))
@@ -725,8 +728,9 @@ def test_server_process_answers_over_zenoh():
         s.close()
 
 
-def test_cli_team_report_bag_and_ros_output(tmp_path, monkeypatch):
-    """``swarmloc team`` writes the evaluate report, TUM files and a rosbag2; ``--ros-domain`` publishes every
+def test_cli_team_report_bag_and_ros_output(tmp_path, monkeypatch, capsys, terminal_progress):
+    """``swarmloc team`` shows its progress on stderr (the beliefs collected of those the run records), writes the
+    evaluate report, TUM files and a rosbag2; ``--ros-domain`` publishes every
     belief as CDR PoseWithCovarianceStamped under rmw_zenoh's key layout (received here and decoded). The run's id
     starts with a digit here: it is in swarmloc's keys but not in the ROS topic, whose tokens may not (before, the
     nodes refused such a topic and the team failed whenever its random id began with a digit)."""
@@ -751,6 +755,8 @@ def test_cli_team_report_bag_and_ros_output(tmp_path, monkeypatch):
     assert rc == 0
     import json
 
+    err = capsys.readouterr().err
+    assert "team sim:random, dekf: beliefs" in err and "72/72" in err, err[-2000:]  # 3 robots x 24 record times
     rep = json.loads((tmp_path / "o" / "team.json").read_text())
     assert rep["estimators"]["dekf"]["team"]["pos_rmse"] < 0.5
     assert (tmp_path / "o" / "tum" / "dekf_robot0.tum").exists()

@@ -59,6 +59,9 @@ from swarmloc.net.team import _Launcher
 from swarmloc.net.transport import free_ports, robot_key
 from swarmloc.runner import run
 
+pytestmark = pytest.mark.network
+
+
 TEAM = "t"
 I3 = flat(np.eye(3))
 COV = flat(np.diag([0.01, 0.01, 0.001]))

@@ -36,6 +36,9 @@ from swarmloc.net.schema import SERVER, Raw, RawDetection, RawOdometry, Rejected
 from swarmloc.net.transport import free_ports
 from swarmloc.runner import run
 
+pytestmark = pytest.mark.network
+
+
 ATTACKER = Path(__file__).with_name("net_raw_attacker.py")
 
 

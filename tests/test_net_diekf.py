@@ -29,6 +29,9 @@ from swarmloc.net.process import NetNode
 from swarmloc.net.schema import Broadcast, BroadcastHead, BroadcastRepair, Rejected, decode, encode
 from swarmloc.net.transport import robot_key
 
+pytestmark = pytest.mark.network
+
+
 COV = flat(np.diag([0.01, 0.01, 0.001]))
 
 

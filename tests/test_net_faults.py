@@ -20,6 +20,8 @@ from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.process import NetNode
 from swarmloc.net.transport import free_ports, open_session
 
+pytestmark = pytest.mark.network
+
 
 def leftovers(team: str) -> list[int]:
     """Pids of ``swarmloc`` processes whose command line names ``team``."""

@@ -8,6 +8,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from swarmloc.events import Odometry
 from swarmloc.experiments.sources import load_source
@@ -19,6 +20,9 @@ from swarmloc.net.server import MapStore, ServerProcess, linemap_of, observation
 from swarmloc.net.team import launch_team
 from swarmloc.net.transport import free_ports, open_session, robot_key, server_key
 from swarmloc.sim.walls import office_walls
+
+pytestmark = pytest.mark.network
+
 
 LINE = (2.5, math.pi / 2, 1e-4, 0.0, 1e-3, 1.0, 2.5, 2.0, 2.5)  # the wall y = 2.5 m from x = 1 to 2 m
 

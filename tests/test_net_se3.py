@@ -20,6 +20,9 @@ from swarmloc.net.entry import distributed_class, make_node
 from swarmloc.net.schema import Belief, Broadcast, Envelope, Rejected, decode, encode
 from swarmloc.runner import run
 
+pytestmark = pytest.mark.network
+
+
 G = SE3.exp(np.array([1.0, 2.0, 3.0, 0.1, -0.2, 0.3]))
 
 

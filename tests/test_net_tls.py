@@ -38,6 +38,9 @@ import zenoh
 
 from swarmloc.net.transport import free_ports, zenoh_config
 
+pytestmark = pytest.mark.network
+
+
 OPENSSL = shutil.which("openssl")
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "network.md"

@@ -25,6 +25,9 @@ from swarmloc.motion import UnicycleNoise, odometry_increment
 from swarmloc.runner import RunResult
 from swarmloc.sim import RelativeSensor, random_team
 
+pytestmark = pytest.mark.data
+
+
 NOISE = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
 LANDMARKS = {10: (3.0, 1.0, 0.01, 0.01), 11: (-1.0, 2.0, 0.01, 0.01)}
 

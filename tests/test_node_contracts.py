@@ -25,6 +25,9 @@ from swarmloc.lie import SE2
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate, TeamUpdate, flat
 from swarmloc.motion import UnicycleNoise
 
+pytestmark = pytest.mark.unit
+
+
 NOISE = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
 LANDMARKS = {10: (3.0, 1.0, 0.01, 0.01)}
 DISTRIBUTED = [n for n, c in ESTIMATORS.items() if c.distributed]

@@ -31,6 +31,9 @@ from swarmloc.messages import (
 )
 from swarmloc.motion import UnicycleNoise
 
+pytestmark = pytest.mark.unit
+
+
 NOISE = UnicycleNoise(q_v0=1e-3, q_lat0=1e-4, q_w0=1e-3)
 LANDMARKS = {10: (3.0, 1.0, 0.01, 0.01), 11: (-1.0, 2.0, 0.02, 0.02)}
 NEIGHBOUR = GroupGaussian(SE2, SE2.from_xytheta([1.5, 0.5, 0.2]), np.diag([0.01, 0.02, 0.003]))

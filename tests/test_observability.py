@@ -11,6 +11,10 @@ import pytest
 
 from swarmloc.experiments.observability import observability_figure, observability_run
 
+# slow: its module fixture simulates the long runs every test reads (20 s)
+pytestmark = [pytest.mark.unit, pytest.mark.slow]
+
+
 SEEDS = range(4)
 
 

@@ -17,6 +17,9 @@ from swarmloc.messages import RdlState, RdlStateQuery, RdlUpdate
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import predict
 
+pytestmark = pytest.mark.unit
+
+
 NOISE = UnicycleNoise(q_v0=1e-6, q_lat0=1e-6, q_w0=1e-6)
 P0 = 1e-3 * np.eye(3)
 R = 1e-4 * np.eye(3)

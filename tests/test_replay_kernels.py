@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from swarmloc.kernels import cartesian as C
 from swarmloc.motion import UnicycleNoise
+
+pytestmark = pytest.mark.unit
 
 
 def test_block_update_equals_the_full_joseph_update() -> None:

@@ -42,6 +42,8 @@ DDS_PEER, ZENOH_PEER = HERE / "ros2_dds_peer.py", HERE / "ros2_zenoh_peer.py"
 sys.path.insert(0, str(HERE))
 import ros2_dds_peer as peer  # noqa: E402 - the counterpart's hand-written types (it imports no swarmloc)
 
+pytestmark = pytest.mark.network
+
 T = typestore().types
 WAIT = 20.0  # [s] bound on every wait for discovery or delivery
 

@@ -10,6 +10,8 @@ import pytest
 from swarmloc.estimators import robocentric as rc
 from swarmloc.experiments.robocentric import robocentric_monte_carlo
 
+pytestmark = pytest.mark.unit
+
 
 def _fd(f, x, eps=1e-6):
     x = np.asarray(x, float)

@@ -17,6 +17,9 @@ from scipy.spatial.transform import Rotation
 from swarmloc.lie.se2 import SE2, wrap_angle
 from swarmloc.net import ros
 
+pytestmark = pytest.mark.unit
+
+
 # RIHS01 of geometry_msgs/msg/PoseWithCovarianceStamped (Jazzy; REP 2011). Pinned independently of rosbags: the
 # same string appears in generated ROS 2 type tables (e.g. C type tables listing
 # "geometry_msgs::msg::dds_::PoseWithCovarianceStamped" with this hash).

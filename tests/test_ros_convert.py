@@ -15,6 +15,8 @@ from swarmloc.rmw import typestore
 from swarmloc.ros import convert as cv
 from swarmloc.ros.timeline import InputTimeline, record_times
 
+pytestmark = pytest.mark.unit
+
 T = typestore().types
 
 

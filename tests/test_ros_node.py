@@ -23,6 +23,8 @@ from swarmloc.ros.params import load_params
 from swarmloc.ros.replay import replay_messages
 from swarmloc.ros.simulate import team_messages
 
+pytestmark = [pytest.mark.network, pytest.mark.slow]
+
 
 def _xyt_cov(msg):
     p, q = msg.pose.pose.position, msg.pose.pose.orientation

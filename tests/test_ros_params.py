@@ -10,6 +10,8 @@ import yaml
 from swarmloc.ros.args import RosArgsError, check_name, expand, parse_ros_args
 from swarmloc.ros.params import ParamsError, RosParams, defaults_yaml, load_params
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.mark.parametrize("name", ["odom", "/robot1/odom", "~", "~/odom", "a/b_c/d2", "_x"])
 def test_valid_names(name):

@@ -29,6 +29,8 @@ from swarmloc.ros.params import load_params
 from swarmloc.ros.replay import replay_messages
 from swarmloc.ros.simulate import team_messages
 
+pytestmark = [pytest.mark.network, pytest.mark.slow]
+
 HERE = Path(__file__).resolve().parent
 ROBOTS = (0, 1, 2)
 TOPIC = {"odometry": "/robot{r}/wheel/odom", "detections": "/robot{r}/camera/detections"}

@@ -20,6 +20,9 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RobotTrack, RunResult, run
 from swarmloc.sim import random_team
 
+pytestmark = pytest.mark.unit
+
+
 NAMES = ("dr", "expfusion", "dekf", "cekf", "ci", "rdl")
 
 

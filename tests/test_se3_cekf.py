@@ -17,6 +17,8 @@ from swarmloc.lie.se3 import so3_log
 from swarmloc.sensors.models3 import model3, pose3_matrix, pose3_vector
 from swarmloc.sim.sim3d import Sim3Config, simulate3d
 
+pytestmark = pytest.mark.unit
+
 
 def _error(g: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """``(dp, dtheta)`` of ``g`` relative to ``ref``."""

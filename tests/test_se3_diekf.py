@@ -23,6 +23,8 @@ from swarmloc.runner import run
 from swarmloc.sensors.models3 import pose3_matrix, pose3_vector
 from swarmloc.sim.sim3d import Sim3Config, simulate3d
 
+pytestmark = pytest.mark.unit
+
 
 def test_make_team_picks_se3_diekf() -> None:
     sim = simulate3d(Sim3Config(robots=2, duration=1.0), seed=0)

@@ -23,6 +23,8 @@ from swarmloc.runner import RunResult
 from swarmloc.sensors.models3 import DEGENERATE3, model3
 from swarmloc.sim.sim3d import Sim3Config, measure3, simulate3d
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.mark.parametrize("kind", ["rbe3", "bearing3"])
 def test_point_jacobians_finite_differences(kind: str) -> None:
@@ -191,6 +193,7 @@ def test_bad_values_refused() -> None:
     assert DEGENERATE3.startswith("degenerate")
 
 
+@pytest.mark.network  # starts a team of node processes
 @pytest.mark.parametrize(("spec", "est"), [("sim:3d_rbe", "dekf"), ("sim:3d_landmarks", "diekf")])
 def test_networked_equals_in_process_with_points(spec: str, est: str) -> None:
     """Three node processes on 127.0.0.1 record the in-process run's means and covariances to 1e-6 with point

@@ -21,6 +21,9 @@ from swarmloc.motion.propagation import increment_cov
 from swarmloc.motion.twist3 import TwistNoise, twist_increment
 from swarmloc.sim.sim3d import Sim3Config, simulate3d
 
+pytestmark = pytest.mark.unit
+
+
 H = np.array([0.6, 0.1, -0.2, 0.3, -0.4, 0.8])
 
 

@@ -14,6 +14,9 @@ from swarmloc.estimators.sensor_network import (
     rigidity_report,
 )
 
+pytestmark = pytest.mark.unit
+
+
 N_NODES, SIDE, RMAX, STD, N_ANCHORS = 15, 10.0, 4.0, 0.05, 4
 FREE = range(N_ANCHORS, N_NODES)
 

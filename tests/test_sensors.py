@@ -9,6 +9,9 @@ import pytest
 from swarmloc.lie import SE2
 from swarmloc.sensors import models
 
+pytestmark = pytest.mark.unit
+
+
 EPS = 1e-6
 ATOL = 1e-7
 

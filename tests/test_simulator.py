@@ -21,6 +21,8 @@ from swarmloc.sim import (
     wrap_angle,
 )
 
+pytestmark = pytest.mark.unit
+
 
 def _same(a: object, b: object) -> bool:
     if type(a) is not type(b):

@@ -10,6 +10,8 @@ import pytest
 
 from swarmloc.datasets.tum import TUMError, read_tum, write_tum
 
+pytestmark = pytest.mark.unit
+
 
 def _wrap(a: np.ndarray) -> np.ndarray:
     return np.angle(np.exp(1j * a))

@@ -49,6 +49,8 @@ REPO = Path(__file__).resolve().parents[1]
 JS = REPO / "tests" / "js"
 SRC = str(REPO / "src")
 
+pytestmark = pytest.mark.network
+
 
 # ---------------------------------------------------------------------------------------------------- clients
 @pytest.fixture(scope="module")

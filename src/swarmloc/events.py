@@ -11,6 +11,8 @@ from typing import Literal
 
 import numpy as np
 
+from swarmloc.text import number, numbers, stamp
+
 MeasurementKind = Literal["pose", "range_bearing", "range", "bearing", "absolute", "pose3", "rbe3", "bearing3"]
 
 
@@ -40,6 +42,10 @@ class Odometry:
     @property
     def dt(self) -> float:
         return self.t1 - self.t0
+
+    def __repr__(self) -> str:
+        v, w = (numbers(x) if isinstance(x, tuple) else number(x) for x in (self.v, self.w))
+        return f"Odometry(robot={self.robot}, t0={stamp(self.t0)}, t1={stamp(self.t1)}, v={v}, w={w})"
 
 
 def twist_odometry(robot: int, t0: float, t1: float, twist: object) -> Odometry:
@@ -92,6 +98,21 @@ class Detection:
     @property
     def stamp(self) -> float:
         return self.t
+
+    def __repr__(self) -> str:
+        """Observer, time, kind, what was seen, ``z`` and the noise std (square roots of ``cov``'s diagonal)."""
+        if self.kind == "absolute":
+            of = ""
+        elif self.target is None:
+            of = ", target=anonymous robot"
+        else:
+            of = f", target={'robot' if self.target_is_robot else 'landmark'} {self.target}"
+        try:
+            std = numbers(np.sqrt(np.clip(np.diagonal(np.asarray(self.cov, dtype=float)), 0.0, None)))
+            z = numbers(self.z)
+        except (TypeError, ValueError):  # a malformed detection (refused by any node) still prints
+            std, z = "?", repr(type(self.z).__name__)
+        return f"Detection(observer={self.observer}, t={stamp(self.t)}, kind={self.kind!r}{of}, z={z}, std={std})"
 
 
 @dataclass(frozen=True, slots=True)

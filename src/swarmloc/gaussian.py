@@ -26,6 +26,7 @@ import numpy as np
 from swarmloc.lie import SE2, SE3
 from swarmloc.lie.base import SEGroup
 from swarmloc.lie.checks import as_element, as_square, first_bad
+from swarmloc.text import numbers
 
 _GROUPS: dict[str, type[SEGroup]] = {"SE2": SE2, "SE(2)": SE2, "se2": SE2, "SE3": SE3, "SE(3)": SE3, "se3": SE3}
 
@@ -171,7 +172,19 @@ class GroupGaussian:
         return GroupGaussian(self.group, self.mean[idx], self.cov[idx], validate=False)
 
     def __repr__(self) -> str:
-        return f"GroupGaussian({self.group.__name__}, batch_shape={self.batch_shape})"
+        """The mean as ``(x, y, theta)`` [m, rad] (SE(3): translation [m] and rotation vector [rad]) and ``std``,
+        the standard deviations of the exponential coordinates (square roots of the covariance's diagonal); of a
+        batch, its shape and its first element. At most a line of about 120 characters."""
+        first = (0,) * len(self.batch_shape)
+        mean, cov = self.mean[first], self.cov[first]
+        if self.dim == 3:
+            where = f"mean (x, y, theta)={numbers(SE2.to_xytheta(mean))}"
+        else:
+            rot = self.group.log(mean, validate=False)[3:]
+            where = f"mean xyz={numbers(mean[:3, 3])} rotvec={numbers(rot)}"
+        batch = f"batch {self.batch_shape}, first: " if self.batch_shape else ""
+        std = numbers(np.sqrt(np.clip(np.diagonal(cov), 0.0, None)))
+        return f"GroupGaussian({self.group.__name__}, {batch}{where}, std={std})"
 
     def sample(self, n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
         """``n`` draws ``mean @ exp(hat(y))``, shape ``(n, *batch_shape, n+1, n+1)``."""

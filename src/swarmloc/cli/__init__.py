@@ -1,12 +1,13 @@
 """Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | compare | node | server | team | keys |
-ros``.
+ros | data``.
 
 Every command writes its results (Markdown, JSON, PNG, TUM) to an output folder and prints a short summary; errors in
 the input (a missing dataset file, a malformed line, an unknown estimator, a bad configuration) are reported in
 one line (or one line per bad record) with exit status 2, never as a traceback.
 
 Parts: :mod:`.parser` (the commands, their options and help), :mod:`.offline` (the commands that run in one process),
-:mod:`.network` (a robot's process, the belief server, a team, keys), :mod:`.ros` (the ROS 2 node).
+:mod:`.network` (a robot's process, the belief server, a team, keys), :mod:`.ros` (the ROS 2 node), :mod:`.data`
+(downloads of public data).
 ``python -m swarmloc.cli`` runs :func:`main`.
 """
 

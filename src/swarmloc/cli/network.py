@@ -220,6 +220,7 @@ def cmd_team(args: argparse.Namespace) -> int:
     from swarmloc.config import ConfigError
     from swarmloc.experiments.association import with_association
     from swarmloc.experiments.evaluate import markdown_table
+    from swarmloc.experiments.progress import progress_bar
     from swarmloc.experiments.sources import load_source
     from swarmloc.experiments.team import run_team, write_team_report
 
@@ -238,14 +239,16 @@ def cmd_team(args: argparse.Namespace) -> int:
         src = with_association(src, args.association)
         if args.view is not None or args.record:
             view = _open_view(args, src, src.events, "swarmloc team")
-        run = run_team(
-            src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
-            seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
-            lag=args.lag, max_wall=args.max_wall, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
-            association=src.config.filter.association,
-            team=args.team, verbose=args.verbose, connect_extra=_endpoints(args.connect), view=view,
-            **_timeouts(args),
-        )  # fmt: skip
+        with progress_bar(not args.quiet) as start:
+            run = run_team(
+                src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
+                seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
+                lag=args.lag, max_wall=args.max_wall, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
+                association=src.config.filter.association,
+                team=args.team, verbose=args.verbose, connect_extra=_endpoints(args.connect), view=view,
+                progress=start(f"team {args.source}, {args.estimator}: beliefs") if start is not None else None,
+                **_timeouts(args),
+            )  # fmt: skip
         if view is not None:
             view.end_recording()
         extra = {"faults": args.faults or "", "exit_codes": run.exit_codes}

@@ -8,6 +8,10 @@ import sys
 import time
 from pathlib import Path
 
+EST_DEFAULT = "dr,dekf,cekf,iekf,expfusion,ci,rdl,diekf"
+"""Estimators ``evaluate`` and ``compare`` run by default: every kind, the recommended ``iekf`` (centralized) and
+``diekf`` (distributed) included."""
+
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from swarmloc.experiments.thesis_static import run_demo
@@ -186,9 +190,14 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from swarmloc.experiments.compare import compare, compare_table
+    from swarmloc.experiments.compare import compare, compare_table, is_3d
 
-    names = [e.strip() for e in args.estimators.split(",") if e.strip()]
+    if args.estimators is None:  # the defaults; on a 3-D team, those with an SE(3) form
+        from swarmloc.estimators import ESTIMATORS_SE3
+
+        names = [e for e in EST_DEFAULT.split(",") if not is_3d(args.scenario) or e in ESTIMATORS_SE3]
+    else:
+        names = [e.strip() for e in args.estimators.split(",") if e.strip()]
     try:
         summary = compare(args.scenario, names, runs=args.runs, robots=args.robots, duration=args.duration,
                           out_dir=args.out, jobs=args.jobs, progress=not args.quiet, association=args.association,

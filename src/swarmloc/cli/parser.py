@@ -6,10 +6,12 @@ import argparse
 import math
 
 from swarmloc import __version__
+from swarmloc.cli.data import add_parser as add_data_parser
 from swarmloc.cli.network import cmd_keys, cmd_node, cmd_server, cmd_team
 from swarmloc.cli.offline import (
     ASSOCIATION_CHOICES,
     ASSOCIATION_HELP,
+    EST_DEFAULT,
     cmd_compare,
     cmd_config,
     cmd_demo,
@@ -18,7 +20,8 @@ from swarmloc.cli.offline import (
     cmd_simulate,
 )
 
-EST_DEFAULT = "dr,dekf,cekf,expfusion,ci,rdl"
+NET_DEFAULT = "diekf"
+"""The estimator ``team`` and ``node`` run by default: the recommended distributed filter."""
 
 
 def _net_args(p: argparse.ArgumentParser) -> None:
@@ -84,12 +87,10 @@ def _source_args(p: argparse.ArgumentParser, default: str | None) -> None:
     p.add_argument("--source", default=default, required=default is None,
                    help="sim:SCENARIO (random, range_bearing), mrclam:PATH or events:PATH; swarmloc node also "
                         "zenoh:SPEC or ros2:SPEC (inputs live, the team from SPEC)")  # fmt: skip
-    p.add_argument(
-        "--estimator",
-        default="expfusion",
-        help="a distributed estimator (expfusion, dekf, ci, rdl, "
-        "irdl, diekf) or a centralized one the belief server hosts (cekf, iekf, fej)",
-    )
+    p.add_argument("--estimator", default=NET_DEFAULT,
+                   help=f"a distributed estimator (diekf, expfusion, dekf, ci, rdl, irdl) or a centralized one the "
+                        f"belief server hosts (cekf, iekf, fej); default {NET_DEFAULT}, the recommended distributed "
+                        "filter")  # fmt: skip
     p.add_argument("--config", default=None, help="TOML file of model and filter settings")
     p.add_argument("--robots", type=int, default=3, help="sim: team size (default 3)")
     p.add_argument("--duration", type=float, default=None, help="seconds of the source (sim default 30)")
@@ -220,8 +221,13 @@ def build_parser() -> argparse.ArgumentParser:
     _keys_parser(sub)
 
     cp = sub.add_parser("compare", help="every estimator on identical events: one table (sim scenario or dataset)")
-    cp.add_argument("--scenario", default="sim:random", help="sim:random, sim:range_bearing, mrclam:PATH, events:PATH")
-    cp.add_argument("--estimators", default=EST_DEFAULT, help=f"comma-separated names (default {EST_DEFAULT})")
+    cp.add_argument("--scenario", default="sim:random",
+                    help="any source swarmloc team takes: sim:SCENARIO (random, range_bearing, landmarks, corridor; "
+                         "3-D: 3d, 3d_rot, 3d_rbe, 3d_bearing, 3d_landmarks), mrclam:PATH or events:PATH "
+                         "(default sim:random)")  # fmt: skip
+    cp.add_argument("--estimators", default=None,
+                    help=f"comma-separated names (default {EST_DEFAULT}; on a 3-D scenario those of them with an "
+                         "SE(3) form)")  # fmt: skip
     cp.add_argument("--runs", type=int, default=1, help="seeds of a simulated scenario (default 1)")
     cp.add_argument("--robots", type=int, default=4, help="sim: team size (default 4)")
     cp.add_argument("--duration", type=float, default=None, help="seconds (sim default 30; dataset: all)")
@@ -286,6 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--sigma", type=float, default=0.01, help="range noise std [m] (default 0.01)")
     mp.add_argument("--D", type=float, default=0.005, help="wheel-speed diffusion [rad^2/s] (default 0.005)")
     mp.add_argument("--out", default=None, help="folder for map.md, map.json, map.png, GeoJSON and DXF maps")
+    mp.add_argument("--quiet", action="store_true", help="no progress bar")
     mp.set_defaults(func=_map)
 
     from swarmloc.cli import ros
@@ -304,5 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stop every process after this many wall-clock seconds (default 600)")  # fmt: skip
     t.add_argument("--out", required=True, help="output folder (report, figures, TUM files, logs)")
     t.add_argument("--verbose", action="store_true", help="nodes log their state every 2 s (in OUT/logs)")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=cmd_team)
+    add_data_parser(sub)
     return p

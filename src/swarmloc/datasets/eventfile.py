@@ -40,8 +40,11 @@ Records (every other cell empty):
   the ``t`` of its ``initial`` record, or, for a robot without one, the ``starts`` passed to
   :func:`load_events` (e.g. the start of its ground truth).
 * ``detection``: ``t, robot, kind, z``; ``target, target_type`` (not for ``absolute``); ``std`` or ``cov``, or
-  neither: then the reader's ``defaults`` for the kind apply. ``z`` per kind: ``pose`` the target's relative pose
-  ``x y theta`` in the observer's frame (its noise: the exponential coordinates of ``m_true^-1 m_measured``);
+  neither: then the reader's ``defaults`` for the kind apply. For a run (``swarmloc evaluate events``, the
+  ``events:`` source) the observer and a robot target must be in the team, the robots with odometry in the file:
+  a detection of robot 7 in a file whose robots with odometry are 0 and 1 is a bad line. ``z`` per kind:
+  ``pose`` the target's relative pose ``x y theta`` in the observer's frame (its noise: the exponential
+  coordinates of ``m_true^-1 m_measured``);
   ``range_bearing`` ``range bearing``; ``range``; ``bearing`` (in ``[-pi, pi]``); ``absolute`` the observer's own
   world pose ``x y theta`` (a GPS-like fix). A landmark is a point: a ``pose`` detection of one is an error.
 * ``landmark``: ``target`` (its id), ``z = "x y"``, ``std = "sx sy"`` (or ``defaults["landmark"]``);
@@ -354,6 +357,33 @@ class _Reader:
         if drop:
             self.keyed = [k for i, k in enumerate(self.keyed) if i not in drop]
 
+    def check_team(self, team: Iterable[int] | str) -> None:
+        """Make bad lines of the detections by or of a robot outside the team, and drop them: the robots of
+        ``team``, or with ``"odometry"`` those with odometry (the robots a run estimates). Such a detection could
+        only end ``unknown``."""
+        if isinstance(team, str):
+            if team != "odometry":
+                raise ValueError(f"load_events: team must be robot ids or 'odometry', got {team!r}")
+            members = sorted({e.robot for _, _, e in self.keyed if isinstance(e, Odometry)})
+            how = "the robots with odometry in the file"
+        else:
+            members, how = sorted(set(team)), "the team given"
+        known = set(members)
+        drop: set[int] = set()
+        for i, (_, line, e) in enumerate(self.keyed):
+            if not isinstance(e, Detection):
+                continue
+            if e.observer not in known:
+                problem = f"a detection by robot {e.observer}, which is not in the team"
+            elif e.target_is_robot and e.target is not None and e.target not in known:
+                problem = f"a detection of robot {e.target}, which is not in the team"
+            else:
+                continue
+            self.bad.add(line, f"{problem} (robots {members}: {how})")
+            drop.add(i)
+        if drop:
+            self.keyed = [k for i, k in enumerate(self.keyed) if i not in drop]
+
     def _start(self, robot: int, starts: Mapping[int, tuple[float, str]]) -> tuple[float, str] | None:
         """``(initial stamp [s], where it comes from)`` of ``robot``, or None when it has none."""
         if robot in self.initial:
@@ -496,6 +526,7 @@ def load_events(
     defaults: Mapping[str, object] | None = None,
     strict: bool = True,
     starts: Mapping[int, tuple[float, str]] | None = None,
+    team: Iterable[int] | str | None = None,
 ) -> EventFile:
     """Read an event file (``.csv`` or ``.jsonl``; format in the module doc), as a stream.
 
@@ -503,7 +534,9 @@ def load_events(
     ``range``, ``bearing``, ``absolute``, ``landmark``, ``initial``: a std vector (or, except for ``landmark``,
     a covariance matrix); e.g. :meth:`swarmloc.config.Config.event_defaults`. ``starts``: ``robot -> (t [s],
     where it comes from)``, the initial stamp of a robot without an ``initial`` record (e.g. the start of its
-    ground truth): its odometry may not start before. With ``strict=True`` any bad line raises
+    ground truth): its odometry may not start before. ``team``: the robots of the team (ids), or ``"odometry"``:
+    those with odometry in the file (the robots a run estimates); a detection by or of a robot outside it is then a
+    bad line (it could only end ``unknown``); None: any robot. With ``strict=True`` any bad line raises
     :class:`EventFileError` saying how many and listing the first 20; with ``strict=False`` bad lines are skipped
     and listed in ``EventFile.problems`` (counted in ``n_bad``). A missing file, a bad header and a file without
     odometry always raise.
@@ -528,6 +561,8 @@ def load_events(
     except OSError as exc:
         raise EventFileError(f"{label}: cannot read file ({exc.strerror or exc})") from None
     reader.check_odometry(starts or {})
+    if team is not None:
+        reader.check_team(team)
     bad = reader.bad
     if bad.n and strict:
         raise EventFileError(bad.summary(_HINT), bad.messages(), bad.n)

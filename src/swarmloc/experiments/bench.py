@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.experiments.bench_report import format_report
+from swarmloc.experiments.progress import Tick, no_tick, steps
 
 REPLAY_ESTIMATORS = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl", "diekf")
 ENGINE_REPLAY = ("dekf", "cekf", "iekf", "rdl", "diekf")
@@ -94,13 +95,6 @@ QUICK = BenchConfig(
     engine_n=2_000, filterpy_n=200, repeats=3, copy_mb=64, matmul_n=1024, swarm_sizes=(100, 1_000), swarm_steps=100,
     sweep_n=300, isolate=False, replay_duration=60.0, accelerator_sizes=(1_000, 10_000),
 )  # fmt: skip
-
-Tick = Callable[[str], None]
-"""``tick(label)``: one unit of work done (drives a progress bar)."""
-
-
-def _no_tick(label: str) -> None:
-    return None
 
 
 def _engine() -> Any:
@@ -272,7 +266,7 @@ def filterpy_fusion(n: int, neighbours: int = 3, repeats: int = 3, seed: int = 0
 
 def fusion_comparison(
     engine_n: int = 10_000, filterpy_n: int = 1_000, neighbours: int = 3, repeats: int = 5,
-    machine: dict | None = None, tick: Tick = _no_tick,
+    machine: dict | None = None, tick: Tick = no_tick,
 ) -> dict:  # fmt: skip
     """Section a (and the fractions of section b when ``machine`` is given): the engine's
     :func:`~swarmloc.engine.fusion_step` and :func:`filterpy_fusion`, robot-updates/s and their ratio; also the
@@ -366,7 +360,7 @@ def loglog_slope(x: Sequence[float], y: Sequence[float]) -> float:
 
 def swarm_scaling(
     sizes: Sequence[int] = (100, 1_000, 10_000), steps: int = 1_000, neighbour_sweep: Sequence[int] = (1, 3, 6),
-    sweep_n: int = 1_000, neighbours: int = 3, isolate: bool = True, tick: Tick = _no_tick,
+    sweep_n: int = 1_000, neighbours: int = 3, isolate: bool = True, tick: Tick = no_tick,
 ) -> dict:  # fmt: skip
     """Section c: :func:`swarmloc.engine.swarm_run` (distributed EKF, :func:`swarm_backend`) over ``sizes`` with
     ``neighbours``, and over ``neighbour_sweep`` at ``sweep_n`` robots. ``us_per_robot_step``: estimation wall
@@ -417,7 +411,7 @@ def find_mrclam(path: str | Path | None = None) -> Path | None:
 
 def mrclam_replay(
     path: str | Path, duration: float | None = None, estimators: Sequence[str] = REPLAY_ESTIMATORS,
-    landmarks: Sequence[bool] = (True, False), rounds: int = 1, tick: Tick = _no_tick,
+    landmarks: Sequence[bool] = (True, False), rounds: int = 1, tick: Tick = no_tick,
 ) -> dict:  # fmt: skip
     """Section d: every estimator on the MRCLAM dataset at ``path`` (first ``duration`` s, default all), with and
     without landmarks, through :func:`swarmloc.experiments.evaluate.evaluate_stream` (the events built once per setting,
@@ -490,7 +484,7 @@ def run_bench(
     ds = find_mrclam(mrclam) if "d" in sections else None
     machine = {"platform": platform.platform(), "python": platform.python_version(), "numpy": np.__version__}
     res: dict[str, Any] = {"machine": {**machine, "cpu_count": os.cpu_count()}, "config": asdict(cfg)}
-    with _progress(progress, _work_items(cfg, ds is not None, sections)) as tick:
+    with steps(progress, _work_items(cfg, ds is not None, sections), "bench") as tick:
         if "b" in sections:
             m = machine_rates(cfg.copy_mb, cfg.matmul_n)
             res["machine"].update(m)
@@ -511,29 +505,6 @@ def run_bench(
 
             res["accelerator"] = accelerator_rates(cfg.accelerator_sizes, cfg.neighbours, cfg.repeats, tick)
     return res
-
-
-@contextlib.contextmanager
-def _progress(enabled: bool, total: int) -> Iterator[Tick]:
-    if not enabled:
-        yield _no_tick
-        return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  transient=True, console=_stderr_console()) as bar:  # fmt: skip
-        task = bar.add_task("bench", total=total)
-
-        def tick(label: str) -> None:
-            bar.update(task, advance=1, description=label)
-
-        yield tick
-
-
-def _stderr_console() -> Any:
-    from rich.console import Console
-
-    return Console(stderr=True)
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:

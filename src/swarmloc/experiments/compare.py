@@ -32,13 +32,37 @@ import numpy as np
 
 from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
 from swarmloc.experiments.association import association_accuracy
+from swarmloc.experiments.evaluate import association_text
+from swarmloc.experiments.progress import steps
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
 
 _ONE = GroupGaussian(SE2, SE2.identity(), 0.01 * np.eye(3))
 """A belief to build a throwaway team with (the up-front check of the estimators' options)."""
+_ONE3 = GroupGaussian(SE3, SE3.identity(), 0.01 * np.eye(6))
+"""The same on SE(3): which estimators have a 3-D form."""
 
-__all__ = ["compare", "compare_table"]
+
+def is_3d(scenario: str) -> bool:
+    """Whether ``scenario`` is a simulated 3-D team (``sim:3d``, ``sim:3d_rot``, ...: SE(3) beliefs)."""
+    from swarmloc.experiments.sources import SIM3D_VARIANTS
+
+    kind, _, name = scenario.partition(":")
+    return kind == "sim" and name in SIM3D_VARIANTS
+
+
+def _check_scenario(scenario: str) -> None:
+    """Refuse an unknown source kind or simulated scenario before any worker starts (as ``load_source`` would)."""
+    from swarmloc.experiments.sources import SIM_SCENARIOS
+
+    kind, _, name = scenario.partition(":")
+    if kind == "sim" and (name or "random") not in SIM_SCENARIOS:
+        raise ValueError(f"unknown simulated scenario {name!r}; choose from {list(SIM_SCENARIOS)}")
+    if kind not in ("sim", "mrclam", "events"):
+        raise ValueError(f"unknown source {scenario!r}: use sim:SCENARIO, mrclam:PATH or events:PATH")
+
+
+__all__ = ["compare", "compare_table", "is_3d"]
 
 
 def _job(
@@ -55,15 +79,21 @@ def _job(
 
     src = load_source(spec, robots=robots, duration=duration, seed=seed)
     policy, clutter, p_detect = assoc
-    config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
-    events, _ = association_events(src.events, policy, sorted(src.initial), config.motion.noise(), clutter=clutter,
-                                   p_detect=p_detect, seed=seed)  # fmt: skip
-    nodes = make_team(estimator, src.initial, **node_options(estimator, config, src.landmarks, src.t_start,
-                                                             src.sensor))  # fmt: skip
+    if src.noise is not None:  # a 3-D team: its SE(3) nodes, recorded at its truth instants (experiments.se3)
+        from swarmloc.experiments.se3 import se3_team, with_truth
+
+        nodes, events, record = se3_team(src, estimator), with_truth(src), None
+    else:
+        config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
+        events, _ = association_events(src.events, policy, sorted(src.initial), config.motion.noise(),
+                                       clutter=clutter, p_detect=p_detect, seed=seed)  # fmt: skip
+        nodes = make_team(estimator, src.initial, **node_options(estimator, config, src.landmarks, src.t_start,
+                                                                 src.sensor))  # fmt: skip
+        record = src.record_times()
     for n in nodes:
         n.measure_time = True
     t = time.perf_counter()
-    res = run(nodes, events, src.record_times(), truth=src.truth, name=estimator)
+    res = run(nodes, events, record, truth=src.truth if record is not None else None, name=estimator)
     wall = time.perf_counter() - t
     pos, head, nees = [], [], []
     for tr in res.tracks.values():
@@ -86,6 +116,7 @@ def _job(
         "wall_s": wall,
         "data_s": float(src.t_end - src.t_start),
         "robots": len(src.robots),
+        "dof": 6 if src.noise is not None else DOF,
     }
 
 
@@ -109,7 +140,7 @@ def compare(
     import dataclasses
 
     from swarmloc.config import DEFAULTS
-    from swarmloc.estimators import ESTIMATORS, make_team, node_options
+    from swarmloc.estimators import ESTIMATORS, estimator_class, make_team, node_options
     from swarmloc.experiments.association import POLICIES
 
     unknown = [e for e in estimators if e not in ESTIMATORS]
@@ -119,7 +150,14 @@ def compare(
         raise ValueError(f"runs must be >= 1, got {runs}")
     if association not in POLICIES:
         raise ValueError(f"association must be one of {POLICIES}, got {association!r}")
+    _check_scenario(scenario)
     cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, association=association))
+    if is_3d(scenario):  # what a 3-D team cannot run is refused before anything runs
+        if association != "tags" or clutter or p_detect != 1.0:
+            raise ValueError(f"{scenario}: a 3-D team's detections are tagged (association tags, no clutter, "
+                             "p_detect 1)")  # fmt: skip
+        for e in estimators:
+            estimator_class(e, {0: _ONE3})
     for e in estimators:  # an estimator that cannot run the policy is refused before anything runs
         make_team(e, {0: _ONE, 1: _ONE}, **node_options(e, cfg, None, 0.0))
     sim = scenario.startswith("sim:")
@@ -128,30 +166,18 @@ def compare(
     tasks = [(scenario, e, s, robots, duration, assoc) for e in estimators for s in seeds]
     results: list[dict] = []
     t0 = time.perf_counter()
-    bar = None
-    if progress:
-        from rich.progress import Progress
-
-        bar = Progress()
-        bar.start()
-        task_id = bar.add_task(f"compare {scenario}", total=len(tasks))
-    try:
+    with steps(progress, len(tasks), f"compare {scenario}") as tick:
         if jobs <= 1 or len(tasks) == 1:
             for t in tasks:
                 results.append(_job(*t))
-                if bar is not None:
-                    bar.advance(task_id)
+                tick(f"{t[1]} seed {t[2]}")
         else:
             # spawned, not forked: a process that imported JAX (the engine's backend) is multithreaded
             with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
                 futs = [ex.submit(_job, *t) for t in tasks]
                 for f in as_completed(futs):
                     results.append(f.result())
-                    if bar is not None:
-                        bar.advance(task_id)
-    finally:
-        if bar is not None:
-            bar.stop()
+                    tick(f"{results[-1]['estimator']} seed {results[-1]['seed']}")
     summary: dict[str, Any] = {
         "scenario": scenario,
         "runs": len(seeds),
@@ -165,14 +191,16 @@ def compare(
     }
     from scipy.stats import chi2
 
-    q_lo, q_hi = chi2.ppf([0.025, 0.975], DOF)
+    dof = results[0]["dof"] if results else DOF  # 6 for a 3-D team: NEES of the 6 exponential coordinates
+    summary["dof"] = dof
+    q_lo, q_hi = chi2.ppf([0.025, 0.975], dof)
     for e in estimators:
         rs = [r for r in results if r["estimator"] == e]
         pos = np.concatenate([r["pos"] for r in rs])
         head = np.concatenate([r["heading"] for r in rs])
         nees = np.concatenate([r["nees"] for r in rs])
         n = int(nees.size)
-        lo, hi = anees_bounds(max(n, 1))
+        lo, hi = anees_bounds(max(n, 1), dof)
         st: dict[str, int] = {}
         for r in rs:
             for k, v in r["stats"].items():
@@ -183,10 +211,10 @@ def compare(
             "records": n,
             "pos_rmse": float(np.sqrt(np.mean(pos**2))) if n else float("nan"),
             "heading_rmse": float(np.sqrt(np.mean(head**2))) if n else float("nan"),
-            "anees": float(np.mean(nees) / DOF) if n else float("nan"),
+            "anees": float(np.mean(nees) / dof) if n else float("nan"),
             "anees_band_95": (lo, hi),
             "frac_in_95": float(np.mean((nees >= q_lo) & (nees <= q_hi))) if n else float("nan"),
-            "anees_per_run": [float(np.mean(r["nees"]) / DOF) for r in rs if r["nees"].size],
+            "anees_per_run": [float(np.mean(r["nees"]) / dof) for r in rs if r["nees"].size],
             "update_us": 1e6 * tm["fuse_s"] / tm["fuse_n"] if tm["fuse_n"] else 0.0,
             "predict_us": 1e6 * tm["predict_s"] / tm["predict_n"] if tm["predict_n"] else 0.0,
             "messages_per_robot_s": st.get("messages", 0) / robot_s if robot_s else 0.0,
@@ -212,7 +240,8 @@ def compare_table(summary: dict[str, Any]) -> str:
            else f"; association {s['association']}, clutter {s['clutter_per_scan']:g}/scan, "
                 f"p_detect {s['p_detect']:g}"),
         "",
-        "| estimator | pos RMSE [m] | heading RMSE [rad] | ANEES/dof (95% band if independent) | in 95% band | "
+        f"| estimator | pos RMSE [m] | {'rotation' if s.get('dof') == 6 else 'heading'} RMSE [rad] | "
+        "ANEES/dof (95% band if independent) | in 95% band | "
         "update [us] | predict [us] | messages / robot / s | fused / gated / rejected / unknown | "
         "association accuracy |",
         "|---|---|---|---|---|---|---|---|---|---|",
@@ -220,10 +249,10 @@ def compare_table(summary: dict[str, Any]) -> str:
     for name, e in s["estimators"].items():
         d = e["detections"]
         lo, hi = e["anees_band_95"]
-        a = e.get("association_accuracy")
+        a = association_text({f"association_{k}": v for k, v in e.get("association", {}).items()})
         lines.append(
             f"| {name} | {e['pos_rmse']:.3f} | {e['heading_rmse']:.3f} | {e['anees']:.2f} ({lo:.2f}-{hi:.2f}) | "
             f"{e['frac_in_95']:.2f} | {e['update_us']:.0f} | {e['predict_us']:.0f} | {e['messages_per_robot_s']:.1f} "
-            f"| {d['fused']} / {d['gated']} / {d['rejected']} / {d['unknown']} | {'-' if a is None else f'{a:.3f}'} |"
+            f"| {d['fused']} / {d['gated']} / {d['rejected']} / {d['unknown']} | {a} |"
         )
     return "\n".join(lines) + "\n"

@@ -135,7 +135,7 @@ def _job(
 
 def _run_jobs(tasks: list[tuple], jobs: int, progress: bool) -> dict[tuple, dict[str, Any]]:
     """Results of ``_job(*task)`` by key, in worker processes when ``jobs > 1``, with an optional progress bar."""
-    from swarmloc.experiments.evaluate import progress_bar
+    from swarmloc.experiments.progress import progress_bar
 
     out: dict[tuple, dict[str, Any]] = {}
     with progress_bar(progress) as start:

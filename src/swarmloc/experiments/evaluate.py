@@ -9,9 +9,8 @@ in-process runner; beliefs are recorded on a regular grid and scored with :mod:`
 
 from __future__ import annotations
 
-import contextlib
 import json
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,32 +24,11 @@ from swarmloc.evaluation.delayed import delayed_output
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
 from swarmloc.experiments.association import association_accuracy, association_events
+from swarmloc.experiments.progress import progress_bar
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.runner import RunResult, TruthFn, run
 
 ALL = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl")
-
-
-@contextlib.contextmanager
-def progress_bar(enabled: bool) -> Iterator[Callable[[str], Callable[[int, int], None]] | None]:
-    """A rich progress bar; yields ``start(description) -> callback(done, total)``, or None when disabled."""
-    if not enabled:
-        yield None
-        return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  transient=True) as bar:  # fmt: skip
-
-        def start(description: str) -> Callable[[int, int], None]:
-            task = bar.add_task(description, total=None)
-
-            def cb(done: int, total: int) -> None:
-                bar.update(task, completed=done, total=total)
-
-            return cb
-
-        yield start
 
 
 def evaluate_stream(
@@ -279,35 +257,68 @@ def figures(out: Path, results: dict[str, RunResult], t_start: float) -> list[st
     return files
 
 
+def speed_text(x: float | None) -> str:
+    """An ``x real time`` figure with the decimals it needs: ``1234``, ``56.7``, ``3.45``, ``0.012``; ``-`` for
+    none (nothing ran or an infinite speed)."""
+    if x is None or not np.isfinite(x):
+        return "-"
+    if x >= 100:
+        return f"{x:.0f}"
+    return f"{x:.1f}" if x >= 10 else f"{x:.3g}"
+
+
+def association_text(stats: Mapping[str, int]) -> str:
+    """The association accuracy of a run's counters as ``share (right/scored)`` (``-``: nothing scored)."""
+    right, wrong = int(stats.get("association_right", 0)), int(stats.get("association_wrong", 0))
+    a = association_accuracy(stats)
+    return "-" if a is None else f"{a:.3f} ({right}/{right + wrong})"
+
+
+def _rotation_word(report: dict) -> str:
+    """``rotation`` for SE(3) rows (the error is a 3-D rotation angle), ``heading`` for SE(2)."""
+    teams = [ev.get("team") or {} for ev in report["estimators"].values()]
+    return "rotation" if any("rot_rmse" in t or t.get("dof") == 6 for t in teams) else "heading"
+
+
 def markdown_table(report: dict) -> str:
-    """The report as a Markdown table: accuracy, consistency, accounting and speed per estimator."""
+    """The report as Markdown: per estimator its accuracy, consistency, accounting and speed (team: every robot's
+    records pooled), then one row per estimator and robot. SE(3) rows say ``rotation RMSE`` (the 3-D rotation
+    angle), SE(2) rows ``heading RMSE``."""
     title = report.get("title", "evaluation")
+    rot = _rotation_word(report)
     lines = [
         f"# {title}: {report['duration_s']:.0f} s, robots {report['robots']}"
         + ("" if report.get("truth", True) else " (no ground truth: replay only)"),
         "",
-        "| estimator | team pos RMSE [m] | heading RMSE [rad] | ANEES (per dof) | in 95% NEES band | detections "
+        f"| estimator | team pos RMSE [m] | {rot} RMSE [rad] | ANEES (per dof) | in 95% NEES band | detections "
         "fused / gated / rejected / unknown | association accuracy | wall [s] | x real time |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     if report.get("association", "tags") != "tags":
         lines[0] += f", association {report['association']} (robot ids hidden)"
+    per_robot: list[str] = []
     for name, ev in report["estimators"].items():
         s = ev["stats"]
         acc = f"{s['detections']}: {s['fused']} / {s['gated']} / {s['rejected']} / {s['unknown']}"
-        a = ev.get("association_accuracy")
-        assoc = "-" if a is None else f"{a:.3f}"
+        tail = f"{acc} | {association_text(s)} | {ev['wall_time_s']:.1f} | {speed_text(ev['x_real_time'])} |"
         t = ev["team"]
         if t is None or "pos_rmse" not in t:  # no ground truth, or nothing recorded to score
-            lines.append(
-                f"| {name} | - | - | - | - | {acc} | {assoc} | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |"
-            )
+            lines.append(f"| {name} | - | - | - | - | {tail}")
             continue
-        lines.append(
-            f"| {name} | {t['pos_rmse']:.3f} | {t['heading_rmse']:.3f} | {t['anees']:.2f} | {t['frac_in_95']:.2f} | "
-            f"{acc} | {assoc} | {ev['wall_time_s']:.1f} | {ev['x_real_time']:.0f} |"
-        )
+        lines.append(f"| {name} | {_scores(t)} | {tail}")
+        for r, rs in sorted(ev.get("robots", {}).items(), key=lambda kv: int(kv[0])):
+            if "pos_rmse" in rs:
+                per_robot.append(f"| {name} | {r} | {_scores(rs)} | {rs['n']} |")
+    if per_robot:
+        lines += ["", "Per robot:", "",
+                  f"| estimator | robot | pos RMSE [m] | {rot} RMSE [rad] | ANEES (per dof) | in 95% NEES band | "
+                  "records |", "|---|---|---|---|---|---|---|", *per_robot]  # fmt: skip
     notes = report.get("notes") or []
     if notes:
         lines += ["", *(f"* {n}" for n in notes)]
     return "\n".join(lines) + "\n"
+
+
+def _scores(t: Mapping[str, Any]) -> str:
+    """``pos RMSE | rotation RMSE | ANEES | in band`` cells of a team or robot summary."""
+    return f"{t['pos_rmse']:.3f} | {t['heading_rmse']:.3f} | {t['anees']:.2f} | {t['frac_in_95']:.2f}"

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.estimators import make_team, node_options
+from swarmloc.experiments.progress import Tick, no_tick, steps
 from swarmloc.lie import SE2
 from swarmloc.mapping import LineMap, map_error, scan_observations
 from swarmloc.runner import run
@@ -66,8 +67,11 @@ def beliefs_of(estimator: str, sim: Any, times: np.ndarray) -> Beliefs:
     return out
 
 
-def one_seed(seed: int, estimators: tuple[str, ...], finder: RangeFinder, order: int, D: float) -> dict[str, Any]:
-    """The maps of one seed and their errors: ``{"errors": {name: metrics}, "maps": {name: LineMap}, ...}``."""
+def one_seed(
+    seed: int, estimators: tuple[str, ...], finder: RangeFinder, order: int, D: float, tick: Tick = no_tick
+) -> dict[str, Any]:
+    """The maps of one seed and their errors: ``{"errors": {name: metrics}, "maps": {name: LineMap}, ...}``;
+    ``tick`` once per estimator run (dead reckoning first)."""
     sim = chapter_team(seed, D=D)
     walls = chapter_lab()
     scans = scan_team(sim, walls, finder, seed)
@@ -75,11 +79,13 @@ def one_seed(seed: int, estimators: tuple[str, ...], finder: RangeFinder, order:
     truth = {r: (scans.poses[:, j], np.broadcast_to(1e-12 * np.eye(3), (scans.times.size, 3, 3)))
              for j, r in enumerate(both)}  # fmt: skip
     dr = beliefs_of("dr", sim, scans.times)
+    tick(f"seed {seed}, dr")
     maps = {f"H{r} alone": build_map(scans, (r,), dr, order) for r in both}
     maps["team, dr"] = build_map(scans, both, dr, order)
     paths = {"truth": truth, "dr": dr}
     for est in estimators:
         paths[est] = beliefs_of(est, sim, scans.times)
+        tick(f"seed {seed}, {est}")
         maps[f"team, {est}"] = build_map(scans, both, paths[est], order)
     maps["true poses"] = build_map(scans, both, truth, order)
     seen = scans.true_hits()
@@ -94,15 +100,17 @@ def map_experiment(
     order: int = 2,
     D: float = 0.005,
     first_seed: int = 0,
+    progress: bool = False,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Run :func:`one_seed` for ``seeds`` seeds; returns ``(report, first seed's result)``: the report has the
-    errors per seed and their means per map."""
+    errors per seed and their means per map. ``progress``: a bar on stderr over the estimator runs."""
     finder = RangeFinder() if finder is None else finder
     per_seed, first = [], None
-    for k in range(seeds):
-        res = one_seed(first_seed + k, tuple(estimators), finder, order, D)
-        first = res if first is None else first
-        per_seed.append(res["errors"])
+    with steps(progress, seeds * (1 + len(estimators)), "map") as tick:
+        for k in range(seeds):
+            res = one_seed(first_seed + k, tuple(estimators), finder, order, D, tick)
+            first = res if first is None else first
+            per_seed.append(res["errors"])
     names = list(per_seed[0])
     keys = list(per_seed[0][names[0]])
     mean = {n: {k: float(np.nanmean([e[n][k] for e in per_seed])) for k in keys} for n in names}
@@ -164,7 +172,8 @@ def run_command(args: argparse.Namespace) -> int:
     as GeoJSON (and DXF)."""
     ests = tuple(e.strip() for e in args.estimators.split(",") if e.strip())
     finder = RangeFinder(sigma=args.sigma)
-    report, first = map_experiment(args.seeds, ests, finder, args.order, args.D, args.first_seed)
+    report, first = map_experiment(args.seeds, ests, finder, args.order, args.D, args.first_seed,
+                                   progress=not args.quiet)  # fmt: skip
     text = markdown(report)
     print(text)
     if args.out:

@@ -69,7 +69,7 @@ def _span_origin(ef: EventFile) -> str:
 def _read(p: Path, config: Config, truth_dir: str | os.PathLike[str] | None, strict: bool):  # noqa: ANN202
     truth = _truth(p, truth_dir)
     starts = {r: (float(tr[0][0]), f"the start of its ground truth, truth_robot{r}.tum") for r, tr in truth.items()}
-    ef = load_events(p, defaults=config.event_defaults(), strict=strict, starts=starts)
+    ef = load_events(p, defaults=config.event_defaults(), strict=strict, starts=starts, team="odometry")
     robots = sorted({e.robot for e in ef.events if isinstance(e, Odometry)})
     if not robots or ef.span is None:
         raise EventFileError(f"{p.name}: no odometry records: nothing to estimate")
@@ -104,7 +104,8 @@ def evaluate_event_file(
     """Run ``estimators`` on the event file at ``path``, score them against ground truth when there is some, and
     return (and with ``out_dir`` write) the same report as ``swarmloc evaluate mrclam``.
 
-    The estimated robots are those with odometry. Each needs an initial belief: an ``initial`` record, or else its
+    The estimated robots, the team, are those with odometry: a detection by or of another robot is a bad line.
+    Each needs an initial belief: an ``initial`` record, or else its
     ground truth at the first stamp with ``config.initial``'s std. Detections without a noise of their own take
     ``config.sensors``' (:meth:`~swarmloc.config.Config.event_defaults`). Ground truth: every
     ``truth_robot<N>.tum`` of ``truth_dir`` (default: beside the file); a robot's odometry may not start before

@@ -22,20 +22,26 @@ from swarmloc.estimators import accepted_options, estimator_class, make_team
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.experiments.sources import load_source
+from swarmloc.node import Node
 from swarmloc.runner import RunResult, run
 
-__all__ = ["run_se3", "se3_figures", "se3_markdown", "se3_table", "with_truth", "write_tum_tracks"]
+__all__ = ["run_se3", "se3_figures", "se3_team", "se3_markdown", "se3_table", "with_truth", "write_tum_tracks"]
 
 
-def run_se3(source: Source, estimator: str, **options: Any) -> RunResult:
-    """One estimator on a 3-D team's source; ``options`` go to the nodes (``noise`` defaults to ``source.noise``)."""
+def se3_team(source: Source, estimator: str, **options: Any) -> list[Node]:
+    """The nodes of ``estimator`` for a 3-D team's source; ``options`` go to the nodes (``noise`` defaults to
+    ``source.noise``, ``t0`` to its start, ``landmarks`` to its landmarks where the estimator takes them)."""
     if source.noise is None:
-        raise ValueError(f"run_se3: source {source.spec!r} is not a 3-D team (no twist noise)")
+        raise ValueError(f"source {source.spec!r} is not a 3-D team (no twist noise)")
     base: dict[str, Any] = {"noise": source.noise, "t0": source.t_start}
     if source.landmarks and "landmarks" in accepted_options(estimator_class(estimator, source.initial)):
         base["landmarks"] = source.landmarks
-    nodes = make_team(estimator, source.initial, **{**base, **options})
-    return run(nodes, with_truth(source), name=estimator)
+    return make_team(estimator, source.initial, **{**base, **options})
+
+
+def run_se3(source: Source, estimator: str, **options: Any) -> RunResult:
+    """One estimator on a 3-D team's source (:func:`se3_team`), recorded at the source's truth instants."""
+    return run(se3_team(source, estimator, **options), with_truth(source), name=estimator)
 
 
 _PRIO = {Odometry: 0, Detection: 1, Truth: 2}

@@ -17,6 +17,7 @@ import numpy as np
 
 from swarmloc.datasets.source import Source
 from swarmloc.evaluation.metrics import anees_bounds, evaluate
+from swarmloc.experiments.association import association_accuracy
 from swarmloc.experiments.evaluate import delayed_row, write_report
 from swarmloc.experiments.sources import load_source
 from swarmloc.net.entry import network_class
@@ -135,7 +136,7 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
     duration = float(src.t_end - src.t_start)
     ev.update(wall_time_s=run.wall_s, x_real_time=duration / run.wall_s if run.wall_s > 0 else math.inf,
               stats=res.stats, reasons=dict(res.reasons), timing={}, accounted=res.accounted() and not missing,
-              detections_missing_of=missing)  # fmt: skip
+              detections_missing_of=missing, association_accuracy=association_accuracy(res.stats))  # fmt: skip
     ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
     n_rec = sum(tr.times.size for tr in res.tracks.values())
     report = {

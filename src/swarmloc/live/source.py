@@ -130,9 +130,10 @@ def attach(
     :func:`loopback_session` of its own (``input_listen``, ``input_connect``), closed with it."""
     _check_kind(kind, input_listen, input_connect)
     if kind == "zenoh":
-        from swarmloc.live.zenoh_input import ZenohInput
+        from swarmloc.live.zenoh_input import ZenohInput, input_key
 
         sub: Any = ZenohInput(session, feed, team_scope(team, run_id), roster)
+        feed.listens_on = f"Zenoh keys {input_key(team_scope(team, run_id), feed.robot, '*')}"
         sub.open()
         return sub.close
     from swarmloc.live.ros_input import RosInput
@@ -140,6 +141,8 @@ def attach(
     own = loopback_session(input_listen, input_connect)
     sub = RosInput(own, feed, team=team, domain=domain)
     try:
+        where = ", ".join(sum(input_endpoints(input_listen, input_connect), []))
+        feed.listens_on = f"ROS 2 topics {', '.join(sub.topics.values())} (domain {sub.domain}), on {where}"
         sub.open()
     except Exception:
         own.close()

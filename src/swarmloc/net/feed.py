@@ -108,6 +108,9 @@ class LiveFeed:
         self._wake = threading.Event()
         self.on_push: Any = None
         """Called (no argument) after each accepted push or watermark change: the driver's wake-up."""
+        self.listens_on = ""
+        """Where the inputs come from (the keys or topics the input layer subscribed), for what the driver says
+        while it waits for them."""
 
     # ---------------------------------------------------------------------------------------- producer side
     def push(self, event: Event) -> bool:

@@ -89,6 +89,11 @@ from swarmloc.node import Node
 
 log = logging.getLogger(__name__)
 
+WAIT_NOTE = 1.0
+"""[s] A live node that has waited this long for its next input says what it waits for (a warning) ..."""
+WAIT_NOTE_EVERY = 10.0
+"""[s] ... and again every so often while it still waits."""
+
 
 def _groups(events: Sequence[Event]) -> list[tuple[float, Any]]:
     """``(stamp, item)`` in order; consecutive detections at one instant form one list."""
@@ -246,6 +251,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             self._feed_w = float(self.node.t0)
             self.speed = 0.0  # a live source is paced by its arrivals
             self.feed.on_push = lambda: self._inq.put(("wake", None))
+        self._wait_note = math.inf  # when to say next that the node waits for its live inputs (monotonic)
+        self._waiting_since = 0.0  # since when it waits (monotonic)
 
     def stop(self) -> None:
         """Ask :meth:`run` to finish (from another thread or a signal handler)."""
@@ -321,9 +328,11 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             self._status()
             wait = self._run_timers()
             if i >= len(items):  # a live feed with nothing released yet: tell the team how far it is, wait
+                self._say_waiting(i)
                 self._publish_progress(self._feed_w)
                 self._drain(min(wait, 0.02))
                 continue
+            self._wait_note = math.inf
             s, item = items[i]
             if self.speed > 0:
                 due = w0 + (s - t_start) / self.speed - time.monotonic()
@@ -348,6 +357,21 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self._i = len(items)
         self._answer_ready()
         self._publish_progress(math.inf, force=True)
+
+    def _say_waiting(self, taken: int) -> None:
+        """While a live node has nothing to do, say (a warning: shown without ``--verbose``) what it waits for: its
+        input keys and the teammates not alive; once :data:`WAIT_NOTE` s after it began to wait, then every
+        :data:`WAIT_NOTE_EVERY` s."""
+        now = time.monotonic()
+        if self._wait_note == math.inf:
+            self._wait_note, self._waiting_since = now + WAIT_NOTE, now
+        if now < self._wait_note:
+            return
+        self._wait_note = now + WAIT_NOTE_EVERY
+        missing = sorted(self.wait_for - self._alive)
+        log.warning("robot %s: waiting %.0f s for its inputs on %s (%d taken so far; teammates alive %s%s)", self.robot,
+                    now - self._waiting_since, self.feed.listens_on or "its live source", taken, sorted(self._alive),
+                    f", not alive {missing}" if missing else "")  # fmt: skip
 
     def _pull(self) -> None:
         """Take what the live feed released: append it to ``items`` (grouped), extend the record times."""

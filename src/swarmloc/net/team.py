@@ -25,7 +25,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -146,6 +146,7 @@ def launch_team(
     connect_extra: Sequence[str] = (),
     keys_dir: str | os.PathLike[str] | None = None,
     view: Any = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> TeamRun:
     """Start the team of ``src`` on 127.0.0.1, collect its beliefs and reports, stop every process.
 
@@ -157,7 +158,8 @@ def launch_team(
     to (a Zenoh router, e.g. ROS 2's ``rmw_zenohd`` on ``tcp/127.0.0.1:7447``). ``keys_dir``: the team's keys and
     roster (:class:`~swarmloc.net.auth.TeamKeys`: made there unless its ``roster.json`` exists; default: a temporary
     folder, removed at the end). ``view``: a :class:`~swarmloc.net.view.TeamView` shown every belief and line
-    collected (the caller closes it).
+    collected (the caller closes it). ``progress(collected, expected)``: called as beliefs come in (a count of the
+    beliefs collected and of those the run records: record times x robots).
     """
     f = parse_faults(faults)
     check_retries(answer_retries)  # refused here, not by every node process
@@ -184,6 +186,7 @@ def launch_team(
                              pose_stamps(src))  # fmt: skip
         launcher.server_args = server_args
         launcher.view = view
+        launcher.on_progress = progress
         return launcher.run(src.t_start, max_wall)
     finally:
         keys.close()
@@ -296,6 +299,8 @@ class _Launcher:
         self.noted: set[int] = set()  # pids of the processes in ``result.ended``
         self.server_args: list[str] = []  # a hosted estimator's options for ``swarmloc server``
         self.view: Any = None  # a live view (swarmloc.net.view.TeamView) shown what is collected
+        self.on_progress: Callable[[int, int], None] | None = None  # (beliefs collected, beliefs of the run)
+        self._shown = -1
 
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
@@ -446,6 +451,9 @@ class _Launcher:
             self._intake.fold(self.result.counts, self.result.reasons, prefix="collector_")
             self.apply_faults(t_first)
             self.note_ended()
+            if self.on_progress is not None and len(self.result.beliefs) != self._shown:
+                self._shown = len(self.result.beliefs)
+                self.on_progress(self._shown, len(self.record_times) * len(self.robots))
             if self.all_ended():
                 end = min(deadline, time.monotonic() + COLLECT_AFTER_END)
                 while (left := end - time.monotonic()) > 0:  # what is still queued

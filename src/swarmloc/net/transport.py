@@ -93,14 +93,48 @@ def robot_of(key: str) -> int | None:
     return None
 
 
+PORT_RANGE_ENV = "SWARMLOC_PORT_RANGE"
+"""``LO-HI``: where :func:`free_ports` picks (e.g. ``20000-20999``); unset: the OS picks in its ephemeral range."""
+
+
+def port_range(env: dict[str, str] | os._Environ = os.environ) -> tuple[int, int] | None:
+    """``(lo, hi)`` of :data:`PORT_RANGE_ENV` (ValueError naming it when malformed), or None when unset."""
+    text = env.get(PORT_RANGE_ENV, "").strip()
+    if not text:
+        return None
+    lo, sep, hi = text.partition("-")
+    if not (sep and lo.strip().isdigit() and hi.strip().isdigit() and 1024 <= int(lo) <= int(hi) <= 65535):
+        raise ValueError(f"{PORT_RANGE_ENV} must be LO-HI with 1024 <= LO <= HI <= 65535, got {text!r}")
+    return int(lo), int(hi)
+
+
 def free_ports(n: int, host: str = "127.0.0.1") -> list[int]:
-    """``n`` TCP ports free on ``host`` now (the OS picks them; a race with other programs is possible)."""
-    socks, ports = [], []
+    """``n`` distinct TCP ports free on ``host`` now: picked by the OS in its ephemeral range, or at random in
+    :data:`PORT_RANGE_ENV`'s range when it is set. Either way a port is free when returned, not reserved: another
+    program may take it before its user binds it. A range apart (below the ephemeral range, one per concurrent
+    test worker) keeps it from ports the OS hands to outgoing connections and to the other workers."""
+    import random
+
+    rng = port_range()
+    if rng is not None and n > rng[1] - rng[0] + 1:
+        raise ValueError(f"free_ports: {n} ports asked, {PORT_RANGE_ENV} holds {rng[1] - rng[0] + 1}")
+    socks: list[socket.socket] = []
+    ports: list[int] = []
+    candidates = iter(random.sample(range(rng[0], rng[1] + 1), rng[1] - rng[0] + 1)) if rng else None
     try:
-        for _ in range(n):
+        while len(ports) < n:
             s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            s.bind((host, 0))
+            try:
+                s.bind((host, 0 if candidates is None else next(candidates)))
+            except StopIteration:
+                s.close()
+                raise OSError(f"free_ports: fewer than {n} free ports in {PORT_RANGE_ENV} {rng}") from None
+            except OSError:
+                s.close()
+                if candidates is None:
+                    raise
+                continue  # taken: the next candidate
             socks.append(s)
             ports.append(s.getsockname()[1])
     finally:

@@ -58,6 +58,7 @@ from swarmloc.node.inputs import (
 from swarmloc.node.keys import Entry, Group, Key
 from swarmloc.node.protocol import Exchange, Served
 from swarmloc.node.update import Gate, Outcome
+from swarmloc.text import ids, numbers, stamp
 
 log = logging.getLogger("swarmloc.node")
 
@@ -200,7 +201,15 @@ class Node(Intake, Exchange):
     @property
     def x(self) -> np.ndarray:
         """``(x [m], y [m], theta [rad])`` of every robot of the node at its present, robots in id order, ``(3 n,)``
-        (a read-only copy; filterpy's ``x``)."""
+        (a read-only copy; filterpy's ``x``).
+
+        The present is the stamp of the latest input the node has filed. An odometry record is filed at its start
+        ``t0`` (its command is in force from then on: the node does not take the time to have passed to ``t1``
+        until a later input says so), and a detection that waits for a teammate's answer is filed once the answer
+        is in. So after ``node.step(Odometry(0, 0.0, 0.5, 0.4, 0.1))`` alone the present is 0.0 and ``x`` the
+        start pose. The pose at any time ``t`` of the history is ``node.belief(t)`` (predicted with the command
+        in force; ``swarmloc.world_covariance(b.mean, b.cov)`` gives it as ``(x, P)``).
+        ``examples/node_snippet.py`` shows both."""
         return self._frozen_joint()[0]
 
     @property
@@ -209,6 +218,18 @@ class Node(Intake, Exchange):
         :func:`swarmloc.gaussian.world_covariance` of the beliefs, with the cross-covariances a centralized
         filter keeps)."""
         return self._frozen_joint()[1]
+
+    def __repr__(self) -> str:
+        """Class, robot(s), estimator name, present [s] and :attr:`x` (at most 9 numbers; the rest counted)."""
+        who = f"robot={self.robots[0]}" if len(self.robots) == 1 else f"robots={ids(self.robots)}"
+        head = f"{type(self).__name__}({who}, estimator={self.name!r}"
+        if self._clock.t0 is None:
+            return f"{head}, not started)"
+        try:
+            x = numbers(self.x)
+        except (ValueError, KeyError, ArithmeticError, np.linalg.LinAlgError) as exc:  # a repr never raises
+            x = f"? ({type(exc).__name__})"
+        return f"{head}, present={stamp(self.present)}, x={x})"
 
     def _frozen_joint(self) -> tuple[np.ndarray, np.ndarray]:
         x, P = self._joint(self._present_or_start())

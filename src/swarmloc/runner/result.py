@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarmloc.text import ids, number
+
 
 @dataclass
 class RobotTrack:
@@ -33,6 +35,17 @@ class RunResult:
     n_events: int = 0
     reasons: Counter[str] = field(default_factory=Counter)
     timing: dict[str, float] = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        """Estimator, robots, records, wall time and where the detections ended (never the arrays)."""
+        s = self.stats
+        records = sum(int(tr.times.size) for tr in self.tracks.values())
+        ends = ""
+        if "detections" in s:
+            ends = (f", detections={s['detections']} (fused {s.get('fused', 0)}, gated {s.get('gated', 0)}, "
+                    f"rejected {s.get('rejected', 0)}, unknown {s.get('unknown', 0)})")  # fmt: skip
+        return (f"RunResult(estimator={self.estimator!r}, robots={ids(sorted(self.tracks))}, records={records}, "
+                f"wall_time={number(self.wall_time)} s{ends})")  # fmt: skip
 
     def accounted(self) -> bool:
         """Every detection that came in ended fused, gated, rejected or unknown (none pending, none lost)."""

@@ -20,11 +20,14 @@ def progress_bar(total: int) -> tuple[Any, Any]:
     """A started rich progress bar over ``total`` estimator runs, and its task (for ``bar.update(task, ...)``)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from swarmloc.experiments.progress import stderr_console
+
     bar = Progress(
         TextColumn("[bold]thesis 5.2[/bold] {task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
+        console=stderr_console(),
     )
     task = bar.add_task("runs", total=total)
     bar.start()

@@ -1,0 +1,59 @@
+"""The command line's defaults are the ones the documentation recommends: ``diekf`` for a distributed team
+(``swarmloc team``, ``swarmloc node``), and ``evaluate`` / ``compare`` run the recommended ``iekf`` and ``diekf``
+among their default estimators; ``--help`` says so."""
+
+from __future__ import annotations
+
+import pytest
+
+from swarmloc.cli import build_parser
+
+pytestmark = pytest.mark.unit
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["team", "--out", "o"], ["node", "--team", "t", "--robot", "0", "--source", "sim:random", "--no-auth"]],
+    ids=["team", "node"],
+)
+def test_team_and_node_run_diekf_by_default(argv):
+    assert build_parser().parse_args(argv).estimator == "diekf"
+
+
+@pytest.mark.parametrize("command", ["team", "node"])
+def test_team_and_node_help_name_the_default(command, capsys):
+    with pytest.raises(SystemExit):
+        build_parser().parse_args([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "default diekf, the recommended distributed filter" in text
+
+
+def test_evaluate_runs_iekf_and_diekf_by_default(capsys):
+    args = build_parser().parse_args(["evaluate", "events", "x.csv"])
+    names = args.estimators.split(",")
+    assert {"iekf", "diekf"} <= set(names) and {"dr", "cekf", "rdl"} <= set(names)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["evaluate", "--help"])
+    text = "".join(capsys.readouterr().out.split())  # argparse wraps the list anywhere
+    assert f"(default{args.estimators})" in text
+
+
+def test_compare_default_estimators_include_iekf_and_diekf(monkeypatch):
+    """``compare`` with no ``--estimators`` runs the same default list (on a 3-D scenario, those of it with an
+    SE(3) form): the list handed to :func:`swarmloc.experiments.compare.compare` is captured."""
+    import swarmloc.experiments.compare as cmp
+    from swarmloc.cli import main
+    from swarmloc.estimators import ESTIMATORS_SE3
+
+    seen: dict[str, list[str]] = {}
+
+    def fake(scenario, names, **_kw):
+        seen[scenario] = list(names)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(cmp, "compare", fake)
+    assert main(["compare", "--quiet"]) == 2
+    assert main(["compare", "--scenario", "sim:3d", "--quiet"]) == 2
+    assert {"iekf", "diekf", "cekf", "rdl"} <= set(seen["sim:random"])
+    assert "diekf" in seen["sim:3d"] and set(seen["sim:3d"]) <= set(ESTIMATORS_SE3)
+    assert [e for e in seen["sim:random"] if e in ESTIMATORS_SE3] == seen["sim:3d"]
