@@ -15,6 +15,7 @@ from swarmloc.experiments.sources import load_source
 from swarmloc.live.zenoh_input import wait_matched_all
 from swarmloc.mapping import LineMap, map_error
 from swarmloc.net.auth import TeamKeys, open_envelope, seal
+from swarmloc.net.pairing import attach
 from swarmloc.net.schema import MAX_LINES, SERVER, Lines, MapAnswer, Rejected, decode, encode
 from swarmloc.net.server import MapStore, ServerProcess, linemap_of, observations_of
 from swarmloc.net.team import launch_team
@@ -107,11 +108,13 @@ def test_server_refuses_malformed_and_forged_lines_and_answers_the_map(tmp_path)
         # put only once the server's subscriber is reachable, and never dropped (else lost under load)
         pub = c.declare_publisher(k0, congestion_control=zenoh.CongestionControl.BLOCK)
         assert wait_matched_all([pub], 10.0), "the server's line subscriber never matched"
+        # the signers are team members in this run: each in session with the server (:mod:`swarmloc.net.pairing`)
+        assert all(attach(signed[r], c, "mapt").ensure(SERVER) for r in (0, 1)), "no session with the server"
         for _, payload in bad:
             pub.put(payload)
         assert _until(lambda: sp.counts["rejected"] >= len(bad), th), (sp.counts, sp.reasons)
         assert sp.counts["auth_unsigned"] == 1 and sp.counts["auth_not_owner"] == 1
-        assert any("line 0: a line must be 9 or 13 finite numbers" in r for r in sp.reasons)
+        assert any("line 0: a line must be 9 or 13 finite numbers" in r for r in sp.reasons), dict(sp.reasons)
         assert any("not positive definite" in r for r in sp.reasons)
         assert any("malformed" in r and "length" in r for r in sp.reasons), sp.reasons
         assert sp.maps.messages == 0 and not sp.maps.current().lines

@@ -22,12 +22,13 @@ def errors(track: RobotTrack) -> dict[str, np.ndarray]:
     """Per-record position error [m], heading error [rad] and NEES (SE(3) tracks: :func:`errors_se3`)."""
     if track.mean.shape[-1] == 7:
         return errors_se3(track)
-    ep = np.linalg.norm(track.mean[:, :2] - track.truth[:, :2], axis=1)
-    eh = wrap(track.mean[:, 2] - track.truth[:, 2])
-    y = SE2.log(
-        SE2.inverse(SE2.from_xytheta(track.mean), validate=False) @ SE2.from_xytheta(track.truth), validate=False
-    )
-    nees = np.einsum("ni,ni->n", y, np.linalg.solve(track.cov, y[..., None])[..., 0])
+    with np.errstate(invalid="ignore"):  # a row that is not finite has NaN errors (its caller counts it)
+        ep = np.linalg.norm(track.mean[:, :2] - track.truth[:, :2], axis=1)
+        eh = wrap(track.mean[:, 2] - track.truth[:, 2])
+        y = SE2.log(
+            SE2.inverse(SE2.from_xytheta(track.mean), validate=False) @ SE2.from_xytheta(track.truth), validate=False
+        )
+        nees = np.einsum("ni,ni->n", y, np.linalg.solve(track.cov, y[..., None])[..., 0])
     return {"pos": ep, "heading": eh, "nees": nees}
 
 
