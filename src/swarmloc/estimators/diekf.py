@@ -138,6 +138,9 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     """The state :meth:`_team_update` returns (``flsd`` keeps its own fields from it; SE(3): ``TeamState3``)."""
     """Dimension of a robot's error (3: SE(2); 6: SE(3), :mod:`swarmloc.estimators.diekf3`)."""
 
+    gated_broadcasts: ClassVar[bool] = True
+    """Whether a teammate's broadcast passed its sender's gate as it is (its normalized innovation is checked against
+    this node's gate: :meth:`_update_lie`)."""
     clusters: ClassVar[bool] = True
     """Whether the class takes ``cluster > 0`` (``flsd`` and the SE(3) form do not)."""
 
@@ -423,6 +426,6 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         if u.scale != 1.0 and not (self.cluster and u.target == u.sender and u.scale >= W_BOUNDS[0]):
             return f"broadcast of robot {u.sender} scaled as no robot of this team scales one"
         m = u.m
-        if fits(self.gate, broadcast_nis(np.array(u.Sinv).reshape(m, m), np.array(u.nu)), m):
+        if not self.gated_broadcasts or fits(self.gate, broadcast_nis(np.reshape(u.Sinv, (m, m)), np.array(u.nu)), m):
             return None
         return f"broadcast of robot {u.sender} beyond the gate"

@@ -3,7 +3,8 @@
 A teammate (an insider: its own valid key) may lie. What the receiver knows to check it with is its own belief (and,
 for ``diekf``, its replica of the team's cross-covariances); every check is the node's chi-square gate
 (:class:`~swarmloc.node.update.Gate`, probability ``p``, threshold ``gamma_m`` of dimension ``m``). Without a gate
-(``gate=None``) a node takes whatever its teammates send, as before.
+(``gate=None``) a node takes whatever its teammates send, as before (but for a ``diekf`` broadcast that would leave
+its covariance not positive definite).
 
 * **Answers** (a teammate's belief or state at the observer's detection) enter the detection's innovation, whose
   covariance the observer computes; the gate refuses a detection whose innovation does not fit (``gated``). A gated
@@ -20,7 +21,9 @@ for ``diekf``, its replica of the team's cross-covariances); every check is the 
   S^-1 r``) ``<= gamma_m``, which the sender's gate held; and the covariance it leaves this robot positive definite
   (else it is not applied: ``updates_unusable``). An update that fails is refused before it reaches the history,
   counted (``updates_refused``, ``messages_rejected`` with the reason) and against its sender (``suspect_<robot>``).
-  One exception: an ``rdl`` pair whose correlation is unknown (after a lost exchange) is fused by covariance
+  ``flsd`` broadcasts its landmark updates linearized at its smoothed pose, where its gate does not bound their
+  normalized innovation: only the covariance they leave is checked. One more exception: an ``rdl`` pair whose
+  correlation is unknown (after a lost exchange) is fused by covariance
   intersection, whose honest correction may reach ``gamma / (1 - w)``; such an update may be refused, which leaves
   the pair untracked, as a lost update does.
 
