@@ -22,6 +22,7 @@ import pytest
 from _insider import SHIFT, lie, lying
 
 import swarmloc.net.team as net_team
+from swarmloc.config import Config, FilterConfig
 from swarmloc.estimators import (
     DistributedInvariantEKF,
     InvariantRDL,
@@ -146,6 +147,21 @@ def test_clean_runs_refuse_nothing_and_suspect_only_the_gated(name: str):
     assert sum(v for k, v in res.stats.items() if k.startswith("suspect_")) == res.stats["gated"]  # ... all suspected
     for r in src.robots:
         assert _moved(res, never, r) == 0.0
+
+
+def test_quarantine_is_a_setting():
+    """``[filter] quarantine`` reaches the nodes (false: never); a node refuses a nonsensical one, naming it."""
+    never = Config().replace(filter=FilterConfig(quarantine=False))
+    assert node_options("rdl", never, None)["quarantine"] is None
+    assert node_options("diekf", Config(), None)["quarantine"] == 3
+    with pytest.raises(ValueError, match="'quarantine' must be an integer >= 1"):
+        _node(RecursiveDecentralized, quarantine=0)
+    node = _node(RecursiveDecentralized, quarantine=None)
+    for t in (1.0, 2.0, 3.0, 4.0):
+        a = _ask(node, t)
+        far = np.array(a.x) + _along(np.reshape(a.P, (3, 3)), 2.0 * chi2_ppf(GATE, 3))
+        node.step(RdlUpdate(sender=1, receiver=0, stamp=t, sub=a.sub, based_on=a.seq, x=flat(far), P=a.P))
+    assert node.stats()["updates_refused"] == 4 and node.quarantined == frozenset()
 
 
 # ------------------------------------------------------------------------------------------------ the bound
