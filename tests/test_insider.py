@@ -196,9 +196,12 @@ def test_an_update_passes_only_within_the_gate_and_three_refused_quarantine(cls:
     """An update moves its receiver from the state it answered by ``delta``: within the gate (``delta^T P^-1 delta
     <= gamma_3``) it is taken, and the receiver moves by exactly that; beyond, it is refused and counted against the
     sender, the belief untouched. Three refused in a row quarantine the sender: its next messages are refused
-    (a query answered "not found"), and the receiver asks it nothing more."""
+    (a query answered "not found"), the receiver's detection waiting for its answer is given up, and the receiver
+    asks it nothing more."""
     node = _node(cls)
     gamma = chi2_ppf(GATE, 3)
+    waiting = node.step(Detection(0, 3.5, "pose", np.array([1.0, 0.0, 0.0]), 1e-4 * np.eye(3), target=1))
+    assert [type(q) for q in waiting] == [RdlStateQuery] and node.pending == 1  # never answered
     a = _ask(node, 1.0)
     x, P = np.array(a.x), np.reshape(a.P, (3, 3))
     delta = _along(P, 0.99 * gamma)
@@ -219,6 +222,7 @@ def test_an_update_passes_only_within_the_gate_and_three_refused_quarantine(cls:
         np.testing.assert_array_equal(after.mean, before.mean)
         assert node.stats()["updates_refused"] == k + 1 and node.suspects == {1: k + 1}
         assert node.quarantined == (frozenset({1}) if k == 2 else frozenset())
+    assert node.pending == 0 and node.reasons["unknown: robot 1: robot 1 is quarantined"] == 1
     out = node.step(BeliefQuery(sender=1, receiver=0, stamp=4.5))
     assert len(out) == 1 and not out[0].found and out[0].reason == "robot 1 is quarantined"
     assert node.step(RdlUpdate(sender=1, receiver=0, stamp=4.0, sub=(4.0,), based_on=0, x=flat(x), P=a.P)) == []
@@ -227,7 +231,7 @@ def test_an_update_passes_only_within_the_gate_and_three_refused_quarantine(cls:
     assert node.reasons["message rejected: robot 1 is quarantined"] == 2
     det = Detection(0, 5.0, "pose", np.array([1.0, 0.0, 0.0]), 1e-4 * np.eye(3), target=1)
     assert node.step(det) == []  # nothing asked of robot 1
-    assert node.stats()["unknown"] == 1 and node.reasons["unknown: robot 1: robot 1 is quarantined"] == 1
+    assert node.stats()["unknown"] == 2 and node.reasons["unknown: robot 1: robot 1 is quarantined"] == 2
 
 
 def _broadcast(P: np.ndarray, k: float, Sinv: np.ndarray | None = None, **kw) -> TeamUpdate:
