@@ -40,6 +40,8 @@ Five sections, every key optional (a missing key keeps its default; defaults are
     association = "tags"  # robot detections' identities: tags (given), nearest, joint (chosen from the beliefs,
                           # ids hidden), anonymous (PMR + particle-filter bank, ids hidden; swarmloc.association)
     association_gate = 0.99  # chi-square probability in (0, 1) of the association gate
+    quarantine = 3     # a teammate's updates refused in a row (beyond the gate) that quarantine it for the run;
+                       # false (or 0): never (swarmloc.node.trust)
 
     [record]
     rate = 4.0         # [Hz] in (0, 1000]: rate at which beliefs are recorded
@@ -247,6 +249,8 @@ class FilterConfig:
     leaves the window (``smoother_lag`` s late), scored beside the causal belief as ``"<name>_delayed"`` and
     published by network nodes (:mod:`swarmloc.evaluation.delayed`). ``diekf_cluster`` (an integer ``>= 0``): robots
     per ``diekf`` cluster, 0 for the exact filter over the whole team (:mod:`swarmloc.estimators.diekf`).
+    ``quarantine``: a teammate's updates refused in a row (each beyond the gate) that quarantine it for the run, an
+    integer ``>= 1``, or None: never (TOML: ``quarantine = false`` or ``0``; :mod:`swarmloc.node.trust`).
     """
 
     SECTION: ClassVar[str] = "filter"
@@ -263,6 +267,7 @@ class FilterConfig:
         "smoother_lag": "[s] window of the fixed-lag smoothers fls and flsd",
         "delayed_output": "true or false: fls and flsd also output each pose as it leaves the window",
         "diekf_cluster": "robots per diekf cluster (0: the exact filter over the whole team)",
+        "quarantine": "a teammate's updates refused in a row that quarantine it for the run; false: never",
     }
     ASSOCIATIONS: ClassVar[tuple[str, ...]] = ("tags", "nearest", "joint", "anonymous")
 
@@ -278,9 +283,14 @@ class FilterConfig:
     smoother_lag: float = 2.0
     delayed_output: bool = False
     diekf_cluster: int = 0
+    quarantine: int | None = 3
 
     def __post_init__(self) -> None:
         s = self.SECTION
+        q = self.quarantine
+        if q is not None and q is not False and not (isinstance(q, int | np.integer) and q == 0):  # (True is 1)
+            q = _integer(s, "quarantine", q, None, 1, "an integer >= 1, or false (or 0): never")
+        _set(self, "quarantine", q or None)
         _set(self, "diekf_cluster", _integer(s, "diekf_cluster", self.diekf_cluster, None, 0, "an integer >= 0"))
         _set(self, "smoother_lag", _positive(s, "smoother_lag", self.smoother_lag))
         if not isinstance(self.delayed_output, bool):
@@ -452,12 +462,13 @@ class Config:
         return cls(**parts)
 
     def to_dict(self) -> dict[str, dict[str, object]]:
-        """``{section: {key: value}}`` with every key (``gate`` None becomes False, as in TOML)."""
+        """``{section: {key: value}}`` with every key (``gate`` and ``quarantine`` None become False, as in TOML)."""
         out: dict[str, dict[str, object]] = {}
         for name in _SECTIONS:
             sec = getattr(self, name)
             out[name] = {f.name: getattr(sec, f.name) for f in fields(sec)}
         out["filter"]["gate"] = False if self.filter.gate is None else self.filter.gate
+        out["filter"]["quarantine"] = False if self.filter.quarantine is None else self.filter.quarantine
         return out
 
     def to_toml(self) -> str:

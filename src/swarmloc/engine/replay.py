@@ -116,6 +116,7 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
     opts = {**node_options(estimator, src.config, src.landmarks), **own_noise, **options}
     for clock_only in ("tolerance", "jump_inputs"):  # the engine replays a checked log: no clock contract to keep
         opts.pop(clock_only, None)
+    opts.pop("quarantine", None)  # nor a teammate that could lie (swarmloc.node.trust)
     opts.pop("association_gate", None)
     if opts.pop("association", "tags") != "tags":
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")

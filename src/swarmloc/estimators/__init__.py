@@ -168,6 +168,7 @@ def node_options(
         lag=f.smoother_lag,
         delayed=f.delayed_output,
         cluster=f.diekf_cluster,
+        quarantine=f.quarantine,
         # "anonymous" hands the nodes tagged relative poses (swarmloc.experiments.association): they run "tags"
         **({"association": f.association} if choose else {}),
         association_gate=f.association_gate,

@@ -30,6 +30,14 @@ broadcast as empty updates, so that every teammate knows the exchange is settled
 detection retracts what it sent before. Over the network each update is one broadcast to the team, numbered per
 sender, lost ones repaired (:mod:`swarmloc.net.broadcast`).
 
+**A lying teammate** (:mod:`swarmloc.node.trust`). A broadcast is applied only when its own normalized innovation
+``nu^T S nu`` is within the gate (as the sender's gate held it) and, when scaled, it is a cluster's
+covariance-intersection update of its sender alone; else it is refused (``updates_refused``, ``suspect_<sender>``;
+three in a row quarantine the sender). One that would leave this robot's covariance not positive definite is not
+applied (``updates_unusable``). A broadcast that passes moves a robot by at most ``sqrt(gamma_m)`` of its own standard
+deviations. The check reads the broadcast alone, so every teammate refuses the same ones and the honest replicas stay
+equal; a broadcast that one robot cannot apply leaves its replica apart from the others'.
+
 **Clusters** (``cluster = K``, ``[filter] diekf_cluster``). The team is cut into clusters of ``K`` robots in id
 order; each robot keeps the replica of its own cluster only and broadcasts to it, so memory is ``O(K^2)`` and the
 work per detection ``O(K^2)`` per robot whatever the team's size. Inside a cluster the filter is exact; a robot
@@ -61,7 +69,7 @@ from swarmloc.estimators.rdl import RecursiveDecentralized
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
-from swarmloc.kernels.ci import joint_weight
+from swarmloc.kernels.ci import W_BOUNDS, joint_weight
 from swarmloc.lie import SE2
 from swarmloc.messages import (
     BeliefAnswer,
@@ -72,7 +80,19 @@ from swarmloc.messages import (
     TeamUpdate,
     flat,
 )
-from swarmloc.node import FUSED, NUMERICAL, Group, Node, Outcome, belief_of, usable_covariance
+from swarmloc.node import (
+    FUSED,
+    NUMERICAL,
+    P_GROUP,
+    Group,
+    Node,
+    Outcome,
+    belief_of,
+    broadcast_nis,
+    fits,
+    positive_definite,
+    usable_covariance,
+)
 from swarmloc.sensors.models import model
 
 __all__ = ["DistributedInvariantEKF", "TeamState"]
@@ -118,6 +138,9 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     """The state :meth:`_team_update` returns (``flsd`` keeps its own fields from it; SE(3): ``TeamState3``)."""
     """Dimension of a robot's error (3: SE(2); 6: SE(3), :mod:`swarmloc.estimators.diekf3`)."""
 
+    gated_broadcasts: ClassVar[bool] = True
+    """Whether a teammate's broadcast passed its sender's gate as it is (its normalized innovation is checked against
+    this node's gate: :meth:`_update_lie`)."""
     clusters: ClassVar[bool] = True
     """Whether the class takes ``cluster > 0`` (``flsd`` and the SE(3) form do not)."""
 
@@ -137,6 +160,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         k = everyone.index(int(robot)) // cluster if cluster else 0
         self.team = everyone[k * cluster : (k + 1) * cluster] if cluster else everyone
         self._pos = {r: k for k, r in enumerate(self.team)}
+        self._unusable: set[tuple] = set()
         super().__init__(robot, initial, team=self.team, **kw)
 
     # ------------------------------------------------------------------------------------------------ filter
@@ -373,4 +397,35 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         Hi, Hj = A(u.Hi).reshape(m, n), A(u.Hj).reshape(m, n)
         Sinv, nu = A(u.Sinv).reshape(m, m), A(u.nu)
         Pii, Pjj = A(u.Pii).reshape(n, n), A(u.Pjj).reshape(n, n)
-        return self._team_update(s, u.sender, u.target, Hi, Hj, Sinv, nu, Pii, Pjj, float(u.scale)), True
+        new = self._team_update(s, u.sender, u.target, Hi, Hj, Sinv, nu, Pii, Pjj, float(u.scale))
+        usable = positive_definite(new.P)
+        self._count_unusable((float(u.stamp), P_GROUP, u.sender, tuple(u.sub)), not usable)
+        return (new if usable else s), True
+
+    def _count_unusable(self, key: tuple, unusable: bool) -> None:
+        """Keep ``updates_unusable`` the number of broadcasts whose last application left this robot's covariance not
+        positive definite (not applied: no honest broadcast does that, :mod:`~swarmloc.node.trust`)."""
+        if unusable and key not in self._unusable:
+            self._unusable.add(key)
+            self.counts["updates_unusable"] += 1
+        elif not unusable and key in self._unusable:
+            self._unusable.discard(key)
+            self.counts["updates_unusable"] -= 1
+
+    def _prune(self) -> None:
+        super()._prune()
+        cutoff = self._clock.present - self.horizon
+        self._unusable = {k for k in self._unusable if k[0] >= cutoff}  # (their count stands)
+
+    def _update_lie(self, u: Message) -> str | None:
+        """A broadcast must be what a teammate with this node's gate sent: its own normalized innovation ``nu^T S nu
+        <= gamma_m`` (the sender's gate held it), and scaled only as a cluster's covariance-intersection update of
+        its sender alone, ``w`` within the bounds the sender chooses it in (:mod:`~swarmloc.node.trust`)."""
+        if self.gate.p is None or not isinstance(u, TeamUpdate) or u.empty:
+            return None
+        if u.scale != 1.0 and not (self.cluster and u.target == u.sender and u.scale >= W_BOUNDS[0]):
+            return f"broadcast of robot {u.sender} scaled as no robot of this team scales one"
+        m = u.m
+        if not self.gated_broadcasts or fits(self.gate, broadcast_nis(np.reshape(u.Sinv, (m, m)), np.array(u.nu)), m):
+            return None
+        return f"broadcast of robot {u.sender} beyond the gate"

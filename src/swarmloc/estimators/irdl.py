@@ -74,6 +74,10 @@ class InvariantRDL(RecursiveDecentralized):
         g = SE2.from_xytheta(s.x)
         return belief_of(g, I.world_to_body(g, s.P))
 
+    def _correction(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        """The world-frame correction that takes the pose ``x0`` to ``x1`` (what an update's check measures)."""
+        return I.world_delta(x0, x1)
+
     def _log_update(self, t: float, blocks: dict[int, np.ndarray], R: np.ndarray) -> None:
         if self.lin_log is not None:
             self.lin_log.append(("update", t, blocks, R))

@@ -33,6 +33,12 @@ answer that differs from the latest by less than :func:`near` still applies (mos
 small). Without faults every placeholder is replaced by its update before anything reads it, so the result is
 unchanged (``tests/test_net.py``: networked = in-process; ``tests/test_rdl_faults.py``).
 
+**A lying teammate** (:mod:`swarmloc.node.trust`). An update must move this robot from the state it answered by a
+correction within the gate, ``delta^T P^-1 delta <= gamma_3`` (which every honest joint update of a tracked or
+independent pair meets); one beyond is refused before it is filed (``updates_refused``, ``suspect_<sender>``), which
+leaves the exchange as a lost update leaves it (its placeholder stands: the pair's correlation is dropped), and
+three in a row quarantine the sender.
+
 **Anonymous detections** (``association`` ``nearest`` or ``joint``, :mod:`swarmloc.node.associate`): the pair's
 exchange needs the target before the question, so for each anonymous detection ``d`` the observer asks **every
 teammate** ``r`` with an ``RdlStateQuery`` keyed :func:`anonymous_sub` ``(d, r)``, the key ``d`` would have were it
@@ -60,8 +66,9 @@ from swarmloc.estimators.dekf import DEGENERATE, CartState, DistributedEKF, line
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
+from swarmloc.lie import wrap_angle
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
-from swarmloc.node import FUSED, P_GROUP, Entry, Group, Outcome, gated_kalman, same
+from swarmloc.node import FUSED, P_GROUP, Entry, Group, Outcome, correction_nis, fits, gated_kalman, same
 from swarmloc.node.associate import is_anonymous
 from swarmloc.node.keys import detection_key
 from swarmloc.sensors.models import model
@@ -380,6 +387,34 @@ class RecursiveDecentralized(DistributedEKF):
                 return "update computed from an outdated state (stale)"
         return None
 
+    def _basis(self, u: RdlUpdate) -> RdlState | None:
+        """The answer ``u`` was computed from: this node's state of revision ``u.based_on`` sent for its exchange
+        (None: not kept)."""
+        key = (float(u.stamp), 1, u.sender, tuple(u.sub))
+        served = self._served.get((key, u.sender, "RdlStateQuery"))
+        if served is not None and served.seq == u.based_on:
+            return served
+        return self._answered.get((key, u.based_on))
+
+    def _update_lie(self, u: Message) -> str | None:
+        """An update must move this robot from the state it was computed from by a correction ``delta`` within the
+        gate, ``delta^T P^-1 delta <= gamma_3`` (:mod:`~swarmloc.node.trust`: an honest observer's gated joint update
+        passes by construction)."""
+        basis = self._basis(u) if isinstance(u, RdlUpdate) else None
+        if basis is None or self.gate.p is None:
+            return None
+        x0, P0, _ = basis.arrays()
+        if fits(self.gate, correction_nis(self._correction(x0, u.arrays()[0]), P0), 3):
+            return None
+        return f"update of robot {u.sender} beyond the gate of this robot's own belief"
+
+    def _correction(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        """The correction that takes the state ``x0`` to ``x1`` in the filter's error coordinates (Cartesian, the
+        angle wrapped)."""
+        d = x1 - x0
+        d[2] = wrap_angle(d[2])
+        return d
+
     def _apply_update(self, s: RdlFilter, u: RdlUpdate | Unconfirmed) -> tuple[RdlFilter, bool]:
         """A neighbour's joint update, while the state it was computed from is still the state before its key: new
         ``(x, P)``, ``sigma_ji <- I``, the other factors rescaled. A placeholder, or an update that no longer
@@ -388,10 +423,8 @@ class RecursiveDecentralized(DistributedEKF):
         if isinstance(u, Unconfirmed):
             return s.without_factor(u.observer), True
         s = self._adv(s, u.receiver, u.stamp)
-        key = (float(u.stamp), 1, u.sender, tuple(u.sub))
-        served = self._served.get((key, u.sender, "RdlStateQuery"))
         q = RdlStateQuery(sender=u.sender, receiver=u.receiver, stamp=u.stamp, sub=u.sub)
-        basis = served if served is not None and served.seq == u.based_on else self._answered.get((key, u.based_on))
+        basis = self._basis(u)
         if basis is None or not near(basis, self._answer(s, q)):
             return s.without_factor(u.sender), True  # a revised answer went out: its update will replace this
         x, P = u.arrays()

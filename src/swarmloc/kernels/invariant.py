@@ -38,6 +38,7 @@ __all__ = [
     "left_correct",
     "world_basis",
     "world_basis_inv",
+    "world_delta",
     "world_to_body",
     "world_to_cartesian_cov",
 ]
@@ -94,3 +95,9 @@ def left_correct(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
     g = SE2.exp(np.asarray(delta, dtype=float)) @ SE2.from_xytheta(np.asarray(x, dtype=float))
     th = wrap_angle(np.arctan2(g[..., 1, 0], g[..., 0, 0]))
     return np.stack([g[..., 0, 2], g[..., 1, 2], th], axis=-1)
+
+
+def world_delta(x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+    """The world-frame correction ``delta (3,)`` with ``exp(hat(delta)) g(x0) = g(x1)`` (:func:`left_correct`'s
+    inverse) of two Cartesian poses ``(3,)``."""
+    return SE2.log(SE2.from_xytheta(x1) @ SE2.inverse(SE2.from_xytheta(x0), validate=False))

@@ -5,7 +5,8 @@ estimators (:mod:`swarmloc.estimators`). Parts: :mod:`~swarmloc.node.clock` (pre
 jumps), :mod:`~swarmloc.node.inputs` (the input contract, odometry timelines), :mod:`~swarmloc.node.history`
 (entries, states, replay), :mod:`~swarmloc.node.protocol` (messages accepted, answered, refused, revised),
 :mod:`~swarmloc.node.accounting` (counters that add up), :mod:`~swarmloc.node.update` (the one Kalman update
-with its gate), :mod:`~swarmloc.node.keys` (history keys, entries, detection groups).
+with its gate), :mod:`~swarmloc.node.keys` (history keys, entries, detection groups), :mod:`~swarmloc.node.trust`
+(teammates' messages checked, suspects, quarantine).
 """
 
 from swarmloc.node.accounting import OUTCOMES, STAT_KEYS, Accounting
@@ -15,11 +16,22 @@ from swarmloc.node.inputs import Landmarks, OdometryTimeline, landmark_state, od
 from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
 from swarmloc.node.protocol import belief_answer, refusal, same
 from swarmloc.node.robot import RobotNode, check_model
-from swarmloc.node.update import FUSED, NUMERICAL, Gate, Outcome, chi2_ppf, gated_kalman, usable_covariance
+from swarmloc.node.trust import DEFAULT_QUARANTINE, broadcast_nis, correction_nis, fits
+from swarmloc.node.update import (
+    FUSED,
+    NUMERICAL,
+    Gate,
+    Outcome,
+    chi2_ppf,
+    gated_kalman,
+    positive_definite,
+    usable_covariance,
+)
 
 __all__ = [
     "DEFAULT_CONFIRM",
     "DEFAULT_HORIZON",
+    "DEFAULT_QUARANTINE",
     "DEFAULT_TOLERANCE",
     "FUSED",
     "NUMERICAL",
@@ -40,12 +52,16 @@ __all__ = [
     "RobotNode",
     "belief_answer",
     "belief_of",
+    "broadcast_nis",
     "check_model",
     "chi2_ppf",
+    "correction_nis",
     "detection_key",
+    "fits",
     "gated_kalman",
     "landmark_state",
     "odometry_problem",
+    "positive_definite",
     "refusal",
     "same",
     "usable_covariance",

@@ -5,6 +5,8 @@ Detections end in exactly one of ``fused``, ``gated`` (innovation beyond the chi
 an answer, or held while the node decides whether its robot's clock jumped). A replay takes an entry's old
 outcomes back before counting the new ones, so nothing is counted twice. Odometry is ``odometry_used`` or
 ``odometry_rejected`` (or pending while held). Messages in are counted, and ``messages_rejected`` with a reason.
+Teammates' updates refused by their check, messages of quarantined teammates, and the refusals counted against each
+teammate (``updates_refused``, ``quarantined``, ``suspect_<robot>``): :mod:`~swarmloc.node.trust`.
 """
 
 from __future__ import annotations
@@ -40,7 +42,8 @@ OUTCOMES = ("fused", "gated", "rejected", "unknown")
 STAT_KEYS = (
     "detections", *OUTCOMES, "pending", "odometry", "odometry_used", "odometry_rejected", "odometry_pending",
     "odometry_stops", "late", "replayed", "future", "clock_resets", "clock_jumps", "messages",
-    "messages_rejected", "answers_sent", "not_yet_sent", "revisions_sent", *ASSOCIATION_KEYS,
+    "messages_rejected", "answers_sent", "not_yet_sent", "revisions_sent", "updates_refused", "updates_unusable",
+    "quarantined", *ASSOCIATION_KEYS,
 )  # fmt: skip
 """Keys of :meth:`Accounting.stats` (every one present, zeros included)."""
 

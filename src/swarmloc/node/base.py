@@ -10,7 +10,8 @@ they travel (sans-I/O). It is made of parts with one job each:
 * :mod:`~swarmloc.node.history`: stamped entries and states, replay of late input, the horizon;
 * :mod:`~swarmloc.node.protocol`: which messages are accepted, answered, refused and revised;
 * :mod:`~swarmloc.node.accounting`: counters that always add up;
-* :mod:`~swarmloc.node.update`: the one Kalman update with its gate (used by the filters).
+* :mod:`~swarmloc.node.update`: the one Kalman update with its gate (used by the filters);
+* :mod:`~swarmloc.node.trust`: teammates' messages checked against what the node knows, suspects, quarantine.
 
 **State as a function of the inputs** (keys: :mod:`~swarmloc.node.keys`). The state after a history entry is the
 state after the previous one with every robot the entry involves predicted to the entry's stamp with the
@@ -57,6 +58,7 @@ from swarmloc.node.inputs import (
 )
 from swarmloc.node.keys import Entry, Group, Key
 from swarmloc.node.protocol import Exchange, Served
+from swarmloc.node.trust import DEFAULT_QUARANTINE, GATED, Trust, gated_answers
 from swarmloc.node.update import Gate, Outcome
 from swarmloc.text import ids, numbers, stamp
 
@@ -86,6 +88,8 @@ class Node(Intake, Exchange):
     gate: chi-square gate probability in (0, 1) for innovations, or None (no gating).
     landmarks: known landmarks ``id -> (x, y, std_x, std_y)`` [m].
     use_relative, use_landmarks: whether detections of robots / of landmarks are fused (else rejected, counted).
+    quarantine: a teammate's updates refused in a row (each failing its check on the gate) after which it is
+        quarantined for the run, or None: never (:mod:`~swarmloc.node.trust`).
     """
 
     name: ClassVar[str] = "node"
@@ -113,18 +117,20 @@ class Node(Intake, Exchange):
         landmarks: Landmarks | None = None,
         use_relative: bool = True,
         use_landmarks: bool = True,
+        quarantine: int | None = DEFAULT_QUARANTINE,
     ) -> None:
         cls = type(self).__name__
         self._clock = Clock(horizon, tolerance, jump_inputs, cls)
+        self.accounting = Accounting(self.name)
         try:
             self.gate = Gate(gate)
+            self._trust = Trust(self.name, quarantine, self.accounting)
         except ValueError as exc:
             raise ValueError(f"{cls}: {exc}") from None
         self.robots: tuple[int, ...] = tuple(robots)
         self.landmarks = landmarks
         self.use_relative = use_relative
         self.use_landmarks = use_landmarks
-        self.accounting = Accounting(self.name)
         self.timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
         """With ``measure_time``: seconds and counts of predictions and of detection-group updates (net of the
         predictions inside them)."""
@@ -187,6 +193,17 @@ class Node(Intake, Exchange):
     def neighbours(self) -> frozenset[int]:
         """Robots this node has heard from in an accepted message (an answer that found a belief, an update)."""
         return frozenset(self._neighbours)
+
+    @property
+    def suspects(self) -> dict[int, int]:
+        """``robot -> refusals counted against that teammate`` (its answers gated, its updates refused), those above
+        zero (:mod:`~swarmloc.node.trust`; also in :meth:`stats` as ``suspect_<robot>``)."""
+        return self._trust.suspects()
+
+    @property
+    def quarantined(self) -> frozenset[int]:
+        """Teammates quarantined for the rest of the run (:mod:`~swarmloc.node.trust`)."""
+        return frozenset(self._trust.quarantined)
 
     @property
     def pending(self) -> int:
@@ -353,6 +370,11 @@ class Node(Intake, Exchange):
 
     def _update_problem(self, u: Message) -> str | None:
         """Why a neighbour's update (one of :attr:`update_types`) cannot be filed, or None."""
+        return None
+
+    def _update_lie(self, u: Message) -> str | None:
+        """Why a neighbour's update (filable) cannot be what a teammate with this node's gate sent: the reason it is
+        refused and counted against its sender (:mod:`~swarmloc.node.trust`), or None (default: no check)."""
         return None
 
     def _apply_update(self, s: Any, u: Message) -> tuple[Any, bool]:
@@ -547,6 +569,10 @@ class Node(Intake, Exchange):
             e.assoc = assoc
         self.accounting.recount(e.outcomes, outcomes)
         e.outcomes = outcomes
+        if view is None and (e.suspects or GATED in outcomes):  # gated answers count against their teammates
+            suspects = gated_answers(g, outcomes)
+            self._trust.recount(e.suspects, suspects)
+            e.suspects = suspects
         if self.accounting.ledger is not None:
             marks = [(g.observer, g.t, k, o[0]) for k, o in zip(g.keys, outcomes, strict=True)]
             self.accounting.remark(e.marks, marks)

@@ -28,6 +28,8 @@ from swarmloc.node.accounting import Accounting
 from swarmloc.node.clock import FUTURE, Clock
 from swarmloc.node.history import PRUNE_EVERY, History
 from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
+from swarmloc.node.protocol import not_found, quarantine_reason
+from swarmloc.node.trust import Trust
 from swarmloc.sensors.models import MODELS
 from swarmloc.sensors.models3 import MODELS3
 
@@ -306,6 +308,7 @@ class Intake:
     _timeline: OdometryTimeline
     _pending: dict[Key, Group]
     _since_prune: int
+    _trust: Trust
 
     # ------------------------------------------------------------------------------------------------ clock
     def _ensure_started(self, t: float) -> None:
@@ -490,8 +493,10 @@ class Intake:
         if applied is not None:  # the answers already received serve the new detections too
             g.answers = {**applied.answers, **g.answers}
         queries = [q for q in self._requests(g) if (q.receiver, q.sub) not in g.answers]
+        shut = self._trust.quarantined  # nothing is asked of a quarantined teammate: answered here, not found
         for q in queries:
-            g.answers[(q.receiver, q.sub)] = None
+            g.answers[(q.receiver, q.sub)] = not_found(q, quarantine_reason(q.receiver)) if q.receiver in shut else None
+        queries = [q for q in queries if q.receiver not in shut]
         if queries or (pending is not None and g.waiting()):
             self._pending[key] = g
             return queries

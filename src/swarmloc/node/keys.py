@@ -79,7 +79,7 @@ class Entry:
     neighbour's), its data, and the filter state after it (None: not computed yet, a command of a node
     whose filter predicts runs of commands at once; the history computes it when it is needed)."""
 
-    __slots__ = ("key", "kind", "data", "state", "outcomes", "sent", "marks", "assoc")
+    __slots__ = ("key", "kind", "data", "state", "outcomes", "sent", "marks", "assoc", "suspects")
 
     def __init__(self, key: Key, kind: str, data: Any) -> None:
         self.key = key
@@ -90,3 +90,4 @@ class Entry:
         self.sent: dict[tuple[int, tuple], Message] = {} if kind == "group" else _NOTHING_SENT
         self.marks: list[tuple] | tuple = ()  # replaced, never appended to
         self.assoc: Mapping[str, int] = _NOTHING_SENT  # association counters of a group (swarmloc.node.associate)
+        self.suspects: Mapping[int, int] = _NOTHING_SENT  # a group's gated answers by teammate (swarmloc.node.trust)

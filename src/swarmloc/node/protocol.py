@@ -11,7 +11,10 @@
   with a higher revision ``seq``.
 * **Answers** to the node's own queries complete its waiting detection groups; a stale or duplicate one (``seq``
   not higher than the one held) is refused. **Updates** from neighbours are filed in the history by the
-  estimators that take them.
+  estimators that take them, once they pass their check (:mod:`~swarmloc.node.trust`: refused, counted against
+  their sender otherwise).
+* A **quarantined** teammate's messages are all refused (counted ``quarantined``); its queries are answered
+  "not found" and nothing is asked of it any more (:mod:`~swarmloc.node.trust`).
 """
 
 from __future__ import annotations
@@ -25,7 +28,8 @@ import msgspec
 
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, flat, message_problem
-from swarmloc.node.keys import P_GROUP, Entry, Key
+from swarmloc.node.keys import P_GROUP, Entry, Group, Key
+from swarmloc.node.trust import Trust
 
 __all__ = [
     "SAME_RTOL",
@@ -34,6 +38,7 @@ __all__ = [
     "answer_type",
     "belief_answer",
     "not_found",
+    "quarantine_reason",
     "refusal",
     "same",
     "with_seq",
@@ -69,6 +74,11 @@ def answer_type(q: Message) -> type:
 def not_found(q: Message, reason: str) -> Message:
     """The answer to ``q`` saying that there is none, and why."""
     return answer_type(q)(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, found=False, reason=reason)
+
+
+def quarantine_reason(robot: int) -> str:
+    """Why a quarantined teammate's query is not answered and a query to it is not asked."""
+    return f"robot {robot} is quarantined"
 
 
 def belief_answer(q: Message, b: GroupGaussian) -> BeliefAnswer:
@@ -175,6 +185,7 @@ class Exchange:
     _served: Served
     _pending: dict
     _neighbours: set[int]
+    _trust: Trust
 
     # ------------------------------------------------------------------------------------------------ messages
     def _on_message(self, m: Message) -> list[Message]:
@@ -184,6 +195,8 @@ class Exchange:
         if why is not None:
             self.accounting.message_rejected(why)
             return []
+        if self._trust.shut_out(m.sender):
+            return [not_found(m, quarantine_reason(m.sender))] if isinstance(m, BeliefQuery | RdlStateQuery) else []
         if isinstance(m, BeliefQuery | RdlStateQuery):
             return self._on_query(m)
         if isinstance(m, BeliefAnswer | RdlState):
@@ -273,6 +286,10 @@ class Exchange:
                 self.counts["no_update"] += 1
             self._history.remove(pos)
             return self._replay(pos, late=True, changed=key) if pos < len(self._history) else self._revise(key)
+        lie = self._update_lie(u)
+        if lie is not None:
+            return self._shut_out_pending(u.sender) if self._trust.refused(u.sender, lie) else []
+        self._trust.accepted(u.sender)
         if pos is not None:
             old = self._history.entries[pos].data
             if old == u:
@@ -284,6 +301,21 @@ class Exchange:
                 return self._replay(pos, late=pos < len(self._history) - 1)
             return self._replay(pos, late=True)
         return self._file([Entry(key, "update", u)])
+
+    def _shut_out_pending(self, robot: int) -> list[Message]:
+        """``robot`` quarantined: the answers the waiting groups still expect from it are given up (not found), and the
+        groups that wait for nothing else are applied."""
+        out: list[Message] = []
+        for key in sorted(self._pending):
+            g: Group = self._pending[key]
+            for slot, a in g.answers.items():
+                if slot[0] == robot and a is None:
+                    g.answers[slot] = BeliefAnswer(sender=robot, receiver=g.observer, stamp=g.t, sub=slot[1],
+                                                   found=False, reason=quarantine_reason(robot))  # fmt: skip
+            if not g.waiting():
+                del self._pending[key]
+                out += self._commit_group(key, g)
+        return out
 
     def _placeholder(self, data: Any) -> bool:
         """Whether a history entry's ``data`` stands for an update not received yet (filed by the estimator when it

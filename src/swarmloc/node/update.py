@@ -18,7 +18,16 @@ import numpy as np
 
 from swarmloc.kernels import cartesian as C
 
-__all__ = ["FUSED", "NUMERICAL", "Gate", "Outcome", "chi2_ppf", "gated_kalman", "usable_covariance"]
+__all__ = [
+    "FUSED",
+    "NUMERICAL",
+    "Gate",
+    "Outcome",
+    "chi2_ppf",
+    "gated_kalman",
+    "positive_definite",
+    "usable_covariance",
+]
 
 Outcome = tuple[str, str]
 """``(outcome, reason)``: outcome ``fused``, ``gated``, ``rejected`` or ``unknown``; reason empty for fused."""
@@ -70,6 +79,11 @@ def usable_covariance(P: np.ndarray) -> bool:
             tr = p00 + p11 + p22
             if p00 > 0 and m2 > 1e-9 * tr * tr and m3 > 1e-9 * tr * tr * tr:
                 return True
+    return positive_definite(P)
+
+
+def positive_definite(P: np.ndarray) -> bool:
+    """Finite and positive definite as ``numpy.linalg.cholesky`` decides (no margin)."""
     if not np.isfinite(P).all():
         return False
     try:
