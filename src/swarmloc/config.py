@@ -3,7 +3,8 @@
 Five sections, one class each: ``[motion]`` (:class:`MotionConfig`), ``[sensors]`` (:class:`SensorConfig`),
 ``[filter]`` (:class:`FilterConfig`), ``[record]`` (:class:`RecordConfig`) and ``[initial]`` (:class:`InitialConfig`).
 Every key is optional: a key that a file does not set keeps its default (the MRCLAM evaluation defaults of
-:mod:`swarmloc.experiments.mrclam`). For example::
+:mod:`swarmloc.experiments.mrclam`); every key with its default, unit, range and meaning is listed by
+``swarmloc config --defaults`` and in the documentation's page :doc:`/configuration`. For example::
 
     [filter]
     gate = 0.99     # probability of the innovation gate (false: no gate)
@@ -29,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import functools
 import json
 import math
 import os
@@ -171,11 +171,15 @@ def _checked(cls: type[Section], key: str, tp: Any, value: object) -> Any:
     raise ConfigError(f"{what} ({meaning})" if meaning else what)
 
 
-@functools.cache
+_TYPES: dict[type, dict[str, Any]] = {}
+
+
 def _types(cls: type) -> dict[str, Any]:
-    """``{key: declared type}`` of a section, in declaration order."""
-    hints = typing.get_type_hints(cls, include_extras=True)
-    return {f.name: hints[f.name] for f in fields(cls)}
+    """``{key: declared type}`` of a section, in declaration order (resolved once per class)."""
+    if cls not in _TYPES:
+        hints = typing.get_type_hints(cls, include_extras=True)
+        _TYPES[cls] = {f.name: hints[f.name] for f in fields(cls)}
+    return _TYPES[cls]
 
 
 def _literal(value: object) -> str:
@@ -251,7 +255,6 @@ class SensorConfig(Section):
     """
 
     SECTION: ClassVar[str] = "sensors"
-    DECORRELATE: ClassVar[tuple[str, ...]] = ("calibrate", "weights", "off")
 
     range_std: Positive = 0.1
     """[m] range std"""
@@ -289,7 +292,6 @@ class FilterConfig(Section):
     """
 
     SECTION: ClassVar[str] = "filter"
-    ASSOCIATIONS: ClassVar[tuple[str, ...]] = ("tags", "nearest", "joint", "anonymous")
 
     gate: Probability | None = 0.997
     """chi-square probability of the innovation gate on the normalized innovation squared"""
@@ -404,7 +406,7 @@ class Config:
         if not isinstance(d, Mapping):
             raise ConfigError(f"{source}: expected a mapping of sections, got {type(d).__name__}")
         known = list(_SECTIONS)
-        parts: dict[str, object] = {}
+        parts: dict[str, Any] = {}
         for name, body in d.items():
             if name not in _SECTIONS:
                 if isinstance(body, Mapping):
@@ -450,7 +452,7 @@ class Config:
                 lines.append(f"{key} = {_literal(value)}  # {note}")
         return "\n".join(lines) + "\n"
 
-    def replace(self, **sections: object) -> Config:
+    def replace(self, **sections: Any) -> Config:
         """A copy with whole sections replaced, e.g. ``c.replace(filter=FilterConfig(gate=None))``."""
         unknown = sorted(set(sections) - set(_SECTIONS))
         if unknown:

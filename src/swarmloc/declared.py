@@ -9,7 +9,6 @@ where it has one (``[Hz] rate of the outputs.``); Sphinx renders the same docstr
 from __future__ import annotations
 
 import ast
-import functools
 import inspect
 import textwrap
 from collections.abc import Iterable, Sequence
@@ -17,7 +16,6 @@ from collections.abc import Iterable, Sequence
 __all__ = ["attribute_docs", "markdown_table"]
 
 
-@functools.cache
 def attribute_docs(cls: type) -> dict[str, str]:
     """``{field: docstring}`` of the class's annotated fields that have one, each on one line (read from the class's
     source; empty where the source cannot be read)."""
