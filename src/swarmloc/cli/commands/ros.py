@@ -48,10 +48,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="FILE.mcap",
         help="run: record this robot's beliefs as ROS 2 messages in an MCAP file",
     )
-    r.set_defaults(func=cmd_ros)
+    r.set_defaults(func=run)
 
 
-def cmd_ros(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
+    """Run, replay, simulate or list the parameters of the ROS 2 node; 0, or 2 on bad input, 130."""
     from swarmloc.ros.args import RosArgs, RosArgsError
     from swarmloc.ros.params import ParamsError
 
@@ -66,7 +67,7 @@ def cmd_ros(args: argparse.Namespace) -> int:
             return _replay(args, ros)
         if args.action == "sim":
             return _sim(args, ros)
-        return _run(args, ros)
+        return _run_node(args, ros)
     except ModuleNotFoundError as exc:
         if exc.name in ("cyclonedds", "yaml"):
             print(f"{HINT} ({exc.name} is missing)", file=sys.stderr)
@@ -152,7 +153,7 @@ def _view(args: argparse.Namespace, params: Any) -> Any:
     return view
 
 
-def _run(args: argparse.Namespace, ros: Any) -> int:
+def _run_node(args: argparse.Namespace, ros: Any) -> int:
     import logging
     import signal
 
