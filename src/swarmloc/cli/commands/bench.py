@@ -9,11 +9,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``bench`` command: its options (:func:`swarmloc.experiments.bench.add_arguments`) and help."""
     from swarmloc.experiments.bench import add_arguments
 
-    bp = sub.add_parser(
-        "bench",
-        help="speed on this machine: fusion step (engine vs filterpy), memory and FLOP fractions, swarms of 100 to "
-        "10,000 robots, MRCLAM replay x real time",
-    )
+    bp = sub.add_parser("bench", help="speed on this machine: fusion step (engine vs filterpy), memory and FLOP "
+                        "fractions, swarms of 100 to 10,000 robots, MRCLAM replay x real time")  # fmt: skip
     add_arguments(bp)
     bp.set_defaults(func=run)
 

@@ -8,11 +8,8 @@ import argparse
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``consistency`` command: its options and help."""
-    cs = sub.add_parser(
-        "consistency",
-        help="Monte Carlo ANEES per estimator vs the 95%% chi-square band, a simulated team without and with "
-        "landmarks: table, JSON and NEES-over-time figure",
-    )
+    cs = sub.add_parser("consistency", help="Monte Carlo ANEES per estimator vs the 95%% chi-square band, a simulated "
+                        "team without and with landmarks: table, JSON and NEES-over-time figure")  # fmt: skip
     cs.add_argument("--estimators", default=None, help="comma-separated names (default: all registered but mcl, dr)")
     cs.add_argument("--seeds", type=int, default=50, help="independent simulated teams (default 50)")
     cs.add_argument("--robots", type=int, default=5, help="team size (default 5)")

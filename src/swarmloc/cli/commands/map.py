@@ -7,11 +7,9 @@ import argparse
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``map`` command: its options and help."""
-    mp = sub.add_parser(
-        "map",
-        help="the chapter's map-building experiment (robots H1, H2): line maps by dead reckoning, each robot alone "
-        "and the cooperative team, their error against the true walls; table, figure, GeoJSON/DXF",
-    )
+    mp = sub.add_parser("map", help="the chapter's map-building experiment (robots H1, H2): line maps by dead "
+                        "reckoning, each robot alone and the cooperative team, their error against the true walls; "
+                        "table, figure, GeoJSON/DXF")  # fmt: skip
     mp.add_argument("--seeds", type=int, default=3, help="simulated runs (default 3)")
     mp.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
     mp.add_argument("--estimators", default="expfusion,diekf", help="cooperative estimators (default expfusion,diekf)")

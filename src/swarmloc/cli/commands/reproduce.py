@@ -11,16 +11,13 @@ from pathlib import Path
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``reproduce`` command: its options and help."""
-    r = sub.add_parser(
-        "reproduce",
-        help="reproduce a study: 'thesis' (chapter 5 and Table 6.1) or 'tables' (Tables 5.1/5.2 over many seeds)",
-    )
+    r = sub.add_parser("reproduce", help="reproduce a study: 'thesis' (chapter 5 and Table 6.1) or 'tables' "
+                       "(Tables 5.1/5.2 over many seeds)")  # fmt: skip
     r.add_argument("what", help="thesis | tables")
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--seeds", type=int, default=20, help="seeds per dynamic experiment, or pooled seeds (default 20)")
-    r.add_argument(
-        "--reps", type=int, default=None, help="repetitions for Tables 5.1/5.2 (60; with 'tables': per seed, 20000)"
-    )
+    r.add_argument("--reps", type=int, default=None,
+                   help="repetitions for Tables 5.1/5.2 (60; with 'tables': per seed, 20000)")  # fmt: skip
     r.add_argument("--first-seed", type=int, default=100, help="tables: first of the pooled seeds (default 100)")
     r.add_argument("--quick", action="store_true", help="few seeds and short runs (a smoke test)")
     r.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -15,36 +15,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     sv = sub.add_parser("server", help="run the belief server of a team (stores every robot's Gaussian)")
     add_net_args(sv)
     sv.add_argument("--robots", default=None, help="the team's robot ids, comma-separated (default: the roster's)")
-    sv.add_argument(
-        "--estimator",
-        default=None,
-        help="host a centralized estimator (cekf, iekf, fej) fed by the "
-        "robots' forwarded measurements ('swarmloc node --estimator' the same on every robot)",
-    )
-    sv.add_argument(
-        "--source",
-        default=None,
-        help="with --estimator: the team's source (initial beliefs, landmarks, "
-        "configuration, record times; its events come from the robots)",
-    )
+    sv.add_argument("--estimator", default=None, help="host a centralized estimator (cekf, iekf, fej) fed by the "
+                    "robots' forwarded measurements ('swarmloc node --estimator' the same on every robot)")  # fmt: skip
+    sv.add_argument("--source", default=None, help="with --estimator: the team's source (initial beliefs, landmarks, "
+                    "configuration, record times; its events come from the robots)")  # fmt: skip
     sv.add_argument("--config", default=None, help="with --estimator: TOML file of model and filter settings")
     sv.add_argument("--duration", type=float, default=None, help="with --estimator: seconds of the source")
     sv.add_argument("--seed", type=int, default=0, help="with --estimator, sim: seed")
     sv.add_argument("--association", choices=ASSOCIATION_CHOICES, default=None,
                     help="with --estimator: " + ASSOCIATION_HELP)  # fmt: skip
-    sv.add_argument(
-        "--start-timeout",
-        type=float,
-        default=30.0,
-        help="with --estimator: seconds it waits for every robot's first forward (default 30)",
-    )
-    sv.add_argument(
-        "--lost-timeout",
-        type=float,
-        default=10.0,
-        help="with --estimator: seconds a robot's stream may "
-        "stay silent while the fusion waits on it before it is declared lost (default 10)",
-    )
+    sv.add_argument("--start-timeout", type=float, default=30.0,
+                    help="with --estimator: seconds it waits for every robot's first forward (default 30)")  # fmt: skip
+    sv.add_argument("--lost-timeout", type=float, default=10.0, help="with --estimator: seconds a robot's stream may "
+                    "stay silent while the fusion waits on it before it is declared lost (default 10)")  # fmt: skip
     sv.add_argument("--map-out", default=None, help="save the fused line map there as GeoJSON when it stops")
     add_auth_args(sv)
     sv.set_defaults(func=run)
