@@ -62,15 +62,17 @@ html_title = "swarmloc"
 
 
 def _generated() -> None:
-    """Pages made from the code's one declaration of a thing: the ROS node's parameters (``ros.md`` includes it)."""
+    """Pages made from the code's one declaration of a thing: the ROS node's parameters (``ros2.md`` includes it) and
+    the configuration's keys (``configuration.md``)."""
+    from swarmloc.config import config_markdown
     from swarmloc.ros.params import params_markdown
 
     out = ROOT / "docs" / "_generated"
     out.mkdir(exist_ok=True)
-    text = params_markdown()
-    path = out / "ros_params.md"
-    if not path.exists() or path.read_text() != text:  # rewritten only when it changed: no needless rebuild
-        path.write_text(text)
+    for name, text in (("ros_params.md", params_markdown()), ("config_keys.md", config_markdown())):
+        path = out / name
+        if not path.exists() or path.read_text() != text:  # rewritten only when it changed: no needless rebuild
+            path.write_text(text)
 
 
 _generated()

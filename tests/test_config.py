@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import tomllib
@@ -20,6 +21,7 @@ from swarmloc.config import (
     MotionConfig,
     RecordConfig,
     SensorConfig,
+    config_markdown,
     load_config,
 )
 from swarmloc.motion import UnicycleNoise
@@ -59,29 +61,66 @@ def test_defaults_round_trip_through_to_toml(tmp_path: Path) -> None:
         assert f"[{sec}]" in text
         for key in body:
             assert re.search(rf"^{key} = \S+  # ", text, re.M), key
+    assert "\norder = 2  # order of the SE(2) convolution; 1 or 2 (an integer)\n" in text
+    assert "\nrate = 4.0  # [Hz] rate at which beliefs are recorded" in text
 
 
 def test_non_default_config_round_trips_exactly(tmp_path: Path) -> None:
     c = Config(
         motion=MotionConfig(q_v0=1 / 3, q_v1=1e-7, q_v2=0.0, q_lat0=2.5e-5, q_lat1=0.1 + 0.2, q_wv=1e-300),
         sensors=SensorConfig(range_std=0.123456789012345, bearing_std=math.pi / 180),
-        filter=FilterConfig(gate=None, horizon=0.25, order=1, iterations=5, point_iterations=1),
+        filter=FilterConfig(
+            gate=None,
+            horizon=0.25,
+            order=1,
+            iterations=5,
+            point_iterations=1,
+            delayed_output=True,
+            association="joint",
+            quarantine=None,
+        ),
         record=RecordConfig(rate=10),
         initial=InitialConfig(std_xy=2.0, std_theta=math.pi),
     )
     text = c.to_toml()
-    assert "gate = false" in text
+    assert "gate = false" in text and "delayed_output = true" in text and "quarantine = false" in text
     assert load_config(_write(tmp_path, text)) == c
     back = Config.from_dict(tomllib.loads(text))
     assert back.motion.q_lat1 == 0.1 + 0.2 and back.motion.q_wv == 1e-300
     assert isinstance(back.record.rate, float) and back.record.rate == 10.0
 
 
-def test_module_docstring_example_is_the_defaults() -> None:
+def test_module_docstring_example_is_a_valid_file() -> None:
     doc = config_module.__doc__
     assert doc is not None
-    block = doc.split("::", 1)[1].split("Units:", 1)[0]
-    assert Config.from_dict(tomllib.loads(block)) == DEFAULTS
+    block = doc.split("::", 1)[1].split("Each key", 1)[0]
+    c = Config.from_dict(tomllib.loads(block))
+    assert (c.filter.gate, c.filter.horizon, c.record.rate) == (0.99, 3.0, 10.0)
+
+
+def _table(markdown: str, section: str) -> dict[str, list[str]]:
+    """``{key: cells}`` of a section's table in :func:`config_markdown`'s page (``\\|`` kept escaped)."""
+    body = markdown.split(f"### `[{section}]`", 1)[1].split("###", 1)[0]
+    rows = [re.split(r"(?<!\\) \| ", line.strip("| ")) for line in body.strip().splitlines()[2:]]
+    return {cells[0].strip("`"): cells for cells in rows}
+
+
+def test_docs_table_lists_every_key_with_its_default_range_and_unit() -> None:
+    md = config_markdown()
+    for sec, body in DEFAULTS.to_dict().items():
+        table = _table(md, sec)
+        assert list(table) == list(body), sec
+        for key, value in body.items():
+            _, _, default, _, meaning = table[key]
+            assert tomllib.loads(f"x = {default.strip('`')}")["x"] == value, (sec, key)
+            assert meaning, (sec, key)
+    f = _table(md, "filter")
+    assert f["gate"][1] == "a probability in (0, 1), or false (or 0) to turn it off"
+    assert f["order"][1] == "1 or 2 (an integer)" and f["clock_jump_inputs"][1] == "an integer in [1, 100]"
+    assert f["association"][1] == 'one of "tags", "nearest", "joint", "anonymous"'
+    assert _table(md, "record")["rate"][1:4] == ["a number in (0, 1000]", "`4.0`", "Hz"]
+    q_v0 = _table(md, "motion")["q_v0"]
+    assert q_v0[1:4] == ["a finite number >= 0", "`0.0001`", "m^2/s"] and "q_v1 abs(v)" in q_v0[4]
 
 
 def test_partial_file_overrides_only_what_it_sets(tmp_path: Path) -> None:
@@ -132,6 +171,10 @@ def test_gate_values(tmp_path: Path, literal: str, gate: float | None) -> None:
         ("[filter]\niterations = 0\n", ["[filter] iterations", "integer >= 1"]),
         ("[filter]\npoint_iterations = false\n", ["[filter] point_iterations", "boolean"]),
         ("[record]\nrate = 0.0\n", ["[record] rate", "(0, 1000]"]),
+        ("[filter]\nquarantine = true\n", ["[filter] quarantine", "an integer >= 1, or false (or 0)", "boolean"]),
+        ("[filter]\nquarantine = 0.5\n", ["[filter] quarantine", "an integer >= 1", "got 0.5"]),
+        ("[filter]\nclock_jump_inputs = 101\n", ["[filter] clock_jump_inputs", "an integer in [1, 100]", "101"]),
+        ("[filter]\nassociation = 'psychic'\n", ["[filter] association", '"tags", "nearest"', "'psychic'"]),
     ],
 )
 def test_errors_name_file_section_key(tmp_path: Path, text: str, expected: list[str]) -> None:
@@ -170,7 +213,13 @@ def test_direct_construction_is_validated() -> None:
         MotionConfig(q_v0=-1.0)
     with pytest.raises(ConfigError, match="source.toml: "):
         Config.from_dict({"record": {"rate": -1}}, source="source.toml")
-    assert FilterConfig(gate=0).gate is None
+    assert FilterConfig(gate=0).gate is None and FilterConfig(quarantine=0).quarantine is None
+    # numpy scalars (a fitted model's numbers) are taken as Python's, as a TOML integer is where a float is declared
+    m = MotionConfig(q_v0=np.float64(0.5), q_v1=2)
+    assert type(m.q_v0) is float and m.q_v0 == 0.5 and type(m.q_v1) is float
+    assert type(FilterConfig(diekf_cluster=np.int64(2)).diekf_cluster) is int
+    with pytest.raises(ConfigError, match=r"\[filter\] order: expected 1 or 2"):
+        dataclasses.replace(DEFAULTS.filter, order=3)
 
 
 def test_motion_noise_and_event_defaults() -> None:

@@ -1,55 +1,27 @@
 """Configuration of the models and the filter, read from a TOML file (standard library :mod:`tomllib`).
 
-Five sections, every key optional (a missing key keeps its default; defaults are the MRCLAM evaluation defaults of
-:mod:`swarmloc.experiments.mrclam`)::
-
-    [motion]     # unicycle body-twist diffusion (swarmloc.motion.unicycle.UnicycleNoise), per second
-    q_v0 = 0.0001    # [m^2/s]      q_fwd = q_v0 + q_v1 |v| + q_v2 v^2
-    q_v1 = 0.0       # [m]
-    q_v2 = 0.05      # [s]
-    q_lat0 = 0.0001  # [m^2/s]      q_lat = q_lat0 + q_lat1 |v|
-    q_lat1 = 0.01    # [m]
-    q_w0 = 0.001     # [rad^2/s]    q_yaw = q_w0 + q_w1 |w| + q_w2 w^2 + q_wv |v|
-    q_w1 = 0.0       # [rad]
-    q_w2 = 0.05      # [s]
-    q_wv = 0.02      # [rad^2/m]
-
-    [sensors]    # noise std of detections that carry none, and of MRCLAM's camera
-    range_std = 0.1            # [m]    a priori (camera spec order), not fitted to any ground truth
-    bearing_std = 0.035        # [rad]  a priori (2 deg)
-    decorrelate = "calibrate"  # MRCLAM camera errors, correlated in time (swarmloc.sensors.decorrelate):
-                               # "calibrate": std and correlation estimated from the dataset's own landmark
-                               #   detections and map (no ground truth), each detection weighted by its share
-                               #   of the information of its (observer, target) stream;
-                               # "weights": the same weighting with range_std / bearing_std as the std;
-                               # "off": white noise with range_std / bearing_std (the former model used
-                               #   range_std = 0.3, a white-noise inflation calibrated on dataset 6's truth)
-    pose_xy_std = 0.05         # [m]    relative pose, exponential coordinates
-    pose_theta_std = 0.0175    # [rad]
-    absolute_xy_std = 0.01     # [m]    absolute fix
-    absolute_theta_std = 0.01  # [rad]
+Five sections, one class each: ``[motion]`` (:class:`MotionConfig`), ``[sensors]`` (:class:`SensorConfig`),
+``[filter]`` (:class:`FilterConfig`), ``[record]`` (:class:`RecordConfig`) and ``[initial]`` (:class:`InitialConfig`).
+Every key is optional: a key that a file does not set keeps its default (the MRCLAM evaluation defaults of
+:mod:`swarmloc.experiments.mrclam`); every key with its default, unit, range and meaning is listed by
+``swarmloc config --defaults`` and in the documentation's page :doc:`/configuration`. For example::
 
     [filter]
-    gate = 0.997       # chi-square probability in (0, 1) of the innovation gate; false (or 0) disables it
-    horizon = 5.0      # [s] how far back out-of-order input is replayed
-    clock_tolerance = 5.0  # [s] how far past a node's present an input may be stamped (capped at horizon)
-    clock_jump_inputs = 3  # inputs in a row, at distinct stamps, that confirm a jump of a robot's clock
-    order = 2          # 1 or 2: order of the SE(2) convolution
-    iterations = 2     # >= 1, iterations of the iterated update
-    point_iterations = 3  # >= 1, iterations of a point (landmark) update
-    association = "tags"  # robot detections' identities: tags (given), nearest, joint (chosen from the beliefs,
-                          # ids hidden), anonymous (PMR + particle-filter bank, ids hidden; swarmloc.association)
-    association_gate = 0.99  # chi-square probability in (0, 1) of the association gate
-    quarantine = 3     # a teammate's updates refused in a row (beyond the gate) that quarantine it for the run;
-                       # false (or 0): never (swarmloc.node.trust)
+    gate = 0.99     # probability of the innovation gate (false: no gate)
+    horizon = 3.0   # [s]
 
     [record]
-    rate = 4.0         # [Hz] in (0, 1000]: rate at which beliefs are recorded
+    rate = 10       # [Hz]
 
-    [initial]
-    std_xy = 0.01      # [m] initial-belief std of x and y
-    std_theta = 0.01   # [rad] initial-belief std of the heading
+Each key is declared once, as a field of its section's class: its type and range (``Annotated`` with
+:class:`msgspec.Meta`), its default, and below it a docstring with its unit in brackets and its meaning. From that
+declaration come the check (:func:`load_config`, :meth:`Config.from_dict` and every direct construction, e.g.
+``FilterConfig(gate=2.0)`` raises), the listing of every key with its default, unit and meaning that
+``swarmloc config --defaults`` prints (:meth:`Config.to_toml`), and the documentation's table of the keys
+(:func:`config_markdown`).
 
+Rules that hold for every key: a number must be finite, and a TOML integer is taken where a real number is declared;
+a key whose type admits None (``gate``, ``quarantine``) is turned off with ``false`` or ``0`` (TOML has no null).
 Units: metres, radians, seconds. Every problem raises :class:`ConfigError` (a ``ValueError``) naming the file, the
 ``[section] key`` and what was expected; a TOML syntax error names the file, line and column.
 """
@@ -58,17 +30,22 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import json
 import math
 import os
 import re
 import tomllib
+import types
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar, Literal
 
+import msgspec
 import numpy as np
 
+from swarmloc.declared import attribute_docs, markdown_table
 from swarmloc.motion.unicycle import UnicycleNoise
 
 __all__ = [
@@ -81,7 +58,9 @@ __all__ = [
     "MAX_RECORD_RATE",
     "MotionConfig",
     "RecordConfig",
+    "Section",
     "SensorConfig",
+    "config_markdown",
     "load_config",
 ]
 
@@ -91,7 +70,24 @@ class ConfigError(ValueError):
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# field validation (shared by every section; runs in __post_init__, so direct construction is checked too)
+# the types of the keys, and their check (run in __post_init__, so direct construction is checked too)
+
+Nonneg = Annotated[float, msgspec.Meta(ge=0)]
+"""A finite real number ``>= 0``."""
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+"""A finite real number ``> 0``."""
+Probability = Annotated[float, msgspec.Meta(gt=0, lt=1, title="probability")]
+"""A probability in ``(0, 1)``."""
+Count = Annotated[int, msgspec.Meta(ge=1)]
+"""An integer ``>= 1``."""
+
+MAX_RECORD_RATE = 1000.0
+"""[Hz] Highest ``[record] rate``: beliefs are recorded to be scored, and no input here comes faster than about
+100 Hz (MRCLAM's odometry: 67 Hz), so a faster grid interpolates between the same inputs; 1 kHz leaves a margin."""
+
+MAX_RECORDS = 2_000_000
+"""Most beliefs one run records (record times x robots): each costs about 0.75 kB while a run is recorded (measured
+with tracemalloc), so at most about 1.5 GB. At 4 Hz that is 5 robots for 28 hours of data."""
 
 
 def _describe(value: object) -> str:
@@ -104,76 +100,135 @@ def _describe(value: object) -> str:
     return f"a {type(value).__name__} ({value!r})"
 
 
-def _real(section: str, key: str, value: object, lo: float | None, lo_open: bool, what: str) -> float:
-    """``value`` as a finite float ``> lo`` (``lo_open``) or ``>= lo``; TOML integers are accepted."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"[{section}] {key}: expected {what}, got {_describe(value)}")
-    x = float(value)
-    if not math.isfinite(x) or (lo is not None and (x <= lo if lo_open else x < lo)):
-        raise ConfigError(f"[{section}] {key}: expected {what}, got {_describe(value)}")
-    return x
+def _optional(tp: Any) -> tuple[Any, bool]:
+    """``(X, True)`` for a declared ``X | None``, else ``(tp, False)``."""
+    args = typing.get_args(tp)
+    if typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in args:
+        return next(a for a in args if a is not type(None)), True
+    return tp, False
 
 
-def _nonneg(section: str, key: str, value: object) -> float:
-    return _real(section, key, value, 0.0, False, "a finite number >= 0")
+def _words(tp: Any, unit: str) -> str:
+    """What a value of a declared type is, in words: ``a finite number > 0``, ``an integer in [1, 100]``,
+    ``a number in (0, 1000] Hz``, ``1 or 2 (an integer)``, ``one of "a", "b"``, ``true or false``."""
+    if typing.get_origin(tp) is Literal:
+        args = typing.get_args(tp)
+        if all(isinstance(a, str) for a in args):
+            return "one of " + ", ".join(f'"{a}"' for a in args)
+        return " or ".join(map(str, args)) + " (an integer)"
+    if tp is bool:
+        return "true or false"
+    kind, meta = typing.get_args(tp)[:2] if typing.get_origin(tp) is Annotated else (tp, msgspec.Meta())
+    noun = "an integer" if kind is int else f"a {meta.title or 'number'}"
+    lo, hi = (meta.gt, meta.ge), (meta.lt, meta.le)
+    if any(v is not None for v in lo) and any(v is not None for v in hi):
+        left = f"({meta.gt:g}" if meta.gt is not None else f"[{meta.ge:g}"
+        right = f"{meta.lt:g})" if meta.lt is not None else f"{meta.le:g}]"
+        return f"{noun} in {left}, {right}" + (f" {unit}" if unit else "")
+    noun = noun if kind is int else f"a finite {meta.title or 'number'}"
+    marks = [f"{op} {v:g}" for op, v in zip((">", ">=", "<", "<="), (*lo, *hi), strict=True) if v is not None]
+    return " ".join([noun, *marks])
 
 
-def _positive(section: str, key: str, value: object) -> float:
-    return _real(section, key, value, 0.0, True, "a finite number > 0")
+def _expected(tp: Any, unit: str = "") -> str:
+    """What a key of declared type ``tp`` takes, in words (the error messages' and the table's)."""
+    base, optional = _optional(tp)
+    return _words(base, unit) + (", or false (or 0) to turn it off" if optional else "")
 
 
-def _integer(section: str, key: str, value: object, allowed: tuple[int, ...] | None, lo: int, what: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise ConfigError(f"[{section}] {key}: expected {what}, got {_describe(value)}")
-    n = int(value)
-    if (allowed is not None and n not in allowed) or n < lo:
-        raise ConfigError(f"[{section}] {key}: expected {what}, got {n}")
-    return n
+def _unit(doc: str) -> tuple[str, str]:
+    """``(unit, meaning)`` of a key's docstring ``"[unit] meaning"`` (unit ``""`` where it has none)."""
+    m = re.match(r"\[([^\]]*)\]\s*", doc)
+    return (m.group(1), doc[m.end() :]) if m else ("", doc)
 
 
-def _set(obj: object, name: str, value: object) -> None:
-    object.__setattr__(obj, name, value)
+def _off(value: object, tp: Any) -> bool:
+    """Whether ``value`` turns an optional key off: None, false, or a zero of the key's type."""
+    if value is None or value is False:
+        return True
+    kind = typing.get_args(tp)[0] if typing.get_origin(tp) is Annotated else tp
+    try:
+        return bool(msgspec.convert(value, kind) == 0)
+    except msgspec.ValidationError:
+        return False
 
 
-def _fmt(x: float | int) -> str:
-    """Exact TOML literal: integers as integers, floats as Python's shortest round-trip repr."""
-    return str(int(x)) if isinstance(x, int) else repr(float(x))
+def _checked(cls: type[Section], key: str, tp: Any, value: object) -> Any:
+    """``value`` as the declared type ``tp`` (a numpy scalar as Python's, a TOML integer as a float where a float is
+    declared, an optional key's off value as None), or ConfigError naming ``[section] key``."""
+    base, optional = _optional(tp)
+    plain = value.item() if isinstance(value, np.generic) else value
+    if optional and _off(plain, base):
+        return None
+    try:
+        out = msgspec.convert(plain, base)
+        if not isinstance(out, float) or math.isfinite(out):
+            return out
+    except msgspec.ValidationError:
+        pass
+    unit, meaning = _unit(attribute_docs(cls).get(key, ""))
+    what = f"[{cls.SECTION}] {key}: expected {_expected(tp, unit)}, got {_describe(plain)}"
+    raise ConfigError(f"{what} ({meaning})" if meaning else what)
+
+
+_TYPES: dict[type, dict[str, Any]] = {}
+
+
+def _types(cls: type) -> dict[str, Any]:
+    """``{key: declared type}`` of a section, in declaration order (resolved once per class)."""
+    if cls not in _TYPES:
+        hints = typing.get_type_hints(cls, include_extras=True)
+        _TYPES[cls] = {f.name: hints[f.name] for f in fields(cls)}
+    return _TYPES[cls]
+
+
+def _literal(value: object) -> str:
+    """Exact TOML literal: booleans, quoted strings, integers as integers, floats as Python's shortest repr."""
+    if isinstance(value, bool | str):
+        return json.dumps(value)
+    return str(value) if isinstance(value, int) else repr(float(value))  # type: ignore[arg-type]
+
+
+class Section:
+    """Base of the sections: each key is a dataclass field of the subclass, checked against its declared type on
+    construction (:meth:`__post_init__`), so a file, :meth:`Config.from_dict`, a direct construction and
+    :func:`dataclasses.replace` are checked alike. ``SECTION`` is the section's TOML name."""
+
+    SECTION: ClassVar[str]
+
+    def __post_init__(self) -> None:
+        for key, tp in _types(type(self)).items():
+            object.__setattr__(self, key, _checked(type(self), key, tp, getattr(self, key)))
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# sections
+# sections: one field per key (type, range, default), its docstring "[unit] meaning" below it
 
 
 @dataclass(frozen=True)
-class MotionConfig:
-    """Coefficients of the unicycle body-twist diffusion (see :mod:`swarmloc.motion.unicycle`), all ``>= 0``."""
+class MotionConfig(Section):
+    """Coefficients of the unicycle body-twist diffusion, per second (see :mod:`swarmloc.motion.unicycle`)."""
 
     SECTION: ClassVar[str] = "motion"
-    UNITS: ClassVar[dict[str, str]] = {
-        "q_v0": "[m^2/s] forward diffusion floor: q_fwd = q_v0 + q_v1 |v| + q_v2 v^2",
-        "q_v1": "[m] forward diffusion per metre travelled",
-        "q_v2": "[s] forward diffusion per speed squared (relative speed error)",
-        "q_lat0": "[m^2/s] lateral diffusion floor: q_lat = q_lat0 + q_lat1 |v|",
-        "q_lat1": "[m] lateral diffusion per metre travelled",
-        "q_w0": "[rad^2/s] yaw diffusion floor: q_yaw = q_w0 + q_w1 |w| + q_w2 w^2 + q_wv |v|",
-        "q_w1": "[rad] yaw diffusion per radian turned",
-        "q_w2": "[s] yaw diffusion per yaw rate squared",
-        "q_wv": "[rad^2/m] yaw diffusion per metre travelled",
-    }
 
-    q_v0: float = 1e-4
-    q_v1: float = 0.0
-    q_v2: float = 0.05
-    q_lat0: float = 1e-4
-    q_lat1: float = 0.01
-    q_w0: float = 1e-3
-    q_w1: float = 0.0
-    q_w2: float = 0.05
-    q_wv: float = 0.02
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            _set(self, f.name, _nonneg(self.SECTION, f.name, getattr(self, f.name)))
+    q_v0: Nonneg = 1e-4
+    """[m^2/s] forward diffusion floor: q_fwd = q_v0 + q_v1 abs(v) + q_v2 v^2"""
+    q_v1: Nonneg = 0.0
+    """[m] forward diffusion per metre travelled"""
+    q_v2: Nonneg = 0.05
+    """[s] forward diffusion per speed squared (relative speed error)"""
+    q_lat0: Nonneg = 1e-4
+    """[m^2/s] lateral diffusion floor: q_lat = q_lat0 + q_lat1 abs(v)"""
+    q_lat1: Nonneg = 0.01
+    """[m] lateral diffusion per metre travelled"""
+    q_w0: Nonneg = 1e-3
+    """[rad^2/s] yaw diffusion floor: q_yaw = q_w0 + q_w1 abs(w) + q_w2 w^2 + q_wv abs(v)"""
+    q_w1: Nonneg = 0.0
+    """[rad] yaw diffusion per radian turned"""
+    q_w2: Nonneg = 0.05
+    """[s] yaw diffusion per yaw rate squared"""
+    q_wv: Nonneg = 0.02
+    """[rad^2/m] yaw diffusion per metre travelled"""
 
     def noise(self) -> UnicycleNoise:
         """The :class:`~swarmloc.motion.unicycle.UnicycleNoise` with these coefficients."""
@@ -186,42 +241,35 @@ class MotionConfig:
 
 
 @dataclass(frozen=True)
-class SensorConfig:
-    """Noise standard deviations used when a detection carries none (and for MRCLAM's camera), all ``> 0``.
+class SensorConfig(Section):
+    """Noise standard deviations used when a detection carries none, and the model of MRCLAM's camera.
 
     ``pose_*`` are the std of the exponential coordinates of a relative-pose measurement's noise; ``absolute_*``
-    those of an absolute fix of the observer's own pose. ``decorrelate`` (one of :attr:`DECORRELATE`) says how
-    MRCLAM's time-correlated camera errors are modelled (:mod:`swarmloc.sensors.decorrelate`; module docstring).
+    those of an absolute fix of the observer's own pose. ``decorrelate`` says how MRCLAM's time-correlated camera
+    errors are modelled (:mod:`swarmloc.sensors.decorrelate`): ``"calibrate"``, std and correlation estimated from
+    the dataset's own landmark detections and map (no ground truth), each detection weighted by its share of the
+    information of its (observer, target) stream; ``"weights"``, the same weighting with ``range_std`` and
+    ``bearing_std`` as the std; ``"off"``, white noise with them (the former model used ``range_std = 0.3``, a
+    white-noise inflation calibrated on dataset 6's truth). ``range_std`` and ``bearing_std`` are a priori (the
+    camera's spec, 2 degrees of bearing), not fitted to any ground truth.
     """
 
     SECTION: ClassVar[str] = "sensors"
-    UNITS: ClassVar[dict[str, str]] = {
-        "range_std": "[m] range std",
-        "bearing_std": "[rad] bearing std",
-        "pose_xy_std": "[m] relative pose: x and y std (exponential coordinates)",
-        "pose_theta_std": "[rad] relative pose: heading std",
-        "absolute_xy_std": "[m] absolute fix: x and y std",
-        "absolute_theta_std": "[rad] absolute fix: heading std",
-        "decorrelate": "MRCLAM camera: calibrate (estimated std and correlation), weights (given std), or off",
-    }
-    DECORRELATE: ClassVar[tuple[str, ...]] = ("calibrate", "weights", "off")
 
-    range_std: float = 0.1
-    bearing_std: float = 0.035
-    pose_xy_std: float = 0.05
-    pose_theta_std: float = 0.0175
-    absolute_xy_std: float = 0.01
-    absolute_theta_std: float = 0.01
-    decorrelate: str = "calibrate"
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            if f.name != "decorrelate":
-                _set(self, f.name, _positive(self.SECTION, f.name, getattr(self, f.name)))
-        if self.decorrelate not in self.DECORRELATE:
-            choices = ", ".join(f'"{c}"' for c in self.DECORRELATE)
-            got = _describe(self.decorrelate)
-            raise ConfigError(f"[{self.SECTION}] decorrelate: expected one of {choices}, got {got}")
+    range_std: Positive = 0.1
+    """[m] range std"""
+    bearing_std: Positive = 0.035
+    """[rad] bearing std"""
+    pose_xy_std: Positive = 0.05
+    """[m] relative pose: x and y std (exponential coordinates)"""
+    pose_theta_std: Positive = 0.0175
+    """[rad] relative pose: heading std"""
+    absolute_xy_std: Positive = 0.01
+    """[m] absolute fix: x and y std"""
+    absolute_theta_std: Positive = 0.01
+    """[rad] absolute fix: heading std"""
+    decorrelate: Literal["calibrate", "weights", "off"] = "calibrate"
+    """MRCLAM camera: calibrate (estimated std and correlation), weights (given std), or off (white noise)"""
 
     def detection_defaults(self) -> dict[str, np.ndarray]:
         """Per measurement kind, the default noise std vector (for ``load_events(defaults=...)``)."""
@@ -235,123 +283,53 @@ class SensorConfig:
 
 
 @dataclass(frozen=True)
-class FilterConfig:
-    """Filter settings: innovation gate, out-of-order horizon, convolution order, iteration counts.
-
-    ``gate``: probability in ``(0, 1)`` of the chi-square gate on the normalized innovation squared, or None for
-    no gate (TOML: ``gate = false`` or ``gate = 0``). ``horizon`` [s] ``> 0``: how far back out-of-order input is
-    replayed. ``clock_tolerance`` [s] ``> 0`` (the nodes take at most ``horizon``) and ``clock_jump_inputs`` (an
-    integer in [1, 100]): the node's clock contract (:mod:`swarmloc.node.clock`). ``order``: 1 or 2.
-    ``iterations``, ``point_iterations``: integers ``>= 1``. ``association`` (one of :attr:`ASSOCIATIONS`) and
-    ``association_gate`` (a probability in ``(0, 1)``): how robot detections get their identity
-    (:mod:`swarmloc.experiments.association`). ``smoother_lag`` [s] ``> 0``: the window of the fixed-lag smoothers
-    ``fls`` and ``flsd``; ``delayed_output`` (a boolean): they also give their smoothed estimate of each pose as it
-    leaves the window (``smoother_lag`` s late), scored beside the causal belief as ``"<name>_delayed"`` and
-    published by network nodes (:mod:`swarmloc.evaluation.delayed`). ``diekf_cluster`` (an integer ``>= 0``): robots
-    per ``diekf`` cluster, 0 for the exact filter over the whole team (:mod:`swarmloc.estimators.diekf`).
-    ``quarantine``: a teammate's updates refused in a row (each beyond the gate) that quarantine it for the run, an
-    integer ``>= 1``, or None: never (TOML: ``quarantine = false`` or ``0``; :mod:`swarmloc.node.trust`).
+class FilterConfig(Section):
+    """Filter settings: innovation gate, out-of-order horizon, the node's clock contract
+    (:mod:`swarmloc.node.clock`), convolution order, iteration counts, association of robot detections
+    (:mod:`swarmloc.experiments.association`), the fixed-lag smoothers' window and delayed output
+    (:mod:`swarmloc.evaluation.delayed`), ``diekf``'s clusters (:mod:`swarmloc.estimators.diekf`) and the quarantine of
+    a teammate whose updates are refused (:mod:`swarmloc.node.trust`). ``gate`` and ``quarantine`` are None when off.
     """
 
     SECTION: ClassVar[str] = "filter"
-    UNITS: ClassVar[dict[str, str]] = {
-        "gate": "chi-square probability in (0, 1) of the innovation gate; false disables it",
-        "horizon": "[s] how far back out-of-order input is replayed",
-        "clock_tolerance": "[s] how far past a node's present an input may be stamped (capped at horizon)",
-        "clock_jump_inputs": "inputs in a row, at distinct stamps, that confirm a jump of a robot's clock",
-        "order": "1 or 2: order of the SE(2) convolution",
-        "iterations": "iterations of the iterated update (>= 1)",
-        "point_iterations": "iterations of a point (landmark) update (>= 1)",
-        "association": "tags, nearest, joint or anonymous: how robot detections get their identity",
-        "association_gate": "chi-square probability in (0, 1) of the association gate",
-        "smoother_lag": "[s] window of the fixed-lag smoothers fls and flsd",
-        "delayed_output": "true or false: fls and flsd also output each pose as it leaves the window",
-        "diekf_cluster": "robots per diekf cluster (0: the exact filter over the whole team)",
-        "quarantine": "a teammate's updates refused in a row that quarantine it for the run; false: never",
-    }
-    ASSOCIATIONS: ClassVar[tuple[str, ...]] = ("tags", "nearest", "joint", "anonymous")
 
-    gate: float | None = 0.997
-    horizon: float = 5.0
-    clock_tolerance: float = 5.0
-    clock_jump_inputs: int = 3
-    order: int = 2
-    iterations: int = 2
-    point_iterations: int = 3
-    association: str = "tags"
-    association_gate: float = 0.99
-    smoother_lag: float = 2.0
+    gate: Probability | None = 0.997
+    """chi-square probability of the innovation gate on the normalized innovation squared"""
+    horizon: Positive = 5.0
+    """[s] how far back out-of-order input is replayed"""
+    clock_tolerance: Positive = 5.0
+    """[s] how far past a node's present an input may be stamped (capped at horizon)"""
+    clock_jump_inputs: Annotated[int, msgspec.Meta(ge=1, le=100)] = 3
+    """inputs in a row, at distinct stamps, that confirm a jump of a robot's clock"""
+    order: Literal[1, 2] = 2
+    """order of the SE(2) convolution"""
+    iterations: Count = 2
+    """iterations of the iterated update"""
+    point_iterations: Count = 3
+    """iterations of a point (landmark) update"""
+    association: Literal["tags", "nearest", "joint", "anonymous"] = "tags"
+    """robot detections' identities: tags (given), nearest or joint (chosen from the beliefs, ids hidden), anonymous
+    (PMR and a particle-filter bank, ids hidden)"""
+    association_gate: Probability = 0.99
+    """chi-square probability of the association gate"""
+    smoother_lag: Positive = 2.0
+    """[s] window of the fixed-lag smoothers fls and flsd"""
     delayed_output: bool = False
-    diekf_cluster: int = 0
-    quarantine: int | None = 3
-
-    def __post_init__(self) -> None:
-        s = self.SECTION
-        q = self.quarantine
-        if q is not None and q is not False and not (isinstance(q, int | np.integer) and q == 0):  # (True is 1)
-            q = _integer(s, "quarantine", q, None, 1, "an integer >= 1, or false (or 0): never")
-        _set(self, "quarantine", q or None)
-        _set(self, "diekf_cluster", _integer(s, "diekf_cluster", self.diekf_cluster, None, 0, "an integer >= 0"))
-        _set(self, "smoother_lag", _positive(s, "smoother_lag", self.smoother_lag))
-        if not isinstance(self.delayed_output, bool):
-            raise ConfigError(f"[{s}] delayed_output: expected true or false, got {_describe(self.delayed_output)}")
-        if self.association not in self.ASSOCIATIONS:
-            choices = ", ".join(f'"{c}"' for c in self.ASSOCIATIONS)
-            raise ConfigError(f"[{s}] association: expected one of {choices}, got {_describe(self.association)}")
-        a = _real(s, "association_gate", self.association_gate, 0.0, True, "a probability in (0, 1)")
-        if not a < 1.0:
-            raise ConfigError(f"[{s}] association_gate: expected a probability in (0, 1), got {a!r}")
-        _set(self, "association_gate", a)
-        g = self.gate
-        if g is False or (not isinstance(g, bool) and isinstance(g, int | float) and g == 0):
-            g = None
-        if g is not None:
-            g = _real(s, "gate", g, None, False, "a probability in (0, 1), or false (or 0) to disable the gate")
-            if not 0.0 < g < 1.0:
-                raise ConfigError(
-                    f"[{s}] gate: expected a probability in (0, 1), or false (or 0) to disable the gate, got {g!r}"
-                )
-        _set(self, "gate", g)
-        _set(self, "horizon", _positive(s, "horizon", self.horizon))
-        _set(self, "clock_tolerance", _positive(s, "clock_tolerance", self.clock_tolerance))
-        jumps = _integer(s, "clock_jump_inputs", self.clock_jump_inputs, None, 1, "an integer in [1, 100]")
-        if jumps > 100:
-            raise ConfigError(f"[{s}] clock_jump_inputs: expected an integer in [1, 100], got {jumps!r}")
-        _set(self, "clock_jump_inputs", jumps)
-        _set(self, "order", _integer(s, "order", self.order, (1, 2), 1, "1 or 2 (an integer)"))
-        _set(self, "iterations", _integer(s, "iterations", self.iterations, None, 1, "an integer >= 1"))
-        _set(
-            self,
-            "point_iterations",
-            _integer(s, "point_iterations", self.point_iterations, None, 1, "an integer >= 1"),
-        )
-
-
-MAX_RECORD_RATE = 1000.0
-"""[Hz] Highest ``[record] rate``: beliefs are recorded to be scored, and no input here comes faster than about
-100 Hz (MRCLAM's odometry: 67 Hz), so a faster grid interpolates between the same inputs; 1 kHz leaves a margin."""
-
-MAX_RECORDS = 2_000_000
-"""Most beliefs one run records (record times x robots): each costs about 0.75 kB while a run is recorded (measured
-with tracemalloc), so at most about 1.5 GB. At 4 Hz that is 5 robots for 28 hours of data."""
+    """fls and flsd also output each pose as it leaves the window (smoother_lag s late), scored as <name>_delayed"""
+    diekf_cluster: Annotated[int, msgspec.Meta(ge=0)] = 0
+    """robots per diekf cluster (0: the exact filter over the whole team)"""
+    quarantine: Count | None = 3
+    """a teammate's updates refused in a row (each beyond the gate) that quarantine it for the run"""
 
 
 @dataclass(frozen=True)
-class RecordConfig:
-    """``rate`` [Hz] in ``(0, MAX_RECORD_RATE]``: how often beliefs are recorded."""
+class RecordConfig(Section):
+    """How often beliefs are recorded (to be scored), and the bound on a run's records (:data:`MAX_RECORDS`)."""
 
     SECTION: ClassVar[str] = "record"
-    UNITS: ClassVar[dict[str, str]] = {"rate": "[Hz] rate at which beliefs are recorded"}
 
-    rate: float = 4.0
-
-    def __post_init__(self) -> None:
-        what = f"a number in (0, {MAX_RECORD_RATE:g}] Hz"
-        rate = _real(self.SECTION, "rate", self.rate, 0.0, True, what)
-        if rate > MAX_RECORD_RATE:
-            raise ConfigError(f"[{self.SECTION}] rate: expected {what} (beliefs are recorded to be scored; no input "
-                              f"comes faster than about 100 Hz), got {_describe(self.rate)}")  # fmt: skip
-        _set(self, "rate", rate)
+    rate: Annotated[float, msgspec.Meta(gt=0, le=MAX_RECORD_RATE)] = 4.0
+    """[Hz] rate at which beliefs are recorded (no input comes faster than about 100 Hz)"""
 
     def count(self, t_start: float, t_end: float, robots: int = 1, origin: str = "") -> int:
         """How many record times :meth:`times` gives over ``[t_start, t_end)`` [s], checked before anything is
@@ -386,21 +364,15 @@ class RecordConfig:
 
 
 @dataclass(frozen=True)
-class InitialConfig:
-    """Initial-belief std (exponential coordinates, right perturbation), all ``> 0``."""
+class InitialConfig(Section):
+    """Initial-belief std (exponential coordinates, right perturbation) where a source gives none."""
 
     SECTION: ClassVar[str] = "initial"
-    UNITS: ClassVar[dict[str, str]] = {
-        "std_xy": "[m] initial-belief std of x and y",
-        "std_theta": "[rad] initial-belief std of the heading",
-    }
 
-    std_xy: float = 0.01
-    std_theta: float = 0.01
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            _set(self, f.name, _positive(self.SECTION, f.name, getattr(self, f.name)))
+    std_xy: Positive = 0.01
+    """[m] initial-belief std of x and y"""
+    std_theta: Positive = 0.01
+    """[rad] initial-belief std of the heading"""
 
     def cov(self) -> np.ndarray:
         """Initial covariance ``diag(std_xy^2, std_xy^2, std_theta^2)``."""
@@ -408,11 +380,7 @@ class InitialConfig:
 
 
 _SECTIONS: dict[str, type] = {
-    "motion": MotionConfig,
-    "sensors": SensorConfig,
-    "filter": FilterConfig,
-    "record": RecordConfig,
-    "initial": InitialConfig,
+    cls.SECTION: cls for cls in (MotionConfig, SensorConfig, FilterConfig, RecordConfig, InitialConfig)
 }
 
 
@@ -438,7 +406,7 @@ class Config:
         if not isinstance(d, Mapping):
             raise ConfigError(f"{source}: expected a mapping of sections, got {type(d).__name__}")
         known = list(_SECTIONS)
-        parts: dict[str, object] = {}
+        parts: dict[str, Any] = {}
         for name, body in d.items():
             if name not in _SECTIONS:
                 if isinstance(body, Mapping):
@@ -449,7 +417,7 @@ class Config:
             if not isinstance(body, Mapping):
                 raise ConfigError(f"{source}: {name!r} must be a section [{name}], got {_describe(body)}")
             sec = _SECTIONS[name]
-            keys = [f.name for f in fields(sec)]
+            keys = list(_types(sec))
             for key in body:
                 if key not in keys:
                     raise ConfigError(
@@ -462,31 +430,29 @@ class Config:
         return cls(**parts)
 
     def to_dict(self) -> dict[str, dict[str, object]]:
-        """``{section: {key: value}}`` with every key (``gate`` and ``quarantine`` None become False, as in TOML)."""
+        """``{section: {key: value}}`` with every key (an optional key that is off, None, becomes False, as in TOML)."""
         out: dict[str, dict[str, object]] = {}
         for name in _SECTIONS:
             sec = getattr(self, name)
-            out[name] = {f.name: getattr(sec, f.name) for f in fields(sec)}
-        out["filter"]["gate"] = False if self.filter.gate is None else self.filter.gate
-        out["filter"]["quarantine"] = False if self.filter.quarantine is None else self.filter.quarantine
+            out[name] = {key: False if getattr(sec, key) is None else getattr(sec, key) for key in _types(type(sec))}
         return out
 
     def to_toml(self) -> str:
-        """The configuration as TOML text: every section and key with its value and a unit comment.
+        """The configuration as TOML text: every section and key with its value, and its unit and meaning as a comment.
 
         ``tomllib.loads(c.to_toml())`` given to :meth:`from_dict` gives back an equal ``Config``.
         """
         lines = ["# swarmloc configuration (units: metres, radians, seconds)"]
         for name, body in self.to_dict().items():
-            units = _SECTIONS[name].UNITS
-            lines.append("")
-            lines.append(f"[{name}]")
+            docs, types_ = attribute_docs(_SECTIONS[name]), _types(_SECTIONS[name])
+            lines += ["", f"[{name}]"]
             for key, value in body.items():
-                literal = "false" if value is False else f'"{value}"' if isinstance(value, str) else _fmt(value)
-                lines.append(f"{key} = {literal}  # {units[key]}")
+                unit, meaning = _unit(docs.get(key, ""))
+                note = "; ".join(x for x in (f"[{unit}] {meaning}" if unit else meaning, _expected(types_[key])) if x)
+                lines.append(f"{key} = {_literal(value)}  # {note}")
         return "\n".join(lines) + "\n"
 
-    def replace(self, **sections: object) -> Config:
+    def replace(self, **sections: Any) -> Config:
         """A copy with whole sections replaced, e.g. ``c.replace(filter=FilterConfig(gate=None))``."""
         unknown = sorted(set(sections) - set(_SECTIONS))
         if unknown:
@@ -506,6 +472,19 @@ class Config:
 
 DEFAULTS = Config()
 """The default configuration (the MRCLAM evaluation defaults)."""
+
+
+def config_markdown() -> str:
+    """Every key of every section with what it takes, its default, unit and meaning: one Markdown table per section,
+    the documentation's reference of the keys."""
+    out = []
+    for name, body in DEFAULTS.to_dict().items():
+        docs, types_ = attribute_docs(_SECTIONS[name]), _types(_SECTIONS[name])
+        rows = [(f"`{key}`", _expected(types_[key]), f"`{_literal(value)}`", *_unit(docs.get(key, "")))
+                for key, value in body.items()]  # fmt: skip
+        out.append(f"### `[{name}]`\n\n" + markdown_table(("key", "takes", "default", "unit", "meaning"), rows))
+    return "\n".join(out)
+
 
 _TOML_POS = re.compile(r"\(at line (\d+), column (\d+)\)\s*$")
 

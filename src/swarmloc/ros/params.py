@@ -20,6 +20,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 
 from swarmloc.config import Config, ConfigError
+from swarmloc.declared import attribute_docs, markdown_table
 
 Hz = Annotated[float, msgspec.Meta(gt=0, le=1000)]
 Seconds = Annotated[float, msgspec.Meta(ge=0, le=3600)]
@@ -274,17 +275,8 @@ def defaults_yaml(node: str = "swarmloc") -> str:
 
 
 def _docs() -> list[str]:
-    """The attribute docstrings of :class:`RosParams`, in field order (read from its source)."""
-    import ast
-    import inspect
-    import textwrap
-
-    tree = ast.parse(textwrap.dedent(inspect.getsource(RosParams)))
-    body = tree.body[0].body  # type: ignore[attr-defined]
-    docs: dict[str, str] = {}
-    for a, b in zip(body, body[1:], strict=False):
-        if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant):
-            docs[a.target.id] = " ".join(str(b.value.value).split())  # type: ignore[union-attr]
+    """The attribute docstrings of :class:`RosParams`, in field order."""
+    docs = attribute_docs(RosParams)
     return [docs.get(f.name, "") for f in msgspec.structs.fields(RosParams)]
 
 
@@ -293,11 +285,11 @@ def params_markdown() -> str:
     import json
     import typing
 
-    rows = ["| parameter | type | default | meaning |", "|---|---|---|---|"]
+    rows = []
     for f, doc in zip(msgspec.structs.fields(RosParams), _docs(), strict=True):
         value = f.default if f.default is not msgspec.NODEFAULT else f.default_factory()
-        rows.append(f"| `{f.name}` | {_type_text(f.type, typing)} | `{json.dumps(value)}` | {doc.replace('|', '/')} |")
-    return "\n".join(rows) + "\n"
+        rows.append((f"`{f.name}`", _type_text(f.type, typing), f"`{json.dumps(value)}`", doc))
+    return markdown_table(("parameter", "type", "default", "meaning"), rows)
 
 
 def _type_text(tp: Any, typing: Any) -> str:
