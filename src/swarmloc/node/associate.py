@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.association import AMBIGUOUS, CLUTTER, gate_threshold, innovation_costs, joint, nearest
-from swarmloc.events import Detection
+from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import GroupGaussian, world_covariance
 from swarmloc.node.keys import Group, detection_key
 from swarmloc.node.update import Outcome
@@ -91,7 +91,7 @@ def check_sensor(where: str, sensor_range: float | None, sensor_fov: float | Non
 
 def is_anonymous(d: Detection) -> bool:
     """A robot detection without an identity (not an absolute fix)."""
-    return d.target is None and d.target_is_robot and d.kind != "absolute"
+    return d.target is None and d.target_is_robot and d.kind != Kind.ABSOLUTE
 
 
 @dataclass
