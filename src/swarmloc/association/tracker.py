@@ -28,7 +28,7 @@ from swarmloc.association.pmr import multiple_registration
 from swarmloc.association.registration import compose_xyt, invert_xyt, points_from_range_bearing
 from swarmloc.events import Detection, Event, Kind, Odometry
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment
 
 __all__ = [
@@ -121,7 +121,7 @@ class AnonymousTrack:
             if robot in est:
                 m = SE2.to_xytheta(est[robot].gaussian.mean)
                 pos[k] = np.hypot(m[0] - truth[k, 0], m[1] - truth[k, 1])
-                ang[k] = abs((m[2] - truth[k, 2] + np.pi) % (2 * np.pi) - np.pi)
+                ang[k] = abs(wrap_angle(m[2] - truth[k, 2]))
         return t, pos, ang
 
 

@@ -59,7 +59,7 @@ from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels.ci import point_weight, pose_weight
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.messages import Message
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
 from swarmloc.sensors.models import model
@@ -180,7 +180,7 @@ def _pseudo_factor(g: Any, f: Factor) -> Any:
     def error(this: Any, values: Any, H: Any) -> np.ndarray:
         x = _xyt(values.atPose2(this.keys()[0]))
         d = x - f.z
-        d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
+        d[2] = wrap_angle(d[2])
         if H is not None:
             H[0] = _body(A, x[2])
         return A @ d - b
