@@ -160,7 +160,6 @@ def predict_run(
     v, w = cmd
     cache = increment_cache(noise)
     ct = st = None
-    pi, tau = math.pi, 2 * math.pi
     for tk, vk, wk in cmds:
         dt = tk - t
         if dt > 0:
@@ -171,7 +170,7 @@ def predict_run(
             if ct is None:
                 ct, st = math.cos(th), math.sin(th)
             dx, dy = ct * tx - st * ty, st * tx + ct * ty
-            th = pi - (pi - (th + alpha)) % tau  # wrapped to (-pi, pi]
+            th = wrap_angle(th + alpha)
             ct, st = math.cos(th), math.sin(th)
             cc, ss, cs = ct * ct, st * st, ct * st
             x0, y0 = x0 + dx, y0 + dy
