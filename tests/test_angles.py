@@ -20,6 +20,8 @@ OWN_FORM = {
     "engine/joint_math.py": "compiled by numba",
     "sim/lab.py": "np.angle(exp(1j x)) gives -pi at x = -pi: it decides which way a scripted robot turns",
     "association/pmr.py": "angles ordered in [0, 2 pi), not wrapped",
+    "sensors/snapshots.py": "[-pi, pi) residuals of a fit: an ulp more or less moves the fitted camera model by 1e-8",
+    "motion/calibrate.py": "[-pi, pi) residuals of the yaw-scale fit (an optimizer), as in sensors/snapshots.py",
 }
 """Modules that keep their own form of a wrap, and why."""
 

@@ -14,9 +14,13 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.lie import wrap_angle
-
 __all__ = ["DetectionSet", "fit_residuals", "snapshot_poses", "snapshot_residuals"]
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """To [-pi, pi), not :func:`swarmloc.lie.wrap_angle`: these residuals feed a fit (an optimizer), whose result
+    moves by 1e-8 when its inputs move by an ulp; kept so that the fitted models stay as they are."""
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def _fit_group(z: np.ndarray, p: np.ndarray, range_std: float, bearing_std: float, iterations: int = 6):  # noqa: ANN202
@@ -42,7 +46,7 @@ def _fit_group(z: np.ndarray, p: np.ndarray, range_std: float, bearing_std: floa
         dx, dy = p[..., 0] - x[:, :1], p[..., 1] - x[:, 1:2]
         d2 = np.maximum(dx * dx + dy * dy, 1e-12)
         d = np.sqrt(d2)
-        v = np.concatenate([r - d, wrap_angle(b - (np.arctan2(dy, dx) - x[:, 2:3]))], axis=1)
+        v = np.concatenate([r - d, _wrap(b - (np.arctan2(dy, dx) - x[:, 2:3]))], axis=1)
         zero = np.zeros_like(d)
         a_r = np.stack([-dx / d, -dy / d, zero], axis=-1)
         a_b = np.stack([dy / d2, -dx / d2, zero - 1.0], axis=-1)
@@ -134,7 +138,7 @@ def snapshot_poses(ds: DetectionSet, range_std: float, bearing_std: float) -> di
         ok &= np.isfinite(x).all(axis=1)
         parts["observer"].append(obs[idx[ok, 0]])
         parts["t"].append(tt[idx[ok, 0]])
-        parts["pose"].append(np.column_stack([x[ok, :2], wrap_angle(x[ok, 2])]))
+        parts["pose"].append(np.column_stack([x[ok, :2], _wrap(x[ok, 2])]))
         parts["cov"].append(ninv[ok])
     if not parts["t"]:
         return {
