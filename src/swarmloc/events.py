@@ -7,13 +7,38 @@ in the world frame, relative quantities in the observer's body frame (x forward,
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Literal
 
 import numpy as np
 
 from swarmloc.text import number, numbers, stamp
 
-MeasurementKind = Literal["pose", "range_bearing", "range", "bearing", "absolute", "pose3", "rbe3", "bearing3"]
+
+class Kind(StrEnum):
+    """The kind of a :class:`Detection` (what its ``z`` holds; :class:`Detection` lists them).
+
+    A ``str`` whose value is the kind's name as event files, JSON and network messages spell it, so a member equals,
+    hashes and encodes as that string (``Kind.POSE == "pose"``) and prints as it does (``repr`` is the string's):
+    a detection read from a file (plain ``str`` kind) and one built with a member are the same. Code compares
+    kinds with these members, or asks the kind's model (:data:`swarmloc.sensors.models.MODELS`,
+    :data:`swarmloc.sensors.models3.MODELS3`), never with string literals.
+    """
+
+    __repr__ = str.__repr__
+
+    POSE = "pose"
+    RANGE_BEARING = "range_bearing"
+    RANGE = "range"
+    BEARING = "bearing"
+    ABSOLUTE = "absolute"
+    POSE3 = "pose3"
+    RBE3 = "rbe3"
+    BEARING3 = "bearing3"
+
+
+MeasurementKind = Kind | Literal["pose", "range_bearing", "range", "bearing", "absolute", "pose3", "rbe3", "bearing3"]
+"""A detection's kind: a :class:`Kind` member or its name."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,7 +126,7 @@ class Detection:
 
     def __repr__(self) -> str:
         """Observer, time, kind, what was seen, ``z`` and the noise std (square roots of ``cov``'s diagonal)."""
-        if self.kind == "absolute":
+        if self.kind == Kind.ABSOLUTE:
             of = ""
         elif self.target is None:
             of = ", target=anonymous robot"

@@ -64,7 +64,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry, Truth
+from swarmloc.events import Detection, Event, Kind, Odometry, Truth
 from swarmloc.gaussian import check_covariance
 from swarmloc.lie import wrap_angle
 from swarmloc.lie.checks import as_tangent
@@ -440,7 +440,7 @@ def book_two_robot_scenario(
                 cov = np.zeros((3, 3))
                 cov[:2, :2] = _sym(Re.T @ Ce @ Re)
                 cov[2, 2] = detection_theta_var
-                events.append(Detection(i, t1, "pose", np.array([z[0], z[1], te]), cov, target=j))
+                events.append(Detection(i, t1, Kind.POSE, np.array([z[0], z[1], te]), cov, target=j))
         events.extend(Truth(r, t1, truth[k + 1, a].copy()) for a, r in enumerate(robots))
 
     if observe_every > 1:  # Truth after moves without an observation round

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarmloc.lie import wrap_angle
+
 __all__ = ["BearingSolution", "bearing_registration"]
 
 
@@ -45,13 +47,9 @@ class BearingSolution:
     cost: float
 
 
-def _wrap(a: np.ndarray | float) -> np.ndarray:
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
 def _bearing(frm: np.ndarray, to: np.ndarray) -> float:
     """Bearing of point ``to`` seen from pose ``frm`` ``(x, y, theta)``."""
-    return float(_wrap(np.arctan2(to[1] - frm[1], to[0] - frm[0]) - frm[2]))
+    return float(wrap_angle(np.arctan2(to[1] - frm[1], to[0] - frm[0]) - frm[2]))
 
 
 def _triangulate(p0: np.ndarray, a0: float, p1: np.ndarray, a1: float) -> tuple[np.ndarray, bool, float]:
@@ -113,7 +111,7 @@ def bearing_registration(
                 if any(np.hypot(*(p - q[:2])) < 1e-9 for q in poses.values()):
                     continue
                 for b in [x for x in range(len(B[k])) if x not in used[k]]:
-                    th = float(_wrap(np.arctan2(-p[1], -p[0]) - B[k][b]))
+                    th = float(wrap_angle(np.arctan2(-p[1], -p[0]) - B[k][b]))
                     pk = np.array([p[0], p[1], th])
                     sd_k = (sd_p, float(np.hypot(sigma, sd_p / np.hypot(p[0], p[1]))))
                     trial = [(ego, a, k), (k, b, ego)]
@@ -130,7 +128,7 @@ def bearing_registration(
                             if not free:
                                 ok = False
                                 break
-                            d = np.abs(_wrap(B[r][free] - pred))
+                            d = np.abs(wrap_angle(B[r][free] - pred))
                             x = int(np.argmin(d))
                             var = 2 * sigma**2 + sd_r[1] ** 2 + (sd[m][0] ** 2 + sd_k[0] ** 2) / max(dist, 1e-9) ** 2
                             if d[x] > gate * np.sqrt(var):
@@ -157,7 +155,7 @@ def bearing_registration(
         same = (
             sol.features == u.features
             and all(np.abs(sol.poses[r][:2] - u.poses[r][:2]).max() <= 0.05 for r in sol.poses)
-            and all(abs(_wrap(sol.poses[r][2] - u.poses[r][2])) <= 0.1 for r in sol.poses)
+            and all(abs(wrap_angle(sol.poses[r][2] - u.poses[r][2])) <= 0.1 for r in sol.poses)
             for u in unique
         )
         if not any(same):

@@ -35,7 +35,7 @@ import numpy as np
 
 from swarmloc.association.registration import compose_xyt, exp_xyt, invert_xyt, log_xyt
 from swarmloc.gaussian import GroupGaussian, check_covariance
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 
 __all__ = ["BankEstimate", "ParticleFilterBank"]
 
@@ -94,7 +94,7 @@ def _compose_exp(mu: np.ndarray, y: np.ndarray) -> np.ndarray:
         A, B = math.sin(a) / a, (1.0 - math.cos(a)) / a
     dx, dy = A * x0 - B * x1, B * x0 + A * x1
     c, s = math.cos(mu[2]), math.sin(mu[2])
-    th = (mu[2] + a + math.pi) % (2 * math.pi) - math.pi
+    th = wrap_angle(mu[2] + a)
     return np.array([mu[0] + c * dx - s * dy, mu[1] + s * dx + c * dy, th])
 
 
@@ -104,7 +104,7 @@ def _log_rel(mu: np.ndarray, q: np.ndarray) -> np.ndarray:
     c, s = math.cos(mu[2]), math.sin(mu[2])
     dx, dy = q[:, 0] - mu[0], q[:, 1] - mu[1]
     t1, t2 = c * dx + s * dy, c * dy - s * dx
-    a = (q[:, 2] - mu[2] + np.pi) % (2 * np.pi) - np.pi
+    a = wrap_angle(q[:, 2] - mu[2])
     t2a = a * a
     if float(np.abs(a).max()) < 0.05:  # all in the Taylor branch of (a/2) cot(a/2)
         k = (((-1 / 1209600 * t2a - 1 / 30240) * t2a - 1 / 720) * t2a - 1 / 12) * t2a + 1.0

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 
 __all__ = [
     "Registration",
@@ -83,10 +83,6 @@ def points_from_range_bearing(z: object) -> np.ndarray:
     return np.column_stack([z[:, 0] * np.cos(z[:, 1]), z[:, 0] * np.sin(z[:, 1])])
 
 
-def _wrap(a: np.ndarray | float) -> np.ndarray:
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
 def _rot(theta: np.ndarray) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
     return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
@@ -100,7 +96,7 @@ def compose_xyt(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out = np.empty(np.broadcast_shapes(a.shape, b.shape))
     out[..., 0] = a[..., 0] + c * b0 - s * b1
     out[..., 1] = a[..., 1] + s * b0 + c * b1
-    out[..., 2] = _wrap(a[..., 2] + b[..., 2])
+    out[..., 2] = wrap_angle(a[..., 2] + b[..., 2])
     return out
 
 
@@ -111,7 +107,7 @@ def invert_xyt(a: np.ndarray) -> np.ndarray:
     out = np.empty(a.shape)
     out[..., 0] = -c * a[..., 0] - s * a[..., 1]
     out[..., 1] = s * a[..., 0] - c * a[..., 1]
-    out[..., 2] = _wrap(-a[..., 2])
+    out[..., 2] = wrap_angle(-a[..., 2])
     return out
 
 
@@ -130,7 +126,7 @@ def log_xyt(q: np.ndarray) -> np.ndarray:
     """Exponential coordinates ``(v_x, v_y, alpha)`` of planar poses ``(..., 3)`` (``SE2.log`` without building the
     matrices; the angle as given, wrapped to [-pi, pi))."""
     q = np.asarray(q, float)
-    a = _wrap(q[..., 2])
+    a = wrap_angle(q[..., 2])
     k = _series(a, lambda t: (t / 2) / np.tan(t / 2), (1.0, -1 / 12, -1 / 720, -1 / 30240, -1 / 1209600))
     h = 0.5 * a
     t1, t2 = q[..., 0], q[..., 1]
@@ -150,7 +146,7 @@ def exp_xyt(y: np.ndarray) -> np.ndarray:
     out = np.empty(y.shape)
     out[..., 0] = A * y[..., 0] - B * y[..., 1]
     out[..., 1] = B * y[..., 0] + A * y[..., 1]
-    out[..., 2] = _wrap(a)
+    out[..., 2] = wrap_angle(a)
     return out
 
 
@@ -205,7 +201,7 @@ def visible(p: np.ndarray, max_range: float, fov: float, margin: np.ndarray) -> 
 def _rough_theta(Pi: np.ndarray, Pj: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Rotation of candidate ``(a, b)`` from the mutual detection alone: ``R(theta) O_j[b]`` points opposite
     ``O_i[a]``."""
-    return _wrap(np.arctan2(-Pi[A, 1], -Pi[A, 0]) - np.arctan2(Pj[B, 1], Pj[B, 0]))
+    return wrap_angle(np.arctan2(-Pi[A, 1], -Pi[A, 0]) - np.arctan2(Pj[B, 1], Pj[B, 0]))
 
 
 def _prior_ok(
@@ -286,11 +282,11 @@ def binary_register(
     A, B = A[rj[B] > 0], B[rj[B] > 0]
     th = _rough_theta(Pi, Pj, A, B)
     if hi is not None:
-        d = np.abs(_wrap(th - hi[A]))
+        d = np.abs(wrap_angle(th - hi[A]))
         ok = np.isnan(hi[A]) | (d <= gate * np.sqrt(sigma_heading**2 + s2 / ri[A] ** 2 + s2 / rj[B] ** 2))
         A, B, th = A[ok], B[ok], th[ok]
     if hj is not None:
-        d = np.abs(_wrap(th + hj[B]))
+        d = np.abs(wrap_angle(th + hj[B]))
         ok = np.isnan(hj[B]) | (d <= gate * np.sqrt(sigma_heading**2 + s2 / ri[A] ** 2 + s2 / rj[B] ** 2))
         A, B, th = A[ok], B[ok], th[ok]
     if prior is not None and A.size:

@@ -26,9 +26,9 @@ import numpy as np
 from swarmloc.association.pfbank import BankEstimate, ParticleFilterBank
 from swarmloc.association.pmr import multiple_registration
 from swarmloc.association.registration import compose_xyt, invert_xyt, points_from_range_bearing
-from swarmloc.events import Detection, Event, Odometry
+from swarmloc.events import Detection, Event, Kind, Odometry
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment
 
 __all__ = [
@@ -43,7 +43,7 @@ __all__ = [
 
 def is_anonymous_detection(e: object) -> bool:
     """An anonymous range-bearing robot detection: ``target=None``, ``target_is_robot``."""
-    return isinstance(e, Detection) and e.kind == "range_bearing" and e.target_is_robot and e.target is None
+    return isinstance(e, Detection) and e.kind == Kind.RANGE_BEARING and e.target_is_robot and e.target is None
 
 
 def anonymous_scans(events: Iterable[Event], robots: Sequence[int]) -> dict[float, dict[int, np.ndarray]]:
@@ -121,7 +121,7 @@ class AnonymousTrack:
             if robot in est:
                 m = SE2.to_xytheta(est[robot].gaussian.mean)
                 pos[k] = np.hypot(m[0] - truth[k, 0], m[1] - truth[k, 1])
-                ang[k] = abs((m[2] - truth[k, 2] + np.pi) % (2 * np.pi) - np.pi)
+                ang[k] = abs(wrap_angle(m[2] - truth[k, 2]))
         return t, pos, ang
 
 
@@ -328,7 +328,7 @@ def bank_detections(
                     continue
                 z.setflags(write=False)
                 cov.setflags(write=False)
-                new.append(Detection(ego, t, "pose", z, cov, target=int(j)))
+                new.append(Detection(ego, t, Kind.POSE, z, cov, target=int(j)))
                 last[j] = (t, P)
                 emitted += 1
         counts[ego] = {**tr.counts, "emitted": emitted, "no_gain": no_gain}

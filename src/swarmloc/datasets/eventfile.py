@@ -100,9 +100,10 @@ from swarmloc.datasets.bounds import (
     shorten,
 )
 from swarmloc.datasets.tum import read_tum
-from swarmloc.events import Detection, Odometry
+from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.gaussian import GroupGaussian, check_covariance
 from swarmloc.lie import SE2
+from swarmloc.sensors.models import MODELS
 
 __all__ = [
     "COLUMNS",
@@ -118,8 +119,9 @@ __all__ = [
 COLUMNS: tuple[str, ...] = ("type", "t", "robot", "t0", "v", "w", "target", "target_type", "kind", "z", "std", "cov")
 """The columns of the CSV format, in the order :func:`~swarmloc.datasets.eventwrite.write_events` writes them."""
 
-KIND_SIZES: dict[str, int] = {"pose": 3, "range_bearing": 2, "range": 1, "bearing": 1, "absolute": 3}
-"""Length of ``z`` per detection kind."""
+KIND_SIZES: dict[str, int] = {k: MODELS[k].size for k in (Kind.POSE, Kind.RANGE_BEARING, Kind.RANGE, Kind.BEARING,
+                                                            Kind.ABSOLUTE)}  # fmt: skip
+"""Length of ``z`` per detection kind (the planar kinds' :data:`~swarmloc.sensors.models.MODELS`)."""
 
 RECORD_TYPES: tuple[str, ...] = ("odometry", "detection", "landmark", "initial")
 
@@ -253,10 +255,10 @@ class _Reader:
         kind = rec.word("kind")
         if kind not in KIND_SIZES:
             raise Bad(f"unknown detection kind {kind!r}; expected one of {', '.join(KIND_SIZES)}")
-        m = KIND_SIZES[kind]
+        m, model = KIND_SIZES[kind], MODELS[kind]
         target: int | None = None
         is_robot = True
-        if kind == "absolute":
+        if kind == Kind.ABSOLUTE:
             if rec.has("target") or rec.has("target_type"):
                 raise Bad("an absolute detection (the observer's own pose) has no 'target' or 'target_type'")
         else:
@@ -265,18 +267,18 @@ class _Reader:
             if ttype not in ("robot", "landmark"):
                 raise Bad(f"'target_type' must be 'robot' or 'landmark', got {rec.raw['target_type']!r}")
             is_robot = ttype == "robot"
-            if not is_robot and kind == "pose":
+            if not is_robot and kind == Kind.POSE:
                 raise Bad("a landmark is a point: it has no relative pose (use range_bearing, range or bearing)")
             if is_robot and target == obs:
                 raise Bad(f"robot {obs} cannot detect itself (target equals robot)")
         z = rec.vector("z")
         if z.size != m:
             raise Bad(f"'z' of a {kind} detection must have {m} number{'s' if m > 1 else ''}, got {z.size}")
-        if kind in ("pose", "absolute"):
+        if model.targets != "point":  # a pose (x, y, theta)
             check_pose(z)
-        if kind in ("range_bearing", "range") and not 0 < z[0] <= MAX_POSITION:
+        if model.ranged and not 0 < z[0] <= MAX_POSITION:
             raise Bad(f"range must be positive and at most {MAX_POSITION:g} m, got {z[0]!r}")
-        if kind in ("range_bearing", "bearing") and abs(z[-1]) > math.pi + _BEARING_TOL:
+        if model.bearing_last and abs(z[-1]) > math.pi + _BEARING_TOL:
             raise Bad(f"bearing must be in [-pi, pi] rad (degrees given?), got {z[-1]!r}")
         cov = noise(rec, m, f"a {kind} detection", self.dflt.get(kind))
         d = Detection(

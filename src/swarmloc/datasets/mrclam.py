@@ -44,7 +44,7 @@ import numpy as np
 
 from swarmloc.datasets.tables import file_label, integer_column, line_of_row, read_table, sort_by_time
 from swarmloc.datasets.tum import interpolate
-from swarmloc.events import Detection, Event, Odometry
+from swarmloc.events import Detection, Event, Kind, Odometry
 
 __all__ = [
     "BARCODE_SWAPS",
@@ -571,7 +571,7 @@ def mrclam_events(
         Detection(
             observer=o,
             t=t,
-            kind="range_bearing",
+            kind=Kind.RANGE_BEARING,
             z=zs[i],
             cov=cov,
             target=s,

@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from swarmloc.lie import wrap_angle
+
 __all__ = [
     "PLANAR_TOL_TILT",
     "PLANAR_TOL_Z",
@@ -189,7 +191,7 @@ def interpolate(times: np.ndarray, xytheta: np.ndarray, query: np.ndarray | floa
     out[:, 0] = np.interp(tq, times, xytheta[:, 0])
     out[:, 1] = np.interp(tq, times, xytheta[:, 1])
     th = np.interp(tq, times, np.unwrap(xytheta[:, 2]))
-    out[:, 2] = np.pi - np.mod(np.pi - th, 2 * np.pi)
+    out[:, 2] = wrap_angle(th)
     return out
 
 

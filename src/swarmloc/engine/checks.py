@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.engine.codes import NO_TARGET, UNKNOWN_ROBOT, UNUSABLE
-from swarmloc.events import Detection, Odometry
+from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.node import detection_key, odometry_problem, validate_detection
 from swarmloc.node.inputs import CONTIGUOUS, OdometryTimeline, brief, clearly_valid, command_value, finite_number
 
@@ -214,10 +214,10 @@ class Checked:
         if why is not None:
             self.reject("rejected", why)
             return
-        code = NO_TARGET if e.kind == "absolute" else self.col.get(e.target, UNKNOWN_ROBOT)
-        if e.kind != "absolute" and not e.target_is_robot:  # a landmark (the pose of one: in the group, not fused)
-            code = UNUSABLE if e.kind == "pose" else self.landmark_code(e.target)
-        elif e.kind != "absolute" and e.target is None:
+        code = NO_TARGET if e.kind == Kind.ABSOLUTE else self.col.get(e.target, UNKNOWN_ROBOT)
+        if e.kind != Kind.ABSOLUTE and not e.target_is_robot:  # a landmark (the pose of one: in the group, not fused)
+            code = UNUSABLE if e.kind == Kind.POSE else self.landmark_code(e.target)
+        elif e.kind != Kind.ABSOLUTE and e.target is None:
             code = UNUSABLE
         group = self.groups[float(e.t)][self.col[e.observer]]
         key = detection_key(e)

@@ -20,6 +20,7 @@ import numpy as np
 from swarmloc.engine.codes import ABSOLUTE, MODEL, POSE, POSE3, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.fuse_exp import pseudo
 from swarmloc.engine.stamp import Sequential, Stamp
+from swarmloc.events import Kind
 from swarmloc.kernels import ci as KCI
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, SE3
@@ -108,7 +109,7 @@ class CiFusion(Sequential):
         """The gate on the fusion with the neighbour's belief as independent (relative poses: as a pseudo-observation;
         range/bearing: the point update's innovation, non-finite where the geometry is degenerate)."""
         mean, cov, nb_mean, nb_cov, meas, R = pair
-        if model.kind == "pose":
+        if model.kind == Kind.POSE:
             nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, meas, R, self.order)
             return st.gate(rows, K.pseudo_nis(SE2, mean, cov, nu, W), self.gate, 3)
         nis = K.point_nis(mean, cov, model.kind, meas, R, nb_mean, nb_cov, True)
@@ -145,4 +146,4 @@ class CiFusion(Sequential):
                                         point_its, order)  # fmt: skip
             return m2, np.where(ok[..., None, None], c2, np.nan)
 
-        return fuse_pose if model.kind == "pose" else fuse_point
+        return fuse_pose if model.kind == Kind.POSE else fuse_point

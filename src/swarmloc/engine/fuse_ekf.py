@@ -18,6 +18,7 @@ import numpy as np
 
 from swarmloc.engine.codes import ABSOLUTE, MODEL, NO_LANDMARK, POSE, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.stamp import Sequential, Stamp, usable
+from swarmloc.events import Kind
 from swarmloc.kernels import cartesian as C
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MeasurementModel
@@ -28,7 +29,7 @@ structure-of-arrays forms make ~1400 array calls per update, a cost that only la
 
 FAST_KINDS = (ABSOLUTE, POSE)
 """Kinds the fast path fuses between robots (and absolute fixes)."""
-RANGE_BEARING = KIND_ORDER["range_bearing"]
+RANGE_BEARING = KIND_ORDER[Kind.RANGE_BEARING]
 """The kind the fast path fuses with :func:`swarmloc.engine.soa.landmark_update`: a map landmark's range-bearing,
 and a robot's as a landmark's at the neighbour's position and covariance (the node's ``R + Hk Pk Hk^T``; range and
 bearing of a position do not depend on its heading). The range-only and bearing-only kinds take the

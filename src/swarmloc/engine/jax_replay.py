@@ -43,12 +43,13 @@ from swarmloc.engine.codes import (
 )
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_stamp import bucket, import_jax, pad_rows
+from swarmloc.events import Kind
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MODELS
 
 DET, CMD, REC, NOOP = range(4)
 """Event types: a detection, a command, a record of every robot, padding."""
-RANGE_BEARING, RANGE, BEARING = KIND_ORDER["range_bearing"], KIND_ORDER["range"], KIND_ORDER["bearing"]
+RANGE_BEARING, RANGE, BEARING = KIND_ORDER[Kind.RANGE_BEARING], KIND_ORDER[Kind.RANGE], KIND_ORDER[Kind.BEARING]
 COMPILES: Counter[tuple] = Counter()
 """Traces per ``(form, robots, steps, commands, record slots, landmarks, runs)``: one per shape."""
 Kernels = tuple[Callable[..., Any], Callable[..., Any], Callable[..., Any]]

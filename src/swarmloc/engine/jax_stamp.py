@@ -53,11 +53,12 @@ from swarmloc.engine.codes import (
     UNKNOWN,
     UNUSABLE,
 )
+from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
 
-RANGE_BEARING = KIND_ORDER["range_bearing"]
+RANGE_BEARING = KIND_ORDER[Kind.RANGE_BEARING]
 DEVICE_KINDS = (ABSOLUTE, POSE, RANGE_BEARING)
 """Kinds the device stamp fuses; a stamp holding a detection of another kind takes the per-level kernels."""
 CHUNK = 4

@@ -12,9 +12,10 @@ import numpy as np
 from numba import njit
 
 from swarmloc.engine.codes import ABSOLUTE, GATED, POSE, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.events import Kind
 from swarmloc.sensors.models import KIND_ORDER
 
-RANGE_BEARING, RANGE, BEARING = KIND_ORDER["range_bearing"], KIND_ORDER["range"], KIND_ORDER["bearing"]
+RANGE_BEARING, RANGE, BEARING = KIND_ORDER[Kind.RANGE_BEARING], KIND_ORDER[Kind.RANGE], KIND_ORDER[Kind.BEARING]
 _PI = math.pi
 _TAU = 2 * math.pi
 

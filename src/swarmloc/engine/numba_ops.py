@@ -44,6 +44,7 @@ from swarmloc.engine.codes import (
 )
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.scalar import absolute_source, landmark_source, pose_source, predict_source
+from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
@@ -101,7 +102,7 @@ def _map_landmark(target: str, indent: int) -> str:
     return "\n".join(" " * indent + line for line in lines)
 
 
-RANGE_BEARING = KIND_ORDER["range_bearing"]
+RANGE_BEARING = KIND_ORDER[Kind.RANGE_BEARING]
 
 
 _KINDS = f"""

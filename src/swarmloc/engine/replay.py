@@ -59,7 +59,7 @@ from swarmloc.engine.core import Engine, landmark_table, map_code
 from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.outcomes import tally
 from swarmloc.estimators import node_options
-from swarmloc.events import Detection
+from swarmloc.events import Detection, Kind
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, SE3
 from swarmloc.runner import RobotTrack, RunResult, truth_table
@@ -313,7 +313,7 @@ def _joint_reasons(checked: Checked, t0: float, use_relative: bool, use_landmark
 
 def _static_reason(d: Detection, code: int, use_relative: bool, use_landmarks: bool) -> str | None:
     """``"<outcome>: <reason>"`` of a detection the centralized node refuses before it reads a state, or None."""
-    if d.kind == "absolute":
+    if d.kind == Kind.ABSOLUTE:
         return None
     if d.target_is_robot:
         if not use_relative:
@@ -323,7 +323,7 @@ def _static_reason(d: Detection, code: int, use_relative: bool, use_landmarks: b
         if d.target == d.observer:
             return "rejected: the target is the observer itself"
         return f"unknown: robot {d.target} is not in the team" if code == UNKNOWN_ROBOT else None
-    if d.kind == "pose":
+    if d.kind == Kind.POSE:
         return "rejected: a landmark is a point: it has no relative pose"
     if not use_landmarks:
         return "rejected: landmark measurements are switched off"

@@ -25,6 +25,7 @@ import math
 from typing import Any
 
 from swarmloc.motion import SERIES, SERIES_BELOW, UnicycleNoise
+from swarmloc.motion.closed_form import unicycle_terms
 
 Entry = Any
 """A matrix entry: an array ``(B,)`` of the namespace in use, or a Python float constant."""
@@ -168,22 +169,7 @@ def increment_terms(xp: Any, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise
     s1 = xp.where(zero, 1.0, xp.sin(nz) / nz)
     h = xp.where(zero, 1.0, xp.sin(nz / 2) / (nz / 2))
     h2 = h * h
-    h4 = h2 * h2
-    t2 = t * t
-    t3 = t2 * t
-    vv = v * v
-    Gcc = t * (1 + s2) / 2
-    Gss = t * x * x * A
-    Gcs = t * x * s1 * s1 / 2
-    qwvv = q_w * vv
-    S11 = q_v * Gcc + q_lat * Gss + qwvv * t3 * x * x * E
-    S12 = (q_lat - q_v) * Gcs + qwvv * t3 * x * h4 / 8
-    S13 = q_w * v * t2 * x * B
-    S22 = q_v * Gss + q_lat * Gcc + qwvv * t3 * A
-    S23 = q_w * v * t2 * h2 / 2
-    S33 = q_w * t
-    vt = v * t
-    return xp.cos(x), xp.sin(x), vt * s1, vt * x * h2 / 2, S11, S12, S13, S22, S23, S33
+    return (xp.cos(x), xp.sin(x), *unicycle_terms(x, t, v, q_v, q_w, q_lat, s2, A, B, E, s1, h2, h2 * h2))
 
 
 def predict(
@@ -195,7 +181,7 @@ def predict(
     x0, y0, th0 = x
     ct, st = xp.cos(th0), xp.sin(th0)
     dx, dy = ct * tx - st * ty, st * tx + ct * ty
-    th = _PI - xp.mod(_PI - (th0 + xp.arctan2(s, c)), _TWO_PI)
+    th = wrap(xp, th0 + xp.arctan2(s, c))
     cn, sn = xp.cos(th), xp.sin(th)
     cc, ss, cs = cn * cn, sn * sn, cn * sn
     q00 = cc * S11 - 2 * cs * S12 + ss * S22

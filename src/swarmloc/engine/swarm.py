@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from swarmloc.engine.core import Detections, Engine
+from swarmloc.events import Kind
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.sde import compose_exp_xyt
@@ -242,7 +243,7 @@ def _landmark_scene(sw: Swarm, k: int, seed: int) -> tuple[dict[int, tuple[float
     R = np.zeros((obs.size, 3, 3))
     R[:, 0, 0], R[:, 1, 1] = 0.05**2, np.deg2rad(1.0) ** 2
     tgt = landmark_code(0) - near.ravel()  # landmark_code(k) = landmark_code(0) - k
-    return lmap, Detections(obs, tgt, np.full(obs.size, KIND_ORDER["range_bearing"]), z, R)
+    return lmap, Detections(obs, tgt, np.full(obs.size, KIND_ORDER[Kind.RANGE_BEARING]), z, R)
 
 
 def fusion_step(

@@ -20,6 +20,7 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2
@@ -271,7 +272,7 @@ class CentralizedEKF(Node):
             R = m.noise(d.z, d.cov)
             xi = s.X[si]
             # H is zero but in the observer's (and the detected robot's) 3 columns: H holds those, cols says which
-            if target[0] == "absolute":
+            if target[0] == Kind.ABSOLUTE:
                 h, H, _ = m.predict(xi)
                 cols, r = own, m.residual(d.z, h)
             else:

@@ -30,6 +30,7 @@ import numpy as np
 
 from swarmloc.estimators.cekf import CentralizedEKF
 from swarmloc.estimators.dekf3 import to_error, to_group, transition
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import so3_exp
@@ -149,7 +150,7 @@ class CentralizedEKF3(CentralizedEKF):
             else:
                 outcomes.append(("rejected", f"kind {d.kind!r} of a {target[0]} is not supported on SE(3)"))
                 continue
-            if m3.kind == "pose3":
+            if m3.kind == Kind.POSE3:
                 h, Hi, Hk = m3.predict(gi, gk)
                 r, Rn = m3.residual(d.z, h), m3.noise(d.z, d.cov)
             else:

@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from swarmloc.estimators.expfusion import DEGENERATE, NUMERICAL, ExpFusion, ExpState
+from swarmloc.events import Kind
 from swarmloc.kernels import group as K
 from swarmloc.kernels.ci import ci_search, point_weight, pose_weight
 from swarmloc.lie import SE2, SE3
@@ -76,9 +77,9 @@ class ExpCI(ExpFusion):
         nb_mean, nb_cov = target[1].belief_arrays()
         R = np.asarray(d.cov, dtype=float)
         order, its = self.order, self.iterations
-        if self.group is SE3 or d.kind == "pose3":
+        if self.group is SE3 or d.kind == Kind.POSE3:
             return self._ci3(mean, cov, d, nb_mean, nb_cov, R)
-        if d.kind == "pose":
+        if d.kind == Kind.POSE:
             m = SE2.from_xytheta(d.z)
             if self.gate.p is not None:
                 nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, m, R, order)
@@ -106,14 +107,14 @@ class ExpCI(ExpFusion):
             if not bool(ok):
                 return ("rejected", DEGENERATE)
         if not (np.isfinite(m2).all() and usable_covariance(c2)):
-            return ("rejected", DEGENERATE if d.kind != "pose" else NUMERICAL)
+            return ("rejected", DEGENERATE if d.kind != Kind.POSE else NUMERICAL)
         return m2, c2
 
     def _ci3(self, mean: np.ndarray, cov: np.ndarray, d: Any, nb_mean: np.ndarray, nb_cov: np.ndarray,
              R: np.ndarray) -> Any:  # fmt: skip
         """Covariance intersection of an SE(3) relative pose (``"pose3"``) with the neighbour's SE(3) answer: the
         weight in closed form (:func:`~swarmloc.kernels.ci.pose_weight` on SE(3)), then one fusion."""
-        if d.kind != "pose3" or self.group is not SE3 or nb_mean.shape != (4, 4):
+        if d.kind != Kind.POSE3 or self.group is not SE3 or nb_mean.shape != (4, 4):
             return ("rejected", f"kind {d.kind!r} is not supported on {self.group.name}")
         m = pose3_matrix(d.z)
         order, its = self.order, self.iterations

@@ -14,6 +14,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.messages import Message
@@ -45,7 +46,7 @@ def linearize(d: Any, x: np.ndarray, target: tuple[str, Any]) -> tuple[np.ndarra
     """
     m = model(d.kind)
     R = m.noise(d.z, d.cov)
-    if target[0] == "absolute":
+    if target[0] == Kind.ABSOLUTE:
         h, Hi, _ = m.predict(x)
         return m.residual(d.z, h), Hi, R, None
     if target[0] == "robot":

@@ -28,6 +28,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import skew, so3_exp
@@ -132,7 +133,7 @@ class DistributedEKF3(RobotNode):
             gk, Ck = target[1]
         else:
             return ("rejected", f"kind {d.kind!r} of a {target[0]} is not supported on SE(3)")
-        if m3.kind == "pose3":
+        if m3.kind == Kind.POSE3:
             h, Hi, Hk = m3.predict(gi, gk)
             r, Rn = m3.residual(d.z, h), m3.noise(d.z, d.cov)
         else:

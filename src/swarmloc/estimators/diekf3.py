@@ -49,6 +49,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from swarmloc.estimators.diekf import DistributedInvariantEKF
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import skew
@@ -169,7 +170,7 @@ class DistributedInvariantEKF3(DistributedInvariantEKF):
             if xj.shape != (4, 4):
                 return ("rejected", "the neighbour's answer is not an SE(3) state")
             Sij = s.Sigma[self._pos[i], self._pos[j]]
-            if d.kind == "pose3":
+            if d.kind == Kind.POSE3:
                 r, Hi, Hj, R = relative_pose3_world(s.x, xj, d.z, d.cov)
                 S = s.P - Sij - Sij.T + Pjj + R  # H P H^T with H_i = -I, H_j = I
             else:

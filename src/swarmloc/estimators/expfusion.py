@@ -29,6 +29,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian, convolution_F_tensor
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, SE3
@@ -183,15 +184,15 @@ class ExpFusion(RobotNode):
     def _pseudo(self, d: Any, target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
         """Pseudo-observation ``(nu, W)`` of the robot's own pose (absolute fix or relative pose of a robot)."""
         if self.group is SE3:
-            if target[0] == "robot" and d.kind == "pose3":
+            if target[0] == "robot" and d.kind == Kind.POSE3:
                 mean, cov = target[1].belief_arrays()
                 if mean.shape != (4, 4):
                     return None
                 return K.relative_to_pseudo(SE3, mean, cov, pose3_matrix(d.z), np.asarray(d.cov, float), self.order)
             return None
-        if target[0] == "absolute":
+        if target[0] == Kind.ABSOLUTE:
             return K.absolute_to_pseudo(d.z, np.asarray(d.cov, float))
-        if target[0] == "robot" and d.kind == "pose":
+        if target[0] == "robot" and d.kind == Kind.POSE:
             nb: BeliefAnswer = target[1]
             mean, cov = nb.belief_arrays()
             return K.relative_to_pseudo(SE2, mean, cov, SE2.from_xytheta(d.z), np.asarray(d.cov, float), self.order)
@@ -261,7 +262,7 @@ class ExpFusion(RobotNode):
             for i in idx:
                 outcomes[i] = FUSED if ok else ("rejected", NUMERICAL)
         for i, d, target in points:
-            if self.group is SE3 or d.kind == "pose3":
+            if self.group is SE3 or d.kind == Kind.POSE3:
                 outcomes[i] = ("rejected", f"kind {d.kind!r} is not supported on {self.group.name}")
                 continue
             res = self._point(mean, cov, d, target)

@@ -55,10 +55,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels.ci import point_weight, pose_weight
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.messages import Message
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
 from swarmloc.sensors.models import model
@@ -179,7 +180,7 @@ def _pseudo_factor(g: Any, f: Factor) -> Any:
     def error(this: Any, values: Any, H: Any) -> np.ndarray:
         x = _xyt(values.atPose2(this.keys()[0]))
         d = x - f.z
-        d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
+        d[2] = wrap_angle(d[2])
         if H is not None:
             H[0] = _body(A, x[2])
         return A @ d - b
@@ -370,12 +371,12 @@ class FixedLagSmoother(WindowSolver, RobotNode):
                     continue
             z = np.asarray(d.z, dtype=float)
             if target[0] != "robot":
-                lm = None if target[0] == "absolute" else np.asarray(target[1][0], dtype=float)
+                lm = None if target[0] == Kind.ABSOLUTE else np.asarray(target[1][0], dtype=float)
                 factors.append(Factor("unary", pid, -1, d.kind, z, R_eff, lm, 1.0))
             else:
                 nb_mean, nb_cov = target[1].belief_arrays()
                 R = np.asarray(d.cov, dtype=float)
-                if d.kind == "pose":
+                if d.kind == Kind.POSE:
                     w = float(pose_weight(mean_i, cov_i, SE2.from_xytheta(z), R, nb_mean, nb_cov))
                 else:
                     w = float(point_weight(mean_i, cov_i, d.kind, z, R, nb_mean, nb_cov))

@@ -36,6 +36,7 @@ import numpy as np
 from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.estimators.diekf import DistributedInvariantEKF
 from swarmloc.estimators.fls import TINY_VARIANCE, Factor, Window, WindowSolver, load_gtsam
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
@@ -241,7 +242,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
                 outcomes.append(verdict)
                 msgs += [TeamUpdate(sender=i, receiver=rr, stamp=g.t, sub=sub) for rr in mates]
                 continue
-            lm = None if target[0] == "absolute" else np.asarray(target[1][0], dtype=float)
+            lm = None if target[0] == Kind.ABSOLUTE else np.asarray(target[1][0], dtype=float)
             z = np.asarray(d.z, dtype=float)
             landmarks.append((len(outcomes), sub, Factor("unary", -1, -1, d.kind, z, R, lm, 1.0)))
             outcomes.append(None)

@@ -32,6 +32,7 @@ import numpy as np
 
 from swarmloc.estimators.cekf import CentralizedEKF, TeamState, clock_and_pending, compose_pending, flush_pending
 from swarmloc.estimators.dekf import DEGENERATE
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2, wrap_angle
@@ -90,7 +91,7 @@ class _LoggedCentral(CentralizedEKF):
             m = model(d.kind)
             R = m.noise(d.z, d.cov)
             xi, li = s.X[i : i + 3], self._lin_point(s, i)
-            if target[0] == "absolute":
+            if target[0] == Kind.ABSOLUTE:
                 starts, blocks = [i], [self._to_error(np.eye(3), li)]
                 r = m.residual(d.z, xi)
             else:

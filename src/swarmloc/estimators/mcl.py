@@ -70,6 +70,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, wrap_angle
@@ -447,8 +448,8 @@ class MonteCarloLocalization(RobotNode):
         z = np.asarray(d.z, dtype=float)
         R = np.asarray(d.cov, dtype=float)
         n = p.shape[0]
-        if target[0] == "absolute":
-            r = models.residual("pose", z, p)
+        if target[0] == Kind.ABSOLUTE:
+            r = models.residual(Kind.POSE, z, p)
             S = np.broadcast_to(R, (n, 3, 3))
             bad = None
         else:
@@ -458,9 +459,9 @@ class MonteCarloLocalization(RobotNode):
                 xk, Pk = target[1]
             c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
             dx, dy = xk[0] - p[:, 0], xk[1] - p[:, 1]
-            if d.kind == "pose":  # h = (R^T (p_k - p), theta_k - theta); H_k = diag(R^T, 1)
+            if d.kind == Kind.POSE:  # h = (R^T (p_k - p), theta_k - theta); H_k = diag(R^T, 1)
                 h = np.stack([c * dx + s * dy, -s * dx + c * dy, xk[2] - p[:, 2]], axis=-1)
-                r = models.residual("pose", z, h)
+                r = models.residual(Kind.POSE, z, h)
                 T = np.zeros((n, 3, 3))
                 T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1], T[:, 2, 2] = c, s, -s, c, 1.0
                 S = models.pose_noise_to_cartesian(z, R) + T @ Pk @ np.swapaxes(T, -1, -2)
@@ -474,7 +475,7 @@ class MonteCarloLocalization(RobotNode):
                 rng = np.sqrt(q)
                 h = np.stack([rng, wrap_angle(np.arctan2(-s * dx + c * dy, c * dx + s * dy))], axis=-1)
                 J = np.stack([np.stack([dx / rng, dy / rng], -1), np.stack([-dy / q, dx / q], -1)], axis=-2)
-                rows = {"range_bearing": slice(0, 2), "range": slice(0, 1), "bearing": slice(1, 2)}[d.kind]
+                rows = list(models.MODELS[d.kind].components)
                 h, J = h[:, rows], J[:, rows, :]
                 r = models.residual(d.kind, z, h)
                 S = R + J @ Pk[:2, :2] @ np.swapaxes(J, -1, -2)

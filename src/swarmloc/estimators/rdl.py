@@ -219,7 +219,7 @@ def near(a: RdlState, b: RdlState) -> bool:
     xa, Pa, sa = a.arrays()
     xb, Pb, sb = b.arrays()
     d = xa - xb
-    d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
+    d[2] = wrap_angle(d[2])
     try:
         if d @ np.linalg.solve(Pb, d) > NEAR_MAHALANOBIS:
             return False

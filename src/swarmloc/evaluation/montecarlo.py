@@ -130,8 +130,10 @@ def importance_posterior_point(
     over proposal ratio times ``N(z - h; 0, R)`` with ``h`` computed from the sampled poses directly
     (``R_i^T (p_k - t_i)``, ``atan2``), angles wrapped. No linearization anywhere.
     """
-    from swarmloc.lie import SE2, wrap_angle
+    from swarmloc.lie import SE2
+    from swarmloc.sensors.models import model
 
+    point = model(kind)
     d = 3
     Rinv = np.linalg.inv(R)
     q_mean, q_cov = np.zeros(d), prior.cov
@@ -146,10 +148,7 @@ def importance_posterior_point(
         q = np.einsum("nji,nj->ni", gi[:, :2, :2], dp)
         rr = np.hypot(q[:, 0], q[:, 1])
         bb = np.arctan2(q[:, 1], q[:, 0])
-        h = {"range_bearing": np.stack([rr, bb], 1), "range": rr[:, None], "bearing": bb[:, None]}[kind]
-        res = np.asarray(z, float) - h
-        if kind in ("range_bearing", "bearing"):
-            res[:, -1] = wrap_angle(res[:, -1])
+        res = point.residual(z, np.stack([rr, bb], 1)[:, point.components])
         logw = _gauss_logpdf(y_i, prior.cov) - _gauss_logpdf(y_i - q_mean, q_cov)
         logw -= 0.5 * np.einsum("ni,ij,nj->n", res, Rinv, res)
         w = np.exp(logw - logw.max())

@@ -28,7 +28,7 @@ import numpy as np
 
 from swarmloc.association.tracker import bank_detections
 from swarmloc.datasets.source import Source
-from swarmloc.events import Detection, Event
+from swarmloc.events import Detection, Event, Kind
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sim.anonymous import anonymize
 
@@ -68,7 +68,7 @@ def association_events(
     anon = anonymize(events, **kw)
     if policy != "anonymous":
         return anon, {}
-    if not any(isinstance(e, Detection) and e.kind == "range_bearing" and e.target_is_robot for e in anon):
+    if not any(isinstance(e, Detection) and e.kind == Kind.RANGE_BEARING and e.target_is_robot for e in anon):
         raise ValueError(
             "association 'anonymous' needs range-bearing robot detections (PMR registers points): use a source "
             "that has them (sim:range_bearing, mrclam:PATH)"
@@ -76,7 +76,7 @@ def association_events(
     opts = {**BANK_DEFAULTS, **(bank or {})}
     sigma = opts.pop("sigma", None)
     if sigma is None:  # the point noise PMR is given: max(s_r, range s_b) of the detections (tracker docstring)
-        covs = [e.cov for e in anon if isinstance(e, Detection) and e.kind == "range_bearing" and e.target_is_robot]
+        covs = [e.cov for e in anon if isinstance(e, Detection) and e.kind == Kind.RANGE_BEARING and e.target_is_robot]
         s = np.sqrt(np.median([[c[0][0], c[1][1]] for c in covs], axis=0))
         sigma = float(max(s[0], 2.0 * s[1]))
     out, counts = bank_detections(anon, list(robots), noise, sigma, **opts)
@@ -98,7 +98,7 @@ def handoff_accuracy(events: Sequence[Event], truth: Any, gate: float = 0.999) -
 
     from swarmloc.lie import SE2
 
-    poses = [e for e in events if isinstance(e, Detection) and e.kind == "pose" and e.target is not None]
+    poses = [e for e in events if isinstance(e, Detection) and e.kind == Kind.POSE and e.target is not None]
     if not poses:
         return 0, 0
     t = [np.array([e.t]) for e in poses]

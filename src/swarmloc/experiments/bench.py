@@ -195,6 +195,8 @@ def _swarm_geometry(n: int, neighbours: int, seed: int) -> tuple[np.ndarray, np.
     robot's measured relative pose of them ``(n, k, 3)`` (5 cm, 1 deg noise)."""
     from scipy.spatial import cKDTree
 
+    from swarmloc.lie import wrap_angle
+
     rng = np.random.default_rng(seed)
     side = math.sqrt(n)
     pose = np.column_stack([rng.uniform(0, side, (n, 2)), rng.uniform(-math.pi, math.pi, n)])
@@ -204,7 +206,7 @@ def _swarm_geometry(n: int, neighbours: int, seed: int) -> tuple[np.ndarray, np.
     d = pose[nb, :2] - pose[:, None, :2]
     c, s = np.cos(pose[:, 2])[:, None], np.sin(pose[:, 2])[:, None]
     rel = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1],
-                    np.angle(np.exp(1j * (pose[nb, 2] - pose[:, None, 2])))], axis=-1)  # fmt: skip
+                    wrap_angle(pose[nb, 2] - pose[:, None, 2])], axis=-1)  # fmt: skip
     rel += rng.standard_normal(rel.shape) * np.array([0.05, 0.05, math.radians(1.0)])
     return pose, nb, rel
 

@@ -69,7 +69,7 @@ from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.events import Event
 from swarmloc.experiments.evaluate import ALL, evaluate_stream, markdown_table, write_report
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.calibrate import YawScale, fit_yaw_scale, heading_increments, scale_yaw
 from swarmloc.sensors.decorrelate import (
@@ -256,7 +256,7 @@ def measurement_errors(data: MRCLAMData) -> dict[str, np.ndarray]:
         c, sn = np.cos(xi[ok, 2]), np.sin(xi[ok, 2])
         qx, qy = c * dp[:, 0] + sn * dp[:, 1], -sn * dp[:, 0] + c * dp[:, 1]
         rng_e.append(m[ok, 2] - np.hypot(qx, qy))
-        brg_e.append(np.angle(np.exp(1j * (m[ok, 3] - np.arctan2(qy, qx)))))
+        brg_e.append(wrap_angle(m[ok, 3] - np.arctan2(qy, qx)))
         is_lm.append(np.isin(subj[ok], list(data.landmarks)))
     return {"range": np.concatenate(rng_e), "bearing": np.concatenate(brg_e), "landmark": np.concatenate(is_lm)}
 

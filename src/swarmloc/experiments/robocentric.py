@@ -17,13 +17,14 @@ from swarmloc.estimators.robocentric import (
     compose,
     inverse,
 )
+from swarmloc.lie import wrap_angle
 
 __all__ = ["robocentric_monte_carlo"]
 
 
 def _nees(q: np.ndarray, P: np.ndarray, truth: np.ndarray) -> float:
     e = (q - truth).ravel()
-    e[2::3] = (e[2::3] + np.pi) % (2 * np.pi) - np.pi
+    e[2::3] = wrap_angle(e[2::3])
     return float(e @ np.linalg.solve(P, e))
 
 

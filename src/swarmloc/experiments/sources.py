@@ -38,6 +38,7 @@ from pathlib import Path
 
 from swarmloc.config import DEFAULTS, Config
 from swarmloc.datasets.source import Source
+from swarmloc.events import Kind
 from swarmloc.sim.source import sim_source
 
 __all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim3d_source", "sim_source"]
@@ -57,11 +58,14 @@ SIM_SCENARIOS = (
 SIM3D_VARIANTS = {
     "3d": {},
     "3d_rot": {},
-    "3d_rbe": {"detection": "rbe3"},
-    "3d_bearing": {"detection": "bearing3"},
+    "3d_rbe": {"detection": Kind.RBE3},
+    "3d_bearing": {"detection": Kind.BEARING3},
     "3d_landmarks": {"landmarks": 8},
 }
 """The ``sim:3d`` scenarios and their :class:`~swarmloc.sim.sim3d.Sim3Config` fields."""
+
+_SCENARIO_KINDS = {"range_bearing": (Kind.RANGE_BEARING,)}
+"""The detection kinds of a planar random team's scenario (relative poses when not listed)."""
 
 LARGE_ROTATION = 30.0
 """[deg] Initial rotational standard deviation per axis of ``sim:3d_rot``."""
@@ -123,7 +127,7 @@ def _sim(scenario: str, robots: int, duration: float, seed: int, config: Config 
         return _corridor(robots, duration, seed, config)
     if scenario in SIM3D_VARIANTS:
         return sim3d_source(robots, duration, seed, scenario=scenario)
-    kinds = ("range_bearing",) if scenario == "range_bearing" else ("pose",)
+    kinds = _SCENARIO_KINDS.get(scenario, (Kind.POSE,))
     sim = random_team(robots, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0, kinds=kinds))
     if scenario != "landmarks":
         return sim_source(sim, f"sim:{scenario}", config)

@@ -67,7 +67,7 @@ def increment_terms_xy(
     alpha, tx, ty, S11, S12, S13, S22, S23, S33 = increment_cached(increment_cache(noise), v, w, dt, noise)
     ct, st = math.cos(th0), math.sin(th0)
     dx, dy = ct * tx - st * ty, st * tx + ct * ty
-    th = math.pi - (math.pi - (th0 + alpha)) % (2 * math.pi)  # wrapped to (-pi, pi]
+    th = wrap_angle(th0 + alpha)
     cn, sn = math.cos(th), math.sin(th)
     cc, ss, cs = cn * cn, sn * sn, cn * sn
     return (
@@ -160,7 +160,6 @@ def predict_run(
     v, w = cmd
     cache = increment_cache(noise)
     ct = st = None
-    pi, tau = math.pi, 2 * math.pi
     for tk, vk, wk in cmds:
         dt = tk - t
         if dt > 0:
@@ -171,7 +170,7 @@ def predict_run(
             if ct is None:
                 ct, st = math.cos(th), math.sin(th)
             dx, dy = ct * tx - st * ty, st * tx + ct * ty
-            th = pi - (pi - (th + alpha)) % tau  # wrapped to (-pi, pi]
+            th = wrap_angle(th + alpha)
             ct, st = math.cos(th), math.sin(th)
             cc, ss, cs = ct * ct, st * st, ct * st
             x0, y0 = x0 + dx, y0 + dy
@@ -261,7 +260,7 @@ def _kalman_update_one(
     xn = x + PHt @ Sr
     with np.errstate(invalid="ignore"):
         for j in angles:
-            xn[j] = math.pi - (math.pi - xn[j]) % (2 * math.pi) if math.isfinite(xn[j]) else xn[j]
+            xn[j] = wrap_angle(xn[j]) if math.isfinite(xn[j]) else xn[j]
     IKH = np.eye(x.shape[0]) - K @ H
     Pn = IKH @ P @ IKH.T + K @ R @ K.T
     Pn = 0.5 * (Pn + Pn.T)

@@ -20,7 +20,7 @@ import numpy as np
 from swarmloc.gaussian import convolution_F, convolution_F_tensor
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.lie.base import SEGroup
-from swarmloc.sensors.models import MIN_RANGE
+from swarmloc.sensors.models import MIN_RANGE, MODELS
 
 _T = np.swapaxes
 
@@ -148,8 +148,8 @@ def pseudo_nis(group: type[SEGroup], mu: np.ndarray, cov: np.ndarray, nu: np.nda
 
 # ------------------------------------------------------------------------------------------------ range / bearing
 _J2 = np.array([[0.0, -1.0], [1.0, 0.0]])
-POINT_KINDS = {"range_bearing": (0, 1), "range": (0,), "bearing": (1,)}
-"""Partial measurements of a point: which of (range, bearing) each kind observes."""
+POINT_KINDS = {k: m.components for k, m in MODELS.items() if m.targets == "point"}
+"""Partial measurements of a point: which of (range, bearing) each kind observes (its model's ``components``)."""
 
 
 def point_model(
@@ -206,16 +206,10 @@ def _point_model_one(
         dq_dt = np.array([[c, s_], [-s_, c]])
     r2 = qx * qx + qy * qy
     r = np.sqrt(r2)
+    sel = POINT_KINDS[kind]
     with np.errstate(divide="ignore", invalid="ignore"):
-        if kind == "range_bearing":
-            h = np.array([r, np.arctan2(qy, qx)])
-            dz = np.array([[qx / r, qy / r], [-qy / r2, qx / r2]])
-        elif kind == "range":
-            h = np.array([r])
-            dz = np.array([[qx / r, qy / r]])
-        else:
-            h = np.array([np.arctan2(qy, qx)])
-            dz = np.array([[-qy / r2, qx / r2]])
+        h = np.array([(r, np.arctan2(qy, qx))[j] for j in sel])
+        dz = np.array([((qx / r, qy / r), (-qy / r2, qx / r2))[j] for j in sel])
     dq_dy = np.array([[-1.0, 0.0, qy], [0.0, -1.0, -qx]])  # -[I, J q]
     Ht = dz @ dq_dt
     return h, dz @ dq_dy, Ht @ target_cov @ Ht.T, r

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.config import DEFAULTS, Config
-from swarmloc.events import Detection, Event, MeasurementKind, Odometry
+from swarmloc.events import Detection, Event, Kind, MeasurementKind, Odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.net.entry import make_node
@@ -206,7 +206,7 @@ class LiveNode:
         z: Any,
         cov: Any,
         target: int | None,
-        kind: MeasurementKind = "pose",
+        kind: MeasurementKind = Kind.POSE,
         target_is_robot: bool = True,
     ) -> bool:
         """A measurement of ``target`` (a robot, or a landmark with ``target_is_robot=False``) at ``t`` [s]:

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry
+from swarmloc.events import Detection, Event, Kind, Odometry
 from swarmloc.net import ros
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.rosgraph import RosGraph
@@ -98,7 +98,7 @@ def odometry_cdr(t: float, v: float, w: float, pose: Any = (0.0, 0.0, 0.0), chil
 
 def detection_cdr(d: Detection) -> bytes:
     """CDR of the ``PoseWithCovarianceStamped`` of a ``"pose"`` detection of an identified robot or landmark."""
-    if d.kind != "pose" or d.target is None:
+    if d.kind != Kind.POSE or d.target is None:
         raise ValueError(f"ROS detections carry identified 'pose' measurements, got kind {d.kind!r}, target {d.target}")
     T = ros.typestore().types
     z = np.asarray(d.z, dtype=float).reshape(3)
@@ -164,7 +164,7 @@ def decode_detection(payload: bytes, observer: int) -> Detection:
         raise Bad("bad_value", "non-finite detection")
     if not (np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(0.5 * (cov + cov.T)) > 0)):
         raise Bad("bad_covariance", "the (x, y, yaw) covariance is not symmetric positive definite")
-    return Detection(observer, _stamp(m), "pose", z, cov, int(hit.group(2)), hit.group(1) == "robot")
+    return Detection(observer, _stamp(m), Kind.POSE, z, cov, int(hit.group(2)), hit.group(1) == "robot")
 
 
 def decode_progress(payload: bytes) -> tuple[float, bool, int | None]:

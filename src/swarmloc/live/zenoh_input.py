@@ -43,16 +43,16 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry
+from swarmloc.events import Detection, Event, Kind, Odometry
 from swarmloc.net.auth import HEADER, INPUT_CONTEXT, SIG_SIZE, Auth, AuthRejected, Roster, Verifier, note_refusal
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.transport import PREFIX, block
+from swarmloc.sensors.models import SIZES
 
 log = logging.getLogger(__name__)
 
 MAX_BYTES = 8192
 """Largest input payload accepted [bytes]."""
-Z_SIZE = {"pose": 3, "range_bearing": 2, "range": 1, "bearing": 1, "absolute": 3}
 
 
 class OdomIn(msgspec.Struct, forbid_unknown_fields=True):
@@ -116,15 +116,15 @@ def decode_input(what: str, payload: bytes, robot: int) -> Event | ProgressIn:
         return Odometry(robot, m.t0, m.t1, m.v, m.w)  # the feed checks the numbers and the order
     if isinstance(m, ProgressIn):
         return m
-    n = Z_SIZE.get(m.kind)
+    n = SIZES.get(m.kind)
     if n is None:
-        raise Refused("bad_kind", f"kind {m.kind!r} not one of {sorted(Z_SIZE)}")
+        raise Refused("bad_kind", f"kind {m.kind!r} not one of {sorted(SIZES)}")
     if len(m.z) != n or len(m.cov) != n * n:
         raise Refused("bad_size", f"{m.kind}: z needs {n} numbers and cov {n * n}, got {len(m.z)} and {len(m.cov)}")
     cov = np.asarray(m.cov, dtype=float).reshape(n, n)
     if not (np.all(np.isfinite(cov)) and np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > 0)):
         raise Refused("bad_covariance", "cov is not symmetric positive definite")
-    if m.kind != "absolute" and m.target is None and not m.target_is_robot:
+    if m.kind != Kind.ABSOLUTE and m.target is None and not m.target_is_robot:
         raise Refused("bad_target", "a landmark detection needs the landmark's id")
     return Detection(robot, m.t, m.kind, np.asarray(m.z, dtype=float), cov, m.target, m.target_is_robot)  # type: ignore[arg-type]
 

@@ -39,11 +39,9 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from swarmloc.lie import wrap_angle
+
 __all__ = ["LineMap", "LineObservation", "MapLine"]
-
-
-def _wrap(a: float) -> float:
-    return float(np.pi - np.mod(np.pi - a, 2 * np.pi))
 
 
 def _n_t(alpha: float) -> tuple[np.ndarray, np.ndarray]:
@@ -150,8 +148,8 @@ def _flip(cov: np.ndarray) -> np.ndarray:
 def _innovation(rho: float, alpha: float, cov: np.ndarray, line: MapLine) -> tuple[np.ndarray, np.ndarray]:
     """``(rho, alpha) - (line.rho, line.alpha)`` and the covariance of ``(rho, alpha)``, in whichever
     representation, ``(rho, alpha)`` or the flipped ``(-rho, alpha + pi)``, has the smaller angle difference."""
-    d1 = np.array([rho - line.rho, _wrap(alpha - line.alpha)])
-    d2 = np.array([-rho - line.rho, _wrap(alpha + np.pi - line.alpha)])
+    d1 = np.array([rho - line.rho, wrap_angle(alpha - line.alpha)])
+    d2 = np.array([-rho - line.rho, wrap_angle(alpha + np.pi - line.alpha)])
     return (d1, cov) if abs(d1[1]) <= abs(d2[1]) else (d2, _flip(cov))
 
 
@@ -216,9 +214,9 @@ class LineMap:
         x = C @ (Im @ np.array([line.rho, line.alpha]) + Io @ x_obs)
         C = 0.5 * (C + C.T)
         if x[0] >= 0:
-            line.rho, line.alpha, line.cov = float(x[0]), _wrap(float(x[1])), C
+            line.rho, line.alpha, line.cov = float(x[0]), wrap_angle(float(x[1])), C
         else:
-            line.rho, line.alpha, line.cov = float(-x[0]), _wrap(float(x[1]) + np.pi), _flip(C)
+            line.rho, line.alpha, line.cov = float(-x[0]), wrap_angle(float(x[1]) + np.pi), _flip(C)
         t = _n_t(line.alpha)[1]
 
         def s(p: np.ndarray) -> float:
@@ -244,7 +242,7 @@ class LineMap:
         ends = np.asarray(obs.endpoints, dtype=float)
         k = self.associate(obs)
         if k is None:
-            rho, alpha = (obs.rho, _wrap(obs.alpha)) if obs.rho >= 0 else (-obs.rho, _wrap(obs.alpha + np.pi))
+            rho, alpha = (obs.rho, wrap_angle(obs.alpha)) if obs.rho >= 0 else (-obs.rho, wrap_angle(obs.alpha + np.pi))
             cov = cov.copy() if obs.rho >= 0 else _flip(cov)
             s = ends @ _n_t(alpha)[1]
             line = MapLine(float(rho), alpha, cov, float(s.min()), float(s.max()), {obs.robot})

@@ -48,6 +48,8 @@ def held_integral(t: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
+    """To [-pi, pi), not :func:`swarmloc.lie.wrap_angle`: these residuals feed a fit (an optimizer), whose result
+    moves by 1e-8 when its inputs move by an ulp; kept so that the fitted models stay as they are."""
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 

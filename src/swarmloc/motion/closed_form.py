@@ -46,11 +46,15 @@ line at ``omega = 0``).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 from swarmloc.lie import SE2
 from swarmloc.motion import _stable
+
+T = Any
+"""A float or an array (numpy or jax.numpy) of them."""
 
 
 def _arr(*xs: object) -> list[np.ndarray]:
@@ -215,7 +219,15 @@ def unicycle_increment_terms(
     ``exp(t (v, 0, omega)) = [[cos, -sin, tx], [sin, cos, ty], [0, 0, 1]]`` and the upper triangle of its
     covariance (5.4), as :func:`unicycle_cov` (pure-Python arithmetic)."""
     x = omega * t
-    s2, A, B, E, s1, h2, h4 = _stable.scalar_terms(x)
+    return (math.cos(x), math.sin(x), *unicycle_terms(x, t, v, q_v, q_w, q_lat, *_stable.scalar_terms(x)))
+
+
+def unicycle_terms(
+    x: T, t: T, v: T, q_v: T, q_w: T, q_lat: T, s2: T, A: T, B: T, E: T, s1: T, h2: T, h4: T
+) -> tuple[T, T, T, T, T, T, T, T]:
+    """``(tx, ty, S11, S12, S13, S22, S23, S33)`` of :func:`unicycle_increment_terms` from ``x = omega t`` and its
+    series terms ``(s2, A, B, E, s1, h2, h4)`` (:func:`swarmloc.motion._stable.scalar_terms`), written with
+    arithmetic operators only: floats, or numpy / jax.numpy arrays (the batched engine's kernels)."""
     t2 = t * t
     t3 = t2 * t
     vv = v * v
@@ -230,7 +242,7 @@ def unicycle_increment_terms(
     S23 = q_w * v * t2 * h2 / 2
     S33 = q_w * t
     vt = v * t
-    return math.cos(x), math.sin(x), vt * s1, vt * x * h2 / 2, S11, S12, S13, S22, S23, S33
+    return vt * s1, vt * x * h2 / 2, S11, S12, S13, S22, S23, S33
 
 
 def unicycle_increment_scalar(

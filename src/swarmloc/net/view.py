@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection
+from swarmloc.events import Detection, Kind
 from swarmloc.net.ros import msgdef, pose_covariance_world, pose_message, ros_time, stamp_to_ros, to_cdr, typestore
 from swarmloc.net.schema import Belief, Lines, MapAnswer
 from swarmloc.net.server import MapStore
@@ -126,9 +126,9 @@ def ellipse(mean_xy: np.ndarray, cov_xy: np.ndarray, n: int = 24, chi2: float = 
 def _target_at(d: Detection, g: np.ndarray) -> np.ndarray | None:
     """Where detection ``d`` puts its target in the world, seen from observer pose ``g`` (SE(2) matrix)."""
     z = np.asarray(d.z, dtype=float)
-    if d.kind == "pose":
+    if d.kind == Kind.POSE:
         p = z[:2]
-    elif d.kind == "range_bearing":
+    elif d.kind == Kind.RANGE_BEARING:
         p = z[0] * np.array([np.cos(z[1]), np.sin(z[1])])
     else:
         return None

@@ -40,8 +40,9 @@ from typing import Any
 import numpy as np
 
 from swarmloc.association import AMBIGUOUS, CLUTTER, gate_threshold, innovation_costs, joint, nearest
-from swarmloc.events import Detection
+from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import GroupGaussian, world_covariance
+from swarmloc.lie import wrap_angle
 from swarmloc.node.keys import Group, detection_key
 from swarmloc.node.update import Outcome
 from swarmloc.sensors.models import MODELS
@@ -91,7 +92,7 @@ def check_sensor(where: str, sensor_range: float | None, sensor_fov: float | Non
 
 def is_anonymous(d: Detection) -> bool:
     """A robot detection without an identity (not an absolute fix)."""
-    return d.target is None and d.target_is_robot and d.kind != "absolute"
+    return d.target is None and d.target_is_robot and d.kind != Kind.ABSOLUTE
 
 
 @dataclass
@@ -191,7 +192,7 @@ def associate(
         dx, dy = xt[:, 0] - xo[0], xt[:, 1] - xo[1]
         near = np.hypot(dx, dy) <= sensor_range
         if sensor_fov is not None:
-            bearing = (np.arctan2(dy, dx) - xo[2] + np.pi) % (2 * np.pi) - np.pi
+            bearing = wrap_angle(np.arctan2(dy, dx) - xo[2])
             near &= np.abs(bearing) <= sensor_fov / 2
         missed = sum(1 for r, ok in zip(ids, near.tolist(), strict=True) if ok and r not in got)
     keys = [detection_key(d) for d in dets]

@@ -39,7 +39,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from swarmloc.events import Detection, Odometry
+from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.gaussian import GroupGaussian, world_covariance
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
@@ -402,15 +402,15 @@ class Node(Intake, Exchange):
     def _needs_answer(self, g: Group, d: Detection) -> bool:
         """True when fusing ``d`` needs the target robot's answer (distributed nodes)."""
         return (
-            d.kind != "absolute" and d.target_is_robot and self.use_relative and d.target is not None
+            d.kind != Kind.ABSOLUTE and d.target_is_robot and self.use_relative and d.target is not None
             and d.target != g.observer
         )  # fmt: skip
 
     def _classify(self, g: Group, d: Detection, sub: tuple = ()) -> tuple[str, Any]:
         """What ``d`` is of: ``("absolute", None)``, ``("robot", answer)``, ``("landmark", (p, C))``, or the outcome
         ``("rejected" | "unknown", reason)`` when it cannot be fused."""
-        if d.kind == "absolute":
-            return ("absolute", None)
+        if d.kind == Kind.ABSOLUTE:
+            return (Kind.ABSOLUTE, None)
         if d.target_is_robot:
             if not self.use_relative:
                 return ("rejected", "relative measurements are switched off")
@@ -419,7 +419,7 @@ class Node(Intake, Exchange):
             if d.target == g.observer:
                 return ("rejected", "the target is the observer itself")
             return self._robot_target(g, d, sub)
-        if d.kind == "pose":
+        if d.kind == Kind.POSE:
             return ("rejected", "a landmark is a point: it has no relative pose")
         if not self.use_landmarks:
             return ("rejected", "landmark measurements are switched off")

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Odometry
+from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.gaussian import check_covariance
 from swarmloc.messages import Message
 from swarmloc.node.accounting import Accounting
@@ -132,6 +132,10 @@ def validate_detection(d: Detection) -> str | None:
     return None
 
 
+_KIND_TYPES = (str, Kind)
+"""A kind's exact types the fast screen takes: a name, or a :class:`~swarmloc.events.Kind` member."""
+
+
 def clearly_valid(ds: Sequence[Detection]) -> np.ndarray:
     """``(len(ds),)`` bool: True where :func:`validate_detection` certainly finds detection ``ds[k]`` well formed,
     decided on arrays per kind: a planar kind, ``z`` and ``cov`` numeric numpy arrays of the kind's sizes, finite,
@@ -141,7 +145,7 @@ def clearly_valid(ds: Sequence[Detection]) -> np.ndarray:
     ok = np.zeros(len(ds), dtype=bool)
     by_kind: dict[str, list[int]] = {}
     for k, d in enumerate(ds):
-        model = MODELS.get(d.kind) if type(d.kind) is str else None
+        model = MODELS.get(d.kind) if type(d.kind) in _KIND_TYPES else None
         if model is None:
             continue
         m, z, cov = model.size, d.z, d.cov
@@ -155,7 +159,7 @@ def clearly_valid(ds: Sequence[Detection]) -> np.ndarray:
         cov = np.array([ds[k].cov for k in rows], dtype=float)
         t = np.array([ds[k].t for k in rows], dtype=float)
         good = np.isfinite(z).all(axis=1) & np.isfinite(t) & _clearly_valid_batch(cov)
-        if kind in ("range_bearing", "range"):
+        if MODELS[kind].ranged:
             good &= z[:, 0] > 0
         ok[rows] = good
     return ok

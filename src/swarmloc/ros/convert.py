@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection
+from swarmloc.events import Detection, Kind
 from swarmloc.kernels.group import absolute_to_pseudo
 from swarmloc.lie import SE2
 from swarmloc.net import ros as rosmsg
@@ -150,7 +150,7 @@ def detection_in(
         raise Refused("bad_covariance", "the (x, y, yaw) covariance is not positive definite")
     z = SE2.to_xytheta(M @ SE2.from_xytheta(ps))
     _, cov = absolute_to_pseudo(ps, C)
-    return Detection(observer, t, "pose", z, cov, target, is_robot)
+    return Detection(observer, t, Kind.POSE, z, cov, target, is_robot)
 
 
 def _range_bearing(
@@ -166,7 +166,7 @@ def _range_bearing(
     Cb = M[:2, :2] @ Cxy @ M[:2, :2].T
     J = np.array([[q[0] / r, q[1] / r], [-q[1] / r**2, q[0] / r**2]])
     cov = J @ Cb @ J.T
-    return Detection(observer, t, "range_bearing", np.array([r, math.atan2(q[1], q[0])]), 0.5 * (cov + cov.T),
+    return Detection(observer, t, Kind.RANGE_BEARING, np.array([r, math.atan2(q[1], q[0])]), 0.5 * (cov + cov.T),
                      target, is_robot)  # fmt: skip
 
 
@@ -218,7 +218,7 @@ def initialpose_in(msg: Any, robot: int, world_frame: str, now: float) -> Detect
     C = 0.5 * (C + C.T)
     if not np.all(np.linalg.eigvalsh(C) > 0):
         raise Refused("bad_covariance", "the initial pose's (x, y, yaw) covariance is not positive definite")
-    return Detection(robot, float(t), "absolute", z, C, None, True)
+    return Detection(robot, float(t), Kind.ABSOLUTE, z, C, None, True)
 
 
 # ------------------------------------------------------------------------------------------------ outputs
@@ -258,7 +258,7 @@ def detections_msg(t: float, dets: list[Detection], frame: str) -> Any:
     T = typestore().types
     out = []
     for d in dets:
-        if d.kind != "pose" or d.target is None:
+        if d.kind != Kind.POSE or d.target is None:
             raise ValueError(f"detections_msg: identified 'pose' detections only, got {d.kind!r} of {d.target}")
         z = np.asarray(d.z, dtype=float)
         c, s = np.cos(z[2]), np.sin(z[2])

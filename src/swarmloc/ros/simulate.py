@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Odometry
+from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.lie import SE2
 from swarmloc.ros.convert import DETECTIONS, ODOMETRY, detections_msg, odometry_msg
 
@@ -41,7 +41,7 @@ def team_messages(src: Any, offset: float, frame: str = "robot{r}/base_link") ->
             out.append((t, r, "odometry", odometry_msg(t, e.v, e.w, SE2.to_xytheta(g), *frames)))
     groups: dict[tuple[int, float], list[Detection]] = {}
     for e in src.events:
-        if isinstance(e, Detection) and e.kind == "pose" and e.target is not None:
+        if isinstance(e, Detection) and e.kind == Kind.POSE and e.target is not None:
             groups.setdefault((e.observer, e.t), []).append(e)
     for (r, t), dets in groups.items():
         out.append((t + offset, r, "detections", detections_msg(t + offset, dets, frame.format(r=r))))

@@ -63,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Event
+from swarmloc.events import Detection, Event, Kind
 from swarmloc.sensors.snapshots import (
     DetectionSet,
     fit_residuals,
@@ -533,7 +533,7 @@ def decorrelate(events: Sequence[Event], model: CameraModel) -> list[Event]:
     """
     streams: dict[tuple[int, int, bool], list[int]] = {}
     for i, e in enumerate(events):
-        if isinstance(e, Detection) and e.kind == "range_bearing":
+        if isinstance(e, Detection) and e.kind == Kind.RANGE_BEARING:
             if not (math.isfinite(e.t) and np.isfinite(e.z).all()):
                 raise ValueError(f"event {i}: detection by robot {e.observer} of {e.target} at t={e.t} is not finite")
             streams.setdefault((e.observer, e.target, e.target_is_robot), []).append(i)

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarmloc.events import Kind
 from swarmloc.lie import wrap_angle as wrap
 
 MIN_RANGE = 1e-6
@@ -95,7 +96,8 @@ def bearing_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) 
     return h[..., 1:], Hi[..., 1:, :], Hk[..., 1:, :]
 
 
-_PREDICT = {"pose": relative_pose, "range_bearing": range_bearing, "range": range_only, "bearing": bearing_only}
+_PREDICT = {Kind.POSE: relative_pose, Kind.RANGE_BEARING: range_bearing, Kind.RANGE: range_only,
+            Kind.BEARING: bearing_only}  # fmt: skip
 
 
 def predict(kind: str, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -103,7 +105,7 @@ def predict(kind: str, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.n
     if kind not in _PREDICT:
         raise ValueError(f"unknown measurement kind {kind!r}; expected one of {sorted(_PREDICT)}")
     xk = np.asarray(xk, dtype=float)
-    if kind == "pose":
+    if kind == Kind.POSE:
         if xk.shape[-1] != 3:
             raise ValueError("relative pose measurements need a robot target (x, y, theta)")
         return relative_pose(xi, xk)
@@ -112,7 +114,7 @@ def predict(kind: str, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.n
 
 def degenerate(kind: str, xi: np.ndarray, xk: np.ndarray) -> np.ndarray:
     """True where a range/bearing model is undefined: the target is within :data:`MIN_RANGE` of the observer."""
-    if kind == "pose":
+    if kind == Kind.POSE:
         return np.zeros(np.broadcast_shapes(np.shape(xi)[:-1], np.shape(xk)[:-1]), dtype=bool)
     xi, xk = np.asarray(xi, dtype=float), np.asarray(xk, dtype=float)
     return np.hypot(xk[..., 0] - xi[..., 0], xk[..., 1] - xi[..., 1]) < MIN_RANGE
@@ -149,14 +151,26 @@ class MeasurementModel:
     ``kind``: its name; ``size``: the dimension of ``z``; ``angular``: which components of ``z`` are angles
     (residuals wrapped to (-pi, pi]); ``targets``: ``"self"`` (an absolute fix of the observer's own pose),
     ``"robot"`` (only a robot: a relative pose) or ``"point"`` (a robot or a landmark); ``order``: its rank in the
-    canonical order of a detection group.
+    canonical order of a detection group; ``components``: for a point kind, which of (range, bearing) ``z`` holds,
+    in order (``(0, 1)``, ``(0,)``, ``(1,)``), empty for a pose.
     """
 
-    kind: str
+    kind: Kind
     size: int
     angular: tuple[bool, ...]
     targets: str
     order: int
+    components: tuple[int, ...] = ()
+
+    @property
+    def ranged(self) -> bool:
+        """True when ``z[0]`` is a range [m] (it must be positive)."""
+        return self.components[:1] == (0,)
+
+    @property
+    def bearing_last(self) -> bool:
+        """True when ``z[-1]`` is a bearing [rad] of a point (within [-pi, pi])."""
+        return self.components[-1:] == (1,)
 
     def predict(self, xi: np.ndarray, xk: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """``(h, H_i, H_k)`` at observer state ``xi`` (``(..., 3)``) and target ``xk`` (robot ``(..., 3)`` or
@@ -181,14 +195,14 @@ class MeasurementModel:
         on the exponential coordinates of ``m_true^-1 m_measured`` and mapped to Cartesian ones
         (:func:`pose_noise_to_cartesian`); every other kind's is used as given."""
         cov = np.asarray(cov, dtype=float)
-        if self.kind == "pose":
+        if self.kind == Kind.POSE:
             return pose_noise_to_cartesian(np.asarray(z, dtype=float), cov)
         return cov
 
     def problem(self, z: np.ndarray) -> str | None:
         """Why a finite ``z`` of the right shape is not a possible measurement (None: it is): a range must be
         positive."""
-        if self.kind in ("range_bearing", "range") and not float(z[0]) > 0:
+        if self.ranged and not float(z[0]) > 0:
             return f"range must be positive, got {float(z[0])}"
         return None
 
@@ -196,11 +210,11 @@ class MeasurementModel:
 MODELS: dict[str, MeasurementModel] = {
     m.kind: m
     for m in (
-        MeasurementModel("absolute", 3, (False, False, True), "self", 0),
-        MeasurementModel("pose", 3, (False, False, True), "robot", 1),
-        MeasurementModel("range_bearing", 2, (False, True), "point", 2),
-        MeasurementModel("range", 1, (False,), "point", 3),
-        MeasurementModel("bearing", 1, (True,), "point", 4),
+        MeasurementModel(Kind.ABSOLUTE, 3, (False, False, True), "self", 0),
+        MeasurementModel(Kind.POSE, 3, (False, False, True), "robot", 1),
+        MeasurementModel(Kind.RANGE_BEARING, 2, (False, True), "point", 2, (0, 1)),
+        MeasurementModel(Kind.RANGE, 1, (False,), "point", 3, (0,)),
+        MeasurementModel(Kind.BEARING, 1, (True,), "point", 4, (1,)),
     )
 }
 """The measurement model of every detection kind, by name (in canonical group order)."""

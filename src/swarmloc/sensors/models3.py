@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarmloc.events import Kind
 from swarmloc.lie import wrap_angle
 from swarmloc.lie.se3 import skew, so3_exp, so3_log
 from swarmloc.sensors.models import MIN_RANGE
@@ -80,7 +81,7 @@ class Model3:
     """A 3-D detection kind: name, size of ``z``, what it observes (``"robot"``: a relative pose; ``"point"``: a
     robot's position or a landmark), rank in a group's canonical order, which components of ``z`` are angles."""
 
-    kind: str
+    kind: Kind
     size: int
     targets: str
     order: int
@@ -88,11 +89,11 @@ class Model3:
 
     def problem(self, z: np.ndarray) -> str | None:
         """Why ``z`` (finite, of the right size) is not a value of this kind, or None."""
-        if self.kind == "pose3" and float(np.linalg.norm(z[3:])) > math.pi + 1e-9:
+        if self.kind == Kind.POSE3 and float(np.linalg.norm(z[3:])) > math.pi + 1e-9:
             return f"rotation vector of norm {float(np.linalg.norm(z[3:])):.6g} rad exceeds pi"
-        if self.kind == "rbe3" and not float(z[0]) > 0:
+        if self.kind == Kind.RBE3 and not float(z[0]) > 0:
             return f"range must be positive, got {float(z[0])}"
-        if self.kind in ("rbe3", "bearing3") and abs(float(z[-1])) > math.pi / 2 + 1e-9:
+        if self.kind in (Kind.RBE3, Kind.BEARING3) and abs(float(z[-1])) > math.pi / 2 + 1e-9:
             return f"elevation {float(z[-1]):.6g} rad is outside [-pi/2, pi/2]"
         return None
 
@@ -101,7 +102,7 @@ class Model3:
         ``(dp, dtheta)`` errors (module docstring). ``"pose3"``: ``gk (4, 4)``, ``h (4, 4)``, ``H (6, 6)``;
         ``"rbe3"`` / ``"bearing3"``: ``gk`` a pose ``(4, 4)`` (``H_k (m, 6)``) or a point ``(3,)`` (a landmark,
         ``H_k (m, 3)``), ``h (m,)``; the rows are finite everywhere (at the pole the azimuth row is 0)."""
-        if self.kind != "pose3":
+        if self.kind != Kind.POSE3:
             return self._predict_point(gi, gk)
         Ri, Rk = gi[:3, :3], gk[:3, :3]
         ht = Ri.T @ (gk[:3, 3] - gi[:3, 3])
@@ -134,13 +135,13 @@ class Model3:
             J[2, 2] = rho / r2
         Ji = np.hstack([-Ri.T, skew(y)])
         Jk = Ri.T if point else np.hstack([Ri.T, np.zeros((3, 3))])
-        rows = slice(0, 3) if self.kind == "rbe3" else slice(1, 3)
+        rows = slice(0, 3) if self.kind == Kind.RBE3 else slice(1, 3)
         return spherical(y)[rows], J[rows] @ Ji, J[rows] @ Jk
 
     def residual(self, z: np.ndarray, h: np.ndarray) -> np.ndarray:
         """``"pose3"``: ``(t_z - h_t, log(h_R^T R_z))`` of ``z (6,)`` against the prediction ``h (4, 4)``; the other
         kinds: ``z - h`` with the angles wrapped to (-pi, pi]."""
-        if self.kind != "pose3":
+        if self.kind != Kind.POSE3:
             r = np.asarray(z, dtype=float) - np.asarray(h, dtype=float)
             for j, ang in enumerate(self.angular):
                 if ang:
@@ -151,7 +152,7 @@ class Model3:
 
     def noise(self, z: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """The noise of the residual: ``"pose3"``: ``diag(R_z, I) cov diag(R_z, I)^T``; the others: ``cov``."""
-        if self.kind != "pose3":
+        if self.kind != Kind.POSE3:
             return np.asarray(cov, dtype=float)
         J = np.eye(6)
         J[:3, :3] = so3_exp(np.asarray(z, dtype=float)[3:])
@@ -160,14 +161,14 @@ class Model3:
     def degenerate(self, gi: np.ndarray, gk: np.ndarray) -> bool:
         """A relative pose never; a point within :data:`MIN_RANGE` of the observer, or straight above or below it
         for ``"bearing3"`` (only the elevation's vertical derivative is left there, and it is 0)."""
-        if self.kind == "pose3":
+        if self.kind == Kind.POSE3:
             return False
         gk = np.asarray(gk, dtype=float)
         y = point_in_body(gi, gk if gk.shape == (3,) else gk[:3, 3])
         r = float(np.linalg.norm(y))
         if r < MIN_RANGE:
             return True
-        return self.kind == "bearing3" and math.hypot(y[0], y[1]) < SINGULAR_COS * r
+        return self.kind == Kind.BEARING3 and math.hypot(y[0], y[1]) < SINGULAR_COS * r
 
     def linearize(
         self, z: np.ndarray, cov: np.ndarray, gi: np.ndarray, gk: np.ndarray
@@ -188,9 +189,9 @@ class Model3:
 MODELS3: dict[str, Model3] = {
     m.kind: m
     for m in (
-        Model3("pose3", 6, "robot", 11),
-        Model3("rbe3", 3, "point", 12, (False, True, True)),
-        Model3("bearing3", 2, "point", 13, (True, True)),
+        Model3(Kind.POSE3, 6, "robot", 11),
+        Model3(Kind.RBE3, 3, "point", 12, (False, True, True)),
+        Model3(Kind.BEARING3, 2, "point", 13, (True, True)),
     )
 }
 """3-D detection kinds by name."""

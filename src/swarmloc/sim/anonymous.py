@@ -29,9 +29,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry, Truth
+from swarmloc.events import Detection, Event, Kind, Odometry, Truth
 from swarmloc.lie import wrap_angle
 from swarmloc.motion.diffdrive import DiffDrive
+from swarmloc.sensors.models import MODELS
 from swarmloc.sim.simulator import RelativeSensor, SimConfig, SimResult, WheelSchedule, simulate
 
 __all__ = [
@@ -52,12 +53,8 @@ CLUTTER_TRUTH = -1
 def _z_clutter(rng: np.random.Generator, kind: str, n: int, lo: float, hi: float, fov: float) -> np.ndarray:
     rho = rng.uniform(lo, hi, n)
     beta = rng.uniform(-fov / 2, fov / 2, n)
-    if kind == "range_bearing":
-        return np.stack([rho, beta], axis=-1)
-    if kind == "range":
-        return rho[:, None]
-    if kind == "bearing":
-        return beta[:, None]
+    if MODELS[kind].targets == "point":  # which of (range, bearing) the kind measures
+        return np.stack([rho, beta], axis=-1)[:, MODELS[kind].components]
     return np.stack([rho * np.cos(beta), rho * np.sin(beta), rng.uniform(-np.pi, np.pi, n)], axis=-1)  # pose
 
 
@@ -85,7 +82,7 @@ def anonymize(
     out: list[Event] = []
     scan: tuple[int, float] | None = None
     for e in events:
-        robot_det = isinstance(e, Detection) and e.target_is_robot and e.kind != "absolute" and e.target is not None
+        robot_det = isinstance(e, Detection) and e.target_is_robot and e.kind != Kind.ABSOLUTE and e.target is not None
         if not robot_det:
             out.append(e)
             continue
@@ -125,7 +122,7 @@ class AnonymousSensor:
 
 def is_anonymous(e: Event) -> bool:
     """True for an anonymous robot detection (``target=None``, ``target_is_robot``, not an absolute fix)."""
-    return isinstance(e, Detection) and e.kind != "absolute" and e.target_is_robot and e.target is None
+    return isinstance(e, Detection) and e.kind != Kind.ABSOLUTE and e.target_is_robot and e.target is None
 
 
 def _scan_times(cfg: SimConfig, duration: float) -> np.ndarray:
@@ -141,7 +138,7 @@ def anonymize_sim(sim: SimResult, sensor: AnonymousSensor, seed: int | None = 0)
     """The simulation with anonymous range-bearing robot detections as ``sensor`` sees them (module docstring);
     same seed, same events."""
     sen = sim.config.sensor
-    if sen is None or "range_bearing" not in sen.kinds:
+    if sen is None or Kind.RANGE_BEARING not in sen.kinds:
         raise ValueError("anonymize_sim: the simulation needs a RelativeSensor with kinds including 'range_bearing'")
     rng = np.random.default_rng(seed)
     reach = min(sensor.max_range, sen.max_range)
@@ -151,8 +148,8 @@ def anonymize_sim(sim: SimResult, sensor: AnonymousSensor, seed: int | None = 0)
     scans: dict[tuple[float, int], list[Detection]] = {}
     rest: list[Event] = []
     for e in sim.events:
-        if isinstance(e, Detection) and e.target_is_robot and e.kind in ("pose", "range_bearing"):
-            if e.kind == "range_bearing" and e.z[0] <= sensor.max_range and abs(e.z[1]) <= sensor.fov / 2:
+        if isinstance(e, Detection) and e.target_is_robot and e.kind in (Kind.POSE, Kind.RANGE_BEARING):
+            if e.kind == Kind.RANGE_BEARING and e.z[0] <= sensor.max_range and abs(e.z[1]) <= sensor.fov / 2:
                 if rng.random() < sensor.p_detect:
                     d = replace(e, target=None, truth_target=e.target)
                     scans.setdefault((e.t, e.observer), []).append(d)
@@ -167,7 +164,7 @@ def anonymize_sim(sim: SimResult, sensor: AnonymousSensor, seed: int | None = 0)
                     bb = rng.uniform(-half_fov, half_fov, k)
                     for z in np.column_stack([rr, wrap_angle(bb)]):
                         z.setflags(write=False)
-                        d = Detection(r, float(t), "range_bearing", z, cov, target=None, truth_target=CLUTTER_TRUTH)
+                        d = Detection(r, float(t), Kind.RANGE_BEARING, z, cov, target=None, truth_target=CLUTTER_TRUTH)
                         scans.setdefault((float(t), r), []).append(d)
     dets = [d for key in scans for d in sorted(scans[key], key=lambda d: (float(d.z[0]), float(d.z[1])))]
     events = rest + dets
@@ -222,7 +219,7 @@ def khepera_kidnap(
         raise ValueError(f"khepera_kidnap: kidnapped must be one of {sorted(KHEPERA_START)}, got {kidnapped!r}")
     sensor = sensor or AnonymousSensor(max_range=2.0, fov=np.deg2rad(240.0))
     rel = RelativeSensor(
-        rate=rate, max_range=2.0, fov=float(np.deg2rad(240.0)), kinds=("range_bearing",),
+        rate=rate, max_range=2.0, fov=float(np.deg2rad(240.0)), kinds=(Kind.RANGE_BEARING,),
         sigma_range=0.01, sigma_bearing=float(np.deg2rad(1.0)),
     )  # fmt: skip
     cmds = {

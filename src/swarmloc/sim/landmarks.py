@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry, Truth
+from swarmloc.events import Detection, Event, Kind, Odometry, Truth
 from swarmloc.lie import wrap_angle
 from swarmloc.sim.simulator import SimResult
 
@@ -149,7 +149,7 @@ def landmark_detections(
     for a, r, l_ in zip(*np.nonzero(seen), strict=True):
         out.append(
             Detection(
-                sim.robot_ids[r], float(sim.times[ks[a]]), "range_bearing", z[a, r, l_], cov,
+                sim.robot_ids[r], float(sim.times[ks[a]]), Kind.RANGE_BEARING, z[a, r, l_], cov,
                 target=ids[l_], target_is_robot=False,
             )
         )  # fmt: skip

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry, Truth, twist_odometry
+from swarmloc.events import Detection, Event, Kind, Odometry, Truth, twist_odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3, wrap_angle
 from swarmloc.motion.twist3 import TwistNoise
@@ -37,7 +37,7 @@ from swarmloc.sensors.models3 import pose3_vector
 
 __all__ = ["DETECTIONS3", "LANDMARK_FIRST_ID", "Sim3Config", "Sim3Result", "measure3", "simulate3d"]
 
-DETECTIONS3 = ("pose3", "rbe3", "bearing3")
+DETECTIONS3 = (Kind.POSE3, Kind.RBE3, Kind.BEARING3)
 """What a robot of :func:`simulate3d` measures of a teammate."""
 
 LANDMARK_FIRST_ID = 100
@@ -65,7 +65,7 @@ class Sim3Config:
     init_pos: float = 0.1
     init_rot: float = float(np.deg2rad(3.0))
     truth_rate: float = 2.0
-    detection: str = "pose3"
+    detection: str = Kind.POSE3
     sigma_range: float = 0.05
     sigma_angle: float = float(np.deg2rad(1.0))
     landmarks: int = 0
@@ -93,9 +93,9 @@ class Sim3Config:
 
     def sensor_cov(self) -> np.ndarray:
         """Covariance of a teammate detection of kind :attr:`detection`."""
-        if self.detection == "rbe3":
+        if self.detection == Kind.RBE3:
             return self.rbe_cov()
-        if self.detection == "bearing3":
+        if self.detection == Kind.BEARING3:
             return np.diag([self.sigma_angle**2] * 2)
         return np.diag([self.sigma_pos**2] * 3 + [self.sigma_rot**2] * 3)
 
@@ -153,13 +153,13 @@ def measure3(kind: str, gi: np.ndarray, target: np.ndarray) -> np.ndarray:
     """The noise-free measurement of ``kind`` of ``target`` (a pose ``(4, 4)`` or, for ``"rbe3"`` / ``"bearing3"``,
     a point ``(3,)``) by the robot at pose ``gi (4, 4)``: computed from the homogeneous transform ``gi^-1``, apart
     from the filters' models (:mod:`swarmloc.sensors.models3`)."""
-    if kind == "pose3":
+    if kind == Kind.POSE3:
         return pose3_vector(SE3.between(gi, target, validate=False))
     target = np.asarray(target, dtype=float)
     q = np.append(target if target.shape == (3,) else target[:3, 3], 1.0)
     x, y, z = (np.linalg.inv(gi) @ q)[:3]
     rbe = np.array([np.sqrt(x * x + y * y + z * z), np.arctan2(y, x), np.arctan2(z, np.sqrt(x * x + y * y))])
-    return rbe if kind == "rbe3" else rbe[1:]
+    return rbe if kind == Kind.RBE3 else rbe[1:]
 
 
 def _noisy(kind: str, clean: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -187,11 +187,11 @@ def _landmarks(cfg: Sim3Config, g: np.ndarray, times: np.ndarray, seed: int) -> 
         for i in range(g.shape[1]):
             noise = rng.standard_normal((cfg.landmarks, 3)) * sd  # drawn whether seen or not
             for m, p in enumerate(pts):
-                clean = measure3("rbe3", g[k, i], p)
+                clean = measure3(Kind.RBE3, g[k, i], p)
                 if clean[0] > cfg.landmark_range:
                     continue
-                z = _noisy("rbe3", clean, noise[m])
-                d = Detection(i, float(times[k]), "rbe3", z, R3.copy(), target=LANDMARK_FIRST_ID + m,
+                z = _noisy(Kind.RBE3, clean, noise[m])
+                d = Detection(i, float(times[k]), Kind.RBE3, z, R3.copy(), target=LANDMARK_FIRST_ID + m,
                               target_is_robot=False)  # fmt: skip
                 out.append((times[k], 1, i, d))
     return lms, out
@@ -237,7 +237,7 @@ def simulate3d(cfg: Sim3Config | None = None, seed: int = 0) -> Sim3Result:
                 if np.linalg.norm(m[:3, 3]) > cfg.max_range:
                     continue
                 n6 = rng.standard_normal(6)
-                if cfg.detection == "pose3":
+                if cfg.detection == Kind.POSE3:
                     z = pose3_vector(m @ SE3.exp(Ls @ n6, validate=False))
                 else:
                     clean = measure3(cfg.detection, g[k, i], g[k, j])

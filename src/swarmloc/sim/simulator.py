@@ -40,7 +40,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry, Truth
+from swarmloc.events import Detection, Event, Kind, Odometry, Truth
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion.diffdrive import DiffDrive
 from swarmloc.motion.sde import compose_exp_xyt
@@ -92,12 +92,12 @@ class RelativeSensor:
     fov: float = 2 * np.pi
     sigma_xy: float = 0.05
     sigma_theta: float = float(np.deg2rad(1.0))
-    kinds: tuple[str, ...] = ("pose",)
+    kinds: tuple[str, ...] = (Kind.POSE,)
     sigma_range: float = 0.05
     sigma_bearing: float = float(np.deg2rad(1.0))
 
     def __post_init__(self) -> None:
-        bad = set(self.kinds) - {"pose", "range_bearing"}
+        bad = set(self.kinds) - {Kind.POSE, Kind.RANGE_BEARING}
         if bad:
             raise ValueError(f"RelativeSensor: unsupported kinds {sorted(bad)} (use 'pose', 'range_bearing')")
 
@@ -358,11 +358,11 @@ def simulate(
             t = k / f
             oi, ti = int(obs[q]), int(tgt[q])
             o, g = ids[oi], ids[ti]
-            if "pose" in sen.kinds:
-                ev = Detection(o, t, "pose", _readonly(z_pose[q]), cov_pose, target=g)
+            if Kind.POSE in sen.kinds:
+                ev = Detection(o, t, Kind.POSE, _readonly(z_pose[q]), cov_pose, target=g)
                 keyed.append((k, 1, (oi, 0, ti), ev))
-            if "range_bearing" in sen.kinds:
-                ev = Detection(o, t, "range_bearing", _readonly(z_rb[q]), cov_rb, target=g)
+            if Kind.RANGE_BEARING in sen.kinds:
+                ev = Detection(o, t, Kind.RANGE_BEARING, _readonly(z_rb[q]), cov_rb, target=g)
                 keyed.append((k, 1, (oi, 1, ti), ev))
 
     # ---------------------------------------------------------------- absolute fixes
@@ -379,7 +379,7 @@ def simulate(
         cov_a = _readonly(ab.cov())
         for a_, k in enumerate(ka):
             for c_, col in enumerate(cols):
-                ev = Detection(ids[col], int(k) / f, "absolute", _readonly(z[a_, c_]), cov_a, target=None)
+                ev = Detection(ids[col], int(k) / f, Kind.ABSOLUTE, _readonly(z[a_, c_]), cov_a, target=None)
                 keyed.append((int(k), 1, (n_rob + col, 2, 0), ev))
 
     # ---------------------------------------------------------------- truth events

@@ -20,7 +20,7 @@ import numpy as np
 
 from swarmloc.estimators import make_team
 from swarmloc.evaluation.metrics import evaluate, over_seeds
-from swarmloc.events import Detection, Event
+from swarmloc.events import Detection, Event, Kind
 from swarmloc.experiments.thesis_dynamic.report import figures, progress_bar, pyplot, write_dynamic
 from swarmloc.experiments.thesis_dynamic.spec import (
     ABLATION_ESTIMATORS,
@@ -50,7 +50,7 @@ def _filter_events(events: list[Event], every: int, oneway: bool, sensor_rate: f
         return events
     out = []
     for e in events:
-        if isinstance(e, Detection) and e.kind != "absolute":
+        if isinstance(e, Detection) and e.kind != Kind.ABSOLUTE:
             if oneway and e.observer != 1:
                 continue
             if int(round(e.t * sensor_rate)) % every:
