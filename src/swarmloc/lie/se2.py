@@ -14,11 +14,12 @@ import math
 
 import numpy as np
 
+from swarmloc.arrays import FloatArray
 from swarmloc.lie import _series as S
 from swarmloc.lie.base import SEGroup
 
 
-def wrap_angle(a: np.ndarray | float) -> np.ndarray:
+def wrap_angle(a: FloatArray | float) -> FloatArray:
     """Wrap angles [rad] to (-pi, pi] (the convention of every angle swarmloc returns)."""
     return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)
 
@@ -31,7 +32,7 @@ class SE2(SEGroup):
     name = "SE(2)"
 
     @classmethod
-    def hat(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """``(..., 3) -> (..., 3, 3)`` Lie-algebra matrix."""
         if validate:
             x = cls.check_tangent(x, "SE2.hat")
@@ -44,7 +45,7 @@ class SE2(SEGroup):
         return X
 
     @classmethod
-    def vee(cls, X: np.ndarray, validate: bool = True) -> np.ndarray:
+    def vee(cls, X: FloatArray, validate: bool = True) -> FloatArray:
         """``(..., 3, 3) -> (..., 3)``; inverse of :meth:`hat` (uses the antisymmetric part of the rotation block)."""
         if validate:
             from swarmloc.lie.checks import as_square
@@ -54,16 +55,13 @@ class SE2(SEGroup):
         return np.stack([X[..., 0, 2], X[..., 1, 2], 0.5 * (X[..., 1, 0] - X[..., 0, 1])], axis=-1)
 
     @classmethod
-    def exp(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def exp(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Exponential map ``(..., 3) -> (..., 3, 3)`` in closed form."""
         if validate:
             x = cls.check_tangent(x, "SE2.exp")
         x = np.asarray(x, dtype=float)
         if x.ndim == 1:  # one element: the same formulas in floats
-            x0, x1, a = x.tolist()
-            c, s = math.cos(a), math.sin(a)
-            A, B = S.sinc_scalar(a), S.one_minus_cos_over_t_scalar(a)
-            return np.array([[c, -s, A * x0 - B * x1], [s, c, B * x0 + A * x1], [0.0, 0.0, 1.0]])
+            return _exp_one(*x.tolist())
         a = x[..., 2]
         c, s = np.cos(a), np.sin(a)
         A = S.sinc(a)
@@ -79,17 +77,13 @@ class SE2(SEGroup):
         return g
 
     @classmethod
-    def log(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+    def log(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """Principal logarithm ``(..., 3, 3) -> (..., 3)``, angle in (-pi, pi]."""
         if validate:
             g = cls.check_element(g, "SE2.log")
         g = np.asarray(g, dtype=float)
-        if g.ndim == 2:
-            a = math.atan2(g[1, 0], g[0, 0])
-            a = a + 2 * math.pi if a <= -math.pi else a
-            k, h = S.half_cot_half_scalar(a), 0.5 * a
-            t1, t2 = g[0, 2], g[1, 2]
-            return np.array([k * t1 + h * t2, -h * t1 + k * t2, a])
+        if g.ndim == 2:  # one element: the same formulas in floats
+            return _log_one(g)
         a = np.arctan2(g[..., 1, 0], g[..., 0, 0])
         a = np.where(a <= -np.pi, a + 2 * np.pi, a)
         k = S.half_cot_half(a)
@@ -98,7 +92,7 @@ class SE2(SEGroup):
         return np.stack([k * t1 + h * t2, -h * t1 + k * t2, a], axis=-1)
 
     @classmethod
-    def inverse(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+    def inverse(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """Group inverse ``[[R^T, -R^T t], [0, 1]]`` (exact, batched)."""
         if validate:
             g = cls.check_element(g, "SE2.inverse", "g")
@@ -110,7 +104,7 @@ class SE2(SEGroup):
         return super().inverse(g, validate=False)
 
     @classmethod
-    def Ad(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+    def Ad(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """Adjoint matrix ``[[R, M t], [0, 1]]``, shape ``(..., 3, 3)``."""
         if validate:
             g = cls.check_element(g, "SE2.Ad")
@@ -125,7 +119,7 @@ class SE2(SEGroup):
         return A
 
     @classmethod
-    def ad(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def ad(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Small adjoint ``[[-alpha M, M v], [0, 0]]``, shape ``(..., 3, 3)``."""
         if validate:
             x = cls.check_tangent(x, "SE2.ad")
@@ -138,12 +132,12 @@ class SE2(SEGroup):
         return A
 
     @classmethod
-    def _poly_ad(cls, x: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+    def _poly_ad(cls, x: FloatArray, c1: FloatArray, c2: FloatArray) -> FloatArray:
         adx = cls.ad(x, validate=False)
         return np.eye(3) + c1[..., None, None] * adx + c2[..., None, None] * (adx @ adx)
 
     @classmethod
-    def left_jacobian(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def left_jacobian(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Left Jacobian ``sum_k ad(x)^k / (k+1)!``."""
         if validate:
             x = cls.check_tangent(x, "SE2.left_jacobian")
@@ -152,7 +146,7 @@ class SE2(SEGroup):
         return cls._poly_ad(x, S.one_minus_cos_over_t2(a), S.t_minus_sin_over_t3(a))
 
     @classmethod
-    def left_jacobian_inv(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def left_jacobian_inv(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Inverse of the left Jacobian (singular only at ``|alpha| = 2 pi``)."""
         if validate:
             x = cls.check_tangent(x, "SE2.left_jacobian_inv")
@@ -162,7 +156,7 @@ class SE2(SEGroup):
 
     # ----------------------------------------------------------------- planar conveniences
     @staticmethod
-    def from_xytheta(x: np.ndarray, y: np.ndarray | None = None, theta: np.ndarray | None = None) -> np.ndarray:
+    def from_xytheta(x: FloatArray, y: FloatArray | None = None, theta: FloatArray | None = None) -> FloatArray:
         """Pose matrix from ``(x, y, theta)`` (either one array ``(..., 3)`` or three arrays)."""
         if y is None:
             p = np.asarray(x, dtype=float)
@@ -176,9 +170,25 @@ class SE2(SEGroup):
         return g
 
     @staticmethod
-    def to_xytheta(g: np.ndarray) -> np.ndarray:
+    def to_xytheta(g: FloatArray) -> FloatArray:
         """``(..., 3, 3) -> (..., 3)`` Cartesian ``(x, y, theta)``, theta in (-pi, pi]."""
         g = np.asarray(g, dtype=float)
         th = np.arctan2(g[..., 1, 0], g[..., 0, 0])
         th = np.where(th <= -np.pi, th + 2 * np.pi, th)
         return np.stack([g[..., 0, 2], g[..., 1, 2], th], axis=-1)
+
+
+def _exp_one(x0: float, x1: float, a: float) -> FloatArray:
+    """:meth:`SE2.exp` of one tangent vector ``(x0, x1, a)``, in floats."""
+    c, s = math.cos(a), math.sin(a)
+    A, B = S.sinc_scalar(a), S.one_minus_cos_over_t_scalar(a)
+    return np.array([[c, -s, A * x0 - B * x1], [s, c, B * x0 + A * x1], [0.0, 0.0, 1.0]])
+
+
+def _log_one(g: FloatArray) -> FloatArray:
+    """:meth:`SE2.log` of one element ``(3, 3)``, in floats."""
+    a = math.atan2(g[1, 0], g[0, 0])
+    a = a + 2 * math.pi if a <= -math.pi else a
+    k, h = S.half_cot_half_scalar(a), 0.5 * a
+    t1, t2 = g[0, 2], g[1, 2]
+    return np.array([k * t1 + h * t2, -h * t1 + k * t2, a])
