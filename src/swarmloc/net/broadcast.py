@@ -49,6 +49,7 @@ import msgspec
 from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.intake import TokenBucket
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.schema import ALL, MAX_REPAIR, Broadcast, BroadcastHead, BroadcastRepair, Rejected
 from swarmloc.net.transport import robot_key
 from swarmloc.node.protocol import same
@@ -99,7 +100,7 @@ class _Peer:
         return [n for n in range(self.low, self.top + 1) if n not in self.got]
 
 
-class Broadcasting:
+class Broadcasting(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: a team estimator's broadcasts (module docstring)."""
 
     def _init_broadcast(self) -> None:

@@ -19,6 +19,7 @@ from typing import Any
 from swarmloc.messages import Message
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.outbound import key_of
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.schema import Envelope, Progress, Rejected
 from swarmloc.net.timeouts import STALL_TIMEOUTS
 from swarmloc.net.transport import robot_of
@@ -26,7 +27,7 @@ from swarmloc.net.transport import robot_of
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
 
-class Lockstep:
+class Lockstep(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: the teammates' progress and the rules of when to read an
     input, answer a query and release an answer."""
 

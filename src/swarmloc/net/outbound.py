@@ -19,6 +19,7 @@ from typing import Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate
 from swarmloc.net.auth import seal
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.schema import encode
 from swarmloc.net.transport import robot_key, server_key
 
@@ -31,7 +32,7 @@ REASK_SPACING = (0.05, 0.25)
 (:meth:`Outbound._ask_again`)."""
 
 
-class Outbound:
+class Outbound(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: sending, with the link faults, the outbox and the timers."""
 
     def _init_outbound(self) -> None:

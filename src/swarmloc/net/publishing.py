@@ -29,11 +29,12 @@ import time
 from swarmloc.events import Odometry
 from swarmloc.kernels import cartesian as C
 from swarmloc.messages import flat
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.schema import MAX_LINES, Belief, Lines, Progress, group_tag
 from swarmloc.net.transport import robot_key
 
 
-class Publishing:
+class Publishing(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: announcing its progress and publishing its beliefs."""
 
     def _init_publishing(self) -> None:

@@ -15,10 +15,11 @@ from __future__ import annotations
 from typing import Any
 
 from swarmloc.net.pairing import attach
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.transport import alive_key, block, robot_key
 
 
-class Wiring:
+class Wiring(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: opening and closing its Zenoh declarations."""
 
     def _init_wiring(self) -> None:
