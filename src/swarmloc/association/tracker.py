@@ -302,9 +302,9 @@ def bank_detections(
     counts: dict[int, dict[str, int]] = {}
     new: list[Detection] = []
     shared: dict[float, dict] = {}  # the team's binary registrations per scan, computed once
-    motion = _odometry_noise(events, robots, noise, float(kw.get("motion_floor", 1e-3)))  # type: ignore[arg-type]
+    motion = _odometry_noise(events, robots, noise, float(kw.get("motion_floor", 1e-3)))
     for ego in robots:
-        tr = track_anonymous(events, ego, robots, noise, sigma, every=every, registrations=shared, **kw)  # type: ignore[arg-type]
+        tr = track_anonymous(events, ego, robots, noise, sigma, every=every, registrations=shared, **kw)
         last: dict[int, tuple[float, np.ndarray]] = {}
         emitted = no_gain = 0
         for t, est in zip(tr.times, tr.estimates, strict=True):

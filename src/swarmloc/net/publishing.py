@@ -146,7 +146,7 @@ class Publishing(NodeParts):
             self._delayed[ts] = msg  # type: ignore[index]
             self._pub_delayed.put(self._env(msg, robot_key(self.scope, self.robot, "delayed")))
             self.counts["delayed_published"] += 1
-        if len(self._delayed) > 4096:  # type: ignore[arg-type]  # forget poses filed two horizons back
+        if len(self._delayed) > 4096:  # forget poses filed two horizons back
             for ts in [t for t in self._delayed if t < cut - node.horizon - node.lag]:  # type: ignore[union-attr]
                 del self._delayed[ts]  # type: ignore[union-attr]
 

@@ -197,7 +197,7 @@ def _components(x: object) -> tuple:
 
 def command_value(x: object) -> float | tuple[float, ...]:
     """A command's value as filed: a float (planar), or a tuple of 3 floats (a 3-D velocity)."""
-    return tuple(float(c) for c in x) if isinstance(x, tuple) else float(x)  # type: ignore[arg-type]
+    return tuple(float(c) for c in x) if isinstance(x, tuple) else float(x)
 
 
 def odometry_problem(e: Odometry) -> str | None:
