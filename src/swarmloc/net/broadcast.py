@@ -228,7 +228,8 @@ class Broadcasting(NodeParts):
         them before this node fuses a group or answers a query keyed ``key`` (:mod:`swarmloc.net.lockstep`)."""
         if not self.broadcasts:
             return None
-        mates = self.node.team  # diekf in clusters: the cluster, whose broadcasts alone this node receives
+        team_node: Any = self.node  # a team estimator's (diekf): its team, not declared on Node
+        mates = team_node.team  # diekf in clusters: the cluster, whose broadcasts alone this node receives
         for r in self._alive:
             if r not in mates:
                 continue

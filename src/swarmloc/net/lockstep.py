@@ -14,7 +14,7 @@ import logging
 import math
 import time
 from collections import OrderedDict
-from typing import Any
+from typing import Any, cast
 
 from swarmloc.messages import Message
 from swarmloc.net.auth import open_envelope
@@ -115,7 +115,7 @@ class Lockstep(NodeParts):
         """False for a copy of a neighbour's query this node already holds or answered (the same sender, sequence
         number and query: link faults duplicate them), so that each query is answered once (counted
         ``duplicate_queries``). The last 4096 queries are remembered."""
-        q = env.body
+        q = cast(Message, env.body)  # a neighbour's query (Inbound)
         key = (env.from_robot, env.seq, type(q).__name__, float(q.stamp), tuple(q.sub))
         if key in self._queries_seen:
             self.counts["duplicate_queries"] += 1

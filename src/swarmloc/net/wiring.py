@@ -53,7 +53,8 @@ class Wiring(NodeParts):
         if self.broadcasts:  # the teammates' broadcasts (a team estimator: :mod:`swarmloc.net.broadcast`)
             # diekf in clusters: its cluster's only (each a key of its own), so that what a node takes in is flat
             # in the team's size; otherwise one subscription to every teammate's
-            mates = [str(m) for m in self.node.team if m != r] if getattr(self.node, "cluster", 0) else ["*"]
+            team_node: Any = self.node  # a team estimator's (diekf): its team, not declared on Node
+            mates = [str(m) for m in team_node.team if m != r] if getattr(self.node, "cluster", 0) else ["*"]
             for m in mates:
                 self._decl.append(
                     s.declare_subscriber(
