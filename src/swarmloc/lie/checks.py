@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarmloc.arrays import FloatArray
+from swarmloc.arrays import BoolArray, FloatArray
 
 ORTHO_TOL = 1e-6
 """Largest allowed entry of ``|R^T R - I|`` for a rotation block to count as orthonormal."""
 
 
-def first_bad(mask: FloatArray) -> tuple[int, ...]:
+def first_bad(mask: BoolArray) -> tuple[int, ...]:
     idx = np.argwhere(mask)
     return tuple(int(i) for i in idx[0]) if idx.size else ()
 

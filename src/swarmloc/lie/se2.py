@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from swarmloc.arrays import FloatArray
 from swarmloc.lie import _series as S
@@ -156,16 +157,16 @@ class SE2(SEGroup):
 
     # ----------------------------------------------------------------- planar conveniences
     @staticmethod
-    def from_xytheta(x: FloatArray, y: FloatArray | None = None, theta: FloatArray | None = None) -> FloatArray:
+    def from_xytheta(x: ArrayLike, y: ArrayLike | None = None, theta: ArrayLike | None = None) -> FloatArray:
         """Pose matrix from ``(x, y, theta)`` (either one array ``(..., 3)`` or three arrays)."""
         if y is None:
             p = np.asarray(x, dtype=float)
             x, y, theta = p[..., 0], p[..., 1], p[..., 2]
-        x, y, theta = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float), np.asarray(theta, float))
-        g = np.zeros((*x.shape, 3, 3))
-        c, s = np.cos(theta), np.sin(theta)
-        g[..., 0, 0], g[..., 0, 1], g[..., 0, 2] = c, -s, x
-        g[..., 1, 0], g[..., 1, 1], g[..., 1, 2] = s, c, y
+        X, Y, T = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float), np.asarray(theta, float))
+        g = np.zeros((*X.shape, 3, 3))
+        c, s = np.cos(T), np.sin(T)
+        g[..., 0, 0], g[..., 0, 1], g[..., 0, 2] = c, -s, X
+        g[..., 1, 0], g[..., 1, 1], g[..., 1, 2] = s, c, Y
         g[..., 2, 2] = 1.0
         return g
 
