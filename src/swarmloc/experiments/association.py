@@ -60,7 +60,7 @@ def association_events(
     probability; ``max_range`` [m]: the clutter's range; ``seed``: of misses and clutter."""
     if policy not in POLICIES:
         raise ValueError(f"association must be one of {POLICIES}, got {policy!r}")
-    kw = dict(p_detect=p_detect, clutter=clutter, max_range=max_range, seed=seed)
+    kw: dict[str, Any] = dict(p_detect=p_detect, clutter=clutter, max_range=max_range, seed=seed)
     if policy == "tags":
         if clutter == 0 and p_detect == 1:
             return list(events), {}
