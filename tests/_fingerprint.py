@@ -11,7 +11,8 @@ What is recorded (each a *case*: the recorded times, means and covariances of ev
 reasons): every planar estimator on ``sim:random``, ``sim:range_bearing`` and ``sim:landmarks`` (3 robots, 20 s);
 every SE(3) estimator on ``sim:3d``, ``sim:3d_rbe`` and ``sim:3d_landmarks``; the planar filters on MRCLAM dataset 6
 (the first 60 s, with and without landmarks; ``--mrclam DIR``, default ``$SWARMLOC_MRCLAM`` or ``../shared``'s
-copy, left out with ``--no-data``); the engine (numpy, and numba's compiled replays) on ``sim:landmarks``; with
+copy, left out with ``--no-data``); the engine (numpy on ``sim:random``, and
+``sim:landmarks`` with dekf; numba's compiled replays on ``sim:landmarks``); with
 ``--net``, live teams of node processes (diekf and rdl, 3 robots, 8 s; their network counters depend on timing and
 are left out, the filters' own are compared). ``--only SUBSTRING`` records the cases whose name contains it.
 """
@@ -55,12 +56,12 @@ def _nodes(spec: str, estimator: str, **source: object) -> Callable[[], object]:
     return case
 
 
-def _engine(estimator: str, backend: str) -> Callable[[], object]:
+def _engine(spec: str, estimator: str, backend: str) -> Callable[[], object]:
     def case() -> object:
         from swarmloc.engine.replay import run_engine
         from swarmloc.experiments.sources import load_source
 
-        return run_engine(load_source("sim:landmarks", robots=3, duration=20.0, seed=1), estimator, backend=backend)
+        return run_engine(load_source(spec, robots=3, duration=20.0, seed=1), estimator, backend=backend)
 
     return case
 
@@ -97,9 +98,10 @@ def cases(mrclam: Path | None, net: bool) -> Iterator[tuple[str, Callable[[], ob
                 name = f"nodes/mrclam6{'' if landmarks else '-nolm'}/{est}"
                 yield name, _nodes(spec, est, duration=60.0, landmarks=landmarks)
     for est in ENGINE_NUMPY:
-        yield f"engine/numpy/{est}", _engine(est, "numpy")
+        yield f"engine/numpy/sim:random/{est}", _engine("sim:random", est, "numpy")
+    yield "engine/numpy/sim:landmarks/dekf", _engine("sim:landmarks", "dekf", "numpy")
     for est in ENGINE_COMPILED:
-        yield f"engine/numba/{est}", _engine(est, "numba")
+        yield f"engine/numba/sim:landmarks/{est}", _engine("sim:landmarks", est, "numba")
     if net:
         for est in ("diekf", "rdl"):
             yield f"team/{est}", _team(est)

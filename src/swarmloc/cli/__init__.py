@@ -1,13 +1,13 @@
-"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | compare | node | server | team | keys |
-ros | data``.
+"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | node | server | keys | compare |
+consistency | bench | map | ros | team | data``.
 
 Every command writes its results (Markdown, JSON, PNG, TUM) to an output folder and prints a short summary; errors in
 the input (a missing dataset file, a malformed line, an unknown estimator, a bad configuration) are reported in
 one line (or one line per bad record) with exit status 2, never as a traceback.
 
-Parts: :mod:`.parser` (the commands, their options and help), :mod:`.offline` (the commands that run in one process),
-:mod:`.network` (a robot's process, the belief server, a team, keys), :mod:`.ros` (the ROS 2 node), :mod:`.data`
-(downloads of public data).
+Parts: :mod:`.parser` (assembles the commands), :mod:`.commands` (one module per command: its options, help and
+function), :mod:`.options` (argument groups several commands share), :mod:`.common` (their shared run-time helpers),
+:mod:`.liveview` (the live view of ``node`` and ``team``).
 ``python -m swarmloc.cli`` runs :func:`main`.
 """
 

@@ -17,24 +17,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``ros`` command and its subcommands."""
     r = sub.add_parser("ros", help="a robot's localization as a ROS 2 node (DDS or rmw_zenoh), or a bag replayed",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    r.add_argument(
-        "action",
-        nargs="?",
-        default="run",
-        choices=("run", "replay", "params", "sim"),
-        help="run (default): the live node, until Ctrl-C; replay BAG: localize a rosbag2 offline for every "
-        "node of the params file; params: print every parameter with its default; sim: simulated "
-        "robots publishing their odometry and detections (write the nodes' params with --params-out)",
-    )
+    r.add_argument("action", nargs="?", default="run", choices=("run", "replay", "params", "sim"),
+                   help="run (default): the live node, until Ctrl-C; replay BAG: localize a rosbag2 offline for every "
+                   "node of the params file; params: print every parameter with its default; sim: simulated robots "
+                   "publishing their odometry and detections (write the nodes' params with --params-out)")  # fmt: skip
     r.add_argument("--robots", type=int, default=3, help="sim: robots (default 3)")
     r.add_argument("--duration", type=float, default=60.0, help="sim: seconds of driving (default 60)")
     r.add_argument("--seed", type=int, default=1, help="sim: the simulation's seed")
-    r.add_argument(
-        "--params-out",
-        default=None,
-        metavar="FILE",
-        help="sim: write the nodes' params file (team, initial poses, frames, keys beside it) and exit",
-    )
+    r.add_argument("--params-out", default=None, metavar="FILE", help="sim: write the nodes' params file (team, "
+                   "initial poses, frames, keys beside it) and exit")  # fmt: skip
     r.add_argument("bag", nargs="?", default=None, help="replay: the rosbag2 folder (or .mcap) to read")
     r.add_argument("--out", default=None, help="replay: write the outputs to this new rosbag2")
     r.add_argument("--max-wall", type=float, default=None, help="run: stop after this many wall-clock seconds")
@@ -42,16 +33,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--view", type=int, default=None, metavar="PORT",
                    help="run: serve this robot's beliefs to Foxglove or Lichtblick on ws://127.0.0.1:PORT (0: a free "
                         "port), as long as the node runs")  # fmt: skip
-    r.add_argument(
-        "--record",
-        default=None,
-        metavar="FILE.mcap",
-        help="run: record this robot's beliefs as ROS 2 messages in an MCAP file",
-    )
-    r.set_defaults(func=cmd_ros)
+    r.add_argument("--record", default=None, metavar="FILE.mcap",
+                   help="run: record this robot's beliefs as ROS 2 messages in an MCAP file")  # fmt: skip
+    r.set_defaults(func=run)
 
 
-def cmd_ros(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
+    """Run, replay, simulate or list the parameters of the ROS 2 node; 0, or 2 on bad input, 130."""
     from swarmloc.ros.args import RosArgs, RosArgsError
     from swarmloc.ros.params import ParamsError
 
@@ -66,7 +54,7 @@ def cmd_ros(args: argparse.Namespace) -> int:
             return _replay(args, ros)
         if args.action == "sim":
             return _sim(args, ros)
-        return _run(args, ros)
+        return _run_node(args, ros)
     except ModuleNotFoundError as exc:
         if exc.name in ("cyclonedds", "yaml"):
             print(f"{HINT} ({exc.name} is missing)", file=sys.stderr)
@@ -152,7 +140,7 @@ def _view(args: argparse.Namespace, params: Any) -> Any:
     return view
 
 
-def _run(args: argparse.Namespace, ros: Any) -> int:
+def _run_node(args: argparse.Namespace, ros: Any) -> int:
     import logging
     import signal
 

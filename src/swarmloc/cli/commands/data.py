@@ -7,6 +7,7 @@ import sys
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    """The ``data`` command: its options and help."""
     d = sub.add_parser("data", help="download public data sets: 'mrclam DIR' (the UTIAS MRCLAM datasets, checked)")
     d.add_argument("what", choices=["mrclam"], help="mrclam: the UTIAS MRCLAM datasets (Leung et al. 2011)")
     d.add_argument("dir", help="folder to put MRCLAM_Dataset<N>/ in (made if needed)")
@@ -15,10 +16,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="base URL of the MRCLAM<N>.zip archives (default: $SWARMLOC_MRCLAM_URL, else the dataset's "
                         "public home, ftp://asrl3.utias.utoronto.ca/MRCLAM/)")  # fmt: skip
     d.add_argument("--quiet", action="store_true", help="no progress bar")
-    d.set_defaults(func=cmd_data)
+    d.set_defaults(func=run)
 
 
-def cmd_data(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
+    """Download and check the MRCLAM datasets; 0, 1 on a checksum mismatch, 2 on bad input."""
     from swarmloc.datasets.download import DATASETS, ChecksumError, DownloadError, fetch_mrclam
     from swarmloc.experiments.progress import progress_bar
 
