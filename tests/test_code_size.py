@@ -28,7 +28,6 @@ OVER: dict[str, int] = {
     "association/pmr.py::multiple_registration": 144,
     "association/registration.py::binary_register": 89,
     "association/tracker.py::track_anonymous": 93,
-    "cli/parser.py::build_parser": 192,
     "datasets/mrclam.py::load_mrclam": 181,
     "datasets/mrclam.py::mrclam_events": 86,
     "experiments/compare.py::compare": 101,
