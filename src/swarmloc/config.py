@@ -182,11 +182,15 @@ def _types(cls: type) -> dict[str, Any]:
     return _TYPES[cls]
 
 
+Association = Literal["tags", "nearest", "joint", "anonymous"]
+"""How robot detections get their identities (``[filter] association``)."""
+
+
 def _literal(value: object) -> str:
     """Exact TOML literal: booleans, quoted strings, integers as integers, floats as Python's shortest repr."""
     if isinstance(value, bool | str):
         return json.dumps(value)
-    return str(value) if isinstance(value, int) else repr(float(value))  # type: ignore[arg-type]
+    return str(value) if isinstance(value, int) else repr(float(value))
 
 
 class Section:
@@ -307,7 +311,7 @@ class FilterConfig(Section):
     """iterations of the iterated update"""
     point_iterations: Count = 3
     """iterations of a point (landmark) update"""
-    association: Literal["tags", "nearest", "joint", "anonymous"] = "tags"
+    association: Association = "tags"
     """robot detections' identities: tags (given), nearest or joint (chosen from the beliefs, ids hidden), anonymous
     (PMR and a particle-filter bank, ids hidden)"""
     association_gate: Probability = 0.99

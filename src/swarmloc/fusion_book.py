@@ -163,7 +163,7 @@ def serial_fusion(
     B[..., :3, :3] = Cr
     B[..., 3:, 3:] = Ce
     cov = _sym(J @ B @ np.swapaxes(J, -1, -2))
-    if pm is None:
+    if pm is None or pc is None:  # given together (checked above)
         return mean, cov
     return _merge(pm, pc, mean, cov, wrap_theta=True)
 

@@ -19,7 +19,7 @@ transpose ``(A'' B)^T = B^T A''^T``, which keeps the result symmetric.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
+from typing import Any
 
 import numpy as np
 
@@ -85,14 +85,19 @@ def convolution_F_reference(group: type[SEGroup], A: np.ndarray, B: np.ndarray) 
     return 0.25 * term1 + (A2B + np.swapaxes(A2B, -1, -2) + B2A + np.swapaxes(B2A, -1, -2)) / 12.0
 
 
-@cache
+_F_TENSORS: dict[type[SEGroup], np.ndarray] = {}  # group: its convolution_F_tensor, computed once
+
+
 def convolution_F_tensor(group: type[SEGroup]) -> np.ndarray:
     """Read-only ``K`` with ``vec(F(A, B)) = kron(vec A, vec B) @ K``: F is bilinear, so it is one matrix product."""
-    d = group.dim
-    E = np.eye(d * d).reshape(d * d, d, d)
-    K = convolution_F_reference(group, E[:, None], E[None, :])  # (d^2, d^2, d, d)
-    K = K.reshape(d**4, d * d)
-    K.setflags(write=False)
+    K = _F_TENSORS.get(group)
+    if K is None:
+        d = group.dim
+        E = np.eye(d * d).reshape(d * d, d, d)
+        K = convolution_F_reference(group, E[:, None], E[None, :])  # (d^2, d^2, d, d)
+        K = K.reshape(d**4, d * d)
+        K.setflags(write=False)
+        _F_TENSORS[group] = K
     return K
 
 
@@ -168,7 +173,7 @@ class GroupGaussian:
     def batch_shape(self) -> tuple[int, ...]:
         return self.mean.shape[:-2]
 
-    def __getitem__(self, idx: object) -> GroupGaussian:
+    def __getitem__(self, idx: Any) -> GroupGaussian:
         return GroupGaussian(self.group, self.mean[idx], self.cov[idx], validate=False)
 
     def __repr__(self) -> str:

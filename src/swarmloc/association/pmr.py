@@ -176,24 +176,24 @@ def multiple_registration(
             reg[(r, s)] = full if prior is None else gate_by_prior(full, obs[r], obs[s], sigma, prior, belief_gate)
     n_reg = len(reg)
 
-    cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, Registration]]] = {}
+    rel_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, Registration]]] = {}
     stacked: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     def rels(k: int, j: int) -> list[tuple[np.ndarray, np.ndarray, Registration]]:
         """Registrations of frame ``j`` in frame ``k`` (inverting the stored direction when needed), cached."""
-        if (k, j) not in cache:
+        if (k, j) not in rel_cache:
             if (k, j) in reg:
-                cache[(k, j)] = [(r.pose, r.cov, r) for r in reg[(k, j)]]
+                rel_cache[(k, j)] = [(r.pose, r.cov, r) for r in reg[(k, j)]]
             else:
                 out = []
                 for r in reg[(j, k)]:
                     A = _ad(r.pose)  # cov of T^-1 in right perturbation: Ad(T) cov Ad(T)^T
                     out.append((invert_xyt(r.pose), A @ r.cov @ A.T, r))
-                cache[(k, j)] = out
-            c = cache[(k, j)]
+                rel_cache[(k, j)] = out
+            c = rel_cache[(k, j)]
             if c:
                 stacked[(k, j)] = (np.array([p for p, _, _ in c]), np.array([v for _, v, _ in c]))
-        return cache[(k, j)]
+        return rel_cache[(k, j)]
 
     # BFS order from ego over the graph of pairs with at least one registration
     parent: dict[int, int] = {}

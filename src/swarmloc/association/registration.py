@@ -189,7 +189,7 @@ def _fit_cov(pose: np.ndarray, pj: np.ndarray, var: np.ndarray) -> np.ndarray:
     return xyt_cov_to_exp(pose, np.linalg.inv(info))
 
 
-def visible(p: np.ndarray, max_range: float, fov: float, margin: np.ndarray) -> np.ndarray:
+def visible(p: np.ndarray, max_range: float, fov: float, margin: np.ndarray | float) -> np.ndarray:
     """Points ``(..., 2)`` inside range and field of view by at least ``margin`` [m] (expected to be seen)."""
     r = np.hypot(p[..., 0], p[..., 1])
     ok = r <= max_range - margin

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -41,7 +42,7 @@ __all__ = [
 ]
 
 
-def is_anonymous_detection(e: object) -> bool:
+def is_anonymous_detection(e: object) -> TypeGuard[Detection]:
     """An anonymous range-bearing robot detection: ``target=None``, ``target_is_robot``."""
     return isinstance(e, Detection) and e.kind == Kind.RANGE_BEARING and e.target_is_robot and e.target is None
 
@@ -76,8 +77,8 @@ def binned_scans(
         odo = [e for e in events if isinstance(e, Odometry) and e.robot == r]
         pose = np.zeros(3)
         poses = [pose]
-        for e in odo:
-            pose = compose_xyt(pose, SE2.to_xytheta(odometry_increment(float(e.v), float(e.w), float(e.dt), noise)[0]))
+        for o in odo:
+            pose = compose_xyt(pose, SE2.to_xytheta(odometry_increment(float(o.v), float(o.w), float(o.dt), noise)[0]))
             poses.append(pose)
         dr[r] = (np.array([float(e.t) for e in odo]), np.array(poses))
 
@@ -180,7 +181,7 @@ def track_anonymous(
             est = bank.estimate(j)
             if not est.ambiguous:
                 beliefs[j] = GroupGaussian(SE2, est.gaussian.mean, est.gaussian.cov)
-        kw = dict(max_range=max_range, fov=fov, max_unmatched=max_unmatched, sigma_range=sigma_range)
+        kw: dict[str, Any] = dict(max_range=max_range, fov=fov, max_unmatched=max_unmatched, sigma_range=sigma_range)
         cache = None if registrations is None else registrations.setdefault(t, {})
         res = multiple_registration(scans[t], ego, sigma, beliefs=beliefs or None, cache=cache, **kw)
         counts["pmr_gated" if beliefs else "pmr_ungated"] += 1
@@ -275,7 +276,7 @@ def bank_detections(
     every: float = 1.0,
     inflate: float = 1.0,
     handoff: str = "full",
-    **kw: object,
+    **kw: Any,
 ) -> tuple[list[Event], dict[int, dict[str, int]]]:
     """The ``anonymous`` association policy as an input to any estimator: every robot runs :func:`track_anonymous`
     on the team's anonymous range-bearing detections and odometry, and its bank's **unambiguous** estimate of each
@@ -302,9 +303,9 @@ def bank_detections(
     counts: dict[int, dict[str, int]] = {}
     new: list[Detection] = []
     shared: dict[float, dict] = {}  # the team's binary registrations per scan, computed once
-    motion = _odometry_noise(events, robots, noise, float(kw.get("motion_floor", 1e-3)))  # type: ignore[arg-type]
+    motion = _odometry_noise(events, robots, noise, float(kw.get("motion_floor", 1e-3)))
     for ego in robots:
-        tr = track_anonymous(events, ego, robots, noise, sigma, every=every, registrations=shared, **kw)  # type: ignore[arg-type]
+        tr = track_anonymous(events, ego, robots, noise, sigma, every=every, registrations=shared, **kw)
         last: dict[int, tuple[float, np.ndarray]] = {}
         emitted = no_gain = 0
         for t, est in zip(tr.times, tr.estimates, strict=True):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 
 def run_config(args: argparse.Namespace):  # noqa: ANN202
@@ -60,7 +61,7 @@ def die_with_launcher(args: argparse.Namespace) -> None:
         die_with_parent(args.parent_pid)
 
 
-def timeouts(args: argparse.Namespace) -> dict[str, float]:
+def timeouts(args: argparse.Namespace) -> dict[str, Any]:
     """The node's waits [s] and its ``answer_retries`` (a count) from the command line."""
     from swarmloc.net.timeouts import TIMEOUTS
 

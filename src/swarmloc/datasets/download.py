@@ -240,7 +240,8 @@ def _unpack(part: Path, dataset: int, folder: Path) -> Fetched:
     except (zipfile.BadZipFile, OSError) as exc:
         part.unlink(missing_ok=True)
         raise DownloadError(f"dataset {dataset}: not a zip archive ({exc}); removed, run again") from None
-    out, problems = Fetched(dataset, folder), []
+    out = Fetched(dataset, folder)
+    problems: list[str] = []
     tmp = folder.with_name(f".{folder.name}.partial")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()

@@ -314,9 +314,9 @@ def load_mrclam(
             absent = [k for k in sorted(kinds) if all(k not in present[r] for r in ROBOT_SUBJECTS)]
             if absent:
                 what = " and ".join(absent)
-                files = ", ".join(f"Robot*_{_FILE_SUFFIX[k]}.dat" for k in absent)
+                patterns = ", ".join(f"Robot*_{_FILE_SUFFIX[k]}.dat" for k in absent)
                 raise MRCLAMError(
-                    f"{name}: {what} missing for every robot (no {files} in {folder}); "
+                    f"{name}: {what} missing for every robot (no {patterns} in {folder}); "
                     f"available: {_available(folder)}; required: {sorted(kinds)}"
                 )
             raise MRCLAMError(

@@ -22,19 +22,32 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 
 from swarmloc.association.tracker import bank_detections
+from swarmloc.config import Association
 from swarmloc.datasets.source import Source
 from swarmloc.events import Detection, Event, Kind
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sim.anonymous import anonymize
 
-__all__ = ["POLICIES", "association_accuracy", "association_events", "handoff_accuracy", "with_association"]
+__all__ = [
+    "POLICIES", "association_accuracy", "association_events", "association_policy", "handoff_accuracy",
+    "with_association",
+]  # fmt: skip
 
-POLICIES = ("tags", "nearest", "joint", "anonymous")
+POLICIES: tuple[Association, ...] = get_args(Association)
+
+
+def association_policy(value: str) -> Association:
+    """``value`` as an association policy, or ``ValueError`` naming the ones there are."""
+    for policy in POLICIES:
+        if value == policy:
+            return policy
+    raise ValueError(f"association must be one of {POLICIES}, got {value!r}")
+
 
 BANK_DEFAULTS: dict[str, Any] = {"n_particles": 200, "max_unmatched": 2, "every": 1.0, "fresh": 0}
 """The bank's settings for ``anonymous`` (200 particles per met robot, two unmatched points per registration for
@@ -58,9 +71,8 @@ def association_events(
     """The events as the team with ``policy`` sees them (module docstring) and notes for the report (the
     tracker's counters for ``anonymous``). ``clutter``: mean false detections per scan; ``p_detect``: detection
     probability; ``max_range`` [m]: the clutter's range; ``seed``: of misses and clutter."""
-    if policy not in POLICIES:
-        raise ValueError(f"association must be one of {POLICIES}, got {policy!r}")
-    kw = dict(p_detect=p_detect, clutter=clutter, max_range=max_range, seed=seed)
+    association_policy(policy)
+    kw: dict[str, Any] = dict(p_detect=p_detect, clutter=clutter, max_range=max_range, seed=seed)
     if policy == "tags":
         if clutter == 0 and p_detect == 1:
             return list(events), {}
@@ -118,9 +130,7 @@ def with_association(src: Source, policy: str | None = None) -> Source:
     it: for every policy but ``tags`` the robot ids hidden (no clutter, no misses added), the configuration's policy
     set. What ``swarmloc node`` / ``team`` / ``server`` do with ``--association``: every process of a team applies it
     to the same source, so they all see the same events."""
-    policy = src.config.filter.association if policy is None else policy
-    if policy not in POLICIES:
-        raise ValueError(f"association must be one of {POLICIES}, got {policy!r}")
+    policy = src.config.filter.association if policy is None else association_policy(policy)
     config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
     if policy == "tags":
         return dataclasses.replace(src, config=config)

@@ -294,7 +294,7 @@ def fusion_comparison(
             out["backends"][backend] = {k: v for k, v in r.items() if isinstance(v, int | float | str)}
         out["engine"] = out["backends"]["numpy"]
         rates = {b: r["robot_updates_per_s"] for b, r in out["backends"].items() if "robot_updates_per_s" in r}
-        out["best_backend"] = max(rates, key=rates.get)
+        out["best_backend"] = max(rates, key=rates.__getitem__)
         lm = eng.fusion_step(engine_n, backend=swarm_backend(), neighbours=neighbours, repeats=repeats, landmarks=1)
         out["backends"][f"{swarm_backend()}, 1 landmark"] = {k: v for k, v in lm.items() if
                                                                    isinstance(v, int | float | str)}  # fmt: skip
@@ -499,7 +499,7 @@ def run_bench(
                                           cfg.neighbours, cfg.isolate, tick)  # fmt: skip
         if "d" in sections and ds is None:
             res["mrclam"] = {"skipped": f"MRCLAM_Dataset6 not found (pass --mrclam or set {MRCLAM_ENV})"}
-        elif "d" in sections:
+        elif "d" in sections and ds is not None:
             res["mrclam"] = mrclam_replay(ds, cfg.replay_duration, cfg.estimators, cfg.landmarks, cfg.replay_rounds,
                                           tick)  # fmt: skip
         if "e" in sections:

@@ -141,17 +141,16 @@ def compare(
 
     from swarmloc.config import DEFAULTS
     from swarmloc.estimators import ESTIMATORS, estimator_class, make_team, node_options
-    from swarmloc.experiments.association import POLICIES
+    from swarmloc.experiments.association import association_policy
 
     unknown = [e for e in estimators if e not in ESTIMATORS]
     if unknown:
         raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
     if runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
-    if association not in POLICIES:
-        raise ValueError(f"association must be one of {POLICIES}, got {association!r}")
+    policy = association_policy(association)
     _check_scenario(scenario)
-    cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, association=association))
+    cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, association=policy))
     if is_3d(scenario):  # what a 3-D team cannot run is refused before anything runs
         if association != "tags" or clutter or p_detect != 1.0:
             raise ValueError(f"{scenario}: a 3-D team's detections are tagged (association tags, no clutter, "

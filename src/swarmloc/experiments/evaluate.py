@@ -10,6 +10,7 @@ in-process runner; beliefs are recorded on a regular grid and scored with :mod:`
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -160,7 +161,9 @@ def delayed_row(late: RunResult, causal: dict, scored: bool, lag: float) -> dict
     return ev
 
 
-def write_report(out_dir: str | Path, stem: str, report: dict, results: dict[str, RunResult], t_start: float) -> None:
+def write_report(
+    out_dir: str | os.PathLike[str], stem: str, report: dict, results: dict[str, RunResult], t_start: float
+) -> None:
     """``<stem>.json``, ``<stem>.md``, ``tum/<estimator>_robot<N>.tum`` (+ ground truth) and, with truth, figures.
     Whatever the results hold, the report is written: a row that is not finite is left out of its TUM file (the
     format has no NaN) and counted in ``tum_rows_left_out`` with a note; figures that cannot be drawn are a note."""

@@ -117,9 +117,11 @@ def map_experiment(
     singles = [n for n in names if n.endswith("alone")]
     single = float(np.mean([mean[n]["endpoint_mean"] for n in singles]))
     ratio = {n: mean[n]["endpoint_mean"] / single for n in names if n.startswith("team")}
-    report = {"seeds": list(range(first_seed, first_seed + seeds)), "estimators": list(estimators), "order": order,
-              "D": D, "finder": vars(finder), "per_seed": per_seed, "mean": mean,
-              "team_over_single_endpoint_mean": ratio}  # fmt: skip
+    report: dict[str, Any] = {
+        "seeds": list(range(first_seed, first_seed + seeds)), "estimators": list(estimators), "order": order,
+        "D": D, "finder": vars(finder), "per_seed": per_seed, "mean": mean, "team_over_single_endpoint_mean": ratio,
+    }  # fmt: skip
+    assert first is not None  # a seed at least (per_seed[0] above)
     return report, first
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from itertools import combinations
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -59,7 +60,7 @@ def observability_run(
     return {"times": res.tracks[ids[0]].times, "absolute": abs_err, "relative": np.stack(rel, axis=1)}
 
 
-def observability_figure(out: str | Path, seeds: int = 5, **kw: object) -> Path:
+def observability_figure(out: str | Path, seeds: int = 5, **kw: Any) -> Path:
     """RMS over seeds of the absolute and relative errors against time, without and with one anchored robot."""
     import matplotlib
 

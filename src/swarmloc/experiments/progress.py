@@ -32,17 +32,18 @@ def _bar() -> Any:
 
 
 @contextlib.contextmanager
-def progress_bar(enabled: bool) -> Iterator[Callable[[str], Callable[[int, int], None]] | None]:
-    """Yields ``start(description) -> callback(done, total)``, one bar per ``start``; None when disabled."""
+def progress_bar(enabled: bool) -> Iterator[Callable[[str], Callable[[int, int | None], None]] | None]:
+    """Yields ``start(description) -> callback(done, total)``, one bar per ``start`` (``total`` None: not known);
+    None when disabled."""
     if not enabled:
         yield None
         return
     with _bar() as bar:
 
-        def start(description: str) -> Callable[[int, int], None]:
+        def start(description: str) -> Callable[[int, int | None], None]:
             task = bar.add_task(description, total=None)
 
-            def cb(done: int, total: int) -> None:
+            def cb(done: int, total: int | None) -> None:
                 bar.update(task, completed=done, total=total)
 
             return cb

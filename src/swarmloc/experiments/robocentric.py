@@ -48,7 +48,7 @@ def robocentric_monte_carlo(
 
         P0 = np.kron(np.eye(m), np.diag([1e-4, 1e-4, 1e-4]))
         q0 = truth() + rng.multivariate_normal(np.zeros(3 * m), P0).reshape(m, 3)
-        filters = {
+        filters: dict[str, JointRobocentricEKF | SeparateRobocentricEKF] = {
             "joint": JointRobocentricEKF(q0, P0, Q, np.stack([Q] * m)),
             "separate": SeparateRobocentricEKF(q0, P0, Q, np.stack([Q] * m)),
         }

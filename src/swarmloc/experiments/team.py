@@ -126,7 +126,7 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
     res = team_result(run, src, estimator)
     truth = src.truth is not None
     notes, missing = ended_notes(run, src.robots)
-    ev = {"estimator": estimator, "robots": {}, "team": None}
+    ev: dict[str, Any] = {"estimator": estimator, "robots": {}, "team": None}
     try:
         ev = evaluate(res) if truth else ev
     except Exception as exc:  # noqa: BLE001 - the report is written whatever the scoring meets; it says what

@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from swarmloc.arrays import FloatArray
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE2
 from swarmloc.lie.base import SEGroup
@@ -33,11 +34,11 @@ from swarmloc.lie.base import SEGroup
 W_BOUNDS = (1e-3, 1 - 1e-3)
 """Range searched for the CI weight ``w`` of the robot's own belief."""
 
-Fuse = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+Fuse = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
 """``fuse(w) -> (mean, cov)`` for weights ``w`` of shape ``(k, *batch)``; results have leading shape ``(k, *batch)``."""
 
 
-def _cost(cov: np.ndarray) -> np.ndarray:
+def _cost(cov: FloatArray) -> FloatArray:
     sign, logdet = np.linalg.slogdet(cov)
     return np.where((sign > 0) & np.isfinite(logdet), logdet, np.inf)
 
@@ -48,7 +49,7 @@ def ci_search(
     bounds: tuple[float, float] = W_BOUNDS,
     grid: int = 9,
     rounds: int = 4,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Minimize ``log det`` of the fused covariance over the CI weight, for every batch element.
 
     Returns ``(mean, cov, w)`` at the chosen weight (shapes ``(*batch, ...)`` and ``batch``).
@@ -88,8 +89,8 @@ WEIGHT_GRID = 129
 """Weights evaluated by :func:`point_weight` and :func:`pose_weight` before the parabola."""
 
 
-def _minimize_on_grid(cost: Callable[[np.ndarray], np.ndarray], batch_shape: tuple[int, ...],
-                      bounds: tuple[float, float]) -> np.ndarray:  # fmt: skip
+def _minimize_on_grid(cost: Callable[[FloatArray], FloatArray], batch_shape: tuple[int, ...],
+                      bounds: tuple[float, float]) -> FloatArray:  # fmt: skip
     """The minimizer over ``bounds`` of a convex ``cost(w (g, *batch)) -> (g, *batch)``: grid, then the vertex of the
     parabola through the best grid point and its neighbours (within one grid step)."""
     lo, hi = bounds
@@ -107,10 +108,11 @@ def _minimize_on_grid(cost: Callable[[np.ndarray], np.ndarray], batch_shape: tup
     inner = (j > 0) & (j < g - 1) & np.isfinite(c0 + c1 + c2) & (den > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         shift = np.where(inner, 0.5 * step * (c0 - c2) / np.where(inner, den, 1.0), 0.0)
-    return np.clip(lo + step * j + np.clip(shift, -step, step), lo, hi)
+    best: FloatArray = np.clip(lo + step * j + np.clip(shift, -step, step), lo, hi)
+    return best
 
 
-def _logdet_small(S: np.ndarray) -> np.ndarray:
+def _logdet_small(S: FloatArray) -> FloatArray:
     """``log det`` of ``(..., m, m)`` matrices, ``m <= 2`` in closed form (NaN where not positive)."""
     m = S.shape[-1]
     if m == 1:
@@ -123,15 +125,15 @@ def _logdet_small(S: np.ndarray) -> np.ndarray:
 
 
 def point_weight(
-    mean: np.ndarray,
-    cov: np.ndarray,
+    mean: FloatArray,
+    cov: FloatArray,
     kind: str,
-    z: np.ndarray,
-    R: np.ndarray,
-    nb_mean: np.ndarray,
-    nb_cov: np.ndarray,
+    z: FloatArray,
+    R: FloatArray,
+    nb_mean: FloatArray,
+    nb_cov: FloatArray,
     bounds: tuple[float, float] = W_BOUNDS,
-) -> np.ndarray:
+) -> FloatArray:
     """CI weight of the robot's own belief for a range/bearing measurement ``z`` of a neighbour, batched: means
     ``(..., 3, 3)``, covariances ``(..., 3, 3)``, ``R (..., m, m)``; returns ``(...)``.
 
@@ -149,7 +151,7 @@ def point_weight(
     return _minimize_on_grid(_joint_cost(Gi, C, R, 3), batch, bounds)
 
 
-def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int,
+def joint_weight(A: FloatArray, B: FloatArray, R: FloatArray, dof: int,
                  bounds: tuple[float, float] = W_BOUNDS) -> float:  # fmt: skip
     """CI weight for a measurement of a neighbour by one robot of a ``dof``-dimensional state (a cluster of robots
     whose joint covariance is bounded by ``Sigma / w``): ``A = H_i P_ii H_i^T`` and ``B = H_j P_jj H_j^T``
@@ -160,12 +162,12 @@ def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int,
     return float(_minimize_on_grid(_joint_cost(A, B, R, dof), (), bounds))
 
 
-def _joint_cost(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> Callable[[np.ndarray], np.ndarray]:
+def _joint_cost(A: FloatArray, B: FloatArray, R: FloatArray, dof: int) -> Callable[[FloatArray], FloatArray]:
     """``w -> -dof log w - log det(S_w + A / w) + log det S_w``, ``S_w = R + B / (1 - w)``: the posterior log det of
     a ``dof``-dimensional state, up to a constant, under the CI weight ``w`` (:func:`point_weight`,
     :func:`joint_weight`)."""
 
-    def cost(w: np.ndarray) -> np.ndarray:
+    def cost(w: FloatArray) -> FloatArray:
         wc = w[..., None, None]
         S = R + B / (1 - wc)
         return -dof * np.log(w) - _logdet_small(S + A / wc) + _logdet_small(S)
@@ -174,16 +176,16 @@ def _joint_cost(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> Callab
 
 
 def pose_weight(
-    mean: np.ndarray,
-    cov: np.ndarray,
-    meas: np.ndarray,
-    R: np.ndarray,
-    nb_mean: np.ndarray,
-    nb_cov: np.ndarray,
+    mean: FloatArray,
+    cov: FloatArray,
+    meas: FloatArray,
+    R: FloatArray,
+    nb_mean: FloatArray,
+    nb_cov: FloatArray,
     order: int = 2,
     bounds: tuple[float, float] = W_BOUNDS,
     group: type[SEGroup] = SE2,
-) -> np.ndarray:
+) -> FloatArray:
     """CI weight of the robot's own belief for a relative-pose measurement ``meas`` (``(..., 3, 3)``, noise
     covariance ``R``) of a neighbour, batched; returns ``(...)``. ``group``: SE2 (default) or SE3 (``meas``
     ``(..., 4, 4)``, covariances ``(..., 6, 6)``).
@@ -202,7 +204,7 @@ def pose_weight(
     A = np.swapaxes(Gi, -1, -2) @ np.linalg.inv(cov) @ Gi
     batch = A.shape[:-2]
 
-    def cost(w: np.ndarray) -> np.ndarray:
+    def cost(w: FloatArray) -> FloatArray:
         wc = w[..., None, None]
         W = W0 + Wk / (1 - wc)
         s1, l1 = np.linalg.slogdet(W)

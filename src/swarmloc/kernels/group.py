@@ -15,8 +15,11 @@ Shapes: SE(2) means ``(..., 3, 3)``, covariances ``(..., 3, 3)``; SE(3) where st
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
+from swarmloc.arrays import BoolArray, FloatArray
 from swarmloc.gaussian import convolution_F, convolution_F_tensor
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.lie.base import SEGroup
@@ -25,15 +28,16 @@ from swarmloc.sensors.models import MIN_RANGE, MODELS
 _T = np.swapaxes
 
 
-def _bvec(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return np.einsum("...ij,...j->...i", M, v)
+def _bvec(M: FloatArray, v: FloatArray) -> FloatArray:
+    out: FloatArray = np.einsum("...ij,...j->...i", M, v)
+    return out
 
 
-def _sym(C: np.ndarray) -> np.ndarray:
+def _sym(C: FloatArray) -> FloatArray:
     return 0.5 * (C + _T(C, -1, -2))
 
 
-def gamma(group: type[SEGroup], x: np.ndarray, order: int) -> np.ndarray:
+def gamma(group: type[SEGroup], x: FloatArray, order: int) -> FloatArray:
     """``I + ad(x)/2`` (second order) or ``I`` (first order): the BCH factor of the fusion (see fusion.py)."""
     eye = np.broadcast_to(np.eye(group.dim), (*x.shape[:-1], group.dim, group.dim))
     if order == 1:
@@ -43,8 +47,8 @@ def gamma(group: type[SEGroup], x: np.ndarray, order: int) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------------ prediction
 def predict(
-    group: type[SEGroup], mu: np.ndarray, cov: np.ndarray, inc_mean: np.ndarray, inc_cov: np.ndarray, order: int = 2
-) -> tuple[np.ndarray, np.ndarray]:
+    group: type[SEGroup], mu: FloatArray, cov: FloatArray, inc_mean: FloatArray, inc_cov: FloatArray, order: int = 2
+) -> tuple[FloatArray, FloatArray]:
     """Belief ``(mu, cov)`` convolved with an independent increment ``(inc_mean, inc_cov)``: the law of ``g h``.
 
     Mean ``mu inc_mean``; covariance ``A + B + F(A, B)`` with ``A = Ad(inc_mean^-1) cov Ad(inc_mean^-1)^T``,
@@ -70,12 +74,12 @@ def predict(
 # ------------------------------------------------------------------------------------------------ relative pose
 def relative_to_pseudo(
     group: type[SEGroup],
-    mu_k: np.ndarray,
-    cov_k: np.ndarray,
-    m_ik: np.ndarray,
-    cov_ik: np.ndarray,
+    mu_k: FloatArray,
+    cov_k: FloatArray,
+    m_ik: FloatArray,
+    cov_ik: FloatArray,
     order: int = 2,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[FloatArray, FloatArray]:
     """Turn a relative measurement of a neighbour into a Gaussian on the observer's own pose (fusion.py, steps 1-2).
 
     ``mu_k, cov_k``: the neighbour's belief; ``m_ik, cov_ik``: the measured pose of ``k`` in ``i``'s frame and the
@@ -92,13 +96,13 @@ def relative_to_pseudo(
 
 def fuse_pseudo(
     group: type[SEGroup],
-    mu: np.ndarray,
-    cov: np.ndarray,
-    nus: np.ndarray,
-    Ws: np.ndarray,
+    mu: FloatArray,
+    cov: FloatArray,
+    nus: FloatArray,
+    Ws: FloatArray,
     order: int = 2,
     iterations: int = 2,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[FloatArray, FloatArray]:
     """Fuse a prior ``(mu, cov)`` with ``K`` Gaussian observations ``(nus[..., k, :, :], Ws[..., k, :, :])`` of the
     same pose, all at once (fusion.py, step 3). ``iterations > 1`` re-linearizes about the current estimate
     (Gauss-Newton on the same cost). Shapes: ``mu (..., n+1, n+1)``, ``cov (..., d, d)``, ``nus (..., K, n+1, n+1)``,
@@ -128,7 +132,7 @@ def fuse_pseudo(
     return cur, _sym(Gb @ np.linalg.inv(S) @ _T(Gb, -1, -2))
 
 
-def absolute_to_pseudo(xytheta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def absolute_to_pseudo(xytheta: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
     """A world-frame pose fix ``(x, y, theta)`` with additive Cartesian covariance -> ``(nu, W)`` on SE(2).
 
     First order: ``W = T cov T^T`` with ``T = diag(R(theta)^T, 1)`` (the fix's frame).
@@ -140,10 +144,11 @@ def absolute_to_pseudo(xytheta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray
     return SE2.from_xytheta(xytheta), _sym(T @ cov @ _T(T, -1, -2))
 
 
-def pseudo_nis(group: type[SEGroup], mu: np.ndarray, cov: np.ndarray, nu: np.ndarray, W: np.ndarray) -> np.ndarray:
+def pseudo_nis(group: type[SEGroup], mu: FloatArray, cov: FloatArray, nu: FloatArray, W: FloatArray) -> FloatArray:
     """Normalized innovation squared of a pose pseudo-observation (first order), for gating. Batched."""
     x = group.log(group.inverse(nu, validate=False) @ mu, validate=False)
-    return np.einsum("...i,...i->...", x, np.linalg.solve(cov + W, x[..., None])[..., 0])
+    nis: FloatArray = np.einsum("...i,...i->...", x, np.linalg.solve(cov + W, x[..., None])[..., 0])
+    return nis
 
 
 # ------------------------------------------------------------------------------------------------ range / bearing
@@ -153,8 +158,8 @@ POINT_KINDS = {k: m.components for k, m in MODELS.items() if m.targets == "point
 
 
 def point_model(
-    kind: str, mu_i: np.ndarray, target_mean: np.ndarray, target_cov: np.ndarray, robot: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    kind: str, mu_i: FloatArray, target_mean: FloatArray, target_cov: FloatArray, robot: bool
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Range/bearing of a target seen from pose ``mu_i``, linearized on SE(2). Batched.
 
     The target is a robot (``robot=True``: pose ``(..., 3, 3)`` with exponential-coordinate covariance
@@ -191,8 +196,8 @@ def point_model(
 
 
 def _point_model_one(
-    kind: str, mu_i: np.ndarray, target_mean: np.ndarray, target_cov: np.ndarray, robot: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    kind: str, mu_i: FloatArray, target_mean: FloatArray, target_cov: FloatArray, robot: bool
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """:func:`point_model` for one observer and one target (the same formulas with fewer array calls)."""
     c, s_, tx, ty = mu_i[0, 0], mu_i[1, 0], mu_i[0, 2], mu_i[1, 2]
     if robot:
@@ -215,7 +220,7 @@ def _point_model_one(
     return h, dz @ dq_dy, Ht @ target_cov @ Ht.T, r
 
 
-def point_residual(kind: str, z: np.ndarray, h: np.ndarray) -> np.ndarray:
+def point_residual(kind: str, z: FloatArray, h: FloatArray) -> FloatArray:
     """``z - h`` with the bearing component wrapped to (-pi, pi]."""
     r = np.asarray(z, dtype=float) - h
     for j, comp in enumerate(POINT_KINDS[kind]):
@@ -225,17 +230,17 @@ def point_residual(kind: str, z: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 
 def point_update(
-    mu: np.ndarray,
-    cov: np.ndarray,
+    mu: FloatArray,
+    cov: FloatArray,
     kind: str,
-    z: np.ndarray,
-    R: np.ndarray,
-    target_mean: np.ndarray,
-    target_cov: np.ndarray,
+    z: FloatArray,
+    R: FloatArray,
+    target_mean: FloatArray,
+    target_cov: FloatArray,
     robot: bool,
     iterations: int = 3,
     order: int = 2,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Update an SE(2) belief with a range/bearing measurement of an uncertain robot or landmark. Batched.
 
     Iterated (Gauss-Newton) update on the group: at the current estimate ``mu_c``, minimize
@@ -278,7 +283,7 @@ def point_update(
             G0tP = _T(G0, -1, -2) @ cov_inv
             info = G0tP @ G0 + HtS @ H
             rhs = _bvec(HtS, r) - _bvec(G0tP, x0)
-        d = np.linalg.solve(info, rhs[..., None])[..., 0]
+        d = cast(FloatArray, np.linalg.solve(info, rhs[..., None])[..., 0])  # numpy types it floating[Any]
         cur = cur @ SE2.exp(d, validate=False)
     Gd = gamma(SE2, -d, order)
     post = _sym(Gd @ np.linalg.inv(info) @ _T(Gd, -1, -2))
@@ -287,15 +292,15 @@ def point_update(
 
 
 def point_nis(
-    mu: np.ndarray,
-    cov: np.ndarray,
+    mu: FloatArray,
+    cov: FloatArray,
     kind: str,
-    z: np.ndarray,
-    R: np.ndarray,
-    target_mean: np.ndarray,
-    target_cov: np.ndarray,
+    z: FloatArray,
+    R: FloatArray,
+    target_mean: FloatArray,
+    target_cov: FloatArray,
     robot: bool,
-) -> np.ndarray:
+) -> FloatArray:
     """Normalized innovation squared ``r^T (H Sigma H^T + C + R)^-1 r`` of a range/bearing measurement (gating).
 
     NaN where the geometry is degenerate (predicted range below ``MIN_RANGE``).

@@ -24,10 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from swarmloc.arrays import FloatArray
 from swarmloc.lie import SE2, wrap_angle
 
 
-def _T(a: np.ndarray, i: int, j: int) -> np.ndarray:
+def _T(a: FloatArray, i: int, j: int) -> FloatArray:
     """``np.swapaxes`` as the array method (the same view, without the function's dispatch)."""
     return a.swapaxes(i, j)
 
@@ -44,7 +45,7 @@ __all__ = [
 ]
 
 
-def world_basis(x: np.ndarray) -> np.ndarray:
+def world_basis(x: FloatArray) -> FloatArray:
     """``N(x) (..., 3, 3)``: Cartesian change ``dx`` of the pose ``x (..., 3)`` under the world-frame error ``xi``."""
     x = np.asarray(x, dtype=float)
     if x.shape == (3,):  # one pose: the same matrix, built directly
@@ -55,7 +56,7 @@ def world_basis(x: np.ndarray) -> np.ndarray:
     return N
 
 
-def world_basis_inv(x: np.ndarray) -> np.ndarray:
+def world_basis_inv(x: FloatArray) -> FloatArray:
     """``N(x)^-1``."""
     x = np.asarray(x, dtype=float)
     if x.shape == (3,):
@@ -66,38 +67,38 @@ def world_basis_inv(x: np.ndarray) -> np.ndarray:
     return N
 
 
-def cartesian_to_world_cov(x: np.ndarray, P: np.ndarray) -> np.ndarray:
+def cartesian_to_world_cov(x: FloatArray, P: FloatArray) -> FloatArray:
     """Covariance of the world-frame error from a Cartesian covariance at ``x``: ``N^-1 P N^-T``."""
     Ni = world_basis_inv(x)
     return Ni @ P @ _T(Ni, -1, -2)
 
 
-def world_to_cartesian_cov(x: np.ndarray, P: np.ndarray) -> np.ndarray:
+def world_to_cartesian_cov(x: FloatArray, P: FloatArray) -> FloatArray:
     """Cartesian covariance at ``x`` from a world-frame error covariance: ``N P N^T``."""
     N = world_basis(x)
     return N @ P @ _T(N, -1, -2)
 
 
-def world_to_body(g: np.ndarray, P: np.ndarray) -> np.ndarray:
+def world_to_body(g: FloatArray, P: FloatArray) -> FloatArray:
     """Covariance of the body-frame (right-perturbation) error ``y = Ad(g^-1) xi`` at the pose matrix ``g``."""
     A = SE2.Ad(SE2.inverse(g, validate=False))
     return A @ P @ _T(A, -1, -2)
 
 
-def body_to_world(g: np.ndarray, S: np.ndarray) -> np.ndarray:
+def body_to_world(g: FloatArray, S: FloatArray) -> FloatArray:
     """Covariance of the world-frame error ``xi = Ad(g) y`` from the body-frame covariance ``S`` at ``g``."""
     A = SE2.Ad(g)
     return A @ S @ _T(A, -1, -2)
 
 
-def left_correct(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
+def left_correct(x: FloatArray, delta: FloatArray) -> FloatArray:
     """Cartesian pose of ``exp(hat(delta)) g(x)``: the estimate ``x (..., 3)`` corrected by a world-frame ``delta``."""
     g = SE2.exp(np.asarray(delta, dtype=float)) @ SE2.from_xytheta(np.asarray(x, dtype=float))
     th = wrap_angle(np.arctan2(g[..., 1, 0], g[..., 0, 0]))
     return np.stack([g[..., 0, 2], g[..., 1, 2], th], axis=-1)
 
 
-def world_delta(x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+def world_delta(x0: FloatArray, x1: FloatArray) -> FloatArray:
     """The world-frame correction ``delta (3,)`` with ``exp(hat(delta)) g(x0) = g(x1)`` (:func:`left_correct`'s
     inverse) of two Cartesian poses ``(3,)``."""
     return SE2.log(SE2.from_xytheta(x1) @ SE2.inverse(SE2.from_xytheta(x0), validate=False))

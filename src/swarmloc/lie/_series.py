@@ -11,12 +11,14 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from swarmloc.arrays import FloatArray
+
 _SMALL = 0.05
 
 
 def _branch(
-    theta: np.ndarray, exact: Callable[[np.ndarray], np.ndarray], taylor: Sequence[float], small: float
-) -> np.ndarray:
+    theta: FloatArray, exact: Callable[[FloatArray], FloatArray], taylor: Sequence[float], small: float
+) -> FloatArray:
     theta = np.asarray(theta, dtype=float)
     near = np.abs(theta) < small
     safe = np.where(near, 1.0, theta)
@@ -27,17 +29,17 @@ def _branch(
     return np.where(near, poly, exact(safe))
 
 
-def sinc(theta: np.ndarray) -> np.ndarray:
+def sinc(theta: FloatArray) -> FloatArray:
     """sin(t)/t."""
     return _branch(theta, lambda t: np.sin(t) / t, [1.0, -1 / 6, 1 / 120, -1 / 5040, 1 / 362880], _SMALL)
 
 
-def one_minus_cos_over_t(theta: np.ndarray) -> np.ndarray:
+def one_minus_cos_over_t(theta: FloatArray) -> FloatArray:
     """(1 - cos t)/t, odd in t."""
     return theta * one_minus_cos_over_t2(theta)
 
 
-def one_minus_cos_over_t2(theta: np.ndarray) -> np.ndarray:
+def one_minus_cos_over_t2(theta: FloatArray) -> FloatArray:
     """(1 - cos t)/t^2 = 2 sin^2(t/2)/t^2."""
     return _branch(
         theta,
@@ -47,7 +49,7 @@ def one_minus_cos_over_t2(theta: np.ndarray) -> np.ndarray:
     )
 
 
-def t_minus_sin_over_t3(theta: np.ndarray) -> np.ndarray:
+def t_minus_sin_over_t3(theta: FloatArray) -> FloatArray:
     """(t - sin t)/t^3."""
     return _branch(
         theta,
@@ -57,7 +59,7 @@ def t_minus_sin_over_t3(theta: np.ndarray) -> np.ndarray:
     )
 
 
-def half_cot_half(theta: np.ndarray) -> np.ndarray:
+def half_cot_half(theta: FloatArray) -> FloatArray:
     """(t/2) cot(t/2), which is 0 at t = pi and singular at t = 2 pi."""
     return _branch(
         theta,
@@ -67,7 +69,7 @@ def half_cot_half(theta: np.ndarray) -> np.ndarray:
     )
 
 
-def jinv_coeff(theta: np.ndarray) -> np.ndarray:
+def jinv_coeff(theta: FloatArray) -> FloatArray:
     """(1 - (t/2) cot(t/2))/t^2, the quadratic coefficient of the inverse Jacobians."""
     return _branch(
         theta,
@@ -77,12 +79,12 @@ def jinv_coeff(theta: np.ndarray) -> np.ndarray:
     )
 
 
-def t_over_sin(theta: np.ndarray) -> np.ndarray:
+def t_over_sin(theta: FloatArray) -> FloatArray:
     """t / sin t."""
     return _branch(theta, lambda t: t / np.sin(t), [1.0, 1 / 6, 7 / 360, 31 / 15120, 127 / 604800], _SMALL)
 
 
-def q2_coeff(theta: np.ndarray) -> np.ndarray:
+def q2_coeff(theta: FloatArray) -> FloatArray:
     """(t^2 + 2 cos t - 2)/(2 t^4), from the SE(3) left-Jacobian block Q."""
     return _branch(
         theta,
@@ -92,7 +94,7 @@ def q2_coeff(theta: np.ndarray) -> np.ndarray:
     )
 
 
-def q3_coeff(theta: np.ndarray) -> np.ndarray:
+def q3_coeff(theta: FloatArray) -> FloatArray:
     """(2 t - 3 sin t + t cos t)/(2 t^5), from the SE(3) left-Jacobian block Q."""
     return _branch(
         theta,

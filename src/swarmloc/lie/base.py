@@ -14,10 +14,9 @@ Subclasses are namespaces of pure, batched functions (classmethods); no instance
 
 from __future__ import annotations
 
-from functools import cache
-
 import numpy as np
 
+from swarmloc.arrays import FloatArray
 from swarmloc.lie.checks import as_element, as_tangent
 
 
@@ -30,56 +29,56 @@ class SEGroup:
 
     # ----------------------------------------------------------------- validation
     @classmethod
-    def check_tangent(cls, x: object, where: str = "", name: str = "x") -> np.ndarray:
+    def check_tangent(cls, x: object, where: str = "", name: str = "x") -> FloatArray:
         """Validate exponential coordinates ``(..., dim)``; raise ValueError naming ``name``."""
         return as_tangent(x, cls.dim, where or cls.__name__, name)
 
     @classmethod
-    def check_element(cls, g: object, where: str = "", name: str = "g") -> np.ndarray:
+    def check_element(cls, g: object, where: str = "", name: str = "g") -> FloatArray:
         """Validate group elements ``(..., n+1, n+1)``; raise ValueError naming ``name``."""
         return as_element(g, cls.n, where or cls.__name__, name)
 
     # ----------------------------------------------------------------- to be provided by subclasses
     @classmethod
-    def hat(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         raise NotImplementedError
 
     @classmethod
-    def vee(cls, X: np.ndarray, validate: bool = True) -> np.ndarray:
+    def vee(cls, X: FloatArray, validate: bool = True) -> FloatArray:
         raise NotImplementedError
 
     @classmethod
-    def exp(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def exp(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         raise NotImplementedError
 
     @classmethod
-    def log(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+    def log(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         raise NotImplementedError
 
     @classmethod
-    def Ad(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+    def Ad(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         raise NotImplementedError
 
     @classmethod
-    def ad(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def ad(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         raise NotImplementedError
 
     @classmethod
-    def left_jacobian(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def left_jacobian(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         raise NotImplementedError
 
     @classmethod
-    def left_jacobian_inv(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def left_jacobian_inv(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         raise NotImplementedError
 
     # ----------------------------------------------------------------- generic
     @classmethod
-    def identity(cls, batch_shape: tuple[int, ...] = ()) -> np.ndarray:
+    def identity(cls, batch_shape: tuple[int, ...] = ()) -> FloatArray:
         """Identity element(s) of shape ``batch_shape + (n+1, n+1)``."""
         return np.broadcast_to(np.eye(cls.n + 1), (*batch_shape, cls.n + 1, cls.n + 1)).copy()
 
     @classmethod
-    def inverse(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+    def inverse(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """Group inverse ``[[R^T, -R^T t], [0, 1]]`` (exact, batched)."""
         if validate:
             g = cls.check_element(g, f"{cls.__name__}.inverse", "g")
@@ -94,37 +93,39 @@ class SEGroup:
         return out
 
     @classmethod
-    def compose(cls, a: np.ndarray, b: np.ndarray, validate: bool = True) -> np.ndarray:
+    def compose(cls, a: FloatArray, b: FloatArray, validate: bool = True) -> FloatArray:
         """Group product ``a @ b`` with broadcasting over leading axes."""
         if validate:
             a = cls.check_element(a, f"{cls.__name__}.compose", "a")
             b = cls.check_element(b, f"{cls.__name__}.compose", "b")
-        return np.matmul(a, b)
+        out: FloatArray = np.matmul(a, b)
+        return out
 
     @classmethod
-    def between(cls, a: np.ndarray, b: np.ndarray, validate: bool = True) -> np.ndarray:
+    def between(cls, a: FloatArray, b: FloatArray, validate: bool = True) -> FloatArray:
         """Relative pose ``a^-1 b`` (pose of b in a's frame)."""
         if validate:
             a = cls.check_element(a, f"{cls.__name__}.between", "a")
             b = cls.check_element(b, f"{cls.__name__}.between", "b")
-        return np.matmul(cls.inverse(a, validate=False), b)
+        out: FloatArray = np.matmul(cls.inverse(a, validate=False), b)
+        return out
 
     @classmethod
-    def right_jacobian(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def right_jacobian(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Right Jacobian ``Jr(x) = Jl(-x)``: ``exp(x + dx) = exp(x) exp(Jr(x) dx)`` to first order."""
         if validate:
             x = cls.check_tangent(x, f"{cls.__name__}.right_jacobian")
         return cls.left_jacobian(-np.asarray(x, dtype=float), validate=False)
 
     @classmethod
-    def right_jacobian_inv(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def right_jacobian_inv(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Inverse of the right Jacobian."""
         if validate:
             x = cls.check_tangent(x, f"{cls.__name__}.right_jacobian_inv")
         return cls.left_jacobian_inv(-np.asarray(x, dtype=float), validate=False)
 
     @classmethod
-    def bch(cls, x: np.ndarray, y: np.ndarray, order: int = 2, validate: bool = True) -> np.ndarray:
+    def bch(cls, x: FloatArray, y: FloatArray, order: int = 2, validate: bool = True) -> FloatArray:
         """Baker-Campbell-Hausdorff approximation of ``log(exp(x) exp(y))``.
 
         ``order=1``: ``x + y``; ``order=2``: ``+ ad(x) y / 2``;
@@ -150,28 +151,28 @@ class SEGroup:
         return z
 
     @classmethod
-    def basis(cls) -> np.ndarray:
+    def basis(cls) -> FloatArray:
         """Lie-algebra basis ``E_i = hat(e_i)``, shape ``(dim, n+1, n+1)``."""
         return _basis(cls)
 
     @classmethod
-    def ad_basis(cls) -> np.ndarray:
+    def ad_basis(cls) -> FloatArray:
         """``ad(E_i)`` for each basis vector, shape ``(dim, dim, dim)``."""
         return _ad_basis(cls)
 
     @classmethod
-    def sample_tangent(cls, rng: np.random.Generator, size: tuple[int, ...] | int, scale: float = 1.0) -> np.ndarray:
+    def sample_tangent(cls, rng: np.random.Generator, size: tuple[int, ...] | int, scale: float = 1.0) -> FloatArray:
         """Random tangent vectors: standard normal times ``scale``."""
         size = (size,) if isinstance(size, int) else tuple(size)
         return scale * rng.standard_normal((*size, cls.dim))
 
     @classmethod
-    def random(cls, rng: np.random.Generator, size: tuple[int, ...] | int = (), scale: float = 1.0) -> np.ndarray:
+    def random(cls, rng: np.random.Generator, size: tuple[int, ...] | int = (), scale: float = 1.0) -> FloatArray:
         """Random elements ``exp(scale * N(0, I))``."""
         return cls.exp(cls.sample_tangent(rng, size, scale), validate=False)
 
     @classmethod
-    def normalize(cls, g: np.ndarray) -> np.ndarray:
+    def normalize(cls, g: FloatArray) -> FloatArray:
         """Project a nearly-valid element back onto the group (rotation block by SVD)."""
         g = np.array(g, dtype=float)
         n = cls.n
@@ -184,19 +185,16 @@ class SEGroup:
         return g
 
 
-@cache
-def _basis_cached(group: type[SEGroup]) -> np.ndarray:
-    return group.hat(np.eye(group.dim), validate=False)
+_BASES: dict[tuple[type[SEGroup], str], FloatArray] = {}  # (group, "hat" or "ad"): its basis, computed once
 
 
-def _basis(group: type[SEGroup]) -> np.ndarray:
-    return _basis_cached(group).copy()
+def _basis(group: type[SEGroup]) -> FloatArray:
+    if (group, "hat") not in _BASES:
+        _BASES[group, "hat"] = group.hat(np.eye(group.dim), validate=False)
+    return _BASES[group, "hat"].copy()
 
 
-@cache
-def _ad_basis_cached(group: type[SEGroup]) -> np.ndarray:
-    return group.ad(np.eye(group.dim), validate=False)
-
-
-def _ad_basis(group: type[SEGroup]) -> np.ndarray:
-    return _ad_basis_cached(group).copy()
+def _ad_basis(group: type[SEGroup]) -> FloatArray:
+    if (group, "ad") not in _BASES:
+        _BASES[group, "ad"] = group.ad(np.eye(group.dim), validate=False)
+    return _BASES[group, "ad"].copy()

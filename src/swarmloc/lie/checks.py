@@ -9,16 +9,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from swarmloc.arrays import BoolArray, FloatArray
+
 ORTHO_TOL = 1e-6
 """Largest allowed entry of ``|R^T R - I|`` for a rotation block to count as orthonormal."""
 
 
-def first_bad(mask: np.ndarray) -> tuple[int, ...]:
+def first_bad(mask: BoolArray) -> tuple[int, ...]:
     idx = np.argwhere(mask)
     return tuple(int(i) for i in idx[0]) if idx.size else ()
 
 
-def as_tangent(x: object, dim: int, where: str, name: str = "x") -> np.ndarray:
+def as_tangent(x: object, dim: int, where: str, name: str = "x") -> FloatArray:
     """Return ``x`` as a float array of shape ``(..., dim)`` or raise ValueError."""
     try:
         arr = np.asarray(x, dtype=float)
@@ -34,7 +36,7 @@ def as_tangent(x: object, dim: int, where: str, name: str = "x") -> np.ndarray:
     return arr
 
 
-def as_square(x: object, dim: int, where: str, name: str) -> np.ndarray:
+def as_square(x: object, dim: int, where: str, name: str) -> FloatArray:
     """Return ``x`` as a finite float array of shape ``(..., dim, dim)`` or raise ValueError."""
     try:
         arr = np.asarray(x, dtype=float)
@@ -48,7 +50,7 @@ def as_square(x: object, dim: int, where: str, name: str) -> np.ndarray:
     return arr
 
 
-def as_element(g: object, n: int, where: str, name: str = "g") -> np.ndarray:
+def as_element(g: object, n: int, where: str, name: str = "g") -> FloatArray:
     """Return ``g`` as an array of SE(n) matrices ``(..., n+1, n+1)`` or raise ValueError.
 
     Checks shape, finiteness, the bottom row ``[0, ..., 0, 1]``, orthonormality of the rotation block

@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from swarmloc.arrays import FloatArray
 from swarmloc.lie import _series as S
 from swarmloc.lie.base import SEGroup
 
 
-def skew(w: np.ndarray) -> np.ndarray:
+def skew(w: FloatArray) -> FloatArray:
     """``(..., 3) -> (..., 3, 3)`` cross-product matrix."""
     w = np.asarray(w, dtype=float)
     W = np.zeros((*w.shape[:-1], 3, 3))
@@ -24,19 +25,19 @@ def skew(w: np.ndarray) -> np.ndarray:
     return W
 
 
-def unskew(W: np.ndarray) -> np.ndarray:
+def unskew(W: FloatArray) -> FloatArray:
     """Antisymmetric part of ``(..., 3, 3)`` as a vector."""
     return 0.5 * np.stack([W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]], -1)
 
 
-def so3_exp(w: np.ndarray) -> np.ndarray:
+def so3_exp(w: FloatArray) -> FloatArray:
     """Rodrigues' formula, batched."""
     th = np.linalg.norm(w, axis=-1)
     W = skew(w)
     return np.eye(3) + S.sinc(th)[..., None, None] * W + S.one_minus_cos_over_t2(th)[..., None, None] * (W @ W)
 
 
-def so3_log(R: np.ndarray) -> np.ndarray:
+def so3_log(R: FloatArray) -> FloatArray:
     """Principal log of rotation matrices, accurate near 0 and near pi.
 
     ``theta = atan2(|vee(R - R^T)|/2, (tr R - 1)/2)``; away from pi the axis comes from the antisymmetric part,
@@ -61,7 +62,7 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     return np.where((c < -0.5)[..., None], w_big, w_small)
 
 
-def so3_left_jacobian(w: np.ndarray) -> np.ndarray:
+def so3_left_jacobian(w: FloatArray) -> FloatArray:
     th = np.linalg.norm(w, axis=-1)
     W = skew(w)
     return (
@@ -71,13 +72,13 @@ def so3_left_jacobian(w: np.ndarray) -> np.ndarray:
     )
 
 
-def so3_left_jacobian_inv(w: np.ndarray) -> np.ndarray:
+def so3_left_jacobian_inv(w: FloatArray) -> FloatArray:
     th = np.linalg.norm(w, axis=-1)
     W = skew(w)
     return np.eye(3) - 0.5 * W + S.jinv_coeff(th)[..., None, None] * (W @ W)
 
 
-def _q_block(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _q_block(v: FloatArray, w: FloatArray) -> FloatArray:
     th = np.linalg.norm(w, axis=-1)[..., None, None]
     P, V = skew(w), skew(v)
     PV, VP = P @ V, V @ P
@@ -98,7 +99,7 @@ class SE3(SEGroup):
     name = "SE(3)"
 
     @classmethod
-    def hat(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """``(..., 6) -> (..., 4, 4)``."""
         if validate:
             x = cls.check_tangent(x, "SE3.hat")
@@ -109,7 +110,7 @@ class SE3(SEGroup):
         return X
 
     @classmethod
-    def vee(cls, X: np.ndarray, validate: bool = True) -> np.ndarray:
+    def vee(cls, X: FloatArray, validate: bool = True) -> FloatArray:
         """``(..., 4, 4) -> (..., 6)``; inverse of :meth:`hat`."""
         if validate:
             from swarmloc.lie.checks import as_square
@@ -119,7 +120,7 @@ class SE3(SEGroup):
         return np.concatenate([X[..., :3, 3], unskew(X[..., :3, :3])], axis=-1)
 
     @classmethod
-    def exp(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def exp(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Exponential map ``(..., 6) -> (..., 4, 4)``."""
         if validate:
             x = cls.check_tangent(x, "SE3.exp")
@@ -132,7 +133,7 @@ class SE3(SEGroup):
         return g
 
     @classmethod
-    def log(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+    def log(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """Principal logarithm ``(..., 4, 4) -> (..., 6)``, rotation angle in [0, pi]."""
         if validate:
             g = cls.check_element(g, "SE3.log")
@@ -142,7 +143,7 @@ class SE3(SEGroup):
         return np.concatenate([v, w], axis=-1)
 
     @classmethod
-    def Ad(cls, g: np.ndarray, validate: bool = True) -> np.ndarray:
+    def Ad(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """``[[R, t^ R], [0, R]]``, shape ``(..., 6, 6)``."""
         if validate:
             g = cls.check_element(g, "SE3.Ad")
@@ -155,7 +156,7 @@ class SE3(SEGroup):
         return A
 
     @classmethod
-    def ad(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def ad(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """``[[w^, v^], [0, w^]]``, shape ``(..., 6, 6)``."""
         if validate:
             x = cls.check_tangent(x, "SE3.ad")
@@ -168,7 +169,7 @@ class SE3(SEGroup):
         return A
 
     @classmethod
-    def left_jacobian(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def left_jacobian(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Left Jacobian ``sum_k ad(x)^k / (k+1)!`` in closed form."""
         if validate:
             x = cls.check_tangent(x, "SE3.left_jacobian")
@@ -182,7 +183,7 @@ class SE3(SEGroup):
         return out
 
     @classmethod
-    def left_jacobian_inv(cls, x: np.ndarray, validate: bool = True) -> np.ndarray:
+    def left_jacobian_inv(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Inverse of the left Jacobian."""
         if validate:
             x = cls.check_tangent(x, "SE3.left_jacobian_inv")

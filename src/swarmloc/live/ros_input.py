@@ -289,7 +289,9 @@ class RosInputPublisher:
         ns = namespace or default_namespace(team)
         self.topics = robot_topics(ns, self.robot)
         self.graph = RosGraph(session, self.domain, ns, f"robot{self.robot}_driver")
-        self._pubs, self._gids, self._seq = {}, {}, Counter()
+        self._pubs: dict[str, Any] = {}  # what ("odom", "detections"): its Zenoh publisher
+        self._gids: dict[str, bytes] = {}
+        self._seq: Counter[str] = Counter()
         for what, msgtype in TOPICS.items():
             key = topic_key(self.topics[what], msgtype, self.domain)
             self._pubs[what] = session.declare_publisher(key, congestion_control=block())  # wait, never drop

@@ -126,7 +126,7 @@ def decode_input(what: str, payload: bytes, robot: int) -> Event | ProgressIn:
         raise Refused("bad_covariance", "cov is not symmetric positive definite")
     if m.kind != Kind.ABSOLUTE and m.target is None and not m.target_is_robot:
         raise Refused("bad_target", "a landmark detection needs the landmark's id")
-    return Detection(robot, m.t, m.kind, np.asarray(m.z, dtype=float), cov, m.target, m.target_is_robot)  # type: ignore[arg-type]
+    return Detection(robot, m.t, m.kind, np.asarray(m.z, dtype=float), cov, m.target, m.target_is_robot)
 
 
 class ZenohInput:

@@ -31,6 +31,7 @@ covariance not symmetric positive definite, degenerate extent) raises ValueError
 from __future__ import annotations
 
 import json
+import os
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -130,6 +131,7 @@ def _combine(a: _End, b: _End, s: Any, out: float) -> _End:
     beyond = out * (s(b.point) - s(a.point))  # > 0: b lies further out than a
     gate = 3.0 * np.sqrt(a.var + b.var)
     if a.closed and b.closed:
+        assert a.wp is not None and b.wp is not None  # a closed end carries its sums
         if abs(beyond) <= gate:
             w, wp = a.w + b.w, a.wp + b.wp
             return _End(wp / w, True, min(a.var, b.var), w, wp)
@@ -312,7 +314,7 @@ class LineMap:
         return {"type": "FeatureCollection", "crs": {"type": "name", "properties": {"name": "local planar metres"}},
                 "features": feats}  # fmt: skip
 
-    def save_geojson(self, path: str | Path) -> None:
+    def save_geojson(self, path: str | os.PathLike[str]) -> None:
         Path(path).write_text(json.dumps(self.to_geojson(), indent=1))
 
     def save_dxf(self, path: str | Path) -> None:

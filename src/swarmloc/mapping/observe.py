@@ -60,8 +60,8 @@ def scan_observations(
         return []
     g = np.asarray(pose_mean, dtype=float)
     S = np.asarray(pose_cov, dtype=float)
-    rho, alpha, C = line_to_world([f.rho for f in fits], [f.alpha for f in fits], np.array([f.cov for f in fits]),
-                                  g, S, order)  # fmt: skip
+    rho, alpha, C = line_to_world(np.array([f.rho for f in fits]), np.array([f.alpha for f in fits]),
+                                  np.array([f.cov for f in fits]), g, S, order)  # fmt: skip
     return [
         LineObservation(
             float(rho[k]),

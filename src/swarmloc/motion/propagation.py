@@ -97,9 +97,9 @@ def increment_cov(h: np.ndarray, Q: np.ndarray, t: np.ndarray | float, method: C
         return t[..., None, None] * np.einsum("k,...kij->...ij", w, f)
     if method == "quad":
 
-        def f(u: float) -> np.ndarray:
+        def integrand(u: float) -> np.ndarray:
             return _integrand(h, Q, (t * u)[..., None])[..., 0, :, :]
 
-        val, _ = quad_vec(f, 0.0, 1.0, epsabs=1e-15, epsrel=1e-13, limit=2000)
+        val, _ = quad_vec(integrand, 0.0, 1.0, epsabs=1e-15, epsrel=1e-13, limit=2000)
         return t[..., None, None] * val
     raise ValueError(f"increment_cov: unknown method {method!r} (use 'gauss', 'simpson38', 'quad' or 'closed')")

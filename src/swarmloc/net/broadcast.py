@@ -49,6 +49,7 @@ import msgspec
 from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.intake import TokenBucket
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.schema import ALL, MAX_REPAIR, Broadcast, BroadcastHead, BroadcastRepair, Rejected
 from swarmloc.net.transport import robot_key
 from swarmloc.node.protocol import same
@@ -99,7 +100,7 @@ class _Peer:
         return [n for n in range(self.low, self.top + 1) if n not in self.got]
 
 
-class Broadcasting:
+class Broadcasting(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: a team estimator's broadcasts (module docstring)."""
 
     def _init_broadcast(self) -> None:
@@ -227,7 +228,8 @@ class Broadcasting:
         them before this node fuses a group or answers a query keyed ``key`` (:mod:`swarmloc.net.lockstep`)."""
         if not self.broadcasts:
             return None
-        mates = self.node.team  # diekf in clusters: the cluster, whose broadcasts alone this node receives
+        team_node: Any = self.node  # a team estimator's (diekf): its team, not declared on Node
+        mates = team_node.team  # diekf in clusters: the cluster, whose broadcasts alone this node receives
         for r in self._alive:
             if r not in mates:
                 continue

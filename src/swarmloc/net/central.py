@@ -85,7 +85,7 @@ def _key(e: Event) -> tuple[float, int]:
     return (float(e.t0), 2) if isinstance(e, Odometry) else (float(e.t), 1)
 
 
-def to_wire(e: Event) -> RawOdometry | RawDetection:
+def to_wire(e: Odometry | Detection) -> RawOdometry | RawDetection:
     """A robot's own event as it is forwarded (a detection's scoring-only truth is never sent)."""
     if isinstance(e, Odometry):
         return RawOdometry(float(e.t0), float(e.t1), float(e.v), float(e.w))

@@ -208,10 +208,11 @@ def node_main(
         session.close()
 
 
-def _run_viewed(net: Any, max_wall: float | None, view: Any, *poll: Any) -> Report:
-    """``net.run(max_wall=...)``, with the belief server's map polled for ``view`` meanwhile (``poll``:
-    :class:`_MapPoller`'s arguments before ``view``) and once at the end."""
-    poller = None if view is None else _MapPoller(*poll, view)
+def _run_viewed(net: Any, max_wall: float | None, view: Any, session: Any, scope: str, team: str,
+                roster: Sequence[int], auth: Auth | None) -> Report:  # fmt: skip
+    """``net.run(max_wall=...)``, with the belief server's map polled for ``view`` meanwhile (``session`` to
+    ``auth``: :class:`_MapPoller`'s arguments before ``view``) and once at the end."""
+    poller = None if view is None else _MapPoller(session, scope, team, roster, auth, view)
     try:
         return net.run(max_wall=max_wall)
     finally:

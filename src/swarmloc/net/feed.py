@@ -205,7 +205,7 @@ class LiveFeed:
                 log.warning("robot %s: the stream ended with %d of %d inputs", self.robot, self._seen, count)
             self._close_stream()
 
-    def _problem(self, e: Event) -> str | None:
+    def _problem(self, e: Odometry | Detection) -> str | None:
         """Why ``e`` is refused, or None (called with the lock held)."""
         own = e.robot if isinstance(e, Odometry) else e.observer
         if own != self.robot:

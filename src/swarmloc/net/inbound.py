@@ -17,6 +17,7 @@ from typing import Any
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate
 from swarmloc.net.auth import note_refusal, open_envelope
 from swarmloc.net.outbound import close, key_of, reply_err
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.schema import (
     SERVER,
     Belief,
@@ -41,7 +42,7 @@ MAX_HELD = 1024
 """... and from all robots together."""
 
 
-class Inbound:
+class Inbound(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: its queue, the decoding with its bounds, and the handling of
     queries, pushed messages and replies."""
 

@@ -14,11 +14,12 @@ import logging
 import math
 import time
 from collections import OrderedDict
-from typing import Any
+from typing import Any, cast
 
 from swarmloc.messages import Message
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.outbound import key_of
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.schema import Envelope, Progress, Rejected
 from swarmloc.net.timeouts import STALL_TIMEOUTS
 from swarmloc.net.transport import robot_of
@@ -26,7 +27,7 @@ from swarmloc.net.transport import robot_of
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
 
-class Lockstep:
+class Lockstep(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: the teammates' progress and the rules of when to read an
     input, answer a query and release an answer."""
 
@@ -114,7 +115,7 @@ class Lockstep:
         """False for a copy of a neighbour's query this node already holds or answered (the same sender, sequence
         number and query: link faults duplicate them), so that each query is answered once (counted
         ``duplicate_queries``). The last 4096 queries are remembered."""
-        q = env.body
+        q = cast(Message, env.body)  # a neighbour's query (Inbound)
         key = (env.from_robot, env.seq, type(q).__name__, float(q.stamp), tuple(q.sub))
         if key in self._queries_seen:
             self.counts["duplicate_queries"] += 1

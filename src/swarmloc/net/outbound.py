@@ -15,10 +15,12 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate
 from swarmloc.net.auth import seal
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.schema import encode
 from swarmloc.net.transport import robot_key, server_key
 
@@ -31,7 +33,7 @@ REASK_SPACING = (0.05, 0.25)
 (:meth:`Outbound._ask_again`)."""
 
 
-class Outbound:
+class Outbound(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: sending, with the link faults, the outbox and the timers."""
 
     def _init_outbound(self) -> None:
@@ -108,7 +110,7 @@ class Outbound:
                 if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
                     self._expect[(float(m.stamp), 1, m.receiver, tuple(m.sub))] = time.monotonic()
                 answer = lambda q=q, payload=payload: q.reply(q.key_expr, payload)  # noqa: E731
-                self._faulty(answer, finish=lambda q=q: close(q))
+                self._faulty(answer, finish=partial(close, q))
             elif isinstance(m, TeamUpdate):  # a teammate's copy of a broadcast (:mod:`swarmloc.net.broadcast`)
                 self._queue_broadcast(m)
             elif m.receiver in self.roster:
@@ -141,7 +143,7 @@ class Outbound:
         for m in out.values():
             key = robot_key(self.scope, m.receiver, "inbox")
             payload = self._env(m, key)
-            self._faulty(lambda key=key, payload=payload: put(key, payload, congestion_control=block))
+            self._faulty(partial(put, key, payload, congestion_control=block))
 
     def _ask(self, m: Message, via_server: bool = False, again: int = 0, first: float | None = None) -> None:
         """Ask ``m`` of its receiver (or of the belief server) as a Zenoh get; its replies and its end come back on
@@ -195,10 +197,8 @@ class Outbound:
         self._gets[qid] = copies = self._faulty(send)
         if not copies:
             # a lost query: its get never goes out, so nothing will end it but a timer
-            heapq.heappush(
-                self._timers,
-                (time.monotonic() + timeout, next(self._qids), lambda qid=qid: put(("reply_end", qid, None))),
-            )
+            end: Callable[[], None] = partial(put, ("reply_end", qid, None))
+            heapq.heappush(self._timers, (time.monotonic() + timeout, next(self._qids), end))
 
     def _ask_again(self, m: Message, again: int, first: float) -> bool:
         """Ask query ``m``, asked ``again`` times already (the first at monotonic time ``first``) and unanswered each

@@ -56,7 +56,7 @@ import struct
 import threading
 import time
 from collections import Counter, OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -391,7 +391,7 @@ class Pairing:
         for m, procs in by.items():
             with self._cv:
                 cur = self._peers.get(m)
-                twins = self._twins.get(m, {})
+                twins: Mapping[bytes, str] = self._twins.get(m, {})
             fresh = {i: a for i, a in procs.items() if i not in twins}
             if not fresh:
                 continue

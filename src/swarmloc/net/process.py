@@ -239,7 +239,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         """``items`` from a recording, or an empty list that a live feed fills (:meth:`_pull`)."""
         self.feed = events if isinstance(events, LiveFeed) else None
         """A live source (:mod:`swarmloc.net.feed`): ``items`` grows as it releases inputs; None: a recording."""
-        self.items = [] if self.feed is not None else _groups(events)
+        self.items = _groups(events) if not isinstance(events, LiveFeed) else []
         self._feed_w = -math.inf  # the feed's watermark at the last take: every input not yet taken is at or after it
         self._feed_hi = -math.inf  # the latest time an input taken is known at (odometry: its end)
         self.record_rate = None if record_rate is None else float(record_rate)
@@ -369,12 +369,14 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             return
         self._wait_note = now + WAIT_NOTE_EVERY
         missing = sorted(self.wait_for - self._alive)
+        assert self.feed is not None  # a live node's
         log.warning("robot %s: waiting %.0f s for its inputs on %s (%d taken so far; teammates alive %s%s)", self.robot,
                     now - self._waiting_since, self.feed.listens_on or "its live source", taken, sorted(self._alive),
                     f", not alive {missing}" if missing else "")  # fmt: skip
 
     def _pull(self) -> None:
         """Take what the live feed released: append it to ``items`` (grouped), extend the record times."""
+        assert self.feed is not None  # a live node's
         new, w = self.feed.take()
         self._feed_w = max(self._feed_w, w)
         if new:
@@ -385,6 +387,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
                 self._feed_hi = max(self._feed_hi, float(e.t))
         if self.record_rate is not None:  # record times up to the latest input, or the watermark (time went on)
             rt, t0 = self.record_times, self.node.t0  # ... but not more than the feed's max_ahead past the input
+            assert t0 is not None  # a live node is started before it runs (_init_feed)
             w = self._feed_w if math.isfinite(self._feed_w) else -math.inf  # inf: the stream ended
             hi = max(self._feed_hi, min(w, max(self._feed_hi, t0) + self.feed.max_ahead))
             k0 = rt.size

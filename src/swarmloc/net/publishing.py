@@ -25,15 +25,17 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 from swarmloc.events import Odometry
 from swarmloc.kernels import cartesian as C
 from swarmloc.messages import flat
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.schema import MAX_LINES, Belief, Lines, Progress, group_tag
 from swarmloc.net.transport import robot_key
 
 
-class Publishing:
+class Publishing(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: announcing its progress and publishing its beliefs."""
 
     def _init_publishing(self) -> None:
@@ -50,7 +52,8 @@ class Publishing:
         self._delayed: dict[float, Belief] | None = {} if lagging else None  # the delayed poses published (pruned)
         self._delayed_due: dict[float, None] = {}  # stamps filed whose filing is not final yet
         if lagging:
-            self.node.lagged_fresh = []
+            smoother: Any = self.node  # a smoother's attributes are not Node's
+            smoother.lagged_fresh = []
 
     def _next_key(self) -> tuple[float, int]:
         """``(stamp, priority)`` of the node's next input (a detection group 1, odometry 2; ``(inf, 3)``: none left).
@@ -124,9 +127,10 @@ class Publishing:
             self.on_lines(msg)
         self.counts["lines_published"] += len(lines)
 
-    def _publish_delayed(self, end: bool, wm: float) -> None:
-        """Publish the delayed poses whose filing is final (``end``: all filed), then drop them from the node."""
-        node = self.node
+    def _publish_delayed(self, delayed: dict[float, Belief], end: bool, wm: float) -> None:
+        """Publish the delayed poses whose filing is final (``end``: all filed), then drop them from the node;
+        ``delayed``: the poses published so far (``_delayed``)."""
+        node: Any = self.node  # a smoother's (fls, ``lagged_log`` set): its lagged_* attributes and lag
         for ts in node.lagged_fresh:
             self._delayed_due[ts] = None
         node.lagged_fresh.clear()
@@ -135,19 +139,19 @@ class Publishing:
             del self._delayed_due[ts]
             x, P = node.lagged_log.pop(ts)
             node.lagged_when.pop(ts)
-            g, cov = C.to_group(x, P)
-            mean, cov = flat(g), flat(cov)
-            old = self._delayed.get(ts)  # type: ignore[union-attr]
+            g, gcov = C.to_group(x, P)
+            mean, cov = flat(g), flat(gcov)
+            old = delayed.get(ts)
             if old is not None and old.mean == mean and old.cov == cov:
                 continue
             rev = 0 if old is None else old.rev + 1
             msg = Belief(robot=self.robot, stamp=float(ts), rev=rev, final=True, mean=mean, cov=cov)
-            self._delayed[ts] = msg  # type: ignore[index]
+            delayed[ts] = msg
             self._pub_delayed.put(self._env(msg, robot_key(self.scope, self.robot, "delayed")))
             self.counts["delayed_published"] += 1
-        if len(self._delayed) > 4096:  # type: ignore[arg-type]  # forget poses filed two horizons back
-            for ts in [t for t in self._delayed if t < cut - node.horizon - node.lag]:  # type: ignore[union-attr]
-                del self._delayed[ts]  # type: ignore[union-attr]
+        if len(delayed) > 4096:  # forget poses filed two horizons back
+            for ts in [t for t in delayed if t < cut - node.horizon - node.lag]:
+                del delayed[ts]
 
     def _publish_settled(self, end: bool = False) -> None:
         """Hand ``on_settled`` the belief at each record time, in order, once it is settled: the node's own source
@@ -187,7 +191,7 @@ class Publishing:
                 self._publish_lines(self._scan_i)
                 self._scan_i += 1
         if self._delayed is not None:
-            self._publish_delayed(end, wm)
+            self._publish_delayed(self._delayed, end, wm)
         if self._final - self._pruned_at >= 256:  # forget beliefs no input can change any more (two horizons back)
             self._pruned_at = self._final
             cut = wm - 2 * self.node.horizon
@@ -197,7 +201,7 @@ class Publishing:
     def _republish_changed(self) -> None:
         """After the end: publish again every final belief (and delayed pose) a late message changed."""
         if self._delayed is not None:
-            self._publish_delayed(True, self.node.present)
+            self._publish_delayed(self._delayed, True, self.node.present)
         for t in sorted(self._published):
             old = self._published[t]
             try:

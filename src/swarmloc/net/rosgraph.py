@@ -92,7 +92,7 @@ def entity_key(e: Entity) -> str:
     topical = e.kind != "NN"
     if topical != (e.topic is not None and e.type_name is not None and e.type_hash is not None and e.qos is not None):
         raise ValueError(f"a {e.kind} entity {'needs' if topical else 'has no'} topic, type, type hash and QoS")
-    if topical:
+    if e.topic is not None and e.type_name is not None and e.type_hash is not None and e.qos is not None:  # topical
         parts += [mangle(e.topic), e.type_name, e.type_hash, e.qos]
     return "/".join(parts)
 

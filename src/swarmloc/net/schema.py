@@ -435,7 +435,9 @@ def decode(
     elif to_robot is not None and isinstance(b, BroadcastHead) and b.robot == to_robot:
         # its own head played back to it (a replay on its own key): taken, it would ask itself for repairs
         raise Rejected(f"broadcast head of robot {b.robot} received by itself")
-    elif to_robot is not None and not isinstance(b, Belief | Progress | Report | BroadcastHead | Raw | RawAck):
+    elif to_robot is not None and not isinstance(
+        b, Belief | Progress | Report | BroadcastHead | Raw | RawAck | Broadcast | Lines | MapAnswer
+    ):  # Broadcast, Lines and MapAnswer: handled above
         if b.receiver != to_robot:
             raise Rejected(f"{type(b).__name__} addressed to robot {b.receiver}, received by robot {to_robot}")
         if b.sender == b.receiver:

@@ -35,12 +35,12 @@ from __future__ import annotations
 import bisect
 import logging
 import math
+import os
 import queue
 import threading
 import time
 from collections import Counter
 from collections.abc import Iterable
-from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -139,7 +139,7 @@ class BeliefServer:
         """Answer for robot ``q.receiver`` at ``q.stamp`` (revision -1; ``found=False`` with the reason if none)."""
         self.counts["queries"] += 1
         b = self.at(q.receiver, q.stamp)
-        common = dict(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, seq=-1)
+        common: dict[str, Any] = dict(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, seq=-1)
         if b is None:
             self.counts["not_found"] += 1
             why = f"belief server: no belief of robot {q.receiver} within {self.max_age:g} s"
@@ -155,7 +155,7 @@ def observations_of(msg: Lines) -> list[LineObservation]:
     out = []
     for x in msg.lines:
         cov = np.array([[x[2], x[3]], [x[3], x[4]]])
-        end = {} if len(x) < 13 else {"end_var": (x[9], x[10]), "closed": (x[11] == 1.0, x[12] == 1.0)}
+        end: dict[str, Any] = {} if len(x) < 13 else {"end_var": (x[9], x[10]), "closed": (x[11] == 1.0, x[12] == 1.0)}
         out.append(LineObservation(x[0], x[1], cov, np.reshape(x[5:9], (2, 2)), msg.robot, msg.stamp, **end))
     return out
 
@@ -273,7 +273,7 @@ class ServerProcess:
         auth: Auth | None = None,
         run_id: str | None = None,
         hosted: Any = None,
-        map_out: str | Path | None = None,
+        map_out: str | os.PathLike[str] | None = None,
     ) -> None:
         if auth is not None and (auth.signer is None or auth.signer.member != SERVER):
             raise ValueError("the belief server needs the server's key to sign its replies")

@@ -351,7 +351,7 @@ class _Launcher:
             # join once the others have read that far, or once they are all gone (a join time past the end)
             gone = all(procs[f"robot{r}"].poll() is not None for r in self.wait_for)
             if (others and min(others) >= t_first + f.late[1]) or gone:
-                self.spawn(f"robot{self.late}", self.node_cmd(self.late))
+                self.spawn(f"robot{f.late[0]}", self.node_cmd(f.late[0]))
                 self.joined = True
                 counts["late_joined"] = 1
         if f.kill is not None and not self.killed:
@@ -364,7 +364,7 @@ class _Launcher:
                 self.note(f"robot{k}", procs[f"robot{k}"], how)
                 self.killed = True
                 counts["killed"] = 1
-        if self.killed and not self.restarted and f.restart:
+        if self.killed and not self.restarted and f.restart and f.kill is not None:  # killed: by f.kill
             time.sleep(0.5)
             self.spawn(f"robot{f.kill[0]}", self.node_cmd(f.kill[0], resume=True))
             self.restarted = True

@@ -15,10 +15,11 @@ from __future__ import annotations
 from typing import Any
 
 from swarmloc.net.pairing import attach
+from swarmloc.net.parts import NodeParts
 from swarmloc.net.transport import alive_key, block, robot_key
 
 
-class Wiring:
+class Wiring(NodeParts):
     """Part of :class:`~swarmloc.net.process.NetNode`: opening and closing its Zenoh declarations."""
 
     def _init_wiring(self) -> None:
@@ -52,7 +53,8 @@ class Wiring:
         if self.broadcasts:  # the teammates' broadcasts (a team estimator: :mod:`swarmloc.net.broadcast`)
             # diekf in clusters: its cluster's only (each a key of its own), so that what a node takes in is flat
             # in the team's size; otherwise one subscription to every teammate's
-            mates = [str(m) for m in self.node.team if m != r] if getattr(self.node, "cluster", 0) else ["*"]
+            team_node: Any = self.node  # a team estimator's (diekf): its team, not declared on Node
+            mates = [str(m) for m in team_node.team if m != r] if getattr(self.node, "cluster", 0) else ["*"]
             for m in mates:
                 self._decl.append(
                     s.declare_subscriber(

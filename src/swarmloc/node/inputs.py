@@ -17,7 +17,7 @@ import logging
 import math
 from bisect import bisect_left
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -28,10 +28,13 @@ from swarmloc.node.accounting import Accounting
 from swarmloc.node.clock import FUTURE, Clock
 from swarmloc.node.history import PRUNE_EVERY, History
 from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
-from swarmloc.node.protocol import not_found, quarantine_reason
+from swarmloc.node.protocol import Served, not_found, quarantine_reason
 from swarmloc.node.trust import Trust
 from swarmloc.sensors.models import MODELS
 from swarmloc.sensors.models3 import MODELS3
+
+if TYPE_CHECKING:
+    from collections import Counter
 
 log = logging.getLogger("swarmloc.node")
 
@@ -198,7 +201,7 @@ def _components(x: object) -> tuple:
 
 def command_value(x: object) -> float | tuple[float, ...]:
     """A command's value as filed: a float (planar), or a tuple of 3 floats (a 3-D velocity)."""
-    return tuple(float(c) for c in x) if isinstance(x, tuple) else float(x)  # type: ignore[arg-type]
+    return tuple(float(c) for c in x) if isinstance(x, tuple) else float(x)
 
 
 def odometry_problem(e: Odometry) -> str | None:
@@ -313,6 +316,25 @@ class Intake:
     _pending: dict[Key, Group]
     _since_prune: int
     _trust: Trust
+    _served: Served
+    name: ClassVar[str]
+    lazy_odometry: ClassVar[bool]
+
+    if TYPE_CHECKING:  # the node's (swarmloc.node.base.Node), declared for the type checker
+
+        @property
+        def counts(self) -> Counter[str]: ...
+        @property
+        def horizon(self) -> float: ...
+        @property
+        def tolerance(self) -> float: ...
+        def start(self, t0: float) -> None: ...
+        def _adv(self, s: Any, robot: int, t: float, after: Key | None = ...) -> Any: ...
+        def _file(self, entries: list[Entry], accept: bool = ...) -> list[Message]: ...
+        def _replay(self, pos: int, late: bool, changed: Key | None = ...) -> list[Message]: ...
+        def _requests(self, g: Group) -> list[Message]: ...
+        def _restamp(self, s: Any, t: float) -> Any: ...
+        def _set_command(self, s: Any, robot: int, v: float, w: float) -> Any: ...
 
     # ------------------------------------------------------------------------------------------------ clock
     def _ensure_started(self, t: float) -> None:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_left, bisect_right
 from collections.abc import Iterator, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import msgspec
 
@@ -30,6 +30,13 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, flat, message_problem
 from swarmloc.node.keys import P_GROUP, Entry, Group, Key
 from swarmloc.node.trust import Trust
+
+if TYPE_CHECKING:
+    from collections import Counter
+
+    from swarmloc.node.accounting import Accounting
+    from swarmloc.node.clock import Clock
+    from swarmloc.node.history import History
 
 __all__ = [
     "SAME_RTOL",
@@ -180,12 +187,27 @@ class Exchange:
     node: its methods use the node's clock, history, served answers and accounting)."""
 
     robots: tuple[int, ...]
-    name: str
-    update_types: tuple[type, ...]
+    name: ClassVar[str]
+    update_types: ClassVar[tuple[type, ...]]
+    accounting: Accounting
+    _clock: Clock
+    _history: History
     _served: Served
-    _pending: dict
+    _pending: dict[Key, Group]
     _neighbours: set[int]
     _trust: Trust
+
+    if TYPE_CHECKING:  # the node's (swarmloc.node.base.Node), declared for the type checker
+
+        @property
+        def counts(self) -> Counter[str]: ...
+        def _adv(self, s: Any, robot: int, t: float, after: Key | None = ...) -> Any: ...
+        def _answer(self, s: Any, q: Message) -> Message | None: ...
+        def _commit_group(self, key: Key, g: Group) -> list[Message]: ...
+        def _file(self, entries: list[Entry], accept: bool = ...) -> list[Message]: ...
+        def _replay(self, pos: int, late: bool, changed: Key | None = ...) -> list[Message]: ...
+        def _update_lie(self, u: Message) -> str | None: ...
+        def _update_problem(self, u: Message) -> str | None: ...
 
     # ------------------------------------------------------------------------------------------------ messages
     def _on_message(self, m: Message) -> list[Message]:

@@ -30,7 +30,7 @@ def _base(name: str, bound: int) -> Any:
     if name not in _BASE:
         raise ValueError(f"field type {name!r} has no DDS mapping here (wstring is not supported)")
     if name == "string":
-        return types.bounded_str[bound] if bound else str
+        return types.bounded_str[bound] if bound else str  # type: ignore[misc]  # cyclonedds: see _field
     return {"bool": bool, "byte": types.byte, "char": types.uint8}.get(name) or getattr(types, name)
 
 
@@ -44,9 +44,10 @@ def _field(node: Any, desc: Any) -> Any:
         return idl_class(desc)
     sub, n = desc
     inner = _field(*sub)
+    # cyclonedds' IDL types are subscripted at run time, which its annotations do not declare: hence the ignores
     if node == Nodetype.ARRAY:
-        return types.array[inner, n]
-    return types.sequence[inner, n] if n else types.sequence[inner]
+        return types.array[inner, n]  # type: ignore[misc]
+    return types.sequence[inner, n] if n else types.sequence[inner]  # type: ignore[misc]
 
 
 @cache

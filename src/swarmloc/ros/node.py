@@ -247,7 +247,7 @@ class RosNode:
         p = self.params
         initial = initial_belief(p, self.timeline.initial)
         node = make_node(p.estimator, self.robot, initial, self.config, p.landmark_table(), team=p.team_ids)
-        node.start(float(self.timeline.t0))  # type: ignore[arg-type]
+        node.start(float(self.timeline.t0))
         if self._team_session is None:
             self._team_session = open_session(p.team_listen, p.team_connect)
             self._own_session = True

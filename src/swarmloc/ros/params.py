@@ -241,9 +241,9 @@ def _explain(msg: str, where: dict[str, str]) -> str:
 
     hit = re.search(r"at `\$\.([A-Za-z0-9_]+)(?:\.|\[|`)", msg)
     if hit is None and "unknown field" in msg:
-        name = re.search(r"`([^`]+)`", msg)
+        field = re.search(r"`([^`]+)`", msg)
         known = ", ".join(f.name for f in msgspec.structs.fields(RosParams))
-        return f"unknown parameter {name.group(1) if name else '?'} (known: {known})"
+        return f"unknown parameter {field.group(1) if field else '?'} (known: {known})"
     name = hit.group(1) if hit else "?"
     src = where.get(name) or next((v for k, v in where.items() if k.startswith(name + ".")), "")
     return f"parameter {name}{f' ({src})' if src else ''}: {msg}"

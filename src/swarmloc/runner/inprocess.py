@@ -164,7 +164,7 @@ class _Driver:
     def deliver(self, node: Node, item: object, stamp: object) -> None:
         """Resolve the records this input could no longer change, then step the node and route its messages."""
         if finite_number(stamp):
-            self.resolve(node, stamp)  # type: ignore[arg-type]
+            self.resolve(node, stamp)
         out = node.step(item)
         if out:
             self.pump(out)

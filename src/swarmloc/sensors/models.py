@@ -100,7 +100,7 @@ _PREDICT = {Kind.POSE: relative_pose, Kind.RANGE_BEARING: range_bearing, Kind.RA
             Kind.BEARING: bearing_only}  # fmt: skip
 
 
-def predict(kind: str, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def predict(kind: Kind, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dispatch on the measurement kind; ``xk`` with last dimension 2 is a landmark, 3 a robot."""
     if kind not in _PREDICT:
         raise ValueError(f"unknown measurement kind {kind!r}; expected one of {sorted(_PREDICT)}")
@@ -112,7 +112,7 @@ def predict(kind: str, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.n
     return _PREDICT[kind](xi, xk)
 
 
-def degenerate(kind: str, xi: np.ndarray, xk: np.ndarray) -> np.ndarray:
+def degenerate(kind: Kind, xi: np.ndarray, xk: np.ndarray) -> np.ndarray:
     """True where a range/bearing model is undefined: the target is within :data:`MIN_RANGE` of the observer."""
     if kind == Kind.POSE:
         return np.zeros(np.broadcast_shapes(np.shape(xi)[:-1], np.shape(xk)[:-1]), dtype=bool)

@@ -71,7 +71,11 @@ class WheelSchedule:
 
     @classmethod
     def from_unicycle(
-        cls, times: Sequence[float], v: Sequence[float], w: Sequence[float], drive: DiffDrive
+        cls,
+        times: Sequence[float] | np.ndarray,
+        v: Sequence[float] | np.ndarray,
+        w: Sequence[float] | np.ndarray,
+        drive: DiffDrive,
     ) -> WheelSchedule:
         """Schedule from forward speeds ``v`` [m/s] and yaw rates ``w`` [rad/s] (eq. 5.14 inverted)."""
         w1, w2 = drive.from_unicycle(np.asarray(v, dtype=float), np.asarray(w, dtype=float))

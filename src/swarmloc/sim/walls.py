@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,7 +41,7 @@ class Walls:
         object.__setattr__(self, "segments", s)
 
     @classmethod
-    def from_polylines(cls, *lines: list[tuple[float, float]]) -> Walls:
+    def from_polylines(cls, *lines: Sequence[tuple[float, float]]) -> Walls:
         """Walls along polylines of ``(x, y)`` vertices [m] (each consecutive pair is one segment)."""
         segs = [(a, b) for pl in lines for a, b in zip(pl[:-1], pl[1:], strict=True)]
         return cls(np.array(segs, dtype=float))

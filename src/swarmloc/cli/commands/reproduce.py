@@ -7,6 +7,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -48,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
     progress = not args.quiet
-    report = {
+    report: dict[str, Any] = {
         "demo": run_demo(out / "demo", seed=0, progress=progress),
         "tables": run_tables(out / "tables", reps=5 if args.quick else args.reps or 60, progress=progress),
         "dynamic": run_dynamic(out / "dynamic", seeds=args.seeds, progress=progress, quick=args.quick),

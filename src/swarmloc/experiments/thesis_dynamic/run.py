@@ -113,7 +113,8 @@ def _job(spec: dict[str, Any]) -> dict[str, Any]:
             **_common_relative(res),
         }
         if key == "cekf":
-            _, P = nodes[0].joint_at(float(sim.times[-1]))
+            central: Any = nodes[0]  # a CentralizedEKF: its joint belief
+            _, P = central.joint_at(float(sim.times[-1]))
             s = np.sqrt(np.diag(P))
             item["final_corr"] = {n: float(P[i, i + 3] / (s[i] * s[i + 3])) for i, n in enumerate(("x", "y", "theta"))}
         if spec.get("keep"):
@@ -183,7 +184,9 @@ def _curve(results: list[RunResult], robot: int = 1) -> tuple[dict[str, np.ndarr
     c = over_seeds(results, robot)
     inside = (c["anees"] >= c["anees_lo"]) & (c["anees"] <= c["anees_hi"])
     sl = slice(None, None, CURVE_EVERY)
-    js = {k: [round(float(x), 6) for x in v[sl]] for k, v in c.items() if k not in ("anees_lo", "anees_hi")}
+    js: dict[str, Any] = {
+        k: [round(float(x), 6) for x in v[sl]] for k, v in c.items() if k not in ("anees_lo", "anees_hi")
+    }
     js["anees_bounds"] = [float(c["anees_lo"][0]), float(c["anees_hi"][0])]
     js["anees_frac_in_band"] = float(np.mean(inside))
     return c, js
@@ -225,14 +228,14 @@ def _summarize(items: list[dict[str, Any]]) -> dict[str, Any]:
 
 def _paired(a: Sequence[float], b: Sequence[float]) -> dict[str, float]:
     """Paired comparison over seeds of ``a`` vs ``b`` (e.g. RMSE of two estimators on the same simulations)."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    d = a - b
+    x, y = np.asarray(a, float), np.asarray(b, float)
+    d = x - y
     return {
-        "a_lower_in_seeds": int(np.sum(a < b)),
-        "n": int(a.size),
+        "a_lower_in_seeds": int(np.sum(x < y)),
+        "n": int(x.size),
         "mean_diff": float(d.mean()),
         "std_diff": float(d.std(ddof=1)) if d.size > 1 else 0.0,
-        "mean_rel_diff": float(np.mean(d / b)),
+        "mean_rel_diff": float(np.mean(d / y)),
     }
 
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from swarmloc.estimators import CentralizedEKF, DeadReckoning, DistributedEKF, ExpFusion, MonteCarloLocalization
+from swarmloc.node import Node
 
 NOISE_LEVELS = (0.01, 0.05, 0.1)
 """Relative-pose measurement noise std [m] of the thesis' three runs (Figs 5.15, 5.18, 5.21)."""
@@ -16,8 +17,8 @@ INIT_VAR = 1e-6
 
 GT_NOISE = 0.05
 ABLATION_NOISE = 0.05
-FULL = {"duration": 90.0, "gt_duration": 500.0, "gt_seeds": 5, "ablation_seeds": 8}
-QUICK = {"duration": 30.0, "gt_duration": 60.0, "gt_seeds": 3, "ablation_seeds": 3, "seeds": 3}
+FULL: dict[str, Any] = {"duration": 90.0, "gt_duration": 500.0, "gt_seeds": 5, "ablation_seeds": 8}
+QUICK: dict[str, Any] = {"duration": 30.0, "gt_duration": 60.0, "gt_seeds": 3, "ablation_seeds": 3, "seeds": 3}
 
 CURVE_EVERY = 10
 """Error-vs-time curves are stored in the JSON every ``CURVE_EVERY``-th record (1 s); figures use all records."""
@@ -27,7 +28,7 @@ CURVE_EVERY = 10
 class EstimatorSpec:
     key: str
     label: str
-    cls: type
+    cls: type[Node]
     kwargs: tuple[tuple[str, Any], ...]
     color: str
     style: str

@@ -1,0 +1,14 @@
+"""Array types for annotations (:mod:`numpy.typing`): the project's one name for an array of floats."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+"""An array of 64-bit floats, any shape (poses, tangent vectors, covariances: float64 throughout)."""
+
+BoolArray = NDArray[np.bool_]
+"""An array of booleans, any shape (masks: which elements of a batch are valid)."""
+
+__all__ = ["BoolArray", "FloatArray"]

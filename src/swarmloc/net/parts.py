@@ -1,0 +1,127 @@
+"""What the parts of :class:`~swarmloc.net.process.NetNode` share, declared once for the type checker.
+
+The node is composed of parts (:mod:`.wiring`, :mod:`.inbound`, :mod:`.lockstep`, :mod:`.outbound`,
+:mod:`.publishing`, :mod:`.broadcast`), each a class that :class:`~swarmloc.net.process.NetNode` inherits. A part
+reads state that the node or another part sets, and calls other parts' methods: :class:`NodeParts`, the base of every
+part, declares these attributes and methods (annotations only: at run time it is an empty class), so that a type
+checker sees each part's use of them and checks it against the one definition.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import threading
+    from collections import Counter
+    from collections.abc import Callable
+    from typing import Any
+
+    from swarmloc.arrays import FloatArray
+    from swarmloc.messages import Message, TeamUpdate
+    from swarmloc.net.auth import Auth
+    from swarmloc.net.faults import Faults, LinkFaults
+    from swarmloc.net.feed import LiveFeed
+    from swarmloc.net.intake import Intake
+    from swarmloc.net.schema import Belief, Broadcast, BroadcastRepair, Envelope, Lines, Rejected
+    from swarmloc.node import Node
+
+
+class NodeParts:
+    """The base of each part of :class:`~swarmloc.net.process.NetNode`: the state and methods the parts share
+    (declarations only; see the module docstring)."""
+
+    if TYPE_CHECKING:
+        # set by NetNode.__init__ (documented there)
+        node: Node
+        robot: int
+        session: Any
+        team: str
+        scope: str
+        roster: frozenset[int]
+        auth: Auth | None
+        record_times: FloatArray
+        lag: float
+        answer_timeout: float
+        hold_timeout: float
+        update_timeout: float
+        answer_retries: int
+        lost_timeout: float
+        use_server: bool
+        faults: Faults | None
+        link: LinkFaults | None
+        ros_domain: int | None
+        on_belief: Callable[[Belief], None] | None
+        on_lines: Callable[[Lines], None] | None
+        on_settled: Callable[[float, Any], None] | None
+        scans: Any
+        counts: Counter[str]
+        reasons: Counter[str]
+        _intake: Intake
+        _inq: Intake
+        _stop: threading.Event
+        _i: int
+        feed: LiveFeed | None
+        items: list[tuple[float, Any]]
+        _feed_w: float
+        broadcasts: bool
+        # the wiring's (Zenoh declarations; zenoh is imported lazily, its objects are Any)
+        _decl: list[Any]
+        _block: Any
+        _pub_belief: Any
+        _pub_progress: Any
+        _pub_delayed: Any
+        _pub_lines: Any
+        _ros_pub: Any
+        _ros_gid: bytes
+        _ros_seq: int
+        # the lockstep's
+        _alive: set[int]
+        _lost: set[int]
+        _lost_why: dict[int, str]
+        _deferred: list[tuple[float, Message, Any]]
+        _expect: dict[tuple[Any, ...], float]
+        _held: list[Message]
+        # the outbound's
+        coalesce: float
+        _outstanding: dict[int, tuple[Message, str, bool]]
+        _gets: dict[int, int]
+        _again: dict[int, tuple[int, float]]
+        # the publishing's
+        _delayed: dict[float, Belief] | None
+
+        # inbound
+        def _step(self, item: Any, query: Any = ...) -> None: ...
+        def _reject(self, reason: str, where: str) -> None: ...
+        def _refuse(self, exc: Rejected, where: str) -> None: ...
+
+        # lockstep
+        def _release(self) -> None: ...
+        def _answer_ready(self) -> None: ...
+        def _first_copy(self, env: Envelope) -> bool: ...
+        def _on_alive(self, x: Any) -> None: ...
+        def _on_progress(self, x: Any) -> None: ...
+        def _unsettled(self, qkey: tuple[Any, ...]) -> str | None: ...
+
+        # outbound
+        def _env(self, body: Any, key: str, to: int | None = ...) -> bytes: ...
+        def _faulty(self, send: Callable[[], None], finish: Callable[[], None] | None = ...) -> int: ...
+        def _ask(self, m: Message, via_server: bool = ..., again: int = ..., first: float | None = ...) -> None: ...
+        def _ask_again(self, m: Message, again: int, first: float) -> bool: ...
+        def _feed_local(self, kind: type, m: Message, reason: str, seq: int = ...) -> None: ...
+        def _flush(self, force: bool = ...) -> None: ...
+        def _route(self, msgs: list[Message], query: Any = ..., asked: Message | None = ...) -> None: ...
+        def _send_failed(self, exc: Exception) -> None: ...
+
+        # publishing
+        def _next_key(self) -> tuple[float, int]: ...
+        def _publish_due(self, end: bool = ..., upto: float = ...) -> None: ...
+
+        # broadcast
+        def _queue_broadcast(self, m: TeamUpdate) -> None: ...
+        def _flush_broadcasts(self, force: bool = ...) -> None: ...
+        def _broadcasts_unsettled(self, key: tuple[Any, ...]) -> str | None: ...
+        def _on_broadcast(self, b: Broadcast) -> None: ...
+        def _on_broadcast_sample(self, x: Any) -> None: ...
+        def _on_repair(self, r: BroadcastRepair) -> None: ...
+        def _revision_came(self, a: Any) -> None: ...
