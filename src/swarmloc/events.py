@@ -25,7 +25,8 @@ class Kind(StrEnum):
     :data:`swarmloc.sensors.models3.MODELS3`), never with string literals.
     """
 
-    __repr__ = str.__repr__
+    def __repr__(self) -> str:  # a function, not str's slot wrapper, which Sphinx's autodoc cannot describe
+        return str.__repr__(self)
 
     POSE = "pose"
     RANGE_BEARING = "range_bearing"
