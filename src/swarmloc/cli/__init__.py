@@ -8,14 +8,14 @@ one line (or one line per bad record) with exit status 2, never as a traceback.
 Parts: :mod:`.parser` (assembles the commands), :mod:`.commands` (one module per command: its options, help and
 function), :mod:`.options` (argument groups several commands share), :mod:`.common` (their shared run-time helpers),
 :mod:`.liveview` (the live view of ``node`` and ``team``).
-``python -m swarmloc.cli`` runs :func:`main`.
+The ``swarmloc`` program and ``python -m swarmloc.cli`` run :func:`console`.
 """
 
 from __future__ import annotations
 
 from swarmloc.cli.parser import build_parser
 
-__all__ = ["build_parser", "main"]
+__all__ = ["build_parser", "console", "main"]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,3 +34,28 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     args.ros_args = ros
     return int(args.func(args))
+
+
+def console() -> None:
+    """The ``swarmloc`` program: :func:`main`, then exit with its status.
+
+    A process that imported Zenoh ends with ``os._exit`` once its logs and output are flushed, without finalizing
+    the interpreter: Zenoh's runtime threads outlive the sessions a command closed and drop the callbacks Python gave
+    them on their own schedule; one that needs the interpreter while it finalizes is ended by CPython (3.11-3.13)
+    with a forced unwind through native frames, which aborts the whole process ("FATAL: exception not rethrown",
+    SIGABRT) after the command has done its work. Every command closes its files and sessions before it returns."""
+    import sys
+
+    rc = main()
+    if "zenoh" in sys.modules:
+        import logging
+        import os
+
+        logging.shutdown()
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # a closed pipe: nothing more can be said
+                pass
+        os._exit(rc)
+    raise SystemExit(rc)

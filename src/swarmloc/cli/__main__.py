@@ -1,5 +1,5 @@
-"""``python -m swarmloc.cli``: the command line (:func:`swarmloc.cli.main`)."""
+"""``python -m swarmloc.cli``: the command line (:func:`swarmloc.cli.console`)."""
 
-from swarmloc.cli import main
+from swarmloc.cli import console
 
-raise SystemExit(main())
+console()
