@@ -36,6 +36,7 @@ def main() -> None:
     ap.add_argument("--estimators", default="expfusion,dekf,ci,diekf,cekf,dr")
     ap.add_argument("--specs", default="sim:3d,sim:3d_rot", help="comma-separated 3-D sources (e.g. sim:3d_rbe)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--cluster", default=None, help="a Dask scheduler's address (tcp://HOST:8786) instead of --workers")
     ap.add_argument("--out", type=Path, default=Path("se3"))
     ap.add_argument("--figures", type=Path, default=None,
                     help="also draw seed 0 of each source (top/side views, error and NEES over time) and write its "
@@ -46,7 +47,7 @@ def main() -> None:
         if a.seeds == 0:
             return
     table = se3_table(specs=tuple(a.specs.split(",")), estimators=tuple(a.estimators.split(",")), seeds=a.seeds,
-                      robots=a.robots, duration=a.duration, workers=a.workers)  # fmt: skip
+                      robots=a.robots, duration=a.duration, workers=a.workers, cluster=a.cluster)  # fmt: skip
     md = se3_markdown(table)
     a.out.with_suffix(".md").write_text(md + "\n")
     a.out.with_suffix(".json").write_text(json.dumps(table, default=json_default, indent=1))

@@ -34,7 +34,7 @@ OVER: dict[str, int] = {
     "experiments/thesis_dynamic/report.py::_analysis": 222,
     "experiments/thesis_dynamic/report.py::_markdown": 121,
     "experiments/thesis_dynamic/report.py::figures": 109,
-    "experiments/thesis_dynamic/run.py::run_dynamic": 201,
+    "experiments/thesis_dynamic/run.py::run_dynamic": 191,
     "experiments/thesis_static/report.py::demo_figures": 82,
     "experiments/thesis_static/run.py::run_demo": 128,
     "fusion_book.py::book_two_robot_scenario": 102,

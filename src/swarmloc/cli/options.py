@@ -1,7 +1,7 @@
 """Argument groups and defaults shared by several commands: a network process's (``--team``, ``--listen`` ...),
 authentication (``--key``, ``--roster``), the live view (``--view``, ``--record``, ``--linger``), a node's waits
-(``--start-timeout`` ...) and a team's source (``--source``, ``--estimator`` ...). Each ``add_*`` adds its options to a
-command's parser, in the order ``--help`` lists them."""
+(``--start-timeout`` ...), a sweep's workers (``--jobs``, ``--cluster``) and a team's source (``--source``,
+``--estimator`` ...). Each ``add_*`` adds its options to a command's parser, in the order ``--help`` lists them."""
 
 from __future__ import annotations
 
@@ -21,6 +21,15 @@ ASSOCIATION_HELP = (
     "estimator; dr fuses no detection); anonymous (ids hidden, PMR + particle-filter bank per robot hands tagged "
     "relative poses to any estimator; range-bearing detections)"
 )
+
+
+def add_sweep_args(p: argparse.ArgumentParser, jobs: int | None = 2) -> None:
+    """Where a sweep's runs go: ``--jobs`` local worker processes (omitted when ``jobs`` is None) or ``--cluster``."""
+    if jobs is not None:
+        p.add_argument("--jobs", type=int, default=jobs, help=f"worker processes (default {jobs})")
+    p.add_argument("--cluster", default=None, metavar="ADDRESS",
+                   help="run on a Dask cluster: its scheduler's address (tcp://HOST:8786), instead of local worker "
+                        "processes; the same results (needs pip install 'swarmloc[cluster]')")  # fmt: skip
 
 
 def add_net_args(p: argparse.ArgumentParser) -> None:

@@ -20,13 +20,11 @@ Columns, pooled over all robots' records of all runs:
 from __future__ import annotations
 
 import json
-import multiprocessing
 import os
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +34,10 @@ from swarmloc.experiments.evaluate import association_text
 from swarmloc.experiments.progress import steps
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, SE3
+from swarmloc.runner.fanout import cluster_address, fan_out
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 _ONE = GroupGaussian(SE2, SE2.identity(), 0.01 * np.eye(3))
 """A belief to build a throwaway team with (the up-front check of the estimators' options)."""
@@ -132,11 +134,13 @@ def compare(
     association: str = "tags",
     clutter: float = 0.0,
     p_detect: float = 1.0,
+    cluster: str | Client | None = None,
 ) -> dict[str, Any]:
     """Run ``estimators`` on ``scenario`` (``runs`` seeds for a simulation) and return the summary per estimator;
     with ``out_dir`` also write ``compare.md`` and ``compare.json``. ``association`` (with ``clutter`` false
     detections per scan and detection probability ``p_detect``): how robot detections get their identity
-    (:mod:`swarmloc.experiments.association`; every policy but ``tags`` hides the ids)."""
+    (:mod:`swarmloc.experiments.association`; every policy but ``tags`` hides the ids). The runs go to ``jobs``
+    worker processes, or to a Dask ``cluster`` (an address or a client: :func:`~swarmloc.runner.fanout.fan_out`)."""
     import dataclasses
 
     from swarmloc.config import DEFAULTS
@@ -163,26 +167,20 @@ def compare(
     seeds = list(range(runs)) if sim else [0]
     assoc = (association, float(clutter), float(p_detect))
     tasks = [(scenario, e, s, robots, duration, assoc) for e in estimators for s in seeds]
-    results: list[dict] = []
+    done: dict[int, dict[str, Any]] = {}
     t0 = time.perf_counter()
     with steps(progress, len(tasks), f"compare {scenario}") as tick:
-        if jobs <= 1 or len(tasks) == 1:
-            for t in tasks:
-                results.append(_job(*t))
-                tick(f"{t[1]} seed {t[2]}")
-        else:
-            # spawned, not forked: a process that imported JAX (the engine's backend) is multithreaded
-            with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
-                futs = [ex.submit(_job, *t) for t in tasks]
-                for f in as_completed(futs):
-                    results.append(f.result())
-                    tick(f"{results[-1]['estimator']} seed {results[-1]['seed']}")
+        for i, r in fan_out(_job, tasks, jobs=jobs, cluster=cluster):
+            done[i] = r
+            tick(f"{r['estimator']} seed {r['seed']}")
+    results = [done[i] for i in range(len(tasks))]  # in task order, wherever and whenever each job ran
     summary: dict[str, Any] = {
         "scenario": scenario,
         "runs": len(seeds),
         "robots": results[0]["robots"] if results else 0,
         "duration_s": results[0]["data_s"] if results else 0.0,
         "wall_s": time.perf_counter() - t0,
+        "cluster": cluster_address(cluster),
         "association": association,
         "clutter_per_scan": float(clutter),
         "p_detect": float(p_detect),

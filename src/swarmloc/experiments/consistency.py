@@ -37,18 +37,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing
 import os
 import sys
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from swarmloc.evaluation.metrics import DOF, errors
+from swarmloc.runner.fanout import ClusterUnavailable, cluster_address, fan_out
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 __all__ = [
     "EXCLUDED_BY_DEFAULT",
@@ -133,27 +135,18 @@ def _job(
     }
 
 
-def _run_jobs(tasks: list[tuple], jobs: int, progress: bool) -> dict[tuple, dict[str, Any]]:
-    """Results of ``_job(*task)`` by key, in worker processes when ``jobs > 1``, with an optional progress bar."""
+def _run_jobs(tasks: list[tuple], jobs: int, progress: bool, cluster: Any = None) -> dict[tuple, dict[str, Any]]:
+    """Results of ``_job(*task)`` by key, where :func:`~swarmloc.runner.fanout.fan_out` runs them, with an optional
+    progress bar."""
     from swarmloc.experiments.progress import progress_bar
 
     out: dict[tuple, dict[str, Any]] = {}
     with progress_bar(progress) as start:
         cb = start("consistency") if start is not None else None
-        if jobs <= 1 or len(tasks) == 1:
-            for t in tasks:
-                r = _job(*t)
-                out[r["key"]] = r
-                if cb is not None:
-                    cb(len(out), len(tasks))
-        else:
-            # spawned, not forked: a process that imported JAX (the engine's backend) is multithreaded
-            with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
-                for f in as_completed([ex.submit(_job, *t) for t in tasks]):
-                    r = f.result()
-                    out[r["key"]] = r
-                    if cb is not None:
-                        cb(len(out), len(tasks))
+        for _, r in fan_out(_job, tasks, jobs=jobs, cluster=cluster):
+            out[r["key"]] = r
+            if cb is not None:
+                cb(len(out), len(tasks))
     return out
 
 
@@ -194,9 +187,11 @@ def consistency(
     *,
     sample_initial: bool = True,
     progress: bool = False,
+    cluster: str | Client | None = None,
 ) -> dict[str, Any]:
     """Run ``estimators`` (default :func:`default_estimators`) on ``seeds`` simulated teams of ``robots`` over
-    ``duration`` s, for each landmark setting in ``landmarks``, in ``jobs`` worker processes; returns the summary
+    ``duration`` s, for each landmark setting in ``landmarks``, in ``jobs`` worker processes or on a Dask ``cluster``
+    (an address or a client: :func:`~swarmloc.runner.fanout.fan_out`); returns the summary
     (see the module docstring; ``summary["settings"]["off" | "on"][estimator]``). With ``out`` also writes
     ``consistency.json``, ``consistency.md`` and ``consistency.png`` (team ANEES over time with both bands) there.
     Raises ValueError for unknown estimators or bad sizes."""
@@ -218,7 +213,7 @@ def consistency(
     t0 = time.perf_counter()
     tasks = [(e, s, robots, float(duration), lm, sample_initial) for lm in settings for e in estimators
              for s in range(seeds)]  # fmt: skip
-    results = _run_jobs(tasks, jobs, progress)
+    results = _run_jobs(tasks, jobs, progress, cluster)
     band = bands(seeds, robots)
     summary: dict[str, Any] = {
         "seeds": seeds,
@@ -226,6 +221,7 @@ def consistency(
         "duration_s": float(duration),
         "sample_initial": sample_initial,
         "jobs": jobs,
+        "cluster": cluster_address(cluster),
         "wall_s": time.perf_counter() - t0,
         "band": {
             "p": 0.95,
@@ -321,8 +317,9 @@ def run_command(args: argparse.Namespace) -> int:
         return 2
     try:
         summary = consistency(names, seeds=args.seeds, robots=args.robots, duration=args.duration,
-                              landmarks=settings, jobs=args.jobs, out=args.out, progress=not args.quiet)  # fmt: skip
-    except (ValueError, OSError) as exc:
+                              landmarks=settings, jobs=args.jobs, out=args.out, progress=not args.quiet,
+                              cluster=args.cluster)  # fmt: skip
+    except (ValueError, OSError, ClusterUnavailable) as exc:
         print(f"swarmloc consistency: {exc}", file=sys.stderr)
         return 2
     if args.json:

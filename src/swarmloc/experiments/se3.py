@@ -9,10 +9,8 @@ each robot's estimate and truth as TUM files with full quaternions (``evo_ape tu
 
 from __future__ import annotations
 
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,6 +22,10 @@ from swarmloc.events import Detection, Event, Odometry, Truth
 from swarmloc.experiments.sources import load_source
 from swarmloc.node import Node
 from swarmloc.runner import RunResult, run
+from swarmloc.runner.fanout import fan_out
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 __all__ = ["run_se3", "se3_figures", "se3_team", "se3_markdown", "se3_table", "with_truth", "write_tum_tracks"]
 
@@ -87,14 +89,14 @@ def se3_table(
     robots: int = 4,
     duration: float = 60.0,
     workers: int = 2,
+    cluster: str | Client | None = None,
 ) -> dict[str, Any]:
     """Every (scenario, estimator) over ``seeds`` seeds: mean over seeds of the team's position RMSE [m], rotation
-    RMSE [rad] and ANEES/dof, with the per-seed rows."""
+    RMSE [rad] and ANEES/dof, with the per-seed rows; in ``workers`` local processes or on a Dask ``cluster``
+    (:func:`~swarmloc.runner.fanout.fan_out`)."""
     jobs = [(s, tuple(estimators), k, robots, duration) for s in specs for k in range(seeds)]
-    if workers <= 1:  # in this process: no fork of a process that may hold threads (JAX, BLAS)
-        return _summary(specs, estimators, seeds, robots, duration, [r for j in jobs for r in _job(j)])
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        rows = [r for rs in pool.map(_job, jobs) for r in rs]
+    done = dict(fan_out(_job, [(j,) for j in jobs], jobs=workers, cluster=cluster))
+    rows = [r for i in range(len(jobs)) for r in done[i]]  # in job order, wherever each ran
     return _summary(specs, estimators, seeds, robots, duration, rows)
 
 

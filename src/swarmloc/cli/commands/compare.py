@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, EST_DEFAULT
+from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, EST_DEFAULT, add_sweep_args
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +21,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("--runs", type=int, default=1, help="seeds of a simulated scenario (default 1)")
     cp.add_argument("--robots", type=int, default=4, help="sim: team size (default 4)")
     cp.add_argument("--duration", type=float, default=None, help="seconds (sim default 30; dataset: all)")
-    cp.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    add_sweep_args(cp)
     cp.add_argument("--out", default=None, help="output folder for compare.md / compare.json")
     cp.add_argument("--association", choices=ASSOCIATION_CHOICES, default="tags", help=ASSOCIATION_HELP)
     cp.add_argument("--clutter", type=float, default=0.0, help="false robot detections per scan, Poisson (default 0)")
@@ -33,6 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run every estimator on the same events and print the table; 0, or 2 on bad input."""
     from swarmloc.experiments.compare import compare, compare_table, is_3d
+    from swarmloc.runner.fanout import ClusterUnavailable
 
     if args.estimators is None:  # the defaults; on a 3-D team, those with an SE(3) form
         from swarmloc.estimators import ESTIMATORS_SE3
@@ -43,8 +44,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         summary = compare(args.scenario, names, runs=args.runs, robots=args.robots, duration=args.duration,
                           out_dir=args.out, jobs=args.jobs, progress=not args.quiet, association=args.association,
-                          clutter=args.clutter, p_detect=args.p_detect)  # fmt: skip
-    except (ValueError, OSError) as exc:
+                          clutter=args.clutter, p_detect=args.p_detect, cluster=args.cluster)  # fmt: skip
+    except (ValueError, OSError, ClusterUnavailable) as exc:
         print(f"swarmloc compare: {exc}", file=sys.stderr)
         return 2
     print(compare_table(summary))

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from swarmloc.cli.options import add_sweep_args
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``consistency`` command: its options and help."""
@@ -15,7 +17,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     cs.add_argument("--robots", type=int, default=5, help="team size (default 5)")
     cs.add_argument("--duration", type=float, default=60.0, help="seconds per run (default 60)")
     cs.add_argument("--landmarks", default="off,on", help="off, on or off,on (default off,on)")
-    cs.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    add_sweep_args(cs)
     cs.add_argument("--out", default=None, help="output folder for consistency.md / .json / .png")
     cs.add_argument("--json", action="store_true", help="print the summary as JSON instead of the table")
     cs.add_argument("--quiet", action="store_true", help="no progress bar")

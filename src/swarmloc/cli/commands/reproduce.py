@@ -9,6 +9,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from swarmloc.cli.options import add_sweep_args
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``reproduce`` command: its options and help."""
@@ -21,19 +23,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="repetitions for Tables 5.1/5.2 (60; with 'tables': per seed, 20000)")  # fmt: skip
     r.add_argument("--first-seed", type=int, default=100, help="tables: first of the pooled seeds (default 100)")
     r.add_argument("--quick", action="store_true", help="few seeds and short runs (a smoke test)")
+    add_sweep_args(r, jobs=None)
     r.add_argument("--quiet", action="store_true", help="no progress bars")
     r.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Reproduce ``thesis`` or ``tables`` into ``--out``; 0, or 2 on a bad target or argument."""
+    from swarmloc.runner.fanout import ClusterUnavailable, connected
+
     if args.what == "tables":
         from swarmloc.experiments.thesis_static.pooled import pooled_tables
 
         try:
             reps = 20_000 if args.reps is None else args.reps
-            res = pooled_tables(args.out, seeds=args.seeds, reps=reps, first_seed=args.first_seed)
-        except ValueError as exc:
+            res = pooled_tables(args.out, seeds=args.seeds, reps=reps, first_seed=args.first_seed,
+                                cluster=args.cluster)  # fmt: skip
+        except (ValueError, ClusterUnavailable) as exc:
             print(f"swarmloc reproduce tables: {exc}", file=sys.stderr)
             return 2
         print((Path(args.out) / "pooled.md").read_text())
@@ -49,11 +55,17 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
     progress = not args.quiet
-    report: dict[str, Any] = {
-        "demo": run_demo(out / "demo", seed=0, progress=progress),
-        "tables": run_tables(out / "tables", reps=5 if args.quick else args.reps or 60, progress=progress),
-        "dynamic": run_dynamic(out / "dynamic", seeds=args.seeds, progress=progress, quick=args.quick),
-    }
+    try:
+        with connected(args.cluster) as cluster:  # an unreachable cluster is refused before anything runs
+            report: dict[str, Any] = {
+                "demo": run_demo(out / "demo", seed=0, progress=progress),
+                "tables": run_tables(out / "tables", reps=5 if args.quick else args.reps or 60, progress=progress),
+                "dynamic": run_dynamic(out / "dynamic", seeds=args.seeds, progress=progress, quick=args.quick,
+                                       cluster=cluster),
+            }  # fmt: skip
+    except ClusterUnavailable as exc:
+        print(f"swarmloc reproduce thesis: {exc}", file=sys.stderr)
+        return 2
     report["wall_time_s"] = time.perf_counter() - t
     from swarmloc.experiments.evaluate import json_default
 

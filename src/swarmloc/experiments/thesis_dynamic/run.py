@@ -4,17 +4,13 @@ to :mod:`swarmloc.experiments.thesis_dynamic.report`."""
 
 from __future__ import annotations
 
-import logging
 import os
 import platform
 import resource
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
-from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,9 +34,11 @@ from swarmloc.experiments.thesis_dynamic.spec import (
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.runner import RunResult, run
+from swarmloc.runner.fanout import fan_out
 from swarmloc.sim import thesis_ground_truth_neighbour, thesis_two_robot
 
-log = logging.getLogger(__name__)
+if TYPE_CHECKING:
+    from distributed import Client
 
 
 # ---------------------------------------------------------------------------------------------------------- jobs
@@ -124,37 +122,26 @@ def _job(spec: dict[str, Any]) -> dict[str, Any]:
 
 
 def _run_jobs(
-    specs: list[dict[str, Any]], workers: int, progress: bool, weight: Callable[[dict[str, Any]], float]
+    specs: list[dict[str, Any]],
+    workers: int,
+    progress: bool,
+    weight: Callable[[dict[str, Any]], float],
+    cluster: str | Client | None = None,
 ) -> list[dict[str, Any]]:
-    """Run ``specs`` (largest first) in ``workers`` processes with a rich progress bar over estimator runs."""
+    """Run ``specs`` (largest first) where :func:`~swarmloc.runner.fanout.fan_out` runs them (``workers`` processes
+    or a Dask ``cluster``), with a rich progress bar over estimator runs; the results in ``specs``' order."""
     order = sorted(range(len(specs)), key=lambda i: -weight(specs[i]))
     results: list[dict[str, Any] | None] = [None] * len(specs)
     total = sum(len(s["estimators"]) for s in specs)
     bar = None
     if progress:
         bar, task = progress_bar(total)
-
-    def done(i: int, r: dict[str, Any]) -> None:
-        results[i] = r
-        if bar is not None:
-            s = r["spec"]
-            bar.update(task, advance=len(s["estimators"]), description=f"{s['label']} seed {s['seed']}")
-
     try:
-        if workers <= 1:
-            for i in order:
-                done(i, _job(specs[i]))
-        else:
-            try:
-                with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-                    futs = {pool.submit(_job, specs[i]): i for i in order}
-                    for f in as_completed(futs):
-                        done(futs[f], f.result())
-            except (OSError, BrokenProcessPool) as exc:  # no subprocesses here: finish in-process
-                log.warning("run_dynamic: worker processes failed (%s); running in-process", exc)
-                for i in order:
-                    if results[i] is None:
-                        done(i, _job(specs[i]))
+        for k, r in fan_out(_job, [(specs[i],) for i in order], jobs=workers, cluster=cluster):
+            results[order[k]] = r
+            if bar is not None:
+                s = r["spec"]
+                bar.update(task, advance=len(s["estimators"]), description=f"{s['label']} seed {s['seed']}")
     finally:
         if bar is not None:
             bar.stop()
@@ -247,12 +234,14 @@ def run_dynamic(
     quick: bool = False,
     *,
     workers: int | None = None,
+    cluster: str | Client | None = None,
 ) -> dict:
     """Reproduce thesis sec. 5.2.2 (Figs 5.14-5.23) and Table 6.1 with measured numbers; write into ``out_dir``.
 
     ``seeds``: simulations per noise level (seeds ``0..seeds-1``; the ground-truth-neighbour run uses
     ``min(seeds, 5)``, the double-counting study ``min(seeds, 8)``). ``quick``: 3 seeds and shorter runs
-    (30 s / 60 s), for tests. ``workers``: processes (default ``min(2, cpu count)``; 1 runs in-process).
+    (30 s / 60 s), for tests. ``workers``: processes (default ``min(2, cpu count)``; 1 runs in-process);
+    ``cluster``: a Dask scheduler's address or client instead (:func:`~swarmloc.runner.fanout.fan_out`).
 
     Writes ``dynamic.json``, ``dynamic.md`` and ``dynamic_*.png``; returns the JSON content plus ``"markdown"``
     (the text of ``dynamic.md``).
@@ -291,19 +280,8 @@ def run_dynamic(
                     "keep": True,
                 }
             )
-    for s in range(gt_seeds):
-        specs.append(
-            {
-                "label": "ground-truth neighbour",
-                "exp": "gt",
-                "scenario": "gt",
-                "noise": GT_NOISE,
-                "seed": s,
-                "duration": gt_dur,
-                "estimators": GT_ESTIMATORS,
-                "keep": True,
-            }
-        )
+    specs += [{"label": "ground-truth neighbour", "exp": "gt", "scenario": "gt", "noise": GT_NOISE, "seed": s,
+               "duration": gt_dur, "estimators": GT_ESTIMATORS, "keep": True} for s in range(gt_seeds)]  # fmt: skip
     for ak, (_, every, oneway) in ABLATIONS.items():
         if ak == "mutual_10hz":
             continue  # identical to the main runs at ABLATION_NOISE: taken from there
@@ -322,7 +300,7 @@ def run_dynamic(
                     "oneway": oneway,
                 }
             )
-    jobs = _run_jobs(specs, workers, progress, weight=lambda s: s["duration"] * len(s["estimators"]))
+    jobs = _run_jobs(specs, workers, progress, lambda s: s["duration"] * len(s["estimators"]), cluster)
     t_runs = time.perf_counter() - t_start
 
     # ------------------------------------------------------------------ aggregate

@@ -16,16 +16,18 @@ from __future__ import annotations
 import json
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.stats import chi2
 
 from swarmloc.experiments.thesis_static.run import table_trials
 from swarmloc.experiments.thesis_static.spec import COMMANDS, SIGMA_M, THESIS_DRIVE, THESIS_TABLES, deviation_510
+from swarmloc.runner.fanout import fan_out
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 THESIS_REPS = 60
 
@@ -50,19 +52,18 @@ def pooled_tables(
     reps: int = 20_000,
     first_seed: int = 100,
     workers: int | None = None,
+    cluster: str | Client | None = None,
 ) -> dict[str, Any]:
     """Pool ``seeds x reps`` repetitions per motion and compare with the thesis (module docstring); writes
-    ``pooled.json`` and ``pooled.md`` into ``out_dir`` and returns the dictionary."""
+    ``pooled.json`` and ``pooled.md`` into ``out_dir`` and returns the dictionary. The seeds run in ``workers``
+    processes (default ``min(2, cpu count)``) or on a Dask ``cluster`` (:func:`~swarmloc.runner.fanout.fan_out`)."""
     if seeds < 2 or reps < 2:
         raise ValueError(f"pooled_tables: need seeds >= 2 and reps >= 2, got {seeds} and {reps}")
     t0 = time.perf_counter()
     workers = workers or max(1, min(2, os.cpu_count() or 1))
     jobs = [(first_seed + s, reps) for s in range(seeds)]
-    if workers > 1:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-            runs = list(pool.map(_job, jobs))
-    else:
-        runs = [_job(j) for j in jobs]
+    done = dict(fan_out(_job, [(j,) for j in jobs], jobs=workers, cluster=cluster))
+    runs = [done[i] for i in range(len(jobs))]
     result: dict[str, Any] = {
         "command": f"swarmloc reproduce tables --seeds {seeds} --reps {reps} --first-seed {first_seed}",
         "seeds": [s for s, _ in jobs],
