@@ -19,14 +19,15 @@ from swarmloc.cli.commands import (
     node,
     reproduce,
     ros,
+    router,
     server,
     simulate,
     team,
 )
 from swarmloc.cli.commands import map as map_
 
-COMMANDS = (demo, reproduce, evaluate, simulate, config, node, server, keys, compare, consistency, bench, map_, ros,
-            team, data)  # fmt: skip
+COMMANDS = (demo, reproduce, evaluate, simulate, config, node, server, router, keys, compare, consistency, bench, map_,
+            ros, team, data)  # fmt: skip
 """The command modules, each with ``add_parser(sub)`` and ``run(args)``, in the order of ``swarmloc --help``."""
 
 

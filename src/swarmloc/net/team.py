@@ -13,6 +13,7 @@ an authentication failure also ``collector_auth_<category>``, with its reason in
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -26,6 +27,7 @@ import tempfile
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,7 +51,16 @@ from swarmloc.net.timeouts import (
     UPDATE_TIMEOUT,
     check_retries,
 )
-from swarmloc.net.transport import check_team, free_ports, open_session, robot_key, server_key, team_scope
+from swarmloc.net.transport import (
+    check_team,
+    client_config,
+    free_ports,
+    open_session,
+    robot_key,
+    router_mesh,
+    server_key,
+    team_scope,
+)  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -147,6 +158,7 @@ def launch_team(
     keys_dir: str | os.PathLike[str] | None = None,
     view: Any = None,
     progress: Callable[[int, int], None] | None = None,
+    routers: int = 0,
 ) -> TeamRun:
     """Start the team of ``src`` on 127.0.0.1, collect its beliefs and reports, stop every process.
 
@@ -159,7 +171,9 @@ def launch_team(
     roster (:class:`~swarmloc.net.auth.TeamKeys`: made there unless its ``roster.json`` exists; default: a temporary
     folder, removed at the end). ``view``: a :class:`~swarmloc.net.view.TeamView` shown every belief and line
     collected (the caller closes it). ``progress(collected, expected)``: called as beliefs come in (a count of the
-    beliefs collected and of those the run records: record times x robots).
+    beliefs collected and of those the run records: record times x robots). ``routers``: 0, every process a Zenoh
+    peer of the others; ``n >= 1``, ``n`` meshed Zenoh routers on 127.0.0.1 started here and every process a client
+    of one of them, in turn (:func:`~swarmloc.net.transport.router_mesh`), the routers meshed with ``connect_extra``.
     """
     f = parse_faults(faults)
     check_retries(answer_retries)  # refused here, not by every node process
@@ -182,12 +196,14 @@ def launch_team(
     server_args = server_arguments(node_args) if hosted else []
     keys = TeamKeys(src.robots, keys_dir)
     try:
-        launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir, keys, src.record_times(),
-                             pose_stamps(src))  # fmt: skip
-        launcher.server_args = server_args
-        launcher.view = view
-        launcher.on_progress = progress
-        return launcher.run(src.t_start, max_wall)
+        mesh: AbstractContextManager[list[str]] = router_mesh(routers, connect_extra) if routers else nullcontext([])
+        with mesh as relays:
+            launcher = _Launcher(team, src.robots, node_args, f, server, connect_extra, log_dir, keys,
+                                 src.record_times(), pose_stamps(src), relays)  # fmt: skip
+            launcher.server_args = server_args
+            launcher.view = view
+            launcher.on_progress = progress
+            return launcher.run(src.t_start, max_wall)
     finally:
         keys.close()
 
@@ -270,6 +286,7 @@ class _Launcher:
         keys: TeamKeys,
         record_times: Iterable[float],
         pose_stamps: frozenset[float] = frozenset(),
+        routers: Sequence[str] = (),
     ) -> None:
         self.team, self.robots, self.node_args, self.f, self.server = team, robots, node_args, faults, server
         self.run_id = secrets.token_hex(6)  # in every key with the team's name: two teams of one name never meet
@@ -282,6 +299,7 @@ class _Launcher:
         ports = dict(zip([*names, "collector"], free_ports(len(names) + 1), strict=True))
         self.ep = {k: f"tcp/127.0.0.1:{p}" for k, p in ports.items()}
         self.connect_extra = list(connect_extra)  # e.g. a Zenoh router (ROS 2)
+        self.routers = list(routers)  # the team's Zenoh routers; none: the processes are peers of one another
         self.late = faults.late[0] if faults.late is not None else None
         self.wait_for = [r for r in robots if r != self.late]
         # each process's output goes to <logs>/<name>.log; without log_dir, to a temporary folder removed at the end,
@@ -304,9 +322,21 @@ class _Launcher:
 
     # ------------------------------------------------------------------------------------------- processes
     def args_for(self, name: str, extra: Sequence[str] = ()) -> list[str]:
-        others = [self.ep[k] for k in self.ep if k != name] + self.connect_extra
-        return ["--team", self.team, "--run-id", self.run_id, "--listen", self.ep[name], "--connect",
-                ",".join(others), "--parent-pid", str(os.getpid()), *extra]  # fmt: skip
+        """The network options of process ``name``: its endpoint and the others' (peers), or its router (a client)."""
+        if self.routers:
+            where = ["--zenoh-config", str(self.client_file(name))]
+        else:
+            others = [self.ep[k] for k in self.ep if k != name] + self.connect_extra
+            where = ["--listen", self.ep[name], "--connect", ",".join(others)]
+        return ["--team", self.team, "--run-id", self.run_id, *where, "--parent-pid", str(os.getpid()), *extra]
+
+    def client_file(self, name: str) -> Path:
+        """The Zenoh configuration that makes process ``name`` a client of one of the routers (in turn by name)."""
+        path = self.logs / f"zenoh-{name}.json5"
+        if not path.exists():
+            router = self.routers[list(self.ep).index(name) % len(self.routers)]
+            path.write_text(json.dumps(client_config([router]), indent=1))
+        return path
 
     def spawn(self, name: str, cmd: list[str]) -> None:
         with open(self.logs / f"{name}.log", "ab") as out:
@@ -492,8 +522,11 @@ class _Launcher:
     def run(self, t_first: float, max_wall: float) -> TeamRun:
         """Start the team, watch it, and stop every process it started, whatever happens (``t_first``: the
         source's start, which the fault times count from)."""
-        others = [self.ep[k] for k in self.ep if k != "collector"] + self.connect_extra
-        session = open_session([self.ep["collector"]], others)
+        if self.routers:
+            session = open_session(config_file=self.client_file("collector"))
+        else:
+            others = [self.ep[k] for k in self.ep if k != "collector"] + self.connect_extra
+            session = open_session([self.ep["collector"]], others)
         attach(self.auth, session, self.scope, hello=False)  # the nodes make their sessions with it as they start
         put = self.inq.offer  # within the collector's budgets (:mod:`swarmloc.net.intake`)
         subs = [

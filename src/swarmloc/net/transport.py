@@ -32,7 +32,8 @@ import json
 import os
 import re
 import socket
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 PREFIX = "swarmloc"
@@ -41,6 +42,8 @@ MAX_MESSAGE = 2 * 1024 * 1024
 buffer that much before any check of ours; a signed frame is at most 1 MiB): set unless a configuration file
 sets its own."""
 _ZENOH_DEFAULT_MAX_MESSAGE = 1 << 30
+MAX_ROUTERS = 16
+"""The most routers :func:`router_mesh` starts (a mesh on one machine is for tests and demonstrations)."""
 _TEAM = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
 
 
@@ -153,20 +156,30 @@ def block() -> Any:
     return zenoh.CongestionControl.BLOCK
 
 
+MODES = ("peer", "client", "router")
+"""Zenoh's session modes: a team's node is a ``peer`` (the default: it listens and connects to the others) or a
+``client`` of a router (it listens nowhere; everything goes through the router); ``router`` relays for clients and
+meshes with other routers (:func:`router_mesh`, ``swarmloc router``)."""
+
+
 def zenoh_config(
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
     config_file: str | os.PathLike[str] | None = None,
     extra: dict[str, Any] | None = None,
+    mode: str = "peer",
 ) -> Any:
-    """A ``zenoh.Config`` for one peer: ``listen``/``connect`` endpoints (e.g. ``tcp/127.0.0.1:7447``), scouting
-    off unless ``config_file`` (a Zenoh JSON5 configuration) says otherwise; ``extra`` sets further paths
-    (``{"transport/link/tls/root_ca_certificate": "..."}``). Endpoints given here override the file's."""
+    """A ``zenoh.Config`` for one session: ``listen``/``connect`` endpoints (e.g. ``tcp/127.0.0.1:7447``), scouting
+    off and ``mode`` (:data:`MODES`) unless ``config_file`` (a Zenoh JSON5 configuration) says otherwise; ``extra``
+    sets further paths (``{"transport/link/tls/root_ca_certificate": "..."}``). Endpoints given here override the
+    file's."""
     import zenoh
 
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     cfg = zenoh.Config.from_file(str(config_file)) if config_file is not None else zenoh.Config()
     if config_file is None:
-        cfg.insert_json5("mode", '"peer"')
+        cfg.insert_json5("mode", json.dumps(mode))
         cfg.insert_json5("scouting/multicast/enabled", "false")
         cfg.insert_json5("scouting/gossip/enabled", "false")
     if listen or config_file is None:  # no endpoint named: listen nowhere (Zenoh's default listens on every interface)
@@ -180,13 +193,46 @@ def zenoh_config(
     return cfg
 
 
+def client_config(routers: Sequence[str]) -> dict[str, Any]:
+    """A Zenoh configuration (JSON, a valid JSON5 file for ``--zenoh-config``) that makes a node a client of the
+    first of ``routers`` that answers: no listening endpoint, no scouting."""
+    if not routers:
+        raise ValueError("client_config: name at least one router endpoint")
+    return {
+        "mode": "client",
+        "connect": {"endpoints": list(routers)},
+        "listen": {"endpoints": []},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+    }
+
+
+@contextmanager
+def router_mesh(n: int, connect: Sequence[str] = (), host: str = "127.0.0.1") -> Iterator[list[str]]:
+    """``n`` Zenoh routers in this process on free ports of ``host``, meshed (each connects to the ones before it and
+    to ``connect``, e.g. ROS 2's router); yields their endpoints and closes them on exit. A team's processes are
+    clients of these routers (:func:`client_config`) instead of peers of one another (``swarmloc team
+    --routers``)."""
+    if not (isinstance(n, int) and 1 <= n <= MAX_ROUTERS):
+        raise ValueError(f"routers: between 1 and {MAX_ROUTERS}, got {n!r}")
+    eps = [f"tcp/{host}:{p}" for p in free_ports(n, host)]
+    sessions: list[Any] = []
+    try:
+        for i, ep in enumerate(eps):
+            sessions.append(open_session([ep], [*eps[:i], *connect], mode="router"))
+        yield eps
+    finally:
+        for s in sessions:
+            s.close()
+
+
 def open_session(
     listen: Sequence[str] = (),
     connect: Sequence[str] = (),
     config_file: str | os.PathLike[str] | None = None,
     extra: dict[str, Any] | None = None,
+    mode: str = "peer",
 ) -> Any:
     """Open a Zenoh session (see :func:`zenoh_config`)."""
     import zenoh
 
-    return zenoh.open(zenoh_config(listen, connect, config_file, extra))
+    return zenoh.open(zenoh_config(listen, connect, config_file, extra, mode))

@@ -20,6 +20,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "own in every key, so that two teams of one name never hear each other")  # fmt: skip
     add_timeout_args(t)
     t.add_argument("--connect", default=None, help="endpoints every process also connects to (a Zenoh router)")
+    t.add_argument("--routers", type=int, default=0, metavar="N",
+                   help="relay the team through N meshed Zenoh routers on 127.0.0.1, every process a client of "
+                        "one (as robots on several machines would be); 0: every process a peer of the others "
+                        "(default)")  # fmt: skip
     t.add_argument("--bag", default=None, help="record the beliefs as a rosbag2 (folder to create)")
     t.add_argument("--max-wall", "--timeout", dest="max_wall", type=float, default=600.0,
                    help="stop every process after this many wall-clock seconds (default 600)")  # fmt: skip
@@ -58,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
                 src=src, robots=args.robots, source=args.source, estimator=args.estimator, duration=args.duration,
                 seed=args.seed, config_file=args.config, server=args.server, faults=args.faults, speed=args.speed,
                 lag=args.lag, max_wall=args.max_wall, ros_domain=args.ros_domain, log_dir=f"{args.out}/logs",
-                association=src.config.filter.association,
+                association=src.config.filter.association, routers=args.routers,
                 team=args.team, verbose=args.verbose, connect_extra=endpoints(args.connect), view=view,
                 progress=start(f"team {args.source}, {args.estimator}: beliefs") if start is not None else None,
                 **timeouts(args),
