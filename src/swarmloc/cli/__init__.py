@@ -1,5 +1,5 @@
-"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | node | server | keys | compare |
-consistency | bench | map | ros | team | data``.
+"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | node | server | router | keys | compare
+| consistency | bench | map | ros | team | data``.
 
 Every command writes its results (Markdown, JSON, PNG, TUM) to an output folder and prints a short summary; errors in
 the input (a missing dataset file, a malformed line, an unknown estimator, a bad configuration) are reported in
