@@ -31,11 +31,14 @@ def main() -> None:
     ap.add_argument("--holdout", type=int, default=3, help="landmark folds held out in turn (landmarks on; 0: none)")
     ap.add_argument("--no-yaw", action="store_true", help="leave out the runs with the yaw diffusion calibrated")
     ap.add_argument("--out", type=Path, default=Path("lodo"))
+    ap.add_argument("--jobs", type=int, default=2, help="worker processes for the filter runs (default 2)")
+    ap.add_argument("--cluster", default=None, help="a Dask scheduler's address (tcp://HOST:8786) instead of --jobs")
     a = ap.parse_args()
     t = time.perf_counter()
     fd = None if a.filter_datasets is None else [int(x) for x in a.filter_datasets.split(",")]
     rep = lodo(a.mrclam, a.estimators.split(","), a.duration, [int(x) for x in a.datasets.split(",")],
-               filter_datasets=fd, progress=True, holdout=a.holdout, calibrate_yaw=not a.no_yaw)  # fmt: skip
+               filter_datasets=fd, progress=True, holdout=a.holdout, calibrate_yaw=not a.no_yaw, workers=a.jobs,
+               cluster=a.cluster)  # fmt: skip
     rep["wall_s"] = time.perf_counter() - t
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "lodo.json").write_text(json.dumps(rep, indent=2, default=json_default))

@@ -44,7 +44,7 @@ import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -58,6 +58,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion.calibrate import scale_yaw
 from swarmloc.runner import run
+from swarmloc.runner.fanout import fan_out
 from swarmloc.sensors.decorrelate import (
     CameraModel,
     DetectionSet,
@@ -68,6 +69,9 @@ from swarmloc.sensors.decorrelate import (
     heldout_score,
     snapshot_poses,
 )
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 __all__ = [
     "CUTS",
@@ -316,6 +320,27 @@ def own_std(model: CameraModel, fold: dict[str, Any]) -> tuple[float, float]:
     return model.range.std * math.sqrt(fold["ratio_range"]), model.bearing.std * math.sqrt(fold["ratio_bearing"])
 
 
+def _run_key(landmarks: bool, calibrate_yaw: bool) -> str:
+    return f"{'on' if landmarks else 'off'}{'+yaw' if calibrate_yaw else ''}"
+
+
+def _filter_job(
+    root: Path,
+    k: int,
+    model: CameraModel,
+    ref: tuple[float, float],
+    estimators: tuple[str, ...],
+    landmarks: bool,
+    calibrate_yaw: bool,
+    duration: float,
+    holdout: int,
+) -> dict[str, Any]:
+    """One filter run of :func:`lodo`: dataset ``k`` (the robots with odometry) with landmarks on or off."""
+    data = load_mrclam(root / f"MRCLAM_Dataset{k}")
+    return filter_scores(data, model, estimators, landmarks, duration, holdout=holdout, reference_std=ref,
+                         calibrate_yaw=calibrate_yaw)  # fmt: skip
+
+
 def lodo(
     root: str | Path,
     estimators: Sequence[str] = ("dekf", "ci", "rdl", "diekf", "iekf"),
@@ -326,33 +351,33 @@ def lodo(
     progress: bool = False,
     holdout: int = 3,
     calibrate_yaw: bool = True,
+    workers: int = 1,
+    cluster: str | Client | None = None,
 ) -> dict[str, Any]:
     """The whole LODO check (module docstring): model scores on every dataset of ``datasets`` found under
     ``root``, the chosen candidate, and filter scores with landmarks on and off on the ones with odometry
     (``holdout``: the landmark folds of :func:`filter_scores`); with ``calibrate_yaw`` also landmarks on with the
-    yaw diffusion calibrated from the recording's own snapshots (run keys ``k/on``, ``k/on+yaw``, ``k/off``)."""
+    yaw diffusion calibrated from the recording's own snapshots (run keys ``k/on``, ``k/on+yaw``, ``k/off``). The
+    filter runs go to ``workers`` local processes or a Dask ``cluster`` (:func:`~swarmloc.runner.fanout.fan_out`;
+    every worker needs the data under ``root``)."""
     root = Path(root)
     datas = {k: load_mrclam(root / f"MRCLAM_Dataset{k}", require=("measurements",)) for k in datasets}
     sets = {k: detection_set(d) for k, d in datas.items()}
     ms = model_scores(sets, cuts)
     chosen = ms["chosen"]
-    runs: dict[str, Any] = {}
+    jobs: list[tuple[Any, ...]] = []
     for k, d in datas.items():
-        if filter_datasets is not None and k not in filter_datasets:
+        if (filter_datasets is not None and k not in filter_datasets) or not d.odometry:
             continue
-        if not d.odometry:
-            continue
-        data = load_mrclam(root / f"MRCLAM_Dataset{k}")  # the robots with odometry
+        m, fold = ms["models"][k][chosen], ms["folds"][k][chosen]
         variants = [(True, False), (True, True), (False, False)] if calibrate_yaw else [(True, False), (False, False)]
-        for lm, cal in variants:
-            key = f"{k}/{'on' if lm else 'off'}{'+yaw' if cal else ''}"
-            if progress:
-                print(f"dataset {k}, landmarks {key.split('/')[1]}", flush=True)
-            m, fold = ms["models"][k][chosen], ms["folds"][k][chosen]
-            ref = own_std(m, fold)
-            runs[key] = filter_scores(
-                data, m, estimators, lm, duration, holdout=holdout, reference_std=ref, calibrate_yaw=cal
-            )
+        jobs += [(root, k, m, own_std(m, fold), tuple(estimators), lm, cal, duration, holdout) for lm, cal in variants]
+    done: dict[int, dict[str, Any]] = {}
+    for i, r in fan_out(_filter_job, jobs, jobs=workers, cluster=cluster):
+        done[i] = r
+        if progress:
+            print(f"dataset {jobs[i][1]}, {_run_key(*jobs[i][5:7]).split('/')[0]}: done", flush=True)
+    runs = {f"{jobs[i][1]}/{_run_key(*jobs[i][5:7])}": done[i] for i in range(len(jobs))}  # in job order
     return {"model": {k: v for k, v in ms.items() if k != "models"}, "filters": runs, "duration_s": duration,
             "models": {k: ms["models"][k][chosen].to_dict() for k in ms["models"]}, "holdout": holdout}  # fmt: skip
 
