@@ -41,8 +41,9 @@ three in a row quarantine the sender.
 
 **Anonymous detections** (``association`` ``nearest`` or ``joint``, :mod:`swarmloc.node.associate`): the pair's
 exchange needs the target before the question, so for each anonymous detection ``d`` the observer asks **every
-teammate** ``r`` with an ``RdlStateQuery`` keyed :func:`anonymous_sub` ``(d, r)``, the key ``d`` would have were it
-of ``r``. The answers give the candidates' beliefs (:meth:`RecursiveDecentralized._candidates`); the detection given
+teammate** ``r`` with an ``RdlStateQuery`` keyed :func:`~swarmloc.estimators.state_exchange.anonymous_sub` ``(d, r)``,
+the key ``d`` would have were it of ``r``. The answers give the candidates' beliefs
+(:meth:`RecursiveDecentralized._candidates`); the detection given
 ``r`` is fused under that key from ``r``'s answer, so the true target's exchange is the tagged run's, and every
 other teammate gets "no update" (:meth:`RecursiveDecentralized._settle`), which removes the
 :class:`Unconfirmed` placeholder its answer filed. A replay that changes the identity changes which teammate gets
@@ -57,20 +58,17 @@ from __future__ import annotations
 
 from bisect import bisect_left
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, CartState, DistributedEKF, linearize
-from swarmloc.events import Detection
+from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import wrap_angle
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.node import FUSED, P_GROUP, Entry, Group, Outcome, correction_nis, fits, gated_kalman, same
-from swarmloc.node.associate import is_anonymous
-from swarmloc.node.keys import detection_key
 from swarmloc.sensors.models import model
 
 _ZERO = np.zeros((3, 3))
@@ -151,12 +149,6 @@ class RdlFilter(NamedTuple):
             sigma[i] = value
             return self.ids, sigma
         return (*self.ids[:i], robot, *self.ids[i:]), np.insert(sigma, i, value, axis=0)
-
-
-def anonymous_sub(d: Detection, robot: int) -> tuple[float, ...]:
-    """The sub-key of the exchange with ``robot`` for the anonymous detection ``d``: ``d``'s key were it of
-    ``robot`` (so that, given ``robot``, the detection is fused under the key a tagged run uses)."""
-    return detection_key(replace(d, target=robot))
 
 
 def ci_pair_prior(Pii: np.ndarray, Pjj: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, bool] | None:
@@ -272,50 +264,25 @@ class RecursiveDecentralized(DistributedEKF):
 
     # ------------------------------------------------------------------------------------------------ exchange
     def _requests(self, g: Group) -> list[Message]:
-        """One ``RdlStateQuery`` per tagged robot detection (sub-key: the detection's key) and, with an association
-        policy, one per anonymous detection and teammate, keyed as that detection would be if it were of that
-        teammate (:func:`anonymous_sub`): the true target's answer is the tagged run's."""
-        out = {
-            (d.target, k): RdlStateQuery(sender=self.robot, receiver=d.target, stamp=g.t, sub=k)
-            for d, k in zip(g.detections, g.keys, strict=True)
-            if self._needs_answer(g, d)
-        }
-        mates = self._teammates(g)
-        for d in g.detections if mates else ():
-            if is_anonymous(d):
-                for r in mates:
-                    k = anonymous_sub(d, r)
-                    out.setdefault((r, k), RdlStateQuery(sender=self.robot, receiver=r, stamp=g.t, sub=k))
-        return list(out.values())
+        """:class:`~swarmloc.estimators.state_exchange.StateQueries`' queries: one ``RdlStateQuery`` per tagged robot
+        detection and, with an association policy, one per anonymous detection and teammate."""
+        return self._queries.requests(g, self._needs_answer, self._teammates(g))
 
     def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        """Each teammate's belief at the stamp from its answer to the group's first anonymous detection's query
-        (the state before that key: the same as a ``BeliefQuery``'s unless the observer's own updates of this scan
-        keyed before it reached the teammate)."""
-        anon = [d for d in g.detections if is_anonymous(d)]
-        out = {}
-        for r in mates:
-            for d in anon:
-                a: Any = g.answers.get((r, anonymous_sub(d, r)))
-                if a is not None and a.found:
-                    x, P, _ = a.arrays()
-                    out[r] = self._belief(RdlFilter(float(a.stamp), 0.0, 0.0, x, P, (), _NO_FACTORS), r)
-                    break
-        return out
+        """The teammates' beliefs from their answers to the anonymous detections' queries
+        (:meth:`~swarmloc.estimators.state_exchange.StateQueries.candidates`)."""
+        return self._queries.candidates(g, mates, self._answered_belief)
 
-    @staticmethod
-    def _unused(g: Group) -> list[tuple[int, tuple, RdlState]]:
-        """``(teammate, sub-key, answer)`` of every ``RdlStateQuery`` answer of ``g`` (identities given) that no
-        detection used: the teammates asked about an anonymous detection that was given another robot, or none."""
-        used = {(d.target, k) for d, k in zip(g.detections, g.keys, strict=True) if d.target is not None}
-        return [(r, k, a) for (r, k), a in g.answers.items() if (r, k) not in used and isinstance(a, RdlState)]
+    def _answered_belief(self, t: float, x: np.ndarray, P: np.ndarray, robot: int) -> GroupGaussian:
+        return self._belief(RdlFilter(t, 0.0, 0.0, x, P, (), _NO_FACTORS), robot)
 
     def _settle(self, g: Group) -> list[Message]:
-        """ "No update" for every unused answer (:meth:`_unused`): it closes its answerer's :class:`Unconfirmed`
-        placeholder; an answer that never came (``seq < 0``) gets the no-answer notice, as a tagged exchange."""
+        """ "No update" for every unused answer (:meth:`~swarmloc.estimators.state_exchange.StateQueries.unused`): it
+        closes its answerer's :class:`Unconfirmed` placeholder; an answer that never came (``seq < 0``) gets the
+        no-answer notice, as a tagged exchange."""
         return [
             RdlUpdate(sender=self.robot, receiver=r, stamp=g.t, sub=k, based_on=a.seq if a.found else -1)
-            for r, k, a in self._unused(g)
+            for r, k, a in self._queries.unused(g)
             if a.found or a.seq < 0
         ]
 
@@ -331,6 +298,7 @@ class RecursiveDecentralized(DistributedEKF):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        self._queries = StateQueries(self.robot)
         self._answered: dict[tuple, RdlState] = {}
         """Every revision of the states this node answered with, by ``(exchange key, revision)``: an update computed
         from a revision that differs from the latest by less than :func:`near` still applies."""
