@@ -62,13 +62,25 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, CartState, DistributedEKF, linearize
+from swarmloc.estimators.dekf import DEGENERATE, linearize, predict_run
 from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import wrap_angle
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
-from swarmloc.node import FUSED, P_GROUP, Entry, Group, Outcome, correction_nis, fits, gated_kalman, same
+from swarmloc.node import (
+    FUSED,
+    P_GROUP,
+    Entry,
+    Group,
+    Outcome,
+    RobotNode,
+    belief_of,
+    correction_nis,
+    fits,
+    gated_kalman,
+    same,
+)
 from swarmloc.sensors.models import model
 
 _ZERO = np.zeros((3, 3))
@@ -231,15 +243,16 @@ def rescale_factors(s: RdlFilter, P_new: np.ndarray) -> np.ndarray:
     return (P_new @ np.linalg.inv(s.P)) @ s.factors()
 
 
-class RecursiveDecentralized(DistributedEKF):
+class RecursiveDecentralized(RobotNode):
     """Recursive decentralized localization: pairwise exact updates, tracked correlations (module docstring)."""
 
     name = "rdl"
     update_types = (RdlUpdate,)
+    lazy_odometry = True
 
     def _initial_state(self, t0: float) -> RdlFilter:
-        s = super()._initial_state(t0)
-        return RdlFilter(s.t, s.v, s.w, s.x, s.P, (), np.zeros((0, 3, 3)))
+        x, P = C.from_group(self.initial.mean, self.initial.cov)
+        return RdlFilter(t0, 0.0, 0.0, x, P, (), np.zeros((0, 3, 3)))
 
     def _advance(self, s: RdlFilter, robot: int, t: float) -> RdlFilter:
         dt = t - s.t
@@ -255,12 +268,12 @@ class RecursiveDecentralized(DistributedEKF):
         """A run of odometry in one float loop, the factors' deferred shear accumulated as :meth:`_advance` does
         (the same bits as one :meth:`_advance` per command)."""
         if self.measure_time:
-            return super(DistributedEKF, self)._advance_commands(s, cmds)
-        x, P, t, (v, w), (sa, sb) = self._predict_run(s, (s.sa, s.sb), cmds)
+            return super()._advance_commands(s, cmds)
+        x, P, t, (v, w), (sa, sb) = predict_run(s, (s.sa, s.sb), cmds, self.noise)
         return RdlFilter(t, v, w, x, P, s.ids, s.sigma, sa, sb)
 
     def _belief(self, s: RdlFilter, robot: int) -> Any:
-        return super()._belief(CartState(s.t, s.v, s.w, s.x, s.P), robot)
+        return belief_of(*C.to_group(s.x, s.P))
 
     # ------------------------------------------------------------------------------------------------ exchange
     def _requests(self, g: Group) -> list[Message]:
@@ -322,8 +335,6 @@ class RecursiveDecentralized(DistributedEKF):
         """Answer as every node does; an ``RdlStateQuery`` answered with this node's state also files an
         :class:`Unconfirmed` placeholder at the exchange's key (module docstring), unless an update is filed there."""
         out = self._keep(super()._on_query(q))
-        if RdlUpdate not in self.update_types:  # a subclass with another exchange (diekf broadcasts its updates)
-            return out
         if isinstance(q, RdlStateQuery) and len(out) == 1 and isinstance(out[0], RdlState) and out[0].found:
             key = (float(q.stamp), P_GROUP, q.sender, tuple(q.sub))
             if self._history.find(key) is None:
