@@ -49,7 +49,7 @@ class StateQueries:
         out = {
             (d.target, k): RdlStateQuery(sender=self.robot, receiver=d.target, stamp=g.t, sub=k)
             for d, k in zip(g.detections, g.keys, strict=True)
-            if needs_answer(g, d)
+            if d.target is not None and needs_answer(g, d)
         }
         for d in g.detections if mates else ():
             if is_anonymous(d):
