@@ -14,7 +14,7 @@ detection instead of ``O(n^3)``); a run of odometry is predicted in one float lo
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -23,11 +23,8 @@ from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
-from swarmloc.lie import SE2
 from swarmloc.messages import Message
-from swarmloc.motion import UnicycleNoise
-from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, check_model, gated_kalman
-from swarmloc.node.associate import AssociationView, associate, check_association, check_sensor, is_anonymous
+from swarmloc.node import FUSED, Group, Outcome, TeamNode, belief_of, gated_kalman
 from swarmloc.sensors.models import model
 
 
@@ -96,57 +93,20 @@ def flush_pending(s: TeamState) -> TeamState:
     return TeamState(s.X, P, s.t, s.cmd, (None,) * len(s.pend))
 
 
-class CentralizedEKF(Node):
-    """Centralized CL-EKF with the joint covariance of the team.
-
-    Parameters
-    ----------
-    initial: every robot's initial belief (SE(2) :class:`~swarmloc.gaussian.GroupGaussian`), by robot id.
-    noise: process noise of the odometry (the same model for every robot).
-    association, association_gate, sensor_range [m], sensor_fov [rad]: as
-        :class:`~swarmloc.node.robot.RobotNode`'s (the marginals are the candidates).
-
-    Other keywords: see :class:`~swarmloc.node.base.Node`.
-    """
+class CentralizedEKF(TeamNode):
+    """Centralized CL-EKF with the joint covariance of the team. Parameters: :class:`~swarmloc.node.team.TeamNode`'s
+    (every robot's initial SE(2) belief by id, the odometry noise, the association policy, the node's keywords)."""
 
     name = "cekf"
-    distributed = False
     lazy_odometry = True
     error_frame: ClassVar[str] = "cartesian"
     lin_log: list | None = None
     """Set to a list to record every applied linearization (:mod:`swarmloc.evaluation.observability`)."""
-    groups: ClassVar[tuple[type, ...]] = (SE2,)
-    """The group of every robot's pose (SE(3): :class:`~swarmloc.estimators.cekf3.CentralizedEKF3`)."""
-    dim: ClassVar[int] = 3
-    """Size of one robot's block of the joint state."""
 
-    def __init__(
-        self,
-        initial: Mapping[int, GroupGaussian],
-        *,
-        noise: UnicycleNoise,
-        association: str = "tags",
-        association_gate: float = 0.99,
-        sensor_range: float | None = None,
-        sensor_fov: float | None = None,
-        **kw: Any,
-    ) -> None:
-        cls = type(self).__name__
-        if not isinstance(initial, Mapping) or not initial:
-            raise ValueError(f"{cls}: 'initial' must map each robot id to its initial belief (at least one robot)")
-        check_association(cls, association, association_gate)
-        check_sensor(cls, sensor_range, sensor_fov)
-        self.association = association
-        self.association_gate = float(association_gate)
-        self.sensor_range = sensor_range
-        self.sensor_fov = sensor_fov
-        check_model(cls, initial, noise, self.groups)
-        self.initial = dict(initial)
-        self.noise = noise
-        robots = sorted(initial)
-        self._idx = {r: self.dim * i for i, r in enumerate(robots)}
-        self._angles = tuple(range(2, 3 * len(robots), 3))
-        super().__init__(robots, **kw)
+    @property
+    def _angles(self) -> tuple[int, ...]:
+        """Indices of the headings in the joint state (wrapped in innovations)."""
+        return tuple(range(2, 3 * len(self.robots), 3))
 
     # ------------------------------------------------------------------------------------------------ filter
     def _initial_state(self, t0: float) -> TeamState:
@@ -235,29 +195,7 @@ class CentralizedEKF(Node):
         s = flush_pending(s)
         return s.X.copy(), s.P.copy()
 
-    def _joint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        return self.joint_at(t)
-
     # ------------------------------------------------------------------------------------------------ update
-    def _robot_target(self, g: Group, d: Any, sub: tuple) -> tuple[str, Any]:
-        if d.target not in self._idx:
-            return ("unknown", f"robot {d.target} is not in the team")
-        return ("robot", d.target)
-
-    def _associate(self, s: TeamState, g: Group) -> AssociationView | None:
-        """Identities for the group's anonymous robot detections (:mod:`swarmloc.node.associate`) from every
-        robot's marginal predicted to the group's stamp (the joint's cross-covariances are left out of the choice,
-        not of the update); the prediction is for the choice only, the filter's own steps stay as with tags."""
-        if self.association == "tags" or not self.use_relative or not any(is_anonymous(d) for d in g.detections):
-            return None
-        sf = s
-        others = [r for r in self.robots if r != g.observer]
-        for r in others:
-            sf = self._adv(sf, r, g.t)
-        cands = {r: self._belief(sf, r) for r in others}
-        return associate(g, self.association, self.association_gate, self._belief(s, g.observer), cands,
-                         self.sensor_range, self.sensor_fov)  # fmt: skip
-
     def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
         outcomes: list[Outcome] = []
         i = self._idx[g.observer]

@@ -28,7 +28,6 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.cekf import CentralizedEKF
 from swarmloc.estimators.dekf3 import to_error, to_group, transition
 from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
@@ -36,7 +35,7 @@ from swarmloc.lie import SE3
 from swarmloc.lie.se3 import so3_exp
 from swarmloc.messages import Message
 from swarmloc.motion.twist3 import as_twist, twist_increment
-from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, gated_kalman
+from swarmloc.node import FUSED, Group, Node, Outcome, TeamNode, belief_of, gated_kalman
 from swarmloc.sensors.models3 import DEGENERATE3, MODELS3, model3
 
 __all__ = ["CentralizedEKF3", "Team3State"]
@@ -59,10 +58,11 @@ def _pose(p: np.ndarray, R: np.ndarray) -> np.ndarray:
     return g
 
 
-class CentralizedEKF3(CentralizedEKF):
+class CentralizedEKF3(TeamNode):
     """Centralized EKF of a 3-D team (module docstring); takes ``"pose3"``, ``"rbe3"`` and ``"bearing3"``
     detections of robots and ``"rbe3"`` / ``"bearing3"`` ones of known 3-D landmarks."""
 
+    name = "cekf"
     groups: ClassVar[tuple[type, ...]] = (SE3,)
     dim: ClassVar[int] = 6
     lazy_odometry = False

@@ -59,6 +59,21 @@ def linearize(d: Any, x: np.ndarray, target: tuple[str, Any]) -> tuple[np.ndarra
     return m.residual(d.z, h), Hi, R + Hk @ Pk @ Hk.T, Hk
 
 
+def predict_run(s: Any, shear: tuple[float, float], cmds: Any, noise: Any) -> tuple:
+    """:func:`~swarmloc.kernels.cartesian.predict_run` of the odometry run ``cmds`` (``(t, robot, v, w)``) with
+    process noise ``noise`` on a state with ``t, v, w, x, P``: the new ``(x, P, t, (v, w), shear)`` (``x`` and ``P``
+    the same objects when nothing was predicted; ``shear``: rdl's deferred factor shear, accumulated)."""
+    p00, p01, p02, _, p11, p12, _, _, p22 = s.P.ravel().tolist()
+    x, p, t, cmd, shear = C.predict_run(
+        tuple(s.x.tolist()), (p00, p01, p02, p11, p12, p22), s.t, (s.v, s.w), shear,
+        [(tk, vk, wk) for tk, _, vk, wk in cmds], noise,
+    )  # fmt: skip
+    if t == s.t:  # no prediction: only the command changed
+        return s.x, s.P, t, cmd, shear
+    p00, p01, p02, p11, p12, p22 = p
+    return np.array(x), np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]), t, cmd, shear
+
+
 class DistributedEKF(RobotNode):
     """Distributed EKF: one Cartesian EKF per robot, neighbours' covariances as noise, one detection at a time."""
 
@@ -84,21 +99,8 @@ class DistributedEKF(RobotNode):
         :meth:`_advance` per command; tests/test_node.py checks it for every estimator)."""
         if self.measure_time:
             return super()._advance_commands(s, cmds)
-        x, P, t, (v, w), _ = self._predict_run(s, (0.0, 0.0), cmds)
+        x, P, t, (v, w), _ = predict_run(s, (0.0, 0.0), cmds, self.noise)
         return CartState(t, v, w, x, P)
-
-    def _predict_run(self, s: Any, shear: tuple[float, float], cmds: Any) -> tuple:
-        """:func:`~swarmloc.kernels.cartesian.predict_run` on a state with ``t, v, w, x, P``: the new ``(x, P, t,
-        (v, w), shear)`` (``x`` and ``P`` the same objects when nothing was predicted)."""
-        p00, p01, p02, _, p11, p12, _, _, p22 = s.P.ravel().tolist()
-        x, p, t, cmd, shear = C.predict_run(
-            tuple(s.x.tolist()), (p00, p01, p02, p11, p12, p22), s.t, (s.v, s.w), shear,
-            [(tk, vk, wk) for tk, _, vk, wk in cmds], self.noise,
-        )  # fmt: skip
-        if t == s.t:  # no prediction: only the command changed
-            return s.x, s.P, t, cmd, shear
-        p00, p01, p02, p11, p12, p22 = p
-        return np.array(x), np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]), t, cmd, shear
 
     def _belief(self, s: CartState, robot: int) -> GroupGaussian:
         return belief_of(*C.to_group(s.x, s.P))

@@ -51,10 +51,10 @@ and the cost per robot against team size: ``benchmarks/diekf_cluster.py``.
 
 Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
 ``RdlStateQuery`` keyed as the detection would be were it of that teammate
-(:func:`~swarmloc.estimators.rdl.anonymous_sub`), as ``rdl`` does; the detection given a robot is broadcast under
-that key, so where the identity is right the broadcast is the tagged run's. Every other teammate's exchange is
-settled by an empty broadcast under its key (:meth:`DistributedInvariantEKF._settle`), as a gated detection's: an
-answerer over the network waits for the broadcast keyed by the query it answered before it goes on.
+(:func:`~swarmloc.estimators.state_exchange.anonymous_sub`), as ``rdl`` does; the detection given a robot is
+broadcast under that key, so where the identity is right the broadcast is the tagged run's. Every other teammate's
+exchange is settled by an empty broadcast under its key (:meth:`DistributedInvariantEKF._settle`), as a gated
+detection's: an answerer over the network waits for the broadcast keyed by the query it answered before it goes on.
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
-from swarmloc.estimators.rdl import RecursiveDecentralized
+from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
@@ -87,6 +87,7 @@ from swarmloc.node import (
     Group,
     Node,
     Outcome,
+    RobotNode,
     belief_of,
     broadcast_nis,
     fits,
@@ -98,6 +99,8 @@ from swarmloc.sensors.models import model
 __all__ = ["DistributedInvariantEKF", "TeamState"]
 
 _EYE = flat(np.eye(3))
+_NO_SIGMA = np.zeros((0, 0, 3, 3))
+_NO_SIGMA.setflags(write=False)
 
 
 class TeamState(NamedTuple):
@@ -123,13 +126,15 @@ def _pair(d: Any, xi: np.ndarray, xj: np.ndarray) -> tuple[np.ndarray, ...] | No
     return mm.residual(d.z, h), Hi_c @ I.world_basis(xi), Hj_c @ I.world_basis(xj), mm.noise(d.z, d.cov)
 
 
-class DistributedInvariantEKF(RecursiveDecentralized):
+class DistributedInvariantEKF(RobotNode):
     """Exact distributed invariant EKF (module docstring). ``team``: every robot id of the team (``make_team``
     passes it). ``cluster``: 0 (default) for the exact filter over the whole team, or ``K >= 1`` robots per
     cluster (module docstring, "Clusters"): replica and broadcasts over the robot's cluster only, covariance
-    intersection with robots outside it."""
+    intersection with robots outside it. The exchange's queries are
+    :class:`~swarmloc.estimators.state_exchange.StateQueries`' (``rdl``'s)."""
 
     name = "diekf"
+    lazy_odometry = True
     error_frame: ClassVar[str] = "world"
     update_types = (TeamUpdate,)
     lin_log: list | None = None
@@ -162,6 +167,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
         self._pos = {r: k for k, r in enumerate(self.team)}
         self._unusable: set[tuple] = set()
         super().__init__(robot, initial, team=self.team, **kw)
+        self._queries = StateQueries(self.robot)
 
     # ------------------------------------------------------------------------------------------------ filter
     def _initial_state(self, t0: float) -> TeamState:
@@ -306,7 +312,7 @@ class DistributedInvariantEKF(RecursiveDecentralized):
     def _requests(self, g: Group) -> list[Message]:
         """``rdl``'s queries; with clusters, a robot outside the cluster is asked a ``BeliefQuery`` instead (its
         belief is all :meth:`_outsider` needs, and an answerer outside the cluster waits for no broadcast)."""
-        out = super()._requests(g)
+        out = self._queries.requests(g, self._needs_answer, self._teammates(g))
         if not self.cluster:
             return out
         kept: dict[tuple, Message] = {}
@@ -316,6 +322,12 @@ class DistributedInvariantEKF(RecursiveDecentralized):
             else:
                 kept.setdefault((q.receiver, ()), BeliefQuery(sender=self.robot, receiver=q.receiver, stamp=q.stamp))
         return list(kept.values())
+
+    def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
+        return self._queries.candidates(g, mates, self._answered_belief)
+
+    def _answered_belief(self, t: float, x: np.ndarray, P: np.ndarray, robot: int) -> GroupGaussian:
+        return self._belief(TeamState(t, 0.0, 0.0, x, P, _NO_SIGMA), robot)
 
     def _robot_target(self, g: Group, d: Any, sub: tuple) -> tuple[str, Any]:
         if self.cluster and d.target not in self._pos:
@@ -369,12 +381,13 @@ class DistributedInvariantEKF(RecursiveDecentralized):
 
     # ------------------------------------------------------------------------------------------------ broadcasts
     def _settle(self, g: Group) -> list[Message]:
-        """An empty broadcast under the key of every found answer that no detection used (:meth:`_unused`): the
-        answerer knows the exchange is settled (each teammate counts it ``no_update``)."""
+        """An empty broadcast under the key of every found answer that no detection used
+        (:meth:`~swarmloc.estimators.state_exchange.StateQueries.unused`): the answerer knows the exchange is settled
+        (each teammate counts it ``no_update``)."""
         mates = [r for r in self.team if r != self.robot]
         return [
             TeamUpdate(sender=self.robot, receiver=m, stamp=g.t, sub=k)
-            for _, k, a in self._unused(g)
+            for _, k, a in self._queries.unused(g)
             if a.found
             for m in mates
         ]

@@ -41,8 +41,9 @@ three in a row quarantine the sender.
 
 **Anonymous detections** (``association`` ``nearest`` or ``joint``, :mod:`swarmloc.node.associate`): the pair's
 exchange needs the target before the question, so for each anonymous detection ``d`` the observer asks **every
-teammate** ``r`` with an ``RdlStateQuery`` keyed :func:`anonymous_sub` ``(d, r)``, the key ``d`` would have were it
-of ``r``. The answers give the candidates' beliefs (:meth:`RecursiveDecentralized._candidates`); the detection given
+teammate** ``r`` with an ``RdlStateQuery`` keyed :func:`~swarmloc.estimators.state_exchange.anonymous_sub` ``(d, r)``,
+the key ``d`` would have were it of ``r``. The answers give the candidates' beliefs
+(:meth:`RecursiveDecentralized._candidates`); the detection given
 ``r`` is fused under that key from ``r``'s answer, so the true target's exchange is the tagged run's, and every
 other teammate gets "no update" (:meth:`RecursiveDecentralized._settle`), which removes the
 :class:`Unconfirmed` placeholder its answer filed. A replay that changes the identity changes which teammate gets
@@ -57,20 +58,29 @@ from __future__ import annotations
 
 from bisect import bisect_left
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, CartState, DistributedEKF, linearize
-from swarmloc.events import Detection
+from swarmloc.estimators.dekf import DEGENERATE, linearize, predict_run
+from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import wrap_angle
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
-from swarmloc.node import FUSED, P_GROUP, Entry, Group, Outcome, correction_nis, fits, gated_kalman, same
-from swarmloc.node.associate import is_anonymous
-from swarmloc.node.keys import detection_key
+from swarmloc.node import (
+    FUSED,
+    P_GROUP,
+    Entry,
+    Group,
+    Outcome,
+    RobotNode,
+    belief_of,
+    correction_nis,
+    fits,
+    gated_kalman,
+    same,
+)
 from swarmloc.sensors.models import model
 
 _ZERO = np.zeros((3, 3))
@@ -153,12 +163,6 @@ class RdlFilter(NamedTuple):
         return (*self.ids[:i], robot, *self.ids[i:]), np.insert(sigma, i, value, axis=0)
 
 
-def anonymous_sub(d: Detection, robot: int) -> tuple[float, ...]:
-    """The sub-key of the exchange with ``robot`` for the anonymous detection ``d``: ``d``'s key were it of
-    ``robot`` (so that, given ``robot``, the detection is fused under the key a tagged run uses)."""
-    return detection_key(replace(d, target=robot))
-
-
 def ci_pair_prior(Pii: np.ndarray, Pjj: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, bool] | None:
     """The pair's joint prior when their cross-covariance is unknown: ``blockdiag(Pii / w, Pjj / (1 - w))``, which
     bounds the joint covariance for every ``w`` in (0, 1) and every cross-covariance (covariance intersection), and
@@ -239,15 +243,16 @@ def rescale_factors(s: RdlFilter, P_new: np.ndarray) -> np.ndarray:
     return (P_new @ np.linalg.inv(s.P)) @ s.factors()
 
 
-class RecursiveDecentralized(DistributedEKF):
+class RecursiveDecentralized(RobotNode):
     """Recursive decentralized localization: pairwise exact updates, tracked correlations (module docstring)."""
 
     name = "rdl"
     update_types = (RdlUpdate,)
+    lazy_odometry = True
 
     def _initial_state(self, t0: float) -> RdlFilter:
-        s = super()._initial_state(t0)
-        return RdlFilter(s.t, s.v, s.w, s.x, s.P, (), np.zeros((0, 3, 3)))
+        x, P = C.from_group(self.initial.mean, self.initial.cov)
+        return RdlFilter(t0, 0.0, 0.0, x, P, (), np.zeros((0, 3, 3)))
 
     def _advance(self, s: RdlFilter, robot: int, t: float) -> RdlFilter:
         dt = t - s.t
@@ -263,59 +268,34 @@ class RecursiveDecentralized(DistributedEKF):
         """A run of odometry in one float loop, the factors' deferred shear accumulated as :meth:`_advance` does
         (the same bits as one :meth:`_advance` per command)."""
         if self.measure_time:
-            return super(DistributedEKF, self)._advance_commands(s, cmds)
-        x, P, t, (v, w), (sa, sb) = self._predict_run(s, (s.sa, s.sb), cmds)
+            return super()._advance_commands(s, cmds)
+        x, P, t, (v, w), (sa, sb) = predict_run(s, (s.sa, s.sb), cmds, self.noise)
         return RdlFilter(t, v, w, x, P, s.ids, s.sigma, sa, sb)
 
     def _belief(self, s: RdlFilter, robot: int) -> Any:
-        return super()._belief(CartState(s.t, s.v, s.w, s.x, s.P), robot)
+        return belief_of(*C.to_group(s.x, s.P))
 
     # ------------------------------------------------------------------------------------------------ exchange
     def _requests(self, g: Group) -> list[Message]:
-        """One ``RdlStateQuery`` per tagged robot detection (sub-key: the detection's key) and, with an association
-        policy, one per anonymous detection and teammate, keyed as that detection would be if it were of that
-        teammate (:func:`anonymous_sub`): the true target's answer is the tagged run's."""
-        out = {
-            (d.target, k): RdlStateQuery(sender=self.robot, receiver=d.target, stamp=g.t, sub=k)
-            for d, k in zip(g.detections, g.keys, strict=True)
-            if self._needs_answer(g, d)
-        }
-        mates = self._teammates(g)
-        for d in g.detections if mates else ():
-            if is_anonymous(d):
-                for r in mates:
-                    k = anonymous_sub(d, r)
-                    out.setdefault((r, k), RdlStateQuery(sender=self.robot, receiver=r, stamp=g.t, sub=k))
-        return list(out.values())
+        """:class:`~swarmloc.estimators.state_exchange.StateQueries`' queries: one ``RdlStateQuery`` per tagged robot
+        detection and, with an association policy, one per anonymous detection and teammate."""
+        return self._queries.requests(g, self._needs_answer, self._teammates(g))
 
     def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        """Each teammate's belief at the stamp from its answer to the group's first anonymous detection's query
-        (the state before that key: the same as a ``BeliefQuery``'s unless the observer's own updates of this scan
-        keyed before it reached the teammate)."""
-        anon = [d for d in g.detections if is_anonymous(d)]
-        out = {}
-        for r in mates:
-            for d in anon:
-                a: Any = g.answers.get((r, anonymous_sub(d, r)))
-                if a is not None and a.found:
-                    x, P, _ = a.arrays()
-                    out[r] = self._belief(RdlFilter(float(a.stamp), 0.0, 0.0, x, P, (), _NO_FACTORS), r)
-                    break
-        return out
+        """The teammates' beliefs from their answers to the anonymous detections' queries
+        (:meth:`~swarmloc.estimators.state_exchange.StateQueries.candidates`)."""
+        return self._queries.candidates(g, mates, self._answered_belief)
 
-    @staticmethod
-    def _unused(g: Group) -> list[tuple[int, tuple, RdlState]]:
-        """``(teammate, sub-key, answer)`` of every ``RdlStateQuery`` answer of ``g`` (identities given) that no
-        detection used: the teammates asked about an anonymous detection that was given another robot, or none."""
-        used = {(d.target, k) for d, k in zip(g.detections, g.keys, strict=True) if d.target is not None}
-        return [(r, k, a) for (r, k), a in g.answers.items() if (r, k) not in used and isinstance(a, RdlState)]
+    def _answered_belief(self, t: float, x: np.ndarray, P: np.ndarray, robot: int) -> GroupGaussian:
+        return self._belief(RdlFilter(t, 0.0, 0.0, x, P, (), _NO_FACTORS), robot)
 
     def _settle(self, g: Group) -> list[Message]:
-        """ "No update" for every unused answer (:meth:`_unused`): it closes its answerer's :class:`Unconfirmed`
-        placeholder; an answer that never came (``seq < 0``) gets the no-answer notice, as a tagged exchange."""
+        """ "No update" for every unused answer (:meth:`~swarmloc.estimators.state_exchange.StateQueries.unused`): it
+        closes its answerer's :class:`Unconfirmed` placeholder; an answer that never came (``seq < 0``) gets the
+        no-answer notice, as a tagged exchange."""
         return [
             RdlUpdate(sender=self.robot, receiver=r, stamp=g.t, sub=k, based_on=a.seq if a.found else -1)
-            for r, k, a in self._unused(g)
+            for r, k, a in self._queries.unused(g)
             if a.found or a.seq < 0
         ]
 
@@ -331,6 +311,7 @@ class RecursiveDecentralized(DistributedEKF):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        self._queries = StateQueries(self.robot)
         self._answered: dict[tuple, RdlState] = {}
         """Every revision of the states this node answered with, by ``(exchange key, revision)``: an update computed
         from a revision that differs from the latest by less than :func:`near` still applies."""
@@ -354,8 +335,6 @@ class RecursiveDecentralized(DistributedEKF):
         """Answer as every node does; an ``RdlStateQuery`` answered with this node's state also files an
         :class:`Unconfirmed` placeholder at the exchange's key (module docstring), unless an update is filed there."""
         out = self._keep(super()._on_query(q))
-        if RdlUpdate not in self.update_types:  # a subclass with another exchange (diekf broadcasts its updates)
-            return out
         if isinstance(q, RdlStateQuery) and len(out) == 1 and isinstance(out[0], RdlState) and out[0].found:
             key = (float(q.stamp), P_GROUP, q.sender, tuple(q.sub))
             if self._history.find(key) is None:

@@ -16,6 +16,7 @@ from swarmloc.node.inputs import Landmarks, OdometryTimeline, landmark_state, od
 from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
 from swarmloc.node.protocol import belief_answer, refusal, same
 from swarmloc.node.robot import RobotNode, check_model
+from swarmloc.node.team import TeamNode
 from swarmloc.node.trust import DEFAULT_QUARANTINE, broadcast_nis, correction_nis, fits
 from swarmloc.node.update import (
     FUSED,
@@ -50,6 +51,7 @@ __all__ = [
     "OdometryTimeline",
     "Outcome",
     "RobotNode",
+    "TeamNode",
     "belief_answer",
     "belief_of",
     "broadcast_nis",
