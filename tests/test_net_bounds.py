@@ -468,7 +468,7 @@ def test_a_message_stamped_1e9_publishes_nothing_ahead_of_time():
     for stamp in (1e9, net.node.present + net.node.tolerance + 1.0):
         u = RdlUpdate(sender=1, receiver=0, stamp=stamp, sub=(0.0,), x=(0.0, 0.0, 0.0), P=COV)
         net._handle("inbox", _Sample(encode("t", 1, int(stamp) % 97, u)))
-    assert net.counts["beliefs_published"] == published and net._final == 0
+    assert net.counts["beliefs_published"] == published and net.publishing.final == 0
     assert net.node.counts["messages_rejected"] == 2
 
 

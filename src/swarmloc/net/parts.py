@@ -17,13 +17,14 @@ if TYPE_CHECKING:
     from collections.abc import Callable
     from typing import Any
 
-    from swarmloc.arrays import FloatArray
     from swarmloc.messages import Message, TeamUpdate
     from swarmloc.net.auth import Auth
     from swarmloc.net.faults import Faults, LinkFaults
     from swarmloc.net.feed import LiveFeed
     from swarmloc.net.intake import Intake
-    from swarmloc.net.schema import Belief, Broadcast, BroadcastRepair, Envelope, Lines, Rejected
+    from swarmloc.net.publishing import Announcer, Publishing
+    from swarmloc.net.schema import Broadcast, BroadcastRepair, Envelope, Rejected
+    from swarmloc.net.settings import NetSettings
     from swarmloc.node import Node
 
 
@@ -40,21 +41,9 @@ class NodeParts:
         scope: str
         roster: frozenset[int]
         auth: Auth | None
-        record_times: FloatArray
-        lag: float
-        answer_timeout: float
-        hold_timeout: float
-        update_timeout: float
-        answer_retries: int
-        lost_timeout: float
-        use_server: bool
+        settings: NetSettings
         faults: Faults | None
         link: LinkFaults | None
-        ros_domain: int | None
-        on_belief: Callable[[Belief], None] | None
-        on_lines: Callable[[Lines], None] | None
-        on_settled: Callable[[float, Any], None] | None
-        scans: Any
         counts: Counter[str]
         reasons: Counter[str]
         _intake: Intake
@@ -62,6 +51,8 @@ class NodeParts:
         _stop: threading.Event
         _i: int
         feed: LiveFeed | None
+        publishing: Publishing
+        announcer: Announcer
         items: list[tuple[float, Any]]
         _feed_w: float
         broadcasts: bool
@@ -87,8 +78,6 @@ class NodeParts:
         _outstanding: dict[int, tuple[Message, str, bool]]
         _gets: dict[int, int]
         _again: dict[int, tuple[int, float]]
-        # the publishing's
-        _delayed: dict[float, Belief] | None
 
         # inbound
         def _step(self, item: Any, query: Any = ...) -> None: ...
@@ -113,9 +102,8 @@ class NodeParts:
         def _route(self, msgs: list[Message], query: Any = ..., asked: Message | None = ...) -> None: ...
         def _send_failed(self, exc: Exception) -> None: ...
 
-        # publishing
+        # the node's
         def _next_key(self) -> tuple[float, int]: ...
-        def _publish_due(self, end: bool = ..., upto: float = ...) -> None: ...
 
         # broadcast
         def _queue_broadcast(self, m: TeamUpdate) -> None: ...

@@ -12,6 +12,7 @@ up before it declares its token (:mod:`swarmloc.net.pairing`).
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from swarmloc.net.pairing import attach
@@ -27,6 +28,10 @@ class Wiring(NodeParts):
         self._block: Any = None  # zenoh.CongestionControl.BLOCK once opened (zenoh is imported lazily)
         self._ros_pub: Any = None
         self._ros_graph: Any = None
+        self._pub_belief: Any = None  # the publishers, once opened
+        self._pub_progress: Any = None
+        self._pub_delayed: Any = None  # declared for a smoother's delayed output only
+        self._pub_lines: Any = None  # declared with scans only
 
     def _open(self) -> None:
         """Declare the node's queryable, subscribers, publishers and liveliness token on its session."""
@@ -65,28 +70,46 @@ class Wiring(NodeParts):
                 )
         self._pub_belief = s.declare_publisher(robot_key(team, r, "belief"), congestion_control=self._block)
         self._pub_progress = s.declare_publisher(robot_key(team, r, "progress"), congestion_control=self._block)
-        if self._delayed is not None:  # a smoother's delayed output (:mod:`.publishing`)
+        if self.publishing.delayed is not None:  # a smoother's delayed output (:mod:`.publishing`)
             self._pub_delayed = s.declare_publisher(robot_key(team, r, "delayed"), congestion_control=self._block)
-        if self.scans is not None:  # each scan's world lines, for the belief server's map
+        if self.publishing.scans is not None:  # each scan's world lines, for the belief server's map
             self._pub_lines = s.declare_publisher(robot_key(team, r, "lines"), congestion_control=self._block)
-        if self.ros_domain is not None:
+        if self.settings.ros_domain is not None:
             import hashlib
 
             from swarmloc.net import ros
 
             # the ROS topic names the team, not the run: a run id may start with a digit, which ROS names refuse
             self.ros_topic = f"/swarmloc/{self.team.replace('-', '_')}/robot{r}/pose"
-            key = ros.ros_key(self.ros_topic, self.ros_domain)
+            key = ros.ros_key(self.ros_topic, self.settings.ros_domain)
             self._ros_pub = s.declare_publisher(key, congestion_control=self._block)
             self._ros_gid = hashlib.blake2b(key.encode(), digest_size=16).digest()
             self._ros_seq = 0
             from swarmloc.net.rosgraph import RosGraph  # in the ROS graph: ros2 node list / topic list see it
 
-            self._ros_graph = RosGraph(s, self.ros_domain, f"/swarmloc/{self.team.replace('-', '_')}", f"robot{r}")
+            domain = self.settings.ros_domain
+            self._ros_graph = RosGraph(s, domain, f"/swarmloc/{self.team.replace('-', '_')}", f"robot{r}")
             self._ros_graph.publisher(self.ros_topic, ros.DDS_TYPE_NAME, ros.type_hash())
         if self.auth is not None:  # a session with every member up now, before the team hears of this process
             self.auth.sessions.hello_all()
         self._token = s.liveliness().declare_token(alive_key(team, r))
+
+    def _put(self, kind: str, body: Any) -> None:
+        """Sign ``body`` and publish it on this robot's ``kind`` key (``belief``, ``progress``, ``delayed``,
+        ``lines``: each declared by :meth:`_open`)."""
+        pub = {"belief": self._pub_belief, "progress": self._pub_progress, "delayed": self._pub_delayed,
+               "lines": self._pub_lines}[kind]  # fmt: skip
+        pub.put(self._env(body, robot_key(self.scope, self.robot, kind)))
+
+    def _put_ros(self, t: Any, b: Any) -> None:
+        """Publish belief ``b`` (a group Gaussian) at time ``t`` on the ROS pose topic, if there is one."""
+        if self._ros_pub is None:
+            return
+        from swarmloc.net import ros
+
+        self._ros_seq += 1  # rmw_zenoh drops samples without its attachment (sequence, source time, gid)
+        att = ros.ros_attachment(self._ros_seq, time.time_ns(), self._ros_gid)
+        self._ros_pub.put(ros.to_cdr(ros.pose_message(t, b.mean, b.cov)), attachment=att)
 
     def _close(self) -> None:
         """Undeclare everything :meth:`_open` declared (the session itself belongs to the caller)."""
