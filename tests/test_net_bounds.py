@@ -269,7 +269,7 @@ def _handle_all(net, raw: bytes, t: float) -> list[tuple[str, int]]:
 def _realistic(net, src, upto: float):
     """``net``'s node a few seconds into its own source (its inputs stepped as the driver would)."""
     net.session = _BSession()  # records what is sent, published and pushed
-    net._pub_belief = net._pub_progress = _Pub(net.session, "belief")
+    net.wiring.pub["belief"] = net.wiring.pub["progress"] = _Pub(net.session, "belief")
     for e in src.own_events(net.robot):
         if e.stamp > upto:
             break

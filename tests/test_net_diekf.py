@@ -74,7 +74,7 @@ def offline_diekf(robot: int = 0, **kw) -> tuple[NetNode, object]:
     node.start(src.t_start)
     net = NetNode(node, src.own_events(robot), session=_BSession(), team="t", roster=src.robots,
                   record_times=src.record_times(), **kw)  # fmt: skip
-    net._pub_belief = _Pub(net.session, "belief")  # never opened: the beliefs it publishes are recorded
+    net.wiring.pub["belief"] = _Pub(net.session, "belief")  # never opened: the beliefs it publishes are recorded
     return net, src
 
 

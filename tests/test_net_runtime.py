@@ -165,7 +165,7 @@ def test_a_node_waits_for_its_teammates_no_longer_than_its_wall_time_bound(caplo
     session = open_session([f"tcp/127.0.0.1:{port}"], [])
     try:
         net = offline_net(start_timeout=30.0)
-        net.session = session
+        net.session = net.wiring.session = session  # the node sends on it, its wiring declares on it
         t0 = time.monotonic()
         with caplog.at_level(logging.INFO, logger="swarmloc.net.process"):
             net.run(max_wall=1.0)
@@ -461,7 +461,7 @@ def test_traffic_that_never_settles_does_not_hold_a_node_at_its_end():
     from types import SimpleNamespace
 
     net = offline_net(linger=0.5)
-    net.session = net._pub_progress = net._pub_belief = SimpleNamespace(put=lambda *a, **k: None)
+    net.session = net.wiring.pub["progress"] = net.wiring.pub["belief"] = SimpleNamespace(put=lambda *a, **k: None)
     net._i = len(net.items)  # its source read; robots 1 and 2 not alive: the team has read its sources
     flood = _Flood(b"not a message")
     flood.get = flood.get_nowait = lambda timeout=None: ("inbox", flood.sample)  # neighbours' traffic, forever

@@ -139,7 +139,7 @@ class Outbound(NodeParts):
             return
         self._last_flush = now
         out, self._outbox = self._outbox, {}
-        put, block = self.session.put, self._block
+        put, block = self.session.put, self.wiring.block
         for m in out.values():
             key = robot_key(self.scope, m.receiver, "inbox")
             payload = self._env(m, key)

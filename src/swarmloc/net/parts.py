@@ -1,10 +1,15 @@
-"""What the parts of :class:`~swarmloc.net.process.NetNode` share, declared once for the type checker.
+"""What the mixin parts of :class:`~swarmloc.net.process.NetNode` share, declared once for the type checker.
 
-The node is composed of parts (:mod:`.wiring`, :mod:`.inbound`, :mod:`.lockstep`, :mod:`.outbound`,
-:mod:`.publishing`, :mod:`.broadcast`), each a class that :class:`~swarmloc.net.process.NetNode` inherits. A part
-reads state that the node or another part sets, and calls other parts' methods: :class:`NodeParts`, the base of every
-part, declares these attributes and methods (annotations only: at run time it is an empty class), so that a type
-checker sees each part's use of them and checks it against the one definition.
+The node is composed of parts. Three own their state and take what they need of the node explicitly, as
+constructor arguments (collaborators and callbacks), held by the node as attributes: :class:`~.wiring.Wiring`
+(``node.wiring``: the Zenoh declarations, publishing on its own keys), :class:`~.publishing.Publishing`
+(``node.publishing``: beliefs, delayed output, scans' lines, settled beliefs) and :class:`~.publishing.Announcer`
+(``node.announcer``: progress); its settings are one object, :class:`~.settings.NetSettings` (``node.settings``).
+The others (:mod:`.inbound`, :mod:`.lockstep`, :mod:`.outbound`, :mod:`.broadcast`) are still classes that
+:class:`~swarmloc.net.process.NetNode` inherits: each reads state that the node or another part sets, and calls
+other parts' methods. :class:`NodeParts`, the base of each of these, declares those attributes and methods
+(annotations only: at run time it is an empty class), so that a type checker sees each use and checks it against
+the one definition.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ if TYPE_CHECKING:
     from swarmloc.net.publishing import Announcer, Publishing
     from swarmloc.net.schema import Broadcast, BroadcastRepair, Envelope, Rejected
     from swarmloc.net.settings import NetSettings
+    from swarmloc.net.wiring import Wiring
     from swarmloc.node import Node
 
 
@@ -52,20 +58,11 @@ class NodeParts:
         _i: int
         feed: LiveFeed | None
         publishing: Publishing
+        wiring: Wiring
         announcer: Announcer
         items: list[tuple[float, Any]]
         _feed_w: float
         broadcasts: bool
-        # the wiring's (Zenoh declarations; zenoh is imported lazily, its objects are Any)
-        _decl: list[Any]
-        _block: Any
-        _pub_belief: Any
-        _pub_progress: Any
-        _pub_delayed: Any
-        _pub_lines: Any
-        _ros_pub: Any
-        _ros_gid: bytes
-        _ros_seq: int
         # the lockstep's
         _alive: set[int]
         _lost: set[int]

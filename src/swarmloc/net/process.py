@@ -7,10 +7,13 @@ receiver's ``inbox``. Everything received is authenticated (with ``auth``: signe
 :mod:`swarmloc.net.auth`), decoded and validated (:func:`swarmloc.net.schema.decode`) on the node's one thread;
 a bad message is dropped, counted with its reason, and logged; the node keeps running.
 
-Parts, one job each: :mod:`~swarmloc.net.wiring` (the Zenoh declarations), :mod:`~swarmloc.net.inbound` (the
-queue, decoding with its bounds, queries, pushed messages, replies), :mod:`~swarmloc.net.lockstep` (when to read an
-input, answer a query, release an answer), :mod:`~swarmloc.net.outbound` (sending: link faults, outbox, queries,
-timers), :mod:`~swarmloc.net.publishing` (progress and beliefs); this module holds the state and the loop.
+Parts, one job each: :mod:`~swarmloc.net.inbound` (the queue, decoding with its bounds, queries, pushed messages,
+replies), :mod:`~swarmloc.net.lockstep` (when to read an input, answer a query, release an answer),
+:mod:`~swarmloc.net.outbound` (sending: link faults, outbox, queries, timers), :mod:`~swarmloc.net.broadcast` (a team
+estimator's broadcasts): mixins (:mod:`~swarmloc.net.parts`); :mod:`~swarmloc.net.wiring` (the Zenoh declarations)
+and :mod:`~swarmloc.net.publishing` (progress and beliefs): objects that own their state (``wiring``,
+``publishing``, ``announcer``). Its settings: :class:`~swarmloc.net.settings.NetSettings`. This module holds the
+inputs and the loop.
 
 **Time and determinism.** Stamps are the source's (data) clock; wall time only paces. Lockstep: a node reads its
 next input (stamp ``s``) once every live teammate has announced (:class:`~swarmloc.net.schema.Progress`) that it
@@ -72,7 +75,7 @@ from swarmloc.net.inbound import Inbound
 from swarmloc.net.intake import Intake, vouch_for
 from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Outbound
-from swarmloc.net.publishing import Announcer, Publishing
+from swarmloc.net.publishing import Announcer, Publishing, lagging
 from swarmloc.net.schema import SERVER, Belief, Lines, Progress, Report
 from swarmloc.net.settings import NetSettings
 from swarmloc.net.transport import robot_key, team_scope
@@ -100,7 +103,7 @@ def _groups(events: Sequence[Event]) -> list[tuple[float, Any]]:
     return out
 
 
-class NetNode(Wiring, Inbound, Lockstep, Outbound, Broadcasting):
+class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
     """Drive ``node`` (owning one robot) over ``session`` with ``events`` (that robot's own, in stamp order).
 
     Parameters
@@ -165,18 +168,25 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Broadcasting):
         self._stop = threading.Event()
         self._i = 0  # the index of the next input in ``items``
         self._last_status = 0.0
-        self._init_wiring()
-        self._init_lockstep()
-        self._init_outbound()
-        self.publishing = Publishing(node, self.robot, self.counts, self._put, np.asarray(record_times, dtype=float),
-                                     unsettled=self._unsettled, ros=self._put_ros, scans=scans, on_belief=on_belief,
-                                     on_lines=on_lines, on_settled=on_settled)  # fmt: skip
-        """Its beliefs, delayed output and scans' lines, published (:class:`~.publishing.Publishing`)."""
-        self._init_feed(events)
-        self.announcer = Announcer(self.robot, self.settings.lag, self._put, self._next_key)
-        """Its progress, announced (:class:`~.publishing.Announcer`)."""
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
+        team_node: Any = node  # a team estimator's (diekf): its team, not declared on Node
+        mates = None if not self.broadcasts else ["*"] if not getattr(node, "cluster", 0) else [
+            str(m) for m in team_node.team if m != self.robot]  # fmt: skip
+        self.wiring = Wiring(session, self.scope, team, self.robot, self._inq.offer, self._env, auth=auth,
+                             mates=mates, delayed=lagging(node), lines=scans is not None,
+                             ros_domain=self.settings.ros_domain)  # fmt: skip
+        """Its Zenoh declarations, and publishing on its own keys (:class:`~.wiring.Wiring`)."""
+        self._init_lockstep()
+        self._init_outbound()
+        times = np.asarray(record_times, dtype=float)
+        self.publishing = Publishing(node, self.robot, self.counts, self.wiring.put, times, unsettled=self._unsettled,
+                                     ros=self.wiring.put_ros, scans=scans, on_belief=on_belief, on_lines=on_lines,
+                                     on_settled=on_settled)  # fmt: skip
+        """Its beliefs, delayed output and scans' lines, published (:class:`~.publishing.Publishing`)."""
+        self._init_feed(events)
+        self.announcer = Announcer(self.robot, self.settings.lag, self.wiring.put, self._next_key)
+        """Its progress, announced (:class:`~.publishing.Announcer`)."""
         self._init_broadcast()
 
     def _init_feed(self, events: Sequence[Event] | LiveFeed) -> None:
@@ -214,7 +224,7 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Broadcasting):
         """Run until the source is exhausted and the team settled (or :meth:`stop`, or ``max_wall`` s)."""
         t_wall0, t_cpu0 = time.perf_counter(), time.process_time()
         deadline = math.inf if max_wall is None else time.monotonic() + max_wall
-        self._open()
+        self.wiring.open()
         try:
             self.announcer.announce(self.items[0][0] if self.items else math.inf, force=True)
             self._wait_start(deadline)
@@ -225,13 +235,13 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Broadcasting):
             report = self.report(time.perf_counter() - t_wall0, time.process_time() - t_cpu0)
             try:
                 done = Progress(robot=self.robot, t=math.inf, done=True)
-                self._pub_progress.put(self._env(done, robot_key(self.scope, self.robot, "progress")))
+                self.wiring.put("progress", done)
                 key = robot_key(self.scope, self.robot, "report")
-                self.session.put(key, self._env(report, key), congestion_control=self._block)
+                self.session.put(key, self._env(report, key), congestion_control=self.wiring.block)
                 time.sleep(0.2)  # let Zenoh flush the report before the session closes
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
                 log.debug("robot %s: final report not sent: %s", self.robot, exc)
-            self._close()
+            self.wiring.close()
         return report
 
     def _wait_start(self, deadline: float) -> None:

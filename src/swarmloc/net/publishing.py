@@ -42,6 +42,11 @@ Put = Callable[[str, Any], None]
 ``delayed``, ``lines``): the node's wiring (:meth:`~swarmloc.net.process.NetNode._put`)."""
 
 
+def lagging(node: Node) -> bool:
+    """Whether ``node`` files a delayed output (a smoother's, ``lagged_log`` set): published on ``delayed``."""
+    return getattr(node, "lagged_log", None) is not None
+
+
 class Announcer:
     """Part of :class:`~swarmloc.net.process.NetNode`: announcing its progress, the key of its next input, which
     its teammates' lockstep waits on (rate-limited). ``next_key``: ``(stamp, priority)`` of the node's next input
@@ -107,11 +112,10 @@ class Publishing:
         self._pruned_at = 0
         self._scan_i = 0  # scans whose lines are published (or had none)
         self._settled_at = 0  # record times handed to on_settled
-        lagging = getattr(node, "lagged_log", None) is not None
-        self.delayed: dict[float, Belief] | None = {} if lagging else None
+        self.delayed: dict[float, Belief] | None = {} if lagging(node) else None
         """The delayed poses published (pruned); None: the node has no delayed output."""
         self._delayed_due: dict[float, None] = {}  # stamps filed whose filing is not final yet
-        if lagging:
+        if self.delayed is not None:
             smoother: Any = node  # a smoother's attributes are not Node's
             smoother.lagged_fresh = []
 
