@@ -113,6 +113,30 @@ def offline_net(robot: int = 0, **kw) -> NetNode:
     return NetNode(node, src.own_events(robot), session=None, team="t", roster=src.robots, **kw)
 
 
+def test_settings_are_one_checked_object_and_keywords_replace_its_fields():
+    """A node's settings are one frozen :class:`NetSettings`: a wait below 0, a retry count out of range, a record
+    rate of 0 or a keyword that is no setting is refused naming it; keywords replace the given object's fields."""
+    import dataclasses
+
+    from swarmloc.net.settings import NetSettings
+
+    base = NetSettings(lag=1.0, answer_timeout=3)
+    net = offline_net(settings=base, hold_timeout=0.5)
+    assert net.settings == dataclasses.replace(base, hold_timeout=0.5)
+    assert net.settings.answer_timeout == 3.0 and isinstance(net.settings.answer_timeout, float)
+    assert offline_net(settings=base).settings is base
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        net.settings.lag = 2.0
+    with pytest.raises(ValueError, match="lost_timeout"):
+        NetSettings(lost_timeout=-1.0)
+    with pytest.raises(ValueError, match="answer_retries"):
+        offline_net(answer_retries=101)
+    with pytest.raises(ValueError, match="record_rate"):
+        NetSettings(record_rate=0.0)
+    with pytest.raises(TypeError, match="no such setting.*'lagg'"):
+        offline_net(lagg=1.0)
+
+
 def test_a_query_that_arrives_twice_is_answered_once_and_a_failing_reply_is_counted_not_raised():
     """Two copies of one query (the same sender, sequence number and body): the node steps it once, the copy is
     closed unanswered; the reply failing (the asker gone) is counted ``send_failed`` and the query closed.

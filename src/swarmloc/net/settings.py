@@ -13,16 +13,8 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any
 
+from swarmloc.net import timeouts as T
 from swarmloc.net.faults import Faults
-from swarmloc.net.timeouts import (
-    ANSWER_RETRIES,
-    ANSWER_TIMEOUT,
-    HOLD_TIMEOUT,
-    LOST_TIMEOUT,
-    START_TIMEOUT,
-    UPDATE_TIMEOUT,
-    check_retries,
-)
 
 WAITS = ("answer_timeout", "hold_timeout", "update_timeout", "start_timeout", "lost_timeout", "quiet", "linger")
 """The settings that are waits: seconds >= 0."""
@@ -39,13 +31,13 @@ class NetSettings:
     """[x real time] 0: as fast as lockstep allows; X > 0: X times real time (a live feed: 0, paced by arrivals)."""
     lag: float = 0.5
     """[s] lockstep slack (well below the node's horizon)."""
-    answer_timeout: float = ANSWER_TIMEOUT
+    answer_timeout: float = T.ANSWER_TIMEOUT
     """[s] wall time the node waits for the reply to one of its queries (neighbour, then server)."""
-    hold_timeout: float = HOLD_TIMEOUT
+    hold_timeout: float = T.HOLD_TIMEOUT
     """[s] wall time it holds a neighbour's query for its state to settle before answering as it stands."""
-    update_timeout: float = UPDATE_TIMEOUT
+    update_timeout: float = T.UPDATE_TIMEOUT
     """[s] wall time it waits for an observer's ``rdl`` update after giving its state."""
-    answer_retries: int = ANSWER_RETRIES
+    answer_retries: int = T.ANSWER_RETRIES
     """How many more times it asks a query that went unanswered (while its robot is alive), more while within
     ``lost_timeout`` s of the first ask (0 to 100)."""
     use_server: bool = False
@@ -54,9 +46,9 @@ class NetSettings:
     """Link faults on the messages this node sends (:mod:`swarmloc.net.faults`)."""
     wait_for: frozenset[int] | None = None
     """Robots to wait for (alive) before starting (None: the whole roster but this robot)."""
-    start_timeout: float = START_TIMEOUT
+    start_timeout: float = T.START_TIMEOUT
     """[s] wall time it waits at the start for the robots of ``wait_for`` to be alive."""
-    lost_timeout: float = LOST_TIMEOUT
+    lost_timeout: float = T.LOST_TIMEOUT
     """[s] wall time it waits for a live teammate that is silent (no announcement) before declaring it lost and
     going on without it; one that announces but does not advance: ``STALL_TIMEOUTS`` times as long."""
     quiet: float = 0.3
@@ -75,7 +67,7 @@ class NetSettings:
             raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
         for k in (*WAITS, "speed", "lag"):
             object.__setattr__(self, k, float(getattr(self, k)))
-        object.__setattr__(self, "answer_retries", check_retries(self.answer_retries))
+        object.__setattr__(self, "answer_retries", T.check_retries(self.answer_retries))
         if self.wait_for is not None:
             object.__setattr__(self, "wait_for", frozenset(int(r) for r in self.wait_for))
         if self.record_rate is not None:
