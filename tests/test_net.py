@@ -321,8 +321,8 @@ def test_a_node_paced_by_speed_announces_its_progress_while_it_waits_for_its_clo
         if net._i < len(net.items):
             announced.append(clock.t)
 
-    net._pub_progress = SimpleNamespace(put=announce)
-    net._pub_belief = SimpleNamespace(put=lambda raw: None)
+    net.wiring.pub["progress"] = SimpleNamespace(put=announce)
+    net.wiring.pub["belief"] = SimpleNamespace(put=lambda raw: None)
 
     def drain(timeout: float) -> bool:  # nothing comes; the wait passes on the test's clock
         clock.t += max(timeout, 0.01)

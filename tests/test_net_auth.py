@@ -273,7 +273,7 @@ def offline_node(auth: Auth | None) -> NetNode:
     node.start(src.t_start)
     net = NetNode(node, src.own_events(0), session=_Session(), team=TEAM, roster=src.robots,
                   record_times=src.record_times(), auth=auth)  # fmt: skip
-    net._pub_belief = SimpleNamespace(put=lambda *a, **k: None)  # never opened: beliefs go nowhere
+    net.wiring.pub["belief"] = SimpleNamespace(put=lambda *a, **k: None)  # never opened: beliefs go nowhere
     return net
 
 

@@ -269,7 +269,7 @@ def _handle_all(net, raw: bytes, t: float) -> list[tuple[str, int]]:
 def _realistic(net, src, upto: float):
     """``net``'s node a few seconds into its own source (its inputs stepped as the driver would)."""
     net.session = _BSession()  # records what is sent, published and pushed
-    net._pub_belief = net._pub_progress = _Pub(net.session, "belief")
+    net.wiring.pub["belief"] = net.wiring.pub["progress"] = _Pub(net.session, "belief")
     for e in src.own_events(net.robot):
         if e.stamp > upto:
             break
@@ -468,7 +468,7 @@ def test_a_message_stamped_1e9_publishes_nothing_ahead_of_time():
     for stamp in (1e9, net.node.present + net.node.tolerance + 1.0):
         u = RdlUpdate(sender=1, receiver=0, stamp=stamp, sub=(0.0,), x=(0.0, 0.0, 0.0), P=COV)
         net._handle("inbox", _Sample(encode("t", 1, int(stamp) % 97, u)))
-    assert net.counts["beliefs_published"] == published and net._final == 0
+    assert net.counts["beliefs_published"] == published and net.publishing.final == 0
     assert net.node.counts["messages_rejected"] == 2
 
 

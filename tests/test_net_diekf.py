@@ -74,7 +74,7 @@ def offline_diekf(robot: int = 0, **kw) -> tuple[NetNode, object]:
     node.start(src.t_start)
     net = NetNode(node, src.own_events(robot), session=_BSession(), team="t", roster=src.robots,
                   record_times=src.record_times(), **kw)  # fmt: skip
-    net._pub_belief = _Pub(net.session, "belief")  # never opened: the beliefs it publishes are recorded
+    net.wiring.pub["belief"] = _Pub(net.session, "belief")  # never opened: the beliefs it publishes are recorded
     return net, src
 
 
@@ -277,6 +277,6 @@ def test_a_broadcast_stamped_ahead_publishes_the_beliefs_it_makes_final_first():
     ahead = t + 4.0  # within the clock tolerance, a horizon (5 s) past the first record times
     net._handle("broadcast", bsample(Broadcast(robot=1, n=0, update=update(1, ahead))))
     assert net.counts["broadcasts_applied"] == 1 and net.node.present == ahead
-    final = [b for b in net._published.values() if b.final]
+    final = [b for b in net.publishing.published.values() if b.final]
     due = src.record_times()[src.record_times() < ahead - net.node.horizon]
     assert len(due) >= 4 and sorted(b.stamp for b in final) == due.tolist()

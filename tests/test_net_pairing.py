@@ -193,7 +193,7 @@ def test_a_query_asked_again_is_bounded_by_count_and_rate(monkeypatch):
     node.start(src.t_start)
     net = NetNode(node, src.own_events(0), session=EndsAtOnce(), team=TEAM, roster=src.robots,
                   record_times=src.record_times(), answer_timeout=2.0, lost_timeout=10.0, answer_retries=2)  # fmt: skip
-    net._pub_belief = SimpleNamespace(put=lambda *a, **k: None)  # never opened: beliefs go nowhere
+    net.wiring.pub["belief"] = SimpleNamespace(put=lambda *a, **k: None)  # never opened: beliefs go nowhere
     fed: list = []
     step = net.node.step
     net.node.step = lambda item: fed.append(item) or step(item)

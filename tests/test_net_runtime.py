@@ -113,6 +113,30 @@ def offline_net(robot: int = 0, **kw) -> NetNode:
     return NetNode(node, src.own_events(robot), session=None, team="t", roster=src.robots, **kw)
 
 
+def test_settings_are_one_checked_object_and_keywords_replace_its_fields():
+    """A node's settings are one frozen :class:`NetSettings`: a wait below 0, a retry count out of range, a record
+    rate of 0 or a keyword that is no setting is refused naming it; keywords replace the given object's fields."""
+    import dataclasses
+
+    from swarmloc.net.settings import NetSettings
+
+    base = NetSettings(lag=1.0, answer_timeout=3)
+    net = offline_net(settings=base, hold_timeout=0.5)
+    assert net.settings == dataclasses.replace(base, hold_timeout=0.5)
+    assert net.settings.answer_timeout == 3.0 and isinstance(net.settings.answer_timeout, float)
+    assert offline_net(settings=base).settings is base
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        net.settings.lag = 2.0
+    with pytest.raises(ValueError, match="lost_timeout"):
+        NetSettings(lost_timeout=-1.0)
+    with pytest.raises(ValueError, match="answer_retries"):
+        offline_net(answer_retries=101)
+    with pytest.raises(ValueError, match="record_rate"):
+        NetSettings(record_rate=0.0)
+    with pytest.raises(TypeError, match="no such setting.*'lagg'"):
+        offline_net(lagg=1.0)
+
+
 def test_a_query_that_arrives_twice_is_answered_once_and_a_failing_reply_is_counted_not_raised():
     """Two copies of one query (the same sender, sequence number and body): the node steps it once, the copy is
     closed unanswered; the reply failing (the asker gone) is counted ``send_failed`` and the query closed.
@@ -165,7 +189,7 @@ def test_a_node_waits_for_its_teammates_no_longer_than_its_wall_time_bound(caplo
     session = open_session([f"tcp/127.0.0.1:{port}"], [])
     try:
         net = offline_net(start_timeout=30.0)
-        net.session = session
+        net.session = net.wiring.session = session  # the node sends on it, its wiring declares on it
         t0 = time.monotonic()
         with caplog.at_level(logging.INFO, logger="swarmloc.net.process"):
             net.run(max_wall=1.0)
@@ -461,7 +485,7 @@ def test_traffic_that_never_settles_does_not_hold_a_node_at_its_end():
     from types import SimpleNamespace
 
     net = offline_net(linger=0.5)
-    net.session = net._pub_progress = net._pub_belief = SimpleNamespace(put=lambda *a, **k: None)
+    net.session = net.wiring.pub["progress"] = net.wiring.pub["belief"] = SimpleNamespace(put=lambda *a, **k: None)
     net._i = len(net.items)  # its source read; robots 1 and 2 not alive: the team has read its sources
     flood = _Flood(b"not a message")
     flood.get = flood.get_nowait = lambda timeout=None: ("inbox", flood.sample)  # neighbours' traffic, forever

@@ -250,8 +250,8 @@ class Broadcasting(NodeParts):
         payload = self._env(body, key)
         self.counts["broadcast_bytes" if isinstance(body, Broadcast) else "broadcast_head_bytes"] += len(payload)
         if self._bpub is None:
-            self._bpub = self.session.declare_publisher(key, congestion_control=self._block)
-            self._decl.append(self._bpub)
+            self._bpub = self.session.declare_publisher(key, congestion_control=self.wiring.block)
+            self.wiring.decl.append(self._bpub)
         pub = self._bpub
         if not faults:
             pub.put(payload)
@@ -263,7 +263,7 @@ class Broadcasting(NodeParts):
         key = robot_key(self.scope, to, "inbox")
         payload = self._env(body, key)
         self.counts["repair_bytes"] += len(payload)
-        put, block = self.session.put, self._block
+        put, block = self.session.put, self.wiring.block
         self._faulty(lambda: put(key, payload, congestion_control=block))
 
     def _on_repair(self, r: BroadcastRepair) -> None:

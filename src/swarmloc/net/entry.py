@@ -171,6 +171,7 @@ def node_main(
     ``view``: a :class:`~swarmloc.net.view.TeamView` shown this robot's beliefs and lines, and the belief server's
     map, asked for every second while the node runs and once at its end (not with a server-hosted estimator)."""
     from swarmloc.net.process import NetNode
+    from swarmloc.net.settings import NetSettings
 
     scope = team_scope(team, run_id)
     if robot not in src.initial:
@@ -190,12 +191,14 @@ def node_main(
         node, events, record_times = _start(session, src, robot, team, estimator, resume, auth, scope)
         faults = parse_faults(faults) if isinstance(faults, str | None) else faults
         events, close_live = _inputs(live, session, robot, node, events, faults, resume)
+        settings = NetSettings(run_id=run_id, speed=speed, lag=lag, answer_timeout=answer_timeout,
+                               hold_timeout=hold_timeout, update_timeout=update_timeout, answer_retries=answer_retries,
+                               start_timeout=start_timeout, lost_timeout=lost_timeout, use_server=use_server,
+                               faults=faults, wait_for=None if wait_for is None else frozenset(wait_for),
+                               ros_domain=ros_domain)  # fmt: skip
         net = NetNode(node, events, session=session, team=team, roster=src.robots, record_times=record_times,
-                      speed=speed, lag=lag, answer_timeout=answer_timeout, hold_timeout=hold_timeout,
-                      update_timeout=update_timeout, answer_retries=answer_retries, start_timeout=start_timeout,
-                      lost_timeout=lost_timeout, use_server=use_server, faults=faults, wait_for=wait_for,
-                      ros_domain=ros_domain, on_belief=lambda b: _on_belief(b, finals, view),
-                      on_lines=None if view is None else view.observe, auth=auth, run_id=run_id,
+                      settings=settings, on_belief=lambda b: _on_belief(b, finals, view),
+                      on_lines=None if view is None else view.observe, auth=auth,
                       scans=None if live is not None else _own_scans(src, robot, events))  # fmt: skip
         _stop_on_sigterm(net.stop)
         report = _run_viewed(net, max_wall, view, session, scope, team, src.robots, auth)

@@ -159,7 +159,7 @@ class Inbound(NodeParts):
         before the history's pruning can drop what they are computed from (as before a source input)."""
         stamp, now = getattr(item, "stamp", None), self.node.present
         if isinstance(stamp, int | float) and now < stamp <= now + self.node.tolerance:  # past it: refused (future)
-            self._publish_due(upto=stamp)
+            self.publishing.due(upto=stamp)
         out = self.node.step(item)
         if out or query is not None:
             self._route(out, query, item)
@@ -254,7 +254,7 @@ class Inbound(NodeParts):
         if answered:
             return
         self.counts["no_reply"] += 1
-        if via == "robot" and self.use_server:
+        if via == "robot" and self.settings.use_server:
             self._ask(m, via_server=True, again=again, first=first)
             return
         if self._ask_again(m, again + 1, first):  # the node waits on: lockstep holds its group
@@ -262,4 +262,4 @@ class Inbound(NodeParts):
         kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
         who = "robot or server" if via == "server" else "robot"
         asks = f" ({again + 1} asks)" if again else ""
-        self._feed_local(kind, m, f"no answer from the {who} within {self.answer_timeout:g} s{asks}")
+        self._feed_local(kind, m, f"no answer from the {who} within {self.settings.answer_timeout:g} s{asks}")

@@ -83,14 +83,14 @@ class Lockstep(NodeParts):
         (counted ``peers_lost``, logged); its queries to it are answered "not found" at once. It is back if it
         announces progress again (a silent one: if it announces at all) or its token comes anew."""
         now = time.monotonic()
-        stall = STALL_TIMEOUTS * self.lost_timeout
+        stall = STALL_TIMEOUTS * self.settings.lost_timeout
         for r in sorted(self._alive):
             if r in self._done or self._progress.get(r, -math.inf) >= s:
                 continue
             quiet, still = now - self._beat.setdefault(r, now), now - self._heard.setdefault(r, now)
-            silent = quiet > self.lost_timeout
+            silent = quiet > self.settings.lost_timeout
             if silent or still > stall:
-                why = f"silent for {self.lost_timeout:g} s" if silent else f"no progress for {stall:g} s"
+                why = f"silent for {self.settings.lost_timeout:g} s" if silent else f"no progress for {stall:g} s"
                 self._alive.discard(r)
                 self._lost.add(r)
                 self._lost_why[r] = why
@@ -162,7 +162,7 @@ class Lockstep(NodeParts):
         first = self.node.first_pending
         if first is not None and s - first[0] > self.node.horizon / 2:
             return False
-        need = s - self.lag
+        need = s - self.settings.lag
         for r in self._alive:
             if r not in self._done and self._progress.get(r, -math.inf) < need:
                 return False
@@ -188,7 +188,7 @@ class Lockstep(NodeParts):
         why = self._unsettled(qkey)
         if why is None:
             return True
-        if time.monotonic() - since < self.hold_timeout:
+        if time.monotonic() - since < self.settings.hold_timeout:
             return False
         self.counts["answered_unsettled"] += 1
         log.debug("robot %s: answering %s at %s unsettled: %s", self.robot, type(q).__name__, qkey, why)
@@ -235,7 +235,7 @@ class Lockstep(NodeParts):
         if self._expect:
             now = time.monotonic()
             for k, since in list(self._expect.items()):
-                if now - since > self.update_timeout:
+                if now - since > self.settings.update_timeout:
                     del self._expect[k]
                     self.counts["update_not_received"] += 1
         if not self._held:

@@ -139,7 +139,7 @@ class Outbound(NodeParts):
             return
         self._last_flush = now
         out, self._outbox = self._outbox, {}
-        put, block = self.session.put, self._block
+        put, block = self.session.put, self.wiring.block
         for m in out.values():
             key = robot_key(self.scope, m.receiver, "inbox")
             payload = self._env(m, key)
@@ -155,7 +155,7 @@ class Outbound(NodeParts):
             return
         if m.receiver in self._lost and not via_server:
             self.counts["asked_lost"] += 1
-            if self.use_server:
+            if self.settings.use_server:
                 self._ask(m, via_server=True)
             else:
                 why = self._lost_why.get(m.receiver, "declared lost")
@@ -166,7 +166,7 @@ class Outbound(NodeParts):
         self._again[qid] = (again, time.monotonic() if first is None else first)
         key = server_key(self.scope) if via_server else robot_key(self.scope, m.receiver, "query")
         payload = self._env(m, key)
-        timeout = self.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
+        timeout = self.settings.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
         put = self._inq.put
 
         def send() -> None:
@@ -215,17 +215,17 @@ class Outbound(NodeParts):
         asked again at once (counted ``asked_again_later``; before, one query was asked 22,662 times while a fake
         token lasted), and a query is asked at most ``answer_retries + ceil(lost_timeout / spacing) + 1`` times."""
         lo, hi = REASK_SPACING
-        now, spacing = time.monotonic(), min(max(self.answer_timeout, lo), hi)
+        now, spacing = time.monotonic(), min(max(self.settings.answer_timeout, lo), hi)
         if (
-            (again > self.answer_retries and now - first >= self.lost_timeout)
-            or again > self.answer_retries + math.ceil(self.lost_timeout / spacing) + 1
+            (again > self.settings.answer_retries and now - first >= self.settings.lost_timeout)
+            or again > self.settings.answer_retries + math.ceil(self.settings.lost_timeout / spacing) + 1
             or m.receiver not in self._alive
             or m.receiver in self._lost
             or m.stamp < self.node.present - self.node.horizon
         ):
             return False
         self.counts["asked_again"] += 1
-        due = first + again * spacing if again > self.answer_retries else now
+        due = first + again * spacing if again > self.settings.answer_retries else now
         if due > now:
             self.counts["asked_again_later"] += 1
             heapq.heappush(self._timers, (due, next(self._qids), lambda: self._ask(m, again=again, first=first)))

@@ -1,10 +1,15 @@
-"""What the parts of :class:`~swarmloc.net.process.NetNode` share, declared once for the type checker.
+"""What the mixin parts of :class:`~swarmloc.net.process.NetNode` share, declared once for the type checker.
 
-The node is composed of parts (:mod:`.wiring`, :mod:`.inbound`, :mod:`.lockstep`, :mod:`.outbound`,
-:mod:`.publishing`, :mod:`.broadcast`), each a class that :class:`~swarmloc.net.process.NetNode` inherits. A part
-reads state that the node or another part sets, and calls other parts' methods: :class:`NodeParts`, the base of every
-part, declares these attributes and methods (annotations only: at run time it is an empty class), so that a type
-checker sees each part's use of them and checks it against the one definition.
+The node is composed of parts. Three own their state and take what they need of the node explicitly, as
+constructor arguments (collaborators and callbacks), held by the node as attributes: :class:`~.wiring.Wiring`
+(``node.wiring``: the Zenoh declarations, publishing on its own keys), :class:`~.publishing.Publishing`
+(``node.publishing``: beliefs, delayed output, scans' lines, settled beliefs) and :class:`~.publishing.Announcer`
+(``node.announcer``: progress); its settings are one object, :class:`~.settings.NetSettings` (``node.settings``).
+The others (:mod:`.inbound`, :mod:`.lockstep`, :mod:`.outbound`, :mod:`.broadcast`) are still classes that
+:class:`~swarmloc.net.process.NetNode` inherits: each reads state that the node or another part sets, and calls
+other parts' methods. :class:`NodeParts`, the base of each of these, declares those attributes and methods
+(annotations only: at run time it is an empty class), so that a type checker sees each use and checks it against
+the one definition.
 """
 
 from __future__ import annotations
@@ -17,13 +22,15 @@ if TYPE_CHECKING:
     from collections.abc import Callable
     from typing import Any
 
-    from swarmloc.arrays import FloatArray
     from swarmloc.messages import Message, TeamUpdate
     from swarmloc.net.auth import Auth
     from swarmloc.net.faults import Faults, LinkFaults
     from swarmloc.net.feed import LiveFeed
     from swarmloc.net.intake import Intake
-    from swarmloc.net.schema import Belief, Broadcast, BroadcastRepair, Envelope, Lines, Rejected
+    from swarmloc.net.publishing import Announcer, Publishing
+    from swarmloc.net.schema import Broadcast, BroadcastRepair, Envelope, Rejected
+    from swarmloc.net.settings import NetSettings
+    from swarmloc.net.wiring import Wiring
     from swarmloc.node import Node
 
 
@@ -40,21 +47,9 @@ class NodeParts:
         scope: str
         roster: frozenset[int]
         auth: Auth | None
-        record_times: FloatArray
-        lag: float
-        answer_timeout: float
-        hold_timeout: float
-        update_timeout: float
-        answer_retries: int
-        lost_timeout: float
-        use_server: bool
+        settings: NetSettings
         faults: Faults | None
         link: LinkFaults | None
-        ros_domain: int | None
-        on_belief: Callable[[Belief], None] | None
-        on_lines: Callable[[Lines], None] | None
-        on_settled: Callable[[float, Any], None] | None
-        scans: Any
         counts: Counter[str]
         reasons: Counter[str]
         _intake: Intake
@@ -62,19 +57,12 @@ class NodeParts:
         _stop: threading.Event
         _i: int
         feed: LiveFeed | None
+        publishing: Publishing
+        wiring: Wiring
+        announcer: Announcer
         items: list[tuple[float, Any]]
         _feed_w: float
         broadcasts: bool
-        # the wiring's (Zenoh declarations; zenoh is imported lazily, its objects are Any)
-        _decl: list[Any]
-        _block: Any
-        _pub_belief: Any
-        _pub_progress: Any
-        _pub_delayed: Any
-        _pub_lines: Any
-        _ros_pub: Any
-        _ros_gid: bytes
-        _ros_seq: int
         # the lockstep's
         _alive: set[int]
         _lost: set[int]
@@ -87,8 +75,6 @@ class NodeParts:
         _outstanding: dict[int, tuple[Message, str, bool]]
         _gets: dict[int, int]
         _again: dict[int, tuple[int, float]]
-        # the publishing's
-        _delayed: dict[float, Belief] | None
 
         # inbound
         def _step(self, item: Any, query: Any = ...) -> None: ...
@@ -113,9 +99,8 @@ class NodeParts:
         def _route(self, msgs: list[Message], query: Any = ..., asked: Message | None = ...) -> None: ...
         def _send_failed(self, exc: Exception) -> None: ...
 
-        # publishing
+        # the node's
         def _next_key(self) -> tuple[float, int]: ...
-        def _publish_due(self, end: bool = ..., upto: float = ...) -> None: ...
 
         # broadcast
         def _queue_broadcast(self, m: TeamUpdate) -> None: ...

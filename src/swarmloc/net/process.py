@@ -7,10 +7,13 @@ receiver's ``inbox``. Everything received is authenticated (with ``auth``: signe
 :mod:`swarmloc.net.auth`), decoded and validated (:func:`swarmloc.net.schema.decode`) on the node's one thread;
 a bad message is dropped, counted with its reason, and logged; the node keeps running.
 
-Parts, one job each: :mod:`~swarmloc.net.wiring` (the Zenoh declarations), :mod:`~swarmloc.net.inbound` (the
-queue, decoding with its bounds, queries, pushed messages, replies), :mod:`~swarmloc.net.lockstep` (when to read an
-input, answer a query, release an answer), :mod:`~swarmloc.net.outbound` (sending: link faults, outbox, queries,
-timers), :mod:`~swarmloc.net.publishing` (progress and beliefs); this module holds the state and the loop.
+Parts, one job each: :mod:`~swarmloc.net.inbound` (the queue, decoding with its bounds, queries, pushed messages,
+replies), :mod:`~swarmloc.net.lockstep` (when to read an input, answer a query, release an answer),
+:mod:`~swarmloc.net.outbound` (sending: link faults, outbox, queries, timers), :mod:`~swarmloc.net.broadcast` (a team
+estimator's broadcasts): mixins (:mod:`~swarmloc.net.parts`); :mod:`~swarmloc.net.wiring` (the Zenoh declarations)
+and :mod:`~swarmloc.net.publishing` (progress and beliefs): objects that own their state (``wiring``,
+``publishing``, ``announcer``). Its settings: :class:`~swarmloc.net.settings.NetSettings`. This module holds the
+inputs and the loop.
 
 **Time and determinism.** Stamps are the source's (data) clock; wall time only paces. Lockstep: a node reads its
 next input (stamp ``s``) once every live teammate has announced (:class:`~swarmloc.net.schema.Progress`) that it
@@ -58,6 +61,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -66,23 +70,14 @@ from swarmloc.events import Detection, Event, Odometry
 from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import Auth
 from swarmloc.net.broadcast import Broadcasting
-from swarmloc.net.faults import Faults
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.inbound import Inbound
 from swarmloc.net.intake import Intake, vouch_for
 from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Outbound
-from swarmloc.net.publishing import Publishing
+from swarmloc.net.publishing import Announcer, Publishing, lagging
 from swarmloc.net.schema import SERVER, Belief, Lines, Progress, Report
-from swarmloc.net.timeouts import (
-    ANSWER_RETRIES,
-    ANSWER_TIMEOUT,
-    HOLD_TIMEOUT,
-    LOST_TIMEOUT,
-    START_TIMEOUT,
-    UPDATE_TIMEOUT,
-    check_retries,
-)
+from swarmloc.net.settings import NetSettings
 from swarmloc.net.transport import robot_key, team_scope
 from swarmloc.net.wiring import Wiring
 from swarmloc.node import Node
@@ -108,39 +103,23 @@ def _groups(events: Sequence[Event]) -> list[tuple[float, Any]]:
     return out
 
 
-class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
+class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
     """Drive ``node`` (owning one robot) over ``session`` with ``events`` (that robot's own, in stamp order).
 
     Parameters
     ----------
     team, roster: the team's name and robot ids (messages from anybody else are dropped).
-    run_id: this run's id, in every key expression with the team's name (:func:`~swarmloc.net.transport.team_scope`;
-        None: the name alone): two teams of one name with different run ids never hear each other.
     record_times: times [s] at which the robot's belief is published.
-    speed: 0 = as fast as lockstep allows; X > 0: X times real time.
-    lag: [s] lockstep slack (well below the node's horizon).
-    answer_timeout: [s] wall time this node waits for the reply to one of its queries (neighbour, then server).
-    hold_timeout: [s] wall time it holds a neighbour's query for its state to settle before answering as it stands.
-    update_timeout: [s] wall time it waits for an observer's ``rdl`` update after giving its state.
-    answer_retries: how many more times it asks a query that went unanswered (while its robot is alive), more while
-        within ``lost_timeout`` s of the first ask.
-    use_server: ask the belief server when a neighbour does not answer (and wait for it at the start).
-    faults: link faults on the messages this node sends (:mod:`swarmloc.net.faults`).
-    wait_for: robots to wait for (alive) before starting (default: the whole roster but this robot).
-    start_timeout: [s] wall time it waits at the start for the robots of ``wait_for`` to be alive.
-    lost_timeout: [s] wall time it waits for a live teammate that is silent (no announcement) before declaring it
-        lost and going on without it; one that announces but does not advance: ``STALL_TIMEOUTS`` times as long.
-    quiet: [s] wall time without traffic that counts as settled at the end.
-    linger: [s] wall time at most it keeps answering after it is done, while teammates are not.
-    ros_domain: publish beliefs as ROS 2 messages too (rmw_zenoh layout, this domain id).
+    settings: how it runs (:class:`~swarmloc.net.settings.NetSettings`: pace, waits, end, server, faults, ROS);
+        its fields may be given as keywords too (``lag=1.0``), replacing those of ``settings``.
     events: the robot's own events, or a :class:`~swarmloc.net.feed.LiveFeed` its inputs are pushed to as they happen
         (the run ends once the feed has ended and everything in it was read).
-    record_rate: [Hz] with a live feed: record times every ``1 / record_rate`` s from the node's start, added as the
-        inputs come (None: ``record_times`` alone).
+    on_belief, on_lines: called with each belief and each :class:`~swarmloc.net.schema.Lines` it publishes.
     on_settled: called with each record time's belief once it is settled (see the attribute).
     auth: this robot's key and the team's roster (:class:`~swarmloc.net.auth.Auth`): everything it sends is signed,
         everything it receives must be signed by the member it claims to come from (refusals counted
         ``auth_<category>``); None: an unauthenticated team (tests on one machine, a trusted network).
+    scans: this robot's range scans (see the attribute).
     """
 
     def __init__(
@@ -152,69 +131,32 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         team: str,
         roster: Iterable[int],
         record_times: Sequence[float] | np.ndarray = (),
-        speed: float = 0.0,
-        lag: float = 0.5,
-        answer_timeout: float = ANSWER_TIMEOUT,
-        hold_timeout: float = HOLD_TIMEOUT,
-        update_timeout: float = UPDATE_TIMEOUT,
-        answer_retries: int = ANSWER_RETRIES,
-        use_server: bool = False,
-        faults: Faults | None = None,
-        wait_for: Iterable[int] | None = None,
-        start_timeout: float = START_TIMEOUT,
-        lost_timeout: float = LOST_TIMEOUT,
-        quiet: float = 0.3,
-        linger: float = 10.0,
-        ros_domain: int | None = None,
+        settings: NetSettings | None = None,
         on_belief: Callable[[Belief], None] | None = None,
         on_lines: Callable[[Lines], None] | None = None,
         on_settled: Callable[[float, Any], None] | None = None,
         auth: Auth | None = None,
-        run_id: str | None = None,
         scans: Any = None,
-        record_rate: float | None = None,
+        **kw: Any,
     ) -> None:
         if len(node.robots) != 1:
             raise ValueError("NetNode drives a node of one robot (a distributed estimator)")
-        waits = dict(answer_timeout=answer_timeout, hold_timeout=hold_timeout, update_timeout=update_timeout,
-                     start_timeout=start_timeout, lost_timeout=lost_timeout, quiet=quiet, linger=linger)  # fmt: skip
-        bad = {k: v for k, v in waits.items() if not float(v) >= 0.0}
-        if bad:
-            raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
+        self.settings = settings = NetSettings.of(settings, kw)
+        """How it runs (:class:`~swarmloc.net.settings.NetSettings`; a live feed's: ``speed`` 0)."""
         self.node = node
         self.robot, self.session, self.team = node.robots[0], session, team
-        self.scope = team_scope(team, run_id)
+        self.scope = team_scope(team, settings.run_id)
         self.roster = frozenset(int(r) for r in roster)
         if self.robot not in self.roster:
             raise ValueError(f"robot {self.robot} is not in the roster {sorted(self.roster)}")
         if auth is not None and (auth.signer is None or auth.signer.member != self.robot):
             raise ValueError(f"robot {self.robot} needs its own key to sign what it sends")
         self.auth = auth
-        self.record_times = np.asarray(record_times, dtype=float)
-        self.speed = float(speed)
-        self.lag = float(lag)
-        self.answer_timeout = float(answer_timeout)
-        self.hold_timeout = float(hold_timeout)
-        self.update_timeout = float(update_timeout)
-        self.answer_retries = check_retries(answer_retries)
-        self.use_server = use_server
+        faults = settings.faults
         self.faults = faults if faults is not None and faults.link else None
         self.link = self.faults.plan(self.robot) if self.faults else None
+        wait_for = settings.wait_for
         self.wait_for = set(self.roster - {self.robot}) if wait_for is None else set(wait_for) - {self.robot}
-        self.start_timeout = float(start_timeout)
-        self.lost_timeout = float(lost_timeout)
-        self.quiet = float(quiet)
-        self.linger = float(linger)
-        self.ros_domain, self.on_belief = ros_domain, on_belief
-        self.on_lines = on_lines
-        """Called with every :class:`~swarmloc.net.schema.Lines` message this node publishes (a live view)."""
-        self.on_settled = on_settled
-        """Called as ``on_settled(t, belief)`` once per record time ``t``, in order, as soon as nothing the team will
-        still read can change the belief at ``t`` (:meth:`~.publishing.Publishing._publish_settled`): the output of
-        a node that must answer at once and never take back (a ROS node's Odometry and TF)."""
-        self.scans = scans
-        """This robot's range scans (:class:`~swarmloc.mapping.ScanSeries`; None: no range finder): each scan's
-        world lines are published for the belief server's map (:mod:`.publishing`)."""
         self.counts: Counter[str] = Counter()
         """Network counters: ``received``, ``rejected`` (with ``reasons``), ``sent``, ``lost``/``duplicated``/
         ``delayed`` (injected), ``no_reply``, ``server_answers``, ``beliefs_published``..."""
@@ -226,33 +168,52 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         self._stop = threading.Event()
         self._i = 0  # the index of the next input in ``items``
         self._last_status = 0.0
-        self._init_wiring()
-        self._init_lockstep()
-        self._init_outbound()
-        self._init_publishing()
-        self._init_feed(events, record_rate)
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
+        team_node: Any = node  # a team estimator's (diekf): its team, not declared on Node
+        mates = None if not self.broadcasts else ["*"] if not getattr(node, "cluster", 0) else [
+            str(m) for m in team_node.team if m != self.robot]  # fmt: skip
+        self.wiring = Wiring(session, self.scope, team, self.robot, self._inq.offer, self._env, auth=auth,
+                             mates=mates, delayed=lagging(node), lines=scans is not None,
+                             ros_domain=self.settings.ros_domain)  # fmt: skip
+        """Its Zenoh declarations, and publishing on its own keys (:class:`~.wiring.Wiring`)."""
+        self._init_lockstep()
+        self._init_outbound()
+        times = np.asarray(record_times, dtype=float)
+        self.publishing = Publishing(node, self.robot, self.counts, self.wiring.put, times, unsettled=self._unsettled,
+                                     ros=self.wiring.put_ros, scans=scans, on_belief=on_belief, on_lines=on_lines,
+                                     on_settled=on_settled)  # fmt: skip
+        """Its beliefs, delayed output and scans' lines, published (:class:`~.publishing.Publishing`)."""
+        self._init_feed(events)
+        self.announcer = Announcer(self.robot, self.settings.lag, self.wiring.put, self._next_key)
+        """Its progress, announced (:class:`~.publishing.Announcer`)."""
         self._init_broadcast()
 
-    def _init_feed(self, events: Sequence[Event] | LiveFeed, record_rate: float | None) -> None:
+    def _init_feed(self, events: Sequence[Event] | LiveFeed) -> None:
         """``items`` from a recording, or an empty list that a live feed fills (:meth:`_pull`)."""
         self.feed = events if isinstance(events, LiveFeed) else None
         """A live source (:mod:`swarmloc.net.feed`): ``items`` grows as it releases inputs; None: a recording."""
         self.items = _groups(events) if not isinstance(events, LiveFeed) else []
         self._feed_w = -math.inf  # the feed's watermark at the last take: every input not yet taken is at or after it
         self._feed_hi = -math.inf  # the latest time an input taken is known at (odometry: its end)
-        self.record_rate = None if record_rate is None else float(record_rate)
-        if self.record_rate is not None and not (math.isfinite(self.record_rate) and self.record_rate > 0):
-            raise ValueError(f"NetNode: record_rate must be > 0 Hz, got {record_rate!r}")
         if self.feed is not None:
             if self.node.t0 is None:
                 raise ValueError("NetNode: with a live feed, start the node first (node.start(t0))")
             self._feed_w = float(self.node.t0)
-            self.speed = 0.0  # a live source is paced by its arrivals
+            self.settings = replace(self.settings, speed=0.0)  # a live source is paced by its arrivals
             self.feed.on_push = lambda: self._inq.put(("wake", None))
         self._wait_note = math.inf  # when to say next that the node waits for its live inputs (monotonic)
         self._waiting_since = 0.0  # since when it waits (monotonic)
+
+    def _next_key(self) -> tuple[float, int]:
+        """``(stamp, priority)`` of the node's next input (a detection group 1, odometry 2; ``(inf, 3)``: none left).
+        With a live feed and nothing read yet, a lower bound of it: ``(watermark, 1)``."""
+        if self._i >= len(self.items):
+            if self.feed is not None and not self.feed.exhausted:
+                return (self._feed_w, 1)
+            return (math.inf, 3)
+        s, item = self.items[self._i]
+        return (s, 2 if isinstance(item, Odometry) else 1)
 
     def stop(self) -> None:
         """Ask :meth:`run` to finish (from another thread or a signal handler)."""
@@ -263,9 +224,9 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
         """Run until the source is exhausted and the team settled (or :meth:`stop`, or ``max_wall`` s)."""
         t_wall0, t_cpu0 = time.perf_counter(), time.process_time()
         deadline = math.inf if max_wall is None else time.monotonic() + max_wall
-        self._open()
+        self.wiring.open()
         try:
-            self._publish_progress(self.items[0][0] if self.items else math.inf, force=True)
+            self.announcer.announce(self.items[0][0] if self.items else math.inf, force=True)
             self._wait_start(deadline)
             self._main(deadline)
             if not self._stop.is_set():
@@ -274,35 +235,35 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             report = self.report(time.perf_counter() - t_wall0, time.process_time() - t_cpu0)
             try:
                 done = Progress(robot=self.robot, t=math.inf, done=True)
-                self._pub_progress.put(self._env(done, robot_key(self.scope, self.robot, "progress")))
+                self.wiring.put("progress", done)
                 key = robot_key(self.scope, self.robot, "report")
-                self.session.put(key, self._env(report, key), congestion_control=self._block)
+                self.session.put(key, self._env(report, key), congestion_control=self.wiring.block)
                 time.sleep(0.2)  # let Zenoh flush the report before the session closes
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
                 log.debug("robot %s: final report not sent: %s", self.robot, exc)
-            self._close()
+            self.wiring.close()
         return report
 
     def _wait_start(self, deadline: float) -> None:
         """Wait for the robots of ``wait_for`` (and, with ``use_server``, the belief server) to be alive: at most
         ``start_timeout`` s, and not past ``deadline``; saying for whom (a warning once 2 s passed, then every 5 s).
         The server is waited for because what is published before it subscribed (a scan's lines) never reaches it."""
-        t0 = time.monotonic()
-        end, note = min(t0 + self.start_timeout, deadline), t0 + 2.0
+        t0, wait, server = time.monotonic(), self.settings.start_timeout, self.settings.use_server
+        end, note = min(t0 + wait, deadline), t0 + 2.0
 
         def missing() -> str:
             who = [f"robots {sorted(self.wait_for - self._alive)}"] if not self.wait_for <= self._alive else []
-            return " and ".join(who + (["the belief server"] if self.use_server and not self._server_up else []))
+            return " and ".join(who + (["the belief server"] if server and not self._server_up else []))
 
         if missing():
-            log.info("robot %s: waiting up to %.0f s for %s to be alive", self.robot, self.start_timeout, missing())
+            log.info("robot %s: waiting up to %.0f s for %s to be alive", self.robot, wait, missing())
         while missing() and time.monotonic() < end and not self._stop.is_set():
             if time.monotonic() >= note:
                 note += 5.0
                 log.warning("robot %s: still waiting for %s to be alive (%.0f s left)", self.robot, missing(),
                             end - time.monotonic())  # fmt: skip
             self._drain(0.05)
-            self._publish_progress(self._last_progress, force=True)
+            self.announcer.announce(self.announcer.last, force=True)
         if missing():
             log.warning("robot %s: starting without %s (not alive after %.1f s)", self.robot, missing(),
                         time.monotonic() - t0)  # fmt: skip
@@ -324,39 +285,39 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             self._answer_ready()
             self._release()
             self._flush()
-            self._publish_settled()
+            self.publishing.settled()
             self._status()
             wait = self._run_timers()
             if i >= len(items):  # a live feed with nothing released yet: tell the team how far it is, wait
                 self._say_waiting(i)
-                self._publish_progress(self._feed_w)
+                self.announcer.announce(self._feed_w)
                 self._drain(min(wait, 0.02))
                 continue
             self._wait_note = math.inf
             s, item = items[i]
-            if self.speed > 0:
-                due = w0 + (s - t_start) / self.speed - time.monotonic()
+            if self.settings.speed > 0:
+                due = w0 + (s - t_start) / self.settings.speed - time.monotonic()
                 if due > 0:
-                    self._publish_progress(self._last_progress)  # every 0.2 s: a paced node is not silent
+                    self.announcer.announce(self.announcer.last)  # every 0.2 s: a paced node is not silent
                     self._drain(min(due, wait, 0.05))
                     continue
             if not self._may_feed(s) or (isinstance(item, list) and not self._group_may_go(s)):
                 self._check_lost(s)
-                self._publish_progress(s, force=True)
+                self.announcer.announce(s, force=True)
                 self._drain(min(wait, 0.02))
                 continue
-            if self._final < self.record_times.size and s - self.node.horizon > self.record_times[self._final]:
-                self._publish_due(upto=s)
+            if self.publishing.behind(s):
+                self.publishing.due(upto=s)
             self._step(item)
             i += 1
             self._i = i
             self._answer_ready()
             nxt = items[i][0] if i < len(items) else self._feed_w if self.feed is not None else math.inf
-            self._publish_progress(nxt)
-            self._publish_due()
+            self.announcer.announce(nxt)
+            self.publishing.due()
         self._i = len(items)
         self._answer_ready()
-        self._publish_progress(math.inf, force=True)
+        self.announcer.announce(math.inf, force=True)
 
     def _say_waiting(self, taken: int) -> None:
         """While a live node has nothing to do, say (a warning: shown without ``--verbose``) what it waits for: its
@@ -385,15 +346,19 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             self._group_at.extend(base + k for k, (_, item) in enumerate(groups) if isinstance(item, list))
             for e in new:
                 self._feed_hi = max(self._feed_hi, float(e.t))
-        if self.record_rate is not None:  # record times up to the latest input, or the watermark (time went on)
-            rt, t0 = self.record_times, self.node.t0  # ... but not more than the feed's max_ahead past the input
+        rate = self.settings.record_rate
+        if rate is not None:  # record times up to the latest input, or the watermark (time went on) ...
+            rt, t0 = (
+                self.publishing.record_times,
+                self.node.t0,
+            )  # ... but not more than the feed's max_ahead past the input
             assert t0 is not None  # a live node is started before it runs (_init_feed)
             w = self._feed_w if math.isfinite(self._feed_w) else -math.inf  # inf: the stream ended
             hi = max(self._feed_hi, min(w, max(self._feed_hi, t0) + self.feed.max_ahead))
             k0 = rt.size
-            k1 = math.floor((hi - t0) * self.record_rate + 1e-9) + 1
+            k1 = math.floor((hi - t0) * rate + 1e-9) + 1
             if k1 > k0:
-                self.record_times = np.concatenate([rt, t0 + np.arange(k0, k1) / self.record_rate])
+                self.publishing.extend(t0 + np.arange(k0, k1) / rate)
 
     def _status(self) -> None:
         now = time.monotonic()
@@ -421,8 +386,8 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             self._flush()
             self._status()
             self._run_timers()
-            if time.monotonic() - self._last_progress_wall > 0.2:
-                self._publish_progress(math.inf, force=True)
+            if time.monotonic() - self.announcer.last_wall > 0.2:
+                self.announcer.announce(math.inf, force=True)
             if got or not self._idle():
                 quiet_since = time.monotonic()
             all_read = all(self._progress.get(r, -math.inf) == math.inf or r in self._done for r in self._alive)
@@ -430,19 +395,19 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
                 self._check_lost(math.inf)
             now = time.monotonic()
             all_read_since = min(all_read_since, now) if all_read else math.inf
-            if all_read and now - quiet_since >= self.quiet:
+            if all_read and now - quiet_since >= self.settings.quiet:
                 break
-            if now - all_read_since > self.linger:
+            if now - all_read_since > self.settings.linger:
                 self.counts["never_settled"] += 1
                 log.warning("robot %s: traffic still not settled %.0f s after the team read its sources; finishing",
-                            self.robot, self.linger)  # fmt: skip
+                            self.robot, self.settings.linger)  # fmt: skip
                 break
         self._route(self.node.expire())
         self._flush(force=True)
-        self._publish_due(end=True)
-        self._publish_settled(end=True)
-        self._publish_progress(math.inf, done=True, force=True)
-        t_end = time.monotonic() + self.linger
+        self.publishing.due(end=True)
+        self.publishing.settled(end=True)
+        self.announcer.announce(math.inf, done=True, force=True)
+        t_end = time.monotonic() + self.settings.linger
         quiet_since = time.monotonic()
         while not self._stop.is_set() and time.monotonic() < min(t_end, deadline):
             got = self._drain(0.02)
@@ -450,11 +415,11 @@ class NetNode(Wiring, Inbound, Lockstep, Outbound, Publishing, Broadcasting):
             self._flush()
             if got:
                 self._route(self.node.expire())
-                self._republish_changed()
+                self.publishing.republish_changed()
                 quiet_since = time.monotonic()
-            if time.monotonic() - self._last_progress_wall > 0.2:
-                self._publish_progress(math.inf, done=True, force=True)
-            if self._alive <= self._done and self._idle() and time.monotonic() - quiet_since >= self.quiet:
+            if time.monotonic() - self.announcer.last_wall > 0.2:
+                self.announcer.announce(math.inf, done=True, force=True)
+            if self._alive <= self._done and self._idle() and time.monotonic() - quiet_since >= self.settings.quiet:
                 break
 
     def report(self, wall: float = 0.0, cpu: float = 0.0) -> Report:

@@ -12,91 +12,140 @@ up before it declares its token (:mod:`swarmloc.net.pairing`).
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable, Sequence
 from typing import Any
 
+from swarmloc.net.auth import Auth
 from swarmloc.net.pairing import attach
-from swarmloc.net.parts import NodeParts
 from swarmloc.net.transport import alive_key, block, robot_key
 
+PUBLISHED = ("belief", "progress", "delayed", "lines")
+"""The robot's own keys it publishes on (each declared once opened; ``delayed``, ``lines`` only where it has them)."""
 
-class Wiring(NodeParts):
-    """Part of :class:`~swarmloc.net.process.NetNode`: opening and closing its Zenoh declarations."""
 
-    def _init_wiring(self) -> None:
-        self._decl: list[Any] = []
-        self._block: Any = None  # zenoh.CongestionControl.BLOCK once opened (zenoh is imported lazily)
+class Wiring:
+    """Part of :class:`~swarmloc.net.process.NetNode`: opening and closing its Zenoh declarations on ``session``
+    for robot ``robot`` of team ``team`` (keys under ``scope``), and publishing on its own keys.
+
+    ``offer``: takes ``(kind, sample)`` of everything received, within the node's budgets (its
+    :class:`~swarmloc.net.intake.Intake`); ``env``: ``env(body, key)``, the signed envelope of a message
+    (:meth:`~.outbound.Outbound._env`); ``auth``: the per-pair sessions to attach (None: unauthenticated);
+    ``mates``: the teammates whose broadcasts it hears (``["*"]``: all; None: a node without broadcasts);
+    ``delayed``, ``lines``: whether it publishes a smoother's delayed output and scans' lines; ``ros_domain``: the
+    ROS domain its beliefs are published in too (None: not)."""
+
+    def __init__(
+        self,
+        session: Any,
+        scope: str,
+        team: str,
+        robot: int,
+        offer: Callable[[tuple[str, Any]], Any],
+        env: Callable[[Any, str], bytes],
+        *,
+        auth: Auth | None = None,
+        mates: Sequence[str] | None = None,
+        delayed: bool = False,
+        lines: bool = False,
+        ros_domain: int | None = None,
+    ) -> None:
+        self.session, self.scope, self.team, self.robot = session, scope, team, robot
+        self.offer, self.env, self.auth, self.mates = offer, env, auth, mates
+        self.delayed, self.lines, self.ros_domain = delayed, lines, ros_domain
+        self.decl: list[Any] = []
+        """What it declared (undeclared by :meth:`close`); a part that declares more appends it here."""
+        self.block: Any = None
+        """``zenoh.CongestionControl.BLOCK`` once opened (zenoh is imported lazily): what it sends is never dropped."""
+        self.pub: dict[str, Any] = dict.fromkeys(PUBLISHED)
+        """The publisher of each of the robot's own keys (:data:`PUBLISHED`), once opened."""
         self._ros_pub: Any = None
         self._ros_graph: Any = None
+        self._ros_gid = b""
+        self._ros_seq = 0
+        self._token: Any = None
 
-    def _open(self) -> None:
+    def open(self) -> None:
         """Declare the node's queryable, subscribers, publishers and liveliness token on its session."""
         import zenoh
 
-        self._block = block()  # never drop a belief, a progress announcement or a push
+        self.block = block()  # never drop a belief, a progress announcement or a push
 
         s, team, r = self.session, self.scope, self.robot  # keys: the team's scope (its name, and the run's id)
         # per-pair sessions (:mod:`swarmloc.net.pairing`): answer the handshake before anything else is declared
         attach(self.auth, s, team, hello=False)
-        put = self._inq.offer  # within the budgets of what a node takes in (:mod:`.intake`)
-        self._decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
-        self._decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
-        self._decl.append(  # the teammates' progress (not this session's own: it would be verified for nothing)
+        put = self.offer  # within the budgets of what a node takes in (:mod:`.intake`)
+        self.decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
+        self.decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
+        self.decl.append(  # the teammates' progress (not this session's own: it would be verified for nothing)
             s.declare_subscriber(
                 robot_key(team, "*", "progress"),
                 handler=lambda x: put(("progress", x)),
                 allowed_origin=zenoh.Locality.REMOTE,
             )  # fmt: skip
         )
-        self._decl.append(
+        self.decl.append(
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
         )
-        if self.broadcasts:  # the teammates' broadcasts (a team estimator: :mod:`swarmloc.net.broadcast`)
-            # diekf in clusters: its cluster's only (each a key of its own), so that what a node takes in is flat
-            # in the team's size; otherwise one subscription to every teammate's
-            team_node: Any = self.node  # a team estimator's (diekf): its team, not declared on Node
-            mates = [str(m) for m in team_node.team if m != r] if getattr(self.node, "cluster", 0) else ["*"]
-            for m in mates:
-                self._decl.append(
-                    s.declare_subscriber(
-                        robot_key(team, m, "broadcast"),
-                        handler=lambda x: put(("broadcast", x)),
-                        allowed_origin=zenoh.Locality.REMOTE,
-                    )  # fmt: skip
-                )
-        self._pub_belief = s.declare_publisher(robot_key(team, r, "belief"), congestion_control=self._block)
-        self._pub_progress = s.declare_publisher(robot_key(team, r, "progress"), congestion_control=self._block)
-        if self._delayed is not None:  # a smoother's delayed output (:mod:`.publishing`)
-            self._pub_delayed = s.declare_publisher(robot_key(team, r, "delayed"), congestion_control=self._block)
-        if self.scans is not None:  # each scan's world lines, for the belief server's map
-            self._pub_lines = s.declare_publisher(robot_key(team, r, "lines"), congestion_control=self._block)
+        # the teammates' broadcasts (a team estimator: :mod:`swarmloc.net.broadcast`); diekf in clusters: its
+        # cluster's only (each a key of its own), so that what a node takes in is flat in the team's size
+        for m in self.mates or ():
+            self.decl.append(
+                s.declare_subscriber(
+                    robot_key(team, m, "broadcast"),
+                    handler=lambda x: put(("broadcast", x)),
+                    allowed_origin=zenoh.Locality.REMOTE,
+                )  # fmt: skip
+            )
+        for kind in ("belief", "progress", *(["delayed"] if self.delayed else []), *(["lines"] if self.lines else [])):
+            self.pub[kind] = s.declare_publisher(robot_key(team, r, kind), congestion_control=self.block)
         if self.ros_domain is not None:
-            import hashlib
-
-            from swarmloc.net import ros
-
-            # the ROS topic names the team, not the run: a run id may start with a digit, which ROS names refuse
-            self.ros_topic = f"/swarmloc/{self.team.replace('-', '_')}/robot{r}/pose"
-            key = ros.ros_key(self.ros_topic, self.ros_domain)
-            self._ros_pub = s.declare_publisher(key, congestion_control=self._block)
-            self._ros_gid = hashlib.blake2b(key.encode(), digest_size=16).digest()
-            self._ros_seq = 0
-            from swarmloc.net.rosgraph import RosGraph  # in the ROS graph: ros2 node list / topic list see it
-
-            self._ros_graph = RosGraph(s, self.ros_domain, f"/swarmloc/{self.team.replace('-', '_')}", f"robot{r}")
-            self._ros_graph.publisher(self.ros_topic, ros.DDS_TYPE_NAME, ros.type_hash())
+            self._open_ros(self.ros_domain)
         if self.auth is not None:  # a session with every member up now, before the team hears of this process
             self.auth.sessions.hello_all()
         self._token = s.liveliness().declare_token(alive_key(team, r))
 
-    def _close(self) -> None:
-        """Undeclare everything :meth:`_open` declared (the session itself belongs to the caller)."""
-        for d in [*self._decl, getattr(self, "_token", None)]:
+    def _open_ros(self, domain: int) -> None:
+        """The ROS 2 pose publisher (rmw_zenoh's key layout) and the node's and publisher's graph tokens."""
+        import hashlib
+
+        from swarmloc.net import ros
+        from swarmloc.net.rosgraph import RosGraph  # in the ROS graph: ros2 node list / topic list see it
+
+        # the ROS topic names the team, not the run: a run id may start with a digit, which ROS names refuse
+        self.ros_topic = f"/swarmloc/{self.team.replace('-', '_')}/robot{self.robot}/pose"
+        key = ros.ros_key(self.ros_topic, domain)
+        self._ros_pub = self.session.declare_publisher(key, congestion_control=self.block)
+        self._ros_gid = hashlib.blake2b(key.encode(), digest_size=16).digest()
+        self._ros_seq = 0
+        self._ros_graph = RosGraph(
+            self.session, domain, f"/swarmloc/{self.team.replace('-', '_')}", f"robot{self.robot}"
+        )
+        self._ros_graph.publisher(self.ros_topic, ros.DDS_TYPE_NAME, ros.type_hash())
+
+    def put(self, kind: str, body: Any) -> None:
+        """Sign ``body`` and publish it on this robot's ``kind`` key (one of :data:`PUBLISHED`)."""
+        self.pub[kind].put(self.env(body, robot_key(self.scope, self.robot, kind)))
+
+    def put_ros(self, t: Any, b: Any) -> None:
+        """Publish belief ``b`` (a group Gaussian) at time ``t`` on the ROS pose topic, if there is one."""
+        if self._ros_pub is None:
+            return
+        from swarmloc.net import ros
+
+        self._ros_seq += 1  # rmw_zenoh drops samples without its attachment (sequence, source time, gid)
+        att = ros.ros_attachment(self._ros_seq, time.time_ns(), self._ros_gid)
+        self._ros_pub.put(ros.to_cdr(ros.pose_message(t, b.mean, b.cov)), attachment=att)
+
+    def close(self) -> None:
+        """Undeclare everything :meth:`open` declared (the session itself belongs to the caller)."""
+        for d in [*self.decl, self._token]:
             if d is not None:
                 try:
                     d.undeclare()
                 except Exception:  # noqa: BLE001 - closing: nothing left to do about it
                     pass
-        self._decl.clear()
+        self.decl.clear()
         if self.auth is not None and self.auth.sessions is not None:
             self.auth.sessions.close()
         if self._ros_graph is not None:

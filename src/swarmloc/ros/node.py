@@ -13,7 +13,7 @@
   :class:`~swarmloc.net.feed.LiveFeed`.
 
 At each output time ``t0 + k / frequency`` the node publishes, once the belief there is *settled* (no input the
-team still reads can change it: :meth:`NetNode._publish_settled`), ``nav_msgs/Odometry`` on ``odometry_topic``,
+team still reads can change it: :meth:`Publishing.settled`), ``nav_msgs/Odometry`` on ``odometry_topic``,
 ``PoseWithCovarianceStamped`` on ``pose_topic`` and, with ``publish_tf``, the ``world_frame -> odom_frame``
 transform on ``/tf``; ``diagnostic_msgs/DiagnosticArray`` every ``diagnostics_period`` s. It runs until stopped.
 Topic names are resolved and remapped as ``rcl`` does (:mod:`swarmloc.ros.args`).
@@ -242,6 +242,7 @@ class RosNode:
         """The robot's team node, once its start ``t0`` is known (the first odometry)."""
         from swarmloc.net.entry import make_node
         from swarmloc.net.process import NetNode
+        from swarmloc.net.settings import NetSettings
         from swarmloc.net.transport import open_session
 
         p = self.params
@@ -251,9 +252,9 @@ class RosNode:
         if self._team_session is None:
             self._team_session = open_session(p.team_listen, p.team_connect)
             self._own_session = True
+        settings = NetSettings(run_id=p.run_id or None, start_timeout=p.start_timeout, record_rate=p.frequency)
         self.net = NetNode(node, self.feed, session=self._team_session, team=p.team, roster=p.team_ids,
-                           record_rate=p.frequency, on_settled=self._on_settled, auth=self._auth,
-                           run_id=p.run_id or None, start_timeout=p.start_timeout,
+                           settings=settings, on_settled=self._on_settled, auth=self._auth,
                            on_belief=self._on_belief)  # fmt: skip
         self._thread = threading.Thread(target=self._run_team, name=f"swarmloc-ros-{self.robot}", daemon=True)
         self._thread.start()
