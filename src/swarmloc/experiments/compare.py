@@ -19,13 +19,11 @@ Columns, pooled over all robots' records of all runs:
 
 from __future__ import annotations
 
-import json
 import multiprocessing
 import os
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,6 +31,7 @@ import numpy as np
 from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
 from swarmloc.experiments.association import association_accuracy
 from swarmloc.experiments.evaluate import association_text
+from swarmloc.experiments.output import write_summary
 from swarmloc.experiments.progress import steps
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, SE3
@@ -223,10 +222,7 @@ def compare(
             "x_real_time": sum(r["data_s"] for r in rs) / sum(r["wall_s"] for r in rs),
         }
     if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "compare.json").write_text(json.dumps(summary, indent=2))
-        (out / "compare.md").write_text(compare_table(summary))
+        write_summary(out_dir, "compare", summary, compare_table(summary))
     return summary
 
 

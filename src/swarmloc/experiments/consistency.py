@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.evaluation.metrics import DOF, errors
+from swarmloc.experiments.output import write_summary
 
 __all__ = [
     "EXCLUDED_BY_DEFAULT",
@@ -250,8 +251,7 @@ def consistency(
         d.mkdir(parents=True, exist_ok=True)
         summary["figure"] = "consistency.png"
         figure(summary, d / "consistency.png")
-        (d / "consistency.json").write_text(json.dumps(summary, indent=2))
-        (d / "consistency.md").write_text(consistency_table(summary))
+        write_summary(d, "consistency", summary, consistency_table(summary))
     return summary
 
 
