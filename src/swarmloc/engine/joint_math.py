@@ -238,11 +238,17 @@ def kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.
             for k in range(m):
                 ab -= K[a, k] * U[b, k] + W[a, k] * K[b, k]
                 ba -= K[b, k] * U[a, k] + W[b, k] * K[a, k]
-            val = 0.5 * (ab + ba)
-            Pn[a, b] = val
-            Pn[b, a] = val
-            ok = ok and math.isfinite(val)
+            ok = store_symmetric(Pn, a, b, ab, ba) and ok
     return xn, Pn, nis, ok
+
+
+@njit(error_model="numpy")
+def store_symmetric(Pn: np.ndarray, a: int, b: int, ab: float, ba: float) -> bool:
+    """``Pn[a, b] = Pn[b, a] = (ab + ba) / 2`` (a covariance update's two mirrored entries, averaged); finite?"""
+    val = 0.5 * (ab + ba)
+    Pn[a, b] = val
+    Pn[b, a] = val
+    return math.isfinite(val)
 
 
 @njit(error_model="numpy")

@@ -42,7 +42,16 @@ from swarmloc.engine.codes import (
 )
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import predict_kernel, screen_started
-from swarmloc.engine.joint_math import RANGE_BEARING, innovation, inverse, measure, usable, verdict, wrap
+from swarmloc.engine.joint_math import (
+    RANGE_BEARING,
+    innovation,
+    inverse,
+    measure,
+    store_symmetric,
+    usable,
+    verdict,
+    wrap,
+)
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
@@ -108,10 +117,7 @@ def _kalman(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.nd
             for k in range(m):
                 ab += KR[a, k] * K[b, k]
                 ba += KR[b, k] * K[a, k]
-            val = 0.5 * (ab + ba)
-            Pn[a, b] = val
-            Pn[b, a] = val
-            ok = ok and math.isfinite(val)
+            ok = store_symmetric(Pn, a, b, ab, ba) and ok
     return xn, Pn, nis, ok
 
 

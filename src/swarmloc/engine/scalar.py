@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from itertools import accumulate
 from typing import Any
 
 from swarmloc.engine import soa
@@ -203,33 +204,28 @@ def predict_source(noise: UnicycleNoise) -> str:
     return _generate("predict", 12, body)
 
 
-def pose_source() -> str:
-    """``pose(x(3), P(6), xk(3), Pk(6), z(3), R(6)) -> (x+(3), P+(6), nis, ok and positive definite)``."""
+def _update_source(name: str, update: Callable[..., tuple], sizes: tuple[int, ...]) -> str:
+    """Source of ``name(x(3), P(6), *blocks) -> (x+(3), P+(6), nis, ok and positive definite)``: :mod:`soa`'s
+    ``update(xp, x, P, *blocks)`` with blocks of ``sizes`` entries."""
+    ends = list(accumulate((3, 6, *sizes)))
 
     def body(xp: Any, a: list) -> list:
-        xs, ps, nis, ok = soa.pose_update(xp, tuple(a[0:3]), tuple(a[3:9]), tuple(a[9:12]), tuple(a[12:18]),
-                                          tuple(a[18:21]), tuple(a[21:27]))  # fmt: skip
+        xs, ps, nis, ok = update(xp, *(tuple(a[i:j]) for i, j in zip([0, *ends], ends, strict=False)))
         return [*xs, *ps, nis, ok & soa.positive_definite(xp, ps)]
 
-    return _generate("pose", 27, body)
+    return _generate(name, ends[-1], body)
+
+
+def pose_source() -> str:
+    """``pose(x(3), P(6), xk(3), Pk(6), z(3), R(6)) -> (x+(3), P+(6), nis, ok and positive definite)``."""
+    return _update_source("pose", soa.pose_update, (3, 6, 3, 6))
 
 
 def absolute_source() -> str:
     """``absolute(x(3), P(6), z(3), R(6)) -> (x+(3), P+(6), nis, ok and positive definite)``."""
-
-    def body(xp: Any, a: list) -> list:
-        xs, ps, nis, ok = soa.absolute_update(xp, tuple(a[0:3]), tuple(a[3:9]), tuple(a[9:12]), tuple(a[12:18]))
-        return [*xs, *ps, nis, ok & soa.positive_definite(xp, ps)]
-
-    return _generate("absolute", 18, body)
+    return _update_source("absolute", soa.absolute_update, (3, 6))
 
 
 def landmark_source() -> str:
     """``landmark(x(3), P(6), lk(2), L(3), z(2), R(3)) -> (x+(3), P+(6), nis, ok and positive definite)``."""
-
-    def body(xp: Any, a: list) -> list:
-        xs, ps, nis, ok = soa.landmark_update(xp, tuple(a[0:3]), tuple(a[3:9]), tuple(a[9:11]), tuple(a[11:14]),
-                                              tuple(a[14:16]), tuple(a[16:19]))  # fmt: skip
-        return [*xs, *ps, nis, ok & soa.positive_definite(xp, ps)]
-
-    return _generate("landmark", 19, body)
+    return _update_source("landmark", soa.landmark_update, (2, 3, 2, 3))

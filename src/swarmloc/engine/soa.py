@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from swarmloc.kernels.cartesian import shifted_cov
 from swarmloc.motion import SERIES, SERIES_BELOW, UnicycleNoise
 from swarmloc.motion.closed_form import unicycle_terms
 
@@ -189,16 +190,9 @@ def predict(
     q02 = cn * S13 - sn * S23
     q11 = ss * S11 + 2 * cs * S12 + cc * S22
     q12 = sn * S13 + cn * S23
-    p00, p01, p02, p11, p12, p22 = p
-    a02 = p02 - dy * p22
-    a12 = p12 + dx * p22
-    n00 = p00 - 2 * dy * p02 + dy * dy * p22 + q00
-    n01 = p01 - dy * p12 + dx * a02 + q01
-    n11 = p11 + 2 * dx * p12 + dx * dx * p22 + q11
-    n02, n12, n22 = a02 + q02, a12 + q12, p22 + S33
+    new_p = shifted_cov(p, dx, dy, (q00, q01, q02, q11, q12, S33))
     move = dt > 0
     new_x = (x0 + dx, y0 + dy, th)
-    new_p = (n00, n01, n02, n11, n12, n22)
     return (
         tuple(xp.where(move, a, b) for a, b in zip(new_x, x, strict=True)),
         tuple(xp.where(move, a, b) for a, b in zip(new_p, p, strict=True)),

@@ -17,6 +17,7 @@ import math
 import resource
 import time
 import tracemalloc
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -292,11 +293,7 @@ def fusion_step(
             xs, Ps, *_ = ops.pose_update(xs, Ps, x[tgt[:, j]], P[tgt[:, j]], z[:, j], R[:, j])
 
     kernels()
-    ktimes = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        kernels()
-        ktimes.append(time.perf_counter() - t0)
+    ktimes = wall_times(kernels, repeats)
     step = float(np.median(times))
     return {
         "n": n,
@@ -312,6 +309,16 @@ def fusion_step(
         "levels": levels,
         "kernel_robot_updates_per_s": n / float(np.median(ktimes)),
     }
+
+
+def wall_times(call: Callable[[], object], repeats: int) -> list[float]:
+    """Wall-clock seconds (``time.perf_counter``) of each of ``max(1, repeats)`` calls of ``call``."""
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - t0)
+    return times
 
 
 def device_step(
@@ -339,11 +346,7 @@ def device_step(
     t0 = time.perf_counter()
     jax.block_until_ready(f(*args))
     compile_s = time.perf_counter() - t0
-    times = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        jax.block_until_ready(f(*args))
-        times.append(time.perf_counter() - t0)
+    times = wall_times(lambda: jax.block_until_ready(f(*args)), repeats)
     step = float(np.median(times))
     dev = args[0].devices() if hasattr(args[0], "devices") else jax.devices()
     return {"n": n, "dtype": dtype, "neighbours": neighbours, "device": str(next(iter(dev))), "step_s": step,

@@ -6,7 +6,7 @@ serve as independent checks of :mod:`swarmloc.gaussian` and :mod:`swarmloc.fusio
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -84,11 +84,8 @@ def importance_posterior(
     """
     G = prior.group
     d = G.dim
-    q_mean, q_cov = np.zeros(d), prior.cov
-    for stage in range(max(1, stages)):
-        y_i = rng.multivariate_normal(q_mean, q_cov, size=n)
-        gi = prior.mean @ G.exp(y_i, validate=False)
-        logw = _gauss_logpdf(y_i, prior.cov) - _gauss_logpdf(y_i - q_mean, q_cov)
+
+    def add_loglik(gi: np.ndarray, logw: np.ndarray) -> None:
         for nb, meas in measurements:
             if np.linalg.det(meas.cov) <= np.linalg.det(nb.cov):
                 # propose g_k from the measurement, weight by the neighbour's density on the group
@@ -101,16 +98,8 @@ def importance_posterior(
                 gk = nb.sample(n, rng)
                 nk = G.log(G.inverse(meas.mean, validate=False) @ G.inverse(gi, validate=False) @ gk, validate=False)
                 logw += _gauss_logpdf(nk, meas.cov) - log_abs_det_jacobian(G, nk)
-        w = np.exp(logw - logw.max())
-        w /= w.sum()
-        ess = float(1.0 / (w**2).sum())
-        mu, cov = group_mean(G, gi, w, init=prior.mean)
-        if stage < stages - 1:
-            # next proposal, in y_i coordinates about prior.mean
-            y_mu = G.log(G.inverse(prior.mean, validate=False) @ mu, validate=False)
-            dy = y_i - y_mu
-            q_mean, q_cov = y_mu, 1.5**2 * ((dy * w[:, None]).T @ dy)
-    return mu, cov, ess
+
+    return _adaptive_importance(G, prior, n, rng, stages, add_loglik)
 
 
 def importance_posterior_point(
@@ -134,12 +123,9 @@ def importance_posterior_point(
     from swarmloc.sensors.models import model
 
     point = model(kind)
-    d = 3
     Rinv = np.linalg.inv(R)
-    q_mean, q_cov = np.zeros(d), prior.cov
-    for stage in range(max(1, stages)):
-        y_i = rng.multivariate_normal(q_mean, q_cov, size=n)
-        gi = prior.mean @ SE2.exp(y_i, validate=False)
+
+    def add_loglik(gi: np.ndarray, logw: np.ndarray) -> None:
         if isinstance(target, GroupGaussian):
             pk = target.sample(n, rng)[:, :2, 2]
         else:
@@ -149,14 +135,40 @@ def importance_posterior_point(
         rr = np.hypot(q[:, 0], q[:, 1])
         bb = np.arctan2(q[:, 1], q[:, 0])
         res = point.residual(z, np.stack([rr, bb], 1)[:, point.components])
-        logw = _gauss_logpdf(y_i, prior.cov) - _gauss_logpdf(y_i - q_mean, q_cov)
         logw -= 0.5 * np.einsum("ni,ij,nj->n", res, Rinv, res)
+
+    return _adaptive_importance(SE2, prior, n, rng, stages, add_loglik, jitter=1e-12)
+
+
+def _adaptive_importance(
+    G: type[SEGroup],
+    prior: GroupGaussian,
+    n: int,
+    rng: np.random.Generator,
+    stages: int,
+    add_loglik: Callable[[np.ndarray, np.ndarray], None],
+    jitter: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The sampler both posteriors share: ``stages`` rounds of ``n`` draws ``g_i = mu_i exp(y_i)``, ``y_i ~ q``
+    (the prior first, then a Gaussian at the last round's weighted mean with 1.5^2 times its weighted covariance,
+    plus ``jitter`` I), log-weighted by ``N(y_i; 0, Sigma_i) / q(y_i)`` plus what ``add_loglik(g_i (n, ...), logw
+    (n,))`` adds in place. Returns ``(mean, cov, effective sample size of the last round)``."""
+    d = G.dim
+    q_mean, q_cov = np.zeros(d), prior.cov
+    for stage in range(max(1, stages)):
+        y_i = rng.multivariate_normal(q_mean, q_cov, size=n)
+        gi = prior.mean @ G.exp(y_i, validate=False)
+        logw = _gauss_logpdf(y_i, prior.cov) - _gauss_logpdf(y_i - q_mean, q_cov)
+        add_loglik(gi, logw)
         w = np.exp(logw - logw.max())
         w /= w.sum()
         ess = float(1.0 / (w**2).sum())
-        mu, cov = group_mean(SE2, gi, w, init=prior.mean)
+        mu, cov = group_mean(G, gi, w, init=prior.mean)
         if stage < stages - 1:
-            y_mu = SE2.log(SE2.inverse(prior.mean, validate=False) @ mu, validate=False)
+            # next proposal, in y_i coordinates about prior.mean
+            y_mu = G.log(G.inverse(prior.mean, validate=False) @ mu, validate=False)
             dy = y_i - y_mu
-            q_mean, q_cov = y_mu, 1.5**2 * ((dy * w[:, None]).T @ dy) + 1e-12 * np.eye(d)
+            q_mean, q_cov = y_mu, 1.5**2 * ((dy * w[:, None]).T @ dy)
+            if jitter:
+                q_cov = q_cov + jitter * np.eye(d)
     return mu, cov, ess

@@ -218,6 +218,7 @@ def filterpy_fusion(n: int, neighbours: int = 3, repeats: int = 3, seed: int = 0
     added to the noise as the distributed EKF does, angle residuals wrapped). Median over ``repeats`` steps."""
     from filterpy.kalman import ExtendedKalmanFilter
 
+    from swarmloc.engine.swarm import wall_times
     from swarmloc.kernels import cartesian as C
     from swarmloc.lie import wrap_angle
     from swarmloc.motion import UnicycleNoise
@@ -256,11 +257,7 @@ def filterpy_fusion(n: int, neighbours: int = 3, repeats: int = 3, seed: int = 0
                 h, Hi, Hk = models.relative_pose(f.x, xs[k])
                 f.update(rel[i, j], lambda x, H=Hi: H, lambda x, h=h: h, R=R + Hk @ Ps[k] @ Hk.T, residual=residual)
 
-    times = []
-    for _ in range(max(1, repeats)):
-        t = time.perf_counter()
-        step()
-        times.append(time.perf_counter() - t)
+    times = wall_times(step, repeats)
     med = float(np.median(times))
     return {"n": n, "neighbours": int(nb.shape[1]), "step_s": med, "robot_updates_per_s": n / med,
             "best_robot_updates_per_s": n / min(times)}  # fmt: skip

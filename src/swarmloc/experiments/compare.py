@@ -19,11 +19,9 @@ Columns, pooled over all robots' records of all runs:
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -31,6 +29,7 @@ import numpy as np
 from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
 from swarmloc.experiments.association import association_accuracy
 from swarmloc.experiments.evaluate import association_text
+from swarmloc.experiments.output import write_summary
 from swarmloc.experiments.progress import steps
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, SE3
@@ -221,10 +220,7 @@ def compare(
             "x_real_time": sum(r["data_s"] for r in rs) / sum(r["wall_s"] for r in rs),
         }
     if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "compare.json").write_text(json.dumps(summary, indent=2))
-        (out / "compare.md").write_text(compare_table(summary))
+        write_summary(out_dir, "compare", summary, compare_table(summary))
     return summary
 
 

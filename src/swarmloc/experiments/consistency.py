@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarmloc.evaluation.metrics import DOF, errors
+from swarmloc.experiments.output import write_summary
 from swarmloc.runner.fanout import ClusterUnavailable, cluster_address, fan_out
 
 if TYPE_CHECKING:
@@ -246,8 +247,7 @@ def consistency(
         d.mkdir(parents=True, exist_ok=True)
         summary["figure"] = "consistency.png"
         figure(summary, d / "consistency.png")
-        (d / "consistency.json").write_text(json.dumps(summary, indent=2))
-        (d / "consistency.md").write_text(consistency_table(summary))
+        write_summary(d, "consistency", summary, consistency_table(summary))
     return summary
 
 

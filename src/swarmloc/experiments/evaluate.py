@@ -25,6 +25,7 @@ from swarmloc.evaluation.delayed import delayed_output
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
 from swarmloc.experiments.association import association_accuracy, association_events
+from swarmloc.experiments.output import save_figure
 from swarmloc.experiments.progress import progress_bar
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.runner import RunResult, TruthFn, run
@@ -231,9 +232,7 @@ def figures(out: Path, results: dict[str, RunResult], t_start: float) -> list[st
         ax.set_title(f"robot {r}")
         ax.set_aspect("equal")
     axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "trajectories.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "trajectories.png")
     files.append("trajectories.png")
 
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
@@ -253,9 +252,7 @@ def figures(out: Path, results: dict[str, RunResult], t_start: float) -> list[st
     a2.set_ylabel("team NEES per dof")
     a2.set_xlabel("time since start [s]")
     a1.legend(fontsize=7, ncol=3)
-    fig.tight_layout()
-    fig.savefig(out / "error_nees_over_time.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "error_nees_over_time.png")
     files.append("error_nees_over_time.png")
     return files
 

@@ -19,6 +19,8 @@ All functions are batched over leading axes; unbatched inputs take the same code
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -95,15 +97,24 @@ def predict_one(
 ) -> tuple[FloatArray, FloatArray, float, float]:
     """:func:`predict` for one robot in floats: ``(x, P, dx, dy)``, where ``Phi = [[1, 0, -dy], [0, 1, dx],
     [0, 0, 1]]`` (``Phi P Phi^T`` expanded: ``Phi`` differs from the identity in two entries)."""
-    x0, y0, th, dx, dy, q00, q01, q02, q11, q12, q22 = increment_terms(x, v, w, dt, noise)
+    x0, y0, th, dx, dy, *q = increment_terms(x, v, w, dt, noise)
     p00, p01, p02, _, p11, p12, _, _, p22 = P.ravel().tolist()
+    n00, n01, n02, n11, n12, n22 = shifted_cov((p00, p01, p02, p11, p12, p22), dx, dy, q)
+    return np.array([x0, y0, th]), np.array([[n00, n01, n02], [n01, n11, n12], [n02, n12, n22]]), dx, dy
+
+
+def shifted_cov(p: Sequence[Any], dx: Any, dy: Any, q: Sequence[Any]) -> tuple[Any, ...]:
+    """Upper triangle ``(00, 01, 02, 11, 12, 22)`` of ``Phi P Phi^T + Q`` with ``Phi = [[1, 0, -dy], [0, 1, dx],
+    [0, 0, 1]]`` (the prediction's Jacobian after a move by ``(dx, dy)`` [m]), from the upper triangles ``p`` of ``P``
+    and ``q`` of ``Q``: expanded, in plain arithmetic (floats, arrays, or the engine's traced entries)."""
+    p00, p01, p02, p11, p12, p22 = p
+    q00, q01, q02, q11, q12, q22 = q
     a02 = p02 - dy * p22
     a12 = p12 + dx * p22
     n00 = p00 - 2 * dy * p02 + dy * dy * p22 + q00
     n01 = p01 - dy * p12 + dx * a02 + q01
     n11 = p11 + 2 * dx * p12 + dx * dx * p22 + q11
-    n02, n12, n22 = a02 + q02, a12 + q12, p22 + q22
-    return np.array([x0, y0, th]), np.array([[n00, n01, n02], [n01, n11, n12], [n02, n12, n22]]), dx, dy
+    return n00, n01, a02 + q02, n11, a12 + q12, p22 + q22
 
 
 INCREMENT_CACHE_SIZE = 1 << 16

@@ -23,8 +23,10 @@ point and its neighbours. The determinant lemma reduces it to ``m x m`` determin
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from swarmloc.arrays import FloatArray
 from swarmloc.kernels import group as K
@@ -41,6 +43,22 @@ Fuse = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
 def _cost(cov: FloatArray) -> FloatArray:
     sign, logdet = np.linalg.slogdet(cov)
     return np.where((sign > 0) & np.isfinite(logdet), logdet, np.inf)
+
+
+def _vertex_shift(
+    cost: FloatArray, j: NDArray[np.intp], idx: Any, step: FloatArray | float
+) -> tuple[FloatArray, FloatArray]:
+    """Offset from grid point ``j`` (the minimum over axis 0 of ``cost (grid, *batch)``, batch indices ``idx``) of
+    the vertex of the parabola through it and its neighbours, clipped to one ``step`` (zero at the grid's ends and
+    where the three costs are not finite or not convex); and the cost at ``j``."""
+    grid = cost.shape[0]
+    jm, jp = np.maximum(j - 1, 0), np.minimum(j + 1, grid - 1)
+    c0, c1, c2 = cost[(jm, *idx)], cost[(j, *idx)], cost[(jp, *idx)]
+    den = c0 - 2 * c1 + c2
+    inner = (j > 0) & (j < grid - 1) & np.isfinite(c0 + c1 + c2) & (den > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shift = np.where(inner, 0.5 * step * (c0 - c2) / np.where(inner, den, 1.0), 0.0)
+    return np.clip(shift, -step, step), c1
 
 
 def ci_search(
@@ -68,14 +86,8 @@ def ci_search(
         best = ws[(j, *idx)]
         a = np.maximum(lo, best - step)
         b = np.minimum(hi, best + step)
-    # vertex of the parabola through the best point and its neighbours on the last grid
-    jm, jp = np.maximum(j - 1, 0), np.minimum(j + 1, grid - 1)
-    c0, c1, c2 = cost[(jm, *idx)], cost[(j, *idx)], cost[(jp, *idx)]
-    den = c0 - 2 * c1 + c2
-    inner = (j > 0) & (j < grid - 1) & np.isfinite(c0 + c1 + c2) & (den > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        shift = np.where(inner, 0.5 * step * (c0 - c2) / np.where(inner, den, 1.0), 0.0)
-    w = np.clip(best + np.clip(shift, -step, step), lo, hi)
+    shift, c1 = _vertex_shift(cost, j, idx, step)  # the parabola through the best point and its neighbours
+    w = np.clip(best + shift, lo, hi)
     mean, cov = fuse(w[None])
     # never worse than the best grid point (the parabola can miss on a flat or kinked cost)
     worse = _cost(cov[0]) > c1
@@ -102,13 +114,8 @@ def _minimize_on_grid(cost: Callable[[FloatArray], FloatArray], batch_shape: tup
     j = np.argmin(c, axis=0)
     idx = np.indices(batch_shape) if batch_shape else ()
     step = (hi - lo) / (g - 1)
-    jm, jp = np.maximum(j - 1, 0), np.minimum(j + 1, g - 1)
-    c0, c1, c2 = c[(jm, *idx)], c[(j, *idx)], c[(jp, *idx)]
-    den = c0 - 2 * c1 + c2
-    inner = (j > 0) & (j < g - 1) & np.isfinite(c0 + c1 + c2) & (den > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        shift = np.where(inner, 0.5 * step * (c0 - c2) / np.where(inner, den, 1.0), 0.0)
-    best: FloatArray = np.clip(lo + step * j + np.clip(shift, -step, step), lo, hi)
+    shift, _ = _vertex_shift(c, j, idx, step)
+    best: FloatArray = np.clip(lo + step * j + shift, lo, hi)
     return best
 
 

@@ -38,6 +38,16 @@ class SEGroup:
         """Validate group elements ``(..., n+1, n+1)``; raise ValueError naming ``name``."""
         return as_element(g, cls.n, where or cls.__name__, name)
 
+    @classmethod
+    def _tangent_arg(cls, x: object, validate: bool, op: str) -> FloatArray:
+        """``x`` as a float array; validated first (errors naming ``<Group>.<op>``) when ``validate``."""
+        return cls.check_tangent(x, f"{cls.__name__}.{op}") if validate else np.asarray(x, dtype=float)
+
+    @classmethod
+    def _element_arg(cls, g: object, validate: bool, op: str) -> FloatArray:
+        """``g`` as a float array; validated first (errors naming ``<Group>.<op>``) when ``validate``."""
+        return cls.check_element(g, f"{cls.__name__}.{op}") if validate else np.asarray(g, dtype=float)
+
     # ----------------------------------------------------------------- to be provided by subclasses
     @classmethod
     def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:

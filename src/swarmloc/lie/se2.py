@@ -48,9 +48,7 @@ class SE2(SEGroup):
     @classmethod
     def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """``(..., 3) -> (..., 3, 3)`` Lie-algebra matrix."""
-        if validate:
-            x = cls.check_tangent(x, "SE2.hat")
-        x = np.asarray(x, dtype=float)
+        x = cls._tangent_arg(x, validate, "hat")
         X = np.zeros((*x.shape[:-1], 3, 3))
         X[..., 0, 1] = -x[..., 2]
         X[..., 1, 0] = x[..., 2]
@@ -71,9 +69,7 @@ class SE2(SEGroup):
     @classmethod
     def exp(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Exponential map ``(..., 3) -> (..., 3, 3)`` in closed form."""
-        if validate:
-            x = cls.check_tangent(x, "SE2.exp")
-        x = np.asarray(x, dtype=float)
+        x = cls._tangent_arg(x, validate, "exp")
         if x.ndim == 1:  # one element: the same formulas in floats
             return _exp_one(*x.tolist())
         a = x[..., 2]
@@ -93,9 +89,7 @@ class SE2(SEGroup):
     @classmethod
     def log(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """Principal logarithm ``(..., 3, 3) -> (..., 3)``, angle in (-pi, pi]."""
-        if validate:
-            g = cls.check_element(g, "SE2.log")
-        g = np.asarray(g, dtype=float)
+        g = cls._element_arg(g, validate, "log")
         if g.ndim == 2:  # one element: the same formulas in floats
             return _log_one(g)
         a = np.arctan2(g[..., 1, 0], g[..., 0, 0])
@@ -108,9 +102,7 @@ class SE2(SEGroup):
     @classmethod
     def inverse(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """Group inverse ``[[R^T, -R^T t], [0, 1]]`` (exact, batched)."""
-        if validate:
-            g = cls.check_element(g, "SE2.inverse", "g")
-        g = np.asarray(g, dtype=float)
+        g = cls._element_arg(g, validate, "inverse")
         if g.ndim == 2:
             c, s, tx, ty = g[0, 0], g[1, 0], g[0, 2], g[1, 2]
             r01, r11 = g[0, 1], g[1, 1]
@@ -120,9 +112,7 @@ class SE2(SEGroup):
     @classmethod
     def Ad(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """Adjoint matrix ``[[R, M t], [0, 1]]``, shape ``(..., 3, 3)``."""
-        if validate:
-            g = cls.check_element(g, "SE2.Ad")
-        g = np.asarray(g, dtype=float)
+        g = cls._element_arg(g, validate, "Ad")
         if g.ndim == 2:
             return np.array([[g[0, 0], g[0, 1], g[1, 2]], [g[1, 0], g[1, 1], -g[0, 2]], [0.0, 0.0, 1.0]])
         A = np.zeros(g.shape)
@@ -135,15 +125,8 @@ class SE2(SEGroup):
     @classmethod
     def ad(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Small adjoint ``[[-alpha M, M v], [0, 0]]``, shape ``(..., 3, 3)``."""
-        if validate:
-            x = cls.check_tangent(x, "SE2.ad")
-        x = np.asarray(x, dtype=float)
-        A = np.zeros((*x.shape[:-1], 3, 3))
-        A[..., 0, 1] = -x[..., 2]
-        A[..., 1, 0] = x[..., 2]
-        A[..., 0, 2] = x[..., 1]
-        A[..., 1, 2] = -x[..., 0]
-        return A
+        x = cls._tangent_arg(x, validate, "ad")
+        return cls.hat(np.stack([x[..., 1], -x[..., 0], x[..., 2]], axis=-1), validate=False)  # hat(M v, alpha)
 
     @classmethod
     def _poly_ad(cls, x: FloatArray, c1: FloatArray, c2: FloatArray) -> FloatArray:
@@ -153,18 +136,14 @@ class SE2(SEGroup):
     @classmethod
     def left_jacobian(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Left Jacobian ``sum_k ad(x)^k / (k+1)!``."""
-        if validate:
-            x = cls.check_tangent(x, "SE2.left_jacobian")
-        x = np.asarray(x, dtype=float)
+        x = cls._tangent_arg(x, validate, "left_jacobian")
         a = x[..., 2]
         return cls._poly_ad(x, S.one_minus_cos_over_t2(a), S.t_minus_sin_over_t3(a))
 
     @classmethod
     def left_jacobian_inv(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Inverse of the left Jacobian (singular only at ``|alpha| = 2 pi``)."""
-        if validate:
-            x = cls.check_tangent(x, "SE2.left_jacobian_inv")
-        x = np.asarray(x, dtype=float)
+        x = cls._tangent_arg(x, validate, "left_jacobian_inv")
         a = x[..., 2]
         return cls._poly_ad(x, np.full(a.shape, -0.5), S.jinv_coeff(a))
 

@@ -91,6 +91,15 @@ def _q_block(v: FloatArray, w: FloatArray) -> FloatArray:
     )
 
 
+def _upper_blocks(D: FloatArray, C: FloatArray) -> FloatArray:
+    """``[[D, C], [0, D]]`` from ``(..., 3, 3)`` blocks, ``(..., 6, 6)`` (the layout of ``Ad``, ``ad``, ``Jl``)."""
+    out = np.zeros((*np.shape(D)[:-2], 6, 6))
+    out[..., :3, :3] = D
+    out[..., 3:, 3:] = D
+    out[..., :3, 3:] = C
+    return out
+
+
 class SE3(SEGroup):
     """The spatial special Euclidean group (batched numpy functions)."""
 
@@ -101,9 +110,7 @@ class SE3(SEGroup):
     @classmethod
     def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """``(..., 6) -> (..., 4, 4)``."""
-        if validate:
-            x = cls.check_tangent(x, "SE3.hat")
-        x = np.asarray(x, dtype=float)
+        x = cls._tangent_arg(x, validate, "hat")
         X = np.zeros((*x.shape[:-1], 4, 4))
         X[..., :3, :3] = skew(x[..., 3:])
         X[..., :3, 3] = x[..., :3]
@@ -122,9 +129,7 @@ class SE3(SEGroup):
     @classmethod
     def exp(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Exponential map ``(..., 6) -> (..., 4, 4)``."""
-        if validate:
-            x = cls.check_tangent(x, "SE3.exp")
-        x = np.asarray(x, dtype=float)
+        x = cls._tangent_arg(x, validate, "exp")
         v, w = x[..., :3], x[..., 3:]
         g = np.zeros((*x.shape[:-1], 4, 4))
         g[..., :3, :3] = so3_exp(w)
@@ -135,9 +140,7 @@ class SE3(SEGroup):
     @classmethod
     def log(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """Principal logarithm ``(..., 4, 4) -> (..., 6)``, rotation angle in [0, pi]."""
-        if validate:
-            g = cls.check_element(g, "SE3.log")
-        g = np.asarray(g, dtype=float)
+        g = cls._element_arg(g, validate, "log")
         w = so3_log(g[..., :3, :3])
         v = np.einsum("...ij,...j->...i", so3_left_jacobian_inv(w), g[..., :3, 3])
         return np.concatenate([v, w], axis=-1)
@@ -145,53 +148,27 @@ class SE3(SEGroup):
     @classmethod
     def Ad(cls, g: FloatArray, validate: bool = True) -> FloatArray:
         """``[[R, t^ R], [0, R]]``, shape ``(..., 6, 6)``."""
-        if validate:
-            g = cls.check_element(g, "SE3.Ad")
-        g = np.asarray(g, dtype=float)
+        g = cls._element_arg(g, validate, "Ad")
         R = g[..., :3, :3]
-        A = np.zeros((*g.shape[:-2], 6, 6))
-        A[..., :3, :3] = R
-        A[..., 3:, 3:] = R
-        A[..., :3, 3:] = skew(g[..., :3, 3]) @ R
-        return A
+        return _upper_blocks(R, skew(g[..., :3, 3]) @ R)
 
     @classmethod
     def ad(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """``[[w^, v^], [0, w^]]``, shape ``(..., 6, 6)``."""
-        if validate:
-            x = cls.check_tangent(x, "SE3.ad")
-        x = np.asarray(x, dtype=float)
-        A = np.zeros((*x.shape[:-1], 6, 6))
-        W = skew(x[..., 3:])
-        A[..., :3, :3] = W
-        A[..., 3:, 3:] = W
-        A[..., :3, 3:] = skew(x[..., :3])
-        return A
+        x = cls._tangent_arg(x, validate, "ad")
+        return _upper_blocks(skew(x[..., 3:]), skew(x[..., :3]))
 
     @classmethod
     def left_jacobian(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Left Jacobian ``sum_k ad(x)^k / (k+1)!`` in closed form."""
-        if validate:
-            x = cls.check_tangent(x, "SE3.left_jacobian")
-        x = np.asarray(x, dtype=float)
+        x = cls._tangent_arg(x, validate, "left_jacobian")
         v, w = x[..., :3], x[..., 3:]
-        J = so3_left_jacobian(w)
-        out = np.zeros((*x.shape[:-1], 6, 6))
-        out[..., :3, :3] = J
-        out[..., 3:, 3:] = J
-        out[..., :3, 3:] = _q_block(v, w)
-        return out
+        return _upper_blocks(so3_left_jacobian(w), _q_block(v, w))
 
     @classmethod
     def left_jacobian_inv(cls, x: FloatArray, validate: bool = True) -> FloatArray:
         """Inverse of the left Jacobian."""
-        if validate:
-            x = cls.check_tangent(x, "SE3.left_jacobian_inv")
-        x = np.asarray(x, dtype=float)
+        x = cls._tangent_arg(x, validate, "left_jacobian_inv")
         v, w = x[..., :3], x[..., 3:]
         Ji = so3_left_jacobian_inv(w)
-        out = np.zeros((*x.shape[:-1], 6, 6))
-        out[..., :3, :3] = Ji
-        out[..., 3:, 3:] = Ji
-        out[..., :3, 3:] = -Ji @ _q_block(v, w) @ Ji
-        return out
+        return _upper_blocks(Ji, -Ji @ _q_block(v, w) @ Ji)

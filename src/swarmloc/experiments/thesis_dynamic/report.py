@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.experiments.output import save_figure
 from swarmloc.experiments.thesis_dynamic.spec import ABLATION_ESTIMATORS, ABLATION_NOISE, INIT_VAR, RUNS
 from swarmloc.runner import RunResult
 
@@ -68,9 +69,7 @@ def figures(
     noises = list(curves)
 
     def save(fig: Any, name: str) -> None:
-        fig.tight_layout()
-        fig.savefig(out_dir / name, dpi=110)
-        plt.close(fig)
+        save_figure(fig, out_dir / name)
         files.append(name)
 
     def err_panel(ax: Any, cs: dict[str, dict[str, np.ndarray]]) -> None:

@@ -13,7 +13,6 @@ sampling error.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.stats import chi2
 
+from swarmloc.experiments.output import write_summary
 from swarmloc.experiments.thesis_static.run import table_trials
 from swarmloc.experiments.thesis_static.spec import COMMANDS, SIGMA_M, THESIS_DRIVE, THESIS_TABLES, deviation_510
 from swarmloc.runner.fanout import fan_out
@@ -101,10 +101,7 @@ def pooled_tables(
             "joint": {"chi2": stat, "dof": len(idx), "p": float(chi2.sf(stat, len(idx)))},
         }
     result["runtime_s"] = time.perf_counter() - t0
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "pooled.json").write_text(json.dumps(result, indent=1))
-    (out / "pooled.md").write_text(markdown(result))
+    write_summary(out_dir, "pooled", result, markdown(result), indent=1)
     return result
 
 

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.experiments.output import save_figure
 from swarmloc.experiments.thesis_static.spec import CHI2_2_95, SIGMA_M, Command
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
@@ -245,11 +246,7 @@ def demo_figures(
     ax.set_ylabel("y [m]")
     ax.set_title(f"Prediction only ({title})")
     ax.legend(fontsize=7, loc="best")
-    f = out_dir / f"demo_prediction_{cmd.name}.png"
-    fig.tight_layout()
-    fig.savefig(f, dpi=120)
-    plt.close(fig)
-    files.append(str(f))
+    files.append(save_figure(fig, out_dir / f"demo_prediction_{cmd.name}.png", dpi=120))
 
     # --- figure 5.4 / 5.5: fusion
     fig, ax = plt.subplots(figsize=(9.5, 6.5))
@@ -279,11 +276,7 @@ def demo_figures(
     ax.set_ylabel("y [m]")
     ax.set_title(f"Fusion of 3 relative measurements ({title})")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    f = out_dir / f"demo_fusion_{cmd.name}.png"
-    fig.tight_layout()
-    fig.savefig(f, dpi=120)
-    plt.close(fig)
-    files.append(str(f))
+    files.append(save_figure(fig, out_dir / f"demo_fusion_{cmd.name}.png", dpi=120))
     return info
 
 
@@ -376,9 +369,5 @@ def tables_figures(out_dir: Path, motions: dict[str, Any], reps: int) -> list[st
         bx.set_yscale("log")
         bx.set_title("posterior covariance size")
         bx.legend(fontsize=8)
-        f = out_dir / f"tables_{name}.png"
-        fig.tight_layout()
-        fig.savefig(f, dpi=110)
-        plt.close(fig)
-        files.append(str(f))
+        files.append(save_figure(fig, out_dir / f"tables_{name}.png"))
     return files
