@@ -70,8 +70,9 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.gaussian import world_covariance
 from swarmloc.lie.checks import as_element, as_square
-from swarmloc.lie.se2 import SE2, wrap_angle
+from swarmloc.lie.se2 import wrap_angle
 from swarmloc.net.rosmsgs import typestore  # noqa: F401 - ros.typestore() is the project's one typestore
 
 MSGTYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
@@ -94,21 +95,9 @@ def dds_type_name(msgtype: str = MSGTYPE) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ geometry
-def pose_covariance_world(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(x, y, theta)`` of ``mean`` and the first-order covariance of ``(x, y, theta)`` in the world frame.
-
-    ``mean`` ``(..., 3, 3)`` in SE(2), ``cov`` ``(..., 3, 3)`` the covariance of the right-perturbation
-    exponential coordinates. Returns ``(xytheta (..., 3), J cov J^T (..., 3, 3))`` with
-    ``J = blockdiag(R(theta), 1)`` (symmetrized; theta in (-pi, pi]).
-    """
-    M = as_element(mean, 2, "pose_covariance_world", "mean")
-    S = as_square(cov, 3, "pose_covariance_world", "cov")
-    xyt = SE2.to_xytheta(M)
-    c, s = np.cos(xyt[..., 2]), np.sin(xyt[..., 2])
-    J = np.zeros(np.broadcast_shapes(M.shape, S.shape))
-    J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1], J[..., 2, 2] = c, -s, s, c, 1.0
-    C = J @ S @ np.swapaxes(J, -1, -2)
-    return xyt, 0.5 * (C + np.swapaxes(C, -1, -2))
+pose_covariance_world = world_covariance
+"""``(x, y, theta)`` of SE(2) poses and their first-order world-frame covariance
+(:func:`swarmloc.gaussian.world_covariance`, under the name the ROS messages' code uses)."""
 
 
 def yaw_to_quaternion(theta: float) -> tuple[float, float, float, float]:
