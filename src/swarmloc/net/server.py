@@ -380,52 +380,32 @@ class ServerProcess:
             self._pubs["report"].put(self._sealed(server_key(self.scope, "report"), rep))
 
     def _handle(self, kind: str, x: Any) -> None:
-        if kind == "progress":  # a forwarding robot is alive (hosted estimator)
-            try:
-                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
-                                    server_ok=False, publication=True)  # fmt: skip
-            except Rejected as exc:
-                self._reject(exc.reason, exc)
-                return
-            self.hosted.hear(env.from_robot)
-        elif kind == "raw":
-            try:
-                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
-                                    server_ok=False, publication=True)  # fmt: skip
-            except Rejected as exc:
-                self._reject(exc.reason, exc)
-                return
-            if isinstance(env.body, Raw):
-                self.hosted.offer(env.body)
-            else:
-                self._reject(f"{type(env.body).__name__} on a raw key")
-        elif kind == "belief":
-            try:
-                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
-                                    server_ok=False, publication=True)  # fmt: skip
-            except Rejected as exc:
-                self._reject(exc.reason, exc)
-                return
-            if isinstance(env.body, Belief):
-                self.server.store(env.body)
-            else:
-                self._reject(f"{type(env.body).__name__} on a belief key")
-        elif kind == "lines":
-            try:
-                env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
-                                    server_ok=False, publication=True)  # fmt: skip
-            except Rejected as exc:
-                self._reject(exc.reason, exc)
-                return
-            if not isinstance(env.body, Lines):
-                self._reject(f"{type(env.body).__name__} on a lines key")
-            elif not self.maps.store(env.body):
-                self._reject("lines not stored (see the map's counts)")
-        elif kind == "query":
+        if kind == "query":
             try:
                 self._query(x)
             finally:
                 x.drop()
+            return
+        if kind not in ("progress", "raw", "belief", "lines"):  # "wake": nothing to read
+            return
+        try:  # a publication
+            env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
+                                server_ok=False, publication=True)  # fmt: skip
+        except Rejected as exc:
+            self._reject(exc.reason, exc)
+            return
+        body = env.body
+        if kind == "progress":  # a forwarding robot is alive (hosted estimator)
+            self.hosted.hear(env.from_robot)
+        elif kind == "raw" and isinstance(body, Raw):
+            self.hosted.offer(body)
+        elif kind == "belief" and isinstance(body, Belief):
+            self.server.store(body)
+        elif kind == "lines" and isinstance(body, Lines):
+            if not self.maps.store(body):
+                self._reject("lines not stored (see the map's counts)")
+        else:
+            self._reject(f"{type(body).__name__} on a {kind} key")
 
     def _query(self, q: Any) -> None:
         if q.parameters is not None and "map" in q.parameters:
