@@ -80,6 +80,27 @@ def test_a_team_s_traffic_crosses_a_mesh_of_three_routers() -> None:
         client_config([])
 
 
+def test_the_documented_client_configuration_joins_its_router(tmp_path: Path) -> None:
+    """docs/network.md's client.json5, its router's endpoint replaced by a loopback router's, read by Zenoh."""
+    import re
+
+    from swarmloc.net.transport import open_session
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "network.md").read_text()
+    blocks = [b for b in re.findall(r"```json5\n(.*?)\n```", doc, flags=re.S) if 'mode: "client"' in b]
+    assert len(blocks) == 1
+    with router_mesh(2) as routers:
+        conf = tmp_path / "client.json5"
+        conf.write_text(blocks[0].replace("tcp/10.0.1.2:7447", routers[0]))
+        a, b = open_session(config_file=conf), client(routers[1])
+        try:
+            assert len(list(a.info.routers_zid())) == 1 and not list(a.info.peers_zid())  # a client of one router
+            assert crosses(a, b, f"doc{os.getpid()}") == {"publication": True, "query": True, "liveliness": True}
+        finally:
+            a.close()
+            b.close()
+
+
 def test_two_router_processes_mesh_and_stop_on_sigterm() -> None:
     p1, p2 = (f"tcp/127.0.0.1:{p}" for p in free_ports(2))
     cmd = [sys.executable, "-m", "swarmloc.cli", "router", "--max-wall", "120"]

@@ -298,10 +298,10 @@ def test_acl_deny_inbox(pki: Path, case: str) -> None:
 
 
 def _doc_config(pki: Path, tmp_path: Path, cert: str) -> Path:
-    """The JSON5 block of docs/network.md with the certificate directory and robot 1's file names replaced."""
+    """The TLS JSON5 block of docs/network.md with the certificate directory and robot 1's file names replaced."""
     text = DOC.read_text()
-    blocks = re.findall(r"```json5\n(.*?)\n```", text, flags=re.S)
-    assert len(blocks) == 1, "docs/network.md should hold exactly one json5 block"
+    blocks = [b for b in re.findall(r"```json5\n(.*?)\n```", text, flags=re.S) if "tls" in b]
+    assert len(blocks) == 1, "docs/network.md should hold exactly one json5 block with TLS"
     conf = blocks[0].replace("/etc/swarmloc/tls/", f"{pki}/")
     conf = conf.replace("robot-1.key", f"{cert}.key").replace("robot-1.pem", f"{cert}.pem")
     path = tmp_path / f"{cert}.json5"
