@@ -65,9 +65,10 @@ def test_local_fan_out_gives_every_job_once_with_its_index(jobs: int) -> None:
 
 
 @pytest.mark.unit
-def test_a_jobs_own_error_is_raised_not_rerun() -> None:
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_jobs_own_error_is_raised_not_rerun(jobs: int) -> None:
     with pytest.raises(ZeroDivisionError):
-        list(fan_out(divmod, [(1, 1), (1, 0)], jobs=1))
+        list(fan_out(divmod, [(1, 1), (1, 0), *[(2, 1)] * 6], jobs=jobs))
 
 
 @pytest.mark.unit

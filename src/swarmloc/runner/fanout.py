@@ -87,16 +87,17 @@ def _in_processes(
     except OSError as exc:
         log.warning("no worker processes here (%s); running the %d jobs in this process", exc, len(tasks))
     else:
-        with pool:
-            try:
-                for f in as_completed(futures):
-                    r = f.result()
-                    done.add(futures[f])
-                    yield futures[f], r
-                return
-            except BrokenProcessPool as exc:
-                log.warning("worker processes failed (%s); the %d jobs left run in this process", exc,
-                            len(tasks) - len(done))  # fmt: skip
+        try:
+            for f in as_completed(futures):
+                r = f.result()
+                done.add(futures[f])
+                yield futures[f], r
+            return
+        except BrokenProcessPool as exc:
+            log.warning("worker processes failed (%s); the %d jobs left run in this process", exc,
+                        len(tasks) - len(done))  # fmt: skip
+        finally:  # a job's error, or a caller that stops reading: the jobs not started are not run
+            pool.shutdown(wait=True, cancel_futures=True)
     for i, t in enumerate(tasks):
         if i not in done:
             yield i, fn(*t)
