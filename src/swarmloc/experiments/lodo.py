@@ -40,6 +40,7 @@ would calibrate from a log of their robots before a run.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from collections.abc import Sequence
@@ -324,6 +325,13 @@ def _run_key(landmarks: bool, calibrate_yaw: bool) -> str:
     return f"{'on' if landmarks else 'off'}{'+yaw' if calibrate_yaw else ''}"
 
 
+@functools.lru_cache(maxsize=1)
+def _recording(root: Path, k: int) -> MRCLAMData:
+    """Dataset ``k`` under ``root``, loaded once for its consecutive runs in one process (as before the runs were
+    jobs: the variants of a dataset share one recording, which the filters only read)."""
+    return load_mrclam(root / f"MRCLAM_Dataset{k}")
+
+
 def _filter_job(
     root: Path,
     k: int,
@@ -336,7 +344,7 @@ def _filter_job(
     holdout: int,
 ) -> dict[str, Any]:
     """One filter run of :func:`lodo`: dataset ``k`` (the robots with odometry) with landmarks on or off."""
-    data = load_mrclam(root / f"MRCLAM_Dataset{k}")
+    data = _recording(root, k)
     return filter_scores(data, model, estimators, landmarks, duration, holdout=holdout, reference_std=ref,
                          calibrate_yaw=calibrate_yaw)  # fmt: skip
 
