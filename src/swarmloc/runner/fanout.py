@@ -81,11 +81,14 @@ def _in_processes(
     """Local worker processes; in this process what is left if they cannot be started (no process support here) or
     the pool breaks (a worker killed). A job's own exception is raised, not retried."""
     done: set[int] = set()
+    pool = None
     try:
         pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"))
         futures = {pool.submit(fn, *t): i for i, t in enumerate(tasks)}
     except OSError as exc:
         log.warning("no worker processes here (%s); running the %d jobs in this process", exc, len(tasks))
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
     else:
         try:
             for f in as_completed(futures):
