@@ -16,6 +16,7 @@ from collections import Counter
 from collections.abc import Iterable, Mapping
 
 from swarmloc.node.associate import ASSOCIATION_KEYS
+from swarmloc.node.keys import Mark
 from swarmloc.node.update import Outcome
 
 log = logging.getLogger("swarmloc.node")
@@ -57,7 +58,7 @@ class Accounting:
         """Counters (see :meth:`stats`)."""
         self.reasons: Counter[str] = Counter()
         """Why inputs were rejected or unknown: ``"<outcome>: <reason>"`` -> count."""
-        self.ledger: Counter[tuple] | None = None
+        self.ledger: Counter[Mark] | None = None
         """Set to a Counter to track the outcome of every applied detection by measurement id: ``(observer, t,
         detection key, outcome) -> count`` (replays take the old outcome back). A correct node has, for every
         measurement, exactly one outcome counted once: nothing fused twice."""
@@ -81,7 +82,7 @@ class Accounting:
         for k, v in new.items():
             self.counts[k] += v
 
-    def remark(self, old: Iterable[tuple], new: Iterable[tuple]) -> None:
+    def remark(self, old: Iterable[Mark], new: Iterable[Mark]) -> None:
         """The ledger's marks of a re-applied group: the old ones taken back, the new ones counted."""
         if self.ledger is not None:
             for m in old:

@@ -56,7 +56,7 @@ from swarmloc.node.inputs import (
     finite_number,
     landmark_state,
 )
-from swarmloc.node.keys import Entry, Group, Key
+from swarmloc.node.keys import Entry, Group, Key, SubKey
 from swarmloc.node.protocol import Exchange, Served
 from swarmloc.node.trust import DEFAULT_QUARANTINE, GATED, Trust, gated_answers
 from swarmloc.node.update import Gate, Outcome
@@ -406,7 +406,7 @@ class Node(Intake, Exchange):
             and d.target != g.observer
         )  # fmt: skip
 
-    def _classify(self, g: Group, d: Detection, sub: tuple = ()) -> tuple[str, Any]:
+    def _classify(self, g: Group, d: Detection, sub: SubKey = ()) -> tuple[str, Any]:
         """What ``d`` is of: ``("absolute", None)``, ``("robot", answer)``, ``("landmark", (p, C))``, or the outcome
         ``("rejected" | "unknown", reason)`` when it cannot be fused."""
         if d.kind == Kind.ABSOLUTE:
@@ -428,7 +428,7 @@ class Node(Intake, Exchange):
             return ("unknown", f"landmark {d.target} is not in the map")
         return ("landmark", lm)
 
-    def _robot_target(self, g: Group, d: Detection, sub: tuple) -> tuple[str, Any]:
+    def _robot_target(self, g: Group, d: Detection, sub: SubKey) -> tuple[str, Any]:
         """A distributed node knows a neighbour only from its answer."""
         a = g.answers.get((d.target, sub))
         if a is None:

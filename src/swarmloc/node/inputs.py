@@ -74,7 +74,7 @@ def _clearly_valid(cov: np.ndarray) -> bool:
     a, b, c, d = cov.ravel().tolist()
     if not (b == c and math.isfinite(a) and math.isfinite(b) and math.isfinite(d) and a > 0 and d > 0):
         return False
-    return a * d - b * b > 1e-9 * (a + d) * (a + d)  # not ** 2: a Python float's power raises on overflow
+    return bool(a * d - b * b > 1e-9 * (a + d) * (a + d))  # not ** 2: a Python float's power raises on overflow
 
 
 _NUMBER = frozenset({float, np.float64})  # not int: one too large for a float is checked one by one
@@ -172,13 +172,15 @@ def _clearly_valid_batch(cov: np.ndarray) -> np.ndarray:
     """:func:`_clearly_valid` over ``cov (k, m, m)`` (``m`` 1 or 2; False for other sizes)."""
     if cov.shape[1:] == (1, 1):
         a = cov[:, 0, 0]
-        return np.isfinite(a) & (a > 0)
+        ok: np.ndarray = np.isfinite(a) & (a > 0)
+        return ok
     if cov.shape[1:] != (2, 2):
         return np.zeros(cov.shape[0], dtype=bool)
     a, b, c, d = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 0], cov[:, 1, 1]
     finite = np.isfinite(a) & np.isfinite(b) & np.isfinite(d)
     with np.errstate(invalid="ignore", over="ignore"):
-        return finite & (b == c) & (a > 0) & (d > 0) & (a * d - b * b > 1e-9 * (a + d) * (a + d))
+        ok = finite & (b == c) & (a > 0) & (d > 0) & (a * d - b * b > 1e-9 * (a + d) * (a + d))
+    return ok
 
 
 def brief(x: object) -> str:
@@ -190,7 +192,7 @@ def brief(x: object) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
-def _components(x: object) -> tuple:
+def _components(x: object) -> tuple[object, ...]:
     """A command's numbers: ``(x,)`` for a planar speed, the 3 components of a 3-D velocity (a tuple)."""
     if isinstance(x, tuple):
         if len(x) != 3:
@@ -281,7 +283,7 @@ class OdometryTimeline:
         starts = self._t0.get(robot)
         return (starts[-1], self._t1[robot][-1]) if starts else None
 
-    def in_force(self, robot: int, after: tuple) -> tuple[float, float] | None:
+    def in_force(self, robot: int, after: Key) -> tuple[float, float] | None:
         """The interval ``(t0, t1)`` of ``robot`` whose command is in force in a state after the history entries
         keyed before ``after``: the latest with key ``(t0, P_ODOMETRY, robot, ())`` before ``after``; None if none."""
         starts = self._t0.get(robot)

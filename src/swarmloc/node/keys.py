@@ -13,7 +13,7 @@ the robot only after ``t``), and among groups the lower robot id first.
 from __future__ import annotations
 
 from bisect import bisect_left
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 from typing import Any
 
@@ -24,16 +24,22 @@ from swarmloc.messages import Message
 from swarmloc.sensors.models import KIND_ORDER
 from swarmloc.sensors.models3 import KIND_ORDER3
 
-__all__ = ["P_GROUP", "P_ODOMETRY", "Entry", "Group", "Key", "detection_key"]
+__all__ = ["P_GROUP", "P_ODOMETRY", "Entry", "Group", "Key", "Mark", "SubKey", "detection_key"]
 
-Key = tuple[float, int, int, tuple]
+SubKey = tuple[float, ...]
+"""A detection's place in its group (:func:`detection_key`); ``()`` for a whole group or an odometry interval."""
+
+Key = tuple[float, int, int, SubKey]
 """History key ``(stamp [s], priority, robot id, sub-key)``."""
+
+Mark = tuple[int, float, SubKey, str]
+"""A ledger mark: ``(observer, stamp [s], detection key, outcome)`` (:class:`~swarmloc.node.accounting.Accounting`)."""
 
 P_GROUP = 1
 P_ODOMETRY = 2
 
 
-def detection_key(d: Detection) -> tuple[float, ...]:
+def detection_key(d: Detection) -> SubKey:
     """Canonical order of the detections in a group (and the sub-key of per-detection exchanges)."""
     target = -1.0 if d.target is None else float(d.target)
     order = KIND_ORDER[d.kind] if d.kind in KIND_ORDER else KIND_ORDER3[d.kind]
@@ -49,8 +55,8 @@ class Group:
         self.observer = observer
         self.t = t
         self.detections: list[Detection] = []
-        self.keys: list[tuple[float, ...]] = []
-        self.answers: dict[tuple[int, tuple], Message | None] = {}
+        self.keys: list[SubKey] = []
+        self.answers: dict[tuple[int, SubKey], Message | None] = {}
 
     @property
     def key(self) -> Key:
@@ -71,7 +77,7 @@ class Group:
         return any(v is None for v in self.answers.values())
 
 
-_NOTHING_SENT: Mapping = MappingProxyType({})  # only group entries send messages
+_NOTHING_SENT: Mapping[Any, Any] = MappingProxyType({})  # only group entries send messages
 
 
 class Entry:
@@ -86,8 +92,8 @@ class Entry:
         self.kind = kind
         self.data = data
         self.state: Any = None
-        self.outcomes: list[tuple[str, str]] | tuple = ()  # replaced, never appended to
-        self.sent: dict[tuple[int, tuple], Message] = {} if kind == "group" else _NOTHING_SENT
-        self.marks: list[tuple] | tuple = ()  # replaced, never appended to
+        self.outcomes: Sequence[tuple[str, str]] = ()  # replaced, never appended to
+        self.sent: dict[tuple[int, SubKey], Message] = {} if kind == "group" else _NOTHING_SENT
+        self.marks: Sequence[Mark] = ()  # replaced, never appended to
         self.assoc: Mapping[str, int] = _NOTHING_SENT  # association counters of a group (swarmloc.node.associate)
         self.suspects: Mapping[int, int] = _NOTHING_SENT  # a group's gated answers by teammate (swarmloc.node.trust)

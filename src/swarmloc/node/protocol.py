@@ -74,7 +74,7 @@ def refusal(m: Message, robots: Sequence[int], what: str) -> str | None:
     return None
 
 
-def answer_type(q: Message) -> type:
+def answer_type(q: Message) -> type[BeliefAnswer] | type[RdlState]:
     return BeliefAnswer if isinstance(q, BeliefQuery) else RdlState
 
 

@@ -27,7 +27,7 @@ from swarmloc.node.protocol import belief_answer
 __all__ = ["RobotNode", "check_model"]
 
 
-def check_model(where: str, initial: Mapping[int, Any], noise: object, groups: tuple = (SE2,)) -> None:
+def check_model(where: str, initial: Mapping[int, Any], noise: object, groups: tuple[type, ...] = (SE2,)) -> None:
     """Every initial belief is one :class:`GroupGaussian` on a group of ``groups`` (default SE(2) only), all on
     the same group, and ``noise`` a :class:`UnicycleNoise` (SE(2)) or a
     :class:`~swarmloc.motion.twist3.TwistNoise` (SE(3))."""

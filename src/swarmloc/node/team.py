@@ -18,7 +18,7 @@ from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.associate import AssociationView, associate, check_association, check_sensor, is_anonymous
 from swarmloc.node.base import Node
-from swarmloc.node.keys import Group
+from swarmloc.node.keys import Group, SubKey
 from swarmloc.node.robot import check_model
 
 __all__ = ["TeamNode"]
@@ -79,7 +79,7 @@ class TeamNode(Node):
     def _joint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         return self.joint_at(t)
 
-    def _robot_target(self, g: Group, d: Any, sub: tuple) -> tuple[str, Any]:
+    def _robot_target(self, g: Group, d: Any, sub: SubKey) -> tuple[str, Any]:
         if d.target not in self._idx:
             return ("unknown", f"robot {d.target} is not in the team")
         return ("robot", d.target)
