@@ -19,13 +19,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from swarmloc.estimators.expfusion import DEGENERATE, NUMERICAL, ExpFusion, ExpState
+from swarmloc.estimators.expfusion import DEGENERATE, ExpFusion, ExpState
 from swarmloc.events import Kind
 from swarmloc.kernels import group as K
 from swarmloc.kernels.ci import ci_search, point_weight, pose_weight
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
-from swarmloc.node import FUSED, Group, Outcome, usable_covariance
+from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, usable_covariance
 from swarmloc.sensors.models3 import pose3_matrix
 
 

@@ -45,11 +45,15 @@ DEGENERATE = "degenerate geometry: the target is at the observer's position"
 STEP_CACHE_SIZE = 1 << 15
 """Odometry steps kept per (noise model, order) by :func:`_step_map` (the cache is emptied when it is full)."""
 
-_STEP_CACHES: dict[tuple[int, int], tuple[UnicycleNoise, dict]] = {}
+StepMap = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""One odometry step as an affine map ``(inc_mean (3, 3), L (9, 9), b (9,))`` (:func:`_step_map`)."""
+StepCache = dict[tuple[float, float, float], StepMap]
+
+_STEP_CACHES: dict[tuple[int, int], tuple[UnicycleNoise, StepCache]] = {}
 _TRANSPOSE = np.array([3 * j + i for i in range(3) for j in range(3)])  # row-major vec(C) -> vec(C^T)
 
 
-def _step_cache(noise: UnicycleNoise, order: int) -> dict:
+def _step_cache(noise: UnicycleNoise, order: int) -> StepCache:
     hit = _STEP_CACHES.get((id(noise), order))
     if hit is None or hit[0] is not noise:
         if len(_STEP_CACHES) > 64:
@@ -58,9 +62,7 @@ def _step_cache(noise: UnicycleNoise, order: int) -> dict:
     return hit[1]
 
 
-def _step_map(
-    cache: dict, v: float, w: float, dt: float, noise: UnicycleNoise, order: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _step_map(cache: StepCache, v: float, w: float, dt: float, noise: UnicycleNoise, order: int) -> StepMap:
     """One prediction step as an affine map: ``(inc_mean (3, 3), L (9, 9), b (9,))`` such that
     :func:`swarmloc.kernels.group.predict` gives mean ``mu @ inc_mean`` and ``vec(cov') = L vec(cov) + b`` (row-major
     ``vec``; the convolution covariance is linear in ``cov``: ``Ad cov Ad^T + B + F(Ad cov Ad^T, B)``, symmetrized).

@@ -183,7 +183,8 @@ def _pseudo_factor(g: Any, f: Factor) -> Any:
         d[2] = wrap_angle(d[2])
         if H is not None:
             H[0] = _body(A, x[2])
-        return A @ d - b
+        e: np.ndarray = A @ d - b
+        return e
 
     return g.CustomFactor(g.noiseModel.Unit.Create(len(b)), [f.a], error)
 
@@ -216,15 +217,15 @@ class WindowSolver:
     _g: Any
     lag: float
     max_iterations: int
-    lagged_log: dict | None = None
+    lagged_log: dict[float, tuple[np.ndarray, np.ndarray]] | None = None
     """The smoothed (delayed) output, None: off (the option ``delayed=True`` or a dict set here turns it on). Every
     pose leaving the window is filed there, ``stamp [s] -> (x (3,), P (3, 3))``: its estimate ``(x, y, theta)`` and
     Cartesian marginal covariance from the whole window's solve at that moment (at least ``lag`` seconds of later
     inputs; the latest replay's)."""
-    lagged_when: dict | None = None
+    lagged_when: dict[float, float] | None = None
     """``stamp [s] -> t [s]``: when each pose of :attr:`lagged_log` was filed (the solve's stamp). A filing is final
     once the node's history has passed ``t`` by a horizon: no late input replays that solve any more."""
-    lagged_fresh: list | None = None
+    lagged_fresh: list[float] | None = None
     """None, or a list a driver empties: the stamps filed (or filed again by a replay) since it last did."""
 
     def _init_delayed(self, delayed: bool) -> None:
@@ -408,4 +409,5 @@ def _cartesian_cov(theta: float, cov: np.ndarray) -> np.ndarray:
     """A ``Pose2``-tangent (body-frame) covariance as a world-frame Cartesian ``(x, y, theta)`` one."""
     c, s = math.cos(theta), math.sin(theta)
     B = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return B @ cov @ B.T
+    out: np.ndarray = B @ cov @ B.T
+    return out

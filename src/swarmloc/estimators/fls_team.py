@@ -42,6 +42,7 @@ from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.messages import Message, TeamUpdate, flat
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, usable_covariance
+from swarmloc.node.keys import SubKey
 from swarmloc.sensors.models import model
 
 __all__ = ["TeamFixedLagSmoother", "TeamFlsState"]
@@ -179,7 +180,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
     # ------------------------------------------------------------------------------------------------ update
     def _smoothed_landmarks(
         self, s: TeamFlsState, factors: list[Factor], xw: np.ndarray
-    ) -> tuple[TeamFlsState, list] | None:
+    ) -> tuple[TeamFlsState, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] | None:
         """Each landmark factor linearized at the smoothed pose ``xw`` and applied to the filter in turn, with the
         ``(Hw, Sinv, nu, Pii)`` of each update to broadcast; None when an innovation covariance is singular or the
         result is not a usable state."""
@@ -206,7 +207,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
         mates = [r for r in self.team if r != i]
         outcomes: list[Outcome | None] = []
         msgs: list[Message] = []
-        landmarks: list[tuple[int, tuple, Factor]] = []  # (outcome slot, key, factor)
+        landmarks: list[tuple[int, SubKey, Factor]] = []  # (outcome slot, key, factor)
         for d, sub in zip(g.detections, g.keys, strict=True):
             target = self._classify(g, d, sub)
             if target[0] in ("rejected", "unknown"):

@@ -123,7 +123,9 @@ def _articulation_points(adj: Mapping[int, set[int]], removed: int) -> set[int]:
     return cut
 
 
-def _rigidity_rows(pairs: Sequence[tuple[int, int]], conf: Mapping[int, np.ndarray], col: Mapping[int, int], ncol):
+def _rigidity_rows(
+    pairs: Sequence[tuple[int, int]], conf: Mapping[int, np.ndarray], col: Mapping[int, int], ncol: int
+) -> np.ndarray:
     """Rigidity matrix with unit-vector rows (columns 2*col[k], 2*col[k]+1 for nodes in ``col``)."""
     R = np.zeros((len(pairs), ncol))
     for r, (i, j) in enumerate(pairs):
@@ -143,7 +145,9 @@ def _svd_rank(R: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     return rank, U, s, Vt
 
 
-def _flexible_nodes(pairs, conf, free) -> tuple[int, ...]:
+def _flexible_nodes(
+    pairs: Sequence[tuple[int, int]], conf: Mapping[int, np.ndarray], free: tuple[int, ...]
+) -> tuple[int, ...]:
     """Free nodes that move in some infinitesimal motion keeping ranges and anchors fixed."""
     col = {k: n for n, k in enumerate(free)}
     R = _rigidity_rows(pairs, conf, col, 2 * len(free))
@@ -223,7 +227,11 @@ def localizability(
 
 
 def _anchor_and_degree_checks(
-    adj: Mapping[int, set[int]], anc: Mapping[int, np.ndarray], free: tuple[int, ...], unique: bool, problems: list
+    adj: Mapping[int, set[int]],
+    anc: Mapping[int, np.ndarray],
+    free: tuple[int, ...],
+    unique: bool,
+    problems: list[str],
 ) -> tuple[bool, tuple[int, ...], dict[int, int]]:
     """``(anchors usable, unconnected free nodes, {low-degree free node: degree})``; problems appended."""
     anchors_ok = True
@@ -258,7 +266,10 @@ def _anchor_and_degree_checks(
     return anchors_ok, unconnected, low
 
 
-def _rank_checks(pairs, grounded, conf, ids, free, problems: list) -> tuple[int, int, np.ndarray, tuple[int, ...]]:
+def _rank_checks(
+    pairs: Sequence[tuple[int, int]], grounded: Sequence[tuple[int, int]], conf: Mapping[int, np.ndarray],
+    ids: tuple[int, ...], free: tuple[int, ...], problems: list[str],
+) -> tuple[int, int, np.ndarray, tuple[int, ...]]:  # fmt: skip
     """``(rank, 2N - 3, U of the SVD, flexible free nodes)`` of the grounded rigidity matrix at ``conf``; a rank
     deficit is told apart as a flexible graph or a degenerate geometry (problems appended)."""
     col = {k: n for n, k in enumerate(ids)}
@@ -283,7 +294,10 @@ def _rank_checks(pairs, grounded, conf, ids, free, problems: list) -> tuple[int,
     return rank, expected, U, flexible
 
 
-def _separating_pairs(gadj, ids, anc, free, low) -> list[tuple[int, int, tuple[int, ...]]]:
+def _separating_pairs(
+    gadj: Mapping[int, set[int]], ids: tuple[int, ...], anc: Mapping[int, np.ndarray], free: tuple[int, ...],
+    low: Mapping[int, int],
+) -> list[tuple[int, int, tuple[int, ...]]]:  # fmt: skip
     """``(a, b, nodes)``: ``nodes`` (not all of low degree, reported already) reach the anchors only through the
     nodes ``a`` and ``b`` of the grounded graph ``gadj``."""
     seps: list[tuple[int, int, tuple[int, ...]]] = []
@@ -299,7 +313,7 @@ def _separating_pairs(gadj, ids, anc, free, low) -> list[tuple[int, int, tuple[i
     return seps
 
 
-def _generic_rank(pairs, ids) -> int:
+def _generic_rank(pairs: Sequence[tuple[int, int]], ids: tuple[int, ...]) -> int:
     rng = np.random.default_rng(12345)
     conf = {k: rng.uniform(-1.0, 1.0, 2) for k in ids}
     col = {k: n for n, k in enumerate(ids)}

@@ -98,7 +98,7 @@ def _predict_one(
 
 
 def _residual(z: np.ndarray, h: np.ndarray) -> np.ndarray:
-    r = z - h
+    r: np.ndarray = z - h
     r[2] = wrap_angle(r[2])
     return r
 

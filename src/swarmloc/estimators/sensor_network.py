@@ -31,7 +31,7 @@ This module validates the input, initializes and solves; :class:`RigidityReport`
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from numbers import Integral
 from typing import Any, NamedTuple
@@ -160,7 +160,9 @@ def _measurements(measurements: Iterable[Any], known: set[int] | None) -> list[R
     return out
 
 
-def _setup(measurements, anchors, nodes):
+def _setup(
+    measurements: Iterable[Any], anchors: Mapping[int, Any] | Iterable[tuple[int, Any]], nodes: Iterable[int] | None
+) -> tuple[list[RangeMeasurement], dict[int, np.ndarray], tuple[int, ...]]:
     anc = _anchors(anchors)
     if nodes is not None:
         declared = [_node_id(k, "nodes") for k in nodes]
@@ -177,10 +179,12 @@ def _setup(measurements, anchors, nodes):
     return meas, anc, free
 
 
-def _configuration(positions: Mapping[int, Any], anc: dict[int, np.ndarray], free: Sequence[int], what: str):
+def _configuration(
+    positions: Mapping[int, Any], anc: dict[int, np.ndarray], free: Sequence[int], what: str
+) -> dict[int, np.ndarray]:
     if not isinstance(positions, Mapping):
         raise ValueError(f"{what} must be a mapping node id -> (x, y)")
-    conf = {}
+    conf: dict[int, np.ndarray] = {}
     allowed = set(free) | set(anc)
     for key, val in positions.items():
         k = _node_id(key, what)
@@ -253,7 +257,9 @@ def _mean_ranges(meas: list[RangeMeasurement]) -> dict[tuple[int, int], float]:
     return {k: float(np.mean(v)) for k, v in total.items()}
 
 
-def _multilateration(meas, anc, free, guess) -> dict[int, np.ndarray]:
+def _multilateration(
+    meas: list[RangeMeasurement], anc: dict[int, np.ndarray], free: tuple[int, ...], guess: Mapping[int, np.ndarray]
+) -> dict[int, np.ndarray]:
     """Sequential multilateration: repeatedly place the free node with the most placed neighbours (anchors first) by
     a small least-squares fit to their ranges, started from the linearized solution (3 or more neighbours) or from
     ``guess``; with 2 placed neighbours the circle intersection nearer ``guess``, with 1 the circle point nearer it."""
@@ -327,7 +333,10 @@ def rigidity_report(
     return _report(meas, anc, free, conf, unique)
 
 
-def _report(meas, anc, free, conf, unique) -> RigidityReport:
+def _report(
+    meas: list[RangeMeasurement], anc: dict[int, np.ndarray], free: tuple[int, ...],
+    conf: Mapping[int, np.ndarray] | None, unique: bool,
+) -> RigidityReport:  # fmt: skip
     """:func:`localizability` of the measured pairs, at ``conf`` or else at the MDS-MAP configuration."""
     pairs = sorted({(min(m.i, m.j), max(m.i, m.j)) for m in meas})
     if conf is None:  # MDS-MAP, computed only once the early checks pass (it needs every node connected)
@@ -339,7 +348,9 @@ def _report(meas, anc, free, conf, unique) -> RigidityReport:
 # least squares
 
 
-def _residuals(meas: list[RangeMeasurement], free: tuple[int, ...], conf: Mapping[int, np.ndarray]):
+def _residuals(
+    meas: list[RangeMeasurement], free: tuple[int, ...], conf: Mapping[int, np.ndarray]
+) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray], np.ndarray]:
     """``(fun, jac, w)``: the weighted residuals ``(||p_j - p_i|| - z) / std`` of the free nodes' stacked positions
     ``x`` (order of ``free``; the anchors at ``conf``), their analytic Jacobian, and the weights ``1 / std``."""
     col = {k: n for n, k in enumerate(free)}
@@ -353,17 +364,18 @@ def _residuals(meas: list[RangeMeasurement], free: tuple[int, ...], conf: Mappin
     Q0 = np.array([conf[k] for k in J])
     rows = np.arange(len(meas))
 
-    def points(x):
+    def points(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         X = x.reshape(-1, 2)
         P = np.where((fi >= 0)[:, None], X[np.maximum(fi, 0)], P0)
         Q = np.where((fj >= 0)[:, None], X[np.maximum(fj, 0)], Q0)
         return P, Q
 
-    def fun(x):
+    def fun(x: np.ndarray) -> np.ndarray:
         P, Q = points(x)
-        return (np.linalg.norm(Q - P, axis=1) - z) * w
+        r: np.ndarray = (np.linalg.norm(Q - P, axis=1) - z) * w
+        return r
 
-    def jac(x):
+    def jac(x: np.ndarray) -> np.ndarray:
         P, Q = points(x)
         d = Q - P
         n = np.linalg.norm(d, axis=1)

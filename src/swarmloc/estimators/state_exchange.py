@@ -19,7 +19,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.messages import Message, RdlState, RdlStateQuery
 from swarmloc.node import Group
 from swarmloc.node.associate import is_anonymous
-from swarmloc.node.keys import detection_key
+from swarmloc.node.keys import SubKey, detection_key
 
 __all__ = ["StateQueries", "anonymous_sub"]
 
@@ -75,7 +75,7 @@ class StateQueries:
         return out
 
     @staticmethod
-    def unused(g: Group) -> list[tuple[int, tuple, RdlState]]:
+    def unused(g: Group) -> list[tuple[int, SubKey, RdlState]]:
         """``(teammate, sub-key, answer)`` of every ``RdlStateQuery`` answer of ``g`` (identities given) that no
         detection used: the teammates asked about an anonymous detection that was given another robot, or none."""
         used = {(d.target, k) for d, k in zip(g.detections, g.keys, strict=True) if d.target is not None}
