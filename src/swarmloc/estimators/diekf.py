@@ -72,6 +72,7 @@ from swarmloc.kernels import invariant as I
 from swarmloc.kernels.ci import W_BOUNDS, joint_weight
 from swarmloc.lie import SE2
 from swarmloc.messages import (
+    Answer,
     BeliefAnswer,
     BeliefQuery,
     Message,
@@ -214,7 +215,7 @@ class DistributedInvariantEKF(RobotNode):
         g = SE2.from_xytheta(s.x)
         return belief_of(g, I.world_to_body(g, s.P))
 
-    def _answer(self, s: TeamState, q: Message) -> Message | None:
+    def _answer(self, s: TeamState, q: Message) -> Answer | None:
         if isinstance(q, RdlStateQuery):
             return RdlState(
                 sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, x=flat(s.x), P=flat(s.P), sigma=_EYE

@@ -67,7 +67,7 @@ from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import wrap_angle
-from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
+from swarmloc.messages import Answer, BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.node import (
     FUSED,
     P_GROUP,
@@ -299,7 +299,7 @@ class RecursiveDecentralized(RobotNode):
             if a.found or a.seq < 0
         ]
 
-    def _answer(self, s: RdlFilter, q: Message) -> Message | None:
+    def _answer(self, s: RdlFilter, q: Message) -> Answer | None:
         if isinstance(q, RdlStateQuery):
             return RdlState(
                 sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub,

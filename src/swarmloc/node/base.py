@@ -42,7 +42,7 @@ import numpy as np
 from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.gaussian import GroupGaussian, world_covariance
 from swarmloc.lie import SE2, SE3
-from swarmloc.messages import Message
+from swarmloc.messages import Answer, Message, RdlUpdate, TeamUpdate
 from swarmloc.node.accounting import Accounting
 from swarmloc.node.associate import AssociationView
 from swarmloc.node.clock import DEFAULT_CONFIRM, DEFAULT_HORIZON, DEFAULT_TOLERANCE, Clock
@@ -56,7 +56,7 @@ from swarmloc.node.inputs import (
     finite_number,
     landmark_state,
 )
-from swarmloc.node.keys import Entry, Group, Key, SubKey
+from swarmloc.node.keys import Entry, Group, Key, Position, SubKey
 from swarmloc.node.protocol import Exchange, Served
 from swarmloc.node.trust import DEFAULT_QUARANTINE, GATED, Trust, gated_answers
 from swarmloc.node.update import Gate, Outcome
@@ -96,7 +96,7 @@ class Node(Intake, Exchange):
     distributed: ClassVar[bool] = True
     over_network: ClassVar[bool] = True
     """False for an estimator whose messages the network driver (:mod:`swarmloc.net.process`) cannot carry."""
-    update_types: ClassVar[tuple[type, ...]] = ()
+    update_types: ClassVar[tuple[type[RdlUpdate] | type[TeamUpdate], ...]] = ()
     """Message types from neighbours this node files in its history (a neighbour's share of a joint update)."""
     measure_time: bool = False
     """Set True (on a node or a class) to accumulate ``timing``: seconds and counts of predictions and of
@@ -299,10 +299,11 @@ class Node(Intake, Exchange):
         robot = self._robot_arg(robot)
         if self._clock.t0 is None:
             raise ValueError(f"{type(self).__name__}.belief_at: the node has not started (no input yet, no t0)")
-        if not t >= self._history.base_key[0]:
+        base_key = self._history.base_key
+        if base_key is None or not t >= base_key[0]:
             raise ValueError(
                 f"{type(self).__name__}.belief_at: t = {t} is before the kept history (from "
-                f"{self._history.base_key[0]}); the horizon is {self.horizon} s"
+                f"{None if base_key is None else base_key[0]}); the horizon is {self.horizon} s"
             )
         at: Key = (t, 3, 0, ())
         s = self._history.state_before(at)
@@ -364,7 +365,7 @@ class Node(Intake, Exchange):
         """Queries a group needs before it can be applied (default: none)."""
         return []
 
-    def _answer(self, s: Any, q: Message) -> Message | None:
+    def _answer(self, s: Any, q: Message) -> Answer | None:
         """Answer a query from state ``s`` (predicted to the query's stamp); None: this node does not answer it."""
         return None
 
@@ -430,7 +431,7 @@ class Node(Intake, Exchange):
 
     def _robot_target(self, g: Group, d: Detection, sub: SubKey) -> tuple[str, Any]:
         """A distributed node knows a neighbour only from its answer."""
-        a = g.answers.get((d.target, sub))
+        a = None if d.target is None else g.answers.get((d.target, sub))
         if a is None:
             return ("unknown", f"no answer from robot {d.target}")
         if not a.found:
@@ -466,7 +467,7 @@ class Node(Intake, Exchange):
             self.timing["predict_n"] += 1
         return s2
 
-    def _adv(self, s: Any, robot: int, t: float, after: Key | None = None) -> Any:
+    def _adv(self, s: Any, robot: int, t: float, after: Position | None = None) -> Any:
         """``s``, the state after the entries keyed before ``after`` (default: the entry being applied), with
         ``robot`` predicted to ``t``; past the end of the odometry interval in force the robot is stopped there
         (:mod:`~swarmloc.node.inputs`)."""
@@ -586,7 +587,7 @@ class Node(Intake, Exchange):
         out = []
         new = {(m.receiver, m.sub): m for m in msgs}
         for k, old in list(e.sent.items()):
-            if k not in new and not getattr(old, "empty", True):
+            if k not in new and isinstance(old, RdlUpdate | TeamUpdate) and not old.empty:
                 e.sent[k] = old.retraction()
                 out.append(e.sent[k])
         for k, m in new.items():

@@ -27,7 +27,7 @@ from swarmloc.messages import Message
 from swarmloc.node.accounting import Accounting
 from swarmloc.node.clock import FUTURE, Clock
 from swarmloc.node.history import PRUNE_EVERY, History
-from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
+from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, Position, detection_key
 from swarmloc.node.protocol import Served, not_found, quarantine_reason
 from swarmloc.node.trust import Trust
 from swarmloc.sensors.models import MODELS
@@ -95,7 +95,7 @@ def finite_number(x: object) -> bool:
 
 def _integer(x: object) -> bool:
     """An id: an int (not a bool) of 64 bits (as messages carry ids)."""
-    return isinstance(x, int | np.integer) and not isinstance(x, bool) and -_ID <= x < _ID
+    return isinstance(x, int | np.integer) and not isinstance(x, bool) and bool(-_ID <= x < _ID)
 
 
 def validate_detection(d: Detection) -> str | None:
@@ -192,7 +192,7 @@ def brief(x: object) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
-def _components(x: object) -> tuple[object, ...]:
+def _components(x: object) -> tuple[Any, ...]:
     """A command's numbers: ``(x,)`` for a planar speed, the 3 components of a 3-D velocity (a tuple)."""
     if isinstance(x, tuple):
         if len(x) != 3:
@@ -201,7 +201,7 @@ def _components(x: object) -> tuple[object, ...]:
     return (x,)
 
 
-def command_value(x: object) -> float | tuple[float, ...]:
+def command_value(x: float | tuple[float, ...]) -> float | tuple[float, ...]:
     """A command's value as filed: a float (planar), or a tuple of 3 floats (a 3-D velocity)."""
     return tuple(float(c) for c in x) if isinstance(x, tuple) else float(x)
 
@@ -244,7 +244,7 @@ class OdometryTimeline:
     def overlap(self, robot: int, t0: float, t1: float) -> str | None:
         """Why ``[t0, t1]`` cannot join ``robot``'s intervals (it overlaps one), or None."""
         starts, ends = self._t0.get(robot), self._t1.get(robot)
-        if not starts:
+        if not starts or ends is None:
             return None
         i = bisect_left(starts, t0)
         for j in (i - 1, i):
@@ -283,7 +283,7 @@ class OdometryTimeline:
         starts = self._t0.get(robot)
         return (starts[-1], self._t1[robot][-1]) if starts else None
 
-    def in_force(self, robot: int, after: Key) -> tuple[float, float] | None:
+    def in_force(self, robot: int, after: Position) -> tuple[float, float] | None:
         """The interval ``(t0, t1)`` of ``robot`` whose command is in force in a state after the history entries
         keyed before ``after``: the latest with key ``(t0, P_ODOMETRY, robot, ())`` before ``after``; None if none."""
         starts = self._t0.get(robot)
@@ -331,7 +331,7 @@ class Intake:
         @property
         def tolerance(self) -> float: ...
         def start(self, t0: float) -> None: ...
-        def _adv(self, s: Any, robot: int, t: float, after: Key | None = ...) -> Any: ...
+        def _adv(self, s: Any, robot: int, t: float, after: Position | None = ...) -> Any: ...
         def _file(self, entries: list[Entry], accept: bool = ...) -> list[Message]: ...
         def _replay(self, pos: int, late: bool, changed: Key | None = ...) -> list[Message]: ...
         def _requests(self, g: Group) -> list[Message]: ...
@@ -471,9 +471,9 @@ class Intake:
             why = "duplicate" if (v, w) == (e.v, e.w) else "a different command at the same t0"
             self.accounting.odometry_rejected(why)
             return []
-        why = self._timeline.overlap(e.robot, t0, t1)
-        if why:
-            self.accounting.odometry_rejected(why)
+        overlap = self._timeline.overlap(e.robot, t0, t1)
+        if overlap:
+            self.accounting.odometry_rejected(overlap)
             return []
         self.counts["odometry_used"] += 1
         self._timeline.add(e.robot, t0, t1)

@@ -15,22 +15,25 @@ from __future__ import annotations
 from bisect import bisect_left
 from collections.abc import Mapping, Sequence
 from types import MappingProxyType
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from swarmloc.events import Detection
-from swarmloc.messages import Message
+from swarmloc.messages import Answer, Message
 from swarmloc.sensors.models import KIND_ORDER
 from swarmloc.sensors.models3 import KIND_ORDER3
 
-__all__ = ["P_GROUP", "P_ODOMETRY", "Entry", "Group", "Key", "Mark", "SubKey", "detection_key"]
+__all__ = ["P_GROUP", "P_ODOMETRY", "Entry", "Group", "Key", "Mark", "Position", "SubKey", "detection_key"]
 
 SubKey = tuple[float, ...]
 """A detection's place in its group (:func:`detection_key`); ``()`` for a whole group or an odometry interval."""
 
 Key = tuple[float, int, int, SubKey]
 """History key ``(stamp [s], priority, robot id, sub-key)``."""
+
+Position = Key | tuple[float]
+"""A place in the history: a :data:`Key`, or ``(t,)``: before every entry stamped ``t`` (``(inf,)``: after all)."""
 
 Mark = tuple[int, float, SubKey, str]
 """A ledger mark: ``(observer, stamp [s], detection key, outcome)`` (:class:`~swarmloc.node.accounting.Accounting`)."""
@@ -56,7 +59,7 @@ class Group:
         self.t = t
         self.detections: list[Detection] = []
         self.keys: list[SubKey] = []
-        self.answers: dict[tuple[int, SubKey], Message | None] = {}
+        self.answers: dict[tuple[int, SubKey], Answer | None] = {}
 
     @property
     def key(self) -> Key:
@@ -93,7 +96,10 @@ class Entry:
         self.data = data
         self.state: Any = None
         self.outcomes: Sequence[tuple[str, str]] = ()  # replaced, never appended to
-        self.sent: dict[tuple[int, SubKey], Message] = {} if kind == "group" else _NOTHING_SENT
+        # a group's own dict; every other entry shares the read-only empty mapping (a write to it would raise)
+        self.sent: dict[tuple[int, SubKey], Message] = (
+            {} if kind == "group" else cast("dict[tuple[int, SubKey], Message]", _NOTHING_SENT)
+        )
         self.marks: Sequence[Mark] = ()  # replaced, never appended to
         self.assoc: Mapping[str, int] = _NOTHING_SENT  # association counters of a group (swarmloc.node.associate)
         self.suspects: Mapping[int, int] = _NOTHING_SENT  # a group's gated answers by teammate (swarmloc.node.trust)

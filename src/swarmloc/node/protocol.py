@@ -27,8 +27,19 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import msgspec
 
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, flat, message_problem
-from swarmloc.node.keys import P_GROUP, Entry, Group, Key
+from swarmloc.messages import (
+    Answer,
+    BeliefAnswer,
+    BeliefQuery,
+    Message,
+    RdlState,
+    RdlStateQuery,
+    RdlUpdate,
+    TeamUpdate,
+    flat,
+    message_problem,
+)
+from swarmloc.node.keys import P_GROUP, Entry, Group, Key, Position
 from swarmloc.node.trust import Trust
 
 if TYPE_CHECKING:
@@ -78,7 +89,7 @@ def answer_type(q: Message) -> type[BeliefAnswer] | type[RdlState]:
     return BeliefAnswer if isinstance(q, BeliefQuery) else RdlState
 
 
-def not_found(q: Message, reason: str) -> Message:
+def not_found(q: Message, reason: str) -> Answer:
     """The answer to ``q`` saying that there is none, and why."""
     return answer_type(q)(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, found=False, reason=reason)
 
@@ -117,11 +128,11 @@ def same(a: Message | None, b: Message | None) -> bool:
     return True
 
 
-def with_seq(m: Message, seq: int) -> Message:
+def with_seq(m: Answer, seq: int) -> Answer:
     return msgspec.structs.replace(m, seq=seq)
 
 
-def query_of(answer: Message, asker: int) -> Message:
+def query_of(answer: Answer, asker: int) -> Message:
     """The query that ``answer`` (served to ``asker``) answers."""
     q_type = BeliefQuery if isinstance(answer, BeliefAnswer) else RdlStateQuery
     return q_type(sender=asker, receiver=answer.sender, stamp=answer.stamp, sub=answer.sub)
@@ -132,20 +143,20 @@ class Served:
 
     def __init__(self) -> None:
         self.keys: list[ServedKey] = []
-        self.answers: dict[ServedKey, Message] = {}
+        self.answers: dict[ServedKey, Answer] = {}
 
     def clear(self) -> None:
         self.keys.clear()
         self.answers.clear()
 
-    def get(self, skey: ServedKey) -> Message | None:
+    def get(self, skey: ServedKey) -> Answer | None:
         return self.answers.get(skey)
 
     def latest_key(self) -> Key | None:
         """The key of the latest answered query (None: none)."""
         return self.keys[-1][0] if self.keys else None
 
-    def record(self, skey: ServedKey, ans: Message) -> Message:
+    def record(self, skey: ServedKey, ans: Answer) -> Answer:
         """Remember ``ans`` as the answer under ``skey``: the one given before when it is the same, else with a
         revision one higher than it."""
         old = self.answers.get(skey)
@@ -158,7 +169,7 @@ class Served:
         self.answers[skey] = ans
         return ans
 
-    def revise(self, skey: ServedKey, new: Message) -> Message | None:
+    def revise(self, skey: ServedKey, new: Answer) -> Answer | None:
         """``new`` with the next revision when it differs from the answer given under ``skey`` (else None)."""
         old = self.answers[skey]
         if same(old, new):
@@ -167,7 +178,7 @@ class Served:
         self.answers[skey] = new
         return new
 
-    def after(self, key: Key) -> Iterator[tuple[ServedKey, Message]]:
+    def after(self, key: Key) -> Iterator[tuple[ServedKey, Answer]]:
         """The answers keyed after ``key``, in key order."""
         i = bisect_right(self.keys, (key, math.inf))
         for skey in self.keys[i:]:
@@ -188,7 +199,7 @@ class Exchange:
 
     robots: tuple[int, ...]
     name: ClassVar[str]
-    update_types: ClassVar[tuple[type, ...]]
+    update_types: ClassVar[tuple[type[RdlUpdate] | type[TeamUpdate], ...]]
     accounting: Accounting
     _clock: Clock
     _history: History
@@ -201,8 +212,8 @@ class Exchange:
 
         @property
         def counts(self) -> Counter[str]: ...
-        def _adv(self, s: Any, robot: int, t: float, after: Key | None = ...) -> Any: ...
-        def _answer(self, s: Any, q: Message) -> Message | None: ...
+        def _adv(self, s: Any, robot: int, t: float, after: Position | None = ...) -> Any: ...
+        def _answer(self, s: Any, q: Message) -> Answer | None: ...
         def _commit_group(self, key: Key, g: Group) -> list[Message]: ...
         def _file(self, entries: list[Entry], accept: bool = ...) -> list[Message]: ...
         def _replay(self, pos: int, late: bool, changed: Key | None = ...) -> list[Message]: ...
@@ -262,18 +273,20 @@ class Exchange:
                 out.append(new)
         return out
 
-    def _on_answer(self, a: Message) -> list[Message]:
+    def _on_answer(self, a: Answer) -> list[Message]:
         key: Key = (float(a.stamp), P_GROUP, a.receiver, ())
         slot = (a.sender, tuple(a.sub))
         g = self._pending.get(key)
-        pos = None
-        if g is None or slot not in g.answers:
+        pos = None  # the answer's group: pending (g), or filed in the history at pos
+        if g is not None and slot in g.answers:
+            answers = g.answers
+        else:
             g, pos = None, self._history.find(key)
             if pos is None or slot not in self._history.entries[pos].data.answers:
                 why = "older than the history horizon" if self._clock.too_old(key[0]) else "to no query of this node"
                 self.accounting.message_rejected(f"answer {why}")
                 return []
-        answers = g.answers if g is not None else self._history.entries[pos].data.answers
+            answers = self._history.entries[pos].data.answers
         old = answers[slot]
         if old is not None and a.seq <= old.seq:
             self.accounting.message_rejected("stale or duplicate answer")
@@ -282,13 +295,14 @@ class Exchange:
         if a.found:
             self._neighbours.add(a.sender)
         if g is None:
+            assert pos is not None  # noqa: S101  (filed: found above)
             return self._replay(pos, late=True)
         if g.waiting():
             return []
         del self._pending[key]
         return self._commit_group(key, g)
 
-    def _on_update(self, u: Message) -> list[Message]:
+    def _on_update(self, u: RdlUpdate | TeamUpdate) -> list[Message]:
         why = self._update_problem(u)
         if why is None:
             why = self._clock.too_old(float(u.stamp)) or self._clock.future(float(u.stamp))

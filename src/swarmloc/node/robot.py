@@ -9,7 +9,7 @@ import numpy as np
 
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, SE3
-from swarmloc.messages import BeliefQuery, Message
+from swarmloc.messages import Answer, BeliefQuery, Message
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.twist3 import TwistNoise
 from swarmloc.node.associate import (
@@ -118,7 +118,8 @@ class RobotNode(Node):
         return [r for r in self.team if r != self.robot]
 
     def _requests(self, g: Group) -> list[Message]:
-        targets = sorted({d.target for d in g.detections if self._needs_answer(g, d)} | set(self._teammates(g)))
+        targets = sorted({d.target for d in g.detections if d.target is not None and self._needs_answer(g, d)}
+                         | set(self._teammates(g)))  # fmt: skip
         return [BeliefQuery(sender=self.robot, receiver=t, stamp=g.t) for t in targets]
 
     def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
@@ -135,7 +136,7 @@ class RobotNode(Node):
         return associate(g, self.association, self.association_gate, own, self._candidates(g, mates),
                          self.sensor_range, self.sensor_fov)  # fmt: skip
 
-    def _answer(self, s: Any, q: Message) -> Message | None:
+    def _answer(self, s: Any, q: Message) -> Answer | None:
         if isinstance(q, BeliefQuery):
             return belief_answer(q, self._belief(s, q.receiver))
         return None

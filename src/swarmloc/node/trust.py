@@ -184,4 +184,4 @@ class Trust:
         if (robot, what) not in self._told:
             self._told.add((robot, what))
             level = logging.INFO if what == "answer" else logging.WARNING
-            log.log(level, *args)  # type: ignore[arg-type]
+            log.log(level, *args)

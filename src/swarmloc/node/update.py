@@ -115,12 +115,13 @@ def gated_kalman(
     world-frame filters apply it on the group).
     """
     if cols is None:
-        xn, Pn, nis, ok = C.kalman_update(x, P, r, H, R, angles=angles)
+        xn, Pn, nis_k, ok_k = C.kalman_update(x, P, r, H, R, angles=angles)
+        nis, ok = float(nis_k), bool(ok_k)
     else:
         xn, Pn, nis, ok = C.kalman_update_blocks(x, P, r, H, cols, R, angles)
-    verdict = gate.verdict(float(nis), len(r))
+    verdict = gate.verdict(nis, len(r))
     if verdict is not None:
         return verdict
-    if not (bool(ok) and usable_covariance(Pn)):
+    if not (ok and usable_covariance(Pn)):
         return ("rejected", NUMERICAL)
     return xn, Pn
