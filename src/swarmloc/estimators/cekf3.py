@@ -28,9 +28,9 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf3 import to_error, to_group, transition
 from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
+from swarmloc.kernels.cartesian3 import to_error, to_group, transition
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import so3_exp
 from swarmloc.messages import Message
