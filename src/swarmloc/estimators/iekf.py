@@ -60,6 +60,7 @@ class _LoggedCentral(CentralizedEKF):
     :mod:`swarmloc.evaluation.observability`)."""
 
     error_frame: ClassVar[str] = "cartesian"
+    groups: ClassVar[tuple[type, ...]] = (SE2,)
     first_estimates: ClassVar[bool] = False
     lin_log: list | None = None
     _advance_commands = Node._advance_commands  # each filter predicts its own way: no Cartesian run
