@@ -9,8 +9,8 @@ compute when the in-process runner drives them (:mod:`swarmloc.node`), batched:
 * **SE(3) teams** (initial means ``(N, 4, 4)``, covariances ``(N, 6, 6)``; the group is the beliefs'): the nodes of
   :data:`~swarmloc.estimators.ESTIMATORS_SE3`. ``"expfusion"`` and ``"ci"`` keep the SE(3) mean and covariance,
   ``"dekf"`` the pose ``(N, 4, 4)`` and the covariance ``(N, 6, 6)`` of its ``(dp, dtheta)`` error
-  (:mod:`swarmloc.estimators.dekf3`); the command is the body twist, ``v (N, 3)`` [m/s] and ``w (N, 3)`` [rad/s]
-  (a scalar per robot, a stop, broadcasts to the three axes), the noise a
+  (:mod:`swarmloc.estimators.dekf` on SE(3)); the command is the body twist, ``v (N, 3)`` [m/s] and ``w (N, 3)``
+  [rad/s] (a scalar per robot, a stop, broadcasts to the three axes), the noise a
   :class:`~swarmloc.motion.twist3.TwistNoise`; the increments, prediction and ``"pose3"`` model are
   :mod:`swarmloc.engine.se3` (numpy only), the fusions :mod:`~swarmloc.engine.fuse_exp` and
   :mod:`~swarmloc.engine.fuse_ci` on SE(3) and :mod:`~swarmloc.engine.fuse_ekf3`. Other kinds are rejected as the

@@ -1,5 +1,5 @@
 """The distributed EKF's fusion of one level on SE(3) (``"dekf"`` for a 3-D team):
-:class:`~swarmloc.estimators.dekf3.DistributedEKF3`'s update, batched over the observers of the level.
+:class:`~swarmloc.estimators.dekf.DistributedEKF`'s SE(3) update, batched over the observers of the level.
 
 One ``"pose3"`` detection of each group at a time (:class:`~swarmloc.engine.stamp.Sequential`): the neighbour's
 answer travels as its group belief (:func:`~swarmloc.engine.se3.to_group`, then back to the error form, as the
@@ -20,7 +20,7 @@ from swarmloc.kernels import cartesian as C
 
 
 class Ekf3Fusion(Sequential):
-    """:class:`~swarmloc.estimators.dekf3.DistributedEKF3` on a level (the rows are ``"pose3"`` detections)."""
+    """:class:`~swarmloc.estimators.dekf.DistributedEKF` (SE(3)) on a level (the rows are ``"pose3"`` detections)."""
 
     def update(self, st: Stamp, rows: np.ndarray, code: int) -> None:
         lo = st.lo[rows]

@@ -13,6 +13,9 @@ A pose is its position ``p (3,)`` (world frame) and attitude ``R (3, 3)``. The *
 * the correction is applied on the group, ``p + dp``, ``R exp(dtheta^)`` (:func:`correct`), no reset Jacobian;
 * a right-perturbation Gaussian ``g exp(y)`` has ``cov = J^-1 P J^-T`` with ``J = diag(R, I)`` (``g exp(y)`` moves
   the position by ``R v`` to first order): :func:`to_error`, :func:`to_group`.
+
+The pose functions take one pose; :func:`frame`, :func:`error_cov`, :func:`transition` and :func:`correct` are
+batched over leading axes (the engine's :mod:`swarmloc.engine.se3` stacks robots).
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ from swarmloc.sensors.models3 import DEGENERATE3, MODELS3, model3, pose3_matrix
 
 __all__ = [
     "correct",
+    "error_cov",
+    "frame",
     "linearize",
     "pose",
     "predict",
@@ -43,6 +48,25 @@ __all__ = [
 ]
 
 
+_T = np.swapaxes
+
+
+def frame(R: FloatArray) -> FloatArray:
+    """``J = diag(R, I) (..., 6, 6)`` of attitudes ``R (..., 3, 3)``."""
+    J = np.broadcast_to(np.eye(6), (*R.shape[:-2], 6, 6)).copy()
+    J[..., :3, :3] = R
+    return J
+
+
+def error_cov(R: FloatArray, cov: FloatArray) -> FloatArray:
+    """``J cov J^T`` (symmetrized) with ``J = frame(R)``: a right-perturbation covariance as that of
+    ``(dp, dtheta)`` (``R`` the attitude), or back (``R^T``)."""
+    J = frame(R)
+    P = J @ cov @ _T(J, -1, -2)
+    out: FloatArray = 0.5 * (P + _T(P, -1, -2))
+    return out
+
+
 def pose(p: FloatArray, R: FloatArray) -> FloatArray:
     """The ``4 x 4`` pose of position ``p`` and attitude ``R``."""
     g = np.eye(4)
@@ -53,30 +77,23 @@ def pose(p: FloatArray, R: FloatArray) -> FloatArray:
 def to_error(mean: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """``(p, R, P)`` of a right-perturbation SE(3) Gaussian: ``P = J cov J^T``, ``J = diag(R, I)``."""
     R = mean[:3, :3]
-    J = np.eye(6)
-    J[:3, :3] = R
-    P = J @ cov @ J.T
-    return mean[:3, 3].copy(), R.copy(), 0.5 * (P + P.T)
+    return mean[:3, 3].copy(), R.copy(), error_cov(R, cov)
 
 
 def to_group(p: FloatArray, R: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Inverse of :func:`to_error`: mean ``(4, 4)`` and right-perturbation covariance ``(6, 6)``."""
-    Ji = np.eye(6)
-    Ji[:3, :3] = R.T
-    C = Ji @ P @ Ji.T
-    return pose(p, R), 0.5 * (C + C.T)
+    return pose(p, R), error_cov(R.T, P)
 
 
 def transition(R: FloatArray, inc: FloatArray) -> tuple[FloatArray, FloatArray]:
     """``(F, G)`` of the step ``p' = p + R t_inc``, ``R' = R R_inc`` (increment ``inc (4, 4)``) in the error
     ``(dp, dtheta)``: ``F`` maps the error before to the error after, ``G`` the increment's right-perturbation noise
     to it (first order; tests/test_se3_cekf.py checks both against finite differences)."""
-    Ri, ti = inc[:3, :3], inc[:3, 3]
-    F = np.eye(6)
-    F[:3, 3:] = -R @ skew(ti)
-    F[3:, 3:] = Ri.T
-    G = np.eye(6)
-    G[:3, :3] = R @ Ri
+    Ri, ti = inc[..., :3, :3], inc[..., :3, 3]
+    F = frame(np.broadcast_to(np.eye(3), R.shape))
+    F[..., :3, 3:] = -R @ skew(ti)
+    F[..., 3:, 3:] = _T(Ri, -1, -2)
+    G = frame(R @ Ri)
     return F, G
 
 
