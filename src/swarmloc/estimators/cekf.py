@@ -256,7 +256,8 @@ class TeamForm3(TeamForm):
         if dt <= 0:
             return s
         p, R = s.p.copy(), s.R.copy()
-        p[k], R[k], F, G, S = C3.step(s.p[k], s.R[k], *s.cmd[k], dt, node.noise)
+        v, w = s.cmd[k]
+        p[k], R[k], F, G, S = C3.step(s.p[k], s.R[k], v, w, dt, node.noise)
         i = 6 * k
         P = s.P.copy()
         P[i : i + 6, :] = F @ P[i : i + 6, :]

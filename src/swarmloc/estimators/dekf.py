@@ -16,7 +16,7 @@ kinds) and the correction on the group are :mod:`swarmloc.kernels.cartesian3`'s.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -126,11 +126,13 @@ class CartesianForm3(CartesianForm):
         return (p, R), P
 
     def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
-        p, R, P = C3.predict(*x, P, v, w, dt, noise)
+        p, R = x
+        p, R, P = C3.predict(p, R, P, v, w, dt, noise)
         return (p, R), P
 
     def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return C3.to_group(*x, P)
+        p, R = x
+        return C3.to_group(p, R, P)
 
     def update(self, x: Any, P: np.ndarray, d: Any, target: tuple[str, Any], gate: Gate) -> Any:
         why = C3.unsupported(d, target)
@@ -153,7 +155,8 @@ class CartesianForm3(CartesianForm):
         if isinstance(res[0], str):
             return res
         dx, P = res
-        return C3.correct(*x, dx), P
+        p, R = x
+        return C3.correct(p, R, dx), P
 
 
 FORMS: dict[type, CartesianForm] = {SE2: CartesianForm(), SE3: CartesianForm3()}
@@ -167,7 +170,7 @@ class DistributedEKF(RobotNode):
 
     name = "dekf"
     lazy_odometry = True
-    groups = (SE2, SE3)
+    groups: ClassVar[tuple[type, ...]] = (SE2, SE3)
 
     def __init__(self, robot: int, initial: GroupGaussian, **kw: Any) -> None:
         self._form = FORMS.get(getattr(initial, "group", SE2), FORMS[SE2])  # a wrong belief: RobotNode says so

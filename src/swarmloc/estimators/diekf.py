@@ -282,7 +282,7 @@ class DistributedInvariantEKF(RobotNode):
     error_frame: ClassVar[str] = "world"
     update_types = (TeamUpdate,)
     lin_log: list | None = None
-    groups = (SE2, SE3)
+    groups: ClassVar[tuple[type, ...]] = (SE2, SE3)
     _state: ClassVar[type] = TeamState
     """The state :meth:`_team_update` returns (``flsd`` keeps its own fields from it)."""
 

@@ -208,7 +208,7 @@ class FirstEstimatesEKF(_LoggedCentral):
     first_estimates: ClassVar[bool] = True
 
     def _initial_state(self, t0: float) -> FejState:
-        s = super()._initial_state(t0)
+        s: TeamState = super()._initial_state(t0)
         return FejState(*s, s.X.copy())
 
     def _lin_point(self, s: FejState, k: int) -> np.ndarray:
