@@ -384,12 +384,5 @@ class CentralizedEKF(TeamNode):
 
     # ------------------------------------------------------------------------------------------------ update
     def _fuse_group(self, s: Any, g: Group) -> tuple[Any, list[Outcome], list[Message]]:
-        outcomes: list[Outcome] = []
-        for d in g.detections:
-            target = self._classify(g, d)
-            if target[0] in ("rejected", "unknown"):
-                outcomes.append(target)
-                continue
-            s, out = self._form.fuse(self, s, g, d, target)
-            outcomes.append(out)
+        s, outcomes = self._fuse_each(s, g, lambda s, d, target: self._form.fuse(self, s, g, d, target))
         return s, outcomes, []

@@ -26,7 +26,7 @@ from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
-from swarmloc.node import FUSED, Gate, Group, Outcome, RobotNode, belief_of, gated_kalman
+from swarmloc.node import Gate, Group, Outcome, RobotNode, applied, belief_of, gated_kalman
 from swarmloc.sensors.models import model
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position"
@@ -202,17 +202,10 @@ class DistributedEKF(RobotNode):
         return belief_of(*self._form.belief(s.x, s.P))
 
     def _fuse_group(self, s: CartState, g: Group) -> tuple[CartState, list[Outcome], list[Message]]:
-        x, P = s.x, s.P
-        outcomes: list[Outcome] = []
-        for d in g.detections:
-            target = self._classify(g, d)
-            if target[0] in ("rejected", "unknown"):
-                outcomes.append(target)
-                continue
-            res = self._form.update(x, P, d, target, self.gate)
-            if isinstance(res[0], str):
-                outcomes.append(res)
-                continue
-            x, P = res
-            outcomes.append(FUSED)
+        (x, P), outcomes = self._fuse_each((s.x, s.P), g, self._fuse_one)
         return CartState(s.t, s.v, s.w, x, P), outcomes, []
+
+    def _fuse_one(self, xP: tuple[Any, np.ndarray], d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+        """One detection's update of the mean and covariance ``xP`` (:meth:`CartesianForm.update`) and its outcome."""
+        x, P = xP
+        return applied(xP, self._form.update(x, P, d, target, self.gate))
