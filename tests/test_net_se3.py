@@ -63,7 +63,7 @@ def test_schema_version_bumped_and_se3_bodies_validated() -> None:
 def test_make_node_follows_the_beliefs_group() -> None:
     src = load_source("sim:3d", robots=2, duration=1.0, seed=0)
     node = make_node("diekf", 0, src.initial[0], src.config, src.landmarks, team=src.robots, noise=src.noise)
-    assert type(node).__name__ == "DistributedInvariantEKF3" and node.team == (0, 1)
+    assert type(node).__name__ == "DistributedInvariantEKF" and node.group.name == "SE(3)" and node.team == (0, 1)
     with pytest.raises(ValueError, match="no SE\\(3\\) form"):
         distributed_class("rdl", src.initial[0])
     with pytest.raises(ValueError, match="not a distributed estimator"):

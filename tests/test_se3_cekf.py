@@ -8,10 +8,10 @@ import pytest
 from _se3 import fd, perturb
 
 from swarmloc.estimators import CentralizedEKF3, make_team
-from swarmloc.estimators.dekf3 import transition
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.experiments.se3 import run_se3
 from swarmloc.experiments.sources import load_source
+from swarmloc.kernels.cartesian3 import transition
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import so3_log
 from swarmloc.sensors.models3 import model3, pose3_matrix, pose3_vector

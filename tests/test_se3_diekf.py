@@ -9,12 +9,12 @@ import pytest
 
 from swarmloc.datasets.tum import pose_from7
 from swarmloc.estimators import DistributedInvariantEKF, DistributedInvariantEKF3, make_team
-from swarmloc.estimators.diekf3 import relative_pose3_world
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection, Odometry, twist_odometry
 from swarmloc.experiments.se3 import run_se3
 from swarmloc.experiments.sources import load_source
 from swarmloc.gaussian import GroupGaussian
+from swarmloc.kernels.cartesian3 import relative_pose3_world
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import TeamUpdate, message_problem
 from swarmloc.motion import UnicycleNoise
@@ -29,7 +29,9 @@ pytestmark = pytest.mark.unit
 def test_make_team_picks_se3_diekf() -> None:
     sim = simulate3d(Sim3Config(robots=2, duration=1.0), seed=0)
     nodes = make_team("diekf", sim.initial, noise=sim.noise)
-    assert all(type(n) is DistributedInvariantEKF3 for n in nodes) and nodes[0].team == (0, 1)
+    assert all(type(n) is DistributedInvariantEKF3 and n.group is SE3 and n.dim == 6 for n in nodes) and nodes[
+        0
+    ].team == (0, 1)
 
 
 def test_relative_pose3_world_jacobians_finite_differences() -> None:

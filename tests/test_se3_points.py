@@ -12,11 +12,11 @@ import pytest
 from _se3 import fd, perturb
 
 from swarmloc.estimators import make_team
-from swarmloc.estimators.diekf3 import world_basis3
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection
 from swarmloc.experiments.se3 import run_se3
 from swarmloc.experiments.sources import load_source
+from swarmloc.kernels.cartesian3 import world_basis3
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import so3_log
 from swarmloc.runner import RunResult

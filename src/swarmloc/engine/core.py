@@ -9,11 +9,11 @@ compute when the in-process runner drives them (:mod:`swarmloc.node`), batched:
 * **SE(3) teams** (initial means ``(N, 4, 4)``, covariances ``(N, 6, 6)``; the group is the beliefs'): the nodes of
   :data:`~swarmloc.estimators.ESTIMATORS_SE3`. ``"expfusion"`` and ``"ci"`` keep the SE(3) mean and covariance,
   ``"dekf"`` the pose ``(N, 4, 4)`` and the covariance ``(N, 6, 6)`` of its ``(dp, dtheta)`` error
-  (:mod:`swarmloc.estimators.dekf3`); the command is the body twist, ``v (N, 3)`` [m/s] and ``w (N, 3)`` [rad/s]
-  (a scalar per robot, a stop, broadcasts to the three axes), the noise a
+  (:mod:`swarmloc.estimators.dekf` on SE(3)); the command is the body twist, ``v (N, 3)`` [m/s] and ``w (N, 3)``
+  [rad/s] (a scalar per robot, a stop, broadcasts to the three axes), the noise a
   :class:`~swarmloc.motion.twist3.TwistNoise`; the increments, prediction and ``"pose3"`` model are
   :mod:`swarmloc.engine.se3` (numpy only), the fusions :mod:`~swarmloc.engine.fuse_exp` and
-  :mod:`~swarmloc.engine.fuse_ci` on SE(3) and :mod:`~swarmloc.engine.fuse_ekf3`. Other kinds are rejected as the
+  :mod:`~swarmloc.engine.fuse_ci` and :mod:`~swarmloc.engine.fuse_ekf` on SE(3). Other kinds are rejected as the
   nodes reject them (``kind ... is not supported on SE(3)``).
 
 * **Clocks.** A robot is predicted from its clock to a stamp only when it has an input there (a detection group
@@ -44,8 +44,8 @@ and the centralized ``"cekf"`` replay compiled, :mod:`swarmloc.engine.pairs` and
 (:func:`swarmloc.engine.run_engine`).
 
 The engine's modules are layers, each importing only modules below it (an import-linter contract in pyproject.toml):
-``replay``, ``swarm`` -> ``core`` -> ``fuse_ci`` -> ``fuse_exp``, ``fuse_ekf``, ``fuse_ekf3`` -> ``stamp`` ->
-``outcomes`` -> ``detections``; ``fuse_ekf3`` -> ``se3``; ``core`` -> ``backends`` -> ``numba_ops`` -> ``scalar`` ->
+``replay``, ``swarm`` -> ``core`` -> ``fuse_ci`` -> ``fuse_exp``, ``fuse_ekf`` -> ``stamp`` ->
+``outcomes`` -> ``detections``; ``fuse_ekf`` -> ``se3``; ``core`` -> ``backends`` -> ``numba_ops`` -> ``scalar`` ->
 ``soa``; and all of them -> ``codes``.
 """
 
@@ -62,7 +62,6 @@ from swarmloc.engine.codes import KIND_NAMES, NO_LANDMARK, PENDING, POSE3, REJEC
 from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.fuse_ci import CiFusion
 from swarmloc.engine.fuse_ekf import EkfFusion
-from swarmloc.engine.fuse_ekf3 import Ekf3Fusion
 from swarmloc.engine.fuse_exp import ExpFusionLevel
 from swarmloc.engine.jax_stamp import covered
 from swarmloc.engine.outcomes import screen, tally
@@ -461,10 +460,8 @@ def _fusion(estimator: str, gate: Gate, ops: Any, backend: str, order: int, iter
     estimator declares (:attr:`ExpCI.ci_weight <swarmloc.estimators.ExpCI.ci_weight>`; on SE(3) the node takes the
     closed form, and so does the engine)."""
     options = {"order": order, "iterations": iterations, "point_iterations": point_iterations}
-    if estimator == "dekf" and group is SE3:
-        return Ekf3Fusion(gate, **options)
     if estimator == "dekf":
-        return EkfFusion(gate, ops, backend, **options)
+        return EkfFusion(gate, ops, backend, group, **options)
     if estimator == "ci":
         return CiFusion(gate, ExpCI.ci_weight, **options)
     return ExpFusionLevel(gate, group, **options)

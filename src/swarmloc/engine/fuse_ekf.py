@@ -8,6 +8,12 @@ Joseph-form Kalman update (:func:`swarmloc.kernels.cartesian.kalman_update`), ga
 :func:`swarmloc.node.update.gated_kalman`, batched. The fast path (relative poses and absolute fixes) runs the same
 update as the structure-of-arrays formulas of :mod:`swarmloc.engine.soa` on an array backend
 (:mod:`swarmloc.engine.backends`).
+
+On SE(3) (``group=SE3``) the rows are ``"pose3"`` detections and the state the pose ``(4, 4)`` with the covariance of
+``(dp, dtheta)``: the neighbour's answer travels as its group belief (:func:`~swarmloc.engine.se3.to_group`, then back
+to the error form, as the node receives it), the residual, Jacobian and noise are
+:func:`~swarmloc.engine.se3.pose3_linearize`, the correction ``K r`` is applied on the group
+(:func:`~swarmloc.engine.se3.correct`).
 """
 
 from __future__ import annotations
@@ -16,10 +22,12 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.engine import se3 as E3
 from swarmloc.engine.codes import ABSOLUTE, MODEL, NO_LANDMARK, POSE, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.stamp import Sequential, Stamp, usable
 from swarmloc.events import Kind
 from swarmloc.kernels import cartesian as C
+from swarmloc.lie import SE2, SE3
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MeasurementModel
 
@@ -36,13 +44,15 @@ bearing of a position do not depend on its heading). The range-only and bearing-
 stacked-matrix kernels."""
 
 
-def kalman_rows(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
+def kalman_rows(
+    x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray, angles: tuple[int, ...] = (2,)
+) -> tuple[np.ndarray, ...]:
     """:func:`swarmloc.kernels.cartesian.kalman_update` batched, row by row where a singular innovation covariance
     makes the batched inverse fail (the kernel then answers that row alone)."""
-    xn, Pn, nis, ok = C.kalman_update(x, P, r, H, R)
+    xn, Pn, nis, ok = C.kalman_update(x, P, r, H, R, angles=angles)
     if not np.isnan(nis).all() or x.shape[0] <= 1:
         return xn, Pn, nis, ok
-    rows = [C.kalman_update(x[i], P[i], r[i], H[i], R[i]) for i in range(x.shape[0])]
+    rows = [C.kalman_update(x[i], P[i], r[i], H[i], R[i], angles=angles) for i in range(x.shape[0])]
     return tuple(np.array([row[k] for row in rows]) for k in range(4))
 
 
@@ -64,19 +74,24 @@ class EkfFusion(Sequential):
 
     ``ops``: the fast path's kernels (:func:`swarmloc.engine.backends.make_ops`), None: the stacked-matrix kernels
     for every kind; ``backend``: its name (numpy takes the fast path for batches of :data:`SOA_MIN_ROWS` or more).
-    :attr:`landmarks`: the map's positions and covariances, ``(xy (L, 2), cov (L, 2, 2))``, or None.
+    :attr:`landmarks`: the map's positions and covariances, ``(xy (L, 2), cov (L, 2, 2))``, or None. ``group``: the
+    robots' (SE(3): module docstring).
     """
 
-    def __init__(self, gate: Gate, ops: Any = None, backend: str = "numpy", **options: Any) -> None:
+    def __init__(self, gate: Gate, ops: Any = None, backend: str = "numpy", group: type = SE2, **options: Any) -> None:
         super().__init__(gate, **options)
         self.ops = ops
         self.backend = backend
         self.landmarks: tuple[np.ndarray, np.ndarray] | None = None
+        self.group = group
 
     def _fast(self, code: int, rows: int, kinds: tuple[int, ...] = FAST_KINDS) -> bool:
         return self.ops is not None and code in kinds and (self.backend != "numpy" or rows >= SOA_MIN_ROWS)
 
     def update(self, st: Stamp, rows: np.ndarray, code: int) -> None:
+        if self.group is SE3:
+            self._update_pose3(st, rows)
+            return
         model = MODEL[code]
         m = model.size
         lo = st.lo[rows]
@@ -118,3 +133,16 @@ class EkfFusion(Sequential):
         st.mark(rows[keep & ~ok], REJECTED, R_NUMERICAL)
         good = keep & ok
         st.store(rows[good], xn[good], Pn[good])
+
+    def _update_pose3(self, st: Stamp, rows: np.ndarray) -> None:
+        """:meth:`update` of an SE(3) team (module docstring)."""
+        lo = st.lo[rows]
+        g, P = st.cur[0][lo], st.cur[1][lo]
+        gk, Pk = E3.to_error(*E3.to_group(*st.target(rows)))  # the answer travels as a group belief
+        r, H, Rn = E3.pose3_linearize(g, gk, Pk, st.det.z[rows, :6], st.det.R[rows, :6, :6])
+        dx, Pn, nis, ok = kalman_rows(np.zeros((rows.size, 6)), P, r, H, Rn, angles=())
+        ok = ok & usable(Pn)
+        keep = st.gate(rows, nis, self.gate, 6)
+        st.mark(rows[keep & ~ok], REJECTED, R_NUMERICAL)
+        good = keep & ok
+        st.store(rows[good], E3.correct(g[good], dx[good]), Pn[good])

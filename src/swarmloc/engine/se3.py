@@ -1,9 +1,9 @@
 """SE(3) teams in the engine: the per-robot nodes' 3-D prediction and first-order model, batched over robots.
 
-The formulas are those of the nodes (:mod:`swarmloc.estimators.expfusion` on SE(3), :mod:`swarmloc.estimators.dekf3`,
-:mod:`swarmloc.motion.twist3`, :mod:`swarmloc.sensors.models3`) on stacked arrays: poses ``(B, 4, 4)``, covariances
-``(B, 6, 6)`` (translation first), commands ``v (B, 3)`` [m/s] and ``w (B, 3)`` [rad/s] (the body twist), intervals
-``dt (B,)`` [s].
+The formulas are those of the nodes (:mod:`swarmloc.estimators.expfusion` and :mod:`swarmloc.estimators.dekf` on
+SE(3), :mod:`swarmloc.kernels.cartesian3`, :mod:`swarmloc.motion.twist3`, :mod:`swarmloc.sensors.models3`) on
+stacked arrays: poses ``(B, 4, 4)``, covariances ``(B, 6, 6)`` (translation first), commands ``v (B, 3)`` [m/s] and
+``w (B, 3)`` [rad/s] (the body twist), intervals ``dt (B,)`` [s].
 
 * :func:`twist_increments`: the Gaussian increments of constant body twists, Van Loan's closed form with one
   batched ``12 x 12`` matrix exponential (``scipy.linalg.expm`` on a stack);
@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
+from swarmloc.kernels import cartesian3 as C3
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import skew, so3_exp, so3_log
@@ -59,16 +60,11 @@ def predict_group(
 def predict_error(
     g: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray, noise: TwistNoise
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The first-order EKF's prediction (:class:`~swarmloc.estimators.dekf3.DistributedEKF3`): ``p' = p + R t_inc``,
-    ``R' = R R_inc``, ``P' = F P F^T + G Sigma_inc G^T`` (:func:`swarmloc.estimators.dekf3.transition`)."""
+    """The first-order EKF's prediction (:class:`~swarmloc.estimators.dekf.DistributedEKF` on SE(3)): ``p' = p + R
+    t_inc``, ``R' = R R_inc``, ``P' = F P F^T + G Sigma_inc G^T`` (:func:`swarmloc.kernels.cartesian3.transition`)."""
     inc, S = twist_increments(v, w, dt, noise)
     R, Ri, ti = g[:, :3, :3], inc[:, :3, :3], inc[:, :3, 3]
-    B = g.shape[0]
-    F = np.broadcast_to(np.eye(6), (B, 6, 6)).copy()
-    F[:, :3, 3:] = -R @ skew(ti)
-    F[:, 3:, 3:] = _T(Ri, -1, -2)
-    G = np.broadcast_to(np.eye(6), (B, 6, 6)).copy()
-    G[:, :3, :3] = R @ Ri
+    F, G = C3.transition(R, inc)
     Pn = F @ P @ _T(F, -1, -2) + G @ S @ _T(G, -1, -2)
     out = g.copy()
     out[:, :3, 3] = g[:, :3, 3] + np.einsum("bij,bj->bi", R, ti)
@@ -76,24 +72,15 @@ def predict_error(
     return out, _sym(Pn)
 
 
-def _blockdiag_R(R: np.ndarray) -> np.ndarray:
-    """``diag(R, I)`` ``(B, 6, 6)``."""
-    J = np.broadcast_to(np.eye(6), (*R.shape[:-2], 6, 6)).copy()
-    J[..., :3, :3] = R
-    return J
-
-
 def to_error(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(pose, P)`` of right-perturbation beliefs: ``P = J cov J^T``, ``J = diag(R, I)``
-    (:func:`swarmloc.estimators.dekf3.to_error`)."""
-    J = _blockdiag_R(mean[..., :3, :3])
-    return mean.copy(), _sym(J @ cov @ _T(J, -1, -2))
+    (:func:`swarmloc.kernels.cartesian3.to_error`)."""
+    return mean.copy(), C3.error_cov(mean[..., :3, :3], cov)
 
 
 def to_group(g: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`to_error`: the beliefs ``(mean, cov)`` the EKF's nodes answer and record."""
-    Ji = _blockdiag_R(_T(g[..., :3, :3], -1, -2))
-    return g.copy(), _sym(Ji @ P @ _T(Ji, -1, -2))
+    return g.copy(), C3.error_cov(_T(g[..., :3, :3], -1, -2), P)
 
 
 def pose3_linearize(
@@ -116,7 +103,7 @@ def pose3_linearize(
     Hk[:, 3:, 3:] = np.eye(3)
     mz = pose3_matrix(z)
     r = np.concatenate([mz[:, :3, 3] - ht, so3_log(_T(hR, -1, -2) @ mz[:, :3, :3])], axis=-1)
-    J = _blockdiag_R(so3_exp(z[:, 3:]))
+    J = C3.frame(so3_exp(z[:, 3:]))
     Rn = J @ Rz @ _T(J, -1, -2) + Hk @ Pk @ _T(Hk, -1, -2)
     return r, H, _sym(Rn)
 
@@ -124,6 +111,5 @@ def pose3_linearize(
 def correct(g: np.ndarray, dx: np.ndarray) -> np.ndarray:
     """Poses corrected by ``dx = (dp, dtheta)`` on the group: ``p + dp``, ``R exp(dtheta^)``."""
     out = g.copy()
-    out[:, :3, 3] = g[:, :3, 3] + dx[:, :3]
-    out[:, :3, :3] = g[:, :3, :3] @ so3_exp(dx[:, 3:])
+    out[:, :3, 3], out[:, :3, :3] = C3.correct(g[:, :3, 3], g[:, :3, :3], dx)
     return out

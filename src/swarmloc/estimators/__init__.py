@@ -33,12 +33,9 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from swarmloc.estimators.cekf import CentralizedEKF
-from swarmloc.estimators.cekf3 import CentralizedEKF3
 from swarmloc.estimators.ci import ExpCI
 from swarmloc.estimators.dekf import DistributedEKF
-from swarmloc.estimators.dekf3 import DistributedEKF3
 from swarmloc.estimators.diekf import DistributedInvariantEKF
-from swarmloc.estimators.diekf3 import DistributedInvariantEKF3
 from swarmloc.estimators.dr import DeadReckoning
 from swarmloc.estimators.expfusion import ExpFusion
 from swarmloc.estimators.fls import FixedLagSmoother
@@ -50,6 +47,13 @@ from swarmloc.estimators.rdl import RecursiveDecentralized
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3
 from swarmloc.node import DEFAULT_HORIZON, Node, RobotNode
+
+CentralizedEKF3 = CentralizedEKF
+"""The SE(3) ``cekf`` is :class:`CentralizedEKF` (the former name, kept for existing imports)."""
+DistributedEKF3 = DistributedEKF
+"""The SE(3) ``dekf`` is :class:`DistributedEKF` (the former name, kept for existing imports)."""
+DistributedInvariantEKF3 = DistributedInvariantEKF
+"""The SE(3) ``diekf`` is :class:`DistributedInvariantEKF` (the former name, kept for existing imports)."""
 
 if TYPE_CHECKING:
     from swarmloc.config import Config
@@ -74,16 +78,13 @@ ESTIMATORS: dict[str, type[Node]] = {
 ESTIMATORS_SE3: dict[str, type[Node]] = {
     "dr": DeadReckoning,
     "expfusion": ExpFusion,
-    "dekf": DistributedEKF3,
+    "dekf": DistributedEKF,
     "ci": ExpCI,
-    "diekf": DistributedInvariantEKF3,
-    "cekf": CentralizedEKF3,
+    "diekf": DistributedInvariantEKF,
+    "cekf": CentralizedEKF,
 }
 """The estimators with an SE(3) form (3-D teams), by name: :func:`make_team` picks from this table when the initial
-beliefs are on SE(3). ``dr``, ``expfusion`` and ``ci`` are the planar classes on the SE(3) kernels; ``dekf`` is
-:class:`~swarmloc.estimators.dekf3.DistributedEKF3`, ``diekf``
-:class:`~swarmloc.estimators.diekf3.DistributedInvariantEKF3` (world-frame errors), ``cekf``
-:class:`~swarmloc.estimators.cekf3.CentralizedEKF3`."""
+beliefs are on SE(3). Each is the planar class, the initial beliefs' group choosing its form once."""
 
 
 def estimator_class(estimator: str | type[Node], initial: Mapping[int, GroupGaussian] | None = None) -> type[Node]:

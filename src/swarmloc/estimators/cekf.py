@@ -10,11 +10,22 @@ a time (exact for a joint Kalman update with independent measurement noise), tou
 two 3-column blocks of ``H`` need (:func:`swarmloc.kernels.cartesian.kalman_update_blocks`: ``O(n^2)`` per
 detection instead of ``O(n^3)``); a run of odometry is predicted in one float loop per robot
 (:meth:`CentralizedEKF._advance_commands`).
+
+**SE(3).** With SE(3) initial beliefs the same node keeps each robot's position ``p_k`` (world frame) and attitude
+``R_k`` and the joint covariance ``P (6n, 6n)`` of the errors ``(dp_k, dtheta_k)`` (``p_true = p + dp``, ``R_true =
+R exp(dtheta^)``), the error of the distributed ``dekf``: a prediction of robot ``k`` over its body twist applies
+``F = [[I, -R t_inc^], [0, R_inc^T]]`` to its rows and columns of ``P`` (its cross-covariances move with it) and adds
+``G Sigma_inc G^T``; a ``"pose3"``, ``"rbe3"`` or ``"bearing3"`` detection of a robot, or a ``"rbe3"`` /
+``"bearing3"`` one of a known 3-D landmark, is one Joseph-form update of the joint state on the two robots' columns,
+applied on the group (:mod:`swarmloc.kernels.cartesian3`). The group picks the node's :class:`TeamForm` once
+(:data:`FORMS`). It tracks every correlation, so it does not double count; its Jacobians are evaluated at the
+current estimates, so without absolute information it may still gain spurious information along the team's
+unobservable rigid motion (the world-frame ``diekf`` does not).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -23,8 +34,10 @@ from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
+from swarmloc.kernels import cartesian3 as C3
+from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
-from swarmloc.node import FUSED, Group, Outcome, TeamNode, belief_of, gated_kalman
+from swarmloc.node import FUSED, Group, Node, Outcome, TeamNode, belief_of, gated_kalman
 from swarmloc.sensors.models import model
 
 
@@ -93,71 +106,60 @@ def flush_pending(s: TeamState) -> TeamState:
     return TeamState(s.X, P, s.t, s.cmd, (None,) * len(s.pend))
 
 
-class CentralizedEKF(TeamNode):
-    """Centralized CL-EKF with the joint covariance of the team. Parameters: :class:`~swarmloc.node.team.TeamNode`'s
-    (every robot's initial SE(2) belief by id, the odometry noise, the association policy, the node's keywords)."""
+class Team3State(NamedTuple):
+    """An SE(3) team: positions ``p (n, 3)``, attitudes ``R (n, 3, 3)``, joint error covariance ``P (6n, 6n)``, each
+    robot's time [s] and command (linear and angular velocity)."""
 
-    name = "cekf"
-    lazy_odometry = True
-    error_frame: ClassVar[str] = "cartesian"
-    lin_log: list | None = None
-    """Set to a list to record every applied linearization (:mod:`swarmloc.evaluation.observability`)."""
+    p: np.ndarray
+    R: np.ndarray
+    P: np.ndarray
+    t: tuple[float, ...]
+    cmd: tuple[tuple[Any, Any], ...]
 
-    @property
-    def _angles(self) -> tuple[int, ...]:
-        """Indices of the headings in the joint state (wrapped in innovations)."""
-        return tuple(range(2, 3 * len(self.robots), 3))
 
-    # ------------------------------------------------------------------------------------------------ filter
-    def _initial_state(self, t0: float) -> TeamState:
-        n = 3 * len(self.robots)
+class TeamForm:
+    """The joint Cartesian state of an SE(2) team (:class:`TeamState`: ``(x, y, theta)`` per robot, predictions kept
+    pending) and the planar models (:mod:`swarmloc.sensors.models`); its steps take the node for its blocks
+    (``_idx``), noise, gate and linearization log."""
+
+    group: type = SE2
+    dim = 3
+    runs = True
+    """Whether a run of odometry has a float loop per robot (:meth:`advance_commands`)."""
+
+    def initial(self, node: Any, t0: float) -> Any:
+        """The team's state at ``t0`` [s] from every robot's initial belief."""
+        n = 3 * len(node.robots)
         X, P = np.zeros(n), np.zeros((n, n))
-        for r, b in self.initial.items():
-            i = self._idx[r]
+        for r, b in node.initial.items():
+            i = node._idx[r]
             X[i : i + 3], P[i : i + 3, i : i + 3] = C.from_group(b.mean, b.cov)
-        n_r = len(self.robots)
+        n_r = len(node.robots)
         return TeamState(X, P, (t0,) * n_r, ((0.0, 0.0),) * n_r, (None,) * n_r)
 
-    def _increment(self, s: Any, robot: int, t: float) -> tuple[int, int, tuple[float, ...]] | None:
-        """``(k, i, terms)`` of predicting ``robot`` (block ``k``, first row ``i``) to ``t``:
-        :func:`~swarmloc.kernels.cartesian.increment_terms` with its command; None when ``t`` is not later."""
-        k = self._idx[robot] // 3
-        dt = t - s.t[k]
-        if dt <= 0:
-            return None
-        i = 3 * k
-        v, w = s.cmd[k]
-        return k, i, C.increment_terms(s.X[i : i + 3], v, w, dt, self.noise)
-
-    def _advance(self, s: TeamState, robot: int, t: float) -> TeamState:
-        step = self._increment(s, robot, t)
+    def advance(self, node: Any, s: Any, robot: int, t: float) -> Any:
+        """``s`` with ``robot`` predicted to ``t`` [s] (unchanged when ``t`` is not later)."""
+        step = node._increment(s, robot, t)
         if step is None:
             return s
         k, i, (x0, y0, th, dx, dy, *q) = step
         X = s.X.copy()
         X[i], X[i + 1], X[i + 2] = x0, y0, th
-        self._log_shear(t, robot, dx, dy)
+        node._log_shear(t, robot, dx, dy)
         return TeamState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)))
 
-    def _log_shear(self, t: float, robot: int, dx: float, dy: float) -> None:
-        """Record a prediction's transition ``Phi`` (the shear by ``(dx, dy)``) when the linearization log is on."""
-        if self.lin_log is not None:
-            self.lin_log.append(("predict", t, robot, np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])))
-
-    def _set_command(self, s: TeamState, robot: int, v: float, w: float) -> TeamState:
+    def set_command(self, node: Any, s: Any, robot: int, v: Any, w: Any) -> Any:
+        """``s`` with ``robot``'s command ``(v, w)``."""
         cmd = list(s.cmd)
-        cmd[self._idx[robot] // 3] = (v, w)
-        return TeamState(s.X, s.P, s.t, tuple(cmd), s.pend)
+        cmd[node._idx[robot] // self.dim] = (v, w)
+        return s._replace(cmd=tuple(cmd))
 
-    def _advance_commands(self, s: Any, cmds: Any) -> Any:
+    def advance_commands(self, node: Any, s: Any, cmds: Any) -> Any:
         """A run of odometry, each robot in one float loop (:func:`swarmloc.kernels.cartesian.predict_run`: the same
-        bits as one :meth:`_advance` per command, its pending ``(a, b, Q)`` composed as there; tests/test_node.py
-        checks it for every estimator)."""
-        if self.measure_time or self.lin_log is not None:  # the log records each prediction
-            return super()._advance_commands(s, cmds)
+        bits as one :meth:`advance` per command, its pending ``(a, b, Q)`` composed as there)."""
         per: dict[int, list[tuple[float, float, float]]] = {}
         for t, robot, v, w in cmds:
-            per.setdefault(self._idx[robot] // 3, []).append((t, v, w))
+            per.setdefault(node._idx[robot] // 3, []).append((t, v, w))
         X = None
         times, cmd, pend = list(s.t), list(s.cmd), list(s.pend)
         for k, run in per.items():
@@ -165,7 +167,7 @@ class CentralizedEKF(TeamNode):
             old = pend[k]
             q, shear = ((0.0,) * 6, (0.0, 0.0)) if old is None else (old[2:], old[:2])
             x, q, t, cmd[k], shear = C.predict_run(
-                tuple(s.X[i : i + 3].tolist()), q, times[k], cmd[k], shear, run, self.noise
+                tuple(s.X[i : i + 3].tolist()), q, times[k], cmd[k], shear, run, node.noise
             )
             if t != times[k]:
                 if X is None:
@@ -175,71 +177,212 @@ class CentralizedEKF(TeamNode):
                 pend[k] = (*shear, *q)
         return TeamState(s.X if X is None else X, s.P, tuple(times), tuple(cmd), tuple(pend))
 
-    def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
-        i = self._idx[robot]
+    def belief(self, node: Any, s: Any, robot: int) -> tuple[np.ndarray, np.ndarray]:
+        """``robot``'s marginal as a right-perturbation belief ``(mean, cov)``."""
+        i = node._idx[robot]
         P = s.P[i : i + 3, i : i + 3]
         pd = s.pend[i // 3]
         if pd is not None:  # the robot's marginal with its pending predictions
             q = shear_upper((P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]), pd[1], -pd[0])
             q00, q01, q02, q11, q12, q22 = (u + w for u, w in zip(q, pd[2:], strict=True))
             P = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
-        return belief_of(*C.to_group(s.X[i : i + 3], P))
+        return C.to_group(s.X[i : i + 3], P)
+
+    def joint(self, s: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The joint mean (here ``X (3n,)``) and covariance of ``s``."""
+        s = flush_pending(s)
+        return s.X.copy(), s.P.copy()
+
+    def fuse(self, node: Any, s: Any, g: Group, d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+        """One detection ``d`` of the classified ``target`` of group ``g``: the state after it (the detected robot
+        predicted to the stamp) and its outcome."""
+        m = model(d.kind)
+        R = m.noise(d.z, d.cov)
+        i = node._idx[g.observer]
+        own = np.arange(i, i + 3)
+        xi = s.X[i : i + 3]
+        # H is zero but in the observer's (and the detected robot's) 3 columns: H holds those, cols says which
+        if target[0] == Kind.ABSOLUTE:
+            h, H, _ = m.predict(xi)
+            cols, r = own, m.residual(d.z, h)
+        else:
+            if target[0] == "robot":
+                s = node._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
+                k = node._idx[target[1]]
+                xk, Ck = s.X[k : k + 3], None
+            else:
+                xk, Ck = target[1]
+            if m.degenerate(xi, xk):
+                return s, ("rejected", DEGENERATE)
+            h, Hi, Hk = m.predict(xi, xk)
+            if Ck is None:
+                H, cols = np.hstack([Hi, Hk]), np.r_[own, k : k + 3]
+            else:
+                H, cols = Hi, own
+                R = R + Hk @ Ck @ Hk.T
+            r = m.residual(d.z, h)
+        sf = flush_pending(s)  # pending predictions applied only for an update (so a rejected one changes no bit)
+        angles = tuple(range(2, 3 * len(node.robots), 3))  # the headings, wrapped in innovations
+        res = gated_kalman(sf.X, sf.P, r, H, R, node.gate, cols=cols, angles=angles)
+        if isinstance(res[0], str):
+            return s, res
+        if node.lin_log is not None:
+            blocks = {g.observer: H[:, :3]}  # H holds the observer's columns, then the detected robot's
+            if target[0] == "robot":
+                blocks[target[1]] = H[:, 3:6]
+            node.lin_log.append(("update", g.t, blocks, R))
+        return TeamState(*res, sf.t, sf.cmd, sf.pend), FUSED
+
+
+class TeamForm3(TeamForm):
+    """The joint state of an SE(3) team (:class:`Team3State`, module docstring) and the models of
+    :mod:`swarmloc.sensors.models3` (:mod:`swarmloc.kernels.cartesian3`)."""
+
+    group = SE3
+    dim = 6
+    runs = False
+
+    def initial(self, node: Any, t0: float) -> Any:
+        n = len(node.robots)
+        p, R, P = np.zeros((n, 3)), np.zeros((n, 3, 3)), np.zeros((6 * n, 6 * n))
+        for r, b in node.initial.items():
+            k = node._idx[r] // 6
+            p[k], R[k], P[6 * k : 6 * k + 6, 6 * k : 6 * k + 6] = C3.to_error(np.asarray(b.mean), np.asarray(b.cov))
+        return Team3State(p, R, P, (t0,) * n, ((0.0, 0.0),) * n)
+
+    def advance(self, node: Any, s: Any, robot: int, t: float) -> Any:
+        k = node._idx[robot] // 6
+        dt = t - s.t[k]
+        if dt <= 0:
+            return s
+        p, R = s.p.copy(), s.R.copy()
+        v, w = s.cmd[k]
+        p[k], R[k], F, G, S = C3.step(s.p[k], s.R[k], v, w, dt, node.noise)
+        i = 6 * k
+        P = s.P.copy()
+        P[i : i + 6, :] = F @ P[i : i + 6, :]
+        P[:, i : i + 6] = P[:, i : i + 6] @ F.T
+        P[i : i + 6, i : i + 6] += G @ S @ G.T
+        blk = P[i : i + 6, i : i + 6]
+        P[i : i + 6, i : i + 6] = 0.5 * (blk + blk.T)
+        times = list(s.t)
+        times[k] = t
+        return Team3State(p, R, P, tuple(times), s.cmd)
+
+    def belief(self, node: Any, s: Any, robot: int) -> tuple[np.ndarray, np.ndarray]:
+        k = node._idx[robot] // 6
+        i = 6 * k
+        return C3.to_group(s.p[k], s.R[k], s.P[i : i + 6, i : i + 6])
+
+    def joint(self, s: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Every robot's pose ``(n, 4, 4)`` and the joint error covariance ``(6n, 6n)``."""
+        return np.stack([C3.pose(p, R) for p, R in zip(s.p, s.R, strict=True)]), s.P.copy()
+
+    def fuse(self, node: Any, s: Any, g: Group, d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+        why = C3.unsupported(d, target)
+        if why is not None:
+            return s, ("rejected", why)
+        ko = node._idx[g.observer] // 6
+        gi = C3.pose(s.p[ko], s.R[ko])
+        if target[0] == "robot":
+            s = node._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
+            kt = node._idx[target[1]] // 6
+            gk, Ck = C3.pose(s.p[kt], s.R[kt]), None
+            cols = np.r_[6 * ko : 6 * ko + 6, 6 * kt : 6 * kt + 6]
+        else:
+            gk, Ck = target[1]
+            cols = np.r_[6 * ko : 6 * ko + 6]
+        lin = C3.linearize(d, gi, gk)
+        if isinstance(lin, str):
+            return s, ("rejected", lin)
+        r, Hi, Hk, Rn = lin
+        if Ck is None:
+            H = np.hstack([Hi, Hk])
+        else:  # a landmark: its map uncertainty joins the noise
+            H, Rn = Hi, Rn + Hk @ Ck @ Hk.T
+        res = gated_kalman(np.zeros(6 * len(node.robots)), s.P, r, H, 0.5 * (Rn + Rn.T), node.gate, cols=cols,
+                           angles=())  # fmt: skip
+        if isinstance(res[0], str):
+            return s, res
+        dx, P = res
+        p, R = C3.correct(s.p, s.R, dx.reshape(-1, 6))
+        return Team3State(p, R, P, s.t, s.cmd), FUSED
+
+
+FORMS: dict[type, TeamForm] = {SE2: TeamForm(), SE3: TeamForm3()}
+"""The joint-state form of each group."""
+
+
+class CentralizedEKF(TeamNode):
+    """Centralized CL-EKF with the joint covariance of the team. Parameters: :class:`~swarmloc.node.team.TeamNode`'s
+    (every robot's initial SE(2) or SE(3) belief by id, the odometry noise, the association policy (SE(2) only), the
+    node's keywords). On SE(3) it takes ``"pose3"``, ``"rbe3"`` and ``"bearing3"`` detections of robots and
+    ``"rbe3"`` / ``"bearing3"`` ones of known 3-D landmarks."""
+
+    name = "cekf"
+    lazy_odometry = True
+    groups: ClassVar[tuple[type, ...]] = (SE2, SE3)
+    error_frame: ClassVar[str] = "cartesian"
+    lin_log: list | None = None
+    """Set to a list to record every applied linearization (:mod:`swarmloc.evaluation.observability`)."""
+
+    def __init__(self, initial: Mapping[int, GroupGaussian], **kw: Any) -> None:
+        first = next(iter(initial.values()), None) if isinstance(initial, Mapping) else None
+        self._form = FORMS.get(getattr(first, "group", SE2), FORMS[SE2])  # a wrong belief: TeamNode says so
+        super().__init__(initial, **kw)
+
+    @property
+    def dim(self) -> int:  # type: ignore[override]
+        """Size of one robot's block of the joint state (3: SE(2); 6: SE(3))."""
+        return self._form.dim
+
+    # ------------------------------------------------------------------------------------------------ filter
+    def _initial_state(self, t0: float) -> Any:
+        return self._form.initial(self, t0)
+
+    def _increment(self, s: Any, robot: int, t: float) -> tuple[int, int, tuple[float, ...]] | None:
+        """SE(2): ``(k, i, terms)`` of predicting ``robot`` (block ``k``, first row ``i``) to ``t``:
+        :func:`~swarmloc.kernels.cartesian.increment_terms` with its command; None when ``t`` is not later."""
+        k = self._idx[robot] // 3
+        dt = t - s.t[k]
+        if dt <= 0:
+            return None
+        i = 3 * k
+        v, w = s.cmd[k]
+        return k, i, C.increment_terms(s.X[i : i + 3], v, w, dt, self.noise)
+
+    def _advance(self, s: Any, robot: int, t: float) -> Any:
+        return self._form.advance(self, s, robot, t)
+
+    def _log_shear(self, t: float, robot: int, dx: float, dy: float) -> None:
+        """Record a prediction's transition ``Phi`` (the shear by ``(dx, dy)``) when the linearization log is on."""
+        if self.lin_log is not None:
+            self.lin_log.append(("predict", t, robot, np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])))
+
+    def _set_command(self, s: Any, robot: int, v: Any, w: Any) -> Any:
+        return self._form.set_command(self, s, robot, v, w)
+
+    def _advance_commands(self, s: Any, cmds: Any) -> Any:
+        """A run of odometry (:meth:`TeamForm.advance_commands` where the form has one; tests/test_node.py checks
+        it for every estimator)."""
+        if self.measure_time or self.lin_log is not None or not self._form.runs:  # the log records each prediction
+            return Node._advance_commands(self, s, cmds)
+        return self._form.advance_commands(self, s, cmds)
+
+    def _belief(self, s: Any, robot: int) -> GroupGaussian:
+        return belief_of(*self._form.belief(self, s, robot))
 
     def joint_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Joint state ``(3n,)`` and covariance ``(3n, 3n)`` in the filter's error coordinates (Cartesian here;
-        world-frame errors for ``iekf``) with every robot predicted to ``t`` [s] (robots in increasing id order)."""
+        """Joint state and covariance in the filter's error coordinates (SE(2): ``(3n,)`` Cartesian, world-frame
+        errors for ``iekf``; SE(3): the poses ``(n, 4, 4)`` and the ``(6n, 6n)`` covariance of ``(dp, dtheta)``) with
+        every robot predicted to ``t`` [s] (robots in increasing id order)."""
         at = (t, 3, 0, ())
         s = self._history.state_before(at)
         for r in self.robots:
             s = self._adv(s, r, t, at)
-        s = flush_pending(s)
-        return s.X.copy(), s.P.copy()
+        return self._form.joint(s)
 
     # ------------------------------------------------------------------------------------------------ update
-    def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
-        outcomes: list[Outcome] = []
-        i = self._idx[g.observer]
-        si = slice(i, i + 3)
-        own = np.arange(i, i + 3)
-        for d in g.detections:
-            target = self._classify(g, d)
-            if target[0] in ("rejected", "unknown"):
-                outcomes.append(target)
-                continue
-            m = model(d.kind)
-            R = m.noise(d.z, d.cov)
-            xi = s.X[si]
-            # H is zero but in the observer's (and the detected robot's) 3 columns: H holds those, cols says which
-            if target[0] == Kind.ABSOLUTE:
-                h, H, _ = m.predict(xi)
-                cols, r = own, m.residual(d.z, h)
-            else:
-                if target[0] == "robot":
-                    s = self._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
-                    k = self._idx[target[1]]
-                    xk, Ck = s.X[k : k + 3], None
-                else:
-                    xk, Ck = target[1]
-                if m.degenerate(xi, xk):
-                    outcomes.append(("rejected", DEGENERATE))
-                    continue
-                h, Hi, Hk = m.predict(xi, xk)
-                if Ck is None:
-                    H, cols = np.hstack([Hi, Hk]), np.r_[own, k : k + 3]
-                else:
-                    H, cols = Hi, own
-                    R = R + Hk @ Ck @ Hk.T
-                r = m.residual(d.z, h)
-            sf = flush_pending(s)  # pending predictions applied only for an update (so a rejected one changes no bit)
-            res = gated_kalman(sf.X, sf.P, r, H, R, self.gate, cols=cols, angles=self._angles)
-            if isinstance(res[0], str):
-                outcomes.append(res)
-                continue
-            s = TeamState(*res, sf.t, sf.cmd, sf.pend)
-            if self.lin_log is not None:
-                blocks = {g.observer: H[:, :3]}  # H holds the observer's columns, then the detected robot's
-                if target[0] == "robot":
-                    blocks[target[1]] = H[:, 3:6]
-                self.lin_log.append(("update", g.t, blocks, R))
-            outcomes.append(FUSED)
+    def _fuse_group(self, s: Any, g: Group) -> tuple[Any, list[Outcome], list[Message]]:
+        s, outcomes = self._fuse_each(s, g, lambda s, d, target: self._form.fuse(self, s, g, d, target))
         return s, outcomes, []

@@ -25,7 +25,7 @@ from swarmloc.kernels import group as K
 from swarmloc.kernels.ci import ci_search, point_weight, pose_weight
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
-from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, usable_covariance
+from swarmloc.node import NUMERICAL, Group, Outcome, applied, usable_covariance
 from swarmloc.sensors.models3 import pose3_matrix
 
 
@@ -39,19 +39,12 @@ class ExpCI(ExpFusion):
     :func:`swarmloc.kernels.ci.ci_search`). The batched engine follows the same attribute."""
 
     def _fuse_group(self, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
-        mean, cov = s.mean, s.cov
-        outcomes: list[Outcome] = []
-        for d in g.detections:
-            target = self._classify(g, d)
-            if target[0] in ("rejected", "unknown"):
-                outcomes.append(target)
-                continue
-            res = self._ci(mean, cov, d, target) if target[0] == "robot" else self._independent(mean, cov, d, target)
-            if isinstance(res[0], str):
-                outcomes.append(res)
-            else:
-                mean, cov = res
-                outcomes.append(FUSED)
+        def fuse(mc: tuple, d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+            mean, cov = mc
+            step = self._ci if target[0] == "robot" else self._independent
+            return applied(mc, step(mean, cov, d, target))
+
+        (mean, cov), outcomes = self._fuse_each((s.mean, s.cov), g, fuse)
         return ExpState(s.t, s.v, s.w, mean, cov), outcomes, []
 
     def _independent(self, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:

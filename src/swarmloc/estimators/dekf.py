@@ -6,31 +6,40 @@ bearing; robots or landmarks with known position and standard deviation, slides 
 :mod:`swarmloc.sensors.models`. A detected neighbour's belief is asked for (:class:`~swarmloc.messages.BeliefQuery`)
 and its covariance enters the innovation covariance; the cross-correlation is ignored, which makes the filter
 over-confident when robots measure each other repeatedly.
+
+**SE(3).** With an SE(3) initial belief the same node runs on SE(3): its error is the 3-D form of ``(x, y, theta)``,
+``(dp, dtheta)`` with ``p_true = p + dp`` (world frame) and ``R_true = R exp(dtheta^)`` (body frame); prediction over
+the body twist, the ``"pose3"``, ``"rbe3"`` and ``"bearing3"`` models (robots, and known 3-D landmarks for the point
+kinds) and the correction on the group are :mod:`swarmloc.kernels.cartesian3`'s. The group picks the node's
+:class:`CartesianForm` once (:data:`FORMS`); the filter's steps are the same.
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
 from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
+from swarmloc.kernels import cartesian3 as C3
+from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
-from swarmloc.node import FUSED, Group, Outcome, RobotNode, belief_of, gated_kalman
+from swarmloc.node import Gate, Group, Outcome, RobotNode, applied, belief_of, gated_kalman
 from swarmloc.sensors.models import model
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position"
 
 
 class CartState(NamedTuple):
-    """A node's filter state: time [s], command ``(v, w)``, Cartesian mean ``(3,)`` and covariance ``(3, 3)``."""
+    """A node's filter state: time [s], command (SE(2): ``(v, w)``; SE(3): the body twist's linear and angular
+    velocity), mean in the form's coordinates (:class:`CartesianForm`) and covariance of its error."""
 
     t: float
-    v: float
-    w: float
-    x: np.ndarray
+    v: Any
+    w: Any
+    x: Any
     P: np.ndarray
 
 
@@ -74,54 +83,129 @@ def predict_run(s: Any, shear: tuple[float, float], cmds: Any, noise: Any) -> tu
     return np.array(x), np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]), t, cmd, shear
 
 
+class CartesianForm:
+    """The first-order Cartesian error on SE(2): mean ``(x, y, theta)`` and covariance ``(3, 3)``
+    (:mod:`swarmloc.kernels.cartesian`), the planar models (:mod:`swarmloc.sensors.models`)."""
+
+    group: type = SE2
+    runs = True
+    """Whether a run of odometry has a one-loop form (:func:`predict_run`)."""
+
+    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[Any, np.ndarray]:
+        """Mean and covariance of the error of a right-perturbation belief."""
+        return C.from_group(mean, cov)
+
+    def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
+        """Mean and covariance after the command ``(v, w)`` held over ``dt > 0`` [s]."""
+        x, P, _, _ = C.predict_one(x, P, v, w, dt, noise)
+        return x, P
+
+    def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Inverse of :meth:`initial`."""
+        return C.to_group(x, P)
+
+    def update(self, x: Any, P: np.ndarray, d: Any, target: tuple[str, Any], gate: Gate) -> Any:
+        """``(x, P)`` after detection ``d`` of a classified ``target`` (a neighbour's uncertainty in the noise), or
+        the outcome that stops it."""
+        lin = linearize(d, x, target)
+        if lin is None:
+            return ("rejected", DEGENERATE)
+        r, Hi, R_eff, _ = lin
+        return gated_kalman(x, P, r, Hi, R_eff, gate)
+
+
+class CartesianForm3(CartesianForm):
+    """The first-order Cartesian error on SE(3): mean ``(p, R)``, covariance ``(6, 6)`` of ``(dp, dtheta)``
+    (:mod:`swarmloc.kernels.cartesian3`, the models of :mod:`swarmloc.sensors.models3`)."""
+
+    group = SE3
+    runs = False
+
+    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[Any, np.ndarray]:
+        p, R, P = C3.to_error(np.asarray(mean), np.asarray(cov))
+        return (p, R), P
+
+    def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
+        p, R = x
+        p, R, P = C3.predict(p, R, P, v, w, dt, noise)
+        return (p, R), P
+
+    def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p, R = x
+        return C3.to_group(p, R, P)
+
+    def update(self, x: Any, P: np.ndarray, d: Any, target: tuple[str, Any], gate: Gate) -> Any:
+        why = C3.unsupported(d, target)
+        if why is not None:
+            return ("rejected", why)
+        if target[0] == "robot":
+            nb_mean, nb_cov = target[1].belief_arrays()
+            if nb_mean.shape != (4, 4):
+                return ("rejected", "the neighbour's answer is not an SE(3) belief")
+            pk, Rk, Ck = C3.to_error(nb_mean, nb_cov)
+            gk = C3.pose(pk, Rk)
+        else:
+            gk, Ck = target[1]
+        lin = C3.linearize(d, C3.pose(*x), gk)
+        if isinstance(lin, str):
+            return ("rejected", lin)
+        r, Hi, Hk, Rn = lin
+        Rn = Rn + Hk @ Ck @ Hk.T
+        res = gated_kalman(np.zeros(6), P, r, Hi, 0.5 * (Rn + Rn.T), gate, angles=())
+        if isinstance(res[0], str):
+            return res
+        dx, P = res
+        p, R = x
+        return C3.correct(p, R, dx), P
+
+
+FORMS: dict[type, CartesianForm] = {SE2: CartesianForm(), SE3: CartesianForm3()}
+"""The Cartesian error form of each group."""
+
+
 class DistributedEKF(RobotNode):
-    """Distributed EKF: one Cartesian EKF per robot, neighbours' covariances as noise, one detection at a time."""
+    """Distributed EKF: one Cartesian EKF per robot, neighbours' covariances as noise, one detection at a time; on
+    SE(2) or SE(3) (the initial belief's group; on SE(3) it takes ``"pose3"``, ``"rbe3"`` and ``"bearing3"``
+    detections of robots and ``"rbe3"`` / ``"bearing3"`` ones of known 3-D landmarks)."""
 
     name = "dekf"
     lazy_odometry = True
+    groups: ClassVar[tuple[type, ...]] = (SE2, SE3)
+
+    def __init__(self, robot: int, initial: GroupGaussian, **kw: Any) -> None:
+        self._form = FORMS.get(getattr(initial, "group", SE2), FORMS[SE2])  # a wrong belief: RobotNode says so
+        super().__init__(robot, initial, **kw)
 
     def _initial_state(self, t0: float) -> CartState:
-        x, P = C.from_group(self.initial.mean, self.initial.cov)
+        x, P = self._form.initial(self.initial.mean, self.initial.cov)
         return CartState(t0, 0.0, 0.0, x, P)
 
     def _advance(self, s: CartState, robot: int, t: float) -> CartState:
         dt = t - s.t
         if dt <= 0:
             return s
-        x, P, _, _ = C.predict_one(s.x, s.P, s.v, s.w, dt, self.noise)
+        x, P = self._form.predict(s.x, s.P, s.v, s.w, dt, self.noise)
         return CartState(t, s.v, s.w, x, P)
 
-    def _set_command(self, s: CartState, robot: int, v: float, w: float) -> CartState:
+    def _set_command(self, s: CartState, robot: int, v: Any, w: Any) -> CartState:
         return CartState(s.t, v, w, s.x, s.P)
 
     def _advance_commands(self, s: Any, cmds: Any) -> Any:
         """A run of odometry in one float loop (:func:`swarmloc.kernels.cartesian.predict_run`: the same bits as one
         :meth:`_advance` per command; tests/test_node.py checks it for every estimator)."""
-        if self.measure_time:
+        if self.measure_time or not self._form.runs:
             return super()._advance_commands(s, cmds)
         x, P, t, (v, w), _ = predict_run(s, (0.0, 0.0), cmds, self.noise)
         return CartState(t, v, w, x, P)
 
     def _belief(self, s: CartState, robot: int) -> GroupGaussian:
-        return belief_of(*C.to_group(s.x, s.P))
+        return belief_of(*self._form.belief(s.x, s.P))
 
     def _fuse_group(self, s: CartState, g: Group) -> tuple[CartState, list[Outcome], list[Message]]:
-        x, P = s.x, s.P
-        outcomes: list[Outcome] = []
-        for d in g.detections:
-            target = self._classify(g, d)
-            if target[0] in ("rejected", "unknown"):
-                outcomes.append(target)
-                continue
-            lin = linearize(d, x, target)
-            if lin is None:
-                outcomes.append(("rejected", DEGENERATE))
-                continue
-            r, Hi, R_eff, _ = lin
-            res = gated_kalman(x, P, r, Hi, R_eff, self.gate)
-            if isinstance(res[0], str):
-                outcomes.append(res)
-                continue
-            x, P = res
-            outcomes.append(FUSED)
+        (x, P), outcomes = self._fuse_each((s.x, s.P), g, self._fuse_one)
         return CartState(s.t, s.v, s.w, x, P), outcomes, []
+
+    def _fuse_one(self, xP: tuple[Any, np.ndarray], d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+        """One detection's update of the mean and covariance ``xP`` (:meth:`CartesianForm.update`) and its outcome."""
+        x, P = xP
+        return applied(xP, self._form.update(x, P, d, target, self.gate))

@@ -55,6 +55,21 @@ Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate 
 broadcast under that key, so where the identity is right the broadcast is the tagged run's. Every other teammate's
 exchange is settled by an empty broadcast under its key (:meth:`DistributedInvariantEKF._settle`), as a gated
 detection's: an answerer over the network waits for the broadcast keyed by the query it answered before it goes on.
+
+**SE(3).** With an SE(3) initial belief the same node runs with 6-dof poses (:class:`WorldForm3`; the group picks
+the node's :class:`WorldForm` once, :data:`FORMS`). Body-twist odometry ``g+ = g Delta exp(w^)`` is group-affine,
+so the world-frame error ``xi`` (``g = exp(xi^) g^``) still has the identity transition: a prediction adds
+``Ad(g^+) Sigma_inc Ad(g^+)^T`` to ``P_ii`` and changes no cross-covariance. A relative pose ``"pose3"`` is
+autonomous in this error: exactly ``g^_i z g^_j^-1 = exp(-xi_i^) exp(xi_j^) exp((Ad(g^_j) n)^)``, so the innovation
+``r = log(g^_i z g^_j^-1)`` has the constant Jacobians ``H_i = -I``, ``H_j = I`` and the noise ``Ad(g^_j) R_z
+Ad(g^_j)^T`` (:func:`~swarmloc.kernels.cartesian3.relative_pose3_world`); the team's unobservable rigid motion
+``[I; I; ...]`` is annihilated whatever the estimate (the body-frame error's are not, Huang et al. 2011). Point
+detections (``"rbe3"``, ``"bearing3"`` of a teammate or a known 3-D landmark) take the Cartesian Jacobians of
+:class:`~swarmloc.sensors.models3.Model3` times :func:`~swarmloc.kernels.cartesian3.world_basis3`; a rigid motion of
+the whole team moves no body-frame point of a teammate, so they too gain nothing along it. A broadcast carries
+``n = 6``; the correction is ``g <- exp(delta^) g``. On planar motion (poses in ``z = 0``, yaw only, planar twists and
+block-diagonal noises) the planar part of the error follows the SE(2) filter (tests/test_se3_diekf.py). Clusters
+are SE(2) only (the covariance-intersection weight is SE(2)'s).
 """
 
 from __future__ import annotations
@@ -66,11 +81,13 @@ import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.estimators.state_exchange import StateQueries
+from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
+from swarmloc.kernels import cartesian3 as C3
 from swarmloc.kernels import invariant as I
 from swarmloc.kernels.ci import W_BOUNDS, joint_weight
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
 from swarmloc.messages import (
     Answer,
     BeliefAnswer,
@@ -81,6 +98,7 @@ from swarmloc.messages import (
     TeamUpdate,
     flat,
 )
+from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import (
     FUSED,
     NUMERICAL,
@@ -97,7 +115,7 @@ from swarmloc.node import (
 )
 from swarmloc.sensors.models import model
 
-__all__ = ["DistributedInvariantEKF", "TeamState"]
+__all__ = ["FORMS", "DistributedInvariantEKF", "TeamState", "WorldForm", "WorldForm3"]
 
 _EYE = flat(np.eye(3))
 _NO_SIGMA = np.zeros((0, 0, 3, 3))
@@ -105,13 +123,13 @@ _NO_SIGMA.setflags(write=False)
 
 
 class TeamState(NamedTuple):
-    """A robot's filter state: time [s], command ``(v, w)``, pose ``x (3,)``, world-frame covariance ``P (3, 3)``
-    and the replica ``Sigma (n, n, 3, 3)`` of the team's cross-covariances (robots in ``team`` order; diagonal
-    blocks unused)."""
+    """A robot's filter state: time [s], command (SE(2): ``(v, w)``; SE(3): the body twist's linear and angular
+    velocity), pose (SE(2): ``x (3,)``; SE(3): ``(4, 4)``), world-frame covariance ``P (d, d)`` and the replica
+    ``Sigma (n, n, d, d)`` of the team's cross-covariances (robots in ``team`` order; diagonal blocks unused)."""
 
     t: float
-    v: float
-    w: float
+    v: Any
+    w: Any
     x: np.ndarray
     P: np.ndarray
     Sigma: np.ndarray
@@ -127,6 +145,132 @@ def _pair(d: Any, xi: np.ndarray, xj: np.ndarray) -> tuple[np.ndarray, ...] | No
     return mm.residual(d.z, h), Hi_c @ I.world_basis(xi), Hj_c @ I.world_basis(xj), mm.noise(d.z, d.cov)
 
 
+def world_step(x0: float, y0: float, th0: float, P: np.ndarray, v: float, w: float, dt: float,
+               noise: Any) -> tuple[float, float, float, np.ndarray]:  # fmt: skip
+    """One SE(2) prediction over ``dt`` [s] > 0: the new pose (floats) and world-frame covariance ``P + N^-1 Q N^-T``
+    (:func:`swarmloc.kernels.invariant.cartesian_to_world_cov` at the new pose, its products inlined)."""
+    x0, y0, th, _, _, q00, q01, q02, q11, q12, q22 = C.increment_terms_xy(x0, y0, th0, v, w, dt, noise)
+    Qc = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+    Ni = np.array([[1.0, 0.0, y0], [0.0, 1.0, -x0], [0.0, 0.0, 1.0]])  # I.world_basis_inv
+    return x0, y0, th, P + Ni @ Qc @ Ni.T
+
+
+class WorldForm:
+    """The world-frame error on SE(2): pose ``(x, y, theta)``, the planar models' Jacobians times
+    :func:`~swarmloc.kernels.invariant.world_basis` (:mod:`swarmloc.kernels.invariant`)."""
+
+    group: type = SE2
+    dim = 3
+    runs = True
+    """Whether a run of odometry has a float loop (:meth:`DistributedInvariantEKF._advance_commands`)."""
+    clusters = True
+    """Whether the covariance-intersection weight of an outsider is defined (SE(2)'s)."""
+    eye = _EYE
+
+    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[Any, np.ndarray]:
+        """Pose and world-frame covariance of a right-perturbation belief."""
+        x, _ = C.from_group(mean, cov)
+        return x, I.body_to_world(mean, cov)
+
+    def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
+        """Pose and covariance after the command held over ``dt > 0`` [s] (:func:`world_step`)."""
+        x0, y0, th, P = world_step(*x.tolist(), P, v, w, dt, noise)
+        return np.array([x0, y0, th]), P
+
+    def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The right-perturbation belief of pose ``x`` with world-frame covariance ``P``."""
+        g = SE2.from_xytheta(x)
+        return g, I.world_to_body(g, P)
+
+    def correct(self, x: Any, delta: np.ndarray) -> Any:
+        """The pose ``x`` corrected by the world-frame ``delta``: ``exp(hat(delta)) g(x)``."""
+        return I.left_correct(x, delta)
+
+    def unsupported(self, d: Any, target: tuple[str, Any]) -> str | None:
+        """Why ``d`` of ``target`` cannot be fused on this group (None: it can)."""
+        return None
+
+    def robot(self, d: Any, s: Any, xj: Any, Pjj: np.ndarray, Sij: np.ndarray) -> tuple | str:
+        """``(r, H_i, H_j, S, R)`` of robot detection ``d`` of pose ``xj`` (covariance ``Pjj``, cross-covariance
+        ``Sij`` with the observer), or the reason it cannot be fused."""
+        lin = _pair(d, s.x, xj)
+        if lin is None:
+            return DEGENERATE
+        r, Hi, Hj, R = lin
+        return r, Hi, Hj, Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R, R
+
+    def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple | str:
+        """``(r, H_i, S, R)`` of a landmark detection (the map's uncertainty in ``R``), or the reason."""
+        lin = linearize(d, s.x, target)
+        if lin is None:
+            return DEGENERATE
+        r, Hi_c, R, _ = lin
+        Hi = Hi_c @ I.world_basis(s.x)
+        return r, Hi, Hi @ s.P @ Hi.T + R, R
+
+
+class WorldForm3(WorldForm):
+    """The world-frame error on SE(3): pose ``(4, 4)``, ``"pose3"`` with constant Jacobians
+    (:func:`~swarmloc.kernels.cartesian3.relative_pose3_world`), the point kinds' Cartesian Jacobians times
+    :func:`~swarmloc.kernels.cartesian3.world_basis3` (module docstring)."""
+
+    group = SE3
+    dim = 6
+    runs = False
+    clusters = False
+    eye = flat(np.eye(6))
+
+    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[Any, np.ndarray]:
+        g = np.asarray(mean, dtype=float)
+        A = SE3.Ad(g, validate=False)
+        P = A @ np.asarray(cov, dtype=float) @ A.T
+        return g.copy(), 0.5 * (P + P.T)
+
+    def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
+        inc, S = twist_increment(as_twist(v, w), dt, noise)
+        g = x @ inc
+        A = SE3.Ad(g, validate=False)
+        P = P + A @ S @ A.T
+        return g, 0.5 * (P + P.T)
+
+    def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        A = SE3.Ad(SE3.inverse(x, validate=False), validate=False)
+        return x, A @ P @ A.T
+
+    def correct(self, x: Any, delta: np.ndarray) -> Any:
+        return SE3.normalize(SE3.exp(delta, validate=False) @ x)
+
+    def unsupported(self, d: Any, target: tuple[str, Any]) -> str | None:
+        return C3.unsupported(d, target)
+
+    def robot(self, d: Any, s: Any, xj: Any, Pjj: np.ndarray, Sij: np.ndarray) -> tuple | str:
+        if d.kind == Kind.POSE3:
+            r, Hi, Hj, R = C3.relative_pose3_world(s.x, xj, d.z, d.cov)
+            S = s.P - Sij - Sij.T + Pjj + R  # H P H^T with H_i = -I, H_j = I
+        else:
+            lin = C3.linearize(d, s.x, xj)
+            if isinstance(lin, str):
+                return lin
+            r, Hi_c, Hj_c, R = lin
+            Hi, Hj = Hi_c @ C3.world_basis3(s.x), Hj_c @ C3.world_basis3(xj)
+            S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
+        return r, Hi, Hj, 0.5 * (S + S.T), R
+
+    def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple | str:
+        pl, Cl = target[1]
+        lin = C3.linearize(d, s.x, pl)
+        if isinstance(lin, str):
+            return lin
+        r, Hi_c, Hl, R = lin
+        Hi = Hi_c @ C3.world_basis3(s.x)
+        S = Hi @ s.P @ Hi.T + R + Hl @ Cl @ Hl.T
+        return r, Hi, 0.5 * (S + S.T), R
+
+
+FORMS: dict[type, WorldForm] = {SE2: WorldForm(), SE3: WorldForm3()}
+"""The world-frame error form of each group."""
+
+
 class DistributedInvariantEKF(RobotNode):
     """Exact distributed invariant EKF (module docstring). ``team``: every robot id of the team (``make_team``
     passes it). ``cluster``: 0 (default) for the exact filter over the whole team, or ``K >= 1`` robots per
@@ -139,25 +283,26 @@ class DistributedInvariantEKF(RobotNode):
     error_frame: ClassVar[str] = "world"
     update_types = (TeamUpdate,)
     lin_log: list | None = None
-    dim: ClassVar[int] = 3
+    groups: ClassVar[tuple[type, ...]] = (SE2, SE3)
     _state: ClassVar[type] = TeamState
-    """The state :meth:`_team_update` returns (``flsd`` keeps its own fields from it; SE(3): ``TeamState3``)."""
-    """Dimension of a robot's error (3: SE(2); 6: SE(3), :mod:`swarmloc.estimators.diekf3`)."""
+    """The state :meth:`_team_update` returns (``flsd`` keeps its own fields from it)."""
 
     gated_broadcasts: ClassVar[bool] = True
     """Whether a teammate's broadcast passed its sender's gate as it is (its normalized innovation is checked against
     this node's gate: :meth:`_update_lie`)."""
     clusters: ClassVar[bool] = True
-    """Whether the class takes ``cluster > 0`` (``flsd`` and the SE(3) form do not)."""
+    """Whether the class takes ``cluster > 0`` (``flsd`` does not, nor does an SE(3) team)."""
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
                  **kw: Any) -> None:  # fmt: skip
+        self._form = FORMS.get(getattr(initial, "group", SE2), FORMS[SE2])  # a wrong belief: RobotNode says so
         everyone = tuple(sorted({int(r) for r in team} | {int(robot)}))
         if isinstance(cluster, bool) or not isinstance(cluster, int) or cluster < 0:
             raise ValueError(f"{type(self).__name__}: 'cluster' must be an integer >= 0 (0: the whole team), "
                              f"got {cluster!r}")  # fmt: skip
-        if cluster and not self.clusters:
-            raise ValueError(f"{type(self).__name__} ({self.name}) has no clusters: 'cluster' must be 0")
+        if cluster and not (self.clusters and self._form.clusters):
+            on = f" on {self._form.group.name}" if self.clusters else ""
+            raise ValueError(f"{type(self).__name__} ({self.name}) has no clusters{on}: 'cluster' must be 0")
         if cluster and kw.get("association", "tags") != "tags":
             raise ValueError(f"{self.name}: clusters need tagged detections (association 'tags')")
         self.cluster = cluster
@@ -170,55 +315,56 @@ class DistributedInvariantEKF(RobotNode):
         super().__init__(robot, initial, team=self.team, **kw)
         self._queries = StateQueries(self.robot)
 
+    @property
+    def dim(self) -> int:
+        """Dimension of a robot's error (3: SE(2); 6: SE(3))."""
+        return self._form.dim
+
     # ------------------------------------------------------------------------------------------------ filter
     def _initial_state(self, t0: float) -> TeamState:
-        x, _ = C.from_group(self.initial.mean, self.initial.cov)
-        n = len(self.team)
-        return TeamState(t0, 0.0, 0.0, x, I.body_to_world(self.initial.mean, self.initial.cov), np.zeros((n, n, 3, 3)))
+        x, P = self._form.initial(self.initial.mean, self.initial.cov)
+        n, d = len(self.team), self._form.dim
+        return TeamState(t0, 0.0, 0.0, x, P, np.zeros((n, n, d, d)))
 
     def _advance(self, s: TeamState, robot: int, t: float) -> TeamState:
         dt = t - s.t
         if dt <= 0:
             return s
-        x0, y0, th, P = self._step(*s.x.tolist(), s.P, s.v, s.w, dt)
-        return TeamState(t, s.v, s.w, np.array([x0, y0, th]), P, s.Sigma)
+        x, P = self._form.predict(s.x, s.P, s.v, s.w, dt, self.noise)
+        return TeamState(t, s.v, s.w, x, P, s.Sigma)
 
-    def _step(self, x0: float, y0: float, th0: float, P: np.ndarray, v: float, w: float,
-              dt: float) -> tuple[float, float, float, np.ndarray]:  # fmt: skip
-        """One prediction over ``dt`` [s] > 0: the new pose (floats) and world-frame covariance ``P + N^-1 Q N^-T``
-        (:func:`swarmloc.kernels.invariant.cartesian_to_world_cov` at the new pose, its products inlined)."""
-        x0, y0, th, _, _, q00, q01, q02, q11, q12, q22 = C.increment_terms_xy(x0, y0, th0, v, w, dt, self.noise)
-        Qc = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
-        Ni = np.array([[1.0, 0.0, y0], [0.0, 1.0, -x0], [0.0, 0.0, 1.0]])  # I.world_basis_inv
-        return x0, y0, th, P + Ni @ Qc @ Ni.T
-
-    def _set_command(self, s: TeamState, robot: int, v: float, w: float) -> TeamState:
+    def _set_command(self, s: TeamState, robot: int, v: Any, w: Any) -> TeamState:
         return TeamState(s.t, v, w, s.x, s.P, s.Sigma)
 
     def _advance_commands(self, s: Any, cmds: Any) -> Any:
         """A run of odometry: :meth:`_advance` and :meth:`_set_command` one by one (predicting in world-frame errors,
         not rdl's Cartesian run), the pose kept in floats between steps (the same numbers)."""
-        if self.measure_time or type(self)._advance is not DistributedInvariantEKF._advance:
-            return Node._advance_commands(self, s, cmds)  # timed, or a subclass that carries more state (flsd)
+        if self.measure_time or not self._form.runs or type(self)._advance is not DistributedInvariantEKF._advance:
+            return Node._advance_commands(self, s, cmds)  # timed, SE(3), or a subclass with more state (flsd)
         t0, v, w, P = s.t, s.v, s.w, s.P
         x0, y0, th = s.x.tolist()
         for t, _, vk, wk in cmds:
             dt = t - t0
             if dt > 0:
-                x0, y0, th, P = self._step(x0, y0, th, P, v, w, dt)
+                x0, y0, th, P = world_step(x0, y0, th, P, v, w, dt, self.noise)
                 t0 = t
             v, w = vk, wk
         x = s.x if P is s.P else np.array([x0, y0, th])
         return TeamState(t0, v, w, x, P, s.Sigma)
 
     def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
-        g = SE2.from_xytheta(s.x)
-        return belief_of(g, I.world_to_body(g, s.P))
+        return belief_of(*self._form.belief(s.x, s.P))
 
     def _answer(self, s: TeamState, q: Message) -> Answer | None:
         if isinstance(q, RdlStateQuery):
             return RdlState(
-                sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, x=flat(s.x), P=flat(s.P), sigma=_EYE
+                sender=q.receiver,
+                receiver=q.sender,
+                stamp=q.stamp,
+                sub=q.sub,
+                x=flat(s.x),
+                P=flat(s.P),
+                sigma=self._form.eye,
             )
         if isinstance(q, BeliefQuery):
             return super()._answer(s, q)
@@ -252,8 +398,8 @@ class DistributedInvariantEKF(RobotNode):
         return self._state(s.t, s.v, s.w, self._correct(s.x, Gam[me] @ nu), P, Sigma)
 
     def _correct(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
-        """The pose ``x`` corrected by the world-frame ``delta``: ``exp(hat(delta)) g(x)``."""
-        return I.left_correct(x, delta)
+        """The pose ``x`` corrected by the world-frame ``delta`` (:meth:`WorldForm.correct`)."""
+        return self._form.correct(x, delta)
 
     # ------------------------------------------------------------------------------------------------ update
     def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
@@ -281,7 +427,10 @@ class DistributedInvariantEKF(RobotNode):
 
     def _one(self, s: TeamState, g: Group, d: Any, target: tuple[str, Any]) -> Any:
         """One detection: the new state and the broadcast's numbers, or an outcome."""
-        i = self.robot
+        i, form = self.robot, self._form
+        why = form.unsupported(d, target)
+        if why is not None:
+            return ("rejected", why)
         if target[0] == "robot":
             a: RdlState = target[1]
             j = d.target
@@ -290,21 +439,18 @@ class DistributedInvariantEKF(RobotNode):
                     return self._outsider(s, i, d, a)
                 return ("unknown", f"robot {j} is not in this node's team {list(self.team)}")
             xj, Pjj, _ = a.arrays()
-            lin = _pair(d, s.x, xj)
-            if lin is None:
-                return ("rejected", DEGENERATE)
-            r, Hi, Hj, R = lin
-            Sij = s.Sigma[self._pos[i], self._pos[j]]
-            S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
+            if xj.shape != s.x.shape:
+                return ("rejected", f"the neighbour's answer is not an {form.group.name} state")
+            lin = form.robot(d, s, xj, Pjj, s.Sigma[self._pos[i], self._pos[j]])
+            if isinstance(lin, str):
+                return ("rejected", lin)
+            r, Hi, Hj, S, R = lin
         else:
-            lin = linearize(d, s.x, target)
-            if lin is None:
-                return ("rejected", DEGENERATE)
-            r, Hi_c, R, _ = lin
-            j, Pjj = i, s.P
-            Hi = Hi_c @ I.world_basis(s.x)
-            Hj = np.zeros_like(Hi)
-            S = Hi @ s.P @ Hi.T + R
+            lin = form.landmark(d, s, target)
+            if isinstance(lin, str):
+                return ("rejected", lin)
+            r, Hi, S, R = lin
+            j, Pjj, Hj = i, s.P, np.zeros_like(Hi)
         out = self._gated_update(s, i, j, Hi, Hj, S, r, Pjj)
         if self.lin_log is not None and not isinstance(out[0], str):
             self.lin_log.append(("update", g.t, {i: Hi, j: Hj} if j != i else {i: Hi}, R))

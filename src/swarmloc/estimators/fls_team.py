@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -40,6 +40,7 @@ from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
+from swarmloc.lie import SE2
 from swarmloc.messages import Message, TeamUpdate, flat
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, usable_covariance
 from swarmloc.node.keys import SubKey
@@ -102,6 +103,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
     :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s."""
 
     name = "flsd"
+    groups: ClassVar[tuple[type, ...]] = (SE2,)  # its smoother is planar
     clusters = False  # its pseudo-factors are the exact update's
     gated_broadcasts = False  # a landmark's is linearized at the smoothed pose, where the filter's gate does not bound
     # its normalized innovation (8 of MRCLAM dataset 6's went past it): only the covariance it leaves is checked

@@ -60,6 +60,7 @@ class _LoggedCentral(CentralizedEKF):
     :mod:`swarmloc.evaluation.observability`)."""
 
     error_frame: ClassVar[str] = "cartesian"
+    groups: ClassVar[tuple[type, ...]] = (SE2,)
     first_estimates: ClassVar[bool] = False
     lin_log: list | None = None
     _advance_commands = Node._advance_commands  # each filter predicts its own way: no Cartesian run
@@ -207,7 +208,7 @@ class FirstEstimatesEKF(_LoggedCentral):
     first_estimates: ClassVar[bool] = True
 
     def _initial_state(self, t0: float) -> FejState:
-        s = super()._initial_state(t0)
+        s: TeamState = super()._initial_state(t0)
         return FejState(*s, s.X.copy())
 
     def _lin_point(self, s: FejState, k: int) -> np.ndarray:

@@ -34,7 +34,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -428,6 +428,21 @@ class Node(Intake, Exchange):
         if lm is None:
             return ("unknown", f"landmark {d.target} is not in the map")
         return ("landmark", lm)
+
+    def _fuse_each(self, x: Any, g: Group, fuse: Callable[[Any, Detection, tuple[str, Any]], tuple[Any, Outcome]]
+                   ) -> tuple[Any, list[Outcome]]:  # fmt: skip
+        """Group ``g``'s detections fused into ``x`` (a state, or the part of it an update changes) one at a time, in
+        order: each classified (:meth:`_classify`; a rejected or unknown one counted so), then ``fuse(x, d, target)``
+        gives the new ``x`` and the detection's outcome. Returns the last ``x`` and the outcomes."""
+        outcomes: list[Outcome] = []
+        for d in g.detections:
+            target = self._classify(g, d)
+            if target[0] in ("rejected", "unknown"):
+                outcomes.append(target)
+                continue
+            x, out = fuse(x, d, target)
+            outcomes.append(out)
+        return x, outcomes
 
     def _robot_target(self, g: Group, d: Detection, sub: SubKey) -> tuple[str, Any]:
         """A distributed node knows a neighbour only from its answer."""

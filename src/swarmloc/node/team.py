@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, SE3
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.associate import AssociationView, associate, check_association, check_sensor, is_anonymous
 from swarmloc.node.base import Node
@@ -65,6 +65,8 @@ class TeamNode(Node):
         self.sensor_range = sensor_range
         self.sensor_fov = sensor_fov
         check_model(cls, initial, noise, self.groups)
+        if association != "tags" and any(b.group is SE3 for b in initial.values()):
+            raise ValueError(f"{cls}: an SE(3) team has no association policy; use association='tags'")
         self.initial = dict(initial)
         self.noise = noise
         robots = sorted(initial)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cache
+from typing import Any
 
 import numpy as np
 
@@ -23,6 +24,7 @@ __all__ = [
     "NUMERICAL",
     "Gate",
     "Outcome",
+    "applied",
     "chi2_ppf",
     "gated_kalman",
     "positive_definite",
@@ -125,3 +127,9 @@ def gated_kalman(
     if not (ok and usable_covariance(Pn)):
         return ("rejected", NUMERICAL)
     return xn, Pn
+
+
+def applied(x: Any, res: Any) -> tuple[Any, Outcome]:
+    """``(res, FUSED)`` for an update's result ``res``, ``(x, res)`` when ``res`` is the outcome that stopped it (a
+    ``(str, str)`` pair: ``x`` unchanged)."""
+    return (x, res) if isinstance(res[0], str) else (res, FUSED)

@@ -1,0 +1,165 @@
+"""The first-order errors of an SE(3) pose, the 3-D form of :mod:`swarmloc.kernels.cartesian`'s ``(x, y, theta)``.
+
+A pose is its position ``p (3,)`` (world frame) and attitude ``R (3, 3)``. The *Cartesian* error ``(dp, dtheta)``
+(``p_true = p + dp``, ``R_true = R exp(dtheta^)``) is that of the first-order EKFs (``dekf``, ``cekf`` on SE(3)); the
+*world-frame* error ``xi`` (``g_true = exp(xi^) g``) that of the invariant ``diekf``. Everything is first order:
+
+* prediction over a constant body twist with increment ``(t_inc, R_inc) = exp(dt h^)`` and increment noise
+  ``Sigma_inc`` (:func:`swarmloc.motion.twist3.twist_increment`): ``p' = p + R t_inc``, ``R' = R R_inc``,
+  ``F = [[I, -R t_inc^], [0, R_inc^T]]``, ``G = diag(R R_inc, I)``, ``P' = F P F^T + G Sigma_inc G^T``
+  (:func:`step`, :func:`predict`);
+* the detections ``"pose3"``, ``"rbe3"``, ``"bearing3"`` of a robot (a pose) or of a known 3-D landmark (a point):
+  :class:`~swarmloc.sensors.models3.Model3`'s residual, Jacobians and noise (:func:`linearize`);
+* the correction is applied on the group, ``p + dp``, ``R exp(dtheta^)`` (:func:`correct`), no reset Jacobian;
+* a right-perturbation Gaussian ``g exp(y)`` has ``cov = J^-1 P J^-T`` with ``J = diag(R, I)`` (``g exp(y)`` moves
+  the position by ``R v`` to first order): :func:`to_error`, :func:`to_group`.
+
+The pose functions take one pose; :func:`frame`, :func:`error_cov`, :func:`transition` and :func:`correct` are
+batched over leading axes (the engine's :mod:`swarmloc.engine.se3` stacks robots).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from swarmloc.arrays import FloatArray
+from swarmloc.events import Kind
+from swarmloc.lie import SE3
+from swarmloc.lie.se3 import skew, so3_exp
+from swarmloc.motion.twist3 import TwistNoise, as_twist, twist_increment
+from swarmloc.sensors.models3 import DEGENERATE3, MODELS3, model3, pose3_matrix
+
+__all__ = [
+    "correct",
+    "error_cov",
+    "frame",
+    "linearize",
+    "pose",
+    "predict",
+    "relative_pose3_world",
+    "step",
+    "to_error",
+    "to_group",
+    "transition",
+    "unsupported",
+    "world_basis3",
+]
+
+
+_T = np.swapaxes
+
+
+def frame(R: FloatArray) -> FloatArray:
+    """``J = diag(R, I) (..., 6, 6)`` of attitudes ``R (..., 3, 3)``."""
+    J = np.broadcast_to(np.eye(6), (*R.shape[:-2], 6, 6)).copy()
+    J[..., :3, :3] = R
+    return J
+
+
+def error_cov(R: FloatArray, cov: FloatArray) -> FloatArray:
+    """``J cov J^T`` (symmetrized) with ``J = frame(R)``: a right-perturbation covariance as that of
+    ``(dp, dtheta)`` (``R`` the attitude), or back (``R^T``)."""
+    J = frame(R)
+    P = J @ cov @ _T(J, -1, -2)
+    out: FloatArray = 0.5 * (P + _T(P, -1, -2))
+    return out
+
+
+def pose(p: FloatArray, R: FloatArray) -> FloatArray:
+    """The ``4 x 4`` pose of position ``p`` and attitude ``R``."""
+    g = np.eye(4)
+    g[:3, :3], g[:3, 3] = R, p
+    return g
+
+
+def to_error(mean: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(p, R, P)`` of a right-perturbation SE(3) Gaussian: ``P = J cov J^T``, ``J = diag(R, I)``."""
+    R = mean[:3, :3]
+    return mean[:3, 3].copy(), R.copy(), error_cov(R, cov)
+
+
+def to_group(p: FloatArray, R: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Inverse of :func:`to_error`: mean ``(4, 4)`` and right-perturbation covariance ``(6, 6)``."""
+    return pose(p, R), error_cov(R.T, P)
+
+
+def transition(R: FloatArray, inc: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``(F, G)`` of the step ``p' = p + R t_inc``, ``R' = R R_inc`` (increment ``inc (4, 4)``) in the error
+    ``(dp, dtheta)``: ``F`` maps the error before to the error after, ``G`` the increment's right-perturbation noise
+    to it (first order; tests/test_se3_cekf.py checks both against finite differences)."""
+    Ri, ti = inc[..., :3, :3], inc[..., :3, 3]
+    F = frame(np.broadcast_to(np.eye(3), R.shape))
+    F[..., :3, 3:] = -R @ skew(ti)
+    F[..., 3:, 3:] = _T(Ri, -1, -2)
+    G = frame(R @ Ri)
+    return F, G
+
+
+def step(
+    p: FloatArray, R: FloatArray, v: Any, w: Any, dt: float, noise: TwistNoise
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``(p', R', F, G, Sigma_inc)`` of the pose ``(p, R)`` moved by the body twist ``(v, w)`` over ``dt > 0`` [s]."""
+    inc, S = twist_increment(as_twist(v, w), dt, noise)
+    F, G = transition(R, inc)
+    return p + R @ inc[:3, 3], R @ inc[:3, :3], F, G, S
+
+
+def predict(
+    p: FloatArray, R: FloatArray, P: FloatArray, v: Any, w: Any, dt: float, noise: TwistNoise
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(p', R', P')`` of one robot's :func:`step` with ``P' = F P F^T + G Sigma_inc G^T``."""
+    p1, R1, F, G, S = step(p, R, v, w, dt, noise)
+    P1 = F @ P @ F.T + G @ S @ G.T
+    return p1, R1, 0.5 * (P1 + P1.T)
+
+
+def correct(p: FloatArray, R: FloatArray, dx: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Poses (batched over leading axes) corrected by ``dx = (dp, dtheta)``: ``p + dp``, ``R exp(dtheta^)``."""
+    return p + dx[..., :3], R @ so3_exp(dx[..., 3:])
+
+
+def unsupported(d: Any, target: tuple[str, Any]) -> str | None:
+    """Why detection ``d`` of a classified ``target`` cannot be fused on SE(3) (a planar kind, a landmark that is not
+    a 3-D point); None when it can."""
+    if d.kind not in MODELS3:  # a planar kind in a 3-D team
+        return f"kind {d.kind!r} is not supported on SE(3)"
+    if target[0] == "robot":
+        return None
+    if target[0] == "landmark" and model3(d.kind).targets == "point" and np.shape(target[1][0]) == (3,):
+        return None
+    return f"kind {d.kind!r} of a {target[0]} is not supported on SE(3)"
+
+
+def linearize(d: Any, gi: FloatArray, gk: FloatArray) -> tuple[FloatArray, ...] | str:
+    """``(r, H_i, H_k, R)`` of detection ``d`` of ``gk`` (a pose ``(4, 4)`` or a point ``(3,)``) from pose ``gi`` in
+    the Cartesian error: residual, Jacobians w.r.t. the observer and the target, measurement noise; the reason
+    :data:`~swarmloc.sensors.models3.DEGENERATE3` for a degenerate geometry."""
+    m3 = model3(d.kind)
+    if m3.kind == Kind.POSE3:
+        h, Hi, Hk = m3.predict(gi, gk)
+        return m3.residual(d.z, h), Hi, Hk, m3.noise(d.z, d.cov)
+    lin = m3.linearize(d.z, d.cov, gi, gk)
+    return DEGENERATE3 if lin is None else lin
+
+
+def world_basis3(g: FloatArray) -> FloatArray:
+    """``B (6, 6)`` mapping a world-frame error ``xi = (v, w)`` of pose ``g`` (``exp(xi^) g``) to the Cartesian error
+    ``(dp, dtheta)`` to first order: ``dp = v - p^ w``, ``dtheta = R^T w``."""
+    B = np.eye(6)
+    B[:3, 3:] = -skew(g[:3, 3])
+    B[3:, 3:] = g[:3, :3].T
+    return B
+
+
+def relative_pose3_world(
+    gi: FloatArray, gj: FloatArray, z: FloatArray, cov: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``(r, H_i, H_j, R)`` of a ``"pose3"`` measurement ``z (6,)`` (covariance ``cov (6, 6)``) of pose ``gj`` by
+    ``gi`` in world-frame errors: ``r = log(g_i z g_j^-1)``, ``H_i = -I``, ``H_j = I``, ``R = Ad(g_j) cov
+    Ad(g_j)^T`` (exactly ``g_i z g_j^-1 = exp(-xi_i^) exp(xi_j^) exp((Ad(g_j) n)^)``)."""
+    r = SE3.log(gi @ pose3_matrix(z) @ SE3.inverse(gj, validate=False), validate=False)
+    A = SE3.Ad(gj, validate=False)
+    R = A @ np.asarray(cov, dtype=float) @ A.T
+    return r, -np.eye(6), np.eye(6), 0.5 * (R + R.T)
