@@ -32,7 +32,7 @@ import numpy as np
 
 from swarmloc.estimators.cekf import CentralizedEKF, TeamState, clock_and_pending, compose_pending, flush_pending
 from swarmloc.estimators.dekf import DEGENERATE
-from swarmloc.events import Kind
+from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2, wrap_angle
@@ -82,48 +82,45 @@ class _LoggedCentral(CentralizedEKF):
             self.lin_log.append(("update", t, {robots[k]: H for k, H in zip(starts, blocks, strict=True)}, R))
 
     def _fuse_group(self, s: Any, g: Group) -> tuple[Any, list[Outcome], list[Message]]:
-        outcomes: list[Outcome] = []
-        i = self._idx[g.observer]
-        for d in g.detections:
-            target = self._classify(g, d)
-            if target[0] in ("rejected", "unknown"):
-                outcomes.append(target)
-                continue
-            m = model(d.kind)
-            R = m.noise(d.z, d.cov)
-            xi, li = s.X[i : i + 3], self._lin_point(s, i)
-            if target[0] == Kind.ABSOLUTE:
-                starts, blocks = [i], [self._to_error(np.eye(3), li)]
-                r = m.residual(d.z, xi)
-            else:
-                if target[0] == "robot":
-                    s = self._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
-                    k = self._idx[target[1]]
-                    xk, lk, Ck = s.X[k : k + 3], self._lin_point(s, k), None
-                else:
-                    xk, Ck = target[1]
-                    lk = xk
-                if m.degenerate(xi, xk) or m.degenerate(li, lk):
-                    outcomes.append(("rejected", DEGENERATE))
-                    continue
-                h, Hi, Hk = m.predict(xi, xk)
-                if self.first_estimates:
-                    _, Hi, Hk = m.predict(li, lk)
-                r = m.residual(d.z, h)
-                if Ck is None:
-                    starts, blocks = [i, k], [self._to_error(Hi, li), self._to_error(Hk, lk)]
-                else:
-                    starts, blocks = [i], [self._to_error(Hi, li)]
-                    R = R + Hk @ Ck @ Hk.T
-            sf = self._flushed(s)
-            res = joint_correction(sf.P, starts, blocks, r, R, self.gate)
-            if isinstance(res[0], str):
-                outcomes.append(res)
-                continue
-            s = self._correct(sf, *res)
-            self._log_update(g.t, starts, blocks, R)
-            outcomes.append(FUSED)
+        s, outcomes = self._fuse_each(s, g, lambda s, d, target: self._fuse_one(s, g, d, target))
         return s, outcomes, []
+
+    def _fuse_one(self, s: Any, g: Group, d: Detection, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+        """One classified detection of group ``g`` fused into the joint state ``s``: the new state and its outcome
+        (the state as it was, the detected robot predicted to the stamp, when the detection is not fused)."""
+        i = self._idx[g.observer]
+        m = model(d.kind)
+        R = m.noise(d.z, d.cov)
+        xi, li = s.X[i : i + 3], self._lin_point(s, i)
+        if target[0] == Kind.ABSOLUTE:
+            starts, blocks = [i], [self._to_error(np.eye(3), li)]
+            r = m.residual(d.z, xi)
+        else:
+            if target[0] == "robot":
+                s = self._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
+                k = self._idx[target[1]]
+                xk, lk, Ck = s.X[k : k + 3], self._lin_point(s, k), None
+            else:
+                xk, Ck = target[1]
+                lk = xk
+            if m.degenerate(xi, xk) or m.degenerate(li, lk):
+                return s, ("rejected", DEGENERATE)
+            h, Hi, Hk = m.predict(xi, xk)
+            if self.first_estimates:
+                _, Hi, Hk = m.predict(li, lk)
+            r = m.residual(d.z, h)
+            if Ck is None:
+                starts, blocks = [i, k], [self._to_error(Hi, li), self._to_error(Hk, lk)]
+            else:
+                starts, blocks = [i], [self._to_error(Hi, li)]
+                R = R + Hk @ Ck @ Hk.T
+        sf = self._flushed(s)
+        res = joint_correction(sf.P, starts, blocks, r, R, self.gate)
+        if isinstance(res[0], str):
+            return s, res
+        s = self._correct(sf, *res)
+        self._log_update(g.t, starts, blocks, R)
+        return s, FUSED
 
     def _flushed(self, s: Any) -> Any:
         return flush_pending(s)
