@@ -194,7 +194,8 @@ def test_replay_and_shuffled_input_give_identical_particles():
     assert _max_diff(first, shuffled) == 0.0
     keys = ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry_used")
     assert {k: first.stats[k] for k in keys} == {k: shuffled.stats[k] for k in keys}
-    assert first.stats["fused"] > 500 and first.accounted() and shuffled.accounted()
+    # robot detections are fused once per redetect_distance of travel, the rest gated (replayed identically too)
+    assert first.stats["fused"] > 250 and first.stats["gated"] > 300 and first.accounted() and shuffled.accounted()
     assert shuffled.stats["late"] > first.stats["late"] + 100 and shuffled.stats["replayed"] > 100
     assert shuffled.stats["revisions_sent"] > first.stats.get("revisions_sent", 0)
     for a, b in zip(nodes, shuffled_nodes, strict=True):  # resampling and injection happened, identically

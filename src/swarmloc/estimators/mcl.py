@@ -21,8 +21,15 @@ measurement is linearized in the neighbour's pose only (exact in ``x_i``), which
 ``p(z | x_i) = N(z; h(x_i, mu_j), R + H_j P_j H_j^T)`` (``P_j``: ``j``'s covariance in Cartesian coordinates).
 Neither a density tree nor a KD-tree kernel estimate is used: they exist to turn a *sample set* into a density,
 and the answer here already is a density; sampling it and re-estimating would only add sampling noise and a
-bandwidth bias (kernel width or tree resolution) to a closed form. As in the paper (and the distributed EKF),
-repeated detections of the same pair are treated as independent, which over-weights them.
+bandwidth bias (kernel width or tree resolution) to a closed form.
+
+**Repeated detections of the same robot (Fox et al. 2000, Sect. 3.3).** Each fusion treats the neighbour's belief
+as independent of the robot's own, which it is not once the pair has met: fusing every detection of a robot seen
+at 5 Hz counts the same information again and again (``sim:random``, 3 seeds: team ANEES/dof 32). As in the paper,
+a detection of robot ``j`` is fused only when the detecting robot has travelled at least ``redetect_distance``
+(path length of its odometry, ``|v| dt`` summed) since it last fused a detection of ``j``; the others are
+``gated`` with :data:`REDETECT`. The paper used 2.5 m; the default 1 m keeps the accuracy of fusing every
+detection (``sim:random``, 3 seeds: RMSE 0.243 m against 0.250 m, ANEES/dof 0.73; 2.5 m: 0.263 m, 0.64).
 
 **Answers.** A neighbour's :class:`~swarmloc.messages.BeliefQuery`, and :meth:`belief_at`, get a Gaussian fitted to
 the particles in exponential coordinates: the weighted Karcher mean ``mu`` (three Gauss-Newton steps from the
@@ -82,6 +89,7 @@ from swarmloc.sensors import models
 DEGENERATE = "degenerate geometry: the target is at the observer's position for every particle"
 NUMERICAL = "the weights are not finite"
 NEGLIGIBLE = "likelihood negligible for every particle"
+REDETECT = "the same robot was fused less than redetect_distance of travel ago (Fox et al. 2000)"
 COV_FLOOR = 1e-10
 """Added to the diagonal of a fitted covariance (exponential coordinates) so that it stays positive definite."""
 BOUNDS_MARGIN = 1.0
@@ -108,8 +116,9 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 class MclState(NamedTuple):
     """A node's filter state: time [s], command ``(v, w)``, particles ``(N, 3)`` as ``(x, y, theta)``, normalized
-    weights ``(N,)``, running counts of resamplings and injected particles (replays recount them exactly), and the
-    slow and fast averages of the measurement likelihood that set the injection rate (augmented MCL)."""
+    weights ``(N,)``, running counts of resamplings and injected particles (replays recount them exactly), the
+    slow and fast averages of the measurement likelihood that set the injection rate (augmented MCL), the path
+    length travelled [m] and, per detected robot id, the path length at its last fused detection."""
 
     t: float
     v: float
@@ -120,6 +129,8 @@ class MclState(NamedTuple):
     injected: int = 0
     w_slow: float = 0.0
     w_fast: float = 0.0
+    travelled: float = 0.0
+    fused_at: tuple[tuple[int, float], ...] = ()
 
 
 def systematic_resample(weights: np.ndarray, u: float) -> np.ndarray:
@@ -224,6 +235,8 @@ class MonteCarloLocalization(RobotNode):
         extent in that coordinate); 0 (default): none.
     regularise: the belief is the Gaussian of the set's Gaussian-kernel density estimate with Silverman's bandwidth
         (regularised particle filter): the fitted covariance times ``1 + h^2``, ``h = (4 / (5 N))^(1/7)``.
+    redetect_distance: [m] >= 0: a detection of a robot is fused only once the detecting robot has travelled this
+        far since it last fused one of the same robot (Fox et al. 2000; module docstring); 0: every detection.
     Other keywords: see :class:`~swarmloc.node.base.Node` (``t0``, ``horizon``, ``gate``, ``landmarks``,
     ``use_relative``, ``use_landmarks``).
     """
@@ -244,6 +257,7 @@ class MonteCarloLocalization(RobotNode):
         bounds: Sequence[float] | None = None,
         roughen: float = 0.0,
         regularise: bool = False,
+        redetect_distance: float = 1.0,
         **kw: Any,
     ) -> None:
         cls = type(self).__name__
@@ -259,6 +273,10 @@ class MonteCarloLocalization(RobotNode):
             raise ValueError(f"{cls}: 'roughen' must be in [0, 1], got {roughen!r}")
         if not isinstance(regularise, bool):
             raise ValueError(f"{cls}: 'regularise' must be True or False, got {regularise!r}")
+        if not (isinstance(redetect_distance, int | float) and not isinstance(redetect_distance, bool)
+                and math.isfinite(redetect_distance) and redetect_distance >= 0):  # fmt: skip
+            raise ValueError(f"{cls}: 'redetect_distance' must be a finite number >= 0, got {redetect_distance!r}")
+        self.redetect_distance = float(redetect_distance)
         self.roughen = float(roughen)
         self.regularise = regularise
         self.n_particles = int(particles)
@@ -345,7 +363,7 @@ class MonteCarloLocalization(RobotNode):
         p = s.particles
         ct, st = np.cos(p[:, 2]), np.sin(p[:, 2])
         new = np.stack([p[:, 0] + ct * ix - st * iy, p[:, 1] + st * ix + ct * iy, wrap_angle(p[:, 2] + ia)], axis=-1)
-        return s._replace(t=t, particles=_frozen(new))
+        return s._replace(t=t, particles=_frozen(new), travelled=s.travelled + abs(s.v) * dt)
 
     def _set_command(self, s: MclState, robot: int, v: float, w: float) -> MclState:
         return s._replace(v=v, w=w)
@@ -379,9 +397,13 @@ class MonteCarloLocalization(RobotNode):
         outcomes: list[Outcome] = []
         fused = False
         w_slow, w_fast = s.w_slow, s.w_fast
+        fused_at = dict(s.fused_at)
         for d, target in zip(g.detections, targets, strict=True):
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
+                continue
+            if target[0] == "robot" and s.travelled - fused_at.get(d.target, -math.inf) < self.redetect_distance:
+                outcomes.append(("gated", REDETECT))
                 continue
             lik = self._likelihood(d, p, target)
             if lik is None:
@@ -409,6 +431,8 @@ class MonteCarloLocalization(RobotNode):
             lw = new - total
             fused = True
             outcomes.append(FUSED)
+            if target[0] == "robot":
+                fused_at[d.target] = s.travelled
         if not fused and k == 0:
             return s._replace(w_slow=w_slow, w_fast=w_fast), outcomes, []
         w = np.exp(lw)
@@ -426,7 +450,9 @@ class MonteCarloLocalization(RobotNode):
                 p[:, 2] = wrap_angle(p[:, 2])
         if p is not s.particles:
             p = _frozen(np.array(p))
-        return MclState(s.t, s.v, s.w, p, _frozen(w), resamples, injected, w_slow, w_fast), outcomes, []
+        state = MclState(s.t, s.v, s.w, p, _frozen(w), resamples, injected, w_slow, w_fast, s.travelled,
+                         tuple(sorted(fused_at.items())))  # fmt: skip
+        return state, outcomes, []
 
     @property
     def particle_counts(self) -> dict[str, int]:
