@@ -166,6 +166,32 @@ def test_detection_of_a_neighbour_reweights_by_its_answer():
     assert isinstance(a, BeliefAnswer) and a.found and message_problem(a) is None
 
 
+def test_repeated_mutual_detections_stay_consistent():
+    """The simulated team of ``swarmloc compare`` (``sim:random``: 4 robots that detect each other's relative pose
+    at 5 Hz, no landmarks), 60 s, seeds not looked at while the fusion was chosen: fused by covariance
+    intersection, the repeated mutual detections leave the team's ANEES/dof in [0.5, 2] (reweighting by the
+    neighbour's density as if independent gave 34 on seeds 1-13), at the accuracy of the distributed EKF on the
+    same events."""
+    from swarmloc.estimators import node_options
+    from swarmloc.evaluation.metrics import evaluate
+    from swarmloc.experiments.sources import load_source
+
+    anees, rmse, rmse_dekf = [], [], []
+    for seed in (21, 22, 23, 24):
+        src = load_source("sim:random", robots=4, duration=60.0, seed=seed)
+        for est, out in (("mcl", rmse), ("dekf", rmse_dekf)):
+            nodes = make_team(est, src.initial, **node_options(est, src.config, src.landmarks))
+            res = run(nodes, src.events, src.record_times(), src.truth, name=est)
+            assert res.stats["fused"] > 200 and res.accounted()
+            team = evaluate(res)["team"]
+            out.append(team["pos_rmse"])
+            if est == "mcl":
+                anees.append(team["anees"])
+    print(f"mcl ANEES/dof {np.round(anees, 2)}, RMSE {np.round(rmse, 3)}; dekf RMSE {np.round(rmse_dekf, 3)}")
+    assert 0.5 <= np.mean(anees) <= 2.0 and max(anees) < 3.0, anees
+    assert np.mean(rmse) < 1.15 * np.mean(rmse_dekf), (rmse, rmse_dekf)
+
+
 # ------------------------------------------------------------------------------------------------ (a) determinism
 def test_replay_and_shuffled_input_give_identical_particles():
     """A team of three with relative pose and range-bearing detections at 10 Hz and landmark detections at 5 Hz,
@@ -194,8 +220,7 @@ def test_replay_and_shuffled_input_give_identical_particles():
     assert _max_diff(first, shuffled) == 0.0
     keys = ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry_used")
     assert {k: first.stats[k] for k in keys} == {k: shuffled.stats[k] for k in keys}
-    # robot detections are fused once per redetect_distance of travel, the rest gated (replayed identically too)
-    assert first.stats["fused"] > 250 and first.stats["gated"] > 300 and first.accounted() and shuffled.accounted()
+    assert first.stats["fused"] > 500 and first.accounted() and shuffled.accounted()
     assert shuffled.stats["late"] > first.stats["late"] + 100 and shuffled.stats["replayed"] > 100
     assert shuffled.stats["revisions_sent"] > first.stats.get("revisions_sent", 0)
     for a, b in zip(nodes, shuffled_nodes, strict=True):  # resampling and injection happened, identically
