@@ -414,18 +414,9 @@ class MonteCarloLocalization(RobotNode):
         if not any(usable):
             return s, list(targets), []
         rng = self._rng(_GROUP, g.t)
-        p, w = s.particles, s.weights
-        injected = s.injected
+        p, w, k = self._inject(s, rng)
+        injected = s.injected + k
         n = p.shape[0]
-        k = round(n * self.injection_fraction(s)) if self.bounds is not None else 0
-        if k > 0:
-            idx = rng.choice(n, size=k, replace=False)
-            p = p.copy()
-            p[idx] = self._uniform(rng, k, self.bounds)
-            w = w.copy()
-            w[idx] = 1.0 / n
-            w /= w.sum()
-            injected += k
         with np.errstate(divide="ignore"):
             lw = np.log(w)
         outcomes: list[Outcome] = []
@@ -496,6 +487,20 @@ class MonteCarloLocalization(RobotNode):
         if p is not s.particles:
             p = _frozen(np.array(p))
         return MclState(s.t, s.v, s.w, p, _frozen(w), resamples, injected, w_slow, w_fast), outcomes, []
+
+    def _inject(self, s: MclState, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, int]:
+        """Particles and weights after the augmented-MCL injection of a group, and how many were replaced."""
+        p, w = s.particles, s.weights
+        n = p.shape[0]
+        k = round(n * self.injection_fraction(s)) if self.bounds is not None else 0
+        if k > 0 and self.bounds is not None:
+            idx = rng.choice(n, size=k, replace=False)
+            p = p.copy()
+            p[idx] = self._uniform(rng, k, self.bounds)
+            w = w.copy()
+            w[idx] = 1.0 / n
+            w /= w.sum()
+        return p, w, k
 
     def _ci_moved(self, p: np.ndarray, w: np.ndarray, d: Any, answer: Any) -> np.ndarray | None:
         """Particles ``p`` (weights ``w``) moved onto the covariance intersection of their fitted Gaussian with the
