@@ -1,4 +1,4 @@
-"""``swarmloc bench`` as a script: the same code (:mod:`swarmloc.experiments.bench`), the same options.
+"""``swarmloc bench`` as a script: the same code (:mod:`swarmloc.studies.bench`), the same options.
 
     python benchmarks/bench.py --quick              # under a minute
     python benchmarks/bench.py                      # full: swarms up to 10,000 robots, all of MRCLAM dataset 6
@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 os.environ.setdefault("SWARMLOC_MRCLAM", str(ROOT.parent / "shared/data/mrclam"))
 
-from swarmloc.experiments.bench import main  # noqa: E402
+from swarmloc.studies.bench import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -6,7 +6,7 @@ float32) against the same step in plain JAX on device-resident arrays, and numba
     python benchmarks/gpu_fusion.py --json-out e.json                         # the results as JSON too
 
 The same as ``swarmloc bench --sections e --accelerator-sizes ...``; what each column is:
-:mod:`swarmloc.experiments.accelerator`. The device is jax's default one (``jax.devices()[0]``).
+:mod:`swarmloc.studies.accelerator`. The device is jax's default one (``jax.devices()[0]``).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from swarmloc.experiments.accelerator import accelerator_rates, format_accelerator  # noqa: E402
+from swarmloc.studies.accelerator import accelerator_rates, format_accelerator  # noqa: E402
 
 
 def main() -> None:

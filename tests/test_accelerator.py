@@ -16,8 +16,8 @@ from swarmloc.cli import main
 from swarmloc.engine import run_engine
 from swarmloc.engine.backends import JaxOps, NumpyOps, jax_team_step, team_step
 from swarmloc.engine.swarm import SWARM_NOISE, Swarm, device_step, neighbour_pairs
-from swarmloc.experiments import bench as B
 from swarmloc.lie import wrap_angle
+from swarmloc.studies import bench as B
 
 # slow: the first test of the module compiles the engine's numba/JAX kernels
 pytestmark = [pytest.mark.unit, pytest.mark.slow]

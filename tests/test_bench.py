@@ -9,7 +9,7 @@ import math
 import pytest
 
 from swarmloc.cli import main
-from swarmloc.experiments import bench as B
+from swarmloc.studies import bench as B
 
 pytestmark = pytest.mark.data
 

@@ -1,4 +1,4 @@
-"""Tests for swarmloc.experiments.thesis_static (thesis sec. 5.1: demo figures 5.2-5.5, Tables 5.1/5.2)."""
+"""Tests for swarmloc.studies.thesis_static (thesis sec. 5.1: demo figures 5.2-5.5, Tables 5.1/5.2)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from swarmloc.experiments import run_demo, run_tables
-from swarmloc.experiments.thesis_static import (
+from swarmloc.lie import SE2
+from swarmloc.motion import thesis_circular_cov, thesis_straight_cov
+from swarmloc.studies.thesis_static import (
     CIRCULAR,
     SIGMA_M,
     SIGMA_M_PRINTED,
@@ -20,10 +21,10 @@ from swarmloc.experiments.thesis_static import (
     pose_errors,
     prediction,
     relative_measurements,
+    run_demo,
+    run_tables,
     sample_end_poses,
 )
-from swarmloc.lie import SE2
-from swarmloc.motion import thesis_circular_cov, thesis_straight_cov
 
 pytestmark = pytest.mark.unit
 
@@ -170,7 +171,7 @@ def test_tables_trends(tmp_path: Path):
 def test_pooled_tables_use_the_trials_of_run_tables_and_the_thesis_sampling_error(tmp_path: Path):
     """``swarmloc reproduce tables``: the deviations of one seed are run_tables' own, pooled over seeds, and every
     printed thesis value is compared in units of the combined standard error (ours and the thesis' 60 reps)."""
-    from swarmloc.experiments.thesis_static.pooled import deviations, pooled_tables
+    from swarmloc.studies.thesis_static.pooled import deviations, pooled_tables
 
     dev = deviations(seed=0, reps=300)
     ref = run_tables(tmp_path / "t", reps=300, seed=0, progress=False, figures=False)
@@ -195,7 +196,7 @@ def test_demo_command_prints_its_summary_once_and_says_how_to_read_it(tmp_path: 
     followed by how to read it: which row is the thesis' second-order method and what 'better' means there."""
     import functools
 
-    import swarmloc.experiments.thesis_static as static
+    import swarmloc.studies.thesis_static as static
     from swarmloc.cli import main
 
     small = {**SMALL, "n_importance": 2000, "figures": False}

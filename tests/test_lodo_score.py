@@ -1,4 +1,4 @@
-"""The LODO filter score (issue 21, :mod:`swarmloc.experiments.lodo`): the predictive landmark NIS against Monte
+"""The LODO filter score (issue 21, :mod:`swarmloc.studies.lodo`): the predictive landmark NIS against Monte
 Carlo draws of the pose, the map entry and the reading, and the landmark folds."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import pytest
 from scipy import stats
 
 from swarmloc.events import Detection
-from swarmloc.experiments.lodo import RECORD_LEAD, landmark_folds, landmark_nis, nis_summary
 from swarmloc.lie import SE2
+from swarmloc.studies.lodo import RECORD_LEAD, landmark_folds, landmark_nis, nis_summary
 
 pytestmark = pytest.mark.data
 
@@ -84,8 +84,8 @@ def test_filter_scores_score_every_reading_once_against_a_run_without_its_landma
     scores the same readings); with the model's std as the reference both scores are the same number; a larger
     reference std can only lower the score."""
     from swarmloc.datasets.mrclam import load_mrclam
-    from swarmloc.experiments.lodo import filter_scores
     from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent
+    from swarmloc.studies.lodo import filter_scores
 
     data = load_mrclam(mrclam6)
     model = CameraModel(ErrorComponent(0.15), ErrorComponent(0.005), source="test")
@@ -104,11 +104,11 @@ def test_filter_scores_calibrate_the_yaw_diffusion_without_the_scored_span_or_th
     """``calibrate_yaw``: the run with every landmark uses the scale fitted outside the scored span, each fold's run
     the scale fitted without that fold's readings; the scales reach the filters (the score moves) and landmarks
     off is left as it is (nothing to calibrate from that the score does not use)."""
-    import swarmloc.experiments.lodo as lodo_module
+    import swarmloc.studies.lodo as lodo_module
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam
-    from swarmloc.experiments.lodo import detection_set, filter_scores, yaw_calibration
     from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent
+    from swarmloc.studies.lodo import detection_set, filter_scores, yaw_calibration
 
     data = load_mrclam(mrclam6)
     model = CameraModel(ErrorComponent(0.15), ErrorComponent(0.005), source="test")

@@ -12,8 +12,8 @@ from _data import MRCLAM_DATASETS
 from swarmloc.datasets import MRCLAMData, MRCLAMError, load_mrclam, mrclam_events
 from swarmloc.datasets.mrclam import MAX_YAW_RATE
 from swarmloc.events import Detection, Odometry
-from swarmloc.experiments.lodo import detection_set
 from swarmloc.sensors.decorrelate import snapshot_poses, snapshot_residuals
+from swarmloc.studies.lodo import detection_set
 
 pytestmark = pytest.mark.data
 

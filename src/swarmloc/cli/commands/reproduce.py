@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from swarmloc.runner.fanout import ClusterUnavailable, connected
 
     if args.what == "tables":
-        from swarmloc.experiments.thesis_static.pooled import pooled_tables
+        from swarmloc.studies.thesis_static.pooled import pooled_tables
 
         try:
             reps = 20_000 if args.reps is None else args.reps
@@ -48,8 +48,8 @@ def run(args: argparse.Namespace) -> int:
     if args.what != "thesis":
         print(f"swarmloc reproduce: unknown target {args.what!r} ('thesis' or 'tables')", file=sys.stderr)
         return 2
-    from swarmloc.experiments.thesis_dynamic import run_dynamic
-    from swarmloc.experiments.thesis_static import run_demo, run_tables
+    from swarmloc.studies.thesis_dynamic import run_dynamic
+    from swarmloc.studies.thesis_static import run_demo, run_tables
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

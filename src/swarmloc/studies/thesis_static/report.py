@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 
 from swarmloc.experiments.output import save_figure
-from swarmloc.experiments.thesis_static.spec import CHI2_2_95, SIGMA_M, Command
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import DiffDrive, increment_mean
+from swarmloc.studies.thesis_static.spec import CHI2_2_95, SIGMA_M, Command
 
 
 def console(progress: bool) -> Any:
@@ -106,7 +106,7 @@ _CONTOUR_KW_SMALL = {"grid": 91, "n_theta": 71}
 
 # ---------------------------------------------------------------------------------------------- demo
 def write_demo(out_dir: Path, result: dict[str, Any], con: Any) -> None:
-    """Write ``demo.md`` and ``demo.json`` for the ``result`` of :func:`~swarmloc.experiments.thesis_static.run_demo`
+    """Write ``demo.md`` and ``demo.json`` for the ``result`` of :func:`~swarmloc.studies.thesis_static.run_demo`
     (``runtime_s`` set), put both files at the front of ``result["files"]`` and print the table on ``con``."""
     s, cases, files = result["settings"], result["cases"], result["files"]
     seed, noise_scale, n_samples, n_reference = s["seed"], s["noise_scale"], s["n_samples"], s["n_reference"]
@@ -283,7 +283,7 @@ def demo_figures(
 # ---------------------------------------------------------------------------------------------- tables 5.1 / 5.2
 def write_tables(out_dir: Path, result: dict[str, Any], con: Any) -> None:
     """Write ``tables.md`` and ``tables.json`` for the ``result`` of
-    :func:`~swarmloc.experiments.thesis_static.run_tables` (``runtime_s`` set) and print the tables on ``con``."""
+    :func:`~swarmloc.studies.thesis_static.run_tables` (``runtime_s`` set) and print the tables on ``con``."""
     s, motions = result["settings"], result["motions"]
     reps, seed, noise_scale = s["reps"], s["seed"], s["noise_scale"]
     md = [f"# Thesis Tables 5.1/5.2: {reps} repetitions per n (seed {seed}, noise scale {noise_scale})", ""]

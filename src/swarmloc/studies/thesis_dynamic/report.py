@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 
 from swarmloc.experiments.output import save_figure
-from swarmloc.experiments.thesis_dynamic.spec import ABLATION_ESTIMATORS, ABLATION_NOISE, INIT_VAR, RUNS
 from swarmloc.runner import RunResult
+from swarmloc.studies.thesis_dynamic.spec import ABLATION_ESTIMATORS, ABLATION_NOISE, INIT_VAR, RUNS
 
 
 # ---------------------------------------------------------------------------------------------------------- output

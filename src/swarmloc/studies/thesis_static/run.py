@@ -1,5 +1,5 @@
 """Computations of thesis sec. 5.1: :func:`run_demo` (figures 5.2-5.5) and :func:`run_tables` (Tables 5.1/5.2) build
-their result dictionaries and hand them to :mod:`swarmloc.experiments.thesis_static.report`."""
+their result dictionaries and hand them to :mod:`swarmloc.studies.thesis_static.report`."""
 
 from __future__ import annotations
 
@@ -10,7 +10,11 @@ from typing import Any
 import numpy as np
 
 from swarmloc.evaluation.montecarlo import group_mean, importance_posterior
-from swarmloc.experiments.thesis_static.report import (
+from swarmloc.fusion import fuse_relative
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.lie import SE2
+from swarmloc.motion import DiffDrive
+from swarmloc.studies.thesis_static.report import (
     console,
     demo_figures,
     jsonable,
@@ -18,7 +22,7 @@ from swarmloc.experiments.thesis_static.report import (
     write_demo,
     write_tables,
 )
-from swarmloc.experiments.thesis_static.spec import (
+from swarmloc.studies.thesis_static.spec import (
     CHI2_3_95,
     COMMANDS,
     NEIGHBOUR_OFFSETS,
@@ -34,10 +38,6 @@ from swarmloc.experiments.thesis_static.spec import (
     relative_measurements,
     sample_end_poses,
 )
-from swarmloc.fusion import fuse_relative
-from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
-from swarmloc.motion import DiffDrive
 
 
 def _rel_frob(A: np.ndarray, B: np.ndarray) -> float:

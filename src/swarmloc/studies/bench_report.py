@@ -1,6 +1,6 @@
 """The text report of ``swarmloc bench`` (:func:`format_report`): one table per section that ran, from the results
-of :func:`swarmloc.experiments.bench.run_bench` (section e's lines from
-:func:`swarmloc.experiments.accelerator.format_accelerator`)."""
+of :func:`swarmloc.studies.bench.run_bench` (section e's lines from
+:func:`swarmloc.studies.accelerator.format_accelerator`)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def format_report(res: dict) -> str:
     if "mrclam" in res:
         out += ["", *_format_replay(res["mrclam"])]
     if "accelerator" in res:
-        from swarmloc.experiments.accelerator import format_accelerator
+        from swarmloc.studies.accelerator import format_accelerator
 
         out += ["", *format_accelerator(res["accelerator"])]
     return "\n".join(out)

@@ -1,6 +1,6 @@
 """Computations of thesis sec. 5.2.2 / Table 6.1: one simulation job through several estimators (timed by the nodes),
 the process pool, the statistics over seeds, and :func:`run_dynamic`, which builds the result dictionary and hands it
-to :mod:`swarmloc.experiments.thesis_dynamic.report`."""
+to :mod:`swarmloc.studies.thesis_dynamic.report`."""
 
 from __future__ import annotations
 
@@ -17,8 +17,13 @@ import numpy as np
 from swarmloc.estimators import make_team
 from swarmloc.evaluation.metrics import evaluate, over_seeds
 from swarmloc.events import Detection, Event, Kind
-from swarmloc.experiments.thesis_dynamic.report import figures, progress_bar, pyplot, write_dynamic
-from swarmloc.experiments.thesis_dynamic.spec import (
+from swarmloc.gaussian import GroupGaussian
+from swarmloc.lie import SE2
+from swarmloc.runner import RunResult, run
+from swarmloc.runner.fanout import fan_out
+from swarmloc.sim import thesis_ground_truth_neighbour, thesis_two_robot
+from swarmloc.studies.thesis_dynamic.report import figures, progress_bar, pyplot, write_dynamic
+from swarmloc.studies.thesis_dynamic.spec import (
     ABLATION_ESTIMATORS,
     ABLATION_NOISE,
     ABLATIONS,
@@ -31,11 +36,6 @@ from swarmloc.experiments.thesis_dynamic.spec import (
     QUICK,
     RUNS,
 )
-from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
-from swarmloc.runner import RunResult, run
-from swarmloc.runner.fanout import fan_out
-from swarmloc.sim import thesis_ground_truth_neighbour, thesis_two_robot
 
 if TYPE_CHECKING:
     from distributed import Client

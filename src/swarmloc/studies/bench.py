@@ -17,7 +17,7 @@ c. **Swarms** (:func:`swarm_scaling`): :func:`swarmloc.engine.swarm_run` for swa
 d. **MRCLAM replay** (:func:`mrclam_replay`): dataset 6 through the in-process runner, ``x`` real time per
    estimator (replayed seconds / wall seconds of the event loop, as ``swarmloc evaluate mrclam`` reports it),
    landmarks on and off.
-e. **Accelerator** (:func:`swarmloc.experiments.accelerator.accelerator_rates`, only when asked): the fusion step
+e. **Accelerator** (:func:`swarmloc.studies.accelerator.accelerator_rates`, only when asked): the fusion step
    on jax's default device, the engine's ``"jax"`` and ``"jax32"`` backends against the same step in plain JAX
    (float64 and float32) and the numba engine, at 1e4, 1e5 and 1e6 robots.
 
@@ -46,8 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.experiments.bench_report import format_report
 from swarmloc.experiments.progress import Tick, no_tick, steps
+from swarmloc.studies.bench_report import format_report
 
 REPLAY_ESTIMATORS = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl", "diekf")
 ENGINE_REPLAY = ("dekf", "cekf", "iekf", "rdl", "diekf")
@@ -458,7 +458,7 @@ def mrclam_replay(
 
 # ------------------------------------------------------------------------------------------------ all
 SECTIONS = "abcd"
-"""Sections run by default; ``e`` (the accelerator, :mod:`swarmloc.experiments.accelerator`) runs when asked."""
+"""Sections run by default; ``e`` (the accelerator, :mod:`swarmloc.studies.accelerator`) runs when asked."""
 
 
 def _work_items(cfg: BenchConfig, replay: bool, sections: str = SECTIONS) -> int:
@@ -500,7 +500,7 @@ def run_bench(
             res["mrclam"] = mrclam_replay(ds, cfg.replay_duration, cfg.estimators, cfg.landmarks, cfg.replay_rounds,
                                           tick)  # fmt: skip
         if "e" in sections:
-            from swarmloc.experiments.accelerator import accelerator_rates
+            from swarmloc.studies.accelerator import accelerator_rates
 
             res["accelerator"] = accelerator_rates(cfg.accelerator_sizes, cfg.neighbours, cfg.repeats, tick)
     return res

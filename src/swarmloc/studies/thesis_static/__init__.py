@@ -27,17 +27,17 @@ Set-up (thesis sec. 5.1, with the choices the text leaves open written down here
   choice of world origin; the tables also give the frame-free errors.
 
 ``run_demo`` reproduces figures 5.2-5.5 and checks the Gaussians against sampling; ``run_tables`` reproduces
-Tables 5.1/5.2 and figures 5.8/5.9. Run ``python -m swarmloc.experiments.thesis_static demo|tables OUT_DIR``.
+Tables 5.1/5.2 and figures 5.8/5.9. Run ``python -m swarmloc.studies.thesis_static demo|tables OUT_DIR``.
 
-Layout: :mod:`~swarmloc.experiments.thesis_static.spec` holds the set-up and the model,
-:mod:`~swarmloc.experiments.thesis_static.run` the computations, :mod:`~swarmloc.experiments.thesis_static.report`
+Layout: :mod:`~swarmloc.studies.thesis_static.spec` holds the set-up and the model,
+:mod:`~swarmloc.studies.thesis_static.run` the computations, :mod:`~swarmloc.studies.thesis_static.report`
 the tables, JSON and figures.
 """
 
 from __future__ import annotations
 
-from swarmloc.experiments.thesis_static.run import run_demo, run_tables
-from swarmloc.experiments.thesis_static.spec import (
+from swarmloc.studies.thesis_static.run import run_demo, run_tables
+from swarmloc.studies.thesis_static.spec import (
     CIRCULAR,
     COMMANDS,
     NEIGHBOUR_OFFSETS,
