@@ -3,12 +3,13 @@ as one compiled scan (``run_engine(source, "cekf" | "iekf" | "diekf", backend="j
 and many runs of one team size at once (:func:`replay_joint_batch`, ``jax.vmap``: Monte Carlo sweeps).
 
 The scan, the events and the measurement models are :mod:`swarmloc.engine.jax_replay`'s; here the kernels of the
-joint state ``X (n, 3)``, ``P (3n, 3n)`` (Cartesian, or world-frame errors with ``invariant``), formula by formula
-those of :func:`swarmloc.engine.joint.replay_joint`: the scalar prediction of :mod:`swarmloc.engine.soa`, the
-screening of the centralized nodes (or of ``diekf``'s, whose robots start at their own first input), every
-measurement kind (a 1- or 2-row measurement padded to 3 rows that are zero in ``H`` and the residual and one in the
-noise: they change nothing), the Joseph update on the two robots' columns, the gate and the positive-definite
-check, the invariant filters' correction on the group. One difference in arithmetic only: a prediction is applied
+joint state ``X (n, 3)``, ``P (3n, 3n)`` (Cartesian, or world-frame errors with ``invariant``) as
+:func:`swarmloc.engine.joint.replay_joint` runs them, on the same formulas: the scalar prediction of
+:mod:`swarmloc.engine.soa`; the screening of the centralized nodes (or of ``diekf``'s, whose robots start at their
+own first input), every measurement kind (a 1- or 2-row measurement padded to 3 rows that are zero in ``H`` and the
+residual and one in the noise: they change nothing), the gate's rules, the invariant filters' noise and correction
+on the group, all of :mod:`swarmloc.engine.formulas`; the Joseph update on the two robots' columns and the
+positive-definite check as matrix products. One difference in arithmetic only: a prediction is applied
 to ``P`` at once, where the numba loop keeps it pending until an update reads ``P`` (the same products rounded in
 another order: equal to 1e-12 on simulated teams). Units: m, rad, s.
 """

@@ -1,8 +1,10 @@
 """``rdl`` replayed with JAX: :mod:`swarmloc.engine.pairs`' loop as one compiled scan (``run_engine(source, "rdl",
 backend="jax")``, :func:`replay_rdl_jax`), and many runs of one team size at once (:func:`replay_rdl_batch`).
 
-The scan and the measurement models are :mod:`swarmloc.engine.jax_replay`'s; here the kernels of ``rdl``'s state,
-formula by formula those of :func:`swarmloc.engine.pairs.replay_rdl`: each robot's Cartesian ``x``, ``P``, the pending
+The scan and the measurement models are :mod:`swarmloc.engine.jax_replay`'s, the screening and the gate's rules
+:mod:`swarmloc.engine.formulas`' (numba's too); here the kernels of ``rdl``'s state as
+:func:`swarmloc.engine.pairs.replay_rdl` runs them (its pair prior and Joseph update still written apart, as matrix
+products here and as loops there): each robot's Cartesian ``x``, ``P``, the pending
 shear ``(sa, sb)`` its predictions owe its factors, and for every pair that has exchanged (``met[k, l]``) the factor
 ``sigma_kl`` of their cross-covariance. A detection of a teammate builds the pair's joint prior (the tracked
 cross-covariance, or covariance intersection over :data:`~swarmloc.estimators.rdl.CI_WEIGHTS` when it is not known
