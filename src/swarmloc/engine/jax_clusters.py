@@ -32,21 +32,20 @@ from typing import Any
 import numpy as np
 
 from swarmloc.engine.checks import cluster_size
-from swarmloc.engine.codes import FUSED, GATED, R_DEGENERATE, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import FUSED, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_joint import detection, kalman_columns, predict_step
 from swarmloc.engine.jax_replay import (
     RANGE_BEARING,
     compiled,
     constants,
-    first_rule,
+    formulas,
     measure,
     run_batch,
-    screen,
     sym,
     usable,
 )
-from swarmloc.kernels.ci import W_BOUNDS, WEIGHT_GRID
+from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.kernels.invariant import cartesian_to_world_cov
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
@@ -55,33 +54,16 @@ __all__ = ["replay_clusters_batch", "replay_clusters_jax"]
 
 
 # ------------------------------------------------------------------------------------------------ the pieces
-def _logdet(jnp: Any, S: Any) -> Any:
-    """``log det`` of ``(..., 3, 3)`` by the numba loop's cofactor formula (NaN where not positive)."""
-    d = (S[..., 0, 0] * (S[..., 1, 1] * S[..., 2, 2] - S[..., 1, 2] * S[..., 2, 1])
-         - S[..., 0, 1] * (S[..., 1, 0] * S[..., 2, 2] - S[..., 1, 2] * S[..., 2, 0])
-         + S[..., 0, 2] * (S[..., 1, 0] * S[..., 2, 1] - S[..., 1, 1] * S[..., 2, 0]))  # fmt: skip
-    return jnp.log(jnp.where(d > 0, d, jnp.nan))
-
-
 def _weight(jnp: Any, A: Any, B: Any, R: Any, dof: Any) -> Any:
-    """:func:`swarmloc.engine.joint_clusters.joint_weight` traced: the CI weight in ``W_BOUNDS`` minimizing ``-dof
-    log w - log det(S_w + A / w) + log det S_w``, ``S_w = R + B / (1 - w)``, on the same grid, then the vertex of the
-    parabola through the best point and its neighbours (within one grid step)."""
-    lo, hi = W_BOUNDS
+    """:func:`swarmloc.engine.joint_clusters.joint_weight` traced: the cost of :func:`swarmloc.engine.formulas.
+    ci_cost` on the whole grid at once, its best point and the vertex of the parabola through it and its
+    neighbours."""
+    F = formulas()
     g = WEIGHT_GRID
-    step = (hi - lo) / (g - 1)
-    k = jnp.arange(g)
-    w = jnp.where(k == g - 1, hi, k * step + lo)
-    wc = w[:, None, None]
-    S = R + B / (1 - wc)
-    v = -dof * jnp.log(w) - _logdet(jnp, S + A / wc) + _logdet(jnp, S)
-    c = jnp.where(jnp.isfinite(v), v, jnp.inf)
+    c = F.ci_cost(F.ci_grid(jnp.arange(g)), *(tuple(tuple(M[a, b] for b in range(3)) for a in range(3))
+                                             for M in (A, B, R)), dof)  # fmt: skip
     j = jnp.argmin(c)
-    c0, c1, c2 = c[jnp.maximum(j - 1, 0)], c[j], c[jnp.minimum(j + 1, g - 1)]
-    den = c0 - 2 * c1 + c2
-    inner = (j > 0) & (j < g - 1) & jnp.isfinite(c0 + c1 + c2) & (den > 0)
-    shift = jnp.where(inner, jnp.clip(0.5 * step * (c0 - c2) / jnp.where(inner, den, 1.0), -step, step), 0.0)
-    return jnp.clip(lo + step * j + shift, lo, hi)
+    return F.ci_vertex(j, c[jnp.maximum(j - 1, 0)], c[j], c[jnp.minimum(j + 1, g - 1)])
 
 
 def _view(lax: Any, state: tuple, lo: Any, b: Any, K: int) -> tuple:
@@ -150,12 +132,9 @@ def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev
     keep = asleep[rows][:, None] & (rows[:, None] == rows[None, :])
     Pw = jnp.where(keep, Pv, Pv / wt)
     xn, Pn, nis, ok = kalman_columns(jnp, lax, True, Xv, Pw, r, H.at[:, 3:].set(0.0), Rm + B / (1 - wt), li, li)
-    st, why = first_rule(jnp, [
-        (degenerate, REJECTED, R_DEGENERATE),
-        (gate_on & ~jnp.isfinite(nis), REJECTED, R_NONFINITE),
-        (gate_on & (nis > thr[kind]), GATED, 0),
-        (~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL),
-    ], FUSED)  # fmt: skip
+    F = formulas()
+    d = F.gate_rules((REJECTED, R_DEGENERATE, degenerate), nis, thr[kind], gate_on)
+    st, why = F.decided(F.rule(d, ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL), FUSED)
     new = _put(lax, state, (xn, Pn, *view[2:]), lo, b)
     return tuple(jnp.where(st == FUSED, a, c) for a, c in zip(new, state, strict=True)), st, why
 
@@ -166,7 +145,7 @@ def _detection_c(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple,
     whatever the outcome (once: in each branch)."""
     t0, n, thr, gate_on, relative, lm_on, lxy, lcov = const
     i, j, kind, t = ev["a"], ev["b"], ev["kind"], ev["t"]
-    st0, why0 = screen(jnp, True, kind, i, j, t, t0, relative, lm_on)  # reads no state
+    st0, why0 = formulas().screen_started(kind, i, j, t, t0, relative, lm_on)  # reads no state
     b = i // K
     lo = b * K
 

@@ -3,12 +3,13 @@ as one compiled scan (``run_engine(source, "cekf" | "iekf" | "diekf", backend="j
 and many runs of one team size at once (:func:`replay_joint_batch`, ``jax.vmap``: Monte Carlo sweeps).
 
 The scan, the events and the measurement models are :mod:`swarmloc.engine.jax_replay`'s; here the kernels of the
-joint state ``X (n, 3)``, ``P (3n, 3n)`` (Cartesian, or world-frame errors with ``invariant``), formula by formula
-those of :func:`swarmloc.engine.joint.replay_joint`: the scalar prediction of :mod:`swarmloc.engine.soa`, the
-screening of the centralized nodes (or of ``diekf``'s, whose robots start at their own first input), every
-measurement kind (a 1- or 2-row measurement padded to 3 rows that are zero in ``H`` and the residual and one in the
-noise: they change nothing), the Joseph update on the two robots' columns, the gate and the positive-definite
-check, the invariant filters' correction on the group. One difference in arithmetic only: a prediction is applied
+joint state ``X (n, 3)``, ``P (3n, 3n)`` (Cartesian, or world-frame errors with ``invariant``) as
+:func:`swarmloc.engine.joint.replay_joint` runs them, on the same formulas: the scalar prediction of
+:mod:`swarmloc.engine.soa`; the screening of the centralized nodes (or of ``diekf``'s, whose robots start at their
+own first input), every measurement kind (a 1- or 2-row measurement padded to 3 rows that are zero in ``H`` and the
+residual and one in the noise: they change nothing), the gate's rules, the invariant filters' noise and correction
+on the group, all of :mod:`swarmloc.engine.formulas`; the Joseph update on the two robots' columns and the
+positive-definite check as matrix products. One difference in arithmetic only: a prediction is applied
 to ``P`` at once, where the numba loop keeps it pending until an update reads ``P`` (the same products rounded in
 another order: equal to 1e-12 on simulated teams). Units: m, rad, s.
 """
@@ -22,17 +23,16 @@ from typing import Any
 import numpy as np
 
 from swarmloc.engine import soa
-from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, NO_LANDMARK, R_DEGENERATE, R_NONFINITE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import ABSOLUTE, FUSED, NO_LANDMARK, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_replay import (
     RANGE_BEARING,
     compiled,
     constants,
-    first_rule,
+    formulas,
     inverse,
     measure,
     run_batch,
-    screen,
     sym,
     usable,
     wrap,
@@ -43,20 +43,13 @@ from swarmloc.sensors.models import MIN_RANGE
 
 
 # ------------------------------------------------------------------------------------------------ the pieces
-def _world_noise(x: Any, y: Any, q: tuple) -> tuple:
-    """:func:`swarmloc.engine.joint_math.world_noise`: ``N^-1 Q N^-T`` at ``(x, y)``, upper triangles."""
-    q00, q01, q02, q11, q12, q22 = q
-    a02, a12 = q02 + y * q22, q12 - x * q22
-    return (q00 + 2 * y * q02 + y * y * q22, q01 - x * q02 + y * a12, a02, q11 - 2 * x * q12 + x * x * q22, a12, q22)
-
-
 def predict_step(jnp: Any, noise: UnicycleNoise, invariant: bool, x: Any, v: Any, w: Any, dt: Any) -> tuple:
     """One robot's (or a batch's) prediction over ``dt``: the new pose, its shear ``(a, b)`` and process noise
     (upper triangle; world-frame with ``invariant``, and no shear); ``dt <= 0`` changes nothing."""
     z = jnp.zeros_like(x[..., 0])
     xs, q = soa.predict(jnp, (x[..., 0], x[..., 1], x[..., 2]), (z,) * 6, v, w, dt, noise)
     if invariant:
-        return jnp.stack(xs, -1), z, z, _world_noise(xs[0], xs[1], q)
+        return jnp.stack(xs, -1), z, z, formulas().world_noise(xs[0], xs[1], q)
     return jnp.stack(xs, -1), -(xs[1] - x[..., 1]), xs[0] - x[..., 0], q
 
 
@@ -96,23 +89,6 @@ def _marginals(jnp: Any, noise: UnicycleNoise, invariant: bool, state: tuple, t:
     return xn, A @ M @ jnp.swapaxes(A, -1, -2) + sym(jnp, q)
 
 
-def _left_correct(jnp: Any, X: Any, delta: Any) -> Any:
-    """Every pose corrected on the group by its world-frame ``delta (n, 3)`` (:func:`swarmloc.engine.joint.
-    left_correct`, the same Taylor branches)."""
-    d0, d1, d2 = delta[:, 0], delta[:, 1], delta[:, 2]
-    c, s = jnp.cos(d2), jnp.sin(d2)
-    t2 = d2 * d2
-    near = jnp.abs(d2) < 0.05
-    safe = jnp.where(near, 1.0, d2)
-    A = jnp.where(near, (((t2 / 362880.0 - 1.0 / 5040.0) * t2 + 1.0 / 120.0) * t2 - 1.0 / 6.0) * t2 + 1.0,
-                  jnp.sin(safe) / safe)  # fmt: skip
-    B = jnp.where(near, d2 * ((((t2 / 3628800.0 - 1.0 / 40320.0) * t2 + 1.0 / 720.0) * t2 - 1.0 / 24.0) * t2 + 0.5),
-                  safe * (2.0 * jnp.sin(safe / 2) ** 2 / (safe * safe)))  # fmt: skip
-    x, y, ct, st = X[:, 0], X[:, 1], jnp.cos(X[:, 2]), jnp.sin(X[:, 2])
-    th = wrap(jnp, jnp.arctan2(s * ct + c * st, c * ct - s * st))
-    return jnp.stack([c * x - s * y + (A * d0 - B * d1), s * x + c * y + (B * d0 + A * d1), th], -1)
-
-
 def kalman_columns(
     jnp: Any, lax: Any, invariant: bool, X: Any, P: Any, r: Any, H: Any, Rm: Any, i: Any, jj: Any
 ) -> tuple:
@@ -128,7 +104,7 @@ def kalman_columns(
     W = U - K @ S
     step = (K @ r).reshape(-1, 3)
     if invariant:
-        xn = _left_correct(jnp, X, step)
+        xn = jnp.stack(formulas().left_correct(X[:, 0], X[:, 1], X[:, 2], step[:, 0], step[:, 1], step[:, 2]), -1)
     else:
         xn = (X + step).at[:, 2].set(wrap(jnp, X[:, 2] + step[:, 2]))
     A = P - K @ U.T - W @ K.T
@@ -145,7 +121,11 @@ def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tu
     t0, thr, gate_on, relative, lm_on, lxy, lcov = const
     i, j, kind, t = ev["a"], ev["b"], ev["kind"], ev["t"]
     state = _advance(jnp, lax, noise, invariant, state, i, t)
-    st0, why0 = screen(jnp, distributed, kind, i, j, t, t0, relative, lm_on)
+    F = formulas()
+    if distributed:
+        st0, why0 = F.screen_started(kind, i, j, t, t0, relative, lm_on)
+    else:
+        st0, why0 = F.screen_central(kind, i, j, relative, lm_on)
     robot = j >= 0
     jr = jnp.where(robot, j, i)
     moved = _advance(jnp, lax, noise, invariant, state, jr, t)
@@ -162,13 +142,9 @@ def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tu
         H = H.at[:, 5].add(jnp.where(robot, -xk[1] * H[:, 3] + xk[0] * H[:, 4], 0.0))
         H = H.at[:, 2].add(-X[i, 1] * H[:, 0] + X[i, 0] * H[:, 1])
     xn, Pn, nis, ok = kalman_columns(jnp, lax, invariant, X, P, r, H, Rm, i, jr)
-    st, why = first_rule(jnp, [
-        (st0 != 0, st0, why0),
-        (degenerate, REJECTED, R_DEGENERATE),
-        (gate_on & ~jnp.isfinite(nis), REJECTED, R_NONFINITE),
-        (gate_on & (nis > thr[kind]), GATED, 0),
-        (~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL),
-    ], FUSED)  # fmt: skip
+    d = F.rule((st0, why0, st0 != 0), degenerate, REJECTED, R_DEGENERATE)
+    d = F.rule(F.gate_rules(d, nis, thr[kind], gate_on), ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL)
+    st, why = F.decided(d, FUSED)
     fused = st == FUSED
     keep = state if distributed else tuple(jnp.where(st0 != 0, a, b) for a, b in zip(state, s1, strict=True))
     out = (xn, Pn, *s1[2:])

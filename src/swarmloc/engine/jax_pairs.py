@@ -1,8 +1,10 @@
 """``rdl`` replayed with JAX: :mod:`swarmloc.engine.pairs`' loop as one compiled scan (``run_engine(source, "rdl",
 backend="jax")``, :func:`replay_rdl_jax`), and many runs of one team size at once (:func:`replay_rdl_batch`).
 
-The scan and the measurement models are :mod:`swarmloc.engine.jax_replay`'s; here the kernels of ``rdl``'s state,
-formula by formula those of :func:`swarmloc.engine.pairs.replay_rdl`: each robot's Cartesian ``x``, ``P``, the pending
+The scan and the measurement models are :mod:`swarmloc.engine.jax_replay`'s, the screening and the gate's rules
+:mod:`swarmloc.engine.formulas`' (numba's too); here the kernels of ``rdl``'s state as
+:func:`swarmloc.engine.pairs.replay_rdl` runs them (its pair prior and Joseph update still written apart, as matrix
+products here and as loops there): each robot's Cartesian ``x``, ``P``, the pending
 shear ``(sa, sb)`` its predictions owe its factors, and for every pair that has exchanged (``met[k, l]``) the factor
 ``sigma_kl`` of their cross-covariance. A detection of a teammate builds the pair's joint prior (the tracked
 cross-covariance, or covariance intersection over :data:`~swarmloc.estimators.rdl.CI_WEIGHTS` when it is not known
@@ -27,7 +29,6 @@ from swarmloc.engine.codes import (
     NO_LANDMARK,
     R_CORRELATION,
     R_DEGENERATE,
-    R_NONFINITE,
     R_NUMERICAL,
     REJECTED,
 )
@@ -36,11 +37,10 @@ from swarmloc.engine.jax_replay import (
     RANGE_BEARING,
     compiled,
     constants,
-    first_rule,
+    formulas,
     inverse,
     measure,
     run_batch,
-    screen,
     sym,
     usable,
     wrap,
@@ -127,10 +127,11 @@ def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: An
     return jnp.where(use, tracked, ci_P), jnp.where(use, 1, ci)
 
 
-def _checks(jnp: Any, gate_on: Any, nis: Any, thr: Any, ok: Any, Pn: Any) -> list:
-    """The rules after an update: the gate (a non-finite NIS, then the threshold) and the positive-definite check."""
-    return [(gate_on & ~jnp.isfinite(nis), REJECTED, R_NONFINITE), (gate_on & (nis > thr), GATED, 0),
-            (~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL)]  # fmt: skip
+def _checks(jnp: Any, d: tuple, gate_on: Any, nis: Any, thr: Any, ok: Any, Pn: Any) -> tuple:
+    """The rules ``d`` then those after an update: the gate and the positive-definite check; ``(outcome,
+    reason)``."""
+    F = formulas()
+    return F.decided(F.rule(F.gate_rules(d, nis, thr, gate_on), ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL), FUSED)
 
 
 def _pick(jnp: Any, cond: Any, a: tuple, b: tuple) -> tuple:
@@ -150,8 +151,8 @@ def _pair(jnp: Any, noise: UnicycleNoise, st: tuple, i: Any, j: Any, ev: dict, c
     r, H, Rm = measure(jnp, kind, x[i], xj, ev["z"], ev["R"])
     prior, both = _prior(jnp, P[i], Pj, fi, fj, met[i, j], H, Rm)
     Xn, Pn, nis, ok = _kalman(jnp, jnp.concatenate([x[i], xj]), prior, r, H, Rm)
-    code = first_rule(jnp, [(degenerate, REJECTED, R_DEGENERATE), (both < 0, GATED, R_CORRELATION),
-                          *_checks(jnp, gate_on, nis, thr[kind], ok, Pn)], FUSED)  # fmt: skip
+    d = formulas().rule((REJECTED, R_DEGENERATE, degenerate), both < 0, GATED, R_CORRELATION)
+    code = _checks(jnp, d, gate_on, nis, thr[kind], ok, Pn)
     s = (x.at[i].set(Xn[:3]), P.at[i].set(Pn[:3, :3]), *st[2:])
     s = _rescale(jnp, s, i, Pn[:3, :3], P[i])
     alone = (*s[:8], s[8].at[i, j].set(0.0))  # only the observer gains: its correlation with j is unknown now
@@ -176,8 +177,7 @@ def _private(jnp: Any, st: Any, i: Any, j: Any, ev: dict, const: tuple) -> tuple
     Hk = H[:, 3:5]
     Rm = jnp.where(kind != ABSOLUTE, Rm + Hk @ lcov[lk] @ Hk.T, Rm)  # a map landmark's covariance
     xn, Pn, nis, ok = _kalman(jnp, x[i], P[i], r, H[:, :3], Rm)
-    code = first_rule(jnp, [(degenerate, REJECTED, R_DEGENERATE), *_checks(jnp, gate_on, nis, thr[kind], ok, Pn)],
-                      FUSED)  # fmt: skip
+    code = _checks(jnp, (REJECTED, R_DEGENERATE, degenerate), gate_on, nis, thr[kind], ok, Pn)
     s = _rescale(jnp, (x.at[i].set(xn), P.at[i].set(Pn), *st[2:]), i, Pn, P[i])
     return _pick(jnp, code[0] == FUSED, s, st), *code
 
@@ -188,7 +188,7 @@ def _detection(jnp: Any, noise: UnicycleNoise, st: tuple, ev: dict, const: tuple
     t0, relative, lm_on = const[0], const[3], const[4]
     i, j, kind, t = ev["a"], ev["b"], ev["kind"], ev["t"]
     st = _advance(jnp, noise, st, i, t)
-    s0, w0 = screen(jnp, True, kind, i, j, t, t0, relative, lm_on)
+    s0, w0 = formulas().screen_started(kind, i, j, t, t0, relative, lm_on)
     private = (kind == ABSOLUTE) | (j <= NO_LANDMARK)
     sp, cp, wp = _private(jnp, st, i, j, ev, const)
     sq, cq, wq = _pair(jnp, noise, st, i, jnp.where(j >= 0, j, i), ev, const)

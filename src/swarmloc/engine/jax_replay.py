@@ -27,29 +27,16 @@ import numpy as np
 from swarmloc.engine import soa
 from swarmloc.engine.codes import (
     ABSOLUTE,
-    NO_LANDMARK,
     POSE,
-    R_LANDMARKS_OFF,
-    R_NO_LANDMARK,
-    R_NOT_STARTED,
-    R_OFF,
-    R_SELF,
-    R_TEAM,
-    R_UNUSABLE,
-    REJECTED,
-    UNKNOWN,
-    UNKNOWN_ROBOT,
-    UNUSABLE,
 )
 from swarmloc.engine.detections import Timeline
+from swarmloc.engine.formulas import RANGE_BEARING, build
 from swarmloc.engine.jax_stamp import bucket, import_jax, pad_rows
-from swarmloc.events import Kind
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MODELS
 
 DET, CMD, REC, NOOP = range(4)
 """Event types: a detection, a command, a record of every robot, padding."""
-RANGE_BEARING, RANGE, BEARING = KIND_ORDER[Kind.RANGE_BEARING], KIND_ORDER[Kind.RANGE], KIND_ORDER[Kind.BEARING]
 COMPILES: Counter[tuple] = Counter()
 """Traces per ``(form, robots, steps, commands, record slots, landmarks, runs)``: one per shape."""
 Kernels = tuple[Callable[..., Any], Callable[..., Any], Callable[..., Any]]
@@ -103,31 +90,11 @@ def sym(jnp: Any, q: Any) -> Any:
                      -2)  # fmt: skip
 
 
-def screen(jnp: Any, distributed: bool, kind: Any, i: Any, j: Any, t: Any, t0: Any, relative: Any,
-            lm_on: Any) -> tuple:  # fmt: skip
-    """``(outcome, reason)`` decided before a state is read (0, 0: go on): :func:`swarmloc.engine.joint._screen`,
-    or with ``distributed`` :func:`swarmloc.engine.joint.screen_started`; the first rule that holds decides."""
-    n = t0.shape[0]
-    lm = j <= NO_LANDMARK
-    lm_rule = (lm & ~lm_on, REJECTED, R_LANDMARKS_OFF), (j == NO_LANDMARK, UNKNOWN, R_NO_LANDMARK), (lm, 0, 0)
-    if distributed:
-        started = t >= t0[jnp.where(j >= 0, j, j + n) % n]
-        rules = [(j == UNUSABLE, REJECTED, R_UNUSABLE), (~relative, REJECTED, R_OFF),
-                 (j == UNKNOWN_ROBOT, UNKNOWN, R_TEAM), (j == i, REJECTED, R_SELF),
-                 (~started, UNKNOWN, R_NOT_STARTED)]  # fmt: skip
-    else:
-        rules = [(j == UNKNOWN_ROBOT, jnp.where(relative, UNKNOWN, REJECTED), jnp.where(relative, R_TEAM, R_OFF)),
-                 (j < 0, REJECTED, R_UNUSABLE), (~relative, REJECTED, R_OFF), (j == i, REJECTED, R_SELF)]  # fmt: skip
-    return first_rule(jnp, [(kind == ABSOLUTE, 0, 0), *lm_rule, *rules], 0)
+def formulas() -> Any:
+    """The shared formulas (:mod:`swarmloc.engine.formulas`) on ``jax.numpy``."""
+    import jax.numpy as jnp
 
-
-def first_rule(jnp: Any, rules: list, otherwise: int) -> tuple:
-    """``(outcome, reason)`` of the first rule ``(condition, outcome, reason)`` that holds, else ``(otherwise,
-    0)``."""
-    st, why = jnp.int32(otherwise), jnp.int32(0)
-    for cond, s, r in reversed(rules):
-        st, why = jnp.where(cond, s, st), jnp.where(cond, r, why)
-    return st, why
+    return build(jnp)
 
 
 def usable(jnp: Any, P: Any) -> Any:
@@ -137,38 +104,15 @@ def usable(jnp: Any, P: Any) -> Any:
 
 def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> tuple:
     """Residual ``r (3,)``, Jacobian ``H (3, 6)`` (observer's columns, then the target's) and noise ``Rm (3, 3)``
-    of :func:`swarmloc.engine.joint_math.measure`, a 1- or 2-row measurement padded with rows that change nothing."""
-    x0, y0, th = xi[0], xi[1], xi[2]
-    dx, dy = xk[0] - x0, xk[1] - y0
-    c, s = jnp.cos(th), jnp.sin(th)
-    bx, by = c * dx + s * dy, -s * dx + c * dy
+    of :func:`swarmloc.engine.formulas.measure`, a 1- or 2-row measurement padded with rows that change nothing
+    (zero in ``H`` and the residual, one in the noise)."""
+    r, H, (cz, sz) = formulas().measure(kind, xi[0], xi[1], xi[2], (xk[0], xk[1], xk[2]), (z[0], z[1], z[2]))
     o, e = jnp.zeros(()), jnp.ones(())
-    eye = jnp.eye(3)
-    h_abs = jnp.concatenate([eye, jnp.zeros((3, 3))], 1)
-    r_abs = jnp.stack([z[0] - x0, z[1] - y0, wrap(jnp, z[2] - th)])
-    h_pose = jnp.stack([jnp.stack([-c, -s, by, c, s, o]), jnp.stack([s, -c, -bx, -s, c, o]),
-                        jnp.stack([o, o, -e, o, o, e])])  # fmt: skip
-    r_pose = jnp.stack([z[0] - bx, z[1] - by, wrap(jnp, z[2] - wrap(jnp, xk[2] - th))])
-    cz, sz = jnp.cos(z[2]), jnp.sin(z[2])
     B = jnp.stack([jnp.stack([cz, -sz, o]), jnp.stack([sz, cz, o]), jnp.stack([o, o, e])])
-    q = dx * dx + dy * dy
-    rng = jnp.sqrt(q)
-    row0 = jnp.stack([-dx / rng, -dy / rng, o, dx / rng, dy / rng, o])
-    row1 = jnp.stack([dy / q, -dx / q, -e, -dy / q, dx / q, o])
-    bearing = wrap(jnp, z[1] - wrap(jnp, jnp.arctan2(by, bx)))
-    zero6 = jnp.zeros(6)
-    h_rb = jnp.stack([row0, row1, zero6])
-    r_rb = jnp.stack([z[0] - rng, bearing, o])
     R_rb = jnp.zeros((3, 3)).at[:2, :2].set(R[:2, :2]).at[2, 2].set(1.0)
     R_one = jnp.diag(jnp.stack([R[0, 0], e, e]))
-    h_r, h_b = jnp.stack([row0, zero6, zero6]), jnp.stack([row1, zero6, zero6])
-    r_r = jnp.stack([z[0] - rng, o, o])
-    r_b = jnp.stack([wrap(jnp, z[0] - wrap(jnp, jnp.arctan2(by, bx))), o, o])
-    pick = [kind == ABSOLUTE, kind == POSE, kind == RANGE_BEARING, kind == RANGE]
-    H = jnp.select(pick, [h_abs, h_pose, h_rb, h_r], h_b)
-    r = jnp.select(pick, [r_abs, r_pose, r_rb, r_r], r_b)
-    Rm = jnp.select(pick, [R, B @ R @ B.T, R_rb, R_one], R_one)
-    return r, H, Rm
+    Rm = jnp.select([kind == ABSOLUTE, kind == POSE, kind == RANGE_BEARING], [R, B @ R @ B.T, R_rb], R_one)
+    return jnp.stack([jnp.asarray(a) for a in r]), jnp.stack([jnp.stack([jnp.asarray(a) for a in h]) for h in H]), Rm
 
 
 def inverse(jnp: Any, S: Any) -> tuple:
@@ -197,7 +141,8 @@ def _scan(jnp: Any, lax: Any, kernels: Kernels, state: tuple, ev: dict, cmd: dic
         return (*s[:3], s[3].at[k].set(cmd["v"][c]), s[4].at[k].set(cmd["w"][c]), *s[5:])
 
     def found(state, ev):  # noqa: ANN001, ANN202
-        return (*detection(state, ev), *nothing)
+        state, st, why = detection(state, ev)
+        return state, jnp.int32(st), jnp.int32(why), *nothing
 
     def record(state, ev):  # noqa: ANN001, ANN202
         return state, no, no, *marginals(state, ev["t"])

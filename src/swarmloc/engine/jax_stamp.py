@@ -39,20 +39,11 @@ from swarmloc.engine.codes import (
     PENDING,
     POSE,
     R_DEGENERATE,
-    R_LANDMARKS_OFF,
-    R_NO_LANDMARK,
     R_NONFINITE,
-    R_NOT_STARTED,
     R_NUMERICAL,
-    R_OBSERVER,
-    R_OFF,
-    R_SELF,
-    R_TEAM,
-    R_UNUSABLE,
     REJECTED,
-    UNKNOWN,
-    UNUSABLE,
 )
+from swarmloc.engine.formulas import build
 from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
@@ -139,29 +130,13 @@ def _segment(jnp: Any, code: int, size: int, carry: tuple, rows: tuple, start: A
 
 def _screen(jnp: Any, obs: Any, tgt: Any, kind: Any, valid: Any, t: Any, t0: Any, relative: Any, lm_on: Any,
             ) -> tuple:  # fmt: skip
-    """:func:`swarmloc.engine.outcomes.screen` on the device: ``(status, reason, obs_ok, needs)``; padded rows
-    (``valid`` False) are neither pending nor running."""
+    """:func:`swarmloc.engine.formulas.screen_stamp` on the device (as :func:`swarmloc.engine.outcomes.screen`):
+    ``(status, reason, obs_ok, needs)``; padded rows (``valid`` False) are neither pending nor running."""
     n = t0.shape[0]
-    status = jnp.zeros(obs.shape[0], jnp.int8)
-    reason = jnp.zeros(obs.shape[0], jnp.int8)
-
-    def mark(where: Any, outcome: int, why: int) -> tuple:
-        return jnp.where(where, jnp.int8(outcome), status), jnp.where(where, jnp.int8(why), reason)
-
-    landmark = (tgt <= NO_LANDMARK) & (kind != ABSOLUTE)
-    robot = (kind != ABSOLUTE) & ~landmark
     obs_ok = valid & (t >= t0[obs])
-    status, reason = mark(~obs_ok, REJECTED, R_OBSERVER)
-    status, reason = mark(obs_ok & robot & ~relative, REJECTED, R_OFF)
-    status, reason = mark(obs_ok & landmark & ~lm_on, REJECTED, R_LANDMARKS_OFF)
-    status, reason = mark((status == PENDING) & landmark & (tgt == NO_LANDMARK), UNKNOWN, R_NO_LANDMARK)
-    status, reason = mark((status == PENDING) & landmark & (kind == POSE), REJECTED, R_UNUSABLE)
-    status, reason = mark((status == PENDING) & robot & (tgt == UNUSABLE), REJECTED, R_UNUSABLE)
-    status, reason = mark((status == PENDING) & robot & (tgt == obs), REJECTED, R_SELF)
-    status, reason = mark((status == PENDING) & robot & (tgt < 0), UNKNOWN, R_TEAM)
-    started = t >= t0[jnp.clip(tgt, 0, n - 1)]
-    status, reason = mark((status == PENDING) & robot & ~started, UNKNOWN, R_NOT_STARTED)
-    return status, reason, obs_ok, (status == PENDING) & robot
+    status, reason, needs = build(jnp).screen_stamp(kind, obs, tgt, obs_ok, t >= t0[jnp.clip(tgt, 0, n - 1)],
+                                                    relative, lm_on)  # fmt: skip
+    return status.astype(jnp.int8), reason.astype(jnp.int8), obs_ok, needs
 
 
 def _levels(jnp: Any, n: int, edge: Any, src: Any, dst: Any) -> Any:

@@ -27,8 +27,8 @@ shear), Jacobian blocks are ``H_c N(x)``, and the correction moves each robot on
 the centralized :class:`~swarmloc.estimators.InvariantEKF` (``iekf``). With each robot's start (``t0 (n,)``) it is
 ``diekf``'s team (:class:`~swarmloc.estimators.DistributedInvariantEKF`): its nodes' replicas together are this
 joint state, so only what the nodes decide apart from the filter differs: a robot starts at its own first input and
-is asked only from then on (:func:`screen_started`), and a detected robot moves to the stamp only when it takes the
-update (a gated or refused detection leaves it where it was).
+is asked only from then on (``screen_started`` of :mod:`swarmloc.engine.formulas`), and a detected robot moves to
+the stamp only when it takes the update (a gated or refused detection leaves it where it was).
 
 Results equal the nodes' to rounding (tests/test_engine_cekf.py, tests/test_engine_invariant.py: 1e-10 on
 simulated teams, 1e-9 relative on MRCLAM, every outcome count and reason). Units: metres, radians, seconds; angles
@@ -49,21 +49,12 @@ from swarmloc.engine.codes import (
     FUSED,
     NO_LANDMARK,
     R_DEGENERATE,
-    R_LANDMARKS_OFF,
-    R_NO_LANDMARK,
-    R_NOT_STARTED,
-    R_OFF,
-    R_SELF,
-    R_TEAM,
-    R_UNUSABLE,
     REJECTED,
-    UNKNOWN,
-    UNKNOWN_ROBOT,
-    UNUSABLE,
 )
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint_math import (
     RANGE_BEARING,
+    F,
     kalman,
     measure,
     to_world,
@@ -129,46 +120,6 @@ def flush(P: np.ndarray, pend: np.ndarray, has: np.ndarray) -> None:
         has[k] = False
 
 
-@njit(error_model="numpy")
-def screen_started(kind: int, i: int, j: int, t: float, t0: np.ndarray, relative: bool, lm_on: bool
-                   ) -> tuple[int, int]:  # fmt: skip
-    """``(outcome, reason)`` decided before any state is read (0, 0: go on), as the distributed nodes decide it
-    (:meth:`~swarmloc.node.base.Node._classify`; a teammate answers only from its start ``t0[j]`` on)."""
-    if kind == ABSOLUTE:
-        return 0, 0
-    if j <= NO_LANDMARK:
-        if not lm_on:
-            return REJECTED, R_LANDMARKS_OFF
-        return (UNKNOWN, R_NO_LANDMARK) if j == NO_LANDMARK else (0, 0)
-    if j == UNUSABLE:  # worded from the detection by the caller (relative off, no target id, a landmark's pose)
-        return REJECTED, R_UNUSABLE
-    if not relative:
-        return REJECTED, R_OFF
-    if j == UNKNOWN_ROBOT:
-        return UNKNOWN, R_TEAM
-    if j == i:
-        return REJECTED, R_SELF
-    return (UNKNOWN, R_NOT_STARTED) if not t >= t0[j] else (0, 0)
-
-
-@njit(error_model="numpy")
-def _screen(kind: int, i: int, j: int, relative: bool, lm_on: bool) -> tuple[int, int]:
-    """``(outcome, reason)`` decided before any state is read (0, 0: go on), the node's ``_classify`` as codes."""
-    if kind == ABSOLUTE:
-        return 0, 0
-    if j <= NO_LANDMARK:  # a landmark's (a pose of a landmark has the code UNUSABLE)
-        if not lm_on:
-            return REJECTED, R_LANDMARKS_OFF
-        return (UNKNOWN, R_NO_LANDMARK) if j == NO_LANDMARK else (0, 0)
-    if j == UNKNOWN_ROBOT:
-        return (UNKNOWN, R_TEAM) if relative else (REJECTED, R_OFF)
-    if j < 0:
-        return REJECTED, R_UNUSABLE
-    if not relative:
-        return REJECTED, R_OFF
-    return (REJECTED, R_SELF) if j == i else (0, 0)
-
-
 @cache
 def predict_kernel(noise: UnicycleNoise) -> Any:
     """The engine's scalar prediction for ``noise`` (:func:`swarmloc.engine.scalar.predict_source`) compiled:
@@ -182,7 +133,8 @@ def predict_kernel(noise: UnicycleNoise) -> Any:
 def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = False) -> Any:
     """Compile the replay loop with the noise model's prediction (once per process, noise model and form).
     ``invariant``: world-frame errors (``iekf``, ``diekf``). ``distributed`` (with ``invariant``: ``diekf``'s nodes):
-    each robot starts at its own first input and answers from then on (:func:`screen_started`), and a detected
+    each robot starts at its own first input and answers from then on (``screen_started`` of
+    :mod:`swarmloc.engine.formulas`), and a detected
     robot moves to the detection's stamp only when it takes the update (its node answers a query from a prediction
     it does not store; it moves when the broadcast updates it)."""
     return _loop(*steps(noise, invariant, distributed)[:3], distributed)
@@ -298,9 +250,9 @@ def _loop(advance: Any, marginal: Any, fuse: Any, distributed: bool) -> Any:
                 i = obs[q]
                 advance(X, pend, has, tc, v, w, i, t)  # the observer moves to its group's stamp
                 if distributed:
-                    st, why = screen_started(kind[q], i, tgt[q], t, t0, relative, lm_on)
+                    st, why = F.screen_started(kind[q], i, tgt[q], t, t0, relative, lm_on)
                 else:
-                    st, why = _screen(kind[q], i, tgt[q], relative, lm_on)
+                    st, why = F.screen_central(kind[q], i, tgt[q], relative, lm_on)
                 if st == 0:
                     st, why = fuse(X, P, pend, has, tc, v, w, t, q, i, tgt[q], kind[q], z, R, lxy, lcov, thr, gate)
                 status[q], reason[q] = st, why

@@ -32,49 +32,37 @@ from numba import njit
 from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import FUSED, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import flush, prepare, screen_started, steps
-from swarmloc.engine.joint_math import RANGE_BEARING, kalman, measure, to_world, verdict
-from swarmloc.kernels.ci import W_BOUNDS, WEIGHT_GRID
+from swarmloc.engine.joint import flush, prepare, steps
+from swarmloc.engine.joint_math import RANGE_BEARING, F, kalman, measure, to_world, verdict
+from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
 
-_W_LO, _W_HI = W_BOUNDS
-
 
 @njit(error_model="numpy")
-def _logdet(S: np.ndarray) -> float:
-    """``log det`` of a 1x1, 2x2 or 3x3 ``S`` (NaN where the determinant is not positive)."""
-    m = S.shape[0]
-    if m == 1:
-        d = S[0, 0]
-    elif m == 2:
-        d = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
-    else:
-        d = (S[0, 0] * (S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1]) - S[0, 1] * (S[1, 0] * S[2, 2] - S[1, 2] * S[2, 0])
-             + S[0, 2] * (S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0]))  # fmt: skip
-    return math.log(d) if d > 0 else math.nan
+def _rows3(M: np.ndarray, fill: float) -> tuple:
+    """``M (m, m)``, ``m <= 3``, as 3x3 rows of entries, padded with ``fill`` on the diagonal and zeros."""
+    P = np.zeros((3, 3))
+    for a in range(3):
+        P[a, a] = fill
+    m = M.shape[0]
+    P[:m, :m] = M
+    return (P[0, 0], P[0, 1], P[0, 2]), (P[1, 0], P[1, 1], P[1, 2]), (P[2, 0], P[2, 1], P[2, 2])
 
 
 @njit(error_model="numpy")
 def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> float:
     """:func:`swarmloc.kernels.ci.joint_weight` compiled: the CI weight in ``W_BOUNDS`` minimizing ``-dof log w -
     log det(S_w + A / w) + log det S_w``, ``S_w = R + B / (1 - w)``, on the same grid of ``WEIGHT_GRID`` points,
-    then the vertex of the parabola through the best point and its neighbours (within one grid step)."""
+    then the vertex of the parabola through the best point and its neighbours (:func:`swarmloc.engine.formulas.
+    ci_cost`, ``ci_grid``, ``ci_vertex``; a 1- or 2-row measurement padded as there)."""
+    a, b, r = _rows3(A, 0.0), _rows3(B, 0.0), _rows3(R, 1.0)
     g = WEIGHT_GRID
-    step = (_W_HI - _W_LO) / (g - 1)
     c = np.empty(g)
     for k in range(g):
-        w = _W_HI if k == g - 1 else k * step + _W_LO  # np.linspace's points
-        S = R + B / (1 - w)
-        v = -dof * math.log(w) - _logdet(S + A / w) + _logdet(S)
-        c[k] = v if math.isfinite(v) else math.inf
+        c[k] = F.ci_cost(F.ci_grid(k), a, b, r, dof)
     j = int(np.argmin(c))
-    c0, c1, c2 = c[max(j - 1, 0)], c[j], c[min(j + 1, g - 1)]
-    den = c0 - 2 * c1 + c2
-    shift = 0.0
-    if 0 < j < g - 1 and math.isfinite(c0 + c1 + c2) and den > 0:
-        shift = min(max(0.5 * step * (c0 - c2) / den, -step), step)
-    return min(max(_W_LO + step * j + shift, _W_LO), _W_HI)
+    return F.ci_vertex(j, c[max(j - 1, 0)], c[j], c[min(j + 1, g - 1)])
 
 
 @cache
@@ -138,7 +126,7 @@ def _loop(advance: Any, marginal: Any, fuse: Any, belief: Any, outsider: Any) ->
             for q in range(d0[s], d0[s + 1]):
                 i, j = obs[q], tgt[q]
                 advance(X, pend, has, tc, v, w, i, t)  # the observer moves to its group's stamp
-                st, why = screen_started(kind[q], i, j, t, t0, relative, lm_on)
+                st, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
                 if st == 0:
                     b, lo, hi = _span(i, K, n)
                     m = 3 * (hi - lo)

@@ -7,23 +7,23 @@ Kalman update on a few columns of a joint covariance (:func:`kalman`) and the or
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
 
-from swarmloc.engine.codes import ABSOLUTE, GATED, POSE, R_NONFINITE, R_NUMERICAL, REJECTED
-from swarmloc.events import Kind
-from swarmloc.sensors.models import KIND_ORDER
-
-RANGE_BEARING, RANGE, BEARING = KIND_ORDER[Kind.RANGE_BEARING], KIND_ORDER[Kind.RANGE], KIND_ORDER[Kind.BEARING]
-_PI = math.pi
-_TAU = 2 * math.pi
+from swarmloc.engine import numba_xp
+from swarmloc.engine.codes import ABSOLUTE, POSE, R_NUMERICAL, REJECTED
+from swarmloc.engine.formulas import RANGE_BEARING, build
 
 
-@njit(error_model="numpy")
-def wrap(a: float) -> float:
-    """An angle [rad] wrapped to (-pi, pi] (the formula of :func:`swarmloc.lie.wrap_angle`), compiled."""
-    return _PI - (_PI - a) % _TAU
+def _compile(fn: Any) -> Any:
+    return njit(error_model="numpy")(fn)
+
+
+F = build(numba_xp, _compile)
+"""The shared formulas (:mod:`swarmloc.engine.formulas`) compiled by numba on scalars."""
+wrap = F.wrap
 
 
 @njit(error_model="numpy")
@@ -86,68 +86,27 @@ def usable(P: np.ndarray) -> bool:
 def measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Residual ``r (m,)``, Jacobian ``H (m, 3 + len(xk))`` (observer's columns, then the target's) and noise
-    ``R (m, m)`` of a detection of ``kind`` by the robot at rows ``i:i+3`` of ``X`` of a target at ``xk``
-    (:mod:`swarmloc.sensors.models`: predictions, residuals wrapped, a relative pose's noise made Cartesian)."""
-    x0, y0, th = X[i], X[i + 1], X[i + 2]
-    if kind == ABSOLUTE:
-        H = np.eye(3)
-        r = np.array([zq[0] - x0, zq[1] - y0, wrap(zq[2] - th)])
-        return r, H, Rq[:3, :3].copy()
-    dx, dy = xk[0] - x0, xk[1] - y0
-    c, s = math.cos(th), math.sin(th)
-    bx, by = c * dx + s * dy, -s * dx + c * dy
-    w = 3 + xk.shape[0]
+    ``R (m, m)`` of a detection of ``kind`` by the robot at rows ``i:i+3`` of ``X`` of a target at ``xk`` (a
+    robot's pose, a landmark's position, nothing for an absolute fix): :func:`swarmloc.engine.formulas.measure`'s
+    first ``m`` rows, a relative pose's noise made Cartesian."""
+    w = xk.shape[0]
+    target = (xk[0] if w > 0 else 0.0, xk[1] if w > 1 else 0.0, xk[2] if w > 2 else 0.0)
+    r3, H3, (cz, sz) = F.measure(kind, X[i], X[i + 1], X[i + 2], target, (zq[0], zq[1], zq[2]))
+    m = 3 if kind == ABSOLUTE or kind == POSE else (2 if kind == RANGE_BEARING else 1)
+    r, H = np.array(r3)[:m].copy(), np.array(H3)[:m, : 3 + w].copy()
     if kind == POSE:
-        H = np.zeros((3, w))
-        H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], H[2, 2] = -c, -s, by, s, -c, -bx, -1.0
-        H[0, 3], H[0, 4], H[1, 3], H[1, 4], H[2, 5] = c, s, -s, c, 1.0
-        r = np.array([zq[0] - bx, zq[1] - by, wrap(zq[2] - wrap(xk[2] - th))])
-        cz, sz = math.cos(zq[2]), math.sin(zq[2])
         B = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
         return r, H, B @ Rq[:3, :3].copy() @ B.T
-    q = dx * dx + dy * dy
-    rng = math.sqrt(q)
-    full = np.zeros((2, w))
-    full[0, 0], full[0, 1], full[1, 0], full[1, 1], full[1, 2] = -dx / rng, -dy / rng, dy / q, -dx / q, -1.0
-    full[:, 3:5] = -full[:, 0:2]
-    res = np.array([zq[0] - rng, wrap(zq[1] - wrap(math.atan2(by, bx)))])
-    if kind == RANGE_BEARING:
-        return res, full, Rq[:2, :2].copy()
-    j = 0 if kind == RANGE else 1
-    r1 = np.array([zq[0] - rng]) if j == 0 else np.array([wrap(zq[0] - wrap(math.atan2(by, bx)))])
-    return r1, full[j : j + 1].copy(), Rq[:1, :1].copy()
-
-
-@njit(error_model="numpy")
-def _sinc(t: float) -> float:
-    """``sin(t) / t`` with the Taylor branch of :func:`swarmloc.lie.SE2.exp` below 0.05 (the same coefficients)."""
-    if abs(t) < 0.05:
-        t2 = t * t
-        return (((t2 / 362880.0 - 1.0 / 5040.0) * t2 + 1.0 / 120.0) * t2 - 1.0 / 6.0) * t2 + 1.0
-    return math.sin(t) / t
-
-
-@njit(error_model="numpy")
-def _one_minus_cos_over_t(t: float) -> float:
-    """``(1 - cos t) / t`` with the Taylor branch of :func:`swarmloc.lie.SE2.exp` below 0.05."""
-    if abs(t) < 0.05:
-        t2 = t * t
-        return t * ((((t2 / 3628800.0 - 1.0 / 40320.0) * t2 + 1.0 / 720.0) * t2 - 1.0 / 24.0) * t2 + 0.5)
-    return t * (2.0 * math.sin(t / 2) ** 2 / (t * t))
+    return r, H, Rq[:m, :m].copy()
 
 
 @njit(error_model="numpy")
 def left_correct(X: np.ndarray, delta: np.ndarray) -> None:
     """Every robot's pose ``X[3k:3k+3]`` corrected by its world-frame ``delta[3k:3k+3]``, written into ``delta``:
-    the Cartesian pose of ``exp(hat(delta_k)) g(x_k)`` (:func:`swarmloc.kernels.invariant.left_correct`)."""
+    the Cartesian pose of ``exp(hat(delta_k)) g(x_k)`` (:func:`swarmloc.engine.formulas.left_correct`)."""
     for i in range(0, X.shape[0], 3):
-        d0, d1, d2 = delta[i], delta[i + 1], delta[i + 2]
-        c, s = math.cos(d2), math.sin(d2)
-        A, B = _sinc(d2), _one_minus_cos_over_t(d2)
-        x, y, ct, st = X[i], X[i + 1], math.cos(X[i + 2]), math.sin(X[i + 2])
-        delta[i] = c * x - s * y + (A * d0 - B * d1)
-        delta[i + 1] = s * x + c * y + (B * d0 + A * d1)
-        delta[i + 2] = wrap(math.atan2(s * ct + c * st, c * ct - s * st))
+        delta[i], delta[i + 1], delta[i + 2] = F.left_correct(X[i], X[i + 1], X[i + 2], delta[i], delta[i + 1],
+                                                              delta[i + 2])  # fmt: skip
 
 
 @njit(error_model="numpy")
@@ -160,13 +119,8 @@ def to_world(H: np.ndarray, c: int, x: float, y: float) -> None:
 
 @njit(error_model="numpy")
 def world_noise(x: float, y: float, q: np.ndarray) -> np.ndarray:
-    """A step's Cartesian process noise (upper triangle ``q00, q01, q02, q11, q12, q22``) at the new pose ``(x, y)``
-    as the world-frame error's, ``N^-1 Q N^-T`` (:func:`swarmloc.kernels.invariant.cartesian_to_world_cov`; the
-    products of :class:`swarmloc.estimators.InvariantEKF`'s prediction)."""
-    q00, q01, q02, q11, q12, q22 = q[0], q[1], q[2], q[3], q[4], q[5]
-    a02, a12 = q02 + y * q22, q12 - x * q22
-    return np.array([q00 + 2 * y * q02 + y * y * q22, q01 - x * q02 + y * a12, a02,
-                     q11 - 2 * x * q12 + x * x * q22, a12, q22])  # fmt: skip
+    """:func:`swarmloc.engine.formulas.world_noise` of an upper triangle ``q (6,)``, as an array."""
+    return np.array(F.world_noise(x, y, (q[0], q[1], q[2], q[3], q[4], q[5])))
 
 
 @njit(error_model="numpy")
@@ -253,14 +207,12 @@ def store_symmetric(Pn: np.ndarray, a: int, b: int, ab: float, ba: float) -> boo
 
 @njit(error_model="numpy")
 def verdict(nis: float, ok: bool, Pn: np.ndarray, threshold: float, gate: bool) -> tuple[int, int]:
-    """The outcome of a Kalman update as :func:`swarmloc.node.update.gated_kalman` decides it, in its order: with the
-    gate on, a non-finite NIS is rejected and one above ``threshold`` gated; then a result that is not finite or
-    not positive definite (:func:`usable`) is rejected; ``(0, 0)``: take it."""
-    if gate:
-        if not math.isfinite(nis):
-            return REJECTED, R_NONFINITE
-        if nis > threshold:
-            return GATED, 0
+    """The outcome of a Kalman update as :func:`swarmloc.node.update.gated_kalman` decides it, in its order: the
+    gate (:func:`swarmloc.engine.formulas.gate_rules`), then a result that is not finite or not positive definite
+    (:func:`usable`) is rejected; ``(0, 0)``: take it."""
+    st, why, done = F.gate_rules((0, 0, False), nis, threshold, gate)
+    if done:
+        return st, why
     if not (ok and usable(Pn)):
         return REJECTED, R_NUMERICAL
     return 0, 0

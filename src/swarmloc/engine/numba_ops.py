@@ -28,21 +28,12 @@ from swarmloc.engine.codes import (
     PENDING,
     POSE,
     R_DEGENERATE,
-    R_LANDMARKS_OFF,
-    R_NO_LANDMARK,
     R_NONFINITE,
-    R_NOT_STARTED,
     R_NUMERICAL,
-    R_OBSERVER,
-    R_OFF,
-    R_SELF,
-    R_TEAM,
-    R_UNUSABLE,
     REJECTED,
-    UNKNOWN,
-    UNUSABLE,
 )
 from swarmloc.engine.detections import Timeline
+from swarmloc.engine.joint_math import F
 from swarmloc.engine.scalar import absolute_source, landmark_source, pose_source, predict_source
 from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
@@ -114,39 +105,13 @@ _KINDS = f"""
 
 _SCREEN = f"""
         i = obs[q]
-        if not t >= t0[i]:  # screen(): the checks before any fusion, in its order
-            status[q] = {REJECTED}
-            reason[q] = {R_OBSERVER}
+        j = tgt[q]  # screen_stamp(): the checks before any fusion, in their order
+        status[q], reason[q], needs = screen_stamp(kind[q], i, j, t >= t0[i], t >= t0[min(max(j, 0), n - 1)],
+                                                   relative, lm_on)
+        if not t >= t0[i]:
             continue
-        j = tgt[q]
         at_lm = j <= {NO_LANDMARK}  # a landmark's range-bearing (kinds checked above)
         robot = kind[q] != {ABSOLUTE} and not at_lm
-        needs = False
-        if at_lm:
-            if not lm_on:
-                status[q] = {REJECTED}
-                reason[q] = {R_LANDMARKS_OFF}
-            elif j == {NO_LANDMARK}:
-                status[q] = {UNKNOWN}
-                reason[q] = {R_NO_LANDMARK}
-        elif robot:
-            if not relative:
-                status[q] = {REJECTED}
-                reason[q] = {R_OFF}
-            elif j == {UNUSABLE}:
-                status[q] = {REJECTED}
-                reason[q] = {R_UNUSABLE}
-            elif j == i:
-                status[q] = {REJECTED}
-                reason[q] = {R_SELF}
-            elif j < 0:
-                status[q] = {UNKNOWN}
-                reason[q] = {R_TEAM}
-            elif not t >= t0[min(j, n - 1)]:
-                status[q] = {UNKNOWN}
-                reason[q] = {R_NOT_STARTED}
-            else:
-                needs = True
         if tc[i] < t:  # the observer moves to t at its group (stored)
             r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
 {_store("x", "P", "i", 12)}
@@ -157,8 +122,9 @@ _SCREEN = f"""
             lev[i] = lev[j] + 1
         if lev[i] > top:
             top = lev[i]"""[1:]
-"""Template of the in-place kernels (loop over rows ``q``): row ``q`` screened as
-:func:`swarmloc.engine.outcomes.screen` does, its observer ``i`` moved to ``t`` and stored, its level (``lev``)."""
+"""Template of the in-place kernels (loop over rows ``q``): row ``q`` screened by
+:func:`swarmloc.engine.formulas.screen_stamp` (as :func:`swarmloc.engine.outcomes.screen` does), its observer ``i``
+moved to ``t`` and stored, its level (``lev``)."""
 
 _FUSE = f"""
         if at_lm:
@@ -369,7 +335,7 @@ def scatter2(a, b, rows, va, vb):
 @cache
 def _kernels(noise: UnicycleNoise) -> dict[str, Any]:
     """Compile the generated scalar functions and the loops around them (once per noise model)."""
-    ns: dict[str, Any] = {"math": math, "np": np, "prange": prange}
+    ns: dict[str, Any] = {"math": math, "np": np, "prange": prange, "screen_stamp": F.screen_stamp}
     for src in (predict_source(noise), pose_source(), absolute_source(), landmark_source()):
         exec(src, ns)  # noqa: S102 - our own generated code
     for name in ("predict", "pose", "absolute", "landmark"):

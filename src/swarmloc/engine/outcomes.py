@@ -13,28 +13,16 @@ from collections import Counter
 import numpy as np
 
 from swarmloc.engine.codes import (
-    ABSOLUTE,
     FUSED,
     GATED,
-    NO_LANDMARK,
     OUTCOMES,
-    PENDING,
-    POSE,
-    R_LANDMARKS_OFF,
-    R_NO_LANDMARK,
     R_NONFINITE,
-    R_NOT_STARTED,
-    R_OBSERVER,
-    R_OFF,
-    R_SELF,
-    R_TEAM,
-    R_UNUSABLE,
     REASONS,
     REJECTED,
     UNKNOWN,
-    UNUSABLE,
 )
 from swarmloc.engine.detections import Detections
+from swarmloc.engine.formulas import build
 from swarmloc.node.update import Gate
 
 
@@ -53,26 +41,12 @@ def screen(
 
     Returns ``(status, reason, obs_ok, needs)``: ``obs_ok`` the detections whose observer runs at ``t``, ``needs``
     the pending ones that need their target's answer (robots; a landmark's state is the map's)."""
-    m = len(det)
-    status = np.zeros(m, dtype=np.int8)
-    reason = np.zeros(m, dtype=np.int8)
-    obs, tgt = det.observer, det.target
-    landmark = (tgt <= NO_LANDMARK) & (det.kind != ABSOLUTE)
-    robot = (det.kind != ABSOLUTE) & ~landmark
-    obs_ok = t >= t0[obs]
-    mark(status, reason, ~obs_ok, REJECTED, R_OBSERVER)
-    if not use_relative:
-        mark(status, reason, obs_ok & robot, REJECTED, R_OFF)
-    if not use_landmarks:
-        mark(status, reason, obs_ok & landmark, REJECTED, R_LANDMARKS_OFF)
-    mark(status, reason, (status == PENDING) & landmark & (tgt == NO_LANDMARK), UNKNOWN, R_NO_LANDMARK)
-    mark(status, reason, (status == PENDING) & landmark & (det.kind == POSE), REJECTED, R_UNUSABLE)  # a point
-    mark(status, reason, (status == PENDING) & robot & (tgt == UNUSABLE), REJECTED, R_UNUSABLE)
-    mark(status, reason, (status == PENDING) & robot & (tgt == obs), REJECTED, R_SELF)
-    mark(status, reason, (status == PENDING) & robot & (tgt < 0), UNKNOWN, R_TEAM)
-    started = t >= t0[np.clip(tgt, 0, t0.shape[0] - 1)]
-    mark(status, reason, (status == PENDING) & robot & ~started, UNKNOWN, R_NOT_STARTED)
-    return status, reason, obs_ok, (status == PENDING) & robot
+    n = t0.shape[0]
+    obs_ok = t >= t0[det.observer]
+    status, reason, needs = build(np).screen_stamp(det.kind, det.observer, det.target, obs_ok,
+                                                   t >= t0[np.clip(det.target, 0, n - 1)], use_relative,
+                                                   use_landmarks)  # fmt: skip
+    return np.asarray(status, dtype=np.int8), np.asarray(reason, dtype=np.int8), obs_ok, needs
 
 
 def gate_rows(

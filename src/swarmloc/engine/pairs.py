@@ -41,9 +41,10 @@ from swarmloc.engine.codes import (
     REJECTED,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import predict_kernel, screen_started
+from swarmloc.engine.joint import predict_kernel
 from swarmloc.engine.joint_math import (
     RANGE_BEARING,
+    F,
     innovation,
     inverse,
     measure,
@@ -283,7 +284,7 @@ def _loop(predicted: Any, advance: Any) -> Any:
             for q in range(d0[s], d0[s + 1]):
                 i, j = obs[q], tgt[q]
                 advance(st, i, t)  # the observer moves to its group's stamp
-                res, why = screen_started(kind[q], i, j, t, t0, relative, lm_on)
+                res, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
                 if res == 0 and (kind[q] == ABSOLUTE or j <= NO_LANDMARK):
                     res, why = _private(st, i, kind[q], j, z[q], R[q], lxy, lcov, thr, gate)
                 elif res == 0:

@@ -1,0 +1,264 @@
+"""The compiled replays' formulas, written once: the numba loops and the JAX scans call the same functions.
+
+:func:`build` makes them for an array namespace ``xp`` and a compiler ``jit``: with :mod:`swarmloc.engine.numba_xp`
+and ``numba.njit`` they are scalar functions that numba compiles into the loops of :mod:`swarmloc.engine.joint`,
+:mod:`~swarmloc.engine.pairs`, :mod:`~swarmloc.engine.joint_clusters` and :mod:`~swarmloc.engine.numba_ops`; with
+``jax.numpy`` (no ``jit``: the scan is jitted whole) they act elementwise inside :mod:`swarmloc.engine.jax_replay`'s
+scans and :mod:`swarmloc.engine.jax_stamp`'s device stamp. Only the drivers differ: loops that branch and write in
+place, or scans that select (``where``) and return new arrays.
+
+A function here computes every branch it selects from (``xp.where``), as the JAX form must: a value a branch does
+not take may be ``inf`` or NaN and is dropped. The expressions are those the numba loops had (same operations, same
+order), so the numba replays give the same bits as before. Decisions are *rules* in the order the nodes apply them:
+:func:`rule` threads ``(outcome, reason, decided)`` through them, the first rule that holds deciding (codes of
+:mod:`swarmloc.engine.codes`). Units: metres, radians, seconds; angles wrapped to (-pi, pi].
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from functools import cache
+from types import ModuleType
+from typing import Any
+
+from swarmloc.engine.codes import (
+    ABSOLUTE,
+    GATED,
+    NO_LANDMARK,
+    POSE,
+    R_LANDMARKS_OFF,
+    R_NO_LANDMARK,
+    R_NONFINITE,
+    R_NOT_STARTED,
+    R_OBSERVER,
+    R_OFF,
+    R_SELF,
+    R_TEAM,
+    R_UNUSABLE,
+    REJECTED,
+    UNKNOWN,
+    UNKNOWN_ROBOT,
+    UNUSABLE,
+)
+from swarmloc.events import Kind
+from swarmloc.kernels.ci import W_BOUNDS, WEIGHT_GRID
+from swarmloc.sensors.models import KIND_ORDER
+
+RANGE_BEARING, RANGE, BEARING = KIND_ORDER[Kind.RANGE_BEARING], KIND_ORDER[Kind.RANGE], KIND_ORDER[Kind.BEARING]
+_PI = math.pi
+_TAU = 2 * math.pi
+_W_LO, _W_HI = W_BOUNDS
+W_STEP = (_W_HI - _W_LO) / (WEIGHT_GRID - 1)
+"""The spacing of the covariance-intersection weight's grid (:func:`swarmloc.kernels.ci.joint_weight`)."""
+
+
+def _plain(fn: Callable[..., Any]) -> Callable[..., Any]:
+    return fn
+
+
+@cache
+def build(xp: Any, jit: Any = _plain) -> Any:
+    """The formulas for namespace ``xp``, each compiled by ``jit`` (see the module docstring), as the attributes
+    of a module object (numba compiles a module's attribute as it compiles a global of its own)."""
+    out = ModuleType(f"{__name__}[{getattr(xp, '__name__', xp)}]")
+    for part in (_decisions, _geometry, _weights):
+        out.__dict__.update(part(xp, jit))
+    return out
+
+
+def _decisions(xp: Any, jit: Any) -> dict[str, Any]:
+    """The rules: screening before a state is read, the gate after an update."""
+
+    @jit
+    def rule(d: tuple, cond: Any, outcome: Any, reason: Any) -> tuple:
+        """``d = (outcome, reason, decided)`` after one more rule: ``cond`` decides unless an earlier rule did."""
+        st, why, done = d
+        take = xp.logical_and(cond, xp.logical_not(done))
+        return xp.where(take, outcome, st), xp.where(take, reason, why), xp.logical_or(done, cond)
+
+    @jit
+    def decided(d: tuple, otherwise: Any) -> tuple:
+        """``(outcome, reason)`` of the rules ``d``: the deciding rule's, or ``(otherwise, 0)``."""
+        return xp.where(d[2], d[0], otherwise), xp.where(d[2], d[1], 0)
+
+    @jit
+    def landmark_rules(kind: Any, j: Any, lm_on: Any) -> tuple:
+        """The replays' first rules: an absolute fix goes on; a landmark's detection (target code ``j <=
+        NO_LANDMARK``) is refused with landmarks off, unknown when not in the map, else goes on."""
+        lm = j <= NO_LANDMARK
+        d = (0, 0, kind == ABSOLUTE)
+        d = rule(d, xp.logical_and(lm, xp.logical_not(lm_on)), REJECTED, R_LANDMARKS_OFF)
+        d = rule(d, j == NO_LANDMARK, UNKNOWN, R_NO_LANDMARK)
+        return rule(d, lm, 0, 0)
+
+    @jit
+    def screen_central(kind: Any, i: Any, j: Any, relative: Any, lm_on: Any) -> tuple:
+        """``(outcome, reason)`` a centralized node decides before reading a state (``(0, 0)``: go on), its
+        ``_classify`` as codes: observer ``i``, target code ``j``."""
+        d = landmark_rules(kind, j, lm_on)
+        d = rule(d, j == UNKNOWN_ROBOT, xp.where(relative, UNKNOWN, REJECTED), xp.where(relative, R_TEAM, R_OFF))
+        d = rule(d, j < 0, REJECTED, R_UNUSABLE)
+        d = rule(d, xp.logical_not(relative), REJECTED, R_OFF)
+        d = rule(d, j == i, REJECTED, R_SELF)
+        return d[0], d[1]
+
+    @jit
+    def screen_started(kind: Any, i: Any, j: Any, t: Any, t0: Any, relative: Any, lm_on: Any) -> tuple:
+        """As :func:`screen_central` for the distributed nodes (:meth:`~swarmloc.node.base.Node._classify`): a
+        teammate answers only from its start ``t0[j]`` [s] on (``t0`` every robot's)."""
+        started = t >= t0[xp.maximum(j, 0)]
+        d = landmark_rules(kind, j, lm_on)
+        d = rule(d, j == UNUSABLE, REJECTED, R_UNUSABLE)  # worded from the detection by the caller
+        d = rule(d, xp.logical_not(relative), REJECTED, R_OFF)
+        d = rule(d, j == UNKNOWN_ROBOT, UNKNOWN, R_TEAM)
+        d = rule(d, j == i, REJECTED, R_SELF)
+        d = rule(d, xp.logical_not(started), UNKNOWN, R_NOT_STARTED)
+        return d[0], d[1]
+
+    @jit
+    def screen_stamp(kind: Any, i: Any, j: Any, observer_on: Any, target_on: Any, relative: Any,
+                     lm_on: Any) -> tuple:  # fmt: skip
+        """The engine's screening of one detection of a stamp (:func:`swarmloc.engine.outcomes.screen`):
+        ``(outcome, reason, needs)``, ``needs`` whether it is pending and asks robot ``j`` for its state;
+        ``observer_on``, ``target_on``: whether the observer and (a robot) target have started."""
+        lm = xp.logical_and(j <= NO_LANDMARK, kind != ABSOLUTE)
+        robot = xp.logical_and(kind != ABSOLUTE, xp.logical_not(lm))
+        d = (0, 0, False)
+        d = rule(d, xp.logical_not(observer_on), REJECTED, R_OBSERVER)
+        d = rule(d, xp.logical_and(robot, xp.logical_not(relative)), REJECTED, R_OFF)
+        d = rule(d, xp.logical_and(lm, xp.logical_not(lm_on)), REJECTED, R_LANDMARKS_OFF)
+        d = rule(d, xp.logical_and(lm, j == NO_LANDMARK), UNKNOWN, R_NO_LANDMARK)
+        d = rule(d, xp.logical_and(lm, kind == POSE), REJECTED, R_UNUSABLE)  # a point has no heading
+        d = rule(d, xp.logical_and(robot, j == UNUSABLE), REJECTED, R_UNUSABLE)
+        d = rule(d, xp.logical_and(robot, j == i), REJECTED, R_SELF)
+        d = rule(d, xp.logical_and(robot, j < 0), UNKNOWN, R_TEAM)
+        d = rule(d, xp.logical_and(robot, xp.logical_not(target_on)), UNKNOWN, R_NOT_STARTED)
+        return d[0], d[1], xp.logical_and(robot, xp.logical_not(d[2]))
+
+    @jit
+    def gate_rules(d: tuple, nis: Any, threshold: Any, gate: Any) -> tuple:
+        """The gate's rules after an update (:func:`swarmloc.node.update.gated_kalman`): with the gate on, a
+        non-finite normalized innovation squared ``nis`` is rejected, one above ``threshold`` gated."""
+        d = rule(d, xp.logical_and(gate, xp.logical_not(xp.isfinite(nis))), REJECTED, R_NONFINITE)
+        return rule(d, xp.logical_and(gate, nis > threshold), GATED, 0)
+
+    return {k: v for k, v in locals().items() if k not in ("xp", "jit")}
+
+
+def _geometry(xp: Any, jit: Any) -> dict[str, Any]:
+    """Angles, measurements, the invariant filters' noise and correction."""
+
+    @jit
+    def wrap(a: Any) -> Any:
+        """An angle [rad] wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`)."""
+        return _PI - xp.mod(_PI - a, _TAU)
+
+    @jit
+    def pick6(c: Any, a: tuple, b: tuple) -> tuple:
+        return (xp.where(c, a[0], b[0]), xp.where(c, a[1], b[1]), xp.where(c, a[2], b[2]), xp.where(c, a[3], b[3]),
+                xp.where(c, a[4], b[4]), xp.where(c, a[5], b[5]))  # fmt: skip
+
+    @jit
+    def measure(kind: Any, x0: Any, y0: Any, th: Any, xk: tuple, z: tuple) -> tuple:
+        """Residual ``r (3)``, Jacobian rows ``H (3 x 6)`` (the observer's columns, then the target's) and the
+        entries ``(cos, sin)`` of the rotation ``B(z)`` that makes a relative pose's noise Cartesian, of a
+        detection of ``kind`` by the robot at ``(x0, y0, th)`` of a target at ``xk = (x, y, theta)``, measured
+        ``z`` (:mod:`swarmloc.sensors.models`: predictions, residuals wrapped). A 1- or 2-row measurement (range,
+        bearing; range-bearing) fills the first rows, the rest zero."""
+        dx, dy = xk[0] - x0, xk[1] - y0
+        c, s = xp.cos(th), xp.sin(th)
+        bx, by = c * dx + s * dy, -s * dx + c * dy
+        q = dx * dx + dy * dy
+        rng = xp.sqrt(q)
+        look = wrap(xp.arctan2(by, bx))
+        h_rng = (-dx / rng, -dy / rng, 0.0, dx / rng, dy / rng, 0.0)
+        h_brg = (dy / q, -dx / q, -1.0, -dy / q, dx / q, 0.0)
+        zero = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        is_abs, is_pose, is_rb = kind == ABSOLUTE, kind == POSE, kind == RANGE_BEARING
+        one = pick6(kind == RANGE, h_rng, h_brg)  # a 1-row measurement's row
+        h0 = pick6(is_abs, (1.0, 0.0, 0.0, 0.0, 0.0, 0.0), pick6(is_pose, (-c, -s, by, c, s, 0.0),
+                                                                   pick6(is_rb, h_rng, one)))  # fmt: skip
+        h1 = pick6(is_abs, (0.0, 1.0, 0.0, 0.0, 0.0, 0.0), pick6(is_pose, (s, -c, -bx, -s, c, 0.0),
+                                                                   pick6(is_rb, h_brg, zero)))  # fmt: skip
+        h2 = pick6(is_abs, (0.0, 0.0, 1.0, 0.0, 0.0, 0.0), pick6(is_pose, (0.0, 0.0, -1.0, 0.0, 0.0, 1.0), zero))
+        r0 = xp.where(is_abs, z[0] - x0, xp.where(is_pose, z[0] - bx, xp.where(kind == BEARING, wrap(z[0] - look),
+                                                                                  z[0] - rng)))  # fmt: skip
+        r1 = xp.where(is_abs, z[1] - y0, xp.where(is_pose, z[1] - by, xp.where(is_rb, wrap(z[1] - look), 0.0)))
+        r2 = xp.where(is_abs, wrap(z[2] - th), xp.where(is_pose, wrap(z[2] - wrap(xk[2] - th)), 0.0))
+        return (r0, r1, r2), (h0, h1, h2), (xp.cos(z[2]), xp.sin(z[2]))
+
+    @jit
+    def world_noise(x: Any, y: Any, q: tuple) -> tuple:
+        """A step's Cartesian process noise (upper triangle ``q00, q01, q02, q11, q12, q22``) at the new pose ``(x,
+        y)`` as the world-frame error's, ``N^-1 Q N^-T`` (:func:`swarmloc.kernels.invariant.cartesian_to_world_cov`;
+        the products of :class:`swarmloc.estimators.InvariantEKF`'s prediction), upper triangle."""
+        q00, q01, q02, q11, q12, q22 = q
+        a02, a12 = q02 + y * q22, q12 - x * q22
+        return (q00 + 2 * y * q02 + y * y * q22, q01 - x * q02 + y * a12, a02, q11 - 2 * x * q12 + x * x * q22, a12,
+                q22)  # fmt: skip
+
+    @jit
+    def left_correct(x: Any, y: Any, th: Any, d0: Any, d1: Any, d2: Any) -> tuple:
+        """The pose ``(x, y, th)`` corrected by its world-frame ``(d0, d1, d2)``: the Cartesian pose of ``exp(hat(d))
+        g`` (:func:`swarmloc.kernels.invariant.left_correct`; the Taylor branches of :func:`swarmloc.lie.SE2.exp`
+        below 0.05)."""
+        c, s = xp.cos(d2), xp.sin(d2)
+        t2 = d2 * d2
+        near = xp.abs(d2) < 0.05
+        safe = xp.where(near, 1.0, d2)
+        A = xp.where(near, (((t2 / 362880.0 - 1.0 / 5040.0) * t2 + 1.0 / 120.0) * t2 - 1.0 / 6.0) * t2 + 1.0,
+                     xp.sin(safe) / safe)  # fmt: skip
+        B = xp.where(near, d2 * ((((t2 / 3628800.0 - 1.0 / 40320.0) * t2 + 1.0 / 720.0) * t2 - 1.0 / 24.0) * t2 + 0.5),
+                     safe * (2.0 * xp.sin(safe / 2) ** 2 / (safe * safe)))  # fmt: skip
+        ct, st = xp.cos(th), xp.sin(th)
+        return (c * x - s * y + (A * d0 - B * d1), s * x + c * y + (B * d0 + A * d1),
+                wrap(xp.arctan2(s * ct + c * st, c * ct - s * st)))  # fmt: skip
+
+    return {k: v for k, v in locals().items() if k not in ("xp", "jit")}
+
+
+def _weights(xp: Any, jit: Any) -> dict[str, Any]:
+    """Covariance intersection's weight: its cost on a grid and the refinement of the best point."""
+
+    @jit
+    def det3(s: tuple) -> Any:
+        """Determinant of the 3x3 ``s`` (rows of entries) by cofactors of the first row."""
+        return (s[0][0] * (s[1][1] * s[2][2] - s[1][2] * s[2][1]) - s[0][1] * (s[1][0] * s[2][2] - s[1][2] * s[2][0])
+                + s[0][2] * (s[1][0] * s[2][1] - s[1][1] * s[2][0]))  # fmt: skip
+
+    @jit
+    def plus(X: tuple, Y: tuple, k: Any) -> tuple:
+        """``X + Y / k`` of 3x3 rows of entries."""
+        return ((X[0][0] + Y[0][0] / k, X[0][1] + Y[0][1] / k, X[0][2] + Y[0][2] / k),
+                (X[1][0] + Y[1][0] / k, X[1][1] + Y[1][1] / k, X[1][2] + Y[1][2] / k),
+                (X[2][0] + Y[2][0] / k, X[2][1] + Y[2][1] / k, X[2][2] + Y[2][2] / k))  # fmt: skip
+
+    @jit
+    def ci_cost(w: Any, A: tuple, B: tuple, R: tuple, dof: Any) -> Any:
+        """The cost :func:`swarmloc.kernels.ci.joint_weight` minimizes at weight ``w``, ``-dof log w - log det(S_w +
+        A / w) + log det S_w`` with ``S_w = R + B / (1 - w)`` (3x3 rows of entries; a 1- or 2-row measurement padded
+        with rows of the identity in ``R``, of zeros in ``A`` and ``B``: they add ``log 1``), ``inf`` where not
+        finite."""
+        S = plus(R, B, 1 - w)
+        d1, d0 = det3(plus(S, A, w)), det3(S)
+        v = -dof * xp.log(w) - xp.log(xp.where(d1 > 0, d1, math.nan)) + xp.log(xp.where(d0 > 0, d0, math.nan))
+        return xp.where(xp.isfinite(v), v, math.inf)
+
+    @jit
+    def ci_grid(k: Any) -> Any:
+        """Point ``k`` of the weight's grid (``numpy.linspace``'s)."""
+        return xp.where(k == WEIGHT_GRID - 1, _W_HI, k * W_STEP + _W_LO)
+
+    @jit
+    def ci_vertex(j: Any, c0: Any, c1: Any, c2: Any) -> Any:
+        """The weight from the grid's best point ``j`` and its neighbours' costs ``c0, c1, c2``: the vertex of their
+        parabola, within one grid step, inside the bounds."""
+        den = c0 - 2 * c1 + c2
+        inner = xp.logical_and(xp.logical_and(xp.logical_and(j > 0, j < WEIGHT_GRID - 1), xp.isfinite(c0 + c1 + c2)),
+                               den > 0)  # fmt: skip
+        shift = xp.where(inner, xp.minimum(xp.maximum(0.5 * W_STEP * (c0 - c2) / xp.where(inner, den, 1.0), -W_STEP),
+                                           W_STEP), 0.0)  # fmt: skip
+        return xp.minimum(xp.maximum(_W_LO + W_STEP * j + shift, _W_LO), _W_HI)
+
+    return {k: v for k, v in locals().items() if k not in ("xp", "jit")}
