@@ -164,14 +164,17 @@ def test_zenoh_reassembles_no_message_over_its_bound():
     done = threading.Event()
     try:
         sub = a.declare_subscriber("t/x", lambda x: (got.append(len(x.payload)), done.set()))
-        end = time.monotonic() + 10
-        while not list(b.info.peers_zid()) and time.monotonic() < end:
-            time.sleep(0.05)
-        time.sleep(0.3)  # the subscription reaches the peer
+        reached = threading.Event()  # a probe declared after t/x: once it is delivered, so would t/x's be
+        probe = a.declare_subscriber("t/probe", lambda x: reached.set())
+        end = time.monotonic() + 20
+        while not reached.is_set() and time.monotonic() < end:
+            b.put("t/probe", b"p")
+            reached.wait(0.1)
+        assert reached.is_set(), "the subscriptions never reached the other peer"
         b.put("t/x", b"a" * (MAX_MESSAGE + 1024 * 1024))
         b.put("t/x", b"b" * (1024 * 1024))
-        assert done.wait(10)
-        time.sleep(0.5)
+        assert done.wait(10)  # one link, in order: had the 3 MiB message been delivered, it would be first
+        probe.undeclare()
         sub.undeclare()
     finally:
         b.close()
