@@ -56,6 +56,9 @@ from swarmloc.motion import _stable
 T = Any
 """A float or an array (numpy or jax.numpy) of them."""
 
+Floats = np.ndarray | float
+"""A float or a numpy array of them; a function's arguments broadcast together."""
+
 
 def _arr(*xs: object) -> list[np.ndarray]:
     return list(np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in xs)))
@@ -71,7 +74,7 @@ def _sym(*entries: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ straight line (5.5, 5.6)
-def straight_line_mean(v: np.ndarray | float, t: np.ndarray | float) -> np.ndarray:
+def straight_line_mean(v: Floats, t: Floats) -> np.ndarray:
     """Eq. (5.5): ``[[1, 0, v t], [0, 1, 0], [0, 0, 1]]``, ``(..., 3, 3)``."""
     v, t = _arr(v, t)
     g = np.zeros((*v.shape, 3, 3))
@@ -80,27 +83,21 @@ def straight_line_mean(v: np.ndarray | float, t: np.ndarray | float) -> np.ndarr
     return g
 
 
-def straight_line_cov(
-    v: np.ndarray | float,
-    t: np.ndarray | float,
-    q_v: np.ndarray | float,
-    q_w: np.ndarray | float,
-    q_lat: np.ndarray | float = 0.0,
-) -> np.ndarray:
+def straight_line_cov(v: Floats, t: Floats, q_v: Floats, q_w: Floats, q_lat: Floats = 0.0) -> np.ndarray:
     """Eq. (5.6) generalized: covariance of a straight run at speed ``v`` for ``t`` s, ``Q = diag(q_v, q_lat, q_w)``."""
     v, t, q_v, q_w, q_lat = _arr(v, t, q_v, q_w, q_lat)
     z = np.zeros(v.shape)
     return _sym(q_v * t, z, z, q_lat * t + q_w * v * v * t**3 / 3, q_w * v * t * t / 2, q_w * t)
 
 
-def thesis_straight_cov(D: float, r: float, l: float, w: np.ndarray | float, t: np.ndarray | float) -> np.ndarray:
+def thesis_straight_cov(D: float, r: float, l: float, w: Floats, t: Floats) -> np.ndarray:
     """Eq. (5.6) in the thesis' notation: both wheels at ``w`` [rad/s] (``v = r w``)."""
     w = np.asarray(w, dtype=float)
     return straight_line_cov(r * w, t, D * r * r / 2, 2 * D * r * r / (l * l))
 
 
 # ------------------------------------------------------------------ circular arc (5.7, 5.8, corrected 5.9)
-def circular_mean(v: np.ndarray | float, omega: np.ndarray | float, t: np.ndarray | float) -> np.ndarray:
+def circular_mean(v: Floats, omega: Floats, t: Floats) -> np.ndarray:
     """Eq. (5.7): arc of radius ``a = v/omega`` turned by ``theta = omega t`` (``omega != 0``), ``(..., 3, 3)``."""
     v, omega, t = _arr(v, omega, t)
     th = omega * t
@@ -113,14 +110,7 @@ def circular_mean(v: np.ndarray | float, omega: np.ndarray | float, t: np.ndarra
     return g
 
 
-def circular_cov(
-    v: np.ndarray | float,
-    omega: np.ndarray | float,
-    t: np.ndarray | float,
-    q_v: np.ndarray | float,
-    q_w: np.ndarray | float,
-    q_lat: np.ndarray | float = 0.0,
-) -> np.ndarray:
+def circular_cov(v: Floats, omega: Floats, t: Floats, q_v: Floats, q_w: Floats, q_lat: Floats = 0.0) -> np.ndarray:
     """Corrected eq. (5.9) for twist ``(v, 0, omega)``, ``omega != 0``, ``Q = diag(q_v, q_lat, q_w)`` (module doc).
 
     Direct trigonometric form: loses accuracy to cancellation as ``omega t -> 0``; use
@@ -141,9 +131,7 @@ def circular_cov(
     return _sym(S11, S12, S13, S22, S23, S33)
 
 
-def thesis_circular_cov(
-    D: float, r: float, l: float, a: np.ndarray | float, alpha_dot: np.ndarray | float, t: np.ndarray | float
-) -> np.ndarray:
+def thesis_circular_cov(D: float, r: float, l: float, a: Floats, alpha_dot: Floats, t: Floats) -> np.ndarray:
     """Corrected eq. (5.9) written exactly in the thesis' notation (radius ``a``, yaw rate ``alpha_dot``)."""
     a, ad, t = _arr(a, alpha_dot, t)
     c = D * r * r / (l * l * ad)
@@ -164,7 +152,7 @@ _E_FIXED[1, 0, 0] = _E_FIXED[1, 1, 1] = 1.0  # E_c
 _E_FIXED[2, 0, 1], _E_FIXED[2, 1, 0] = 1.0, -1.0  # E_s
 
 
-def constant_twist_cov(h: np.ndarray, Q: np.ndarray, t: np.ndarray | float) -> np.ndarray:
+def constant_twist_cov(h: np.ndarray, Q: np.ndarray, t: Floats) -> np.ndarray:
     """Exact (5.4) for any constant twist ``h = (v1, v2, omega)`` ``(..., 3)``, symmetric ``Q`` ``(..., 3, 3)``.
 
     Stable for all ``omega`` including 0 (see module doc). Returns ``(..., 3, 3)``.
@@ -186,14 +174,7 @@ def constant_twist_cov(h: np.ndarray, Q: np.ndarray, t: np.ndarray | float) -> n
     return np.einsum("...ij,...iab,...jcb->...ac", G, EQ, E)
 
 
-def unicycle_cov(
-    v: np.ndarray | float,
-    omega: np.ndarray | float,
-    t: np.ndarray | float,
-    q_v: np.ndarray | float,
-    q_w: np.ndarray | float,
-    q_lat: np.ndarray | float = 0.0,
-) -> np.ndarray:
+def unicycle_cov(v: Floats, omega: Floats, t: Floats, q_v: Floats, q_w: Floats, q_lat: Floats = 0.0) -> np.ndarray:
     """(5.4) for twist ``(v, 0, omega)`` and ``Q = diag(q_v, q_lat, q_w)``, stable for all ``omega`` (batched).
 
     Same as :func:`circular_cov` (and :func:`straight_line_cov` at ``omega = 0``) but cancellation-free.
@@ -255,7 +236,7 @@ def unicycle_increment_scalar(
     return mean, cov
 
 
-def increment_mean_closed(v: np.ndarray | float, omega: np.ndarray | float, t: np.ndarray | float) -> np.ndarray:
+def increment_mean_closed(v: Floats, omega: Floats, t: Floats) -> np.ndarray:
     """``exp(t (v, 0, omega))``: (5.5) for ``omega = 0``, (5.7) otherwise, stable in between."""
     v, omega, t = _arr(v, omega, t)
     return SE2.exp(np.stack([v * t, np.zeros(v.shape), omega * t], axis=-1), validate=False)
