@@ -9,6 +9,7 @@ two robots' true paths drift apart (and so whether they stay within the 1.5 m se
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TypedDict, Unpack
 
 import numpy as np
 
@@ -80,6 +81,7 @@ def thesis_two_robot(
     odom_rate: float = 10.0,
     sensor_rate: float = 10.0,
     zero_noise: bool = False,
+    absolute: AbsoluteSensor | None = None,
 ) -> SimResult:
     """Thesis sec. 5.2.2: robot 1 at ``[1, 1, 30 deg]``, robot 2 at ``[1, 2, 30 deg]`` (ids 1 and 2).
 
@@ -87,11 +89,24 @@ def thesis_two_robot(
     ``arc_radius`` = 2 m (yaw rate 0.2 rad/s) until ``duration``; mutual relative-pose measurements within 1.5 m,
     full circle, at ``sensor_rate`` Hz, position noise std ``noise_std`` (thesis: 0.01, 0.05, 0.1 m) and heading
     noise std ``sigma_theta`` (default ``2 * noise_std`` rad, an assumption: the thesis gives none). Identical
-    commands keep the noise-free robots exactly 1 m apart. Odometry at ``odom_rate`` Hz.
+    commands keep the noise-free robots exactly 1 m apart. Odometry at ``odom_rate`` Hz; ``absolute``: fixes, if any.
     """
     cfg = _thesis_config(noise_std, duration, D, sigma_theta, odom_rate, sensor_rate, zero_noise)
     sched = thesis_schedule(cfg.drive, speed, straight_time, arc_radius)
-    return simulate(THESIS_START, {1: sched, 2: sched}, cfg, seed)
+    return simulate(THESIS_START, {1: sched, 2: sched}, replace(cfg, absolute=absolute), seed)
+
+
+class ThesisOptions(TypedDict, total=False):
+    """The keyword options of :func:`thesis_two_robot` that :func:`thesis_ground_truth_neighbour` passes on."""
+
+    D: float
+    sigma_theta: float | None
+    speed: float
+    straight_time: float
+    arc_radius: float
+    odom_rate: float
+    sensor_rate: float
+    zero_noise: bool
 
 
 def thesis_ground_truth_neighbour(
@@ -99,17 +114,10 @@ def thesis_ground_truth_neighbour(
     seed: int = 0,
     duration: float = 500.0,
     *,
-    D: float = THESIS_ROS_D,
-    sigma_theta: float | None = None,
     fix_sigma_xy: float = 1e-3,
     fix_sigma_theta: float = 1e-3,
     fix_rate: float = 10.0,
-    speed: float = 0.4,
-    straight_time: float = 15.0,
-    arc_radius: float = 2.0,
-    odom_rate: float = 10.0,
-    sensor_rate: float = 10.0,
-    zero_noise: bool = False,
+    **options: Unpack[ThesisOptions],
 ) -> SimResult:
     """Thesis Figs 5.22-5.23: as :func:`thesis_two_robot` but ~500 s, and robot 2 is the 'ground-truth neighbour'.
 
@@ -117,13 +125,8 @@ def thesis_ground_truth_neighbour(
     ``fix_sigma_theta`` [rad], at ``fix_rate`` Hz); an estimator reproducing the thesis uses them as robot 2's
     belief (the thesis passes robot 2's ground truth to robot 1's localizer).
     """
-    cfg = _thesis_config(noise_std, duration, D, sigma_theta, odom_rate, sensor_rate, zero_noise)
-    cfg = replace(
-        cfg,
-        absolute=AbsoluteSensor(robots=(2,), rate=fix_rate, sigma_xy=fix_sigma_xy, sigma_theta=fix_sigma_theta),
-    )
-    sched = thesis_schedule(cfg.drive, speed, straight_time, arc_radius)
-    return simulate(THESIS_START, {1: sched, 2: sched}, cfg, seed)
+    fixes = AbsoluteSensor(robots=(2,), rate=fix_rate, sigma_xy=fix_sigma_xy, sigma_theta=fix_sigma_theta)
+    return thesis_two_robot(noise_std, seed, duration, absolute=fixes, **options)
 
 
 def random_team(
