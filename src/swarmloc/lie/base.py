@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from swarmloc.arrays import FloatArray
-from swarmloc.lie.checks import as_element, as_tangent
+from swarmloc.lie.checks import as_element, as_square, as_tangent
 
 
 class SEGroup:
@@ -49,12 +49,14 @@ class SEGroup:
         return cls.check_element(g, f"{cls.__name__}.{op}") if validate else np.asarray(g, dtype=float)
 
     # ----------------------------------------------------------------- to be provided by subclasses
-    @classmethod
-    def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:
+    @staticmethod
+    def rotation_hat(w: FloatArray) -> FloatArray:
+        """``(..., dim - n) -> (..., n, n)``: the rotation block of :meth:`hat`, from the angular part."""
         raise NotImplementedError
 
-    @classmethod
-    def vee(cls, X: FloatArray, validate: bool = True) -> FloatArray:
+    @staticmethod
+    def rotation_vee(W: FloatArray) -> FloatArray:
+        """``(..., n, n) -> (..., dim - n)``: inverse of :meth:`rotation_hat` (uses the antisymmetric part)."""
         raise NotImplementedError
 
     @classmethod
@@ -82,6 +84,25 @@ class SEGroup:
         raise NotImplementedError
 
     # ----------------------------------------------------------------- generic
+    @classmethod
+    def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:
+        """``(..., dim) -> (..., n+1, n+1)`` Lie-algebra matrix: :meth:`rotation_hat` of the angular part, and the
+        translational part as the last column."""
+        x = cls._tangent_arg(x, validate, "hat")
+        n = cls.n
+        X = np.zeros((*x.shape[:-1], n + 1, n + 1))
+        X[..., :n, :n] = cls.rotation_hat(x[..., n:])
+        X[..., :n, n] = x[..., :n]
+        return X
+
+    @classmethod
+    def vee(cls, X: FloatArray, validate: bool = True) -> FloatArray:
+        """``(..., n+1, n+1) -> (..., dim)``; inverse of :meth:`hat` (uses the antisymmetric part of the rotation
+        block)."""
+        n = cls.n
+        X = as_square(X, n + 1, f"{cls.__name__}.vee", "X") if validate else np.asarray(X, dtype=float)
+        return np.concatenate([X[..., :n, n], cls.rotation_vee(X[..., :n, :n])], axis=-1)
+
     @classmethod
     def identity(cls, batch_shape: tuple[int, ...] = ()) -> FloatArray:
         """Identity element(s) of shape ``batch_shape + (n+1, n+1)``."""

@@ -45,26 +45,18 @@ class SE2(SEGroup):
     dim = 3
     name = "SE(2)"
 
-    @classmethod
-    def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:
-        """``(..., 3) -> (..., 3, 3)`` Lie-algebra matrix."""
-        x = cls._tangent_arg(x, validate, "hat")
-        X = np.zeros((*x.shape[:-1], 3, 3))
-        X[..., 0, 1] = -x[..., 2]
-        X[..., 1, 0] = x[..., 2]
-        X[..., 0, 2] = x[..., 0]
-        X[..., 1, 2] = x[..., 1]
-        return X
+    @staticmethod
+    def rotation_hat(w: FloatArray) -> FloatArray:
+        """``(..., 1) -> (..., 2, 2)``: ``[[0, -w], [w, 0]]``."""
+        W = np.zeros((*w.shape[:-1], 2, 2))
+        W[..., 0, 1] = -w[..., 0]
+        W[..., 1, 0] = w[..., 0]
+        return W
 
-    @classmethod
-    def vee(cls, X: FloatArray, validate: bool = True) -> FloatArray:
-        """``(..., 3, 3) -> (..., 3)``; inverse of :meth:`hat` (uses the antisymmetric part of the rotation block)."""
-        if validate:
-            from swarmloc.lie.checks import as_square
-
-            X = as_square(X, 3, "SE2.vee", "X")
-        X = np.asarray(X, dtype=float)
-        return np.stack([X[..., 0, 2], X[..., 1, 2], 0.5 * (X[..., 1, 0] - X[..., 0, 1])], axis=-1)
+    @staticmethod
+    def rotation_vee(W: FloatArray) -> FloatArray:
+        """``(..., 2, 2) -> (..., 1)``: the angle of the antisymmetric part."""
+        return 0.5 * (W[..., 1, 0] - W[..., 0, 1])[..., None]
 
     @classmethod
     def exp(cls, x: FloatArray, validate: bool = True) -> FloatArray:

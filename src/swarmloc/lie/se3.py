@@ -107,24 +107,8 @@ class SE3(SEGroup):
     dim = 6
     name = "SE(3)"
 
-    @classmethod
-    def hat(cls, x: FloatArray, validate: bool = True) -> FloatArray:
-        """``(..., 6) -> (..., 4, 4)``."""
-        x = cls._tangent_arg(x, validate, "hat")
-        X = np.zeros((*x.shape[:-1], 4, 4))
-        X[..., :3, :3] = skew(x[..., 3:])
-        X[..., :3, 3] = x[..., :3]
-        return X
-
-    @classmethod
-    def vee(cls, X: FloatArray, validate: bool = True) -> FloatArray:
-        """``(..., 4, 4) -> (..., 6)``; inverse of :meth:`hat`."""
-        if validate:
-            from swarmloc.lie.checks import as_square
-
-            X = as_square(X, 4, "SE3.vee", "X")
-        X = np.asarray(X, dtype=float)
-        return np.concatenate([X[..., :3, 3], unskew(X[..., :3, :3])], axis=-1)
+    rotation_hat = staticmethod(skew)
+    rotation_vee = staticmethod(unskew)
 
     @classmethod
     def exp(cls, x: FloatArray, validate: bool = True) -> FloatArray:
