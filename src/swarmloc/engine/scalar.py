@@ -37,6 +37,15 @@ def _s(a: Any) -> str:
     return repr(float(a))
 
 
+def _operator(op: str, reflected: bool = False) -> Callable[[_Sym, Any], _Sym]:
+    """:class:`_Sym`'s method for the binary operator ``op`` (``reflected``: the ``__r*__`` one, ``other op self``)."""
+
+    def method(self: _Sym, o: Any) -> _Sym:
+        return self._op(op, o, reflected)
+
+    return method
+
+
 class _Sym:
     """A traced scalar: operations emit assignments."""
 
@@ -50,47 +59,18 @@ class _Sym:
         a, c = (other, self) if rev else (self, other)
         return self.b.emit(f"{_s(a)} {op} {_s(c)}")
 
-    def __add__(self, o: Any) -> _Sym:
-        return self._op("+", o)
-
-    def __radd__(self, o: Any) -> _Sym:
-        return self._op("+", o, True)
-
-    def __sub__(self, o: Any) -> _Sym:
-        return self._op("-", o)
-
-    def __rsub__(self, o: Any) -> _Sym:
-        return self._op("-", o, True)
-
-    def __mul__(self, o: Any) -> _Sym:
-        return self._op("*", o)
-
-    def __rmul__(self, o: Any) -> _Sym:
-        return self._op("*", o, True)
-
-    def __truediv__(self, o: Any) -> _Sym:
-        return self._op("/", o)
-
-    def __rtruediv__(self, o: Any) -> _Sym:
-        return self._op("/", o, True)
+    __add__, __radd__ = _operator("+"), _operator("+", True)
+    __sub__, __rsub__ = _operator("-"), _operator("-", True)
+    __mul__, __rmul__ = _operator("*"), _operator("*", True)
+    __truediv__, __rtruediv__ = _operator("/"), _operator("/", True)
+    __lt__, __gt__, __and__ = _operator("<"), _operator(">"), _operator("and")
+    __eq__ = _operator("==")  # type: ignore[assignment]
 
     def __neg__(self) -> _Sym:
         return self.b.emit(f"-{self.name}")
 
     def __abs__(self) -> _Sym:
         return self.b.emit(f"abs({self.name})")
-
-    def __lt__(self, o: Any) -> _Sym:
-        return self._op("<", o)
-
-    def __gt__(self, o: Any) -> _Sym:
-        return self._op(">", o)
-
-    def __eq__(self, o: Any) -> _Sym:  # type: ignore[override]
-        return self._op("==", o)
-
-    def __and__(self, o: Any) -> _Sym:
-        return self._op("and", o)
 
 
 class _XP:
