@@ -407,25 +407,25 @@ class Forwarder:
         self._seq += 1
         return seal(self.auth, key, encode(self.team, self.robot, self._seq, body))
 
-    def _on_report(self, x: Any) -> None:
+    def _from_server(self, x: Any, key: str) -> Any:
+        """The body of sample ``x`` on the server's ``key`` when the server sent it (None otherwise); a refused one
+        is counted ``rejected`` and logged."""
         try:
             env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster)
         except Rejected as exc:
             self.counts["rejected"] += 1
-            log.warning("robot %s: refused a message on the server's report key: %s", self.robot, exc.reason)
-            return
-        if env.from_robot == SERVER and isinstance(env.body, Report):
+            log.warning("robot %s: refused a message on the server's %s key: %s", self.robot, key, exc.reason)
+            return None
+        return env.body if env.from_robot == SERVER else None
+
+    def _on_report(self, x: Any) -> None:
+        if isinstance(self._from_server(x, "report"), Report):
             self._server_done.set()
 
     def _on_ack(self, x: Any) -> None:
-        try:
-            env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster)
-        except Rejected as exc:
-            self.counts["rejected"] += 1
-            log.warning("robot %s: refused a message on the server's ack key: %s", self.robot, exc.reason)
-            return
-        if env.from_robot == SERVER and isinstance(env.body, RawAck) and env.body.robot == self.robot:
-            self._asked.put(env.body)
+        body = self._from_server(x, "ack")
+        if isinstance(body, RawAck) and body.robot == self.robot:
+            self._asked.put(body)
 
     def _resend(self, key: str) -> None:
         """Send again the forwards the server asked for (those still kept; the others stay lost)."""
