@@ -16,9 +16,9 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Container, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -28,14 +28,7 @@ from swarmloc.events import Event, Odometry
 from swarmloc.net.auth import Auth, open_envelope
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import SERVER, Belief, MapAnswer, Rejected, Report
-from swarmloc.net.timeouts import (
-    ANSWER_RETRIES,
-    ANSWER_TIMEOUT,
-    HOLD_TIMEOUT,
-    LOST_TIMEOUT,
-    START_TIMEOUT,
-    UPDATE_TIMEOUT,
-)
+from swarmloc.net.timeouts import LOST_TIMEOUT, START_TIMEOUT, Waits
 from swarmloc.net.transport import open_session, server_key, team_scope
 
 log = logging.getLogger(__name__)
@@ -146,12 +139,6 @@ def node_main(
     resume: bool = False,
     faults: str | Faults | None = None,
     wait_for: Sequence[int] | None = None,
-    answer_timeout: float = ANSWER_TIMEOUT,
-    hold_timeout: float = HOLD_TIMEOUT,
-    update_timeout: float = UPDATE_TIMEOUT,
-    answer_retries: int = ANSWER_RETRIES,
-    start_timeout: float = START_TIMEOUT,
-    lost_timeout: float = LOST_TIMEOUT,
     ros_domain: int | None = None,
     max_wall: float | None = None,
     out: str | os.PathLike[str] | None = None,
@@ -159,12 +146,14 @@ def node_main(
     run_id: str | None = None,
     live: Any = None,
     view: Any = None,
+    **waits: Unpack[Waits],
 ) -> Report:
     """Run robot ``robot`` of ``src`` as one Zenoh peer until the team is done; returns its report. With
     ``out``: also write ``robot<N>.tum`` (its final beliefs) and ``robot<N>.json`` (its report) there.
 
-    The timeouts [s] are :class:`~swarmloc.net.process.NetNode`'s; ``max_wall`` [s] stops the node whatever its
-    state (None: no limit). ``auth``: robot ``robot``'s key and the team's roster (None: unauthenticated);
+    ``waits``: the timeouts [s] and ``answer_retries`` of :class:`~swarmloc.net.process.NetNode`
+    (:class:`~swarmloc.net.timeouts.Waits`); ``max_wall`` [s] stops the node whatever its state (None: no limit).
+    ``auth``: robot ``robot``'s key and the team's roster (None: unauthenticated);
     ``run_id``: the run's id in every key (:func:`~swarmloc.net.transport.team_scope`). ``live``: read the robot's
     inputs live, not ``src``'s events: ``live(session, robot, t0) -> (feed, close)``
     (:func:`swarmloc.live.source.live_inputs`; ``src`` still gives the team, initial beliefs and record times).
@@ -182,8 +171,9 @@ def node_main(
             raise ValueError(f"a live source needs a distributed estimator, not the server-hosted {estimator!r}")
         if resume or use_server:
             log.info("robot %s: --resume and --use-server do not apply to a server-hosted estimator", robot)
-        return _forward(src, robot, team, listen, connect, zenoh_config, faults, speed, start_timeout, lost_timeout,
-                        max_wall, out, auth, run_id)  # fmt: skip
+        return _forward(src, robot, team, listen, connect, zenoh_config, faults, speed,
+                        waits.get("start_timeout", START_TIMEOUT), waits.get("lost_timeout", LOST_TIMEOUT), max_wall,
+                        out, auth, run_id)  # fmt: skip
     session = open_session(listen, connect, zenoh_config)
     finals: dict[float, Belief] = {}
     close_live = None
@@ -191,11 +181,9 @@ def node_main(
         node, events, record_times = _start(session, src, robot, team, estimator, resume, auth, scope)
         faults = parse_faults(faults) if isinstance(faults, str | None) else faults
         events, close_live = _inputs(live, session, robot, node, events, faults, resume)
-        settings = NetSettings(run_id=run_id, speed=speed, lag=lag, answer_timeout=answer_timeout,
-                               hold_timeout=hold_timeout, update_timeout=update_timeout, answer_retries=answer_retries,
-                               start_timeout=start_timeout, lost_timeout=lost_timeout, use_server=use_server,
-                               faults=faults, wait_for=None if wait_for is None else frozenset(wait_for),
-                               ros_domain=ros_domain)  # fmt: skip
+        settings = NetSettings(run_id=run_id, speed=speed, lag=lag, use_server=use_server, faults=faults,
+                               wait_for=None if wait_for is None else frozenset(wait_for), ros_domain=ros_domain,
+                               **waits)  # fmt: skip
         net = NetNode(node, events, session=session, team=team, roster=src.robots, record_times=record_times,
                       settings=settings, on_belief=lambda b: _on_belief(b, finals, view),
                       on_lines=None if view is None else view.observe, auth=auth,
@@ -230,6 +218,24 @@ def _on_belief(b: Belief, finals: dict[float, Belief], view: Any) -> None:
         view.observe(b)
 
 
+def map_answers(session: Any, scope: str, team: str, roster: Container[int], auth: Auth | None,
+                refused: Callable[[str], object]) -> Iterator[MapAnswer]:  # fmt: skip
+    """The belief server's answers to one ``?map`` query of ``session`` in ``scope``, as they come: those the server
+    sent (signed, with ``auth``); ``refused(reason)`` for each reply refused."""
+    import zenoh
+
+    for reply in session.get(f"{server_key(scope)}?map", timeout=1.0, target=zenoh.QueryTarget.ALL):
+        if reply.ok is None:
+            continue
+        try:
+            env = open_envelope(auth, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), team, roster)
+        except Rejected as exc:
+            refused(exc.reason)
+            continue
+        if env.from_robot == SERVER and isinstance(env.body, MapAnswer):
+            yield env.body
+
+
 class _MapPoller(threading.Thread):
     """Asks the belief server for its map every ``every`` s [wall] and shows each answer (signed by the server when
     ``auth``) in ``view``; :meth:`finish` asks once more (the lines of the node's end) and stops it."""
@@ -244,26 +250,18 @@ class _MapPoller(threading.Thread):
         self.start()
 
     def ask(self) -> None:
-        import zenoh
-
         try:
-            replies = list(self.session.get(f"{server_key(self.scope)}?map", timeout=1.0,
-                                            target=zenoh.QueryTarget.ALL))  # fmt: skip
+            answers = list(map_answers(self.session, self.scope, self.team, self.roster, self.auth, self.refused))
         except Exception as exc:  # noqa: BLE001 - a closed session or a network error: the view only misses a map
             log.debug("map poller: %s", exc)
             return
-        for reply in replies:
-            if reply.ok is None:
-                continue
-            try:
-                env = open_envelope(self.auth, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), self.team,
-                                    self.roster)  # fmt: skip
-            except Rejected as exc:
-                log.warning("map poller: refused a reply: %s", exc.reason)
-                continue
-            if env.from_robot == SERVER and isinstance(env.body, MapAnswer):
-                self.view.show_map(env.body)
-                self.answers += 1
+        for answer in answers:
+            self.view.show_map(answer)
+            self.answers += 1
+
+    @staticmethod
+    def refused(reason: str) -> None:
+        log.warning("map poller: refused a reply: %s", reason)
 
     def run(self) -> None:
         while not self.stopped.wait(self.every):

@@ -30,27 +30,19 @@ from collections.abc import Callable, Iterable, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
 from swarmloc.datasets.source import Source
 from swarmloc.events import Detection
 from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
-from swarmloc.net.entry import hosted_class, network_class
+from swarmloc.net.entry import hosted_class, map_answers, network_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.intake import COLLECTOR_BUDGET, Intake, vouch_for
 from swarmloc.net.pairing import attach
 from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
-from swarmloc.net.timeouts import (
-    ANSWER_RETRIES,
-    ANSWER_TIMEOUT,
-    HOLD_TIMEOUT,
-    LOST_TIMEOUT,
-    START_TIMEOUT,
-    UPDATE_TIMEOUT,
-    check_retries,
-)
+from swarmloc.net.timeouts import ANSWER_RETRIES, TIMEOUTS, Waits, check_retries
 from swarmloc.net.transport import (
     check_team,
     client_config,
@@ -143,12 +135,6 @@ def launch_team(
     speed: float = 0.0,
     lag: float = 0.5,
     association: str = "tags",
-    answer_timeout: float = ANSWER_TIMEOUT,
-    hold_timeout: float = HOLD_TIMEOUT,
-    update_timeout: float = UPDATE_TIMEOUT,
-    answer_retries: int = ANSWER_RETRIES,
-    start_timeout: float = START_TIMEOUT,
-    lost_timeout: float = LOST_TIMEOUT,
     team: str | None = None,
     max_wall: float = 600.0,
     ros_domain: int | None = None,
@@ -159,13 +145,15 @@ def launch_team(
     view: Any = None,
     progress: Callable[[int, int], None] | None = None,
     routers: int = 0,
+    **waits: Unpack[Waits],
 ) -> TeamRun:
     """Start the team of ``src`` on 127.0.0.1, collect its beliefs and reports, stop every process.
 
     Each node process loads the source itself from ``source`` (its spec; default ``src.spec``), ``robots``,
     ``duration``, ``seed`` and ``config_file``, as ``swarmloc node`` does; ``robots`` applies to simulated sources
     (a dataset's robots are its own). Faults: :mod:`swarmloc.net.faults`; a kill fault needs the belief server
-    (started automatically). The timeouts [s] are every node's (:class:`~swarmloc.net.process.NetNode`);
+    (started automatically). ``waits``: every node's timeouts [s] and ``answer_retries``
+    (:class:`~swarmloc.net.timeouts.Waits`);
     ``max_wall`` [s] is the whole run's wall-clock limit. ``connect_extra``: endpoints every process also connects
     to (a Zenoh router, e.g. ROS 2's ``rmw_zenohd`` on ``tcp/127.0.0.1:7447``). ``keys_dir``: the team's keys and
     roster (:class:`~swarmloc.net.auth.TeamKeys`: made there unless its ``roster.json`` exists; default: a temporary
@@ -176,7 +164,7 @@ def launch_team(
     of one of them, in turn (:func:`~swarmloc.net.transport.router_mesh`), the routers meshed with ``connect_extra``.
     """
     f = parse_faults(faults)
-    check_retries(answer_retries)  # refused here, not by every node process
+    check_retries(waits.get("answer_retries", ANSWER_RETRIES))  # refused here, not by every node process
     team = check_team(team or f"team{os.getpid()}")
     network_class(estimator)  # refuse an estimator a team cannot run before starting anything
     hosted = hosted_class(estimator) is not None
@@ -188,10 +176,8 @@ def launch_team(
             raise ValueError(f"faults: {what} robot {robot[0]} is not in the team {src.robots}")
     node_args = node_arguments(
         source=src.spec if source is None else source, estimator=estimator, robots=robots, duration=duration,
-        seed=seed, config_file=config_file, speed=speed, lag=lag, answer_timeout=answer_timeout,
-        hold_timeout=hold_timeout, update_timeout=update_timeout, start_timeout=start_timeout,
-        lost_timeout=lost_timeout, use_server=server, faults=f, ros_domain=ros_domain, verbose=verbose,
-        association=association, answer_retries=answer_retries,
+        seed=seed, config_file=config_file, speed=speed, lag=lag, use_server=server, faults=f,
+        ros_domain=ros_domain, verbose=verbose, association=association, **waits,
     )  # fmt: skip
     server_args = server_arguments(node_args) if hosted else []
     keys = TeamKeys(src.robots, keys_dir)
@@ -225,25 +211,21 @@ def node_arguments(
     config_file: str | None,
     speed: float,
     lag: float,
-    answer_timeout: float,
-    hold_timeout: float,
-    update_timeout: float,
-    start_timeout: float,
     use_server: bool,
     faults: Faults,
     ros_domain: int | None,
     verbose: bool,
-    lost_timeout: float = LOST_TIMEOUT,
     association: str = "tags",
-    answer_retries: int = ANSWER_RETRIES,
+    **waits: Unpack[Waits],
 ) -> list[str]:
     """The ``swarmloc node`` options every node process of a team gets (the link faults only; a node's own
-    ``--robot``, ``--wait-for``, endpoints and ``--resume`` are the launcher's)."""
+    ``--robot``, ``--wait-for``, endpoints and ``--resume`` are the launcher's); each of ``waits`` left out: its
+    default."""
     out = ["--source", source, "--estimator", estimator, "--robots", str(robots), "--seed", str(seed),
-           "--speed", str(speed), "--lag", str(lag), "--answer-timeout", str(answer_timeout),
-           "--hold-timeout", str(hold_timeout), "--update-timeout", str(update_timeout),
-           "--start-timeout", str(start_timeout), "--lost-timeout", str(lost_timeout),
-           "--answer-retries", str(answer_retries)]  # fmt: skip
+           "--speed", str(speed), "--lag", str(lag)]  # fmt: skip
+    for name, (default, _) in TIMEOUTS.items():
+        out += ["--" + name.replace("_", "-"), str(waits.get(name, default))]
+    out += ["--answer-retries", str(waits.get("answer_retries", ANSWER_RETRIES))]
     if duration is not None:
         out += ["--duration", str(duration)]
     if config_file:
@@ -493,26 +475,16 @@ class _Launcher:
                         return
                 return
 
+    def _map_refused(self, reason: str) -> None:
+        self.result.reasons[f"map answer: {reason}"] += 1
+
     def ask_map(self, session: Any, timeout: float = 5.0) -> MapAnswer | None:
         """The belief server's map (signed by the server), once it has every :class:`Lines` collected: asked again
         until ``timeout`` s have passed (then the last answer, or None)."""
-        import zenoh
-
-        from swarmloc.net.transport import server_key
-
         want, last, end = len(self.result.lines), None, time.monotonic() + timeout
         while time.monotonic() < end:
-            for reply in session.get(f"{server_key(self.scope)}?map", timeout=1.0, target=zenoh.QueryTarget.ALL):
-                if reply.ok is None:
-                    continue
-                try:
-                    env = open_envelope(self.auth, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), self.team,
-                                        self.roster)  # fmt: skip
-                except Rejected as exc:
-                    self.result.reasons[f"map answer: {exc.reason}"] += 1
-                    continue
-                if env.from_robot == SERVER and isinstance(env.body, MapAnswer):
-                    last = env.body
+            answers = list(map_answers(session, self.scope, self.team, self.roster, self.auth, self._map_refused))
+            last = answers[-1] if answers else last
             if last is not None and last.messages >= want:
                 return last
             time.sleep(0.1)

@@ -30,6 +30,8 @@ Not here, each with its own name: ``quiet`` and ``linger`` (the end of a node's 
 
 from __future__ import annotations
 
+from typing import TypedDict
+
 ANSWER_TIMEOUT = 2.0
 HOLD_TIMEOUT = 1.0
 UPDATE_TIMEOUT = 2.0
@@ -55,6 +57,19 @@ TIMEOUTS: dict[str, tuple[float, str]] = {
                      f"{STALL_TIMEOUTS} times as long"),
 }  # fmt: skip
 """Name: (default [s], meaning), as ``swarmloc node`` and ``swarmloc team`` take them (``--answer-timeout``...)."""
+
+
+class Waits(TypedDict, total=False):
+    """A node's waits [s] and its ``answer_retries`` (a count), as the keywords ``swarmloc node``'s and ``swarmloc
+    team``'s entry points take and pass on (:class:`~swarmloc.net.settings.NetSettings`); one left out: its default
+    above."""
+
+    answer_timeout: float
+    hold_timeout: float
+    update_timeout: float
+    answer_retries: int
+    start_timeout: float
+    lost_timeout: float
 
 
 def check_retries(n: object) -> int:
