@@ -31,6 +31,10 @@ from swarmloc.motion.closed_form import unicycle_terms
 Entry = Any
 """A matrix entry: an array ``(B,)`` of the namespace in use, or a Python float constant."""
 Mat = list[list[Entry]]
+Vec = tuple[Entry, ...]
+"""A vector of entries, one a component: a state ``(x, y, theta)``, a measurement, or a packed upper triangle."""
+Updated = tuple[Vec, Vec, Entry, Entry]
+"""What an update returns: ``(x+, P+ upper triangle, nis, ok)``."""
 
 _PI = math.pi
 _TWO_PI = 2 * math.pi
@@ -125,13 +129,13 @@ def inv(A: Mat) -> Mat:
     ]
 
 
-def sym3(p: tuple[Entry, ...]) -> Mat:
+def sym3(p: Vec) -> Mat:
     """Full 3x3 matrix from its upper triangle ``(p00, p01, p02, p11, p12, p22)``."""
     p00, p01, p02, p11, p12, p22 = p
     return [[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]
 
 
-def upper(A: Mat) -> tuple[Entry, ...]:
+def upper(A: Mat) -> Vec:
     return A[0][0], A[0][1], A[0][2], A[1][1], A[1][2], A[2][2]
 
 
@@ -148,7 +152,7 @@ def _horner(coeffs: tuple[float, ...], x2: Entry) -> Entry:
     return acc
 
 
-def increment_terms(xp: Any, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise) -> tuple[Entry, ...]:
+def increment_terms(xp: Any, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise) -> Vec:
     """``(cos, sin, tx, ty, S11, S12, S13, S22, S23, S33)`` of the odometry increment over ``dt`` [s] for ``(v [m/s],
     w [rad/s])``: :func:`swarmloc.motion.odometry_increment_terms`, batched (Taylor branch below
     ``SERIES_BELOW``, all ``N_TERMS`` terms)."""
@@ -173,9 +177,7 @@ def increment_terms(xp: Any, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise
     return (xp.cos(x), xp.sin(x), *unicycle_terms(x, t, v, q_v, q_w, q_lat, s2, A, B, E, s1, h2, h2 * h2))
 
 
-def predict(
-    xp: Any, x: tuple[Entry, ...], p: tuple[Entry, ...], v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise
-) -> tuple[tuple[Entry, ...], tuple[Entry, ...]]:
+def predict(xp: Any, x: Vec, p: Vec, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise) -> tuple[Vec, Vec]:
     """EKF prediction of ``x = (x, y, theta)`` and ``P`` (upper triangle) over ``dt`` [s] with the command ``(v, w)``
     (:func:`swarmloc.kernels.cartesian.predict_one`); entries with ``dt <= 0`` are returned unchanged."""
     c, s, tx, ty, S11, S12, S13, S22, S23, S33 = increment_terms(xp, v, w, dt, noise)
@@ -200,9 +202,7 @@ def predict(
 
 
 # ------------------------------------------------------------------------------------------------ update
-def kalman(
-    xp: Any, x: tuple[Entry, ...], p: tuple[Entry, ...], r: list[Entry], H: Mat, R: Mat
-) -> tuple[tuple[Entry, ...], tuple[Entry, ...], Entry, Entry]:
+def kalman(xp: Any, x: Vec, p: Vec, r: list[Entry], H: Mat, R: Mat) -> Updated:
     """:func:`swarmloc.kernels.cartesian.kalman_update` on one robot's 3-vector (angle component 2 wrapped).
 
     Returns ``(x+, P+ upper triangle, nis, ok)`` with ``ok`` False where the update is not finite."""
@@ -231,7 +231,7 @@ def kalman(
     return tuple(xn), pn, nis, ok
 
 
-def positive_definite(xp: Any, p: tuple[Entry, ...]) -> Entry:
+def positive_definite(xp: Any, p: Vec) -> Entry:
     """Finite and positive definite (leading minors > 0: where a Cholesky factorization exists)."""
     p00, p01, p02, p11, p12, p22 = p
     d2 = p00 * p11 - p01 * p01
@@ -242,15 +242,7 @@ def positive_definite(xp: Any, p: tuple[Entry, ...]) -> Entry:
     return ok
 
 
-def pose_update(
-    xp: Any,
-    x: tuple[Entry, ...],
-    p: tuple[Entry, ...],
-    xk: tuple[Entry, ...],
-    pk: tuple[Entry, ...],
-    z: tuple[Entry, ...],
-    rz: tuple[Entry, ...],
-) -> tuple[tuple[Entry, ...], tuple[Entry, ...], Entry, Entry]:
+def pose_update(xp: Any, x: Vec, p: Vec, xk: Vec, pk: Vec, z: Vec, rz: Vec) -> Updated:
     """Relative-pose update of observer ``(x, P)`` with the neighbour's ``(xk, Pk)`` and the measurement ``z =
     (x, y, theta)`` of the neighbour in the observer's frame, noise ``rz`` (exponential coordinates, upper triangle).
 
@@ -271,23 +263,13 @@ def pose_update(
     return kalman(xp, x, p, r, Hi, R_eff)
 
 
-def absolute_update(
-    xp: Any, x: tuple[Entry, ...], p: tuple[Entry, ...], z: tuple[Entry, ...], rz: tuple[Entry, ...]
-) -> tuple[tuple[Entry, ...], tuple[Entry, ...], Entry, Entry]:
+def absolute_update(xp: Any, x: Vec, p: Vec, z: Vec, rz: Vec) -> Updated:
     """GPS-like fix ``z = (x, y, theta)`` with additive Cartesian noise ``rz`` (upper triangle): ``H = I``."""
     r = [z[0] - x[0], z[1] - x[1], wrap(xp, z[2] - x[2])]
     return kalman(xp, x, p, r, eye(3), sym3(rz))
 
 
-def landmark_update(
-    xp: Any,
-    x: tuple[Entry, ...],
-    p: tuple[Entry, ...],
-    lk: tuple[Entry, ...],
-    lp: tuple[Entry, ...],
-    z: tuple[Entry, ...],
-    rz: tuple[Entry, ...],
-) -> tuple[tuple[Entry, ...], tuple[Entry, ...], Entry, Entry]:
+def landmark_update(xp: Any, x: Vec, p: Vec, lk: Vec, lp: Vec, z: Vec, rz: Vec) -> Updated:
     """Range-bearing update of observer ``(x, P)`` by a map landmark at ``lk = (x, y)`` [m] with map covariance
     ``lp = (l00, l01, l11)``; ``z = (range [m], bearing [rad])``, noise ``rz = (r00, r01, r11)``: the node's
     :func:`swarmloc.estimators.dekf.linearize` with :func:`swarmloc.sensors.models.range_bearing` of a 2-D target,
