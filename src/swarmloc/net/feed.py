@@ -51,6 +51,15 @@ MAX_ITEMS = 100_000
 """Inputs waiting in one feed at most (a robot at 100 Hz odometry and detections holds far fewer)."""
 
 
+def count_refusal(counts: Counter[str], reasons: Counter[str], lock: threading.Lock, reason: str) -> bool:
+    """Count one refused input, as ``refused`` in ``counts`` and under ``reason`` in ``reasons``, holding ``lock``;
+    True for the first of its reason (the one to log: the others are counted only)."""
+    with lock:
+        counts["refused"] += 1
+        reasons[reason] += 1
+        return reasons[reason] == 1
+
+
 class LiveFeed:
     """Robot ``robot``'s inputs as they arrive (module docstring): :meth:`push` from any thread, the driver
     :meth:`take`\\ s the released ones in key order.
@@ -234,11 +243,7 @@ class LiveFeed:
         return None
 
     def _refuse(self, why: str, what: Any) -> None:
-        with self._lock:
-            self.counts["refused"] += 1
-            self.reasons[why] += 1
-            first = self.reasons[why] == 1
-        if first:
+        if count_refusal(self.counts, self.reasons, self._lock, why):
             log.warning("robot %s: live input refused (%s): %s (further ones counted)", self.robot, why, what)
 
     def _notify(self) -> None:

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from swarmloc.net.feed import count_refusal
 from swarmloc.rmw.types import decode
 
 log = logging.getLogger("swarmloc.rmw")
@@ -62,11 +63,7 @@ class Inbox:
 
     def refuse(self, reason: str, detail: str) -> None:
         """Count a refused sample under ``reason``; log the first of each reason."""
-        with self._lock:
-            self.counts["refused"] += 1
-            self.reasons[reason] += 1
-            first = self.reasons[reason] == 1
-        if first:
+        if count_refusal(self.counts, self.reasons, self._lock, reason):
             log.warning("ROS sample refused (%s): %s (further ones counted)", reason, detail)
 
     def deliver(self, topic: str, msgtype: str, raw: Any, info: Received, callback: Callback) -> bool:
