@@ -60,7 +60,7 @@ from swarmloc.net.schema import (
     encode,
     group_tag,
 )
-from swarmloc.net.transport import alive_key, block, robot_key, server_key, team_scope
+from swarmloc.net.transport import alive_key, block, robot_key, server_key, team_scope, undeclare_all
 from swarmloc.node import Node
 
 __all__ = ["Forwarder", "Fusion", "from_wire", "to_wire"]
@@ -499,11 +499,7 @@ class Forwarder:
                 time.sleep(0.2)  # let Zenoh flush the report
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
                 log.debug("robot %s: final report not sent: %s", r, exc)
-            for d in [*decl, token]:
-                try:
-                    d.undeclare()
-                except Exception:  # noqa: BLE001
-                    pass
+            undeclare_all([*decl, token])
             if self.auth is not None:
                 self.auth.sessions.close()
         return report

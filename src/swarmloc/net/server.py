@@ -65,7 +65,7 @@ from swarmloc.net.schema import (
     encode,
     group_tag,
 )
-from swarmloc.net.transport import alive_key, block, robot_key, server_key, team_scope
+from swarmloc.net.transport import alive_key, block, robot_key, server_key, team_scope, undeclare_all
 
 __all__ = ["BeliefServer", "MapStore", "ServerProcess", "linemap_of", "observations_of", "wire_line"]
 
@@ -342,11 +342,7 @@ class ServerProcess:
                     log.exception("belief server: error on %s", kind)
                     self._reject(f"internal error: {type(exc).__name__}")
         finally:
-            for d in [*decl, token]:
-                try:
-                    d.undeclare()
-                except Exception:  # noqa: BLE001
-                    pass
+            undeclare_all([*decl, token])
             if self.auth is not None:
                 self.counts.update(self.auth.session_counts())
                 self.auth.sessions.close()

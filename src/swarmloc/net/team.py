@@ -52,6 +52,7 @@ from swarmloc.net.transport import (
     router_mesh,
     server_key,
     team_scope,
+    undeclare_all,
 )  # fmt: skip
 
 log = logging.getLogger(__name__)
@@ -514,11 +515,7 @@ class _Launcher:
             if self.server and not self.result.counts["timed_out"]:
                 self.result.map = self.ask_map(session)
         finally:
-            for s in subs:
-                try:
-                    s.undeclare()
-                except Exception:  # noqa: BLE001
-                    pass
+            undeclare_all(subs)
             self._intake.fold(self.result.counts, self.result.reasons, prefix="collector_")
             self.note_ended()  # those that ended by themselves, then those the launcher stops
             stop_all(self.procs)

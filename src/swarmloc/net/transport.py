@@ -32,7 +32,7 @@ import json
 import os
 import re
 import socket
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
@@ -223,6 +223,16 @@ def router_mesh(n: int, connect: Sequence[str] = (), host: str = "127.0.0.1") ->
     finally:
         for s in sessions:
             s.close()
+
+
+def undeclare_all(entities: Iterable[Any]) -> None:
+    """Undeclare each Zenoh entity (subscriber, queryable, liveliness token...) of ``entities``; one that fails (the
+    session may be gone already) is passed over: closing, nothing is left to do about it."""
+    for e in entities:
+        try:
+            e.undeclare()
+        except Exception:  # noqa: BLE001
+            pass
 
 
 def open_session(
