@@ -27,7 +27,6 @@ driver) is ``diekf``'s: the node needs the whole team's all-to-all channel, as `
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any, ClassVar, NamedTuple
 
@@ -35,7 +34,7 @@ import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.estimators.diekf import DistributedInvariantEKF
-from swarmloc.estimators.fls import TINY_VARIANCE, Factor, Window, WindowSolver, load_gtsam
+from swarmloc.estimators.fls import TINY_VARIANCE, Factor, OfSolver, Window, WindowSolver
 from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
@@ -97,12 +96,16 @@ def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu
     return Factor("pseudo", pose, -1, "", np.asarray(at, dtype=float), A, W @ (S @ nu), 1.0)
 
 
-class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
+class TeamFixedLagSmoother(DistributedInvariantEKF):
     """``diekf`` whose own landmark updates come from a fixed-lag smoother of its recent poses (module
     docstring). ``lag`` [s], ``max_iterations`` and ``delayed`` as
     :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s."""
 
     name = "flsd"
+    lag = OfSolver()
+    lagged_log = OfSolver()
+    lagged_when = OfSolver()
+    lagged_fresh = OfSolver()
     groups: ClassVar[tuple[type, ...]] = (SE2,)  # its smoother is planar
     clusters = False  # its pseudo-factors are the exact update's
     gated_broadcasts = False  # a landmark's is linearized at the smoothed pose, where the filter's gate does not bound
@@ -110,14 +113,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), lag: float = 2.0,
                  max_iterations: int = 3, delayed: bool = False, **kw: Any) -> None:  # fmt: skip
-        if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
-            raise ValueError(f"{type(self).__name__}: 'lag' must be a positive number of seconds, got {lag!r}")
-        if not (isinstance(max_iterations, int) and max_iterations >= 1):
-            raise ValueError(f"{type(self).__name__}: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
-        self.lag = float(lag)
-        self.max_iterations = max_iterations
-        self._init_delayed(delayed)
-        self._g = load_gtsam()
+        self.solver = WindowSolver(type(self).__name__, lag, max_iterations, delayed)
         super().__init__(robot, initial, team=team, **kw)
 
     # ------------------------------------------------------------------------------------------------ filter
@@ -169,8 +165,8 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
         odo = Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + TINY_VARIANCE * np.eye(3), None, 1.0)
         win = Window((*win.poses, pid), (*win.stamps, s.t), {**win.est, pid: s.x}, win.prior,
                      (*win.factors, odo), pid + 1)  # fmt: skip
-        if win.stamps[0] < s.t - 2 * self.lag:  # no landmark solve for a while: marginalize the old poses
-            solved = self._solve(win, pid, s.t)
+        if win.stamps[0] < s.t - 2 * self.solver.lag:  # no landmark solve for a while: marginalize the old poses
+            solved = self.solver.solve(win, pid, s.t)
             if solved is not None:
                 win = solved[0]
         return s._replace(rel=_ZERO3, Q=_ZERO33, win=win)
@@ -254,7 +250,7 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
         s = self._posed(s)  # the pose at this group's instant (its robot detections made it already)
         pid = s.win.poses[-1]
         win = s.win._replace(est={**s.win.est, pid: s.x})
-        solved = self._solve(win._replace(factors=(*win.factors, *(f._replace(a=pid) for _, _, f in landmarks))),
+        solved = self.solver.solve(win._replace(factors=(*win.factors, *(f._replace(a=pid) for _, _, f in landmarks))),
                              pid, g.t)  # fmt: skip
         applied = None if solved is None else self._smoothed_landmarks(s, [f for _, _, f in landmarks], solved[1])
         if applied is not None:
