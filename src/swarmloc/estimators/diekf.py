@@ -547,8 +547,9 @@ class TeamProtocol:
 
 
 class DistributedInvariantEKF(RobotNode):
-    """Exact distributed invariant EKF (module docstring): the node's wiring of its :class:`TeamProtocol`
-    (:attr:`protocol`). ``team``: every robot id of the team (``make_team`` passes it). ``cluster``: 0 (default)
+    """Exact distributed invariant EKF (module docstring): the node's filter over its :class:`TeamProtocol`
+    (:attr:`protocol`, which speaks the exchange: :class:`~swarmloc.node.robot.RobotNode` hands it the exchange's
+    hooks). ``team``: every robot id of the team (``make_team`` passes it). ``cluster``: 0 (default)
     for the exact filter over the whole team, or ``K >= 1`` robots per cluster (module docstring, "Clusters"):
     replica and broadcasts over the robot's cluster only, covariance intersection with robots outside it. The
     exchange's queries are :class:`~swarmloc.estimators.state_exchange.StateQueries`' (``rdl``'s)."""
@@ -559,6 +560,7 @@ class DistributedInvariantEKF(RobotNode):
     update_types = (TeamUpdate,)
     lin_log: list[Any] | None = None
     groups: ClassVar[tuple[type, ...]] = (SE2, SE3)
+    protocol: TeamProtocol
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
                  **kw: Any) -> None:  # fmt: skip
@@ -626,29 +628,10 @@ class DistributedInvariantEKF(RobotNode):
         return self.protocol.one(s, d, target, self.gate, self.lin_log, None if g is None else g.t)
 
     # ------------------------------------------------------------------------------------------------ exchange
-    def _answer(self, s: TeamState, q: Message) -> Answer | None:
-        a = self.protocol.answer(s, q)
-        return a if a is not None else super()._answer(s, q)
-
-    def _requests(self, g: Group) -> list[Message]:
-        return self.protocol.requests(g, self._needs_answer, self._teammates(g))
-
-    def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        return self.protocol.candidates(g, mates)
-
     def _robot_target(self, g: Group, d: Any, sub: SubKey) -> tuple[str, Any]:
         if self.protocol.cluster and d.target not in self.protocol.pos:
             sub = ()  # the BeliefQuery's answer (TeamProtocol.requests)
         return super()._robot_target(g, d, sub)
-
-    def _settle(self, g: Group) -> list[Message]:
-        return self.protocol.settle(g)
-
-    def _update_problem(self, u: Message) -> str | None:
-        return self.protocol.update_problem(u)
-
-    def _update_lie(self, u: Message) -> str | None:
-        return self.protocol.update_lie(u, self.gate)
 
     def _apply_update(self, s: TeamState, u: Message) -> tuple[TeamState, bool]:
         # The detected robot is predicted to the stamp; a third party is not: a world-frame correction commutes
@@ -658,6 +641,3 @@ class DistributedInvariantEKF(RobotNode):
             s = self._adv(s, self.robot, u.stamp)
         return self.protocol.apply(s, u, self.counts)
 
-    def _prune(self) -> None:
-        super()._prune()
-        self.protocol.prune(self._clock.present - self.horizon)

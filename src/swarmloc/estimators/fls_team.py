@@ -40,7 +40,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
-from swarmloc.messages import Answer, Message, TeamUpdate
+from swarmloc.messages import Message, TeamUpdate
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, usable_covariance
 from swarmloc.node.keys import SubKey
 from swarmloc.sensors.models import model
@@ -109,6 +109,7 @@ class TeamFixedLagSmoother(RobotNode):
     update_types = (TeamUpdate,)
     lin_log: list[Any] | None = None
     groups: ClassVar[tuple[type, ...]] = (SE2,)  # its smoother is planar
+    protocol: TeamProtocol
     lag = OfSolver()
     lagged_log = OfSolver()
     lagged_when = OfSolver()
@@ -187,29 +188,6 @@ class TeamFixedLagSmoother(RobotNode):
         s = self._adv(s, self.robot, u.stamp)  # the pose at the update's stamp: a function of the inputs only
         return self.protocol.apply(s, u, self.counts)
 
-    # ------------------------------------------------------------------------------------------------ exchange
-    def _answer(self, s: TeamFlsState, q: Message) -> Answer | None:
-        a = self.protocol.answer(s, q)
-        return a if a is not None else super()._answer(s, q)
-
-    def _requests(self, g: Group) -> list[Message]:
-        return self.protocol.requests(g, self._needs_answer, self._teammates(g))
-
-    def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        return self.protocol.candidates(g, mates)
-
-    def _settle(self, g: Group) -> list[Message]:
-        return self.protocol.settle(g)
-
-    def _update_problem(self, u: Message) -> str | None:
-        return self.protocol.update_problem(u)
-
-    def _update_lie(self, u: Message) -> str | None:
-        return self.protocol.update_lie(u, self.gate)
-
-    def _prune(self) -> None:
-        super()._prune()
-        self.protocol.prune(self._clock.present - self.horizon)
 
     # ------------------------------------------------------------------------------------------------ update
     def _smoothed_landmarks(
