@@ -253,7 +253,7 @@ def test_pseudo_factor_reproduces_the_team_update_it_stands_for():
     node = TeamFixedLagSmoother(0, GroupGaussian(SE2, g0, I.world_to_body(g0, P0)), noise=NOISE, team=(0, 1),
                                 max_iterations=4)  # fmt: skip
     prior = (x0, I.world_to_body(g0, P0), 1.0)
-    solved = node._solve(Window((0,), (0.0,), {0: x0}, prior, (f,), 1), 0, 0.0)
+    solved = node.solver.solve(Window((0,), (0.0,), {0: x0}, prior, (f,), 1), 0, 0.0)
     assert solved is not None
     _, x, P = solved
     np.testing.assert_allclose(x, x1, atol=1e-7)

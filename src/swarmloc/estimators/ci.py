@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from swarmloc.estimators.expfusion import DEGENERATE, ExpFusion, ExpState
+from swarmloc.estimators.expfusion import DEGENERATE, ExpNode, ExpState, point, point_gate, pseudo
 from swarmloc.events import Kind
 from swarmloc.kernels import group as K
 from swarmloc.kernels.ci import ci_search, point_weight, pose_weight
@@ -29,122 +29,135 @@ from swarmloc.node import NUMERICAL, Group, Outcome, applied, usable_covariance
 from swarmloc.sensors.models3 import pose3_matrix
 
 
-class ExpCI(ExpFusion):
-    """Thesis-style exponential-coordinate estimator with covariance-intersection fusion of neighbours."""
+class CovarianceIntersection:
+    """``ci``'s update (module docstring): a neighbour's detection by covariance intersection (:meth:`ci`), the
+    others (absolute fixes, landmarks) as the thesis fuses them, one at a time."""
 
-    name = "ci"
-    ci_weight: ClassVar[str] = "closed_form"
-    """How :meth:`_ci` picks the weight ``w``: ``"closed_form"`` (the minimizer of the linearized posterior's
-    determinant) or ``"search"`` (the minimizer of the fused covariance's determinant over fusions at many weights,
-    :func:`swarmloc.kernels.ci.ci_search`). The batched engine follows the same attribute."""
-
-    def _fuse_group(self, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
-        def fuse(mc: tuple, d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+    def fuse_group(self, node: ExpNode, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
+        def fuse(mc: tuple[np.ndarray, np.ndarray], d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
             mean, cov = mc
-            step = self._ci if target[0] == "robot" else self._independent
-            return applied(mc, step(mean, cov, d, target))
+            step = self.ci if target[0] == "robot" else self.independent
+            return applied(mc, step(node, mean, cov, d, target))
 
-        (mean, cov), outcomes = self._fuse_each((s.mean, s.cov), g, fuse)
+        (mean, cov), outcomes = node._fuse_each((s.mean, s.cov), g, fuse)
         return ExpState(s.t, s.v, s.w, mean, cov), outcomes, []
 
-    def _independent(self, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
+    @staticmethod
+    def independent(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
         """Absolute fixes and landmarks: the usual (thesis / point) update."""
-        pseudo = self._pseudo(d, target)
-        if pseudo is None:
-            if self.group is SE3:
-                return ("rejected", f"kind {d.kind!r} is not supported on {self.group.name}")
-            return self._point(mean, cov, d, target)
-        G = self.group
-        if self.gate.p is not None:
-            verdict = self._gated(float(K.pseudo_nis(G, mean, cov, *pseudo)), G.dim)
+        obs = pseudo(node, d, target)
+        G = node.group
+        if obs is None:
+            if G is SE3:
+                return ("rejected", f"kind {d.kind!r} is not supported on {G.name}")
+            return point(node, mean, cov, d, target)
+        if node.gate.p is not None:
+            verdict = node._gated(float(K.pseudo_nis(G, mean, cov, *obs)), G.dim)
             if verdict is not None:
                 return verdict
-        m2, c2 = K.fuse_pseudo(G, mean, cov, pseudo[0][None], pseudo[1][None], self.order, self.iterations)
+        m2, c2 = K.fuse_pseudo(G, mean, cov, obs[0][None], obs[1][None], node.order, node.iterations)
         if not (np.isfinite(m2).all() and usable_covariance(c2)):
             return ("rejected", NUMERICAL)
         return m2, c2
 
-    def _ci(self, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
+    @staticmethod
+    def ci(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
         """Covariance intersection with a neighbour's answer: the weight in closed form from the linearized fusion
         (:func:`swarmloc.kernels.ci.point_weight`, :func:`~swarmloc.kernels.ci.pose_weight`), then one fusion."""
         nb_mean, nb_cov = target[1].belief_arrays()
         R = np.asarray(d.cov, dtype=float)
-        order, its = self.order, self.iterations
-        if self.group is SE3 or d.kind == Kind.POSE3:
-            return self._ci3(mean, cov, d, nb_mean, nb_cov, R)
+        order, its = node.order, node.iterations
+        if node.group is SE3 or d.kind == Kind.POSE3:
+            return ci3(node, mean, cov, d, nb_mean, nb_cov, R)
         if d.kind == Kind.POSE:
             m = SE2.from_xytheta(d.z)
-            if self.gate.p is not None:
+            if node.gate.p is not None:
                 nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, m, R, order)
-                verdict = self._gated(float(K.pseudo_nis(SE2, mean, cov, nu, W)), 3)
+                verdict = node._gated(float(K.pseudo_nis(SE2, mean, cov, nu, W)), 3)
                 if verdict is not None:
                     return verdict
-            if self.ci_weight == "search":
-                m2, c2, _ = ci_search(self._pose_at(mean, cov, m, R, nb_mean, nb_cov))
+            if node.ci_weight == "search":
+                m2, c2, _ = ci_search(pose_at(node, mean, cov, m, R, nb_mean, nb_cov))
             else:
                 w = float(pose_weight(mean, cov, m, R, nb_mean, nb_cov, order))
                 nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - w), m, R, order)
                 m2, c2 = K.fuse_pseudo(SE2, mean, cov / w, nu[None], W[None], order, its)
         else:
-            verdict = self._point_gate(mean, cov, d, nb_mean, nb_cov, True)
+            verdict = point_gate(node, mean, cov, d, nb_mean, nb_cov, True)
             if verdict is not None:
                 return verdict
-            if self.ci_weight == "search":
-                m2, c2, _ = ci_search(self._point_at(mean, cov, d, R, nb_mean, nb_cov))
-                ok = np.isfinite(c2).all()
+            if node.ci_weight == "search":
+                m2, c2, _ = ci_search(point_at(node, mean, cov, d, R, nb_mean, nb_cov))
+                ok = bool(np.isfinite(c2).all())
             else:
                 w = float(point_weight(mean, cov, d.kind, d.z, R, nb_mean, nb_cov))
-                m2, c2, ok = K.point_update(
-                    mean, cov / w, d.kind, d.z, R, nb_mean, nb_cov / (1 - w), True, self.point_iterations, order
+                m2, c2, found = K.point_update(
+                    mean, cov / w, d.kind, d.z, R, nb_mean, nb_cov / (1 - w), True, node.point_iterations, order
                 )
-            if not bool(ok):
+                ok = bool(found)
+            if not ok:
                 return ("rejected", DEGENERATE)
         if not (np.isfinite(m2).all() and usable_covariance(c2)):
             return ("rejected", DEGENERATE if d.kind != Kind.POSE else NUMERICAL)
         return m2, c2
 
-    def _ci3(self, mean: np.ndarray, cov: np.ndarray, d: Any, nb_mean: np.ndarray, nb_cov: np.ndarray,
-             R: np.ndarray) -> Any:  # fmt: skip
-        """Covariance intersection of an SE(3) relative pose (``"pose3"``) with the neighbour's SE(3) answer: the
-        weight in closed form (:func:`~swarmloc.kernels.ci.pose_weight` on SE(3)), then one fusion."""
-        if d.kind != Kind.POSE3 or self.group is not SE3 or nb_mean.shape != (4, 4):
-            return ("rejected", f"kind {d.kind!r} is not supported on {self.group.name}")
-        m = pose3_matrix(d.z)
-        order, its = self.order, self.iterations
-        if self.gate.p is not None:
-            nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov, m, R, order)
-            verdict = self._gated(float(K.pseudo_nis(SE3, mean, cov, nu, W)), 6)
-            if verdict is not None:
-                return verdict
-        w = float(pose_weight(mean, cov, m, R, nb_mean, nb_cov, order, group=SE3))
-        nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov / (1 - w), m, R, order)
-        m2, c2 = K.fuse_pseudo(SE3, mean, cov / w, nu[None], W[None], order, its)
-        if not (np.isfinite(m2).all() and usable_covariance(c2)):
-            return ("rejected", NUMERICAL)
-        return m2, c2
 
-    def _pose_at(self, mean: np.ndarray, cov: np.ndarray, m: np.ndarray, R: np.ndarray, nb_mean: np.ndarray,
-                 nb_cov: np.ndarray) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:  # fmt: skip
-        """The relative-pose fusion at CI weights ``w (k,)`` for :func:`~swarmloc.kernels.ci.ci_search`."""
+def ci3(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, nb_mean: np.ndarray, nb_cov: np.ndarray,
+        R: np.ndarray) -> Any:  # fmt: skip
+    """Covariance intersection of an SE(3) relative pose (``"pose3"``) with the neighbour's SE(3) answer: the
+    weight in closed form (:func:`~swarmloc.kernels.ci.pose_weight` on SE(3)), then one fusion."""
+    if d.kind != Kind.POSE3 or node.group is not SE3 or nb_mean.shape != (4, 4):
+        return ("rejected", f"kind {d.kind!r} is not supported on {node.group.name}")
+    m = pose3_matrix(d.z)
+    order, its = node.order, node.iterations
+    if node.gate.p is not None:
+        nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov, m, R, order)
+        verdict = node._gated(float(K.pseudo_nis(SE3, mean, cov, nu, W)), 6)
+        if verdict is not None:
+            return verdict
+    w = float(pose_weight(mean, cov, m, R, nb_mean, nb_cov, order, group=SE3))
+    nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov / (1 - w), m, R, order)
+    m2, c2 = K.fuse_pseudo(SE3, mean, cov / w, nu[None], W[None], order, its)
+    if not (np.isfinite(m2).all() and usable_covariance(c2)):
+        return ("rejected", NUMERICAL)
+    return m2, c2
 
-        def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            wc = w[..., None, None]
-            nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - wc), m, R, self.order)
-            mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-            return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], self.order,
-                                 self.iterations)  # fmt: skip
 
-        return fuse
+def pose_at(node: ExpNode, mean: np.ndarray, cov: np.ndarray, m: np.ndarray, R: np.ndarray, nb_mean: np.ndarray,
+            nb_cov: np.ndarray) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+    """The relative-pose fusion at CI weights ``w (k,)`` for :func:`~swarmloc.kernels.ci.ci_search`."""
 
-    def _point_at(self, mean: np.ndarray, cov: np.ndarray, d: Any, R: np.ndarray, nb_mean: np.ndarray,
-                  nb_cov: np.ndarray) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:  # fmt: skip
-        """The range/bearing point update at CI weights ``w (k,)`` (NaN covariance where degenerate)."""
+    def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        wc = w[..., None, None]
+        nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - wc), m, R, node.order)
+        mu = np.broadcast_to(mean, (*w.shape, 3, 3))
+        return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], node.order,
+                             node.iterations)  # fmt: skip
 
-        def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            wc = w[..., None, None]
-            mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-            m2, c2, ok = K.point_update(mu, cov / wc, d.kind, np.asarray(d.z, dtype=float), R, nb_mean,
-                                        nb_cov / (1 - wc), True, self.point_iterations, self.order)  # fmt: skip
-            return m2, np.where(np.asarray(ok)[..., None, None], c2, np.nan)
+    return fuse
 
-        return fuse
+
+def point_at(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, R: np.ndarray, nb_mean: np.ndarray,
+             nb_cov: np.ndarray) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+    """The range/bearing point update at CI weights ``w (k,)`` (NaN covariance where degenerate)."""
+
+    def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        wc = w[..., None, None]
+        mu = np.broadcast_to(mean, (*w.shape, 3, 3))
+        m2, c2, ok = K.point_update(mu, cov / wc, d.kind, np.asarray(d.z, dtype=float), R, nb_mean,
+                                    nb_cov / (1 - wc), True, node.point_iterations, node.order)  # fmt: skip
+        return m2, np.where(np.asarray(ok)[..., None, None], c2, np.nan)
+
+    return fuse
+
+
+class ExpCI(ExpNode):
+    """Thesis-style exponential-coordinate estimator with covariance-intersection fusion of neighbours
+    (:class:`~swarmloc.estimators.expfusion.ExpNode` with :class:`CovarianceIntersection`)."""
+
+    name = "ci"
+    rule = CovarianceIntersection()
+    ci_weight: ClassVar[str] = "closed_form"
+    """How :meth:`CovarianceIntersection.ci` picks the weight ``w``: ``"closed_form"`` (the minimizer of the
+    linearized posterior's determinant) or ``"search"`` (the minimizer of the fused covariance's determinant over
+    fusions at many weights, :func:`swarmloc.kernels.ci.ci_search`). The batched engine follows the same attribute."""

@@ -42,7 +42,7 @@ equal; a broadcast that one robot cannot apply leaves its replica apart from the
 order; each robot keeps the replica of its own cluster only and broadcasts to it, so memory is ``O(K^2)`` and the
 work per detection ``O(K^2)`` per robot whatever the team's size. Inside a cluster the filter is exact; a robot
 outside it is asked a ``BeliefQuery`` and its detection fused by covariance intersection
-(:meth:`DistributedInvariantEKF._outsider`): consistent whatever the two clusters' correlation, one-sided (the
+(:meth:`TeamProtocol.outsider`): consistent whatever the two clusters' correlation, one-sided (the
 outsider is not updated), and conservative. Over the network a node subscribes to its cluster's broadcasts only
 and its lockstep waits for theirs only (:mod:`swarmloc.net.broadcast`). ``K >= n`` is the exact filter. The
 engine replays the clusters in one compiled loop (``run_engine(source, "diekf", backend="numba", cluster=K)``,
@@ -53,7 +53,7 @@ Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate 
 ``RdlStateQuery`` keyed as the detection would be were it of that teammate
 (:func:`~swarmloc.estimators.state_exchange.anonymous_sub`), as ``rdl`` does; the detection given a robot is
 broadcast under that key, so where the identity is right the broadcast is the tagged run's. Every other teammate's
-exchange is settled by an empty broadcast under its key (:meth:`DistributedInvariantEKF._settle`), as a gated
+exchange is settled by an empty broadcast under its key (:meth:`TeamProtocol.settle`), as a gated
 detection's: an answerer over the network waits for the broadcast keyed by the query it answered before it goes on.
 
 **SE(3).** With an SE(3) initial belief the same node runs with 6-dof poses (:class:`WorldForm3`; the group picks
@@ -74,8 +74,9 @@ are SE(2) only (the covariance-intersection weight is SE(2)'s).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any, ClassVar, NamedTuple
+from collections import Counter
+from collections.abc import Callable, Sequence
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 import numpy as np
 
@@ -88,23 +89,15 @@ from swarmloc.kernels import cartesian3 as C3
 from swarmloc.kernels import invariant as I
 from swarmloc.kernels.ci import W_BOUNDS, joint_weight
 from swarmloc.lie import SE2, SE3
-from swarmloc.messages import (
-    Answer,
-    BeliefAnswer,
-    BeliefQuery,
-    Message,
-    RdlState,
-    RdlStateQuery,
-    TeamUpdate,
-    flat,
-)
+from swarmloc.lie.base import SEGroup
+from swarmloc.messages import Answer, BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate, flat
 from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.node import (
     FUSED,
     NUMERICAL,
     P_GROUP,
+    Gate,
     Group,
-    Node,
     Outcome,
     RobotNode,
     belief_of,
@@ -113,9 +106,12 @@ from swarmloc.node import (
     positive_definite,
     usable_covariance,
 )
+from swarmloc.node.keys import SubKey
 from swarmloc.sensors.models import model
 
-__all__ = ["FORMS", "DistributedInvariantEKF", "TeamState", "WorldForm", "WorldForm3"]
+__all__ = [
+    "FORMS", "DistributedInvariantEKF", "Numbers", "Replica", "TeamProtocol", "TeamState", "WorldForm", "WorldForm3",
+]  # fmt: skip
 
 _EYE = flat(np.eye(3))
 _NO_SIGMA = np.zeros((0, 0, 3, 3))
@@ -142,6 +138,7 @@ def _pair(d: Any, xi: np.ndarray, xj: np.ndarray) -> tuple[np.ndarray, ...] | No
     if mm.degenerate(xi, xj):
         return None
     h, Hi_c, Hj_c = mm.predict(xi, xj)
+    assert Hj_c is not None  # noqa: S101  (a robot's model: the target's Jacobian)
     return mm.residual(d.z, h), Hi_c @ I.world_basis(xi), Hj_c @ I.world_basis(xj), mm.noise(d.z, d.cov)
 
 
@@ -159,7 +156,7 @@ class WorldForm:
     """The world-frame error on SE(2): pose ``(x, y, theta)``, the planar models' Jacobians times
     :func:`~swarmloc.kernels.invariant.world_basis` (:mod:`swarmloc.kernels.invariant`)."""
 
-    group: type = SE2
+    group: type[SEGroup] = SE2
     dim = 3
     runs = True
     """Whether a run of odometry has a float loop (:meth:`DistributedInvariantEKF._advance_commands`)."""
@@ -174,7 +171,8 @@ class WorldForm:
 
     def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
         """Pose and covariance after the command held over ``dt > 0`` [s] (:func:`world_step`)."""
-        x0, y0, th, P = world_step(*x.tolist(), P, v, w, dt, noise)
+        x0, y0, th0 = x.tolist()
+        x0, y0, th, P = world_step(x0, y0, th0, P, v, w, dt, noise)
         return np.array([x0, y0, th]), P
 
     def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -190,7 +188,7 @@ class WorldForm:
         """Why ``d`` of ``target`` cannot be fused on this group (None: it can)."""
         return None
 
-    def robot(self, d: Any, s: Any, xj: Any, Pjj: np.ndarray, Sij: np.ndarray) -> tuple | str:
+    def robot(self, d: Any, s: Any, xj: Any, Pjj: np.ndarray, Sij: np.ndarray) -> tuple[Any, ...] | str:
         """``(r, H_i, H_j, S, R)`` of robot detection ``d`` of pose ``xj`` (covariance ``Pjj``, cross-covariance
         ``Sij`` with the observer), or the reason it cannot be fused."""
         lin = _pair(d, s.x, xj)
@@ -199,7 +197,7 @@ class WorldForm:
         r, Hi, Hj, R = lin
         return r, Hi, Hj, Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R, R
 
-    def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple | str:
+    def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple[Any, ...] | str:
         """``(r, H_i, S, R)`` of a landmark detection (the map's uncertainty in ``R``), or the reason."""
         lin = linearize(d, s.x, target)
         if lin is None:
@@ -243,7 +241,7 @@ class WorldForm3(WorldForm):
     def unsupported(self, d: Any, target: tuple[str, Any]) -> str | None:
         return C3.unsupported(d, target)
 
-    def robot(self, d: Any, s: Any, xj: Any, Pjj: np.ndarray, Sij: np.ndarray) -> tuple | str:
+    def robot(self, d: Any, s: Any, xj: Any, Pjj: np.ndarray, Sij: np.ndarray) -> tuple[Any, ...] | str:
         if d.kind == Kind.POSE3:
             r, Hi, Hj, R = C3.relative_pose3_world(s.x, xj, d.z, d.cov)
             S = s.P - Sij - Sij.T + Pjj + R  # H P H^T with H_i = -I, H_j = I
@@ -256,7 +254,7 @@ class WorldForm3(WorldForm):
             S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
         return r, Hi, Hj, 0.5 * (S + S.T), R
 
-    def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple | str:
+    def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple[Any, ...] | str:
         pl, Cl = target[1]
         lin = C3.linearize(d, s.x, pl)
         if isinstance(lin, str):
@@ -271,177 +269,126 @@ FORMS: dict[type, WorldForm] = {SE2: WorldForm(), SE3: WorldForm3()}
 """The world-frame error form of each group."""
 
 
-class DistributedInvariantEKF(RobotNode):
-    """Exact distributed invariant EKF (module docstring). ``team``: every robot id of the team (``make_team``
-    passes it). ``cluster``: 0 (default) for the exact filter over the whole team, or ``K >= 1`` robots per
-    cluster (module docstring, "Clusters"): replica and broadcasts over the robot's cluster only, covariance
-    intersection with robots outside it. The exchange's queries are
-    :class:`~swarmloc.estimators.state_exchange.StateQueries`' (``rdl``'s)."""
+class Replica(Protocol):
+    """What the team protocol reads of a node's state (:class:`TeamState`; ``flsd``'s holds more)."""
 
-    name = "diekf"
-    lazy_odometry = True
-    error_frame: ClassVar[str] = "world"
-    update_types = (TeamUpdate,)
-    lin_log: list | None = None
-    groups: ClassVar[tuple[type, ...]] = (SE2, SE3)
-    _state: ClassVar[type] = TeamState
-    """The state :meth:`_team_update` returns (``flsd`` keeps its own fields from it)."""
+    @property
+    def t(self) -> float: ...
+    @property
+    def v(self) -> Any: ...
+    @property
+    def w(self) -> Any: ...
+    @property
+    def x(self) -> np.ndarray: ...
+    @property
+    def P(self) -> np.ndarray: ...
+    @property
+    def Sigma(self) -> np.ndarray: ...
 
-    gated_broadcasts: ClassVar[bool] = True
-    """Whether a teammate's broadcast passed its sender's gate as it is (its normalized innovation is checked against
-    this node's gate: :meth:`_update_lie`)."""
-    clusters: ClassVar[bool] = True
-    """Whether the class takes ``cluster > 0`` (``flsd`` does not, nor does an SE(3) team)."""
 
-    def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
-                 **kw: Any) -> None:  # fmt: skip
-        self._form = FORMS.get(getattr(initial, "group", SE2), FORMS[SE2])  # a wrong belief: RobotNode says so
+Numbers = tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]
+"""A broadcast's numbers ``(target j, H_i, H_j, S^-1, nu, P_ii, P_jj, w)`` (module docstring, step 2)."""
+
+
+class TeamProtocol:
+    """``diekf``'s team protocol (module docstring), a part of the nodes that run it (:class:`DistributedInvariantEKF`,
+    and ``flsd``'s :class:`~swarmloc.estimators.fls_team.TeamFixedLagSmoother`): the team (this robot's cluster) and
+    each robot's place in the replica, the group's world-frame form, the exchange's queries, one detection's gated
+    update and its broadcast, a teammate's broadcast checked and applied.
+
+    ``where``, ``name``: the owner's class and estimator names (messages); ``clusters``: whether the owner takes
+    ``cluster > 0``; ``update``: the owner's team update (default step 3, :meth:`team_update`; ``flsd``'s also files
+    the change in its window); ``gated_broadcasts``: whether a teammate's broadcast passed its sender's gate as
+    it is (:meth:`update_lie`)."""
+
+    def __init__(self, where: str, name: str, robot: int, initial: Any, team: Sequence[int], cluster: int, *,
+                 clusters: bool, association: str, gated_broadcasts: bool,
+                 update: Callable[..., Any] | None = None) -> None:  # fmt: skip
+        self.form = FORMS.get(getattr(initial, "group", SE2), FORMS[SE2])  # a wrong belief: RobotNode says so
         everyone = tuple(sorted({int(r) for r in team} | {int(robot)}))
         if isinstance(cluster, bool) or not isinstance(cluster, int) or cluster < 0:
-            raise ValueError(f"{type(self).__name__}: 'cluster' must be an integer >= 0 (0: the whole team), "
-                             f"got {cluster!r}")  # fmt: skip
-        if cluster and not (self.clusters and self._form.clusters):
-            on = f" on {self._form.group.name}" if self.clusters else ""
-            raise ValueError(f"{type(self).__name__} ({self.name}) has no clusters{on}: 'cluster' must be 0")
-        if cluster and kw.get("association", "tags") != "tags":
-            raise ValueError(f"{self.name}: clusters need tagged detections (association 'tags')")
+            raise ValueError(f"{where}: 'cluster' must be an integer >= 0 (0: the whole team), got {cluster!r}")
+        if cluster and not (clusters and self.form.clusters):
+            on = f" on {self.form.group.name}" if clusters else ""
+            raise ValueError(f"{where} ({name}) has no clusters{on}: 'cluster' must be 0")
+        if cluster and association != "tags":
+            raise ValueError(f"{name}: clusters need tagged detections (association 'tags')")
+        self.robot = int(robot)
         self.cluster = cluster
         self.everyone = everyone
         """The whole team; :attr:`team` is this robot's cluster (all of it without clusters)."""
-        k = everyone.index(int(robot)) // cluster if cluster else 0
+        k = everyone.index(self.robot) // cluster if cluster else 0
         self.team = everyone[k * cluster : (k + 1) * cluster] if cluster else everyone
-        self._pos = {r: k for k, r in enumerate(self.team)}
-        self._unusable: set[tuple] = set()
-        super().__init__(robot, initial, team=self.team, **kw)
-        self._queries = StateQueries(self.robot)
+        self.mates = [r for r in self.team if r != self.robot]
+        self.pos = {r: k for k, r in enumerate(self.team)}
+        self.update = self.team_update if update is None else update
+        self.gated_broadcasts = gated_broadcasts
+        self.queries = StateQueries(self.robot)
+        self._unusable: set[tuple[Any, ...]] = set()
 
-    @property
-    def dim(self) -> int:
-        """Dimension of a robot's error (3: SE(2); 6: SE(3))."""
-        return self._form.dim
-
-    # ------------------------------------------------------------------------------------------------ filter
-    def _initial_state(self, t0: float) -> TeamState:
-        x, P = self._form.initial(self.initial.mean, self.initial.cov)
-        n, d = len(self.team), self._form.dim
+    def initial(self, mean: np.ndarray, cov: np.ndarray, t0: float) -> TeamState:
+        x, P = self.form.initial(mean, cov)
+        n, d = len(self.team), self.form.dim
         return TeamState(t0, 0.0, 0.0, x, P, np.zeros((n, n, d, d)))
 
-    def _advance(self, s: TeamState, robot: int, t: float) -> TeamState:
-        dt = t - s.t
-        if dt <= 0:
-            return s
-        x, P = self._form.predict(s.x, s.P, s.v, s.w, dt, self.noise)
-        return TeamState(t, s.v, s.w, x, P, s.Sigma)
+    def belief(self, x: Any, P: np.ndarray) -> GroupGaussian:
+        return belief_of(*self.form.belief(x, P))
 
-    def _set_command(self, s: TeamState, robot: int, v: Any, w: Any) -> TeamState:
-        return TeamState(s.t, v, w, s.x, s.P, s.Sigma)
+    def answer(self, s: Replica, q: Message) -> Answer | None:
+        """The answer to an :class:`~swarmloc.messages.RdlStateQuery` (None: another query)."""
+        if not isinstance(q, RdlStateQuery):
+            return None
+        return RdlState(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, x=flat(s.x), P=flat(s.P),
+                        sigma=self.form.eye)  # fmt: skip
 
-    def _advance_commands(self, s: Any, cmds: Any) -> Any:
-        """A run of odometry: :meth:`_advance` and :meth:`_set_command` one by one (predicting in world-frame errors,
-        not rdl's Cartesian run), the pose kept in floats between steps (the same numbers)."""
-        if self.measure_time or not self._form.runs or type(self)._advance is not DistributedInvariantEKF._advance:
-            return Node._advance_commands(self, s, cmds)  # timed, SE(3), or a subclass with more state (flsd)
-        t0, v, w, P = s.t, s.v, s.w, s.P
-        x0, y0, th = s.x.tolist()
-        for t, _, vk, wk in cmds:
-            dt = t - t0
-            if dt > 0:
-                x0, y0, th, P = world_step(x0, y0, th, P, v, w, dt, self.noise)
-                t0 = t
-            v, w = vk, wk
-        x = s.x if P is s.P else np.array([x0, y0, th])
-        return TeamState(t0, v, w, x, P, s.Sigma)
-
-    def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
-        return belief_of(*self._form.belief(s.x, s.P))
-
-    def _answer(self, s: TeamState, q: Message) -> Answer | None:
-        if isinstance(q, RdlStateQuery):
-            return RdlState(
-                sender=q.receiver,
-                receiver=q.sender,
-                stamp=q.stamp,
-                sub=q.sub,
-                x=flat(s.x),
-                P=flat(s.P),
-                sigma=self._form.eye,
-            )
-        if isinstance(q, BeliefQuery):
-            return super()._answer(s, q)
-        return None
-
-    def _team_update(
-        self, s: TeamState, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
+    def team_update(
+        self, s: Replica, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
         Pii: np.ndarray, Pjj: np.ndarray, w: float = 1.0,
     ) -> TeamState:  # fmt: skip
         """Step 3 of the module docstring on this robot's state (``w < 1``: a covariance-intersection update, every
         covariance of the cluster divided by ``w`` first)."""
+        P0, Sigma0 = s.P, s.Sigma
         if w != 1.0:
-            s = s._replace(P=s.P / w, Sigma=s.Sigma / w)
+            P0, Sigma0 = P0 / w, Sigma0 / w
             Pii, Pjj = Pii / w, Pjj / w
-        pi, pj, me = self._pos[i], self._pos[j], self._pos[self.robot]
-        Ci = s.Sigma[:, pi].copy()
+        pi, pj, me = self.pos[i], self.pos[j], self.pos[self.robot]
+        Ci = Sigma0[:, pi].copy()
         Ci[pi] = Pii
         if pj == pi:
             Cj = Ci
         else:
-            Cj = s.Sigma[:, pj].copy()
+            Cj = Sigma0[:, pj].copy()
             Cj[pj] = Pjj
         if me not in (pi, pj):
-            Ci[me], Cj[me] = s.Sigma[me, pi], s.Sigma[me, pj]
+            Ci[me], Cj[me] = Sigma0[me, pi], Sigma0[me, pj]
         Gam = Ci @ Hi.T + Cj @ Hj.T  # (n, 3, m)
         G = Gam @ Sinv
-        Sigma = s.Sigma - np.einsum("aim,bjm->abij", G, Gam)
+        Sigma = Sigma0 - np.einsum("aim,bjm->abij", G, Gam)
         Sigma = 0.5 * (Sigma + Sigma.transpose(1, 0, 3, 2))  # Sigma_ba = Sigma_ab^T, as P's symmetrization below
-        P = s.P - G[me] @ Gam[me].T
+        P = P0 - G[me] @ Gam[me].T
         P = 0.5 * (P + P.T)
-        return self._state(s.t, s.v, s.w, self._correct(s.x, Gam[me] @ nu), P, Sigma)
-
-    def _correct(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
-        """The pose ``x`` corrected by the world-frame ``delta`` (:meth:`WorldForm.correct`)."""
-        return self._form.correct(x, delta)
+        return TeamState(s.t, s.v, s.w, self.form.correct(s.x, Gam[me] @ nu), P, Sigma)
 
     # ------------------------------------------------------------------------------------------------ update
-    def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
-        outcomes: list[Outcome] = []
-        msgs: list[Message] = []
-        mates = [r for r in self.team if r != self.robot]
-        for d, sub in zip(g.detections, g.keys, strict=True):
-            target = self._classify(g, d, sub)
-            if target[0] in ("rejected", "unknown"):
-                outcomes.append(target)
-                continue
-            res = self._one(s, g, d, target)
-            if isinstance(res[0], str):
-                outcomes.append(res)
-                msgs += [TeamUpdate(sender=self.robot, receiver=r, stamp=g.t, sub=sub) for r in mates]  # settled
-                continue
-            s, (j, Hi, Hj, Sinv, nu, Pii, Pjj, w) = res
-            body = dict(
-                target=j, m=len(nu), n=self.dim, Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv), nu=flat(nu), Pii=flat(Pii),
-                Pjj=flat(Pjj), **({} if w == 1.0 else {"scale": w}),
-            )  # fmt: skip
-            msgs += [TeamUpdate(sender=self.robot, receiver=r, stamp=g.t, sub=sub, **body) for r in mates]
-            outcomes.append(FUSED)
-        return s, outcomes, msgs
-
-    def _one(self, s: TeamState, g: Group, d: Any, target: tuple[str, Any]) -> Any:
-        """One detection: the new state and the broadcast's numbers, or an outcome."""
-        i, form = self.robot, self._form
+    def one(self, s: Replica, d: Any, target: tuple[str, Any], gate: Gate, lin_log: list[Any] | None,
+            t: float | None) -> Any:  # fmt: skip
+        """One detection (of the group stamped ``t``): the new state and the broadcast's :data:`Numbers`, or an
+        outcome; with ``lin_log``, its linearization is appended there."""
+        i, form = self.robot, self.form
         why = form.unsupported(d, target)
         if why is not None:
             return ("rejected", why)
         if target[0] == "robot":
             a: RdlState = target[1]
             j = d.target
-            if j not in self._pos:
+            if j not in self.pos:
                 if self.cluster and j in self.everyone:
-                    return self._outsider(s, i, d, a)
+                    return self.outsider(s, i, d, a, gate)
                 return ("unknown", f"robot {j} is not in this node's team {list(self.team)}")
             xj, Pjj, _ = a.arrays()
             if xj.shape != s.x.shape:
                 return ("rejected", f"the neighbour's answer is not an {form.group.name} state")
-            lin = form.robot(d, s, xj, Pjj, s.Sigma[self._pos[i], self._pos[j]])
+            lin = form.robot(d, s, xj, Pjj, s.Sigma[self.pos[i], self.pos[j]])
             if isinstance(lin, str):
                 return ("rejected", lin)
             r, Hi, Hj, S, R = lin
@@ -451,37 +398,12 @@ class DistributedInvariantEKF(RobotNode):
                 return ("rejected", lin)
             r, Hi, S, R = lin
             j, Pjj, Hj = i, s.P, np.zeros_like(Hi)
-        out = self._gated_update(s, i, j, Hi, Hj, S, r, Pjj)
-        if self.lin_log is not None and not isinstance(out[0], str):
-            self.lin_log.append(("update", g.t, {i: Hi, j: Hj} if j != i else {i: Hi}, R))
+        out = self.gated_update(s, i, j, Hi, Hj, S, r, Pjj, gate)
+        if lin_log is not None and not isinstance(out[0], str):
+            lin_log.append(("update", t, {i: Hi, j: Hj} if j != i else {i: Hi}, R))
         return out
 
-    def _requests(self, g: Group) -> list[Message]:
-        """``rdl``'s queries; with clusters, a robot outside the cluster is asked a ``BeliefQuery`` instead (its
-        belief is all :meth:`_outsider` needs, and an answerer outside the cluster waits for no broadcast)."""
-        out = self._queries.requests(g, self._needs_answer, self._teammates(g))
-        if not self.cluster:
-            return out
-        kept: dict[tuple, Message] = {}
-        for q in out:
-            if q.receiver in self._pos:
-                kept[(q.receiver, tuple(q.sub))] = q
-            else:
-                kept.setdefault((q.receiver, ()), BeliefQuery(sender=self.robot, receiver=q.receiver, stamp=q.stamp))
-        return list(kept.values())
-
-    def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        return self._queries.candidates(g, mates, self._answered_belief)
-
-    def _answered_belief(self, t: float, x: np.ndarray, P: np.ndarray, robot: int) -> GroupGaussian:
-        return self._belief(TeamState(t, 0.0, 0.0, x, P, _NO_SIGMA), robot)
-
-    def _robot_target(self, g: Group, d: Any, sub: tuple) -> tuple[str, Any]:
-        if self.cluster and d.target not in self._pos:
-            sub = ()  # the BeliefQuery's answer (:meth:`_requests`)
-        return super()._robot_target(g, d, sub)
-
-    def _outsider(self, s: TeamState, i: int, d: Any, a: Any) -> Any:
+    def outsider(self, s: Replica, i: int, d: Any, a: Any, gate: Gate) -> Any:
         """A detection of robot ``d.target`` outside this robot's cluster, by covariance intersection: for a weight
         ``w`` in (0, 1), ``blockdiag(Sigma_cluster / w, P_jj / (1 - w))`` bounds the joint covariance of the cluster
         and the outsider whatever their correlation; the update is the cluster's exact one with the outsider's
@@ -500,17 +422,17 @@ class DistributedInvariantEKF(RobotNode):
             return ("rejected", DEGENERATE)
         r, Hi, Hj, R = lin
         A, B = Hi @ s.P @ Hi.T, Hj @ Pjj @ Hj.T
-        w = joint_weight(A, B, R, self.dim * len(self.team))
+        w = joint_weight(A, B, R, self.form.dim * len(self.team))
         S = A / w + B / (1.0 - w) + R
-        return self._gated_update(s, i, i, Hi, np.zeros_like(Hi), S, r, s.P, w)
+        return self.gated_update(s, i, i, Hi, np.zeros_like(Hi), S, r, s.P, gate, w)
 
-    def _gated_update(
-        self, s: Any, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, S: np.ndarray, r: np.ndarray, Pjj: np.ndarray,
-        w: float = 1.0,
+    def gated_update(
+        self, s: Replica, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, S: np.ndarray, r: np.ndarray,
+        Pjj: np.ndarray, gate: Gate, w: float = 1.0,
     ) -> Any:  # fmt: skip
         """The gated team update of one detection with innovation ``r``, its covariance ``S`` and Jacobians
         ``Hi``, ``Hj`` (the SE(2) and SE(3) forms share it; ``w < 1``: a covariance-intersection one,
-        :meth:`_outsider`): ``(new state, the broadcast's numbers)``, or an outcome (gated, or rejected when ``S``
+        :meth:`outsider`): ``(new state, the broadcast's numbers)``, or an outcome (gated, or rejected when ``S``
         is singular or the result not finite)."""
         try:
             Sinv = np.linalg.inv(S)
@@ -518,74 +440,204 @@ class DistributedInvariantEKF(RobotNode):
             return ("rejected", NUMERICAL)
         Sinv = 0.5 * (Sinv + Sinv.T)
         nu = Sinv @ r
-        verdict = self._gated(float(r @ nu), len(r))
+        verdict = gate.verdict(float(r @ nu), len(r))
         if verdict is not None:
             return verdict
-        new = self._team_update(s, i, j, Hi, Hj, Sinv, nu, s.P, Pjj, w)
+        new = self.update(s, i, j, Hi, Hj, Sinv, nu, s.P, Pjj, w)
         if not (np.isfinite(new.x).all() and usable_covariance(new.P) and np.isfinite(new.Sigma).all()):
             return ("rejected", NUMERICAL)
         return new, (j, Hi, Hj, Sinv, nu, s.P, Pjj, w)
 
-    # ------------------------------------------------------------------------------------------------ broadcasts
-    def _settle(self, g: Group) -> list[Message]:
+    def fuse(self, s: Replica, d: Any, target: tuple[str, Any], sub: SubKey, gate: Gate, lin_log: list[Any] | None,
+             t: float) -> tuple[Any, Outcome, list[Message]]:  # fmt: skip
+        """One detection of the group stamped ``t`` (key ``sub``): the new state, ``fused`` and the update's broadcast
+        (:meth:`one`), or the state, the outcome and an empty broadcast (the exchange settled)."""
+        res = self.one(s, d, target, gate, lin_log, t)
+        if isinstance(res[0], str):
+            return s, res, self.broadcast(t, sub)
+        new, numbers = res
+        return new, FUSED, self.broadcast(t, sub, numbers)
+
+    # ------------------------------------------------------------------------------------------------ exchange
+    def requests(self, g: Group, needs_answer: Callable[[Group, Any], bool], mates: Sequence[int]) -> list[Message]:
+        """``rdl``'s queries; with clusters, a robot outside the cluster is asked a ``BeliefQuery`` instead (its
+        belief is all :meth:`outsider` needs, and an answerer outside the cluster waits for no broadcast)."""
+        out = self.queries.requests(g, needs_answer, mates)
+        if not self.cluster:
+            return out
+        kept: dict[tuple[Any, ...], Message] = {}
+        for q in out:
+            if q.receiver in self.pos:
+                kept[(q.receiver, tuple(q.sub))] = q
+            else:
+                kept.setdefault((q.receiver, ()), BeliefQuery(sender=self.robot, receiver=q.receiver, stamp=q.stamp))
+        return list(kept.values())
+
+    def candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
+        return self.queries.candidates(g, mates, lambda t, x, P, robot: self.belief(x, P))
+
+    def broadcast(self, t: float, sub: SubKey, numbers: Numbers | None = None) -> list[Message]:
+        """One exchange's broadcast to every teammate: an update's :data:`Numbers`, or none (an empty update: the
+        exchange is settled, its detection not fused)."""
+        if numbers is None:
+            return [TeamUpdate(sender=self.robot, receiver=r, stamp=t, sub=sub) for r in self.mates]
+        j, Hi, Hj, Sinv, nu, Pii, Pjj, w = numbers
+        body: dict[str, Any] = dict(
+            target=j, m=len(nu), n=self.form.dim, Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv), nu=flat(nu),
+            Pii=flat(Pii), Pjj=flat(Pjj), **({} if w == 1.0 else {"scale": w}),
+        )  # fmt: skip
+        return [TeamUpdate(sender=self.robot, receiver=r, stamp=t, sub=sub, **body) for r in self.mates]
+
+    def settle(self, g: Group) -> list[Message]:
         """An empty broadcast under the key of every found answer that no detection used
         (:meth:`~swarmloc.estimators.state_exchange.StateQueries.unused`): the answerer knows the exchange is settled
         (each teammate counts it ``no_update``)."""
-        mates = [r for r in self.team if r != self.robot]
-        return [
-            TeamUpdate(sender=self.robot, receiver=m, stamp=g.t, sub=k)
-            for _, k, a in self._queries.unused(g)
-            if a.found
-            for m in mates
-        ]
+        return [m for _, k, a in self.queries.unused(g) if a.found for m in self.broadcast(g.t, k)]
 
-    def _update_problem(self, u: Message) -> str | None:
-        if u.sender not in self._pos or (not u.empty and u.target not in self._pos):
+    def update_problem(self, u: Message) -> str | None:
+        if not isinstance(u, TeamUpdate):
+            return f"{type(u).__name__} is not a team update"
+        if u.sender not in self.pos or (not u.empty and u.target not in self.pos):
             return f"team update from or about a robot outside the team {list(self.team)}"
-        if not u.empty and u.n != self.dim:
-            return f"team update of a {u.n}-dof error; this node's error has {self.dim} dof"
+        if not u.empty and u.n != self.form.dim:
+            return f"team update of a {u.n}-dof error; this node's error has {self.form.dim} dof"
         return None
 
-    def _apply_update(self, s: TeamState, u: TeamUpdate) -> tuple[TeamState, bool]:
-        # The detected robot is predicted to the stamp; a third party is not: a world-frame correction commutes
-        # with the odometry (exp(d) g Delta), so it applies at the robot's own clock. This is what the
-        # centralized filter does with its blocks (the same process-noise linearization points, same numbers).
-        if u.target == self.robot:
-            s = self._adv(s, self.robot, u.stamp)
+    def update_lie(self, u: Message, gate: Gate) -> str | None:
+        """A broadcast must be what a teammate with this node's gate sent: its own normalized innovation ``nu^T S nu
+        <= gamma_m`` (the sender's gate held it), and scaled only as a cluster's covariance-intersection update of
+        its sender alone, ``w`` within the bounds the sender chooses it in (:mod:`~swarmloc.node.trust`)."""
+        if gate.p is None or not isinstance(u, TeamUpdate) or u.empty:
+            return None
+        if u.scale != 1.0 and not (self.cluster and u.target == u.sender and u.scale >= W_BOUNDS[0]):
+            return f"broadcast of robot {u.sender} scaled as no robot of this team scales one"
+        m = u.m
+        if not self.gated_broadcasts or fits(gate, broadcast_nis(np.reshape(u.Sinv, (m, m)), np.array(u.nu)), m):
+            return None
+        return f"broadcast of robot {u.sender} beyond the gate"
+
+    def apply(self, s: Replica, u: Message, counts: Counter[str]) -> tuple[Any, bool]:
+        """A teammate's broadcast applied to ``s`` (this robot at its clock; the detected robot predicted to the
+        stamp by the owner); not when it would leave this robot's covariance not positive definite."""
+        if not isinstance(u, TeamUpdate):
+            return s, False
         m, n = u.m, u.n
         A = np.array  # np.array(t).reshape: what np.reshape(t) makes of a tuple, without its dispatch
         Hi, Hj = A(u.Hi).reshape(m, n), A(u.Hj).reshape(m, n)
         Sinv, nu = A(u.Sinv).reshape(m, m), A(u.nu)
         Pii, Pjj = A(u.Pii).reshape(n, n), A(u.Pjj).reshape(n, n)
-        new = self._team_update(s, u.sender, u.target, Hi, Hj, Sinv, nu, Pii, Pjj, float(u.scale))
+        new = self.update(s, u.sender, u.target, Hi, Hj, Sinv, nu, Pii, Pjj, float(u.scale))
         usable = positive_definite(new.P)
-        self._count_unusable((float(u.stamp), P_GROUP, u.sender, tuple(u.sub)), not usable)
+        self._count_unusable(counts, (float(u.stamp), P_GROUP, u.sender, tuple(u.sub)), not usable)
         return (new if usable else s), True
 
-    def _count_unusable(self, key: tuple, unusable: bool) -> None:
+    def _count_unusable(self, counts: Counter[str], key: tuple[Any, ...], unusable: bool) -> None:
         """Keep ``updates_unusable`` the number of broadcasts whose last application left this robot's covariance not
         positive definite (not applied: no honest broadcast does that, :mod:`~swarmloc.node.trust`)."""
         if unusable and key not in self._unusable:
             self._unusable.add(key)
-            self.counts["updates_unusable"] += 1
+            counts["updates_unusable"] += 1
         elif not unusable and key in self._unusable:
             self._unusable.discard(key)
-            self.counts["updates_unusable"] -= 1
+            counts["updates_unusable"] -= 1
 
-    def _prune(self) -> None:
-        super()._prune()
-        cutoff = self._clock.present - self.horizon
-        self._unusable = {k for k in self._unusable if k[0] >= cutoff}  # (their count stands)
+    def prune(self, cutoff: float) -> None:
+        """Forget the unusable broadcasts stamped before ``cutoff`` (their count stands)."""
+        self._unusable = {k for k in self._unusable if k[0] >= cutoff}
 
-    def _update_lie(self, u: Message) -> str | None:
-        """A broadcast must be what a teammate with this node's gate sent: its own normalized innovation ``nu^T S nu
-        <= gamma_m`` (the sender's gate held it), and scaled only as a cluster's covariance-intersection update of
-        its sender alone, ``w`` within the bounds the sender chooses it in (:mod:`~swarmloc.node.trust`)."""
-        if self.gate.p is None or not isinstance(u, TeamUpdate) or u.empty:
-            return None
-        if u.scale != 1.0 and not (self.cluster and u.target == u.sender and u.scale >= W_BOUNDS[0]):
-            return f"broadcast of robot {u.sender} scaled as no robot of this team scales one"
-        m = u.m
-        if not self.gated_broadcasts or fits(self.gate, broadcast_nis(np.reshape(u.Sinv, (m, m)), np.array(u.nu)), m):
-            return None
-        return f"broadcast of robot {u.sender} beyond the gate"
+
+class DistributedInvariantEKF(RobotNode):
+    """Exact distributed invariant EKF (module docstring): the node's filter over its :class:`TeamProtocol`
+    (:attr:`protocol`, which speaks the exchange: :class:`~swarmloc.node.robot.RobotNode` hands it the exchange's
+    hooks). ``team``: every robot id of the team (``make_team`` passes it). ``cluster``: 0 (default)
+    for the exact filter over the whole team, or ``K >= 1`` robots per cluster (module docstring, "Clusters"):
+    replica and broadcasts over the robot's cluster only, covariance intersection with robots outside it. The
+    exchange's queries are :class:`~swarmloc.estimators.state_exchange.StateQueries`' (``rdl``'s)."""
+
+    name = "diekf"
+    lazy_odometry = True
+    error_frame: ClassVar[str] = "world"
+    update_types = (TeamUpdate,)
+    lin_log: list[Any] | None = None
+    groups: ClassVar[tuple[type, ...]] = (SE2, SE3)
+    protocol: TeamProtocol
+
+    def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
+                 **kw: Any) -> None:  # fmt: skip
+        self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=True,
+                                     association=kw.get("association", "tags"), gated_broadcasts=True)  # fmt: skip
+        super().__init__(robot, initial, team=self.protocol.team, **kw)
+
+    @property
+    def dim(self) -> int:
+        """Dimension of a robot's error (3: SE(2); 6: SE(3))."""
+        return self.protocol.form.dim
+
+    # ------------------------------------------------------------------------------------------------ filter
+    def _initial_state(self, t0: float) -> TeamState:
+        return self.protocol.initial(self.initial.mean, self.initial.cov, t0)
+
+    def _advance(self, s: TeamState, robot: int, t: float) -> TeamState:
+        dt = t - s.t
+        if dt <= 0:
+            return s
+        x, P = self.protocol.form.predict(s.x, s.P, s.v, s.w, dt, self.noise)
+        return TeamState(t, s.v, s.w, x, P, s.Sigma)
+
+    def _set_command(self, s: TeamState, robot: int, v: Any, w: Any) -> TeamState:
+        return TeamState(s.t, v, w, s.x, s.P, s.Sigma)
+
+    def _advance_commands(self, s: Any, cmds: Any) -> Any:
+        """A run of odometry: :meth:`_advance` and :meth:`_set_command` one by one (predicting in world-frame errors,
+        not rdl's Cartesian run), the pose kept in floats between steps (the same numbers)."""
+        if self.measure_time or not self.protocol.form.runs:
+            return super()._advance_commands(s, cmds)  # timed, or SE(3)
+        t0, v, w, P = s.t, s.v, s.w, s.P
+        x0, y0, th = s.x.tolist()
+        for t, _, vk, wk in cmds:
+            dt = t - t0
+            if dt > 0:
+                x0, y0, th, P = world_step(x0, y0, th, P, v, w, dt, self.noise)
+                t0 = t
+            v, w = vk, wk
+        x = s.x if P is s.P else np.array([x0, y0, th])
+        return TeamState(t0, v, w, x, P, s.Sigma)
+
+    def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
+        return self.protocol.belief(s.x, s.P)
+
+    # ------------------------------------------------------------------------------------------------ update
+    def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
+        outcomes: list[Outcome] = []
+        msgs: list[Message] = []
+        for d, sub in zip(g.detections, g.keys, strict=True):
+            s, outcome, sent = self._fuse_one(s, g, d, sub)
+            outcomes.append(outcome)
+            msgs += sent
+        return s, outcomes, msgs
+
+    def _fuse_one(self, s: TeamState, g: Group, d: Any, sub: SubKey) -> tuple[TeamState, Outcome, list[Message]]:
+        """One detection of ``g`` (key ``sub``) fused and broadcast (:meth:`TeamProtocol.fuse`), or its outcome."""
+        target = self._classify(g, d, sub)
+        if target[0] in ("rejected", "unknown"):
+            return s, target, []
+        return self.protocol.fuse(s, d, target, sub, self.gate, self.lin_log, g.t)
+
+    def _one(self, s: TeamState, g: Group | None, d: Any, target: tuple[str, Any]) -> Any:
+        """One detection: the new state and the broadcast's numbers, or an outcome (:meth:`TeamProtocol.one`)."""
+        return self.protocol.one(s, d, target, self.gate, self.lin_log, None if g is None else g.t)
+
+    # ------------------------------------------------------------------------------------------------ exchange
+    def _robot_target(self, g: Group, d: Any, sub: SubKey) -> tuple[str, Any]:
+        if self.protocol.cluster and d.target not in self.protocol.pos:
+            sub = ()  # the BeliefQuery's answer (TeamProtocol.requests)
+        return super()._robot_target(g, d, sub)
+
+    def _apply_update(self, s: TeamState, u: Message) -> tuple[TeamState, bool]:
+        # The detected robot is predicted to the stamp; a third party is not: a world-frame correction commutes
+        # with the odometry (exp(d) g Delta), so it applies at the robot's own clock. This is what the
+        # centralized filter does with its blocks (the same process-noise linearization points, same numbers).
+        if isinstance(u, TeamUpdate) and u.target == self.robot:
+            s = self._adv(s, self.robot, u.stamp)
+        return self.protocol.apply(s, u, self.counts)
+

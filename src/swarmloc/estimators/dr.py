@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from swarmloc.estimators.expfusion import ExpFusion, ExpState
+from swarmloc.estimators.expfusion import ExpNode, ExpState
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
@@ -23,8 +23,16 @@ from swarmloc.node import Group, Outcome
 UNUSED = "dead reckoning does not use detections"
 
 
-class DeadReckoning(ExpFusion):
-    """Exponential-coordinate prediction only.
+class NoFusion:
+    """``dr``'s update: none (every detection counted ``rejected``, :data:`UNUSED`)."""
+
+    def fuse_group(self, node: ExpNode, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
+        return s, [("rejected", UNUSED)] * len(g.detections), []
+
+
+class DeadReckoning(ExpNode):
+    """Exponential-coordinate prediction only (:class:`~swarmloc.estimators.expfusion.ExpNode` with
+    :class:`NoFusion`; it asks no teammate: ``use_relative`` is off).
 
     Parameters: ``robot``, ``initial``, ``noise``, ``order`` (1 or 2), the clock's ``t0``, ``horizon``,
     ``tolerance``, ``jump_inputs``, and ``team``, ``association``, ``association_gate``, ``sensor_range``,
@@ -33,6 +41,7 @@ class DeadReckoning(ExpFusion):
     """
 
     name = "dr"
+    rule = NoFusion()
 
     def __init__(
         self,
@@ -56,9 +65,3 @@ class DeadReckoning(ExpFusion):
         super().__init__(robot, initial, noise=noise, order=order, t0=t0, use_relative=False, use_landmarks=False,
                          team=team, association=association, association_gate=association_gate,
                          sensor_range=sensor_range, sensor_fov=sensor_fov, **kw)  # fmt: skip
-
-    def _requests(self, g: Group) -> list[Message]:
-        return []
-
-    def _fuse_group(self, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
-        return s, [("rejected", UNUSED)] * len(g.detections), []

@@ -25,7 +25,7 @@ fix that.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple, Protocol, cast
 
 import numpy as np
 
@@ -35,7 +35,7 @@ from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import BeliefAnswer, Message
 from swarmloc.motion import UnicycleNoise, odometry_increment
-from swarmloc.motion.twist3 import as_twist, twist_increment
+from swarmloc.motion.twist3 import TwistNoise, as_twist, twist_increment
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
 from swarmloc.sensors.models3 import pose3_matrix
 
@@ -100,8 +100,11 @@ class ExpState(NamedTuple):
     cov: np.ndarray
 
 
-class ExpFusion(RobotNode):
-    """Thesis estimator (distributed): second-order exponential-coordinate prediction and n-neighbour fusion.
+class ExpNode(RobotNode):
+    """The exponential-coordinate node (not an estimator itself): one robot's Gaussian on SE(2) or SE(3), the
+    thesis' prediction, and the update of :attr:`rule`, the part each estimator class chooses
+    (:class:`ThesisFusion`: ``expfusion``; :class:`~swarmloc.estimators.ci.CovarianceIntersection`: ``ci``;
+    :class:`~swarmloc.estimators.dr.NoFusion`: ``dr``).
 
     Parameters (besides :class:`~swarmloc.node.robot.RobotNode`'s)
     --------------------------------------------------------------------
@@ -111,9 +114,12 @@ class ExpFusion(RobotNode):
     point_iterations: passes of the range/bearing update on the group.
     """
 
-    name = "expfusion"
     lazy_odometry = True
     groups = (SE2, SE3)
+    rule: ClassVar[UpdateRule]
+    """How a detection group updates the state (the estimator's part)."""
+    ci_weight: ClassVar[str]
+    """The covariance-intersection weight rule (``ci``'s: :attr:`swarmloc.estimators.ExpCI.ci_weight`)."""
 
     def __init__(
         self,
@@ -144,7 +150,7 @@ class ExpFusion(RobotNode):
         if dt <= 0:
             return s
         if self.group is SE3:
-            inc_mean, inc_cov = twist_increment(as_twist(s.v, s.w), dt, self.noise)
+            inc_mean, inc_cov = twist_increment(as_twist(s.v, s.w), dt, cast(TwistNoise, self.noise))  # SE(3)'s
         else:
             inc_mean, inc_cov = odometry_increment(s.v, s.w, dt, self.noise)
         mean, cov = K.predict(self.group, s.mean, s.cov, inc_mean, inc_cov, self.order)
@@ -182,95 +188,116 @@ class ExpFusion(RobotNode):
     def _belief(self, s: ExpState, robot: int) -> GroupGaussian:
         return belief_of(s.mean, s.cov)
 
-    # ------------------------------------------------------------------------------------------------ update
-    def _pseudo(self, d: Any, target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
-        """Pseudo-observation ``(nu, W)`` of the robot's own pose (absolute fix or relative pose of a robot)."""
-        if self.group is SE3:
-            if target[0] == "robot" and d.kind == Kind.POSE3:
-                mean, cov = target[1].belief_arrays()
-                if mean.shape != (4, 4):
-                    return None
-                return K.relative_to_pseudo(SE3, mean, cov, pose3_matrix(d.z), np.asarray(d.cov, float), self.order)
-            return None
-        if target[0] == Kind.ABSOLUTE:
-            return K.absolute_to_pseudo(d.z, np.asarray(d.cov, float))
-        if target[0] == "robot" and d.kind == Kind.POSE:
-            nb: BeliefAnswer = target[1]
-            mean, cov = nb.belief_arrays()
-            return K.relative_to_pseudo(SE2, mean, cov, SE2.from_xytheta(d.z), np.asarray(d.cov, float), self.order)
-        return None
-
-    @staticmethod
-    def _point_target(target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray, bool]:
-        if target[0] == "robot":
-            mean, cov = target[1].belief_arrays()
-            return mean, cov, True
-        p, C = target[1]
-        return p, C, False
-
-    def _point_gate(
-        self, mean: np.ndarray, cov: np.ndarray, d: Any, tm: np.ndarray, tc: np.ndarray, robot: bool
-    ) -> Outcome | None:
-        """The gate's verdict on a range/bearing detection (None: pass, or no gate)."""
-        if self.gate.p is None:
-            return None
-        nis = float(K.point_nis(mean, cov, d.kind, d.z, np.asarray(d.cov, float), tm, tc, robot))
-        if not np.isfinite(nis):
-            return ("rejected", DEGENERATE)
-        return self._gated(nis, len(d.z))
-
-    def _point(self, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
-        """Range/bearing update; returns ``(mean, cov)`` or the outcome when it cannot be fused."""
-        tm, tc, robot = self._point_target(target)
-        R = np.asarray(d.cov, float)
-        verdict = self._point_gate(mean, cov, d, tm, tc, robot)
-        if verdict is not None:
-            return verdict
-        m2, c2, ok = K.point_update(mean, cov, d.kind, d.z, R, tm, tc, robot, self.point_iterations, self.order)
-        if not bool(ok):
-            return ("rejected", DEGENERATE)
-        if not usable_covariance(c2):
-            return ("rejected", NUMERICAL)
-        return m2, c2
-
     def _fuse_group(self, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
+        return self.rule.fuse_group(self, s, g)
+
+
+class UpdateRule(Protocol):
+    """How an exponential-coordinate node fuses a detection group (:attr:`ExpNode.rule`)."""
+
+    def fuse_group(self, node: ExpNode, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
+        """The state after group ``g`` (the observer predicted to ``g.t``), the outcomes, the messages to send."""
+        ...
+
+
+# ---------------------------------------------------------------------------------------------------- update
+def pseudo(node: ExpNode, d: Any, target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pseudo-observation ``(nu, W)`` of the robot's own pose (absolute fix or relative pose of a robot), None for
+    a point detection (range/bearing)."""
+    if node.group is SE3:
+        if target[0] == "robot" and d.kind == Kind.POSE3:
+            mean, cov = target[1].belief_arrays()
+            if mean.shape != (4, 4):
+                return None
+            return K.relative_to_pseudo(SE3, mean, cov, pose3_matrix(d.z), np.asarray(d.cov, float), node.order)
+        return None
+    if target[0] == Kind.ABSOLUTE:
+        return K.absolute_to_pseudo(d.z, np.asarray(d.cov, float))
+    if target[0] == "robot" and d.kind == Kind.POSE:
+        nb: BeliefAnswer = target[1]
+        mean, cov = nb.belief_arrays()
+        return K.relative_to_pseudo(SE2, mean, cov, SE2.from_xytheta(d.z), np.asarray(d.cov, float), node.order)
+    return None
+
+
+def point_gate(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, tm: np.ndarray, tc: np.ndarray,
+               robot: bool) -> Outcome | None:  # fmt: skip
+    """The gate's verdict on a range/bearing detection of a target ``(tm, tc)`` (None: pass, or no gate)."""
+    if node.gate.p is None:
+        return None
+    nis = float(K.point_nis(mean, cov, d.kind, d.z, np.asarray(d.cov, float), tm, tc, robot))
+    if not np.isfinite(nis):
+        return ("rejected", DEGENERATE)
+    return node._gated(nis, len(d.z))
+
+
+def point(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
+    """Range/bearing update; returns ``(mean, cov)`` or the outcome when it cannot be fused."""
+    if target[0] == "robot":
+        tm, tc = target[1].belief_arrays()
+    else:
+        tm, tc = target[1]
+    robot = target[0] == "robot"
+    verdict = point_gate(node, mean, cov, d, tm, tc, robot)
+    if verdict is not None:
+        return verdict
+    m2, c2, ok = K.point_update(mean, cov, d.kind, d.z, np.asarray(d.cov, float), tm, tc, robot,
+                                node.point_iterations, node.order)  # fmt: skip
+    if not bool(ok):
+        return ("rejected", DEGENERATE)
+    if not usable_covariance(c2):
+        return ("rejected", NUMERICAL)
+    return m2, c2
+
+
+class ThesisFusion:
+    """The thesis' update (``expfusion``): every pose pseudo-observation of a group fused at once
+    (:func:`swarmloc.kernels.group.fuse_pseudo`), then the range/bearing detections one at a time."""
+
+    def fuse_group(self, node: ExpNode, s: ExpState, g: Group) -> tuple[ExpState, list[Outcome], list[Message]]:
         outcomes: list[Outcome | None] = [None] * len(g.detections)
         nus, Ws, idx, points = [], [], [], []
+        G = node.group
         for i, d in enumerate(g.detections):
-            target = self._classify(g, d)
+            target = node._classify(g, d)
             if target[0] in ("rejected", "unknown"):
                 outcomes[i] = target
                 continue
-            pseudo = self._pseudo(d, target)
-            if pseudo is None:
+            obs = pseudo(node, d, target)
+            if obs is None:
                 points.append((i, d, target))
                 continue
-            G = self.group
-            verdict = (
-                None if self.gate.p is None else self._gated(float(K.pseudo_nis(G, s.mean, s.cov, *pseudo)), G.dim)
-            )
+            verdict = None if node.gate.p is None else node._gated(float(K.pseudo_nis(G, s.mean, s.cov, *obs)), G.dim)
             if verdict is not None:
                 outcomes[i] = verdict
                 continue
-            nus.append(pseudo[0])
-            Ws.append(pseudo[1])
+            nus.append(obs[0])
+            Ws.append(obs[1])
             idx.append(i)
         mean, cov = s.mean, s.cov
         if nus:
-            m2, c2 = K.fuse_pseudo(self.group, mean, cov, np.stack(nus), np.stack(Ws), self.order, self.iterations)
+            m2, c2 = K.fuse_pseudo(G, mean, cov, np.stack(nus), np.stack(Ws), node.order, node.iterations)
             ok = np.isfinite(m2).all() and usable_covariance(c2)
             if ok:
                 mean, cov = m2, c2
             for i in idx:
                 outcomes[i] = FUSED if ok else ("rejected", NUMERICAL)
         for i, d, target in points:
-            if self.group is SE3 or d.kind == Kind.POSE3:
-                outcomes[i] = ("rejected", f"kind {d.kind!r} is not supported on {self.group.name}")
+            if G is SE3 or d.kind == Kind.POSE3:
+                outcomes[i] = ("rejected", f"kind {d.kind!r} is not supported on {G.name}")
                 continue
-            res = self._point(mean, cov, d, target)
+            res = point(node, mean, cov, d, target)
             if isinstance(res[0], str):
                 outcomes[i] = res
             else:
                 mean, cov = res
                 outcomes[i] = FUSED
-        return ExpState(s.t, s.v, s.w, mean, cov), outcomes, []
+        return ExpState(s.t, s.v, s.w, mean, cov), [o for o in outcomes if o is not None], []  # (every slot set)
+
+
+class ExpFusion(ExpNode):
+    """Thesis estimator (distributed): second-order exponential-coordinate prediction and n-neighbour fusion
+    (:class:`ExpNode` with :class:`ThesisFusion`)."""
+
+    name = "expfusion"
+    rule = ThesisFusion()

@@ -64,7 +64,9 @@ from swarmloc.messages import Message
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
 from swarmloc.sensors.models import model
 
-__all__ = ["TINY_VARIANCE", "Factor", "FixedLagSmoother", "FlsState", "Window", "WindowSolver", "load_gtsam"]
+__all__ = [
+    "TINY_VARIANCE", "Factor", "FixedLagSmoother", "FlsState", "OfSolver", "Window", "WindowSolver", "load_gtsam",
+]  # fmt: skip
 
 _ZERO3 = np.zeros(3)
 _ZERO33 = np.zeros((3, 3))
@@ -211,39 +213,47 @@ def _graph(g: Any, win: Window, factors: tuple[Factor, ...] | None = None, prior
 
 
 class WindowSolver:
-    """The window's solve and marginalization, shared by the smoother nodes: needs ``_g`` (the gtsam module),
-    ``lag`` [s] and ``max_iterations``."""
+    """The window's solve and marginalization: a part of the smoother nodes (their :attr:`~FixedLagSmoother.solver`),
+    with ``lag`` [s], ``max_iterations`` (both checked; ``where``: the owner's name for the messages) and the
+    delayed output."""
 
-    _g: Any
-    lag: float
-    max_iterations: int
-    lagged_log: dict[float, tuple[np.ndarray, np.ndarray]] | None = None
+    lagged_log: dict[float, tuple[np.ndarray, np.ndarray]] | None
     """The smoothed (delayed) output, None: off (the option ``delayed=True`` or a dict set here turns it on). Every
     pose leaving the window is filed there, ``stamp [s] -> (x (3,), P (3, 3))``: its estimate ``(x, y, theta)`` and
     Cartesian marginal covariance from the whole window's solve at that moment (at least ``lag`` seconds of later
     inputs; the latest replay's)."""
-    lagged_when: dict[float, float] | None = None
+    lagged_when: dict[float, float] | None
     """``stamp [s] -> t [s]``: when each pose of :attr:`lagged_log` was filed (the solve's stamp). A filing is final
     once the node's history has passed ``t`` by a horizon: no late input replays that solve any more."""
-    lagged_fresh: list[float] | None = None
+    lagged_fresh: list[float] | None
     """None, or a list a driver empties: the stamps filed (or filed again by a replay) since it last did."""
 
-    def _init_delayed(self, delayed: bool) -> None:
+    def __init__(self, where: str, lag: float, max_iterations: int, delayed: bool) -> None:
+        if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
+            raise ValueError(f"{where}: 'lag' must be a positive number of seconds, got {lag!r}")
+        if not (isinstance(max_iterations, int) and max_iterations >= 1):
+            raise ValueError(f"{where}: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
         if not isinstance(delayed, bool):
-            raise ValueError(f"{type(self).__name__}: 'delayed' must be true or false, got {delayed!r}")
-        if delayed:
-            self.lagged_log = {}
+            raise ValueError(f"{where}: 'delayed' must be true or false, got {delayed!r}")
+        self.lag = float(lag)
+        self.max_iterations = max_iterations
+        self.lagged_log = {} if delayed else None
+        self.lagged_when = None
+        self.lagged_fresh = None
+        self._g = load_gtsam()
 
     def _file_lagged(self, ts: float, x: np.ndarray, P: np.ndarray, t: float) -> None:
         """File pose ``ts``'s smoothed estimate and marginal, solved at ``t``, in the delayed output."""
-        self.lagged_log[ts] = (x, P)  # type: ignore[index]
+        if self.lagged_log is None:
+            return
+        self.lagged_log[ts] = (x, P)
         if self.lagged_when is None:
             self.lagged_when = {}
         self.lagged_when[ts] = t
         if self.lagged_fresh is not None:
             self.lagged_fresh.append(ts)
 
-    def _solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
+    def solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
         """Solve the window (Gauss-Newton from its estimates), take the newest pose's marginal and
         marginalize the poses older than ``t - lag``: ``(window, x (3,), P (3, 3) Cartesian)`` or None when the
         solve fails (not finite, or a singular marginal)."""
@@ -294,7 +304,22 @@ class WindowSolver:
         return Window(win.poses[k0:], win.stamps[k0:], est, (mean, np.array(cov), 1.0), factors, win.next_id)
 
 
-class FixedLagSmoother(WindowSolver, RobotNode):
+class OfSolver:
+    """A smoother node's attribute that is its window solver's (``node.solver.<name>``): ``lag`` and the delayed
+    output, which drivers read and set on the node (:mod:`swarmloc.net.publishing`,
+    :mod:`swarmloc.evaluation.delayed`)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, node: Any, owner: type | None = None) -> Any:
+        return self if node is None else getattr(node.solver, self.name)
+
+    def __set__(self, node: Any, value: Any) -> None:
+        setattr(node.solver, self.name, value)
+
+
+class FixedLagSmoother(RobotNode):
     """Per-robot fixed-lag smoother over its recent poses (GTSAM), covariance intersection with neighbours.
 
     Parameters (besides :class:`~swarmloc.node.robot.RobotNode`'s)
@@ -307,17 +332,14 @@ class FixedLagSmoother(WindowSolver, RobotNode):
     """
 
     name = "fls"
+    lag = OfSolver()
+    lagged_log = OfSolver()
+    lagged_when = OfSolver()
+    lagged_fresh = OfSolver()
 
     def __init__(self, robot: int, initial: GroupGaussian, *, lag: float = 2.0, max_iterations: int = 3,
                  delayed: bool = False, **kw: Any) -> None:  # fmt: skip
-        if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
-            raise ValueError(f"FixedLagSmoother: 'lag' must be a positive number of seconds, got {lag!r}")
-        if not (isinstance(max_iterations, int) and max_iterations >= 1):
-            raise ValueError(f"FixedLagSmoother: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
-        self.lag = float(lag)
-        self.max_iterations = max_iterations
-        self._init_delayed(delayed)
-        self._g = load_gtsam()
+        self.solver = WindowSolver(type(self).__name__, lag, max_iterations, delayed)
         super().__init__(robot, initial, **kw)
 
     # ------------------------------------------------------------------------------------------------ filter
@@ -398,7 +420,7 @@ class FixedLagSmoother(WindowSolver, RobotNode):
         stamps = win.stamps + ((g.t,) if new_pose else ())
         poses = win.poses + ((pid,) if new_pose else ())
         win2 = Window(poses, stamps, est, (win.prior[0], win.prior[1], prior_scale), tuple(factors), next_id)
-        solved = self._solve(win2, pid, g.t)
+        solved = self.solver.solve(win2, pid, g.t)
         if solved is None:
             return s, [("rejected", NUMERICAL) if o == FUSED else o for o in outcomes], []
         win3, x, P = solved

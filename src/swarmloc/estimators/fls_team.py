@@ -27,22 +27,21 @@ driver) is ``diekf``'s: the node needs the whole team's all-to-all channel, as `
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
-from swarmloc.estimators.diekf import DistributedInvariantEKF
-from swarmloc.estimators.fls import TINY_VARIANCE, Factor, Window, WindowSolver, load_gtsam
+from swarmloc.estimators.diekf import TeamProtocol
+from swarmloc.estimators.fls import TINY_VARIANCE, Factor, OfSolver, Window, WindowSolver
 from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
-from swarmloc.messages import Message, TeamUpdate, flat
-from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, usable_covariance
+from swarmloc.messages import Message, TeamUpdate
+from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, usable_covariance
 from swarmloc.node.keys import SubKey
 from swarmloc.sensors.models import model
 
@@ -97,32 +96,39 @@ def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu
     return Factor("pseudo", pose, -1, "", np.asarray(at, dtype=float), A, W @ (S @ nu), 1.0)
 
 
-class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
+class TeamFixedLagSmoother(RobotNode):
     """``diekf`` whose own landmark updates come from a fixed-lag smoother of its recent poses (module
-    docstring). ``lag`` [s], ``max_iterations`` and ``delayed`` as
-    :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s."""
+    docstring): the node's wiring of ``diekf``'s :class:`~swarmloc.estimators.diekf.TeamProtocol`
+    (:attr:`protocol`) and a :class:`~swarmloc.estimators.fls.WindowSolver` (:attr:`solver`). ``lag`` [s],
+    ``max_iterations`` and ``delayed`` as :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s; ``team`` as
+    ``diekf``'s; ``cluster`` must be 0 (its pseudo-factors are the exact update's)."""
 
     name = "flsd"
+    lazy_odometry = True
+    error_frame: ClassVar[str] = "world"
+    update_types = (TeamUpdate,)
+    lin_log: list[Any] | None = None
     groups: ClassVar[tuple[type, ...]] = (SE2,)  # its smoother is planar
-    clusters = False  # its pseudo-factors are the exact update's
-    gated_broadcasts = False  # a landmark's is linearized at the smoothed pose, where the filter's gate does not bound
-    # its normalized innovation (8 of MRCLAM dataset 6's went past it): only the covariance it leaves is checked
+    protocol: TeamProtocol
+    lag = OfSolver()
+    lagged_log = OfSolver()
+    lagged_when = OfSolver()
+    lagged_fresh = OfSolver()
 
-    def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), lag: float = 2.0,
-                 max_iterations: int = 3, delayed: bool = False, **kw: Any) -> None:  # fmt: skip
-        if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
-            raise ValueError(f"{type(self).__name__}: 'lag' must be a positive number of seconds, got {lag!r}")
-        if not (isinstance(max_iterations, int) and max_iterations >= 1):
-            raise ValueError(f"{type(self).__name__}: 'max_iterations' must be an integer >= 1, got {max_iterations!r}")
-        self.lag = float(lag)
-        self.max_iterations = max_iterations
-        self._init_delayed(delayed)
-        self._g = load_gtsam()
-        super().__init__(robot, initial, team=team, **kw)
+    def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
+                 lag: float = 2.0, max_iterations: int = 3, delayed: bool = False, **kw: Any) -> None:  # fmt: skip
+        self.solver = WindowSolver(type(self).__name__, lag, max_iterations, delayed)
+        # no gate on a teammate's broadcast: a landmark's is linearized at the smoothed pose, where the filter's gate
+        # does not bound its normalized innovation (8 of MRCLAM dataset 6's went past it): only the covariance it
+        # leaves is checked
+        self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=False,
+                                     association=kw.get("association", "tags"), update=self._team_update,
+                                     gated_broadcasts=False)  # fmt: skip
+        super().__init__(robot, initial, team=self.protocol.team, **kw)
 
     # ------------------------------------------------------------------------------------------------ filter
     def _initial_state(self, t0: float) -> TeamFlsState:
-        s = super()._initial_state(t0)
+        s = self.protocol.initial(self.initial.mean, self.initial.cov, t0)
         win = Window((0,), (t0,), {0: s.x}, (s.x, np.array(self.initial.cov, dtype=float), 1.0), (), 1)
         return TeamFlsState(s.t, s.v, s.w, s.x, s.P, s.Sigma, _ZERO3, _ZERO33, win)
 
@@ -139,20 +145,23 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
     def _set_command(self, s: TeamFlsState, robot: int, v: float, w: float) -> TeamFlsState:
         return s._replace(v=v, w=w)
 
+    def _belief(self, s: TeamFlsState, robot: int) -> GroupGaussian:
+        return self.protocol.belief(s.x, s.P)
+
     def _team_update(
         self, s: TeamFlsState, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
         Pii: np.ndarray, Pjj: np.ndarray, w: float = 1.0,
-    ) -> TeamFlsState:  # type: ignore[override]  # fmt: skip
-        """``diekf``'s update; the change of this robot's pose is also filed in the window (:func:`pseudo_factor`)
-        unless the update is the node's own landmark update (``i == j == robot``: the window holds its factors).
-        No clusters here (``w`` is always 1)."""
-        new = super()._team_update(s, i, j, Hi, Hj, Sinv, nu, Pii, Pjj)
+    ) -> TeamFlsState:  # fmt: skip
+        """``diekf``'s update (:meth:`~swarmloc.estimators.diekf.TeamProtocol.team_update`); the change of this
+        robot's pose is also filed in the window (:func:`pseudo_factor`) unless the update is the node's own landmark
+        update (``i == j == robot``: the window holds its factors). No clusters here (``w`` is always 1)."""
+        new = self.protocol.team_update(s, i, j, Hi, Hj, Sinv, nu, Pii, Pjj)
         out = s._replace(x=new.x, P=new.P, Sigma=new.Sigma)
-        me = self.robot
+        me, pos = self.robot, self.protocol.pos
         if i == j == me:
             return out
-        Ci = Pii if me == i else s.Sigma[self._pos[me], self._pos[i]]
-        Cj = Ci if j == i else (Pjj if me == j else s.Sigma[self._pos[me], self._pos[j]])
+        Ci = Pii if me == i else s.Sigma[pos[me], pos[i]]
+        Cj = Ci if j == i else (Pjj if me == j else s.Sigma[pos[me], pos[j]])
         G = Ci @ Hi.T + Cj @ Hj.T
         s = self._posed(s)  # the pose at the update's instant: its change is about it
         f = pseudo_factor(s.win.poses[-1], s.P, G, Sinv, nu, s.x)
@@ -169,15 +178,16 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
         odo = Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + TINY_VARIANCE * np.eye(3), None, 1.0)
         win = Window((*win.poses, pid), (*win.stamps, s.t), {**win.est, pid: s.x}, win.prior,
                      (*win.factors, odo), pid + 1)  # fmt: skip
-        if win.stamps[0] < s.t - 2 * self.lag:  # no landmark solve for a while: marginalize the old poses
-            solved = self._solve(win, pid, s.t)
+        if win.stamps[0] < s.t - 2 * self.solver.lag:  # no landmark solve for a while: marginalize the old poses
+            solved = self.solver.solve(win, pid, s.t)
             if solved is not None:
                 win = solved[0]
         return s._replace(rel=_ZERO3, Q=_ZERO33, win=win)
 
-    def _apply_update(self, s: TeamFlsState, u: TeamUpdate) -> tuple[TeamFlsState, bool]:
+    def _apply_update(self, s: TeamFlsState, u: Message) -> tuple[TeamFlsState, bool]:
         s = self._adv(s, self.robot, u.stamp)  # the pose at the update's stamp: a function of the inputs only
-        return super()._apply_update(s, u)
+        return self.protocol.apply(s, u, self.counts)
+
 
     # ------------------------------------------------------------------------------------------------ update
     def _smoothed_landmarks(
@@ -205,29 +215,19 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
         return new, updates
 
     def _fuse_group(self, s: TeamFlsState, g: Group) -> tuple[TeamFlsState, list[Outcome], list[Message]]:
-        i = self.robot
-        mates = [r for r in self.team if r != i]
         outcomes: list[Outcome | None] = []
         msgs: list[Message] = []
         landmarks: list[tuple[int, SubKey, Factor]] = []  # (outcome slot, key, factor)
+        broadcast = self.protocol.broadcast
         for d, sub in zip(g.detections, g.keys, strict=True):
             target = self._classify(g, d, sub)
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
                 continue
             if target[0] == "robot":
-                res = self._one(s, g, d, target)
-                if isinstance(res[0], str):
-                    outcomes.append(res)
-                    msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
-                    continue
-                s, (j, Hi, Hj, Sinv, nu, Pii, Pjj, _) = res
-                body = dict(
-                    target=j, m=len(nu), Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv), nu=flat(nu), Pii=flat(Pii),
-                    Pjj=flat(Pjj),
-                )  # fmt: skip
-                msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub, **body) for r in mates]
-                outcomes.append(FUSED)
+                s, outcome, sent = self.protocol.fuse(s, d, target, sub, self.gate, self.lin_log, g.t)
+                outcomes.append(outcome)
+                msgs += sent
                 continue
             lin = linearize(d, s.x, target)
             if lin is None:
@@ -243,31 +243,27 @@ class TeamFixedLagSmoother(WindowSolver, DistributedInvariantEKF):
             verdict = self._gated(nis, len(r))
             if verdict is not None:
                 outcomes.append(verdict)
-                msgs += [TeamUpdate(sender=i, receiver=rr, stamp=g.t, sub=sub) for rr in mates]
+                msgs += broadcast(g.t, sub)
                 continue
             lm = None if target[0] == Kind.ABSOLUTE else np.asarray(target[1][0], dtype=float)
             z = np.asarray(d.z, dtype=float)
             landmarks.append((len(outcomes), sub, Factor("unary", -1, -1, d.kind, z, R, lm, 1.0)))
             outcomes.append(None)
         if not landmarks:
-            return s, list(outcomes), msgs  # type: ignore[arg-type]
+            return s, [o for o in outcomes if o is not None], msgs
         s = self._posed(s)  # the pose at this group's instant (its robot detections made it already)
         pid = s.win.poses[-1]
         win = s.win._replace(est={**s.win.est, pid: s.x})
-        solved = self._solve(win._replace(factors=(*win.factors, *(f._replace(a=pid) for _, _, f in landmarks))),
-                             pid, g.t)  # fmt: skip
+        solved = self.solver.solve(win._replace(factors=(*win.factors, *(f._replace(a=pid) for _, _, f in landmarks))),
+                                   pid, g.t)  # fmt: skip
         applied = None if solved is None else self._smoothed_landmarks(s, [f for _, _, f in landmarks], solved[1])
-        if applied is not None:
+        if solved is not None and applied is not None:
             new, updates = applied
             for (k, sub, _), (Hw, Sinv, nu, Pii) in zip(landmarks, updates, strict=True):
                 outcomes[k] = FUSED
-                body = dict(
-                    target=i, m=len(nu), Hi=flat(Hw), Hj=flat(np.zeros_like(Hw)), Sinv=flat(Sinv),
-                    nu=flat(nu), Pii=flat(Pii), Pjj=flat(Pii),
-                )  # fmt: skip
-                msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub, **body) for r in mates]
-            return new._replace(win=solved[0]), list(outcomes), msgs  # type: ignore[arg-type,index]
+                msgs += broadcast(g.t, sub, (self.robot, Hw, np.zeros_like(Hw), Sinv, nu, Pii, Pii, 1.0))
+            return new._replace(win=solved[0]), [o for o in outcomes if o is not None], msgs
         for k, sub, _ in landmarks:
             outcomes[k] = ("rejected", NUMERICAL)
-            msgs += [TeamUpdate(sender=i, receiver=r, stamp=g.t, sub=sub) for r in mates]
-        return s._replace(win=win), list(outcomes), msgs  # type: ignore[arg-type]
+            msgs += broadcast(g.t, sub)
+        return s._replace(win=win), [o for o in outcomes if o is not None], msgs

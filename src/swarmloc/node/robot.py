@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
+from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Answer, BeliefQuery, Message
@@ -23,8 +24,9 @@ from swarmloc.node.associate import (
 from swarmloc.node.base import Node
 from swarmloc.node.keys import Group
 from swarmloc.node.protocol import belief_answer
+from swarmloc.node.update import Gate
 
-__all__ = ["RobotNode", "check_model"]
+__all__ = ["PeerProtocol", "RobotNode", "check_model"]
 
 
 def check_model(where: str, initial: Mapping[int, Any], noise: object, groups: tuple[type, ...] = (SE2,)) -> None:
@@ -43,6 +45,22 @@ def check_model(where: str, initial: Mapping[int, Any], noise: object, groups: t
             raise ValueError(f"{where}: 'noise' of an SE(3) team must be a TwistNoise, got {type(noise).__name__}")
     elif not isinstance(noise, UnicycleNoise):
         raise ValueError(f"{where}: 'noise' must be a UnicycleNoise, got {type(noise).__name__}")
+
+
+class PeerProtocol(Protocol):
+    """A part of a robot's node that speaks its estimator's protocol with the teammates beyond belief queries
+    (:attr:`RobotNode.protocol`; e.g. ``diekf``'s :class:`~swarmloc.estimators.diekf.TeamProtocol`): the queries a
+    detection group asks, the teammates' beliefs among their answers, the answers it gives, the messages that close
+    the exchanges a group did not use, the checks of a teammate's update, and what it forgets with the history."""
+
+    def requests(self, g: Group, needs_answer: Callable[[Group, Detection], bool],
+                 mates: Sequence[int]) -> list[Message]: ...  # fmt: skip
+    def candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]: ...
+    def answer(self, s: Any, q: Message) -> Answer | None: ...
+    def settle(self, g: Group) -> list[Message]: ...
+    def update_problem(self, u: Message) -> str | None: ...
+    def update_lie(self, u: Message, gate: Gate) -> str | None: ...
+    def prune(self, cutoff: float) -> None: ...
 
 
 class RobotNode(Node):
@@ -71,6 +89,9 @@ class RobotNode(Node):
     """False for an estimator that cannot give anonymous detections an identity: it refuses an association policy
     other than ``tags`` (none of :data:`swarmloc.estimators.ESTIMATORS` does: the pairwise ``rdl``, ``irdl`` and
     the broadcasting ``diekf``, ``flsd`` ask every teammate with their own query, :mod:`~swarmloc.estimators.rdl`)."""
+    protocol: PeerProtocol | None = None
+    """The part that speaks the estimator's own protocol with the teammates (None: belief queries only); the node's
+    exchange hooks (queries, answers, settling, a teammate's update checked, pruning) are its."""
 
     def __init__(
         self,
@@ -118,6 +139,8 @@ class RobotNode(Node):
         return [r for r in self.team if r != self.robot]
 
     def _requests(self, g: Group) -> list[Message]:
+        if self.protocol is not None:
+            return self.protocol.requests(g, self._needs_answer, self._teammates(g))
         targets = sorted({d.target for d in g.detections if d.target is not None and self._needs_answer(g, d)}
                          | set(self._teammates(g)))  # fmt: skip
         return [BeliefQuery(sender=self.robot, receiver=t, stamp=g.t) for t in targets]
@@ -125,8 +148,8 @@ class RobotNode(Node):
     def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
         """The teammates' beliefs at ``g``'s stamp among which its anonymous detections are associated: from their
         answers to the group's queries (default: the :class:`~swarmloc.messages.BeliefQuery` ones, sub-key ``()``;
-        an estimator that asks with its own query reads its answers)."""
-        return answered_beliefs(g, mates)
+        an estimator that asks with its own query reads its answers: its :attr:`protocol`)."""
+        return answered_beliefs(g, mates) if self.protocol is None else self.protocol.candidates(g, mates)
 
     def _associate(self, s: Any, g: Group) -> AssociationView | None:
         mates = self._teammates(g)
@@ -137,6 +160,21 @@ class RobotNode(Node):
                          self.sensor_range, self.sensor_fov)  # fmt: skip
 
     def _answer(self, s: Any, q: Message) -> Answer | None:
-        if isinstance(q, BeliefQuery):
+        a = None if self.protocol is None else self.protocol.answer(s, q)
+        if a is None and isinstance(q, BeliefQuery):
             return belief_answer(q, self._belief(s, q.receiver))
-        return None
+        return a
+
+    def _settle(self, g: Group) -> list[Message]:
+        return [] if self.protocol is None else self.protocol.settle(g)
+
+    def _update_problem(self, u: Message) -> str | None:
+        return None if self.protocol is None else self.protocol.update_problem(u)
+
+    def _update_lie(self, u: Message) -> str | None:
+        return None if self.protocol is None else self.protocol.update_lie(u, self.gate)
+
+    def _prune(self) -> None:
+        super()._prune()
+        if self.protocol is not None:
+            self.protocol.prune(self._clock.present - self.horizon)
