@@ -204,9 +204,9 @@ def _consistent(
     rels: _Relations, *, sigma: float, gate: float, consistency_gate: float, max_unmatched: int, max_range: float,
     fov: float,
 ) -> bool:  # fmt: skip
-    """Whether ``j`` at ``(pj, cj)`` agrees with every placed robot but its parent ``k0`` (module docstring):
-    the implied relative pose within ``consistency_gate`` of one registration of the pair, or, with none and no
-    misses allowed, the two out of each other's view."""
+    """Whether ``j`` at ``(pj, cj)`` agrees with every placed robot but its parent ``k0`` (module docstring): the
+    implied relative pose within ``consistency_gate`` of one registration of the pair; with none, the two out of each
+    other's view unless misses are allowed (``max_unmatched > 0``)."""
     for k in poses:
         if k == k0:
             continue
