@@ -340,6 +340,46 @@ class BookScenario:
     events: list[Event] = field(repr=False)
 
 
+def _plan(robot: int, n_moves: int) -> list[tuple[str, int]]:
+    """Robot's first ``n_moves`` moves along its :data:`BOOK_ROUTES` loop, ``(kind, heading [deg])``: a ``"turn"``
+    of +-90 deg whenever the leg heading changes, then the leg's ``"move"`` translations."""
+    (_, _, h0), legs = BOOK_ROUTES[robot]
+    plan: list[tuple[str, int]] = []
+    h = h0
+    while len(plan) < n_moves:
+        for leg_h, moves in legs:
+            while h != leg_h:
+                h = (h + (90 if (leg_h - h) % 360 <= 180 else -90)) % 360
+                plan.append(("turn", h))
+            plan.extend([("move", h)] * moves)
+    return plan[:n_moves]
+
+
+def _observe(
+    rng: np.random.Generator, i: int, j: int, pi: np.ndarray, pj: np.ndarray, max_range: float, fov_deg: float
+) -> tuple[np.ndarray, float] | None:
+    """Robot ``i`` at true pose ``pi`` observing ``j`` at ``pj`` (:func:`book_two_robot_scenario`): the noisy
+    relative position ``z`` in ``i``'s frame and the exact relative heading [rad], None when out of view."""
+    Rt = _rot2(pi[2])
+    rel = Rt.T @ (pj[:2] - pi[:2])
+    rng_ij = np.hypot(*rel)
+    bearing = np.arctan2(rel[1], rel[0])
+    if rng_ij > max_range or abs(bearing) > np.deg2rad(fov_deg) / 2:
+        return None
+    z = rel + rng.multivariate_normal(np.zeros(2), BOOK_OBS_COV[i])
+    return z, float(wrap_angle(np.array(pj[2] - pi[2])))
+
+
+def _pose_detection(i: int, j: int, t: float, z: np.ndarray, te: float, theta_var: float) -> Detection:
+    """The observation as a ``"pose"`` :class:`Detection`: ``(x_e, y_e, te)`` with ``R_e^T C_Eij R_e`` in the
+    position block and ``theta_var`` for the heading (:func:`book_two_robot_scenario`)."""
+    Re = _rot2(np.array(te))
+    cov = np.zeros((3, 3))
+    cov[:2, :2] = _sym(Re.T @ BOOK_OBS_COV[i] @ Re)
+    cov[2, 2] = theta_var
+    return Detection(i, t, Kind.POSE, np.array([z[0], z[1], te]), cov, target=j)
+
+
 def book_two_robot_scenario(
     seed: int = 0,
     *,
@@ -376,21 +416,7 @@ def book_two_robot_scenario(
     rng = np.random.default_rng(seed)
     robots = (1, 2)
     n_r = len(robots)
-
-    # Plan each robot's moves: a turn move whenever the leg heading changes, then the leg's translation moves.
-    plans: dict[int, list[tuple[str, int]]] = {}
-    for r in robots:
-        (_, _, h0), legs = BOOK_ROUTES[r]
-        plan: list[tuple[str, int]] = []
-        h = h0
-        while len(plan) < n_moves:
-            for leg_h, moves in legs:
-                while h != leg_h:
-                    h = (h + (90 if (leg_h - h) % 360 <= 180 else -90)) % 360
-                    plan.append(("turn", h))
-                plan.extend([("move", h)] * moves)
-        plans[r] = plan[:n_moves]
-
+    plans = {r: _plan(r, n_moves) for r in robots}
     start = np.array([[*BOOK_ROUTES[r][0][:2], np.deg2rad(BOOK_ROUTES[r][0][2])] for r in robots], dtype=float)
     start_cov = np.broadcast_to(start_sigma**2 * np.eye(2), (n_r, 2, 2)).copy()
     truth = np.zeros((n_moves + 1, n_r, 3))
@@ -423,24 +449,11 @@ def book_two_robot_scenario(
             continue
         for a, i in enumerate(robots):
             for b, j in enumerate(robots):
-                if i == j:
-                    continue
-                pi, pj = truth[k + 1, a], truth[k + 1, b]
-                Rt = _rot2(pi[2])
-                rel = Rt.T @ (pj[:2] - pi[:2])
-                rng_ij = np.hypot(*rel)
-                bearing = np.arctan2(rel[1], rel[0])
-                if rng_ij > max_range or abs(bearing) > np.deg2rad(fov_deg) / 2:
-                    continue
-                Ce = BOOK_OBS_COV[i]
-                z = rel + rng.multivariate_normal(np.zeros(2), Ce)
-                observations.append(BookObservation(k + 1, i, j, z, Ce.copy()))
-                te = float(wrap_angle(np.array(pj[2] - pi[2])))
-                Re = _rot2(np.array(te))
-                cov = np.zeros((3, 3))
-                cov[:2, :2] = _sym(Re.T @ Ce @ Re)
-                cov[2, 2] = detection_theta_var
-                events.append(Detection(i, t1, Kind.POSE, np.array([z[0], z[1], te]), cov, target=j))
+                seen = None if i == j else _observe(rng, i, j, truth[k + 1, a], truth[k + 1, b], max_range, fov_deg)
+                if seen is not None:
+                    z, te = seen
+                    observations.append(BookObservation(k + 1, i, j, z, BOOK_OBS_COV[i].copy()))
+                    events.append(_pose_detection(i, j, t1, z, te, detection_theta_var))
         events.extend(Truth(r, t1, truth[k + 1, a].copy()) for a, r in enumerate(robots))
 
     if observe_every > 1:  # Truth after moves without an observation round
@@ -450,18 +463,8 @@ def book_two_robot_scenario(
             events.extend(Truth(r, t1, truth[k + 1, a].copy()) for a, r in enumerate(robots) if (r, t1) not in have)
     order = {Odometry: 0, Detection: 1, Truth: 2}
     events.sort(key=lambda e: (e.t, order[type(e)]))
-    return BookScenario(
-        robots=robots,
-        dt=dt,
-        start=start,
-        start_cov=start_cov,
-        headings=headings,
-        odometry=odometry,
-        odom_cov={r: BOOK_ODOM_COV[r].copy() for r in robots},
-        truth=truth,
-        observations=observations,
-        events=events,
-    )
+    odom_cov = {r: BOOK_ODOM_COV[r].copy() for r in robots}
+    return BookScenario(robots, dt, start, start_cov, headings, odometry, odom_cov, truth, observations, events)
 
 
 def run_book_fusion(

@@ -64,11 +64,8 @@ def _triangulate(p0: np.ndarray, a0: float, p1: np.ndarray, a1: float) -> tuple[
     return p0[:2] + s * e0, bool(s > 0 and r > 0), float(np.hypot(s, r) / abs(det))
 
 
-def bearing_registration(
-    bearings: Mapping[int, object], ego: int, sigma: float, *, gate: float = 5.0, max_solutions: int = 10_000
-) -> list[BearingSolution]:
-    """Every solution of the bearing-only problem for ``ego`` (module docstring): ``bearings``: robot id -> its
-    anonymous bearings ``(m,)`` [rad] (all see all: ``m = n - 1``); ``sigma`` [rad] > 0: bearing noise std."""
+def _checked_bearings(bearings: Mapping[int, object], ego: int, sigma: float) -> dict[int, np.ndarray]:
+    """``bearings`` as float arrays, after checking ego is there, ``sigma`` > 0 and all see all (``n - 1`` each)."""
     if ego not in bearings:
         raise ValueError(f"bearing_registration: no bearings of ego robot {ego!r}")
     if not (np.isfinite(sigma) and sigma > 0):
@@ -78,6 +75,77 @@ def bearing_registration(
     for r, v in B.items():
         if len(v) != n - 1 or not np.isfinite(v).all():
             raise ValueError(f"bearing_registration: robot {r} must have {n - 1} finite bearings, got {v}")
+    return B
+
+
+def _candidates(
+    B: dict[int, np.ndarray], ego: int, a: int, j: int | None, poses: dict[int, np.ndarray],
+    sd: dict[int, tuple[float, float]], used: dict[int, dict[int, int]], sigma: float,
+) -> list[tuple[np.ndarray, float]]:  # fmt: skip
+    """Positions (and their std [scale units]) of the next robot on ego's ray ``a``: at distance 1 for the first
+    neighbour (``j`` None), else where the ray meets a free ray of the first neighbour ``j`` in front of both."""
+    if j is None:
+        return [(np.array([np.cos(B[ego][a]), np.sin(B[ego][a])]), 0.0)]
+    cands = []
+    for c in [x for x in range(len(B[j])) if x not in used[j]]:
+        p, ok, f = _triangulate(np.zeros(3), B[ego][a], poses[j], poses[j][2] + B[j][c])
+        if ok:
+            sd_ray = np.hypot(sigma, sd[j][1])  # j's ray: its bearing and its heading
+            cands.append((p, f * np.hypot(sigma, sd_ray) + sd[j][0]))
+    return cands
+
+
+def _matches(
+    B: dict[int, np.ndarray], ego: int, k: int, pk: np.ndarray, sd_k: tuple[float, float],
+    poses: dict[int, np.ndarray], sd: dict[int, tuple[float, float]], used: dict[int, dict[int, int]],
+    trial: list[tuple[int, int, int]], sigma: float, gate: float,
+) -> float | None:  # fmt: skip
+    """Match ``k`` at ``pk`` with every robot placed (ego aside) both ways among the free bearings, within the gate:
+    appends the matches ``(robot, bearing index, robot seen)`` to ``trial`` and returns their cost, None if any
+    fails."""
+    add = 0.0
+    for m in poses:
+        if m == ego:
+            continue
+        dist = float(np.hypot(*(pk[:2] - poses[m][:2])))
+        for r, target, frm, sd_r in ((m, k, poses[m], sd[m]), (k, m, pk, sd_k)):
+            taken = {x for rr, x, _ in trial if rr == r}
+            pred = _bearing(frm, (pk if target == k else poses[m]))
+            free = [x for x in range(len(B[r])) if x not in used[r] and x not in taken]
+            if not free:
+                return None
+            d = np.abs(wrap_angle(B[r][free] - pred))
+            x = int(np.argmin(d))
+            var = 2 * sigma**2 + sd_r[1] ** 2 + (sd[m][0] ** 2 + sd_k[0] ** 2) / max(dist, 1e-9) ** 2
+            if d[x] > gate * np.sqrt(var):
+                return None
+            trial.append((r, free[x], target))
+            add += float(d[x] ** 2 / var)
+    return add
+
+
+def _distinct(out: list[BearingSolution]) -> list[BearingSolution]:
+    """``out`` by cost, each solution once (one reached through other matchings of the bearings is the same)."""
+    out.sort(key=lambda s: s.cost)
+    unique: list[BearingSolution] = []
+    for sol in out:
+        same = (
+            sol.features == u.features
+            and all(np.abs(sol.poses[r][:2] - u.poses[r][:2]).max() <= 0.05 for r in sol.poses)
+            and all(abs(wrap_angle(sol.poses[r][2] - u.poses[r][2])) <= 0.1 for r in sol.poses)
+            for u in unique
+        )
+        if not any(same):
+            unique.append(sol)
+    return unique
+
+
+def bearing_registration(
+    bearings: Mapping[int, object], ego: int, sigma: float, *, gate: float = 5.0, max_solutions: int = 10_000
+) -> list[BearingSolution]:
+    """Every solution of the bearing-only problem for ``ego`` (module docstring): ``bearings``: robot id -> its
+    anonymous bearings ``(m,)`` [rad] (all see all: ``m = n - 1``); ``sigma`` [rad] > 0: bearing noise std."""
+    B = _checked_bearings(bearings, ego, sigma)
     others = sorted(r for r in B if r != ego)
     out: list[BearingSolution] = []
     if not others:
@@ -95,19 +163,8 @@ def bearing_registration(
             out.append(BearingSolution({r: p.copy() for r, p in poses.items()}, feats, cost))
             return
         k = others[depth]
-        first = depth == 0
         for a in [x for x in range(len(B[ego])) if x not in used[ego]]:
-            if first:
-                cands = [(np.array([np.cos(B[ego][a]), np.sin(B[ego][a])]), 0.0)]
-            else:
-                j = others[0]
-                cands = []
-                for c in [x for x in range(len(B[j])) if x not in used[j]]:
-                    p, ok, f = _triangulate(np.zeros(3), B[ego][a], poses[j], poses[j][2] + B[j][c])
-                    if ok:
-                        sd_ray = np.hypot(sigma, sd[j][1])  # j's ray: its bearing and its heading
-                        cands.append((p, f * np.hypot(sigma, sd_ray) + sd[j][0]))
-            for p, sd_p in cands:
+            for p, sd_p in _candidates(B, ego, a, None if depth == 0 else others[0], poses, sd, used, sigma):
                 if any(np.hypot(*(p - q[:2])) < 1e-9 for q in poses.values()):
                     continue
                 for b in [x for x in range(len(B[k])) if x not in used[k]]:
@@ -115,30 +172,8 @@ def bearing_registration(
                     pk = np.array([p[0], p[1], th])
                     sd_k = (sd_p, float(np.hypot(sigma, sd_p / np.hypot(p[0], p[1]))))
                     trial = [(ego, a, k), (k, b, ego)]
-                    add = 0.0
-                    ok = True
-                    for m in poses:
-                        if m == ego:
-                            continue
-                        dist = float(np.hypot(*(pk[:2] - poses[m][:2])))
-                        for r, target, frm, sd_r in ((m, k, poses[m], sd[m]), (k, m, pk, sd_k)):
-                            taken = {x for rr, x, _ in trial if rr == r}
-                            pred = _bearing(frm, (pk if target == k else poses[m]))
-                            free = [x for x in range(len(B[r])) if x not in used[r] and x not in taken]
-                            if not free:
-                                ok = False
-                                break
-                            d = np.abs(wrap_angle(B[r][free] - pred))
-                            x = int(np.argmin(d))
-                            var = 2 * sigma**2 + sd_r[1] ** 2 + (sd[m][0] ** 2 + sd_k[0] ** 2) / max(dist, 1e-9) ** 2
-                            if d[x] > gate * np.sqrt(var):
-                                ok = False
-                                break
-                            trial.append((r, free[x], target))
-                            add += float(d[x] ** 2 / var)
-                        if not ok:
-                            break
-                    if not ok:
+                    add = _matches(B, ego, k, pk, sd_k, poses, sd, used, trial, sigma, gate)
+                    if add is None:
                         continue
                     for r, x, t in trial:
                         used[r][x] = t
@@ -149,15 +184,4 @@ def bearing_registration(
                         del used[r][x]
 
     place(0, 0.0)
-    out.sort(key=lambda s: s.cost)
-    unique: list[BearingSolution] = []  # one solution reached through other matchings of the bearings: once
-    for sol in out:
-        same = (
-            sol.features == u.features
-            and all(np.abs(sol.poses[r][:2] - u.poses[r][:2]).max() <= 0.05 for r in sol.poses)
-            and all(abs(wrap_angle(sol.poses[r][2] - u.poses[r][2])) <= 0.1 for r in sol.poses)
-            for u in unique
-        )
-        if not any(same):
-            unique.append(sol)
-    return unique
+    return _distinct(out)

@@ -116,6 +116,115 @@ def _chain(
     return compose_xyt(pose_k, rel), (C + C.T) / 2
 
 
+def _relative(
+    pose_r: np.ndarray, cov_r: np.ndarray, pose_s: np.ndarray, cov_s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of ``s`` in ``r``'s frame, ``T_r^-1 T_s``, and its covariance ``Ad(rel^-1) cov_r Ad(rel^-1)^T + cov_s``
+    (both poses in one frame, right perturbation, independent)."""
+    rel = compose_xyt(invert_xyt(pose_r), pose_s)
+    A = _ad(invert_xyt(rel))
+    return rel, A @ cov_r @ A.T + cov_s
+
+
+def _pair_registrations(
+    ids: list[int], obs: dict[int, np.ndarray], sigma: float, known: dict[int, tuple[np.ndarray, np.ndarray]],
+    headings: Mapping[int, object], belief_gate: float, cache: dict[tuple[int, int], list[Registration]] | None,
+    settings: dict[str, object],
+) -> dict[tuple[int, int], list[Registration]]:  # fmt: skip
+    """:func:`binary_register` of every pair ``(r, s)``, ``r`` before ``s`` in ``ids``, with the prior the beliefs
+    ``known`` give when both have one (through ``cache`` as :func:`multiple_registration` says)."""
+    reg: dict[tuple[int, int], list[Registration]] = {}
+    for x, r in enumerate(ids):
+        for s in ids[x + 1 :]:
+            prior = _relative(*known[r], *known[s]) if r in known and s in known else None
+            kw = dict(settings, headings_i=headings.get(r), headings_j=headings.get(s))
+            if cache is None:
+                reg[(r, s)] = binary_register(obs[r], obs[s], sigma, prior=prior, prior_gate=belief_gate, **kw)
+                continue
+            if (r, s) not in cache:
+                cache[(r, s)] = binary_register(obs[r], obs[s], sigma, **kw)
+            full = cache[(r, s)]
+            reg[(r, s)] = full if prior is None else gate_by_prior(full, obs[r], obs[s], sigma, prior, belief_gate)
+    return reg
+
+
+class _Relations:
+    """Registrations of frame ``j`` in frame ``k`` for any ordered pair (the stored direction inverted when needed),
+    computed once each; ``stacked[(k, j)]``: their poses ``(m, 3)`` and covariances ``(m, 3, 3)`` when any."""
+
+    def __init__(self, reg: dict[tuple[int, int], list[Registration]]) -> None:
+        self.reg = reg
+        self.cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, Registration]]] = {}
+        self.stacked: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def __call__(self, k: int, j: int) -> list[tuple[np.ndarray, np.ndarray, Registration]]:
+        """``(pose, cov, registration)`` of frame ``j`` in frame ``k``."""
+        if (k, j) not in self.cache:
+            if (k, j) in self.reg:
+                self.cache[(k, j)] = [(r.pose, r.cov, r) for r in self.reg[(k, j)]]
+            else:
+                out = []
+                for r in self.reg[(j, k)]:
+                    A = _ad(r.pose)  # cov of T^-1 in right perturbation: Ad(T) cov Ad(T)^T
+                    out.append((invert_xyt(r.pose), A @ r.cov @ A.T, r))
+                self.cache[(k, j)] = out
+            c = self.cache[(k, j)]
+            if c:
+                self.stacked[(k, j)] = (np.array([p for p, _, _ in c]), np.array([v for _, v, _ in c]))
+        return self.cache[(k, j)]
+
+
+def _bfs(ego: int, ids: list[int], reg: dict[tuple[int, int], list[Registration]]) -> tuple[dict[int, int], list[int]]:
+    """BFS from ``ego`` over the graph of pairs with at least one registration: each reached robot's parent, and
+    the reached robots in BFS order (ego aside)."""
+    parent: dict[int, int] = {}
+    order: list[int] = []
+    seen, queue = {ego}, deque([ego])
+    while queue:
+        k = queue.popleft()
+        for j in ids:
+            if j not in seen and (reg.get((k, j)) or reg.get((j, k))):
+                seen.add(j)
+                parent[j] = k
+                order.append(j)
+                queue.append(j)
+    return parent, order
+
+
+def _feature(points: np.ndarray, pose: np.ndarray, tol: float) -> int | None:
+    """Index of the point of ``points`` ``(m, 2)`` nearest the position of ``pose``, None if none within ``tol``."""
+    if not len(points):
+        return None
+    d2 = ((points - pose[:2]) ** 2).sum(1)
+    return int(np.argmin(d2)) if d2.min() <= tol**2 else None
+
+
+def _consistent(
+    j: int, pj: np.ndarray, cj: np.ndarray, k0: int, poses: dict[int, np.ndarray], covs: dict[int, np.ndarray],
+    rels: _Relations, *, sigma: float, gate: float, consistency_gate: float, max_unmatched: int, max_range: float,
+    fov: float,
+) -> bool:  # fmt: skip
+    """Whether ``j`` at ``(pj, cj)`` agrees with every placed robot but its parent ``k0`` (module docstring): the
+    implied relative pose within ``consistency_gate`` of one registration of the pair; with none, the two out of each
+    other's view unless misses are allowed (``max_unmatched > 0``)."""
+    for k in poses:
+        if k == k0:
+            continue
+        pred, cpred = _relative(poses[k], covs[k], pj, cj)
+        if not rels(k, j):
+            back = invert_xyt(pred)
+            mutual = visible(pred[:2], max_range, fov, 2 * gate * sigma) and visible(
+                back[:2], max_range, fov, 2 * gate * sigma
+            )
+            if max_unmatched == 0 and mutual:
+                return False
+            continue
+        P_kj, C_kj = rels.stacked[(k, j)]
+        if not (_maha2(pred, P_kj, cpred + C_kj) <= consistency_gate).any():
+            return False
+    return True
+
+
 def multiple_registration(
     observations: Mapping[int, object],
     ego: int,
@@ -151,65 +260,17 @@ def multiple_registration(
         raise ValueError(f"multiple_registration: max_solutions must be an integer >= 1, got {max_solutions!r}")
     ids = [ego] + sorted(r for r in observations if r != ego)
     obs = {r: as_points(observations[r], f"multiple_registration: observation of robot {r}") for r in ids}
-    hd = headings or {}
     # beliefs of the poses in ego's frame (ego: exactly the identity) give each pair a prior for its registration
     known: dict[int, tuple[np.ndarray, np.ndarray]] = {ego: (np.zeros(3), np.zeros((3, 3)))}
     for r, b in (beliefs or {}).items():
         if r in obs and r != ego:
             known[r] = (SE2.to_xytheta(b.mean), np.asarray(b.cov, float))
-    reg: dict[tuple[int, int], list[Registration]] = {}
-    for x, r in enumerate(ids):
-        for s in ids[x + 1 :]:
-            prior = None
-            if r in known and s in known:
-                rel = compose_xyt(invert_xyt(known[r][0]), known[s][0])
-                A = _ad(invert_xyt(rel))
-                prior = (rel, A @ known[r][1] @ A.T + known[s][1])
-            kw = dict(gate=gate, max_unmatched=max_unmatched, max_range=max_range, fov=fov, sigma_range=sigma_range,
-                      headings_i=hd.get(r), headings_j=hd.get(s), sigma_heading=sigma_heading)  # fmt: skip
-            if cache is None:
-                reg[(r, s)] = binary_register(obs[r], obs[s], sigma, prior=prior, prior_gate=belief_gate, **kw)
-                continue
-            if (r, s) not in cache:
-                cache[(r, s)] = binary_register(obs[r], obs[s], sigma, **kw)
-            full = cache[(r, s)]
-            reg[(r, s)] = full if prior is None else gate_by_prior(full, obs[r], obs[s], sigma, prior, belief_gate)
-    n_reg = len(reg)
-
-    rel_cache: dict[tuple[int, int], list[tuple[np.ndarray, np.ndarray, Registration]]] = {}
-    stacked: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-
-    def rels(k: int, j: int) -> list[tuple[np.ndarray, np.ndarray, Registration]]:
-        """Registrations of frame ``j`` in frame ``k`` (inverting the stored direction when needed), cached."""
-        if (k, j) not in rel_cache:
-            if (k, j) in reg:
-                rel_cache[(k, j)] = [(r.pose, r.cov, r) for r in reg[(k, j)]]
-            else:
-                out = []
-                for r in reg[(j, k)]:
-                    A = _ad(r.pose)  # cov of T^-1 in right perturbation: Ad(T) cov Ad(T)^T
-                    out.append((invert_xyt(r.pose), A @ r.cov @ A.T, r))
-                rel_cache[(k, j)] = out
-            c = rel_cache[(k, j)]
-            if c:
-                stacked[(k, j)] = (np.array([p for p, _, _ in c]), np.array([v for _, v, _ in c]))
-        return rel_cache[(k, j)]
-
-    # BFS order from ego over the graph of pairs with at least one registration
-    parent: dict[int, int] = {}
-    order: list[int] = []
-    seen, queue = {ego}, deque([ego])
-    while queue:
-        k = queue.popleft()
-        for j in ids:
-            if j not in seen and (reg.get((k, j)) or reg.get((j, k))):
-                seen.add(j)
-                parent[j] = k
-                order.append(j)
-                queue.append(j)
-    unreached = [r for r in ids if r not in seen]
-    feat_tol2 = (2 * gate * sigma) ** 2
-    Pego = obs[ego]
+    settings = dict(gate=gate, max_unmatched=max_unmatched, max_range=max_range, fov=fov, sigma_range=sigma_range,
+                    sigma_heading=sigma_heading)  # fmt: skip
+    reg = _pair_registrations(ids, obs, sigma, known, headings or {}, belief_gate, cache, settings)
+    rels = _Relations(reg)
+    parent, order = _bfs(ego, ids, reg)
+    unreached = [r for r in ids if r != ego and r not in parent]
     solutions: list[Solution] = []
     branches = 0
     truncated = False
@@ -234,10 +295,7 @@ def multiple_registration(
                 fj: int | None = r.a
             else:
                 pj, cj = _chain(poses[k0], covs[k0], rel, crel)
-                fj = None
-                if len(Pego):
-                    d2 = ((Pego - pj[:2]) ** 2).sum(1)
-                    fj = int(np.argmin(d2)) if d2.min() <= feat_tol2 else None
+                fj = _feature(obs[ego], pj, 2 * gate * sigma)
             if fj is not None and fj in feats.values():
                 continue  # two robots on one feature
             if fj is None and any(((pj[:2] - poses[k][:2]) ** 2).sum() <= (gate * sigma) ** 2 for k in poses):
@@ -247,28 +305,8 @@ def multiple_registration(
                 mu = SE2.to_xytheta(b.mean)
                 if float(_maha2(pj, mu, b.cov + cj)) > belief_gate:
                     continue
-            ok = True
-            for k in poses:
-                if k == k0:
-                    continue
-                pred = compose_xyt(invert_xyt(poses[k]), pj)
-                A = _ad(invert_xyt(pred))
-                cpred = A @ covs[k] @ A.T + cj
-                cand = rels(k, j)
-                if not cand:
-                    back = invert_xyt(pred)
-                    mutual = visible(pred[:2], max_range, fov, 2 * gate * sigma) and visible(
-                        back[:2], max_range, fov, 2 * gate * sigma
-                    )
-                    if max_unmatched == 0 and mutual:
-                        ok = False
-                        break
-                    continue
-                P_kj, C_kj = stacked[(k, j)]
-                if not (_maha2(pred, P_kj, cpred + C_kj) <= consistency_gate).any():
-                    ok = False
-                    break
-            if not ok:
+            if not _consistent(j, pj, cj, k0, poses, covs, rels, sigma=sigma, gate=gate, max_range=max_range, fov=fov,
+                               consistency_gate=consistency_gate, max_unmatched=max_unmatched):  # fmt: skip
                 continue
             poses[j], covs[j], feats[j] = pj, cj, fj
             extend(depth + 1, cost + r.cost)
@@ -278,7 +316,7 @@ def multiple_registration(
 
     extend(0, 0.0)
     solutions.sort(key=lambda s: s.cost)
-    return PMRResult(solutions, n_reg, branches, unreached, truncated)
+    return PMRResult(solutions, len(reg), branches, unreached, truncated)
 
 
 # ------------------------------------------------------------------------------------------------ symmetry

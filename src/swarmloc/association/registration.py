@@ -236,6 +236,82 @@ def gate_by_prior(
     return [r for r, k in zip(regs, ok, strict=True) if k]
 
 
+def _candidates(
+    Pi: np.ndarray, Pj: np.ndarray, s2: float, s_r: float, gate: float, hi: np.ndarray | None,
+    hj: np.ndarray | None, sigma_heading: float, prior: tuple[np.ndarray, np.ndarray] | None, prior_gate: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Candidates ``(a, b)``, robot ``j`` is ``O_i[a]`` and sees ``i`` at ``O_j[b]``, with their rough rotations:
+    equal positive ranges (both noisy: std ``s_r sqrt(2)``), then the measured headings (NaN: unknown) and the
+    prior when given, each within its gate."""
+    ri, rj = np.hypot(Pi[:, 0], Pi[:, 1]), np.hypot(Pj[:, 0], Pj[:, 1])
+    A, B = np.nonzero((np.abs(ri[:, None] - rj[None, :]) <= gate * s_r * np.sqrt(2)) & (ri[:, None] > 0))
+    A, B = A[rj[B] > 0], B[rj[B] > 0]
+    th = _rough_theta(Pi, Pj, A, B)
+    for h, of_j in ((hi, False), (hj, True)):  # i's heading of j is th; j's heading of i is -th
+        if h is not None:
+            hk = h[B] if of_j else h[A]
+            d = np.abs(wrap_angle(th + hk)) if of_j else np.abs(wrap_angle(th - hk))
+            ok = np.isnan(hk) | (d <= gate * np.sqrt(sigma_heading**2 + s2 / ri[A] ** 2 + s2 / rj[B] ** 2))
+            A, B, th = A[ok], B[ok], th[ok]
+    if prior is not None and A.size:
+        ok = _prior_ok(Pi, Pj, A, B, th, s2, prior, prior_gate)
+        A, B, th = A[ok], B[ok], th[ok]
+    return A, B, th
+
+
+def _distances(
+    Pi: np.ndarray, Pj: np.ndarray, A: np.ndarray, B: np.ndarray, th: np.ndarray, s2: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``O_j`` mapped into frame ``i`` by every candidate at once, ``Q`` ``(K, mj, 2)``, its rotations ``R``, the
+    error covariances ``C`` ``(K, mj, 2, 2)`` of its points, and their squared Mahalanobis distances ``D2``
+    ``(K, mj, mi)`` to ``O_i`` (inf where a point cannot match: robot ``j`` itself, robot ``i`` seen by ``j``)."""
+    ri, rj = np.hypot(Pi[:, 0], Pi[:, 1]), np.hypot(Pj[:, 0], Pj[:, 1])
+    R = _rot(th)
+    Q = np.einsum("kab,lb->kla", R, Pj) + Pi[A][:, None, :]
+    # linearized error covariance of Q[k, l] - (its true match in O_i), from the independent noises of a, b, O_j[l]
+    # and the O_i point: dtheta/da = (-a_y, a_x)/|a|^2, dtheta/db = (b_y, -b_x)/|b|^2, dQ/da = I + u ga^T with
+    # u = J R O_j[l] (the correlation through a matters: it can double the variance at lever arms ~ |a|)
+    u = np.stack([-(Q[..., 1] - Pi[A][:, None, 1]), Q[..., 0] - Pi[A][:, None, 0]], -1)  # (K, mj, 2)
+    ga = np.stack([-Pi[A, 1], Pi[A, 0]], -1) / (ri[A] ** 2)[:, None]
+    gb2 = 1.0 / rj[B] ** 2  # |dtheta/db|^2
+    M = np.eye(2) + u[..., :, None] * ga[:, None, None, :]  # (K, mj, 2, 2)
+    C = s2 * (M @ np.swapaxes(M, -1, -2) + gb2[:, None, None, None] * u[..., :, None] * u[..., None, :] + 2 * np.eye(2))
+    det = C[..., 0, 0] * C[..., 1, 1] - C[..., 0, 1] ** 2
+    dx = Q[:, :, None, :] - Pi[None, None, :, :]  # (K, mj, mi, 2)
+    D2 = (C[..., 1, 1, None] * dx[..., 0] ** 2 - 2 * C[..., 0, 1, None] * dx[..., 0] * dx[..., 1]
+          + C[..., 0, 0, None] * dx[..., 1] ** 2) / det[..., None]  # fmt: skip
+    K = np.arange(A.size)
+    D2[K, :, A] = np.inf  # robot j itself is not one of j's observations
+    D2[K, B, :] = np.inf  # robot i (seen by j at b) is the origin of frame i, not a point of O_i
+    return R, Q, C, D2
+
+
+def _refined(
+    Pi: np.ndarray, Pj: np.ndarray, a: int, b: int, D2: np.ndarray, expect_j: np.ndarray, expect_i: np.ndarray,
+    s2: float, gate: float, max_unmatched: int,
+) -> Registration | None:  # fmt: skip
+    """Candidate ``(a, b)`` matched one to one (the assignment minimizing ``sum(min(d2, gate^2))``, pairs at the
+    cap unmatched) and refined over all its correspondences; None when more than ``max_unmatched`` points either
+    side expected to match do not."""
+    cost = np.minimum(D2, gate * gate)
+    rows, cols = linear_sum_assignment(cost)
+    hit = cost[rows, cols] < gate * gate
+    used_j, used_i = set(rows[hit].tolist()), set(cols[hit].tolist())
+    pairs = list(zip(cols[hit].tolist(), rows[hit].tolist(), strict=True))
+    un_j = sum(1 for l_ in np.nonzero(expect_j)[0] if int(l_) not in used_j)
+    un_i = sum(1 for m_ in np.nonzero(expect_i)[0] if int(m_) not in used_i)
+    if un_j > max_unmatched or un_i > max_unmatched:
+        return None
+    pr = np.array(pairs, dtype=int).reshape(-1, 2)
+    # refine over all correspondences: (0 <-> O_j[b]), (O_i[a] <-> 0), (O_i[m] <-> O_j[l]); residual variance
+    # s2 when one side is exact, 2 s2 when both are measured
+    pi_ = np.vstack([[0.0, 0.0], Pi[a], Pi[pr[:, 0]]])
+    pj_ = np.vstack([Pj[b], [0.0, 0.0], Pj[pr[:, 1]]])
+    v = np.concatenate([[s2, s2], np.full(len(pr), 2 * s2)])
+    pose, fit = _procrustes(pi_, pj_, 1.0 / v)
+    return Registration(pose, _fit_cov(pose, pj_, v), a, b, pr, fit)
+
+
 def binary_register(
     obs_i: object,
     obs_j: object,
@@ -276,42 +352,11 @@ def binary_register(
     hj = None if headings_j is None else np.asarray(headings_j, float).reshape(mj)
     ri, rj = np.hypot(Pi[:, 0], Pi[:, 1]), np.hypot(Pj[:, 0], Pj[:, 1])
     s2 = sigma * sigma
-    # ---- candidate (a, b): equal ranges (both noisy: variance 2 sigma^2), positive ranges
     s_r = sigma if sigma_range is None else float(sigma_range)
-    A, B = np.nonzero((np.abs(ri[:, None] - rj[None, :]) <= gate * s_r * np.sqrt(2)) & (ri[:, None] > 0))
-    A, B = A[rj[B] > 0], B[rj[B] > 0]
-    th = _rough_theta(Pi, Pj, A, B)
-    if hi is not None:
-        d = np.abs(wrap_angle(th - hi[A]))
-        ok = np.isnan(hi[A]) | (d <= gate * np.sqrt(sigma_heading**2 + s2 / ri[A] ** 2 + s2 / rj[B] ** 2))
-        A, B, th = A[ok], B[ok], th[ok]
-    if hj is not None:
-        d = np.abs(wrap_angle(th + hj[B]))
-        ok = np.isnan(hj[B]) | (d <= gate * np.sqrt(sigma_heading**2 + s2 / ri[A] ** 2 + s2 / rj[B] ** 2))
-        A, B, th = A[ok], B[ok], th[ok]
-    if prior is not None and A.size:
-        ok = _prior_ok(Pi, Pj, A, B, th, s2, prior, prior_gate)
-        A, B, th = A[ok], B[ok], th[ok]
+    A, B, th = _candidates(Pi, Pj, s2, s_r, gate, hi, hj, sigma_heading, prior, prior_gate)
     if A.size == 0:
         return []
-    # ---- map O_j into frame i for every candidate at once: (K, mj, 2); distances to O_i: (K, mj, mi)
-    R = _rot(th)
-    Q = np.einsum("kab,lb->kla", R, Pj) + Pi[A][:, None, :]
-    # linearized error covariance of Q[k, l] - (its true match in O_i), from the independent noises of a, b, O_j[l]
-    # and the O_i point: dtheta/da = (-a_y, a_x)/|a|^2, dtheta/db = (b_y, -b_x)/|b|^2, dQ/da = I + u ga^T with
-    # u = J R O_j[l] (the correlation through a matters: it can double the variance at lever arms ~ |a|)
-    u = np.stack([-(Q[..., 1] - Pi[A][:, None, 1]), Q[..., 0] - Pi[A][:, None, 0]], -1)  # (K, mj, 2)
-    ga = np.stack([-Pi[A, 1], Pi[A, 0]], -1) / (ri[A] ** 2)[:, None]
-    gb2 = 1.0 / rj[B] ** 2  # |dtheta/db|^2
-    M = np.eye(2) + u[..., :, None] * ga[:, None, None, :]  # (K, mj, 2, 2)
-    C = s2 * (M @ np.swapaxes(M, -1, -2) + gb2[:, None, None, None] * u[..., :, None] * u[..., None, :] + 2 * np.eye(2))
-    det = C[..., 0, 0] * C[..., 1, 1] - C[..., 0, 1] ** 2
-    dx = Q[:, :, None, :] - Pi[None, None, :, :]  # (K, mj, mi, 2)
-    D2 = (C[..., 1, 1, None] * dx[..., 0] ** 2 - 2 * C[..., 0, 1, None] * dx[..., 0] * dx[..., 1]
-          + C[..., 0, 0, None] * dx[..., 1] ** 2) / det[..., None]  # fmt: skip
-    K = np.arange(A.size)
-    D2[K, :, A] = np.inf  # robot j itself is not one of j's observations
-    D2[K, B, :] = np.inf  # robot i (seen by j at b) is the origin of frame i, not a point of O_i
+    R, Q, C, D2 = _distances(Pi, Pj, A, B, th, s2)
     within = D2 <= gate * gate
     # which points the other robot should have seen (inside its range by a margin of the gate)
     sd_j = np.sqrt(C[..., 0, 0] + C[..., 1, 1])
@@ -325,24 +370,8 @@ def binary_register(
     keep = ((expect_j & ~has_j).sum(1) <= max_unmatched) & ((expect_i & ~has_i).sum(1) <= max_unmatched)
     out: list[Registration] = []
     for k in np.nonzero(keep)[0]:
-        a, b = int(A[k]), int(B[k])
-        # one-to-one matching: the assignment minimizing sum(min(d2, gate^2)) (pairs at the cap stay unmatched)
-        cost = np.minimum(D2[k], gate * gate)
-        rows, cols = linear_sum_assignment(cost)
-        hit = cost[rows, cols] < gate * gate
-        used_j, used_i = set(rows[hit].tolist()), set(cols[hit].tolist())
-        pairs = list(zip(cols[hit].tolist(), rows[hit].tolist(), strict=True))
-        un_j = sum(1 for l_ in np.nonzero(expect_j[k])[0] if int(l_) not in used_j)
-        un_i = sum(1 for m_ in np.nonzero(expect_i[k])[0] if int(m_) not in used_i)
-        if un_j > max_unmatched or un_i > max_unmatched:
-            continue
-        pr = np.array(pairs, dtype=int).reshape(-1, 2)
-        # refine over all correspondences: (0 <-> O_j[b]), (O_i[a] <-> 0), (O_i[m] <-> O_j[l]); residual variance
-        # s2 when one side is exact, 2 s2 when both are measured
-        pi_ = np.vstack([[0.0, 0.0], Pi[a], Pi[pr[:, 0]]])
-        pj_ = np.vstack([Pj[b], [0.0, 0.0], Pj[pr[:, 1]]])
-        v = np.concatenate([[s2, s2], np.full(len(pr), 2 * s2)])
-        pose, cost = _procrustes(pi_, pj_, 1.0 / v)
-        out.append(Registration(pose, _fit_cov(pose, pj_, v), a, b, pr, cost))
+        reg = _refined(Pi, Pj, int(A[k]), int(B[k]), D2[k], expect_j[k], expect_i[k], s2, gate, max_unmatched)
+        if reg is not None:
+            out.append(reg)
     out.sort(key=lambda r: r.cost)
     return out

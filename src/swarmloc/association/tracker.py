@@ -126,6 +126,64 @@ class AnonymousTrack:
         return t, pos, ang
 
 
+def _beliefs(bank: ParticleFilterBank) -> dict[int, GroupGaussian]:
+    """The bank's unambiguous estimates as beliefs on SE(2), robot id -> belief (PMR's gates)."""
+    beliefs = {}
+    for j in bank.known():
+        est = bank.estimate(j)
+        if not est.ambiguous:
+            beliefs[j] = GroupGaussian(SE2, est.gaussian.mean, est.gaussian.cov)
+    return beliefs
+
+
+def _hypotheses(
+    scan: dict[int, np.ndarray], ego: int, robots: Sequence[int], sigma: float, beliefs: dict[int, GroupGaussian],
+    cache: dict | None, counts: dict[str, int], kw: dict[str, Any],
+) -> tuple[int, dict[int, list[tuple[np.ndarray, np.ndarray]]]]:  # fmt: skip
+    """PMR on one scan, gated by ``beliefs``, and ungated again for the robots (or everything) the beliefs left
+    unexplained (kidnapped, or a filter lost): the number of solutions kept and each neighbour's hypotheses;
+    counts the runs in ``counts``."""
+    res = multiple_registration(scan, ego, sigma, beliefs=beliefs or None, cache=cache, **kw)
+    counts["pmr_gated" if beliefs else "pmr_ungated"] += 1
+    hyps = {j: res.hypotheses(j) for j in robots if j != ego}
+    if beliefs and (not res.solutions or res.unreached):
+        free = multiple_registration(scan, ego, sigma, cache=cache, **kw)
+        counts["pmr_ungated"] += 1
+        for j in hyps:
+            if not hyps[j] or not res.solutions:
+                hyps[j] = free.hypotheses(j)
+        res = res if res.solutions else free
+    return len(res.solutions), hyps
+
+
+def _age(stale: dict[int, int], updates: dict[int, str]) -> None:
+    """Scans since PMR last confirmed each filter, after one scan's bank ``updates``: 0 when ``"updated"``, never
+    confirmed after an initialization or a reset (drawn from PMR's hypotheses), one more otherwise."""
+    for j, u in updates.items():
+        if u == "updated":
+            stale[j] = 0
+        elif u in ("initialized", "reset"):
+            stale[j] = 10**9
+        else:
+            stale[j] = stale.get(j, 10**9) + 1
+
+
+def _kept(
+    bank: ParticleFilterBank, t: float, every: float, fresh: int | None, last: dict[int, float], stale: dict[int, int]
+) -> dict[int, BankEstimate]:
+    """The estimates a consumer reading every ``every`` s gets at scan ``t`` (:func:`track_anonymous`), noting in
+    ``last`` when each was kept."""
+    kept = {}
+    for j in bank.known():
+        if t - last.get(j, -np.inf) < every or (fresh is not None and stale.get(j, 10**9) > fresh):
+            continue
+        est = bank.estimate(j)
+        if not est.ambiguous and np.all(np.linalg.eigvalsh(est.gaussian.cov) > 1e-12):
+            kept[j] = est
+            last[j] = t
+    return kept
+
+
 def track_anonymous(
     events: Sequence[Event],
     ego: int,
@@ -173,49 +231,20 @@ def track_anonymous(
     done: set[float] = set()
     last: dict[int, float] = {}
     stale: dict[int, int] = {}  # scans since PMR last confirmed each filter
+    kw: dict[str, Any] = dict(max_range=max_range, fov=fov, max_unmatched=max_unmatched, sigma_range=sigma_range)
 
     def scan(t: float) -> None:
         counts["scans"] += 1
-        beliefs = {}
-        for j in bank.known():
-            est = bank.estimate(j)
-            if not est.ambiguous:
-                beliefs[j] = GroupGaussian(SE2, est.gaussian.mean, est.gaussian.cov)
-        kw: dict[str, Any] = dict(max_range=max_range, fov=fov, max_unmatched=max_unmatched, sigma_range=sigma_range)
         cache = None if registrations is None else registrations.setdefault(t, {})
-        res = multiple_registration(scans[t], ego, sigma, beliefs=beliefs or None, cache=cache, **kw)
-        counts["pmr_gated" if beliefs else "pmr_ungated"] += 1
-        hyps = {j: res.hypotheses(j) for j in robots if j != ego}
-        if beliefs and (not res.solutions or res.unreached):
-            # the belief left a robot (or everything) unexplained: kidnapped, or its filter is lost
-            free = multiple_registration(scans[t], ego, sigma, cache=cache, **kw)
-            counts["pmr_ungated"] += 1
-            for j in hyps:
-                if not hyps[j] or not res.solutions:
-                    hyps[j] = free.hypotheses(j)
-            res = res if res.solutions else free
+        n_solutions, hyps = _hypotheses(scans[t], ego, robots, sigma, _beliefs(bank), cache, counts, kw)
         track.updates.append({j: bank.update(j, h) for j, h in hyps.items()})
-        for j, u in track.updates[-1].items():
-            if u == "updated":
-                stale[j] = 0
-            elif u in ("initialized", "reset"):
-                stale[j] = 10**9  # drawn from PMR's hypotheses: nothing confirmed it yet
-            else:
-                stale[j] = stale.get(j, 10**9) + 1
+        _age(stale, track.updates[-1])
         track.times.append(t)
-        track.solutions.append(len(res.solutions))
+        track.solutions.append(n_solutions)
         if every is None:
             track.estimates.append({j: bank.estimate(j) for j in bank.known()})
-            return
-        kept = {}
-        for j in bank.known():
-            if t - last.get(j, -np.inf) < every or (fresh is not None and stale.get(j, 10**9) > fresh):
-                continue
-            est = bank.estimate(j)
-            if not est.ambiguous and np.all(np.linalg.eigvalsh(est.gaussian.cov) > 1e-12):
-                kept[j] = est
-                last[j] = t
-        track.estimates.append(kept)
+        else:
+            track.estimates.append(_kept(bank, t, every, fresh, last, stale))
 
     for e in events:
         while pending and pending[0] < float(e.t):  # binned: a bin's scan once the stream has passed its end

@@ -254,26 +254,10 @@ def _require_kinds(require: Iterable[str], require_truth: bool) -> set[str]:
     return kinds
 
 
-def load_mrclam(
-    path: str | os.PathLike[str],
-    robots: Iterable[int] | None = None,
-    require: Iterable[str] = ("odometry", "measurements"),
-    require_truth: bool = False,
-    corrections: bool = True,
-) -> MRCLAMData:
-    """Load one MRCLAM dataset folder (e.g. ``.../MRCLAM_Dataset6``).
-
-    ``require`` names the per-robot files a robot must have to be loaded, among ``"odometry"``, ``"measurements"``
-    and ``"truth"`` (``require_truth=True`` adds ``"truth"``). With ``robots=None`` every robot 1-5 that has them
-    is loaded (e.g. robots 1, 2, 3, 5 of dataset 3, which lacks ``Robot4_Odometry.dat``); an explicit ``robots``
-    list must all have them. Files not required are loaded when present. ``Barcodes.dat`` and
-    ``Landmark_Groundtruth.dat`` are always required. Raises :class:`MRCLAMError` naming the folder, the missing
-    file(s) and what is available when the folder or a required file is missing, or when no robot qualifies.
-    ``corrections``: apply the known corrections of the module docstring (:data:`BARCODE_SWAPS`, yaw rates clipped
-    to :data:`MAX_YAW_RATE`), each listed in ``notes``; ``False`` loads the files as they are.
-    """
+def _folder(path: str | os.PathLike[str]) -> Path:
+    """The dataset folder of ``path``, after checking it is one and holds ``Barcodes.dat`` and
+    ``Landmark_Groundtruth.dat`` (:class:`MRCLAMError` naming what is there otherwise)."""
     folder = Path(path).expanduser()
-    kinds = _require_kinds(require, require_truth)
     if not folder.is_dir():
         parent = folder.parent
         if folder.exists():
@@ -284,13 +268,16 @@ def load_mrclam(
         else:
             avail = f"parent folder {parent} does not exist either"
         raise MRCLAMError(f"MRCLAM folder not found: {folder} ({avail})")
-    name = folder.name
-
     for fname in ("Barcodes.dat", "Landmark_Groundtruth.dat"):
         if not (folder / fname).is_file():
-            raise MRCLAMError(f"{name}: required file {fname} missing in {folder} (available: {_available(folder)})")
+            raise MRCLAMError(
+                f"{folder.name}: required file {fname} missing in {folder} (available: {_available(folder)})"
+            )
+    return folder
 
-    # which per-robot files exist
+
+def _robot_files(folder: Path) -> tuple[dict[int, dict[str, Path]], list[str]]:
+    """Which per-robot files exist: robot -> kind -> path, and the names of the missing ones."""
     present: dict[int, dict[str, Path]] = {}
     missing: list[str] = []
     for r in ROBOT_SUBJECTS:
@@ -301,6 +288,16 @@ def load_mrclam(
                 present[r][kind] = p
             else:
                 missing.append(p.name)
+    return present, missing
+
+
+def _chosen_robots(
+    folder: Path, robots: Iterable[int] | None, kinds: set[str], present: dict[int, dict[str, Path]],
+    missing: list[str],
+) -> list[int]:  # fmt: skip
+    """The robots to load (:func:`load_mrclam`'s ``robots``): every one with the ``kinds`` required, or the ones
+    asked for, which must have them; :class:`MRCLAMError` saying what lacks otherwise."""
+    name = folder.name
 
     def lacking(r: int) -> list[str]:
         return [f"Robot{r}_{_FILE_SUFFIX[k]}.dat" for k in sorted(kinds) if k not in present[r]]
@@ -323,27 +320,27 @@ def load_mrclam(
                 f"{name}: no robot has all required files {sorted(kinds)} in {folder}; "
                 f"missing: {', '.join(missing)}; available: {_available(folder)}"
             )
-    else:
-        chosen = sorted({int(r) for r in robots})
-        if not chosen:
-            raise ValueError("robots: empty selection")
-        bad_ids = [r for r in chosen if r not in ROBOT_SUBJECTS]
-        if bad_ids:
-            raise ValueError(f"robots: {bad_ids} are not robot subjects {list(ROBOT_SUBJECTS)}")
-        for r in chosen:
-            lack = lacking(r)
-            if lack:
-                raise MRCLAMError(
-                    f"{name}: robot {r} lacks required file(s) {', '.join(lack)} in {folder} "
-                    f"(available: {_available(folder)})"
-                )
-            if not kinds and not present[r]:
-                raise MRCLAMError(f"{name}: no files for robot {r} in {folder} (available: {_available(folder)})")
+        return chosen
+    chosen = sorted({int(r) for r in robots})
+    if not chosen:
+        raise ValueError("robots: empty selection")
+    bad_ids = [r for r in chosen if r not in ROBOT_SUBJECTS]
+    if bad_ids:
+        raise ValueError(f"robots: {bad_ids} are not robot subjects {list(ROBOT_SUBJECTS)}")
+    for r in chosen:
+        lack = lacking(r)
+        if lack:
+            raise MRCLAMError(
+                f"{name}: robot {r} lacks required file(s) {', '.join(lack)} in {folder} "
+                f"(available: {_available(folder)})"
+            )
+        if not kinds and not present[r]:
+            raise MRCLAMError(f"{name}: no files for robot {r} in {folder} (available: {_available(folder)})")
+    return chosen
 
-    notes: list[str] = []
 
-    # barcodes: subject -> barcode
-    bc_path = folder / "Barcodes.dat"
+def _barcodes(bc_path: Path) -> dict[int, int]:
+    """``Barcodes.dat``: barcode -> subject (one subject per barcode)."""
     bc = read_table(bc_path, 2, MRCLAMError)
     if bc.shape[0] == 0:
         raise MRCLAMError(f"{file_label(bc_path)}: no data rows")
@@ -357,66 +354,65 @@ def load_mrclam(
                 f"{file_label(bc_path)} line {lineno}: barcode {b} already assigned to subject {barcode_to_subject[b]}"
             )
         barcode_to_subject[b] = s
+    return barcode_to_subject
 
-    # landmarks
-    lm_path = folder / "Landmark_Groundtruth.dat"
+
+def _landmarks(lm_path: Path) -> dict[int, tuple[float, float, float, float]]:
+    """``Landmark_Groundtruth.dat``: subject -> ``(x, y, x std, y std)`` [m]."""
     lm = read_table(lm_path, 5, MRCLAMError)
     lm_subjects = integer_column(lm_path, lm, 0, "subject", MRCLAMError)
-    landmarks: dict[int, tuple[float, float, float, float]] = {
+    return {
         int(s): (float(row[1]), float(row[2]), float(row[3]), float(row[4]))
         for s, row in zip(lm_subjects.tolist(), lm, strict=True)
     }
 
-    if corrections:
-        _swap_barcodes(barcode_to_subject, landmarks, notes)
 
-    odometry: dict[int, np.ndarray] = {}
-    measurements: dict[int, np.ndarray] = {}
-    truth: dict[int, np.ndarray] = {}
-    skipped: dict[int, int] = {}
+def _timed_rows(p: Path, ncols: int, notes: list[str]) -> np.ndarray:
+    """A robot's odometry or ground-truth file sorted by time (a note when it was not), at least one row."""
+    arr = sort_by_time(p, read_table(p, ncols, MRCLAMError), notes)
+    if arr.shape[0] == 0:
+        raise MRCLAMError(f"{file_label(p)}: no data rows")
+    return arr
+
+
+def _clip_yaw_rates(p: Path, arr: np.ndarray, notes: list[str]) -> None:
+    """Clip the odometry ``arr``'s yaw rates to :data:`MAX_YAW_RATE` in place, noting how many were beyond."""
+    fast = np.abs(arr[:, 2]) > MAX_YAW_RATE
+    if fast.any():
+        arr[:, 2] = np.clip(arr[:, 2], -MAX_YAW_RATE, MAX_YAW_RATE)
+        notes.append(
+            f"{file_label(p)}: yaw rate of {int(fast.sum())} of {arr.shape[0]} rows clipped to "
+            f"+-{MAX_YAW_RATE} rad/s (commands beyond what the robots turned)"
+        )
+
+
+def _measurements(p: Path, barcode_to_subject: dict[int, int], skipped: dict[int, int], notes: list[str]) -> np.ndarray:
+    """A robot's measurement file with barcodes mapped to subjects, sorted by time; rows of unknown barcodes are
+    dropped and counted in ``skipped`` (barcode -> rows)."""
     known = np.array(sorted(barcode_to_subject), dtype=np.int64)
     mapped = np.array([barcode_to_subject[b] for b in known.tolist()], dtype=np.float64)
+    arr = read_table(p, 4, MRCLAMError)
+    code = integer_column(p, arr, 1, "barcode", MRCLAMError)
+    if known.size:
+        pos_c = np.minimum(np.searchsorted(known, code), known.size - 1)
+        ok = known[pos_c] == code
+    else:  # pragma: no cover - Barcodes.dat with no rows is rejected above
+        pos_c, ok = np.zeros(code.size, dtype=np.int64), np.zeros(code.size, dtype=bool)
+    if not ok.all():
+        vals, counts = np.unique(code[~ok], return_counts=True)
+        for b, n in zip(vals.tolist(), counts.tolist(), strict=True):
+            skipped[b] = skipped.get(b, 0) + n
+    arr = arr[ok].copy()
+    arr[:, 1] = mapped[pos_c[ok]]
+    return sort_by_time(p, arr, notes)
 
-    for r in chosen:
-        files = present[r]
-        if "odometry" in files:
-            p = files["odometry"]
-            arr = sort_by_time(p, read_table(p, 3, MRCLAMError), notes)
-            if arr.shape[0] == 0:
-                raise MRCLAMError(f"{file_label(p)}: no data rows")
-            if corrections:
-                fast = np.abs(arr[:, 2]) > MAX_YAW_RATE
-                if fast.any():
-                    arr[:, 2] = np.clip(arr[:, 2], -MAX_YAW_RATE, MAX_YAW_RATE)
-                    notes.append(
-                        f"{file_label(p)}: yaw rate of {int(fast.sum())} of {arr.shape[0]} rows clipped to "
-                        f"+-{MAX_YAW_RATE} rad/s (commands beyond what the robots turned)"
-                    )
-            odometry[r] = arr
-        if "truth" in files:
-            p = files["truth"]
-            arr = sort_by_time(p, read_table(p, 4, MRCLAMError), notes)
-            if arr.shape[0] == 0:
-                raise MRCLAMError(f"{file_label(p)}: no data rows")
-            truth[r] = arr
-        if "measurements" in files:
-            p = files["measurements"]
-            arr = read_table(p, 4, MRCLAMError)
-            code = integer_column(p, arr, 1, "barcode", MRCLAMError)
-            if known.size:
-                pos_c = np.minimum(np.searchsorted(known, code), known.size - 1)
-                ok = known[pos_c] == code
-            else:  # pragma: no cover - Barcodes.dat with no rows is rejected above
-                pos_c, ok = np.zeros(code.size, dtype=np.int64), np.zeros(code.size, dtype=bool)
-            if not ok.all():
-                vals, counts = np.unique(code[~ok], return_counts=True)
-                for b, n in zip(vals.tolist(), counts.tolist(), strict=True):
-                    skipped[b] = skipped.get(b, 0) + n
-            arr = arr[ok].copy()
-            arr[:, 1] = mapped[pos_c[ok]]
-            measurements[r] = sort_by_time(p, arr, notes)
 
-    # common time span
+def _time_span(
+    folder: Path, chosen: list[int], odometry: dict[int, np.ndarray], measurements: dict[int, np.ndarray],
+    truth: dict[int, np.ndarray], notes: list[str],
+) -> tuple[float, float]:  # fmt: skip
+    """The span ``(t_start, t_end)`` common to the robots' odometry (else the measurements' or the ground truth's),
+    narrowed to the ground truth's when there is some (noted when by more than 1 s)."""
     if odometry:
         spans = [(float(a[0, 0]), float(a[-1, 0])) for a in odometry.values()]
         t_start = max(s for s, _ in spans)
@@ -433,7 +429,7 @@ def load_mrclam(
             t_end = min(float(a[-1, 0]) for a in truth.values())
             basis = "ground-truth"
         else:
-            raise MRCLAMError(f"{name}: no data rows for robots {chosen} in {folder}")
+            raise MRCLAMError(f"{folder.name}: no data rows for robots {chosen} in {folder}")
     if truth:
         for r, a in truth.items():
             early, late = float(a[0, 0]) - t_start, t_end - float(a[-1, 0])
@@ -445,10 +441,54 @@ def load_mrclam(
         t_end = min(t_end, min(float(a[-1, 0]) for a in truth.values()))
         basis += " and ground-truth"
     if not t_end > t_start:
-        raise MRCLAMError(f"{name}: the {basis} time spans of robots {chosen} do not overlap")
+        raise MRCLAMError(f"{folder.name}: the {basis} time spans of robots {chosen} do not overlap")
+    return t_start, t_end
 
+
+def load_mrclam(
+    path: str | os.PathLike[str],
+    robots: Iterable[int] | None = None,
+    require: Iterable[str] = ("odometry", "measurements"),
+    require_truth: bool = False,
+    corrections: bool = True,
+) -> MRCLAMData:
+    """Load one MRCLAM dataset folder (e.g. ``.../MRCLAM_Dataset6``).
+
+    ``require`` names the per-robot files a robot must have to be loaded, among ``"odometry"``, ``"measurements"``
+    and ``"truth"`` (``require_truth=True`` adds ``"truth"``). With ``robots=None`` every robot 1-5 that has them
+    is loaded (e.g. robots 1, 2, 3, 5 of dataset 3, which lacks ``Robot4_Odometry.dat``); an explicit ``robots``
+    list must all have them. Files not required are loaded when present. ``Barcodes.dat`` and
+    ``Landmark_Groundtruth.dat`` are always required. Raises :class:`MRCLAMError` naming the folder, the missing
+    file(s) and what is available when the folder or a required file is missing, or when no robot qualifies.
+    ``corrections``: apply the known corrections of the module docstring (:data:`BARCODE_SWAPS`, yaw rates clipped
+    to :data:`MAX_YAW_RATE`), each listed in ``notes``; ``False`` loads the files as they are.
+    """
+    kinds = _require_kinds(require, require_truth)
+    folder = _folder(path)
+    present, missing = _robot_files(folder)
+    chosen = _chosen_robots(folder, robots, kinds, present, missing)
+    notes: list[str] = []
+    barcode_to_subject = _barcodes(folder / "Barcodes.dat")
+    landmarks = _landmarks(folder / "Landmark_Groundtruth.dat")
+    if corrections:
+        _swap_barcodes(barcode_to_subject, landmarks, notes)
+    odometry: dict[int, np.ndarray] = {}
+    measurements: dict[int, np.ndarray] = {}
+    truth: dict[int, np.ndarray] = {}
+    skipped: dict[int, int] = {}
+    for r in chosen:
+        files = present[r]
+        if "odometry" in files:
+            odometry[r] = _timed_rows(files["odometry"], 3, notes)
+            if corrections:
+                _clip_yaw_rates(files["odometry"], odometry[r], notes)
+        if "truth" in files:
+            truth[r] = _timed_rows(files["truth"], 4, notes)
+        if "measurements" in files:
+            measurements[r] = _measurements(files["measurements"], barcode_to_subject, skipped, notes)
+    t_start, t_end = _time_span(folder, chosen, odometry, measurements, truth, notes)
     return MRCLAMData(
-        name=name,
+        name=folder.name,
         path=folder,
         robots=list(chosen),
         odometry=odometry,
@@ -466,6 +506,56 @@ def load_mrclam(
 
 # ----------------------------------------------------------------------------------------------------------------
 # events
+
+
+def _odometry_columns(
+    data: MRCLAMData, t_start: float, t_end: float
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Per robot, its odometry intervals clipped to ``[t_start, t_end]`` (empty ones dropped): robot, ``t0``,
+    ``t1``, ``v``, ``w`` columns."""
+    o_rob, o_t0, o_t1, o_v, o_w = [], [], [], [], []
+    for r in data.robots:
+        odo = data.odometry.get(r)
+        if odo is None or odo.shape[0] < 2:
+            continue
+        t = odo[:, 0]
+        a = np.maximum(t[:-1], t_start)
+        b = np.minimum(t[1:], t_end)
+        keep = b > a
+        o_rob.append(np.full(int(keep.sum()), r, dtype=np.int64))
+        o_t0.append(a[keep])
+        o_t1.append(b[keep])
+        o_v.append(odo[:-1, 1][keep])
+        o_w.append(odo[:-1, 2][keep])
+    return o_rob, o_t0, o_t1, o_v, o_w
+
+
+def _detection_columns(
+    data: MRCLAMData, t_start: float, t_end: float, landmarks: bool, robot_measurements: bool
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Per robot, its measurements within ``[t_start, t_end]`` of the kinds switched on: observer, ``t``,
+    subject, ``z`` ``(k, 2)`` columns."""
+    d_obs, d_t, d_sub, d_z = [], [], [], []
+    for r in data.robots:
+        m = data.measurements.get(r)
+        if m is None or m.shape[0] == 0:
+            continue
+        is_rob = np.isin(m[:, 1], ROBOT_SUBJECTS)
+        keep = (m[:, 0] >= t_start) & (m[:, 0] <= t_end)
+        if not landmarks:
+            keep &= is_rob
+        if not robot_measurements:
+            keep &= ~is_rob
+        d_obs.append(np.full(int(keep.sum()), r, dtype=np.int64))
+        d_t.append(m[keep, 0])
+        d_sub.append(m[keep, 1].astype(np.int64))
+        d_z.append(m[keep][:, 2:4])
+    return d_obs, d_t, d_sub, d_z
+
+
+def _cat(xs: list[np.ndarray], dtype: type = np.float64, shape: tuple[int, ...] = (0,)) -> np.ndarray:
+    """``xs`` concatenated; empty of ``dtype`` and ``shape`` when there are none."""
+    return np.concatenate(xs) if xs else np.empty(shape, dtype=dtype)
 
 
 def mrclam_events(
@@ -507,44 +597,10 @@ def mrclam_events(
             raise ValueError(f"duration must be non-negative, got {duration}")
         t_end = min(t_end, t_start + float(duration))
 
-    # odometry: vectorized clipping
-    o_rob, o_t0, o_t1, o_v, o_w = [], [], [], [], []
-    for r in data.robots:
-        odo = data.odometry.get(r)
-        if odo is None or odo.shape[0] < 2:
-            continue
-        t = odo[:, 0]
-        a = np.maximum(t[:-1], t_start)
-        b = np.minimum(t[1:], t_end)
-        keep = b > a
-        o_rob.append(np.full(int(keep.sum()), r, dtype=np.int64))
-        o_t0.append(a[keep])
-        o_t1.append(b[keep])
-        o_v.append(odo[:-1, 1][keep])
-        o_w.append(odo[:-1, 2][keep])
-
-    # detections
-    d_obs, d_t, d_sub, d_z = [], [], [], []
-    for r in data.robots:
-        m = data.measurements.get(r)
-        if m is None or m.shape[0] == 0:
-            continue
-        is_rob = np.isin(m[:, 1], ROBOT_SUBJECTS)
-        keep = (m[:, 0] >= t_start) & (m[:, 0] <= t_end)
-        if not landmarks:
-            keep &= is_rob
-        if not robot_measurements:
-            keep &= ~is_rob
-        d_obs.append(np.full(int(keep.sum()), r, dtype=np.int64))
-        d_t.append(m[keep, 0])
-        d_sub.append(m[keep, 1].astype(np.int64))
-        d_z.append(m[keep][:, 2:4])
-
-    def cat(xs: list[np.ndarray], dtype: type = np.float64, shape: tuple[int, ...] = (0,)) -> np.ndarray:
-        return np.concatenate(xs) if xs else np.empty(shape, dtype=dtype)
-
-    ot0, ot1 = cat(o_t0), cat(o_t1)
-    dt_ = cat(d_t)
+    o_rob, o_t0, o_t1, o_v, o_w = _odometry_columns(data, t_start, t_end)
+    d_obs, d_t, d_sub, d_z = _detection_columns(data, t_start, t_end, landmarks, robot_measurements)
+    ot0, ot1 = _cat(o_t0), _cat(o_t1)
+    dt_ = _cat(d_t)
     n_o, n_d = ot1.size, dt_.size
     times = np.concatenate([ot0, dt_])
     kind = np.concatenate([np.ones(n_o, dtype=np.int8), np.zeros(n_d, dtype=np.int8)])
@@ -554,17 +610,17 @@ def mrclam_events(
     odo_events: list[Odometry] = [
         Odometry(robot=r, t0=a, t1=b, v=v, w=w)
         for r, a, b, v, w in zip(
-            cat(o_rob, np.int64).tolist(),
+            _cat(o_rob, np.int64).tolist(),
             ot0.tolist(),
             ot1.tolist(),
-            cat(o_v).tolist(),
-            cat(o_w).tolist(),
+            _cat(o_v).tolist(),
+            _cat(o_w).tolist(),
             strict=True,
         )
     ]
     cov = np.diag([range_std**2, bearing_std**2])
     cov.setflags(write=False)
-    zs = cat(d_z, shape=(0, 2)).copy()
+    zs = _cat(d_z, shape=(0, 2)).copy()
     zs.setflags(write=False)
     robot_set = set(ROBOT_SUBJECTS)
     det_events: list[Detection] = [
@@ -578,7 +634,7 @@ def mrclam_events(
             target_is_robot=s in robot_set,
         )
         for i, (o, t, s) in enumerate(
-            zip(cat(d_obs, np.int64).tolist(), dt_.tolist(), cat(d_sub, np.int64).tolist(), strict=True)
+            zip(_cat(d_obs, np.int64).tolist(), dt_.tolist(), _cat(d_sub, np.int64).tolist(), strict=True)
         )
     ]
     pool: list[Event] = [*odo_events, *det_events]

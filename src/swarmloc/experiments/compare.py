@@ -121,6 +121,66 @@ def _job(
     }
 
 
+def _refuse_what_cannot_run(
+    scenario: str, estimators: Sequence[str], association: str, clutter: float, p_detect: float
+) -> None:
+    """Raise ValueError, before anything runs, for a scenario, policy or estimator :func:`compare` cannot run: an
+    unknown scenario, a 3-D team with untagged detections or an estimator without 3-D support, an estimator that
+    cannot run the association policy."""
+    import dataclasses
+
+    from swarmloc.config import DEFAULTS
+    from swarmloc.estimators import estimator_class, make_team, node_options
+    from swarmloc.experiments.association import association_policy
+
+    policy = association_policy(association)
+    _check_scenario(scenario)
+    cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, association=policy))
+    if is_3d(scenario):
+        if association != "tags" or clutter or p_detect != 1.0:
+            raise ValueError(f"{scenario}: a 3-D team's detections are tagged (association tags, no clutter, "
+                             "p_detect 1)")  # fmt: skip
+        for e in estimators:
+            estimator_class(e, {0: _ONE3})
+    for e in estimators:
+        make_team(e, {0: _ONE, 1: _ONE}, **node_options(e, cfg, None, 0.0))
+
+
+def _estimator_summary(rs: list[dict[str, Any]], dof: int) -> dict[str, Any]:
+    """One estimator's row of :func:`compare`'s summary from its runs ``rs`` (:func:`_job`'s results): errors,
+    NEES statistics for ``dof`` degrees of freedom, costs, counters."""
+    from scipy.stats import chi2
+
+    q_lo, q_hi = chi2.ppf([0.025, 0.975], dof)
+    pos = np.concatenate([r["pos"] for r in rs])
+    head = np.concatenate([r["heading"] for r in rs])
+    nees = np.concatenate([r["nees"] for r in rs])
+    n = int(nees.size)
+    lo, hi = anees_bounds(max(n, 1), dof)
+    st: dict[str, int] = {}
+    for r in rs:
+        for k, v in r["stats"].items():
+            st[k] = st.get(k, 0) + int(v)
+    tm = {k: sum(r["timing"][k] for r in rs) for k in ("predict_s", "predict_n", "fuse_s", "fuse_n")}
+    robot_s = sum(r["robots"] * r["data_s"] for r in rs)
+    return {
+        "records": n,
+        "pos_rmse": float(np.sqrt(np.mean(pos**2))) if n else float("nan"),
+        "heading_rmse": float(np.sqrt(np.mean(head**2))) if n else float("nan"),
+        "anees": float(np.mean(nees) / dof) if n else float("nan"),
+        "anees_band_95": (lo, hi),
+        "frac_in_95": float(np.mean((nees >= q_lo) & (nees <= q_hi))) if n else float("nan"),
+        "anees_per_run": [float(np.mean(r["nees"]) / dof) for r in rs if r["nees"].size],
+        "update_us": 1e6 * tm["fuse_s"] / tm["fuse_n"] if tm["fuse_n"] else 0.0,
+        "predict_us": 1e6 * tm["predict_s"] / tm["predict_n"] if tm["predict_n"] else 0.0,
+        "messages_per_robot_s": st.get("messages", 0) / robot_s if robot_s else 0.0,
+        "detections": {k: st.get(k, 0) for k in ("detections", "fused", "gated", "rejected", "unknown")},
+        "association": {k[12:]: st.get(k, 0) for k in st if k.startswith("association_")},
+        "association_accuracy": association_accuracy(st),
+        "x_real_time": sum(r["data_s"] for r in rs) / sum(r["wall_s"] for r in rs),
+    }
+
+
 def compare(
     scenario: str,
     estimators: Sequence[str],
@@ -140,28 +200,14 @@ def compare(
     detections per scan and detection probability ``p_detect``): how robot detections get their identity
     (:mod:`swarmloc.experiments.association`; every policy but ``tags`` hides the ids). The runs go to ``jobs``
     worker processes, or to a Dask ``cluster`` (an address or a client: :func:`~swarmloc.runner.fanout.fan_out`)."""
-    import dataclasses
-
-    from swarmloc.config import DEFAULTS
-    from swarmloc.estimators import ESTIMATORS, estimator_class, make_team, node_options
-    from swarmloc.experiments.association import association_policy
+    from swarmloc.estimators import ESTIMATORS
 
     unknown = [e for e in estimators if e not in ESTIMATORS]
     if unknown:
         raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
     if runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
-    policy = association_policy(association)
-    _check_scenario(scenario)
-    cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, association=policy))
-    if is_3d(scenario):  # what a 3-D team cannot run is refused before anything runs
-        if association != "tags" or clutter or p_detect != 1.0:
-            raise ValueError(f"{scenario}: a 3-D team's detections are tagged (association tags, no clutter, "
-                             "p_detect 1)")  # fmt: skip
-        for e in estimators:
-            estimator_class(e, {0: _ONE3})
-    for e in estimators:  # an estimator that cannot run the policy is refused before anything runs
-        make_team(e, {0: _ONE, 1: _ONE}, **node_options(e, cfg, None, 0.0))
+    _refuse_what_cannot_run(scenario, estimators, association, clutter, p_detect)
     sim = scenario.startswith("sim:")
     seeds = list(range(runs)) if sim else [0]
     assoc = (association, float(clutter), float(p_detect))
@@ -185,40 +231,10 @@ def compare(
         "p_detect": float(p_detect),
         "estimators": {},
     }
-    from scipy.stats import chi2
-
     dof = results[0]["dof"] if results else DOF  # 6 for a 3-D team: NEES of the 6 exponential coordinates
     summary["dof"] = dof
-    q_lo, q_hi = chi2.ppf([0.025, 0.975], dof)
     for e in estimators:
-        rs = [r for r in results if r["estimator"] == e]
-        pos = np.concatenate([r["pos"] for r in rs])
-        head = np.concatenate([r["heading"] for r in rs])
-        nees = np.concatenate([r["nees"] for r in rs])
-        n = int(nees.size)
-        lo, hi = anees_bounds(max(n, 1), dof)
-        st: dict[str, int] = {}
-        for r in rs:
-            for k, v in r["stats"].items():
-                st[k] = st.get(k, 0) + int(v)
-        tm = {k: sum(r["timing"][k] for r in rs) for k in ("predict_s", "predict_n", "fuse_s", "fuse_n")}
-        robot_s = sum(r["robots"] * r["data_s"] for r in rs)
-        summary["estimators"][e] = {
-            "records": n,
-            "pos_rmse": float(np.sqrt(np.mean(pos**2))) if n else float("nan"),
-            "heading_rmse": float(np.sqrt(np.mean(head**2))) if n else float("nan"),
-            "anees": float(np.mean(nees) / dof) if n else float("nan"),
-            "anees_band_95": (lo, hi),
-            "frac_in_95": float(np.mean((nees >= q_lo) & (nees <= q_hi))) if n else float("nan"),
-            "anees_per_run": [float(np.mean(r["nees"]) / dof) for r in rs if r["nees"].size],
-            "update_us": 1e6 * tm["fuse_s"] / tm["fuse_n"] if tm["fuse_n"] else 0.0,
-            "predict_us": 1e6 * tm["predict_s"] / tm["predict_n"] if tm["predict_n"] else 0.0,
-            "messages_per_robot_s": st.get("messages", 0) / robot_s if robot_s else 0.0,
-            "detections": {k: st.get(k, 0) for k in ("detections", "fused", "gated", "rejected", "unknown")},
-            "association": {k[12:]: st.get(k, 0) for k in st if k.startswith("association_")},
-            "association_accuracy": association_accuracy(st),
-            "x_real_time": sum(r["data_s"] for r in rs) / sum(r["wall_s"] for r in rs),
-        }
+        summary["estimators"][e] = _estimator_summary([r for r in results if r["estimator"] == e], dof)
     if out_dir is not None:
         write_summary(out_dir, "compare", summary, compare_table(summary))
     return summary

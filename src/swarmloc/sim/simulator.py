@@ -271,6 +271,93 @@ def check_size(n_robots: int, duration: float, steps_per_s: float) -> None:
         )
 
 
+def _true_paths(
+    p0: np.ndarray, W: np.ndarray, drive: DiffDrive, n_sub: int, dt_f: float, ss_motion: np.random.SeedSequence
+) -> np.ndarray:
+    """True poses ``(N + 1, n_rob, 3)`` (theta unwrapped) at every internal step from ``p0`` under the wheel speeds
+    ``W`` ``(n_int, n_rob, 2)``, each held ``n_sub`` steps of ``dt_f`` s, with the wheels' noise when ``D > 0``
+    (vectorized, no time loop)."""
+    n_rob = p0.shape[0]
+    h = drive.twist(W[..., 0], W[..., 1])  # (n_int, n_rob, 3)
+    xi = np.repeat(h, n_sub, axis=0) * dt_f  # (N, n_rob, 3)
+    if drive.D > 0:
+        rng_m = np.random.default_rng(ss_motion)
+        dw = np.sqrt(dt_f) * rng_m.standard_normal((xi.shape[0], n_rob, 2))
+        xi = xi + np.einsum("...k,ik->...i", dw, drive.H())
+    # local increments exp(xi) in the current body frame, then one cumulative sum
+    dx, dy, da = compose_exp_xyt(np.zeros(xi.shape[:-1]), np.zeros(xi.shape[:-1]), np.zeros(xi.shape[:-1]), xi)
+    th = p0[:, 2] + np.concatenate([np.zeros((1, n_rob)), np.cumsum(da, axis=0)])  # (N+1, n_rob)
+    c, s = np.cos(th[:-1]), np.sin(th[:-1])
+    steps = np.stack([c * dx - s * dy, s * dx + c * dy], axis=-1)
+    pos = p0[:, :2] + np.concatenate([np.zeros((1, n_rob, 2)), np.cumsum(steps, axis=0)])  # (N+1, n_rob, 2)
+    return np.concatenate([pos, th[..., None]], axis=-1)
+
+
+def _relative_detections(
+    truth_all: np.ndarray, ids: tuple[int, ...], sen: RelativeSensor, n_s: int, f: float,
+    ss_rel: np.random.SeedSequence,
+) -> list[tuple[int, int, tuple, Event]]:  # fmt: skip
+    """The relative sensor's detections every ``n_s`` internal steps (``f`` per second) of the true poses
+    ``truth_all``, keyed ``(step, 1, (observer, kind, target), event)``."""
+    n_rob = len(ids)
+    ks = np.arange(n_s, truth_all.shape[0], n_s)
+    P = truth_all[ks]  # (S, n_rob, 3)
+    s_, obs, tgt = _pairs_within(P[..., :2], sen.max_range)  # candidates, sorted by (s, observer, target)
+    gi, gj = P[s_, obs], P[s_, tgt]
+    ci, si = np.cos(gi[..., 2]), np.sin(gi[..., 2])
+    ddx, ddy = gj[..., 0] - gi[..., 0], gj[..., 1] - gi[..., 1]
+    mx, my = ci * ddx + si * ddy, -si * ddx + ci * ddy
+    mth = gj[..., 2] - gi[..., 2]
+    rng_ = np.hypot(mx, my)
+    bearing = np.arctan2(my, mx)
+    seen = (rng_ <= sen.max_range) & (np.abs(bearing) <= sen.fov / 2 + 1e-12)
+    s_, obs, tgt, mx, my, mth, rng_, bearing = (a[seen] for a in (s_, obs, tgt, mx, my, mth, rng_, bearing))
+    # the noise of ordered pair p = (observer, target) at sensor time s is element [s, p] of one
+    # (S, n_rob (n_rob - 1), 3) draw and then one (S, n_rob (n_rob - 1), 2) draw, as always (same numbers)
+    pair = obs * (n_rob - 1) + tgt - (tgt > obs)
+    rng_s = np.random.default_rng(ss_rel)
+    n_pose = _draws_at(rng_s, len(ks), n_rob * (n_rob - 1), 3, s_, pair) * np.sqrt(np.diag(sen.pose_cov()))
+    n_rb = _draws_at(rng_s, len(ks), n_rob * (n_rob - 1), 2, s_, pair) * np.sqrt(np.diag(sen.range_bearing_cov()))
+    zx, zy, zth = compose_exp_xyt(mx, my, mth, n_pose)
+    z_pose = np.stack([zx, zy, wrap_angle(zth)], axis=-1)
+    z_rb = np.stack([rng_ + n_rb[..., 0], wrap_angle(bearing + n_rb[..., 1])], axis=-1)
+    cov_pose, cov_rb = _readonly(sen.pose_cov()), _readonly(sen.range_bearing_cov())
+    keyed: list[tuple[int, int, tuple, Event]] = []
+    for q in range(s_.size):
+        k = int(ks[s_[q]])
+        t = k / f
+        oi, ti = int(obs[q]), int(tgt[q])
+        o, g = ids[oi], ids[ti]
+        if Kind.POSE in sen.kinds:
+            ev = Detection(o, t, Kind.POSE, _readonly(z_pose[q]), cov_pose, target=g)
+            keyed.append((k, 1, (oi, 0, ti), ev))
+        if Kind.RANGE_BEARING in sen.kinds:
+            ev = Detection(o, t, Kind.RANGE_BEARING, _readonly(z_rb[q]), cov_rb, target=g)
+            keyed.append((k, 1, (oi, 1, ti), ev))
+    return keyed
+
+
+def _absolute_fixes(
+    truth_all: np.ndarray, ids: tuple[int, ...], ab: AbsoluteSensor, n_a: int, f: float,
+    ss_abs: np.random.SeedSequence,
+) -> list[tuple[int, int, tuple, Event]]:  # fmt: skip
+    """Absolute fixes of ``ab``'s robots every ``n_a`` internal steps (``f`` per second) of the true poses
+    ``truth_all``, keyed ``(step, 1, (n_rob + robot index, 2, 0), event)``."""
+    ka = np.arange(n_a, truth_all.shape[0], n_a)
+    cols = [ids.index(r) for r in ab.robots]
+    rng_a = np.random.default_rng(ss_abs)
+    noise = rng_a.standard_normal((len(ka), len(cols), 3)) * np.sqrt(np.diag(ab.cov()))
+    z = truth_all[ka][:, cols] + noise
+    z[..., 2] = wrap_angle(z[..., 2])
+    cov_a = _readonly(ab.cov())
+    keyed: list[tuple[int, int, tuple, Event]] = []
+    for a_, k in enumerate(ka):
+        for c_, col in enumerate(cols):
+            ev = Detection(ids[col], int(k) / f, Kind.ABSOLUTE, _readonly(z[a_, c_]), cov_a, target=None)
+            keyed.append((int(k), 1, (len(ids) + col, 2, 0), ev))
+    return keyed
+
+
 def simulate(
     initial_poses: Mapping[int, Sequence[float]] | Sequence[Sequence[float]],
     commands: Mapping[int, WheelCommand] | Sequence[WheelCommand],
@@ -306,24 +393,10 @@ def simulate(
     n_s = _steps(1.0 / sen.rate, dt_f, "sensor") if sen is not None else 0
     n_a = _steps(1.0 / ab.rate, dt_f, "absolute-fix") if ab is not None else 0
 
-    # ---------------------------------------------------------------- truth (vectorized, no time loop)
     p0 = np.array([np.asarray(initial_poses[i], dtype=float) for i in ids]).reshape(n_rob, 3)
     W = _commands([commands[i] for i in ids], np.arange(n_int) * n_sub / f)  # (n_int, n_rob, 2)
-    drive = cfg.drive
-    v_cmd, w_cmd = drive.to_unicycle(W[..., 0], W[..., 1])  # (n_int, n_rob)
-    h = drive.twist(W[..., 0], W[..., 1])  # (n_int, n_rob, 3)
-    xi = np.repeat(h, n_sub, axis=0) * dt_f  # (N, n_rob, 3)
-    if drive.D > 0:
-        rng_m = np.random.default_rng(ss_motion)
-        dw = np.sqrt(dt_f) * rng_m.standard_normal((N, n_rob, 2))
-        xi = xi + np.einsum("...k,ik->...i", dw, drive.H())
-    # local increments exp(xi) in the current body frame, then one cumulative sum
-    dx, dy, da = compose_exp_xyt(np.zeros(xi.shape[:-1]), np.zeros(xi.shape[:-1]), np.zeros(xi.shape[:-1]), xi)
-    th = p0[:, 2] + np.concatenate([np.zeros((1, n_rob)), np.cumsum(da, axis=0)])  # (N+1, n_rob)
-    c, s = np.cos(th[:-1]), np.sin(th[:-1])
-    steps = np.stack([c * dx - s * dy, s * dx + c * dy], axis=-1)
-    pos = p0[:, :2] + np.concatenate([np.zeros((1, n_rob, 2)), np.cumsum(steps, axis=0)])  # (N+1, n_rob, 2)
-    truth_all = np.concatenate([pos, th[..., None]], axis=-1)  # unwrapped theta
+    v_cmd, w_cmd = cfg.drive.to_unicycle(W[..., 0], W[..., 1])  # (n_int, n_rob)
+    truth_all = _true_paths(p0, W, cfg.drive, n_sub, dt_f, ss_motion)  # (N + 1, n_rob, 3)
 
     # keyed events: (step index, category, sub-order, event)
     keyed: list[tuple[int, int, tuple, Event]] = []
@@ -332,59 +405,13 @@ def simulate(
         t0, t1 = j * n_sub / f, k1 / f
         for r, rid in enumerate(ids):
             keyed.append((k1, 0, (r,), Odometry(rid, t0, t1, float(v_cmd[j, r]), float(w_cmd[j, r]))))
-
-    # ---------------------------------------------------------------- relative sensor
     if sen is not None and n_rob > 1:
-        ks = np.arange(n_s, N + 1, n_s)
-        P = truth_all[ks]  # (S, n_rob, 3)
-        s_, obs, tgt = _pairs_within(P[..., :2], sen.max_range)  # candidates, sorted by (s, observer, target)
-        gi, gj = P[s_, obs], P[s_, tgt]
-        ci, si = np.cos(gi[..., 2]), np.sin(gi[..., 2])
-        ddx, ddy = gj[..., 0] - gi[..., 0], gj[..., 1] - gi[..., 1]
-        mx, my = ci * ddx + si * ddy, -si * ddx + ci * ddy
-        mth = gj[..., 2] - gi[..., 2]
-        rng_ = np.hypot(mx, my)
-        bearing = np.arctan2(my, mx)
-        seen = (rng_ <= sen.max_range) & (np.abs(bearing) <= sen.fov / 2 + 1e-12)
-        s_, obs, tgt, mx, my, mth, rng_, bearing = (a[seen] for a in (s_, obs, tgt, mx, my, mth, rng_, bearing))
-        # the noise of ordered pair p = (observer, target) at sensor time s is element [s, p] of one
-        # (S, n_rob (n_rob - 1), 3) draw and then one (S, n_rob (n_rob - 1), 2) draw, as always (same numbers)
-        pair = obs * (n_rob - 1) + tgt - (tgt > obs)
-        rng_s = np.random.default_rng(ss_rel)
-        n_pose = _draws_at(rng_s, len(ks), n_rob * (n_rob - 1), 3, s_, pair) * np.sqrt(np.diag(sen.pose_cov()))
-        n_rb = _draws_at(rng_s, len(ks), n_rob * (n_rob - 1), 2, s_, pair) * np.sqrt(np.diag(sen.range_bearing_cov()))
-        zx, zy, zth = compose_exp_xyt(mx, my, mth, n_pose)
-        z_pose = np.stack([zx, zy, wrap_angle(zth)], axis=-1)
-        z_rb = np.stack([rng_ + n_rb[..., 0], wrap_angle(bearing + n_rb[..., 1])], axis=-1)
-        cov_pose, cov_rb = _readonly(sen.pose_cov()), _readonly(sen.range_bearing_cov())
-        for q in range(s_.size):
-            k = int(ks[s_[q]])
-            t = k / f
-            oi, ti = int(obs[q]), int(tgt[q])
-            o, g = ids[oi], ids[ti]
-            if Kind.POSE in sen.kinds:
-                ev = Detection(o, t, Kind.POSE, _readonly(z_pose[q]), cov_pose, target=g)
-                keyed.append((k, 1, (oi, 0, ti), ev))
-            if Kind.RANGE_BEARING in sen.kinds:
-                ev = Detection(o, t, Kind.RANGE_BEARING, _readonly(z_rb[q]), cov_rb, target=g)
-                keyed.append((k, 1, (oi, 1, ti), ev))
-
-    # ---------------------------------------------------------------- absolute fixes
+        keyed += _relative_detections(truth_all, ids, sen, n_s, f, ss_rel)
     if ab is not None and ab.robots:
         unknown = set(ab.robots) - set(ids)
         if unknown:
             raise ValueError(f"simulate: absolute fixes requested for unknown robots {sorted(unknown)}")
-        ka = np.arange(n_a, N + 1, n_a)
-        cols = [ids.index(r) for r in ab.robots]
-        rng_a = np.random.default_rng(ss_abs)
-        noise = rng_a.standard_normal((len(ka), len(cols), 3)) * np.sqrt(np.diag(ab.cov()))
-        z = truth_all[ka][:, cols] + noise
-        z[..., 2] = wrap_angle(z[..., 2])
-        cov_a = _readonly(ab.cov())
-        for a_, k in enumerate(ka):
-            for c_, col in enumerate(cols):
-                ev = Detection(ids[col], int(k) / f, Kind.ABSOLUTE, _readonly(z[a_, c_]), cov_a, target=None)
-                keyed.append((int(k), 1, (n_rob + col, 2, 0), ev))
+        keyed += _absolute_fixes(truth_all, ids, ab, n_a, f, ss_abs)
 
     # ---------------------------------------------------------------- truth events
     k_truth = np.arange(0, N + 1, n_sub * cfg.truth_every)

@@ -22,7 +22,8 @@ detection group's update is booked net of the predictions inside it.
 
 Layout: :mod:`~swarmloc.studies.thesis_dynamic.spec` holds the set-up (noise levels, durations, the estimator
 runs :data:`RUNS`, the double-counting conditions), :mod:`~swarmloc.studies.thesis_dynamic.run` the simulations
-and statistics, :mod:`~swarmloc.studies.thesis_dynamic.report` the figures and the Markdown text.
+and statistics, :mod:`~swarmloc.studies.thesis_dynamic.report` the figures and the output files,
+:mod:`~swarmloc.studies.thesis_dynamic.markdown` the Markdown text.
 """
 
 from __future__ import annotations

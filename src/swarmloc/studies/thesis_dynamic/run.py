@@ -227,6 +227,186 @@ def _paired(a: Sequence[float], b: Sequence[float]) -> dict[str, float]:
 
 
 # ---------------------------------------------------------------------------------------------------------- main
+def _specs(seeds: int, gt_seeds: int, ab_seeds: int, dur: float, gt_dur: float) -> list[dict[str, Any]]:
+    """The jobs of :func:`run_dynamic`: the two-robot runs at every noise level (every estimator, trajectories
+    kept), the ground-truth-neighbour runs, and the double-counting ablations but ``mutual_10hz`` (identical to the
+    main runs at :data:`ABLATION_NOISE`: taken from there)."""
+    specs: list[dict[str, Any]] = []
+    for noise in NOISE_LEVELS:
+        for s in range(seeds):
+            specs.append(
+                {
+                    "label": f"two robots, noise {noise:g}",
+                    "exp": "two_robot",
+                    "scenario": "two",
+                    "noise": noise,
+                    "seed": s,
+                    "duration": dur,
+                    "estimators": tuple(RUNS),
+                    "keep": True,
+                }
+            )
+    specs += [{"label": "ground-truth neighbour", "exp": "gt", "scenario": "gt", "noise": GT_NOISE, "seed": s,
+               "duration": gt_dur, "estimators": GT_ESTIMATORS, "keep": True} for s in range(gt_seeds)]  # fmt: skip
+    for ak, (_, every, oneway) in ABLATIONS.items():
+        if ak == "mutual_10hz":
+            continue
+        for s in range(ab_seeds):
+            specs.append(
+                {
+                    "label": f"double counting: {ak}",
+                    "exp": "ablation",
+                    "ablation": ak,
+                    "scenario": "two",
+                    "noise": ABLATION_NOISE,
+                    "seed": s,
+                    "duration": dur,
+                    "estimators": ABLATION_ESTIMATORS,
+                    "every": every,
+                    "oneway": oneway,
+                }
+            )
+    return specs
+
+
+def _select(jobs: list[dict[str, Any]], exp: str, **kw: Any) -> list[dict[str, Any]]:
+    """The jobs of experiment ``exp`` whose spec has the values ``kw``, by seed."""
+    js = [j for j in jobs if j["spec"]["exp"] == exp and all(j["spec"].get(k) == v for k, v in kw.items())]
+    return sorted(js, key=lambda j: j["spec"]["seed"])
+
+
+def _summary_and_curve(items: list[dict[str, Any]]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """One estimator's runs over seeds: :func:`_summarize` with robot 1's error against time added, and that
+    curve's arrays for the figures."""
+    summ = _summarize(items)
+    c, cj = _curve([it["result"] for it in items])
+    summ["robot1_error_vs_time"] = cj
+    return summ, c
+
+
+def _orderings(ps: dict[str, dict[str, list[float]]]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Paired comparisons over seeds of the per-seed values ``ps`` (estimator -> metric -> values): the thesis'
+    ordering (expfusion < dekf < dr), and the second-order fusion against the first-order one."""
+    ordering = {
+        "expfusion_vs_dekf_rmse": _paired(ps["expfusion"]["pos_rmse"], ps["dekf"]["pos_rmse"]),
+        "expfusion_vs_dr_rmse": _paired(ps["expfusion"]["pos_rmse"], ps["dr"]["pos_rmse"]),
+        "dekf_vs_dr_rmse": _paired(ps["dekf"]["pos_rmse"], ps["dr"]["pos_rmse"]),
+        "cekf_vs_expfusion_rmse": _paired(ps["cekf"]["pos_rmse"], ps["expfusion"]["pos_rmse"]),
+        "cekf_vs_dr_rmse": _paired(ps["cekf"]["pos_rmse"], ps["dr"]["pos_rmse"]),
+        "thesis_order_holds_in_seeds": int(
+            np.sum(
+                (np.array(ps["expfusion"]["pos_rmse"]) < np.array(ps["dekf"]["pos_rmse"]))
+                & (np.array(ps["dekf"]["pos_rmse"]) < np.array(ps["dr"]["pos_rmse"]))
+            )
+        ),
+    }
+    order12 = {
+        "rmse_order2_vs_order1": _paired(ps["expfusion"]["pos_rmse"], ps["expfusion1"]["pos_rmse"]),
+        "heading_rmse_order2_vs_order1": _paired(ps["expfusion"]["heading_rmse"], ps["expfusion1"]["heading_rmse"]),
+        "anees_order2_vs_order1": _paired(ps["expfusion"]["anees"], ps["expfusion1"]["anees"]),
+    }
+    return ordering, order12
+
+
+def _two_robot(jobs: list[dict[str, Any]]) -> tuple[dict[str, Any], ...]:
+    """The two-robot runs by noise level (its ``f"{noise:g}"``): every estimator's summary, the curves and the
+    first seed's trajectories for the figures, and :func:`_orderings`'s two comparisons."""
+    curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+    traj: dict[str, dict[str, RunResult]] = {}
+    two_robot: dict[str, Any] = {}
+    ordering: dict[str, Any] = {}
+    order12: dict[str, Any] = {}
+    for noise in NOISE_LEVELS:
+        nk = f"{noise:g}"
+        js = _select(jobs, "two_robot", noise=noise)
+        two_robot[nk] = {}
+        curves[nk] = {}
+        for key in RUNS:
+            items = [j["runs"][key] for j in js]
+            two_robot[nk][key], curves[nk][key] = _summary_and_curve(items)
+            if key == "cekf":
+                two_robot[nk][key]["final_corr_r1_r2"] = {
+                    n: spread([it["final_corr"][n] for it in items]) for n in ("x", "y", "theta")
+                }
+        traj[nk] = {key: js[0]["runs"][key]["result"] for key in RUNS}
+        ordering[nk], order12[nk] = _orderings({k: two_robot[nk][k]["per_seed"] for k in RUNS})
+    return two_robot, curves, traj, ordering, order12
+
+
+def _double_counting(jobs: list[dict[str, Any]], ab_seeds: int) -> dict[str, Any]:
+    """Each ablation of :data:`ABLATIONS`: its settings and, per estimator, both robots' RMSE and ANEES over seeds
+    and the detections fused per run."""
+    abl: dict[str, Any] = {}
+    for ak, (desc, every, oneway) in ABLATIONS.items():
+        if ak == "mutual_10hz":
+            js = _select(jobs, "two_robot", noise=ABLATION_NOISE)[:ab_seeds]
+        else:
+            js = _select(jobs, "ablation", ablation=ak)
+        abl[ak] = {"description": desc, "every": every, "oneway": oneway, "seeds": len(js), "estimators": {}}
+        for key in ABLATION_ESTIMATORS:
+            items = [j["runs"][key] for j in js]
+            abl[ak]["estimators"][key] = {
+                f"robot{r}": {k: spread([it["robots"][r][k] for it in items]) for k in ("pos_rmse", "anees")}
+                for r in (1, 2)
+            } | {"detections_fused_per_run": float(np.mean([it["n_fused"] for it in items]))}
+    return abl
+
+
+def _table61(jobs: list[dict[str, Any]], two_robot: dict[str, Any], gt: dict[str, Any]) -> list[dict[str, Any]]:
+    """Table 6.1's rows: every estimator's errors, its costs (timing pooled over all two-robot runs) and traits."""
+    table61 = []
+    for key, es in RUNS.items():
+        items = [j["runs"][key] for j in _select(jobs, "two_robot")]
+        tp = sum(it["timing"]["predict_s"] for it in items) / max(sum(it["timing"]["predict_n"] for it in items), 1)
+        tu = sum(it["timing"]["update_s"] for it in items) / max(sum(it["timing"]["update_n"] for it in items), 1)
+        table61.append(
+            {
+                "key": key,
+                "method": es.label,
+                "implemented": True,
+                "pos_rmse": {f"{n:g}": two_robot[f"{n:g}"][key]["team"]["pos_rmse"]["mean"] for n in NOISE_LEVELS},
+                "anees": {f"{n:g}": two_robot[f"{n:g}"][key]["team"]["anees"]["mean"] for n in NOISE_LEVELS},
+                "gt_neighbour_robot1_pos_rmse": gt[key]["robots"]["1"]["pos_rmse"]["mean"] if key in gt else None,
+                "gt_neighbour_robot1_anees": gt[key]["robots"]["1"]["anees"]["mean"] if key in gt else None,
+                "us_per_predict": 1e6 * tp,
+                "us_per_update": None if key == "dr" else 1e6 * tu,
+                "multiple_detections_at_once": es.multiple_detections,
+                "distributed": "yes" if es.cls.distributed else "no",
+                "note": es.note,
+            }
+        )
+    return table61
+
+
+def _meta(seeds: int, quick: bool, dur: float, gt_dur: float, gt_seeds: int, ab_seeds: int, workers: int) -> dict:
+    """The ``meta`` of :func:`run_dynamic`'s result: its settings, the model's, units, the machine."""
+    sim0 = thesis_two_robot(noise_std=NOISE_LEVELS[0], seed=0, duration=dur)
+    sens = sim0.config.sensor
+    return {
+        "seeds": seeds,
+        "quick": quick,
+        "noise_levels": list(NOISE_LEVELS),
+        "duration_s": dur,
+        "gt_neighbour": {"duration_s": gt_dur, "seeds": gt_seeds, "noise": GT_NOISE},
+        "double_counting": {"seeds": ab_seeds, "noise": ABLATION_NOISE},
+        "initial_cov": f"{INIT_VAR:g} * I (exponential coordinates): known initial poses, as in the thesis",
+        "wheel_diffusion_D": sim0.config.drive.D,
+        "sensor": {
+            "rate_hz": sens.rate,
+            "max_range_m": sens.max_range,
+            "sigma_theta": "2 * noise std [rad] (assumption of swarmloc.sim.thesis_two_robot)",
+        },
+        "units": "metres, radians, seconds; ANEES per degree of freedom (3)",
+        "spread": "mean/std(ddof=1)/min/max over seeds of per-run (time-averaged) values",
+        "curves": f"robot 1, over seeds at each record time, stored every {CURVE_EVERY}th record (1 s)",
+        "workers": workers,
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__},
+        "estimators": {
+            k: {"label": e.label, "distributed": bool(e.cls.distributed), "note": e.note} for k, e in RUNS.items()
+        },
+    }
+
+
 def run_dynamic(
     out_dir: Path,
     seeds: int = 20,
@@ -263,177 +443,27 @@ def run_dynamic(
     gt_seeds = min(seeds, cfg["gt_seeds"])
     ab_seeds = min(seeds, cfg["ablation_seeds"])
     dur, gt_dur = cfg["duration"], cfg["gt_duration"]
-    all_est = tuple(RUNS)
-
-    specs: list[dict[str, Any]] = []
-    for noise in NOISE_LEVELS:
-        for s in range(seeds):
-            specs.append(
-                {
-                    "label": f"two robots, noise {noise:g}",
-                    "exp": "two_robot",
-                    "scenario": "two",
-                    "noise": noise,
-                    "seed": s,
-                    "duration": dur,
-                    "estimators": all_est,
-                    "keep": True,
-                }
-            )
-    specs += [{"label": "ground-truth neighbour", "exp": "gt", "scenario": "gt", "noise": GT_NOISE, "seed": s,
-               "duration": gt_dur, "estimators": GT_ESTIMATORS, "keep": True} for s in range(gt_seeds)]  # fmt: skip
-    for ak, (_, every, oneway) in ABLATIONS.items():
-        if ak == "mutual_10hz":
-            continue  # identical to the main runs at ABLATION_NOISE: taken from there
-        for s in range(ab_seeds):
-            specs.append(
-                {
-                    "label": f"double counting: {ak}",
-                    "exp": "ablation",
-                    "ablation": ak,
-                    "scenario": "two",
-                    "noise": ABLATION_NOISE,
-                    "seed": s,
-                    "duration": dur,
-                    "estimators": ABLATION_ESTIMATORS,
-                    "every": every,
-                    "oneway": oneway,
-                }
-            )
+    specs = _specs(seeds, gt_seeds, ab_seeds, dur, gt_dur)
     jobs = _run_jobs(specs, workers, progress, lambda s: s["duration"] * len(s["estimators"]), cluster)
     t_runs = time.perf_counter() - t_start
 
-    # ------------------------------------------------------------------ aggregate
-    def select(exp: str, **kw: Any) -> list[dict[str, Any]]:
-        js = [j for j in jobs if j["spec"]["exp"] == exp and all(j["spec"].get(k) == v for k, v in kw.items())]
-        return sorted(js, key=lambda j: j["spec"]["seed"])
-
-    curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
-    traj: dict[str, dict[str, RunResult]] = {}
-    two_robot: dict[str, Any] = {}
-    ordering: dict[str, Any] = {}
-    order12: dict[str, Any] = {}
-    for noise in NOISE_LEVELS:
-        nk = f"{noise:g}"
-        js = select("two_robot", noise=noise)
-        two_robot[nk] = {}
-        curves[nk] = {}
-        for key in all_est:
-            items = [j["runs"][key] for j in js]
-            summ = _summarize(items)
-            c, cj = _curve([it["result"] for it in items])
-            summ["robot1_error_vs_time"] = cj
-            if key == "cekf":
-                summ["final_corr_r1_r2"] = {
-                    n: spread([it["final_corr"][n] for it in items]) for n in ("x", "y", "theta")
-                }
-            two_robot[nk][key] = summ
-            curves[nk][key] = c
-        traj[nk] = {key: js[0]["runs"][key]["result"] for key in all_est}
-        ps = {k: two_robot[nk][k]["per_seed"] for k in all_est}
-        ordering[nk] = {
-            "expfusion_vs_dekf_rmse": _paired(ps["expfusion"]["pos_rmse"], ps["dekf"]["pos_rmse"]),
-            "expfusion_vs_dr_rmse": _paired(ps["expfusion"]["pos_rmse"], ps["dr"]["pos_rmse"]),
-            "dekf_vs_dr_rmse": _paired(ps["dekf"]["pos_rmse"], ps["dr"]["pos_rmse"]),
-            "cekf_vs_expfusion_rmse": _paired(ps["cekf"]["pos_rmse"], ps["expfusion"]["pos_rmse"]),
-            "cekf_vs_dr_rmse": _paired(ps["cekf"]["pos_rmse"], ps["dr"]["pos_rmse"]),
-            "thesis_order_holds_in_seeds": int(
-                np.sum(
-                    (np.array(ps["expfusion"]["pos_rmse"]) < np.array(ps["dekf"]["pos_rmse"]))
-                    & (np.array(ps["dekf"]["pos_rmse"]) < np.array(ps["dr"]["pos_rmse"]))
-                )
-            ),
-        }
-        order12[nk] = {
-            "rmse_order2_vs_order1": _paired(ps["expfusion"]["pos_rmse"], ps["expfusion1"]["pos_rmse"]),
-            "heading_rmse_order2_vs_order1": _paired(ps["expfusion"]["heading_rmse"], ps["expfusion1"]["heading_rmse"]),
-            "anees_order2_vs_order1": _paired(ps["expfusion"]["anees"], ps["expfusion1"]["anees"]),
-        }
-
-    gt_jobs = select("gt")
+    two_robot, curves, traj, ordering, order12 = _two_robot(jobs)
+    gt_jobs = _select(jobs, "gt")
     gt: dict[str, Any] = {}
     gt_curves: dict[str, dict[str, np.ndarray]] = {}
     for key in GT_ESTIMATORS:
-        items = [j["runs"][key] for j in gt_jobs]
-        summ = _summarize(items)
-        c, cj = _curve([it["result"] for it in items])
-        summ["robot1_error_vs_time"] = cj
-        gt[key] = summ
-        gt_curves[key] = c
+        gt[key], gt_curves[key] = _summary_and_curve([j["runs"][key] for j in gt_jobs])
     gt_traj = {key: gt_jobs[0]["runs"][key]["result"] for key in GT_ESTIMATORS}
-
-    abl: dict[str, Any] = {}
-    for ak, (desc, every, oneway) in ABLATIONS.items():
-        if ak == "mutual_10hz":
-            js = select("two_robot", noise=ABLATION_NOISE)[:ab_seeds]
-        else:
-            js = select("ablation", ablation=ak)
-        abl[ak] = {"description": desc, "every": every, "oneway": oneway, "seeds": len(js), "estimators": {}}
-        for key in ABLATION_ESTIMATORS:
-            items = [j["runs"][key] for j in js]
-            abl[ak]["estimators"][key] = {
-                f"robot{r}": {k: spread([it["robots"][r][k] for it in items]) for k in ("pos_rmse", "anees")}
-                for r in (1, 2)
-            } | {"detections_fused_per_run": float(np.mean([it["n_fused"] for it in items]))}
-
-    # Table 6.1, timing pooled over all two-robot runs
-    table61 = []
-    for key, es in RUNS.items():
-        items = [j["runs"][key] for j in select("two_robot")]
-        tp = sum(it["timing"]["predict_s"] for it in items) / max(sum(it["timing"]["predict_n"] for it in items), 1)
-        tu = sum(it["timing"]["update_s"] for it in items) / max(sum(it["timing"]["update_n"] for it in items), 1)
-        table61.append(
-            {
-                "key": key,
-                "method": es.label,
-                "implemented": True,
-                "pos_rmse": {f"{n:g}": two_robot[f"{n:g}"][key]["team"]["pos_rmse"]["mean"] for n in NOISE_LEVELS},
-                "anees": {f"{n:g}": two_robot[f"{n:g}"][key]["team"]["anees"]["mean"] for n in NOISE_LEVELS},
-                "gt_neighbour_robot1_pos_rmse": gt[key]["robots"]["1"]["pos_rmse"]["mean"] if key in gt else None,
-                "gt_neighbour_robot1_anees": gt[key]["robots"]["1"]["anees"]["mean"] if key in gt else None,
-                "us_per_predict": 1e6 * tp,
-                "us_per_update": None if key == "dr" else 1e6 * tu,
-                "multiple_detections_at_once": es.multiple_detections,
-                "distributed": "yes" if es.cls.distributed else "no",
-                "note": es.note,
-            }
-        )
-
-    sim0 = thesis_two_robot(noise_std=NOISE_LEVELS[0], seed=0, duration=dur)
-    sens = sim0.config.sensor
+    abl = _double_counting(jobs, ab_seeds)
     result: dict[str, Any] = {
-        "meta": {
-            "seeds": seeds,
-            "quick": quick,
-            "noise_levels": list(NOISE_LEVELS),
-            "duration_s": dur,
-            "gt_neighbour": {"duration_s": gt_dur, "seeds": gt_seeds, "noise": GT_NOISE},
-            "double_counting": {"seeds": ab_seeds, "noise": ABLATION_NOISE},
-            "initial_cov": f"{INIT_VAR:g} * I (exponential coordinates): known initial poses, as in the thesis",
-            "wheel_diffusion_D": sim0.config.drive.D,
-            "sensor": {
-                "rate_hz": sens.rate,
-                "max_range_m": sens.max_range,
-                "sigma_theta": "2 * noise std [rad] (assumption of swarmloc.sim.thesis_two_robot)",
-            },
-            "units": "metres, radians, seconds; ANEES per degree of freedom (3)",
-            "spread": "mean/std(ddof=1)/min/max over seeds of per-run (time-averaged) values",
-            "curves": f"robot 1, over seeds at each record time, stored every {CURVE_EVERY}th record (1 s)",
-            "workers": workers,
-            "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__},
-            "estimators": {
-                k: {"label": e.label, "distributed": bool(e.cls.distributed), "note": e.note} for k, e in RUNS.items()
-            },
-        },
+        "meta": _meta(seeds, quick, dur, gt_dur, gt_seeds, ab_seeds, workers),
         "two_robot": two_robot,
         "thesis_ordering": ordering,
         "order2_vs_order1": order12,
         "ground_truth_neighbour": gt,
         "double_counting": abl,
-        "table_6_1": table61,
+        "table_6_1": _table61(jobs, two_robot, gt),
     }
-
-    # ------------------------------------------------------------------ figures
     files = figures(plt, out_dir, curves, traj, gt_curves, gt_traj, abl, seeds, gt_seeds)
     runtime = time.perf_counter() - t_start
     result["meta"]["runtime_s"] = {"runs": t_runs, "total": runtime, "cpu": _cpu_seconds() - cpu0}

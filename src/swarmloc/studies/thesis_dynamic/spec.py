@@ -20,6 +20,11 @@ ABLATION_NOISE = 0.05
 FULL: dict[str, Any] = {"duration": 90.0, "gt_duration": 500.0, "gt_seeds": 5, "ablation_seeds": 8}
 QUICK: dict[str, Any] = {"duration": 30.0, "gt_duration": 60.0, "gt_seeds": 3, "ablation_seeds": 3, "seeds": 3}
 
+FIG_ERR = {"0.01": "5.15", "0.05": "5.18", "0.1": "5.21"}
+"""Thesis figure of the error against time at each noise level (its ``f"{noise:g}"``)."""
+FIG_TRAJ = {"0.01": "5.14", "0.05": "5.17", "0.1": "5.20"}
+"""Thesis figure of the trajectories at each noise level."""
+
 CURVE_EVERY = 10
 """Error-vs-time curves are stored in the JSON every ``CURVE_EVERY``-th record (1 s); figures use all records."""
 

@@ -36,41 +36,8 @@ the tables, JSON and figures.
 
 from __future__ import annotations
 
+from swarmloc.studies.thesis_static import spec
 from swarmloc.studies.thesis_static.run import run_demo, run_tables
-from swarmloc.studies.thesis_static.spec import (
-    CIRCULAR,
-    COMMANDS,
-    NEIGHBOUR_OFFSETS,
-    SIGMA_M,
-    SIGMA_M_PRINTED,
-    STRAIGHT,
-    THESIS_DRIVE,
-    THESIS_TABLES,
-    Command,
-    deviation_510,
-    formation,
-    pose_errors,
-    prediction,
-    relative_measurements,
-    sample_end_poses,
-)
+from swarmloc.studies.thesis_static.spec import *  # noqa: F403 - the set-up and the model: spec.__all__
 
-__all__ = [
-    "CIRCULAR",
-    "COMMANDS",
-    "NEIGHBOUR_OFFSETS",
-    "SIGMA_M",
-    "SIGMA_M_PRINTED",
-    "STRAIGHT",
-    "THESIS_DRIVE",
-    "THESIS_TABLES",
-    "Command",
-    "deviation_510",
-    "formation",
-    "pose_errors",
-    "prediction",
-    "relative_measurements",
-    "run_demo",
-    "run_tables",
-    "sample_end_poses",
-]
+__all__ = [*spec.__all__, "run_demo", "run_tables"]

@@ -49,6 +49,77 @@ def _second_moment(y: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------- demo
+def _prior_checks(
+    cmd: Command, drive: DiffDrive, starts: np.ndarray, prior: GroupGaussian, Sigma: np.ndarray, samples: np.ndarray,
+    n_reference: int, rng_ref: np.random.Generator, n_steps: int,
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any], dict[str, dict[str, float]]]:  # fmt: skip
+    """Robot ``i``'s prior against the SDE samples it describes: the second moments of ``log(mu^-1 g)`` over
+    ``samples`` and over ``n_reference`` extra ones, its :func:`run_demo` stats, and ``prior_vs_sde`` (the mean NEES
+    of the extra samples under the closed form and the composed prediction); ``Sigma``: the prior's covariance as
+    predicted."""
+    cov_s = _second_moment(prior.tangent_of(samples[:, 0], validate=False))
+    ref = sample_end_poses(cmd, drive, starts[:1], n_reference, rng_ref, n_steps)[:, 0]
+    cov_ref = _second_moment(prior.tangent_of(ref, validate=False))
+    gm, _ = group_mean(SE2, samples[:, 0], init=prior.mean)
+    prior_vs_sde = {}
+    for label, k in (("thesis_closed_form", 1), ("second_order_10_substeps", 10)):
+        nees_ref = GroupGaussian(SE2, *prediction(cmd, drive, k), validate=False).mahalanobis2(ref, validate=False)
+        prior_vs_sde[label] = {
+            "mean_nees": float(nees_ref.mean()),
+            "frac_in_95": float(np.mean(nees_ref <= CHI2_3_95)),
+        }
+    stats = {
+        "cov_rel_error_vs_samples": _rel_frob(Sigma, cov_s),
+        "cov_rel_error_vs_reference_samples": _rel_frob(Sigma, cov_ref),
+        "sample_group_mean_offset": float(np.linalg.norm(prior.tangent_of(gm, validate=False))),
+    }
+    return cov_s, cov_ref, stats, prior_vs_sde
+
+
+def _importance_check(
+    prior: GroupGaussian, pairs: list[tuple[GroupGaussian, GroupGaussian]], n_importance: int,
+    rngs: tuple[np.random.Generator, np.random.Generator],
+) -> tuple[GroupGaussian, dict[str, Any]]:  # fmt: skip
+    """The importance-sampling posterior: two independent halves of ``n_importance`` draws, averaged, and its
+    statistics but the estimate's own (effective sample sizes; half the halves' difference estimates its error)."""
+    is_runs = [importance_posterior(prior, pairs, max(1, n_importance // 2), r) for r in rngs]
+    d_is = SE2.log(SE2.inverse(is_runs[0][0]) @ is_runs[1][0])
+    is_mean = is_runs[0][0] @ SE2.exp(0.5 * d_is)
+    is_cov = 0.5 * (is_runs[0][1] + is_runs[1][1])
+    stats = {
+        "n": n_importance,
+        "ess": [float(r[2]) for r in is_runs],
+        # standard error of the average of two independent halves ~ half their difference
+        "cov_rel_std_error": 0.5 * _rel_frob(is_runs[1][1], is_runs[0][1]),
+        "mean_std_error": 0.5 * float(np.linalg.norm(d_is)),
+    }
+    return GroupGaussian(SE2, is_mean, is_cov, validate=False), stats
+
+
+def _demo_settings(seed: int, n_samples: int, n_importance: int, n_reference: int, n_steps: int, noise_scale: float,
+                   prior_substeps: int, drive: DiffDrive, Sm: np.ndarray, n_nb: int) -> dict[str, Any]:  # fmt: skip
+    """The ``settings`` of :func:`run_demo`'s result: its arguments and the choices the text leaves open."""
+    return {
+        "seed": seed,
+        "n_samples": n_samples,
+        "n_importance": n_importance,
+        "n_reference": n_reference,
+        "n_steps": n_steps,
+        "noise_scale": noise_scale,
+        "prior_substeps": prior_substeps,
+        "r": drive.r,
+        "l": drive.l,
+        "D": drive.D,
+        "sigma_m": Sm,
+        "sigma_m_printed": SIGMA_M_PRINTED,
+        "sigma_m_note": "printed matrix is not symmetric; upper triangle kept (positive definite)",
+        "circular_T_note": "text says 'for 1 second', parameter list says T = 2; T = 2 used (quarter circle)",
+        "formation": "robot i at the origin heading +x; neighbours at lateral offsets "
+        f"{list(NEIGHBOUR_OFFSETS[:n_nb])} m, same heading, same command",
+        "fusion": "swarmloc.fuse_relative, iterations=2 (default), order 2 and order 1",
+    }
+
+
 def run_demo(
     out_dir: Path,
     seed: int = 0,
@@ -104,46 +175,17 @@ def run_demo(
         prior = beliefs[0]
         pairs = [(beliefs[k + 1], GroupGaussian(SE2, meas[k], Sm)) for k in range(n_nb)]
         post = {2: fuse_relative(prior, pairs, order=2), 1: fuse_relative(prior, pairs, order=1)}
-
-        # the prior against the samples it describes
-        y = prior.tangent_of(samples[:, 0], validate=False)
-        cov_s = _second_moment(y)
-        ref = sample_end_poses(cmd, drive, starts[:1], n_reference, rng_ref, n_steps)[:, 0]
-        cov_ref = _second_moment(prior.tangent_of(ref, validate=False))
-        gm, _ = group_mean(SE2, samples[:, 0], init=prior.mean)
-        prior_vs_sde = {}
-        for label, k in (("thesis_closed_form", 1), ("second_order_10_substeps", 10)):
-            nees_ref = GroupGaussian(SE2, *prediction(cmd, drive, k), validate=False).mahalanobis2(ref, validate=False)
-            prior_vs_sde[label] = {
-                "mean_nees": float(nees_ref.mean()),
-                "frac_in_95": float(np.mean(nees_ref <= CHI2_3_95)),
-            }
-
-        # importance-sampling posterior: two independent halves, averaged; their difference estimates its error
-        is_runs = [importance_posterior(prior, pairs, max(1, n_importance // 2), r) for r in (rng_is1, rng_is2)]
-        d_is = SE2.log(SE2.inverse(is_runs[0][0]) @ is_runs[1][0])
-        is_mean = is_runs[0][0] @ SE2.exp(0.5 * d_is)
-        is_cov = 0.5 * (is_runs[0][1] + is_runs[1][1])
-        is_gauss = GroupGaussian(SE2, is_mean, is_cov, validate=False)
-
+        cov_s, cov_ref, prior_stats, prior_vs_sde = _prior_checks(
+            cmd, drive, starts, prior, Sigma, samples, n_reference, rng_ref, n_steps
+        )
+        is_gauss, is_stats = _importance_check(prior, pairs, n_importance, (rng_is1, rng_is2))
+        is_mean, is_cov = is_gauss.mean, is_gauss.cov
         g_i = truth[0]
         res: dict[str, Any] = {
             "command": {"w1": cmd.w1, "w2": cmd.w2, "T": cmd.T, "twist": drive.twist(cmd.w1, cmd.w2)},
-            "prior": {
-                **_estimate_stats(g_i, prior),
-                "cov_rel_error_vs_samples": _rel_frob(Sigma, cov_s),
-                "cov_rel_error_vs_reference_samples": _rel_frob(Sigma, cov_ref),
-                "sample_group_mean_offset": float(np.linalg.norm(prior.tangent_of(gm, validate=False))),
-            },
+            "prior": {**_estimate_stats(g_i, prior), **prior_stats},
             "prior_vs_sde": prior_vs_sde,
-            "importance": {
-                **_estimate_stats(g_i, is_gauss),
-                "n": n_importance,
-                "ess": [float(r[2]) for r in is_runs],
-                # standard error of the average of two independent halves ~ half their difference
-                "cov_rel_std_error": 0.5 * _rel_frob(is_runs[1][1], is_runs[0][1]),
-                "mean_std_error": 0.5 * float(np.linalg.norm(d_is)),
-            },
+            "importance": {**_estimate_stats(g_i, is_gauss), **is_stats},
         }
         for o, g in post.items():
             res[f"posterior_order{o}"] = {
@@ -151,23 +193,13 @@ def run_demo(
                 "cov_rel_error_vs_importance": _rel_frob(g.cov, is_cov),
                 "mean_offset_vs_importance": float(np.linalg.norm(SE2.log(SE2.inverse(is_mean) @ g.mean))),
             }
-        res["poses_xytheta"] = {
-            "starts": SE2.to_xytheta(starts),
-            "truth": SE2.to_xytheta(truth),
-            "measurements": SE2.to_xytheta(meas),
-            "prior_mean": SE2.to_xytheta(prior.mean),
-            "posterior_order2_mean": SE2.to_xytheta(post[2].mean),
-            "posterior_order1_mean": SE2.to_xytheta(post[1].mean),
-            "importance_mean": SE2.to_xytheta(is_mean),
-        }
-        res["covariances"] = {
-            "prior": Sigma,
-            "samples": cov_s,
-            "reference_samples": cov_ref,
-            "posterior_order2": post[2].cov,
-            "posterior_order1": post[1].cov,
-            "importance": is_cov,
-        }
+        means = {"starts": starts, "truth": truth, "measurements": meas, "prior_mean": prior.mean,
+                 "posterior_order2_mean": post[2].mean, "posterior_order1_mean": post[1].mean,
+                 "importance_mean": is_mean}  # fmt: skip
+        res["poses_xytheta"] = {k: SE2.to_xytheta(v) for k, v in means.items()}
+        res["covariances"] = {"prior": Sigma, "samples": cov_s, "reference_samples": cov_ref,
+                              "posterior_order2": post[2].cov, "posterior_order1": post[1].cov,
+                              "importance": is_cov}  # fmt: skip
         if figures:
             res["contours"] = demo_figures(
                 out_dir, cmd, drive, starts, samples, truth, beliefs, post, is_gauss, noise_scale, files
@@ -178,25 +210,9 @@ def run_demo(
 
     result: dict[str, Any] = {
         "experiment": "thesis sec. 5.1, figures 5.2-5.5 (team of 4: robot i + 3 neighbours)",
-        "settings": {
-            "seed": seed,
-            "n_samples": n_samples,
-            "n_importance": n_importance,
-            "n_reference": n_reference,
-            "n_steps": n_steps,
-            "noise_scale": noise_scale,
-            "prior_substeps": prior_substeps,
-            "r": drive.r,
-            "l": drive.l,
-            "D": drive.D,
-            "sigma_m": Sm,
-            "sigma_m_printed": SIGMA_M_PRINTED,
-            "sigma_m_note": "printed matrix is not symmetric; upper triangle kept (positive definite)",
-            "circular_T_note": "text says 'for 1 second', parameter list says T = 2; T = 2 used (quarter circle)",
-            "formation": "robot i at the origin heading +x; neighbours at lateral offsets "
-            f"{list(NEIGHBOUR_OFFSETS[:n_nb])} m, same heading, same command",
-            "fusion": "swarmloc.fuse_relative, iterations=2 (default), order 2 and order 1",
-        },
+        "settings": _demo_settings(
+            seed, n_samples, n_importance, n_reference, n_steps, noise_scale, prior_substeps, drive, Sm, n_nb
+        ),
         "cases": cases,
         "files": files,
     }

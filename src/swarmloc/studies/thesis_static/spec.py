@@ -12,6 +12,24 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import DiffDrive, euler_maruyama, increment_cov, increment_mean
 
+__all__ = [
+    "CIRCULAR",
+    "COMMANDS",
+    "NEIGHBOUR_OFFSETS",
+    "SIGMA_M",
+    "SIGMA_M_PRINTED",
+    "STRAIGHT",
+    "THESIS_DRIVE",
+    "THESIS_TABLES",
+    "Command",
+    "deviation_510",
+    "formation",
+    "pose_errors",
+    "prediction",
+    "relative_measurements",
+    "sample_end_poses",
+]
+
 
 @dataclass(frozen=True)
 class Command:
