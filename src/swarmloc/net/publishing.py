@@ -39,7 +39,7 @@ from swarmloc.node import Node
 
 Put = Callable[[str, Any], None]
 """``put(kind, message)``: sign and publish ``message`` on the robot's ``kind`` key (``belief``, ``progress``,
-``delayed``, ``lines``): the node's wiring (:meth:`~swarmloc.net.process.NetNode._put`)."""
+``delayed``, ``lines``): the node's wiring (:meth:`~.wiring.Wiring.put`)."""
 
 
 def lagging(node: Node) -> bool:
@@ -80,7 +80,7 @@ class Publishing:
     at its record times, its delayed output and its scans' lines (see the module docstring).
 
     ``put``: publishes a message (:data:`Put`); ``ros``: ``ros(t, belief)`` publishes a belief on ROS too (None:
-    not); ``unsettled``: what may still change the state at a key (:meth:`~.lockstep.Lockstep._unsettled`), for
+    not); ``unsettled``: what may still change the state at a key (:meth:`~.lockstep.Lockstep.unsettled`), for
     ``on_settled``; ``counts``: the node's network counters (``beliefs_published``...); ``record_times``,
     ``scans``, ``on_belief``, ``on_lines``, ``on_settled``: the node's (:class:`~swarmloc.net.process.NetNode`)."""
 
@@ -198,7 +198,7 @@ class Publishing:
 
     def settled(self, end: bool = False) -> None:
         """Hand ``on_settled`` the belief at each record time, in order, once it is settled: the node's own source
-        has passed it, and :meth:`~.lockstep.Lockstep._unsettled` finds nothing keyed at or before it that the team
+        has passed it, and :meth:`~.lockstep.Lockstep.unsettled` finds nothing keyed at or before it that the team
         may still read or apply (teammates' progress and broadcasts, updates expected, own groups waiting). Without
         faults the belief is then final; at the end (``end``) every record time left is handed over as it stands."""
         if self.on_settled is None:
