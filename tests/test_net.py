@@ -324,7 +324,7 @@ def test_a_node_paced_by_speed_announces_its_progress_while_it_waits_for_its_clo
     announced: list[float] = []  # wall times of its announcements while inputs are left to read
 
     def announce(raw: bytes) -> None:
-        if net._i < len(net.items):
+        if net.inputs.i < len(net.inputs.items):
             announced.append(clock.t)
 
     net.wiring.pub["progress"] = SimpleNamespace(put=announce)

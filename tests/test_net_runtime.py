@@ -142,7 +142,7 @@ def test_a_query_that_arrives_twice_is_answered_once_and_a_failing_reply_is_coun
     closed unanswered; the reply failing (the asker gone) is counted ``send_failed`` and the query closed.
     Before, both copies were answered and the failing reply raised out of the node's loop."""
     net = offline_net(hold_timeout=0.0)  # answered at once, as things stand
-    raw = encode("t", 1, 7, BeliefQuery(sender=1, receiver=0, stamp=net.items[0][0]))
+    raw = encode("t", 1, 7, BeliefQuery(sender=1, receiver=0, stamp=net.inputs.items[0][0]))
     first, copy = _DeadQuery(raw), _DeadQuery(raw)
     net.inbound.handle("query", first)
     net.inbound.handle("query", copy)
@@ -272,7 +272,7 @@ def test_a_teammate_whose_token_outlives_it_is_declared_lost_and_the_node_goes_o
     assert report.net["peers_lost"] == 1 and report.net["teammates_seen"] == 1
     assert "robot 1 declared lost" in caplog.text
     s = report.stats
-    assert net._i == len(net.items) and s["detections"] > 5
+    assert net.inputs.i == len(net.inputs.items) and s["detections"] > 5
     assert s["unknown"] == s["detections"] and s["pending"] == 0
     assert report.net["asked_lost"] == s["detections"]
 
@@ -489,7 +489,7 @@ def test_traffic_that_never_settles_does_not_hold_a_node_at_its_end():
 
     net = offline_net(linger=0.5)
     net.session = net.wiring.pub["progress"] = net.wiring.pub["belief"] = SimpleNamespace(put=lambda *a, **k: None)
-    net._i = len(net.items)  # its source read; robots 1 and 2 not alive: the team has read its sources
+    net.inputs.i = len(net.inputs.items)  # its source read; robots 1 and 2 not alive: the team has read its sources
     flood = _Flood(b"not a message")
     flood.get = flood.get_nowait = lambda timeout=None: ("inbox", flood.sample)  # neighbours' traffic, forever
     net.inbound.intake = flood

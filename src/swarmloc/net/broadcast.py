@@ -113,7 +113,7 @@ class Broadcaster:
     :class:`~.outbound.Outbound`); ``lockstep``: the live teammates and the updates expected
     (:class:`~.lockstep.Lockstep`); ``step``: ``step(item)`` steps the node; ``reject``: ``reject(reason, where)``
     counts a dropped message (:meth:`~.inbound.Inbound.reject`); ``next_group``: the stamp of the node's next own
-    detection group (with a live feed: at least its watermark; inf: none) (:meth:`~.process.NetNode._next_group`);
+    detection group (with a live feed: at least its watermark; inf: none) (:meth:`~.inputs.Inputs.next_group`);
     ``delay``: [s] the link faults' delay."""
 
     def __init__(self, node: Node, robot: int, counts: Counter[str], *, active: bool, wiring: Wiring,

@@ -41,7 +41,7 @@ class Lockstep:
     when to read an input, answer a query and release an answer (module docstring), for robot ``robot`` of
     ``roster`` driving ``node``.
 
-    ``next_key``: ``(stamp, priority)`` of the node's next own input (:meth:`~.process.NetNode._next_key`);
+    ``next_key``: ``(stamp, priority)`` of the node's next own input (:meth:`~.inputs.Inputs.next_key`);
     ``step``: ``step(item, query=None)`` steps the node and carries what it returns (:meth:`~.process.NetNode._step`);
     ``others``: why a teammate's broadcast keyed before a key may still be missing, or None
     (:meth:`~.broadcast.Broadcaster.unsettled`); ``counts``: the node's network counters."""

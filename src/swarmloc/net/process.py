@@ -60,7 +60,6 @@ import logging
 import math
 import threading
 import time
-from bisect import bisect_left
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
@@ -68,12 +67,13 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry
+from swarmloc.events import Event
 from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import Auth
 from swarmloc.net.broadcast import Broadcaster
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.inbound import Inbound
+from swarmloc.net.inputs import Inputs
 from swarmloc.net.intake import Intake, vouch_for
 from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Envelopes, Outbound
@@ -90,19 +90,6 @@ WAIT_NOTE = 1.0
 """[s] A live node that has waited this long for its next input says what it waits for (a warning) ..."""
 WAIT_NOTE_EVERY = 10.0
 """[s] ... and again every so often while it still waits."""
-
-
-def _groups(events: Sequence[Event]) -> list[tuple[float, Any]]:
-    """``(stamp, item)`` in order; consecutive detections at one instant form one list."""
-    out: list[tuple[float, Any]] = []
-    for e in events:
-        if isinstance(e, Detection) and out and isinstance(out[-1][1], list) and out[-1][1][0].t == e.t:
-            out[-1][1].append(e)
-        elif isinstance(e, Detection):
-            out.append((float(e.t), [e]))
-        elif isinstance(e, Odometry):
-            out.append((float(e.t0), e))
-    return out
 
 
 class NetNode:
@@ -166,10 +153,13 @@ class NetNode:
         intake = Intake(self.roster | {SERVER}, signed=auth is not None, team_size=len(self.roster),
                         vouch=None if auth is None else vouch_for(auth))  # fmt: skip
         self._stop = threading.Event()
-        self._i = 0  # the index of the next input in ``items``
         self._last_status = 0.0
-        self._init_feed(events)
-        settings = self.settings  # a live feed's: speed 0
+        self._wait_note = math.inf  # when to say next that the node waits for its live inputs (monotonic)
+        self._waiting_since = 0.0  # since when it waits (monotonic)
+        self.inputs = Inputs(events, node.t0, wake=lambda: self.inbound.wake())
+        """Its own inputs, from a recording or a live feed (:class:`~.inputs.Inputs`)."""
+        if self.inputs.feed is not None:
+            self.settings = settings = replace(settings, speed=0.0)  # a live source is paced by its arrivals
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
         team_node: Any = node  # a team estimator's (diekf): its team, not declared on Node
@@ -182,7 +172,7 @@ class NetNode:
                              delayed=lagging(node), lines=scans is not None,
                              ros_domain=settings.ros_domain)  # fmt: skip
         """Its Zenoh declarations, and publishing on its own keys (:class:`~.wiring.Wiring`)."""
-        self.lockstep = Lockstep(node, self.robot, self.roster, settings, self.counts, next_key=self._next_key,
+        self.lockstep = Lockstep(node, self.robot, self.roster, settings, self.counts, next_key=self.inputs.next_key,
                                  step=self._step, others=lambda key: self.broadcaster.unsettled(key))  # fmt: skip
         """The teammates; when to read an input, answer a query, release an answer (:class:`~.lockstep.Lockstep`)."""
         self.outbound = Outbound(node, self.robot, self.roster, self.scope, settings, self.counts,
@@ -190,57 +180,24 @@ class NetNode:
                                  broadcast=lambda m: self.broadcaster.queue(m), link=self.link,
                                  faults=self.faults)  # fmt: skip
         """Sending: link faults, the outbox, its queries, timers (:class:`~.outbound.Outbound`)."""
-        self.broadcaster = Broadcaster(node, self.robot, self.counts, active=self.broadcasts, wiring=self.wiring,
-                                       seal=seal, outbound=self.outbound, lockstep=self.lockstep, step=self._step,
-                                       reject=lambda reason, where: self.inbound.reject(reason, where),
-                                       next_group=self._next_group,
-                                       delay=self.faults.delay if self.faults else 0.0)  # fmt: skip
+        self.broadcaster: Broadcaster = Broadcaster(
+            node, self.robot, self.counts, active=self.broadcasts, wiring=self.wiring, seal=seal,
+            outbound=self.outbound, lockstep=self.lockstep, step=self._step,
+            reject=lambda reason, where: self.inbound.reject(reason, where), next_group=self.inputs.next_group,
+            delay=self.faults.delay if self.faults else 0.0)  # fmt: skip
         """A team estimator's broadcasts (:class:`~.broadcast.Broadcaster`)."""
-        self.inbound = Inbound(self.robot, team, self.roster, auth, self.counts, self.reasons, intake=intake,
-                               stop=self._stop, lockstep=self.lockstep, outbound=self.outbound,
-                               broadcaster=self.broadcaster, step=self._step, flush=self._flush)  # fmt: skip
+        self.inbound: Inbound = Inbound(
+            self.robot, team, self.roster, auth, self.counts, self.reasons, intake=intake, stop=self._stop,
+            lockstep=self.lockstep, outbound=self.outbound, broadcaster=self.broadcaster, step=self._step,
+            flush=self._flush)  # fmt: skip
         """What it receives: its queue, decoded and handled (:class:`~.inbound.Inbound`)."""
         times = np.asarray(record_times, dtype=float)
         self.publishing = Publishing(node, self.robot, self.counts, self.wiring.put, times,
                                      unsettled=self.lockstep.unsettled, ros=self.wiring.put_ros, scans=scans,
                                      on_belief=on_belief, on_lines=on_lines, on_settled=on_settled)  # fmt: skip
         """Its beliefs, delayed output and scans' lines, published (:class:`~.publishing.Publishing`)."""
-        self.announcer = Announcer(self.robot, settings.lag, self.wiring.put, self._next_key)
+        self.announcer = Announcer(self.robot, settings.lag, self.wiring.put, self.inputs.next_key)
         """Its progress, announced (:class:`~.publishing.Announcer`)."""
-
-    def _init_feed(self, events: Sequence[Event] | LiveFeed) -> None:
-        """``items`` from a recording, or an empty list that a live feed fills (:meth:`_pull`)."""
-        self.feed = events if isinstance(events, LiveFeed) else None
-        """A live source (:mod:`swarmloc.net.feed`): ``items`` grows as it releases inputs; None: a recording."""
-        self.items = _groups(events) if not isinstance(events, LiveFeed) else []
-        self._feed_w = -math.inf  # the feed's watermark at the last take: every input not yet taken is at or after it
-        self._feed_hi = -math.inf  # the latest time an input taken is known at (odometry: its end)
-        self._group_at = [k for k, (_, item) in enumerate(self.items) if isinstance(item, list)]  # detection groups
-        if self.feed is not None:
-            if self.node.t0 is None:
-                raise ValueError("NetNode: with a live feed, start the node first (node.start(t0))")
-            self._feed_w = float(self.node.t0)
-            self.settings = replace(self.settings, speed=0.0)  # a live source is paced by its arrivals
-            self.feed.on_push = lambda: self.inbound.wake()
-        self._wait_note = math.inf  # when to say next that the node waits for its live inputs (monotonic)
-        self._waiting_since = 0.0  # since when it waits (monotonic)
-
-    def _next_key(self) -> tuple[float, int]:
-        """``(stamp, priority)`` of the node's next input (a detection group 1, odometry 2; ``(inf, 3)``: none left).
-        With a live feed and nothing read yet, a lower bound of it: ``(watermark, 1)``."""
-        if self._i >= len(self.items):
-            if self.feed is not None and not self.feed.exhausted:
-                return (self._feed_w, 1)
-            return (math.inf, 3)
-        s, item = self.items[self._i]
-        return (s, 2 if isinstance(item, Odometry) else 1)
-
-    def _next_group(self) -> float:
-        """The stamp of the node's next detection group (inf: none); with a live feed not exhausted, at most its
-        watermark (its groups to come are at or after it)."""
-        k = bisect_left(self._group_at, self._i)
-        t = self.items[self._group_at[k]][0] if k < len(self._group_at) else math.inf
-        return min(t, self._feed_w) if self.feed is not None and not self.feed.exhausted else t
 
     def _step(self, item: Any, query: Any = None) -> None:
         """Step the node with ``item`` (answering the Zenoh ``query`` with it if given) and send what it returns.
@@ -273,7 +230,7 @@ class NetNode:
         deadline = math.inf if max_wall is None else time.monotonic() + max_wall
         self.wiring.open()
         try:
-            self.announcer.announce(self.items[0][0] if self.items else math.inf, force=True)
+            self.announcer.announce(self.inputs.items[0][0] if self.inputs.items else math.inf, force=True)
             self._wait_start(deadline)
             self._main(deadline)
             if not self._stop.is_set():
@@ -317,16 +274,17 @@ class NetNode:
                         time.monotonic() - t0)  # fmt: skip
 
     def _main(self, deadline: float) -> None:
-        items, i = self.items, 0
+        inputs = self.inputs
+        items, feed = inputs.items, inputs.feed
         t_start = items[0][0] if items else 0.0
         w0 = time.monotonic()
         while not self._stop.is_set():
-            if self.feed is not None:
+            if feed is not None:
                 self._pull()
-            if i >= len(items) and (self.feed is None or self.feed.exhausted):
+            if inputs.i >= len(items) and (feed is None or feed.exhausted):
                 break
             if time.monotonic() > deadline:
-                log.warning("robot %s: wall-time limit reached at %d/%d inputs", self.robot, i, len(items))
+                log.warning("robot %s: wall-time limit reached at %d/%d inputs", self.robot, inputs.i, len(items))
                 self._stop.set()
                 break
             self.inbound.drain(0)
@@ -336,13 +294,13 @@ class NetNode:
             self.publishing.settled()
             self._status()
             wait = self.outbound.run_timers()
-            if i >= len(items):  # a live feed with nothing released yet: tell the team how far it is, wait
-                self._say_waiting(i)
-                self.announcer.announce(self._feed_w)
+            if inputs.i >= len(items):  # a live feed with nothing released yet: tell the team how far it is, wait
+                self._say_waiting(inputs.i)
+                self.announcer.announce(inputs.w)
                 self.inbound.drain(min(wait, 0.02))
                 continue
             self._wait_note = math.inf
-            s, item = items[i]
+            s, item = items[inputs.i]
             if self.settings.speed > 0:
                 due = w0 + (s - t_start) / self.settings.speed - time.monotonic()
                 if due > 0:
@@ -357,13 +315,12 @@ class NetNode:
             if self.publishing.behind(s):
                 self.publishing.due(upto=s)
             self._step(item)
-            i += 1
-            self._i = i
+            inputs.i += 1
             self.lockstep.answer_ready()
-            nxt = items[i][0] if i < len(items) else self._feed_w if self.feed is not None else math.inf
-            self.announcer.announce(nxt)
+            i = inputs.i
+            self.announcer.announce(items[i][0] if i < len(items) else inputs.w if feed is not None else math.inf)
             self.publishing.due()
-        self._i = len(items)
+        inputs.i = len(items)
         self.lockstep.answer_ready()
         self.announcer.announce(math.inf, force=True)
 
@@ -378,43 +335,28 @@ class NetNode:
             return
         self._wait_note = now + WAIT_NOTE_EVERY
         missing = sorted(self.wait_for - self.lockstep.alive)
-        assert self.feed is not None  # a live node's
+        assert self.inputs.feed is not None  # a live node's
         log.warning("robot %s: waiting %.0f s for its inputs on %s (%d taken so far; teammates alive %s%s)", self.robot,
-                    now - self._waiting_since, self.feed.listens_on or "its live source", taken,
+                    now - self._waiting_since, self.inputs.feed.listens_on or "its live source", taken,
                     sorted(self.lockstep.alive),
                     f", not alive {missing}" if missing else "")  # fmt: skip
 
     def _pull(self) -> None:
-        """Take what the live feed released: append it to ``items`` (grouped), extend the record times."""
-        assert self.feed is not None  # a live node's
-        new, w = self.feed.take()
-        self._feed_w = max(self._feed_w, w)
-        if new:
-            base, groups = len(self.items), _groups(new)
-            self.items.extend(groups)
-            self._group_at.extend(base + k for k, (_, item) in enumerate(groups) if isinstance(item, list))
-            for e in new:
-                self._feed_hi = max(self._feed_hi, float(e.t))
-        rate = self.settings.record_rate
-        if rate is not None:  # record times up to the latest input, or the watermark (time went on) ...
-            rt, t0 = (
-                self.publishing.record_times,
-                self.node.t0,
-            )  # ... but not more than the feed's max_ahead past the input
-            assert t0 is not None  # a live node is started before it runs (_init_feed)
-            w = self._feed_w if math.isfinite(self._feed_w) else -math.inf  # inf: the stream ended
-            hi = max(self._feed_hi, min(w, max(self._feed_hi, t0) + self.feed.max_ahead))
-            k0 = rt.size
-            k1 = math.floor((hi - t0) * rate + 1e-9) + 1
-            if k1 > k0:
-                self.publishing.extend(t0 + np.arange(k0, k1) / rate)
+        """Take what the live feed released (:meth:`~.inputs.Inputs.pull`); with ``record_rate``, add the record
+        times up to the time its inputs are known to (:meth:`~.publishing.Publishing.record_until`)."""
+        t0 = self.node.t0
+        assert t0 is not None  # a live node is started before it runs (Inputs)
+        known = self.inputs.pull(t0)
+        if self.settings.record_rate is not None:
+            self.publishing.record_until(known, t0, self.settings.record_rate)
 
     def _status(self) -> None:
         now = time.monotonic()
         if now - self._last_status > 2.0:
             self._last_status = now
             log.info("robot %s: %d/%d inputs, present %.2f, pending %d, deferred %d, expecting %d, outstanding %d; "
-                     "node %s; net %s", self.robot, self._i, len(self.items), self.node.present, self.node.pending,
+                     "node %s; net %s", self.robot, self.inputs.i, len(self.inputs.items), self.node.present,
+                     self.node.pending,
                      len(self.lockstep.deferred), len(self.lockstep.expect), len(self.outbound.outstanding),
                      {k: v for k, v in self.node.stats().items() if v}, dict(self.counts))  # fmt: skip
 
@@ -474,8 +416,8 @@ class NetNode:
         net = dict(self.counts, teammates_seen=len(self.lockstep.seen))
         if self.auth is not None:  # the per-pair sessions' counters (handshakes, renewals, twins)
             net.update(self.auth.session_counts())
-        if self.feed is not None:  # a live source: what its inputs brought, and what was refused (by reason)
-            net.update(self.feed.summary())
+        if self.inputs.feed is not None:  # a live source: what its inputs brought, and what was refused (by reason)
+            net.update(self.inputs.feed.summary())
         if self.link is not None:
             net.update(injected_lost=self.link.lost, injected_dup=self.link.duplicated)
         return Report(

@@ -50,7 +50,7 @@ def lagging(node: Node) -> bool:
 class Announcer:
     """Part of :class:`~swarmloc.net.process.NetNode`: announcing its progress, the key of its next input, which
     its teammates' lockstep waits on (rate-limited). ``next_key``: ``(stamp, priority)`` of the node's next input
-    (:meth:`~swarmloc.net.process.NetNode._next_key`); ``lag``: [s] the lockstep slack."""
+    (:meth:`~swarmloc.net.inputs.Inputs.next_key`); ``lag``: [s] the lockstep slack."""
 
     def __init__(self, robot: int, lag: float, put: Put, next_key: Callable[[], tuple[float, int]]) -> None:
         self.robot, self.lag, self.put, self.next_key = robot, lag, put, next_key
@@ -122,6 +122,13 @@ class Publishing:
     def extend(self, times: FloatArray) -> None:
         """Append record times (after the last)."""
         self.record_times = np.concatenate([self.record_times, times])
+
+    def record_until(self, hi: float, t0: float, rate: float) -> None:
+        """Append the record times every ``1 / rate`` s [Hz] from ``t0`` [s] up to ``hi`` [s] (a live node's)."""
+        k0 = self.record_times.size
+        k1 = math.floor((hi - t0) * rate + 1e-9) + 1
+        if k1 > k0:
+            self.extend(t0 + np.arange(k0, k1) / rate)
 
     def behind(self, s: float) -> bool:
         """Whether a final belief is due before an input stamped ``s`` is applied (its pruning could drop it)."""
