@@ -13,8 +13,9 @@ bounds, queries, pushed messages, replies), ``lockstep`` (:mod:`~swarmloc.net.lo
 read an input, answer a query, release an answer), ``outbound`` (:mod:`~swarmloc.net.outbound`: sending: link faults,
 outbox, queries, timers; its envelopes, ``envelopes``), ``broadcaster`` (:mod:`~swarmloc.net.broadcast`: a team
 estimator's broadcasts), ``wiring`` (:mod:`~swarmloc.net.wiring`: the Zenoh declarations), ``publishing`` and
-``announcer`` (:mod:`~swarmloc.net.publishing`: beliefs, progress). Its settings:
-:class:`~swarmloc.net.settings.NetSettings`. This module holds the inputs, stepping the node, and the loop.
+``announcer`` (:mod:`~swarmloc.net.publishing`: beliefs, progress), ``inputs`` (:mod:`~swarmloc.net.inputs`: its
+own events, recorded or live). Its settings: :class:`~swarmloc.net.settings.NetSettings`. This module holds stepping
+the node, and the loop.
 
 **Time and determinism.** Stamps are the source's (data) clock; wall time only paces. Lockstep: a node reads its
 next input (stamp ``s``) once every live teammate has announced (:class:`~swarmloc.net.schema.Progress`) that it
