@@ -217,15 +217,15 @@ def test_driver_refuses_and_counts_self_addressed_and_misaddressed_messages_at_d
     """On every path a neighbour's message comes in (inbox, query, reply), a message from this robot to itself or
     to another robot is dropped at decode and counted with its reason; it never reaches the node."""
     net = offline_net(robot=0)
-    net._outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
+    net.outbound.outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
     query = _Sample(encode("t", body.sender, 1, body))
-    net._handle("inbox", _Sample(encode("t", body.sender, 0, body)))
-    net._handle("query", query)
-    net._handle("reply", 7, _Sample(encode("t", body.sender, 2, body)))
+    net.inbound.handle("inbox", _Sample(encode("t", body.sender, 0, body)))
+    net.inbound.handle("query", query)
+    net.inbound.handle("reply", 7, _Sample(encode("t", body.sender, 2, body)))
     assert net.counts["rejected"] == 3 and net.reasons == Counter({reason: 3})
     assert query.errors == [b"rejected"]  # the asker is told at once
-    assert net.node.counts["messages_rejected"] == 0 and not net._deferred and not net._held
-    assert net._outstanding[7][2] is False  # the query still waits for its real answer
+    assert net.node.counts["messages_rejected"] == 0 and not net.lockstep.deferred and not net.lockstep.held
+    assert net.outbound.outstanding[7][2] is False  # the query still waits for its real answer
 
 
 def test_each_timeout_governs_only_its_own_wait():
@@ -236,20 +236,21 @@ def test_each_timeout_governs_only_its_own_wait():
     now = time.monotonic()
     q = BeliefQuery(sender=1, receiver=0, stamp=1e6)  # keyed after the node's next input: not settled
     held = offline_net(answer_timeout=100.0, update_timeout=100.0, hold_timeout=1.0)
-    assert held._unsettled((1e6, 1, 1, ())) is not None
-    assert held._ready(q, since=now - 5.0) and held.counts["answered_unsettled"] == 1
-    assert not held._ready(q, since=now)
-    assert not offline_net(answer_timeout=0.01, update_timeout=0.01, hold_timeout=100.0)._ready(q, since=now - 5.0)
+    assert held.lockstep.unsettled((1e6, 1, 1, ())) is not None
+    assert held.lockstep.ready(q, since=now - 5.0) and held.counts["answered_unsettled"] == 1
+    assert not held.lockstep.ready(q, since=now)
+    unheld = offline_net(answer_timeout=0.01, update_timeout=0.01, hold_timeout=100.0)
+    assert not unheld.lockstep.ready(q, since=now - 5.0)
 
     key = (1.0, 1, 1, ())  # an update from robot 1 expected 5 s ago
     for update_timeout, others, given_up in ((1.0, 100.0, True), (100.0, 0.01, False)):
         net = offline_net(answer_timeout=others, hold_timeout=others, update_timeout=update_timeout)
-        net._expect[key] = now - 5.0
-        net._release()
-        assert (key not in net._expect) is given_up and net.counts["update_not_received"] == int(given_up)
+        net.lockstep.expect[key] = now - 5.0
+        net.lockstep.release()
+        assert (key not in net.lockstep.expect) is given_up and net.counts["update_not_received"] == int(given_up)
 
     asker = offline_net(answer_timeout=3.0, hold_timeout=0.5, update_timeout=7.0)
-    asker._ask(BeliefQuery(sender=0, receiver=1, stamp=1.0))
+    asker.outbound.ask(BeliefQuery(sender=0, receiver=1, stamp=1.0))
     assert [(g["key"], g["timeout"]) for g in asker.session.gets] == [(robot_key("t", 1, "query"), 3.0)]
 
 
@@ -267,35 +268,40 @@ def test_a_query_that_ends_unanswered_is_asked_again_while_its_robot_is_alive():
     net.node.step = lambda item: fed.append(item) or step(item)
     t = net.node.present
     q = BeliefQuery(sender=0, receiver=1, stamp=t)
-    net._alive.add(1)
-    net._ask(q)
+    net.lockstep.alive.add(1)
+    net.outbound.ask(q)
     for qid in range(3):
-        net._handle("reply_end", qid)
+        net.inbound.handle("reply_end", qid)
         assert len(fed) == (0 if qid < 2 else 1)  # nothing while an ask is left
         assert len(net.session.gets) == min(qid + 2, 3)
     assert [(a.found, a.seq) for a in fed] == [(False, -2)] and "(3 asks)" in fed[0].reason
-    assert net.counts["no_reply"] == 3 and net.counts["asked_again"] == 2 and not net._outstanding and not net._again
+    assert (
+        net.counts["no_reply"] == 3
+        and net.counts["asked_again"] == 2
+        and not net.outbound.outstanding
+        and not net.outbound.again
+    )
 
-    net._ask(q)  # asked anew; unanswered once, asked again (qid 4), which the robot answers
-    net._handle("reply_end", 3)
+    net.outbound.ask(q)  # asked anew; unanswered once, asked again (qid 4), which the robot answers
+    net.inbound.handle("reply_end", 3)
     assert len(fed) == 1
     answer = BeliefAnswer(sender=1, receiver=0, stamp=t, mean=I3, cov=COV, seq=0)
-    net._handle("reply", 4, _Sample(encode("t", 1, 9, answer)))
-    net._handle("reply_end", 4)
+    net.inbound.handle("reply", 4, _Sample(encode("t", 1, 9, answer)))
+    net.inbound.handle("reply_end", 4)
     assert [(a.found, a.seq) for a in fed[1:]] == [(True, 0)] and net.counts["asked_again"] == 3
-    assert not net._outstanding and not net._again
+    assert not net.outbound.outstanding and not net.outbound.again
 
     for why in ("not alive", "lost", "past the horizon"):
         net = offline_net(robot=0)
         stamp = t - 2 * net.node.horizon if why == "past the horizon" else t
-        net._alive.update([] if why == "not alive" else [1])
+        net.lockstep.alive.update([] if why == "not alive" else [1])
         if why == "lost":
-            net._lost.add(1)
+            net.lockstep.lost.add(1)
         fed = []
         step = net.node.step
         net.node.step = lambda item, step=step, fed=fed: fed.append(item) or step(item)
-        net._outstanding[0] = (BeliefQuery(sender=0, receiver=1, stamp=stamp), "robot", False)
-        net._handle("reply_end", 0)
+        net.outbound.outstanding[0] = (BeliefQuery(sender=0, receiver=1, stamp=stamp), "robot", False)
+        net.inbound.handle("reply_end", 0)
         assert not net.session.gets and net.counts["asked_again"] == 0, why
         assert [(a.found, a.seq) for a in fed] == [(False, -2)] and "asks" not in fed[0].reason, why  # at once
     with pytest.raises(ValueError, match="answer_retries"):
@@ -318,7 +324,7 @@ def test_a_node_paced_by_speed_announces_its_progress_while_it_waits_for_its_clo
     announced: list[float] = []  # wall times of its announcements while inputs are left to read
 
     def announce(raw: bytes) -> None:
-        if net._i < len(net.items):
+        if net.inputs.i < len(net.inputs.items):
             announced.append(clock.t)
 
     net.wiring.pub["progress"] = SimpleNamespace(put=announce)
@@ -330,7 +336,7 @@ def test_a_node_paced_by_speed_announces_its_progress_while_it_waits_for_its_clo
             net._stop.set()
         return False
 
-    net._drain = drain
+    net.inbound.drain = drain
     net._main(math.inf)
     gaps = np.diff(announced)
     assert len(announced) >= 12 and gaps.max() <= 0.3 and announced[-1] > 102.5, announced
@@ -353,22 +359,22 @@ def test_a_query_is_asked_again_beyond_answer_retries_while_within_lost_timeout_
     fed: list = []
     step = net.node.step
     net.node.step = lambda item: fed.append(item) or step(item)
-    net._alive.add(1)
-    net._ask(BeliefQuery(sender=0, receiver=1, stamp=net.node.present))
+    net.lockstep.alive.add(1)
+    net.outbound.ask(BeliefQuery(sender=0, receiver=1, stamp=net.node.present))
     for qid in range(3):
         clock.t += 0.4
         assert not fed
-        net._handle("reply_end", qid)
+        net.inbound.handle("reply_end", qid)
     assert len(net.session.gets) == 3 and net.counts["asked_again"] == 2 and net.counts["no_reply"] == 3
     assert [(a.found, a.seq) for a in fed] == [(False, -2)] and "(3 asks)" in fed[0].reason
-    assert not net._outstanding and not net._again
+    assert not net.outbound.outstanding and not net.outbound.again
 
 
 def test_what_one_batch_of_received_messages_pushes_goes_out_once_per_exchange():
     """Each message handled made the node revise its answer to robot 2; handled in one batch of the queue
-    (:meth:`NetNode._drain`), only the newest revision goes out, once, at the batch's end (under load a batch is
-    long: its revisions of one exchange cost the neighbour one replay, not one each). Outside a batch (the node's own
-    input) a pushed message goes out at once, as before."""
+    (:meth:`~swarmloc.net.inbound.Inbound.drain`), only the newest revision goes out, once, at the batch's end (under
+    load a batch is long: its revisions of one exchange cost the neighbour one replay, not one each). Outside a batch
+    (the node's own input) a pushed message goes out at once, as before."""
     net = offline_net(robot=0)
     sent: list = []
     net.session.put = lambda key, payload, **kw: sent.append((key, decode(payload, "t", [0, 1, 2], to_robot=2)))
@@ -377,18 +383,20 @@ def test_what_one_batch_of_received_messages_pushes_goes_out_once_per_exchange()
     net.node.step = lambda item: [next(revisions)]
     for k in range(3):
         answer = BeliefAnswer(sender=1, receiver=0, stamp=t, mean=I3, cov=COV, seq=k)
-        net._inq.put(("inbox", _Sample(encode("t", 1, k, answer))))
-    net._drain(0)
+        net.inbound.intake.put(("inbox", _Sample(encode("t", 1, k, answer))))
+    net.inbound.drain(0)
     assert [(key, env.body.seq) for key, env in sent] == [(robot_key("t", 2, "inbox"), 3)]
-    assert net.counts["coalesced"] == 2 and not net._outbox
+    assert net.counts["coalesced"] == 2 and not net.outbound.outbox
     net._step(Odometry(t0=t, t1=t + 0.1, robot=0, v=0.0, w=0.0))
     assert [env.body.seq for _, env in sent] == [3, 4]
 
     def failing(force: bool = False) -> None:
         raise RuntimeError("session closed")
 
-    net._flush = failing  # the batch's one flush failing is counted (send_failed), not raised into the node's loop
-    net._drain(0)
+    net.inbound.flush = (
+        failing  # the batch's one flush failing is counted (send_failed), not raised into the node's loop
+    )
+    net.inbound.drain(0)
     assert net.counts["send_failed"] == 1
 
 

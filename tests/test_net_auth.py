@@ -287,13 +287,13 @@ def test_unauthenticated_node_takes_forged_messages():
     """The control, as every node was before: without ``auth`` the same forgeries, unsigned, are taken (the query
     held for an answer, the update stepped, robot 1 taken for done, the reply held for the node)."""
     net = offline_node(None)
-    net._handle("query", _Sample(robot_key(TEAM, 0, "query"), encode(TEAM, 1, 0, FORGED_QUERY)))
-    net._handle("inbox", _Sample(INBOX0, encode(TEAM, 1, 1, FORGED_UPDATE)))
-    net._handle("progress", _Sample(PROGRESS1, encode(TEAM, 1, 3, FORGED_DONE)))
-    net._outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
-    net._handle("reply", 7, _Sample(robot_key(TEAM, 1, "query"), encode(TEAM, 1, 4, FORGED_REPLY)))
-    assert net.counts["rejected"] == 0 and len(net._deferred) == 1 and 1 in net._done
-    assert net._outstanding[7][2] is True
+    net.inbound.handle("query", _Sample(robot_key(TEAM, 0, "query"), encode(TEAM, 1, 0, FORGED_QUERY)))
+    net.inbound.handle("inbox", _Sample(INBOX0, encode(TEAM, 1, 1, FORGED_UPDATE)))
+    net.inbound.handle("progress", _Sample(PROGRESS1, encode(TEAM, 1, 3, FORGED_DONE)))
+    net.outbound.outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
+    net.inbound.handle("reply", 7, _Sample(robot_key(TEAM, 1, "query"), encode(TEAM, 1, 4, FORGED_REPLY)))
+    assert net.counts["rejected"] == 0 and len(net.lockstep.deferred) == 1 and 1 in net.lockstep.done
+    assert net.outbound.outstanding[7][2] is True
 
 
 def test_node_refuses_and_counts_forged_messages_on_every_path(keys):
@@ -305,23 +305,25 @@ def test_node_refuses_and_counts_forged_messages_on_every_path(keys):
     forged, genuine = signer(keys, 2, as_member=1), signer(keys, 1)
     q, u = FORGED_QUERY, FORGED_UPDATE
     query = _Sample(robot_key(TEAM, 0, "query"), forged.seal(robot_key(TEAM, 0, "query"), encode(TEAM, 1, 0, q)))
-    net._handle("query", query)
-    net._handle("inbox", _Sample(INBOX0, forged.seal(INBOX0, encode(TEAM, 1, 1, u))))
-    net._handle("inbox", _Sample(INBOX0, encode(TEAM, 1, 2, u)))
-    net._handle("progress", _Sample(PROGRESS1, forged.seal(PROGRESS1, encode(TEAM, 1, 3, FORGED_DONE))))
-    net._outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
+    net.inbound.handle("query", query)
+    net.inbound.handle("inbox", _Sample(INBOX0, forged.seal(INBOX0, encode(TEAM, 1, 1, u))))
+    net.inbound.handle("inbox", _Sample(INBOX0, encode(TEAM, 1, 2, u)))
+    net.inbound.handle("progress", _Sample(PROGRESS1, forged.seal(PROGRESS1, encode(TEAM, 1, 3, FORGED_DONE))))
+    net.outbound.outstanding[7] = (BeliefQuery(sender=0, receiver=1, stamp=1.0), "robot", False)
     reply = encode(TEAM, 1, 4, FORGED_REPLY)
-    net._handle("reply", 7, _Sample(robot_key(TEAM, 1, "query"), forged.seal(robot_key(TEAM, 1, "query"), reply)))
+    net.inbound.handle(
+        "reply", 7, _Sample(robot_key(TEAM, 1, "query"), forged.seal(robot_key(TEAM, 1, "query"), reply))
+    )
     real = genuine.seal(PROGRESS1, encode(TEAM, 1, 5, Progress(robot=1, t=2.0)))
-    net._handle("progress", _Sample(PROGRESS1, real))
-    net._handle("progress", _Sample(PROGRESS1, real))  # replayed
+    net.inbound.handle("progress", _Sample(PROGRESS1, real))
+    net.inbound.handle("progress", _Sample(PROGRESS1, real))  # replayed
     net_counts = net.report().net
     assert {k: v for k, v in net_counts.items() if k.startswith("auth_")} == {
         "auth_key_mismatch": 4, "auth_unsigned": 1, "auth_replay": 1}  # fmt: skip
     assert net_counts["rejected"] == 6 and sum(v for k, v in net.reasons.items() if k.startswith("auth: ")) == 6
-    assert query.errors == [b"rejected"] and not net._deferred and not net._held
-    assert net._progress == {1: 2.0} and 1 not in net._done  # only the genuine progress counted
-    assert node.counts["messages_rejected"] == 0 and net._outstanding[7][2] is False
+    assert query.errors == [b"rejected"] and not net.lockstep.deferred and not net.lockstep.held
+    assert net.lockstep.progress == {1: 2.0} and 1 not in net.lockstep.done  # only the genuine progress counted
+    assert node.counts["messages_rejected"] == 0 and net.outbound.outstanding[7][2] is False
 
 
 # ------------------------------------------------------------------------------------------------ the collector

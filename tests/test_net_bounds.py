@@ -33,7 +33,7 @@ from swarmloc.experiments.sources import load_source
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate, TeamUpdate, flat
 from swarmloc.net import broadcast as bc
 from swarmloc.net.central import KEEP
-from swarmloc.net.inbound import MAX_HELD, MAX_HELD_FROM
+from swarmloc.net.lockstep import MAX_HELD, MAX_HELD_FROM
 from swarmloc.net.schema import (
     MAX_REVISION,
     Belief,
@@ -235,14 +235,14 @@ def _ends(net) -> int:
     c = net.counts
     keys = ("rejected", "broadcast_duplicates", "broadcast_stale", "broadcasts_given_up", "broadcast_heads_received",
             "duplicate_queries", "duplicate_replies", "repair_requests_received", "queries_answered")  # fmt: skip
-    return sum(c[k] for k in keys) + net.node.counts["messages"] + len(net._deferred) + len(net._held)
+    return sum(c[k] for k in keys) + net.node.counts["messages"] + len(net.lockstep.deferred) + len(net.lockstep.held)
 
 
 def _handle_all(net, raw: bytes, t: float) -> list[tuple[str, int]]:
     """Hand ``raw`` to each handler of ``net`` as Zenoh would; per handler, the bytes it allocated at most."""
     q = BeliefQuery(sender=net.robot, receiver=1, stamp=t + 0.25)
-    net._outstanding[7] = (q, "robot", False)
-    net._gets[7] = 1
+    net.outbound.outstanding[7] = (q, "robot", False)
+    net.outbound.gets[7] = 1
     out = []
     for kind, args in (
         ("inbox", (_Sample(raw, f"swarmloc/t/robot/{net.robot}/inbox"),)),
@@ -255,14 +255,14 @@ def _handle_all(net, raw: bytes, t: float) -> list[tuple[str, int]]:
         node_rejected, node_reasons = net.node.counts["messages_rejected"], sum(net.node.reasons.values())
         tracemalloc.reset_peak()
         base = tracemalloc.get_traced_memory()[0]
-        net._handle(kind, *args)  # as the drain does, without its guard: nothing may escape
+        net.inbound.handle(kind, *args)  # as the drain does, without its guard: nothing may escape
         out.append((kind, tracemalloc.get_traced_memory()[1] - base))
         if kind != "progress":  # every message received ends counted (progress: taken or refused, not counted)
             assert _ends(net) > before, (kind, raw[:200])
         assert sum(net.reasons.values()) - reasons == net.counts["rejected"] - rejected  # each with its reason
         assert sum(net.node.reasons.values()) - node_reasons >= net.node.counts["messages_rejected"] - node_rejected
-    net._outstanding.pop(7, None)
-    net._gets.pop(7, None)
+    net.outbound.outstanding.pop(7, None)
+    net.outbound.gets.pop(7, None)
     return out
 
 
@@ -274,7 +274,7 @@ def _realistic(net, src, upto: float):
         if e.stamp > upto:
             break
         net.node.step(e)
-    net._alive |= {1, 2}
+    net.lockstep.alive |= {1, 2}
     return net
 
 
@@ -292,11 +292,11 @@ def _net(est: str):
 def _check_bounded(net) -> None:
     """What the node keeps per sender and per reason stays within its bounds."""
     assert len(net.reasons) <= MAX_REASONS + 1 and len(net.node.reasons) <= MAX_REASONS + 1
-    assert len(net._deferred) <= MAX_HELD and len(net._queries_seen) <= 4096 + 1
-    for p in net._peers.values():  # what the node tracks per sender: within the window
+    assert len(net.lockstep.deferred) <= MAX_HELD and len(net.lockstep._queries_seen) <= 4096 + 1
+    for p in net.broadcaster._peers.values():  # what the node tracks per sender: within the window
         assert p.top - p.low < bc.WINDOW and len(p.missing_since) <= bc.WINDOW and len(p.got) <= bc.WINDOW
-    assert all(k[1] <= net.node.present + net.node.tolerance for k in net._bkey)
-    assert all(abs(k[0] - net.node.present) <= net.node.horizon for k in net._revised)
+    assert all(k[1] <= net.node.present + net.node.tolerance for k in net.broadcaster._bkey)
+    assert all(abs(k[0] - net.node.present) <= net.node.horizon for k in net.broadcaster._revised)
 
 
 @pytest.mark.parametrize("est", ["diekf", "rdl"])
@@ -402,28 +402,30 @@ def test_a_broadcast_head_announcing_2_62_broadcasts_costs_a_window_and_is_then_
     case: those further back are beyond robot 1's buffer anyway); heard after robot 1's real head, it is refused and
     counted, and nothing of robot 1's tracked state moves. Before: 2.7 GB and ``MemoryError`` on every teammate."""
     net, src = offline_diekf(robot=0)
-    net._handle("broadcast", bsample(BroadcastHead(robot=1, n=3, t=src.t_start, prio=1)))
-    p = net._peers[1]
+    net.inbound.handle("broadcast", bsample(BroadcastHead(robot=1, n=3, t=src.t_start, prio=1)))
+    p = net.broadcaster._peers[1]
     assert (p.low, p.top) == (0, 2)
     top = 2**62 - 1  # the schema's bound on a count: 2^62 - 1
-    peak = _peak(lambda: net._handle("broadcast", bsample(BroadcastHead(robot=1, n=top, t=math.inf), seq=1)))
+    peak = _peak(lambda: net.inbound.handle("broadcast", bsample(BroadcastHead(robot=1, n=top, t=math.inf), seq=1)))
     assert peak < 64 * 1024, peak
-    assert (p.low, p.top, net._heads[1][0]) == (0, 2, 3)
+    assert (p.low, p.top, net.broadcaster._heads[1][0]) == (0, 2, 3)
     assert net.counts["rejected"] == 1
     assert net.reasons == Counter(
         {f"broadcast number more than {bc.WINDOW} past the first one missing from its sender": 1}
     )
     # the same number on a repair (the inbox) and in a broadcast: refused alike
-    net._handle("inbox", bsample(Broadcast(robot=1, n=top - 1, to=0, update=update(1, src.t_start + 0.5)), seq=2))
-    net._handle("broadcast", bsample(Broadcast(robot=1, n=top - 2, update=update(1, src.t_start + 0.5)), seq=3))
+    net.inbound.handle(
+        "inbox", bsample(Broadcast(robot=1, n=top - 1, to=0, update=update(1, src.t_start + 0.5)), seq=2)
+    )
+    net.inbound.handle("broadcast", bsample(Broadcast(robot=1, n=top - 2, update=update(1, src.t_start + 0.5)), seq=3))
     assert net.counts["rejected"] == 3 and p.top == 2 and net.node.counts["messages"] == 0
     # heard first: a window opened before it, the repairs asked for it bounded by the window
     fresh, _ = offline_diekf(robot=2)
-    peak = _peak(lambda: fresh._handle("broadcast", bsample(BroadcastHead(robot=1, n=top, t=math.inf))))
-    q = fresh._peers[1]
+    peak = _peak(lambda: fresh.inbound.handle("broadcast", bsample(BroadcastHead(robot=1, n=top, t=math.inf))))
+    q = fresh.broadcaster._peers[1]
     assert (q.low, q.top) == (top - bc.WINDOW, top - 1) and len(q.missing()) == bc.WINDOW
     assert peak < 4 * 1024 * 1024, peak
-    fresh._ask_missing(max(q.missing_since.values()) + fresh.repair_wait + 1e-3)
+    fresh.broadcaster.ask_missing(max(q.missing_since.values()) + fresh.broadcaster.repair_wait + 1e-3)
     assert fresh.counts["repair_requests"] == bc.WINDOW // 256  # 256 numbers per request
 
 
@@ -433,11 +435,11 @@ def test_repair_requests_are_served_within_the_askers_budget(monkeypatch):
     monkeypatch.setattr(bc, "REPAIR_RATE", 4)  # 8 numbers banked
     net, src = offline_diekf(robot=1)
     for k in range(3):
-        net._queue_broadcast(msgspec.structs.replace(update(1, src.t_start + k), receiver=0))
-        net._flush_broadcasts()
+        net.broadcaster.queue(msgspec.structs.replace(update(1, src.t_start + k), receiver=0))
+        net.broadcaster.flush()
     ask = BroadcastRepair(sender=0, receiver=1, first=0, last=255)
     for seq in range(10):
-        net._handle("inbox", _Sample(encode("t", 0, seq, ask)))
+        net.inbound.handle("inbox", _Sample(encode("t", 0, seq, ask)))
     sent = net.counts["repairs_sent"] + net.counts["repairs_gone"]
     assert net.counts["repair_requests_received"] == 10
     assert sent == 2 * 3  # each request for 0..255 resends the 3 this node has: two fit in the budget
@@ -450,13 +452,13 @@ def test_queries_held_at_once_are_bounded_per_asker_and_in_all():
     net = offline_net(robot=0)
     t = net.node.present + 3.0
     for k in range(MAX_HELD_FROM + 50):
-        net._handle("query", _Sample(encode("t", 1, k, BeliefQuery(sender=1, receiver=0, stamp=t + k * 1e-3))))
-    assert len(net._deferred) == MAX_HELD_FROM
+        net.inbound.handle("query", _Sample(encode("t", 1, k, BeliefQuery(sender=1, receiver=0, stamp=t + k * 1e-3))))
+    assert len(net.lockstep.deferred) == MAX_HELD_FROM
     assert net.counts["rejected"] == 50 and net.reasons[
         f"more than {MAX_HELD_FROM} queries of one robot (or {MAX_HELD} in all) held"] == 50  # fmt: skip
     q = _Sample(encode("t", 2, 0, BeliefQuery(sender=2, receiver=0, stamp=t)))
-    net._handle("query", q)
-    assert len(net._deferred) == MAX_HELD_FROM + 1 and not q.errors
+    net.inbound.handle("query", q)
+    assert len(net.lockstep.deferred) == MAX_HELD_FROM + 1 and not q.errors
 
 
 def test_a_message_stamped_1e9_publishes_nothing_ahead_of_time():
@@ -467,7 +469,7 @@ def test_a_message_stamped_1e9_publishes_nothing_ahead_of_time():
     published = net.counts["beliefs_published"]
     for stamp in (1e9, net.node.present + net.node.tolerance + 1.0):
         u = RdlUpdate(sender=1, receiver=0, stamp=stamp, sub=(0.0,), x=(0.0, 0.0, 0.0), P=COV)
-        net._handle("inbox", _Sample(encode("t", 1, int(stamp) % 97, u)))
+        net.inbound.handle("inbox", _Sample(encode("t", 1, int(stamp) % 97, u)))
     assert net.counts["beliefs_published"] == published and net.publishing.final == 0
     assert net.node.counts["messages_rejected"] == 2
 
@@ -477,8 +479,10 @@ def test_refusals_with_numbers_in_their_reasons_are_counted_under_a_bounded_set_
     every one counted, the reasons kept at most ``MAX_REASONS`` distinct (then one for the rest)."""
     net, src = offline_diekf(robot=0)
     for k in range(10_000):
-        net._handle("broadcast", bsample(Broadcast(robot=1, n=k, update=update(1, 1e6 + k)), seq=k))
-    assert net.counts["broadcasts_applied"] == 10_000 and not net._bkey  # none remembered: all from the future
+        net.inbound.handle("broadcast", bsample(Broadcast(robot=1, n=k, update=update(1, 1e6 + k)), seq=k))
+    assert (
+        net.counts["broadcasts_applied"] == 10_000 and not net.broadcaster._bkey
+    )  # none remembered: all from the future
     assert net.node.counts["messages_rejected"] == 10_000 == sum(net.node.reasons.values())
     assert len(net.node.reasons) == MAX_REASONS + 1
 

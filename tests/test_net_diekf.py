@@ -98,43 +98,43 @@ def test_diekf_is_a_networked_estimator():
 def test_broadcasts_are_applied_once_in_number_order_and_gaps_are_asked_for():
     net, src = offline_diekf(robot=0)
     t = src.t_start + 0.5
-    net._handle("broadcast", bsample(Broadcast(robot=1, n=0, update=update(1, t))))
-    net._handle("broadcast", bsample(Broadcast(robot=1, n=0, update=update(1, t)), seq=1))  # a duplicate copy
+    net.inbound.handle("broadcast", bsample(Broadcast(robot=1, n=0, update=update(1, t))))
+    net.inbound.handle("broadcast", bsample(Broadcast(robot=1, n=0, update=update(1, t)), seq=1))  # a duplicate copy
     assert net.counts["broadcasts_applied"] == 1 and net.counts["broadcast_duplicates"] == 1
     assert net.node.counts["messages"] == 1  # the node saw it once
     # number 2 comes before 1: applied; 1 is missing and asked for once it has waited repair_wait s
-    net._handle("broadcast", bsample(Broadcast(robot=1, n=2, update=update(1, t + 0.1, nu=0.2)), seq=2))
-    assert net._peers[1].missing() == [1] and net._broadcast_busy()
-    net._ask_missing(net._peers[1].missing_since[1] + net.repair_wait / 2)
+    net.inbound.handle("broadcast", bsample(Broadcast(robot=1, n=2, update=update(1, t + 0.1, nu=0.2)), seq=2))
+    assert net.broadcaster._peers[1].missing() == [1] and net.broadcaster.busy()
+    net.broadcaster.ask_missing(net.broadcaster._peers[1].missing_since[1] + net.broadcaster.repair_wait / 2)
     assert net.counts["repair_requests"] == 0  # too early: a late copy may still come
-    net._ask_missing(net._peers[1].missing_since[1] + net.repair_wait + 1e-3)
+    net.broadcaster.ask_missing(net.broadcaster._peers[1].missing_since[1] + net.broadcaster.repair_wait + 1e-3)
     assert net.counts["repair_requests"] == 1
     key, raw = net.session.pushed[-1]
     assert key == robot_key("t", 1, "inbox")
     assert decode(raw, "t", src.robots, to_robot=1).body == BroadcastRepair(sender=0, receiver=1, first=1, last=1)
     # the repair of number 1 comes on the inbox: an older revision of the exchange that number 2 revised
     old = Broadcast(robot=1, n=1, to=0, update=update(1, t + 0.1, nu=0.3))
-    net._handle("inbox", bsample(old, seq=3))
+    net.inbound.handle("inbox", bsample(old, seq=3))
     assert net.counts["broadcasts_repaired"] == 1 and net.counts["broadcast_stale"] == 1
-    assert not net._broadcast_busy() and net._peers[1].low == 3
+    assert not net.broadcaster.busy() and net.broadcaster._peers[1].low == 3
     assert net.counts["broadcasts_received"] == 4 and net.counts["received"] == 4  # every one counted
     assert net.node.counts["messages"] == 2  # n = 0 and 2, each once; the stale revision never reached the node
 
 
 def test_a_head_reveals_the_last_broadcasts_lost_and_holds_what_is_keyed_after_them():
     net, src = offline_diekf(robot=0)
-    net._alive |= {1, 2}
+    net.lockstep.alive |= {1, 2}
     key = (src.t_start + 1.0, 1, 0)
-    assert "no broadcast head from robot 1" in net._broadcasts_unsettled(key)
-    net._handle("broadcast", bsample(BroadcastHead(robot=1, n=0, t=src.t_start + 0.5, prio=1)))
-    net._handle("broadcast", bsample(BroadcastHead(robot=2, n=0, t=src.t_start + 2.0, prio=1)))
-    assert "robot 1 may still broadcast" in net._broadcasts_unsettled(key)
-    net._handle("broadcast", bsample(BroadcastHead(robot=1, n=2, t=src.t_start + 2.0, prio=1), seq=1))
-    assert net._peers[1].missing() == [0, 1]  # its two broadcasts never came
-    assert "robot 1's broadcasts below 2" in net._broadcasts_unsettled(key)
+    assert "no broadcast head from robot 1" in net.broadcaster.unsettled(key)
+    net.inbound.handle("broadcast", bsample(BroadcastHead(robot=1, n=0, t=src.t_start + 0.5, prio=1)))
+    net.inbound.handle("broadcast", bsample(BroadcastHead(robot=2, n=0, t=src.t_start + 2.0, prio=1)))
+    assert "robot 1 may still broadcast" in net.broadcaster.unsettled(key)
+    net.inbound.handle("broadcast", bsample(BroadcastHead(robot=1, n=2, t=src.t_start + 2.0, prio=1), seq=1))
+    assert net.broadcaster._peers[1].missing() == [0, 1]  # its two broadcasts never came
+    assert "robot 1's broadcasts below 2" in net.broadcaster.unsettled(key)
     for n in (0, 1):
-        net._on_broadcast(Broadcast(robot=1, n=n, to=0, update=update(1, src.t_start + 0.2 * (n + 1))))
-    assert net._broadcasts_unsettled(key) is None
+        net.broadcaster.on_broadcast(Broadcast(robot=1, n=n, to=0, update=update(1, src.t_start + 0.2 * (n + 1))))
+    assert net.broadcaster.unsettled(key) is None
 
 
 def test_the_sender_answers_repairs_from_its_buffer_and_says_when_one_is_gone(monkeypatch):
@@ -143,19 +143,19 @@ def test_the_sender_answers_repairs_from_its_buffer_and_says_when_one_is_gone(mo
     t = src.t_start + 0.5
     for k in range(3):  # the node's copies for teammates 0 and 2: one broadcast per exchange
         for r in (0, 2):
-            net._queue_broadcast(msgspec.structs.replace(update(1, t + k), receiver=r))
-        net._flush_broadcasts()
+            net.broadcaster.queue(msgspec.structs.replace(update(1, t + k), receiver=r))
+        net.broadcaster.flush()
     sent = [decode(p, "t", src.robots).body for _, p in net.session.published]
     assert [b.n for b in sent if isinstance(b, Broadcast)] == [0, 1, 2] and net.counts["broadcasts_sent"] == 3
     assert all(b.update.receiver == -1 for b in sent if isinstance(b, Broadcast))
-    net._on_inbox(_Sample(encode("t", 0, 9, BroadcastRepair(sender=0, receiver=1, first=0, last=5))))
+    net.inbound.handle("inbox", _Sample(encode("t", 0, 9, BroadcastRepair(sender=0, receiver=1, first=0, last=5))))
     got = [decode(p, "t", src.robots, to_robot=0).body for _, p in net.session.pushed]
     assert [(b.n, b.to, b.update is None) for b in got] == [(0, 0, True), (1, 0, False), (2, 0, False)]
     assert net.counts["repairs_gone"] == 1 and net.counts["repairs_sent"] == 2
     # the asker gives a gone broadcast up (counted) instead of asking for it forever
     asker, _ = offline_diekf(robot=0)
-    asker._on_broadcast(got[0])
-    assert asker.counts["broadcasts_given_up"] == 1 and asker._peers[1].low == 1
+    asker.broadcaster.on_broadcast(got[0])
+    assert asker.counts["broadcasts_given_up"] == 1 and asker.broadcaster._peers[1].low == 1
 
 
 @pytest.mark.parametrize(
@@ -187,12 +187,12 @@ def test_signed_broadcasts_owner_checked_and_replays_refused(tmp_path):
     k1 = robot_key("t", 1, "broadcast")
     b = Broadcast(robot=2, n=0, update=update(2, src.t_start + 0.5))
     forged = seal(keys.auth(2), k1, encode("t", 2, 0, b))  # robot 2 signs, on robot 1's broadcast key
-    net._handle("broadcast", _Sample(forged, k1))
+    net.inbound.handle("broadcast", _Sample(forged, k1))
     assert net.counts["auth_not_owner"] == 1 and net.counts["broadcasts_applied"] == 0
     k2 = robot_key("t", 2, "broadcast")
     good = seal(keys.auth(2), k2, encode("t", 2, 0, b))
-    net._handle("broadcast", _Sample(good, k2))
-    net._handle("broadcast", _Sample(good, k2))  # the same frame again
+    net.inbound.handle("broadcast", _Sample(good, k2))
+    net.inbound.handle("broadcast", _Sample(good, k2))  # the same frame again
     assert net.counts["broadcasts_applied"] == 1 and net.counts["auth_replay"] == 1
     assert net.counts["received"] == 3
 
@@ -275,7 +275,7 @@ def test_a_broadcast_stamped_ahead_publishes_the_beliefs_it_makes_final_first():
             net.node.step(e)  # the node's own inputs, without the driver's publishing
     assert net.counts["beliefs_published"] == 0 and net.node.present <= t
     ahead = t + 4.0  # within the clock tolerance, a horizon (5 s) past the first record times
-    net._handle("broadcast", bsample(Broadcast(robot=1, n=0, update=update(1, ahead))))
+    net.inbound.handle("broadcast", bsample(Broadcast(robot=1, n=0, update=update(1, ahead))))
     assert net.counts["broadcasts_applied"] == 1 and net.node.present == ahead
     final = [b for b in net.publishing.published.values() if b.final]
     due = src.record_times()[src.record_times() < ahead - net.node.horizon]

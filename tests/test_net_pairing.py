@@ -197,12 +197,12 @@ def test_a_query_asked_again_is_bounded_by_count_and_rate(monkeypatch):
     fed: list = []
     step = net.node.step
     net.node.step = lambda item: fed.append(item) or step(item)
-    net._alive.add(1)
-    net._ask(BeliefQuery(sender=0, receiver=1, stamp=net.node.present))
+    net.lockstep.alive.add(1)
+    net.outbound.ask(BeliefQuery(sender=0, receiver=1, stamp=net.node.present))
     while not fed and clock.t < 200.0:
-        for qid in list(net._outstanding):  # every get ends at once, with no reply
-            net._handle("reply_end", qid)
-        net._run_timers()
+        for qid in list(net.outbound.outstanding):  # every get ends at once, with no reply
+            net.inbound.handle("reply_end", qid)
+        net.outbound.run_timers()
         clock.t += 0.01
     spacing = 0.25  # answer_timeout 2 s, within the spacing's bounds (0.05, 0.25)
     bound = 2 + math.ceil(10.0 / spacing) + 1

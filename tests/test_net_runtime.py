@@ -142,13 +142,13 @@ def test_a_query_that_arrives_twice_is_answered_once_and_a_failing_reply_is_coun
     closed unanswered; the reply failing (the asker gone) is counted ``send_failed`` and the query closed.
     Before, both copies were answered and the failing reply raised out of the node's loop."""
     net = offline_net(hold_timeout=0.0)  # answered at once, as things stand
-    raw = encode("t", 1, 7, BeliefQuery(sender=1, receiver=0, stamp=net.items[0][0]))
+    raw = encode("t", 1, 7, BeliefQuery(sender=1, receiver=0, stamp=net.inputs.items[0][0]))
     first, copy = _DeadQuery(raw), _DeadQuery(raw)
-    net._handle("query", first)
-    net._handle("query", copy)
+    net.inbound.handle("query", first)
+    net.inbound.handle("query", copy)
     assert (first.replies, first.drops) == (1, 1) and (copy.replies, copy.drops) == (0, 1)
     assert net.counts["send_failed"] == 1 and net.counts["duplicate_queries"] == 1
-    assert net.counts["queries_answered"] == 1 and not net._deferred
+    assert net.counts["queries_answered"] == 1 and not net.lockstep.deferred
 
 
 class _Flood:
@@ -165,13 +165,16 @@ class _Flood:
     def put(self, item) -> None:
         pass
 
+    def fold(self, counts, reasons) -> None:  # nothing dropped at its intake
+        pass
+
 
 def test_a_flood_of_messages_never_keeps_a_node_from_its_deadlines():
     """One ``_drain`` handles what is queued for a bounded slice of wall time and returns, so that the loops around
     it check their deadlines and timers. Before, a queue that never ran dry kept it (and the node) forever."""
     net = offline_net()
-    net._inq = _Flood(encode("t", 1, 0, Progress(robot=1, t=1.0)))
-    th = threading.Thread(target=net._drain, args=(0.0,), daemon=True)
+    net.inbound.intake = _Flood(encode("t", 1, 0, Progress(robot=1, t=1.0)))
+    th = threading.Thread(target=net.inbound.drain, args=(0.0,), daemon=True)
     t0 = time.monotonic()
     th.start()
     th.join(5.0)
@@ -269,7 +272,7 @@ def test_a_teammate_whose_token_outlives_it_is_declared_lost_and_the_node_goes_o
     assert report.net["peers_lost"] == 1 and report.net["teammates_seen"] == 1
     assert "robot 1 declared lost" in caplog.text
     s = report.stats
-    assert net._i == len(net.items) and s["detections"] > 5
+    assert net.inputs.i == len(net.inputs.items) and s["detections"] > 5
     assert s["unknown"] == s["detections"] and s["pending"] == 0
     assert report.net["asked_lost"] == s["detections"]
 
@@ -293,31 +296,31 @@ def test_a_teammate_that_waits_announcing_is_not_lost_one_that_falls_silent_or_n
 
     def announce(t: float) -> None:
         raw = encode("t", 1, next(seq), Progress(robot=1, t=t, prio=2))
-        net._on_progress(type("Sample", (), {"key_expr": key, "payload": _Payload(raw)})())
+        net.inbound.handle("progress", type("Sample", (), {"key_expr": key, "payload": _Payload(raw)})())
 
     def run(seconds: float, t: float | None) -> None:  # 0.05 s steps; robot 1 announces t every 0.2 s (None: not)
         for k in range(round(seconds / 0.05)):
             clock.t += 0.05
             if t is not None and k % 4 == 3:
                 announce(t)
-            net._check_lost(5.0)  # robot 0's next input at 5 s: it waits for robot 1
+            net.lockstep.check_lost(5.0)  # robot 0's next input at 5 s: it waits for robot 1
 
-    net._alive.add(1)
+    net.lockstep.alive.add(1)
     announce(0.5)
     run(4.0, 0.5)
-    assert net.counts["peers_lost"] == 0 and 1 in net._alive
+    assert net.counts["peers_lost"] == 0 and 1 in net.lockstep.alive
     run(1.2, None)
-    assert net.counts["peers_lost"] == 1 and 1 in net._lost and net._lost_why[1] == "silent for 1 s"
+    assert net.counts["peers_lost"] == 1 and 1 in net.lockstep.lost and net.lockstep.lost_why[1] == "silent for 1 s"
     announce(0.5)
-    assert 1 in net._alive and 1 not in net._lost and net.counts["peers_back"] == 1
+    assert 1 in net.lockstep.alive and 1 not in net.lockstep.lost and net.counts["peers_back"] == 1
     run(STALL_TIMEOUTS - 5.2 - 0.15, 0.5)  # announcing, no advance since the first announcement 5.2 s ago ...
-    assert net.counts["peers_lost"] == 1 and 1 in net._alive
+    assert net.counts["peers_lost"] == 1 and 1 in net.lockstep.alive
     run(0.3, 0.5)  # ... and past STALL_TIMEOUTS lost timeouts
-    assert net.counts["peers_lost"] == 2 and net._lost_why[1] == f"no progress for {STALL_TIMEOUTS:g} s"
+    assert net.counts["peers_lost"] == 2 and net.lockstep.lost_why[1] == f"no progress for {STALL_TIMEOUTS:g} s"
     announce(0.5)  # announcing alone does not bring a stalled teammate back
-    assert 1 in net._lost
+    assert 1 in net.lockstep.lost
     announce(0.6)
-    assert 1 in net._alive and 1 not in net._lost and net.counts["peers_back"] == 2
+    assert 1 in net.lockstep.alive and 1 not in net.lockstep.lost and net.counts["peers_back"] == 2
 
 
 def test_a_lone_node_says_whom_it_waits_for_and_fails_when_no_teammate_ever_answered():
@@ -486,10 +489,10 @@ def test_traffic_that_never_settles_does_not_hold_a_node_at_its_end():
 
     net = offline_net(linger=0.5)
     net.session = net.wiring.pub["progress"] = net.wiring.pub["belief"] = SimpleNamespace(put=lambda *a, **k: None)
-    net._i = len(net.items)  # its source read; robots 1 and 2 not alive: the team has read its sources
+    net.inputs.i = len(net.inputs.items)  # its source read; robots 1 and 2 not alive: the team has read its sources
     flood = _Flood(b"not a message")
     flood.get = flood.get_nowait = lambda timeout=None: ("inbox", flood.sample)  # neighbours' traffic, forever
-    net._inq = flood
+    net.inbound.intake = flood
     th = threading.Thread(target=net._finish, args=(math.inf,), daemon=True)
     t0 = time.monotonic()
     th.start()

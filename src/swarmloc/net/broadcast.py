@@ -40,19 +40,22 @@ from __future__ import annotations
 import logging
 import math
 import time
-from bisect import bisect_left
-from collections import OrderedDict
-from typing import Any
+from collections import Counter, OrderedDict
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
 from swarmloc.messages import TeamUpdate
-from swarmloc.net.auth import open_envelope
 from swarmloc.net.intake import TokenBucket
-from swarmloc.net.parts import NodeParts
-from swarmloc.net.schema import ALL, MAX_REPAIR, Broadcast, BroadcastHead, BroadcastRepair, Rejected
-from swarmloc.net.transport import robot_key
+from swarmloc.net.schema import ALL, MAX_REPAIR, Broadcast, BroadcastHead, BroadcastRepair
+from swarmloc.node import Node
 from swarmloc.node.protocol import same
+
+if TYPE_CHECKING:
+    from swarmloc.net.lockstep import Lockstep
+    from swarmloc.net.outbound import Outbound
+    from swarmloc.net.wiring import Wiring
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
@@ -100,10 +103,26 @@ class _Peer:
         return [n for n in range(self.low, self.top + 1) if n not in self.got]
 
 
-class Broadcasting(NodeParts):
-    """Part of :class:`~swarmloc.net.process.NetNode`: a team estimator's broadcasts (module docstring)."""
+class Broadcaster:
+    """Part of :class:`~swarmloc.net.process.NetNode` (``node.broadcaster``): a team estimator's broadcasts (module
+    docstring), for robot ``robot`` driving ``node``; ``active``: the node's estimator broadcasts (else it only
+    answers what comes, and never holds lockstep).
 
-    def _init_broadcast(self) -> None:
+    ``wiring``: the node's Zenoh side (the broadcast key's publisher); ``seal``: envelopes
+    (:meth:`~.outbound.Envelopes.seal`); ``outbound``: sending (link faults, inboxes, ``coalesce``:
+    :class:`~.outbound.Outbound`); ``lockstep``: the live teammates and the updates expected
+    (:class:`~.lockstep.Lockstep`); ``step``: ``step(item)`` steps the node; ``reject``: ``reject(reason, where)``
+    counts a dropped message (:meth:`~.inbound.Inbound.reject`); ``next_group``: the stamp of the node's next own
+    detection group (with a live feed: at least its watermark; inf: none) (:meth:`~.inputs.Inputs.next_group`);
+    ``delay``: [s] the link faults' delay."""
+
+    def __init__(self, node: Node, robot: int, counts: Counter[str], *, active: bool, wiring: Wiring,
+                 seal: Callable[..., bytes], outbound: Outbound, lockstep: Lockstep, step: Callable[[Any], None],
+                 reject: Callable[[str, str], None], next_group: Callable[[], float],
+                 delay: float = 0.0) -> None:  # fmt: skip
+        self.node, self.robot, self.counts, self.active = node, robot, counts, active
+        self.wiring, self.seal, self.outbound, self.lockstep = wiring, seal, outbound, lockstep
+        self.step, self.reject, self.next_group = step, reject, next_group
         self._bn = 0  # this node's next broadcast number
         self._bbuf: OrderedDict[int, Broadcast] = OrderedDict()  # its latest broadcasts, by number
         self._bout: dict[tuple, TeamUpdate] = {}  # updates to broadcast with the next flush, the newest per exchange
@@ -114,13 +133,10 @@ class Broadcasting(NodeParts):
         self._bflush = 0.0
         self._bhead: tuple[float, tuple] = (-1.0, ())  # (wall time, (count, t, prio)) of the last head announced
         self._heads: dict[int, tuple[int, float, int]] = {}  # per teammate: its latest head (count, t, prio)
-        self._group_at = [k for k, (_, item) in enumerate(self.items) if isinstance(item, list)]
         self._peers: dict[int, _Peer] = {}
         self._bkey: dict[tuple, int] = {}  # (sender, stamp, sub): the number of the update applied for the exchange
         self._bkey_pruned = 0.0
-        self._bpub: Any = None
         self._repair_budget: dict[int, TokenBucket] = {}  # per asker: broadcast numbers it may still have again
-        delay = self.faults.delay if self.faults else 0.0
         self.repair_wait = delay + 0.05
         """[s] wall time a missing broadcast number waits (for a late copy) before it is asked for."""
         self.settle = delay + 0.02
@@ -128,7 +144,7 @@ class Broadcasting(NodeParts):
         head passes it."""
 
     # ------------------------------------------------------------------------------------------------ sending
-    def _queue_broadcast(self, m: TeamUpdate) -> None:
+    def queue(self, m: TeamUpdate) -> None:
         """A teammate's copy of an update the node returned: one broadcast per exchange goes out with the next flush."""
         k = (float(m.stamp), tuple(m.sub))
         old = self._bout.get(k)
@@ -138,11 +154,12 @@ class Broadcasting(NodeParts):
             self.counts["coalesced"] += 1
         self._bout[k] = m
 
-    def _flush_broadcasts(self, force: bool = False) -> None:
+    def flush(self, force: bool = False) -> None:
         """Publish the queued broadcasts (at once without faults, at most every ``coalesce`` s with them), announce
         the count now and then, and ask for the missing ones of the teammates."""
         now = time.monotonic()
-        if self._bout and (force or self.link is None or now - self._bflush >= self.coalesce):
+        link, coalesce = self.outbound.link, self.outbound.coalesce
+        if self._bout and (force or link is None or now - self._bflush >= coalesce):
             self._bflush = now
             out, self._bout = self._bout, {}
             for k, m in sorted(out.items()):
@@ -169,7 +186,7 @@ class Broadcasting(NodeParts):
             self.counts["broadcast_heads_sent"] += 1
             self._publish_b(BroadcastHead(robot=self.robot, n=head[0], t=head[1], prio=head[2]), faults=False)
         if self._peers:
-            self._ask_missing(now)
+            self.ask_missing(now)
 
     def _settled(self) -> tuple[float, int]:
         """``(t, prio)``: every update this node will broadcast for an exchange keyed before ``(t, prio, robot)`` is
@@ -189,12 +206,7 @@ class Broadcasting(NodeParts):
                 del self._quiet[t]
             if self._quiet:
                 out = min(out, (min(self._quiet), 1))
-        k = bisect_left(self._group_at, self._i)
-        if k < len(self._group_at):
-            out = min(out, (self.items[self._group_at[k]][0], 1))
-        if self.feed is not None and not self.feed.exhausted:  # a live feed's groups to come: at its watermark or later
-            out = min(out, (self._feed_w, 1))
-        return out
+        return min(out, (self.next_group(), 1))  # its next detection group (a live feed's: at its watermark or later)
 
     def _expect_revision(self, k: tuple, m: TeamUpdate, now: float) -> None:
         """A group's answers are given from the state before each detection of it, so a target's answer to a later
@@ -213,9 +225,12 @@ class Broadcasting(NodeParts):
         if any(kk[0] == t and kk[1] < sub and not u.empty for kk, u in self._bsent.items()):
             self._rev_wait.setdefault((t, sub, m.target), now)
 
-    def _revision_came(self, a: Any) -> None:
+    def revision_came(self, a: Any) -> None:
         """A revised answer to one of this node's queries (pushed to its inbox), stamped where the node still takes
-        inputs (between a horizon before its present and its clock tolerance past it: else nothing is remembered)."""
+        inputs (between a horizon before its present and its clock tolerance past it: else nothing is remembered); only
+        a node that broadcasts remembers it."""
+        if not self.active:
+            return
         now = self.node.present
         if a.seq >= 1 and now - self.node.horizon <= float(a.stamp) <= now + self.node.tolerance:
             k = (float(a.stamp), tuple(a.sub), a.sender)
@@ -223,14 +238,14 @@ class Broadcasting(NodeParts):
             self._rev_wait.pop(k, None)
             self._quiet[k[0]] = time.monotonic()
 
-    def _broadcasts_unsettled(self, key: tuple) -> str | None:
+    def unsettled(self, key: tuple) -> str | None:
         """Why a teammate's broadcast keyed before ``key`` may still be missing here, or None: lockstep waits for
         them before this node fuses a group or answers a query keyed ``key`` (:mod:`swarmloc.net.lockstep`)."""
-        if not self.broadcasts:
+        if not self.active:
             return None
         team_node: Any = self.node  # a team estimator's (diekf): its team, not declared on Node
         mates = team_node.team  # diekf in clusters: the cluster, whose broadcasts alone this node receives
-        for r in self._alive:
+        for r in self.lockstep.alive:
             if r not in mates:
                 continue
             h = self._heads.get(r)
@@ -246,27 +261,20 @@ class Broadcasting(NodeParts):
 
     def _publish_b(self, body: Any, faults: bool = True) -> None:
         """``body`` on this robot's broadcast key: with the link faults, or (a head: lockstep's, like progress) not."""
-        key = robot_key(self.scope, self.robot, "broadcast")
-        payload = self._env(body, key)
+        key = self.wiring.key("broadcast")
+        payload = self.seal(body, key)
         self.counts["broadcast_bytes" if isinstance(body, Broadcast) else "broadcast_head_bytes"] += len(payload)
-        if self._bpub is None:
-            self._bpub = self.session.declare_publisher(key, congestion_control=self.wiring.block)
-            self.wiring.decl.append(self._bpub)
-        pub = self._bpub
+        pub = self.wiring.publisher("broadcast")
         if not faults:
             pub.put(payload)
             return
-        self._faulty(lambda: pub.put(payload))
+        self.outbound.faulty(lambda: pub.put(payload))
 
     def _push(self, body: Any, to: int) -> None:
         """``body`` to robot ``to``'s inbox (link faults apply)."""
-        key = robot_key(self.scope, to, "inbox")
-        payload = self._env(body, key)
-        self.counts["repair_bytes"] += len(payload)
-        put, block = self.session.put, self.wiring.block
-        self._faulty(lambda: put(key, payload, congestion_control=block))
+        self.counts["repair_bytes"] += self.outbound.push(body, to)
 
-    def _on_repair(self, r: BroadcastRepair) -> None:
+    def on_repair(self, r: BroadcastRepair) -> None:
         """A teammate asks again for some of this node's broadcasts: the ones kept, or "gone" (within the asker's
         budget, :data:`REPAIR_RATE`)."""
         self.counts["repair_requests_received"] += 1
@@ -274,7 +282,7 @@ class Broadcasting(NodeParts):
         now = time.monotonic()
         budget = self._repair_budget.setdefault(r.sender, TokenBucket(REPAIR_RATE, 2 * REPAIR_RATE, now))
         if last >= r.first and not budget.take(last - r.first + 1, now):
-            self._reject("broadcast repair request past its asker's budget", "pushed message")
+            self.reject("broadcast repair request past its asker's budget", "pushed message")
             return
         for n in range(r.first, last + 1):
             b = self._bbuf.get(n)
@@ -286,18 +294,9 @@ class Broadcasting(NodeParts):
                 self._push(msgspec.structs.replace(b, to=r.sender), r.sender)
 
     # ------------------------------------------------------------------------------------------------ receiving
-    def _on_broadcast_sample(self, x: Any) -> None:
-        """A sample on a teammate's broadcast key: a broadcast or its head, published by that teammate only."""
-        from swarmloc.net.outbound import key_of
-
-        self.counts["received"] += 1
-        try:
-            env = open_envelope(self.auth, key_of(x), x.payload.to_bytes(), self.team, self.roster,
-                                to_robot=self.robot, server_ok=False, publication=True)  # fmt: skip
-        except Rejected as exc:
-            self._refuse(exc, "broadcast")
-            return
-        b = env.body
+    def on_sample(self, b: Any) -> None:
+        """What came on a teammate's broadcast key (authenticated: published by that teammate only): a broadcast or
+        its head."""
         if isinstance(b, BroadcastHead):
             self.counts["broadcast_heads_received"] += 1
             if not self._in_window(b.robot, b.n - 1):
@@ -305,9 +304,9 @@ class Broadcasting(NodeParts):
             self._heads[b.robot] = max(self._heads.get(b.robot, (-1, -math.inf, 0)), (b.n, b.t, b.prio))
             self._heard_of(b.robot, b.n - 1)
         elif isinstance(b, Broadcast) and b.to == ALL:
-            self._on_broadcast(b)
+            self.on_broadcast(b)
         else:
-            self._reject(f"{type(b).__name__} is not accepted on a broadcast key", "broadcast")
+            self.reject(f"{type(b).__name__} is not accepted on a broadcast key", "broadcast")
 
     def _in_window(self, robot: int, top: int) -> bool:
         """Whether broadcast number ``top`` of ``robot`` is within :data:`WINDOW` of the first one this node misses
@@ -318,7 +317,7 @@ class Broadcasting(NodeParts):
             return True
         if top - p.low < WINDOW:
             return True
-        self._reject(f"broadcast number more than {WINDOW} past the first one missing from its sender", "broadcast")
+        self.reject(f"broadcast number more than {WINDOW} past the first one missing from its sender", "broadcast")
         return False
 
     def _heard_of(self, robot: int, top: int) -> None:
@@ -330,7 +329,7 @@ class Broadcasting(NodeParts):
                     p.missing_since.setdefault(n, now)
             p.top = top
 
-    def _on_broadcast(self, b: Broadcast) -> None:
+    def on_broadcast(self, b: Broadcast) -> None:
         """A teammate's broadcast (published, or sent again on request): applied once, unless overtaken."""
         self.counts["broadcasts_received"] += 1
         if not self._in_window(b.robot, b.n):
@@ -355,10 +354,10 @@ class Broadcasting(NodeParts):
         if k[1] <= self.node.present + self.node.tolerance:  # past it the node refuses it (future): not remembered
             self._bkey[k] = b.n
         self.counts["broadcasts_applied"] += 1
-        expected = self._expect.pop((float(u.stamp), 1, b.robot, tuple(u.sub)), None) is not None
-        self._step(msgspec.structs.replace(u, receiver=self.robot))
+        expected = self.lockstep.update_came((float(u.stamp), 1, b.robot, tuple(u.sub)))
+        self.step(msgspec.structs.replace(u, receiver=self.robot))
         if expected:  # this node answered the observer's query: what waited for its update may go on
-            self._release()
+            self.lockstep.release()
         self._prune_bkeys()
 
     def _prune_bkeys(self) -> None:
@@ -373,7 +372,7 @@ class Broadcasting(NodeParts):
             del self._bsent[k]
         self._revised = {k for k in self._revised if k[0] >= cut}
 
-    def _ask_missing(self, now: float) -> None:
+    def ask_missing(self, now: float) -> None:
         """Ask each teammate again for its broadcasts missing longer than ``repair_wait`` s (retries spaced, then given
         up)."""
         retry = 2 * self.repair_wait + 0.2
@@ -399,6 +398,6 @@ class Broadcasting(NodeParts):
                 self.counts["repair_requests"] += 1
                 self._push(BroadcastRepair(sender=self.robot, receiver=r, first=first, last=run[-1]), r)
 
-    def _broadcast_busy(self) -> bool:
+    def busy(self) -> bool:
         """Broadcasts still to send, or teammates' broadcasts still missing."""
         return bool(self._bout) or any(p.missing_since for p in self._peers.values())

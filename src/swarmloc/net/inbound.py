@@ -1,7 +1,7 @@
 """What a :class:`~swarmloc.net.process.NetNode` receives: its queue, decoded and validated, by kind.
 
-Every sample Zenoh hands the node waits on its one queue and is handled on the node's thread (:meth:`_drain`).
-A neighbour's message is decoded and validated before anything reaches the node (:meth:`_decode`: schema,
+Every sample Zenoh hands the node waits on its one queue and is handled on the node's thread (:meth:`Inbound.drain`).
+A neighbour's message is decoded and validated before anything reaches the node (:meth:`Inbound._decode`: schema,
 team, roster, sender, addressee, numbers; a negative revision only from the server); a bad one is dropped,
 counted with its reason and logged, and the node keeps running, whatever the error.
 """
@@ -9,15 +9,18 @@ counted with its reason and logged, and the node keeps running, whatever the err
 from __future__ import annotations
 
 import logging
-import math
 import queue
+import threading
 import time
-from typing import Any
+from collections import Counter
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate
-from swarmloc.net.auth import note_refusal, open_envelope
-from swarmloc.net.outbound import close, key_of, reply_err
-from swarmloc.net.parts import NodeParts
+from swarmloc.net.auth import Auth, note_refusal, open_envelope
+from swarmloc.net.intake import Intake
+from swarmloc.net.lockstep import MAX_HELD, MAX_HELD_FROM, Lockstep
+from swarmloc.net.outbound import Outbound, close, key_of, reply_err
 from swarmloc.net.schema import (
     SERVER,
     Belief,
@@ -31,22 +34,42 @@ from swarmloc.net.schema import (
 )
 from swarmloc.node.accounting import reason_key
 
+if TYPE_CHECKING:
+    from swarmloc.net.broadcast import Broadcaster
+
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
 DRAIN_SLICE = 0.1
-"""[s] wall time one :meth:`Inbound._drain` handles queued items at most (past its wait for the first)."""
-MAX_HELD_FROM = 256
-"""Neighbours' queries a node holds at once from one robot (a robot asks about one detection group at a time, a few
-queries each); one more is refused ("busy") and counted."""
-MAX_HELD = 1024
-"""... and from all robots together."""
+"""[s] wall time one :meth:`Inbound.drain` handles queued items at most (past its wait for the first)."""
 
 
-class Inbound(NodeParts):
-    """Part of :class:`~swarmloc.net.process.NetNode`: its queue, the decoding with its bounds, and the handling of
-    queries, pushed messages and replies."""
+class Inbound:
+    """Part of :class:`~swarmloc.net.process.NetNode` (``node.inbound``): its queue, the decoding with its bounds, and
+    the handling of queries, pushed messages and replies, for robot ``robot`` of team ``team`` (``roster``; ``auth``:
+    what it receives must be signed, None: unauthenticated).
 
-    def _drain(self, timeout: float) -> bool:
+    ``intake``: the node's one queue (:class:`~.intake.Intake`); ``stop``: set when the node stops; ``counts``,
+    ``reasons``: its network counters; ``lockstep``, ``outbound``, ``broadcaster``: the parts what comes is handed
+    to; ``step``: ``step(item)`` steps the node and carries what it returns; ``flush``: ``flush()`` sends what the
+    node pushed (:meth:`~.process.NetNode._flush`)."""
+
+    def __init__(self, robot: int, team: str, roster: frozenset[int], auth: Auth | None, counts: Counter[str],
+                 reasons: Counter[str], *, intake: Intake, stop: threading.Event, lockstep: Lockstep,
+                 outbound: Outbound, broadcaster: Broadcaster, step: Callable[[Any], None],
+                 flush: Callable[[], None]) -> None:  # fmt: skip
+        self.robot, self.team, self.roster, self.auth = robot, team, roster, auth
+        self.counts, self.reasons = counts, reasons
+        self.intake, self.stop, self.step, self.flush = intake, stop, step, flush
+        self.lockstep, self.outbound, self.broadcaster = lockstep, outbound, broadcaster
+        self.draining = False
+        """Handling a batch of the queue: what the node pushes waits for its end (:meth:`drain`)."""
+        self._replayed = False  # the last refusal was of a replayed copy
+
+    def wake(self) -> None:
+        """Wake the node's loop from another thread (or a signal handler)."""
+        self.intake.put(("wake", None))
+
+    def drain(self, timeout: float) -> bool:
         """Handle what is queued, for at most ``DRAIN_SLICE`` s (the rest waits for the next call, so that a flood
         never keeps the loops from their deadlines and timers); wait up to ``timeout`` s for the first item. What
         the batch pushes (revisions, updates, broadcasts) goes out once at its end, the newest per exchange: under
@@ -54,38 +77,38 @@ class Inbound(NodeParts):
         (queries, replies, pushed messages) came: progress and liveliness do not count."""
         got = False
         end = time.monotonic() + max(timeout, 0.0) + DRAIN_SLICE
-        self._intake.fold(self.counts, self.reasons)  # what the intake dropped since (:mod:`.intake`)
+        self.intake.fold(self.counts, self.reasons)  # what the intake dropped since (:mod:`.intake`)
         try:
-            item = self._inq.get(timeout=timeout) if timeout > 0 else self._inq.get_nowait()
+            item = self.intake.get(timeout=timeout) if timeout > 0 else self.intake.get_nowait()
         except queue.Empty:
             item = None
-        self._draining = True
+        self.draining = True
         try:
-            while item is not None and not self._stop.is_set():
+            while item is not None and not self.stop.is_set():
                 got = got or item[0] in ("query", "inbox", "reply", "reply_end", "broadcast")
                 if item[0] != "wake":
                     try:
-                        self._handle(*item)
-                        self._answer_ready()
+                        self.handle(*item)
+                        self.lockstep.answer_ready()
                     except Exception as exc:  # a node must never die of one message
                         log.exception("robot %s: error handling %s", self.robot, item[0])
-                        self._reject(f"internal error: {type(exc).__name__}: {exc}", item[0])
+                        self.reject(f"internal error: {type(exc).__name__}: {exc}", item[0])
                 if time.monotonic() > end:
                     break
                 try:
-                    item = self._inq.get_nowait()
+                    item = self.intake.get_nowait()
                 except queue.Empty:
                     item = None
         finally:
-            self._draining = False
+            self.draining = False
         try:  # outside the per-item guard now: a failing send is counted, never raised into the loop
-            self._flush()
+            self.flush()
         except Exception as exc:  # noqa: BLE001
-            self._send_failed(exc)
+            self.outbound.send_failed(exc)
         return got
 
-    def _handle(self, kind: str, x: Any, y: Any = None) -> None:
-        """Handle one item of the node's queue: ``(kind, sample)`` as :meth:`_open` queued it."""
+    def handle(self, kind: str, x: Any, y: Any = None) -> None:
+        """Handle one item of the node's queue: ``(kind, sample)`` as the wiring queued it (:mod:`.wiring`)."""
         if kind == "query":
             self._on_query(x)
         elif kind == "inbox":
@@ -93,17 +116,32 @@ class Inbound(NodeParts):
         elif kind == "reply":
             self._on_reply(x, y)
         elif kind == "reply_end":
-            self._on_reply_end(x)
+            self.outbound.ended(x)
         elif kind == "progress":
-            self._on_progress(x)
+            env = self._publication(x, "progress message")
+            if env is not None:
+                self.lockstep.on_progress(env.body)
         elif kind == "alive":
-            self._on_alive(x)
+            self.lockstep.on_alive(x)
         elif kind == "broadcast":
-            self._on_broadcast_sample(x)
+            self.counts["received"] += 1
+            env = self._publication(x, "broadcast", to_robot=self.robot)
+            if env is not None:
+                self.broadcaster.on_sample(env.body)
+
+    def _publication(self, x: Any, where: str, to_robot: int | None = None) -> Envelope | None:
+        """A teammate's publication (its progress, its broadcasts: a robot's own key), authenticated (published by
+        that robot only) and validated; None when it is dropped (counted with the reason)."""
+        try:
+            return open_envelope(self.auth, key_of(x), x.payload.to_bytes(), self.team, self.roster,
+                                 to_robot=to_robot, server_ok=False, publication=True)  # fmt: skip
+        except Rejected as exc:
+            self._refuse(exc, where)
+            return None
 
     def _on_query(self, x: Any) -> None:
-        """A neighbour's query: held until the node may answer it (:meth:`_answer_ready`); anything else sent as a
-        query is refused at once."""
+        """A neighbour's query: held until the node may answer it (:meth:`~.lockstep.Lockstep.answer_ready`);
+        anything else sent as a query is refused at once."""
         self.counts["received"] += 1
         raw = x.payload.to_bytes() if x.payload is not None else None
         self._replayed = False
@@ -113,19 +151,17 @@ class Inbound(NodeParts):
             return
         if env is None or not isinstance(env.body, BeliefQuery | RdlStateQuery):
             if env is not None:
-                self._reject(f"{type(env.body).__name__} sent as a query", "query")
+                self.reject(f"{type(env.body).__name__} sent as a query", "query")
             reply_err(x, "rejected")
             return
-        if not self._first_copy(env):  # a duplicate of a query held or answered: answered once, this copy closed
+        if not self.lockstep.first_copy(env):  # a copy of a query held or answered: answered once, this copy closed
             close(x)
             return
-        asker = env.body.sender
-        if len(self._deferred) >= MAX_HELD or sum(q.sender == asker for _, q, _ in self._deferred) >= MAX_HELD_FROM:
-            self._reject(f"more than {MAX_HELD_FROM} queries of one robot (or {MAX_HELD} in all) held", "query")
+        if not self.lockstep.defer(env.body, x):
+            self.reject(f"more than {MAX_HELD_FROM} queries of one robot (or {MAX_HELD} in all) held", "query")
             reply_err(x, "busy")
             return
-        self._deferred.append((time.monotonic(), env.body, x))
-        self._answer_ready()
+        self.lockstep.answer_ready()
 
     def _on_inbox(self, x: Any) -> None:
         """A pushed message: a revised answer or a pairwise update (an expected update releases what waited for it)."""
@@ -136,37 +172,24 @@ class Inbound(NodeParts):
         if isinstance(env.body, BeliefQuery | RdlStateQuery | Belief | Progress | Report | BroadcastHead) or (
             isinstance(env.body, Broadcast) and env.body.to != self.robot
         ):
-            self._reject(f"{type(env.body).__name__} is not accepted on the inbox", "pushed message")
+            self.reject(f"{type(env.body).__name__} is not accepted on the inbox", "pushed message")
             return
         if isinstance(env.body, RdlUpdate):
-            self._expect.pop((float(env.body.stamp), 1, env.body.sender, tuple(env.body.sub)), None)
-            self._step(env.body)
-            self._release()
+            self.lockstep.update_came((float(env.body.stamp), 1, env.body.sender, tuple(env.body.sub)))
+            self.step(env.body)
+            self.lockstep.release()
             return
         if isinstance(env.body, Broadcast):  # a repair of a teammate's broadcast (:mod:`swarmloc.net.broadcast`)
-            self._on_broadcast(env.body)
+            self.broadcaster.on_broadcast(env.body)
             return
         if isinstance(env.body, BroadcastRepair):
-            self._on_repair(env.body)
+            self.broadcaster.on_repair(env.body)
             return
-        if self.broadcasts and isinstance(env.body, RdlState):
-            self._revision_came(env.body)
-        self._step(env.body)
+        if isinstance(env.body, RdlState):  # a revised answer: a team estimator's node waits for some
+            self.broadcaster.revision_came(env.body)
+        self.step(env.body)
 
-    def _step(self, item: Any, query: Any = None) -> None:
-        """Step the node with ``item`` (answering the Zenoh ``query`` with it if given) and send what it returns.
-        A message stamped past the node's present moves it: the beliefs that become final are published first,
-        before the history's pruning can drop what they are computed from (as before a source input)."""
-        stamp, now = getattr(item, "stamp", None), self.node.present
-        if isinstance(stamp, int | float) and now < stamp <= now + self.node.tolerance:  # past it: refused (future)
-            self.publishing.due(upto=stamp)
-        out = self.node.step(item)
-        if out or query is not None:
-            self._route(out, query, item)
-        if not self._draining:  # within a drain, what the batch pushes goes out once at its end (:meth:`_drain`)
-            self._flush()
-
-    def _reject(self, reason: str, where: str) -> None:
+    def reject(self, reason: str, where: str) -> None:
         """Count a dropped message with its reason (``rejected``, ``reasons``: at most 256 distinct,
         :func:`~swarmloc.node.accounting.reason_key`) and log the first of each reason."""
         self.counts["rejected"] += 1
@@ -185,14 +208,14 @@ class Inbound(NodeParts):
             self.counts["rejected"] += 1
             self.reasons[reason_key(self.reasons, exc.reason)] += 1
         else:
-            self._reject(exc.reason, where)
+            self.reject(exc.reason, where)
 
     def _decode(self, payload: bytes | None, where: str, key: str = "") -> Envelope | None:
         """A neighbour's (or the server's) message for this robot received on ``key``, authenticated (with ``auth``:
         signed by the sender it names, :mod:`swarmloc.net.auth`) and validated (:func:`~swarmloc.net.schema.decode`:
         team, roster, sender, addressee, numbers); None when it is dropped (counted with the reason)."""
         if payload is None:
-            self._reject("empty payload", where)
+            self.reject("empty payload", where)
             return None
         try:
             env = open_envelope(self.auth, key, payload, self.team, self.roster, to_robot=self.robot)
@@ -201,21 +224,22 @@ class Inbound(NodeParts):
             return None
         b = env.body
         if env.from_robot != SERVER and getattr(b, "seq", 0) < 0:
-            self._reject("negative revision from a robot", where)
+            self.reject("negative revision from a robot", where)
             return None
         return env
 
     def _on_reply(self, qid: int, reply: Any) -> None:
-        """A reply to the node's query ``qid``: held for the node (:meth:`_release`) if it answers that query."""
+        """A reply to the node's query ``qid``: held for the node (:meth:`~.lockstep.Lockstep.answer_came`) if it
+        answers that query."""
         self.counts["received"] += 1
-        entry = self._outstanding.get(qid)
+        entry = self.outbound.outstanding.get(qid)
         if entry is None:
             return
         m, via, answered = entry
         ok = reply.ok
         if ok is None:
             if not answered:
-                self._reject(f"error reply: {reply.err.payload.to_bytes()[:80]!r}", "reply")
+                self.reject(f"error reply: {reply.err.payload.to_bytes()[:80]!r}", "reply")
             return
         env = self._decode(ok.payload.to_bytes(), "reply", key_of(ok))  # authenticated first: a forgery is counted
         if env is None:
@@ -230,36 +254,7 @@ class Inbound(NodeParts):
             m.stamp,
             m.sub,
         ):
-            self._reject("reply does not answer the query", "reply")
+            self.reject("reply does not answer the query", "reply")
             return
-        if via == "server":
-            self.counts["server_answers"] += 1
-        self._outstanding[qid] = (m, via, True)
-        self._held.append(a)
-        self._release()
-
-    def _on_reply_end(self, qid: int) -> None:
-        """The end of query ``qid`` (all replies in, or its ``answer_timeout`` passed): unanswered, it is asked of the
-        belief server (``use_server``), else of its robot again while asks are left (:meth:`_ask_again`), else
-        answered "not found" with the reason. A query sent twice (link faults) ends when both copies have."""
-        if self._gets.get(qid, 0) > 1:
-            self._gets[qid] -= 1
-            return
-        self._gets.pop(qid, None)
-        entry = self._outstanding.pop(qid, None)
-        again, first = self._again.pop(qid, (0, -math.inf))  # (every ask records it; -inf: by count alone)
-        if entry is None:
-            return
-        m, via, answered = entry
-        if answered:
-            return
-        self.counts["no_reply"] += 1
-        if via == "robot" and self.settings.use_server:
-            self._ask(m, via_server=True, again=again, first=first)
-            return
-        if self._ask_again(m, again + 1, first):  # the node waits on: lockstep holds its group
-            return
-        kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
-        who = "robot or server" if via == "server" else "robot"
-        asks = f" ({again + 1} asks)" if again else ""
-        self._feed_local(kind, m, f"no answer from the {who} within {self.settings.answer_timeout:g} s{asks}")
+        self.outbound.answered(qid)
+        self.lockstep.answer_came(a)

@@ -14,15 +14,23 @@ import itertools
 import logging
 import math
 import time
+from collections import Counter
 from collections.abc import Callable
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate
-from swarmloc.net.auth import seal
-from swarmloc.net.parts import NodeParts
+from swarmloc.net.auth import Auth, seal
+from swarmloc.net.faults import Faults, LinkFaults
+from swarmloc.net.intake import Intake
 from swarmloc.net.schema import encode
+from swarmloc.net.settings import NetSettings
 from swarmloc.net.transport import robot_key, server_key
+from swarmloc.node import Node
+
+if TYPE_CHECKING:
+    from swarmloc.net.lockstep import Lockstep
+    from swarmloc.net.wiring import Wiring
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
@@ -30,32 +38,62 @@ NOT_FOUND_SEQ = -2
 """Revision of the "not found" answer a node gives itself when a query got no answer (a real one replaces it)."""
 REASK_SPACING = (0.05, 0.25)
 """[s] the spacing of a query's asks beyond ``answer_retries``: ``answer_timeout`` within these bounds
-(:meth:`Outbound._ask_again`)."""
+(:meth:`Outbound.ask_again`)."""
 
 
-class Outbound(NodeParts):
-    """Part of :class:`~swarmloc.net.process.NetNode`: sending, with the link faults, the outbox and the timers."""
+class Envelopes:
+    """What robot ``robot`` of team ``team`` sends, in its envelopes: numbered in one sequence (every message it
+    sends, on every key) and sealed with ``auth`` (None: unauthenticated)."""
 
-    def _init_outbound(self) -> None:
-        self._seq = itertools.count()  # envelope sequence numbers
-        self._qids = itertools.count()  # ids of this node's queries (and timer tie-breakers)
-        self._outstanding: dict[int, tuple[Message, str, bool]] = {}  # qid: (query, "robot"/"server", answered)
-        self._gets: dict[int, int] = {}  # qid: copies of the query out (link faults duplicate them), each ends once
-        self._timers: list[tuple[float, int, Callable[[], None]]] = []  # (due, id, send): delayed sends, lost gets
-        self._outbox: dict[tuple, Message] = {}  # pushed messages to send, the newest per exchange
-        self._again: dict[int, tuple[int, float]] = {}  # qid: (asks of its query before, unanswered; the first's time)
-        self._last_flush = 0.0
-        self._draining = False  # handling a batch of the queue: pushes wait for its end (Inbound._drain)
-        self.coalesce = 0.05
-        """[s] with link faults: the outbox is sent at most this often."""
+    def __init__(self, auth: Auth | None, team: str, robot: int) -> None:
+        self.auth, self.team, self.robot = auth, team, robot
+        self._seq = itertools.count()
 
-    def _env(self, body: Any, key: str, to: int | None = None) -> bytes:
+    def seal(self, body: Any, key: str, to: int | None = None) -> bytes:
         """``body`` in this robot's envelope, with its next sequence number, sealed for ``key`` and member ``to``
         (with ``auth``: MACed for a member in session, else signed; ``to`` defaults to the inbox's or query's
         member)."""
         return seal(self.auth, key, encode(self.team, self.robot, next(self._seq), body), to)
 
-    def _faulty(self, send: Callable[[], None], finish: Callable[[], None] | None = None) -> int:
+
+class Outbound:
+    """Part of :class:`~swarmloc.net.process.NetNode` (``node.outbound``): sending, with the link faults, the outbox,
+    the node's queries and the timers (module docstring).
+
+    ``wiring``: the node's Zenoh side (its session, and its congestion control once opened); ``seal``: envelopes
+    (:meth:`Envelopes.seal`); ``intake``: the node's queue, where the replies to its queries and their ends come
+    (:class:`~.intake.Intake`); ``lockstep``: which teammates are alive or lost, and the updates expected
+    (:class:`~.lockstep.Lockstep`); ``step``: ``step(item)`` steps the node and carries what it returns;
+    ``broadcast``: takes a teammate's copy of an update to broadcast (:meth:`~.broadcast.Broadcaster.queue`);
+    ``link``: this robot's link faults (None: none), ``faults`` their plan (the delay lengthens a query's wait)."""
+
+    def __init__(self, node: Node, robot: int, roster: frozenset[int], scope: str, settings: NetSettings,
+                 counts: Counter[str], *, wiring: Wiring, seal: Callable[..., bytes], intake: Intake,
+                 lockstep: Lockstep, step: Callable[[Any], None], broadcast: Callable[[TeamUpdate], None],
+                 link: LinkFaults | None = None, faults: Faults | None = None) -> None:  # fmt: skip
+        self.node, self.robot, self.roster, self.scope, self.settings = node, robot, roster, scope, settings
+        self.counts, self.wiring, self.seal, self.intake, self.lockstep = counts, wiring, seal, intake, lockstep
+        self.step, self.broadcast, self.link, self.faults = step, broadcast, link, faults
+        self._qids = itertools.count()  # ids of this node's queries (and timer tie-breakers)
+        self.outstanding: dict[int, tuple[Message, str, bool]] = {}
+        """The node's queries out, by id: ``(query, "robot"/"server", answered)``."""
+        self.gets: dict[int, int] = {}
+        """Per query id: its copies out (link faults duplicate them), each ends once."""
+        self.timers: list[tuple[float, int, Callable[[], None]]] = []
+        """``(due, id, send)``: delayed sends, lost gets (a heap)."""
+        self.outbox: dict[tuple[Any, ...], Message] = {}
+        """Pushed messages to send, the newest per exchange."""
+        self.again: dict[int, tuple[int, float]] = {}
+        """Per query id: (asks of its query before, unanswered; the first's time)."""
+        self._last_flush = 0.0
+        self.coalesce = 0.05
+        """[s] with link faults: the outbox is sent at most this often."""
+
+    def busy(self) -> bool:
+        """Queries out, timers set or pushed messages waiting."""
+        return bool(self.outstanding or self.timers or self.outbox)
+
+    def faulty(self, send: Callable[[], None], finish: Callable[[], None] | None = None) -> int:
         """Send now, or as the link faults say (lost, delayed, duplicated); returns the copies sent. ``finish`` runs
         once the last copy is sent (at once if every copy is lost): closing the Zenoh query a reply answers, so that
         a duplicate reply goes out on a query still open. A copy that fails to go out is counted (``send_failed``)
@@ -71,7 +109,7 @@ class Outbound(NodeParts):
             try:
                 send()
             except Exception as exc:  # noqa: BLE001 - e.g. the asker is gone: a missing answer, not a crash
-                self._send_failed(exc)
+                self.send_failed(exc)
             left[0] -= 1
             if left[0] == 0 and finish is not None:
                 finish()
@@ -84,96 +122,98 @@ class Outbound(NodeParts):
                 one()
             else:
                 self.counts["delayed"] += 1
-                heapq.heappush(self._timers, (time.monotonic() + d, next(self._qids), one))
+                heapq.heappush(self.timers, (time.monotonic() + d, next(self._qids), one))
         return len(delays)
 
-    def _send_failed(self, exc: Exception) -> None:
+    def send_failed(self, exc: Exception) -> None:
         """Count a message that could not go out (``send_failed``) and log the first."""
         self.counts["send_failed"] += 1
         level = logging.WARNING if self.counts["send_failed"] == 1 else logging.DEBUG
         log.log(level, "robot %s: a send failed (counted send_failed): %s: %s", self.robot, type(exc).__name__, exc)
 
-    def _route(self, msgs: list[Message], query: Any = None, asked: Message | None = None) -> None:
-        """Carry what the node returned: a query is asked (:meth:`_ask`), the answer to ``asked`` is the reply to the
+    def route(self, msgs: list[Message], query: Any = None, asked: Message | None = None) -> None:
+        """Carry what the node returned: a query is asked (:meth:`ask`), the answer to ``asked`` is the reply to the
         Zenoh ``query``, a revision or an update goes to the receiver's inbox (through the outbox)."""
         for m in msgs:
             if isinstance(m, BeliefQuery | RdlStateQuery):
-                self._ask(m)
+                self.ask(m)
             elif (
                 query is not None
                 and isinstance(m, BeliefAnswer | RdlState)
                 and isinstance(asked, BeliefQuery | RdlStateQuery)
                 and (m.receiver, m.stamp, m.sub) == (asked.sender, asked.stamp, asked.sub)
             ):
-                payload, q = self._env(m, key_of(query), to=m.receiver), query
+                payload, q = self.seal(m, key_of(query), to=m.receiver), query
                 query = None
                 if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
-                    self._expect[(float(m.stamp), 1, m.receiver, tuple(m.sub))] = time.monotonic()
+                    self.lockstep.expect_update((float(m.stamp), 1, m.receiver, tuple(m.sub)))
                 answer = lambda q=q, payload=payload: q.reply(q.key_expr, payload)  # noqa: E731
-                self._faulty(answer, finish=partial(close, q))
+                self.faulty(answer, finish=partial(close, q))
             elif isinstance(m, TeamUpdate):  # a teammate's copy of a broadcast (:mod:`swarmloc.net.broadcast`)
-                self._queue_broadcast(m)
+                self.broadcast(m)
             elif m.receiver in self.roster:
                 # pushed revisions and updates are coalesced: the newest per exchange goes out with the next flush
                 k = (type(m).__name__, m.receiver, m.stamp, m.sub)
-                if k in self._outbox:
+                if k in self.outbox:
                     self.counts["coalesced"] += 1
-                self._outbox[k] = m
+                self.outbox[k] = m
             else:
                 self.counts["undeliverable"] += 1
         if query is not None:  # the query was not answered by the node (cannot happen for a well-formed query)
             reply_err(query, "no answer")
 
-    def _flush(self, force: bool = False) -> None:
+    def flush(self, force: bool = False) -> None:
         """Send the pushed messages waiting in the outbox: without faults at once, or at the end of the batch of
-        received messages being handled (:meth:`~swarmloc.net.inbound.Inbound._drain`), so that the revisions one
+        received messages being handled (:meth:`~swarmloc.net.inbound.Inbound.drain`), so that the revisions one
         batch makes of one exchange go out as one; with faults at most every ``coalesce`` s, so that a burst of
         revisions of one exchange (late and lost messages make them) costs the neighbour one replay instead of one
-        per revision. Broadcasts likewise."""
-        if self.broadcasts:  # only a team estimator's node broadcasts (and announces heads)
-            self._flush_broadcasts(force)
-        if not self._outbox:
+        per revision."""
+        if not self.outbox:
             return
         now = time.monotonic()
         if not force and self.link is not None and now - self._last_flush < self.coalesce:
             return
         self._last_flush = now
-        out, self._outbox = self._outbox, {}
-        put, block = self.session.put, self.wiring.block
+        out, self.outbox = self.outbox, {}
         for m in out.values():
-            key = robot_key(self.scope, m.receiver, "inbox")
-            payload = self._env(m, key)
-            self._faulty(partial(put, key, payload, congestion_control=block))
+            self.push(m, m.receiver)
 
-    def _ask(self, m: Message, via_server: bool = False, again: int = 0, first: float | None = None) -> None:
+    def push(self, body: Any, to: int) -> int:
+        """``body`` to robot ``to``'s inbox (link faults apply); the bytes of its payload."""
+        key = robot_key(self.scope, to, "inbox")
+        payload = self.seal(body, key)
+        self.faulty(partial(self.wiring.session.put, key, payload, congestion_control=self.wiring.block))
+        return len(payload)
+
+    def ask(self, m: Message, via_server: bool = False, again: int = 0, first: float | None = None) -> None:
         """Ask ``m`` of its receiver (or of the belief server) as a Zenoh get; its replies and its end come back on
-        the node's queue (:meth:`_on_reply`, :meth:`_on_reply_end`). ``again``: how many times it was asked before
-        and went unanswered, ``first``: the monotonic time of its first ask (None: this one) (:meth:`_ask_again`)."""
+        the node's queue (:meth:`~.inbound.Inbound.handle`). ``again``: how many times it was asked before and went
+        unanswered, ``first``: the monotonic time of its first ask (None: this one) (:meth:`ask_again`)."""
         kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
         if m.receiver not in self.roster:
-            self._feed_local(kind, m, f"robot {m.receiver} is not in the team")
+            self.feed_local(kind, m, f"robot {m.receiver} is not in the team")
             return
-        if m.receiver in self._lost and not via_server:
+        if m.receiver in self.lockstep.lost and not via_server:
             self.counts["asked_lost"] += 1
             if self.settings.use_server:
-                self._ask(m, via_server=True)
+                self.ask(m, via_server=True)
             else:
-                why = self._lost_why.get(m.receiver, "declared lost")
-                self._feed_local(kind, m, f"robot {m.receiver} is lost ({why})")
+                why = self.lockstep.lost_why.get(m.receiver, "declared lost")
+                self.feed_local(kind, m, f"robot {m.receiver} is lost ({why})")
             return
         qid = next(self._qids)
-        self._outstanding[qid] = (m, "server" if via_server else "robot", False)
-        self._again[qid] = (again, time.monotonic() if first is None else first)
+        self.outstanding[qid] = (m, "server" if via_server else "robot", False)
+        self.again[qid] = (again, time.monotonic() if first is None else first)
         key = server_key(self.scope) if via_server else robot_key(self.scope, m.receiver, "query")
-        payload = self._env(m, key)
+        payload = self.seal(m, key)
         timeout = self.settings.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
-        put = self._inq.put
+        intake, session = self.intake, self.wiring.session
 
         def send() -> None:
             import zenoh
 
             try:
-                self.session.get(
+                session.get(
                     key,
                     payload=payload,
                     timeout=timeout,
@@ -182,25 +222,58 @@ class Outbound(NodeParts):
                     target=zenoh.QueryTarget.ALL,
                     consolidation=zenoh.ConsolidationMode.NONE,
                     handler=zenoh.handlers.Callback(  # replies within the intake's budgets; the end always
-                        lambda r: self._inq.offer(("reply", qid, r)), lambda: put(("reply_end", qid, None))
+                        lambda r: intake.offer(("reply", qid, r)), lambda: intake.put(("reply_end", qid, None))
                     ),
                 )
             except Exception as exc:  # noqa: BLE001 - a failed get is a missing answer, not a crash
                 log.warning("robot %s: get %s failed: %s", self.robot, key, exc)
-                put(("reply_end", qid, None))
+                intake.put(("reply_end", qid, None))
 
         if via_server:
             self.counts["sent"] += 1
             send()
             return
         # every copy's get ends on the queue, handled on this thread after this returns: count them first
-        self._gets[qid] = copies = self._faulty(send)
+        self.gets[qid] = copies = self.faulty(send)
         if not copies:
             # a lost query: its get never goes out, so nothing will end it but a timer
-            end: Callable[[], None] = partial(put, ("reply_end", qid, None))
-            heapq.heappush(self._timers, (time.monotonic() + timeout, next(self._qids), end))
+            end: Callable[[], None] = partial(intake.put, ("reply_end", qid, None))
+            heapq.heappush(self.timers, (time.monotonic() + timeout, next(self._qids), end))
 
-    def _ask_again(self, m: Message, again: int, first: float) -> bool:
+    def answered(self, qid: int) -> None:
+        """Query ``qid`` got its answer (a later reply is a duplicate); counted ``server_answers`` if the server's."""
+        m, via, _ = self.outstanding[qid]
+        if via == "server":
+            self.counts["server_answers"] += 1
+        self.outstanding[qid] = (m, via, True)
+
+    def ended(self, qid: int) -> None:
+        """The end of query ``qid`` (all replies in, or its ``answer_timeout`` passed): unanswered, it is asked of the
+        belief server (``use_server``), else of its robot again while asks are left (:meth:`ask_again`), else
+        answered "not found" with the reason. A query sent twice (link faults) ends when both copies have."""
+        if self.gets.get(qid, 0) > 1:
+            self.gets[qid] -= 1
+            return
+        self.gets.pop(qid, None)
+        entry = self.outstanding.pop(qid, None)
+        again, first = self.again.pop(qid, (0, -math.inf))  # (every ask records it; -inf: by count alone)
+        if entry is None:
+            return
+        m, via, answered = entry
+        if answered:
+            return
+        self.counts["no_reply"] += 1
+        if via == "robot" and self.settings.use_server:
+            self.ask(m, via_server=True, again=again, first=first)
+            return
+        if self.ask_again(m, again + 1, first):  # the node waits on: lockstep holds its group
+            return
+        kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
+        who = "robot or server" if via == "server" else "robot"
+        asks = f" ({again + 1} asks)" if again else ""
+        self.feed_local(kind, m, f"no answer from the {who} within {self.settings.answer_timeout:g} s{asks}")
+
+    def ask_again(self, m: Message, again: int, first: float) -> bool:
         """Ask query ``m``, asked ``again`` times already (the first at monotonic time ``first``) and unanswered each
         time, of its robot once more, while the robot is alive (not declared lost) and ``m``'s stamp is within the
         node's horizon: ``answer_retries`` times, and beyond that while less than ``lost_timeout`` s have passed
@@ -219,8 +292,8 @@ class Outbound(NodeParts):
         if (
             (again > self.settings.answer_retries and now - first >= self.settings.lost_timeout)
             or again > self.settings.answer_retries + math.ceil(self.settings.lost_timeout / spacing) + 1
-            or m.receiver not in self._alive
-            or m.receiver in self._lost
+            or m.receiver not in self.lockstep.alive
+            or m.receiver in self.lockstep.lost
             or m.stamp < self.node.present - self.node.horizon
         ):
             return False
@@ -228,26 +301,26 @@ class Outbound(NodeParts):
         due = first + again * spacing if again > self.settings.answer_retries else now
         if due > now:
             self.counts["asked_again_later"] += 1
-            heapq.heappush(self._timers, (due, next(self._qids), lambda: self._ask(m, again=again, first=first)))
+            heapq.heappush(self.timers, (due, next(self._qids), lambda: self.ask(m, again=again, first=first)))
         else:
-            self._ask(m, again=again, first=first)
+            self.ask(m, again=again, first=first)
         return True
 
-    def _feed_local(self, kind: type, m: Message, reason: str, seq: int = NOT_FOUND_SEQ) -> None:
+    def feed_local(self, kind: type, m: Message, reason: str, seq: int = NOT_FOUND_SEQ) -> None:
         """Step the node with a "not found" answer to its own query ``m``, with the reason."""
         a = kind(sender=m.receiver, receiver=m.sender, stamp=m.stamp, sub=m.sub, found=False, reason=reason, seq=seq)
-        self._step(a)
+        self.step(a)
 
-    def _run_timers(self) -> float:
+    def run_timers(self) -> float:
         """Send what is due; seconds until the next timer (inf if none)."""
         now = time.monotonic()
-        while self._timers and self._timers[0][0] <= now:
-            _, _, fn = heapq.heappop(self._timers)
+        while self.timers and self.timers[0][0] <= now:
+            _, _, fn = heapq.heappop(self.timers)
             try:
                 fn()
-            except Exception as exc:  # noqa: BLE001 - a delayed send never raises into the loop (see _faulty)
-                self._send_failed(exc)
-        return self._timers[0][0] - now if self._timers else math.inf
+            except Exception as exc:  # noqa: BLE001 - a delayed send never raises into the loop (see faulty)
+                self.send_failed(exc)
+        return self.timers[0][0] - now if self.timers else math.inf
 
 
 def key_of(x: Any) -> str:

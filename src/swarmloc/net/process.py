@@ -7,13 +7,15 @@ receiver's ``inbox``. Everything received is authenticated (with ``auth``: signe
 :mod:`swarmloc.net.auth`), decoded and validated (:func:`swarmloc.net.schema.decode`) on the node's one thread;
 a bad message is dropped, counted with its reason, and logged; the node keeps running.
 
-Parts, one job each: :mod:`~swarmloc.net.inbound` (the queue, decoding with its bounds, queries, pushed messages,
-replies), :mod:`~swarmloc.net.lockstep` (when to read an input, answer a query, release an answer),
-:mod:`~swarmloc.net.outbound` (sending: link faults, outbox, queries, timers), :mod:`~swarmloc.net.broadcast` (a team
-estimator's broadcasts): mixins (:mod:`~swarmloc.net.parts`); :mod:`~swarmloc.net.wiring` (the Zenoh declarations)
-and :mod:`~swarmloc.net.publishing` (progress and beliefs): objects that own their state (``wiring``,
-``publishing``, ``announcer``). Its settings: :class:`~swarmloc.net.settings.NetSettings`. This module holds the
-inputs and the loop.
+Parts, one job each, each an object the node holds that owns its state and meets the others through a few methods,
+given what it needs when it is made: ``inbound`` (:mod:`~swarmloc.net.inbound`: the queue, decoding with its
+bounds, queries, pushed messages, replies), ``lockstep`` (:mod:`~swarmloc.net.lockstep`: the teammates, and when to
+read an input, answer a query, release an answer), ``outbound`` (:mod:`~swarmloc.net.outbound`: sending: link faults,
+outbox, queries, timers; its envelopes, ``envelopes``), ``broadcaster`` (:mod:`~swarmloc.net.broadcast`: a team
+estimator's broadcasts), ``wiring`` (:mod:`~swarmloc.net.wiring`: the Zenoh declarations), ``publishing`` and
+``announcer`` (:mod:`~swarmloc.net.publishing`: beliefs, progress), ``inputs`` (:mod:`~swarmloc.net.inputs`: its
+own events, recorded or live). Its settings: :class:`~swarmloc.net.settings.NetSettings`. This module holds stepping
+the node, and the loop.
 
 **Time and determinism.** Stamps are the source's (data) clock; wall time only paces. Lockstep: a node reads its
 next input (stamp ``s``) once every live teammate has announced (:class:`~swarmloc.net.schema.Progress`) that it
@@ -21,9 +23,9 @@ has read its own source up to ``s - lag`` (the node with the lowest next stamp c
 deadlocks), with ``speed > 0`` not before ``(s - t_start) / speed`` wall seconds, and not more than half a horizon
 past its own oldest detection group still waiting for answers. A detection group is read only once every teammate
 has read its source up to the group's key and no ``rdl`` update keyed before it is expected. A query is answered
-only once nothing keyed before it can still change the answer (:meth:`NetNode._ready`). Groups are thus applied
-across the team in key order, as :func:`swarmloc.runner.run` applies them, the first answer is the final one,
-and the networked run equals the in-process run on the same events (tested to 1e-6; measured: equal).
+only once nothing keyed before it can still change the answer (:meth:`~swarmloc.net.lockstep.Lockstep.ready`).
+Groups are thus applied across the team in key order, as :func:`swarmloc.runner.run` applies them, the first answer
+is the final one, and the networked run equals the in-process run on the same events (tested to 1e-6; measured: equal).
 
 **Missing answers.** A query that gets no valid reply within ``answer_timeout`` s is asked of the belief server
 (with ``use_server``, which gets ``answer_timeout`` s too), then of its robot again while the robot is alive and the
@@ -37,8 +39,8 @@ the answer, which the answer to a later ask did not always undo: ``rdl`` on MRCL
 in-process run in CI; ``benchmarks/short_waits.py``, docs/benchmarks.md.)
 A neighbour's query held ``hold_timeout`` s without its state settling is answered as things stand, and revised if
 they change. An ``rdl`` update expected for ``update_timeout`` s is given up. Pushed revisions and updates are
-coalesced, the newest per exchange: those one batch of received messages makes (:meth:`_drain`), and with link
-faults all every ``coalesce`` s.
+coalesced, the newest per exchange: those one batch of received messages makes
+(:meth:`~swarmloc.net.inbound.Inbound.drain`), and with link faults all every ``coalesce`` s.
 
 **Timeouts**, one name per wait, in seconds of wall time: :mod:`swarmloc.net.timeouts`.
 
@@ -66,19 +68,20 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry
+from swarmloc.events import Event
 from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import Auth
-from swarmloc.net.broadcast import Broadcasting
+from swarmloc.net.broadcast import Broadcaster
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.inbound import Inbound
+from swarmloc.net.inputs import Inputs
 from swarmloc.net.intake import Intake, vouch_for
 from swarmloc.net.lockstep import Lockstep
-from swarmloc.net.outbound import Outbound
+from swarmloc.net.outbound import Envelopes, Outbound
 from swarmloc.net.publishing import Announcer, Publishing, lagging
 from swarmloc.net.schema import SERVER, Belief, Lines, Progress, Report
 from swarmloc.net.settings import NetSettings
-from swarmloc.net.transport import robot_key, team_scope
+from swarmloc.net.transport import team_scope
 from swarmloc.net.wiring import Wiring
 from swarmloc.node import Node
 
@@ -90,20 +93,7 @@ WAIT_NOTE_EVERY = 10.0
 """[s] ... and again every so often while it still waits."""
 
 
-def _groups(events: Sequence[Event]) -> list[tuple[float, Any]]:
-    """``(stamp, item)`` in order; consecutive detections at one instant form one list."""
-    out: list[tuple[float, Any]] = []
-    for e in events:
-        if isinstance(e, Detection) and out and isinstance(out[-1][1], list) and out[-1][1][0].t == e.t:
-            out[-1][1].append(e)
-        elif isinstance(e, Detection):
-            out.append((float(e.t), [e]))
-        elif isinstance(e, Odometry):
-            out.append((float(e.t0), e))
-    return out
-
-
-class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
+class NetNode:
     """Drive ``node`` (owning one robot) over ``session`` with ``events`` (that robot's own, in stamp order).
 
     Parameters
@@ -161,64 +151,79 @@ class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
         """Network counters: ``received``, ``rejected`` (with ``reasons``), ``sent``, ``lost``/``duplicated``/
         ``delayed`` (injected), ``no_reply``, ``server_answers``, ``beliefs_published``..."""
         self.reasons: Counter[str] = Counter()
-        self._intake = self._inq = Intake(self.roster | {SERVER}, signed=auth is not None, team_size=len(self.roster),
-                                          vouch=None if auth is None else vouch_for(auth))  # fmt: skip
-        """Everything received, as ``(kind, sample)``, within its budgets (:mod:`.intake`), handled on the node's one
-        thread (:mod:`.inbound`)."""
+        intake = Intake(self.roster | {SERVER}, signed=auth is not None, team_size=len(self.roster),
+                        vouch=None if auth is None else vouch_for(auth))  # fmt: skip
         self._stop = threading.Event()
-        self._i = 0  # the index of the next input in ``items``
         self._last_status = 0.0
+        self._wait_note = math.inf  # when to say next that the node waits for its live inputs (monotonic)
+        self._waiting_since = 0.0  # since when it waits (monotonic)
+        self.inputs = Inputs(events, node.t0, wake=lambda: self.inbound.wake())
+        """Its own inputs, from a recording or a live feed (:class:`~.inputs.Inputs`)."""
+        if self.inputs.feed is not None:
+            self.settings = settings = replace(settings, speed=0.0)  # a live source is paced by its arrivals
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
         team_node: Any = node  # a team estimator's (diekf): its team, not declared on Node
         mates = None if not self.broadcasts else ["*"] if not getattr(node, "cluster", 0) else [
             str(m) for m in team_node.team if m != self.robot]  # fmt: skip
-        self.wiring = Wiring(session, self.scope, team, self.robot, self._inq.offer, self._env, auth=auth,
-                             mates=mates, delayed=lagging(node), lines=scans is not None,
-                             ros_domain=self.settings.ros_domain)  # fmt: skip
+        self.envelopes = Envelopes(auth, team, self.robot)
+        """What it sends, numbered in one sequence and sealed (:class:`~.outbound.Envelopes`)."""
+        seal = self.envelopes.seal
+        self.wiring = Wiring(session, self.scope, team, self.robot, intake.offer, seal, auth=auth, mates=mates,
+                             delayed=lagging(node), lines=scans is not None,
+                             ros_domain=settings.ros_domain)  # fmt: skip
         """Its Zenoh declarations, and publishing on its own keys (:class:`~.wiring.Wiring`)."""
-        self._init_lockstep()
-        self._init_outbound()
+        self.lockstep = Lockstep(node, self.robot, self.roster, settings, self.counts, next_key=self.inputs.next_key,
+                                 step=self._step, others=lambda key: self.broadcaster.unsettled(key))  # fmt: skip
+        """The teammates; when to read an input, answer a query, release an answer (:class:`~.lockstep.Lockstep`)."""
+        self.outbound = Outbound(node, self.robot, self.roster, self.scope, settings, self.counts,
+                                 wiring=self.wiring, seal=seal, intake=intake, lockstep=self.lockstep, step=self._step,
+                                 broadcast=lambda m: self.broadcaster.queue(m), link=self.link,
+                                 faults=self.faults)  # fmt: skip
+        """Sending: link faults, the outbox, its queries, timers (:class:`~.outbound.Outbound`)."""
+        self.broadcaster: Broadcaster = Broadcaster(
+            node, self.robot, self.counts, active=self.broadcasts, wiring=self.wiring, seal=seal,
+            outbound=self.outbound, lockstep=self.lockstep, step=self._step,
+            reject=lambda reason, where: self.inbound.reject(reason, where), next_group=self.inputs.next_group,
+            delay=self.faults.delay if self.faults else 0.0)  # fmt: skip
+        """A team estimator's broadcasts (:class:`~.broadcast.Broadcaster`)."""
+        self.inbound: Inbound = Inbound(
+            self.robot, team, self.roster, auth, self.counts, self.reasons, intake=intake, stop=self._stop,
+            lockstep=self.lockstep, outbound=self.outbound, broadcaster=self.broadcaster, step=self._step,
+            flush=self._flush)  # fmt: skip
+        """What it receives: its queue, decoded and handled (:class:`~.inbound.Inbound`)."""
         times = np.asarray(record_times, dtype=float)
-        self.publishing = Publishing(node, self.robot, self.counts, self.wiring.put, times, unsettled=self._unsettled,
-                                     ros=self.wiring.put_ros, scans=scans, on_belief=on_belief, on_lines=on_lines,
-                                     on_settled=on_settled)  # fmt: skip
+        self.publishing = Publishing(node, self.robot, self.counts, self.wiring.put, times,
+                                     unsettled=self.lockstep.unsettled, ros=self.wiring.put_ros, scans=scans,
+                                     on_belief=on_belief, on_lines=on_lines, on_settled=on_settled)  # fmt: skip
         """Its beliefs, delayed output and scans' lines, published (:class:`~.publishing.Publishing`)."""
-        self._init_feed(events)
-        self.announcer = Announcer(self.robot, self.settings.lag, self.wiring.put, self._next_key)
+        self.announcer = Announcer(self.robot, settings.lag, self.wiring.put, self.inputs.next_key)
         """Its progress, announced (:class:`~.publishing.Announcer`)."""
-        self._init_broadcast()
 
-    def _init_feed(self, events: Sequence[Event] | LiveFeed) -> None:
-        """``items`` from a recording, or an empty list that a live feed fills (:meth:`_pull`)."""
-        self.feed = events if isinstance(events, LiveFeed) else None
-        """A live source (:mod:`swarmloc.net.feed`): ``items`` grows as it releases inputs; None: a recording."""
-        self.items = _groups(events) if not isinstance(events, LiveFeed) else []
-        self._feed_w = -math.inf  # the feed's watermark at the last take: every input not yet taken is at or after it
-        self._feed_hi = -math.inf  # the latest time an input taken is known at (odometry: its end)
-        if self.feed is not None:
-            if self.node.t0 is None:
-                raise ValueError("NetNode: with a live feed, start the node first (node.start(t0))")
-            self._feed_w = float(self.node.t0)
-            self.settings = replace(self.settings, speed=0.0)  # a live source is paced by its arrivals
-            self.feed.on_push = lambda: self._inq.put(("wake", None))
-        self._wait_note = math.inf  # when to say next that the node waits for its live inputs (monotonic)
-        self._waiting_since = 0.0  # since when it waits (monotonic)
+    def _step(self, item: Any, query: Any = None) -> None:
+        """Step the node with ``item`` (answering the Zenoh ``query`` with it if given) and send what it returns.
+        A message stamped past the node's present moves it: the beliefs that become final are published first,
+        before the history's pruning can drop what they are computed from (as before a source input)."""
+        stamp, now = getattr(item, "stamp", None), self.node.present
+        if isinstance(stamp, int | float) and now < stamp <= now + self.node.tolerance:  # past it: refused (future)
+            self.publishing.due(upto=stamp)
+        out = self.node.step(item)
+        if out or query is not None:
+            self.outbound.route(out, query, item)
+        if not self.inbound.draining:  # within a drain, what the batch pushes goes out once at its end (Inbound.drain)
+            self._flush()
 
-    def _next_key(self) -> tuple[float, int]:
-        """``(stamp, priority)`` of the node's next input (a detection group 1, odometry 2; ``(inf, 3)``: none left).
-        With a live feed and nothing read yet, a lower bound of it: ``(watermark, 1)``."""
-        if self._i >= len(self.items):
-            if self.feed is not None and not self.feed.exhausted:
-                return (self._feed_w, 1)
-            return (math.inf, 3)
-        s, item = self.items[self._i]
-        return (s, 2 if isinstance(item, Odometry) else 1)
+    def _flush(self, force: bool = False) -> None:
+        """Send what the node pushed: a team estimator's broadcasts (:meth:`~.broadcast.Broadcaster.flush`), then the
+        outbox (:meth:`~.outbound.Outbound.flush`)."""
+        if self.broadcasts:  # only a team estimator's node broadcasts (and announces heads)
+            self.broadcaster.flush(force)
+        self.outbound.flush(force)
 
     def stop(self) -> None:
         """Ask :meth:`run` to finish (from another thread or a signal handler)."""
         self._stop.set()
-        self._inq.put(("wake", None))
+        self.inbound.wake()
 
     def run(self, max_wall: float | None = None) -> Report:
         """Run until the source is exhausted and the team settled (or :meth:`stop`, or ``max_wall`` s)."""
@@ -226,7 +231,7 @@ class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
         deadline = math.inf if max_wall is None else time.monotonic() + max_wall
         self.wiring.open()
         try:
-            self.announcer.announce(self.items[0][0] if self.items else math.inf, force=True)
+            self.announcer.announce(self.inputs.items[0][0] if self.inputs.items else math.inf, force=True)
             self._wait_start(deadline)
             self._main(deadline)
             if not self._stop.is_set():
@@ -236,8 +241,8 @@ class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
             try:
                 done = Progress(robot=self.robot, t=math.inf, done=True)
                 self.wiring.put("progress", done)
-                key = robot_key(self.scope, self.robot, "report")
-                self.session.put(key, self._env(report, key), congestion_control=self.wiring.block)
+                key = self.wiring.key("report")
+                self.session.put(key, self.envelopes.seal(report, key), congestion_control=self.wiring.block)
                 time.sleep(0.2)  # let Zenoh flush the report before the session closes
             except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
                 log.debug("robot %s: final report not sent: %s", self.robot, exc)
@@ -252,8 +257,9 @@ class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
         end, note = min(t0 + wait, deadline), t0 + 2.0
 
         def missing() -> str:
-            who = [f"robots {sorted(self.wait_for - self._alive)}"] if not self.wait_for <= self._alive else []
-            return " and ".join(who + (["the belief server"] if server and not self._server_up else []))
+            alive = self.lockstep.alive
+            who = [f"robots {sorted(self.wait_for - alive)}"] if not self.wait_for <= alive else []
+            return " and ".join(who + (["the belief server"] if server and not self.lockstep.server_up else []))
 
         if missing():
             log.info("robot %s: waiting up to %.0f s for %s to be alive", self.robot, wait, missing())
@@ -262,61 +268,61 @@ class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
                 note += 5.0
                 log.warning("robot %s: still waiting for %s to be alive (%.0f s left)", self.robot, missing(),
                             end - time.monotonic())  # fmt: skip
-            self._drain(0.05)
+            self.inbound.drain(0.05)
             self.announcer.announce(self.announcer.last, force=True)
         if missing():
             log.warning("robot %s: starting without %s (not alive after %.1f s)", self.robot, missing(),
                         time.monotonic() - t0)  # fmt: skip
 
     def _main(self, deadline: float) -> None:
-        items, i = self.items, 0
+        inputs = self.inputs
+        items, feed = inputs.items, inputs.feed
         t_start = items[0][0] if items else 0.0
         w0 = time.monotonic()
         while not self._stop.is_set():
-            if self.feed is not None:
+            if feed is not None:
                 self._pull()
-            if i >= len(items) and (self.feed is None or self.feed.exhausted):
+            if inputs.i >= len(items) and (feed is None or feed.exhausted):
                 break
             if time.monotonic() > deadline:
-                log.warning("robot %s: wall-time limit reached at %d/%d inputs", self.robot, i, len(items))
+                log.warning("robot %s: wall-time limit reached at %d/%d inputs", self.robot, inputs.i, len(items))
                 self._stop.set()
                 break
-            self._drain(0)
-            self._answer_ready()
-            self._release()
+            self.inbound.drain(0)
+            self.lockstep.answer_ready()
+            self.lockstep.release()
             self._flush()
             self.publishing.settled()
             self._status()
-            wait = self._run_timers()
-            if i >= len(items):  # a live feed with nothing released yet: tell the team how far it is, wait
-                self._say_waiting(i)
-                self.announcer.announce(self._feed_w)
-                self._drain(min(wait, 0.02))
+            wait = self.outbound.run_timers()
+            if inputs.i >= len(items):  # a live feed with nothing released yet: tell the team how far it is, wait
+                self._say_waiting(inputs.i)
+                self.announcer.announce(inputs.w)
+                self.inbound.drain(min(wait, 0.02))
                 continue
             self._wait_note = math.inf
-            s, item = items[i]
+            s, item = items[inputs.i]
             if self.settings.speed > 0:
                 due = w0 + (s - t_start) / self.settings.speed - time.monotonic()
                 if due > 0:
                     self.announcer.announce(self.announcer.last)  # every 0.2 s: a paced node is not silent
-                    self._drain(min(due, wait, 0.05))
+                    self.inbound.drain(min(due, wait, 0.05))
                     continue
-            if not self._may_feed(s) or (isinstance(item, list) and not self._group_may_go(s)):
-                self._check_lost(s)
+            if not self.lockstep.may_feed(s) or (isinstance(item, list) and not self.lockstep.group_may_go(s)):
+                self.lockstep.check_lost(s)
                 self.announcer.announce(s, force=True)
-                self._drain(min(wait, 0.02))
+                self.inbound.drain(min(wait, 0.02))
                 continue
             if self.publishing.behind(s):
                 self.publishing.due(upto=s)
             self._step(item)
-            i += 1
-            self._i = i
-            self._answer_ready()
-            nxt = items[i][0] if i < len(items) else self._feed_w if self.feed is not None else math.inf
-            self.announcer.announce(nxt)
+            inputs.i += 1
+            self.lockstep.answer_ready()
+            i = inputs.i
+            self.announcer.announce(items[i][0] if i < len(items) else inputs.w if feed is not None else math.inf)
             self.publishing.due()
-        self._i = len(items)
-        self._answer_ready()
+        inputs.i = len(items)
+        self.lockstep.answer_ready()
         self.announcer.announce(math.inf, force=True)
 
     def _say_waiting(self, taken: int) -> None:
@@ -329,70 +335,53 @@ class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
         if now < self._wait_note:
             return
         self._wait_note = now + WAIT_NOTE_EVERY
-        missing = sorted(self.wait_for - self._alive)
-        assert self.feed is not None  # a live node's
+        missing = sorted(self.wait_for - self.lockstep.alive)
+        assert self.inputs.feed is not None  # a live node's
         log.warning("robot %s: waiting %.0f s for its inputs on %s (%d taken so far; teammates alive %s%s)", self.robot,
-                    now - self._waiting_since, self.feed.listens_on or "its live source", taken, sorted(self._alive),
+                    now - self._waiting_since, self.inputs.feed.listens_on or "its live source", taken,
+                    sorted(self.lockstep.alive),
                     f", not alive {missing}" if missing else "")  # fmt: skip
 
     def _pull(self) -> None:
-        """Take what the live feed released: append it to ``items`` (grouped), extend the record times."""
-        assert self.feed is not None  # a live node's
-        new, w = self.feed.take()
-        self._feed_w = max(self._feed_w, w)
-        if new:
-            base, groups = len(self.items), _groups(new)
-            self.items.extend(groups)
-            self._group_at.extend(base + k for k, (_, item) in enumerate(groups) if isinstance(item, list))
-            for e in new:
-                self._feed_hi = max(self._feed_hi, float(e.t))
-        rate = self.settings.record_rate
-        if rate is not None:  # record times up to the latest input, or the watermark (time went on) ...
-            rt, t0 = (
-                self.publishing.record_times,
-                self.node.t0,
-            )  # ... but not more than the feed's max_ahead past the input
-            assert t0 is not None  # a live node is started before it runs (_init_feed)
-            w = self._feed_w if math.isfinite(self._feed_w) else -math.inf  # inf: the stream ended
-            hi = max(self._feed_hi, min(w, max(self._feed_hi, t0) + self.feed.max_ahead))
-            k0 = rt.size
-            k1 = math.floor((hi - t0) * rate + 1e-9) + 1
-            if k1 > k0:
-                self.publishing.extend(t0 + np.arange(k0, k1) / rate)
+        """Take what the live feed released (:meth:`~.inputs.Inputs.pull`); with ``record_rate``, add the record
+        times up to the time its inputs are known to (:meth:`~.publishing.Publishing.record_until`)."""
+        t0 = self.node.t0
+        assert t0 is not None  # a live node is started before it runs (Inputs)
+        known = self.inputs.pull(t0)
+        if self.settings.record_rate is not None:
+            self.publishing.record_until(known, t0, self.settings.record_rate)
 
     def _status(self) -> None:
         now = time.monotonic()
         if now - self._last_status > 2.0:
             self._last_status = now
             log.info("robot %s: %d/%d inputs, present %.2f, pending %d, deferred %d, expecting %d, outstanding %d; "
-                     "node %s; net %s", self.robot, self._i, len(self.items), self.node.present, self.node.pending,
-                     len(self._deferred), len(self._expect), len(self._outstanding),
+                     "node %s; net %s", self.robot, self.inputs.i, len(self.inputs.items), self.node.present,
+                     self.node.pending,
+                     len(self.lockstep.deferred), len(self.lockstep.expect), len(self.outbound.outstanding),
                      {k: v for k, v in self.node.stats().items() if v}, dict(self.counts))  # fmt: skip
 
     def _idle(self) -> bool:
-        return not (
-            self._outstanding or self._timers or self._deferred or self._expect or self._held or self._outbox
-            or self._broadcast_busy()
-        )  # fmt: skip
+        return not (self.outbound.busy() or self.lockstep.busy() or self.broadcaster.busy())
 
     def _finish(self, deadline: float) -> None:
         """Wait for the team to finish its sources (a teammate that goes silent is lost after ``lost_timeout`` s) and
         the traffic to settle (at most ``linger`` s once they have), then publish the final beliefs."""
         quiet_since, all_read_since = time.monotonic(), math.inf
         while not self._stop.is_set() and time.monotonic() < deadline:
-            got = self._drain(0.02)
-            self._answer_ready()
-            self._release()
+            got = self.inbound.drain(0.02)
+            self.lockstep.answer_ready()
+            self.lockstep.release()
             self._flush()
             self._status()
-            self._run_timers()
+            self.outbound.run_timers()
             if time.monotonic() - self.announcer.last_wall > 0.2:
                 self.announcer.announce(math.inf, force=True)
             if got or not self._idle():
                 quiet_since = time.monotonic()
-            all_read = all(self._progress.get(r, -math.inf) == math.inf or r in self._done for r in self._alive)
+            all_read = self.lockstep.all_read()
             if not all_read:
-                self._check_lost(math.inf)
+                self.lockstep.check_lost(math.inf)
             now = time.monotonic()
             all_read_since = min(all_read_since, now) if all_read else math.inf
             if all_read and now - quiet_since >= self.settings.quiet:
@@ -402,7 +391,7 @@ class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
                 log.warning("robot %s: traffic still not settled %.0f s after the team read its sources; finishing",
                             self.robot, self.settings.linger)  # fmt: skip
                 break
-        self._route(self.node.expire())
+        self.outbound.route(self.node.expire())
         self._flush(force=True)
         self.publishing.due(end=True)
         self.publishing.settled(end=True)
@@ -410,25 +399,26 @@ class NetNode(Inbound, Lockstep, Outbound, Broadcasting):
         t_end = time.monotonic() + self.settings.linger
         quiet_since = time.monotonic()
         while not self._stop.is_set() and time.monotonic() < min(t_end, deadline):
-            got = self._drain(0.02)
-            self._run_timers()
+            got = self.inbound.drain(0.02)
+            self.outbound.run_timers()
             self._flush()
             if got:
-                self._route(self.node.expire())
+                self.outbound.route(self.node.expire())
                 self.publishing.republish_changed()
                 quiet_since = time.monotonic()
             if time.monotonic() - self.announcer.last_wall > 0.2:
                 self.announcer.announce(math.inf, done=True, force=True)
-            if self._alive <= self._done and self._idle() and time.monotonic() - quiet_since >= self.settings.quiet:
+            settled = self.lockstep.alive <= self.lockstep.done and self._idle()
+            if settled and time.monotonic() - quiet_since >= self.settings.quiet:
                 break
 
     def report(self, wall: float = 0.0, cpu: float = 0.0) -> Report:
-        self._intake.fold(self.counts, self.reasons)
-        net = dict(self.counts, teammates_seen=len(self._seen))
+        self.inbound.intake.fold(self.counts, self.reasons)
+        net = dict(self.counts, teammates_seen=len(self.lockstep.seen))
         if self.auth is not None:  # the per-pair sessions' counters (handshakes, renewals, twins)
             net.update(self.auth.session_counts())
-        if self.feed is not None:  # a live source: what its inputs brought, and what was refused (by reason)
-            net.update(self.feed.summary())
+        if self.inputs.feed is not None:  # a live source: what its inputs brought, and what was refused (by reason)
+            net.update(self.inputs.feed.summary())
         if self.link is not None:
             net.update(injected_lost=self.link.lost, injected_dup=self.link.duplicated)
         return Report(

@@ -39,7 +39,7 @@ from swarmloc.node import Node
 
 Put = Callable[[str, Any], None]
 """``put(kind, message)``: sign and publish ``message`` on the robot's ``kind`` key (``belief``, ``progress``,
-``delayed``, ``lines``): the node's wiring (:meth:`~swarmloc.net.process.NetNode._put`)."""
+``delayed``, ``lines``): the node's wiring (:meth:`~.wiring.Wiring.put`)."""
 
 
 def lagging(node: Node) -> bool:
@@ -50,7 +50,7 @@ def lagging(node: Node) -> bool:
 class Announcer:
     """Part of :class:`~swarmloc.net.process.NetNode`: announcing its progress, the key of its next input, which
     its teammates' lockstep waits on (rate-limited). ``next_key``: ``(stamp, priority)`` of the node's next input
-    (:meth:`~swarmloc.net.process.NetNode._next_key`); ``lag``: [s] the lockstep slack."""
+    (:meth:`~swarmloc.net.inputs.Inputs.next_key`); ``lag``: [s] the lockstep slack."""
 
     def __init__(self, robot: int, lag: float, put: Put, next_key: Callable[[], tuple[float, int]]) -> None:
         self.robot, self.lag, self.put, self.next_key = robot, lag, put, next_key
@@ -80,7 +80,7 @@ class Publishing:
     at its record times, its delayed output and its scans' lines (see the module docstring).
 
     ``put``: publishes a message (:data:`Put`); ``ros``: ``ros(t, belief)`` publishes a belief on ROS too (None:
-    not); ``unsettled``: what may still change the state at a key (:meth:`~.lockstep.Lockstep._unsettled`), for
+    not); ``unsettled``: what may still change the state at a key (:meth:`~.lockstep.Lockstep.unsettled`), for
     ``on_settled``; ``counts``: the node's network counters (``beliefs_published``...); ``record_times``,
     ``scans``, ``on_belief``, ``on_lines``, ``on_settled``: the node's (:class:`~swarmloc.net.process.NetNode`)."""
 
@@ -122,6 +122,13 @@ class Publishing:
     def extend(self, times: FloatArray) -> None:
         """Append record times (after the last)."""
         self.record_times = np.concatenate([self.record_times, times])
+
+    def record_until(self, hi: float, t0: float, rate: float) -> None:
+        """Append the record times every ``1 / rate`` s [Hz] from ``t0`` [s] up to ``hi`` [s] (a live node's)."""
+        k0 = self.record_times.size
+        k1 = math.floor((hi - t0) * rate + 1e-9) + 1
+        if k1 > k0:
+            self.extend(t0 + np.arange(k0, k1) / rate)
 
     def behind(self, s: float) -> bool:
         """Whether a final belief is due before an input stamped ``s`` is applied (its pruning could drop it)."""
@@ -198,7 +205,7 @@ class Publishing:
 
     def settled(self, end: bool = False) -> None:
         """Hand ``on_settled`` the belief at each record time, in order, once it is settled: the node's own source
-        has passed it, and :meth:`~.lockstep.Lockstep._unsettled` finds nothing keyed at or before it that the team
+        has passed it, and :meth:`~.lockstep.Lockstep.unsettled` finds nothing keyed at or before it that the team
         may still read or apply (teammates' progress and broadcasts, updates expected, own groups waiting). Without
         faults the belief is then final; at the end (``end``) every record time left is handed over as it stands."""
         if self.on_settled is None:

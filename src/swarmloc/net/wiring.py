@@ -1,14 +1,13 @@
 """The Zenoh side of a :class:`~swarmloc.net.process.NetNode`: what it declares on its session, and undeclares.
 
-Everything received is put on the node's one queue (``_inq``, within its budgets: :mod:`swarmloc.net.intake`) as
-``(kind, sample)`` and handled on the node's thread (:mod:`swarmloc.net.inbound`): queries on
-``robot/<id>/query``, pushed messages on ``robot/<id>/inbox``, every teammate's ``progress``, and liveliness
-changes under ``alive``. It publishes its ``belief`` and
+Everything received is put on the node's one queue (``inbound.intake``, within its budgets:
+:mod:`swarmloc.net.intake`) as ``(kind, sample)`` and handled on the node's thread (:mod:`swarmloc.net.inbound`):
+queries on ``robot/<id>/query``, pushed messages on ``robot/<id>/inbox``, every teammate's ``progress``, and
+liveliness changes under ``alive``. It publishes its ``belief`` and
 ``progress`` (a smoother's ``delayed`` output too; and, with ``ros_domain``, a ROS 2 pose topic in rmw_zenoh's
 layout, with the node's and the publisher's rmw_zenoh liveliness tokens: :mod:`swarmloc.net.rosgraph`), and holds
 its liveliness token. With ``auth`` it first answers the per-pair handshake, and makes a session with every member
-up before it declares its token (:mod:`swarmloc.net.pairing`).
-"""
+up before it declares its token (:mod:`swarmloc.net.pairing`)."""
 
 from __future__ import annotations
 
@@ -30,7 +29,7 @@ class Wiring:
 
     ``offer``: takes ``(kind, sample)`` of everything received, within the node's budgets (its
     :class:`~swarmloc.net.intake.Intake`); ``env``: ``env(body, key)``, the signed envelope of a message
-    (:meth:`~.outbound.Outbound._env`); ``auth``: the per-pair sessions to attach (None: unauthenticated);
+    (:meth:`~.outbound.Envelopes.seal`); ``auth``: the per-pair sessions to attach (None: unauthenticated);
     ``mates``: the teammates whose broadcasts it hears (``["*"]``: all; None: a node without broadcasts);
     ``delayed``, ``lines``: whether it publishes a smoother's delayed output and scans' lines; ``ros_domain``: the
     ROS domain its beliefs are published in too (None: not)."""
@@ -123,9 +122,21 @@ class Wiring:
         )
         self._ros_graph.publisher(self.ros_topic, ros.DDS_TYPE_NAME, ros.type_hash())
 
+    def key(self, kind: str) -> str:
+        """This robot's ``kind`` key (``belief``, ``progress``, ``broadcast``...)."""
+        return robot_key(self.scope, self.robot, kind)
+
     def put(self, kind: str, body: Any) -> None:
         """Sign ``body`` and publish it on this robot's ``kind`` key (one of :data:`PUBLISHED`)."""
-        self.pub[kind].put(self.env(body, robot_key(self.scope, self.robot, kind)))
+        self.pub[kind].put(self.env(body, self.key(kind)))
+
+    def publisher(self, kind: str) -> Any:
+        """The publisher of this robot's ``kind`` key: one of :data:`PUBLISHED` once opened, another (a team
+        estimator's ``broadcast``) declared on first use."""
+        if self.pub.get(kind) is None:
+            self.pub[kind] = self.session.declare_publisher(self.key(kind), congestion_control=self.block)
+            self.decl.append(self.pub[kind])
+        return self.pub[kind]
 
     def put_ros(self, t: Any, b: Any) -> None:
         """Publish belief ``b`` (a group Gaussian) at time ``t`` on the ROS pose topic, if there is one."""
