@@ -25,25 +25,27 @@ unobservable rigid motion (the world-frame ``diekf`` does not).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE
-from swarmloc.events import Kind
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.events import Detection, Kind
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.lie import SE2, SE3
-from swarmloc.messages import Message
-from swarmloc.node import FUSED, Group, Node, Outcome, TeamNode, belief_of, gated_kalman
+from swarmloc.motion import UnicycleNoise
+from swarmloc.motion.twist3 import TwistNoise
+from swarmloc.node import FUSED, Group, Outcome, TeamNode, gated_kalman
+from swarmloc.node.team import JointForm
 from swarmloc.sensors.models import model
 
 
 class TeamState(NamedTuple):
-    """Joint state ``X (3n,)``, covariance ``P (3n, 3n)``, each robot's time [s] and command ``(v, w)``, and each
-    robot's predictions not yet applied to ``P`` (``pend``).
+    """Joint state ``X (3n,)``, covariance ``P (3n, 3n)``, each robot's time [s] and command ``(v, w)``, each
+    robot's predictions not yet applied to ``P`` (``pend``), and, for first-estimates Jacobians (``fej``), each
+    robot's first estimate at its clock ``L (3n,)`` (None for the other forms).
 
     A prediction of robot ``k`` is ``P <- Phi P Phi^T + Q`` on its rows and columns, with ``Phi`` the identity but for
     ``(0, 2) = -dy`` and ``(1, 2) = dx``. Such ``Phi`` compose by adding those two entries, so successive predictions
@@ -56,9 +58,10 @@ class TeamState(NamedTuple):
     t: tuple[float, ...]
     cmd: tuple[tuple[float, float], ...]
     pend: tuple[tuple[float, ...] | None, ...]
+    L: np.ndarray | None = None
 
 
-def shear_upper(q: tuple[float, ...], dx: float, dy: float) -> tuple[float, ...]:
+def shear_upper(q: Sequence[float], dx: float, dy: float) -> tuple[float, ...]:
     """``Phi Q Phi^T`` for symmetric ``Q`` given by its upper triangle ``(q00, q01, q02, q11, q12, q22)``."""
     q00, q01, q02, q11, q12, q22 = q
     a02, a12 = q02 - dy * q22, q12 + dx * q22
@@ -77,7 +80,9 @@ def compose_pending(old: tuple[float, ...] | None, dx: float, dy: float, q: Sequ
     return (old[0] - dy, old[1] + dx, *(u + w_ for u, w_ in zip(shared, q, strict=True)))
 
 
-def clock_and_pending(s: Any, k: int, t: float, pend_k: tuple) -> tuple[tuple, tuple, tuple]:
+def clock_and_pending(
+    s: TeamState, k: int, t: float, pend_k: tuple[float, ...]
+) -> tuple[tuple[float, ...], tuple[tuple[float, float], ...], tuple[tuple[float, ...] | None, ...]]:
     """``(t, cmd, pend)`` of a team state with robot ``k``'s clock at ``t`` and its pending prediction ``pend_k``."""
     times = list(s.t)
     times[k] = t
@@ -103,7 +108,61 @@ def flush_pending(s: TeamState) -> TeamState:
         P[:, i] += a * col
         P[:, i + 1] += b * col
         P[i : i + 3, i : i + 3] += np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
-    return TeamState(s.X, P, s.t, s.cmd, (None,) * len(s.pend))
+    return TeamState(s.X, P, s.t, s.cmd, (None,) * len(s.pend), s.L)
+
+
+def team_state(node: TeamNode, t0: float) -> TeamState:
+    """The SE(2) team's Cartesian state at ``t0`` [s] from every robot's initial belief."""
+    n = 3 * len(node.robots)
+    X, P = np.zeros(n), np.zeros((n, n))
+    for r, b in node.initial.items():
+        i = node._idx[r]
+        X[i : i + 3], P[i : i + 3, i : i + 3] = C.from_group(b.mean, b.cov)
+    n_r = len(node.robots)
+    return TeamState(X, P, (t0,) * n_r, ((0.0, 0.0),) * n_r, (None,) * n_r)
+
+
+def planar_noise(node: TeamNode) -> UnicycleNoise:
+    """The odometry noise of an SE(2) team (:func:`~swarmloc.node.robot.check_model` checked it)."""
+    if not isinstance(node.noise, UnicycleNoise):
+        raise TypeError(f"{node.name}: an SE(2) team's noise is a UnicycleNoise, not {type(node.noise).__name__}")
+    return node.noise
+
+
+def increment(node: TeamNode, s: TeamState, robot: int, t: float) -> tuple[int, int, tuple[float, ...]] | None:
+    """``(k, i, terms)`` of predicting ``robot`` (block ``k``, first row ``i``) to ``t`` [s]:
+    :func:`~swarmloc.kernels.cartesian.increment_terms` with its command; None when ``t`` is not later."""
+    k = node._idx[robot] // 3
+    dt = t - s.t[k]
+    if dt <= 0:
+        return None
+    i = 3 * k
+    v, w = s.cmd[k]
+    return k, i, C.increment_terms(s.X[i : i + 3], v, w, dt, planar_noise(node))
+
+
+def log_shear(node: TeamNode, t: float, robot: int, dx: float, dy: float) -> None:
+    """Record a prediction's transition ``Phi`` (the shear by ``(dx, dy)``) when the linearization log is on."""
+    if node.lin_log is not None:
+        node.lin_log.append(("predict", t, robot, np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])))
+
+
+def cartesian_belief(s: TeamState, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """The marginal of the robot whose block starts at ``i``, its pending predictions applied, as a
+    right-perturbation belief ``(mean, cov)``."""
+    P = s.P[i : i + 3, i : i + 3]
+    pd = s.pend[i // 3]
+    if pd is not None:
+        q = shear_upper((P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]), pd[1], -pd[0])
+        q00, q01, q02, q11, q12, q22 = (u + w for u, w in zip(q, pd[2:], strict=True))
+        P = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+    return C.to_group(s.X[i : i + 3], P)
+
+
+def team_joint(s: TeamState) -> tuple[np.ndarray, np.ndarray]:
+    """``X (3n,)`` and ``P (3n, 3n)`` of ``s`` with its pending predictions applied (copies)."""
+    s = flush_pending(s)
+    return s.X.copy(), s.P.copy()
 
 
 class Team3State(NamedTuple):
@@ -119,55 +178,41 @@ class Team3State(NamedTuple):
 
 class TeamForm:
     """The joint Cartesian state of an SE(2) team (:class:`TeamState`: ``(x, y, theta)`` per robot, predictions kept
-    pending) and the planar models (:mod:`swarmloc.sensors.models`); its steps take the node for its blocks
-    (``_idx``), noise, gate and linearization log."""
+    pending) and the planar models (:mod:`swarmloc.sensors.models`): :class:`~swarmloc.node.team.JointForm`."""
 
-    group: type = SE2
     dim = 3
-    runs = True
-    """Whether a run of odometry has a float loop per robot (:meth:`advance_commands`)."""
 
-    def initial(self, node: Any, t0: float) -> Any:
-        """The team's state at ``t0`` [s] from every robot's initial belief."""
-        n = 3 * len(node.robots)
-        X, P = np.zeros(n), np.zeros((n, n))
-        for r, b in node.initial.items():
-            i = node._idx[r]
-            X[i : i + 3], P[i : i + 3, i : i + 3] = C.from_group(b.mean, b.cov)
-        n_r = len(node.robots)
-        return TeamState(X, P, (t0,) * n_r, ((0.0, 0.0),) * n_r, (None,) * n_r)
+    initial = staticmethod(team_state)
+    belief = staticmethod(cartesian_belief)
+    joint = staticmethod(team_joint)
 
-    def advance(self, node: Any, s: Any, robot: int, t: float) -> Any:
-        """``s`` with ``robot`` predicted to ``t`` [s] (unchanged when ``t`` is not later)."""
-        step = node._increment(s, robot, t)
+    def advance(self, node: TeamNode, s: TeamState, robot: int, t: float) -> TeamState:
+        step = increment(node, s, robot, t)
         if step is None:
             return s
         k, i, (x0, y0, th, dx, dy, *q) = step
         X = s.X.copy()
         X[i], X[i + 1], X[i + 2] = x0, y0, th
-        node._log_shear(t, robot, dx, dy)
+        log_shear(node, t, robot, dx, dy)
         return TeamState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)))
 
-    def set_command(self, node: Any, s: Any, robot: int, v: Any, w: Any) -> Any:
-        """``s`` with ``robot``'s command ``(v, w)``."""
-        cmd = list(s.cmd)
-        cmd[node._idx[robot] // self.dim] = (v, w)
-        return s._replace(cmd=tuple(cmd))
-
-    def advance_commands(self, node: Any, s: Any, cmds: Any) -> Any:
+    def advance_commands(
+        self, node: TeamNode, s: TeamState, cmds: Sequence[tuple[float, int, float, float]]
+    ) -> TeamState:
         """A run of odometry, each robot in one float loop (:func:`swarmloc.kernels.cartesian.predict_run`: the same
         bits as one :meth:`advance` per command, its pending ``(a, b, Q)`` composed as there)."""
         per: dict[int, list[tuple[float, float, float]]] = {}
         for t, robot, v, w in cmds:
             per.setdefault(node._idx[robot] // 3, []).append((t, v, w))
         X = None
+        noise = planar_noise(node)
         times, cmd, pend = list(s.t), list(s.cmd), list(s.pend)
         for k, run in per.items():
             i = 3 * k
             old = pend[k]
-            q, shear = ((0.0,) * 6, (0.0, 0.0)) if old is None else (old[2:], old[:2])
+            a, b, q00, q01, q02, q11, q12, q22 = (0.0,) * 8 if old is None else old
             x, q, t, cmd[k], shear = C.predict_run(
-                tuple(s.X[i : i + 3].tolist()), q, times[k], cmd[k], shear, run, node.noise
+                tuple(s.X[i : i + 3].tolist()), (q00, q01, q02, q11, q12, q22), times[k], cmd[k], (a, b), run, noise
             )
             if t != times[k]:
                 if X is None:
@@ -177,25 +222,9 @@ class TeamForm:
                 pend[k] = (*shear, *q)
         return TeamState(s.X if X is None else X, s.P, tuple(times), tuple(cmd), tuple(pend))
 
-    def belief(self, node: Any, s: Any, robot: int) -> tuple[np.ndarray, np.ndarray]:
-        """``robot``'s marginal as a right-perturbation belief ``(mean, cov)``."""
-        i = node._idx[robot]
-        P = s.P[i : i + 3, i : i + 3]
-        pd = s.pend[i // 3]
-        if pd is not None:  # the robot's marginal with its pending predictions
-            q = shear_upper((P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]), pd[1], -pd[0])
-            q00, q01, q02, q11, q12, q22 = (u + w for u, w in zip(q, pd[2:], strict=True))
-            P = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
-        return C.to_group(s.X[i : i + 3], P)
-
-    def joint(self, s: Any) -> tuple[np.ndarray, np.ndarray]:
-        """The joint mean (here ``X (3n,)``) and covariance of ``s``."""
-        s = flush_pending(s)
-        return s.X.copy(), s.P.copy()
-
-    def fuse(self, node: Any, s: Any, g: Group, d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
-        """One detection ``d`` of the classified ``target`` of group ``g``: the state after it (the detected robot
-        predicted to the stamp) and its outcome."""
+    def fuse(
+        self, node: TeamNode, s: TeamState, g: Group, d: Detection, target: tuple[str, Any]
+    ) -> tuple[TeamState, Outcome]:
         m = model(d.kind)
         R = m.noise(d.z, d.cov)
         i = node._idx[g.observer]
@@ -215,6 +244,7 @@ class TeamForm:
             if m.degenerate(xi, xk):
                 return s, ("rejected", DEGENERATE)
             h, Hi, Hk = m.predict(xi, xk)
+            assert Hk is not None  # noqa: S101  (a relative model: a Jacobian for the target)
             if Ck is None:
                 H, cols = np.hstack([Hi, Hk]), np.r_[own, k : k + 3]
             else:
@@ -234,15 +264,13 @@ class TeamForm:
         return TeamState(*res, sf.t, sf.cmd, sf.pend), FUSED
 
 
-class TeamForm3(TeamForm):
+class TeamForm3:
     """The joint state of an SE(3) team (:class:`Team3State`, module docstring) and the models of
-    :mod:`swarmloc.sensors.models3` (:mod:`swarmloc.kernels.cartesian3`)."""
+    :mod:`swarmloc.sensors.models3` (:mod:`swarmloc.kernels.cartesian3`): :class:`~swarmloc.node.team.JointForm`."""
 
-    group = SE3
     dim = 6
-    runs = False
 
-    def initial(self, node: Any, t0: float) -> Any:
+    def initial(self, node: TeamNode, t0: float) -> Team3State:
         n = len(node.robots)
         p, R, P = np.zeros((n, 3)), np.zeros((n, 3, 3)), np.zeros((6 * n, 6 * n))
         for r, b in node.initial.items():
@@ -250,13 +278,15 @@ class TeamForm3(TeamForm):
             p[k], R[k], P[6 * k : 6 * k + 6, 6 * k : 6 * k + 6] = C3.to_error(np.asarray(b.mean), np.asarray(b.cov))
         return Team3State(p, R, P, (t0,) * n, ((0.0, 0.0),) * n)
 
-    def advance(self, node: Any, s: Any, robot: int, t: float) -> Any:
+    def advance(self, node: TeamNode, s: Team3State, robot: int, t: float) -> Team3State:
         k = node._idx[robot] // 6
         dt = t - s.t[k]
         if dt <= 0:
             return s
         p, R = s.p.copy(), s.R.copy()
         v, w = s.cmd[k]
+        if not isinstance(node.noise, TwistNoise):
+            raise TypeError(f"{node.name}: an SE(3) team's noise is a TwistNoise, not {type(node.noise).__name__}")
         p[k], R[k], F, G, S = C3.step(s.p[k], s.R[k], v, w, dt, node.noise)
         i = 6 * k
         P = s.P.copy()
@@ -269,16 +299,17 @@ class TeamForm3(TeamForm):
         times[k] = t
         return Team3State(p, R, P, tuple(times), s.cmd)
 
-    def belief(self, node: Any, s: Any, robot: int) -> tuple[np.ndarray, np.ndarray]:
-        k = node._idx[robot] // 6
-        i = 6 * k
+    def belief(self, s: Team3State, i: int) -> tuple[np.ndarray, np.ndarray]:
+        k = i // 6
         return C3.to_group(s.p[k], s.R[k], s.P[i : i + 6, i : i + 6])
 
-    def joint(self, s: Any) -> tuple[np.ndarray, np.ndarray]:
+    def joint(self, s: Team3State) -> tuple[np.ndarray, np.ndarray]:
         """Every robot's pose ``(n, 4, 4)`` and the joint error covariance ``(6n, 6n)``."""
         return np.stack([C3.pose(p, R) for p, R in zip(s.p, s.R, strict=True)]), s.P.copy()
 
-    def fuse(self, node: Any, s: Any, g: Group, d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+    def fuse(
+        self, node: TeamNode, s: Team3State, g: Group, d: Detection, target: tuple[str, Any]
+    ) -> tuple[Team3State, Outcome]:
         why = C3.unsupported(d, target)
         if why is not None:
             return s, ("rejected", why)
@@ -309,7 +340,7 @@ class TeamForm3(TeamForm):
         return Team3State(p, R, P, s.t, s.cmd), FUSED
 
 
-FORMS: dict[type, TeamForm] = {SE2: TeamForm(), SE3: TeamForm3()}
+FORMS: dict[type, JointForm] = {SE2: TeamForm(), SE3: TeamForm3()}
 """The joint-state form of each group."""
 
 
@@ -322,67 +353,12 @@ class CentralizedEKF(TeamNode):
     name = "cekf"
     lazy_odometry = True
     groups: ClassVar[tuple[type, ...]] = (SE2, SE3)
+    forms = FORMS
     error_frame: ClassVar[str] = "cartesian"
-    lin_log: list | None = None
-    """Set to a list to record every applied linearization (:mod:`swarmloc.evaluation.observability`)."""
 
-    def __init__(self, initial: Mapping[int, GroupGaussian], **kw: Any) -> None:
-        first = next(iter(initial.values()), None) if isinstance(initial, Mapping) else None
-        self._form = FORMS.get(getattr(first, "group", SE2), FORMS[SE2])  # a wrong belief: TeamNode says so
-        super().__init__(initial, **kw)
-
-    @property
-    def dim(self) -> int:  # type: ignore[override]
-        """Size of one robot's block of the joint state (3: SE(2); 6: SE(3))."""
-        return self._form.dim
-
-    # ------------------------------------------------------------------------------------------------ filter
-    def _initial_state(self, t0: float) -> Any:
-        return self._form.initial(self, t0)
-
-    def _increment(self, s: Any, robot: int, t: float) -> tuple[int, int, tuple[float, ...]] | None:
-        """SE(2): ``(k, i, terms)`` of predicting ``robot`` (block ``k``, first row ``i``) to ``t``:
-        :func:`~swarmloc.kernels.cartesian.increment_terms` with its command; None when ``t`` is not later."""
-        k = self._idx[robot] // 3
-        dt = t - s.t[k]
-        if dt <= 0:
-            return None
-        i = 3 * k
-        v, w = s.cmd[k]
-        return k, i, C.increment_terms(s.X[i : i + 3], v, w, dt, self.noise)
-
-    def _advance(self, s: Any, robot: int, t: float) -> Any:
-        return self._form.advance(self, s, robot, t)
-
-    def _log_shear(self, t: float, robot: int, dx: float, dy: float) -> None:
-        """Record a prediction's transition ``Phi`` (the shear by ``(dx, dy)``) when the linearization log is on."""
-        if self.lin_log is not None:
-            self.lin_log.append(("predict", t, robot, np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])))
-
-    def _set_command(self, s: Any, robot: int, v: Any, w: Any) -> Any:
-        return self._form.set_command(self, s, robot, v, w)
-
-    def _advance_commands(self, s: Any, cmds: Any) -> Any:
-        """A run of odometry (:meth:`TeamForm.advance_commands` where the form has one; tests/test_node.py checks
-        it for every estimator)."""
-        if self.measure_time or self.lin_log is not None or not self._form.runs:  # the log records each prediction
-            return Node._advance_commands(self, s, cmds)
-        return self._form.advance_commands(self, s, cmds)
-
-    def _belief(self, s: Any, robot: int) -> GroupGaussian:
-        return belief_of(*self._form.belief(self, s, robot))
-
-    def joint_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Joint state and covariance in the filter's error coordinates (SE(2): ``(3n,)`` Cartesian, world-frame
-        errors for ``iekf``; SE(3): the poses ``(n, 4, 4)`` and the ``(6n, 6n)`` covariance of ``(dp, dtheta)``) with
-        every robot predicted to ``t`` [s] (robots in increasing id order)."""
-        at = (t, 3, 0, ())
-        s = self._history.state_before(at)
-        for r in self.robots:
-            s = self._adv(s, r, t, at)
-        return self._form.joint(s)
-
-    # ------------------------------------------------------------------------------------------------ update
-    def _fuse_group(self, s: Any, g: Group) -> tuple[Any, list[Outcome], list[Message]]:
-        s, outcomes = self._fuse_each(s, g, lambda s, d, target: self._form.fuse(self, s, g, d, target))
-        return s, outcomes, []
+    def _advance_commands(self, s: Any, cmds: Sequence[tuple[float, int, float, float]]) -> Any:
+        """A run of odometry (:meth:`TeamForm.advance_commands` on SE(2); tests/test_node.py checks it for every
+        estimator)."""
+        if isinstance(self._form, TeamForm) and not self.measure_time and self.lin_log is None:
+            return self._form.advance_commands(self, s, cmds)  # the log records each prediction: not with it
+        return super()._advance_commands(s, cmds)

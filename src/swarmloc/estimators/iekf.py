@@ -26,25 +26,33 @@ is the default recommendation there, on the evidence of the Monte Carlo runs and
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from swarmloc.estimators.cekf import CentralizedEKF, TeamState, clock_and_pending, compose_pending, flush_pending
+from swarmloc.estimators.cekf import (
+    TeamState,
+    cartesian_belief,
+    clock_and_pending,
+    compose_pending,
+    flush_pending,
+    increment,
+    log_shear,
+    team_joint,
+    team_state,
+)
 from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.events import Detection, Kind
-from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2, wrap_angle
-from swarmloc.messages import Message
-from swarmloc.node import FUSED, Group, Node, Outcome, belief_of, gated_kalman
+from swarmloc.node import FUSED, Gate, Group, Outcome, TeamNode, gated_kalman
 from swarmloc.sensors.models import model
 
-__all__ = ["FirstEstimatesEKF", "InvariantEKF", "joint_correction"]
+__all__ = ["FirstEstimatesEKF", "FirstEstimatesForm", "InvariantEKF", "InvariantForm", "joint_correction"]
 
 
 def joint_correction(
-    P: np.ndarray, starts: list[int], blocks: list[np.ndarray], r: np.ndarray, R: np.ndarray, gate: Any
+    P: np.ndarray, starts: list[int], blocks: list[np.ndarray], r: np.ndarray, R: np.ndarray, gate: Gate
 ) -> tuple[np.ndarray, np.ndarray] | Outcome:
     """The gated Kalman update (:func:`~swarmloc.node.update.gated_kalman`, Joseph form) of a joint covariance
     ``P (n, n)`` by a measurement whose Jacobian is nonzero only in the 3-column blocks starting at ``starts``
@@ -54,98 +62,87 @@ def joint_correction(
     return gated_kalman(np.zeros(P.shape[0]), P, r, np.hstack(blocks), R, gate, cols=cols, angles=())
 
 
-class _LoggedCentral(CentralizedEKF):
-    """Shared detection loop of the two filters; subclasses say where Jacobians are evaluated and how the mean is
-    corrected. ``lin_log``: set to a list to record every applied linearization (see
-    :mod:`swarmloc.evaluation.observability`)."""
+class Linearization(Protocol):
+    """Where a form evaluates its Jacobians and in which error coordinates it corrects (:func:`fuse_linearized`)."""
 
-    error_frame: ClassVar[str] = "cartesian"
-    groups: ClassVar[tuple[type, ...]] = (SE2,)
-    first_estimates: ClassVar[bool] = False
-    lin_log: list | None = None
-    _advance_commands = Node._advance_commands  # each filter predicts its own way: no Cartesian run
+    first_estimates: bool
+    """Whether the Jacobians are evaluated at :meth:`lin_point` (else at the current estimates)."""
 
-    def _lin_point(self, s: Any, k: int) -> np.ndarray:
-        """Where the Jacobians of the robot whose block starts at ``k`` are evaluated."""
-        return s.X[k : k + 3]
+    def lin_point(self, s: TeamState, k: int) -> np.ndarray:
+        """The point of the robot whose block starts at ``k`` at which its Jacobians are evaluated."""
 
-    def _to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """A Cartesian Jacobian block at ``x`` in the filter's error coordinates."""
-        return H
+    def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """A Cartesian Jacobian block at ``x`` in the form's error coordinates."""
 
-    def _correct(self, s: Any, delta: np.ndarray, P: np.ndarray) -> Any:
-        raise NotImplementedError
+    def correct(self, s: TeamState, delta: np.ndarray, P: np.ndarray) -> TeamState:
+        """``s`` (its predictions applied) corrected by ``delta (3n,)`` in error coordinates, its covariance ``P``."""
 
-    def _log_update(self, t: float, starts: list[int], blocks: list[np.ndarray], R: np.ndarray) -> None:
-        if self.lin_log is not None:
-            robots = {k: r for r, k in self._idx.items()}
-            self.lin_log.append(("update", t, {robots[k]: H for k, H in zip(starts, blocks, strict=True)}, R))
 
-    def _fuse_group(self, s: Any, g: Group) -> tuple[Any, list[Outcome], list[Message]]:
-        s, outcomes = self._fuse_each(s, g, lambda s, d, target: self._fuse_one(s, g, d, target))
-        return s, outcomes, []
-
-    def _fuse_one(self, s: Any, g: Group, d: Detection, target: tuple[str, Any]) -> tuple[Any, Outcome]:
-        """One classified detection of group ``g`` fused into the joint state ``s``: the new state and its outcome
-        (the state as it was, the detected robot predicted to the stamp, when the detection is not fused)."""
-        i = self._idx[g.observer]
-        m = model(d.kind)
-        R = m.noise(d.z, d.cov)
-        xi, li = s.X[i : i + 3], self._lin_point(s, i)
-        if target[0] == Kind.ABSOLUTE:
-            starts, blocks = [i], [self._to_error(np.eye(3), li)]
-            r = m.residual(d.z, xi)
+def fuse_linearized(
+    form: Linearization, node: TeamNode, s: TeamState, g: Group, d: Detection, target: tuple[str, Any]
+) -> tuple[TeamState, Outcome]:
+    """One classified detection of group ``g`` fused into the joint state ``s`` (one rank-``m`` correction of the
+    blocks it involves, :func:`joint_correction`) at ``form``'s linearization, recorded in the node's ``lin_log``:
+    the new state and its outcome (the state as it was, the detected robot predicted to the stamp, when the
+    detection is not fused)."""
+    i = node._idx[g.observer]
+    m = model(d.kind)
+    R = m.noise(d.z, d.cov)
+    xi, li = s.X[i : i + 3], form.lin_point(s, i)
+    if target[0] == Kind.ABSOLUTE:
+        starts, blocks = [i], [form.to_error(np.eye(3), li)]
+        r = m.residual(d.z, xi)
+    else:
+        if target[0] == "robot":
+            s = node._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
+            k = node._idx[target[1]]
+            xk, lk, Ck = s.X[k : k + 3], form.lin_point(s, k), None
         else:
-            if target[0] == "robot":
-                s = self._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
-                k = self._idx[target[1]]
-                xk, lk, Ck = s.X[k : k + 3], self._lin_point(s, k), None
-            else:
-                xk, Ck = target[1]
-                lk = xk
-            if m.degenerate(xi, xk) or m.degenerate(li, lk):
-                return s, ("rejected", DEGENERATE)
-            h, Hi, Hk = m.predict(xi, xk)
-            if self.first_estimates:
-                _, Hi, Hk = m.predict(li, lk)
-            r = m.residual(d.z, h)
-            if Ck is None:
-                starts, blocks = [i, k], [self._to_error(Hi, li), self._to_error(Hk, lk)]
-            else:
-                starts, blocks = [i], [self._to_error(Hi, li)]
-                R = R + Hk @ Ck @ Hk.T
-        sf = self._flushed(s)
-        res = joint_correction(sf.P, starts, blocks, r, R, self.gate)
-        if isinstance(res[0], str):
-            return s, res
-        s = self._correct(sf, *res)
-        self._log_update(g.t, starts, blocks, R)
-        return s, FUSED
-
-    def _flushed(self, s: Any) -> Any:
-        return flush_pending(s)
+            xk, Ck = target[1]
+            lk = xk
+        if m.degenerate(xi, xk) or m.degenerate(li, lk):
+            return s, ("rejected", DEGENERATE)
+        h, Hi, Hk = m.predict(xi, xk)
+        if form.first_estimates:
+            _, Hi, Hk = m.predict(li, lk)
+        assert Hk is not None  # noqa: S101  (a relative model: a Jacobian for the target)
+        r = m.residual(d.z, h)
+        if Ck is None:
+            starts, blocks = [i, k], [form.to_error(Hi, li), form.to_error(Hk, lk)]
+        else:
+            starts, blocks = [i], [form.to_error(Hi, li)]
+            R = R + Hk @ Ck @ Hk.T
+    sf = flush_pending(s)
+    res = joint_correction(sf.P, starts, blocks, r, R, node.gate)
+    if isinstance(res[0], str):
+        return s, res
+    s = form.correct(sf, *res)
+    if node.lin_log is not None:
+        robots = {k: r for r, k in node._idx.items()}
+        node.lin_log.append(("update", g.t, {robots[k]: H for k, H in zip(starts, blocks, strict=True)}, R))
+    return s, FUSED
 
 
-class InvariantEKF(_LoggedCentral):
-    """Centralized invariant EKF on SE(2)^n with world-frame errors (module docstring).
+class InvariantForm:
+    """The joint state in world-frame errors (:class:`InvariantEKF`): a :class:`~swarmloc.node.team.JointForm` whose
+    ``P`` is of the errors ``(xi_1, ..., xi_n)``, ``pend`` holding each robot's world-frame process noise (no shear:
+    the error transition of a prediction is the identity), corrected on the group."""
 
-    The joint covariance (``joint_at``) is of the world-frame errors ``(xi_1, ..., xi_n)``; a robot's belief is
-    converted to the thesis' body-frame convention, ``Sigma = Ad(g^-1) P_ii Ad(g^-1)^T``.
-    """
+    dim = 3
+    first_estimates = False
+    joint = staticmethod(team_joint)
+    fuse = fuse_linearized  # the detection loop, at this form's linearization
 
-    name = "iekf"
-    error_frame: ClassVar[str] = "world"
-
-    def _initial_state(self, t0: float) -> TeamState:
-        s = super()._initial_state(t0)
+    def initial(self, node: TeamNode, t0: float) -> TeamState:
+        s = team_state(node, t0)
         P = s.P.copy()
-        for r, b in self.initial.items():
-            k = self._idx[r]
+        for r, b in node.initial.items():
+            k = node._idx[r]
             P[k : k + 3, k : k + 3] = I.body_to_world(b.mean, b.cov)
         return TeamState(s.X, P, s.t, s.cmd, s.pend)
 
-    def _advance(self, s: TeamState, robot: int, t: float) -> TeamState:
-        step = self._increment(s, robot, t)
+    def advance(self, node: TeamNode, s: TeamState, robot: int, t: float) -> TeamState:
+        step = increment(node, s, robot, t)
         if step is None:
             return s
         k, i, (x0, y0, th, _, _, q00, q01, q02, q11, q12, q22) = step
@@ -161,78 +158,104 @@ class InvariantEKF(_LoggedCentral):
         pend_k = (0.0, 0.0, *qw) if old is None else (0.0, 0.0, *(u + w_ for u, w_ in zip(old[2:], qw, strict=True)))
         return TeamState(X, s.P, *clock_and_pending(s, k, t, pend_k))
 
-    def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
-        i = self._idx[robot]
+    def belief(self, s: TeamState, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The robot's marginal converted to the body-frame convention, ``Sigma = Ad(g^-1) P_ii Ad(g^-1)^T``."""
         P = s.P[i : i + 3, i : i + 3]
         pd = s.pend[i // 3]
         if pd is not None:
             q00, q01, q02, q11, q12, q22 = pd[2:]
             P = P + np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
         g = SE2.from_xytheta(s.X[i : i + 3])
-        return belief_of(g, I.world_to_body(g, P))
+        return g, I.world_to_body(g, P)
 
-    def _to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
+    def lin_point(self, s: TeamState, k: int) -> np.ndarray:
+        return s.X[k : k + 3]
+
+    def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
         return H @ I.world_basis(x)
 
-    def _joint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Cartesian ``(x, P)``: the world-frame errors' covariance mapped by ``N(x_i)`` block by block."""
-        X, Pw = self.joint_at(t)
-        N = np.zeros_like(Pw)
-        for k in range(0, X.size, 3):
-            N[k : k + 3, k : k + 3] = I.world_basis(X[k : k + 3])
-        return X, N @ Pw @ N.T
-
-    def _correct(self, s: TeamState, delta: np.ndarray, P: np.ndarray) -> TeamState:
+    def correct(self, s: TeamState, delta: np.ndarray, P: np.ndarray) -> TeamState:
         X = I.left_correct(s.X.reshape(-1, 3), delta.reshape(-1, 3)).reshape(-1)
         return TeamState(X, P, s.t, s.cmd, s.pend)
 
 
-class FejState(NamedTuple):
-    """:class:`~swarmloc.estimators.cekf.TeamState` plus ``L (3n,)``: each robot's first estimate at its clock."""
-
-    X: np.ndarray
-    P: np.ndarray
-    t: tuple[float, ...]
-    cmd: tuple[tuple[float, float], ...]
-    pend: tuple[tuple[float, ...] | None, ...]
-    L: np.ndarray
+def world_to_cartesian(X: np.ndarray, Pw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cartesian ``(x, P)`` of a team's poses ``X (3n,)`` and world-frame errors' covariance ``Pw (3n, 3n)``, mapped by
+    ``N(x_i)`` block by block."""
+    N = np.zeros_like(Pw)
+    for k in range(0, X.size, 3):
+        N[k : k + 3, k : k + 3] = I.world_basis(X[k : k + 3])
+    return X, N @ Pw @ N.T
 
 
-class FirstEstimatesEKF(_LoggedCentral):
-    """Centralized CL-EKF with first-estimates Jacobians (FEJ-EKF, module docstring)."""
+class InvariantEKF(TeamNode):
+    """Centralized invariant EKF on SE(2)^n with world-frame errors (module docstring): :class:`InvariantForm`.
 
-    name = "fej"
-    first_estimates: ClassVar[bool] = True
+    The joint covariance (``joint_at``) is of the world-frame errors ``(xi_1, ..., xi_n)``; a robot's belief is
+    converted to the thesis' body-frame convention, ``Sigma = Ad(g^-1) P_ii Ad(g^-1)^T``.
+    """
 
-    def _initial_state(self, t0: float) -> FejState:
-        s: TeamState = super()._initial_state(t0)
-        return FejState(*s, s.X.copy())
+    name = "iekf"
+    lazy_odometry = True
+    forms = {SE2: InvariantForm()}
+    error_frame: ClassVar[str] = "world"
 
-    def _lin_point(self, s: FejState, k: int) -> np.ndarray:
-        return s.L[k : k + 3]
+    def _joint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Cartesian ``(x, P)`` (:func:`world_to_cartesian`)."""
+        return world_to_cartesian(*self.joint_at(t))
 
-    def _advance(self, s: FejState, robot: int, t: float) -> FejState:
-        step = self._increment(s, robot, t)
+
+class FirstEstimatesForm:
+    """The Cartesian joint state of ``cekf`` with first-estimates Jacobians (:class:`FirstEstimatesEKF`): a
+    :class:`~swarmloc.node.team.JointForm` whose state keeps each robot's first estimate at its clock
+    (:attr:`~swarmloc.estimators.cekf.TeamState.L`), where every Jacobian is evaluated."""
+
+    dim = 3
+    first_estimates = True
+    belief = staticmethod(cartesian_belief)
+    joint = staticmethod(team_joint)
+    fuse = fuse_linearized  # the detection loop, at this form's linearization
+
+    def initial(self, node: TeamNode, t0: float) -> TeamState:
+        s = team_state(node, t0)
+        return s._replace(L=s.X.copy())
+
+    def advance(self, node: TeamNode, s: TeamState, robot: int, t: float) -> TeamState:
+        step = increment(node, s, robot, t)
         if step is None:
             return s
         k, i, (x0, y0, th, _, _, *q) = step
-        dx, dy = x0 - s.L[i], y0 - s.L[i + 1]  # first-estimates displacement: new prediction - previous first estimate
-        X, L = s.X.copy(), s.L.copy()
+        L = self.first(s)
+        dx, dy = x0 - L[i], y0 - L[i + 1]  # first-estimates displacement: new prediction - previous first estimate
+        X, L = s.X.copy(), L.copy()
         X[i], X[i + 1], X[i + 2] = x0, y0, th
         L[i : i + 3] = X[i : i + 3]
-        self._log_shear(t, robot, dx, dy)
-        return FejState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)), L)
+        log_shear(node, t, robot, dx, dy)
+        return TeamState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)), L)
 
-    def _set_command(self, s: FejState, robot: int, v: float, w: float) -> FejState:
-        cmd = list(s.cmd)
-        cmd[self._idx[robot] // 3] = (v, w)
-        return FejState(s.X, s.P, s.t, tuple(cmd), s.pend, s.L)
+    @staticmethod
+    def first(s: TeamState) -> np.ndarray:
+        """The first estimates ``L (3n,)`` of a state of this form."""
+        if s.L is None:
+            raise ValueError("a first-estimates state without its first estimates")
+        return s.L
 
-    def _flushed(self, s: FejState) -> FejState:
-        f = flush_pending(s)
-        return FejState(f.X, f.P, f.t, f.cmd, f.pend, s.L)
+    def lin_point(self, s: TeamState, k: int) -> np.ndarray:
+        return self.first(s)[k : k + 3]
 
-    def _correct(self, s: FejState, delta: np.ndarray, P: np.ndarray) -> FejState:
+    def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return H
+
+    def correct(self, s: TeamState, delta: np.ndarray, P: np.ndarray) -> TeamState:
         X = s.X + delta
         X[2::3] = wrap_angle(X[2::3])
-        return FejState(X, P, s.t, s.cmd, s.pend, s.L)
+        return TeamState(X, P, s.t, s.cmd, s.pend, s.L)
+
+
+class FirstEstimatesEKF(TeamNode):
+    """Centralized CL-EKF with first-estimates Jacobians (FEJ-EKF, module docstring): :class:`FirstEstimatesForm`."""
+
+    name = "fej"
+    lazy_odometry = True
+    forms = {SE2: FirstEstimatesForm()}
+    error_frame: ClassVar[str] = "cartesian"

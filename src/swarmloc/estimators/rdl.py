@@ -15,6 +15,9 @@ It reaches close to the centralized EKF's accuracy while staying (approximately)
 communication only; with two robots it equals the centralized EKF. Without landmarks (the team's pose
 unobservable) the approximation of the third-party correlations breaks down (docs/mrclam.md, MRCLAM table).
 
+The exchange is :class:`RdlNode`'s, whatever the errors' coordinates: those are its :class:`PairForm`, Cartesian here
+(:class:`CartesianPairs`), world-frame in ``irdl`` (:mod:`swarmloc.estimators.irdl`).
+
 **An exchange that does not complete** (the update lost, late past the horizon, refused as computed from an
 outdated answer; the answer or the query lost) leaves the pair's bookkeeping unknown: the observer may have applied
 the joint update (keeping ``sigma_ij <- P_ij+``) while the target did not (``sigma_ji`` not reset). The target
@@ -58,12 +61,13 @@ from __future__ import annotations
 
 from bisect import bisect_left
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize, predict_run
 from swarmloc.estimators.state_exchange import StateQueries
+from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import wrap_angle
@@ -72,7 +76,9 @@ from swarmloc.node import (
     FUSED,
     P_GROUP,
     Entry,
+    Gate,
     Group,
+    Key,
     Outcome,
     RobotNode,
     belief_of,
@@ -81,6 +87,7 @@ from swarmloc.node import (
     gated_kalman,
     same,
 )
+from swarmloc.node.keys import SubKey
 from swarmloc.sensors.models import model
 
 _ZERO = np.zeros((3, 3))
@@ -137,7 +144,7 @@ class RdlFilter(NamedTuple):
         i = bisect_left(self.ids, robot)
         if not (i < len(self.ids) and self.ids[i] == robot):
             return _ZERO
-        f = self.sigma[i]
+        f: np.ndarray = self.sigma[i]
         if not self.sa and not self.sb:
             return f
         return np.array([f[0] + self.sa * f[2], f[1] + self.sb * f[2], f[2]])
@@ -152,7 +159,7 @@ class RdlFilter(NamedTuple):
         sigma[i] = 0.0
         return self._replace(sigma=sigma)
 
-    def with_factor(self, robot: int, value: np.ndarray, sigma: np.ndarray) -> tuple[tuple, np.ndarray]:
+    def with_factor(self, robot: int, value: np.ndarray, sigma: np.ndarray) -> tuple[tuple[int, ...], np.ndarray]:
         """``(ids, sigma)`` with ``robot``'s factor set to ``value`` (added when new) in ``sigma`` (factors with no
         pending shear, e.g. from :func:`rescale_factors`)."""
         i = bisect_left(self.ids, robot)
@@ -240,40 +247,111 @@ def rescale_factors(s: RdlFilter, P_new: np.ndarray) -> np.ndarray:
     pending shear."""
     if not s.ids:
         return s.sigma
-    return (P_new @ np.linalg.inv(s.P)) @ s.factors()
+    out: np.ndarray = (P_new @ np.linalg.inv(s.P)) @ s.factors()
+    return out
 
 
-class RecursiveDecentralized(RobotNode):
-    """Recursive decentralized localization: pairwise exact updates, tracked correlations (module docstring)."""
+class PairForm(Protocol):
+    """The error coordinates of a pairwise node's filter (:class:`RdlNode`): its start, prediction, belief,
+    Jacobians and correction. A form's steps take the node for its noise and gate."""
 
-    name = "rdl"
+    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, P)`` of the robot's initial right-perturbation belief."""
+
+    def advance(self, node: RdlNode, s: RdlFilter, t: float) -> RdlFilter:
+        """``s`` predicted to ``t`` [s] (later than ``s.t``)."""
+
+    def advance_commands(
+        self, node: RdlNode, s: RdlFilter, cmds: Sequence[tuple[float, int, float, float]]
+    ) -> RdlFilter | None:
+        """A run of odometry in one float loop (the same bits as one :meth:`advance` per command), or None where the
+        form has none (the node then predicts command by command)."""
+
+    def belief(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The right-perturbation belief ``(mean, cov)`` of ``(x, P)``."""
+
+    def correction(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        """The correction that takes the state ``x0`` to ``x1`` in the form's error coordinates."""
+
+    def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """A Cartesian Jacobian block at ``x`` in the form's error coordinates."""
+
+    def update(
+        self, x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray, gate: Gate
+    ) -> tuple[np.ndarray, np.ndarray] | Outcome:
+        """The gated update of the poses ``x`` (``(3,)``, or a pair's ``(2, 3)``) with covariance ``P`` by the
+        innovation ``r``, Jacobian ``H`` and noise ``R``: the new poses (shaped as ``x``) and covariance, or the outcome
+        that stops it."""
+
+
+class CartesianPairs:
+    """Cartesian errors (:mod:`swarmloc.kernels.cartesian`): the :class:`PairForm` of ``rdl``."""
+
+    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return C.from_group(mean, cov)
+
+    def advance(self, node: RdlNode, s: RdlFilter, t: float) -> RdlFilter:
+        x, P, dx, dy = C.predict_one(s.x, s.P, s.v, s.w, t - s.t, node.noise)
+        return RdlFilter(t, s.v, s.w, x, P, s.ids, s.sigma, s.sa - dy, s.sb + dx)  # sigma <- Phi sigma, deferred
+
+    def advance_commands(
+        self, node: RdlNode, s: RdlFilter, cmds: Sequence[tuple[float, int, float, float]]
+    ) -> RdlFilter:
+        """The factors' deferred shear accumulated as :meth:`advance` does."""
+        x, P, t, (v, w), (sa, sb) = predict_run(s, (s.sa, s.sb), cmds, node.noise)
+        return RdlFilter(t, v, w, x, P, s.ids, s.sigma, sa, sb)
+
+    def belief(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return C.to_group(x, P)
+
+    def correction(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        """``x1 - x0``, the angle wrapped."""
+        d: np.ndarray = x1 - x0
+        d[2] = wrap_angle(d[2])
+        return d
+
+    def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return H
+
+    def update(
+        self, x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray, gate: Gate
+    ) -> tuple[np.ndarray, np.ndarray] | Outcome:
+        res = gated_kalman(x.reshape(-1), P, r, H, R, gate, angles=tuple(range(2, x.size, 3)))
+        if isinstance(res[0], str):
+            return res
+        return res[0].reshape(x.shape), res[1]
+
+
+class RdlNode(RobotNode):
+    """The node of recursive decentralized localization (module docstring): pairwise exact updates, tracked
+    correlations, in the error coordinates of its :attr:`form`."""
+
+    form: ClassVar[PairForm]
+    """The estimator's error coordinates."""
     update_types = (RdlUpdate,)
     lazy_odometry = True
+    lin_log: list[tuple[Any, ...]] | None = None
+    """Set to a list to record every applied update's linearization (:mod:`swarmloc.evaluation.observability`;
+    predictions are not recorded, so the record is complete only where their error transition is the identity:
+    world-frame errors, ``irdl``)."""
 
     def _initial_state(self, t0: float) -> RdlFilter:
-        x, P = C.from_group(self.initial.mean, self.initial.cov)
+        x, P = self.form.initial(self.initial.mean, self.initial.cov)
         return RdlFilter(t0, 0.0, 0.0, x, P, (), np.zeros((0, 3, 3)))
 
     def _advance(self, s: RdlFilter, robot: int, t: float) -> RdlFilter:
-        dt = t - s.t
-        if dt <= 0:
-            return s
-        x, P, dx, dy = C.predict_one(s.x, s.P, s.v, s.w, dt, self.noise)
-        return RdlFilter(t, s.v, s.w, x, P, s.ids, s.sigma, s.sa - dy, s.sb + dx)  # sigma <- Phi sigma, deferred
+        return s if t - s.t <= 0 else self.form.advance(self, s, t)
 
     def _set_command(self, s: RdlFilter, robot: int, v: float, w: float) -> RdlFilter:
         return RdlFilter(s.t, v, w, s.x, s.P, s.ids, s.sigma, s.sa, s.sb)
 
-    def _advance_commands(self, s: Any, cmds: Any) -> Any:
-        """A run of odometry in one float loop, the factors' deferred shear accumulated as :meth:`_advance` does
-        (the same bits as one :meth:`_advance` per command)."""
-        if self.measure_time:
-            return super()._advance_commands(s, cmds)
-        x, P, t, (v, w), (sa, sb) = predict_run(s, (s.sa, s.sb), cmds, self.noise)
-        return RdlFilter(t, v, w, x, P, s.ids, s.sigma, sa, sb)
+    def _advance_commands(self, s: RdlFilter, cmds: Sequence[tuple[float, int, float, float]]) -> RdlFilter:
+        """A run of odometry (:meth:`PairForm.advance_commands` where the form has one)."""
+        run = None if self.measure_time else self.form.advance_commands(self, s, cmds)
+        return super()._advance_commands(s, cmds) if run is None else run
 
-    def _belief(self, s: RdlFilter, robot: int) -> Any:
-        return belief_of(*C.to_group(s.x, s.P))
+    def _belief(self, s: RdlFilter, robot: int) -> GroupGaussian:
+        return belief_of(*self.form.belief(s.x, s.P))
 
     # ------------------------------------------------------------------------------------------------ exchange
     def _requests(self, g: Group) -> list[Message]:
@@ -301,18 +379,22 @@ class RecursiveDecentralized(RobotNode):
 
     def _answer(self, s: RdlFilter, q: Message) -> Answer | None:
         if isinstance(q, RdlStateQuery):
-            return RdlState(
-                sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub,
-                x=flat(s.x), P=flat(s.P), sigma=flat(s.factor(q.sender)),
-            )  # fmt: skip
+            return self._state(s, q)
         if isinstance(q, BeliefQuery):
             return super()._answer(s, q)
         return None
 
+    def _state(self, s: RdlFilter, q: RdlStateQuery) -> RdlState:
+        """This node's answer to ``q`` from ``s``: its state and its factor for the asking robot."""
+        return RdlState(
+            sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub,
+            x=flat(s.x), P=flat(s.P), sigma=flat(s.factor(q.sender)),
+        )  # fmt: skip
+
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._queries = StateQueries(self.robot)
-        self._answered: dict[tuple, RdlState] = {}
+        self._answered: dict[tuple[Key, int], RdlState] = {}
         """Every revision of the states this node answered with, by ``(exchange key, revision)``: an update computed
         from a revision that differs from the latest by less than :func:`near` still applies."""
 
@@ -349,9 +431,11 @@ class RecursiveDecentralized(RobotNode):
         """An update (or "no update") must answer a state this node sent, in its latest revision; or be the
         observer's notice that no answer reached it (empty, ``based_on < 0``), which only closes an exchange still
         waiting for its update (its :class:`Unconfirmed` placeholder)."""
+        if not isinstance(u, RdlUpdate):
+            return f"not an update of {self.name}"
         key = (float(u.stamp), 1, u.sender, tuple(u.sub))
         served = self._served.get((key, u.sender, "RdlStateQuery"))
-        if served is None:
+        if not isinstance(served, RdlState):
             return "update for a state this node never sent"
         pos = self._history.find(key)
         filed = None if pos is None else self._history.entries[pos].data
@@ -371,7 +455,7 @@ class RecursiveDecentralized(RobotNode):
         (None: not kept)."""
         key = (float(u.stamp), 1, u.sender, tuple(u.sub))
         served = self._served.get((key, u.sender, "RdlStateQuery"))
-        if served is not None and served.seq == u.based_on:
+        if isinstance(served, RdlState) and served.seq == u.based_on:
             return served
         return self._answered.get((key, u.based_on))
 
@@ -379,32 +463,29 @@ class RecursiveDecentralized(RobotNode):
         """An update must move this robot from the state it was computed from by a correction ``delta`` within the
         gate, ``delta^T P^-1 delta <= gamma_3`` (:mod:`~swarmloc.node.trust`: an honest observer's gated joint update
         passes by construction)."""
-        basis = self._basis(u) if isinstance(u, RdlUpdate) else None
-        if basis is None or self.gate.p is None:
+        if not isinstance(u, RdlUpdate) or self.gate.p is None:
+            return None
+        basis = self._basis(u)
+        if basis is None:
             return None
         x0, P0, _ = basis.arrays()
-        if fits(self.gate, correction_nis(self._correction(x0, u.arrays()[0]), P0), 3):
+        if fits(self.gate, correction_nis(self.form.correction(x0, u.arrays()[0]), P0), 3):
             return None
         return f"update of robot {u.sender} beyond the gate of this robot's own belief"
 
-    def _correction(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
-        """The correction that takes the state ``x0`` to ``x1`` in the filter's error coordinates (Cartesian, the
-        angle wrapped)."""
-        d = x1 - x0
-        d[2] = wrap_angle(d[2])
-        return d
-
-    def _apply_update(self, s: RdlFilter, u: RdlUpdate | Unconfirmed) -> tuple[RdlFilter, bool]:
+    def _apply_update(self, s: RdlFilter, u: Message | Unconfirmed) -> tuple[RdlFilter, bool]:
         """A neighbour's joint update, while the state it was computed from is still the state before its key: new
         ``(x, P)``, ``sigma_ji <- I``, the other factors rescaled. A placeholder, or an update that no longer
         applies (the state it was computed from changed: a revised answer went out, a new update may follow), drops
         the factor for the observer and stays filed until that update replaces it."""
         if isinstance(u, Unconfirmed):
             return s.without_factor(u.observer), True
+        if not isinstance(u, RdlUpdate):
+            raise TypeError(f"{self.name}: {type(u).__name__} is not an update it files")
         s = self._adv(s, u.receiver, u.stamp)
         q = RdlStateQuery(sender=u.sender, receiver=u.receiver, stamp=u.stamp, sub=u.sub)
         basis = self._basis(u)
-        if basis is None or not near(basis, self._answer(s, q)):
+        if basis is None or not near(basis, self._state(s, q)):
             return s.without_factor(u.sender), True  # a revised answer went out: its update will replace this
         x, P = u.arrays()
         sigma = rescale_factors(s, P)
@@ -419,16 +500,16 @@ class RecursiveDecentralized(RobotNode):
             target = self._classify(g, d, sub)
             if target[0] in ("rejected", "unknown"):
                 outcomes.append(target)
-                a = g.answers.get((d.target, sub)) if d.target_is_robot else None
+                a = g.answers.get((d.target, sub)) if d.target_is_robot and d.target is not None else None
                 if a is not None and not a.found and a.seq < 0:  # no answer reached this node: tell the target
-                    msgs.append(RdlUpdate(sender=self.robot, receiver=d.target, stamp=g.t, sub=sub, based_on=-1))
+                    msgs.append(RdlUpdate(sender=self.robot, receiver=a.sender, stamp=g.t, sub=sub, based_on=-1))
                 continue
             res = self._pair(s, g, d, sub, target[1]) if target[0] == "robot" else self._private(s, d, target)
             if isinstance(res[0], str):
                 outcomes.append(res)
                 if target[0] == "robot":  # tell the target that no update follows its answer
                     a = target[1]
-                    msgs.append(RdlUpdate(sender=self.robot, receiver=d.target, stamp=g.t, sub=sub, based_on=a.seq))
+                    msgs.append(RdlUpdate(sender=self.robot, receiver=a.sender, stamp=g.t, sub=sub, based_on=a.seq))
                 continue
             s = res[0]
             if res[1] is not None:
@@ -437,43 +518,49 @@ class RecursiveDecentralized(RobotNode):
         return s, outcomes, msgs
 
     def _private(self, s: RdlFilter, d: Any, target: tuple[str, Any]) -> Any:
-        """Absolute fix or landmark: a private EKF update, then every factor rescaled."""
+        """Absolute fix or landmark: a private update, then every factor rescaled."""
         lin = linearize(d, s.x, target)
         if lin is None:
             return ("rejected", DEGENERATE)
         r, Hi, R_eff, _ = lin
-        res = gated_kalman(s.x, s.P, r, Hi, R_eff, self.gate)
+        H = self.form.to_error(Hi, s.x)
+        res = self.form.update(s.x, s.P, r, H, R_eff, self.gate)
         if isinstance(res[0], str):
             return res
         x, P = res
+        self._log_update(d.t, {self.robot: H}, R_eff)
         return RdlFilter(s.t, s.v, s.w, x, P, s.ids, rescale_factors(s, P)), None
 
-    def _pair(self, s: RdlFilter, g: Group, d: Any, sub: tuple, a: RdlState) -> Any:
+    def _pair(self, s: RdlFilter, g: Group, d: Detection, sub: SubKey, a: RdlState) -> Any:
         """The joint update of observer ``i`` and target ``j`` from ``j``'s answer ``a``."""
-        j = d.target
+        j = a.sender
         m = model(d.kind)
         xj, Pjj, sig_ji = a.arrays()
         if m.degenerate(s.x, xj):
             return ("rejected", DEGENERATE)
-        fi = s.factor(j)
         h, Hi, Hj = m.predict(s.x, xj)
-        X = np.concatenate([s.x, xj])
-        H = np.hstack([Hi, Hj])
+        assert Hj is not None  # noqa: S101  (a relative model: a Jacobian for the target)
+        H = np.hstack([self.form.to_error(Hi, s.x), self.form.to_error(Hj, xj)])
         R = m.noise(d.z, d.cov)
-        prior = joint_prior(s.P, Pjj, fi, sig_ji, H, R, j in s.ids)
+        prior = joint_prior(s.P, Pjj, s.factor(j), sig_ji, H, R, j in s.ids)  # None: correlation unknown, too weak
         if prior is None:
             return ("gated", UNKNOWN_CORRELATION)
-        res = gated_kalman(X, prior[0], m.residual(d.z, h), H, R, self.gate, angles=(2, 5))
+        res = self.form.update(np.stack([s.x, xj]), prior[0], m.residual(d.z, h), H, R, self.gate)
         if isinstance(res[0], str):
             return res
-        Xn, Pn = res
-        return self._pair_result(s, g, sub, a, Xn[:3], Xn[3:], Pn, prior[1])
+        X, Pn = res
+        self._log_update(g.t, {self.robot: H[:, :3], j: H[:, 3:]}, R)
+        return self._pair_result(s, g, sub, a, X[0], X[1], Pn, prior[1])
+
+    def _log_update(self, t: float, blocks: dict[int, np.ndarray], R: np.ndarray) -> None:
+        if self.lin_log is not None:
+            self.lin_log.append(("update", t, blocks, R))
 
     def _pair_result(
         self,
         s: RdlFilter,
         g: Group,
-        sub: tuple,
+        sub: SubKey,
         a: RdlState,
         xi: np.ndarray,
         xj: np.ndarray,
@@ -494,3 +581,10 @@ class RecursiveDecentralized(RobotNode):
             sender=self.robot, receiver=a.sender, stamp=g.t, sub=sub, based_on=a.seq, x=flat(xj), P=flat(Pn[3:, 3:])
         )
         return new, update
+
+
+class RecursiveDecentralized(RdlNode):
+    """Recursive decentralized localization in Cartesian errors (module docstring): :class:`CartesianPairs`."""
+
+    name = "rdl"
+    form = CartesianPairs()
