@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import cache
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -35,16 +35,8 @@ from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import FUSED, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_joint import detection, kalman_columns, predict_step
-from swarmloc.engine.jax_replay import (
-    RANGE_BEARING,
-    compiled,
-    constants,
-    formulas,
-    measure,
-    run_batch,
-    sym,
-    usable,
-)
+from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, measure, run_batch, sym, usable
+from swarmloc.engine.outcomes import Replayed, Switches, constants
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.kernels.invariant import cartesian_to_world_cov
 from swarmloc.motion import UnicycleNoise
@@ -209,10 +201,10 @@ def replay_clusters_jax(
     t0: np.ndarray,
     noise: UnicycleNoise,
     cluster: int,
-    **kw: Any,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    **switches: Unpack[Switches],
+) -> Replayed:
     """:func:`swarmloc.engine.joint_clusters.replay_clusters` (the same arguments and results) as one JAX call."""
-    return replay_clusters_batch([tl], x[None], P[None], [t0], noise, cluster, _single=True, **kw)[0]
+    return replay_clusters_batch([tl], x[None], P[None], [t0], noise, cluster, _single=True, **switches)[0]
 
 
 def replay_clusters_batch(
@@ -223,12 +215,9 @@ def replay_clusters_batch(
     noise: UnicycleNoise,
     cluster: int,
     *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
     _single: bool = False,
-) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
+    **switches: Unpack[Switches],
+) -> list[Replayed]:
     """Runs of one team of ``n`` robots in clusters of ``cluster`` (``x (B, n, 3)``, ``P (B, n, 3, 3)``, each run its
     own timeline and starts ``t0[b] (n,)``, every other argument shared) in one call vectorized over the runs
     (``jax.vmap``). Each run's result is :func:`replay_clusters_jax`'s."""
@@ -238,5 +227,4 @@ def replay_clusters_batch(
     K = cluster_size(cluster, n, t0)
     starts = [_start(x[b], P[b], t0[b], K) for b in range(len(tls))]
     fn = compiled(("clusters", noise, K, n), _kernels(noise, K, n), not _single)
-    const = constants(gate, use_relative, use_landmarks, landmarks)
-    return run_batch(fn, tls, [s[0] for s in starts], [s[1] for s in starts], const, _single)
+    return run_batch(fn, tls, [s[0] for s in starts], [s[1] for s in starts], constants(**switches), _single)

@@ -18,25 +18,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import cache
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
 from swarmloc.engine import soa
 from swarmloc.engine.codes import ABSOLUTE, FUSED, NO_LANDMARK, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_replay import (
-    RANGE_BEARING,
-    compiled,
-    constants,
-    formulas,
-    inverse,
-    measure,
-    run_batch,
-    sym,
-    usable,
-    wrap,
-)
+from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, inverse, measure, run_batch, sym, usable, wrap
+from swarmloc.engine.outcomes import Replayed, Switches, constants
 from swarmloc.kernels.invariant import cartesian_to_world_cov
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
@@ -186,15 +176,11 @@ def replay_joint_jax(
     t0: float | np.ndarray,
     noise: UnicycleNoise,
     *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
     invariant: bool = False,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    **switches: Unpack[Switches],
+) -> Replayed:
     """:func:`swarmloc.engine.joint.replay_joint` (the same arguments and results) as one JAX call."""
-    kw = {"gate": gate, "use_relative": use_relative, "use_landmarks": use_landmarks, "landmarks": landmarks}
-    return replay_joint_batch([tl], x[None], P[None], [t0], noise, invariant=invariant, _single=True, **kw)[0]
+    return replay_joint_batch([tl], x[None], P[None], [t0], noise, invariant=invariant, _single=True, **switches)[0]
 
 
 def replay_joint_batch(
@@ -204,13 +190,10 @@ def replay_joint_batch(
     t0: Sequence[Any],
     noise: UnicycleNoise,
     *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
     invariant: bool = False,
     _single: bool = False,
-) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
+    **switches: Unpack[Switches],
+) -> list[Replayed]:
     """Runs of one team of ``n`` robots (``x (B, n, 3)``, ``P (B, n, 3, 3)``, each run its own timeline and start
     ``t0[b]``, every other argument shared) in one call vectorized over the runs (``jax.vmap``): a Monte Carlo
     sweep. Each run's result is :func:`replay_joint_jax`'s. The runs' events are padded to one bucket."""
@@ -224,5 +207,4 @@ def replay_joint_batch(
     fn = compiled(key, _kernels(*key[1:]), not _single)
     n = x.shape[1]
     states = [(X, J, clock, np.zeros(n), np.zeros(n)) for X, J, clock, _ in starts]
-    const = constants(gate, use_relative, use_landmarks, landmarks)
-    return run_batch(fn, tls, states, [s[3] for s in starts], const, _single)
+    return run_batch(fn, tls, states, [s[3] for s in starts], constants(**switches), _single)

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Unpack
 
 import numpy as np
 from numba import njit
@@ -55,17 +55,17 @@ from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint_math import (
     RANGE_BEARING,
     F,
+    commit,
     kalman,
     measure,
     to_world,
-    verdict,
     world_noise,
 )
+from swarmloc.engine.outcomes import Constants, Replayed, Switches, constants
 from swarmloc.engine.scalar import predict_source
 from swarmloc.kernels.invariant import cartesian_to_world_cov
 from swarmloc.motion import UnicycleNoise
-from swarmloc.node.update import Gate
-from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE, MODELS
+from swarmloc.sensors.models import MIN_RANGE
 
 
 @njit(error_model="numpy")
@@ -131,13 +131,39 @@ def predict_kernel(noise: UnicycleNoise) -> Any:
 
 @cache
 def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = False) -> Any:
-    """Compile the replay loop with the noise model's prediction (once per process, noise model and form).
-    ``invariant``: world-frame errors (``iekf``, ``diekf``). ``distributed`` (with ``invariant``: ``diekf``'s nodes):
-    each robot starts at its own first input and answers from then on (``screen_started`` of
-    :mod:`swarmloc.engine.formulas`), and a detected
-    robot moves to the detection's stamp only when it takes the update (its node answers a query from a prediction
-    it does not store; it moves when the broadcast updates it)."""
-    return _loop(*steps(noise, invariant, distributed)[:3], distributed)
+    """Compile the replay loop (:func:`drive`) with the noise model's prediction (once per process, noise model and
+    form) over the state ``(X, P, pend, has, tc, v, w)``. ``invariant``: world-frame errors (``iekf``, ``diekf``).
+    ``distributed`` (with ``invariant``: ``diekf``'s nodes): each robot starts at its own first input and answers
+    from then on (``screen_started`` of :mod:`swarmloc.engine.formulas`), and a detected robot moves to the
+    detection's stamp only when it takes the update (its node answers a query from a prediction it does not store;
+    it moves when the broadcast updates it)."""
+    advance, marginal, fuse, _ = steps(noise, invariant, distributed)
+
+    @njit(error_model="numpy")
+    def move(st, k, t):  # noqa: ANN001, ANN202
+        X, P, pend, has, tc, v, w = st
+        advance(X, pend, has, tc, v, w, k, t)
+
+    @njit(error_model="numpy")
+    def detect(st, q, t, det, t0, const):  # noqa: ANN001, ANN202
+        X, P, pend, has, tc, v, w = st
+        obs, tgt, kind, z, R = det
+        thr, gate, relative, lm_on, lxy, lcov = const
+        i = obs[q]
+        if distributed:
+            res, why = F.screen_started(kind[q], i, tgt[q], t, t0, relative, lm_on)
+        else:
+            res, why = F.screen_central(kind[q], i, tgt[q], relative, lm_on)
+        if res == 0:
+            res, why = fuse(X, P, pend, has, tc, v, w, t, q, i, tgt[q], kind[q], z, R, lxy, lcov, thr, gate)
+        return res, why
+
+    @njit(error_model="numpy")
+    def record(st, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
+        X, P, pend, has, tc, v, w = st
+        marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)
+
+    return drive(move, detect, record)
 
 
 @cache
@@ -223,75 +249,68 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
             to_world(H, 0, X[3 * i], X[3 * i + 1])
         flush(P, pend, has)
         xn, Pn, nis, ok = kalman(X, P, r, H, cols, Rm, invariant)
-        st, why = verdict(nis, ok, Pn, thr[kind], gate)
-        if st:
-            return st, why
-        X[:] = xn
-        P[:, :] = Pn
-        return FUSED, 0
+        return commit(X, P, xn, Pn, nis, ok, thr[kind], gate)
 
     return advance, marginal, fuse, belief
 
 
-def _loop(advance: Any, marginal: Any, fuse: Any, distributed: bool) -> Any:
-    """The compiled loop over the stamps of a timeline, around the compiled steps of :func:`_kernels`."""
+def drive(advance: Any, detect: Any, record: Any) -> Any:
+    """The compiled loop over the stamps of a timeline, every numba replay's (joint, in clusters, ``rdl``), around
+    its compiled steps on its state ``st`` (a tuple): ``advance(st, k, t)`` (robot ``k`` to ``t``), ``detect(st, q,
+    t, det, t0, const) -> (outcome, reason)`` (detection ``q``, its observer already at ``t``; ``const`` the
+    :class:`~swarmloc.engine.outcomes.Constants`) and ``record(st, k, t, out_x, out_P, o)`` (robot ``k``'s belief at
+    ``t`` into record ``o``, nothing stored). At a stamp the detections in order, each observer moved to the stamp
+    first; then the commands: a robot moves to the stamp (after the updates: they move every correlated heading)
+    and starts its command (``vw``: the state's commands ``(v, w)``); then, if recorded, every started robot."""
 
     @njit(error_model="numpy")
-    def replay(state, t0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
-        X, P, pend, has, tc, v, w = state
-        obs, tgt, kind, z, R = det
+    def replay(st, vw, t0, stamps, d0, det, status, reason, const, cmd, rec, out):  # noqa: ANN001, ANN202
+        v, w = vw
         c0, crow, cv, cw = cmd
         out_robot, out_stamp, out_x, out_P = out
-        n = tc.shape[0]
         o = 0
         for s in range(stamps.shape[0]):
             t = stamps[s]
             for q in range(d0[s], d0[s + 1]):
-                i = obs[q]
-                advance(X, pend, has, tc, v, w, i, t)  # the observer moves to its group's stamp
-                if distributed:
-                    st, why = F.screen_started(kind[q], i, tgt[q], t, t0, relative, lm_on)
-                else:
-                    st, why = F.screen_central(kind[q], i, tgt[q], relative, lm_on)
-                if st == 0:
-                    st, why = fuse(X, P, pend, has, tc, v, w, t, q, i, tgt[q], kind[q], z, R, lxy, lcov, thr, gate)
-                status[q], reason[q] = st, why
-            for c in range(c0[s], c0[s + 1]):  # then the commands: a robot moves to t (after the updates: they
-                advance(X, pend, has, tc, v, w, crow[c], t)  # move every correlated heading) and starts its command
+                advance(st, det[0][q], t)
+                status[q], reason[q] = detect(st, q, t, det, t0, const)
+            for c in range(c0[s], c0[s + 1]):
+                advance(st, crow[c], t)
                 v[crow[c]] = cv[c]
                 w[crow[c]] = cw[c]
             if rec[s]:
-                for k in range(n):
+                for k in range(t0.shape[0]):
                     if t >= t0[k]:
-                        marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)
-                        out_robot[o] = k
-                        out_stamp[o] = s
+                        record(st, k, t, out_x, out_P, o)
+                        out_robot[o], out_stamp[o] = k, s
                         o += 1
         return o
 
     return replay
 
 
-def replay_joint(
-    tl: Timeline,
-    x: np.ndarray,
-    P: np.ndarray,
-    t0: float | np.ndarray,
-    noise: UnicycleNoise,
-    *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
-    invariant: bool = False,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+def run(loop: Any, st: tuple, vw: tuple, tl: Timeline, starts: np.ndarray, const: Constants) -> tuple:
+    """``loop`` (a :func:`drive`'s) over ``tl`` from the state ``st`` (its commands ``vw``) and each robot's start
+    ``starts (n,)``: ``(status, reason, records)`` as :func:`replay_joint` returns them."""
+    m = len(tl.det)
+    status, reason = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
+    k = int(sum(np.count_nonzero(tl.stamps[tl.record] >= s) for s in starts.tolist()))
+    out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
+    d = tl.det
+    det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
+    loop(st, vw, starts, tl.stamps, tl.d0, det, status, reason, const, (tl.c0, tl.robot, tl.v, tl.w), tl.record, out)
+    return status.astype(np.int8), reason.astype(np.int8), out
+
+
+def replay_joint(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, noise: UnicycleNoise, *,
+                 invariant: bool = False, **switches: Unpack[Switches]) -> Replayed:  # fmt: skip
     """The centralized EKF over ``tl`` (robots as rows, the engine's codes) from Cartesian beliefs ``x (n, 3)``,
     ``P (n, 3, 3)`` (uncorrelated) at ``t0`` [s]: one float, every robot's clock (the centralized nodes), or each
     robot's start ``(n,)`` (``inf``: never starts), with ``invariant`` only: ``diekf``'s nodes (:func:`_kernels`,
     ``distributed``).
 
-    ``gate``: the nodes' gate probability (None: none); ``landmarks``: the map as :func:`swarmloc.engine.core.
-    landmark_table` gives it, ``(xy (L, 2), cov (L, 2, 2))``; ``invariant``: the invariant EKF (world-frame errors,
+    ``switches``: the nodes' (:class:`~swarmloc.engine.outcomes.Switches`: gate, relative and landmark measurements,
+    the map); ``invariant``: the invariant EKF (world-frame errors,
     :class:`~swarmloc.estimators.InvariantEKF`; with per-robot starts the distributed one,
     :class:`~swarmloc.estimators.DistributedInvariantEKF`, whose replicas together are its joint state).
     Returns ``(status, reason, records)``: each detection's outcome and reason code (rows of ``tl.det``) and the
@@ -302,18 +321,16 @@ def replay_joint(
     distributed = np.ndim(t0) == 1
     if distributed and not invariant:
         raise ValueError("replay_joint: per-robot starts are diekf's (invariant=True); cekf starts at one t0")
-    p = prepare(tl, x, P, t0, gate, landmarks, invariant)
+    p = prepare(x, P, t0, invariant)
     J = np.zeros((3 * n, 3 * n))
     for k in range(n):
         J[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = p.blocks[k]
-    _kernels(noise, bool(invariant), bool(distributed))(
-        (p.X, J, *p.robots), p.starts, *p.head, bool(use_relative), bool(use_landmarks), *p.tail, tl.record, p.out
-    )
-    return p.status.astype(np.int8), p.reason.astype(np.int8), p.out
+    st = (p.X, J, *p.robots)
+    return run(_kernels(noise, bool(invariant), bool(distributed)), st, st[5:], tl, p.starts, constants(**switches))
 
 
 class Prepared(NamedTuple):
-    """A replay's inputs as the compiled loops take them (:func:`prepare`)."""
+    """A replay's start as the compiled loops take it (:func:`prepare`)."""
 
     X: np.ndarray
     """Every robot's pose, ``(3n,)``."""
@@ -323,38 +340,17 @@ class Prepared(NamedTuple):
     """Each robot's start ``(n,)``."""
     robots: tuple
     """The rest of the state: pending predictions ``(n, 8)`` and their flags, clocks, commands ``v``, ``w``."""
-    head: tuple
-    """``(stamps, d0, detections, status, reason, gate on, thresholds)``: the loop's arguments before the switches."""
-    tail: tuple
-    """``(landmarks' xy, their covariances, commands)``: its arguments after them."""
-    out: tuple
-    """The records' arrays, sized for every started robot at every recorded stamp."""
-    status: np.ndarray
-    reason: np.ndarray
 
 
-def prepare(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, gate: float | None,
-            landmarks: tuple[np.ndarray, np.ndarray] | None, invariant: bool) -> Prepared:  # fmt: skip
-    """What :func:`replay_joint`'s loop takes but the joint covariance (:class:`Prepared`): the beliefs ``x (n, 3)``,
-    ``P (n, 3, 3)`` (Cartesian; made world-frame with ``invariant``), the starts ``t0``, the gate and the map."""
+def prepare(x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, invariant: bool) -> Prepared:
+    """:func:`replay_joint`'s start but the joint covariance (:class:`Prepared`): the beliefs ``x (n, 3)``, ``P (n, 3,
+    3)`` (Cartesian; made world-frame with ``invariant``), the starts ``t0``."""
     n = x.shape[0]
     starts = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
     x = np.ascontiguousarray(x, dtype=float)
     P = np.asarray(P, dtype=float)
     if invariant:  # world-frame error covariances: N^-1 P N^-T
         P = cartesian_to_world_cov(x, P)
-    g = Gate(gate)
-    thr = np.array([g.threshold(MODELS[name].size) for name in sorted(KIND_ORDER, key=KIND_ORDER.get)])
-    lxy, lcov = landmarks if landmarks is not None else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
-    m = len(tl.det)
-    status, reason = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
-    k = int(sum(np.count_nonzero(tl.stamps[tl.record] >= s) for s in starts.tolist()))
-    out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
-    d = tl.det
-    det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
     robots = (np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), np.where(np.isfinite(starts), starts, 0.0), np.zeros(n),
               np.zeros(n))  # fmt: skip
-    head = (tl.stamps, tl.d0, det, status, reason, g.p is not None, thr)
-    tail = (np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
-            (tl.c0, tl.robot, tl.v, tl.w))  # fmt: skip
-    return Prepared(x.reshape(3 * n).copy(), P, starts, robots, head, tail, out, status, reason)
+    return Prepared(x.reshape(3 * n).copy(), P, starts, robots)

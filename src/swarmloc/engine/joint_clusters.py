@@ -24,16 +24,17 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 from numba import njit
 
 from swarmloc.engine.checks import cluster_size
-from swarmloc.engine.codes import FUSED, R_DEGENERATE, REJECTED
+from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import flush, prepare, steps
-from swarmloc.engine.joint_math import RANGE_BEARING, F, kalman, measure, to_world, verdict
+from swarmloc.engine.joint import drive, flush, prepare, run, steps
+from swarmloc.engine.joint_math import RANGE_BEARING, F, commit, kalman, measure, to_world
+from swarmloc.engine.outcomes import Replayed, Switches, constants
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
@@ -92,14 +93,43 @@ def _kernels(noise: UnicycleNoise) -> Any:
             if asleep[k]:
                 Pw[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = P[3 * k : 3 * k + 3, 3 * k : 3 * k + 3]
         xn, Pn, nis, ok = kalman(X, Pw, r, Hi, np.arange(a, a + 3), Rm + B / (1 - wt), True)
-        st, why = verdict(nis, ok, Pn, thr[kind], gate)
-        if st:
-            return st, why
-        X[:] = xn
-        P[:, :] = Pn
-        return FUSED, 0
+        return commit(X, P, xn, Pn, nis, ok, thr[kind], gate)
 
-    return _loop(advance, marginal, fuse, belief, outsider)
+    @njit(error_model="numpy")
+    def move(st, k, t):  # noqa: ANN001, ANN202
+        X, P, pend, has, tc, v, w, K = st
+        advance(X, pend, has, tc, v, w, k, t)
+
+    @njit(error_model="numpy")
+    def detect(st, q, t, det, t0, const):  # noqa: ANN001, ANN202
+        X, P, pend, has, tc, v, w, K = st
+        obs, tgt, kind, z, R = det
+        thr, gate, relative, lm_on, lxy, lcov = const
+        i, j = obs[q], tgt[q]
+        res, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
+        if res != 0:
+            return res, why
+        b, lo, hi = _span(i, K, tc.shape[0])
+        m = 3 * (hi - lo)
+        Xc, Pc, pc, hc = X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi]
+        if j >= 0 and j // K != b:  # a robot of another cluster
+            bj, lj, hj = _span(j, K, tc.shape[0])
+            mj = 3 * (hj - lj)
+            xj, Pj = belief(X[3 * lj : 3 * hj], P[bj, :mj, :mj], pend[lj:hj], has[lj:hj], tc[lj:hj], v[lj:hj],
+                            w[lj:hj], j - lj, t)  # fmt: skip
+            return outsider(Xc, Pc, pc, hc, i - lo, xj, Pj, kind[q], z[q], R[q], thr, gate, ~(t >= t0[lo:hi]))
+        return fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo, j - lo if j >= 0 else j, kind[q], z,
+                    R, lxy, lcov, thr, gate)  # fmt: skip
+
+    @njit(error_model="numpy")
+    def record(st, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
+        X, P, pend, has, tc, v, w, K = st
+        b, lo, hi = _span(k, K, tc.shape[0])
+        m = 3 * (hi - lo)
+        marginal(X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi], tc[lo:hi], v[lo:hi], w[lo:hi], k - lo, t,
+                 out_x, out_P, o)  # fmt: skip
+
+    return drive(move, detect, record)
 
 
 @njit(error_model="numpy")
@@ -109,82 +139,18 @@ def _span(k: int, K: int, n: int) -> tuple[int, int, int]:
     return b, b * K, min(b * K + K, n)
 
 
-def _loop(advance: Any, marginal: Any, fuse: Any, belief: Any, outsider: Any) -> Any:
-    """The compiled loop over the stamps of a timeline (:func:`swarmloc.engine.joint.replay_joint`'s order), each
-    robot's steps run on its cluster's views of the state."""
-
-    @njit(error_model="numpy")
-    def replay(state, K, t0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
-        X, P, pend, has, tc, v, w = state
-        obs, tgt, kind, z, R = det
-        c0, crow, cv, cw = cmd
-        out_robot, out_stamp, out_x, out_P = out
-        n = tc.shape[0]
-        o = 0
-        for s in range(stamps.shape[0]):
-            t = stamps[s]
-            for q in range(d0[s], d0[s + 1]):
-                i, j = obs[q], tgt[q]
-                advance(X, pend, has, tc, v, w, i, t)  # the observer moves to its group's stamp
-                st, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
-                if st == 0:
-                    b, lo, hi = _span(i, K, n)
-                    m = 3 * (hi - lo)
-                    Xc, Pc, pc, hc = X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi]
-                    if j >= 0 and j // K != b:  # a robot of another cluster
-                        bj, lj, hj = _span(j, K, n)
-                        mj = 3 * (hj - lj)
-                        xj, Pj = belief(X[3 * lj : 3 * hj], P[bj, :mj, :mj], pend[lj:hj], has[lj:hj], tc[lj:hj],
-                                        v[lj:hj], w[lj:hj], j - lj, t)  # fmt: skip
-                        st, why = outsider(Xc, Pc, pc, hc, i - lo, xj, Pj, kind[q], z[q], R[q], thr, gate,
-                                           ~(t >= t0[lo:hi]))  # fmt: skip
-                    else:
-                        st, why = fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo,
-                                       j - lo if j >= 0 else j, kind[q], z, R, lxy, lcov, thr, gate)  # fmt: skip
-                status[q], reason[q] = st, why
-            for c in range(c0[s], c0[s + 1]):  # then the commands (joint.py's order)
-                advance(X, pend, has, tc, v, w, crow[c], t)
-                v[crow[c]] = cv[c]
-                w[crow[c]] = cw[c]
-            if rec[s]:
-                for k in range(n):
-                    if t >= t0[k]:
-                        b, lo, hi = _span(k, K, n)
-                        m = 3 * (hi - lo)
-                        marginal(X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi], tc[lo:hi], v[lo:hi],
-                                 w[lo:hi], k - lo, t, out_x, out_P, o)  # fmt: skip
-                        out_robot[o] = k
-                        out_stamp[o] = s
-                        o += 1
-        return o
-
-    return replay
-
-
-def replay_clusters(
-    tl: Timeline,
-    x: np.ndarray,
-    P: np.ndarray,
-    t0: np.ndarray,
-    noise: UnicycleNoise,
-    cluster: int,
-    *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+def replay_clusters(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise: UnicycleNoise, cluster: int,
+                    **switches: Unpack[Switches]) -> Replayed:  # fmt: skip
     """``diekf``'s nodes in clusters of ``cluster`` robots (rows in id order) over ``tl``, from Cartesian beliefs
     ``x (n, 3)``, ``P (n, 3, 3)`` and each robot's start ``t0 (n,)`` (``inf``: never starts); the rest as
     :func:`swarmloc.engine.joint.replay_joint` (``invariant=True``), which it equals for ``cluster >= n``. Returns
     ``(status, reason, records)`` as that does."""
     n = x.shape[0]
     K = cluster_size(cluster, n, [t0])
-    p = prepare(tl, x, P, t0, gate, landmarks, True)
+    p = prepare(x, P, t0, True)
     J = np.zeros((-(-n // K), 3 * K, 3 * K))
     for k in range(n):
         b = 3 * (k % K)
         J[k // K, b : b + 3, b : b + 3] = p.blocks[k]
-    _kernels(noise)((p.X, J, *p.robots), K, p.starts, *p.head, bool(use_relative), bool(use_landmarks), *p.tail,
-                    tl.record, p.out)  # fmt: skip
-    return p.status.astype(np.int8), p.reason.astype(np.int8), p.out
+    st = (p.X, J, *p.robots, K)
+    return run(_kernels(noise), st, st[5:7], tl, p.starts, constants(**switches))

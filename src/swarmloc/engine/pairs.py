@@ -26,22 +26,14 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 from numba import njit
 
-from swarmloc.engine.codes import (
-    ABSOLUTE,
-    FUSED,
-    GATED,
-    NO_LANDMARK,
-    R_CORRELATION,
-    R_DEGENERATE,
-    REJECTED,
-)
+from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, NO_LANDMARK, R_CORRELATION, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import predict_kernel
+from swarmloc.engine.joint import drive, predict_kernel, run
 from swarmloc.engine.joint_math import (
     RANGE_BEARING,
     F,
@@ -53,10 +45,10 @@ from swarmloc.engine.joint_math import (
     verdict,
     wrap,
 )
+from swarmloc.engine.outcomes import Replayed, Switches, constants
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
-from swarmloc.node.update import Gate
-from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE, MODELS
+from swarmloc.sensors.models import MIN_RANGE
 
 
 @njit(error_model="numpy")
@@ -239,7 +231,7 @@ def _kernels(noise: UnicycleNoise) -> Any:
 
 
 def _loop(predicted: Any, advance: Any) -> Any:
-    """The exchanges and the loop over the stamps, around the compiled steps of :func:`_kernels`."""
+    """The exchanges and :func:`swarmloc.engine.joint.drive`'s loop, around the compiled steps of :func:`_kernels`."""
 
     @njit(error_model="numpy")
     def pair(st, i, j, kind, zq, Rq, t, thr, gate):  # noqa: ANN001, ANN202
@@ -273,37 +265,24 @@ def _loop(predicted: Any, advance: Any) -> Any:
         return FUSED, 0
 
     @njit(error_model="numpy")
-    def replay(st, t0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
-        x, P, tc, v, w, sa, sb, met, sig = st
+    def detect(st, q, t, det, t0, const):  # noqa: ANN001, ANN202
         obs, tgt, kind, z, R = det
-        c0, crow, cv, cw = cmd
-        out_robot, out_stamp, out_x, out_P = out
-        o = 0
-        for s in range(stamps.shape[0]):
-            t = stamps[s]
-            for q in range(d0[s], d0[s + 1]):
-                i, j = obs[q], tgt[q]
-                advance(st, i, t)  # the observer moves to its group's stamp
-                res, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
-                if res == 0 and (kind[q] == ABSOLUTE or j <= NO_LANDMARK):
-                    res, why = _private(st, i, kind[q], j, z[q], R[q], lxy, lcov, thr, gate)
-                elif res == 0:
-                    res, why = pair(st, i, j, kind[q], z[q], R[q], t, thr, gate)
-                status[q], reason[q] = res, why
-            for c in range(c0[s], c0[s + 1]):
-                advance(st, crow[c], t)
-                v[crow[c]] = cv[c]
-                w[crow[c]] = cw[c]
-            if rec[s]:
-                for k in range(tc.shape[0]):
-                    if t >= t0[k]:
-                        xr, Pr, _, _ = predicted(x, P, tc, v, w, k, t)
-                        out_x[o], out_P[o] = xr, Pr
-                        out_robot[o], out_stamp[o] = k, s
-                        o += 1
-        return o
+        thr, gate, relative, lm_on, lxy, lcov = const
+        i, j = obs[q], tgt[q]
+        res, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
+        if res == 0 and (kind[q] == ABSOLUTE or j <= NO_LANDMARK):
+            return _private(st, i, kind[q], j, z[q], R[q], lxy, lcov, thr, gate)
+        if res == 0:
+            return pair(st, i, j, kind[q], z[q], R[q], t, thr, gate)
+        return res, why
 
-    return replay
+    @njit(error_model="numpy")
+    def record(st, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
+        x, P, tc, v, w, sa, sb, met, sig = st
+        xr, Pr, _, _ = predicted(x, P, tc, v, w, k, t)
+        out_x[o], out_P[o] = xr, Pr
+
+    return drive(advance, detect, record)
 
 
 @njit(error_model="numpy")
@@ -339,42 +318,15 @@ def _commit_private(st: Any, i: int, xn: np.ndarray, Pn: np.ndarray, nis: float,
     return FUSED, 0
 
 
-def replay_rdl(
-    tl: Timeline,
-    x: np.ndarray,
-    P: np.ndarray,
-    t0: np.ndarray,
-    noise: UnicycleNoise,
-    *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+def replay_rdl(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise: UnicycleNoise,
+               **switches: Unpack[Switches]) -> Replayed:  # fmt: skip
     """``rdl`` over ``tl`` (robots as rows, the engine's codes) from Cartesian beliefs ``x (n, 3)``, ``P (n, 3, 3)``
-    at each robot's start ``t0 (n,)`` [s] (``inf``: never starts).
-
-    ``gate``: the nodes' gate probability (None: none); ``landmarks``: ``(xy (L, 2), cov (L, 2, 2))`` as
-    :func:`swarmloc.engine.core.landmark_table` gives them. Returns ``(status, reason, records)`` as
+    at each robot's start ``t0 (n,)`` [s] (``inf``: never starts), with the nodes' ``switches``
+    (:class:`~swarmloc.engine.outcomes.Switches`). Returns ``(status, reason, records)`` as
     :func:`swarmloc.engine.joint.replay_joint`: records of every started robot at every recorded stamp.
     """
     n = x.shape[0]
-    g = Gate(gate)
-    thr = np.array([g.threshold(MODELS[name].size) for name in sorted(KIND_ORDER, key=KIND_ORDER.get)])
-    lxy, lcov = landmarks if landmarks is not None else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
-    m = len(tl.det)
-    status, reason = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
     t0 = np.asarray(t0, dtype=float)
-    k = int(sum(np.count_nonzero(tl.stamps[tl.record] >= s) for s in t0.tolist()))
-    out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
-    clock = np.where(np.isfinite(t0), t0, 0.0)
-    state = (np.array(x, dtype=float), np.array(P, dtype=float), clock, np.zeros(n), np.zeros(n), np.zeros(n),
-             np.zeros(n), np.zeros((n, n), dtype=np.bool_), np.zeros((n, n, 3, 3)))  # fmt: skip
-    d = tl.det
-    det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
-    _kernels(noise)(
-        state, t0, tl.stamps, tl.d0, det, status, reason, g.p is not None, thr, bool(use_relative),
-        bool(use_landmarks), np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
-        (tl.c0, tl.robot, tl.v, tl.w), tl.record, out,
-    )  # fmt: skip
-    return status.astype(np.int8), reason.astype(np.int8), out
+    st = (np.array(x, dtype=float), np.array(P, dtype=float), np.where(np.isfinite(t0), t0, 0.0), np.zeros(n),
+          np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, n), dtype=np.bool_), np.zeros((n, n, 3, 3)))  # fmt: skip
+    return run(_kernels(noise), st, st[3:5], tl, t0, constants(**switches))
