@@ -32,7 +32,7 @@ from swarmloc.engine.codes import (
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.formulas import RANGE_BEARING, build
 from swarmloc.engine.jax_stamp import bucket, import_jax, pad_rows
-from swarmloc.engine.outcomes import Replayed
+from swarmloc.engine.replay_io import Replayed
 
 DET, CMD, REC, NOOP = range(4)
 """Event types: a detection, a command, a record of every robot, padding."""

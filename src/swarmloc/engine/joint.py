@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import Any, NamedTuple, Unpack
+from typing import Any, Unpack
 
 import numpy as np
 from numba import njit
@@ -61,9 +61,8 @@ from swarmloc.engine.joint_math import (
     to_world,
     world_noise,
 )
-from swarmloc.engine.outcomes import Constants, Replayed, Switches, constants
+from swarmloc.engine.replay_io import Constants, Replayed, Switches, constants, joint_start
 from swarmloc.engine.scalar import predict_source
-from swarmloc.kernels.invariant import cartesian_to_world_cov
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
 
@@ -258,7 +257,7 @@ def drive(advance: Any, detect: Any, record: Any) -> Any:
     """The compiled loop over the stamps of a timeline, every numba replay's (joint, in clusters, ``rdl``), around
     its compiled steps on its state ``st`` (a tuple): ``advance(st, k, t)`` (robot ``k`` to ``t``), ``detect(st, q,
     t, det, t0, const) -> (outcome, reason)`` (detection ``q``, its observer already at ``t``; ``const`` the
-    :class:`~swarmloc.engine.outcomes.Constants`) and ``record(st, k, t, out_x, out_P, o)`` (robot ``k``'s belief at
+    :class:`~swarmloc.engine.replay_io.Constants`) and ``record(st, k, t, out_x, out_P, o)`` (robot ``k``'s belief at
     ``t`` into record ``o``, nothing stored). At a stamp the detections in order, each observer moved to the stamp
     first; then the commands: a robot moves to the stamp (after the updates: they move every correlated heading)
     and starts its command (``vw``: the state's commands ``(v, w)``); then, if recorded, every started robot."""
@@ -309,7 +308,7 @@ def replay_joint(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndar
     robot's start ``(n,)`` (``inf``: never starts), with ``invariant`` only: ``diekf``'s nodes (:func:`_kernels`,
     ``distributed``).
 
-    ``switches``: the nodes' (:class:`~swarmloc.engine.outcomes.Switches`: gate, relative and landmark measurements,
+    ``switches``: the nodes' (:class:`~swarmloc.engine.replay_io.Switches`: gate, relative and landmark measurements,
     the map); ``invariant``: the invariant EKF (world-frame errors,
     :class:`~swarmloc.estimators.InvariantEKF`; with per-robot starts the distributed one,
     :class:`~swarmloc.estimators.DistributedInvariantEKF`, whose replicas together are its joint state).
@@ -321,36 +320,6 @@ def replay_joint(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndar
     distributed = np.ndim(t0) == 1
     if distributed and not invariant:
         raise ValueError("replay_joint: per-robot starts are diekf's (invariant=True); cekf starts at one t0")
-    p = prepare(x, P, t0, invariant)
-    J = np.zeros((3 * n, 3 * n))
-    for k in range(n):
-        J[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = p.blocks[k]
-    st = (p.X, J, *p.robots)
-    return run(_kernels(noise, bool(invariant), bool(distributed)), st, st[5:], tl, p.starts, constants(**switches))
-
-
-class Prepared(NamedTuple):
-    """A replay's start as the compiled loops take it (:func:`prepare`)."""
-
-    X: np.ndarray
-    """Every robot's pose, ``(3n,)``."""
-    blocks: np.ndarray
-    """Every robot's covariance ``(n, 3, 3)`` (world-frame errors for the invariant filters)."""
-    starts: np.ndarray
-    """Each robot's start ``(n,)``."""
-    robots: tuple
-    """The rest of the state: pending predictions ``(n, 8)`` and their flags, clocks, commands ``v``, ``w``."""
-
-
-def prepare(x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, invariant: bool) -> Prepared:
-    """:func:`replay_joint`'s start but the joint covariance (:class:`Prepared`): the beliefs ``x (n, 3)``, ``P (n, 3,
-    3)`` (Cartesian; made world-frame with ``invariant``), the starts ``t0``."""
-    n = x.shape[0]
-    starts = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
-    x = np.ascontiguousarray(x, dtype=float)
-    P = np.asarray(P, dtype=float)
-    if invariant:  # world-frame error covariances: N^-1 P N^-T
-        P = cartesian_to_world_cov(x, P)
-    robots = (np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), np.where(np.isfinite(starts), starts, 0.0), np.zeros(n),
-              np.zeros(n))  # fmt: skip
-    return Prepared(x.reshape(3 * n).copy(), P, starts, robots)
+    X, J, clock, starts = joint_start(x, P, t0, invariant)
+    st = (X.reshape(3 * n), J[0], np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
+    return run(_kernels(noise, bool(invariant), bool(distributed)), st, st[5:], tl, starts, constants(**switches))

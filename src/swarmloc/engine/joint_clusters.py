@@ -32,9 +32,9 @@ from numba import njit
 from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import drive, flush, prepare, run, steps
+from swarmloc.engine.joint import drive, flush, run, steps
 from swarmloc.engine.joint_math import RANGE_BEARING, F, commit, kalman, measure, to_world
-from swarmloc.engine.outcomes import Replayed, Switches, constants
+from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
@@ -147,10 +147,6 @@ def replay_clusters(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, 
     ``(status, reason, records)`` as that does."""
     n = x.shape[0]
     K = cluster_size(cluster, n, [t0])
-    p = prepare(x, P, t0, True)
-    J = np.zeros((-(-n // K), 3 * K, 3 * K))
-    for k in range(n):
-        b = 3 * (k % K)
-        J[k // K, b : b + 3, b : b + 3] = p.blocks[k]
-    st = (p.X, J, *p.robots, K)
-    return run(_kernels(noise), st, st[5:7], tl, p.starts, constants(**switches))
+    X, J, clock, starts = joint_start(x, P, t0, True, K)
+    st = (X.reshape(3 * n), J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n), K)
+    return run(_kernels(noise), st, st[5:7], tl, starts, constants(**switches))

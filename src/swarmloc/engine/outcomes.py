@@ -9,14 +9,12 @@ fusion (:func:`screen`), the batched chi-square gate (:func:`gate_rows`), and th
 from __future__ import annotations
 
 from collections import Counter
-from typing import NamedTuple, TypedDict
 
 import numpy as np
 
 from swarmloc.engine.codes import (
     FUSED,
     GATED,
-    MODEL,
     OUTCOMES,
     R_NONFINITE,
     REASONS,
@@ -26,45 +24,6 @@ from swarmloc.engine.codes import (
 from swarmloc.engine.detections import Detections
 from swarmloc.engine.formulas import build
 from swarmloc.node.update import Gate
-
-Replayed = tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
-"""What a compiled replay returns: each detection's outcome and reason code ``(M,)`` (int8, rows of the timeline's
-detections) and its records ``(robot row, stamp index, x (K, 3), P (K, 3, 3))`` (Cartesian)."""
-
-
-class Switches(TypedDict, total=False):
-    """The nodes' switches every compiled replay takes as keywords (``replay_joint``, ``replay_rdl``, their JAX forms,
-    ...): the gate probability (None: no gate), relative and landmark measurements on, the map as
-    :func:`swarmloc.engine.core.landmark_table` gives it, ``(xy (L, 2), cov (L, 2, 2))`` (None: none)."""
-
-    gate: float | None
-    use_relative: bool
-    use_landmarks: bool
-    landmarks: tuple[np.ndarray, np.ndarray] | None
-
-
-class Constants(NamedTuple):
-    """:class:`Switches` as the compiled loops and scans read them (:func:`constants`)."""
-
-    thr: np.ndarray
-    """The gate's threshold by measurement kind (code)."""
-    gate_on: np.bool_
-    relative: np.bool_
-    lm_on: np.bool_
-    lxy: np.ndarray
-    """The landmarks' positions ``(L, 2)`` (one zero row when there are none)."""
-    lcov: np.ndarray
-    """Their covariances ``(L, 2, 2)``."""
-
-
-def constants(gate: float | None = None, use_relative: bool = True, use_landmarks: bool = True,
-              landmarks: tuple[np.ndarray, np.ndarray] | None = None) -> Constants:  # fmt: skip
-    """The :class:`Constants` of a replay's :class:`Switches` (their defaults: no gate, everything on, no map)."""
-    g = Gate(gate)
-    thr = np.array([g.threshold(MODEL[code].size) for code in range(len(MODEL))])
-    lxy, lcov = landmarks if landmarks is not None and len(landmarks[0]) else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
-    return Constants(thr, np.bool_(g.p is not None), np.bool_(use_relative), np.bool_(use_landmarks),
-                     np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float))  # fmt: skip
 
 
 def mark(status: np.ndarray, reason: np.ndarray, where: np.ndarray, outcome: int, why: int) -> None:

@@ -45,7 +45,7 @@ from swarmloc.engine.joint_math import (
     verdict,
     wrap,
 )
-from swarmloc.engine.outcomes import Replayed, Switches, constants
+from swarmloc.engine.replay_io import Replayed, Switches, constants
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
@@ -322,7 +322,7 @@ def replay_rdl(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise
                **switches: Unpack[Switches]) -> Replayed:  # fmt: skip
     """``rdl`` over ``tl`` (robots as rows, the engine's codes) from Cartesian beliefs ``x (n, 3)``, ``P (n, 3, 3)``
     at each robot's start ``t0 (n,)`` [s] (``inf``: never starts), with the nodes' ``switches``
-    (:class:`~swarmloc.engine.outcomes.Switches`). Returns ``(status, reason, records)`` as
+    (:class:`~swarmloc.engine.replay_io.Switches`). Returns ``(status, reason, records)`` as
     :func:`swarmloc.engine.joint.replay_joint`: records of every started robot at every recorded stamp.
     """
     n = x.shape[0]
