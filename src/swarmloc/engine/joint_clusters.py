@@ -32,7 +32,7 @@ from numba import njit
 from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import drive, flush, run, steps
+from swarmloc.engine.joint import flush, run, steps
 from swarmloc.engine.joint_math import RANGE_BEARING, F, commit, kalman, measure, to_world
 from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
@@ -95,41 +95,60 @@ def _kernels(noise: UnicycleNoise) -> Any:
         xn, Pn, nis, ok = kalman(X, Pw, r, Hi, np.arange(a, a + 3), Rm + B / (1 - wt), True)
         return commit(X, P, xn, Pn, nis, ok, thr[kind], gate)
 
-    @njit(error_model="numpy")
-    def move(st, k, t):  # noqa: ANN001, ANN202
-        X, P, pend, has, tc, v, w, K = st
-        advance(X, pend, has, tc, v, w, k, t)
+    return _loop(advance, marginal, fuse, belief, outsider)
+
+
+def _loop(advance: Any, marginal: Any, fuse: Any, belief: Any, outsider: Any) -> Any:
+    """The compiled loop over the stamps of a timeline (:func:`swarmloc.engine.joint.replay_joint`'s order), each
+    robot's steps run on its cluster's views of the state."""
 
     @njit(error_model="numpy")
-    def detect(st, q, t, det, t0, const):  # noqa: ANN001, ANN202
-        X, P, pend, has, tc, v, w, K = st
-        obs, tgt, kind, z, R = det
+    def replay(state, vw, t0, stamps, d0, det, status, reason, const, cmd, rec, out):  # noqa: ANN001, ANN202, ARG001
+        X, P, pend, has, tc, v, w, K = state
         thr, gate, relative, lm_on, lxy, lcov = const
-        i, j = obs[q], tgt[q]
-        res, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
-        if res != 0:
-            return res, why
-        b, lo, hi = _span(i, K, tc.shape[0])
-        m = 3 * (hi - lo)
-        Xc, Pc, pc, hc = X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi]
-        if j >= 0 and j // K != b:  # a robot of another cluster
-            bj, lj, hj = _span(j, K, tc.shape[0])
-            mj = 3 * (hj - lj)
-            xj, Pj = belief(X[3 * lj : 3 * hj], P[bj, :mj, :mj], pend[lj:hj], has[lj:hj], tc[lj:hj], v[lj:hj],
-                            w[lj:hj], j - lj, t)  # fmt: skip
-            return outsider(Xc, Pc, pc, hc, i - lo, xj, Pj, kind[q], z[q], R[q], thr, gate, ~(t >= t0[lo:hi]))
-        return fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo, j - lo if j >= 0 else j, kind[q], z,
-                    R, lxy, lcov, thr, gate)  # fmt: skip
+        obs, tgt, kind, z, R = det
+        c0, crow, cv, cw = cmd
+        out_robot, out_stamp, out_x, out_P = out
+        n = tc.shape[0]
+        o = 0
+        for s in range(stamps.shape[0]):
+            t = stamps[s]
+            for q in range(d0[s], d0[s + 1]):
+                i, j = obs[q], tgt[q]
+                advance(X, pend, has, tc, v, w, i, t)  # the observer moves to its group's stamp
+                st, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
+                if st == 0:
+                    b, lo, hi = _span(i, K, n)
+                    m = 3 * (hi - lo)
+                    Xc, Pc, pc, hc = X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi]
+                    if j >= 0 and j // K != b:  # a robot of another cluster
+                        bj, lj, hj = _span(j, K, n)
+                        mj = 3 * (hj - lj)
+                        xj, Pj = belief(X[3 * lj : 3 * hj], P[bj, :mj, :mj], pend[lj:hj], has[lj:hj], tc[lj:hj],
+                                        v[lj:hj], w[lj:hj], j - lj, t)  # fmt: skip
+                        st, why = outsider(Xc, Pc, pc, hc, i - lo, xj, Pj, kind[q], z[q], R[q], thr, gate,
+                                           ~(t >= t0[lo:hi]))  # fmt: skip
+                    else:
+                        st, why = fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo,
+                                       j - lo if j >= 0 else j, kind[q], z, R, lxy, lcov, thr, gate)  # fmt: skip
+                status[q], reason[q] = st, why
+            for c in range(c0[s], c0[s + 1]):  # then the commands (joint.py's order)
+                advance(X, pend, has, tc, v, w, crow[c], t)
+                v[crow[c]] = cv[c]
+                w[crow[c]] = cw[c]
+            if rec[s]:
+                for k in range(n):
+                    if t >= t0[k]:
+                        b, lo, hi = _span(k, K, n)
+                        m = 3 * (hi - lo)
+                        marginal(X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi], tc[lo:hi], v[lo:hi],
+                                 w[lo:hi], k - lo, t, out_x, out_P, o)  # fmt: skip
+                        out_robot[o] = k
+                        out_stamp[o] = s
+                        o += 1
+        return o
 
-    @njit(error_model="numpy")
-    def record(st, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
-        X, P, pend, has, tc, v, w, K = st
-        b, lo, hi = _span(k, K, tc.shape[0])
-        m = 3 * (hi - lo)
-        marginal(X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi], tc[lo:hi], v[lo:hi], w[lo:hi], k - lo, t,
-                 out_x, out_P, o)  # fmt: skip
-
-    return drive(move, detect, record)
+    return replay
 
 
 @njit(error_model="numpy")

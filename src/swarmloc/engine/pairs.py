@@ -33,7 +33,7 @@ from numba import njit
 
 from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, NO_LANDMARK, R_CORRELATION, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import drive, predict_kernel, run
+from swarmloc.engine.joint import predict_kernel, run
 from swarmloc.engine.joint_math import (
     RANGE_BEARING,
     F,
@@ -231,7 +231,7 @@ def _kernels(noise: UnicycleNoise) -> Any:
 
 
 def _loop(predicted: Any, advance: Any) -> Any:
-    """The exchanges and :func:`swarmloc.engine.joint.drive`'s loop, around the compiled steps of :func:`_kernels`."""
+    """The exchanges and the loop over the stamps, around the compiled steps of :func:`_kernels`."""
 
     @njit(error_model="numpy")
     def pair(st, i, j, kind, zq, Rq, t, thr, gate):  # noqa: ANN001, ANN202
@@ -265,24 +265,38 @@ def _loop(predicted: Any, advance: Any) -> Any:
         return FUSED, 0
 
     @njit(error_model="numpy")
-    def detect(st, q, t, det, t0, const):  # noqa: ANN001, ANN202
-        obs, tgt, kind, z, R = det
-        thr, gate, relative, lm_on, lxy, lcov = const
-        i, j = obs[q], tgt[q]
-        res, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
-        if res == 0 and (kind[q] == ABSOLUTE or j <= NO_LANDMARK):
-            return _private(st, i, kind[q], j, z[q], R[q], lxy, lcov, thr, gate)
-        if res == 0:
-            return pair(st, i, j, kind[q], z[q], R[q], t, thr, gate)
-        return res, why
-
-    @njit(error_model="numpy")
-    def record(st, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
+    def replay(st, vw, t0, stamps, d0, det, status, reason, const, cmd, rec, out):  # noqa: ANN001, ANN202, ARG001
         x, P, tc, v, w, sa, sb, met, sig = st
-        xr, Pr, _, _ = predicted(x, P, tc, v, w, k, t)
-        out_x[o], out_P[o] = xr, Pr
+        thr, gate, relative, lm_on, lxy, lcov = const
+        obs, tgt, kind, z, R = det
+        c0, crow, cv, cw = cmd
+        out_robot, out_stamp, out_x, out_P = out
+        o = 0
+        for s in range(stamps.shape[0]):
+            t = stamps[s]
+            for q in range(d0[s], d0[s + 1]):
+                i, j = obs[q], tgt[q]
+                advance(st, i, t)  # the observer moves to its group's stamp
+                res, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
+                if res == 0 and (kind[q] == ABSOLUTE or j <= NO_LANDMARK):
+                    res, why = _private(st, i, kind[q], j, z[q], R[q], lxy, lcov, thr, gate)
+                elif res == 0:
+                    res, why = pair(st, i, j, kind[q], z[q], R[q], t, thr, gate)
+                status[q], reason[q] = res, why
+            for c in range(c0[s], c0[s + 1]):
+                advance(st, crow[c], t)
+                v[crow[c]] = cv[c]
+                w[crow[c]] = cw[c]
+            if rec[s]:
+                for k in range(tc.shape[0]):
+                    if t >= t0[k]:
+                        xr, Pr, _, _ = predicted(x, P, tc, v, w, k, t)
+                        out_x[o], out_P[o] = xr, Pr
+                        out_robot[o], out_stamp[o] = k, s
+                        o += 1
+        return o
 
-    return drive(advance, detect, record)
+    return replay
 
 
 @njit(error_model="numpy")
