@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import cache
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -35,18 +35,9 @@ from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import FUSED, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_joint import detection, kalman_columns, predict_step
-from swarmloc.engine.jax_replay import (
-    RANGE_BEARING,
-    compiled,
-    constants,
-    formulas,
-    measure,
-    run_batch,
-    sym,
-    usable,
-)
+from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, measure, run_batch, sym, usable
+from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
-from swarmloc.kernels.invariant import cartesian_to_world_cov
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
 
@@ -183,25 +174,6 @@ def _kernels(noise: UnicycleNoise, K: int, n: int) -> Any:
     return make
 
 
-def _start(x: np.ndarray, P: np.ndarray, t0: np.ndarray, K: int) -> tuple:
-    """The clusters' state from Cartesian beliefs ``x (n, 3)``, ``P (n, 3, 3)`` and starts ``t0 (n,)``, the team
-    padded to ``N = K ceil(n / K)`` robots: ``((X (N, 3), PC, clocks, v, w), starts (N,))``."""
-    n = x.shape[0]
-    N = K * -(-n // K)
-    starts = np.full(N, np.inf)
-    starts[:n] = np.asarray(t0, dtype=float)
-    X = np.zeros((N, 3))
-    X[:n] = x
-    blocks = np.broadcast_to(np.eye(3), (N, 3, 3)).copy()
-    blocks[:n] = cartesian_to_world_cov(np.ascontiguousarray(x, dtype=float), np.asarray(P, dtype=float))
-    PC = np.zeros((N // K, 3 * K, 3 * K))
-    for k in range(N):
-        c = 3 * (k % K)
-        PC[k // K, c : c + 3, c : c + 3] = blocks[k]
-    clock = np.where(np.isfinite(starts), starts, 0.0)
-    return (X, PC, clock, np.zeros(N), np.zeros(N)), starts
-
-
 def replay_clusters_jax(
     tl: Timeline,
     x: np.ndarray,
@@ -209,10 +181,10 @@ def replay_clusters_jax(
     t0: np.ndarray,
     noise: UnicycleNoise,
     cluster: int,
-    **kw: Any,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    **switches: Unpack[Switches],
+) -> Replayed:
     """:func:`swarmloc.engine.joint_clusters.replay_clusters` (the same arguments and results) as one JAX call."""
-    return replay_clusters_batch([tl], x[None], P[None], [t0], noise, cluster, _single=True, **kw)[0]
+    return replay_clusters_batch([tl], x[None], P[None], [t0], noise, cluster, _single=True, **switches)[0]
 
 
 def replay_clusters_batch(
@@ -223,12 +195,9 @@ def replay_clusters_batch(
     noise: UnicycleNoise,
     cluster: int,
     *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
     _single: bool = False,
-) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
+    **switches: Unpack[Switches],
+) -> list[Replayed]:
     """Runs of one team of ``n`` robots in clusters of ``cluster`` (``x (B, n, 3)``, ``P (B, n, 3, 3)``, each run its
     own timeline and starts ``t0[b] (n,)``, every other argument shared) in one call vectorized over the runs
     (``jax.vmap``). Each run's result is :func:`replay_clusters_jax`'s."""
@@ -236,7 +205,7 @@ def replay_clusters_batch(
         raise ValueError(f"replay_clusters_batch: {len(tls)} timelines, {x.shape[0]} initial states, {len(t0)} starts")
     n = x.shape[1]
     K = cluster_size(cluster, n, t0)
-    starts = [_start(x[b], P[b], t0[b], K) for b in range(len(tls))]
+    starts = [joint_start(x[b], P[b], t0[b], True, K, pad=True) for b in range(len(tls))]  # (X, PC, clocks, starts)
+    states = [(X, PC, clock, np.zeros(len(clock)), np.zeros(len(clock))) for X, PC, clock, _ in starts]
     fn = compiled(("clusters", noise, K, n), _kernels(noise, K, n), not _single)
-    const = constants(gate, use_relative, use_landmarks, landmarks)
-    return run_batch(fn, tls, [s[0] for s in starts], [s[1] for s in starts], const, _single)
+    return run_batch(fn, tls, states, [s[3] for s in starts], constants(**switches), _single)

@@ -18,26 +18,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import cache
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
 from swarmloc.engine import soa
 from swarmloc.engine.codes import ABSOLUTE, FUSED, NO_LANDMARK, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_replay import (
-    RANGE_BEARING,
-    compiled,
-    constants,
-    formulas,
-    inverse,
-    measure,
-    run_batch,
-    sym,
-    usable,
-    wrap,
-)
-from swarmloc.kernels.invariant import cartesian_to_world_cov
+from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, inverse, measure, run_batch, sym, usable, wrap
+from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
 
@@ -166,19 +155,6 @@ def _kernels(noise: UnicycleNoise, invariant: bool, distributed: bool) -> Any:
     return make
 
 
-def _start(x: np.ndarray, P: np.ndarray, t0: Any, invariant: bool) -> tuple:
-    """The joint state of :func:`swarmloc.engine.joint.replay_joint` from Cartesian beliefs: ``(X, J, clocks,
-    starts)``."""
-    n = x.shape[0]
-    starts = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
-    x = np.ascontiguousarray(x, dtype=float)
-    P = cartesian_to_world_cov(x, np.asarray(P, dtype=float)) if invariant else np.asarray(P, dtype=float)
-    J = np.zeros((3 * n, 3 * n))
-    for k in range(n):
-        J[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = P[k]
-    return x.copy(), J, np.where(np.isfinite(starts), starts, 0.0), starts
-
-
 def replay_joint_jax(
     tl: Timeline,
     x: np.ndarray,
@@ -186,15 +162,11 @@ def replay_joint_jax(
     t0: float | np.ndarray,
     noise: UnicycleNoise,
     *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
     invariant: bool = False,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    **switches: Unpack[Switches],
+) -> Replayed:
     """:func:`swarmloc.engine.joint.replay_joint` (the same arguments and results) as one JAX call."""
-    kw = {"gate": gate, "use_relative": use_relative, "use_landmarks": use_landmarks, "landmarks": landmarks}
-    return replay_joint_batch([tl], x[None], P[None], [t0], noise, invariant=invariant, _single=True, **kw)[0]
+    return replay_joint_batch([tl], x[None], P[None], [t0], noise, invariant=invariant, _single=True, **switches)[0]
 
 
 def replay_joint_batch(
@@ -204,13 +176,10 @@ def replay_joint_batch(
     t0: Sequence[Any],
     noise: UnicycleNoise,
     *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
     invariant: bool = False,
     _single: bool = False,
-) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
+    **switches: Unpack[Switches],
+) -> list[Replayed]:
     """Runs of one team of ``n`` robots (``x (B, n, 3)``, ``P (B, n, 3, 3)``, each run its own timeline and start
     ``t0[b]``, every other argument shared) in one call vectorized over the runs (``jax.vmap``): a Monte Carlo
     sweep. Each run's result is :func:`replay_joint_jax`'s. The runs' events are padded to one bucket."""
@@ -219,10 +188,9 @@ def replay_joint_batch(
     distributed = np.ndim(t0[0]) == 1
     if distributed and not invariant:
         raise ValueError("replay_joint: per-robot starts are diekf's (invariant=True); cekf starts at one t0")
-    starts = [_start(x[b], P[b], t0[b], invariant) for b in range(len(tls))]
+    starts = [joint_start(x[b], P[b], t0[b], invariant) for b in range(len(tls))]
     key = ("joint", noise, bool(invariant), bool(distributed))
     fn = compiled(key, _kernels(*key[1:]), not _single)
     n = x.shape[1]
-    states = [(X, J, clock, np.zeros(n), np.zeros(n)) for X, J, clock, _ in starts]
-    const = constants(gate, use_relative, use_landmarks, landmarks)
-    return run_batch(fn, tls, states, [s[3] for s in starts], const, _single)
+    states = [(X, J[0], clock, np.zeros(n), np.zeros(n)) for X, J, clock, _ in starts]
+    return run_batch(fn, tls, states, [s[3] for s in starts], constants(**switches), _single)

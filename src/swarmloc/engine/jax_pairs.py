@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import cache
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -33,18 +33,8 @@ from swarmloc.engine.codes import (
     REJECTED,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_replay import (
-    RANGE_BEARING,
-    compiled,
-    constants,
-    formulas,
-    inverse,
-    measure,
-    run_batch,
-    sym,
-    usable,
-    wrap,
-)
+from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, inverse, measure, run_batch, sym, usable, wrap
+from swarmloc.engine.replay_io import Replayed, Switches, constants
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
@@ -212,9 +202,9 @@ def _kernels(noise: UnicycleNoise) -> Any:
 
 
 def replay_rdl_jax(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise: UnicycleNoise,
-                   **options: Any) -> tuple[np.ndarray, np.ndarray, tuple]:  # fmt: skip
+                   **switches: Unpack[Switches]) -> Replayed:  # fmt: skip
     """:func:`swarmloc.engine.pairs.replay_rdl` (the same arguments and results) as one JAX call."""
-    return replay_rdl_batch([tl], x[None], P[None], [t0], noise, _single=True, **options)[0]
+    return replay_rdl_batch([tl], x[None], P[None], [t0], noise, _single=True, **switches)[0]
 
 
 def replay_rdl_batch(
@@ -224,12 +214,9 @@ def replay_rdl_batch(
     t0: Sequence[np.ndarray],
     noise: UnicycleNoise,
     *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
     _single: bool = False,
-) -> list[tuple[np.ndarray, np.ndarray, tuple]]:
+    **switches: Unpack[Switches],
+) -> list[Replayed]:
     """Runs of one team of ``n`` robots (``x (B, n, 3)``, ``P (B, n, 3, 3)``, each run its own timeline and
     robots' starts ``t0[b] (n,)``) in one call vectorized over the runs (``jax.vmap``); each run's result is
     :func:`replay_rdl_jax`'s."""
@@ -241,4 +228,4 @@ def replay_rdl_batch(
                np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, n), dtype=bool),
                np.zeros((n, n, 3, 3))) for b, s in enumerate(starts)]  # fmt: skip
     fn = compiled(("rdl", noise), _kernels(noise), not _single)
-    return run_batch(fn, tls, states, starts, constants(gate, use_relative, use_landmarks, landmarks), _single)
+    return run_batch(fn, tls, states, starts, constants(**switches), _single)

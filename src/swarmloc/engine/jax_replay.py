@@ -32,8 +32,7 @@ from swarmloc.engine.codes import (
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.formulas import RANGE_BEARING, build
 from swarmloc.engine.jax_stamp import bucket, import_jax, pad_rows
-from swarmloc.node.update import Gate
-from swarmloc.sensors.models import KIND_ORDER, MODELS
+from swarmloc.engine.replay_io import Replayed
 
 DET, CMD, REC, NOOP = range(4)
 """Event types: a detection, a command, a record of every robot, padding."""
@@ -190,7 +189,7 @@ def compiled(form: Any, make: Callable[..., Kernels], batched: bool) -> Any:
 
 
 def run_batch(fn: Any, tls: Sequence[Timeline], states: Sequence[tuple], t0s: Sequence[np.ndarray], const: tuple,
-              single: bool) -> list[tuple[np.ndarray, np.ndarray, tuple]]:  # fmt: skip
+              single: bool) -> list[Replayed]:  # fmt: skip
     """Runs through ``fn`` (:func:`compiled`; ``single``: its one-run form, one run): each run's timeline, state at
     its start (numpy) and each robot's start ``(n,)`` [s]; returns each run's ``(status, reason, records)`` as
     :func:`swarmloc.engine.joint.replay_joint` gives them. The runs' steps and commands are padded to one bucket."""
@@ -224,14 +223,3 @@ def _records(tl: Timeline, starts: np.ndarray, ox: np.ndarray, oP: np.ndarray) -
     live = tl.stamps[rec][:, None] >= starts[None, :]
     slot, robot = np.nonzero(live)
     return robot.astype(np.int64), rec[slot].astype(np.int64), ox[slot, robot], oP[slot, robot]
-
-
-def constants(gate: float | None, use_relative: bool, use_landmarks: bool, landmarks: Any) -> tuple:
-    """``(gate thresholds by kind, gate on, relative on, landmarks on, landmark xy (L, 2), cov (L, 2, 2))``."""
-    g = Gate(gate)
-    thr = np.array([g.threshold(MODELS[name].size) for name in sorted(KIND_ORDER, key=KIND_ORDER.get)])
-    lxy, lcov = landmarks if landmarks is not None else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
-    if len(lxy) == 0:
-        lxy, lcov = np.zeros((1, 2)), np.zeros((1, 2, 2))
-    return (thr, np.bool_(g.p is not None), np.bool_(use_relative), np.bool_(use_landmarks),
-            np.asarray(lxy, dtype=float), np.asarray(lcov, dtype=float))  # fmt: skip

@@ -33,13 +33,11 @@ from swarmloc.engine import soa
 from swarmloc.engine.codes import (
     ABSOLUTE,
     FUSED,
-    GATED,
     MODEL,
     NO_LANDMARK,
     PENDING,
     POSE,
     R_DEGENERATE,
-    R_NONFINITE,
     R_NUMERICAL,
     REJECTED,
 )
@@ -115,10 +113,9 @@ def _segment(jnp: Any, code: int, size: int, carry: tuple, rows: tuple, start: A
         lk = tuple(jnp.where(degenerate, 1.0 + a, a) for a in lk)  # finite; a degenerate row's result is discarded
         xn, pn, nis, ok = soa.landmark_update(jnp, x, p, lk, lp, zs[:2], (rs[0], rs[1], rs[3]))
     ok = ok & soa.positive_definite(jnp, pn)
-    bad = gate_on & ~jnp.isfinite(nis)
-    gated = gate_on & ~bad & (nis > thr[code])
-    out = jnp.where(degenerate | bad, REJECTED, jnp.where(gated, GATED, jnp.where(ok, FUSED, REJECTED)))
-    why = jnp.where(degenerate, R_DEGENERATE, jnp.where(bad, R_NONFINITE, jnp.where(gated | ok, 0, R_NUMERICAL)))
+    F = build(jnp)
+    d = F.rule((0, 0, False), degenerate, REJECTED, R_DEGENERATE)
+    out, why = F.decided(F.rule(F.gate_rules(d, nis, thr[code], gate_on), ~ok, REJECTED, R_NUMERICAL), FUSED)
     commit = valid & (out == FUSED)
     new = jnp.stack((*xn, *pn), -1).astype(cur.dtype)
     cur = cur.at[jnp.where(commit, lo, cur.shape[0])].set(new, mode="drop")

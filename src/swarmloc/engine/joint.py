@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import Any, NamedTuple
+from typing import Any, Unpack
 
 import numpy as np
 from numba import njit
@@ -55,17 +55,16 @@ from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint_math import (
     RANGE_BEARING,
     F,
+    commit,
     kalman,
     measure,
     to_world,
-    verdict,
     world_noise,
 )
+from swarmloc.engine.replay_io import Constants, Replayed, Switches, constants, joint_start
 from swarmloc.engine.scalar import predict_source
-from swarmloc.kernels.invariant import cartesian_to_world_cov
 from swarmloc.motion import UnicycleNoise
-from swarmloc.node.update import Gate
-from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE, MODELS
+from swarmloc.sensors.models import MIN_RANGE
 
 
 @njit(error_model="numpy")
@@ -131,12 +130,12 @@ def predict_kernel(noise: UnicycleNoise) -> Any:
 
 @cache
 def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = False) -> Any:
-    """Compile the replay loop with the noise model's prediction (once per process, noise model and form).
-    ``invariant``: world-frame errors (``iekf``, ``diekf``). ``distributed`` (with ``invariant``: ``diekf``'s nodes):
-    each robot starts at its own first input and answers from then on (``screen_started`` of
-    :mod:`swarmloc.engine.formulas`), and a detected
-    robot moves to the detection's stamp only when it takes the update (its node answers a query from a prediction
-    it does not store; it moves when the broadcast updates it)."""
+    """Compile the replay loop (:func:`_loop`) with the noise model's prediction (once per process, noise model and
+    form) over the state ``(X, P, pend, has, tc, v, w)``. ``invariant``: world-frame errors (``iekf``, ``diekf``).
+    ``distributed`` (with ``invariant``: ``diekf``'s nodes): each robot starts at its own first input and answers
+    from then on (``screen_started`` of :mod:`swarmloc.engine.formulas`), and a detected robot moves to the
+    detection's stamp only when it takes the update (its node answers a query from a prediction it does not store;
+    it moves when the broadcast updates it)."""
     return _loop(*steps(noise, invariant, distributed)[:3], distributed)
 
 
@@ -223,22 +222,19 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
             to_world(H, 0, X[3 * i], X[3 * i + 1])
         flush(P, pend, has)
         xn, Pn, nis, ok = kalman(X, P, r, H, cols, Rm, invariant)
-        st, why = verdict(nis, ok, Pn, thr[kind], gate)
-        if st:
-            return st, why
-        X[:] = xn
-        P[:, :] = Pn
-        return FUSED, 0
+        return commit(X, P, xn, Pn, nis, ok, thr[kind], gate)
 
     return advance, marginal, fuse, belief
 
 
 def _loop(advance: Any, marginal: Any, fuse: Any, distributed: bool) -> Any:
-    """The compiled loop over the stamps of a timeline, around the compiled steps of :func:`_kernels`."""
+    """The compiled loop over the stamps of a timeline, around the compiled steps of :func:`_kernels` (its state
+    unpacked once, not in each step: steps that take the state tuple whole cost this loop 15% on MRCLAM 6)."""
 
     @njit(error_model="numpy")
-    def replay(state, t0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
+    def replay(state, vw, t0, stamps, d0, det, status, reason, const, cmd, rec, out):  # noqa: ANN001, ANN202, ARG001
         X, P, pend, has, tc, v, w = state
+        thr, gate, relative, lm_on, lxy, lcov = const
         obs, tgt, kind, z, R = det
         c0, crow, cv, cw = cmd
         out_robot, out_stamp, out_x, out_P = out
@@ -272,26 +268,29 @@ def _loop(advance: Any, marginal: Any, fuse: Any, distributed: bool) -> Any:
     return replay
 
 
-def replay_joint(
-    tl: Timeline,
-    x: np.ndarray,
-    P: np.ndarray,
-    t0: float | np.ndarray,
-    noise: UnicycleNoise,
-    *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
-    invariant: bool = False,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+def run(loop: Any, st: tuple, vw: tuple, tl: Timeline, starts: np.ndarray, const: Constants) -> tuple:
+    """A compiled replay loop (:func:`_kernels`', the clusters', ``rdl``'s: ``loop(st, vw, starts, stamps, d0, det,
+    status, reason, const, cmd, rec, out)``) over ``tl`` from the state ``st`` (its commands ``vw``) and each robot's
+    start ``starts (n,)``: ``(status, reason, records)`` as :func:`replay_joint` returns them."""
+    m = len(tl.det)
+    status, reason = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
+    k = int(sum(np.count_nonzero(tl.stamps[tl.record] >= s) for s in starts.tolist()))
+    out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
+    d = tl.det
+    det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
+    loop(st, vw, starts, tl.stamps, tl.d0, det, status, reason, const, (tl.c0, tl.robot, tl.v, tl.w), tl.record, out)
+    return status.astype(np.int8), reason.astype(np.int8), out
+
+
+def replay_joint(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, noise: UnicycleNoise, *,
+                 invariant: bool = False, **switches: Unpack[Switches]) -> Replayed:  # fmt: skip
     """The centralized EKF over ``tl`` (robots as rows, the engine's codes) from Cartesian beliefs ``x (n, 3)``,
     ``P (n, 3, 3)`` (uncorrelated) at ``t0`` [s]: one float, every robot's clock (the centralized nodes), or each
     robot's start ``(n,)`` (``inf``: never starts), with ``invariant`` only: ``diekf``'s nodes (:func:`_kernels`,
     ``distributed``).
 
-    ``gate``: the nodes' gate probability (None: none); ``landmarks``: the map as :func:`swarmloc.engine.core.
-    landmark_table` gives it, ``(xy (L, 2), cov (L, 2, 2))``; ``invariant``: the invariant EKF (world-frame errors,
+    ``switches``: the nodes' (:class:`~swarmloc.engine.replay_io.Switches`: gate, relative and landmark measurements,
+    the map); ``invariant``: the invariant EKF (world-frame errors,
     :class:`~swarmloc.estimators.InvariantEKF`; with per-robot starts the distributed one,
     :class:`~swarmloc.estimators.DistributedInvariantEKF`, whose replicas together are its joint state).
     Returns ``(status, reason, records)``: each detection's outcome and reason code (rows of ``tl.det``) and the
@@ -302,59 +301,6 @@ def replay_joint(
     distributed = np.ndim(t0) == 1
     if distributed and not invariant:
         raise ValueError("replay_joint: per-robot starts are diekf's (invariant=True); cekf starts at one t0")
-    p = prepare(tl, x, P, t0, gate, landmarks, invariant)
-    J = np.zeros((3 * n, 3 * n))
-    for k in range(n):
-        J[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = p.blocks[k]
-    _kernels(noise, bool(invariant), bool(distributed))(
-        (p.X, J, *p.robots), p.starts, *p.head, bool(use_relative), bool(use_landmarks), *p.tail, tl.record, p.out
-    )
-    return p.status.astype(np.int8), p.reason.astype(np.int8), p.out
-
-
-class Prepared(NamedTuple):
-    """A replay's inputs as the compiled loops take them (:func:`prepare`)."""
-
-    X: np.ndarray
-    """Every robot's pose, ``(3n,)``."""
-    blocks: np.ndarray
-    """Every robot's covariance ``(n, 3, 3)`` (world-frame errors for the invariant filters)."""
-    starts: np.ndarray
-    """Each robot's start ``(n,)``."""
-    robots: tuple
-    """The rest of the state: pending predictions ``(n, 8)`` and their flags, clocks, commands ``v``, ``w``."""
-    head: tuple
-    """``(stamps, d0, detections, status, reason, gate on, thresholds)``: the loop's arguments before the switches."""
-    tail: tuple
-    """``(landmarks' xy, their covariances, commands)``: its arguments after them."""
-    out: tuple
-    """The records' arrays, sized for every started robot at every recorded stamp."""
-    status: np.ndarray
-    reason: np.ndarray
-
-
-def prepare(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, gate: float | None,
-            landmarks: tuple[np.ndarray, np.ndarray] | None, invariant: bool) -> Prepared:  # fmt: skip
-    """What :func:`replay_joint`'s loop takes but the joint covariance (:class:`Prepared`): the beliefs ``x (n, 3)``,
-    ``P (n, 3, 3)`` (Cartesian; made world-frame with ``invariant``), the starts ``t0``, the gate and the map."""
-    n = x.shape[0]
-    starts = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
-    x = np.ascontiguousarray(x, dtype=float)
-    P = np.asarray(P, dtype=float)
-    if invariant:  # world-frame error covariances: N^-1 P N^-T
-        P = cartesian_to_world_cov(x, P)
-    g = Gate(gate)
-    thr = np.array([g.threshold(MODELS[name].size) for name in sorted(KIND_ORDER, key=KIND_ORDER.get)])
-    lxy, lcov = landmarks if landmarks is not None else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
-    m = len(tl.det)
-    status, reason = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
-    k = int(sum(np.count_nonzero(tl.stamps[tl.record] >= s) for s in starts.tolist()))
-    out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
-    d = tl.det
-    det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
-    robots = (np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), np.where(np.isfinite(starts), starts, 0.0), np.zeros(n),
-              np.zeros(n))  # fmt: skip
-    head = (tl.stamps, tl.d0, det, status, reason, g.p is not None, thr)
-    tail = (np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
-            (tl.c0, tl.robot, tl.v, tl.w))  # fmt: skip
-    return Prepared(x.reshape(3 * n).copy(), P, starts, robots, head, tail, out, status, reason)
+    X, J, clock, starts = joint_start(x, P, t0, invariant)
+    st = (X.reshape(3 * n), J[0], np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
+    return run(_kernels(noise, bool(invariant), bool(distributed)), st, st[5:], tl, starts, constants(**switches))

@@ -24,16 +24,17 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 from numba import njit
 
 from swarmloc.engine.checks import cluster_size
-from swarmloc.engine.codes import FUSED, R_DEGENERATE, REJECTED
+from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import flush, prepare, steps
-from swarmloc.engine.joint_math import RANGE_BEARING, F, kalman, measure, to_world, verdict
+from swarmloc.engine.joint import flush, run, steps
+from swarmloc.engine.joint_math import RANGE_BEARING, F, commit, kalman, measure, to_world
+from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sensors.models import MIN_RANGE
@@ -92,21 +93,9 @@ def _kernels(noise: UnicycleNoise) -> Any:
             if asleep[k]:
                 Pw[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = P[3 * k : 3 * k + 3, 3 * k : 3 * k + 3]
         xn, Pn, nis, ok = kalman(X, Pw, r, Hi, np.arange(a, a + 3), Rm + B / (1 - wt), True)
-        st, why = verdict(nis, ok, Pn, thr[kind], gate)
-        if st:
-            return st, why
-        X[:] = xn
-        P[:, :] = Pn
-        return FUSED, 0
+        return commit(X, P, xn, Pn, nis, ok, thr[kind], gate)
 
     return _loop(advance, marginal, fuse, belief, outsider)
-
-
-@njit(error_model="numpy")
-def _span(k: int, K: int, n: int) -> tuple[int, int, int]:
-    """Robot row ``k``'s cluster of ``K`` in a team of ``n``: ``(its index, first row, one past its last row)``."""
-    b = k // K
-    return b, b * K, min(b * K + K, n)
 
 
 def _loop(advance: Any, marginal: Any, fuse: Any, belief: Any, outsider: Any) -> Any:
@@ -114,8 +103,9 @@ def _loop(advance: Any, marginal: Any, fuse: Any, belief: Any, outsider: Any) ->
     robot's steps run on its cluster's views of the state."""
 
     @njit(error_model="numpy")
-    def replay(state, K, t0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
-        X, P, pend, has, tc, v, w = state
+    def replay(state, vw, t0, stamps, d0, det, status, reason, const, cmd, rec, out):  # noqa: ANN001, ANN202, ARG001
+        X, P, pend, has, tc, v, w, K = state
+        thr, gate, relative, lm_on, lxy, lcov = const
         obs, tgt, kind, z, R = det
         c0, crow, cv, cw = cmd
         out_robot, out_stamp, out_x, out_P = out
@@ -161,30 +151,21 @@ def _loop(advance: Any, marginal: Any, fuse: Any, belief: Any, outsider: Any) ->
     return replay
 
 
-def replay_clusters(
-    tl: Timeline,
-    x: np.ndarray,
-    P: np.ndarray,
-    t0: np.ndarray,
-    noise: UnicycleNoise,
-    cluster: int,
-    *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+@njit(error_model="numpy")
+def _span(k: int, K: int, n: int) -> tuple[int, int, int]:
+    """Robot row ``k``'s cluster of ``K`` in a team of ``n``: ``(its index, first row, one past its last row)``."""
+    b = k // K
+    return b, b * K, min(b * K + K, n)
+
+
+def replay_clusters(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise: UnicycleNoise, cluster: int,
+                    **switches: Unpack[Switches]) -> Replayed:  # fmt: skip
     """``diekf``'s nodes in clusters of ``cluster`` robots (rows in id order) over ``tl``, from Cartesian beliefs
     ``x (n, 3)``, ``P (n, 3, 3)`` and each robot's start ``t0 (n,)`` (``inf``: never starts); the rest as
     :func:`swarmloc.engine.joint.replay_joint` (``invariant=True``), which it equals for ``cluster >= n``. Returns
     ``(status, reason, records)`` as that does."""
     n = x.shape[0]
     K = cluster_size(cluster, n, [t0])
-    p = prepare(tl, x, P, t0, gate, landmarks, True)
-    J = np.zeros((-(-n // K), 3 * K, 3 * K))
-    for k in range(n):
-        b = 3 * (k % K)
-        J[k // K, b : b + 3, b : b + 3] = p.blocks[k]
-    _kernels(noise)((p.X, J, *p.robots), K, p.starts, *p.head, bool(use_relative), bool(use_landmarks), *p.tail,
-                    tl.record, p.out)  # fmt: skip
-    return p.status.astype(np.int8), p.reason.astype(np.int8), p.out
+    X, J, clock, starts = joint_start(x, P, t0, True, K)
+    st = (X.reshape(3 * n), J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n), K)
+    return run(_kernels(noise), st, st[5:7], tl, starts, constants(**switches))

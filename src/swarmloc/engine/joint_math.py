@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from swarmloc.engine import numba_xp
-from swarmloc.engine.codes import ABSOLUTE, POSE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import ABSOLUTE, FUSED, POSE, R_NUMERICAL, REJECTED
 from swarmloc.engine.formulas import RANGE_BEARING, build
 
 
@@ -216,3 +216,16 @@ def verdict(nis: float, ok: bool, Pn: np.ndarray, threshold: float, gate: bool) 
     if not (ok and usable(Pn)):
         return REJECTED, R_NUMERICAL
     return 0, 0
+
+
+@njit(error_model="numpy")
+def commit(X: np.ndarray, P: np.ndarray, xn: np.ndarray, Pn: np.ndarray, nis: float, ok: bool, threshold: float,
+           gate: bool) -> tuple[int, int]:  # fmt: skip
+    """A joint update's :func:`verdict` and, when taken, its ``(xn, Pn)`` written into the state ``(X, P)`` in place:
+    ``(outcome, reason)``."""
+    st, why = verdict(nis, ok, Pn, threshold, gate)
+    if st:
+        return st, why
+    X[:] = xn
+    P[:, :] = Pn
+    return FUSED, 0

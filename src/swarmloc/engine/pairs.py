@@ -26,22 +26,14 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 from numba import njit
 
-from swarmloc.engine.codes import (
-    ABSOLUTE,
-    FUSED,
-    GATED,
-    NO_LANDMARK,
-    R_CORRELATION,
-    R_DEGENERATE,
-    REJECTED,
-)
+from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, NO_LANDMARK, R_CORRELATION, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import predict_kernel
+from swarmloc.engine.joint import predict_kernel, run
 from swarmloc.engine.joint_math import (
     RANGE_BEARING,
     F,
@@ -53,10 +45,10 @@ from swarmloc.engine.joint_math import (
     verdict,
     wrap,
 )
+from swarmloc.engine.replay_io import Replayed, Switches, constants
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
-from swarmloc.node.update import Gate
-from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE, MODELS
+from swarmloc.sensors.models import MIN_RANGE
 
 
 @njit(error_model="numpy")
@@ -273,8 +265,9 @@ def _loop(predicted: Any, advance: Any) -> Any:
         return FUSED, 0
 
     @njit(error_model="numpy")
-    def replay(st, t0, stamps, d0, det, status, reason, gate, thr, relative, lm_on, lxy, lcov, cmd, rec, out):  # noqa: ANN001, ANN202
+    def replay(st, vw, t0, stamps, d0, det, status, reason, const, cmd, rec, out):  # noqa: ANN001, ANN202, ARG001
         x, P, tc, v, w, sa, sb, met, sig = st
+        thr, gate, relative, lm_on, lxy, lcov = const
         obs, tgt, kind, z, R = det
         c0, crow, cv, cw = cmd
         out_robot, out_stamp, out_x, out_P = out
@@ -339,42 +332,15 @@ def _commit_private(st: Any, i: int, xn: np.ndarray, Pn: np.ndarray, nis: float,
     return FUSED, 0
 
 
-def replay_rdl(
-    tl: Timeline,
-    x: np.ndarray,
-    P: np.ndarray,
-    t0: np.ndarray,
-    noise: UnicycleNoise,
-    *,
-    gate: float | None = None,
-    use_relative: bool = True,
-    use_landmarks: bool = True,
-    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+def replay_rdl(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise: UnicycleNoise,
+               **switches: Unpack[Switches]) -> Replayed:  # fmt: skip
     """``rdl`` over ``tl`` (robots as rows, the engine's codes) from Cartesian beliefs ``x (n, 3)``, ``P (n, 3, 3)``
-    at each robot's start ``t0 (n,)`` [s] (``inf``: never starts).
-
-    ``gate``: the nodes' gate probability (None: none); ``landmarks``: ``(xy (L, 2), cov (L, 2, 2))`` as
-    :func:`swarmloc.engine.core.landmark_table` gives them. Returns ``(status, reason, records)`` as
+    at each robot's start ``t0 (n,)`` [s] (``inf``: never starts), with the nodes' ``switches``
+    (:class:`~swarmloc.engine.replay_io.Switches`). Returns ``(status, reason, records)`` as
     :func:`swarmloc.engine.joint.replay_joint`: records of every started robot at every recorded stamp.
     """
     n = x.shape[0]
-    g = Gate(gate)
-    thr = np.array([g.threshold(MODELS[name].size) for name in sorted(KIND_ORDER, key=KIND_ORDER.get)])
-    lxy, lcov = landmarks if landmarks is not None else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
-    m = len(tl.det)
-    status, reason = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
     t0 = np.asarray(t0, dtype=float)
-    k = int(sum(np.count_nonzero(tl.stamps[tl.record] >= s) for s in t0.tolist()))
-    out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)))
-    clock = np.where(np.isfinite(t0), t0, 0.0)
-    state = (np.array(x, dtype=float), np.array(P, dtype=float), clock, np.zeros(n), np.zeros(n), np.zeros(n),
-             np.zeros(n), np.zeros((n, n), dtype=np.bool_), np.zeros((n, n, 3, 3)))  # fmt: skip
-    d = tl.det
-    det = (d.observer, d.target, d.kind, np.ascontiguousarray(d.z), np.ascontiguousarray(d.R))
-    _kernels(noise)(
-        state, t0, tl.stamps, tl.d0, det, status, reason, g.p is not None, thr, bool(use_relative),
-        bool(use_landmarks), np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
-        (tl.c0, tl.robot, tl.v, tl.w), tl.record, out,
-    )  # fmt: skip
-    return status.astype(np.int8), reason.astype(np.int8), out
+    st = (np.array(x, dtype=float), np.array(P, dtype=float), np.where(np.isfinite(t0), t0, 0.0), np.zeros(n),
+          np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, n), dtype=np.bool_), np.zeros((n, n, 3, 3)))  # fmt: skip
+    return run(_kernels(noise), st, st[3:5], tl, t0, constants(**switches))
