@@ -11,7 +11,7 @@ numba loop's order:
   ``diekf`` detection on the cluster's view (the cluster's poses, covariance, clocks and commands; its robots'
   starts), written back;
 * a robot of another cluster: the node's covariance-intersection update
-  (:meth:`DistributedInvariantEKF._outsider <swarmloc.estimators.DistributedInvariantEKF._outsider>`): the
+  (:meth:`TeamProtocol.outsider <swarmloc.estimators.diekf.TeamProtocol.outsider>`): the
   outsider's world-frame belief predicted to the stamp (not stored), ``A = H_i P_ii H_i^T``, ``B = H_j P_jj
   H_j^T``, the weight minimizing the cluster's posterior log det (:func:`_weight`, the grid and parabola of
   :func:`swarmloc.kernels.ci.joint_weight`; ``dof`` the cluster's real size), the cluster's covariance divided by
