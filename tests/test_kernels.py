@@ -122,26 +122,26 @@ def test_point_update_batched_equals_one_at_a_time(rng):
             if kind == "bearing":
                 z = rng.uniform(-1, 1, (N, 1))
             R = _spd(rng, N, m, 0.05)
-            bm, bc, ok = K.point_update(mu, cov, kind, z, R, tm, tc, robot)
-            nis = K.point_nis(mu, cov, kind, z, R, tm, tc, robot)
+            bm, bc, ok = K.point_update(mu, cov, K.PointMeasurement(kind, z, R, tm, tc, robot))
+            nis = K.point_nis(mu, cov, K.PointMeasurement(kind, z, R, tm, tc, robot))
             assert ok.all()
             for i in range(0, N, 7):
-                m1, c1, ok1 = K.point_update(mu[i], cov[i], kind, z[i], R[i], tm[i], tc[i], robot)
+                one = K.PointMeasurement(kind, z[i], R[i], tm[i], tc[i], robot)
+                m1, c1, ok1 = K.point_update(mu[i], cov[i], one)
                 assert ok1
                 np.testing.assert_allclose(m1, bm[i], atol=1e-12)
                 np.testing.assert_allclose(c1, bc[i], rtol=1e-9, atol=1e-14)
-                assert float(K.point_nis(mu[i], cov[i], kind, z[i], R[i], tm[i], tc[i], robot)) == pytest.approx(
-                    nis[i], rel=1e-10
-                )
+                assert float(K.point_nis(mu[i], cov[i], one)) == pytest.approx(nis[i], rel=1e-10)
 
 
 def test_point_update_refuses_a_target_on_the_observer():
     mu = SE2.from_xytheta([1.0, 2.0, 0.3])
-    m, c, ok = K.point_update(mu, 1e-2 * np.eye(3), "range_bearing", np.array([1.0, 0.2]), 1e-2 * np.eye(2),
-                              np.array([1.0, 2.0]), 1e-4 * np.eye(2), robot=False)  # fmt: skip
+    target = np.array([1.0, 2.0]), 1e-4 * np.eye(2)
+    meas = K.PointMeasurement("range_bearing", np.array([1.0, 0.2]), 1e-2 * np.eye(2), *target, robot=False)
+    m, c, ok = K.point_update(mu, 1e-2 * np.eye(3), meas)
     assert not ok and np.isfinite(m).all() and np.isfinite(c).all()
-    assert np.isnan(K.point_nis(mu, 1e-2 * np.eye(3), "range", np.array([1.0]), np.eye(1), np.array([1.0, 2.0]),
-                                1e-4 * np.eye(2), robot=False))  # fmt: skip
+    meas = K.PointMeasurement("range", np.array([1.0]), np.eye(1), *target, robot=False)
+    assert np.isnan(K.point_nis(mu, 1e-2 * np.eye(3), meas))
 
 
 def test_ci_weight_search_finds_the_minimum_scipy_finds(rng):
@@ -157,23 +157,23 @@ def test_ci_weight_search_finds_the_minimum_scipy_finds(rng):
 
     def fuse_batch(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         wc = w[..., None, None]
-        m2, c2, _ = K.point_update(mu, cov / wc, "range_bearing", z, R, tm, tc / (1 - wc), True)
+        m2, c2, _ = K.point_update(mu, cov / wc, K.PointMeasurement("range_bearing", z, R, tm, tc / (1 - wc), True))
         return m2, c2
 
     bm, bc, bw = ci_search(fuse_batch, (n,))
     for i in range(n):
 
         def cost(w: float, i: int = i) -> float:
-            return float(np.linalg.slogdet(K.point_update(mu[i], cov[i] / w, "range_bearing", z[i], R[i], tm[i],
-                                                          tc[i] / (1 - w), True)[1])[1])  # fmt: skip
+            meas = K.PointMeasurement("range_bearing", z[i], R[i], tm[i], tc[i] / (1 - w), True)
+            return float(np.linalg.slogdet(K.point_update(mu[i], cov[i] / w, meas)[1])[1])
 
         ref = minimize_scalar(cost, bounds=W_BOUNDS, method="bounded", options={"xatol": 1e-6})
         assert cost(float(bw[i])) <= ref.fun + 1e-6, (i, bw[i], ref.x)
 
         def fuse_one(w: np.ndarray, i: int = i) -> tuple[np.ndarray, np.ndarray]:
             wc = w[..., None, None]
-            m2, c2, _ = K.point_update(np.broadcast_to(mu[i], (*w.shape, 3, 3)), cov[i] / wc, "range_bearing", z[i],
-                                       R[i], tm[i], tc[i] / (1 - wc), True)  # fmt: skip
+            meas = K.PointMeasurement("range_bearing", z[i], R[i], tm[i], tc[i] / (1 - wc), True)
+            m2, c2, _ = K.point_update(np.broadcast_to(mu[i], (*w.shape, 3, 3)), cov[i] / wc, meas)
             return m2, c2
 
         om, oc, ow = ci_search(fuse_one)

@@ -112,7 +112,7 @@ class CiFusion(Sequential):
         if model.kind == Kind.POSE:
             nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, meas, R, self.order)
             return st.gate(rows, K.pseudo_nis(SE2, mean, cov, nu, W), self.gate, 3)
-        nis = K.point_nis(mean, cov, model.kind, meas, R, nb_mean, nb_cov, True)
+        nis = K.point_nis(mean, cov, K.PointMeasurement(model.kind, meas, R, nb_mean, nb_cov, True))
         return st.gate(rows, nis, self.gate, model.size, nonfinite=R_DEGENERATE)
 
     def _closed_form_pose(self, pair: Pair) -> tuple[np.ndarray, np.ndarray]:
@@ -125,8 +125,8 @@ class CiFusion(Sequential):
     def _closed_form_point(self, model: MeasurementModel, pair: Pair) -> tuple[np.ndarray, ...]:
         mean, cov, nb_mean, nb_cov, z, R = pair
         w = KCI.point_weight(mean, cov, model.kind, z, R, nb_mean, nb_cov)[:, None, None]
-        return K.point_update(mean, cov / w, model.kind, z, R, nb_mean, nb_cov / (1 - w), True,
-                              self.point_iterations, self.order)  # fmt: skip
+        meas = K.PointMeasurement(model.kind, z, R, nb_mean, nb_cov / (1 - w), True)
+        return K.point_update(mean, cov / w, meas, self.point_iterations, self.order)
 
     def _fusion(self, model: MeasurementModel, pair: Pair) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
         """The fusion at CI weights ``w (k, B)`` for :func:`~swarmloc.kernels.ci.ci_search`."""
@@ -142,8 +142,8 @@ class CiFusion(Sequential):
         def fuse_point(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             wc = w[..., None, None]
             mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-            m2, c2, ok = K.point_update(mu, cov / wc, model.kind, meas, R, nb_mean, nb_cov / (1 - wc), True,
-                                        point_its, order)  # fmt: skip
+            point = K.PointMeasurement(model.kind, meas, R, nb_mean, nb_cov / (1 - wc), True)
+            m2, c2, ok = K.point_update(mu, cov / wc, point, point_its, order)
             return m2, np.where(ok[..., None, None], c2, np.nan)
 
         return fuse_pose if model.kind == Kind.POSE else fuse_point

@@ -96,11 +96,12 @@ class ExpFusionLevel(Fusion):
         z, R = st.det.z[rows, :m], st.det.R[rows, :m, :m]
         tm, tc = st.target(rows)
         if self.gate.p is not None:
-            nis = K.point_nis(mean, cov, name, z, R, tm, tc, True)
+            nis = K.point_nis(mean, cov, K.PointMeasurement(name, z, R, tm, tc, True))
             keep = st.gate(rows, nis, self.gate, m, nonfinite=R_DEGENERATE)
             rows, mean, cov, z, R, tm, tc = (a[keep] for a in (rows, mean, cov, z, R, tm, tc))
         if rows.size == 0:
             return
-        m2, c2, ok = K.point_update(mean, cov, name, z, R, tm, tc, True, self.point_iterations, self.order)
+        meas = K.PointMeasurement(name, z, R, tm, tc, True)
+        m2, c2, ok = K.point_update(mean, cov, meas, self.point_iterations, self.order)
         st.mark(rows[~ok], REJECTED, R_DEGENERATE)
         st.accept(rows[ok], m2[ok], c2[ok], R_NUMERICAL)

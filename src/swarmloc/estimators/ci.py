@@ -83,7 +83,7 @@ class CovarianceIntersection:
                 nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - w), m, R, order)
                 m2, c2 = K.fuse_pseudo(SE2, mean, cov / w, nu[None], W[None], order, its)
         else:
-            verdict = point_gate(node, mean, cov, d, nb_mean, nb_cov, True)
+            verdict = point_gate(node, mean, cov, K.PointMeasurement(d.kind, d.z, R, nb_mean, nb_cov, True))
             if verdict is not None:
                 return verdict
             if node.ci_weight == "search":
@@ -91,9 +91,8 @@ class CovarianceIntersection:
                 ok = bool(np.isfinite(c2).all())
             else:
                 w = float(point_weight(mean, cov, d.kind, d.z, R, nb_mean, nb_cov))
-                m2, c2, found = K.point_update(
-                    mean, cov / w, d.kind, d.z, R, nb_mean, nb_cov / (1 - w), True, node.point_iterations, order
-                )
+                meas = K.PointMeasurement(d.kind, d.z, R, nb_mean, nb_cov / (1 - w), True)
+                m2, c2, found = K.point_update(mean, cov / w, meas, node.point_iterations, order)
                 ok = bool(found)
             if not ok:
                 return ("rejected", DEGENERATE)
@@ -144,8 +143,8 @@ def point_at(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, R: np.nda
     def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         wc = w[..., None, None]
         mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-        m2, c2, ok = K.point_update(mu, cov / wc, d.kind, np.asarray(d.z, dtype=float), R, nb_mean,
-                                    nb_cov / (1 - wc), True, node.point_iterations, node.order)  # fmt: skip
+        meas = K.PointMeasurement(d.kind, np.asarray(d.z, dtype=float), R, nb_mean, nb_cov / (1 - wc), True)
+        m2, c2, ok = K.point_update(mu, cov / wc, meas, node.point_iterations, node.order)
         return m2, np.where(np.asarray(ok)[..., None, None], c2, np.nan)
 
     return fuse

@@ -220,15 +220,14 @@ def pseudo(node: ExpNode, d: Any, target: tuple[str, Any]) -> tuple[np.ndarray, 
     return None
 
 
-def point_gate(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, tm: np.ndarray, tc: np.ndarray,
-               robot: bool) -> Outcome | None:  # fmt: skip
-    """The gate's verdict on a range/bearing detection of a target ``(tm, tc)`` (None: pass, or no gate)."""
+def point_gate(node: ExpNode, mean: np.ndarray, cov: np.ndarray, meas: K.PointMeasurement) -> Outcome | None:
+    """The gate's verdict on a range/bearing measurement (None: pass, or no gate)."""
     if node.gate.p is None:
         return None
-    nis = float(K.point_nis(mean, cov, d.kind, d.z, np.asarray(d.cov, float), tm, tc, robot))
+    nis = float(K.point_nis(mean, cov, meas))
     if not np.isfinite(nis):
         return ("rejected", DEGENERATE)
-    return node._gated(nis, len(d.z))
+    return node._gated(nis, len(meas.z))
 
 
 def point(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
@@ -238,11 +237,11 @@ def point(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, target: tupl
     else:
         tm, tc = target[1]
     robot = target[0] == "robot"
-    verdict = point_gate(node, mean, cov, d, tm, tc, robot)
+    meas = K.PointMeasurement(d.kind, d.z, np.asarray(d.cov, float), tm, tc, robot)
+    verdict = point_gate(node, mean, cov, meas)
     if verdict is not None:
         return verdict
-    m2, c2, ok = K.point_update(mean, cov, d.kind, d.z, np.asarray(d.cov, float), tm, tc, robot,
-                                node.point_iterations, node.order)  # fmt: skip
+    m2, c2, ok = K.point_update(mean, cov, meas, node.point_iterations, node.order)
     if not bool(ok):
         return ("rejected", DEGENERATE)
     if not usable_covariance(c2):

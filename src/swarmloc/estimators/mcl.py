@@ -239,7 +239,8 @@ def _landmark_moved(p: np.ndarray, w: np.ndarray, d: Any, landmark: tuple[np.nda
     Gaussian by a range/bearing detection ``d`` of a landmark ``(position, covariance)``; None when not usable."""
     mean, cov = fit_gaussian(p, w)
     with np.errstate(all="ignore"):
-        m2, c2, ok = K.point_update(mean, cov, d.kind, d.z, np.asarray(d.cov, dtype=float), *landmark, False)
+        meas = K.PointMeasurement(d.kind, d.z, np.asarray(d.cov, dtype=float), *landmark, False)
+        m2, c2, ok = K.point_update(mean, cov, meas)
     return ensemble_transform(p, mean, cov, m2, c2) if bool(ok) else None
 
 
@@ -519,7 +520,8 @@ class MonteCarloLocalization(RobotNode):
                 m2, c2 = K.fuse_pseudo(SE2, mean, cov / wc, nu[None], W[None])
             else:
                 wc = float(point_weight(mean, cov, d.kind, d.z, R, nb_mean, nb_cov))
-                m2, c2, ok = K.point_update(mean, cov / wc, d.kind, d.z, R, nb_mean, nb_cov / (1 - wc), True)
+                meas = K.PointMeasurement(d.kind, d.z, R, nb_mean, nb_cov / (1 - wc), True)
+                m2, c2, ok = K.point_update(mean, cov / wc, meas)
                 if not bool(ok):
                     return None
         return ensemble_transform(p, mean, cov, m2, c2)

@@ -7,7 +7,8 @@ checked against Monte Carlo or importance sampling in ``tests/``.
 * :func:`predict`: second-order convolution with the odometry increment (thesis 4.13-4.15, 3.22-3.28);
 * :func:`relative_to_pseudo`, :func:`fuse_pseudo`: relative-pose measurements of uncertain neighbours (and absolute
   fixes) as pseudo-observations of the observer's own pose, fused all at once (thesis ch. 4, corrected);
-* :func:`point_update`: range/bearing of an uncertain robot or a landmark, iterated update on SE(2);
+* :func:`point_update`: range/bearing (a :class:`PointMeasurement`) of an uncertain robot or a landmark, iterated
+  update on SE(2);
 * :func:`pseudo_nis`, :func:`point_nis`: normalized innovations squared for gating.
 
 Shapes: SE(2) means ``(..., 3, 3)``, covariances ``(..., 3, 3)``; SE(3) where stated ``(..., 4, 4)``/``(..., 6, 6)``.
@@ -15,7 +16,7 @@ Shapes: SE(2) means ``(..., 3, 3)``, covariances ``(..., 3, 3)``; SE(3) where st
 
 from __future__ import annotations
 
-from typing import cast
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -229,17 +230,24 @@ def point_residual(kind: str, z: FloatArray, h: FloatArray) -> FloatArray:
     return r
 
 
+class PointMeasurement(NamedTuple):
+    """A range/bearing measurement of an uncertain target, as :func:`point_update` and :func:`point_nis` take it.
+
+    ``kind``: a key of :data:`POINT_KINDS`; ``z`` ``(..., m)``: range [m] / bearing [rad]; ``R`` ``(..., m, m)``: its
+    noise covariance; the target a robot's pose ``target_mean (..., 3, 3)`` with exponential-coordinate covariance
+    ``target_cov (..., 3, 3)`` (``robot``) or a world point ``(..., 2)`` with Cartesian covariance ``(..., 2, 2)``.
+    """
+
+    kind: str
+    z: FloatArray
+    R: FloatArray
+    target_mean: FloatArray
+    target_cov: FloatArray
+    robot: bool
+
+
 def point_update(
-    mu: FloatArray,
-    cov: FloatArray,
-    kind: str,
-    z: FloatArray,
-    R: FloatArray,
-    target_mean: FloatArray,
-    target_cov: FloatArray,
-    robot: bool,
-    iterations: int = 3,
-    order: int = 2,
+    mu: FloatArray, cov: FloatArray, meas: PointMeasurement, iterations: int = 3, order: int = 2
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Update an SE(2) belief with a range/bearing measurement of an uncertain robot or landmark. Batched.
 
@@ -253,6 +261,7 @@ def point_update(
     :data:`~swarmloc.sensors.models.MIN_RANGE` at any iteration) or the result is not finite: the caller keeps
     the prior there.
     """
+    kind, z, R, target_mean, target_cov, robot = meas
     z = np.asarray(z, dtype=float)
     cov_inv = np.linalg.inv(cov)
     cur = mu
@@ -291,24 +300,15 @@ def point_update(
     return cur, post, ok
 
 
-def point_nis(
-    mu: FloatArray,
-    cov: FloatArray,
-    kind: str,
-    z: FloatArray,
-    R: FloatArray,
-    target_mean: FloatArray,
-    target_cov: FloatArray,
-    robot: bool,
-) -> FloatArray:
+def point_nis(mu: FloatArray, cov: FloatArray, meas: PointMeasurement) -> FloatArray:
     """Normalized innovation squared ``r^T (H Sigma H^T + C + R)^-1 r`` of a range/bearing measurement (gating).
 
     NaN where the geometry is degenerate (predicted range below ``MIN_RANGE``).
     """
     with np.errstate(divide="ignore", invalid="ignore"):
-        h, H, C, rng = point_model(kind, mu, target_mean, target_cov, robot)
-        r = point_residual(kind, z, h)
-        S = H @ cov @ _T(H, -1, -2) + C + R
+        h, H, C, rng = point_model(meas.kind, mu, meas.target_mean, meas.target_cov, meas.robot)
+        r = point_residual(meas.kind, meas.z, h)
+        S = H @ cov @ _T(H, -1, -2) + C + meas.R
         ok = (rng >= MIN_RANGE) & np.isfinite(S).all(axis=(-1, -2))
         S = np.where(ok[..., None, None], S, np.eye(S.shape[-1]))
         r = np.where(ok[..., None], r, 0.0)
