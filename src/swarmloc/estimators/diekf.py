@@ -640,4 +640,3 @@ class DistributedInvariantEKF(RobotNode):
         if isinstance(u, TeamUpdate) and u.target == self.robot:
             s = self._adv(s, self.robot, u.stamp)
         return self.protocol.apply(s, u, self.counts)
-

@@ -188,7 +188,6 @@ class TeamFixedLagSmoother(RobotNode):
         s = self._adv(s, self.robot, u.stamp)  # the pose at the update's stamp: a function of the inputs only
         return self.protocol.apply(s, u, self.counts)
 
-
     # ------------------------------------------------------------------------------------------------ update
     def _smoothed_landmarks(
         self, s: TeamFlsState, factors: list[Factor], xw: np.ndarray
