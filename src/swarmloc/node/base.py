@@ -95,7 +95,7 @@ class Node(Intake, Exchange):
         at the scan's stamp); association_gate: the chi-square probability of the association gate; sensor_range
         [m]: teammates predicted within it and given no detection of a scan are counted ``association_missed``
         (None: not counted), those within ``sensor_fov`` [rad] of the heading only when it is set (total width;
-        None: all round). The node's :meth:`_associate` uses them (default: none).
+        None: all round). The node's ``_associate`` uses them (default: none).
     """
 
     name: ClassVar[str] = "node"

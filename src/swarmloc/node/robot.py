@@ -70,7 +70,8 @@ class RobotNode(Node):
     initial: its initial belief, an SE(2) :class:`~swarmloc.gaussian.GroupGaussian` (holding at ``t0``).
     noise: process noise of its odometry (:class:`~swarmloc.motion.UnicycleNoise`).
     team: every robot id of the team (``make_team`` passes it): the candidates of an anonymous detection (the node
-        asks every teammate for its belief at the stamp of a scan with anonymous detections, :attr:`Node.association`).
+        asks every teammate for its belief at the stamp of a scan with anonymous detections under an ``association``
+        policy other than ``tags``).
     Other keywords: see :class:`~swarmloc.node.base.Node`. Neighbours are learnt as they are detected; they are
     asked for their belief (:class:`~swarmloc.messages.BeliefQuery`) and never read otherwise.
     """
