@@ -97,6 +97,26 @@ def test_dead_reckoning_takes_a_policy_and_associates_nothing():
         make_team("dr", src.initial, noise=src.config.motion.noise(), association="psychic")
 
 
+@pytest.mark.parametrize("est", ["dekf", "cekf"])
+def test_a_node_checks_the_association_options_whatever_its_base(est):
+    """The options are checked once (the node base), for a one-robot node and a team node alike; what each node
+    cannot do with a valid policy is refused after that: an SE(3) team, and one robot that knows no teammate."""
+    src = load_source("sim:random", robots=2, duration=1.0, seed=0)
+    opts = {"noise": src.config.motion.noise()}
+    for bad, match in (({"association": "psychic"}, "association must be one of"),
+                       ({"association_gate": 1.0}, "association_gate"),
+                       ({"sensor_range": 0.0}, "sensor_range must be > 0"),
+                       ({"sensor_fov": 7.0}, "sensor_fov must be in")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            make_team(est, src.initial, **opts, **bad)
+    src3 = load_source("sim:3d", robots=2, duration=1.0, seed=0)
+    with pytest.raises(ValueError, match="SE\\(3\\) team has no association policy"):
+        make_team(est, src3.initial, noise=src3.noise, association="nearest")
+    if est == "dekf":
+        with pytest.raises(ValueError, match="needs the team's robot ids"):
+            make_team(est, {0: src.initial[0]}, **opts, association="nearest")
+
+
 @pytest.mark.parametrize("est", ["dekf", "cekf", "rdl"])
 def test_compare_counts_the_teammates_a_scan_missed_within_the_simulated_sensor(est):
     """``compare`` hands the nodes the simulated sensor's reach (``Source.sensor``: 1.5 m, all round), so

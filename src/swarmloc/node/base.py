@@ -44,7 +44,7 @@ from swarmloc.gaussian import GroupGaussian, world_covariance
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Answer, Message, RdlUpdate, TeamUpdate
 from swarmloc.node.accounting import Accounting
-from swarmloc.node.associate import AssociationView
+from swarmloc.node.associate import AssociationView, check_association, check_sensor
 from swarmloc.node.clock import DEFAULT_CONFIRM, DEFAULT_HORIZON, DEFAULT_TOLERANCE, Clock
 from swarmloc.node.history import PRUNE_EVERY, History
 from swarmloc.node.inputs import (
@@ -90,6 +90,12 @@ class Node(Intake, Exchange):
     use_relative, use_landmarks: whether detections of robots / of landmarks are fused (else rejected, counted).
     quarantine: a teammate's updates refused in a row (each failing its check on the gate) after which it is
         quarantined for the run, or None: never (:mod:`~swarmloc.node.trust`).
+    association: ``tags`` (anonymous robot detections refused), ``nearest`` or ``joint``
+        (:mod:`~swarmloc.node.associate`: anonymous detections are given an identity among the teammates' beliefs
+        at the scan's stamp); association_gate: the chi-square probability of the association gate; sensor_range
+        [m]: teammates predicted within it and given no detection of a scan are counted ``association_missed``
+        (None: not counted), those within ``sensor_fov`` [rad] of the heading only when it is set (total width;
+        None: all round). The node's ``_associate`` uses them (default: none).
     """
 
     name: ClassVar[str] = "node"
@@ -118,8 +124,18 @@ class Node(Intake, Exchange):
         use_relative: bool = True,
         use_landmarks: bool = True,
         quarantine: int | None = DEFAULT_QUARANTINE,
+        association: str = "tags",
+        association_gate: float = 0.99,
+        sensor_range: float | None = None,
+        sensor_fov: float | None = None,
     ) -> None:
         cls = type(self).__name__
+        check_association(cls, association, association_gate)
+        check_sensor(cls, sensor_range, sensor_fov)
+        self.association = association
+        self.association_gate = float(association_gate)
+        self.sensor_range = sensor_range
+        self.sensor_fov = sensor_fov
         self._clock = Clock(horizon, tolerance, jump_inputs, cls)
         self.accounting = Accounting(self.name)
         try:

@@ -17,8 +17,6 @@ from swarmloc.node.associate import (
     AssociationView,
     answered_beliefs,
     associate,
-    check_association,
-    check_sensor,
     is_anonymous,
 )
 from swarmloc.node.base import Node
@@ -71,13 +69,9 @@ class RobotNode(Node):
     robot: the robot's id.
     initial: its initial belief, an SE(2) :class:`~swarmloc.gaussian.GroupGaussian` (holding at ``t0``).
     noise: process noise of its odometry (:class:`~swarmloc.motion.UnicycleNoise`).
-    team: every robot id of the team (``make_team`` passes it): the candidates of an anonymous detection.
-    association: ``tags`` (anonymous robot detections refused), ``nearest`` or ``joint``
-        (:mod:`~swarmloc.node.associate`: the node asks every teammate for its belief at the stamp of a scan with
-        anonymous detections, then gives each one an identity); association_gate: the chi-square probability of
-        the association gate; sensor_range [m]: teammates predicted within it and given no detection of a scan
-        are counted ``association_missed`` (None: not counted), those within ``sensor_fov`` [rad] of the heading only
-        when it is set (total width; None: all round).
+    team: every robot id of the team (``make_team`` passes it): the candidates of an anonymous detection (the node
+        asks every teammate for its belief at the stamp of a scan with anonymous detections under an ``association``
+        policy other than ``tags``).
     Other keywords: see :class:`~swarmloc.node.base.Node`. Neighbours are learnt as they are detected; they are
     asked for their belief (:class:`~swarmloc.messages.BeliefQuery`) and never read otherwise.
     """
@@ -100,37 +94,28 @@ class RobotNode(Node):
         *,
         noise: UnicycleNoise,
         team: Sequence[int] = (),
-        association: str = "tags",
-        association_gate: float = 0.99,
-        sensor_range: float | None = None,
-        sensor_fov: float | None = None,
         **kw: Any,
     ) -> None:
         cls = type(self).__name__
         if not isinstance(robot, int | np.integer) or isinstance(robot, bool):
             raise ValueError(f"{cls}: 'robot' must be an integer id, got {robot!r}")
         check_model(cls, {robot: initial}, noise, self.groups)
-        if initial.group is SE3 and association != "tags":
-            raise ValueError(f"{cls}: an SE(3) team has no association policy; use association='tags'")
-        check_association(cls, association, association_gate)
-        if association != "tags" and not self.associates:
-            raise ValueError(
-                f"{cls}: association {association!r} is not supported by {self.name}; use association='tags'"
-            )
-        check_sensor(cls, sensor_range, sensor_fov)
         self.robot = int(robot)
         self.initial = initial
         self.group = initial.group
         """The group of the robot's pose (SE(2) or SE(3)), from the initial belief."""
         self.noise = noise
         self.team = tuple(sorted({int(r) for r in team} | {self.robot}))
-        self.association = association
-        self.association_gate = float(association_gate)
-        self.sensor_range = sensor_range
-        self.sensor_fov = sensor_fov
+        super().__init__((self.robot,), **kw)
+        association = self.association  # checked by Node; what this node can do with it:
+        if initial.group is SE3 and association != "tags":
+            raise ValueError(f"{cls}: an SE(3) team has no association policy; use association='tags'")
+        if association != "tags" and not self.associates:
+            raise ValueError(
+                f"{cls}: association {association!r} is not supported by {self.name}; use association='tags'"
+            )
         if association != "tags" and len(self.team) < 2:
             raise ValueError(f"{cls}: association {association!r} needs the team's robot ids ('team')")
-        super().__init__((self.robot,), **kw)
 
     def _teammates(self, g: Group) -> list[int]:
         """Teammates to ask for their belief at ``g``'s stamp for its anonymous detections (none for tags)."""

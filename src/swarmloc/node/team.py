@@ -20,7 +20,7 @@ from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.twist3 import TwistNoise
-from swarmloc.node.associate import AssociationView, associate, check_association, check_sensor, is_anonymous
+from swarmloc.node.associate import AssociationView, associate, is_anonymous
 from swarmloc.node.base import Node, belief_of
 from swarmloc.node.keys import Group, SubKey
 from swarmloc.node.robot import check_model
@@ -64,10 +64,7 @@ class TeamNode(Node):
         robot id.
     noise: process noise of the odometry (the same model for every robot; SE(3): a
         :class:`~swarmloc.motion.twist3.TwistNoise`).
-    association, association_gate, sensor_range [m], sensor_fov [rad]: as
-        :class:`~swarmloc.node.robot.RobotNode`'s (the marginals are the candidates).
-
-    Other keywords: see :class:`~swarmloc.node.base.Node`.
+    Other keywords: see :class:`~swarmloc.node.base.Node` (for ``association``: the marginals are the candidates).
     """
 
     distributed = False
@@ -83,24 +80,12 @@ class TeamNode(Node):
         initial: Mapping[int, GroupGaussian],
         *,
         noise: UnicycleNoise | TwistNoise,
-        association: str = "tags",
-        association_gate: float = 0.99,
-        sensor_range: float | None = None,
-        sensor_fov: float | None = None,
         **kw: Any,
     ) -> None:
         cls = type(self).__name__
         if not isinstance(initial, Mapping) or not initial:
             raise ValueError(f"{cls}: 'initial' must map each robot id to its initial belief (at least one robot)")
-        check_association(cls, association, association_gate)
-        check_sensor(cls, sensor_range, sensor_fov)
-        self.association = association
-        self.association_gate = float(association_gate)
-        self.sensor_range = sensor_range
-        self.sensor_fov = sensor_fov
         check_model(cls, initial, noise, self.groups)
-        if association != "tags" and any(b.group is SE3 for b in initial.values()):
-            raise ValueError(f"{cls}: an SE(3) team has no association policy; use association='tags'")
         self.initial = dict(initial)
         self.noise = noise
         self._form = self.forms[next(iter(initial.values())).group]
@@ -108,6 +93,8 @@ class TeamNode(Node):
         self._idx = {r: self.dim * i for i, r in enumerate(robots)}
         """The first index of each robot's block of the joint state."""
         super().__init__(robots, **kw)
+        if self.association != "tags" and any(b.group is SE3 for b in initial.values()):
+            raise ValueError(f"{cls}: an SE(3) team has no association policy; use association='tags'")
 
     @property
     def dim(self) -> int:
