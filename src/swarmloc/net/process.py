@@ -83,7 +83,7 @@ from swarmloc.net.schema import SERVER, Belief, Lines, Progress, Report
 from swarmloc.net.settings import NetSettings
 from swarmloc.net.transport import team_scope
 from swarmloc.net.wiring import Wiring
-from swarmloc.node import Node
+from swarmloc.node import Node, RobotNode
 
 log = logging.getLogger(__name__)
 
@@ -163,9 +163,11 @@ class NetNode:
             self.settings = settings = replace(settings, speed=0.0)  # a live source is paced by its arrivals
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
-        team_node: Any = node  # a team estimator's (diekf): its team, not declared on Node
-        mates = None if not self.broadcasts else ["*"] if not getattr(node, "cluster", 0) else [
-            str(m) for m in team_node.team if m != self.robot]  # fmt: skip
+        mates: list[str] | None = None  # whose broadcasts it hears: all ("*"), or diekf in clusters its cluster's
+        if self.broadcasts:
+            mates = ["*"]
+            if isinstance(node, RobotNode) and node.protocol is not None and node.protocol.cluster:
+                mates = [str(m) for m in node.team if m != self.robot]
         self.envelopes = Envelopes(auth, team, self.robot)
         """What it sends, numbered in one sequence and sealed (:class:`~.outbound.Envelopes`)."""
         seal = self.envelopes.seal

@@ -60,6 +60,10 @@ class PeerProtocol(Protocol):
     def update_lie(self, u: Message, gate: Gate) -> str | None: ...
     def prune(self, cutoff: float) -> None: ...
 
+    cluster: int
+    """The size of the clusters the team is cut into (0: one team): the node hears the broadcasts of its cluster's
+    members (its ``team``) only."""
+
 
 class RobotNode(Node):
     """A node that estimates one robot (every distributed estimator): built from that robot's belief alone.
