@@ -36,7 +36,7 @@ class MRCLAMError(ValueError):
     """A problem with MRCLAM data: missing folder or file, malformed line, no usable time span, no ground truth."""
 
 
-def _swap_barcodes(
+def swap_barcodes(
     barcode_to_subject: dict[int, int], landmarks: dict[int, tuple[float, float, float, float]], notes: list[str]
 ) -> None:
     """Apply :data:`BARCODE_SWAPS` in place where the files hold exactly the known defect; note each swap."""
@@ -52,7 +52,7 @@ def _swap_barcodes(
             )
 
 
-def _available(folder: Path) -> str:
+def available(folder: Path) -> str:
     try:
         names = sorted(p.name for p in folder.iterdir())
     except OSError:
@@ -60,7 +60,7 @@ def _available(folder: Path) -> str:
     return ", ".join(names) if names else "nothing"
 
 
-def _require_kinds(require: Iterable[str], require_truth: bool) -> set[str]:
+def require_kinds(require: Iterable[str], require_truth: bool) -> set[str]:
     if isinstance(require, str):
         require = (require,)
     kinds = set(require)
@@ -72,7 +72,7 @@ def _require_kinds(require: Iterable[str], require_truth: bool) -> set[str]:
     return kinds
 
 
-def _folder(path: str | os.PathLike[str]) -> Path:
+def folder(path: str | os.PathLike[str]) -> Path:
     """The dataset folder of ``path``, after checking it is one and holds ``Barcodes.dat`` and
     ``Landmark_Groundtruth.dat`` (:class:`MRCLAMError` naming what is there otherwise)."""
     folder = Path(path).expanduser()
@@ -89,12 +89,12 @@ def _folder(path: str | os.PathLike[str]) -> Path:
     for fname in ("Barcodes.dat", "Landmark_Groundtruth.dat"):
         if not (folder / fname).is_file():
             raise MRCLAMError(
-                f"{folder.name}: required file {fname} missing in {folder} (available: {_available(folder)})"
+                f"{folder.name}: required file {fname} missing in {folder} (available: {available(folder)})"
             )
     return folder
 
 
-def _robot_files(folder: Path) -> tuple[dict[int, dict[str, Path]], list[str]]:
+def robot_files(folder: Path) -> tuple[dict[int, dict[str, Path]], list[str]]:
     """Which per-robot files exist: robot -> kind -> path, and the names of the missing ones."""
     present: dict[int, dict[str, Path]] = {}
     missing: list[str] = []
@@ -109,7 +109,7 @@ def _robot_files(folder: Path) -> tuple[dict[int, dict[str, Path]], list[str]]:
     return present, missing
 
 
-def _chosen_robots(
+def chosen_robots(
     folder: Path, robots: Iterable[int] | None, kinds: set[str], present: dict[int, dict[str, Path]],
     missing: list[str],
 ) -> list[int]:  # fmt: skip
@@ -132,11 +132,11 @@ def _chosen_robots(
                 patterns = ", ".join(f"Robot*_{_FILE_SUFFIX[k]}.dat" for k in absent)
                 raise MRCLAMError(
                     f"{name}: {what} missing for every robot (no {patterns} in {folder}); "
-                    f"available: {_available(folder)}; required: {sorted(kinds)}"
+                    f"available: {available(folder)}; required: {sorted(kinds)}"
                 )
             raise MRCLAMError(
                 f"{name}: no robot has all required files {sorted(kinds)} in {folder}; "
-                f"missing: {', '.join(missing)}; available: {_available(folder)}"
+                f"missing: {', '.join(missing)}; available: {available(folder)}"
             )
         return chosen
     chosen = sorted({int(r) for r in robots})
@@ -150,14 +150,14 @@ def _chosen_robots(
         if lack:
             raise MRCLAMError(
                 f"{name}: robot {r} lacks required file(s) {', '.join(lack)} in {folder} "
-                f"(available: {_available(folder)})"
+                f"(available: {available(folder)})"
             )
         if not kinds and not present[r]:
-            raise MRCLAMError(f"{name}: no files for robot {r} in {folder} (available: {_available(folder)})")
+            raise MRCLAMError(f"{name}: no files for robot {r} in {folder} (available: {available(folder)})")
     return chosen
 
 
-def _barcodes(bc_path: Path) -> dict[int, int]:
+def barcodes(bc_path: Path) -> dict[int, int]:
     """``Barcodes.dat``: barcode -> subject (one subject per barcode)."""
     bc = read_table(bc_path, 2, MRCLAMError)
     if bc.shape[0] == 0:
@@ -175,7 +175,7 @@ def _barcodes(bc_path: Path) -> dict[int, int]:
     return barcode_to_subject
 
 
-def _landmarks(lm_path: Path) -> dict[int, tuple[float, float, float, float]]:
+def landmarks(lm_path: Path) -> dict[int, tuple[float, float, float, float]]:
     """``Landmark_Groundtruth.dat``: subject -> ``(x, y, x std, y std)`` [m]."""
     lm = read_table(lm_path, 5, MRCLAMError)
     lm_subjects = integer_column(lm_path, lm, 0, "subject", MRCLAMError)
@@ -185,7 +185,7 @@ def _landmarks(lm_path: Path) -> dict[int, tuple[float, float, float, float]]:
     }
 
 
-def _timed_rows(p: Path, ncols: int, notes: list[str]) -> np.ndarray:
+def timed_rows(p: Path, ncols: int, notes: list[str]) -> np.ndarray:
     """A robot's odometry or ground-truth file sorted by time (a note when it was not), at least one row."""
     arr = sort_by_time(p, read_table(p, ncols, MRCLAMError), notes)
     if arr.shape[0] == 0:
@@ -193,7 +193,7 @@ def _timed_rows(p: Path, ncols: int, notes: list[str]) -> np.ndarray:
     return arr
 
 
-def _clip_yaw_rates(p: Path, arr: np.ndarray, notes: list[str]) -> None:
+def clip_yaw_rates(p: Path, arr: np.ndarray, notes: list[str]) -> None:
     """Clip the odometry ``arr``'s yaw rates to :data:`MAX_YAW_RATE` in place, noting how many were beyond."""
     fast = np.abs(arr[:, 2]) > MAX_YAW_RATE
     if fast.any():
@@ -204,7 +204,7 @@ def _clip_yaw_rates(p: Path, arr: np.ndarray, notes: list[str]) -> None:
         )
 
 
-def _measurements(p: Path, barcode_to_subject: dict[int, int], skipped: dict[int, int], notes: list[str]) -> np.ndarray:
+def measurements(p: Path, barcode_to_subject: dict[int, int], skipped: dict[int, int], notes: list[str]) -> np.ndarray:
     """A robot's measurement file with barcodes mapped to subjects, sorted by time; rows of unknown barcodes are
     dropped and counted in ``skipped`` (barcode -> rows)."""
     known = np.array(sorted(barcode_to_subject), dtype=np.int64)
@@ -225,7 +225,7 @@ def _measurements(p: Path, barcode_to_subject: dict[int, int], skipped: dict[int
     return sort_by_time(p, arr, notes)
 
 
-def _time_span(
+def time_span(
     folder: Path, chosen: list[int], odometry: dict[int, np.ndarray], measurements: dict[int, np.ndarray],
     truth: dict[int, np.ndarray], notes: list[str],
 ) -> tuple[float, float]:  # fmt: skip

@@ -42,23 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.datasets._mrclam_files import (
-    BARCODE_SWAPS,
-    MAX_YAW_RATE,
-    ROBOT_SUBJECTS,
-    MRCLAMError,
-    _barcodes,
-    _chosen_robots,
-    _clip_yaw_rates,
-    _folder,
-    _landmarks,
-    _measurements,
-    _require_kinds,
-    _robot_files,
-    _swap_barcodes,
-    _time_span,
-    _timed_rows,
-)
+from swarmloc.datasets import _mrclam_files as readers
+from swarmloc.datasets._mrclam_files import BARCODE_SWAPS, MAX_YAW_RATE, ROBOT_SUBJECTS, MRCLAMError
 from swarmloc.datasets.tum import interpolate
 from swarmloc.events import Detection, Event, Kind, Odometry
 
@@ -230,15 +215,15 @@ def load_mrclam(
     ``corrections``: apply the known corrections of the module docstring (:data:`BARCODE_SWAPS`, yaw rates clipped
     to :data:`MAX_YAW_RATE`), each listed in ``notes``; ``False`` loads the files as they are.
     """
-    kinds = _require_kinds(require, require_truth)
-    folder = _folder(path)
-    present, missing = _robot_files(folder)
-    chosen = _chosen_robots(folder, robots, kinds, present, missing)
+    kinds = readers.require_kinds(require, require_truth)
+    folder = readers.folder(path)
+    present, missing = readers.robot_files(folder)
+    chosen = readers.chosen_robots(folder, robots, kinds, present, missing)
     notes: list[str] = []
-    barcode_to_subject = _barcodes(folder / "Barcodes.dat")
-    landmarks = _landmarks(folder / "Landmark_Groundtruth.dat")
+    barcode_to_subject = readers.barcodes(folder / "Barcodes.dat")
+    landmarks = readers.landmarks(folder / "Landmark_Groundtruth.dat")
     if corrections:
-        _swap_barcodes(barcode_to_subject, landmarks, notes)
+        readers.swap_barcodes(barcode_to_subject, landmarks, notes)
     odometry: dict[int, np.ndarray] = {}
     measurements: dict[int, np.ndarray] = {}
     truth: dict[int, np.ndarray] = {}
@@ -246,14 +231,14 @@ def load_mrclam(
     for r in chosen:
         files = present[r]
         if "odometry" in files:
-            odometry[r] = _timed_rows(files["odometry"], 3, notes)
+            odometry[r] = readers.timed_rows(files["odometry"], 3, notes)
             if corrections:
-                _clip_yaw_rates(files["odometry"], odometry[r], notes)
+                readers.clip_yaw_rates(files["odometry"], odometry[r], notes)
         if "truth" in files:
-            truth[r] = _timed_rows(files["truth"], 4, notes)
+            truth[r] = readers.timed_rows(files["truth"], 4, notes)
         if "measurements" in files:
-            measurements[r] = _measurements(files["measurements"], barcode_to_subject, skipped, notes)
-    t_start, t_end = _time_span(folder, chosen, odometry, measurements, truth, notes)
+            measurements[r] = readers.measurements(files["measurements"], barcode_to_subject, skipped, notes)
+    t_start, t_end = readers.time_span(folder, chosen, odometry, measurements, truth, notes)
     return MRCLAMData(
         name=folder.name,
         path=folder,
