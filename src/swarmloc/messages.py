@@ -70,19 +70,26 @@ class BeliefQuery(Message, frozen=True, kw_only=True, tag="belief_query"):
     """Asks ``receiver`` for its belief at ``stamp``, before the sender's detection key."""
 
 
-class BeliefAnswer(Message, frozen=True, kw_only=True, tag="belief_answer"):
-    """``receiver``'s query answered by ``sender``: its belief at ``stamp`` (``found=False``: none, see ``reason``)."""
+class _AnswerFields(Message, frozen=True, kw_only=True):
+    """What every answer carries besides its numbers: ``receiver``'s query answered by ``sender`` (so the key's
+    observer is the receiver), the answer's revision ``seq``, and ``found=False`` with a ``reason`` when there is
+    none."""
 
     seq: int = 0
     found: bool = True
-    group: Text = "SE2"
-    mean: Floats = ()
-    cov: Floats = ()
     reason: Text = ""
 
     @property
     def observer(self) -> int:
         return self.receiver
+
+
+class BeliefAnswer(_AnswerFields, frozen=True, kw_only=True, tag="belief_answer"):
+    """``receiver``'s query answered by ``sender``: its belief at ``stamp`` (``found=False``: none, see ``reason``)."""
+
+    group: Text = "SE2"
+    mean: Floats = ()
+    cov: Floats = ()
 
     def belief(self) -> GroupGaussian:
         """The answered belief as an SE(2) or SE(3) :class:`GroupGaussian` (not validated)."""
@@ -99,21 +106,14 @@ class RdlStateQuery(Message, frozen=True, kw_only=True, tag="rdl_state_query"):
     """Asks ``receiver`` (the detected robot ``j``) for ``(x_j, P_jj, sigma_ji)`` before the sender's key."""
 
 
-class RdlState(Message, frozen=True, kw_only=True, tag="rdl_state"):
+class RdlState(_AnswerFields, frozen=True, kw_only=True, tag="rdl_state"):
     """``j``'s Cartesian state ``x`` (3), covariance ``P`` (9) and factor ``sigma`` (9) for the asker ``i``, so that
     ``Sigma_ij = sigma_ij sigma_ji^T``; ``seq`` is the revision of this answer. An SE(3) state (``diekf`` on a 3-D
     team) has ``x`` the pose (16, row-major ``4 x 4``), ``P`` (36) and ``sigma`` (36)."""
 
-    seq: int = 0
-    found: bool = True
     x: Floats = ()
     P: Floats = ()
     sigma: Floats = ()
-    reason: Text = ""
-
-    @property
-    def observer(self) -> int:
-        return self.receiver
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if len(self.x) == 16:  # an SE(3) state
@@ -265,9 +265,9 @@ def message_problem(m: Message) -> str | None:
         return f"{name}: stamp must be a finite number of seconds, got {m.stamp!r}"
     if not all(isinstance(x, float | int) and math.isfinite(x) for x in m.sub):
         return f"{name}: sub-key must hold finite numbers"
+    if isinstance(m, _AnswerFields) and not m.found:
+        return None
     if isinstance(m, BeliefAnswer):
-        if not m.found:
-            return None
         if m.group == "SE3":
             return _se3_belief_problem(name, m.mean, m.cov)
         if m.group != "SE2":
@@ -279,8 +279,6 @@ def message_problem(m: Message) -> str | None:
         if not _spd3(m.cov):
             return f"{name}: cov is not symmetric positive definite"
     elif isinstance(m, RdlState):
-        if not m.found:
-            return None
         if len(m.x) == 16:
             return _se3_state_problem(name, m.x, m.P, m.sigma)
         if not (_finite(m.x, 3) and _finite(m.P, 9) and _finite(m.sigma, 9)):
