@@ -16,16 +16,18 @@ kinds) and the correction on the group are :mod:`swarmloc.kernels.cartesian3`'s.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, NamedTuple
+from collections.abc import Sequence
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 import numpy as np
 
-from swarmloc.events import Kind
+from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
+from swarmloc.motion import UnicycleNoise
 from swarmloc.node import Gate, Group, Outcome, RobotNode, applied, belief_of, gated_kalman
 from swarmloc.sensors.models import model
 
@@ -43,12 +45,35 @@ class CartState(NamedTuple):
     P: np.ndarray
 
 
-def measurement_noise(d: Any) -> np.ndarray:
+Linearized = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
+"""``(r, H_i, R_eff, H_k)`` of a detection (:func:`linearize`): ``H_k`` None for an absolute fix."""
+
+Commands = Sequence[tuple[float, int, float, float]]
+"""A run of odometry commands ``(t, robot, v, w)`` (time [s], the robot, its velocities [m/s], [rad/s])."""
+
+
+class PlanarState(Protocol):
+    """What :func:`predict_run` reads of a planar filter state: time [s], command ``(v, w)``, mean ``x (3,)`` and
+    covariance ``P (3, 3)`` (:class:`CartState` on SE(2), rdl's filter state)."""
+
+    @property
+    def t(self) -> float: ...
+    @property
+    def v(self) -> float: ...
+    @property
+    def w(self) -> float: ...
+    @property
+    def x(self) -> np.ndarray: ...
+    @property
+    def P(self) -> np.ndarray: ...
+
+
+def measurement_noise(d: Detection) -> np.ndarray:
     """Noise covariance of ``d.z`` in the coordinates the Cartesian models predict."""
     return model(d.kind).noise(d.z, d.cov)
 
 
-def linearize(d: Any, x: np.ndarray, target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
+def linearize(d: Detection, x: np.ndarray, target: tuple[str, Any]) -> Linearized | None:
     """``(r, H_i, R_eff, H_k)`` of detection ``d`` at observer state ``x`` against a classified target (its
     :class:`~swarmloc.sensors.models.MeasurementModel`): innovation, Jacobian w.r.t. the observer, noise plus the
     target's propagated covariance, Jacobian w.r.t. the target. Returns None for a degenerate geometry (range ~ 0).
@@ -65,10 +90,13 @@ def linearize(d: Any, x: np.ndarray, target: tuple[str, Any]) -> tuple[np.ndarra
     if m.degenerate(x, xk):
         return None
     h, Hi, Hk = m.predict(x, xk)
+    assert Hk is not None  # noqa: S101  (a relative model: a Jacobian for the target)
     return m.residual(d.z, h), Hi, R + Hk @ Pk @ Hk.T, Hk
 
 
-def predict_run(s: Any, shear: tuple[float, float], cmds: Any, noise: Any) -> tuple:
+def predict_run(
+    s: PlanarState, shear: tuple[float, float], cmds: Commands, noise: UnicycleNoise
+) -> tuple[np.ndarray, np.ndarray, float, tuple[float, float], tuple[float, float]]:
     """:func:`~swarmloc.kernels.cartesian.predict_run` of the odometry run ``cmds`` (``(t, robot, v, w)``) with
     process noise ``noise`` on a state with ``t, v, w, x, P``: the new ``(x, P, t, (v, w), shear)`` (``x`` and ``P``
     the same objects when nothing was predicted; ``shear``: rdl's deferred factor shear, accumulated)."""
@@ -190,11 +218,12 @@ class DistributedEKF(RobotNode):
     def _set_command(self, s: CartState, robot: int, v: Any, w: Any) -> CartState:
         return CartState(s.t, v, w, s.x, s.P)
 
-    def _advance_commands(self, s: Any, cmds: Any) -> Any:
+    def _advance_commands(self, s: CartState, cmds: Commands) -> CartState:
         """A run of odometry in one float loop (:func:`swarmloc.kernels.cartesian.predict_run`: the same bits as one
         :meth:`_advance` per command; tests/test_node.py checks it for every estimator)."""
         if self.measure_time or not self._form.runs:
-            return super()._advance_commands(s, cmds)
+            stepped: CartState = super()._advance_commands(s, cmds)
+            return stepped
         x, P, t, (v, w), _ = predict_run(s, (0.0, 0.0), cmds, self.noise)
         return CartState(t, v, w, x, P)
 
