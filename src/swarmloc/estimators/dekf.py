@@ -132,7 +132,7 @@ class CartesianForm:
         """Inverse of :meth:`initial`."""
         return C.to_group(x, P)
 
-    def update(self, x: Any, P: np.ndarray, d: Any, target: tuple[str, Any], gate: Gate) -> Any:
+    def update(self, x: Any, P: np.ndarray, d: Detection, target: tuple[str, Any], gate: Gate) -> Any:
         """``(x, P)`` after detection ``d`` of a classified ``target`` (a neighbour's uncertainty in the noise), or
         the outcome that stops it."""
         lin = linearize(d, x, target)
@@ -162,7 +162,7 @@ class CartesianForm3(CartesianForm):
         p, R = x
         return C3.to_group(p, R, P)
 
-    def update(self, x: Any, P: np.ndarray, d: Any, target: tuple[str, Any], gate: Gate) -> Any:
+    def update(self, x: Any, P: np.ndarray, d: Detection, target: tuple[str, Any], gate: Gate) -> Any:
         why = C3.unsupported(d, target)
         if why is not None:
             return ("rejected", why)
@@ -234,7 +234,7 @@ class DistributedEKF(RobotNode):
         (x, P), outcomes = self._fuse_each((s.x, s.P), g, self._fuse_one)
         return CartState(s.t, s.v, s.w, x, P), outcomes, []
 
-    def _fuse_one(self, xP: tuple[Any, np.ndarray], d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+    def _fuse_one(self, xP: tuple[Any, np.ndarray], d: Detection, target: tuple[str, Any]) -> tuple[Any, Outcome]:
         """One detection's update of the mean and covariance ``xP`` (:meth:`CartesianForm.update`) and its outcome."""
         x, P = xP
         return applied(xP, self._form.update(x, P, d, target, self.gate))
