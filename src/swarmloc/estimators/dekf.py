@@ -52,16 +52,17 @@ Commands = Sequence[tuple[float, int, float, float]]
 """A run of odometry commands ``(t, robot, v, w)`` (time [s], the robot, its velocities [m/s], [rad/s])."""
 
 
-class PlanarState(Protocol):
-    """What :func:`predict_run` reads of a planar filter state: time [s], command ``(v, w)``, mean ``x (3,)`` and
-    covariance ``P (3, 3)`` (:class:`CartState` on SE(2), rdl's filter state)."""
+class FilterState(Protocol):
+    """A node's filter state as :func:`predict_run` and ``diekf``'s team protocol read it: time [s], command (SE(2):
+    ``(v, w)``; SE(3): the body twist's linear and angular velocity), mean ``x`` and covariance ``P``
+    (:class:`CartState`, rdl's and diekf's states)."""
 
     @property
     def t(self) -> float: ...
     @property
-    def v(self) -> float: ...
+    def v(self) -> Any: ...
     @property
-    def w(self) -> float: ...
+    def w(self) -> Any: ...
     @property
     def x(self) -> np.ndarray: ...
     @property
@@ -95,7 +96,7 @@ def linearize(d: Detection, x: np.ndarray, target: tuple[str, Any]) -> Linearize
 
 
 def predict_run(
-    s: PlanarState, shear: tuple[float, float], cmds: Commands, noise: UnicycleNoise
+    s: FilterState, shear: tuple[float, float], cmds: Commands, noise: UnicycleNoise
 ) -> tuple[np.ndarray, np.ndarray, float, tuple[float, float], tuple[float, float]]:
     """:func:`~swarmloc.kernels.cartesian.predict_run` of the odometry run ``cmds`` (``(t, robot, v, w)``) with
     process noise ``noise`` on a state with ``t, v, w, x, P``: the new ``(x, P, t, (v, w), shear)`` (``x`` and ``P``
