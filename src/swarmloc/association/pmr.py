@@ -36,6 +36,7 @@ import math
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TypedDict
 
 import numpy as np
 
@@ -126,10 +127,21 @@ def _relative(
     return rel, A @ cov_r @ A.T + cov_s
 
 
+class PairSettings(TypedDict):
+    """The settings of :func:`binary_register` that every pair of one :func:`multiple_registration` shares."""
+
+    gate: float
+    max_unmatched: int
+    max_range: float
+    fov: float
+    sigma_range: float | None
+    sigma_heading: float
+
+
 def _pair_registrations(
     ids: list[int], obs: dict[int, np.ndarray], sigma: float, known: dict[int, tuple[np.ndarray, np.ndarray]],
     headings: Mapping[int, object], belief_gate: float, cache: dict[tuple[int, int], list[Registration]] | None,
-    settings: dict[str, object],
+    settings: PairSettings,
 ) -> dict[tuple[int, int], list[Registration]]:  # fmt: skip
     """:func:`binary_register` of every pair ``(r, s)``, ``r`` before ``s`` in ``ids``, with the prior the beliefs
     ``known`` give when both have one (through ``cache`` as :func:`multiple_registration` says)."""
@@ -137,12 +149,13 @@ def _pair_registrations(
     for x, r in enumerate(ids):
         for s in ids[x + 1 :]:
             prior = _relative(*known[r], *known[s]) if r in known and s in known else None
-            kw = dict(settings, headings_i=headings.get(r), headings_j=headings.get(s))
+            hi, hj = headings.get(r), headings.get(s)
             if cache is None:
-                reg[(r, s)] = binary_register(obs[r], obs[s], sigma, prior=prior, prior_gate=belief_gate, **kw)
+                reg[(r, s)] = binary_register(obs[r], obs[s], sigma, headings_i=hi, headings_j=hj, prior=prior,
+                                              prior_gate=belief_gate, **settings)  # fmt: skip
                 continue
             if (r, s) not in cache:
-                cache[(r, s)] = binary_register(obs[r], obs[s], sigma, **kw)
+                cache[(r, s)] = binary_register(obs[r], obs[s], sigma, headings_i=hi, headings_j=hj, **settings)
             full = cache[(r, s)]
             reg[(r, s)] = full if prior is None else gate_by_prior(full, obs[r], obs[s], sigma, prior, belief_gate)
     return reg
@@ -265,8 +278,8 @@ def multiple_registration(
     for r, b in (beliefs or {}).items():
         if r in obs and r != ego:
             known[r] = (SE2.to_xytheta(b.mean), np.asarray(b.cov, float))
-    settings = dict(gate=gate, max_unmatched=max_unmatched, max_range=max_range, fov=fov, sigma_range=sigma_range,
-                    sigma_heading=sigma_heading)  # fmt: skip
+    settings = PairSettings(gate=gate, max_unmatched=max_unmatched, max_range=max_range, fov=fov,
+                            sigma_range=sigma_range, sigma_heading=sigma_heading)  # fmt: skip
     reg = _pair_registrations(ids, obs, sigma, known, headings or {}, belief_gate, cache, settings)
     rels = _Relations(reg)
     parent, order = _bfs(ego, ids, reg)

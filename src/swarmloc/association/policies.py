@@ -74,6 +74,7 @@ def innovation_costs(
     bad = np.broadcast_to(model.degenerate(xo[None, :], xt), (xt.shape[0],))
     xt = np.where(bad[:, None], xt + [1.0, 0.0, 0.0], xt)  # a finite stand-in; its cost is set to inf below
     h, Hi, Hj = model.predict(xo[None, :], xt)  # (n, k), (n, k, 3), (n, k, 3)
+    assert Hj is not None  # noqa: S101  (a relative model: a Jacobian for the target)
     S_state = Hi @ np.asarray(P_obs, dtype=float) @ np.swapaxes(Hi, -1, -2) + Hj @ Pt @ np.swapaxes(Hj, -1, -2)
     S = S_state[None, :, :, :] + model.noise(z, R)[:, None, :, :]  # (m, n, k, k)
     r = model.residual(z[:, None, :], h[None, :, :])  # (m, n, k)

@@ -86,6 +86,7 @@ import os
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeGuard
 
 import numpy as np
 
@@ -100,7 +101,7 @@ from swarmloc.datasets.bounds import (
     shorten,
 )
 from swarmloc.datasets.tum import read_tum
-from swarmloc.events import Detection, Kind, Odometry
+from swarmloc.events import Detection, Kind, MeasurementKind, Odometry
 from swarmloc.gaussian import GroupGaussian, check_covariance
 from swarmloc.lie import SE2
 from swarmloc.sensors.models import MODELS
@@ -122,6 +123,12 @@ COLUMNS: tuple[str, ...] = ("type", "t", "robot", "t0", "v", "w", "target", "tar
 KIND_SIZES: dict[str, int] = {k: MODELS[k].size for k in (Kind.POSE, Kind.RANGE_BEARING, Kind.RANGE, Kind.BEARING,
                                                             Kind.ABSOLUTE)}  # fmt: skip
 """Length of ``z`` per detection kind (the planar kinds' :data:`~swarmloc.sensors.models.MODELS`)."""
+
+
+def _planar_kind(word: str) -> TypeGuard[MeasurementKind]:
+    """True when ``word`` names a planar detection kind (one of :data:`KIND_SIZES`)."""
+    return word in KIND_SIZES
+
 
 RECORD_TYPES: tuple[str, ...] = ("odometry", "detection", "landmark", "initial")
 
@@ -253,7 +260,7 @@ class _Reader:
     def _detection(self, rec: Record, line: int, seq: int) -> tuple[tuple[float, int, int, int], int, Detection]:
         t, obs = rec.number("t", _STAMP), rec.ident("robot")
         kind = rec.word("kind")
-        if kind not in KIND_SIZES:
+        if not _planar_kind(kind):
             raise Bad(f"unknown detection kind {kind!r}; expected one of {', '.join(KIND_SIZES)}")
         m, model = KIND_SIZES[kind], MODELS[kind]
         target: int | None = None

@@ -46,7 +46,7 @@ from swarmloc.estimators.mcl import MonteCarloLocalization
 from swarmloc.estimators.rdl import RecursiveDecentralized
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3
-from swarmloc.node import DEFAULT_HORIZON, Node, RobotNode
+from swarmloc.node import DEFAULT_HORIZON, Node, RobotNode, TeamNode
 
 CentralizedEKF3 = CentralizedEKF
 """The SE(3) ``cekf`` is :class:`CentralizedEKF` (the former name, kept for existing imports)."""
@@ -106,9 +106,10 @@ def accepted_options(cls: type[Node]) -> set[str]:
     """Keyword options a node class accepts (its own and, through ``**kw``, its bases')."""
     names: set[str] = set()
     for klass in cls.__mro__:
-        if klass is object:
+        init = vars(klass).get("__init__")  # a class's own; one without takes its base's, met further on
+        if klass is object or init is None:
             continue
-        params = inspect.signature(klass.__init__).parameters
+        params = inspect.signature(init).parameters
         names |= {p.name for p in params.values() if p.kind is inspect.Parameter.KEYWORD_ONLY}
         if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
             break
@@ -132,7 +133,9 @@ def make_team(estimator: str | type[Node], initial: Mapping[int, GroupGaussian],
         options = {**options, "team": tuple(sorted(initial))}
     if issubclass(cls, RobotNode):
         return [cls(r, b, **options) for r, b in sorted(initial.items())]
-    return [cls(initial, **options)]
+    if issubclass(cls, TeamNode):
+        return [cls(initial, **options)]
+    raise TypeError(f"{cls.__name__} is neither a RobotNode (one per robot) nor a TeamNode (one for the team)")
 
 
 def options_for(estimator: str | type[Node], **candidates: Any) -> dict[str, Any]:

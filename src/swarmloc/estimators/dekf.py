@@ -16,16 +16,18 @@ kinds) and the correction on the group are :mod:`swarmloc.kernels.cartesian3`'s.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, NamedTuple
+from collections.abc import Sequence
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 import numpy as np
 
-from swarmloc.events import Kind
+from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
+from swarmloc.motion import UnicycleNoise
 from swarmloc.node import Gate, Group, Outcome, RobotNode, applied, belief_of, gated_kalman
 from swarmloc.sensors.models import model
 
@@ -43,12 +45,36 @@ class CartState(NamedTuple):
     P: np.ndarray
 
 
-def measurement_noise(d: Any) -> np.ndarray:
+Linearized = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
+"""``(r, H_i, R_eff, H_k)`` of a detection (:func:`linearize`): ``H_k`` None for an absolute fix."""
+
+Commands = Sequence[tuple[float, int, float, float]]
+"""A run of odometry commands ``(t, robot, v, w)`` (time [s], the robot, its velocities [m/s], [rad/s])."""
+
+
+class FilterState(Protocol):
+    """A node's filter state as :func:`predict_run` and ``diekf``'s team protocol read it: time [s], command (SE(2):
+    ``(v, w)``; SE(3): the body twist's linear and angular velocity), mean ``x`` and covariance ``P``
+    (:class:`CartState`, rdl's and diekf's states)."""
+
+    @property
+    def t(self) -> float: ...
+    @property
+    def v(self) -> Any: ...
+    @property
+    def w(self) -> Any: ...
+    @property
+    def x(self) -> np.ndarray: ...
+    @property
+    def P(self) -> np.ndarray: ...
+
+
+def measurement_noise(d: Detection) -> np.ndarray:
     """Noise covariance of ``d.z`` in the coordinates the Cartesian models predict."""
     return model(d.kind).noise(d.z, d.cov)
 
 
-def linearize(d: Any, x: np.ndarray, target: tuple[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
+def linearize(d: Detection, x: np.ndarray, target: tuple[str, Any]) -> Linearized | None:
     """``(r, H_i, R_eff, H_k)`` of detection ``d`` at observer state ``x`` against a classified target (its
     :class:`~swarmloc.sensors.models.MeasurementModel`): innovation, Jacobian w.r.t. the observer, noise plus the
     target's propagated covariance, Jacobian w.r.t. the target. Returns None for a degenerate geometry (range ~ 0).
@@ -65,10 +91,13 @@ def linearize(d: Any, x: np.ndarray, target: tuple[str, Any]) -> tuple[np.ndarra
     if m.degenerate(x, xk):
         return None
     h, Hi, Hk = m.predict(x, xk)
+    assert Hk is not None  # noqa: S101  (a relative model: a Jacobian for the target)
     return m.residual(d.z, h), Hi, R + Hk @ Pk @ Hk.T, Hk
 
 
-def predict_run(s: Any, shear: tuple[float, float], cmds: Any, noise: Any) -> tuple:
+def predict_run(
+    s: FilterState, shear: tuple[float, float], cmds: Commands, noise: UnicycleNoise
+) -> tuple[np.ndarray, np.ndarray, float, tuple[float, float], tuple[float, float]]:
     """:func:`~swarmloc.kernels.cartesian.predict_run` of the odometry run ``cmds`` (``(t, robot, v, w)``) with
     process noise ``noise`` on a state with ``t, v, w, x, P``: the new ``(x, P, t, (v, w), shear)`` (``x`` and ``P``
     the same objects when nothing was predicted; ``shear``: rdl's deferred factor shear, accumulated)."""
@@ -104,7 +133,7 @@ class CartesianForm:
         """Inverse of :meth:`initial`."""
         return C.to_group(x, P)
 
-    def update(self, x: Any, P: np.ndarray, d: Any, target: tuple[str, Any], gate: Gate) -> Any:
+    def update(self, x: Any, P: np.ndarray, d: Detection, target: tuple[str, Any], gate: Gate) -> Any:
         """``(x, P)`` after detection ``d`` of a classified ``target`` (a neighbour's uncertainty in the noise), or
         the outcome that stops it."""
         lin = linearize(d, x, target)
@@ -134,7 +163,7 @@ class CartesianForm3(CartesianForm):
         p, R = x
         return C3.to_group(p, R, P)
 
-    def update(self, x: Any, P: np.ndarray, d: Any, target: tuple[str, Any], gate: Gate) -> Any:
+    def update(self, x: Any, P: np.ndarray, d: Detection, target: tuple[str, Any], gate: Gate) -> Any:
         why = C3.unsupported(d, target)
         if why is not None:
             return ("rejected", why)
@@ -190,11 +219,12 @@ class DistributedEKF(RobotNode):
     def _set_command(self, s: CartState, robot: int, v: Any, w: Any) -> CartState:
         return CartState(s.t, v, w, s.x, s.P)
 
-    def _advance_commands(self, s: Any, cmds: Any) -> Any:
+    def _advance_commands(self, s: CartState, cmds: Commands) -> CartState:
         """A run of odometry in one float loop (:func:`swarmloc.kernels.cartesian.predict_run`: the same bits as one
         :meth:`_advance` per command; tests/test_node.py checks it for every estimator)."""
         if self.measure_time or not self._form.runs:
-            return super()._advance_commands(s, cmds)
+            stepped: CartState = super()._advance_commands(s, cmds)
+            return stepped
         x, P, t, (v, w), _ = predict_run(s, (0.0, 0.0), cmds, self.noise)
         return CartState(t, v, w, x, P)
 
@@ -205,7 +235,7 @@ class DistributedEKF(RobotNode):
         (x, P), outcomes = self._fuse_each((s.x, s.P), g, self._fuse_one)
         return CartState(s.t, s.v, s.w, x, P), outcomes, []
 
-    def _fuse_one(self, xP: tuple[Any, np.ndarray], d: Any, target: tuple[str, Any]) -> tuple[Any, Outcome]:
+    def _fuse_one(self, xP: tuple[Any, np.ndarray], d: Detection, target: tuple[str, Any]) -> tuple[Any, Outcome]:
         """One detection's update of the mean and covariance ``xP`` (:meth:`CartesianForm.update`) and its outcome."""
         x, P = xP
         return applied(xP, self._form.update(x, P, d, target, self.gate))

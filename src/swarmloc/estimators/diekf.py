@@ -80,7 +80,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE
+from swarmloc.estimators.dekf import DEGENERATE, FilterState
 from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.estimators.world_form import FORMS, TeamState, robot_pair, world_step
 from swarmloc.gaussian import GroupGaussian
@@ -108,19 +108,10 @@ __all__ = [
 ]  # fmt: skip
 
 
-class Replica(Protocol):
-    """What the team protocol reads of a node's state (:class:`TeamState`; ``flsd``'s holds more)."""
+class Replica(FilterState, Protocol):
+    """What the team protocol reads of a node's state (:class:`TeamState`; ``flsd``'s holds more): a filter state
+    and the replica ``Sigma`` of the team's cross-covariances."""
 
-    @property
-    def t(self) -> float: ...
-    @property
-    def v(self) -> Any: ...
-    @property
-    def w(self) -> Any: ...
-    @property
-    def x(self) -> np.ndarray: ...
-    @property
-    def P(self) -> np.ndarray: ...
     @property
     def Sigma(self) -> np.ndarray: ...
 

@@ -55,6 +55,11 @@ class RigidityReport:
     expected_rank: int | None = None
     configuration: Mapping[int, np.ndarray] | None = None
 
+    @property
+    def rank_deficient(self) -> bool:
+        """True when the rank was evaluated and is below ``2N - 3`` (no finite covariance at ``configuration``)."""
+        return self.rank is not None and self.expected_rank is not None and self.rank < self.expected_rank
+
     def raise_if_unlocalizable(self) -> None:
         """Raise ValueError listing every problem when the network is not localizable."""
         if not self.localizable:
@@ -177,12 +182,12 @@ def localizability(
     """
     anc = anchors
     problems: list[str] = []
-    ids = tuple(sorted(anc)) + free
+    anchor_ids = tuple(sorted(anc))
+    ids = anchor_ids + free
     pairs = list(pairs)
-    base = {"anchor_ids": tuple(sorted(anc)), "free_ids": free}
     anchors_ok, unconnected, low = _anchor_and_degree_checks(_adjacency(pairs, ids), anc, free, unique, problems)
     if not anchors_ok or unconnected:
-        return RigidityReport(False, tuple(problems), low_degree=low, unconnected=unconnected, **base)
+        return RigidityReport(False, tuple(problems), anchor_ids, free, low_degree=low, unconnected=unconnected)
 
     conf = configuration() if callable(configuration) else configuration
     akeys = sorted(anc)
@@ -214,6 +219,8 @@ def localizability(
     return RigidityReport(
         not problems,
         tuple(problems),
+        anchor_ids,
+        free,
         unconnected=unconnected,
         low_degree=low,
         flexible=flexible,
@@ -222,7 +229,6 @@ def localizability(
         rank=rank,
         expected_rank=expected,
         configuration={k: np.array(v) for k, v in conf.items()},
-        **base,
     )
 
 

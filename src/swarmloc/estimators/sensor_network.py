@@ -265,8 +265,8 @@ def _multilateration(
     ``guess``; with 2 placed neighbours the circle intersection nearer ``guess``, with 1 the circle point nearer it."""
     ranges = _mean_ranges(meas)
     nbr: dict[int, dict[int, float]] = {k: {} for k in list(anc) + list(free)}
-    for (i, j), r in ranges.items():
-        nbr[i][j] = nbr[j][i] = r
+    for (i, j), rij in ranges.items():
+        nbr[i][j] = nbr[j][i] = rij
     placed = {k: np.asarray(v, dtype=float) for k, v in anc.items()}
     todo = set(free)
     while todo:
@@ -291,9 +291,9 @@ def _multilateration(
             options = [Q[0] + a * u + h * perp, Q[0] + a * u - h * perp]
             pos = min(options, key=lambda p: float(np.linalg.norm(p - g)))
         elif len(ns) == 1:
-            d = g - Q[0]
-            n = float(np.linalg.norm(d))
-            pos = Q[0] + r[0] * (d / n if n > 0 else np.array([1.0, 0.0]))
+            away = g - Q[0]
+            n = float(np.linalg.norm(away))
+            pos = Q[0] + r[0] * (away / n if n > 0 else np.array([1.0, 0.0]))
         else:
             pos = g
         placed[k] = pos
@@ -414,7 +414,7 @@ def localize_network(
     solution. Tolerances and ``max_nfev`` go to ``least_squares``.
     """
     meas, anc, free = _setup(measurements, anchors, nodes)
-    conf = None if initial is None else _configuration(initial, anc, free, "initial")
+    conf: Mapping[int, np.ndarray] | None = None if initial is None else _configuration(initial, anc, free, "initial")
     report = _report(meas, anc, free, conf, unique)
     report.raise_if_unlocalizable()
     conf = report.configuration
@@ -434,7 +434,7 @@ def localize_network(
     X = res.x.reshape(-1, 2)
     sol = {k: X[n].copy() for n, k in enumerate(free)}
     final = _report(meas, anc, free, {**sol, **anc}, unique)
-    if final.flexible or (final.rank is not None and final.rank < final.expected_rank):
+    if final.flexible or final.rank_deficient:
         raise ValueError(
             "sensor network not localizable at the least-squares solution (no finite covariance): "
             + "; ".join(final.problems)

@@ -219,8 +219,8 @@ def engine_replay(
     truth = data.truth_at if data.has_truth else None
     src = Source(f"mrclam:{data.name}", events, initial_beliefs(data, config), data.landmarks, data.t_start, t_end,
                  truth, config)  # fmt: skip
-    run_engine(src, estimator, backend="numba", use_landmarks=landmarks)
-    best, res = math.inf, None
+    res = run_engine(src, estimator, backend="numba", use_landmarks=landmarks)  # untimed: it compiles
+    best = math.inf
     for _ in range(max(1, rounds)):
         t = time.perf_counter()
         res = run_engine(src, estimator, backend="numba", use_landmarks=landmarks)

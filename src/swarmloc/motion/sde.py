@@ -7,6 +7,7 @@ exactly in SE(2) and, for constant ``h`` and ``H = 0``, reproduces ``g_0 exp(t h
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Literal, overload
 
 import numpy as np
 
@@ -24,6 +25,16 @@ def em_step(g: np.ndarray, h: np.ndarray, H: np.ndarray, dt: float, dw: np.ndarr
     return g @ SE2.exp(xi, validate=False)
 
 
+@overload
+def euler_maruyama(
+    g0: np.ndarray, h: np.ndarray | TwistFn, H: np.ndarray, t: float, n_steps: int, n_paths: int,
+    rng: np.random.Generator, return_path: Literal[False] = False
+) -> np.ndarray: ...  # fmt: skip
+@overload
+def euler_maruyama(
+    g0: np.ndarray, h: np.ndarray | TwistFn, H: np.ndarray, t: float, n_steps: int, n_paths: int,
+    rng: np.random.Generator, return_path: Literal[True]
+) -> tuple[np.ndarray, np.ndarray]: ...  # fmt: skip
 def euler_maruyama(
     g0: np.ndarray,
     h: np.ndarray | TwistFn,

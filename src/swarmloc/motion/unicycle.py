@@ -20,6 +20,7 @@ closed form (:mod:`swarmloc.motion.closed_form`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from swarmloc.motion.closed_form import (
     unicycle_increment_terms,
 )
 from swarmloc.motion.diffdrive import DiffDrive
+
+Speed = TypeVar("Speed", float, np.ndarray)
+"""A speed [m/s or rad/s]: a float, or an array of them (batched)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,7 +55,7 @@ class UnicycleNoise:
         """The constant diffusion ``H H^T`` of a differential drive."""
         return cls(q_v0=dd.D * dd.r**2 / 2, q_w0=2 * dd.D * dd.r**2 / dd.l**2)
 
-    def diag(self, v: np.ndarray | float, omega: np.ndarray | float) -> tuple:
+    def diag(self, v: Speed, omega: Speed) -> tuple[Speed, Speed, Speed]:
         """``(q_fwd, q_lat, q_yaw)`` for speeds ``v``, ``omega`` (scalars or broadcastable arrays)."""
         av, aw = abs(v), abs(omega)
         q_fwd = self.q_v0 + self.q_v1 * av + self.q_v2 * v * v
@@ -75,17 +79,18 @@ def odometry_increment(
     ``mean = exp(dt (v, 0, omega)^)``; ``cov`` = (5.4) with ``Q = noise.Q(v, omega)``, exact closed form, right
     perturbation (``g = mean exp(y)``, ``y ~ N(0, cov)``). Scalars take a pure-Python fast path.
     """
-    if (
+    scalars = (
         type(v) is float
         and type(omega) is float
         and type(dt) is float
         or (np.isscalar(v) and np.isscalar(omega) and np.isscalar(dt))
-    ):
+    )
+    if scalars:
         v, omega, dt = float(v), float(omega), float(dt)
         q_fwd, q_lat, q_yaw = noise.diag(v, omega)
         return unicycle_increment_scalar(v, omega, dt, q_fwd, q_yaw, q_lat)
-    q_fwd, q_lat, q_yaw = noise.diag(np.asarray(v, dtype=float), np.asarray(omega, dtype=float))
-    return increment_mean_closed(v, omega, dt), unicycle_cov(v, omega, dt, q_fwd, q_yaw, q_lat)
+    Q_fwd, Q_lat, Q_yaw = noise.diag(np.asarray(v, dtype=float), np.asarray(omega, dtype=float))  # arrays
+    return increment_mean_closed(v, omega, dt), unicycle_cov(v, omega, dt, Q_fwd, Q_yaw, Q_lat)
 
 
 def odometry_increment_terms(

@@ -279,6 +279,7 @@ class DdsMiddleware:
         """Delete the participant (and with it every reader and writer)."""
         if getattr(self, "participant", None) is None:
             return
-        participant, self.participant = self.participant, None
+        participant = self.participant
+        del self.participant  # closed: a second close finds none
         _delete(participant)
         _release_domain(self.domain)

@@ -238,8 +238,8 @@ class RosNode:
         self.counts["diagnostics"] += 1
 
     # ------------------------------------------------------------------------------------------------ life
-    def _start_team(self) -> None:
-        """The robot's team node, once its start ``t0`` is known (the first odometry)."""
+    def _start_team(self, feed: LiveFeed) -> None:
+        """The robot's team node on ``feed``, made once its start ``t0`` is known (the first odometry)."""
         from swarmloc.net.entry import make_node
         from swarmloc.net.process import NetNode
         from swarmloc.net.settings import NetSettings
@@ -248,12 +248,12 @@ class RosNode:
         p = self.params
         initial = initial_belief(p, self.timeline.initial)
         node = make_node(p.estimator, self.robot, initial, self.config, p.landmark_table(), team=p.team_ids)
-        node.start(float(self.timeline.t0))
+        node.start(feed.t0)
         if self._team_session is None:
             self._team_session = open_session(p.team_listen, p.team_connect)
             self._own_session = True
         settings = NetSettings(run_id=p.run_id or None, start_timeout=p.start_timeout, record_rate=p.frequency)
-        self.net = NetNode(node, self.feed, session=self._team_session, team=p.team, roster=p.team_ids,
+        self.net = NetNode(node, feed, session=self._team_session, team=p.team, roster=p.team_ids,
                            settings=settings, on_settled=self._on_settled, auth=self._auth,
                            on_belief=self._on_belief)  # fmt: skip
         self._thread = threading.Thread(target=self._run_team, name=f"swarmloc-ros-{self.robot}", daemon=True)
@@ -274,8 +274,8 @@ class RosNode:
         tick = min(0.05, 0.5 / self.params.frequency)
         try:
             while not self._stop.is_set() and time.monotonic() < deadline:
-                if self.net is None and self._started.is_set():
-                    self._start_team()
+                if self.net is None and self._started.is_set() and self.feed is not None:  # started: a feed
+                    self._start_team(self.feed)
                 now = self.clock.now()
                 if self.feed is not None and now is not None:
                     self.feed.advance(now - self.params.window)

@@ -161,7 +161,7 @@ class _Driver:
             if h[0][0] <= upto:
                 self.rec.resolve(node, upto)
 
-    def deliver(self, node: Node, item: object, stamp: object) -> None:
+    def deliver(self, node: Node, item: Odometry | list[Detection], stamp: float) -> None:
         """Resolve the records this input could no longer change, then step the node and route its messages."""
         if finite_number(stamp):
             self.resolve(node, stamp)
@@ -222,9 +222,8 @@ class _Driver:
                 self._odometry(e)
             elif isinstance(e, Detection):
                 group = [e]
-                while i < total and isinstance(events[i], Detection) and events[i].observer == e.observer \
-                        and events[i].t == e.t:  # fmt: skip
-                    group.append(events[i])
+                while i < total and isinstance(d := events[i], Detection) and d.observer == e.observer and d.t == e.t:
+                    group.append(d)
                     i += 1
                 self._detections(group)
             elif isinstance(e, Truth):

@@ -22,6 +22,7 @@ table of kinds exists once.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,9 @@ from swarmloc.lie import wrap_angle as wrap
 
 MIN_RANGE = 1e-6
 """Predicted ranges [m] below this make range/bearing models undefined (:func:`degenerate`)."""
+
+Prediction = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""``(h, H_i, H_k)``: a predicted measurement and its Jacobians w.r.t. the observer and the target."""
 
 
 def _rel(xi: np.ndarray, pk: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -44,7 +48,7 @@ def _stack(rows: list[list[np.ndarray | float]], shape: tuple[int, ...]) -> np.n
     return np.stack([np.stack([np.broadcast_to(v, shape) for v in row], axis=-1) for row in rows], axis=-2)
 
 
-def relative_pose(xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def relative_pose(xi: np.ndarray, xk: np.ndarray) -> Prediction:
     """Pose of robot ``k`` in robot ``i``'s frame: ``(R_i^T (p_k - p_i), theta_k - theta_i)``."""
     xi, xk = np.asarray(xi, dtype=float), np.asarray(xk, dtype=float)
     dx, dy, c, s, bx, by = _rel(xi, xk)
@@ -60,7 +64,7 @@ def relative_pose(xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return h, Hi, Hk
 
 
-def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> tuple[np.ndarray, ...]:
+def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> Prediction:
     """Range [m] and bearing [rad] of point/robot ``k`` seen from robot ``i``.
 
     ``target_dim`` (2 for a landmark, 3 for a robot) defaults to the last dimension of ``pk``.
@@ -84,23 +88,24 @@ def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None)
     return h, Hi, Hk
 
 
-def range_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> tuple[np.ndarray, ...]:
+def range_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> Prediction:
     """Range [m] of ``k`` from ``i`` (slides eq. 4)."""
     h, Hi, Hk = range_bearing(xi, pk, target_dim)
     return h[..., :1], Hi[..., :1, :], Hk[..., :1, :]
 
 
-def bearing_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> tuple[np.ndarray, ...]:
+def bearing_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> Prediction:
     """Bearing [rad] of ``k`` in ``i``'s frame (slides eq. 3)."""
     h, Hi, Hk = range_bearing(xi, pk, target_dim)
     return h[..., 1:], Hi[..., 1:, :], Hk[..., 1:, :]
 
 
-_PREDICT = {Kind.POSE: relative_pose, Kind.RANGE_BEARING: range_bearing, Kind.RANGE: range_only,
-            Kind.BEARING: bearing_only}  # fmt: skip
+_PREDICT: dict[str, Callable[[np.ndarray, np.ndarray], Prediction]] = {
+    Kind.POSE: relative_pose, Kind.RANGE_BEARING: range_bearing, Kind.RANGE: range_only, Kind.BEARING: bearing_only
+}  # fmt: skip
 
 
-def predict(kind: Kind, xi: np.ndarray, xk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def predict(kind: Kind, xi: np.ndarray, xk: np.ndarray) -> Prediction:
     """Dispatch on the measurement kind; ``xk`` with last dimension 2 is a landmark, 3 a robot."""
     if kind not in _PREDICT:
         raise ValueError(f"unknown measurement kind {kind!r}; expected one of {sorted(_PREDICT)}")
@@ -178,6 +183,8 @@ class MeasurementModel:
         if self.targets == "self":
             xi = np.asarray(xi, dtype=float)
             return xi.copy(), np.broadcast_to(np.eye(3), (*xi.shape[:-1], 3, 3)).copy(), None
+        if xk is None:
+            raise ValueError(f"a {self.kind!r} measurement is predicted from a target's state; none was given")
         return predict(self.kind, xi, xk)
 
     def residual(self, z: np.ndarray, h: np.ndarray) -> np.ndarray:

@@ -82,8 +82,7 @@ def anonymize(
     out: list[Event] = []
     scan: tuple[int, float] | None = None
     for e in events:
-        robot_det = isinstance(e, Detection) and e.target_is_robot and e.kind != Kind.ABSOLUTE and e.target is not None
-        if not robot_det:
+        if not (isinstance(e, Detection) and e.target_is_robot and e.kind != Kind.ABSOLUTE and e.target is not None):
             out.append(e)
             continue
         if (e.observer, e.t) != scan:  # a new scan: its clutter first, drawn once
@@ -125,11 +124,11 @@ def is_anonymous(e: Event) -> bool:
     return isinstance(e, Detection) and e.kind != Kind.ABSOLUTE and e.target_is_robot and e.target is None
 
 
-def _scan_times(cfg: SimConfig, duration: float) -> np.ndarray:
-    """The simulator's sensor times ``k / f`` (bit-identical to its detections' stamps)."""
+def _scan_times(cfg: SimConfig, sensor_rate: float, duration: float) -> np.ndarray:
+    """The simulator's sensor times ``k / f`` (bit-identical to its detections' stamps) for its sensor's rate [Hz]."""
     n_sub = max(1, int(round((1.0 / cfg.odom_rate) / cfg.dt)))
     f = cfg.odom_rate * n_sub
-    n_s = int(round(f / cfg.sensor.rate))
+    n_s = int(round(f / sensor_rate))
     N = int(round(duration * f))
     return np.arange(n_s, N + 1, n_s) / f
 
@@ -156,7 +155,7 @@ def anonymize_sim(sim: SimResult, sensor: AnonymousSensor, seed: int | None = 0)
         else:
             rest.append(e)
     if sensor.clutter_rate > 0:
-        for t in _scan_times(sim.config, float(sim.times[-1])):
+        for t in _scan_times(sim.config, sen.rate, float(sim.times[-1])):
             for r in sim.robot_ids:
                 k = rng.poisson(sensor.clutter_rate)
                 if k:

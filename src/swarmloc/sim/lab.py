@@ -48,18 +48,20 @@ def axis_schedule(
         legs = [(0.0, dy), (dx, 0.0)] if k in y_first else [(dx, 0.0), (0.0, dy)]
         runs += [leg for leg in legs if abs(leg[0]) + abs(leg[1]) > 1e-9]
     heads = [float(np.arctan2(dy, dx)) for dx, dy in runs]
-    n, ticks, v, w = 0, [], [], []  # ticks: odometry periods; a change takes effect at a tick
+    n = 0
+    changes: list[tuple[int, float, float]] = []  # (tick, v, w): a command from a tick (odometry periods) on
     for i, (dx, dy) in enumerate(runs):
         if i > 0:
             turn = float(np.angle(np.exp(1j * (heads[i] - heads[i - 1]))))
             if abs(turn) > 1e-9:
                 k, rate = _quantize(turn, turn_rate, period)
-                ticks.append(n), v.append(0.0), w.append(rate)
+                changes.append((n, 0.0, rate))
                 n += k
         k, sp = _quantize(float(np.hypot(dx, dy)), speed, period)
-        ticks.append(n), v.append(sp), w.append(0.0)
+        changes.append((n, sp, 0.0))
         n += k
-    ticks.append(n), v.append(0.0), w.append(0.0)  # stop at the last point
+    changes.append((n, 0.0, 0.0))  # stop at the last point
+    ticks, v, w = zip(*changes, strict=True)
     start = (points[0][0], points[0][1], heads[0])
     times = [(i - 0.5) * period for i in ticks]  # half a period early: immune to the rounding of i * period
     return start, WheelSchedule.from_unicycle(times, v, w, drive), n * period

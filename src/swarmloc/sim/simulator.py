@@ -225,11 +225,11 @@ def _pairs_within(xy: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray, np.
 
     reach = r * (1 + 1e-9) + 1e-12
     parts = []
-    for s in range(xy.shape[0]):
-        ij = cKDTree(xy[s]).query_pairs(reach, output_type="ndarray")
+    for k in range(xy.shape[0]):
+        ij = cKDTree(xy[k]).query_pairs(reach, output_type="ndarray")
         if ij.size:
             both = np.concatenate([ij, ij[:, ::-1]])
-            parts.append(np.column_stack([np.full(both.shape[0], s), both]))
+            parts.append(np.column_stack([np.full(both.shape[0], k), both]))
     if not parts:
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty, empty

@@ -9,7 +9,7 @@ import numpy as np
 from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import interpolate
-from swarmloc.events import Detection, Odometry
+from swarmloc.events import Detection, Event, Odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.sim.simulator import SimResult
@@ -25,7 +25,7 @@ def sim_source(sim: SimResult, spec: str, config: Config | None = None) -> Sourc
         config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
     cov = config.initial.cov()
     initial = {r: GroupGaussian(SE2, SE2.from_xytheta(p), cov) for r, p in sim.initial_poses.items()}
-    events = [e for e in sim.events if isinstance(e, Odometry | Detection)]
+    events: list[Event] = [e for e in sim.events if isinstance(e, Odometry | Detection)]  # the truth left out
     col = {r: j for j, r in enumerate(sim.robot_ids)}
 
     def truth(robot: int, times: np.ndarray) -> np.ndarray:

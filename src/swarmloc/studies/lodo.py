@@ -43,7 +43,7 @@ import dataclasses
 import functools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -53,7 +53,7 @@ from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.metrics import evaluate
-from swarmloc.events import Detection
+from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.mrclam import detection_set, yaw_calibration
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, wrap_angle
@@ -130,7 +130,7 @@ def model_scores(sets: dict[int, DetectionSet], cuts: Sequence[float] = CUTS) ->
     # the median over the folds: one recording whose map does not fit its readings must not choose alone (dataset 1
     # did, before the loader corrected its swapped barcodes)
     mean_nll = {n: float(np.median([folds[k][n]["nll"] for k in folds])) for n in lodo_names}
-    chosen = min(mean_nll, key=mean_nll.get)
+    chosen = min(mean_nll, key=mean_nll.__getitem__)
     return {"folds": folds, "mean_nll": mean_nll, "chosen": chosen, "models": models}
 
 
@@ -167,7 +167,7 @@ def initial_from_snapshots(
         if t0 - ts <= 0:
             out[r] = belief
             continue
-        mine = [e for e in events if e.robot == r and ts <= e.stamp <= t0]
+        mine = [e for e in events if isinstance(e, Odometry) and e.robot == r and ts <= e.stamp <= t0]  # all odometry
         res = run(make_team("dr", {r: belief}, **node_options("dr", config, None, ts)), mine, record_times=[t0])
         tr = res.tracks[r]
         out[r] = GroupGaussian(SE2, SE2.from_xytheta(tr.mean[-1]), tr.cov[-1], validate=False)
@@ -175,7 +175,7 @@ def initial_from_snapshots(
 
 
 def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, dets: Sequence[Detection],
-                 landmarks: dict[int, Any], std: tuple[float, float]) -> np.ndarray:  # fmt: skip
+                 landmarks: Mapping[int, Sequence[float]], std: tuple[float, float]) -> np.ndarray:  # fmt: skip
     """Predictive NIS (2 dof) of landmark readings ``dets`` of one observer against its beliefs recorded
     :data:`RECORD_LEAD` s before each (``mean`` ``(T, 3)``, right-perturbation ``cov`` ``(T, 3, 3)``), with the
     reading's error std ``std`` = (range [m], bearing [rad]) and each landmark's map std."""
@@ -185,7 +185,10 @@ def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, det
     idx = np.clip(np.searchsorted(track_times, t - RECORD_LEAD - 1e-9), 0, len(track_times) - 1)
     ok = np.abs(track_times[idx] - (t - RECORD_LEAD)) < 1e-7
     x, P = mean[idx], cov[idx]
-    lm = np.array([landmarks[d.target][:4] for d in dets], dtype=float)
+    ids = [d.target for d in dets if d.target is not None]
+    if len(ids) < len(dets):
+        raise ValueError("landmark_nis: a reading without its landmark's id (target)")
+    lm = np.array([landmarks[k][:4] for k in ids], dtype=float)
     z = np.array([d.z for d in dets])
     c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
     dx, dy = lm[:, 0] - x[:, 0], lm[:, 1] - x[:, 1]
@@ -225,10 +228,10 @@ def nis_summary(nis: np.ndarray, suffix: str = "") -> dict[str, Any]:
     }
 
 
-def landmark_folds(ids: Sequence[int], k: int) -> list[frozenset[int]]:
+def landmark_folds(ids: Iterable[int], k: int) -> list[frozenset[int]]:
     """``k`` folds of the landmark ids (every ``k``-th of the sorted ids, so that each fold spreads over the map)."""
-    ids = sorted(ids)
-    return [frozenset(ids[f::k]) for f in range(k)]
+    order = sorted(ids)
+    return [frozenset(order[f::k]) for f in range(k)]
 
 
 def filter_scores(
@@ -269,7 +272,7 @@ def filter_scores(
     std = (model.range.std, model.bearing.std)
     ref = std if reference_std is None else reference_std
     folds = landmark_folds(data.landmarks, holdout) if landmarks and holdout > 1 else []
-    configs = {frozenset(): config} | {f: config for f in folds}
+    configs: dict[frozenset[int], Config] = {frozenset(): config} | {f: config for f in folds}
     if calibrate_yaw and landmarks:
         noise = config.motion.noise()
         scales = {f: yaw_calibration(data, ds, model, noise, f, (t0, t1)).scale for f in configs}

@@ -382,6 +382,7 @@ def _meta(seeds: int, quick: bool, dur: float, gt_dur: float, gt_seeds: int, ab_
     """The ``meta`` of :func:`run_dynamic`'s result: its settings, the model's, units, the machine."""
     sim0 = thesis_two_robot(noise_std=NOISE_LEVELS[0], seed=0, duration=dur)
     sens = sim0.config.sensor
+    assert sens is not None  # noqa: S101  (thesis_two_robot's robots detect each other)
     return {
         "seeds": seeds,
         "quick": quick,
