@@ -44,16 +44,26 @@ perturbation), plus :data:`COV_FLOOR` on the diagonal so that a collapsed set st
 **Landmarks that would collapse the set.** When a landmark's likelihood is much narrower than the set, or falls in
 its tail, reweighting leaves a handful of particles, and after resampling a cloud of millimetres around a wrong
 pose (MRCLAM dataset 6, landmarks only, first 300 s: team ANEES/dof 7.5). When the effective sample size after a
-landmark's reweighting would fall below :data:`ENSEMBLE_ESS` times the particles, the landmark is fused instead by
-the iterated EKF update on the group of the fitted Gaussian (:func:`swarmloc.kernels.group.point_update`) and the
-particles moved onto it by the same ensemble transform: an ensemble-Kalman step instead of the particle step,
-chosen by the effective sample size, as in the two-stage filter of Frei & Künsch (Biometrika 2013) with its split
-at 0 or 1. The rule looks at the weights only: it also fires at the first detection of a global localization and
-as a kidnapped robot recovers (twice and five times in the tests, which still converge within 5 s and 8 s);
-elsewhere only where reweighting would collapse the set.
-With both rules, ``sim:random`` (4 robots, 60 s, seeds 1-13): RMSE 0.248 m / ANEES/dof 0.69 (reweighting every
-answer: 0.235 m / 48.8); MRCLAM 6, landmarks on, first 300 s: 0.226 m / 1.90 (before: 0.256 m / 9.45), all
-of it: 0.234 m / 2.25 (before: 0.243 m / 9.86).
+landmark's reweighting would fall below :data:`ENSEMBLE_ESS` times the particles, its likelihood ``l`` is split
+as ``l = l^gamma l^(1 - gamma)``, as in the ensemble Kalman particle filter of Frei & Künsch (Biometrika 2013):
+``l^gamma``, ``gamma`` the largest exponent that keeps the effective sample size at :data:`ENSEMBLE_ESS` times the
+particles (:func:`split_exponent`; their automatic choice: as close to the particle update as degeneracy allows),
+reweights the particles; ``l^(1 - gamma)``, the same Gaussian measurement with its noise and the landmark's
+covariance over ``1 - gamma``, is fused by the iterated EKF update on the group of the reweighted set's fitted
+Gaussian (:func:`swarmloc.kernels.group.point_update`), the particles moved onto it by the same ensemble
+transform. (Frei & Künsch take the Kalman part first; here the particle part is, a tempered reweighting as in
+progressive correction, Musso, Oudjane & Le Gland 2001, so that the Gaussian part sees the weights it leaves.) With
+``ENSEMBLE_ESS = 0.5``, the default resampling threshold, a landmark never leaves fewer effective samples than the
+resampling rule tolerates. The rule looks at the weights only: it also fires at the first detections of a global
+localization and as a kidnapped robot recovers, where part of the likelihood still reweights the random particles
+that landed near the truth (the tests converge within 5 s and 8 s).
+Until the split, the rule was the split at 0 (all of a collapsing landmark by the Gaussian step, below a tenth of
+the particles): landmarks that left between a tenth and a half of the particles still shrank the set by
+reweighting alone, and all of MRCLAM 6 ended at ANEES/dof 2.25 (the first 120 s: 2.22).
+With both rules (``swarmloc compare``, team position RMSE / ANEES per dof): ``sim:random`` (4 robots, 60 s,
+seeds 1-13): RMSE 0.248 m / ANEES/dof 0.69 (reweighting every answer: 0.235 m / 48.8); MRCLAM 6, landmarks on,
+first 300 s: 0.229 m / 1.50 (split at 0: 0.226 m / 1.90; reweighting only: 0.256 m / 9.45), all of it:
+0.231 m / 1.75 (split at 0: 0.234 m / 2.25; reweighting only: 0.243 m / 9.86).
 
 **Weights, gating, resampling.** Weights are updated in the log domain. A detection is ``gated`` (not fused, no
 resampling) when no particle explains it: the smallest normalized innovation squared over the particles exceeds the
@@ -119,9 +129,12 @@ ALPHA_SLOW = 0.02
 ALPHA_FAST = 0.3
 """Smoothing factors, per evaluated detection, of the slow and fast averages of the likelihood (augmented MCL)."""
 MEAN_ITERATIONS = 3
-ENSEMBLE_ESS = 0.1
+ENSEMBLE_ESS = 0.5
 """A landmark detection whose reweighting would leave an effective sample size below this fraction of the particles
-updates the set by the Gaussian update and the ensemble transform instead (module docstring)."""
+is split: the part of its likelihood that keeps the effective sample size at this fraction reweights, the rest
+updates the set by the Gaussian update and the ensemble transform (module docstring)."""
+TEMPER_STEPS = 12
+"""Bisection steps for the split's exponent (resolution ``2^-12``)."""
 
 _INIT, _PREDICT, _GROUP = 1, 2, 3
 
@@ -234,14 +247,40 @@ def ensemble_transform(
     return np.stack([m1[0] + c * ex - s * ey, m1[1] + s * ex + c * ey, wrap_angle(m1[2] + ea)], axis=-1)
 
 
-def _landmark_moved(p: np.ndarray, w: np.ndarray, d: Any, landmark: tuple[np.ndarray, np.ndarray]) -> np.ndarray | None:
-    """Particles ``p`` (weights ``w``) moved onto the Gaussian (iterated EKF on the group) update of their fitted
-    Gaussian by a range/bearing detection ``d`` of a landmark ``(position, covariance)``; None when not usable."""
-    mean, cov = fit_gaussian(p, w)
+def split_exponent(lw: np.ndarray, q: np.ndarray, ess: float) -> float:
+    """The largest ``gamma`` in [0, 1) (bisection, :data:`TEMPER_STEPS` steps) such that log weights ``lw`` plus
+    ``-gamma q / 2`` (the likelihood to the power ``gamma``; ``q``: ``nis`` plus relative log-determinant) keep an
+    effective sample size of at least ``ess``; 0 when even the weights ``lw`` have less."""
+    lo, hi = 0.0, 1.0
+    for _ in range(TEMPER_STEPS):
+        mid = 0.5 * (lo + hi)
+        a = lw - 0.5 * mid * q
+        wn = np.exp(a - _logsumexp(a))
+        if 1.0 / float(wn @ wn) >= ess:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _landmark_split(
+    p: np.ndarray, lw: np.ndarray, q: np.ndarray, d: Any, landmark: tuple[np.ndarray, np.ndarray], ess: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """A range/bearing detection ``d`` of a landmark ``(position, covariance)`` split between the particles ``p``
+    (log weights ``lw``) and their fitted Gaussian (module docstring): particles and normalized log weights after
+    the reweighting by the likelihood to the power ``gamma`` (:func:`split_exponent`; ``q``: ``nis`` plus relative
+    log-determinant per particle) and the iterated EKF update on the group by the rest (noise and landmark
+    covariances over ``1 - gamma``) with the ensemble transform; None when that update is not usable."""
+    gamma = split_exponent(lw, q, ess)
+    lg = lw - 0.5 * gamma * q
+    lg = lg - _logsumexp(lg)
+    mean, cov = fit_gaussian(p, np.exp(lg))
     with np.errstate(all="ignore"):
-        meas = K.PointMeasurement(d.kind, d.z, np.asarray(d.cov, dtype=float), *landmark, False)
+        R, share = np.asarray(d.cov, dtype=float), 1.0 - gamma
+        meas = K.PointMeasurement(d.kind, d.z, R / share, landmark[0], landmark[1] / share, False)
         m2, c2, ok = K.point_update(mean, cov, meas)
-    return ensemble_transform(p, mean, cov, m2, c2) if bool(ok) else None
+    moved = ensemble_transform(p, mean, cov, m2, c2) if bool(ok) else None
+    return None if moved is None else (moved, lg)
 
 
 def fit_gaussian(particles: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -347,7 +386,7 @@ class MonteCarloLocalization(RobotNode):
             raise ValueError(f"{cls}: '{name}' must be (xmin, xmax, ymin, ymax), got {box!r}") from None
         if len(b) != 4 or not all(math.isfinite(v) for v in b) or not (b[0] < b[1] and b[2] < b[3]):
             raise ValueError(f"{cls}: '{name}' must be finite (xmin, xmax, ymin, ymax) with min < max, got {box!r}")
-        return b  # type: ignore[return-value]
+        return b[0], b[1], b[2], b[3]
 
     def _default_bounds(self) -> tuple[float, float, float, float] | None:
         if self._bounds_arg is not None:
@@ -457,16 +496,17 @@ class MonteCarloLocalization(RobotNode):
                 fused = True
                 outcomes.append(FUSED)
                 continue
-            new = lw - 0.5 * (nis + logdet - np.min(logdet))
+            q = nis + logdet - np.min(logdet)
+            new = lw - 0.5 * q
             total = _logsumexp(new)
             if not math.isfinite(total):
                 outcomes.append(("rejected", NUMERICAL))
                 continue
             wn = np.exp(new - total)
             if target[0] == "landmark" and 1.0 / float(wn @ wn) < ENSEMBLE_ESS * n:
-                moved = _landmark_moved(p, np.exp(lw - _logsumexp(lw)), d, target[1])
-                if moved is not None:
-                    p = moved
+                split = _landmark_split(p, lw, q, d, target[1], ENSEMBLE_ESS * n)
+                if split is not None:
+                    p, lw = split
                     fused = True
                     outcomes.append(FUSED)
                     continue
