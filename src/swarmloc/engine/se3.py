@@ -17,13 +17,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from swarmloc.events import Kind
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE3
-from swarmloc.lie.se3 import skew, so3_exp, so3_log
 from swarmloc.motion import twist3 as T3
 from swarmloc.motion.twist3 import TwistNoise
-from swarmloc.sensors.models3 import pose3_matrix
+from swarmloc.sensors.models3 import model3
+
+POSE3_MODEL = model3(Kind.POSE3)
+"""The ``"pose3"`` model, batched here over the stacked detections."""
 
 _T = np.swapaxes
 
@@ -71,25 +74,11 @@ def pose3_linearize(
     g: np.ndarray, gk: np.ndarray, Pk: np.ndarray, z: np.ndarray, Rz: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(r (B, 6), H (B, 6, 6), R_eff (B, 6, 6))`` of ``"pose3"`` detections ``z (B, 6)`` (noise ``Rz``) of
-    neighbours ``(gk, Pk)`` from observers ``g``: :class:`swarmloc.sensors.models3.Model3`'s prediction, residual
-    and noise plus the neighbour's covariance seen through its Jacobian, batched."""
-    Ri = g[:, :3, :3]
-    RiT = _T(Ri, -1, -2)
-    ht = np.einsum("bij,bj->bi", RiT, gk[:, :3, 3] - g[:, :3, 3])
-    hR = RiT @ gk[:, :3, :3]
-    B = g.shape[0]
-    H = np.zeros((B, 6, 6))
-    H[:, :3, :3] = -RiT
-    H[:, :3, 3:] = skew(ht)
-    H[:, 3:, 3:] = -_T(hR, -1, -2)
-    Hk = np.zeros((B, 6, 6))
-    Hk[:, :3, :3] = RiT
-    Hk[:, 3:, 3:] = np.eye(3)
-    mz = pose3_matrix(z)
-    r = np.concatenate([mz[:, :3, 3] - ht, so3_log(_T(hR, -1, -2) @ mz[:, :3, :3])], axis=-1)
-    J = C3.frame(so3_exp(z[:, 3:]))
-    Rn = J @ Rz @ _T(J, -1, -2) + Hk @ Pk @ _T(Hk, -1, -2)
-    return r, H, _sym(Rn)
+    neighbours ``(gk, Pk)`` from observers ``g``: the node's :class:`swarmloc.sensors.models3.Model3` prediction,
+    residual and noise on the stack, plus the neighbour's covariance seen through its Jacobian."""
+    h, H, Hk = POSE3_MODEL.predict(g, gk)
+    Rn = POSE3_MODEL.noise(z, Rz) + Hk @ Pk @ _T(Hk, -1, -2)
+    return POSE3_MODEL.residual(z, h), H, _sym(Rn)
 
 
 def correct(g: np.ndarray, dx: np.ndarray) -> np.ndarray:
