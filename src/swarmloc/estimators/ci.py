@@ -70,25 +70,26 @@ class CovarianceIntersection:
             return ci3(node, mean, cov, d, nb_mean, nb_cov, R)
         if d.kind == Kind.POSE:
             m = SE2.from_xytheta(d.z)
+            pair = KCI.Pair(mean, cov, m, R, nb_mean, nb_cov)
             if node.gate.p is not None:
                 nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, m, R, order)
                 verdict = node._gated(float(K.pseudo_nis(SE2, mean, cov, nu, W)), 3)
                 if verdict is not None:
                     return verdict
             if node.ci_weight == "search":
-                m2, c2, _ = KCI.ci_search(KCI.pose_fusion_at(mean, cov, m, R, nb_mean, nb_cov, order, its))
+                m2, c2, _ = KCI.ci_search(KCI.pose_fusion_at(pair, order, its))
             else:
-                m2, c2 = KCI.pose_fusion(SE2, mean, cov, m, R, nb_mean, nb_cov, order, its)
+                m2, c2 = KCI.pose_fusion(SE2, pair, order, its)
         else:
             verdict = point_gate(node, mean, cov, K.PointMeasurement(d.kind, d.z, R, nb_mean, nb_cov, True))
             if verdict is not None:
                 return verdict
-            pair = (mean, cov, d.z, R, nb_mean, nb_cov, node.point_iterations, order)
+            pair = KCI.Pair(mean, cov, d.z, R, nb_mean, nb_cov)
             if node.ci_weight == "search":
-                m2, c2, _ = KCI.ci_search(KCI.point_fusion_at(d.kind, *pair))
+                m2, c2, _ = KCI.ci_search(KCI.point_fusion_at(d.kind, pair, node.point_iterations, order))
                 ok = bool(np.isfinite(c2).all())
             else:
-                m2, c2, found = KCI.point_fusion(d.kind, *pair)
+                m2, c2, found = KCI.point_fusion(d.kind, pair, node.point_iterations, order)
                 ok = bool(found)
             if not ok:
                 return ("rejected", DEGENERATE)
@@ -110,7 +111,7 @@ def ci3(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, nb_mean: np.nd
         verdict = node._gated(float(K.pseudo_nis(SE3, mean, cov, nu, W)), 6)
         if verdict is not None:
             return verdict
-    m2, c2 = KCI.pose_fusion(SE3, mean, cov, m, R, nb_mean, nb_cov, order, its)
+    m2, c2 = KCI.pose_fusion(SE3, KCI.Pair(mean, cov, m, R, nb_mean, nb_cov), order, its)
     if not (np.isfinite(m2).all() and usable_covariance(c2)):
         return ("rejected", NUMERICAL)
     return m2, c2

@@ -23,7 +23,7 @@ point and its neighbours. The determinant lemma reduces it to ``m x m`` determin
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -222,51 +222,42 @@ def pose_weight(
 
 
 # ------------------------------------------------------------------------------------------------ the fusions
-# A neighbour's detection fused by covariance intersection, batched over leading axes: the robots' beliefs ``(mean,
-# cov)``, the neighbours' answers ``(nb_mean, nb_cov)``, the measurement (a relative pose ``meas`` as a group
-# matrix, or a range/bearing ``z`` of ``kind``) and its noise ``R``. The node calls them unbatched, the engine
-# (:mod:`swarmloc.engine.fuse_ci`) on stacks.
+class Pair(NamedTuple):
+    """A neighbour's detection to fuse by covariance intersection, batched over leading axes: the robots' beliefs
+    ``(mean, cov)``, the measurements (a relative pose ``meas`` as a group matrix, or a range/bearing ``z``) and their
+    noise ``R``, the neighbours' answers ``(nb_mean, nb_cov)``. The node makes one unbatched, the engine
+    (:mod:`swarmloc.engine.fuse_ci`) stacks."""
+
+    mean: FloatArray
+    cov: FloatArray
+    meas: FloatArray
+    R: FloatArray
+    nb_mean: FloatArray
+    nb_cov: FloatArray
 
 
-def pose_fusion(
-    group: type[SEGroup],
-    mean: FloatArray,
-    cov: FloatArray,
-    meas: FloatArray,
-    R: FloatArray,
-    nb_mean: FloatArray,
-    nb_cov: FloatArray,
-    order: int,
-    iterations: int,
-) -> tuple[FloatArray, FloatArray]:
+def pose_fusion(group: type[SEGroup], pair: Pair, order: int, iterations: int) -> tuple[FloatArray, FloatArray]:
     """Relative poses: the weight in closed form (:func:`pose_weight`), then one fusion of the neighbour's
     pseudo-observation (:func:`swarmloc.kernels.group.fuse_pseudo`); returns ``(mean, cov)``."""
-    w = np.asarray(pose_weight(mean, cov, meas, R, nb_mean, nb_cov, order, group=group))[..., None, None]
+    mean, cov, meas, R, nb_mean, nb_cov = pair
+    w = np.asarray(pose_weight(*pair, order, group=group))[..., None, None]
     nu, W = K.relative_to_pseudo(group, nb_mean, nb_cov / (1 - w), meas, R, order)
     return K.fuse_pseudo(group, mean, cov / w, nu[..., None, :, :], W[..., None, :, :], order, iterations)
 
 
-def point_fusion(
-    kind: str,
-    mean: FloatArray,
-    cov: FloatArray,
-    z: FloatArray,
-    R: FloatArray,
-    nb_mean: FloatArray,
-    nb_cov: FloatArray,
-    point_iterations: int,
-    order: int,
-) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Range/bearing of a robot on SE(2): the weight in closed form (:func:`point_weight`), then the iterated point
-    update (:func:`swarmloc.kernels.group.point_update`); returns ``(mean, cov, ok)``, ok False where degenerate."""
+def point_fusion(kind: str, pair: Pair, point_iterations: int, order: int) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Range/bearing ``pair.meas`` of a robot on SE(2): the weight in closed form (:func:`point_weight`), then the
+    iterated point update (:func:`swarmloc.kernels.group.point_update`); returns ``(mean, cov, ok)``, ok False where
+    degenerate."""
+    mean, cov, z, R, nb_mean, nb_cov = pair
     w = np.asarray(point_weight(mean, cov, kind, z, R, nb_mean, nb_cov))[..., None, None]
     meas = K.PointMeasurement(kind, z, R, nb_mean, nb_cov / (1 - w), True)
     return K.point_update(mean, cov / w, meas, point_iterations, order)
 
 
-def pose_fusion_at(mean: FloatArray, cov: FloatArray, meas: FloatArray, R: FloatArray, nb_mean: FloatArray,
-                   nb_cov: FloatArray, order: int, iterations: int) -> Fuse:  # fmt: skip
+def pose_fusion_at(pair: Pair, order: int, iterations: int) -> Fuse:
     """The relative-pose fusion on SE(2) at CI weights ``w (k, ...)``, for :func:`ci_search`."""
+    mean, cov, meas, R, nb_mean, nb_cov = pair
 
     def fuse(w: FloatArray) -> tuple[FloatArray, FloatArray]:
         wc = w[..., None, None]
@@ -277,10 +268,10 @@ def pose_fusion_at(mean: FloatArray, cov: FloatArray, meas: FloatArray, R: Float
     return fuse
 
 
-def point_fusion_at(kind: str, mean: FloatArray, cov: FloatArray, z: FloatArray, R: FloatArray, nb_mean: FloatArray,
-                    nb_cov: FloatArray, point_iterations: int, order: int) -> Fuse:  # fmt: skip
+def point_fusion_at(kind: str, pair: Pair, point_iterations: int, order: int) -> Fuse:
     """The range/bearing point update at CI weights ``w (k, ...)``, for :func:`ci_search` (NaN covariance where
     degenerate)."""
+    mean, cov, z, R, nb_mean, nb_cov = pair
     z = np.asarray(z, dtype=float)
 
     def fuse(w: FloatArray) -> tuple[FloatArray, FloatArray]:
