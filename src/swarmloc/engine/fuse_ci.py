@@ -12,7 +12,6 @@ by ``1 / (1 - w)``); absolute fixes are independent information, fused as the th
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -30,10 +29,6 @@ from swarmloc.sensors.models3 import pose3_matrix
 
 CI_WEIGHTS = ("closed_form", "search")
 """The rules for covariance intersection's weight an estimator may declare (``ci_weight``)."""
-
-Pair = tuple[np.ndarray, ...]
-"""``(mean, cov, nb_mean, nb_cov, meas, R)``: the observers' beliefs, the neighbours' answers, the measurements (an
-SE(2) matrix for a relative pose, ``z`` otherwise) and their noise, batched."""
 
 
 class CiFusion(Sequential):
@@ -56,20 +51,26 @@ class CiFusion(Sequential):
         m = model.size
         lo = st.lo[rows]
         z, R = st.det.z[rows, :m], st.det.R[rows, :m, :m]
-        pair = (st.cur[0][lo], st.cur[1][lo], *st.target(rows), SE2.from_xytheta(z) if code == POSE else z, R)
+        pair = KCI.Pair(st.cur[0][lo], st.cur[1][lo], SE2.from_xytheta(z) if code == POSE else z, R, *st.target(rows))
         if self.gate.p is not None:
             keep = self._gate(st, rows, model, pair)
-            rows, pair = rows[keep], tuple(a[keep] for a in pair)
+            rows, pair = rows[keep], KCI.Pair(*(a[keep] for a in pair))
         if rows.size == 0:
             return
         why = R_NUMERICAL if code == POSE else R_DEGENERATE
+        order, its, point_its = self.order, self.iterations, self.point_iterations
         if self.weight == "search":
-            m2, c2, _ = KCI.ci_search(self._fusion(model, pair), (rows.size,))
+            at = (
+                KCI.pose_fusion_at(pair, order, its)
+                if code == POSE
+                else KCI.point_fusion_at(model.kind, pair, point_its, order)
+            )
+            m2, c2, _ = KCI.ci_search(at, (rows.size,))
             st.accept(rows, m2, c2, why)
         elif code == POSE:
-            st.accept(rows, *self._closed_form_pose(pair), why)
+            st.accept(rows, *KCI.pose_fusion(SE2, pair, order, its), why)
         else:
-            m2, c2, ok = self._closed_form_point(model, pair)
+            m2, c2, ok = KCI.point_fusion(model.kind, pair, point_its, order)
             st.mark(rows[~ok], REJECTED, R_DEGENERATE)
             st.accept(rows[ok], m2[ok], c2[ok], why)
 
@@ -88,9 +89,7 @@ class CiFusion(Sequential):
             rows, mean, cov, nb_mean, nb_cov, meas, R = (a[keep] for a in (rows, mean, cov, nb_mean, nb_cov, meas, R))
         if rows.size == 0:
             return
-        w = KCI.pose_weight(mean, cov, meas, R, nb_mean, nb_cov, order, group=SE3)[:, None, None]
-        nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov / (1 - w), meas, R, order)
-        m2, c2 = K.fuse_pseudo(SE3, mean, cov / w, nu[:, None], W[:, None], order, self.iterations)
+        m2, c2 = KCI.pose_fusion(SE3, KCI.Pair(mean, cov, meas, R, nb_mean, nb_cov), order, self.iterations)
         st.accept(rows, m2, c2, R_NUMERICAL)
 
     def _independent(self, st: Stamp, rows: np.ndarray) -> None:
@@ -105,45 +104,12 @@ class CiFusion(Sequential):
             m2, c2 = K.fuse_pseudo(SE2, mean, cov, nu[:, None], W[:, None], self.order, self.iterations)
             st.accept(rows, m2, c2, R_NUMERICAL)
 
-    def _gate(self, st: Stamp, rows: np.ndarray, model: MeasurementModel, pair: Pair) -> np.ndarray:
+    def _gate(self, st: Stamp, rows: np.ndarray, model: MeasurementModel, pair: KCI.Pair) -> np.ndarray:
         """The gate on the fusion with the neighbour's belief as independent (relative poses: as a pseudo-observation;
         range/bearing: the point update's innovation, non-finite where the geometry is degenerate)."""
-        mean, cov, nb_mean, nb_cov, meas, R = pair
+        mean, cov, meas, R, nb_mean, nb_cov = pair
         if model.kind == Kind.POSE:
             nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, meas, R, self.order)
             return st.gate(rows, K.pseudo_nis(SE2, mean, cov, nu, W), self.gate, 3)
         nis = K.point_nis(mean, cov, K.PointMeasurement(model.kind, meas, R, nb_mean, nb_cov, True))
         return st.gate(rows, nis, self.gate, model.size, nonfinite=R_DEGENERATE)
-
-    def _closed_form_pose(self, pair: Pair) -> tuple[np.ndarray, np.ndarray]:
-        mean, cov, nb_mean, nb_cov, meas, R = pair
-        order = self.order
-        w = KCI.pose_weight(mean, cov, meas, R, nb_mean, nb_cov, order)[:, None, None]
-        nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - w), meas, R, order)
-        return K.fuse_pseudo(SE2, mean, cov / w, nu[:, None], W[:, None], order, self.iterations)
-
-    def _closed_form_point(self, model: MeasurementModel, pair: Pair) -> tuple[np.ndarray, ...]:
-        mean, cov, nb_mean, nb_cov, z, R = pair
-        w = KCI.point_weight(mean, cov, model.kind, z, R, nb_mean, nb_cov)[:, None, None]
-        meas = K.PointMeasurement(model.kind, z, R, nb_mean, nb_cov / (1 - w), True)
-        return K.point_update(mean, cov / w, meas, self.point_iterations, self.order)
-
-    def _fusion(self, model: MeasurementModel, pair: Pair) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
-        """The fusion at CI weights ``w (k, B)`` for :func:`~swarmloc.kernels.ci.ci_search`."""
-        mean, cov, nb_mean, nb_cov, meas, R = pair
-        order, its, point_its = self.order, self.iterations, self.point_iterations
-
-        def fuse_pose(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            wc = w[..., None, None]
-            nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - wc), meas, R, order)
-            mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-            return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], order, its)
-
-        def fuse_point(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            wc = w[..., None, None]
-            mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-            point = K.PointMeasurement(model.kind, meas, R, nb_mean, nb_cov / (1 - wc), True)
-            m2, c2, ok = K.point_update(mu, cov / wc, point, point_its, order)
-            return m2, np.where(ok[..., None, None], c2, np.nan)
-
-        return fuse_pose if model.kind == Kind.POSE else fuse_point

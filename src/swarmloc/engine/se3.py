@@ -6,7 +6,7 @@ stacked arrays: poses ``(B, 4, 4)``, covariances ``(B, 6, 6)`` (translation firs
 ``w (B, 3)`` [rad/s] (the body twist), intervals ``dt (B,)`` [s].
 
 * :func:`twist_increments`: the Gaussian increments of constant body twists, Van Loan's closed form with one
-  batched ``12 x 12`` matrix exponential (``scipy.linalg.expm`` on a stack);
+  batched ``12 x 12`` matrix exponential (:func:`swarmloc.motion.twist3.twist_increments`);
 * :func:`predict_group`: the thesis estimator's (and covariance intersection's) prediction on the group;
 * :func:`predict_error`, :func:`to_error`, :func:`to_group`: the first-order EKF's state ``(pose, P)``, ``P`` the
   covariance of ``(dp, dtheta)`` (world-frame position, body-frame attitude);
@@ -16,14 +16,17 @@ stacked arrays: poses ``(B, 4, 4)``, covariances ``(B, 6, 6)`` (translation firs
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import expm
 
+from swarmloc.events import Kind
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE3
-from swarmloc.lie.se3 import skew, so3_exp, so3_log
+from swarmloc.motion import twist3 as T3
 from swarmloc.motion.twist3 import TwistNoise
-from swarmloc.sensors.models3 import pose3_matrix
+from swarmloc.sensors.models3 import model3
+
+POSE3_MODEL = model3(Kind.POSE3)
+"""The ``"pose3"`` model, batched here over the stacked detections."""
 
 _T = np.swapaxes
 
@@ -34,19 +37,8 @@ def _sym(C: np.ndarray) -> np.ndarray:
 
 def twist_increments(v: np.ndarray, w: np.ndarray, dt: np.ndarray, noise: TwistNoise) -> tuple[np.ndarray, ...]:
     """Increments ``(mean (B, 4, 4), cov (B, 6, 6))`` of the body twists ``(v, w)`` held over ``dt`` [s] with
-    diffusion ``noise.Q``: :func:`swarmloc.motion.twist3.twist_increment`, batched."""
-    h = np.concatenate([v, w], axis=-1)
-    ql = noise.q_lin0 + noise.q_lin1 * np.linalg.norm(h[:, :3], axis=-1)
-    qa = noise.q_ang0 + noise.q_ang1 * np.linalg.norm(h[:, 3:], axis=-1)
-    ad = SE3.ad(h, validate=False)
-    M = np.zeros((h.shape[0], 12, 12))
-    M[:, :6, :6] = ad
-    idx = np.arange(6)
-    M[:, idx, 6 + idx] = np.concatenate([np.repeat(ql[:, None], 3, 1), np.repeat(qa[:, None], 3, 1)], axis=1)
-    M[:, 6:, 6:] = -_T(ad, -1, -2)
-    E = expm(M * dt[:, None, None])
-    S = _T(E[:, 6:, 6:], -1, -2) @ E[:, :6, 6:]
-    return SE3.exp(dt[:, None] * h, validate=False), _sym(S)
+    diffusion ``noise.Q``: :func:`swarmloc.motion.twist3.twist_increments` of the stacked twists."""
+    return T3.twist_increments(np.concatenate([v, w], axis=-1), dt, noise)
 
 
 def predict_group(
@@ -60,16 +52,11 @@ def predict_group(
 def predict_error(
     g: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray, noise: TwistNoise
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The first-order EKF's prediction (:class:`~swarmloc.estimators.dekf.DistributedEKF` on SE(3)): ``p' = p + R
-    t_inc``, ``R' = R R_inc``, ``P' = F P F^T + G Sigma_inc G^T`` (:func:`swarmloc.kernels.cartesian3.transition`)."""
-    inc, S = twist_increments(v, w, dt, noise)
-    R, Ri, ti = g[:, :3, :3], inc[:, :3, :3], inc[:, :3, 3]
-    F, G = C3.transition(R, inc)
-    Pn = F @ P @ _T(F, -1, -2) + G @ S @ _T(G, -1, -2)
+    """The first-order EKF's prediction (:class:`~swarmloc.estimators.dekf.DistributedEKF` on SE(3)): the node's
+    :func:`swarmloc.kernels.cartesian3.propagate` on the stack."""
     out = g.copy()
-    out[:, :3, 3] = g[:, :3, 3] + np.einsum("bij,bj->bi", R, ti)
-    out[:, :3, :3] = R @ Ri
-    return out, _sym(Pn)
+    out[:, :3, 3], out[:, :3, :3], Pn = C3.propagate(g[:, :3, 3], g[:, :3, :3], P, *twist_increments(v, w, dt, noise))
+    return out, Pn
 
 
 def to_error(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -87,25 +74,11 @@ def pose3_linearize(
     g: np.ndarray, gk: np.ndarray, Pk: np.ndarray, z: np.ndarray, Rz: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(r (B, 6), H (B, 6, 6), R_eff (B, 6, 6))`` of ``"pose3"`` detections ``z (B, 6)`` (noise ``Rz``) of
-    neighbours ``(gk, Pk)`` from observers ``g``: :class:`swarmloc.sensors.models3.Model3`'s prediction, residual
-    and noise plus the neighbour's covariance seen through its Jacobian, batched."""
-    Ri = g[:, :3, :3]
-    RiT = _T(Ri, -1, -2)
-    ht = np.einsum("bij,bj->bi", RiT, gk[:, :3, 3] - g[:, :3, 3])
-    hR = RiT @ gk[:, :3, :3]
-    B = g.shape[0]
-    H = np.zeros((B, 6, 6))
-    H[:, :3, :3] = -RiT
-    H[:, :3, 3:] = skew(ht)
-    H[:, 3:, 3:] = -_T(hR, -1, -2)
-    Hk = np.zeros((B, 6, 6))
-    Hk[:, :3, :3] = RiT
-    Hk[:, 3:, 3:] = np.eye(3)
-    mz = pose3_matrix(z)
-    r = np.concatenate([mz[:, :3, 3] - ht, so3_log(_T(hR, -1, -2) @ mz[:, :3, :3])], axis=-1)
-    J = C3.frame(so3_exp(z[:, 3:]))
-    Rn = J @ Rz @ _T(J, -1, -2) + Hk @ Pk @ _T(Hk, -1, -2)
-    return r, H, _sym(Rn)
+    neighbours ``(gk, Pk)`` from observers ``g``: the node's :class:`swarmloc.sensors.models3.Model3` prediction,
+    residual and noise on the stack, plus the neighbour's covariance seen through its Jacobian."""
+    h, H, Hk = POSE3_MODEL.predict(g, gk)
+    Rn = POSE3_MODEL.noise(z, Rz) + Hk @ Pk @ _T(Hk, -1, -2)
+    return POSE3_MODEL.residual(z, h), H, _sym(Rn)
 
 
 def correct(g: np.ndarray, dx: np.ndarray) -> np.ndarray:

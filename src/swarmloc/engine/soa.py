@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from swarmloc.kernels.cartesian import shifted_cov
+from swarmloc.kernels.cartesian import shifted_cov, world_cov
 from swarmloc.motion import SERIES, SERIES_BELOW, UnicycleNoise
 from swarmloc.motion.closed_form import unicycle_terms
 
@@ -185,14 +185,7 @@ def predict(xp: Any, x: Vec, p: Vec, v: Entry, w: Entry, dt: Entry, noise: Unicy
     ct, st = xp.cos(th0), xp.sin(th0)
     dx, dy = ct * tx - st * ty, st * tx + ct * ty
     th = wrap(xp, th0 + xp.arctan2(s, c))
-    cn, sn = xp.cos(th), xp.sin(th)
-    cc, ss, cs = cn * cn, sn * sn, cn * sn
-    q00 = cc * S11 - 2 * cs * S12 + ss * S22
-    q01 = cs * (S11 - S22) + (cc - ss) * S12
-    q02 = cn * S13 - sn * S23
-    q11 = ss * S11 + 2 * cs * S12 + cc * S22
-    q12 = sn * S13 + cn * S23
-    new_p = shifted_cov(p, dx, dy, (q00, q01, q02, q11, q12, S33))
+    new_p = shifted_cov(p, dx, dy, world_cov(xp.cos(th), xp.sin(th), (S11, S12, S13, S22, S23, S33)))
     move = dt > 0
     new_x = (x0 + dx, y0 + dy, th)
     return (

@@ -14,15 +14,14 @@ normally, one at a time.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
 
 from swarmloc.estimators.expfusion import DEGENERATE, ExpNode, ExpState, point, point_gate, pseudo
 from swarmloc.events import Kind
+from swarmloc.kernels import ci as KCI
 from swarmloc.kernels import group as K
-from swarmloc.kernels.ci import ci_search, point_weight, pose_weight
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
 from swarmloc.node import NUMERICAL, Group, Outcome, applied, usable_covariance
@@ -71,28 +70,26 @@ class CovarianceIntersection:
             return ci3(node, mean, cov, d, nb_mean, nb_cov, R)
         if d.kind == Kind.POSE:
             m = SE2.from_xytheta(d.z)
+            pair = KCI.Pair(mean, cov, m, R, nb_mean, nb_cov)
             if node.gate.p is not None:
                 nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, m, R, order)
                 verdict = node._gated(float(K.pseudo_nis(SE2, mean, cov, nu, W)), 3)
                 if verdict is not None:
                     return verdict
             if node.ci_weight == "search":
-                m2, c2, _ = ci_search(pose_at(node, mean, cov, m, R, nb_mean, nb_cov))
+                m2, c2, _ = KCI.ci_search(KCI.pose_fusion_at(pair, order, its))
             else:
-                w = float(pose_weight(mean, cov, m, R, nb_mean, nb_cov, order))
-                nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - w), m, R, order)
-                m2, c2 = K.fuse_pseudo(SE2, mean, cov / w, nu[None], W[None], order, its)
+                m2, c2 = KCI.pose_fusion(SE2, pair, order, its)
         else:
             verdict = point_gate(node, mean, cov, K.PointMeasurement(d.kind, d.z, R, nb_mean, nb_cov, True))
             if verdict is not None:
                 return verdict
+            pair = KCI.Pair(mean, cov, d.z, R, nb_mean, nb_cov)
             if node.ci_weight == "search":
-                m2, c2, _ = ci_search(point_at(node, mean, cov, d, R, nb_mean, nb_cov))
+                m2, c2, _ = KCI.ci_search(KCI.point_fusion_at(d.kind, pair, node.point_iterations, order))
                 ok = bool(np.isfinite(c2).all())
             else:
-                w = float(point_weight(mean, cov, d.kind, d.z, R, nb_mean, nb_cov))
-                meas = K.PointMeasurement(d.kind, d.z, R, nb_mean, nb_cov / (1 - w), True)
-                m2, c2, found = K.point_update(mean, cov / w, meas, node.point_iterations, order)
+                m2, c2, found = KCI.point_fusion(d.kind, pair, node.point_iterations, order)
                 ok = bool(found)
             if not ok:
                 return ("rejected", DEGENERATE)
@@ -114,40 +111,10 @@ def ci3(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, nb_mean: np.nd
         verdict = node._gated(float(K.pseudo_nis(SE3, mean, cov, nu, W)), 6)
         if verdict is not None:
             return verdict
-    w = float(pose_weight(mean, cov, m, R, nb_mean, nb_cov, order, group=SE3))
-    nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov / (1 - w), m, R, order)
-    m2, c2 = K.fuse_pseudo(SE3, mean, cov / w, nu[None], W[None], order, its)
+    m2, c2 = KCI.pose_fusion(SE3, KCI.Pair(mean, cov, m, R, nb_mean, nb_cov), order, its)
     if not (np.isfinite(m2).all() and usable_covariance(c2)):
         return ("rejected", NUMERICAL)
     return m2, c2
-
-
-def pose_at(node: ExpNode, mean: np.ndarray, cov: np.ndarray, m: np.ndarray, R: np.ndarray, nb_mean: np.ndarray,
-            nb_cov: np.ndarray) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:  # fmt: skip
-    """The relative-pose fusion at CI weights ``w (k,)`` for :func:`~swarmloc.kernels.ci.ci_search`."""
-
-    def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        wc = w[..., None, None]
-        nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - wc), m, R, node.order)
-        mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-        return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], node.order,
-                             node.iterations)  # fmt: skip
-
-    return fuse
-
-
-def point_at(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, R: np.ndarray, nb_mean: np.ndarray,
-             nb_cov: np.ndarray) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:  # fmt: skip
-    """The range/bearing point update at CI weights ``w (k,)`` (NaN covariance where degenerate)."""
-
-    def fuse(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        wc = w[..., None, None]
-        mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-        meas = K.PointMeasurement(d.kind, np.asarray(d.z, dtype=float), R, nb_mean, nb_cov / (1 - wc), True)
-        m2, c2, ok = K.point_update(mu, cov / wc, meas, node.point_iterations, node.order)
-        return m2, np.where(np.asarray(ok)[..., None, None], c2, np.nan)
-
-    return fuse
 
 
 class ExpCI(ExpNode):

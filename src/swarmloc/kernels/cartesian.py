@@ -67,17 +67,12 @@ def increment_terms_xy(
 ) -> tuple[float, float, float, float, float, float, float, float, float, float, float]:
     """:func:`increment_terms` of the pose ``(x0 [m], y0 [m], th0 [rad])`` given as floats."""
     # memoized (increment_cached): the same numbers as odometry_increment_terms, its (cos, sin) kept as the angle
-    alpha, tx, ty, S11, S12, S13, S22, S23, S33 = increment_cached(increment_cache(noise), v, w, dt, noise)
+    hit = increment_cached(increment_cache(noise), v, w, dt, noise)
+    alpha, tx, ty = hit[0], hit[1], hit[2]
     ct, st = math.cos(th0), math.sin(th0)
     dx, dy = ct * tx - st * ty, st * tx + ct * ty
     th = wrap_angle(th0 + alpha)
-    cn, sn = math.cos(th), math.sin(th)
-    cc, ss, cs = cn * cn, sn * sn, cn * sn
-    return (
-        x0 + dx, y0 + dy, th, dx, dy,
-        cc * S11 - 2 * cs * S12 + ss * S22, cs * (S11 - S22) + (cc - ss) * S12, cn * S13 - sn * S23,
-        ss * S11 + 2 * cs * S12 + cc * S22, sn * S13 + cn * S23, S33,
-    )  # fmt: skip
+    return (x0 + dx, y0 + dy, th, dx, dy, *world_cov(math.cos(th), math.sin(th), hit[3:]))
 
 
 def _increment_one(
@@ -115,6 +110,18 @@ def shifted_cov(p: Sequence[Any], dx: Any, dy: Any, q: Sequence[Any]) -> tuple[A
     n01 = p01 - dy * p12 + dx * a02 + q01
     n11 = p11 + 2 * dx * p12 + dx * dx * p22 + q11
     return n00, n01, a02 + q02, n11, a12 + q12, p22 + q22
+
+
+def world_cov(c: Any, s: Any, S: Sequence[Any]) -> tuple[Any, ...]:
+    """Upper triangle ``(00, 01, 02, 11, 12, 22)`` of ``B S B^T``, ``B = diag(R(theta), 1)`` (``c, s`` the cosine and
+    sine of the heading ``theta`` after the step): an increment's covariance, upper triangle ``S = (S11, S12, S13,
+    S22, S23, S33)`` in the robot's frame, in the world frame; plain arithmetic as :func:`shifted_cov`."""
+    S11, S12, S13, S22, S23, S33 = S
+    cc, ss, cs = c * c, s * s, c * s
+    return (
+        cc * S11 - 2 * cs * S12 + ss * S22, cs * (S11 - S22) + (cc - ss) * S12, c * S13 - s * S23,
+        ss * S11 + 2 * cs * S12 + cc * S22, s * S13 + c * S23, S33,
+    )  # fmt: skip
 
 
 INCREMENT_CACHE_SIZE = 1 << 16
@@ -188,7 +195,7 @@ def predict_run(
             dx, dy = ct * tx - st * ty, st * tx + ct * ty
             th = wrap_angle(th + alpha)
             ct, st = math.cos(th), math.sin(th)
-            cc, ss, cs = ct * ct, st * st, ct * st
+            cc, ss, cs = ct * ct, st * st, ct * st  # world_cov and shifted_cov inlined (a call costs ~15% here)
             x0, y0 = x0 + dx, y0 + dy
             a02 = p02 - dy * p22
             a12 = p12 + dx * p22

@@ -7,15 +7,15 @@ A pose is its position ``p (3,)`` (world frame) and attitude ``R (3, 3)``. The *
 * prediction over a constant body twist with increment ``(t_inc, R_inc) = exp(dt h^)`` and increment noise
   ``Sigma_inc`` (:func:`swarmloc.motion.twist3.twist_increment`): ``p' = p + R t_inc``, ``R' = R R_inc``,
   ``F = [[I, -R t_inc^], [0, R_inc^T]]``, ``G = diag(R R_inc, I)``, ``P' = F P F^T + G Sigma_inc G^T``
-  (:func:`step`, :func:`predict`);
+  (:func:`step`, :func:`predict`, batched: :func:`propagate`);
 * the detections ``"pose3"``, ``"rbe3"``, ``"bearing3"`` of a robot (a pose) or of a known 3-D landmark (a point):
   :class:`~swarmloc.sensors.models3.Model3`'s residual, Jacobians and noise (:func:`linearize`);
 * the correction is applied on the group, ``p + dp``, ``R exp(dtheta^)`` (:func:`correct`), no reset Jacobian;
 * a right-perturbation Gaussian ``g exp(y)`` has ``cov = J^-1 P J^-T`` with ``J = diag(R, I)`` (``g exp(y)`` moves
   the position by ``R v`` to first order): :func:`to_error`, :func:`to_group`.
 
-The pose functions take one pose; :func:`frame`, :func:`error_cov`, :func:`transition` and :func:`correct` are
-batched over leading axes (the engine's :mod:`swarmloc.engine.se3` stacks robots).
+The pose functions take one pose; :func:`frame`, :func:`error_cov`, :func:`transition`, :func:`propagate` and
+:func:`correct` are batched over leading axes (the engine's :mod:`swarmloc.engine.se3` stacks robots).
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ __all__ = [
     "linearize",
     "pose",
     "predict",
+    "propagate",
     "relative_pose3_world",
     "step",
     "to_error",
@@ -109,10 +110,19 @@ def step(
 def predict(
     p: FloatArray, R: FloatArray, P: FloatArray, v: Any, w: Any, dt: float, noise: TwistNoise
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """``(p', R', P')`` of one robot's :func:`step` with ``P' = F P F^T + G Sigma_inc G^T``."""
-    p1, R1, F, G, S = step(p, R, v, w, dt, noise)
-    P1 = F @ P @ F.T + G @ S @ G.T
-    return p1, R1, 0.5 * (P1 + P1.T)
+    """``(p', R', P')`` of one robot moved by the body twist ``(v, w)`` over ``dt > 0`` [s] (:func:`propagate`)."""
+    return propagate(p, R, P, *twist_increment(as_twist(v, w), dt, noise))
+
+
+def propagate(
+    p: FloatArray, R: FloatArray, P: FloatArray, inc: FloatArray, S: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(p', R', P')`` of poses moved by increments ``inc (..., 4, 4)`` of covariance ``S (..., 6, 6)``, batched
+    over leading axes: ``p' = p + R t_inc``, ``R' = R R_inc``, ``P' = F P F^T + G S G^T`` (symmetrized;
+    :func:`transition`)."""
+    F, G = transition(R, inc)
+    P1 = F @ P @ _T(F, -1, -2) + G @ S @ _T(G, -1, -2)
+    return p + (R @ inc[..., :3, 3:])[..., 0], R @ inc[..., :3, :3], 0.5 * (P1 + _T(P1, -1, -2))
 
 
 def correct(p: FloatArray, R: FloatArray, dx: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -23,12 +23,12 @@ point and its neighbours. The determinant lemma reduces it to ``m x m`` determin
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from swarmloc.arrays import FloatArray
+from swarmloc.arrays import BoolArray, FloatArray
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE2
 from swarmloc.lie.base import SEGroup
@@ -219,3 +219,66 @@ def pose_weight(
         return np.where((s1 > 0) & (s2 > 0), l1 - l2, np.inf)
 
     return _minimize_on_grid(cost, batch, bounds)
+
+
+# ------------------------------------------------------------------------------------------------ the fusions
+class Pair(NamedTuple):
+    """A neighbour's detection to fuse by covariance intersection, batched over leading axes: the robots' beliefs
+    ``(mean, cov)``, the measurements (a relative pose ``meas`` as a group matrix, or a range/bearing ``z``) and their
+    noise ``R``, the neighbours' answers ``(nb_mean, nb_cov)``. The node makes one unbatched, the engine
+    (:mod:`swarmloc.engine.fuse_ci`) stacks."""
+
+    mean: FloatArray
+    cov: FloatArray
+    meas: FloatArray
+    R: FloatArray
+    nb_mean: FloatArray
+    nb_cov: FloatArray
+
+
+def pose_fusion(group: type[SEGroup], pair: Pair, order: int, iterations: int) -> tuple[FloatArray, FloatArray]:
+    """Relative poses: the weight in closed form (:func:`pose_weight`), then one fusion of the neighbour's
+    pseudo-observation (:func:`swarmloc.kernels.group.fuse_pseudo`); returns ``(mean, cov)``."""
+    mean, cov, meas, R, nb_mean, nb_cov = pair
+    w = np.asarray(pose_weight(*pair, order, group=group))[..., None, None]
+    nu, W = K.relative_to_pseudo(group, nb_mean, nb_cov / (1 - w), meas, R, order)
+    return K.fuse_pseudo(group, mean, cov / w, nu[..., None, :, :], W[..., None, :, :], order, iterations)
+
+
+def point_fusion(kind: str, pair: Pair, point_iterations: int, order: int) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Range/bearing ``pair.meas`` of a robot on SE(2): the weight in closed form (:func:`point_weight`), then the
+    iterated point update (:func:`swarmloc.kernels.group.point_update`); returns ``(mean, cov, ok)``, ok False where
+    degenerate."""
+    mean, cov, z, R, nb_mean, nb_cov = pair
+    w = np.asarray(point_weight(mean, cov, kind, z, R, nb_mean, nb_cov))[..., None, None]
+    meas = K.PointMeasurement(kind, z, R, nb_mean, nb_cov / (1 - w), True)
+    return K.point_update(mean, cov / w, meas, point_iterations, order)
+
+
+def pose_fusion_at(pair: Pair, order: int, iterations: int) -> Fuse:
+    """The relative-pose fusion on SE(2) at CI weights ``w (k, ...)``, for :func:`ci_search`."""
+    mean, cov, meas, R, nb_mean, nb_cov = pair
+
+    def fuse(w: FloatArray) -> tuple[FloatArray, FloatArray]:
+        wc = w[..., None, None]
+        nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - wc), meas, R, order)
+        mu = np.broadcast_to(mean, (*w.shape, 3, 3))
+        return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], order, iterations)
+
+    return fuse
+
+
+def point_fusion_at(kind: str, pair: Pair, point_iterations: int, order: int) -> Fuse:
+    """The range/bearing point update at CI weights ``w (k, ...)``, for :func:`ci_search` (NaN covariance where
+    degenerate)."""
+    mean, cov, z, R, nb_mean, nb_cov = pair
+    z = np.asarray(z, dtype=float)
+
+    def fuse(w: FloatArray) -> tuple[FloatArray, FloatArray]:
+        wc = w[..., None, None]
+        mu = np.broadcast_to(mean, (*w.shape, 3, 3))
+        meas = K.PointMeasurement(kind, z, R, nb_mean, nb_cov / (1 - wc), True)
+        m2, c2, ok = K.point_update(mu, cov / wc, meas, point_iterations, order)
+        return m2, np.where(np.asarray(ok)[..., None, None], c2, np.nan)
+
+    return fuse

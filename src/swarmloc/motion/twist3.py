@@ -26,7 +26,7 @@ from scipy.linalg import expm
 
 from swarmloc.lie import SE3
 
-__all__ = ["TwistNoise", "as_twist", "twist_increment"]
+__all__ = ["TwistNoise", "as_twist", "twist_increment", "twist_increments"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,16 +76,23 @@ def twist_increment(twist: np.ndarray, dt: float, noise: TwistNoise) -> tuple[np
 
 @lru_cache(maxsize=1 << 14)
 def _increment_cached(twist: tuple[float, ...], dt: float, noise: TwistNoise) -> tuple[np.ndarray, np.ndarray]:
-    h = np.array(twist, dtype=float)
-    Q = noise.Q(h)
-    ad = SE3.ad(h, validate=False)
-    M = np.zeros((12, 12))
-    M[:6, :6] = ad
-    M[:6, 6:] = Q
-    M[6:, 6:] = -ad.T
-    E = expm(M * float(dt))
-    S = E[6:, 6:].T @ E[:6, 6:]
-    mean, cov = SE3.exp(dt * h, validate=False), 0.5 * (S + S.T)
+    mean, cov = twist_increments(np.array(twist, dtype=float), np.asarray(float(dt)), noise)
     mean.setflags(write=False)
     cov.setflags(write=False)
     return mean, cov
+
+
+def twist_increments(h: np.ndarray, dt: np.ndarray, noise: TwistNoise) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`twist_increment` batched over leading axes, not memoized: twists ``h (..., 6)`` held over ``dt (...)``
+    [s] -> ``(mean (..., 4, 4), cov (..., 6, 6))`` (one ``12 x 12`` matrix exponential each, on a stack)."""
+    ql = noise.q_lin0 + noise.q_lin1 * np.linalg.norm(h[..., :3], axis=-1)
+    qa = noise.q_ang0 + noise.q_ang1 * np.linalg.norm(h[..., 3:], axis=-1)
+    ad = SE3.ad(h, validate=False)
+    M = np.zeros((*h.shape[:-1], 12, 12))
+    M[..., :6, :6] = ad
+    idx = np.arange(6)
+    M[..., idx, 6 + idx] = np.stack([ql, ql, ql, qa, qa, qa], axis=-1)
+    M[..., 6:, 6:] = -np.swapaxes(ad, -1, -2)
+    E = expm(M * dt[..., None, None])
+    S = np.swapaxes(E[..., 6:, 6:], -1, -2) @ E[..., :6, 6:]
+    return SE3.exp(dt[..., None] * h, validate=False), 0.5 * (S + np.swapaxes(S, -1, -2))

@@ -62,6 +62,13 @@ SINGULAR_COS = 1e-3
 """Below this ``cos(elevation)`` (``rho / r``) the azimuth of a ``"rbe3"`` / ``"bearing3"`` detection is not used."""
 
 
+_T = np.swapaxes
+
+
+def _eye(n: int, batch: tuple[int, ...]) -> np.ndarray:
+    return np.broadcast_to(np.eye(n), (*batch, n, n)).copy()
+
+
 def point_in_body(gi: np.ndarray, pk: np.ndarray) -> np.ndarray:
     """``y = R_i^T (p_k - p_i)``: point ``pk (..., 3)`` [m] in the body frame of pose ``gi (..., 4, 4)``."""
     gi, pk = np.asarray(gi, dtype=float), np.asarray(pk, dtype=float)
@@ -101,21 +108,22 @@ class Model3:
         """``(h, H_i, H_k)`` of target ``gk`` seen from pose ``gi (4, 4)``, Jacobians with respect to the
         ``(dp, dtheta)`` errors (module docstring). ``"pose3"``: ``gk (4, 4)``, ``h (4, 4)``, ``H (6, 6)``;
         ``"rbe3"`` / ``"bearing3"``: ``gk`` a pose ``(4, 4)`` (``H_k (m, 6)``) or a point ``(3,)`` (a landmark,
-        ``H_k (m, 3)``), ``h (m,)``; the rows are finite everywhere (at the pole the azimuth row is 0)."""
+        ``H_k (m, 3)``), ``h (m,)``; the rows are finite everywhere (at the pole the azimuth row is 0). ``"pose3"`` is
+        batched over leading axes (the engine's stacks, :func:`swarmloc.engine.se3.pose3_linearize`)."""
         if self.kind != Kind.POSE3:
             return self._predict_point(gi, gk)
-        Ri, Rk = gi[:3, :3], gk[:3, :3]
-        ht = Ri.T @ (gk[:3, 3] - gi[:3, 3])
-        hR = Ri.T @ Rk
-        h = np.eye(4)
-        h[:3, :3], h[:3, 3] = hR, ht
-        Hi = np.zeros((6, 6))
-        Hi[:3, :3] = -Ri.T
-        Hi[:3, 3:] = skew(ht)
-        Hi[3:, 3:] = -hR.T
-        Hk = np.zeros((6, 6))
-        Hk[:3, :3] = Ri.T
-        Hk[3:, 3:] = np.eye(3)
+        RiT = _T(gi[..., :3, :3], -1, -2)
+        ht = (RiT @ (gk[..., :3, 3] - gi[..., :3, 3])[..., None])[..., 0]
+        hR = RiT @ gk[..., :3, :3]
+        h = _eye(4, ht.shape[:-1])
+        h[..., :3, :3], h[..., :3, 3] = hR, ht
+        Hi = np.zeros((*ht.shape[:-1], 6, 6))
+        Hi[..., :3, :3] = -RiT
+        Hi[..., :3, 3:] = skew(ht)
+        Hi[..., 3:, 3:] = -_T(hR, -1, -2)
+        Hk = np.zeros((*ht.shape[:-1], 6, 6))
+        Hk[..., :3, :3] = RiT
+        Hk[..., 3:, 3:] = np.eye(3)
         return h, Hi, Hk
 
     def _predict_point(self, gi: np.ndarray, gk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -140,7 +148,7 @@ class Model3:
 
     def residual(self, z: np.ndarray, h: np.ndarray) -> np.ndarray:
         """``"pose3"``: ``(t_z - h_t, log(h_R^T R_z))`` of ``z (6,)`` against the prediction ``h (4, 4)``; the other
-        kinds: ``z - h`` with the angles wrapped to (-pi, pi]."""
+        kinds: ``z - h`` with the angles wrapped to (-pi, pi]. Batched over leading axes."""
         if self.kind != Kind.POSE3:
             r = np.asarray(z, dtype=float) - np.asarray(h, dtype=float)
             for j, ang in enumerate(self.angular):
@@ -148,15 +156,18 @@ class Model3:
                     r[..., j] = wrap_angle(r[..., j])
             return r
         mz = pose3_matrix(z)
-        return np.concatenate([mz[:3, 3] - h[:3, 3], so3_log(h[:3, :3].T @ mz[:3, :3])])
+        rot = so3_log(_T(h[..., :3, :3], -1, -2) @ mz[..., :3, :3])
+        return np.concatenate([mz[..., :3, 3] - h[..., :3, 3], rot], -1)
 
     def noise(self, z: np.ndarray, cov: np.ndarray) -> np.ndarray:
-        """The noise of the residual: ``"pose3"``: ``diag(R_z, I) cov diag(R_z, I)^T``; the others: ``cov``."""
+        """The noise of the residual: ``"pose3"``: ``diag(R_z, I) cov diag(R_z, I)^T``; the others: ``cov``. Batched
+        over leading axes."""
         if self.kind != Kind.POSE3:
             return np.asarray(cov, dtype=float)
-        J = np.eye(6)
-        J[:3, :3] = so3_exp(np.asarray(z, dtype=float)[3:])
-        return J @ np.asarray(cov, dtype=float) @ J.T
+        z = np.asarray(z, dtype=float)
+        J = _eye(6, z.shape[:-1])
+        J[..., :3, :3] = so3_exp(z[..., 3:])
+        return J @ np.asarray(cov, dtype=float) @ _T(J, -1, -2)
 
     def degenerate(self, gi: np.ndarray, gk: np.ndarray) -> bool:
         """A relative pose never; a point within :data:`MIN_RANGE` of the observer, or straight above or below it
