@@ -706,11 +706,12 @@ def SE2_xyt(b: Belief) -> np.ndarray:  # noqa: N802
 
 def test_server_process_answers_over_zenoh():
     from swarmloc.net.server import ServerProcess
+    from swarmloc.net.teamlink import TeamLink
 
     port_s, port_c = free_ports(2)
     s = open_session([f"tcp/127.0.0.1:{port_s}"], [])
     c = open_session([f"tcp/127.0.0.1:{port_c}"], [f"tcp/127.0.0.1:{port_s}"])
-    sp = ServerProcess(s, "srv", [1, 2])
+    sp = ServerProcess(TeamLink(s, "srv", [1, 2]))
     th = threading.Thread(target=sp.run, kwargs={"max_wall": 20})
     th.start()
     try:

@@ -51,11 +51,14 @@ from swarmloc.net.auth import (
     new_key,
     open_envelope,
 )
+from swarmloc.net.central import Forwarder
 from swarmloc.net.entry import make_node
 from swarmloc.net.faults import Faults
 from swarmloc.net.process import NetNode
 from swarmloc.net.schema import SERVER, Belief, Progress, Rejected, encode
+from swarmloc.net.server import ServerProcess
 from swarmloc.net.team import _Launcher
+from swarmloc.net.teamlink import TeamLink
 from swarmloc.net.transport import free_ports, robot_key
 from swarmloc.runner import run
 
@@ -275,6 +278,28 @@ def offline_node(auth: Auth | None) -> NetNode:
                   record_times=src.record_times(), auth=auth)  # fmt: skip
     net.wiring.pub["belief"] = SimpleNamespace(put=lambda *a, **k: None)  # never opened: beliefs go nowhere
     return net
+
+
+def test_each_process_signs_only_with_its_own_key(keys):
+    """A robot's node, its forwarder and the belief server, given their team's link (:class:`TeamLink`) with
+    another member's key or none, each refuse to start, naming the key needed and the one held (one check,
+    :func:`~swarmloc.net.auth.signs_as`); with their own key, or unauthenticated, they start."""
+    roster = Roster.load(keys[0])
+    robot1 = TeamLink(None, TEAM, [0, 1, 2], Auth(roster, signer(keys, 1)))
+    with pytest.raises(ValueError, match=r"^Forwarder: auth must hold robot 0's own key .* \(it holds robot 1's\)$"):
+        Forwarder(0, [], robot1)
+    with pytest.raises(ValueError, match=r"^ServerProcess: auth must hold server's own key .* \(it holds robot 1's\)"):
+        ServerProcess(robot1)
+    with pytest.raises(ValueError, match=r"^ServerProcess: .* \(it holds no key\)$"):
+        ServerProcess(TeamLink(None, TEAM, [0, 1, 2], Auth(roster)))
+    with pytest.raises(ValueError, match=r"^NetNode: auth must hold robot 0's own key .* \(it holds robot 1's\)$"):
+        offline_node(robot1.auth)
+    assert Forwarder(1, [], robot1).auth is robot1.auth and Forwarder(0, [], TeamLink(None, TEAM, [0])).auth is None
+    assert ServerProcess(TeamLink(None, TEAM, [0, 1], Auth(roster, signer(keys, SERVER)), run_id="r1")).scope == (
+        f"{TEAM}/run/r1"
+    )
+    with pytest.raises(ValueError, match="run id must be"):
+        TeamLink(None, TEAM, [0], run_id="a/b")
 
 
 FORGED_QUERY = RdlStateQuery(sender=1, receiver=0, stamp=1.0)

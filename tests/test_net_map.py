@@ -19,6 +19,7 @@ from swarmloc.net.pairing import attach
 from swarmloc.net.schema import MAX_LINES, SERVER, Lines, MapAnswer, Rejected, decode, encode
 from swarmloc.net.server import MapStore, ServerProcess, linemap_of, observations_of
 from swarmloc.net.team import launch_team
+from swarmloc.net.teamlink import TeamLink
 from swarmloc.net.transport import free_ports, open_session, robot_key, server_key
 from swarmloc.sim.walls import office_walls
 
@@ -61,7 +62,7 @@ def _server(tmp_path):
     port_s, port_c = free_ports(2)
     s = open_session([f"tcp/127.0.0.1:{port_s}"], [])
     c = open_session([f"tcp/127.0.0.1:{port_c}"], [f"tcp/127.0.0.1:{port_s}"])
-    sp = ServerProcess(s, "mapt", [0, 1], auth=keys.auth(SERVER), map_out=tmp_path / "map.geojson")
+    sp = ServerProcess(TeamLink(s, "mapt", [0, 1], keys.auth(SERVER)), map_out=tmp_path / "map.geojson")
     th = threading.Thread(target=sp.run, kwargs={"max_wall": 60})
     th.start()
     return keys, s, c, sp, th
@@ -198,7 +199,7 @@ def test_a_node_with_a_range_finder_waits_for_a_late_server_so_that_no_lines_are
         th.join(1.5)  # the node is running, the server not yet
         assert th.is_alive() and net.counts["lines_published"] == 0, dict(net.counts)
         ss = open_session([ep_s], [ep_n])
-        sp = ServerProcess(ss, "late", [0], auth=keys.auth(SERVER))
+        sp = ServerProcess(TeamLink(ss, "late", [0], keys.auth(SERVER)))
         ts = threading.Thread(target=sp.run, kwargs={"max_wall": 60})
         ts.start()
         th.join(60)

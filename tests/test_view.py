@@ -286,12 +286,13 @@ def test_node_view_streams_its_belief_detections_truth_and_the_servers_map(tmp_p
     ``foxglove.sdk.v1``."""
     from swarmloc.net.entry import node_main
     from swarmloc.net.server import ServerProcess
+    from swarmloc.net.teamlink import TeamLink
     from swarmloc.net.transport import free_ports, open_session
 
     src = load_source("sim:corridor", robots=2, duration=6.0, seed=2)
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(3)]
     sessions = [open_session([eps[2]], eps[:2])]  # the server's; each node opens its own
-    server = ServerProcess(sessions[0], "nview", src.robots)
+    server = ServerProcess(TeamLink(sessions[0], "nview", src.robots))
     dets = [e for e in src.own_events(1) if getattr(e, "observer", None) == 1]  # (robot 0 sees no one here)
     assert dets
     view = TeamView(port=0, mcap=tmp_path / "node.mcap", truth=src.truth, score=errors, detections=dets,

@@ -44,7 +44,17 @@ import msgspec
 import numpy as np
 
 from swarmloc.events import Detection, Event, Kind, Odometry
-from swarmloc.net.auth import HEADER, INPUT_CONTEXT, SIG_SIZE, Auth, AuthRejected, Roster, Verifier, note_refusal
+from swarmloc.net.auth import (
+    HEADER,
+    INPUT_CONTEXT,
+    SIG_SIZE,
+    Auth,
+    AuthRejected,
+    Roster,
+    Verifier,
+    note_refusal,
+    signs_as,
+)
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.transport import PREFIX, block
 from swarmloc.sensors.models import SIZES
@@ -211,10 +221,8 @@ class InputPublisher:
 
     def __init__(self, session: Any, scope: str, robot: int, auth: Auth | None = None) -> None:
         self.robot = int(robot)
-        signer = None if auth is None else auth.signer
-        if auth is not None and (signer is None or signer.member != self.robot):
-            raise ValueError(f"InputPublisher: auth must hold robot {self.robot}'s own key to sign its inputs")
-        self._signer = None if signer is None else signer.for_context(INPUT_CONTEXT)
+        signs_as(auth, self.robot, "InputPublisher")
+        self._signer = None if auth is None or auth.signer is None else auth.signer.for_context(INPUT_CONTEXT)
         self._keys = {w: input_key(scope, self.robot, w) for w in _TYPES}
         self._pubs = {w: session.declare_publisher(k, congestion_control=block()) for w, k in self._keys.items()}
         self.sent = 0

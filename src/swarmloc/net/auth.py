@@ -472,6 +472,15 @@ class Auth:
         return {} if self.sessions is None else self.sessions.snapshot()
 
 
+def signs_as(auth: Auth | None, member: int, who: str) -> None:
+    """Check that ``auth`` holds ``member``'s own key, the one ``who`` signs what it sends with (None: an
+    unauthenticated team, nothing to check): ValueError naming the key needed and the one held otherwise."""
+    if auth is None or (auth.signer is not None and auth.signer.member == member):
+        return
+    held = "no key" if auth.signer is None else f"{member_name(auth.signer.member)}'s"
+    raise ValueError(f"{who}: auth must hold {member_name(member)}'s own key to sign what it sends (it holds {held})")
+
+
 def seal(auth: Auth | None, key_expr: str, payload: bytes, to: int | None = None) -> bytes:
     """``payload`` sealed for ``key_expr`` (and member ``to``: :meth:`Auth.seal`); as it is without ``auth``: an
     unauthenticated team."""

@@ -42,7 +42,7 @@ import numpy as np
 
 from swarmloc.events import Detection, Event, Odometry
 from swarmloc.messages import flat
-from swarmloc.net.auth import Auth, open_envelope, seal
+from swarmloc.net.auth import open_envelope, seal
 from swarmloc.net.faults import Faults
 from swarmloc.net.pairing import attach
 from swarmloc.net.schema import (
@@ -60,7 +60,8 @@ from swarmloc.net.schema import (
     encode,
     group_tag,
 )
-from swarmloc.net.transport import alive_key, block, robot_key, server_key, team_scope, undeclare_all
+from swarmloc.net.teamlink import TeamLink
+from swarmloc.net.transport import alive_key, block, robot_key, server_key, undeclare_all
 from swarmloc.node import Node
 
 __all__ = ["Forwarder", "Fusion", "from_wire", "to_wire"]
@@ -359,33 +360,27 @@ def batches(events: Sequence[Event], size: int, span: float = math.inf) -> list[
 
 class Forwarder:
     """Robot ``robot``'s process of a team whose estimator the server hosts: forwards its ``events`` (its own) to
-    the server, signed with ``auth``, subject to the link ``faults``, at most ``batch`` measurements per forward; paced
-    at ``speed`` x real time (0: at once; paced, a forward spans at most ``SPAN`` s of data, and its progress is
-    announced every second while it waits, so that the server does not take it for silent), after waiting up to
-    ``start_timeout`` s for the server; then repeats its stream's end until the server has reported (or is gone for
-    ``lost_timeout`` s)."""
+    the server over its team's ``link`` (:class:`~swarmloc.net.teamlink.TeamLink`), signed with the robot's key,
+    subject to the injected ``faults``, at most ``batch`` measurements per forward; paced at ``speed`` x real time
+    (0: at once; paced, a forward spans at most ``SPAN`` s of data, and its progress is announced every second while
+    it waits, so that the server does not take it for silent), after waiting up to ``start_timeout`` s for the
+    server; then repeats its stream's end until the server has reported (or is gone for ``lost_timeout`` s)."""
 
     def __init__(
         self,
         robot: int,
         events: Sequence[Event],
+        link: TeamLink,
         *,
-        session: Any,
-        team: str,
-        roster: Iterable[int],
-        auth: Auth | None = None,
-        run_id: str | None = None,
         faults: Faults | None = None,
         speed: float = 0.0,
         batch: int = 64,
         start_timeout: float = 30.0,
         lost_timeout: float = 10.0,
     ) -> None:
-        if auth is not None and (auth.signer is None or auth.signer.member != robot):
-            raise ValueError(f"robot {robot} needs its own key to sign what it forwards")
-        self.robot, self.session, self.team, self.auth = robot, session, team, auth
-        self.scope = team_scope(team, run_id)
-        self.roster = frozenset(roster)
+        link.signing_as(robot, "Forwarder")
+        self.robot, self.session, self.team, self.auth = robot, link.session, link.team, link.auth
+        self.scope, self.roster = link.scope, link.roster
         self.forwards = batches(events, batch, SPAN if speed > 0 else math.inf)
         self.first = min((_key(e)[0] for e in events), default=math.inf)
         self.link = faults.plan(robot) if faults is not None and faults.link else None

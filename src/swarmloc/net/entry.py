@@ -28,6 +28,7 @@ from swarmloc.events import Event, Odometry
 from swarmloc.net.auth import Auth, open_envelope
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import SERVER, Belief, MapAnswer, Rejected, Report
+from swarmloc.net.teamlink import TeamLink
 from swarmloc.net.timeouts import LOST_TIMEOUT, START_TIMEOUT, Waits
 from swarmloc.net.transport import open_session, server_key, team_scope
 
@@ -296,8 +297,8 @@ def _forward(
     faults = parse_faults(faults) if isinstance(faults, str | None) else faults
     session = open_session(listen, connect, zenoh_config)
     try:
-        fw = Forwarder(robot, faults.jumped(robot, src.own_events(robot)), session=session, team=team,
-                       roster=src.robots, auth=auth, run_id=run_id, faults=faults, speed=speed,
+        link = TeamLink(session, team, src.robots, auth, run_id)
+        fw = Forwarder(robot, faults.jumped(robot, src.own_events(robot)), link, faults=faults, speed=speed,
                        start_timeout=start_timeout, lost_timeout=lost_timeout)  # fmt: skip
         _stop_on_sigterm(fw.stop)
         report = fw.run(max_wall=max_wall)
@@ -442,7 +443,7 @@ def server_main(
         hosted = _hosted(estimator, src, roster, start_timeout, lost_timeout)
     session = open_session(listen, connect, zenoh_config)
     try:
-        sp = ServerProcess(session, team, roster, auth=auth, run_id=run_id, hosted=hosted, map_out=map_out)
+        sp = ServerProcess(TeamLink(session, team, roster, auth, run_id), hosted=hosted, map_out=map_out)
         _stop_on_sigterm(sp.stop)
         try:
             sp.run(max_wall=max_wall)

@@ -81,7 +81,7 @@ from swarmloc.net.outbound import Envelopes, Outbound
 from swarmloc.net.publishing import Announcer, Publishing, lagging
 from swarmloc.net.schema import SERVER, Belief, Lines, Progress, Report
 from swarmloc.net.settings import NetSettings
-from swarmloc.net.transport import team_scope
+from swarmloc.net.teamlink import TeamLink
 from swarmloc.net.wiring import Wiring
 from swarmloc.node import Node, RobotNode
 
@@ -134,14 +134,12 @@ class NetNode:
         self.settings = settings = NetSettings.of(settings, kw)
         """How it runs (:class:`~swarmloc.net.settings.NetSettings`; a live feed's: ``speed`` 0)."""
         self.node = node
-        self.robot, self.session, self.team = node.robots[0], session, team
-        self.scope = team_scope(team, settings.run_id)
-        self.roster = frozenset(int(r) for r in roster)
+        self.robot = node.robots[0]
+        link = TeamLink(session, team, roster, auth, settings.run_id).signing_as(self.robot, "NetNode")
+        self.session, self.team, self.auth = link.session, link.team, link.auth
+        self.scope, self.roster = link.scope, link.roster
         if self.robot not in self.roster:
             raise ValueError(f"robot {self.robot} is not in the roster {sorted(self.roster)}")
-        if auth is not None and (auth.signer is None or auth.signer.member != self.robot):
-            raise ValueError(f"robot {self.robot} needs its own key to sign what it sends")
-        self.auth = auth
         faults = settings.faults
         self.faults = faults if faults is not None and faults.link else None
         self.link = self.faults.plan(self.robot) if self.faults else None

@@ -50,7 +50,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.mapping import LineMap, LineObservation
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
-from swarmloc.net.auth import Auth, note_refusal, open_envelope, seal
+from swarmloc.net.auth import note_refusal, open_envelope, seal
 from swarmloc.net.intake import SERVER_BUDGET, Intake, vouch_for
 from swarmloc.net.pairing import attach
 from swarmloc.net.schema import (
@@ -65,7 +65,8 @@ from swarmloc.net.schema import (
     encode,
     group_tag,
 )
-from swarmloc.net.transport import alive_key, block, robot_key, server_key, team_scope, undeclare_all
+from swarmloc.net.teamlink import TeamLink
+from swarmloc.net.transport import alive_key, block, robot_key, server_key, undeclare_all
 
 __all__ = ["BeliefServer", "MapStore", "ServerProcess", "linemap_of", "observations_of", "wire_line"]
 
@@ -262,33 +263,26 @@ class MapStore:
 
 
 class ServerProcess:
-    """:class:`BeliefServer` on a Zenoh session for team ``team`` (robots ``roster``)."""
+    """:class:`BeliefServer` on its team's ``link`` (:class:`~swarmloc.net.teamlink.TeamLink`: the Zenoh session, the
+    team's name, run id and robots, and the server's key)."""
 
     def __init__(
         self,
-        session: Any,
-        team: str,
-        roster: Iterable[int],
+        link: TeamLink,
         server: BeliefServer | None = None,
-        auth: Auth | None = None,
-        run_id: str | None = None,
         hosted: Any = None,
         map_out: str | os.PathLike[str] | None = None,
     ) -> None:
-        if auth is not None and (auth.signer is None or auth.signer.member != SERVER):
-            raise ValueError("the belief server needs the server's key to sign its replies")
-        self.auth = auth
-        self.session = session
-        self.team = team
-        self.scope = team_scope(team, run_id)  # keys: the team's name and the run's id (transport.team_scope)
-        self.roster = frozenset(roster)
+        link.signing_as(SERVER, "ServerProcess")
+        self.session, self.team, self.auth = link.session, link.team, link.auth
+        self.scope, self.roster = link.scope, link.roster
         self.server = server if server is not None else BeliefServer(self.roster)
         self.maps = MapStore(self.roster)
         self.map_out = map_out
         self.counts: Counter[str] = Counter()
         self.reasons: Counter[str] = Counter()
-        self._q = Intake(self.roster, SERVER_BUDGET, signed=auth is not None, team_size=len(self.roster),
-                         vouch=None if auth is None else vouch_for(auth))  # fmt: skip
+        self._q = Intake(self.roster, SERVER_BUDGET, signed=self.auth is not None, team_size=len(self.roster),
+                         vouch=None if self.auth is None else vouch_for(self.auth))  # fmt: skip
         """What the server receives, within its budgets (:mod:`swarmloc.net.intake`)."""
         self._stop = threading.Event()
         self.hosted = hosted
