@@ -7,8 +7,12 @@ they travel (sans-I/O). It is made of parts with one job each:
 
 * :mod:`~swarmloc.node.clock`: the present, the horizon and tolerance, jumps of the robot's clock;
 * :mod:`~swarmloc.node.inputs`: what a detection and an odometry record must be, each robot's odometry timeline;
-* :mod:`~swarmloc.node.history`: stamped entries and states, replay of late input, the horizon;
-* :mod:`~swarmloc.node.protocol`: which messages are accepted, answered, refused and revised;
+* :mod:`~swarmloc.node.intake`: the robot's own inputs checked and filed (:class:`~swarmloc.node.intake.Intake`);
+* :mod:`~swarmloc.node.history`: stamped entries and the states after them;
+* :mod:`~swarmloc.node.filing`: entries filed and applied, replay of late input, the horizon
+  (:class:`~swarmloc.node.filing.Filing`);
+* :mod:`~swarmloc.node.protocol`: which messages are accepted, answered, refused and revised
+  (:class:`~swarmloc.node.protocol.Exchange`);
 * :mod:`~swarmloc.node.accounting`: counters that always add up;
 * :mod:`~swarmloc.node.update`: the one Kalman update with its gate (used by the filters);
 * :mod:`~swarmloc.node.trust`: teammates' messages checked against what the node knows, suspects, quarantine.
@@ -23,6 +27,11 @@ fixed, acyclic order); within the horizon the final state does not depend on the
 **Commands.** Odometry ``(robot, t0, t1, v, w)`` sets the robot's command ``(v, w)`` from ``t0``. Past ``t1``
 with no later odometry the node assumes the robot stopped (command ``(0, 0)``, the motion model's zero-speed
 diffusion keeps the covariance growing) and counts it (:mod:`~swarmloc.node.inputs`).
+
+**Parts.** The node owns its records (clock, accounting, trust) and three working parts, made with what they need:
+:class:`~swarmloc.node.filing.Filing` (its own history and odometry timeline), :class:`~swarmloc.node.protocol.Exchange`
+(the answers it served, the groups waiting, the neighbours) and :class:`~swarmloc.node.intake.Intake`. A part calls
+the node only through its hooks (below), so an estimator's override applies wherever the part needs it.
 
 Filters subclass :class:`Node` (one robot: :class:`~swarmloc.node.robot.RobotNode`; centralized: one node for the
 team) and provide ``_initial_state``, ``_advance``, ``_set_command``, ``_fuse_group``, ``_belief`` and, where they
@@ -140,10 +149,8 @@ class Node:
         predictions inside them)."""
         self._filing = Filing(self, self.lazy_odometry, self._clock, self.accounting, self._trust)
         self._history = self._filing.history
-        self._exchange = Exchange(self, self.robots, self.update_types, self._filing, self._clock, self.accounting,
-                                  self._trust)  # fmt: skip
-        self._intake = Intake(self, self.robots, self._filing, self._exchange, self._clock, self.accounting,
-                              self._trust)  # fmt: skip
+        self._exchange = Exchange(self, self.robots, self.update_types, self._filing)
+        self._intake = Intake(self, self.robots, self._filing, self._exchange)
         if t0 is not None:
             self.start(t0)
 

@@ -13,14 +13,12 @@ from typing import Any, Protocol
 
 from swarmloc.events import Detection, Odometry
 from swarmloc.messages import Message
-from swarmloc.node.accounting import Accounting
-from swarmloc.node.clock import FUTURE, Clock
+from swarmloc.node.clock import FUTURE
 from swarmloc.node.filing import Filing
 from swarmloc.node.history import PRUNE_EVERY
 from swarmloc.node.inputs import CONTIGUOUS, brief, command_value, odometry_problem, validate_detection
 from swarmloc.node.keys import P_GROUP, P_ODOMETRY, Entry, Group, Key, detection_key
 from swarmloc.node.protocol import Exchange, not_found, quarantine_reason
-from swarmloc.node.trust import Trust
 
 log = logging.getLogger("swarmloc.node")
 
@@ -39,29 +37,18 @@ class IntakeHost(Protocol):
 
 class Intake:
     """How a :class:`~swarmloc.node.base.Node` takes its own robots' inputs (module docstring). It keeps no state of
-    its own: its collaborators are the node (``host``), its robots, its filing (history, odometry timeline), its
-    exchange (groups waiting for answers, answers given), clock, accounting and trust."""
+    its own: its collaborators are the node (``host``), its robots, its filing (history, odometry timeline, and the
+    node's clock, accounting and trust it was made with) and its exchange (groups waiting for answers, answers
+    given)."""
 
-    def __init__(
-        self,
-        host: IntakeHost,
-        robots: tuple[int, ...],
-        filing: Filing,
-        exchange: Exchange,
-        clock: Clock,
-        accounting: Accounting,
-        trust: Trust,
-    ) -> None:
+    def __init__(self, host: IntakeHost, robots: tuple[int, ...], filing: Filing, exchange: Exchange) -> None:
         self.host = host
         self.robots = robots
         self.filing = filing
-        self.history = filing.history
-        self.timeline = filing.timeline
         self.exchange = exchange
-        self.clock = clock
-        self.accounting = accounting
-        self.counts = accounting.counts
-        self.trust = trust
+        self.history, self.timeline = filing.history, filing.timeline
+        self.clock, self.accounting, self.trust = filing.clock, filing.accounting, filing.trust
+        self.counts = filing.accounting.counts
 
     # ------------------------------------------------------------------------------------------------ clock
     def ensure_started(self, t: float) -> None:

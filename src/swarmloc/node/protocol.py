@@ -39,11 +39,8 @@ from swarmloc.messages import (
     flat,
     message_problem,
 )
-from swarmloc.node.accounting import Accounting
-from swarmloc.node.clock import Clock
 from swarmloc.node.filing import Filing
 from swarmloc.node.keys import P_GROUP, Entry, Group, Key
-from swarmloc.node.trust import Trust
 
 __all__ = [
     "SAME_RTOL",
@@ -205,8 +202,8 @@ class ExchangeHost(Protocol):
 class Exchange:
     """How a :class:`~swarmloc.node.base.Node` takes messages from its neighbours (module docstring). Its own state:
     the answers it gave (``served``), the detection groups waiting for answers (``pending``) and the robots heard
-    from (``neighbours``). Its collaborators: the node (``host``), its robots and the update types it files, its
-    filing (history, replay), clock, accounting and trust."""
+    from (``neighbours``). Its collaborators: the node (``host``), its robots and the update types it files, and its
+    filing (history, replay, and the node's clock, accounting and trust it was made with)."""
 
     def __init__(
         self,
@@ -214,19 +211,14 @@ class Exchange:
         robots: tuple[int, ...],
         update_types: tuple[type[RdlUpdate] | type[TeamUpdate], ...],
         filing: Filing,
-        clock: Clock,
-        accounting: Accounting,
-        trust: Trust,
     ) -> None:
         self.host = host
         self.robots = robots
         self.update_types = update_types
         self.filing = filing
         self.history = filing.history
-        self.clock = clock
-        self.accounting = accounting
-        self.counts = accounting.counts
-        self.trust = trust
+        self.clock, self.accounting, self.trust = filing.clock, filing.accounting, filing.trust
+        self.counts = filing.accounting.counts
         self.served = Served()
         self.pending: dict[Key, Group] = {}
         self.neighbours: set[int] = set()
