@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-import logging
 import math
 from bisect import bisect_left
 from collections.abc import Mapping, Sequence
@@ -26,8 +25,6 @@ from swarmloc.gaussian import check_covariance
 from swarmloc.node.keys import Position
 from swarmloc.sensors.models import MODELS
 from swarmloc.sensors.models3 import MODELS3
-
-log = logging.getLogger("swarmloc.node")
 
 __all__ = [
     "CONTIGUOUS",
