@@ -344,7 +344,7 @@ def test_belief_defaults_to_the_present(cls):
 def test_the_first_odometry_stamped_far_in_the_future_is_refused_too():
     """Found by the property test: the in-order fast path took a first record from 1e8 s as the present."""
     node = _node("dekf")
-    assert node._odometry_fast(Odometry(0, 1e8, 1e8 + 0.1, 0.3, 0.0)) is False
+    assert node._intake.odometry_fast(Odometry(0, 1e8, 1e8 + 0.1, 0.3, 0.0)) is False
     node.step(Odometry(0, 1e8, 1e8 + 0.1, 0.3, 0.0))
     node.step(_odo(0))
     assert node.stats()["odometry_used"] == 1 and node.stats()["future"] == 1 and node.present == 0.0

@@ -434,7 +434,7 @@ class RdlNode(RobotNode):
         if not isinstance(u, RdlUpdate):
             return f"not an update of {self.name}"
         key = (float(u.stamp), 1, u.sender, tuple(u.sub))
-        served = self._served.get((key, u.sender, "RdlStateQuery"))
+        served = self._exchange.served.get((key, u.sender, "RdlStateQuery"))
         if not isinstance(served, RdlState):
             return "update for a state this node never sent"
         pos = self._history.find(key)
@@ -454,7 +454,7 @@ class RdlNode(RobotNode):
         """The answer ``u`` was computed from: this node's state of revision ``u.based_on`` sent for its exchange
         (None: not kept)."""
         key = (float(u.stamp), 1, u.sender, tuple(u.sub))
-        served = self._served.get((key, u.sender, "RdlStateQuery"))
+        served = self._exchange.served.get((key, u.sender, "RdlStateQuery"))
         if isinstance(served, RdlState) and served.seq == u.based_on:
             return served
         return self._answered.get((key, u.based_on))

@@ -311,7 +311,7 @@ class Fusion:
         node = self.node
         self._resolve(max(node.present, stamp) - node.horizon, out)
         self.counts["fused_inputs"] += 1
-        if type(item) is Odometry and type(item.t0) is float and node._odometry_fast(item):
+        if type(item) is Odometry and type(item.t0) is float and node._intake.odometry_fast(item):
             return
         msgs = node.step(item)
         self.counts["messages_undeliverable"] += len(msgs or ())

@@ -2,8 +2,9 @@
 
 :class:`Node` (:mod:`~swarmloc.node.base`) composes the parts; :class:`RobotNode` is the base of the distributed
 estimators (:mod:`swarmloc.estimators`). Parts: :mod:`~swarmloc.node.clock` (present, horizon, tolerance, clock
-jumps), :mod:`~swarmloc.node.inputs` (the input contract, odometry timelines), :mod:`~swarmloc.node.history`
-(entries, states, replay), :mod:`~swarmloc.node.protocol` (messages accepted, answered, refused, revised),
+jumps), :mod:`~swarmloc.node.inputs` (the input contract, odometry timelines), :mod:`~swarmloc.node.intake` (the
+robot's own inputs taken), :mod:`~swarmloc.node.history` (entries, states), :mod:`~swarmloc.node.filing` (entries
+filed, replayed, pruned), :mod:`~swarmloc.node.protocol` (messages accepted, answered, refused, revised),
 :mod:`~swarmloc.node.accounting` (counters that add up), :mod:`~swarmloc.node.update` (the one Kalman update
 with its gate), :mod:`~swarmloc.node.keys` (history keys, entries, detection groups), :mod:`~swarmloc.node.trust`
 (teammates' messages checked, suspects, quarantine).

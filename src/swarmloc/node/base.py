@@ -7,8 +7,12 @@ they travel (sans-I/O). It is made of parts with one job each:
 
 * :mod:`~swarmloc.node.clock`: the present, the horizon and tolerance, jumps of the robot's clock;
 * :mod:`~swarmloc.node.inputs`: what a detection and an odometry record must be, each robot's odometry timeline;
-* :mod:`~swarmloc.node.history`: stamped entries and states, replay of late input, the horizon;
-* :mod:`~swarmloc.node.protocol`: which messages are accepted, answered, refused and revised;
+* :mod:`~swarmloc.node.intake`: the robot's own inputs checked and filed (:class:`~swarmloc.node.intake.Intake`);
+* :mod:`~swarmloc.node.history`: stamped entries and the states after them;
+* :mod:`~swarmloc.node.filing`: entries filed and applied, replay of late input, the horizon
+  (:class:`~swarmloc.node.filing.Filing`);
+* :mod:`~swarmloc.node.protocol`: which messages are accepted, answered, refused and revised
+  (:class:`~swarmloc.node.protocol.Exchange`);
 * :mod:`~swarmloc.node.accounting`: counters that always add up;
 * :mod:`~swarmloc.node.update`: the one Kalman update with its gate (used by the filters);
 * :mod:`~swarmloc.node.trust`: teammates' messages checked against what the node knows, suspects, quarantine.
@@ -24,6 +28,11 @@ fixed, acyclic order); within the horizon the final state does not depend on the
 with no later odometry the node assumes the robot stopped (command ``(0, 0)``, the motion model's zero-speed
 diffusion keeps the covariance growing) and counts it (:mod:`~swarmloc.node.inputs`).
 
+**Parts.** The node owns its records (clock, accounting, trust) and three working parts, made with what they need:
+:class:`~swarmloc.node.filing.Filing` (its own history and odometry timeline), :class:`~swarmloc.node.protocol.Exchange`
+(the answers it served, the groups waiting, the neighbours) and :class:`~swarmloc.node.intake.Intake`. A part calls
+the node only through its hooks (below), so an estimator's override applies wherever the part needs it.
+
 Filters subclass :class:`Node` (one robot: :class:`~swarmloc.node.robot.RobotNode`; centralized: one node for the
 team) and provide ``_initial_state``, ``_advance``, ``_set_command``, ``_fuse_group``, ``_belief`` and, where they
 talk to neighbours, ``_requests``, ``_answer``, ``update_types`` and ``_apply_update``.
@@ -31,9 +40,6 @@ talk to neighbours, ``_requests``, ``_answer``, ``update_types`` and ``_apply_up
 
 from __future__ import annotations
 
-import logging
-import math
-import time
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, ClassVar
 
@@ -46,23 +52,14 @@ from swarmloc.messages import Answer, Message, RdlUpdate, TeamUpdate
 from swarmloc.node.accounting import Accounting
 from swarmloc.node.associate import AssociationView, check_association, check_sensor
 from swarmloc.node.clock import DEFAULT_CONFIRM, DEFAULT_HORIZON, DEFAULT_TOLERANCE, Clock
-from swarmloc.node.history import PRUNE_EVERY, History
-from swarmloc.node.inputs import (
-    CONTIGUOUS,
-    Intake,
-    Landmarks,
-    OdometryTimeline,
-    brief,
-    finite_number,
-    landmark_state,
-)
+from swarmloc.node.filing import Filing
+from swarmloc.node.inputs import Landmarks, brief, finite_number, landmark_state
+from swarmloc.node.intake import Intake
 from swarmloc.node.keys import Entry, Group, Key, Position, SubKey
-from swarmloc.node.protocol import Exchange, Served
-from swarmloc.node.trust import DEFAULT_QUARANTINE, GATED, Trust, gated_answers
+from swarmloc.node.protocol import Exchange
+from swarmloc.node.trust import DEFAULT_QUARANTINE, Trust
 from swarmloc.node.update import Gate, Outcome
 from swarmloc.text import ids, numbers, stamp
-
-log = logging.getLogger("swarmloc.node")
 
 __all__ = ["Node", "belief_of"]
 
@@ -75,7 +72,7 @@ def belief_of(mean: np.ndarray, cov: np.ndarray) -> GroupGaussian:
     return GroupGaussian(SE2 if mean.shape[-1] == 3 else SE3, mean, cov, validate=False)
 
 
-class Node(Intake, Exchange):
+class Node:
     """Base class of every estimator's node (see the module docstring).
 
     Parameters common to all nodes
@@ -150,14 +147,10 @@ class Node(Intake, Exchange):
         self.timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
         """With ``measure_time``: seconds and counts of predictions and of detection-group updates (net of the
         predictions inside them)."""
-        self._history = History(self._advance_run, self.lazy_odometry)
-        self._timeline = OdometryTimeline()
-        self._served = Served()
-        self._pending: dict[Key, Group] = {}
-        self._neighbours: set[int] = set()
-        self._stops: set[tuple[int, float]] = set()
-        self._cursor: Key = (-math.inf, 0, 0, ())
-        self._since_prune = 0
+        self._filing = Filing(self, self.lazy_odometry, self._clock, self.accounting, self._trust)
+        self._history = self._filing.history
+        self._exchange = Exchange(self, self.robots, self.update_types, self._filing)
+        self._intake = Intake(self, self.robots, self._filing, self._exchange)
         if t0 is not None:
             self.start(t0)
 
@@ -208,7 +201,7 @@ class Node(Intake, Exchange):
     @property
     def neighbours(self) -> frozenset[int]:
         """Robots this node has heard from in an accepted message (an answer that found a belief, an update)."""
-        return frozenset(self._neighbours)
+        return frozenset(self._exchange.neighbours)
 
     @property
     def suspects(self) -> dict[int, int]:
@@ -224,12 +217,13 @@ class Node(Intake, Exchange):
     @property
     def pending(self) -> int:
         """Detection groups waiting for neighbours' answers."""
-        return len(self._pending)
+        return len(self._exchange.pending)
 
     @property
     def first_pending(self) -> Key | None:
         """Key of the earliest detection group waiting for answers (None: none waits)."""
-        return min(self._pending) if self._pending else None
+        pending = self._exchange.pending
+        return min(pending) if pending else None
 
     @property
     def x(self) -> np.ndarray:
@@ -296,15 +290,15 @@ class Node(Intake, Exchange):
         """Consume one input (odometry, one or several detections, or a message from a neighbour) and return the
         messages to send. Never raises on bad data: it is refused and counted (``counts``, ``reasons``)."""
         if isinstance(item, Odometry):
-            return self._on_odometry(item)
+            return self._intake.on_odometry(item)
         if isinstance(item, Detection):
-            return self._on_detections([item])
+            return self._intake.on_detections([item])
         if isinstance(item, Message):
-            return self._on_message(item)
+            return self._exchange.on_message(item)
         if isinstance(item, Iterable) and not isinstance(item, str | bytes):
             items = list(item)
             if items and all(isinstance(d, Detection) for d in items):
-                return self._on_detections(items)
+                return self._intake.on_detections(items)
         self.counts["messages"] += 1
         self.accounting.message_rejected(f"unsupported input of type {type(item).__name__}")
         return []
@@ -335,7 +329,7 @@ class Node(Intake, Exchange):
         (:mod:`~swarmloc.node.accounting`)."""
         held_det = sum(len(x) for _, _, x in self._clock.held if isinstance(x, list))
         held_odo = sum(1 for _, _, x in self._clock.held if isinstance(x, Odometry))
-        pending = sum(len(g.detections) for g in self._pending.values()) + held_det
+        pending = sum(len(g.detections) for g in self._exchange.pending.values()) + held_det
         return self.accounting.stats(pending, held_odo)
 
     def expire(self, before: float | None = None) -> list[Message]:
@@ -344,10 +338,11 @@ class Node(Intake, Exchange):
         possible clock jump are refused too. Drivers call it on a timeout or at the end."""
         out: list[Message] = []
         if before is None:
-            self._refuse_held(self._clock.release())
-        for key in sorted(self._pending):
+            self._intake.refuse_held(self._clock.release())
+        pending = self._exchange.pending
+        for key in sorted(pending):
             if before is None or key[0] < before:
-                out += self._commit_group(key, self._pending.pop(key))
+                out += self._filing.commit_group(key, pending.pop(key))
         return out
 
     # ------------------------------------------------------------------------------------------------ hooks
@@ -367,7 +362,7 @@ class Node(Intake, Exchange):
         (the same result to rounding: tests/test_node.py checks every estimator); the default applies
         :meth:`_advance` and :meth:`_set_command` one by one."""
         for t, robot, v, w in cmds:
-            s = self._set_command(self._timed_advance(s, robot, t), robot, v, w)
+            s = self._set_command(self._filing.timed_advance(s, robot, t), robot, v, w)
         return s
 
     def _fuse_group(self, s: Any, g: Group) -> tuple[Any, list[Outcome], list[Message]]:
@@ -398,6 +393,29 @@ class Node(Intake, Exchange):
         """``(state after a neighbour's update, True)``, or ``(state, False)`` when the update no longer applies
         (the entry becomes void)."""
         raise NotImplementedError
+
+    def _placeholder(self, data: Any) -> bool:
+        """Whether a history entry's ``data`` stands for an update not received yet (filed by the estimator when it
+        answers, e.g. :class:`~swarmloc.estimators.rdl.Unconfirmed`; counted ``updates_missing`` until replaced or
+        removed; default: none does)."""
+        return False
+
+    def _on_query(self, q: Message) -> list[Message]:
+        """Answer a neighbour's query (:meth:`~swarmloc.node.protocol.Exchange.on_query`; an estimator may extend
+        it)."""
+        return self._exchange.on_query(q)
+
+    def _revise(self, after: Key) -> list[Message]:
+        """The answers given to queries keyed after ``after`` that changed, revised
+        (:meth:`~swarmloc.node.protocol.Exchange.revise`; an estimator may extend it)."""
+        return self._exchange.revise(after)
+
+    def _prune(self) -> None:
+        """Forget entries, answers given and odometry intervals stamped before ``present - horizon`` (every
+        :data:`~swarmloc.node.history.PRUNE_EVERY` inputs; an estimator may extend it)."""
+        cutoff = self._clock.present - self.horizon
+        self._filing.prune(cutoff)
+        self._exchange.prune(cutoff)
 
     def _restamp(self, s: Any, t: float) -> Any:
         """The state ``s`` with every robot's clock set to ``t`` (after a jump of the robot's clock)."""
@@ -487,150 +505,13 @@ class Node(Intake, Exchange):
             raise ValueError(f"{type(self).__name__}: the node has not started (no input yet, no t0)")
         return self._clock.present
 
-    # ------------------------------------------------------------------------------------------------ prediction
-    def _timed_advance(self, s: Any, robot: int, t: float) -> Any:
-        if not self.measure_time:
-            return self._advance(s, robot, t)
-        t_start = time.perf_counter()
-        s2 = self._advance(s, robot, t)
-        if s2 is not s:
-            self.timing["predict_s"] += time.perf_counter() - t_start
-            self.timing["predict_n"] += 1
-        return s2
-
+    # ------------------------------------------------------------------------------------------------ parts
     def _adv(self, s: Any, robot: int, t: float, after: Position | None = None) -> Any:
         """``s``, the state after the entries keyed before ``after`` (default: the entry being applied), with
         ``robot`` predicted to ``t``; past the end of the odometry interval in force the robot is stopped there
-        (:mod:`~swarmloc.node.inputs`)."""
-        iv = self._timeline.in_force(robot, self._cursor if after is None else after)
-        if iv is not None and t > iv[1] + CONTIGUOUS:
-            s = self._set_command(self._timed_advance(s, robot, iv[1]), robot, 0.0, 0.0)
-            self._stopped(robot, iv[1])
-        return self._timed_advance(s, robot, t)
+        (:meth:`~swarmloc.node.filing.Filing.adv`)."""
+        return self._filing.adv(s, robot, t, after)
 
-    def _stopped(self, robot: int, t1: float) -> None:
-        """Count (once) that ``robot`` is predicted as stopped after its odometry interval ending at ``t1``."""
-        if (robot, t1) not in self._stops:
-            self._stops.add((robot, t1))
-            self.counts["odometry_stops"] += 1
-            log.info("%s: robot %s has no odometry from %.9g s: predicted as stopped", self.name, robot, t1)
-
-    def _advance_run(self, s: Any, run: Sequence[Entry]) -> Any:
-        """The state after a run of command entries (:meth:`_advance_commands` of :meth:`_command_run`)."""
-        return self._advance_commands(s, self._command_run(run))
-
-    def _command_run(self, run: Sequence[Entry]) -> list[tuple[float, int, float, float]]:
-        """The commands of a run of command entries, with a stop ``(t1, robot, 0, 0)`` before every command whose
-        robot's previous interval ended before it started (a gap in its odometry)."""
-        out = []
-        for e in run:
-            t0 = e.key[0]
-            robot = e.data[0]
-            iv = self._timeline.in_force(robot, e.key)
-            if iv is not None and t0 > iv[1] + CONTIGUOUS:
-                out.append((iv[1], robot, 0.0, 0.0))
-                self._stopped(robot, iv[1])
-            out.append((t0, *e.data))
-        return out
-
-    # ------------------------------------------------------------------------------------------------ history
     def _file(self, entries: list[Entry], accept: bool = True) -> list[Message]:
-        """Put new entries into the history and apply them (replaying what follows a late one); with ``accept``
-        their stamps move the node's present (not for a placeholder the node files itself)."""
-        hist = self._history
-        for e in entries if accept else ():
-            self._clock.accept(e.key[0])
-        if len(entries) == 1 and (not hist.keys or hist.keys[-1] < entries[0].key):  # in order: the common case
-            entry = entries[0]
-            hist.append(entry)
-            out: list[Message] = []
-            if not (self.lazy_odometry and entry.kind == "odometry"):
-                entry.state, out, void = self._apply(hist.state_at(len(hist) - 2), entry)
-                if void:
-                    hist.remove(len(hist) - 1)
-            latest = self._served.latest_key()
-            if latest is not None and latest > entry.key:
-                out += self._revise(entry.key)
-        else:
-            for e in entries:
-                hist.insert(hist.position(e.key), e)
-            out = self._replay(min(hist.position(e.key) for e in entries), late=True)
-        self._since_prune += len(entries)
-        if self._since_prune >= PRUNE_EVERY:
-            self._prune()
-        return out
-
-    def _replay(self, pos: int, late: bool, changed: Key | None = None) -> list[Message]:
-        """Re-apply the entries from ``pos`` on, re-count their outcomes, and revise the answers they change
-        (those keyed after ``changed``, the first key whose state may differ: default the entry at ``pos``)."""
-        if changed is None:
-            changed = self._history.keys[pos]
-        out, replayed = self._history.replay(pos, self._apply)
-        if late:
-            self.counts["late"] += 1
-            self.counts["replayed"] += replayed
-        return out + self._revise(changed)
-
-    def _apply(self, s: Any, e: Entry) -> tuple[Any, list[Message], bool]:
-        """Apply one history entry to the state before it: ``(state after, messages, entry now void)``."""
-        self._cursor = e.key
-        if e.kind == "odometry":
-            robot, v, w = e.data
-            return self._set_command(self._adv(s, robot, e.key[0]), robot, v, w), [], False
-        if e.kind == "group":
-            return self._apply_group(s, e)
-        s, applies = self._apply_update(s, e.data)  # a neighbour's update
-        return s, [], not applies
-
-    def _apply_group(self, s: Any, e: Entry) -> tuple[Any, list[Message], bool]:
-        g: Group = e.data
-        s = self._adv(s, g.observer, g.t)
-        view = self._associate(s, g)
-        if self.measure_time:
-            t_start, p_before = time.perf_counter(), self.timing["predict_s"]
-            s, outcomes, msgs = self._fuse_group(s, g if view is None else view.group)
-            self.timing["fuse_s"] += time.perf_counter() - t_start - (self.timing["predict_s"] - p_before)
-            self.timing["fuse_n"] += 1
-        else:
-            s, outcomes, msgs = self._fuse_group(s, g if view is None else view.group)
-        if view is not None:
-            msgs = msgs + self._settle(view.group)
-        if view is not None or e.assoc:
-            outcomes, assoc = view.outcomes(outcomes) if view is not None else (outcomes, {})
-            self.accounting.recount_counters(e.assoc, assoc)
-            e.assoc = assoc
-        self.accounting.recount(e.outcomes, outcomes)
-        e.outcomes = outcomes
-        if view is None and (e.suspects or GATED in outcomes):  # gated answers count against their teammates
-            suspects = gated_answers(g, outcomes)
-            self._trust.recount(e.suspects, suspects)
-            e.suspects = suspects
-        if self.accounting.ledger is not None:
-            marks = [(g.observer, g.t, k, o[0]) for k, o in zip(g.keys, outcomes, strict=True)]
-            self.accounting.remark(e.marks, marks)
-            e.marks = marks
-        return s, self._changed(e, msgs), False
-
-    @staticmethod
-    def _changed(e: Entry, msgs: list[Message]) -> list[Message]:
-        """Messages a (re-)applied entry produced that differ from what it sent last time; an update it no longer
-        produces (e.g. now gated) is retracted with an empty one."""
-        out = []
-        new = {(m.receiver, m.sub): m for m in msgs}
-        for k, old in list(e.sent.items()):
-            if k not in new and isinstance(old, RdlUpdate | TeamUpdate) and not old.empty:
-                e.sent[k] = old.retraction()
-                out.append(e.sent[k])
-        for k, m in new.items():
-            if e.sent.get(k) != m:
-                e.sent[k] = m
-                out.append(m)
-        return out
-
-    def _prune(self) -> None:
-        """Forget entries, answers given and odometry intervals stamped before ``present - horizon``."""
-        self._since_prune = 0
-        cutoff = self._clock.present - self.horizon
-        self._history.prune(cutoff)
-        self._served.prune(cutoff)
-        self._timeline.prune(cutoff)
+        """Put new entries into the history and apply them (:meth:`~swarmloc.node.filing.Filing.file`)."""
+        return self._filing.file(entries, accept)

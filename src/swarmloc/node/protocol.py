@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_left, bisect_right
 from collections.abc import Iterator, Sequence
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, Protocol
 
 import msgspec
 
@@ -39,19 +39,13 @@ from swarmloc.messages import (
     flat,
     message_problem,
 )
-from swarmloc.node.keys import P_GROUP, Entry, Group, Key, Position
-from swarmloc.node.trust import Trust
-
-if TYPE_CHECKING:
-    from collections import Counter
-
-    from swarmloc.node.accounting import Accounting
-    from swarmloc.node.clock import Clock
-    from swarmloc.node.history import History
+from swarmloc.node.filing import Filing
+from swarmloc.node.keys import P_GROUP, Entry, Group, Key
 
 __all__ = [
     "SAME_RTOL",
     "Exchange",
+    "ExchangeHost",
     "Served",
     "answer_type",
     "belief_answer",
@@ -193,168 +187,179 @@ class Served:
             del self.keys[:m]
 
 
+class ExchangeHost(Protocol):
+    """What the exchange asks of its node (:class:`~swarmloc.node.base.Node`): its hooks (the estimators override
+    them), the query and revision steps included so that an estimator may extend them."""
+
+    def _answer(self, s: Any, q: Message) -> Answer | None: ...
+    def _on_query(self, q: Message) -> list[Message]: ...
+    def _revise(self, after: Key) -> list[Message]: ...
+    def _update_problem(self, u: Message) -> str | None: ...
+    def _update_lie(self, u: Message) -> str | None: ...
+    def _placeholder(self, data: Any) -> bool: ...
+
+
 class Exchange:
-    """How a :class:`~swarmloc.node.base.Node` takes messages from its neighbours (module docstring; a part of the
-    node: its methods use the node's clock, history, served answers and accounting)."""
+    """How a :class:`~swarmloc.node.base.Node` takes messages from its neighbours (module docstring). Its own state:
+    the answers it gave (``served``), the detection groups waiting for answers (``pending``) and the robots heard
+    from (``neighbours``). Its collaborators: the node (``host``), its robots and the update types it files, and its
+    filing (history, replay, and the node's clock, accounting and trust it was made with)."""
 
-    robots: tuple[int, ...]
-    name: ClassVar[str]
-    update_types: ClassVar[tuple[type[RdlUpdate] | type[TeamUpdate], ...]]
-    accounting: Accounting
-    _clock: Clock
-    _history: History
-    _served: Served
-    _pending: dict[Key, Group]
-    _neighbours: set[int]
-    _trust: Trust
-
-    if TYPE_CHECKING:  # the node's (swarmloc.node.base.Node), declared for the type checker
-
-        @property
-        def counts(self) -> Counter[str]: ...
-        def _adv(self, s: Any, robot: int, t: float, after: Position | None = ...) -> Any: ...
-        def _answer(self, s: Any, q: Message) -> Answer | None: ...
-        def _commit_group(self, key: Key, g: Group) -> list[Message]: ...
-        def _file(self, entries: list[Entry], accept: bool = ...) -> list[Message]: ...
-        def _replay(self, pos: int, late: bool, changed: Key | None = ...) -> list[Message]: ...
-        def _update_lie(self, u: Message) -> str | None: ...
-        def _update_problem(self, u: Message) -> str | None: ...
+    def __init__(
+        self,
+        host: ExchangeHost,
+        robots: tuple[int, ...],
+        update_types: tuple[type[RdlUpdate] | type[TeamUpdate], ...],
+        filing: Filing,
+    ) -> None:
+        self.host = host
+        self.robots = robots
+        self.update_types = update_types
+        self.filing = filing
+        self.history = filing.history
+        self.clock, self.accounting, self.trust = filing.clock, filing.accounting, filing.trust
+        self.counts = filing.accounting.counts
+        self.served = Served()
+        self.pending: dict[Key, Group] = {}
+        self.neighbours: set[int] = set()
 
     # ------------------------------------------------------------------------------------------------ messages
-    def _on_message(self, m: Message) -> list[Message]:
+    def on_message(self, m: Message) -> list[Message]:
         self.counts["messages"] += 1
         what = type(m).__name__
         why = refusal(m, self.robots, what)
         if why is not None:
             self.accounting.message_rejected(why)
             return []
-        if self._trust.shut_out(m.sender):
+        if self.trust.shut_out(m.sender):
             return [not_found(m, quarantine_reason(m.sender))] if isinstance(m, BeliefQuery | RdlStateQuery) else []
         if isinstance(m, BeliefQuery | RdlStateQuery):
-            return self._on_query(m)
+            return self.host._on_query(m)
         if isinstance(m, BeliefAnswer | RdlState):
-            return self._on_answer(m)
+            return self.on_answer(m)
         if isinstance(m, self.update_types):
-            return self._on_update(m)
-        self.accounting.message_rejected(f"{self.name} does not take {what}")
+            return self.on_update(m)
+        self.accounting.message_rejected(f"{self.accounting.name} does not take {what}")
         return []
 
-    def _query_state(self, key: Key, robot: int) -> Any:
+    def query_state(self, key: Key, robot: int) -> Any:
         """The state before ``key`` with ``robot`` predicted to its stamp: what a query keyed ``key`` is answered
         from."""
-        return self._adv(self._history.state_before(key), robot, key[0], key)
+        return self.filing.adv(self.history.state_before(key), robot, key[0], key)
 
-    def _on_query(self, q: Message) -> list[Message]:
+    def on_query(self, q: Message) -> list[Message]:
         key: Key = (float(q.stamp), P_GROUP, q.sender, tuple(q.sub))
-        if self._clock.t0 is None:
+        if self.clock.t0 is None:
             return [not_found(q, "the node has not started")]
-        why = self._clock.too_old(key[0])
+        why = self.clock.too_old(key[0])
         if why is not None:
             return [not_found(q, why)]
-        why = self._clock.future(key[0])
+        why = self.clock.future(key[0])
         if why is not None:  # answered once, never stored or revised
             self.counts["not_yet_sent"] += 1
             return [not_found(q, f"not yet: {why}")]
-        ans = self._answer(self._query_state(key, q.receiver), q)
+        ans = self.host._answer(self.query_state(key, q.receiver), q)
         if ans is None:
-            return [not_found(q, f"{self.name} does not answer {type(q).__name__}")]
+            return [not_found(q, f"{self.accounting.name} does not answer {type(q).__name__}")]
         self.counts["answers_sent"] += 1
-        return [self._served.record((key, q.sender, type(q).__name__), ans)]
+        return [self.served.record((key, q.sender, type(q).__name__), ans)]
 
-    def _revise(self, after: Key) -> list[Message]:
+    def revise(self, after: Key) -> list[Message]:
         """Recompute the answers given to queries keyed after ``after``; send those that changed, revised."""
+        latest = self.served.latest_key()
+        if latest is None or not latest > after:  # none keyed after it: the common case
+            return []
         out: list[Message] = []
-        for skey, old in list(self._served.after(after)):
+        for skey, old in list(self.served.after(after)):
             key, asker, _ = skey
             q = query_of(old, asker)
-            new = self._answer(self._query_state(key, q.receiver), q)
-            if new is not None and (new := self._served.revise(skey, new)) is not None:
+            new = self.host._answer(self.query_state(key, q.receiver), q)
+            if new is not None and (new := self.served.revise(skey, new)) is not None:
                 self.counts["revisions_sent"] += 1
                 out.append(new)
         return out
 
-    def _on_answer(self, a: Answer) -> list[Message]:
+    def on_answer(self, a: Answer) -> list[Message]:
         key: Key = (float(a.stamp), P_GROUP, a.receiver, ())
         slot = (a.sender, tuple(a.sub))
-        g = self._pending.get(key)
+        g = self.pending.get(key)
         pos = None  # the answer's group: pending (g), or filed in the history at pos
         if g is not None and slot in g.answers:
             answers = g.answers
         else:
-            g, pos = None, self._history.find(key)
-            if pos is None or slot not in self._history.entries[pos].data.answers:
-                why = "older than the history horizon" if self._clock.too_old(key[0]) else "to no query of this node"
+            g, pos = None, self.history.find(key)
+            if pos is None or slot not in self.history.entries[pos].data.answers:
+                why = "older than the history horizon" if self.clock.too_old(key[0]) else "to no query of this node"
                 self.accounting.message_rejected(f"answer {why}")
                 return []
-            answers = self._history.entries[pos].data.answers
+            answers = self.history.entries[pos].data.answers
         old = answers[slot]
         if old is not None and a.seq <= old.seq:
             self.accounting.message_rejected("stale or duplicate answer")
             return []
         answers[slot] = a
         if a.found:
-            self._neighbours.add(a.sender)
+            self.neighbours.add(a.sender)
         if g is None:
             assert pos is not None  # noqa: S101  (filed: found above)
-            return self._replay(pos, late=True)
+            return self.filing.replay(pos, late=True)
         if g.waiting():
             return []
-        del self._pending[key]
-        return self._commit_group(key, g)
+        del self.pending[key]
+        return self.filing.commit_group(key, g)
 
-    def _on_update(self, u: RdlUpdate | TeamUpdate) -> list[Message]:
-        why = self._update_problem(u)
+    def on_update(self, u: RdlUpdate | TeamUpdate) -> list[Message]:
+        why = self.host._update_problem(u)
         if why is None:
-            why = self._clock.too_old(float(u.stamp)) or self._clock.future(float(u.stamp))
+            why = self.clock.too_old(float(u.stamp)) or self.clock.future(float(u.stamp))
             why = None if why is None else f"update {why}"
         if why is not None:
             self.accounting.message_rejected(why)
             return []
-        self._neighbours.add(u.sender)
+        self.neighbours.add(u.sender)
         key: Key = (float(u.stamp), P_GROUP, u.sender, tuple(u.sub))
-        pos = self._history.find(key)
+        hist = self.history
+        pos = hist.find(key)
         if u.empty:  # no update follows (the neighbour did not fuse this exchange), or one filed is retracted
             if pos is None:
                 self.counts["no_update"] += 1
                 return []
-            if self._placeholder(self._history.entries[pos].data):
+            if self.host._placeholder(hist.entries[pos].data):
                 self.counts["updates_missing"] -= 1
                 self.counts["no_update"] += 1
-            self._history.remove(pos)
-            return self._replay(pos, late=True, changed=key) if pos < len(self._history) else self._revise(key)
-        lie = self._update_lie(u)
+            hist.remove(pos)
+            return self.filing.replay(pos, late=True, changed_at=key) if pos < len(hist) else self.host._revise(key)
+        lie = self.host._update_lie(u)
         if lie is not None:
-            return self._shut_out_pending(u.sender) if self._trust.refused(u.sender, lie) else []
-        self._trust.accepted(u.sender)
+            return self.shut_out_pending(u.sender) if self.trust.refused(u.sender, lie) else []
+        self.trust.accepted(u.sender)
         if pos is not None:
-            old = self._history.entries[pos].data
+            old = hist.entries[pos].data
             if old == u:
                 self.accounting.message_rejected("duplicate update")
                 return []
-            self._history.entries[pos].data = u
-            if self._placeholder(old):  # the update a placeholder waited for: in order if nothing followed it
+            hist.entries[pos].data = u
+            if self.host._placeholder(old):  # the update a placeholder waited for: in order if nothing followed it
                 self.counts["updates_missing"] -= 1
-                return self._replay(pos, late=pos < len(self._history) - 1)
-            return self._replay(pos, late=True)
-        return self._file([Entry(key, "update", u)])
+                return self.filing.replay(pos, late=pos < len(hist) - 1)
+            return self.filing.replay(pos, late=True)
+        return self.filing.file([Entry(key, "update", u)])
 
-    def _shut_out_pending(self, robot: int) -> list[Message]:
+    def shut_out_pending(self, robot: int) -> list[Message]:
         """``robot`` quarantined: the answers the waiting groups still expect from it are given up (not found), and the
         groups that wait for nothing else are applied."""
         out: list[Message] = []
-        for key in sorted(self._pending):
-            g: Group = self._pending[key]
+        for key in sorted(self.pending):
+            g: Group = self.pending[key]
             for slot, a in g.answers.items():
                 if slot[0] == robot and a is None:
                     g.answers[slot] = BeliefAnswer(sender=robot, receiver=g.observer, stamp=g.t, sub=slot[1],
                                                    found=False, reason=quarantine_reason(robot))  # fmt: skip
             if not g.waiting():
-                del self._pending[key]
-                out += self._commit_group(key, g)
+                del self.pending[key]
+                out += self.filing.commit_group(key, g)
         return out
 
-    def _placeholder(self, data: Any) -> bool:
-        """Whether a history entry's ``data`` stands for an update not received yet (filed by the estimator when it
-        answers, e.g. :class:`~swarmloc.estimators.rdl.Unconfirmed`; counted ``updates_missing`` until replaced or
-        removed)."""
-        return False
+    def prune(self, cutoff: float) -> None:
+        """Forget answers to queries stamped before ``cutoff``."""
+        self.served.prune(cutoff)

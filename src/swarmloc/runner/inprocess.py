@@ -249,7 +249,7 @@ class _Driver:
                 upto = _final(clock.present, t0, clock.tolerance, clock.horizon)
                 if h[0][0] <= upto:
                     self.rec.resolve(node, upto)
-            if node._odometry_fast(e):
+            if node._intake.odometry_fast(e):
                 return
         self.deliver(node, e, t0)
 
