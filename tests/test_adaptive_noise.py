@@ -33,10 +33,12 @@ def test_innovation_terms_split_the_nis():
 def test_scale_matches_the_window_and_reads_the_past_only():
     ns = NoiseScale(window=10.0, prior_dof=0.0)
     assert ns.scale(5.0) == 1.0  # nothing logged
-    # predicted covariance 3 times too small: e = a + 3 b, with b = m - a
+    # the model's process noise 3 times too small: at the scale lam in force, e = a + (3 / lam) b with b = m - a
     for k in range(20):
-        ns.record(float(k), ("d", k), Innovation(e=0.5 + 3 * 1.5, a=0.5, m=2))
-    assert ns.scale(10.0) == pytest.approx(3.0)  # entries 0..9, each logged at the scale then in force (1)
+        lam = ns.scale(float(k))
+        ns.record(float(k), ("d", k), Innovation(e=0.5 + 3 / lam * 1.5, a=0.5, m=2))
+    assert ns.scale(1.0) == pytest.approx(3.0)  # one window's step reaches the scale
+    assert ns.scale(20.0) == pytest.approx(3.0)  # and stays there
     assert ns.scale(0.0) == 1.0  # an entry stamped at t is not read at t
     assert ns.scale(100.0) == 1.0  # the window has passed
     # small innovations never take the scale below the model's noise
