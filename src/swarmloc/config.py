@@ -322,6 +322,8 @@ class FilterConfig(Section):
     """fls and flsd also output each pose as it leaves the window (smoother_lag s late), scored as <name>_delayed"""
     diekf_cluster: Annotated[int, msgspec.Meta(ge=0)] = 0
     """robots per diekf cluster (0: the exact filter over the whole team)"""
+    diekf_adaptive: bool = False
+    """diekf scales its process noise online from its own innovations (swarmloc.estimators.adaptive_noise)"""
     quarantine: Count | None = 3
     """a teammate's updates refused in a row (each beyond the gate) that quarantine it for the run"""
 

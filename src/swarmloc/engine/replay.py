@@ -120,6 +120,8 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
     opts.pop("association_gate", None)
     if opts.pop("association", "tags") != "tags":
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
+    if opts.pop("adaptive", False):
+        raise ValueError("the engine's diekf keeps its noise fixed: run [filter] diekf_adaptive with the nodes")
     return opts
 
 

@@ -80,6 +80,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
+from swarmloc.estimators.adaptive_noise import Innovation, NoiseScale, innovation_terms
 from swarmloc.estimators.dekf import DEGENERATE, FilterState
 from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.estimators.world_form import FORMS, TeamState, robot_pair, world_step
@@ -155,6 +156,10 @@ class TeamProtocol:
         self.gated_broadcasts = gated_broadcasts
         self.queries = StateQueries(self.robot)
         self._unusable: set[tuple[Any, ...]] = set()
+        self.innovations = False
+        """Whether :meth:`one` keeps :attr:`last_innovation` (an owner that adapts its noise sets it)."""
+        self.last_innovation: Innovation | None = None
+        """The last detection's innovation terms (:func:`~swarmloc.estimators.adaptive_noise.innovation_terms`)."""
 
     def initial(self, mean: np.ndarray, cov: np.ndarray, t0: float) -> TeamState:
         x, P = self.form.initial(mean, cov)
@@ -229,6 +234,8 @@ class TeamProtocol:
             r, Hi, S, R = lin
             j, Pjj, Hj = i, s.P, np.zeros_like(Hi)
         out = self.gated_update(s, i, j, Hi, Hj, S, r, Pjj, gate)
+        if self.innovations:
+            self.last_innovation = innovation_terms(r, S, R)
         if lin_log is not None and not isinstance(out[0], str):
             lin_log.append(("update", t, {i: Hi, j: Hj} if j != i else {i: Hi}, R))
         return out
@@ -382,7 +389,9 @@ class DistributedInvariantEKF(RobotNode):
     hooks). ``team``: every robot id of the team (``make_team`` passes it). ``cluster``: 0 (default)
     for the exact filter over the whole team, or ``K >= 1`` robots per cluster (module docstring, "Clusters"):
     replica and broadcasts over the robot's cluster only, covariance intersection with robots outside it. The
-    exchange's queries are :class:`~swarmloc.estimators.state_exchange.StateQueries`' (``rdl``'s)."""
+    exchange's queries are :class:`~swarmloc.estimators.state_exchange.StateQueries`' (``rdl``'s). ``adaptive``: the
+    process noise scaled online from this robot's own innovations (:class:`~swarmloc.estimators.adaptive_noise.
+    NoiseScale`, :attr:`noise_scale`; ``[filter] diekf_adaptive``)."""
 
     name = "diekf"
     lazy_odometry = True
@@ -393,9 +402,11 @@ class DistributedInvariantEKF(RobotNode):
     protocol: TeamProtocol
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
-                 **kw: Any) -> None:  # fmt: skip
+                 adaptive: bool = False, **kw: Any) -> None:  # fmt: skip
+        self.noise_scale = NoiseScale() if adaptive else None
         self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=True,
                                      association=kw.get("association", "tags"), gated_broadcasts=True)  # fmt: skip
+        self.protocol.innovations = adaptive
         super().__init__(robot, initial, team=self.protocol.team, **kw)
 
     @property
@@ -412,6 +423,8 @@ class DistributedInvariantEKF(RobotNode):
         if dt <= 0:
             return s
         x, P = self.protocol.form.predict(s.x, s.P, s.v, s.w, dt, self.noise)
+        if self.noise_scale is not None:
+            P = self.noise_scale.inflate(s.P, P, t)
         return TeamState(t, s.v, s.w, x, P, s.Sigma)
 
     def _set_command(self, s: TeamState, robot: int, v: Any, w: Any) -> TeamState:
@@ -420,8 +433,8 @@ class DistributedInvariantEKF(RobotNode):
     def _advance_commands(self, s: Any, cmds: Any) -> Any:
         """A run of odometry: :meth:`_advance` and :meth:`_set_command` one by one (predicting in world-frame errors,
         not rdl's Cartesian run), the pose kept in floats between steps (the same numbers)."""
-        if self.measure_time or not self.protocol.form.runs:
-            return super()._advance_commands(s, cmds)  # timed, or SE(3)
+        if self.measure_time or not self.protocol.form.runs or self.noise_scale is not None:
+            return super()._advance_commands(s, cmds)  # timed, SE(3) or adaptive
         t0, v, w, P = s.t, s.v, s.w, s.P
         x0, y0, th = s.x.tolist()
         for t, _, vk, wk in cmds:
@@ -451,7 +464,11 @@ class DistributedInvariantEKF(RobotNode):
         target = self._classify(g, d, sub)
         if target[0] in ("rejected", "unknown"):
             return s, target, []
-        return self.protocol.fuse(s, d, target, sub, self.gate, self.lin_log, g.t)
+        self.protocol.last_innovation = None
+        out = self.protocol.fuse(s, d, target, sub, self.gate, self.lin_log, g.t)
+        if self.noise_scale is not None and self.protocol.last_innovation is not None:
+            self.noise_scale.record(g.t, sub, self.protocol.last_innovation)
+        return out
 
     def _one(self, s: TeamState, g: Group | None, d: Any, target: tuple[str, Any]) -> Any:
         """One detection: the new state and the broadcast's numbers, or an outcome (:meth:`TeamProtocol.one`)."""
