@@ -2,6 +2,7 @@
 
     python benchmarks/fls_lagged.py ../shared/data/mrclam/MRCLAM_Dataset6                 # flsd, lag 2 s, all
     python benchmarks/fls_lagged.py ../shared/data/mrclam/MRCLAM_Dataset6 --duration 120 --estimator fls
+    python benchmarks/fls_lagged.py ../shared/data/mrclam/MRCLAM_Dataset6 --lag 5 --no-landmarks
 
 The nodes' belief (``belief_at(t)``, what every estimator is scored on) is causal: inputs stamped up to ``t``. A
 window pose leaving the window has been re-estimated with at least ``lag`` seconds of later inputs: the smoothers'
@@ -30,8 +31,9 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=None, help="seconds from the start (default: all)")
     ap.add_argument("--estimator", default="flsd", choices=("fls", "flsd"))
     ap.add_argument("--lag", type=float, default=2.0, help="window length [s]")
+    ap.add_argument("--no-landmarks", action="store_true", help="leave the landmark detections out")
     a = ap.parse_args()
-    src = load_source(f"mrclam:{a.dataset}", duration=a.duration)
+    src = load_source(f"mrclam:{a.dataset}", duration=a.duration, landmarks=not a.no_landmarks)
     opts = {**node_options(a.estimator, src.config, src.landmarks), "lag": a.lag}
     nodes = make_team(a.estimator, src.initial, **opts)
     for n in nodes:

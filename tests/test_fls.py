@@ -11,7 +11,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from swarmloc.estimators import make_team, node_options
-from swarmloc.estimators.fls import FixedLagSmoother, Window
+from swarmloc.estimators.fls import Factor, FixedLagSmoother, Window
 from swarmloc.estimators.fls_team import TeamFixedLagSmoother, pseudo_factor
 from swarmloc.evaluation.delayed import delayed_tracks
 from swarmloc.evaluation.metrics import evaluate
@@ -261,6 +261,31 @@ def test_pseudo_factor_reproduces_the_team_update_it_stands_for():
     assert np.abs(P1 - P0).max() > 1e-3 and np.abs(x1 - x0).max() > 1e-6  # not negligible: the checks can fail
     assert pseudo_factor(0, P0, np.zeros((3, 2)), np.linalg.inv(S), nu, x0) is None
     assert pseudo_factor(0, P0, G, np.zeros((2, 2)), nu, x0) is None  # a malformed update: no crash, no factor
+
+
+def test_delayed_covariance_covers_a_pseudo_factor_that_repeats_the_prior():
+    """A pose leaving the window whose later pseudo-factor (another robot's update) repeats the information of the
+    prior with the same error, as a teammate's estimate correlated with ours can: the smoothed mean is the prior's
+    and its error too, so its true covariance is the prior's. The window's marginal halves it (what was filed
+    before: ANEES doubled); the filed covariance, bounded by covariance intersection between the factors before and
+    after the pose, is the prior's (1e-3 relative: the odometry between the two poses is almost exact). With
+    an independent landmark instead of the pseudo-factor, the filed covariance is the marginal."""
+    x0 = np.array([1.0, 2.0, 0.0])  # heading 0: the Pose2 tangent is the Cartesian frame
+    P0 = np.array([[0.02, 0.004, -0.002], [0.004, 0.03, 0.001], [-0.002, 0.001, 0.01]])
+    A = np.linalg.inv(np.linalg.cholesky(P0))  # whitened: the information P0^-1 about pose 1, around x0
+    odo = Factor("odometry", 0, 1, "", np.zeros(3), 1e-6 * np.eye(3), None, 1.0)
+    twin = Factor("pseudo", 1, -1, "", x0, A, np.zeros(3), 1.0)
+    node = TeamFixedLagSmoother(0, GroupGaussian(SE2, SE2.from_xytheta(x0), P0), noise=NOISE, team=(0, 1), lag=1.0)
+    node.lagged_log = {}
+    win = Window((0, 1), (0.0, 2.0), {0: x0, 1: x0}, (x0, P0, 1.0), (odo, twin), 2)
+    assert node.solver.solve(win, 1, 2.0) is not None
+    x, P = node.lagged_log[0.0]
+    np.testing.assert_allclose(x, x0, atol=1e-9)
+    np.testing.assert_allclose(P, P0, rtol=1e-3, atol=1e-3 * float(np.abs(P0).max()))  # the marginal: P0 / 2
+    lm = Factor("unary", 1, -1, "absolute", x0, P0, None, 1.0)  # the same information, independent
+    node.lagged_log = {}
+    assert node.solver.solve(win._replace(factors=(odo, lm)), 1, 2.0) is not None
+    np.testing.assert_allclose(node.lagged_log[0.0][1], P0 / 2, rtol=1e-3, atol=1e-3 * float(np.abs(P0).max()))
 
 
 def _team_scores(spec: str, names: tuple[str, ...], **kw) -> dict:
