@@ -138,7 +138,7 @@ def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = 
     it moves when the broadcast updates it)."""
     advance, marginal, fuse, _ = steps(noise, invariant, distributed)
 
-    @njit(error_model="numpy")
+    @njit(error_model="numpy", inline="always")  # no call between the loop and its step
     def detect(X, P, pend, has, tc, v, w, t0, t, q, i, j, kind, z, R, thr, gate, relative, lm_on, lxy, lcov):  # noqa: ANN001, ANN202
         if distributed:
             res, why = F.screen_started(kind, i, j, t, t0, relative, lm_on)

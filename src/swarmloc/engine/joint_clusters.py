@@ -96,7 +96,7 @@ def _kernels(noise: UnicycleNoise) -> Any:
         xn, Pn, nis, ok = kalman(X, Pw, r, Hi, np.arange(a, a + 3), Rm + B / (1 - wt), True)
         return commit(X, P, xn, Pn, nis, ok, thr[kind], gate)
 
-    @njit(error_model="numpy")
+    @njit(error_model="numpy", inline="always")  # no call between the loop and its step
     def detect(X, P, pend, has, tc, v, w, t0, t, q, i, j, kind, z, R, thr, gate, relative, lm_on, lxy, lcov):  # noqa: ANN001, ANN202
         """Detection ``q`` of observer ``i``, target ``j``, on its cluster's views of the state (``P (clusters, 3K,
         3K)``): :func:`swarmloc.engine.joint.steps`' ``fuse``, or :func:`outsider` for a robot of another cluster."""
