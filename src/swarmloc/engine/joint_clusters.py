@@ -32,7 +32,7 @@ from numba import njit
 from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import flush, run, steps
+from swarmloc.engine.joint import flush, run, stamp_loop, steps
 from swarmloc.engine.joint_math import RANGE_BEARING, F, commit, kalman, measure, to_world
 from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
@@ -68,7 +68,8 @@ def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> float
 
 @cache
 def _kernels(noise: UnicycleNoise) -> Any:
-    """Compile the cluster loop around :func:`swarmloc.engine.joint.steps` (``diekf``'s, once per noise model)."""
+    """Compile the cluster loop (:func:`swarmloc.engine.joint.stamp_loop`) around :func:`swarmloc.engine.joint.steps`
+    (``diekf``'s, once per noise model), each robot's steps run on its cluster's views of the state."""
     advance, marginal, fuse, belief = steps(noise, True, True)
 
     @njit(error_model="numpy")
@@ -95,60 +96,35 @@ def _kernels(noise: UnicycleNoise) -> Any:
         xn, Pn, nis, ok = kalman(X, Pw, r, Hi, np.arange(a, a + 3), Rm + B / (1 - wt), True)
         return commit(X, P, xn, Pn, nis, ok, thr[kind], gate)
 
-    return _loop(advance, marginal, fuse, belief, outsider)
-
-
-def _loop(advance: Any, marginal: Any, fuse: Any, belief: Any, outsider: Any) -> Any:
-    """The compiled loop over the stamps of a timeline (:func:`swarmloc.engine.joint.replay_joint`'s order), each
-    robot's steps run on its cluster's views of the state."""
+    @njit(error_model="numpy", inline="always")  # no call between the loop and its step
+    def detect(X, P, pend, has, tc, v, w, t0, t, q, i, j, kind, z, R, thr, gate, relative, lm_on, lxy, lcov):  # noqa: ANN001, ANN202
+        """Detection ``q`` of observer ``i``, target ``j``, on its cluster's views of the state (``P (clusters, 3K,
+        3K)``): :func:`swarmloc.engine.joint.steps`' ``fuse``, or :func:`outsider` for a robot of another cluster."""
+        st, why = F.screen_started(kind, i, j, t, t0, relative, lm_on)
+        if st != 0:
+            return st, why
+        n, K = tc.shape[0], P.shape[1] // 3
+        b, lo, hi = _span(i, K, n)
+        m = 3 * (hi - lo)
+        Xc, Pc, pc, hc = X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi]
+        if j >= 0 and j // K != b:  # a robot of another cluster
+            bj, lj, hj = _span(j, K, n)
+            mj = 3 * (hj - lj)
+            xj, Pj = belief(X[3 * lj : 3 * hj], P[bj, :mj, :mj], pend[lj:hj], has[lj:hj], tc[lj:hj], v[lj:hj],
+                            w[lj:hj], j - lj, t)  # fmt: skip
+            return outsider(Xc, Pc, pc, hc, i - lo, xj, Pj, kind, z[q], R[q], thr, gate, ~(t >= t0[lo:hi]))
+        return fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo, j - lo if j >= 0 else j, kind, z, R,
+                    lxy, lcov, thr, gate)  # fmt: skip
 
     @njit(error_model="numpy")
-    def replay(state, vw, t0, stamps, d0, det, status, reason, const, cmd, rec, out):  # noqa: ANN001, ANN202, ARG001
-        X, P, pend, has, tc, v, w, K = state
-        thr, gate, relative, lm_on, lxy, lcov = const
-        obs, tgt, kind, z, R = det
-        c0, crow, cv, cw = cmd
-        out_robot, out_stamp, out_x, out_P = out
-        n = tc.shape[0]
-        o = 0
-        for s in range(stamps.shape[0]):
-            t = stamps[s]
-            for q in range(d0[s], d0[s + 1]):
-                i, j = obs[q], tgt[q]
-                advance(X, pend, has, tc, v, w, i, t)  # the observer moves to its group's stamp
-                st, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
-                if st == 0:
-                    b, lo, hi = _span(i, K, n)
-                    m = 3 * (hi - lo)
-                    Xc, Pc, pc, hc = X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi]
-                    if j >= 0 and j // K != b:  # a robot of another cluster
-                        bj, lj, hj = _span(j, K, n)
-                        mj = 3 * (hj - lj)
-                        xj, Pj = belief(X[3 * lj : 3 * hj], P[bj, :mj, :mj], pend[lj:hj], has[lj:hj], tc[lj:hj],
-                                        v[lj:hj], w[lj:hj], j - lj, t)  # fmt: skip
-                        st, why = outsider(Xc, Pc, pc, hc, i - lo, xj, Pj, kind[q], z[q], R[q], thr, gate,
-                                           ~(t >= t0[lo:hi]))  # fmt: skip
-                    else:
-                        st, why = fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo,
-                                       j - lo if j >= 0 else j, kind[q], z, R, lxy, lcov, thr, gate)  # fmt: skip
-                status[q], reason[q] = st, why
-            for c in range(c0[s], c0[s + 1]):  # then the commands (joint.py's order)
-                advance(X, pend, has, tc, v, w, crow[c], t)
-                v[crow[c]] = cv[c]
-                w[crow[c]] = cw[c]
-            if rec[s]:
-                for k in range(n):
-                    if t >= t0[k]:
-                        b, lo, hi = _span(k, K, n)
-                        m = 3 * (hi - lo)
-                        marginal(X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi], tc[lo:hi], v[lo:hi],
-                                 w[lo:hi], k - lo, t, out_x, out_P, o)  # fmt: skip
-                        out_robot[o] = k
-                        out_stamp[o] = s
-                        o += 1
-        return o
+    def record(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
+        """Robot ``k``'s record (:func:`swarmloc.engine.joint.steps`' ``marginal``) on its cluster's views."""
+        b, lo, hi = _span(k, P.shape[1] // 3, tc.shape[0])
+        m = 3 * (hi - lo)
+        marginal(X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi], tc[lo:hi], v[lo:hi], w[lo:hi], k - lo, t,
+                 out_x, out_P, o)  # fmt: skip
 
-    return replay
+    return stamp_loop(advance, detect, record)
 
 
 @njit(error_model="numpy")
@@ -167,5 +143,5 @@ def replay_clusters(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, 
     n = x.shape[0]
     K = cluster_size(cluster, n, [t0])
     X, J, clock, starts = joint_start(x, P, t0, True, K)
-    st = (X.reshape(3 * n), J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n), K)
-    return run(_kernels(noise), st, st[5:7], tl, starts, constants(**switches))
+    st = (X.reshape(3 * n), J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
+    return run(_kernels(noise), st, st[5:], tl, starts, constants(**switches))
