@@ -468,7 +468,7 @@ class DistributedInvariantEKF(RobotNode):
             outcomes.append(outcome)
             msgs += sent
         if self.odometry is not None and FUSED in outcomes:
-            self.odometry.record_pose(g.t, None, s.x, self._belief(s, self.robot).cov)
+            self.odometry.record_pose(g.t, s.x, self._belief(s, self.robot).cov)
         return s, outcomes, msgs
 
     def _fuse_one(self, s: TeamState, g: Group, d: Any, sub: SubKey) -> tuple[TeamState, Outcome, list[Message]]:
