@@ -178,7 +178,9 @@ class OdometryCalibration:
         bh = np.array([s[1], 0.0]) + (ah * f[:, None]).T @ yh
         a_v = (s[0] + float(f @ (an * yd))) / (s[0] + float(f @ (an * an)))
         a_w, b_w = np.linalg.solve(Ah, bh)
-        return np.clip(np.array([a_v, a_w, b_w]), [b[0] for b in BOUNDS], [b[1] for b in BOUNDS])
+        lo, hi = np.array(BOUNDS).T
+        out: np.ndarray = np.clip(np.array([a_v, a_w, b_w]), lo, hi)
+        return out
 
     def _prune(self, t: float) -> None:
         """Forget what no pair or estimate reads again: commands and posteriors older than two baselines beyond
