@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -87,10 +88,14 @@ def test_config_option_reaches_diekf_only_and_the_engine_refuses_it():
         run_engine(src, "diekf", odocal=True)
 
 
+def _high(events: list[Any]) -> list[Any]:
+    """``events`` with every odometry record reading 1.1 times the motion."""
+    return [dataclasses.replace(e, v=1.1 * e.v, w=1.1 * e.w) if type(e).__name__ == "Odometry" else e for e in events]
+
+
 def _run(odocal: bool) -> tuple[float, list[np.ndarray]]:
     src = load_source("sim:landmarks", robots=3, duration=600.0, seed=1)
-    events = [dataclasses.replace(e, v=1.1 * e.v, w=1.1 * e.w) if type(e).__name__ == "Odometry" else e
-              for e in src.events]  # fmt: skip
+    events = _high(src.events)
     opts = node_options("diekf", src.config, src.landmarks, src.t_start)
     nodes = make_team("diekf", src.initial, odocal=odocal, **opts)
     res = run(nodes, events, src.record_times(), truth=src.truth, name="diekf")
@@ -106,3 +111,22 @@ def test_a_team_with_odometry_reading_high_calibrates_and_localizes_better():
         assert a[1] == pytest.approx(1 / 1.1, abs=0.02) and abs(a[2]) < 0.005
         assert 1 / 1.1 - 0.02 < a[0] < 0.99  # the distance is the slower to learn (measured 0.94 to 0.96)
     assert cal < 0.5 * base  # measured 4.21 m -> 1.12 m
+
+
+def test_late_detections_replayed_give_the_in_order_run():
+    src = load_source("sim:landmarks", robots=3, duration=60.0, seed=1)
+    events = _high(src.events)
+    late = list(events)
+    for i in reversed([i for i, e in enumerate(late) if type(e).__name__ == "Detection"][::7]):
+        late.insert(min(i + 10, len(late) - 1), late.pop(i))  # every 7th detection 10 inputs late: replayed
+    opts = node_options("diekf", src.config, src.landmarks, src.t_start)
+    out = []
+    for evs in (events, late):
+        nodes = make_team("diekf", src.initial, odocal=True, **opts)
+        res = run(nodes, evs, src.record_times(), truth=src.truth, name="diekf")
+        means = np.concatenate([res.tracks[r].mean for r in sorted(res.tracks)])
+        out.append((means, [n.odometry.params(1e9) for n in nodes], sum(n.counts["replayed"] for n in nodes)))
+    assert out[1][2] > 0
+    assert np.allclose(out[0][0], out[1][0], atol=1e-9)
+    assert all(np.allclose(a, b, atol=1e-12) for a, b in zip(out[0][1], out[1][1], strict=True))
+    assert not np.allclose(out[0][1][0], [1.0, 1.0, 0.0])  # calibrated, not the model
