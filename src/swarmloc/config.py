@@ -324,6 +324,8 @@ class FilterConfig(Section):
     """robots per diekf cluster (0: the exact filter over the whole team)"""
     diekf_adaptive: bool = False
     """diekf scales its process noise online from its own innovations (swarmloc.estimators.adaptive_noise)"""
+    diekf_odocal: bool = False
+    """diekf calibrates each robot's odometry scale and yaw-rate bias online, truth-free (swarmloc.motion.odocal)"""
     quarantine: Count | None = 3
     """a teammate's updates refused in a row (each beyond the gate) that quarantine it for the run"""
 

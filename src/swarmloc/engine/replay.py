@@ -122,6 +122,8 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
     if opts.pop("adaptive", False):
         raise ValueError("the engine's diekf keeps its noise fixed: run [filter] diekf_adaptive with the nodes")
+    if opts.pop("odocal", False):
+        raise ValueError("the engine's diekf takes the odometry as given: run [filter] diekf_odocal with the nodes")
     return opts
 
 

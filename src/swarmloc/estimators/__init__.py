@@ -173,6 +173,7 @@ def node_options(
         delayed=f.delayed_output,
         cluster=f.diekf_cluster,
         **({"adaptive": True} if f.diekf_adaptive else {}),  # the engine's diekf takes no such option
+        **({"odocal": True} if f.diekf_odocal else {}),  # nor this one
         quarantine=f.quarantine,
         # "anonymous" hands the nodes tagged relative poses (swarmloc.experiments.association): they run "tags"
         **({"association": f.association} if choose else {}),

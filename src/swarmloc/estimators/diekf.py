@@ -88,6 +88,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels.ci import W_BOUNDS, joint_weight
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Answer, BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate, flat
+from swarmloc.motion.odocal import OdometryCalibration
 from swarmloc.node import (
     FUSED,
     NUMERICAL,
@@ -391,7 +392,9 @@ class DistributedInvariantEKF(RobotNode):
     replica and broadcasts over the robot's cluster only, covariance intersection with robots outside it. The
     exchange's queries are :class:`~swarmloc.estimators.state_exchange.StateQueries`' (``rdl``'s). ``adaptive``: the
     process noise scaled online from this robot's own innovations (:class:`~swarmloc.estimators.adaptive_noise.
-    NoiseScale`, :attr:`noise_scale`; ``[filter] diekf_adaptive``)."""
+    NoiseScale`, :attr:`noise_scale`; ``[filter] diekf_adaptive``). ``odocal``: this robot's odometry scale and yaw-rate
+    bias calibrated online from its own posteriors (:class:`~swarmloc.motion.odocal.OdometryCalibration`,
+    :attr:`odometry`; SE(2) only; ``[filter] diekf_odocal``)."""
 
     name = "diekf"
     lazy_odometry = True
@@ -402,11 +405,14 @@ class DistributedInvariantEKF(RobotNode):
     protocol: TeamProtocol
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
-                 adaptive: bool = False, **kw: Any) -> None:  # fmt: skip
+                 adaptive: bool = False, odocal: bool = False, **kw: Any) -> None:  # fmt: skip
         self.noise_scale = NoiseScale() if adaptive else None
+        self.odometry = OdometryCalibration() if odocal else None
         self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=True,
                                      association=kw.get("association", "tags"), gated_broadcasts=True)  # fmt: skip
         self.protocol.innovations = adaptive
+        if odocal and self.protocol.form.group is not SE2:
+            raise ValueError("diekf: 'odocal' calibrates planar odometry: SE(2) only")
         super().__init__(robot, initial, team=self.protocol.team, **kw)
 
     @property
@@ -428,13 +434,17 @@ class DistributedInvariantEKF(RobotNode):
         return TeamState(t, s.v, s.w, x, P, s.Sigma)
 
     def _set_command(self, s: TeamState, robot: int, v: Any, w: Any) -> TeamState:
+        if self.odometry is not None:
+            self.odometry.record_command(s.t, v, w)
+            v, w = self.odometry.apply(s.t, v, w)
         return TeamState(s.t, v, w, s.x, s.P, s.Sigma)
 
     def _advance_commands(self, s: Any, cmds: Any) -> Any:
         """A run of odometry: :meth:`_advance` and :meth:`_set_command` one by one (predicting in world-frame errors,
         not rdl's Cartesian run), the pose kept in floats between steps (the same numbers)."""
-        if self.measure_time or not self.protocol.form.runs or self.noise_scale is not None:
-            return super()._advance_commands(s, cmds)  # timed, SE(3) or adaptive
+        own_model = self.noise_scale is not None or self.odometry is not None
+        if self.measure_time or not self.protocol.form.runs or own_model:
+            return super()._advance_commands(s, cmds)  # timed, SE(3), adaptive or calibrated
         t0, v, w, P = s.t, s.v, s.w, s.P
         x0, y0, th = s.x.tolist()
         for t, _, vk, wk in cmds:
@@ -457,6 +467,8 @@ class DistributedInvariantEKF(RobotNode):
             s, outcome, sent = self._fuse_one(s, g, d, sub)
             outcomes.append(outcome)
             msgs += sent
+        if self.odometry is not None and FUSED in outcomes:
+            self.odometry.record_pose(g.t, s.x, self._belief(s, self.robot).cov)
         return s, outcomes, msgs
 
     def _fuse_one(self, s: TeamState, g: Group, d: Any, sub: SubKey) -> tuple[TeamState, Outcome, list[Message]]:
