@@ -241,18 +241,41 @@ def test_config_and_cli_association(tmp_path, capsys):
 
 def test_anonymous_policy_hands_the_bank_estimates_to_the_filter():
     """``anonymous``: the range-bearing detections become tagged relative poses from each robot's particle-filter
-    bank; fused by cekf they beat dead reckoning."""
+    bank, but for those of a stamp where no other robot scanned (no mutual counterpart for PMR), which stay anonymous
+    for the nodes' gated assignment; fused by cekf they beat dead reckoning."""
     src = load_source("sim:range_bearing", robots=4, duration=30.0, seed=0)
     noise = src.config.motion.noise()
     ev, notes = association_events(src.events, "anonymous", sorted(src.initial), noise, clutter=0.5, p_detect=0.9)
     poses = [e for e in ev if getattr(e, "kind", None) == "pose"]
     assert poses and all(e.target is not None for e in poses)
-    assert not any(getattr(e, "kind", None) == "range_bearing" and e.target_is_robot for e in ev)
+    left = [e for e in ev if getattr(e, "kind", None) == "range_bearing" and e.target_is_robot]
+    scanned: dict[float, set[int]] = {}
+    anon, _ = association_events(src.events, "nearest", sorted(src.initial), noise, clutter=0.5, p_detect=0.9)
+    for e in anon:
+        if getattr(e, "kind", None) == "range_bearing" and e.target_is_robot:
+            scanned.setdefault(float(e.t), set()).add(e.observer)
+    assert all(e.target is None and scanned[float(e.t)] == {e.observer} for e in left)
+    assert sum(c["lone"] for c in notes["bank"].values()) == len(left)
     assert sum(c["emitted"] for c in notes["bank"].values()) == len(poses)
     odo = [e for e in src.events if type(e).__name__ == "Odometry"]
     bank = evaluate(_run(src, ev, "cekf"))["team"]["pos_rmse"]
     dr = evaluate(_run(src, odo, "cekf"))["team"]["pos_rmse"]
     assert bank < 0.6 * dr, (bank, dr)
+
+
+def test_lone_detections_are_those_of_a_stamp_one_robot_alone_scanned():
+    """:func:`~swarmloc.association.tracker.lone_detections`: the anonymous detections without a mutual counterpart
+    (no other robot's anonymous detection at their stamp); tagged ones and landmarks are not its business."""
+    from swarmloc.association.tracker import lone_detections
+    from swarmloc.events import Detection, Kind
+
+    def rb(observer, t, target=None, robot=True):
+        return Detection(observer, t, Kind.RANGE_BEARING, np.array([2.0, 0.1]), np.eye(2) * 0.01, target=target,
+                         target_is_robot=robot)  # fmt: skip
+
+    a, b, c = rb(1, 1.0), rb(2, 1.0), rb(1, 2.0)
+    d, tagged, landmark = rb(1, 3.0), rb(2, 3.0, target=1), rb(2, 3.0, target=7, robot=False)
+    assert lone_detections([a, b, c, d, tagged, landmark]) == [c, d]
 
 
 def test_joint_ambiguity_margin_refuses_a_close_second_assignment_only():
