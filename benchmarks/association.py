@@ -45,9 +45,11 @@ def one(
     from swarmloc.runner import run
 
     src = load_source("sim:range_bearing", robots=robots, duration=duration, seed=seed)
+    # PMR and the banks alone: no lone detection passed on to the nodes' assignment (the table in the docs)
     events, _ = association_events(src.events, policy, sorted(src.initial), src.config.motion.noise(),
                                    clutter=clutter, p_detect=p_detect, max_range=5.0, seed=seed,
-                                   bank={"handoff": handoff, "fresh": None if fresh < 0 else fresh})  # fmt: skip
+                                   bank={"handoff": handoff, "fresh": None if fresh < 0 else fresh,
+                                         "lone": False})  # fmt: skip
     opts = node_options(estimator, src.config, src.landmarks, src.t_start)
     if policy in ("nearest", "joint"):
         opts["association"] = policy

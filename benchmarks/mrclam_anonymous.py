@@ -67,6 +67,7 @@ def main() -> None:
             "fov": a.fov,
             "max_range": a.max_range,
             "max_unmatched": a.max_unmatched,
+            "lone": False,  # PMR and the banks alone (the policy passes lone detections on to the nodes' assignment)
             **({} if b is None else {"bin_width": b}),
         }
         events, notes = association_events(src.events, "anonymous", robots, src.config.motion.noise(), bank=bank)

@@ -185,6 +185,10 @@ def _types(cls: type) -> dict[str, Any]:
 Association = Literal["tags", "nearest", "joint", "anonymous"]
 """How robot detections get their identities (``[filter] association``)."""
 
+NODE_ASSOCIATION: dict[str, str] = {"tags": "tags", "nearest": "nearest", "joint": "joint", "anonymous": "joint"}
+"""The association a node runs under each policy: ``anonymous`` hands the nodes tagged relative poses and the
+detections PMR could not register (no mutual counterpart), which they assign with ``joint`` against their beliefs."""
+
 
 def _literal(value: object) -> str:
     """Exact TOML literal: booleans, quoted strings, integers as integers, floats as Python's shortest repr."""

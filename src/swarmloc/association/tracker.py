@@ -38,6 +38,7 @@ __all__ = [
     "bank_detections",
     "binned_scans",
     "is_anonymous_detection",
+    "lone_detections",
     "track_anonymous",
 ]
 
@@ -296,6 +297,17 @@ def _new_information(cov: np.ndarray, prev: np.ndarray, motion: np.ndarray) -> n
     return 0.5 * (out + out.T)
 
 
+def lone_detections(events: Iterable[Event]) -> list[Detection]:
+    """The anonymous detections (:func:`is_anonymous_detection`) of the stamps where one robot alone scanned: PMR
+    registers a scan against another robot's scan of the same instant, so these have no mutual counterpart (MRCLAM's
+    cameras are stamped per robot: almost every detection)."""
+    observers: dict[float, set[int]] = {}
+    anon = [e for e in events if is_anonymous_detection(e)]
+    for e in anon:
+        observers.setdefault(float(e.t), set()).add(e.observer)
+    return [e for e in anon if len(observers[float(e.t)]) == 1]
+
+
 def bank_detections(
     events: Sequence[Event],
     robots: Sequence[int],
@@ -305,6 +317,7 @@ def bank_detections(
     every: float = 1.0,
     inflate: float = 1.0,
     handoff: str = "full",
+    lone: bool = False,
     **kw: Any,
 ) -> tuple[list[Event], dict[int, dict[str, int]]]:
     """The ``anonymous`` association policy as an input to any estimator: every robot runs :func:`track_anonymous`
@@ -321,14 +334,18 @@ def bank_detections(
     both robots in between, ego's carried to ``j``'s frame), and skips the hand-off when nothing was gained;
     ``handoff="full"`` (default): the bank's covariance ``P_t`` as is. Measured (docs/association.md), "new" did not
     make the team filter consistent: most of its excess NEES comes from wrong hand-offs (a filter locked on a wrong PMR
-    solution), not from the correlation. Either is multiplied by ``inflate``.
-    Returns ``(events, counts per robot)`` (the tracker's counters plus ``emitted`` and ``no_gain``); ``kw`` goes to
-    :func:`track_anonymous`."""
+    solution), not from the correlation. Either is multiplied by ``inflate``. ``lone``: the anonymous detections
+    without a mutual counterpart (:func:`lone_detections`) stay in the events, anonymous, for the nodes to register
+    against the team's beliefs (a gated assignment, :mod:`swarmloc.node.associate`); False: every anonymous
+    detection is replaced.
+    Returns ``(events, counts per robot)`` (the tracker's counters plus ``emitted``, ``no_gain`` and ``lone``, the
+    detections passed on); ``kw`` goes to :func:`track_anonymous`."""
     if not every >= 0 or not inflate >= 1.0:
         raise ValueError(f"bank_detections: need every >= 0 s and inflate >= 1, got {every!r}, {inflate!r}")
     if handoff not in ("new", "full"):
         raise ValueError(f"bank_detections: handoff must be 'new' or 'full', got {handoff!r}")
     out = [e for e in events if not is_anonymous_detection(e)]
+    passed = lone_detections(events) if lone else []
     counts: dict[int, dict[str, int]] = {}
     new: list[Detection] = []
     shared: dict[float, dict] = {}  # the team's binary registrations per scan, computed once
@@ -361,8 +378,9 @@ def bank_detections(
                 new.append(Detection(ego, t, Kind.POSE, z, cov, target=int(j)))
                 last[j] = (t, P)
                 emitted += 1
-        counts[ego] = {**tr.counts, "emitted": emitted, "no_gain": no_gain}
-    out += new
+        n_lone = sum(1 for e in passed if e.observer == ego)
+        counts[ego] = {**tr.counts, "emitted": emitted, "no_gain": no_gain, "lone": n_lone}
+    out += new + passed
     order = {Odometry: 0, Detection: 1}
     out.sort(key=lambda e: (e.t, order.get(type(e), 2)))
     return out, counts

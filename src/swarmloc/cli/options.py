@@ -19,7 +19,8 @@ ASSOCIATION_CHOICES = ("tags", "nearest", "joint", "anonymous")
 ASSOCIATION_HELP = (
     "robot detections' identities: tags (given); nearest, joint (robot ids hidden, chosen from the beliefs by every "
     "estimator; dr fuses no detection); anonymous (ids hidden, PMR + particle-filter bank per robot hands tagged "
-    "relative poses to any estimator; range-bearing detections)"
+    "relative poses to any estimator, a detection no other robot's scan of its instant can register is chosen as "
+    "by joint; range-bearing detections)"
 )
 
 

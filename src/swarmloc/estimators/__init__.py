@@ -32,6 +32,7 @@ import inspect
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
+from swarmloc.config import NODE_ASSOCIATION
 from swarmloc.estimators.cekf import CentralizedEKF
 from swarmloc.estimators.ci import ExpCI
 from swarmloc.estimators.dekf import DistributedEKF
@@ -157,7 +158,8 @@ def node_options(
     detector's ``(range [m], field of view [rad])`` (:attr:`swarmloc.datasets.source.Source.sensor`), given to the
     nodes with an association policy ``nearest`` / ``joint`` for their ``association_missed`` count."""
     f = config.filter
-    choose = f.association not in ("tags", "anonymous")
+    policy = NODE_ASSOCIATION[f.association]
+    choose = policy != "tags"
     return options_for(
         name,
         noise=config.motion.noise(),
@@ -175,8 +177,8 @@ def node_options(
         **({"adaptive": True} if f.diekf_adaptive else {}),  # the engine's diekf takes no such option
         **({"odocal": True} if f.diekf_odocal else {}),  # nor this one
         quarantine=f.quarantine,
-        # "anonymous" hands the nodes tagged relative poses (swarmloc.experiments.association): they run "tags"
-        **({"association": f.association} if choose else {}),
+        # "anonymous" hands the nodes tagged relative poses and PMR's unregistered detections: they run "joint"
+        **({"association": policy} if choose else {}),
         association_gate=f.association_gate,
         **({"sensor_range": sensor[0]} if choose and sensor[0] is not None else {}),
         **({"sensor_fov": sensor[1]} if choose and sensor[1] is not None else {}),

@@ -10,7 +10,9 @@
   identities (:mod:`swarmloc.node.associate`);
 * ``anonymous``: the same anonymous detections (range-bearing only) go through PMR and a particle-filter bank per
   robot (:func:`swarmloc.association.tracker.bank_detections`), whose unambiguous estimates reach the nodes as
-  tagged relative poses with their covariance, once a second, from filters PMR confirmed at that scan.
+  tagged relative poses with their covariance, once a second, from filters PMR confirmed at that scan; a detection
+  of a stamp where no other robot scanned (no mutual counterpart) reaches them anonymous, and the nodes register it
+  against the team's beliefs (gated joint assignment, ambiguous refused: the slides' belief-gated case).
 
 :func:`association_accuracy` is the share of anonymous detections given their true identity (a false detection
 refused as clutter or ambiguous counts as right), from a run's counters; for ``anonymous``, which gives no
@@ -49,11 +51,12 @@ def association_policy(value: str) -> Association:
     raise ValueError(f"association must be one of {POLICIES}, got {value!r}")
 
 
-BANK_DEFAULTS: dict[str, Any] = {"n_particles": 200, "max_unmatched": 2, "every": 1.0, "fresh": 0}
+BANK_DEFAULTS: dict[str, Any] = {"n_particles": 200, "max_unmatched": 2, "every": 1.0, "fresh": 0, "lone": True}
 """The bank's settings for ``anonymous`` (200 particles per met robot, two unmatched points per registration for
 misses and clutter, one relative pose a second per pair, handed off only from a filter PMR confirmed at that scan:
 a filter just drawn from PMR's hypotheses or coasting without one was wrong in about 40% of its hand-offs, measured
-on 5 seeds of 4 robots)."""
+on 5 seeds of 4 robots; a detection without a mutual counterpart passed on anonymous, for the nodes' gated
+assignment against the team's beliefs, :data:`swarmloc.config.NODE_ASSOCIATION`)."""
 
 
 def association_events(

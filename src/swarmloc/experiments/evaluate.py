@@ -24,7 +24,7 @@ from swarmloc.estimators import ESTIMATORS, make_team, node_options
 from swarmloc.evaluation.delayed import delayed_output
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
-from swarmloc.experiments.association import association_accuracy, association_events
+from swarmloc.experiments.association import association_accuracy, association_events, handoff_accuracy
 from swarmloc.experiments.output import save_figure
 from swarmloc.experiments.progress import progress_bar
 from swarmloc.gaussian import GroupGaussian
@@ -71,6 +71,8 @@ def evaluate_stream(
     notes: dict[str, Any] = {}
     if policy != "tags":
         events, notes = association_events(events, policy, sorted(initial), config.motion.noise())
+    if policy == "anonymous" and truth is not None:
+        notes["bank_handoffs_right_wrong"] = handoff_accuracy(events, truth)
     duration = float(t_end - t_start)
     report: dict[str, Any] = {
         "robots": sorted(initial),
@@ -101,6 +103,8 @@ def evaluate_stream(
             ev["x_real_time"] = duration / res.wall_time if res.wall_time > 0 else float("inf")
             ev["stats"] = res.stats
             ev["association_accuracy"] = association_accuracy(res.stats)
+            if policy == "anonymous":
+                ev["handoffs"] = handoffs(res, notes)
             ev["reasons"] = dict(res.reasons)
             ev["timing"] = res.timing
             ev["accounted"] = res.accounted()
@@ -267,6 +271,46 @@ def speed_text(x: float | None) -> str:
     return f"{x:.1f}" if x >= 10 else f"{x:.3g}"
 
 
+def handoffs(res: RunResult, notes: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``anonymous`` policy's hand-offs in one run: ``bank`` (relative poses from the particle-filter banks) with
+    ``bank_right`` (:func:`~swarmloc.experiments.association.handoff_accuracy`, None without truth), ``assigned``
+    (detections without a mutual counterpart that the node's gated assignment gave an identity) with
+    ``assigned_right`` / ``assigned_wrong`` (those the filter fused or gated, scored by the hidden true id), the
+    refusals ``ambiguous`` and ``clutter``, and ``correct``: right / scored over both kinds (None: none scored)."""
+    s, why = res.stats, res.reasons
+    bank = sum(int(c.get("emitted", 0)) for c in notes.get("bank", {}).values())
+    rw = notes.get("bank_handoffs_right_wrong")
+    right = sum(int(n) for k, n in why.items() if k.endswith(": association right"))
+    wrong = sum(int(n) for k, n in why.items() if k.endswith(": association wrong"))
+    scored = right + wrong + (sum(rw) if rw else 0)
+    return {
+        "bank": bank,
+        "bank_right": None if rw is None else int(rw[0]),
+        "assigned": int(s.get("association_associated", 0)),
+        "assigned_right": right,
+        "assigned_wrong": wrong,
+        "ambiguous": int(s.get("association_ambiguous", 0)),
+        "clutter": int(s.get("association_clutter", 0)),
+        "correct": (right + (int(rw[0]) if rw else 0)) / scored if scored else None,
+    }
+
+
+def handoff_lines(report: dict) -> list[str]:
+    """The hand-offs table of an ``anonymous`` report (:func:`handoffs`); empty for the other policies."""
+    rows = [(name, ev["handoffs"]) for name, ev in report["estimators"].items() if "handoffs" in ev]
+    if not rows:
+        return []
+    lines = ["", "Hand-offs (anonymous):", "",
+             "| estimator | relative poses from the banks (right) | detections assigned (right / wrong) | ambiguous | "
+             "clutter | correct |", "|---|---|---|---|---|---|"]  # fmt: skip
+    for name, h in rows:
+        bank_right = "-" if h["bank_right"] is None else str(h["bank_right"])
+        correct = "-" if h["correct"] is None else f"{h['correct']:.3f}"
+        lines.append(f"| {name} | {h['bank']} ({bank_right}) | {h['assigned']} ({h['assigned_right']} / "
+                     f"{h['assigned_wrong']}) | {h['ambiguous']} | {h['clutter']} | {correct} |")  # fmt: skip
+    return lines
+
+
 def association_text(stats: Mapping[str, int]) -> str:
     """The association accuracy of a run's counters as ``share (right/scored)`` (``-``: nothing scored)."""
     right, wrong = int(stats.get("association_right", 0)), int(stats.get("association_wrong", 0))
@@ -313,6 +357,7 @@ def markdown_table(report: dict) -> str:
         lines += ["", "Per robot:", "",
                   f"| estimator | robot | pos RMSE [m] | {rot} RMSE [rad] | ANEES (per dof) | in 95% NEES band | "
                   "records |", "|---|---|---|---|---|---|---|", *per_robot]  # fmt: skip
+    lines += handoff_lines(report)
     notes = report.get("notes") or []
     if notes:
         lines += ["", *(f"* {n}" for n in notes)]
