@@ -240,14 +240,15 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
 
 
 def stamp_loop(advance: Any, detect: Any, record: Any) -> Any:
-    """The compiled loop over the stamps of a timeline (this module's and the clusters') around the steps of its form
-    on the state ``(X, P, pend, has, tc, v, w)`` (:func:`steps`; a cluster's ``P`` is its clusters' blocks):
+    """The compiled loop over the stamps of a timeline (this module's, the clusters', ``rdl``'s) around the steps of
+    its form on the state ``(X, P, pend, has, tc, v, w)`` (:func:`steps`; a cluster's ``P`` is its clusters' blocks):
     ``advance(X, pend, has, tc, v, w, k, t)``, ``detect(X, P, pend, has, tc, v, w, t0, t, q, i, j, kind, z, R, thr,
     gate, relative, lm_on, lxy, lcov) -> (outcome, reason)`` (detection ``q`` of observer ``i``, target ``j``) and
     ``record(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)`` (robot ``k``'s Cartesian belief at ``t`` into record
     ``o``, nothing stored). At a stamp: each detection, its observer moved to the stamp first; then the commands, each
     robot moved to the stamp before it starts its command (after the updates: they move every correlated heading);
-    then, if recorded, every started robot. The state is unpacked once, not in each step (steps that take the state
+    then, if recorded, every started robot. ``rdl``'s loop fills the same slots with its own state
+    (:mod:`swarmloc.engine.pairs`). The state is unpacked once, not in each step (steps that take the state
     tuple whole cost this loop 15-24% on MRCLAM 6: the arrays' reference counts)."""
 
     @njit(error_model="numpy")
@@ -282,7 +283,7 @@ def stamp_loop(advance: Any, detect: Any, record: Any) -> Any:
 
 
 def run(loop: Any, st: tuple, vw: tuple, tl: Timeline, starts: np.ndarray, const: Constants) -> tuple:
-    """A compiled replay loop (:func:`_kernels`', the clusters', ``rdl``'s: ``loop(st, vw, starts, stamps, d0, det,
+    """A compiled replay loop (:func:`stamp_loop`'s: ``loop(st, vw, starts, stamps, d0, det,
     status, reason, const, cmd, rec, out)``) over ``tl`` from the state ``st`` (its commands ``vw``) and each robot's
     start ``starts (n,)``: ``(status, reason, records)`` as :func:`replay_joint` returns them."""
     m = len(tl.det)

@@ -33,7 +33,7 @@ from numba import njit
 
 from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, NO_LANDMARK, R_CORRELATION, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.joint import predict_kernel, run
+from swarmloc.engine.joint import predict_kernel, run, stamp_loop
 from swarmloc.engine.joint_math import (
     RANGE_BEARING,
     F,
@@ -197,7 +197,10 @@ def _joint_prior(Pi: np.ndarray, Pj: np.ndarray, fi: np.ndarray, fj: np.ndarray,
 
 @cache
 def _kernels(noise: UnicycleNoise) -> Any:
-    """Compile the replay loop with the noise model's prediction (once per process and noise model)."""
+    """Compile the replay loop (:func:`swarmloc.engine.joint.stamp_loop`) with the noise model's prediction (once per
+    process and noise model) over the state ``(x (n, 3), (met, sig), P (n, 3, 3), (sa, sb), tc, v, w)``: in the
+    joint form's slots, the correlations where its joint covariance is, each robot's own covariance and shear (what a
+    prediction moves) where its pending prediction is."""
     predict = predict_kernel(noise)
 
     @njit(error_model="numpy")
@@ -212,12 +215,12 @@ def _kernels(noise: UnicycleNoise) -> Any:
         return np.array([r[0], r[1], r[2]]), out, r[0] - xk[0], r[1] - xk[1]
 
     @njit(error_model="numpy")
-    def advance(st, k, t):  # noqa: ANN001, ANN202
+    def advance(x, P, shear, tc, v, w, k, t):  # noqa: ANN001, ANN202
         """Robot ``k`` predicted to ``t`` in place (as :func:`predicted`, no arrays made: once per command)."""
-        x, P, tc, v, w, sa, sb, met, sig = st
         dt = t - tc[k]
         if not dt > 0:
             return
+        sa, sb = shear
         xk, Pk = x[k], P[k]
         r = predict(xk[0], xk[1], xk[2], Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2], v[k], w[k], dt)
         sa[k] -= r[1] - xk[1]
@@ -227,15 +230,19 @@ def _kernels(noise: UnicycleNoise) -> Any:
         Pk[1, 0], Pk[2, 0], Pk[2, 1] = r[4], r[5], r[7]
         tc[k] = t
 
-    return _loop(predicted, advance)
+    @njit(error_model="numpy")
+    def record(x, corr, P, shear, tc, v, w, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202, ARG001
+        out_x[o], out_P[o], _, _ = predicted(x, P, tc, v, w, k, t)
+
+    return stamp_loop(advance, _detect(predicted, advance), record)
 
 
-def _loop(predicted: Any, advance: Any) -> Any:
-    """The exchanges and the loop over the stamps, around the compiled steps of :func:`_kernels`."""
+def _detect(predicted: Any, advance: Any) -> Any:
+    """The detection step of the loop (:func:`swarmloc.engine.joint.stamp_loop`) around the compiled steps of
+    :func:`_kernels`: a private update, or the exchange with the target."""
 
     @njit(error_model="numpy")
-    def pair(st, i, j, kind, zq, Rq, t, thr, gate):  # noqa: ANN001, ANN202
-        x, P, tc, v, w, sa, sb, met, sig = st
+    def pair(x, P, sa, sb, met, sig, tc, v, w, i, j, kind, zq, Rq, t, thr, gate):  # noqa: ANN001, ANN202
         xj, Pj, dx, dy = predicted(x, P, tc, v, w, j, t)  # the target's answer (not stored)
         if kind >= RANGE_BEARING and math.hypot(xj[0] - x[i, 0], xj[1] - x[i, 1]) < MIN_RANGE:
             return REJECTED, R_DEGENERATE
@@ -257,53 +264,32 @@ def _loop(predicted: Any, advance: Any) -> Any:
             sig[i, j] = 0.0
             return FUSED, 0
         sig[i, j], met[i, j] = Pn[:3, 3:], True
-        advance(st, j, t)  # the target takes its part at the stamp
+        advance(x, P, (sa, sb), tc, v, w, j, t)  # the target takes its part at the stamp
         Pj_old = P[j].copy()
         x[j], P[j] = Xn[3:], Pn[3:, 3:]
         _rescale(sig, met, sa, sb, j, P[j], Pj_old)
         sig[j, i], met[j, i] = np.eye(3), True
         return FUSED, 0
 
-    @njit(error_model="numpy")
-    def replay(st, vw, t0, stamps, d0, det, status, reason, const, cmd, rec, out):  # noqa: ANN001, ANN202, ARG001
-        x, P, tc, v, w, sa, sb, met, sig = st
-        thr, gate, relative, lm_on, lxy, lcov = const
-        obs, tgt, kind, z, R = det
-        c0, crow, cv, cw = cmd
-        out_robot, out_stamp, out_x, out_P = out
-        o = 0
-        for s in range(stamps.shape[0]):
-            t = stamps[s]
-            for q in range(d0[s], d0[s + 1]):
-                i, j = obs[q], tgt[q]
-                advance(st, i, t)  # the observer moves to its group's stamp
-                res, why = F.screen_started(kind[q], i, j, t, t0, relative, lm_on)
-                if res == 0 and (kind[q] == ABSOLUTE or j <= NO_LANDMARK):
-                    res, why = _private(st, i, kind[q], j, z[q], R[q], lxy, lcov, thr, gate)
-                elif res == 0:
-                    res, why = pair(st, i, j, kind[q], z[q], R[q], t, thr, gate)
-                status[q], reason[q] = res, why
-            for c in range(c0[s], c0[s + 1]):
-                advance(st, crow[c], t)
-                v[crow[c]] = cv[c]
-                w[crow[c]] = cw[c]
-            if rec[s]:
-                for k in range(tc.shape[0]):
-                    if t >= t0[k]:
-                        xr, Pr, _, _ = predicted(x, P, tc, v, w, k, t)
-                        out_x[o], out_P[o] = xr, Pr
-                        out_robot[o], out_stamp[o] = k, s
-                        o += 1
-        return o
+    @njit(error_model="numpy", inline="always")  # no call between the loop and its step
+    def detect(x, corr, P, shear, tc, v, w, t0, t, q, i, j, kind, z, R, thr, gate, relative, lm_on, lxy, lcov):  # noqa: ANN001, ANN202
+        res, why = F.screen_started(kind, i, j, t, t0, relative, lm_on)
+        if res != 0:
+            return res, why
+        met, sig = corr
+        sa, sb = shear
+        if kind == ABSOLUTE or j <= NO_LANDMARK:
+            return _private(x, P, sa, sb, met, sig, i, kind, j, z[q], R[q], lxy, lcov, thr, gate)
+        return pair(x, P, sa, sb, met, sig, tc, v, w, i, j, kind, z[q], R[q], t, thr, gate)
 
-    return replay
+    return detect
 
 
 @njit(error_model="numpy")
-def _private(st: Any, i: int, kind: int, j: int, zq: np.ndarray, Rq: np.ndarray, lxy: np.ndarray, lcov: np.ndarray,
-             thr: np.ndarray, gate: bool) -> tuple[int, int]:  # fmt: skip
+def _private(x: np.ndarray, P: np.ndarray, sa: np.ndarray, sb: np.ndarray, met: np.ndarray, sig: np.ndarray, i: int,
+             kind: int, j: int, zq: np.ndarray, Rq: np.ndarray, lxy: np.ndarray, lcov: np.ndarray, thr: np.ndarray,
+             gate: bool) -> tuple[int, int]:  # fmt: skip
     """An absolute fix or a map landmark's detection by robot ``i``: a private update, its factors rescaled."""
-    x, P, tc, v, w, sa, sb, met, sig = st
     X = x[i].copy()
     lm = NO_LANDMARK - 1 - j
     xk = lxy[lm].copy() if kind != ABSOLUTE else np.zeros(0)
@@ -315,15 +301,7 @@ def _private(st: Any, i: int, kind: int, j: int, zq: np.ndarray, Rq: np.ndarray,
         Rm = Rm + Hk @ lcov[lm] @ Hk.T
         H = H[:, :3].copy()
     xn, Pn, nis, ok = _kalman(X, P[i].copy(), r, H, Rm)
-    return _commit_private(st, i, xn, Pn, nis, ok, thr[kind], gate)
-
-
-@njit(error_model="numpy")
-def _commit_private(st: Any, i: int, xn: np.ndarray, Pn: np.ndarray, nis: float, ok: bool, thr: float, gate: bool
-                    ) -> tuple[int, int]:  # fmt: skip
-    """The gate and check of a private update of robot ``i``, then its state and rescaled factors."""
-    x, P, tc, v, w, sa, sb, met, sig = st
-    out = verdict(nis, ok, Pn, thr, gate)
+    out = verdict(nis, ok, Pn, thr[kind], gate)
     if out[0]:
         return out
     P_old = P[i].copy()
@@ -341,6 +319,7 @@ def replay_rdl(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise
     """
     n = x.shape[0]
     t0 = np.asarray(t0, dtype=float)
-    st = (np.array(x, dtype=float), np.array(P, dtype=float), np.where(np.isfinite(t0), t0, 0.0), np.zeros(n),
-          np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, n), dtype=np.bool_), np.zeros((n, n, 3, 3)))  # fmt: skip
-    return run(_kernels(noise), st, st[3:5], tl, t0, constants(**switches))
+    corr = (np.zeros((n, n), dtype=np.bool_), np.zeros((n, n, 3, 3)))  # (met, sig)
+    st = (np.array(x, dtype=float), corr, np.array(P, dtype=float), (np.zeros(n), np.zeros(n)),
+          np.where(np.isfinite(t0), t0, 0.0), np.zeros(n), np.zeros(n))  # fmt: skip
+    return run(_kernels(noise), st, st[5:], tl, t0, constants(**switches))
