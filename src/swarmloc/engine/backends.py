@@ -193,7 +193,7 @@ def make_ops(backend: str, noise: UnicycleNoise) -> Any:
 
 
 def team_step(xp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt: Any, z: Any, R: Any, t: Any,
-              barrier: Any = None) -> tuple[Any, Any]:  # fmt: skip
+              *, barrier: Any = None) -> tuple[Any, Any]:  # fmt: skip
     """One step of the whole team in array module ``xp``, no scheduling: predict every robot, then fuse detection
     position ``j = 0 .. k-1`` of every robot at once (robot ``i`` sees robot ``t[i, j]`` as ``z[i, j]`` with noise
     ``R[i, j]``; shapes ``x (n, 3)``, ``P (n, 3, 3)``, ``v, w, dt (n,)``, ``z (n, k, 3)``, ``R (n, k, 3, 3)``, ``t (n,

@@ -72,6 +72,7 @@ from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, SE3
 from swarmloc.lie.base import SEGroup
 from swarmloc.motion import UnicycleNoise, odometry_increment
+from swarmloc.motion.twist3 import TwistNoise
 from swarmloc.node.inputs import landmark_state
 from swarmloc.node.update import Gate
 
@@ -113,7 +114,7 @@ class Engine:
         mean: np.ndarray,
         cov: np.ndarray,
         *,
-        noise: UnicycleNoise,
+        noise: UnicycleNoise | TwistNoise,
         t0: float | np.ndarray = 0.0,
         gate: float | None = None,
         order: int = 2,
@@ -142,7 +143,7 @@ class Engine:
         self.use_relative = use_relative
         self.fast = bool(fast) and estimator == "dekf" and self.group is SE2
         self.backend = backend
-        self.ops = make_ops(backend, noise) if self.fast else None
+        self.ops = make_ops(backend, self._planar_noise()) if self.fast else None
         self.fusion = _fusion(estimator, gating, self.ops, backend, order, iterations, point_iterations, self.group)
         """The fusion of one level of a stamp's groups (:mod:`swarmloc.engine.fuse_ekf`, ``fuse_exp``, ``fuse_ci``)."""
         self.use_landmarks = bool(use_landmarks)
@@ -182,24 +183,33 @@ class Engine:
         if move.size == dt.shape[0] and self.fast:
             return self.ops.predict(s[0], s[1], v, w, dt)
         a, b = s[0].copy(), s[1].copy()
-        if move.size == dt.shape[0]:
-            move = slice(None)
+        rows: np.ndarray | slice = slice(None) if move.size == dt.shape[0] else move  # everybody: no gather
         if self.fast:
-            a[move], b[move] = self.ops.predict(s[0][move], s[1][move], v[move], w[move], dt[move])
+            a[rows], b[rows] = self.ops.predict(s[0][rows], s[1][rows], v[rows], w[rows], dt[rows])
         elif self.group is SE3:
-            a[move], b[move] = self._advance3(s[0][move], s[1][move], v[move], w[move], dt[move])
+            a[rows], b[rows] = self._advance3(s[0][rows], s[1][rows], v[rows], w[rows], dt[rows])
         elif self.estimator == "dekf":
-            a[move], b[move], _ = C.predict(s[0][move], s[1][move], v[move], w[move], dt[move], self.noise)
+            a[rows], b[rows], _ = C.predict(s[0][rows], s[1][rows], v[rows], w[rows], dt[rows], self._planar_noise())
         else:
-            inc_mean, inc_cov = odometry_increment(v[move], w[move], dt[move], self.noise)
-            a[move], b[move] = K.predict(SE2, s[0][move], s[1][move], inc_mean, inc_cov, self.order)
+            inc_mean, inc_cov = odometry_increment(v[rows], w[rows], dt[rows], self._planar_noise())
+            a[rows], b[rows] = K.predict(SE2, s[0][rows], s[1][rows], inc_mean, inc_cov, self.order)
         return a, b
 
     def _advance3(self, a: np.ndarray, b: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> State:
         """SE(3) rows predicted over ``dt > 0`` [s] with their body twists (:mod:`swarmloc.engine.se3`)."""
+        noise = self.noise
+        if not isinstance(noise, TwistNoise):
+            raise TypeError(f"Engine: an SE(3) team's odometry noise is a TwistNoise, got {type(noise).__name__}")
         if self.estimator == "dekf":
-            return E3.predict_error(a, b, v, w, dt, self.noise)
-        return E3.predict_group(a, b, v, w, dt, self.noise, self.order)
+            return E3.predict_error(a, b, v, w, dt, noise)
+        return E3.predict_group(a, b, v, w, dt, noise, self.order)
+
+    def _planar_noise(self) -> UnicycleNoise:
+        """:attr:`noise` of an SE(2) team."""
+        noise = self.noise
+        if not isinstance(noise, UnicycleNoise):
+            raise TypeError(f"Engine: an SE(2) team's odometry noise is a UnicycleNoise, got {type(noise).__name__}")
+        return noise
 
     def _rows(self, idx: np.ndarray, t: float) -> State:
         """States of robots ``idx`` predicted to ``t`` (not stored)."""
@@ -447,10 +457,11 @@ def landmark_table(landmarks: Any) -> tuple[dict[Any, int], tuple[np.ndarray, np
         return {}, None
     ids = sorted(landmarks)
     states = [landmark_state(landmarks, lid) for lid in ids]
-    if any(s is None or s[0].shape != (2,) for s in states):
+    planar = [s for s in states if s is not None and s[0].shape == (2,)]
+    if len(planar) != len(states):
         raise ValueError("Engine: landmarks must be planar, id -> (x, y, std_x, std_y)")
-    xy = np.stack([s[0] for s in states])
-    cov = np.stack([s[1] for s in states])
+    xy = np.stack([s[0] for s in planar])
+    cov = np.stack([s[1] for s in planar])
     return {lid: k for k, lid in enumerate(ids)}, (xy, cov)
 
 
