@@ -281,6 +281,8 @@ def fusion_step(
     levels = eng.last_levels
 
     ops = eng.ops
+    if ops is None:
+        raise ValueError(f"fusion_step: the engine has no fast path on backend {backend!r}")
     x, P = eng.a.copy(), eng.b.copy()
     z = det.z.reshape(n, neighbours, 3)
     R = det.R.reshape(n, neighbours, 3, 3)
