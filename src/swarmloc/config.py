@@ -182,6 +182,9 @@ def _types(cls: type) -> dict[str, Any]:
     return _TYPES[cls]
 
 
+Scalar = bool | int | float | str
+"""A key's value (an optional key that is off, None, is False in TOML and in :meth:`Config.to_dict`)."""
+
 Association = Literal["tags", "nearest", "joint", "anonymous"]
 """How robot detections get their identities (``[filter] association``)."""
 
@@ -190,7 +193,7 @@ NODE_ASSOCIATION: dict[str, str] = {"tags": "tags", "nearest": "nearest", "joint
 detections PMR could not register (no mutual counterpart), which they assign with ``joint`` against their beliefs."""
 
 
-def _literal(value: object) -> str:
+def _literal(value: Scalar) -> str:
     """Exact TOML literal: booleans, quoted strings, integers as integers, floats as Python's shortest repr."""
     if isinstance(value, bool | str):
         return json.dumps(value)
@@ -441,9 +444,9 @@ class Config:
                 raise ConfigError(f"{source}: {exc}") from None
         return cls(**parts)
 
-    def to_dict(self) -> dict[str, dict[str, object]]:
+    def to_dict(self) -> dict[str, dict[str, Scalar]]:
         """``{section: {key: value}}`` with every key (an optional key that is off, None, becomes False, as in TOML)."""
-        out: dict[str, dict[str, object]] = {}
+        out: dict[str, dict[str, Scalar]] = {}
         for name in _SECTIONS:
             sec = getattr(self, name)
             out[name] = {key: False if getattr(sec, key) is None else getattr(sec, key) for key in _types(type(sec))}

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.config import Config
-from swarmloc.events import Detection, Event, Odometry
+from swarmloc.events import Detection, Event, Odometry, OwnEvent, Truth
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.mapping.observe import ScanSeries
 
@@ -41,7 +41,7 @@ class Source:
     noise: Any = None
     """The process noise the nodes take when it is not ``config.motion``'s (an SE(3) team's
     :class:`~swarmloc.motion.twist3.TwistNoise`), or None."""
-    truth_events: list[Event] | None = None
+    truth_events: list[Truth] | None = None
     """The simulation's ``Truth`` events (3-D teams), for recording at the simulator's truth instants; or None."""
     sensor: tuple[float | None, float | None] = (None, None)
     """The robot detector's reach: ``(range [m], field of view [rad], total width centred ahead)``; None where
@@ -58,7 +58,7 @@ class Source:
         (:meth:`~swarmloc.config.RecordConfig.count`)."""
         return self.config.record.times(self.t_start, self.t_end, len(self.initial), f" (source {self.spec})")
 
-    def own_events(self, robot: int) -> list[Event]:
+    def own_events(self, robot: int) -> list[OwnEvent]:
         """Robot ``robot``'s odometry and the detections it made, in stamp order."""
         return [
             e

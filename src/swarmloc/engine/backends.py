@@ -15,13 +15,16 @@ computes in float32 on the device and returns float64 (the engine's states stay 
 from __future__ import annotations
 
 from collections import Counter
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
 from swarmloc.engine import soa
 from swarmloc.engine.jax_stamp import bucket, device_stamp, import_jax, pad_rows
 from swarmloc.motion import UnicycleNoise
+
+if TYPE_CHECKING:
+    from swarmloc.engine.numba_ops import NumbaOps
 
 BACKENDS = ("numpy", "jax", "jax32", "numba")
 
@@ -177,7 +180,12 @@ class JaxOps:
         return self._call(self._landmark, (x, 0.0), (P, _EYE), (lk, 1.0), (L, _EYE2), (z, 1.0), (Rz, _EYE2))
 
 
-def make_ops(backend: str, noise: UnicycleNoise) -> Any:
+FastOps: TypeAlias = "NumpyOps | JaxOps | NumbaOps"
+"""A backend's fast-path kernels (:func:`make_ops`): batched prediction and EKF updates of SE(2) rows; numba's also
+in place on one thread, JAX's also a whole stamp in one device call."""
+
+
+def make_ops(backend: str, noise: UnicycleNoise) -> FastOps:
     """The fast-path kernels of ``backend`` (one of :data:`BACKENDS`)."""
     if backend == "numpy":
         return NumpyOps(noise)
@@ -193,7 +201,7 @@ def make_ops(backend: str, noise: UnicycleNoise) -> Any:
 
 
 def team_step(xp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt: Any, z: Any, R: Any, t: Any,
-              barrier: Any = None) -> tuple[Any, Any]:  # fmt: skip
+              *, barrier: Any = None) -> tuple[Any, Any]:  # fmt: skip
     """One step of the whole team in array module ``xp``, no scheduling: predict every robot, then fuse detection
     position ``j = 0 .. k-1`` of every robot at once (robot ``i`` sees robot ``t[i, j]`` as ``z[i, j]`` with noise
     ``R[i, j]``; shapes ``x (n, 3)``, ``P (n, 3, 3)``, ``v, w, dt (n,)``, ``z (n, k, 3)``, ``R (n, k, 3, 3)``, ``t (n,

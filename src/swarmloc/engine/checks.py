@@ -191,8 +191,8 @@ class Checked:
         for row, (starts, ends) in self.timeline.intervals().items():
             if row in self.bulk_rows:  # the same rule on arrays (filed after the bulk: it replaces a command at t1)
                 t1a = np.array(ends)
-                nxt = np.append(np.array(starts[1:]), math.inf)
-                at = t1a[(nxt > t1a + CONTIGUOUS) & (last > t1a + CONTIGUOUS)]
+                t0n = np.append(np.array(starts[1:]), math.inf)  # the next interval's start
+                at = t1a[(t0n > t1a + CONTIGUOUS) & (last > t1a + CONTIGUOUS)]
                 if at.size:
                     zero = np.zeros(at.shape)
                     self.bulk.append((at, np.full(at.shape, row, dtype=np.int64), zero, zero))

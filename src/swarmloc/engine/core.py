@@ -52,12 +52,12 @@ The engine's modules are layers, each importing only modules below it (an import
 from __future__ import annotations
 
 from collections import Counter
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from swarmloc.engine import se3 as E3
-from swarmloc.engine.backends import BACKENDS, make_ops
+from swarmloc.engine.backends import BACKENDS, JaxOps, make_ops
 from swarmloc.engine.codes import KIND_NAMES, NO_LANDMARK, PENDING, POSE3, REJECTED, landmark_code
 from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.fuse_ci import CiFusion
@@ -72,8 +72,13 @@ from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, SE3
 from swarmloc.lie.base import SEGroup
 from swarmloc.motion import UnicycleNoise, odometry_increment
+from swarmloc.motion.twist3 import TwistNoise
 from swarmloc.node.inputs import landmark_state
 from swarmloc.node.update import Gate
+
+if TYPE_CHECKING:
+    from swarmloc.engine.backends import FastOps
+    from swarmloc.engine.numba_ops import NumbaOps
 
 __all__ = ["ENGINE_ESTIMATORS", "Detections", "Engine", "levels"]
 
@@ -113,7 +118,7 @@ class Engine:
         mean: np.ndarray,
         cov: np.ndarray,
         *,
-        noise: UnicycleNoise,
+        noise: UnicycleNoise | TwistNoise,
         t0: float | np.ndarray = 0.0,
         gate: float | None = None,
         order: int = 2,
@@ -142,7 +147,10 @@ class Engine:
         self.use_relative = use_relative
         self.fast = bool(fast) and estimator == "dekf" and self.group is SE2
         self.backend = backend
-        self.ops = make_ops(backend, noise) if self.fast else None
+        self.ops = make_ops(backend, self._planar_noise()) if self.fast else None
+        """The fast path's kernels (:func:`~swarmloc.engine.backends.make_ops`), None off the fast path."""
+        self.numba = _numba(self.ops, backend)
+        """The same kernels when they are numba's (their in-place and compiled-replay kernels), else None."""
         self.fusion = _fusion(estimator, gating, self.ops, backend, order, iterations, point_iterations, self.group)
         """The fusion of one level of a stamp's groups (:mod:`swarmloc.engine.fuse_ekf`, ``fuse_exp``, ``fuse_ci``)."""
         self.use_landmarks = bool(use_landmarks)
@@ -179,27 +187,38 @@ class Engine:
         move = np.flatnonzero(dt > 0)
         if move.size == 0:
             return s
-        if move.size == dt.shape[0] and self.fast:
-            return self.ops.predict(s[0], s[1], v, w, dt)
+        ops = self.ops  # None off the fast path
+        if move.size == dt.shape[0] and ops is not None:
+            xn, Pn = ops.predict(s[0], s[1], v, w, dt)
+            return xn, Pn
         a, b = s[0].copy(), s[1].copy()
-        if move.size == dt.shape[0]:
-            move = slice(None)
-        if self.fast:
-            a[move], b[move] = self.ops.predict(s[0][move], s[1][move], v[move], w[move], dt[move])
+        rows: np.ndarray | slice = slice(None) if move.size == dt.shape[0] else move  # everybody: no gather
+        if ops is not None:
+            a[rows], b[rows] = ops.predict(s[0][rows], s[1][rows], v[rows], w[rows], dt[rows])
         elif self.group is SE3:
-            a[move], b[move] = self._advance3(s[0][move], s[1][move], v[move], w[move], dt[move])
+            a[rows], b[rows] = self._advance3(s[0][rows], s[1][rows], v[rows], w[rows], dt[rows])
         elif self.estimator == "dekf":
-            a[move], b[move], _ = C.predict(s[0][move], s[1][move], v[move], w[move], dt[move], self.noise)
+            a[rows], b[rows], _ = C.predict(s[0][rows], s[1][rows], v[rows], w[rows], dt[rows], self._planar_noise())
         else:
-            inc_mean, inc_cov = odometry_increment(v[move], w[move], dt[move], self.noise)
-            a[move], b[move] = K.predict(SE2, s[0][move], s[1][move], inc_mean, inc_cov, self.order)
+            inc_mean, inc_cov = odometry_increment(v[rows], w[rows], dt[rows], self._planar_noise())
+            a[rows], b[rows] = K.predict(SE2, s[0][rows], s[1][rows], inc_mean, inc_cov, self.order)
         return a, b
 
     def _advance3(self, a: np.ndarray, b: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> State:
         """SE(3) rows predicted over ``dt > 0`` [s] with their body twists (:mod:`swarmloc.engine.se3`)."""
+        noise = self.noise
+        if not isinstance(noise, TwistNoise):
+            raise TypeError(f"Engine: an SE(3) team's odometry noise is a TwistNoise, got {type(noise).__name__}")
         if self.estimator == "dekf":
-            return E3.predict_error(a, b, v, w, dt, self.noise)
-        return E3.predict_group(a, b, v, w, dt, self.noise, self.order)
+            return E3.predict_error(a, b, v, w, dt, noise)
+        return E3.predict_group(a, b, v, w, dt, noise, self.order)
+
+    def _planar_noise(self) -> UnicycleNoise:
+        """:attr:`noise` of an SE(2) team."""
+        noise = self.noise
+        if not isinstance(noise, UnicycleNoise):
+            raise TypeError(f"Engine: an SE(2) team's odometry noise is a UnicycleNoise, got {type(noise).__name__}")
+        return noise
 
     def _rows(self, idx: np.ndarray, t: float) -> State:
         """States of robots ``idx`` predicted to ``t`` (not stored)."""
@@ -208,8 +227,9 @@ class Engine:
     def predict(self, robots: np.ndarray, t: float) -> None:
         """Predict ``robots`` (rows) to ``t`` [s] and store it (robots already there, or not started, unchanged)."""
         robots = np.asarray(robots, dtype=np.int64)
-        if self._serial_numba(robots.size):  # in place, no gather or scatter
-            self.ops.predict_into(self.a, self.b, self.t, self.v, self.w, robots, t)
+        numba = self._serial_numba(robots.size)
+        if numba is not None:  # in place, no gather or scatter
+            numba.predict_into(self.a, self.b, self.t, self.v, self.w, robots, t)
             return
         dt = t - self.t[robots]
         go = robots[dt > 0]
@@ -223,8 +243,9 @@ class Engine:
 
     def set_command(self, robots: np.ndarray, v: np.ndarray, w: np.ndarray) -> None:
         """Odometry ``(v [m/s], w [rad/s])`` in force from each robot's clock on (call :meth:`predict` first)."""
-        if self._serial_numba(len(robots)):
-            self.ops.scatter2(self.v, self.w, robots, v, w)
+        numba = self._serial_numba(len(robots))
+        if numba is not None:
+            numba.scatter2(self.v, self.w, robots, v, w)
             return
         if self.group is SE3:  # (k, 3) each; a scalar per robot (a stop) on all three axes, as the nodes
             v, w = (np.asarray(x, dtype=float).reshape(len(robots), -1) for x in (v, w))
@@ -272,7 +293,8 @@ class Engine:
     def compiled_replay(self, rows: int) -> bool:
         """Whether :meth:`replay_timeline` runs here: ``dekf`` on SE(2), fast, numba, at most ``rows`` detections
         or commands per stamp on one thread."""
-        return self.fast and self._serial_numba(rows) and hasattr(self.ops, "replay_serial")
+        numba = self._serial_numba(rows)
+        return self.fast and numba is not None and hasattr(numba, "replay_serial")
 
     def replay_timeline(self, tl: Timeline, s0: int, out: tuple) -> tuple[int, int]:
         """Stamps ``s0:`` of ``tl`` in one compiled call (:meth:`NumbaOps.replay_serial
@@ -283,7 +305,9 @@ class Engine:
         m = len(tl.det)
         status, reason = np.zeros(m, dtype=np.int8), np.zeros(m, dtype=np.int8)
         state = (self.a, self.b, self.t, self.t0, self.v, self.w)
-        stop, k = self.ops.replay_serial(state, tl, s0, self.use_relative, status, reason, self.fusion.gate,
+        if self.numba is None:
+            raise RuntimeError("Engine.replay_timeline: only where compiled_replay (numba's kernels)")
+        stop, k = self.numba.replay_serial(state, tl, s0, self.use_relative, status, reason, self.fusion.gate,
                                          self.fusion.landmarks, self.use_landmarks, out)  # fmt: skip
         done = slice(int(tl.d0[s0]), int(tl.d0[stop]))
         tally(self.counts, self.reasons, status[done], reason[done])
@@ -301,13 +325,14 @@ class Engine:
         if not presorted:
             det = det.canonical()
         _check_rows(det, self.n)
-        if self.backend in ("jax", "jax32") and len(det) and covered(det):  # the stamp in one device call
+        ops = self.ops
+        if isinstance(ops, JaxOps) and len(det) and covered(det):  # the stamp in one device call
             mask = np.zeros(self.n, dtype=bool)
             if move is not None:
                 mask[move] = True
             state = (self.a, self.b, self.t, self.t0, self.v, self.w)
             g = self.fusion
-            self.a, self.b, self.t, status, reason, levels = self.ops.stamp(
+            self.a, self.b, self.t, status, reason, levels = ops.stamp(
                 state, t, mask, det, g.gate, self.use_relative, self.use_landmarks, g.landmarks)  # fmt: skip
             self.last_levels = levels or self.last_levels  # as the level path: unchanged when no observer runs
             tally(self.counts, self.reasons, status, reason)
@@ -316,9 +341,10 @@ class Engine:
             self.predict(move, t)
         if len(det) == 0:
             return np.zeros(0, dtype=np.int8)
-        if self.backend == "numba":  # screened and fused in place, on one thread or by levels
+        numba = self.numba
+        if numba is not None:  # screened and fused in place, on one thread or by levels
             status, reason = np.zeros(len(det), dtype=np.int8), np.zeros(len(det), dtype=np.int8)
-            kernel = self.ops.fuse_serial if self.ops.serial(len(det)) else self.ops.fuse_levels
+            kernel = numba.fuse_serial if numba.serial(len(det)) else numba.fuse_levels
             lv = kernel(self.a, self.b, self.t, self.t0, self.v, self.w, t, self.use_relative, det, status, reason,
                         self.fusion.gate, self.fusion.landmarks, self.use_landmarks)  # fmt: skip
             if lv >= 0:
@@ -347,9 +373,9 @@ class Engine:
                 self.reasons[f"rejected: kind {KIND_NAMES[code]!r} is not supported on {SE3.name}"] += k
         return bad
 
-    def _serial_numba(self, rows: int) -> bool:
+    def _serial_numba(self, rows: int) -> NumbaOps | None:
         """The numba backend with ``rows`` rows on one thread: the in-place kernels (no gather, copy or levels)."""
-        return self.backend == "numba" and self.ops.serial(rows)
+        return self.numba if self.numba is not None and self.numba.serial(rows) else None
 
     def _fuse_groups(
         self,
@@ -447,11 +473,22 @@ def landmark_table(landmarks: Any) -> tuple[dict[Any, int], tuple[np.ndarray, np
         return {}, None
     ids = sorted(landmarks)
     states = [landmark_state(landmarks, lid) for lid in ids]
-    if any(s is None or s[0].shape != (2,) for s in states):
+    planar = [s for s in states if s is not None and s[0].shape == (2,)]
+    if len(planar) != len(states):
         raise ValueError("Engine: landmarks must be planar, id -> (x, y, std_x, std_y)")
-    xy = np.stack([s[0] for s in states])
-    cov = np.stack([s[1] for s in states])
+    xy = np.stack([s[0] for s in planar])
+    cov = np.stack([s[1] for s in planar])
     return {lid: k for k, lid in enumerate(ids)}, (xy, cov)
+
+
+def _numba(ops: FastOps | None, backend: str) -> NumbaOps | None:
+    """``ops`` when they are numba's kernels (backend ``"numba"``; their module is imported only then: numba is
+    optional)."""
+    if ops is None or backend != "numba":
+        return None
+    from swarmloc.engine.numba_ops import NumbaOps
+
+    return ops if isinstance(ops, NumbaOps) else None
 
 
 def _fusion(estimator: str, gate: Gate, ops: Any, backend: str, order: int, iterations: int,

@@ -82,8 +82,13 @@ class EkfFusion(Sequential):
         super().__init__(gate, **options)
         self.ops = ops
         self.backend = backend
-        self.landmarks: tuple[np.ndarray, np.ndarray] | None = None
         self.group = group
+
+    def _map(self) -> tuple[np.ndarray, np.ndarray]:
+        """:attr:`landmarks`, which a landmark detection needs (the engine refuses one when there is no map)."""
+        if self.landmarks is None:
+            raise RuntimeError("EkfFusion: a landmark detection, but no map of landmarks")
+        return self.landmarks
 
     def _fast(self, code: int, rows: int, kinds: tuple[int, ...] = FAST_KINDS) -> bool:
         return self.ops is not None and code in kinds and (self.backend != "numpy" or rows >= SOA_MIN_ROWS)
@@ -104,7 +109,8 @@ class EkfFusion(Sequential):
                 xn, Pn, nis, ok, pd = self.ops.pose_update(x, P, *st.target(rows), z, Rz)
             ok = ok & pd
         else:
-            xk = Pk = None
+            xk: np.ndarray | None = None  # the targets' states (None: an absolute fix)
+            Pk: np.ndarray | None = None
             landmark = st.det.target[rows] <= NO_LANDMARK
             if landmark.any() and not landmark.all():  # different observers: independent, in either order
                 self.update(st, rows[landmark], code)
@@ -112,17 +118,19 @@ class EkfFusion(Sequential):
                 return
             if landmark.any():  # the map's position (2,) and covariance (2, 2), as the node's landmark_state
                 k = NO_LANDMARK - 1 - st.det.target[rows]
-                xk, Pk = self.landmarks[0][k], self.landmarks[1][k]
+                xy, cov = self._map()
+                xk, Pk = xy[k], cov[k]
             elif model.targets != "self":
                 xk, Pk = C.from_group(*C.to_group(*st.target(rows)))  # the answer travels as a group belief
-            if xk is not None:
+            if xk is not None and Pk is not None:  # (set together)
                 bad = model.degenerate(x, xk)
                 if bad.any():
                     st.mark(rows[bad], REJECTED, R_DEGENERATE)
                     rows, x, P, z, Rz, xk, Pk = (a[~bad] for a in (rows, x, P, z, Rz, xk, Pk))
                     if rows.size == 0:
                         return
-            if self._fast(code, rows.size, (RANGE_BEARING,)):  # a landmark's, or a robot's at its position
+            if xk is not None and Pk is not None and self._fast(code, rows.size, (RANGE_BEARING,)):
+                # a landmark's, or a robot's at its position
                 lk, L = (xk, Pk) if landmark.any() else (xk[:, :2], Pk[:, :2, :2])
                 xn, Pn, nis, ok, pd = self.ops.landmark_update(x, P, lk, L, z, Rz)
                 ok = ok & pd

@@ -410,8 +410,8 @@ def _replay(eng: Engine, src: Source, checked: Checked, rt: np.ndarray) -> tuple
     most = max([eng.n, *(sum(map(len, g.values())) for g in checked.groups.values())])  # rows of a stamp, at most
     if not se3 and eng.compiled_replay(most):
         wall = time.perf_counter()
-        rows, truth_missing = _replay_compiled(eng, src, checked, records, truth_rows)
-        return rows, truth_missing, time.perf_counter() - wall
+        compiled, missed = _replay_compiled(eng, src, checked, records, truth_rows)
+        return compiled, missed, time.perf_counter() - wall
     rows: dict[Any, list[Row]] = {r: [] for r in robots}
     odo, groups = checked.by_stamp(), checked.groups
     truth_missing = 0

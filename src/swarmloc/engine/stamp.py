@@ -139,6 +139,9 @@ class Fusion:
         self.order = order
         self.iterations = iterations
         self.point_iterations = point_iterations
+        self.landmarks: tuple[np.ndarray, np.ndarray] | None = None
+        """The map's positions and covariances, ``(xy (L, 2), cov (L, 2, 2))``, or None (only the EKF fuses landmark
+        detections)."""
 
     def fuse_level(self, st: Stamp, rows: np.ndarray) -> None:
         """Fuse the pending detections ``rows`` of the groups of one level (canonical order) into ``st.cur``."""

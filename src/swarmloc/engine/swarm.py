@@ -222,7 +222,7 @@ def _step_scene(n: int, neighbours: int, seed: int) -> tuple[Swarm, Detections, 
     return sw, det, v, w
 
 
-def _landmark_scene(sw: Swarm, k: int, seed: int) -> tuple[dict[int, tuple[float, ...]], Detections]:
+def _landmark_scene(sw: Swarm, k: int, seed: int) -> tuple[dict[int, tuple[float, float, float, float]], Detections]:
     """A map of one landmark per 25 robots spread over the swarm's square (std 5 cm) and each robot's range-bearing
     detections of its ``k`` nearest landmarks (noise 5 cm and 1 degree), as the engine takes them."""
     from swarmloc.engine.codes import landmark_code
@@ -281,6 +281,8 @@ def fusion_step(
     levels = eng.last_levels
 
     ops = eng.ops
+    if ops is None:
+        raise ValueError(f"fusion_step: the engine has no fast path on backend {backend!r}")
     x, P = eng.a.copy(), eng.b.copy()
     z = det.z.reshape(n, neighbours, 3)
     R = det.R.reshape(n, neighbours, 3, 3)

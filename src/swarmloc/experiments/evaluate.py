@@ -21,6 +21,8 @@ from swarmloc.config import DEFAULTS, Config
 from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import write_tum, write_tum3
 from swarmloc.estimators import ESTIMATORS, make_team, node_options
+from swarmloc.estimators.fls import FixedLagSmoother
+from swarmloc.estimators.fls_team import TeamFixedLagSmoother
 from swarmloc.evaluation.delayed import delayed_output
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
@@ -31,6 +33,9 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.runner import RunResult, TruthFn, run
 
 ALL = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl")
+
+SMOOTHERS = (FixedLagSmoother, TeamFixedLagSmoother)
+"""The nodes that may file a delayed output (``lagged_log`` set: option ``delayed``)."""
 
 
 def evaluate_stream(
@@ -110,11 +115,12 @@ def evaluate_stream(
             ev["accounted"] = res.accounted()
             ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
             report["estimators"][name] = ev
-            smoother = not engine and getattr(nodes[0], "lagged_log", None) is not None
-            if smoother:  # a smoother's delayed output, its own row
+            first = nodes[0]
+            if not engine and isinstance(first, SMOOTHERS) and first.lagged_log is not None:
+                # a smoother's delayed output, its own row
                 late = delayed_output(nodes, truth, name, res.wall_time)
                 results[late.estimator] = late
-                report["estimators"][late.estimator] = delayed_row(late, ev, truth is not None, nodes[0].lag)
+                report["estimators"][late.estimator] = delayed_row(late, ev, truth is not None, first.lag)
     n_rec = sum(tr.times.size for tr in next(iter(results.values())).tracks.values()) if results else 0
     report["anees_bounds_if_independent"] = anees_bounds(max(n_rec, 1))
     return report, results

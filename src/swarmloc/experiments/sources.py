@@ -35,10 +35,11 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TypedDict
 
 from swarmloc.config import DEFAULTS, Config
 from swarmloc.datasets.source import Source
-from swarmloc.events import Kind
+from swarmloc.events import Kind, MeasurementKind
 from swarmloc.sim.source import sim_source
 
 __all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim3d_source", "sim_source"]
@@ -55,7 +56,15 @@ SIM_SCENARIOS = (
     "3d_landmarks",
 )
 
-SIM3D_VARIANTS = {
+
+class Sim3Variant(TypedDict, total=False):
+    """The :class:`~swarmloc.sim.sim3d.Sim3Config` fields a ``sim:3d`` scenario sets (the others: defaults)."""
+
+    detection: MeasurementKind
+    landmarks: int
+
+
+SIM3D_VARIANTS: dict[str, Sim3Variant] = {
     "3d": {},
     "3d_rot": {},
     "3d_rbe": {"detection": Kind.RBE3},
@@ -76,7 +85,7 @@ def sim3d_source(robots: int, duration: float, seed: int, large_rotation: bool =
     :class:`Source` (see the module docstring)."""
     import numpy as np
 
-    from swarmloc.events import Truth
+    from swarmloc.events import Event, Truth
     from swarmloc.sim.sim3d import Sim3Config, simulate3d
 
     large_rotation = large_rotation or scenario == "3d_rot"
@@ -84,7 +93,7 @@ def sim3d_source(robots: int, duration: float, seed: int, large_rotation: bool =
     if large_rotation:
         cfg = dataclasses.replace(cfg, init_rot=float(np.deg2rad(LARGE_ROTATION)))
     sim = simulate3d(cfg, seed)
-    events = [e for e in sim.events if not isinstance(e, Truth)]
+    events: list[Event] = [e for e in sim.events if not isinstance(e, Truth)]
     truths = [e for e in sim.events if isinstance(e, Truth)]
     spec = "sim:3d_rot" if large_rotation else f"sim:{scenario}"
     # beliefs recorded where the simulator has truth (its truth instants, on the odometry grid): a networked team

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry
+from swarmloc.events import Detection, Event, Odometry, OwnEvent
 from swarmloc.messages import flat
 from swarmloc.net.auth import open_envelope, seal
 from swarmloc.net.faults import Faults
@@ -86,7 +86,7 @@ def _key(e: Event) -> tuple[float, int]:
     return (float(e.t0), 2) if isinstance(e, Odometry) else (float(e.t), 1)
 
 
-def to_wire(e: Odometry | Detection) -> RawOdometry | RawDetection:
+def to_wire(e: OwnEvent) -> RawOdometry | RawDetection:
     """A robot's own event as it is forwarded (a detection's scoring-only truth is never sent)."""
     if isinstance(e, Odometry):
         return RawOdometry(float(e.t0), float(e.t1), float(e.v), float(e.w))
@@ -341,12 +341,12 @@ class Fusion:
 
 
 # ------------------------------------------------------------------------------------------------ the robot's side
-def batches(events: Sequence[Event], size: int, span: float = math.inf) -> list[list[Event]]:
+def batches(events: Sequence[OwnEvent], size: int, span: float = math.inf) -> list[list[OwnEvent]]:
     """A robot's events in key order, cut into forwards of at most ``size`` items spanning at most ``span`` s of data,
     never inside one key (a detection group goes whole)."""
     evs = sorted(events, key=_key)
-    out: list[list[Event]] = []
-    cur: list[Event] = []
+    out: list[list[OwnEvent]] = []
+    cur: list[OwnEvent] = []
     for e in evs:
         full = len(cur) >= size or (cur and _key(e)[0] - _key(cur[0])[0] > span)
         if full and _key(cur[-1]) != _key(e):
@@ -369,7 +369,7 @@ class Forwarder:
     def __init__(
         self,
         robot: int,
-        events: Sequence[Event],
+        events: Sequence[OwnEvent],
         link: TeamLink,
         *,
         faults: Faults | None = None,

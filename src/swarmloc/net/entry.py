@@ -24,7 +24,7 @@ import numpy as np
 
 from swarmloc.config import Config
 from swarmloc.datasets.source import Source
-from swarmloc.events import Event, Odometry
+from swarmloc.events import Event, Odometry, OwnEvent
 from swarmloc.net.auth import Auth, open_envelope
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.schema import SERVER, Belief, MapAnswer, Rejected, Report
@@ -111,9 +111,9 @@ def make_node(
     return cls(robot, initial, **options)
 
 
-def resume_events(events: Sequence[Event], t: float) -> list[Event]:
+def resume_events(events: Sequence[OwnEvent], t: float) -> list[OwnEvent]:
     """A robot's events from ``t`` on: the command in force at ``t`` clipped to start there, later ones as they are."""
-    out: list[Event] = []
+    out: list[OwnEvent] = []
     for e in events:
         if isinstance(e, Odometry):
             if e.t0 >= t:

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from swarmloc.events import Event, Odometry
+from swarmloc.events import Event, Odometry, OwnEvent
 
 __all__ = ["Faults", "parse_faults"]
 
@@ -80,7 +80,7 @@ class Faults:
         return Faults(loss=self.loss, delay=self.delay, reorder=self.reorder, dup=self.dup, seed=self.seed,
                       jump=self.jump)  # fmt: skip
 
-    def jumped(self, robot: int, events: Sequence[Event]) -> list[Event]:
+    def jumped(self, robot: int, events: Sequence[OwnEvent]) -> list[OwnEvent]:
         """``robot``'s own ``events`` (stamp order) as its clock gives them with the ``jump`` fault: from ``after``
         s past the first stamp on, every stamp shifted by ``shift`` s (unchanged without a jump for this robot)."""
         if self.jump is None or self.jump[0] != robot or not events:
@@ -94,7 +94,7 @@ def _stamp(e: Event) -> float:
     return float(e.t0) if isinstance(e, Odometry) else float(e.t)
 
 
-def _shifted(e: Event, dt: float) -> Event:
+def _shifted(e: OwnEvent, dt: float) -> OwnEvent:
     if isinstance(e, Odometry):
         return replace(e, t0=e.t0 + dt, t1=e.t1 + dt)
     return replace(e, t=e.t + dt)

@@ -531,24 +531,24 @@ def decorrelate(events: Sequence[Event], model: CameraModel) -> list[Event]:
     ``w`` its :func:`information_weights` within its (observer, target) stream; other events unchanged, order
     kept. Raises ValueError naming the detection when a stream's times go backwards or a reading is not finite.
     """
-    streams: dict[tuple[int, int, bool], list[int]] = {}
+    streams: dict[tuple[int, int | None, bool], list[tuple[int, Detection]]] = {}  # (observer, target, robot?)
     for i, e in enumerate(events):
         if isinstance(e, Detection) and e.kind == Kind.RANGE_BEARING:
             if not (math.isfinite(e.t) and np.isfinite(e.z).all()):
                 raise ValueError(f"event {i}: detection by robot {e.observer} of {e.target} at t={e.t} is not finite")
-            streams.setdefault((e.observer, e.target, e.target_is_robot), []).append(i)
+            streams.setdefault((e.observer, e.target, e.target_is_robot), []).append((i, e))
     out = list(events)
     r2, b2 = model.range.std**2, model.bearing.std**2
-    for (obs, tgt, _), idx in streams.items():
-        times = np.array([events[i].t for i in idx])
+    for (obs, tgt, _), dets in streams.items():
+        times = np.array([d.t for _, d in dets])
         try:
             _check_times(times, f"times of the detections of {tgt} by robot {obs}")
         except ValueError as exc:
             raise ValueError(f"{exc} (events must be in time order)") from None
         wr = information_weights(times, model.range.phi, model.range.tau)
         wb = information_weights(times, model.bearing.phi, model.bearing.tau)
-        for i, a, b in zip(idx, wr.tolist(), wb.tolist(), strict=True):
+        for (i, d), a, b in zip(dets, wr.tolist(), wb.tolist(), strict=True):
             cov = np.diag([r2 / a, b2 / b])
             cov.setflags(write=False)
-            out[i] = dataclasses.replace(events[i], cov=cov)
+            out[i] = dataclasses.replace(d, cov=cov)
     return out

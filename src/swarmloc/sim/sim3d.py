@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Kind, Odometry, Truth, twist_odometry
+from swarmloc.events import Detection, Event, Kind, MeasurementKind, Odometry, Truth, twist_odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3, wrap_angle
 from swarmloc.motion.twist3 import TwistNoise
@@ -65,7 +65,7 @@ class Sim3Config:
     init_pos: float = 0.1
     init_rot: float = float(np.deg2rad(3.0))
     truth_rate: float = 2.0
-    detection: str = Kind.POSE3
+    detection: MeasurementKind = Kind.POSE3
     sigma_range: float = 0.05
     sigma_angle: float = float(np.deg2rad(1.0))
     landmarks: int = 0
