@@ -29,7 +29,7 @@ the filter's own history is logged once and no prediction of a copy is.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -40,6 +40,15 @@ __all__ = ["SUPPORTED", "information_along", "unobservable_information"]
 
 SUPPORTED = ("cekf", "iekf", "fej", "irdl", "diekf")
 """Estimators that record their linearizations (``lin_log``)."""
+
+
+@runtime_checkable
+class Linearizing(Protocol):
+    """A node of the :data:`SUPPORTED` estimators: it appends its linearizations, as applied, to ``lin_log`` (when
+    set), with its error coordinates in ``error_frame`` (``"world"`` or ``"cartesian"``)."""
+
+    lin_log: list[tuple[Any, ...]] | None
+    error_frame: ClassVar[str]
 
 
 def information_along(log: list[tuple], bases: Mapping[int, np.ndarray]) -> dict[str, Any]:
@@ -79,25 +88,29 @@ def unobservable_information(estimator: str, source: Any, **options: Any) -> dic
     Source`) with its linearization log on, and measure the information gained along the team's unobservable
     directions (:func:`information_along`). ``options`` override the node options of the source's configuration.
     """
-    from swarmloc.estimators import ESTIMATORS, make_team, node_options
+    from swarmloc.estimators import make_team, node_options
     from swarmloc.runner import run
 
     if estimator not in SUPPORTED:
         raise ValueError(
             f"{estimator!r} does not record its linearizations; the observability analysis supports {list(SUPPORTED)}"
         )
-    cls = ESTIMATORS[estimator]
     opts = {**node_options(estimator, source.config, source.landmarks), **options}
     nodes = make_team(estimator, source.initial, **opts)
-    log: list[tuple] = []
-    for n in nodes:
+    logging = [n for n in nodes if isinstance(n, Linearizing)]
+    if len(logging) != len(nodes):
+        raise TypeError(f"{estimator!r}'s nodes keep no linearization log (lin_log, error_frame)")
+    log: list[tuple[Any, ...]] = []
+    for n in logging:
         n.lin_log = log
-        n.lazy_odometry = False  # every prediction applied once, in order (a lazy run is re-derived when needed)
+    for node in nodes:
+        node.set_lazy_odometry(False)  # every prediction applied once, in order (a lazy run is re-derived when needed)
     run(nodes, source.events, np.zeros(0))
+    world = logging[0].error_frame == "world"
     bases = {}
     for r, b in source.initial.items():
         x, _ = C.from_group(b.mean, b.cov)
-        bases[r] = np.eye(3) if cls.error_frame == "world" else I.world_basis(x)
+        bases[r] = np.eye(3) if world else I.world_basis(x)
     out = information_along(log, bases)
     out["estimator"] = estimator
     out["updates"] = int(out["per_update"].size)

@@ -171,6 +171,13 @@ class Node:
     def ledger(self, value: Any) -> None:
         self.accounting.ledger = value
 
+    def set_lazy_odometry(self, lazy: bool) -> None:
+        """This node's ``lazy_odometry`` (default: its class's), before its first input: an analysis that logs each
+        prediction once, in order, turns lazy runs off (:mod:`swarmloc.evaluation.observability`)."""
+        if self.history_size:
+            raise RuntimeError("set_lazy_odometry: the node has filed inputs; set it before the first input")
+        self._filing.set_lazy(lazy)
+
     @property
     def started(self) -> bool:
         return self._clock.t0 is not None

@@ -86,6 +86,11 @@ class Filing:
         self.since_prune = 0
         self.stops: set[tuple[int, float]] = set()
 
+    def set_lazy(self, lazy: bool) -> None:
+        """Whether command entries appended in order are left to a later run (``lazy``), here and in the history."""
+        self.lazy = lazy
+        self.history.lazy = lazy
+
     def prune(self, cutoff: float) -> None:
         """Forget entries and odometry intervals stamped before ``cutoff``."""
         self.history.prune(cutoff)
