@@ -53,7 +53,9 @@ from swarmloc.net.schema import (
     decode,
     encode,
 )
-from swarmloc.net.server import BeliefServer, MapStore
+from swarmloc.net.server import BeliefServer, MapStore, ServerProcess
+from swarmloc.net.teamlink import TeamLink
+from swarmloc.net.transport import robot_key
 from swarmloc.node.accounting import MAX_REASONS
 
 pytestmark = pytest.mark.network
@@ -532,6 +534,22 @@ def test_a_forward_numbered_2_62_is_refused_and_what_the_server_asks_again_stays
     assert f.counts["raw_too_far_ahead"] == 1 and set(s.ahead) == {KEEP - 1}
     (ack,) = [a for a in f.wanted() if a.robot == 0] or [None]
     assert ack is None or len(ack.missing) <= 256
+
+
+def test_a_forward_with_an_unknown_kind_is_refused_at_decode_and_counted_by_the_server():
+    """A measurement kind is typed on the wire: a forward naming no kind ("teleport", or a name of 100 000
+    characters) is refused while it is decoded, and the belief server counts it ``rejected`` with its reason (msgspec's,
+    what it quotes of the payload cut short, and the path to the field); nothing reaches the hosted estimator."""
+    sp = ServerProcess(TeamLink(None, "t", [0, 1, 2]))
+    key = robot_key(sp.scope, 1, "raw")
+    for n, kind in enumerate(("teleport", "x" * HUGE)):
+        raw = Raw(robot=1, n=n, first=0.0, upto=5.0, items=(RawDetection(1.0, kind, (1.0,), (0.1,)),))
+        sp._handle("raw", _Sample(encode("t", 1, n, raw), key))  # hosted None: an offer would raise
+    x60 = "x" * 60  # 80 characters of msgspec's message
+    assert sp.counts == Counter(rejected=2) and sp.reasons == Counter({
+        "malformed: Invalid enum value 'teleport' - at `$.body.items[0][2]`": 1,
+        f"malformed: Invalid enum value '{x60}... - at `$.body.items[0][2]`": 1,
+    })  # fmt: skip
 
 
 def test_empty_lines_messages_are_not_remembered_by_the_map():

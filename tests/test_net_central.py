@@ -239,12 +239,14 @@ def test_bad_forwards_are_refused_by_the_schema():
         ("out of order", Raw(**{**ok, "upto": 1.0}, items=(det,))),  # an item at or past where the stream stands
         ("bad RawDetection", Raw(**ok, items=(RawDetection(1.0, "pose", (1.0, 0.0), det.cov),))),  # z's size
         ("bad RawOdometry", Raw(**ok, items=(RawOdometry(1.0, 1.1, math.nan, 0.0),))),
-        ("bad RawDetection", Raw(**ok, items=(RawDetection(1.0, "sonar", (1.0,), (0.1,)),))),  # no such kind
+        ("bad RawDetection", Raw(**ok, items=(RawDetection(1.0, "pose3", (1.0,) * 6, (0.1,) * 36),))),  # not planar
         ("bad RawOdometry", Raw(**ok, items=(RawOdometry(1.0, 0.9, 0.1, 0.0),))),  # t1 < t0
     ]
     for why, raw in bad:
         with pytest.raises(Rejected, match=f"raw: .*{why}"):
             decode(encode("t", 1, 0, raw), "t", {0, 1, 2})
+    with pytest.raises(Rejected, match=r"^malformed: Invalid enum value 'sonar' - at `\$.body.items\[0\]\[2\]`$"):
+        decode(encode("t", 1, 0, Raw(**ok, items=(RawDetection(1.0, "sonar", (1.0,), (0.1,)),))), "t", {0, 1, 2})
     with pytest.raises(Rejected, match=r"length <= 512 - at `\$.body.items`"):  # refused before it is built
         decode(encode("t", 1, 0, Raw(**ok, items=(det,) * 513)), "t", {0, 1, 2})
     with pytest.raises(Rejected, match="in the name of robot 1"):

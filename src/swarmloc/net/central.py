@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Odometry, OwnEvent
+from swarmloc.events import Detection, Event, Kind, Odometry, OwnEvent
 from swarmloc.messages import flat
 from swarmloc.net.auth import open_envelope, seal
 from swarmloc.net.faults import Faults
@@ -91,7 +91,7 @@ def to_wire(e: OwnEvent) -> RawOdometry | RawDetection:
     if isinstance(e, Odometry):
         return RawOdometry(float(e.t0), float(e.t1), float(e.v), float(e.w))
     target = None if e.target is None else int(e.target)
-    return RawDetection(float(e.t), str(e.kind), flat(e.z), flat(e.cov), target, bool(e.target_is_robot))
+    return RawDetection(float(e.t), Kind(e.kind), flat(e.z), flat(e.cov), target, bool(e.target_is_robot))
 
 
 def from_wire(robot: int, it: RawOdometry | RawDetection) -> Event:

@@ -33,6 +33,7 @@ from typing import Annotated
 
 import msgspec
 
+from swarmloc.events import Kind
 from swarmloc.messages import (
     SCHEMA_VERSION,
     AnyMessage,
@@ -155,10 +156,11 @@ class RawOdometry(msgspec.Struct, frozen=True, array_like=True, tag="o"):
 
 class RawDetection(msgspec.Struct, frozen=True, array_like=True, tag="d"):
     """A forwarded detection of the forwarding robot (:class:`~swarmloc.events.Detection` without its scoring-only
-    truth): stamp [s], kind, ``z`` and its noise covariance ``cov`` (row-major), target id (None: anonymous)."""
+    truth): stamp [s], kind, ``z`` and its noise covariance ``cov`` (row-major), target id (None: anonymous). A kind
+    is encoded as its name; a name that is no :class:`~swarmloc.events.Kind` is refused on decoding."""
 
     t: float
-    kind: Text
+    kind: Kind
     z: Floats
     cov: Floats
     target: int | None = None
@@ -399,6 +401,20 @@ def sender_of(b: Body) -> int:
     return b.robot if isinstance(b, speaks) else b.sender
 
 
+MAX_QUOTED = 80
+"""The most characters of msgspec's message kept in a reason: it may quote a field of the payload whole (an unknown
+kind: ``Invalid enum value '...'``)."""
+
+
+def malformed(exc: Exception) -> str:
+    """The reason for a payload msgspec refuses: its message (cut to :data:`MAX_QUOTED` characters) and the path to
+    the field (``- at `$.body...```)."""
+    what, at, path = str(exc).rpartition(" - at ")
+    if not at:
+        what, path = path, ""
+    return f"malformed: {what if len(what) <= MAX_QUOTED else what[:MAX_QUOTED] + '...'}{at}{path}"
+
+
 def decode(
     payload: bytes,
     team: str,
@@ -412,7 +428,7 @@ def decode(
     try:
         env = _decoder.decode(payload)
     except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-        raise Rejected(f"malformed: {exc}") from None
+        raise Rejected(malformed(exc)) from None
     if env.v != SCHEMA_VERSION:
         raise Rejected(f"schema version {env.v}, this node speaks {SCHEMA_VERSION}")
     if env.team != team:
