@@ -56,7 +56,7 @@ from swarmloc.net.schema import (
 from swarmloc.net.server import BeliefServer, MapStore, ServerProcess
 from swarmloc.net.teamlink import TeamLink
 from swarmloc.net.transport import robot_key
-from swarmloc.node.accounting import MAX_REASONS
+from swarmloc.node.accounting import MAX_REASONS, OTHER_REASONS
 
 pytestmark = pytest.mark.network
 
@@ -550,6 +550,19 @@ def test_a_forward_with_an_unknown_kind_is_refused_at_decode_and_counted_by_the_
         "malformed: Invalid enum value 'teleport' - at `$.body.items[0][2]`": 1,
         f"malformed: Invalid enum value '{x60}... - at `$.body.items[0][2]`": 1,
     })  # fmt: skip
+
+
+def test_the_server_keeps_a_bounded_number_of_distinct_reasons():
+    """A hostile robot varying what it sends makes a new reason with every frame (each quotes the bad value): the
+    belief server counts every one, under at most MAX_REASONS distinct keys plus one for the rest."""
+    sp = ServerProcess(TeamLink(None, "t", [0, 1, 2]))
+    key = robot_key(sp.scope, 1, "raw")
+    frames = MAX_REASONS + 100
+    for n in range(frames):
+        raw = Raw(robot=1, n=n, first=0.0, upto=5.0, items=(RawDetection(1.0, f"kind{n}", (1.0,), (0.1,)),))
+        sp._handle("raw", _Sample(encode("t", 1, n, raw), key))
+    assert sp.counts["rejected"] == frames == sum(sp.reasons.values())
+    assert len(sp.reasons) == MAX_REASONS + 1 and sp.reasons[OTHER_REASONS] == frames - MAX_REASONS
 
 
 def test_empty_lines_messages_are_not_remembered_by_the_map():

@@ -67,6 +67,7 @@ from swarmloc.net.schema import (
 )
 from swarmloc.net.teamlink import TeamLink
 from swarmloc.net.transport import alive_key, block, robot_key, server_key, undeclare_all
+from swarmloc.node.accounting import reason_key
 
 __all__ = ["BeliefServer", "MapStore", "ServerProcess", "linemap_of", "observations_of", "wire_line"]
 
@@ -297,7 +298,7 @@ class ServerProcess:
         if exc is not None:
             note_refusal(self.counts, exc, "belief server", "message")
         self.counts["rejected"] += 1
-        self.reasons[reason] += 1
+        self.reasons[reason_key(self.reasons, reason)] += 1  # bounded: distinct reasons past a cap share one key
         log.debug("belief server: dropped a message: %s", reason)
 
     def run(self, max_wall: float | None = None) -> None:
