@@ -33,6 +33,8 @@ from bisect import bisect_left, bisect_right
 
 import numpy as np
 
+from swarmloc.lie import wrap_angle
+
 __all__ = ["BASELINE", "BOUNDS", "CUT", "OdometryCalibration", "pair_terms"]
 
 BASELINE = 5.0
@@ -47,10 +49,6 @@ MAX_GAP = 6.0
 """Most time between the two posteriors of a pair, in baselines (sparse detections: a longer pair, less weight)."""
 FLOOR = (1e-3, 1e-3)
 """Per second of baseline: the model's variance floor of a pair's heading [rad^2/s] and distance [m^2/s]."""
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def pair_terms(
@@ -131,7 +129,7 @@ class OdometryCalibration:
         W, T, D = pair_terms(np.array(stamps), c[:, 0], c[:, 1], c[:, 2], tj, t, float(pj[2]))
         a = self.params(t)
         pred = a[1] * W + a[2] * T
-        res = _wrap(float(pose[2] - pj[2]) - pred)  # the heading change unwrapped about its prediction
+        res = wrap_angle(float(pose[2] - pj[2]) - pred)  # the heading change unwrapped about its prediction
         reach = max(abs(b - a[1]) for b in BOUNDS[1]) * abs(W)
         reach += max(abs(b - a[2]) for b in BOUNDS[2]) * T
         if abs(res) > CUT + reach:  # more than any calibration within the bounds explains: the chain restarts here
