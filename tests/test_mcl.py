@@ -13,13 +13,8 @@ import pytest
 
 from swarmloc import make_team, run
 from swarmloc.estimators import ESTIMATORS, accepted_options, options_for
-from swarmloc.estimators.mcl import (
-    TEMPER_STEPS,
-    MonteCarloLocalization,
-    fit_gaussian,
-    split_exponent,
-    systematic_resample,
-)
+from swarmloc.estimators.mcl import MonteCarloLocalization
+from swarmloc.estimators.particles import TEMPER_STEPS, fit_gaussian, split_exponent, systematic_resample
 from swarmloc.events import Detection, Odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, wrap_angle

@@ -106,6 +106,16 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from swarmloc.estimators.particles import (
+    ensemble_transform,
+    exp_xyt,
+    fit_gaussian,
+    landmark_split,
+    logsumexp,
+    quadratic,
+    sqrt_cov3,
+    systematic_resample,
+)
 from swarmloc.events import Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
@@ -114,27 +124,22 @@ from swarmloc.kernels.ci import point_weight, pose_weight
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise, odometry_increment_terms
-from swarmloc.node import FUSED, Group, Outcome, RobotNode, belief_of, usable_covariance
+from swarmloc.node import FUSED, Group, Outcome, RobotNode, belief_of
 from swarmloc.sensors import models
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position for every particle"
 NUMERICAL = "the weights are not finite"
 NEGLIGIBLE = "likelihood negligible for every particle"
-COV_FLOOR = 1e-10
-"""Added to the diagonal of a fitted covariance (exponential coordinates) so that it stays positive definite."""
 BOUNDS_MARGIN = 1.0
 """[m] margin around the landmarks' bounding box for the default region of random particles."""
 LOG_TINY = math.log(np.finfo(float).tiny)
 ALPHA_SLOW = 0.02
 ALPHA_FAST = 0.3
 """Smoothing factors, per evaluated detection, of the slow and fast averages of the likelihood (augmented MCL)."""
-MEAN_ITERATIONS = 3
 ENSEMBLE_ESS = 0.5
 """A landmark detection whose reweighting would leave an effective sample size below this fraction of the particles
 is split: the part of its likelihood that keeps the effective sample size at this fraction reweights, the rest
 updates the set by the Gaussian update and the ensemble transform (module docstring)."""
-TEMPER_STEPS = 12
-"""Bisection steps for the split's exponent (resolution ``2^-12``)."""
 
 _INIT, _PREDICT, _GROUP = 1, 2, 3
 
@@ -164,138 +169,6 @@ class MclState(NamedTuple):
     injected: int = 0
     w_slow: float = 0.0
     w_fast: float = 0.0
-
-
-def systematic_resample(weights: np.ndarray, u: float) -> np.ndarray:
-    """Indices of low-variance (systematic) resampling: one offset ``u`` in [0, 1), positions ``(u + k) / N``."""
-    n = weights.size
-    c = np.cumsum(weights)
-    c /= c[-1]
-    idx = np.searchsorted(c, (u + np.arange(n)) / n, side="right")
-    return np.minimum(idx, n - 1)
-
-
-def _sqrt_cov3(S11: float, S12: float, S13: float, S22: float, S23: float, S33: float) -> np.ndarray:
-    """Lower-triangular ``L`` with ``L L^T = S`` for a positive semi-definite 3x3 ``S`` (pivots clamped at 0)."""
-    l11 = math.sqrt(max(S11, 0.0))
-    l21 = S12 / l11 if l11 > 0 else 0.0
-    l31 = S13 / l11 if l11 > 0 else 0.0
-    l22 = math.sqrt(max(S22 - l21 * l21, 0.0))
-    l32 = (S23 - l31 * l21) / l22 if l22 > 0 else 0.0
-    l33 = math.sqrt(max(S33 - l31 * l31 - l32 * l32, 0.0))
-    return np.array([[l11, 0.0, 0.0], [l21, l22, 0.0], [l31, l32, l33]])
-
-
-def _exp_xyt(y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``exp(y)`` of tangent vectors ``(N, 3)`` as ``(tx, ty, angle)`` (closed form, stable at small angles)."""
-    a = y[:, 2]
-    A = np.sinc(a / np.pi)  # sin(a) / a
-    B = 0.5 * a * np.sinc(a / (2 * np.pi)) ** 2  # (1 - cos a) / a
-    return A * y[:, 0] - B * y[:, 1], B * y[:, 0] + A * y[:, 1], a
-
-
-def _quadratic(r: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``r^T S^-1 r`` and ``log det S`` for residuals ``(N, m)`` and covariances ``(N, m, m)`` (closed forms for
-    ``m <= 2``: the batched LAPACK calls cost more than the arithmetic for a few hundred particles)."""
-    m = r.shape[-1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if m == 1:
-            v = S[:, 0, 0]
-            return r[:, 0] ** 2 / v, np.log(v)
-        if m == 2:
-            a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
-            det = a * d - b * b
-            x, y = r[:, 0], r[:, 1]
-            return (d * x * x - 2 * b * x * y + a * y * y) / det, np.log(det)
-    nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
-    return nis, np.linalg.slogdet(S)[1]
-
-
-def _logsumexp(a: np.ndarray) -> float:
-    m = float(np.max(a))
-    if not math.isfinite(m):
-        return m
-    return m + math.log(float(np.sum(np.exp(a - m))))
-
-
-def _log_rel(mu: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``log(mu^-1 g_n)`` ``(N, 3)`` for a pose ``mu = (x, y, theta)`` and particles ``p`` ``(N, 3)`` (the formulas
-    of :meth:`SE2.log <swarmloc.lie.SE2.log>` on Cartesian poses, without building matrices)."""
-    c, s = math.cos(mu[2]), math.sin(mu[2])
-    dx, dy = p[:, 0] - mu[0], p[:, 1] - mu[1]
-    t1, t2 = c * dx + s * dy, -s * dx + c * dy
-    a = wrap_angle(p[:, 2] - mu[2])
-    h = 0.5 * a
-    small = np.abs(a) < 1e-6
-    with np.errstate(divide="ignore", invalid="ignore"):
-        k = np.where(small, 1.0 - a * a / 12.0, h / np.tan(np.where(small, 1.0, h)))
-    return np.stack([k * t1 + h * t2, -h * t1 + k * t2, a], axis=-1)
-
-
-def ensemble_transform(
-    p: np.ndarray, mean: np.ndarray, cov: np.ndarray, mean2: np.ndarray, cov2: np.ndarray
-) -> np.ndarray | None:
-    """Particles ``p`` ``(N, 3)`` whose fitted Gaussian is ``(mean, cov)`` (SE(2) matrix, exponential-coordinate
-    covariance) moved onto ``(mean2, cov2)``: ``g_n <- mean2 exp(A log(mean^-1 g_n))``, ``A = L2 L^-1`` (Cholesky
-    factors), the deterministic ensemble transform (module docstring). None when ``(mean2, cov2)`` is not usable."""
-    if not (np.isfinite(mean2).all() and usable_covariance(cov2)):
-        return None
-    m0, m1 = SE2.to_xytheta(mean), SE2.to_xytheta(mean2)
-    A = np.linalg.cholesky(cov2) @ np.linalg.inv(np.linalg.cholesky(cov))
-    ex, ey, ea = _exp_xyt(_log_rel(m0, p) @ A.T)
-    c, s = math.cos(m1[2]), math.sin(m1[2])
-    return np.stack([m1[0] + c * ex - s * ey, m1[1] + s * ex + c * ey, wrap_angle(m1[2] + ea)], axis=-1)
-
-
-def split_exponent(lw: np.ndarray, q: np.ndarray, ess: float) -> float:
-    """The largest ``gamma`` in [0, 1) (bisection, :data:`TEMPER_STEPS` steps) such that log weights ``lw`` plus
-    ``-gamma q / 2`` (the likelihood to the power ``gamma``; ``q``: ``nis`` plus relative log-determinant) keep an
-    effective sample size of at least ``ess``; 0 when even the weights ``lw`` have less."""
-    lo, hi = 0.0, 1.0
-    for _ in range(TEMPER_STEPS):
-        mid = 0.5 * (lo + hi)
-        a = lw - 0.5 * mid * q
-        wn = np.exp(a - _logsumexp(a))
-        if 1.0 / float(wn @ wn) >= ess:
-            lo = mid
-        else:
-            hi = mid
-    return lo
-
-
-def _landmark_split(
-    p: np.ndarray, lw: np.ndarray, q: np.ndarray, d: Any, landmark: tuple[np.ndarray, np.ndarray], ess: float
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """A range/bearing detection ``d`` of a landmark ``(position, covariance)`` split between the particles ``p``
-    (log weights ``lw``) and their fitted Gaussian (module docstring): particles and normalized log weights after
-    the reweighting by the likelihood to the power ``gamma`` (:func:`split_exponent`; ``q``: ``nis`` plus relative
-    log-determinant per particle) and the iterated EKF update on the group by the rest (noise and landmark
-    covariances over ``1 - gamma``) with the ensemble transform; None when that update is not usable."""
-    gamma = split_exponent(lw, q, ess)
-    lg = lw - 0.5 * gamma * q
-    lg = lg - _logsumexp(lg)
-    mean, cov = fit_gaussian(p, np.exp(lg))
-    with np.errstate(all="ignore"):
-        R, share = np.asarray(d.cov, dtype=float), 1.0 - gamma
-        meas = K.PointMeasurement(d.kind, d.z, R / share, landmark[0], landmark[1] / share, False)
-        m2, c2, ok = K.point_update(mean, cov, meas)
-    moved = ensemble_transform(p, mean, cov, m2, c2) if bool(ok) else None
-    return None if moved is None else (moved, lg)
-
-
-def fit_gaussian(particles: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted SE(2) Gaussian of a particle set: mean ``(3, 3)`` and exponential-coordinate covariance ``(3, 3)``
-    (right perturbation; see the module docstring)."""
-    w = weights
-    th = particles[:, 2]
-    mu = np.array([w @ particles[:, 0], w @ particles[:, 1], math.atan2(w @ np.sin(th), w @ np.cos(th))])
-    for _ in range(MEAN_ITERATIONS):  # Gauss-Newton steps of the weighted Karcher mean: mu <- mu exp(mean y)
-        step = SE2.to_xytheta(SE2.from_xytheta(mu) @ SE2.exp(w @ _log_rel(mu, particles), validate=False))
-        mu = step
-    y = _log_rel(mu, particles)
-    cov = (y * w[:, None]).T @ y
-    cov = 0.5 * (cov + cov.T) + COV_FLOOR * np.eye(3)
-    return SE2.from_xytheta(mu), cov
 
 
 class MonteCarloLocalization(RobotNode):
@@ -430,10 +303,10 @@ class MonteCarloLocalization(RobotNode):
         if dt <= 0:
             return s
         c, sn, tx, ty, S11, S12, S13, S22, S23, S33 = odometry_increment_terms(s.v, s.w, dt, self.noise)
-        L = _sqrt_cov3(S11, S12, S13, S22, S23, S33)
+        L = sqrt_cov3(S11, S12, S13, S22, S23, S33)
         rng = self._rng(_PREDICT, s.t, t)
         y = rng.standard_normal((s.particles.shape[0], 3)) @ L.T
-        ex, ey, ea = _exp_xyt(y)
+        ex, ey, ea = exp_xyt(y)
         # increment mean exp(dt (v, 0, w)^) composed with the noise exp(y), then applied to each particle
         ix, iy = tx + c * ex - sn * ey, ty + sn * ex + c * ey
         ia = math.atan2(sn, c) + ea
@@ -474,7 +347,7 @@ class MonteCarloLocalization(RobotNode):
                 outcomes.append(("rejected", DEGENERATE))
                 continue
             nis, logdet = lik
-            log_avg = _logsumexp(lw - 0.5 * nis)  # log of the weighted mean of exp(-nis / 2)
+            log_avg = logsumexp(lw - 0.5 * nis)  # log of the weighted mean of exp(-nis / 2)
             avg = math.exp(log_avg) if log_avg >= LOG_TINY else 0.0
             w_slow += ALPHA_SLOW * (avg - w_slow)
             w_fast += ALPHA_FAST * (avg - w_fast)
@@ -488,7 +361,7 @@ class MonteCarloLocalization(RobotNode):
                 outcomes.append(("gated", NEGLIGIBLE))
                 continue
             if target[0] == "robot":
-                moved = self._ci_moved(p, np.exp(lw - _logsumexp(lw)), d, target[1])
+                moved = self._ci_moved(p, np.exp(lw - logsumexp(lw)), d, target[1])
                 if moved is None:
                     outcomes.append(("rejected", NUMERICAL))
                     continue
@@ -498,13 +371,13 @@ class MonteCarloLocalization(RobotNode):
                 continue
             q = nis + logdet - np.min(logdet)
             new = lw - 0.5 * q
-            total = _logsumexp(new)
+            total = logsumexp(new)
             if not math.isfinite(total):
                 outcomes.append(("rejected", NUMERICAL))
                 continue
             wn = np.exp(new - total)
             if target[0] == "landmark" and 1.0 / float(wn @ wn) < ENSEMBLE_ESS * n:
-                split = _landmark_split(p, lw, q, d, target[1], ENSEMBLE_ESS * n)
+                split = landmark_split(p, lw, q, d, target[1], ENSEMBLE_ESS * n)
                 if split is not None:
                     p, lw = split
                     fused = True
@@ -617,7 +490,7 @@ class MonteCarloLocalization(RobotNode):
                 h, J = h[:, rows], J[:, rows, :]
                 r = models.residual(d.kind, z, h)
                 S = R + J @ Pk[:2, :2] @ np.swapaxes(J, -1, -2)
-        nis, logdet = _quadratic(r, S)
+        nis, logdet = quadratic(r, S)
         if bad is not None and bad.any():
             nis = np.where(bad, np.inf, nis)
         nis = np.where(np.isfinite(nis), nis, np.inf)
