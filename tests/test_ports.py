@@ -27,6 +27,22 @@ def test_ports_come_from_the_range_distinct_and_skip_one_taken(monkeypatch):
         free_ports(3)
 
 
+def test_two_calls_never_hand_out_the_same_port_until_the_range_is_used_up(monkeypatch):
+    """A port handed out but not yet bound looks free: a second call (a team's hub, then its members) must not
+    return it again while the range holds others; once every port was handed out, they are handed out again."""
+    from swarmloc.net import transport
+
+    monkeypatch.setattr(transport, "_HANDED", set())
+    monkeypatch.setenv(PORT_RANGE_ENV, "10000-10009")
+    first, second = free_ports(4), free_ports(4)
+    assert len(set(first) | set(second)) == 8
+    third = free_ports(4)  # 2 left unhanded: the memory starts again, still 4 distinct ports of the range
+    assert len(set(third)) == 4 and all(10000 <= p <= 10009 for p in third)
+    monkeypatch.delenv(PORT_RANGE_ENV)
+    a, b = free_ports(3), free_ports(3)  # the OS's picks: never the same twice either
+    assert not set(a) & set(b)
+
+
 @pytest.mark.parametrize("bad", ["10000", "9-20", "20000-10000", "a-b", "10000-70000"])
 def test_a_malformed_range_is_refused_naming_the_variable(bad, monkeypatch):
     monkeypatch.setenv(PORT_RANGE_ENV, bad)

@@ -111,19 +111,42 @@ def port_range(env: dict[str, str] | os._Environ = os.environ) -> tuple[int, int
     return int(lo), int(hi)
 
 
+_HANDED: set[int] = set()
+"""Ports :func:`free_ports` handed out before in this process: not handed out again while others are left."""
+
+
 def free_ports(n: int, host: str = "127.0.0.1") -> list[int]:
     """``n`` distinct TCP ports free on ``host`` now: picked by the OS in its ephemeral range, or at random in
     :data:`PORT_RANGE_ENV`'s range when it is set. Either way a port is free when returned, not reserved: another
     program may take it before its user binds it. A range apart (below the ephemeral range, one per concurrent
-    test worker) keeps it from ports the OS hands to outgoing connections and to the other workers."""
-    import random
-
+    test worker) keeps it from ports the OS hands to outgoing connections and to the other workers. Two calls in one
+    process never return the same port while the range holds others (a port handed out but not yet bound looks
+    free); when every port of the range was handed out, the memory starts again."""
     rng = port_range()
     if rng is not None and n > rng[1] - rng[0] + 1:
         raise ValueError(f"free_ports: {n} ports asked, {PORT_RANGE_ENV} holds {rng[1] - rng[0] + 1}")
+    try:
+        ports = _bind_free(n, host, rng, _HANDED)
+    except OSError:
+        if rng is None or not _HANDED:
+            raise
+        _HANDED.clear()  # the range is used up by earlier calls: their ports may be handed out again
+        ports = _bind_free(n, host, rng, _HANDED)
+    _HANDED.update(ports)
+    return ports
+
+
+def _bind_free(n: int, host: str, rng: tuple[int, int] | None, skip: set[int]) -> list[int]:
+    """Bind ``n`` ports not in ``skip`` (the OS's picks, or candidates of ``rng`` at random) and release them."""
+    import random
+
     socks: list[socket.socket] = []
     ports: list[int] = []
-    candidates = iter(random.sample(range(rng[0], rng[1] + 1), rng[1] - rng[0] + 1)) if rng else None
+    candidates = None
+    if rng is not None:
+        pool = [p for p in range(rng[0], rng[1] + 1) if p not in skip]
+        candidates = iter(random.sample(pool, len(pool)))
+    tries = 0
     try:
         while len(ports) < n:
             s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -139,7 +162,11 @@ def free_ports(n: int, host: str = "127.0.0.1") -> list[int]:
                     raise
                 continue  # taken: the next candidate
             socks.append(s)
-            ports.append(s.getsockname()[1])
+            port = s.getsockname()[1]
+            tries += 1
+            if candidates is None and port in skip and tries < 64 * n:
+                continue  # the OS gave back a port handed out before: keep it bound and ask again
+            ports.append(port)
     finally:
         for s in socks:
             s.close()
