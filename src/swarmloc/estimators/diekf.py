@@ -70,7 +70,7 @@ annihilated whatever the estimate (the body-frame error's are not, Huang et al. 
 whole team moves no body-frame point of a teammate, so they too gain nothing along it. A broadcast carries ``n = 6``;
 the correction is ``g <- exp(delta^) g``. On planar motion (poses in ``z = 0``, yaw only, planar twists and
 block-diagonal noises) the planar part of the error follows the SE(2) filter (tests/test_se3_diekf.py). Clusters are
-SE(2) only (the covariance-intersection weight is SE(2)'s). """
+SE(2) only (the covariance-intersection weight is SE(2)'s)."""
 
 from __future__ import annotations
 
