@@ -72,7 +72,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.linalg import splu
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
-from swarmloc.events import Kind
+from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels.ci import point_weight, pose_weight
@@ -118,6 +118,20 @@ class Factor(NamedTuple):
     R: np.ndarray
     target: Any
     scale: float
+
+    @classmethod
+    def odometry(cls, a: int, b: int, rel: np.ndarray, Q: np.ndarray) -> Factor:
+        """The odometry factor between poses ``a`` and ``b``: the Cartesian increment ``rel`` ``(x, y, theta)`` in
+        ``a``'s frame with its covariance ``Q``, as a ``Pose2``-tangent covariance (plus :data:`TINY_VARIANCE`)."""
+        _, Qg = C.to_group(rel, Q)
+        return cls("odometry", a, b, "", rel, Qg + TINY_VARIANCE * np.eye(3), None, 1.0)
+
+    @classmethod
+    def unary(cls, d: Detection, target: tuple[str, Any], R: np.ndarray, a: int = -1) -> Factor:
+        """Detection ``d`` of a landmark (``target``: ``("landmark", (p, C))`` as ``_classify`` answers) or an absolute
+        fix, made at pose ``a``, with noise ``R`` (the model's plus the landmark's propagated covariance)."""
+        lm = None if target[0] == Kind.ABSOLUTE else np.asarray(target[1][0], dtype=float)
+        return cls("unary", a, -1, d.kind, np.asarray(d.z, dtype=float), R, lm, 1.0)
 
 
 class Window(NamedTuple):
@@ -392,8 +406,7 @@ class FixedLagSmoother(RobotNode):
         factors = list(win.factors)
         prior_scale = win.prior[2]
         if new_pose:
-            _, Qg = C.to_group(s.rel, s.Q)
-            factors.append(Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + TINY_VARIANCE * np.eye(3), None, 1.0))
+            factors.append(Factor.odometry(win.poses[-1], pid, s.rel, s.Q))
             est[pid] = s.x
         outcomes: list[Outcome] = []
         fused = 0
@@ -412,11 +425,10 @@ class FixedLagSmoother(RobotNode):
                 if verdict is not None:
                     outcomes.append(verdict)
                     continue
-            z = np.asarray(d.z, dtype=float)
             if target[0] != "robot":
-                lm = None if target[0] == Kind.ABSOLUTE else np.asarray(target[1][0], dtype=float)
-                factors.append(Factor("unary", pid, -1, d.kind, z, R_eff, lm, 1.0))
+                factors.append(Factor.unary(d, target, R_eff, pid))
             else:
+                z = np.asarray(d.z, dtype=float)
                 nb_mean, nb_cov = target[1].belief_arrays()
                 R = np.asarray(d.cov, dtype=float)
                 if d.kind == Kind.POSE:

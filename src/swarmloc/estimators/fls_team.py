@@ -34,8 +34,7 @@ import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.estimators.diekf import TeamProtocol
-from swarmloc.estimators.fls import TINY_VARIANCE, Factor, OfSolver, Window, WindowSolver
-from swarmloc.events import Kind
+from swarmloc.estimators.fls import Factor, OfSolver, Window, WindowSolver
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
@@ -174,8 +173,7 @@ class TeamFixedLagSmoother(RobotNode):
         if win.stamps[-1] >= s.t:
             return s
         pid = win.next_id
-        _, Qg = C.to_group(s.rel, s.Q)
-        odo = Factor("odometry", win.poses[-1], pid, "", s.rel, Qg + TINY_VARIANCE * np.eye(3), None, 1.0)
+        odo = Factor.odometry(win.poses[-1], pid, s.rel, s.Q)
         win = Window((*win.poses, pid), (*win.stamps, s.t), {**win.est, pid: s.x}, win.prior,
                      (*win.factors, odo), pid + 1)  # fmt: skip
         if win.stamps[0] < s.t - 2 * self.solver.lag:  # no landmark solve for a while: marginalize the old poses
@@ -244,9 +242,7 @@ class TeamFixedLagSmoother(RobotNode):
                 outcomes.append(verdict)
                 msgs += broadcast(g.t, sub)
                 continue
-            lm = None if target[0] == Kind.ABSOLUTE else np.asarray(target[1][0], dtype=float)
-            z = np.asarray(d.z, dtype=float)
-            landmarks.append((len(outcomes), sub, Factor("unary", -1, -1, d.kind, z, R, lm, 1.0)))
+            landmarks.append((len(outcomes), sub, Factor.unary(d, target, R)))
             outcomes.append(None)
         if not landmarks:
             return s, [o for o in outcomes if o is not None], msgs
