@@ -55,7 +55,7 @@ def _predict(xp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt: 
     return xp.stack(xs, -1), _full(xp, ps)
 
 
-def _finish(xp: Any, res: tuple) -> tuple[Any, ...]:
+def _finish(xp: Any, res: soa.Updated) -> tuple[Any, ...]:
     xs, ps, nis, ok = res
     return xp.stack(xs, -1), _full(xp, ps), nis, ok, soa.positive_definite(xp, ps)
 

@@ -21,10 +21,11 @@ from swarmloc.engine.codes import NO_TARGET, UNKNOWN_ROBOT, UNUSABLE
 from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.node import detection_key, odometry_problem, validate_detection
 from swarmloc.node.inputs import CONTIGUOUS, OdometryTimeline, brief, clearly_valid, command_value, finite_number
+from swarmloc.node.keys import SubKey
 
 __all__ = ["Checked", "Commands", "Groups", "cluster_size"]
 
-Groups = dict[float, dict[int, dict[tuple, tuple[Detection, int]]]]
+Groups = dict[float, dict[int, dict[SubKey, tuple[Detection, int]]]]
 """Checked detections: stamp -> observer row -> detection key -> ``(detection, target code)``."""
 Commands = dict[float, dict[int, tuple[Any, Any]]]
 """Checked odometry: start time -> robot row -> ``(v [m/s], w [rad/s])`` (an SE(3) team: tuples of 3, or a stop's

@@ -52,10 +52,11 @@ The engine's modules are layers, each importing only modules below it (an import
 from __future__ import annotations
 
 from collections import Counter
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
+from swarmloc.arrays import BoolArray
 from swarmloc.engine import se3 as E3
 from swarmloc.engine.backends import BACKENDS, JaxOps, make_ops
 from swarmloc.engine.codes import KIND_NAMES, NO_LANDMARK, PENDING, POSE3, REJECTED, landmark_code
@@ -84,6 +85,10 @@ __all__ = ["ENGINE_ESTIMATORS", "Detections", "Engine", "levels"]
 
 ENGINE_ESTIMATORS = ("expfusion", "dekf", "ci")
 """Estimators the engine runs (the per-robot nodes of the same names)."""
+
+Records: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""A compiled replay's beliefs, filled in place (:meth:`Engine.replay_timeline`): ``(robot (K,), stamp index (K,),
+x (K, 3), P (K, 3, 3), count (1,))``, rows ``:count[0]`` written."""
 
 
 class Engine:
@@ -296,7 +301,7 @@ class Engine:
         numba = self._serial_numba(rows)
         return self.fast and numba is not None and hasattr(numba, "replay_serial")
 
-    def replay_timeline(self, tl: Timeline, s0: int, out: tuple) -> tuple[int, int]:
+    def replay_timeline(self, tl: Timeline, s0: int, out: Records) -> tuple[int, int]:
         """Stamps ``s0:`` of ``tl`` in one compiled call (:meth:`NumbaOps.replay_serial
         <swarmloc.engine.numba_ops.NumbaOps.replay_serial>`; only where :meth:`compiled_replay`): what a
         :meth:`step` per stamp does, outcomes counted the same, beliefs of the record stamps appended to ``out``.
@@ -362,10 +367,10 @@ class Engine:
         tally(self.counts, self.reasons, status, reason)
         return status
 
-    def _refuse_kinds(self, det: Detections, status: np.ndarray) -> np.ndarray:
+    def _refuse_kinds(self, det: Detections, status: np.ndarray) -> BoolArray:
         """An SE(3) team's pending detections of kinds other than ``"pose3"``: rejected, counted under the nodes'
         reason (``kind '<kind>' is not supported on SE(3)``); returns their mask."""
-        bad = (status == PENDING) & (det.kind != POSE3)
+        bad: BoolArray = (status == PENDING) & (det.kind != POSE3)
         if bad.any():
             status[bad] = REJECTED
             codes, count = np.unique(det.kind[bad], return_counts=True)

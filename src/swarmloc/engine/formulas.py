@@ -20,7 +20,7 @@ import math
 from collections.abc import Callable
 from functools import cache
 from types import ModuleType
-from typing import Any
+from typing import Any, Protocol, TypeAlias, TypeVar
 
 from swarmloc.engine.codes import (
     ABSOLUTE,
@@ -53,12 +53,33 @@ W_STEP = (_W_HI - _W_LO) / (WEIGHT_GRID - 1)
 """The spacing of the covariance-intersection weight's grid (:func:`swarmloc.kernels.ci.joint_weight`)."""
 
 
-def _plain(fn: Callable[..., Any]) -> Callable[..., Any]:
+Value: TypeAlias = Any
+"""A formula's value: a float, int or bool of one robot or detection in a numba loop, a jax array (elementwise)
+inside a scan; numba's scalars and jax's arrays and tracers have no common type, so it is not checked."""
+Rules: TypeAlias = tuple[Value, Value, Value]
+"""Decisions so far, ``(outcome, reason, decided)`` (:func:`rule`)."""
+Vec3: TypeAlias = tuple[Value, Value, Value]
+"""A pose ``(x, y, theta)``, a measurement's three entries, or a 3x3 matrix's row."""
+Mat3: TypeAlias = tuple[Vec3, Vec3, Vec3]
+"""A 3x3 matrix as rows of entries."""
+Row6: TypeAlias = tuple[Value, Value, Value, Value, Value, Value]
+"""A Jacobian row over the observer's and the target's pose, or a covariance's upper triangle."""
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+class Jit(Protocol):
+    """A compiler of the formulas: a function in, a function of the same signature out (``numba.njit``'s dispatcher,
+    or the function itself: :func:`_plain`)."""
+
+    def __call__(self, fn: _F, /) -> _F: ...
+
+
+def _plain(fn: _F) -> _F:
     return fn
 
 
 @cache
-def build(xp: Any, jit: Any = _plain) -> Any:
+def build(xp: Any, jit: Jit = _plain) -> ModuleType:
     """The formulas for namespace ``xp``, each compiled by ``jit`` (see the module docstring), as the attributes
     of a module object (numba compiles a module's attribute as it compiles a global of its own)."""
     out = ModuleType(f"{__name__}[{getattr(xp, '__name__', xp)}]")
@@ -67,23 +88,23 @@ def build(xp: Any, jit: Any = _plain) -> Any:
     return out
 
 
-def _decisions(xp: Any, jit: Any) -> dict[str, Any]:
+def _decisions(xp: Any, jit: Jit) -> dict[str, Any]:
     """The rules: screening before a state is read, the gate after an update."""
 
     @jit
-    def rule(d: tuple, cond: Any, outcome: Any, reason: Any) -> tuple:
+    def rule(d: Rules, cond: Value, outcome: Value, reason: Value) -> Rules:
         """``d = (outcome, reason, decided)`` after one more rule: ``cond`` decides unless an earlier rule did."""
         st, why, done = d
         take = xp.logical_and(cond, xp.logical_not(done))
         return xp.where(take, outcome, st), xp.where(take, reason, why), xp.logical_or(done, cond)
 
     @jit
-    def decided(d: tuple, otherwise: Any) -> tuple:
+    def decided(d: Rules, otherwise: Value) -> tuple[Value, Value]:
         """``(outcome, reason)`` of the rules ``d``: the deciding rule's, or ``(otherwise, 0)``."""
         return xp.where(d[2], d[0], otherwise), xp.where(d[2], d[1], 0)
 
     @jit
-    def landmark_rules(kind: Any, j: Any, lm_on: Any) -> tuple:
+    def landmark_rules(kind: Value, j: Value, lm_on: Value) -> Rules:
         """The replays' first rules: an absolute fix goes on; a landmark's detection (target code ``j <=
         NO_LANDMARK``) is refused with landmarks off, unknown when not in the map, else goes on."""
         lm = j <= NO_LANDMARK
@@ -93,7 +114,7 @@ def _decisions(xp: Any, jit: Any) -> dict[str, Any]:
         return rule(d, lm, 0, 0)
 
     @jit
-    def screen_central(kind: Any, i: Any, j: Any, relative: Any, lm_on: Any) -> tuple:
+    def screen_central(kind: Value, i: Value, j: Value, relative: Value, lm_on: Value) -> tuple[Value, Value]:
         """``(outcome, reason)`` a centralized node decides before reading a state (``(0, 0)``: go on), its
         ``_classify`` as codes: observer ``i``, target code ``j``."""
         d = landmark_rules(kind, j, lm_on)
@@ -104,7 +125,8 @@ def _decisions(xp: Any, jit: Any) -> dict[str, Any]:
         return d[0], d[1]
 
     @jit
-    def screen_started(kind: Any, i: Any, j: Any, t: Any, t0: Any, relative: Any, lm_on: Any) -> tuple:
+    def screen_started(kind: Value, i: Value, j: Value, t: Value, t0: Value, relative: Value,
+                       lm_on: Value) -> tuple[Value, Value]:  # fmt: skip
         """As :func:`screen_central` for the distributed nodes (:meth:`~swarmloc.node.base.Node._classify`): a
         teammate answers only from its start ``t0[j]`` [s] on (``t0`` every robot's)."""
         started = t >= t0[xp.maximum(j, 0)]
@@ -117,8 +139,8 @@ def _decisions(xp: Any, jit: Any) -> dict[str, Any]:
         return d[0], d[1]
 
     @jit
-    def screen_stamp(kind: Any, i: Any, j: Any, observer_on: Any, target_on: Any, relative: Any,
-                     lm_on: Any) -> tuple:  # fmt: skip
+    def screen_stamp(kind: Value, i: Value, j: Value, observer_on: Value, target_on: Value, relative: Value,
+                     lm_on: Value) -> tuple[Value, Value, Value]:  # fmt: skip
         """The engine's screening of one detection of a stamp (:func:`swarmloc.engine.outcomes.screen`):
         ``(outcome, reason, needs)``, ``needs`` whether it is pending and asks robot ``j`` for its state;
         ``observer_on``, ``target_on``: whether the observer and (a robot) target have started."""
@@ -137,7 +159,7 @@ def _decisions(xp: Any, jit: Any) -> dict[str, Any]:
         return d[0], d[1], xp.logical_and(robot, xp.logical_not(d[2]))
 
     @jit
-    def gate_rules(d: tuple, nis: Any, threshold: Any, gate: Any) -> tuple:
+    def gate_rules(d: Rules, nis: Value, threshold: Value, gate: Value) -> Rules:
         """The gate's rules after an update (:func:`swarmloc.node.update.gated_kalman`): with the gate on, a
         non-finite normalized innovation squared ``nis`` is rejected, one above ``threshold`` gated."""
         d = rule(d, xp.logical_and(gate, xp.logical_not(xp.isfinite(nis))), REJECTED, R_NONFINITE)
@@ -146,21 +168,22 @@ def _decisions(xp: Any, jit: Any) -> dict[str, Any]:
     return {k: v for k, v in locals().items() if k not in ("xp", "jit")}
 
 
-def _geometry(xp: Any, jit: Any) -> dict[str, Any]:
+def _geometry(xp: Any, jit: Jit) -> dict[str, Any]:
     """Angles, measurements, the invariant filters' noise and correction."""
 
     @jit
-    def wrap(a: Any) -> Any:
+    def wrap(a: Value) -> Value:
         """An angle [rad] wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`)."""
         return _PI - xp.mod(_PI - a, _TAU)
 
     @jit
-    def pick6(c: Any, a: tuple, b: tuple) -> tuple:
+    def pick6(c: Value, a: Row6, b: Row6) -> Row6:
         return (xp.where(c, a[0], b[0]), xp.where(c, a[1], b[1]), xp.where(c, a[2], b[2]), xp.where(c, a[3], b[3]),
                 xp.where(c, a[4], b[4]), xp.where(c, a[5], b[5]))  # fmt: skip
 
     @jit
-    def measure(kind: Any, x0: Any, y0: Any, th: Any, xk: tuple, z: tuple) -> tuple:
+    def measure(kind: Value, x0: Value, y0: Value, th: Value, xk: Vec3,
+                z: Vec3) -> tuple[Vec3, tuple[Row6, Row6, Row6], tuple[Value, Value]]:  # fmt: skip
         """Residual ``r (3)``, Jacobian rows ``H (3 x 6)`` (the observer's columns, then the target's) and the
         entries ``(cos, sin)`` of the rotation ``B(z)`` that makes a relative pose's noise Cartesian, of a
         detection of ``kind`` by the robot at ``(x0, y0, th)`` of a target at ``xk = (x, y, theta)``, measured
@@ -189,7 +212,7 @@ def _geometry(xp: Any, jit: Any) -> dict[str, Any]:
         return (r0, r1, r2), (h0, h1, h2), (xp.cos(z[2]), xp.sin(z[2]))
 
     @jit
-    def world_noise(x: Any, y: Any, q: tuple) -> tuple:
+    def world_noise(x: Value, y: Value, q: Row6) -> Row6:
         """A step's Cartesian process noise (upper triangle ``q00, q01, q02, q11, q12, q22``) at the new pose ``(x,
         y)`` as the world-frame error's, ``N^-1 Q N^-T`` (:func:`swarmloc.kernels.invariant.cartesian_to_world_cov`;
         the products of :class:`swarmloc.estimators.InvariantEKF`'s prediction), upper triangle."""
@@ -199,7 +222,7 @@ def _geometry(xp: Any, jit: Any) -> dict[str, Any]:
                 q22)  # fmt: skip
 
     @jit
-    def left_correct(x: Any, y: Any, th: Any, d0: Any, d1: Any, d2: Any) -> tuple:
+    def left_correct(x: Value, y: Value, th: Value, d0: Value, d1: Value, d2: Value) -> Vec3:
         """The pose ``(x, y, th)`` corrected by its world-frame ``(d0, d1, d2)``: the Cartesian pose of ``exp(hat(d))
         g`` (:func:`swarmloc.kernels.invariant.left_correct`; the Taylor branches of :func:`swarmloc.lie.SE2.exp`
         below 0.05)."""
@@ -218,24 +241,24 @@ def _geometry(xp: Any, jit: Any) -> dict[str, Any]:
     return {k: v for k, v in locals().items() if k not in ("xp", "jit")}
 
 
-def _weights(xp: Any, jit: Any) -> dict[str, Any]:
+def _weights(xp: Any, jit: Jit) -> dict[str, Any]:
     """Covariance intersection's weight: its cost on a grid and the refinement of the best point."""
 
     @jit
-    def det3(s: tuple) -> Any:
+    def det3(s: Mat3) -> Value:
         """Determinant of the 3x3 ``s`` (rows of entries) by cofactors of the first row."""
         return (s[0][0] * (s[1][1] * s[2][2] - s[1][2] * s[2][1]) - s[0][1] * (s[1][0] * s[2][2] - s[1][2] * s[2][0])
                 + s[0][2] * (s[1][0] * s[2][1] - s[1][1] * s[2][0]))  # fmt: skip
 
     @jit
-    def plus(X: tuple, Y: tuple, k: Any) -> tuple:
+    def plus(X: Mat3, Y: Mat3, k: Value) -> Mat3:
         """``X + Y / k`` of 3x3 rows of entries."""
         return ((X[0][0] + Y[0][0] / k, X[0][1] + Y[0][1] / k, X[0][2] + Y[0][2] / k),
                 (X[1][0] + Y[1][0] / k, X[1][1] + Y[1][1] / k, X[1][2] + Y[1][2] / k),
                 (X[2][0] + Y[2][0] / k, X[2][1] + Y[2][1] / k, X[2][2] + Y[2][2] / k))  # fmt: skip
 
     @jit
-    def ci_cost(w: Any, A: tuple, B: tuple, R: tuple, dof: Any) -> Any:
+    def ci_cost(w: Value, A: Mat3, B: Mat3, R: Mat3, dof: Value) -> Value:
         """The cost :func:`swarmloc.kernels.ci.joint_weight` minimizes at weight ``w``, ``-dof log w - log det(S_w +
         A / w) + log det S_w`` with ``S_w = R + B / (1 - w)`` (3x3 rows of entries; a 1- or 2-row measurement padded
         with rows of the identity in ``R``, of zeros in ``A`` and ``B``: they add ``log 1``), ``inf`` where not
@@ -246,12 +269,12 @@ def _weights(xp: Any, jit: Any) -> dict[str, Any]:
         return xp.where(xp.isfinite(v), v, math.inf)
 
     @jit
-    def ci_grid(k: Any) -> Any:
+    def ci_grid(k: Value) -> Value:
         """Point ``k`` of the weight's grid (``numpy.linspace``'s)."""
         return xp.where(k == WEIGHT_GRID - 1, _W_HI, k * W_STEP + _W_LO)
 
     @jit
-    def ci_vertex(j: Any, c0: Any, c1: Any, c2: Any) -> Any:
+    def ci_vertex(j: Value, c0: Value, c1: Value, c2: Value) -> Value:
         """The weight from the grid's best point ``j`` and its neighbours' costs ``c0, c1, c2``: the vertex of their
         parabola, within one grid step, inside the bounds."""
         den = c0 - 2 * c1 + c2

@@ -25,7 +25,8 @@ from __future__ import annotations
 
 from collections import Counter
 from functools import cache
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, Protocol, TypeAlias
 
 import numpy as np
 
@@ -41,11 +42,15 @@ from swarmloc.engine.codes import (
     R_NUMERICAL,
     REJECTED,
 )
+from swarmloc.engine.detections import Detections
 from swarmloc.engine.formulas import build
 from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
+
+if TYPE_CHECKING:  # jax is optional: imported where it runs
+    from jax import Array
 
 RANGE_BEARING = KIND_ORDER[Kind.RANGE_BEARING]
 DEVICE_KINDS = (ABSOLUTE, POSE, RANGE_BEARING)
@@ -66,14 +71,34 @@ DEVICE_PAD = 1 << 16
 _COVERED = np.zeros(len(MODEL), dtype=bool)
 _COVERED[list(DEVICE_KINDS)] = True
 
+Carry: TypeAlias = "tuple[Array, Array, Array]"
+"""What the fusion of a stamp's segments carries on: the states ``(N, 9)``, each detection's outcome and reason."""
+Rows: TypeAlias = "tuple[Array, Array, Array, Array, Array, Array, Array]"
+"""The pending rows, sorted: detection index, observer and target as rows, landmark index (-1: none), whether the
+target is read after its own group, ``z (3)``, the noise's upper triangle ``R (6)``."""
+Const: TypeAlias = "tuple[Array, Array, Array, Array, Array]"
+"""What every segment reads: the states predicted to ``t``, the gate's threshold per kind, whether the gate is on,
+the map's landmarks ``xy (L, 2)`` and covariances' upper triangles ``(L, 3)``."""
+Team: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""The team on the host: ``x (N, 3), P (N, 3, 3), clock (N,), t0 (N,), v (N,), w (N,)``."""
+Landmarks: TypeAlias = tuple[np.ndarray, np.ndarray]
+"""A map's ``(xy (L, 2), cov (L, 2, 2))``."""
 
-def import_jax() -> Any:
+
+class _Config(Protocol):
+    """What is set here of ``jax.config`` (its ``update`` carries no types)."""
+
+    def update(self, name: str, value: bool, /) -> None: ...
+
+
+def import_jax() -> ModuleType:
     """``jax``, with ``jax_enable_x64`` switched on (float64 where asked; float32 arrays stay float32)."""
     try:
         import jax
     except ImportError as exc:  # pragma: no cover - depends on the environment
         raise ImportError("backend 'jax' needs jax: pip install 'swarmloc[jax]'") from exc
-    jax.config.update("jax_enable_x64", True)
+    config: _Config = jax.config
+    config.update("jax_enable_x64", True)
     return jax
 
 
@@ -82,8 +107,8 @@ def bucket(n: int) -> int:
     return max(8, 1 << max(0, (int(n) - 1).bit_length()))
 
 
-def _segment(jnp: Any, code: int, size: int, carry: tuple, rows: tuple, start: Any, count: Any,
-             const: tuple) -> tuple:  # fmt: skip
+def _segment(jnp: Any, code: int, size: int, carry: Carry, rows: Rows, start: Array, count: Array,
+             const: Const) -> Carry:  # fmt: skip
     """Fuse rows ``start : start + count`` (at most ``size``, all of kind ``code``) of the sorted pending rows into
     ``carry``."""
     from jax import lax
@@ -125,8 +150,8 @@ def _segment(jnp: Any, code: int, size: int, carry: tuple, rows: tuple, start: A
     return cur, status, reason
 
 
-def _screen(jnp: Any, obs: Any, tgt: Any, kind: Any, valid: Any, t: Any, t0: Any, relative: Any, lm_on: Any,
-            ) -> tuple:  # fmt: skip
+def _screen(jnp: Any, obs: Array, tgt: Array, kind: Array, valid: Array, t: Array, t0: Array, relative: Array,
+            lm_on: Array) -> tuple[Array, Array, Array, Array]:  # fmt: skip
     """:func:`swarmloc.engine.formulas.screen_stamp` on the device (as :func:`swarmloc.engine.outcomes.screen`):
     ``(status, reason, obs_ok, needs)``; padded rows (``valid`` False) are neither pending nor running."""
     n = t0.shape[0]
@@ -136,19 +161,20 @@ def _screen(jnp: Any, obs: Any, tgt: Any, kind: Any, valid: Any, t: Any, t0: Any
     return status.astype(jnp.int8), reason.astype(jnp.int8), obs_ok, needs
 
 
-def _levels(jnp: Any, n: int, edge: Any, src: Any, dst: Any) -> Any:
+def _levels(jnp: Any, n: int, edge: Array, src: Array, dst: Array) -> Array:
     """:func:`swarmloc.engine.stamp.levels` on the device: longest-path levels of ``n`` robots over the ``edge``
     rows' ``src -> dst``."""
     from jax import lax
 
     dst = jnp.where(edge, dst, n)
 
-    def step(c: tuple) -> tuple:
+    def step(c: tuple[Array, Array]) -> tuple[Array, Array]:
         level, _ = c
         new = jnp.zeros(n, level.dtype).at[dst].max(level[src] + 1, mode="drop")
         return new, jnp.any(new != level)
 
-    return lax.while_loop(lambda c: c[1], step, (jnp.zeros(n, jnp.int32), jnp.asarray(True)))[0]
+    start: tuple[Array, Array] = (jnp.zeros(n, jnp.int32), jnp.asarray(True))
+    return lax.while_loop(lambda c: c[1], step, start)[0]
 
 
 def stamp_kernel(jnp: Any, noise: UnicycleNoise, sizes: tuple[int, ...], dtype: Any) -> Any:
@@ -157,8 +183,9 @@ def stamp_kernel(jnp: Any, noise: UnicycleNoise, sizes: tuple[int, ...], dtype: 
     detections padded, ``m`` of them real) returning ``(x, P, clock, status, reason, levels)`` (states float64)."""
     from jax import lax
 
-    def run(x: Any, P: Any, tc: Any, t0: Any, v: Any, w: Any, t: Any, move: Any, det: tuple, m: Any, thr: Any,
-            flags: Any, lxy: Any, lcov: Any) -> tuple:  # fmt: skip
+    def run(x: Array, P: Array, tc: Array, t0: Array, v: Array, w: Array, t: Array, move: Array,
+            det: tuple[Array, Array, Array, Array, Array], m: Array, thr: Array, flags: Array, lxy: Array,
+            lcov: Array) -> tuple[Array, Array, Array, Array, Array, Array]:  # fmt: skip
         n, mb = tc.shape[0], det[0].shape[0]
         gate_on, relative, lm_on = flags[0], flags[1], flags[2]
         x, P, v, w, thr, lxy, lcov = (a.astype(dtype) for a in (x, P, v, w, thr, lxy, lcov))
@@ -200,7 +227,8 @@ def stamp_kernel(jnp: Any, noise: UnicycleNoise, sizes: tuple[int, ...], dtype: 
                     for kk in DEVICE_KINDS for s in sizes]  # fmt: skip
         small = jnp.asarray(sizes[1:] or (0,))
 
-        def body(c: tuple) -> tuple:  # chunk ``off`` of segment ``i``: at most sizes[0] rows
+        def body(c: tuple[Array, Array, Carry]) -> tuple[Array, Array, Carry]:
+            # chunk ``off`` of segment ``i``: at most sizes[0] rows
             i, off, carry = c
             start = seg[i] + off
             count = jnp.minimum(seg[i + 1] - start, sizes[0])
@@ -258,8 +286,9 @@ class DeviceStamp:
             self._fns[sizes] = self._jax.jit(traced)
         return self._fns[sizes]
 
-    def __call__(self, state: tuple, t: float, move: np.ndarray, det: Any, gate: Gate, relative: bool, lm_on: bool,
-                 landmarks: tuple | None) -> tuple:  # fmt: skip
+    def __call__(self, state: Team, t: float, move: np.ndarray, det: Detections, gate: Gate, relative: bool,
+                 lm_on: bool, landmarks: Landmarks | None,
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:  # fmt: skip
         """One stamp: ``(x, P, clock, status, reason, levels)``, numpy arrays (states float64).
 
         ``state = (x (N, 3), P (N, 3, 3), clock (N,), t0 (N,), v (N,), w (N,))``: the team before the stamp;
@@ -296,7 +325,7 @@ class DeviceStamp:
         return self._grow(self._jax.device_put(np.ascontiguousarray(a)), np.asarray(fill, dtype=a.dtype), size)
 
 
-def covered(det: Any) -> bool:
+def covered(det: Detections) -> bool:
     """Whether every detection of the stamp is of a kind the device stamp fuses (:data:`DEVICE_KINDS`)."""
     return bool(_COVERED[det.kind].all())
 

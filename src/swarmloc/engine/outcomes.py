@@ -12,6 +12,7 @@ from collections import Counter
 
 import numpy as np
 
+from swarmloc.arrays import BoolArray, FloatArray
 from swarmloc.engine.codes import (
     FUSED,
     GATED,
@@ -53,11 +54,11 @@ def gate_rows(
     status: np.ndarray,
     reason: np.ndarray,
     rows: np.ndarray,
-    nis: np.ndarray,
+    nis: FloatArray,
     gate: Gate,
     m: int,
     nonfinite: int = R_NONFINITE,
-) -> np.ndarray:
+) -> BoolArray:
     """:meth:`Gate.verdict <swarmloc.node.update.Gate.verdict>` on the detections ``rows`` (normalized innovations
     squared ``nis`` of dimension ``m``), batched: beyond :meth:`Gate.threshold` they are ``GATED``, non-finite ones
     ``REJECTED`` with reason ``nonfinite``. Returns the mask of the rows that pass (all of them without a gate)."""

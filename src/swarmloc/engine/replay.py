@@ -55,13 +55,14 @@ from swarmloc.engine.codes import (
     UNKNOWN_ROBOT,
     UNUSABLE,
 )
-from swarmloc.engine.core import Engine, landmark_table, map_code
+from swarmloc.engine.core import Engine, Records, landmark_table, map_code
 from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.outcomes import tally
 from swarmloc.estimators import node_options
 from swarmloc.events import Detection, Kind
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, SE3
+from swarmloc.node.keys import SubKey
 from swarmloc.runner import RobotTrack, RunResult, truth_table
 from swarmloc.sensors.models import KIND_ORDER
 from swarmloc.sensors.models3 import KIND_ORDER3
@@ -70,6 +71,8 @@ from swarmloc.sim.source import sim_source
 
 Row = tuple[float, np.ndarray, np.ndarray, np.ndarray]
 """One record of a robot: ``(t, (x, y, theta), covariance, truth)``."""
+TruthRows = dict[int, tuple[np.ndarray, list[bool]]]
+"""Robot -> its truth at every record time and whether a record there is kept (:func:`_truth_rows`)."""
 
 
 def run_engine(
@@ -287,8 +290,9 @@ def _record_index(rt: np.ndarray) -> dict[float, tuple[int, ...]]:
     return records
 
 
-def _file_all(src: Source, tl: Timeline, records: dict[float, tuple[int, ...]], truth_rows: dict, robot: np.ndarray,
-              stamp: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[dict[Any, list[Row]], int]:  # fmt: skip
+def _file_all(src: Source, tl: Timeline, records: dict[float, tuple[int, ...]], truth_rows: TruthRows,
+              robot: np.ndarray, stamp: np.ndarray, x: np.ndarray, P: np.ndarray,
+              ) -> tuple[dict[Any, list[Row]], int]:  # fmt: skip
     """A compiled replay's records (robot rows, stamp indices of ``tl``, Cartesian ``x (K, 3)``, ``P (K, 3, 3)``)
     filed by robot as beliefs on the group (:func:`_file`); returns them and the records left out for missing
     truth."""
@@ -440,10 +444,10 @@ def _replay(eng: Engine, src: Source, checked: Checked, rt: np.ndarray) -> tuple
     return rows, truth_missing, time.perf_counter() - wall
 
 
-def _truth_rows(src: Source, rt: np.ndarray) -> dict[Any, tuple[np.ndarray, list[bool]]]:
+def _truth_rows(src: Source, rt: np.ndarray) -> TruthRows:
     """Robot -> its truth at every record time ``rt`` and whether a record there is kept (its truth is finite, or
     the source has no truth: NaN rows)."""
-    out = {}
+    out: TruthRows = {}
     for r in src.robots:
         table = truth_table(src.truth, r, rt)
         keep = np.isfinite(table).all(axis=1) if src.truth is not None else np.ones(rt.shape[0], dtype=bool)
@@ -451,7 +455,7 @@ def _truth_rows(src: Source, rt: np.ndarray) -> dict[Any, tuple[np.ndarray, list
     return out
 
 
-def _file(rows: dict[Any, list[Row]], truth_rows: dict, r: Any, t: float, keys: tuple[int, ...], xyt: np.ndarray,
+def _file(rows: dict[Any, list[Row]], truth_rows: TruthRows, r: Any, t: float, keys: tuple[int, ...], xyt: np.ndarray,
           cov: np.ndarray) -> int:  # fmt: skip
     """File robot ``r``'s belief at ``t`` once per record index in ``keys`` with its truth row (:func:`_truth_rows`);
     returns the records left out because the source's truth is missing there."""
@@ -483,13 +487,13 @@ def _timeline(checked: Checked, records: dict[float, tuple[int, ...]]) -> Timeli
 
 
 def _replay_compiled(
-    eng: Engine, src: Source, checked: Checked, records: dict[float, tuple[int, ...]], truth_rows: dict
+    eng: Engine, src: Source, checked: Checked, records: dict[float, tuple[int, ...]], truth_rows: TruthRows
 ) -> tuple[dict[Any, list[Row]], int]:
     """:func:`_replay`'s loop as compiled calls over the whole :class:`Timeline` (:meth:`Engine.replay_timeline`),
     a stamp the compiled kernel does not take stepped by :meth:`Engine.step`; the same records."""
     tl = _timeline(checked, records)
     k = int(tl.record.sum()) * eng.n
-    out = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)),
+    out: Records = (np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.zeros((k, 3)), np.zeros((k, 3, 3)),
            np.zeros(1, dtype=np.int64))  # fmt: skip
     s = 0
     while s < len(tl):
@@ -510,7 +514,7 @@ def _replay_compiled(
     return _file_all(src, tl, records, truth_rows, out[0][:n], out[1][:n], out[2][:n], out[3][:n])
 
 
-def _detections(groups: Sequence[tuple[int, dict[tuple, tuple[Detection, int]]]], width: int = 3) -> Detections:
+def _detections(groups: Sequence[tuple[int, dict[SubKey, tuple[Detection, int]]]], width: int = 3) -> Detections:
     """Checked detection groups ``(observer row, group)`` as arrays, in that order (robots as rows), ``z``
     ``width`` wide (6: an SE(3) team's)."""
     obs: list[int] = []

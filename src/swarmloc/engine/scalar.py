@@ -166,7 +166,7 @@ def _branches(b: _Builder, outs: list[str]) -> list[str]:
     return emit([i for i in range(len(lines)) if i not in owner], "    ")
 
 
-def _generate(name: str, n_in: int, body: Callable[[Any, list[_Sym]], list[Any]]) -> str:
+def _generate(name: str, n_in: int, body: Callable[[_XP, list[_Sym]], list[soa.Entry]]) -> str:
     b = _Builder()
     args = [_Sym(f"a{i}", b) for i in range(n_in)]
     outs = [_s(o) for o in body(_XP(b), args)]
@@ -177,19 +177,19 @@ def _generate(name: str, n_in: int, body: Callable[[Any, list[_Sym]], list[Any]]
 def predict_source(noise: UnicycleNoise) -> str:
     """``predict(x0, x1, x2, p00, p01, p02, p11, p12, p22, v, w, dt) -> (x, P upper triangle)``."""
 
-    def body(xp: Any, a: list) -> list:
+    def body(xp: _XP, a: list[_Sym]) -> list[soa.Entry]:
         xs, ps = soa.predict(xp, tuple(a[0:3]), tuple(a[3:9]), a[9], a[10], a[11], noise)
         return [*xs, *ps]
 
     return _generate("predict", 12, body)
 
 
-def _update_source(name: str, update: Callable[..., tuple], sizes: tuple[int, ...]) -> str:
+def _update_source(name: str, update: Callable[..., soa.Updated], sizes: tuple[int, ...]) -> str:
     """Source of ``name(x(3), P(6), *blocks) -> (x+(3), P+(6), nis, ok and positive definite)``: :mod:`soa`'s
     ``update(xp, x, P, *blocks)`` with blocks of ``sizes`` entries."""
     ends = list(accumulate((3, 6, *sizes)))
 
-    def body(xp: Any, a: list) -> list:
+    def body(xp: _XP, a: list[_Sym]) -> list[soa.Entry]:
         xs, ps, nis, ok = update(xp, *(tuple(a[i:j]) for i, j in zip([0, *ends], ends, strict=False)))
         return [*xs, *ps, nis, ok & soa.positive_definite(xp, ps)]
 

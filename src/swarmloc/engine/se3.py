@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from swarmloc.arrays import FloatArray
 from swarmloc.events import Kind
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.kernels import group as K
@@ -31,7 +32,7 @@ POSE3_MODEL = model3(Kind.POSE3)
 _T = np.swapaxes
 
 
-def _sym(C: np.ndarray) -> np.ndarray:
+def _sym(C: FloatArray) -> FloatArray:
     return 0.5 * (C + _T(C, -1, -2))
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from swarmloc.arrays import BoolArray
 from swarmloc.engine.codes import FUSED, PENDING, R_NONFINITE, REJECTED
 from swarmloc.engine.detections import Detections
 from swarmloc.engine.outcomes import gate_rows, mark
@@ -44,7 +45,8 @@ def levels(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
         level = new
 
 
-def schedule(n: int, det: Detections, needs: np.ndarray, obs_ok: np.ndarray, observers: np.ndarray) -> tuple:
+def schedule(n: int, det: Detections, needs: np.ndarray, obs_ok: np.ndarray,
+             observers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """The robots a stamp involves and its levels: ``(U, lo, lt, is_obs, row_level)``, ``U`` the rows of the
     observers ``observers`` (the running ones) and of the neighbours the pending detections ``needs`` ask, ``lo``,
     ``lt`` each detection's observer and target as rows of ``U`` (a target that is no robot: clipped, unused),
@@ -66,10 +68,10 @@ def schedule(n: int, det: Detections, needs: np.ndarray, obs_ok: np.ndarray, obs
     return U, lo, lt, is_obs, row_level
 
 
-def usable(Cs: np.ndarray) -> np.ndarray:
+def usable(Cs: np.ndarray) -> BoolArray:
     """``(B,)``: finite and positive definite (a Cholesky factorization exists), as the nodes'
     :func:`~swarmloc.node.update.usable_covariance`, batched."""
-    out = np.isfinite(Cs).all(axis=(-1, -2))
+    out: BoolArray = np.isfinite(Cs).all(axis=(-1, -2))
     idx = np.flatnonzero(out)
     if idx.size:
         try:
