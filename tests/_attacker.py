@@ -1,6 +1,6 @@
 """Start a test attacker script as its own process (its own Zenoh session) and stop it: shared by the networked
 authentication tests (tests/test_net_auth.py, tests/test_net_central.py); and, for the attacker scripts, a wait for a
-process's liveliness token."""
+process's liveliness token and the envelope inside a frame they overhear."""
 
 from __future__ import annotations
 
@@ -11,6 +11,9 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+
+from swarmloc.net.auth import HEADER, HEADER_V1, MAGIC, SIG_SIZE
+from swarmloc.net.macframe import MAC_HEADER, MAC_MAGIC, TAG_SIZE
 
 
 @contextmanager
@@ -65,3 +68,10 @@ def wait_alive(session, key: str, end: float) -> bool:
         if any(r.ok for r in session.liveliness().get(key, timeout=1.0)):
             return True
     return False
+
+
+def envelope_of(data: bytes) -> bytes:
+    """The schema envelope inside a MACed or a signed frame, unverified (what an eavesdropper reads)."""
+    if data[:4] == MAC_MAGIC:
+        return data[MAC_HEADER.size : len(data) - TAG_SIZE]
+    return data[(HEADER if data[:4] == MAGIC else HEADER_V1).size : len(data) - SIG_SIZE]

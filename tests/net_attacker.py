@@ -34,11 +34,10 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
-from _attacker import wait_alive
+from _attacker import envelope_of, wait_alive
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.auth import COLLECTOR, Roster, Signer, key_id, load_private
-from swarmloc.net.macframe import envelope_of
 from swarmloc.net.schema import SERVER, Belief, Progress, Report, decode, encode
 from swarmloc.net.transport import alive_key, open_session, robot_key, server_key
 

@@ -27,11 +27,10 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
-from _attacker import team_scope_of
+from _attacker import envelope_of, team_scope_of
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.auth import Auth
-from swarmloc.net.macframe import envelope_of
 from swarmloc.net.pairing import attach
 from swarmloc.net.schema import Belief, Progress, decode, encode
 from swarmloc.net.transport import alive_key, open_session, robot_key

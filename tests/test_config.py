@@ -36,7 +36,7 @@ def _write(tmp_path: Path, text: str, name: str = "swarm.toml") -> Path:
 
 
 def test_defaults_are_the_mrclam_evaluation_defaults() -> None:
-    """The numbers of swarmloc.experiments.mrclam (MRCLAM_NOISE, RANGE_STD, BEARING_STD, INITIAL_STD, gate, rate)."""
+    """The MRCLAM evaluation's numbers (motion noise, camera std, initial std, gate, rate)."""
     assert DEFAULTS == Config()
     mrclam_noise = UnicycleNoise(q_v0=1e-4, q_v2=0.05, q_lat0=1e-4, q_lat1=0.01, q_w0=1e-3, q_w2=0.05, q_wv=0.02)
     assert DEFAULTS.motion.noise() == mrclam_noise

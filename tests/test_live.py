@@ -20,12 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from _ros_input import decoded_events
 
 from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
 from swarmloc.live import LiveNode
-from swarmloc.live.ros_input import RosInput, RosInputPublisher, decoded_events, detection_cdr, odometry_cdr
+from swarmloc.live.ros_input import RosInput, RosInputPublisher, detection_cdr, odometry_cdr
 from swarmloc.live.zenoh_input import InputPublisher, ZenohInput, decode_input, encode_event, input_key
 from swarmloc.net.auth import open_envelope
 from swarmloc.net.feed import LiveFeed

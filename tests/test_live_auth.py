@@ -36,12 +36,13 @@ from pathlib import Path
 import msgspec
 import pytest
 from _netns import stranger_host
+from _ros_input import decoded_events
 from test_live import SIM, max_diff, owner, reference, wait_for
 
 from swarmloc.events import Detection, Odometry
 from swarmloc.experiments.sources import load_source
 from swarmloc.live import LiveNode
-from swarmloc.live.ros_input import RosInput, decoded_events, detection_cdr, odometry_cdr
+from swarmloc.live.ros_input import RosInput, detection_cdr, odometry_cdr
 from swarmloc.live.source import INPUT_LISTEN, check_loopback, input_endpoints, live_inputs
 from swarmloc.live.zenoh_input import InputPublisher, ZenohInput, input_key
 from swarmloc.net.auth import INPUT_CONTEXT, Auth, AuthRejected, Signer, TeamKeys, Verifier, load_private, open_envelope

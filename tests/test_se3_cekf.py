@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from _se3 import fd, perturb
 
-from swarmloc.estimators import CentralizedEKF3, make_team
+from swarmloc.estimators import CentralizedEKF, make_team
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.experiments.se3 import run_se3
 from swarmloc.experiments.sources import load_source
@@ -67,7 +67,7 @@ def test_cekf3_joint_covariance_and_selection() -> None:
     with the observer's after a relative pose, and the correlation follows both robots' predictions."""
     src = load_source("sim:3d", robots=3, duration=2.0, seed=0)
     (node,) = make_team("cekf", src.initial, noise=src.noise, t0=0.0)
-    assert type(node) is CentralizedEKF3
+    assert type(node) is CentralizedEKF
     res = run_se3(src, "cekf")
     assert res.accounted() and res.stats["fused"] == res.stats["detections"] > 0
     for e in src.events:
@@ -83,7 +83,7 @@ def test_cekf3_joint_covariance_and_selection() -> None:
 def test_cekf3_refuses_association() -> None:
     sim = simulate3d(Sim3Config(robots=2, duration=1.0), seed=0)
     with pytest.raises(ValueError, match="association"):
-        CentralizedEKF3(sim.initial, noise=sim.noise, association="nearest")
+        CentralizedEKF(sim.initial, noise=sim.noise, association="nearest")
 
 
 def test_cekf3_anees_on_sim3d() -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swarmloc.datasets.tum import pose_from7
-from swarmloc.estimators import DistributedInvariantEKF, DistributedInvariantEKF3, make_team
+from swarmloc.estimators import DistributedInvariantEKF, make_team
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection, Odometry, twist_odometry
 from swarmloc.experiments.se3 import run_se3
@@ -29,7 +29,7 @@ pytestmark = pytest.mark.unit
 def test_make_team_picks_se3_diekf() -> None:
     sim = simulate3d(Sim3Config(robots=2, duration=1.0), seed=0)
     nodes = make_team("diekf", sim.initial, noise=sim.noise)
-    assert all(type(n) is DistributedInvariantEKF3 and n.group is SE3 and n.dim == 6 for n in nodes) and nodes[
+    assert all(type(n) is DistributedInvariantEKF and n.group is SE3 and n.dim == 6 for n in nodes) and nodes[
         0
     ].team == (0, 1)
 
@@ -71,7 +71,7 @@ def test_diekf3_prediction_vs_monte_carlo() -> None:
     h = np.array([0.6, 0.1, -0.2, 0.3, -0.4, 0.8])
     S0 = np.diag([0.02, 0.01, 0.01, 0.004, 0.004, 0.009])
     prior = GroupGaussian(SE3, SE3.exp(np.array([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])), S0)
-    node = DistributedInvariantEKF3(0, prior, noise=nz, t0=0.0)
+    node = DistributedInvariantEKF(0, prior, noise=nz, t0=0.0)
     for k in range(20):
         node.step(twist_odometry(0, 0.1 * k, 0.1 * (k + 1), h))
     b = node.belief_at(2.0)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swarmloc.datasets.tum import pose7, pose_from7, read_tum, write_tum3
-from swarmloc.estimators import DistributedEKF3, ExpCI, ExpFusion, make_team
+from swarmloc.estimators import DistributedEKF, ExpCI, ExpFusion, make_team
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection, twist_odometry
 from swarmloc.experiments.se3 import run_se3, write_tum_tracks
@@ -80,7 +80,7 @@ def test_expfusion_se3_prediction_vs_monte_carlo() -> None:
 
 def test_make_team_picks_se3_estimators() -> None:
     sim = simulate3d(Sim3Config(robots=2, duration=2.0), seed=0)
-    assert isinstance(make_team("dekf", sim.initial, noise=sim.noise)[0], DistributedEKF3)
+    assert isinstance(make_team("dekf", sim.initial, noise=sim.noise)[0], DistributedEKF)
     assert isinstance(make_team("ci", sim.initial, noise=sim.noise)[0], ExpCI)
     with pytest.raises(ValueError, match="no SE\\(3\\) form"):
         make_team("rdl", sim.initial, noise=sim.noise)

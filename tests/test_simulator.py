@@ -210,9 +210,9 @@ def test_truth_spread_matches_process_noise_model():
     h = dd.twist(w1, w2)
     mu = increment_mean(h, 4.0)
     y = SE2.log(SE2.inverse(mu) @ SE2.from_xytheta(res.truth[-1]))
-    S = increment_cov(h, res.process_noise(), 4.0)
+    S = increment_cov(h, res.config.drive.diffusion(), 4.0)
     assert np.linalg.norm(np.cov(y.T) - S) / np.linalg.norm(S) < 0.08
-    np.testing.assert_allclose(res.unicycle_noise().Q(0.3, 0.4), res.process_noise(), atol=1e-18)
+    np.testing.assert_allclose(res.unicycle_noise().Q(0.3, 0.4), res.config.drive.diffusion(), atol=1e-18)
 
 
 def test_callable_commands_and_validation():

@@ -159,8 +159,3 @@ Event = Odometry | Detection | Truth
 
 OwnEvent = Odometry | Detection
 """A robot's own measurement: its odometry, or a detection it made (what a robot has, and forwards)."""
-
-
-def event_time(e: Event) -> float:
-    """The stamp a node files an event under: ``t0`` for odometry, ``t`` otherwise."""
-    return e.stamp

@@ -312,6 +312,5 @@ def message_problem(m: Message) -> str | None:
     return None
 
 
-Query = BeliefQuery | RdlStateQuery
 Answer = BeliefAnswer | RdlState
 AnyMessage = BeliefQuery | BeliefAnswer | RdlStateQuery | RdlState | RdlUpdate | TeamUpdate

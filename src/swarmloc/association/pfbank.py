@@ -100,7 +100,8 @@ def _compose_exp(mu: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _log_rel(mu: np.ndarray, q: np.ndarray) -> np.ndarray:
     """``log(mu^-1 q)`` ``(n, 3)`` for one pose ``mu`` ``(3,)`` and particles ``q`` ``(n, 3)``
-    (:func:`~swarmloc.association.registration.log_between_xyt` with ``mu``'s sine and cosine computed once)."""
+    (``log_xyt(compose_xyt(invert_xyt(mu), q))`` of :mod:`~swarmloc.association.registration`, ``mu``'s sine and
+    cosine computed once)."""
     c, s = math.cos(mu[2]), math.sin(mu[2])
     dx, dy = q[:, 0] - mu[0], q[:, 1] - mu[1]
     t1, t2 = c * dx + s * dy, c * dy - s * dx

@@ -39,7 +39,6 @@ __all__ = [
     "exp_xyt",
     "gate_by_prior",
     "invert_xyt",
-    "log_between_xyt",
     "log_xyt",
     "points_from_range_bearing",
     "visible",
@@ -148,11 +147,6 @@ def exp_xyt(y: np.ndarray) -> np.ndarray:
     out[..., 1] = B * y[..., 0] + A * y[..., 1]
     out[..., 2] = wrap_angle(a)
     return out
-
-
-def log_between_xyt(mu: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """``log(mu^-1 q)`` for planar poses (``mu`` ``(3,)`` or broadcast against ``q`` ``(..., 3)``)."""
-    return log_xyt(compose_xyt(invert_xyt(mu), q))
 
 
 def xyt_cov_to_exp(pose: np.ndarray, cov_xyt: np.ndarray) -> np.ndarray:

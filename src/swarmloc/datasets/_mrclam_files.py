@@ -29,7 +29,6 @@ BARCODE_SWAPS: tuple[tuple[int, int, tuple[float, float], tuple[float, float]], 
 
 _KINDS = ("odometry", "measurements", "truth")
 _FILE_SUFFIX = {"odometry": "Odometry", "measurements": "Measurement", "truth": "Groundtruth"}
-_NCOLS = {"odometry": 3, "measurements": 4, "truth": 4}
 
 
 class MRCLAMError(ValueError):

@@ -22,7 +22,6 @@ number in full, the next ``MAX_NUMBERS`` line numbers, and the count of all.
 from __future__ import annotations
 
 import heapq
-import math
 
 __all__ = [
     "MAX_ANGLE",
@@ -59,11 +58,6 @@ MAX_NUMBERS = 50
 def shorten(text: str, n: int = 80) -> str:
     """``text`` cut to ``n`` characters (with ``...``)."""
     return text if len(text) <= n else text[: n - 3] + "..."
-
-
-def out_of_bounds(x: float, limit: float) -> bool:
-    """True when ``x`` is not finite or ``|x| > limit``."""
-    return not (math.isfinite(x) and abs(x) <= limit)
 
 
 class BadLines:

@@ -49,13 +49,6 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3
 from swarmloc.node import DEFAULT_HORIZON, Node, RobotNode, TeamNode
 
-CentralizedEKF3 = CentralizedEKF
-"""The SE(3) ``cekf`` is :class:`CentralizedEKF` (the former name, kept for existing imports)."""
-DistributedEKF3 = DistributedEKF
-"""The SE(3) ``dekf`` is :class:`DistributedEKF` (the former name, kept for existing imports)."""
-DistributedInvariantEKF3 = DistributedInvariantEKF
-"""The SE(3) ``diekf`` is :class:`DistributedInvariantEKF` (the former name, kept for existing imports)."""
-
 if TYPE_CHECKING:
     from swarmloc.config import Config
 
@@ -191,12 +184,9 @@ __all__ = [
     "ESTIMATORS",
     "ESTIMATORS_SE3",
     "CentralizedEKF",
-    "CentralizedEKF3",
     "DeadReckoning",
     "DistributedEKF",
-    "DistributedEKF3",
     "DistributedInvariantEKF",
-    "DistributedInvariantEKF3",
     "ExpCI",
     "ExpFusion",
     "FirstEstimatesEKF",

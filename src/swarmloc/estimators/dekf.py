@@ -69,11 +69,6 @@ class FilterState(Protocol):
     def P(self) -> np.ndarray: ...
 
 
-def measurement_noise(d: Detection) -> np.ndarray:
-    """Noise covariance of ``d.z`` in the coordinates the Cartesian models predict."""
-    return model(d.kind).noise(d.z, d.cov)
-
-
 def linearize(d: Detection, x: np.ndarray, target: tuple[str, Any]) -> Linearized | None:
     """``(r, H_i, R_eff, H_k)`` of detection ``d`` at observer state ``x`` against a classified target (its
     :class:`~swarmloc.sensors.models.MeasurementModel`): innovation, Jacobian w.r.t. the observer, noise plus the

@@ -23,8 +23,8 @@ them with the configuration):
   estimate, the fallback (white) when a dataset has fewer than 100 instants with two landmarks in view, and the
   white-noise model of ``decorrelate = "off"``.
 
-  Why not the former white-noise inflation. Against dataset 6's truth (:func:`measurement_errors`,
-  :func:`robust_std`) the errors have a trimmed (98%) RMS of 0.15 m and 0.010 rad, heavy tails, and a lag-1
+  Why not the former white-noise inflation. Against dataset 6's truth (range and bearing of every detection
+  against the true poses) the errors have a trimmed (98%) RMS of 0.15 m and 0.010 rad, heavy tails, and a lag-1
   correlation of 0.94 (range) and 0.65 (bearing) between readings of one target less than 1 s apart. White noise
   at the a-priori 0.1 m double counts them (centralized EKF ANEES 6.8). The model used until now inflated the
   range std to 0.3 m, a value chosen on dataset 6's truth. The calibrated model needs no truth, and on dataset 6
@@ -69,7 +69,7 @@ from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.events import Event
 from swarmloc.experiments.evaluate import ALL, evaluate_stream, markdown_table, write_report
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2, wrap_angle
+from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.calibrate import YawScale, fit_yaw_scale, heading_increments, scale_yaw
 from swarmloc.sensors.decorrelate import (
@@ -81,25 +81,14 @@ from swarmloc.sensors.decorrelate import (
     snapshot_poses,
 )
 
-RANGE_STD = DEFAULTS.sensors.range_std
-BEARING_STD = DEFAULTS.sensors.bearing_std
-MRCLAM_NOISE = DEFAULTS.motion.noise()
-INITIAL_STD = (DEFAULTS.initial.std_xy, DEFAULTS.initial.std_xy, DEFAULTS.initial.std_theta)
-
 __all__ = [
-    "BEARING_STD",
-    "INITIAL_STD",
-    "MRCLAM_NOISE",
-    "RANGE_STD",
     "camera_model",
     "detection_set",
     "detector_reach",
     "evaluate_mrclam",
     "initial_beliefs",
     "markdown_table",
-    "measurement_errors",
     "mrclam_stream",
-    "robust_std",
     "yaw_calibrated",
     "yaw_calibration",
 ]
@@ -228,51 +217,6 @@ def engine_replay(
     team = evaluate(res)["team"] if truth is not None else {}
     return {"wall_s": best, "x_real_time": (t_end - data.t_start) / best, "pos_rmse_m": team.get("pos_rmse"),
             "anees": team.get("anees")}  # fmt: skip
-
-
-def measurement_errors(data: MRCLAMData) -> dict[str, np.ndarray]:
-    """Range and bearing errors of every detection against ground truth (robots and landmarks).
-
-    For calibrating the camera model on a dataset that has ground truth (``swarmloc`` uses it once, on
-    dataset 6, to choose its defaults; see the module docstring).
-    """
-    rng_e, brg_e, is_lm = [], [], []
-    for r in data.robots:
-        m = data.measurements[r]
-        m = m[(m[:, 0] >= data.t_start) & (m[:, 0] <= data.t_end)]
-        if m.size == 0:
-            continue
-        xi = data.truth_at(r, m[:, 0])
-        p = np.full((len(m), 2), np.nan)
-        subj = m[:, 1].astype(int)
-        for s in np.unique(subj):
-            sel = subj == s
-            if s in data.landmarks:
-                p[sel] = data.landmarks[s][:2]
-            elif s in data.robots:
-                p[sel] = data.truth_at(s, m[sel, 0])[:, :2]
-        ok = np.isfinite(p[:, 0])
-        dp = p[ok] - xi[ok, :2]
-        c, sn = np.cos(xi[ok, 2]), np.sin(xi[ok, 2])
-        qx, qy = c * dp[:, 0] + sn * dp[:, 1], -sn * dp[:, 0] + c * dp[:, 1]
-        rng_e.append(m[ok, 2] - np.hypot(qx, qy))
-        brg_e.append(wrap_angle(m[ok, 3] - np.arctan2(qy, qx)))
-        is_lm.append(np.isin(subj[ok], list(data.landmarks)))
-    return {"range": np.concatenate(rng_e), "bearing": np.concatenate(brg_e), "landmark": np.concatenate(is_lm)}
-
-
-def robust_std(e: np.ndarray, keep: float = 0.98) -> dict[str, float]:
-    """Median, MAD-based std, plain std and the RMS of the central ``keep`` fraction of ``e``."""
-    med = float(np.median(e))
-    a = np.abs(e - med)
-    cut = np.quantile(a, keep)
-    return {
-        "median": med,
-        "mad_std": float(1.4826 * np.median(a)),
-        "std": float(np.std(e)),
-        "trimmed_rms": float(np.sqrt(np.mean((e[a <= cut] - med) ** 2))),
-        "p99_abs": float(np.quantile(a, 0.99)),
-    }
 
 
 def yaw_calibrated(data: MRCLAMData, camera: CameraModel, config: Config) -> tuple[Config, dict[str, Any]]:

@@ -41,7 +41,6 @@ __all__ = [
     "world_basis_inv",
     "world_delta",
     "world_to_body",
-    "world_to_cartesian_cov",
 ]
 
 
@@ -71,12 +70,6 @@ def cartesian_to_world_cov(x: FloatArray, P: FloatArray) -> FloatArray:
     """Covariance of the world-frame error from a Cartesian covariance at ``x``: ``N^-1 P N^-T``."""
     Ni = world_basis_inv(x)
     return Ni @ P @ _T(Ni, -1, -2)
-
-
-def world_to_cartesian_cov(x: FloatArray, P: FloatArray) -> FloatArray:
-    """Cartesian covariance at ``x`` from a world-frame error covariance: ``N P N^T``."""
-    N = world_basis(x)
-    return N @ P @ _T(N, -1, -2)
 
 
 def world_to_body(g: FloatArray, P: FloatArray) -> FloatArray:

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Kind, Odometry
+from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.net import ros
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.rosgraph import RosGraph
@@ -173,19 +173,6 @@ def decode_progress(payload: bytes) -> tuple[float, bool, int | None]:
     t = ros.ros_to_stamp(m.stamp.sec, m.stamp.nanosec)
     hit = re.match(r"^end(?::([0-9]{1,12}))?$", m.frame_id)
     return t, hit is not None, None if hit is None or hit.group(1) is None else int(hit.group(1))
-
-
-def decoded_events(robot: int, t0: float, odom: list[bytes], dets: list[bytes]) -> list[Event]:
-    """What :class:`RosInput` makes of these samples of one robot (odometry in order): the replay of a stream."""
-    out: list[Event] = []
-    prev = float(t0)
-    for raw in odom:
-        t, v, w = decode_odometry(raw)
-        if t > prev:
-            out.append(Odometry(robot, prev, t, v, w))
-            prev = t
-    out += [decode_detection(raw, robot) for raw in dets]
-    return out
 
 
 # ------------------------------------------------------------------------------------------------ subscriber

@@ -27,7 +27,7 @@ import numpy as np
 from swarmloc.gaussian import convolve_moments
 from swarmloc.lie import SE2, wrap_angle
 
-__all__ = ["line_to_world", "points_to_world"]
+__all__ = ["line_to_world"]
 
 
 def line_to_world(
@@ -90,9 +90,3 @@ def _quadrature(k: int = 7) -> tuple[np.ndarray, np.ndarray]:
         W = np.einsum("i,j,k->ijk", w, w, w).ravel()
         _GH = (X, W)
     return _GH
-
-
-def points_to_world(points: np.ndarray, pose_mean: np.ndarray) -> np.ndarray:
-    """Robot-frame points ``(..., k, 2)`` [m] in the world frame of the pose ``pose_mean`` ``(..., 3, 3)``."""
-    R = pose_mean[..., None, :2, :2]
-    return np.einsum("...ij,...j->...i", R, points) + pose_mean[..., None, :2, 2]

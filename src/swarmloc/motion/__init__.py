@@ -19,7 +19,7 @@ from swarmloc.motion.closed_form import (
 )
 from swarmloc.motion.diffdrive import DiffDrive
 from swarmloc.motion.propagation import increment_cov, increment_mean, increment_mean_second_order
-from swarmloc.motion.sde import em_step, euler_maruyama
+from swarmloc.motion.sde import euler_maruyama
 from swarmloc.motion.unicycle import UnicycleNoise, odometry_increment, odometry_increment_terms
 
 __all__ = [
@@ -30,7 +30,6 @@ __all__ = [
     "circular_cov",
     "circular_mean",
     "constant_twist_cov",
-    "em_step",
     "euler_maruyama",
     "increment_cov",
     "increment_mean",

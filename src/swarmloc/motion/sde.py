@@ -16,15 +16,6 @@ from swarmloc.lie import SE2
 TwistFn = Callable[[float], np.ndarray]
 
 
-def em_step(g: np.ndarray, h: np.ndarray, H: np.ndarray, dt: float, dw: np.ndarray) -> np.ndarray:
-    """One step ``g exp((h dt + H dw)^)``.
-
-    ``g`` ``(..., 3, 3)``, ``h`` ``(..., 3)``, ``H`` ``(3, m)``, ``dw`` ``(..., m)``.
-    """
-    xi = np.asarray(h, dtype=float) * dt + _noise(dw, np.asarray(H, dtype=float))
-    return g @ SE2.exp(xi, validate=False)
-
-
 @overload
 def euler_maruyama(
     g0: np.ndarray, h: np.ndarray | TwistFn, H: np.ndarray, t: float, n_steps: int, n_paths: int,

@@ -29,11 +29,7 @@ from collections.abc import Callable, Container
 from dataclasses import dataclass, field
 
 from swarmloc.net.auth import (
-    HEADER,
-    HEADER_V1,
-    MAGIC,
     MAX_SIGNED,
-    SIG_SIZE,
     AuthRejected,
     ReplayWindow,
     check_stamp,
@@ -152,10 +148,3 @@ def mac_vouches(key_expr: str, data: bytes, context: bytes, session_of: Callable
         return False
     frame = memoryview(data)[: len(data) - TAG_SIZE]
     return hmac.compare_digest(tag(s.key, context, key_expr, frame), data[-TAG_SIZE:])
-
-
-def envelope_of(data: bytes) -> bytes:
-    """The schema envelope inside a MACed or a signed frame, unverified (for tools that read the traffic)."""
-    if data[:4] == MAC_MAGIC:
-        return data[MAC_HEADER.size : len(data) - TAG_SIZE]
-    return data[(HEADER if data[:4] == MAGIC else HEADER_V1).size : len(data) - SIG_SIZE]

@@ -16,7 +16,7 @@ non-finite numbers, a mean outside SE(2), a covariance that is not symmetric pos
 :data:`~swarmloc.messages.MAX_FLOATS` numbers a field, :data:`~swarmloc.messages.MAX_TEXT` characters a text, 64 a
 team's name, :data:`MAX_RAW_ITEMS` measurements a forward, :data:`MAX_COUNTERS` counters a report. Stale and
 duplicate messages are caught where the state is: the node's history (``stale or duplicate answer``,
-``duplicate update``) and the :class:`Dedup` filter for published beliefs and progress.
+``duplicate update``) and the signed frame's replay window (:class:`swarmloc.net.auth.ReplayWindow`).
 
 Who sent a payload is established before it is decoded, by its Ed25519 signature against the team's roster
 (:mod:`swarmloc.net.auth`: the frame around the envelope); ``from_robot`` must name the signer.
@@ -462,17 +462,3 @@ def decode(
     if why:
         raise Rejected(why)
     return env
-
-
-class Dedup:
-    """Per-sender sequence numbers: a payload with a ``seq`` not above the last accepted one from that sender
-    (a duplicate, or overtaken by a newer one) is refused. For streams where only the newest counts (progress)."""
-
-    def __init__(self) -> None:
-        self.last: dict[int, int] = {}
-
-    def fresh(self, env: Envelope) -> bool:
-        if env.seq <= self.last.get(env.from_robot, -1):
-            return False
-        self.last[env.from_robot] = env.seq
-        return True

@@ -49,10 +49,6 @@ class History:
         self.entries.clear()
         self.base, self.base_key = base, base_key
 
-    @property
-    def last_key(self) -> Key | None:
-        return self.keys[-1] if self.keys else None
-
     def position(self, key: Key) -> int:
         """Where ``key`` is or would be inserted."""
         keys = self.keys

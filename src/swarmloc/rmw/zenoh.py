@@ -15,8 +15,9 @@ and its endpoints visible to ``ros2 node list`` / ``ros2 topic list`` through rm
   publisher cache).
 * Scope ``localhost``: the session (when swarmloc opens it) has multicast scouting off and accepts only loopback
   endpoints (``tcp/127.0.0.1:<port>``, ``tcp/localhost:<port>``, ``tcp/[::1]:<port>``) to listen on and connect to,
-  e.g. :data:`ROUTER`, rmw_zenoh's router; ``subnet``: multicast scouting on. A caller's ``session`` is used as
-  it is (the caller owns and closes it).
+  e.g. ``tcp/127.0.0.1:7447``, where rmw_zenoh's router (``ros2 run rmw_zenoh_cpp rmw_zenohd``) listens by
+  default; ``subnet``: multicast scouting on. A caller's ``session`` is used as it is (the caller owns and closes
+  it).
 """
 
 from __future__ import annotations
@@ -36,8 +37,6 @@ from swarmloc.rmw.names import check_namespace, check_node_name, check_topic
 from swarmloc.rmw.qos import DEFAULT, Qos, check_qos
 from swarmloc.rmw.types import check_msgtype, encode
 
-ROUTER = "tcp/127.0.0.1:7447"
-"""Where rmw_zenoh's router (``ros2 run rmw_zenoh_cpp rmw_zenohd``) listens by default."""
 _LOOPBACK = re.compile(r"^(tcp|udp|quic|tls)/(127\.0\.0\.1|localhost|\[::1\]):[0-9]{1,5}$")
 _ZERO_GID = bytes(ros.GID_SIZE)
 

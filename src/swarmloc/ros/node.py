@@ -64,14 +64,11 @@ class RosClock:
     def __init__(self, sim: bool) -> None:
         self.sim = bool(sim)
         self._t: float | None = None
-        self.backwards = 0
-        """``/clock`` messages that went back in time (ignored: a bag played in a loop)."""
 
     def on_clock(self, msg: Any, _info: Any = None) -> None:
         """A ``rosgraph_msgs/msg/Clock`` message."""
         t = cv.rosmsg.ros_to_stamp(msg.clock.sec, msg.clock.nanosec)
-        if self._t is not None and t < self._t:
-            self.backwards += 1
+        if self._t is not None and t < self._t:  # back in time (a bag played in a loop): ignored
             return
         self._t = t
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Kind, MeasurementKind, Odometry, Truth, twist_odometry
+from swarmloc.events import Detection, Event, Kind, MeasurementKind, Truth, twist_odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE3, wrap_angle
 from swarmloc.motion.twist3 import TwistNoise
@@ -258,7 +258,3 @@ def simulate3d(cfg: Sim3Config | None = None, seed: int = 0) -> Sim3Result:
     L0 = np.linalg.cholesky(S0)
     initial = {r: GroupGaussian(SE3, g[0, r] @ SE3.exp(-(L0 @ rng.standard_normal(6))), S0) for r in range(n)}
     return Sim3Result([e[3] for e in events], initial, times, g, cfg, lms)
-
-
-def is_odometry(e: Event) -> bool:
-    return isinstance(e, Odometry)

@@ -13,7 +13,7 @@ Generative model (everything an estimator needs to match it):
 * **Odometry.** The encoders report the *commanded* wheel speeds of the interval, converted by eq. (5.14):
   ``Odometry(robot, t0, t1, v, w)``. The truth therefore deviates from the odometry by exactly the SDE's
   diffusion: the matching process model is ``mean = exp(T (v, 0, w)^)``, covariance (5.4) with
-  ``Q = H H^T = D diag(r^2/2, 0, 2 r^2/l^2)`` per second (:meth:`SimResult.process_noise`,
+  ``Q = H H^T = D diag(r^2/2, 0, 2 r^2/l^2)`` per second (``SimResult.config.drive.diffusion()``,
   :meth:`SimResult.unicycle_noise`; up to the O(dt_f) Euler-Maruyama discretization).
 * **Relative sensor** (:class:`RelativeSensor`), at ``rate`` Hz, for every ordered pair observer ``i`` /
   target ``j != i`` whose true relative position ``p = R_i^T (t_j - t_i)`` has ``|p| <= max_range`` and
@@ -175,10 +175,6 @@ class SimResult:
     times: np.ndarray
     truth: np.ndarray
     config: SimConfig
-
-    def process_noise(self) -> np.ndarray:
-        """Body-twist diffusion per second ``Q = H H^T`` (3x3) that generated the truth."""
-        return self.config.drive.diffusion()
 
     def unicycle_noise(self) -> UnicycleNoise:
         """The same process noise as a :class:`~swarmloc.motion.UnicycleNoise` (for ``odometry_increment``)."""

@@ -6,5 +6,6 @@ with the benchmarks' helpers (:mod:`~swarmloc.studies.bench`, :mod:`~swarmloc.st
 :mod:`~swarmloc.studies.accelerator`).
 
 A layer above :mod:`swarmloc.experiments` and below :mod:`swarmloc.cli` (``pyproject.toml``'s import contract): only
-the command line's study commands, the benchmarks and the tests import a study; the runtime never does.
+the command line's study commands, the benchmarks, the examples and the tests import a study; the runtime
+never does.
 """
