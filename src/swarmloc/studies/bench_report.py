@@ -53,7 +53,7 @@ def _format_fusion(f: dict) -> list[str]:
         spread = ""
         if r.get("runs", 1) > 1:
             lo, hi = r["min_robot_updates_per_s"], r["max_robot_updates_per_s"]
-            spread = f"  median of {r['runs']}, {lo:.3g} to {hi:.3g}"
+            spread = f"  median of {r['runs']}, {lo:.3g} to {hi:.3g}; {r['robot_updates_per_cpu_s']:.3g} per CPU second"
         out.append(f"  {label:<36} {r['n']:>7,} robots {rate:>12} robot-updates/s{ratio}{spread}")
     loads = [x for r in f.get("backends", {}).values() for x in r.get("load_1min", ())]
     if loads:
