@@ -277,7 +277,7 @@ def engine_runs(n: int, backend: str, neighbours: int = 3, repeats: int = 5, run
     load0 = _load()
     rs = [fusion_step(n, backend=backend, neighbours=neighbours, repeats=repeats, landmarks=landmarks)
           for _ in range(max(1, runs))]  # fmt: skip
-    out = {k: v for k, v in rs[0].items() if isinstance(v, int | float | str)}
+    out: dict[str, Any] = {k: v for k, v in rs[0].items() if isinstance(v, int | float | str)}
     rates = [r["robot_updates_per_s"] for r in rs]
     out.update(runs=len(rs), robot_updates_per_s=float(np.median(rates)), min_robot_updates_per_s=min(rates),
                max_robot_updates_per_s=max(rates),
