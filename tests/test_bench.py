@@ -42,6 +42,8 @@ def test_fusion_comparison_rates_ratio_and_fractions(machine):
         assert r["over_filterpy"] == pytest.approx(r["robot_updates_per_s"] / f["filterpy"]["robot_updates_per_s"])
         assert r["runs"] == 3  # the median of three runs, between their extremes
         assert r["min_robot_updates_per_s"] <= r["robot_updates_per_s"] <= r["max_robot_updates_per_s"]
+        assert r["max_robot_updates_per_s"] <= r["best_robot_updates_per_s"]  # a run's median is not above its best
+        assert r["step_s"] == pytest.approx(30 / r["robot_updates_per_s"])
         assert len(r["load_1min"]) == 2 and all(x >= 0 for x in r["load_1min"])
     keys = ("engine_over_filterpy", "achieved_gb_s", "achieved_gflops", "fraction_of_bandwidth", "fraction_of_flops")
     for key in keys:

@@ -269,9 +269,10 @@ def filterpy_fusion(n: int, neighbours: int = 3, repeats: int = 3, seed: int = 0
 def engine_runs(n: int, backend: str, neighbours: int = 3, repeats: int = 5, runs: int = 10,
                 landmarks: int = 0) -> dict:  # fmt: skip
     """:func:`~swarmloc.engine.fusion_step` run ``runs`` times (each the median of ``repeats`` steps): the first
-    run's other figures with ``robot_updates_per_s`` and ``robot_updates_per_cpu_s`` the medians over the runs,
-    ``min_robot_updates_per_s`` and ``max_robot_updates_per_s``, ``runs``, and ``load_1min``: the 1-minute load
-    average before and after the runs (``os.getloadavg``; absent where the platform has none)."""
+    run's other figures with ``robot_updates_per_s`` and ``robot_updates_per_cpu_s`` the medians over the runs
+    (``step_s``: ``n`` over that median), ``min_robot_updates_per_s`` and ``max_robot_updates_per_s``,
+    ``best_robot_updates_per_s`` over all steps, ``runs``, and ``load_1min``: the 1-minute load average before and
+    after the runs (``os.getloadavg``; absent where the platform has none)."""
     from swarmloc.engine import fusion_step
 
     load0 = _load()
@@ -279,8 +280,10 @@ def engine_runs(n: int, backend: str, neighbours: int = 3, repeats: int = 5, run
           for _ in range(max(1, runs))]  # fmt: skip
     out: dict[str, Any] = {k: v for k, v in rs[0].items() if isinstance(v, int | float | str)}
     rates = [r["robot_updates_per_s"] for r in rs]
-    out.update(runs=len(rs), robot_updates_per_s=float(np.median(rates)), min_robot_updates_per_s=min(rates),
+    med = float(np.median(rates))
+    out.update(runs=len(rs), robot_updates_per_s=med, step_s=n / med, min_robot_updates_per_s=min(rates),
                max_robot_updates_per_s=max(rates),
+               best_robot_updates_per_s=max(r["best_robot_updates_per_s"] for r in rs),
                robot_updates_per_cpu_s=float(np.median([r["robot_updates_per_cpu_s"] for r in rs])))  # fmt: skip
     load1 = _load()
     if load0 is not None and load1 is not None:
