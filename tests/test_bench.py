@@ -29,7 +29,8 @@ def test_machine_rates(machine):
 
 def test_fusion_comparison_rates_ratio_and_fractions(machine):
     ticks = []
-    f = B.fusion_comparison(engine_n=30, filterpy_n=8, neighbours=3, repeats=1, machine=machine, tick=ticks.append)
+    f = B.fusion_comparison(engine_n=30, filterpy_n=8, neighbours=3, repeats=1, machine=machine, tick=ticks.append,
+                            runs=3)  # fmt: skip
     assert len(ticks) == 2
     for key in ("filterpy", "engine"):  # filterpy and the engine are installed with the dev extra
         assert _positive(f[key]["robot_updates_per_s"]), f[key]
@@ -39,6 +40,11 @@ def test_fusion_comparison_rates_ratio_and_fractions(machine):
     for b in ("numpy", "numba", "jax"):
         r = f["backends"][b]
         assert r["over_filterpy"] == pytest.approx(r["robot_updates_per_s"] / f["filterpy"]["robot_updates_per_s"])
+        assert r["runs"] == 3  # the median of three runs, between their extremes
+        assert r["min_robot_updates_per_s"] <= r["robot_updates_per_s"] <= r["max_robot_updates_per_s"]
+        assert r["max_robot_updates_per_s"] <= r["best_robot_updates_per_s"]  # a run's median is not above its best
+        assert r["step_s"] == pytest.approx(30 / r["robot_updates_per_s"])
+        assert len(r["load_1min"]) == 2 and all(x >= 0 for x in r["load_1min"])
     keys = ("engine_over_filterpy", "achieved_gb_s", "achieved_gflops", "fraction_of_bandwidth", "fraction_of_flops")
     for key in keys:
         assert _positive(f[key]), key
@@ -85,16 +91,17 @@ def test_mrclam_replay_x_real_time(mrclam_root, mrclam6):
 def test_report_and_json_from_a_tiny_config(capsys, monkeypatch, mrclam_root_if_expected):
     tiny = B.BenchConfig(
         engine_n=20, filterpy_n=5, repeats=1, copy_mb=1, matmul_n=32, swarm_sizes=(10, 20), swarm_steps=2,
-        neighbour_sweep=(1, 3), sweep_n=20, isolate=False, replay_duration=2.0, estimators=("dekf",),
+        neighbour_sweep=(1, 3), sweep_n=20, isolate=False, replay_duration=2.0, estimators=("dekf",), runs=1,
     )  # fmt: skip
     monkeypatch.setattr(B, "QUICK", tiny)
     rates = B.machine_rates
     monkeypatch.setattr(B, "machine_rates", lambda *a, **k: rates(1, 32, 1, single_thread=False))
     data = ["--mrclam", str(mrclam_root_if_expected)] if mrclam_root_if_expected else []  # section d without it
-    assert main(["bench", "--quick", "--json", "--quiet", *data]) == 0
+    assert main(["bench", "--quick", "--json", "--quiet", "--runs", "2", *data]) == 0
     res = json.loads(capsys.readouterr().out)
+    assert res["config"]["runs"] == 2 and res["fusion_step"]["backends"]["numba"]["runs"] == 2  # --runs over --quick
     assert set(res) == {"machine", "config", "fusion_step", "swarms", "mrclam"}
     assert res["config"]["engine_n"] == 20
     text = B.format_report(res)
-    for heading in ("a. fusion step", "b. machine", "c. swarms", "d. MRCLAM replay"):
+    for heading in ("a. fusion step", "b. machine", "c. swarms", "d. MRCLAM replay", "median of 2,", "load average"):
         assert heading in text

@@ -356,7 +356,10 @@ PARALLEL_MIN = 50_000
 on, :meth:`NumbaOps.fuse_levels` and the parallel row kernels. Measured on the shared 2-core machine on one slow
 day (``fusion_step``, relative-pose swarms with 3 neighbours, robot-updates/s, one thread / two threads): 1.7e6 /
 1.7-2.0e6 at 10k robots (30k rows) at twice the CPU time; 1.0e6 / 1.5-1.6e6 at 30k robots (90k rows); 1.2-1.3e6 /
-1.7-1.9e6 at 100k robots; 0.87e6 / 0.88-0.93e6 at 1M robots (the neighbours' states out of the cache)."""
+1.7-1.9e6 at 100k robots; 0.87e6 / 0.88-0.93e6 at 1M robots (the neighbours' states out of the cache). Those are
+quiet-machine figures: with other jobs on both cores (load 5-7) the two-thread path is slower than one thread, 2.3x
+at 100k robots and 20x at 10k with numba's ``omp`` threading layer (its threads spin between the levels), 1.2x with
+``workqueue`` (docs/benchmarks.md, 2026-12-05)."""
 
 
 def _serial(rows: int) -> bool:

@@ -170,11 +170,12 @@ def increment_terms(xp: Any, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise
         near, _horner(SERIES["E"], x2), (1.5 * safe - 2 * xp.sin(safe) + xp.sin(2 * safe) / 4) / (s3 * safe * safe)
     )
     nz = xp.where(zero, 1.0, x)
+    sin_x = xp.sin(x)  # also sin(nz) where it is used (nz == x there): one sine, not two
     s2 = xp.where(zero, 1.0, xp.sin(2 * nz) / (2 * nz))
-    s1 = xp.where(zero, 1.0, xp.sin(nz) / nz)
+    s1 = xp.where(zero, 1.0, sin_x / nz)
     h = xp.where(zero, 1.0, xp.sin(nz / 2) / (nz / 2))
     h2 = h * h
-    return (xp.cos(x), xp.sin(x), *unicycle_terms(x, t, v, q_v, q_w, q_lat, s2, A, B, E, s1, h2, h2 * h2))
+    return (xp.cos(x), sin_x, *unicycle_terms(x, t, v, q_v, q_w, q_lat, s2, A, B, E, s1, h2, h2 * h2))
 
 
 def predict(xp: Any, x: Vec, p: Vec, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise) -> tuple[Vec, Vec]:

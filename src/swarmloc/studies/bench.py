@@ -5,7 +5,9 @@ Five sections (each a function, called by :func:`run_bench`; ``--sections`` pick
 a. **Fusion step** (:func:`fusion_comparison`): robot-updates per second of one SE(2) step, a prediction and
    ``neighbours`` (3) relative-pose updates per robot (distributed EKF: the neighbour's covariance as noise, Joseph
    form), for a plain per-robot loop over ``filterpy``'s ``ExtendedKalmanFilter`` and for the batched engine's step
-   (:func:`swarmloc.engine.fusion_step`, each installed backend of :data:`BACKENDS`); ratios to filterpy.
+   (:func:`swarmloc.engine.fusion_step`, each installed backend of :data:`BACKENDS`); ratios to filterpy. Each
+   engine row is the median of ``runs`` (10) runs of the step (:func:`engine_runs`), with their minimum and maximum
+   and the load average around them: on a shared machine one run says little.
 b. **Machine** (:func:`machine_rates`): memory bandwidth of a large numpy copy [GB/s, read + write] and the float64
    matmul rate [GFLOP/s] (all BLAS threads, and one thread in a fresh process); the fusion step's achieved
    fraction of each, from the estimated work of one robot-update (:data:`BYTES_PER_UPDATE`,
@@ -76,6 +78,7 @@ class BenchConfig:
     filterpy_n: int = 1_000
     neighbours: int = 3
     repeats: int = 5
+    runs: int = 10
     copy_mb: int = 256
     matmul_n: int = 2048
     swarm_sizes: tuple[int, ...] = (100, 1_000, 10_000)
@@ -92,8 +95,8 @@ class BenchConfig:
 
 FULL = BenchConfig()
 QUICK = BenchConfig(
-    engine_n=2_000, filterpy_n=200, repeats=3, copy_mb=64, matmul_n=1024, swarm_sizes=(100, 1_000), swarm_steps=100,
-    sweep_n=300, isolate=False, replay_duration=60.0, accelerator_sizes=(1_000, 10_000),
+    engine_n=2_000, filterpy_n=200, repeats=3, runs=3, copy_mb=64, matmul_n=1024, swarm_sizes=(100, 1_000),
+    swarm_steps=100, sweep_n=300, isolate=False, replay_duration=60.0, accelerator_sizes=(1_000, 10_000),
 )  # fmt: skip
 
 
@@ -263,13 +266,47 @@ def filterpy_fusion(n: int, neighbours: int = 3, repeats: int = 3, seed: int = 0
             "best_robot_updates_per_s": n / min(times)}  # fmt: skip
 
 
+def engine_runs(n: int, backend: str, neighbours: int = 3, repeats: int = 5, runs: int = 10,
+                landmarks: int = 0) -> dict:  # fmt: skip
+    """:func:`~swarmloc.engine.fusion_step` run ``runs`` times (each the median of ``repeats`` steps): the first
+    run's other figures with ``robot_updates_per_s`` and ``robot_updates_per_cpu_s`` the medians over the runs
+    (``step_s``: ``n`` over that median), ``min_robot_updates_per_s`` and ``max_robot_updates_per_s``,
+    ``best_robot_updates_per_s`` over all steps, ``runs``, and ``load_1min``: the 1-minute load average before and
+    after the runs (``os.getloadavg``; absent where the platform has none)."""
+    from swarmloc.engine import fusion_step
+
+    load0 = _load()
+    rs = [fusion_step(n, backend=backend, neighbours=neighbours, repeats=repeats, landmarks=landmarks)
+          for _ in range(max(1, runs))]  # fmt: skip
+    out: dict[str, Any] = {k: v for k, v in rs[0].items() if isinstance(v, int | float | str)}
+    rates = [r["robot_updates_per_s"] for r in rs]
+    med = float(np.median(rates))
+    out.update(runs=len(rs), robot_updates_per_s=med, step_s=n / med, min_robot_updates_per_s=min(rates),
+               max_robot_updates_per_s=max(rates),
+               best_robot_updates_per_s=max(r["best_robot_updates_per_s"] for r in rs),
+               robot_updates_per_cpu_s=float(np.median([r["robot_updates_per_cpu_s"] for r in rs])))  # fmt: skip
+    load1 = _load()
+    if load0 is not None and load1 is not None:
+        out["load_1min"] = (load0, load1)
+    return out
+
+
+def _load() -> float | None:
+    """The 1-minute load average (None where the platform has none)."""
+    try:
+        return os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return None
+
+
 def fusion_comparison(
     engine_n: int = 10_000, filterpy_n: int = 1_000, neighbours: int = 3, repeats: int = 5,
-    machine: dict | None = None, tick: Tick = no_tick,
+    machine: dict | None = None, tick: Tick = no_tick, runs: int = 10,
 ) -> dict:  # fmt: skip
     """Section a (and the fractions of section b when ``machine`` is given): the engine's
-    :func:`~swarmloc.engine.fusion_step` and :func:`filterpy_fusion`, robot-updates/s and their ratio; also the
-    step with one map landmark per robot on the fastest installed CPU backend (numba, else numpy)."""
+    :func:`~swarmloc.engine.fusion_step` (:func:`engine_runs`: the median of ``runs`` runs) and
+    :func:`filterpy_fusion`, robot-updates/s and their ratio; also the step with one map landmark per robot on the
+    fastest installed CPU backend (numba, else numpy)."""
     out: dict[str, Any] = {"neighbours": neighbours}
     try:
         out["filterpy"] = filterpy_fusion(filterpy_n, neighbours, max(1, min(repeats, 3)))
@@ -287,14 +324,12 @@ def fusion_comparison(
                 continue
             if backend == "jax":  # compiled once per batch size: a first, untimed call
                 eng.fusion_step(engine_n, backend=backend, neighbours=neighbours, repeats=1)
-            r = eng.fusion_step(engine_n, backend=backend, neighbours=neighbours, repeats=repeats)
-            out["backends"][backend] = {k: v for k, v in r.items() if isinstance(v, int | float | str)}
+            out["backends"][backend] = engine_runs(engine_n, backend, neighbours, repeats, runs)
         out["engine"] = out["backends"]["numpy"]
         rates = {b: r["robot_updates_per_s"] for b, r in out["backends"].items() if "robot_updates_per_s" in r}
         out["best_backend"] = max(rates, key=rates.__getitem__)
-        lm = eng.fusion_step(engine_n, backend=swarm_backend(), neighbours=neighbours, repeats=repeats, landmarks=1)
-        out["backends"][f"{swarm_backend()}, 1 landmark"] = {k: v for k, v in lm.items() if
-                                                                   isinstance(v, int | float | str)}  # fmt: skip
+        lm = engine_runs(engine_n, swarm_backend(), neighbours, repeats, runs, landmarks=1)
+        out["backends"][f"{swarm_backend()}, 1 landmark"] = lm
     tick("fusion step: engine")
     fp, en = out["filterpy"].get("robot_updates_per_s"), out["engine"].get("robot_updates_per_s")
     if fp and en:
@@ -490,7 +525,7 @@ def run_bench(
             tick("machine: bandwidth and FLOP rate")
         if "a" in sections:
             res["fusion_step"] = fusion_comparison(cfg.engine_n, cfg.filterpy_n, cfg.neighbours, cfg.repeats, m,
-                                                   tick)  # fmt: skip
+                                                   tick, cfg.runs)  # fmt: skip
         if "c" in sections:
             res["swarms"] = swarm_scaling(cfg.swarm_sizes, cfg.swarm_steps, cfg.neighbour_sweep, cfg.sweep_n,
                                           cfg.neighbours, cfg.isolate, tick)  # fmt: skip
@@ -512,6 +547,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     ap.add_argument("--mrclam", default=None, help=f"MRCLAM_Dataset6 folder (or its parent; default ${MRCLAM_ENV})")
     ap.add_argument("--duration", type=float, default=None, help="replay: seconds of the dataset (default all)")
+    ap.add_argument("--runs", type=int, default=None, help="fusion step: runs of each engine row, the median "
+                    "reported with the minimum and maximum (default 10; --quick 3)")  # fmt: skip
     ap.add_argument("--rounds", type=int, default=None, help="replay: rounds, the best kept (default 1)")
     ap.add_argument("--estimators", default=None, help="replay: comma-separated names (default all six)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -527,6 +564,8 @@ def config_from_args(args: argparse.Namespace) -> BenchConfig:
         cfg = replace(cfg, replay_duration=args.duration)
     if args.rounds is not None:
         cfg = replace(cfg, replay_rounds=max(1, args.rounds))
+    if getattr(args, "runs", None) is not None:
+        cfg = replace(cfg, runs=max(1, args.runs))
     if args.estimators:
         cfg = replace(cfg, estimators=tuple(e for e in args.estimators.split(",") if e))
     if getattr(args, "accelerator_sizes", None):

@@ -50,7 +50,14 @@ def _format_fusion(f: dict) -> list[str]:
             continue
         rate = _fmt_rate(r["robot_updates_per_s"])
         ratio = f"  {r['over_filterpy']:,.0f}x filterpy" if "over_filterpy" in r else ""
-        out.append(f"  {label:<36} {r['n']:>7,} robots {rate:>12} robot-updates/s{ratio}")
+        spread = ""
+        if r.get("runs", 1) > 1:
+            lo, hi = r["min_robot_updates_per_s"], r["max_robot_updates_per_s"]
+            spread = f"  median of {r['runs']}, {lo:.3g} to {hi:.3g}; {r['robot_updates_per_cpu_s']:.3g} per CPU second"
+        out.append(f"  {label:<36} {r['n']:>7,} robots {rate:>12} robot-updates/s{ratio}{spread}")
+    loads = [x for r in f.get("backends", {}).values() for x in r.get("load_1min", ())]
+    if loads:
+        out.append(f"  load average (1 min) around the engine runs: {min(loads):.2f} to {max(loads):.2f}")
     if "fraction_of_bandwidth" in f:
         frac1 = f.get("fraction_of_flops_one_thread")
         out.append(f"  work estimate per robot-update: {f['bytes_per_update']} B, {f['flops_per_update']} flop")
