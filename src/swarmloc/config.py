@@ -333,8 +333,6 @@ class FilterConfig(Section):
     """diekf scales its process noise online from its own innovations (swarmloc.estimators.adaptive_noise)"""
     diekf_odocal: bool = False
     """diekf calibrates each robot's odometry scale and yaw-rate bias online, truth-free (swarmloc.motion.odocal)"""
-    diekf_split: bool = False
-    """diekf in clusters fuses outsiders by split covariance intersection (swarmloc.estimators.diekf)"""
     quarantine: Count | None = 3
     """a teammate's updates refused in a row (each beyond the gate) that quarantine it for the run"""
 

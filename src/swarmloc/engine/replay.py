@@ -124,9 +124,6 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
         raise ValueError("the engine's diekf keeps its noise fixed: run [filter] diekf_adaptive with the nodes")
     if opts.pop("odocal", False):
         raise ValueError("the engine's diekf takes the odometry as given: run [filter] diekf_odocal with the nodes")
-    if opts.pop("split", False):
-        raise ValueError("the engine's clusters fuse outsiders by covariance intersection: run [filter] diekf_split "
-                         "with the nodes")  # fmt: skip
     return opts
 
 

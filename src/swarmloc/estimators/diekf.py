@@ -49,20 +49,6 @@ engine replays the clusters in one compiled loop (``run_engine(source, "diekf", 
 :mod:`swarmloc.engine.joint_clusters`; ``backend="jax"``: :mod:`swarmloc.engine.jax_clusters`). The accuracy cost
 and the cost per robot against team size: ``benchmarks/diekf_cluster.py``.
 
-**Split covariance intersection** (``split``, ``[filter] diekf_split``; clusters only, nodes only: the engine refuses
-it). Julier & Uhlmann's split CI ("General decentralized data fusion with covariance intersection", Handbook of
-Multisensor Data Fusion, 2001; for cooperative localization Li & Nashashibi, IEEE ITS Magazine 2013, and
-Wanasinghe, Mann & Gosine, 2014): a covariance ``Sigma = Sigma_d + Sigma_i`` whose part ``Sigma_i`` is known
-independent of the other estimate is bounded by ``Sigma_d / w + Sigma_i`` instead of ``Sigma / w``. Here the
-independent part of robot ``i`` is the process noise it took since its error last could reach a robot outside its
-cluster (:class:`~swarmloc.estimators.world_form.Independent`, carried in the state): it is reset when ``i``'s belief
-is given to an outsider (a ``BeliefQuery`` answered, :attr:`TeamProtocol.exposed`) and when an update involves
-``i`` (its own, or a mate's detection of it: ``i``'s error then enters its mates', who may give theirs out). An
-update of a third pair leaves it (its innovation holds none of ``i``'s fresh noise). The outsider update is then
-the covariance-intersection one with ``P_ii`` replaced by ``P_ii - (1 - w) Pi`` (every mate divides the broadcast's
-``P_ii`` by ``w``), which bounds the joint covariance whatever the correlation of the dependent parts. The outsider's
-belief is taken as all dependent (its answer carries no split). Measured: ``benchmarks/diekf_swarm.py --split``.
-
 Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
 ``RdlStateQuery`` keyed as the detection would be were it of that teammate
 (:func:`~swarmloc.estimators.state_exchange.anonymous_sub`), as ``rdl`` does; the detection given a robot is
@@ -88,7 +74,6 @@ SE(2) only (the covariance-intersection weight is SE(2)'s)."""
 
 from __future__ import annotations
 
-from bisect import bisect_right
 from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Protocol
@@ -98,7 +83,7 @@ import numpy as np
 from swarmloc.estimators.adaptive_noise import Innovation, NoiseScale, innovation_terms
 from swarmloc.estimators.dekf import DEGENERATE, FilterState
 from swarmloc.estimators.state_exchange import StateQueries
-from swarmloc.estimators.world_form import FORMS, Independent, TeamState, robot_pair, world_step
+from swarmloc.estimators.world_form import FORMS, TeamState, robot_pair, world_step
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels.ci import W_BOUNDS, joint_weight
 from swarmloc.lie import SE2, SE3
@@ -174,27 +159,19 @@ class TeamProtocol:
         self._unusable: set[tuple[Any, ...]] = set()
         self.innovations = False
         """Whether :meth:`one` keeps :attr:`last_innovation` (an owner that adapts its noise sets it)."""
-        self.split = False
-        """Whether outsiders are fused by split covariance intersection (an owner sets it; module docstring)."""
-        self.exposed: list[float] = []
-        """The stamps, sorted, at which this robot's belief was given to a robot outside its cluster (``split``)."""
         self.last_innovation: Innovation | None = None
         """The last detection's innovation terms (:func:`~swarmloc.estimators.adaptive_noise.innovation_terms`)."""
 
     def initial(self, mean: np.ndarray, cov: np.ndarray, t0: float) -> TeamState:
         x, P = self.form.initial(mean, cov)
         n, d = len(self.team), self.form.dim
-        indep = Independent(t0, P) if self.split else None  # the robots' initial errors are independent
-        return TeamState(t0, 0.0, 0.0, x, P, np.zeros((n, n, d, d)), indep)
+        return TeamState(t0, 0.0, 0.0, x, P, np.zeros((n, n, d, d)))
 
     def belief(self, x: Any, P: np.ndarray) -> GroupGaussian:
         return belief_of(*self.form.belief(x, P))
 
     def answer(self, s: Replica, q: Message) -> Answer | None:
-        """The answer to an :class:`~swarmloc.messages.RdlStateQuery` (None: another query; with ``split``, a
-        :class:`~swarmloc.messages.BeliefQuery` of an outsider is noted in :attr:`exposed`)."""
-        if self.split and isinstance(q, BeliefQuery) and q.stamp not in self.exposed:
-            self.exposed.insert(bisect_right(self.exposed, q.stamp), q.stamp)
+        """The answer to an :class:`~swarmloc.messages.RdlStateQuery` (None: another query)."""
         if not isinstance(q, RdlStateQuery):
             return None
         return RdlState(sender=q.receiver, receiver=q.sender, stamp=q.stamp, sub=q.sub, x=flat(s.x), P=flat(s.P),
@@ -226,10 +203,7 @@ class TeamProtocol:
         Sigma = 0.5 * (Sigma + Sigma.transpose(1, 0, 3, 2))  # Sigma_ba = Sigma_ab^T, as P's symmetrization below
         P = P0 - G[me] @ Gam[me].T
         P = 0.5 * (P + P.T)
-        indep: Independent | None = getattr(s, "indep", None)  # flsd's state has none
-        if indep is not None and self.robot in (i, j):  # this robot's error is now in its mates': no longer apart
-            indep = Independent(s.t, np.zeros_like(P))
-        return TeamState(s.t, s.v, s.w, self.form.correct(s.x, Gam[me] @ nu), P, Sigma, indep)
+        return TeamState(s.t, s.v, s.w, self.form.correct(s.x, Gam[me] @ nu), P, Sigma)
 
     # ------------------------------------------------------------------------------------------------ update
     def one(self, s: Replica, d: Any, target: tuple[str, Any], gate: Gate, lin_log: list[Any] | None,
@@ -285,33 +259,10 @@ class TeamProtocol:
         if lin is None:
             return ("rejected", DEGENERATE)
         r, Hi, Hj, R = lin
-        Pi = self.independent(s)
-        A, B = Hi @ (s.P - Pi) @ Hi.T, Hj @ Pjj @ Hj.T
+        A, B = Hi @ s.P @ Hi.T, Hj @ Pjj @ Hj.T
         w = joint_weight(A, B, R, self.form.dim * len(self.team))
-        if self.split:  # Sigma_ii / w + Pi (1 - 1/w), as P_ii' / w (the broadcast's P_ii: every mate divides by w)
-            s = s._replace(P=s.P - (1.0 - w) * Pi)  # type: ignore[attr-defined]  # a TeamState
-        S = Hi @ s.P @ Hi.T / w + B / (1.0 - w) + R
+        S = A / w + B / (1.0 - w) + R
         return self.gated_update(s, i, i, Hi, np.zeros_like(Hi), S, r, s.P, gate, w)
-
-    def independent(self, s: Replica) -> np.ndarray:
-        """The part of this robot's ``P`` independent of every robot outside the cluster (split covariance
-        intersection, module docstring): the process noise taken since ``s.indep.since``, or zero when off or when
-        this robot's belief was given to an outsider since (:attr:`exposed`)."""
-        indep: Independent | None = getattr(s, "indep", None)  # flsd's state has none
-        if indep is None or bisect_right(self.exposed, indep.since) < bisect_right(self.exposed, s.t):
-            return np.zeros_like(s.P)
-        return indep.P
-
-    def advanced(self, s: Replica, t: float, P: np.ndarray) -> Independent | None:
-        """``s.indep`` after a prediction to ``t`` that took ``s.P`` to ``P`` (the world-frame error's transition is
-        the identity: the step's process noise is ``P - s.P``); reset when the belief was given to an outsider within
-        ``(s.t, t]``."""
-        indep: Independent | None = getattr(s, "indep", None)  # flsd's state has none
-        if indep is None:
-            return None
-        if bisect_right(self.exposed, s.t) < bisect_right(self.exposed, t):
-            return Independent(t, np.zeros_like(P))
-        return Independent(indep.since, indep.P + (P - s.P))
 
     def gated_update(
         self, s: Replica, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, S: np.ndarray, r: np.ndarray,
@@ -429,10 +380,8 @@ class TeamProtocol:
             counts["updates_unusable"] -= 1
 
     def prune(self, cutoff: float) -> None:
-        """Forget the unusable broadcasts stamped before ``cutoff`` (their count stands), and the exposures before it
-        but the last (:meth:`independent` reads back to the last reset)."""
+        """Forget the unusable broadcasts stamped before ``cutoff`` (their count stands)."""
         self._unusable = {k for k in self._unusable if k[0] >= cutoff}
-        del self.exposed[: max(0, bisect_right(self.exposed, cutoff) - 1)]
 
 
 class DistributedInvariantEKF(RobotNode):
@@ -445,8 +394,7 @@ class DistributedInvariantEKF(RobotNode):
     process noise scaled online from this robot's own innovations (:class:`~swarmloc.estimators.adaptive_noise.
     NoiseScale`, :attr:`noise_scale`; ``[filter] diekf_adaptive``). ``odocal``: this robot's odometry scale and yaw-rate
     bias calibrated online from its own posteriors (:class:`~swarmloc.motion.odocal.OdometryCalibration`,
-    :attr:`odometry`; SE(2) only; ``[filter] diekf_odocal``). ``split``: outsiders fused by split covariance
-    intersection (module docstring; needs ``cluster > 0``; ``[filter] diekf_split``)."""
+    :attr:`odometry`; SE(2) only; ``[filter] diekf_odocal``)."""
 
     name = "diekf"
     lazy_odometry = True
@@ -457,15 +405,12 @@ class DistributedInvariantEKF(RobotNode):
     protocol: TeamProtocol
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
-                 adaptive: bool = False, odocal: bool = False, split: bool = False, **kw: Any) -> None:  # fmt: skip
+                 adaptive: bool = False, odocal: bool = False, **kw: Any) -> None:  # fmt: skip
         self.noise_scale = NoiseScale() if adaptive else None
         self.odometry = OdometryCalibration() if odocal else None
         self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=True,
                                      association=kw.get("association", "tags"), gated_broadcasts=True)  # fmt: skip
         self.protocol.innovations = adaptive
-        if split and not cluster:
-            raise ValueError("diekf: 'split' (split covariance intersection) fuses outsiders: it needs 'cluster' > 0")
-        self.protocol.split = split
         if odocal and self.protocol.form.group is not SE2:
             raise ValueError("diekf: 'odocal' calibrates planar odometry: SE(2) only")
         super().__init__(robot, initial, team=self.protocol.team, **kw)
@@ -486,13 +431,13 @@ class DistributedInvariantEKF(RobotNode):
         x, P = self.protocol.form.predict(s.x, s.P, s.v, s.w, dt, self.noise)
         if self.noise_scale is not None:
             P = self.noise_scale.inflate(s.P, P, t)
-        return TeamState(t, s.v, s.w, x, P, s.Sigma, self.protocol.advanced(s, t, P))
+        return TeamState(t, s.v, s.w, x, P, s.Sigma)
 
     def _set_command(self, s: TeamState, robot: int, v: Any, w: Any) -> TeamState:
         if self.odometry is not None:
             self.odometry.record_command(s.t, v, w)
             v, w = self.odometry.apply(s.t, v, w)
-        return TeamState(s.t, v, w, s.x, s.P, s.Sigma, s.indep)
+        return TeamState(s.t, v, w, s.x, s.P, s.Sigma)
 
     def _advance_commands(self, s: Any, cmds: Any) -> Any:
         """A run of odometry: :meth:`_advance` and :meth:`_set_command` one by one (predicting in world-frame errors,
@@ -509,7 +454,7 @@ class DistributedInvariantEKF(RobotNode):
                 t0 = t
             v, w = vk, wk
         x = s.x if P is s.P else np.array([x0, y0, th])
-        return TeamState(t0, v, w, x, P, s.Sigma, self.protocol.advanced(s, t0, P))
+        return TeamState(t0, v, w, x, P, s.Sigma)
 
     def _belief(self, s: TeamState, robot: int) -> GroupGaussian:
         return self.protocol.belief(s.x, s.P)

@@ -29,9 +29,7 @@ _NO_SIGMA.setflags(write=False)
 class TeamState(NamedTuple):
     """A robot's filter state: time [s], command (SE(2): ``(v, w)``; SE(3): the body twist's linear and angular
     velocity), pose (SE(2): ``x (3,)``; SE(3): ``(4, 4)``), world-frame covariance ``P (d, d)`` and the replica
-    ``Sigma (n, n, d, d)`` of the team's cross-covariances (robots in ``team`` order; diagonal blocks unused);
-    ``indep``: the part of ``P`` independent of every robot outside the cluster (``diekf``'s split covariance
-    intersection; None when off)."""
+    ``Sigma (n, n, d, d)`` of the team's cross-covariances (robots in ``team`` order; diagonal blocks unused)."""
 
     t: float
     v: Any
@@ -39,15 +37,6 @@ class TeamState(NamedTuple):
     x: np.ndarray
     P: np.ndarray
     Sigma: np.ndarray
-    indep: Independent | None = None
-
-
-class Independent(NamedTuple):
-    """The process noise a robot took since ``since`` [s] (the last time its error could reach a robot outside its
-    cluster): its covariance ``P (d, d)`` is independent of every robot outside the cluster."""
-
-    since: float
-    P: np.ndarray
 
 
 def robot_pair(d: Any, xi: np.ndarray, xj: np.ndarray) -> tuple[np.ndarray, ...] | None:
