@@ -2,7 +2,7 @@
 of the exact filter and of clusters against team size, on teams whose arena grows with them (constant density).
 
     python benchmarks/diekf_swarm.py                                    # 5,10,20,50 robots, exact and clusters of 5
-    python benchmarks/diekf_swarm.py --robots 10,20,50 --cluster 5 --split --duration 15
+    python benchmarks/diekf_swarm.py --robots 10,20,50 --cluster 2,5 --duration 15
     python benchmarks/diekf_swarm.py --net --robots 5,10 --cluster 5      # networked nodes on 127.0.0.1, threads
 
 In process (default): every robot a node of the in-process runner; each message a node hands the runner is counted
@@ -15,8 +15,7 @@ RMSE [m] and ANEES/dof against the simulator's truth (:func:`swarmloc.evaluation
 (as tests/test_net.py's ``thread_team``), on 127.0.0.1; traffic from the nodes' network counters (``sent``,
 ``received``: point-to-point queries, answers and pushes; ``broadcasts_sent``/``broadcasts_received`` and
 ``broadcast_bytes``: the team broadcasts). Its beliefs equal the in-process run's (tests/test_net_diekf.py), so
-accuracy is given by the in-process rows. ``--split``: the clusters' outsider updates by split covariance
-intersection (``[filter] diekf_split``).
+accuracy is given by the in-process rows.
 
 Scene: ``sim:random`` in an arena of side ``3 m sqrt(n / 5)`` (benchmarks/diekf_cluster.py's ``--spread``), seed 1.
 """
@@ -65,13 +64,12 @@ def counted(node: Any, traffic: Counter[str]) -> None:
     node.step = counting
 
 
-def options(src: Source, cluster: int, split: bool) -> dict[str, Any]:
-    split_opt = {"split": True} if split else {}
-    return {**node_options("diekf", src.config, src.landmarks), "cluster": cluster, **split_opt}
+def options(src: Source, cluster: int) -> dict[str, Any]:
+    return {**node_options("diekf", src.config, src.landmarks), "cluster": cluster}
 
 
-def in_process(src: Source, n: int, cluster: int, split: bool, duration: float) -> dict[str, Any]:
-    nodes = make_team("diekf", src.initial, **options(src, cluster, split))
+def in_process(src: Source, n: int, cluster: int, duration: float) -> dict[str, Any]:
+    nodes = make_team("diekf", src.initial, **options(src, cluster))
     traffic: Counter[str] = Counter()
     for node in nodes:
         counted(node, traffic)
@@ -84,14 +82,14 @@ def in_process(src: Source, n: int, cluster: int, split: bool, duration: float) 
             **per}  # fmt: skip
 
 
-def monte_carlo(n: int, cluster: int, split: bool, duration: float, seeds: list[int]) -> dict[str, Any]:
+def monte_carlo(n: int, cluster: int, duration: float, seeds: list[int]) -> dict[str, Any]:
     """The in-process run on ``len(seeds)`` independent scenes: ANEES/dof and RMSE averaged over seeds, and the
     fraction of (robot, record time) whose ANEES/dof over the seeds lies within, below or above the two-sided 95%
     chi-square bounds of ``len(seeds)`` independent NEES (:func:`swarmloc.evaluation.metrics.over_seeds`)."""
     results, rows = [], []
     for seed in seeds:
         src = scene(n, duration, seed, True)
-        nodes = make_team("diekf", src.initial, **options(src, cluster, split))
+        nodes = make_team("diekf", src.initial, **options(src, cluster))
         results.append(run(nodes, src.events, src.record_times(), truth=src.truth))
         rows.append(evaluate(results[-1])["team"])
     inside = below = above = total = 0
@@ -108,9 +106,9 @@ def monte_carlo(n: int, cluster: int, split: bool, duration: float, seeds: list[
     }  # fmt: skip
 
 
-def networked(src: Source, n: int, cluster: int, split: bool, duration: float, max_wall: float) -> dict[str, Any]:
+def networked(src: Source, n: int, cluster: int, duration: float, max_wall: float) -> dict[str, Any]:
     """Every robot a NetNode on its own Zenoh session, threads of this process (tests/test_net.py's thread_team)."""
-    f = dataclasses.replace(src.config.filter, diekf_cluster=cluster, **({"diekf_split": True} if split else {}))
+    f = dataclasses.replace(src.config.filter, diekf_cluster=cluster)
     cfg = dataclasses.replace(src.config, filter=f)
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(n)]
     sessions, nets = [], []
@@ -154,14 +152,12 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--exact-up-to", type=int, default=50, help="largest team the exact filter runs")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--split", action="store_true", help="also clusters with split covariance intersection")
     ap.add_argument("--net", action="store_true", help="networked nodes (threads, 127.0.0.1): traffic only")
     ap.add_argument("--max-wall", type=float, default=600.0)
     ap.add_argument("--seeds", type=int, default=0, help="Monte Carlo: this many seeds from --seed (in process)")
     args = ap.parse_args()
     sizes = [int(x) for x in args.robots.split(",")]
-    settings = [(0, False)] + [(int(c), s) for c in args.cluster.split(",") if c for s in (False, True)
-                               if s <= args.split]  # fmt: skip
+    settings = [0] + [int(c) for c in args.cluster.split(",") if c]
     how = "networked (threads, 127.0.0.1)" if args.net else "in process"
     print(f"sim:random spread, seed {args.seed}, {args.duration:g} s; {how}; per robot and second of data")
     if args.seeds:
@@ -176,21 +172,21 @@ def main() -> None:
               f"{'B recv':>8} {'RMSE [m]':>9} {'ANEES/dof':>9} {'cpu s':>6}")  # fmt: skip
     for n in sizes:
         src = scene(n, args.duration, args.seed, True)
-        for c, split in settings:
+        for c in settings:
             if c == 0 and n > args.exact_up_to:
                 continue
-            name = "exact" if c == 0 else f"K={c}" + (" sci" if split else "")
+            name = "exact" if c == 0 else f"K={c}"
             if args.seeds:
-                r = monte_carlo(n, c, split, args.duration, list(range(args.seed, args.seed + args.seeds)))
+                r = monte_carlo(n, c, args.duration, list(range(args.seed, args.seed + args.seeds)))
                 print(f"{n:>6} {name:>10} {r['rmse']:>9.4f} {r['anees']:>9.2f} {r['in']:>6.2f} {r['below']:>6.2f} "
                       f"{r['above']:>6.2f}", flush=True)  # fmt: skip
             elif args.net:
-                r = networked(src, n, c, split, args.duration, args.max_wall)
+                r = networked(src, n, c, args.duration, args.max_wall)
                 print(f"{n:>6} {name:>10} {r['sent']:>7.1f} {r['recv']:>7.1f} {r['bc_sent']:>7.1f} "
                       f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['wall']:>7.1f}"
                       + ("" if r["reports"] == n else f"  ({r['reports']} of {n} reports)"), flush=True)  # fmt: skip
             else:
-                r = in_process(src, n, c, split, args.duration)
+                r = in_process(src, n, c, args.duration)
                 print(f"{n:>6} {name:>10} {r['fused']:>6.1f} {r['sent']:>8.1f} {r['recv']:>8.1f} "
                       f"{r['sent_bytes']:>8.0f} {r['recv_bytes']:>8.0f} {r['rmse']:>9.4f} {r['anees']:>9.2f} "
                       f"{r['cpu']:>6.1f}", flush=True)  # fmt: skip
