@@ -35,11 +35,10 @@ from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import FUSED, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_joint import detection, kalman_columns, predict_step
-from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, measure, run_batch, sym, usable
+from swarmloc.engine.jax_replay import blocks, cartesian, compiled, formulas, measure, run_batch, sym, usable
 from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors.models import MIN_RANGE
 
 __all__ = ["replay_clusters_batch", "replay_clusters_jax"]
 
@@ -87,13 +86,9 @@ def _marginals(jnp: Any, noise: UnicycleNoise, state: tuple, t: Any) -> tuple:
     """Every robot's Cartesian marginal predicted to ``t`` (not stored): ``x (N, 3)``, ``P (N, 3, 3)``."""
     X, PC, tc, v, w = state
     N, K = X.shape[0], PC.shape[1] // 3
-    xn, _, _, q = predict_step(jnp, noise, True, X, v, w, t - tc)
+    xn, a, b, q = predict_step(jnp, noise, True, X, v, w, t - tc)
     M = jnp.moveaxis(jnp.diagonal(PC.reshape(-1, K, 3, K, 3), axis1=1, axis2=3), -1, 1).reshape(N, 3, 3)
-    M = M + sym(jnp, q)
-    one, zero = jnp.ones(N), jnp.zeros(N)
-    A = jnp.stack([jnp.stack([one, zero, -xn[:, 1]], -1), jnp.stack([zero, one, xn[:, 0]], -1),
-                   jnp.stack([zero, zero, one], -1)], -2)  # fmt: skip
-    return xn, A @ M @ jnp.swapaxes(A, -1, -2)
+    return xn, cartesian(jnp, True, xn, M, a, b, q)
 
 
 def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev: dict, const: tuple) -> tuple:
@@ -109,10 +104,11 @@ def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev
     Xv, Pv = view[0], view[1]
     li = i - lo
     xi = X[i]
-    degenerate = (kind >= RANGE_BEARING) & (jnp.hypot(xj[0] - xi[0], xj[1] - xi[1]) < MIN_RANGE)
+    B = blocks()
+    degenerate = B.degenerate(kind, xi[0], xi[1], xj[0], xj[1])
     r, H, Rm = measure(jnp, kind, xi, xj, ev["z"], ev["R"])
-    H = H.at[:, 5].add(-xj[1] * H[:, 3] + xj[0] * H[:, 4])  # world-frame error columns: H N
-    H = H.at[:, 2].add(-xi[1] * H[:, 0] + xi[0] * H[:, 1])
+    H = H.at[:, 5].set(B.to_world(H[:, 3], H[:, 4], H[:, 5], xj[0], xj[1]))  # world-frame error columns: H N
+    H = H.at[:, 2].set(B.to_world(H[:, 0], H[:, 1], H[:, 2], xi[0], xi[1]))
     Hi, Hj = H[:, :3], H[:, 3:]
     A = Hi @ lax.dynamic_slice(Pv, (3 * li, 3 * li), (3, 3)) @ Hi.T
     B = Hj @ Pj @ Hj.T

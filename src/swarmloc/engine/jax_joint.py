@@ -25,10 +25,20 @@ import numpy as np
 from swarmloc.engine import soa
 from swarmloc.engine.codes import ABSOLUTE, FUSED, NO_LANDMARK, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, inverse, measure, run_batch, sym, usable, wrap
+from swarmloc.engine.jax_replay import (
+    blocks,
+    cartesian,
+    compiled,
+    formulas,
+    inverse,
+    measure,
+    run_batch,
+    sym,
+    usable,
+    wrap,
+)
 from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors.models import MIN_RANGE
 
 
 # ------------------------------------------------------------------------------------------------ the pieces
@@ -39,7 +49,7 @@ def predict_step(jnp: Any, noise: UnicycleNoise, invariant: bool, x: Any, v: Any
     xs, q = soa.predict(jnp, (x[..., 0], x[..., 1], x[..., 2]), (z,) * 6, v, w, dt, noise)
     if invariant:
         return jnp.stack(xs, -1), z, z, formulas().world_noise(xs[0], xs[1], q)
-    return jnp.stack(xs, -1), -(xs[1] - x[..., 1]), xs[0] - x[..., 0], q
+    return jnp.stack(xs, -1), *blocks().moved(x[..., 0], x[..., 1], xs[0], xs[1]), q
 
 
 def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, invariant: bool, state: tuple, k: Any, t: Any) -> tuple:
@@ -50,11 +60,11 @@ def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, invariant: bool, state: t
     xn, a, b, q = predict_step(jnp, noise, invariant, X[k], v[k], w[k], t - tc[k])
     i = 3 * k
     if not invariant:
+        shear = blocks().shear
         rows = lax.dynamic_slice(P, (i, 0), (3, N))
-        rows = rows.at[0].add(a * rows[2]).at[1].add(b * rows[2])
-        P = lax.dynamic_update_slice(P, rows, (i, 0))
+        P = lax.dynamic_update_slice(P, jnp.stack([*shear(rows[0], rows[1], rows[2], a, b), rows[2]]), (i, 0))
         cols = lax.dynamic_slice(P, (0, i), (N, 3))
-        cols = cols.at[:, 0].add(a * cols[:, 2]).at[:, 1].add(b * cols[:, 2])
+        cols = jnp.stack([*shear(cols[:, 0], cols[:, 1], cols[:, 2], a, b), cols[:, 2]], 1)
         P = lax.dynamic_update_slice(P, cols, (0, i))
     block = lax.dynamic_slice(P, (i, i), (3, 3)) + sym(jnp, q)
     P = lax.dynamic_update_slice(P, block, (i, i))
@@ -67,15 +77,7 @@ def _marginals(jnp: Any, noise: UnicycleNoise, invariant: bool, state: tuple, t:
     n = X.shape[0]
     xn, a, b, q = predict_step(jnp, noise, invariant, X, v, w, t - tc)
     idx = jnp.arange(n)
-    M = P.reshape(n, 3, n, 3)[idx, :, idx, :]
-    one, zero = jnp.ones(n), jnp.zeros(n)
-    if invariant:
-        M = M + sym(jnp, q)
-        A = jnp.stack([jnp.stack([one, zero, -xn[:, 1]], -1), jnp.stack([zero, one, xn[:, 0]], -1),
-                       jnp.stack([zero, zero, one], -1)], -2)  # fmt: skip
-        return xn, A @ M @ jnp.swapaxes(A, -1, -2)
-    A = jnp.stack([jnp.stack([one, zero, a], -1), jnp.stack([zero, one, b], -1), jnp.stack([zero, zero, one], -1)], -2)
-    return xn, A @ M @ jnp.swapaxes(A, -1, -2) + sym(jnp, q)
+    return xn, cartesian(jnp, invariant, xn, P.reshape(n, 3, n, 3)[idx, :, idx, :], a, b, q)
 
 
 def kalman_columns(
@@ -122,14 +124,15 @@ def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tu
     X, P = s1[0], s1[1]
     lk = jnp.clip(NO_LANDMARK - 1 - j, 0, lxy.shape[0] - 1)
     xk = jnp.where(robot, X[jr], jnp.concatenate([lxy[lk], jnp.zeros(1)]))
-    degenerate = (kind >= RANGE_BEARING) & (jnp.hypot(xk[0] - X[i, 0], xk[1] - X[i, 1]) < MIN_RANGE)
+    B = blocks()
+    degenerate = B.degenerate(kind, X[i, 0], X[i, 1], xk[0], xk[1])
     r, H, Rm = measure(jnp, kind, X[i], xk, ev["z"], ev["R"])
     Hk = H[:, 3:5]
     Rm = jnp.where(~robot & (kind != ABSOLUTE), Rm + Hk @ lcov[lk] @ Hk.T, Rm)  # a map landmark's covariance
     H = jnp.where(robot, H, H.at[:, 3:].set(0.0))
     if invariant:  # world-frame error columns: H N
-        H = H.at[:, 5].add(jnp.where(robot, -xk[1] * H[:, 3] + xk[0] * H[:, 4], 0.0))
-        H = H.at[:, 2].add(-X[i, 1] * H[:, 0] + X[i, 0] * H[:, 1])
+        H = H.at[:, 5].set(jnp.where(robot, B.to_world(H[:, 3], H[:, 4], H[:, 5], xk[0], xk[1]), H[:, 5]))
+        H = H.at[:, 2].set(B.to_world(H[:, 0], H[:, 1], H[:, 2], X[i, 0], X[i, 1]))
     xn, Pn, nis, ok = kalman_columns(jnp, lax, invariant, X, P, r, H, Rm, i, jr)
     d = F.rule((st0, why0, st0 != 0), degenerate, REJECTED, R_DEGENERATE)
     d = F.rule(F.gate_rules(d, nis, thr[kind], gate_on), ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL)

@@ -33,34 +33,34 @@ from swarmloc.engine.codes import (
     REJECTED,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, inverse, measure, run_batch, sym, usable, wrap
+from swarmloc.engine.jax_replay import blocks, compiled, formulas, inverse, measure, run_batch, sym, usable, wrap
 from swarmloc.engine.replay_io import Replayed, Switches, constants
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors.models import MIN_RANGE
 
 _UP = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
 def _predicted(jnp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt: Any) -> tuple:
-    """A robot's (or a batch's) ``(x, P, dx, dy)`` predicted over ``dt`` (unchanged for ``dt <= 0``)."""
+    """A robot's (or a batch's) ``(x, P, a, b)`` predicted over ``dt`` (unchanged for ``dt <= 0``), ``(a, b)`` the
+    prediction's shear (:func:`swarmloc.engine.blocks.moved`)."""
     xs, ps = soa.predict(jnp, (x[..., 0], x[..., 1], x[..., 2]), tuple(P[..., a, b] for a, b in _UP), v, w, dt, noise)
     xn = jnp.stack(xs, -1)
-    return xn, sym(jnp, ps), xn[..., 0] - x[..., 0], xn[..., 1] - x[..., 1]
+    return xn, sym(jnp, ps), *blocks().moved(x[..., 0], x[..., 1], xn[..., 0], xn[..., 1])
 
 
 def _advance(jnp: Any, noise: UnicycleNoise, st: tuple, k: Any, t: Any) -> tuple:
     """Robot ``k`` predicted to ``t`` and stored, its pending shear grown."""
     x, P, tc, v, w, sa, sb, met, sig = st
-    xn, Pn, dx, dy = _predicted(jnp, noise, x[k], P[k], v[k], w[k], t - tc[k])
-    return (x.at[k].set(xn), P.at[k].set(Pn), tc.at[k].set(jnp.maximum(tc[k], t)), v, w, sa.at[k].add(-dy),
-            sb.at[k].add(dx), met, sig)  # fmt: skip
+    xn, Pn, a, b = _predicted(jnp, noise, x[k], P[k], v[k], w[k], t - tc[k])
+    return (x.at[k].set(xn), P.at[k].set(Pn), tc.at[k].set(jnp.maximum(tc[k], t)), v, w, sa.at[k].add(a),
+            sb.at[k].add(b), met, sig)  # fmt: skip
 
 
 def _factors(jnp: Any, st: tuple, k: Any, a: Any, b: Any) -> Any:
     """Robot ``k``'s factors ``sigma_kl (n, 3, 3)`` with the pending shear ``(a, b)`` applied (zero where not met)."""
     sig, met = st[8][k], st[7][k]
-    f = sig.at[:, 0].add(a * sig[:, 2]).at[:, 1].add(b * sig[:, 2])
+    f = jnp.stack([*blocks().shear(sig[:, 0], sig[:, 1], sig[:, 2], a, b), sig[:, 2]], 1)
     return jnp.where(met[:, None, None], f, 0.0)
 
 
@@ -134,9 +134,9 @@ def _pair(jnp: Any, noise: UnicycleNoise, st: tuple, i: Any, j: Any, ev: dict, c
     thr, gate_on = const[1], const[2]
     x, P, tc, v, w, sa, sb, met, sig = st
     kind, t = ev["kind"], ev["t"]
-    xj, Pj, dx, dy = _predicted(jnp, noise, x[j], P[j], v[j], w[j], t - tc[j])  # the answer (not stored)
-    degenerate = (kind >= RANGE_BEARING) & (jnp.hypot(xj[0] - x[i, 0], xj[1] - x[i, 1]) < MIN_RANGE)
-    fj = _factors(jnp, st, j, sa[j] - dy, sb[j] + dx)[i]
+    xj, Pj, a, b = _predicted(jnp, noise, x[j], P[j], v[j], w[j], t - tc[j])  # the answer (not stored)
+    degenerate = blocks().degenerate(kind, x[i, 0], x[i, 1], xj[0], xj[1])
+    fj = _factors(jnp, st, j, sa[j] + a, sb[j] + b)[i]
     fi = _factors(jnp, st, i, sa[i], sb[i])[j]
     r, H, Rm = measure(jnp, kind, x[i], xj, ev["z"], ev["R"])
     prior, both = _prior(jnp, P[i], Pj, fi, fj, met[i, j], H, Rm)
@@ -162,7 +162,7 @@ def _private(jnp: Any, st: Any, i: Any, j: Any, ev: dict, const: tuple) -> tuple
     kind = ev["kind"]
     lk = jnp.clip(NO_LANDMARK - 1 - j, 0, lxy.shape[0] - 1)
     xk = jnp.concatenate([lxy[lk], jnp.zeros(1)])
-    degenerate = (kind >= RANGE_BEARING) & (jnp.hypot(xk[0] - x[i, 0], xk[1] - x[i, 1]) < MIN_RANGE)
+    degenerate = blocks().degenerate(kind, x[i, 0], x[i, 1], xk[0], xk[1])
     r, H, Rm = measure(jnp, kind, x[i], xk, ev["z"], ev["R"])
     Hk = H[:, 3:5]
     Rm = jnp.where(kind != ABSOLUTE, Rm + Hk @ lcov[lk] @ Hk.T, Rm)  # a map landmark's covariance

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.engine import blocks as _blocks
 from swarmloc.engine import soa
 from swarmloc.engine.codes import (
     ABSOLUTE,
@@ -96,6 +97,32 @@ def formulas() -> Any:
     return build(jnp)
 
 
+def blocks() -> Any:
+    """The shared block math (:mod:`swarmloc.engine.blocks`) on ``jax.numpy``."""
+    import jax.numpy as jnp
+
+    return _blocks.build(jnp)
+
+
+def entries(M: Any) -> tuple:
+    """``M (..., 3, 3)`` as rows of entries ``(...)`` (:mod:`swarmloc.engine.blocks`' matrices)."""
+    return tuple(tuple(M[..., r, c] for c in range(3)) for r in range(3))
+
+
+def matrix(jnp: Any, rows: tuple) -> Any:
+    """Rows of entries ``(...)`` as ``(..., 3, 3)`` (:func:`entries`' inverse)."""
+    return jnp.stack([jnp.stack([jnp.broadcast_to(a, jnp.shape(rows[0][0])) for a in row], -1) for row in rows], -2)
+
+
+def cartesian(jnp: Any, invariant: bool, x: Any, M: Any, a: Any, b: Any, q: Any) -> Any:
+    """Robots' blocks ``M (n, 3, 3)`` after their prediction (shear ``(a, b)``, noise ``q``) to poses ``x (n, 3)``,
+    Cartesian (:func:`swarmloc.engine.blocks.predicted_block`, then ``N M N^T`` with ``invariant``: the numba
+    records')."""
+    B = blocks()
+    M = B.predicted_block(entries(M), a, b, q)
+    return matrix(jnp, B.sheared(M, -x[:, 1], x[:, 0]) if invariant else M)
+
+
 def usable(jnp: Any, P: Any) -> Any:
     """Finite and positive definite (a Cholesky factorization: :func:`swarmloc.node.update.usable_covariance`)."""
     return jnp.isfinite(P).all() & jnp.isfinite(jnp.linalg.cholesky(P)).all()
@@ -115,14 +142,10 @@ def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> tuple:
 
 
 def inverse(jnp: Any, S: Any) -> tuple:
-    """3x3 inverses by cofactors (:func:`swarmloc.engine.joint_math.inverse`) of ``S (..., 3, 3)`` and whether each is
+    """3x3 inverses by cofactors (:func:`swarmloc.engine.blocks.inverse3`) of ``S (..., 3, 3)`` and whether each is
     regular."""
-    co = [[S[..., (c + 1) % 3, (r + 1) % 3] * S[..., (c + 2) % 3, (r + 2) % 3] - S[..., (c + 1) % 3, (r + 2) % 3]
-           * S[..., (c + 2) % 3, (r + 1) % 3] for c in range(3)] for r in range(3)]  # fmt: skip
-    adj = jnp.stack([jnp.stack(row, -1) for row in co], -2)
-    det = S[..., 0, 0] * adj[..., 0, 0] + S[..., 0, 1] * adj[..., 1, 0] + S[..., 0, 2] * adj[..., 2, 0]
-    regular = det != 0.0
-    return adj / jnp.where(regular, det, 1.0)[..., None, None], regular
+    inv, regular = blocks().inverse3(entries(S))
+    return matrix(jnp, inv), regular
 
 
 # ------------------------------------------------------------------------------------------------ the scan
