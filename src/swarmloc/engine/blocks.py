@@ -20,6 +20,12 @@ from swarmloc.events import Kind
 from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
 
 _RANGE_BEARING = KIND_ORDER[Kind.RANGE_BEARING]
+Row = tuple[Any, Any, Any]
+"""A row of a 3x3 matrix: its entries (floats in numba, arrays in JAX)."""
+Mat = tuple[Row, Row, Row]
+"""A 3x3 matrix as its rows."""
+Jit = Callable[[Callable[..., Any]], Any]
+"""A compiler of the functions (``numba.njit``'s form), or none."""
 
 
 def _plain(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -27,14 +33,14 @@ def _plain(fn: Callable[..., Any]) -> Callable[..., Any]:
 
 
 @cache
-def build(xp: Any, jit: Any = _plain) -> Any:
+def build(xp: Any, jit: Jit = _plain) -> Any:
     """The block math for namespace ``xp``, each function compiled by ``jit``, as a module object's attributes."""
     out = ModuleType(f"{__name__}[{getattr(xp, '__name__', xp)}]")
     out.__dict__.update(_blocks(xp, jit))
     return out
 
 
-def _blocks(xp: Any, jit: Any) -> dict[str, Any]:
+def _blocks(xp: Any, jit: Jit) -> dict[str, Any]:
     @jit
     def moved(x0: Any, y0: Any, x1: Any, y1: Any) -> tuple[Any, Any]:
         """The shear ``(a, b)`` a prediction from ``(x0, y0)`` to ``(x1, y1)`` puts on a pose's covariance (its
@@ -48,7 +54,7 @@ def _blocks(xp: Any, jit: Any) -> dict[str, Any]:
         return r0 + a * r2, r1 + b * r2
 
     @jit
-    def sheared(M: tuple, a: Any, b: Any) -> tuple:
+    def sheared(M: Mat, a: Any, b: Any) -> Mat:
         """The 3x3 ``M`` sheared on both sides, ``A M A^T`` with ``A = [[1, 0, a], [0, 1, b], [0, 0, 1]]``: its rows
         (:func:`shear`), then its columns."""
         (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = M
@@ -58,16 +64,16 @@ def _blocks(xp: Any, jit: Any) -> dict[str, Any]:
         return (c0[0], c0[1], r02), (c1[0], c1[1], r12), (c2[0], c2[1], m22)
 
     @jit
-    def _pick(c: Any, s: tuple, m: tuple) -> tuple:
+    def _pick(c: Any, s: Row, m: Row) -> Row:
         return xp.where(c, s[0], m[0]), xp.where(c, s[1], m[1]), xp.where(c, s[2], m[2])
 
     @jit
-    def _pick3(c: Any, S: tuple, M: tuple) -> tuple:
+    def _pick3(c: Any, S: Mat, M: Mat) -> Mat:
         """``S`` where ``c``, else ``M`` (3x3)."""
         return _pick(c, S[0], M[0]), _pick(c, S[1], M[1]), _pick(c, S[2], M[2])
 
     @jit
-    def predicted_block(M: tuple, a: Any, b: Any, u: tuple) -> tuple:
+    def predicted_block(M: Mat, a: Any, b: Any, u: tuple[Any, ...]) -> Mat:
         """A pose's 3x3 block ``M`` after its pending prediction: sheared by ``(a, b)`` (:func:`sheared`; skipped
         when both are zero, as the invariant filters' predictions are) and given the noise ``u`` (upper triangle
         ``u00, u01, u02, u11, u12, u22``)."""
@@ -84,7 +90,7 @@ def _blocks(xp: Any, jit: Any) -> dict[str, Any]:
         return h2 + (-y * h0 + x * h1)
 
     @jit
-    def inverse3(S: tuple) -> tuple:
+    def inverse3(S: Mat) -> tuple[Mat, Any]:
         """The inverse of the 3x3 ``S`` by cofactors and whether it is regular (its determinant non-zero; if not,
         the adjugate)."""
         (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = S

@@ -32,10 +32,10 @@ from typing import Any, Unpack
 import numpy as np
 
 from swarmloc.engine.checks import cluster_size
-from swarmloc.engine.codes import FUSED, R_DEGENERATE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import FUSED, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_joint import detection, kalman_columns, predict_step
-from swarmloc.engine.jax_replay import blocks, cartesian, compiled, formulas, measure, run_batch, sym, usable
+from swarmloc.engine.jax_replay import blocks, cartesian, compiled, formulas, measure, run_batch, sym, verdict
 from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
@@ -119,9 +119,7 @@ def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev
     keep = asleep[rows][:, None] & (rows[:, None] == rows[None, :])
     Pw = jnp.where(keep, Pv, Pv / wt)
     xn, Pn, nis, ok = kalman_columns(jnp, lax, True, Xv, Pw, r, H.at[:, 3:].set(0.0), Rm + B / (1 - wt), li, li)
-    F = formulas()
-    d = F.gate_rules((REJECTED, R_DEGENERATE, degenerate), nis, thr[kind], gate_on)
-    st, why = F.decided(F.rule(d, ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL), FUSED)
+    st, why = verdict(jnp, (REJECTED, R_DEGENERATE, degenerate), gate_on, nis, thr[kind], ok, Pn)
     new = _put(lax, state, (xn, Pn, *view[2:]), lo, b)
     return tuple(jnp.where(st == FUSED, a, c) for a, c in zip(new, state, strict=True)), st, why
 

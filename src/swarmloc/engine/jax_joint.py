@@ -8,10 +8,13 @@ joint state ``X (n, 3)``, ``P (3n, 3n)`` (Cartesian, or world-frame errors with 
 :mod:`swarmloc.engine.soa`; the screening of the centralized nodes (or of ``diekf``'s, whose robots start at their
 own first input), every measurement kind (a 1- or 2-row measurement padded to 3 rows that are zero in ``H`` and the
 residual and one in the noise: they change nothing), the gate's rules, the invariant filters' noise and correction
-on the group, all of :mod:`swarmloc.engine.formulas`; the Joseph update on the two robots' columns and the
-positive-definite check as matrix products. One difference in arithmetic only: a prediction is applied
-to ``P`` at once, where the numba loop keeps it pending until an update reads ``P`` (the same products rounded in
-another order: equal to 1e-12 on simulated teams). Units: m, rad, s.
+on the group, all of :mod:`swarmloc.engine.formulas`; a prediction's shear of ``P``'s rows and columns, a record's
+block and its Cartesian form, the world-frame Jacobian, the 3x3 inverse and the degenerate geometry, all of
+:mod:`swarmloc.engine.blocks`. Written apart still: the Joseph update on the two robots' columns and the
+positive-definite check, as matrix products here and as loops in :mod:`swarmloc.engine.joint_math` (numba's loops
+are faster than its matrix products on these sizes, and JAX has no loop that writes in place). One difference in
+arithmetic only: a prediction is applied to ``P`` at once, where the numba loop keeps it pending until an update reads
+``P`` (the same products rounded in another order: equal to 1e-12 on simulated teams). Units: m, rad, s.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from typing import Any, Unpack
 import numpy as np
 
 from swarmloc.engine import soa
-from swarmloc.engine.codes import ABSOLUTE, FUSED, NO_LANDMARK, R_DEGENERATE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import ABSOLUTE, FUSED, NO_LANDMARK, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_replay import (
     blocks,
@@ -34,7 +37,7 @@ from swarmloc.engine.jax_replay import (
     measure,
     run_batch,
     sym,
-    usable,
+    verdict,
     wrap,
 )
 from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
@@ -135,8 +138,7 @@ def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tu
         H = H.at[:, 2].set(B.to_world(H[:, 0], H[:, 1], H[:, 2], X[i, 0], X[i, 1]))
     xn, Pn, nis, ok = kalman_columns(jnp, lax, invariant, X, P, r, H, Rm, i, jr)
     d = F.rule((st0, why0, st0 != 0), degenerate, REJECTED, R_DEGENERATE)
-    d = F.rule(F.gate_rules(d, nis, thr[kind], gate_on), ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL)
-    st, why = F.decided(d, FUSED)
+    st, why = verdict(jnp, d, gate_on, nis, thr[kind], ok, Pn)
     fused = st == FUSED
     keep = state if distributed else tuple(jnp.where(st0 != 0, a, b) for a, b in zip(state, s1, strict=True))
     out = (xn, Pn, *s1[2:])

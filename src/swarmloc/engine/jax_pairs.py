@@ -2,9 +2,10 @@
 backend="jax")``, :func:`replay_rdl_jax`), and many runs of one team size at once (:func:`replay_rdl_batch`).
 
 The scan and the measurement models are :mod:`swarmloc.engine.jax_replay`'s, the screening and the gate's rules
-:mod:`swarmloc.engine.formulas`' (numba's too); here the kernels of ``rdl``'s state as
-:func:`swarmloc.engine.pairs.replay_rdl` runs them (its pair prior and Joseph update still written apart, as matrix
-products here and as loops there): each robot's Cartesian ``x``, ``P``, the pending
+:mod:`swarmloc.engine.formulas`', the prediction's shear, its effect on the factors, the 3x3 inverse and the
+degenerate geometry :mod:`swarmloc.engine.blocks`' (numba's too); here the kernels of ``rdl``'s state as
+:func:`swarmloc.engine.pairs.replay_rdl` runs them (its pair prior, rescaling and Joseph update still written apart,
+as matrix products here and as loops or BLAS calls there): each robot's Cartesian ``x``, ``P``, the pending
 shear ``(sa, sb)`` its predictions owe its factors, and for every pair that has exchanged (``met[k, l]``) the factor
 ``sigma_kl`` of their cross-covariance. A detection of a teammate builds the pair's joint prior (the tracked
 cross-covariance, or covariance intersection over :data:`~swarmloc.estimators.rdl.CI_WEIGHTS` when it is not known
@@ -29,11 +30,10 @@ from swarmloc.engine.codes import (
     NO_LANDMARK,
     R_CORRELATION,
     R_DEGENERATE,
-    R_NUMERICAL,
     REJECTED,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_replay import blocks, compiled, formulas, inverse, measure, run_batch, sym, usable, wrap
+from swarmloc.engine.jax_replay import blocks, compiled, formulas, inverse, measure, run_batch, sym, usable, verdict
 from swarmloc.engine.replay_io import Replayed, Switches, constants
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
@@ -83,7 +83,7 @@ def _kalman(jnp: Any, x: Any, P: Any, r: Any, H: Any, R: Any) -> tuple:
     K = PHt @ S_inv
     xn = x + PHt @ Sr
     head = jnp.arange(N) % 3 == 2
-    xn = jnp.where(head & jnp.isfinite(xn), wrap(jnp, xn), xn)
+    xn = jnp.where(head & jnp.isfinite(xn), soa.wrap(jnp, xn), xn)
     IKH = jnp.eye(N) - K @ H
     A = IKH @ P @ IKH.T + K @ R @ K.T
     Pn = 0.5 * (A + A.T)
@@ -117,13 +117,6 @@ def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: An
     return jnp.where(use, tracked, ci_P), jnp.where(use, 1, ci)
 
 
-def _checks(jnp: Any, d: tuple, gate_on: Any, nis: Any, thr: Any, ok: Any, Pn: Any) -> tuple:
-    """The rules ``d`` then those after an update: the gate and the positive-definite check; ``(outcome,
-    reason)``."""
-    F = formulas()
-    return F.decided(F.rule(F.gate_rules(d, nis, thr, gate_on), ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL), FUSED)
-
-
 def _pick(jnp: Any, cond: Any, a: tuple, b: tuple) -> tuple:
     return tuple(jnp.where(cond, u, v) for u, v in zip(a, b, strict=True))
 
@@ -142,7 +135,7 @@ def _pair(jnp: Any, noise: UnicycleNoise, st: tuple, i: Any, j: Any, ev: dict, c
     prior, both = _prior(jnp, P[i], Pj, fi, fj, met[i, j], H, Rm)
     Xn, Pn, nis, ok = _kalman(jnp, jnp.concatenate([x[i], xj]), prior, r, H, Rm)
     d = formulas().rule((REJECTED, R_DEGENERATE, degenerate), both < 0, GATED, R_CORRELATION)
-    code = _checks(jnp, d, gate_on, nis, thr[kind], ok, Pn)
+    code = verdict(jnp, d, gate_on, nis, thr[kind], ok, Pn)
     s = (x.at[i].set(Xn[:3]), P.at[i].set(Pn[:3, :3]), *st[2:])
     s = _rescale(jnp, s, i, Pn[:3, :3], P[i])
     alone = (*s[:8], s[8].at[i, j].set(0.0))  # only the observer gains: its correlation with j is unknown now
@@ -167,7 +160,7 @@ def _private(jnp: Any, st: Any, i: Any, j: Any, ev: dict, const: tuple) -> tuple
     Hk = H[:, 3:5]
     Rm = jnp.where(kind != ABSOLUTE, Rm + Hk @ lcov[lk] @ Hk.T, Rm)  # a map landmark's covariance
     xn, Pn, nis, ok = _kalman(jnp, x[i], P[i], r, H[:, :3], Rm)
-    code = _checks(jnp, (REJECTED, R_DEGENERATE, degenerate), gate_on, nis, thr[kind], ok, Pn)
+    code = verdict(jnp, (REJECTED, R_DEGENERATE, degenerate), gate_on, nis, thr[kind], ok, Pn)
     s = _rescale(jnp, (x.at[i].set(xn), P.at[i].set(Pn), *st[2:]), i, Pn, P[i])
     return _pick(jnp, code[0] == FUSED, s, st), *code
 

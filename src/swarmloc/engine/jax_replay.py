@@ -26,10 +26,7 @@ import numpy as np
 
 from swarmloc.engine import blocks as _blocks
 from swarmloc.engine import soa
-from swarmloc.engine.codes import (
-    ABSOLUTE,
-    POSE,
-)
+from swarmloc.engine.codes import ABSOLUTE, FUSED, POSE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.formulas import RANGE_BEARING, build
 from swarmloc.engine.jax_stamp import bucket, import_jax, pad_rows
@@ -126,6 +123,14 @@ def cartesian(jnp: Any, invariant: bool, x: Any, M: Any, a: Any, b: Any, q: Any)
 def usable(jnp: Any, P: Any) -> Any:
     """Finite and positive definite (a Cholesky factorization: :func:`swarmloc.node.update.usable_covariance`)."""
     return jnp.isfinite(P).all() & jnp.isfinite(jnp.linalg.cholesky(P)).all()
+
+
+def verdict(jnp: Any, d: tuple, gate_on: Any, nis: Any, thr: Any, ok: Any, Pn: Any) -> tuple:
+    """The rules ``d`` (:func:`swarmloc.engine.formulas.rule`'s) then those after an update with ``nis``, its
+    finite-ness ``ok`` and its covariance ``Pn``: the gate (threshold ``thr``) and the positive-definite check, as
+    :func:`swarmloc.engine.joint_math.verdict`; ``(outcome, reason)``, ``FUSED`` when no rule decides."""
+    F = formulas()
+    return F.decided(F.rule(F.gate_rules(d, nis, thr, gate_on), ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL), FUSED)
 
 
 def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> tuple:

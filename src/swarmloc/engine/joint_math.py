@@ -1,4 +1,5 @@
-"""The compiled pieces the engine's replays share (numba): a detection's residual, Jacobian and noise
+"""The compiled pieces the engine's replays share (numba; :mod:`swarmloc.engine.formulas` and
+:mod:`swarmloc.engine.blocks` compiled on scalars, the JAX scans' too): a detection's residual, Jacobian and noise
 (:func:`measure`), small inverses, the positive-definite check, the world-frame pieces of the invariant filters, the
 Kalman update on a few columns of a joint covariance (:func:`kalman`) and the order of its outcomes
 (:func:`verdict`). :mod:`swarmloc.engine.joint`, :mod:`swarmloc.engine.joint_clusters` and
@@ -50,7 +51,7 @@ def inverse(S: np.ndarray) -> tuple[np.ndarray, bool]:
 
 
 @njit(error_model="numpy")
-def rows3(M: np.ndarray) -> tuple:
+def rows3(M: np.ndarray) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
     """The 3x3 ``M`` as rows of entries (:mod:`swarmloc.engine.blocks`' matrices)."""
     return (M[0, 0], M[0, 1], M[0, 2]), (M[1, 0], M[1, 1], M[1, 2]), (M[2, 0], M[2, 1], M[2, 2])
 
@@ -106,7 +107,7 @@ def measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq
 def degenerate(kind: int, X: np.ndarray, i: int, xk: np.ndarray) -> bool:
     """:func:`swarmloc.engine.blocks.degenerate` of a detection by the robot at rows ``i:i+3`` of ``X`` of a target at
     ``xk`` (none for an absolute fix: never degenerate)."""
-    return xk.shape[0] >= 2 and B.degenerate(kind, X[i], X[i + 1], xk[0], xk[1])
+    return bool(xk.shape[0] >= 2 and B.degenerate(kind, X[i], X[i + 1], xk[0], xk[1]))
 
 
 @njit(error_model="numpy")
