@@ -40,12 +40,12 @@ from swarmloc.engine.jax_replay import (
     verdict,
     wrap,
 )
-from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
+from swarmloc.engine.replay_io import Events, Replayed, Switches, Traced, constants, joint_start
 from swarmloc.motion import UnicycleNoise
 
 
 # ------------------------------------------------------------------------------------------------ the pieces
-def predict_step(jnp: Any, noise: UnicycleNoise, invariant: bool, x: Any, v: Any, w: Any, dt: Any) -> tuple:
+def predict_step(jnp: Any, noise: UnicycleNoise, invariant: bool, x: Any, v: Any, w: Any, dt: Any) -> Traced:
     """One robot's (or a batch's) prediction over ``dt``: the new pose, its shear ``(a, b)`` and process noise
     (upper triangle; world-frame with ``invariant``, and no shear); ``dt <= 0`` changes nothing."""
     z = jnp.zeros_like(x[..., 0])
@@ -55,7 +55,7 @@ def predict_step(jnp: Any, noise: UnicycleNoise, invariant: bool, x: Any, v: Any
     return jnp.stack(xs, -1), *blocks().moved(x[..., 0], x[..., 1], xs[0], xs[1]), q
 
 
-def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, invariant: bool, state: tuple, k: Any, t: Any) -> tuple:
+def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, invariant: bool, state: Traced, k: Any, t: Any) -> Traced:
     """Robot ``k`` moved to ``t`` (not before its clock): ``X``, its rows and columns of ``P`` sheared and its block
     given the process noise (the numba loop's pending prediction, applied at once)."""
     X, P, tc, v, w = state
@@ -74,7 +74,7 @@ def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, invariant: bool, state: t
     return X.at[k].set(xn), P, tc.at[k].set(jnp.maximum(tc[k], t)), v, w
 
 
-def _marginals(jnp: Any, noise: UnicycleNoise, invariant: bool, state: tuple, t: Any) -> tuple:
+def _marginals(jnp: Any, noise: UnicycleNoise, invariant: bool, state: Traced, t: Any) -> Traced:
     """Every robot's Cartesian marginal predicted to ``t`` (not stored): ``x (n, 3)``, ``P (n, 3, 3)``."""
     X, P, tc, v, w = state
     n = X.shape[0]
@@ -85,7 +85,7 @@ def _marginals(jnp: Any, noise: UnicycleNoise, invariant: bool, state: tuple, t:
 
 def kalman_columns(
     jnp: Any, lax: Any, invariant: bool, X: Any, P: Any, r: Any, H: Any, Rm: Any, i: Any, jj: Any
-) -> tuple:
+) -> Traced:
     """:func:`swarmloc.engine.joint_math.kalman` on the columns of robots ``i`` and ``jj``: ``(X+, P+, nis, ok)``."""
     N = P.shape[0]
     Pc = jnp.concatenate([lax.dynamic_slice(P, (0, 3 * i), (N, 3)), lax.dynamic_slice(P, (0, 3 * jj), (N, 3))], 1)
@@ -108,7 +108,7 @@ def kalman_columns(
 
 
 # ------------------------------------------------------------------------------------------------ the events
-def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tuple) -> tuple:
+def detection(jnp: Any, lax: Any, form: Traced, state: Traced, ev: Events, const: Traced) -> Traced:
     """A detection: the observer moved to its stamp, the screening, the target (a robot: moved to the stamp too;
     ``diekf``: only if it takes the update), the measurement, the update and its outcome."""
     noise, invariant, distributed = form
@@ -149,7 +149,7 @@ def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tu
 def _kernels(noise: UnicycleNoise, invariant: bool, distributed: bool) -> Any:
     """``make(jnp, lax, t0, const)`` of :func:`swarmloc.engine.jax_replay.compiled` for this form."""
 
-    def make(jnp, lax, t0, const):  # noqa: ANN001, ANN202
+    def make(jnp: Any, lax: Any, t0: Any, const: Any) -> Any:
         form = (noise, invariant, distributed)
         return (
             lambda s, k, t: _advance(jnp, lax, noise, invariant, s, k, t),

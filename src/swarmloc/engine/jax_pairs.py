@@ -34,14 +34,14 @@ from swarmloc.engine.codes import (
 )
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_replay import blocks, compiled, formulas, inverse, measure, run_batch, sym, usable, verdict
-from swarmloc.engine.replay_io import Replayed, Switches, constants
+from swarmloc.engine.replay_io import Events, Replayed, Switches, Traced, constants
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
 
 _UP = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
-def _predicted(jnp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt: Any) -> tuple:
+def _predicted(jnp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt: Any) -> Traced:
     """A robot's (or a batch's) ``(x, P, a, b)`` predicted over ``dt`` (unchanged for ``dt <= 0``), ``(a, b)`` the
     prediction's shear (:func:`swarmloc.engine.blocks.moved`)."""
     xs, ps = soa.predict(jnp, (x[..., 0], x[..., 1], x[..., 2]), tuple(P[..., a, b] for a, b in _UP), v, w, dt, noise)
@@ -49,7 +49,7 @@ def _predicted(jnp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, d
     return xn, sym(jnp, ps), *blocks().moved(x[..., 0], x[..., 1], xn[..., 0], xn[..., 1])
 
 
-def _advance(jnp: Any, noise: UnicycleNoise, st: tuple, k: Any, t: Any) -> tuple:
+def _advance(jnp: Any, noise: UnicycleNoise, st: Traced, k: Any, t: Any) -> Traced:
     """Robot ``k`` predicted to ``t`` and stored, its pending shear grown."""
     x, P, tc, v, w, sa, sb, met, sig = st
     xn, Pn, a, b = _predicted(jnp, noise, x[k], P[k], v[k], w[k], t - tc[k])
@@ -57,14 +57,14 @@ def _advance(jnp: Any, noise: UnicycleNoise, st: tuple, k: Any, t: Any) -> tuple
             sb.at[k].add(b), met, sig)  # fmt: skip
 
 
-def _factors(jnp: Any, st: tuple, k: Any, a: Any, b: Any) -> Any:
+def _factors(jnp: Any, st: Traced, k: Any, a: Any, b: Any) -> Any:
     """Robot ``k``'s factors ``sigma_kl (n, 3, 3)`` with the pending shear ``(a, b)`` applied (zero where not met)."""
     sig, met = st[8][k], st[7][k]
     f = jnp.stack([*blocks().shear(sig[:, 0], sig[:, 1], sig[:, 2], a, b), sig[:, 2]], 1)
     return jnp.where(met[:, None, None], f, 0.0)
 
 
-def _rescale(jnp: Any, st: tuple, k: Any, P_new: Any, P_old: Any) -> tuple:
+def _rescale(jnp: Any, st: Traced, k: Any, P_new: Any, P_old: Any) -> Traced:
     """Robot ``k``'s factors ``sigma_kl <- P_new P_old^-1 sigma_kl`` (met pairs), its pending shear cleared."""
     x, P, tc, v, w, sa, sb, met, sig = st
     inv, regular = inverse(jnp, P_old)
@@ -73,7 +73,7 @@ def _rescale(jnp: Any, st: tuple, k: Any, P_new: Any, P_old: Any) -> tuple:
     return x, P, tc, v, w, sa.at[k].set(0.0), sb.at[k].set(0.0), met, sig.at[k].set(new)
 
 
-def _kalman(jnp: Any, x: Any, P: Any, r: Any, H: Any, R: Any) -> tuple:
+def _kalman(jnp: Any, x: Any, P: Any, r: Any, H: Any, R: Any) -> Traced:
     """:func:`swarmloc.engine.pairs._kalman`: the Joseph form, headings wrapped: ``(x+, P+, nis, ok)``."""
     N = P.shape[0]
     PHt = P @ H.T
@@ -90,7 +90,7 @@ def _kalman(jnp: Any, x: Any, P: Any, r: Any, H: Any, R: Any) -> tuple:
     return xn, Pn, nis, regular & jnp.isfinite(nis) & jnp.isfinite(xn).all() & jnp.isfinite(Pn).all()
 
 
-def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: Any) -> tuple:
+def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: Any) -> Traced:
     """:func:`swarmloc.engine.pairs._joint_prior`: ``(P (6, 6), 1)`` with the tracked cross-covariance (known and
     positive definite), else covariance intersection's prior with ``1`` (both gain), ``0`` (the observer only) or
     ``-1`` (neither)."""
@@ -117,11 +117,11 @@ def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: An
     return jnp.where(use, tracked, ci_P), jnp.where(use, 1, ci)
 
 
-def _pick(jnp: Any, cond: Any, a: tuple, b: tuple) -> tuple:
+def _pick(jnp: Any, cond: Any, a: Traced, b: Traced) -> Traced:
     return tuple(jnp.where(cond, u, v) for u, v in zip(a, b, strict=True))
 
 
-def _pair(jnp: Any, noise: UnicycleNoise, st: tuple, i: Any, j: Any, ev: dict, const: tuple) -> tuple:
+def _pair(jnp: Any, noise: UnicycleNoise, st: Traced, i: Any, j: Any, ev: Events, const: Traced) -> Traced:
     """Robot ``i``'s detection of teammate ``j``: the pair's update, each taking its part (or only the observer,
     its factor for ``j`` dropped, when only it gains): ``(state, outcome, reason)``."""
     thr, gate_on = const[1], const[2]
@@ -148,7 +148,7 @@ def _pair(jnp: Any, noise: UnicycleNoise, st: tuple, i: Any, j: Any, ev: dict, c
     return _pick(jnp, code[0] == FUSED, _pick(jnp, both == 0, alone, s), st), *code
 
 
-def _private(jnp: Any, st: Any, i: Any, j: Any, ev: dict, const: tuple) -> tuple:
+def _private(jnp: Any, st: Any, i: Any, j: Any, ev: Events, const: Traced) -> Traced:
     """An absolute fix or a map landmark's detection by robot ``i``: a private update, its factors rescaled."""
     thr, gate_on, lxy, lcov = const[1], const[2], const[5], const[6]
     x, P = st[0], st[1]
@@ -165,7 +165,7 @@ def _private(jnp: Any, st: Any, i: Any, j: Any, ev: dict, const: tuple) -> tuple
     return _pick(jnp, code[0] == FUSED, s, st), *code
 
 
-def _detection(jnp: Any, noise: UnicycleNoise, st: tuple, ev: dict, const: tuple) -> tuple:
+def _detection(jnp: Any, noise: UnicycleNoise, st: Traced, ev: Events, const: Traced) -> Traced:
     """A detection: the observer moved to its stamp, the screening of ``rdl``'s nodes, then a private or a pair's
     update."""
     t0, relative, lm_on = const[0], const[3], const[4]
@@ -184,7 +184,7 @@ def _detection(jnp: Any, noise: UnicycleNoise, st: tuple, ev: dict, const: tuple
 def _kernels(noise: UnicycleNoise) -> Any:
     """``make(jnp, lax, t0, const)`` of :func:`swarmloc.engine.jax_replay.compiled` for ``rdl``."""
 
-    def make(jnp, lax, t0, const):  # noqa: ANN001, ANN202, ARG001
+    def make(jnp: Any, lax: Any, t0: Any, const: Any) -> Any:  # noqa: ARG001
         return (
             lambda s, k, t: _advance(jnp, noise, s, k, t),
             lambda s, ev: _detection(jnp, noise, s, ev, (t0, *const)),
