@@ -119,8 +119,9 @@ def _factor(sig: np.ndarray, met: np.ndarray, sa: float, sb: float, k: int, l: i
     """``sigma_kl`` with robot ``k``'s pending shear ``(sa, sb)`` applied (zero for a robot never met)."""
     f = np.zeros((3, 3))
     if met[k, l]:
-        f[:, :] = sig[k, l]
-        f[0], f[1] = B.shear(f[0], f[1], f[2], sa, sb)
+        f[2] = sig[k, l, 2]
+        for c in range(3):
+            f[0, c], f[1, c] = B.shear(sig[k, l, 0, c], sig[k, l, 1, c], sig[k, l, 2, c], sa, sb)
     return f
 
 
