@@ -32,14 +32,13 @@ from typing import Any, Unpack
 import numpy as np
 
 from swarmloc.engine.checks import cluster_size
-from swarmloc.engine.codes import FUSED, R_DEGENERATE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import FUSED, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.jax_joint import detection, kalman_columns, predict_step
-from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, measure, run_batch, sym, usable
-from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
+from swarmloc.engine.jax_replay import blocks, cartesian, compiled, formulas, measure, run_batch, sym, verdict
+from swarmloc.engine.replay_io import Events, Replayed, Switches, Traced, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors.models import MIN_RANGE
 
 __all__ = ["replay_clusters_batch", "replay_clusters_jax"]
 
@@ -57,14 +56,14 @@ def _weight(jnp: Any, A: Any, B: Any, R: Any, dof: Any) -> Any:
     return F.ci_vertex(j, c[jnp.maximum(j - 1, 0)], c[j], c[jnp.minimum(j + 1, g - 1)])
 
 
-def _view(lax: Any, state: tuple, lo: Any, b: Any, K: int) -> tuple:
+def _view(lax: Any, state: Traced, lo: Any, b: Any, K: int) -> Traced:
     """The cluster ``b`` (its first robot ``lo``) as a joint state of ``K`` robots: ``(X, P, clocks, v, w)``."""
     X, PC, tc, v, w = state
     rows = [lax.dynamic_slice(a, (lo,), (K,)) for a in (tc, v, w)]
     return (lax.dynamic_slice(X, (lo, 0), (K, 3)), lax.dynamic_index_in_dim(PC, b, keepdims=False), *rows)
 
 
-def _put(lax: Any, state: tuple, view: tuple, lo: Any, b: Any) -> tuple:
+def _put(lax: Any, state: Traced, view: Traced, lo: Any, b: Any) -> Traced:
     """``state`` with the cluster ``b`` (first robot ``lo``) replaced by ``view``."""
     X, PC, tc, v, w = state
     Xv, Pv, tv, vv, wv = view
@@ -73,7 +72,7 @@ def _put(lax: Any, state: tuple, view: tuple, lo: Any, b: Any) -> tuple:
             lax.dynamic_update_slice(w, wv, (lo,)))  # fmt: skip
 
 
-def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, k: Any, t: Any) -> tuple:
+def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: Traced, k: Any, t: Any) -> Traced:
     """Robot ``k`` moved to ``t`` (not before its clock): its pose, and its block of its cluster's covariance given
     the world-frame process noise."""
     X, PC, tc, v, w = state
@@ -83,20 +82,16 @@ def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, k: 
     return X.at[k].set(xn), lax.dynamic_update_slice(PC, block, at), tc.at[k].set(jnp.maximum(tc[k], t)), v, w
 
 
-def _marginals(jnp: Any, noise: UnicycleNoise, state: tuple, t: Any) -> tuple:
+def _marginals(jnp: Any, noise: UnicycleNoise, state: Traced, t: Any) -> Traced:
     """Every robot's Cartesian marginal predicted to ``t`` (not stored): ``x (N, 3)``, ``P (N, 3, 3)``."""
     X, PC, tc, v, w = state
     N, K = X.shape[0], PC.shape[1] // 3
-    xn, _, _, q = predict_step(jnp, noise, True, X, v, w, t - tc)
+    xn, a, b, q = predict_step(jnp, noise, True, X, v, w, t - tc)
     M = jnp.moveaxis(jnp.diagonal(PC.reshape(-1, K, 3, K, 3), axis1=1, axis2=3), -1, 1).reshape(N, 3, 3)
-    M = M + sym(jnp, q)
-    one, zero = jnp.ones(N), jnp.zeros(N)
-    A = jnp.stack([jnp.stack([one, zero, -xn[:, 1]], -1), jnp.stack([zero, one, xn[:, 0]], -1),
-                   jnp.stack([zero, zero, one], -1)], -2)  # fmt: skip
-    return xn, A @ M @ jnp.swapaxes(A, -1, -2)
+    return xn, cartesian(jnp, True, xn, M, a, b, q)
 
 
-def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev: dict, const: tuple) -> tuple:
+def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: Traced, ev: Events, const: Traced) -> Traced:
     """Observer ``ev["a"]`` detects robot ``ev["b"]`` of another cluster: the module docstring's covariance
     intersection; ``(state, outcome, reason)``."""
     t0, n, thr, gate_on = const
@@ -109,10 +104,11 @@ def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev
     Xv, Pv = view[0], view[1]
     li = i - lo
     xi = X[i]
-    degenerate = (kind >= RANGE_BEARING) & (jnp.hypot(xj[0] - xi[0], xj[1] - xi[1]) < MIN_RANGE)
+    B = blocks()
+    degenerate = B.degenerate(kind, xi[0], xi[1], xj[0], xj[1])
     r, H, Rm = measure(jnp, kind, xi, xj, ev["z"], ev["R"])
-    H = H.at[:, 5].add(-xj[1] * H[:, 3] + xj[0] * H[:, 4])  # world-frame error columns: H N
-    H = H.at[:, 2].add(-xi[1] * H[:, 0] + xi[0] * H[:, 1])
+    H = H.at[:, 5].set(B.to_world(H[:, 3], H[:, 4], H[:, 5], xj[0], xj[1]))  # world-frame error columns: H N
+    H = H.at[:, 2].set(B.to_world(H[:, 0], H[:, 1], H[:, 2], xi[0], xi[1]))
     Hi, Hj = H[:, :3], H[:, 3:]
     A = Hi @ lax.dynamic_slice(Pv, (3 * li, 3 * li), (3, 3)) @ Hi.T
     B = Hj @ Pj @ Hj.T
@@ -123,14 +119,12 @@ def _outsider(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev
     keep = asleep[rows][:, None] & (rows[:, None] == rows[None, :])
     Pw = jnp.where(keep, Pv, Pv / wt)
     xn, Pn, nis, ok = kalman_columns(jnp, lax, True, Xv, Pw, r, H.at[:, 3:].set(0.0), Rm + B / (1 - wt), li, li)
-    F = formulas()
-    d = F.gate_rules((REJECTED, R_DEGENERATE, degenerate), nis, thr[kind], gate_on)
-    st, why = F.decided(F.rule(d, ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL), FUSED)
+    st, why = verdict(jnp, (REJECTED, R_DEGENERATE, degenerate), gate_on, nis, thr[kind], ok, Pn)
     new = _put(lax, state, (xn, Pn, *view[2:]), lo, b)
     return tuple(jnp.where(st == FUSED, a, c) for a, c in zip(new, state, strict=True)), st, why
 
 
-def _detection_c(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple, ev: dict, const: tuple) -> tuple:
+def _detection_c(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: Traced, ev: Events, const: Traced) -> Traced:
     """A detection: the screening of ``diekf``'s nodes, then a robot of another cluster by :func:`_outsider`,
     anything else by ``jax_joint``'s ``diekf`` detection on the observer's cluster; the observer moved to its stamp
     whatever the outcome (once: in each branch)."""
@@ -140,21 +134,22 @@ def _detection_c(jnp: Any, lax: Any, noise: UnicycleNoise, K: int, state: tuple,
     b = i // K
     lo = b * K
 
-    def outside(state):  # noqa: ANN001, ANN202
+    def outside(state: Any) -> Any:
         return _outsider(jnp, lax, noise, K, _advance(jnp, lax, noise, K, state, i, t), ev, (t0, n, thr, gate_on))
 
-    def inside(state):  # noqa: ANN001, ANN202 - the detection moves the observer on the view
+    def inside(state: Any) -> Any:  # the detection moves the observer on the view
         local = {**ev, "a": i - lo, "b": jnp.where(j >= 0, j - lo, j)}
         t0v = lax.dynamic_slice(t0, (lo,), (K,))
         view, st, why = detection(jnp, lax, (noise, True, True), _view(lax, state, lo, b, K), local,
                                    (t0v, thr, gate_on, relative, lm_on, lxy, lcov))  # fmt: skip
         return _put(lax, state, view, lo, b), st, why
 
-    def screened(state):  # noqa: ANN001, ANN202
+    def screened(state: Any) -> Any:
         return _advance(jnp, lax, noise, K, state, i, t), st0, why0
 
     branch = jnp.where(st0 != 0, 0, jnp.where((j >= 0) & (j // K != b), 1, 2))
-    return lax.switch(branch, (screened, outside, inside), state)
+    out: Traced = lax.switch(branch, (screened, outside, inside), state)
+    return out
 
 
 @cache
@@ -162,7 +157,7 @@ def _kernels(noise: UnicycleNoise, K: int, n: int) -> Any:
     """``make(jnp, lax, t0, const)`` of :func:`swarmloc.engine.jax_replay.compiled` for clusters of ``K`` of a team of
     ``n`` robots."""
 
-    def make(jnp, lax, t0, const):  # noqa: ANN001, ANN202
+    def make(jnp: Any, lax: Any, t0: Any, const: Any) -> Any:
         thr, gate_on, relative, lm_on, lxy, lcov = const
         full = (t0, n, thr, gate_on, relative, lm_on, lxy, lcov)
         return (

@@ -8,10 +8,13 @@ joint state ``X (n, 3)``, ``P (3n, 3n)`` (Cartesian, or world-frame errors with 
 :mod:`swarmloc.engine.soa`; the screening of the centralized nodes (or of ``diekf``'s, whose robots start at their
 own first input), every measurement kind (a 1- or 2-row measurement padded to 3 rows that are zero in ``H`` and the
 residual and one in the noise: they change nothing), the gate's rules, the invariant filters' noise and correction
-on the group, all of :mod:`swarmloc.engine.formulas`; the Joseph update on the two robots' columns and the
-positive-definite check as matrix products. One difference in arithmetic only: a prediction is applied
-to ``P`` at once, where the numba loop keeps it pending until an update reads ``P`` (the same products rounded in
-another order: equal to 1e-12 on simulated teams). Units: m, rad, s.
+on the group, all of :mod:`swarmloc.engine.formulas`; a prediction's shear of ``P``'s rows and columns, a record's
+block and its Cartesian form, the world-frame Jacobian, the 3x3 inverse and the degenerate geometry, all of
+:mod:`swarmloc.engine.blocks`. Written apart still: the Joseph update on the two robots' columns and the
+positive-definite check, as matrix products here and as loops in :mod:`swarmloc.engine.joint_math` (numba's loops
+are faster than its matrix products on these sizes, and JAX has no loop that writes in place). One difference in
+arithmetic only: a prediction is applied to ``P`` at once, where the numba loop keeps it pending until an update reads
+``P`` (the same products rounded in another order: equal to 1e-12 on simulated teams). Units: m, rad, s.
 """
 
 from __future__ import annotations
@@ -23,26 +26,36 @@ from typing import Any, Unpack
 import numpy as np
 
 from swarmloc.engine import soa
-from swarmloc.engine.codes import ABSOLUTE, FUSED, NO_LANDMARK, R_DEGENERATE, R_NUMERICAL, REJECTED
+from swarmloc.engine.codes import ABSOLUTE, FUSED, NO_LANDMARK, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, inverse, measure, run_batch, sym, usable, wrap
-from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
+from swarmloc.engine.jax_replay import (
+    blocks,
+    cartesian,
+    compiled,
+    formulas,
+    inverse,
+    measure,
+    run_batch,
+    sym,
+    verdict,
+    wrap,
+)
+from swarmloc.engine.replay_io import Events, Replayed, Switches, Traced, constants, joint_start
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors.models import MIN_RANGE
 
 
 # ------------------------------------------------------------------------------------------------ the pieces
-def predict_step(jnp: Any, noise: UnicycleNoise, invariant: bool, x: Any, v: Any, w: Any, dt: Any) -> tuple:
+def predict_step(jnp: Any, noise: UnicycleNoise, invariant: bool, x: Any, v: Any, w: Any, dt: Any) -> Traced:
     """One robot's (or a batch's) prediction over ``dt``: the new pose, its shear ``(a, b)`` and process noise
     (upper triangle; world-frame with ``invariant``, and no shear); ``dt <= 0`` changes nothing."""
     z = jnp.zeros_like(x[..., 0])
     xs, q = soa.predict(jnp, (x[..., 0], x[..., 1], x[..., 2]), (z,) * 6, v, w, dt, noise)
     if invariant:
         return jnp.stack(xs, -1), z, z, formulas().world_noise(xs[0], xs[1], q)
-    return jnp.stack(xs, -1), -(xs[1] - x[..., 1]), xs[0] - x[..., 0], q
+    return jnp.stack(xs, -1), *blocks().moved(x[..., 0], x[..., 1], xs[0], xs[1]), q
 
 
-def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, invariant: bool, state: tuple, k: Any, t: Any) -> tuple:
+def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, invariant: bool, state: Traced, k: Any, t: Any) -> Traced:
     """Robot ``k`` moved to ``t`` (not before its clock): ``X``, its rows and columns of ``P`` sheared and its block
     given the process noise (the numba loop's pending prediction, applied at once)."""
     X, P, tc, v, w = state
@@ -50,37 +63,29 @@ def _advance(jnp: Any, lax: Any, noise: UnicycleNoise, invariant: bool, state: t
     xn, a, b, q = predict_step(jnp, noise, invariant, X[k], v[k], w[k], t - tc[k])
     i = 3 * k
     if not invariant:
+        shear = blocks().shear
         rows = lax.dynamic_slice(P, (i, 0), (3, N))
-        rows = rows.at[0].add(a * rows[2]).at[1].add(b * rows[2])
-        P = lax.dynamic_update_slice(P, rows, (i, 0))
+        P = lax.dynamic_update_slice(P, jnp.stack([*shear(rows[0], rows[1], rows[2], a, b), rows[2]]), (i, 0))
         cols = lax.dynamic_slice(P, (0, i), (N, 3))
-        cols = cols.at[:, 0].add(a * cols[:, 2]).at[:, 1].add(b * cols[:, 2])
+        cols = jnp.stack([*shear(cols[:, 0], cols[:, 1], cols[:, 2], a, b), cols[:, 2]], 1)
         P = lax.dynamic_update_slice(P, cols, (0, i))
     block = lax.dynamic_slice(P, (i, i), (3, 3)) + sym(jnp, q)
     P = lax.dynamic_update_slice(P, block, (i, i))
     return X.at[k].set(xn), P, tc.at[k].set(jnp.maximum(tc[k], t)), v, w
 
 
-def _marginals(jnp: Any, noise: UnicycleNoise, invariant: bool, state: tuple, t: Any) -> tuple:
+def _marginals(jnp: Any, noise: UnicycleNoise, invariant: bool, state: Traced, t: Any) -> Traced:
     """Every robot's Cartesian marginal predicted to ``t`` (not stored): ``x (n, 3)``, ``P (n, 3, 3)``."""
     X, P, tc, v, w = state
     n = X.shape[0]
     xn, a, b, q = predict_step(jnp, noise, invariant, X, v, w, t - tc)
     idx = jnp.arange(n)
-    M = P.reshape(n, 3, n, 3)[idx, :, idx, :]
-    one, zero = jnp.ones(n), jnp.zeros(n)
-    if invariant:
-        M = M + sym(jnp, q)
-        A = jnp.stack([jnp.stack([one, zero, -xn[:, 1]], -1), jnp.stack([zero, one, xn[:, 0]], -1),
-                       jnp.stack([zero, zero, one], -1)], -2)  # fmt: skip
-        return xn, A @ M @ jnp.swapaxes(A, -1, -2)
-    A = jnp.stack([jnp.stack([one, zero, a], -1), jnp.stack([zero, one, b], -1), jnp.stack([zero, zero, one], -1)], -2)
-    return xn, A @ M @ jnp.swapaxes(A, -1, -2) + sym(jnp, q)
+    return xn, cartesian(jnp, invariant, xn, P.reshape(n, 3, n, 3)[idx, :, idx, :], a, b, q)
 
 
 def kalman_columns(
     jnp: Any, lax: Any, invariant: bool, X: Any, P: Any, r: Any, H: Any, Rm: Any, i: Any, jj: Any
-) -> tuple:
+) -> Traced:
     """:func:`swarmloc.engine.joint_math.kalman` on the columns of robots ``i`` and ``jj``: ``(X+, P+, nis, ok)``."""
     N = P.shape[0]
     Pc = jnp.concatenate([lax.dynamic_slice(P, (0, 3 * i), (N, 3)), lax.dynamic_slice(P, (0, 3 * jj), (N, 3))], 1)
@@ -103,7 +108,7 @@ def kalman_columns(
 
 
 # ------------------------------------------------------------------------------------------------ the events
-def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tuple) -> tuple:
+def detection(jnp: Any, lax: Any, form: Traced, state: Traced, ev: Events, const: Traced) -> Traced:
     """A detection: the observer moved to its stamp, the screening, the target (a robot: moved to the stamp too;
     ``diekf``: only if it takes the update), the measurement, the update and its outcome."""
     noise, invariant, distributed = form
@@ -122,18 +127,18 @@ def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tu
     X, P = s1[0], s1[1]
     lk = jnp.clip(NO_LANDMARK - 1 - j, 0, lxy.shape[0] - 1)
     xk = jnp.where(robot, X[jr], jnp.concatenate([lxy[lk], jnp.zeros(1)]))
-    degenerate = (kind >= RANGE_BEARING) & (jnp.hypot(xk[0] - X[i, 0], xk[1] - X[i, 1]) < MIN_RANGE)
+    B = blocks()
+    degenerate = B.degenerate(kind, X[i, 0], X[i, 1], xk[0], xk[1])
     r, H, Rm = measure(jnp, kind, X[i], xk, ev["z"], ev["R"])
     Hk = H[:, 3:5]
     Rm = jnp.where(~robot & (kind != ABSOLUTE), Rm + Hk @ lcov[lk] @ Hk.T, Rm)  # a map landmark's covariance
     H = jnp.where(robot, H, H.at[:, 3:].set(0.0))
     if invariant:  # world-frame error columns: H N
-        H = H.at[:, 5].add(jnp.where(robot, -xk[1] * H[:, 3] + xk[0] * H[:, 4], 0.0))
-        H = H.at[:, 2].add(-X[i, 1] * H[:, 0] + X[i, 0] * H[:, 1])
+        H = H.at[:, 5].set(jnp.where(robot, B.to_world(H[:, 3], H[:, 4], H[:, 5], xk[0], xk[1]), H[:, 5]))
+        H = H.at[:, 2].set(B.to_world(H[:, 0], H[:, 1], H[:, 2], X[i, 0], X[i, 1]))
     xn, Pn, nis, ok = kalman_columns(jnp, lax, invariant, X, P, r, H, Rm, i, jr)
     d = F.rule((st0, why0, st0 != 0), degenerate, REJECTED, R_DEGENERATE)
-    d = F.rule(F.gate_rules(d, nis, thr[kind], gate_on), ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL)
-    st, why = F.decided(d, FUSED)
+    st, why = verdict(jnp, d, gate_on, nis, thr[kind], ok, Pn)
     fused = st == FUSED
     keep = state if distributed else tuple(jnp.where(st0 != 0, a, b) for a, b in zip(state, s1, strict=True))
     out = (xn, Pn, *s1[2:])
@@ -144,7 +149,7 @@ def detection(jnp: Any, lax: Any, form: tuple, state: tuple, ev: dict, const: tu
 def _kernels(noise: UnicycleNoise, invariant: bool, distributed: bool) -> Any:
     """``make(jnp, lax, t0, const)`` of :func:`swarmloc.engine.jax_replay.compiled` for this form."""
 
-    def make(jnp, lax, t0, const):  # noqa: ANN001, ANN202
+    def make(jnp: Any, lax: Any, t0: Any, const: Any) -> Any:
         form = (noise, invariant, distributed)
         return (
             lambda s, k, t: _advance(jnp, lax, noise, invariant, s, k, t),

@@ -2,9 +2,10 @@
 backend="jax")``, :func:`replay_rdl_jax`), and many runs of one team size at once (:func:`replay_rdl_batch`).
 
 The scan and the measurement models are :mod:`swarmloc.engine.jax_replay`'s, the screening and the gate's rules
-:mod:`swarmloc.engine.formulas`' (numba's too); here the kernels of ``rdl``'s state as
-:func:`swarmloc.engine.pairs.replay_rdl` runs them (its pair prior and Joseph update still written apart, as matrix
-products here and as loops there): each robot's Cartesian ``x``, ``P``, the pending
+:mod:`swarmloc.engine.formulas`', the prediction's shear, its effect on the factors, the 3x3 inverse and the
+degenerate geometry :mod:`swarmloc.engine.blocks`' (numba's too); here the kernels of ``rdl``'s state as
+:func:`swarmloc.engine.pairs.replay_rdl` runs them (its pair prior, rescaling and Joseph update still written apart,
+as matrix products here and as loops or BLAS calls there): each robot's Cartesian ``x``, ``P``, the pending
 shear ``(sa, sb)`` its predictions owe its factors, and for every pair that has exchanged (``met[k, l]``) the factor
 ``sigma_kl`` of their cross-covariance. A detection of a teammate builds the pair's joint prior (the tracked
 cross-covariance, or covariance intersection over :data:`~swarmloc.estimators.rdl.CI_WEIGHTS` when it is not known
@@ -29,42 +30,41 @@ from swarmloc.engine.codes import (
     NO_LANDMARK,
     R_CORRELATION,
     R_DEGENERATE,
-    R_NUMERICAL,
     REJECTED,
 )
 from swarmloc.engine.detections import Timeline
-from swarmloc.engine.jax_replay import RANGE_BEARING, compiled, formulas, inverse, measure, run_batch, sym, usable, wrap
-from swarmloc.engine.replay_io import Replayed, Switches, constants
+from swarmloc.engine.jax_replay import blocks, compiled, formulas, inverse, measure, run_batch, sym, usable, verdict
+from swarmloc.engine.replay_io import Events, Replayed, Switches, Traced, constants
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors.models import MIN_RANGE
 
 _UP = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
-def _predicted(jnp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt: Any) -> tuple:
-    """A robot's (or a batch's) ``(x, P, dx, dy)`` predicted over ``dt`` (unchanged for ``dt <= 0``)."""
+def _predicted(jnp: Any, noise: UnicycleNoise, x: Any, P: Any, v: Any, w: Any, dt: Any) -> Traced:
+    """A robot's (or a batch's) ``(x, P, a, b)`` predicted over ``dt`` (unchanged for ``dt <= 0``), ``(a, b)`` the
+    prediction's shear (:func:`swarmloc.engine.blocks.moved`)."""
     xs, ps = soa.predict(jnp, (x[..., 0], x[..., 1], x[..., 2]), tuple(P[..., a, b] for a, b in _UP), v, w, dt, noise)
     xn = jnp.stack(xs, -1)
-    return xn, sym(jnp, ps), xn[..., 0] - x[..., 0], xn[..., 1] - x[..., 1]
+    return xn, sym(jnp, ps), *blocks().moved(x[..., 0], x[..., 1], xn[..., 0], xn[..., 1])
 
 
-def _advance(jnp: Any, noise: UnicycleNoise, st: tuple, k: Any, t: Any) -> tuple:
+def _advance(jnp: Any, noise: UnicycleNoise, st: Traced, k: Any, t: Any) -> Traced:
     """Robot ``k`` predicted to ``t`` and stored, its pending shear grown."""
     x, P, tc, v, w, sa, sb, met, sig = st
-    xn, Pn, dx, dy = _predicted(jnp, noise, x[k], P[k], v[k], w[k], t - tc[k])
-    return (x.at[k].set(xn), P.at[k].set(Pn), tc.at[k].set(jnp.maximum(tc[k], t)), v, w, sa.at[k].add(-dy),
-            sb.at[k].add(dx), met, sig)  # fmt: skip
+    xn, Pn, a, b = _predicted(jnp, noise, x[k], P[k], v[k], w[k], t - tc[k])
+    return (x.at[k].set(xn), P.at[k].set(Pn), tc.at[k].set(jnp.maximum(tc[k], t)), v, w, sa.at[k].add(a),
+            sb.at[k].add(b), met, sig)  # fmt: skip
 
 
-def _factors(jnp: Any, st: tuple, k: Any, a: Any, b: Any) -> Any:
+def _factors(jnp: Any, st: Traced, k: Any, a: Any, b: Any) -> Any:
     """Robot ``k``'s factors ``sigma_kl (n, 3, 3)`` with the pending shear ``(a, b)`` applied (zero where not met)."""
     sig, met = st[8][k], st[7][k]
-    f = sig.at[:, 0].add(a * sig[:, 2]).at[:, 1].add(b * sig[:, 2])
+    f = jnp.stack([*blocks().shear(sig[:, 0], sig[:, 1], sig[:, 2], a, b), sig[:, 2]], 1)
     return jnp.where(met[:, None, None], f, 0.0)
 
 
-def _rescale(jnp: Any, st: tuple, k: Any, P_new: Any, P_old: Any) -> tuple:
+def _rescale(jnp: Any, st: Traced, k: Any, P_new: Any, P_old: Any) -> Traced:
     """Robot ``k``'s factors ``sigma_kl <- P_new P_old^-1 sigma_kl`` (met pairs), its pending shear cleared."""
     x, P, tc, v, w, sa, sb, met, sig = st
     inv, regular = inverse(jnp, P_old)
@@ -73,7 +73,7 @@ def _rescale(jnp: Any, st: tuple, k: Any, P_new: Any, P_old: Any) -> tuple:
     return x, P, tc, v, w, sa.at[k].set(0.0), sb.at[k].set(0.0), met, sig.at[k].set(new)
 
 
-def _kalman(jnp: Any, x: Any, P: Any, r: Any, H: Any, R: Any) -> tuple:
+def _kalman(jnp: Any, x: Any, P: Any, r: Any, H: Any, R: Any) -> Traced:
     """:func:`swarmloc.engine.pairs._kalman`: the Joseph form, headings wrapped: ``(x+, P+, nis, ok)``."""
     N = P.shape[0]
     PHt = P @ H.T
@@ -83,14 +83,14 @@ def _kalman(jnp: Any, x: Any, P: Any, r: Any, H: Any, R: Any) -> tuple:
     K = PHt @ S_inv
     xn = x + PHt @ Sr
     head = jnp.arange(N) % 3 == 2
-    xn = jnp.where(head & jnp.isfinite(xn), wrap(jnp, xn), xn)
+    xn = jnp.where(head & jnp.isfinite(xn), soa.wrap(jnp, xn), xn)
     IKH = jnp.eye(N) - K @ H
     A = IKH @ P @ IKH.T + K @ R @ K.T
     Pn = 0.5 * (A + A.T)
     return xn, Pn, nis, regular & jnp.isfinite(nis) & jnp.isfinite(xn).all() & jnp.isfinite(Pn).all()
 
 
-def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: Any) -> tuple:
+def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: Any) -> Traced:
     """:func:`swarmloc.engine.pairs._joint_prior`: ``(P (6, 6), 1)`` with the tracked cross-covariance (known and
     positive definite), else covariance intersection's prior with ``1`` (both gain), ``0`` (the observer only) or
     ``-1`` (neither)."""
@@ -117,32 +117,25 @@ def _prior(jnp: Any, Pi: Any, Pj: Any, fi: Any, fj: Any, met: Any, H: Any, R: An
     return jnp.where(use, tracked, ci_P), jnp.where(use, 1, ci)
 
 
-def _checks(jnp: Any, d: tuple, gate_on: Any, nis: Any, thr: Any, ok: Any, Pn: Any) -> tuple:
-    """The rules ``d`` then those after an update: the gate and the positive-definite check; ``(outcome,
-    reason)``."""
-    F = formulas()
-    return F.decided(F.rule(F.gate_rules(d, nis, thr, gate_on), ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL), FUSED)
-
-
-def _pick(jnp: Any, cond: Any, a: tuple, b: tuple) -> tuple:
+def _pick(jnp: Any, cond: Any, a: Traced, b: Traced) -> Traced:
     return tuple(jnp.where(cond, u, v) for u, v in zip(a, b, strict=True))
 
 
-def _pair(jnp: Any, noise: UnicycleNoise, st: tuple, i: Any, j: Any, ev: dict, const: tuple) -> tuple:
+def _pair(jnp: Any, noise: UnicycleNoise, st: Traced, i: Any, j: Any, ev: Events, const: Traced) -> Traced:
     """Robot ``i``'s detection of teammate ``j``: the pair's update, each taking its part (or only the observer,
     its factor for ``j`` dropped, when only it gains): ``(state, outcome, reason)``."""
     thr, gate_on = const[1], const[2]
     x, P, tc, v, w, sa, sb, met, sig = st
     kind, t = ev["kind"], ev["t"]
-    xj, Pj, dx, dy = _predicted(jnp, noise, x[j], P[j], v[j], w[j], t - tc[j])  # the answer (not stored)
-    degenerate = (kind >= RANGE_BEARING) & (jnp.hypot(xj[0] - x[i, 0], xj[1] - x[i, 1]) < MIN_RANGE)
-    fj = _factors(jnp, st, j, sa[j] - dy, sb[j] + dx)[i]
+    xj, Pj, a, b = _predicted(jnp, noise, x[j], P[j], v[j], w[j], t - tc[j])  # the answer (not stored)
+    degenerate = blocks().degenerate(kind, x[i, 0], x[i, 1], xj[0], xj[1])
+    fj = _factors(jnp, st, j, sa[j] + a, sb[j] + b)[i]
     fi = _factors(jnp, st, i, sa[i], sb[i])[j]
     r, H, Rm = measure(jnp, kind, x[i], xj, ev["z"], ev["R"])
     prior, both = _prior(jnp, P[i], Pj, fi, fj, met[i, j], H, Rm)
     Xn, Pn, nis, ok = _kalman(jnp, jnp.concatenate([x[i], xj]), prior, r, H, Rm)
     d = formulas().rule((REJECTED, R_DEGENERATE, degenerate), both < 0, GATED, R_CORRELATION)
-    code = _checks(jnp, d, gate_on, nis, thr[kind], ok, Pn)
+    code = verdict(jnp, d, gate_on, nis, thr[kind], ok, Pn)
     s = (x.at[i].set(Xn[:3]), P.at[i].set(Pn[:3, :3]), *st[2:])
     s = _rescale(jnp, s, i, Pn[:3, :3], P[i])
     alone = (*s[:8], s[8].at[i, j].set(0.0))  # only the observer gains: its correlation with j is unknown now
@@ -155,24 +148,24 @@ def _pair(jnp: Any, noise: UnicycleNoise, st: tuple, i: Any, j: Any, ev: dict, c
     return _pick(jnp, code[0] == FUSED, _pick(jnp, both == 0, alone, s), st), *code
 
 
-def _private(jnp: Any, st: Any, i: Any, j: Any, ev: dict, const: tuple) -> tuple:
+def _private(jnp: Any, st: Any, i: Any, j: Any, ev: Events, const: Traced) -> Traced:
     """An absolute fix or a map landmark's detection by robot ``i``: a private update, its factors rescaled."""
     thr, gate_on, lxy, lcov = const[1], const[2], const[5], const[6]
     x, P = st[0], st[1]
     kind = ev["kind"]
     lk = jnp.clip(NO_LANDMARK - 1 - j, 0, lxy.shape[0] - 1)
     xk = jnp.concatenate([lxy[lk], jnp.zeros(1)])
-    degenerate = (kind >= RANGE_BEARING) & (jnp.hypot(xk[0] - x[i, 0], xk[1] - x[i, 1]) < MIN_RANGE)
+    degenerate = blocks().degenerate(kind, x[i, 0], x[i, 1], xk[0], xk[1])
     r, H, Rm = measure(jnp, kind, x[i], xk, ev["z"], ev["R"])
     Hk = H[:, 3:5]
     Rm = jnp.where(kind != ABSOLUTE, Rm + Hk @ lcov[lk] @ Hk.T, Rm)  # a map landmark's covariance
     xn, Pn, nis, ok = _kalman(jnp, x[i], P[i], r, H[:, :3], Rm)
-    code = _checks(jnp, (REJECTED, R_DEGENERATE, degenerate), gate_on, nis, thr[kind], ok, Pn)
+    code = verdict(jnp, (REJECTED, R_DEGENERATE, degenerate), gate_on, nis, thr[kind], ok, Pn)
     s = _rescale(jnp, (x.at[i].set(xn), P.at[i].set(Pn), *st[2:]), i, Pn, P[i])
     return _pick(jnp, code[0] == FUSED, s, st), *code
 
 
-def _detection(jnp: Any, noise: UnicycleNoise, st: tuple, ev: dict, const: tuple) -> tuple:
+def _detection(jnp: Any, noise: UnicycleNoise, st: Traced, ev: Events, const: Traced) -> Traced:
     """A detection: the observer moved to its stamp, the screening of ``rdl``'s nodes, then a private or a pair's
     update."""
     t0, relative, lm_on = const[0], const[3], const[4]
@@ -191,7 +184,7 @@ def _detection(jnp: Any, noise: UnicycleNoise, st: tuple, ev: dict, const: tuple
 def _kernels(noise: UnicycleNoise) -> Any:
     """``make(jnp, lax, t0, const)`` of :func:`swarmloc.engine.jax_replay.compiled` for ``rdl``."""
 
-    def make(jnp, lax, t0, const):  # noqa: ANN001, ANN202, ARG001
+    def make(jnp: Any, lax: Any, t0: Any, const: Any) -> Any:  # noqa: ARG001
         return (
             lambda s, k, t: _advance(jnp, noise, s, k, t),
             lambda s, ev: _detection(jnp, noise, s, ev, (t0, *const)),

@@ -24,25 +24,23 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.engine import blocks as _blocks
 from swarmloc.engine import soa
-from swarmloc.engine.codes import (
-    ABSOLUTE,
-    POSE,
-)
+from swarmloc.engine.codes import ABSOLUTE, FUSED, POSE, R_NUMERICAL, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.formulas import RANGE_BEARING, build
 from swarmloc.engine.jax_stamp import bucket, import_jax, pad_rows
-from swarmloc.engine.replay_io import Replayed
+from swarmloc.engine.replay_io import Events, Replayed, Traced
 
 DET, CMD, REC, NOOP = range(4)
 """Event types: a detection, a command, a record of every robot, padding."""
-COMPILES: Counter[tuple] = Counter()
+COMPILES: Counter[Traced] = Counter()
 """Traces per ``(form, robots, steps, commands, record slots, landmarks, runs)``: one per shape."""
 Kernels = tuple[Callable[..., Any], Callable[..., Any], Callable[..., Any]]
 """``(advance, detection, marginals)`` of a form (the module's docstring)."""
 
 
-def events(tl: Timeline, size: int | None = None, csize: int | None = None) -> tuple[dict, dict]:
+def events(tl: Timeline, size: int | None = None, csize: int | None = None) -> tuple[Events, Events]:
     """``tl`` as the scan's events: ``(steps, commands)``.
 
     ``steps``: the detections and records in the loop's order, then one padding step, padded to ``size`` rows
@@ -96,12 +94,48 @@ def formulas() -> Any:
     return build(jnp)
 
 
+def blocks() -> Any:
+    """The shared block math (:mod:`swarmloc.engine.blocks`) on ``jax.numpy``."""
+    import jax.numpy as jnp
+
+    return _blocks.build(jnp)
+
+
+def entries(M: Any) -> Traced:
+    """``M (..., 3, 3)`` as rows of entries ``(...)`` (:mod:`swarmloc.engine.blocks`' matrices)."""
+    return tuple(tuple(M[..., r, c] for c in range(3)) for r in range(3))
+
+
+def matrix(jnp: Any, rows: Traced) -> Any:
+    """Rows of entries ``(...)`` as ``(..., 3, 3)`` (:func:`entries`' inverse)."""
+    return jnp.stack([jnp.stack([jnp.broadcast_to(a, jnp.shape(rows[0][0])) for a in row], -1) for row in rows], -2)
+
+
+def cartesian(jnp: Any, invariant: bool, x: Any, M: Any, a: Any, b: Any, q: Any) -> Any:
+    """Robots' blocks ``M (n, 3, 3)`` after their prediction (shear ``(a, b)``, noise ``q``) to poses ``x (n, 3)``,
+    Cartesian (:func:`swarmloc.engine.blocks.predicted_block`, then ``N M N^T`` with ``invariant``: the numba
+    records')."""
+    B = blocks()
+    M = B.predicted_block(entries(M), a, b, q)
+    return matrix(jnp, B.sheared(M, -x[:, 1], x[:, 0]) if invariant else M)
+
+
 def usable(jnp: Any, P: Any) -> Any:
     """Finite and positive definite (a Cholesky factorization: :func:`swarmloc.node.update.usable_covariance`)."""
     return jnp.isfinite(P).all() & jnp.isfinite(jnp.linalg.cholesky(P)).all()
 
 
-def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> tuple:
+def verdict(jnp: Any, d: Traced, gate_on: Any, nis: Any, thr: Any, ok: Any, Pn: Any) -> Traced:
+    """The rules ``d`` (:func:`swarmloc.engine.formulas.rule`'s) then those after an update with ``nis``, its
+    finite-ness ``ok`` and its covariance ``Pn``: the gate (threshold ``thr``) and the positive-definite check, as
+    :func:`swarmloc.engine.joint_math.verdict`; ``(outcome, reason)``, ``FUSED`` when no rule decides."""
+    F = formulas()
+    st, why = F.decided(F.rule(F.gate_rules(d, nis, thr, gate_on), ~(ok & usable(jnp, Pn)), REJECTED, R_NUMERICAL),
+                        FUSED)  # fmt: skip
+    return st, why
+
+
+def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> Traced:
     """Residual ``r (3,)``, Jacobian ``H (3, 6)`` (observer's columns, then the target's) and noise ``Rm (3, 3)``
     of :func:`swarmloc.engine.formulas.measure`, a 1- or 2-row measurement padded with rows that change nothing
     (zero in ``H`` and the residual, one in the noise)."""
@@ -114,19 +148,15 @@ def measure(jnp: Any, kind: Any, xi: Any, xk: Any, z: Any, R: Any) -> tuple:
     return jnp.stack([jnp.asarray(a) for a in r]), jnp.stack([jnp.stack([jnp.asarray(a) for a in h]) for h in H]), Rm
 
 
-def inverse(jnp: Any, S: Any) -> tuple:
-    """3x3 inverses by cofactors (:func:`swarmloc.engine.joint_math.inverse`) of ``S (..., 3, 3)`` and whether each is
+def inverse(jnp: Any, S: Any) -> Traced:
+    """3x3 inverses by cofactors (:func:`swarmloc.engine.blocks.inverse3`) of ``S (..., 3, 3)`` and whether each is
     regular."""
-    co = [[S[..., (c + 1) % 3, (r + 1) % 3] * S[..., (c + 2) % 3, (r + 2) % 3] - S[..., (c + 1) % 3, (r + 2) % 3]
-           * S[..., (c + 2) % 3, (r + 1) % 3] for c in range(3)] for r in range(3)]  # fmt: skip
-    adj = jnp.stack([jnp.stack(row, -1) for row in co], -2)
-    det = S[..., 0, 0] * adj[..., 0, 0] + S[..., 0, 1] * adj[..., 1, 0] + S[..., 0, 2] * adj[..., 2, 0]
-    regular = det != 0.0
-    return adj / jnp.where(regular, det, 1.0)[..., None, None], regular
+    inv, regular = blocks().inverse3(entries(S))
+    return matrix(jnp, inv), regular
 
 
 # ------------------------------------------------------------------------------------------------ the scan
-def _scan(jnp: Any, lax: Any, kernels: Kernels, state: tuple, ev: dict, cmd: dict, slots: int) -> tuple:
+def _scan(jnp: Any, lax: Any, kernels: Kernels, state: Traced, ev: Events, cmd: Events, slots: int) -> Traced:
     """The steps of one run: ``(outcomes, reasons)`` per step and the records ``(slots, n, 3)``, ``(slots, n, 3,
     3)``."""
     advance, detection, marginals = kernels
@@ -134,25 +164,25 @@ def _scan(jnp: Any, lax: Any, kernels: Kernels, state: tuple, ev: dict, cmd: dic
     nothing = (jnp.zeros((n, 3)), jnp.zeros((n, 3, 3)))
     no = jnp.int32(0)
 
-    def command(c, state):  # noqa: ANN001, ANN202
+    def command(c: Any, state: Any) -> Any:
         k = cmd["a"][c]
         s = advance(state, k, cmd["t"][c])
         return (*s[:3], s[3].at[k].set(cmd["v"][c]), s[4].at[k].set(cmd["w"][c]), *s[5:])
 
-    def found(state, ev):  # noqa: ANN001, ANN202
+    def found(state: Any, ev: Any) -> Any:
         state, st, why = detection(state, ev)
         return state, jnp.int32(st), jnp.int32(why), *nothing
 
-    def record(state, ev):  # noqa: ANN001, ANN202
+    def record(state: Any, ev: Any) -> Any:
         return state, no, no, *marginals(state, ev["t"])
 
-    def pad(state, ev):  # noqa: ANN001, ANN202, ARG001
+    def pad(state: Any, ev: Any) -> Any:  # noqa: ARG001
         return state, no, no, *nothing
 
-    def other(state, ev):  # noqa: ANN001, ANN202
+    def other(state: Any, ev: Any) -> Any:
         return lax.cond(ev["type"] == REC, record, pad, state, ev)
 
-    def body(carry, ev):  # noqa: ANN001, ANN202
+    def body(carry: Any, ev: Any) -> Any:
         state, ox, oP = carry
         state = lax.fori_loop(ev["c0"], ev["c1"], command, state)  # the commands before the step: no branch
         state, st, why, mx, mP = lax.cond(ev["type"] == DET, found, other, state, ev)
@@ -174,10 +204,10 @@ def compiled(form: Any, make: Callable[..., Kernels], batched: bool) -> Any:
     import jax.numpy as jnp
     from jax import lax
 
-    def run(state, ev, cmd, t0, const, slots):  # noqa: ANN001, ANN202
+    def run(state: Any, ev: Any, cmd: Any, t0: Any, const: Any, slots: Any) -> Any:
         return _scan(jnp, lax, make(jnp, lax, t0, const), state, ev, cmd, slots)
 
-    def traced(state, ev, cmd, t0, const, *, slots):  # noqa: ANN001, ANN202
+    def traced(state: Any, ev: Any, cmd: Any, t0: Any, const: Any, *, slots: Any) -> Any:
         runs = state[0].shape[0] if batched else 1
         COMPILES[(form, state[2].shape[-1], ev["t"].shape[-1], cmd["t"].shape[-1], slots, const[-2].shape[0],
                   runs)] += 1  # fmt: skip
@@ -188,7 +218,7 @@ def compiled(form: Any, make: Callable[..., Kernels], batched: bool) -> Any:
     return jax.jit(traced, static_argnames=("slots",))
 
 
-def run_batch(fn: Any, tls: Sequence[Timeline], states: Sequence[tuple], t0s: Sequence[np.ndarray], const: tuple,
+def run_batch(fn: Any, tls: Sequence[Timeline], states: Sequence[Traced], t0s: Sequence[np.ndarray], const: Traced,
               single: bool) -> list[Replayed]:  # fmt: skip
     """Runs through ``fn`` (:func:`compiled`; ``single``: its one-run form, one run): each run's timeline, state at
     its start (numpy) and each robot's start ``(n,)`` [s]; returns each run's ``(status, reason, records)`` as
@@ -217,7 +247,7 @@ def run_batch(fn: Any, tls: Sequence[Timeline], states: Sequence[tuple], t0s: Se
     return out
 
 
-def _records(tl: Timeline, starts: np.ndarray, ox: np.ndarray, oP: np.ndarray) -> tuple:
+def _records(tl: Timeline, starts: np.ndarray, ox: np.ndarray, oP: np.ndarray) -> Traced:
     """``(robot, stamp index, x, P)`` of every started robot at every recorded stamp, stamp then row order."""
     rec = np.flatnonzero(tl.record)
     live = tl.stamps[rec][:, None] >= starts[None, :]

@@ -53,26 +53,28 @@ from swarmloc.engine.codes import (
 )
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint_math import (
-    RANGE_BEARING,
+    B,
     F,
     commit,
+    degenerate,
     kalman,
     measure,
+    rows3,
     to_world,
     world_noise,
 )
 from swarmloc.engine.replay_io import Constants, Replayed, Switches, constants, joint_start
 from swarmloc.engine.scalar import predict_source
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors.models import MIN_RANGE
 
 
 @njit(error_model="numpy")
-def _compose(pend: np.ndarray, has: np.ndarray, k: int, dx: float, dy: float, q: np.ndarray) -> None:
-    """Robot ``k``'s pending ``(a, b, Q upper)`` after one more prediction (:func:`~swarmloc.estimators.cekf.
-    compose_pending`)."""
+def _compose(pend: np.ndarray, has: np.ndarray, k: int, sa: float, sb: float, q: np.ndarray) -> None:
+    """Robot ``k``'s pending ``(a, b, Q upper)`` after one more prediction, of shear ``(sa, sb)``
+    (:func:`swarmloc.engine.blocks.moved`; :func:`~swarmloc.estimators.cekf.compose_pending`)."""
+    dx, dy = sb, -sa
     if not has[k]:
-        pend[k, 0], pend[k, 1] = -dy, dx
+        pend[k, 0], pend[k, 1] = sa, sb
         pend[k, 2:] = q
         has[k] = True
         return
@@ -99,13 +101,9 @@ def flush(P: np.ndarray, pend: np.ndarray, has: np.ndarray) -> None:
         a, b = pend[k, 0], pend[k, 1]
         if a != 0.0 or b != 0.0:  # no shear (the invariant filters' predictions): only the noise
             for c in range(N):
-                row = P[i + 2, c]
-                P[i, c] += a * row
-                P[i + 1, c] += b * row
+                P[i, c], P[i + 1, c] = B.shear(P[i, c], P[i + 1, c], P[i + 2, c], a, b)
             for r in range(N):
-                col = P[r, i + 2]
-                P[r, i] += a * col
-                P[r, i + 1] += b * col
+                P[r, i], P[r, i + 1] = B.shear(P[r, i], P[r, i + 1], P[r, i + 2], a, b)
         u = pend[k, 2:]
         P[i, i] += u[0]
         P[i, i + 1] += u[1]
@@ -172,11 +170,11 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
         r = predict(X[i], X[i + 1], X[i + 2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, v[k], w[k], dt)
         q = np.array([r[3], r[4], r[5], r[6], r[7], r[8]])
         if invariant:  # the error transition is the identity: no shear, the noise in world-frame errors
-            dx, dy, q = 0.0, 0.0, world_noise(r[0], r[1], q)
+            a, b, q = -0.0, 0.0, world_noise(r[0], r[1], q)
         else:
-            dx, dy = r[0] - X[i], r[1] - X[i + 1]
+            a, b = B.moved(X[i], X[i + 1], r[0], r[1])
         X[i], X[i + 1], X[i + 2] = r[0], r[1], r[2]
-        _compose(pend, has, k, dx, dy, q)
+        _compose(pend, has, k, a, b, q)
         tc[k] = t
 
     @njit(error_model="numpy")
@@ -185,15 +183,16 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
         i = 3 * k
         x, pd, hs, clock = X[i : i + 3].copy(), pend[k : k + 1].copy(), has[k : k + 1].copy(), tc[k : k + 1].copy()
         advance(x, pd, hs, clock, v[k : k + 1], w[k : k + 1], 0, t)
-        M = P[i : i + 3, i : i + 3].copy()
-        flush(M, pd, hs)
-        return x, M
+        M = rows3(P[i : i + 3, i : i + 3])
+        if hs[0]:
+            M = B.predicted_block(M, pd[0, 0], pd[0, 1], (pd[0, 2], pd[0, 3], pd[0, 4], pd[0, 5], pd[0, 6], pd[0, 7]))
+        return x, np.array(M)
 
     @njit(error_model="numpy")
     def marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
         x, M = belief(X, P, pend, has, tc, v, w, k, t)
         out_x[o] = x
-        if invariant:  # recorded Cartesian: N M N^T
+        if invariant:  # recorded Cartesian: N M N^T (blocks.sheared(M, -y, x), but BLAS's rounding: the bits kept)
             N = np.array([[1.0, 0.0, -x[1]], [0.0, 1.0, x[0]], [0.0, 0.0, 1.0]])
             M = N @ M @ N.T
         out_P[o] = M
@@ -216,7 +215,7 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
             advance(X, pend, has, tc, v, w, j, t)
         xk = X[3 * j : 3 * j + 3].copy() if j >= 0 else (lxy[NO_LANDMARK - 1 - j].copy() if kind != ABSOLUTE
                                                          else np.zeros(0))  # fmt: skip
-        if kind >= RANGE_BEARING and math.hypot(xk[0] - X[3 * i], xk[1] - X[3 * i + 1]) < MIN_RANGE:
+        if degenerate(kind, X, 3 * i, xk):
             return REJECTED, R_DEGENERATE
         r, H, Rm = measure(kind, X, 3 * i, xk, z[q], R[q])
         own = np.arange(3 * i, 3 * i + 3)

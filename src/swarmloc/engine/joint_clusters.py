@@ -22,7 +22,6 @@ Results equal the nodes' to rounding (tests/test_engine_clusters.py). Units: met
 
 from __future__ import annotations
 
-import math
 from functools import cache
 from typing import Any, Unpack
 
@@ -33,11 +32,10 @@ from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import flush, run, stamp_loop, steps
-from swarmloc.engine.joint_math import RANGE_BEARING, F, commit, kalman, measure, to_world
+from swarmloc.engine.joint_math import F, commit, degenerate, kalman, measure, to_world
 from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors.models import MIN_RANGE
 
 
 @njit(error_model="numpy")
@@ -79,7 +77,7 @@ def _kernels(noise: UnicycleNoise) -> Any:
         mates not started yet, whose nodes take no broadcast (their covariance is not divided by ``w``; uncorrelated
         with the cluster, the update leaves them as they are)."""
         a = 3 * i
-        if kind >= RANGE_BEARING and math.hypot(xj[0] - X[a], xj[1] - X[a + 1]) < MIN_RANGE:
+        if degenerate(kind, X, a, xj):
             return REJECTED, R_DEGENERATE
         r, H, Rm = measure(kind, X, a, xj, z, R)
         to_world(H, 3, xj[0], xj[1])

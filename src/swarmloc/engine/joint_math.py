@@ -1,4 +1,5 @@
-"""The compiled pieces the engine's replays share (numba): a detection's residual, Jacobian and noise
+"""The compiled pieces the engine's replays share (numba; :mod:`swarmloc.engine.formulas` and
+:mod:`swarmloc.engine.blocks` compiled on scalars, the JAX scans' too): a detection's residual, Jacobian and noise
 (:func:`measure`), small inverses, the positive-definite check, the world-frame pieces of the invariant filters, the
 Kalman update on a few columns of a joint covariance (:func:`kalman`) and the order of its outcomes
 (:func:`verdict`). :mod:`swarmloc.engine.joint`, :mod:`swarmloc.engine.joint_clusters` and
@@ -12,7 +13,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from swarmloc.engine import numba_xp
+from swarmloc.engine import blocks, numba_xp
 from swarmloc.engine.codes import ABSOLUTE, FUSED, POSE, R_NUMERICAL, REJECTED
 from swarmloc.engine.formulas import RANGE_BEARING, build
 
@@ -23,6 +24,8 @@ def _compile(fn: Any) -> Any:
 
 F = build(numba_xp, _compile)
 """The shared formulas (:mod:`swarmloc.engine.formulas`) compiled by numba on scalars."""
+B = blocks.build(numba_xp, _compile)
+"""The shared block math (:mod:`swarmloc.engine.blocks`) compiled by numba on scalars."""
 wrap = F.wrap
 
 
@@ -43,14 +46,14 @@ def inverse(S: np.ndarray) -> tuple[np.ndarray, bool]:
             return S, False
         out[0, 0], out[0, 1], out[1, 0], out[1, 1] = S[1, 1] / det, -S[0, 1] / det, -S[1, 0] / det, S[0, 0] / det
         return out, True
-    for r in range(3):
-        for c in range(3):
-            r1, r2, c1, c2 = (c + 1) % 3, (c + 2) % 3, (r + 1) % 3, (r + 2) % 3
-            out[r, c] = S[r1, c1] * S[r2, c2] - S[r1, c2] * S[r2, c1]
-    det = S[0, 0] * out[0, 0] + S[0, 1] * out[1, 0] + S[0, 2] * out[2, 0]
-    if det == 0.0:
-        return S, False
-    return out / det, True
+    inv, regular = B.inverse3(rows3(S))
+    return (np.array(inv), True) if regular else (S, False)
+
+
+@njit(error_model="numpy")
+def rows3(M: np.ndarray) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
+    """The 3x3 ``M`` as rows of entries (:mod:`swarmloc.engine.blocks`' matrices)."""
+    return (M[0, 0], M[0, 1], M[0, 2]), (M[1, 0], M[1, 1], M[1, 2]), (M[2, 0], M[2, 1], M[2, 2])
 
 
 @njit(error_model="numpy")
@@ -101,6 +104,13 @@ def measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq
 
 
 @njit(error_model="numpy")
+def degenerate(kind: int, X: np.ndarray, i: int, xk: np.ndarray) -> bool:
+    """:func:`swarmloc.engine.blocks.degenerate` of a detection by the robot at rows ``i:i+3`` of ``X`` of a target at
+    ``xk`` (none for an absolute fix: never degenerate)."""
+    return bool(xk.shape[0] >= 2 and B.degenerate(kind, X[i], X[i + 1], xk[0], xk[1]))
+
+
+@njit(error_model="numpy")
 def left_correct(X: np.ndarray, delta: np.ndarray) -> None:
     """Every robot's pose ``X[3k:3k+3]`` corrected by its world-frame ``delta[3k:3k+3]``, written into ``delta``:
     the Cartesian pose of ``exp(hat(delta_k)) g(x_k)`` (:func:`swarmloc.engine.formulas.left_correct`)."""
@@ -114,7 +124,7 @@ def to_world(H: np.ndarray, c: int, x: float, y: float) -> None:
     """The Cartesian Jacobian block ``H[:, c:c+3]`` of a pose at ``(x, y)`` made one of its world-frame error, in
     place: ``H N`` with ``N = [[1, 0, -y], [0, 1, x], [0, 0, 1]]`` (:func:`swarmloc.kernels.invariant.world_basis`)."""
     for k in range(H.shape[0]):
-        H[k, c + 2] += -y * H[k, c] + x * H[k, c + 1]
+        H[k, c + 2] = B.to_world(H[k, c], H[k, c + 1], H[k, c + 2], x, y)
 
 
 @njit(error_model="numpy")

@@ -35,8 +35,9 @@ from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, NO_LANDMARK, R_CORRELA
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import predict_kernel, run, stamp_loop
 from swarmloc.engine.joint_math import (
-    RANGE_BEARING,
+    B,
     F,
+    degenerate,
     innovation,
     inverse,
     measure,
@@ -48,7 +49,6 @@ from swarmloc.engine.joint_math import (
 from swarmloc.engine.replay_io import Replayed, Switches, constants
 from swarmloc.estimators.rdl import CI_WEIGHTS
 from swarmloc.motion import UnicycleNoise
-from swarmloc.sensors.models import MIN_RANGE
 
 
 @njit(error_model="numpy")
@@ -119,9 +119,9 @@ def _factor(sig: np.ndarray, met: np.ndarray, sa: float, sb: float, k: int, l: i
     """``sigma_kl`` with robot ``k``'s pending shear ``(sa, sb)`` applied (zero for a robot never met)."""
     f = np.zeros((3, 3))
     if met[k, l]:
-        f[:, :] = sig[k, l]
-        f[0] += sa * sig[k, l, 2]
-        f[1] += sb * sig[k, l, 2]
+        f[2] = sig[k, l, 2]
+        for c in range(3):
+            f[0, c], f[1, c] = B.shear(sig[k, l, 0, c], sig[k, l, 1, c], sig[k, l, 2, c], sa, sb)
     return f
 
 
@@ -205,14 +205,15 @@ def _kernels(noise: UnicycleNoise) -> Any:
 
     @njit(error_model="numpy")
     def predicted(x, P, tc, v, w, k, t):  # noqa: ANN001, ANN202
-        """Robot ``k``'s ``(x, P, dx, dy)`` predicted to ``t`` (``dx = dy = 0``: already there)."""
+        """Robot ``k``'s ``(x, P, a, b)`` predicted to ``t``, ``(a, b)`` the prediction's shear
+        (:func:`swarmloc.engine.blocks.moved`; zero: already there)."""
         dt = t - tc[k]
         xk, Pk = x[k].copy(), P[k].copy()
         if not dt > 0:
             return xk, Pk, 0.0, 0.0
         r = predict(xk[0], xk[1], xk[2], Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2], v[k], w[k], dt)
         out = np.array([[r[3], r[4], r[5]], [r[4], r[6], r[7]], [r[5], r[7], r[8]]])
-        return np.array([r[0], r[1], r[2]]), out, r[0] - xk[0], r[1] - xk[1]
+        return (np.array([r[0], r[1], r[2]]), out, *B.moved(xk[0], xk[1], r[0], r[1]))
 
     @njit(error_model="numpy")
     def advance(x, P, shear, tc, v, w, k, t):  # noqa: ANN001, ANN202
@@ -223,8 +224,9 @@ def _kernels(noise: UnicycleNoise) -> Any:
         sa, sb = shear
         xk, Pk = x[k], P[k]
         r = predict(xk[0], xk[1], xk[2], Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2], v[k], w[k], dt)
-        sa[k] -= r[1] - xk[1]
-        sb[k] += r[0] - xk[0]
+        a, b = B.moved(xk[0], xk[1], r[0], r[1])
+        sa[k] += a
+        sb[k] += b
         xk[0], xk[1], xk[2] = r[0], r[1], r[2]
         Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2] = r[3], r[4], r[5], r[6], r[7], r[8]
         Pk[1, 0], Pk[2, 0], Pk[2, 1] = r[4], r[5], r[7]
@@ -243,10 +245,10 @@ def _detect(predicted: Any, advance: Any) -> Any:
 
     @njit(error_model="numpy")
     def pair(x, P, sa, sb, met, sig, tc, v, w, i, j, kind, zq, Rq, t, thr, gate):  # noqa: ANN001, ANN202
-        xj, Pj, dx, dy = predicted(x, P, tc, v, w, j, t)  # the target's answer (not stored)
-        if kind >= RANGE_BEARING and math.hypot(xj[0] - x[i, 0], xj[1] - x[i, 1]) < MIN_RANGE:
+        xj, Pj, a, b = predicted(x, P, tc, v, w, j, t)  # the target's answer (not stored)
+        if B.degenerate(kind, x[i, 0], x[i, 1], xj[0], xj[1]):
             return REJECTED, R_DEGENERATE
-        fj = _factor(sig, met, sa[j] - dy, sb[j] + dx, j, i)
+        fj = _factor(sig, met, sa[j] + a, sb[j] + b, j, i)
         fi = _factor(sig, met, sa[i], sb[i], i, j)
         X = np.concatenate((x[i], xj))
         r, H, Rm = measure(kind, X, 0, xj, zq, Rq)
@@ -293,7 +295,7 @@ def _private(x: np.ndarray, P: np.ndarray, sa: np.ndarray, sb: np.ndarray, met: 
     X = x[i].copy()
     lm = NO_LANDMARK - 1 - j
     xk = lxy[lm].copy() if kind != ABSOLUTE else np.zeros(0)
-    if kind >= RANGE_BEARING and math.hypot(xk[0] - X[0], xk[1] - X[1]) < MIN_RANGE:
+    if degenerate(kind, X, 0, xk):
         return REJECTED, R_DEGENERATE
     r, H, Rm = measure(kind, X, 0, xk, zq, Rq)
     if kind != ABSOLUTE:

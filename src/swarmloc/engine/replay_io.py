@@ -5,7 +5,7 @@ and the result (:data:`Replayed`). Units: metres, radians, seconds.
 
 from __future__ import annotations
 
-from typing import NamedTuple, TypedDict
+from typing import Any, NamedTuple, TypedDict
 
 import numpy as np
 
@@ -16,6 +16,12 @@ from swarmloc.node.update import Gate
 Replayed = tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 """What a compiled replay returns: each detection's outcome and reason code ``(M,)`` (int8, rows of the timeline's
 detections) and its records ``(robot row, stamp index, x (K, 3), P (K, 3, 3))`` (Cartesian)."""
+
+
+Traced = tuple[Any, ...]
+"""A tuple of a JAX scan's traced arrays: a form's state, or what one of its kernels returns."""
+Events = dict[str, Any]
+"""The fields of a JAX scan's steps or commands (:func:`swarmloc.engine.jax_replay.events`), or of one step."""
 
 
 class Switches(TypedDict, total=False):
