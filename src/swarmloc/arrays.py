@@ -11,4 +11,7 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 """An array of booleans, any shape (masks: which elements of a batch are valid)."""
 
-__all__ = ["BoolArray", "FloatArray"]
+IntArray = NDArray[np.int64]
+"""An array of 64-bit integers, any shape (indices and codes: rows, stamps, kinds)."""
+
+__all__ = ["BoolArray", "FloatArray", "IntArray"]
