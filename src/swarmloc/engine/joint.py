@@ -39,11 +39,12 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import Any, Unpack
+from typing import Any, TypeAlias, Unpack
 
 import numpy as np
 from numba import njit
 
+from swarmloc.arrays import BoolArray, FloatArray, IntArray
 from swarmloc.engine.codes import (
     ABSOLUTE,
     FUSED,
@@ -66,6 +67,16 @@ from swarmloc.engine.joint_math import (
 from swarmloc.engine.replay_io import Constants, Replayed, Switches, constants, joint_start
 from swarmloc.engine.scalar import predict_source
 from swarmloc.motion import UnicycleNoise
+
+JointState: TypeAlias = tuple[FloatArray, FloatArray, FloatArray, BoolArray, FloatArray, FloatArray, FloatArray]
+"""The joint forms' state in the loop (:func:`stamp_loop`): ``(X (3n,), P, pend (n, 8), has (n,), tc, v, w (n,))``,
+``P`` the joint covariance ``(3n, 3n)`` or a cluster's blocks ``(clusters, 3K, 3K)``."""
+PairState: TypeAlias = tuple[FloatArray, tuple[BoolArray, FloatArray], FloatArray, tuple[FloatArray, FloatArray],
+                             FloatArray, FloatArray, FloatArray]  # fmt: skip
+"""``rdl``'s state in the same slots (:mod:`swarmloc.engine.pairs`): ``(x (n, 3), (met (n, n), sig (n, n, 3, 3)),
+P (n, 3, 3), (sa, sb) (n,), tc, v, w (n,))``."""
+State: TypeAlias = JointState | PairState
+"""A compiled replay loop's state: ``(.., .., .., .., clock, v, w)``, each robot's clock and command last."""
 
 
 @njit(error_model="numpy")
@@ -137,13 +148,17 @@ def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = 
     advance, marginal, fuse, _ = steps(noise, invariant, distributed)
 
     @njit(error_model="numpy", inline="always")  # no call between the loop and its step
-    def detect(X, P, pend, has, tc, v, w, t0, t, q, i, j, kind, z, R, thr, gate, relative, lm_on, lxy, lcov):  # noqa: ANN001, ANN202
+    def detect(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
+               w: FloatArray, t0: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray,
+               thr: FloatArray, gate: bool, relative: bool, lm_on: bool, lxy: FloatArray, lcov: FloatArray
+               ) -> tuple[int, int]:  # fmt: skip
         if distributed:
             res, why = F.screen_started(kind, i, j, t, t0, relative, lm_on)
         else:
             res, why = F.screen_central(kind, i, j, relative, lm_on)
         if res == 0:
-            return fuse(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
+            st, reason = fuse(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
+            return st, reason
         return res, why
 
     return stamp_loop(advance, detect, marginal)
@@ -159,10 +174,17 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
     at ``t`` in the filter's error frame, nothing stored: what ``marginal`` records). They index robots by their
     rows of the arrays passed, so a cluster's views of them run the same steps
     (:mod:`swarmloc.engine.joint_clusters`)."""
-    predict = predict_kernel(noise)
+    advance, belief, marginal = _moves(predict_kernel(noise), invariant)
+    return advance, marginal, _fusion(advance, invariant, distributed), belief
+
+
+def _moves(predict: Any, invariant: bool) -> tuple[Any, Any, Any]:
+    """:func:`steps`' ``advance``, ``belief`` and ``marginal`` (a robot moved, its belief read) over the compiled
+    prediction ``predict`` (:func:`predict_kernel`)."""
 
     @njit(error_model="numpy")
-    def advance(X, pend, has, tc, v, w, k, t):  # noqa: ANN001, ANN202
+    def advance(X: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray, w: FloatArray, k: int,
+                t: float) -> None:  # fmt: skip
         dt = t - tc[k]
         if not dt > 0:
             return
@@ -178,7 +200,8 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
         tc[k] = t
 
     @njit(error_model="numpy")
-    def belief(X, P, pend, has, tc, v, w, k, t):  # noqa: ANN001, ANN202
+    def belief(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
+               w: FloatArray, k: int, t: float) -> tuple[FloatArray, FloatArray]:  # fmt: skip
         """Robot ``k``'s ``(x (3,), P (3, 3))`` at ``t`` (its filter's error frame), nothing stored."""
         i = 3 * k
         x, pd, hs, clock = X[i : i + 3].copy(), pend[k : k + 1].copy(), has[k : k + 1].copy(), tc[k : k + 1].copy()
@@ -189,7 +212,8 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
         return x, np.array(M)
 
     @njit(error_model="numpy")
-    def marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
+    def marginal(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
+                 w: FloatArray, k: int, t: float, out_x: FloatArray, out_P: FloatArray, o: int) -> None:  # fmt: skip
         x, M = belief(X, P, pend, has, tc, v, w, k, t)
         out_x[o] = x
         if invariant:  # recorded Cartesian: N M N^T (blocks.sheared(M, -y, x), but BLAS's rounding: the bits kept)
@@ -197,8 +221,17 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
             M = N @ M @ N.T
         out_P[o] = M
 
+    return advance, belief, marginal
+
+
+def _fusion(advance: Any, invariant: bool, distributed: bool) -> Any:
+    """:func:`steps`' ``fuse`` (a detection's update; with ``distributed``, the target's move undone when it does
+    not take it) over the compiled ``advance`` (:func:`_moves`)."""
+
     @njit(error_model="numpy")
-    def fuse(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate):  # noqa: ANN001, ANN202
+    def fuse(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
+             w: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray, lxy: FloatArray,
+             lcov: FloatArray, thr: FloatArray, gate: bool) -> tuple[int, int]:  # fmt: skip
         if not (distributed and j >= 0):
             return update(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
         flush(P, pend, has)  # (world-frame noise: additive) the target's step to t is then all it has pending
@@ -210,7 +243,9 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
         return st, why
 
     @njit(error_model="numpy")
-    def update(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate):  # noqa: ANN001, ANN202
+    def update(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
+               w: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray,
+               lxy: FloatArray, lcov: FloatArray, thr: FloatArray, gate: bool) -> tuple[int, int]:  # fmt: skip
         if j >= 0:  # a robot: predicted to the stamp (and kept there) before anything is read of it
             advance(X, pend, has, tc, v, w, j, t)
         xk = X[3 * j : 3 * j + 3].copy() if j >= 0 else (lxy[NO_LANDMARK - 1 - j].copy() if kind != ABSOLUTE
@@ -235,7 +270,7 @@ def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = Fal
         xn, Pn, nis, ok = kalman(X, P, r, H, cols, Rm, invariant)
         return commit(X, P, xn, Pn, nis, ok, thr[kind], gate)
 
-    return advance, marginal, fuse, belief
+    return fuse
 
 
 def stamp_loop(advance: Any, detect: Any, record: Any) -> Any:
@@ -251,7 +286,10 @@ def stamp_loop(advance: Any, detect: Any, record: Any) -> Any:
     tuple whole cost this loop 15-24% on MRCLAM 6: the arrays' reference counts)."""
 
     @njit(error_model="numpy")
-    def replay(state, vw, t0, stamps, d0, det, status, reason, const, cmd, rec, out):  # noqa: ANN001, ANN202, ARG001
+    def replay(state: State, vw: tuple[FloatArray, FloatArray], t0: FloatArray, stamps: FloatArray, d0: IntArray,
+               det: tuple[IntArray, IntArray, IntArray, FloatArray, FloatArray], status: IntArray, reason: IntArray,
+               const: Constants, cmd: tuple[IntArray, IntArray, FloatArray, FloatArray], rec: BoolArray,
+               out: tuple[IntArray, IntArray, FloatArray, FloatArray]) -> int:  # noqa: ARG001  # fmt: skip
         X, P, pend, has, tc, v, w = state
         thr, gate, relative, lm_on, lxy, lcov = const
         obs, tgt, kind, z, R = det
@@ -281,7 +319,8 @@ def stamp_loop(advance: Any, detect: Any, record: Any) -> Any:
     return replay
 
 
-def run(loop: Any, st: tuple, vw: tuple, tl: Timeline, starts: np.ndarray, const: Constants) -> tuple:
+def run(loop: Any, st: State, vw: tuple[FloatArray, FloatArray], tl: Timeline, starts: FloatArray, const: Constants
+        ) -> Replayed:  # fmt: skip
     """A compiled replay loop (:func:`stamp_loop`'s: ``loop(st, vw, starts, stamps, d0, det,
     status, reason, const, cmd, rec, out)``) over ``tl`` from the state ``st`` (its commands ``vw``) and each robot's
     start ``starts (n,)``: ``(status, reason, records)`` as :func:`replay_joint` returns them."""

@@ -28,6 +28,8 @@ from typing import Any, Unpack
 import numpy as np
 from numba import njit
 
+from swarmloc.arrays import BoolArray, FloatArray
+from swarmloc.engine.blocks import Mat
 from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
@@ -39,7 +41,7 @@ from swarmloc.motion import UnicycleNoise
 
 
 @njit(error_model="numpy")
-def _rows3(M: np.ndarray, fill: float) -> tuple:
+def _rows3(M: np.ndarray, fill: float) -> Mat:
     """``M (m, m)``, ``m <= 3``, as 3x3 rows of entries, padded with ``fill`` on the diagonal and zeros."""
     P = np.zeros((3, 3))
     for a in range(3):
@@ -61,7 +63,8 @@ def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> float
     for k in range(g):
         c[k] = F.ci_cost(F.ci_grid(k), a, b, r, dof)
     j = int(np.argmin(c))
-    return F.ci_vertex(j, c[max(j - 1, 0)], c[j], c[min(j + 1, g - 1)])
+    w: float = F.ci_vertex(j, c[max(j - 1, 0)], c[j], c[min(j + 1, g - 1)])
+    return w
 
 
 @cache
@@ -71,7 +74,9 @@ def _kernels(noise: UnicycleNoise) -> Any:
     advance, marginal, fuse, belief = steps(noise, True, True)
 
     @njit(error_model="numpy")
-    def outsider(X, P, pend, has, i, xj, Pj, kind, z, R, thr, gate, asleep):  # noqa: ANN001, ANN202
+    def outsider(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, i: int, xj: FloatArray, Pj: FloatArray,
+                 kind: int, z: FloatArray, R: FloatArray, thr: FloatArray, gate: bool, asleep: BoolArray
+                 ) -> tuple[int, int]:  # fmt: skip
         """Observer ``i`` of the cluster ``(X, P, ...)`` (views) detects a robot of another cluster at ``(xj, Pj)``:
         the covariance-intersection update of the module docstring; ``(outcome, reason)``. ``asleep``: the cluster
         mates not started yet, whose nodes take no broadcast (their covariance is not divided by ``w``; uncorrelated
@@ -95,7 +100,10 @@ def _kernels(noise: UnicycleNoise) -> Any:
         return commit(X, P, xn, Pn, nis, ok, thr[kind], gate)
 
     @njit(error_model="numpy", inline="always")  # no call between the loop and its step
-    def detect(X, P, pend, has, tc, v, w, t0, t, q, i, j, kind, z, R, thr, gate, relative, lm_on, lxy, lcov):  # noqa: ANN001, ANN202
+    def detect(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
+               w: FloatArray, t0: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray,
+               thr: FloatArray, gate: bool, relative: bool, lm_on: bool, lxy: FloatArray, lcov: FloatArray
+               ) -> tuple[int, int]:  # fmt: skip
         """Detection ``q`` of observer ``i``, target ``j``, on its cluster's views of the state (``P (clusters, 3K,
         3K)``): :func:`swarmloc.engine.joint.steps`' ``fuse``, or :func:`outsider` for a robot of another cluster."""
         st, why = F.screen_started(kind, i, j, t, t0, relative, lm_on)
@@ -111,11 +119,13 @@ def _kernels(noise: UnicycleNoise) -> Any:
             xj, Pj = belief(X[3 * lj : 3 * hj], P[bj, :mj, :mj], pend[lj:hj], has[lj:hj], tc[lj:hj], v[lj:hj],
                             w[lj:hj], j - lj, t)  # fmt: skip
             return outsider(Xc, Pc, pc, hc, i - lo, xj, Pj, kind, z[q], R[q], thr, gate, ~(t >= t0[lo:hi]))
-        return fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo, j - lo if j >= 0 else j, kind, z, R,
-                    lxy, lcov, thr, gate)  # fmt: skip
+        st, why = fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo, j - lo if j >= 0 else j, kind, z,
+                       R, lxy, lcov, thr, gate)  # fmt: skip
+        return st, why
 
     @njit(error_model="numpy")
-    def record(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202
+    def record(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
+               w: FloatArray, k: int, t: float, out_x: FloatArray, out_P: FloatArray, o: int) -> None:  # fmt: skip
         """Robot ``k``'s record (:func:`swarmloc.engine.joint.steps`' ``marginal``) on its cluster's views."""
         b, lo, hi = _span(k, P.shape[1] // 3, tc.shape[0])
         m = 3 * (hi - lo)

@@ -31,6 +31,7 @@ from typing import Any, Unpack
 import numpy as np
 from numba import njit
 
+from swarmloc.arrays import BoolArray, FloatArray
 from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, NO_LANDMARK, R_CORRELATION, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import predict_kernel, run, stamp_loop
@@ -142,7 +143,8 @@ def _rescale(sig: np.ndarray, met: np.ndarray, sa: np.ndarray, sb: np.ndarray, k
 
 @njit(error_model="numpy")
 def _logdet(A: np.ndarray) -> float:
-    return np.linalg.slogdet(A)[1]
+    logabs: float = np.linalg.slogdet(A)[1]
+    return logabs
 
 
 @njit(error_model="numpy")
@@ -204,7 +206,8 @@ def _kernels(noise: UnicycleNoise) -> Any:
     predict = predict_kernel(noise)
 
     @njit(error_model="numpy")
-    def predicted(x, P, tc, v, w, k, t):  # noqa: ANN001, ANN202
+    def predicted(x: FloatArray, P: FloatArray, tc: FloatArray, v: FloatArray, w: FloatArray, k: int, t: float
+                  ) -> tuple[FloatArray, FloatArray, float, float]:  # fmt: skip
         """Robot ``k``'s ``(x, P, a, b)`` predicted to ``t``, ``(a, b)`` the prediction's shear
         (:func:`swarmloc.engine.blocks.moved`; zero: already there)."""
         dt = t - tc[k]
@@ -216,7 +219,8 @@ def _kernels(noise: UnicycleNoise) -> Any:
         return (np.array([r[0], r[1], r[2]]), out, *B.moved(xk[0], xk[1], r[0], r[1]))
 
     @njit(error_model="numpy")
-    def advance(x, P, shear, tc, v, w, k, t):  # noqa: ANN001, ANN202
+    def advance(x: FloatArray, P: FloatArray, shear: tuple[FloatArray, FloatArray], tc: FloatArray, v: FloatArray,
+                w: FloatArray, k: int, t: float) -> None:  # fmt: skip
         """Robot ``k`` predicted to ``t`` in place (as :func:`predicted`, no arrays made: once per command)."""
         dt = t - tc[k]
         if not dt > 0:
@@ -233,7 +237,9 @@ def _kernels(noise: UnicycleNoise) -> Any:
         tc[k] = t
 
     @njit(error_model="numpy")
-    def record(x, corr, P, shear, tc, v, w, k, t, out_x, out_P, o):  # noqa: ANN001, ANN202, ARG001
+    def record(x: FloatArray, corr: tuple[BoolArray, FloatArray], P: FloatArray, shear: tuple[FloatArray, FloatArray],
+               tc: FloatArray, v: FloatArray, w: FloatArray, k: int, t: float, out_x: FloatArray, out_P: FloatArray,
+               o: int) -> None:  # noqa: ARG001  # fmt: skip
         out_x[o], out_P[o], _, _ = predicted(x, P, tc, v, w, k, t)
 
     return stamp_loop(advance, _detect(predicted, advance), record)
@@ -244,7 +250,9 @@ def _detect(predicted: Any, advance: Any) -> Any:
     :func:`_kernels`: a private update, or the exchange with the target."""
 
     @njit(error_model="numpy")
-    def pair(x, P, sa, sb, met, sig, tc, v, w, i, j, kind, zq, Rq, t, thr, gate):  # noqa: ANN001, ANN202
+    def pair(x: FloatArray, P: FloatArray, sa: FloatArray, sb: FloatArray, met: BoolArray, sig: FloatArray,
+             tc: FloatArray, v: FloatArray, w: FloatArray, i: int, j: int, kind: int, zq: FloatArray, Rq: FloatArray,
+             t: float, thr: FloatArray, gate: bool) -> tuple[int, int]:  # fmt: skip
         xj, Pj, a, b = predicted(x, P, tc, v, w, j, t)  # the target's answer (not stored)
         if B.degenerate(kind, x[i, 0], x[i, 1], xj[0], xj[1]):
             return REJECTED, R_DEGENERATE
@@ -274,7 +282,10 @@ def _detect(predicted: Any, advance: Any) -> Any:
         return FUSED, 0
 
     @njit(error_model="numpy", inline="always")  # no call between the loop and its step
-    def detect(x, corr, P, shear, tc, v, w, t0, t, q, i, j, kind, z, R, thr, gate, relative, lm_on, lxy, lcov):  # noqa: ANN001, ANN202
+    def detect(x: FloatArray, corr: tuple[BoolArray, FloatArray], P: FloatArray, shear: tuple[FloatArray, FloatArray],
+               tc: FloatArray, v: FloatArray, w: FloatArray, t0: FloatArray, t: float, q: int, i: int, j: int,
+               kind: int, z: FloatArray, R: FloatArray, thr: FloatArray, gate: bool, relative: bool, lm_on: bool,
+               lxy: FloatArray, lcov: FloatArray) -> tuple[int, int]:  # fmt: skip
         res, why = F.screen_started(kind, i, j, t, t0, relative, lm_on)
         if res != 0:
             return res, why
