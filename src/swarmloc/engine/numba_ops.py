@@ -14,11 +14,12 @@ from __future__ import annotations
 import math
 import textwrap
 from functools import cache
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 from numba import get_num_threads, njit, prange
 
+from swarmloc.arrays import BoolArray, FloatArray, IntArray
 from swarmloc.engine.codes import (
     ABSOLUTE,
     FUSED,
@@ -40,6 +41,10 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
 
+Rows: TypeAlias = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
+"""The engine's arrays a compiled stamp updates in place: ``(x (n, 3), P (n, 3, 3), clock, start, v, w (n,))``."""
+Updated: TypeAlias = tuple[FloatArray, FloatArray, FloatArray, BoolArray, BoolArray]
+"""A batch of updates: ``(x+, P+, nis, ok, positive definite)`` (the kernels' ``ok`` is both flags)."""
 
 class _Det:
     """Detection arrays for the warm-up (the fields :meth:`NumbaOps.fuse_serial` reads)."""
@@ -402,24 +407,26 @@ class NumbaOps:
         self.predict_into(x.copy(), P.copy(), np.zeros(2), one, one, i, 1.0)
         self.scatter2(one.copy(), one.copy(), i, one, one)
 
-    def predict(self, x: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> tuple:
+    def predict(self, x: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray
+                ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
         f = np.ascontiguousarray
         kernel = _pick(self.k, "predict_rows", x.shape[0])
-        return kernel(f(x, dtype=float), f(P, dtype=float), f(v, dtype=float), f(w, dtype=float), f(dt, dtype=float))
+        xn, Pn = kernel(f(x, dtype=float), f(P, dtype=float), f(v, dtype=float), f(w, dtype=float), f(dt, dtype=float))
+        return xn, Pn
 
     def pose_update(self, x: np.ndarray, P: np.ndarray, xk: np.ndarray, Pk: np.ndarray, z: np.ndarray,
-                    Rz: np.ndarray) -> tuple:  # fmt: skip
+                    Rz: np.ndarray) -> Updated:  # fmt: skip
         f = np.ascontiguousarray
         xn, Pn, nis, ok = _pick(self.k, "pose_rows", x.shape[0])(f(x), f(P), f(xk), f(Pk), f(z), f(Rz))
         return xn, Pn, nis, ok, ok
 
-    def absolute_update(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, Rz: np.ndarray) -> tuple:
+    def absolute_update(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, Rz: np.ndarray) -> Updated:
         f = np.ascontiguousarray
         xn, Pn, nis, ok = _pick(self.k, "absolute_rows", x.shape[0])(f(x), f(P), f(z), f(Rz))
         return xn, Pn, nis, ok, ok
 
     def landmark_update(self, x: np.ndarray, P: np.ndarray, lk: np.ndarray, L: np.ndarray, z: np.ndarray,
-                        Rz: np.ndarray) -> tuple:  # fmt: skip
+                        Rz: np.ndarray) -> Updated:  # fmt: skip
         f = np.ascontiguousarray
         xn, Pn, nis, ok = _pick(self.k, "landmark_rows", x.shape[0])(f(x), f(P), f(lk), f(L), f(z), f(Rz))
         return xn, Pn, nis, ok, ok
@@ -476,9 +483,9 @@ class NumbaOps:
         return self._in_place("fuse_levels", (x, P, tc, t0, v, w), t, use_relative, det, status, reason, gate,
                               landmarks, use_landmarks, self._snapshot)  # fmt: skip
 
-    def _in_place(self, name: str, state: tuple, t: float, use_relative: bool, det: Any, status: np.ndarray,
+    def _in_place(self, name: str, state: Rows, t: float, use_relative: bool, det: Any, status: np.ndarray,
                   reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
-                  use_landmarks: bool, extra: tuple) -> int:  # fmt: skip
+                  use_landmarks: bool, extra: tuple[()] | tuple[FloatArray, FloatArray]) -> int:  # fmt: skip
         f = np.ascontiguousarray
         i64 = np.int64
         thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
@@ -489,9 +496,10 @@ class NumbaOps:
                                 f(det.kind, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status, reason,
                                 gate.p is not None, thr, lev, *extra))  # fmt: skip
 
-    def replay_serial(self, state: tuple, tl: Timeline, s0: int, use_relative: bool, status: np.ndarray,
+    def replay_serial(self, state: Rows, tl: Timeline, s0: int, use_relative: bool, status: np.ndarray,
                       reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
-                      use_landmarks: bool, out: tuple) -> tuple[int, int]:  # fmt: skip
+                      use_landmarks: bool, out: tuple[IntArray, IntArray, FloatArray, FloatArray, IntArray]
+                      ) -> tuple[int, int]:  # fmt: skip
         """Stamps ``s0:`` of ``tl`` in one compiled loop on one thread: per stamp, the robots with a command moved
         to it, its detections through :meth:`fuse_serial` (outcomes into ``status`` and ``reason``, rows of
         ``tl.det``), its commands set, and with ``tl.record`` every started robot's state at the stamp (predicted,
