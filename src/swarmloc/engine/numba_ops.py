@@ -46,6 +46,7 @@ Rows: TypeAlias = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArr
 Updated: TypeAlias = tuple[FloatArray, FloatArray, FloatArray, BoolArray, BoolArray]
 """A batch of updates: ``(x+, P+, nis, ok, positive definite)`` (the kernels' ``ok`` is both flags)."""
 
+
 class _Det:
     """Detection arrays for the warm-up (the fields :meth:`NumbaOps.fuse_serial` reads)."""
 
