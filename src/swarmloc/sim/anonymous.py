@@ -169,7 +169,7 @@ def anonymize_sim(sim: SimResult, sensor: AnonymousSensor, seed: int | None = 0)
     events = rest + dets
     cat = {Odometry: 0, Detection: 1, Truth: 2}
     events.sort(key=lambda e: (e.t, cat[type(e)], getattr(e, "observer", getattr(e, "robot", 0))))
-    return SimResult(events, sim.initial_poses, sim.robot_ids, sim.times, sim.truth, sim.config)
+    return SimResult(events, sim.initial_poses, sim.robot_ids, sim.times, sim.truth, sim.config, sim.seed)
 
 
 # ------------------------------------------------------------------------------------------------ Khepera III
@@ -252,5 +252,5 @@ def khepera_kidnap(
     truth = np.concatenate([a.truth, b.truth[1:]])
     cat = {Odometry: 0, Detection: 1, Truth: 2}
     events.sort(key=lambda e: (e.t, cat[type(e)]))
-    full = SimResult(events, a.initial_poses, a.robot_ids, times, truth, replace(cfg1, duration=duration))
+    full = SimResult(events, a.initial_poses, a.robot_ids, times, truth, replace(cfg1, duration=duration), a.seed)
     return KheperaScenario(anonymize_sim(full, sensor, seed=seed), kidnapped, float(kidnap_time), kidnap_pose, sensor)

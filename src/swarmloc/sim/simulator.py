@@ -166,7 +166,9 @@ class SimResult:
 
     ``events``: time-sorted list; ``initial_poses``: robot id -> known initial ``(x, y, theta)``;
     ``times`` ``(K+1,)``: odometry grid including 0; ``truth`` ``(K+1, n_robots, 3)``: true poses on that grid
-    (columns in ``robot_ids`` order); ``config``: the effective configuration.
+    (columns in ``robot_ids`` order); ``config``: the effective configuration; ``seed``: :func:`simulate`'s seed
+    (its ``SeedSequence``'s fourth child seeds the initial beliefs' errors of
+    :func:`~swarmloc.sim.source.sim_source`).
     """
 
     events: list[Event]
@@ -175,6 +177,7 @@ class SimResult:
     times: np.ndarray
     truth: np.ndarray
     config: SimConfig
+    seed: int | None = 0
 
     def unicycle_noise(self) -> UnicycleNoise:
         """The same process noise as a :class:`~swarmloc.motion.UnicycleNoise` (for ``odometry_increment``)."""
@@ -425,4 +428,5 @@ def simulate(
         times=np.arange(n_int + 1) * n_sub / f,
         truth=wrapped[::n_sub],
         config=cfg,
+        seed=seed,
     )

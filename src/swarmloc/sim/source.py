@@ -18,13 +18,21 @@ __all__ = ["sim_source"]
 
 
 def sim_source(sim: SimResult, spec: str, config: Config | None = None) -> Source:
-    """A :class:`Source` of a simulation: its odometry and detections, initial beliefs at the true start with
-    ``config.initial``'s std, and truth interpolated on its grid. ``config`` defaults to :data:`DEFAULTS` with the
-    simulation's own process noise; ``sensor``: its robot sensor's range and field of view."""
+    """A :class:`Source` of a simulation: its odometry and detections, initial beliefs of ``config.initial``'s
+    covariance ``Sigma0`` whose means are ``g0 exp(-y)``, ``y ~ N(0, Sigma0)`` about the true start ``g0`` (so the
+    truth is a sample of the prior, as in :mod:`swarmloc.sim.sim3d`; drawn from the fourth child of
+    ``SeedSequence(sim.seed)``, in robot order), and truth interpolated on its grid. ``config`` defaults to
+    :data:`DEFAULTS` with the simulation's own process noise; ``sensor``: its robot sensor's range and field of
+    view."""
     if config is None:
         config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
     cov = config.initial.cov()
-    initial = {r: GroupGaussian(SE2, SE2.from_xytheta(p), cov) for r, p in sim.initial_poses.items()}
+    rng = np.random.default_rng(np.random.SeedSequence(sim.seed).spawn(4)[3])
+    L0 = np.linalg.cholesky(cov)
+    initial = {
+        r: GroupGaussian(SE2, SE2.from_xytheta(p) @ SE2.exp(-(L0 @ rng.standard_normal(3))), cov)
+        for r, p in sim.initial_poses.items()
+    }
     events: list[Event] = [e for e in sim.events if isinstance(e, Odometry | Detection)]  # the truth left out
     col = {r: j for j, r in enumerate(sim.robot_ids)}
 
