@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 os.environ.setdefault("SWARMLOC_MRCLAM", str(ROOT.parent / "shared/data/mrclam"))
 
-from swarmloc.studies.bench import main  # noqa: E402
+from swarmloc.studies.bench_command import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

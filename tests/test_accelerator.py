@@ -18,6 +18,7 @@ from swarmloc.engine.backends import JaxOps, NumpyOps, jax_team_step, team_step
 from swarmloc.engine.swarm import SWARM_NOISE, Swarm, device_step, neighbour_pairs
 from swarmloc.lie import wrap_angle
 from swarmloc.studies import bench as B
+from swarmloc.studies.bench_report import format_report
 
 # slow: the first test of the module compiles the engine's numba/JAX kernels
 pytestmark = [pytest.mark.unit, pytest.mark.slow]
@@ -122,7 +123,7 @@ def test_bench_section_e_alone_and_its_report(capsys) -> None:
             assert math.isfinite(r[key]) and r[key] > 0, key
         assert r["engine_over_plain_f64"] == pytest.approx(r["engine_jax"] / r["plain_float64"])
         assert r["engine_over_plain_f32"] == pytest.approx(r["engine_jax32"] / r["plain_float32"])
-    text = B.format_report(res)
+    text = format_report(res)
     assert "e. accelerator" in text and "plain jax f32" in text and "a. fusion step" not in text
     assert "       70" in text
 

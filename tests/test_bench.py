@@ -10,6 +10,7 @@ import pytest
 
 from swarmloc.cli import main
 from swarmloc.studies import bench as B
+from swarmloc.studies.bench_report import format_report
 
 pytestmark = pytest.mark.data
 
@@ -102,6 +103,6 @@ def test_report_and_json_from_a_tiny_config(capsys, monkeypatch, mrclam_root_if_
     assert res["config"]["runs"] == 2 and res["fusion_step"]["backends"]["numba"]["runs"] == 2  # --runs over --quick
     assert set(res) == {"machine", "config", "fusion_step", "swarms", "mrclam"}
     assert res["config"]["engine_n"] == 20
-    text = B.format_report(res)
+    text = format_report(res)
     for heading in ("a. fusion step", "b. machine", "c. swarms", "d. MRCLAM replay", "median of 2,", "load average"):
         assert heading in text
