@@ -10,6 +10,7 @@ import pytest
 
 from swarmloc.cli import main
 from swarmloc.studies import bench as B
+from swarmloc.studies import bench_command
 from swarmloc.studies.bench_report import format_report
 
 pytestmark = pytest.mark.data
@@ -94,7 +95,7 @@ def test_report_and_json_from_a_tiny_config(capsys, monkeypatch, mrclam_root_if_
         engine_n=20, filterpy_n=5, repeats=1, copy_mb=1, matmul_n=32, swarm_sizes=(10, 20), swarm_steps=2,
         neighbour_sweep=(1, 3), sweep_n=20, isolate=False, replay_duration=2.0, estimators=("dekf",), runs=1,
     )  # fmt: skip
-    monkeypatch.setattr(B, "QUICK", tiny)
+    monkeypatch.setattr(bench_command, "QUICK", tiny)  # the preset the command line reads
     rates = B.machine_rates
     monkeypatch.setattr(B, "machine_rates", lambda *a, **k: rates(1, 32, 1, single_thread=False))
     data = ["--mrclam", str(mrclam_root_if_expected)] if mrclam_root_if_expected else []  # section d without it
