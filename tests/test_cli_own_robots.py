@@ -32,6 +32,24 @@ def test_simulate_writes_events_truth_and_config(sim_dir: Path):
     assert header.split(",")[:3] == ["type", "t", "robot"]
 
 
+def test_simulated_files_start_from_the_sim_sources_initial_beliefs(sim_dir: Path):
+    """The written initial beliefs are ``sim:random``'s of the same seed, drawn about the true starts (the truth a
+    sample of each prior), not the true starts: the files evaluate as the in-process source does."""
+    from swarmloc.experiments.own_robots import load_event_source
+    from swarmloc.experiments.sources import load_source
+    from swarmloc.lie import SE2
+
+    cfg = Config.from_dict(tomllib.loads((sim_dir / "config.toml").read_text()))
+    _, initial, _, _, _, _ = load_event_source(sim_dir / "events.csv", cfg)
+    src = load_source("sim:random", robots=4, duration=40.0, seed=2)
+    assert sorted(initial) == sorted(src.initial) == [0, 1, 2, 3]
+    for r, belief in initial.items():
+        np.testing.assert_allclose(belief.mean, src.initial[r].mean, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(belief.cov, src.initial[r].cov)
+        start = SE2.from_xytheta(src.truth(r, np.array([0.0]))[0])
+        assert np.linalg.norm(SE2.log(SE2.inverse(belief.mean) @ start)) > 1e-4
+
+
 def test_evaluate_events_scores_every_estimator(sim_dir: Path, tmp_path: Path, capsys):
     out = tmp_path / "scores"
     rc = main(["evaluate", "events", str(sim_dir / "events.csv"), "--config", str(sim_dir / "config.toml"),

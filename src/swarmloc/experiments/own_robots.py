@@ -25,6 +25,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.runner import TruthFn
 from swarmloc.sim import RelativeSensor, random_team
+from swarmloc.sim.source import prior_starts
 
 __all__ = ["evaluate_event_file", "load_event_source", "simulate_to_files"]
 
@@ -142,20 +143,22 @@ def simulate_to_files(
 ) -> dict[str, Path]:
     """Simulate a random team (:func:`swarmloc.sim.random_team`, relative-pose sensor) and write it as your own
     robots' data would be: ``events.csv`` (or ``.jsonl``) with initial beliefs, ``truth_robot<N>.tum`` and a
-    ``config.toml`` holding the simulation's process noise. Returns the paths written."""
+    ``config.toml`` holding the simulation's process noise. The initial beliefs are ``sim:random``'s
+    (:func:`~swarmloc.sim.source.prior_starts` with ``config.initial``'s covariance: the truth a sample of each
+    prior), so the files evaluate as ``sim:random`` of the same seed does. Returns the paths written."""
     if fmt not in ("csv", "jsonl"):
         raise ValueError(f"simulate_to_files: fmt must be 'csv' or 'jsonl', got {fmt!r}")
     sim = random_team(robots, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     events = [e for e in sim.events if isinstance(e, Odometry | Detection)]
-    init_std = np.array([0.01, 0.01, 0.01])
-    initial = {r: (np.asarray(p), np.diag(init_std**2)) for r, p in sim.initial_poses.items()}
+    config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
+    cov = config.initial.cov()
+    initial = {r: (SE2.to_xytheta(g), cov) for r, g in prior_starts(sim, cov).items()}
     paths = {"events": write_events(out / f"events.{fmt}", events, initial=initial,
                                     initial_times=dict.fromkeys(sim.initial_poses, 0.0))}  # fmt: skip
     for j, r in enumerate(sim.robot_ids):
         paths[f"truth_robot{r}"] = write_tum(out / f"truth_robot{r}.tum", sim.times, sim.truth[:, j])
-    config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
     (out / "config.toml").write_text(
         "# process noise of the simulation that wrote events."
         f"{fmt} (swarmloc simulate --robots {robots} --duration {duration:g} --seed {seed})\n" + config.to_toml()

@@ -3,7 +3,8 @@
 A source spec is one of
 
 * ``sim:random``: :func:`swarmloc.sim.random_team` (``robots``, ``duration``, ``seed``; area 3 m, relative-pose
-  sensor at 5 Hz), process noise of the simulation, initial beliefs at the true start with ``config.initial``;
+  sensor at 5 Hz), process noise of the simulation, initial beliefs of ``config.initial``'s covariance drawn about
+  the true start (:func:`swarmloc.sim.source.prior_starts`);
 * ``sim:range_bearing``: the same team, measuring range and bearing instead of relative pose;
 * ``sim:landmarks``: the ``sim:random`` team (the same events) plus 6 known landmarks and range-bearing detections
   of them (:func:`swarmloc.sim.landmarks.add_landmarks`: 2 Hz, up to 4 m, 0.05 m / 2 deg; ``Source.landmarks``);
