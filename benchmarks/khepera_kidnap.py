@@ -10,8 +10,8 @@ odometry unaware). Both policies are scored on the same quantity, robot ``--targ
 
 * ``anonymous``: robot 1's bank of particle filters over PMR's solutions
   (:func:`swarmloc.association.track_anonymous`), its estimate after every scan;
-* ``nearest``: the centralized EKF with ``association="nearest"`` (initial beliefs at the true start, 1 cm / 0.01
-  rad), the relative pose ``x_1^-1 x_target`` of its beliefs recorded at 4 Hz.
+* ``nearest``: the centralized EKF with ``association="nearest"`` (initial beliefs drawn about the true start,
+  1 cm / 0.01 rad, as ``sim_source`` draws them), the relative pose ``x_1^-1 x_target`` of its beliefs recorded at 4 Hz.
 
 Printed per seed and policy: the target's median position error before the kidnap and over the last 20 s, and
 the time from the kidnap until its error is below ``--within`` m and stays there for 2 s (``never``: not within the
