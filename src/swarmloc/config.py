@@ -47,6 +47,7 @@ import numpy as np
 
 from swarmloc.declared import attribute_docs, markdown_table
 from swarmloc.motion.unicycle import UnicycleNoise
+from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD
 
 __all__ = [
     "DEFAULTS",
@@ -267,9 +268,9 @@ class SensorConfig(Section):
 
     SECTION: ClassVar[str] = "sensors"
 
-    range_std: Positive = 0.1
+    range_std: Positive = PRIOR_RANGE_STD
     """[m] range std"""
-    bearing_std: Positive = 0.035
+    bearing_std: Positive = PRIOR_BEARING_STD
     """[rad] bearing std"""
     pose_xy_std: Positive = 0.05
     """[m] relative pose: x and y std (exponential coordinates)"""
