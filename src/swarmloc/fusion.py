@@ -58,7 +58,7 @@ def fuse_relative(
     prior: GroupGaussian,
     measurements: Sequence[tuple[GroupGaussian, GroupGaussian]],
     order: int = 2,
-    iterations: int = 2,
+    iterations: int = K.FUSE_ITERATIONS,
 ) -> GroupGaussian:
     """Posterior of robot ``i``'s pose after relative measurements of any number of uncertain neighbours.
 
@@ -99,7 +99,7 @@ def fuse_relative(
 
 
 def fuse_absolute(
-    prior: GroupGaussian, observations: Sequence[GroupGaussian], order: int = 2, iterations: int = 2
+    prior: GroupGaussian, observations: Sequence[GroupGaussian], order: int = 2, iterations: int = K.FUSE_ITERATIONS
 ) -> GroupGaussian:
     """Fuse direct Gaussian observations of the same pose (e.g. GPS-like fixes) with the prior."""
     if not isinstance(prior, GroupGaussian):
@@ -123,7 +123,7 @@ def fuse_point_measurement(
     R: np.ndarray,
     target_mean: np.ndarray,
     target_cov: np.ndarray,
-    iterations: int = 3,
+    iterations: int = K.POINT_ITERATIONS,
     order: int = 2,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Update an SE(2) belief ``(mu (3, 3), cov)`` with a range/bearing measurement of an uncertain target.

@@ -28,6 +28,13 @@ from swarmloc.sensors.models import MIN_RANGE, MODELS
 
 _T = np.swapaxes
 
+FUSE_ITERATIONS = 2
+"""Default Gauss-Newton passes of a pose fusion (:func:`fuse_pseudo`): 1 is the thesis' closed form, 2
+re-linearizes once. The default of every layer that passes it on (fusion functions, nodes, engine, config)."""
+
+POINT_ITERATIONS = 3
+"""Default passes of a range/bearing update on the group (:func:`point_update`), likewise every layer's."""
+
 
 def _bvec(M: FloatArray, v: FloatArray) -> FloatArray:
     out: FloatArray = np.einsum("...ij,...j->...i", M, v)
@@ -102,7 +109,7 @@ def fuse_pseudo(
     nus: FloatArray,
     Ws: FloatArray,
     order: int = 2,
-    iterations: int = 2,
+    iterations: int = FUSE_ITERATIONS,
 ) -> tuple[FloatArray, FloatArray]:
     """Fuse a prior ``(mu, cov)`` with ``K`` Gaussian observations ``(nus[..., k, :, :], Ws[..., k, :, :])`` of the
     same pose, all at once (fusion.py, step 3). ``iterations > 1`` re-linearizes about the current estimate
@@ -247,7 +254,7 @@ class PointMeasurement(NamedTuple):
 
 
 def point_update(
-    mu: FloatArray, cov: FloatArray, meas: PointMeasurement, iterations: int = 3, order: int = 2
+    mu: FloatArray, cov: FloatArray, meas: PointMeasurement, iterations: int = POINT_ITERATIONS, order: int = 2
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Update an SE(2) belief with a range/bearing measurement of an uncertain robot or landmark. Batched.
 
