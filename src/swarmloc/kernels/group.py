@@ -21,7 +21,7 @@ from typing import NamedTuple, cast
 import numpy as np
 
 from swarmloc.arrays import BoolArray, FloatArray
-from swarmloc.gaussian import convolution_F, convolution_F_tensor
+from swarmloc.gaussian import convolution_F, convolution_F_tensor, symmetric
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.lie.base import SEGroup
 from swarmloc.sensors.models import MIN_RANGE, MODELS
@@ -39,10 +39,6 @@ POINT_ITERATIONS = 3
 def _bvec(M: FloatArray, v: FloatArray) -> FloatArray:
     out: FloatArray = np.einsum("...ij,...j->...i", M, v)
     return out
-
-
-def _sym(C: FloatArray) -> FloatArray:
-    return 0.5 * (C + _T(C, -1, -2))
 
 
 def gamma(group: type[SEGroup], x: FloatArray, order: int) -> FloatArray:
@@ -76,7 +72,7 @@ def predict(
     C = A + inc_cov
     if order == 2:
         C = C + convolution_F(group, A, inc_cov)
-    return mu @ inc_mean, _sym(C)
+    return mu @ inc_mean, symmetric(C)
 
 
 # ------------------------------------------------------------------------------------------------ relative pose
@@ -99,7 +95,7 @@ def relative_to_pseudo(
     Ad = group.Ad(m_ik, validate=False)
     W = Ad @ cov_c @ _T(Ad, -1, -2)
     nu = mu_k @ group.inverse(m_ik, validate=False)
-    return nu, _sym(W)
+    return nu, symmetric(W)
 
 
 def fuse_pseudo(
@@ -137,7 +133,7 @@ def fuse_pseudo(
         xbar = np.linalg.solve(S, b[..., None])[..., 0]
         cur = cur @ group.exp(-xbar, validate=False)
     Gb = gamma(group, xbar, order)
-    return cur, _sym(Gb @ np.linalg.inv(S) @ _T(Gb, -1, -2))
+    return cur, symmetric(Gb @ np.linalg.inv(S) @ _T(Gb, -1, -2))
 
 
 def absolute_to_pseudo(xytheta: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -149,7 +145,7 @@ def absolute_to_pseudo(xytheta: FloatArray, cov: FloatArray) -> tuple[FloatArray
     c, s = np.cos(xytheta[..., 2]), np.sin(xytheta[..., 2])
     T = np.broadcast_to(np.eye(3), (*xytheta.shape[:-1], 3, 3)).copy()
     T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1] = c, s, -s, c
-    return SE2.from_xytheta(xytheta), _sym(T @ cov @ _T(T, -1, -2))
+    return SE2.from_xytheta(xytheta), symmetric(T @ cov @ _T(T, -1, -2))
 
 
 def pseudo_nis(group: type[SEGroup], mu: FloatArray, cov: FloatArray, nu: FloatArray, W: FloatArray) -> FloatArray:
@@ -302,7 +298,7 @@ def point_update(
         d = cast(FloatArray, np.linalg.solve(info, rhs[..., None])[..., 0])  # numpy types it floating[Any]
         cur = cur @ SE2.exp(d, validate=False)
     Gd = gamma(SE2, -d, order)
-    post = _sym(Gd @ np.linalg.inv(info) @ _T(Gd, -1, -2))
+    post = symmetric(Gd @ np.linalg.inv(info) @ _T(Gd, -1, -2))
     ok = ok & np.isfinite(cur).all(axis=(-1, -2)) & np.isfinite(post).all(axis=(-1, -2))
     return cur, post, ok
 
