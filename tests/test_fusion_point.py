@@ -8,7 +8,7 @@ import pytest
 
 from swarmloc import SE2, GroupGaussian
 from swarmloc.evaluation.montecarlo import importance_posterior_point
-from swarmloc.fusion import fuse_point_measurement, point_innovation
+from swarmloc.fusion import fuse_point_measurement, point_innovation, point_measurement
 
 pytestmark = pytest.mark.unit
 
@@ -86,5 +86,5 @@ def test_point_innovation_is_chi_square_distributed():
         pk = rng.multivariate_normal(p, C)
         q = g[:2, :2].T @ (pk - g[:2, 2])
         z = np.array([np.hypot(*q), np.arctan2(q[1], q[0])]) + rng.multivariate_normal(np.zeros(2), R)
-        nis.append(point_innovation(mu, P, "range_bearing", z, R, p, C))
+        nis.append(point_innovation(mu, P, point_measurement("range_bearing", z, R, p, C)))
     assert abs(np.mean(nis) - 2.0) < 0.15  # chi-square with 2 dof has mean 2

@@ -46,7 +46,9 @@ import msgspec
 import numpy as np
 
 from swarmloc.declared import attribute_docs, markdown_table
+from swarmloc.kernels.group import FUSE_ITERATIONS, POINT_ITERATIONS
 from swarmloc.motion.unicycle import UnicycleNoise
+from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD
 
 __all__ = [
     "DEFAULTS",
@@ -267,9 +269,9 @@ class SensorConfig(Section):
 
     SECTION: ClassVar[str] = "sensors"
 
-    range_std: Positive = 0.1
+    range_std: Positive = PRIOR_RANGE_STD
     """[m] range std"""
-    bearing_std: Positive = 0.035
+    bearing_std: Positive = PRIOR_BEARING_STD
     """[rad] bearing std"""
     pose_xy_std: Positive = 0.05
     """[m] relative pose: x and y std (exponential coordinates)"""
@@ -314,9 +316,9 @@ class FilterConfig(Section):
     """inputs in a row, at distinct stamps, that confirm a jump of a robot's clock"""
     order: Literal[1, 2] = 2
     """order of the SE(2) convolution"""
-    iterations: Count = 2
+    iterations: Count = FUSE_ITERATIONS
     """iterations of the iterated update"""
-    point_iterations: Count = 3
+    point_iterations: Count = POINT_ITERATIONS
     """iterations of a point (landmark) update"""
     association: Association = "tags"
     """robot detections' identities: tags (given), nearest or joint (chosen from the beliefs, ids hidden), anonymous

@@ -58,7 +58,7 @@ def fuse_relative(
     prior: GroupGaussian,
     measurements: Sequence[tuple[GroupGaussian, GroupGaussian]],
     order: int = 2,
-    iterations: int = 2,
+    iterations: int = K.FUSE_ITERATIONS,
 ) -> GroupGaussian:
     """Posterior of robot ``i``'s pose after relative measurements of any number of uncertain neighbours.
 
@@ -99,7 +99,7 @@ def fuse_relative(
 
 
 def fuse_absolute(
-    prior: GroupGaussian, observations: Sequence[GroupGaussian], order: int = 2, iterations: int = 2
+    prior: GroupGaussian, observations: Sequence[GroupGaussian], order: int = 2, iterations: int = K.FUSE_ITERATIONS
 ) -> GroupGaussian:
     """Fuse direct Gaussian observations of the same pose (e.g. GPS-like fixes) with the prior."""
     if not isinstance(prior, GroupGaussian):
@@ -123,7 +123,7 @@ def fuse_point_measurement(
     R: np.ndarray,
     target_mean: np.ndarray,
     target_cov: np.ndarray,
-    iterations: int = 3,
+    iterations: int = K.POINT_ITERATIONS,
     order: int = 2,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Update an SE(2) belief ``(mu (3, 3), cov)`` with a range/bearing measurement of an uncertain target.
@@ -132,34 +132,27 @@ def fuse_point_measurement(
     point ``(2,)`` (Cartesian covariance ``(2, 2)``). See :func:`swarmloc.kernels.group.point_update` for the
     iterated update on the group; raises ValueError when the target is at the observer's position.
     """
-    meas = _point_measurement(kind, z, R, target_mean, target_cov)
+    meas = point_measurement(kind, z, R, target_mean, target_cov)
     m, c, ok = K.point_update(np.asarray(mu, float), np.asarray(cov, float), meas, iterations, order)
     if not np.all(ok):
         raise ValueError("fuse_point_measurement: degenerate geometry (the target is at the observer's position)")
     return m, c
 
 
-def point_innovation(
-    mu: np.ndarray,
-    cov: np.ndarray,
-    kind: str,
-    z: np.ndarray,
-    R: np.ndarray,
-    target_mean: np.ndarray,
-    target_cov: np.ndarray,
-) -> float:
-    """Normalized innovation squared ``r^T (H Sigma H^T + C + R)^-1 r`` of a range/bearing measurement (gating)."""
-    meas = _point_measurement(kind, z, R, target_mean, target_cov)
+def point_innovation(mu: np.ndarray, cov: np.ndarray, meas: K.PointMeasurement) -> float:
+    """Normalized innovation squared ``r^T (H Sigma H^T + C + R)^-1 r`` of a range/bearing measurement ``meas``
+    (:func:`point_measurement`) for the SE(2) belief ``(mu (3, 3), cov)`` (gating)."""
     return float(K.point_nis(np.asarray(mu, float), np.asarray(cov, float), meas))
 
 
-def _point_measurement(
+def point_measurement(
     kind: str, z: np.ndarray, R: np.ndarray, target_mean: np.ndarray, target_cov: np.ndarray
 ) -> K.PointMeasurement:
-    """The kernels' measurement as floats; the target is a robot when its mean is a pose ``(3, 3)``."""
+    """The kernels' measurement (floats) of :func:`fuse_point_measurement`'s arguments; the target is a robot when
+    its mean is a pose ``(3, 3)``."""
     tm = np.asarray(target_mean, dtype=float)
     return K.PointMeasurement(kind, np.asarray(z, float), np.asarray(R, float), tm, np.asarray(target_cov, float),
                               tm.shape[-2:] == (3, 3))  # fmt: skip
 
 
-__all__ = ["fuse_absolute", "fuse_point_measurement", "fuse_relative", "point_innovation"]
+__all__ = ["fuse_absolute", "fuse_point_measurement", "fuse_relative", "point_innovation", "point_measurement"]

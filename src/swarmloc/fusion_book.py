@@ -65,18 +65,9 @@ from typing import Any
 import numpy as np
 
 from swarmloc.events import Detection, Event, Kind, Odometry, Truth
-from swarmloc.gaussian import check_covariance
-from swarmloc.lie import wrap_angle
+from swarmloc.gaussian import check_covariance, symmetric
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.lie.checks import as_tangent
-
-
-def _rot2(theta: np.ndarray) -> np.ndarray:
-    c, s = np.cos(theta), np.sin(theta)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-
-
-def _sym(C: np.ndarray) -> np.ndarray:
-    return 0.5 * (C + np.swapaxes(C, -1, -2))
 
 
 def _broadcast(where: str, **arrays: tuple[np.ndarray, int]) -> tuple[int, ...]:
@@ -154,7 +145,7 @@ def serial_fusion(
 
     m = np.broadcast_to(m, (*batch, 3))
     e = np.broadcast_to(e, (*batch, 3))
-    R = _rot2(m[..., 2])
+    R = SE2.rotation(m[..., 2])
     xy = m[..., :2] + np.einsum("...ij,...j->...i", R, e[..., :2])
     mean = np.concatenate([xy, wrap_angle(m[..., 2:] + e[..., 2:])], axis=-1)
 
@@ -162,7 +153,7 @@ def serial_fusion(
     B = np.zeros((*batch, 6, 6))
     B[..., :3, :3] = Cr
     B[..., 3:, 3:] = Ce
-    cov = _sym(J @ B @ np.swapaxes(J, -1, -2))
+    cov = symmetric(J @ B @ np.swapaxes(J, -1, -2))
     if pm is None or pc is None:  # given together (checked above)
         return mean, cov
     return _merge(pm, pc, mean, cov, wrap_theta=True)
@@ -192,9 +183,9 @@ def serial_fusion_known_heading(
     _broadcast(
         where, observer_xy=(p, 1), observer_cov=(Cr, 2), heading=(th, 0), z=(e, 1), z_cov=(Ce, 2)
     )  # validates shapes
-    R = _rot2(th)
+    R = SE2.rotation(th)
     mean = p + np.einsum("...ij,...j->...i", R, e)
-    cov = _sym(Cr + R @ Ce @ np.swapaxes(R, -1, -2))
+    cov = symmetric(Cr + R @ Ce @ np.swapaxes(R, -1, -2))
     return mean, cov
 
 
@@ -213,7 +204,7 @@ def _merge(
     mean = ma + np.einsum("...ij,...j->...i", K, d)
     if wrap_theta and mean.shape[-1] == 3:
         mean[..., 2] = wrap_angle(mean[..., 2])
-    cov = _sym(K @ Cb)
+    cov = symmetric(K @ Cb)
     return mean, cov
 
 
@@ -360,7 +351,7 @@ def _observe(
 ) -> tuple[np.ndarray, float] | None:
     """Robot ``i`` at true pose ``pi`` observing ``j`` at ``pj`` (:func:`book_two_robot_scenario`): the noisy
     relative position ``z`` in ``i``'s frame and the exact relative heading [rad], None when out of view."""
-    Rt = _rot2(pi[2])
+    Rt = SE2.rotation(pi[2])
     rel = Rt.T @ (pj[:2] - pi[:2])
     rng_ij = np.hypot(*rel)
     bearing = np.arctan2(rel[1], rel[0])
@@ -373,9 +364,9 @@ def _observe(
 def _pose_detection(i: int, j: int, t: float, z: np.ndarray, te: float, theta_var: float) -> Detection:
     """The observation as a ``"pose"`` :class:`Detection`: ``(x_e, y_e, te)`` with ``R_e^T C_Eij R_e`` in the
     position block and ``theta_var`` for the heading (:func:`book_two_robot_scenario`)."""
-    Re = _rot2(np.array(te))
+    Re = SE2.rotation(np.array(te))
     cov = np.zeros((3, 3))
-    cov[:2, :2] = _sym(Re.T @ BOOK_OBS_COV[i] @ Re)
+    cov[:2, :2] = symmetric(Re.T @ BOOK_OBS_COV[i] @ Re)
     cov[2, 2] = theta_var
     return Detection(i, t, Kind.POSE, np.array([z[0], z[1], te]), cov, target=j)
 

@@ -115,6 +115,12 @@ def convolution_F(group: type[SEGroup], A: np.ndarray, B: np.ndarray) -> np.ndar
     return (outer.reshape(*shape, d**4) @ convolution_F_tensor(group)).reshape(*shape, d, d)
 
 
+def symmetric(C: np.ndarray) -> np.ndarray:
+    """``(C + C^T) / 2`` over the last two axes (batched): the symmetric part of a covariance, which rounding in a
+    product such as ``A P A^T`` leaves slightly asymmetric."""
+    return 0.5 * (C + np.swapaxes(C, -1, -2))
+
+
 def convolve_moments(
     group: type[SEGroup], mu1: np.ndarray, S1: np.ndarray, mu2: np.ndarray, S2: np.ndarray, order: int = 2
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -124,7 +130,7 @@ def convolve_moments(
     cov = A + S2
     if order == 2:
         cov = cov + convolution_F(group, A, S2)
-    return mu1 @ mu2, 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    return mu1 @ mu2, symmetric(cov)
 
 
 @dataclass(frozen=True, init=False)

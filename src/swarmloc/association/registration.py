@@ -82,11 +82,6 @@ def points_from_range_bearing(z: object) -> np.ndarray:
     return np.column_stack([z[:, 0] * np.cos(z[:, 1]), z[:, 0] * np.sin(z[:, 1])])
 
 
-def _rot(theta: np.ndarray) -> np.ndarray:
-    c, s = np.cos(theta), np.sin(theta)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-
-
 def compose_xyt(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a b`` for planar poses ``(..., 3)`` ``(x, y, theta)`` (batched, broadcast)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
@@ -153,7 +148,7 @@ def xyt_cov_to_exp(pose: np.ndarray, cov_xyt: np.ndarray) -> np.ndarray:
     """Covariance of ``(x, y, theta)`` -> covariance of right-perturbation exponential coordinates at ``pose``
     (first order: ``delta t = R y_v``, ``delta theta = y_alpha``)."""
     A = np.eye(3)
-    A[:2, :2] = _rot(np.asarray(pose[2], float)).T
+    A[:2, :2] = SE2.rotation(np.asarray(pose[2], float)).T
     C = A @ cov_xyt @ A.T
     return (C + C.T) / 2
 
@@ -166,7 +161,7 @@ def _procrustes(pi: np.ndarray, pj: np.ndarray, w: np.ndarray) -> tuple[np.ndarr
     sn = (w * (qj[:, 0] * qi[:, 1] - qj[:, 1] * qi[:, 0])).sum()
     cs = (w * (qj[:, 0] * qi[:, 0] + qj[:, 1] * qi[:, 1])).sum()
     th = float(np.arctan2(sn, cs))
-    R = _rot(np.asarray(th))
+    R = SE2.rotation(np.asarray(th))
     t = ci - R @ cj
     r = pi - (pj @ R.T + t)
     return np.array([t[0], t[1], th]), float((w * (r * r).sum(1)).sum())
@@ -174,7 +169,7 @@ def _procrustes(pi: np.ndarray, pj: np.ndarray, w: np.ndarray) -> tuple[np.ndarr
 
 def _fit_cov(pose: np.ndarray, pj: np.ndarray, var: np.ndarray) -> np.ndarray:
     """First-order covariance (exponential coordinates) of the fit from residual variances ``var`` per pair."""
-    R = _rot(np.asarray(pose[2]))
+    R = SE2.rotation(np.asarray(pose[2]))
     q = pj @ R.T  # R p_j
     J = np.zeros((len(pj), 2, 3))
     J[:, 0, 0] = J[:, 1, 1] = 1.0
@@ -260,7 +255,7 @@ def _distances(
     error covariances ``C`` ``(K, mj, 2, 2)`` of its points, and their squared Mahalanobis distances ``D2``
     ``(K, mj, mi)`` to ``O_i`` (inf where a point cannot match: robot ``j`` itself, robot ``i`` seen by ``j``)."""
     ri, rj = np.hypot(Pi[:, 0], Pi[:, 1]), np.hypot(Pj[:, 0], Pj[:, 1])
-    R = _rot(th)
+    R = SE2.rotation(th)
     Q = np.einsum("kab,lb->kla", R, Pj) + Pi[A][:, None, :]
     # linearized error covariance of Q[k, l] - (its true match in O_i), from the independent noises of a, b, O_j[l]
     # and the O_i point: dtheta/da = (-a_y, a_x)/|a|^2, dtheta/db = (b_y, -b_x)/|b|^2, dQ/da = I + u ga^T with

@@ -46,6 +46,7 @@ from swarmloc.datasets import _mrclam_files as readers
 from swarmloc.datasets._mrclam_files import BARCODE_SWAPS, MAX_YAW_RATE, ROBOT_SUBJECTS, MRCLAMError
 from swarmloc.datasets.tum import interpolate
 from swarmloc.events import Detection, Event, Kind, Odometry
+from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD
 
 __all__ = [
     "BARCODE_SWAPS",
@@ -59,11 +60,11 @@ __all__ = [
     "mrclam_events",
 ]
 
-DEFAULT_RANGE_STD = 0.1
-"""Default range noise std [m] for :func:`mrclam_events` (a generic default, not fitted to any dataset)."""
+DEFAULT_RANGE_STD = PRIOR_RANGE_STD
+"""Default range noise std [m] for :func:`mrclam_events` (the camera's a-priori value, not fitted to any dataset)."""
 
-DEFAULT_BEARING_STD = 0.035
-"""Default bearing noise std [rad] (about 2 degrees) for :func:`mrclam_events` (a generic default)."""
+DEFAULT_BEARING_STD = PRIOR_BEARING_STD
+"""Default bearing noise std [rad] (about 2 degrees) for :func:`mrclam_events` (the camera's a-priori value)."""
 
 
 # ----------------------------------------------------------------------------------------------------------------

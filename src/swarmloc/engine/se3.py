@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarmloc.arrays import FloatArray
 from swarmloc.events import Kind
+from swarmloc.gaussian import symmetric
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE3
@@ -30,10 +30,6 @@ POSE3_MODEL = model3(Kind.POSE3)
 """The ``"pose3"`` model, batched here over the stacked detections."""
 
 _T = np.swapaxes
-
-
-def _sym(C: FloatArray) -> FloatArray:
-    return 0.5 * (C + _T(C, -1, -2))
 
 
 def twist_increments(v: np.ndarray, w: np.ndarray, dt: np.ndarray, noise: TwistNoise) -> tuple[np.ndarray, ...]:
@@ -79,7 +75,7 @@ def pose3_linearize(
     residual and noise on the stack, plus the neighbour's covariance seen through its Jacobian."""
     h, H, Hk = POSE3_MODEL.predict(g, gk)
     Rn = POSE3_MODEL.noise(z, Rz) + Hk @ Pk @ _T(Hk, -1, -2)
-    return POSE3_MODEL.residual(z, h), H, _sym(Rn)
+    return POSE3_MODEL.residual(z, h), H, symmetric(Rn)
 
 
 def correct(g: np.ndarray, dx: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from swarmloc.arrays import BoolArray
 from swarmloc.engine.codes import FUSED, PENDING, R_NONFINITE, REJECTED
 from swarmloc.engine.detections import Detections
 from swarmloc.engine.outcomes import gate_rows, mark
+from swarmloc.kernels.group import FUSE_ITERATIONS, POINT_ITERATIONS
 from swarmloc.node.update import Gate
 
 State = tuple[np.ndarray, np.ndarray]
@@ -136,7 +137,9 @@ class Fusion:
     """The fusion of one level of a stamp's groups by one estimator, with the nodes' options (:class:`Gate`,
     ``order``, ``iterations``, ``point_iterations``: :class:`~swarmloc.estimators.ExpFusion`)."""
 
-    def __init__(self, gate: Gate, order: int = 2, iterations: int = 2, point_iterations: int = 3) -> None:
+    def __init__(
+        self, gate: Gate, order: int = 2, iterations: int = FUSE_ITERATIONS, point_iterations: int = POINT_ITERATIONS
+    ) -> None:
         self.gate = gate
         self.order = order
         self.iterations = iterations

@@ -127,8 +127,8 @@ class ExpNode(RobotNode):
         initial: GroupGaussian,
         *,
         order: int = 2,
-        iterations: int = 2,
-        point_iterations: int = 3,
+        iterations: int = K.FUSE_ITERATIONS,
+        point_iterations: int = K.POINT_ITERATIONS,
         **kw: Any,
     ) -> None:
         if order not in (1, 2):

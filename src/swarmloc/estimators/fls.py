@@ -147,6 +147,11 @@ class Window(NamedTuple):
     next_id: int
 
 
+_Factors = tuple[list[Factor], dict[int, np.ndarray], int, float]
+"""A window's parts as a detection group is fused into it: its factors, the estimates, the next free variable id
+and the prior's information scale."""
+
+
 class FlsState(NamedTuple):
     """A node's state: time [s], command ``(v, w)``, the present belief (Cartesian ``x (3,)``, ``P (3, 3)``), the
     increment since the newest pose of the window (``rel (3,)`` in that pose's frame, covariance ``Q (3, 3)``)
@@ -408,46 +413,38 @@ class FixedLagSmoother(RobotNode):
         if new_pose:
             factors.append(Factor.odometry(win.poses[-1], pid, s.rel, s.Q))
             est[pid] = s.x
-        outcomes: list[Outcome] = []
-        fused = 0
-        for d in g.detections:
-            target = self._classify(g, d)
-            if target[0] in ("rejected", "unknown"):
-                outcomes.append(target)
-                continue
+
+        def fuse(acc: _Factors, d: Detection, target: tuple[str, Any]) -> tuple[_Factors, Outcome]:
+            """Detection ``d`` of a classified ``target`` as a factor on pose ``pid`` (a neighbour's: covariance
+            intersection with the window), or the outcome that stops it."""
+            factors, est, next_id, prior_scale = acc
             lin = linearize(d, s.x, target)
             if lin is None:
-                outcomes.append(("rejected", DEGENERATE))
-                continue
+                return acc, ("rejected", DEGENERATE)
             r, Hi, R_eff, _ = lin
             if self.gate.p is not None:
                 verdict = self._gated(float(r @ np.linalg.solve(Hi @ s.P @ Hi.T + R_eff, r)), len(r))
                 if verdict is not None:
-                    outcomes.append(verdict)
-                    continue
+                    return acc, verdict
             if target[0] != "robot":
-                factors.append(Factor.unary(d, target, R_eff, pid))
+                return (factors + [Factor.unary(d, target, R_eff, pid)], est, next_id, prior_scale), FUSED
+            z = np.asarray(d.z, dtype=float)
+            nb_mean, nb_cov = target[1].belief_arrays()
+            R = np.asarray(d.cov, dtype=float)
+            if d.kind == Kind.POSE:
+                w = float(pose_weight(mean_i, cov_i, SE2.from_xytheta(z), R, nb_mean, nb_cov))
             else:
-                z = np.asarray(d.z, dtype=float)
-                nb_mean, nb_cov = target[1].belief_arrays()
-                R = np.asarray(d.cov, dtype=float)
-                if d.kind == Kind.POSE:
-                    w = float(pose_weight(mean_i, cov_i, SE2.from_xytheta(z), R, nb_mean, nb_cov))
-                else:
-                    w = float(point_weight(mean_i, cov_i, d.kind, z, R, nb_mean, nb_cov))
-                # covariance intersection: every factor already in the window keeps w of its information
-                factors = [f._replace(scale=f.scale * w) for f in factors]
-                prior_scale *= w
-                nid = next_id
-                next_id += 1
-                est[nid] = C.from_group(nb_mean, nb_cov)[0]
-                m = model(d.kind)
-                factors.append(
-                    Factor("neighbour", pid, nid, d.kind, z, m.noise(z, R), (est[nid], nb_cov / (1 - w)), 1.0)
-                )
-            outcomes.append(FUSED)
-            fused += 1
-        if fused == 0:
+                w = float(point_weight(mean_i, cov_i, d.kind, z, R, nb_mean, nb_cov))
+            # covariance intersection: every factor already in the window keeps w of its information
+            factors = [f._replace(scale=f.scale * w) for f in factors]
+            nid = next_id
+            est = {**est, nid: C.from_group(nb_mean, nb_cov)[0]}
+            m = model(d.kind)
+            factors.append(Factor("neighbour", pid, nid, d.kind, z, m.noise(z, R), (est[nid], nb_cov / (1 - w)), 1.0))
+            return (factors, est, next_id + 1, prior_scale * w), FUSED
+
+        (factors, est, next_id, prior_scale), outcomes = self._fuse_each((factors, est, next_id, prior_scale), g, fuse)
+        if FUSED not in outcomes:
             return s, outcomes, []
         stamps = win.stamps + ((g.t,) if new_pose else ())
         poses = win.poses + ((pid,) if new_pose else ())

@@ -21,21 +21,24 @@ from typing import NamedTuple, cast
 import numpy as np
 
 from swarmloc.arrays import BoolArray, FloatArray
-from swarmloc.gaussian import convolution_F, convolution_F_tensor
+from swarmloc.gaussian import convolution_F, convolution_F_tensor, symmetric
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.lie.base import SEGroup
 from swarmloc.sensors.models import MIN_RANGE, MODELS
 
 _T = np.swapaxes
 
+FUSE_ITERATIONS = 2
+"""Default Gauss-Newton passes of a pose fusion (:func:`fuse_pseudo`): 1 is the thesis' closed form, 2
+re-linearizes once. The default of every layer that passes it on (fusion functions, nodes, engine, config)."""
+
+POINT_ITERATIONS = 3
+"""Default passes of a range/bearing update on the group (:func:`point_update`), likewise every layer's."""
+
 
 def _bvec(M: FloatArray, v: FloatArray) -> FloatArray:
     out: FloatArray = np.einsum("...ij,...j->...i", M, v)
     return out
-
-
-def _sym(C: FloatArray) -> FloatArray:
-    return 0.5 * (C + _T(C, -1, -2))
 
 
 def gamma(group: type[SEGroup], x: FloatArray, order: int) -> FloatArray:
@@ -69,7 +72,7 @@ def predict(
     C = A + inc_cov
     if order == 2:
         C = C + convolution_F(group, A, inc_cov)
-    return mu @ inc_mean, _sym(C)
+    return mu @ inc_mean, symmetric(C)
 
 
 # ------------------------------------------------------------------------------------------------ relative pose
@@ -92,7 +95,7 @@ def relative_to_pseudo(
     Ad = group.Ad(m_ik, validate=False)
     W = Ad @ cov_c @ _T(Ad, -1, -2)
     nu = mu_k @ group.inverse(m_ik, validate=False)
-    return nu, _sym(W)
+    return nu, symmetric(W)
 
 
 def fuse_pseudo(
@@ -102,7 +105,7 @@ def fuse_pseudo(
     nus: FloatArray,
     Ws: FloatArray,
     order: int = 2,
-    iterations: int = 2,
+    iterations: int = FUSE_ITERATIONS,
 ) -> tuple[FloatArray, FloatArray]:
     """Fuse a prior ``(mu, cov)`` with ``K`` Gaussian observations ``(nus[..., k, :, :], Ws[..., k, :, :])`` of the
     same pose, all at once (fusion.py, step 3). ``iterations > 1`` re-linearizes about the current estimate
@@ -130,7 +133,7 @@ def fuse_pseudo(
         xbar = np.linalg.solve(S, b[..., None])[..., 0]
         cur = cur @ group.exp(-xbar, validate=False)
     Gb = gamma(group, xbar, order)
-    return cur, _sym(Gb @ np.linalg.inv(S) @ _T(Gb, -1, -2))
+    return cur, symmetric(Gb @ np.linalg.inv(S) @ _T(Gb, -1, -2))
 
 
 def absolute_to_pseudo(xytheta: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -142,7 +145,7 @@ def absolute_to_pseudo(xytheta: FloatArray, cov: FloatArray) -> tuple[FloatArray
     c, s = np.cos(xytheta[..., 2]), np.sin(xytheta[..., 2])
     T = np.broadcast_to(np.eye(3), (*xytheta.shape[:-1], 3, 3)).copy()
     T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1] = c, s, -s, c
-    return SE2.from_xytheta(xytheta), _sym(T @ cov @ _T(T, -1, -2))
+    return SE2.from_xytheta(xytheta), symmetric(T @ cov @ _T(T, -1, -2))
 
 
 def pseudo_nis(group: type[SEGroup], mu: FloatArray, cov: FloatArray, nu: FloatArray, W: FloatArray) -> FloatArray:
@@ -247,7 +250,7 @@ class PointMeasurement(NamedTuple):
 
 
 def point_update(
-    mu: FloatArray, cov: FloatArray, meas: PointMeasurement, iterations: int = 3, order: int = 2
+    mu: FloatArray, cov: FloatArray, meas: PointMeasurement, iterations: int = POINT_ITERATIONS, order: int = 2
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Update an SE(2) belief with a range/bearing measurement of an uncertain robot or landmark. Batched.
 
@@ -295,7 +298,7 @@ def point_update(
         d = cast(FloatArray, np.linalg.solve(info, rhs[..., None])[..., 0])  # numpy types it floating[Any]
         cur = cur @ SE2.exp(d, validate=False)
     Gd = gamma(SE2, -d, order)
-    post = _sym(Gd @ np.linalg.inv(info) @ _T(Gd, -1, -2))
+    post = symmetric(Gd @ np.linalg.inv(info) @ _T(Gd, -1, -2))
     ok = ok & np.isfinite(cur).all(axis=(-1, -2)) & np.isfinite(post).all(axis=(-1, -2))
     return cur, post, ok
 

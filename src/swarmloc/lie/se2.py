@@ -155,6 +155,12 @@ class SE2(SEGroup):
         return g
 
     @staticmethod
+    def rotation(theta: FloatArray) -> FloatArray:
+        """``(...) -> (..., 2, 2)``: the rotation ``R(theta) = [[cos, -sin], [sin, cos]]`` of a heading [rad]."""
+        c, s = np.cos(theta), np.sin(theta)
+        return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+    @staticmethod
     def to_xytheta(g: FloatArray) -> FloatArray:
         """``(..., 3, 3) -> (..., 3)`` Cartesian ``(x, y, theta)``, theta in (-pi, pi]."""
         g = np.asarray(g, dtype=float)

@@ -28,13 +28,14 @@ Key expressions (``<team>`` is the team's name; one run of a team launched by ``
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import re
 import socket
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, ParamSpec
 
 PREFIX = "swarmloc"
 MAX_MESSAGE = 2 * 1024 * 1024
@@ -45,6 +46,7 @@ _ZENOH_DEFAULT_MAX_MESSAGE = 1 << 30
 MAX_ROUTERS = 16
 """The most routers :func:`router_mesh` starts (a mesh on one machine is for tests and demonstrations)."""
 _TEAM = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
+P = ParamSpec("P")
 
 
 def check_team(team: str) -> str:
@@ -262,14 +264,18 @@ def undeclare_all(entities: Iterable[Any]) -> None:
             pass
 
 
-def open_session(
-    listen: Sequence[str] = (),
-    connect: Sequence[str] = (),
-    config_file: str | os.PathLike[str] | None = None,
-    extra: dict[str, Any] | None = None,
-    mode: str = "peer",
-) -> Any:
-    """Open a Zenoh session (see :func:`zenoh_config`)."""
-    import zenoh
+def _opener(config: Callable[P, Any]) -> Callable[P, Any]:
+    """A function of ``config``'s parameters that opens a Zenoh session with the configuration ``config`` makes of
+    them: one parameter list serves both (``inspect.signature`` of the result shows ``config``'s)."""
 
-    return zenoh.open(zenoh_config(listen, connect, config_file, extra, mode))
+    @functools.wraps(config, assigned=("__module__",))
+    def open_session(*args: P.args, **kwargs: P.kwargs) -> Any:
+        """Open a Zenoh session: ``zenoh.open`` of :func:`zenoh_config` of the same arguments."""
+        import zenoh
+
+        return zenoh.open(config(*args, **kwargs))
+
+    return open_session
+
+
+open_session = _opener(zenoh_config)

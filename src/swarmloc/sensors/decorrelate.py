@@ -75,6 +75,8 @@ __all__ = [
     "KAPPA_3SIGMA",
     "LAG_EDGES",
     "MIN_INSTANTS",
+    "PRIOR_BEARING_STD",
+    "PRIOR_RANGE_STD",
     "CameraModel",
     "DetectionSet",
     "ErrorComponent",
@@ -98,6 +100,13 @@ KAPPA_3SIGMA = 0.9733
 
 LAG_EDGES: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
 """Lag bins [s] of the residual autocorrelation (a log-spaced analysis grid, not fitted)."""
+
+PRIOR_RANGE_STD = 0.1
+"""[m] The a-priori range std of MRCLAM's camera (a generic value, not fitted to any data): the start of the
+calibration, its fallback, and the default wherever the camera's noise is not given."""
+
+PRIOR_BEARING_STD = 0.035
+"""[rad] The a-priori bearing std (about 2 degrees, the camera's spec); as :data:`PRIOR_RANGE_STD`."""
 
 MIN_INSTANTS = 100
 """Fewest snapshots (instants with two or more landmarks) for an estimate; fewer: a-priori std, white noise."""
@@ -330,8 +339,8 @@ def calibrate(
     target: np.ndarray,
     z: np.ndarray,
     landmarks: Mapping[int, Any],
-    range_std: float = 0.1,
-    bearing_std: float = 0.035,
+    range_std: float = PRIOR_RANGE_STD,
+    bearing_std: float = PRIOR_BEARING_STD,
     estimate_std: bool = True,
     max_iterations: int = 100,
 ) -> CameraModel:
@@ -350,8 +359,8 @@ def calibrate(
 
 def calibrate_pooled(
     sets: Sequence[DetectionSet],
-    range_std: float = 0.1,
-    bearing_std: float = 0.035,
+    range_std: float = PRIOR_RANGE_STD,
+    bearing_std: float = PRIOR_BEARING_STD,
     estimate_std: bool = True,
     max_iterations: int = 100,
     cut: float = 3.0,
@@ -479,7 +488,7 @@ def stream_nll(
 
 
 def heldout_residuals(
-    ds: DetectionSet, range_std: float = 0.1, bearing_std: float = 0.035, trim: float = 5.0
+    ds: DetectionSet, range_std: float = PRIOR_RANGE_STD, bearing_std: float = PRIOR_BEARING_STD, trim: float = 5.0
 ) -> dict[str, np.ndarray]:
     """Standardized snapshot residuals of ``ds`` for scoring camera models on data they were not fitted to.
 

@@ -61,6 +61,8 @@ from swarmloc.motion.calibrate import scale_yaw
 from swarmloc.runner import run
 from swarmloc.runner.fanout import fan_out
 from swarmloc.sensors.decorrelate import (
+    PRIOR_BEARING_STD,
+    PRIOR_RANGE_STD,
     CameraModel,
     DetectionSet,
     ErrorComponent,
@@ -117,7 +119,9 @@ def model_scores(sets: dict[int, DetectionSet], cuts: Sequence[float] = CUTS) ->
     for k in sets:
         train = [sets[j] for j in sets if j != k]
         cands: dict[str, CameraModel] = {
-            "a priori white": CameraModel(ErrorComponent(0.1), ErrorComponent(0.035), source="a priori, white")
+            "a priori white": CameraModel(
+                ErrorComponent(PRIOR_RANGE_STD), ErrorComponent(PRIOR_BEARING_STD), source="a priori, white"
+            )
         }
         for c in cuts:
             m = calibrate_pooled(train, cut=c)
@@ -147,7 +151,7 @@ def initial_from_snapshots(
     """Truth-free initial beliefs: each robot's first landmark snapshot pose (fit covariance at the a-priori std),
     dead-reckoned to ``t0``, the latest first snapshot; returns ``(t0, beliefs)``. Raises ValueError when a robot
     of ``data`` never sees two landmarks at once."""
-    poses = snapshot_poses(ds, 0.1, 0.035)
+    poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
     first: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
     for r in data.robots:
         sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start))
