@@ -101,7 +101,7 @@ WEIGHT_GRID = 129
 """Weights evaluated by :func:`point_weight` and :func:`pose_weight` before the parabola."""
 
 
-def _minimize_on_grid(cost: Callable[[FloatArray], FloatArray], batch_shape: tuple[int, ...],
+def minimize_on_grid(cost: Callable[[FloatArray], FloatArray], batch_shape: tuple[int, ...],
                       bounds: tuple[float, float]) -> FloatArray:  # fmt: skip
     """The minimizer over ``bounds`` of a convex ``cost(w (g, *batch)) -> (g, *batch)``: grid, then the vertex of the
     parabola through the best grid point and its neighbours (within one grid step)."""
@@ -155,7 +155,7 @@ def point_weight(
     R = np.asarray(R, dtype=float)
     batch = np.broadcast_shapes(Gi.shape[:-2], R.shape[:-2])
 
-    return _minimize_on_grid(_joint_cost(Gi, C, R, 3), batch, bounds)
+    return minimize_on_grid(_joint_cost(Gi, C, R, 3), batch, bounds)
 
 
 def joint_weight(A: FloatArray, B: FloatArray, R: FloatArray, dof: int,
@@ -166,7 +166,7 @@ def joint_weight(A: FloatArray, B: FloatArray, R: FloatArray, dof: int,
     ``log det`` of the whole state, ``-dof log w - log det(S_w + A / w) + log det S_w`` with ``S_w = R + B / (1 - w)``
     (the determinant lemma, as :func:`point_weight` with ``dof = 3``): a large state pays ``dof log w`` for every
     inflation, so its weight stays near 1 unless the neighbour is worth it."""
-    return float(_minimize_on_grid(_joint_cost(A, B, R, dof), (), bounds))
+    return float(minimize_on_grid(_joint_cost(A, B, R, dof), (), bounds))
 
 
 def _joint_cost(A: FloatArray, B: FloatArray, R: FloatArray, dof: int) -> Callable[[FloatArray], FloatArray]:
@@ -218,7 +218,7 @@ def pose_weight(
         s2, l2 = np.linalg.slogdet(eye + wc * (W @ A))
         return np.where((s1 > 0) & (s2 > 0), l1 - l2, np.inf)
 
-    return _minimize_on_grid(cost, batch, bounds)
+    return minimize_on_grid(cost, batch, bounds)
 
 
 # ------------------------------------------------------------------------------------------------ the fusions

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from swarmloc.arrays import FloatArray
-from swarmloc.kernels.ci import W_BOUNDS, _minimize_on_grid
+from swarmloc.kernels.ci import W_BOUNDS, minimize_on_grid
 from swarmloc.lie.base import SEGroup
 
 
@@ -50,7 +50,7 @@ def inverse_ci(
         out: FloatArray = np.where(sign > 0, -logdet, np.inf)
         return out
 
-    w = float(_minimize_on_grid(cost, (), W_BOUNDS))
+    w = float(minimize_on_grid(cost, (), W_BOUNDS))
     Y, Gi = _information(P, B, np.array(w))
     cov = np.linalg.inv(Y)
     x = cov @ ((np.linalg.inv(B) - (1.0 - w) * Gi) @ b)
