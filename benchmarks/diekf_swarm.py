@@ -2,7 +2,7 @@
 of the exact filter and of clusters against team size, on teams whose arena grows with them (constant density).
 
     python benchmarks/diekf_swarm.py                                    # 5,10,20,50 robots, exact and clusters of 5
-    python benchmarks/diekf_swarm.py --robots 10,20,50 --cluster 2,5 --seeds 4 --exact-up-to 20
+    python benchmarks/diekf_swarm.py --arena grouped --cluster 2,5,10 --seeds 4       # clusters by proximity
     python benchmarks/diekf_swarm.py --net --robots 5,10 --cluster 5      # networked nodes on 127.0.0.1, threads
 
 In process (default): every robot a node of the in-process runner; each message a node hands the runner is counted
@@ -21,12 +21,14 @@ only, no traffic.
 ``--net``: every robot a :class:`~swarmloc.net.process.NetNode` on its own Zenoh session, threads of this process
 (as tests/test_net.py's ``thread_team``), on 127.0.0.1; traffic from the nodes' network counters (``sent``,
 ``received``: point-to-point queries, answers and pushes; ``broadcasts_sent``/``broadcasts_received`` and
-``broadcast_bytes``: the team broadcasts). Its beliefs equal the in-process run's (tests/test_net_diekf.py), so
-accuracy is given by the in-process rows.
+``broadcast_bytes``: the team broadcasts), and the detections the nodes fused (``fused``). Its beliefs equal the
+in-process run's (tests/test_net_diekf.py), so accuracy is given by the in-process rows.
 
 Scene (``--arena``, benchmarks/swarm_scene.py): ``bounded`` (default), constant density in what a robot sees, about 2
 teammates within its 1.5 m sensor (10 detections/s at 5 Hz) in every team; ``spread``, the arena that grows as
-``3 m sqrt(n / 5)`` with the robots free to leave it (the previous scene, whose density is not constant).
+``3 m sqrt(n / 5)`` with the robots free to leave it (the previous scene, whose density is not constant);
+``grouped``, the bounded arena with the ids along a Hilbert curve through the start positions, so that a cluster of
+``K`` consecutive ids is ``K`` robots that start near each other (clusters formed by proximity at deployment).
 """
 
 from __future__ import annotations
@@ -148,11 +150,13 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
         for s in sessions:
             s.close()
     net: Counter[str] = Counter()
+    fused = 0
     for rep in reports.values():
         net.update(rep.net)
+        fused += rep.stats.get("fused", 0)
     k = n * duration
     return {
-        "wall": time.perf_counter() - t0, "reports": len(reports),
+        "wall": time.perf_counter() - t0, "reports": len(reports), "fused": fused / k,
         "sent": net["sent"] / k, "recv": net["received"] / k, "bc_sent": net["broadcasts_sent"] / k,
         "bc_recv": net["broadcasts_received"] / k, "bc_bytes": net["broadcast_bytes"] / k,
     }  # fmt: skip
@@ -178,8 +182,8 @@ def main() -> None:
           f"({args.arena} arena), seeds {seeds[0]}-{seeds[-1]}, {args.duration:g} s; {how}; per robot and second "
           "of data, the mean over the seeds")  # fmt: skip
     if args.net:
-        print(f"{'robots':>6} {'filter':>10} {'sent':>7} {'recv':>7} {'bc sent':>7} {'bc recv':>7} {'bc B/s':>8} "
-              f"{'wall s':>7}")  # fmt: skip
+        print(f"{'robots':>6} {'filter':>10} {'fused':>6} {'sent':>7} {'recv':>7} {'bc sent':>7} {'bc recv':>7} "
+              f"{'bc B/s':>8} {'wall s':>7}")  # fmt: skip
     else:
         print(f"{'robots':>6} {'filter':>14} {'fused':>6} {'msg sent':>8} {'msg recv':>8} {'B sent':>8} "
               f"{'B recv':>8} {'RMSE [m]':>9} {'vs exact':>8} {'ANEES/dof':>9} {'in 95%':>6} {'cpu s':>6}")  # fmt: skip
@@ -193,7 +197,7 @@ def main() -> None:
                 rs = [networked(scene(n, args.duration, s, args.arena), n, c, args.duration, args.max_wall)
                       for s in seeds]  # fmt: skip
                 r = {k: float(np.mean([x[k] for x in rs])) for k in rs[0]}
-                print(f"{n:>6} {name:>10} {r['sent']:>7.1f} {r['recv']:>7.1f} {r['bc_sent']:>7.1f} "
+                print(f"{n:>6} {name:>10} {r['fused']:>6.1f} {r['sent']:>7.1f} {r['recv']:>7.1f} {r['bc_sent']:>7.1f} "
                       f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['wall']:>7.1f}"
                       + ("" if r["reports"] == n else f"  ({r['reports']} of {n} reports)"), flush=True)  # fmt: skip
                 continue

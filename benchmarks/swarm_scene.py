@@ -1,16 +1,21 @@
 """The swarm benchmarks' scenes (benchmarks/diekf_cluster.py, benchmarks/diekf_swarm.py): ``sim:random`` teams of
-``n`` robots (seed ``seed``), a 5 Hz robot sensor, in one of three arenas:
+``n`` robots (seed ``seed``), a 5 Hz robot sensor of 1.5 m (full circle), in one of four arenas:
 
 * ``"fixed"``: ``sim:random``'s own 3 m square (a robot sees more teammates in a larger team);
 * ``"spread"``: a square of side ``3 m sqrt(n / 5)``, robots free to drive out of it. Not of constant density in
   what a robot sees: over 10 s about half the robots of a 10-robot team leave their 4.2 m square (0.05-0.3 m/s),
-  and a 1.5 m sensor near its edge sees less of it, so a robot detects 5.8 teammates/s at 10 robots, 15.8 at 50
-  (seed 1; 19.6 in the unbounded plane at that density);
+  and a sensor near its edge sees less of the team, so a robot detects 5.8 teammates/s at 10 robots, 15.8 at 50
+  (seed 1; over seeds 1-8 10.3 and 16.0; 19.6 in the unbounded plane at that density);
 * ``"bounded"``: constant density in what a robot sees. The robots stay in the square (:func:`bounded_commands`)
   and its side is :func:`arena_side`: the side at which a robot at a uniformly random place has on average
-  :data:`NEIGHBOURS` teammates within the sensor's 1.5 m (full circle), the square's edge and the robot itself
-  counted. So a robot detects about ``5 Hz x NEIGHBOURS`` = 10 teammates/s in every team (measured over 8 seeds:
-  9.8, 10.0, 9.1, 9.9 at 5, 10, 20, 50 robots; one seed of a small team varies far more, 4.9-13.2 at 10).
+  :data:`NEIGHBOURS` teammates within the sensor's range, the square's edge and the robot itself counted. So a
+  robot detects about ``5 Hz x NEIGHBOURS`` = 10 teammates/s in every team (over seeds 1-8, 10 s: 9.0, 9.6, 9.0,
+  9.9 at 5, 10, 20, 50 robots; one seed of a small team varies far more, 5.7-14.2 at 5 robots);
+* ``"grouped"``: the bounded arena with the ids along a Hilbert curve through the start positions
+  (:func:`hilbert_index`), so that ``diekf``'s clusters (consecutive ids) are robots that start near each other.
+
+A square, not a torus: across a torus' seam the measured relative poses would not be those of the world frame the
+filters estimate in.
 """
 
 from __future__ import annotations
