@@ -21,8 +21,10 @@ only, no traffic.
 ``--net``: every robot a :class:`~swarmloc.net.process.NetNode` on its own Zenoh session, threads of this process
 (as tests/test_net.py's ``thread_team``), on 127.0.0.1; traffic from the nodes' network counters (``sent``,
 ``received``: point-to-point queries, answers and pushes; ``broadcasts_sent``/``broadcasts_received`` and
-``broadcast_bytes``: the team broadcasts), and the detections the nodes fused (``fused``). Its beliefs equal the
-in-process run's (tests/test_net_diekf.py), so accuracy is given by the in-process rows.
+``broadcast_bytes``: the team broadcasts), the detections the nodes fused (``fused``), and the progress
+announcements of the replay's lock step a robot receives from its teammates (``progress``: every node's, which
+every node subscribes to, not in the nodes' counters; counted by one more session, times ``n - 1``). Its beliefs
+equal the in-process run's (tests/test_net_diekf.py), so accuracy is given by the in-process rows.
 
 Scene (``--arena``, benchmarks/swarm_scene.py): ``bounded`` (default), constant density in what a robot sees, about 2
 teammates within its 1.5 m sensor (10 detections/s at 5 Hz) in every team; ``spread``, the arena that grows as
@@ -126,7 +128,9 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
     f = dataclasses.replace(src.config.filter, diekf_cluster=cluster)
     cfg = dataclasses.replace(src.config, filter=f)
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(n)]
-    sessions, nets = [], []
+    sessions, nets = [open_session([], eps)], []  # the first: a watcher of every node's progress announcements
+    progress: list[int] = []
+    watch = sessions[0].declare_subscriber("swarmloc/**/progress", lambda x: progress.append(1))
     reports: dict[int, Any] = {}
     t0 = time.perf_counter()
     try:
@@ -147,6 +151,7 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
     finally:
         for m in nets:
             m.stop()
+        watch.undeclare()
         for s in sessions:
             s.close()
     net: Counter[str] = Counter()
@@ -157,6 +162,7 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
     k = n * duration
     return {
         "wall": time.perf_counter() - t0, "reports": len(reports), "fused": fused / k,
+        "progress": len(progress) * (n - 1) / k,
         "sent": net["sent"] / k, "recv": net["received"] / k, "bc_sent": net["broadcasts_sent"] / k,
         "bc_recv": net["broadcasts_received"] / k, "bc_bytes": net["broadcast_bytes"] / k,
     }  # fmt: skip
@@ -183,7 +189,7 @@ def main() -> None:
           "of data, the mean over the seeds")  # fmt: skip
     if args.net:
         print(f"{'robots':>6} {'filter':>10} {'fused':>6} {'sent':>7} {'recv':>7} {'bc sent':>7} {'bc recv':>7} "
-              f"{'bc B/s':>8} {'wall s':>7}")  # fmt: skip
+              f"{'bc B/s':>8} {'progress':>8} {'wall s':>7}")  # fmt: skip
     else:
         print(f"{'robots':>6} {'filter':>14} {'fused':>6} {'msg sent':>8} {'msg recv':>8} {'B sent':>8} "
               f"{'B recv':>8} {'RMSE [m]':>9} {'vs exact':>8} {'ANEES/dof':>9} {'in 95%':>6} {'cpu s':>6}")  # fmt: skip
@@ -198,7 +204,7 @@ def main() -> None:
                       for s in seeds]  # fmt: skip
                 r = {k: float(np.mean([x[k] for x in rs])) for k in rs[0]}
                 print(f"{n:>6} {name:>10} {r['fused']:>6.1f} {r['sent']:>7.1f} {r['recv']:>7.1f} {r['bc_sent']:>7.1f} "
-                      f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['wall']:>7.1f}"
+                      f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['progress']:>8.1f} {r['wall']:>7.1f}"
                       + ("" if r["reports"] == n else f"  ({r['reports']} of {n} reports)"), flush=True)  # fmt: skip
                 continue
             engine = c == 0 and n > args.exact_up_to
