@@ -10,8 +10,9 @@ accuracy and consistency paid for it.
 nodes: tests/test_engine_clusters.py) instead of the in-process nodes, timed as the wall of its replay (after an
 untimed run that compiles: numba's on a small team, JAX's on the same team, as it compiles per shape);
 ``--backend jax``: its JAX replay (tests/test_engine_jax_clusters.py; on a GPU where JAX has one). ``--spread``: the
-arena grows with the team (side ``3 m sqrt(n / 5)``), so a robot sees as many teammates in every team (constant
-density; without it, ``sim:random``'s 3 m arena).
+arena grows with the team (side ``3 m sqrt(n / 5)``) but the robots may leave it, so a robot of a small team still
+sees fewer teammates; ``--bounded``: constant density in what a robot sees (benchmarks/swarm_scene.py); without
+either, ``sim:random``'s 3 m arena.
 
 ``sim:random`` teams (seed 1), every robot a node of the in-process runner; CPU time of the run
 (``time.process_time``, one process, one thread: ``OPENBLAS_NUM_THREADS=1`` is set before numpy loads). The exact
@@ -34,31 +35,20 @@ import platform  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+from swarm_scene import scene  # noqa: E402
 
-from swarmloc.datasets.source import Source  # noqa: E402
 from swarmloc.engine import run_engine  # noqa: E402
 from swarmloc.estimators import make_team, node_options  # noqa: E402
 from swarmloc.evaluation.metrics import evaluate  # noqa: E402
-from swarmloc.experiments.sources import load_source  # noqa: E402
 from swarmloc.runner import run  # noqa: E402
-from swarmloc.sim import RelativeSensor, random_team  # noqa: E402
-from swarmloc.sim.source import sim_source  # noqa: E402
 
 
-def scene(n: int, duration: float, seed: int, spread: bool) -> Source:
-    """``sim:random`` (``spread``: in an arena of side ``3 m sqrt(n / 5)``, the density of 5 robots in 3 m)."""
-    if not spread:
-        return load_source("sim:random", robots=n, duration=duration, seed=seed)
-    sim = random_team(n, duration, seed=seed, area=3.0 * math.sqrt(n / 5), sensor=RelativeSensor(rate=5.0))
-    return sim_source(sim, "sim:random (spread)")
-
-
-def measure(n: int, cluster: int, duration: float, seed: int, engine: bool = False, spread: bool = False,
+def measure(n: int, cluster: int, duration: float, seed: int, engine: bool = False, arena: str = "fixed",
             backend: str = "numba") -> dict:  # fmt: skip
-    src = scene(n, duration, seed, spread)
+    src = scene(n, duration, seed, arena)
     options = {**node_options("diekf", src.config, src.landmarks), "cluster": cluster}
     if engine:  # the replay's own wall (RunResult.wall_time), after a run that compiles
-        run_engine(src if backend == "jax" else scene(min(n, 6), 2.0, seed, spread), "diekf", backend=backend,
+        run_engine(src if backend == "jax" else scene(min(n, 6), 2.0, seed, arena), "diekf", backend=backend,
                    **options)  # fmt: skip
         res = run_engine(src, "diekf", backend=backend, **options)
         cpu = res.wall_time
@@ -84,14 +74,16 @@ def main() -> None:
     ap.add_argument("--exact-up-to", type=int, default=20, help="largest team the exact filter runs (default 20)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--engine", action="store_true", help="the engine's compiled replay instead of the nodes")
-    ap.add_argument("--spread", action="store_true", help="the arena grows with the team (constant density)")
+    ap.add_argument("--spread", action="store_true", help="the arena grows with the team, robots free to leave it")
+    ap.add_argument("--bounded", action="store_true", help="constant density: swarm_scene.py's bounded arena")
     ap.add_argument("--backend", choices=("numba", "jax"), default="numba", help="the engine's backend (--engine)")
     args = ap.parse_args()
     sizes = [int(x) for x in args.robots.split(",")]
+    arena = "bounded" if args.bounded else "spread" if args.spread else "fixed"
     clusters = [0] + [int(x) for x in args.cluster.split(",") if x]
     print(
         f"machine: {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}; "
-        f"sim:random{' spread' if args.spread else ''} seed {args.seed}, {args.duration:g} s; "
+        f"sim:random ({arena} arena) seed {args.seed}, {args.duration:g} s; "
         + (f"engine ({args.backend}), wall of the replay" if args.engine else "nodes in process, CPU time")
     )
     print(f"{'robots':>6} {'cluster':>8} {'det/robot/s':>11} {'ms/detection':>12} {'ms/robot/s':>10} "
@@ -101,7 +93,7 @@ def main() -> None:
         for c in clusters:
             if c == 0 and n > args.exact_up_to:
                 continue
-            r = measure(n, c, args.duration, args.seed, args.engine, args.spread, args.backend)
+            r = measure(n, c, args.duration, args.seed, args.engine, arena, args.backend)
             rows[c].append(r)
             name = "exact" if c == 0 else str(c)
             print(f"{n:>6} {name:>8} {r['det_per_robot_s']:>11.1f} {r['ms_per_detection']:>12.3f} "

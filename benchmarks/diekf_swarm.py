@@ -2,22 +2,35 @@
 of the exact filter and of clusters against team size, on teams whose arena grows with them (constant density).
 
     python benchmarks/diekf_swarm.py                                    # 5,10,20,50 robots, exact and clusters of 5
-    python benchmarks/diekf_swarm.py --robots 10,20,50 --cluster 2,5 --duration 15
+    python benchmarks/diekf_swarm.py --arena grouped --cluster 2,5,10 --seeds 4       # clusters by proximity
     python benchmarks/diekf_swarm.py --net --robots 5,10 --cluster 5      # networked nodes on 127.0.0.1, threads
 
 In process (default): every robot a node of the in-process runner; each message a node hands the runner is counted
 once as sent by its sender and, when delivered, once as received by its receiver; its bytes are those of its
 network envelope unsigned (:func:`swarmloc.net.schema.encode`, msgpack; a signed frame adds a fixed tag). A
 broadcast is one message per receiver here; over the network it is one publication that each subscriber receives.
-RMSE [m] and ANEES/dof against the simulator's truth (:func:`swarmloc.evaluation.metrics.evaluate`).
+RMSE [m] and ANEES/dof against the simulator's truth (:func:`swarmloc.evaluation.metrics.evaluate`), and the RMSE
+against the exact filter's on the same scenes (``vs exact``). ``--seeds k``: every row the mean over seeds
+``seed..seed+k-1`` (independent scenes), and ``in 95%``: the fraction of (robot, record time) whose ANEES/dof over
+the seeds lies within the two-sided 95% chi-square bounds of ``k`` independent NEES
+(:func:`swarmloc.evaluation.metrics.over_seeds`; the rest is below them unless ``above`` says otherwise). The exact
+filter beyond ``--exact-up-to`` robots (its nodes need ``O(n^3)`` memory in one process) runs as the engine's compiled
+replay (``run_engine(src, "diekf", backend="numba")``, equal to the nodes: tests/test_engine_clusters.py): accuracy
+only, no traffic.
 
 ``--net``: every robot a :class:`~swarmloc.net.process.NetNode` on its own Zenoh session, threads of this process
 (as tests/test_net.py's ``thread_team``), on 127.0.0.1; traffic from the nodes' network counters (``sent``,
 ``received``: point-to-point queries, answers and pushes; ``broadcasts_sent``/``broadcasts_received`` and
-``broadcast_bytes``: the team broadcasts). Its beliefs equal the in-process run's (tests/test_net_diekf.py), so
-accuracy is given by the in-process rows.
+``broadcast_bytes``: the team broadcasts), the detections the nodes fused (``fused``), and the progress
+announcements of the replay's lock step a robot receives from its teammates (``progress``: every node's, which
+every node subscribes to, not in the nodes' counters; counted by one more session, times ``n - 1``). Its beliefs
+equal the in-process run's (tests/test_net_diekf.py), so accuracy is given by the in-process rows.
 
-Scene: ``sim:random`` in an arena of side ``3 m sqrt(n / 5)`` (benchmarks/diekf_cluster.py's ``--spread``), seed 1.
+Scene (``--arena``, benchmarks/swarm_scene.py): ``bounded`` (default), constant density in what a robot sees, about 2
+teammates within its 1.5 m sensor (10 detections/s at 5 Hz) in every team; ``spread``, the arena that grows as
+``3 m sqrt(n / 5)`` with the robots free to leave it (the previous scene, whose density is not constant);
+``grouped``, the bounded arena with the ids along a Hilbert curve through the start positions, so that a cluster of
+``K`` consecutive ids is ``K`` robots that start near each other (clusters formed by proximity at deployment).
 """
 
 from __future__ import annotations
@@ -28,14 +41,18 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import math  # noqa: E402
+import platform  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
 from collections import Counter  # noqa: E402
 from typing import Any  # noqa: E402
 
-from diekf_cluster import scene  # noqa: E402
+import numpy as np  # noqa: E402
+from swarm_scene import ARENAS, scene  # noqa: E402
 
 from swarmloc.datasets.source import Source  # noqa: E402
+from swarmloc.engine import run_engine  # noqa: E402
 from swarmloc.estimators import make_team, node_options  # noqa: E402
 from swarmloc.evaluation.metrics import evaluate, over_seeds  # noqa: E402
 from swarmloc.events import Odometry  # noqa: E402
@@ -44,7 +61,7 @@ from swarmloc.net.entry import make_node  # noqa: E402
 from swarmloc.net.process import NetNode  # noqa: E402
 from swarmloc.net.schema import encode  # noqa: E402
 from swarmloc.net.transport import free_ports, open_session  # noqa: E402
-from swarmloc.runner import run  # noqa: E402
+from swarmloc.runner import RunResult, run  # noqa: E402
 
 
 def counted(node: Any, traffic: Counter[str]) -> None:
@@ -68,42 +85,42 @@ def options(src: Source, cluster: int) -> dict[str, Any]:
     return {**node_options("diekf", src.config, src.landmarks), "cluster": cluster}
 
 
-def in_process(src: Source, n: int, cluster: int, duration: float) -> dict[str, Any]:
-    nodes = make_team("diekf", src.initial, **options(src, cluster))
+def in_process(src: Source, n: int, cluster: int, duration: float, engine: bool = False) -> tuple[dict, RunResult]:
+    """One run of the nodes in process (``engine``: the exact filter as the engine's replay, no traffic): traffic and
+    fused detections per robot and second, RMSE, ANEES/dof and CPU [s]; and the run."""
     traffic: Counter[str] = Counter()
-    for node in nodes:
-        counted(node, traffic)
     t = time.process_time()
-    res = run(nodes, src.events, src.record_times(), truth=src.truth)
+    if engine:
+        res = run_engine(src, "diekf", backend="numba", **options(src, cluster))
+    else:
+        nodes = make_team("diekf", src.initial, **options(src, cluster))
+        for node in nodes:
+            counted(node, traffic)
+        res = run(nodes, src.events, src.record_times(), truth=src.truth)
     cpu = time.process_time() - t
     team = evaluate(res)["team"]
-    per = {k: v / n / duration for k, v in traffic.items()}
+    per = {k: traffic[k] / n / duration if traffic else math.nan for k in ("sent", "recv", "sent_bytes", "recv_bytes")}
     return {"rmse": team["pos_rmse"], "anees": team["anees"], "cpu": cpu, "fused": res.stats["fused"] / n / duration,
-            **per}  # fmt: skip
+            **per}, res  # fmt: skip
 
 
-def monte_carlo(n: int, cluster: int, duration: float, seeds: list[int]) -> dict[str, Any]:
-    """The in-process run on ``len(seeds)`` independent scenes: ANEES/dof and RMSE averaged over seeds, and the
-    fraction of (robot, record time) whose ANEES/dof over the seeds lies within, below or above the two-sided 95%
-    chi-square bounds of ``len(seeds)`` independent NEES (:func:`swarmloc.evaluation.metrics.over_seeds`)."""
-    results, rows = [], []
+def over(seeds: list[int], n: int, cluster: int, duration: float, arena: str, engine: bool = False) -> dict:
+    """:func:`in_process` on the scenes of ``seeds``: each figure's mean over them, ``rmses`` per seed, and the
+    fractions of (robot, record time) whose ANEES/dof over the seeds is within or above their 95% bounds."""
+    rows, results = [], []
     for seed in seeds:
-        src = scene(n, duration, seed, True)
-        nodes = make_team("diekf", src.initial, **options(src, cluster))
-        results.append(run(nodes, src.events, src.record_times(), truth=src.truth))
-        rows.append(evaluate(results[-1])["team"])
-    inside = below = above = total = 0
-    for r in sorted(results[0].tracks):
-        o = over_seeds(results, r)
-        a = o["anees"]
-        below += int((a < o["anees_lo"]).sum())
-        above += int((a > o["anees_hi"]).sum())
-        inside += int(((a >= o["anees_lo"]) & (a <= o["anees_hi"])).sum())
-        total += a.size
-    return {
-        "rmse": float(sum(t["pos_rmse"] for t in rows) / len(rows)), "anees": float(sum(t["anees"] for t in rows) /
-        len(rows)), "in": inside / total, "below": below / total, "above": above / total,
-    }  # fmt: skip
+        row, res = in_process(scene(n, duration, seed, arena), n, cluster, duration, engine)
+        rows.append(row)
+        results.append(res)
+    mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
+    inside = above = total = 0
+    if len(seeds) > 1:
+        for r in sorted(results[0].tracks):
+            o = over_seeds(results, r)
+            above += int((o["anees"] > o["anees_hi"]).sum())
+            inside += int(((o["anees"] >= o["anees_lo"]) & (o["anees"] <= o["anees_hi"])).sum())
+            total += o["anees"].size
+    return {**mean, "rmses": [r["rmse"] for r in rows], "in": inside / max(total, 1), "above": above / max(total, 1)}
 
 
 def networked(src: Source, n: int, cluster: int, duration: float, max_wall: float) -> dict[str, Any]:
@@ -111,7 +128,9 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
     f = dataclasses.replace(src.config.filter, diekf_cluster=cluster)
     cfg = dataclasses.replace(src.config, filter=f)
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(n)]
-    sessions, nets = [], []
+    sessions, nets = [open_session([], eps)], []  # the first: a watcher of every node's progress announcements
+    progress: list[int] = []
+    watch = sessions[0].declare_subscriber("swarmloc/**/progress", lambda x: progress.append(1))
     reports: dict[int, Any] = {}
     t0 = time.perf_counter()
     try:
@@ -132,14 +151,18 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
     finally:
         for m in nets:
             m.stop()
+        watch.undeclare()
         for s in sessions:
             s.close()
     net: Counter[str] = Counter()
+    fused = 0
     for rep in reports.values():
         net.update(rep.net)
+        fused += rep.stats.get("fused", 0)
     k = n * duration
     return {
-        "wall": time.perf_counter() - t0, "reports": len(reports),
+        "wall": time.perf_counter() - t0, "reports": len(reports), "fused": fused / k,
+        "progress": len(progress) * (n - 1) / k,
         "sent": net["sent"] / k, "recv": net["received"] / k, "bc_sent": net["broadcasts_sent"] / k,
         "bc_recv": net["broadcasts_received"] / k, "bc_bytes": net["broadcast_bytes"] / k,
     }  # fmt: skip
@@ -150,46 +173,52 @@ def main() -> None:
     ap.add_argument("--robots", default="5,10,20,50")
     ap.add_argument("--cluster", default="5", help="cluster sizes besides the exact filter (comma-separated)")
     ap.add_argument("--duration", type=float, default=10.0)
-    ap.add_argument("--exact-up-to", type=int, default=50, help="largest team the exact filter runs")
+    ap.add_argument("--exact-up-to", type=int, default=20, help="largest team whose exact filter runs as nodes")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--seeds", type=int, default=1, help="this many seeds from --seed, every row their mean")
+    ap.add_argument("--arena", choices=ARENAS, default="bounded", help="benchmarks/swarm_scene.py")
     ap.add_argument("--net", action="store_true", help="networked nodes (threads, 127.0.0.1): traffic only")
     ap.add_argument("--max-wall", type=float, default=600.0)
-    ap.add_argument("--seeds", type=int, default=0, help="Monte Carlo: this many seeds from --seed (in process)")
     args = ap.parse_args()
     sizes = [int(x) for x in args.robots.split(",")]
     settings = [0] + [int(c) for c in args.cluster.split(",") if c]
+    seeds = list(range(args.seed, args.seed + args.seeds))
     how = "networked (threads, 127.0.0.1)" if args.net else "in process"
-    print(f"sim:random spread, seed {args.seed}, {args.duration:g} s; {how}; per robot and second of data")
-    if args.seeds:
-        print(f"Monte Carlo over {args.seeds} seeds: mean RMSE, mean ANEES/dof, fraction of (robot, time) whose "
-              "ANEES/dof over the seeds is within / below / above the 95% chi-square bounds")  # fmt: skip
-        print(f"{'robots':>6} {'filter':>10} {'RMSE [m]':>9} {'ANEES/dof':>9} {'in':>6} {'below':>6} {'above':>6}")
-    elif args.net:
-        print(f"{'robots':>6} {'filter':>10} {'sent':>7} {'recv':>7} {'bc sent':>7} {'bc recv':>7} {'bc B/s':>8} "
-              f"{'wall s':>7}")  # fmt: skip
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}; sim:random "
+          f"({args.arena} arena), seeds {seeds[0]}-{seeds[-1]}, {args.duration:g} s; {how}; per robot and second "
+          "of data, the mean over the seeds")  # fmt: skip
+    if args.net:
+        print(f"{'robots':>6} {'filter':>10} {'fused':>6} {'sent':>7} {'recv':>7} {'bc sent':>7} {'bc recv':>7} "
+              f"{'bc B/s':>8} {'progress':>8} {'wall s':>7}")  # fmt: skip
     else:
-        print(f"{'robots':>6} {'filter':>10} {'fused':>6} {'msg sent':>8} {'msg recv':>8} {'B sent':>8} "
-              f"{'B recv':>8} {'RMSE [m]':>9} {'ANEES/dof':>9} {'cpu s':>6}")  # fmt: skip
+        print(f"{'robots':>6} {'filter':>14} {'fused':>6} {'msg sent':>8} {'msg recv':>8} {'B sent':>8} "
+              f"{'B recv':>8} {'RMSE [m]':>9} {'vs exact':>8} {'ANEES/dof':>9} {'in 95%':>6} {'cpu s':>6}")  # fmt: skip
     for n in sizes:
-        src = scene(n, args.duration, args.seed, True)
+        exact = math.nan
         for c in settings:
-            if c == 0 and n > args.exact_up_to:
-                continue
             name = "exact" if c == 0 else f"K={c}"
-            if args.seeds:
-                r = monte_carlo(n, c, args.duration, list(range(args.seed, args.seed + args.seeds)))
-                print(f"{n:>6} {name:>10} {r['rmse']:>9.4f} {r['anees']:>9.2f} {r['in']:>6.2f} {r['below']:>6.2f} "
-                      f"{r['above']:>6.2f}", flush=True)  # fmt: skip
-            elif args.net:
-                r = networked(src, n, c, args.duration, args.max_wall)
-                print(f"{n:>6} {name:>10} {r['sent']:>7.1f} {r['recv']:>7.1f} {r['bc_sent']:>7.1f} "
-                      f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['wall']:>7.1f}"
+            if args.net:
+                if c == 0 and n > args.exact_up_to:
+                    continue
+                rs = [networked(scene(n, args.duration, s, args.arena), n, c, args.duration, args.max_wall)
+                      for s in seeds]  # fmt: skip
+                r = {k: float(np.mean([x[k] for x in rs])) for k in rs[0]}
+                print(f"{n:>6} {name:>10} {r['fused']:>6.1f} {r['sent']:>7.1f} {r['recv']:>7.1f} {r['bc_sent']:>7.1f} "
+                      f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['progress']:>8.1f} {r['wall']:>7.1f}"
                       + ("" if r["reports"] == n else f"  ({r['reports']} of {n} reports)"), flush=True)  # fmt: skip
-            else:
-                r = in_process(src, n, c, args.duration)
-                print(f"{n:>6} {name:>10} {r['fused']:>6.1f} {r['sent']:>8.1f} {r['recv']:>8.1f} "
-                      f"{r['sent_bytes']:>8.0f} {r['recv_bytes']:>8.0f} {r['rmse']:>9.4f} {r['anees']:>9.2f} "
-                      f"{r['cpu']:>6.1f}", flush=True)  # fmt: skip
+                continue
+            engine = c == 0 and n > args.exact_up_to
+            r = over(seeds, n, c, args.duration, args.arena, engine)
+            if c == 0:
+                exact = r["rmse"]
+                name += " (engine)" if engine else ""
+            vs = f"{100 * (r['rmse'] / exact - 1):+.0f}%" if c else "-"
+            inside = f"{r['in']:.2f}" if len(seeds) > 1 else "-"
+            cols = (("sent", 1), ("recv", 1), ("sent_bytes", 0), ("recv_bytes", 0))
+            traffic = " ".join(f"{r[k]:>8.{p}f}" if r[k] == r[k] else f"{'-':>8}" for k, p in cols)
+            print(f"{n:>6} {name:>14} {r['fused']:>6.1f} {traffic} {r['rmse']:>9.4f} {vs:>8} {r['anees']:>9.2f} "
+                  f"{inside:>6} {r['cpu']:>6.1f}" + (f"  (above: {r['above']:.2f})" if r["above"] else ""),
+                  flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":
