@@ -14,8 +14,10 @@ from swarmloc.estimators import node_options
 from swarmloc.sim.scenarios import cooperative_positioning
 from swarmloc.sim.source import sim_source
 
-source = sim_source(cooperative_positioning(n_a=2, n_b=2, phases=8, seed=0), "sim:coop")
-known = {r: GroupGaussian(SE2, b.mean, np.eye(3) * 1e-6) for r, b in source.initial.items()}  # known starts
+scenario = cooperative_positioning(n_a=2, n_b=2, phases=8, seed=0)
+source = sim_source(scenario, "sim:coop")
+starts = scenario.initial_pose_matrices()  # the true starts, known to 1 mm / 1 mrad
+known = {r: GroupGaussian(SE2, starts[r], np.eye(3) * 1e-6) for r in source.initial}
 for estimator in ("dr", "cekf", "rdl"):
     nodes = make_team(estimator, known, **node_options(estimator, source.config, None))
     result = run(nodes, source.events, [39.9], truth=source.truth)
