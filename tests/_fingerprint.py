@@ -12,7 +12,7 @@ reasons): every planar estimator on ``sim:random``, ``sim:range_bearing`` and ``
 every SE(3) estimator on ``sim:3d``, ``sim:3d_rbe`` and ``sim:3d_landmarks``; the planar filters on MRCLAM dataset 6
 (the first 60 s, with and without landmarks; ``--mrclam DIR``, default ``$SWARMLOC_MRCLAM`` or ``../shared``'s
 copy, left out with ``--no-data``); the engine (numpy on ``sim:random``, and
-``sim:landmarks`` with dekf; numba's compiled replays on ``sim:landmarks``); with
+``sim:landmarks`` with dekf; numba on ``sim:landmarks``: the compiled replays and dekf's swarm step); with
 ``--net``, live teams of node processes (diekf and rdl, 3 robots, 8 s; their network counters depend on timing and
 are left out, the filters' own are compared). ``--only SUBSTRING`` records the cases whose name contains it.
 """
@@ -100,6 +100,7 @@ def cases(mrclam: Path | None, net: bool) -> Iterator[tuple[str, Callable[[], ob
     for est in ENGINE_NUMPY:
         yield f"engine/numpy/sim:random/{est}", _engine("sim:random", est, "numpy")
     yield "engine/numpy/sim:landmarks/dekf", _engine("sim:landmarks", "dekf", "numpy")
+    yield "engine/numba/sim:landmarks/dekf", _engine("sim:landmarks", "dekf", "numba")  # the swarm step's kernels
     for est in ENGINE_COMPILED:
         yield f"engine/numba/sim:landmarks/{est}", _engine("sim:landmarks", est, "numba")
     if net:
