@@ -315,4 +315,4 @@ def world_covariance(mean: object, cov: object) -> tuple[np.ndarray, np.ndarray]
     J = np.zeros(np.broadcast_shapes(M.shape, S.shape))
     J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1], J[..., 2, 2] = c, -s, s, c, 1.0
     C = J @ S @ np.swapaxes(J, -1, -2)
-    return xyt, 0.5 * (C + np.swapaxes(C, -1, -2))
+    return xyt, symmetric(C)

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.arrays import FloatArray
+from swarmloc.gaussian import symmetric
 from swarmloc.lie import wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment, odometry_increment_terms
 
@@ -286,7 +287,7 @@ def _kalman_update_one(
             xn[j] = wrap_angle(xn[j]) if math.isfinite(xn[j]) else xn[j]
     IKH = np.eye(x.shape[0]) - K @ H
     Pn = IKH @ P @ IKH.T + K @ R @ K.T
-    Pn = 0.5 * (Pn + Pn.T)
+    Pn = symmetric(Pn)
     ok = np.array(math.isfinite(nis) and bool(np.isfinite(xn).all()) and bool(np.isfinite(Pn).all()))
     return xn, Pn, nis, ok
 
@@ -321,7 +322,7 @@ def kalman_update_blocks(
     with np.errstate(invalid="ignore"):
         xn[a] = wrap_angle(xn[a])
     Pn = P - K @ U.T - (U - K @ S) @ K.T
-    Pn = 0.5 * (Pn + Pn.T)
+    Pn = symmetric(Pn)
     ok = math.isfinite(nis) and bool(np.isfinite(xn).all()) and bool(np.isfinite(Pn).all())
     return xn, Pn, nis, ok
 

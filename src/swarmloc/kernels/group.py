@@ -66,7 +66,7 @@ def predict(
         C = A + inc_cov
         if order == 2:
             C = C + (np.multiply.outer(A.ravel(), inc_cov.ravel()).ravel() @ convolution_F_tensor(SE2)).reshape(3, 3)
-        return mu @ inc_mean, 0.5 * (C + C.T)
+        return mu @ inc_mean, symmetric(C)
     Ad = group.Ad(group.inverse(inc_mean, validate=False), validate=False)
     A = Ad @ cov @ _T(Ad, -1, -2)
     C = A + inc_cov

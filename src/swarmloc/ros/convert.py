@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.events import Detection, Kind
+from swarmloc.gaussian import symmetric
 from swarmloc.kernels.group import absolute_to_pseudo
 from swarmloc.lie import SE2
 from swarmloc.net import ros as rosmsg
@@ -142,7 +143,7 @@ def detection_in(
     C = np.asarray(best.pose.covariance, dtype=float).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))]
     if not (np.all(np.isfinite(ps)) and np.all(np.isfinite(C))):
         raise Refused("bad_value", "non-finite detection pose or covariance")
-    C = 0.5 * (C + C.T)
+    C = symmetric(C)
     M = SE2.from_xytheta(np.asarray(mount, dtype=float))
     if C[2, 2] >= YAW_UNKNOWN:
         return _range_bearing(ps, C[:2, :2], M, t, observer, target, is_robot)
@@ -166,7 +167,7 @@ def _range_bearing(
     Cb = M[:2, :2] @ Cxy @ M[:2, :2].T
     J = np.array([[q[0] / r, q[1] / r], [-q[1] / r**2, q[0] / r**2]])
     cov = J @ Cb @ J.T
-    return Detection(observer, t, Kind.RANGE_BEARING, np.array([r, math.atan2(q[1], q[0])]), 0.5 * (cov + cov.T),
+    return Detection(observer, t, Kind.RANGE_BEARING, np.array([r, math.atan2(q[1], q[0])]), symmetric(cov),
                      target, is_robot)  # fmt: skip
 
 
@@ -215,7 +216,7 @@ def initialpose_in(msg: Any, robot: int, world_frame: str, now: float) -> Detect
     C = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))]
     if not (np.all(np.isfinite(z)) and np.all(np.isfinite(C)) and math.isfinite(t)):
         raise Refused("bad_value", "non-finite initial pose")
-    C = 0.5 * (C + C.T)
+    C = symmetric(C)
     if not np.all(np.linalg.eigvalsh(C) > 0):
         raise Refused("bad_covariance", "the initial pose's (x, y, yaw) covariance is not positive definite")
     return Detection(robot, float(t), Kind.ABSOLUTE, z, C, None, True)
