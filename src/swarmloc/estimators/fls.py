@@ -532,7 +532,6 @@ def delayed_covariances(blocks: FactorBlocks, win: Window, marginals: list[np.nd
 
 def _cartesian_cov(theta: float, cov: np.ndarray) -> np.ndarray:
     """A ``Pose2``-tangent (body-frame) covariance as a world-frame Cartesian ``(x, y, theta)`` one."""
-    c, s = math.cos(theta), math.sin(theta)
-    B = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    B = C.rot_block(theta)
     out: np.ndarray = B @ cov @ B.T
     return out

@@ -26,7 +26,7 @@ import numpy as np
 
 from swarmloc.arrays import FloatArray
 from swarmloc.gaussian import symmetric
-from swarmloc.lie import wrap_angle
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment, odometry_increment_terms
 
 _T = np.swapaxes
@@ -48,9 +48,8 @@ def increment(
     shape = new.shape[:-1]
     Phi = np.broadcast_to(np.eye(3), (*shape, 3, 3)).copy()
     Phi[..., 0, 2], Phi[..., 1, 2] = -dy, dx
-    cn, sn = np.cos(th), np.sin(th)
     B = np.broadcast_to(np.eye(3), (*shape, 3, 3)).copy()
-    B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1] = cn, -sn, sn, cn
+    B[..., :2, :2] = SE2.rotation(th)
     return new, Phi, B @ inc_cov @ _T(B, -1, -2)
 
 
@@ -333,9 +332,8 @@ def rot_block(theta: FloatArray | float) -> FloatArray:
     if theta.ndim == 0:
         c1, s1 = math.cos(theta), math.sin(theta)
         return np.array([[c1, -s1, 0.0], [s1, c1, 0.0], [0.0, 0.0, 1.0]])
-    c, s = np.cos(theta), np.sin(theta)
     B = np.broadcast_to(np.eye(3), (*theta.shape, 3, 3)).copy()
-    B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1] = c, -s, s, c
+    B[..., :2, :2] = SE2.rotation(theta)
     return B
 
 

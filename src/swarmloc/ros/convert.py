@@ -262,8 +262,7 @@ def detections_msg(t: float, dets: list[Detection], frame: str) -> Any:
         if d.kind != Kind.POSE or d.target is None:
             raise ValueError(f"detections_msg: identified 'pose' detections only, got {d.kind!r} of {d.target}")
         z = np.asarray(d.z, dtype=float)
-        c, s = np.cos(z[2]), np.sin(z[2])
-        Ti = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        Ti = SE2.from_xytheta(np.array([0.0, 0.0, z[2]]))
         cov6 = np.diag([0.0, 0.0, 1e6, 1e6, 1e6, 0.0])
         cov6[np.ix_((0, 1, 5), (0, 1, 5))] = Ti @ np.asarray(d.cov, dtype=float) @ Ti.T
         name = f"{'robot' if d.target_is_robot else 'landmark'}{int(d.target)}"
