@@ -311,8 +311,7 @@ def world_covariance(mean: object, cov: object) -> tuple[np.ndarray, np.ndarray]
     M = as_element(mean, 2, "world_covariance", "mean")
     S = as_square(cov, 3, "world_covariance", "cov")
     xyt = SE2.to_xytheta(M)
-    c, s = np.cos(xyt[..., 2]), np.sin(xyt[..., 2])
     J = np.zeros(np.broadcast_shapes(M.shape, S.shape))
-    J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1], J[..., 2, 2] = c, -s, s, c, 1.0
+    J[..., :2, :2], J[..., 2, 2] = SE2.rotation(xyt[..., 2]), 1.0
     C = J @ S @ np.swapaxes(J, -1, -2)
-    return xyt, 0.5 * (C + np.swapaxes(C, -1, -2))
+    return xyt, symmetric(C)

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarmloc.association.registration import compose_xyt, exp_xyt, invert_xyt, log_xyt
-from swarmloc.gaussian import GroupGaussian, check_covariance
+from swarmloc.gaussian import GroupGaussian, check_covariance, symmetric
 from swarmloc.lie import SE2, wrap_angle
 
 __all__ = ["BankEstimate", "ParticleFilterBank"]
@@ -280,5 +280,5 @@ class ParticleFilterBank:
                 break
         y = _log_rel(mu, q)
         C = np.einsum("n,ni,nj->ij", w, y, y)
-        C = (C + C.T) / 2 + np.eye(3) * 1e-12
+        C = symmetric(C) + np.eye(3) * 1e-12
         return mu, C

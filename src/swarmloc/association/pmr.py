@@ -49,7 +49,7 @@ from swarmloc.association.registration import (
     invert_xyt,
     visible,
 )
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.lie import SE2
 
 __all__ = [
@@ -114,7 +114,7 @@ def _chain(
     """``T_k C`` and its right-perturbation covariance ``Ad(C^-1) cov_k Ad(C^-1)^T + cov_C`` (independent)."""
     A = _ad(invert_xyt(rel))
     C = A @ cov_k @ A.T + cov_rel
-    return compose_xyt(pose_k, rel), (C + C.T) / 2
+    return compose_xyt(pose_k, rel), symmetric(C)
 
 
 def _relative(

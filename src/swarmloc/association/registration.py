@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from swarmloc.gaussian import symmetric
 from swarmloc.lie import SE2, wrap_angle
 
 __all__ = [
@@ -150,7 +151,7 @@ def xyt_cov_to_exp(pose: np.ndarray, cov_xyt: np.ndarray) -> np.ndarray:
     A = np.eye(3)
     A[:2, :2] = SE2.rotation(np.asarray(pose[2], float)).T
     C = A @ cov_xyt @ A.T
-    return (C + C.T) / 2
+    return symmetric(C)
 
 
 def _procrustes(pi: np.ndarray, pj: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:

@@ -28,7 +28,7 @@ from swarmloc.association.pfbank import BankEstimate, ParticleFilterBank
 from swarmloc.association.pmr import multiple_registration
 from swarmloc.association.registration import compose_xyt, invert_xyt, points_from_range_bearing
 from swarmloc.events import Detection, Event, Kind, Odometry
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment
 
@@ -289,12 +289,12 @@ def _new_information(cov: np.ndarray, prev: np.ndarray, motion: np.ndarray) -> n
     covariance was ``prev``, moved by the motion noise ``motion`` since); None when nothing was gained. Directions
     without gain get a variance 1e6 times the best one's."""
     info = np.linalg.inv(cov) - np.linalg.inv(prev + motion)
-    lam, V = np.linalg.eigh(0.5 * (info + info.T))
+    lam, V = np.linalg.eigh(symmetric(info))
     if lam[-1] <= 0:
         return None
     lam = np.maximum(lam, lam[-1] * 1e-6)
     out = (V / lam) @ V.T
-    return 0.5 * (out + out.T)
+    return symmetric(out)
 
 
 def lone_detections(events: Iterable[Event]) -> list[Detection]:
@@ -370,7 +370,7 @@ def bank_detections(
                     no_gain += 1
                     continue
                 cov = cov * inflate
-                cov = 0.5 * (cov + cov.T)
+                cov = symmetric(cov)
                 if not np.all(np.linalg.eigvalsh(cov) > 1e-12):
                     continue
                 z.setflags(write=False)

@@ -32,6 +32,7 @@ import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.events import Detection, Kind
+from swarmloc.gaussian import symmetric
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.lie import SE2, SE3
@@ -294,7 +295,7 @@ class TeamForm3:
         P[:, i : i + 6] = P[:, i : i + 6] @ F.T
         P[i : i + 6, i : i + 6] += G @ S @ G.T
         blk = P[i : i + 6, i : i + 6]
-        P[i : i + 6, i : i + 6] = 0.5 * (blk + blk.T)
+        P[i : i + 6, i : i + 6] = symmetric(blk)
         times = list(s.t)
         times[k] = t
         return Team3State(p, R, P, tuple(times), s.cmd)
@@ -331,7 +332,7 @@ class TeamForm3:
             H = np.hstack([Hi, Hk])
         else:  # a landmark: its map uncertainty joins the noise
             H, Rn = Hi, Rn + Hk @ Ck @ Hk.T
-        res = gated_kalman(np.zeros(6 * len(node.robots)), s.P, r, H, 0.5 * (Rn + Rn.T), node.gate, cols=cols,
+        res = gated_kalman(np.zeros(6 * len(node.robots)), s.P, r, H, symmetric(Rn), node.gate, cols=cols,
                            angles=())  # fmt: skip
         if isinstance(res[0], str):
             return s, res

@@ -22,7 +22,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 import numpy as np
 
 from swarmloc.events import Detection, Kind
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.lie import SE2, SE3
@@ -175,7 +175,7 @@ class CartesianForm3(CartesianForm):
             return ("rejected", lin)
         r, Hi, Hk, Rn = lin
         Rn = Rn + Hk @ Ck @ Hk.T
-        res = gated_kalman(np.zeros(6), P, r, Hi, 0.5 * (Rn + Rn.T), gate, angles=())
+        res = gated_kalman(np.zeros(6), P, r, Hi, symmetric(Rn), gate, angles=())
         if isinstance(res[0], str):
             return res
         dx, P = res

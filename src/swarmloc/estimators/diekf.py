@@ -84,7 +84,7 @@ from swarmloc.estimators.adaptive_noise import Innovation, NoiseScale, innovatio
 from swarmloc.estimators.dekf import DEGENERATE, FilterState
 from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.estimators.world_form import FORMS, TeamState, robot_pair, world_step
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.kernels.ci import W_BOUNDS, joint_weight
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Answer, BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate, flat
@@ -202,7 +202,7 @@ class TeamProtocol:
         Sigma = Sigma0 - np.einsum("aim,bjm->abij", G, Gam)
         Sigma = 0.5 * (Sigma + Sigma.transpose(1, 0, 3, 2))  # Sigma_ba = Sigma_ab^T, as P's symmetrization below
         P = P0 - G[me] @ Gam[me].T
-        P = 0.5 * (P + P.T)
+        P = symmetric(P)
         return TeamState(s.t, s.v, s.w, self.form.correct(s.x, Gam[me] @ nu), P, Sigma)
 
     # ------------------------------------------------------------------------------------------------ update
@@ -276,7 +276,7 @@ class TeamProtocol:
             Sinv = np.linalg.inv(S)
         except np.linalg.LinAlgError:
             return ("rejected", NUMERICAL)
-        Sinv = 0.5 * (Sinv + Sinv.T)
+        Sinv = symmetric(Sinv)
         nu = Sinv @ r
         verdict = gate.verdict(float(r @ nu), len(r))
         if verdict is not None:

@@ -30,7 +30,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol, cast
 import numpy as np
 
 from swarmloc.events import Kind
-from swarmloc.gaussian import GroupGaussian, convolution_F_tensor
+from swarmloc.gaussian import GroupGaussian, convolution_F_tensor, symmetric
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import BeliefAnswer, Message
@@ -183,7 +183,7 @@ class ExpNode(RobotNode):
         if c is None:
             return ExpState(s.t, v, w, s.mean, s.cov)
         C = c.reshape(3, 3)
-        return ExpState(t, v, w, mu, 0.5 * (C + C.T))
+        return ExpState(t, v, w, mu, symmetric(C))
 
     def _belief(self, s: ExpState, robot: int) -> GroupGaussian:
         return belief_of(s.mean, s.cov)

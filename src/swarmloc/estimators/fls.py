@@ -73,7 +73,7 @@ from scipy.sparse.linalg import splu
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.events import Detection, Kind
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels.ci import point_weight, pose_weight
 from swarmloc.lie import SE2, wrap_angle
@@ -526,13 +526,12 @@ def delayed_covariances(blocks: FactorBlocks, win: Window, marginals: list[np.nd
             continue
         w = a / (a + b)
         bound = marginal + La * (1 / w - 1) + Lb * (1 / (1 - w) - 1)
-        out.append(0.5 * (bound + bound.T))
+        out.append(symmetric(bound))
     return out
 
 
 def _cartesian_cov(theta: float, cov: np.ndarray) -> np.ndarray:
     """A ``Pose2``-tangent (body-frame) covariance as a world-frame Cartesian ``(x, y, theta)`` one."""
-    c, s = math.cos(theta), math.sin(theta)
-    B = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    B = C.rot_block(theta)
     out: np.ndarray = B @ cov @ B.T
     return out

@@ -35,7 +35,7 @@ import numpy as np
 from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.estimators.diekf import TeamProtocol
 from swarmloc.estimators.fls import Factor, OfSolver, Window, WindowSolver
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
@@ -82,7 +82,7 @@ def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu
         return None
     J = G.T @ np.linalg.inv(P0)
     Rp = S - J @ G
-    Rp = 0.5 * (Rp + Rp.T)
+    Rp = symmetric(Rp)
     try:
         C_ = np.linalg.cholesky(Rp)
     except np.linalg.LinAlgError:  # rounding: R' is a conditional covariance, at least the sensor's noise
@@ -203,7 +203,7 @@ class TeamFixedLagSmoother(RobotNode):
                 Sinv = np.linalg.inv(Hw @ new.P @ Hw.T + f.R)
             except np.linalg.LinAlgError:
                 return None
-            Sinv = 0.5 * (Sinv + Sinv.T)
+            Sinv = symmetric(Sinv)
             nu = Sinv @ r
             updates.append((Hw, Sinv, nu, new.P))
             new = self._team_update(new, self.robot, self.robot, Hw, np.zeros_like(Hw), Sinv, nu, new.P, new.P)

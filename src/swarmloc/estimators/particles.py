@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.gaussian import symmetric
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.node import usable_covariance
@@ -150,5 +151,5 @@ def fit_gaussian(particles: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray
         mu = step
     y = _log_rel(mu, particles)
     cov = (y * w[:, None]).T @ y
-    cov = 0.5 * (cov + cov.T) + COV_FLOOR * np.eye(3)
+    cov = symmetric(cov) + COV_FLOOR * np.eye(3)
     return SE2.from_xytheta(mu), cov

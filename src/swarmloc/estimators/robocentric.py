@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarmloc.lie import wrap_angle
+from swarmloc.lie import SE2, wrap_angle
 
 __all__ = [
     "JointRobocentricEKF",
@@ -35,14 +35,9 @@ __all__ = [
 ]
 
 
-def _rot(t: float) -> np.ndarray:
-    c, s = np.cos(t), np.sin(t)
-    return np.array([[c, -s], [s, c]])
-
-
 def compose(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``a b`` for planar poses ``(x, y, theta)``, with the Jacobians with respect to ``a`` and ``b``."""
-    R = _rot(a[2])
+    R = SE2.rotation(a[2])
     out = np.array([*(a[:2] + R @ b[:2]), wrap_angle(a[2] + b[2])])
     Ja = np.eye(3)
     Ja[:2, 2] = np.array([[0.0, -1.0], [1.0, 0.0]]) @ R @ b[:2]
@@ -53,7 +48,7 @@ def compose(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 def inverse(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``a^-1`` with its Jacobian."""
-    R = _rot(a[2])
+    R = SE2.rotation(a[2])
     p = -R.T @ a[:2]
     J = -np.eye(3)
     J[:2, :2] = -R.T
@@ -77,8 +72,8 @@ def _predict_one(
     q: np.ndarray, u1: np.ndarray, uj: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Slide 25's prediction of one ``q_j``: new state and Jacobians w.r.t. ``q_j``, ``u_1`` and ``u_j``."""
-    R1 = _rot(u1[2])
-    Rj = _rot(q[2])
+    R1 = SE2.rotation(u1[2])
+    Rj = SE2.rotation(q[2])
     d = q[:2] - u1[:2] + Rj @ uj[:2]
     p = R1.T @ d
     new = np.array([*p, wrap_angle(q[2] + uj[2] - u1[2])])

@@ -42,6 +42,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
 from swarmloc.estimators.network_rigidity import RigidityReport, localizability
+from swarmloc.gaussian import symmetric
 
 __all__ = [
     "NetworkSolution",
@@ -442,7 +443,7 @@ def localize_network(
     Jw = jac(res.x)
     _, s, Vt = np.linalg.svd(Jw, full_matrices=False)
     cov = (Vt.T / s**2) @ Vt
-    cov = 0.5 * (cov + cov.T)
+    cov = symmetric(cov)
     r = fun(res.x)
     return NetworkSolution(
         node_ids=free,

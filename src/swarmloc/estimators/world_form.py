@@ -10,6 +10,7 @@ import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
 from swarmloc.events import Kind
+from swarmloc.gaussian import symmetric
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.kernels import invariant as I
@@ -130,14 +131,14 @@ class WorldForm3(WorldForm):
         g = np.asarray(mean, dtype=float)
         A = SE3.Ad(g, validate=False)
         P = A @ np.asarray(cov, dtype=float) @ A.T
-        return g.copy(), 0.5 * (P + P.T)
+        return g.copy(), symmetric(P)
 
     def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
         inc, S = twist_increment(as_twist(v, w), dt, noise)
         g = x @ inc
         A = SE3.Ad(g, validate=False)
         P = P + A @ S @ A.T
-        return g, 0.5 * (P + P.T)
+        return g, symmetric(P)
 
     def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         A = SE3.Ad(SE3.inverse(x, validate=False), validate=False)
@@ -160,7 +161,7 @@ class WorldForm3(WorldForm):
             r, Hi_c, Hj_c, R = lin
             Hi, Hj = Hi_c @ C3.world_basis3(s.x), Hj_c @ C3.world_basis3(xj)
             S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
-        return r, Hi, Hj, 0.5 * (S + S.T), R
+        return r, Hi, Hj, symmetric(S), R
 
     def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple[Any, ...] | str:
         pl, Cl = target[1]
@@ -170,7 +171,7 @@ class WorldForm3(WorldForm):
         r, Hi_c, Hl, R = lin
         Hi = Hi_c @ C3.world_basis3(s.x)
         S = Hi @ s.P @ Hi.T + R + Hl @ Cl @ Hl.T
-        return r, Hi, 0.5 * (S + S.T), R
+        return r, Hi, symmetric(S), R
 
 
 FORMS: dict[type, WorldForm] = {SE2: WorldForm(), SE3: WorldForm3()}

@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from swarmloc.arrays import FloatArray
-from swarmloc.lie import wrap_angle
+from swarmloc.gaussian import symmetric
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment, odometry_increment_terms
 
 _T = np.swapaxes
@@ -47,9 +48,8 @@ def increment(
     shape = new.shape[:-1]
     Phi = np.broadcast_to(np.eye(3), (*shape, 3, 3)).copy()
     Phi[..., 0, 2], Phi[..., 1, 2] = -dy, dx
-    cn, sn = np.cos(th), np.sin(th)
     B = np.broadcast_to(np.eye(3), (*shape, 3, 3)).copy()
-    B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1] = cn, -sn, sn, cn
+    B[..., :2, :2] = SE2.rotation(th)
     return new, Phi, B @ inc_cov @ _T(B, -1, -2)
 
 
@@ -286,7 +286,7 @@ def _kalman_update_one(
             xn[j] = wrap_angle(xn[j]) if math.isfinite(xn[j]) else xn[j]
     IKH = np.eye(x.shape[0]) - K @ H
     Pn = IKH @ P @ IKH.T + K @ R @ K.T
-    Pn = 0.5 * (Pn + Pn.T)
+    Pn = symmetric(Pn)
     ok = np.array(math.isfinite(nis) and bool(np.isfinite(xn).all()) and bool(np.isfinite(Pn).all()))
     return xn, Pn, nis, ok
 
@@ -321,7 +321,7 @@ def kalman_update_blocks(
     with np.errstate(invalid="ignore"):
         xn[a] = wrap_angle(xn[a])
     Pn = P - K @ U.T - (U - K @ S) @ K.T
-    Pn = 0.5 * (Pn + Pn.T)
+    Pn = symmetric(Pn)
     ok = math.isfinite(nis) and bool(np.isfinite(xn).all()) and bool(np.isfinite(Pn).all())
     return xn, Pn, nis, ok
 
@@ -332,9 +332,8 @@ def rot_block(theta: FloatArray | float) -> FloatArray:
     if theta.ndim == 0:
         c1, s1 = math.cos(theta), math.sin(theta)
         return np.array([[c1, -s1, 0.0], [s1, c1, 0.0], [0.0, 0.0, 1.0]])
-    c, s = np.cos(theta), np.sin(theta)
     B = np.broadcast_to(np.eye(3), (*theta.shape, 3, 3)).copy()
-    B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1] = c, -s, s, c
+    B[..., :2, :2] = SE2.rotation(theta)
     return B
 
 

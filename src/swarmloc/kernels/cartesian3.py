@@ -26,6 +26,7 @@ import numpy as np
 
 from swarmloc.arrays import FloatArray
 from swarmloc.events import Kind
+from swarmloc.gaussian import symmetric
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import skew, so3_exp
 from swarmloc.motion.twist3 import TwistNoise, as_twist, twist_increment
@@ -172,4 +173,4 @@ def relative_pose3_world(
     r = SE3.log(gi @ pose3_matrix(z) @ SE3.inverse(gj, validate=False), validate=False)
     A = SE3.Ad(gj, validate=False)
     R = A @ np.asarray(cov, dtype=float) @ A.T
-    return r, -np.eye(6), np.eye(6), 0.5 * (R + R.T)
+    return r, -np.eye(6), np.eye(6), symmetric(R)

@@ -66,7 +66,7 @@ def predict(
         C = A + inc_cov
         if order == 2:
             C = C + (np.multiply.outer(A.ravel(), inc_cov.ravel()).ravel() @ convolution_F_tensor(SE2)).reshape(3, 3)
-        return mu @ inc_mean, 0.5 * (C + C.T)
+        return mu @ inc_mean, symmetric(C)
     Ad = group.Ad(group.inverse(inc_mean, validate=False), validate=False)
     A = Ad @ cov @ _T(Ad, -1, -2)
     C = A + inc_cov
@@ -142,9 +142,8 @@ def absolute_to_pseudo(xytheta: FloatArray, cov: FloatArray) -> tuple[FloatArray
     First order: ``W = T cov T^T`` with ``T = diag(R(theta)^T, 1)`` (the fix's frame).
     """
     xytheta = np.asarray(xytheta, dtype=float)
-    c, s = np.cos(xytheta[..., 2]), np.sin(xytheta[..., 2])
     T = np.broadcast_to(np.eye(3), (*xytheta.shape[:-1], 3, 3)).copy()
-    T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1] = c, s, -s, c
+    T[..., :2, :2] = _T(SE2.rotation(xytheta[..., 2]), -1, -2)
     return SE2.from_xytheta(xytheta), symmetric(T @ cov @ _T(T, -1, -2))
 
 

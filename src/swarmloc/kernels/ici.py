@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from swarmloc.arrays import FloatArray
+from swarmloc.gaussian import symmetric
 from swarmloc.kernels.ci import W_BOUNDS, minimize_on_grid
 from swarmloc.lie.base import SEGroup
 
@@ -43,7 +44,7 @@ def inverse_ci(
     b = group.log(group.inverse(mu, validate=False) @ nu, validate=False)
     Ji = group.right_jacobian_inv(b, validate=False)
     B = Ji @ W @ Ji.T
-    B = 0.5 * (B + B.T)
+    B = symmetric(B)
 
     def cost(w: FloatArray) -> FloatArray:
         sign, logdet = np.linalg.slogdet(_information(P, B, w)[0])
@@ -54,4 +55,4 @@ def inverse_ci(
     Y, Gi = _information(P, B, np.array(w))
     cov = np.linalg.inv(Y)
     x = cov @ ((np.linalg.inv(B) - (1.0 - w) * Gi) @ b)
-    return mu @ group.exp(x, validate=False), 0.5 * (cov + cov.T), w
+    return mu @ group.exp(x, validate=False), symmetric(cov), w

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.events import Detection, Kind, Odometry
+from swarmloc.gaussian import symmetric
 from swarmloc.net import ros
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.rosgraph import RosGraph
@@ -162,7 +163,7 @@ def decode_detection(payload: bytes, observer: int) -> Detection:
     cov = np.asarray(m.pose.covariance, dtype=float).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))].copy()
     if not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov))):
         raise Bad("bad_value", "non-finite detection")
-    if not (np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(0.5 * (cov + cov.T)) > 0)):
+    if not (np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(symmetric(cov)) > 0)):
         raise Bad("bad_covariance", "the (x, y, yaw) covariance is not symmetric positive definite")
     return Detection(observer, _stamp(m), Kind.POSE, z, cov, int(hit.group(2)), hit.group(1) == "robot")
 

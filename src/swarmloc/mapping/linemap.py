@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from swarmloc.gaussian import symmetric
 from swarmloc.lie import wrap_angle
 
 __all__ = ["LineMap", "LineObservation", "MapLine"]
@@ -214,7 +215,7 @@ class LineMap:
         Im, Io = np.linalg.inv(line.cov), np.linalg.inv(cov)
         C = np.linalg.inv(Im + Io)
         x = C @ (Im @ np.array([line.rho, line.alpha]) + Io @ x_obs)
-        C = 0.5 * (C + C.T)
+        C = symmetric(C)
         if x[0] >= 0:
             line.rho, line.alpha, line.cov = float(x[0]), wrap_angle(float(x[1])), C
         else:

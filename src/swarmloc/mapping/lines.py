@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarmloc.gaussian import symmetric
+
 __all__ = ["LineFit", "extract_lines", "fit_line", "split_and_merge"]
 
 
@@ -90,7 +92,7 @@ def fit_line(r: np.ndarray, phi: np.ndarray, sigma_r: float, sigma_phi: float = 
     )
     C = np.einsum("nij,njk,nlk->il", J, Cp, J)
     ends = rho * n + np.outer(tp[[0, -1]], t)
-    return LineFit(rho, alpha, 0.5 * (C + C.T), ends, N)
+    return LineFit(rho, alpha, symmetric(C), ends, N)
 
 
 def _split(p: np.ndarray, lo: int, hi: int, tol: float, out: list[tuple[int, int]]) -> None:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarmloc.gaussian import convolve_moments
+from swarmloc.gaussian import convolve_moments, symmetric
 from swarmloc.lie import SE2, wrap_angle
 
 __all__ = ["line_to_world"]
@@ -62,7 +62,7 @@ def line_to_world(
         L = np.zeros((*rho0.shape, 2, 3))
         L[..., 0, 0], L[..., 0, 2], L[..., 1, 2] = sign, sign * s, 1.0
         Cw = L @ Z @ np.swapaxes(L, -1, -2)
-        return np.abs(rho0), alpha_w, 0.5 * (Cw + np.swapaxes(Cw, -1, -2))
+        return np.abs(rho0), alpha_w, symmetric(Cw)
     # order 2: moments of the exact map zeta -> (rho, alpha) under zeta ~ N(0, Z), by Gauss-Hermite quadrature
     nodes, weights = _quadrature()
     val, vec = np.linalg.eigh(Z)
@@ -74,7 +74,7 @@ def line_to_world(
     rm = r @ weights
     d = np.stack([r - rm[..., None], z3], axis=-1)  # (..., Q, 2)
     Cw = np.einsum("...qi,q,...qj->...ij", d, weights, d)
-    return rm, alpha_w, 0.5 * (Cw + np.swapaxes(Cw, -1, -2))
+    return rm, alpha_w, symmetric(Cw)
 
 
 _GH: tuple[np.ndarray, np.ndarray] | None = None

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.events import Detection, Kind
+from swarmloc.gaussian import symmetric
 from swarmloc.kernels.group import absolute_to_pseudo
 from swarmloc.lie import SE2
 from swarmloc.net import ros as rosmsg
@@ -142,7 +143,7 @@ def detection_in(
     C = np.asarray(best.pose.covariance, dtype=float).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))]
     if not (np.all(np.isfinite(ps)) and np.all(np.isfinite(C))):
         raise Refused("bad_value", "non-finite detection pose or covariance")
-    C = 0.5 * (C + C.T)
+    C = symmetric(C)
     M = SE2.from_xytheta(np.asarray(mount, dtype=float))
     if C[2, 2] >= YAW_UNKNOWN:
         return _range_bearing(ps, C[:2, :2], M, t, observer, target, is_robot)
@@ -166,7 +167,7 @@ def _range_bearing(
     Cb = M[:2, :2] @ Cxy @ M[:2, :2].T
     J = np.array([[q[0] / r, q[1] / r], [-q[1] / r**2, q[0] / r**2]])
     cov = J @ Cb @ J.T
-    return Detection(observer, t, Kind.RANGE_BEARING, np.array([r, math.atan2(q[1], q[0])]), 0.5 * (cov + cov.T),
+    return Detection(observer, t, Kind.RANGE_BEARING, np.array([r, math.atan2(q[1], q[0])]), symmetric(cov),
                      target, is_robot)  # fmt: skip
 
 
@@ -215,7 +216,7 @@ def initialpose_in(msg: Any, robot: int, world_frame: str, now: float) -> Detect
     C = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))]
     if not (np.all(np.isfinite(z)) and np.all(np.isfinite(C)) and math.isfinite(t)):
         raise Refused("bad_value", "non-finite initial pose")
-    C = 0.5 * (C + C.T)
+    C = symmetric(C)
     if not np.all(np.linalg.eigvalsh(C) > 0):
         raise Refused("bad_covariance", "the initial pose's (x, y, yaw) covariance is not positive definite")
     return Detection(robot, float(t), Kind.ABSOLUTE, z, C, None, True)
@@ -261,8 +262,7 @@ def detections_msg(t: float, dets: list[Detection], frame: str) -> Any:
         if d.kind != Kind.POSE or d.target is None:
             raise ValueError(f"detections_msg: identified 'pose' detections only, got {d.kind!r} of {d.target}")
         z = np.asarray(d.z, dtype=float)
-        c, s = np.cos(z[2]), np.sin(z[2])
-        Ti = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        Ti = SE2.from_xytheta(np.array([0.0, 0.0, z[2]]))
         cov6 = np.diag([0.0, 0.0, 1e6, 1e6, 1e6, 0.0])
         cov6[np.ix_((0, 1, 5), (0, 1, 5))] = Ti @ np.asarray(d.cov, dtype=float) @ Ti.T
         name = f"{'robot' if d.target_is_robot else 'landmark'}{int(d.target)}"

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.lie import SE2
 from swarmloc.net.feed import LiveFeed
 from swarmloc.ros import convert as cv
@@ -54,7 +54,7 @@ def initial_belief(p: RosParams, given: tuple[np.ndarray, np.ndarray] | None = N
         c = np.asarray(p.initial_covariance, dtype=float)
         given = (np.asarray(p.initial_state, dtype=float), np.diag(c) if c.size == 3 else c.reshape(3, 3))
     xyt, C = given
-    mean, cov = absolute_to_pseudo(xyt, 0.5 * (C + C.T))
+    mean, cov = absolute_to_pseudo(xyt, symmetric(C))
     return GroupGaussian(SE2, mean, cov)
 
 
