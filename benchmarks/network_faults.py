@@ -7,6 +7,10 @@ simulated team (``sim:random``, seed 0), with message loss x delay (plus duplica
 delayed), then half the messages duplicated, a node killed and restarted from the belief server, killed and not
 restarted, a late joiner, one robot's clock jumping 30 s ahead and 30 s back a third of the way in, and the launcher
 itself SIGKILLed. The first row (no faults) is the baseline.
+The teams run as fast as they can (``speed`` 0), but for the faults that start a process during the run (``kill``'s
+restart, ``late``): at speed 0 the team reads its 30 s source in about a second, before that process is up (a
+node's start takes longer), so it ran alone, saw no teammate and exited 3; those rows run at ``--joiner-speed``
+(default 1: the source read in real time, the joiner up well before the team ends).
 Counts are summed over the nodes' reports: ``lost``/``dup`` injected, ``dropped`` messages rejected on receipt
 (stale, duplicate, outdated update, malformed), ``replayed`` history entries re-applied because of late input,
 ``no reply`` queries that timed out (asked of the server or answered "not found"). NaN: any non-finite belief.
@@ -52,11 +56,12 @@ def team_pids(team: str) -> list[int]:
     return out
 
 
-def row(src, spec: str, est: str, faults: str, robots: int, duration: float, waits: dict[str, float]) -> dict:
+def row(src, spec: str, est: str, faults: str, robots: int, duration: float, waits: dict[str, float],
+        speed: float = 0.0) -> dict:  # fmt: skip
     t = time.perf_counter()
     team = f"faults{os.getpid()}"
     tr = run_team(src=src, source=spec, robots=robots, duration=duration, estimator=est, faults=faults,
-                  max_wall=600, team=team, **waits)  # fmt: skip
+                  max_wall=600, team=team, speed=speed, **waits)  # fmt: skip
     res = team_result(tr, src, est)
     ev = evaluate(res)
     s = res.stats
@@ -80,7 +85,7 @@ def row(src, spec: str, est: str, faults: str, robots: int, duration: float, wai
     if f.kill is not None and not f.restart:
         note.append(f"reports from robots {sorted(tr.reports)}")
     return {
-        "faults": faults or "none",
+        "faults": (faults or "none") + (f" (speed {speed:g})" if speed else ""),
         "pos_rmse": f"{ev['team']['pos_rmse']:.3f}",
         "anees": f"{ev['team']['anees']:.2f}",
         "fused": s["fused"],
@@ -144,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--answer-timeout", type=float, default=0.5, help="seconds a node waits for a reply to a query")
     ap.add_argument("--hold-timeout", type=float, default=0.25, help="seconds a node holds a query to let it settle")
     ap.add_argument("--update-timeout", type=float, default=0.5, help="seconds a node waits for an rdl update")
+    ap.add_argument("--joiner-speed", type=float, default=1.0,
+                    help="speed of the rows whose faults start a process mid-run (kill's restart, late)")  # fmt: skip
     ap.add_argument("--out", default=None, help="also write the Markdown table here")
     a = ap.parse_args(argv)
     spec = "sim:random"
@@ -155,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     waits = {"answer_timeout": a.answer_timeout, "hold_timeout": a.hold_timeout, "update_timeout": a.update_timeout}
     rows = []
     for f in specs:
-        rows.append(row(src, spec, a.estimator, f, a.robots, a.duration, waits))
+        speed = a.joiner_speed if parse_faults(f).joiner is not None else 0.0
+        rows.append(row(src, spec, a.estimator, f, a.robots, a.duration, waits, speed))
         print(f"{rows[-1]['faults']:<40} rmse {rows[-1]['pos_rmse']} anees {rows[-1]['anees']} "
               f"({rows[-1]['wall_s']:.0f} s)", file=sys.stderr)  # fmt: skip
     rows.append(launcher_killed_row(spec, a.estimator, a.robots, a.duration, after=5.0))

@@ -42,6 +42,8 @@ def test_kill_without_restart_and_clock_jump_specs():
     assert f.kill == (1, 10.0) and not f.restart and f.jump == (2, 5.0, -30.0)
     assert parse_faults(f.to_spec()) == f and parse_faults("kill=1@10").restart
     assert f.node_faults() == Faults(jump=(2, 5.0, -30.0))  # the node applies the jump; the launcher the kill
+    # the robot whose process starts during the run: a restarted or late one, not one killed for good
+    assert f.joiner is None and parse_faults("kill=1@10").joiner == 1 and parse_faults("late=2@5,loss=0.1").joiner == 2
     for bad in ("kill=1@2,killonly=1@3", "jump=1@10", "jump=1@10:0", "jump=1@10:x", "jump=1@10:4000"):
         with pytest.raises(ValueError, match="faults"):
             parse_faults(bad)

@@ -336,6 +336,35 @@ def test_a_lone_node_says_whom_it_waits_for_and_fails_when_no_teammate_ever_answ
     assert "no teammate ever answered: none of robots [1, 2] was seen" in p.stderr
 
 
+@pytest.mark.parametrize("wait_for", [None, "1", "none"])
+def test_a_node_that_saw_no_teammate_says_what_it_waited_for(wait_for, capsys):
+    """The exit-3 message says what the node waited for at its start. A joiner (``--wait-for none``: ``swarmloc
+    team`` starts a late or restarted robot so) waited for nobody and may have come up after its team ended (at
+    ``--speed 0`` the fault table's team read its 30 s source in ~1 s, before the joiner's process was up). Before,
+    every node said it had "waited 30 s at the start", a joiner too, and to check --connect and --team only."""
+    from argparse import Namespace
+    from types import SimpleNamespace
+
+    from swarmloc.cli.commands.node import _node_summary
+    from swarmloc.net.schema import Report
+
+    stats = {"detections": 5, "fused": 0, "gated": 0, "rejected": 0, "unknown": 5}
+    report = Report(robot=2, stats=stats, net={"teammates_seen": 0})
+    args = Namespace(robot=2, wait_for=wait_for, start_timeout=30.0)
+    assert _node_summary(args, SimpleNamespace(robots=[0, 1, 2]), report) == 3
+    err = capsys.readouterr().err
+    assert "no teammate ever answered: none of robots [0, 1] was seen" in err
+    if wait_for == "none":
+        assert "waited for nobody at the start (--wait-for none)" in err and "30 s" not in err
+        assert "may have come up after the team ended" in err
+    else:
+        whom = "its teammates" if wait_for is None else "robots [1]"
+        assert f"waited up to 30 s for {whom} at the start (--start-timeout)" in err
+    assert "check --connect and --team" in err
+    seen = Report(robot=2, stats=stats, net={"teammates_seen": 1})
+    assert _node_summary(args, SimpleNamespace(robots=[0, 1, 2]), seen) == 0
+
+
 def node_pids(team: str, robot: int | None = None) -> list[int]:
     """Pids of the ``swarmloc node`` processes of ``team`` (of robot ``robot`` only, if given)."""
     out = []

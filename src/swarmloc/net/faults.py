@@ -60,6 +60,14 @@ class Faults:
         """True when any link fault is on."""
         return bool(self.loss or self.delay or self.reorder or self.dup)
 
+    @property
+    def joiner(self) -> int | None:
+        """The robot whose process the launcher starts during the run (``late``'s, or ``kill``'s restarted), or None:
+        it joins only if the team is still running once it is up."""
+        if self.late is not None:
+            return self.late[0]
+        return self.kill[0] if self.kill is not None and self.restart else None
+
     def to_spec(self) -> str:
         parts = [f"{k}={getattr(self, k):g}" for k in ("loss", "delay", "reorder", "dup") if getattr(self, k)]
         for k in ("kill", "late"):

@@ -175,6 +175,10 @@ def launch_team(
     for what, robot in (("late", f.late), ("killed", f.kill)):
         if robot is not None and robot[0] not in src.robots:
             raise ValueError(f"faults: {what} robot {robot[0]} is not in the team {src.robots}")
+    if f.joiner is not None and speed == 0:
+        log.warning("team: robot %d's process starts during the run (--faults %s), but at --speed 0 the team may read "
+                    "its sources before it is up: it then runs alone and exits 3 (--speed 1: in real time)",
+                    f.joiner, f.to_spec())  # fmt: skip
     node_args = node_arguments(
         source=src.spec if source is None else source, estimator=estimator, robots=robots, duration=duration,
         seed=seed, config_file=config_file, speed=speed, lag=lag, use_server=server, faults=f,

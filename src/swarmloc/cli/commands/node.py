@@ -95,11 +95,24 @@ def _node_summary(args: argparse.Namespace, src: Any, report: Any) -> int:
           f"{report.wall_s:.1f} s")  # fmt: skip
     others = sorted(set(src.robots) - {args.robot})
     if others and report.net.get("teammates_seen") == 0:  # the node counted them: it saw none
+        waited, hint = _start_wait(args)
         print(f"swarmloc node: robot {args.robot}: no teammate ever answered: none of robots {others} was seen "
-              f"(waited {args.start_timeout:g} s at the start, then ran alone; {s['unknown']} detections unknown); "
-              "check --connect and --team", file=sys.stderr)  # fmt: skip
+              f"({waited}, then ran alone; {s['unknown']} detections unknown); {hint}", file=sys.stderr)  # fmt: skip
         return 3
     return 0
+
+
+def _start_wait(args: argparse.Namespace) -> tuple[str, str]:
+    """What a node that saw no teammate waited for at its start, and what to check. A joiner (``--wait-for none``,
+    as ``swarmloc team`` starts a late or restarted robot) waits for nobody: it may have come up after its team
+    ended (at ``--speed 0`` a team reads a short source in about a second)."""
+    wait_for = ids(args.wait_for)
+    check = "check --connect and --team"
+    if wait_for == []:
+        return "it waited for nobody at the start (--wait-for none)", \
+            f"joining a running team, it may have come up after the team ended; else {check}"  # fmt: skip
+    whom = "its teammates" if wait_for is None else f"robots {wait_for}"
+    return f"it waited up to {args.start_timeout:g} s for {whom} at the start (--start-timeout)", check
 
 
 def _node_view(args: argparse.Namespace, src: Any, live: bool) -> Any:
