@@ -7,7 +7,6 @@ The event format is :mod:`swarmloc.datasets.eventfile`; ground truth, optional, 
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import re
 from collections.abc import Sequence
@@ -15,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarmloc.config import DEFAULTS, Config, MotionConfig
+from swarmloc.config import DEFAULTS, Config
 from swarmloc.datasets.eventfile import EventFile, EventFileError, load_events, load_truth_dir
 from swarmloc.datasets.eventwrite import write_events
 from swarmloc.datasets.tum import interpolate, write_tum
@@ -25,7 +24,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.runner import TruthFn
 from swarmloc.sim import RelativeSensor, random_team
-from swarmloc.sim.source import prior_starts
+from swarmloc.sim.source import sim_source
 
 __all__ = ["evaluate_event_file", "load_event_source", "simulate_to_files"]
 
@@ -143,18 +142,18 @@ def simulate_to_files(
 ) -> dict[str, Path]:
     """Simulate a random team (:func:`swarmloc.sim.random_team`, relative-pose sensor) and write it as your own
     robots' data would be: ``events.csv`` (or ``.jsonl``) with initial beliefs, ``truth_robot<N>.tum`` and a
-    ``config.toml`` holding the simulation's process noise. The initial beliefs are ``sim:random``'s
-    (:func:`~swarmloc.sim.source.prior_starts` with ``config.initial``'s covariance: the truth a sample of each
-    prior), so the files evaluate as ``sim:random`` of the same seed does. Returns the paths written."""
+    ``config.toml`` holding the simulation's process noise. Events, initial beliefs (drawn about the true starts:
+    the truth a sample of each prior) and configuration are :func:`~swarmloc.sim.source.sim_source`'s, so the files
+    evaluate as ``sim:random`` of the same seed does. Returns the paths written."""
     if fmt not in ("csv", "jsonl"):
         raise ValueError(f"simulate_to_files: fmt must be 'csv' or 'jsonl', got {fmt!r}")
     sim = random_team(robots, duration, seed=seed, area=3.0, sensor=RelativeSensor(rate=5.0))
+    src = sim_source(sim, "sim:random")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    events = [e for e in sim.events if isinstance(e, Odometry | Detection)]
-    config = dataclasses.replace(DEFAULTS, motion=MotionConfig.from_noise(sim.unicycle_noise()))
-    cov = config.initial.cov()
-    initial = {r: (SE2.to_xytheta(g), cov) for r, g in prior_starts(sim, cov).items()}
+    events = [e for e in src.events if isinstance(e, Odometry | Detection)]  # a Source may hold Truth too
+    config = src.config
+    initial = {r: (SE2.to_xytheta(b.mean), b.cov) for r, b in src.initial.items()}
     paths = {"events": write_events(out / f"events.{fmt}", events, initial=initial,
                                     initial_times=dict.fromkeys(sim.initial_poses, 0.0))}  # fmt: skip
     for j, r in enumerate(sim.robot_ids):
