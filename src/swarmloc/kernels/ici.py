@@ -26,12 +26,12 @@ from swarmloc.kernels.ci import W_BOUNDS, minimize_on_grid
 from swarmloc.lie.base import SEGroup
 
 
-def _information(P: FloatArray, B: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _information(Y0: FloatArray, P: FloatArray, B: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray]:
     """ICI's fused information ``Y (..., d, d)`` and ``Gamma^-1`` for weights ``w (...)`` (broadcast over the
-    leading axes of ``P`` and ``B``)."""
+    leading axes of ``P`` and ``B``), given the information of both as if independent, ``Y0 = P^-1 + B^-1``."""
     wc = np.asarray(w, dtype=float)[..., None, None]
     Gi: FloatArray = np.asarray(np.linalg.inv(wc * P + (1.0 - wc) * B), dtype=float)
-    Y: FloatArray = np.asarray(np.linalg.inv(P) + np.linalg.inv(B) - Gi, dtype=float)
+    Y: FloatArray = np.asarray(Y0 - Gi, dtype=float)
     return Y, Gi
 
 
@@ -45,14 +45,16 @@ def inverse_ci(
     Ji = group.right_jacobian_inv(b, validate=False)
     B = Ji @ W @ Ji.T
     B = symmetric(B)
+    Bi = np.linalg.inv(B)
+    Y0 = np.linalg.inv(P) + Bi  # once, not at each of the weight search's evaluations
 
     def cost(w: FloatArray) -> FloatArray:
-        sign, logdet = np.linalg.slogdet(_information(P, B, w)[0])
+        sign, logdet = np.linalg.slogdet(_information(Y0, P, B, w)[0])
         out: FloatArray = np.where(sign > 0, -logdet, np.inf)
         return out
 
     w = float(minimize_on_grid(cost, (), W_BOUNDS))
-    Y, Gi = _information(P, B, np.array(w))
+    Y, Gi = _information(Y0, P, B, np.array(w))
     cov = np.linalg.inv(Y)
-    x = cov @ ((np.linalg.inv(B) - (1.0 - w) * Gi) @ b)
+    x = cov @ ((Bi - (1.0 - w) * Gi) @ b)
     return mu @ group.exp(x, validate=False), symmetric(cov), w
