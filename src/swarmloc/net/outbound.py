@@ -195,11 +195,11 @@ class Outbound:
             return
         if m.receiver in self.lockstep.lost and not via_server:
             self.counts["asked_lost"] += 1
-            if self.settings.use_server:
+            if self.server_answers(m):
                 self.ask(m, via_server=True)
             else:
                 why = self.lockstep.lost_why.get(m.receiver, "declared lost")
-                self.feed_local(kind, m, f"robot {m.receiver} is lost ({why})")
+                self.feed_local(kind, m, f"robot {m.receiver} is lost ({why}){self.no_server_for(m)}")
             return
         qid = next(self._qids)
         self.outstanding[qid] = (m, "server" if via_server else "robot", False)
@@ -263,7 +263,7 @@ class Outbound:
         if answered:
             return
         self.counts["no_reply"] += 1
-        if via == "robot" and self.settings.use_server:
+        if via == "robot" and self.server_answers(m):
             self.ask(m, via_server=True, again=again, first=first)
             return
         if self.ask_again(m, again + 1, first):  # the node waits on: lockstep holds its group
@@ -271,7 +271,22 @@ class Outbound:
         kind = BeliefAnswer if isinstance(m, BeliefQuery) else RdlState
         who = "robot or server" if via == "server" else "robot"
         asks = f" ({again + 1} asks)" if again else ""
-        self.feed_local(kind, m, f"no answer from the {who} within {self.settings.answer_timeout:g} s{asks}")
+        self.feed_local(
+            kind, m, f"no answer from the {who} within {self.settings.answer_timeout:g} s{asks}{self.no_server_for(m)}"
+        )
+
+    def server_answers(self, m: Message) -> bool:
+        """Whether query ``m`` goes to the belief server when its robot cannot answer: with ``use_server``, a
+        :class:`BeliefQuery` only. The server stores each robot's Gaussian, not the pairwise factors ``sigma_ji``
+        of an :class:`RdlStateQuery` that only robot ``j`` holds (it refuses one), so asking it would cost a
+        round trip for a certain refusal."""
+        return self.settings.use_server and isinstance(m, BeliefQuery)
+
+    def no_server_for(self, m: Message) -> str:
+        """The reason's tail when a query the server cannot answer was not asked of it (empty otherwise)."""
+        if self.settings.use_server and not isinstance(m, BeliefQuery):
+            return f"; not asked of the belief server, which does not answer {type(m).__name__}"
+        return ""
 
     def ask_again(self, m: Message, again: int, first: float) -> bool:
         """Ask query ``m``, asked ``again`` times already (the first at monotonic time ``first``) and unanswered each

@@ -28,7 +28,8 @@ Groups are thus applied across the team in key order, as :func:`swarmloc.runner.
 is the final one, and the networked run equals the in-process run on the same events (tested to 1e-6; measured: equal).
 
 **Missing answers.** A query that gets no valid reply within ``answer_timeout`` s is asked of the belief server
-(with ``use_server``, which gets ``answer_timeout`` s too), then of its robot again while the robot is alive and the
+(with ``use_server``, a belief query only: the server holds no pair factors of an ``RdlStateQuery``; it gets
+``answer_timeout`` s too), then of its robot again while the robot is alive and the
 stamp within the horizon: ``answer_retries`` times, and more while less than ``lost_timeout`` s have passed since
 the first ask (a Zenoh get drops a reply that comes after its timeout, so an answer held or stalled past
 ``answer_timeout`` would be lost); the detection group waits meanwhile, as lockstep holds it. Only when no ask is

@@ -41,7 +41,8 @@ class NetSettings:
     """How many more times it asks a query that went unanswered (while its robot is alive), more while within
     ``lost_timeout`` s of the first ask (0 to 100)."""
     use_server: bool = False
-    """Ask the belief server when a neighbour does not answer (and wait for it at the start)."""
+    """Ask the belief server a belief query a neighbour does not answer (and wait for it at the start); an
+    ``RdlStateQuery`` is never asked of it (the server holds no pair factors)."""
     faults: Faults | None = None
     """Link faults on the messages this node sends (:mod:`swarmloc.net.faults`)."""
     wait_for: frozenset[int] | None = None
