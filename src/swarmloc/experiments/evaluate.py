@@ -181,7 +181,8 @@ def recommended_lines(report: Mapping[str, Any]) -> list[str]:
             how = f"{sc['folds']} landmark folds held out in turn" if sc["folds"] else "landmarks not fused"
             verdict = (
                 f"no ground truth; held-out landmark NIS ratio {value:.2f} (median NIS / 1.386 over {sc['readings']} "
-                f"readings never fused, {how}, {sc['duration_s']:.0f} s): {verdict}"
+                f"readings never fused, {how}, {sc['duration_s']:.0f} s from a truth-free start "
+                f"{sc['t0_s']:.0f} s in): {verdict}"
             )
     rmse = "" if rec["pos_rmse"] is None else f" team pos RMSE {rec['pos_rmse']:.3f} m,"
     return ["", f"{head}:{rmse} {verdict}."]
