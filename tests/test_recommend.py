@@ -39,6 +39,7 @@ def test_band_verdict_is_inclusive_and_nan_is_out():
         (_report(None), {**SCORE, "nis_ratio": 0.96, "folds": 0}, "in band",
          "landmarks not fused, 98 s from a truth-free start 102 s in): in band [0.5, 2]."),
         (_report(None), "no ground truth", None, "no consistency verdict: no ground truth."),
+        (_report({"n": 0}), SCORE, None, "no consistency verdict: nothing recorded to score against the truth."),
         (_report({"pos_rmse": 0.1, "anees": 1.0}, "dekf"), SCORE, None, "not among the estimators run"),
     ],
 )  # fmt: skip

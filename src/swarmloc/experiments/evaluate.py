@@ -151,6 +151,8 @@ def recommended(report: Mapping[str, Any], score: Mapping[str, Any] | str = "no 
         entry["why"] = "not among the estimators run"
     elif team and "anees" in team:
         entry.update(pos_rmse=team["pos_rmse"], basis="truth", value=team["anees"], verdict=band_verdict(team["anees"]))
+    elif team is not None:
+        entry["why"] = "nothing recorded to score against the truth"
     elif isinstance(score, str):
         entry["why"] = score
     else:
