@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from swarmloc.evaluation.heldout import RECORD_LEAD, landmark_folds, landmark_nis, nis_summary
 from swarmloc.events import Detection
 from swarmloc.lie import SE2
-from swarmloc.studies.lodo import RECORD_LEAD, landmark_folds, landmark_nis, nis_summary
 
 pytestmark = pytest.mark.data
 
@@ -104,6 +104,7 @@ def test_filter_scores_calibrate_the_yaw_diffusion_without_the_scored_span_or_th
     """``calibrate_yaw``: the run with every landmark uses the scale fitted outside the scored span, each fold's run
     the scale fitted without that fold's readings; the scales reach the filters (the score moves) and landmarks
     off is left as it is (nothing to calibrate from that the score does not use)."""
+    import swarmloc.experiments.truthfree as truthfree_module
     import swarmloc.studies.lodo as lodo_module
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam
@@ -120,7 +121,8 @@ def test_filter_scores_calibrate_the_yaw_diffusion_without_the_scored_span_or_th
             seen.append(config.motion.q_w2)
         return options(name, config, *a)
 
-    monkeypatch.setattr(lodo_module, "node_options", record)
+    monkeypatch.setattr(lodo_module, "node_options", record)  # the run with every landmark
+    monkeypatch.setattr(truthfree_module, "node_options", record)  # the folds' runs
     res = filter_scores(data, model, ["rdl"], True, 40.0, holdout=3, calibrate_yaw=True)
     row = res["rdl"]
     t0 = data.t_start + res["_span"]["t0"]

@@ -67,7 +67,8 @@ import numpy as np
 from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.events import Event
-from swarmloc.experiments.evaluate import ALL, evaluate_stream, markdown_table, write_report
+from swarmloc.experiments.evaluate import ALL, RECOMMENDED, evaluate_stream, markdown_table, recommended, write_report
+from swarmloc.experiments.truthfree import truth_free_score
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
@@ -280,9 +281,26 @@ def evaluate_mrclam(
         **({"yaw_calibration": yaw} if yaw else {}),
         **report,
     }
+    if not data.has_truth and RECOMMENDED in report["estimators"]:
+        report["recommended"] = recommended(report, recommended_score(data, events, camera, config, landmarks, t_end))
     if out_dir is not None:
         write_report(out_dir, "mrclam", report, results, data.t_start)
     return report
+
+
+def recommended_score(
+    data: MRCLAMData, events: Sequence[Event], camera: CameraModel, config: Config, landmarks: bool, t_end: float
+) -> dict[str, Any] | str:
+    """The truth-free score of :data:`~swarmloc.experiments.evaluate.RECOMMENDED` on ``data`` up to ``t_end`` [s]
+    (:func:`~swarmloc.experiments.truthfree.truth_free_score` on the evaluation's ``events`` and ``config``, the
+    readings' noise ``camera``'s std), or why there is none."""
+    if config.filter.association != "tags":
+        return f"association {config.filter.association}: the truth-free score runs tagged detections"
+    try:
+        return truth_free_score(data, detection_set(data), events, RECOMMENDED, config,
+                                (camera.range.std, camera.bearing.std), landmarks, t_end)  # fmt: skip
+    except ValueError as exc:  # no truth-free start
+        return str(exc)
 
 
 def _subjects(data: MRCLAMData, t_end: float, landmarks: bool) -> dict[str, Any]:

@@ -43,7 +43,7 @@ import dataclasses
 import functools
 import math
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -52,11 +52,11 @@ import numpy as np
 from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
+from swarmloc.evaluation.heldout import landmark_folds, nis_summary, reading_times, tracks_nis
 from swarmloc.evaluation.metrics import evaluate
-from swarmloc.events import Detection, Odometry
+from swarmloc.events import Detection
 from swarmloc.experiments.mrclam import detection_set, yaw_calibration
-from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2, wrap_angle
+from swarmloc.experiments.truthfree import heldout_runs, initial_from_snapshots, landmark_readings
 from swarmloc.motion.calibrate import scale_yaw
 from swarmloc.runner import run
 from swarmloc.runner.fanout import fan_out
@@ -70,7 +70,6 @@ from swarmloc.sensors.decorrelate import (
     decorrelate,
     heldout_residuals,
     heldout_score,
-    snapshot_poses,
 )
 
 if TYPE_CHECKING:
@@ -81,11 +80,8 @@ __all__ = [
     "DATASETS",
     "detection_set",
     "filter_scores",
-    "landmark_folds",
-    "landmark_nis",
     "lodo",
     "lodo_markdown",
-    "nis_summary",
     "own_std",
     "yaw_calibration",
 ]
@@ -93,9 +89,6 @@ __all__ = [
 DATASETS: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 9)
 CUTS: tuple[float, ...] = (2.5, 3.0, 4.0)
 """Candidate inlier cuts of the pooled variance components (the regularisation chosen by the held-out score)."""
-GATE_2DOF = 11.618  # chi-square 0.997 quantile, 2 dof
-MEDIAN_CHI2_2 = 1.386294  # 2 ln 2
-RECORD_LEAD = 1e-6  # [s] beliefs are recorded this long before each landmark reading
 
 
 def white_model(model: CameraModel) -> CameraModel:
@@ -145,99 +138,6 @@ def _consts(m: CameraModel) -> dict[str, float]:
     }  # fmt: skip
 
 
-def initial_from_snapshots(
-    data: MRCLAMData, ds: DetectionSet, config: Config = DEFAULTS
-) -> tuple[float, dict[int, GroupGaussian]]:
-    """Truth-free initial beliefs: each robot's first landmark snapshot pose (fit covariance at the a-priori std),
-    dead-reckoned to ``t0``, the latest first snapshot; returns ``(t0, beliefs)``. Raises ValueError when a robot
-    of ``data`` never sees two landmarks at once."""
-    poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
-    first: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
-    for r in data.robots:
-        sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start))
-        if sel.size == 0:
-            raise ValueError(f"{data.name}: robot {r} never reads two landmarks at once; no truth-free start")
-        i = int(sel[0])
-        first[r] = (float(poses["t"][i]), poses["pose"][i], poses["cov"][i])
-    t0 = max(v[0] for v in first.values())
-    events = mrclam_events(data, landmarks=False, robot_measurements=False)
-    out: dict[int, GroupGaussian] = {}
-    for r, (ts, pose, cov) in first.items():
-        # the fit's covariance is of (x, y, theta); at a small angle it is that of the left perturbation: rotate
-        # it into the body frame for the right-perturbation convention of the nodes
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        belief = GroupGaussian(SE2, SE2.from_xytheta(pose), rot @ cov @ rot.T + 1e-8 * np.eye(3), validate=False)
-        if t0 - ts <= 0:
-            out[r] = belief
-            continue
-        mine = [e for e in events if isinstance(e, Odometry) and e.robot == r and ts <= e.stamp <= t0]  # all odometry
-        res = run(make_team("dr", {r: belief}, **node_options("dr", config, None, ts)), mine, record_times=[t0])
-        tr = res.tracks[r]
-        out[r] = GroupGaussian(SE2, SE2.from_xytheta(tr.mean[-1]), tr.cov[-1], validate=False)
-    return t0, out
-
-
-def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, dets: Sequence[Detection],
-                 landmarks: Mapping[int, Sequence[float]], std: tuple[float, float]) -> np.ndarray:  # fmt: skip
-    """Predictive NIS (2 dof) of landmark readings ``dets`` of one observer against its beliefs recorded
-    :data:`RECORD_LEAD` s before each (``mean`` ``(T, 3)``, right-perturbation ``cov`` ``(T, 3, 3)``), with the
-    reading's error std ``std`` = (range [m], bearing [rad]) and each landmark's map std."""
-    if not dets:
-        return np.empty(0)
-    t = np.array([d.t for d in dets])
-    idx = np.clip(np.searchsorted(track_times, t - RECORD_LEAD - 1e-9), 0, len(track_times) - 1)
-    ok = np.abs(track_times[idx] - (t - RECORD_LEAD)) < 1e-7
-    x, P = mean[idx], cov[idx]
-    ids = [d.target for d in dets if d.target is not None]
-    if len(ids) < len(dets):
-        raise ValueError("landmark_nis: a reading without its landmark's id (target)")
-    lm = np.array([landmarks[k][:4] for k in ids], dtype=float)
-    z = np.array([d.z for d in dets])
-    c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
-    dx, dy = lm[:, 0] - x[:, 0], lm[:, 1] - x[:, 1]
-    q = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)  # landmark in the body frame
-    rng = np.maximum(np.hypot(q[:, 0], q[:, 1]), 1e-6)
-    r = np.stack([z[:, 0] - rng, wrap_angle(z[:, 1] - np.arctan2(q[:, 1], q[:, 0]))], axis=-1)
-    jq = np.stack([q / rng[:, None], np.stack([-q[:, 1], q[:, 0]], -1) / (rng**2)[:, None]], axis=1)  # d(rb)/dq
-    dq = np.zeros((len(dets), 2, 3))  # dq / d(right perturbation): -I for the translation, (q_y, -q_x) for theta
-    dq[:, 0, 0] = dq[:, 1, 1] = -1.0
-    dq[:, 0, 2], dq[:, 1, 2] = q[:, 1], -q[:, 0]
-    H = jq @ dq
-    rot_t = np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], axis=1)  # d q / d landmark
-    jl = jq @ rot_t
-    L = jl @ (np.eye(2)[None] * np.square(lm[:, 2:4])[:, :, None]) @ np.swapaxes(jl, 1, 2)
-    S = H @ P @ np.swapaxes(H, 1, 2) + np.diag([std[0] ** 2, std[1] ** 2])[None] + L
-    nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
-    return np.where(ok, nis, np.nan)
-
-
-def _nis_of(res: Any, readings: Sequence[Detection], data: MRCLAMData, std: tuple[float, float]) -> np.ndarray:
-    """The finite predictive NIS of ``readings`` against the beliefs of run ``res`` (every observer)."""
-    nis = np.concatenate([np.empty(0)] + [
-        landmark_nis(tr.times, tr.mean, tr.cov, [d for d in readings if d.observer == rb], data.landmarks, std)
-        for rb, tr in res.tracks.items()
-    ])  # fmt: skip
-    return nis[np.isfinite(nis)]
-
-
-def nis_summary(nis: np.ndarray, suffix: str = "") -> dict[str, Any]:
-    """The scores of 2-dof NIS values (keys end in ``suffix``): ``nis_ratio`` median / 1.386, ``anis`` mean / 2,
-    ``beyond_gate`` the share above the 0.997 quantile, ``readings`` the count (NaN scores for none)."""
-    return {
-        f"nis_ratio{suffix}": float(np.median(nis) / MEDIAN_CHI2_2) if nis.size else float("nan"),
-        f"anis{suffix}": float(np.mean(nis) / 2.0) if nis.size else float("nan"),
-        f"beyond_gate{suffix}": float(np.mean(nis > GATE_2DOF)) if nis.size else float("nan"),
-        f"readings{suffix}": int(nis.size),
-    }
-
-
-def landmark_folds(ids: Iterable[int], k: int) -> list[frozenset[int]]:
-    """``k`` folds of the landmark ids (every ``k``-th of the sorted ids, so that each fold spreads over the map)."""
-    order = sorted(ids)
-    return [frozenset(order[f::k]) for f in range(k)]
-
-
 def filter_scores(
     data: MRCLAMData,
     model: CameraModel,
@@ -269,9 +169,8 @@ def filter_scores(
     t1 = min(data.t_end, t0 + duration)
     events = mrclam_events(data, landmarks=landmarks, range_std=model.range.std, bearing_std=model.bearing.std)
     events = [e for e in decorrelate(events, model) if t0 <= e.stamp <= t1]
-    lm_events = mrclam_events(data, landmarks=True, robot_measurements=False)
-    readings = [e for e in lm_events if isinstance(e, Detection) and not e.target_is_robot and t0 < e.t <= t1]
-    record = np.unique(np.array([d.t for d in readings]) - RECORD_LEAD)
+    readings = landmark_readings(data, t0, t1)
+    record = reading_times(readings)
     truth = data.truth_at if data.has_truth else None
     std = (model.range.std, model.bearing.std)
     ref = std if reference_std is None else reference_std
@@ -292,27 +191,16 @@ def filter_scores(
         if truth is not None:
             team = evaluate(res)["team"]
             row.update(pos_rmse=team["pos_rmse"], heading_rmse=team["heading_rmse"], anees=team["anees"])
-        scored: list[tuple[Any, list[Detection]]] = []
-        if not folds:  # landmarks off (or no folds: every reading against the run with every landmark)
-            scored = [(res, readings)]
-        else:
-            row.update(nis_summary(_nis_of(res, readings, data, std), "_all"))
-            anees = []
-            for fold in folds:
-                lm_out = [e for e in events if not (isinstance(e, Detection) and not e.target_is_robot
-                                                    and e.target in fold)]  # fmt: skip
-                mine = [d for d in readings if d.target in fold]
-                nodes = make_team(name, initial, **node_options(name, configs[fold], data.landmarks, t0))
-                rec = np.unique(np.array([d.t for d in mine]) - RECORD_LEAD) if mine else record[:1]
-                res_f = run(nodes, lm_out, record_times=rec, truth=truth, name=name)
-                scored.append((res_f, mine))
-                if truth is not None:
-                    anees.append(evaluate(res_f)["team"]["anees"])
-            if anees:
-                row["anees_folds"] = float(np.mean(anees))
-        if scored:
-            row.update(nis_summary(np.concatenate([_nis_of(r, d, data, std) for r, d in scored])))
-            row.update(nis_summary(np.concatenate([_nis_of(r, d, data, ref) for r, d in scored]), "_ref"))
+        scored: list[tuple[Any, list[Detection]]] = [(res, readings)]  # landmarks off: every reading, this run
+        if folds:
+            row.update(nis_summary(tracks_nis(res.tracks, readings, data.landmarks, std), "_all"))
+            scored = heldout_runs(name, initial, events, readings, data.landmarks, t0,
+                                  {f: configs[f] for f in folds}, truth)  # fmt: skip
+            if truth is not None:
+                row["anees_folds"] = float(np.mean([evaluate(r)["team"]["anees"] for r, _ in scored]))
+        row.update(nis_summary(np.concatenate([tracks_nis(r.tracks, d, data.landmarks, std) for r, d in scored])))
+        row.update(nis_summary(np.concatenate([tracks_nis(r.tracks, d, data.landmarks, ref) for r, d in scored]),
+                               "_ref"))  # fmt: skip
         if calibrate_yaw and landmarks:
             row["yaw_scale"] = scales[frozenset()]
             row["yaw_scale_folds"] = [scales[f] for f in folds]
