@@ -7,7 +7,8 @@ A cluster's joint covariance is the nodes' replicas of that cluster together. A 
 exact update; of a robot outside it, the one-sided covariance-intersection update of ``TeamProtocol.outsider``. Every
 ``period`` s the team is cut again (``--how``); a new cluster made of pieces of ``m`` old clusters starts from the
 covariance-intersection bound of the stacked pieces, ``blockdiag(P_1 / w_1, ..., P_m / w_m)``, ``sum w = 1``
-(Julier & Uhlmann 1997), whose correlations inside a piece are the old cluster's exact ones.
+(Julier & Uhlmann 1997; any such weights bound every correlation between the pieces), whose correlations inside a
+piece are the old cluster's exact ones; a robot that leaves is marginalized out (``--power``: the weights).
 """
 
 from __future__ import annotations
@@ -118,15 +119,16 @@ class Clustered:
             self.x[m] = I.left_correct(self.x[m], delta[3 * k : 3 * k + 3])
         self.fused += 1
 
-    def reform(self, groups: list[list[int]]) -> None:
-        """The team cut into ``groups``: each new cluster from the CI bound of its pieces (module docstring)."""
+    def reform(self, groups: list[list[int]], power: float = 1.0) -> None:
+        """The team cut into ``groups``: each new cluster from the CI bound of its pieces (module docstring), piece
+        ``k`` of ``s_k`` robots weighted ``w_k = s_k^power / sum s^power`` (1: the bound's log det minimized)."""
         oldP, where = self.P, self.where.copy()
         self.groups, self.P = [], []
         for g in groups:
             pieces: dict[int, list[int]] = {}
             for r in g:
                 pieces.setdefault(int(where[r][0]), []).append(r)
-            sizes = {c: len(p) for c, p in pieces.items()}
+            sizes = {c: len(p) ** power for c, p in pieces.items()}
             tot = sum(sizes.values())
             P = np.zeros((3 * len(g), 3 * len(g)))
             order = [r for p in pieces.values() for r in p]
@@ -181,9 +183,11 @@ def seen_groups(f: Clustered, K: int, margin: float) -> list[list[int]]:
     return [g for g in groups if g]
 
 
-def replay(src: Source, K: int, period: float = 0.0, how: str = "seen", margin: float = 2.0) -> dict[str, Any]:
+def replay(src: Source, K: int, period: float = 0.0, how: str = "seen", margin: float = 2.0,
+           power: float = 1.0) -> dict[str, Any]:  # fmt: skip
     """One run of clusters of ``K`` (``K >= n``: the exact filter) re-formed every ``period`` s (0: never) by ``how``
-    (``"seen"``: :func:`seen_groups` with ``margin``; ``"hilbert"``: :func:`hilbert_groups`): RMSE [m] and ANEES/dof
+    (``"seen"``: :func:`seen_groups` with ``margin``; ``"hilbert"``: :func:`hilbert_groups`; ``power``: the
+    pieces' weights, :meth:`Clustered.reform`): RMSE [m] and ANEES/dof
     over every robot and record time, detections fused and gated, robots moved, the observer's cluster mates per
     detection (the receivers of its broadcast), the largest cluster, and the final clusters."""
     opts = node_options("diekf", src.config, src.landmarks)
@@ -197,7 +201,7 @@ def replay(src: Source, K: int, period: float = 0.0, how: str = "seen", margin: 
         while q < len(events) and events[q].stamp <= t:
             e = events[q]
             while e.stamp >= next_reform:
-                f.reform(hilbert_groups(f, K, side) if how == "hilbert" else seen_groups(f, K, margin))
+                f.reform(hilbert_groups(f, K, side) if how == "hilbert" else seen_groups(f, K, margin), power)
                 next_reform += period
             if isinstance(e, Odometry):
                 f.odometry(e)
@@ -228,11 +232,14 @@ def main() -> None:
     ap.add_argument("--period", default="0,1", help="re-forming periods [s] (0: fixed clusters)")
     ap.add_argument("--how", choices=("seen", "hilbert"), default="seen")
     ap.add_argument("--margin", type=float, default=2.0, help='"seen": how many times more often')
+    ap.add_argument("--power", type=float, default=1.0, help="a piece's CI weight: its size to this power")
     ap.add_argument("--arena", choices=ARENAS, default="grouped")
     a = ap.parse_args()
     seeds = list(range(a.seed, a.seed + a.seeds))
-    print(f"sim:random ({a.arena} arena), seeds {seeds[0]}-{seeds[-1]}, {a.duration:g} s, re-formed by {a.how!r}"
-          f"{f' (margin {a.margin:g})' if a.how == 'seen' else ''}; the mean over the seeds")  # fmt: skip
+    print(
+        f"sim:random ({a.arena} arena), seeds {seeds[0]}-{seeds[-1]}, {a.duration:g} s, re-formed by {a.how!r}"
+        f"{f' (margin {a.margin:g})' if a.how == 'seen' else ''}, weights size^{a.power:g}; the mean over the seeds"
+    )
     print(f"{'robots':>6} {'filter':>16} {'RMSE [m]':>9} {'vs exact':>8} {'ANEES/dof':>9} {'moved/s':>8} "
           f"{'mates/det':>9} {'largest':>7} {'cpu s':>6}")  # fmt: skip
     for n in map(int, a.robots.split(",")):
@@ -241,7 +248,7 @@ def main() -> None:
         settings = [(int(k), float(p)) for k in a.cluster.split(",") for p in a.period.split(",") if int(k) < n]
         for K, p in [(n, 0.0), *settings]:
             t = time.process_time()
-            rs = [replay(s, K, p, a.how, a.margin) for s in srcs]
+            rs = [replay(s, K, p, a.how, a.margin, a.power) for s in srcs]
             r = {k: float(np.mean([x[k] for x in rs])) for k in ("rmse", "anees", "moved", "mates")}
             exact = r["rmse"] if K == n else exact
             name = "exact" if K == n else f"K={K}" + (f" every {p:g} s" if p else " fixed")
