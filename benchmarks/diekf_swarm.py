@@ -31,6 +31,7 @@ teammates within its 1.5 m sensor (10 detections/s at 5 Hz) in every team; ``spr
 ``3 m sqrt(n / 5)`` with the robots free to leave it (the previous scene, whose density is not constant);
 ``grouped``, the bounded arena with the ids along a Hilbert curve through the start positions, so that a cluster of
 ``K`` consecutive ids is ``K`` robots that start near each other (clusters formed by proximity at deployment).
+Clusters that re-form as the robots move (a centralized prototype, not in the nodes yet): benchmarks/diekf_reform.py.
 """
 
 from __future__ import annotations
