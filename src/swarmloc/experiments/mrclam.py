@@ -68,7 +68,7 @@ from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.events import Event
 from swarmloc.experiments.evaluate import ALL, RECOMMENDED, evaluate_stream, markdown_table, recommended, write_report
-from swarmloc.experiments.truthfree import truth_free_score
+from swarmloc.experiments.truthfree import initial_from_snapshots, truth_free_score
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
@@ -89,6 +89,7 @@ __all__ = [
     "evaluate_mrclam",
     "initial_beliefs",
     "markdown_table",
+    "mrclam_start",
     "mrclam_stream",
     "yaw_calibrated",
     "yaw_calibration",
@@ -107,9 +108,43 @@ def detector_reach(data: MRCLAMData) -> tuple[float | None, float | None]:
     return float(m[:, 2].max()), float(min(2 * np.abs(m[:, 3]).max(), 2 * np.pi))
 
 
+@dataclasses.dataclass(frozen=True)
+class Start:
+    """Where a run on a recording starts: at ``t0`` [s] (Unix time), from ``beliefs`` (robot -> initial belief);
+    ``how``: how they were chosen, in words (``truth``: from the ground truth)."""
+
+    t0: float
+    beliefs: dict[int, GroupGaussian]
+    how: str
+    truth: bool
+
+
+def mrclam_start(data: MRCLAMData, config: Config = DEFAULTS, t_end: float | None = None) -> Start:
+    """The start of a run on ``data`` (up to ``t_end`` [s]): the ground truth at the recording's start where it has
+    truth (:func:`initial_beliefs`); without truth, the truth-free start of
+    :func:`~swarmloc.experiments.truthfree.initial_from_snapshots` (each robot's first fit to two or more landmarks
+    read at once, dead-reckoned to the latest of them: the run starts there, what comes before is left out); where
+    a robot never reads two landmarks at once, or that start is at or after ``t_end``, the placeholder of
+    :func:`initial_beliefs` at the recording's start (the trajectories are then not to be read as poses)."""
+    if data.has_truth:
+        return Start(data.t_start, initial_beliefs(data, config), "ground truth at the start", True)
+    end = data.t_end if t_end is None else t_end
+    try:
+        t0, beliefs = initial_from_snapshots(data, detection_set(data), config)
+        if t0 < end:
+            return Start(t0, beliefs, f"no ground truth: from each robot's first landmark snapshot, "
+                                      f"{t0 - data.t_start:.1f} s in", False)  # fmt: skip
+        why = f"the first landmark snapshots end {t0 - data.t_start:.1f} s in, after the span"
+    except ValueError as exc:
+        why = str(exc)
+    placeholder = "robots at (id, 0, 0), std 10 m / 3 rad: the trajectories are not poses"
+    return Start(data.t_start, initial_beliefs(data, config), f"no ground truth and {why}: {placeholder}", False)
+
+
 def initial_beliefs(data: MRCLAMData, config: Config = DEFAULTS) -> dict[int, GroupGaussian]:
-    """Ground truth at the start (std from ``config.initial``); without truth (replay only), robot ``k`` starts at
-    ``(k, 0, 0)`` with std 10 m / 3 rad, so that no two robots coincide."""
+    """Ground truth at the start (std from ``config.initial``); without truth, a placeholder: robot ``k`` starts at
+    ``(k, 0, 0)`` with std 10 m / 3 rad, so that no two robots coincide (:func:`mrclam_start` starts a recording
+    without truth from its landmark snapshots where it can)."""
     cov = config.initial.cov()
     out = {}
     for r in data.robots:
@@ -255,12 +290,14 @@ def evaluate_mrclam(
     yaw: dict[str, Any] = {}
     if calibrate_yaw:
         config, yaw = yaw_calibrated(data, camera, config)
-    load_s = time.perf_counter() - t_load
     t_end = data.t_end if duration is None else min(data.t_end, data.t_start + duration)
+    start = mrclam_start(data, config, t_end)
+    run_events = events if start.t0 <= data.t_start else [e for e in events if e.stamp >= start.t0]
+    load_s = time.perf_counter() - t_load
     report, results = evaluate_stream(
-        events,
-        initial_beliefs(data, config),
-        t_start=data.t_start,
+        run_events,
+        start.beliefs,
+        t_start=start.t0,
         t_end=t_end,
         truth=data.truth_at if data.has_truth else None,
         landmarks=data.landmarks,
@@ -278,27 +315,37 @@ def evaluate_mrclam(
         "skipped_barcodes": {str(k): v for k, v in data.skipped_barcodes.items()},
         **_subjects(data, t_end, landmarks),
         "camera": camera.to_dict(),
+        "start": {
+            "how": start.how,
+            "truth": start.truth,
+            "t0_s": start.t0 - data.t_start,
+            "events_before": len(events) - len(run_events),
+        },
         **({"yaw_calibration": yaw} if yaw else {}),
         **report,
     }
     if not data.has_truth and RECOMMENDED in report["estimators"]:
-        report["recommended"] = recommended(report, recommended_score(data, events, camera, config, landmarks, t_end))
+        score = recommended_score(data, events, camera, config, landmarks, t_end, start)
+        report["recommended"] = recommended(report, score)
     if out_dir is not None:
         write_report(out_dir, "mrclam", report, results, data.t_start)
     return report
 
 
 def recommended_score(
-    data: MRCLAMData, events: Sequence[Event], camera: CameraModel, config: Config, landmarks: bool, t_end: float
-) -> dict[str, Any] | str:
+    data: MRCLAMData, events: Sequence[Event], camera: CameraModel, config: Config, landmarks: bool, t_end: float,
+    start: Start | None = None,
+) -> dict[str, Any] | str:  # fmt: skip
     """The truth-free score of :data:`~swarmloc.experiments.evaluate.RECOMMENDED` on ``data`` up to ``t_end`` [s]
     (:func:`~swarmloc.experiments.truthfree.truth_free_score` on the evaluation's ``events`` and ``config``, the
-    readings' noise ``camera``'s std), or why there is none."""
+    readings' noise ``camera``'s std; from the evaluation's ``start`` when it is the truth-free one), or why there
+    is none."""
     if config.filter.association != "tags":
         return f"association {config.filter.association}: the truth-free score runs tagged detections"
+    first = (start.t0, start.beliefs) if start is not None and not start.truth and start.t0 > data.t_start else None
     try:
         return truth_free_score(data, detection_set(data), events, RECOMMENDED, config,
-                                (camera.range.std, camera.bearing.std), landmarks, t_end)  # fmt: skip
+                                (camera.range.std, camera.bearing.std), landmarks, t_end, start=first)  # fmt: skip
     except ValueError as exc:  # no truth-free start
         return str(exc)
 

@@ -13,7 +13,8 @@ A source spec is one of
   120 deg, 3 m, 1 cm, 2 Hz; ``Source.scans``) and the chapter's robot-to-robot camera; for the belief server's map;
 * ``mrclam:PATH``: a UTIAS MRCLAM dataset folder (``duration`` truncates it; landmarks on unless told otherwise;
   detection covariances from the camera model that ``config.sensors.decorrelate`` names,
-  :func:`swarmloc.experiments.mrclam.mrclam_stream`);
+  :func:`swarmloc.experiments.mrclam.mrclam_stream`; the start :func:`swarmloc.experiments.mrclam.mrclam_start`:
+  the truth, or without it the robots' first landmark snapshots);
 * ``sim:3d``: a 3-D team (:func:`swarmloc.sim.sim3d.simulate3d`, ``robots`` quadrotor-like robots on SE(3), body
   twist odometry at 10 Hz, relative poses ``"pose3"`` at 2 Hz within 12 m, 5 cm / 2 deg; initial beliefs drawn
   about the truth with 10 cm / 3 deg); ``sim:3d_rot``: the same with large rotational uncertainty (30 deg per
@@ -169,14 +170,17 @@ def load_source(
         return _sim(scenario, robots, 30.0 if duration is None else float(duration), seed, config)
     if kind == "mrclam":
         from swarmloc.datasets.mrclam import load_mrclam
-        from swarmloc.experiments.mrclam import detector_reach, initial_beliefs, mrclam_stream
+        from swarmloc.experiments.mrclam import detector_reach, mrclam_start, mrclam_stream
 
         config = DEFAULTS if config is None else config
         data = load_mrclam(Path(arg))
         events, _ = mrclam_stream(data, config, duration, landmarks)  # camera model: config.sensors.decorrelate
         t_end = data.t_end if duration is None else min(data.t_end, data.t_start + duration)
         truth = data.truth_at if data.has_truth else None
-        return Source(spec, events, initial_beliefs(data, config), data.landmarks, data.t_start, t_end, truth, config,
+        start = mrclam_start(data, config, t_end)  # without truth: from the landmark snapshots, where it can
+        if start.t0 > data.t_start:
+            events = [e for e in events if e.stamp >= start.t0]
+        return Source(spec, events, start.beliefs, data.landmarks, start.t0, t_end, truth, config,
                       sensor=detector_reach(data))  # fmt: skip
     if kind == "events":
         from swarmloc.experiments.own_robots import load_event_source

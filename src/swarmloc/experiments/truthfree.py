@@ -111,6 +111,7 @@ def truth_free_score(
     t_end: float,
     holdout: int = 3,
     longest: float = SCORED_SPAN,
+    start: tuple[float, Mapping[int, GroupGaussian]] | None = None,
 ) -> dict[str, Any]:
     """The held-out landmark NIS score of estimator ``name`` on ``data`` up to ``t_end`` [s], at most ``longest`` s:
     the runs start from :func:`initial_from_snapshots` (at ``t0``) on ``events`` (those of the evaluation: its camera
@@ -118,9 +119,10 @@ def truth_free_score(
     readings, without landmarks one run scores every reading. ``std`` (range [m], bearing [rad]): the readings' noise
     in the NIS (the camera model's). Returns :func:`~swarmloc.evaluation.heldout.nis_summary` with ``folds`` (0:
     landmarks off), ``t0_s`` (after the recording's start), ``duration_s`` (scored) and ``wall_s`` (every run of the
-    score). Raises ValueError where there is no truth-free start before ``t_end``."""
+    score). ``start``: :func:`initial_from_snapshots`' ``(t0, beliefs)`` when the caller has them already. Raises
+    ValueError where there is no truth-free start before ``t_end``."""
     wall = time.perf_counter()
-    t0, initial = initial_from_snapshots(data, ds, config)
+    t0, initial = initial_from_snapshots(data, ds, config) if start is None else start
     if t0 >= t_end:
         raise ValueError(f"the truth-free start (every robot's first landmark snapshot) is {t0 - data.t_start:.1f} s "
                          f"in, after the span's end")  # fmt: skip

@@ -82,6 +82,10 @@ def run(args: argparse.Namespace) -> int:
 
         print(json.dumps(report, indent=2, default=json_default))
     else:
+        start = report.get("start")
+        if start is not None and not start["truth"]:  # how a recording without truth was started
+            before = start["events_before"]
+            print(f"start: {start['how']}" + (f" ({before} events before it left out)" if before else ""))
         if "yaw_calibration" in report:
             y = report["yaw_calibration"]
             terms = ", ".join(f"{k} = {v:.4g}" for k, v in y["motion"].items())
