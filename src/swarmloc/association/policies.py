@@ -10,7 +10,11 @@ problem solved here exactly with :func:`scipy.optimize.linear_sum_assignment` (t
 the distributed estimators take them), which is what a chi-square gate needs: with ``P_jj`` alone the distance is
 not chi-square distributed (not even of the right units when ``z`` is a range and bearing). :func:`innovation_costs`
 uses ``S_ij``; tests/test_association.py checks that the gated distance of a true association is chi-square with
-``size(z)`` degrees of freedom by Monte Carlo.
+``size(z)`` degrees of freedom by Monte Carlo. A centralized filter knows the cross-covariance ``P_ij`` of observer
+and target and passes it (``cross``): ``S_ij`` then gains ``H_i P_ij H_j^T + H_j P_ji H_i^T`` and is the innovation
+covariance its update uses, so the choice and the filter's gate weigh a detection alike (after a pair's mutual
+detections their relative pose is known better than the two marginals say: left out, a teammate that is not the
+one seen looks as likely as the marginals allow).
 
 **Outcomes** of each detection (the node's counters): ``associated`` (given an identity), ``clutter`` (outside every
 robot's gate: a false detection or a robot the team does not know), ``ambiguous`` (``nearest`` only: a second robot
@@ -52,12 +56,14 @@ def innovation_costs(
     P_obs: np.ndarray,
     x_targets: np.ndarray,
     P_targets: np.ndarray,
+    cross: np.ndarray | None = None,
 ) -> np.ndarray:
     """Squared Mahalanobis distances ``(m, n)`` of ``m`` detections of kind ``kind`` (``z`` ``(m, k)``, noise ``R``
     ``(m, k, k)`` in the model's coordinates) made by one observer (state ``x_obs`` ``(3,)``, covariance ``P_obs``
     ``(3, 3)``, world frame ``(x, y, theta)`` [m, rad]) from each of ``n`` candidate robots (``x_targets`` ``(n, 3)``,
-    ``P_targets`` ``(n, 3, 3)``), with the innovation covariance ``H_i P_obs H_i^T + H_j P_j H_j^T + R``.
-    A candidate on top of the observer (a range/bearing model undefined there) costs ``inf``."""
+    ``P_targets`` ``(n, 3, 3)``), with the innovation covariance ``H_i P_obs H_i^T + H_j P_j H_j^T + R``, plus
+    ``H_i C_j H_j^T + H_j C_j^T H_i^T`` with ``cross`` ``C (n, 3, 3)``, the covariances of observer and candidate
+    (None: independent). A candidate on top of the observer (a range/bearing model undefined there) costs ``inf``."""
     model = MODELS.get(kind)
     if model is None or model.targets == "self":
         raise ValueError(f"association needs a detection of another robot, not kind {kind!r}")
@@ -76,6 +82,9 @@ def innovation_costs(
     h, Hi, Hj = model.predict(xo[None, :], xt)  # (n, k), (n, k, 3), (n, k, 3)
     assert Hj is not None  # noqa: S101  (a relative model: a Jacobian for the target)
     S_state = Hi @ np.asarray(P_obs, dtype=float) @ np.swapaxes(Hi, -1, -2) + Hj @ Pt @ np.swapaxes(Hj, -1, -2)
+    if cross is not None:
+        Hc = Hi @ np.asarray(cross, dtype=float).reshape(xt.shape[0], 3, 3) @ np.swapaxes(Hj, -1, -2)
+        S_state = S_state + Hc + np.swapaxes(Hc, -1, -2)
     S = S_state[None, :, :, :] + model.noise(z, R)[:, None, :, :]  # (m, n, k, k)
     r = model.residual(z[:, None, :], h[None, :, :])  # (m, n, k)
     d2 = np.einsum("...i,...i->...", r, np.linalg.solve(S, r[..., None])[..., 0])

@@ -166,6 +166,13 @@ def team_joint(s: TeamState) -> tuple[np.ndarray, np.ndarray]:
     return s.X.copy(), s.P.copy()
 
 
+def cartesian_cross(s: TeamState, i: int, ks: Sequence[int]) -> np.ndarray:
+    """:meth:`~swarmloc.node.team.WorldCross.world_cross` of a Cartesian joint state: its blocks of ``P`` (pending
+    predictions applied), the state being world ``(x, y, theta)``."""
+    P = flush_pending(s).P
+    return np.array([P[i : i + 3, k : k + 3] for k in ks]).reshape(-1, 3, 3)
+
+
 class Team3State(NamedTuple):
     """An SE(3) team: positions ``p (n, 3)``, attitudes ``R (n, 3, 3)``, joint error covariance ``P (6n, 6n)``, each
     robot's time [s] and command (linear and angular velocity)."""
@@ -186,6 +193,7 @@ class TeamForm:
     initial = staticmethod(team_state)
     belief = staticmethod(cartesian_belief)
     joint = staticmethod(team_joint)
+    world_cross = staticmethod(cartesian_cross)
 
     def advance(self, node: TeamNode, s: TeamState, robot: int, t: float) -> TeamState:
         step = increment(node, s, robot, t)

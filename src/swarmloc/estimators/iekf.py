@@ -26,6 +26,7 @@ is the default recommendation there, on the evidence of the Monte Carlo runs and
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
@@ -33,6 +34,7 @@ import numpy as np
 from swarmloc.estimators.cekf import (
     TeamState,
     cartesian_belief,
+    cartesian_cross,
     clock_and_pending,
     compose_pending,
     flush_pending,
@@ -168,6 +170,12 @@ class InvariantForm:
         g = SE2.from_xytheta(s.X[i : i + 3])
         return g, I.world_to_body(g, P)
 
+    def world_cross(self, s: TeamState, i: int, ks: Sequence[int]) -> np.ndarray:
+        """:meth:`~swarmloc.node.team.WorldCross.world_cross`: ``N_i P_ik N_k^T`` (:func:`I.world_basis`)."""
+        P = flush_pending(s).P
+        Ni = I.world_basis(s.X[i : i + 3])
+        return np.array([Ni @ P[i : i + 3, k : k + 3] @ I.world_basis(s.X[k : k + 3]).T for k in ks]).reshape(-1, 3, 3)
+
     def lin_point(self, s: TeamState, k: int) -> np.ndarray:
         return s.X[k : k + 3]
 
@@ -214,6 +222,7 @@ class FirstEstimatesForm:
     first_estimates = True
     belief = staticmethod(cartesian_belief)
     joint = staticmethod(team_joint)
+    world_cross = staticmethod(cartesian_cross)
     fuse = fuse_linearized  # the detection loop, at this form's linearization
 
     def initial(self, node: TeamNode, t0: float) -> TeamState:

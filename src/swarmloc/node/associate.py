@@ -146,12 +146,15 @@ def associate(
     candidates: Mapping[int, GroupGaussian],
     sensor_range: float | None = None,
     sensor_fov: float | None = None,
+    cross: Mapping[int, np.ndarray] | None = None,
 ) -> AssociationView | None:
     """Give the anonymous robot detections of ``g`` identities among ``candidates`` (robot id -> belief at ``g.t``)
     seen from ``observer`` (the observer's belief at ``g.t``) with ``policy`` (``nearest`` or ``joint``), per
     measurement kind; None when the group has none. Beliefs are SE(2) Gaussians (right-perturbation exponential
     coordinates), compared in world ``(x, y, theta)`` to first order. ``sensor_range`` [m] and ``sensor_fov`` [rad]
-    (total width centred on the observer's heading; None: all round): the detector's reach, for the missed count."""
+    (total width centred on the observer's heading; None: all round): the detector's reach, for the missed count.
+    ``cross``: a joint filter's world-frame covariance ``(3, 3)`` of the observer's and each candidate's pose, by
+    candidate id (:func:`~swarmloc.association.innovation_costs`; None: independent, as a distributed node has them)."""
     dets = list(g.detections)
     anon = [i for i, d in enumerate(dets) if is_anonymous(d)]
     if not anon:
@@ -164,6 +167,7 @@ def associate(
         )
     else:
         xt, Pt = np.zeros((0, 3)), np.zeros((0, 3, 3))
+    Pc = None if cross is None else np.asarray([cross[r] for r in ids], dtype=float).reshape(-1, 3, 3)
     left: dict[int, Outcome] = {}
     given: list[int] = []
     got: set[int] = set()
@@ -174,7 +178,7 @@ def associate(
                 left[i] = ("rejected", f"association: kind {kind!r} does not observe another robot")
             continue
         z, R = np.stack([dets[i].z for i in idx]), np.stack([dets[i].cov for i in idx])
-        costs = innovation_costs(kind, z, R, xo, Po, xt, Pt)
+        costs = innovation_costs(kind, z, R, xo, Po, xt, Pt, None if cross is None else Pc)
         gate = gate_threshold(MODELS[kind].size, gate_probability)
         a = joint(costs, gate, ambiguity=AMBIGUITY) if policy == "joint" else nearest(costs, gate, AMBIGUITY)
         for i, j in zip(idx, a.identity.tolist(), strict=True):

@@ -9,8 +9,8 @@ the robots' marginals. The filter (state, prediction, update) is the estimator's
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any, ClassVar, Protocol
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -26,7 +26,7 @@ from swarmloc.node.keys import Group, SubKey
 from swarmloc.node.robot import check_model
 from swarmloc.node.update import Outcome
 
-__all__ = ["JointForm", "TeamNode"]
+__all__ = ["JointForm", "TeamNode", "WorldCross"]
 
 
 class JointForm(Protocol):
@@ -53,6 +53,15 @@ class JointForm(Protocol):
     def fuse(self, node: TeamNode, s: Any, g: Group, d: Detection, target: tuple[str, Any]) -> tuple[Any, Outcome]:
         """One detection ``d`` of the classified ``target`` of group ``g``: the state after it (the detected robot
         predicted to the stamp) and its outcome."""
+
+
+@runtime_checkable
+class WorldCross(Protocol):
+    """A planar joint form that gives the association its cross-covariances (:meth:`TeamNode._associate`)."""
+
+    def world_cross(self, s: Any, i: int, ks: Sequence[int]) -> np.ndarray:
+        """World-frame ``(x, y, theta)`` covariances ``(len(ks), 3, 3)`` of the pose of the robot whose block starts
+        at ``i`` with those of the robots whose blocks start at ``ks``, pending predictions applied."""
 
 
 class TeamNode(Node):
@@ -138,8 +147,9 @@ class TeamNode(Node):
 
     def _associate(self, s: Any, g: Group) -> AssociationView | None:
         """Identities for the group's anonymous robot detections (:mod:`swarmloc.node.associate`) from every
-        robot's marginal predicted to the group's stamp (the joint's cross-covariances are left out of the choice,
-        not of the update); the prediction is for the choice only, the filter's own steps stay as with tags."""
+        robot's marginal predicted to the group's stamp and, where the form gives them (:class:`WorldCross`), the
+        joint's cross-covariances of observer and candidate, so that a detection's cost is the innovation the update
+        would weigh; the prediction is for the choice only, the filter's own steps stay as with tags."""
         if self.association == "tags" or not self.use_relative or not any(is_anonymous(d) for d in g.detections):
             return None
         sf = s
@@ -147,5 +157,9 @@ class TeamNode(Node):
         for r in others:
             sf = self._adv(sf, r, g.t)
         cands = {r: self._belief(sf, r) for r in others}
+        cross = None
+        if isinstance(self._form, WorldCross):
+            blocks = self._form.world_cross(sf, self._idx[g.observer], [self._idx[r] for r in others])
+            cross = dict(zip(others, blocks, strict=True))
         return associate(g, self.association, self.association_gate, self._belief(s, g.observer), cands,
-                         self.sensor_range, self.sensor_fov)  # fmt: skip
+                         self.sensor_range, self.sensor_fov, cross)  # fmt: skip
