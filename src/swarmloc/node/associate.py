@@ -178,7 +178,7 @@ def associate(
                 left[i] = ("rejected", f"association: kind {kind!r} does not observe another robot")
             continue
         z, R = np.stack([dets[i].z for i in idx]), np.stack([dets[i].cov for i in idx])
-        costs = innovation_costs(kind, z, R, xo, Po, xt, Pt, None if cross is None else Pc)
+        costs = innovation_costs(kind, z, R, xo, Po, xt, Pt, Pc)
         gate = gate_threshold(MODELS[kind].size, gate_probability)
         a = joint(costs, gate, ambiguity=AMBIGUITY) if policy == "joint" else nearest(costs, gate, AMBIGUITY)
         for i, j in zip(idx, a.identity.tolist(), strict=True):
