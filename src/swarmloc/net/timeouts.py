@@ -30,6 +30,9 @@ Not here, each with its own name: ``quiet`` and ``linger`` (the end of a node's 
 
 from __future__ import annotations
 
+import math
+import threading
+import time
 from typing import TypedDict
 
 ANSWER_TIMEOUT = 2.0
@@ -77,3 +80,23 @@ def check_retries(n: object) -> int:
     if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= 100:
         raise ValueError(f"answer_retries is a count from 0 to 100, got {n!r}")
     return n
+
+
+SIGNAL_POLL = 0.2
+"""[s] How often a wait of the main thread wakes to take a signal (:func:`wait_event`)."""
+
+
+def wait_event(event: threading.Event, seconds: float | None = None) -> bool:
+    """``event.wait(seconds)`` (None or inf: no limit) in slices of :data:`SIGNAL_POLL` s; whether ``event`` is set.
+
+    A wait without a timeout is interrupted by Ctrl-C (or SIGTERM's handler runs) only when the OS delivers the
+    signal to the main thread itself; with Zenoh's and the live view's threads in the process it may pick any of
+    them, and the main thread then waits on forever. Waking every :data:`SIGNAL_POLL` s lets Python take the pending
+    signal whichever thread received it."""
+    end = math.inf if seconds is None else time.monotonic() + max(0.0, seconds)
+    while True:
+        left = end - time.monotonic()
+        if left <= 0:
+            return event.is_set()
+        if event.wait(min(left, SIGNAL_POLL)):
+            return True

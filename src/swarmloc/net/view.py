@@ -54,6 +54,7 @@ from swarmloc.events import Detection, Kind
 from swarmloc.net.ros import msgdef, pose_covariance_world, pose_message, ros_time, stamp_to_ros, to_cdr, typestore
 from swarmloc.net.schema import Belief, Lines, MapAnswer
 from swarmloc.net.server import MapStore
+from swarmloc.net.timeouts import wait_event
 from swarmloc.runner import RobotTrack
 
 __all__ = ["CHANNELS", "LAYOUT", "ROBOT_CHANNELS", "VIEW_EXTRA", "TeamView", "ViewUnavailable", "channel_type",
@@ -422,7 +423,7 @@ class TeamView:
 
     def wait(self, seconds: float = math.inf) -> bool:
         """Block for ``seconds`` (inf: until :meth:`close` or Ctrl-C); True if the view was closed meanwhile."""
-        return self._closed.wait(None if math.isinf(seconds) else max(0.0, seconds))
+        return wait_event(self._closed, seconds)  # in slices: Ctrl-C is taken whichever thread receives it
 
     def close(self) -> None:
         """:meth:`end_recording`, then stop the live server (its clients are disconnected)."""

@@ -27,6 +27,7 @@ def run(args: argparse.Namespace) -> int:
     import signal
     import threading
 
+    from swarmloc.net.timeouts import wait_event
     from swarmloc.net.transport import open_session
 
     net_logging(args.verbose)
@@ -43,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     print(f"swarmloc router: relaying on {', '.join(listen) or 'the configuration file endpoints'}", flush=True)
     try:
-        stop.wait(args.max_wall)
+        wait_event(stop, args.max_wall)  # in slices: Ctrl-C and SIGTERM are taken whichever thread receives them
     except KeyboardInterrupt:
         pass
     finally:
