@@ -16,6 +16,7 @@ pytestmark = pytest.mark.unit
 SCRIPT = """
 import signal, threading, time
 from swarmloc.net.timeouts import wait_event
+signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal, even if the suite inherited it ignored
 ev = threading.Event()
 def poke():
     time.sleep(0.3)

@@ -458,10 +458,17 @@ def test_the_shipped_layout_names_only_the_views_channels():
 
 # ---------------------------------------------------------------------------------------------------- the command
 def _swarmloc(*args: str, stderr=subprocess.PIPE) -> subprocess.Popen:
-    """``swarmloc ARGS`` in a process of its own, stdin and stdout not a terminal (stdout piped)."""
+    """``swarmloc ARGS`` in a process of its own, stdin and stdout not a terminal (stdout piped), with Ctrl-C's
+    default disposition: a suite started in the background of a shell without job control inherits SIGINT ignored,
+    and Python then leaves it ignored (the lingering test's SIGINT was lost that way in three local CI runs)."""
     env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
     return subprocess.Popen([sys.executable, "-m", "swarmloc.cli", *args], env=env, text=True,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=stderr)  # fmt: skip
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=stderr,
+                            preexec_fn=_default_sigint)  # fmt: skip
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def test_team_command_view_lingers_until_interrupted_and_a_late_client_gets_the_run(tmp_path):
