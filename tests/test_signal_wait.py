@@ -1,8 +1,7 @@
 """Ctrl-C reaches a command that waits on its main thread whichever thread the OS delivers it to
 (:func:`swarmloc.net.timeouts.wait_event`): a wait without a timeout is interrupted only by a signal delivered to the
 main thread, and with Zenoh's and the live view's threads in the process the OS may pick another one (a lingering
-`swarmloc team --view` then ignored Ctrl-C for good, in two CI runs). Each case runs in its own interpreter, bounded
-in time."""
+`swarmloc team --view` would then ignore Ctrl-C for good). Each case runs in its own interpreter, bounded in time."""
 
 from __future__ import annotations
 
