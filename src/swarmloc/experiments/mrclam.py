@@ -117,6 +117,12 @@ class Start:
     beliefs: dict[int, GroupGaussian]
     how: str
     truth: bool
+    t_start: float
+    """[s] the recording's start"""
+
+    def after(self, events: list[Event]) -> list[Event]:
+        """``events`` from :attr:`t0` on (all of them when the run starts at the recording's start)."""
+        return events if self.t0 <= self.t_start else [e for e in events if e.stamp >= self.t0]
 
 
 def mrclam_start(data: MRCLAMData, config: Config = DEFAULTS, t_end: float | None = None) -> Start:
@@ -127,18 +133,18 @@ def mrclam_start(data: MRCLAMData, config: Config = DEFAULTS, t_end: float | Non
     a robot never reads two landmarks at once, or that start is at or after ``t_end``, the placeholder of
     :func:`initial_beliefs` at the recording's start (the trajectories are then not to be read as poses)."""
     if data.has_truth:
-        return Start(data.t_start, initial_beliefs(data, config), "ground truth at the start", True)
+        return Start(data.t_start, initial_beliefs(data, config), "ground truth at the start", True, data.t_start)
     end = data.t_end if t_end is None else t_end
     try:
         t0, beliefs = initial_from_snapshots(data, detection_set(data), config)
         if t0 < end:
             return Start(t0, beliefs, f"no ground truth: from each robot's first landmark snapshot, "
-                                      f"{t0 - data.t_start:.1f} s in", False)  # fmt: skip
+                                      f"{t0 - data.t_start:.1f} s in", False, data.t_start)  # fmt: skip
         why = f"the first landmark snapshots end {t0 - data.t_start:.1f} s in, after the span"
     except ValueError as exc:
         why = str(exc)
-    placeholder = "robots at (id, 0, 0), std 10 m / 3 rad: the trajectories are not poses"
-    return Start(data.t_start, initial_beliefs(data, config), f"no ground truth and {why}: {placeholder}", False)
+    how = f"no ground truth and {why}: robots at (id, 0, 0), std 10 m / 3 rad: the trajectories are not poses"
+    return Start(data.t_start, initial_beliefs(data, config), how, False, data.t_start)
 
 
 def initial_beliefs(data: MRCLAMData, config: Config = DEFAULTS) -> dict[int, GroupGaussian]:
@@ -292,7 +298,7 @@ def evaluate_mrclam(
         config, yaw = yaw_calibrated(data, camera, config)
     t_end = data.t_end if duration is None else min(data.t_end, data.t_start + duration)
     start = mrclam_start(data, config, t_end)
-    run_events = events if start.t0 <= data.t_start else [e for e in events if e.stamp >= start.t0]
+    run_events = start.after(events)
     load_s = time.perf_counter() - t_load
     report, results = evaluate_stream(
         run_events,

@@ -178,9 +178,7 @@ def load_source(
         t_end = data.t_end if duration is None else min(data.t_end, data.t_start + duration)
         truth = data.truth_at if data.has_truth else None
         start = mrclam_start(data, config, t_end)  # without truth: from the landmark snapshots, where it can
-        if start.t0 > data.t_start:
-            events = [e for e in events if e.stamp >= start.t0]
-        return Source(spec, events, start.beliefs, data.landmarks, start.t0, t_end, truth, config,
+        return Source(spec, start.after(events), start.beliefs, data.landmarks, start.t0, t_end, truth, config,
                       sensor=detector_reach(data))  # fmt: skip
     if kind == "events":
         from swarmloc.experiments.own_robots import load_event_source
