@@ -4,15 +4,12 @@ accuracy and consistency paid for it.
     python benchmarks/diekf_cluster.py                                   # 5..80 robots, clusters of 5, 10 s
     python benchmarks/diekf_cluster.py --robots 5,10,20 --cluster 3,5 --duration 20 --exact-up-to 10
     python benchmarks/diekf_cluster.py --engine --spread --robots 10,100,1000,3000 --exact-up-to 100
-    python benchmarks/diekf_cluster.py --engine --backend jax --spread --robots 10,100,1000,3000 --exact-up-to 100
 
 ``--engine``: the engine's compiled replay (``run_engine(src, "diekf", backend="numba", cluster=K)``, equal to the
 nodes: tests/test_engine_clusters.py) instead of the in-process nodes, timed as the wall of its replay (after an
-untimed run that compiles: numba's on a small team, JAX's on the same team, as it compiles per shape);
-``--backend jax``: its JAX replay (tests/test_engine_jax_clusters.py; on a GPU where JAX has one). ``--spread``: the
-arena grows with the team (side ``3 m sqrt(n / 5)``) but the robots may leave it, so a robot of a small team still
-sees fewer teammates; ``--bounded``: constant density in what a robot sees (benchmarks/swarm_scene.py); without
-either, ``sim:random``'s 3 m arena.
+untimed run on a small team that compiles numba's loop). ``--spread``: the arena grows with the team (side ``3 m
+sqrt(n / 5)``) but the robots may leave it, so a robot of a small team still sees fewer teammates; ``--bounded``:
+constant density in what a robot sees (benchmarks/swarm_scene.py); without either, ``sim:random``'s 3 m arena.
 
 ``sim:random`` teams (seed 1), every robot a node of the in-process runner; CPU time of the run
 (``time.process_time``, one process, one thread: ``OPENBLAS_NUM_THREADS=1`` is set before numpy loads). The exact
@@ -43,14 +40,12 @@ from swarmloc.evaluation.metrics import evaluate  # noqa: E402
 from swarmloc.runner import run  # noqa: E402
 
 
-def measure(n: int, cluster: int, duration: float, seed: int, engine: bool = False, arena: str = "fixed",
-            backend: str = "numba") -> dict:  # fmt: skip
+def measure(n: int, cluster: int, duration: float, seed: int, engine: bool = False, arena: str = "fixed") -> dict:
     src = scene(n, duration, seed, arena)
     options = {**node_options("diekf", src.config, src.landmarks), "cluster": cluster}
     if engine:  # the replay's own wall (RunResult.wall_time), after a run that compiles
-        run_engine(src if backend == "jax" else scene(min(n, 6), 2.0, seed, arena), "diekf", backend=backend,
-                   **options)  # fmt: skip
-        res = run_engine(src, "diekf", backend=backend, **options)
+        run_engine(scene(min(n, 6), 2.0, seed, arena), "diekf", backend="numba", **options)
+        res = run_engine(src, "diekf", backend="numba", **options)
         cpu = res.wall_time
     else:
         nodes = make_team("diekf", src.initial, **options)
@@ -76,7 +71,6 @@ def main() -> None:
     ap.add_argument("--engine", action="store_true", help="the engine's compiled replay instead of the nodes")
     ap.add_argument("--spread", action="store_true", help="the arena grows with the team, robots free to leave it")
     ap.add_argument("--bounded", action="store_true", help="constant density: swarm_scene.py's bounded arena")
-    ap.add_argument("--backend", choices=("numba", "jax"), default="numba", help="the engine's backend (--engine)")
     args = ap.parse_args()
     sizes = [int(x) for x in args.robots.split(",")]
     arena = "bounded" if args.bounded else "spread" if args.spread else "fixed"
@@ -84,7 +78,7 @@ def main() -> None:
     print(
         f"machine: {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}; "
         f"sim:random ({arena} arena) seed {args.seed}, {args.duration:g} s; "
-        + (f"engine ({args.backend}), wall of the replay" if args.engine else "nodes in process, CPU time")
+        + ("engine (numba), wall of the replay" if args.engine else "nodes in process, CPU time")
     )
     print(f"{'robots':>6} {'cluster':>8} {'det/robot/s':>11} {'ms/detection':>12} {'ms/robot/s':>10} "
           f"{'RMSE [m]':>9} {'ANEES/dof':>9}")  # fmt: skip
@@ -93,7 +87,7 @@ def main() -> None:
         for c in clusters:
             if c == 0 and n > args.exact_up_to:
                 continue
-            r = measure(n, c, args.duration, args.seed, args.engine, arena, args.backend)
+            r = measure(n, c, args.duration, args.seed, args.engine, arena)
             rows[c].append(r)
             name = "exact" if c == 0 else str(c)
             print(f"{n:>6} {name:>8} {r['det_per_robot_s']:>11.1f} {r['ms_per_detection']:>12.3f} "

@@ -236,6 +236,17 @@ def test_engine_refuses_what_it_cannot_do() -> None:
         Engine("expfusion", mean, cov, noise=noise, backend="jax")
 
 
+@pytest.mark.parametrize("estimator", ["cekf", "iekf", "diekf", "rdl"])
+def test_replayed_estimators_name_the_one_backend_that_replays_them(estimator: str) -> None:
+    """``cekf``, ``iekf``, ``diekf`` (in clusters too) and ``rdl`` run on the engine as numba's compiled replay only:
+    any other backend is refused before a replay starts, by a ValueError naming numba and the backend given."""
+    src = _source(3, 1.0, 3)
+    for backend in ("numpy", "jax", "jax32"):
+        for opts in ({}, {"cluster": 2}) if estimator == "diekf" else ({},):
+            with pytest.raises(ValueError, match=rf"'{estimator}' .*backend='numba'.* not backend='{backend}'"):
+                run_engine(src, estimator, backend=backend, **opts)
+
+
 def test_neighbour_pairs_are_the_k_nearest_within_range() -> None:
     rng = np.random.default_rng(3)
     xy = rng.uniform(0, 6, (80, 2))

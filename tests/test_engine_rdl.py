@@ -6,10 +6,13 @@ intersection) equals the node's on every branch."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from test_engine import _source
 from test_engine_cekf import _same, _same_on_mrclam, _with, robot_extras
+from test_engine_invariant import _nodes as _invariant_nodes
 
 from swarmloc.engine import run_engine
 from swarmloc.engine.pairs import _joint_prior
@@ -120,3 +123,14 @@ def test_rdl_engine_refuses_what_it_does_not_run() -> None:
         run_engine(src, "rdl")
     with pytest.raises(ValueError, match="association"):
         run_engine(src, "rdl", backend="numba", association="nearest")
+
+
+def test_replays_dead_reckon_a_run_without_detections() -> None:
+    """A timeline without detections (every robot dead-reckoned): ``diekf``'s and ``rdl``'s replays equal their
+    nodes."""
+    src = _source(3, 4.0, 41, kinds=("pose",))
+    src = dataclasses.replace(src, events=[e for e in src.events if not isinstance(e, Detection)])
+    for estimator, ref in (("diekf", _invariant_nodes("diekf", src)), ("rdl", _nodes(src))):
+        eng = run_engine(src, estimator, backend="numba")
+        _same(ref, eng)
+        assert eng.stats["detections"] == 0 and eng.tracks[0].times.size > 10

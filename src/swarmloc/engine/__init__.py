@@ -3,15 +3,12 @@
 * :class:`Engine`: the state and :meth:`Engine.step`; :class:`Detections`: one stamp's detections as arrays;
 * :func:`run_engine`: a source's events through the engine, a :class:`~swarmloc.runner.RunResult` comparable to
   :func:`swarmloc.runner.run` with the per-robot nodes (equal to 1e-10: tests/test_engine.py);
-* :func:`joint_inputs`: a source packed for the compiled replays (``cekf``, ``iekf``, ``diekf``, ``rdl``), e.g. the
-  runs of a Monte Carlo sweep for :func:`swarmloc.engine.jax_joint.replay_joint_batch` or
-  :func:`swarmloc.engine.jax_pairs.replay_rdl_batch` (JAX: one vmapped call);
 * :func:`swarm_run`: simulate and estimate a large swarm (neighbours by ``scipy.spatial.cKDTree``);
 * :func:`fusion_step`: micro-benchmark of one predict + relative-pose update step, robot-updates per second.
 """
 
 from swarmloc.engine.core import ENGINE_ESTIMATORS, Detections, Engine
-from swarmloc.engine.replay import joint_inputs, run_engine
+from swarmloc.engine.replay import run_engine
 from swarmloc.engine.swarm import fusion_step, swarm_run
 
-__all__ = ["ENGINE_ESTIMATORS", "Detections", "Engine", "fusion_step", "joint_inputs", "run_engine", "swarm_run"]
+__all__ = ["ENGINE_ESTIMATORS", "Detections", "Engine", "fusion_step", "run_engine", "swarm_run"]

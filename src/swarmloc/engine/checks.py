@@ -23,7 +23,7 @@ from swarmloc.node import detection_key, odometry_problem, validate_detection
 from swarmloc.node.inputs import CONTIGUOUS, OdometryTimeline, brief, clearly_valid, command_value, finite_number
 from swarmloc.node.keys import SubKey
 
-__all__ = ["Checked", "Commands", "Groups", "cluster_size"]
+__all__ = ["Checked", "Commands", "Groups"]
 
 Groups = dict[float, dict[int, dict[SubKey, tuple[Detection, int]]]]
 """Checked detections: stamp -> observer row -> detection key -> ``(detection, target code)``."""
@@ -32,17 +32,6 @@ Commands = dict[float, dict[int, tuple[Any, Any]]]
 ``(0.0, 0.0)``)."""
 _T0_T1_V_W = tuple(map(attrgetter, ("t0", "t1", "v", "w")))
 """An odometry record's ``t0``, ``t1``, ``v`` and ``w``, one getter each."""
-
-
-def cluster_size(cluster: Any, n: int, starts: Sequence[Any]) -> int:
-    """The robots per cluster of ``diekf``'s replays in clusters (numba's and JAX's) for a team of ``n``: ``cluster``
-    (an integer >= 1) capped at ``n``; each run's ``starts`` must be its robots' starts ``(n,)``. ValueError naming
-    the argument otherwise."""
-    if isinstance(cluster, bool) or not isinstance(cluster, int | np.integer) or cluster < 1:
-        raise ValueError(f"replay_clusters: 'cluster' must be an integer >= 1, got {cluster!r}")
-    if any(np.ndim(t0) != 1 for t0 in starts):
-        raise ValueError("replay_clusters: t0 must be each robot's start (n,), as diekf's nodes start")
-    return min(int(cluster), max(n, 1))
 
 
 def _stamp(e: Any) -> float | None:

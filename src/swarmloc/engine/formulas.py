@@ -1,13 +1,13 @@
-"""The compiled replays' formulas, written once: the numba loops and the JAX scans call the same functions.
+"""The engine's formulas, written once: the numba replay loops and the JAX device stamp call the same functions.
 
 :func:`build` makes them for an array namespace ``xp`` and a compiler ``jit``: with :mod:`swarmloc.engine.numba_xp`
 and ``numba.njit`` they are scalar functions that numba compiles into the loops of :mod:`swarmloc.engine.joint`,
 :mod:`~swarmloc.engine.pairs`, :mod:`~swarmloc.engine.joint_clusters` and :mod:`~swarmloc.engine.numba_ops`; with
-``jax.numpy`` (no ``jit``: the scan is jitted whole) they act elementwise inside :mod:`swarmloc.engine.jax_replay`'s
-scans and :mod:`swarmloc.engine.jax_stamp`'s device stamp. Only the drivers differ: loops that branch and write in
-place, or scans that select (``where``) and return new arrays.
+``jax.numpy`` (no ``jit``: the stamp is jitted whole) they act elementwise inside :mod:`swarmloc.engine.jax_stamp`'s
+device stamp; with ``numpy`` they screen a stamp's detections (:mod:`swarmloc.engine.outcomes`). Only the drivers
+differ: loops that branch and write in place, or array code that selects (``where``) and returns new arrays.
 
-A function here computes every branch it selects from (``xp.where``), as the JAX form must: a value a branch does
+A function here computes every branch it selects from (``xp.where``), as the array forms must: a value a branch does
 not take may be ``inf`` or NaN and is dropped. The expressions are those the numba loops had (same operations, same
 order), so the numba replays give the same bits as before. Decisions are *rules* in the order the nodes apply them:
 :func:`rule` threads ``(outcome, reason, decided)`` through them, the first rule that holds deciding (codes of
@@ -54,8 +54,9 @@ W_STEP = (_W_HI - _W_LO) / (WEIGHT_GRID - 1)
 
 
 Value: TypeAlias = Any
-"""A formula's value: a float, int or bool of one robot or detection in a numba loop, a jax array (elementwise)
-inside a scan; numba's scalars and jax's arrays and tracers have no common type, so it is not checked."""
+"""A formula's value: a float, int or bool of one robot or detection in a numba loop, an array (elementwise) in
+numpy or inside the jitted device stamp; numba's scalars and jax's arrays and tracers have no common type, so it is
+not checked."""
 Rules: TypeAlias = tuple[Value, Value, Value]
 """Decisions so far, ``(outcome, reason, decided)`` (:func:`rule`)."""
 Vec3: TypeAlias = tuple[Value, Value, Value]

@@ -45,6 +45,7 @@ import numpy as np
 from numba import njit
 
 from swarmloc.arrays import BoolArray, FloatArray, IntArray
+from swarmloc.engine import blocks as B
 from swarmloc.engine.codes import (
     ABSOLUTE,
     FUSED,
@@ -54,7 +55,6 @@ from swarmloc.engine.codes import (
 )
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint_math import (
-    B,
     F,
     commit,
     degenerate,

@@ -30,7 +30,6 @@ from numba import njit
 
 from swarmloc.arrays import BoolArray, FloatArray
 from swarmloc.engine.blocks import Mat
-from swarmloc.engine.checks import cluster_size
 from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import flush, run, stamp_loop, steps
@@ -142,6 +141,16 @@ def _span(k: int, K: int, n: int) -> tuple[int, int, int]:
     return b, b * K, min(b * K + K, n)
 
 
+def _cluster_size(cluster: Any, n: int, t0: Any) -> int:
+    """The robots per cluster for a team of ``n``: ``cluster`` (an integer >= 1) capped at ``n``; ``t0`` must be
+    each robot's start ``(n,)``. ValueError naming the argument otherwise."""
+    if isinstance(cluster, bool) or not isinstance(cluster, int | np.integer) or cluster < 1:
+        raise ValueError(f"replay_clusters: 'cluster' must be an integer >= 1, got {cluster!r}")
+    if np.ndim(t0) != 1:
+        raise ValueError("replay_clusters: t0 must be each robot's start (n,), as diekf's nodes start")
+    return min(int(cluster), max(n, 1))
+
+
 def replay_clusters(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise: UnicycleNoise, cluster: int,
                     **switches: Unpack[Switches]) -> Replayed:  # fmt: skip
     """``diekf``'s nodes in clusters of ``cluster`` robots (rows in id order) over ``tl``, from Cartesian beliefs
@@ -149,7 +158,7 @@ def replay_clusters(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, 
     :func:`swarmloc.engine.joint.replay_joint` (``invariant=True``), which it equals for ``cluster >= n``. Returns
     ``(status, reason, records)`` as that does."""
     n = x.shape[0]
-    K = cluster_size(cluster, n, [t0])
+    K = _cluster_size(cluster, n, t0)
     X, J, clock, starts = joint_start(x, P, t0, True, K)
     st = (X.reshape(3 * n), J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
     return run(_kernels(noise), st, st[5:], tl, starts, constants(**switches))

@@ -1,9 +1,9 @@
-"""The compiled pieces the engine's replays share (numba; :mod:`swarmloc.engine.formulas` and
-:mod:`swarmloc.engine.blocks` compiled on scalars, the JAX scans' too): a detection's residual, Jacobian and noise
-(:func:`measure`), small inverses, the positive-definite check, the world-frame pieces of the invariant filters, the
-Kalman update on a few columns of a joint covariance (:func:`kalman`) and the order of its outcomes
-(:func:`verdict`). :mod:`swarmloc.engine.joint`, :mod:`swarmloc.engine.joint_clusters` and
-:mod:`swarmloc.engine.pairs` build their loops from them. Units: metres, radians; angles wrapped to (-pi, pi]."""
+"""The compiled pieces the engine's replays share (numba; :mod:`swarmloc.engine.formulas` compiled on scalars, with
+:mod:`swarmloc.engine.blocks`): a detection's residual, Jacobian and noise (:func:`measure`), small inverses, the
+positive-definite check, the world-frame pieces of the invariant filters, the Kalman update on a few columns of a
+joint covariance (:func:`kalman`) and the order of its outcomes (:func:`verdict`). :mod:`swarmloc.engine.joint`,
+:mod:`swarmloc.engine.joint_clusters` and :mod:`swarmloc.engine.pairs` build their loops from them. Units: metres,
+radians; angles wrapped to (-pi, pi]."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from swarmloc.engine import blocks, numba_xp
+from swarmloc.engine import blocks as B
+from swarmloc.engine import numba_xp
 from swarmloc.engine.codes import ABSOLUTE, FUSED, POSE, R_NUMERICAL, REJECTED
 from swarmloc.engine.formulas import RANGE_BEARING, build
 
@@ -24,8 +25,6 @@ def _compile(fn: Any) -> Any:
 
 F = build(numba_xp, _compile)
 """The shared formulas (:mod:`swarmloc.engine.formulas`) compiled by numba on scalars."""
-B = blocks.build(numba_xp, _compile)
-"""The shared block math (:mod:`swarmloc.engine.blocks`) compiled by numba on scalars."""
 wrap = F.wrap
 
 

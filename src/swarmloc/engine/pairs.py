@@ -32,11 +32,11 @@ import numpy as np
 from numba import njit
 
 from swarmloc.arrays import BoolArray, FloatArray
+from swarmloc.engine import blocks as B
 from swarmloc.engine.codes import ABSOLUTE, FUSED, GATED, NO_LANDMARK, R_CORRELATION, R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import predict_kernel, run, stamp_loop
 from swarmloc.engine.joint_math import (
-    B,
     F,
     degenerate,
     innovation,

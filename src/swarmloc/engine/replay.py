@@ -19,8 +19,8 @@ in bulk, a robot's odometry that no sequential check could refuse checked as arr
 through :func:`swarmloc.engine.joint.replay_joint` or :func:`swarmloc.engine.pairs.replay_rdl`, every detection kind
 in one compiled call, as the ``cekf`` or ``iekf`` node, the ``diekf`` nodes exchanging their broadcasts (whose
 replicas are the invariant EKF's joint state; with ``cluster = K``, each cluster's, through
-:func:`swarmloc.engine.joint_clusters.replay_clusters`, or with JAX :mod:`swarmloc.engine.jax_clusters`) or the
-``rdl`` nodes compute it; reasons are worded as those nodes word them.
+:func:`swarmloc.engine.joint_clusters.replay_clusters`) or the ``rdl`` nodes compute it; reasons are worded as those
+nodes word them. numba is their one compiled backend: another backend is refused with the ones that replay them.
 
 An SE(3) team (initial beliefs on SE(3), e.g. ``sim:3d``) runs on the engine's SE(3) path: body-twist odometry
 (:func:`swarmloc.events.twist_odometry`), ``"pose3"`` detections, the source's twist noise (``Source.noise``), tracks
@@ -87,8 +87,9 @@ def run_engine(
 ) -> RunResult:
     """Run ``estimator`` on a source's events with the batched :class:`Engine` (``"cekf"``, ``"iekf"``, ``"diekf"``,
     ``"rdl"``: the compiled replays of :mod:`swarmloc.engine.joint` and :mod:`swarmloc.engine.pairs`,
-    ``backend="numba"``); returns a :class:`~swarmloc.runner.RunResult` like :func:`swarmloc.runner.run` with the
-    nodes of :func:`~swarmloc.estimators.make_team`.
+    ``backend="numba"`` only: another backend is a ``ValueError`` that names it); returns a
+    :class:`~swarmloc.runner.RunResult` like :func:`swarmloc.runner.run` with the nodes of
+    :func:`~swarmloc.estimators.make_team`.
 
     ``source_or_sim``: a :class:`~swarmloc.datasets.source.Source` or a simulation (turned into one by
     :func:`~swarmloc.sim.source.sim_source` with ``config``); ``record_times`` default ``Source.record_times()``;
@@ -157,9 +158,9 @@ def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: Checked
 
 
 _COMPILED_ONLY = ("cekf", "iekf", "rdl", "diekf")
-"""Estimators the engine runs only as a compiled replay of their own state (numba, or JAX: ``jax_joint``,
-``jax_pairs``): ``cekf``'s and ``iekf``'s joint state, ``diekf``'s too (the nodes' replicas together are the invariant
-EKF's joint state, :mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
+"""Estimators the engine runs only as a compiled replay of their own state (numba): ``cekf``'s and ``iekf``'s joint
+state, ``diekf``'s too (the nodes' replicas together are the invariant EKF's joint state,
+:mod:`swarmloc.engine.joint`), ``rdl``'s filters and factors (:mod:`swarmloc.engine.pairs`)."""
 _COMPILED_OPTIONS = frozenset({"noise", "gate", "landmarks", "use_relative", "use_landmarks", "horizon", "cluster"})
 """The nodes' options those replays take (``horizon`` plays no role: input comes in order; ``cluster``: ``diekf``'s
 only)."""
@@ -168,10 +169,9 @@ _CENTRAL = ("cekf", "iekf")
 
 
 class JointInputs(NamedTuple):
-    """A source as the compiled replays take it (:func:`joint_inputs`): ``replay(timeline, x, P, t0, noise,
-    **options)`` of :func:`swarmloc.engine.pairs.replay_rdl` and :func:`swarmloc.engine.jax_pairs.replay_rdl_jax`, or
-    with ``invariant=...`` of :func:`swarmloc.engine.joint.replay_joint` and
-    :func:`swarmloc.engine.jax_joint.replay_joint_jax`; their ``*_batch`` forms take many."""
+    """A source as the compiled replays take it (:func:`_joint_inputs`): ``replay(timeline, x, P, t0, noise,
+    **options)`` of :func:`swarmloc.engine.pairs.replay_rdl`, or with ``invariant=...`` of
+    :func:`swarmloc.engine.joint.replay_joint`."""
 
     timeline: Timeline
     x: np.ndarray
@@ -182,21 +182,15 @@ class JointInputs(NamedTuple):
     noise: Any
     options: dict[str, Any]
     """``gate``, ``use_relative``, ``use_landmarks``, ``landmarks``; ``cluster`` for ``diekf`` in clusters (then for
-    :func:`swarmloc.engine.joint_clusters.replay_clusters`, or :func:`swarmloc.engine.jax_clusters.
-    replay_clusters_batch` with the cluster size as its own argument)."""
+    :func:`swarmloc.engine.joint_clusters.replay_clusters`, with the cluster size as its own argument)."""
     checked: Checked
     record_times: np.ndarray
     records: dict[float, tuple[int, ...]]
 
 
-def joint_inputs(src: Source, estimator: str = "diekf", record_times: Any = None, **options: Any) -> JointInputs:
-    """``src``'s events checked and packed as :func:`run_engine` packs them for ``estimator``'s compiled replay
-    (``cekf``, ``iekf``, ``diekf``, ``rdl``; planar teams): e.g. a Monte Carlo sweep's runs for
-    :func:`swarmloc.engine.jax_joint.replay_joint_batch` or :func:`swarmloc.engine.jax_pairs.replay_rdl_batch`."""
-    return _joint_inputs(src, estimator, record_times, _options(src, estimator, options))
-
-
 def _joint_inputs(src: Source, estimator: str, record_times: Any, opts: dict[str, Any]) -> JointInputs:
+    """``src``'s events checked and packed for ``estimator``'s compiled replay (``cekf``, ``iekf``, ``diekf``,
+    ``rdl``; planar teams) with the nodes' options ``opts`` (:func:`_options`)."""
     if src.noise is not None or any(np.shape(b.mean) != (3, 3) for b in src.initial.values()):
         raise ValueError(f"run_engine: {estimator!r} on the engine takes planar (SE(2)) teams; run the nodes")
     extra = sorted(set(opts) - _COMPILED_OPTIONS)
@@ -222,35 +216,27 @@ def _joint_inputs(src: Source, estimator: str, record_times: Any, opts: dict[str
 
 def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
     """``cekf``, ``iekf``, ``rdl`` or ``diekf`` through their compiled replay: the same input checks and timeline as
-    the other estimators, the whole replay in one call (numba or JAX; planar teams)."""
-    if backend not in ("numba", "jax"):
-        raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only: pass backend='numba'"
-                         " or 'jax'")  # fmt: skip
-    jax = backend == "jax"
+    the other estimators, the whole replay in one numba call (planar teams)."""
+    if backend != "numba":
+        raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only, which backend='numba'"
+                         f" runs (the one backend that replays it), not backend={backend!r}")  # fmt: skip
     inp = _joint_inputs(src, estimator, record_times, opts)
     tl, checked, kw = inp.timeline, inp.checked, inp.options
     wall = time.perf_counter()
     if estimator == "rdl":
-        if jax:
-            from swarmloc.engine.jax_pairs import replay_rdl_jax as replay_rdl
-        else:
-            from swarmloc.engine.pairs import replay_rdl  # numba
+        from swarmloc.engine.pairs import replay_rdl
+
         status, reason, (o_robot, o_stamp, o_x, o_P) = replay_rdl(tl, inp.x, inp.P, inp.t0, inp.noise, **kw)
     elif "cluster" in kw:
-        if jax:
-            from swarmloc.engine.jax_clusters import replay_clusters_jax as replay_clusters
-        else:
-            from swarmloc.engine.joint_clusters import replay_clusters  # numba
+        from swarmloc.engine.joint_clusters import replay_clusters
 
         kw = dict(kw)
         cluster = kw.pop("cluster")
         status, reason, (o_robot, o_stamp, o_x, o_P) = replay_clusters(tl, inp.x, inp.P, inp.t0, inp.noise, cluster,
                                                                        **kw)  # fmt: skip
     else:
-        if jax:
-            from swarmloc.engine.jax_joint import replay_joint_jax as replay_joint
-        else:
-            from swarmloc.engine.joint import replay_joint  # numba
+        from swarmloc.engine.joint import replay_joint
+
         status, reason, (o_robot, o_stamp, o_x, o_P) = replay_joint(tl, inp.x, inp.P, inp.t0, inp.noise,
                                                                     invariant=estimator != "cekf", **kw)  # fmt: skip
     wall = time.perf_counter() - wall

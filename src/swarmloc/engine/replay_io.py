@@ -1,11 +1,11 @@
-"""What every compiled replay takes and returns, one source for the numba loops and the JAX scans: the nodes'
-switches (:class:`Switches`, read as :class:`Constants`), the team's start as a joint state (:func:`joint_start`)
-and the result (:data:`Replayed`). Units: metres, radians, seconds.
+"""What every compiled replay (the numba loops) takes and returns: the nodes' switches (:class:`Switches`, read as
+:class:`Constants`), the team's start as a joint state (:func:`joint_start`) and the result (:data:`Replayed`).
+Units: metres, radians, seconds.
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple, TypedDict
+from typing import NamedTuple, TypedDict
 
 import numpy as np
 
@@ -18,15 +18,9 @@ Replayed = tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarra
 detections) and its records ``(robot row, stamp index, x (K, 3), P (K, 3, 3))`` (Cartesian)."""
 
 
-Traced = tuple[Any, ...]
-"""A tuple of a JAX scan's traced arrays: a form's state, or what one of its kernels returns."""
-Events = dict[str, Any]
-"""The fields of a JAX scan's steps or commands (:func:`swarmloc.engine.jax_replay.events`), or of one step."""
-
-
 class Switches(TypedDict, total=False):
-    """The nodes' switches every compiled replay takes as keywords (``replay_joint``, ``replay_rdl``, their JAX forms,
-    ...): the gate probability (None: no gate), relative and landmark measurements on, the map as
+    """The nodes' switches every compiled replay takes as keywords (``replay_joint``, ``replay_rdl``,
+    ``replay_clusters``): the gate probability (None: no gate), relative and landmark measurements on, the map as
     :func:`swarmloc.engine.core.landmark_table` gives it, ``(xy (L, 2), cov (L, 2, 2))`` (None: none)."""
 
     gate: float | None
@@ -36,7 +30,7 @@ class Switches(TypedDict, total=False):
 
 
 class Constants(NamedTuple):
-    """:class:`Switches` as the compiled loops and scans read them (:func:`constants`)."""
+    """:class:`Switches` as the compiled loops read them (:func:`constants`)."""
 
     thr: np.ndarray
     """The gate's threshold by measurement kind (code)."""
@@ -59,24 +53,19 @@ def constants(gate: float | None = None, use_relative: bool = True, use_landmark
                      np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float))  # fmt: skip
 
 
-def joint_start(x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, invariant: bool, K: int = 0,
-                pad: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+def joint_start(x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, invariant: bool, K: int = 0
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """The joint state at the start from Cartesian beliefs ``x (n, 3)``, ``P (n, 3, 3)`` (uncorrelated) and the
-    starts ``t0`` [s] (one float, or each robot's ``(n,)``; ``inf``: never starts): ``(X (N, 3), blocks (B, 3K, 3K),
-    clocks (N,), starts (N,))``, the covariance block-diagonal in clusters of ``K`` robots in row order (0: one
-    cluster of all), world-frame errors with ``invariant``. ``pad``: the team padded to ``N = K ceil(n / K)`` robots
-    that never start (identity covariance), else ``N = n`` and the last cluster possibly smaller."""
+    starts ``t0`` [s] (one float, or each robot's ``(n,)``; ``inf``: never starts): ``(X (n, 3), blocks (B, 3K, 3K),
+    clocks (n,), starts (n,))``, the covariance block-diagonal in clusters of ``K`` robots in row order (0: one
+    cluster of all; the last cluster possibly smaller), world-frame errors with ``invariant``."""
     n = x.shape[0]
     K = K or n
-    N = K * -(-n // K) if pad else n
-    starts = np.full(N, np.inf)
-    starts[:n] = np.broadcast_to(np.asarray(t0, dtype=float), (n,))
-    X = np.zeros((N, 3))
-    X[:n] = x
-    blocks = np.broadcast_to(np.eye(3), (N, 3, 3)).copy()
-    blocks[:n] = cartesian_to_world_cov(X[:n], np.asarray(P, dtype=float)) if invariant else P
-    J = np.zeros((-(-N // K), 3 * K, 3 * K))
-    for k in range(N):
+    starts = np.array(np.broadcast_to(np.asarray(t0, dtype=float), (n,)))
+    X = np.array(x, dtype=float)
+    blocks = cartesian_to_world_cov(X, np.asarray(P, dtype=float)) if invariant else P
+    J = np.zeros((-(-n // K), 3 * K, 3 * K))
+    for k in range(n):
         c = 3 * (k % K)
         J[k // K, c : c + 3, c : c + 3] = blocks[k]
     return X, J, np.where(np.isfinite(starts), starts, 0.0), starts

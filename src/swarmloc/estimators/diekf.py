@@ -46,8 +46,8 @@ outside it is asked a ``BeliefQuery`` and its detection fused by covariance inte
 outsider is not updated), and conservative. Over the network a node subscribes to its cluster's broadcasts only
 and its lockstep waits for theirs only (:mod:`swarmloc.net.broadcast`). ``K >= n`` is the exact filter. The
 engine replays the clusters in one compiled loop (``run_engine(source, "diekf", backend="numba", cluster=K)``,
-:mod:`swarmloc.engine.joint_clusters`; ``backend="jax"``: :mod:`swarmloc.engine.jax_clusters`). The accuracy cost
-and the cost per robot against team size: ``benchmarks/diekf_cluster.py``.
+:mod:`swarmloc.engine.joint_clusters`). The accuracy cost and the cost per robot against team size:
+``benchmarks/diekf_cluster.py``.
 
 Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
 ``RdlStateQuery`` keyed as the detection would be were it of that teammate
