@@ -196,12 +196,12 @@ def test_demo_command_prints_its_summary_once_and_says_how_to_read_it(tmp_path: 
     followed by how to read it: which row is the thesis' second-order method and what 'better' means there."""
     import functools
 
-    import swarmloc.studies.thesis_static as static
+    import swarmloc.experiments.thesis_demo as demo
     from swarmloc.cli import main
 
     small = {**SMALL, "n_importance": 2000, "figures": False}
     small.pop("progress")
-    monkeypatch.setattr(static, "run_demo", functools.partial(static.run_demo, **small))
+    monkeypatch.setattr(demo, "run_demo", functools.partial(demo.run_demo, **small))
     assert main(["demo", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     closing = [ln for ln in out.splitlines() if "wrote" in ln or "written" in ln]

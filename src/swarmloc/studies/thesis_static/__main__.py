@@ -6,7 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from swarmloc.studies.thesis_static.run import run_demo, run_tables
+from swarmloc.experiments.thesis_demo import run_demo
+from swarmloc.studies.thesis_static.run import run_tables
 
 
 def main(argv: list[str] | None = None) -> None:

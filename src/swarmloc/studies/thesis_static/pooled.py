@@ -22,9 +22,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from swarmloc.experiments.output import write_summary
+from swarmloc.experiments.thesis_demo.spec import COMMANDS, SIGMA_M, THESIS_DRIVE
 from swarmloc.runner.fanout import fan_out
 from swarmloc.studies.thesis_static.run import table_trials
-from swarmloc.studies.thesis_static.spec import COMMANDS, SIGMA_M, THESIS_DRIVE, THESIS_TABLES, deviation_510
+from swarmloc.studies.thesis_static.spec import THESIS_TABLES, deviation_510
 
 if TYPE_CHECKING:
     from distributed import Client
