@@ -9,11 +9,11 @@ posterior against the number of its neighbours' measurements, in the set-up of t
   2.15 (circular), so the numbers depend on that
   choice of world origin; the tables also give the frame-free errors.
 
-``run_tables`` reproduces Tables 5.1/5.2 and figures 5.8/5.9, :mod:`~swarmloc.studies.thesis_static.pooled` pools
-them over many seeds. Run ``python -m swarmloc.studies.thesis_static demo|tables OUT_DIR``.
+``run_tables`` reproduces Tables 5.1/5.2 and figures 5.8/5.9, :mod:`~swarmloc_studies.thesis_static.pooled` pools
+them over many seeds. Run ``python -m swarmloc_studies.thesis_static demo|tables OUT_DIR``.
 
-Layout: :mod:`~swarmloc.studies.thesis_static.spec` holds the thesis' printed tables and eq. (5.10),
-:mod:`~swarmloc.studies.thesis_static.run` the computations, :mod:`~swarmloc.studies.thesis_static.report`
+Layout: :mod:`~swarmloc_studies.thesis_static.spec` holds the thesis' printed tables and eq. (5.10),
+:mod:`~swarmloc_studies.thesis_static.run` the computations, :mod:`~swarmloc_studies.thesis_static.report`
 the tables, JSON and figures.
 """
 
@@ -22,8 +22,8 @@ from __future__ import annotations
 from swarmloc.experiments.thesis_demo import run_demo
 from swarmloc.experiments.thesis_demo import spec as demo_spec
 from swarmloc.experiments.thesis_demo.spec import *  # noqa: F403 - the set-up and the model: spec.__all__
-from swarmloc.studies.thesis_static import spec
-from swarmloc.studies.thesis_static.run import run_tables
-from swarmloc.studies.thesis_static.spec import *  # noqa: F403 - the printed tables and eq. (5.10): spec.__all__
+from swarmloc_studies.thesis_static import spec
+from swarmloc_studies.thesis_static.run import run_tables
+from swarmloc_studies.thesis_static.spec import *  # noqa: F403 - the printed tables and eq. (5.10): spec.__all__
 
 __all__ = [*demo_spec.__all__, *spec.__all__, "run_demo", "run_tables"]

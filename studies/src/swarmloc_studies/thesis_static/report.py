@@ -15,7 +15,7 @@ from swarmloc.experiments.thesis_demo.report import jsonable, md_table, rich_tab
 
 def write_tables(out_dir: Path, result: dict[str, Any], con: Any) -> None:
     """Write ``tables.md`` and ``tables.json`` for the ``result`` of
-    :func:`~swarmloc.studies.thesis_static.run_tables` (``runtime_s`` set) and print the tables on ``con``."""
+    :func:`~swarmloc_studies.thesis_static.run_tables` (``runtime_s`` set) and print the tables on ``con``."""
     s, motions = result["settings"], result["motions"]
     reps, seed, noise_scale = s["reps"], s["seed"], s["noise_scale"]
     md = [f"# Thesis Tables 5.1/5.2: {reps} repetitions per n (seed {seed}, noise scale {noise_scale})", ""]

@@ -1,5 +1,5 @@
 """Computations of thesis Tables 5.1/5.2: :func:`run_tables` builds its result dictionary and hands it to
-:mod:`swarmloc.studies.thesis_static.report`."""
+:mod:`swarmloc_studies.thesis_static.report`."""
 
 from __future__ import annotations
 
@@ -27,8 +27,8 @@ from swarmloc.fusion import fuse_relative
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import DiffDrive
-from swarmloc.studies.thesis_static.report import tables_figures, write_tables
-from swarmloc.studies.thesis_static.spec import THESIS_TABLES, deviation_510
+from swarmloc_studies.thesis_static.report import tables_figures, write_tables
+from swarmloc_studies.thesis_static.spec import THESIS_TABLES, deviation_510
 
 
 def _summary(g_true: np.ndarray, post: GroupGaussian, prior_log_err: np.ndarray | None) -> dict[str, Any]:
