@@ -1,4 +1,4 @@
-"""``swarmloc bench`` as a script: the same code (:mod:`swarmloc.studies.bench`), the same options.
+"""``swarmloc-studies bench`` as a script: the same code (:mod:`swarmloc_studies.bench`), the same options.
 
     python benchmarks/bench.py --quick              # under a minute
     python benchmarks/bench.py                      # full: swarms up to 10,000 robots, all of MRCLAM dataset 6
@@ -15,10 +15,10 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
+sys.path[:0] = [str(ROOT / "src"), str(ROOT / "studies" / "src")]  # this checkout: swarmloc and its studies
 os.environ.setdefault("SWARMLOC_MRCLAM", str(ROOT.parent / "shared/data/mrclam"))
 
-from swarmloc.studies.bench_command import main  # noqa: E402
+from swarmloc_studies.bench_command import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

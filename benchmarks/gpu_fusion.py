@@ -1,12 +1,12 @@
-"""The fusion step on an accelerator: section e of ``swarmloc bench``, the engine's JAX backends (float64 and
+"""The fusion step on an accelerator: section e of ``swarmloc-studies bench``, the engine's JAX backends (float64 and
 float32) against the same step in plain JAX on device-resident arrays, and numba, all measured in one run.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/gpu_fusion.py                     # 1e4, 1e5, 1e6 robots
     python benchmarks/gpu_fusion.py --sizes 1000 --repeats 2                  # a quick check (a CPU is fine)
     python benchmarks/gpu_fusion.py --json-out e.json                         # the results as JSON too
 
-The same as ``swarmloc bench --sections e --accelerator-sizes ...``; what each column is:
-:mod:`swarmloc.studies.accelerator`. The device is jax's default one (``jax.devices()[0]``).
+The same as ``swarmloc-studies bench --sections e --accelerator-sizes ...``; what each column is:
+:mod:`swarmloc_studies.accelerator`. The device is jax's default one (``jax.devices()[0]``).
 """
 
 from __future__ import annotations
@@ -16,9 +16,10 @@ import json
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "src"), str(ROOT / "studies" / "src")]  # this checkout: swarmloc and its studies
 
-from swarmloc.studies.accelerator import accelerator_rates, format_accelerator  # noqa: E402
+from swarmloc_studies.accelerator import accelerator_rates, format_accelerator  # noqa: E402
 
 
 def main() -> None:

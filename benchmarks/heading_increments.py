@@ -15,7 +15,7 @@ interval (``[motion]`` defaults, median).
 
 ``--lodo-yaw``: the yaw terms ``q_w0, q_w2, q_wv`` fitted by maximum likelihood to each dataset's residuals (a free
 scale on the fits' variance per dataset; residuals beyond 0.5 rad left out), and for each dataset named, the
-filters (rdl, diekf) scored as in :mod:`swarmloc.studies.lodo` with the median of the *other* datasets' fits.
+filters (rdl, diekf) scored as in :mod:`swarmloc_studies.lodo` with the median of the *other* datasets' fits.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from swarmloc.datasets.mrclam import load_mrclam
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.calibrate import heading_increments
 from swarmloc.sensors.decorrelate import snapshot_poses
-from swarmloc.studies.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
+from swarmloc_studies.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
 
 ROOT = Path(__file__).resolve().parents[1]
 CHI2_1_MEDIAN = 0.4549

@@ -1,5 +1,5 @@
 """Leave-one-dataset-out check of the MRCLAM camera model (issue 21): held-out truth-free scores of the candidate
-models on every dataset, and filter consistency on every dataset with odometry (:mod:`swarmloc.studies.lodo`):
+models on every dataset, and filter consistency on every dataset with odometry (:mod:`swarmloc_studies.lodo`):
 landmarks on, on with the yaw diffusion calibrated on the recording (``on+yaw``; ``--no-yaw`` leaves it out), off.
 
     python benchmarks/lodo.py --mrclam ../shared/data/mrclam --duration 200 --out lodo   # writes lodo.md, lodo.json
@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from swarmloc.experiments.evaluate import json_default
-from swarmloc.studies.lodo import lodo, lodo_markdown
+from swarmloc_studies.lodo import lodo, lodo_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 

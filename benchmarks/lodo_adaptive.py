@@ -1,5 +1,5 @@
 """``diekf`` with and without ``[filter] diekf_adaptive`` on every MRCLAM dataset with odometry, the camera model held
-out (the leave-one-out study's filter scores, :func:`swarmloc.studies.lodo.filter_scores`), landmarks on and off.
+out (the leave-one-out study's filter scores, :func:`swarmloc_studies.lodo.filter_scores`), landmarks on and off.
 
     python benchmarks/lodo_adaptive.py --mrclam ../shared/data/mrclam --duration 200 --datasets 6,9,3,1,2,4
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
-from swarmloc.studies.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
+from swarmloc_studies.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("pos_rmse", "anees", "anees_folds", "nis_ratio_ref", "anis_ref", "beyond_gate_ref")

@@ -1,6 +1,6 @@
 """Would a smaller process noise make the filters consistent on every MRCLAM dataset? The LODO filter score with
 landmarks on (held-out landmark folds, the recording's own std) at process noise scaled by ``--scales``, with the
-camera model chosen by :func:`swarmloc.studies.lodo.lodo`; on dataset 6 also RMSE and ANEES against the truth.
+camera model chosen by :func:`swarmloc_studies.lodo.lodo`; on dataset 6 also RMSE and ANEES against the truth.
 
     python benchmarks/lodo_process_noise.py --datasets 1,2,3,4,6,9 --scales 1,0.5,0.25,0.125
     python benchmarks/lodo_process_noise.py --datasets 9,6 --scales 0.125 --terms q_v0,q_v1,q_v2,q_lat0,q_lat1
@@ -18,7 +18,7 @@ from pathlib import Path
 
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
-from swarmloc.studies.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
+from swarmloc_studies.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from swarmloc.experiments.evaluate import json_default
 from swarmloc.experiments.se3 import run_se3, write_tum_tracks
 from swarmloc.experiments.sources import load_source
-from swarmloc.studies.se3 import se3_figures, se3_markdown, se3_table
+from swarmloc_studies.se3 import se3_figures, se3_markdown, se3_table
 
 
 def _figures(a: argparse.Namespace) -> None:

@@ -13,7 +13,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))  # document this checkout's code, not another installed copy
+# document this checkout's code (the library and its research studies), not another installed copy
+sys.path[:0] = [str(ROOT / "src"), str(ROOT / "studies" / "src")]
 sys.path.insert(0, str(ROOT / "docs" / "_ext"))
 
 project = "swarmloc"

@@ -1,4 +1,4 @@
-"""Observability of cooperative localization (lecture slide 20; :mod:`swarmloc.studies.observability`).
+"""Observability of cooperative localization (lecture slide 20; :mod:`swarmloc_studies.observability`).
 
     python examples/observability.py [FIGURE.png]
 
@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from swarmloc.studies.observability import observability_figure, observability_run
+from swarmloc_studies.observability import observability_figure, observability_run
 
 for anchored, name in (((), "relative measurements only"), ((0,), "robot 0 has absolute fixes")):
     errors = observability_run(robots=4, duration=300.0, seed=0, anchored=anchored)

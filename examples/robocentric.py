@@ -18,7 +18,7 @@ from swarmloc.estimators.robocentric import (
     compose,
     inverse,
 )
-from swarmloc.studies.robocentric import robocentric_monte_carlo
+from swarmloc_studies.robocentric import robocentric_monte_carlo
 
 rng = np.random.default_rng(1)
 poses = np.array([[0.0, 0.0, 0.0], [2.0, 1.0, 0.5], [1.0, -2.0, -1.0]])  # the three robots in the world [m, rad]

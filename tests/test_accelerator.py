@@ -1,4 +1,4 @@
-"""The engine's float32 JAX backend, the plain-JAX team step and section e of ``swarmloc bench``.
+"""The engine's float32 JAX backend, the plain-JAX team step and section e of ``swarmloc-studies bench``.
 
 jax is in the dev extra: these run in CI (on its CPU), not skipped. On a GPU the same code runs unchanged.
 """
@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from test_engine import COUNTS, _source
 
-from swarmloc.cli import main
 from swarmloc.engine import run_engine
 from swarmloc.engine.backends import JaxOps, NumpyOps, jax_team_step, team_step
 from swarmloc.engine.swarm import SWARM_NOISE, Swarm, device_step, neighbour_pairs
 from swarmloc.lie import wrap_angle
-from swarmloc.studies import bench as B
-from swarmloc.studies.bench_report import format_report
+from swarmloc_studies import bench as B
+from swarmloc_studies.bench_report import format_report
+from swarmloc_studies.cli import main
 
 # slow: the first test of the module compiles the engine's numba/JAX kernels
 pytestmark = [pytest.mark.unit, pytest.mark.slow]

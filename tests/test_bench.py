@@ -1,4 +1,4 @@
-"""``swarmloc bench``: the quick path's pieces on tiny sizes return the documented structure, with positive and
+"""``swarmloc-studies bench``: the quick path's pieces on tiny sizes return the documented structure, with positive and
 finite rates, ratios and fractions (no timing assertions: the machine is shared)."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ import math
 
 import pytest
 
-from swarmloc.cli import main
-from swarmloc.studies import bench as B
-from swarmloc.studies import bench_command
-from swarmloc.studies.bench_report import format_report
+from swarmloc_studies import bench as B
+from swarmloc_studies import bench_command
+from swarmloc_studies.bench_report import format_report
+from swarmloc_studies.cli import main
 
 pytestmark = pytest.mark.data
 

@@ -19,7 +19,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.runner import run
 from swarmloc.sim import thesis_two_robot
-from swarmloc.studies.thesis_dynamic import ABLATIONS, NOISE_LEVELS, RUNS, run_dynamic, spread
+from swarmloc_studies.thesis_dynamic import ABLATIONS, NOISE_LEVELS, RUNS, run_dynamic, spread
 
 # slow: its module fixture runs the thesis' dynamic experiments (half a minute)
 pytestmark = [pytest.mark.unit, pytest.mark.slow]

@@ -1,4 +1,4 @@
-"""Tests for swarmloc.studies.thesis_static (thesis sec. 5.1: demo figures 5.2-5.5, Tables 5.1/5.2)."""
+"""Tests for swarmloc_studies.thesis_static (thesis sec. 5.1: demo figures 5.2-5.5, Tables 5.1/5.2)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from swarmloc.lie import SE2
 from swarmloc.motion import thesis_circular_cov, thesis_straight_cov
-from swarmloc.studies.thesis_static import (
+from swarmloc_studies.thesis_static import (
     CIRCULAR,
     SIGMA_M,
     SIGMA_M_PRINTED,
@@ -169,9 +169,9 @@ def test_tables_trends(tmp_path: Path):
 
 
 def test_pooled_tables_use_the_trials_of_run_tables_and_the_thesis_sampling_error(tmp_path: Path):
-    """``swarmloc reproduce tables``: the deviations of one seed are run_tables' own, pooled over seeds, and every
-    printed thesis value is compared in units of the combined standard error (ours and the thesis' 60 reps)."""
-    from swarmloc.studies.thesis_static.pooled import deviations, pooled_tables
+    """``swarmloc-studies reproduce tables``: the deviations of one seed are run_tables' own, pooled over seeds, and
+    every printed thesis value is compared in units of the combined standard error (ours and the thesis' 60 reps)."""
+    from swarmloc_studies.thesis_static.pooled import deviations, pooled_tables
 
     dev = deviations(seed=0, reps=300)
     ref = run_tables(tmp_path / "t", reps=300, seed=0, progress=False, figures=False)
@@ -196,12 +196,12 @@ def test_demo_command_prints_its_summary_once_and_says_how_to_read_it(tmp_path: 
     followed by how to read it: which row is the thesis' second-order method and what 'better' means there."""
     import functools
 
-    import swarmloc.studies.thesis_static as static
+    import swarmloc.experiments.thesis_demo as demo
     from swarmloc.cli import main
 
     small = {**SMALL, "n_importance": 2000, "figures": False}
     small.pop("progress")
-    monkeypatch.setattr(static, "run_demo", functools.partial(static.run_demo, **small))
+    monkeypatch.setattr(demo, "run_demo", functools.partial(demo.run_demo, **small))
     assert main(["demo", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     closing = [ln for ln in out.splitlines() if "wrote" in ln or "written" in ln]

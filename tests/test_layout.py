@@ -89,9 +89,13 @@ def _private_imports(path: Path, root: Path = SRC.parent) -> list[str]:
 
 
 def test_no_module_imports_another_modules_private_names():
+    """In swarmloc and in the research studies' package beside it (``studies/src``)."""
     files = sorted(SRC.rglob("*.py"))
-    assert len(files) > 30
+    studies = SRC.parents[1] / "studies" / "src"
+    study_files = sorted(studies.rglob("*.py"))
+    assert len(files) > 30 and len(study_files) > 10
     bad = [b for f in files for b in _private_imports(f)]
+    bad += [b for f in study_files for b in _private_imports(f, root=studies)]
     assert bad == [], "\n".join(bad)
 
 

@@ -1,4 +1,4 @@
-"""The LODO filter score (issue 21, :mod:`swarmloc.studies.lodo`): the predictive landmark NIS against Monte
+"""The LODO filter score (issue 21, :mod:`swarmloc_studies.lodo`): the predictive landmark NIS against Monte
 Carlo draws of the pose, the map entry and the reading, and the landmark folds."""
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def test_filter_scores_score_every_reading_once_against_a_run_without_its_landma
     reference std can only lower the score."""
     from swarmloc.datasets.mrclam import load_mrclam
     from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent
-    from swarmloc.studies.lodo import filter_scores
+    from swarmloc_studies.lodo import filter_scores
 
     data = load_mrclam(mrclam6)
     model = CameraModel(ErrorComponent(0.15), ErrorComponent(0.005), source="test")
@@ -105,11 +105,11 @@ def test_filter_scores_calibrate_the_yaw_diffusion_without_the_scored_span_or_th
     the scale fitted without that fold's readings; the scales reach the filters (the score moves) and landmarks
     off is left as it is (nothing to calibrate from that the score does not use)."""
     import swarmloc.experiments.truthfree as truthfree_module
-    import swarmloc.studies.lodo as lodo_module
+    import swarmloc_studies.lodo as lodo_module
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam
     from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent
-    from swarmloc.studies.lodo import detection_set, filter_scores, yaw_calibration
+    from swarmloc_studies.lodo import detection_set, filter_scores, yaw_calibration
 
     data = load_mrclam(mrclam6)
     model = CameraModel(ErrorComponent(0.15), ErrorComponent(0.005), source="test")

@@ -134,7 +134,7 @@ def test_mrclam_recordings_calibrate_as_their_snapshots_say(mrclam_dataset) -> N
     held out changes the scale by less than 4 of its std in log."""
     from swarmloc.datasets.mrclam import load_mrclam
     from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent
-    from swarmloc.studies.lodo import detection_set, landmark_folds, yaw_calibration
+    from swarmloc_studies.lodo import detection_set, landmark_folds, yaw_calibration
 
     model = CameraModel(ErrorComponent(0.158), ErrorComponent(0.0046), source="test")
     noise = UnicycleNoise(q_v0=1e-4, q_v2=0.05, q_lat0=1e-4, q_lat1=0.01, q_w0=1e-3, q_w2=0.05, q_wv=0.02)

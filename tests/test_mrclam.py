@@ -13,7 +13,7 @@ from swarmloc.datasets import MRCLAMData, MRCLAMError, load_mrclam, mrclam_event
 from swarmloc.datasets.mrclam import MAX_YAW_RATE
 from swarmloc.events import Detection, Odometry
 from swarmloc.sensors.decorrelate import snapshot_poses, snapshot_residuals
-from swarmloc.studies.lodo import detection_set
+from swarmloc_studies.lodo import detection_set
 
 pytestmark = pytest.mark.data
 

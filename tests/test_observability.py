@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarmloc.studies.observability import observability_figure, observability_run
+from swarmloc_studies.observability import observability_figure, observability_run
 
 # slow: its module fixture simulates the long runs every test reads (20 s)
 pytestmark = [pytest.mark.unit, pytest.mark.slow]

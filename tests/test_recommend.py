@@ -76,14 +76,14 @@ def test_dataset6_short_span_in_band_and_an_over_confident_camera_out_of_band(mr
 @pytest.mark.data
 def test_the_truth_free_score_is_the_studys_own_and_is_unchanged_by_the_move(mrclam_dataset):
     """On 100 s of dataset 9 (no truth), the score ``swarmloc evaluate`` uses (:func:`truth_free_score`) is the LODO
-    study's filter score of the same run (:func:`~swarmloc.studies.lodo.filter_scores`), and both are what the study
+    study's filter score of the same run (:func:`~swarmloc_studies.lodo.filter_scores`), and both are what the study
     gave before the score moved into the library (main 1814715: 0.34977354270167166 over 1625 readings)."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
     from swarmloc.experiments.mrclam import detection_set
     from swarmloc.experiments.truthfree import truth_free_score
     from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent, decorrelate
-    from swarmloc.studies.lodo import filter_scores
+    from swarmloc_studies.lodo import filter_scores
 
     data = load_mrclam(mrclam_dataset(9))
     model = CameraModel(ErrorComponent(0.15, 0.7, 10.0), ErrorComponent(0.005, 0.5, 20.0), source="test")

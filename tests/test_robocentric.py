@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swarmloc.estimators import robocentric as rc
-from swarmloc.studies.robocentric import robocentric_monte_carlo
+from swarmloc_studies.robocentric import robocentric_monte_carlo
 
 pytestmark = pytest.mark.unit
 

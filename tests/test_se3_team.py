@@ -192,7 +192,7 @@ def test_run_se3_records_every_truth_instant() -> None:
 def test_se3_figures_draw_top_side_views_and_nees_over_time(tmp_path):
     """The 3-D figures: two PNGs from a short run of two estimators; a run that recorded nothing is refused."""
     from swarmloc.runner import RunResult
-    from swarmloc.studies.se3 import se3_figures
+    from swarmloc_studies.se3 import se3_figures
 
     src = load_source("sim:3d", robots=3, duration=4.0, seed=0)
     results = {e: run_se3(src, e) for e in ("expfusion", "dr")}
@@ -207,7 +207,7 @@ def test_se3_figures_draw_top_side_views_and_nees_over_time(tmp_path):
 def test_se3_table_rows_per_estimator_and_seed_and_summary_means():
     """One row per (scenario, estimator, seed) although a seed's estimators share one job; the summary is their
     mean."""
-    from swarmloc.studies.se3 import se3_table
+    from swarmloc_studies.se3 import se3_table
 
     t = se3_table(specs=("sim:3d",), estimators=("dr", "ci"), seeds=2, robots=3, duration=3.0, workers=1)
     assert sorted((r["estimator"], r["seed"]) for r in t["rows"]) == [("ci", 0), ("ci", 1), ("dr", 0), ("dr", 1)]

@@ -1,5 +1,5 @@
-"""Command line: ``swarmloc demo | reproduce | evaluate | simulate | config | node | server | router | keys | compare
-| consistency | bench | map | ros | team | data``.
+"""Command line: ``swarmloc demo | evaluate | simulate | config | node | server | router | keys | compare | consistency
+| map | ros | team | data`` (the research studies' commands are ``swarmloc-studies``, a package of its own).
 
 Every command writes its results (Markdown, JSON, PNG, TUM) to an output folder and prints a short summary; errors in
 the input (a missing dataset file, a malformed line, an unknown estimator, a bad configuration) are reported in
@@ -13,9 +13,11 @@ The ``swarmloc`` program and ``python -m swarmloc.cli`` run :func:`console`.
 
 from __future__ import annotations
 
+from typing import NoReturn
+
 from swarmloc.cli.parser import build_parser
 
-__all__ = ["build_parser", "console", "main"]
+__all__ = ["build_parser", "console", "exit_with", "main"]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,7 +39,12 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def console() -> None:
-    """The ``swarmloc`` program: :func:`main`, then exit with its status.
+    """The ``swarmloc`` program: :func:`main`, then :func:`exit_with` its status."""
+    exit_with(main())
+
+
+def exit_with(rc: int) -> NoReturn:
+    """End the process with status ``rc`` (the ``swarmloc`` programs' last step).
 
     A process that imported Zenoh ends with ``os._exit`` once its logs and output are flushed, without finalizing
     the interpreter: Zenoh's runtime threads outlive the sessions a command closed and drop the callbacks Python gave
@@ -46,7 +53,6 @@ def console() -> None:
     SIGABRT) after the command has done its work. Every command closes its files and sessions before it returns."""
     import sys
 
-    rc = main()
     if "zenoh" in sys.modules:
         import logging
         import os

@@ -8,7 +8,6 @@ import argparse
 
 from swarmloc import __version__
 from swarmloc.cli.commands import (
-    bench,
     compare,
     config,
     consistency,
@@ -17,7 +16,6 @@ from swarmloc.cli.commands import (
     evaluate,
     keys,
     node,
-    reproduce,
     ros,
     router,
     server,
@@ -26,8 +24,7 @@ from swarmloc.cli.commands import (
 )
 from swarmloc.cli.commands import map as map_
 
-COMMANDS = (demo, reproduce, evaluate, simulate, config, node, server, router, keys, compare, consistency, bench, map_,
-            ros, team, data)  # fmt: skip
+COMMANDS = (demo, evaluate, simulate, config, node, server, router, keys, compare, consistency, map_, ros, team, data)
 """The command modules, each with ``add_parser(sub)`` and ``run(args)``, in the order of ``swarmloc --help``."""
 
 

@@ -2,8 +2,8 @@
 run by numpy (``"numpy"``) or by ``jax.numpy`` under ``jax.jit`` in float64 (``"jax"``) or float32 (``"jax32"``),
 on jax's default device (CPU or GPU); the same formulas compiled as scalar loops by numba (``"numba"``,
 :mod:`swarmloc.engine.numba_ops`). :func:`jax_team_step` is the whole step as one jitted function on arrays kept on
-the device (no scheduling, Jacobi order): the device's ceiling for it, measured by ``swarmloc bench``. The engine's
-jax backends run a stamp of poses, fixes and range-bearing detections as one device call
+the device (no scheduling, Jacobi order): the device's ceiling for it, measured by ``swarmloc-studies bench``. The
+engine's jax backends run a stamp of poses, fixes and range-bearing detections as one device call
 (:mod:`swarmloc.engine.jax_stamp`, :attr:`JaxOps.stamp`); the per-batch kernels here take any other stamp.
 
 Both take and return numpy arrays: states ``x (B, 3)`` ``(x [m], y [m], theta [rad])``, covariances

@@ -8,7 +8,7 @@ consistent, above: over-confident, below: under-confident); ``mean(NIS) / 2`` (A
 A reading already fused would score the belief against itself: with landmarks fused, the landmarks are split into
 folds (:func:`landmark_folds`) and each fold's readings are scored against a run without that fold
 (:func:`without_landmarks`). Used by ``swarmloc evaluate`` on recordings without ground truth and by the
-leave-one-dataset-out study (:mod:`swarmloc.studies.lodo`).
+leave-one-dataset-out study (the repository's ``swarmloc_studies.lodo``).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ merged in, one run, and the recorded tracks as TUM files.
 :func:`swarmloc.evaluation.metrics.evaluate`: 3-D position RMSE, rotation-angle RMSE, ANEES per dof over the 6 dof);
 ``swarmloc compare`` runs a 3-D source through :func:`se3_team` and :func:`with_truth`. :func:`write_tum_tracks`
 writes each robot's estimate and truth as TUM files with full quaternions (``evo_ape tum truth.tum estimate.tum``).
-The study over scenarios x estimators x seeds is :mod:`swarmloc.studies.se3`.
+The study over scenarios x estimators x seeds is the repository's ``swarmloc_studies.se3``.
 """
 
 from __future__ import annotations

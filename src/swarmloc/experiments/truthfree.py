@@ -2,7 +2,7 @@
 start from the robots' landmark snapshots, and the runs that hold each fold of the landmarks out.
 
 Used by ``swarmloc evaluate mrclam`` on a recording without ground truth (:func:`truth_free_score`, the recommended
-estimator only) and by the leave-one-dataset-out study (:mod:`swarmloc.studies.lodo`).
+estimator only) and by the leave-one-dataset-out study (the repository's ``swarmloc_studies.lodo``).
 """
 
 from __future__ import annotations

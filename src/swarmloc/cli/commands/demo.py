@@ -18,7 +18,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write the demo's figures and tables to ``--out``; 0."""
-    from swarmloc.studies.thesis_static import run_demo
+    from swarmloc.experiments.thesis_demo import run_demo
 
     t = time.perf_counter()
     run_demo(Path(args.out), seed=args.seed, progress=not args.quiet)

@@ -1,6 +1,6 @@
 """Computations of thesis sec. 5.2.2 / Table 6.1: one simulation job through several estimators (timed by the nodes),
 the process pool, the statistics over seeds, and :func:`run_dynamic`, which builds the result dictionary and hands it
-to :mod:`swarmloc.studies.thesis_dynamic.report`."""
+to :mod:`swarmloc_studies.thesis_dynamic.report`."""
 
 from __future__ import annotations
 
@@ -22,8 +22,8 @@ from swarmloc.lie import SE2
 from swarmloc.runner import RunResult, run
 from swarmloc.runner.fanout import fan_out
 from swarmloc.sim import thesis_ground_truth_neighbour, thesis_two_robot
-from swarmloc.studies.thesis_dynamic.report import figures, progress_bar, pyplot, write_dynamic
-from swarmloc.studies.thesis_dynamic.spec import (
+from swarmloc_studies.thesis_dynamic.report import figures, progress_bar, pyplot, write_dynamic
+from swarmloc_studies.thesis_dynamic.spec import (
     ABLATION_ESTIMATORS,
     ABLATION_NOISE,
     ABLATIONS,

@@ -1,5 +1,5 @@
 """Output of thesis sec. 5.2.2 / Table 6.1: the progress bar, the figures (error and ANEES vs time, trajectories,
-ground-truth neighbour, double counting), ``dynamic.md`` (its text: :mod:`~swarmloc.studies.thesis_dynamic.markdown`)
+ground-truth neighbour, double counting), ``dynamic.md`` (its text: :mod:`~swarmloc_studies.thesis_dynamic.markdown`)
 and ``dynamic.json``. matplotlib and rich are imported only here, inside the functions that use them."""
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import numpy as np
 
 from swarmloc.experiments.output import save_figure
 from swarmloc.runner import RunResult
-from swarmloc.studies.thesis_dynamic.markdown import markdown
-from swarmloc.studies.thesis_dynamic.spec import ABLATION_ESTIMATORS, ABLATION_NOISE, FIG_ERR, FIG_TRAJ, RUNS
+from swarmloc_studies.thesis_dynamic.markdown import markdown
+from swarmloc_studies.thesis_dynamic.spec import ABLATION_ESTIMATORS, ABLATION_NOISE, FIG_ERR, FIG_TRAJ, RUNS
 
 
 # ---------------------------------------------------------------------------------------------------------- output

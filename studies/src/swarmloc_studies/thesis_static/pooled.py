@@ -1,9 +1,9 @@
-"""Tables 5.1/5.2 over many seeds, against the thesis' own sampling error (``swarmloc reproduce tables``).
+"""Tables 5.1/5.2 over many seeds, against the thesis' own sampling error (``swarmloc-studies reproduce tables``).
 
 The thesis printed one mean deviation (5.10) per number of measurements ``n``, each from 60 repetitions. Such a
 mean carries a standard error of ``sd / sqrt(60)`` (``sd``: the standard deviation of one repetition's deviation),
 so a comparison with it is only meaningful at that resolution. :func:`pooled_tables` runs the same trials as
-:func:`~swarmloc.studies.thesis_static.run_tables` (order-2 fusion) for ``seeds`` seeds of ``reps``
+:func:`~swarmloc_studies.thesis_static.run_tables` (order-2 fusion) for ``seeds`` seeds of ``reps``
 repetitions in parallel, pools every repetition, and reports per ``n``: our mean and its standard error, the
 spread of the per-seed means, the thesis' sampling error, and the difference in units of the combined standard
 error ``z = (ours - thesis) / sqrt(se_ours^2 + se_60^2)``. A joint chi-square test of all printed values of a
@@ -22,9 +22,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from swarmloc.experiments.output import write_summary
+from swarmloc.experiments.thesis_demo.spec import COMMANDS, SIGMA_M, THESIS_DRIVE
 from swarmloc.runner.fanout import fan_out
-from swarmloc.studies.thesis_static.run import table_trials
-from swarmloc.studies.thesis_static.spec import COMMANDS, SIGMA_M, THESIS_DRIVE, THESIS_TABLES, deviation_510
+from swarmloc_studies.thesis_static.run import table_trials
+from swarmloc_studies.thesis_static.spec import THESIS_TABLES, deviation_510
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -65,7 +66,7 @@ def pooled_tables(
     done = dict(fan_out(_job, [(j,) for j in jobs], jobs=workers, cluster=cluster))
     runs = [done[i] for i in range(len(jobs))]
     result: dict[str, Any] = {
-        "command": f"swarmloc reproduce tables --seeds {seeds} --reps {reps} --first-seed {first_seed}",
+        "command": f"swarmloc-studies reproduce tables --seeds {seeds} --reps {reps} --first-seed {first_seed}",
         "seeds": [s for s, _ in jobs],
         "reps_per_seed": reps,
         "thesis_reps": THESIS_REPS,

@@ -1,4 +1,5 @@
-"""Thesis sec. 5.1 ("Matlab simulation"): one-shot cooperative localization of a team started at known poses.
+"""Thesis sec. 5.1 ("Matlab simulation"), the demo behind ``swarmloc demo``: one-shot cooperative localization of a
+team started at known poses.
 
 Set-up (thesis sec. 5.1, with the choices the text leaves open written down here):
 
@@ -20,24 +21,19 @@ Set-up (thesis sec. 5.1, with the choices the text leaves open written down here
   definite (eigenvalues 0.0083, 0.148, 0.254).
 * Robot ``i`` fuses its prior with the measurements of its neighbours by :func:`swarmloc.fuse_relative`
   (second order, default ``iterations=2``), and for comparison with ``order=1``.
-* Deviation (5.10) ``||x_true - x_est||_2 / ||x_true||_2`` is ambiguous in the thesis; here ``x = (x, y, theta)`` is
-  the Cartesian pose in the world frame (heading difference wrapped to (-pi, pi]). With robot ``i`` starting at
-  the origin, ``||x_true||`` averages about 0.8 (straight; 0.65 m travelled plus a heading of std 0.6 rad) and
-  2.15 (circular), so the numbers depend on that
-  choice of world origin; the tables also give the frame-free errors.
 
-``run_demo`` reproduces figures 5.2-5.5 and checks the Gaussians against sampling; ``run_tables`` reproduces
-Tables 5.1/5.2 and figures 5.8/5.9. Run ``python -m swarmloc.studies.thesis_static demo|tables OUT_DIR``.
+``run_demo`` reproduces figures 5.2-5.5 and checks the Gaussians against sampling. Tables 5.1/5.2 (the same
+set-up with up to six neighbours) are a research study of the repository's ``swarmloc-studies`` package.
 
-Layout: :mod:`~swarmloc.studies.thesis_static.spec` holds the set-up and the model,
-:mod:`~swarmloc.studies.thesis_static.run` the computations, :mod:`~swarmloc.studies.thesis_static.report`
+Layout: :mod:`~swarmloc.experiments.thesis_demo.spec` holds the set-up and the model,
+:mod:`~swarmloc.experiments.thesis_demo.run` the computations, :mod:`~swarmloc.experiments.thesis_demo.report`
 the tables, JSON and figures.
 """
 
 from __future__ import annotations
 
-from swarmloc.studies.thesis_static import spec
-from swarmloc.studies.thesis_static.run import run_demo, run_tables
-from swarmloc.studies.thesis_static.spec import *  # noqa: F403 - the set-up and the model: spec.__all__
+from swarmloc.experiments.thesis_demo import spec
+from swarmloc.experiments.thesis_demo.run import run_demo
+from swarmloc.experiments.thesis_demo.spec import *  # noqa: F403 - the set-up and the model: spec.__all__
 
-__all__ = [*spec.__all__, "run_demo", "run_tables"]
+__all__ = [*spec.__all__, "run_demo"]

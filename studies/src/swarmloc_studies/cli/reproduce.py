@@ -1,4 +1,4 @@
-"""``swarmloc reproduce thesis | tables``: chapter 5 and Table 6.1, or Tables 5.1/5.2 over many seeds."""
+"""``swarmloc-studies reproduce thesis | tables``: chapter 5 and Table 6.1, or Tables 5.1/5.2 over many seeds."""
 
 from __future__ import annotations
 
@@ -33,23 +33,23 @@ def run(args: argparse.Namespace) -> int:
     from swarmloc.runner.fanout import ClusterUnavailable, connected
 
     if args.what == "tables":
-        from swarmloc.studies.thesis_static.pooled import pooled_tables
+        from swarmloc_studies.thesis_static.pooled import pooled_tables
 
         try:
             reps = 20_000 if args.reps is None else args.reps
             res = pooled_tables(args.out, seeds=args.seeds, reps=reps, first_seed=args.first_seed,
                                 cluster=args.cluster)  # fmt: skip
         except (ValueError, ClusterUnavailable) as exc:
-            print(f"swarmloc reproduce tables: {exc}", file=sys.stderr)
+            print(f"swarmloc-studies reproduce tables: {exc}", file=sys.stderr)
             return 2
         print((Path(args.out) / "pooled.md").read_text())
         print(f"written to {args.out}/pooled.md and pooled.json in {res['runtime_s']:.0f} s")
         return 0
     if args.what != "thesis":
-        print(f"swarmloc reproduce: unknown target {args.what!r} ('thesis' or 'tables')", file=sys.stderr)
+        print(f"swarmloc-studies reproduce: unknown target {args.what!r} ('thesis' or 'tables')", file=sys.stderr)
         return 2
-    from swarmloc.studies.thesis_dynamic import run_dynamic
-    from swarmloc.studies.thesis_static import run_demo, run_tables
+    from swarmloc_studies.thesis_dynamic import run_dynamic
+    from swarmloc_studies.thesis_static import run_demo, run_tables
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
                                        cluster=cluster),
             }  # fmt: skip
     except ClusterUnavailable as exc:
-        print(f"swarmloc reproduce thesis: {exc}", file=sys.stderr)
+        print(f"swarmloc-studies reproduce thesis: {exc}", file=sys.stderr)
         return 2
     report["wall_time_s"] = time.perf_counter() - t
     from swarmloc.experiments.evaluate import json_default

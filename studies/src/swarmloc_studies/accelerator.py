@@ -1,4 +1,4 @@
-"""Section e of ``swarmloc bench`` (``--sections e``): the fusion step on jax's default device (a GPU where jax
+"""Section e of ``swarmloc-studies bench`` (``--sections e``): the fusion step on jax's default device (a GPU where jax
 sees one), in float64 and float32, against the same step in plain JAX measured in the same run.
 
 For each team size ``n`` (robots; ``neighbours`` relative-pose detections each, no gate) it measures

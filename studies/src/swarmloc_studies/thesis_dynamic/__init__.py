@@ -20,15 +20,15 @@ Times per predict / update are measured by the nodes themselves (``Node.measure_
 every prediction (odometry, a detection's stamp, an answer to a neighbour, a record) counts as a predict; a
 detection group's update is booked net of the predictions inside it.
 
-Layout: :mod:`~swarmloc.studies.thesis_dynamic.spec` holds the set-up (noise levels, durations, the estimator
-runs :data:`RUNS`, the double-counting conditions), :mod:`~swarmloc.studies.thesis_dynamic.run` the simulations
-and statistics, :mod:`~swarmloc.studies.thesis_dynamic.report` the figures and the output files,
-:mod:`~swarmloc.studies.thesis_dynamic.markdown` the Markdown text.
+Layout: :mod:`~swarmloc_studies.thesis_dynamic.spec` holds the set-up (noise levels, durations, the estimator
+runs :data:`RUNS`, the double-counting conditions), :mod:`~swarmloc_studies.thesis_dynamic.run` the simulations
+and statistics, :mod:`~swarmloc_studies.thesis_dynamic.report` the figures and the output files,
+:mod:`~swarmloc_studies.thesis_dynamic.markdown` the Markdown text.
 """
 
 from __future__ import annotations
 
-from swarmloc.studies.thesis_dynamic.run import run_dynamic, spread
-from swarmloc.studies.thesis_dynamic.spec import ABLATIONS, INIT_VAR, NOISE_LEVELS, RUNS
+from swarmloc_studies.thesis_dynamic.run import run_dynamic, spread
+from swarmloc_studies.thesis_dynamic.spec import ABLATIONS, INIT_VAR, NOISE_LEVELS, RUNS
 
 __all__ = ["ABLATIONS", "INIT_VAR", "NOISE_LEVELS", "RUNS", "run_dynamic", "spread"]

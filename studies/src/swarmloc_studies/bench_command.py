@@ -1,5 +1,5 @@
-"""``swarmloc bench``'s command line: its options, the configuration they make and the run that prints the report
-(the benchmarks themselves: :mod:`swarmloc.studies.bench`)."""
+"""``swarmloc-studies bench``'s command line: its options, the configuration they make and the run that prints the
+report (the benchmarks themselves: :mod:`swarmloc_studies.bench`)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import json
 import sys
 from dataclasses import replace
 
-from swarmloc.studies.bench import FULL, MRCLAM_ENV, QUICK, REPLAY_ESTIMATORS, SECTIONS, BenchConfig, run_bench
-from swarmloc.studies.bench_report import format_report
+from swarmloc_studies.bench import FULL, MRCLAM_ENV, QUICK, REPLAY_ESTIMATORS, SECTIONS, BenchConfig, run_bench
+from swarmloc_studies.bench_report import format_report
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
-    """The options of ``swarmloc bench`` (and ``benchmarks/bench.py``)."""
+    """The options of ``swarmloc-studies bench`` (and ``benchmarks/bench.py``)."""
     ap.add_argument("--quick", action="store_true", help="small sizes and 60 s of the replay (under a minute)")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     ap.add_argument("--mrclam", default=None, help=f"MRCLAM_Dataset6 folder (or its parent; default ${MRCLAM_ENV})")
@@ -55,19 +55,22 @@ def _sizes(text: str) -> tuple[int, ...]:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    """``swarmloc bench``: run, then print the tables or the JSON."""
+    """``swarmloc-studies bench``: run, then print the tables or the JSON."""
     try:
         cfg = config_from_args(args)
     except ValueError as exc:
-        print(f"swarmloc {exc}", file=sys.stderr)
+        print(f"swarmloc-studies {exc}", file=sys.stderr)
         return 2
     unknown = [e for e in cfg.estimators if e not in REPLAY_ESTIMATORS]
     if unknown:
-        print(f"swarmloc bench: unknown estimator(s) {unknown}; choose from {list(REPLAY_ESTIMATORS)}", file=sys.stderr)
+        print(
+            f"swarmloc-studies bench: unknown estimator(s) {unknown}; choose from {list(REPLAY_ESTIMATORS)}",
+            file=sys.stderr,
+        )
         return 2
     sections = getattr(args, "sections", SECTIONS)
     if not sections or set(sections) - set("abcde"):
-        print(f"swarmloc bench: --sections takes letters of 'abcde', not {sections!r}", file=sys.stderr)
+        print(f"swarmloc-studies bench: --sections takes letters of 'abcde', not {sections!r}", file=sys.stderr)
         return 2
     res = run_bench(cfg, args.mrclam, progress=not args.quiet, sections=sections)  # the bar goes to stderr
     print(json.dumps(res, indent=2, default=float) if args.json else format_report(res))

@@ -1,5 +1,5 @@
 """The text of ``dynamic.md`` (thesis sec. 5.2.2 / Table 6.1): the tables of the result of
-:func:`~swarmloc.studies.thesis_dynamic.run.run_dynamic` and the over-confidence analysis, every qualitative statement
+:func:`~swarmloc_studies.thesis_dynamic.run.run_dynamic` and the over-confidence analysis, every qualitative statement
 derived from the measured numbers."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 from collections.abc import Iterator
 from typing import Any
 
-from swarmloc.studies.thesis_dynamic.spec import ABLATION_NOISE, FIG_ERR, FIG_TRAJ, INIT_VAR, RUNS
+from swarmloc_studies.thesis_dynamic.spec import ABLATION_NOISE, FIG_ERR, FIG_TRAJ, INIT_VAR, RUNS
 
 
 def _ms(s: dict[str, float], scale: float = 1.0, digits: int = 1) -> str:

@@ -1,4 +1,4 @@
-"""``swarmloc bench``: how fast swarmloc runs on this machine, every figure measured in the same run.
+"""``swarmloc-studies bench``: how fast swarmloc runs on this machine, every figure measured in the same run.
 
 Five sections (each a function, called by :func:`run_bench`; ``--sections`` picks them, a-d by default):
 
@@ -19,7 +19,7 @@ c. **Swarms** (:func:`swarm_scaling`): :func:`swarmloc.engine.swarm_run` for swa
 d. **MRCLAM replay** (:func:`mrclam_replay`): dataset 6 through the in-process runner, ``x`` real time per
    estimator (replayed seconds / wall seconds of the event loop, as ``swarmloc evaluate mrclam`` reports it),
    landmarks on and off.
-e. **Accelerator** (:func:`swarmloc.studies.accelerator.accelerator_rates`, only when asked): the fusion step
+e. **Accelerator** (:func:`swarmloc_studies.accelerator.accelerator_rates`, only when asked): the fusion step
    on jax's default device, the engine's ``"jax"`` and ``"jax32"`` backends against the same step in plain JAX
    (float64 and float32) and the numba engine, at 1e4, 1e5 and 1e6 robots.
 
@@ -307,7 +307,7 @@ def fusion_comparison(
     try:
         out["filterpy"] = filterpy_fusion(filterpy_n, neighbours, max(1, min(repeats, 3)))
     except ImportError:
-        out["filterpy"] = {"skipped": "filterpy is not installed (pip install 'swarmloc[bench]')"}
+        out["filterpy"] = {"skipped": "filterpy is not installed (pip install filterpy)"}
     tick("fusion step: filterpy")
     eng = _engine()
     if eng is None:
@@ -489,7 +489,7 @@ def mrclam_replay(
 
 # ------------------------------------------------------------------------------------------------ all
 SECTIONS = "abcd"
-"""Sections run by default; ``e`` (the accelerator, :mod:`swarmloc.studies.accelerator`) runs when asked."""
+"""Sections run by default; ``e`` (the accelerator, :mod:`swarmloc_studies.accelerator`) runs when asked."""
 
 
 def _work_items(cfg: BenchConfig, replay: bool, sections: str = SECTIONS) -> int:
@@ -531,7 +531,7 @@ def run_bench(
             res["mrclam"] = mrclam_replay(ds, cfg.replay_duration, cfg.estimators, cfg.landmarks, cfg.replay_rounds,
                                           tick)  # fmt: skip
         if "e" in sections:
-            from swarmloc.studies.accelerator import accelerator_rates
+            from swarmloc_studies.accelerator import accelerator_rates
 
             res["accelerator"] = accelerator_rates(cfg.accelerator_sizes, cfg.neighbours, cfg.repeats, tick)
     return res

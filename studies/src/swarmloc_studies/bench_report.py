@@ -1,6 +1,6 @@
-"""The text report of ``swarmloc bench`` (:func:`format_report`): one table per section that ran, from the results
-of :func:`swarmloc.studies.bench.run_bench` (section e's lines from
-:func:`swarmloc.studies.accelerator.format_accelerator`)."""
+"""The text report of ``swarmloc-studies bench`` (:func:`format_report`): one table per section that ran, from the
+results of :func:`swarmloc_studies.bench.run_bench` (section e's lines from
+:func:`swarmloc_studies.accelerator.format_accelerator`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ def _fmt_rate(x: float) -> str:
 
 
 def format_report(res: dict) -> str:
-    """The results as plain text tables (what ``swarmloc bench`` prints), the sections that ran."""
+    """The results as plain text tables (what ``swarmloc-studies bench`` prints), the sections that ran."""
     m = res["machine"]
     out = [f"machine: {m['platform']}, {m['cpu_count']} cores, python {m['python']}, numpy {m['numpy']}"]
     if "bandwidth_gb_s" in m:
@@ -24,7 +24,7 @@ def format_report(res: dict) -> str:
     if "mrclam" in res:
         out += ["", *_format_replay(res["mrclam"])]
     if "accelerator" in res:
-        from swarmloc.studies.accelerator import format_accelerator
+        from swarmloc_studies.accelerator import format_accelerator
 
         out += ["", *format_accelerator(res["accelerator"])]
     return "\n".join(out)

@@ -1,10 +1,9 @@
-"""Set-up of thesis sec. 5.1: the robot, the wheel commands, the measurement noise, the formation, the thesis' printed
-Tables 5.1/5.2, and the model functions (prediction, SDE end poses, relative measurements, error measures)."""
+"""Set-up of thesis sec. 5.1: the robot, the wheel commands, the measurement noise, the formation, and the model
+functions (prediction, SDE end poses, relative measurements, error measures)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -20,9 +19,7 @@ __all__ = [
     "SIGMA_M_PRINTED",
     "STRAIGHT",
     "THESIS_DRIVE",
-    "THESIS_TABLES",
     "Command",
-    "deviation_510",
     "formation",
     "pose_errors",
     "prediction",
@@ -56,23 +53,6 @@ NEIGHBOUR_OFFSETS = (0.5, -0.5, 1.0, -1.0, 1.5, -1.5)
 
 CHI2_3_95 = 7.814727903251179  # chi-square(3) 95% quantile
 CHI2_2_95 = 5.991464547107979  # chi-square(2) 95% quantile
-
-THESIS_TABLES: dict[str, dict[str, Any]] = {
-    "straight": {
-        "table": "5.1",
-        # the text conversion lost one column of this row: five values under the printed headers "2 3 4 5 6"
-        "mean_deviation": [None, 0.2823, 0.2193, 0.1926, 0.1985, 0.1798],
-        "frobenius_norm": [0.095, 0.1554, 0.2027, 0.2413, 0.2721, 0.2982],
-        "note": "row 'Mean Sampled Deviation' has 5 printed values for 6 columns (one lost in the text conversion; "
-        "shown here under the printed headers 2..6, so n = 1 is unknown)",
-    },
-    "circular": {
-        "table": "5.2",
-        "mean_deviation": [0.2234, 0.1585, 0.1606, 0.1520, 0.1697, 0.1461],
-        "frobenius_norm": [0.2577, 0.4197, 0.5457, 0.6648, 0.7561, 0.8371],
-        "note": "",
-    },
-}
 
 
 # ---------------------------------------------------------------------------------------------- building blocks
@@ -132,11 +112,3 @@ def pose_errors(g_true: np.ndarray, g_est: np.ndarray) -> dict[str, np.ndarray]:
         "position": np.linalg.norm(x_t[..., :2] - x_e[..., :2], axis=-1),
         "heading": np.abs(wrap_angle(x_t[..., 2] - x_e[..., 2])),
     }
-
-
-def deviation_510(g_true: np.ndarray, g_est: np.ndarray) -> np.ndarray:
-    """Thesis eq. (5.10) with ``x = (x, y, theta)`` in the world frame, heading difference wrapped. Batched."""
-    x_t, x_e = SE2.to_xytheta(g_true), SE2.to_xytheta(g_est)
-    d = x_t - x_e
-    d[..., 2] = wrap_angle(d[..., 2])
-    return np.linalg.norm(d, axis=-1) / np.linalg.norm(x_t, axis=-1)

@@ -1,4 +1,4 @@
-"""Command line of the thesis sec. 5.1 experiments: ``python -m swarmloc.studies.thesis_static demo|tables|all
+"""Command line of the thesis sec. 5.1 experiments: ``python -m swarmloc_studies.thesis_static demo|tables|all
 OUT_DIR [--seed S] [--reps R]``."""
 
 from __future__ import annotations
@@ -6,12 +6,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from swarmloc.studies.thesis_static.run import run_demo, run_tables
+from swarmloc.experiments.thesis_demo import run_demo
+from swarmloc_studies.thesis_static.run import run_tables
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(
-        prog="python -m swarmloc.studies.thesis_static",
+        prog="python -m swarmloc_studies.thesis_static",
         description="Thesis sec. 5.1 experiments (figures 5.2-5.5, Tables 5.1/5.2)",
     )
     ap.add_argument("what", choices=["demo", "tables", "all"])
