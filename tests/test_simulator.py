@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarmloc.events import Detection, Odometry, Truth
+from swarmloc.events import Detection, Odometry, Truth, sim_order
 from swarmloc.lie import SE2
 from swarmloc.motion import DiffDrive, increment_cov, increment_mean
 from swarmloc.sim import (
@@ -86,6 +86,18 @@ def test_events_time_sorted_with_stable_category_order():
     fixes = [e for e in res.events if isinstance(e, Detection) and e.kind == "absolute"]
     assert fixes and all(e.observer == 2 and e.target is None for e in fixes)
     assert len(fixes) == 200  # 10 Hz for 20 s
+
+
+def test_sim_order_is_the_simulators_order():
+    """The shared sort key puts odometry at its end ``t1`` and, at one time, odometry, detections, truth: a sort by
+    it leaves the simulator's stream as it is, and orders a hand-made stream so."""
+    res = random_team(3, 5.0, seed=2)
+    assert sorted(res.events, key=sim_order) == res.events
+    odo = Odometry(0, 0.0, 1.0, 0.1, 0.0)
+    early = Detection(0, 0.5, "pose", np.zeros(3), np.eye(3), target=1)
+    late = Detection(0, 1.0, "pose", np.zeros(3), np.eye(3), target=1)
+    truth = Truth(0, 1.0, np.zeros(3))
+    assert sorted([truth, late, odo, early], key=sim_order) == [early, odo, late, truth]
 
 
 def _integrate_odometry(res: SimResult) -> dict[int, list[tuple[float, np.ndarray]]]:

@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Kind, Odometry, Truth
+from swarmloc.events import Detection, Event, Kind, sim_order
 from swarmloc.lie import wrap_angle
 from swarmloc.sim.simulator import SimResult
 
@@ -156,19 +156,10 @@ def landmark_detections(
     return out
 
 
-def _sim_order(e: Event) -> tuple[float, int]:
-    """The simulator's sort key: (odometry at its end ``t1`` | detection at ``t`` | truth at ``t``, that category)."""
-    if isinstance(e, Odometry):
-        return (e.t1, 0)
-    if isinstance(e, Truth):
-        return (e.t, 2)
-    return (e.t, 1)
-
-
 def merge_events(events: Sequence[Event], extra: Sequence[Event]) -> list[Event]:
     """``events`` (in the simulator's order) with ``extra`` (sorted by time) merged in: ``events`` keep their order,
     and each extra detection at time ``t`` comes after every detection at ``t`` and before the truth at ``t``."""
-    return list(heapq.merge(events, extra, key=_sim_order))
+    return list(heapq.merge(events, extra, key=sim_order))
 
 
 def add_landmarks(
