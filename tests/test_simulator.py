@@ -20,6 +20,7 @@ from swarmloc.sim import (
     thesis_two_robot,
     wrap_angle,
 )
+from swarmloc.sim.simulator import in_view, seen_from
 
 pytestmark = pytest.mark.unit
 
@@ -135,6 +136,15 @@ def test_zero_noise_odometry_integrates_to_truth(which: str):
             m = SE2.between(tr[(e.observer, e.t)], tr[(e.target, e.t)])
             np.testing.assert_allclose(SE2.to_xytheta(m), e.z, atol=1e-9)
             np.testing.assert_array_equal(e.cov, np.zeros((3, 3)))
+
+
+def test_seen_from_and_in_view():
+    """A target 1 m along world x from an observer facing +y is 1 m to its right; a full circle keeps bearing pi."""
+    mx, my, r, b = seen_from(np.array(np.pi / 2), np.array(1.0), np.array(0.0))
+    np.testing.assert_allclose([mx, my, r, b], [0.0, -1.0, 1.0, -np.pi / 2], atol=1e-15)
+    ranges, bearings = np.array([1.0, 1.0, 2.5]), np.array([np.pi, -np.pi, 0.0])
+    assert in_view(ranges, bearings, 2.0, 2 * np.pi).tolist() == [True, True, False]
+    assert not in_view(np.array(1.0), np.array(np.pi / 2 + 1e-9), 2.0, np.pi)
 
 
 def test_detections_respect_range_and_field_of_view():
