@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarmloc.events import Detection, Odometry, Truth
+from swarmloc.events import Detection, Odometry, Truth, sim_order
 from swarmloc.lie import SE2
 from swarmloc.motion import DiffDrive, increment_cov, increment_mean
 from swarmloc.sim import (
@@ -20,6 +20,7 @@ from swarmloc.sim import (
     thesis_two_robot,
     wrap_angle,
 )
+from swarmloc.sim.simulator import in_view, seen_from
 
 pytestmark = pytest.mark.unit
 
@@ -88,6 +89,18 @@ def test_events_time_sorted_with_stable_category_order():
     assert len(fixes) == 200  # 10 Hz for 20 s
 
 
+def test_sim_order_is_the_simulators_order():
+    """The shared sort key puts odometry at its end ``t1`` and, at one time, odometry, detections, truth: a sort by
+    it leaves the simulator's stream as it is, and orders a hand-made stream so."""
+    res = random_team(3, 5.0, seed=2)
+    assert sorted(res.events, key=sim_order) == res.events
+    odo = Odometry(0, 0.0, 1.0, 0.1, 0.0)
+    early = Detection(0, 0.5, "pose", np.zeros(3), np.eye(3), target=1)
+    late = Detection(0, 1.0, "pose", np.zeros(3), np.eye(3), target=1)
+    truth = Truth(0, 1.0, np.zeros(3))
+    assert sorted([truth, late, odo, early], key=sim_order) == [early, odo, late, truth]
+
+
 def _integrate_odometry(res: SimResult) -> dict[int, list[tuple[float, np.ndarray]]]:
     g = {k: SE2.from_xytheta(p) for k, p in res.initial_poses.items()}
     out: dict[int, list[tuple[float, np.ndarray]]] = {k: [(0.0, g[k])] for k in g}
@@ -123,6 +136,15 @@ def test_zero_noise_odometry_integrates_to_truth(which: str):
             m = SE2.between(tr[(e.observer, e.t)], tr[(e.target, e.t)])
             np.testing.assert_allclose(SE2.to_xytheta(m), e.z, atol=1e-9)
             np.testing.assert_array_equal(e.cov, np.zeros((3, 3)))
+
+
+def test_seen_from_and_in_view():
+    """A target 1 m along world x from an observer facing +y is 1 m to its right; a full circle keeps bearing pi."""
+    mx, my, r, b = seen_from(np.array(np.pi / 2), np.array(1.0), np.array(0.0))
+    np.testing.assert_allclose([mx, my, r, b], [0.0, -1.0, 1.0, -np.pi / 2], atol=1e-15)
+    ranges, bearings = np.array([1.0, 1.0, 2.5]), np.array([np.pi, -np.pi, 0.0])
+    assert in_view(ranges, bearings, 2.0, 2 * np.pi).tolist() == [True, True, False]
+    assert not in_view(np.array(1.0), np.array(np.pi / 2 + 1e-9), 2.0, np.pi)
 
 
 def test_detections_respect_range_and_field_of_view():

@@ -159,3 +159,11 @@ Event = Odometry | Detection | Truth
 
 OwnEvent = Odometry | Detection
 """A robot's own measurement: its odometry, or a detection it made (what a robot has, and forwards)."""
+
+
+def sim_order(e: Event) -> tuple[float, int]:
+    """Sort key of a simulated stream: time ``t`` [s] (odometry at its end ``t1``), then at one time odometry (0)
+    before detections (1) before truth (2)."""
+    if isinstance(e, Odometry):
+        return (e.t1, 0)
+    return (e.t, 2 if isinstance(e, Truth) else 1)

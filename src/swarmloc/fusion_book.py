@@ -64,7 +64,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Kind, Odometry, Truth
+from swarmloc.events import Detection, Event, Kind, Odometry, Truth, sim_order
 from swarmloc.gaussian import check_covariance, symmetric
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.lie.checks import as_tangent
@@ -452,8 +452,7 @@ def book_two_robot_scenario(
         for k in range(n_moves):
             t1 = (k + 1) * dt
             events.extend(Truth(r, t1, truth[k + 1, a].copy()) for a, r in enumerate(robots) if (r, t1) not in have)
-    order = {Odometry: 0, Detection: 1, Truth: 2}
-    events.sort(key=lambda e: (e.t, order[type(e)]))
+    events.sort(key=sim_order)
     odom_cov = {r: BOOK_ODOM_COV[r].copy() for r in robots}
     return BookScenario(robots, dt, start, start_cov, headings, odometry, odom_cov, truth, observations, events)
 

@@ -56,14 +56,6 @@ class BankEstimate:
     ess: float
 
 
-def _log_xyt(q: np.ndarray) -> np.ndarray:
-    return log_xyt(q)
-
-
-def _exp_xyt(y: np.ndarray) -> np.ndarray:
-    return exp_xyt(y)
-
-
 def _sample(rng: np.random.Generator, cov: np.ndarray, n: int) -> np.ndarray:
     """``n`` draws of ``N(0, cov)``: the numbers of ``rng.multivariate_normal(..., method="cholesky")``."""
     return rng.standard_normal((n, 3)) @ np.linalg.cholesky(cov).T
@@ -165,7 +157,7 @@ class ParticleFilterBank:
         d = np.asarray(delta, float).reshape(3)
         C = check_covariance(cov, 3, "ParticleFilterBank.predict_ego")
         for j, q in self.particles.items():
-            step = compose_xyt(d[None], _exp_xyt(_sample(self.rng, C, len(q))))
+            step = compose_xyt(d[None], exp_xyt(_sample(self.rng, C, len(q))))
             self.particles[j] = compose_xyt(invert_xyt(step), q)
 
     def predict_neighbour(self, robot: int, delta: object, cov: object) -> None:
@@ -175,7 +167,7 @@ class ParticleFilterBank:
         d = np.asarray(delta, float).reshape(3)
         C = check_covariance(cov, 3, "ParticleFilterBank.predict_neighbour")
         q = self.particles[robot]
-        self.particles[robot] = compose_xyt(compose_xyt(q, d[None]), _exp_xyt(_sample(self.rng, C, len(q))))
+        self.particles[robot] = compose_xyt(compose_xyt(q, d[None]), exp_xyt(_sample(self.rng, C, len(q))))
 
     # ------------------------------------------------------------------------------------------ measurement
     def update(self, robot: int, hypotheses: Sequence[Hypothesis]) -> str:
@@ -193,7 +185,7 @@ class ParticleFilterBank:
             return "initialized"
         q, w = self.particles[robot], self.weights[robot]
         rel = compose_xyt(invert_xyt(q)[:, None, :], H[None])  # (N, H, 3): q^-1 h
-        y = _log_xyt(rel)
+        y = log_xyt(rel)
         Ri = np.linalg.inv(R)
         m2 = np.einsum("nhi,hij,nhj->nh", y, Ri, y)
         if m2.min() > self.reset_nis:
@@ -221,7 +213,7 @@ class ParticleFilterBank:
         self.unexplained[robot] = 0
         pick = self.rng.integers(0, len(H), self.n)
         noise = np.einsum("nij,nj->ni", np.linalg.cholesky(R)[pick], self.rng.standard_normal((self.n, 3)))
-        self.particles[robot] = compose_xyt(H[pick], _exp_xyt(noise))
+        self.particles[robot] = compose_xyt(H[pick], exp_xyt(noise))
         self.weights[robot] = np.full(self.n, 1.0 / self.n)
 
     def _systematic(self, w: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ import numpy as np
 from swarmloc.association.pfbank import BankEstimate, ParticleFilterBank
 from swarmloc.association.pmr import multiple_registration
 from swarmloc.association.registration import compose_xyt, invert_xyt, points_from_range_bearing
-from swarmloc.events import Detection, Event, Kind, Odometry
+from swarmloc.events import Detection, Event, Kind, Odometry, sim_order
 from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment
@@ -381,6 +381,5 @@ def bank_detections(
         n_lone = sum(1 for e in passed if e.observer == ego)
         counts[ego] = {**tr.counts, "emitted": emitted, "no_gain": no_gain, "lone": n_lone}
     out += new + passed
-    order = {Odometry: 0, Detection: 1}
-    out.sort(key=lambda e: (e.t, order.get(type(e), 2)))
+    out.sort(key=sim_order)
     return out, counts

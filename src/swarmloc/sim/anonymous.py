@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Kind, Odometry, Truth
+from swarmloc.events import Detection, Event, Kind, Odometry, Truth, sim_order
 from swarmloc.lie import wrap_angle
 from swarmloc.motion.diffdrive import DiffDrive
 from swarmloc.sensors.models import MODELS
@@ -167,8 +167,7 @@ def anonymize_sim(sim: SimResult, sensor: AnonymousSensor, seed: int | None = 0)
                         scans.setdefault((float(t), r), []).append(d)
     dets = [d for key in scans for d in sorted(scans[key], key=lambda d: (float(d.z[0]), float(d.z[1])))]
     events = rest + dets
-    cat = {Odometry: 0, Detection: 1, Truth: 2}
-    events.sort(key=lambda e: (e.t, cat[type(e)], getattr(e, "observer", getattr(e, "robot", 0))))
+    events.sort(key=lambda e: (*sim_order(e), getattr(e, "observer", getattr(e, "robot", 0))))
     return SimResult(events, sim.initial_poses, sim.robot_ids, sim.times, sim.truth, sim.config, sim.seed)
 
 
@@ -250,7 +249,6 @@ def khepera_kidnap(
             events.append(replace(e, t=shift(e.t)))
     times = np.concatenate([a.times, [shift(t) for t in b.times[1:]]])
     truth = np.concatenate([a.truth, b.truth[1:]])
-    cat = {Odometry: 0, Detection: 1, Truth: 2}
-    events.sort(key=lambda e: (e.t, cat[type(e)]))
+    events.sort(key=sim_order)
     full = SimResult(events, a.initial_poses, a.robot_ids, times, truth, replace(cfg1, duration=duration), a.seed)
     return KheperaScenario(anonymize_sim(full, sensor, seed=seed), kidnapped, float(kidnap_time), kidnap_pose, sensor)

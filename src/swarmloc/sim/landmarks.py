@@ -32,9 +32,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from swarmloc.events import Detection, Event, Kind, Odometry, Truth
+from swarmloc.events import Detection, Event, Kind, sim_order
 from swarmloc.lie import wrap_angle
-from swarmloc.sim.simulator import SimResult
+from swarmloc.sim.simulator import SimResult, in_view, seen_from
 
 __all__ = [
     "LANDMARK_STREAM",
@@ -133,13 +133,10 @@ def landmark_detections(
     L = np.array([[float(landmarks[i][0]), float(landmarks[i][1])] for i in ids])  # (m, 2)
     ks = np.arange(step, sim.times.size, step)
     P = sim.truth[ks]  # (S, n_rob, 3)
-    c, s = np.cos(P[..., 2])[..., None], np.sin(P[..., 2])[..., None]
     dx = L[:, 0] - P[..., 0][..., None]  # (S, n_rob, m)
     dy = L[:, 1] - P[..., 1][..., None]
-    mx, my = c * dx + s * dy, -s * dx + c * dy
-    rng_ = np.hypot(mx, my)
-    bearing = np.arctan2(my, mx)
-    seen = (rng_ >= sensor.min_range) & (rng_ <= sensor.max_range) & (np.abs(bearing) <= sensor.fov / 2 + 1e-12)
+    mx, my, rng_, bearing = seen_from(P[..., 2][..., None], dx, dy)
+    seen = (rng_ >= sensor.min_range) & in_view(rng_, bearing, sensor.max_range, sensor.fov)
     noise = np.random.default_rng(seed).standard_normal((*mx.shape, 2)) * [sensor.sigma_range, sensor.sigma_bearing]
     z = np.stack([rng_ + noise[..., 0], wrap_angle(bearing + noise[..., 1])], axis=-1)
     z.setflags(write=False)
@@ -156,19 +153,10 @@ def landmark_detections(
     return out
 
 
-def _sim_order(e: Event) -> tuple[float, int]:
-    """The simulator's sort key: (odometry at its end ``t1`` | detection at ``t`` | truth at ``t``, that category)."""
-    if isinstance(e, Odometry):
-        return (e.t1, 0)
-    if isinstance(e, Truth):
-        return (e.t, 2)
-    return (e.t, 1)
-
-
 def merge_events(events: Sequence[Event], extra: Sequence[Event]) -> list[Event]:
     """``events`` (in the simulator's order) with ``extra`` (sorted by time) merged in: ``events`` keep their order,
     and each extra detection at time ``t`` comes after every detection at ``t`` and before the truth at ``t``."""
-    return list(heapq.merge(events, extra, key=_sim_order))
+    return list(heapq.merge(events, extra, key=sim_order))
 
 
 def add_landmarks(

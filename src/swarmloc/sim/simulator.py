@@ -292,6 +292,22 @@ def _true_paths(
     return np.concatenate([pos, th[..., None]], axis=-1)
 
 
+def seen_from(
+    theta: np.ndarray, dx: np.ndarray, dy: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A target at world offset ``(dx, dy)`` [m] from an observer of heading ``theta`` [rad] (broadcast): its
+    position ``(mx, my)`` [m] in the observer's frame, its range [m] and its bearing [rad]."""
+    c, s = np.cos(theta), np.sin(theta)
+    mx, my = c * dx + s * dy, -s * dx + c * dy
+    return mx, my, np.hypot(mx, my), np.arctan2(my, mx)
+
+
+def in_view(range_: np.ndarray, bearing: np.ndarray, max_range: float, fov: float) -> np.ndarray:
+    """Within ``max_range`` [m] and ``fov / 2`` [rad] of the observer's x axis (``1e-12`` rad of slack, so that a
+    full circle ``fov = 2 pi`` keeps a bearing of ``+-pi``)."""
+    return (range_ <= max_range) & (np.abs(bearing) <= fov / 2 + 1e-12)
+
+
 def _relative_detections(
     truth_all: np.ndarray, ids: tuple[int, ...], sen: RelativeSensor, n_s: int, f: float,
     ss_rel: np.random.SeedSequence,
@@ -303,13 +319,9 @@ def _relative_detections(
     P = truth_all[ks]  # (S, n_rob, 3)
     s_, obs, tgt = _pairs_within(P[..., :2], sen.max_range)  # candidates, sorted by (s, observer, target)
     gi, gj = P[s_, obs], P[s_, tgt]
-    ci, si = np.cos(gi[..., 2]), np.sin(gi[..., 2])
-    ddx, ddy = gj[..., 0] - gi[..., 0], gj[..., 1] - gi[..., 1]
-    mx, my = ci * ddx + si * ddy, -si * ddx + ci * ddy
+    mx, my, rng_, bearing = seen_from(gi[..., 2], gj[..., 0] - gi[..., 0], gj[..., 1] - gi[..., 1])
     mth = gj[..., 2] - gi[..., 2]
-    rng_ = np.hypot(mx, my)
-    bearing = np.arctan2(my, mx)
-    seen = (rng_ <= sen.max_range) & (np.abs(bearing) <= sen.fov / 2 + 1e-12)
+    seen = in_view(rng_, bearing, sen.max_range, sen.fov)
     s_, obs, tgt, mx, my, mth, rng_, bearing = (a[seen] for a in (s_, obs, tgt, mx, my, mth, rng_, bearing))
     # the noise of ordered pair p = (observer, target) at sensor time s is element [s, p] of one
     # (S, n_rob (n_rob - 1), 3) draw and then one (S, n_rob (n_rob - 1), 2) draw, as always (same numbers)
