@@ -14,6 +14,8 @@ Subclasses are namespaces of pure, batched functions (classmethods); no instance
 
 from __future__ import annotations
 
+from abc import abstractmethod
+
 import numpy as np
 
 from swarmloc.arrays import FloatArray
@@ -50,38 +52,44 @@ class SEGroup:
 
     # ----------------------------------------------------------------- to be provided by subclasses
     @staticmethod
+    @abstractmethod
     def rotation_hat(w: FloatArray) -> FloatArray:
         """``(..., dim - n) -> (..., n, n)``: the rotation block of :meth:`hat`, from the angular part."""
-        raise NotImplementedError
 
     @staticmethod
+    @abstractmethod
     def rotation_vee(W: FloatArray) -> FloatArray:
         """``(..., n, n) -> (..., dim - n)``: inverse of :meth:`rotation_hat` (uses the antisymmetric part)."""
-        raise NotImplementedError
 
     @classmethod
+    @abstractmethod
     def exp(cls, x: FloatArray, validate: bool = True) -> FloatArray:
-        raise NotImplementedError
+        """``(..., dim) -> (..., n+1, n+1)``: the matrix exponential of ``x^``, in closed form."""
 
     @classmethod
+    @abstractmethod
     def log(cls, g: FloatArray, validate: bool = True) -> FloatArray:
-        raise NotImplementedError
+        """``(..., n+1, n+1) -> (..., dim)``: the principal logarithm (rotation angle in (-pi, pi])."""
 
     @classmethod
+    @abstractmethod
     def Ad(cls, g: FloatArray, validate: bool = True) -> FloatArray:
-        raise NotImplementedError
+        """``(..., n+1, n+1) -> (..., dim, dim)``: the adjoint, ``Ad(g) y = (g y^ g^-1)^v``."""
 
     @classmethod
+    @abstractmethod
     def ad(cls, x: FloatArray, validate: bool = True) -> FloatArray:
-        raise NotImplementedError
+        """``(..., dim) -> (..., dim, dim)``: the algebra's adjoint, ``ad(x) y = [x^, y^]^v``."""
 
     @classmethod
+    @abstractmethod
     def left_jacobian(cls, x: FloatArray, validate: bool = True) -> FloatArray:
-        raise NotImplementedError
+        """``(..., dim) -> (..., dim, dim)``: ``Jl(x)``, ``exp(x + dx) = exp(Jl(x) dx) exp(x)`` to first order."""
 
     @classmethod
+    @abstractmethod
     def left_jacobian_inv(cls, x: FloatArray, validate: bool = True) -> FloatArray:
-        raise NotImplementedError
+        """``(..., dim) -> (..., dim, dim)``: the inverse of :meth:`left_jacobian`."""
 
     # ----------------------------------------------------------------- generic
     @classmethod
