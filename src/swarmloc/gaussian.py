@@ -121,6 +121,12 @@ def symmetric(C: np.ndarray) -> np.ndarray:
     return 0.5 * (C + np.swapaxes(C, -1, -2))
 
 
+def mahalanobis2(y: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distance ``y^T cov^-1 y`` of vectors ``y (..., k)`` under covariances ``cov (..., k, k)``
+    (batched, broadcast): a NEES of an error, a NIS of an innovation ``r`` under its covariance ``S``."""
+    return np.einsum("...i,...i->...", y, np.linalg.solve(cov, y[..., None])[..., 0])
+
+
 def convolve_moments(
     group: type[SEGroup], mu1: np.ndarray, S1: np.ndarray, mu2: np.ndarray, S2: np.ndarray, order: int = 2
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -213,8 +219,7 @@ class GroupGaussian:
 
     def mahalanobis2(self, g: np.ndarray, validate: bool = True) -> np.ndarray:
         """Squared Mahalanobis distance ``y^T Sigma^-1 y`` with ``y = log(mean^-1 g)`` (the NEES of an estimate)."""
-        y = self.tangent_of(g, validate)
-        return np.einsum("...i,...i->...", y, np.linalg.solve(self.cov, y[..., None])[..., 0])
+        return mahalanobis2(self.tangent_of(g, validate), self.cov)
 
     def logpdf(self, g: np.ndarray, validate: bool = True) -> np.ndarray:
         """Log density (thesis eq. 3.19, small-covariance normalizer) at element(s) ``g``."""

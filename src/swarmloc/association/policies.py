@@ -30,6 +30,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
+from swarmloc.gaussian import mahalanobis2
 from swarmloc.sensors.models import MODELS
 
 __all__ = ["Association", "gate_threshold", "innovation_costs", "joint", "nearest"]
@@ -87,7 +88,7 @@ def innovation_costs(
         S_state = S_state + Hc + np.swapaxes(Hc, -1, -2)
     S = S_state[None, :, :, :] + model.noise(z, R)[:, None, :, :]  # (m, n, k, k)
     r = model.residual(z[:, None, :], h[None, :, :])  # (m, n, k)
-    d2 = np.einsum("...i,...i->...", r, np.linalg.solve(S, r[..., None])[..., 0])
+    d2 = mahalanobis2(r, S)
     d2[:, bad] = np.inf
     return d2
 

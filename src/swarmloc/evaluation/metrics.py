@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
+from swarmloc.gaussian import mahalanobis2
 from swarmloc.lie import SE2
 from swarmloc.lie import wrap_angle as wrap
 from swarmloc.runner import RobotTrack, RunResult
@@ -28,7 +29,7 @@ def errors(track: RobotTrack) -> dict[str, np.ndarray]:
         y = SE2.log(
             SE2.inverse(SE2.from_xytheta(track.mean), validate=False) @ SE2.from_xytheta(track.truth), validate=False
         )
-        nees = np.einsum("ni,ni->n", y, np.linalg.solve(track.cov, y[..., None])[..., 0])
+        nees = mahalanobis2(y, track.cov)
     return {"pos": ep, "heading": eh, "nees": nees}
 
 
@@ -42,8 +43,7 @@ def errors_se3(track: RobotTrack) -> dict[str, np.ndarray]:
     ep = np.linalg.norm(track.mean[:, :3] - track.truth[:, :3], axis=1)
     y = SE3.log(SE3.inverse(pose_from7(track.mean), validate=False) @ pose_from7(track.truth), validate=False)
     er = np.linalg.norm(y[:, 3:], axis=1)
-    nees = np.einsum("ni,ni->n", y, np.linalg.solve(track.cov, y[..., None])[..., 0])
-    return {"pos": ep, "heading": er, "nees": nees}
+    return {"pos": ep, "heading": er, "nees": mahalanobis2(y, track.cov)}
 
 
 def anees_bounds(n: int, dof: int = DOF, p: float = 0.95) -> tuple[float, float]:
