@@ -8,6 +8,8 @@ over-confident, below the lower bound under-confident.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -52,7 +54,13 @@ def anees_bounds(n: int, dof: int = DOF, p: float = 0.95) -> tuple[float, float]
     return float(chi2.ppf(a, n * dof) / (n * dof)), float(chi2.ppf(1 - a, n * dof) / (n * dof))
 
 
-def summarize(errs: dict[str, np.ndarray], dof: int = DOF) -> dict[str, float]:
+def pooled(errs: Iterable[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Error arrays of :func:`errors` (or of anything with its keys) concatenated key by key (empty: none)."""
+    errs = list(errs)
+    return {k: np.concatenate([e[k] for e in errs]) if errs else np.zeros(0) for k in ("pos", "heading", "nees")}
+
+
+def summarize(errs: Mapping[str, np.ndarray], dof: int = DOF) -> dict[str, float]:
     """RMSE of position and heading (SE(3): rotation angle; also as ``rot_rmse``), per-dof ANEES (``dof`` 3 on
     SE(2), 6 on SE(3)), median NEES per dof and the fraction of NEES inside the two-sided 95% band."""
     n = errs["pos"].size
@@ -76,19 +84,16 @@ def summarize(errs: dict[str, np.ndarray], dof: int = DOF) -> dict[str, float]:
 def evaluate(result: RunResult, robots: list[int] | None = None) -> dict:
     """Per-robot and team summaries of one run (team = all records of all robots pooled)."""
     robots = sorted(result.tracks) if robots is None else robots
-    per = {}
-    pooled: dict[str, list[np.ndarray]] = {"pos": [], "heading": [], "nees": []}
+    per, errs = {}, []
     dof = DOF
     for r in robots:
         tr = result.tracks.get(r)
         if tr is None or tr.times.size == 0:
             continue
         dof = 6 if tr.mean.shape[-1] == 7 else DOF
-        e = errors(tr)
-        per[r] = summarize(e, dof)
-        for k in pooled:
-            pooled[k].append(e[k])
-    team = summarize({k: np.concatenate(v) if v else np.zeros(0) for k, v in pooled.items()}, dof)
+        errs.append(errors(tr))
+        per[r] = summarize(errs[-1], dof)
+    team = summarize(pooled(errs), dof)
     return {"estimator": result.estimator, "robots": per, "team": team, "wall_time": result.wall_time}
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from swarmloc.config import DEFAULTS, Config
 from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import write_tum, write_tum3
-from swarmloc.estimators import ESTIMATORS, make_team, node_options
+from swarmloc.estimators import check_known, make_team, node_options
 from swarmloc.estimators.fls import FixedLagSmoother
 from swarmloc.estimators.fls_team import TeamFixedLagSmoother
 from swarmloc.evaluation.delayed import delayed_output
@@ -76,9 +76,7 @@ def evaluate_stream(
     (:data:`ENGINE_DRIVEN`, :func:`engine_run`) instead of the in-process nodes: the same results, each row's wall
     time the whole call after an untimed warm-up (``compile_s``).
     """
-    unknown = [e for e in estimators if e not in ESTIMATORS]
-    if unknown:
-        raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
+    check_known(estimators)
     record_times = config.record.times(t_start, t_end, len(initial), span_origin)
     policy = config.filter.association
     if engine:

@@ -13,8 +13,6 @@ import os
 from collections import Counter
 from typing import Any
 
-import numpy as np
-
 from swarmloc.datasets.source import Source
 from swarmloc.evaluation.metrics import anees_bounds, evaluate
 from swarmloc.experiments.association import association_accuracy
@@ -22,7 +20,7 @@ from swarmloc.experiments.evaluate import delayed_row, write_report
 from swarmloc.experiments.sources import load_source
 from swarmloc.net.entry import network_class
 from swarmloc.net.team import TeamRun, launch_team
-from swarmloc.runner.result import RobotTrack, RunResult
+from swarmloc.runner.result import RUN_COUNTERS, RobotTrack, RunResult
 
 __all__ = ["TeamRun", "delayed_team_result", "run_team", "team_result", "with_truth", "write_team_report"]
 
@@ -58,7 +56,7 @@ def team_result(run: TeamRun, src: Source, estimator: str) -> RunResult:
         reasons.update(rep.reasons)
         stats.update({f"net_{k}": v for k, v in rep.net.items()})
         reasons.update({f"network: {k}": v for k, v in rep.net_reasons.items()})
-    for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
+    for k in RUN_COUNTERS:
         stats.setdefault(k, 0)
     reasons.update({f"collector: {k}": v for k, v in run.reasons.items()})
     stats["recorded"] = len(run.beliefs)
@@ -76,12 +74,8 @@ def with_truth(tracks: dict[int, RobotTrack], truth: bool) -> tuple[dict[int, Ro
     whose odometry runs past its ground truth has record times without it), and how many rows were left out."""
     if not truth:
         return tracks, 0
-    out, missing = {}, 0
-    for r, tr in tracks.items():
-        ok = np.isfinite(tr.truth).all(axis=1)
-        missing += int(ok.size - ok.sum())
-        out[r] = RobotTrack(tr.times[ok], tr.mean[ok], tr.cov[ok], tr.truth[ok])
-    return out, missing
+    out = {r: tr.with_truth() for r, tr in tracks.items()}
+    return out, sum(tr.times.size - out[r].times.size for r, tr in tracks.items())
 
 
 def delayed_team_result(run: TeamRun, src: Source, estimator: str) -> RunResult | None:
