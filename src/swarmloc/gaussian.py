@@ -19,6 +19,7 @@ transpose ``(A'' B)^T = B^T A''^T``, which keeps the result symmetric.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -119,6 +120,16 @@ def symmetric(C: np.ndarray) -> np.ndarray:
     """``(C + C^T) / 2`` over the last two axes (batched): the symmetric part of a covariance, which rounding in a
     product such as ``A P A^T`` leaves slightly asymmetric."""
     return 0.5 * (C + np.swapaxes(C, -1, -2))
+
+
+@cache
+def chi2_ppf(p: float, dof: int) -> float:
+    """The ``p`` quantile of the chi-square law with ``dof`` degrees of freedom: the bound a squared Mahalanobis
+    distance of a consistent ``dof``-dimensional Gaussian stays under with probability ``p`` (gates, NEES bands;
+    cached: callers use a handful of ``(p, dof)`` pairs)."""
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(p, dof))
 
 
 def mahalanobis2(y: np.ndarray, cov: np.ndarray) -> np.ndarray:

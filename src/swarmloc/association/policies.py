@@ -28,9 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
 
-from swarmloc.gaussian import mahalanobis2
+from swarmloc.gaussian import chi2_ppf, mahalanobis2
 from swarmloc.sensors.models import MODELS
 
 __all__ = ["Association", "gate_threshold", "innovation_costs", "joint", "nearest"]
@@ -46,7 +45,7 @@ def gate_threshold(dof: int, probability: float = 0.99) -> float:
     passes with ``probability``."""
     if not 0.0 < probability < 1.0:
         raise ValueError(f"gate probability must be in (0, 1), got {probability}")
-    return float(chi2.ppf(probability, dof))
+    return chi2_ppf(probability, dof)
 
 
 def innovation_costs(

@@ -11,9 +11,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 
 import numpy as np
-from scipy.stats import chi2
 
-from swarmloc.gaussian import mahalanobis2
+from swarmloc.gaussian import chi2_ppf, mahalanobis2
 from swarmloc.lie import SE2
 from swarmloc.lie import wrap_angle as wrap
 from swarmloc.runner import RobotTrack, RunResult
@@ -51,7 +50,7 @@ def errors_se3(track: RobotTrack) -> dict[str, np.ndarray]:
 def anees_bounds(n: int, dof: int = DOF, p: float = 0.95) -> tuple[float, float]:
     """Two-sided ``p`` bounds of the per-dof ANEES of ``n`` *independent* NEES values."""
     a = (1 - p) / 2
-    return float(chi2.ppf(a, n * dof) / (n * dof)), float(chi2.ppf(1 - a, n * dof) / (n * dof))
+    return chi2_ppf(a, n * dof) / (n * dof), chi2_ppf(1 - a, n * dof) / (n * dof)
 
 
 def pooled(errs: Iterable[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -66,7 +65,7 @@ def summarize(errs: Mapping[str, np.ndarray], dof: int = DOF) -> dict[str, float
     n = errs["pos"].size
     if n == 0:
         return {"n": 0}
-    lo, hi = chi2.ppf([0.025, 0.975], dof)
+    lo, hi = chi2_ppf(0.025, dof), chi2_ppf(0.975, dof)
     out = {
         "n": int(n),
         "pos_rmse": float(np.sqrt(np.mean(errs["pos"] ** 2))),

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cache
 from typing import Any
 
 import numpy as np
 
+from swarmloc.gaussian import chi2_ppf
 from swarmloc.kernels import cartesian as C
 
 __all__ = [
@@ -37,14 +37,6 @@ Outcome = tuple[str, str]
 FUSED: Outcome = ("fused", "")
 NUMERICAL = "the update is not finite or not positive definite"
 NONFINITE = "non-finite innovation"
-
-
-@cache
-def chi2_ppf(p: float, m: int) -> float:
-    """Chi-square quantile (cached: gates use a handful of ``(p, m)`` pairs)."""
-    from scipy.stats import chi2
-
-    return float(chi2.ppf(p, m))
 
 
 @dataclass(frozen=True, slots=True)
