@@ -122,6 +122,17 @@ def symmetric(C: np.ndarray) -> np.ndarray:
     return 0.5 * (C + np.swapaxes(C, -1, -2))
 
 
+def positive_definite(P: np.ndarray) -> bool:
+    """Finite and positive definite as ``numpy.linalg.cholesky`` decides (no margin)."""
+    if not np.isfinite(P).all():
+        return False
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
 @cache
 def chi2_ppf(p: float, dof: int) -> float:
     """The ``p`` quantile of the chi-square law with ``dof`` degrees of freedom: the bound a squared Mahalanobis

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.gaussian import chi2_ppf
+from swarmloc.gaussian import chi2_ppf, positive_definite
 from swarmloc.kernels import cartesian as C
 
 __all__ = [
@@ -74,17 +74,6 @@ def usable_covariance(P: np.ndarray) -> bool:
             if p00 > 0 and m2 > 1e-9 * tr * tr and m3 > 1e-9 * tr * tr * tr:
                 return True
     return positive_definite(P)
-
-
-def positive_definite(P: np.ndarray) -> bool:
-    """Finite and positive definite as ``numpy.linalg.cholesky`` decides (no margin)."""
-    if not np.isfinite(P).all():
-        return False
-    try:
-        np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        return False
-    return True
 
 
 def gated_kalman(
