@@ -8,15 +8,13 @@ the report. The network package below knows nothing of sources by spec, metrics 
 
 from __future__ import annotations
 
-import math
 import os
 from collections import Counter
 from typing import Any
 
 from swarmloc.datasets.source import Source
 from swarmloc.evaluation.metrics import anees_bounds, evaluate
-from swarmloc.experiments.association import association_accuracy
-from swarmloc.experiments.evaluate import delayed_row, write_report
+from swarmloc.experiments.evaluate import delayed_row, run_row, write_report
 from swarmloc.experiments.sources import load_source
 from swarmloc.net.entry import network_class
 from swarmloc.net.team import TeamRun, launch_team
@@ -128,10 +126,8 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
     if res.stats.get("truth_missing"):
         notes.append(f"{res.stats['truth_missing']} record times have no ground truth (past its end): not scored")
     duration = float(src.t_end - src.t_start)
-    ev.update(wall_time_s=run.wall_s, x_real_time=duration / run.wall_s if run.wall_s > 0 else math.inf,
-              stats=res.stats, reasons=dict(res.reasons), timing={}, accounted=res.accounted() and not missing,
-              detections_missing_of=missing, association_accuracy=association_accuracy(res.stats))  # fmt: skip
-    ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
+    run_row(ev, res, duration)
+    ev.update(accounted=ev["accounted"] and not missing, detections_missing_of=missing)
     n_rec = sum(tr.times.size for tr in res.tracks.values())
     report = {
         "title": f"live team over Zenoh: {src.spec}, {estimator}",
