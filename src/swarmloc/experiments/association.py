@@ -132,7 +132,7 @@ def with_association(src: Source, policy: str | None = None) -> Source:
     set. What ``swarmloc node`` / ``team`` / ``server`` do with ``--association``: every process of a team applies it
     to the same source, so they all see the same events."""
     policy = src.config.filter.association if policy is None else association_policy(policy)
-    config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
+    config = src.config.with_filter(association=policy)
     if policy == "tags":
         return dataclasses.replace(src, config=config)
     events, _ = association_events(src.events, policy, src.robots, config.motion.noise())

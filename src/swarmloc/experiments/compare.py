@@ -73,8 +73,6 @@ def _job(
 ) -> dict[str, Any]:
     """One estimator on one source: pooled error arrays and counters (runs in a worker process). ``assoc``:
     ``(policy, clutter per scan, detection probability)`` (:mod:`swarmloc.experiments.association`)."""
-    import dataclasses
-
     from swarmloc.estimators import make_team, node_options
     from swarmloc.experiments.association import association_events
     from swarmloc.experiments.sources import load_source
@@ -87,7 +85,7 @@ def _job(
 
         nodes, events, record = se3_team(src, estimator), with_truth(src), None
     else:
-        config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
+        config = src.config.with_filter(association=policy)
         events, _ = association_events(src.events, policy, sorted(src.initial), config.motion.noise(),
                                        clutter=clutter, p_detect=p_detect, seed=seed)  # fmt: skip
         nodes = make_team(estimator, src.initial, **node_options(estimator, config, src.landmarks, src.t_start,
@@ -118,15 +116,13 @@ def _refuse_what_cannot_run(
     """Raise ValueError, before anything runs, for a scenario, policy or estimator :func:`compare` cannot run: an
     unknown scenario, a 3-D team with untagged detections or an estimator without 3-D support, an estimator that
     cannot run the association policy."""
-    import dataclasses
-
     from swarmloc.config import DEFAULTS
     from swarmloc.estimators import estimator_class, make_team, node_options
     from swarmloc.experiments.association import association_policy
 
     policy = association_policy(association)
     _check_scenario(scenario)
-    cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, association=policy))
+    cfg = DEFAULTS.with_filter(association=policy)
     if is_3d(scenario):
         if association != "tags" or clutter or p_detect != 1.0:
             raise ValueError(f"{scenario}: a 3-D team's detections are tagged (association tags, no clutter, "

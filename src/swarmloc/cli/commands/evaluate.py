@@ -96,17 +96,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _with_gate(config, gate: float | None):  # noqa: ANN001, ANN202
     """``--gate`` overrides the configuration's gate (0 disables it)."""
-    if gate is None:
-        return config
-    import dataclasses
-
-    return dataclasses.replace(config, filter=dataclasses.replace(config.filter, gate=None if gate <= 0 else gate))
+    return config if gate is None else config.with_filter(gate=None if gate <= 0 else gate)
 
 
 def _with_association(config, association: str | None):  # noqa: ANN001, ANN202
     """``--association`` overrides the configuration's ``[filter] association``."""
-    if association is None:
-        return config
-    import dataclasses
-
-    return dataclasses.replace(config, filter=dataclasses.replace(config.filter, association=association))
+    return config if association is None else config.with_filter(association=association)
