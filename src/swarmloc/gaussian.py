@@ -137,7 +137,7 @@ def positive_definite(P: np.ndarray) -> bool:
 def chi2_ppf(p: float, dof: int) -> float:
     """The ``p`` quantile of the chi-square law with ``dof`` degrees of freedom: the bound a squared Mahalanobis
     distance of a consistent ``dof``-dimensional Gaussian stays under with probability ``p`` (gates, NEES bands;
-    cached: callers use a handful of ``(p, dof)`` pairs)."""
+    cached: a gate asks for the same few ``(p, dof)`` pairs at every update)."""
     from scipy.stats import chi2
 
     return float(chi2.ppf(p, dof))
