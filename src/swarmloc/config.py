@@ -479,6 +479,10 @@ class Config:
                 raise ConfigError(f"Config.replace: section {name!r} must be a {_SECTIONS[name].__name__}")
         return dataclasses.replace(self, **sections)
 
+    def with_filter(self, **keys: Any) -> Config:
+        """A copy with these ``[filter]`` keys changed (checked as a file's are), e.g. ``c.with_filter(gate=None)``."""
+        return dataclasses.replace(self, filter=dataclasses.replace(self.filter, **keys))
+
     def event_defaults(self) -> dict[str, np.ndarray]:
         """Default noise std per record kind for :func:`swarmloc.datasets.eventfile.load_events`: the detection
         kinds from ``[sensors]`` and ``"initial"`` from ``[initial]``."""

@@ -19,6 +19,7 @@ transpose ``(A'' B)^T = B^T A''^T``, which keeps the result symmetric.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -121,6 +122,33 @@ def symmetric(C: np.ndarray) -> np.ndarray:
     return 0.5 * (C + np.swapaxes(C, -1, -2))
 
 
+def positive_definite(P: np.ndarray) -> bool:
+    """Finite and positive definite as ``numpy.linalg.cholesky`` decides (no margin)."""
+    if not np.isfinite(P).all():
+        return False
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+@cache
+def chi2_ppf(p: float, dof: int) -> float:
+    """The ``p`` quantile of the chi-square law with ``dof`` degrees of freedom: the bound a squared Mahalanobis
+    distance of a consistent ``dof``-dimensional Gaussian stays under with probability ``p`` (gates, NEES bands;
+    cached: a gate asks for the same few ``(p, dof)`` pairs at every update)."""
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(p, dof))
+
+
+def mahalanobis2(y: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distance ``y^T cov^-1 y`` of vectors ``y (..., k)`` under covariances ``cov (..., k, k)``
+    (batched, broadcast): a NEES of an error, a NIS of an innovation ``r`` under its covariance ``S``."""
+    return np.einsum("...i,...i->...", y, np.linalg.solve(cov, y[..., None])[..., 0])
+
+
 def convolve_moments(
     group: type[SEGroup], mu1: np.ndarray, S1: np.ndarray, mu2: np.ndarray, S2: np.ndarray, order: int = 2
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -213,8 +241,7 @@ class GroupGaussian:
 
     def mahalanobis2(self, g: np.ndarray, validate: bool = True) -> np.ndarray:
         """Squared Mahalanobis distance ``y^T Sigma^-1 y`` with ``y = log(mean^-1 g)`` (the NEES of an estimate)."""
-        y = self.tangent_of(g, validate)
-        return np.einsum("...i,...i->...", y, np.linalg.solve(self.cov, y[..., None])[..., 0])
+        return mahalanobis2(self.tangent_of(g, validate), self.cov)
 
     def logpdf(self, g: np.ndarray, validate: bool = True) -> np.ndarray:
         """Log density (thesis eq. 3.19, small-covariance normalizer) at element(s) ``g``."""

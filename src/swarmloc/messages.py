@@ -32,7 +32,7 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from swarmloc.gaussian import GroupGaussian
+from swarmloc.gaussian import GroupGaussian, positive_definite
 
 MAX_FLOATS = 36
 """The most numbers one field of a message carries (a ``6 x 6`` covariance); checked on decoding, before the
@@ -222,27 +222,14 @@ def _se3_belief_problem(name: str, mean: tuple, cov: tuple) -> str | None:
     if not (np.array_equal(g[3], [0.0, 0.0, 0.0, 1.0]) and np.abs(R.T @ R - np.eye(3)).max() <= 1e-6
             and np.linalg.det(R) > 0):  # fmt: skip
         return f"{name}: mean is not in SE(3)"
-    C = np.reshape(np.array(cov, dtype=float), (6, 6))
-    if np.abs(C - C.T).max() > 1e-9 * max(1.0, float(np.abs(C).max())):
-        return f"{name}: cov is not symmetric positive definite"
-    try:
-        np.linalg.cholesky(C)
-    except np.linalg.LinAlgError:
-        return f"{name}: cov is not symmetric positive definite"
-    return None
+    return None if _spd(cov) else f"{name}: cov is not symmetric positive definite"
 
 
 def _spd(c: tuple) -> bool:
     """A row-major square matrix of finite numbers is symmetric (to 1e-9 relative) and positive definite."""
     k = math.isqrt(len(c))
     C = np.reshape(np.array(c, dtype=float), (k, k))
-    if np.abs(C - C.T).max() > 1e-9 * max(1.0, float(np.abs(C).max())):
-        return False
-    try:
-        np.linalg.cholesky(C)
-    except np.linalg.LinAlgError:
-        return False
-    return True
+    return bool(np.abs(C - C.T).max() <= 1e-9 * max(1.0, float(np.abs(C).max()))) and positive_definite(C)
 
 
 def _se3_state_problem(name: str, x: tuple, P: tuple, sigma: tuple) -> str | None:

@@ -49,7 +49,7 @@ from swarmloc.association.registration import (
     invert_xyt,
     visible,
 )
-from swarmloc.gaussian import GroupGaussian, symmetric
+from swarmloc.gaussian import GroupGaussian, mahalanobis2, symmetric
 from swarmloc.lie import SE2
 
 __all__ = [
@@ -100,8 +100,7 @@ class PMRResult:
 
 def _maha2(pred: np.ndarray, ref: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """``y^T cov^-1 y`` with ``y = log(ref^-1 pred)`` for planar poses ``(..., 3)`` (batched over ``ref``/``cov``)."""
-    y = SE2.log(SE2.from_xytheta(compose_xyt(invert_xyt(ref), pred)), validate=False)
-    return np.einsum("...i,...i->...", y, np.linalg.solve(cov, y[..., None])[..., 0])
+    return mahalanobis2(SE2.log(SE2.from_xytheta(compose_xyt(invert_xyt(ref), pred)), validate=False), cov)
 
 
 def _ad(pose: np.ndarray) -> np.ndarray:

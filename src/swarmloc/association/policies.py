@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
 
+from swarmloc.gaussian import chi2_ppf, mahalanobis2
 from swarmloc.sensors.models import MODELS
 
 __all__ = ["Association", "gate_threshold", "innovation_costs", "joint", "nearest"]
@@ -45,7 +45,7 @@ def gate_threshold(dof: int, probability: float = 0.99) -> float:
     passes with ``probability``."""
     if not 0.0 < probability < 1.0:
         raise ValueError(f"gate probability must be in (0, 1), got {probability}")
-    return float(chi2.ppf(probability, dof))
+    return chi2_ppf(probability, dof)
 
 
 def innovation_costs(
@@ -87,7 +87,7 @@ def innovation_costs(
         S_state = S_state + Hc + np.swapaxes(Hc, -1, -2)
     S = S_state[None, :, :, :] + model.noise(z, R)[:, None, :, :]  # (m, n, k, k)
     r = model.residual(z[:, None, :], h[None, :, :])  # (m, n, k)
-    d2 = np.einsum("...i,...i->...", r, np.linalg.solve(S, r[..., None])[..., 0])
+    d2 = mahalanobis2(r, S)
     d2[:, bad] = np.inf
     return d2
 

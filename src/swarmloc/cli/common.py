@@ -1,11 +1,17 @@
-"""Run-time helpers the commands share: the configuration file, comma-separated ids and endpoints, a network
-process's logging, keys, launcher and waits."""
+"""Run-time helpers the commands share: the one-line refusal of a bad input, the configuration file, comma-separated
+ids and endpoints, a network process's logging, keys, launcher and waits."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 from typing import Any
+
+
+def refuse(command: str, message: object) -> int:
+    """An error in the input of ``swarmloc <command>`` said in one line on stderr; the command's exit status 2."""
+    print(f"swarmloc {command}: {message}", file=sys.stderr)
+    return 2
 
 
 def run_config(args: argparse.Namespace):  # noqa: ANN202

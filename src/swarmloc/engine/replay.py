@@ -64,6 +64,7 @@ from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, SE3
 from swarmloc.node.keys import SubKey
 from swarmloc.runner import RobotTrack, RunResult, truth_table
+from swarmloc.runner.result import RUN_COUNTERS
 from swarmloc.sensors.models import KIND_ORDER
 from swarmloc.sensors.models3 import KIND_ORDER3
 from swarmloc.sim.simulator import SimResult
@@ -151,7 +152,7 @@ def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: Checked
     stats["recorded"] = sum(len(v) for v in rows.values())
     if truth_missing:
         stats["truth_missing"] = truth_missing
-    for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
+    for k in RUN_COUNTERS:
         stats.setdefault(k, 0)
     timing = {"predict_s": 0.0, "predict_n": 0, "fuse_s": 0.0, "fuse_n": 0}
     return RunResult(name, tracks, wall, dict(stats), len(src.events), reasons, timing)

@@ -16,6 +16,7 @@ from swarmloc.arrays import BoolArray
 from swarmloc.engine.codes import FUSED, PENDING, R_NONFINITE, REJECTED
 from swarmloc.engine.detections import Detections
 from swarmloc.engine.outcomes import gate_rows, mark
+from swarmloc.gaussian import positive_definite
 from swarmloc.kernels.group import FUSE_ITERATIONS, POINT_ITERATIONS
 from swarmloc.node.update import Gate
 
@@ -79,10 +80,7 @@ def usable(Cs: np.ndarray) -> BoolArray:
             np.linalg.cholesky(Cs[idx])
         except np.linalg.LinAlgError:
             for i in idx:
-                try:
-                    np.linalg.cholesky(Cs[i])
-                except np.linalg.LinAlgError:
-                    out[i] = False
+                out[i] = positive_definite(Cs[i])
     return out
 
 

@@ -29,7 +29,7 @@ name           class                             kind
 from __future__ import annotations
 
 import inspect
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
 from swarmloc.config import NODE_ASSOCIATION
@@ -94,6 +94,13 @@ def estimator_class(estimator: str | type[Node], initial: Mapping[int, GroupGaus
             raise ValueError(f"estimator {estimator!r} has no SE(3) form; for a 3-D team choose from {sorted(table)}")
         raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(table)}")
     return cls
+
+
+def check_known(estimators: Iterable[str]) -> None:
+    """ValueError naming the choices when a name in ``estimators`` is not in :data:`ESTIMATORS`."""
+    unknown = [e for e in estimators if e not in ESTIMATORS]
+    if unknown:
+        raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
 
 
 def accepted_options(cls: type[Node]) -> set[str]:
@@ -199,6 +206,7 @@ __all__ = [
     "RecursiveDecentralized",
     "RobotNode",
     "accepted_options",
+    "check_known",
     "estimator_class",
     "make_team",
     "node_options",

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.gaussian import symmetric
+from swarmloc.gaussian import mahalanobis2, symmetric
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.node import usable_covariance
@@ -64,8 +64,7 @@ def quadratic(r: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             det = a * d - b * b
             x, y = r[:, 0], r[:, 1]
             return (d * x * x - 2 * b * x * y + a * y * y) / det, np.log(det)
-    nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
-    return nis, np.linalg.slogdet(S)[1]
+    return mahalanobis2(r, S), np.linalg.slogdet(S)[1]
 
 
 def logsumexp(a: np.ndarray) -> float:

@@ -63,7 +63,7 @@ def delayed_tracks(nodes: Iterable[Any], result: RunResult) -> tuple[RunResult, 
         rows = [(at[float(ts)], xp) for ts, xp in sorted(n.lagged_log.items()) if float(ts) in at]
         rows = [(k, xp) for k, xp in rows if np.isfinite(tr.truth[k]).all()]
         idx = np.array([k for k, _ in rows], dtype=int)
-        causal[n.robot] = RobotTrack(tr.times[idx], tr.mean[idx], tr.cov[idx], tr.truth[idx])
+        causal[n.robot] = tr.rows(idx)
         x = np.array([xp[0] for _, xp in rows], dtype=float).reshape(-1, 3)
         P = np.array([xp[1] for _, xp in rows], dtype=float).reshape(-1, 3, 3)
         delayed[n.robot] = RobotTrack(tr.times[idx], *_track_arrays(x, P), tr.truth[idx])

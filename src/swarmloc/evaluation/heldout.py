@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.events import Detection, Event
+from swarmloc.gaussian import mahalanobis2
 from swarmloc.lie import wrap_angle
 from swarmloc.runner import RobotTrack
 
@@ -81,8 +82,7 @@ def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, det
     jl = jq @ rot_t
     L = jl @ (np.eye(2)[None] * np.square(lm[:, 2:4])[:, :, None]) @ np.swapaxes(jl, 1, 2)
     S = H @ P @ np.swapaxes(H, 1, 2) + np.diag([std[0] ** 2, std[1] ** 2])[None] + L
-    nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
-    return np.where(ok, nis, np.nan)
+    return np.where(ok, mahalanobis2(r, S), np.nan)
 
 
 def tracks_nis(tracks: Mapping[int, RobotTrack], readings: Sequence[Detection],

@@ -8,9 +8,11 @@ over-confident, below the lower bound under-confident.
 
 from __future__ import annotations
 
-import numpy as np
-from scipy.stats import chi2
+from collections.abc import Iterable, Mapping
 
+import numpy as np
+
+from swarmloc.gaussian import chi2_ppf, mahalanobis2
 from swarmloc.lie import SE2
 from swarmloc.lie import wrap_angle as wrap
 from swarmloc.runner import RobotTrack, RunResult
@@ -28,7 +30,7 @@ def errors(track: RobotTrack) -> dict[str, np.ndarray]:
         y = SE2.log(
             SE2.inverse(SE2.from_xytheta(track.mean), validate=False) @ SE2.from_xytheta(track.truth), validate=False
         )
-        nees = np.einsum("ni,ni->n", y, np.linalg.solve(track.cov, y[..., None])[..., 0])
+        nees = mahalanobis2(y, track.cov)
     return {"pos": ep, "heading": eh, "nees": nees}
 
 
@@ -42,23 +44,28 @@ def errors_se3(track: RobotTrack) -> dict[str, np.ndarray]:
     ep = np.linalg.norm(track.mean[:, :3] - track.truth[:, :3], axis=1)
     y = SE3.log(SE3.inverse(pose_from7(track.mean), validate=False) @ pose_from7(track.truth), validate=False)
     er = np.linalg.norm(y[:, 3:], axis=1)
-    nees = np.einsum("ni,ni->n", y, np.linalg.solve(track.cov, y[..., None])[..., 0])
-    return {"pos": ep, "heading": er, "nees": nees}
+    return {"pos": ep, "heading": er, "nees": mahalanobis2(y, track.cov)}
 
 
 def anees_bounds(n: int, dof: int = DOF, p: float = 0.95) -> tuple[float, float]:
     """Two-sided ``p`` bounds of the per-dof ANEES of ``n`` *independent* NEES values."""
     a = (1 - p) / 2
-    return float(chi2.ppf(a, n * dof) / (n * dof)), float(chi2.ppf(1 - a, n * dof) / (n * dof))
+    return chi2_ppf(a, n * dof) / (n * dof), chi2_ppf(1 - a, n * dof) / (n * dof)
 
 
-def summarize(errs: dict[str, np.ndarray], dof: int = DOF) -> dict[str, float]:
+def pooled(errs: Iterable[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Error arrays of :func:`errors` (or of anything with its keys) concatenated key by key (empty: none)."""
+    errs = list(errs)
+    return {k: np.concatenate([e[k] for e in errs]) if errs else np.zeros(0) for k in ("pos", "heading", "nees")}
+
+
+def summarize(errs: Mapping[str, np.ndarray], dof: int = DOF) -> dict[str, float]:
     """RMSE of position and heading (SE(3): rotation angle; also as ``rot_rmse``), per-dof ANEES (``dof`` 3 on
     SE(2), 6 on SE(3)), median NEES per dof and the fraction of NEES inside the two-sided 95% band."""
     n = errs["pos"].size
     if n == 0:
         return {"n": 0}
-    lo, hi = chi2.ppf([0.025, 0.975], dof)
+    lo, hi = chi2_ppf(0.025, dof), chi2_ppf(0.975, dof)
     out = {
         "n": int(n),
         "pos_rmse": float(np.sqrt(np.mean(errs["pos"] ** 2))),
@@ -76,19 +83,16 @@ def summarize(errs: dict[str, np.ndarray], dof: int = DOF) -> dict[str, float]:
 def evaluate(result: RunResult, robots: list[int] | None = None) -> dict:
     """Per-robot and team summaries of one run (team = all records of all robots pooled)."""
     robots = sorted(result.tracks) if robots is None else robots
-    per = {}
-    pooled: dict[str, list[np.ndarray]] = {"pos": [], "heading": [], "nees": []}
+    per, errs = {}, []
     dof = DOF
     for r in robots:
         tr = result.tracks.get(r)
         if tr is None or tr.times.size == 0:
             continue
         dof = 6 if tr.mean.shape[-1] == 7 else DOF
-        e = errors(tr)
-        per[r] = summarize(e, dof)
-        for k in pooled:
-            pooled[k].append(e[k])
-    team = summarize({k: np.concatenate(v) if v else np.zeros(0) for k, v in pooled.items()}, dof)
+        errs.append(errors(tr))
+        per[r] = summarize(errs[-1], dof)
+    team = summarize(pooled(errs), dof)
     return {"estimator": result.estimator, "robots": per, "team": team, "wall_time": result.wall_time}
 
 

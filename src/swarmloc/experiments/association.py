@@ -109,8 +109,7 @@ def handoff_accuracy(events: Sequence[Event], truth: Any, gate: float = 0.999) -
     right when the NEES of the true relative pose of the named robot, ``log(z^-1 (x_i^-1 x_j))`` under the hand-off's
     covariance, is inside the ``gate`` chi-square probability (3 dof; 0.999: 16.27), i.e. the bank named the robot
     that is there. ``truth(robot, times)`` gives ``(T, 3)`` true poses ``(x, y, theta)`` (``Source.truth``)."""
-    from scipy.stats import chi2
-
+    from swarmloc.gaussian import chi2_ppf, mahalanobis2
     from swarmloc.lie import SE2
 
     poses = [e for e in events if isinstance(e, Detection) and e.kind == Kind.POSE and e.target is not None]
@@ -123,8 +122,7 @@ def handoff_accuracy(events: Sequence[Event], truth: Any, gate: float = 0.999) -
     rel = SE2.inverse(SE2.from_xytheta(a), validate=False) @ SE2.from_xytheta(b)
     y = SE2.log(SE2.inverse(z, validate=False) @ rel, validate=False)
     cov = np.array([e.cov for e in poses], dtype=float)
-    nees = np.einsum("ni,ni->n", y, np.linalg.solve(cov, y[..., None])[..., 0])
-    right = int(np.sum(nees <= chi2.ppf(gate, 3)))
+    right = int(np.sum(mahalanobis2(y, cov) <= chi2_ppf(gate, 3)))
     return right, len(poses) - right
 
 
@@ -134,7 +132,7 @@ def with_association(src: Source, policy: str | None = None) -> Source:
     set. What ``swarmloc node`` / ``team`` / ``server`` do with ``--association``: every process of a team applies it
     to the same source, so they all see the same events."""
     policy = src.config.filter.association if policy is None else association_policy(policy)
-    config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
+    config = src.config.with_filter(association=policy)
     if policy == "tags":
         return dataclasses.replace(src, config=config)
     events, _ = association_events(src.events, policy, src.robots, config.motion.noise())

@@ -19,6 +19,7 @@ Columns, pooled over all robots' records of all runs:
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Sequence
@@ -26,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
+from swarmloc.evaluation.metrics import DOF, anees_bounds, errors, pooled, summarize
 from swarmloc.experiments.association import association_accuracy
 from swarmloc.experiments.evaluate import association_text
 from swarmloc.experiments.output import write_summary
@@ -34,6 +35,7 @@ from swarmloc.experiments.progress import steps
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, SE3
 from swarmloc.runner.fanout import cluster_address, fan_out
+from swarmloc.runner.result import summed
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -71,8 +73,6 @@ def _job(
 ) -> dict[str, Any]:
     """One estimator on one source: pooled error arrays and counters (runs in a worker process). ``assoc``:
     ``(policy, clutter per scan, detection probability)`` (:mod:`swarmloc.experiments.association`)."""
-    import dataclasses
-
     from swarmloc.estimators import make_team, node_options
     from swarmloc.experiments.association import association_events
     from swarmloc.experiments.sources import load_source
@@ -85,7 +85,7 @@ def _job(
 
         nodes, events, record = se3_team(src, estimator), with_truth(src), None
     else:
-        config = dataclasses.replace(src.config, filter=dataclasses.replace(src.config.filter, association=policy))
+        config = src.config.with_filter(association=policy)
         events, _ = association_events(src.events, policy, sorted(src.initial), config.motion.noise(),
                                        clutter=clutter, p_detect=p_detect, seed=seed)  # fmt: skip
         nodes = make_team(estimator, src.initial, **node_options(estimator, config, src.landmarks, src.t_start,
@@ -96,22 +96,11 @@ def _job(
     t = time.perf_counter()
     res = run(nodes, events, record, truth=src.truth if record is not None else None, name=estimator)
     wall = time.perf_counter() - t
-    pos, head, nees = [], [], []
-    for tr in res.tracks.values():
-        ok = np.isfinite(tr.truth).all(axis=1)
-        if not ok.any():
-            continue
-        e = errors(type(tr)(tr.times[ok], tr.mean[ok], tr.cov[ok], tr.truth[ok]))
-        pos.append(e["pos"])
-        head.append(e["heading"])
-        nees.append(e["nees"])
-    cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
+    scored = [tr.with_truth() for tr in res.tracks.values()]
     return {
         "estimator": estimator,
         "seed": seed,
-        "pos": cat(pos),
-        "heading": cat(head),
-        "nees": cat(nees),
+        **pooled(errors(tr) for tr in scored if tr.times.size),
         "stats": res.stats,
         "timing": res.timing,
         "wall_s": wall,
@@ -127,15 +116,13 @@ def _refuse_what_cannot_run(
     """Raise ValueError, before anything runs, for a scenario, policy or estimator :func:`compare` cannot run: an
     unknown scenario, a 3-D team with untagged detections or an estimator without 3-D support, an estimator that
     cannot run the association policy."""
-    import dataclasses
-
     from swarmloc.config import DEFAULTS
     from swarmloc.estimators import estimator_class, make_team, node_options
     from swarmloc.experiments.association import association_policy
 
     policy = association_policy(association)
     _check_scenario(scenario)
-    cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, association=policy))
+    cfg = DEFAULTS.with_filter(association=policy)
     if is_3d(scenario):
         if association != "tags" or clutter or p_detect != 1.0:
             raise ValueError(f"{scenario}: a 3-D team's detections are tagged (association tags, no clutter, "
@@ -149,27 +136,18 @@ def _refuse_what_cannot_run(
 def _estimator_summary(rs: list[dict[str, Any]], dof: int) -> dict[str, Any]:
     """One estimator's row of :func:`compare`'s summary from its runs ``rs`` (:func:`_job`'s results): errors,
     NEES statistics for ``dof`` degrees of freedom, costs, counters."""
-    from scipy.stats import chi2
-
-    q_lo, q_hi = chi2.ppf([0.025, 0.975], dof)
-    pos = np.concatenate([r["pos"] for r in rs])
-    head = np.concatenate([r["heading"] for r in rs])
-    nees = np.concatenate([r["nees"] for r in rs])
-    n = int(nees.size)
-    lo, hi = anees_bounds(max(n, 1), dof)
-    st: dict[str, int] = {}
-    for r in rs:
-        for k, v in r["stats"].items():
-            st[k] = st.get(k, 0) + int(v)
+    n = sum(int(r["nees"].size) for r in rs)
+    m = summarize(pooled(rs), dof)  # {"n": 0} when nothing was scored: those entries NaN
+    st = summed(r["stats"] for r in rs)
     tm = {k: sum(r["timing"][k] for r in rs) for k in ("predict_s", "predict_n", "fuse_s", "fuse_n")}
     robot_s = sum(r["robots"] * r["data_s"] for r in rs)
     return {
         "records": n,
-        "pos_rmse": float(np.sqrt(np.mean(pos**2))) if n else float("nan"),
-        "heading_rmse": float(np.sqrt(np.mean(head**2))) if n else float("nan"),
-        "anees": float(np.mean(nees) / dof) if n else float("nan"),
-        "anees_band_95": (lo, hi),
-        "frac_in_95": float(np.mean((nees >= q_lo) & (nees <= q_hi))) if n else float("nan"),
+        "pos_rmse": m.get("pos_rmse", math.nan),
+        "heading_rmse": m.get("heading_rmse", math.nan),
+        "anees": m.get("anees", math.nan),
+        "anees_band_95": anees_bounds(max(n, 1), dof),
+        "frac_in_95": m.get("frac_in_95", math.nan),
         "anees_per_run": [float(np.mean(r["nees"]) / dof) for r in rs if r["nees"].size],
         "update_us": 1e6 * tm["fuse_s"] / tm["fuse_n"] if tm["fuse_n"] else 0.0,
         "predict_us": 1e6 * tm["predict_s"] / tm["predict_n"] if tm["predict_n"] else 0.0,
@@ -200,11 +178,9 @@ def compare(
     detections per scan and detection probability ``p_detect``): how robot detections get their identity
     (:mod:`swarmloc.experiments.association`; every policy but ``tags`` hides the ids). The runs go to ``jobs``
     worker processes, or to a Dask ``cluster`` (an address or a client: :func:`~swarmloc.runner.fanout.fan_out`)."""
-    from swarmloc.estimators import ESTIMATORS
+    from swarmloc.estimators import check_known
 
-    unknown = [e for e in estimators if e not in ESTIMATORS]
-    if unknown:
-        raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
+    check_known(estimators)
     if runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
     _refuse_what_cannot_run(scenario, estimators, association, clutter, p_detect)

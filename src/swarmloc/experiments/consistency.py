@@ -46,9 +46,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarmloc.evaluation.metrics import DOF, errors
+from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
 from swarmloc.experiments.output import write_summary
 from swarmloc.runner.fanout import ClusterUnavailable, cluster_address, fan_out
+from swarmloc.runner.result import summed
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -83,14 +84,7 @@ def default_estimators() -> list[str]:
 def bands(seeds: int, robots: int, p: float = 0.95) -> dict[str, tuple[float, float]]:
     """Two-sided ``p`` bands of the team ANEES per dof at one time (see the module docstring): ``"team"`` (``seeds``
     independent units of 3 dof) and ``"independent"`` (``seeds * robots`` units)."""
-    from scipy.stats import chi2
-
-    a = (1 - p) / 2
-    out = {}
-    for name, units in (("team", seeds), ("independent", seeds * robots)):
-        dof = units * DOF
-        out[name] = (float(chi2.ppf(a, dof) / dof), float(chi2.ppf(1 - a, dof) / dof))
-    return out
+    return {"team": anees_bounds(seeds, DOF, p), "independent": anees_bounds(seeds * robots, DOF, p)}
 
 
 def sampled_initial(src: Any, seed: int) -> dict[int, Any]:
@@ -159,10 +153,7 @@ def _summarize(rs: list[dict[str, Any]], band: dict[str, tuple[float, float]]) -
     a_t = nees.mean(axis=(0, 1)) / DOF
     lo, hi = band["team"]
     ilo, ihi = band["independent"]
-    st: dict[str, int] = {}
-    for r in rs:
-        for k, v in r["stats"].items():
-            st[k] = st.get(k, 0) + int(v)
+    st = summed(r["stats"] for r in rs)
     return {
         "pos_rmse": float(np.sqrt(np.mean(pos**2))),
         "heading_rmse": float(np.sqrt(np.mean(head**2))),
@@ -196,12 +187,10 @@ def consistency(
     (see the module docstring; ``summary["settings"]["off" | "on"][estimator]``). With ``out`` also writes
     ``consistency.json``, ``consistency.md`` and ``consistency.png`` (team ANEES over time with both bands) there.
     Raises ValueError for unknown estimators or bad sizes."""
-    from swarmloc.estimators import ESTIMATORS
+    from swarmloc.estimators import check_known
 
     estimators = default_estimators() if estimators is None else list(estimators)
-    unknown = [e for e in estimators if e not in ESTIMATORS]
-    if unknown:
-        raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
+    check_known(estimators)
     if not estimators:
         raise ValueError("no estimators given")
     if not (isinstance(seeds, int) and seeds >= 1 and isinstance(robots, int) and robots >= 1):

@@ -10,6 +10,7 @@ in-process runner; beliefs are recorded on a regular grid and scored with :mod:`
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -20,7 +21,7 @@ import numpy as np
 from swarmloc.config import DEFAULTS, Config
 from swarmloc.datasets.source import Source
 from swarmloc.datasets.tum import write_tum, write_tum3
-from swarmloc.estimators import ESTIMATORS, make_team, node_options
+from swarmloc.estimators import check_known, make_team, node_options
 from swarmloc.estimators.fls import FixedLagSmoother
 from swarmloc.estimators.fls_team import TeamFixedLagSmoother
 from swarmloc.evaluation.delayed import delayed_output
@@ -76,9 +77,7 @@ def evaluate_stream(
     (:data:`ENGINE_DRIVEN`, :func:`engine_run`) instead of the in-process nodes: the same results, each row's wall
     time the whole call after an untimed warm-up (``compile_s``).
     """
-    unknown = [e for e in estimators if e not in ESTIMATORS]
-    if unknown:
-        raise ValueError(f"unknown estimator(s) {unknown}; choose from {sorted(ESTIMATORS)}")
+    check_known(estimators)
     record_times = config.record.times(t_start, t_end, len(initial), span_origin)
     policy = config.filter.association
     if engine:
@@ -116,16 +115,9 @@ def evaluate_stream(
             ev = evaluate(res) if truth is not None else {"estimator": name, "robots": {}, "team": None}
             if engine:
                 ev.update(driver="engine (numba, compiled replay)", compile_s=compile_s)
-            ev["wall_time_s"] = res.wall_time
-            ev["x_real_time"] = duration / res.wall_time if res.wall_time > 0 else float("inf")
-            ev["stats"] = res.stats
-            ev["association_accuracy"] = association_accuracy(res.stats)
+            run_row(ev, res, duration)
             if policy == "anonymous":
                 ev["handoffs"] = handoffs(res, notes)
-            ev["reasons"] = dict(res.reasons)
-            ev["timing"] = res.timing
-            ev["accounted"] = res.accounted()
-            ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
             report["estimators"][name] = ev
             first = nodes[0]
             if not engine and isinstance(first, SMOOTHERS) and first.lagged_log is not None:
@@ -137,6 +129,16 @@ def evaluate_stream(
     report["anees_bounds_if_independent"] = anees_bounds(max(n_rec, 1))
     report["recommended"] = recommended(report)
     return report, results
+
+
+def run_row(ev: dict[str, Any], res: RunResult, duration: float) -> None:
+    """Complete ``ev``, the scores of ``res`` (:func:`~swarmloc.evaluation.metrics.evaluate`), as a report's row:
+    the run's wall time [s] and speed on ``duration`` s of data, its counters, association accuracy, reasons,
+    timing and accounting; robot ids as text (JSON keys)."""
+    ev.update(wall_time_s=res.wall_time, x_real_time=duration / res.wall_time if res.wall_time > 0 else math.inf,
+              stats=res.stats, association_accuracy=association_accuracy(res.stats), reasons=dict(res.reasons),
+              timing=res.timing, accounted=res.accounted())  # fmt: skip
+    ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
 
 
 def recommended(report: Mapping[str, Any], score: Mapping[str, Any] | str = "no ground truth") -> dict[str, Any]:

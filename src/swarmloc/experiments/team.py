@@ -8,21 +8,17 @@ the report. The network package below knows nothing of sources by spec, metrics 
 
 from __future__ import annotations
 
-import math
 import os
 from collections import Counter
 from typing import Any
 
-import numpy as np
-
 from swarmloc.datasets.source import Source
 from swarmloc.evaluation.metrics import anees_bounds, evaluate
-from swarmloc.experiments.association import association_accuracy
-from swarmloc.experiments.evaluate import delayed_row, write_report
+from swarmloc.experiments.evaluate import delayed_row, run_row, write_report
 from swarmloc.experiments.sources import load_source
 from swarmloc.net.entry import network_class
 from swarmloc.net.team import TeamRun, launch_team
-from swarmloc.runner.result import RobotTrack, RunResult
+from swarmloc.runner.result import RUN_COUNTERS, RobotTrack, RunResult
 
 __all__ = ["TeamRun", "delayed_team_result", "run_team", "team_result", "with_truth", "write_team_report"]
 
@@ -58,7 +54,7 @@ def team_result(run: TeamRun, src: Source, estimator: str) -> RunResult:
         reasons.update(rep.reasons)
         stats.update({f"net_{k}": v for k, v in rep.net.items()})
         reasons.update({f"network: {k}": v for k, v in rep.net_reasons.items()})
-    for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
+    for k in RUN_COUNTERS:
         stats.setdefault(k, 0)
     reasons.update({f"collector: {k}": v for k, v in run.reasons.items()})
     stats["recorded"] = len(run.beliefs)
@@ -76,12 +72,8 @@ def with_truth(tracks: dict[int, RobotTrack], truth: bool) -> tuple[dict[int, Ro
     whose odometry runs past its ground truth has record times without it), and how many rows were left out."""
     if not truth:
         return tracks, 0
-    out, missing = {}, 0
-    for r, tr in tracks.items():
-        ok = np.isfinite(tr.truth).all(axis=1)
-        missing += int(ok.size - ok.sum())
-        out[r] = RobotTrack(tr.times[ok], tr.mean[ok], tr.cov[ok], tr.truth[ok])
-    return out, missing
+    out = {r: tr.with_truth() for r, tr in tracks.items()}
+    return out, sum(tr.times.size - out[r].times.size for r, tr in tracks.items())
 
 
 def delayed_team_result(run: TeamRun, src: Source, estimator: str) -> RunResult | None:
@@ -134,10 +126,8 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
     if res.stats.get("truth_missing"):
         notes.append(f"{res.stats['truth_missing']} record times have no ground truth (past its end): not scored")
     duration = float(src.t_end - src.t_start)
-    ev.update(wall_time_s=run.wall_s, x_real_time=duration / run.wall_s if run.wall_s > 0 else math.inf,
-              stats=res.stats, reasons=dict(res.reasons), timing={}, accounted=res.accounted() and not missing,
-              detections_missing_of=missing, association_accuracy=association_accuracy(res.stats))  # fmt: skip
-    ev["robots"] = {str(k): v for k, v in ev["robots"].items()}
+    run_row(ev, res, duration)
+    ev.update(accounted=ev["accounted"] and not missing, detections_missing_of=missing)
     n_rec = sum(tr.times.size for tr in res.tracks.values())
     report = {
         "title": f"live team over Zenoh: {src.spec}, {estimator}",

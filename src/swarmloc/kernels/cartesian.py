@@ -255,7 +255,7 @@ def kalman_update(
             xn[..., j] = wrap_angle(xn[..., j])
     IKH = np.eye(x.shape[-1]) - K @ H
     Pn = IKH @ P @ _T(IKH, -1, -2) + K @ R @ _T(K, -1, -2)
-    Pn = 0.5 * (Pn + _T(Pn, -1, -2))
+    Pn = symmetric(Pn)
     ok = np.isfinite(nis) & np.isfinite(xn).all(axis=-1) & np.isfinite(Pn).all(axis=(-1, -2))
     return xn, Pn, nis, ok
 

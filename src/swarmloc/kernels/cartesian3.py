@@ -64,9 +64,7 @@ def error_cov(R: FloatArray, cov: FloatArray) -> FloatArray:
     """``J cov J^T`` (symmetrized) with ``J = frame(R)``: a right-perturbation covariance as that of
     ``(dp, dtheta)`` (``R`` the attitude), or back (``R^T``)."""
     J = frame(R)
-    P = J @ cov @ _T(J, -1, -2)
-    out: FloatArray = 0.5 * (P + _T(P, -1, -2))
-    return out
+    return symmetric(J @ cov @ _T(J, -1, -2))
 
 
 def pose(p: FloatArray, R: FloatArray) -> FloatArray:
@@ -123,7 +121,7 @@ def propagate(
     :func:`transition`)."""
     F, G = transition(R, inc)
     P1 = F @ P @ _T(F, -1, -2) + G @ S @ _T(G, -1, -2)
-    return p + (R @ inc[..., :3, 3:])[..., 0], R @ inc[..., :3, :3], 0.5 * (P1 + _T(P1, -1, -2))
+    return p + (R @ inc[..., :3, 3:])[..., 0], R @ inc[..., :3, :3], symmetric(P1)
 
 
 def correct(p: FloatArray, R: FloatArray, dx: FloatArray) -> tuple[FloatArray, FloatArray]:

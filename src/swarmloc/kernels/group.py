@@ -21,7 +21,7 @@ from typing import NamedTuple, cast
 import numpy as np
 
 from swarmloc.arrays import BoolArray, FloatArray
-from swarmloc.gaussian import convolution_F, convolution_F_tensor, symmetric
+from swarmloc.gaussian import convolution_F, convolution_F_tensor, mahalanobis2, symmetric
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.lie.base import SEGroup
 from swarmloc.sensors.models import MIN_RANGE, MODELS
@@ -150,8 +150,7 @@ def absolute_to_pseudo(xytheta: FloatArray, cov: FloatArray) -> tuple[FloatArray
 def pseudo_nis(group: type[SEGroup], mu: FloatArray, cov: FloatArray, nu: FloatArray, W: FloatArray) -> FloatArray:
     """Normalized innovation squared of a pose pseudo-observation (first order), for gating. Batched."""
     x = group.log(group.inverse(nu, validate=False) @ mu, validate=False)
-    nis: FloatArray = np.einsum("...i,...i->...", x, np.linalg.solve(cov + W, x[..., None])[..., 0])
-    return nis
+    return mahalanobis2(x, cov + W)
 
 
 # ------------------------------------------------------------------------------------------------ range / bearing
@@ -314,5 +313,5 @@ def point_nis(mu: FloatArray, cov: FloatArray, meas: PointMeasurement) -> FloatA
         ok = (rng >= MIN_RANGE) & np.isfinite(S).all(axis=(-1, -2))
         S = np.where(ok[..., None, None], S, np.eye(S.shape[-1]))
         r = np.where(ok[..., None], r, 0.0)
-        nis = np.einsum("...i,...i->...", r, np.linalg.solve(S, r[..., None])[..., 0])
+        nis = mahalanobis2(r, S)
     return np.where(ok, nis, np.nan)

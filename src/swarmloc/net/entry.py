@@ -42,11 +42,9 @@ def hosted_class(estimator: str) -> type | None:
     """The node class of a centralized ``estimator`` the belief server can host (``cekf``, ``iekf``, ``fej``: one
     node for the team, fed by the robots' forwarded measurements, :mod:`swarmloc.net.central`); None for another
     known one; ValueError naming the choices for an unknown one."""
-    from swarmloc.estimators import ESTIMATORS
+    from swarmloc.estimators import estimator_class
 
-    cls = ESTIMATORS.get(estimator)
-    if cls is None:
-        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(ESTIMATORS)}")
+    cls = estimator_class(estimator)
     return None if cls.distributed else cls
 
 
@@ -63,13 +61,9 @@ def distributed_class(estimator: str, initial: Any = None) -> type:
     from swarmloc.lie import SE3
     from swarmloc.node import RobotNode
 
-    table = ESTIMATORS
-    if initial is not None and getattr(initial, "group", None) is SE3:
-        table = ESTIMATORS_SE3  # the table of a 3-D team
-        estimator_class(estimator, {0: initial})  # an unknown name, or one without an SE(3) form: its own error
-    cls = table.get(estimator)
-    if cls is None:
-        raise ValueError(f"unknown estimator {estimator!r}; choose from {sorted(table)}")
+    se3 = getattr(initial, "group", None) is SE3
+    table = ESTIMATORS_SE3 if se3 else ESTIMATORS  # a 3-D team's table
+    cls = estimator_class(estimator, {0: initial} if se3 else None)  # an unknown name, or one without an SE(3) form
     networked = [k for k, c in table.items() if issubclass(c, RobotNode) and c.distributed and c.over_network]
     if not issubclass(cls, RobotNode) or not cls.distributed:
         hosted = sorted(k for k, c in table.items() if not c.distributed)

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.events import Detection, Kind
+from swarmloc.gaussian import symmetric
 from swarmloc.net.ros import msgdef, pose_covariance_world, pose_message, ros_time, stamp_to_ros, to_cdr, typestore
 from swarmloc.net.schema import Belief, Lines, MapAnswer
 from swarmloc.net.server import MapStore
@@ -119,7 +120,7 @@ def channel_type(topic: str) -> str:
 
 def ellipse(mean_xy: np.ndarray, cov_xy: np.ndarray, n: int = 24, chi2: float = CHI2_95_2DOF) -> np.ndarray:
     """``n`` points ``(n, 2)`` [m] of the ellipse ``{p: (p - m)^T C^-1 (p - m) = chi2}`` (95% for 2 dof)."""
-    w, V = np.linalg.eigh(0.5 * (cov_xy + cov_xy.T))
+    w, V = np.linalg.eigh(symmetric(cov_xy))
     a = np.linspace(0, 2 * np.pi, n, endpoint=False)
     return mean_xy + (np.stack([np.cos(a), np.sin(a)], -1) * np.sqrt(np.maximum(w, 0) * chi2)) @ V.T
 

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cache
 from typing import Any
 
 import numpy as np
 
+from swarmloc.gaussian import chi2_ppf, positive_definite
 from swarmloc.kernels import cartesian as C
 
 __all__ = [
@@ -37,14 +37,6 @@ Outcome = tuple[str, str]
 FUSED: Outcome = ("fused", "")
 NUMERICAL = "the update is not finite or not positive definite"
 NONFINITE = "non-finite innovation"
-
-
-@cache
-def chi2_ppf(p: float, m: int) -> float:
-    """Chi-square quantile (cached: gates use a handful of ``(p, m)`` pairs)."""
-    from scipy.stats import chi2
-
-    return float(chi2.ppf(p, m))
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,17 +74,6 @@ def usable_covariance(P: np.ndarray) -> bool:
             if p00 > 0 and m2 > 1e-9 * tr * tr and m3 > 1e-9 * tr * tr * tr:
                 return True
     return positive_definite(P)
-
-
-def positive_definite(P: np.ndarray) -> bool:
-    """Finite and positive definite as ``numpy.linalg.cholesky`` decides (no margin)."""
-    if not np.isfinite(P).all():
-        return False
-    try:
-        np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        return False
-    return True
 
 
 def gated_kalman(

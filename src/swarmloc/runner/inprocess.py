@@ -33,7 +33,7 @@ from swarmloc.messages import BeliefQuery, Message, RdlStateQuery
 from swarmloc.node import Node
 from swarmloc.node.inputs import brief, finite_number
 from swarmloc.node.protocol import not_found
-from swarmloc.runner.result import RobotTrack, RunResult
+from swarmloc.runner.result import RUN_COUNTERS, RobotTrack, RunResult
 
 Progress = Callable[[int, int], None]
 """``progress(done, total)``, called every few thousand events (e.g. to drive a progress bar)."""
@@ -284,7 +284,7 @@ class _Driver:
         merged["recorded"] = sum(len(v) for v in self.rec.rows.values())
         if self.rec.too_old:
             merged["record_too_old"] = self.rec.too_old
-        for k in ("detections", "fused", "gated", "rejected", "unknown", "pending", "odometry", "messages"):
+        for k in RUN_COUNTERS:
             merged.setdefault(k, 0)
         return RunResult(name, self.rec.tracks(), wall, dict(merged), n_events, reasons, timing)
 

@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarmloc.node.accounting import OUTCOMES
 from swarmloc.text import ids, number
+
+RUN_COUNTERS = ("detections", *OUTCOMES, "pending", "odometry", "messages")
+"""The counters every driver's :class:`RunResult` holds in ``stats`` (zero when none was counted)."""
 
 
 @dataclass
@@ -20,6 +25,14 @@ class RobotTrack:
     mean: np.ndarray
     cov: np.ndarray
     truth: np.ndarray
+
+    def rows(self, idx: np.ndarray) -> RobotTrack:
+        """The records ``idx`` (indices or a boolean mask) of the track."""
+        return RobotTrack(self.times[idx], self.mean[idx], self.cov[idx], self.truth[idx])
+
+    def with_truth(self) -> RobotTrack:
+        """The records whose truth is known (finite): those that can be scored."""
+        return self.rows(np.isfinite(self.truth).all(axis=1))
 
 
 @dataclass
@@ -51,3 +64,12 @@ class RunResult:
         """Every detection that came in ended fused, gated, rejected or unknown (none pending, none lost)."""
         s = self.stats
         return s["detections"] == s["fused"] + s["gated"] + s["rejected"] + s["unknown"] and s["pending"] == 0
+
+
+def summed(stats: Iterable[Mapping[str, int]]) -> dict[str, int]:
+    """Counters of several runs summed key by key (as Python ints)."""
+    out: dict[str, int] = {}
+    for s in stats:
+        for k, v in s.items():
+            out[k] = out.get(k, 0) + int(v)
+    return out

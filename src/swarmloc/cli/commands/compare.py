@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
+from swarmloc.cli.common import refuse
 from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, EST_DEFAULT, add_sweep_args
 
 
@@ -46,8 +46,7 @@ def run(args: argparse.Namespace) -> int:
                           out_dir=args.out, jobs=args.jobs, progress=not args.quiet, association=args.association,
                           clutter=args.clutter, p_detect=args.p_detect, cluster=args.cluster)  # fmt: skip
     except (ValueError, OSError, ClusterUnavailable) as exc:
-        print(f"swarmloc compare: {exc}", file=sys.stderr)
-        return 2
+        return refuse("compare", exc)
     print(compare_table(summary))
     if args.out:
         print(f"written to {args.out}/compare.md and compare.json")

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
+
+from swarmloc.cli.common import refuse
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -22,12 +23,10 @@ def run(args: argparse.Namespace) -> int:
         try:
             cfg = load_config(args.check)
         except ConfigError as exc:
-            print(f"swarmloc config: {exc}", file=sys.stderr)
-            return 2
+            return refuse("config", exc)
         print(cfg.to_toml(), end="")
         return 0
     if args.defaults:
         print(DEFAULTS.to_toml(), end="")
         return 0
-    print("swarmloc config: say --defaults (print every default) or --check FILE", file=sys.stderr)
-    return 2
+    return refuse("config", "say --defaults (print every default) or --check FILE")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from swarmloc.cli.common import refuse
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``data`` command: its options and help."""
@@ -24,21 +26,19 @@ def run(args: argparse.Namespace) -> int:
     from swarmloc.datasets.download import DATASETS, ChecksumError, DownloadError, fetch_mrclam
     from swarmloc.experiments.progress import progress_bar
 
-    where = f"swarmloc data {args.what}"
+    where = f"data {args.what}"
     try:
         numbers = [int(x) for x in args.datasets.split(",") if x.strip()] if args.datasets else list(DATASETS)
     except ValueError:
-        print(f"{where}: --datasets takes numbers 1-9 separated by commas, got {args.datasets!r}", file=sys.stderr)
-        return 2
+        return refuse(where, f"--datasets takes numbers 1-9 separated by commas, got {args.datasets!r}")
     try:
         with progress_bar(not args.quiet) as start:
             got = fetch_mrclam(args.dir, numbers, base_url=args.url,
                                progress=(lambda n: start(f"MRCLAM{n}.zip")) if start else None)  # fmt: skip
     except (DownloadError, ValueError, OSError) as exc:
-        print(f"{where}: {exc}", file=sys.stderr)
-        return 2
+        return refuse(where, exc)
     except ChecksumError as exc:
-        print(f"{where}: {exc}", file=sys.stderr)
+        print(f"swarmloc {where}: {exc}", file=sys.stderr)
         for p in exc.problems:
             print(f"  {p}", file=sys.stderr)
         return 1

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from swarmloc.cli.common import run_config
+from swarmloc.cli.common import refuse, run_config
 from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, EST_DEFAULT
 
 
@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from swarmloc.datasets.tum import TUMError
     from swarmloc.experiments.evaluate import markdown_table
 
-    where = f"swarmloc evaluate {args.what}"
+    where = f"evaluate {args.what}"
     names = [e.strip() for e in args.estimators.split(",") if e.strip()]
     try:
         config = _with_association(_with_gate(run_config(args), args.gate), args.association)
@@ -57,8 +57,7 @@ def run(args: argparse.Namespace) -> int:
             )  # fmt: skip
         elif args.calibrate_yaw or args.engine:
             flag = "--calibrate-yaw" if args.calibrate_yaw else "--engine"
-            print(f"{where}: {flag} needs an MRCLAM recording (evaluate mrclam)", file=sys.stderr)
-            return 2
+            return refuse(where, f"{flag} needs an MRCLAM recording (evaluate mrclam)")
         elif args.what == "events":
             from swarmloc.experiments.own_robots import evaluate_event_file
 
@@ -70,13 +69,11 @@ def run(args: argparse.Namespace) -> int:
                 print(f"skipped: {problem}", file=sys.stderr)
             if report["n_bad"]:
                 n = report["n_bad"]
-                print(f"{where}: skipped {n} bad line{'s' if n != 1 else ''} in all", file=sys.stderr)
+                print(f"swarmloc {where}: skipped {n} bad line{'s' if n != 1 else ''} in all", file=sys.stderr)
         else:
-            print(f"swarmloc evaluate: unknown kind {args.what!r} (use 'mrclam' or 'events')", file=sys.stderr)
-            return 2
+            return refuse("evaluate", f"unknown kind {args.what!r} (use 'mrclam' or 'events')")
     except (MRCLAMError, EventFileError, TUMError, ConfigError, ValueError, OSError) as exc:
-        print(f"{where}: {exc}", file=sys.stderr)
-        return 2
+        return refuse(where, exc)
     if args.json:
         from swarmloc.experiments.evaluate import json_default
 
@@ -99,17 +96,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _with_gate(config, gate: float | None):  # noqa: ANN001, ANN202
     """``--gate`` overrides the configuration's gate (0 disables it)."""
-    if gate is None:
-        return config
-    import dataclasses
-
-    return dataclasses.replace(config, filter=dataclasses.replace(config.filter, gate=None if gate <= 0 else gate))
+    return config if gate is None else config.with_filter(gate=None if gate <= 0 else gate)
 
 
 def _with_association(config, association: str | None):  # noqa: ANN001, ANN202
     """``--association`` overrides the configuration's ``[filter] association``."""
-    if association is None:
-        return config
-    import dataclasses
-
-    return dataclasses.replace(config, filter=dataclasses.replace(config.filter, association=association))
+    return config if association is None else config.with_filter(association=association)

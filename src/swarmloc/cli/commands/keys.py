@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
-from swarmloc.cli.common import ids
+from swarmloc.cli.common import ids, refuse
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -49,6 +48,5 @@ def run(args: argparse.Namespace) -> int:
             roster, files = auth.make_team_keys(args.out, ids(args.robots) or [], args.max_age)
             print(f"keys of robots {args.robots}, the server and the collector in {args.out}/; roster {roster}")
     except (ValueError, OSError) as exc:
-        print(f"swarmloc keys: {exc}", file=sys.stderr)
-        return 2
+        return refuse("keys", exc)
     return 0

@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, run_config, timeouts
+from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, refuse, run_config, timeouts
 from swarmloc.cli.liveview import check_view, linger, open_view
 from swarmloc.cli.options import add_auth_args, add_net_args, add_source_args, add_timeout_args, add_view_args
 
@@ -68,8 +68,7 @@ def run(args: argparse.Namespace) -> int:
         )  # fmt: skip
         ran = True
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
-        print(f"swarmloc node: {exc}", file=sys.stderr)
-        return 2
+        return refuse("node", exc)
     except KeyboardInterrupt:
         return 130
     finally:

@@ -10,6 +10,8 @@ import argparse
 import sys
 from typing import Any
 
+from swarmloc.cli.common import refuse
+
 HINT = "swarmloc ros needs the ROS extra: pip install 'swarmloc[ros]'"
 
 
@@ -61,8 +63,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
         raise
     except (ParamsError, RosArgsError, ValueError, OSError, RuntimeError) as exc:
-        print(f"swarmloc ros: {exc}", file=sys.stderr)
-        return 2
+        return refuse("ros", exc)
     except KeyboardInterrupt:
         return 130
 

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
-from swarmloc.cli.common import endpoints, net_logging
+from swarmloc.cli.common import endpoints, net_logging, refuse
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -32,14 +31,12 @@ def run(args: argparse.Namespace) -> int:
 
     net_logging(args.verbose)
     if args.max_wall is not None and not (math.isfinite(args.max_wall) and args.max_wall > 0):
-        print(f"swarmloc router: --max-wall must be a positive number of seconds, got {args.max_wall}", file=sys.stderr)
-        return 2
+        return refuse("router", f"--max-wall must be a positive number of seconds, got {args.max_wall}")
     listen = endpoints(args.listen)
     try:
         session = open_session(listen, endpoints(args.connect), args.zenoh_config, mode="router")
     except Exception as exc:  # zenoh.ZError and OSError: an endpoint taken or malformed, a bad configuration file
-        print(f"swarmloc router: cannot start ({exc})", file=sys.stderr)
-        return 2
+        return refuse("router", f"cannot start ({exc})")
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     print(f"swarmloc router: relaying on {', '.join(listen) or 'the configuration file endpoints'}", flush=True)

@@ -4,9 +4,8 @@ estimator fed by the robots' forwarded measurements)."""
 from __future__ import annotations
 
 import argparse
-import sys
 
-from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, run_config
+from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, refuse, run_config
 from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, add_auth_args, add_net_args
 
 
@@ -66,6 +65,5 @@ def run(args: argparse.Namespace) -> int:
             lost_timeout=args.lost_timeout, map_out=args.map_out,
         )  # fmt: skip
     except (ConfigError, ValueError, OSError) as exc:
-        print(f"swarmloc server: {exc}", file=sys.stderr)
-        return 2
+        return refuse("server", exc)
     return 0

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
+
+from swarmloc.cli.common import refuse
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -22,13 +23,11 @@ def run(args: argparse.Namespace) -> int:
     from swarmloc.experiments.own_robots import simulate_to_files
 
     if args.robots < 1 or args.duration <= 0:
-        print("swarmloc simulate: --robots must be >= 1 and --duration > 0", file=sys.stderr)
-        return 2
+        return refuse("simulate", "--robots must be >= 1 and --duration > 0")
     try:
         paths = simulate_to_files(args.out, robots=args.robots, duration=args.duration, seed=args.seed,
                                   fmt=args.format)  # fmt: skip
     except (ValueError, OSError) as exc:
-        print(f"swarmloc simulate: {exc}", file=sys.stderr)
-        return 2
+        return refuse("simulate", exc)
     print(f"wrote {paths['events']}, {len(paths) - 2} truth_robot*.tum files and {paths['config']}")
     return 0

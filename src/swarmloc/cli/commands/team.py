@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarmloc.cli.common import endpoints, net_logging, run_config, timeouts
+from swarmloc.cli.common import endpoints, net_logging, refuse, run_config, timeouts
 from swarmloc.cli.liveview import check_view, linger, open_view
 from swarmloc.cli.options import add_source_args, add_timeout_args, add_view_args
 
@@ -85,8 +85,7 @@ def run(args: argparse.Namespace) -> int:
                     bag.write(f"/swarmloc/robot{r}/pose", t, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)))
         ran = True
     except (ConfigError, ValueError, OSError, RuntimeError) as exc:
-        print(f"swarmloc team: {exc}", file=sys.stderr)
-        return 2
+        return refuse("team", exc)
     except KeyboardInterrupt:
         print("swarmloc team: interrupted; every process it started was stopped", file=sys.stderr)
         return 130
