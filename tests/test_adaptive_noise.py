@@ -1,6 +1,7 @@
 """``diekf``'s adaptive process noise (:mod:`swarmloc.estimators.adaptive_noise`): the covariance-matching scale
 as documented, replays rewrite rather than add, and a team whose process noise is given 3 times too small in std
-is made consistent by the adaptation where the fixed filter is not."""
+is made consistent by the adaptation where the fixed filter is not; the median variant's NIS modes against the
+direct NIS, and its scale against a Monte Carlo of innovations drawn with a known prediction scale."""
 
 from __future__ import annotations
 
@@ -12,7 +13,16 @@ import pytest
 from swarmloc.config import DEFAULTS
 from swarmloc.engine.replay import run_engine
 from swarmloc.estimators import make_team, node_options
-from swarmloc.estimators.adaptive_noise import GUARD, LOW, Innovation, NoiseScale, innovation_terms
+from swarmloc.estimators.adaptive_noise import (
+    FLOOR,
+    GUARD,
+    LOW,
+    MIN_COUNT,
+    Innovation,
+    MedianScale,
+    NoiseScale,
+    innovation_terms,
+)
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.experiments.sources import load_source
 from swarmloc.node import chi2_ppf
@@ -64,6 +74,8 @@ def test_outliers_are_capped_and_replays_rewrite():
 def test_config_option_reaches_diekf_only():
     cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, diekf_adaptive=True))
     assert node_options("diekf", cfg, None)["adaptive"] is True
+    median = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, diekf_adaptive="median"))
+    assert node_options("diekf", median, None)["adaptive"] == "median"
     assert "adaptive" not in node_options("diekf", DEFAULTS, None)  # the engine's diekf takes no such option
     assert "adaptive" not in node_options("rdl", cfg, None)
 
@@ -92,3 +104,81 @@ def test_adaptation_makes_a_misspecified_team_consistent():
     adaptive = np.mean([_anees(True, s) for s in (0, 1)])
     assert fixed > 3.0
     assert 0.5 <= adaptive <= 2.0
+
+
+def _pencil(rng: np.random.Generator, share: float) -> tuple[np.ndarray, np.ndarray]:
+    """A random measurement noise ``R`` and prediction part ``B`` (2 x 2) with ``B`` about ``share`` times ``R``."""
+    A, C = rng.normal(size=(2, 2)), rng.normal(size=(2, 2))
+    R = A @ A.T + 0.1 * np.eye(2)
+    return R, share * np.trace(R) / 2 * (C @ C.T / np.trace(C @ C.T) * 2 + 0.2 * np.eye(2))
+
+
+def test_modes_give_the_nis_at_any_scale():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        R, B = _pencil(rng, rng.uniform(0.1, 10.0))
+        r = rng.normal(size=2)
+        inn = innovation_terms(r, R + B, R, landmark=True)
+        assert inn is not None and inn.landmark and len(inn.modes) == 2
+        c, mu = np.array(inn.modes).T
+        for lam in (0.01, 0.3, 1.0, 7.0):  # the NIS had the prediction part been lam B, solved directly
+            assert np.sum(c / (1 + lam * mu)) == pytest.approx(r @ np.linalg.solve(R + lam * B, r), rel=1e-9)
+        assert np.sum(1 / (1 + mu)) == pytest.approx(inn.a, rel=1e-9)
+    assert innovation_terms(r, R + B, np.zeros((2, 2))).modes == ()  # type: ignore[union-attr]
+
+
+def _draw(ms: MedianScale, rng: np.random.Generator, true: float, n: int, *, share: float = 300.0,
+          landmark: bool = True, t0: float = 0.0) -> None:  # fmt: skip
+    """``n`` innovations, one per 0.01 s from ``t0``, drawn from ``N(0, R + true B)`` and filed as the filter
+    formed them: with the prediction part ``lam B`` at the scale ``lam`` in force."""
+    for k in range(n):
+        t = t0 + 0.01 * k
+        R, B = _pencil(rng, share)
+        r = rng.multivariate_normal(np.zeros(2), R + true * B)
+        inn = innovation_terms(r, R + ms.scale(t) * B, R, landmark=landmark)
+        assert inn is not None
+        ms.record(t, ("d", t), inn)
+
+
+@pytest.mark.parametrize("true", [0.05, 0.3, 1.0])
+def test_median_scale_finds_the_true_prediction_scale(true: float):
+    """Monte Carlo: prediction covariances drawn ``true`` times the model's; the scale read after a window of them
+    is ``true`` (within the sampling error of a median of 400)."""
+    rng = np.random.default_rng(7)
+    ms = MedianScale(window=60.0)
+    _draw(ms, rng, true, 400)
+    lam = ms.scale(4.0)
+    assert lam == pytest.approx(true, rel=0.15)
+
+
+def test_median_scale_needs_a_landmark_enough_innovations_and_a_prediction_share():
+    rng = np.random.default_rng(11)
+    robots = MedianScale(window=60.0)
+    _draw(robots, rng, 0.05, 200, landmark=False)  # robot-robot innovations alone: never below 1
+    assert robots.scale(3.0) == 1.0
+    _draw(robots, rng, 0.05, 1, landmark=True, t0=2.5)  # one landmark innovation in the window lets it move
+    assert robots.scale(3.0) < 0.5
+    few = MedianScale(window=60.0)
+    _draw(few, rng, 0.05, MIN_COUNT - 1)
+    assert few.scale(1.0) == 1.0
+    measured = MedianScale(window=60.0)
+    _draw(measured, rng, 0.05, 200, share=0.2)  # measurement-dominated: not filed
+    assert measured.scale(3.0) == 1.0
+    tiny = MedianScale(window=60.0)
+    _draw(tiny, rng, 1e-4, 200)
+    assert tiny.scale(3.0) == FLOOR  # never below the floor
+    assert tiny.scale(3.0 + 61.0) == 1.0  # the window has passed
+    assert np.allclose(tiny.inflate(np.eye(3), 3 * np.eye(3), 3.0), np.eye(3) + FLOOR * 2 * np.eye(3))
+
+
+def test_median_scale_replays_rewrite():
+    ms = MedianScale(window=60.0)
+    rng = np.random.default_rng(5)
+    _draw(ms, rng, 0.05, 50)
+    before = ms.scale(1.0)
+    R, B = _pencil(rng, 300.0)
+    for k in range(50):  # the same detections replayed as huge innovations: rewritten, not added
+        inn = innovation_terms(100 * np.ones(2), R + B, R, landmark=True)
+        assert inn is not None
+        ms.record(0.01 * k, ("d", 0.01 * k), inn)
+    assert before < 0.5 and ms.scale(1.0) == 1.0

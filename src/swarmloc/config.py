@@ -112,7 +112,9 @@ def _optional(tp: Any) -> tuple[Any, bool]:
 
 def _words(tp: Any, unit: str) -> str:
     """What a value of a declared type is, in words: ``a finite number > 0``, ``an integer in [1, 100]``,
-    ``a number in (0, 1000] Hz``, ``1 or 2 (an integer)``, ``one of "a", "b"``, ``true or false``."""
+    ``a number in (0, 1000] Hz``, ``1 or 2 (an integer)``, ``one of "a", "b"``, ``true or false``; a union's in turn."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return " or ".join(_words(a, unit) for a in typing.get_args(tp))
     if typing.get_origin(tp) is Literal:
         args = typing.get_args(tp)
         if all(isinstance(a, str) for a in args):
@@ -331,8 +333,9 @@ class FilterConfig(Section):
     """fls and flsd also output each pose as it leaves the window (smoother_lag s late), scored as <name>_delayed"""
     diekf_cluster: Annotated[int, msgspec.Meta(ge=0)] = 0
     """robots per diekf cluster (0: the exact filter over the whole team)"""
-    diekf_adaptive: bool = False
-    """diekf scales its process noise online from its own innovations (swarmloc.estimators.adaptive_noise)"""
+    diekf_adaptive: bool | Literal["median"] = False
+    """diekf scales its process noise online from its own innovations (swarmloc.estimators.adaptive_noise): true
+    (covariance matching, only up) or "median" (median matching after dead reckoning, down to 0.01, with landmarks)"""
     diekf_odocal: bool = False
     """diekf calibrates each robot's odometry scale and yaw-rate bias online, truth-free (swarmloc.motion.odocal)"""
     quarantine: Count | None = 3

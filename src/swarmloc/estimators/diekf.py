@@ -76,11 +76,11 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Sequence
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar, Literal, Protocol
 
 import numpy as np
 
-from swarmloc.estimators.adaptive_noise import Innovation, NoiseScale, innovation_terms
+from swarmloc.estimators.adaptive_noise import Innovation, MedianScale, NoiseScale, innovation_terms
 from swarmloc.estimators.dekf import DEGENERATE, FilterState
 from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.estimators.world_form import FORMS, TeamState, robot_pair, world_step
@@ -236,7 +236,7 @@ class TeamProtocol:
             j, Pjj, Hj = i, s.P, np.zeros_like(Hi)
         out = self.gated_update(s, i, j, Hi, Hj, S, r, Pjj, gate)
         if self.innovations:
-            self.last_innovation = innovation_terms(r, S, R)
+            self.last_innovation = innovation_terms(r, S, R, landmark=target[0] != "robot")
         if lin_log is not None and not isinstance(out[0], str):
             lin_log.append(("update", t, {i: Hi, j: Hj} if j != i else {i: Hi}, R))
         return out
@@ -392,7 +392,8 @@ class DistributedInvariantEKF(RobotNode):
     replica and broadcasts over the robot's cluster only, covariance intersection with robots outside it. The
     exchange's queries are :class:`~swarmloc.estimators.state_exchange.StateQueries`' (``rdl``'s). ``adaptive``: the
     process noise scaled online from this robot's own innovations (:class:`~swarmloc.estimators.adaptive_noise.
-    NoiseScale`, :attr:`noise_scale`; ``[filter] diekf_adaptive``). ``odocal``: this robot's odometry scale and yaw-rate
+    NoiseScale`, or ``"median"``: :class:`~swarmloc.estimators.adaptive_noise.MedianScale`; :attr:`noise_scale`;
+    ``[filter] diekf_adaptive``). ``odocal``: this robot's odometry scale and yaw-rate
     bias calibrated online from its own posteriors (:class:`~swarmloc.motion.odocal.OdometryCalibration`,
     :attr:`odometry`; SE(2) only; ``[filter] diekf_odocal``)."""
 
@@ -405,12 +406,12 @@ class DistributedInvariantEKF(RobotNode):
     protocol: TeamProtocol
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
-                 adaptive: bool = False, odocal: bool = False, **kw: Any) -> None:  # fmt: skip
-        self.noise_scale = NoiseScale() if adaptive else None
+                 adaptive: bool | Literal["median"] = False, odocal: bool = False, **kw: Any) -> None:  # fmt: skip
+        self.noise_scale = MedianScale() if adaptive == "median" else NoiseScale() if adaptive else None
         self.odometry = OdometryCalibration() if odocal else None
         self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=True,
                                      association=kw.get("association", "tags"), gated_broadcasts=True)  # fmt: skip
-        self.protocol.innovations = adaptive
+        self.protocol.innovations = bool(adaptive)
         if odocal and self.protocol.form.group is not SE2:
             raise ValueError("diekf: 'odocal' calibrates planar odometry: SE(2) only")
         super().__init__(robot, initial, team=self.protocol.team, **kw)
