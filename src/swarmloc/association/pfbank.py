@@ -91,7 +91,8 @@ def _compose_exp(mu: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _log_rel(mu: np.ndarray, q: np.ndarray) -> np.ndarray:
     """``log(mu^-1 q)`` ``(n, 3)`` for one pose ``mu`` ``(3,)`` and particles ``q`` ``(n, 3)``
-    (:func:`~swarmloc.lie.log_xyt` of :func:`~swarmloc.lie.between_xyt`, ``mu``'s sine and cosine computed once)."""
+    (:func:`~swarmloc.lie.log_xyt` of :func:`~swarmloc.lie.between_xyt` to rounding, ``mu``'s sine and cosine computed
+    once)."""
     c, s = math.cos(mu[2]), math.sin(mu[2])
     dx, dy = q[:, 0] - mu[0], q[:, 1] - mu[1]
     t1, t2 = c * dx + s * dy, c * dy - s * dx
