@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from swarmloc.association import track_anonymous
-from swarmloc.association.registration import compose_xyt, invert_xyt
 from swarmloc.estimators import make_team, node_options
+from swarmloc.lie import between_xyt
 from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import run
 from swarmloc.sim import AnonymousSensor, khepera_kidnap
@@ -39,7 +39,7 @@ def truth_rel(sim, times: np.ndarray, target: int) -> np.ndarray:
     """The target's true pose in robot 1's frame at ``times`` (the grid sample at or after each time)."""
     col = {r: c for c, r in enumerate(sim.robot_ids)}
     k = np.minimum(np.searchsorted(sim.times, times - 1e-9), len(sim.times) - 1)
-    return compose_xyt(invert_xyt(sim.truth[k, col[1]]), sim.truth[k, col[target]])
+    return between_xyt(sim.truth[k, col[1]], sim.truth[k, col[target]])
 
 
 def back_after(t: np.ndarray, err: np.ndarray, t_kidnap: float, within: float, hold: float = 2.0) -> float | None:
@@ -70,7 +70,7 @@ def one(seed: int, target: int, particles: int) -> dict:
     wall_n = time.perf_counter() - t0
     tn = res.tracks[1].times
     x1, xt = res.tracks[1].mean, res.tracks[target].mean  # (x, y, theta) per record
-    rel = compose_xyt(invert_xyt(x1), xt)
+    rel = between_xyt(x1, xt)
     tr = truth_rel(sim, tn, target)
     err_n = np.hypot(rel[:, 0] - tr[:, 0], rel[:, 1] - tr[:, 1])
     return {"seed": seed, "kidnap": sc.kidnap_time, "bank": (tb, err_b), "nearest": (tn, err_n),

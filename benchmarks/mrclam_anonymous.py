@@ -36,10 +36,10 @@ def score(src, events, estimator: str) -> tuple[float, float, dict]:
 
 
 def main() -> None:
-    from swarmloc.association.registration import compose_xyt, invert_xyt, log_xyt
     from swarmloc.events import Detection
     from swarmloc.experiments.association import association_events
     from swarmloc.experiments.sources import load_source
+    from swarmloc.lie import between_xyt, log_xyt
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--path", default="../shared/data/mrclam/MRCLAM_Dataset6")
@@ -76,9 +76,9 @@ def main() -> None:
         perr = []
         for e in hand:
             ta, tb = src.truth(e.observer, np.array([e.t]))[0], src.truth(e.target, np.array([e.t]))[0]
-            y = log_xyt(compose_xyt(invert_xyt(np.asarray(e.z)), compose_xyt(invert_xyt(ta), tb)))
+            y = log_xyt(between_xyt(np.asarray(e.z), between_xyt(ta, tb)))
             bad += int(y @ np.linalg.solve(e.cov, y) > 16.266)
-            rel = compose_xyt(invert_xyt(ta), tb)
+            rel = between_xyt(ta, tb)
             perr.append(float(np.hypot(*(np.asarray(e.z)[:2] - rel[:2]))))
         rmse, anees, _ = score(src, events, a.estimator)
         name = "anonymous, one stamp" if b is None else f"anonymous, {b:g} s bins"

@@ -38,9 +38,8 @@ import time
 import numpy as np
 
 from swarmloc.association import multiple_registration
-from swarmloc.association.registration import compose_xyt, invert_xyt
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, between_xyt
 
 
 def spread(rng: np.random.Generator, n: int, min_sep: float = 0.3) -> np.ndarray:
@@ -61,7 +60,7 @@ def polygon(n: int) -> np.ndarray:
 def observe(poses: np.ndarray, rng: np.random.Generator, sigma: float) -> dict[int, np.ndarray]:
     out = {}
     for i in range(len(poses)):
-        rel = np.delete(compose_xyt(invert_xyt(poses[i])[None], poses)[:, :2], i, 0)
+        rel = np.delete(between_xyt(poses[i], poses)[:, :2], i, 0)
         out[i] = rng.permutation(rel + sigma * rng.standard_normal(rel.shape))
     return out
 
@@ -73,7 +72,7 @@ def case(regime: str, n: int, sigma: float, seed: int) -> tuple[dict, dict | Non
     beliefs = None
     if regime == "symmetric+belief":
         C = np.diag([0.05**2, 0.05**2, 0.05**2])
-        beliefs = {j: GroupGaussian(SE2, SE2.from_xytheta(compose_xyt(invert_xyt(poses[0]), poses[j])), C)
+        beliefs = {j: GroupGaussian(SE2, SE2.from_xytheta(between_xyt(poses[0], poses[j])), C)
                    for j in range(1, n)}  # fmt: skip
     return observe(poses, rng, sigma), beliefs
 
@@ -111,7 +110,7 @@ def khepera(seed: int, n_particles: int, p_detect: float, clutter: float) -> Non
           f"per scan, max_unmatched {int(noisy)}): {track.counts}")  # fmt: skip
     print(f"{'robot':>5} {'pos median [m]':>15} {'pos p90 [m]':>12} {'heading median [rad]':>21}")
     for j in sim.robot_ids[1:]:
-        truth = compose_xyt(invert_xyt(sim.truth[k, col[1]]), sim.truth[k, col[j]])
+        truth = between_xyt(sim.truth[k, col[1]], sim.truth[k, col[j]])
         t, pos, ang = track.errors(j, truth)
         print(f"{j:>5} {np.nanmedian(pos):>15.3f} {np.nanpercentile(pos, 90):>12.3f} {np.nanmedian(ang):>21.3f}")
         if j == sc.kidnapped:

@@ -9,7 +9,7 @@ from test_association_pmr import polygon, relative, spread, with_headings
 
 from swarmloc.association import solution_count_theory
 from swarmloc.association.bearing import bearing_registration
-from swarmloc.association.registration import compose_xyt, invert_xyt
+from swarmloc.lie import between_xyt
 
 pytestmark = pytest.mark.unit
 
@@ -17,7 +17,7 @@ pytestmark = pytest.mark.unit
 def bearings(poses: np.ndarray, rng: np.random.Generator, sigma: float = 0.0) -> dict[int, np.ndarray]:
     out = {}
     for i in range(len(poses)):
-        rel = np.delete(compose_xyt(invert_xyt(poses[i])[None], poses)[:, :2], i, 0)
+        rel = np.delete(between_xyt(poses[i], poses)[:, :2], i, 0)
         out[i] = rng.permutation(np.arctan2(rel[:, 1], rel[:, 0]) + sigma * rng.standard_normal(len(rel)))
     return out
 

@@ -368,9 +368,9 @@ def test_khepera_kidnap_the_bank_re_disambiguates_and_nearest_does_not():
     res = run(make_team("cekf", src.initial, **{**node_options("cekf", src.config, None, src.t_start),
                                                 "association": "nearest"}), src.events, src.record_times())  # fmt: skip
     tn = res.tracks[1].times
-    from swarmloc.association.registration import compose_xyt, invert_xyt
+    from swarmloc.lie import between_xyt
 
-    rel = compose_xyt(invert_xyt(res.tracks[1].mean), res.tracks[4].mean)
+    rel = between_xyt(res.tracks[1].mean, res.tracks[4].mean)
     tr = kk.truth_rel(sim, tn, 4)
     err_n = np.hypot(rel[:, 0] - tr[:, 0], rel[:, 1] - tr[:, 1])
     assert np.median(err_n[tn < 30]) < 0.05  # before the kidnap nearest tracks robot 4

@@ -7,12 +7,11 @@ import numpy as np
 import pytest
 
 from swarmloc import make_team, run
-from swarmloc.association.registration import compose_xyt, invert_xyt
 from swarmloc.association.tracker import anonymous_scans, track_anonymous
 from swarmloc.estimators import ESTIMATORS, options_for
 from swarmloc.events import Detection, Odometry, Truth
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, between_xyt
 from swarmloc.motion import UnicycleNoise
 from swarmloc.sim import RelativeSensor, random_team
 from swarmloc.sim.anonymous import CLUTTER_TRUTH, AnonymousSensor, anonymize_sim, is_anonymous, khepera_kidnap
@@ -124,7 +123,7 @@ def test_pmr_and_the_bank_localize_the_khepera_team_and_recover_the_kidnapped_ro
     col = {r: c for c, r in enumerate(sim.robot_ids)}
     k = np.searchsorted(sim.times, np.array(track.times) - 1e-9)
     for j in (2, 3, 4):
-        truth = compose_xyt(invert_xyt(sim.truth[k, col[1]]), sim.truth[k, col[j]])
+        truth = between_xyt(sim.truth[k, col[1]], sim.truth[k, col[j]])
         t, pos, ang = track.errors(j, truth)
         early = (t > 1) & (t <= 10)
         late = t > 75

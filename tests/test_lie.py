@@ -16,7 +16,7 @@ import scipy.linalg
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarmloc.lie import SE2, SE3
+from swarmloc.lie import SE2, SE3, between_xyt, compose_xyt, exp_xyt, invert_xyt, log_xyt
 
 pytestmark = pytest.mark.unit
 
@@ -331,6 +331,33 @@ def test_se2_conventions():
     np.testing.assert_allclose(SE2.ad(x), a, atol=1e-15)
     np.testing.assert_allclose(SE2.to_xytheta(g), [1.5, -0.5, 0.7], atol=1e-15)
     np.testing.assert_allclose(SE2.from_xytheta(np.array([1.5, -0.5, 0.7])), g)
+
+
+def test_planar_rows_are_the_matrix_forms():
+    """swarmloc.lie.planar on pose rows (x, y, theta): the products, inverses and relative poses of SE2's matrices,
+    broadcast; log/exp those of SE2 (exp's translation bit for bit: the same coefficient functions); angles wrapped to
+    (-pi, pi]."""
+    rng = np.random.default_rng(0)
+    a = np.column_stack([rng.normal(size=(500, 2)), rng.uniform(-4, 4, 500)])
+    b = np.column_stack([rng.normal(size=(500, 2)), rng.uniform(-4, 4, 500)])
+    A, B = SE2.from_xytheta(a), SE2.from_xytheta(b)
+    np.testing.assert_allclose(SE2.from_xytheta(compose_xyt(a, b)), A @ B, atol=1e-12)
+    np.testing.assert_allclose(SE2.from_xytheta(invert_xyt(a)), np.linalg.inv(A), atol=1e-12)
+    np.testing.assert_allclose(SE2.from_xytheta(between_xyt(a, b)), np.linalg.inv(A) @ B, atol=1e-12)
+    assert np.array_equal(between_xyt(a[0], b), between_xyt(a[:1], b))  # one pose against many
+    assert between_xyt(a[:, None], b[None, :7]).shape == (500, 7, 3)
+    for out in (compose_xyt(a, b), invert_xyt(a), between_xyt(a, b)):
+        assert np.all((out[:, 2] > -np.pi) & (out[:, 2] <= np.pi))
+    y = rng.normal(size=(500, 3))
+    y[:50, 2] *= 1e-3  # the Taylor branch
+    y[50:60, 2] = 0.0
+    assert np.array_equal(exp_xyt(y)[:, :2], SE2.exp(y)[:, :2, 2])
+    np.testing.assert_allclose(exp_xyt(y)[:, 2], SE2.to_xytheta(SE2.exp(y))[:, 2], atol=1e-12)
+    q = np.column_stack([rng.normal(size=(500, 2)), rng.uniform(-np.pi, np.pi, 500)])
+    q[:50, 2] *= 1e-3
+    np.testing.assert_allclose(log_xyt(q), SE2.log(SE2.from_xytheta(q)), atol=1e-12)
+    y[:, 2] = np.clip(y[:, 2], -3.0, 3.0)  # principal angles: log inverts exp
+    np.testing.assert_allclose(log_xyt(exp_xyt(y)), y, atol=1e-12)
 
 
 def test_se3_conventions():

@@ -33,9 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarmloc.association.registration import compose_xyt, exp_xyt, invert_xyt, log_xyt
 from swarmloc.gaussian import GroupGaussian, check_covariance, symmetric
-from swarmloc.lie import SE2, wrap_angle
+from swarmloc.lie import SE2, between_xyt, compose_xyt, exp_xyt, log_xyt, wrap_angle
 
 __all__ = ["BankEstimate", "ParticleFilterBank"]
 
@@ -92,8 +91,8 @@ def _compose_exp(mu: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _log_rel(mu: np.ndarray, q: np.ndarray) -> np.ndarray:
     """``log(mu^-1 q)`` ``(n, 3)`` for one pose ``mu`` ``(3,)`` and particles ``q`` ``(n, 3)``
-    (``log_xyt(compose_xyt(invert_xyt(mu), q))`` of :mod:`~swarmloc.association.registration`, ``mu``'s sine and
-    cosine computed once)."""
+    (:func:`~swarmloc.lie.log_xyt` of :func:`~swarmloc.lie.between_xyt` to rounding, ``mu``'s sine and cosine computed
+    once)."""
     c, s = math.cos(mu[2]), math.sin(mu[2])
     dx, dy = q[:, 0] - mu[0], q[:, 1] - mu[1]
     t1, t2 = c * dx + s * dy, c * dy - s * dx
@@ -158,7 +157,7 @@ class ParticleFilterBank:
         C = check_covariance(cov, 3, "ParticleFilterBank.predict_ego")
         for j, q in self.particles.items():
             step = compose_xyt(d[None], exp_xyt(_sample(self.rng, C, len(q))))
-            self.particles[j] = compose_xyt(invert_xyt(step), q)
+            self.particles[j] = between_xyt(step, q)
 
     def predict_neighbour(self, robot: int, delta: object, cov: object) -> None:
         """Robot ``robot`` moved by ``delta`` with noise ``cov`` (its odometry, by communication)."""
@@ -184,7 +183,7 @@ class ParticleFilterBank:
             self.counts["initialized"] += 1
             return "initialized"
         q, w = self.particles[robot], self.weights[robot]
-        rel = compose_xyt(invert_xyt(q)[:, None, :], H[None])  # (N, H, 3): q^-1 h
+        rel = between_xyt(q[:, None, :], H[None])  # (N, H, 3): q^-1 h
         y = log_xyt(rel)
         Ri = np.linalg.inv(R)
         m2 = np.einsum("nhi,hij,nhj->nh", y, Ri, y)

@@ -40,17 +40,9 @@ from typing import TypedDict
 
 import numpy as np
 
-from swarmloc.association.registration import (
-    Registration,
-    as_points,
-    binary_register,
-    compose_xyt,
-    gate_by_prior,
-    invert_xyt,
-    visible,
-)
+from swarmloc.association.registration import Registration, as_points, binary_register, gate_by_prior, visible
 from swarmloc.gaussian import GroupGaussian, mahalanobis2, symmetric
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, between_xyt, compose_xyt, invert_xyt
 
 __all__ = [
     "CHI2_3_999",
@@ -100,30 +92,34 @@ class PMRResult:
 
 def _maha2(pred: np.ndarray, ref: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """``y^T cov^-1 y`` with ``y = log(ref^-1 pred)`` for planar poses ``(..., 3)`` (batched over ``ref``/``cov``)."""
-    return mahalanobis2(SE2.log(SE2.from_xytheta(compose_xyt(invert_xyt(ref), pred)), validate=False), cov)
+    return mahalanobis2(SE2.log(SE2.from_xytheta(between_xyt(ref, pred)), validate=False), cov)
 
 
 def _ad(pose: np.ndarray) -> np.ndarray:
     return SE2.Ad(SE2.from_xytheta(pose))
 
 
+def _carried(rel: np.ndarray, cov: np.ndarray, cov_rel: np.ndarray) -> np.ndarray:
+    """Right-perturbation covariance of ``T rel`` from ``T``'s ``cov`` and ``rel``'s ``cov_rel`` (independent):
+    ``Ad(rel^-1) cov Ad(rel^-1)^T + cov_rel``."""
+    A = _ad(invert_xyt(rel))
+    return A @ cov @ A.T + cov_rel
+
+
 def _chain(
     pose_k: np.ndarray, cov_k: np.ndarray, rel: np.ndarray, cov_rel: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``T_k C`` and its right-perturbation covariance ``Ad(C^-1) cov_k Ad(C^-1)^T + cov_C`` (independent)."""
-    A = _ad(invert_xyt(rel))
-    C = A @ cov_k @ A.T + cov_rel
-    return compose_xyt(pose_k, rel), symmetric(C)
+    """``T_k C`` and its covariance (:func:`_carried`, symmetrized)."""
+    return compose_xyt(pose_k, rel), symmetric(_carried(rel, cov_k, cov_rel))
 
 
 def _relative(
     pose_r: np.ndarray, cov_r: np.ndarray, pose_s: np.ndarray, cov_s: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Pose of ``s`` in ``r``'s frame, ``T_r^-1 T_s``, and its covariance ``Ad(rel^-1) cov_r Ad(rel^-1)^T + cov_s``
-    (both poses in one frame, right perturbation, independent)."""
-    rel = compose_xyt(invert_xyt(pose_r), pose_s)
-    A = _ad(invert_xyt(rel))
-    return rel, A @ cov_r @ A.T + cov_s
+    """Pose of ``s`` in ``r``'s frame, ``rel = T_r^-1 T_s``, and its covariance (:func:`_carried` of ``cov_r`` and
+    ``cov_s``: both poses in one frame, independent)."""
+    rel = between_xyt(pose_r, pose_s)
+    return rel, _carried(rel, cov_r, cov_s)
 
 
 class PairSettings(TypedDict):

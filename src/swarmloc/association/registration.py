@@ -30,17 +30,13 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from swarmloc.gaussian import symmetric
-from swarmloc.lie import SE2, wrap_angle
+from swarmloc.lie import SE2, between_xyt, wrap_angle
 
 __all__ = [
     "Registration",
     "as_points",
     "binary_register",
-    "compose_xyt",
-    "exp_xyt",
     "gate_by_prior",
-    "invert_xyt",
-    "log_xyt",
     "points_from_range_bearing",
     "visible",
     "xyt_cov_to_exp",
@@ -81,68 +77,6 @@ def points_from_range_bearing(z: object) -> np.ndarray:
     """Points ``(m, 2)`` [m] from range-bearing rows ``(m, 2)`` ``(range [m], bearing [rad])``."""
     z = np.asarray(z, dtype=float).reshape(-1, 2)
     return np.column_stack([z[:, 0] * np.cos(z[:, 1]), z[:, 0] * np.sin(z[:, 1])])
-
-
-def compose_xyt(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a b`` for planar poses ``(..., 3)`` ``(x, y, theta)`` (batched, broadcast)."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    b0, b1 = b[..., 0], b[..., 1]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 0] + c * b0 - s * b1
-    out[..., 1] = a[..., 1] + s * b0 + c * b1
-    out[..., 2] = wrap_angle(a[..., 2] + b[..., 2])
-    return out
-
-
-def invert_xyt(a: np.ndarray) -> np.ndarray:
-    """``a^-1`` for planar poses ``(..., 3)``."""
-    a = np.asarray(a, float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    out = np.empty(a.shape)
-    out[..., 0] = -c * a[..., 0] - s * a[..., 1]
-    out[..., 1] = s * a[..., 0] - c * a[..., 1]
-    out[..., 2] = wrap_angle(-a[..., 2])
-    return out
-
-
-def _series(a: np.ndarray, exact, taylor: tuple[float, ...]) -> np.ndarray:
-    """A coefficient of the angle: ``exact`` beyond 0.05 rad, its Taylor polynomial in ``a^2`` below (as
-    :class:`~swarmloc.lie.SE2` computes it)."""
-    near = np.abs(a) < 0.05
-    t2 = a * a
-    poly = np.zeros_like(a)
-    for c in reversed(taylor):
-        poly = poly * t2 + c
-    return np.where(near, poly, exact(np.where(near, 1.0, a)))
-
-
-def log_xyt(q: np.ndarray) -> np.ndarray:
-    """Exponential coordinates ``(v_x, v_y, alpha)`` of planar poses ``(..., 3)`` (``SE2.log`` without building the
-    matrices; the angle as given, wrapped to [-pi, pi))."""
-    q = np.asarray(q, float)
-    a = wrap_angle(q[..., 2])
-    k = _series(a, lambda t: (t / 2) / np.tan(t / 2), (1.0, -1 / 12, -1 / 720, -1 / 30240, -1 / 1209600))
-    h = 0.5 * a
-    t1, t2 = q[..., 0], q[..., 1]
-    out = np.empty(q.shape)
-    out[..., 0] = k * t1 + h * t2
-    out[..., 1] = -h * t1 + k * t2
-    out[..., 2] = a
-    return out
-
-
-def exp_xyt(y: np.ndarray) -> np.ndarray:
-    """Planar poses ``(..., 3)`` of exponential coordinates ``(..., 3)`` (``SE2.exp`` without the matrices)."""
-    y = np.asarray(y, float)
-    a = y[..., 2]
-    A = _series(a, lambda t: np.sin(t) / t, (1.0, -1 / 6, 1 / 120, -1 / 5040, 1 / 362880))
-    B = a * _series(a, lambda t: 2.0 * np.sin(t / 2) ** 2 / (t * t), (1 / 2, -1 / 24, 1 / 720, -1 / 40320, 1 / 3628800))
-    out = np.empty(y.shape)
-    out[..., 0] = A * y[..., 0] - B * y[..., 1]
-    out[..., 1] = B * y[..., 0] + A * y[..., 1]
-    out[..., 2] = wrap_angle(a)
-    return out
 
 
 def xyt_cov_to_exp(pose: np.ndarray, cov_xyt: np.ndarray) -> np.ndarray:
@@ -203,7 +137,7 @@ def _prior_ok(
     ri, rj = np.hypot(Pi[A, 0], Pi[A, 1]), np.hypot(Pj[B, 0], Pj[B, 1])
     mu, pc = np.asarray(prior[0], float).reshape(3), np.asarray(prior[1], float).reshape(3, 3)
     cand = np.column_stack([Pi[A], th])
-    y = SE2.log(SE2.from_xytheta(compose_xyt(invert_xyt(mu)[None], cand)), validate=False)
+    y = SE2.log(SE2.from_xytheta(between_xyt(mu, cand)), validate=False)
     C = pc + np.zeros((A.size, 3, 3))
     C[:, 0, 0] += s2
     C[:, 1, 1] += s2

@@ -26,10 +26,10 @@ import numpy as np
 
 from swarmloc.association.pfbank import BankEstimate, ParticleFilterBank
 from swarmloc.association.pmr import multiple_registration
-from swarmloc.association.registration import compose_xyt, invert_xyt, points_from_range_bearing
+from swarmloc.association.registration import points_from_range_bearing
 from swarmloc.events import Detection, Event, Kind, Odometry, sim_order
 from swarmloc.gaussian import GroupGaussian, symmetric
-from swarmloc.lie import SE2, wrap_angle
+from swarmloc.lie import SE2, between_xyt, compose_xyt, wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment
 
 __all__ = [
@@ -91,9 +91,9 @@ def binned_scans(
     for e in events:
         if is_anonymous_detection(e):
             tb = t_first + (np.floor((float(e.t) - t_first) / width) + 1) * width
-            delta = compose_xyt(invert_xyt(at(e.observer, float(e.t))), at(e.observer, tb))
+            delta = between_xyt(at(e.observer, float(e.t)), at(e.observer, tb))
             p = points_from_range_bearing(np.asarray(e.z))[0]
-            q = compose_xyt(invert_xyt(delta), np.array([p[0], p[1], 0.0]))[:2]
+            q = between_xyt(delta, np.array([p[0], p[1], 0.0]))[:2]
             pts = out.setdefault(float(tb), {r: [] for r in robots}).setdefault(e.observer, [])
             pts[:] = [x for x in pts if np.hypot(*(x - q)) >= merge] + [q]
     return {
