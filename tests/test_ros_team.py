@@ -147,6 +147,20 @@ def compare_to_replay(tmp: Path, params_file: Path, sent: Path, got: Path) -> di
     return compared
 
 
+def compare_or_tell(tmp: Path, params_file: Path, sent: Path, got: Path, logs: list[str]) -> dict[int, int]:
+    """:func:`compare_to_replay`, a difference told with what explains a live run that is not its replay: how late
+    the peer sent its inputs (the nodes refuse one stamped more than ``window`` before ROS time) and the nodes' logs
+    (inputs refused as late, detections fused, the team's warnings)."""
+    try:
+        return compare_to_replay(tmp, params_file, sent, got)
+    except AssertionError as exc:
+        recs = [json.loads(x) for x in sent.read_text().splitlines()]
+        late = max(r["sent_ns"] * 1e-9 - r["msg"]["header"]["stamp"]["sec"]
+                   - 1e-9 * r["msg"]["header"]["stamp"]["nanosec"] for r in recs)  # fmt: skip
+        raise AssertionError(f"{exc}; the peer sent inputs up to {late:.3f} s after their stamps; node logs:\n"
+                             + "\n".join(logs)) from exc  # fmt: skip
+
+
 def messages_file(tmp: Path, src) -> Path:
     path = tmp / "msgs.jsonl"
     with path.open("w") as f:
@@ -186,7 +200,7 @@ def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middle
             peer_proc.kill()
         logs = stop_nodes(nodes)
     assert peer_proc.returncode == 0, (out, err, logs)
-    compared = compare_to_replay(tmp_path, params, sent, got)
+    compared = compare_or_tell(tmp_path, params, sent, got, logs)
     print("outputs compared per robot:", compared)
     assert min(compared.values()) > 5, compared
     for log in logs:  # every node says what it did: outputs, detections fused
@@ -302,7 +316,7 @@ def test_a_stranger_on_another_host_writes_no_ros_input(tmp_path, middleware, wh
         assert eval(line.split("inputs ", 1)[1].split("; refused")[0])["odometry"] > 41, line  # noqa: S307
         return
     assert stranger.returncode == 1 and "matched" in s_err and "matched" not in s_out, (s_out, s_err)
-    compare_to_replay(tmp_path, params, sent, got)
+    compare_or_tell(tmp_path, params, sent, got, logs)
     genuine = {r: {"odometry": 0, "detections": 0} for r in ROBOTS}
     for line in sent.read_text().splitlines():
         rec = json.loads(line)
