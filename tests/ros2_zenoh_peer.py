@@ -11,7 +11,8 @@ Modes (each exits on its own after ``--duration`` seconds at most)::
     ros2_zenoh_peer.py publish --input msgs.jsonl --connect tcp/127.0.0.1:PORT
         Lines {"topic", "type", "msg", "at"}: waits until each key has a matching subscriber, then puts each message
         at ``at`` s (default one after the other), writing what it sent to ``--sent``; ``--restamp`` sets every
-        ``header.stamp`` to the wall time publishing began plus ``at``; with ``--topic``/``--out`` it also echoes
+        ``header.stamp`` to the wall time publishing began plus ``at``; ``--late K:S`` sends line ``K`` (from 0) ``S``
+        seconds after its ``at`` (its stamp unchanged: a late input); with ``--topic``/``--out`` it also echoes
         (below) on the same session while publishing and lingering.
     ros2_zenoh_peer.py echo --topic /r1/odom:nav_msgs/msg/Odometry --listen tcp/127.0.0.1:PORT --count N
         Writes each sample as {"topic", "type", "msg", "seq", "source_ns", "gid"} (stdout, or --out); "ready" on stderr.
@@ -117,9 +118,11 @@ def publish(args) -> int:
     print("matched", flush=True)
     sent = open(args.sent, "w") if args.sent else None
     t0, base_ns = time.monotonic() + 0.2, (time.time_ns() // 1_000_000 + 200) * 1_000_000
-    for rec in lines:
-        at = float(rec.get("at", 0.0))
-        delay = at - (time.monotonic() - t0)
+    late = dict((int(k), float(v)) for k, v in (x.split(":") for x in args.late))
+    when = [float(rec.get("at", 0.0)) + late.get(i, 0.0) for i, rec in enumerate(lines)]
+    for i in sorted(range(len(lines)), key=lambda i: when[i]):  # in the order of sending (stable)
+        rec, at = lines[i], float(lines[i].get("at", 0.0))
+        delay = when[i] - (time.monotonic() - t0)
         if delay > 0:
             time.sleep(delay)
         if args.restamp:
@@ -192,6 +195,7 @@ def main(argv=None) -> int:
     ap.add_argument("--count", type=int, default=0)
     ap.add_argument("--sent", default=None)
     ap.add_argument("--restamp", action="store_true", help="publish: header stamps = start wall time + at")
+    ap.add_argument("--late", action="append", default=[], help="publish: K:S sends line K S seconds late")
     args = ap.parse_args(argv)
     return publish(args) if args.mode == "publish" else echo(args)
 

@@ -3,7 +3,7 @@ with the ROS 2 message IDL written out by hand, tests/ros2_dds_peer.py; or eclip
 layout, tests/ros2_zenoh_peer.py) publishes three simulated robots' odometry and detections under ROS 2 topic names
 in real time, stamped with ROS time; the nodes, started from a params YAML with their topics remapped and the team's
 traffic signed, localize; the ``nav_msgs/Odometry`` and ``/tf`` they publish, received by that process, equal the
-offline replay of the messages it sent to 1e-9."""
+offline replay of the messages it sent, less the input events the nodes say they refused as late, to 1e-9."""
 
 from __future__ import annotations
 
@@ -100,8 +100,18 @@ def stop_nodes(procs: list[subprocess.Popen]) -> list[str]:
     return outs
 
 
-def compare_to_replay(tmp: Path, params_file: Path, sent: Path, got: Path) -> dict[int, int]:
-    """The outputs received equal the replay of the messages sent to 1e-9; returns outputs compared per robot."""
+def refused_in(logs: list[str]) -> list[dict]:
+    """The input events the nodes refused, from the line each prints last (``refused inputs [...]``, JSON)."""
+    out = []
+    for log in logs:
+        line = next(x for x in log.splitlines() if ": refused inputs [" in x)
+        out += json.loads(line.split(": refused inputs ", 1)[1])
+    return out
+
+
+def compare_to_replay(tmp: Path, params_file: Path, sent: Path, got: Path, refused: list[dict]) -> dict[int, int]:
+    """The outputs received equal to 1e-9 the replay of the messages sent, less the input events the nodes refused
+    (``refused``: a late input, as a loaded machine may make one); returns outputs compared per robot."""
     route = {TOPIC[k].format(r=r): (r, k) for r in ROBOTS for k in TOPIC}
     messages: dict[int, list] = {r: [] for r in ROBOTS}
     for line in sent.read_text().splitlines():
@@ -109,7 +119,7 @@ def compare_to_replay(tmp: Path, params_file: Path, sent: Path, got: Path) -> di
         r, kind = route[rec["topic"]]
         messages[r].append((kind, from_json(rec["type"], rec["msg"])))
     params = {r: load_params([str(params_file)], {}, "swarmloc", f"/robot{r}") for r in ROBOTS}
-    ref = replay_messages(messages, params)
+    ref = replay_messages(messages, params, refused=refused)
     assert ref.stats["fused"] > 10 and ref.stats["unknown"] == 0, ref.stats
     odo: dict[int, dict[float, dict]] = {r: {} for r in ROBOTS}
     tfs: dict[tuple[str, float], dict] = {}
@@ -148,11 +158,12 @@ def compare_to_replay(tmp: Path, params_file: Path, sent: Path, got: Path) -> di
 
 
 def compare_or_tell(tmp: Path, params_file: Path, sent: Path, got: Path, logs: list[str]) -> dict[int, int]:
-    """:func:`compare_to_replay`, a difference told with what explains a live run that is not its replay: how late
-    the peer sent its inputs (the nodes refuse one stamped more than ``window`` before ROS time) and the nodes' logs
-    (inputs refused as late, detections fused, the team's warnings)."""
+    """:func:`compare_to_replay` with the inputs the nodes refused (their logs' last lines), a difference told with
+    what explains a live run that is not its replay: how late the peer sent its inputs (the nodes refuse one stamped
+    more than ``window`` before ROS time) and the nodes' logs (inputs refused, detections fused, the team's
+    warnings)."""
     try:
-        return compare_to_replay(tmp, params_file, sent, got)
+        return compare_to_replay(tmp, params_file, sent, got, refused_in(logs))
     except AssertionError as exc:
         recs = [json.loads(x) for x in sent.read_text().splitlines()]
         late = max(r["sent_ns"] * 1e-9 - r["msg"]["header"]["stamp"]["sec"]
@@ -170,9 +181,10 @@ def messages_file(tmp: Path, src) -> Path:
     return path
 
 
-@pytest.mark.parametrize("middleware", ["cyclonedds", "zenoh"])
-def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middleware):
-    src = load_source("sim:random", robots=3, duration=4.0, seed=1)
+def run_team(tmp_path: Path, src, middleware: str, late: tuple[str, ...] = ()) -> tuple[Path, Path, Path, list[str]]:
+    """The peer publishes ``src``'s messages in real time to three nodes (``late``: the zenoh peer's ``--late``
+    lines: messages sent late on purpose) and echoes their outputs; returns the params file, the messages sent, the
+    outputs received and the nodes' logs."""
     domain = random.randrange(1, 100)  # test_rmw takes 100-219: never the same domain at once
     hub = f"tcp/127.0.0.1:{free_ports(1)[0]}"
     params = write_params(tmp_path, src, middleware, domain, [hub] if middleware == "zenoh" else [])
@@ -184,7 +196,7 @@ def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middle
     else:  # the peer is the ROS graph's hub (a router's place): the nodes connect to it
         peer = [sys.executable, str(HERE / "ros2_zenoh_peer.py"), "publish", "--domain", str(domain), "--listen", hub]
     peer += ["--input", str(msgs), "--sent", str(sent), "--restamp", "--out", str(got), "--linger", "5",
-             "--duration", "60", "--match-timeout", "40", *echo]  # fmt: skip
+             "--duration", "60", "--match-timeout", "40", *echo, *(a for x in late for a in ("--late", x))]  # fmt: skip
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHONPATH")}  # the peer: no swarmloc on its path
     rec = {0: ["--record", str(tmp_path / "robot0.mcap")]}  # robot 0 also records its beliefs as ROS 2 messages
     if middleware == "zenoh":  # the hub first, so the nodes have something to connect to
@@ -200,12 +212,42 @@ def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middle
             peer_proc.kill()
         logs = stop_nodes(nodes)
     assert peer_proc.returncode == 0, (out, err, logs)
+    return params, sent, got, logs
+
+
+@pytest.mark.parametrize("middleware", ["cyclonedds", "zenoh"])
+def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middleware):
+    src = load_source("sim:random", robots=3, duration=4.0, seed=1)
+    params, sent, got, logs = run_team(tmp_path, src, middleware)
     compared = compare_or_tell(tmp_path, params, sent, got, logs)
     print("outputs compared per robot:", compared)
     assert min(compared.values()) > 5, compared
     for log in logs:  # every node says what it did: outputs, detections fused
         assert "outputs;" in log and "detections fused" in log, log
     check_recording(tmp_path / "robot0.mcap", sent)
+
+
+def test_a_detection_sent_late_is_refused_and_the_outputs_equal_the_replay_without_it(tmp_path):
+    """The peer sends one of robot 2's detections 1.5 s after its stamp (the window is 1 s): robot 2's node refuses
+    it (``late_stale``) and says which event it refused; the outputs equal the replay of the messages sent less that
+    event to 1e-9 (the replay of every message sent, which fuses it, differs)."""
+    src = load_source("sim:random", robots=3, duration=4.0, seed=1)
+    lines = [json.loads(x) for x in messages_file(tmp_path, src).read_text().splitlines()]
+    k = next(i for i, x in enumerate(lines) if x["topic"] == TOPIC["detections"].format(r=2) and x["at"] >= 2.0)
+    assert len(lines[k]["msg"]["detections"]) == 1
+    params, sent, got, logs = run_team(tmp_path, src, "zenoh", late=(f"{k}:1.5",))
+    refused = refused_in(logs)
+    rec = next(x for x in map(json.loads, sent.read_text().splitlines())
+               if x["topic"] == lines[k]["topic"] and x["at"] == lines[k]["at"])  # fmt: skip
+    stamp = rec["msg"]["header"]["stamp"]
+    assert rec["sent_ns"] * 1e-9 - stamp["sec"] - 1e-9 * stamp["nanosec"] > 1.4, rec  # it was sent late
+    assert [(x["kind"], x["robot"], x["reason"]) for x in refused] == [("detection", 2, "stale")], refused
+    assert abs(refused[0]["stamp"] - (stamp["sec"] + 1e-9 * stamp["nanosec"])) < 1e-6, (refused, stamp)
+    assert "'late_stale': 1" in next(x for x in logs[2].splitlines() if "inputs {" in x), logs[2]
+    compared = compare_or_tell(tmp_path, params, sent, got, logs)
+    assert min(compared.values()) > 5, compared
+    with pytest.raises(AssertionError):  # the replay of every message sent is not what the nodes read
+        compare_to_replay(tmp_path, params, sent, got, [])
 
 
 def check_recording(path: Path, sent: Path) -> None:

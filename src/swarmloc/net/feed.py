@@ -23,7 +23,8 @@ An input that arrives stamped before ``W`` is refused (``stale``: the driver may
 more than ``max_ahead`` s past the latest known time (or the start) is refused (``future``); odometry that starts
 before the previous one ended is refused (``overlap``); more than ``max_items`` waiting refuses the newest
 (``queue_full``); non-finite stamps or values are ``bad_value``. Every refusal is counted with its reason
-(:attr:`LiveFeed.reasons`) and logged once per reason; nothing raises on the pushing thread except a non-event.
+(:attr:`LiveFeed.reasons`) and logged once per reason, the first :data:`MAX_KEPT` refused events kept with it
+(:attr:`LiveFeed.refused`); nothing raises on the pushing thread except a non-event.
 The run then equals the in-process replay of the inputs the feed accepted (tested to 1e-6).
 """
 
@@ -49,6 +50,9 @@ END_GRACE = 5.0
 
 MAX_ITEMS = 100_000
 """Inputs waiting in one feed at most (a robot at 100 Hz odometry and detections holds far fewer)."""
+
+MAX_KEPT = 100
+"""Refused events kept with their reason (:attr:`LiveFeed.refused`); the later ones are only counted."""
 
 
 def count_refusal(counts: Counter[str], reasons: Counter[str], lock: threading.Lock, reason: str) -> bool:
@@ -101,6 +105,9 @@ class LiveFeed:
         self.reasons: Counter[str] = Counter()
         """Refusals by reason (``stale``, ``future``, ``overlap``, ``queue_full``, ``bad_value``, ``not_own``,
         ``ended``)."""
+        self.refused: list[tuple[str, Odometry | Detection]] = []
+        """The first :data:`MAX_KEPT` events refused, with their reason: what a replay of the inputs sent leaves out
+        to be the replay of what the feed accepted."""
         self.input_reasons: Counter[str] = Counter()
         """What the input layer in front of the feed (:mod:`swarmloc.live`) refused before pushing, by reason
         (``auth_unsigned``, ``bad_schema``, ``bad_cdr``...: :meth:`refused_input`)."""
@@ -136,6 +143,8 @@ class LiveFeed:
                 if isinstance(event, Odometry):
                     self._odo_end = max(self._odo_end, float(event.t1))
                 self._latest = max(self._latest, float(event.t))
+            elif len(self.refused) < MAX_KEPT:
+                self.refused.append((why, event))
         if why is not None:
             self._refuse(why, event)
         with self._lock:

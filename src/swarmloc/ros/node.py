@@ -36,7 +36,7 @@ from swarmloc.net.feed import LiveFeed
 from swarmloc.ros import convert as cv
 from swarmloc.ros.args import RosArgs
 from swarmloc.ros.params import RosParams
-from swarmloc.ros.timeline import InputTimeline
+from swarmloc.ros.timeline import InputTimeline, refused_record
 
 log = logging.getLogger(__name__)
 
@@ -212,11 +212,22 @@ class RosNode:
             net = self.net.counts
             out["teammates_lost"] = net.get("peers_lost", 0)
             out["frames_refused"] = net.get("rejected", 0)
+            out["queries_unanswered"] = net.get("no_reply", 0)
+            out["updates_not_received"] = net.get("update_not_received", 0)
             out.update({f"frames_{k}": v for k, v in self.net.reasons.items()})
         out.update({f"output_{k}": v for k, v in self.counts.items()})
         for k, v in getattr(self.mw, "reasons", {}).items():
             out[f"middleware_{k}"] = v
         return out
+
+    def refused_inputs(self) -> list[dict[str, Any]]:
+        """The input events the feed refused (the first :data:`~swarmloc.net.feed.MAX_KEPT`), each a
+        :func:`~swarmloc.ros.timeline.refused_record`: what :func:`~swarmloc.ros.replay.replay_messages` leaves out
+        to replay what the node read."""
+        if self.feed is None:
+            return []
+        with self._lock:
+            return [refused_record(e, why) for why, e in self.feed.refused]
 
     def _publish_diagnostics(self) -> None:
         d = self.diagnostics()

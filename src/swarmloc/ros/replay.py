@@ -12,21 +12,22 @@ new bag.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Event
+from swarmloc.events import Detection, Event, Odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.ros import convert as cv
 from swarmloc.ros.args import RosArgs
 from swarmloc.ros.node import TOPIC_PARAMS, initial_belief
 from swarmloc.ros.params import RosParams
-from swarmloc.ros.timeline import InputTimeline, record_times
+from swarmloc.ros.timeline import InputTimeline, record_times, refused_key, refused_record
 
 KINDS = ("odometry", "detections", "initialpose")
 
@@ -57,15 +58,23 @@ class ReplayResult:
 
 
 def replay_messages(
-    messages: Mapping[int, Sequence[tuple[str, Any]]], params: Mapping[int, RosParams], upto: float | None = None
+    messages: Mapping[int, Sequence[tuple[str, Any]]],
+    params: Mapping[int, RosParams],
+    upto: float | None = None,
+    refused: Iterable[Mapping[str, Any]] = (),
 ) -> ReplayResult:
     """Localize offline: ``messages[robot]`` its ``(kind, message)`` in arrival order (``kind`` one of
     :data:`KINDS`), ``params[robot]`` its node's parameters (the same estimator and team for all). Outputs at the
-    node's times ``t0 + k / frequency`` up to its latest input (or ``upto``)."""
+    node's times ``t0 + k / frequency`` up to its latest input (or ``upto``). ``refused``: input events a live node
+    refused (:meth:`~swarmloc.ros.node.RosNode.refused_inputs`, records of
+    :func:`~swarmloc.ros.timeline.refused_record`), left out of the events the messages make (a late odometry
+    message's sample is kept, its interval left out): the replay of what the nodes read. One the messages do not make
+    is a ValueError."""
     from swarmloc.net.entry import make_node
     from swarmloc.runner import run
 
     res, nodes, events = ReplayResult(), [], []
+    left_out = Counter(refused_key(x) for x in refused)
     ends: dict[int, float] = {}
     for r, msgs in sorted(messages.items()):
         p = params[r]
@@ -77,6 +86,7 @@ def replay_messages(
             if kind not in KINDS:
                 raise ValueError(f"replay_messages: kind {kind!r} is not one of {KINDS}")
             evs += getattr(tl, kind)(m)
+        evs = leave_out(evs, left_out)
         res.timelines[r] = tl
         if tl.t0 is None:
             continue
@@ -85,6 +95,8 @@ def replay_messages(
         nodes.append(node)
         events += evs
         ends[r] = max([tl.t0, *(float(e.t) for e in evs)]) if upto is None else upto
+    if +left_out:
+        raise ValueError(f"replay_messages: refused inputs the messages do not make: {sorted(+left_out)}")
     if not nodes:
         return res
     events.sort(key=lambda e: (float(e.stamp), 1 if hasattr(e, "observer") else 2))
@@ -98,6 +110,19 @@ def replay_messages(
         res.beliefs[r] = [GroupGaussian(SE2, SE2.from_xytheta(x), c, validate=False)
                           for x, c in zip(tr.mean[keep], tr.cov[keep], strict=True)]  # fmt: skip
     return res
+
+
+def leave_out(events: list[Event], keys: Counter[tuple[Any, ...]]) -> list[Event]:
+    """``events`` less those named in ``keys`` (:func:`~swarmloc.ros.timeline.refused_key`), each as many times as
+    counted there; ``keys`` is decremented for each event left out."""
+    out = []
+    for e in events:
+        k = refused_key(refused_record(e, "")) if isinstance(e, Odometry | Detection) else None
+        if k is not None and keys[k] > 0:
+            keys[k] -= 1
+        else:
+            out.append(e)
+    return out
 
 
 def node_sections(params_file: str) -> list[tuple[str, str]]:

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Event, Odometry
+from swarmloc.events import Detection, Event, Odometry
 from swarmloc.ros.convert import OdomSample, Refused, detections_in, initialpose_in, interpolate_pose, odometry_in
 
 MAX_EARLY = 1000
@@ -143,3 +143,26 @@ def record_times(t0: float, frequency: float, upto: float) -> np.ndarray:
         return np.zeros(0)
     k1 = math.floor((upto - t0) * frequency + 1e-9) + 1
     return t0 + np.arange(k1) / frequency
+
+
+def refused_record(e: Odometry | Detection, reason: str) -> dict[str, Any]:
+    """An input event the node's feed refused (``reason``: ``stale`` for a late one...) as JSON-ready fields, enough
+    to leave that event out of a replay (:func:`refused_key`): ``kind`` (``odometry`` or ``detection``), ``robot``
+    (the robot's own), ``stamp`` [s] (where the event is filed); odometry's lost interval ``t0``, ``t1`` [s] (the
+    message's sample was kept: only the interval it closes is lost); a detection's ``what`` (its measurement kind),
+    ``target`` and ``target_is_robot``."""
+    if isinstance(e, Odometry):
+        return {"kind": "odometry", "robot": int(e.robot), "stamp": float(e.stamp), "t0": float(e.t0),
+                "t1": float(e.t1), "reason": reason}  # fmt: skip
+    return {"kind": "detection", "robot": int(e.observer), "stamp": float(e.stamp), "what": str(e.kind),
+            "target": None if e.target is None else int(e.target), "target_is_robot": bool(e.target_is_robot),
+            "reason": reason}  # fmt: skip
+
+
+def refused_key(rec: Mapping[str, Any]) -> tuple[Any, ...]:
+    """What names one input event in a :func:`refused_record` (its reason aside): equal for the event the live node
+    refused and the one the replay makes of the same message (the same conversion of the same stamps)."""
+    if rec["kind"] == "odometry":
+        return ("odometry", int(rec["robot"]), float(rec["t0"]), float(rec["t1"]))
+    return ("detection", int(rec["robot"]), float(rec["stamp"]), str(rec["what"]), rec["target"],
+            bool(rec["target_is_robot"]))  # fmt: skip

@@ -142,6 +142,7 @@ def _view(args: argparse.Namespace, params: Any) -> Any:
 
 
 def _run_node(args: argparse.Namespace, ros: Any) -> int:
+    import json
     import logging
     import signal
 
@@ -172,5 +173,8 @@ def _run_node(args: argparse.Namespace, ros: Any) -> int:
           + ("" if report else "; no odometry came"))  # fmt: skip
     counts = {k[6:]: v for k, v in d.items() if k.startswith("input_")}
     refused = {k: v for k, v in d.items() if k.startswith(("refused_", "late_", "frames_")) and v}
-    print(f"swarmloc ros: robot {params.robot_id}: inputs {counts}; refused {refused or 'none'}")
+    print(f"swarmloc ros: robot {params.robot_id}: inputs {counts}; refused {refused or 'none'}; waits given up: "
+          f"{d.get('queries_unanswered', 0)} queries unanswered, {d.get('updates_not_received', 0)} updates not "
+          "received")  # fmt: skip
+    print(f"swarmloc ros: robot {params.robot_id}: refused inputs {json.dumps(node.refused_inputs())}")
     return 0
