@@ -19,7 +19,7 @@ transpose ``(A'' B)^T = B^T A''^T``, which keeps the result symmetric.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -133,11 +133,12 @@ def positive_definite(P: np.ndarray) -> bool:
     return True
 
 
-@cache
+@lru_cache(maxsize=1024)
 def chi2_ppf(p: float, dof: int) -> float:
     """The ``p`` quantile of the chi-square law with ``dof`` degrees of freedom: the bound a squared Mahalanobis
     distance of a consistent ``dof``-dimensional Gaussian stays under with probability ``p`` (gates, NEES bands;
-    cached: a gate asks for the same few ``(p, dof)`` pairs at every update)."""
+    cached, with a bound: a gate asks for the same few ``(p, dof)`` pairs at every update, while the ANEES bands'
+    ``dof`` grows with the number of records scored)."""
     from scipy.stats import chi2
 
     return float(chi2.ppf(p, dof))
