@@ -77,7 +77,7 @@ from swarmloc.net.feed import LiveFeed
 from swarmloc.net.inbound import Inbound
 from swarmloc.net.inputs import Inputs
 from swarmloc.net.intake import Intake, vouch_for
-from swarmloc.net.lockstep import Lockstep
+from swarmloc.net.lockstep import Lockstep, watched
 from swarmloc.net.outbound import Envelopes, Outbound
 from swarmloc.net.publishing import Announcer, Publishing, lagging
 from swarmloc.net.schema import SERVER, Belief, Lines, Progress, Report
@@ -111,6 +111,10 @@ class NetNode:
         everything it receives must be signed by the member it claims to come from (refusals counted
         ``auth_<category>``); None: an unauthenticated team (tests on one machine, a trusted network).
     scans: this robot's range scans (see the attribute).
+    detected: ``(observer, target)`` of every robot detection of the team's run, when known in advance (a recording:
+        :func:`~swarmloc.net.lockstep.detected_pairs`): with ``diekf`` in clusters, lockstep then waits only for the
+        cluster and the robots this one detects or is detected by (:func:`~swarmloc.net.lockstep.watched`); None: for
+        every teammate.
     """
 
     def __init__(
@@ -128,6 +132,7 @@ class NetNode:
         on_settled: Callable[[float, Any], None] | None = None,
         auth: Auth | None = None,
         scans: Any = None,
+        detected: Iterable[tuple[int, int]] | None = None,
         **kw: Any,
     ) -> None:
         if len(node.robots) != 1:
@@ -163,19 +168,25 @@ class NetNode:
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
         mates: list[str] | None = None  # whose broadcasts it hears: all ("*"), or diekf in clusters its cluster's
+        cluster: tuple[int, ...] | None = None
         if self.broadcasts:
             mates = ["*"]
             if isinstance(node, RobotNode) and node.protocol is not None and node.protocol.cluster:
-                mates = [str(m) for m in node.team if m != self.robot]
+                cluster = tuple(node.team)
+                mates = [str(m) for m in cluster if m != self.robot]
+        self.watched = watched(self.robot, cluster, detected)
+        """The teammates whose progress it waits for, and subscribes to (:func:`~.lockstep.watched`; None: all)."""
         self.envelopes = Envelopes(auth, team, self.robot)
         """What it sends, numbered in one sequence and sealed (:class:`~.outbound.Envelopes`)."""
         seal = self.envelopes.seal
         self.wiring = Wiring(session, self.scope, team, self.robot, intake.offer, seal, auth=auth, mates=mates,
+                             watched=["*"] if self.watched is None else [str(r) for r in sorted(self.watched)],
                              delayed=lagging(node), lines=scans is not None,
                              ros_domain=settings.ros_domain)  # fmt: skip
         """Its Zenoh declarations, and publishing on its own keys (:class:`~.wiring.Wiring`)."""
         self.lockstep = Lockstep(node, self.robot, self.roster, settings, self.counts, next_key=self.inputs.next_key,
-                                 step=self._step, others=lambda key: self.broadcaster.unsettled(key))  # fmt: skip
+                                 step=self._step, others=lambda key: self.broadcaster.unsettled(key),
+                                 watched=self.watched)  # fmt: skip
         """The teammates; when to read an input, answer a query, release an answer (:class:`~.lockstep.Lockstep`)."""
         self.outbound = Outbound(node, self.robot, self.roster, self.scope, settings, self.counts,
                                  wiring=self.wiring, seal=seal, intake=intake, lockstep=self.lockstep, step=self._step,
@@ -409,7 +420,7 @@ class NetNode:
                 quiet_since = time.monotonic()
             if time.monotonic() - self.announcer.last_wall > 0.2:
                 self.announcer.announce(math.inf, done=True, force=True)
-            settled = self.lockstep.alive <= self.lockstep.done and self._idle()
+            settled = self.lockstep.waited() <= self.lockstep.done and self._idle()
             if settled and time.monotonic() - quiet_since >= self.settings.quiet:
                 break
 
