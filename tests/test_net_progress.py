@@ -140,9 +140,9 @@ def test_lockstep_waits_for_a_watched_teammate_only_and_never_declares_another_l
 
 @pytest.mark.network
 def test_diekf_in_clusters_watching_fewer_teammates_equals_in_process() -> None:
-    """10 robots of the grouped scene (5 s: robots 0, 1 and 7 meet outsiders) in clusters of 5, threads of this process on 127.0.0.1, each node given
-    the team's detections: every node watches fewer than its 9 teammates, and the run equals the in-process one
-    (every recorded mean and covariance to 1e-6)."""
+    """10 robots of the grouped scene (5 s: robots 0, 1 and 7 meet outsiders) in clusters of 5, threads of this
+    process on 127.0.0.1, each node given the team's detections: every node watches fewer than its 9 teammates, and
+    the run equals the in-process one (every recorded mean and covariance to 1e-6)."""
     src = clustered(_scene_module().scene(10, 5.0, 1, "grouped"), 5)
     run = TeamRun()
     team = f"progress{np.random.default_rng().integers(1 << 30)}"

@@ -246,9 +246,9 @@ class Lockstep:
         return bool(self.deferred or self.expect or self.held)
 
     def may_feed(self, s: float) -> bool:
-        """Lockstep: every live teammate has read its source to ``s - lag``; and this node's oldest detection group
-        still waiting for answers is less than half a horizon before ``s`` (reading on would push it beyond the
-        horizon before its answers or their timeout come)."""
+        """Lockstep: every live teammate waited for (:meth:`waited`) has read its source to ``s - lag``; and this
+        node's oldest detection group still waiting for answers is less than half a horizon before ``s`` (reading on
+        would push it beyond the horizon before its answers or their timeout come)."""
         first = self.node.first_pending
         if first is not None and s - first[0] > self.node.horizon / 2:
             return False
@@ -259,8 +259,8 @@ class Lockstep:
         return True
 
     def group_may_go(self, s: float) -> bool:
-        """A detection group (key ``(s, 1, robot)``) is read once every live teammate has read its source up to
-        ``s`` (their exchanges keyed before it have started) and no pairwise update keyed before it is still
+        """A detection group (key ``(s, 1, robot)``) is read once every live teammate waited for has read its source
+        up to ``s`` (their exchanges keyed before it have started) and no pairwise update keyed before it is still
         expected, so that groups are applied across the team in key order, as the in-process runner does, and an
         update never has to be replayed under a group applied before it."""
         key = (s, 1, self.robot, ())
@@ -271,9 +271,9 @@ class Lockstep:
     def ready(self, q: Message, since: float) -> bool:
         """A query is answered once nothing this node will still read or apply is keyed before it: its source has
         passed the query's key, no earlier detection group waits, no pairwise update it expects is keyed earlier,
-        and every live teammate has read its source past the stamp (so no earlier exchange can still start). Then
-        the first answer is the final one and no revision follows (without faults). Held ``hold_timeout`` s, it is
-        answered whatever the state (a revision follows if needed)."""
+        and every live teammate waited for has read its source past the stamp (so no earlier exchange can still
+        start). Then the first answer is the final one and no revision follows (without faults). Held
+        ``hold_timeout`` s, it is answered whatever the state (a revision follows if needed)."""
         qkey = (float(q.stamp), 1, q.sender, tuple(q.sub))
         why = self.unsettled(qkey)
         if why is None:

@@ -18,7 +18,9 @@ own events, recorded or live). Its settings: :class:`~swarmloc.net.settings.NetS
 the node, and the loop.
 
 **Time and determinism.** Stamps are the source's (data) clock; wall time only paces. Lockstep: a node reads its
-next input (stamp ``s``) once every live teammate has announced (:class:`~swarmloc.net.schema.Progress`) that it
+next input (stamp ``s``) once every live teammate it waits for (all; ``diekf`` in clusters on a recording: its
+cluster and the robots it detects or is detected by, :func:`~swarmloc.net.lockstep.watched`) has announced
+(:class:`~swarmloc.net.schema.Progress`) that it
 has read its own source up to ``s - lag`` (the node with the lowest next stamp can always go on, so this never
 deadlocks), with ``speed > 0`` not before ``(s - t_start) / speed`` wall seconds, and not more than half a horizon
 past its own oldest detection group still waiting for answers. A detection group is read only once every teammate
@@ -53,7 +55,7 @@ also published as a ROS 2 ``geometry_msgs/msg/PoseWithCovarianceStamped`` under 
 **The end.** When its source is exhausted the node announces ``Progress(t=inf)``; once every live member has and
 the node has been idle (no reply outstanding, nothing queued) for ``quiet`` s, it expires what still waits,
 publishes its final beliefs, announces ``done`` and its :class:`~swarmloc.net.schema.Report`, and keeps answering
-until every live member is done and ``quiet`` s passed without traffic (at most ``linger`` s).
+until every live member it waits for is done and ``quiet`` s passed without traffic (at most ``linger`` s).
 """
 
 from __future__ import annotations
