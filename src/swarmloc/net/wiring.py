@@ -79,27 +79,21 @@ class Wiring:
         put = self.offer  # within the budgets of what a node takes in (:mod:`.intake`)
         self.decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
         self.decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
-        for m in self.watched:  # the teammates' progress (not this session's own: it would be verified for nothing)
-            self.decl.append(
-                s.declare_subscriber(
-                    robot_key(team, m, "progress"),
-                    handler=lambda x: put(("progress", x)),
-                    allowed_origin=zenoh.Locality.REMOTE,
-                )  # fmt: skip
-            )
+        # the teammates' progress (lockstep's: :func:`~swarmloc.net.lockstep.watched`) and broadcasts (a team
+        # estimator: :mod:`swarmloc.net.broadcast`; diekf in clusters: its cluster's only, each a key of its own, so
+        # that what a node takes in is flat in the team's size); not this session's own: verified for nothing
+        for kind, robots in (("progress", self.watched), ("broadcast", self.mates or ())):
+            for m in robots:
+                self.decl.append(
+                    s.declare_subscriber(
+                        robot_key(team, m, kind),
+                        handler=lambda x, kind=kind: put((kind, x)),
+                        allowed_origin=zenoh.Locality.REMOTE,
+                    )  # fmt: skip
+                )
         self.decl.append(
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
         )
-        # the teammates' broadcasts (a team estimator: :mod:`swarmloc.net.broadcast`); diekf in clusters: its
-        # cluster's only (each a key of its own), so that what a node takes in is flat in the team's size
-        for m in self.mates or ():
-            self.decl.append(
-                s.declare_subscriber(
-                    robot_key(team, m, "broadcast"),
-                    handler=lambda x: put(("broadcast", x)),
-                    allowed_origin=zenoh.Locality.REMOTE,
-                )  # fmt: skip
-            )
         for kind in ("belief", "progress", *(["delayed"] if self.delayed else []), *(["lines"] if self.lines else [])):
             self.pub[kind] = s.declare_publisher(robot_key(team, r, kind), congestion_control=self.block)
         if self.ros_domain is not None:
