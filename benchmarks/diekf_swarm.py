@@ -22,9 +22,11 @@ only, no traffic.
 (as tests/test_net.py's ``thread_team``), on 127.0.0.1; traffic from the nodes' network counters (``sent``,
 ``received``: point-to-point queries, answers and pushes; ``broadcasts_sent``/``broadcasts_received`` and
 ``broadcast_bytes``: the team broadcasts), the detections the nodes fused (``fused``), and the progress
-announcements of the replay's lock step a robot receives from its teammates (``progress``: every node's, which
-every node subscribes to, not in the nodes' counters; counted by one more session, times ``n - 1``). Its beliefs
-equal the in-process run's (tests/test_net_diekf.py), so accuracy is given by the in-process rows.
+announcements of the replay's lock step a robot receives from its teammates (``progress``: its counter
+``progress_received``; in clusters a node subscribes to its cluster's and to the robots it detects or is detected
+by, :func:`swarmloc.net.lockstep.watched`; ``prog/wall``: the same per second of wall time). Its beliefs equal the
+in-process run's (tests/test_net_diekf.py): ``max |d|`` is the largest difference of a recorded mean or covariance
+from the in-process run's, whose RMSE and ANEES/dof the row gives.
 
 Scene (``--arena``, benchmarks/swarm_scene.py): ``bounded`` (default), constant density in what a robot sees, about 2
 teammates within its 1.5 m sensor (10 detections/s at 5 Hz) in every team; ``spread``, the arena that grows as
@@ -59,8 +61,10 @@ from swarmloc.evaluation.metrics import evaluate, over_seeds  # noqa: E402
 from swarmloc.events import Odometry  # noqa: E402
 from swarmloc.messages import Message  # noqa: E402
 from swarmloc.net.entry import make_node  # noqa: E402
+from swarmloc.net.lockstep import detected_pairs  # noqa: E402
 from swarmloc.net.process import NetNode  # noqa: E402
 from swarmloc.net.schema import encode  # noqa: E402
+from swarmloc.net.team import TeamRun  # noqa: E402
 from swarmloc.net.transport import free_ports, open_session  # noqa: E402
 from swarmloc.runner import RunResult, run  # noqa: E402
 
@@ -125,14 +129,15 @@ def over(seeds: list[int], n: int, cluster: int, duration: float, arena: str, en
 
 
 def networked(src: Source, n: int, cluster: int, duration: float, max_wall: float) -> dict[str, Any]:
-    """Every robot a NetNode on its own Zenoh session, threads of this process (tests/test_net.py's thread_team)."""
+    """Every robot a NetNode on its own Zenoh session, threads of this process (tests/test_net.py's thread_team);
+    its figures, and the in-process run's RMSE, ANEES/dof and the networked beliefs' largest difference from it."""
     f = dataclasses.replace(src.config.filter, diekf_cluster=cluster)
     cfg = dataclasses.replace(src.config, filter=f)
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(n)]
-    sessions, nets = [open_session([], eps)], []  # the first: a watcher of every node's progress announcements
-    progress: list[int] = []
-    watch = sessions[0].declare_subscriber("swarmloc/**/progress", lambda x: progress.append(1))
+    sessions, nets = [], []
     reports: dict[int, Any] = {}
+    beliefs = TeamRun()  # the best belief per robot and record time
+    detected = detected_pairs(src.events)
     t0 = time.perf_counter()
     try:
         for i, r in enumerate(src.robots):
@@ -142,7 +147,8 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
             node = make_node("diekf", r, src.initial[r], cfg, src.landmarks, team=src.robots)
             node.start(min(e.t0 if isinstance(e, Odometry) else e.stamp for e in ev))
             nets.append(NetNode(node, ev, session=s, team=f"swarm{os.getpid()}", roster=src.robots,
-                                record_times=src.record_times()))  # fmt: skip
+                                record_times=src.record_times(), detected=detected,
+                                on_belief=beliefs.keep))  # fmt: skip
         threads = [threading.Thread(target=lambda m=m: reports.__setitem__(m.robot, m.run(max_wall=max_wall)))
                    for m in nets]  # fmt: skip
         for t in threads:
@@ -152,21 +158,36 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
     finally:
         for m in nets:
             m.stop()
-        watch.undeclare()
         for s in sessions:
             s.close()
+    wall = time.perf_counter() - t0
     net: Counter[str] = Counter()
     fused = 0
     for rep in reports.values():
         net.update(rep.net)
         fused += rep.stats.get("fused", 0)
     k = n * duration
+    ref, res = in_process(src, n, cluster, duration)
     return {
-        "wall": time.perf_counter() - t0, "reports": len(reports), "fused": fused / k,
-        "progress": len(progress) * (n - 1) / k,
+        "wall": wall, "reports": len(reports), "fused": fused / k, "progress": net["progress_received"] / k,
+        "prog_wall": net["progress_received"] / n / wall,
         "sent": net["sent"] / k, "recv": net["received"] / k, "bc_sent": net["broadcasts_sent"] / k,
         "bc_recv": net["broadcasts_received"] / k, "bc_bytes": net["broadcast_bytes"] / k,
+        "rmse": ref["rmse"], "anees": ref["anees"], "diff": largest_difference(beliefs, res),
     }  # fmt: skip
+
+
+def largest_difference(beliefs: TeamRun, res: RunResult) -> float:
+    """The largest difference of a networked belief's mean or covariance from the in-process run's (inf: not the
+    same record times)."""
+    d = 0.0
+    got = beliefs.tracks()
+    for r, tr in res.tracks.items():
+        a = got.get(r)
+        if a is None or not np.array_equal(a.times, tr.times):
+            return math.inf
+        d = max(d, float(np.abs(a.mean - tr.mean).max()), float(np.abs(a.cov - tr.cov).max()))
+    return d
 
 
 def main() -> None:
@@ -190,7 +211,8 @@ def main() -> None:
           "of data, the mean over the seeds")  # fmt: skip
     if args.net:
         print(f"{'robots':>6} {'filter':>10} {'fused':>6} {'sent':>7} {'recv':>7} {'bc sent':>7} {'bc recv':>7} "
-              f"{'bc B/s':>8} {'progress':>8} {'wall s':>7}")  # fmt: skip
+              f"{'bc B/s':>8} {'progress':>8} {'prog/wall':>9} {'wall s':>7} {'RMSE [m]':>9} {'ANEES/dof':>9} "
+              f"{'max |d|':>8}")  # fmt: skip
     else:
         print(f"{'robots':>6} {'filter':>14} {'fused':>6} {'msg sent':>8} {'msg recv':>8} {'B sent':>8} "
               f"{'B recv':>8} {'RMSE [m]':>9} {'vs exact':>8} {'ANEES/dof':>9} {'in 95%':>6} {'cpu s':>6}")  # fmt: skip
@@ -203,9 +225,10 @@ def main() -> None:
                     continue
                 rs = [networked(scene(n, args.duration, s, args.arena), n, c, args.duration, args.max_wall)
                       for s in seeds]  # fmt: skip
-                r = {k: float(np.mean([x[k] for x in rs])) for k in rs[0]}
+                r = {k: float(np.mean([x[k] for x in rs])) for k in rs[0]} | {"diff": max(x["diff"] for x in rs)}
                 print(f"{n:>6} {name:>10} {r['fused']:>6.1f} {r['sent']:>7.1f} {r['recv']:>7.1f} {r['bc_sent']:>7.1f} "
-                      f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['progress']:>8.1f} {r['wall']:>7.1f}"
+                      f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['progress']:>8.1f} {r['prog_wall']:>9.1f} "
+                      f"{r['wall']:>7.1f} {r['rmse']:>9.4f} {r['anees']:>9.2f} {r['diff']:>8.1e}"
                       + ("" if r["reports"] == n else f"  ({r['reports']} of {n} reports)"), flush=True)  # fmt: skip
                 continue
             engine = c == 0 and n > args.exact_up_to

@@ -14,9 +14,10 @@ import logging
 import math
 import time
 from collections import Counter, OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Iterable
 from typing import Any, cast
 
+from swarmloc.events import Detection
 from swarmloc.messages import Message
 from swarmloc.net.schema import Envelope, Progress
 from swarmloc.net.settings import NetSettings
@@ -36,6 +37,36 @@ Key = tuple[Any, ...]
 """An exchange's key ``(stamp, priority, robot, sub)`` (or a prefix of it): the order the in-process runner applies."""
 
 
+def watched(
+    robot: int, cluster: Collection[int] | None, detected: Iterable[tuple[int, int]] | None
+) -> frozenset[int] | None:
+    """The teammates whose progress robot ``robot``'s lockstep waits for (and subscribes to); None: every teammate.
+
+    ``cluster``: the robots whose broadcasts it hears, ``diekf`` in clusters (None: any other node); ``detected``:
+    the ``(observer, target)`` of every robot detection of the team's run, known in advance from a recording
+    (:func:`detected_pairs`; None: a live source). In clusters, the cluster's mates and the robots it detects or
+    that detect it. That is enough: the node's state changes only by its own inputs, its cluster's broadcasts (a
+    mate's progress and broadcast head tell when none keyed before a key can still come) and the answers to its own
+    queries; an outsider's detection of it changes nothing of it (the covariance intersection is one-sided). A
+    robot it detects must have read its source to the detection's stamp when its query comes (else the query is
+    held, and past ``hold_timeout`` answered as things stand: "not yet" beyond the answerer's tolerance). A robot
+    that detects it must not be left more than ``lag`` behind (its queries are answered from a history of one
+    horizon) nor left before it is done. Every wait is for something keyed before, as with the whole team, so the
+    robot with the lowest next key still goes on. Any other node (and a live source, whose detections are not
+    known in advance): every teammate, unchanged."""
+    if cluster is None or detected is None:
+        return None
+    pairs = {(int(o), int(t)) for o, t in detected}
+    return frozenset({*cluster, *(t for o, t in pairs if o == robot), *(o for o, t in pairs if t == robot)} - {robot})
+
+
+def detected_pairs(events: Iterable[Any]) -> set[tuple[int, int]]:
+    """``(observer, target)`` of the robot detections among ``events`` (a recording of the whole team): for
+    :func:`watched`."""
+    return {(e.observer, e.target) for e in events if isinstance(e, Detection) and e.target_is_robot
+            and e.target is not None}  # fmt: skip
+
+
 class Lockstep:
     """Part of :class:`~swarmloc.net.process.NetNode` (``node.lockstep``): the teammates' progress and the rules of
     when to read an input, answer a query and release an answer (module docstring), for robot ``robot`` of
@@ -44,13 +75,14 @@ class Lockstep:
     ``next_key``: ``(stamp, priority)`` of the node's next own input (:meth:`~.inputs.Inputs.next_key`);
     ``step``: ``step(item, query=None)`` steps the node and carries what it returns (:meth:`~.process.NetNode._step`);
     ``others``: why a teammate's broadcast keyed before a key may still be missing, or None
-    (:meth:`~.broadcast.Broadcaster.unsettled`); ``counts``: the node's network counters."""
+    (:meth:`~.broadcast.Broadcaster.unsettled`); ``counts``: the node's network counters; ``watched``: the
+    teammates it waits for (:func:`watched`; None: all)."""
 
     def __init__(self, node: Node, robot: int, roster: frozenset[int], settings: NetSettings, counts: Counter[str], *,
                  next_key: Callable[[], tuple[float, int]], step: Callable[..., None],
-                 others: Callable[[Key], str | None]) -> None:  # fmt: skip
+                 others: Callable[[Key], str | None], watched: frozenset[int] | None = None) -> None:  # fmt: skip
         self.node, self.robot, self.roster, self.settings, self.counts = node, robot, roster, settings, counts
-        self.next_key, self.step, self.others = next_key, step, others
+        self.next_key, self.step, self.others, self.watched = next_key, step, others, watched
         self.progress: dict[int, float] = {}
         """Per live teammate: the stamp of its next input."""
         self._progress_key: dict[int, tuple[float, int]] = {}  # ... and its priority
@@ -81,6 +113,7 @@ class Lockstep:
         """A teammate's progress announcement (authenticated): how far it has read its source (and whether it is
         done)."""
         if isinstance(p, Progress) and p.robot != self.robot:
+            self.counts["progress_received"] += 1
             r, old = p.robot, self._progress_key.get(p.robot, (-math.inf, 0))
             self.seen.add(r)
             now = time.monotonic()
@@ -107,7 +140,7 @@ class Lockstep:
         announces progress again (a silent one: if it announces at all) or its token comes anew."""
         now = time.monotonic()
         stall = STALL_TIMEOUTS * self.settings.lost_timeout
-        for r in sorted(self.alive):
+        for r in sorted(self.waited()):
             if r in self.done or self.progress.get(r, -math.inf) >= s:
                 continue
             quiet, still = now - self._beat.setdefault(r, now), now - self._heard.setdefault(r, now)
@@ -200,43 +233,47 @@ class Lockstep:
             self._progress_key.pop(r, None)
             self.counts["peers_left"] += 1
 
+    def waited(self) -> set[int]:
+        """The live teammates lockstep waits for: :attr:`alive`, those of :attr:`watched` only."""
+        return self.alive if self.watched is None else self.alive & self.watched
+
     def all_read(self) -> bool:
-        """Every live teammate has read its source (or is done)."""
-        return all(self.progress.get(r, -math.inf) == math.inf or r in self.done for r in self.alive)
+        """Every live teammate waited for has read its source (or is done)."""
+        return all(self.progress.get(r, -math.inf) == math.inf or r in self.done for r in self.waited())
 
     def busy(self) -> bool:
         """Queries held, updates expected or answers held."""
         return bool(self.deferred or self.expect or self.held)
 
     def may_feed(self, s: float) -> bool:
-        """Lockstep: every live teammate has read its source to ``s - lag``; and this node's oldest detection group
-        still waiting for answers is less than half a horizon before ``s`` (reading on would push it beyond the
-        horizon before its answers or their timeout come)."""
+        """Lockstep: every live teammate waited for (:meth:`waited`) has read its source to ``s - lag``; and this
+        node's oldest detection group still waiting for answers is less than half a horizon before ``s`` (reading on
+        would push it beyond the horizon before its answers or their timeout come)."""
         first = self.node.first_pending
         if first is not None and s - first[0] > self.node.horizon / 2:
             return False
         need = s - self.settings.lag
-        for r in self.alive:
+        for r in self.waited():
             if r not in self.done and self.progress.get(r, -math.inf) < need:
                 return False
         return True
 
     def group_may_go(self, s: float) -> bool:
-        """A detection group (key ``(s, 1, robot)``) is read once every live teammate has read its source up to
-        ``s`` (their exchanges keyed before it have started) and no pairwise update keyed before it is still
+        """A detection group (key ``(s, 1, robot)``) is read once every live teammate waited for has read its source
+        up to ``s`` (their exchanges keyed before it have started) and no pairwise update keyed before it is still
         expected, so that groups are applied across the team in key order, as the in-process runner does, and an
         update never has to be replayed under a group applied before it."""
         key = (s, 1, self.robot, ())
         if any(k < key for k in self.expect) or self.others(key) is not None:
             return False
-        return all(r in self.done or (*self._progress_key.get(r, (-math.inf, 0)), r) > key[:3] for r in self.alive)
+        return all(r in self.done or (*self._progress_key.get(r, (-math.inf, 0)), r) > key[:3] for r in self.waited())
 
     def ready(self, q: Message, since: float) -> bool:
         """A query is answered once nothing this node will still read or apply is keyed before it: its source has
         passed the query's key, no earlier detection group waits, no pairwise update it expects is keyed earlier,
-        and every live teammate has read its source past the stamp (so no earlier exchange can still start). Then
-        the first answer is the final one and no revision follows (without faults). Held ``hold_timeout`` s, it is
-        answered whatever the state (a revision follows if needed)."""
+        and every live teammate waited for has read its source past the stamp (so no earlier exchange can still
+        start). Then the first answer is the final one and no revision follows (without faults). Held
+        ``hold_timeout`` s, it is answered whatever the state (a revision follows if needed)."""
         qkey = (float(q.stamp), 1, q.sender, tuple(q.sub))
         why = self.unsettled(qkey)
         if why is None:
@@ -258,7 +295,7 @@ class Lockstep:
         why = self.others(qkey)
         if why is not None:
             return why
-        for r in self.alive:  # a teammate whose next input is keyed before the query may still start an exchange
+        for r in self.waited():  # a teammate whose next input is keyed before the query may still start an exchange
             if r not in self.done:
                 t, prio = self._progress_key.get(r, (-math.inf, 0))
                 if (t, prio, r) < qkey[:3]:

@@ -18,7 +18,9 @@ own events, recorded or live). Its settings: :class:`~swarmloc.net.settings.NetS
 the node, and the loop.
 
 **Time and determinism.** Stamps are the source's (data) clock; wall time only paces. Lockstep: a node reads its
-next input (stamp ``s``) once every live teammate has announced (:class:`~swarmloc.net.schema.Progress`) that it
+next input (stamp ``s``) once every live teammate it waits for (all; ``diekf`` in clusters on a recording: its
+cluster and the robots it detects or is detected by, :func:`~swarmloc.net.lockstep.watched`) has announced
+(:class:`~swarmloc.net.schema.Progress`) that it
 has read its own source up to ``s - lag`` (the node with the lowest next stamp can always go on, so this never
 deadlocks), with ``speed > 0`` not before ``(s - t_start) / speed`` wall seconds, and not more than half a horizon
 past its own oldest detection group still waiting for answers. A detection group is read only once every teammate
@@ -53,7 +55,7 @@ also published as a ROS 2 ``geometry_msgs/msg/PoseWithCovarianceStamped`` under 
 **The end.** When its source is exhausted the node announces ``Progress(t=inf)``; once every live member has and
 the node has been idle (no reply outstanding, nothing queued) for ``quiet`` s, it expires what still waits,
 publishes its final beliefs, announces ``done`` and its :class:`~swarmloc.net.schema.Report`, and keeps answering
-until every live member is done and ``quiet`` s passed without traffic (at most ``linger`` s).
+until every live member it waits for is done and ``quiet`` s passed without traffic (at most ``linger`` s).
 """
 
 from __future__ import annotations
@@ -77,7 +79,7 @@ from swarmloc.net.feed import LiveFeed
 from swarmloc.net.inbound import Inbound
 from swarmloc.net.inputs import Inputs
 from swarmloc.net.intake import Intake, vouch_for
-from swarmloc.net.lockstep import Lockstep
+from swarmloc.net.lockstep import Lockstep, watched
 from swarmloc.net.outbound import Envelopes, Outbound
 from swarmloc.net.publishing import Announcer, Publishing, lagging
 from swarmloc.net.schema import SERVER, Belief, Lines, Progress, Report
@@ -111,6 +113,10 @@ class NetNode:
         everything it receives must be signed by the member it claims to come from (refusals counted
         ``auth_<category>``); None: an unauthenticated team (tests on one machine, a trusted network).
     scans: this robot's range scans (see the attribute).
+    detected: ``(observer, target)`` of every robot detection of the team's run, when known in advance (a recording:
+        :func:`~swarmloc.net.lockstep.detected_pairs`): with ``diekf`` in clusters, lockstep then waits only for the
+        cluster and the robots this one detects or is detected by (:func:`~swarmloc.net.lockstep.watched`); None: for
+        every teammate.
     """
 
     def __init__(
@@ -128,6 +134,7 @@ class NetNode:
         on_settled: Callable[[float, Any], None] | None = None,
         auth: Auth | None = None,
         scans: Any = None,
+        detected: Iterable[tuple[int, int]] | None = None,
         **kw: Any,
     ) -> None:
         if len(node.robots) != 1:
@@ -163,19 +170,25 @@ class NetNode:
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
         mates: list[str] | None = None  # whose broadcasts it hears: all ("*"), or diekf in clusters its cluster's
+        cluster: tuple[int, ...] | None = None
         if self.broadcasts:
             mates = ["*"]
             if isinstance(node, RobotNode) and node.protocol is not None and node.protocol.cluster:
-                mates = [str(m) for m in node.team if m != self.robot]
+                cluster = tuple(node.team)
+                mates = [str(m) for m in cluster if m != self.robot]
+        self.watched = watched(self.robot, cluster, detected)
+        """The teammates whose progress it waits for, and subscribes to (:func:`~.lockstep.watched`; None: all)."""
         self.envelopes = Envelopes(auth, team, self.robot)
         """What it sends, numbered in one sequence and sealed (:class:`~.outbound.Envelopes`)."""
         seal = self.envelopes.seal
         self.wiring = Wiring(session, self.scope, team, self.robot, intake.offer, seal, auth=auth, mates=mates,
+                             watched=["*"] if self.watched is None else [str(r) for r in sorted(self.watched)],
                              delayed=lagging(node), lines=scans is not None,
                              ros_domain=settings.ros_domain)  # fmt: skip
         """Its Zenoh declarations, and publishing on its own keys (:class:`~.wiring.Wiring`)."""
         self.lockstep = Lockstep(node, self.robot, self.roster, settings, self.counts, next_key=self.inputs.next_key,
-                                 step=self._step, others=lambda key: self.broadcaster.unsettled(key))  # fmt: skip
+                                 step=self._step, others=lambda key: self.broadcaster.unsettled(key),
+                                 watched=self.watched)  # fmt: skip
         """The teammates; when to read an input, answer a query, release an answer (:class:`~.lockstep.Lockstep`)."""
         self.outbound = Outbound(node, self.robot, self.roster, self.scope, settings, self.counts,
                                  wiring=self.wiring, seal=seal, intake=intake, lockstep=self.lockstep, step=self._step,
@@ -409,7 +422,7 @@ class NetNode:
                 quiet_since = time.monotonic()
             if time.monotonic() - self.announcer.last_wall > 0.2:
                 self.announcer.announce(math.inf, done=True, force=True)
-            settled = self.lockstep.alive <= self.lockstep.done and self._idle()
+            settled = self.lockstep.waited() <= self.lockstep.done and self._idle()
             if settled and time.monotonic() - quiet_since >= self.settings.quiet:
                 break
 

@@ -2,7 +2,8 @@
 
 Everything received is put on the node's one queue (``inbound.intake``, within its budgets:
 :mod:`swarmloc.net.intake`) as ``(kind, sample)`` and handled on the node's thread (:mod:`swarmloc.net.inbound`):
-queries on ``robot/<id>/query``, pushed messages on ``robot/<id>/inbox``, every teammate's ``progress``, and
+queries on ``robot/<id>/query``, pushed messages on ``robot/<id>/inbox``, the ``progress`` of the teammates its
+lockstep waits for (:func:`~swarmloc.net.lockstep.watched`), and
 liveliness changes under ``alive``. It publishes its ``belief`` and
 ``progress`` (a smoother's ``delayed`` output too; and, with ``ros_domain``, a ROS 2 pose topic in rmw_zenoh's
 layout, with the node's and the publisher's rmw_zenoh liveliness tokens: :mod:`swarmloc.net.rosgraph`), and holds
@@ -31,6 +32,7 @@ class Wiring:
     :class:`~swarmloc.net.intake.Intake`); ``env``: ``env(body, key)``, the signed envelope of a message
     (:meth:`~.outbound.Envelopes.seal`); ``auth``: the per-pair sessions to attach (None: unauthenticated);
     ``mates``: the teammates whose broadcasts it hears (``["*"]``: all; None: a node without broadcasts);
+    ``watched``: the teammates whose progress it hears (``["*"]``: all);
     ``delayed``, ``lines``: whether it publishes a smoother's delayed output and scans' lines; ``ros_domain``: the
     ROS domain its beliefs are published in too (None: not)."""
 
@@ -45,12 +47,13 @@ class Wiring:
         *,
         auth: Auth | None = None,
         mates: Sequence[str] | None = None,
+        watched: Sequence[str] = ("*",),
         delayed: bool = False,
         lines: bool = False,
         ros_domain: int | None = None,
     ) -> None:
         self.session, self.scope, self.team, self.robot = session, scope, team, robot
-        self.offer, self.env, self.auth, self.mates = offer, env, auth, mates
+        self.offer, self.env, self.auth, self.mates, self.watched = offer, env, auth, mates, watched
         self.delayed, self.lines, self.ros_domain = delayed, lines, ros_domain
         self.decl: list[Any] = []
         """What it declared (undeclared by :meth:`close`); a part that declares more appends it here."""
@@ -76,26 +79,21 @@ class Wiring:
         put = self.offer  # within the budgets of what a node takes in (:mod:`.intake`)
         self.decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
         self.decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
-        self.decl.append(  # the teammates' progress (not this session's own: it would be verified for nothing)
-            s.declare_subscriber(
-                robot_key(team, "*", "progress"),
-                handler=lambda x: put(("progress", x)),
-                allowed_origin=zenoh.Locality.REMOTE,
-            )  # fmt: skip
-        )
+        # the teammates' progress (lockstep's: :func:`~swarmloc.net.lockstep.watched`) and broadcasts (a team
+        # estimator: :mod:`swarmloc.net.broadcast`; diekf in clusters: its cluster's only, each a key of its own, so
+        # that what a node takes in is flat in the team's size); not this session's own: verified for nothing
+        for kind, robots in (("progress", self.watched), ("broadcast", self.mates or ())):
+            for m in robots:
+                self.decl.append(
+                    s.declare_subscriber(
+                        robot_key(team, m, kind),
+                        handler=lambda x, kind=kind: put((kind, x)),
+                        allowed_origin=zenoh.Locality.REMOTE,
+                    )  # fmt: skip
+                )
         self.decl.append(
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
         )
-        # the teammates' broadcasts (a team estimator: :mod:`swarmloc.net.broadcast`); diekf in clusters: its
-        # cluster's only (each a key of its own), so that what a node takes in is flat in the team's size
-        for m in self.mates or ():
-            self.decl.append(
-                s.declare_subscriber(
-                    robot_key(team, m, "broadcast"),
-                    handler=lambda x: put(("broadcast", x)),
-                    allowed_origin=zenoh.Locality.REMOTE,
-                )  # fmt: skip
-            )
         for kind in ("belief", "progress", *(["delayed"] if self.delayed else []), *(["lines"] if self.lines else [])):
             self.pub[kind] = s.declare_publisher(robot_key(team, r, kind), congestion_control=self.block)
         if self.ros_domain is not None:

@@ -1,0 +1,160 @@
+"""The lock step's progress, scoped (:func:`swarmloc.net.lockstep.watched`): with ``diekf`` in clusters and a recorded
+source a node subscribes to, and waits for, the progress of its cluster's mates and of the robots it detects or is
+detected by only; any other node (and a live source) to every teammate's, as before.
+
+Offline (a :class:`NetNode` on a session that records its declarations): the keys it subscribes to are exactly the
+rule's; lockstep neither waits for a teammate it does not watch nor declares it lost. Live (127.0.0.1, threads of
+this process): 10 robots of the grouped swarm scene in clusters of 5, each watching fewer than its 9 teammates,
+equal the in-process run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import math
+import sys
+from collections import Counter
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+import pytest
+from test_net import max_diff, reference, thread_team
+
+from swarmloc.config import Config
+from swarmloc.datasets.source import Source
+from swarmloc.net.entry import make_node
+from swarmloc.net.lockstep import detected_pairs, watched
+from swarmloc.net.process import NetNode
+from swarmloc.net.schema import Progress
+from swarmloc.net.team import TeamRun
+from swarmloc.net.transport import robot_key
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _scene_module() -> ModuleType:
+    if "swarm_scene" not in sys.modules:  # as tests/test_diekf_swarm.py loads it
+        spec = importlib.util.spec_from_file_location("swarm_scene", BENCH / "swarm_scene.py")
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["swarm_scene"] = module
+        spec.loader.exec_module(module)
+    return sys.modules["swarm_scene"]
+
+
+def clustered(src: Source, k: int) -> Source:
+    """``src`` with ``[filter] diekf_cluster = k``."""
+    cfg: Config = src.config
+    f = dataclasses.replace(cfg.filter, diekf_cluster=k)
+    return dataclasses.replace(src, config=dataclasses.replace(cfg, filter=f))
+
+
+class _Decl:
+    def undeclare(self) -> None:
+        pass
+
+
+class _Liveliness:
+    def declare_subscriber(self, key: str, **kw: Any) -> _Decl:
+        return _Decl()
+
+    def declare_token(self, key: str) -> _Decl:
+        return _Decl()
+
+
+class _Declarations:
+    """A session that records the keys a node subscribes to (nothing is sent or received)."""
+
+    def __init__(self) -> None:
+        self.subscribed: list[str] = []
+
+    def declare_subscriber(self, key: str, **kw: Any) -> _Decl:
+        self.subscribed.append(key)
+        return _Decl()
+
+    def declare_queryable(self, key: str, **kw: Any) -> _Decl:
+        return _Decl()
+
+    def declare_publisher(self, key: str, **kw: Any) -> _Decl:
+        return _Decl()
+
+    def liveliness(self) -> _Liveliness:
+        return _Liveliness()
+
+
+def opened(src: Source, robot: int, est: str = "diekf", **kw: Any) -> tuple[NetNode, list[str]]:
+    """Robot ``robot``'s node, opened on a recording session, and the progress keys it subscribed to."""
+    node = make_node(est, robot, src.initial[robot], src.config, src.landmarks, team=src.robots)
+    node.start(src.t_start)
+    s = _Declarations()
+    net = NetNode(node, src.own_events(robot), session=s, team="t", roster=src.robots, record_times=(), **kw)
+    net.wiring.open()
+    net.wiring.close()
+    return net, sorted(k for k in s.subscribed if k.endswith("/progress"))
+
+
+@pytest.mark.unit
+def test_a_node_in_clusters_subscribes_to_the_progress_of_its_cluster_and_its_detections_only() -> None:
+    """20 robots in clusters of 5: robot 8 (cluster 5-9) without detections subscribes to its 4 mates' progress, not
+    its 19 teammates'; with the grouped scene's detections, to its mates' and the outsiders it detects or that detect
+    it; without the detections known (a live source), or without clusters, to every teammate's (one key for all)."""
+    src = clustered(_scene_module().scene(20, 3.0, 1, "grouped"), 5)
+    net, keys = opened(src, 8, detected=())
+    assert net.watched == {5, 6, 7, 9}
+    assert keys == sorted(robot_key("t", r, "progress") for r in (5, 6, 7, 9))
+    pairs = detected_pairs(src.events)
+    outsiders = {t for o, t in pairs if o == 8} | {o for o, t in pairs if t == 8}
+    outsiders -= {5, 6, 7, 8, 9}
+    assert len(outsiders) == 2  # in 3 s robot 8 meets 2 outsiders
+    net, keys = opened(src, 8, detected=pairs)
+    assert net.watched == {5, 6, 7, 9} | outsiders
+    assert keys == sorted(robot_key("t", r, "progress") for r in net.watched)
+    for kw, est, k in (({}, "diekf", 5), ({"detected": pairs}, "diekf", 0), ({"detected": pairs}, "rdl", 5)):
+        net, keys = opened(clustered(src, k), 8, est, **kw)
+        assert net.watched is None and keys == [robot_key("t", "*", "progress")]
+    assert watched(3, None, pairs) is None and watched(3, (0, 1, 2, 3), None) is None
+    assert watched(3, (0, 1, 2, 3), [(3, 9), (12, 3), (12, 13)]) == {0, 1, 2, 9, 12}
+
+
+@pytest.mark.unit
+def test_lockstep_waits_for_a_watched_teammate_only_and_never_declares_another_lost() -> None:
+    """Robot 7 watching {5, 6, 8, 9}: robot 12, alive but never heard, holds none of its inputs and is not declared
+    lost however long it stays silent; robot 5, alive and behind, holds them until it announces progress."""
+    src = clustered(_scene_module().scene(20, 3.0, 1, "grouped"), 5)
+    net, _ = opened(src, 7, detected=())
+    ls = net.lockstep
+    ls.alive |= {5, 6, 8, 9, 12}
+    for r in (6, 8, 9):
+        ls.on_progress(Progress(robot=r, t=math.inf))
+    s = src.t_start + 1.0
+    assert not ls.may_feed(s)  # robot 5 is behind
+    ls.on_progress(Progress(robot=5, t=s + 1.0))
+    assert ls.may_feed(s) and ls.waited() == {5, 6, 8, 9}
+    ls._beat[12] = ls._heard[12] = -1e9  # silent since long ago
+    ls.check_lost(math.inf)
+    assert ls.alive >= {5, 6, 8, 9, 12} and not ls.lost and ls.counts["progress_received"] == 4
+
+
+@pytest.mark.network
+def test_diekf_in_clusters_watching_fewer_teammates_equals_in_process() -> None:
+    """10 robots of the grouped scene (5 s: robots 0, 1 and 7 meet outsiders) in clusters of 5, threads of this
+    process on 127.0.0.1, each node given the team's detections: every node watches fewer than its 9 teammates, and
+    the run equals the in-process one (every recorded mean and covariance to 1e-6)."""
+    src = clustered(_scene_module().scene(10, 5.0, 1, "grouped"), 5)
+    run = TeamRun()
+    team = f"progress{np.random.default_rng().integers(1 << 30)}"
+    nets, reports = thread_team(src, "diekf", max_wall=120.0, team=team, detected=detected_pairs(src.events),
+                                on_belief=run.keep)  # fmt: skip
+    assert len(reports) == 10
+    assert all(n.watched is not None and len(n.watched) < 9 for n in nets)
+    assert sum(len(n.watched or ()) > 4 for n in nets) == 3
+    net: Counter[str] = Counter()
+    for rep in reports.values():
+        net.update(rep.net)
+    assert net["broadcasts_applied"] > 0 and net.get("peers_lost", 0) == 0
+    ref = reference(src, "diekf")
+    assert ref.stats["fused"] > 100
+    assert max_diff(dataclasses.replace(ref, tracks=run.tracks(src.truth)), ref) <= 1e-6
