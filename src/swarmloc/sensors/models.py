@@ -22,13 +22,14 @@ table of kinds exists once.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from swarmloc.events import Kind
 from swarmloc.lie import wrap_angle as wrap
+from swarmloc.sensors import planar
 
 MIN_RANGE = 1e-6
 """Predicted ranges [m] below this make range/bearing models undefined (:func:`degenerate`)."""
@@ -36,14 +37,11 @@ MIN_RANGE = 1e-6
 Prediction = tuple[np.ndarray, np.ndarray, np.ndarray]
 """``(h, H_i, H_k)``: a predicted measurement and its Jacobians w.r.t. the observer and the target."""
 
-
-def _rel(xi: np.ndarray, pk: np.ndarray) -> tuple[np.ndarray, ...]:
-    dx, dy = pk[..., 0] - xi[..., 0], pk[..., 1] - xi[..., 1]
-    c, s = np.cos(xi[..., 2]), np.sin(xi[..., 2])
-    return dx, dy, c, s, c * dx + s * dy, -s * dx + c * dy
+_P = planar.build(np)
+"""The planar models' math (:mod:`swarmloc.sensors.planar`) on numpy arrays."""
 
 
-def _stack(rows: list[list[np.ndarray | float]], shape: tuple[int, ...]) -> np.ndarray:
+def _stack(rows: Sequence[Sequence[np.ndarray | float]], shape: tuple[int, ...]) -> np.ndarray:
     """``(..., len(rows), len(rows[0]))`` from scalars/arrays broadcast to ``shape``."""
     return np.stack([np.stack([np.broadcast_to(v, shape) for v in row], axis=-1) for row in rows], axis=-2)
 
@@ -51,17 +49,11 @@ def _stack(rows: list[list[np.ndarray | float]], shape: tuple[int, ...]) -> np.n
 def relative_pose(xi: np.ndarray, xk: np.ndarray) -> Prediction:
     """Pose of robot ``k`` in robot ``i``'s frame: ``(R_i^T (p_k - p_i), theta_k - theta_i)``."""
     xi, xk = np.asarray(xi, dtype=float), np.asarray(xk, dtype=float)
-    dx, dy, c, s, bx, by = _rel(xi, xk)
+    h, Hi, Hk = _P.pose(xi[..., 0], xi[..., 1], xi[..., 2], xk[..., 0], xk[..., 1], xk[..., 2])
     if xi.ndim == 1 and xk.ndim == 1:  # one pair: plain arrays are ~10x faster than stacking
-        h = np.array([bx, by, wrap(xk[2] - xi[2])])
-        Hi = np.array([[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]])
-        Hk = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        return h, Hi, Hk
-    h = np.stack([bx, by, wrap(xk[..., 2] - xi[..., 2])], axis=-1)
-    shape = h.shape[:-1]
-    Hi = _stack([[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]], shape)
-    Hk = _stack([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]], shape)
-    return h, Hi, Hk
+        return np.array(h), np.array(Hi), np.array(Hk)
+    h = np.stack(h, axis=-1)
+    return h, _stack(Hi, h.shape[:-1]), _stack(Hk, h.shape[:-1])
 
 
 def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> Prediction:
@@ -71,21 +63,16 @@ def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None)
     """
     xi, pk = np.asarray(xi, dtype=float), np.asarray(pk, dtype=float)
     target_dim = pk.shape[-1] if target_dim is None else target_dim
-    dx, dy, c, s, bx, by = _rel(xi, pk)
-    q = dx * dx + dy * dy
-    r = np.sqrt(q)
+    h, Hi, Hk2 = _P.range_bearing(xi[..., 0], xi[..., 1], xi[..., 2], pk[..., 0], pk[..., 1])
     if xi.ndim == 1 and pk.ndim == 1:
-        h = np.array([r, wrap(np.arctan2(by, bx))])
-        Hi = np.array([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]])
         Hk = np.zeros((2, target_dim))
-        Hk[:, :2] = -Hi[:, :2]
-        return h, Hi, Hk
-    h = np.stack([r, wrap(np.arctan2(by, bx))], axis=-1)
+        Hk[:, :2] = Hk2
+        return np.array(h), np.array(Hi), Hk
+    h = np.stack(h, axis=-1)
     shape = h.shape[:-1]
-    Hi = _stack([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]], shape)
     Hk = np.zeros((*shape, 2, target_dim))
-    Hk[..., :, :2] = -Hi[..., :, :2]
-    return h, Hi, Hk
+    Hk[..., :, :2] = _stack(Hk2, shape)
+    return h, _stack(Hi, shape), Hk
 
 
 def range_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> Prediction:
@@ -141,11 +128,11 @@ def pose_noise_to_cartesian(z: np.ndarray, cov_exp: np.ndarray) -> np.ndarray:
     ``d(x, y) = R(theta_z) d(v1, v2)`` and ``d theta = d alpha``. Batched.
     """
     z = np.asarray(z, dtype=float)
-    c, s = np.cos(z[..., 2]), np.sin(z[..., 2])
+    rows = _P.rotation(z[..., 2])
     if z.ndim == 1:
-        B = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        B = np.array(rows)
         return B @ cov_exp @ B.T
-    B = _stack([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], z.shape[:-1])
+    B = _stack(rows, z.shape[:-1])
     return B @ cov_exp @ np.swapaxes(B, -1, -2)
 
 
