@@ -31,18 +31,17 @@ import numpy as np
 from swarmloc.events import Kind
 from swarmloc.lie import wrap_angle as wrap
 from swarmloc.sensors import planar
-
-MIN_RANGE = 1e-6
-"""Predicted ranges [m] below this make range/bearing models undefined (:func:`degenerate`)."""
+from swarmloc.sensors.planar import MIN_RANGE as MIN_RANGE  # ranges [m] below it are degenerate (:func:`degenerate`)
 
 Prediction = tuple[np.ndarray, np.ndarray, np.ndarray]
 """``(h, H_i, H_k)``: a predicted measurement and its Jacobians w.r.t. the observer and the target."""
+
 
 class _Numpy:
     """numpy as :func:`swarmloc.sensors.planar.build` uses it, ``mod`` the operator ``%``: numpy's floor modulo on
     arrays, and on one pair's NumPy scalars its bits 4x faster (:func:`swarmloc.lie.wrap_angle`'s float path)."""
 
-    cos, sin, sqrt, arctan2, mod = np.cos, np.sin, np.sqrt, np.arctan2, staticmethod(operator.mod)
+    cos, sin, sqrt, arctan2, hypot, mod = np.cos, np.sin, np.sqrt, np.arctan2, np.hypot, staticmethod(operator.mod)
 
 
 _P = planar.build(_Numpy)
@@ -115,7 +114,7 @@ def degenerate(kind: Kind, xi: np.ndarray, xk: np.ndarray) -> np.ndarray:
     if kind == Kind.POSE:
         return np.zeros(np.broadcast_shapes(np.shape(xi)[:-1], np.shape(xk)[:-1]), dtype=bool)
     xi, xk = np.asarray(xi, dtype=float), np.asarray(xk, dtype=float)
-    return np.hypot(xk[..., 0] - xi[..., 0], xk[..., 1] - xi[..., 1]) < MIN_RANGE
+    return _P.degenerate(xi[..., 0], xi[..., 1], xk[..., 0], xk[..., 1])
 
 
 def residual(kind: str, z: np.ndarray, h: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ a robot seen as a point) at ``(px, py)``. A model returns ``(h, Hi, Hk)``: the p
 Jacobian with respect to the observer's state and with respect to the target's, as tuples of entries (an entry: an
 array or a float of ``xp``, or a float constant). Measurements are in the observer's body frame (x forward, y left);
 bearings and relative headings are wrapped to (-pi, pi]. Range and bearing divide by the range: the callers reject
-a target within :data:`swarmloc.sensors.models.MIN_RANGE` of the observer. Units: metres, radians.
+a target within :data:`MIN_RANGE` of the observer (``degenerate``). Units: metres, radians.
 """
 
 from __future__ import annotations
@@ -23,6 +23,9 @@ from collections.abc import Callable
 from functools import cache
 from types import ModuleType
 from typing import Any, Protocol, TypeVar
+
+MIN_RANGE = 1e-6
+"""Predicted ranges [m] below this make the range and bearing models undefined (``degenerate`` of :func:`build`)."""
 
 _PI = math.pi
 _TAU = 2 * math.pi
@@ -46,7 +49,7 @@ def plain(fn: _F) -> _F:
 @cache
 def build(xp: Any, jit: Jit = plain) -> ModuleType:
     """The planar models for namespace ``xp``, each compiled by ``jit``, as the attributes of a module object:
-    ``wrap``, ``offset``, ``pose``, ``range_bearing``, ``rotation`` (see the module docstring)."""
+    ``wrap``, ``offset``, ``pose``, ``range_bearing``, ``degenerate``, ``rotation`` (see the module docstring)."""
 
     @jit
     def wrap(a: Any) -> Any:
@@ -80,6 +83,12 @@ def build(xp: Any, jit: Jit = plain) -> ModuleType:
         Hi = ((-dx / rng, -dy / rng, 0.0), (dy / q, -dx / q, -1.0))
         Hk = ((dx / rng, dy / rng), (-dy / q, dx / q))
         return (rng, wrap(xp.arctan2(by, bx))), Hi, Hk
+
+    @jit
+    def degenerate(x0: Any, y0: Any, px: Any, py: Any) -> Any:
+        """Whether the point at ``(px, py)`` is within :data:`MIN_RANGE` of the observer at ``(x0, y0)``, where its
+        range and bearing are undefined: a detection the callers reject instead of fusing NaNs."""
+        return xp.hypot(px - x0, py - y0) < MIN_RANGE
 
     @jit
     def rotation(a: Any) -> Any:
