@@ -8,7 +8,9 @@ eqs. 2.6-2.9 (relative pose).
 Every function is batched over leading axes: ``xi`` ``(..., 3)``, ``xk`` ``(..., 3)`` for a robot or ``(..., 2)``
 for a landmark, broadcast against each other. Each returns ``(h, H_i, H_k)``: the predicted measurement
 ``(..., m)``, its Jacobian with respect to the observer's state ``(..., m, 3)`` and with respect to the target's
-state ``(..., m, 3)`` for a robot, ``(..., m, 2)`` for a landmark.
+state ``(..., m, 3)`` for a robot, ``(..., m, 2)`` for a landmark. The math is :mod:`swarmloc.sensors.planar`'s,
+written once on an array namespace: the engine's compiled replays and its fast EKF path evaluate the same
+expressions.
 
 Range and bearing are undefined when the target sits on the observer (range 0): the Jacobians divide by the
 range. :func:`degenerate` tells the callers, which reject such a measurement instead of fusing NaNs.
