@@ -161,7 +161,7 @@ def _geometry(xp: Any, jit: Jit) -> dict[str, Any]:
 
     planar = planar_models.build(xp, jit)
     wrap = planar.wrap  # an angle [rad] wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`)
-    pose, range_bearing, rotation = planar.pose, planar.range_bearing, planar.rotation
+    pose, range_bearing, rotation, degenerate = planar.pose, planar.range_bearing, planar.rotation, planar.degenerate
 
     @jit
     def pick6(c: Value, a: Row6, b: Row6) -> Row6:
