@@ -16,8 +16,8 @@ pytestmark = pytest.mark.unit
 SRC = Path(__file__).resolve().parents[1] / "src" / "swarmloc"
 OWN_FORM = {
     "lie/se2.py": "wrap_angle itself",
-    "engine/soa.py": "the engine's kernels over an array namespace (numpy, jax.numpy traced, numba generated)",
-    "engine/formulas.py": "the replays' formulas over an array namespace (numba on scalars, jax.numpy traced)",
+    "sensors/planar.py": "the measurement models over an array namespace (numpy, numba on scalars, jax.numpy traced, "
+    "numba generated): the engine's kernels and the nodes' models call it",
     "sim/lab.py": "np.angle(exp(1j x)) gives -pi at x = -pi: it decides which way a scripted robot turns",
     "association/pmr.py": "angles ordered in [0, 2 pi), not wrapped",
     "sensors/snapshots.py": "[-pi, pi) residuals of a fit: an ulp more or less moves the fitted camera model by 1e-8",

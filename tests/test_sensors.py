@@ -1,13 +1,17 @@
 """Tests for swarmloc.sensors.models: predictions against SE(2) geometry, Jacobians against central finite
-differences (robot and landmark targets), residual wrapping across +-pi and the pose-noise conversion."""
+differences (robot and landmark targets), residual wrapping across +-pi and the pose-noise conversion; the one source
+of the models (swarmloc.sensors.planar) compiled as the engine's replays run it."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from numba import njit
 
+from swarmloc.engine import numba_xp
+from swarmloc.events import Kind
 from swarmloc.lie import SE2
-from swarmloc.sensors import models
+from swarmloc.sensors import models, planar
 
 pytestmark = pytest.mark.unit
 
@@ -147,3 +151,26 @@ def test_pose_noise_to_cartesian_is_the_first_order_map():
         A = rng.standard_normal((3, 3))
         C = A @ A.T + 0.1 * np.eye(3)
         np.testing.assert_allclose(models.pose_noise_to_cartesian(z, C), J @ C @ J.T, atol=1e-7)
+
+
+def test_the_planar_models_compiled_for_the_replays_are_the_nodes():
+    """The one source of the planar models (:mod:`swarmloc.sensors.planar`) compiled by numba on scalars, as the
+    engine's replays run it, gives the nodes' batched numpy predictions, Jacobians, noise rotation and degenerate
+    rule (1e-12: the two libm's may differ in a last bit), for robot and landmark targets and over batches."""
+    P = planar.build(numba_xp, njit)
+    rng = np.random.default_rng(7)
+    xi, xk = rng.normal(0, 4, (40, 3)), rng.normal(0, 4, (40, 3))
+    xk[0, :2] = xi[0, :2] + 1e-7  # degenerate
+    C = np.array([[0.3, 0.1, 0.02], [0.1, 0.2, -0.01], [0.02, -0.01, 0.05]])
+    want = {"pose": models.relative_pose(xi, xk), "rb": models.range_bearing(xi, xk),
+            "noise": (models.pose_noise_to_cartesian(xk, C),)}  # fmt: skip
+    for n in range(1, 40):
+        (h, Hi, Hk), (g, Gi, Gk) = P.pose(*xi[n], *xk[n]), P.range_bearing(*xi[n], *xk[n, :2])
+        B = np.array(P.rotation(xk[n, 2]))
+        got = {"pose": (h, Hi, Hk), "rb": (g, Gi, np.pad(np.array(Gk), ((0, 0), (0, 1)))), "noise": (B @ C @ B.T,)}
+        for key, parts in got.items():
+            for a, b in zip(parts, want[key], strict=True):
+                np.testing.assert_allclose(np.array(a, dtype=float), b[n], rtol=1e-12, atol=1e-12, err_msg=key)
+    near = models.degenerate(Kind.RANGE, xi, xk)
+    assert [P.degenerate(*xi[n, :2], *xk[n, :2]) for n in range(40)] == list(near)
+    assert near[0] and not near[1:].any()

@@ -15,7 +15,8 @@ from numba import njit
 
 from swarmloc.engine import numba_xp as xp
 from swarmloc.events import Kind
-from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
+from swarmloc.sensors import planar
+from swarmloc.sensors.models import KIND_ORDER
 
 _RANGE_BEARING = KIND_ORDER[Kind.RANGE_BEARING]
 Row = tuple[float, float, float]
@@ -97,8 +98,12 @@ def inverse3(S: Mat) -> tuple[Mat, Any]:
     return ((a00 / d, a01 / d, a02 / d), (a10 / d, a11 / d, a12 / d), (a20 / d, a21 / d, a22 / d)), regular
 
 
+_near = planar.build(xp, _compile).degenerate
+
+
 @_compile
 def degenerate(kind: Any, x0: Any, y0: Any, x1: Any, y1: Any) -> Any:
     """Whether a detection of ``kind`` by the robot at ``(x0, y0)`` of a target at ``(x1, y1)`` is refused as
-    degenerate: a range or a bearing (range-bearing, range, bearing) nearer than ``MIN_RANGE``."""
-    return xp.logical_and(kind >= _RANGE_BEARING, xp.hypot(x1 - x0, y1 - y0) < MIN_RANGE)
+    degenerate: a range or a bearing (range-bearing, range, bearing) of a point where it is undefined
+    (:mod:`swarmloc.sensors.planar`'s ``degenerate``)."""
+    return xp.logical_and(kind >= _RANGE_BEARING, _near(x0, y0, x1, y1))

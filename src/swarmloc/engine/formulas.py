@@ -17,10 +17,9 @@ order), so the numba replays give the same bits as before. Decisions are *rules*
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from functools import cache
 from types import ModuleType
-from typing import Any, Protocol, TypeAlias, TypeVar
+from typing import Any, TypeAlias
 
 from swarmloc.engine.codes import (
     ABSOLUTE,
@@ -43,11 +42,11 @@ from swarmloc.engine.codes import (
 )
 from swarmloc.events import Kind
 from swarmloc.kernels.ci import W_BOUNDS, WEIGHT_GRID
+from swarmloc.sensors import planar as planar_models
 from swarmloc.sensors.models import KIND_ORDER
+from swarmloc.sensors.planar import Jit, plain
 
 RANGE_BEARING, RANGE, BEARING = KIND_ORDER[Kind.RANGE_BEARING], KIND_ORDER[Kind.RANGE], KIND_ORDER[Kind.BEARING]
-_PI = math.pi
-_TAU = 2 * math.pi
 _W_LO, _W_HI = W_BOUNDS
 W_STEP = (_W_HI - _W_LO) / (WEIGHT_GRID - 1)
 """The spacing of the covariance-intersection weight's grid (:func:`swarmloc.kernels.ci.joint_weight`)."""
@@ -65,22 +64,10 @@ Mat3: TypeAlias = tuple[Vec3, Vec3, Vec3]
 """A 3x3 matrix as rows of entries."""
 Row6: TypeAlias = tuple[Value, Value, Value, Value, Value, Value]
 """A Jacobian row over the observer's and the target's pose, or a covariance's upper triangle."""
-_F = TypeVar("_F", bound=Callable[..., Any])
-
-
-class Jit(Protocol):
-    """A compiler of the formulas: a function in, a function of the same signature out (``numba.njit``'s dispatcher,
-    or the function itself: :func:`_plain`)."""
-
-    def __call__(self, fn: _F, /) -> _F: ...
-
-
-def _plain(fn: _F) -> _F:
-    return fn
 
 
 @cache
-def build(xp: Any, jit: Jit = _plain) -> ModuleType:
+def build(xp: Any, jit: Jit = plain) -> ModuleType:
     """The formulas for namespace ``xp``, each compiled by ``jit`` (see the module docstring), as the attributes
     of a module object (numba compiles a module's attribute as it compiles a global of its own)."""
     out = ModuleType(f"{__name__}[{getattr(xp, '__name__', xp)}]")
@@ -172,10 +159,9 @@ def _decisions(xp: Any, jit: Jit) -> dict[str, Any]:
 def _geometry(xp: Any, jit: Jit) -> dict[str, Any]:
     """Angles, measurements, the invariant filters' noise and correction."""
 
-    @jit
-    def wrap(a: Value) -> Value:
-        """An angle [rad] wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`)."""
-        return _PI - xp.mod(_PI - a, _TAU)
+    planar = planar_models.build(xp, jit)
+    wrap = planar.wrap  # an angle [rad] wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`)
+    pose, range_bearing, rotation, degenerate = planar.pose, planar.range_bearing, planar.rotation, planar.degenerate
 
     @jit
     def pick6(c: Value, a: Row6, b: Row6) -> Row6:
@@ -183,34 +169,28 @@ def _geometry(xp: Any, jit: Jit) -> dict[str, Any]:
                 xp.where(c, a[4], b[4]), xp.where(c, a[5], b[5]))  # fmt: skip
 
     @jit
-    def measure(kind: Value, x0: Value, y0: Value, th: Value, xk: Vec3,
-                z: Vec3) -> tuple[Vec3, tuple[Row6, Row6, Row6], tuple[Value, Value]]:  # fmt: skip
-        """Residual ``r (3)``, Jacobian rows ``H (3 x 6)`` (the observer's columns, then the target's) and the
-        entries ``(cos, sin)`` of the rotation ``B(z)`` that makes a relative pose's noise Cartesian, of a
-        detection of ``kind`` by the robot at ``(x0, y0, th)`` of a target at ``xk = (x, y, theta)``, measured
-        ``z`` (:mod:`swarmloc.sensors.models`: predictions, residuals wrapped). A 1- or 2-row measurement (range,
+    def measure(kind: Value, x0: Value, y0: Value, th: Value, xk: Vec3, z: Vec3) -> tuple[Vec3, tuple[Row6, Row6, Row6],
+                                                                                            Mat3]:  # fmt: skip
+        """Residual ``r (3)``, Jacobian rows ``H (3 x 6)`` (the observer's columns, then the target's) and the rows of
+        the rotation ``B(z)`` that makes a relative pose's noise Cartesian, of a detection of ``kind`` by the robot at
+        ``(x0, y0, th)`` of a target at ``xk = (x, y, theta)``, measured ``z``: the models of
+        :mod:`swarmloc.sensors.planar` selected by ``kind``, residuals wrapped. A 1- or 2-row measurement (range,
         bearing; range-bearing) fills the first rows, the rest zero."""
-        dx, dy = xk[0] - x0, xk[1] - y0
-        c, s = xp.cos(th), xp.sin(th)
-        bx, by = c * dx + s * dy, -s * dx + c * dy
-        q = dx * dx + dy * dy
-        rng = xp.sqrt(q)
-        look = wrap(xp.arctan2(by, bx))
-        h_rng = (-dx / rng, -dy / rng, 0.0, dx / rng, dy / rng, 0.0)
-        h_brg = (dy / q, -dx / q, -1.0, -dy / q, dx / q, 0.0)
+        (bx, by, heading), Hp, Hq = pose(x0, y0, th, xk[0], xk[1], xk[2])
+        (rng, look), (hr, hb), (kr, kb) = range_bearing(x0, y0, th, xk[0], xk[1])
+        h_rng = (hr[0], hr[1], hr[2], kr[0], kr[1], 0.0)
+        h_brg = (hb[0], hb[1], hb[2], kb[0], kb[1], 0.0)
         zero = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         is_abs, is_pose, is_rb = kind == ABSOLUTE, kind == POSE, kind == RANGE_BEARING
         one = pick6(kind == RANGE, h_rng, h_brg)  # a 1-row measurement's row
-        h0 = pick6(is_abs, (1.0, 0.0, 0.0, 0.0, 0.0, 0.0), pick6(is_pose, (-c, -s, by, c, s, 0.0),
-                                                                   pick6(is_rb, h_rng, one)))  # fmt: skip
-        h1 = pick6(is_abs, (0.0, 1.0, 0.0, 0.0, 0.0, 0.0), pick6(is_pose, (s, -c, -bx, -s, c, 0.0),
-                                                                   pick6(is_rb, h_brg, zero)))  # fmt: skip
-        h2 = pick6(is_abs, (0.0, 0.0, 1.0, 0.0, 0.0, 0.0), pick6(is_pose, (0.0, 0.0, -1.0, 0.0, 0.0, 1.0), zero))
+        h0 = pick6(is_abs, (1.0, 0.0, 0.0, 0.0, 0.0, 0.0), pick6(is_pose, (*Hp[0], *Hq[0]), pick6(is_rb, h_rng, one)))
+        h1 = pick6(is_abs, (0.0, 1.0, 0.0, 0.0, 0.0, 0.0), pick6(is_pose, (*Hp[1], *Hq[1]), pick6(is_rb, h_brg, zero)))
+        h2 = pick6(is_abs, (0.0, 0.0, 1.0, 0.0, 0.0, 0.0), pick6(is_pose, (*Hp[2], *Hq[2]), zero))
         r0 = xp.where(is_abs, z[0] - x0, xp.where(is_pose, z[0] - bx, xp.where(kind == BEARING, wrap(z[0] - look),
                                                                                   z[0] - rng)))  # fmt: skip
         r1 = xp.where(is_abs, z[1] - y0, xp.where(is_pose, z[1] - by, xp.where(is_rb, wrap(z[1] - look), 0.0)))
-        r2 = xp.where(is_abs, wrap(z[2] - th), xp.where(is_pose, wrap(z[2] - wrap(xk[2] - th)), 0.0))
-        return (r0, r1, r2), (h0, h1, h2), (xp.cos(z[2]), xp.sin(z[2]))
+        r2 = xp.where(is_abs, wrap(z[2] - th), xp.where(is_pose, wrap(z[2] - heading), 0.0))
+        return (r0, r1, r2), (h0, h1, h2), rotation(z[2])
 
     @jit
     def world_noise(x: Value, y: Value, q: Row6) -> Row6:
@@ -239,7 +219,7 @@ def _geometry(xp: Any, jit: Jit) -> dict[str, Any]:
         return (c * x - s * y + (A * d0 - B * d1), s * x + c * y + (B * d0 + A * d1),
                 wrap(xp.arctan2(s * ct + c * st, c * ct - s * st)))  # fmt: skip
 
-    return {k: v for k, v in locals().items() if k not in ("xp", "jit")}
+    return {k: v for k, v in locals().items() if k not in ("xp", "jit", "planar")}
 
 
 def _weights(xp: Any, jit: Jit) -> dict[str, Any]:

@@ -47,7 +47,8 @@ from swarmloc.engine.formulas import build
 from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
-from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
+from swarmloc.sensors import planar
+from swarmloc.sensors.models import KIND_ORDER
 
 if TYPE_CHECKING:  # jax is optional: imported where it runs
     from jax import Array
@@ -134,7 +135,7 @@ def _segment(jnp: Any, code: int, size: int, carry: Carry, rows: Rows, start: Ar
         lk = tuple(jnp.where(on_map, lxy[k, i], xk[i]) for i in range(2))
         lp = (jnp.where(on_map, lcov[k, 0], pk[0]), jnp.where(on_map, lcov[k, 1], pk[1]),
               jnp.where(on_map, lcov[k, 2], pk[3]))  # fmt: skip
-        degenerate = jnp.hypot(lk[0] - x[0], lk[1] - x[1]) < MIN_RANGE
+        degenerate = planar.build(jnp).degenerate(x[0], x[1], lk[0], lk[1])
         lk = tuple(jnp.where(degenerate, 1.0 + a, a) for a in lk)  # finite; a degenerate row's result is discarded
         xn, pn, nis, ok = soa.landmark_update(jnp, x, p, lk, lp, zs[:2], (rs[0], rs[1], rs[3]))
     ok = ok & soa.positive_definite(jnp, pn)

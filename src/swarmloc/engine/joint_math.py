@@ -93,11 +93,11 @@ def measure(kind: int, X: np.ndarray, i: int, xk: np.ndarray, zq: np.ndarray, Rq
     first ``m`` rows, a relative pose's noise made Cartesian."""
     w = xk.shape[0]
     target = (xk[0] if w > 0 else 0.0, xk[1] if w > 1 else 0.0, xk[2] if w > 2 else 0.0)
-    r3, H3, (cz, sz) = F.measure(kind, X[i], X[i + 1], X[i + 2], target, (zq[0], zq[1], zq[2]))
+    r3, H3, B3 = F.measure(kind, X[i], X[i + 1], X[i + 2], target, (zq[0], zq[1], zq[2]))
     m = 3 if kind == ABSOLUTE or kind == POSE else (2 if kind == RANGE_BEARING else 1)
     r, H = np.array(r3)[:m].copy(), np.array(H3)[:m, : 3 + w].copy()
     if kind == POSE:
-        B = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+        B = np.array(B3)
         return r, H, B @ Rq[:3, :3].copy() @ B.T
     return r, H, Rq[:m, :m].copy()
 

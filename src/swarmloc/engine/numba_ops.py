@@ -39,7 +39,7 @@ from swarmloc.engine.scalar import absolute_source, landmark_source, pose_source
 from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
-from swarmloc.sensors.models import KIND_ORDER, MIN_RANGE
+from swarmloc.sensors.models import KIND_ORDER
 
 Rows: TypeAlias = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 """The engine's arrays a compiled stamp updates in place: ``(x (n, 3), P (n, 3, 3), clock, start, v, w (n,))``."""
@@ -89,7 +89,7 @@ def _map_landmark(target: str, indent: int) -> str:
     rejected as degenerate at the landmark's position, else ``r`` the landmark kernel's result."""
     lines = [
         f"k = {NO_LANDMARK} - 1 - {target}",
-        f"if math.hypot(lxy[k, 0] - x[i, 0], lxy[k, 1] - x[i, 1]) < {MIN_RANGE!r}:",
+        "if degenerate(x[i, 0], x[i, 1], lxy[k, 0], lxy[k, 1]):",
         f"    status[q] = {REJECTED}",
         f"    reason[q] = {R_DEGENERATE}",
         "    continue",
@@ -143,7 +143,7 @@ _FUSE = f"""
                 a0, a1, c00, c01, c11 = a[0], a[1], a[3], a[4], a[6]
             else:
                 a0, a1, c00, c01, c11 = nx[j, 0], nx[j, 1], nP[j, 0, 0], nP[j, 0, 1], nP[j, 1, 1]
-            if math.hypot(a0 - x[i, 0], a1 - x[i, 1]) < {MIN_RANGE!r}:
+            if degenerate(x[i, 0], x[i, 1], a0, a1):
                 status[q] = {REJECTED}
                 reason[q] = {R_DEGENERATE}
                 continue
@@ -341,7 +341,8 @@ def scatter2(a, b, rows, va, vb):
 @cache
 def _kernels(noise: UnicycleNoise) -> dict[str, Any]:
     """Compile the generated scalar functions and the loops around them (once per noise model)."""
-    ns: dict[str, Any] = {"math": math, "np": np, "prange": prange, "screen_stamp": F.screen_stamp}
+    ns: dict[str, Any] = {"math": math, "np": np, "prange": prange, "screen_stamp": F.screen_stamp,
+                          "degenerate": F.degenerate}  # fmt: skip
     for src in (predict_source(noise), pose_source(), absolute_source(), landmark_source()):
         exec(src, ns)  # noqa: S102 - our own generated code
     for name in ("predict", "pose", "absolute", "landmark"):

@@ -9,10 +9,10 @@ rounding (tests/test_engine.py checks 1e-12 against the kernels and 1e-10 agains
 
 * :func:`predict`: :func:`swarmloc.kernels.cartesian.predict_one` (increment of
   :func:`swarmloc.motion.odometry_increment_terms`, Taylor branches ``swarmloc.motion.SERIES``);
-* :func:`pose_update`, :func:`absolute_update`, :func:`landmark_update`: :func:`swarmloc.sensors.models.relative_pose`
-  (``kind="pose"``), a GPS-like absolute fix or :func:`swarmloc.sensors.models.range_bearing` of a map landmark,
-  :func:`swarmloc.sensors.models.pose_noise_to_cartesian` and :func:`swarmloc.kernels.cartesian.kalman_update`
-  (Joseph form), plus the gate's normalized innovation squared and the positive-definiteness test of the nodes.
+* :func:`pose_update`, :func:`absolute_update`, :func:`landmark_update`: a relative pose (``kind="pose"``), a GPS-like
+  absolute fix or the range and bearing of a map landmark, predicted by the models the nodes use
+  (:mod:`swarmloc.sensors.planar`, on ``xp``), with :func:`swarmloc.kernels.cartesian.kalman_update` (Joseph form),
+  plus the gate's normalized innovation squared and the positive-definiteness test of the nodes.
 
 Small matrices are nested lists of entries; an entry is an array or a Python float, and the products skip the
 exact zeros and ones of the Jacobians (adding ``0 * a`` changes nothing for finite ``a``).
@@ -21,12 +21,12 @@ Units: metres, radians, seconds; angles wrapped to (-pi, pi].
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 from swarmloc.kernels.cartesian import shifted_cov, world_cov
 from swarmloc.motion import SERIES, SERIES_BELOW, UnicycleNoise
 from swarmloc.motion.closed_form import unicycle_terms
+from swarmloc.sensors.planar import build
 
 Entry = Any
 """A matrix entry: an array ``(B,)`` of the namespace in use, or a Python float constant."""
@@ -35,9 +35,6 @@ Vec = tuple[Entry, ...]
 """A vector of entries, one a component: a state ``(x, y, theta)``, a measurement, or a packed upper triangle."""
 Updated = tuple[Vec, Vec, Entry, Entry]
 """What an update returns: ``(x+, P+ upper triangle, nis, ok)``."""
-
-_PI = math.pi
-_TWO_PI = 2 * math.pi
 
 
 # ------------------------------------------------------------------------------------------------ entry algebra
@@ -140,8 +137,8 @@ def upper(A: Mat) -> Vec:
 
 
 def wrap(xp: Any, a: Entry) -> Entry:
-    """Angle wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`)."""
-    return _PI - xp.mod(_PI - a, _TWO_PI)
+    """Angle wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`; :mod:`swarmloc.sensors.planar`'s)."""
+    return build(xp).wrap(a)
 
 
 # ------------------------------------------------------------------------------------------------ prediction
@@ -242,18 +239,12 @@ def pose_update(xp: Any, x: Vec, p: Vec, xk: Vec, pk: Vec, z: Vec, rz: Vec) -> U
 
     ``R_eff = B(z) R B(z)^T + Hk Pk Hk^T`` (noise in Cartesian coordinates plus the neighbour's covariance), as the
     node's :func:`swarmloc.estimators.dekf.linearize`. Returns ``(x+, P+, nis, ok)`` (see :func:`kalman`)."""
-    x0, x1, x2 = x
-    dx, dy = xk[0] - x0, xk[1] - x1
-    c, s = xp.cos(x2), xp.sin(x2)
-    bx, by = c * dx + s * dy, -s * dx + c * dy
-    h2 = wrap(xp, xk[2] - x2)
-    Hi = [[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]]
-    Hk = [[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]
-    cz, sz = xp.cos(z[2]), xp.sin(z[2])
-    Bz = [[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]]
+    P = build(xp)
+    h, Hi, Hk = P.pose(*x, *xk)
+    Bz = P.rotation(z[2])
     R = mm(mm(Bz, sym3(rz)), tr(Bz))
     R_eff = madd(R, mm(mm(Hk, sym3(pk)), tr(Hk)))
-    r = [z[0] - bx, z[1] - by, wrap(xp, z[2] - h2)]
+    r = [z[0] - h[0], z[1] - h[1], wrap(xp, z[2] - h[2])]
     return kalman(xp, x, p, r, Hi, R_eff)
 
 
@@ -269,16 +260,8 @@ def landmark_update(xp: Any, x: Vec, p: Vec, lk: Vec, lp: Vec, z: Vec, rz: Vec) 
     :func:`swarmloc.estimators.dekf.linearize` with :func:`swarmloc.sensors.models.range_bearing` of a 2-D target,
     ``R_eff = R + Hk L Hk^T``. A landmark within ``MIN_RANGE`` of the observer is the caller's to reject (the
     Jacobians divide by the range). Returns ``(x+, P+, nis, ok)`` (see :func:`kalman`)."""
-    x0, x1, x2 = x
-    dx, dy = lk[0] - x0, lk[1] - x1
-    c, s = xp.cos(x2), xp.sin(x2)
-    bx, by = c * dx + s * dy, -s * dx + c * dy
-    q = dx * dx + dy * dy
-    rng = xp.sqrt(q)
-    bearing = wrap(xp, xp.arctan2(by, bx))
-    Hi = [[-dx / rng, -dy / rng, 0.0], [dy / q, -dx / q, -1.0]]
-    Hk = [[-Hi[0][0], -Hi[0][1]], [-Hi[1][0], -Hi[1][1]]]
+    h, Hi, Hk = build(xp).range_bearing(*x, lk[0], lk[1])
     L = [[lp[0], lp[1]], [lp[1], lp[2]]]
     R_eff = madd([[rz[0], rz[1]], [rz[1], rz[2]]], mm(mm(Hk, L), tr(Hk)))
-    r = [z[0] - rng, wrap(xp, z[1] - bearing)]
+    r = [z[0] - h[0], wrap(xp, z[1] - h[1])]
     return kalman(xp, x, p, r, Hi, R_eff)

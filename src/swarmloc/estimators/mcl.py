@@ -473,28 +473,18 @@ class MonteCarloLocalization(RobotNode):
                 xk, Pk = C.from_group(*target[1].belief_arrays())
             else:
                 xk, Pk = target[1]
-            c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
-            dx, dy = xk[0] - p[:, 0], xk[1] - p[:, 1]
-            if d.kind == Kind.POSE:  # h = (R^T (p_k - p), theta_k - theta); H_k = diag(R^T, 1)
-                h = np.stack([c * dx + s * dy, -s * dx + c * dy, xk[2] - p[:, 2]], axis=-1)
-                r = models.residual(Kind.POSE, z, h)
-                T = np.zeros((n, 3, 3))
-                T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1], T[:, 2, 2] = c, s, -s, c, 1.0
-                S = models.pose_noise_to_cartesian(z, R) + T @ Pk @ np.swapaxes(T, -1, -2)
+            m = models.MODELS[d.kind]
+            if d.kind == Kind.POSE:  # H_k = diag(R^T, 1)
+                h, _, T = models.predict(d.kind, p, xk)
+                S = m.noise(z, R) + T @ Pk @ np.swapaxes(T, -1, -2)
                 bad = None
             else:
-                q = dx * dx + dy * dy
-                bad = q < models.MIN_RANGE**2
+                bad = m.degenerate(p, xk[:2])
                 if bad.all():
                     return None
-                q = np.where(bad, 1.0, q)
-                rng = np.sqrt(q)
-                h = np.stack([rng, wrap_angle(np.arctan2(-s * dx + c * dy, c * dx + s * dy))], axis=-1)
-                J = np.stack([np.stack([dx / rng, dy / rng], -1), np.stack([-dy / q, dx / q], -1)], axis=-2)
-                rows = list(models.MODELS[d.kind].components)
-                h, J = h[:, rows], J[:, rows, :]
-                r = models.residual(d.kind, z, h)
+                h, _, J = models.predict(d.kind, np.where(bad[:, None], p - 1.0, p), xk[:2])  # finite; bad rows dropped
                 S = R + J @ Pk[:2, :2] @ np.swapaxes(J, -1, -2)
+            r = m.residual(z, h)
         nis, logdet = quadratic(r, S)
         if bad is not None and bad.any():
             nis = np.where(bad, np.inf, nis)

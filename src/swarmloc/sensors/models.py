@@ -8,7 +8,9 @@ eqs. 2.6-2.9 (relative pose).
 Every function is batched over leading axes: ``xi`` ``(..., 3)``, ``xk`` ``(..., 3)`` for a robot or ``(..., 2)``
 for a landmark, broadcast against each other. Each returns ``(h, H_i, H_k)``: the predicted measurement
 ``(..., m)``, its Jacobian with respect to the observer's state ``(..., m, 3)`` and with respect to the target's
-state ``(..., m, 3)`` for a robot, ``(..., m, 2)`` for a landmark.
+state ``(..., m, 3)`` for a robot, ``(..., m, 2)`` for a landmark. The math is :mod:`swarmloc.sensors.planar`'s,
+written once on an array namespace: the engine's compiled replays and its fast EKF path evaluate the same
+expressions.
 
 Range and bearing are undefined when the target sits on the observer (range 0): the Jacobians divide by the
 range. :func:`degenerate` tells the callers, which reject such a measurement instead of fusing NaNs.
@@ -22,46 +24,51 @@ table of kinds exists once.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import operator
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from swarmloc.events import Kind
 from swarmloc.lie import wrap_angle as wrap
-
-MIN_RANGE = 1e-6
-"""Predicted ranges [m] below this make range/bearing models undefined (:func:`degenerate`)."""
+from swarmloc.sensors import planar
+from swarmloc.sensors.planar import MIN_RANGE as MIN_RANGE  # ranges [m] below it are degenerate (:func:`degenerate`)
 
 Prediction = tuple[np.ndarray, np.ndarray, np.ndarray]
 """``(h, H_i, H_k)``: a predicted measurement and its Jacobians w.r.t. the observer and the target."""
 
 
-def _rel(xi: np.ndarray, pk: np.ndarray) -> tuple[np.ndarray, ...]:
-    dx, dy = pk[..., 0] - xi[..., 0], pk[..., 1] - xi[..., 1]
-    c, s = np.cos(xi[..., 2]), np.sin(xi[..., 2])
-    return dx, dy, c, s, c * dx + s * dy, -s * dx + c * dy
+class _Numpy:
+    """numpy as :func:`swarmloc.sensors.planar.build` uses it, ``mod`` the operator ``%``: numpy's floor modulo on
+    arrays, and on one pair's NumPy scalars its bits 4x faster (:func:`swarmloc.lie.wrap_angle`'s float path)."""
+
+    cos, sin, sqrt, arctan2, hypot, mod = np.cos, np.sin, np.sqrt, np.arctan2, np.hypot, staticmethod(operator.mod)
 
 
-def _stack(rows: list[list[np.ndarray | float]], shape: tuple[int, ...]) -> np.ndarray:
-    """``(..., len(rows), len(rows[0]))`` from scalars/arrays broadcast to ``shape``."""
-    return np.stack([np.stack([np.broadcast_to(v, shape) for v in row], axis=-1) for row in rows], axis=-2)
+_P = planar.build(_Numpy)
+"""The planar models' math (:mod:`swarmloc.sensors.planar`) on numpy arrays and scalars."""
+
+
+def _matrix(rows: Sequence[Sequence[np.ndarray | float]], shape: tuple[int, ...], cols: int = 0) -> np.ndarray:
+    """``(*shape, len(rows), cols)`` (``cols`` 0: the rows' length; zero columns pad) from rows of entries, each a
+    scalar or an array broadcast to ``shape``."""
+    cols = cols or len(rows[0])
+    if not shape and cols == len(rows[0]):  # one pair: a plain array is ~5x faster
+        return np.array(rows, dtype=float)
+    out = np.zeros((*shape, len(rows), cols))
+    for i, row in enumerate(rows):
+        for j, v in enumerate(row):
+            out[..., i, j] = v
+    return out
 
 
 def relative_pose(xi: np.ndarray, xk: np.ndarray) -> Prediction:
     """Pose of robot ``k`` in robot ``i``'s frame: ``(R_i^T (p_k - p_i), theta_k - theta_i)``."""
     xi, xk = np.asarray(xi, dtype=float), np.asarray(xk, dtype=float)
-    dx, dy, c, s, bx, by = _rel(xi, xk)
-    if xi.ndim == 1 and xk.ndim == 1:  # one pair: plain arrays are ~10x faster than stacking
-        h = np.array([bx, by, wrap(xk[2] - xi[2])])
-        Hi = np.array([[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]])
-        Hk = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        return h, Hi, Hk
-    h = np.stack([bx, by, wrap(xk[..., 2] - xi[..., 2])], axis=-1)
-    shape = h.shape[:-1]
-    Hi = _stack([[-c, -s, by], [s, -c, -bx], [0.0, 0.0, -1.0]], shape)
-    Hk = _stack([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]], shape)
-    return h, Hi, Hk
+    h, Hi, Hk = _P.pose(xi[..., 0], xi[..., 1], xi[..., 2], xk[..., 0], xk[..., 1], xk[..., 2])
+    shape = np.shape(h[0])
+    return _matrix((h,), shape)[..., 0, :], _matrix(Hi, shape), _matrix(Hk, shape)
 
 
 def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> Prediction:
@@ -70,22 +77,9 @@ def range_bearing(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None)
     ``target_dim`` (2 for a landmark, 3 for a robot) defaults to the last dimension of ``pk``.
     """
     xi, pk = np.asarray(xi, dtype=float), np.asarray(pk, dtype=float)
-    target_dim = pk.shape[-1] if target_dim is None else target_dim
-    dx, dy, c, s, bx, by = _rel(xi, pk)
-    q = dx * dx + dy * dy
-    r = np.sqrt(q)
-    if xi.ndim == 1 and pk.ndim == 1:
-        h = np.array([r, wrap(np.arctan2(by, bx))])
-        Hi = np.array([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]])
-        Hk = np.zeros((2, target_dim))
-        Hk[:, :2] = -Hi[:, :2]
-        return h, Hi, Hk
-    h = np.stack([r, wrap(np.arctan2(by, bx))], axis=-1)
-    shape = h.shape[:-1]
-    Hi = _stack([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]], shape)
-    Hk = np.zeros((*shape, 2, target_dim))
-    Hk[..., :, :2] = -Hi[..., :, :2]
-    return h, Hi, Hk
+    h, Hi, Hk = _P.range_bearing(xi[..., 0], xi[..., 1], xi[..., 2], pk[..., 0], pk[..., 1])
+    shape = np.shape(h[0])
+    return _matrix((h,), shape)[..., 0, :], _matrix(Hi, shape), _matrix(Hk, shape, target_dim or pk.shape[-1])
 
 
 def range_only(xi: np.ndarray, pk: np.ndarray, target_dim: int | None = None) -> Prediction:
@@ -122,7 +116,7 @@ def degenerate(kind: Kind, xi: np.ndarray, xk: np.ndarray) -> np.ndarray:
     if kind == Kind.POSE:
         return np.zeros(np.broadcast_shapes(np.shape(xi)[:-1], np.shape(xk)[:-1]), dtype=bool)
     xi, xk = np.asarray(xi, dtype=float), np.asarray(xk, dtype=float)
-    return np.hypot(xk[..., 0] - xi[..., 0], xk[..., 1] - xi[..., 1]) < MIN_RANGE
+    return _P.degenerate(xi[..., 0], xi[..., 1], xk[..., 0], xk[..., 1])
 
 
 def residual(kind: str, z: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -141,11 +135,7 @@ def pose_noise_to_cartesian(z: np.ndarray, cov_exp: np.ndarray) -> np.ndarray:
     ``d(x, y) = R(theta_z) d(v1, v2)`` and ``d theta = d alpha``. Batched.
     """
     z = np.asarray(z, dtype=float)
-    c, s = np.cos(z[..., 2]), np.sin(z[..., 2])
-    if z.ndim == 1:
-        B = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        return B @ cov_exp @ B.T
-    B = _stack([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], z.shape[:-1])
+    B = _matrix(_P.rotation(z[..., 2]), z.shape[:-1])
     return B @ cov_exp @ np.swapaxes(B, -1, -2)
 
 
