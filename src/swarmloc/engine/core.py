@@ -52,7 +52,7 @@ The engine's modules are layers, each importing only modules below it (an import
 from __future__ import annotations
 
 from collections import Counter
-from typing import TYPE_CHECKING, Any, TypeAlias
+from typing import TYPE_CHECKING, Any, TypeAlias, overload
 
 import numpy as np
 
@@ -101,7 +101,13 @@ class _Held:
     def __set_name__(self, owner: type, name: str) -> None:
         self.name = name
 
-    def __get__(self, eng: Engine, owner: type | None = None) -> np.ndarray:
+    @overload
+    def __get__(self, eng: None, owner: type) -> _Held: ...
+    @overload
+    def __get__(self, eng: Engine, owner: type | None = None) -> np.ndarray: ...
+    def __get__(self, eng: Engine | None, owner: type | None = None) -> np.ndarray | _Held:
+        if eng is None:  # on the class (documentation tools): the descriptor
+            return self
         array: np.ndarray = getattr(eng.team.host(self.name), self.name)
         return array
 
