@@ -3,8 +3,9 @@ run by numpy (``"numpy"``) or by ``jax.numpy`` under ``jax.jit`` in float64 (``"
 on jax's default device (CPU or GPU); the same formulas compiled as scalar loops by numba (``"numba"``,
 :mod:`swarmloc.engine.numba_ops`). :func:`jax_team_step` is the whole step as one jitted function on arrays kept on
 the device (no scheduling, Jacobi order): the device's ceiling for it, measured by ``swarmloc-studies bench``. The
-engine's jax backends run a stamp of poses, fixes and range-bearing detections as one device call
-(:mod:`swarmloc.engine.jax_stamp`, :attr:`JaxOps.stamp`); the per-batch kernels here take any other stamp.
+engine's jax backends keep the team on the device (:mod:`swarmloc.engine.resident`) and run a stamp of poses, fixes
+and range-bearing detections as one device call (:mod:`swarmloc.engine.jax_stamp`, :attr:`JaxOps.stamp`); the
+per-batch kernels here take any other stamp, on host arrays.
 
 Both take and return numpy arrays: states ``x (B, 3)`` ``(x [m], y [m], theta [rad])``, covariances
 ``P (B, 3, 3)``, commands ``v [m/s]``, ``w [rad/s]``, intervals ``dt [s]`` ``(B,)``. The jax backends pad every

@@ -46,13 +46,13 @@ and the centralized ``"cekf"`` replay compiled, :mod:`swarmloc.engine.pairs` and
 The engine's modules are layers, each importing only modules below it (an import-linter contract in pyproject.toml):
 ``replay``, ``swarm`` -> ``core`` -> ``fuse_ci`` -> ``fuse_exp``, ``fuse_ekf`` -> ``stamp`` ->
 ``outcomes`` -> ``detections``; ``fuse_ekf`` -> ``se3``; ``core`` -> ``backends`` -> ``numba_ops`` -> ``scalar`` ->
-``soa``; and all of them -> ``codes``.
+``soa``; ``core`` -> ``resident`` -> ``jax_stamp``; and all of them -> ``codes``.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from typing import TYPE_CHECKING, Any, TypeAlias
+from typing import TYPE_CHECKING, Any, TypeAlias, overload
 
 import numpy as np
 
@@ -65,7 +65,8 @@ from swarmloc.engine.fuse_ci import CiFusion
 from swarmloc.engine.fuse_ekf import EkfFusion
 from swarmloc.engine.fuse_exp import ExpFusionLevel
 from swarmloc.engine.jax_stamp import covered
-from swarmloc.engine.outcomes import screen, tally
+from swarmloc.engine.outcomes import screen, tally, tally_table
+from swarmloc.engine.resident import DeviceTeam, HostState, HostTeam
 from swarmloc.engine.stamp import Fusion, Stamp, State, levels, runs, schedule
 from swarmloc.estimators.ci import ExpCI
 from swarmloc.kernels import cartesian as C
@@ -78,6 +79,8 @@ from swarmloc.node.inputs import landmark_state
 from swarmloc.node.update import Gate
 
 if TYPE_CHECKING:
+    from jax import Array
+
     from swarmloc.engine.backends import FastOps
     from swarmloc.engine.numba_ops import NumbaOps
 
@@ -89,6 +92,24 @@ ENGINE_ESTIMATORS = ("expfusion", "dekf", "ci")
 Records: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 """A compiled replay's beliefs, filled in place (:meth:`Engine.replay_timeline`): ``(robot (K,), stamp index (K,),
 x (K, 3), P (K, 3, 3), count (1,))``, rows ``:count[0]`` written."""
+
+
+class _Held:
+    """A field of the engine's team on the host (:class:`~swarmloc.engine.resident.HostState`), to read: a team on
+    jax's device downloads it first when the device holds it newer."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    @overload
+    def __get__(self, eng: None, owner: type) -> _Held: ...
+    @overload
+    def __get__(self, eng: Engine, owner: type | None = None) -> np.ndarray: ...
+    def __get__(self, eng: Engine | None, owner: type | None = None) -> np.ndarray | _Held:
+        if eng is None:  # on the class (documentation tools): the descriptor
+            return self
+        array: np.ndarray = getattr(eng.team.host(self.name), self.name)
+        return array
 
 
 class Engine:
@@ -105,8 +126,8 @@ class Engine:
     gate, order, iterations, point_iterations, use_relative: as the nodes (:class:`~swarmloc.estimators.ExpFusion`,
         :class:`~swarmloc.estimators.Node`); the gate is the nodes' :class:`~swarmloc.node.update.Gate`.
     backend: ``"numpy"``, ``"jax"`` (float64), ``"jax32"`` (float32 kernels on jax's device, float64 states; both
-        run a stamp of poses, fixes and range-bearing detections as one device call,
-        :mod:`swarmloc.engine.jax_stamp`) or
+        keep the team on the device between stamps and run a stamp of poses, fixes and range-bearing detections,
+        or one of commands only, as one device call, :mod:`swarmloc.engine.jax_stamp`) or
         ``"numba"`` (all but numpy: fast EKF path only, ``estimator="dekf"``,
         ``fast=True``, SE(2) teams; with numba the groups of one level fuse in parallel threads,
         ``NUMBA_NUM_THREADS``).
@@ -115,7 +136,12 @@ class Engine:
     landmarks, use_landmarks: the nodes' map of point landmarks ``id -> (x [m], y [m], std_x [m], std_y [m])`` and
         whether to fuse their detections (``"dekf"`` on SE(2) only; another estimator raises on a non-empty map).
     horizon: accepted so that the nodes' options can be passed; it plays no role (input comes in stamp order).
+
+    The team's arrays are :attr:`team`'s (read them as ``a``, ``b`` (the states), ``t`` (clocks [s]), ``t0``, ``v``,
+    ``w``); with the jax backends they stay on the device between stamps (:mod:`swarmloc.engine.resident`).
     """
+
+    a, b, t, t0, v, w = _Held(), _Held(), _Held(), _Held(), _Held(), _Held()
 
     def __init__(
         self,
@@ -163,17 +189,18 @@ class Engine:
         """Landmark id -> its row in the map (sorted ids); :meth:`landmark_code` gives a detection's target code."""
         if table is not None:
             self.fusion.landmarks = table
-        self.t0 = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
-        self.t = self.t0.copy()
+        start = np.broadcast_to(np.asarray(t0, dtype=float), (n,)).copy()
         cmd = (n, 3) if self.group is SE3 else (n,)
-        self.v = np.zeros(cmd)
-        self.w = np.zeros(cmd)
         if estimator == "dekf" and self.group is SE3:
-            self.a, self.b = E3.to_error(mean, cov)
+            a, b = E3.to_error(mean, cov)
         elif estimator == "dekf":
-            self.a, self.b = (np.ascontiguousarray(s, dtype=float) for s in C.from_group(mean, cov))
+            a, b = (np.ascontiguousarray(s, dtype=float) for s in C.from_group(mean, cov))
         else:
-            self.a, self.b = mean.copy(), cov.copy()
+            a, b = mean.copy(), cov.copy()
+        host = HostState(a, b, start.copy(), start, np.zeros(cmd), np.zeros(cmd))
+        self.team = DeviceTeam(host, self.ops.stamp) if isinstance(self.ops, JaxOps) else HostTeam(host)
+        """Where the team's arrays live between stamps (:mod:`swarmloc.engine.resident`): jax's device with the jax
+        backends, else the host."""
         self.counts: Counter[str] = Counter()
         """Detections in and their outcomes (``fused``, ``gated``, ``rejected``, ``unknown``), as the nodes count."""
         self.reasons: Counter[str] = Counter()
@@ -227,35 +254,46 @@ class Engine:
 
     def _rows(self, idx: np.ndarray, t: float) -> State:
         """States of robots ``idx`` predicted to ``t`` (not stored)."""
-        return self._advance((self.a[idx], self.b[idx]), self.v[idx], self.w[idx], t - self.t[idx])
+        s = self.team.host()
+        return self._advance((s.a[idx], s.b[idx]), s.v[idx], s.w[idx], t - s.t[idx])
 
     def predict(self, robots: np.ndarray, t: float) -> None:
         """Predict ``robots`` (rows) to ``t`` [s] and store it (robots already there, or not started, unchanged)."""
         robots = np.asarray(robots, dtype=np.int64)
-        numba = self._serial_numba(robots.size)
-        if numba is not None:  # in place, no gather or scatter
-            numba.predict_into(self.a, self.b, self.t, self.v, self.w, robots, t)
+        team = self.team
+        if isinstance(team, DeviceTeam) and team.resident():  # on the device, where the team is
+            team.predict(t, self._mask(robots))
             return
-        dt = t - self.t[robots]
+        numba = self._serial_numba(robots.size)
+        s = team.edit("a", "b", "t")
+        if numba is not None:  # in place, no gather or scatter
+            numba.predict_into(s.a, s.b, s.t, s.v, s.w, robots, t)
+            return
+        dt = t - s.t[robots]
         go = robots[dt > 0]
         if go.size == 0:
             return
         if go.size == self.n:  # everybody: no gather
-            self.a, self.b = self._advance((self.a, self.b), self.v, self.w, t - self.t)
+            s.a, s.b = self._advance((s.a, s.b), s.v, s.w, t - s.t)
         else:
-            self.a[go], self.b[go] = self._rows(go, t)
-        self.t[go] = t
+            s.a[go], s.b[go] = self._rows(go, t)
+        s.t[go] = t
 
     def set_command(self, robots: np.ndarray, v: np.ndarray, w: np.ndarray) -> None:
         """Odometry ``(v [m/s], w [rad/s])`` in force from each robot's clock on (call :meth:`predict` first)."""
+        team = self.team
+        if isinstance(team, DeviceTeam):
+            team.command(robots, v, w)
+            return
+        s = team.edit("v", "w")
         numba = self._serial_numba(len(robots))
         if numba is not None:
-            numba.scatter2(self.v, self.w, robots, v, w)
+            numba.scatter2(s.v, s.w, robots, v, w)
             return
         if self.group is SE3:  # (k, 3) each; a scalar per robot (a stop) on all three axes, as the nodes
             v, w = (np.asarray(x, dtype=float).reshape(len(robots), -1) for x in (v, w))
-        self.v[robots] = v
-        self.w[robots] = w
+        s.v[robots] = v
+        s.w[robots] = w
 
     def state(self, t: float, robots: np.ndarray) -> State:
         """The filter states of ``robots`` (rows) at ``t`` [s] as the engine keeps them (``dekf``: Cartesian
@@ -309,7 +347,8 @@ class Engine:
         take, not done (the caller steps it with :meth:`step` and goes on from ``stop + 1``)."""
         m = len(tl.det)
         status, reason = np.zeros(m, dtype=np.int8), np.zeros(m, dtype=np.int8)
-        state = (self.a, self.b, self.t, self.t0, self.v, self.w)
+        s = self.team.edit("a", "b", "t", "v", "w")
+        state = (s.a, s.b, s.t, s.t0, s.v, s.w)
         if self.numba is None:
             raise RuntimeError("Engine.replay_timeline: only where compiled_replay (numba's kernels)")
         stop, k = self.numba.replay_serial(state, tl, s0, self.use_relative, status, reason, self.fusion.gate,
@@ -323,25 +362,23 @@ class Engine:
         """Fuse every detection group stamped ``t`` [s] (observers predicted to ``t`` first); returns the outcome
         code of each detection (:data:`~swarmloc.engine.codes.OUTCOMES`), in the order of ``det`` once sorted
         canonically."""
-        return self._fuse(float(t), det, presorted, None)
+        status = self._fuse(float(t), det, presorted, None)
+        return np.asarray(status)[: len(det)]  # the device stamp's: downloaded here, and cut
 
-    def _fuse(self, t: float, det: Detections, presorted: bool, move: np.ndarray | None) -> np.ndarray:
-        """:meth:`fuse`, the robots ``move`` (rows, or None: none) predicted to ``t`` first (a command's)."""
+    def _fuse(self, t: float, det: Detections, presorted: bool, move: np.ndarray | None) -> np.ndarray | Array:
+        """:meth:`fuse`, the robots ``move`` (rows, or None: none) predicted to ``t`` first (a command's); the
+        outcomes of the device stamp stay on the device, padded."""
         if not presorted:
             det = det.canonical()
         _check_rows(det, self.n)
-        ops = self.ops
-        if isinstance(ops, JaxOps) and len(det) and covered(det):  # the stamp in one device call
-            mask = np.zeros(self.n, dtype=bool)
-            if move is not None:
-                mask[move] = True
-            state = (self.a, self.b, self.t, self.t0, self.v, self.w)
+        team = self.team
+        if isinstance(team, DeviceTeam) and len(det) and covered(det):  # the stamp in one device call
             g = self.fusion
-            self.a, self.b, self.t, status, reason, levels = ops.stamp(
-                state, t, mask, det, g.gate, self.use_relative, self.use_landmarks, g.landmarks)  # fmt: skip
+            outcomes, table, levels = team.stamp(t, self._mask(move), det, g.gate, self.use_relative,
+                                                 self.use_landmarks, g.landmarks)  # fmt: skip
             self.last_levels = levels or self.last_levels  # as the level path: unchanged when no observer runs
-            tally(self.counts, self.reasons, status, reason)
-            return status
+            tally_table(self.counts, self.reasons, table)
+            return outcomes
         if move is not None:
             self.predict(move, t)
         if len(det) == 0:
@@ -350,8 +387,9 @@ class Engine:
         if numba is not None:  # screened and fused in place, on one thread or by levels
             status, reason = np.zeros(len(det), dtype=np.int8), np.zeros(len(det), dtype=np.int8)
             kernel = numba.fuse_serial if numba.serial(len(det)) else numba.fuse_levels
-            lv = kernel(self.a, self.b, self.t, self.t0, self.v, self.w, t, self.use_relative, det, status, reason,
-                        self.fusion.gate, self.fusion.landmarks, self.use_landmarks)  # fmt: skip
+            s = team.edit("a", "b", "t")
+            lv = kernel(s.a, s.b, s.t, s.t0, s.v, s.w, t, self.use_relative, det, status, reason, self.fusion.gate,
+                        self.fusion.landmarks, self.use_landmarks)  # fmt: skip
             if lv >= 0:
                 self.last_levels = lv or self.last_levels  # unchanged when no observer runs, as the level path
                 tally(self.counts, self.reasons, status, reason)
@@ -366,6 +404,13 @@ class Engine:
             self._fuse_groups(t, det, status, reason, pos, starts, obs_ok, needs, observers)
         tally(self.counts, self.reasons, status, reason)
         return status
+
+    def _mask(self, robots: np.ndarray | None) -> np.ndarray:
+        """``(N,)``: whether each robot is one of ``robots`` (rows; None: none)."""
+        mask = np.zeros(self.n, dtype=bool)
+        if robots is not None:
+            mask[robots] = True
+        return mask
 
     def _refuse_kinds(self, det: Detections, status: np.ndarray) -> BoolArray:
         """An SE(3) team's pending detections of kinds other than ``"pose3"``: rejected, counted under the nodes'
@@ -397,9 +442,10 @@ class Engine:
         """The groups of the running ``observers`` (runs ``starts`` of ``det``), level by level; the outcomes go to
         ``status`` and ``reason``, the observers' fused states to the engine's."""
         U, lo, lt, is_obs, row_level = schedule(self.n, det, needs, obs_ok, observers)
-        if U.size == self.n and not np.any(self.t < t):  # everybody at t already: fuse in place
-            cur = (self.a, self.b)
-            prior = (self.a.copy(), self.b.copy())
+        s = self.team.edit("a", "b")
+        if U.size == self.n and not np.any(s.t < t):  # everybody at t already: fuse in place
+            cur = (s.a, s.b)
+            prior = (s.a.copy(), s.b.copy())
         else:
             prior = self._rows(U, t)  # observers already at t; others' answers predicted, not stored
             cur = (prior[0].copy(), prior[1].copy())
@@ -411,10 +457,10 @@ class Engine:
             rows = order[bounds[lv] : bounds[lv + 1]]
             if rows.size:
                 self.fusion.fuse_level(st, rows)
-        if cur[0] is not self.a:  # the observers' fused states (the neighbours' predicted answers are not stored)
+        if cur[0] is not s.a:  # the observers' fused states (the neighbours' predicted answers are not stored)
             done = U[is_obs]
-            self.a[done] = cur[0][is_obs]
-            self.b[done] = cur[1][is_obs]
+            s.a[done] = cur[0][is_obs]
+            s.b[done] = cur[1][is_obs]
 
 
 def _group_of(mean: np.ndarray, cov: np.ndarray) -> type[SEGroup]:

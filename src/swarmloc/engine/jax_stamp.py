@@ -1,7 +1,9 @@
 """A whole stamp of the engine's fast EKF path as one compiled JAX call (backends ``"jax"`` and ``"jax32"``).
 
-The host uploads the team's states and the stamp's detections (canonical order) and gets back the states, clocks,
-each detection's outcome and reason, and the number of levels; in between, on the device and in this order: the
+The call reads the team's states on the device (:class:`swarmloc.engine.resident.DeviceTeam` keeps them there between
+stamps) and the stamp's detections, uploaded as one array (canonical order), and gives back the states and clocks
+(device arrays), each detection's outcome (a device array) and the stamp's book: the count of each (outcome,
+reason) and the number of levels, the one download of a stamp. In between, on the device and in this order: the
 screening of :func:`swarmloc.engine.outcomes.screen` (:func:`_screen`), the prediction to ``t`` of the observers,
 of the neighbours they ask and of the robots given a command at ``t`` (the observers' and those robots' stored),
 the Gauss-Seidel levels of :mod:`swarmloc.engine.stamp` (:func:`_levels`), the pending rows sorted by (level,
@@ -16,9 +18,11 @@ gated and checked as :func:`swarmloc.engine.outcomes.gate_rows` and :class:`swar
 do (degenerate range-bearing geometry, gate, non-finite NIS, numerical failure). A neighbour with a smaller id is
 read after its own group, one with a larger id before it (the nodes' order).
 
-On the device the states are ``(N, 9)`` rows: ``x [m], y [m], theta [rad]`` and the covariance's upper triangle
-``P00, P01, P02, P11, P12, P22``; the detections are padded to a power of two, so a run compiles once per team size
-and bucket of detections (:func:`device_stamp` shares the compilations between engines).
+On the device the states are ``(N, 9)`` float64 rows: ``x [m], y [m], theta [rad]`` and the covariance's upper
+triangle ``P00, P01, P02, P11, P12, P22`` (``"jax32"`` computes in float32 and stores the rows it changes back as
+float64; the others keep their values); the detections are one ``(12, M)`` float64 array (:func:`pack`: observer,
+target and kind codes, ``z``, the noise's upper triangle), padded to a power of two, so a run compiles once per team
+size and bucket of detections (:func:`device_stamp` shares the compilations between engines).
 """
 
 from __future__ import annotations
@@ -36,10 +40,12 @@ from swarmloc.engine.codes import (
     FUSED,
     MODEL,
     NO_LANDMARK,
+    OUTCOMES,
     PENDING,
     POSE,
     R_DEGENERATE,
     R_NUMERICAL,
+    REASONS,
     REJECTED,
 )
 from swarmloc.engine.detections import Detections
@@ -65,10 +71,12 @@ robots 8 s with 2 sizes, 14 s with 4, 23 s with 7, for the same step time)."""
 _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 _KIND_INDEX = np.zeros(len(MODEL), dtype=np.int64)
 _KIND_INDEX[list(DEVICE_KINDS)] = np.arange(len(DEVICE_KINDS))
-_FILLS = (0, -1, POSE, 0.0, np.eye(3))
-"""Padded detection rows: robot 0 seeing an absent target with a relative pose, the identity noise (never pending)."""
+_FILL = np.array([0.0, -1.0, POSE, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
+"""A padded detection (a column of :func:`pack`): robot 0 seeing an absent target with a relative pose, the identity
+noise (never pending)."""
 DEVICE_PAD = 1 << 16
-"""Detections from this many on are padded on the device (no host copy); fewer on the host (no compilation)."""
+"""Detections from this many on are packed and padded on the device (no host copy); fewer on the host (no
+compilation)."""
 _COVERED = np.zeros(len(MODEL), dtype=bool)
 _COVERED[list(DEVICE_KINDS)] = True
 
@@ -80,8 +88,12 @@ target is read after its own group, ``z (3)``, the noise's upper triangle ``R (6
 Const: TypeAlias = "tuple[Array, Array, Array, Array, Array]"
 """What every segment reads: the states predicted to ``t``, the gate's threshold per kind, whether the gate is on,
 the map's landmarks ``xy (L, 2)`` and covariances' upper triangles ``(L, 3)``."""
-Team: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-"""The team on the host: ``x (N, 3), P (N, 3, 3), clock (N,), t0 (N,), v (N,), w (N,)``."""
+DeviceState: TypeAlias = "tuple[Array, Array, Array, Array, Array]"
+"""The team on the device: ``S (N, 9)`` (the rows of the module docstring), ``clock (N,)``, ``t0 (N,)``, ``v (N,)``,
+``w (N,)``, float64."""
+Consts: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""A stamp's options as the kernel reads them: the gate's threshold per kind, the flags (gate on, relative, landmark
+measurements on) and the map's ``xy (L, 2)`` and covariances' upper triangles ``(L, 3)``, padded."""
 Landmarks: TypeAlias = tuple[np.ndarray, np.ndarray]
 """A map's ``(xy (L, 2), cov (L, 2, 2))``."""
 
@@ -179,27 +191,29 @@ def _levels(jnp: Any, n: int, edge: Array, src: Array, dst: Array) -> Array:
 
 
 def stamp_kernel(jnp: Any, noise: UnicycleNoise, sizes: tuple[int, ...], dtype: Any) -> Any:
-    """The device stamp for chunks of at most ``sizes[0]`` rows (the ``sizes`` descending) computing in ``dtype``,
-    a function of the arguments of :meth:`DeviceStamp.__call__` as jax arrays (float64 states and detections, the
-    detections padded, ``m`` of them real) returning ``(x, P, clock, status, reason, levels)`` (states float64)."""
+    """The device stamp for chunks of at most ``sizes[0]`` rows (the ``sizes`` descending) computing in ``dtype``: a
+    function of the team on the device (:data:`DeviceState`), ``t``, the robots to move (a mask), the packed
+    detections (:func:`pack`, ``m`` of them real) and the options (:data:`Consts`) returning ``(S, clock, status,
+    book)``: the states (float64) and clocks, each detection's outcome and the book, the count of each (outcome,
+    reason) pair (row-major, :data:`~swarmloc.engine.codes.OUTCOMES` by :data:`~swarmloc.engine.codes.REASONS`)
+    followed by the number of levels."""
     from jax import lax
 
-    def run(x: Array, P: Array, tc: Array, t0: Array, v: Array, w: Array, t: Array, move: Array,
-            det: tuple[Array, Array, Array, Array, Array], m: Array, thr: Array, flags: Array, lxy: Array,
-            lcov: Array) -> tuple[Array, Array, Array, Array, Array, Array]:  # fmt: skip
-        n, mb = tc.shape[0], det[0].shape[0]
+    def run(S0: Array, tc: Array, t0: Array, v: Array, w: Array, t: Array, move: Array, det: Array, m: Array,
+            thr: Array, flags: Array, lxy: Array, lcov: Array) -> tuple[Array, Array, Array, Array]:  # fmt: skip
+        n, mb = tc.shape[0], det.shape[1]
         gate_on, relative, lm_on = flags[0], flags[1], flags[2]
-        x, P, v, w, thr, lxy, lcov = (a.astype(dtype) for a in (x, P, v, w, thr, lxy, lcov))
+        X, v, w, thr, lxy, lcov = (a.astype(dtype) for a in (S0, v, w, thr, lxy, lcov))
         obs, tgt, kind = (a.astype(jnp.int32) for a in det[:3])
-        z, R = det[3].astype(dtype), jnp.stack([det[4][:, i, j] for i, j in _UPPER], -1).astype(dtype)
+        z, R = det[3:6].T.astype(dtype), det[6:].T.astype(dtype)
         valid = jnp.arange(mb) < m
         status, reason, obs_ok, needs = _screen(jnp, obs, tgt, kind, valid, t, t0, relative, lm_on)
         observer = jnp.zeros(n, bool).at[jnp.where(obs_ok, obs, n)].set(True, mode="drop")
         involved = (observer | move).at[jnp.where(needs, tgt, n)].set(True, mode="drop")
         stored = observer | move
         dt = jnp.where(involved, t - tc, 0.0)
-        xs, ps = soa.predict(jnp, tuple(x[:, i] for i in range(3)), tuple(P[:, i, j] for i, j in _UPPER), v, w,
-                             dt.astype(x.dtype), noise)  # fmt: skip
+        xs, ps = soa.predict(jnp, tuple(X[:, i] for i in range(3)), tuple(X[:, 3 + i] for i in range(6)), v, w,
+                             dt.astype(X.dtype), noise)  # fmt: skip
         prior = jnp.stack(xs + ps, -1)
         clock = jnp.where(stored & (dt > 0), t, tc)
         safe = jnp.clip(tgt, 0, n - 1)
@@ -240,13 +254,10 @@ def stamp_kernel(jnp: Any, noise: UnicycleNoise, sizes: tuple[int, ...], dtype: 
 
         zero = jnp.zeros((), seg.dtype)
         _, _, (cur, status, reason) = lax.while_loop(lambda c: c[0] < nseg, body, (zero, zero, (prior, status, reason)))
-        S = jnp.where(stored[:, None], cur, jnp.stack((*(x[:, i] for i in range(3)),
-                                                       *(P[:, i, j] for i, j in _UPPER)), -1))  # fmt: skip
-        c = [S[:, 3 + i] for i in range(6)]
-        full = jnp.stack([jnp.stack([c[0], c[1], c[2]], -1), jnp.stack([c[1], c[3], c[4]], -1),
-                          jnp.stack([c[2], c[4], c[5]], -1)], -2)  # fmt: skip
-        f64 = jnp.float64
-        return S[:, :3].astype(f64), full.astype(f64), clock, status, reason, jnp.max(row_level) + 1
+        S = jnp.where(stored[:, None], cur.astype(S0.dtype), S0)
+        pair = status.astype(jnp.int32) * len(REASONS) + reason
+        table = jnp.zeros(len(OUTCOMES) * len(REASONS), jnp.int32).at[pair].add(valid.astype(jnp.int32))
+        return S, clock, status, jnp.concatenate([table, (jnp.max(row_level) + 1)[None]])
 
     return run
 
@@ -271,10 +282,12 @@ class DeviceStamp:
         self.calls = 0
         self._fns: dict[tuple[int, ...], Any] = {}
 
-        def grow(a: Any, fill: Any, size: int) -> Any:  # pad_rows on the device
-            return jnp.concatenate([a, jnp.broadcast_to(fill, (size - a.shape[0], *a.shape[1:]))])
+        def columns(obs: Array, tgt: Array, kind: Array, z: Array, R: Array, size: int) -> Array:  # pack, on the device
+            cols = [obs, tgt, kind, *(z[:, i] for i in range(3)), *(R[:, i, j] for i, j in _UPPER)]
+            fill = jnp.broadcast_to(_FILL[:, None], (12, size - obs.shape[0]))
+            return jnp.concatenate([jnp.stack(cols).astype(jnp.float64), fill], axis=1)
 
-        self._grow = jax.jit(grow, static_argnums=2)
+        self._columns = jax.jit(columns, static_argnums=5)
 
     def _fn(self, sizes: tuple[int, ...]) -> Any:
         if sizes not in self._fns:
@@ -287,43 +300,77 @@ class DeviceStamp:
             self._fns[sizes] = self._jax.jit(traced)
         return self._fns[sizes]
 
-    def __call__(self, state: Team, t: float, move: np.ndarray, det: Detections, gate: Gate, relative: bool,
-                 lm_on: bool, landmarks: Landmarks | None,
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:  # fmt: skip
-        """One stamp: ``(x, P, clock, status, reason, levels)``, numpy arrays (states float64).
+    def __call__(self, state: DeviceState, t: float, move: np.ndarray, det: Detections, gate: Gate, relative: bool,
+                 lm_on: bool, landmarks: Landmarks | None) -> tuple[Array, Array, Array, np.ndarray, int]:  # fmt: skip
+        """One stamp: ``(S, clock, status, table, levels)``, the states, clocks and each detection's outcome
+        (padded) as device arrays, the count of each (outcome, reason) ``(len(OUTCOMES), len(REASONS))`` and the
+        number of levels downloaded (the stamp's one download).
 
-        ``state = (x (N, 3), P (N, 3, 3), clock (N,), t0 (N,), v (N,), w (N,))``: the team before the stamp;
-        ``move (N,)``: robots to move to ``t`` besides the observers (a command's); ``det``: the stamp's
-        detections (canonical order, all of :data:`DEVICE_KINDS`), screened, scheduled and fused on the device;
-        ``gate``, ``relative``, ``lm_on`` as the engine's; ``landmarks`` its map ``(xy (L, 2), cov (L, 2, 2))`` or
-        None. The detections are padded to a power of two; the segments' static sizes follow from it and ``N``."""
+        ``state``: the team before the stamp (:data:`DeviceState`); ``move (N,)``: robots to move to ``t`` besides
+        the observers (a command's); ``det``: the stamp's detections (canonical order, all of
+        :data:`DEVICE_KINDS`), screened, scheduled and fused on the device; ``gate``, ``relative``, ``lm_on`` as the
+        engine's; ``landmarks`` its map ``(xy (L, 2), cov (L, 2, 2))`` or None. The detections are padded to a power
+        of two; the segments' static sizes follow from it and ``N``."""
         self.calls += 1
         m = len(det)
-        mb = bucket(m)
-        top = max(8, bucket(min(mb, state[2].shape[0])) // CHUNK)
-        sizes = tuple(s for s in (top >> (2 * i) for i in range(SIZE_STEPS)) if s >= 8) or (8,)
-        thr = np.array([gate.threshold(MODEL[c].size) if gate.p is not None else np.inf for c in range(len(MODEL))])
-        if landmarks is None:
-            lxy, lcov = np.zeros((8, 2)), np.tile([1.0, 0.0, 1.0], (8, 1))
-        else:
-            nl = landmarks[0].shape[0]
-            lxy = pad_rows(landmarks[0], bucket(nl), 0.0)
-            lcov = pad_rows(landmarks[1][:, [0, 0, 1], [0, 1, 1]], bucket(nl), np.array([1.0, 0.0, 1.0]))
-        flags = np.array([gate.p is not None, relative, lm_on])
-        rows = tuple(self._rows(a, fill, mb) for a, fill in zip((det.observer, det.target, det.kind, det.z[:, :3],
-                                                                   det.R[:, :3, :3]), _FILLS, strict=True))  # fmt: skip
-        out = self._fn(sizes)(*state, np.float64(t), move, rows, np.int64(m), thr, flags, lxy, lcov)
-        xn, Pn, clock, st, why, levels = (np.array(a) for a in out)
-        return xn, Pn, clock, st[:m], why[:m], int(levels)
+        S, clock, status, book = self._run(state, t, move, self._pack(det), m, consts(gate, relative, lm_on, landmarks))
+        book = np.asarray(book)
+        return S, clock, status, book[:-1].reshape(len(OUTCOMES), len(REASONS)), int(book[-1])
 
-    def _rows(self, a: np.ndarray, fill: Any, size: int) -> Any:
-        """``a`` padded to ``size`` rows with ``fill``: on the host when small, else on the device (one transfer of
-        ``a`` as it is, no host copy; the padding compiles once per row count)."""
-        if a.dtype.kind in "iu" and a.dtype != np.int64:  # one integer type: another would compile again
-            a = a.astype(np.int64)
-        if a.shape[0] == size or a.shape[0] < DEVICE_PAD:
-            return pad_rows(a, size, fill)
-        return self._grow(self._jax.device_put(np.ascontiguousarray(a)), np.asarray(fill, dtype=a.dtype), size)
+    def predict(self, state: DeviceState, t: float, move: np.ndarray) -> tuple[Array, Array]:
+        """The robots ``move (N,)`` (a mask) predicted to ``t`` and stored (a stamp without detections: the same
+        compiled call), ``(S, clock)`` on the device; nothing downloaded."""
+        S, clock, _, _ = self._run(state, t, move, _EMPTY, 0, _NO_OPTIONS)
+        return S, clock
+
+    def _run(self, state: DeviceState, t: float, move: np.ndarray, det: Any, m: int, options: Consts) -> Any:
+        """The compiled stamp for the bucket of ``det``'s columns and the team's size, called."""
+        mb = det.shape[1]
+        top = max(8, bucket(min(mb, state[1].shape[0])) // CHUNK)
+        sizes = tuple(s for s in (top >> (2 * i) for i in range(SIZE_STEPS)) if s >= 8) or (8,)
+        return self._fn(sizes)(*state, np.float64(t), move, det, np.int64(m), *options)
+
+    def _pack(self, det: Detections) -> Any:
+        """:func:`pack` of ``det`` padded to its bucket: on the host when small (one array to upload), else on the
+        device (one ``device_put`` of the detections' arrays as they are, no host copy; it compiles once per
+        count)."""
+        m = len(det)
+        if m < DEVICE_PAD:
+            return pack(det, bucket(m))
+        arrays = [det.observer, det.target, det.kind, det.z, det.R]
+        arrays[:3] = (a.astype(np.int64, copy=False) for a in arrays[:3])  # one integer type: another compiles again
+        return self._columns(*self._jax.device_put(arrays), bucket(m))
+
+
+def consts(gate: Gate, relative: bool, lm_on: bool, landmarks: Landmarks | None) -> Consts:
+    """The options of a stamp as the kernel reads them (:data:`Consts`)."""
+    thr = np.array([gate.threshold(MODEL[c].size) if gate.p is not None else np.inf for c in range(len(MODEL))])
+    if landmarks is None:
+        lxy, lcov = np.zeros((8, 2)), np.tile([1.0, 0.0, 1.0], (8, 1))
+    else:
+        nl = landmarks[0].shape[0]
+        lxy = pad_rows(landmarks[0], bucket(nl), 0.0)
+        lcov = pad_rows(landmarks[1][:, [0, 0, 1], [0, 1, 1]], bucket(nl), np.array([1.0, 0.0, 1.0]))
+    return thr, np.array([gate.p is not None, relative, lm_on]), lxy, lcov
+
+
+def pack(det: Detections, size: int) -> np.ndarray:
+    """The detections ``det`` (planar) as one ``(12, size)`` float64 array, a column per detection: observer, target
+    and kind codes, ``z[:3]``, the upper triangle of ``R[:3, :3]`` (``R00, R01, R02, R11, R12, R22``); columns past
+    ``len(det)`` padded (:data:`_FILL`)."""
+    m = len(det)
+    out = np.empty((12, size))
+    out[0, :m], out[1, :m], out[2, :m] = det.observer, det.target, det.kind
+    out[3:6, :m] = det.z[:, :3].T
+    for k, (i, j) in enumerate(_UPPER):
+        out[6 + k, :m] = det.R[:, i, j]
+    out[:, m:] = _FILL[:, None]
+    return out
+
+
+_EMPTY = np.repeat(_FILL[:, None], 8, axis=1)
+"""No detections (one bucket of padding): a stamp that only predicts."""
+_NO_OPTIONS = consts(Gate(None), True, True, None)
 
 
 def covered(det: Detections) -> bool:

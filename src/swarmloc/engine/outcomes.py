@@ -75,11 +75,17 @@ def gate_rows(
 def tally(counts: Counter[str], reasons: Counter[str], status: np.ndarray, reason: np.ndarray) -> None:
     """Add a stamp's outcomes to ``counts`` (detections in, ``fused``, ``gated``, ``rejected``, ``unknown``) and
     ``reasons`` (``"<outcome>: <reason>"``), as the nodes count."""
-    counts["detections"] += int(status.size)
-    per = np.bincount(status, minlength=len(OUTCOMES))
+    pair = status.astype(np.int64) * len(REASONS) + reason
+    tally_table(counts, reasons, np.bincount(pair, minlength=len(OUTCOMES) * len(REASONS)).reshape(len(OUTCOMES), -1))
+
+
+def tally_table(counts: Counter[str], reasons: Counter[str], table: np.ndarray) -> None:
+    """:func:`tally` of a stamp whose outcomes are counted already: ``table[s, r]`` detections of outcome ``s`` and
+    reason ``r`` (:data:`~swarmloc.engine.codes.OUTCOMES` by :data:`~swarmloc.engine.codes.REASONS`; the device
+    stamp counts them on the device)."""
+    counts["detections"] += int(table.sum())
+    per = table.sum(axis=1)
     for code in (FUSED, GATED, REJECTED, UNKNOWN):
         counts[OUTCOMES[code]] += int(per[code])
-    if reason.any():
-        pairs, n = np.unique(np.stack([status[reason > 0], reason[reason > 0]]), axis=1, return_counts=True)
-        for (s, r), k in zip(pairs.T, n, strict=True):
-            reasons[f"{OUTCOMES[s]}: {REASONS[r]}"] += int(k)
+    for s, r in zip(*np.nonzero(table[:, 1:]), strict=True):  # (outcome, reason) in order, as np.unique gave them
+        reasons[f"{OUTCOMES[s]}: {REASONS[r + 1]}"] += int(table[s, r + 1])

@@ -5,9 +5,10 @@ For each team size ``n`` (robots; ``neighbours`` relative-pose detections each, 
 robot-updates per second (one robot-update: a prediction and its ``neighbours`` updates) of:
 
 * ``engine jax`` / ``engine jax32``: :func:`swarmloc.engine.fusion_step` with ``backend="jax"`` (float64) or
-  ``"jax32"`` (float32 on the device, states float64 on the host): the engine's Gauss-Seidel levels, screening and
-  outcomes, a stamp in one device call (:mod:`swarmloc.engine.jax_stamp`) with the team's states and the
-  detections uploaded and the states downloaded once per step: what a user of the engine gets;
+  ``"jax32"`` (float32 on the device, states float64): the engine's Gauss-Seidel levels, screening and outcomes, a
+  stamp in one device call (:mod:`swarmloc.engine.jax_stamp`) on the team's states kept on the device between
+  stamps (:mod:`swarmloc.engine.resident`), the detections and commands uploaded and the stamp's outcome counts
+  downloaded once per step: what a user of the engine gets;
 * ``plain jax f64`` / ``plain jax f32``: the same arithmetic as one ``jax.jit`` function on arrays kept on the
   device (:func:`swarmloc.engine.swarm.device_step`: no scheduling, Jacobi order within a detection position):
   the device's ceiling for this step;
