@@ -15,10 +15,11 @@ from test_engine_cekf import _same, _same_on_mrclam, _with, robot_extras
 from test_engine_invariant import _nodes as _invariant_nodes
 
 from swarmloc.engine import run_engine
-from swarmloc.engine.pairs import K
+from swarmloc.engine.pairs import K, _kalman
 from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Detection
 from swarmloc.experiments.sources import load_source
+from swarmloc.kernels import cartesian as C
 from swarmloc.kernels.pairs import PAIRS
 from swarmloc.runner import RunResult, run
 
@@ -135,6 +136,28 @@ def test_rescaled_factors_equal_the_nodes() -> None:
             f = sig[(k + 1) % 4]
             sheared = np.array([f[0] + sa * f[2], f[1] + sb * f[2], f[2]])
             np.testing.assert_allclose(ref[(k + 1) % 4], P_new @ np.linalg.solve(P_old, sheared), rtol=1e-9)
+
+
+def test_compiled_kalman_equals_the_nodes() -> None:
+    """The replay's Kalman update (:func:`swarmloc.kernels.cartesian.kalman_one` compiled) against the nodes'
+    (:func:`~swarmloc.kernels.cartesian.kalman_update`): one robot's and a pair's state, one to three rows, headings
+    far outside (-pi, pi] wrapped; a singular innovation covariance of two and of three rows refused."""
+    rng = np.random.default_rng(7)
+    for k in range(60):
+        n, m = (3, 6)[k % 2], 1 + k % 3
+        P = _spd(rng, 0.1) if n == 3 else np.kron(np.eye(2), _spd(rng, 0.1)) + 0.01
+        x, H, r = rng.normal(scale=5.0, size=n), rng.normal(size=(m, n)), rng.normal(size=m)
+        R = 10 ** rng.uniform(-3, 1) * np.eye(m)
+        angles = tuple(range(2, n, 3))
+        xn, Pn, nis, ok = C.kalman_update(x, P, r, H, R, angles=angles)
+        cx, cP, cnis, cok = _kalman(x, P, r, H, R, angles)
+        assert cok == bool(ok) and np.abs(cx[list(angles)]).max() <= np.pi
+        np.testing.assert_allclose(cx, xn, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(cP, Pn, rtol=1e-10, atol=1e-14)
+        assert cnis == pytest.approx(float(nis), rel=1e-10)
+    for m in (2, 3):
+        res = _kalman(np.zeros(3), np.zeros((3, 3)), np.ones(m), np.ones((m, 3)), np.zeros((m, m)), (2,))
+        assert not res[3] and np.isnan(res[2])
 
 
 def test_rdl_engine_refuses_what_it_does_not_run() -> None:

@@ -25,7 +25,6 @@ radians, seconds.
 
 from __future__ import annotations
 
-import math
 from functools import cache
 from typing import Any, Unpack
 
@@ -40,14 +39,11 @@ from swarmloc.engine.joint import predict_kernel, run, stamp_loop
 from swarmloc.engine.joint_math import (
     F,
     degenerate,
-    innovation,
-    inverse,
     measure,
-    store_symmetric,
     verdict,
-    wrap,
 )
 from swarmloc.engine.replay_io import Replayed, Switches, constants
+from swarmloc.kernels import cartesian as C
 from swarmloc.kernels.pairs import build
 from swarmloc.motion import UnicycleNoise
 
@@ -60,67 +56,9 @@ K = build(_compile)
 """``rdl``'s pair math (:mod:`swarmloc.kernels.pairs`: the nodes' functions) compiled by numba."""
 
 
-@njit(error_model="numpy")
-def _kalman(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
-    """:func:`swarmloc.kernels.cartesian.kalman_update` for one state (Joseph form), every third component (the
-    headings) wrapped: ``S = H P H^T + R``, ``K = P H^T S^-1``, ``P+ = (I - K H) P (I - K H)^T + K R K^T``
-    symmetrized, written as loops (the states are 3 or 6 long: a matrix product's call costs more than its work)."""
-    N, m = P.shape[0], H.shape[0]
-    PHt, S = innovation(P, H, np.arange(N), R)
-    S_inv, regular = inverse(S)
-    if not regular:
-        return x, P, math.nan, False
-    Sr = np.zeros(m)
-    nis = 0.0
-    for k in range(m):
-        for ll in range(m):
-            Sr[k] += S_inv[k, ll] * r[ll]
-        nis += r[k] * Sr[k]
-    K = np.zeros((N, m))
-    xn = np.empty(N)
-    for a in range(N):
-        step = 0.0
-        for k in range(m):
-            step += PHt[a, k] * Sr[k]
-            for ll in range(m):
-                K[a, k] += PHt[a, ll] * S_inv[ll, k]
-        xn[a] = x[a] + step
-    for a in range(2, N, 3):
-        if math.isfinite(xn[a]):
-            xn[a] = wrap(xn[a])
-    IKH = np.zeros((N, N))
-    KR = np.zeros((N, m))
-    for a in range(N):
-        for b in range(N):
-            acc = 1.0 if a == b else 0.0
-            for k in range(m):
-                acc -= K[a, k] * H[k, b]
-            IKH[a, b] = acc
-        for k in range(m):
-            for ll in range(m):
-                KR[a, k] += K[a, ll] * R[ll, k]
-    T = np.zeros((N, N))  # (I - K H) P
-    for a in range(N):
-        for b in range(N):
-            acc = 0.0
-            for c in range(N):
-                acc += IKH[a, c] * P[c, b]
-            T[a, b] = acc
-    Pn = np.empty((N, N))
-    ok = math.isfinite(nis)
-    for a in range(N):
-        ok = ok and math.isfinite(xn[a])
-        for b in range(a, N):
-            ab, ba = 0.0, 0.0
-            for c in range(N):
-                ab += T[a, c] * IKH[b, c]
-                ba += T[b, c] * IKH[a, c]
-            for k in range(m):
-                ab += KR[a, k] * K[b, k]
-                ba += KR[b, k] * K[a, k]
-            ok = store_symmetric(Pn, a, b, ab, ba) and ok
-    return xn, Pn, nis, ok
+_kalman = _compile(C.kalman_one)
+"""The Kalman (Joseph) update of one state, the nodes' own (:func:`swarmloc.kernels.cartesian.kalman_one`) compiled:
+``(x+, P+, nis, ok)``, the headings (components ``angles``) wrapped."""
 
 
 @njit(error_model="numpy")
@@ -207,7 +145,7 @@ def _detect(predicted: Any, advance: Any) -> Any:
         prior, both = K.pair_prior(P[i].copy(), Pj, fi, fj, met[i, j], H, Rm)
         if both < 0:
             return GATED, R_CORRELATION
-        Xn, Pn, nis, ok = _kalman(X, prior, r, H, Rm)
+        Xn, Pn, nis, ok = _kalman(X, prior, r, H, Rm, (2, 5))
         out = verdict(nis, ok, Pn, thr[kind], gate)
         if out[0]:
             return out
@@ -257,7 +195,7 @@ def _private(x: np.ndarray, P: np.ndarray, sa: np.ndarray, sb: np.ndarray, met: 
         Hk = H[:, 3:5].copy()
         Rm = Rm + Hk @ lcov[lm] @ Hk.T
         H = H[:, :3].copy()
-    xn, Pn, nis, ok = _kalman(X, P[i].copy(), r, H, Rm)
+    xn, Pn, nis, ok = _kalman(X, P[i].copy(), r, H, Rm, (2,))
     out = verdict(nis, ok, Pn, thr[kind], gate)
     if out[0]:
         return out
