@@ -5,8 +5,9 @@ cross-covariance, or covariance intersection where the correlation is unknown).
 :func:`build` makes the functions with a compiler ``jit``, as :func:`swarmloc.engine.formulas.build` does: the
 functions themselves (:data:`PAIRS`, what the nodes call; no numba needed) or ``numba.njit``'s (the engine's
 compiled replay, :mod:`swarmloc.engine.pairs`). They are numpy code that numba compiles: small arrays, loops,
-``np.linalg``. A factor ``sigma_il (3, 3)`` of robot ``i`` for robot ``l`` is stored with the shear ``(sa, sb)`` that
-``i``'s predictions since its last update owe it (:class:`~swarmloc.estimators.rdl.RdlFilter`); covariances are of
+``np.linalg``, products through :func:`~swarmloc.kernels.cartesian.matmul` (loops when compiled). A factor
+``sigma_il (3, 3)`` of robot ``i`` for robot ``l`` is stored with the shear ``(sa, sb)`` that ``i``'s predictions
+since its last update owe it (:class:`~swarmloc.estimators.rdl.RdlFilter`); covariances are of
 Cartesian (``rdl``) or world-frame (``irdl``) errors, the math is the same.
 """
 
@@ -19,6 +20,8 @@ from types import ModuleType
 from typing import Any, Protocol, TypeVar
 
 import numpy as np
+
+from swarmloc.kernels.cartesian import matmul
 
 CI_WEIGHTS = np.linspace(0.02, 0.98, 49)
 """The covariance-intersection weights the pair prior tries (``ci_prior``)."""
@@ -58,10 +61,10 @@ def build(jit: Jit = _plain) -> ModuleType:
         pending shear left; ``sig`` itself where every factor is zero."""
         if not sig.any():
             return sig
-        M = P_new @ np.linalg.inv(P_old)
+        M = matmul(P_new, np.linalg.inv(P_old))
         f = sheared(sig, sa, sb)
         for k in range(f.shape[0]):
-            f[k] = M @ f[k]
+            f[k] = matmul(M, f[k])
         return f
 
     @jit
@@ -126,7 +129,7 @@ def build(jit: Jit = _plain) -> ModuleType:
             P = np.zeros((6, 6))
             P[:3, :3] = Pi
             P[3:, 3:] = Pj
-            Pij = fi @ fj.T
+            Pij = matmul(fi, fj.T)
             P[:3, 3:] = Pij
             P[3:, :3] = Pij.T
             if positive_definite(P):
