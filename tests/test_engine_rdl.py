@@ -15,11 +15,12 @@ from test_engine_cekf import _same, _same_on_mrclam, _with, robot_extras
 from test_engine_invariant import _nodes as _invariant_nodes
 
 from swarmloc.engine import run_engine
-from swarmloc.engine.pairs import _joint_prior
+from swarmloc.engine.pairs import K, _kalman
 from swarmloc.estimators import make_team, node_options
-from swarmloc.estimators.rdl import CI_WEIGHTS, joint_prior
 from swarmloc.events import Detection
 from swarmloc.experiments.sources import load_source
+from swarmloc.kernels import cartesian as C
+from swarmloc.kernels.pairs import PAIRS
 from swarmloc.runner import RunResult, run
 
 # slow: the first test of the module compiles the engine's numba/JAX kernels
@@ -98,23 +99,65 @@ def pair_cases(count: int):
 
 
 def test_pair_prior_equals_the_nodes_on_every_branch() -> None:
-    """The compiled pair prior against :func:`swarmloc.estimators.rdl.joint_prior`: a tracked positive-definite
-    cross-covariance, a tracked one that is not (covariance intersection), a met pair with a dropped factor, a
-    target tracking a pair the observer never met; both gain, only the observer, neither (a weak measurement)."""
+    """The compiled pair prior (the replay's, :data:`swarmloc.engine.pairs.K`) against the nodes' plain numpy one
+    (:data:`swarmloc.kernels.pairs.PAIRS`, one source): a tracked positive-definite cross-covariance, a tracked one
+    that is not (covariance intersection), a met pair with a dropped factor, a target tracking a pair the observer
+    never met; both gain, only the observer, neither (a weak measurement)."""
     seen = {"tracked": 0, 1: 0, 0: 0, -1: 0}
     for Pi, Pj, fi, fj, met, H, R in pair_cases(300):
-        ref = joint_prior(Pi, Pj, fi, fj, H, R, met)
-        P, flag = _joint_prior(Pi, Pj, fi, fj, met, H, R, CI_WEIGHTS)
-        if ref is None:
-            assert flag == -1
-        else:
-            np.testing.assert_allclose(P, ref[0], rtol=1e-12, atol=1e-15)
-            assert flag == int(ref[1])
-            if ref[1] and np.allclose(P[:3, 3:], fi @ fj.T):
-                seen["tracked"] += 1
-                continue
+        ref, ref_flag = PAIRS.pair_prior(Pi, Pj, fi, fj, met, H, R)
+        P, flag = K.pair_prior(Pi, Pj, fi, fj, met, H, R)
+        assert flag == ref_flag
+        np.testing.assert_allclose(P, ref, rtol=1e-12, atol=1e-15)
+        if flag == 1 and np.allclose(P[:3, 3:], fi @ fj.T):
+            seen["tracked"] += 1
+            continue
         seen[flag] += 1
     assert min(seen.values()) >= 5, seen
+
+
+def test_rescaled_factors_equal_the_nodes() -> None:
+    """The compiled rescaling of a robot's factors after its update (pending shear applied, a zero factor kept
+    zero; none non-zero: unchanged) against the nodes' plain numpy one."""
+    rng = np.random.default_rng(5)
+    for k in range(40):
+        P_old, P_new = _spd(rng, 0.05), _spd(rng, 0.01)
+        sig = rng.normal(scale=0.1, size=(4, 3, 3))
+        sig[k % 4] = 0.0
+        if k % 10 == 0:
+            sig[:] = 0.0
+        sa, sb = rng.normal(size=2)
+        ref = PAIRS.rescaled(P_new, P_old, sig, sa, sb)
+        np.testing.assert_allclose(K.rescaled(P_new, P_old, sig, sa, sb), ref, rtol=1e-12, atol=1e-15)
+        assert not ref[k % 4].any()
+        if k % 10 == 0:
+            assert ref is sig
+        else:
+            f = sig[(k + 1) % 4]
+            sheared = np.array([f[0] + sa * f[2], f[1] + sb * f[2], f[2]])
+            np.testing.assert_allclose(ref[(k + 1) % 4], P_new @ np.linalg.solve(P_old, sheared), rtol=1e-9)
+
+
+def test_compiled_kalman_equals_the_nodes() -> None:
+    """The replay's Kalman update (:func:`swarmloc.kernels.cartesian.kalman_one` compiled) against the nodes'
+    (:func:`~swarmloc.kernels.cartesian.kalman_update`): one robot's and a pair's state, one to three rows, headings
+    far outside (-pi, pi] wrapped; a singular innovation covariance of two and of three rows refused."""
+    rng = np.random.default_rng(7)
+    for k in range(60):
+        n, m = (3, 6)[k % 2], 1 + k % 3
+        P = _spd(rng, 0.1) if n == 3 else np.kron(np.eye(2), _spd(rng, 0.1)) + 0.01
+        x, H, r = rng.normal(scale=5.0, size=n), rng.normal(size=(m, n)), rng.normal(size=m)
+        R = 10 ** rng.uniform(-3, 1) * np.eye(m)
+        angles = tuple(range(2, n, 3))
+        xn, Pn, nis, ok = C.kalman_update(x, P, r, H, R, angles=angles)
+        cx, cP, cnis, cok = _kalman(x, P, r, H, R, angles)
+        assert cok == bool(ok) and np.abs(cx[list(angles)]).max() <= np.pi
+        np.testing.assert_allclose(cx, xn, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(cP, Pn, rtol=1e-10, atol=1e-14)
+        assert cnis == pytest.approx(float(nis), rel=1e-10)
+    for m in (2, 3):
+        res = _kalman(np.zeros(3), np.zeros((3, 3)), np.ones(m), np.ones((m, 3)), np.zeros((m, m)), (2,))
+        assert not res[3] and np.isnan(res[2])
 
 
 def test_rdl_engine_refuses_what_it_does_not_run() -> None:

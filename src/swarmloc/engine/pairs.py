@@ -12,24 +12,25 @@ runner, no faults), in the order of their history keys:
   own group at the stamp), each detection in the group's canonical order, then the commands;
 * a robot's detection of teammate ``j``: ``j``'s answer is its state predicted to the stamp (not stored); the pair's
   joint prior with the tracked cross-covariance, or bounded by covariance intersection when the correlation is not
-  tracked or not positive definite (:func:`~swarmloc.estimators.rdl.joint_prior`,
-  :func:`~swarmloc.estimators.rdl.ci_pair_prior`); the joint Joseph update, its gate and check; the observer keeps
+  tracked or not positive definite; the joint Joseph update, its gate and check; the observer keeps
   its part (``sigma_ij <- P_ij+``, its other factors rescaled by ``P_ii+ P_ii-^-1``); when both take it the target
   moves to the stamp and takes its part (``sigma_ji <- I``, its factors rescaled), else the observer drops its
   factor for the target and the target is untouched ("no update");
 * absolute fixes and map landmarks: private updates of the observer, its factors rescaled.
 
-Results equal the nodes' to rounding (tests/test_engine_rdl.py). Units: metres, radians, seconds.
+The pair math (the factors' shear, their rescaling, the joint prior) is the nodes' own, :mod:`swarmloc.kernels.pairs`
+compiled by numba (:data:`K`). Results equal the nodes' to rounding (tests/test_engine_rdl.py). Units: metres,
+radians, seconds.
 """
 
 from __future__ import annotations
 
-import math
 from functools import cache
 from typing import Any, Unpack
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 from swarmloc.arrays import BoolArray, FloatArray
 from swarmloc.engine import blocks as B
@@ -39,162 +40,82 @@ from swarmloc.engine.joint import predict_kernel, run, stamp_loop
 from swarmloc.engine.joint_math import (
     F,
     degenerate,
-    innovation,
-    inverse,
     measure,
-    store_symmetric,
-    usable,
     verdict,
-    wrap,
 )
 from swarmloc.engine.replay_io import Replayed, Switches, constants
-from swarmloc.estimators.rdl import CI_WEIGHTS
+from swarmloc.kernels import cartesian as C
+from swarmloc.kernels.pairs import build
 from swarmloc.motion import UnicycleNoise
 
 
-@njit(error_model="numpy")
-def _kalman(x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
-    """:func:`swarmloc.kernels.cartesian.kalman_update` for one state (Joseph form), every third component (the
-    headings) wrapped: ``S = H P H^T + R``, ``K = P H^T S^-1``, ``P+ = (I - K H) P (I - K H)^T + K R K^T``
-    symmetrized, written as loops (the states are 3 or 6 long: a matrix product's call costs more than its work)."""
-    N, m = P.shape[0], H.shape[0]
-    PHt, S = innovation(P, H, np.arange(N), R)
-    S_inv, regular = inverse(S)
-    if not regular:
-        return x, P, math.nan, False
-    Sr = np.zeros(m)
-    nis = 0.0
-    for k in range(m):
-        for ll in range(m):
-            Sr[k] += S_inv[k, ll] * r[ll]
-        nis += r[k] * Sr[k]
-    K = np.zeros((N, m))
-    xn = np.empty(N)
-    for a in range(N):
-        step = 0.0
-        for k in range(m):
-            step += PHt[a, k] * Sr[k]
-            for ll in range(m):
-                K[a, k] += PHt[a, ll] * S_inv[ll, k]
-        xn[a] = x[a] + step
-    for a in range(2, N, 3):
-        if math.isfinite(xn[a]):
-            xn[a] = wrap(xn[a])
-    IKH = np.zeros((N, N))
-    KR = np.zeros((N, m))
-    for a in range(N):
-        for b in range(N):
-            acc = 1.0 if a == b else 0.0
-            for k in range(m):
-                acc -= K[a, k] * H[k, b]
-            IKH[a, b] = acc
-        for k in range(m):
-            for ll in range(m):
-                KR[a, k] += K[a, ll] * R[ll, k]
-    T = np.zeros((N, N))  # (I - K H) P
-    for a in range(N):
-        for b in range(N):
+def _compile(fn: Any) -> Any:
+    return njit(error_model="numpy")(fn)
+
+
+K = build(_compile)
+"""``rdl``'s pair math (:mod:`swarmloc.kernels.pairs`: the nodes' functions) compiled by numba."""
+
+
+@overload(C.matmul, jit_options={"error_model": "numpy"})
+def _matmul(A: Any, B: Any) -> Any:
+    """:func:`swarmloc.kernels.cartesian.matmul` compiled: the product of small matrices or vectors as loops."""
+    if A.ndim == 1 and B.ndim == 1:
+
+        def dot(A: Any, B: Any) -> Any:
             acc = 0.0
-            for c in range(N):
-                acc += IKH[a, c] * P[c, b]
-            T[a, b] = acc
-    Pn = np.empty((N, N))
-    ok = math.isfinite(nis)
-    for a in range(N):
-        ok = ok and math.isfinite(xn[a])
-        for b in range(a, N):
-            ab, ba = 0.0, 0.0
-            for c in range(N):
-                ab += T[a, c] * IKH[b, c]
-                ba += T[b, c] * IKH[a, c]
-            for k in range(m):
-                ab += KR[a, k] * K[b, k]
-                ba += KR[b, k] * K[a, k]
-            ok = store_symmetric(Pn, a, b, ab, ba) and ok
-    return xn, Pn, nis, ok
+            for c in range(A.shape[0]):
+                acc += A[c] * B[c]
+            return acc
+
+        return dot
+    if A.ndim == 2 and B.ndim == 1:
+
+        def matvec(A: Any, B: Any) -> Any:
+            out = np.empty(A.shape[0])
+            for i in range(A.shape[0]):
+                acc = 0.0
+                for c in range(A.shape[1]):
+                    acc += A[i, c] * B[c]
+                out[i] = acc
+            return out
+
+        return matvec
+
+    def matmat(A: Any, B: Any) -> Any:
+        out = np.empty((A.shape[0], B.shape[1]))
+        for i in range(A.shape[0]):
+            for j in range(B.shape[1]):
+                acc = 0.0
+                for c in range(A.shape[1]):
+                    acc += A[i, c] * B[c, j]
+                out[i, j] = acc
+        return out
+
+    return matmat
+
+
+_kalman = _compile(C.kalman_one)
+"""The Kalman (Joseph) update of one state, the nodes' own (:func:`swarmloc.kernels.cartesian.kalman_one`) compiled:
+``(x+, P+, nis, ok)``, the headings (components ``angles``) wrapped."""
 
 
 @njit(error_model="numpy")
 def _factor(sig: np.ndarray, met: np.ndarray, sa: float, sb: float, k: int, l: int) -> np.ndarray:
     """``sigma_kl`` with robot ``k``'s pending shear ``(sa, sb)`` applied (zero for a robot never met)."""
-    f = np.zeros((3, 3))
     if met[k, l]:
-        f[2] = sig[k, l, 2]
-        for c in range(3):
-            f[0, c], f[1, c] = B.shear(sig[k, l, 0, c], sig[k, l, 1, c], sig[k, l, 2, c], sa, sb)
-    return f
+        f: np.ndarray = K.sheared(sig[k, l], sa, sb)
+        return f
+    return np.zeros((3, 3))
 
 
 @njit(error_model="numpy")
-def _rescale(sig: np.ndarray, met: np.ndarray, sa: np.ndarray, sb: np.ndarray, k: int, P_new: np.ndarray,
-             P_old: np.ndarray) -> None:  # fmt: skip
-    """Robot ``k``'s factors ``sigma_kl <- P_new P_old^-1 sigma_kl`` (:func:`~swarmloc.estimators.rdl.
-    rescale_factors`), its pending shear cleared."""
-    if met[k].any():
-        inv, _ = inverse(P_old)
-        M = P_new @ inv
-        for l in range(met.shape[1]):
-            if met[k, l]:
-                sig[k, l] = M @ _factor(sig, met, sa[k], sb[k], k, l)
+def _rescale(sig: np.ndarray, sa: np.ndarray, sb: np.ndarray, k: int, P_new: np.ndarray, P_old: np.ndarray) -> None:
+    """Robot ``k``'s factors rescaled after its update from ``P_old`` to ``P_new`` (:mod:`swarmloc.kernels.pairs`'
+    ``rescaled``; a robot not met has a zero factor), its pending shear cleared."""
+    sig[k] = K.rescaled(P_new, P_old, sig[k], sa[k], sb[k])
     sa[k] = 0.0
     sb[k] = 0.0
-
-
-@njit(error_model="numpy")
-def _logdet(A: np.ndarray) -> float:
-    logabs: float = np.linalg.slogdet(A)[1]
-    return logabs
-
-
-@njit(error_model="numpy")
-def _ci_prior(Pi: np.ndarray, Pj: np.ndarray, H: np.ndarray, R: np.ndarray, weights: np.ndarray
-              ) -> tuple[np.ndarray, int]:  # fmt: skip
-    """:func:`~swarmloc.estimators.rdl.ci_pair_prior`: ``(P (6, 6), 1)`` when both robots gain, ``(P, 0)`` when
-    only the observer does, ``(P, -1)`` when neither does."""
-    nw = weights.shape[0]
-    gi, gj = np.empty(nw), np.empty(nw)
-    Ps = np.zeros((nw, 6, 6))
-    li, lj = _logdet(Pi), _logdet(Pj)
-    for k in range(nw):
-        Ps[k, :3, :3] = Pi / weights[k]
-        Ps[k, 3:, 3:] = Pj / (1.0 - weights[k])
-        PHt = Ps[k] @ H.T
-        S_inv, _ = inverse(H @ PHt + R)
-        Pn = Ps[k] - PHt @ (S_inv @ PHt.T)
-        gi[k] = li - _logdet(Pn[:3, :3].copy())
-        gj[k] = lj - _logdet(Pn[3:, 3:].copy())
-    best, kb = -math.inf, 0
-    for k in range(nw):
-        both = min(gi[k], gj[k]) if math.isfinite(gi[k]) and math.isfinite(gj[k]) else -math.inf
-        if both > best:
-            best, kb = both, k
-    if best >= 0.0:
-        return Ps[kb].copy(), 1
-    best, kb = -math.inf, 0
-    for k in range(nw):
-        g = gi[k] if math.isfinite(gi[k]) else -math.inf
-        if g > best:
-            best, kb = g, k
-    return Ps[kb].copy(), (0 if best > 0.0 else -1)
-
-
-@njit(error_model="numpy")
-def _joint_prior(Pi: np.ndarray, Pj: np.ndarray, fi: np.ndarray, fj: np.ndarray, met: bool, H: np.ndarray,
-                 R: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, int]:  # fmt: skip
-    """:func:`~swarmloc.estimators.rdl.joint_prior` (the tracked cross-covariance when known and positive definite,
-    else :func:`_ci_prior`), with :func:`_ci_prior`'s flag."""
-    known = (fi.any() and fj.any()) if met else not fj.any()
-    if known:
-        P = np.zeros((6, 6))
-        P[:3, :3] = Pi
-        P[3:, 3:] = Pj
-        Pij = fi @ fj.T
-        P[:3, 3:] = Pij
-        P[3:, :3] = Pij.T
-        if usable(P):
-            return P, 1
-    return _ci_prior(Pi, Pj, H, R, weights)
 
 
 @cache
@@ -260,16 +181,16 @@ def _detect(predicted: Any, advance: Any) -> Any:
         fi = _factor(sig, met, sa[i], sb[i], i, j)
         X = np.concatenate((x[i], xj))
         r, H, Rm = measure(kind, X, 0, xj, zq, Rq)
-        prior, both = _joint_prior(P[i].copy(), Pj, fi, fj, met[i, j], H, Rm, CI_WEIGHTS)
+        prior, both = K.pair_prior(P[i].copy(), Pj, fi, fj, met[i, j], H, Rm)
         if both < 0:
             return GATED, R_CORRELATION
-        Xn, Pn, nis, ok = _kalman(X, prior, r, H, Rm)
+        Xn, Pn, nis, ok = _kalman(X, prior, r, H, Rm, (2, 5))
         out = verdict(nis, ok, Pn, thr[kind], gate)
         if out[0]:
             return out
         Pi_old = P[i].copy()
         x[i], P[i] = Xn[:3], Pn[:3, :3]
-        _rescale(sig, met, sa, sb, i, P[i], Pi_old)
+        _rescale(sig, sa, sb, i, P[i], Pi_old)
         if both == 0:  # only the observer gains: its correlation with the target is unknown now
             sig[i, j] = 0.0
             return FUSED, 0
@@ -277,7 +198,7 @@ def _detect(predicted: Any, advance: Any) -> Any:
         advance(x, P, (sa, sb), tc, v, w, j, t)  # the target takes its part at the stamp
         Pj_old = P[j].copy()
         x[j], P[j] = Xn[3:], Pn[3:, 3:]
-        _rescale(sig, met, sa, sb, j, P[j], Pj_old)
+        _rescale(sig, sa, sb, j, P[j], Pj_old)
         sig[j, i], met[j, i] = np.eye(3), True
         return FUSED, 0
 
@@ -313,13 +234,13 @@ def _private(x: np.ndarray, P: np.ndarray, sa: np.ndarray, sb: np.ndarray, met: 
         Hk = H[:, 3:5].copy()
         Rm = Rm + Hk @ lcov[lm] @ Hk.T
         H = H[:, :3].copy()
-    xn, Pn, nis, ok = _kalman(X, P[i].copy(), r, H, Rm)
+    xn, Pn, nis, ok = _kalman(X, P[i].copy(), r, H, Rm, (2,))
     out = verdict(nis, ok, Pn, thr[kind], gate)
     if out[0]:
         return out
     P_old = P[i].copy()
     x[i], P[i] = xn, Pn
-    _rescale(sig, met, sa, sb, i, Pn, P_old)
+    _rescale(sig, sa, sb, i, Pn, P_old)
     return FUSED, 0
 
 

@@ -27,13 +27,14 @@ replaces it, or its "no update" (or its notice that no answer reached it: an emp
 removes it (the robot stays in ``ids``, its factor zero: met, no longer tracked). A pair of which a side has
 dropped its factor, or whose target tracks a correlation the observer never had (a restart), or whose tracked joint
 covariance is not positive definite, fuses as if the correlation were unknown: the joint prior is bounded by
-covariance intersection, ``blockdiag(P_ii / w, P_jj / (1 - w))`` (:func:`ci_pair_prior`), valid whatever the
-true cross-covariance. When both robots gain from that update, both take it and the factors restart from it
-(observer ``sigma_ij <- P_ij+``, target ``sigma_ji <- I``); else the observer alone takes its part, drops its own
-factor, and the target gets "no update" (the pair stays untracked); a measurement that helps neither is not fused
-(``gated``). A restarted node (no factors) is fused the same way. An update computed from a revision of the
-answer that differs from the latest by less than :func:`near` still applies (most revisions under delay are that
-small). Without faults every placeholder is replaced by its update before anything reads it, so the result is
+covariance intersection, ``blockdiag(P_ii / w, P_jj / (1 - w))``, valid whatever the true cross-covariance (the pair
+math, written once for the nodes and the engine's compiled replay, is :mod:`swarmloc.kernels.pairs`'). When both
+robots gain from that update, both take it and the factors restart from it (observer ``sigma_ij <- P_ij+``,
+target ``sigma_ji <- I``); else the observer alone takes its part, drops its own factor, and the target gets "no
+update" (the pair stays untracked); a measurement that helps neither is not fused (``gated``). A restarted node (no
+factors) is fused the same way. An update computed from a revision of the answer that differs from the latest by
+less than :func:`near` still applies (most revisions under delay are that small). Without faults every placeholder
+is replaced by its update before anything reads it, so the result is
 unchanged (``tests/test_net.py``: networked = in-process; ``tests/test_rdl_faults.py``).
 
 **A lying teammate** (:mod:`swarmloc.node.trust`). An update must move this robot from the state it answered by a
@@ -70,6 +71,7 @@ from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels import cartesian as C
+from swarmloc.kernels.pairs import PAIRS
 from swarmloc.lie import wrap_angle
 from swarmloc.messages import Answer, BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.node import (
@@ -94,8 +96,6 @@ _ZERO = np.zeros((3, 3))
 _ZERO.setflags(write=False)
 _NO_FACTORS = np.zeros((0, 3, 3))
 _NO_FACTORS.setflags(write=False)
-CI_WEIGHTS = np.linspace(0.02, 0.98, 49)
-"""The covariance-intersection weights :func:`ci_pair_prior` tries."""
 UNKNOWN_CORRELATION = "the pair's correlation is unknown and the measurement too weak to bound it"
 NEAR_MAHALANOBIS = 1e-4
 """[squared Mahalanobis] Largest change of an answer's mean for which an update computed before it still applies."""
@@ -134,9 +134,7 @@ class RdlFilter(NamedTuple):
         """Every factor ``sigma_il`` with the pending shear applied, ``(len(ids), 3, 3)``."""
         if not self.sa and not self.sb:
             return self.sigma
-        out = self.sigma.copy()
-        out[:, 0, :] += self.sa * self.sigma[:, 2, :]
-        out[:, 1, :] += self.sb * self.sigma[:, 2, :]
+        out: np.ndarray = PAIRS.sheared(self.sigma, self.sa, self.sb)
         return out
 
     def factor(self, robot: int) -> np.ndarray:
@@ -147,7 +145,8 @@ class RdlFilter(NamedTuple):
         f: np.ndarray = self.sigma[i]
         if not self.sa and not self.sb:
             return f
-        return np.array([f[0] + self.sa * f[2], f[1] + self.sb * f[2], f[2]])
+        out: np.ndarray = PAIRS.sheared(f, self.sa, self.sb)
+        return out
 
     def without_factor(self, robot: int) -> RdlFilter:
         """The same filter with the factor for ``robot`` zero while ``robot`` stays in ``ids``: a robot met whose
@@ -168,56 +167,6 @@ class RdlFilter(NamedTuple):
             sigma[i] = value
             return self.ids, sigma
         return (*self.ids[:i], robot, *self.ids[i:]), np.insert(sigma, i, value, axis=0)
-
-
-def ci_pair_prior(Pii: np.ndarray, Pjj: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, bool] | None:
-    """The pair's joint prior when their cross-covariance is unknown: ``blockdiag(Pii / w, Pjj / (1 - w))``, which
-    bounds the joint covariance for every ``w`` in (0, 1) and every cross-covariance (covariance intersection), and
-    whether both robots take the update. ``w`` (a grid of step 0.02) maximizes the smaller of the two robots' gains
-    ``log det P_prior - log det P_post`` of the joint update (``H (m, 6)``, ``R (m, m)``): ``(P, True)`` when both
-    gain. Else the observer alone takes it, ``w`` maximizing its own gain: ``(P, False)``; None when even that is a
-    loss (the measurement is too weak to pay for the bound)."""
-    w = CI_WEIGHTS[:, None, None]
-    P = np.zeros((w.shape[0], 6, 6))
-    P[:, :3, :3] = Pii / w
-    P[:, 3:, 3:] = Pjj / (1.0 - w)
-    PHt = P @ H.T
-    S = H @ PHt + R
-    Pn = P - PHt @ np.linalg.solve(S, np.swapaxes(PHt, -1, -2))
-    gi = np.linalg.slogdet(Pii)[1] - np.linalg.slogdet(Pn[:, :3, :3])[1]
-    gj = np.linalg.slogdet(Pjj)[1] - np.linalg.slogdet(Pn[:, 3:, 3:])[1]
-    both = np.where(np.isfinite(gi) & np.isfinite(gj), np.minimum(gi, gj), -np.inf)
-    k = int(np.argmax(both))
-    if both[k] >= 0.0:
-        return P[k], True
-    gi = np.where(np.isfinite(gi), gi, -np.inf)
-    k = int(np.argmax(gi))
-    return (P[k], False) if gi[k] > 0.0 else None
-
-
-def tracked(fi: np.ndarray, fj: np.ndarray, met: bool) -> bool:
-    """Whether a pair's correlation is known from the observer's factor ``fi``, the target's ``fj``, and whether the
-    observer has met the target (exchanged with it, since its start): met, both sides must still track it (non-zero:
-    a zero factor was dropped by an exchange that did not complete); never met, the target must not track one either
-    (independent). Else an exchange did not complete, or one side restarted."""
-    return bool(fi.any()) and bool(fj.any()) if met else not fj.any()
-
-
-def joint_prior(
-    Pii: np.ndarray, Pjj: np.ndarray, fi: np.ndarray, fj: np.ndarray, H: np.ndarray, R: np.ndarray, met: bool
-) -> tuple[np.ndarray, bool] | None:
-    """The pair's joint prior ``(6, 6)`` and whether the target takes its part: with the tracked cross-covariance
-    ``fi fj^T`` when the correlation is known (:func:`tracked`) and the result positive definite, else bounded by
-    covariance intersection (:func:`ci_pair_prior`; None: not worth fusing)."""
-    if tracked(fi, fj, met):
-        Pij = fi @ fj.T
-        P = np.block([[Pii, Pij], [Pij.T, Pjj]])
-        try:
-            np.linalg.cholesky(P)
-            return P, True
-        except np.linalg.LinAlgError:
-            pass
-    return ci_pair_prior(Pii, Pjj, H, R)
 
 
 def near(a: RdlState, b: RdlState) -> bool:
@@ -243,11 +192,9 @@ def near(a: RdlState, b: RdlState) -> bool:
 
 
 def rescale_factors(s: RdlFilter, P_new: np.ndarray) -> np.ndarray:
-    """``sigma_il <- P_new P_old^-1 sigma_il`` for every robot ``l`` (Luft et al.'s approximation); the result has no
-    pending shear."""
-    if not s.ids:
-        return s.sigma
-    out: np.ndarray = (P_new @ np.linalg.inv(s.P)) @ s.factors()
+    """``sigma_il <- P_new P_old^-1 sigma_il`` for every robot ``l`` (Luft et al.'s approximation;
+    :mod:`swarmloc.kernels.pairs`' ``rescaled``); the result has no pending shear."""
+    out: np.ndarray = PAIRS.rescaled(P_new, s.P, s.sigma, s.sa, s.sb)
     return out
 
 
@@ -542,15 +489,15 @@ class RdlNode(RobotNode):
         assert Hj is not None  # noqa: S101  (a relative model: a Jacobian for the target)
         H = np.hstack([self.form.to_error(Hi, s.x), self.form.to_error(Hj, xj)])
         R = m.noise(d.z, d.cov)
-        prior = joint_prior(s.P, Pjj, s.factor(j), sig_ji, H, R, j in s.ids)  # None: correlation unknown, too weak
-        if prior is None:
+        prior, joint = PAIRS.pair_prior(s.P, Pjj, s.factor(j), sig_ji, j in s.ids, H, R)
+        if joint < 0:  # the correlation unknown and the measurement too weak to bound it
             return ("gated", UNKNOWN_CORRELATION)
-        res = self.form.update(np.stack([s.x, xj]), prior[0], m.residual(d.z, h), H, R, self.gate)
+        res = self.form.update(np.stack([s.x, xj]), prior, m.residual(d.z, h), H, R, self.gate)
         if isinstance(res[0], str):
             return res
         X, Pn = res
         self._log_update(g.t, {self.robot: H[:, :3], j: H[:, 3:]}, R)
-        return self._pair_result(s, g, sub, a, X[0], X[1], Pn, prior[1])
+        return self._pair_result(s, g, sub, a, X[0], X[1], Pn, joint == 1)
 
     def _log_update(self, t: float, blocks: dict[int, np.ndarray], R: np.ndarray) -> None:
         if self.lin_log is not None:

@@ -29,6 +29,8 @@ from swarmloc.gaussian import symmetric
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment, odometry_increment_terms
 
+_TAU = 2 * math.pi
+
 _T = np.swapaxes
 
 
@@ -263,31 +265,49 @@ def kalman_update(
 def _kalman_update_one(
     x: FloatArray, P: FloatArray, r: FloatArray, H: FloatArray, R: FloatArray, angles: tuple[int, ...]
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """:func:`kalman_update` for one state (the same Joseph form with fewer array calls; equal to rounding)."""
-    PHt = P @ H.T
-    S = H @ PHt + R
-    if S.shape == (2, 2):  # closed form (LAPACK's call costs more than the arithmetic)
-        a, b, c, d = S.ravel().tolist()
+    """:func:`kalman_update` for one state (:func:`kalman_one`; ``nis`` and ``ok`` as arrays)."""
+    xn, Pn, nis, ok = kalman_one(x, P, r, H, R, angles)
+    return xn, Pn, np.array(nis), np.array(ok)
+
+
+def matmul(A: FloatArray, B: FloatArray) -> FloatArray:
+    """``A @ B``; numba-compiled code runs it as loops (:mod:`swarmloc.engine.pairs` registers that form: on
+    matrices of a few rows a BLAS call costs more than its work)."""
+    out: FloatArray = A @ B
+    return out
+
+
+def kalman_one(
+    x: FloatArray, P: FloatArray, r: FloatArray, H: FloatArray, R: FloatArray, angles: tuple[int, ...]
+) -> tuple[FloatArray, FloatArray, float, bool]:
+    """:func:`kalman_update` for one state ``x (n,)`` (the same Joseph form with fewer array calls; equal to
+    rounding): ``(x+, P+, nis, ok)``, ``(x, P, nan, False)`` for a singular innovation covariance. Numpy code that
+    numba compiles: the engine's ``rdl`` replay runs it compiled (:mod:`swarmloc.engine.pairs`), its products
+    (:func:`matmul`) as loops."""
+    PHt = matmul(P, H.T)
+    S = matmul(H, PHt) + R
+    if S.shape[0] == 2:  # closed form (LAPACK's call costs more than the arithmetic)
+        a, b, c, d = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
         det = a * d - b * c
-        S_inv = np.array([[d / det, -b / det], [-c / det, a / det]]) if det != 0 else None
+        if det == 0:
+            return x, P, math.nan, False
+        S_inv = np.array([[d / det, -b / det], [-c / det, a / det]])
     else:
         try:
-            S_inv = np.linalg.inv(S)
-        except np.linalg.LinAlgError:
-            S_inv = None
-    if S_inv is None:
-        return x, P, np.array(np.nan), np.array(False)
-    Sr = S_inv @ r
-    nis = r @ Sr
-    K = PHt @ S_inv
-    xn = x + PHt @ Sr
-    with np.errstate(invalid="ignore"):
-        for j in angles:
-            xn[j] = wrap_angle(xn[j]) if math.isfinite(xn[j]) else xn[j]
-    IKH = np.eye(x.shape[0]) - K @ H
-    Pn = IKH @ P @ IKH.T + K @ R @ K.T
-    Pn = symmetric(Pn)
-    ok = np.array(math.isfinite(nis) and bool(np.isfinite(xn).all()) and bool(np.isfinite(Pn).all()))
+            S_inv = np.ascontiguousarray(np.linalg.inv(S))
+        except Exception:  # numba matches no narrower class; numpy raises LinAlgError
+            return x, P, math.nan, False
+    Sr = matmul(S_inv, r)
+    nis = float(matmul(r, Sr))
+    K = matmul(PHt, S_inv)
+    xn = x + matmul(PHt, Sr)
+    for j in angles:
+        if math.isfinite(xn[j]):
+            xn[j] = math.pi - (math.pi - xn[j]) % _TAU  # wrap_angle's float form
+    IKH = np.eye(x.shape[0]) - matmul(K, H)
+    Pn = matmul(matmul(IKH, P), IKH.T) + matmul(matmul(K, R), K.T)
+    Pn = 0.5 * (Pn + Pn.T)  # symmetric
+    ok = math.isfinite(nis) and bool(np.isfinite(xn).all()) and bool(np.isfinite(Pn).all())
     return xn, Pn, nis, ok
 
 

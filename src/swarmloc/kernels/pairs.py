@@ -1,0 +1,146 @@
+"""The pair math of recursive decentralized localization (``rdl``, ``irdl``: :mod:`swarmloc.estimators.rdl`), written
+once: the factors' pending shear, their rescaling after an update, and the pair's joint prior (the tracked
+cross-covariance, or covariance intersection where the correlation is unknown).
+
+:func:`build` makes the functions with a compiler ``jit``, as :func:`swarmloc.engine.formulas.build` does: the
+functions themselves (:data:`PAIRS`, what the nodes call; no numba needed) or ``numba.njit``'s (the engine's
+compiled replay, :mod:`swarmloc.engine.pairs`). They are numpy code that numba compiles: small arrays, loops,
+``np.linalg``, products through :func:`~swarmloc.kernels.cartesian.matmul` (loops when compiled). A factor
+``sigma_il (3, 3)`` of robot ``i`` for robot ``l`` is stored with the shear ``(sa, sb)`` that ``i``'s predictions
+since its last update owe it (:class:`~swarmloc.estimators.rdl.RdlFilter`); covariances are of
+Cartesian (``rdl``) or world-frame (``irdl``) errors, the math is the same.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from functools import cache
+from types import ModuleType
+from typing import Any, Protocol, TypeVar
+
+import numpy as np
+
+from swarmloc.kernels.cartesian import matmul
+
+CI_WEIGHTS = np.linspace(0.02, 0.98, 49)
+"""The covariance-intersection weights the pair prior tries (``ci_prior``)."""
+CI_WEIGHTS.setflags(write=False)
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+class Jit(Protocol):
+    """A compiler: a function in, a function of the same signature out (``numba.njit``'s dispatcher, or the function
+    itself)."""
+
+    def __call__(self, fn: _F, /) -> _F: ...
+
+
+def _plain(fn: _F) -> _F:
+    return fn
+
+
+@cache
+def build(jit: Jit = _plain) -> ModuleType:
+    """The pair functions compiled by ``jit``, as the attributes of a module object (numba compiles a module's
+    attribute as a global of its own): ``sheared``, ``rescaled``, ``tracked``, ``ci_prior``, ``pair_prior``."""
+
+    @jit
+    def sheared(sig: np.ndarray, sa: float, sb: float) -> np.ndarray:
+        """Factors ``(..., 3, 3)`` with the pending shear applied, ``S(sa, sb) @ sigma`` with ``S = [[1, 0, sa],
+        [0, 1, sb], [0, 0, 1]]`` (a new array)."""
+        out = sig.copy()
+        out[..., 0, :] += sa * sig[..., 2, :]
+        out[..., 1, :] += sb * sig[..., 2, :]
+        return out
+
+    @jit
+    def rescaled(P_new: np.ndarray, P_old: np.ndarray, sig: np.ndarray, sa: float, sb: float) -> np.ndarray:
+        """Every factor of ``sig (k, 3, 3)`` after its robot's update from ``P_old`` to ``P_new``, ``sigma_il <-
+        P_new P_old^-1 S(sa, sb) sigma_il`` (Luft et al.'s approximation of the third-party correlations), no
+        pending shear left; ``sig`` itself where every factor is zero."""
+        if not sig.any():
+            return sig
+        M = matmul(P_new, np.linalg.inv(P_old))
+        f = sheared(sig, sa, sb)
+        for k in range(f.shape[0]):
+            f[k] = matmul(M, f[k])
+        return f
+
+    @jit
+    def tracked(fi: np.ndarray, fj: np.ndarray, met: bool) -> bool:
+        """Whether a pair's correlation is known from the observer's factor ``fi``, the target's ``fj``, and whether
+        the observer has met the target (exchanged with it, since its start): met, both sides must still track it
+        (non-zero: a zero factor was dropped by an exchange that did not complete); never met, the target must not
+        track one either (independent). Else an exchange did not complete, or one side restarted."""
+        return bool(fi.any() and fj.any()) if met else not fj.any()
+
+    @jit
+    def positive_definite(P: np.ndarray) -> bool:
+        """Finite and with a Cholesky factorization."""
+        if not np.isfinite(P).all():
+            return False
+        try:
+            np.linalg.cholesky(P)
+        except Exception:  # numba matches no narrower class; numpy raises LinAlgError
+            return False
+        return True
+
+    @jit
+    def ci_prior(Pi: np.ndarray, Pj: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, int]:
+        """The pair's joint prior ``(6, 6)`` when the cross-covariance is unknown: ``blockdiag(Pi / w, Pj / (1 -
+        w))``, which bounds the joint covariance for every ``w`` in (0, 1) and every cross-covariance (covariance
+        intersection), ``w`` from :data:`CI_WEIGHTS` maximizing the smaller of the two robots' gains ``log det
+        P_prior - log det P_post`` of the joint update (``H (m, 6)``, ``R (m, m)``), flag 1 when both gain; else
+        ``w`` maximizing the observer's own gain, flag 0 when it gains (it alone takes the update), -1 when not
+        (the measurement is too weak to pay for the bound)."""
+        nw = CI_WEIGHTS.shape[0]
+        gi, gj = np.empty(nw), np.empty(nw)
+        Ps = np.zeros((nw, 6, 6))
+        li, lj = np.linalg.slogdet(Pi)[1], np.linalg.slogdet(Pj)[1]
+        for k in range(nw):
+            Ps[k, :3, :3] = Pi / CI_WEIGHTS[k]
+            Ps[k, 3:, 3:] = Pj / (1.0 - CI_WEIGHTS[k])
+            PHt = Ps[k] @ H.T
+            Pn = Ps[k] - PHt @ np.linalg.solve(H @ PHt + R, PHt.T)
+            gi[k] = li - np.linalg.slogdet(Pn[:3, :3].copy())[1]
+            gj[k] = lj - np.linalg.slogdet(Pn[3:, 3:].copy())[1]
+        best, kb = -math.inf, 0
+        for k in range(nw):
+            both = min(gi[k], gj[k]) if math.isfinite(gi[k]) and math.isfinite(gj[k]) else -math.inf
+            if both > best:
+                best, kb = both, k
+        if best >= 0.0:
+            return Ps[kb].copy(), 1
+        best, kb = -math.inf, 0
+        for k in range(nw):
+            g = gi[k] if math.isfinite(gi[k]) else -math.inf
+            if g > best:
+                best, kb = g, k
+        return Ps[kb].copy(), (0 if best > 0.0 else -1)
+
+    @jit
+    def pair_prior(Pi: np.ndarray, Pj: np.ndarray, fi: np.ndarray, fj: np.ndarray, met: bool, H: np.ndarray,
+                   R: np.ndarray) -> tuple[np.ndarray, int]:  # fmt: skip
+        """The pair's joint prior ``(6, 6)`` and whether both robots take the update (flag 1): with the tracked
+        cross-covariance ``fi fj^T`` where the correlation is known (``tracked``) and the result positive definite,
+        else bounded by covariance intersection (``ci_prior``, its flag)."""
+        if tracked(fi, fj, met):
+            P = np.zeros((6, 6))
+            P[:3, :3] = Pi
+            P[3:, 3:] = Pj
+            Pij = matmul(fi, fj.T)
+            P[:3, 3:] = Pij
+            P[3:, :3] = Pij.T
+            if positive_definite(P):
+                return P, 1
+        return ci_prior(Pi, Pj, H, R)
+
+    out = ModuleType(f"{__name__}[{getattr(jit, '__name__', jit)}]")
+    out.__dict__.update(sheared=sheared, rescaled=rescaled, tracked=tracked, positive_definite=positive_definite,
+                        ci_prior=ci_prior, pair_prior=pair_prior)  # fmt: skip
+    return out
+
+
+PAIRS = build()
+"""The pair functions as plain numpy (the nodes')."""
