@@ -14,34 +14,21 @@ Cartesian (``rdl``) or world-frame (``irdl``) errors, the math is the same.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from functools import cache
 from types import ModuleType
-from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from swarmloc.kernels.cartesian import matmul
+from swarmloc.sensors.planar import Jit, plain
 
 CI_WEIGHTS = np.linspace(0.02, 0.98, 49)
 """The covariance-intersection weights the pair prior tries (``ci_prior``)."""
 CI_WEIGHTS.setflags(write=False)
-_F = TypeVar("_F", bound=Callable[..., Any])
-
-
-class Jit(Protocol):
-    """A compiler: a function in, a function of the same signature out (``numba.njit``'s dispatcher, or the function
-    itself)."""
-
-    def __call__(self, fn: _F, /) -> _F: ...
-
-
-def _plain(fn: _F) -> _F:
-    return fn
 
 
 @cache
-def build(jit: Jit = _plain) -> ModuleType:
+def build(jit: Jit = plain) -> ModuleType:
     """The pair functions compiled by ``jit``, as the attributes of a module object (numba compiles a module's
     attribute as a global of its own): ``sheared``, ``rescaled``, ``tracked``, ``ci_prior``, ``pair_prior``."""
 
