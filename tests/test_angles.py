@@ -18,6 +18,8 @@ OWN_FORM = {
     "lie/se2.py": "wrap_angle itself",
     "sensors/planar.py": "the measurement models over an array namespace (numpy, numba on scalars, jax.numpy traced, "
     "numba generated): the engine's kernels and the nodes' models call it",
+    "kernels/cartesian.py": "kalman_one, which numba compiles for the rdl replay as the nodes run it plain: "
+    "wrap_angle's float form inline (numba cannot call wrap_angle)",
     "sim/lab.py": "np.angle(exp(1j x)) gives -pi at x = -pi: it decides which way a scripted robot turns",
     "association/pmr.py": "angles ordered in [0, 2 pi), not wrapped",
     "sensors/snapshots.py": "[-pi, pi) residuals of a fit: an ulp more or less moves the fitted camera model by 1e-8",
