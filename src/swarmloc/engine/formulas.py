@@ -162,6 +162,7 @@ def _geometry(xp: Any, jit: Jit) -> dict[str, Any]:
     planar = planar_models.build(xp, jit)
     wrap = planar.wrap  # an angle [rad] wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`)
     pose, range_bearing, rotation, degenerate = planar.pose, planar.range_bearing, planar.rotation, planar.degenerate
+    pose_residual, range_bearing_residual = planar.pose_residual, planar.range_bearing_residual
 
     @jit
     def pick6(c: Value, a: Row6, b: Row6) -> Row6:
@@ -174,7 +175,7 @@ def _geometry(xp: Any, jit: Jit) -> dict[str, Any]:
         """Residual ``r (3)``, Jacobian rows ``H (3 x 6)`` (the observer's columns, then the target's) and the rows of
         the rotation ``B(z)`` that makes a relative pose's noise Cartesian, of a detection of ``kind`` by the robot at
         ``(x0, y0, th)`` of a target at ``xk = (x, y, theta)``, measured ``z``: the models of
-        :mod:`swarmloc.sensors.planar` selected by ``kind``, residuals wrapped. A 1- or 2-row measurement (range,
+        :mod:`swarmloc.sensors.planar` and their residuals, selected by ``kind``. A 1- or 2-row measurement (range,
         bearing; range-bearing) fills the first rows, the rest zero."""
         (bx, by, heading), Hp, Hq = pose(x0, y0, th, xk[0], xk[1], xk[2])
         (rng, look), (hr, hb), (kr, kb) = range_bearing(x0, y0, th, xk[0], xk[1])
@@ -186,10 +187,12 @@ def _geometry(xp: Any, jit: Jit) -> dict[str, Any]:
         h0 = pick6(is_abs, (1.0, 0.0, 0.0, 0.0, 0.0, 0.0), pick6(is_pose, (*Hp[0], *Hq[0]), pick6(is_rb, h_rng, one)))
         h1 = pick6(is_abs, (0.0, 1.0, 0.0, 0.0, 0.0, 0.0), pick6(is_pose, (*Hp[1], *Hq[1]), pick6(is_rb, h_brg, zero)))
         h2 = pick6(is_abs, (0.0, 0.0, 1.0, 0.0, 0.0, 0.0), pick6(is_pose, (*Hp[2], *Hq[2]), zero))
-        r0 = xp.where(is_abs, z[0] - x0, xp.where(is_pose, z[0] - bx, xp.where(kind == BEARING, wrap(z[0] - look),
-                                                                                  z[0] - rng)))  # fmt: skip
-        r1 = xp.where(is_abs, z[1] - y0, xp.where(is_pose, z[1] - by, xp.where(is_rb, wrap(z[1] - look), 0.0)))
-        r2 = xp.where(is_abs, wrap(z[2] - th), xp.where(is_pose, wrap(z[2] - heading), 0.0))
+        ra, rp = pose_residual(z, (x0, y0, th)), pose_residual(z, (bx, by, heading))  # an absolute fix's, a pose's
+        # a range-bearing's and a range's (its first entry); a bearing's: the bearing entry of (range, z[0])
+        rr, rb = range_bearing_residual(z, (rng, look)), range_bearing_residual((rng, z[0]), (rng, look))[1]
+        r0 = xp.where(is_abs, ra[0], xp.where(is_pose, rp[0], xp.where(kind == BEARING, rb, rr[0])))
+        r1 = xp.where(is_abs, ra[1], xp.where(is_pose, rp[1], xp.where(is_rb, rr[1], 0.0)))
+        r2 = xp.where(is_abs, ra[2], xp.where(is_pose, rp[2], 0.0))
         return (r0, r1, r2), (h0, h1, h2), rotation(z[2])
 
     @jit

@@ -244,14 +244,12 @@ def pose_update(xp: Any, x: Vec, p: Vec, xk: Vec, pk: Vec, z: Vec, rz: Vec) -> U
     Bz = P.rotation(z[2])
     R = mm(mm(Bz, sym3(rz)), tr(Bz))
     R_eff = madd(R, mm(mm(Hk, sym3(pk)), tr(Hk)))
-    r = [z[0] - h[0], z[1] - h[1], wrap(xp, z[2] - h[2])]
-    return kalman(xp, x, p, r, Hi, R_eff)
+    return kalman(xp, x, p, list(P.pose_residual(z, h)), Hi, R_eff)
 
 
 def absolute_update(xp: Any, x: Vec, p: Vec, z: Vec, rz: Vec) -> Updated:
     """GPS-like fix ``z = (x, y, theta)`` with additive Cartesian noise ``rz`` (upper triangle): ``H = I``."""
-    r = [z[0] - x[0], z[1] - x[1], wrap(xp, z[2] - x[2])]
-    return kalman(xp, x, p, r, eye(3), sym3(rz))
+    return kalman(xp, x, p, list(build(xp).pose_residual(z, x)), eye(3), sym3(rz))
 
 
 def landmark_update(xp: Any, x: Vec, p: Vec, lk: Vec, lp: Vec, z: Vec, rz: Vec) -> Updated:
@@ -260,8 +258,8 @@ def landmark_update(xp: Any, x: Vec, p: Vec, lk: Vec, lp: Vec, z: Vec, rz: Vec) 
     :func:`swarmloc.estimators.dekf.linearize` with :func:`swarmloc.sensors.models.range_bearing` of a 2-D target,
     ``R_eff = R + Hk L Hk^T``. A landmark within ``MIN_RANGE`` of the observer is the caller's to reject (the
     Jacobians divide by the range). Returns ``(x+, P+, nis, ok)`` (see :func:`kalman`)."""
-    h, Hi, Hk = build(xp).range_bearing(*x, lk[0], lk[1])
+    P = build(xp)
+    h, Hi, Hk = P.range_bearing(*x, lk[0], lk[1])
     L = [[lp[0], lp[1]], [lp[1], lp[2]]]
     R_eff = madd([[rz[0], rz[1]], [rz[1], rz[2]]], mm(mm(Hk, L), tr(Hk)))
-    r = [z[0] - h[0], wrap(xp, z[1] - h[1])]
-    return kalman(xp, x, p, r, Hi, R_eff)
+    return kalman(xp, x, p, list(P.range_bearing_residual(z, h)), Hi, R_eff)

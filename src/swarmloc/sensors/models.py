@@ -31,7 +31,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarmloc.events import Kind
-from swarmloc.lie import wrap_angle as wrap
 from swarmloc.sensors import planar
 from swarmloc.sensors.planar import MIN_RANGE as MIN_RANGE  # ranges [m] below it are degenerate (:func:`degenerate`)
 
@@ -48,6 +47,9 @@ class _Numpy:
 
 _P = planar.build(_Numpy)
 """The planar models' math (:mod:`swarmloc.sensors.planar`) on numpy arrays and scalars."""
+
+wrap = _P.wrap
+"""An angle [rad] wrapped to (-pi, pi] (the residuals' wrap: :func:`swarmloc.lie.wrap_angle`'s formula, on numpy)."""
 
 
 def _matrix(rows: Sequence[Sequence[np.ndarray | float]], shape: tuple[int, ...], cols: int = 0) -> np.ndarray:
@@ -120,12 +122,15 @@ def degenerate(kind: Kind, xi: np.ndarray, xk: np.ndarray) -> np.ndarray:
 
 
 def residual(kind: str, z: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """``z - h`` with angular components wrapped (batched)."""
-    r = np.asarray(z, dtype=float) - h
-    for j, ang in enumerate(MODELS[kind].angular):
-        if ang:
-            r[..., j] = wrap(r[..., j])
-    return r
+    """``z - h`` with angular components wrapped (batched, ``z`` and ``h`` broadcast): :mod:`swarmloc.sensors.planar`'s
+    residual of a pose (an absolute fix's too), or the entries of a range and bearing's that a point kind holds."""
+    c = MODELS[kind].components
+    zs, hs = np.asarray(z, dtype=float).T, np.asarray(h, dtype=float).T  # axes reversed: the entries first
+    if not c:
+        return np.array(_P.pose_residual(zs, hs)).T
+    zp, hp = ([a[c.index(i)] if i in c else 0.0 for i in (0, 1)] for a in (zs, hs))  # (range, bearing): lacking 0
+    r = _P.range_bearing_residual(zp, hp)
+    return np.array([r[i] for i in c]).T
 
 
 def pose_noise_to_cartesian(z: np.ndarray, cov_exp: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
 """The planar measurement models' math, written once on an array namespace ``xp``: predictions, Jacobians, the angle
-wrap and the rotation that makes a relative pose's noise Cartesian.
+wrap, the residuals ``z - h`` (angles wrapped) and the rotation that makes a relative pose's noise Cartesian.
 
 :func:`build` makes the functions for ``xp`` and a compiler ``jit``. The nodes' batched models
 (:mod:`swarmloc.sensors.models`) use them with ``numpy`` on arrays; the engine's compiled replays use them with
@@ -49,7 +49,8 @@ def plain(fn: _F) -> _F:
 @cache
 def build(xp: Any, jit: Jit = plain) -> ModuleType:
     """The planar models for namespace ``xp``, each compiled by ``jit``, as the attributes of a module object:
-    ``wrap``, ``offset``, ``pose``, ``range_bearing``, ``degenerate``, ``rotation`` (see the module docstring)."""
+    ``wrap``, ``offset``, ``pose``, ``range_bearing``, ``pose_residual``, ``range_bearing_residual``, ``degenerate``,
+    ``rotation`` (see the module docstring)."""
 
     @jit
     def wrap(a: Any) -> Any:
@@ -83,6 +84,18 @@ def build(xp: Any, jit: Jit = plain) -> ModuleType:
         Hi = ((-dx / rng, -dy / rng, 0.0), (dy / q, -dx / q, -1.0))
         Hk = ((dx / rng, dy / rng), (-dy / q, dx / q))
         return (rng, wrap(xp.arctan2(by, bx))), Hi, Hk
+
+    @jit
+    def pose_residual(z: Any, h: Any) -> tuple[Any, Any, Any]:
+        """``z - h`` of a pose ``(x, y, theta)`` (a relative pose, or an absolute fix against the observer's own
+        state), entries indexed ``z[0..2]``: ``(dx, dy, wrap(dtheta))``."""
+        return z[0] - h[0], z[1] - h[1], wrap(z[2] - h[2])
+
+    @jit
+    def range_bearing_residual(z: Any, h: Any) -> tuple[Any, Any]:
+        """``z - h`` of a range [m] and bearing [rad], entries indexed ``z[0..1]``: ``(dr, wrap(db))``. A range's
+        residual is its first entry, a bearing's its second."""
+        return z[0] - h[0], wrap(z[1] - h[1])
 
     @jit
     def degenerate(x0: Any, y0: Any, px: Any, py: Any) -> Any:
