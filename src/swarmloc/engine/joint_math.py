@@ -1,9 +1,10 @@
 """The compiled pieces the engine's replays share (numba; :mod:`swarmloc.engine.formulas` compiled on scalars, with
 :mod:`swarmloc.engine.blocks`): a detection's residual, Jacobian and noise (:func:`measure`), small inverses, the
 positive-definite check, the world-frame pieces of the invariant filters, the Kalman update on a few columns of a
-joint covariance (:func:`kalman`) and the order of its outcomes (:func:`verdict`). :mod:`swarmloc.engine.joint`,
-:mod:`swarmloc.engine.joint_clusters` and :mod:`swarmloc.engine.pairs` build their loops from them. Units: metres,
-radians; angles wrapped to (-pi, pi]."""
+joint covariance (:func:`kalman`) and the order of its outcomes (:func:`verdict`), and the loop form of
+:func:`swarmloc.kernels.cartesian.matmul` that the nodes' kernels compiled in the engine use.
+:mod:`swarmloc.engine.joint`, :mod:`swarmloc.engine.joint_clusters` and :mod:`swarmloc.engine.pairs` build their loops
+from them. Units: metres, radians; angles wrapped to (-pi, pi]."""
 
 from __future__ import annotations
 
@@ -12,11 +13,13 @@ from typing import Any
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 from swarmloc.engine import blocks as B
 from swarmloc.engine import numba_xp
 from swarmloc.engine.codes import ABSOLUTE, FUSED, POSE, R_NUMERICAL, REJECTED
 from swarmloc.engine.formulas import RANGE_BEARING, build
+from swarmloc.kernels import cartesian as C
 
 
 def _compile(fn: Any) -> Any:
@@ -26,6 +29,45 @@ def _compile(fn: Any) -> Any:
 F = build(numba_xp, _compile)
 """The shared formulas (:mod:`swarmloc.engine.formulas`) compiled by numba on scalars."""
 wrap = F.wrap
+
+
+@overload(C.matmul, jit_options={"error_model": "numpy"})
+def _matmul(A: Any, B: Any) -> Any:
+    """:func:`swarmloc.kernels.cartesian.matmul` compiled, for every replay that compiles the nodes' kernels (registered
+    on importing this module): the product of small matrices or vectors as loops."""
+    if A.ndim == 1 and B.ndim == 1:
+
+        def dot(A: Any, B: Any) -> Any:
+            acc = 0.0
+            for c in range(A.shape[0]):
+                acc += A[c] * B[c]
+            return acc
+
+        return dot
+    if A.ndim == 2 and B.ndim == 1:
+
+        def matvec(A: Any, B: Any) -> Any:
+            out = np.empty(A.shape[0])
+            for i in range(A.shape[0]):
+                acc = 0.0
+                for c in range(A.shape[1]):
+                    acc += A[i, c] * B[c]
+                out[i] = acc
+            return out
+
+        return matvec
+
+    def matmat(A: Any, B: Any) -> Any:
+        out = np.empty((A.shape[0], B.shape[1]))
+        for i in range(A.shape[0]):
+            for j in range(B.shape[1]):
+                acc = 0.0
+                for c in range(A.shape[1]):
+                    acc += A[i, c] * B[c, j]
+                out[i, j] = acc
+        return out
+
+    return matmat
 
 
 @njit(error_model="numpy")

@@ -271,7 +271,7 @@ def _kalman_update_one(
 
 
 def matmul(A: FloatArray, B: FloatArray) -> FloatArray:
-    """``A @ B``; numba-compiled code runs it as loops (:mod:`swarmloc.engine.pairs` registers that form: on
+    """``A @ B``; numba-compiled code runs it as loops (:mod:`swarmloc.engine.joint_math` registers that form: on
     matrices of a few rows a BLAS call costs more than its work)."""
     out: FloatArray = A @ B
     return out
