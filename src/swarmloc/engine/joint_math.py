@@ -1,9 +1,10 @@
 """The compiled pieces the engine's replays share (numba; :mod:`swarmloc.engine.formulas` compiled on scalars, with
-:mod:`swarmloc.engine.blocks`): a detection's residual, Jacobian and noise (:func:`measure`), small inverses, the
-positive-definite check, the world-frame pieces of the invariant filters, the Kalman update on a few columns of a
-joint covariance (:func:`kalman`) and the order of its outcomes (:func:`verdict`). :mod:`swarmloc.engine.joint`,
-:mod:`swarmloc.engine.joint_clusters` and :mod:`swarmloc.engine.pairs` build their loops from them. Units: metres,
-radians; angles wrapped to (-pi, pi]."""
+:mod:`swarmloc.engine.blocks`): a detection's residual, Jacobian and noise (:func:`measure`), the positive-definite
+check, the world-frame pieces of the invariant filters, the Kalman update on a few columns of a joint covariance
+(:func:`kalman`, the nodes' own compiled) and the order of its outcomes (:func:`verdict`), and the loop form of
+:func:`swarmloc.kernels.cartesian.matmul` that the nodes' kernels compiled in the engine use.
+:mod:`swarmloc.engine.joint`, :mod:`swarmloc.engine.joint_clusters` and :mod:`swarmloc.engine.pairs` build their loops
+from them. Units: metres, radians; angles wrapped to (-pi, pi]."""
 
 from __future__ import annotations
 
@@ -12,11 +13,13 @@ from typing import Any
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 from swarmloc.engine import blocks as B
 from swarmloc.engine import numba_xp
 from swarmloc.engine.codes import ABSOLUTE, FUSED, POSE, R_NUMERICAL, REJECTED
 from swarmloc.engine.formulas import RANGE_BEARING, build
+from swarmloc.kernels import cartesian as C
 
 
 def _compile(fn: Any) -> Any:
@@ -25,28 +28,77 @@ def _compile(fn: Any) -> Any:
 
 F = build(numba_xp, _compile)
 """The shared formulas (:mod:`swarmloc.engine.formulas`) compiled by numba on scalars."""
-wrap = F.wrap
 
 
-@njit(error_model="numpy")
-def inverse(S: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Inverse of a 1x1, 2x2 or 3x3 ``S`` by cofactors; ``(S, False)`` when it is singular."""
-    m = S.shape[0]
-    out = np.empty_like(S)
-    if m == 1:
-        det = S[0, 0]
-        if det == 0.0:
-            return S, False
-        out[0, 0] = 1.0 / det
-        return out, True
-    if m == 2:
-        det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
-        if det == 0.0:
-            return S, False
-        out[0, 0], out[0, 1], out[1, 0], out[1, 1] = S[1, 1] / det, -S[0, 1] / det, -S[1, 0] / det, S[0, 0] / det
-        return out, True
-    inv, regular = B.inverse3(rows3(S))
-    return (np.array(inv), True) if regular else (S, False)
+@overload(C.matmul, jit_options={"error_model": "numpy"})
+def _matmul(A: Any, B: Any) -> Any:
+    """:func:`swarmloc.kernels.cartesian.matmul` compiled, for every replay that compiles the nodes' kernels (registered
+    on importing this module): the product of small matrices or vectors as loops."""
+    if A.ndim == 1 and B.ndim == 1:
+
+        def dot(A: Any, B: Any) -> Any:
+            acc = 0.0
+            for c in range(A.shape[0]):
+                acc += A[c] * B[c]
+            return acc
+
+        return dot
+    if A.ndim == 1:
+
+        def vecmat(A: Any, B: Any) -> Any:
+            return C.matmul(B.T, A)  # the same products in the same order
+
+        return vecmat
+    if B.ndim == 1:
+
+        def matvec(A: Any, B: Any) -> Any:
+            out = np.empty(A.shape[0])
+            for i in range(A.shape[0]):
+                acc = 0.0
+                for c in range(A.shape[1]):
+                    acc += A[i, c] * B[c]
+                out[i] = acc
+            return out
+
+        return matvec
+
+    def matmat(A: Any, B: Any) -> Any:
+        out = np.empty((A.shape[0], B.shape[1]))
+        for i in range(A.shape[0]):
+            for j in range(B.shape[1]):
+                acc = 0.0
+                for c in range(A.shape[1]):
+                    acc += A[i, c] * B[c, j]
+                out[i, j] = acc
+        return out
+
+    return matmat
+
+
+@overload(C.joseph_blocks, jit_options={"error_model": "numpy"})
+def _joseph_blocks(P: Any, K: Any, U: Any, S: Any) -> Any:
+    """:func:`swarmloc.kernels.cartesian.joseph_blocks` compiled: ``W = U - K S``, then each entry of the upper
+    triangle and its mirror, ``P[a, b] - sum_k K[a, k] U[b, k] + W[a, k] K[b, k]``, averaged (``n x m`` temporaries
+    only)."""
+
+    def loops(P: Any, K: Any, U: Any, S: Any) -> Any:
+        N, m = K.shape
+        W = U.copy()
+        for a in range(N):
+            for k in range(m):
+                for ll in range(m):
+                    W[a, k] -= K[a, ll] * S[ll, k]
+        Pn = np.empty((N, N))
+        for a in range(N):
+            for b in range(a, N):
+                ab, ba = P[a, b], P[b, a]
+                for k in range(m):
+                    ab -= K[a, k] * U[b, k] + W[a, k] * K[b, k]
+                    ba -= K[b, k] * U[a, k] + W[b, k] * K[a, k]
+                Pn[a, b] = Pn[b, a] = 0.5 * (ab + ba)
+        return Pn
+
+    return loops
 
 
 @njit(error_model="numpy")
@@ -132,86 +184,22 @@ def world_noise(x: float, y: float, q: np.ndarray) -> np.ndarray:
     return np.array(F.world_noise(x, y, (q[0], q[1], q[2], q[3], q[4], q[5])))
 
 
-@njit(error_model="numpy")
-def innovation(P: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(U, S)`` of a Kalman update on the columns ``cols`` of ``P (N, N)``: ``U = P[:, cols] H^T`` ``(N, m)`` and
-    ``S = H U[cols] + R`` ``(m, m)``, written as loops (small matrices: a matrix product's call costs more than its
-    work)."""
-    N, m, c = P.shape[0], H.shape[0], cols.shape[0]
-    U = np.zeros((N, m))
-    for a in range(N):
-        for k in range(m):
-            acc = 0.0
-            for b in range(c):
-                acc += P[a, cols[b]] * H[k, b]
-            U[a, k] = acc
-    S = R.copy()
-    for k in range(m):
-        for ll in range(m):
-            acc = 0.0
-            for b in range(c):
-                acc += H[k, b] * U[cols[b], ll]
-            S[k, ll] += acc
-    return U, S
+_blocks = _compile(C.kalman_update_blocks)
 
 
 @njit(error_model="numpy")
 def kalman(X: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, cols: np.ndarray, R: np.ndarray,
             invariant: bool = False) -> tuple[np.ndarray, np.ndarray, float, bool]:  # fmt: skip
-    """:func:`swarmloc.kernels.cartesian.kalman_update_blocks` (every robot's heading wrapped): ``U = P[:, cols]
-    H^T``, ``S = H U[cols] + R`` (:func:`innovation`), ``K = U S^-1``, ``P+ = P - K U^T - (U - K S) K^T``
-    symmetrized, written as loops (the matrices are 3n x m, m <= 3: no temporaries of 3n x 3n but ``P+`` itself).
-    ``invariant``: ``P`` is of world-frame errors and each robot's pose is corrected on the group,
-    ``exp(hat(K r)) g`` (:func:`left_correct`), not by ``x + K r``."""
-    N, m = P.shape[0], H.shape[0]
-    U, S = innovation(P, H, cols, R)
-    S_inv, regular = inverse(S)
-    if not regular:
-        return X, P, math.nan, False
-    nis = 0.0
-    for k in range(m):
-        for ll in range(m):
-            nis += r[k] * S_inv[k, ll] * r[ll]
-    K = np.zeros((N, m))
-    W = U.copy()  # U - K S
-    xn = np.empty(N)
-    for a in range(N):
-        step = 0.0
-        for k in range(m):
-            acc = 0.0
-            for ll in range(m):
-                acc += U[a, ll] * S_inv[ll, k]
-            K[a, k] = acc
-            step += acc * r[k]
-        xn[a] = step if invariant else X[a] + step
-        for k in range(m):
-            for ll in range(m):
-                W[a, k] -= K[a, ll] * S[ll, k]
+    """The Kalman update on the columns ``cols`` of ``P``, the nodes' own
+    (:func:`swarmloc.kernels.cartesian.kalman_update_blocks`) compiled: ``(x+, P+, nis, ok)``, every robot's heading
+    wrapped. ``invariant``: ``P`` is of world-frame errors and each robot's pose is corrected on the group,
+    ``exp(hat(K r)) g`` (:func:`left_correct` of the update's ``K r``), not by ``x + K r``."""
     if invariant:
+        xn, Pn, nis, ok = _blocks(np.zeros(X.shape[0]), P, r, H, cols, R, np.zeros(0, np.int64))
         left_correct(X, xn)
     else:
-        for a in range(2, N, 3):
-            xn[a] = wrap(xn[a])
-    Pn = np.empty((N, N))
-    ok = math.isfinite(nis)
-    for a in range(N):
-        ok = ok and math.isfinite(xn[a])
-        for b in range(a, N):
-            ab, ba = P[a, b], P[b, a]
-            for k in range(m):
-                ab -= K[a, k] * U[b, k] + W[a, k] * K[b, k]
-                ba -= K[b, k] * U[a, k] + W[b, k] * K[a, k]
-            ok = store_symmetric(Pn, a, b, ab, ba) and ok
+        xn, Pn, nis, ok = _blocks(X, P, r, H, cols, R, np.arange(2, X.shape[0], 3))
     return xn, Pn, nis, ok
-
-
-@njit(error_model="numpy")
-def store_symmetric(Pn: np.ndarray, a: int, b: int, ab: float, ba: float) -> bool:
-    """``Pn[a, b] = Pn[b, a] = (ab + ba) / 2`` (a covariance update's two mirrored entries, averaged); finite?"""
-    val = 0.5 * (ab + ba)
-    Pn[a, b] = val
-    Pn[b, a] = val
-    return math.isfinite(val)
 
 
 @njit(error_model="numpy")

@@ -30,7 +30,6 @@ from typing import Any, Unpack
 
 import numpy as np
 from numba import njit
-from numba.extending import overload
 
 from swarmloc.arrays import BoolArray, FloatArray
 from swarmloc.engine import blocks as B
@@ -55,44 +54,6 @@ def _compile(fn: Any) -> Any:
 
 K = build(_compile)
 """``rdl``'s pair math (:mod:`swarmloc.kernels.pairs`: the nodes' functions) compiled by numba."""
-
-
-@overload(C.matmul, jit_options={"error_model": "numpy"})
-def _matmul(A: Any, B: Any) -> Any:
-    """:func:`swarmloc.kernels.cartesian.matmul` compiled: the product of small matrices or vectors as loops."""
-    if A.ndim == 1 and B.ndim == 1:
-
-        def dot(A: Any, B: Any) -> Any:
-            acc = 0.0
-            for c in range(A.shape[0]):
-                acc += A[c] * B[c]
-            return acc
-
-        return dot
-    if A.ndim == 2 and B.ndim == 1:
-
-        def matvec(A: Any, B: Any) -> Any:
-            out = np.empty(A.shape[0])
-            for i in range(A.shape[0]):
-                acc = 0.0
-                for c in range(A.shape[1]):
-                    acc += A[i, c] * B[c]
-                out[i] = acc
-            return out
-
-        return matvec
-
-    def matmat(A: Any, B: Any) -> Any:
-        out = np.empty((A.shape[0], B.shape[1]))
-        for i in range(A.shape[0]):
-            for j in range(B.shape[1]):
-                acc = 0.0
-                for c in range(A.shape[1]):
-                    acc += A[i, c] * B[c, j]
-                out[i, j] = acc
-        return out
-
-    return matmat
 
 
 _kalman = _compile(C.kalman_one)

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.arrays import FloatArray
+from swarmloc.arrays import FloatArray, IntArray
 from swarmloc.gaussian import symmetric
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise, odometry_increment, odometry_increment_terms
@@ -271,7 +271,7 @@ def _kalman_update_one(
 
 
 def matmul(A: FloatArray, B: FloatArray) -> FloatArray:
-    """``A @ B``; numba-compiled code runs it as loops (:mod:`swarmloc.engine.pairs` registers that form: on
+    """``A @ B``; numba-compiled code runs it as loops (:mod:`swarmloc.engine.joint_math` registers that form: on
     matrices of a few rows a BLAS call costs more than its work)."""
     out: FloatArray = A @ B
     return out
@@ -316,9 +316,9 @@ def kalman_update_blocks(
     P: FloatArray,
     r: FloatArray,
     H: FloatArray,
-    cols: FloatArray,
+    cols: IntArray,
     R: FloatArray,
-    angles: tuple[int, ...] = (2,),
+    angles: Sequence[int] = (2,),
 ) -> tuple[FloatArray, FloatArray, float, bool]:
     """:func:`kalman_update` (one, unbatched) for a Jacobian that is zero outside the columns ``cols``: ``H (m, k)``
     holds those columns only (e.g. the observer's and the target's 3 columns of a team's ``3n``).
@@ -326,24 +326,34 @@ def kalman_update_blocks(
     The Joseph form is expanded around ``U = P H^T`` (``n x m``) and ``S = H U + R``: for ``K = U S^-1``,
     ``(I - K H) P (I - K H)^T + K R K^T = P - K U^T - (U - K S) K^T``, the same matrix for any ``K`` (so the
     Joseph form's robustness to an inexact ``K`` is kept: ``U - K S`` is what rounding left of ``U``), in
-    ``O(n^2 m)`` instead of ``O(n^3)``; symmetrized as :func:`kalman_update` does. Returns ``(x+, P+, nis, ok)``.
+    ``O(n^2 m)`` instead of ``O(n^3)``; symmetrized as :func:`kalman_update` does. Returns ``(x+, P+, nis, ok)``,
+    ``(x, P, nan, False)`` for a singular innovation covariance. Numpy code that numba compiles: the engine's joint
+    replays run it compiled (:func:`swarmloc.engine.joint_math.kalman`), its products (:func:`matmul`) as loops.
     """
-    U = P[:, cols] @ H.T
-    S = H @ U[cols] + R
+    U = matmul(P[:, cols], H.T)
+    S = matmul(H, U[cols]) + R
     try:
-        S_inv = np.linalg.inv(S)
-    except np.linalg.LinAlgError:
+        S_inv = np.ascontiguousarray(np.linalg.inv(S))
+    except Exception:  # numba matches no narrower class; numpy raises LinAlgError
         return x, P, math.nan, False
-    nis = float(r @ S_inv @ r)
-    K = U @ S_inv
-    xn = x + K @ r
-    a = list(angles)
-    with np.errstate(invalid="ignore"):
-        xn[a] = wrap_angle(xn[a])
-    Pn = P - K @ U.T - (U - K @ S) @ K.T
-    Pn = symmetric(Pn)
+    nis = float(matmul(matmul(r, S_inv), r))
+    K = matmul(U, S_inv)
+    xn = x + matmul(K, r)
+    for j in angles:
+        if math.isfinite(xn[j]):
+            xn[j] = math.pi - (math.pi - xn[j]) % _TAU  # wrap_angle's float form
+    Pn = joseph_blocks(P, K, U, S)
     ok = math.isfinite(nis) and bool(np.isfinite(xn).all()) and bool(np.isfinite(Pn).all())
     return xn, Pn, nis, ok
+
+
+def joseph_blocks(P: FloatArray, K: FloatArray, U: FloatArray, S: FloatArray) -> FloatArray:
+    """:func:`kalman_update_blocks`' covariance ``P - K U^T - (U - K S) K^T`` symmetrized (``K, U (n, m)``,
+    ``S (m, m)``); numba-compiled code runs it as one loop over the upper triangle (:mod:`swarmloc.engine.joint_math`
+    registers that form: no ``n x n`` temporaries but the result)."""
+    Pn = P - K @ U.T - (U - K @ S) @ K.T
+    out: FloatArray = 0.5 * (Pn + Pn.T)  # symmetric
+    return out
 
 
 def rot_block(theta: FloatArray | float) -> FloatArray:
