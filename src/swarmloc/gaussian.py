@@ -123,12 +123,13 @@ def symmetric(C: np.ndarray) -> np.ndarray:
 
 
 def positive_definite(P: np.ndarray) -> bool:
-    """Finite and positive definite as ``numpy.linalg.cholesky`` decides (no margin)."""
+    """Finite and positive definite as ``numpy.linalg.cholesky`` decides (no margin). Numba compiles it as it is
+    (:mod:`swarmloc.kernels.pairs`)."""
     if not np.isfinite(P).all():
         return False
     try:
         np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
+    except Exception:  # numpy raises LinAlgError; numba, which compiles this for the rdl replay, catches no narrower
         return False
     return True
 

@@ -19,6 +19,7 @@ from types import ModuleType
 
 import numpy as np
 
+from swarmloc.gaussian import positive_definite as _positive_definite
 from swarmloc.kernels.cartesian import matmul
 from swarmloc.sensors.planar import Jit, plain
 
@@ -62,16 +63,7 @@ def build(jit: Jit = plain) -> ModuleType:
         track one either (independent). Else an exchange did not complete, or one side restarted."""
         return bool(fi.any() and fj.any()) if met else not fj.any()
 
-    @jit
-    def positive_definite(P: np.ndarray) -> bool:
-        """Finite and with a Cholesky factorization."""
-        if not np.isfinite(P).all():
-            return False
-        try:
-            np.linalg.cholesky(P)
-        except Exception:  # numba matches no narrower class; numpy raises LinAlgError
-            return False
-        return True
+    positive_definite = jit(_positive_definite)  # finite, with a Cholesky factorization
 
     @jit
     def ci_prior(Pi: np.ndarray, Pj: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, int]:
