@@ -113,7 +113,6 @@ import numpy as np
 
 from swarmloc.estimators.particles import (
     ensemble_transform,
-    exp_xyt,
     fit_gaussian,
     landmark_split,
     logsumexp,
@@ -127,7 +126,7 @@ from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import group as K
 from swarmloc.kernels.ci import point_weight
 from swarmloc.kernels.ici import inverse_ci
-from swarmloc.lie import SE2, wrap_angle
+from swarmloc.lie import SE2, exp_xyt, wrap_angle
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise, odometry_increment_terms
 from swarmloc.node import FUSED, Group, Outcome, RobotNode, belief_of
@@ -312,7 +311,7 @@ class MonteCarloLocalization(RobotNode):
         L = sqrt_cov3(S11, S12, S13, S22, S23, S33)
         rng = self._rng(_PREDICT, s.t, t)
         y = rng.standard_normal((s.particles.shape[0], 3)) @ L.T
-        ex, ey, ea = exp_xyt(y)
+        ex, ey, ea = exp_xyt(y).T
         # increment mean exp(dt (v, 0, w)^) composed with the noise exp(y), then applied to each particle
         ix, iy = tx + c * ex - sn * ey, ty + sn * ex + c * ey
         ia = math.atan2(sn, c) + ea

@@ -13,7 +13,7 @@ import numpy as np
 
 from swarmloc.gaussian import mahalanobis2, symmetric
 from swarmloc.kernels import group as K
-from swarmloc.lie import SE2, wrap_angle
+from swarmloc.lie import SE2, exp_xyt, wrap_angle
 from swarmloc.node import usable_covariance
 
 COV_FLOOR = 1e-10
@@ -41,14 +41,6 @@ def sqrt_cov3(S11: float, S12: float, S13: float, S22: float, S23: float, S33: f
     l32 = (S23 - l31 * l21) / l22 if l22 > 0 else 0.0
     l33 = math.sqrt(max(S33 - l31 * l31 - l32 * l32, 0.0))
     return np.array([[l11, 0.0, 0.0], [l21, l22, 0.0], [l31, l32, l33]])
-
-
-def exp_xyt(y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``exp(y)`` of tangent vectors ``(N, 3)`` as ``(tx, ty, angle)`` (closed form, stable at small angles)."""
-    a = y[:, 2]
-    A = np.sinc(a / np.pi)  # sin(a) / a
-    B = 0.5 * a * np.sinc(a / (2 * np.pi)) ** 2  # (1 - cos a) / a
-    return A * y[:, 0] - B * y[:, 1], B * y[:, 0] + A * y[:, 1], a
 
 
 def quadratic(r: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -98,7 +90,7 @@ def ensemble_transform(
         return None
     m0, m1 = SE2.to_xytheta(mean), SE2.to_xytheta(mean2)
     A = np.linalg.cholesky(cov2) @ np.linalg.inv(np.linalg.cholesky(cov))
-    ex, ey, ea = exp_xyt(_log_rel(m0, p) @ A.T)
+    ex, ey, ea = exp_xyt(_log_rel(m0, p) @ A.T).T
     c, s = math.cos(m1[2]), math.sin(m1[2])
     return np.stack([m1[0] + c * ex - s * ey, m1[1] + s * ex + c * ey, wrap_angle(m1[2] + ea)], axis=-1)
 
