@@ -77,7 +77,7 @@ from swarmloc.net.macframe import (
     open_mac,
     recipient,
 )
-from swarmloc.net.transport import hello_key
+from swarmloc.net.transport import hello_key, undeclare_all
 
 log = logging.getLogger(__name__)
 
@@ -569,12 +569,8 @@ class Pairing:
 
     def close(self) -> None:
         """Stop answering hellos and asking (the sessions stay: late frames still open)."""
-        if self._decl is not None:
-            try:
-                self._decl.undeclare()
-            except Exception:  # noqa: BLE001 - the session may be closed already
-                pass
-            self._decl = None
+        undeclare_all([self._decl])  # None when nothing was declared, or the session closed: passed over
+        self._decl = None
         self.zs = None
 
 

@@ -34,7 +34,7 @@ import os
 import re
 import socket
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any, ParamSpec
 
 PREFIX = "swarmloc"
@@ -258,10 +258,8 @@ def undeclare_all(entities: Iterable[Any]) -> None:
     """Undeclare each Zenoh entity (subscriber, queryable, liveliness token...) of ``entities``; one that fails (the
     session may be gone already) is passed over: closing, nothing is left to do about it."""
     for e in entities:
-        try:
+        with suppress(Exception):
             e.undeclare()
-        except Exception:  # noqa: BLE001
-            pass
 
 
 def _opener(config: Callable[P, Any]) -> Callable[P, Any]:
