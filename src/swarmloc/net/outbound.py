@@ -25,7 +25,7 @@ from swarmloc.net.faults import Faults, LinkFaults
 from swarmloc.net.intake import Intake
 from swarmloc.net.schema import encode
 from swarmloc.net.settings import NetSettings
-from swarmloc.net.transport import robot_key, server_key
+from swarmloc.net.transport import get_all, robot_key, server_key
 from swarmloc.node import Node
 
 if TYPE_CHECKING:
@@ -209,25 +209,11 @@ class Outbound:
         timeout = self.settings.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
         intake, session = self.intake, self.wiring.session
 
-        def send() -> None:
-            import zenoh
-
-            try:
-                session.get(
-                    key,
-                    payload=payload,
-                    timeout=timeout,
-                    # every queryable on the key and every reply: another peer's "complete" queryable or a forged
-                    # reply cannot hide the real one (each reply is authenticated on its own)
-                    target=zenoh.QueryTarget.ALL,
-                    consolidation=zenoh.ConsolidationMode.NONE,
-                    handler=zenoh.handlers.Callback(  # replies within the intake's budgets; the end always
-                        lambda r: intake.offer(("reply", qid, r)), lambda: intake.put(("reply_end", qid, None))
-                    ),
-                )
-            except Exception as exc:  # noqa: BLE001 - a failed get is a missing answer, not a crash
+        def send() -> None:  # replies within the intake's budgets; the end always (a failed get: a missing answer)
+            exc = get_all(session, key, payload, timeout, lambda r: intake.offer(("reply", qid, r)),
+                          lambda: intake.put(("reply_end", qid, None)))  # fmt: skip
+            if exc is not None:
                 log.warning("robot %s: get %s failed: %s", self.robot, key, exc)
-                intake.put(("reply_end", qid, None))
 
         if via_server:
             self.counts["sent"] += 1

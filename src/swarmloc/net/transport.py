@@ -262,6 +262,25 @@ def undeclare_all(entities: Iterable[Any]) -> None:
             e.undeclare()
 
 
+def get_all(
+    session: Any, key: str, payload: bytes, timeout: float, on_reply: Callable[[Any], Any], on_end: Callable[[], Any]
+) -> Exception | None:
+    """A Zenoh get of ``key`` from every queryable on it, taking every reply: ``on_reply(reply)`` for each, then
+    ``on_end()`` (another peer's "complete" queryable or a forged reply cannot hide the real one: each reply is
+    authenticated on its own). None, or the exception that kept the get from going out (a closed session: then
+    ``on_end()`` has been called, with no reply before it)."""
+    import zenoh
+
+    try:
+        session.get(key, payload=payload, timeout=timeout, target=zenoh.QueryTarget.ALL,
+                    consolidation=zenoh.ConsolidationMode.NONE,
+                    handler=zenoh.handlers.Callback(on_reply, on_end))  # fmt: skip
+    except Exception as exc:  # noqa: BLE001 - the caller says what a get that never went out means
+        on_end()
+        return exc
+    return None
+
+
 def _opener(config: Callable[P, Any]) -> Callable[P, Any]:
     """A function of ``config``'s parameters that opens a Zenoh session with the configuration ``config`` makes of
     them: one parameter list serves both (``inspect.signature`` of the result shows ``config``'s)."""
