@@ -52,7 +52,7 @@ from typing import Any
 from swarmloc.net.auth import MAGIC, MAGIC_V1, Verifier
 from swarmloc.net.macframe import MAC_MAGIC
 from swarmloc.net.schema import Rejected
-from swarmloc.net.transport import robot_of
+from swarmloc.net.transport import close_query, robot_of
 
 KIB, MIB = 1024, 1024 * 1024
 MAX_FRAME = 64 * KIB
@@ -311,7 +311,4 @@ class Intake:
 def _close(x: Any, kind: str) -> None:
     """Close a dropped query at once (its asker's get ends), as a refused one is."""
     if kind == "query":
-        try:
-            x.drop()
-        except Exception:  # noqa: BLE001 - already closed, or the session is gone
-            pass
+        close_query(x)

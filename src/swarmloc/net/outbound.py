@@ -16,6 +16,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable
+from contextlib import suppress
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
@@ -25,7 +26,7 @@ from swarmloc.net.faults import Faults, LinkFaults
 from swarmloc.net.intake import Intake
 from swarmloc.net.schema import encode
 from swarmloc.net.settings import NetSettings
-from swarmloc.net.transport import get_all, robot_key, server_key
+from swarmloc.net.transport import close_query, get_all, robot_key, server_key
 from swarmloc.node import Node
 
 if TYPE_CHECKING:
@@ -148,7 +149,7 @@ class Outbound:
                 if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
                     self.lockstep.expect_update((float(m.stamp), 1, m.receiver, tuple(m.sub)))
                 answer = lambda q=q, payload=payload: q.reply(q.key_expr, payload)  # noqa: E731
-                self.faulty(answer, finish=partial(close, q))
+                self.faulty(answer, finish=partial(close_query, q))
             elif isinstance(m, TeamUpdate):  # a teammate's copy of a broadcast (:mod:`swarmloc.net.broadcast`)
                 self.broadcast(m)
             elif m.receiver in self.roster:
@@ -329,18 +330,8 @@ def key_of(x: Any) -> str:
     return str(getattr(x, "key_expr", ""))
 
 
-def close(query: Any) -> None:
-    """Close a neighbour's Zenoh query (its asker's get ends); closing one already closed does nothing."""
-    try:
-        query.drop()
-    except Exception:  # noqa: BLE001 - already closed, or the session is gone
-        pass
-
-
 def reply_err(query: Any, reason: str) -> None:
     """Refuse a neighbour's Zenoh query with ``reason`` and close it (the asker may be gone: nothing then)."""
-    try:
+    with suppress(Exception):
         query.reply_err(reason.encode())
-    except Exception:  # noqa: BLE001 - the asker may be gone
-        pass
-    close(query)
+    close_query(query)

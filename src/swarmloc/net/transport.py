@@ -281,6 +281,12 @@ def get_all(
     return None
 
 
+def close_query(query: Any) -> None:
+    """Close a Zenoh query (its asker's get ends); one already closed, or of a session gone, is passed over."""
+    with suppress(Exception):
+        query.drop()
+
+
 def _opener(config: Callable[P, Any]) -> Callable[P, Any]:
     """A function of ``config``'s parameters that opens a Zenoh session with the configuration ``config`` makes of
     them: one parameter list serves both (``inspect.signature`` of the result shows ``config``'s)."""
