@@ -460,11 +460,8 @@ class _Launcher:
                 self.result.counts["timed_out"] = 1
                 log.warning("team: time limit of %.0f s reached; stopping every process", max_wall)
                 return
-            try:
-                _, x = self.inq.get(timeout=0.1)
-                self.collect(x)
-            except queue.Empty:
-                pass
+            with suppress(queue.Empty):
+                self.collect(self.inq.get(timeout=0.1)[1])
             self._intake.fold(self.result.counts, self.result.reasons, prefix="collector_")
             self.apply_faults(t_first)
             self.note_ended()

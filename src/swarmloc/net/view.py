@@ -45,6 +45,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
+from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -313,10 +314,8 @@ class TeamView:
         t, r = b.stamp + self.epoch, b.robot
         true = None
         if self.truth is not None:
-            try:
+            with suppress(ValueError):  # no truth there
                 true = np.asarray(self.truth(r, np.array([b.stamp])), dtype=float).reshape(3)
-            except ValueError:
-                true = None
         if true is not None:
             T = _types()
             self._publish(robot_topic(r, "truth"), t, T["geometry_msgs/msg/PoseStamped"](
