@@ -249,12 +249,8 @@ class Inbound:
             self.counts["duplicate_replies"] += 1
             return
         a = env.body
-        if not isinstance(a, BeliefAnswer | RdlState) or (a.sender, a.receiver, a.stamp, a.sub) != (
-            m.receiver,
-            m.sender,
-            m.stamp,
-            m.sub,
-        ):
+        asked = (m.receiver, m.sender, m.stamp, m.sub)  # its answer comes from its receiver to its sender
+        if not isinstance(a, BeliefAnswer | RdlState) or (a.sender, a.receiver, a.stamp, a.sub) != asked:
             self.reject("reply does not answer the query", "reply")
             return
         self.outbound.answered(qid)
