@@ -332,11 +332,9 @@ def read_bag(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray, np.nda
     cov (T, 3, 3))}`` with times the header stamps [s], in the bag's log-time order. Other topics are skipped."""
     from rosbags.rosbag2 import Reader
 
-    rows: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}
     with Reader(Path(path)) as reader:
         conns = [c for c in reader.connections if c.msgtype == MSGTYPE]
-        for c in conns:
-            rows.setdefault(c.topic, [])
+        rows: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {c.topic: [] for c in conns}
         for conn, _t, raw in reader.messages(connections=conns):
             rows[conn.topic].append(from_cdr(raw))
     out = {}
