@@ -255,10 +255,15 @@ def make_team_keys(
     path and each member's private key file."""
     d = Path(folder)
     d.mkdir(parents=True, exist_ok=True, mode=0o700)
-    files = {r: d / f"robot{r}.key" for r in robots} | {SERVER: d / "server.key", COLLECTOR: d / "collector.key"}
+    files = key_files(d, robots)
     roster = Roster({m: new_key(f) for m, f in files.items()}, max_age)
     roster.save(d / "roster.json")
     return d / "roster.json", files
+
+
+def key_files(folder: Path, robots: Iterable[int]) -> dict[int, Path]:
+    """Each member's private key file in a team's ``folder``: ``robot<id>.key``, ``server.key``, ``collector.key``."""
+    return {m: folder / f"{NAMES.get(m, f'robot{m}')}.key" for m in [*robots, SERVER, COLLECTOR]}
 
 
 # ------------------------------------------------------------------------------------------------ sealing and opening
@@ -535,11 +540,9 @@ class TeamKeys:
         self.folder = Path(tempfile.mkdtemp(prefix="swarmloc-keys-") if folder is None else folder)
         self.roster_file = self.folder / "roster.json"
         robots = list(robots)
-        if self.roster_file.exists():
-            names = {SERVER: "server.key", COLLECTOR: "collector.key"}
-            self.files = {m: self.folder / names.get(m, f"robot{m}.key") for m in [*robots, SERVER, COLLECTOR]}
-        else:
-            self.roster_file, self.files = make_team_keys(self.folder, robots)
+        if not self.roster_file.exists():
+            make_team_keys(self.folder, robots)
+        self.files = key_files(self.folder, robots)
         self.roster = Roster.load(self.roster_file)
 
     def args(self, member: int) -> list[str]:

@@ -23,12 +23,13 @@ progress messages are not (they are the measurement apparatus of the run, not th
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
-from swarmloc.events import Event, Odometry, OwnEvent
+from swarmloc.events import Odometry, OwnEvent
 
 __all__ = ["Faults", "parse_faults"]
 
@@ -94,12 +95,8 @@ class Faults:
         if self.jump is None or self.jump[0] != robot or not events:
             return list(events)
         _, after, shift = self.jump
-        t_jump = min(_stamp(e) for e in events) + after
-        return [_shifted(e, shift) if _stamp(e) >= t_jump else e for e in events]
-
-
-def _stamp(e: Event) -> float:
-    return float(e.t0) if isinstance(e, Odometry) else float(e.t)
+        t_jump = min(float(e.stamp) for e in events) + after
+        return [_shifted(e, shift) if float(e.stamp) >= t_jump else e for e in events]
 
 
 def _shifted(e: OwnEvent, dt: float) -> OwnEvent:
@@ -137,14 +134,20 @@ class LinkFaults:
         return out
 
 
+def _read(convert: Callable[[str], Any], v: str, message: str) -> Any:
+    """``convert(v)``, or ValueError(``message``) where it raises ValueError."""
+    try:
+        return convert(v)
+    except ValueError:
+        raise ValueError(message) from None
+
+
 def _robot_at(key: str, v: str) -> tuple[int, float]:
     r, sep, t = v.partition("@")
-    try:
-        out = (int(r), float(t))
-    except ValueError:
-        out = None
-    if not sep or out is None or not math.isfinite(out[1]) or out[1] < 0:
-        raise ValueError(f"faults: {key} takes ROBOT@SECONDS (e.g. {key}=2@10), got {v!r}")
+    message = f"faults: {key} takes ROBOT@SECONDS (e.g. {key}=2@10), got {v!r}"
+    out = _read(int, r, message), _read(float, t, message)
+    if not sep or not math.isfinite(out[1]) or out[1] < 0:
+        raise ValueError(message)
     return out
 
 
@@ -161,10 +164,7 @@ def parse_faults(spec: str | None) -> Faults:
         if not sep:
             raise ValueError(f"faults: expected key=value, got {part!r}")
         if key in ("loss", "delay", "reorder", "dup"):
-            try:
-                kw[key] = float(v)
-            except ValueError:
-                raise ValueError(f"faults: {key} must be a number, got {v!r}") from None
+            kw[key] = _read(float, v, f"faults: {key} must be a number, got {v!r}")
         elif key in ("kill", "killonly", "late"):
             if key != "late" and "kill" in kw:
                 raise ValueError("faults: one kill (kill or killonly) per run")
@@ -173,17 +173,12 @@ def parse_faults(spec: str | None) -> Faults:
                 kw["restart"] = False
         elif key == "jump":
             r, sep, shift = v.partition(":")
-            try:
-                kw[key] = (*_robot_at(key, r), float(shift))
-            except ValueError:
-                raise ValueError(f"faults: jump takes ROBOT@SECONDS:SHIFT (e.g. jump=1@10:30), got {v!r}") from None
+            message = f"faults: jump takes ROBOT@SECONDS:SHIFT (e.g. jump=1@10:30), got {v!r}"
+            kw[key] = (*_read(lambda s: _robot_at("jump", s), r, message), _read(float, shift, message))
             if not sep or not math.isfinite(kw[key][2]):
-                raise ValueError(f"faults: jump takes ROBOT@SECONDS:SHIFT (e.g. jump=1@10:30), got {v!r}")
+                raise ValueError(message)
         elif key == "seed":
-            try:
-                kw[key] = int(v)
-            except ValueError:
-                raise ValueError(f"faults: seed must be an integer, got {v!r}") from None
+            kw[key] = _read(int, v, f"faults: seed must be an integer, got {v!r}")
         else:
             raise ValueError(
                 f"faults: unknown key {key!r} (loss, delay, reorder, dup, kill, killonly, late, jump, seed)"

@@ -20,7 +20,7 @@ from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery
 from swarmloc.net.auth import Auth, note_refusal, open_envelope
 from swarmloc.net.intake import Intake
 from swarmloc.net.lockstep import MAX_HELD, MAX_HELD_FROM, Lockstep
-from swarmloc.net.outbound import Outbound, close, key_of, reply_err
+from swarmloc.net.outbound import Outbound, key_of, reply_err
 from swarmloc.net.schema import (
     SERVER,
     Belief,
@@ -32,6 +32,7 @@ from swarmloc.net.schema import (
     Rejected,
     Report,
 )
+from swarmloc.net.transport import close_query
 from swarmloc.node.accounting import reason_key
 
 if TYPE_CHECKING:
@@ -147,7 +148,7 @@ class Inbound:
         self._replayed = False
         env = self._decode(raw, "query", key_of(x))
         if env is None and self._replayed:  # a copy of a query taken before (a duplicate, or replayed): no answer
-            close(x)
+            close_query(x)
             return
         if env is None or not isinstance(env.body, BeliefQuery | RdlStateQuery):
             if env is not None:
@@ -155,7 +156,7 @@ class Inbound:
             reply_err(x, "rejected")
             return
         if not self.lockstep.first_copy(env):  # a copy of a query held or answered: answered once, this copy closed
-            close(x)
+            close_query(x)
             return
         if not self.lockstep.defer(env.body, x):
             self.reject(f"more than {MAX_HELD_FROM} queries of one robot (or {MAX_HELD} in all) held", "query")
@@ -248,12 +249,8 @@ class Inbound:
             self.counts["duplicate_replies"] += 1
             return
         a = env.body
-        if not isinstance(a, BeliefAnswer | RdlState) or (a.sender, a.receiver, a.stamp, a.sub) != (
-            m.receiver,
-            m.sender,
-            m.stamp,
-            m.sub,
-        ):
+        asked = (m.receiver, m.sender, m.stamp, m.sub)  # its answer comes from its receiver to its sender
+        if not isinstance(a, BeliefAnswer | RdlState) or (a.sender, a.receiver, a.stamp, a.sub) != asked:
             self.reject("reply does not answer the query", "reply")
             return
         self.outbound.answered(qid)

@@ -49,10 +49,10 @@ from collections.abc import Callable, Container
 from dataclasses import dataclass
 from typing import Any
 
-from swarmloc.net.auth import MAGIC, MAGIC_V1, Verifier
+from swarmloc.net.auth import MAGIC, MAGIC_V1, NAMES, Verifier
 from swarmloc.net.macframe import MAC_MAGIC
 from swarmloc.net.schema import Rejected
-from swarmloc.net.transport import robot_of
+from swarmloc.net.transport import close_query, robot_of
 
 KIB, MIB = 1024, 1024 * 1024
 MAX_FRAME = 64 * KIB
@@ -152,9 +152,7 @@ def vouch_for(auth: Any) -> Callable[[str, bytes], bool]:
 
 def who(claim: int | str) -> str:
     """A claimed sender as counted: ``robot3``, ``server``, ``collector``, ``unknown``, ``unsigned``, ``anyone``."""
-    if isinstance(claim, str):
-        return claim
-    return {-1: "server", -2: "collector"}.get(claim, f"robot{claim}")
+    return claim if isinstance(claim, str) else NAMES.get(claim, f"robot{claim}")
 
 
 class Intake:
@@ -311,7 +309,4 @@ class Intake:
 def _close(x: Any, kind: str) -> None:
     """Close a dropped query at once (its asker's get ends), as a refused one is."""
     if kind == "query":
-        try:
-            x.drop()
-        except Exception:  # noqa: BLE001 - already closed, or the session is gone
-            pass
+        close_query(x)

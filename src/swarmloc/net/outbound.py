@@ -16,6 +16,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable
+from contextlib import suppress
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
@@ -25,7 +26,7 @@ from swarmloc.net.faults import Faults, LinkFaults
 from swarmloc.net.intake import Intake
 from swarmloc.net.schema import encode
 from swarmloc.net.settings import NetSettings
-from swarmloc.net.transport import robot_key, server_key
+from swarmloc.net.transport import close_query, get_all, robot_key, server_key
 from swarmloc.node import Node
 
 if TYPE_CHECKING:
@@ -148,7 +149,7 @@ class Outbound:
                 if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
                     self.lockstep.expect_update((float(m.stamp), 1, m.receiver, tuple(m.sub)))
                 answer = lambda q=q, payload=payload: q.reply(q.key_expr, payload)  # noqa: E731
-                self.faulty(answer, finish=partial(close, q))
+                self.faulty(answer, finish=partial(close_query, q))
             elif isinstance(m, TeamUpdate):  # a teammate's copy of a broadcast (:mod:`swarmloc.net.broadcast`)
                 self.broadcast(m)
             elif m.receiver in self.roster:
@@ -209,25 +210,11 @@ class Outbound:
         timeout = self.settings.answer_timeout + (2 * self.faults.delay if self.faults else 0.0)
         intake, session = self.intake, self.wiring.session
 
-        def send() -> None:
-            import zenoh
-
-            try:
-                session.get(
-                    key,
-                    payload=payload,
-                    timeout=timeout,
-                    # every queryable on the key and every reply: another peer's "complete" queryable or a forged
-                    # reply cannot hide the real one (each reply is authenticated on its own)
-                    target=zenoh.QueryTarget.ALL,
-                    consolidation=zenoh.ConsolidationMode.NONE,
-                    handler=zenoh.handlers.Callback(  # replies within the intake's budgets; the end always
-                        lambda r: intake.offer(("reply", qid, r)), lambda: intake.put(("reply_end", qid, None))
-                    ),
-                )
-            except Exception as exc:  # noqa: BLE001 - a failed get is a missing answer, not a crash
+        def send() -> None:  # replies within the intake's budgets; the end always (a failed get: a missing answer)
+            exc = get_all(session, key, payload, timeout, lambda r: intake.offer(("reply", qid, r)),
+                          lambda: intake.put(("reply_end", qid, None)))  # fmt: skip
+            if exc is not None:
                 log.warning("robot %s: get %s failed: %s", self.robot, key, exc)
-                intake.put(("reply_end", qid, None))
 
         if via_server:
             self.counts["sent"] += 1
@@ -343,18 +330,8 @@ def key_of(x: Any) -> str:
     return str(getattr(x, "key_expr", ""))
 
 
-def close(query: Any) -> None:
-    """Close a neighbour's Zenoh query (its asker's get ends); closing one already closed does nothing."""
-    try:
-        query.drop()
-    except Exception:  # noqa: BLE001 - already closed, or the session is gone
-        pass
-
-
 def reply_err(query: Any, reason: str) -> None:
     """Refuse a neighbour's Zenoh query with ``reason`` and close it (the asker may be gone: nothing then)."""
-    try:
+    with suppress(Exception):
         query.reply_err(reason.encode())
-    except Exception:  # noqa: BLE001 - the asker may be gone
-        pass
-    close(query)
+    close_query(query)

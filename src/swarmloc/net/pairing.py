@@ -77,7 +77,7 @@ from swarmloc.net.macframe import (
     open_mac,
     recipient,
 )
-from swarmloc.net.transport import hello_key
+from swarmloc.net.transport import get_all, hello_key, undeclare_all
 
 log = logging.getLogger(__name__)
 
@@ -319,8 +319,6 @@ class Pairing:
 
     def _hello(self, target: str, done: Callable[[list[Answer]], None]) -> None:
         """Ask ``hello/<target>`` with a fresh nonce; ``done(answers)`` with the valid answers once the get ends."""
-        import zenoh
-
         nonce = os.urandom(16)
         key = hello_key(self.scope, target)
         answers: list[Answer] = []
@@ -339,13 +337,9 @@ class Pairing:
             except Exception:  # a handshake never raises into Zenoh's threads
                 log.exception("%s: handshake on %s", member_name(self.member), key)
 
-        try:
-            self.zs.get(key, payload=self._hello_signer.seal(key, REQUEST.pack(1, nonce, self.eph)),
-                        timeout=HELLO_TIMEOUT, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
-                        handler=zenoh.handlers.Callback(on_reply, on_end))  # fmt: skip
-        except Exception as exc:  # noqa: BLE001 - a closed session: no answers
+        payload = self._hello_signer.seal(key, REQUEST.pack(1, nonce, self.eph))
+        if (exc := get_all(self.zs, key, payload, HELLO_TIMEOUT, on_reply, on_end)) is not None:  # no answers
             log.debug("%s: hello on %s not sent: %s", member_name(self.member), key, exc)
-            on_end()
 
     def _answer(self, key: str, data: bytes, nonce: bytes, replier: str) -> Answer | None:
         """An answer to this process's hello of ``nonce``, verified (None, counted, otherwise)."""
@@ -408,8 +402,6 @@ class Pairing:
 
     def _confirm(self, a: Answer) -> None:
         """Confirm the session with ``a``'s process; taken once its ack says so."""
-        import zenoh
-
         try:
             key, sid = self.derive(a.member, a.eph)
         except ValueError:
@@ -429,14 +421,10 @@ class Pairing:
                             "member's key", member_name(self.member), member_name(a.member),
                             self.incarnation.hex())  # fmt: skip
 
-        try:
-            self.zs.get(hk, payload=self._frame(key, sid, CONFIRM_CONTEXT, hk, CONFIRM.pack(3, a.nonce)),
-                        timeout=HELLO_TIMEOUT + PROBE_TIMEOUT, target=zenoh.QueryTarget.ALL,
-                        consolidation=zenoh.ConsolidationMode.NONE,
-                        handler=zenoh.handlers.Callback(on_reply, lambda: self._finish(a.member)))  # fmt: skip
-        except Exception as exc:  # noqa: BLE001 - a closed session
+        payload = self._frame(key, sid, CONFIRM_CONTEXT, hk, CONFIRM.pack(3, a.nonce))
+        exc = get_all(self.zs, hk, payload, HELLO_TIMEOUT + PROBE_TIMEOUT, on_reply, lambda: self._finish(a.member))
+        if exc is not None:
             log.debug("%s: confirm to %s not sent: %s", member_name(self.member), member_name(a.member), exc)
-            self._finish(a.member)
 
     def _finish(self, member: int) -> None:
         with self._cv:
@@ -569,12 +557,8 @@ class Pairing:
 
     def close(self) -> None:
         """Stop answering hellos and asking (the sessions stay: late frames still open)."""
-        if self._decl is not None:
-            try:
-                self._decl.undeclare()
-            except Exception:  # noqa: BLE001 - the session may be closed already
-                pass
-            self._decl = None
+        undeclare_all([self._decl])  # None when nothing was declared, or the session closed: passed over
+        self._decl = None
         self.zs = None
 
 

@@ -106,6 +106,19 @@ def yaw_to_quaternion(theta: float) -> tuple[float, float, float, float]:
     return 0.0, 0.0, math.sin(h), math.cos(h)
 
 
+def quaternion(theta: float) -> Any:
+    """A ``geometry_msgs/msg/Quaternion`` of the rotation by ``theta`` [rad] about z (:func:`yaw_to_quaternion`)."""
+    qx, qy, qz, qw = yaw_to_quaternion(theta)
+    return typestore().types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)
+
+
+def pose(x: float, y: float, theta: float, z: float = 0.0) -> Any:
+    """A ``geometry_msgs/msg/Pose`` at ``(x, y, z)`` [m], turned by ``theta`` [rad] about z."""
+    T = typestore().types
+    return T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=float(z)),
+                                       orientation=quaternion(theta))  # fmt: skip
+
+
 def quaternion_to_yaw(x: float, y: float, z: float, w: float) -> float:
     """Yaw (rotation about z, ZYX convention) of a quaternion, in (-pi, pi]; exact inverse of
     :func:`yaw_to_quaternion` up to rounding, and the usual yaw for quaternions with roll/pitch."""
@@ -136,7 +149,8 @@ def ros_to_stamp(sec: int, nanosec: int) -> float:
     return int(sec) + int(nanosec) * 1e-9
 
 
-def _stamp_ns(stamp: float) -> int:
+def stamp_ns(stamp: float) -> int:
+    """``stamp`` [s] in whole nanoseconds (:func:`stamp_to_ros`'s rounding)."""
     sec, nsec = stamp_to_ros(stamp)
     return sec * 1_000_000_000 + nsec
 
@@ -161,23 +175,13 @@ def pose_message(
     if M.shape != (3, 3) or S.shape != (3, 3):
         raise ValueError(f"pose_message: one belief at a time (mean (3, 3), cov (3, 3)), got {M.shape}, {S.shape}")
     xyt, C = pose_covariance_world(M, S)
-    sec, nsec = stamp_to_ros(stamp)
     cov6 = np.zeros((6, 6))
     cov6[np.ix_(_INDEX, _INDEX)] = C
     cov6[2, 2] = cov6[3, 3] = cov6[4, 4] = uv
-
     T = typestore().types
-    qx, qy, qz, qw = yaw_to_quaternion(xyt[2])
-    time = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
     return T[MSGTYPE](
-        header=T["std_msgs/msg/Header"](stamp=time, frame_id=frame_id),
-        pose=T["geometry_msgs/msg/PoseWithCovariance"](
-            pose=T["geometry_msgs/msg/Pose"](
-                position=T["geometry_msgs/msg/Point"](x=float(xyt[0]), y=float(xyt[1]), z=0.0),
-                orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
-            ),
-            covariance=cov6.reshape(36),
-        ),
+        header=T["std_msgs/msg/Header"](stamp=ros_time(stamp), frame_id=frame_id),
+        pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(*xyt), covariance=cov6.reshape(36)),
     )
 
 
@@ -315,7 +319,7 @@ class BagWriter:
             ros_key(topic)  # validates the topic name
             conn = self._writer.add_connection(topic, MSGTYPE, typestore=typestore(), serialization_format="cdr")
             self._connections[topic] = conn
-        self._writer.write(conn, _stamp_ns(stamp), to_cdr(msg))
+        self._writer.write(conn, stamp_ns(stamp), to_cdr(msg))
 
     def close(self) -> None:
         if self._writer is not None:
@@ -328,11 +332,9 @@ def read_bag(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray, np.nda
     cov (T, 3, 3))}`` with times the header stamps [s], in the bag's log-time order. Other topics are skipped."""
     from rosbags.rosbag2 import Reader
 
-    rows: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}
     with Reader(Path(path)) as reader:
         conns = [c for c in reader.connections if c.msgtype == MSGTYPE]
-        for c in conns:
-            rows.setdefault(c.topic, [])
+        rows: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {c.topic: [] for c in conns}
         for conn, _t, raw in reader.messages(connections=conns):
             rows[conn.topic].append(from_cdr(raw))
     out = {}

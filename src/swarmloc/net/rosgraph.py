@@ -33,6 +33,8 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+from swarmloc.net.transport import undeclare_all
+
 ADMIN_SPACE = "@ros2_lv"
 KINDS = ("NN", "MP", "MS", "SS", "SC")
 RELIABLE, BEST_EFFORT = 1, 2  # rmw_qos_reliability_policy_e
@@ -154,10 +156,6 @@ class RosGraph:
             self._tokens.pop(i).undeclare()
 
     def close(self) -> None:
-        for t in self._tokens:
-            try:
-                t.undeclare()
-            except Exception:  # noqa: BLE001 - closing: the session may be gone already
-                pass
+        undeclare_all(self._tokens)  # closing: the session may be gone already
         self._tokens.clear()
         self.keys.clear()

@@ -28,7 +28,7 @@ covariances of the right-perturbation exponential coordinates (as in :mod:`swarm
 from __future__ import annotations
 
 import math
-from collections.abc import Container
+from collections.abc import Container, Sequence
 from typing import Annotated
 
 import msgspec
@@ -321,19 +321,9 @@ def body_problem(b: Body) -> str | None:
     if isinstance(b, Progress):
         return None if not math.isnan(b.t) else "progress: NaN time"
     if isinstance(b, Lines):
-        if not math.isfinite(b.stamp):
-            return "lines: non-finite stamp"
-        for i, x in enumerate(b.lines):
-            why = line_problem(x)
-            if why:
-                return f"lines: line {i}: {why}"
-        return None
+        return "lines: non-finite stamp" if not math.isfinite(b.stamp) else _lines_problem("lines", b.lines)
     if isinstance(b, MapAnswer):
-        for i, fl in enumerate(b.lines):
-            why = line_problem(fl.line)
-            if why:
-                return f"map: line {i}: {why}"
-        return None
+        return _lines_problem("map", [fl.line for fl in b.lines])
     if isinstance(b, Report):
         return None
     if isinstance(b, Raw):
@@ -361,6 +351,15 @@ def body_problem(b: Body) -> str | None:
             return f"broadcast repair: at most {MAX_REPAIR} numbers at once, asked {b.last - b.first + 1}"
         return None
     return message_problem(b)
+
+
+def _lines_problem(what: str, lines: Sequence[tuple[float, ...]]) -> str | None:
+    """Why the first unusable one of ``lines`` is (:func:`line_problem`), with its index, or None."""
+    for i, x in enumerate(lines):
+        why = line_problem(x)
+        if why:
+            return f"{what}: line {i}: {why}"
+    return None
 
 
 def raw_problem(b: Raw) -> str | None:

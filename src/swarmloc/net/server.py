@@ -133,8 +133,6 @@ class BeliefServer:
         b = self.at(robot, t)
         if b is None:
             return None
-        import numpy as np
-
         return GroupGaussian(SE2, np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3)), validate=False)
 
     def answer(self, q: BeliefQuery) -> BeliefAnswer:

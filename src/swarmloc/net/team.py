@@ -27,7 +27,7 @@ import tempfile
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
-from contextlib import AbstractContextManager, nullcontext
+from contextlib import AbstractContextManager, nullcontext, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Unpack
@@ -460,11 +460,8 @@ class _Launcher:
                 self.result.counts["timed_out"] = 1
                 log.warning("team: time limit of %.0f s reached; stopping every process", max_wall)
                 return
-            try:
-                _, x = self.inq.get(timeout=0.1)
-                self.collect(x)
-            except queue.Empty:
-                pass
+            with suppress(queue.Empty):
+                self.collect(self.inq.get(timeout=0.1)[1])
             self._intake.fold(self.result.counts, self.result.reasons, prefix="collector_")
             self.apply_faults(t_first)
             self.note_ended()
@@ -541,17 +538,13 @@ def stop_all(procs: dict[str, subprocess.Popen] | Iterable[subprocess.Popen], gr
     procs = list(procs.values()) if isinstance(procs, dict) else list(procs)
     for p in procs:
         if p.poll() is None:
-            try:
+            with suppress(ProcessLookupError):
                 os.killpg(p.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
     end = time.monotonic() + grace
     for p in procs:
         try:
             p.wait(timeout=max(0.0, end - time.monotonic()))
         except subprocess.TimeoutExpired:
-            try:
+            with suppress(ProcessLookupError):
                 os.killpg(p.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
             p.wait()

@@ -34,7 +34,7 @@ import os
 import re
 import socket
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any, ParamSpec
 
 PREFIX = "swarmloc"
@@ -258,10 +258,33 @@ def undeclare_all(entities: Iterable[Any]) -> None:
     """Undeclare each Zenoh entity (subscriber, queryable, liveliness token...) of ``entities``; one that fails (the
     session may be gone already) is passed over: closing, nothing is left to do about it."""
     for e in entities:
-        try:
+        with suppress(Exception):
             e.undeclare()
-        except Exception:  # noqa: BLE001
-            pass
+
+
+def get_all(
+    session: Any, key: str, payload: bytes, timeout: float, on_reply: Callable[[Any], Any], on_end: Callable[[], Any]
+) -> Exception | None:
+    """A Zenoh get of ``key`` from every queryable on it, taking every reply: ``on_reply(reply)`` for each, then
+    ``on_end()`` (another peer's "complete" queryable or a forged reply cannot hide the real one: each reply is
+    authenticated on its own). None, or the exception that kept the get from going out (a closed session: then
+    ``on_end()`` has been called, with no reply before it)."""
+    import zenoh
+
+    try:
+        session.get(key, payload=payload, timeout=timeout, target=zenoh.QueryTarget.ALL,
+                    consolidation=zenoh.ConsolidationMode.NONE,
+                    handler=zenoh.handlers.Callback(on_reply, on_end))  # fmt: skip
+    except Exception as exc:  # noqa: BLE001 - the caller says what a get that never went out means
+        on_end()
+        return exc
+    return None
+
+
+def close_query(query: Any) -> None:
+    """Close a Zenoh query (its asker's get ends); one already closed, or of a session gone, is passed over."""
+    with suppress(Exception):
+        query.drop()
 
 
 def _opener(config: Callable[P, Any]) -> Callable[P, Any]:

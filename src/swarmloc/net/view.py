@@ -45,6 +45,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
+from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +53,7 @@ import numpy as np
 
 from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import symmetric
-from swarmloc.net.ros import msgdef, pose_covariance_world, pose_message, ros_time, stamp_to_ros, to_cdr, typestore
+from swarmloc.net import ros
 from swarmloc.net.schema import Belief, Lines, MapAnswer
 from swarmloc.net.server import MapStore
 from swarmloc.net.timeouts import wait_event
@@ -138,17 +139,7 @@ def _target_at(d: Detection, g: np.ndarray) -> np.ndarray | None:
 
 
 def _types() -> Any:
-    return typestore().types
-
-
-def _quaternion(theta: float) -> Any:
-    return _types()["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2))
-
-
-def _pose(x: float, y: float, theta: float, z: float = 0.0) -> Any:
-    T = _types()
-    return T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=z),
-                                       orientation=_quaternion(float(theta)))  # fmt: skip
+    return ros.typestore().types
 
 
 class TeamView:
@@ -252,7 +243,7 @@ class TeamView:
         ch = self._channels.get(topic)
         if ch is None:
             kind = channel_type(topic)
-            text = msgdef(kind)
+            text = ros.msgdef(kind)
             ws = -1 if self.server is None else self.server.add_channel(topic, kind, text)
             rec = -1
             if self._mcap is not None:
@@ -264,9 +255,8 @@ class TeamView:
 
     def _publish(self, topic: str, t: float, msg: Any) -> None:
         """Publish ``msg`` on ``topic`` live and into the recording, log time ``t`` [s, ROS time]."""
-        sec, nsec = stamp_to_ros(t)
-        ns = sec * 1_000_000_000 + nsec
-        data = to_cdr(msg)
+        ns = ros.stamp_ns(t)
+        data = ros.to_cdr(msg)
         ws, rec = self._channel(topic)
         if self._mcap is not None:
             self._mcap.add_message(rec, log_time=ns, publish_time=ns, data=data, sequence=self.counts[topic])
@@ -297,23 +287,23 @@ class TeamView:
             raise ValueError(f"{b.group} beliefs are not shown (SE(2) only)")
         g, cov = np.reshape(b.mean, (3, 3)), np.reshape(b.cov, (3, 3))
         t = b.stamp + self.epoch
-        stamp = ros_time(t)  # ValueError outside ROS time: nothing of it is published
-        xyt, C = pose_covariance_world(g, cov)
+        stamp = ros.ros_time(t)  # ValueError outside ROS time: nothing of it is published
+        xyt, C = ros.pose_covariance_world(g, cov)
         x, y, th = (float(v) for v in xyt)
         self._last_t = max(self._last_t, b.stamp)
         T, r = _types(), b.robot
-        self._publish(robot_topic(r, "pose"), t, pose_message(t, g, cov, frame_id="map"))
+        self._publish(robot_topic(r, "pose"), t, ros.pose_message(t, g, cov, frame_id="map"))
         tf = T["geometry_msgs/msg/TransformStamped"](
             header=self._header(stamp), child_frame_id=f"robot{r}",
             transform=T["geometry_msgs/msg/Transform"](translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0),
-                                                       rotation=_quaternion(th)))  # fmt: skip
+                                                       rotation=ros.quaternion(th)))  # fmt: skip
         self._publish("/tf", t, T["tf2_msgs/msg/TFMessage"](transforms=[tf]))
         ring = ellipse(np.array([x, y]), C[:2, :2])
         self._publish("/swarmloc/beliefs", t, self._markers([
-            self._marker(stamp, "belief", r, _ARROW, pose=_pose(x, y, th), scale=(0.3, 0.06, 0.06), color=_BLUE),
+            self._marker(stamp, "belief", r, _ARROW, pose=ros.pose(x, y, th), scale=(0.3, 0.06, 0.06), color=_BLUE),
             self._marker(stamp, "ellipse", r, _LINE_STRIP, scale=(0.02, 0, 0), color=_BLUE,
                          points=[*ring, ring[0]]),
-            self._marker(stamp, "label", r, _TEXT, pose=_pose(x, y, 0.0, 0.3), scale=(0, 0, 0.2), color=_BLUE,
+            self._marker(stamp, "label", r, _TEXT, pose=ros.pose(x, y, 0.0, 0.3), scale=(0, 0, 0.2), color=_BLUE,
                          text=f"robot {r}"),
         ]))  # fmt: skip
         if b.final:
@@ -324,15 +314,13 @@ class TeamView:
         t, r = b.stamp + self.epoch, b.robot
         true = None
         if self.truth is not None:
-            try:
+            with suppress(ValueError):  # no truth there
                 true = np.asarray(self.truth(r, np.array([b.stamp])), dtype=float).reshape(3)
-            except ValueError:
-                true = None
         if true is not None:
             T = _types()
             self._publish(robot_topic(r, "truth"), t, T["geometry_msgs/msg/PoseStamped"](
-                header=self._header(stamp), pose=_pose(*true)))  # fmt: skip
-            arrow = self._marker(stamp, "truth", r, _ARROW, pose=_pose(*true), scale=(0.3, 0.06, 0.06), color=_GREEN)
+                header=self._header(stamp), pose=ros.pose(*true)))  # fmt: skip
+            arrow = self._marker(stamp, "truth", r, _ARROW, pose=ros.pose(*true), scale=(0.3, 0.06, 0.06), color=_GREEN)
             self._publish("/swarmloc/truth", t, self._markers([arrow]))
             if self.score is not None:
                 err = self.score(RobotTrack(times=np.array([b.stamp]), mean=xyt[None], cov=cov[None],
@@ -349,7 +337,7 @@ class TeamView:
         while i < len(dets) and dets[i].t <= b.stamp:
             d, at = dets[i], _target_at(dets[i], g)
             if at is not None:
-                arrows.append(self._marker(ros_time(d.t + self.epoch), f"robot{d.observer}", i % 2**31, _ARROW,
+                arrows.append(self._marker(ros.ros_time(d.t + self.epoch), f"robot{d.observer}", i % 2**31, _ARROW,
                                            scale=(0.02, 0.05, 0.08), color=_ORANGE, points=[g[:2, 2], at],
                                            lifetime=DETECTION_LIFE))  # fmt: skip
             i += 1
@@ -370,13 +358,12 @@ class TeamView:
         """One ``visualization_msgs/msg/Marker`` in frame ``map`` (``points`` in the plane, z = 0)."""
         T = _types()
         P, V, C = T["geometry_msgs/msg/Point"], T["geometry_msgs/msg/Vector3"], T["std_msgs/msg/ColorRGBA"]
-        life_s = math.floor(lifetime)
         return T["visualization_msgs/msg/Marker"](
             header=self._header(stamp), ns=ns, id=int(mid), type=kind, action=action,
-            pose=_pose(0.0, 0.0, 0.0) if pose is None else pose,
+            pose=ros.pose(0.0, 0.0, 0.0) if pose is None else pose,
             scale=V(x=float(scale[0]), y=float(scale[1]), z=float(scale[2])),
             color=C(r=color[0], g=color[1], b=color[2], a=color[3]),
-            lifetime=T["builtin_interfaces/msg/Duration"](sec=life_s, nanosec=round((lifetime - life_s) * 1e9)),
+            lifetime=T["builtin_interfaces/msg/Duration"](*ros.stamp_to_ros(lifetime)),
             frame_locked=False, points=[P(x=float(p[0]), y=float(p[1]), z=0.0) for p in points], colors=[],
             texture_resource="", texture=T["sensor_msgs/msg/CompressedImage"](
                 header=self._header(stamp), format="", data=np.zeros(0, np.uint8)),
@@ -398,7 +385,7 @@ class TeamView:
         ans = self.maps.answer() if answer is None else answer
         pts = [p for fl in ans.lines for p in (fl.line[5:7], fl.line[7:9])]
         t = self._last_t + self.epoch
-        marker = self._marker(ros_time(t), "map", 0, _LINE_LIST, scale=(0.03, 0, 0), color=_GREY, points=pts,
+        marker = self._marker(ros.ros_time(t), "map", 0, _LINE_LIST, scale=(0.03, 0, 0), color=_GREY, points=pts,
                               action=_ADD if pts else _DELETE)  # fmt: skip
         self._publish("/swarmloc/map", t, self._markers([marker]))
         self._map_logged = time.monotonic()

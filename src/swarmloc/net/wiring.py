@@ -18,7 +18,7 @@ from typing import Any
 
 from swarmloc.net.auth import Auth
 from swarmloc.net.pairing import attach
-from swarmloc.net.transport import alive_key, block, robot_key
+from swarmloc.net.transport import alive_key, block, robot_key, undeclare_all
 
 PUBLISHED = ("belief", "progress", "delayed", "lines")
 """The robot's own keys it publishes on (each declared once opened; ``delayed``, ``lines`` only where it has them)."""
@@ -148,12 +148,7 @@ class Wiring:
 
     def close(self) -> None:
         """Undeclare everything :meth:`open` declared (the session itself belongs to the caller)."""
-        for d in [*self.decl, self._token]:
-            if d is not None:
-                try:
-                    d.undeclare()
-                except Exception:  # noqa: BLE001 - closing: nothing left to do about it
-                    pass
+        undeclare_all([*self.decl, self._token])  # the token is None unless opened: passed over like a failure
         self.decl.clear()
         if self.auth is not None and self.auth.sessions is not None:
             self.auth.sessions.close()
