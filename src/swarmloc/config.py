@@ -338,6 +338,9 @@ class FilterConfig(Section):
     (covariance matching, only up) or "median" (median matching after dead reckoning, down to 0.01, with landmarks)"""
     diekf_odocal: bool = False
     """diekf calibrates each robot's odometry scale and yaw-rate bias online, truth-free (swarmloc.motion.odocal)"""
+    diekf_fault: bool = False
+    """diekf detects a robot's odometry fault from its mutual detections and inflates its covariance, truth-free
+    (swarmloc.estimators.odometry_fault)"""
     quarantine: Count | None = 3
     """a teammate's updates refused in a row (each beyond the gate) that quarantine it for the run"""
 

@@ -129,6 +129,8 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
         raise ValueError("the engine's diekf keeps its noise fixed: run [filter] diekf_adaptive with the nodes")
     if opts.pop("odocal", False):
         raise ValueError("the engine's diekf takes the odometry as given: run [filter] diekf_odocal with the nodes")
+    if opts.pop("fault", False):
+        raise ValueError("the engine's diekf has no odometry-fault test: run [filter] diekf_fault with the nodes")
     return opts
 
 

@@ -176,6 +176,7 @@ def node_options(
         cluster=f.diekf_cluster,
         **({"adaptive": f.diekf_adaptive} if f.diekf_adaptive else {}),  # the engine's diekf takes no such option
         **({"odocal": True} if f.diekf_odocal else {}),  # nor this one
+        **({"fault": True} if f.diekf_fault else {}),  # nor this one
         quarantine=f.quarantine,
         # "anonymous" hands the nodes tagged relative poses and PMR's unregistered detections: they run "joint"
         **({"association": policy} if choose else {}),

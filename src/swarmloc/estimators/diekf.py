@@ -82,6 +82,7 @@ import numpy as np
 
 from swarmloc.estimators.adaptive_noise import Innovation, MedianScale, NoiseScale, innovation_terms
 from swarmloc.estimators.dekf import DEGENERATE, FilterState
+from swarmloc.estimators.odometry_fault import FaultMonitor, broadcast_evidence, observer_evidence
 from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.estimators.world_form import FORMS, TeamState, robot_pair, world_step
 from swarmloc.gaussian import GroupGaussian, symmetric
@@ -395,7 +396,9 @@ class DistributedInvariantEKF(RobotNode):
     NoiseScale`, or ``"median"``: :class:`~swarmloc.estimators.adaptive_noise.MedianScale`; :attr:`noise_scale`;
     ``[filter] diekf_adaptive``). ``odocal``: this robot's odometry scale and yaw-rate
     bias calibrated online from its own posteriors (:class:`~swarmloc.motion.odocal.OdometryCalibration`,
-    :attr:`odometry`; SE(2) only; ``[filter] diekf_odocal``)."""
+    :attr:`odometry`; SE(2) only; ``[filter] diekf_odocal``). ``fault``: an odometry fault of this robot detected
+    from the mutual detections it takes part in, its covariance inflated
+    (:class:`~swarmloc.estimators.odometry_fault.FaultMonitor`, :attr:`faults`; ``[filter] diekf_fault``)."""
 
     name = "diekf"
     lazy_odometry = True
@@ -406,7 +409,9 @@ class DistributedInvariantEKF(RobotNode):
     protocol: TeamProtocol
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
-                 adaptive: bool | Literal["median"] = False, odocal: bool = False, **kw: Any) -> None:  # fmt: skip
+                 adaptive: bool | Literal["median"] = False, odocal: bool = False, fault: bool = False,
+                 **kw: Any) -> None:  # fmt: skip
+        self.faults = FaultMonitor() if fault else None
         self.noise_scale = MedianScale() if adaptive == "median" else NoiseScale() if adaptive else None
         self.odometry = OdometryCalibration() if odocal else None
         self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=True,
@@ -475,6 +480,9 @@ class DistributedInvariantEKF(RobotNode):
     def _fuse_one(self, s: TeamState, g: Group, d: Any, sub: SubKey) -> tuple[TeamState, Outcome, list[Message]]:
         """One detection of ``g`` (key ``sub``) fused and broadcast (:meth:`TeamProtocol.fuse`), or its outcome."""
         target = self._classify(g, d, sub)
+        if self.faults is not None:  # a landmark's, or one not fused: none (a replay drops what it filed before)
+            ev = observer_evidence(self.protocol, s, d, target[1]) if target[0] == "robot" else None
+            s = self._inflated(s, self.faults.record(g.t, ("o", sub), ev))
         if target[0] in ("rejected", "unknown"):
             return s, target, []
         self.protocol.last_innovation = None
@@ -499,4 +507,13 @@ class DistributedInvariantEKF(RobotNode):
         # centralized filter does with its blocks (the same process-noise linearization points, same numbers).
         if isinstance(u, TeamUpdate) and u.target == self.robot:
             s = self._adv(s, self.robot, u.stamp)
-        return self.protocol.apply(s, u, self.counts)
+        s, applied = self.protocol.apply(s, u, self.counts)
+        if self.faults is not None and isinstance(u, TeamUpdate):
+            key = ("t", u.sender, tuple(u.sub))
+            s = self._inflated(s, self.faults.record(float(u.stamp), key, broadcast_evidence(u, self.robot)))
+        return s, applied
+
+    @staticmethod
+    def _inflated(s: TeamState, D: np.ndarray | None) -> TeamState:
+        """``s`` with its covariance inflated by ``D`` (an odometry fault's, :attr:`faults`; None: as it is)."""
+        return s if D is None else s._replace(P=s.P + D)
