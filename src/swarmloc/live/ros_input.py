@@ -44,6 +44,7 @@ from swarmloc.net import ros
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.rosgraph import RosGraph
 from swarmloc.net.transport import block
+from swarmloc.rmw.types import header, odometry_msg, pose_msg, stamp_of
 
 log = logging.getLogger(__name__)
 
@@ -76,25 +77,10 @@ def default_namespace(team: str) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ encoding
-def _header(t: float, frame_id: str) -> Any:
-    T = ros.typestore().types
-    sec, nsec = ros.stamp_to_ros(t)
-    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id)
-
-
 def odometry_cdr(t: float, v: float, w: float, pose: Any = (0.0, 0.0, 0.0), child: str = "base_link") -> bytes:
     """CDR of a ``nav_msgs/msg/Odometry`` stamped ``t`` [s] with twist ``(v, w)`` (averaged over the interval ending
     at ``t``) and the planar ``pose`` (x, y, yaw), which the reader ignores."""
-    T = ros.typestore().types
-    qx, qy, qz, qw = ros.yaw_to_quaternion(pose[2])
-    p = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
-                                    orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))  # fmt: skip
-    z3 = T["geometry_msgs/msg/Vector3"]
-    tw = T["geometry_msgs/msg/Twist"](linear=z3(x=float(v), y=0.0, z=0.0), angular=z3(x=0.0, y=0.0, z=float(w)))
-    msg = T[ODOM](header=_header(t, "odom"), child_frame_id=child,
-                  pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=np.zeros(36)),
-                  twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=np.zeros(36)))  # fmt: skip
-    return bytes(ros.typestore().serialize_cdr(msg, ODOM))
+    return ros.to_cdr(odometry_msg(t, v, w, pose, "odom", child, twist_var=0.0))
 
 
 def detection_cdr(d: Detection) -> bytes:
@@ -105,20 +91,16 @@ def detection_cdr(d: Detection) -> bytes:
     z = np.asarray(d.z, dtype=float).reshape(3)
     cov6 = np.zeros((6, 6))
     cov6[np.ix_((0, 1, 5), (0, 1, 5))] = np.asarray(d.cov, dtype=float).reshape(3, 3)
-    qx, qy, qz, qw = ros.yaw_to_quaternion(z[2])
     frame = f"{'robot' if d.target_is_robot else 'landmark'}{int(d.target)}"
-    msg = T[DET](header=_header(d.t, frame), pose=T["geometry_msgs/msg/PoseWithCovariance"](
-        pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(z[0]), y=float(z[1]), z=0.0),
-                                         orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)),
-        covariance=cov6.reshape(36)))  # fmt: skip
-    return bytes(ros.typestore().serialize_cdr(msg, DET))
+    pose = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose_msg(z), covariance=cov6.reshape(36))
+    return ros.to_cdr(T[DET](header=header(d.t, frame), pose=pose))
 
 
 def progress_cdr(t: float, end: bool = False, count: int | None = None) -> bytes:
     """CDR of the ``std_msgs/msg/Header`` announcing progress to ``t`` [s] (``end``: the stream is over, after
     ``count`` odometry and detection messages in all when given: frame_id ``end:<count>``)."""
     frame = "progress" if not end else "end" if count is None else f"end:{int(count)}"
-    return bytes(ros.typestore().serialize_cdr(_header(t, frame), PROGRESS))
+    return ros.to_cdr(header(t, frame))
 
 
 # ------------------------------------------------------------------------------------------------ decoding
@@ -139,14 +121,10 @@ def _decode(payload: bytes, msgtype: str) -> Any:
         raise Bad("bad_cdr", f"not CDR of {msgtype}: {type(exc).__name__}: {exc}") from None
 
 
-def _stamp(msg: Any) -> float:
-    return ros.ros_to_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec)
-
-
 def decode_odometry(payload: bytes) -> tuple[float, float, float]:
     """``(t [s], v [m/s], w [rad/s])`` of a ``nav_msgs/msg/Odometry`` sample; :class:`Bad` if refused."""
     m = _decode(payload, ODOM)
-    out = (_stamp(m), float(m.twist.twist.linear.x), float(m.twist.twist.angular.z))
+    out = (stamp_of(m.header), float(m.twist.twist.linear.x), float(m.twist.twist.angular.z))
     if not np.all(np.isfinite(out)):
         raise Bad("bad_value", f"non-finite odometry {out}")
     return out
@@ -158,20 +136,18 @@ def decode_detection(payload: bytes, observer: int) -> Detection:
     hit = _TARGET.match(m.header.frame_id)
     if hit is None:
         raise Bad("bad_frame_id", f"frame_id {m.header.frame_id[:40]!r} is not robot<id> or landmark<id>")
-    p, q = m.pose.pose.position, m.pose.pose.orientation
-    z = np.array([p.x, p.y, ros.quaternion_to_yaw(q.x, q.y, q.z, q.w)], dtype=float)
-    cov = np.asarray(m.pose.covariance, dtype=float).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))].copy()
+    t, z, cov = ros.pose_from_message(m)
     if not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov))):
         raise Bad("bad_value", "non-finite detection")
     if not (np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(symmetric(cov)) > 0)):
         raise Bad("bad_covariance", "the (x, y, yaw) covariance is not symmetric positive definite")
-    return Detection(observer, _stamp(m), Kind.POSE, z, cov, int(hit.group(2)), hit.group(1) == "robot")
+    return Detection(observer, t, Kind.POSE, z, cov, int(hit.group(2)), hit.group(1) == "robot")
 
 
 def decode_progress(payload: bytes) -> tuple[float, bool, int | None]:
     """``(t [s], end, count)`` of a progress ``Header`` sample."""
     m = _decode(payload, PROGRESS)
-    t = ros.ros_to_stamp(m.stamp.sec, m.stamp.nanosec)
+    t = stamp_of(m)
     hit = re.match(r"^end(?::([0-9]{1,12}))?$", m.frame_id)
     return t, hit is not None, None if hit is None or hit.group(1) is None else int(hit.group(1))
 
