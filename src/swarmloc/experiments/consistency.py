@@ -47,7 +47,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
-from swarmloc.experiments.output import write_summary
+from swarmloc.experiments.output import save_figure, write_summary
+from swarmloc.experiments.progress import steps
 from swarmloc.runner.fanout import ClusterUnavailable, cluster_address, fan_out
 from swarmloc.runner.result import summed
 
@@ -133,15 +134,11 @@ def _job(
 def _run_jobs(tasks: list[tuple], jobs: int, progress: bool, cluster: Any = None) -> dict[tuple, dict[str, Any]]:
     """Results of ``_job(*task)`` by key, where :func:`~swarmloc.runner.fanout.fan_out` runs them, with an optional
     progress bar."""
-    from swarmloc.experiments.progress import progress_bar
-
     out: dict[tuple, dict[str, Any]] = {}
-    with progress_bar(progress) as start:
-        cb = start("consistency") if start is not None else None
+    with steps(progress, len(tasks), "consistency") as tick:
         for _, r in fan_out(_job, tasks, jobs=jobs, cluster=cluster):
             out[r["key"]] = r
-            if cb is not None:
-                cb(len(out), len(tasks))
+            tick("")
     return out
 
 
@@ -289,9 +286,7 @@ def figure(summary: dict[str, Any], path: str | os.PathLike[str]) -> None:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     axes[0][0].set_ylabel("team ANEES per dof a(t)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def run_command(args: argparse.Namespace) -> int:

@@ -9,7 +9,6 @@ in-process runner; beliefs are recorded on a regular grid and scored with :mod:`
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -29,7 +28,7 @@ from swarmloc.evaluation.heldout import BAND, band_verdict
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
 from swarmloc.experiments.association import association_accuracy, association_events, handoff_accuracy
-from swarmloc.experiments.output import save_figure
+from swarmloc.experiments.output import save_figure, write_summary
 from swarmloc.experiments.progress import progress_bar
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.runner import RunResult, TruthFn, run
@@ -274,8 +273,7 @@ def write_report(
     except Exception as exc:  # noqa: BLE001 - the report is written whatever the figures meet; it says why
         report["figures"] = []
         notes.append(f"figures not drawn: {type(exc).__name__}: {exc}")
-    (out / f"{stem}.json").write_text(json.dumps(report, indent=2, default=json_default))
-    (out / f"{stem}.md").write_text(markdown_table(report))
+    write_summary(out, stem, report, markdown_table(report), default=json_default)
 
 
 def json_default(o: object) -> object:

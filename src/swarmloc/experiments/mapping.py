@@ -19,13 +19,13 @@ Each map is scored against the true walls with :func:`swarmloc.mapping.map_error
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from swarmloc.estimators import make_team, node_options
+from swarmloc.experiments.output import save_figure, write_summary
 from swarmloc.experiments.progress import Tick, no_tick, steps
 from swarmloc.lie import SE2
 from swarmloc.mapping import LineMap, map_error, scan_observations
@@ -164,9 +164,7 @@ def figure(path: Path, res: dict[str, Any], coop: tuple[str, ...]) -> None:
         ax.set_title(f"{name}\n{cm}", fontsize=9)
         ax.set_aspect("equal")
         ax.legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -179,10 +177,7 @@ def run_command(args: argparse.Namespace) -> int:
     text = markdown(report)
     print(text)
     if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "map.md").write_text(text)
-        (out / "map.json").write_text(json.dumps(report, indent=1, default=str))
+        out = write_summary(args.out, "map", report, text, indent=1, default=str)
         for name, lm in first["maps"].items():
             stem = name.replace(", ", "_").replace(" ", "_")
             lm.save_geojson(out / f"{stem}.geojson")
