@@ -44,6 +44,7 @@ from swarmloc.net import ros
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.rosgraph import RosGraph
 from swarmloc.net.transport import block
+from swarmloc.rmw.inbox import Refused
 from swarmloc.rmw.types import header, odometry_msg, pose_msg, stamp_of
 
 log = logging.getLogger(__name__)
@@ -104,43 +105,35 @@ def progress_cdr(t: float, end: bool = False, count: int | None = None) -> bytes
 
 
 # ------------------------------------------------------------------------------------------------ decoding
-class Bad(ValueError):
-    """A sample that is refused, with the reason it is counted under."""
-
-    def __init__(self, reason: str, detail: str) -> None:
-        super().__init__(f"{reason}: {detail}")
-        self.reason = reason
-
-
 def _decode(payload: bytes, msgtype: str) -> Any:
     if len(payload) > MAX_BYTES:
-        raise Bad("too_large", f"{len(payload)} bytes > {MAX_BYTES}")
+        raise Refused("too_large", f"{len(payload)} bytes > {MAX_BYTES}")
     try:
         return ros.typestore().deserialize_cdr(payload, msgtype)
     except Exception as exc:  # noqa: BLE001 - rosbags raises several kinds on bad bytes
-        raise Bad("bad_cdr", f"not CDR of {msgtype}: {type(exc).__name__}: {exc}") from None
+        raise Refused("bad_cdr", f"not CDR of {msgtype}: {type(exc).__name__}: {exc}") from None
 
 
 def decode_odometry(payload: bytes) -> tuple[float, float, float]:
-    """``(t [s], v [m/s], w [rad/s])`` of a ``nav_msgs/msg/Odometry`` sample; :class:`Bad` if refused."""
+    """``(t [s], v [m/s], w [rad/s])`` of a ``nav_msgs/msg/Odometry`` sample; :class:`Refused` if refused."""
     m = _decode(payload, ODOM)
     out = (stamp_of(m.header), float(m.twist.twist.linear.x), float(m.twist.twist.angular.z))
     if not np.all(np.isfinite(out)):
-        raise Bad("bad_value", f"non-finite odometry {out}")
+        raise Refused("bad_value", f"non-finite odometry {out}")
     return out
 
 
 def decode_detection(payload: bytes, observer: int) -> Detection:
-    """The :class:`~swarmloc.events.Detection` of a detection sample of ``observer``; :class:`Bad` if refused."""
+    """The :class:`~swarmloc.events.Detection` of a detection sample of ``observer``; :class:`Refused` if refused."""
     m = _decode(payload, DET)
     hit = _TARGET.match(m.header.frame_id)
     if hit is None:
-        raise Bad("bad_frame_id", f"frame_id {m.header.frame_id[:40]!r} is not robot<id> or landmark<id>")
+        raise Refused("bad_frame_id", f"frame_id {m.header.frame_id[:40]!r} is not robot<id> or landmark<id>")
     t, z, cov = ros.pose_from_message(m)
     if not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov))):
-        raise Bad("bad_value", "non-finite detection")
+        raise Refused("bad_value", "non-finite detection")
     if not (np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(symmetric(cov)) > 0)):
-        raise Bad("bad_covariance", "the (x, y, yaw) covariance is not symmetric positive definite")
+        raise Refused("bad_covariance", "the (x, y, yaw) covariance is not symmetric positive definite")
     return Detection(observer, t, Kind.POSE, z, cov, int(hit.group(2)), hit.group(1) == "robot")
 
 
@@ -195,7 +188,7 @@ class RosInput:
                 self.counts["received"] += 1
                 self._check_attachment(sample)
                 self._handle(what, sample.payload.to_bytes())
-            except Bad as exc:
+            except Refused as exc:
                 self._bad(exc.reason, f"{what}: {exc}", what)
             except Exception as exc:  # noqa: BLE001 - a live node never dies of one message
                 self._bad("internal_error", f"{what}: {type(exc).__name__}: {exc}", what)
@@ -208,9 +201,9 @@ class RosInput:
         try:
             seq, _, gid = ros.parse_ros_attachment(att.to_bytes())
         except ValueError as exc:
-            raise Bad("bad_attachment", str(exc)) from None
+            raise Refused("bad_attachment", str(exc)) from None
         if seq <= self._seqs.get(gid, 0):
-            raise Bad("duplicate", f"sequence number {seq} of publisher {gid.hex()} again")
+            raise Refused("duplicate", f"sequence number {seq} of publisher {gid.hex()} again")
         self._seqs[gid] = seq
         self._seqs.move_to_end(gid)
         if len(self._seqs) > MAX_PUBLISHERS:  # bounded: the publishers heard longest ago are forgotten
@@ -221,7 +214,7 @@ class RosInput:
             t, v, w = decode_odometry(raw)
             if t <= self._prev:
                 if t < self._prev:
-                    raise Bad("stale", f"odometry stamped {t} before the previous one {self._prev}")
+                    raise Refused("stale", f"odometry stamped {t} before the previous one {self._prev}")
                 self.feed.dropped()
                 return  # a message at the start only marks it
             ok = self.feed.push(Odometry(self.robot, self._prev, t, v, w))

@@ -41,6 +41,7 @@ from swarmloc.kernels.group import absolute_to_pseudo
 from swarmloc.lie import SE2
 from swarmloc.net import ros as rosmsg
 from swarmloc.rmw import typestore
+from swarmloc.rmw.inbox import Refused
 from swarmloc.rmw.types import header, pose_msg, stamp_of, twist_msg
 
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -57,14 +58,6 @@ MAX_DETECTIONS = 256
 MAX_SPEED, MAX_RATE = 100.0, 100.0
 """[m/s], [rad/s]: odometry beyond these is refused (``bad_value``)."""
 _TARGET = re.compile(r"^(robot|landmark)([0-9]{1,9})?$")
-
-
-class Refused(ValueError):
-    """An input refused, with the reason it is counted under."""
-
-    def __init__(self, reason: str, detail: str) -> None:
-        super().__init__(f"{reason}: {detail}")
-        self.reason = reason
 
 
 def _yaw(q: Any) -> float:
