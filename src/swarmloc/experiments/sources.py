@@ -46,19 +46,6 @@ from swarmloc.sim.source import sim_source
 
 __all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim3d_source", "sim_source"]
 
-SIM_SCENARIOS = (
-    "random",
-    "range_bearing",
-    "landmarks",
-    "corridor",
-    "3d",
-    "3d_rot",
-    "3d_rbe",
-    "3d_bearing",
-    "3d_landmarks",
-)
-
-
 class Sim3Variant(TypedDict, total=False):
     """The :class:`~swarmloc.sim.sim3d.Sim3Config` fields a ``sim:3d`` scenario sets (the others: defaults)."""
 
@@ -74,6 +61,9 @@ SIM3D_VARIANTS: dict[str, Sim3Variant] = {
     "3d_landmarks": {"landmarks": 8},
 }
 """The ``sim:3d`` scenarios and their :class:`~swarmloc.sim.sim3d.Sim3Config` fields."""
+
+SIM_SCENARIOS = ("random", "range_bearing", "landmarks", "corridor", *SIM3D_VARIANTS)
+"""Every ``sim:`` scenario: the planar ones and :data:`SIM3D_VARIANTS`."""
 
 _SCENARIO_KINDS = {"range_bearing": (Kind.RANGE_BEARING,)}
 """The detection kinds of a planar random team's scenario (relative poses when not listed)."""
