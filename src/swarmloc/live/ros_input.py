@@ -58,11 +58,6 @@ MAX_PUBLISHERS = 1024
 _TARGET = re.compile(r"^(robot|landmark)([0-9]{1,9})$")
 
 
-def dds_name(msgtype: str) -> str:
-    """``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_`` (rmw_zenoh's type name in keys; :func:`ros.dds_type_name`)."""
-    return ros.dds_type_name(msgtype)
-
-
 def topic_key(topic: str, msgtype: str, domain: int = 0) -> str:
     """The Zenoh key rmw_zenoh publishes ``topic`` of ``msgtype`` on in ``domain`` (:func:`ros.ros_key`)."""
     return ros.ros_key(topic, domain, msgtype)
@@ -169,7 +164,7 @@ class RosInput:
             key = topic_key(self.topics[what], msgtype, self.domain)
             handler = (lambda w: lambda sample: self._on(w, sample))(what)
             self._subs.append(self.session.declare_subscriber(key, handler=handler))
-            self.graph.subscription(self.topics[what], dds_name(msgtype), ros.typestore().hash_rihs01(msgtype))
+            self.graph.subscription(self.topics[what], ros.dds_type_name(msgtype), ros.type_hash(msgtype))
 
     def close(self) -> None:
         for s in self._subs:
@@ -256,7 +251,7 @@ class RosInputPublisher:
             # restarted publisher's sequence numbers, counted from 1 again, are not taken for duplicates
             zid = str(session.info.zid())
             self._gids[what] = hashlib.blake2b(f"{zid}/{key}".encode(), digest_size=16).digest()
-            self.graph.publisher(self.topics[what], dds_name(msgtype), ros.typestore().hash_rihs01(msgtype))
+            self.graph.publisher(self.topics[what], ros.dds_type_name(msgtype), ros.type_hash(msgtype))
 
     def wait_matched(self, timeout: float = 10.0) -> bool:
         """Wait (up to ``timeout`` s) until a subscriber matches each of its topics (what is put before is lost)."""

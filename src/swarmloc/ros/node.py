@@ -121,9 +121,8 @@ class RosNode:
         self.namespace = args.namespace or namespace
         self.params = p = params
         self.robot = p.robot_id
-        self.topics = {k: args.resolve(getattr(p, k), self.namespace, self.name) for k in TOPIC_PARAMS}
-        self.topics["tf"] = args.resolve("/tf", self.namespace, self.name)
-        self.topics["clock"] = args.resolve("/clock", self.namespace, self.name)
+        names = {**{k: getattr(p, k) for k in TOPIC_PARAMS}, "tf": "/tf", "clock": "/clock"}
+        self.topics = {k: args.resolve(v, self.namespace, self.name) for k, v in names.items()}
         self.config = p.config()
         initial_belief(p)  # a bad initial state or covariance is refused now, not at the first odometry
         self.timeline = timeline_of(p, self.robot)
@@ -247,10 +246,8 @@ class RosNode:
 
     def _publish_diagnostics(self) -> None:
         d = self.diagnostics()
-        level = 0
         refused = sum(v for k, v in d.items() if k.startswith(("refused_", "late_", "frames_refused")))
-        if d.get("teammates_lost") or refused:
-            level = 1
+        level = 1 if d.get("teammates_lost") or refused else 0
         msg = (
             "waiting for the first odometry"
             if self.net is None
