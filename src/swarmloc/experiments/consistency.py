@@ -35,10 +35,7 @@ per-robot marginals only.
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -49,7 +46,7 @@ import numpy as np
 from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
 from swarmloc.experiments.output import save_figure, write_summary
 from swarmloc.experiments.progress import steps
-from swarmloc.runner.fanout import ClusterUnavailable, cluster_address, fan_out
+from swarmloc.runner.fanout import cluster_address, fan_out
 from swarmloc.runner.result import summed
 
 if TYPE_CHECKING:
@@ -62,7 +59,6 @@ __all__ = [
     "consistency",
     "consistency_table",
     "default_estimators",
-    "run_command",
     "sampled_initial",
 ]
 
@@ -287,29 +283,3 @@ def figure(summary: dict[str, Any], path: str | os.PathLike[str]) -> None:
         ax.legend(fontsize=7)
     axes[0][0].set_ylabel("team ANEES per dof a(t)")
     save_figure(fig, path)
-
-
-def run_command(args: argparse.Namespace) -> int:
-    """``swarmloc consistency`` (arguments of :func:`swarmloc.cli.build_parser`): print the table (or JSON)."""
-    names = default_estimators() if args.estimators is None else [e.strip() for e in args.estimators.split(",")
-                                                                   if e.strip()]  # fmt: skip
-    marks = {"off": False, "on": True}
-    try:
-        settings = [marks[w.strip()] for w in args.landmarks.split(",") if w.strip()]
-    except KeyError as exc:
-        print(f"swarmloc consistency: --landmarks takes off, on or off,on; got {exc.args[0]!r}", file=sys.stderr)
-        return 2
-    try:
-        summary = consistency(names, seeds=args.seeds, robots=args.robots, duration=args.duration,
-                              landmarks=settings, jobs=args.jobs, out=args.out, progress=not args.quiet,
-                              cluster=args.cluster)  # fmt: skip
-    except (ValueError, OSError, ClusterUnavailable) as exc:
-        print(f"swarmloc consistency: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        print(consistency_table(summary))
-    if args.out:
-        print(f"written to {args.out}/consistency.md, consistency.json and consistency.png", file=sys.stderr)
-    return 0

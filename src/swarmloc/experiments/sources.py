@@ -46,6 +46,7 @@ from swarmloc.sim.source import sim_source
 
 __all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim3d_source", "sim_source"]
 
+
 class Sim3Variant(TypedDict, total=False):
     """The :class:`~swarmloc.sim.sim3d.Sim3Config` fields a ``sim:3d`` scenario sets (the others: defaults)."""
 
