@@ -278,9 +278,7 @@ class _Reader:
                 raise Bad("a landmark is a point: it has no relative pose (use range_bearing, range or bearing)")
             if is_robot and target == obs:
                 raise Bad(f"robot {obs} cannot detect itself (target equals robot)")
-        z = rec.vector("z")
-        if z.size != m:
-            raise Bad(f"'z' of a {kind} detection must have {m} number{'s' if m > 1 else ''}, got {z.size}")
+        z = rec.sized("z", m, f"a {kind} detection must have {m} number{'s' if m > 1 else ''}")
         if model.targets != "point":  # a pose (x, y, theta)
             check_pose(z)
         if model.ranged and not 0 < z[0] <= MAX_POSITION:
@@ -297,16 +295,12 @@ class _Reader:
         lid = rec.ident("target")
         if rec.has("target_type") and rec.word("target_type") != "landmark":
             raise Bad(f"'target_type' of a landmark record must be 'landmark' or empty, got {rec.raw['target_type']!r}")
-        z = rec.vector("z")
-        if z.size != 2:
-            raise Bad(f"'z' of a landmark must be 'x y' (2 numbers), got {z.size}")
+        z = rec.sized("z", 2, "a landmark must be 'x y' (2 numbers)")
         check_point(z)
         if rec.has("cov"):
             raise Bad("a landmark record takes 'std' (sx sy), not 'cov'")
         if rec.has("std"):
-            std = rec.vector("std")
-            if std.size != 2:
-                raise Bad(f"'std' of a landmark must be 'sx sy' (2 numbers), got {std.size}")
+            std = rec.sized("std", 2, "a landmark must be 'sx sy' (2 numbers)")
             check_std(std)
         elif "landmark" in self.dflt:
             std = self.dflt["landmark"]
@@ -321,9 +315,7 @@ class _Reader:
     def _initial(self, rec: Record, line: int) -> None:
         r = rec.ident("robot")
         t = rec.number("t", _STAMP) if rec.has("t") else None
-        z = rec.vector("z")
-        if z.size != 3:
-            raise Bad(f"'z' of an initial belief must be 'x y theta' (3 numbers), got {z.size}")
+        z = rec.sized("z", 3, "an initial belief must be 'x y theta' (3 numbers)")
         check_pose(z)
         cov = noise(rec, 3, "an initial belief", self.dflt.get("initial"))
         if r in self.initial:
