@@ -90,11 +90,7 @@ def evaluate_stream(
         notes["bank_handoffs_right_wrong"] = handoff_accuracy(events, truth)
     duration = float(t_end - t_start)
     report: dict[str, Any] = {
-        "robots": sorted(initial),
-        "duration_s": duration,
-        "n_events": len(events),
-        "config": config.to_dict(),
-        "truth": truth is not None,
+        **report_head(sorted(initial), duration, len(events), config, truth is not None),
         "association": policy,
         "sensor": {"range_m": sensor[0], "fov_rad": sensor[1]},
         **({"association_notes": notes} if notes else {}),
@@ -128,6 +124,12 @@ def evaluate_stream(
     report["anees_bounds_if_independent"] = anees_bounds(max(n_rec, 1))
     report["recommended"] = recommended(report)
     return report, results
+
+
+def report_head(robots: list[int], duration: float, n_events: int, config: Config, truth: bool) -> dict[str, Any]:
+    """A report's first entries: its ``robots``, ``duration_s`` [s], ``n_events``, ``config`` and whether it has
+    ``truth``."""
+    return {"robots": robots, "duration_s": duration, "n_events": n_events, "config": config.to_dict(), "truth": truth}
 
 
 def run_row(ev: dict[str, Any], res: RunResult, duration: float) -> None:
