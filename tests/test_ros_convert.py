@@ -12,6 +12,7 @@ from scipy.linalg import logm
 
 from swarmloc.events import Detection
 from swarmloc.rmw import typestore
+from swarmloc.rmw.types import odometry_msg
 from swarmloc.ros import convert as cv
 from swarmloc.ros.timeline import InputTimeline, record_times
 
@@ -94,10 +95,10 @@ def test_odometry_intervals_interpolation_and_the_map_to_odom_transform():
     tl = InputTimeline(3)
     v, w = 0.5, 0.4
     arc = lambda t: np.array([v / w * math.sin(w * t), v / w * (1 - math.cos(w * t)), w * t])  # noqa: E731
-    assert tl.odometry(cv.odometry_msg(100.0, 0.0, 0.0, arc(0.0))) == [] and tl.t0 == 100.0
-    (o,) = tl.odometry(cv.odometry_msg(101.0, v, w, arc(1.0)))
+    assert tl.odometry(odometry_msg(100.0, 0.0, 0.0, arc(0.0))) == [] and tl.t0 == 100.0
+    (o,) = tl.odometry(odometry_msg(101.0, v, w, arc(1.0)))
     assert (o.robot, o.t0, o.t1, o.v, o.w) == (3, 100.0, 101.0, v, w)
-    assert tl.odometry(cv.odometry_msg(100.5, v, w, arc(0.5))) == [] and tl.reasons["odometry_not_after_previous"] == 1
+    assert tl.odometry(odometry_msg(100.5, v, w, arc(0.5))) == [] and tl.reasons["odometry_not_after_previous"] == 1
     pose, sample = tl.odom_at(100.3)
     np.testing.assert_allclose(pose, arc(0.3), atol=1e-12)  # constant twist: the geodesic is the arc
     assert sample.t == 101.0 and sample.v == v
@@ -128,7 +129,7 @@ def test_initialpose_before_the_start_sets_the_initial_belief_after_it_is_a_fix(
     msg = pose_message(0.0, se2(3.0, 1.0, 0.2), np.diag([0.01, 0.01, 0.001]))
     assert tl.initialpose(msg) == [] and tl.initial is not None
     np.testing.assert_allclose(tl.initial[0], [3.0, 1.0, 0.2], atol=1e-12)
-    tl.odometry(cv.odometry_msg(50.0, 0.0, 0.0, (0, 0, 0)))
+    tl.odometry(odometry_msg(50.0, 0.0, 0.0, (0, 0, 0)))
     (d,) = tl.initialpose(msg)  # stamp 0: taken at the latest odometry's stamp
     assert isinstance(d, Detection) and d.kind == "absolute" and d.t == 50.0
     wrong = pose_message(60.0, se2(0, 0, 0), np.eye(3))
@@ -143,5 +144,5 @@ def test_detections_wait_for_the_first_odometry_and_those_before_it_are_refused(
     early = cv.detections_msg(9.0, [D(1, 9.0, "pose", np.array([1.0, 0, 0]), np.eye(3) * 1e-3, 2)], "base_link")
     late = cv.detections_msg(10.5, [D(1, 10.5, "pose", np.array([1.0, 0, 0]), np.eye(3) * 1e-3, 2)], "base_link")
     assert tl.detections(early) == [] and tl.detections(late) == []
-    got = tl.odometry(cv.odometry_msg(10.0, 0.0, 0.0, (0, 0, 0)))
+    got = tl.odometry(odometry_msg(10.0, 0.0, 0.0, (0, 0, 0)))
     assert [d.t for d in got] == [10.5] and tl.reasons["before_start"] == 1

@@ -24,6 +24,7 @@ from swarmloc.experiments.sources import load_source
 from swarmloc.lie import SE2
 from swarmloc.net.auth import make_team_keys
 from swarmloc.net.transport import free_ports
+from swarmloc.rmw.types import odometry_msg
 from swarmloc.ros import convert as cv
 from swarmloc.ros.params import load_params
 from swarmloc.ros.replay import replay_messages
@@ -281,7 +282,7 @@ def stranger_messages(tmp: Path, src) -> Path:
     out = []
     for k in range(41):
         t = 0.1 * k
-        out.append(("odometry", cv.odometry_msg(t, 5.0, 0.0, (0.5 * k, 0.0, 0.0)), t))
+        out.append(("odometry", odometry_msg(t, 5.0, 0.0, (0.5 * k, 0.0, 0.0)), t))
     for k in range(8):
         t = 0.5 * k + 0.05
         d = Detection(ATTACK, t, "pose", np.array([30.0, 0.0, 0.0]), 1e-4 * np.eye(3), 0)

@@ -124,6 +124,14 @@ class Record:
             raise Bad(f"'{key}' must be {'numbers separated by spaces' if self.text else 'an array of numbers'}")
         return np.array(vals, dtype=float)
 
+    def sized(self, key: str, n: int, of: str) -> np.ndarray:
+        """:meth:`vector` of exactly ``n`` numbers; else :class:`Bad`: ``'<key>' of <of>, got <size>`` (``of``: what
+        it belongs to and must hold, ``"a landmark must be 'x y' (2 numbers)"``)."""
+        v = self.vector(key)
+        if v.size != n:
+            raise Bad(f"'{key}' of {of}, got {v.size}")
+        return v
+
 
 def check_pose(z: np.ndarray, key: str = "z") -> None:
     """``x y theta``: ``|x|, |y| <= MAX_POSITION`` m, ``|theta| <= MAX_ANGLE`` rad."""
@@ -152,15 +160,11 @@ def noise(rec: Record, m: int, what: str, default: np.ndarray | None) -> np.ndar
     if has_std and has_cov:
         raise Bad("give either 'std' or 'cov', not both")
     if has_std:
-        std = rec.vector("std")
-        if std.size != m:
-            raise Bad(f"'std' of {what} must have {m} number{'s' if m > 1 else ''}, got {std.size}")
+        std = rec.sized("std", m, f"{what} must have {m} number{'s' if m > 1 else ''}")
         check_std(std)
         return np.diag(std * std)
     if has_cov:
-        c = rec.vector("cov")
-        if c.size != m * m:
-            raise Bad(f"'cov' of {what} must have {m}*{m} = {m * m} numbers (row-major), got {c.size}")
+        c = rec.sized("cov", m * m, f"{what} must have {m}*{m} = {m * m} numbers (row-major)")
         try:
             cov = check_covariance(c.reshape(m, m), m, "cov").copy()
         except ValueError as exc:

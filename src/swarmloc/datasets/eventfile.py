@@ -83,7 +83,7 @@ import csv
 import json
 import math
 import os
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeGuard
@@ -278,9 +278,7 @@ class _Reader:
                 raise Bad("a landmark is a point: it has no relative pose (use range_bearing, range or bearing)")
             if is_robot and target == obs:
                 raise Bad(f"robot {obs} cannot detect itself (target equals robot)")
-        z = rec.vector("z")
-        if z.size != m:
-            raise Bad(f"'z' of a {kind} detection must have {m} number{'s' if m > 1 else ''}, got {z.size}")
+        z = rec.sized("z", m, f"a {kind} detection must have {m} number{'s' if m > 1 else ''}")
         if model.targets != "point":  # a pose (x, y, theta)
             check_pose(z)
         if model.ranged and not 0 < z[0] <= MAX_POSITION:
@@ -297,16 +295,12 @@ class _Reader:
         lid = rec.ident("target")
         if rec.has("target_type") and rec.word("target_type") != "landmark":
             raise Bad(f"'target_type' of a landmark record must be 'landmark' or empty, got {rec.raw['target_type']!r}")
-        z = rec.vector("z")
-        if z.size != 2:
-            raise Bad(f"'z' of a landmark must be 'x y' (2 numbers), got {z.size}")
+        z = rec.sized("z", 2, "a landmark must be 'x y' (2 numbers)")
         check_point(z)
         if rec.has("cov"):
             raise Bad("a landmark record takes 'std' (sx sy), not 'cov'")
         if rec.has("std"):
-            std = rec.vector("std")
-            if std.size != 2:
-                raise Bad(f"'std' of a landmark must be 'sx sy' (2 numbers), got {std.size}")
+            std = rec.sized("std", 2, "a landmark must be 'sx sy' (2 numbers)")
             check_std(std)
         elif "landmark" in self.dflt:
             std = self.dflt["landmark"]
@@ -321,9 +315,7 @@ class _Reader:
     def _initial(self, rec: Record, line: int) -> None:
         r = rec.ident("robot")
         t = rec.number("t", _STAMP) if rec.has("t") else None
-        z = rec.vector("z")
-        if z.size != 3:
-            raise Bad(f"'z' of an initial belief must be 'x y theta' (3 numbers), got {z.size}")
+        z = rec.sized("z", 3, "an initial belief must be 'x y theta' (3 numbers)")
         check_pose(z)
         cov = noise(rec, 3, "an initial belief", self.dflt.get("initial"))
         if r in self.initial:
@@ -449,7 +441,9 @@ def _lines(path: Path) -> Iterator[tuple[int, str | None]]:
                 yield lineno, text
 
 
-Row = tuple[int, str, Mapping[str, object] | str]
+Fields = Mapping[str, object] | str
+"""A record's fields, or the problem of its line."""
+Row = tuple[int, str, Fields]
 """``(line number, text, fields or problem)``."""
 
 
@@ -480,42 +474,40 @@ def _csv_rows(path: Path, label: str) -> Iterator[Row]:
             f"{label} line {hline}: bad header row: {'; '.join(what)}; known columns: {','.join(COLUMNS)}, "
             f"got {shorten(htext)!r}"
         )
-    for lineno, text in lines:
-        if text is None:
-            yield lineno, "", _TOO_LONG
-            continue
+
+    def fields(text: str) -> Fields:
         try:
             cells = next(csv.reader([text], strict=True))
         except csv.Error as exc:
-            yield lineno, text, f"not a CSV row ({exc})"
-            continue
+            return f"not a CSV row ({exc})"
         if len(cells) > len(header):
-            yield lineno, text, f"expected at most {len(header)} cells (as in the header row), got {len(cells)}"
-        else:  # trailing empty cells may be left out
-            yield lineno, text, dict(zip(header, cells, strict=False))
+            return f"expected at most {len(header)} cells (as in the header row), got {len(cells)}"
+        return dict(zip(header, cells, strict=False))  # trailing empty cells may be left out
+
+    yield from _rows(lines, fields)
 
 
-def _jsonl_rows(path: Path) -> Iterator[Row]:
-    for lineno, text in _lines(path):
-        if text is None:
-            yield lineno, "", _TOO_LONG
-            continue
-        try:
-            obj = json.loads(text)
-        except json.JSONDecodeError as exc:
-            yield lineno, text, f"not valid JSON ({exc.msg} at column {exc.colno})"
-            continue
-        except RecursionError:
-            yield lineno, text, "not valid JSON (nested too deeply)"
-            continue
-        if not isinstance(obj, dict):
-            yield lineno, text, f"expected a JSON object, got a {type(obj).__name__}"
-            continue
-        unknown = [k for k in obj if k not in COLUMNS]
-        if unknown:
-            yield lineno, text, "unknown field(s) " + ", ".join(repr(shorten(k, 40)) for k in unknown[:5])
-            continue
-        yield lineno, text, obj
+def _json_fields(text: str) -> Fields:
+    """The fields of one JSON Lines record, or its problem."""
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as exc:
+        return f"not valid JSON ({exc.msg} at column {exc.colno})"
+    except RecursionError:
+        return "not valid JSON (nested too deeply)"
+    if not isinstance(obj, dict):
+        return f"expected a JSON object, got a {type(obj).__name__}"
+    unknown = [k for k in obj if k not in COLUMNS]
+    if unknown:
+        return "unknown field(s) " + ", ".join(repr(shorten(k, 40)) for k in unknown[:5])
+    return obj
+
+
+def _rows(lines: Iterator[tuple[int, str | None]], fields: Callable[[str], Fields]) -> Iterator[Row]:
+    """One :data:`Row` per line of ``lines`` (:func:`_lines`): its ``fields`` (or their problem), or the problem of a
+    line too long."""
+    for lineno, text in lines:
+        yield (lineno, "", _TOO_LONG) if text is None else (lineno, text, fields(text))
 
 
 def file_format(path: Path) -> str:
@@ -556,7 +548,7 @@ def load_events(
     if not p.is_file():
         raise EventFileError(f"event file not found: {p}" if not p.exists() else f"event path {p} is not a file")
     reader = _Reader(label, _normalize_defaults(defaults))
-    rows = _csv_rows(p, label) if fmt == "csv" else _jsonl_rows(p)
+    rows = _csv_rows(p, label) if fmt == "csv" else _rows(_lines(p), _json_fields)
     try:
         for seq, (lineno, text, fields_or_problem) in enumerate(rows):
             try:

@@ -261,56 +261,6 @@ def load_mrclam(
 # events
 
 
-def _odometry_columns(
-    data: MRCLAMData, t_start: float, t_end: float
-) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
-    """Per robot, its odometry intervals clipped to ``[t_start, t_end]`` (empty ones dropped): robot, ``t0``,
-    ``t1``, ``v``, ``w`` columns."""
-    o_rob, o_t0, o_t1, o_v, o_w = [], [], [], [], []
-    for r in data.robots:
-        odo = data.odometry.get(r)
-        if odo is None or odo.shape[0] < 2:
-            continue
-        t = odo[:, 0]
-        a = np.maximum(t[:-1], t_start)
-        b = np.minimum(t[1:], t_end)
-        keep = b > a
-        o_rob.append(np.full(int(keep.sum()), r, dtype=np.int64))
-        o_t0.append(a[keep])
-        o_t1.append(b[keep])
-        o_v.append(odo[:-1, 1][keep])
-        o_w.append(odo[:-1, 2][keep])
-    return o_rob, o_t0, o_t1, o_v, o_w
-
-
-def _detection_columns(
-    data: MRCLAMData, t_start: float, t_end: float, landmarks: bool, robot_measurements: bool
-) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
-    """Per robot, its measurements within ``[t_start, t_end]`` of the kinds switched on: observer, ``t``,
-    subject, ``z`` ``(k, 2)`` columns."""
-    d_obs, d_t, d_sub, d_z = [], [], [], []
-    for r in data.robots:
-        m = data.measurements.get(r)
-        if m is None or m.shape[0] == 0:
-            continue
-        is_rob = np.isin(m[:, 1], ROBOT_SUBJECTS)
-        keep = (m[:, 0] >= t_start) & (m[:, 0] <= t_end)
-        if not landmarks:
-            keep &= is_rob
-        if not robot_measurements:
-            keep &= ~is_rob
-        d_obs.append(np.full(int(keep.sum()), r, dtype=np.int64))
-        d_t.append(m[keep, 0])
-        d_sub.append(m[keep, 1].astype(np.int64))
-        d_z.append(m[keep][:, 2:4])
-    return d_obs, d_t, d_sub, d_z
-
-
-def _cat(xs: list[np.ndarray], dtype: type = np.float64, shape: tuple[int, ...] = (0,)) -> np.ndarray:
-    """``xs`` concatenated; empty of ``dtype`` and ``shape`` when there are none."""
-    return np.concatenate(xs) if xs else np.empty(shape, dtype=dtype)
-
-
 def mrclam_events(
     data: MRCLAMData,
     duration: float | None = None,
@@ -350,45 +300,27 @@ def mrclam_events(
             raise ValueError(f"duration must be non-negative, got {duration}")
         t_end = min(t_end, t_start + float(duration))
 
-    o_rob, o_t0, o_t1, o_v, o_w = _odometry_columns(data, t_start, t_end)
-    d_obs, d_t, d_sub, d_z = _detection_columns(data, t_start, t_end, landmarks, robot_measurements)
-    ot0, ot1 = _cat(o_t0), _cat(o_t1)
-    dt_ = _cat(d_t)
-    n_o, n_d = ot1.size, dt_.size
-    times = np.concatenate([ot0, dt_])
-    kind = np.concatenate([np.ones(n_o, dtype=np.int8), np.zeros(n_d, dtype=np.int8)])
-    seq = np.arange(n_o + n_d)
-    order = np.lexsort((seq, kind, times))
-
-    odo_events: list[Odometry] = [
-        Odometry(robot=r, t0=a, t1=b, v=v, w=w)
-        for r, a, b, v, w in zip(
-            _cat(o_rob, np.int64).tolist(),
-            ot0.tolist(),
-            ot1.tolist(),
-            _cat(o_v).tolist(),
-            _cat(o_w).tolist(),
-            strict=True,
-        )
-    ]
     cov = np.diag([range_std**2, bearing_std**2])
     cov.setflags(write=False)
-    zs = _cat(d_z, shape=(0, 2)).copy()
-    zs.setflags(write=False)
     robot_set = set(ROBOT_SUBJECTS)
-    det_events: list[Detection] = [
-        Detection(
-            observer=o,
-            t=t,
-            kind=Kind.RANGE_BEARING,
-            z=zs[i],
-            cov=cov,
-            target=s,
-            target_is_robot=s in robot_set,
-        )
-        for i, (o, t, s) in enumerate(
-            zip(_cat(d_obs, np.int64).tolist(), dt_.tolist(), _cat(d_sub, np.int64).tolist(), strict=True)
-        )
-    ]
-    pool: list[Event] = [*odo_events, *det_events]
-    return [pool[i] for i in order.tolist()]
+    odometry: list[Event] = []
+    detections: list[Event] = []
+    for r in map(int, data.robots):
+        odo = data.odometry.get(r)
+        if odo is not None and odo.shape[0] >= 2:  # intervals clipped to the span, empty ones dropped
+            a, b = np.maximum(odo[:-1, 0], t_start), np.minimum(odo[1:, 0], t_end)
+            keep = b > a
+            odometry += [Odometry(robot=r, t0=t0, t1=t1, v=v, w=w) for t0, t1, v, w in zip(
+                a[keep].tolist(), b[keep].tolist(), odo[:-1, 1][keep].tolist(), odo[:-1, 2][keep].tolist(),
+                strict=True)]  # fmt: skip
+        m = data.measurements.get(r)
+        if m is None or m.shape[0] == 0:
+            continue
+        is_rob = np.isin(m[:, 1], ROBOT_SUBJECTS)
+        keep = (m[:, 0] >= t_start) & (m[:, 0] <= t_end) & (is_rob | landmarks) & (~is_rob | robot_measurements)
+        ts, subjects, zs = m[keep, 0].tolist(), m[keep, 1].astype(np.int64).tolist(), m[keep][:, 2:4].copy()
+        zs.setflags(write=False)
+        detections += [Detection(r, t, Kind.RANGE_BEARING, z, cov, target=s, target_is_robot=s in robot_set)
+                       for t, s, z in zip(ts, subjects, zs, strict=True)]  # fmt: skip
+    # by stamp (odometry: its start t0), detections before odometry at equal stamps, then robot id and file order
+    return sorted([*odometry, *detections], key=lambda e: (e.stamp, isinstance(e, Odometry)))

@@ -8,97 +8,22 @@ files as they come is known; what is known is the content, once normalised, whic
 :func:`~swarmloc.datasets.download.fetch_mrclam` checks. The copy lacks dataset 7 and most files over 4 MB (most
 ``Robot<N>_Groundtruth.dat``, some odometry): those have no entry here, and a download counts them
 *unverified*. ``tests/test_data_download.py`` checks every entry against the copy.
+
+The table is data: ``mrclam_sha256.tsv`` beside this module, one file a line (dataset number, file name, sha256,
+separated by tabs; ``#`` starts a comment line).
 """
 
-SHA256: dict[tuple[int, str], str] = {
-    (1, "Barcodes.dat"): "a075a34c68327c9896537a63d8832524f217e40e0e1483fd69fa5948f6ed3a6e",
-    (1, "Landmark_Groundtruth.dat"): "cdef846991b525e4dcf4d2baafe76ea5757aa9a694809a20b1ad5b9b139c052c",
-    (1, "Robot1_Measurement.dat"): "e6740aad5f16b1e1922274723971f86d458030382ad57be178b2200eca712823",
-    (1, "Robot1_Odometry.dat"): "bd8859ceb66497e365d4e5790a5940ff85e7f127cc31fe6bf0f43fd19d91a40e",
-    (1, "Robot2_Measurement.dat"): "cc11c95ddc7699cd3a16ffe6a7be2333146a0a2ca5c540e81f151955aa1ba88e",
-    (1, "Robot2_Odometry.dat"): "68a785a5261eec8e50cf08089d01f5325a9543fdc7f6c8c69848eb7f096efaf4",
-    (1, "Robot3_Measurement.dat"): "d69d8d871a5c2a64d4f0f213af86696ff740f1506247a9a7e4e034914f7ad21b",
-    (1, "Robot3_Odometry.dat"): "0547bfb3ecb699b3559114719774b9da332866d61eab569bd17d3603b9e94379",
-    (1, "Robot4_Measurement.dat"): "1279185ddc21ed83262880aad56f2ec28e41b714a3f30d4de00539c87b7181e0",
-    (1, "Robot4_Odometry.dat"): "b2b6c8ecc03f44b59e3372674dc00aea7eb6bcc42265cccc02bd56cbb3c718e3",
-    (1, "Robot5_Measurement.dat"): "42dd7da464901b128ed20dbc058a87b8ff8304bec68ff390ab614d431ab1e93a",
-    (1, "Robot5_Odometry.dat"): "27a8f0a2a5155a6b04206f49000653d9d4eb698fb44298f8962845060662956f",
-    (2, "Barcodes.dat"): "e51830bb2919188ce5f1a9fc27b1c327d70c1a15fc75e85a6b95175497e9c472",
-    (2, "Landmark_Groundtruth.dat"): "b3e1796523efd842e2695a9de2874a6449034e2214de68f3c75c54f8291fcb2f",
-    (2, "Robot1_Measurement.dat"): "b8d8e7f1867c892c744e884a1718ee7110e12ed017ee6e4a12b027665fbfdd22",
-    (2, "Robot1_Odometry.dat"): "e95a2229679dafd883f5217a7268064676e2cbaab2f02feddb703026bd88131a",
-    (2, "Robot2_Measurement.dat"): "bd0b8165279da1899babfed5eed621fdf0f0a89a4b32f691e56031a432bf12db",
-    (2, "Robot2_Odometry.dat"): "a5501524b57f0676c996e1d0e3078265f5362264a2a7bbb6770ddda6b44615e3",
-    (2, "Robot3_Measurement.dat"): "4ac6280c8a1dc476429ea0a88cbbccb1dd68a25d3f2133663d5f8fe5bbb6bbfa",
-    (2, "Robot3_Odometry.dat"): "346682567326ae617689b34dc64386a07e2b96680932f54ad25bc871c310cc98",
-    (2, "Robot4_Measurement.dat"): "73b8c193751f33935d9c20458ee1e9c23e23d365740cf5a3f34476f12158319b",
-    (2, "Robot4_Odometry.dat"): "cf6a7f9d31b7a08620ea792f674d546bc0467a06d545da2cad20f7947d62dd2d",
-    (2, "Robot5_Measurement.dat"): "5067cd93f49462fd43254c0f5ba5fbc8b51b2d379696de5931e73a60cd485c01",
-    (2, "Robot5_Odometry.dat"): "7921bd233ac0681f0726f3f2d8b153e882159d972c42bf407dcfa551665c4e42",
-    (3, "Barcodes.dat"): "23d73abd72dc5ecef506ffe68b6bf7fb01582441e6dcb0f291a6fc9aaafe423b",
-    (3, "Landmark_Groundtruth.dat"): "3cb8f5183f4e605a72dcb0c167eee485e1b147d1d898afdc57e4b66701e94378",
-    (3, "Robot1_Measurement.dat"): "a8fbd9fe3fe9c51b07e8203098c88bec4165660c58c15e7d251f2e08422f841d",
-    (3, "Robot1_Odometry.dat"): "7e9b5abef5afe45f5367a82455e70c5c40a34a2ccfe1d64ae47ac9fb6290b9c2",
-    (3, "Robot2_Measurement.dat"): "0ab8da3494883d2622f1b0949aabe334454e54c4b67594f5fd8cf7a418c18beb",
-    (3, "Robot2_Odometry.dat"): "4c46cde9a0c06e3e3f071280afa6f7ba1e8f9423dfdd30b896d73b48b5696079",
-    (3, "Robot3_Measurement.dat"): "aa6fb4a820502d5dae6831da5276f88a2382a3d8afc088376c497b822715ddde",
-    (3, "Robot3_Odometry.dat"): "29f93441159c38257a24033aae5707c852d362f8329df223c286e4c1785f3146",
-    (3, "Robot4_Measurement.dat"): "abe2d863c6b81056313eed95bd8d9397249d95a4c14fbc4d62f16be4b88349b4",
-    (3, "Robot5_Measurement.dat"): "d41e3e4e4d1adc1fca99d09f3207de8929b6147133a19aee11aa45c785bc09b3",
-    (3, "Robot5_Odometry.dat"): "b8db31289be84df51b96a4bf33bb9c54c039760e2c441a99e35ab18fdf8e21e5",
-    (4, "Barcodes.dat"): "23d73abd72dc5ecef506ffe68b6bf7fb01582441e6dcb0f291a6fc9aaafe423b",
-    (4, "Landmark_Groundtruth.dat"): "c58702c0b55f38c69441a0fd9f7f2083eeb549eaf8cd80fb99ed02e4a3cd96b4",
-    (4, "Robot1_Measurement.dat"): "724553b38fdc23ff155369ec72b01786f4dc24dc5b7ec20f5d6f486993498c71",
-    (4, "Robot1_Odometry.dat"): "eaa13a1ed4f752a2d6174cdf9d8a4185e85ef3498d5cca859b05cf92eb9107f5",
-    (4, "Robot2_Measurement.dat"): "6ceb92664d13d362e05df2117c36869283de015b340267d7d52b39e00dcd1774",
-    (4, "Robot2_Odometry.dat"): "97311a3435eb6a8d915e79556dd5dec38204bbfc6da062f6c2b24db2a1fb8824",
-    (4, "Robot3_Measurement.dat"): "93ce508c58cbca91eaa7f3b8b4838a2ada91cfd2fed7634c88e563f64249e9f0",
-    (4, "Robot3_Odometry.dat"): "1aa5399dfb951842c635274db4dcd43b42d89195ff854105dd05c793e40ef41f",
-    (4, "Robot4_Measurement.dat"): "291c89678346f4af91b160f3016c67cd136f04af08242c4f1e41e4d8be268d7d",
-    (4, "Robot4_Odometry.dat"): "72f60c35aa2256a5e04c64df746718805e300dca161214e642d56174bbdabc48",
-    (4, "Robot5_Measurement.dat"): "b5273fce9123a364bf85f56f42422983671a101bdc439411db3cb6a1b438ee60",
-    (4, "Robot5_Odometry.dat"): "d432e15b317df4457bc865d934f1baad783f56f7be74182384cb84b8aaaa264e",
-    (5, "Barcodes.dat"): "9cde52c3caba96d465f9a471e7c37cb155cac2c499f796caa8d9fdcabaaa6995",
-    (5, "Landmark_Groundtruth.dat"): "2ce355beb1478e953447076a3465f0a824113607594bf1d5bd2baa5712a7b912",
-    (5, "Robot1_Measurement.dat"): "491350e8d5cc928b88f42202a7c4b38380485af543938599a838d5d871c70138",
-    (5, "Robot2_Measurement.dat"): "e70d3c7621200519f1260cd5a7dc95dfb31590c85a9329defb5c7e086fdfa4c8",
-    (5, "Robot3_Measurement.dat"): "2fe1f76cf0b013647e83a1cda9d6e4c7cdefb60ac12f988d77b38c1e32715572",
-    (5, "Robot4_Measurement.dat"): "aaa31c9331eaa83f5c842083cc6f1d2b5903846f16edf05bd3204a347936a157",
-    (5, "Robot5_Measurement.dat"): "5fd398482df6df33d060adb42065e0d4d14037bc65067b87bf39c7debaea43ce",
-    (6, "Barcodes.dat"): "4b4f4d9e65c452f58a6df2e02f25b5aced4300bd32cfbdb0acd8439692f09683",
-    (6, "Landmark_Groundtruth.dat"): "8e0ecf890a1ea5607fa28332809b64660fd01b70845b4ccff1a408d79ef13ba0",
-    (6, "Robot1_Groundtruth.dat"): "fa1ac14edf93e3fef2d976189aaf88096a5156a7d24ae938b22ba0f17a115590",
-    (6, "Robot1_Measurement.dat"): "c367aef4b30a36be833f38d4bbfd8f7e4e947d17b354cbd3a68f043cc9517831",
-    (6, "Robot1_Odometry.dat"): "52a9cc01ffffb02842ed6f6de75c62f20a19eb87b04f5f7b0c08267f0abd2349",
-    (6, "Robot2_Groundtruth.dat"): "f81bb2b0a98d794169869d6c774732cea148b516b4ef1ad27dd3dde6ea47ff73",
-    (6, "Robot2_Measurement.dat"): "d051673a69aa80bb9236aee84ecd6940ca62cd10ffe74ea19ceb9eb3a9b9ccd7",
-    (6, "Robot2_Odometry.dat"): "0d844fe0d20ec84b748cd4ae00cc968c8084260b9c8f5d724e2f6be4a77b00e7",
-    (6, "Robot3_Groundtruth.dat"): "a5e1a9db0efbdfb8125941eb320c67e4abe5f3402d889960301e56a761d3a549",
-    (6, "Robot3_Measurement.dat"): "6cf848e54a6fc6975e7b8a286f32832cda74d066d035dc53890acdf6d28b0620",
-    (6, "Robot3_Odometry.dat"): "e31f3db4a0b1d3215598e783831d69e126429984f5396d1e7562592e963484af",
-    (6, "Robot4_Groundtruth.dat"): "6a74b0f86f1af5a92c0e8a45453abc8e034331b930366ac68be07a912080b66f",
-    (6, "Robot4_Measurement.dat"): "46a529d7514a42f41d2fe7404eaf7b5a20ff370a9de380db8fb5936fbcec42b8",
-    (6, "Robot4_Odometry.dat"): "d368a6f73cd9ba93c2e7d68819020dadef80f039d1dc1c3185ed4fb4875f23eb",
-    (6, "Robot5_Groundtruth.dat"): "853299dcbbec1d681a6a057f0624ae3207f4a40bb98ea9d1f1335f866abb095a",
-    (6, "Robot5_Measurement.dat"): "fff2b646be38850c172420bebb80f99f9373e50eaff0726df102bcd99bbbde72",
-    (6, "Robot5_Odometry.dat"): "93de21f8501797e0dfa4b209063bb911d027b7c6e7aa68528ebf21ca9238e1a0",
-    (8, "Barcodes.dat"): "c6f5aae06f43794733a688d710ff55ee88f3b2144e61e5a762647b40247241c8",
-    (8, "Landmark_Groundtruth.dat"): "b9388969938e9b48c0b2e2d598d42521f0b96b2ce8d035049e7a4aae11484f20",
-    (8, "Robot1_Measurement.dat"): "212ad608bcab594a1d917ccd29a85d804a9e3d1c996867d7ea04ba86d52f2c97",
-    (8, "Robot2_Measurement.dat"): "afe1b50d331e0556e3fdeecadd9139772e733c4ab560f58cc3a294603003bb71",
-    (8, "Robot3_Measurement.dat"): "69f4a9cac0a27f1943b01442adbdf74ec7b30f3f921f4aabbdc4e91621f8fbae",
-    (8, "Robot4_Measurement.dat"): "d171052db56fe7ac7c042304513fa6c174b16330bfd7564e2f36d9e1493941a1",
-    (8, "Robot5_Measurement.dat"): "35c3c1fe5c618c26649992ff9921ade33cb887ca6628a2c9e3657c572d528771",
-    (9, "Barcodes.dat"): "6ee0137dab93a176f57451b5be39cefc86b05fff5f40292bf7ded9402247ac68",
-    (9, "Landmark_Groundtruth.dat"): "0d0c8de8aa8524079577b3ac3a3d54bbae9fe174f7387b5da526e06f4549a5b8",
-    (9, "Robot1_Measurement.dat"): "f05cfa4b05e9033dcf0bda0b9c16470e3054a38dfd4a702b329d1ed66ec854c0",
-    (9, "Robot1_Odometry.dat"): "b61aab6797a6d85f051b4308ca0bcf7cccc6678463607b0c1c8ecf49b794d845",
-    (9, "Robot2_Measurement.dat"): "ca3e0ff526c92e458c673a0adb67eb49603c822c2d369375c08fdc60ac2ea600",
-    (9, "Robot2_Odometry.dat"): "c506ffa3cf3065ba5b600a33c37aba81c11cbfde7ad608dec91416f59b6afc5b",
-    (9, "Robot3_Measurement.dat"): "2e931e40b6291e294e14ad8ef08b6b03cfc7720a2e4ee0998bd82ae148ea2e66",
-    (9, "Robot3_Odometry.dat"): "30662be77908b2bd324c111cbfeb2d94e4e61b026768473efacad15cfde5e572",
-    (9, "Robot4_Measurement.dat"): "2b0146a350657977ff1a07b88a296b457067839e50f4a5507811af71fe2c5959",
-    (9, "Robot4_Odometry.dat"): "0d4e956e98dda8a7ead1dbe796d37a515f5ad3d659cd6163b76c044cccf6632c",
-    (9, "Robot5_Measurement.dat"): "76beeea0821451edb23567f0cbf62d013728ca04de251d538eec6e782f6c28f2",
-    (9, "Robot5_Odometry.dat"): "2c7b7410c8e3686db1a8497ad334db133b26bb53a0a13152c1ee73d0ffe110f9",
-}
+from pathlib import Path
+
+TABLE = Path(__file__).with_name("mrclam_sha256.tsv")
+"""The table's file (package data)."""
+
+
+def _read(path: Path) -> dict[tuple[int, str], str]:
+    """``(dataset, file name) -> sha256`` of the tab-separated table at ``path``."""
+    rows = [line.split("\t") for line in path.read_text(encoding="utf-8").splitlines() if not line.startswith("#")]
+    return {(int(n), name): digest for n, name, digest in rows}
+
+
+SHA256: dict[tuple[int, str], str] = _read(TABLE)
+"""``(dataset number, file name) -> sha256`` (hex) of the file's normalised text."""

@@ -4,11 +4,15 @@ line; integer columns and time order checked the same way."""
 
 from __future__ import annotations
 
+import itertools
 import math
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from swarmloc.datasets.bounds import shorten
 
 __all__ = ["file_label", "find_bad_line", "integer_column", "line_of_row", "read_table", "sort_by_time"]
 
@@ -18,37 +22,35 @@ def file_label(path: Path) -> str:
     return f"{path.parent.name}/{path.name}" if path.parent.name else path.name
 
 
-def find_bad_line(path: Path, ncols: int) -> tuple[int, str, str] | None:
-    """Scan ``path`` line by line; return ``(line number, stripped content, problem)`` of the first bad data line."""
+def _data_lines(path: Path) -> Iterator[tuple[int, str]]:
+    """``(line number, content)`` of every data line of ``path``: what is left of it before a ``#``, stripped, when
+    that is not empty."""
     with open(path, encoding="utf-8", errors="replace") as fh:
         for lineno, raw in enumerate(fh, start=1):
             content = raw.split("#", 1)[0].strip()
-            if not content:
-                continue
-            parts = content.split()
-            if len(parts) != ncols:
+            if content:
+                yield lineno, content
+
+
+def find_bad_line(path: Path, ncols: int) -> tuple[int, str, str] | None:
+    """Scan ``path`` line by line; return ``(line number, stripped content, problem)`` of the first bad data line."""
+    for lineno, content in _data_lines(path):
+        parts = content.split()
+        if len(parts) != ncols:
+            return lineno, content, f"expected {ncols} numeric columns"
+        for p in parts:
+            try:
+                x = float(p)
+            except ValueError:
                 return lineno, content, f"expected {ncols} numeric columns"
-            for p in parts:
-                try:
-                    x = float(p)
-                except ValueError:
-                    return lineno, content, f"expected {ncols} numeric columns"
-                if not math.isfinite(x):
-                    return lineno, content, f"expected {ncols} finite numeric columns"
+            if not math.isfinite(x):
+                return lineno, content, f"expected {ncols} finite numeric columns"
     return None
 
 
 def line_of_row(path: Path, row: int) -> tuple[int, str]:
     """File line number (1-based) and content of data row ``row`` (0-based, headers and blank lines skipped)."""
-    k = -1
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for lineno, raw in enumerate(fh, start=1):
-            content = raw.split("#", 1)[0].strip()
-            if content:
-                k += 1
-                if k == row:
-                    return lineno, content
-    return -1, ""  # pragma: no cover - row always exists when called
+    return next(itertools.islice(_data_lines(path), row, None), (-1, ""))
 
 
 def read_table(path: Path, ncols: int, error: type[ValueError] = ValueError) -> np.ndarray:
@@ -76,8 +78,7 @@ def read_table(path: Path, ncols: int, error: type[ValueError] = ValueError) -> 
         raise error(f"{file_label(path)}: cannot read file ({exc.strerror or exc})") from None
     if bad is not None:
         lineno, content, problem = bad
-        shown = content if len(content) <= 80 else content[:77] + "..."
-        raise error(f"{file_label(path)} line {lineno}: {problem}, got {shown!r}")
+        raise error(f"{file_label(path)} line {lineno}: {problem}, got {shorten(content)!r}")
     raise error(f"{file_label(path)}: could not parse as a table of {ncols} numeric columns")  # pragma: no cover
 
 

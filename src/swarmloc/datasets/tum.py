@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarmloc.datasets.bounds import shorten
 from swarmloc.lie import wrap_angle
 
 __all__ = [
@@ -63,10 +64,6 @@ _MAX_LISTED = 20
 
 class TUMError(ValueError):
     """A problem with a TUM trajectory file: missing file, malformed line, non-planar pose, time order."""
-
-
-def _shorten(text: str, n: int = 80) -> str:
-    return text if len(text) <= n else text[: n - 3] + "..."
 
 
 def _summary(label: str, problems: list[str]) -> str:
@@ -118,7 +115,7 @@ def read_tum(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
                     continue
 
                 def bad(problem: str, lineno: int = lineno, content: str = content) -> None:
-                    problems.append(f"{label} line {lineno}: {problem}, got {_shorten(content)!r}")
+                    problems.append(f"{label} line {lineno}: {problem}, got {shorten(content)!r}")
 
                 parts = content.split()
                 if len(parts) != 8:

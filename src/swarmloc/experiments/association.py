@@ -83,7 +83,8 @@ def association_events(
     anon = anonymize(events, **kw)
     if policy != "anonymous":
         return anon, {}
-    if not any(isinstance(e, Detection) and e.kind == Kind.RANGE_BEARING and e.target_is_robot for e in anon):
+    covs = [e.cov for e in anon if isinstance(e, Detection) and e.kind == Kind.RANGE_BEARING and e.target_is_robot]
+    if not covs:
         raise ValueError(
             "association 'anonymous' needs range-bearing robot detections (PMR registers points): use a source "
             "that has them (sim:range_bearing, mrclam:PATH)"
@@ -91,7 +92,6 @@ def association_events(
     opts = {**BANK_DEFAULTS, **(bank or {})}
     sigma = opts.pop("sigma", None)
     if sigma is None:  # the point noise PMR is given: max(s_r, range s_b) of the detections (tracker docstring)
-        covs = [e.cov for e in anon if isinstance(e, Detection) and e.kind == Kind.RANGE_BEARING and e.target_is_robot]
         s = np.sqrt(np.median([[c[0][0], c[1][1]] for c in covs], axis=0))
         sigma = float(max(s[0], 2.0 * s[1]))
     out, counts = bank_detections(anon, list(robots), noise, sigma, **opts)

@@ -54,17 +54,6 @@ def is_3d(scenario: str) -> bool:
     return kind == "sim" and name in SIM3D_VARIANTS
 
 
-def _check_scenario(scenario: str) -> None:
-    """Refuse an unknown source kind or simulated scenario before any worker starts (as ``load_source`` would)."""
-    from swarmloc.experiments.sources import SIM_SCENARIOS
-
-    kind, _, name = scenario.partition(":")
-    if kind == "sim" and (name or "random") not in SIM_SCENARIOS:
-        raise ValueError(f"unknown simulated scenario {name!r}; choose from {list(SIM_SCENARIOS)}")
-    if kind not in ("sim", "mrclam", "events"):
-        raise ValueError(f"unknown source {scenario!r}: use sim:SCENARIO, mrclam:PATH or events:PATH")
-
-
 __all__ = ["compare", "compare_table", "is_3d"]
 
 
@@ -119,9 +108,10 @@ def _refuse_what_cannot_run(
     from swarmloc.config import DEFAULTS
     from swarmloc.estimators import estimator_class, make_team, node_options
     from swarmloc.experiments.association import association_policy
+    from swarmloc.experiments.sources import source_kind
 
     policy = association_policy(association)
-    _check_scenario(scenario)
+    source_kind(scenario)  # an unknown source kind or scenario, before any worker starts
     cfg = DEFAULTS.with_filter(association=policy)
     if is_3d(scenario):
         if association != "tags" or clutter or p_detect != 1.0:

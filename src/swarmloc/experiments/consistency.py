@@ -35,10 +35,7 @@ per-robot marginals only.
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -47,8 +44,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
-from swarmloc.experiments.output import write_summary
-from swarmloc.runner.fanout import ClusterUnavailable, cluster_address, fan_out
+from swarmloc.experiments.output import save_figure, write_summary
+from swarmloc.experiments.progress import steps
+from swarmloc.runner.fanout import cluster_address, fan_out
 from swarmloc.runner.result import summed
 
 if TYPE_CHECKING:
@@ -61,7 +59,6 @@ __all__ = [
     "consistency",
     "consistency_table",
     "default_estimators",
-    "run_command",
     "sampled_initial",
 ]
 
@@ -133,15 +130,11 @@ def _job(
 def _run_jobs(tasks: list[tuple], jobs: int, progress: bool, cluster: Any = None) -> dict[tuple, dict[str, Any]]:
     """Results of ``_job(*task)`` by key, where :func:`~swarmloc.runner.fanout.fan_out` runs them, with an optional
     progress bar."""
-    from swarmloc.experiments.progress import progress_bar
-
     out: dict[tuple, dict[str, Any]] = {}
-    with progress_bar(progress) as start:
-        cb = start("consistency") if start is not None else None
+    with steps(progress, len(tasks), "consistency") as tick:
         for _, r in fan_out(_job, tasks, jobs=jobs, cluster=cluster):
             out[r["key"]] = r
-            if cb is not None:
-                cb(len(out), len(tasks))
+            tick("")
     return out
 
 
@@ -289,32 +282,4 @@ def figure(summary: dict[str, Any], path: str | os.PathLike[str]) -> None:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     axes[0][0].set_ylabel("team ANEES per dof a(t)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def run_command(args: argparse.Namespace) -> int:
-    """``swarmloc consistency`` (arguments of :func:`swarmloc.cli.build_parser`): print the table (or JSON)."""
-    names = default_estimators() if args.estimators is None else [e.strip() for e in args.estimators.split(",")
-                                                                   if e.strip()]  # fmt: skip
-    marks = {"off": False, "on": True}
-    try:
-        settings = [marks[w.strip()] for w in args.landmarks.split(",") if w.strip()]
-    except KeyError as exc:
-        print(f"swarmloc consistency: --landmarks takes off, on or off,on; got {exc.args[0]!r}", file=sys.stderr)
-        return 2
-    try:
-        summary = consistency(names, seeds=args.seeds, robots=args.robots, duration=args.duration,
-                              landmarks=settings, jobs=args.jobs, out=args.out, progress=not args.quiet,
-                              cluster=args.cluster)  # fmt: skip
-    except (ValueError, OSError, ClusterUnavailable) as exc:
-        print(f"swarmloc consistency: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        print(consistency_table(summary))
-    if args.out:
-        print(f"written to {args.out}/consistency.md, consistency.json and consistency.png", file=sys.stderr)
-    return 0
+    save_figure(fig, path)

@@ -9,7 +9,6 @@ in-process runner; beliefs are recorded on a regular grid and scored with :mod:`
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -29,7 +28,7 @@ from swarmloc.evaluation.heldout import BAND, band_verdict
 from swarmloc.evaluation.metrics import anees_bounds, errors, evaluate
 from swarmloc.events import Event
 from swarmloc.experiments.association import association_accuracy, association_events, handoff_accuracy
-from swarmloc.experiments.output import save_figure
+from swarmloc.experiments.output import save_figure, write_summary
 from swarmloc.experiments.progress import progress_bar
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.runner import RunResult, TruthFn, run
@@ -91,11 +90,7 @@ def evaluate_stream(
         notes["bank_handoffs_right_wrong"] = handoff_accuracy(events, truth)
     duration = float(t_end - t_start)
     report: dict[str, Any] = {
-        "robots": sorted(initial),
-        "duration_s": duration,
-        "n_events": len(events),
-        "config": config.to_dict(),
-        "truth": truth is not None,
+        **report_head(sorted(initial), duration, len(events), config, truth is not None),
         "association": policy,
         "sensor": {"range_m": sensor[0], "fov_rad": sensor[1]},
         **({"association_notes": notes} if notes else {}),
@@ -129,6 +124,12 @@ def evaluate_stream(
     report["anees_bounds_if_independent"] = anees_bounds(max(n_rec, 1))
     report["recommended"] = recommended(report)
     return report, results
+
+
+def report_head(robots: list[int], duration: float, n_events: int, config: Config, truth: bool) -> dict[str, Any]:
+    """A report's first entries: its ``robots``, ``duration_s`` [s], ``n_events``, ``config`` and whether it has
+    ``truth``."""
+    return {"robots": robots, "duration_s": duration, "n_events": n_events, "config": config.to_dict(), "truth": truth}
 
 
 def run_row(ev: dict[str, Any], res: RunResult, duration: float) -> None:
@@ -274,8 +275,7 @@ def write_report(
     except Exception as exc:  # noqa: BLE001 - the report is written whatever the figures meet; it says why
         report["figures"] = []
         notes.append(f"figures not drawn: {type(exc).__name__}: {exc}")
-    (out / f"{stem}.json").write_text(json.dumps(report, indent=2, default=json_default))
-    (out / f"{stem}.md").write_text(markdown_table(report))
+    write_summary(out, stem, report, markdown_table(report), default=json_default)
 
 
 def json_default(o: object) -> object:

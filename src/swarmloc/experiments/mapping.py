@@ -18,14 +18,13 @@ Each map is scored against the true walls with :func:`swarmloc.mapping.map_error
 
 from __future__ import annotations
 
-import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from swarmloc.estimators import make_team, node_options
+from swarmloc.experiments.output import save_figure
 from swarmloc.experiments.progress import Tick, no_tick, steps
 from swarmloc.lie import SE2
 from swarmloc.mapping import LineMap, map_error, scan_observations
@@ -34,7 +33,7 @@ from swarmloc.sim.lab import chapter_team
 from swarmloc.sim.source import sim_source
 from swarmloc.sim.walls import RangeFinder, Scans, Walls, chapter_lab, scan_team
 
-__all__ = ["build_map", "map_experiment", "run_command"]
+__all__ = ["build_map", "map_experiment"]
 
 Beliefs = dict[int, tuple[np.ndarray, np.ndarray]]
 """Robot id -> (means ``(S, 3)`` as ``(x, y, theta)``, exponential-coordinate covariances ``(S, 3, 3)``)."""
@@ -164,28 +163,4 @@ def figure(path: Path, res: dict[str, Any], coop: tuple[str, ...]) -> None:
         ax.set_title(f"{name}\n{cm}", fontsize=9)
         ax.set_aspect("equal")
         ax.legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def run_command(args: argparse.Namespace) -> int:
-    """``swarmloc map``: the table on stdout; with ``--out``, map.md, map.json, map.png and the first seed's maps
-    as GeoJSON (and DXF)."""
-    ests = tuple(e.strip() for e in args.estimators.split(",") if e.strip())
-    finder = RangeFinder(sigma=args.sigma)
-    report, first = map_experiment(args.seeds, ests, finder, args.order, args.D, args.first_seed,
-                                   progress=not args.quiet)  # fmt: skip
-    text = markdown(report)
-    print(text)
-    if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "map.md").write_text(text)
-        (out / "map.json").write_text(json.dumps(report, indent=1, default=str))
-        for name, lm in first["maps"].items():
-            stem = name.replace(", ", "_").replace(" ", "_")
-            lm.save_geojson(out / f"{stem}.geojson")
-            lm.save_dxf(out / f"{stem}.dxf")
-        figure(out / "map.png", first, ests)
-    return 0
+    save_figure(fig, path)

@@ -173,24 +173,24 @@ def camera_model(data: MRCLAMData, config: Config = DEFAULTS, t_end: float | Non
     s = config.sensors
     if s.decorrelate == "off":
         return CameraModel(ErrorComponent(s.range_std), ErrorComponent(s.bearing_std), source="a priori, white")
-    t1 = data.t_end if t_end is None else t_end
-    parts = []
-    for r in data.robots:
-        m = data.measurements.get(r)
-        if m is not None and m.shape[0]:
-            m = m[(m[:, 0] >= data.t_start) & (m[:, 0] <= t1)]
-            parts.append(np.column_stack([np.full(m.shape[0], r), m]))
-    a = np.concatenate(parts) if parts else np.empty((0, 5))
+    a = _readings(data, data.t_start, data.t_end if t_end is None else t_end)
     return calibrate(
         a[:, 0], a[:, 1], a[:, 2], a[:, 3:5], data.landmarks, s.range_std, s.bearing_std,
         estimate_std=s.decorrelate == "calibrate",
     )  # fmt: skip
 
 
+def _readings(data: MRCLAMData, t0: float = -np.inf, t1: float = np.inf) -> np.ndarray:
+    """Every robot's measurements stamped in ``[t0, t1]`` [s] as rows ``(robot, t, subject, range, bearing)``, the
+    robots in id order, each robot's rows in file (time) order."""
+    parts = [np.column_stack([np.full(len(m), r), m]) for r, m in sorted(data.measurements.items())]
+    a = np.concatenate(parts) if parts else np.empty((0, 5))
+    return a[(a[:, 1] >= t0) & (a[:, 1] <= t1)]
+
+
 def detection_set(data: MRCLAMData) -> DetectionSet:
     """Every robot's detections in ``data`` (whole recording) as a :class:`DetectionSet`."""
-    parts = [np.column_stack([np.full(len(m), r), m]) for r, m in sorted(data.measurements.items()) if len(m)]
-    a = np.concatenate(parts) if parts else np.empty((0, 5))
+    a = _readings(data)
     order = np.argsort(a[:, 1], kind="stable")
     a = a[order]
     return DetectionSet(a[:, 0], a[:, 1], a[:, 2], a[:, 3:5], data.landmarks, data.name)

@@ -44,19 +44,7 @@ from swarmloc.datasets.source import Source
 from swarmloc.events import Kind, MeasurementKind
 from swarmloc.sim.source import sim_source
 
-__all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim3d_source", "sim_source"]
-
-SIM_SCENARIOS = (
-    "random",
-    "range_bearing",
-    "landmarks",
-    "corridor",
-    "3d",
-    "3d_rot",
-    "3d_rbe",
-    "3d_bearing",
-    "3d_landmarks",
-)
+__all__ = ["SIM_SCENARIOS", "Source", "load_source", "sim3d_source", "sim_source", "source_kind"]
 
 
 class Sim3Variant(TypedDict, total=False):
@@ -74,6 +62,9 @@ SIM3D_VARIANTS: dict[str, Sim3Variant] = {
     "3d_landmarks": {"landmarks": 8},
 }
 """The ``sim:3d`` scenarios and their :class:`~swarmloc.sim.sim3d.Sim3Config` fields."""
+
+SIM_SCENARIOS = ("random", "range_bearing", "landmarks", "corridor", *SIM3D_VARIANTS)
+"""Every ``sim:`` scenario: the planar ones and :data:`SIM3D_VARIANTS`."""
 
 _SCENARIO_KINDS = {"range_bearing": (Kind.RANGE_BEARING,)}
 """The detection kinds of a planar random team's scenario (relative poses when not listed)."""
@@ -148,6 +139,17 @@ def _sim(scenario: str, robots: int, duration: float, seed: int, config: Config 
     return dataclasses.replace(sim_source(sim, "sim:landmarks", config), landmarks=landmarks)
 
 
+def source_kind(spec: str) -> tuple[str, str]:
+    """``(kind, the rest)`` of a source spec (``sim``'s rest: its scenario, ``random`` when not named); ValueError
+    for an unknown kind or simulated scenario."""
+    kind, _, arg = spec.partition(":")
+    if kind == "sim" and (arg or "random") not in SIM_SCENARIOS:
+        raise ValueError(f"unknown simulated scenario {arg!r}; choose from {list(SIM_SCENARIOS)}")
+    if kind not in ("sim", "mrclam", "events"):
+        raise ValueError(f"unknown source {spec!r}: use sim:SCENARIO, mrclam:PATH or events:PATH")
+    return kind, (arg or "random") if kind == "sim" else arg
+
+
 def load_source(
     spec: str,
     *,
@@ -160,19 +162,16 @@ def load_source(
     """The :class:`Source` named by ``spec`` (see the module docstring). ``robots`` and ``seed`` apply to
     simulations (``duration`` default 30 s there; for datasets, ``None`` keeps the whole span). Raises ValueError
     naming the problem (unknown kind or scenario, missing path, malformed file)."""
-    kind, _, arg = spec.partition(":")
+    kind, arg = source_kind(spec)
     if kind == "sim":
-        scenario = arg or "random"
-        if scenario not in SIM_SCENARIOS:
-            raise ValueError(f"unknown simulated scenario {scenario!r}; choose from {list(SIM_SCENARIOS)}")
         if not (isinstance(robots, int) and robots >= 1):
             raise ValueError(f"robots must be a positive integer, got {robots!r}")
-        return _sim(scenario, robots, 30.0 if duration is None else float(duration), seed, config)
+        return _sim(arg, robots, 30.0 if duration is None else float(duration), seed, config)
+    config = DEFAULTS if config is None else config
     if kind == "mrclam":
         from swarmloc.datasets.mrclam import load_mrclam
         from swarmloc.experiments.mrclam import detector_reach, mrclam_start, mrclam_stream
 
-        config = DEFAULTS if config is None else config
         data = load_mrclam(Path(arg))
         events, _ = mrclam_stream(data, config, duration, landmarks)  # camera model: config.sensors.decorrelate
         t_end = data.t_end if duration is None else min(data.t_end, data.t_start + duration)
@@ -180,9 +179,6 @@ def load_source(
         start = mrclam_start(data, config, t_end)  # without truth: from the landmark snapshots, where it can
         return Source(spec, start.after(events), start.beliefs, data.landmarks, start.t0, t_end, truth, config,
                       sensor=detector_reach(data))  # fmt: skip
-    if kind == "events":
-        from swarmloc.experiments.own_robots import load_event_source
+    from swarmloc.experiments.own_robots import load_event_source  # kind "events"
 
-        config = DEFAULTS if config is None else config
-        return Source(spec, *load_event_source(Path(arg), config), config)
-    raise ValueError(f"unknown source {spec!r}: use sim:SCENARIO, mrclam:PATH or events:PATH")
+    return Source(spec, *load_event_source(Path(arg), config), config)

@@ -14,7 +14,7 @@ from typing import Any
 
 from swarmloc.datasets.source import Source
 from swarmloc.evaluation.metrics import anees_bounds, evaluate
-from swarmloc.experiments.evaluate import delayed_row, run_row, write_report
+from swarmloc.experiments.evaluate import delayed_row, report_head, run_row, write_report
 from swarmloc.experiments.sources import load_source
 from swarmloc.net.entry import network_class
 from swarmloc.net.team import TeamRun, launch_team
@@ -131,11 +131,7 @@ def write_team_report(run: TeamRun, src: Source, estimator: str, out_dir: str | 
     n_rec = sum(tr.times.size for tr in res.tracks.values())
     report = {
         "title": f"live team over Zenoh: {src.spec}, {estimator}",
-        "robots": src.robots,
-        "duration_s": duration,
-        "n_events": len(src.events),
-        "config": src.config.to_dict(),
-        "truth": truth,
+        **report_head(src.robots, duration, len(src.events), src.config, truth),
         "estimators": {estimator: ev},
         "anees_bounds_if_independent": anees_bounds(max(n_rec, 1)),
         "run_id": run.run_id,

@@ -44,6 +44,8 @@ from swarmloc.net import ros
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.rosgraph import RosGraph
 from swarmloc.net.transport import block
+from swarmloc.rmw.inbox import Refused
+from swarmloc.rmw.types import header, odometry_msg, pose_msg, stamp_of
 
 log = logging.getLogger(__name__)
 
@@ -54,11 +56,6 @@ MAX_BYTES = 4096
 MAX_PUBLISHERS = 1024
 """Publishers whose sequence numbers a :class:`RosInput` remembers at most."""
 _TARGET = re.compile(r"^(robot|landmark)([0-9]{1,9})$")
-
-
-def dds_name(msgtype: str) -> str:
-    """``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_`` (rmw_zenoh's type name in keys; :func:`ros.dds_type_name`)."""
-    return ros.dds_type_name(msgtype)
 
 
 def topic_key(topic: str, msgtype: str, domain: int = 0) -> str:
@@ -76,25 +73,10 @@ def default_namespace(team: str) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ encoding
-def _header(t: float, frame_id: str) -> Any:
-    T = ros.typestore().types
-    sec, nsec = ros.stamp_to_ros(t)
-    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id)
-
-
 def odometry_cdr(t: float, v: float, w: float, pose: Any = (0.0, 0.0, 0.0), child: str = "base_link") -> bytes:
     """CDR of a ``nav_msgs/msg/Odometry`` stamped ``t`` [s] with twist ``(v, w)`` (averaged over the interval ending
     at ``t``) and the planar ``pose`` (x, y, yaw), which the reader ignores."""
-    T = ros.typestore().types
-    qx, qy, qz, qw = ros.yaw_to_quaternion(pose[2])
-    p = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
-                                    orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))  # fmt: skip
-    z3 = T["geometry_msgs/msg/Vector3"]
-    tw = T["geometry_msgs/msg/Twist"](linear=z3(x=float(v), y=0.0, z=0.0), angular=z3(x=0.0, y=0.0, z=float(w)))
-    msg = T[ODOM](header=_header(t, "odom"), child_frame_id=child,
-                  pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=np.zeros(36)),
-                  twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=np.zeros(36)))  # fmt: skip
-    return bytes(ros.typestore().serialize_cdr(msg, ODOM))
+    return ros.to_cdr(odometry_msg(t, v, w, pose, "odom", child, twist_var=0.0))
 
 
 def detection_cdr(d: Detection) -> bytes:
@@ -105,73 +87,55 @@ def detection_cdr(d: Detection) -> bytes:
     z = np.asarray(d.z, dtype=float).reshape(3)
     cov6 = np.zeros((6, 6))
     cov6[np.ix_((0, 1, 5), (0, 1, 5))] = np.asarray(d.cov, dtype=float).reshape(3, 3)
-    qx, qy, qz, qw = ros.yaw_to_quaternion(z[2])
     frame = f"{'robot' if d.target_is_robot else 'landmark'}{int(d.target)}"
-    msg = T[DET](header=_header(d.t, frame), pose=T["geometry_msgs/msg/PoseWithCovariance"](
-        pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(z[0]), y=float(z[1]), z=0.0),
-                                         orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)),
-        covariance=cov6.reshape(36)))  # fmt: skip
-    return bytes(ros.typestore().serialize_cdr(msg, DET))
+    pose = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose_msg(z), covariance=cov6.reshape(36))
+    return ros.to_cdr(T[DET](header=header(d.t, frame), pose=pose))
 
 
 def progress_cdr(t: float, end: bool = False, count: int | None = None) -> bytes:
     """CDR of the ``std_msgs/msg/Header`` announcing progress to ``t`` [s] (``end``: the stream is over, after
     ``count`` odometry and detection messages in all when given: frame_id ``end:<count>``)."""
     frame = "progress" if not end else "end" if count is None else f"end:{int(count)}"
-    return bytes(ros.typestore().serialize_cdr(_header(t, frame), PROGRESS))
+    return ros.to_cdr(header(t, frame))
 
 
 # ------------------------------------------------------------------------------------------------ decoding
-class Bad(ValueError):
-    """A sample that is refused, with the reason it is counted under."""
-
-    def __init__(self, reason: str, detail: str) -> None:
-        super().__init__(f"{reason}: {detail}")
-        self.reason = reason
-
-
 def _decode(payload: bytes, msgtype: str) -> Any:
     if len(payload) > MAX_BYTES:
-        raise Bad("too_large", f"{len(payload)} bytes > {MAX_BYTES}")
+        raise Refused("too_large", f"{len(payload)} bytes > {MAX_BYTES}")
     try:
         return ros.typestore().deserialize_cdr(payload, msgtype)
     except Exception as exc:  # noqa: BLE001 - rosbags raises several kinds on bad bytes
-        raise Bad("bad_cdr", f"not CDR of {msgtype}: {type(exc).__name__}: {exc}") from None
-
-
-def _stamp(msg: Any) -> float:
-    return ros.ros_to_stamp(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        raise Refused("bad_cdr", f"not CDR of {msgtype}: {type(exc).__name__}: {exc}") from None
 
 
 def decode_odometry(payload: bytes) -> tuple[float, float, float]:
-    """``(t [s], v [m/s], w [rad/s])`` of a ``nav_msgs/msg/Odometry`` sample; :class:`Bad` if refused."""
+    """``(t [s], v [m/s], w [rad/s])`` of a ``nav_msgs/msg/Odometry`` sample; :class:`Refused` if refused."""
     m = _decode(payload, ODOM)
-    out = (_stamp(m), float(m.twist.twist.linear.x), float(m.twist.twist.angular.z))
+    out = (stamp_of(m.header), float(m.twist.twist.linear.x), float(m.twist.twist.angular.z))
     if not np.all(np.isfinite(out)):
-        raise Bad("bad_value", f"non-finite odometry {out}")
+        raise Refused("bad_value", f"non-finite odometry {out}")
     return out
 
 
 def decode_detection(payload: bytes, observer: int) -> Detection:
-    """The :class:`~swarmloc.events.Detection` of a detection sample of ``observer``; :class:`Bad` if refused."""
+    """The :class:`~swarmloc.events.Detection` of a detection sample of ``observer``; :class:`Refused` if refused."""
     m = _decode(payload, DET)
     hit = _TARGET.match(m.header.frame_id)
     if hit is None:
-        raise Bad("bad_frame_id", f"frame_id {m.header.frame_id[:40]!r} is not robot<id> or landmark<id>")
-    p, q = m.pose.pose.position, m.pose.pose.orientation
-    z = np.array([p.x, p.y, ros.quaternion_to_yaw(q.x, q.y, q.z, q.w)], dtype=float)
-    cov = np.asarray(m.pose.covariance, dtype=float).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))].copy()
+        raise Refused("bad_frame_id", f"frame_id {m.header.frame_id[:40]!r} is not robot<id> or landmark<id>")
+    t, z, cov = ros.pose_from_message(m)
     if not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov))):
-        raise Bad("bad_value", "non-finite detection")
+        raise Refused("bad_value", "non-finite detection")
     if not (np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(symmetric(cov)) > 0)):
-        raise Bad("bad_covariance", "the (x, y, yaw) covariance is not symmetric positive definite")
-    return Detection(observer, _stamp(m), Kind.POSE, z, cov, int(hit.group(2)), hit.group(1) == "robot")
+        raise Refused("bad_covariance", "the (x, y, yaw) covariance is not symmetric positive definite")
+    return Detection(observer, t, Kind.POSE, z, cov, int(hit.group(2)), hit.group(1) == "robot")
 
 
 def decode_progress(payload: bytes) -> tuple[float, bool, int | None]:
     """``(t [s], end, count)`` of a progress ``Header`` sample."""
     m = _decode(payload, PROGRESS)
-    t = ros.ros_to_stamp(m.stamp.sec, m.stamp.nanosec)
+    t = stamp_of(m)
     hit = re.match(r"^end(?::([0-9]{1,12}))?$", m.frame_id)
     return t, hit is not None, None if hit is None or hit.group(1) is None else int(hit.group(1))
 
@@ -200,7 +164,7 @@ class RosInput:
             key = topic_key(self.topics[what], msgtype, self.domain)
             handler = (lambda w: lambda sample: self._on(w, sample))(what)
             self._subs.append(self.session.declare_subscriber(key, handler=handler))
-            self.graph.subscription(self.topics[what], dds_name(msgtype), ros.typestore().hash_rihs01(msgtype))
+            self.graph.subscription(self.topics[what], ros.dds_type_name(msgtype), ros.type_hash(msgtype))
 
     def close(self) -> None:
         for s in self._subs:
@@ -219,7 +183,7 @@ class RosInput:
                 self.counts["received"] += 1
                 self._check_attachment(sample)
                 self._handle(what, sample.payload.to_bytes())
-            except Bad as exc:
+            except Refused as exc:
                 self._bad(exc.reason, f"{what}: {exc}", what)
             except Exception as exc:  # noqa: BLE001 - a live node never dies of one message
                 self._bad("internal_error", f"{what}: {type(exc).__name__}: {exc}", what)
@@ -232,9 +196,9 @@ class RosInput:
         try:
             seq, _, gid = ros.parse_ros_attachment(att.to_bytes())
         except ValueError as exc:
-            raise Bad("bad_attachment", str(exc)) from None
+            raise Refused("bad_attachment", str(exc)) from None
         if seq <= self._seqs.get(gid, 0):
-            raise Bad("duplicate", f"sequence number {seq} of publisher {gid.hex()} again")
+            raise Refused("duplicate", f"sequence number {seq} of publisher {gid.hex()} again")
         self._seqs[gid] = seq
         self._seqs.move_to_end(gid)
         if len(self._seqs) > MAX_PUBLISHERS:  # bounded: the publishers heard longest ago are forgotten
@@ -245,7 +209,7 @@ class RosInput:
             t, v, w = decode_odometry(raw)
             if t <= self._prev:
                 if t < self._prev:
-                    raise Bad("stale", f"odometry stamped {t} before the previous one {self._prev}")
+                    raise Refused("stale", f"odometry stamped {t} before the previous one {self._prev}")
                 self.feed.dropped()
                 return  # a message at the start only marks it
             ok = self.feed.push(Odometry(self.robot, self._prev, t, v, w))
@@ -287,7 +251,7 @@ class RosInputPublisher:
             # restarted publisher's sequence numbers, counted from 1 again, are not taken for duplicates
             zid = str(session.info.zid())
             self._gids[what] = hashlib.blake2b(f"{zid}/{key}".encode(), digest_size=16).digest()
-            self.graph.publisher(self.topics[what], dds_name(msgtype), ros.typestore().hash_rihs01(msgtype))
+            self.graph.publisher(self.topics[what], ros.dds_type_name(msgtype), ros.type_hash(msgtype))
 
     def wait_matched(self, timeout: float = 10.0) -> bool:
         """Wait (up to ``timeout`` s) until a subscriber matches each of its topics (what is put before is lost)."""

@@ -57,6 +57,7 @@ from swarmloc.net.auth import (
 )
 from swarmloc.net.feed import LiveFeed
 from swarmloc.net.transport import PREFIX, block
+from swarmloc.rmw.inbox import Refused
 from swarmloc.sensors.models import SIZES
 
 log = logging.getLogger(__name__)
@@ -104,12 +105,6 @@ def encode_event(e: Event) -> tuple[str, bytes]:
                      None if e.target is None else int(e.target), bool(e.target_is_robot))  # fmt: skip
         return "det", msgspec.json.encode(body)
     raise TypeError(f"only odometry and detections are inputs, got {type(e).__name__}")
-
-
-class Refused(ValueError):
-    def __init__(self, reason: str, detail: str) -> None:
-        super().__init__(f"{reason}: {detail}")
-        self.reason = reason
 
 
 def decode_input(what: str, payload: bytes, robot: int) -> Event | ProgressIn:

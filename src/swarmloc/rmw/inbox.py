@@ -38,11 +38,13 @@ class Received:
 Callback = Callable[[Any, Received], None]
 
 
-class Refused(Exception):
-    """A sample refused before decoding, with the ``reason`` it is counted under."""
+class Refused(ValueError):
+    """An input refused (a sample, a message, a value in it), with the ``reason`` it is counted under: the one
+    refusal of the ROS node's conversions (:mod:`swarmloc.ros.convert`) and of the live inputs
+    (:mod:`swarmloc.live.ros_input`, :mod:`swarmloc.live.zenoh_input`)."""
 
     def __init__(self, reason: str, detail: str) -> None:
-        super().__init__(detail)
+        super().__init__(f"{reason}: {detail}")
         self.reason = reason
 
 

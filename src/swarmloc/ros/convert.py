@@ -41,6 +41,8 @@ from swarmloc.kernels.group import absolute_to_pseudo
 from swarmloc.lie import SE2
 from swarmloc.net import ros as rosmsg
 from swarmloc.rmw import typestore
+from swarmloc.rmw.inbox import Refused
+from swarmloc.rmw.types import header, pose_msg, stamp_of, twist_msg
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 DETECTIONS = "vision_msgs/msg/Detection3DArray"
@@ -56,19 +58,6 @@ MAX_DETECTIONS = 256
 MAX_SPEED, MAX_RATE = 100.0, 100.0
 """[m/s], [rad/s]: odometry beyond these is refused (``bad_value``)."""
 _TARGET = re.compile(r"^(robot|landmark)([0-9]{1,9})?$")
-
-
-class Refused(ValueError):
-    """An input refused, with the reason it is counted under."""
-
-    def __init__(self, reason: str, detail: str) -> None:
-        super().__init__(f"{reason}: {detail}")
-        self.reason = reason
-
-
-def stamp_of(header: Any) -> float:
-    """[s] a ``std_msgs/msg/Header``'s stamp."""
-    return rosmsg.ros_to_stamp(header.stamp.sec, header.stamp.nanosec)
 
 
 def _yaw(q: Any) -> float:
@@ -223,35 +212,6 @@ def initialpose_in(msg: Any, robot: int, world_frame: str, now: float) -> Detect
 
 
 # ------------------------------------------------------------------------------------------------ outputs
-def header(t: float, frame: str) -> Any:
-    """A ``std_msgs/msg/Header`` stamped ``t`` [s] in ``frame``."""
-    T = typestore().types
-    sec, nsec = rosmsg.stamp_to_ros(t)
-    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame)
-
-
-def pose_msg(xyt: Any) -> Any:
-    """A ``geometry_msgs/msg/Pose`` of the planar pose ``(x, y, yaw)``."""
-    T = typestore().types
-    qx, qy, qz, qw = rosmsg.yaw_to_quaternion(float(xyt[2]))
-    point = T["geometry_msgs/msg/Point"](x=float(xyt[0]), y=float(xyt[1]), z=0.0)
-    turn = T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)
-    return T["geometry_msgs/msg/Pose"](position=point, orientation=turn)
-
-
-def odometry_msg(t: float, v: float, w: float, xyt: Any, frame: str = "odom", child: str = "base_link",
-                 twist_var: float = 0.01) -> Any:  # fmt: skip
-    """What a robot publishes as its wheel odometry (the input of :func:`odometry_in`): stamped ``t`` [s], the twist
-    ``(v, w)`` over the interval ending at ``t``, the pose ``xyt`` integrated in ``frame``."""
-    T = typestore().types
-    v3 = T["geometry_msgs/msg/Vector3"]
-    tw = T["geometry_msgs/msg/Twist"](linear=v3(x=float(v), y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=float(w)))
-    return T[ODOMETRY](header=header(t, frame), child_frame_id=child,
-                       pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose_msg(xyt), covariance=np.zeros(36)),
-                       twist=T["geometry_msgs/msg/TwistWithCovariance"](
-                           twist=tw, covariance=np.diag([twist_var] * 6).reshape(36)))  # fmt: skip
-
-
 def detections_msg(t: float, dets: list[Detection], frame: str) -> Any:
     """The ``Detection3DArray`` of identified ``"pose"`` detections taken at ``t`` by a sensor at ``base_link``
     (``frame``): the inverse of :func:`detections_in`, each covariance carried back to ROS's additive one,
@@ -292,16 +252,9 @@ def odometry_out(
 ) -> Any:
     """The ``nav_msgs/msg/Odometry`` of a belief at ``t``: its pose and covariance as :func:`pose_out`, the twist
     (speed, yaw rate, their covariance) of the odometry in force at ``t`` (zero without one)."""
-    T = typestore().types
     pm = pose_out(t, mean, cov, frame, unused_variance)
-    v3 = T["geometry_msgs/msg/Vector3"]
-    v, w = (twist.v, twist.w) if twist is not None else (0.0, 0.0)
-    tc = np.asarray(twist.twist_cov if twist is not None else (0.0,) * 36, dtype=float)
-    tw = T["geometry_msgs/msg/TwistWithCovariance"](
-        twist=T["geometry_msgs/msg/Twist"](linear=v3(x=v, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=w)),
-        covariance=tc,
-    )
-    return T[ODOMETRY](header=pm.header, child_frame_id=child, pose=pm.pose, twist=tw)
+    tw = twist_msg(twist.v, twist.w, twist.twist_cov) if twist is not None else twist_msg(0.0, 0.0, np.zeros(36))
+    return typestore().types[ODOMETRY](header=pm.header, child_frame_id=child, pose=pm.pose, twist=tw)
 
 
 def transform_out(t: float, parent: str, child: str, xyt: np.ndarray) -> Any:

@@ -58,6 +58,25 @@ def initial_belief(p: RosParams, given: tuple[np.ndarray, np.ndarray] | None = N
     return GroupGaussian(SE2, mean, cov)
 
 
+def timeline_of(p: RosParams, robot: int) -> InputTimeline:
+    """Robot ``robot``'s :class:`~swarmloc.ros.timeline.InputTimeline` with the frames, sensor mounts and team of
+    ``p``."""
+    return InputTimeline(robot, base_frame=p.base_link_frame, world_frame=p.world_frame,
+                         mounts={k: tuple(v) for k, v in p.sensor_mounts.items()},  # type: ignore[misc]
+                         robots=frozenset(p.team_ids))  # fmt: skip
+
+
+def outputs(p: RosParams, t: float, belief: GroupGaussian, odom_pose: np.ndarray | None,
+            sample: cv.OdomSample | None) -> tuple[Any, Any | None]:  # fmt: skip
+    """The ``nav_msgs/Odometry`` of ``belief`` at ``t`` and the ``tf2_msgs/TFMessage`` of the ``world_frame ->
+    odom_frame`` transform (None without the odometry pose at ``t``); ``sample``: the odometry in force at ``t``."""
+    odo = cv.odometry_out(t, belief.mean, belief.cov, sample, p.world_frame, p.base_link_frame, p.unused_variance)
+    if odom_pose is None:
+        return odo, None
+    xyt = cv.map_to_odom(belief.mean, odom_pose)
+    return odo, cv.tf_out([cv.transform_out(t, p.world_frame, p.odom_frame, xyt)])
+
+
 class RosClock:
     """ROS time [s]: the system clock, or with ``sim`` the latest ``/clock`` (None before the first)."""
 
@@ -102,14 +121,11 @@ class RosNode:
         self.namespace = args.namespace or namespace
         self.params = p = params
         self.robot = p.robot_id
-        self.topics = {k: args.resolve(getattr(p, k), self.namespace, self.name) for k in TOPIC_PARAMS}
-        self.topics["tf"] = args.resolve("/tf", self.namespace, self.name)
-        self.topics["clock"] = args.resolve("/clock", self.namespace, self.name)
+        names = {**{k: getattr(p, k) for k in TOPIC_PARAMS}, "tf": "/tf", "clock": "/clock"}
+        self.topics = {k: args.resolve(v, self.namespace, self.name) for k, v in names.items()}
         self.config = p.config()
         initial_belief(p)  # a bad initial state or covariance is refused now, not at the first odometry
-        self.timeline = InputTimeline(self.robot, base_frame=p.base_link_frame, world_frame=p.world_frame,
-                                      mounts={k: tuple(v) for k, v in p.sensor_mounts.items()},  # type: ignore[misc]
-                                      robots=frozenset(p.team_ids))  # fmt: skip
+        self.timeline = timeline_of(p, self.robot)
         self.clock = RosClock(p.use_sim_time)
         self.counts: Counter[str] = Counter()
         """Outputs published (``odometry``, ``tf``, ``diagnostics``), ``tf_no_odometry``, inputs refused by the feed."""
@@ -188,17 +204,16 @@ class RosNode:
         p = self.params
         with self._lock:
             odom_pose, sample = self.timeline.odom_at(t)
-        self._pubs["odometry"].publish(cv.odometry_out(t, belief.mean, belief.cov, sample, p.world_frame,
-                                                       p.base_link_frame, p.unused_variance))  # fmt: skip
+        odometry, tf = outputs(p, t, belief, odom_pose, sample)
+        self._pubs["odometry"].publish(odometry)
         self._pubs["pose"].publish(cv.pose_out(t, belief.mean, belief.cov, p.world_frame, p.unused_variance))
         self.counts["odometry"] += 1
         if "tf" not in self._pubs:
             return
-        if odom_pose is None:
+        if tf is None:
             self.counts["tf_no_odometry"] += 1
             return
-        xyt = cv.map_to_odom(belief.mean, odom_pose)
-        self._pubs["tf"].publish(cv.tf_out([cv.transform_out(t, p.world_frame, p.odom_frame, xyt)]))
+        self._pubs["tf"].publish(tf)
         self.counts["tf"] += 1
 
     def diagnostics(self) -> dict[str, Any]:
@@ -231,10 +246,8 @@ class RosNode:
 
     def _publish_diagnostics(self) -> None:
         d = self.diagnostics()
-        level = 0
         refused = sum(v for k, v in d.items() if k.startswith(("refused_", "late_", "frames_refused")))
-        if d.get("teammates_lost") or refused:
-            level = 1
+        level = 1 if d.get("teammates_lost") or refused else 0
         msg = (
             "waiting for the first odometry"
             if self.net is None

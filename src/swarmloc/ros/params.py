@@ -267,17 +267,17 @@ def defaults_yaml(node: str = "swarmloc") -> str:
     import json
 
     lines = [f"{node}:", "  ros__parameters:"]
-    for f, doc in zip(msgspec.structs.fields(RosParams), _docs(), strict=True):
-        value = f.default if f.default is not msgspec.NODEFAULT else f.default_factory()
+    for f, value, doc in _fields():
         lines.append(f"    # {doc}")
         lines.append(f"    {f.name}: {json.dumps(value)}")  # JSON is YAML's flow style
     return "\n".join(lines) + "\n"
 
 
-def _docs() -> list[str]:
-    """The attribute docstrings of :class:`RosParams`, in field order."""
+def _fields() -> list[tuple[Any, Any, str]]:
+    """``(field, default value, attribute docstring)`` of every parameter of :class:`RosParams`, in field order."""
     docs = attribute_docs(RosParams)
-    return [docs.get(f.name, "") for f in msgspec.structs.fields(RosParams)]
+    return [(f, f.default if f.default is not msgspec.NODEFAULT else f.default_factory(), docs.get(f.name, ""))
+            for f in msgspec.structs.fields(RosParams)]  # fmt: skip
 
 
 def params_markdown() -> str:
@@ -285,10 +285,7 @@ def params_markdown() -> str:
     import json
     import typing
 
-    rows = []
-    for f, doc in zip(msgspec.structs.fields(RosParams), _docs(), strict=True):
-        value = f.default if f.default is not msgspec.NODEFAULT else f.default_factory()
-        rows.append((f"`{f.name}`", _type_text(f.type, typing), f"`{json.dumps(value)}`", doc))
+    rows = [(f"`{f.name}`", _type_text(f.type, typing), f"`{json.dumps(value)}`", doc) for f, value, doc in _fields()]
     return markdown_table(("parameter", "type", "default", "meaning"), rows)
 
 

@@ -25,7 +25,7 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.ros import convert as cv
 from swarmloc.ros.args import RosArgs
-from swarmloc.ros.node import TOPIC_PARAMS, initial_belief
+from swarmloc.ros.node import TOPIC_PARAMS, initial_belief, outputs, timeline_of
 from swarmloc.ros.params import RosParams
 from swarmloc.ros.timeline import InputTimeline, record_times, refused_key, refused_record
 
@@ -44,17 +44,9 @@ class ReplayResult:
 
     def outputs(self, robot: int, params: RosParams) -> list[tuple[float, Any, Any | None]]:
         """``(t, nav_msgs/Odometry, tf2_msgs/TFMessage or None)`` per output time, as the live node publishes."""
-        tl, out = self.timelines[robot], []
-        for t, b in zip(self.times[robot], self.beliefs[robot], strict=True):
-            pose, sample = tl.odom_at(float(t))
-            odo = cv.odometry_out(float(t), b.mean, b.cov, sample, params.world_frame, params.base_link_frame,
-                                  params.unused_variance)  # fmt: skip
-            tf = None
-            if pose is not None:
-                xyt = cv.map_to_odom(b.mean, pose)
-                tf = cv.tf_out([cv.transform_out(float(t), params.world_frame, params.odom_frame, xyt)])
-            out.append((float(t), odo, tf))
-        return out
+        tl = self.timelines[robot]
+        times = self.times[robot].tolist()
+        return [(t, *outputs(params, t, b, *tl.odom_at(t))) for t, b in zip(times, self.beliefs[robot], strict=True)]
 
 
 def replay_messages(
@@ -78,9 +70,7 @@ def replay_messages(
     ends: dict[int, float] = {}
     for r, msgs in sorted(messages.items()):
         p = params[r]
-        tl = InputTimeline(r, base_frame=p.base_link_frame, world_frame=p.world_frame,
-                           mounts={k: tuple(v) for k, v in p.sensor_mounts.items()},  # type: ignore[misc]
-                           robots=frozenset(p.team_ids))  # fmt: skip
+        tl = timeline_of(p, r)
         evs: list[Event] = []
         for kind, m in msgs:
             if kind not in KINDS:

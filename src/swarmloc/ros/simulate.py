@@ -18,7 +18,8 @@ import numpy as np
 
 from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.lie import SE2
-from swarmloc.ros.convert import DETECTIONS, ODOMETRY, detections_msg, odometry_msg
+from swarmloc.rmw.types import odometry_msg
+from swarmloc.ros.convert import DETECTIONS, ODOMETRY, detections_msg
 
 TOPICS = {"odometry": "/robot{r}/odom", "detections": "/robot{r}/detections"}
 TYPES = {"odometry": ODOMETRY, "detections": DETECTIONS}

@@ -4,7 +4,10 @@
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 
+from swarmloc.cli.common import refuse
 from swarmloc.cli.options import add_sweep_args
 
 
@@ -25,7 +28,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the study; its exit status."""
-    from swarmloc.experiments.consistency import run_command
+    """Run the study and print the table (or JSON); 0, or 2 on bad input."""
+    from swarmloc.experiments.consistency import consistency, consistency_table, default_estimators
+    from swarmloc.runner.fanout import ClusterUnavailable
 
-    return run_command(args)
+    names = default_estimators() if args.estimators is None else [e.strip() for e in args.estimators.split(",")
+                                                                   if e.strip()]  # fmt: skip
+    marks = {"off": False, "on": True}
+    try:
+        settings = [marks[w.strip()] for w in args.landmarks.split(",") if w.strip()]
+    except KeyError as exc:
+        return refuse("consistency", f"--landmarks takes off, on or off,on; got {exc.args[0]!r}")
+    try:
+        summary = consistency(names, seeds=args.seeds, robots=args.robots, duration=args.duration,
+                              landmarks=settings, jobs=args.jobs, out=args.out, progress=not args.quiet,
+                              cluster=args.cluster)  # fmt: skip
+    except (ValueError, OSError, ClusterUnavailable) as exc:
+        return refuse("consistency", exc)
+    print(json.dumps(summary, indent=2) if args.json else consistency_table(summary))
+    if args.out:
+        print(f"written to {args.out}/consistency.md, consistency.json and consistency.png", file=sys.stderr)
+    return 0

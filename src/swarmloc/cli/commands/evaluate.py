@@ -45,7 +45,11 @@ def run(args: argparse.Namespace) -> int:
     where = f"evaluate {args.what}"
     names = [e.strip() for e in args.estimators.split(",") if e.strip()]
     try:
-        config = _with_association(_with_gate(run_config(args), args.gate), args.association)
+        config = run_config(args)
+        if args.gate is not None:  # --gate overrides the configuration's (0 disables it)
+            config = config.with_filter(gate=None if args.gate <= 0 else args.gate)
+        if args.association is not None:
+            config = config.with_filter(association=args.association)
         progress = not (args.quiet or args.json)
         if args.what == "mrclam":
             from swarmloc.experiments.mrclam import evaluate_mrclam
@@ -92,13 +96,3 @@ def run(args: argparse.Namespace) -> int:
         if args.out:
             print(f"results, figures and TUM trajectories in {args.out}/")
     return 0
-
-
-def _with_gate(config, gate: float | None):  # noqa: ANN001, ANN202
-    """``--gate`` overrides the configuration's gate (0 disables it)."""
-    return config if gate is None else config.with_filter(gate=None if gate <= 0 else gate)
-
-
-def _with_association(config, association: str | None):  # noqa: ANN001, ANN202
-    """``--association`` overrides the configuration's ``[filter] association``."""
-    return config if association is None else config.with_filter(association=association)

@@ -22,7 +22,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the experiment; its exit status."""
-    from swarmloc.experiments.mapping import run_command
+    """Run the experiment: the table on stdout; with ``--out``, map.md, map.json, map.png and the first seed's maps
+    as GeoJSON (and DXF); 0."""
+    from swarmloc.experiments.mapping import figure, map_experiment, markdown
+    from swarmloc.experiments.output import write_summary
+    from swarmloc.sim.walls import RangeFinder
 
-    return run_command(args)
+    ests = tuple(e.strip() for e in args.estimators.split(",") if e.strip())
+    report, first = map_experiment(args.seeds, ests, RangeFinder(sigma=args.sigma), args.order, args.D,
+                                   args.first_seed, progress=not args.quiet)  # fmt: skip
+    text = markdown(report)
+    print(text)
+    if args.out:
+        out = write_summary(args.out, "map", report, text, indent=1, default=str)
+        for name, lm in first["maps"].items():
+            stem = name.replace(", ", "_").replace(" ", "_")
+            lm.save_geojson(out / f"{stem}.geojson")
+            lm.save_dxf(out / f"{stem}.dxf")
+        figure(out / "map.png", first, ests)
+    return 0

@@ -10,7 +10,7 @@ import argparse
 import sys
 from typing import Any
 
-from swarmloc.cli.common import refuse
+from swarmloc.cli.common import net_logging, refuse
 
 HINT = "swarmloc ros needs the ROS extra: pip install 'swarmloc[ros]'"
 
@@ -82,17 +82,13 @@ def _replay(args: argparse.Namespace, ros: Any) -> int:
     return 0
 
 
-def _sim_source(args: argparse.Namespace) -> Any:
-    from swarmloc.experiments.sources import load_source
-
-    return load_source("sim:random", robots=args.robots, duration=args.duration, seed=args.seed)
-
-
 def _sim(args: argparse.Namespace, ros: Any) -> int:
     """``ros sim``: with ``--params-out``, write the nodes' params file and exit; else play the robots' inputs."""
     from pathlib import Path
 
-    src = _sim_source(args)
+    from swarmloc.experiments.sources import load_source
+
+    src = load_source("sim:random", robots=args.robots, duration=args.duration, seed=args.seed)
     if args.params_out:
         import yaml
 
@@ -143,14 +139,12 @@ def _view(args: argparse.Namespace, params: Any) -> Any:
 
 def _run_node(args: argparse.Namespace, ros: Any) -> int:
     import json
-    import logging
     import signal
 
     from swarmloc.ros.node import RosNode
     from swarmloc.ros.params import load_params
 
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(asctime)s %(name)s %(levelname)s: %(message)s")  # fmt: skip
+    net_logging(args.verbose)
     name, ns = ros.node or "swarmloc", ros.namespace or "/"
     params = load_params(ros.params_files, ros.params, name, ns)
     view = _view(args, params)

@@ -45,10 +45,7 @@ def run(args: argparse.Namespace) -> int:
     net_logging(args.verbose)
     import signal
 
-    def _terminate(*_: object) -> None:
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _terminate)  # so that `kill` and time limits also stop every process started
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # as Ctrl-C: `kill` also stops every process started
     view, ran = None, False
     try:
         check_view(args)
