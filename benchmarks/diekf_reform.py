@@ -142,8 +142,8 @@ class Clustered:
             old = {r: int(where[r][0]) for r in g}
 
             def block(a: int, b: int) -> np.ndarray:
-                ka, kb = where[a][1], where[b][1]
-                return oldP[old[a]][3 * ka : 3 * ka + 3, 3 * kb : 3 * kb + 3]
+                (ca, ka), kb = where[a], where[b][1]
+                return oldP[ca][3 * ka : 3 * ka + 3, 3 * kb : 3 * kb + 3]
 
             B = stacked_bound(g, old, block, 3, power)
             self._add(list(g), B.transpose(0, 2, 1, 3).reshape(3 * len(g), 3 * len(g)))

@@ -86,11 +86,17 @@ def counted(node: Any, traffic: Counter[str]) -> None:
     node.step = counting
 
 
-def options(src: Source, cluster: int) -> dict[str, Any]:
-    return {**node_options("diekf", src.config, src.landmarks), "cluster": cluster}
+def options(src: Source, cluster: int, period: float = 0.0) -> dict[str, Any]:
+    """``diekf``'s options: clusters of ``cluster`` re-formed every ``period`` s (0: fixed)."""
+    return {
+        **node_options("diekf", src.config, src.landmarks),
+        "cluster": cluster,
+        **({"reform": period} if period else {}),
+    }
 
 
-def in_process(src: Source, n: int, cluster: int, duration: float, engine: bool = False) -> tuple[dict, RunResult]:
+def in_process(src: Source, n: int, cluster: int, duration: float, engine: bool = False,
+               period: float = 0.0) -> tuple[dict, RunResult]:  # fmt: skip
     """One run of the nodes in process (``engine``: the exact filter as the engine's replay, no traffic): traffic and
     fused detections per robot and second, RMSE, ANEES/dof and CPU [s]; and the run."""
     traffic: Counter[str] = Counter()
@@ -98,7 +104,7 @@ def in_process(src: Source, n: int, cluster: int, duration: float, engine: bool 
     if engine:
         res = run_engine(src, "diekf", backend="numba", **options(src, cluster))
     else:
-        nodes = make_team("diekf", src.initial, **options(src, cluster))
+        nodes = make_team("diekf", src.initial, **options(src, cluster, period))
         for node in nodes:
             counted(node, traffic)
         res = run(nodes, src.events, src.record_times(), truth=src.truth)

@@ -18,6 +18,7 @@ one piece keeps its covariance (``w = 1``), a robot that leaves is marginalized 
 
 from __future__ import annotations
 
+import itertools
 import math
 from bisect import bisect_right
 from collections import Counter
@@ -44,7 +45,7 @@ class Schedule:
     cuts: tuple[Cut, ...]
 
     def __post_init__(self) -> None:
-        if len(self.cuts) != len(self.times) + 1 or any(b <= a for a, b in zip(self.times, self.times[1:])):
+        if len(self.cuts) != len(self.times) + 1 or any(b <= a for a, b in itertools.pairwise(self.times)):
             raise ValueError("Schedule: one cut more than boundaries, boundaries increasing")
 
     def period(self, t: float) -> int:

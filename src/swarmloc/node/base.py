@@ -310,6 +310,11 @@ class Node:
         self.accounting.message_rejected(f"unsupported input of type {type(item).__name__}")
         return []
 
+    def plan(self, events: Iterable[Any]) -> None:
+        """The whole team's recorded events, known before the run (drivers of a recording give them before the first
+        input; a live one does not): an estimator may plan from them (``diekf``'s re-forming clusters). Default:
+        nothing."""
+
     def belief_at(self, t: float, robot: int | None = None) -> GroupGaussian:
         """Belief of ``robot`` (default: the node's own) at time ``t`` [s]: after every entry stamped ``<= t``,
         predicted to ``t`` with the command in force then. Raises ValueError for ``t`` before the kept history."""
