@@ -33,7 +33,8 @@ teammates within its 1.5 m sensor (10 detections/s at 5 Hz) in every team; ``spr
 ``3 m sqrt(n / 5)`` with the robots free to leave it (the previous scene, whose density is not constant);
 ``grouped``, the bounded arena with the ids along a Hilbert curve through the start positions, so that a cluster of
 ``K`` consecutive ids is ``K`` robots that start near each other (clusters formed by proximity at deployment).
-Clusters that re-form as the robots move (a centralized prototype, not in the nodes yet): benchmarks/diekf_reform.py.
+``--period p``: the clusters re-form every ``p`` s (in process; ``[filter] diekf_reform``, :mod:`swarmloc.estimators.
+cluster_reform`; benchmarks/diekf_reform.py is its centralized prototype; not networked yet).
 """
 
 from __future__ import annotations
@@ -115,12 +116,13 @@ def in_process(src: Source, n: int, cluster: int, duration: float, engine: bool 
             **per}, res  # fmt: skip
 
 
-def over(seeds: list[int], n: int, cluster: int, duration: float, arena: str, engine: bool = False) -> dict:
+def over(seeds: list[int], n: int, cluster: int, duration: float, arena: str, engine: bool = False,
+         period: float = 0.0) -> dict:  # fmt: skip
     """:func:`in_process` on the scenes of ``seeds``: each figure's mean over them, ``rmses`` per seed, and the
     fractions of (robot, record time) whose ANEES/dof over the seeds is within or above their 95% bounds."""
     rows, results = [], []
     for seed in seeds:
-        row, res = in_process(scene(n, duration, seed, arena), n, cluster, duration, engine)
+        row, res = in_process(scene(n, duration, seed, arena), n, cluster, duration, engine, period)
         rows.append(row)
         results.append(res)
     mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
@@ -205,6 +207,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--seeds", type=int, default=1, help="this many seeds from --seed, every row their mean")
     ap.add_argument("--arena", choices=ARENAS, default="bounded", help="benchmarks/swarm_scene.py")
+    ap.add_argument("--period", type=float, default=0.0, help="in process: the clusters re-form every this many s")
     ap.add_argument("--net", action="store_true", help="networked nodes (threads, 127.0.0.1): traffic only")
     ap.add_argument("--max-wall", type=float, default=600.0)
     args = ap.parse_args()
@@ -225,7 +228,7 @@ def main() -> None:
     for n in sizes:
         exact = math.nan
         for c in settings:
-            name = "exact" if c == 0 else f"K={c}"
+            name = "exact" if c == 0 else f"K={c}" + (f"/{args.period:g}s" if args.period and not args.net else "")
             if args.net:
                 if c == 0 and n > args.exact_up_to:
                     continue
@@ -238,7 +241,7 @@ def main() -> None:
                       + ("" if r["reports"] == n else f"  ({r['reports']} of {n} reports)"), flush=True)  # fmt: skip
                 continue
             engine = c == 0 and n > args.exact_up_to
-            r = over(seeds, n, c, args.duration, args.arena, engine)
+            r = over(seeds, n, c, args.duration, args.arena, engine, args.period if c else 0.0)
             if c == 0:
                 exact = r["rmse"]
                 name += " (engine)" if engine else ""

@@ -49,6 +49,18 @@ engine replays the clusters in one compiled loop (``run_engine(source, "diekf", 
 :mod:`swarmloc.engine.joint_clusters`). The accuracy cost and the cost per robot against team size:
 ``benchmarks/diekf_cluster.py``.
 
+**Clusters that re-form** (``reform = period`` [s], ``[filter] diekf_reform``; with ``cluster = K``). As the robots
+move, a robot may come to see another cluster's robots more than its own's. Every ``period`` s the team is cut again
+by whom the robots saw (:mod:`swarmloc.estimators.cluster_reform`): a schedule computed from the recording, the same
+in every node (:meth:`DistributedInvariantEKF.plan`, which the in-process runner calls; a live source has no
+schedule and its clusters stay fixed). At a boundary ``T`` each node predicts its robot to ``T`` and starts its new
+cluster's replica from the covariance-intersection bound of the pieces (the robots of one old cluster in it):
+``blockdiag(Sigma_1 / w_1, ..., Sigma_m / w_m)``, each piece's exact correlations kept, none across pieces, its own
+``P_ii / w``. A piece's cross-covariances are in the replica of each of its robots; each sends its share to its new
+mates outside the piece (:class:`~swarmloc.messages.ClusterPiece`, each pair once, by its lower id), and a receiver
+re-applies the boundary with it (:class:`Reforming`: the boundary is a history entry keyed before every input
+stamped ``T``). The nodes equal the centralized prototype ``benchmarks/diekf_reform.py`` (tests/test_cluster_reform.py).
+
 Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
 ``RdlStateQuery`` keyed as the detection would be were it of that teammate
 (:func:`~swarmloc.estimators.state_exchange.anonymous_sub`), as ``rdl`` does; the detection given a robot is
@@ -251,7 +263,7 @@ class TeamProtocol:
             if a == b:
                 return s.P if a == me else zero  # a teammate's own covariance: not in the replica
             if a in at and b in at:
-                return s.Sigma[at[a], at[b]]
+                return np.asarray(s.Sigma[at[a], at[b]])
             return got[a, b] if (a, b) in got else got[b, a].T if (b, a) in got else zero
 
         Sigma = stacked_bound(now, old, block, self.form.dim)
@@ -671,6 +683,9 @@ class Reforming:
             t, k = times[self.next], self.next + 1
             self.next += 1
             key: Key = (t, P_REFORM, -1, ())
+            if self.history.base_key is not None and key < self.history.base_key:  # before the node's start
+                self.history.base = self.protocol.reform(self.history.base, k, {})  # (nobody's piece taken)
+                continue
             out += self.file([Entry(key, "update", Boundary(k, t))], accept=False)
             out += self.protocol.pieces(self.history.state_before(key), k, t)
         return out
