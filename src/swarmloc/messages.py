@@ -327,4 +327,4 @@ def message_problem(m: Message) -> str | None:
 
 
 Answer = BeliefAnswer | RdlState
-AnyMessage = BeliefQuery | BeliefAnswer | RdlStateQuery | RdlState | RdlUpdate | TeamUpdate
+AnyMessage = BeliefQuery | BeliefAnswer | RdlStateQuery | RdlState | RdlUpdate | TeamUpdate | ClusterPiece

@@ -129,6 +129,7 @@ from swarmloc.node import (
     positive_definite,
     usable_covariance,
 )
+from swarmloc.node.base import Reach
 from swarmloc.node.keys import Entry, Key, SubKey
 
 __all__ = [
@@ -236,6 +237,12 @@ class TeamProtocol:
         sigma = flat(np.stack([s.Sigma[pos[self.robot], pos[b]] for b in later]))
         return [ClusterPiece(sender=self.robot, receiver=m, stamp=t, robots=tuple(later), sigma=sigma)
                 for m in outside]  # fmt: skip
+
+    def owed(self, k: int) -> set[int]:
+        """The new mates that owe this robot a piece at boundary ``k``: those of another old cluster with a later robot
+        of their piece."""
+        was, now, old = self._cuts(k)
+        return {a for a in now if a not in was and any(old[b] == old[a] and b > a for b in now)}
 
     def piece_problem(self, m: ClusterPiece) -> str | None:
         """Why a teammate's piece is not the one it owes this robot at a boundary of the schedule, or None."""
@@ -549,6 +556,16 @@ class DistributedInvariantEKF(RobotNode):
         sched = seen_schedule(events, p.everyone, p.cluster, self.reform)
         p.follow(sched)
         self.reforming = Reforming(p, sched, self._history, self._file, self._filing.replay, self.accounting)
+        self.team = tuple(sorted({r for k in range(len(sched.cuts)) for r in sched.cluster(self.robot, k)}))
+        """Every robot this one shares a cluster with at some time (a network driver hears their broadcasts)."""
+
+    def boundary(self) -> float | None:
+        """The next boundary of the clusters' schedule not reached yet (None: none, or fixed clusters)."""
+        return None if self.reforming is None else self.reforming.boundary()
+
+    def awaits(self, t: float) -> str | None:
+        """The pieces still owed to this robot for the boundaries up to ``t`` [s] (None: none)."""
+        return None if self.reforming is None else self.reforming.awaits(t)
 
     def step(self, item: Any) -> list[Message]:
         """:meth:`Node.step`; with a schedule, the boundaries up to the item's stamp are reached first
@@ -560,7 +577,12 @@ class DistributedInvariantEKF(RobotNode):
         out = self.reforming.reach(stamp) if isinstance(stamp, float | int) and math.isfinite(stamp) else []
         if isinstance(item, ClusterPiece):
             return out + self.reforming.take(item)
-        return out + super().step(item)
+        if isinstance(item, TeamUpdate) and item.sender in self.team and item.receiver == self.robot:
+            self.protocol.use(item.stamp)
+            if item.sender not in self.protocol.pos:  # a mate of another time (a network driver hears them all)
+                self.counts["broadcasts_other_cluster"] += 1
+                return out
+        return out if isinstance(item, Reach) else out + super().step(item)
 
     @property
     def dim(self) -> int:
@@ -673,6 +695,19 @@ class Reforming:
         self.file, self.replay, self.accounting = file, replay, accounting
         self.next = 0
         """The index of the next boundary to reach."""
+        self.owed: dict[int, set[int]] = {}
+        """Per boundary reached (index ``k``): the new mates whose pieces have not come yet."""
+
+    def boundary(self) -> float | None:
+        """The stamp [s] of the next boundary to reach (None: all reached)."""
+        return self.schedule.times[self.next] if self.next < len(self.schedule.times) else None
+
+    def awaits(self, t: float) -> str | None:
+        """The pieces owed for the boundaries reached up to ``t`` [s], or None."""
+        for k, who in self.owed.items():
+            if who and self.schedule.times[k - 1] <= t:
+                return f"the pieces of robots {sorted(who)} for the clusters re-formed at {self.schedule.times[k - 1]}"
+        return None
 
     def reach(self, stamp: float) -> list[Message]:
         """File every boundary up to ``stamp`` [s] not filed yet (the state before it final: every input before it
@@ -688,6 +723,7 @@ class Reforming:
                 continue
             out += self.file([Entry(key, "update", Boundary(k, t))], accept=False)
             out += self.protocol.pieces(self.history.state_before(key), k, t)
+            self.owed[k] = self.protocol.owed(k)
         return out
 
     def take(self, m: ClusterPiece) -> list[Message]:
@@ -705,5 +741,6 @@ class Reforming:
             self.accounting.message_rejected("duplicate cluster piece")
             return []
         b.pieces[m.sender] = m
+        self.owed.get(b.k, set()).discard(m.sender)
         self.accounting.counts["pieces_received"] += 1
         return self.replay(pos, late=False)
