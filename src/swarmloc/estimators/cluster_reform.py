@@ -14,6 +14,11 @@ not across them; ``blockdiag(P_1 / w_1, ..., P_m / w_m)`` with ``w_k > 0``, ``su
 correlation across (covariance intersection, Julier & Uhlmann 1997), keeping each piece's own correlations. The
 weights are the pieces' sizes to ``power`` (:func:`piece_weights`; 1: the bound's log det minimized); a cluster of
 one piece keeps its covariance (``w = 1``), a robot that leaves is marginalized out.
+
+**In the node** (:class:`Reforming`, a part of :class:`~swarmloc.estimators.diekf.DistributedInvariantEKF`): each
+boundary is a history entry (:class:`Boundary`) keyed before every input stamped at it, filed before the first
+input at or after it; the new mates' pieces (:class:`~swarmloc.messages.ClusterPiece`) are kept in it as they come,
+and it is re-applied with each.
 """
 
 from __future__ import annotations
@@ -23,14 +28,23 @@ import math
 from bisect import bisect_right
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
 from swarmloc.events import Detection
+from swarmloc.messages import ClusterPiece, Message, message_problem
+from swarmloc.node.keys import Entry, Key
 
-__all__ = ["Cut", "Schedule", "id_cut", "piece_weights", "seen_cut", "seen_schedule", "stacked_bound"]
+__all__ = [
+    "P_REFORM", "Boundary", "Cut", "Pieces", "Reforming", "Schedule", "id_cut", "piece_weights", "seen_cut",
+    "seen_schedule", "stacked_bound",
+]  # fmt: skip
+
+P_REFORM = 0
+"""The priority of a re-forming's history entry ``(T, P_REFORM, -1, ())``: before every input stamped ``T``
+(:mod:`swarmloc.node.keys`: groups 1, commands 2)."""
 
 Cut = tuple[tuple[int, ...], ...]
 """The team cut into clusters: each cluster's robot ids, in its replica's order."""
@@ -143,3 +157,88 @@ def stacked_bound(cluster: Sequence[int], old: Mapping[int, Any], block: Callabl
             if old[a] == old[b]:
                 out[ka, kb] = block(a, b) / w[old[a]]
     return out
+
+
+@dataclass(slots=True)
+class Boundary:
+    """A re-forming's history entry (key ``(t, P_REFORM, -1, ())``): the schedule's boundary ``k`` at ``t`` [s] and
+    the pieces received for it so far (by sender)."""
+
+    k: int
+    t: float
+    pieces: dict[int, ClusterPiece] = field(default_factory=dict)
+
+
+class Pieces(Protocol):
+    """What :class:`Reforming` asks of its node's team protocol (:class:`~swarmloc.estimators.diekf.TeamProtocol`):
+    this robot's pieces for a boundary ``k`` from the state before it, the mates that owe it one, why a received
+    piece is not one they owe, and the state re-formed at a boundary."""
+
+    def pieces(self, s: Any, k: int, t: float) -> list[Message]: ...
+    def owed(self, k: int) -> set[int]: ...
+    def piece_problem(self, m: ClusterPiece) -> str | None: ...
+    def reform(self, s: Any, k: int, pieces: Mapping[int, ClusterPiece]) -> Any: ...
+
+
+class Reforming:
+    """Part of a ``diekf`` node whose clusters re-form (:mod:`swarmloc.estimators.diekf`, "Clusters that re-form"):
+    files each
+    boundary of the schedule in the history before the first input stamped at or after it, sends this robot's
+    pieces, and takes its new mates' pieces (the boundary's entry re-applied with each). Made with the node's
+    protocol, the schedule, the node's history, its filing's ``file`` and ``replay``, and its accounting."""
+
+    def __init__(self, protocol: Pieces, schedule: Schedule, history: Any, file: Callable[..., list[Message]],
+                 replay: Callable[..., list[Message]], accounting: Any) -> None:  # fmt: skip
+        self.protocol, self.schedule, self.history = protocol, schedule, history
+        self.file, self.replay, self.accounting = file, replay, accounting
+        self.next = 0
+        """The index of the next boundary to reach."""
+        self.owed: dict[int, set[int]] = {}
+        """Per boundary reached (index ``k``): the new mates whose pieces have not come yet."""
+
+    def boundary(self) -> float | None:
+        """The stamp [s] of the next boundary to reach (None: all reached)."""
+        return self.schedule.times[self.next] if self.next < len(self.schedule.times) else None
+
+    def awaits(self, t: float) -> str | None:
+        """The pieces owed for the boundaries reached up to ``t`` [s], or None."""
+        for k, who in self.owed.items():
+            if who and self.schedule.times[k - 1] <= t:
+                return f"the pieces of robots {sorted(who)} for the clusters re-formed at {self.schedule.times[k - 1]}"
+        return None
+
+    def reach(self, stamp: float) -> list[Message]:
+        """File every boundary up to ``stamp`` [s] not filed yet (the state before it final: every input before it
+        has come, as in the in-process runner and the lock step) and send this robot's pieces for it."""
+        out: list[Message] = []
+        times = self.schedule.times
+        while self.next < len(times) and times[self.next] <= stamp:
+            t, k = times[self.next], self.next + 1
+            self.next += 1
+            key: Key = (t, P_REFORM, -1, ())
+            if self.history.base_key is not None and key < self.history.base_key:  # before the node's start
+                self.history.base = self.protocol.reform(self.history.base, k, {})  # (nobody's piece taken)
+                continue
+            out += self.file([Entry(key, "update", Boundary(k, t))], accept=False)
+            out += self.protocol.pieces(self.history.state_before(key), k, t)
+            self.owed[k] = self.protocol.owed(k)
+        return out
+
+    def take(self, m: ClusterPiece) -> list[Message]:
+        """A new mate's piece: kept in its boundary's entry, which is applied again (and what follows it)."""
+        self.accounting.counts["messages"] += 1
+        why = message_problem(m) or self.protocol.piece_problem(m)
+        pos = None if why else self.history.find((float(m.stamp), P_REFORM, -1, ()))
+        if why is None and pos is None:
+            why = "cluster piece for a re-forming not in the kept history"
+        if why is not None or pos is None:
+            self.accounting.message_rejected(why or "")
+            return []
+        b: Boundary = self.history.entries[pos].data
+        if b.pieces.get(m.sender) == m:
+            self.accounting.message_rejected("duplicate cluster piece")
+            return []
+        b.pieces[m.sender] = m
+        self.owed.get(b.k, set()).discard(m.sender)
+        self.accounting.counts["pieces_received"] += 1
+        return self.replay(pos, late=False)

@@ -89,13 +89,12 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, Protocol
 
 import numpy as np
 
 from swarmloc.estimators.adaptive_noise import Innovation, MedianScale, NoiseScale, innovation_terms
-from swarmloc.estimators.cluster_reform import Schedule, seen_schedule, stacked_bound
+from swarmloc.estimators.cluster_reform import Boundary, Reforming, Schedule, seen_schedule, stacked_bound
 from swarmloc.estimators.dekf import DEGENERATE, FilterState
 from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.estimators.world_form import FORMS, TeamState, robot_pair, world_step
@@ -112,7 +111,6 @@ from swarmloc.messages import (
     RdlStateQuery,
     TeamUpdate,
     flat,
-    message_problem,
 )
 from swarmloc.motion.odocal import OdometryCalibration
 from swarmloc.node import (
@@ -130,16 +128,11 @@ from swarmloc.node import (
     usable_covariance,
 )
 from swarmloc.node.base import Reach
-from swarmloc.node.keys import Entry, Key, SubKey
+from swarmloc.node.keys import SubKey
 
 __all__ = [
-    "FORMS", "P_REFORM", "Boundary", "DistributedInvariantEKF", "Numbers", "Reforming", "Replica", "TeamProtocol",
-    "TeamState",
+    "FORMS", "DistributedInvariantEKF", "Numbers", "Replica", "TeamProtocol", "TeamState",
 ]  # fmt: skip
-
-P_REFORM = 0
-"""The priority of a re-forming's history entry ``(T, P_REFORM, -1, ())``: before every input stamped ``T``
-(:mod:`swarmloc.node.keys`: groups 1, commands 2)."""
 
 
 class Replica(FilterState, Protocol):
@@ -671,76 +664,3 @@ class DistributedInvariantEKF(RobotNode):
         if isinstance(u, TeamUpdate) and u.target == self.robot:
             s = self._adv(s, self.robot, u.stamp)
         return self.protocol.apply(s, u, self.counts)
-
-
-@dataclass(slots=True)
-class Boundary:
-    """A re-forming's history entry (key ``(t, P_REFORM, -1, ())``): the schedule's boundary ``k`` at ``t`` [s] and
-    the pieces received for it so far (by sender)."""
-
-    k: int
-    t: float
-    pieces: dict[int, ClusterPiece] = field(default_factory=dict)
-
-
-class Reforming:
-    """Part of a ``diekf`` node whose clusters re-form (module docstring, "Clusters that re-form"): files each
-    boundary of the schedule in the history before the first input stamped at or after it, sends this robot's
-    pieces, and takes its new mates' pieces (the boundary's entry re-applied with each). Made with the node's
-    protocol, the schedule, the node's history, its filing's ``file`` and ``replay``, and its accounting."""
-
-    def __init__(self, protocol: TeamProtocol, schedule: Schedule, history: Any, file: Callable[..., list[Message]],
-                 replay: Callable[..., list[Message]], accounting: Any) -> None:  # fmt: skip
-        self.protocol, self.schedule, self.history = protocol, schedule, history
-        self.file, self.replay, self.accounting = file, replay, accounting
-        self.next = 0
-        """The index of the next boundary to reach."""
-        self.owed: dict[int, set[int]] = {}
-        """Per boundary reached (index ``k``): the new mates whose pieces have not come yet."""
-
-    def boundary(self) -> float | None:
-        """The stamp [s] of the next boundary to reach (None: all reached)."""
-        return self.schedule.times[self.next] if self.next < len(self.schedule.times) else None
-
-    def awaits(self, t: float) -> str | None:
-        """The pieces owed for the boundaries reached up to ``t`` [s], or None."""
-        for k, who in self.owed.items():
-            if who and self.schedule.times[k - 1] <= t:
-                return f"the pieces of robots {sorted(who)} for the clusters re-formed at {self.schedule.times[k - 1]}"
-        return None
-
-    def reach(self, stamp: float) -> list[Message]:
-        """File every boundary up to ``stamp`` [s] not filed yet (the state before it final: every input before it
-        has come, as in the in-process runner and the lock step) and send this robot's pieces for it."""
-        out: list[Message] = []
-        times = self.schedule.times
-        while self.next < len(times) and times[self.next] <= stamp:
-            t, k = times[self.next], self.next + 1
-            self.next += 1
-            key: Key = (t, P_REFORM, -1, ())
-            if self.history.base_key is not None and key < self.history.base_key:  # before the node's start
-                self.history.base = self.protocol.reform(self.history.base, k, {})  # (nobody's piece taken)
-                continue
-            out += self.file([Entry(key, "update", Boundary(k, t))], accept=False)
-            out += self.protocol.pieces(self.history.state_before(key), k, t)
-            self.owed[k] = self.protocol.owed(k)
-        return out
-
-    def take(self, m: ClusterPiece) -> list[Message]:
-        """A new mate's piece: kept in its boundary's entry, which is applied again (and what follows it)."""
-        self.accounting.counts["messages"] += 1
-        why = message_problem(m) or self.protocol.piece_problem(m)
-        pos = None if why else self.history.find((float(m.stamp), P_REFORM, -1, ()))
-        if why is None and pos is None:
-            why = "cluster piece for a re-forming not in the kept history"
-        if why is not None or pos is None:
-            self.accounting.message_rejected(why or "")
-            return []
-        b: Boundary = self.history.entries[pos].data
-        if b.pieces.get(m.sender) == m:
-            self.accounting.message_rejected("duplicate cluster piece")
-            return []
-        b.pieces[m.sender] = m
-        self.owed.get(b.k, set()).discard(m.sender)
-        self.accounting.counts["pieces_received"] += 1
-        return self.replay(pos, late=False)
