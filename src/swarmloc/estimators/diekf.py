@@ -86,6 +86,7 @@ SE(2) only (the covariance-intersection weight is SE(2)'s)."""
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -129,6 +130,8 @@ from swarmloc.node import (
 )
 from swarmloc.node.base import Reach
 from swarmloc.node.keys import SubKey
+
+log = logging.getLogger("swarmloc.node")
 
 __all__ = [
     "FORMS", "DistributedInvariantEKF", "Numbers", "Replica", "TeamProtocol", "TeamState",
@@ -564,6 +567,9 @@ class DistributedInvariantEKF(RobotNode):
         """:meth:`Node.step`; with a schedule, the boundaries up to the item's stamp are reached first
         (:meth:`Reforming.reach`) and a :class:`~swarmloc.messages.ClusterPiece` is taken by the re-forming."""
         if self.reforming is None or not self.started:
+            if self.reform and self.started and not self.counts["unplanned"]:  # no plan: said once
+                self.counts["unplanned"] = 1
+                log.warning("diekf robot %s: no recording to plan from: its clusters stay fixed", self.robot)
             return super().step(item)
         first = item[0] if isinstance(item, list | tuple) and item else item
         stamp = getattr(first, "stamp", None)
