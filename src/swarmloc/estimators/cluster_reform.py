@@ -36,6 +36,7 @@ import numpy as np
 from swarmloc.events import Detection
 from swarmloc.messages import ClusterPiece, Message, message_problem
 from swarmloc.node.keys import Entry, Key
+from swarmloc.node.protocol import same
 
 __all__ = [
     "P_REFORM", "Boundary", "Cut", "Pieces", "Reforming", "Schedule", "id_cut", "piece_weights", "seen_cut",
@@ -161,12 +162,15 @@ def stacked_bound(cluster: Sequence[int], old: Mapping[int, Any], block: Callabl
 
 @dataclass(slots=True)
 class Boundary:
-    """A re-forming's history entry (key ``(t, P_REFORM, -1, ())``): the schedule's boundary ``k`` at ``t`` [s] and
-    the pieces received for it so far (by sender)."""
+    """A re-forming's history entry (key ``(t, P_REFORM, -1, ())``): the schedule's boundary ``k`` at ``t`` [s], the
+    pieces received for it so far (by sender), and this robot's own as last sent (by receiver) with the state before
+    the boundary they were made from."""
 
     k: int
     t: float
     pieces: dict[int, ClusterPiece] = field(default_factory=dict)
+    sent: dict[int, Message] = field(default_factory=dict)
+    before: Any = None
 
 
 class Pieces(Protocol):
@@ -182,10 +186,10 @@ class Pieces(Protocol):
 
 class Reforming:
     """Part of a ``diekf`` node whose clusters re-form (:mod:`swarmloc.estimators.diekf`, "Clusters that re-form"):
-    files each
-    boundary of the schedule in the history before the first input stamped at or after it, sends this robot's
-    pieces, and takes its new mates' pieces (the boundary's entry re-applied with each). Made with the node's
-    protocol, the schedule, the node's history, its filing's ``file`` and ``replay``, and its accounting."""
+    files each boundary of the schedule in the history before the first input stamped at or after it, sends this
+    robot's pieces (again, revised, when a late input changed the state before the boundary: :meth:`revise`), and
+    takes its new mates' pieces (the boundary's entry re-applied with each). Made with the node's protocol, the
+    schedule, the node's history, its filing's ``file`` and ``replay``, and its accounting."""
 
     def __init__(self, protocol: Pieces, schedule: Schedule, history: Any, file: Callable[..., list[Message]],
                  replay: Callable[..., list[Message]], accounting: Any) -> None:  # fmt: skip
@@ -195,6 +199,8 @@ class Reforming:
         """The index of the next boundary to reach."""
         self.owed: dict[int, set[int]] = {}
         """Per boundary reached (index ``k``): the new mates whose pieces have not come yet."""
+        self.filed: list[Boundary] = []
+        """The boundaries filed in the history (those before its base are forgotten)."""
 
     def boundary(self) -> float | None:
         """The stamp [s] of the next boundary to reach (None: all reached)."""
@@ -219,9 +225,30 @@ class Reforming:
             if self.history.base_key is not None and key < self.history.base_key:  # before the node's start
                 self.history.base = self.protocol.reform(self.history.base, k, {})  # (nobody's piece taken)
                 continue
-            out += self.file([Entry(key, "update", Boundary(k, t))], accept=False)
-            out += self.protocol.pieces(self.history.state_before(key), k, t)
+            b = Boundary(k, t)
+            out += self.file([Entry(key, "update", b)], accept=False)
+            self.filed.append(b)
+            out += self.send(b)
             self.owed[k] = self.protocol.owed(k)
+        return out
+
+    def send(self, b: Boundary) -> list[Message]:
+        """This robot's pieces for boundary ``b`` from the state before it, those that differ from what it sent."""
+        b.before = self.history.state_before((b.t, P_REFORM, -1, ()))
+        new = {m.receiver: m for m in self.protocol.pieces(b.before, b.k, b.t)}
+        out = [m for r, m in new.items() if not same(b.sent.get(r), m)]
+        b.sent.update({m.receiver: m for m in out})
+        return out
+
+    def revise(self) -> list[Message]:
+        """The pieces of every boundary kept whose state before it changed since they were sent (a late input before
+        the boundary: a network driver may reach a boundary before every input before it is in), revised."""
+        base = self.history.base_key
+        self.filed = [b for b in self.filed if base is None or (b.t, P_REFORM, -1, ()) > base]
+        out: list[Message] = []
+        for b in self.filed:
+            if self.history.state_before((b.t, P_REFORM, -1, ())) is not b.before:
+                out += self.send(b)
         return out
 
     def take(self, m: ClusterPiece) -> list[Message]:

@@ -581,7 +581,7 @@ class DistributedInvariantEKF(RobotNode):
             if item.sender not in self.protocol.pos:  # a mate of another time (a network driver hears them all)
                 self.counts["broadcasts_other_cluster"] += 1
                 return out
-        return out if isinstance(item, Reach) else out + super().step(item)
+        return out if isinstance(item, Reach) else out + super().step(item) + self.reforming.revise()
 
     @property
     def dim(self) -> int:
