@@ -62,7 +62,7 @@ re-applies the boundary with it (:class:`Reforming`: the boundary is a history e
 stamped ``T``). The nodes equal the centralized prototype ``benchmarks/diekf_reform.py`` (tests/test_cluster_reform.py).
 Over the network (:mod:`swarmloc.net.lockstep`) a node reaches a boundary once nothing before it can still come, its
 groups after it wait for the pieces, a piece made before a late input is sent again revised, and the node hears the
-broadcasts of every robot it shares a cluster with at some time of the run (its :attr:`~RobotNode.team`; those of
+broadcasts of every robot it shares a cluster with at some time of the run (its ``team``; those of
 another time's cluster are dropped, counted ``broadcasts_other_cluster``): the run equals the in-process one
 (tests/test_net_progress.py).
 
