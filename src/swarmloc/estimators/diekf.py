@@ -50,20 +50,20 @@ engine replays the clusters in one compiled loop (``run_engine(source, "diekf", 
 ``benchmarks/diekf_cluster.py``.
 
 **Clusters that re-form** (``reform = period`` [s], ``[filter] diekf_reform``; with ``cluster = K``). As the robots
-move, a robot may come to see another cluster's robots more than its own's. Every ``period`` s the team is cut again
-by whom the robots saw (:mod:`swarmloc.estimators.cluster_reform`): a schedule computed from the recording, the same
-in every node (:meth:`DistributedInvariantEKF.plan`, which the in-process runner calls; a live source has no
-schedule and its clusters stay fixed). At a boundary ``T`` each node predicts its robot to ``T`` and starts its new
-cluster's replica from the covariance-intersection bound of the pieces (the robots of one old cluster in it):
-``blockdiag(Sigma_1 / w_1, ..., Sigma_m / w_m)``, each piece's exact correlations kept, none across pieces, its own
-``P_ii / w``. A piece's cross-covariances are in the replica of each of its robots; each sends its share to its new
-mates outside the piece (:class:`~swarmloc.messages.ClusterPiece`, each pair once, by its lower id), and a receiver
-re-applies the boundary with it (:class:`Reforming`: the boundary is a history entry keyed before every input
+move, a robot may come to see another cluster's robots more than its own's. Every ``period`` s the team is cut again by
+whom the robots saw (:mod:`swarmloc.estimators.cluster_reform`): a schedule computed from the recording, the same in
+every node (:meth:`DistributedInvariantEKF.plan`, which the in-process runner calls; a live source has no schedule and
+its clusters stay fixed). At a boundary ``T`` each node predicts its robot to ``T`` and starts its new cluster's replica
+from the covariance-intersection bound of the pieces (the robots of one old cluster in it): ``blockdiag(Sigma_1 / w_1,
+..., Sigma_m / w_m)``, each piece's exact correlations kept, none across pieces, its own ``P_ii / w``. A piece's
+cross-covariances are in the replica of each of its robots; each sends its share to its new mates outside the piece
+(:class:`~swarmloc.messages.ClusterPiece`, each pair once, by its lower id), and a receiver re-applies the boundary with
+it (:class:`~swarmloc.estimators.cluster_reform.Reforming`: the boundary is a history entry keyed before every input
 stamped ``T``). The nodes equal the centralized prototype ``benchmarks/diekf_reform.py`` (tests/test_cluster_reform.py).
 Over the network (:mod:`swarmloc.net.lockstep`) a node reaches a boundary once nothing before it can still come, its
 groups after it wait for the pieces, a piece made before a late input is sent again revised, and the node hears the
-broadcasts of every robot it shares a cluster with at some time of the run (its ``team``; those of
-another time's cluster are dropped, counted ``broadcasts_other_cluster``): the run equals the in-process one
+broadcasts of every robot it shares a cluster with at some time of the run (its ``team``; those of another time's
+cluster are dropped, counted ``broadcasts_other_cluster``): the run equals the in-process one
 (tests/test_net_progress.py).
 
 Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
@@ -570,7 +570,9 @@ class DistributedInvariantEKF(RobotNode):
 
     def step(self, item: Any) -> list[Message]:
         """:meth:`Node.step`; with a schedule, the boundaries up to the item's stamp are reached first
-        (:meth:`Reforming.reach`) and a :class:`~swarmloc.messages.ClusterPiece` is taken by the re-forming."""
+        (:meth:`~swarmloc.estimators.cluster_reform.Reforming.reach`), a
+        :class:`~swarmloc.messages.ClusterPiece` is taken by the re-forming, and the pieces a late input changed are
+        sent again."""
         if self.reforming is None or not self.started:
             if self.reform and self.started and not self.counts["unplanned"]:  # no plan: said once
                 self.counts["unplanned"] = 1
