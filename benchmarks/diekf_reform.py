@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -24,6 +25,7 @@ from swarm_scene import ARENAS, arena_side, hilbert_index, scene
 
 from swarmloc.datasets.source import Source
 from swarmloc.estimators import node_options
+from swarmloc.estimators.cluster_reform import Schedule, id_cut, seen_schedule, stacked_bound
 from swarmloc.estimators.world_form import WorldForm, robot_pair, world_step
 from swarmloc.events import Detection, Odometry
 from swarmloc.kernels import invariant as I
@@ -55,8 +57,6 @@ class Clustered:
         self.fused = self.gated = self.moved = 0
         self.mates = 0
         """Cluster mates of the observer summed over the detections (the broadcast's receivers)."""
-        self.seen = np.zeros((n, n))
-        """Detections between two robots (either way) since the last re-forming."""
 
     def _add(self, g: list[int], P: np.ndarray) -> None:
         for k, r in enumerate(g):
@@ -68,14 +68,21 @@ class Clustered:
         c, k = self.where[r]
         return self.P[c][3 * k : 3 * k + 3, 3 * k : 3 * k + 3]
 
-    def advance(self, r: int, t: float) -> None:
+    def predicted(self, r: int, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Robot ``r``'s pose and covariance predicted to ``t`` (a copy; the state is not changed)."""
         dt = t - self.t[r]
         if dt <= 0:
+            return self.x[r].copy(), self.block(r).copy()
+        x0, y0, th, Pr = world_step(*self.x[r].tolist(), self.block(r), *self.cmd[r], dt, self.noise)
+        return np.array([x0, y0, th]), Pr
+
+    def advance(self, r: int, t: float) -> None:
+        """Robot ``r`` predicted to ``t`` where the nodes predict it: its odometry, its detections, an update of the
+        cluster that detected it, a re-forming (a prediction split in two differs in the 7th digit)."""
+        if t <= self.t[r]:
             return
         c, k = self.where[r]
-        x0, y0, th, Pr = world_step(*self.x[r].tolist(), self.block(r), *self.cmd[r], dt, self.noise)
-        self.x[r] = (x0, y0, th)
-        self.P[c][3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = Pr
+        self.x[r], self.P[c][3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = self.predicted(r, t)
         self.t[r] = t
 
     def odometry(self, e: Odometry) -> None:
@@ -85,16 +92,17 @@ class Clustered:
     def detection(self, d: Detection) -> None:
         i, j = d.observer, d.target
         self.mates += len(self.groups[self.where[i][0]]) - 1
-        self.seen[i, j] += 1
-        self.seen[j, i] += 1
         self.advance(i, d.t)
-        self.advance(j, d.t)
-        lin = robot_pair(d, self.x[i], self.x[j])
+        ci, ki = self.where[i]
+        cj, kj = self.where[j]
+        xj, Pjj = self.predicted(j, d.t)  # the target's answer (predicted only if its cluster's update is applied)
+        lin = robot_pair(d, self.x[i], xj)
         if lin is None:
             return
         r, Hi, Hj, R = lin
-        ci, ki = self.where[i]
-        cj, kj = self.where[j]
+        kept = (self.x[j].copy(), self.P[cj].copy(), self.t[j])
+        if ci == cj:
+            self.advance(j, d.t)
         P = self.P[ci]
         H = np.zeros((len(r), P.shape[0]))
         H[:, 3 * ki : 3 * ki + 3] = Hi
@@ -102,7 +110,7 @@ class Clustered:
             H[:, 3 * kj : 3 * kj + 3] = Hj
             Pw, Rw = P, R
         else:  # the outsider's belief only: covariance intersection, one-sided
-            A, B = Hi @ self.block(i) @ Hi.T, Hj @ self.block(j) @ Hj.T
+            A, B = Hi @ self.block(i) @ Hi.T, Hj @ Pjj @ Hj.T
             w = joint_weight(A, B, R, P.shape[0])
             Pw, Rw = P / w, R + B / (1.0 - w)
         PH = Pw @ H.T
@@ -110,6 +118,7 @@ class Clustered:
         Sinv = np.linalg.inv(S)
         if r @ Sinv @ r > self.thr:
             self.gated += 1
+            self.x[j], self.P[cj], self.t[j] = kept
             return
         G = PH @ Sinv
         delta = G @ r
@@ -119,31 +128,27 @@ class Clustered:
             self.x[m] = I.left_correct(self.x[m], delta[3 * k : 3 * k + 3])
         self.fused += 1
 
-    def reform(self, groups: list[list[int]], power: float = 1.0) -> None:
-        """The team cut into ``groups``: each new cluster from the CI bound of its pieces (module docstring), piece
-        ``k`` of ``s_k`` robots weighted ``w_k = s_k^power / sum s^power`` (1: the bound's log det minimized)."""
+    def reform(self, groups: Sequence[Sequence[int]], power: float = 1.0, t: float | None = None) -> None:
+        """The team cut into ``groups``: each new cluster from the CI bound of its pieces (module docstring;
+        :func:`~swarmloc.estimators.cluster_reform.stacked_bound`, the nodes' own), piece ``k`` of ``s_k`` robots
+        weighted ``w_k = s_k^power / sum s^power`` (1: the bound's log det minimized). ``t``: every robot predicted
+        to it first (each node predicts its own robot to the re-forming's stamp)."""
+        if t is not None:
+            for r in range(len(self.x)):
+                self.advance(r, t)
         oldP, where = self.P, self.where.copy()
         self.groups, self.P = [], []
         for g in groups:
-            pieces: dict[int, list[int]] = {}
-            for r in g:
-                pieces.setdefault(int(where[r][0]), []).append(r)
-            sizes = {c: len(p) ** power for c, p in pieces.items()}
-            tot = sum(sizes.values())
-            P = np.zeros((3 * len(g), 3 * len(g)))
-            order = [r for p in pieces.values() for r in p]
-            rows = {r: k for k, r in enumerate(order)}
-            for c, p in pieces.items():
-                w = sizes[c] / tot  # 1 for a cluster of one piece
-                for a in p:
-                    for b in p:
-                        ka, kb = where[a][1], where[b][1]
-                        P[3 * rows[a] : 3 * rows[a] + 3, 3 * rows[b] : 3 * rows[b] + 3] = (
-                            oldP[c][3 * ka : 3 * ka + 3, 3 * kb : 3 * kb + 3] / w
-                        )
-                if len(pieces) > 1:
-                    self.moved += len(p)
-            self._add(order, P)
+            old = {r: int(where[r][0]) for r in g}
+
+            def block(a: int, b: int) -> np.ndarray:
+                (ca, ka), kb = where[a], where[b][1]
+                return oldP[ca][3 * ka : 3 * ka + 3, 3 * kb : 3 * kb + 3]
+
+            B = stacked_bound(g, old, block, 3, power)
+            self._add(list(g), B.transpose(0, 2, 1, 3).reshape(3 * len(g), 3 * len(g)))
+            if len(set(old.values())) > 1:
+                self.moved += len(g)
 
     def belief(self, r: int) -> tuple[np.ndarray, np.ndarray]:
         return self.x[r].copy(), self.block(r).copy()
@@ -157,52 +162,30 @@ def hilbert_groups(f: Clustered, K: int, side: float) -> list[list[int]]:
     return [order[a : a + K] for a in range(0, len(order), K)]
 
 
-def seen_groups(f: Clustered, K: int, margin: float) -> list[list[int]]:
-    """``"seen"``: the clusters kept but for the robots that saw (or were seen by) the robots of another cluster more
-    than ``margin`` times as often as their own's, plus one, since the last re-forming: such a robot moves to that
-    cluster if it has room (fewer than ``3K / 2`` robots) and its own keeps one. Robots with the largest gain
-    ``c_best - margin (c_own + 1)`` first (ties: lower id), counts as they stand (a move changes the others')."""
-    groups = [list(g) for g in f.groups]
-    own = {r: k for k, g in enumerate(groups) for r in g}
-
-    def counts(r: int) -> list[float]:
-        return [float(f.seen[r, g].sum()) for g in groups]
-
-    def gain(r: int) -> float:
-        c = counts(r)
-        return max(c) - margin * (c[own[r]] + 1)
-
-    for r in sorted(own, key=lambda r: (-gain(r), r)):
-        c, k = counts(r), own[r]
-        best = max(range(len(groups)), key=lambda q: (c[q], -q))
-        if best != k and c[best] > margin * (c[k] + 1) and len(groups[best]) < K + K // 2 and len(groups[k]) > 1:
-            groups[k].remove(r)
-            groups[best].append(r)
-            own[r] = best
-    f.seen[:] = 0
-    return [g for g in groups if g]
-
-
 def replay(src: Source, K: int, period: float = 0.0, how: str = "seen", margin: float = 2.0,
            power: float = 1.0) -> dict[str, Any]:  # fmt: skip
     """One run of clusters of ``K`` (``K >= n``: the exact filter) re-formed every ``period`` s (0: never) by ``how``
-    (``"seen"``: :func:`seen_groups` with ``margin``; ``"hilbert"``: :func:`hilbert_groups`; ``power``: the
-    pieces' weights, :meth:`Clustered.reform`): RMSE [m] and ANEES/dof
+    (``"seen"``: :func:`~swarmloc.estimators.cluster_reform.seen_schedule` with ``margin``, the nodes' schedule;
+    ``"hilbert"``: :func:`hilbert_groups`; ``power``: the pieces' weights, :meth:`Clustered.reform`): RMSE [m] and
+    ANEES/dof
     over every robot and record time, detections fused and gated, robots moved, the observer's cluster mates per
-    detection (the receivers of its broadcast), the largest cluster, and the final clusters."""
+    detection (the receivers of its broadcast), the largest cluster, the final clusters, and ``beliefs``: per robot
+    ``(t, x, P)`` at every record time (world-frame covariance, as the nodes')."""
     opts = node_options("diekf", src.config, src.landmarks)
     n = len(src.robots)
     side = arena_side(n) if n > 3 else 1.0
-    f = Clustered(src, opts["noise"], opts["gate"], [list(range(a, min(a + K, n))) for a in range(0, n, K)])
+    f = Clustered(src, opts["noise"], opts["gate"], [list(g) for g in id_cut(src.robots, K)])
+    sched = seen_schedule(src.events, src.robots, K, period, margin) if period > 0 else Schedule((), ((),))
     events = sorted(src.events, key=lambda e: e.stamp)
     errs, nees = [], []
-    q, next_reform = 0, period if period > 0 else math.inf
+    beliefs: dict[int, list[tuple[float, np.ndarray, np.ndarray]]] = {r: [] for r in src.robots}
+    q, b = 0, 0
     for t in [*src.record_times(), math.inf]:
         while q < len(events) and events[q].stamp <= t:
             e = events[q]
-            while e.stamp >= next_reform:
-                f.reform(hilbert_groups(f, K, side) if how == "hilbert" else seen_groups(f, K, margin), power)
-                next_reform += period
+            while b < len(sched.times) and e.stamp >= sched.times[b]:
+                f.reform(hilbert_groups(f, K, side) if how == "hilbert" else sched.cuts[b + 1], power, sched.times[b])
+                b += 1
             if isinstance(e, Odometry):
                 f.odometry(e)
             else:
@@ -212,14 +195,14 @@ def replay(src: Source, K: int, period: float = 0.0, how: str = "seen", margin: 
             break
         for r in src.robots:
             truth = src.truth(r, np.array([t]))[0]
-            f.advance(r, t)
-            x, P = f.x[r], f.block(r)
+            x, P = f.predicted(r, t)
+            beliefs[r].append((t, x, P))
             errs.append(np.hypot(*(x[:2] - truth[:2])))
             xi = SE2.log(SE2.from_xytheta(truth) @ SE2.inverse(SE2.from_xytheta(x)))  # world-frame error
             nees.append(xi @ np.linalg.solve(P, xi))
     return {"rmse": float(np.sqrt(np.mean(np.square(errs)))), "anees": float(np.mean(nees) / 3), "fused": f.fused,
             "gated": f.gated, "moved": f.moved, "mates": f.mates / max(f.fused + f.gated, 1),
-            "largest": max(len(g) for g in f.groups), "groups": f.groups}  # fmt: skip
+            "largest": max(len(g) for g in f.groups), "groups": f.groups, "beliefs": beliefs}  # fmt: skip
 
 
 def main() -> None:

@@ -33,7 +33,10 @@ teammates within its 1.5 m sensor (10 detections/s at 5 Hz) in every team; ``spr
 ``3 m sqrt(n / 5)`` with the robots free to leave it (the previous scene, whose density is not constant);
 ``grouped``, the bounded arena with the ids along a Hilbert curve through the start positions, so that a cluster of
 ``K`` consecutive ids is ``K`` robots that start near each other (clusters formed by proximity at deployment).
-Clusters that re-form as the robots move (a centralized prototype, not in the nodes yet): benchmarks/diekf_reform.py.
+``--period p``: the clusters re-form every ``p`` s (``[filter] diekf_reform``,
+:mod:`swarmloc.estimators.cluster_reform`; benchmarks/diekf_reform.py is its centralized prototype); networked, a
+node hears the broadcasts of every robot it shares a cluster with at some time of the run, and its lock step waits
+at a boundary for its new mates' pieces.
 """
 
 from __future__ import annotations
@@ -86,11 +89,17 @@ def counted(node: Any, traffic: Counter[str]) -> None:
     node.step = counting
 
 
-def options(src: Source, cluster: int) -> dict[str, Any]:
-    return {**node_options("diekf", src.config, src.landmarks), "cluster": cluster}
+def options(src: Source, cluster: int, period: float = 0.0) -> dict[str, Any]:
+    """``diekf``'s options: clusters of ``cluster`` re-formed every ``period`` s (0: fixed)."""
+    return {
+        **node_options("diekf", src.config, src.landmarks),
+        "cluster": cluster,
+        **({"reform": period} if period else {}),
+    }
 
 
-def in_process(src: Source, n: int, cluster: int, duration: float, engine: bool = False) -> tuple[dict, RunResult]:
+def in_process(src: Source, n: int, cluster: int, duration: float, engine: bool = False,
+               period: float = 0.0) -> tuple[dict, RunResult]:  # fmt: skip
     """One run of the nodes in process (``engine``: the exact filter as the engine's replay, no traffic): traffic and
     fused detections per robot and second, RMSE, ANEES/dof and CPU [s]; and the run."""
     traffic: Counter[str] = Counter()
@@ -98,7 +107,7 @@ def in_process(src: Source, n: int, cluster: int, duration: float, engine: bool 
     if engine:
         res = run_engine(src, "diekf", backend="numba", **options(src, cluster))
     else:
-        nodes = make_team("diekf", src.initial, **options(src, cluster))
+        nodes = make_team("diekf", src.initial, **options(src, cluster, period))
         for node in nodes:
             counted(node, traffic)
         res = run(nodes, src.events, src.record_times(), truth=src.truth)
@@ -109,12 +118,13 @@ def in_process(src: Source, n: int, cluster: int, duration: float, engine: bool 
             **per}, res  # fmt: skip
 
 
-def over(seeds: list[int], n: int, cluster: int, duration: float, arena: str, engine: bool = False) -> dict:
+def over(seeds: list[int], n: int, cluster: int, duration: float, arena: str, engine: bool = False,
+         period: float = 0.0) -> dict:  # fmt: skip
     """:func:`in_process` on the scenes of ``seeds``: each figure's mean over them, ``rmses`` per seed, and the
     fractions of (robot, record time) whose ANEES/dof over the seeds is within or above their 95% bounds."""
     rows, results = [], []
     for seed in seeds:
-        row, res = in_process(scene(n, duration, seed, arena), n, cluster, duration, engine)
+        row, res = in_process(scene(n, duration, seed, arena), n, cluster, duration, engine, period)
         rows.append(row)
         results.append(res)
     mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
@@ -128,10 +138,11 @@ def over(seeds: list[int], n: int, cluster: int, duration: float, arena: str, en
     return {**mean, "rmses": [r["rmse"] for r in rows], "in": inside / max(total, 1), "above": above / max(total, 1)}
 
 
-def networked(src: Source, n: int, cluster: int, duration: float, max_wall: float) -> dict[str, Any]:
+def networked(src: Source, n: int, cluster: int, duration: float, max_wall: float,
+              period: float = 0.0) -> dict[str, Any]:  # fmt: skip
     """Every robot a NetNode on its own Zenoh session, threads of this process (tests/test_net.py's thread_team);
     its figures, and the in-process run's RMSE, ANEES/dof and the networked beliefs' largest difference from it."""
-    f = dataclasses.replace(src.config.filter, diekf_cluster=cluster)
+    f = dataclasses.replace(src.config.filter, diekf_cluster=cluster, diekf_reform=period if cluster else 0.0)
     cfg = dataclasses.replace(src.config, filter=f)
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(n)]
     sessions, nets = [], []
@@ -146,6 +157,7 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
             ev = src.own_events(r)
             node = make_node("diekf", r, src.initial[r], cfg, src.landmarks, team=src.robots)
             node.start(min(e.t0 if isinstance(e, Odometry) else e.stamp for e in ev))
+            node.plan(src.events)
             nets.append(NetNode(node, ev, session=s, team=f"swarm{os.getpid()}", roster=src.robots,
                                 record_times=src.record_times(), detected=detected,
                                 on_belief=beliefs.keep))  # fmt: skip
@@ -162,18 +174,20 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
             s.close()
     wall = time.perf_counter() - t0
     net: Counter[str] = Counter()
-    fused = 0
+    fused = pieces = 0
     for rep in reports.values():
         net.update(rep.net)
         fused += rep.stats.get("fused", 0)
+        pieces += rep.stats.get("pieces_received", 0)
     k = n * duration
-    ref, res = in_process(src, n, cluster, duration)
+    ref, res = in_process(src, n, cluster, duration, period=period if cluster else 0.0)
     return {
         "wall": wall, "reports": len(reports), "fused": fused / k, "progress": net["progress_received"] / k,
         "prog_wall": net["progress_received"] / n / wall,
         "sent": net["sent"] / k, "recv": net["received"] / k, "bc_sent": net["broadcasts_sent"] / k,
         "bc_recv": net["broadcasts_received"] / k, "bc_bytes": net["broadcast_bytes"] / k,
-        "rmse": ref["rmse"], "anees": ref["anees"], "diff": largest_difference(beliefs, res),
+        "rmse": ref["rmse"], "anees": ref["anees"], "diff": largest_difference(beliefs, res), "pieces": pieces,
+        "ref_pieces": res.stats.get("pieces_received", 0),
     }  # fmt: skip
 
 
@@ -199,6 +213,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--seeds", type=int, default=1, help="this many seeds from --seed, every row their mean")
     ap.add_argument("--arena", choices=ARENAS, default="bounded", help="benchmarks/swarm_scene.py")
+    ap.add_argument("--period", type=float, default=0.0, help="in process: the clusters re-form every this many s")
     ap.add_argument("--net", action="store_true", help="networked nodes (threads, 127.0.0.1): traffic only")
     ap.add_argument("--max-wall", type=float, default=600.0)
     args = ap.parse_args()
@@ -219,12 +234,12 @@ def main() -> None:
     for n in sizes:
         exact = math.nan
         for c in settings:
-            name = "exact" if c == 0 else f"K={c}"
+            name = "exact" if c == 0 else f"K={c}" + (f"/{args.period:g}s" if args.period else "")
             if args.net:
                 if c == 0 and n > args.exact_up_to:
                     continue
-                rs = [networked(scene(n, args.duration, s, args.arena), n, c, args.duration, args.max_wall)
-                      for s in seeds]  # fmt: skip
+                rs = [networked(scene(n, args.duration, s, args.arena), n, c, args.duration, args.max_wall,
+                                args.period) for s in seeds]  # fmt: skip
                 r = {k: float(np.mean([x[k] for x in rs])) for k in rs[0]} | {"diff": max(x["diff"] for x in rs)}
                 print(f"{n:>6} {name:>10} {r['fused']:>6.1f} {r['sent']:>7.1f} {r['recv']:>7.1f} {r['bc_sent']:>7.1f} "
                       f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['progress']:>8.1f} {r['prog_wall']:>9.1f} "
@@ -232,7 +247,7 @@ def main() -> None:
                       + ("" if r["reports"] == n else f"  ({r['reports']} of {n} reports)"), flush=True)  # fmt: skip
                 continue
             engine = c == 0 and n > args.exact_up_to
-            r = over(seeds, n, c, args.duration, args.arena, engine)
+            r = over(seeds, n, c, args.duration, args.arena, engine, args.period if c else 0.0)
             if c == 0:
                 exact = r["rmse"]
                 name += " (engine)" if engine else ""

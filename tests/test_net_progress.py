@@ -5,7 +5,8 @@ detected by only; any other node (and a live source) to every teammate's, as bef
 Offline (a :class:`NetNode` on a session that records its declarations): the keys it subscribes to are exactly the
 rule's; lockstep neither waits for a teammate it does not watch nor declares it lost. Live (127.0.0.1, threads of
 this process): 10 robots of the grouped swarm scene in clusters of 5, each watching fewer than its 9 teammates,
-equal the in-process run.
+equal the in-process run. Clusters that re-form (``diekf_reform``): the lock step reaches a boundary once settled and
+holds the node's groups for its new mates' pieces; networked, the run equals the in-process one.
 """
 
 from __future__ import annotations
@@ -25,10 +26,11 @@ from test_net import max_diff, reference, thread_team
 
 from swarmloc.config import Config
 from swarmloc.datasets.source import Source
+from swarmloc.messages import ClusterPiece
 from swarmloc.net.entry import make_node
 from swarmloc.net.lockstep import detected_pairs, watched
 from swarmloc.net.process import NetNode
-from swarmloc.net.schema import Progress
+from swarmloc.net.schema import BroadcastHead, Progress
 from swarmloc.net.team import TeamRun
 from swarmloc.net.transport import robot_key
 
@@ -45,10 +47,10 @@ def _scene_module() -> ModuleType:
     return sys.modules["swarm_scene"]
 
 
-def clustered(src: Source, k: int) -> Source:
-    """``src`` with ``[filter] diekf_cluster = k``."""
+def clustered(src: Source, k: int, period: float = 0.0) -> Source:
+    """``src`` with ``[filter] diekf_cluster = k`` (and ``diekf_reform = period``)."""
     cfg: Config = src.config
-    f = dataclasses.replace(cfg.filter, diekf_cluster=k)
+    f = dataclasses.replace(cfg.filter, diekf_cluster=k, diekf_reform=period)
     return dataclasses.replace(src, config=dataclasses.replace(cfg, filter=f))
 
 
@@ -83,6 +85,21 @@ class _Declarations:
 
     def liveliness(self) -> _Liveliness:
         return _Liveliness()
+
+
+class _Pub(_Decl):
+    def put(self, payload: bytes, **kw: Any) -> None:
+        pass
+
+
+class _Quiet(_Declarations):
+    """A session that sends nothing anywhere (its publishers and puts drop what they are given)."""
+
+    def declare_publisher(self, key: str, **kw: Any) -> _Pub:
+        return _Pub()
+
+    def put(self, key: str, payload: bytes, **kw: Any) -> None:
+        pass
 
 
 def opened(src: Source, robot: int, est: str = "diekf", **kw: Any) -> tuple[NetNode, list[str]]:
@@ -158,3 +175,67 @@ def test_diekf_in_clusters_watching_fewer_teammates_equals_in_process() -> None:
     ref = reference(src, "diekf")
     assert ref.stats["fused"] > 100
     assert max_diff(dataclasses.replace(ref, tracks=run.tracks(src.truth)), ref) <= 1e-6
+
+
+@pytest.mark.unit
+def test_lockstep_reaches_a_boundary_once_settled_and_holds_groups_for_the_pieces() -> None:
+    """6 robots of the grouped scene in clusters of 3 re-formed every second (``diekf_reform = 1``): at 1 s robot 2
+    joins robots 3, 4 and 5, and robots 3 and 4 owe it their pieces (their cross-covariances with 4, 5 and with 5).
+    Robot 2 hears the broadcasts of the 5 robots it ever shares a cluster with; its lock step reaches the boundary only
+    once the teammates it watches have read their sources past it, then holds its groups from 1 s on until both
+    pieces came (or it waited ``update_timeout`` s: it goes on without them, counted)."""
+    src = clustered(_scene_module().scene(6, 10.0, 1, "grouped"), 3, 1.0)
+    node = make_node("diekf", 2, src.initial[2], src.config, src.landmarks, team=src.robots)
+    node.start(src.t_start)
+    node.plan(src.events)
+    assert node.team == (0, 1, 2, 3, 4, 5) and node.boundary() == 1.0
+    net = NetNode(node, src.own_events(2), session=_Quiet(), team="t", roster=src.robots, record_times=(),
+                  detected=detected_pairs(src.events))  # fmt: skip
+    ls = net.lockstep
+    assert net.watched is not None
+    ls.alive |= set(net.watched)
+    for r in net.watched:
+        net.broadcaster.on_sample(BroadcastHead(robot=r, n=0, t=math.inf))
+        ls.on_progress(Progress(robot=r, t=0.9))
+    ls.may_feed(1.05)
+    assert node.boundary() == 1.0  # the teammates have not read their sources to 1 s: not reached
+    for r in net.watched:
+        ls.on_progress(Progress(robot=r, t=1.1))
+    ls.may_feed(1.05)
+    assert node.boundary() == 2.0 and node.awaits(1.0) is not None and node.awaits(0.95) is None
+    assert not ls.boundaries_in(1.0) and ls.boundaries_in(0.95)
+    for a, later in ((3, (4, 5)), (4, (5,))):
+        net._step(ClusterPiece(sender=a, receiver=2, stamp=1.0, robots=later, sigma=(0.0,) * 9 * len(later)))
+    assert node.awaits(1.0) is None and ls.boundaries_in(1.0) and node.stats()["pieces_received"] == 2
+    with pytest.raises(RuntimeError, match="before the first input"):
+        node.plan(src.events)
+    for r in net.watched:
+        ls.on_progress(Progress(robot=r, t=2.1))
+    ls.may_feed(2.05)  # boundary 2 s: nothing changes, nothing is owed
+    assert node.boundary() == 3.0 and ls.boundaries_in(2.0)
+    assert ls.counts["boundary_not_received"] == 0
+    gone = clustered(_scene_module().scene(6, 10.0, 1, "grouped"), 3, 1.0)
+    late = make_node("diekf", 2, gone.initial[2], gone.config, gone.landmarks, team=gone.robots)
+    late.start(gone.t_start)
+    late.plan(gone.events)
+    net = NetNode(late, gone.own_events(2), session=_Quiet(), team="t", roster=gone.robots, record_times=())
+    net.lockstep.may_feed(1.05)  # nobody alive: reached at once
+    why = late.awaits(1.0)
+    assert why is not None and not net.lockstep.boundaries_in(1.0)
+    net.lockstep._awaiting[why] -= 1e6  # as if waited for long
+    assert net.lockstep.boundaries_in(1.0) and net.lockstep.counts["boundary_not_received"] == 1
+
+
+@pytest.mark.network
+def test_diekf_reforming_networked_equals_in_process() -> None:
+    """The same 6 robots for 10 s (threads of this process on 127.0.0.1, benchmarks/diekf_swarm.py's networked run):
+    the clusters re-form every second, the pieces travel (as many taken as in process), and every recorded mean and
+    covariance equals the in-process run's to 1e-6."""
+    spec = importlib.util.spec_from_file_location("diekf_swarm", BENCH / "diekf_swarm.py")
+    assert spec is not None and spec.loader is not None
+    _scene_module()
+    swarm = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(swarm)
+    r = swarm.networked(_scene_module().scene(6, 10.0, 1, "grouped"), 6, 3, 10.0, 120.0, 1.0)
+    assert r["reports"] == 6 and r["diff"] <= 1e-6, r
+    assert r["pieces"] == r["ref_pieces"] == 2

@@ -333,6 +333,9 @@ class FilterConfig(Section):
     """fls and flsd also output each pose as it leaves the window (smoother_lag s late), scored as <name>_delayed"""
     diekf_cluster: Annotated[int, msgspec.Meta(ge=0)] = 0
     """robots per diekf cluster (0: the exact filter over the whole team)"""
+    diekf_reform: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """[s] period at which diekf's clusters re-form from whom the robots saw (0: fixed clusters; needs diekf_cluster
+    and a recording)"""
     diekf_adaptive: bool | Literal["median"] = False
     """diekf scales its process noise online from its own innovations (swarmloc.estimators.adaptive_noise): true
     (covariance matching, only up) or "median" (median matching after dead reckoning, down to 0.01, with landmarks)"""

@@ -13,6 +13,7 @@ Types:
 
 * :class:`BeliefQuery` / :class:`BeliefAnswer`: "your belief at my detection ``t``" (thesis estimator,
   distributed EKF, covariance intersection; the thesis' localizer asks a detected neighbour for its belief);
+* :class:`ClusterPiece`: ``diekf``'s clusters re-formed, a piece of an old cluster's replica for a new mate;
 * :class:`RdlStateQuery` / :class:`RdlState` / :class:`RdlUpdate`: recursive decentralized fusion's pairwise
   exchange (Luft et al. 2018): the observer asks for the target's Cartesian state, covariance and
   cross-covariance factor, computes the joint update, and sends the target its part, naming the revision of
@@ -174,6 +175,27 @@ class TeamUpdate(Message, frozen=True, kw_only=True, tag="team_update"):
         return TeamUpdate(sender=self.sender, receiver=self.receiver, stamp=self.stamp, sub=self.sub)
 
 
+MAX_PIECE = 64
+"""The most robots one :class:`ClusterPiece` names (its ``sigma`` carries ``n x n`` numbers for each)."""
+
+
+class ClusterPiece(Message, frozen=True, kw_only=True, tag="cluster_piece"):
+    """At a re-forming of ``diekf``'s clusters (the boundary ``stamp``; :mod:`swarmloc.estimators.cluster_reform`),
+    the sender's share of its piece (its old cluster's robots in its new cluster) for a new cluster mate outside the
+    piece: the old replica's cross-covariances ``Sigma_sb`` of the sender with each robot ``b`` of ``robots`` (the
+    piece's robots after the sender in id order), ``n x n`` each (3: SE(2)), row-major, in that order. The receiver
+    builds its new replica from the pieces (:func:`~swarmloc.estimators.cluster_reform.stacked_bound`)."""
+
+    robots: Annotated[tuple[int, ...], msgspec.Meta(max_length=MAX_PIECE)] = ()
+    n: int = 3
+    sigma: Annotated[tuple[float, ...], msgspec.Meta(max_length=MAX_PIECE * 9)] = ()
+
+    def blocks(self) -> dict[int, np.ndarray]:
+        """``b -> Sigma_sb (n, n)`` for each robot of :attr:`robots`."""
+        S = np.reshape(np.array(self.sigma, dtype=float), (len(self.robots), self.n, self.n))
+        return {int(b): S[k] for k, b in enumerate(self.robots)}
+
+
 def _finite(xs: tuple, n: int) -> bool:
     if len(xs) != n:
         return False
@@ -296,8 +318,13 @@ def message_problem(m: Message) -> str | None:
         w = m.scale
         if isinstance(w, bool) or not isinstance(w, int | float) or not 0.0 < w <= 1.0:
             return f"{name}: scale must be a number in (0, 1], got {w!r}"
+    elif isinstance(m, ClusterPiece):
+        if m.n != 3 or not all(isinstance(b, int) and not isinstance(b, bool) for b in m.robots):
+            return f"{name}: n must be 3 (clusters are SE(2) only) and robots integer ids"
+        if len(set(m.robots)) != len(m.robots) or m.sender in m.robots or not _finite(m.sigma, 9 * len(m.robots)):
+            return f"{name}: robots must be distinct teammates and sigma 9 finite numbers for each"
     return None
 
 
 Answer = BeliefAnswer | RdlState
-AnyMessage = BeliefQuery | BeliefAnswer | RdlStateQuery | RdlState | RdlUpdate | TeamUpdate
+AnyMessage = BeliefQuery | BeliefAnswer | RdlStateQuery | RdlState | RdlUpdate | TeamUpdate | ClusterPiece

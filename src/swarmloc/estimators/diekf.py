@@ -49,6 +49,23 @@ engine replays the clusters in one compiled loop (``run_engine(source, "diekf", 
 :mod:`swarmloc.engine.joint_clusters`). The accuracy cost and the cost per robot against team size:
 ``benchmarks/diekf_cluster.py``.
 
+**Clusters that re-form** (``reform = period`` [s], ``[filter] diekf_reform``; with ``cluster = K``). As the robots
+move, a robot may come to see another cluster's robots more than its own's. Every ``period`` s the team is cut again by
+whom the robots saw (:mod:`swarmloc.estimators.cluster_reform`): a schedule computed from the recording, the same in
+every node (:meth:`DistributedInvariantEKF.plan`, which the in-process runner calls; a live source has no schedule and
+its clusters stay fixed). At a boundary ``T`` each node predicts its robot to ``T`` and starts its new cluster's replica
+from the covariance-intersection bound of the pieces (the robots of one old cluster in it): ``blockdiag(Sigma_1 / w_1,
+..., Sigma_m / w_m)``, each piece's exact correlations kept, none across pieces, its own ``P_ii / w``. A piece's
+cross-covariances are in the replica of each of its robots; each sends its share to its new mates outside the piece
+(:class:`~swarmloc.messages.ClusterPiece`, each pair once, by its lower id), and a receiver re-applies the boundary with
+it (:class:`~swarmloc.estimators.cluster_reform.Reforming`: the boundary is a history entry keyed before every input
+stamped ``T``). The nodes equal the centralized prototype ``benchmarks/diekf_reform.py`` (tests/test_cluster_reform.py).
+Over the network (:mod:`swarmloc.net.lockstep`) a node reaches a boundary once nothing before it can still come, its
+groups after it wait for the pieces, a piece made before a late input is sent again revised, and the node hears the
+broadcasts of every robot it shares a cluster with at some time of the run (its ``team``; those of another time's
+cluster are dropped, counted ``broadcasts_other_cluster``): the run equals the in-process one
+(tests/test_net_progress.py).
+
 Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
 ``RdlStateQuery`` keyed as the detection would be were it of that teammate
 (:func:`~swarmloc.estimators.state_exchange.anonymous_sub`), as ``rdl`` does; the detection given a robot is
@@ -74,13 +91,16 @@ SE(2) only (the covariance-intersection weight is SE(2)'s)."""
 
 from __future__ import annotations
 
+import logging
+import math
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, ClassVar, Literal, Protocol
 
 import numpy as np
 
 from swarmloc.estimators.adaptive_noise import Innovation, MedianScale, NoiseScale, innovation_terms
+from swarmloc.estimators.cluster_reform import Boundary, Reforming, Schedule, seen_schedule, stacked_bound
 from swarmloc.estimators.dekf import DEGENERATE, FilterState
 from swarmloc.estimators.odometry_fault import FaultMonitor, broadcast_evidence, observer_evidence
 from swarmloc.estimators.state_exchange import StateQueries
@@ -88,7 +108,17 @@ from swarmloc.estimators.world_form import FORMS, TeamState, robot_pair, world_s
 from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.kernels.ci import W_BOUNDS, joint_weight
 from swarmloc.lie import SE2, SE3
-from swarmloc.messages import Answer, BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate, flat
+from swarmloc.messages import (
+    Answer,
+    BeliefAnswer,
+    BeliefQuery,
+    ClusterPiece,
+    Message,
+    RdlState,
+    RdlStateQuery,
+    TeamUpdate,
+    flat,
+)
 from swarmloc.motion.odocal import OdometryCalibration
 from swarmloc.node import (
     FUSED,
@@ -104,7 +134,10 @@ from swarmloc.node import (
     positive_definite,
     usable_covariance,
 )
+from swarmloc.node.base import Reach
 from swarmloc.node.keys import SubKey
+
+log = logging.getLogger("swarmloc.node")
 
 __all__ = [
     "FORMS", "DistributedInvariantEKF", "Numbers", "Replica", "TeamProtocol", "TeamState",
@@ -154,6 +187,9 @@ class TeamProtocol:
         self.team = everyone[k * cluster : (k + 1) * cluster] if cluster else everyone
         self.mates = [r for r in self.team if r != self.robot]
         self.pos = {r: k for k, r in enumerate(self.team)}
+        self.schedule: Schedule | None = None
+        """The clusters' re-forming (:meth:`follow`; None: fixed clusters)."""
+        self._period = 0  # the schedule's cut that team, mates and pos are of (:meth:`use`)
         self.update = self.team_update if update is None else update
         self.gated_broadcasts = gated_broadcasts
         self.queries = StateQueries(self.robot)
@@ -162,6 +198,86 @@ class TeamProtocol:
         """Whether :meth:`one` keeps :attr:`last_innovation` (an owner that adapts its noise sets it)."""
         self.last_innovation: Innovation | None = None
         """The last detection's innovation terms (:func:`~swarmloc.estimators.adaptive_noise.innovation_terms`)."""
+
+    # ------------------------------------------------------------------------------------------------ re-forming
+    def follow(self, schedule: Schedule) -> None:
+        """Re-form the clusters by ``schedule`` (module docstring, "Clusters that re-form"), whose first cut holds this
+        robot's cluster as it is."""
+        if not self.cluster:
+            raise ValueError("diekf: re-forming clusters needs clusters ('cluster' > 0)")
+        if schedule.cluster(self.robot, 0) != self.team:
+            raise ValueError(f"diekf: the schedule's first cut does not hold this robot's cluster {list(self.team)}")
+        self.schedule, self._period = schedule, 0
+
+    def use(self, t: float | None) -> None:
+        """:attr:`team`, :attr:`mates` and :attr:`pos`: this robot's cluster at stamp ``t`` [s] (with a schedule;
+        else, or ``t`` None, they stay)."""
+        if self.schedule is None or t is None or (k := self.schedule.period(t)) == self._period:
+            return
+        self._period = k
+        self.team = self.schedule.cluster(self.robot, k)
+        self.mates = [r for r in self.team if r != self.robot]
+        self.pos = {r: q for q, r in enumerate(self.team)}
+
+    def _cuts(self, k: int) -> tuple[tuple[int, ...], tuple[int, ...], dict[int, int]]:
+        """This robot's cluster before boundary ``k`` and after it, and each robot's old cluster (index in cut
+        ``k - 1``)."""
+        assert self.schedule is not None  # noqa: S101  (a boundary: a schedule's)
+        old = {r: c for c, g in enumerate(self.schedule.cuts[k - 1]) for r in g}
+        return self.schedule.cluster(self.robot, k - 1), self.schedule.cluster(self.robot, k), old
+
+    def pieces(self, s: Replica, k: int, t: float) -> list[Message]:
+        """This robot's share of its piece (:class:`~swarmloc.messages.ClusterPiece`) for each new mate outside it at
+        boundary ``k`` (stamp ``t``), from the state ``s`` before it: the old replica's cross-covariances with the
+        piece's robots after this one (each pair is sent once, by its lower id)."""
+        was, now, _ = self._cuts(k)
+        later = [b for b in now if b in was and b > self.robot]
+        outside = [r for r in now if r not in was]
+        if not later or not outside:
+            return []
+        pos = {r: q for q, r in enumerate(was)}
+        sigma = flat(np.stack([s.Sigma[pos[self.robot], pos[b]] for b in later]))
+        return [ClusterPiece(sender=self.robot, receiver=m, stamp=t, robots=tuple(later), sigma=sigma)
+                for m in outside]  # fmt: skip
+
+    def owed(self, k: int) -> set[int]:
+        """The new mates that owe this robot a piece at boundary ``k``: those of another old cluster with a later robot
+        of their piece."""
+        was, now, old = self._cuts(k)
+        return {a for a in now if a not in was and any(old[b] == old[a] and b > a for b in now)}
+
+    def piece_problem(self, m: ClusterPiece) -> str | None:
+        """Why a teammate's piece is not the one it owes this robot at a boundary of the schedule, or None."""
+        k = 0 if self.schedule is None else self.schedule.period(m.stamp)
+        if self.schedule is None or k == 0 or self.schedule.times[k - 1] != m.stamp or m.receiver != self.robot:
+            return "cluster piece at no re-forming of this robot's clusters"
+        was, now, old = self._cuts(k)
+        if m.sender not in now or m.sender in was:
+            return f"cluster piece from robot {m.sender}, not a new mate from another cluster"
+        if list(m.robots) != [b for b in now if old.get(b) == old[m.sender] and b > m.sender]:
+            return f"cluster piece of robot {m.sender} names other robots than its piece's"
+        return None
+
+    def reform(self, s: Replica, k: int, pieces: Mapping[int, ClusterPiece]) -> TeamState:
+        """The state at boundary ``k`` from ``s`` before it (this robot predicted to the boundary): the replica of the
+        new cluster from the covariance-intersection bound of its pieces
+        (:func:`~swarmloc.estimators.cluster_reform.stacked_bound`), this robot's piece from its own replica, the
+        others' from the ``pieces`` its new mates sent (a piece not received yet: zero, until it comes)."""
+        was, now, old = self._cuts(k)
+        me, at = self.robot, {r: q for q, r in enumerate(was)}
+        got = {(a, b): S for a, m in pieces.items() for b, S in m.blocks().items()}
+        zero = np.zeros((self.form.dim, self.form.dim))
+
+        def block(a: int, b: int) -> np.ndarray:
+            if a == b:
+                return s.P if a == me else zero  # a teammate's own covariance: not in the replica
+            if a in at and b in at:
+                return np.asarray(s.Sigma[at[a], at[b]])
+            return got[a, b] if (a, b) in got else got[b, a].T if (b, a) in got else zero
+
+        Sigma = stacked_bound(now, old, block, self.form.dim)
+        q = now.index(me)
+        return TeamState(s.t, s.v, s.w, s.x, Sigma[q, q].copy(), Sigma)
 
     def initial(self, mean: np.ndarray, cov: np.ndarray, t0: float) -> TeamState:
         x, P = self.form.initial(mean, cov)
@@ -211,6 +327,7 @@ class TeamProtocol:
             t: float | None) -> Any:  # fmt: skip
         """One detection (of the group stamped ``t``): the new state and the broadcast's :data:`Numbers`, or an
         outcome; with ``lin_log``, its linearization is appended there."""
+        self.use(t)
         i, form = self.robot, self.form
         why = form.unsupported(d, target)
         if why is not None:
@@ -301,6 +418,7 @@ class TeamProtocol:
     def requests(self, g: Group, needs_answer: Callable[[Group, Any], bool], mates: Sequence[int]) -> list[Message]:
         """``rdl``'s queries; with clusters, a robot outside the cluster is asked a ``BeliefQuery`` instead (its
         belief is all :meth:`outsider` needs, and an answerer outside the cluster waits for no broadcast)."""
+        self.use(g.t)
         out = self.queries.requests(g, needs_answer, mates)
         if not self.cluster:
             return out
@@ -318,6 +436,7 @@ class TeamProtocol:
     def broadcast(self, t: float, sub: SubKey, numbers: Numbers | None = None) -> list[Message]:
         """One exchange's broadcast to every teammate: an update's :data:`Numbers`, or none (an empty update: the
         exchange is settled, its detection not fused)."""
+        self.use(t)
         if numbers is None:
             return [TeamUpdate(sender=self.robot, receiver=r, stamp=t, sub=sub) for r in self.mates]
         j, Hi, Hj, Sinv, nu, Pii, Pjj, w = numbers
@@ -336,6 +455,7 @@ class TeamProtocol:
     def update_problem(self, u: Message) -> str | None:
         if not isinstance(u, TeamUpdate):
             return f"{type(u).__name__} is not a team update"
+        self.use(u.stamp)
         if u.sender not in self.pos or (not u.empty and u.target not in self.pos):
             return f"team update from or about a robot outside the team {list(self.team)}"
         if not u.empty and u.n != self.form.dim:
@@ -360,6 +480,7 @@ class TeamProtocol:
         stamp by the owner); not when it would leave this robot's covariance not positive definite."""
         if not isinstance(u, TeamUpdate):
             return s, False
+        self.use(u.stamp)
         m, n = u.m, u.n
         A = np.array  # np.array(t).reshape: what np.reshape(t) makes of a tuple, without its dispatch
         Hi, Hj = A(u.Hi).reshape(m, n), A(u.Hj).reshape(m, n)
@@ -409,8 +530,8 @@ class DistributedInvariantEKF(RobotNode):
     protocol: TeamProtocol
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
-                 adaptive: bool | Literal["median"] = False, odocal: bool = False, fault: bool = False,
-                 **kw: Any) -> None:  # fmt: skip
+                 reform: float = 0.0, adaptive: bool | Literal["median"] = False, odocal: bool = False,
+                 fault: bool = False, **kw: Any) -> None:  # fmt: skip
         self.faults = FaultMonitor() if fault else None
         self.noise_scale = MedianScale() if adaptive == "median" else NoiseScale() if adaptive else None
         self.odometry = OdometryCalibration() if odocal else None
@@ -419,7 +540,59 @@ class DistributedInvariantEKF(RobotNode):
         self.protocol.innovations = bool(adaptive)
         if odocal and self.protocol.form.group is not SE2:
             raise ValueError("diekf: 'odocal' calibrates planar odometry: SE(2) only")
+        if isinstance(reform, bool) or not isinstance(reform, int | float) or not (0 <= reform < math.inf):
+            raise ValueError(f"diekf: 'reform' must be a period >= 0 s (0: fixed clusters), got {reform!r}")
+        if reform and not cluster:
+            raise ValueError("diekf: re-forming clusters ('reform' > 0) needs clusters ('cluster' > 0)")
+        self.reform = float(reform)
+        """[s] The period of the clusters' re-forming (0: fixed clusters; module docstring, :meth:`plan`)."""
+        self.reforming: Reforming | None = None
+        """The re-forming's part, once :meth:`plan` gave the schedule (None: fixed clusters)."""
         super().__init__(robot, initial, team=self.protocol.team, **kw)
+
+    def plan(self, events: Iterable[Any]) -> None:
+        """With ``reform > 0``: the clusters' schedule from the recording's ``events`` (the whole team's,
+        :func:`~swarmloc.estimators.cluster_reform.seen_schedule`), before the first input (module docstring)."""
+        if not self.reform:
+            return
+        if self.history_size:
+            raise RuntimeError("diekf.plan: the node has filed inputs; plan it before the first input")
+        p = self.protocol
+        sched = seen_schedule(events, p.everyone, p.cluster, self.reform)
+        p.follow(sched)
+        self.reforming = Reforming(p, sched, self._history, self._file, self._filing.replay, self.accounting)
+        self.team = tuple(sorted({r for k in range(len(sched.cuts)) for r in sched.cluster(self.robot, k)}))
+        """Every robot this one shares a cluster with at some time (a network driver hears their broadcasts)."""
+
+    def boundary(self) -> float | None:
+        """The next boundary of the clusters' schedule not reached yet (None: none, or fixed clusters)."""
+        return None if self.reforming is None else self.reforming.boundary()
+
+    def awaits(self, t: float) -> str | None:
+        """The pieces still owed to this robot for the boundaries up to ``t`` [s] (None: none)."""
+        return None if self.reforming is None else self.reforming.awaits(t)
+
+    def step(self, item: Any) -> list[Message]:
+        """:meth:`Node.step`; with a schedule, the boundaries up to the item's stamp are reached first
+        (:meth:`~swarmloc.estimators.cluster_reform.Reforming.reach`), a
+        :class:`~swarmloc.messages.ClusterPiece` is taken by the re-forming, and the pieces a late input changed are
+        sent again."""
+        if self.reforming is None or not self.started:
+            if self.reform and self.started and not self.counts["unplanned"]:  # no plan: said once
+                self.counts["unplanned"] = 1
+                log.warning("diekf robot %s: no recording to plan from: its clusters stay fixed", self.robot)
+            return super().step(item)
+        first = item[0] if isinstance(item, list | tuple) and item else item
+        stamp = getattr(first, "stamp", None)
+        out = self.reforming.reach(stamp) if isinstance(stamp, float | int) and math.isfinite(stamp) else []
+        if isinstance(item, ClusterPiece):
+            return out + self.reforming.take(item)
+        if isinstance(item, TeamUpdate) and item.sender in self.team and item.receiver == self.robot:
+            self.protocol.use(item.stamp)
+            if item.sender not in self.protocol.pos:  # a mate of another time (a network driver hears them all)
+                self.counts["broadcasts_other_cluster"] += 1
+                return out
+        return out if isinstance(item, Reach) else out + super().step(item) + self.reforming.revise()
 
     @property
     def dim(self) -> int:
@@ -467,6 +640,7 @@ class DistributedInvariantEKF(RobotNode):
 
     # ------------------------------------------------------------------------------------------------ update
     def _fuse_group(self, s: TeamState, g: Group) -> tuple[TeamState, list[Outcome], list[Message]]:
+        self.protocol.use(g.t)
         outcomes: list[Outcome] = []
         msgs: list[Message] = []
         for d, sub in zip(g.detections, g.keys, strict=True):
@@ -505,6 +679,8 @@ class DistributedInvariantEKF(RobotNode):
         # The detected robot is predicted to the stamp; a third party is not: a world-frame correction commutes
         # with the odometry (exp(d) g Delta), so it applies at the robot's own clock. This is what the
         # centralized filter does with its blocks (the same process-noise linearization points, same numbers).
+        if isinstance(u, Boundary):  # the clusters re-formed: this robot predicted to the boundary
+            return self.protocol.reform(self._adv(s, self.robot, u.t), u.k, u.pieces), True
         if isinstance(u, TeamUpdate) and u.target == self.robot:
             s = self._adv(s, self.robot, u.stamp)
         s, applied = self.protocol.apply(s, u, self.counts)

@@ -175,6 +175,8 @@ def node_main(
     close_live = None
     try:
         node, events, record_times = _start(session, src, robot, team, estimator, resume, auth, scope)
+        if live is None:
+            node.plan(src.events)  # a recording: known in advance (diekf's re-forming clusters)
         faults = parse_faults(faults) if isinstance(faults, str | None) else faults
         events, close_live = _inputs(live, session, robot, node, events, faults, resume)
         settings = NetSettings(run_id=run_id, speed=speed, lag=lag, use_server=use_server, faults=faults,

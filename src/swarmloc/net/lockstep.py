@@ -4,7 +4,9 @@ A node reads its next input once every live teammate has announced that it has r
 ``lag`` s before it (:meth:`Lockstep.may_feed`), and a detection group once every teammate has read up to the
 group's key and no pairwise update keyed before it is expected (:meth:`Lockstep.group_may_go`). It answers a query
 once nothing keyed before it can still change the answer (:meth:`Lockstep.ready`), and gives its own detection
-groups their answers once no update keyed before them is expected (:meth:`Lockstep.release`). Teammates are known
+groups their answers once no update keyed before them is expected (:meth:`Lockstep.release`). A node with planned
+boundaries (``diekf``'s re-forming clusters) reaches each once nothing keyed before it can still come, and its groups
+after it wait for what it awaits there (:meth:`Lockstep.reach`, :meth:`Lockstep.boundaries_in`). Teammates are known
 from their liveliness tokens and progress announcements (:meth:`Lockstep.on_alive`, :meth:`Lockstep.on_progress`).
 """
 
@@ -24,6 +26,7 @@ from swarmloc.net.settings import NetSettings
 from swarmloc.net.timeouts import STALL_TIMEOUTS
 from swarmloc.net.transport import robot_of
 from swarmloc.node import Node
+from swarmloc.node.base import Reach
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
@@ -108,6 +111,8 @@ class Lockstep:
         self.held: list[Message] = []
         """Answers to this node's queries not yet given to it."""
         self._queries_seen: OrderedDict[Key, None] = OrderedDict()  # neighbours' queries held or answered (bounded)
+        self._awaiting: dict[str, float] = {}  # what the node awaits for its boundaries (Node.awaits): since when
+        self._given_up: set[str] = set()  # ... and what it went on without
 
     def on_progress(self, p: Any) -> None:
         """A teammate's progress announcement (authenticated): how far it has read its source (and whether it is
@@ -249,6 +254,7 @@ class Lockstep:
         """Lockstep: every live teammate waited for (:meth:`waited`) has read its source to ``s - lag``; and this
         node's oldest detection group still waiting for answers is less than half a horizon before ``s`` (reading on
         would push it beyond the horizon before its answers or their timeout come)."""
+        self.reach(s)
         first = self.node.first_pending
         if first is not None and s - first[0] > self.node.horizon / 2:
             return False
@@ -264,9 +270,42 @@ class Lockstep:
         expected, so that groups are applied across the team in key order, as the in-process runner does, and an
         update never has to be replayed under a group applied before it."""
         key = (s, 1, self.robot, ())
-        if any(k < key for k in self.expect) or self.others(key) is not None:
+        if any(k < key for k in self.expect) or self.others(key) is not None or not self.boundaries_in(s):
             return False
         return all(r in self.done or (*self._progress_key.get(r, (-math.inf, 0)), r) > key[:3] for r in self.waited())
+
+    def reach(self, s: float) -> None:
+        """A node with planned boundaries (``diekf``'s re-forming clusters, :meth:`~swarmloc.node.base.Node.boundary`)
+        reaches each one up to ``s`` (its next input's stamp) once nothing keyed before the boundary's key ``(T, 0,
+        -1)`` can still come: no own group before it waits for answers, and the rule of :meth:`group_may_go` holds
+        there. Reached then, not at the node's next input, it sends its pieces while the teammates that need them
+        wait (each waiting for the other's piece, two robots would wait for ever)."""
+        T = self.node.boundary()
+        while T is not None and T <= s:
+            key = (T, 0, -1, ())
+            first = self.node.first_pending
+            if (first is not None and first < key) or any(k < key for k in self.expect) or self.others(key):
+                return
+            if not all(r in self.done or (*self._progress_key.get(r, (-math.inf, 0)), r) > key[:3]
+                       for r in self.waited()):  # fmt: skip
+                return
+            self.step(Reach(T))
+            T = self.node.boundary()
+
+    def boundaries_in(self, s: float) -> bool:
+        """The node has what it awaits for its boundaries up to ``s`` (its new mates' pieces,
+        :meth:`~swarmloc.node.base.Node.awaits`), or waited ``update_timeout`` s for it (counted
+        ``boundary_not_received``: the node goes on without, and re-applies the boundary if it comes)."""
+        why = self.node.awaits(s)
+        if why is None or why in self._given_up:
+            return True
+        since = self._awaiting.setdefault(why, time.monotonic())
+        if time.monotonic() - since <= self.settings.update_timeout:
+            return False
+        self._given_up.add(why)
+        self.counts["boundary_not_received"] += 1
+        log.warning("robot %s: going on without %s", self.robot, why)
+        return True
 
     def ready(self, q: Message, since: float) -> bool:
         """A query is answered once nothing this node will still read or apply is keyed before it: its source has

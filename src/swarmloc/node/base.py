@@ -41,6 +41,7 @@ talk to neighbours, ``_requests``, ``_answer``, ``update_types`` and ``_apply_up
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
@@ -61,7 +62,15 @@ from swarmloc.node.trust import DEFAULT_QUARANTINE, Trust
 from swarmloc.node.update import Gate, Outcome
 from swarmloc.text import ids, numbers, stamp
 
-__all__ = ["Node", "belief_of"]
+__all__ = ["Node", "Reach", "belief_of"]
+
+
+@dataclass(frozen=True, slots=True)
+class Reach:
+    """An input without data: the driver tells the node that nothing before ``stamp`` [s] can still come, so that it
+    reaches the boundaries it planned up to there (:meth:`Node.boundary`; ``diekf``'s re-forming clusters)."""
+
+    stamp: float
 
 
 def belief_of(mean: np.ndarray, cov: np.ndarray) -> GroupGaussian:
@@ -302,6 +311,8 @@ class Node:
             return self._intake.on_detections([item])
         if isinstance(item, Message):
             return self._exchange.on_message(item)
+        if isinstance(item, Reach):  # (a node with boundaries takes it first: nothing else to do)
+            return []
         if isinstance(item, Iterable) and not isinstance(item, str | bytes):
             items = list(item)
             if items and all(isinstance(d, Detection) for d in items):
@@ -309,6 +320,21 @@ class Node:
         self.counts["messages"] += 1
         self.accounting.message_rejected(f"unsupported input of type {type(item).__name__}")
         return []
+
+    def plan(self, events: Iterable[Any]) -> None:
+        """The whole team's recorded events, known before the run (drivers of a recording give them before the first
+        input; a live one does not): an estimator may plan from them (``diekf``'s re-forming clusters). Default:
+        nothing."""
+
+    def boundary(self) -> float | None:
+        """The next stamp [s] of its plan (:meth:`plan`) the node must reach before it takes what is stamped after it:
+        a driver steps it with :class:`Reach` once nothing before that stamp can still come (None: none; default)."""
+        return None
+
+    def awaits(self, t: float) -> str | None:
+        """What the node still waits for from its teammates for its boundaries up to ``t`` [s] (None: nothing;
+        default): a driver holds its detection groups stamped ``t`` until then."""
+        return None
 
     def belief_at(self, t: float, robot: int | None = None) -> GroupGaussian:
         """Belief of ``robot`` (default: the node's own) at time ``t`` [s]: after every entry stamped ``<= t``,

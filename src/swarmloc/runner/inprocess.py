@@ -100,6 +100,8 @@ def run(
         raise ValueError("run: no nodes")
     events = list(events)
     drv = _Driver(team)
+    for n in team:
+        n.plan(events)  # a recording: known in advance (Node.plan)
     drv.start_nodes(events)
     if record_times is not None:
         drv.plan_records(np.asarray(record_times, dtype=float), truth)
