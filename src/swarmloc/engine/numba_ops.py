@@ -174,6 +174,31 @@ _FUSE = f"""
 read in ``(nx, nP)``; its outcome in ``status`` and ``reason``."""
 
 
+def _update_rows(name: str, args: str, call: str) -> str:
+    """Code of the loop ``{name}_rows(x, P, {args})``: kernel ``call`` (of row ``i``) on every row, in parallel."""
+    return f"""
+def {name}_rows(x, P, {args}):
+    n = x.shape[0]
+    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
+    for i in prange(n):
+        r = {call}
+{_store("ox", "oP", "i", 8)}
+        nis[i] = r[9]
+        ok[i] = r[10]
+    return ox, oP, nis, ok
+"""
+
+
+_XP = f"{_args('x', 'i')}, {_args('P', 'i', True)}"
+_ROWS = "\n\n".join((
+    _update_rows("pose", "xk, Pk, z, R", f"pose({_XP}, {_args('xk', 'i')}, {_args('Pk', 'i', True)}, "
+                 f"{_args('z', 'i')}, {_args('R', 'i', True)})"),
+    _update_rows("landmark", "lk, L, z, R", f"landmark({_XP}, {_args('lk', 'i', two=True)}, "
+                 f"{_args('L', 'i', True, True)}, {_args('z', 'i', two=True)}, {_args('R', 'i', True, True)})"),
+    _update_rows("absolute", "z, R", f"absolute({_XP}, {_args('z', 'i')}, {_args('R', 'i', True)})"),
+))  # fmt: skip
+
+
 _LOOPS = f"""
 def predict_rows(x, P, v, w, dt):
     ox = np.empty_like(x)
@@ -184,40 +209,7 @@ def predict_rows(x, P, v, w, dt):
     return ox, oP
 
 
-def pose_rows(x, P, xk, Pk, z, R):
-    n = x.shape[0]
-    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
-    for i in prange(n):
-        r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("xk", "i")}, {_args("Pk", "i", True)},
-                 {_args("z", "i")}, {_args("R", "i", True)})
-{_store("ox", "oP", "i", 8)}
-        nis[i] = r[9]
-        ok[i] = r[10]
-    return ox, oP, nis, ok
-
-
-def landmark_rows(x, P, lk, L, z, R):
-    n = x.shape[0]
-    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
-    for i in prange(n):
-        r = landmark({_args("x", "i")}, {_args("P", "i", True)}, {_args("lk", "i", two=True)},
-                     {_args("L", "i", True, True)}, {_args("z", "i", two=True)}, {_args("R", "i", True, True)})
-{_store("ox", "oP", "i", 8)}
-        nis[i] = r[9]
-        ok[i] = r[10]
-    return ox, oP, nis, ok
-
-
-def absolute_rows(x, P, z, R):
-    n = x.shape[0]
-    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
-    for i in prange(n):
-        r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "i")}, {_args("R", "i", True)})
-{_store("ox", "oP", "i", 8)}
-        nis[i] = r[9]
-        ok[i] = r[10]
-    return ox, oP, nis, ok
-
+{_ROWS}
 
 def predict_into(x, P, tc, v, w, robots, t):
     for k in range(robots.shape[0]):
@@ -378,6 +370,16 @@ def _pick(k: dict[str, Any], name: str, rows: int) -> Any:
     return k[name + "_serial"] if _serial(rows) else k[name]
 
 
+def _tables(gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None, n: int
+            ) -> tuple[FloatArray, FloatArray, FloatArray, IntArray]:  # fmt: skip
+    """The in-place kernels' tables: the map ``(lxy, lcov)`` (a dummy row without one), the gate's threshold by
+    model code, and ``n`` robots' levels (all -1)."""
+    lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
+    thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
+    f = np.ascontiguousarray
+    return f(lxy, dtype=float), f(lcov, dtype=float), thr, np.full(n, -1, dtype=np.int64)
+
+
 class NumbaOps:
     """The fast EKF kernels compiled with numba (the interface of :class:`~swarmloc.engine.backends.NumpyOps`,
     plus a stamp's screening and fusion in place: :meth:`fuse_serial` on one thread, :meth:`fuse_levels` on
@@ -490,13 +492,11 @@ class NumbaOps:
                   use_landmarks: bool, extra: tuple[()] | tuple[FloatArray, FloatArray]) -> int:  # fmt: skip
         f = np.ascontiguousarray
         i64 = np.int64
-        thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
-        lev = np.full(state[0].shape[0], -1, dtype=i64)
-        lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
-        return int(self.k[name](*state, float(t), bool(use_relative), bool(use_landmarks), f(lxy, dtype=float),
-                                f(lcov, dtype=float), f(det.observer, dtype=i64), f(det.target, dtype=i64),
-                                f(det.kind, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status, reason,
-                                gate.p is not None, thr, lev, *extra))  # fmt: skip
+        lxy, lcov, thr, lev = _tables(gate, landmarks, state[0].shape[0])
+        return int(self.k[name](*state, float(t), bool(use_relative), bool(use_landmarks), lxy, lcov,
+                                f(det.observer, dtype=i64), f(det.target, dtype=i64), f(det.kind, dtype=i64),
+                                f(det.z, dtype=float), f(det.R, dtype=float), status, reason, gate.p is not None,
+                                thr, lev, *extra))  # fmt: skip
 
     def replay_serial(self, state: Rows, tl: Timeline, s0: int, use_relative: bool, status: np.ndarray,
                       reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
@@ -513,17 +513,14 @@ class NumbaOps:
         far."""
         f = np.ascontiguousarray
         i64 = np.int64
-        thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
-        lev = np.full(state[0].shape[0], -1, dtype=i64)
-        lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
+        lxy, lcov, thr, lev = _tables(gate, landmarks, state[0].shape[0])
         d = tl.det
         stop = self.k["replay_serial"](*state, f(tl.stamps, dtype=float), int(s0), bool(use_relative),
-                                       bool(use_landmarks), f(lxy, dtype=float), f(lcov, dtype=float),
-                                       f(tl.d0, dtype=i64), f(d.observer, dtype=i64), f(d.target, dtype=i64),
-                                       f(d.kind, dtype=i64), f(d.z, dtype=float), f(d.R, dtype=float), status,
-                                       reason, gate.p is not None, thr, lev, f(tl.c0, dtype=i64),
-                                       f(tl.robot, dtype=i64), f(tl.v, dtype=float), f(tl.w, dtype=float),
-                                       f(tl.record, dtype=np.bool_), *out)  # fmt: skip
+                                       bool(use_landmarks), lxy, lcov, f(tl.d0, dtype=i64),
+                                       f(d.observer, dtype=i64), f(d.target, dtype=i64), f(d.kind, dtype=i64),
+                                       f(d.z, dtype=float), f(d.R, dtype=float), status, reason, gate.p is not None,
+                                       thr, lev, f(tl.c0, dtype=i64), f(tl.robot, dtype=i64), f(tl.v, dtype=float),
+                                       f(tl.w, dtype=float), f(tl.record, dtype=np.bool_), *out)  # fmt: skip
         return int(stop), int(out[-1][0])
 
     def scatter2(self, a: np.ndarray, b: np.ndarray, rows: np.ndarray, va: np.ndarray, vb: np.ndarray) -> None:
