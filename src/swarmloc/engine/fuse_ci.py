@@ -77,7 +77,8 @@ class CiFusion(Sequential):
     def _pose3(self, st: Stamp, rows: np.ndarray) -> None:
         """SE(3) relative poses (``"pose3"``): gated as an independent pseudo-observation, the weight in closed form
         (:func:`~swarmloc.kernels.ci.pose_weight` on SE(3)), one fusion; the node
-        (:func:`~swarmloc.estimators.ci.ci3`) takes the closed form whatever ``ci_weight`` says."""
+        (:meth:`~swarmloc.estimators.ci.CovarianceIntersection.ci`) takes the closed form whatever ``ci_weight``
+        says."""
         lo = st.lo[rows]
         mean, cov = st.cur[0][lo], st.cur[1][lo]
         nb_mean, nb_cov = st.target(rows)
