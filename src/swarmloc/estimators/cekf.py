@@ -101,14 +101,14 @@ def flush_pending(s: TeamState) -> TeamState:
         if pd is None:
             continue
         i = 3 * k
-        a, b, q00, q01, q02, q11, q12, q22 = pd
+        a, b = pd[:2]
         row = P[i + 2].copy()
         P[i] += a * row
         P[i + 1] += b * row
         col = P[:, i + 2].copy()
         P[:, i] += a * col
         P[:, i + 1] += b * col
-        P[i : i + 3, i : i + 3] += np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+        P[i : i + 3, i : i + 3] += C.sym3(pd[2:])
     return TeamState(s.X, P, s.t, s.cmd, (None,) * len(s.pend), s.L)
 
 
@@ -155,8 +155,7 @@ def cartesian_belief(s: TeamState, i: int) -> tuple[np.ndarray, np.ndarray]:
     pd = s.pend[i // 3]
     if pd is not None:
         q = shear_upper((P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]), pd[1], -pd[0])
-        q00, q01, q02, q11, q12, q22 = (u + w for u, w in zip(q, pd[2:], strict=True))
-        P = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+        P = C.sym3([u + w for u, w in zip(q, pd[2:], strict=True)])
     return C.to_group(s.X[i : i + 3], P)
 
 

@@ -45,6 +45,7 @@ from swarmloc.estimators.cekf import (
 )
 from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.events import Detection, Kind
+from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.node import FUSED, Gate, Group, Outcome, TeamNode, gated_kalman
@@ -165,8 +166,7 @@ class InvariantForm:
         P = s.P[i : i + 3, i : i + 3]
         pd = s.pend[i // 3]
         if pd is not None:
-            q00, q01, q02, q11, q12, q22 = pd[2:]
-            P = P + np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+            P = P + C.sym3(pd[2:])
         g = SE2.from_xytheta(s.X[i : i + 3])
         return g, I.world_to_body(g, P)
 
