@@ -130,16 +130,22 @@ def planar_noise(node: TeamNode) -> UnicycleNoise:
     return node.noise
 
 
-def increment(node: TeamNode, s: TeamState, robot: int, t: float) -> tuple[int, int, tuple[float, ...]] | None:
-    """``(k, i, terms)`` of predicting ``robot`` (block ``k``, first row ``i``) to ``t`` [s]:
-    :func:`~swarmloc.kernels.cartesian.increment_terms` with its command; None when ``t`` is not later."""
+def increment(
+    node: TeamNode, s: TeamState, robot: int, t: float
+) -> tuple[int, int, tuple[float, ...], np.ndarray] | None:
+    """``(k, i, terms, X)`` of predicting ``robot`` (block ``k``, first row ``i``) to ``t`` [s]:
+    :func:`~swarmloc.kernels.cartesian.increment_terms` with its command, and a copy of the joint mean with the
+    robot's new pose; None when ``t`` is not later."""
     k = node._idx[robot] // 3
     dt = t - s.t[k]
     if dt <= 0:
         return None
     i = 3 * k
     v, w = s.cmd[k]
-    return k, i, C.increment_terms(s.X[i : i + 3], v, w, dt, planar_noise(node))
+    terms = C.increment_terms(s.X[i : i + 3], v, w, dt, planar_noise(node))
+    X = s.X.copy()
+    X[i : i + 3] = terms[:3]
+    return k, i, terms, X
 
 
 def log_shear(node: TeamNode, t: float, robot: int, dx: float, dy: float) -> None:
@@ -198,9 +204,7 @@ class TeamForm:
         step = increment(node, s, robot, t)
         if step is None:
             return s
-        k, i, (x0, y0, th, dx, dy, *q) = step
-        X = s.X.copy()
-        X[i], X[i + 1], X[i + 2] = x0, y0, th
+        k, _, (_, _, _, dx, dy, *q), X = step
         log_shear(node, t, robot, dx, dy)
         return TeamState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)))
 

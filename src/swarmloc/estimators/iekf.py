@@ -148,9 +148,7 @@ class InvariantForm:
         step = increment(node, s, robot, t)
         if step is None:
             return s
-        k, i, (x0, y0, th, _, _, q00, q01, q02, q11, q12, q22) = step
-        X = s.X.copy()
-        X[i], X[i + 1], X[i + 2] = x0, y0, th
+        k, _, (x0, y0, _, _, _, q00, q01, q02, q11, q12, q22), X = step
         # world-frame process noise: N^-1 Q_c N^-T with N^-1 = [[1, 0, y], [0, 1, -x], [0, 0, 1]]
         a02, a12 = q02 + y0 * q22, q12 - x0 * q22
         qw = (
@@ -233,11 +231,9 @@ class FirstEstimatesForm:
         step = increment(node, s, robot, t)
         if step is None:
             return s
-        k, i, (x0, y0, th, _, _, *q) = step
-        L = self.first(s)
+        k, i, (x0, y0, _, _, _, *q), X = step
+        L = self.first(s).copy()
         dx, dy = x0 - L[i], y0 - L[i + 1]  # first-estimates displacement: new prediction - previous first estimate
-        X, L = s.X.copy(), L.copy()
-        X[i], X[i + 1], X[i + 2] = x0, y0, th
         L[i : i + 3] = X[i : i + 3]
         log_shear(node, t, robot, dx, dy)
         return TeamState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)), L)
