@@ -64,6 +64,9 @@ def _args(a: str, i: str, up: bool = False, two: bool = False) -> str:
     return ((_UP2 if up else _X2) if two else (_UP if up else _X)).format(a=a, i=i)
 
 
+_XP = f"{_args('x', 'i')}, {_args('P', 'i', True)}"
+
+
 _STORE = """
 {o}[{i}, 0] = r[0]
 {o}[{i}, 1] = r[1]
@@ -82,6 +85,15 @@ _STORE = """
 def _store(o: str, oP: str, i: str, indent: int) -> str:
     pad = " " * indent
     return "\n".join(pad + line for line in _STORE.format(o=o, oP=oP, i=i).strip().splitlines())
+
+
+def _advance(indent: int) -> str:
+    """Code moving robot ``i`` to ``t`` in place when its clock ``tc[i]`` is behind: predicted, stored, clock set."""
+    code = f"""if tc[i] < t:
+    r = predict({_XP}, v[i], w[i], t - tc[i])
+{_store("x", "P", "i", 4)}
+    tc[i] = t"""
+    return textwrap.indent(code, " " * indent)
 
 
 def _map_landmark(target: str, indent: int) -> str:
@@ -118,10 +130,7 @@ _SCREEN = f"""
             continue
         at_lm = j <= {NO_LANDMARK}  # a landmark's range-bearing (kinds checked above)
         robot = kind[q] != {ABSOLUTE} and not at_lm
-        if tc[i] < t:  # the observer moves to t at its group (stored)
-            r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
-{_store("x", "P", "i", 12)}
-            tc[i] = t
+{_advance(8)}
         if lev[i] < 0:
             lev[i] = 0
         if needs and j < i and lev[j] >= 0 and lev[j] + 1 > lev[i]:
@@ -189,7 +198,6 @@ def {name}_rows(x, P, {args}):
 """
 
 
-_XP = f"{_args('x', 'i')}, {_args('P', 'i', True)}"
 _ROWS = "\n\n".join((
     _update_rows("pose", "xk, Pk, z, R", f"pose({_XP}, {_args('xk', 'i')}, {_args('Pk', 'i', True)}, "
                  f"{_args('z', 'i')}, {_args('R', 'i', True)})"),
@@ -214,10 +222,7 @@ def predict_rows(x, P, v, w, dt):
 def predict_into(x, P, tc, v, w, robots, t):
     for k in range(robots.shape[0]):
         i = robots[k]
-        if tc[i] < t:
-            r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
-{_store("x", "P", "i", 12)}
-            tc[i] = t
+{_advance(8)}
 
 
 def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason, gate, thr,
@@ -290,10 +295,7 @@ def replay_serial(x, P, tc, t0, v, w, stamps, s0, relative, lm_on, lxy, lcov, d0
         t = stamps[s]
         for c in range(c0[s], c0[s + 1]):  # robots with a command at t move to t first
             i = crow[c]
-            if tc[i] < t:
-                r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
-{_store("x", "P", "i", 16)}
-                tc[i] = t
+{_advance(12)}
         a, b = d0[s], d0[s + 1]
         if b > a:
             lv = fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs[a:b], tgt[a:b], kind[a:b],
@@ -420,19 +422,19 @@ class NumbaOps:
 
     def pose_update(self, x: np.ndarray, P: np.ndarray, xk: np.ndarray, Pk: np.ndarray, z: np.ndarray,
                     Rz: np.ndarray) -> Updated:  # fmt: skip
-        f = np.ascontiguousarray
-        xn, Pn, nis, ok = _pick(self.k, "pose_rows", x.shape[0])(f(x), f(P), f(xk), f(Pk), f(z), f(Rz))
-        return xn, Pn, nis, ok, ok
+        return self._rows("pose_rows", x, P, xk, Pk, z, Rz)
 
     def absolute_update(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, Rz: np.ndarray) -> Updated:
-        f = np.ascontiguousarray
-        xn, Pn, nis, ok = _pick(self.k, "absolute_rows", x.shape[0])(f(x), f(P), f(z), f(Rz))
-        return xn, Pn, nis, ok, ok
+        return self._rows("absolute_rows", x, P, z, Rz)
 
     def landmark_update(self, x: np.ndarray, P: np.ndarray, lk: np.ndarray, L: np.ndarray, z: np.ndarray,
                         Rz: np.ndarray) -> Updated:  # fmt: skip
-        f = np.ascontiguousarray
-        xn, Pn, nis, ok = _pick(self.k, "landmark_rows", x.shape[0])(f(x), f(P), f(lk), f(L), f(z), f(Rz))
+        return self._rows("landmark_rows", x, P, lk, L, z, Rz)
+
+    def _rows(self, name: str, *arrays: np.ndarray) -> Updated:
+        """Row kernel ``name`` (parallel or serial by the rows) on C-contiguous ``arrays``: ``(x+, P+, nis, ok,
+        ok)``."""
+        xn, Pn, nis, ok = _pick(self.k, name, arrays[0].shape[0])(*map(np.ascontiguousarray, arrays))
         return xn, Pn, nis, ok, ok
 
     def serial(self, rows: int) -> bool:
