@@ -84,20 +84,6 @@ def to_world(h0: Any, h1: Any, h2: Any, x: Any, y: Any) -> Any:
     return h2 + (-y * h0 + x * h1)
 
 
-@_compile
-def inverse3(S: Mat) -> tuple[Mat, Any]:
-    """The inverse of the 3x3 ``S`` by cofactors and whether it is regular (its determinant non-zero; if not,
-    the adjugate)."""
-    (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = S
-    a00, a01, a02 = s11 * s22 - s12 * s21, s21 * s02 - s22 * s01, s01 * s12 - s02 * s11
-    a10, a11, a12 = s12 * s20 - s10 * s22, s22 * s00 - s20 * s02, s02 * s10 - s00 * s12
-    a20, a21, a22 = s10 * s21 - s11 * s20, s20 * s01 - s21 * s00, s00 * s11 - s01 * s10
-    det = s00 * a00 + s01 * a10 + s02 * a20
-    regular = det != 0.0
-    d = xp.where(regular, det, 1.0)
-    return ((a00 / d, a01 / d, a02 / d), (a10 / d, a11 / d, a12 / d), (a20 / d, a21 / d, a22 / d)), regular
-
-
 _near = planar.build(xp, _compile).degenerate
 
 

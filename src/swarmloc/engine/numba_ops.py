@@ -64,6 +64,9 @@ def _args(a: str, i: str, up: bool = False, two: bool = False) -> str:
     return ((_UP2 if up else _X2) if two else (_UP if up else _X)).format(a=a, i=i)
 
 
+_XP = f"{_args('x', 'i')}, {_args('P', 'i', True)}"
+
+
 _STORE = """
 {o}[{i}, 0] = r[0]
 {o}[{i}, 1] = r[1]
@@ -82,6 +85,15 @@ _STORE = """
 def _store(o: str, oP: str, i: str, indent: int) -> str:
     pad = " " * indent
     return "\n".join(pad + line for line in _STORE.format(o=o, oP=oP, i=i).strip().splitlines())
+
+
+def _advance(indent: int) -> str:
+    """Code moving robot ``i`` to ``t`` in place when its clock ``tc[i]`` is behind: predicted, stored, clock set."""
+    code = f"""if tc[i] < t:
+    r = predict({_XP}, v[i], w[i], t - tc[i])
+{_store("x", "P", "i", 4)}
+    tc[i] = t"""
+    return textwrap.indent(code, " " * indent)
 
 
 def _map_landmark(target: str, indent: int) -> str:
@@ -118,10 +130,7 @@ _SCREEN = f"""
             continue
         at_lm = j <= {NO_LANDMARK}  # a landmark's range-bearing (kinds checked above)
         robot = kind[q] != {ABSOLUTE} and not at_lm
-        if tc[i] < t:  # the observer moves to t at its group (stored)
-            r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
-{_store("x", "P", "i", 12)}
-            tc[i] = t
+{_advance(8)}
         if lev[i] < 0:
             lev[i] = 0
         if needs and j < i and lev[j] >= 0 and lev[j] + 1 > lev[i]:
@@ -174,6 +183,30 @@ _FUSE = f"""
 read in ``(nx, nP)``; its outcome in ``status`` and ``reason``."""
 
 
+def _update_rows(name: str, args: str, call: str) -> str:
+    """Code of the loop ``{name}_rows(x, P, {args})``: kernel ``call`` (of row ``i``) on every row, in parallel."""
+    return f"""
+def {name}_rows(x, P, {args}):
+    n = x.shape[0]
+    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
+    for i in prange(n):
+        r = {call}
+{_store("ox", "oP", "i", 8)}
+        nis[i] = r[9]
+        ok[i] = r[10]
+    return ox, oP, nis, ok
+"""
+
+
+_ROWS = "\n\n".join((
+    _update_rows("pose", "xk, Pk, z, R", f"pose({_XP}, {_args('xk', 'i')}, {_args('Pk', 'i', True)}, "
+                 f"{_args('z', 'i')}, {_args('R', 'i', True)})"),
+    _update_rows("landmark", "lk, L, z, R", f"landmark({_XP}, {_args('lk', 'i', two=True)}, "
+                 f"{_args('L', 'i', True, True)}, {_args('z', 'i', two=True)}, {_args('R', 'i', True, True)})"),
+    _update_rows("absolute", "z, R", f"absolute({_XP}, {_args('z', 'i')}, {_args('R', 'i', True)})"),
+))  # fmt: skip
+
+
 _LOOPS = f"""
 def predict_rows(x, P, v, w, dt):
     ox = np.empty_like(x)
@@ -184,48 +217,12 @@ def predict_rows(x, P, v, w, dt):
     return ox, oP
 
 
-def pose_rows(x, P, xk, Pk, z, R):
-    n = x.shape[0]
-    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
-    for i in prange(n):
-        r = pose({_args("x", "i")}, {_args("P", "i", True)}, {_args("xk", "i")}, {_args("Pk", "i", True)},
-                 {_args("z", "i")}, {_args("R", "i", True)})
-{_store("ox", "oP", "i", 8)}
-        nis[i] = r[9]
-        ok[i] = r[10]
-    return ox, oP, nis, ok
-
-
-def landmark_rows(x, P, lk, L, z, R):
-    n = x.shape[0]
-    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
-    for i in prange(n):
-        r = landmark({_args("x", "i")}, {_args("P", "i", True)}, {_args("lk", "i", two=True)},
-                     {_args("L", "i", True, True)}, {_args("z", "i", two=True)}, {_args("R", "i", True, True)})
-{_store("ox", "oP", "i", 8)}
-        nis[i] = r[9]
-        ok[i] = r[10]
-    return ox, oP, nis, ok
-
-
-def absolute_rows(x, P, z, R):
-    n = x.shape[0]
-    ox, oP, nis, ok = np.empty_like(x), np.empty_like(P), np.empty(n), np.empty(n, dtype=np.bool_)
-    for i in prange(n):
-        r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "i")}, {_args("R", "i", True)})
-{_store("ox", "oP", "i", 8)}
-        nis[i] = r[9]
-        ok[i] = r[10]
-    return ox, oP, nis, ok
-
+{_ROWS}
 
 def predict_into(x, P, tc, v, w, robots, t):
     for k in range(robots.shape[0]):
         i = robots[k]
-        if tc[i] < t:
-            r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
-{_store("x", "P", "i", 12)}
-            tc[i] = t
+{_advance(8)}
 
 
 def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason, gate, thr,
@@ -298,10 +295,7 @@ def replay_serial(x, P, tc, t0, v, w, stamps, s0, relative, lm_on, lxy, lcov, d0
         t = stamps[s]
         for c in range(c0[s], c0[s + 1]):  # robots with a command at t move to t first
             i = crow[c]
-            if tc[i] < t:
-                r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
-{_store("x", "P", "i", 16)}
-                tc[i] = t
+{_advance(12)}
         a, b = d0[s], d0[s + 1]
         if b > a:
             lv = fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs[a:b], tgt[a:b], kind[a:b],
@@ -378,6 +372,16 @@ def _pick(k: dict[str, Any], name: str, rows: int) -> Any:
     return k[name + "_serial"] if _serial(rows) else k[name]
 
 
+def _tables(gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None, n: int
+            ) -> tuple[FloatArray, FloatArray, FloatArray, IntArray]:  # fmt: skip
+    """The in-place kernels' tables: the map ``(lxy, lcov)`` (a dummy row without one), the gate's threshold by
+    model code, and ``n`` robots' levels (all -1)."""
+    lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
+    thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
+    f = np.ascontiguousarray
+    return f(lxy, dtype=float), f(lcov, dtype=float), thr, np.full(n, -1, dtype=np.int64)
+
+
 class NumbaOps:
     """The fast EKF kernels compiled with numba (the interface of :class:`~swarmloc.engine.backends.NumpyOps`,
     plus a stamp's screening and fusion in place: :meth:`fuse_serial` on one thread, :meth:`fuse_levels` on
@@ -418,19 +422,19 @@ class NumbaOps:
 
     def pose_update(self, x: np.ndarray, P: np.ndarray, xk: np.ndarray, Pk: np.ndarray, z: np.ndarray,
                     Rz: np.ndarray) -> Updated:  # fmt: skip
-        f = np.ascontiguousarray
-        xn, Pn, nis, ok = _pick(self.k, "pose_rows", x.shape[0])(f(x), f(P), f(xk), f(Pk), f(z), f(Rz))
-        return xn, Pn, nis, ok, ok
+        return self._rows("pose_rows", x, P, xk, Pk, z, Rz)
 
     def absolute_update(self, x: np.ndarray, P: np.ndarray, z: np.ndarray, Rz: np.ndarray) -> Updated:
-        f = np.ascontiguousarray
-        xn, Pn, nis, ok = _pick(self.k, "absolute_rows", x.shape[0])(f(x), f(P), f(z), f(Rz))
-        return xn, Pn, nis, ok, ok
+        return self._rows("absolute_rows", x, P, z, Rz)
 
     def landmark_update(self, x: np.ndarray, P: np.ndarray, lk: np.ndarray, L: np.ndarray, z: np.ndarray,
                         Rz: np.ndarray) -> Updated:  # fmt: skip
-        f = np.ascontiguousarray
-        xn, Pn, nis, ok = _pick(self.k, "landmark_rows", x.shape[0])(f(x), f(P), f(lk), f(L), f(z), f(Rz))
+        return self._rows("landmark_rows", x, P, lk, L, z, Rz)
+
+    def _rows(self, name: str, *arrays: np.ndarray) -> Updated:
+        """Row kernel ``name`` (parallel or serial by the rows) on C-contiguous ``arrays``: ``(x+, P+, nis, ok,
+        ok)``."""
+        xn, Pn, nis, ok = _pick(self.k, name, arrays[0].shape[0])(*map(np.ascontiguousarray, arrays))
         return xn, Pn, nis, ok, ok
 
     def serial(self, rows: int) -> bool:
@@ -490,13 +494,11 @@ class NumbaOps:
                   use_landmarks: bool, extra: tuple[()] | tuple[FloatArray, FloatArray]) -> int:  # fmt: skip
         f = np.ascontiguousarray
         i64 = np.int64
-        thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
-        lev = np.full(state[0].shape[0], -1, dtype=i64)
-        lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
-        return int(self.k[name](*state, float(t), bool(use_relative), bool(use_landmarks), f(lxy, dtype=float),
-                                f(lcov, dtype=float), f(det.observer, dtype=i64), f(det.target, dtype=i64),
-                                f(det.kind, dtype=i64), f(det.z, dtype=float), f(det.R, dtype=float), status, reason,
-                                gate.p is not None, thr, lev, *extra))  # fmt: skip
+        lxy, lcov, thr, lev = _tables(gate, landmarks, state[0].shape[0])
+        return int(self.k[name](*state, float(t), bool(use_relative), bool(use_landmarks), lxy, lcov,
+                                f(det.observer, dtype=i64), f(det.target, dtype=i64), f(det.kind, dtype=i64),
+                                f(det.z, dtype=float), f(det.R, dtype=float), status, reason, gate.p is not None,
+                                thr, lev, *extra))  # fmt: skip
 
     def replay_serial(self, state: Rows, tl: Timeline, s0: int, use_relative: bool, status: np.ndarray,
                       reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
@@ -513,17 +515,14 @@ class NumbaOps:
         far."""
         f = np.ascontiguousarray
         i64 = np.int64
-        thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
-        lev = np.full(state[0].shape[0], -1, dtype=i64)
-        lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
+        lxy, lcov, thr, lev = _tables(gate, landmarks, state[0].shape[0])
         d = tl.det
         stop = self.k["replay_serial"](*state, f(tl.stamps, dtype=float), int(s0), bool(use_relative),
-                                       bool(use_landmarks), f(lxy, dtype=float), f(lcov, dtype=float),
-                                       f(tl.d0, dtype=i64), f(d.observer, dtype=i64), f(d.target, dtype=i64),
-                                       f(d.kind, dtype=i64), f(d.z, dtype=float), f(d.R, dtype=float), status,
-                                       reason, gate.p is not None, thr, lev, f(tl.c0, dtype=i64),
-                                       f(tl.robot, dtype=i64), f(tl.v, dtype=float), f(tl.w, dtype=float),
-                                       f(tl.record, dtype=np.bool_), *out)  # fmt: skip
+                                       bool(use_landmarks), lxy, lcov, f(tl.d0, dtype=i64),
+                                       f(d.observer, dtype=i64), f(d.target, dtype=i64), f(d.kind, dtype=i64),
+                                       f(d.z, dtype=float), f(d.R, dtype=float), status, reason, gate.p is not None,
+                                       thr, lev, f(tl.c0, dtype=i64), f(tl.robot, dtype=i64), f(tl.v, dtype=float),
+                                       f(tl.w, dtype=float), f(tl.record, dtype=np.bool_), *out)  # fmt: skip
         return int(stop), int(out[-1][0])
 
     def scatter2(self, a: np.ndarray, b: np.ndarray, rows: np.ndarray, va: np.ndarray, vb: np.ndarray) -> None:

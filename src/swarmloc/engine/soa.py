@@ -132,10 +132,6 @@ def sym3(p: Vec) -> Mat:
     return [[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]
 
 
-def upper(A: Mat) -> Vec:
-    return A[0][0], A[0][1], A[0][2], A[1][1], A[1][2], A[2][2]
-
-
 def wrap(xp: Any, a: Entry) -> Entry:
     """Angle wrapped to (-pi, pi] (:func:`swarmloc.lie.wrap_angle`; :mod:`swarmloc.sensors.planar`'s)."""
     return build(xp).wrap(a)

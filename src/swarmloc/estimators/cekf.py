@@ -101,14 +101,14 @@ def flush_pending(s: TeamState) -> TeamState:
         if pd is None:
             continue
         i = 3 * k
-        a, b, q00, q01, q02, q11, q12, q22 = pd
+        a, b = pd[:2]
         row = P[i + 2].copy()
         P[i] += a * row
         P[i + 1] += b * row
         col = P[:, i + 2].copy()
         P[:, i] += a * col
         P[:, i + 1] += b * col
-        P[i : i + 3, i : i + 3] += np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+        P[i : i + 3, i : i + 3] += C.sym3(pd[2:])
     return TeamState(s.X, P, s.t, s.cmd, (None,) * len(s.pend), s.L)
 
 
@@ -130,16 +130,22 @@ def planar_noise(node: TeamNode) -> UnicycleNoise:
     return node.noise
 
 
-def increment(node: TeamNode, s: TeamState, robot: int, t: float) -> tuple[int, int, tuple[float, ...]] | None:
-    """``(k, i, terms)`` of predicting ``robot`` (block ``k``, first row ``i``) to ``t`` [s]:
-    :func:`~swarmloc.kernels.cartesian.increment_terms` with its command; None when ``t`` is not later."""
+def increment(
+    node: TeamNode, s: TeamState, robot: int, t: float
+) -> tuple[int, int, tuple[float, ...], np.ndarray] | None:
+    """``(k, i, terms, X)`` of predicting ``robot`` (block ``k``, first row ``i``) to ``t`` [s]:
+    :func:`~swarmloc.kernels.cartesian.increment_terms` with its command, and a copy of the joint mean with the
+    robot's new pose; None when ``t`` is not later."""
     k = node._idx[robot] // 3
     dt = t - s.t[k]
     if dt <= 0:
         return None
     i = 3 * k
     v, w = s.cmd[k]
-    return k, i, C.increment_terms(s.X[i : i + 3], v, w, dt, planar_noise(node))
+    terms = C.increment_terms(s.X[i : i + 3], v, w, dt, planar_noise(node))
+    X = s.X.copy()
+    X[i : i + 3] = terms[:3]
+    return k, i, terms, X
 
 
 def log_shear(node: TeamNode, t: float, robot: int, dx: float, dy: float) -> None:
@@ -155,8 +161,7 @@ def cartesian_belief(s: TeamState, i: int) -> tuple[np.ndarray, np.ndarray]:
     pd = s.pend[i // 3]
     if pd is not None:
         q = shear_upper((P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]), pd[1], -pd[0])
-        q00, q01, q02, q11, q12, q22 = (u + w for u, w in zip(q, pd[2:], strict=True))
-        P = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+        P = C.sym3([u + w for u, w in zip(q, pd[2:], strict=True)])
     return C.to_group(s.X[i : i + 3], P)
 
 
@@ -199,9 +204,7 @@ class TeamForm:
         step = increment(node, s, robot, t)
         if step is None:
             return s
-        k, i, (x0, y0, th, dx, dy, *q) = step
-        X = s.X.copy()
-        X[i], X[i + 1], X[i + 2] = x0, y0, th
+        k, _, (_, _, _, dx, dy, *q), X = step
         log_shear(node, t, robot, dx, dy)
         return TeamState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)))
 

@@ -62,24 +62,26 @@ class CovarianceIntersection:
     @staticmethod
     def ci(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, target: tuple[str, Any]) -> Any:
         """Covariance intersection with a neighbour's answer: the weight in closed form from the linearized fusion
-        (:func:`swarmloc.kernels.ci.point_weight`, :func:`~swarmloc.kernels.ci.pose_weight`), then one fusion."""
+        (:func:`swarmloc.kernels.ci.point_weight`, :func:`~swarmloc.kernels.ci.pose_weight`, on SE(2) or SE(3)), then
+        one fusion."""
         nb_mean, nb_cov = target[1].belief_arrays()
         R = np.asarray(d.cov, dtype=float)
-        order, its = node.order, node.iterations
-        if node.group is SE3 or d.kind == Kind.POSE3:
-            return ci3(node, mean, cov, d, nb_mean, nb_cov, R)
-        if d.kind == Kind.POSE:
-            m = SE2.from_xytheta(d.z)
+        G, order, its = node.group, node.order, node.iterations
+        pose = d.kind in (Kind.POSE, Kind.POSE3)
+        if (G is SE3 or d.kind == Kind.POSE3) and not (d.kind == Kind.POSE3 and G is SE3 and nb_mean.shape == (4, 4)):
+            return ("rejected", f"kind {d.kind!r} is not supported on {G.name}")
+        if pose:  # a relative pose on its group: gated as an independent pseudo-observation
+            m = pose3_matrix(d.z) if G is SE3 else SE2.from_xytheta(d.z)
             pair = KCI.Pair(mean, cov, m, R, nb_mean, nb_cov)
             if node.gate.p is not None:
-                nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov, m, R, order)
-                verdict = node._gated(float(K.pseudo_nis(SE2, mean, cov, nu, W)), 3)
+                nu, W = K.relative_to_pseudo(G, nb_mean, nb_cov, m, R, order)
+                verdict = node._gated(float(K.pseudo_nis(G, mean, cov, nu, W)), G.dim)
                 if verdict is not None:
                     return verdict
-            if node.ci_weight == "search":
+            if node.ci_weight == "search" and G is SE2:  # SE(3): the closed form whatever ci_weight says
                 m2, c2, _ = KCI.ci_search(KCI.pose_fusion_at(pair, order, its))
             else:
-                m2, c2 = KCI.pose_fusion(SE2, pair, order, its)
+                m2, c2 = KCI.pose_fusion(G, pair, order, its)
         else:
             verdict = point_gate(node, mean, cov, K.PointMeasurement(d.kind, d.z, R, nb_mean, nb_cov, True))
             if verdict is not None:
@@ -94,27 +96,8 @@ class CovarianceIntersection:
             if not ok:
                 return ("rejected", DEGENERATE)
         if not (np.isfinite(m2).all() and usable_covariance(c2)):
-            return ("rejected", DEGENERATE if d.kind != Kind.POSE else NUMERICAL)
+            return ("rejected", NUMERICAL if pose else DEGENERATE)
         return m2, c2
-
-
-def ci3(node: ExpNode, mean: np.ndarray, cov: np.ndarray, d: Any, nb_mean: np.ndarray, nb_cov: np.ndarray,
-        R: np.ndarray) -> Any:  # fmt: skip
-    """Covariance intersection of an SE(3) relative pose (``"pose3"``) with the neighbour's SE(3) answer: the
-    weight in closed form (:func:`~swarmloc.kernels.ci.pose_weight` on SE(3)), then one fusion."""
-    if d.kind != Kind.POSE3 or node.group is not SE3 or nb_mean.shape != (4, 4):
-        return ("rejected", f"kind {d.kind!r} is not supported on {node.group.name}")
-    m = pose3_matrix(d.z)
-    order, its = node.order, node.iterations
-    if node.gate.p is not None:
-        nu, W = K.relative_to_pseudo(SE3, nb_mean, nb_cov, m, R, order)
-        verdict = node._gated(float(K.pseudo_nis(SE3, mean, cov, nu, W)), 6)
-        if verdict is not None:
-            return verdict
-    m2, c2 = KCI.pose_fusion(SE3, KCI.Pair(mean, cov, m, R, nb_mean, nb_cov), order, its)
-    if not (np.isfinite(m2).all() and usable_covariance(c2)):
-        return ("rejected", NUMERICAL)
-    return m2, c2
 
 
 class ExpCI(ExpNode):

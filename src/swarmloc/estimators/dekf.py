@@ -103,8 +103,7 @@ def predict_run(
     )  # fmt: skip
     if t == s.t:  # no prediction: only the command changed
         return s.x, s.P, t, cmd, shear
-    p00, p01, p02, p11, p12, p22 = p
-    return np.array(x), np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]), t, cmd, shear
+    return np.array(x), C.sym3(p), t, cmd, shear
 
 
 class CartesianForm:

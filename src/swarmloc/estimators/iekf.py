@@ -45,6 +45,7 @@ from swarmloc.estimators.cekf import (
 )
 from swarmloc.estimators.dekf import DEGENERATE
 from swarmloc.events import Detection, Kind
+from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.node import FUSED, Gate, Group, Outcome, TeamNode, gated_kalman
@@ -147,9 +148,7 @@ class InvariantForm:
         step = increment(node, s, robot, t)
         if step is None:
             return s
-        k, i, (x0, y0, th, _, _, q00, q01, q02, q11, q12, q22) = step
-        X = s.X.copy()
-        X[i], X[i + 1], X[i + 2] = x0, y0, th
+        k, _, (x0, y0, _, _, _, q00, q01, q02, q11, q12, q22), X = step
         # world-frame process noise: N^-1 Q_c N^-T with N^-1 = [[1, 0, y], [0, 1, -x], [0, 0, 1]]
         a02, a12 = q02 + y0 * q22, q12 - x0 * q22
         qw = (
@@ -165,8 +164,7 @@ class InvariantForm:
         P = s.P[i : i + 3, i : i + 3]
         pd = s.pend[i // 3]
         if pd is not None:
-            q00, q01, q02, q11, q12, q22 = pd[2:]
-            P = P + np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+            P = P + C.sym3(pd[2:])
         g = SE2.from_xytheta(s.X[i : i + 3])
         return g, I.world_to_body(g, P)
 
@@ -233,11 +231,9 @@ class FirstEstimatesForm:
         step = increment(node, s, robot, t)
         if step is None:
             return s
-        k, i, (x0, y0, th, _, _, *q) = step
-        L = self.first(s)
+        k, i, (x0, y0, _, _, _, *q), X = step
+        L = self.first(s).copy()
         dx, dy = x0 - L[i], y0 - L[i + 1]  # first-estimates displacement: new prediction - previous first estimate
-        X, L = s.X.copy(), L.copy()
-        X[i], X[i + 1], X[i + 2] = x0, y0, th
         L[i : i + 3] = X[i : i + 3]
         log_shear(node, t, robot, dx, dy)
         return TeamState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)), L)

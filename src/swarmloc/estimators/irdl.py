@@ -47,10 +47,9 @@ class WorldPairs:
 
     def advance(self, node: RdlNode, s: RdlFilter, t: float) -> RdlFilter:
         """``P`` gains the world-frame process noise; the factors stay (the error transition is the identity)."""
-        x0, y0, th, _, _, q00, q01, q02, q11, q12, q22 = C.increment_terms(s.x, s.v, s.w, t - s.t, node.noise)
-        Qc = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+        x0, y0, th, _, _, *q = C.increment_terms(s.x, s.v, s.w, t - s.t, node.noise)
         x = np.array([x0, y0, th])
-        P = s.P + I.cartesian_to_world_cov(x, Qc)
+        P = s.P + I.cartesian_to_world_cov(x, C.sym3(q))
         return RdlFilter(t, s.v, s.w, x, P, s.ids, s.sigma)
 
     def advance_commands(

@@ -13,7 +13,7 @@ import numpy as np
 
 from swarmloc.gaussian import mahalanobis2, symmetric
 from swarmloc.kernels import group as K
-from swarmloc.lie import SE2, exp_xyt, wrap_angle
+from swarmloc.lie import SE2, between_xyt, exp_xyt, log_xyt, wrap_angle
 from swarmloc.node import usable_covariance
 
 COV_FLOOR = 1e-10
@@ -66,20 +66,6 @@ def logsumexp(a: np.ndarray) -> float:
     return m + math.log(float(np.sum(np.exp(a - m))))
 
 
-def _log_rel(mu: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``log(mu^-1 g_n)`` ``(N, 3)`` for a pose ``mu = (x, y, theta)`` and particles ``p`` ``(N, 3)`` (the formulas
-    of :meth:`SE2.log <swarmloc.lie.SE2.log>` on Cartesian poses, without building matrices)."""
-    c, s = math.cos(mu[2]), math.sin(mu[2])
-    dx, dy = p[:, 0] - mu[0], p[:, 1] - mu[1]
-    t1, t2 = c * dx + s * dy, -s * dx + c * dy
-    a = wrap_angle(p[:, 2] - mu[2])
-    h = 0.5 * a
-    small = np.abs(a) < 1e-6
-    with np.errstate(divide="ignore", invalid="ignore"):
-        k = np.where(small, 1.0 - a * a / 12.0, h / np.tan(np.where(small, 1.0, h)))
-    return np.stack([k * t1 + h * t2, -h * t1 + k * t2, a], axis=-1)
-
-
 def ensemble_transform(
     p: np.ndarray, mean: np.ndarray, cov: np.ndarray, mean2: np.ndarray, cov2: np.ndarray
 ) -> np.ndarray | None:
@@ -90,7 +76,7 @@ def ensemble_transform(
         return None
     m0, m1 = SE2.to_xytheta(mean), SE2.to_xytheta(mean2)
     A = np.linalg.cholesky(cov2) @ np.linalg.inv(np.linalg.cholesky(cov))
-    ex, ey, ea = exp_xyt(_log_rel(m0, p) @ A.T).T
+    ex, ey, ea = exp_xyt(log_xyt(between_xyt(m0, p)) @ A.T).T
     c, s = math.cos(m1[2]), math.sin(m1[2])
     return np.stack([m1[0] + c * ex - s * ey, m1[1] + s * ex + c * ey, wrap_angle(m1[2] + ea)], axis=-1)
 
@@ -138,9 +124,9 @@ def fit_gaussian(particles: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray
     th = particles[:, 2]
     mu = np.array([w @ particles[:, 0], w @ particles[:, 1], math.atan2(w @ np.sin(th), w @ np.cos(th))])
     for _ in range(MEAN_ITERATIONS):  # Gauss-Newton steps of the weighted Karcher mean: mu <- mu exp(mean y)
-        step = SE2.to_xytheta(SE2.from_xytheta(mu) @ SE2.exp(w @ _log_rel(mu, particles), validate=False))
+        step = SE2.to_xytheta(SE2.from_xytheta(mu) @ SE2.exp(w @ log_xyt(between_xyt(mu, particles)), validate=False))
         mu = step
-    y = _log_rel(mu, particles)
+    y = log_xyt(between_xyt(mu, particles))
     cov = (y * w[:, None]).T @ y
     cov = symmetric(cov) + COV_FLOOR * np.eye(3)
     return SE2.from_xytheta(mu), cov

@@ -77,16 +77,18 @@ def increment_terms_xy(
     return (x0 + dx, y0 + dy, th, dx, dy, *world_cov(math.cos(th), math.sin(th), hit[3:]))
 
 
+def sym3(p: Sequence[float]) -> FloatArray:
+    """The symmetric ``(3, 3)`` matrix of the upper triangle ``p = (p00, p01, p02, p11, p12, p22)``."""
+    p00, p01, p02, p11, p12, p22 = p
+    return np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
+
+
 def _increment_one(
     x: FloatArray, v: float, w: float, dt: float, noise: UnicycleNoise
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """:func:`increment` for one robot, in floats (the same formulas; ~3x faster than the array path)."""
-    x0, y0, th, dx, dy, q00, q01, q02, q11, q12, q22 = increment_terms(x, v, w, dt, noise)
-    return (
-        np.array([x0, y0, th]),
-        np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]]),
-        np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]]),
-    )
+    x0, y0, th, dx, dy, *q = increment_terms(x, v, w, dt, noise)
+    return np.array([x0, y0, th]), np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]]), sym3(q)
 
 
 def predict_one(
@@ -96,8 +98,7 @@ def predict_one(
     [0, 0, 1]]`` (``Phi P Phi^T`` expanded: ``Phi`` differs from the identity in two entries)."""
     x0, y0, th, dx, dy, *q = increment_terms(x, v, w, dt, noise)
     p00, p01, p02, _, p11, p12, _, _, p22 = P.ravel().tolist()
-    n00, n01, n02, n11, n12, n22 = shifted_cov((p00, p01, p02, p11, p12, p22), dx, dy, q)
-    return np.array([x0, y0, th]), np.array([[n00, n01, n02], [n01, n11, n12], [n02, n12, n22]]), dx, dy
+    return np.array([x0, y0, th]), sym3(shifted_cov((p00, p01, p02, p11, p12, p22), dx, dy, q)), dx, dy
 
 
 def shifted_cov(p: Sequence[Any], dx: Any, dy: Any, q: Sequence[Any]) -> tuple[Any, ...]:

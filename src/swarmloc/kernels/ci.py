@@ -236,49 +236,42 @@ class Pair(NamedTuple):
     nb_cov: FloatArray
 
 
-def pose_fusion(group: type[SEGroup], pair: Pair, order: int, iterations: int) -> tuple[FloatArray, FloatArray]:
-    """Relative poses: the weight in closed form (:func:`pose_weight`), then one fusion of the neighbour's
-    pseudo-observation (:func:`swarmloc.kernels.group.fuse_pseudo`); returns ``(mean, cov)``."""
+def pose_fusion(group: type[SEGroup], pair: Pair, order: int, iterations: int, w: Any = None
+                ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+    """Relative poses: one fusion of the neighbour's pseudo-observation (:func:`swarmloc.kernels.group.fuse_pseudo`)
+    at the CI weight ``w``, by default the closed form (:func:`pose_weight`); a ``w`` with leading axes of its own
+    ``(k, ...)`` fuses at each (:func:`ci_search`). Returns ``(mean, cov)``."""
     mean, cov, meas, R, nb_mean, nb_cov = pair
-    w = np.asarray(pose_weight(*pair, order, group=group))[..., None, None]
-    nu, W = K.relative_to_pseudo(group, nb_mean, nb_cov / (1 - w), meas, R, order)
-    return K.fuse_pseudo(group, mean, cov / w, nu[..., None, :, :], W[..., None, :, :], order, iterations)
+    wc = np.asarray(pose_weight(*pair, order, group=group) if w is None else w)[..., None, None]
+    nu, W = K.relative_to_pseudo(group, nb_mean, nb_cov / (1 - wc), meas, R, order)
+    mu = np.broadcast_to(mean, (*wc.shape[:-2], *np.shape(mean)[-2:]))
+    return K.fuse_pseudo(group, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], order, iterations)
 
 
-def point_fusion(kind: str, pair: Pair, point_iterations: int, order: int) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Range/bearing ``pair.meas`` of a robot on SE(2): the weight in closed form (:func:`point_weight`), then the
-    iterated point update (:func:`swarmloc.kernels.group.point_update`); returns ``(mean, cov, ok)``, ok False where
+def point_fusion(kind: str, pair: Pair, point_iterations: int, order: int, w: Any = None
+                 ) -> tuple[FloatArray, FloatArray, BoolArray]:  # fmt: skip
+    """Range/bearing ``pair.meas`` of a robot on SE(2): the iterated point update
+    (:func:`swarmloc.kernels.group.point_update`) at the CI weight ``w``, by default the closed form
+    (:func:`point_weight`; a ``w (k, ...)`` as in :func:`pose_fusion`); returns ``(mean, cov, ok)``, ok False where
     degenerate."""
     mean, cov, z, R, nb_mean, nb_cov = pair
-    w = np.asarray(point_weight(mean, cov, kind, z, R, nb_mean, nb_cov))[..., None, None]
-    meas = K.PointMeasurement(kind, z, R, nb_mean, nb_cov / (1 - w), True)
-    return K.point_update(mean, cov / w, meas, point_iterations, order)
+    z = np.asarray(z, dtype=float)
+    wc = np.asarray(point_weight(mean, cov, kind, z, R, nb_mean, nb_cov) if w is None else w)[..., None, None]
+    meas = K.PointMeasurement(kind, z, R, nb_mean, nb_cov / (1 - wc), True)
+    return K.point_update(np.broadcast_to(mean, (*wc.shape[:-2], 3, 3)), cov / wc, meas, point_iterations, order)
 
 
 def pose_fusion_at(pair: Pair, order: int, iterations: int) -> Fuse:
     """The relative-pose fusion on SE(2) at CI weights ``w (k, ...)``, for :func:`ci_search`."""
-    mean, cov, meas, R, nb_mean, nb_cov = pair
-
-    def fuse(w: FloatArray) -> tuple[FloatArray, FloatArray]:
-        wc = w[..., None, None]
-        nu, W = K.relative_to_pseudo(SE2, nb_mean, nb_cov / (1 - wc), meas, R, order)
-        mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-        return K.fuse_pseudo(SE2, mu, cov / wc, nu[..., None, :, :], W[..., None, :, :], order, iterations)
-
-    return fuse
+    return lambda w: pose_fusion(SE2, pair, order, iterations, w)
 
 
 def point_fusion_at(kind: str, pair: Pair, point_iterations: int, order: int) -> Fuse:
     """The range/bearing point update at CI weights ``w (k, ...)``, for :func:`ci_search` (NaN covariance where
     degenerate)."""
-    mean, cov, z, R, nb_mean, nb_cov = pair
-    z = np.asarray(z, dtype=float)
 
     def fuse(w: FloatArray) -> tuple[FloatArray, FloatArray]:
-        wc = w[..., None, None]
-        mu = np.broadcast_to(mean, (*w.shape, 3, 3))
-        meas = K.PointMeasurement(kind, z, R, nb_mean, nb_cov / (1 - wc), True)
-        m2, c2, ok = K.point_update(mu, cov / wc, meas, point_iterations, order)
+        m2, c2, ok = point_fusion(kind, pair, point_iterations, order, w)
         return m2, np.where(np.asarray(ok)[..., None, None], c2, np.nan)
 
     return fuse

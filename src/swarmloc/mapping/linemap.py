@@ -42,12 +42,9 @@ from scipy.stats import chi2
 
 from swarmloc.gaussian import symmetric
 from swarmloc.lie import wrap_angle
+from swarmloc.mapping.lines import normal_tangent
 
 __all__ = ["LineMap", "LineObservation", "MapLine"]
-
-
-def _n_t(alpha: float) -> tuple[np.ndarray, np.ndarray]:
-    return np.array([np.cos(alpha), np.sin(alpha)]), np.array([-np.sin(alpha), np.cos(alpha)])
 
 
 @dataclass(frozen=True)
@@ -101,12 +98,12 @@ class MapLine:
 
     def endpoints(self) -> np.ndarray:
         """The segment's end points ``(2, 2)`` [m]."""
-        n, t = _n_t(self.alpha)
+        n, t = normal_tangent(self.alpha)
         return self.rho * n + np.outer([self.s0, self.s1], t)
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Tangential coordinates [m] of ``points`` ``(k, 2)`` on this line."""
-        return np.asarray(points, dtype=float) @ _n_t(self.alpha)[1]
+        return np.asarray(points, dtype=float) @ normal_tangent(self.alpha)[1]
 
 
 @dataclass(frozen=True)
@@ -220,7 +217,7 @@ class LineMap:
             line.rho, line.alpha, line.cov = float(x[0]), wrap_angle(float(x[1])), C
         else:
             line.rho, line.alpha, line.cov = float(-x[0]), wrap_angle(float(x[1]) + np.pi), _flip(C)
-        t = _n_t(line.alpha)[1]
+        t = normal_tangent(line.alpha)[1]
 
         def s(p: np.ndarray) -> float:
             return float(p @ t)
@@ -247,9 +244,9 @@ class LineMap:
         if k is None:
             rho, alpha = (obs.rho, wrap_angle(obs.alpha)) if obs.rho >= 0 else (-obs.rho, wrap_angle(obs.alpha + np.pi))
             cov = cov.copy() if obs.rho >= 0 else _flip(cov)
-            s = ends @ _n_t(alpha)[1]
+            s = ends @ normal_tangent(alpha)[1]
             line = MapLine(float(rho), alpha, cov, float(s.min()), float(s.max()), {obs.robot})
-            e = sorted(_obs_ends(obs), key=lambda e: float(e.point @ _n_t(alpha)[1]))
+            e = sorted(_obs_ends(obs), key=lambda e: float(e.point @ normal_tangent(alpha)[1]))
             line.ends = (e[0], e[1])
             self.lines.append(line)
             self.counts["added"] += 1

@@ -56,7 +56,8 @@ class LineFit:
     [m^2] from the beam spacing and range noise (module docstring)."""
 
 
-def _normal(alpha: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+def normal_tangent(alpha: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """A line's unit normal ``(cos alpha, sin alpha)`` and tangent ``(-sin alpha, cos alpha)`` (``(..., 2)`` each)."""
     a = np.asarray(alpha, dtype=float)
     return np.stack([np.cos(a), np.sin(a)], -1), np.stack([-np.sin(a), np.cos(a)], -1)
 
@@ -185,7 +186,7 @@ def _with_ends(f: LineFit, pts: np.ndarray, lo: int, hi: int, corner0: bool, cor
     """``f`` with its ends classified (closed or open), jump-edge ends moved half a beam spacing outwards, and the
     ends' variances along the line (module docstring). ``corner0``/``corner1``: the end point is shared with the
     neighbouring run."""
-    n, t = _normal(f.alpha)
+    n, t = normal_tangent(f.alpha)
     ends = f.endpoints.copy()
     closed, var = [False, False], [0.0, 0.0]
     for e, (last, inner, nxt, corner) in enumerate(((lo, lo + 1, lo - 1, corner0), (hi - 1, hi - 2, hi, corner1))):
