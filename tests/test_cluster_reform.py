@@ -13,8 +13,10 @@ from types import ModuleType
 import numpy as np
 import pytest
 
+from swarmloc.engine.replay import run_engine
 from swarmloc.estimators.cluster_reform import Schedule, id_cut, piece_weights, seen_cut, seen_schedule, stacked_bound
 from swarmloc.events import Detection, Kind, Odometry
+from swarmloc.experiments.sources import load_source
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
 from swarmloc.messages import ClusterPiece, message_problem
@@ -115,3 +117,9 @@ def test_nodes_that_re_form_their_clusters_equal_the_prototype() -> None:
         assert (proto["moved"] > 0) == (period > 0), proto["moved"]
         assert res.stats["fused"] == proto["fused"] and res.stats["gated"] == proto["gated"]
         assert (res.stats.get("pieces_received", 0) > 0) == (period > 0)
+
+
+def test_the_engine_refuses_re_forming_clusters_with_a_reason() -> None:
+    src = load_source("sim:random", robots=4, duration=2.0, seed=0)
+    with pytest.raises(ValueError, match="clusters stay fixed: run \\[filter\\] diekf_reform with the nodes"):
+        run_engine(src, "diekf", cluster=2, reform=1.0)

@@ -131,6 +131,8 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
         raise ValueError("the engine's diekf takes the odometry as given: run [filter] diekf_odocal with the nodes")
     if opts.pop("fault", False):
         raise ValueError("the engine's diekf has no odometry-fault test: run [filter] diekf_fault with the nodes")
+    if opts.pop("reform", 0.0):
+        raise ValueError("the engine's diekf clusters stay fixed: run [filter] diekf_reform with the nodes")
     return opts
 
 
