@@ -255,6 +255,34 @@ def test_a_reforming_node_hears_only_its_current_and_next_periods_mates() -> Non
     assert len(sched.cuts) == 11 and ever_most[14] == 13 and most[14] == 10
 
 
+@pytest.mark.unit
+def test_a_reforming_node_subscribes_per_period_to_its_current_and_next_mates() -> None:
+    """Robot 14 of the same 20 robots, its node stepped through its own inputs offline (nobody else alive): after
+    each input it subscribes to the broadcasts of its clusters of the input's period and the next only, and to the
+    progress of those and of the robots it detects or is detected by; fewer than the 13 it shares a cluster with over
+    the run, and a mate of the period before only is let go once past the boundary."""
+    src = clustered(_scene_module().scene(20, 10.0, 1, "grouped"), 5, 1.0)
+    node = make_node("diekf", 14, src.initial[14], src.config, src.landmarks, team=src.robots)
+    node.start(src.t_start)
+    node.plan(src.events)
+    pairs = detected_pairs(src.events)
+    net = NetNode(node, src.own_events(14), session=_Quiet(), team="t", roster=src.robots, detected=pairs)
+    net.wiring.open()
+    sched = node.protocol.schedule
+    met = {t for o, t in pairs if o == 14} | {o for o, t in pairs if t == 14}
+    assert len(node.team) == 14 and net.hearing is not None
+    sizes = set()
+    for s, item in net.inputs.items:
+        net._step(item)
+        mates = heard_in(14, sched, sched.period(s), ())[0]
+        assert net.wiring.heard("broadcast") == sorted(str(r) for r in mates)
+        assert net.wiring.heard("progress") == sorted(str(r) for r in mates | met)
+        assert net.lockstep.watched == mates | met and net.broadcaster.heard == mates
+        sizes.add(len(mates))
+    net.wiring.close()
+    assert max(sizes) == 10 and min(sizes) == 5 and net.wiring.heard("broadcast") == []
+
+
 @pytest.mark.network
 def test_diekf_reforming_networked_equals_in_process() -> None:
     """The same 6 robots for 10 s (threads of this process on 127.0.0.1, benchmarks/diekf_swarm.py's networked run):

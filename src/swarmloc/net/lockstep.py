@@ -263,6 +263,14 @@ class Lockstep:
             self._progress_key.pop(r, None)
             self.counts["peers_left"] += 1
 
+    def watch(self, robots: frozenset[int]) -> None:
+        """Watch ``robots`` from now on (:class:`~.hearing.Hearing`: the schedule's cut changed); one watched anew is
+        not judged silent or stalled by what was heard of it before."""
+        for r in robots - (self.watched or frozenset()):
+            self._beat.pop(r, None)
+            self._heard.pop(r, None)
+        self.watched = robots
+
     def waited(self) -> set[int]:
         """The live teammates lockstep waits for: :attr:`alive`, those of :attr:`watched` only."""
         return self.alive if self.watched is None else self.alive & self.watched
