@@ -315,7 +315,11 @@ class Broadcaster:
     # ------------------------------------------------------------------------------------------------ receiving
     def on_sample(self, b: Any) -> None:
         """What came on a teammate's broadcast key (authenticated: published by that teammate only): a broadcast or
-        its head."""
+        its head; one of a teammate no longer heard (:meth:`forget`: come before its subscriber was undeclared) is
+        dropped, counted ``broadcasts_not_heard``."""
+        if self.heard is not None and getattr(b, "robot", None) not in self.heard:
+            self.counts["broadcasts_not_heard"] += 1
+            return
         if isinstance(b, BroadcastHead):
             self.counts["broadcast_heads_received"] += 1
             if not self._in_window(b.robot, b.n - 1, b.n):
