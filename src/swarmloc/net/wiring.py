@@ -32,7 +32,7 @@ class Wiring:
     :class:`~swarmloc.net.intake.Intake`); ``env``: ``env(body, key)``, the signed envelope of a message
     (:meth:`~.outbound.Envelopes.seal`); ``auth``: the per-pair sessions to attach (None: unauthenticated);
     ``mates``: the teammates whose broadcasts it hears (``["*"]``: all; None: a node without broadcasts);
-    ``watched``: the teammates whose progress it hears (``["*"]``: all);
+    ``watched``: the teammates whose progress it hears (``["*"]``: all); both as opened (then :meth:`hear`);
     ``delayed``, ``lines``: whether it publishes a smoother's delayed output and scans' lines; ``ros_domain``: the
     ROS domain its beliefs are published in too (None: not)."""
 
@@ -70,7 +70,6 @@ class Wiring:
 
     def open(self) -> None:
         """Declare the node's queryable, subscribers, publishers and liveliness token on its session."""
-
         self.block = block()  # never drop a belief, a progress announcement or a push
 
         s, team, r = self.session, self.scope, self.robot  # keys: the team's scope (its name, and the run's id)
