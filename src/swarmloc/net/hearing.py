@@ -8,7 +8,8 @@ on, cannot broadcast anything stamped in the new period before this node's subsc
 session before its progress announces the period). A mate of cut ``k - 1`` only is kept until it has settled
 everything keyed before the boundary (its broadcast head past it, every broadcast below the head here:
 :meth:`~.broadcast.Broadcaster.unsettled_by`), then undeclared, and what this node knew of its broadcasts forgotten
-(a mate heard again later starts from the first number it hears then)."""
+(a mate heard again later, or first heard after the start, starts from the first number it hears then: what it
+broadcast before was not for this node)."""
 
 from __future__ import annotations
 
@@ -50,6 +51,7 @@ class Hearing:
         """The parts it keeps in step (once made; before the wiring is opened)."""
         self._parts = (wiring, lockstep, broadcaster)
         broadcaster.heard = set(self.plan[0][0])
+        broadcaster.forget(frozenset().union(*(m for m, _ in self.plan)) - self.plan[0][0])  # heard from later on
 
     def mates(self) -> list[str]:
         """The mates whose broadcasts it hears now (keys' ids)."""
