@@ -28,7 +28,7 @@ from swarmloc.config import Config
 from swarmloc.datasets.source import Source
 from swarmloc.messages import ClusterPiece
 from swarmloc.net.entry import make_node
-from swarmloc.net.lockstep import detected_pairs, watched
+from swarmloc.net.lockstep import detected_pairs, heard_in, timed_detections, watched
 from swarmloc.net.process import NetNode
 from swarmloc.net.schema import BroadcastHead, Progress
 from swarmloc.net.team import TeamRun
@@ -224,6 +224,63 @@ def test_lockstep_reaches_a_boundary_once_settled_and_holds_groups_for_the_piece
     assert why is not None and not net.lockstep.boundaries_in(1.0)
     net.lockstep._awaiting[why] -= 1e6  # as if waited for long
     assert net.lockstep.boundaries_in(1.0) and net.lockstep.counts["boundary_not_received"] == 1
+
+
+@pytest.mark.unit
+def test_a_reforming_node_hears_only_its_current_and_next_periods_mates() -> None:
+    """20 robots of the grouped scene for 10 s in clusters of 5 re-formed every second: in every period a node hears
+    the broadcasts of its clusters of that period and the next only, and waits for their progress and for that of the
+    robots it detects or is detected by in those periods only; over the run that is every robot it ever shares a
+    cluster with (the node's ``team``): robot 14, whose clusters hold 13 others over the run, hears 10 at most."""
+    src = clustered(_scene_module().scene(20, 10.0, 1, "grouped"), 5, 1.0)
+    dets = timed_detections(src.events)
+    assert {(o, t) for _, o, t in dets} == detected_pairs(src.events)
+    most: dict[int, int] = {}
+    ever_most: dict[int, int] = {}
+    for r in src.robots:
+        node = make_node("diekf", r, src.initial[r], src.config, src.landmarks, team=src.robots)
+        node.plan(src.events)
+        sched = node.protocol.schedule
+        ever: set[int] = set()
+        for k in range(len(sched.cuts)):
+            mates, waits = heard_in(r, sched, k, dets)
+            ks = [q for q in (k, k + 1) if q < len(sched.cuts)]
+            assert mates == {m for q in ks for m in sched.cluster(r, q)} - {r}
+            met = {b for s, o, t in dets if sched.period(s) in ks for a, b in ((o, t), (t, o)) if a == r}
+            assert mates <= waits and waits - mates <= met
+            ever |= mates
+            most[r] = max(most.get(r, 0), len(mates))
+        assert ever | {r} == set(node.team)
+        ever_most[r] = len(ever)
+    assert len(sched.cuts) == 11 and ever_most[14] == 13 and most[14] == 10
+
+
+@pytest.mark.unit
+def test_a_reforming_node_subscribes_per_period_to_its_current_and_next_mates() -> None:
+    """Robot 14 of the same 20 robots, its node stepped through its own inputs offline (nobody else alive): after
+    each input it subscribes to the broadcasts of its clusters of the input's period and the next only, and to the
+    progress of those and of the robots it detects or is detected by; fewer than the 13 it shares a cluster with over
+    the run, and a mate of the period before only is let go once past the boundary."""
+    src = clustered(_scene_module().scene(20, 10.0, 1, "grouped"), 5, 1.0)
+    node = make_node("diekf", 14, src.initial[14], src.config, src.landmarks, team=src.robots)
+    node.start(src.t_start)
+    node.plan(src.events)
+    pairs = detected_pairs(src.events)
+    net = NetNode(node, src.own_events(14), session=_Quiet(), team="t", roster=src.robots, detected=pairs)
+    net.wiring.open()
+    sched = node.protocol.schedule
+    met = {t for o, t in pairs if o == 14} | {o for o, t in pairs if t == 14}
+    assert len(node.team) == 14 and net.hearing is not None
+    sizes = set()
+    for s, item in net.inputs.items:
+        net._step(item)
+        mates = heard_in(14, sched, sched.period(s), ())[0]
+        assert net.wiring.heard("broadcast") == sorted(str(r) for r in mates)
+        assert net.wiring.heard("progress") == sorted(str(r) for r in mates | met)
+        assert net.lockstep.watched == mates | met and net.broadcaster.heard == mates
+        sizes.add(len(mates))
+    net.wiring.close()
+    assert max(sizes) == 10 and min(sizes) == 5 and net.wiring.heard("broadcast") == []
 
 
 @pytest.mark.network

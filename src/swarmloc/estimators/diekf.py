@@ -62,9 +62,9 @@ it (:class:`~swarmloc.estimators.cluster_reform.Reforming`: the boundary is a hi
 stamped ``T``). The nodes equal the centralized prototype ``benchmarks/diekf_reform.py`` (tests/test_cluster_reform.py).
 Over the network (:mod:`swarmloc.net.lockstep`) a node reaches a boundary once nothing before it can still come, its
 groups after it wait for the pieces, a piece made before a late input is sent again revised, and the node hears the
-broadcasts of every robot it shares a cluster with at some time of the run (its ``team``; those of another time's
-cluster are dropped, counted ``broadcasts_other_cluster``): the run equals the in-process one
-(tests/test_net_progress.py).
+broadcasts of its clusters of the current period and the next only (an old mate until it settled what is keyed before
+the boundary: :mod:`swarmloc.net.hearing`; a next period's mate's are dropped, counted ``broadcasts_other_cluster``):
+the run equals the in-process one (tests/test_net_progress.py).
 
 Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
 ``RdlStateQuery`` keyed as the detection would be were it of that teammate
@@ -562,7 +562,8 @@ class DistributedInvariantEKF(RobotNode):
         p.follow(sched)
         self.reforming = Reforming(p, sched, self._history, self._file, self._filing.replay, self.accounting)
         self.team = tuple(sorted({r for k in range(len(sched.cuts)) for r in sched.cluster(self.robot, k)}))
-        """Every robot this one shares a cluster with at some time (a network driver hears their broadcasts)."""
+        """Every robot this one shares a cluster with at some time (a network driver hears each while it is a mate
+        of this period or the next: :mod:`swarmloc.net.hearing`)."""
 
     def boundary(self) -> float | None:
         """The next boundary of the clusters' schedule not reached yet (None: none, or fixed clusters)."""

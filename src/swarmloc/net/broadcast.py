@@ -41,7 +41,7 @@ import logging
 import math
 import time
 from collections import Counter, OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
 import msgspec
@@ -138,6 +138,9 @@ class Broadcaster:
         self._bkey_pruned = 0.0
         self._repair_budget: dict[int, TokenBucket] = {}  # per asker: broadcast numbers it may still have again
         self.repair_wait = delay + 0.05
+        self.heard: set[int] | None = None
+        """The teammates whose broadcasts it hears now (:class:`~.hearing.Hearing`'s); None: the node's ``team``."""
+        self._fresh: set[int] = set()  # teammates heard again after :meth:`forget`
         """[s] wall time a missing broadcast number waits (for a late copy) before it is asked for."""
         self.settle = delay + 0.02
         """[s] wall time a group of this node must be quiet (no broadcast of it, no revised answer for it) before its
@@ -244,20 +247,36 @@ class Broadcaster:
         if not self.active:
             return None
         team_node: Any = self.node  # a team estimator's (diekf): its team, not declared on Node
-        mates = team_node.team  # diekf in clusters: the cluster, whose broadcasts alone this node receives
-        for r in self.lockstep.alive:
-            if r not in mates:
-                continue
-            h = self._heads.get(r)
-            if h is None:
-                return f"no broadcast head from robot {r} yet"
-            n, t, prio = h
-            if (t, prio, r) < key[:3]:
-                return f"robot {r} may still broadcast updates keyed from {(t, prio)}"
-            p = self._peers.get(r)
-            if n > (p.low if p is not None else 0):
-                return f"robot {r}'s broadcasts below {n} not all here"
+        mates = team_node.team if self.heard is None else self.heard  # whose broadcasts this node receives
+        for r in self.lockstep.alive & set(mates):
+            why = self.unsettled_by(r, key)
+            if why is not None:
+                return why
         return None
+
+    def unsettled_by(self, r: int, key: tuple) -> str | None:
+        """Why live teammate ``r``'s broadcast keyed before ``key`` may still be missing here, or None (not live:
+        None)."""
+        if r not in self.lockstep.alive:
+            return None
+        h = self._heads.get(r)
+        if h is None:
+            return f"no broadcast head from robot {r} yet"
+        n, t, prio = h
+        if (t, prio, r) < key[:3]:
+            return f"robot {r} may still broadcast updates keyed from {(t, prio)}"
+        p = self._peers.get(r)
+        if n > (p.low if p is not None else 0):
+            return f"robot {r}'s broadcasts below {n} not all here"
+        return None
+
+    def forget(self, robots: Iterable[int]) -> None:
+        """This node no longer hears ``robots``' broadcasts (:mod:`~.hearing`): what it knew of them is dropped, and
+        one heard again starts from the first number it hears then (those before were not for it)."""
+        for r in robots:
+            self._heads.pop(r, None)
+            self._peers.pop(r, None)
+            self._fresh.add(r)
 
     def _publish_b(self, body: Any, faults: bool = True) -> None:
         """``body`` on this robot's broadcast key: with the link faults, or (a head: lockstep's, like progress) not."""
@@ -296,10 +315,14 @@ class Broadcaster:
     # ------------------------------------------------------------------------------------------------ receiving
     def on_sample(self, b: Any) -> None:
         """What came on a teammate's broadcast key (authenticated: published by that teammate only): a broadcast or
-        its head."""
+        its head; one of a teammate no longer heard (:meth:`forget`: come before its subscriber was undeclared) is
+        dropped, counted ``broadcasts_not_heard``."""
+        if self.heard is not None and getattr(b, "robot", None) not in self.heard:
+            self.counts["broadcasts_not_heard"] += 1
+            return
         if isinstance(b, BroadcastHead):
             self.counts["broadcast_heads_received"] += 1
-            if not self._in_window(b.robot, b.n - 1):
+            if not self._in_window(b.robot, b.n - 1, b.n):
                 return
             self._heads[b.robot] = max(self._heads.get(b.robot, (-1, -math.inf, 0)), (b.n, b.t, b.prio))
             self._heard_of(b.robot, b.n - 1)
@@ -308,12 +331,15 @@ class Broadcaster:
         else:
             self.reject(f"{type(b).__name__} is not accepted on a broadcast key", "broadcast")
 
-    def _in_window(self, robot: int, top: int) -> bool:
+    def _in_window(self, robot: int, top: int, first: int) -> bool:
         """Whether broadcast number ``top`` of ``robot`` is within :data:`WINDOW` of the first one this node misses
-        (on first hearing of ``robot``, a window before ``top`` is opened); if not, it is refused and counted."""
+        (on first hearing of ``robot``, a window before ``top`` is opened; heard again after :meth:`forget`, from
+        number ``first`` on); if not, it is refused and counted."""
         p = self._peers.get(robot)
         if p is None:
-            self._peers[robot] = _Peer(low=max(0, top + 1 - WINDOW))
+            fresh = robot in self._fresh
+            self._fresh.discard(robot)
+            self._peers[robot] = _Peer(low=first if fresh else max(0, top + 1 - WINDOW))
             return True
         if top - p.low < WINDOW:
             return True
@@ -332,7 +358,7 @@ class Broadcaster:
     def on_broadcast(self, b: Broadcast) -> None:
         """A teammate's broadcast (published, or sent again on request): applied once, unless overtaken."""
         self.counts["broadcasts_received"] += 1
-        if not self._in_window(b.robot, b.n):
+        if not self._in_window(b.robot, b.n, b.n):
             return
         p = self._peers[b.robot]
         if p.has(b.n):

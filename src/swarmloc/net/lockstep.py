@@ -17,7 +17,7 @@ import math
 import time
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Collection, Iterable
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 from swarmloc.events import Detection
 from swarmloc.messages import Message
@@ -27,6 +27,9 @@ from swarmloc.net.timeouts import STALL_TIMEOUTS
 from swarmloc.net.transport import robot_of
 from swarmloc.node import Node
 from swarmloc.node.base import Reach
+
+if TYPE_CHECKING:
+    from swarmloc.estimators.cluster_reform import Schedule
 
 log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
@@ -63,11 +66,33 @@ def watched(
     return frozenset({*cluster, *(t for o, t in pairs if o == robot), *(o for o, t in pairs if t == robot)} - {robot})
 
 
+def heard_in(
+    robot: int, schedule: Schedule, k: int, detected: Iterable[tuple[float, int, int]]
+) -> tuple[frozenset[int], frozenset[int]]:
+    """Whom robot ``robot``'s node hears in cut ``k`` of a re-forming ``schedule`` (``diekf``'s clusters,
+    :mod:`swarmloc.estimators.cluster_reform`): the mates whose broadcasts it subscribes to, its clusters of cuts
+    ``k`` and ``k + 1`` (the next cut's a period ahead, so that no broadcast a new mate stamps at or after the
+    boundary is missed), and the teammates whose progress it waits for (:func:`watched` of those, with the
+    detections stamped in the two periods). ``detected``: ``(stamp, observer, target)`` of the team's robot
+    detections (:func:`timed_detections`). A mate of cut ``k - 1`` only is the hand-over's: kept by the driver until
+    the node has passed the boundary; a mate of another time is not heard."""
+    ks = range(k, min(k + 2, len(schedule.cuts)))
+    mates = frozenset(r for q in ks for r in schedule.cluster(robot, q)) - {robot}
+    w = watched(robot, mates, [(o, t) for s, o, t in detected if schedule.period(s) in ks])
+    return mates, mates if w is None else w
+
+
+def timed_detections(events: Iterable[Any]) -> list[tuple[float, int, int]]:
+    """``(stamp, observer, target)`` of the robot detections among ``events`` (a recording of the whole team): for
+    :func:`heard_in`."""
+    return [(float(e.stamp), e.observer, e.target) for e in events if isinstance(e, Detection)
+            and e.target_is_robot and e.target is not None]  # fmt: skip
+
+
 def detected_pairs(events: Iterable[Any]) -> set[tuple[int, int]]:
     """``(observer, target)`` of the robot detections among ``events`` (a recording of the whole team): for
     :func:`watched`."""
-    return {(e.observer, e.target) for e in events if isinstance(e, Detection) and e.target_is_robot
-            and e.target is not None}  # fmt: skip
+    return {(o, t) for _, o, t in timed_detections(events)}
 
 
 class Lockstep:
@@ -237,6 +262,14 @@ class Lockstep:
             self.progress.pop(r, None)
             self._progress_key.pop(r, None)
             self.counts["peers_left"] += 1
+
+    def watch(self, robots: frozenset[int]) -> None:
+        """Watch ``robots`` from now on (:class:`~.hearing.Hearing`: the schedule's cut changed); one watched anew is
+        not judged silent or stalled by what was heard of it before."""
+        for r in robots - (self.watched or frozenset()):
+            self._beat.pop(r, None)
+            self._heard.pop(r, None)
+        self.watched = robots
 
     def waited(self) -> set[int]:
         """The live teammates lockstep waits for: :attr:`alive`, those of :attr:`watched` only."""

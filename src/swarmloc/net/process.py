@@ -76,17 +76,18 @@ from swarmloc.messages import TeamUpdate
 from swarmloc.net.auth import Auth
 from swarmloc.net.broadcast import Broadcaster
 from swarmloc.net.feed import LiveFeed
+from swarmloc.net.hearing import hearing_of
 from swarmloc.net.inbound import Inbound
 from swarmloc.net.inputs import Inputs
 from swarmloc.net.intake import Intake, vouch_for
-from swarmloc.net.lockstep import Lockstep, watched
+from swarmloc.net.lockstep import Lockstep
 from swarmloc.net.outbound import Envelopes, Outbound
 from swarmloc.net.publishing import Announcer, Publishing, lagging
 from swarmloc.net.schema import SERVER, Belief, Lines, Progress, Report
 from swarmloc.net.settings import NetSettings
 from swarmloc.net.teamlink import TeamLink
 from swarmloc.net.wiring import Wiring
-from swarmloc.node import Node, RobotNode
+from swarmloc.node import Node
 
 log = logging.getLogger(__name__)
 
@@ -169,15 +170,9 @@ class NetNode:
             self.settings = settings = replace(settings, speed=0.0)  # a live source is paced by its arrivals
         self.broadcasts = TeamUpdate in node.update_types
         """The node's estimator broadcasts its updates to the whole team (``diekf``: :mod:`.broadcast`)."""
-        mates: list[str] | None = None  # whose broadcasts it hears: all ("*"), or diekf in clusters its cluster's
-        cluster: tuple[int, ...] | None = None
-        if self.broadcasts:
-            mates = ["*"]
-            if isinstance(node, RobotNode) and node.protocol is not None and node.protocol.cluster:
-                cluster = tuple(node.team)
-                mates = [str(m) for m in cluster if m != self.robot]
-        self.watched = watched(self.robot, cluster, detected)
-        """The teammates whose progress it waits for, and subscribes to (:func:`~.lockstep.watched`; None: all)."""
+        mates, self.watched, self.hearing = hearing_of(node, self.robot, self.broadcasts, detected)
+        """The teammates whose progress it waits for, and subscribes to (:func:`~.lockstep.watched`; None: all); with
+        re-forming clusters, whom it hears follows the schedule (:class:`~.hearing.Hearing`; None: it stays)."""
         self.envelopes = Envelopes(auth, team, self.robot)
         """What it sends, numbered in one sequence and sealed (:class:`~.outbound.Envelopes`)."""
         seal = self.envelopes.seal
@@ -201,6 +196,8 @@ class NetNode:
             reject=lambda reason, where: self.inbound.reject(reason, where), next_group=self.inputs.next_group,
             delay=self.faults.delay if self.faults else 0.0)  # fmt: skip
         """A team estimator's broadcasts (:class:`~.broadcast.Broadcaster`)."""
+        if self.hearing is not None:
+            self.hearing.attach(self.wiring, self.lockstep, self.broadcaster)
         self.inbound: Inbound = Inbound(
             self.robot, team, self.roster, auth, self.counts, self.reasons, intake=intake, stop=self._stop,
             lockstep=self.lockstep, outbound=self.outbound, broadcaster=self.broadcaster, step=self._step,
@@ -222,6 +219,8 @@ class NetNode:
         if isinstance(stamp, int | float) and now < stamp <= now + self.node.tolerance:  # past it: refused (future)
             self.publishing.due(upto=stamp)
         out = self.node.step(item)
+        if self.hearing is not None:  # re-forming clusters: a boundary reached changes whom it hears
+            self.hearing.follow()
         if out or query is not None:
             self.outbound.route(out, query, item)
         if not self.inbound.draining:  # within a drain, what the batch pushes goes out once at its end (Inbound.drain)

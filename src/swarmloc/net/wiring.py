@@ -32,7 +32,7 @@ class Wiring:
     :class:`~swarmloc.net.intake.Intake`); ``env``: ``env(body, key)``, the signed envelope of a message
     (:meth:`~.outbound.Envelopes.seal`); ``auth``: the per-pair sessions to attach (None: unauthenticated);
     ``mates``: the teammates whose broadcasts it hears (``["*"]``: all; None: a node without broadcasts);
-    ``watched``: the teammates whose progress it hears (``["*"]``: all);
+    ``watched``: the teammates whose progress it hears (``["*"]``: all); both as opened (then :meth:`hear`);
     ``delayed``, ``lines``: whether it publishes a smoother's delayed output and scans' lines; ``ros_domain``: the
     ROS domain its beliefs are published in too (None: not)."""
 
@@ -66,11 +66,10 @@ class Wiring:
         self._ros_gid = b""
         self._ros_seq = 0
         self._token: Any = None
+        self._subs: dict[tuple[str, str], Any] = {}  # (kind, robot): the subscriber of a teammate's key (:meth:`hear`)
 
     def open(self) -> None:
         """Declare the node's queryable, subscribers, publishers and liveliness token on its session."""
-        import zenoh
-
         self.block = block()  # never drop a belief, a progress announcement or a push
 
         s, team, r = self.session, self.scope, self.robot  # keys: the team's scope (its name, and the run's id)
@@ -81,16 +80,9 @@ class Wiring:
         self.decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
         # the teammates' progress (lockstep's: :func:`~swarmloc.net.lockstep.watched`) and broadcasts (a team
         # estimator: :mod:`swarmloc.net.broadcast`; diekf in clusters: its cluster's only, each a key of its own, so
-        # that what a node takes in is flat in the team's size); not this session's own: verified for nothing
-        for kind, robots in (("progress", self.watched), ("broadcast", self.mates or ())):
-            for m in robots:
-                self.decl.append(
-                    s.declare_subscriber(
-                        robot_key(team, m, kind),
-                        handler=lambda x, kind=kind: put((kind, x)),
-                        allowed_origin=zenoh.Locality.REMOTE,
-                    )  # fmt: skip
-                )
+        # that what a node takes in is flat in the team's size)
+        self.hear("progress", self.watched)
+        self.hear("broadcast", self.mates or ())
         self.decl.append(
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
         )
@@ -101,6 +93,26 @@ class Wiring:
         if self.auth is not None:  # a session with every member up now, before the team hears of this process
             self.auth.sessions.hello_all()
         self._token = s.liveliness().declare_token(alive_key(team, r))
+
+    def hear(self, kind: str, robots: Sequence[str]) -> None:
+        """Subscribe to the ``kind`` key (``progress``, ``broadcast``) of each of ``robots`` (``"*"``: all) not
+        subscribed yet, and undeclare those of the others; not this session's own: verified for nothing."""
+        import zenoh
+
+        want = set(robots)
+        for k, m in [k for k in self._subs if k[0] == kind and k[1] not in want]:
+            undeclare_all([self._subs.pop((k, m))])
+        for m in robots:
+            if (kind, m) not in self._subs:
+                self._subs[kind, m] = self.session.declare_subscriber(
+                    robot_key(self.scope, m, kind),
+                    handler=lambda x, kind=kind: self.offer((kind, x)),
+                    allowed_origin=zenoh.Locality.REMOTE,
+                )  # fmt: skip
+
+    def heard(self, kind: str) -> list[str]:
+        """The teammates whose ``kind`` key it subscribes to now (:meth:`hear`)."""
+        return sorted(m for k, m in self._subs if k == kind)
 
     def _open_ros(self, domain: int) -> None:
         """The ROS 2 pose publisher (rmw_zenoh's key layout) and the node's and publisher's graph tokens."""
@@ -148,8 +160,9 @@ class Wiring:
 
     def close(self) -> None:
         """Undeclare everything :meth:`open` declared (the session itself belongs to the caller)."""
-        undeclare_all([*self.decl, self._token])  # the token is None unless opened: passed over like a failure
+        undeclare_all([*self.decl, *self._subs.values(), self._token])  # the token: None unless opened (passed over)
         self.decl.clear()
+        self._subs.clear()
         if self.auth is not None and self.auth.sessions is not None:
             self.auth.sessions.close()
         if self._ros_graph is not None:
