@@ -123,3 +123,10 @@ def test_the_engine_refuses_re_forming_clusters_with_a_reason() -> None:
     src = load_source("sim:random", robots=4, duration=2.0, seed=0)
     with pytest.raises(ValueError, match="clusters stay fixed: run \\[filter\\] diekf_reform with the nodes"):
         run_engine(src, "diekf", cluster=2, reform=1.0)
+
+
+def test_a_period_too_short_for_the_recording_is_refused_before_any_loop() -> None:
+    events = [Odometry(0, 0.0, 1.0, 0.1, 0.0), Odometry(0, 2000.0, 2001.0, 0.1, 0.0)]
+    with pytest.raises(ValueError, match="more than 100000 re-formings: take a longer period"):
+        seen_schedule(events, [0, 1, 2], 2, 0.01)
+    assert len(seen_schedule(events, [0, 1, 2], 2, 100.0).times) == 20

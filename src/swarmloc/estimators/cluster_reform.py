@@ -39,13 +39,16 @@ from swarmloc.node.keys import Entry, Key
 from swarmloc.node.protocol import same
 
 __all__ = [
-    "P_REFORM", "Boundary", "Cut", "Pieces", "Reforming", "Schedule", "id_cut", "piece_weights", "seen_cut",
-    "seen_schedule", "stacked_bound",
+    "MAX_BOUNDARIES", "P_REFORM", "Boundary", "Cut", "Pieces", "Reforming", "Schedule", "id_cut", "piece_weights",
+    "seen_cut", "seen_schedule", "stacked_bound",
 ]  # fmt: skip
 
 P_REFORM = 0
 """The priority of a re-forming's history entry ``(T, P_REFORM, -1, ())``: before every input stamped ``T``
 (:mod:`swarmloc.node.keys`: groups 1, commands 2)."""
+
+MAX_BOUNDARIES = 100_000
+"""The most re-formings a schedule may hold (a period of 0.01 s over 1,000 s of recording)."""
 
 Cut = tuple[tuple[int, ...], ...]
 """The team cut into clusters: each cluster's robot ids, in its replica's order."""
@@ -120,6 +123,9 @@ def seen_schedule(events: Iterable[Any], robots: Iterable[int], K: int, period: 
     cuts = [cut]
     t0 = min(stamps, default=0.0) if start is None else float(start)
     end, k, q = max(stamps, default=t0), 1, 0
+    if (end - t0) / period > MAX_BOUNDARIES:  # bounded before the loop: a tiny period over a long recording
+        raise ValueError(f"seen_schedule: a period of {period!r} s over {end - t0:.6g} s of recording makes more than "
+                         f"{MAX_BOUNDARIES} re-formings: take a longer period")  # fmt: skip
     while t0 + k * period <= end:
         T = t0 + k * period
         seen: Counter[tuple[int, int]] = Counter()

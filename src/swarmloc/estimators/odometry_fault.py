@@ -1,6 +1,6 @@
 """Truth-free detection of one robot's odometry fault from the mutual detections it takes part in, and the covariance
 inflation that lets the team correct the robot instead of absorbing its fault (``diekf``'s ``fault`` option,
-``[filter] diekf_fault``; issue 45).
+``[filter] diekf_fault``).
 
 In the world-frame error (:mod:`swarmloc.kernels.invariant`) the odometry's error transition is the identity, so a
 fault of a robot's odometry at time ``tau`` leaves a *constant* world-frame error ``f`` on its pose from then on: a

@@ -1,4 +1,4 @@
-"""Truth-free calibration of the yaw diffusion from a robot's own pose snapshots (issue 21).
+"""Truth-free calibration of the yaw diffusion from a robot's own pose snapshots.
 
 A *snapshot* is the robot's pose fitted at one instant from two or more landmarks read together
 (:func:`swarmloc.sensors.snapshots.snapshot_poses` gives them, with the fit's covariance). For two snapshots of one

@@ -1,4 +1,4 @@
-"""Whom a networked ``diekf`` node with re-forming clusters hears, period by period (issue 46).
+"""Whom a networked ``diekf`` node with re-forming clusters hears, period by period.
 
 Its clusters change at the schedule's boundaries (:mod:`swarmloc.estimators.cluster_reform`), so the broadcasts it
 subscribes to, the progress it subscribes to and the lock step's watched set (:func:`~.lockstep.watched`) follow the
