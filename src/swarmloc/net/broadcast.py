@@ -138,10 +138,10 @@ class Broadcaster:
         self._bkey_pruned = 0.0
         self._repair_budget: dict[int, TokenBucket] = {}  # per asker: broadcast numbers it may still have again
         self.repair_wait = delay + 0.05
+        """[s] wall time a missing broadcast number waits (for a late copy) before it is asked for."""
         self.heard: set[int] | None = None
         """The teammates whose broadcasts it hears now (:class:`~.hearing.Hearing`'s); None: the node's ``team``."""
         self._fresh: set[int] = set()  # teammates heard again after :meth:`forget`
-        """[s] wall time a missing broadcast number waits (for a late copy) before it is asked for."""
         self.settle = delay + 0.02
         """[s] wall time a group of this node must be quiet (no broadcast of it, no revised answer for it) before its
         head passes it."""
