@@ -5,13 +5,9 @@ prototype (``benchmarks/diekf_reform.py``) on a 10-robot team whose clusters cha
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-from types import ModuleType
-
 import numpy as np
 import pytest
+from _benchmarks import load_benchmark
 
 from swarmloc.engine.replay import run_engine
 from swarmloc.estimators.cluster_reform import Schedule, id_cut, piece_weights, seen_cut, seen_schedule, stacked_bound
@@ -22,18 +18,6 @@ from swarmloc.lie import SE2
 from swarmloc.messages import ClusterPiece, message_problem
 
 pytestmark = pytest.mark.unit
-
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
-def _load(name: str) -> ModuleType:
-    if name not in sys.modules:  # the benchmarks import swarm_scene by its name, as when run from benchmarks/
-        spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
 
 
 def test_the_stacked_bound_bounds_any_joint_covariance_of_its_pieces() -> None:
@@ -102,7 +86,7 @@ def test_nodes_that_re_form_their_clusters_equal_the_prototype() -> None:
     """10 robots in the grouped arena, 30 s, clusters of 5 re-formed every second: the in-process nodes' beliefs
     equal the prototype's centralized replay (the same schedule and bound) to 1e-9 at every record time, robots did
     change clusters and pieces were sent; the prototype's fixed clusters equal the nodes' fixed ones as well."""
-    scene, reform, swarm = _load("swarm_scene"), _load("diekf_reform"), _load("diekf_swarm")
+    scene, reform, swarm = load_benchmark("swarm_scene"), load_benchmark("diekf_reform"), load_benchmark("diekf_swarm")
     src = scene.scene(10, 30.0, 2, "grouped")
     for period in (1.0, 0.0):
         proto = reform.replay(src, 5, period)

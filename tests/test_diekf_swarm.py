@@ -5,36 +5,22 @@ it) it does not. Short seeded runs, the same number of robots on each side (many
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from collections.abc import Callable
-from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 import pytest
+from _benchmarks import load_benchmark
 
 from swarmloc.events import Detection
 
 pytestmark = pytest.mark.unit
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
-def _load(name: str) -> ModuleType:
-    if name not in sys.modules:  # diekf_swarm imports swarm_scene by its name, as when run from benchmarks/
-        spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
 
 @pytest.fixture(scope="module")
 def bench() -> tuple[ModuleType, ModuleType]:
-    return _load("swarm_scene"), _load("diekf_swarm")
+    return load_benchmark("swarm_scene"), load_benchmark("diekf_swarm")
 
 
 def detections_per_robot_s(scene: Callable[..., Any], n: int, seeds: range, arena: str, duration: float) -> float:
@@ -92,7 +78,7 @@ def test_reformed_clusters_beat_fixed_ones_as_robots_drift_apart(bench: tuple[Mo
     consistent (20 robots, clusters of 5, seed 2: RMSE 0.0133 against 0.0177 fixed and 0.0128 exact; ANEES/dof
     0.67)."""
     scene_mod, _ = bench
-    reform = _load("diekf_reform")
+    reform = load_benchmark("diekf_reform")
     srcs = [scene_mod.scene(20, 30.0, 2, "grouped")]
     runs = {name: [reform.replay(src, K, p) for src in srcs] for name, K, p in
             (("exact", 20, 0.0), ("fixed", 5, 0.0), ("reformed", 5, 1.0))}  # fmt: skip
@@ -110,7 +96,7 @@ def test_reformed_cluster_bounds_any_correlation_of_its_pieces(bench: tuple[Modu
     it bounds the pieces' joint covariance whatever their correlation (random joint covariances), and keeps each
     piece's own correlations."""
     scene_mod, _ = bench
-    reform = _load("diekf_reform")
+    reform = load_benchmark("diekf_reform")
     src = scene_mod.scene(6, 1.0, 1, "grouped")
     rng = np.random.default_rng(0)
     for _ in range(20):

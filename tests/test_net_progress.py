@@ -12,16 +12,14 @@ holds the node's groups for its new mates' pieces; networked, the run equals the
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
-import sys
 from collections import Counter
-from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 import pytest
+from _benchmarks import load_benchmark
 from test_net import max_diff, reference, thread_team
 
 from swarmloc.config import Config
@@ -34,17 +32,9 @@ from swarmloc.net.schema import BroadcastHead, Progress
 from swarmloc.net.team import TeamRun
 from swarmloc.net.transport import robot_key
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
-
 
 def _scene_module() -> ModuleType:
-    if "swarm_scene" not in sys.modules:  # as tests/test_diekf_swarm.py loads it
-        spec = importlib.util.spec_from_file_location("swarm_scene", BENCH / "swarm_scene.py")
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules["swarm_scene"] = module
-        spec.loader.exec_module(module)
-    return sys.modules["swarm_scene"]
+    return load_benchmark("swarm_scene")
 
 
 def clustered(src: Source, k: int, period: float = 0.0) -> Source:
@@ -288,11 +278,7 @@ def test_diekf_reforming_networked_equals_in_process() -> None:
     """The same 6 robots for 10 s (threads of this process on 127.0.0.1, benchmarks/diekf_swarm.py's networked run):
     the clusters re-form every second, the pieces travel (as many taken as in process), and every recorded mean and
     covariance equals the in-process run's to 1e-6."""
-    spec = importlib.util.spec_from_file_location("diekf_swarm", BENCH / "diekf_swarm.py")
-    assert spec is not None and spec.loader is not None
-    _scene_module()
-    swarm = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(swarm)
+    swarm = load_benchmark("diekf_swarm")
     r = swarm.networked(_scene_module().scene(6, 10.0, 1, "grouped"), 6, 3, 10.0, 120.0, 1.0)
     assert r["reports"] == 6 and r["diff"] <= 1e-6, r
     assert r["pieces"] == r["ref_pieces"] == 2
