@@ -24,7 +24,11 @@ only, no traffic.
 ``broadcast_bytes``: the team broadcasts), the detections the nodes fused (``fused``), and the progress
 announcements of the replay's lock step a robot receives from its teammates (``progress``: its counter
 ``progress_received``; in clusters a node subscribes to its cluster's and to the robots it detects or is detected
-by, :func:`swarmloc.net.lockstep.watched`; ``prog/wall``: the same per second of wall time). Its beliefs equal the
+by, :func:`swarmloc.net.lockstep.watched`; ``prog/wall``: the same per second of wall time). ``received`` counts the
+broadcasts' heads too, and a head unchanged is announced again every second of wall time (a heartbeat), so a replay
+slower than real time receives more of them per second of data: ``recv-hb`` is ``received`` without the heartbeats,
+per second of data, and ``hb/wall`` the heartbeats per second of wall time (``--counters``: every network counter,
+per robot and second of data). Its beliefs equal the
 in-process run's (tests/test_net_diekf.py): ``max |d|`` is the largest difference of a recorded mean or covariance
 from the in-process run's, whose RMSE and ANEES/dof the row gives.
 
@@ -35,8 +39,8 @@ teammates within its 1.5 m sensor (10 detections/s at 5 Hz) in every team; ``spr
 ``K`` consecutive ids is ``K`` robots that start near each other (clusters formed by proximity at deployment).
 ``--period p``: the clusters re-form every ``p`` s (``[filter] diekf_reform``,
 :mod:`swarmloc.estimators.cluster_reform`; benchmarks/diekf_reform.py is its centralized prototype); networked, a
-node hears the broadcasts of every robot it shares a cluster with at some time of the run, and its lock step waits
-at a boundary for its new mates' pieces.
+node hears the broadcasts of its clusters of this period and the next (:mod:`swarmloc.net.hearing`), and its lock
+step waits at a boundary for its new mates' pieces.
 """
 
 from __future__ import annotations
@@ -183,11 +187,13 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
     ref, res = in_process(src, n, cluster, duration, period=period if cluster else 0.0)
     return {
         "wall": wall, "reports": len(reports), "fused": fused / k, "progress": net["progress_received"] / k,
-        "prog_wall": net["progress_received"] / n / wall,
+        "prog_wall": net["progress_received"] / n / wall, "hb_wall": net["broadcast_heads_repeated"] / n / wall,
+        "recv_data": (net["received"] - net["broadcast_heads_repeated"]) / k,
         "sent": net["sent"] / k, "recv": net["received"] / k, "bc_sent": net["broadcasts_sent"] / k,
         "bc_recv": net["broadcasts_received"] / k, "bc_bytes": net["broadcast_bytes"] / k,
         "rmse": ref["rmse"], "anees": ref["anees"], "diff": largest_difference(beliefs, res), "pieces": pieces,
         "ref_pieces": res.stats.get("pieces_received", 0),
+        "counters": {c: v / k for c, v in sorted(net.items()) if isinstance(v, int | float)},
     }  # fmt: skip
 
 
@@ -216,6 +222,7 @@ def main() -> None:
     ap.add_argument("--period", type=float, default=0.0, help="in process: the clusters re-form every this many s")
     ap.add_argument("--net", action="store_true", help="networked nodes (threads, 127.0.0.1): traffic only")
     ap.add_argument("--max-wall", type=float, default=600.0)
+    ap.add_argument("--counters", action="store_true", help="--net: also every network counter, per robot and s")
     args = ap.parse_args()
     sizes = [int(x) for x in args.robots.split(",")]
     settings = [0] + [int(c) for c in args.cluster.split(",") if c]
@@ -226,7 +233,8 @@ def main() -> None:
           "of data, the mean over the seeds")  # fmt: skip
     if args.net:
         print(f"{'robots':>6} {'filter':>10} {'fused':>6} {'sent':>7} {'recv':>7} {'bc sent':>7} {'bc recv':>7} "
-              f"{'bc B/s':>8} {'progress':>8} {'prog/wall':>9} {'wall s':>7} {'RMSE [m]':>9} {'ANEES/dof':>9} "
+              f"{'bc B/s':>8} {'progress':>8} {'prog/wall':>9} {'recv-hb':>7} {'hb/wall':>7} {'wall s':>7} "
+              f"{'RMSE [m]':>9} {'ANEES/dof':>9} "
               f"{'max |d|':>8}")  # fmt: skip
     else:
         print(f"{'robots':>6} {'filter':>14} {'fused':>6} {'msg sent':>8} {'msg recv':>8} {'B sent':>8} "
@@ -240,11 +248,17 @@ def main() -> None:
                     continue
                 rs = [networked(scene(n, args.duration, s, args.arena), n, c, args.duration, args.max_wall,
                                 args.period) for s in seeds]  # fmt: skip
-                r = {k: float(np.mean([x[k] for x in rs])) for k in rs[0]} | {"diff": max(x["diff"] for x in rs)}
+                r = {k: float(np.mean([x[k] for x in rs])) for k in rs[0] if k != "counters"}
+                r["diff"] = max(x["diff"] for x in rs)
                 print(f"{n:>6} {name:>10} {r['fused']:>6.1f} {r['sent']:>7.1f} {r['recv']:>7.1f} {r['bc_sent']:>7.1f} "
                       f"{r['bc_recv']:>7.1f} {r['bc_bytes']:>8.0f} {r['progress']:>8.1f} {r['prog_wall']:>9.1f} "
+                      f"{r['recv_data']:>7.1f} {r['hb_wall']:>7.1f} "
                       f"{r['wall']:>7.1f} {r['rmse']:>9.4f} {r['anees']:>9.2f} {r['diff']:>8.1e}"
                       + ("" if r["reports"] == n else f"  ({r['reports']} of {n} reports)"), flush=True)  # fmt: skip
+                if args.counters:
+                    keys = sorted(set().union(*(x["counters"] for x in rs)))
+                    means = {c: float(np.mean([x["counters"].get(c, 0.0) for x in rs])) for c in keys}
+                    print("        " + ", ".join(f"{c} {v:.1f}" for c, v in means.items() if v), flush=True)
                 continue
             engine = c == 0 and n > args.exact_up_to
             r = over(seeds, n, c, args.duration, args.arena, engine, args.period if c else 0.0)

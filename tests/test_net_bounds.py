@@ -431,6 +431,18 @@ def test_a_broadcast_head_announcing_2_62_broadcasts_costs_a_window_and_is_then_
     assert fresh.counts["repair_requests"] == bc.WINDOW // 256  # 256 numbers per request
 
 
+def test_a_head_announced_again_unchanged_is_counted_a_heartbeat():
+    """A sender's head heard again as it was (its heartbeat) is counted ``broadcast_heads_repeated``; a changed one is
+    not, and one that went back (a copy overtaken) neither moves the head nor counts as a heartbeat."""
+    net, src = offline_diekf(robot=0)
+    heads = [(3, 0.0), (3, 0.0), (4, 0.0), (4, 0.5), (4, 0.5), (3, 0.0)]
+    for seq, (n, dt) in enumerate(heads):
+        net.inbound.handle("broadcast", bsample(BroadcastHead(robot=1, n=n, t=src.t_start + dt, prio=1), seq=seq))
+    assert net.counts["broadcast_heads_received"] == 6
+    assert net.counts["broadcast_heads_repeated"] == 2
+    assert net.broadcaster._heads[1] == (4, src.t_start + 0.5, 1)
+
+
 def test_repair_requests_are_served_within_the_askers_budget(monkeypatch):
     """A teammate asking again and again for broadcasts makes this node send at most ``REPAIR_RATE`` numbers a
     second to it (``2 REPAIR_RATE`` banked); the requests past it are refused and counted."""

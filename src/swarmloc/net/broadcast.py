@@ -19,7 +19,9 @@ and dropped; anything else is applied (``broadcasts_applied``). Every broadcast 
 
 **Repair.** A receiver knows each sender's numbers received and the highest one it has heard of (from a broadcast
 or from the :class:`~swarmloc.net.schema.BroadcastHead` each sender announces now and then, so that the last ones
-lost are seen missing too). A number missing for ``repair_wait`` s (the link's delay, plus 50 ms) is asked again
+lost are seen missing too; a head is announced when it changes and, unchanged, every :data:`HEAD_EVERY` s of wall
+time: one equal to the last heard from its sender, such a heartbeat, is counted ``broadcast_heads_repeated`` too).
+A number missing for ``repair_wait`` s (the link's delay, plus 50 ms) is asked again
 of its sender with a :class:`~swarmloc.net.schema.BroadcastRepair` on the sender's inbox (``repair_requests``),
 again every ``2 repair_wait + 0.2`` s, ``REPAIR_TRIES`` times at most. The sender keeps its last ``BUFFER``
 broadcasts and sends the ones asked for to the asker's inbox (``repairs_sent``); one it no longer keeps is
@@ -322,6 +324,8 @@ class Broadcaster:
             return
         if isinstance(b, BroadcastHead):
             self.counts["broadcast_heads_received"] += 1
+            if self._heads.get(b.robot) == (b.n, b.t, b.prio):  # the sender's heartbeat (:data:`HEAD_EVERY`)
+                self.counts["broadcast_heads_repeated"] += 1
             if not self._in_window(b.robot, b.n - 1, b.n):
                 return
             self._heads[b.robot] = max(self._heads.get(b.robot, (-1, -math.inf, 0)), (b.n, b.t, b.prio))
