@@ -202,7 +202,7 @@ def test_a_query_asked_again_is_bounded_by_count_and_rate(monkeypatch):
     while not fed and clock.t < 200.0:
         for qid in list(net.outbound.outstanding):  # every get ends at once, with no reply
             net.inbound.handle("reply_end", qid)
-        net.outbound.run_timers()
+        net.outbound.sends.run_timers()
         clock.t += 0.01
     spacing = 0.25  # answer_timeout 2 s, within the spacing's bounds (0.05, 0.25)
     bound = 2 + math.ceil(10.0 / spacing) + 1

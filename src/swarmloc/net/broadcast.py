@@ -261,7 +261,7 @@ class Broadcaster:
         if not faults:
             pub.put(payload)
             return
-        self.outbound.faulty(lambda: pub.put(payload))
+        self.outbound.sends.faulty(lambda: pub.put(payload))
 
     def _push(self, body: Any, to: int) -> None:
         """``body`` to robot ``to``'s inbox (link faults apply)."""

@@ -35,6 +35,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Iterable, Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,7 @@ import numpy as np
 from swarmloc.events import Detection, Event, Kind, Odometry, OwnEvent
 from swarmloc.messages import flat
 from swarmloc.net.auth import open_envelope, seal
-from swarmloc.net.faults import Faults
+from swarmloc.net.faults import Faults, FaultySender
 from swarmloc.net.numbered import Numbered
 from swarmloc.net.pairing import attach
 from swarmloc.net.schema import (
@@ -366,14 +367,15 @@ class Forwarder:
         self.scope, self.roster = link.scope, link.roster
         self.forwards = batches(events, batch, SPAN if speed > 0 else math.inf)
         self.first = min((_key(e)[0] for e in events), default=math.inf)
-        self.link = faults.plan(robot) if faults is not None and faults.link else None
         self.speed, self.start_timeout, self.lost_timeout = float(speed), float(start_timeout), float(lost_timeout)
         self.counts: Counter[str] = Counter()
+        plan = faults.plan(robot) if faults is not None and faults.link else None
+        self.sends = FaultySender(plan, self.counts, robot)
+        """The forwards sent with the link faults (lost, delayed, duplicated)."""
         self._seq = 0
         self._server_done = threading.Event()
         self._server_alive = threading.Event()
         self._stop = threading.Event()
-        self._delayed: list[tuple[float, int, str, bytes]] = []
         self._end: Raw | None = None  # the stream's end, repeated once everything is forwarded
         self._kept: dict[int, Raw] = {}  # the last KEEP forwards, to send again when the server asks
         self._asked: queue.SimpleQueue = queue.SimpleQueue()  # RawAck from the server, handled on the main thread
@@ -430,25 +432,11 @@ class Forwarder:
 
     def _send(self, key: str, body: Raw) -> None:
         """One forward, as the link faults say (lost, delayed, duplicated)."""
-        delays = [0.0] if self.link is None else self.link.schedule()
-        if not delays:
-            self.counts["lost"] += 1
-        self.counts["sent"] += len(delays)
-        payload = self._seal(key, body)
-        for d in delays:
-            if d > 0:
-                heapq.heappush(self._delayed, (time.monotonic() + d, self._seq, key, payload))
-            else:
-                self.session.put(key, payload, congestion_control=self._block)
+        self.sends.faulty(partial(self.session.put, key, self._seal(key, body), congestion_control=self._block))
 
     def _put(self, key: str, body: Any) -> None:
         """``body`` sealed and put on ``key``, never dropped (not subject to the link faults: progress, report)."""
         self.session.put(key, self._seal(key, body), congestion_control=self._block)
-
-    def _flush_delayed(self) -> None:
-        while self._delayed and self._delayed[0][0] <= time.monotonic():
-            _, _, key, payload = heapq.heappop(self._delayed)
-            self.session.put(key, payload, congestion_control=self._block)
 
     def run(self, max_wall: float | None = None) -> Report:
         """Forward everything, then wait for the server's report; returns this robot's report."""
@@ -499,7 +487,7 @@ class Forwarder:
             if self.speed > 0:
                 due, beat = w0 + (_key(evs[-1])[0] - self.first) / self.speed, time.monotonic()
                 while time.monotonic() < due and not self._stop.is_set():
-                    self._flush_delayed()
+                    self.sends.run_timers()
                     self._resend(key)
                     if time.monotonic() - beat >= 1.0:  # alive, and where it stands
                         beat = time.monotonic()
@@ -514,7 +502,7 @@ class Forwarder:
             self._send(key, self._keep(raw))
             self._resend(key)
             self._put(pkey, Progress(robot=self.robot, t=nxt[0], prio=nxt[1]))
-            self._flush_delayed()
+            self.sends.run_timers()
         self.counts.update(forwards=len(self.forwards), forwarded_odometry=odo, forwarded_detections=det)
         self._end = self._keep(Raw(robot=self.robot, n=len(self.forwards), first=self.first, upto=math.inf,
                                    odometry=odo, detections=det))  # fmt: skip
@@ -527,7 +515,7 @@ class Forwarder:
         gone_since, last = None, -math.inf
         while not self._server_done.is_set() and not self._stop.is_set() and time.monotonic() < end:
             now = time.monotonic()
-            self._flush_delayed()
+            self.sends.run_timers()
             self._resend(key)
             if now - last >= 0.25:
                 last = now
