@@ -35,7 +35,7 @@ from swarmloc.estimators import make_team, node_options
 from swarmloc.experiments.sources import load_source
 from swarmloc.experiments.team import run_team, team_result
 from swarmloc.messages import BeliefQuery
-from swarmloc.net import outbound
+from swarmloc.net import faults, outbound
 from swarmloc.net.auth import (
     HEADER,
     HEADER_V1,
@@ -181,7 +181,8 @@ def test_a_query_asked_again_is_bounded_by_count_and_rate(monkeypatch):
     ``answer_retries``, the ``k``-th ask waits ``k`` spacings after the first (on the node's timers), and the asks
     stop at ``answer_retries + ceil(lost_timeout / spacing) + 1``; then the node gets its "not found" answer."""
     clock = SimpleNamespace(t=100.0)
-    monkeypatch.setattr(outbound, "time", SimpleNamespace(monotonic=lambda: clock.t))
+    for module in (outbound, faults):  # the asks' times, and the timers' (FaultySender's)
+        monkeypatch.setattr(module, "time", SimpleNamespace(monotonic=lambda: clock.t))
     asks: list[float] = []
 
     class EndsAtOnce:  # a get that nobody answers (the test ends it at once)
