@@ -324,7 +324,7 @@ def _own_scans(src: Source, robot: int, events: Sequence[Event]) -> Any:
     from swarmloc.mapping import ScanSeries
 
     sc = src.scans[robot]
-    stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
+    stamps = [e.stamp for e in events]
     keep = sc.times >= (min(stamps) if stamps else src.t_start)
     return ScanSeries(sc.times[keep], sc.ranges[keep], sc.angles, sc.sigma)
 
@@ -361,7 +361,7 @@ def _start(
         t0 = b.stamp
         log.warning("robot %s: resumed from the server's belief at %.3f s", robot, t0)
     else:
-        stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
+        stamps = [e.stamp for e in events]
         t0 = min(stamps) if stamps else src.t_start
     node = make_node(estimator, robot, initial, src.config, src.landmarks, team=src.robots, noise=src.noise)
     node.start(t0)
