@@ -386,7 +386,7 @@ def test_extreme_numbers_to_the_servers_stores_fusion_and_collector():
         tracemalloc.stop()
     assert max(peaks) < PEAK
     for s in f.streams.values():
-        assert len(s.ahead) <= KEEP and (not s.ahead or max(s.ahead) < s.next + KEEP)
+        assert len(s.seq.got) <= KEEP and (not s.seq.got or max(s.seq.got) < s.seq.low + KEEP)
 
 
 # ------------------------------------------------------------------------------------------------ the cases that broke
@@ -543,7 +543,7 @@ def test_a_forward_numbered_2_62_is_refused_and_what_the_server_asks_again_stays
     peak = _peak(lambda: (f.offer(far), f.offer(near), f.wanted()))
     assert peak < 1024 * 1024, peak
     s = f.streams[0]
-    assert f.counts["raw_too_far_ahead"] == 1 and set(s.ahead) == {KEEP - 1}
+    assert f.counts["raw_too_far_ahead"] == 1 and set(s.seq.got) == {KEEP - 1}
     (ack,) = [a for a in f.wanted() if a.robot == 0] or [None]
     assert ack is None or len(ack.missing) <= 256
 

@@ -35,7 +35,7 @@ from swarmloc.estimators import make_team, node_options
 from swarmloc.experiments.sources import load_source
 from swarmloc.experiments.team import run_team, team_result
 from swarmloc.messages import BeliefQuery
-from swarmloc.net import outbound
+from swarmloc.net import faults, outbound
 from swarmloc.net.auth import (
     HEADER,
     HEADER_V1,
@@ -181,7 +181,8 @@ def test_a_query_asked_again_is_bounded_by_count_and_rate(monkeypatch):
     ``answer_retries``, the ``k``-th ask waits ``k`` spacings after the first (on the node's timers), and the asks
     stop at ``answer_retries + ceil(lost_timeout / spacing) + 1``; then the node gets its "not found" answer."""
     clock = SimpleNamespace(t=100.0)
-    monkeypatch.setattr(outbound, "time", SimpleNamespace(monotonic=lambda: clock.t))
+    for module in (outbound, faults):  # the asks' times, and the timers' (FaultySender's)
+        monkeypatch.setattr(module, "time", SimpleNamespace(monotonic=lambda: clock.t))
     asks: list[float] = []
 
     class EndsAtOnce:  # a get that nobody answers (the test ends it at once)
@@ -202,7 +203,7 @@ def test_a_query_asked_again_is_bounded_by_count_and_rate(monkeypatch):
     while not fed and clock.t < 200.0:
         for qid in list(net.outbound.outstanding):  # every get ends at once, with no reply
             net.inbound.handle("reply_end", qid)
-        net.outbound.run_timers()
+        net.outbound.sends.run_timers()
         clock.t += 0.01
     spacing = 0.25  # answer_timeout 2 s, within the spacing's bounds (0.05, 0.25)
     bound = 2 + math.ceil(10.0 / spacing) + 1

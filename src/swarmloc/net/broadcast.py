@@ -50,6 +50,7 @@ import msgspec
 
 from swarmloc.messages import TeamUpdate
 from swarmloc.net.intake import TokenBucket
+from swarmloc.net.numbered import Numbered
 from swarmloc.net.schema import ALL, MAX_REPAIR, Broadcast, BroadcastHead, BroadcastRepair
 from swarmloc.node import Node
 from swarmloc.node.protocol import same
@@ -76,33 +77,6 @@ REPAIR_TRIES = 8
 HEAD_EVERY = 1.0
 """[s] wall time between two announcements of a sender's head when it does not change (announced at once when it
 does)."""
-
-
-class _Peer:
-    """What a receiver knows of one sender's broadcasts: numbers below ``low`` all received or given up, those above
-    it received (``got``), the highest number heard of (``top``) and the missing ones asked for (``asked``: number ->
-    (first seen missing, requests sent, last request) wall times and count)."""
-
-    def __init__(self, low: int = 0) -> None:
-        self.low = low
-        self.got: set[int] = set()
-        self.top = low - 1
-        self.missing_since: dict[int, float] = {}
-        self.asked: dict[int, tuple[int, float]] = {}
-
-    def has(self, n: int) -> bool:
-        return n < self.low or n in self.got
-
-    def mark(self, n: int) -> None:
-        self.got.add(n)
-        self.missing_since.pop(n, None)
-        self.asked.pop(n, None)
-        while self.low in self.got:
-            self.got.discard(self.low)
-            self.low += 1
-
-    def missing(self) -> list[int]:
-        return [n for n in range(self.low, self.top + 1) if n not in self.got]
 
 
 class Broadcaster:
@@ -135,7 +109,7 @@ class Broadcaster:
         self._bflush = 0.0
         self._bhead: tuple[float, tuple] = (-1.0, ())  # (wall time, (count, t, prio)) of the last head announced
         self._heads: dict[int, tuple[int, float, int]] = {}  # per teammate: its latest head (count, t, prio)
-        self._peers: dict[int, _Peer] = {}
+        self._peers: dict[int, Numbered[None]] = {}  # per teammate: its numbers received, missing, asked for
         self._bkey: dict[tuple, int] = {}  # (sender, stamp, sub): the number of the update applied for the exchange
         self._bkey_pruned = 0.0
         self._repair_budget: dict[int, TokenBucket] = {}  # per asker: broadcast numbers it may still have again
@@ -289,7 +263,7 @@ class Broadcaster:
         if not faults:
             pub.put(payload)
             return
-        self.outbound.faulty(lambda: pub.put(payload))
+        self.outbound.sends.faulty(lambda: pub.put(payload))
 
     def _push(self, body: Any, to: int) -> None:
         """``body`` to robot ``to``'s inbox (link faults apply)."""
@@ -329,7 +303,7 @@ class Broadcaster:
             if not self._in_window(b.robot, b.n - 1, b.n):
                 return
             self._heads[b.robot] = max(self._heads.get(b.robot, (-1, -math.inf, 0)), (b.n, b.t, b.prio))
-            self._heard_of(b.robot, b.n - 1)
+            self._peers[b.robot].heard_of(b.n - 1, time.monotonic())
         elif isinstance(b, Broadcast) and b.to == ALL:
             self.on_broadcast(b)
         else:
@@ -343,21 +317,12 @@ class Broadcaster:
         if p is None:
             fresh = robot in self._fresh
             self._fresh.discard(robot)
-            self._peers[robot] = _Peer(low=first if fresh else max(0, top + 1 - WINDOW))
+            self._peers[robot] = Numbered(low=first if fresh else max(0, top + 1 - WINDOW))
             return True
         if top - p.low < WINDOW:
             return True
         self.reject(f"broadcast number more than {WINDOW} past the first one missing from its sender", "broadcast")
         return False
-
-    def _heard_of(self, robot: int, top: int) -> None:
-        p = self._peers.setdefault(robot, _Peer())
-        if top > p.top:
-            now = time.monotonic()
-            for n in range(max(p.top + 1, p.low), top + 1):
-                if n not in p.got:
-                    p.missing_since.setdefault(n, now)
-            p.top = top
 
     def on_broadcast(self, b: Broadcast) -> None:
         """A teammate's broadcast (published, or sent again on request): applied once, unless overtaken."""
@@ -368,7 +333,7 @@ class Broadcaster:
         if p.has(b.n):
             self.counts["broadcast_duplicates"] += 1
             return
-        self._heard_of(b.robot, b.n)
+        p.heard_of(b.n, time.monotonic())
         if b.n in p.asked:
             self.counts["broadcasts_repaired"] += 1
         p.mark(b.n)
@@ -407,20 +372,13 @@ class Broadcaster:
         up)."""
         retry = 2 * self.repair_wait + 0.2
         for r, p in self._peers.items():
-            due: list[int] = []
-            for n, since in list(p.missing_since.items()):
-                tries, last = p.asked.get(n, (0, since))
-                if now - (since if tries == 0 else last) < (self.repair_wait if tries == 0 else retry):
-                    continue
-                if tries >= REPAIR_TRIES:
-                    self.counts["broadcasts_given_up"] += 1
-                    log.warning("robot %s: robot %s's broadcast %d not repaired after %d requests: given up",
-                                self.robot, r, n, tries)  # fmt: skip
-                    p.mark(n)
-                    continue
-                p.asked[n] = (tries + 1, now)
-                due.append(n)
-            due.sort()
+            due = p.due(now, self.repair_wait, retry)
+            for n in [n for n in due if p.asked[n][0] > REPAIR_TRIES]:
+                self.counts["broadcasts_given_up"] += 1
+                log.warning("robot %s: robot %s's broadcast %d not repaired after %d requests: given up",
+                            self.robot, r, n, REPAIR_TRIES)  # fmt: skip
+                p.mark(n)
+            due = [n for n in due if n in p.asked]
             while due:
                 first = due[0]
                 run = [n for n in due if n - first < MAX_REPAIR]

@@ -28,7 +28,6 @@ it, or the end), as :func:`swarmloc.runner.run` takes it, and returned as a fina
 from __future__ import annotations
 
 import heapq
-import itertools
 import logging
 import math
 import queue
@@ -36,6 +35,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Iterable, Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -43,7 +43,8 @@ import numpy as np
 from swarmloc.events import Detection, Event, Kind, Odometry, OwnEvent
 from swarmloc.messages import flat
 from swarmloc.net.auth import open_envelope, seal
-from swarmloc.net.faults import Faults
+from swarmloc.net.faults import Faults, FaultySender
+from swarmloc.net.numbered import Numbered
 from swarmloc.net.pairing import attach
 from swarmloc.net.schema import (
     MAX_RAW_ITEMS,
@@ -109,16 +110,12 @@ class _Stream:
     stream stands, its cumulative counts, and when it was last heard from."""
 
     def __init__(self) -> None:
-        self.ahead: dict[int, Raw] = {}
-        self.held = 0  # measurements in ``ahead``
-        self.next = 0  # the next forward number expected
+        self.seq: Numbered[Raw] = Numbered()  # its forward numbers: those ahead of a gap (``got``), the missing ones
+        self.held = 0  # measurements in the forwards ahead of a gap
         self.items: deque[tuple[tuple[float, int], Any]] = deque()  # (key, Odometry or a detection group)
         self.upto: tuple[float, int] = (-math.inf, 0)
         self.first = math.inf
         self.odometry = self.detections = 0
-        self.gap_since: float | None = None
-        self.asked = -math.inf  # when its missing forwards were last asked for
-        self.asked_for: set[int] = set()
         self.heard = -math.inf
         self.lost = False
 
@@ -170,8 +167,9 @@ class Fusion:
         if s is None:
             self.counts["raw_unknown_robot"] += 1
             return
-        if raw.n >= s.next + KEEP or (raw.n > s.next and s.held + len(raw.items) > AHEAD_ITEMS):
-            why = "raw_too_far_ahead" if raw.n >= s.next + KEEP else "raw_ahead_full"
+        q = s.seq
+        if raw.n >= q.low + KEEP or (raw.n > q.low and s.held + len(raw.items) > AHEAD_ITEMS):
+            why = "raw_too_far_ahead" if raw.n >= q.low + KEEP else "raw_ahead_full"
             self.counts[why] += 1
             self.reasons[f"{why}: forward of robot {raw.robot} refused"] += 1
             return
@@ -179,50 +177,40 @@ class Fusion:
         if s.lost:
             s.lost = False
             log.warning("server: robot %s is heard again", raw.robot)
-        if raw.n < s.next or raw.n in s.ahead:
+        if q.has(raw.n):
             self.counts["raw_repeats" if not raw.items else "raw_duplicate"] += 1
             return
         self.counts["raw_received"] += 1
-        if raw.n in s.asked_for:
+        if raw.n in q.asked:
             self.counts["raw_repaired"] += 1
-        s.ahead[raw.n] = raw
+        q.heard_of(raw.n, s.heard)
         s.held += len(raw.items)
+        for x in q.mark(raw.n, raw):
+            self._consume(raw.robot, s, x)
         self._advance(raw.robot, s)
 
     def _advance(self, robot: int, s: _Stream) -> None:
-        """Consume the forwards in number order; past a gap waited for ``gap_timeout`` s, count it lost."""
-        while s.ahead:
-            if s.next in s.ahead:
-                self._consume(robot, s, self._take(s, s.next))
-                s.gap_since = None
-                continue
-            now = self.clock()
-            if s.gap_since is None:
-                s.gap_since = now
-            if now - s.gap_since < self.gap_timeout:
-                return
-            n = min(s.ahead)
-            raw = self._take(s, n)
+        """Past a gap missing for ``gap_timeout`` s, count it lost and consume the forwards after it in number
+        order."""
+        q = s.seq
+        while q.got and self.clock() - q.missing_since[q.low] >= self.gap_timeout:
+            n = min(q.got)
+            raw = q.got[n]
+            assert raw is not None  # every forward received carries itself
             odo = sum(isinstance(i, RawOdometry) for i in raw.items)
-            most = (n - s.next) * MAX_RAW_ITEMS  # what the lost forwards can have carried (the counts are the robot's)
+            most = (n - q.low) * MAX_RAW_ITEMS  # what the lost forwards can have carried (the counts are the robot's)
             lost_odo = min(raw.odometry - odo - s.odometry, most)
             lost_det = min(raw.detections - (len(raw.items) - odo) - s.detections, most)
-            self.counts["raw_lost_forwards"] += n - s.next
+            self.counts["raw_lost_forwards"] += n - q.low
             self.counts["raw_lost_odometry"] += max(lost_odo, 0)
             self.counts["raw_lost_detections"] += max(lost_det, 0)
             log.warning("server: robot %s's forwards %d..%d lost (%d detections, %d odometry records)", robot,
-                        s.next, n - 1, lost_det, lost_odo)  # fmt: skip
-            s.next = n
-            s.gap_since = None
-            self._consume(robot, s, raw)
-
-    @staticmethod
-    def _take(s: _Stream, n: int) -> Raw:
-        raw = s.ahead.pop(n)
-        s.held -= len(raw.items)
-        return raw
+                        q.low, n - 1, lost_det, lost_odo)  # fmt: skip
+            for x in [x for lost in range(q.low, n) for x in q.mark(lost)]:
+                self._consume(robot, s, x)
 
     def _consume(self, robot: int, s: _Stream, raw: Raw) -> None:
+        s.held -= len(raw.items)
         s.first = min(s.first, raw.first)
         for it in raw.items:
             e = from_wire(robot, it)
@@ -234,7 +222,6 @@ class Fusion:
                 s.items.append((k, [e] if isinstance(e, Detection) else e))
         s.upto = max(s.upto, (raw.upto, raw.prio))
         s.odometry, s.detections = raw.odometry, raw.detections
-        s.next = raw.n + 1
 
     def hear(self, robot: int) -> None:
         """Robot ``robot`` is alive (its authenticated progress): not silent, though it has nothing to forward."""
@@ -247,13 +234,10 @@ class Fusion:
         the last ``repair_wait`` s), its missing forward numbers (at most 256)."""
         now, out = self.clock(), []
         for r, s in self.streams.items():
-            if s.gap_since is None or now - s.gap_since < self.repair_wait or now - s.asked < self.repair_wait:
-                continue
-            missing = tuple(itertools.islice((n for n in range(s.next, max(s.ahead)) if n not in s.ahead), MAX_REPAIR))
-            s.asked = now
-            s.asked_for.update(missing)
-            self.counts["raw_repairs_asked"] += 1
-            out.append(RawAck(robot=r, next=s.next, missing=missing))
+            missing = s.seq.due(now, self.repair_wait, self.repair_wait, most=MAX_REPAIR)
+            if missing:
+                self.counts["raw_repairs_asked"] += 1
+                out.append(RawAck(robot=r, next=s.seq.low, missing=tuple(missing)))
         return out
 
     # ---------------------------------------------------------------------------------------- fusing
@@ -268,10 +252,10 @@ class Fusion:
         for r, s in self.streams.items():
             if s.ended:
                 continue
-            if s.ahead:
+            if s.seq.got:
                 self._advance(r, s)
             quiet = now - max(s.heard, self.t_begin)
-            if quiet > (self.lost_timeout if s.next else max(self.lost_timeout, self.start_timeout)):
+            if quiet > (self.lost_timeout if s.seq.low else max(self.lost_timeout, self.start_timeout)):
                 s.lost = True
                 self.counts["robots_lost"] += 1
                 log.warning("server: robot %s lost (no forward for %.1f s); fusing without it", r, quiet)
@@ -282,7 +266,7 @@ class Fusion:
             return []
         self._check_silent()
         if not self.node.started:
-            if any(s.next == 0 and not s.lost for s in self.streams.values()):
+            if any(s.seq.low == 0 and not s.lost for s in self.streams.values()):
                 return []
             firsts = [s.first for s in self.streams.values() if math.isfinite(s.first)]
             if not firsts:  # every robot lost before its first forward (or forwarding nothing): nothing to fuse
@@ -383,14 +367,15 @@ class Forwarder:
         self.scope, self.roster = link.scope, link.roster
         self.forwards = batches(events, batch, SPAN if speed > 0 else math.inf)
         self.first = min((_key(e)[0] for e in events), default=math.inf)
-        self.link = faults.plan(robot) if faults is not None and faults.link else None
         self.speed, self.start_timeout, self.lost_timeout = float(speed), float(start_timeout), float(lost_timeout)
         self.counts: Counter[str] = Counter()
+        plan = faults.plan(robot) if faults is not None and faults.link else None
+        self.sends = FaultySender(plan, self.counts, robot)
+        """The forwards sent with the link faults (lost, delayed, duplicated)."""
         self._seq = 0
         self._server_done = threading.Event()
         self._server_alive = threading.Event()
         self._stop = threading.Event()
-        self._delayed: list[tuple[float, int, str, bytes]] = []
         self._end: Raw | None = None  # the stream's end, repeated once everything is forwarded
         self._kept: dict[int, Raw] = {}  # the last KEEP forwards, to send again when the server asks
         self._asked: queue.SimpleQueue = queue.SimpleQueue()  # RawAck from the server, handled on the main thread
@@ -447,25 +432,11 @@ class Forwarder:
 
     def _send(self, key: str, body: Raw) -> None:
         """One forward, as the link faults say (lost, delayed, duplicated)."""
-        delays = [0.0] if self.link is None else self.link.schedule()
-        if not delays:
-            self.counts["lost"] += 1
-        self.counts["sent"] += len(delays)
-        payload = self._seal(key, body)
-        for d in delays:
-            if d > 0:
-                heapq.heappush(self._delayed, (time.monotonic() + d, self._seq, key, payload))
-            else:
-                self.session.put(key, payload, congestion_control=self._block)
+        self.sends.faulty(partial(self.session.put, key, self._seal(key, body), congestion_control=self._block))
 
     def _put(self, key: str, body: Any) -> None:
         """``body`` sealed and put on ``key``, never dropped (not subject to the link faults: progress, report)."""
         self.session.put(key, self._seal(key, body), congestion_control=self._block)
-
-    def _flush_delayed(self) -> None:
-        while self._delayed and self._delayed[0][0] <= time.monotonic():
-            _, _, key, payload = heapq.heappop(self._delayed)
-            self.session.put(key, payload, congestion_control=self._block)
 
     def run(self, max_wall: float | None = None) -> Report:
         """Forward everything, then wait for the server's report; returns this robot's report."""
@@ -516,7 +487,7 @@ class Forwarder:
             if self.speed > 0:
                 due, beat = w0 + (_key(evs[-1])[0] - self.first) / self.speed, time.monotonic()
                 while time.monotonic() < due and not self._stop.is_set():
-                    self._flush_delayed()
+                    self.sends.run_timers()
                     self._resend(key)
                     if time.monotonic() - beat >= 1.0:  # alive, and where it stands
                         beat = time.monotonic()
@@ -531,7 +502,7 @@ class Forwarder:
             self._send(key, self._keep(raw))
             self._resend(key)
             self._put(pkey, Progress(robot=self.robot, t=nxt[0], prio=nxt[1]))
-            self._flush_delayed()
+            self.sends.run_timers()
         self.counts.update(forwards=len(self.forwards), forwarded_odometry=odo, forwarded_detections=det)
         self._end = self._keep(Raw(robot=self.robot, n=len(self.forwards), first=self.first, upto=math.inf,
                                    odometry=odo, detections=det))  # fmt: skip
@@ -544,7 +515,7 @@ class Forwarder:
         gone_since, last = None, -math.inf
         while not self._server_done.is_set() and not self._stop.is_set() and time.monotonic() < end:
             now = time.monotonic()
-            self._flush_delayed()
+            self.sends.run_timers()
             self._resend(key)
             if now - last >= 0.25:
                 last = now

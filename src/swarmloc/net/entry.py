@@ -217,13 +217,16 @@ def _on_belief(b: Belief, finals: dict[float, Belief], view: Any) -> None:
         view.observe(b)
 
 
-def map_answers(session: Any, scope: str, team: str, roster: Container[int], auth: Auth | None,
-                refused: Callable[[str], object]) -> Iterator[MapAnswer]:  # fmt: skip
-    """The belief server's answers to one ``?map`` query of ``session`` in ``scope``, as they come: those the server
-    sent (signed, with ``auth``); ``refused(reason)`` for each reply refused."""
+def server_replies(session: Any, selector: str, team: str, roster: Container[int], auth: Auth | None,
+                   refused: Callable[[str], object]) -> Iterator[Any]:  # fmt: skip
+    """The bodies of the belief server's replies to one query of ``session`` on ``selector`` (its query key with
+    parameters), as they come: those the server sent (signed, with ``auth``); ``refused(reason)`` for each reply
+    refused."""
     import zenoh
 
-    for reply in session.get(f"{server_key(scope)}?map", timeout=1.0, target=zenoh.QueryTarget.ALL):
+    for reply in session.get(
+        selector, timeout=1.0, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE
+    ):
         if reply.ok is None:
             continue
         try:
@@ -231,8 +234,17 @@ def map_answers(session: Any, scope: str, team: str, roster: Container[int], aut
         except Rejected as exc:
             refused(exc.reason)
             continue
-        if env.from_robot == SERVER and isinstance(env.body, MapAnswer):
+        if env.from_robot == SERVER:
             yield env.body
+
+
+def map_answers(session: Any, scope: str, team: str, roster: Container[int], auth: Auth | None,
+                refused: Callable[[str], object]) -> Iterator[MapAnswer]:  # fmt: skip
+    """The belief server's answers to one ``?map`` query of ``session`` in ``scope``, as they come: those the server
+    sent (signed, with ``auth``); ``refused(reason)`` for each reply refused."""
+    for body in server_replies(session, f"{server_key(scope)}?map", team, roster, auth, refused):
+        if isinstance(body, MapAnswer):
+            yield body
 
 
 class _MapPoller(threading.Thread):
@@ -288,8 +300,6 @@ def _forward(
     out: str | os.PathLike[str] | None, auth: Auth | None, run_id: str | None,
 ) -> Report:  # fmt: skip
     """Robot ``robot``'s process for a server-hosted estimator: forward its own events (:mod:`.central`)."""
-    import msgspec
-
     from swarmloc.net.central import Forwarder
 
     faults = parse_faults(faults) if isinstance(faults, str | None) else faults
@@ -301,8 +311,7 @@ def _forward(
         _stop_on_sigterm(fw.stop)
         report = fw.run(max_wall=max_wall)
         if out is not None:
-            Path(out).mkdir(parents=True, exist_ok=True)
-            (Path(out) / f"robot{robot}.json").write_text(json.dumps(msgspec.to_builtins(report), indent=2))
+            _write_report(Path(out), robot, report)
         return report
     finally:
         session.close()
@@ -315,7 +324,7 @@ def _own_scans(src: Source, robot: int, events: Sequence[Event]) -> Any:
     from swarmloc.mapping import ScanSeries
 
     sc = src.scans[robot]
-    stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
+    stamps = [e.stamp for e in events]
     keep = sc.times >= (min(stamps) if stamps else src.t_start)
     return ScanSeries(sc.times[keep], sc.ranges[keep], sc.angles, sc.sigma)
 
@@ -352,7 +361,7 @@ def _start(
         t0 = b.stamp
         log.warning("robot %s: resumed from the server's belief at %.3f s", robot, t0)
     else:
-        stamps = [e.t0 if isinstance(e, Odometry) else e.stamp for e in events]
+        stamps = [e.stamp for e in events]
         t0 = min(stamps) if stamps else src.t_start
     node = make_node(estimator, robot, initial, src.config, src.landmarks, team=src.robots, noise=src.noise)
     node.start(t0)
@@ -361,13 +370,10 @@ def _start(
 
 def _write_outputs(folder: Path, robot: int, finals: list[Belief], report: Report) -> None:
     """``robot<N>.tum`` (the final beliefs) and ``robot<N>.json`` (the report) in ``folder``."""
-    import msgspec
-
     from swarmloc.datasets.tum import write_tum
     from swarmloc.lie import SE2
 
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / f"robot{robot}.json").write_text(json.dumps(msgspec.to_builtins(report), indent=2))
+    _write_report(folder, robot, report)
     if finals and finals[0].group == "SE3":  # full quaternions (swarmloc.datasets.tum.write_tum3)
         from swarmloc.datasets.tum import write_tum3
 
@@ -376,6 +382,13 @@ def _write_outputs(folder: Path, robot: int, finals: list[Belief], report: Repor
         return
     xyt = SE2.to_xytheta(np.array([b.mean for b in finals]).reshape(-1, 3, 3)).reshape(-1, 3)
     write_tum(folder / f"robot{robot}.tum", np.array([b.stamp for b in finals]), xyt)
+
+
+def _write_report(folder: Path, robot: int, report: Report) -> None:
+    """``robot<N>.json`` (the report) in ``folder``."""
+    import msgspec
+
+    folder.mkdir(parents=True, exist_ok=True)
     (folder / f"robot{robot}.json").write_text(json.dumps(msgspec.to_builtins(report), indent=2))
 
 
@@ -390,23 +403,15 @@ def _latest_from_server(
 ) -> Belief:
     """``robot``'s latest belief on the team's belief server (its keys under ``scope``), asked for until ``timeout``
     s passed (with ``auth``: only a reply signed by the server)."""
-    import zenoh
+
+    def refused(reason: str) -> None:
+        log.warning("robot %s: refused a reply of the belief server: %s", robot, reason)
 
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        selector = f"{server_key(scope)}?latest={robot}"
-        for reply in session.get(
-            selector, timeout=1.0, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE
-        ):
-            if reply.ok is None:
-                continue
-            try:
-                env = open_envelope(auth, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), team, roster)
-            except Rejected as exc:
-                log.warning("robot %s: refused a reply of the belief server: %s", robot, exc.reason)
-                continue
-            if env.from_robot == SERVER and isinstance(env.body, Belief) and env.body.robot == robot:
-                return env.body
+        for body in server_replies(session, f"{server_key(scope)}?latest={robot}", team, roster, auth, refused):
+            if isinstance(body, Belief) and body.robot == robot:
+                return body
         time.sleep(0.1)
     raise RuntimeError(f"robot {robot}: no belief to resume from on the belief server of team {team!r}")
 

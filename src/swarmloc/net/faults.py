@@ -22,7 +22,12 @@ progress messages are not (they are the measurement apparatus of the run, not th
 
 from __future__ import annotations
 
+import heapq
+import itertools
+import logging
 import math
+import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -32,6 +37,8 @@ import numpy as np
 from swarmloc.events import Odometry, OwnEvent
 
 __all__ = ["Faults", "parse_faults"]
+
+log = logging.getLogger("swarmloc.net.process")  # the driver's one logger, whichever part logs
 
 
 @dataclass(frozen=True)
@@ -132,6 +139,71 @@ class LinkFaults:
         if any(out):
             self.delayed += 1
         return out
+
+
+class FaultySender:
+    """Robot ``robot``'s sends as its link faults ``link`` say (None: none): lost, delayed (waiting on ``timers``
+    until :meth:`run_timers` finds them due), duplicated; counted in ``counts`` (``sent``, ``lost``, ``delayed``,
+    ``duplicated``, ``send_failed``). Other delayed work may wait on the same timers (:meth:`later`)."""
+
+    def __init__(self, link: LinkFaults | None, counts: Counter[str], robot: int) -> None:
+        self.link, self.counts, self.robot = link, counts, robot
+        self.timers: list[tuple[float, int, Callable[[], None]]] = []
+        """``(due, id, fn)``: delayed sends and other timed work (a heap)."""
+        self._ids = itertools.count()  # tie-breakers
+
+    def later(self, due: float, fn: Callable[[], None]) -> None:
+        """Run ``fn`` once monotonic time ``due`` has come (:meth:`run_timers`)."""
+        heapq.heappush(self.timers, (due, next(self._ids), fn))
+
+    def faulty(self, send: Callable[[], None], finish: Callable[[], None] | None = None) -> int:
+        """Send now, or as the link faults say (lost, delayed, duplicated); returns the copies sent. ``finish`` runs
+        once the last copy is sent (at once if every copy is lost): closing the Zenoh query a reply answers, so that
+        a duplicate reply goes out on a query still open. A copy that fails to go out is counted (``send_failed``)
+        and logged; it never raises into the caller's loop."""
+        delays = [0.0] if self.link is None else self.link.schedule()
+        if not delays:
+            self.counts["lost"] += 1
+        elif len(delays) > 1:
+            self.counts["duplicated"] += 1
+        left = [len(delays)]
+
+        def one() -> None:
+            try:
+                send()
+            except Exception as exc:  # noqa: BLE001 - e.g. the asker is gone: a missing answer, not a crash
+                self.send_failed(exc)
+            left[0] -= 1
+            if left[0] == 0 and finish is not None:
+                finish()
+
+        if not delays and finish is not None:
+            finish()
+        for d in delays:
+            self.counts["sent"] += 1
+            if d <= 0:
+                one()
+            else:
+                self.counts["delayed"] += 1
+                self.later(time.monotonic() + d, one)
+        return len(delays)
+
+    def send_failed(self, exc: Exception) -> None:
+        """Count a message that could not go out (``send_failed``) and log the first."""
+        self.counts["send_failed"] += 1
+        level = logging.WARNING if self.counts["send_failed"] == 1 else logging.DEBUG
+        log.log(level, "robot %s: a send failed (counted send_failed): %s: %s", self.robot, type(exc).__name__, exc)
+
+    def run_timers(self) -> float:
+        """Send (run) what is due; seconds until the next timer (inf if none)."""
+        now = time.monotonic()
+        while self.timers and self.timers[0][0] <= now:
+            _, _, fn = heapq.heappop(self.timers)
+            try:
+                fn()
+            except Exception as exc:  # noqa: BLE001 - a delayed send never raises into the loop (see faulty)
+                self.send_failed(exc)
+        return self.timers[0][0] - now if self.timers else math.inf
 
 
 def _read(convert: Callable[[str], Any], v: str, message: str) -> Any:

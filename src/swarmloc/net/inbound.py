@@ -105,7 +105,7 @@ class Inbound:
         try:  # outside the per-item guard now: a failing send is counted, never raised into the loop
             self.flush()
         except Exception as exc:  # noqa: BLE001
-            self.outbound.send_failed(exc)
+            self.outbound.sends.send_failed(exc)
         return got
 
     def handle(self, kind: str, x: Any, y: Any = None) -> None:

@@ -9,7 +9,6 @@ lose, delay and duplicate what is sent; delayed sends wait on the node's timers.
 
 from __future__ import annotations
 
-import heapq
 import itertools
 import logging
 import math
@@ -22,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, TeamUpdate
 from swarmloc.net.auth import Auth, seal
-from swarmloc.net.faults import Faults, LinkFaults
+from swarmloc.net.faults import Faults, FaultySender, LinkFaults
 from swarmloc.net.intake import Intake
 from swarmloc.net.schema import encode
 from swarmloc.net.settings import NetSettings
@@ -75,13 +74,13 @@ class Outbound:
         self.node, self.robot, self.roster, self.scope, self.settings = node, robot, roster, scope, settings
         self.counts, self.wiring, self.seal, self.intake, self.lockstep = counts, wiring, seal, intake, lockstep
         self.step, self.broadcast, self.link, self.faults = step, broadcast, link, faults
-        self._qids = itertools.count()  # ids of this node's queries (and timer tie-breakers)
+        self._qids = itertools.count()  # ids of this node's queries
+        self.sends = FaultySender(link, counts, robot)
+        """Sending with the link faults, and the timers: delayed sends, lost gets, later asks."""
         self.outstanding: dict[int, tuple[Message, str, bool]] = {}
         """The node's queries out, by id: ``(query, "robot"/"server", answered)``."""
         self.gets: dict[int, int] = {}
         """Per query id: its copies out (link faults duplicate them), each ends once."""
-        self.timers: list[tuple[float, int, Callable[[], None]]] = []
-        """``(due, id, send)``: delayed sends, lost gets (a heap)."""
         self.outbox: dict[tuple[Any, ...], Message] = {}
         """Pushed messages to send, the newest per exchange."""
         self.again: dict[int, tuple[int, float]] = {}
@@ -92,45 +91,7 @@ class Outbound:
 
     def busy(self) -> bool:
         """Queries out, timers set or pushed messages waiting."""
-        return bool(self.outstanding or self.timers or self.outbox)
-
-    def faulty(self, send: Callable[[], None], finish: Callable[[], None] | None = None) -> int:
-        """Send now, or as the link faults say (lost, delayed, duplicated); returns the copies sent. ``finish`` runs
-        once the last copy is sent (at once if every copy is lost): closing the Zenoh query a reply answers, so that
-        a duplicate reply goes out on a query still open. A copy that fails to go out is counted (``send_failed``)
-        and logged; it never raises into the node's loop."""
-        delays = [0.0] if self.link is None else self.link.schedule()
-        if not delays:
-            self.counts["lost"] += 1
-        elif len(delays) > 1:
-            self.counts["duplicated"] += 1
-        left = [len(delays)]
-
-        def one() -> None:
-            try:
-                send()
-            except Exception as exc:  # noqa: BLE001 - e.g. the asker is gone: a missing answer, not a crash
-                self.send_failed(exc)
-            left[0] -= 1
-            if left[0] == 0 and finish is not None:
-                finish()
-
-        if not delays and finish is not None:
-            finish()
-        for d in delays:
-            self.counts["sent"] += 1
-            if d <= 0:
-                one()
-            else:
-                self.counts["delayed"] += 1
-                heapq.heappush(self.timers, (time.monotonic() + d, next(self._qids), one))
-        return len(delays)
-
-    def send_failed(self, exc: Exception) -> None:
-        """Count a message that could not go out (``send_failed``) and log the first."""
-        self.counts["send_failed"] += 1
-        level = logging.WARNING if self.counts["send_failed"] == 1 else logging.DEBUG
-        log.log(level, "robot %s: a send failed (counted send_failed): %s: %s", self.robot, type(exc).__name__, exc)
+        return bool(self.outstanding or self.sends.timers or self.outbox)
 
     def route(self, msgs: list[Message], query: Any = None, asked: Message | None = None) -> None:
         """Carry what the node returned: a query is asked (:meth:`ask`), the answer to ``asked`` is the reply to the
@@ -149,7 +110,7 @@ class Outbound:
                 if isinstance(m, RdlState) and m.found:  # the observer's update (or "no update") follows
                     self.lockstep.expect_update((float(m.stamp), 1, m.receiver, tuple(m.sub)))
                 answer = lambda q=q, payload=payload: q.reply(q.key_expr, payload)  # noqa: E731
-                self.faulty(answer, finish=partial(close_query, q))
+                self.sends.faulty(answer, finish=partial(close_query, q))
             elif isinstance(m, TeamUpdate):  # a teammate's copy of a broadcast (:mod:`swarmloc.net.broadcast`)
                 self.broadcast(m)
             elif m.receiver in self.roster:
@@ -183,7 +144,7 @@ class Outbound:
         """``body`` to robot ``to``'s inbox (link faults apply); the bytes of its payload."""
         key = robot_key(self.scope, to, "inbox")
         payload = self.seal(body, key)
-        self.faulty(partial(self.wiring.session.put, key, payload, congestion_control=self.wiring.block))
+        self.sends.faulty(partial(self.wiring.session.put, key, payload, congestion_control=self.wiring.block))
         return len(payload)
 
     def ask(self, m: Message, via_server: bool = False, again: int = 0, first: float | None = None) -> None:
@@ -221,11 +182,11 @@ class Outbound:
             send()
             return
         # every copy's get ends on the queue, handled on this thread after this returns: count them first
-        self.gets[qid] = copies = self.faulty(send)
+        self.gets[qid] = copies = self.sends.faulty(send)
         if not copies:
             # a lost query: its get never goes out, so nothing will end it but a timer
             end: Callable[[], None] = partial(intake.put, ("reply_end", qid, None))
-            heapq.heappush(self.timers, (time.monotonic() + timeout, next(self._qids), end))
+            self.sends.later(time.monotonic() + timeout, end)
 
     def answered(self, qid: int) -> None:
         """Query ``qid`` got its answer (a later reply is a duplicate); counted ``server_answers`` if the server's."""
@@ -303,7 +264,7 @@ class Outbound:
         due = first + again * spacing if again > self.settings.answer_retries else now
         if due > now:
             self.counts["asked_again_later"] += 1
-            heapq.heappush(self.timers, (due, next(self._qids), lambda: self.ask(m, again=again, first=first)))
+            self.sends.later(due, lambda: self.ask(m, again=again, first=first))
         else:
             self.ask(m, again=again, first=first)
         return True
@@ -312,17 +273,6 @@ class Outbound:
         """Step the node with a "not found" answer to its own query ``m``, with the reason."""
         a = kind(sender=m.receiver, receiver=m.sender, stamp=m.stamp, sub=m.sub, found=False, reason=reason, seq=seq)
         self.step(a)
-
-    def run_timers(self) -> float:
-        """Send what is due; seconds until the next timer (inf if none)."""
-        now = time.monotonic()
-        while self.timers and self.timers[0][0] <= now:
-            _, _, fn = heapq.heappop(self.timers)
-            try:
-                fn()
-            except Exception as exc:  # noqa: BLE001 - a delayed send never raises into the loop (see faulty)
-                self.send_failed(exc)
-        return self.timers[0][0] - now if self.timers else math.inf
 
 
 def key_of(x: Any) -> str:

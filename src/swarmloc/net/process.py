@@ -307,7 +307,7 @@ class NetNode:
             self._flush()
             self.publishing.settled()
             self._status()
-            wait = self.outbound.run_timers()
+            wait = self.outbound.sends.run_timers()
             if inputs.i >= len(items):  # a live feed with nothing released yet: tell the team how far it is, wait
                 self._say_waiting(inputs.i)
                 self.announcer.announce(inputs.w)
@@ -387,7 +387,7 @@ class NetNode:
             self.lockstep.release()
             self._flush()
             self._status()
-            self.outbound.run_timers()
+            self.outbound.sends.run_timers()
             if time.monotonic() - self.announcer.last_wall > 0.2:
                 self.announcer.announce(math.inf, force=True)
             if got or not self._idle():
@@ -413,7 +413,7 @@ class NetNode:
         quiet_since = time.monotonic()
         while not self._stop.is_set() and time.monotonic() < min(t_end, deadline):
             got = self.inbound.drain(0.02)
-            self.outbound.run_timers()
+            self.outbound.sends.run_timers()
             self._flush()
             if got:
                 self.outbound.route(self.node.expire())

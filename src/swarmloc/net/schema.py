@@ -392,12 +392,16 @@ def raw_problem(b: Raw) -> str | None:
     return None
 
 
+ROBOT_BODIES = Belief | Progress | Report | Broadcast | BroadcastHead | Raw | RawAck | Lines
+"""The bodies that speak for the robot they name (``robot``); the others are neighbour messages (``sender`` to
+``receiver``) or the server's map."""
+
+
 def sender_of(b: Body) -> int:
     """The robot a body speaks for (the belief server, :data:`SERVER`, for its map)."""
     if isinstance(b, MapAnswer):
         return SERVER
-    speaks = Belief | Progress | Report | Broadcast | BroadcastHead | Raw | RawAck | Lines
-    return b.robot if isinstance(b, speaks) else b.sender
+    return b.robot if isinstance(b, ROBOT_BODIES) else b.sender
 
 
 MAX_QUOTED = 80
@@ -450,9 +454,7 @@ def decode(
     elif to_robot is not None and isinstance(b, BroadcastHead) and b.robot == to_robot:
         # its own head played back to it (a replay on its own key): taken, it would ask itself for repairs
         raise Rejected(f"broadcast head of robot {b.robot} received by itself")
-    elif to_robot is not None and not isinstance(
-        b, Belief | Progress | Report | BroadcastHead | Raw | RawAck | Broadcast | Lines | MapAnswer
-    ):  # Broadcast, Lines and MapAnswer: handled above
+    elif to_robot is not None and not isinstance(b, ROBOT_BODIES | MapAnswer):  # a neighbour message
         if b.receiver != to_robot:
             raise Rejected(f"{type(b).__name__} addressed to robot {b.receiver}, received by robot {to_robot}")
         if b.sender == b.receiver:

@@ -375,7 +375,7 @@ class _Launcher:
             k, tk = f.kill
             if self.progress.get(k, -math.inf) >= t_first + tk:
                 procs[f"robot{k}"].kill()
-                procs[f"robot{k}"].wait()
+                reap(procs[f"robot{k}"])
                 how = f"killed by the fault kill={k}@{tk:g}, restarted" if f.restart else \
                     f"killed by the fault killonly={k}@{tk:g}, not restarted"  # fmt: skip
                 self.note(f"robot{k}", procs[f"robot{k}"], how)
@@ -547,4 +547,13 @@ def stop_all(procs: dict[str, subprocess.Popen] | Iterable[subprocess.Popen], gr
         except subprocess.TimeoutExpired:
             with suppress(ProcessLookupError):
                 os.killpg(p.pid, signal.SIGKILL)
-            p.wait()
+            reap(p)
+
+
+def reap(p: subprocess.Popen, timeout: float = 5.0) -> None:
+    """Wait at most ``timeout`` s for process ``p``, SIGKILLed, to end (one stuck in the kernel may outlive its kill
+    for a while: it is logged and left, never waited for without bound)."""
+    try:
+        p.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        log.warning("team: process %d still running %.0f s after SIGKILL; not waiting for it", p.pid, timeout)

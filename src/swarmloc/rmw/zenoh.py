@@ -31,7 +31,7 @@ from typing import Any
 
 from swarmloc.net import ros
 from swarmloc.net.rosgraph import RosGraph
-from swarmloc.net.transport import block, open_session
+from swarmloc.net.transport import block, open_session, undeclare_all
 from swarmloc.rmw.inbox import MAX_BYTES, Callback, Inbox, Received
 from swarmloc.rmw.names import check_namespace, check_node_name, check_topic
 from swarmloc.rmw.qos import DEFAULT, Qos, check_qos
@@ -77,7 +77,7 @@ class ZenohPublisher:
         return int(bool(self.pub.matching_status.matching))
 
     def close(self) -> None:
-        _undeclare(self.pub)
+        undeclare_all([self.pub])
         self._mw.graph.undeclare(self.token)
 
 
@@ -111,7 +111,7 @@ class ZenohSubscription:
             inbox.refuse("internal_error", f"{self.topic}: {type(exc).__name__}: {exc}")
 
     def close(self) -> None:
-        _undeclare(self.sub)
+        undeclare_all([self.sub])
         self._mw.graph.undeclare(self.token)
 
 
@@ -159,10 +159,3 @@ class ZenohMiddleware:
         if self._own and self.session is not None:
             session, self.session = self.session, None
             session.close()
-
-
-def _undeclare(entity: Any) -> None:
-    try:
-        entity.undeclare()
-    except Exception:  # noqa: BLE001 - closing: the session may be gone already
-        pass
