@@ -106,13 +106,6 @@ def _carried(rel: np.ndarray, cov: np.ndarray, cov_rel: np.ndarray) -> np.ndarra
     return A @ cov @ A.T + cov_rel
 
 
-def _chain(
-    pose_k: np.ndarray, cov_k: np.ndarray, rel: np.ndarray, cov_rel: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """``T_k C`` and its covariance (:func:`_carried`, symmetrized)."""
-    return compose_xyt(pose_k, rel), symmetric(_carried(rel, cov_k, cov_rel))
-
-
 def _relative(
     pose_r: np.ndarray, cov_r: np.ndarray, pose_s: np.ndarray, cov_s: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -302,7 +295,7 @@ def multiple_registration(
                 pj, cj = rel, crel
                 fj: int | None = r.a
             else:
-                pj, cj = _chain(poses[k0], covs[k0], rel, crel)
+                pj, cj = compose_xyt(poses[k0], rel), symmetric(_carried(rel, covs[k0], crel))  # T_k C
                 fj = _feature(obs[ego], pj, 2 * gate * sigma)
             if fj is not None and fj in feats.values():
                 continue  # two robots on one feature

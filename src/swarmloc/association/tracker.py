@@ -24,6 +24,7 @@ from typing import Any, TypeGuard
 
 import numpy as np
 
+from swarmloc.arrays import readonly
 from swarmloc.association.pfbank import BankEstimate, ParticleFilterBank
 from swarmloc.association.pmr import multiple_registration
 from swarmloc.association.registration import points_from_range_bearing
@@ -373,9 +374,7 @@ def bank_detections(
                 cov = symmetric(cov)
                 if not np.all(np.linalg.eigvalsh(cov) > 1e-12):
                     continue
-                z.setflags(write=False)
-                cov.setflags(write=False)
-                new.append(Detection(ego, t, Kind.POSE, z, cov, target=int(j)))
+                new.append(Detection(ego, t, Kind.POSE, readonly(z), readonly(cov), target=int(j)))
                 last[j] = (t, P)
                 emitted += 1
         n_lone = sum(1 for e in passed if e.observer == ego)

@@ -1,5 +1,5 @@
-"""Run-time helpers the commands share: the one-line refusal of a bad input, the configuration file, comma-separated
-ids and endpoints, a network process's logging, keys, launcher and waits."""
+"""Run-time helpers the commands share: the one-line refusal of a bad input, the configuration file, a team's source,
+comma-separated ids and endpoints, a network process's logging, keys, launcher and waits."""
 
 from __future__ import annotations
 
@@ -19,6 +19,18 @@ def run_config(args: argparse.Namespace):  # noqa: ANN202
     from swarmloc.config import DEFAULTS, load_config
 
     return load_config(args.config) if args.config else DEFAULTS
+
+
+def team_source(args: argparse.Namespace, spec: str, robots: int):  # noqa: ANN201
+    """The team's source ``spec`` (``robots`` robots, ``--duration``, ``--seed``, ``--config`` when given) with its
+    robot detections' identities as ``--association`` says
+    (:func:`~swarmloc.experiments.association.with_association`)."""
+    from swarmloc.experiments.association import with_association
+    from swarmloc.experiments.sources import load_source
+
+    config = run_config(args) if args.config else None
+    src = load_source(spec, robots=robots, duration=args.duration, seed=args.seed, config=config)
+    return with_association(src, args.association)
 
 
 def ids(text: str | None) -> list[int] | None:

@@ -90,6 +90,7 @@ from typing import TypeGuard
 
 import numpy as np
 
+from swarmloc.arrays import readonly
 from swarmloc.datasets._eventfields import Bad, Record, check_point, check_pose, check_std, noise
 from swarmloc.datasets.bounds import (
     MAX_LINE_CHARS,
@@ -198,11 +199,6 @@ def _check_fields(rec: Record, rtype: str) -> None:
         raise Bad(f"{names} do{'es' if len(extra) == 1 else ''} not apply to {rtype} records (leave empty)")
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
-
-
 def _normalize_defaults(defaults: Mapping[str, object] | None) -> dict[str, np.ndarray]:
     """``kind -> (m, m)`` covariance from a std vector ``(m,)`` or a covariance ``(m, m)`` per key; for
     ``"landmark"`` the std vector itself (landmarks are stored as ``(x, y, sx, sy)``)."""
@@ -287,7 +283,7 @@ class _Reader:
             raise Bad(f"bearing must be in [-pi, pi] rad (degrees given?), got {z[-1]!r}")
         cov = noise(rec, m, f"a {kind} detection", self.dflt.get(kind))
         d = Detection(
-            observer=obs, t=t, kind=kind, z=_readonly(z), cov=_readonly(cov), target=target, target_is_robot=is_robot
+            observer=obs, t=t, kind=kind, z=readonly(z), cov=readonly(cov), target=target, target_is_robot=is_robot
         )
         return (t, 0, obs, seq), line, d
 
@@ -324,7 +320,7 @@ class _Reader:
                 first = self.init_line[r]
                 raise Bad(f"initial belief of robot {r} already given on line {first} with different values")
             return
-        self.initial[r] = (_readonly(z), _readonly(cov))
+        self.initial[r] = (readonly(z), readonly(cov))
         if t is not None:
             self.init_t[r] = t
         self.init_line[r] = line

@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.arrays import readonly
 from swarmloc.datasets import _mrclam_files as readers
 from swarmloc.datasets._mrclam_files import BARCODE_SWAPS, MAX_YAW_RATE, ROBOT_SUBJECTS, MRCLAMError
 from swarmloc.datasets.tum import interpolate
@@ -300,8 +301,7 @@ def mrclam_events(
             raise ValueError(f"duration must be non-negative, got {duration}")
         t_end = min(t_end, t_start + float(duration))
 
-    cov = np.diag([range_std**2, bearing_std**2])
-    cov.setflags(write=False)
+    cov = readonly(np.diag([range_std**2, bearing_std**2]))
     robot_set = set(ROBOT_SUBJECTS)
     odometry: list[Event] = []
     detections: list[Event] = []

@@ -127,17 +127,6 @@ def _job(
     }
 
 
-def _run_jobs(tasks: list[tuple], jobs: int, progress: bool, cluster: Any = None) -> dict[tuple, dict[str, Any]]:
-    """Results of ``_job(*task)`` by key, where :func:`~swarmloc.runner.fanout.fan_out` runs them, with an optional
-    progress bar."""
-    out: dict[tuple, dict[str, Any]] = {}
-    with steps(progress, len(tasks), "consistency") as tick:
-        for _, r in fan_out(_job, tasks, jobs=jobs, cluster=cluster):
-            out[r["key"]] = r
-            tick("")
-    return out
-
-
 def _summarize(rs: list[dict[str, Any]], band: dict[str, tuple[float, float]]) -> dict[str, Any]:
     """Statistics of one estimator and landmark setting from its per-seed results (in seed order)."""
     nees = np.stack([r["nees"] for r in rs])  # (S, n, K)
@@ -196,7 +185,11 @@ def consistency(
     t0 = time.perf_counter()
     tasks = [(e, s, robots, float(duration), lm, sample_initial) for lm in settings for e in estimators
              for s in range(seeds)]  # fmt: skip
-    results = _run_jobs(tasks, jobs, progress, cluster)
+    results: dict[tuple, dict[str, Any]] = {}  # _job's results by key, wherever fan_out ran them
+    with steps(progress, len(tasks), "consistency") as tick:
+        for _, r in fan_out(_job, tasks, jobs=jobs, cluster=cluster):
+            results[r["key"]] = r
+            tick("")
     band = bands(seeds, robots)
     summary: dict[str, Any] = {
         "seeds": seeds,

@@ -24,6 +24,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.linalg import expm
 
+from swarmloc.arrays import readonly
 from swarmloc.lie import SE3
 
 __all__ = ["TwistNoise", "as_twist", "twist_increment", "twist_increments"]
@@ -77,9 +78,7 @@ def twist_increment(twist: np.ndarray, dt: float, noise: TwistNoise) -> tuple[np
 @lru_cache(maxsize=1 << 14)
 def _increment_cached(twist: tuple[float, ...], dt: float, noise: TwistNoise) -> tuple[np.ndarray, np.ndarray]:
     mean, cov = twist_increments(np.array(twist, dtype=float), np.asarray(float(dt)), noise)
-    mean.setflags(write=False)
-    cov.setflags(write=False)
-    return mean, cov
+    return readonly(mean), readonly(cov)
 
 
 def twist_increments(h: np.ndarray, dt: np.ndarray, noise: TwistNoise) -> tuple[np.ndarray, np.ndarray]:

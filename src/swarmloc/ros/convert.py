@@ -199,10 +199,8 @@ def initialpose_in(msg: Any, robot: int, world_frame: str, now: float) -> Detect
     ``(x, y, yaw)`` of ``robot`` with the message's world-frame covariance."""
     if str(msg.header.frame_id) not in ("", world_frame):
         raise Refused("wrong_frame", f"initial pose in {msg.header.frame_id!r}, not {world_frame!r}")
-    t = stamp_of(msg.header) or now
-    p = msg.pose.pose
-    z = np.array([p.position.x, p.position.y, _yaw(p.orientation)], dtype=float)
-    C = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))]
+    t, z, C = rosmsg.pose_from_message(msg)
+    t = t or now
     if not (np.all(np.isfinite(z)) and np.all(np.isfinite(C)) and math.isfinite(t)):
         raise Refused("bad_value", "non-finite initial pose")
     C = symmetric(C)

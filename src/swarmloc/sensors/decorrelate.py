@@ -63,6 +63,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.arrays import readonly
 from swarmloc.events import Detection, Event, Kind
 from swarmloc.sensors.snapshots import (
     DetectionSet,
@@ -557,7 +558,5 @@ def decorrelate(events: Sequence[Event], model: CameraModel) -> list[Event]:
         wr = information_weights(times, model.range.phi, model.range.tau)
         wb = information_weights(times, model.bearing.phi, model.bearing.tau)
         for (i, d), a, b in zip(dets, wr.tolist(), wb.tolist(), strict=True):
-            cov = np.diag([r2 / a, b2 / b])
-            cov.setflags(write=False)
-            out[i] = dataclasses.replace(d, cov=cov)
+            out[i] = dataclasses.replace(d, cov=readonly(np.diag([r2 / a, b2 / b])))
     return out

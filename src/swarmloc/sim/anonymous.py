@@ -29,6 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from swarmloc.arrays import readonly
 from swarmloc.events import Detection, Event, Kind, Odometry, Truth, sim_order
 from swarmloc.lie import wrap_angle
 from swarmloc.motion.diffdrive import DiffDrive
@@ -89,8 +90,7 @@ def anonymize(
             scan = (e.observer, e.t)
             k = int(rng.poisson(clutter)) if clutter > 0 else 0
             for z in _z_clutter(rng, e.kind, k, min_range, max_range, fov):
-                z.setflags(write=False)
-                out.append(Detection(e.observer, e.t, e.kind, z, e.cov, None, True, CLUTTER_TRUTH))
+                out.append(Detection(e.observer, e.t, e.kind, readonly(z), e.cov, None, True, CLUTTER_TRUTH))
         if p_detect < 1.0 and rng.random() >= p_detect:
             continue
         target = None if hide_ids else e.target
@@ -142,8 +142,7 @@ def anonymize_sim(sim: SimResult, sensor: AnonymousSensor, seed: int | None = 0)
     rng = np.random.default_rng(seed)
     reach = min(sensor.max_range, sen.max_range)
     half_fov = min(sensor.fov, sen.fov) / 2
-    cov = np.array(sen.range_bearing_cov())
-    cov.setflags(write=False)
+    cov = readonly(sen.range_bearing_cov())
     scans: dict[tuple[float, int], list[Detection]] = {}
     rest: list[Event] = []
     for e in sim.events:
@@ -162,8 +161,7 @@ def anonymize_sim(sim: SimResult, sensor: AnonymousSensor, seed: int | None = 0)
                     rr = reach * np.sqrt(rng.random(k))
                     bb = rng.uniform(-half_fov, half_fov, k)
                     for z in np.column_stack([rr, wrap_angle(bb)]):
-                        z.setflags(write=False)
-                        d = Detection(r, float(t), Kind.RANGE_BEARING, z, cov, target=None, truth_target=CLUTTER_TRUTH)
+                        d = Detection(r, float(t), Kind.RANGE_BEARING, readonly(z), cov, truth_target=CLUTTER_TRUTH)
                         scans.setdefault((float(t), r), []).append(d)
     dets = [d for key in scans for d in sorted(scans[key], key=lambda d: (float(d.z[0]), float(d.z[1])))]
     events = rest + dets

@@ -32,6 +32,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from swarmloc.arrays import readonly
 from swarmloc.events import Detection, Event, Kind, sim_order
 from swarmloc.lie import wrap_angle
 from swarmloc.sim.simulator import SimResult, in_view, seen_from
@@ -138,10 +139,8 @@ def landmark_detections(
     mx, my, rng_, bearing = seen_from(P[..., 2][..., None], dx, dy)
     seen = (rng_ >= sensor.min_range) & in_view(rng_, bearing, sensor.max_range, sensor.fov)
     noise = np.random.default_rng(seed).standard_normal((*mx.shape, 2)) * [sensor.sigma_range, sensor.sigma_bearing]
-    z = np.stack([rng_ + noise[..., 0], wrap_angle(bearing + noise[..., 1])], axis=-1)
-    z.setflags(write=False)
-    cov = sensor.cov()
-    cov.setflags(write=False)
+    z = readonly(np.stack([rng_ + noise[..., 0], wrap_angle(bearing + noise[..., 1])], axis=-1))
+    cov = readonly(sensor.cov())
     out = []
     for a, r, l_ in zip(*np.nonzero(seen), strict=True):
         out.append(

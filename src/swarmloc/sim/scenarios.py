@@ -43,31 +43,6 @@ def thesis_schedule(
     return WheelSchedule.from_unicycle([0.0, straight_time], [speed, speed], [0.0, speed / arc_radius], drive)
 
 
-def _thesis_config(
-    noise_std: float,
-    duration: float,
-    D: float,
-    sigma_theta: float | None,
-    odom_rate: float,
-    sensor_rate: float,
-    zero_noise: bool,
-) -> SimConfig:
-    sensor = RelativeSensor(
-        rate=sensor_rate,
-        max_range=1.5,
-        fov=2 * np.pi,
-        sigma_xy=noise_std,
-        sigma_theta=2 * noise_std if sigma_theta is None else sigma_theta,
-    )
-    return SimConfig(
-        duration=duration,
-        drive=DiffDrive(r=0.033, l=0.2, D=D),
-        odom_rate=odom_rate,
-        sensor=sensor,
-        zero_noise=zero_noise,
-    )
-
-
 def thesis_two_robot(
     noise_std: float = 0.01,
     seed: int = 0,
@@ -91,9 +66,18 @@ def thesis_two_robot(
     noise std ``sigma_theta`` (default ``2 * noise_std`` rad, an assumption: the thesis gives none). Identical
     commands keep the noise-free robots exactly 1 m apart. Odometry at ``odom_rate`` Hz; ``absolute``: fixes, if any.
     """
-    cfg = _thesis_config(noise_std, duration, D, sigma_theta, odom_rate, sensor_rate, zero_noise)
-    sched = thesis_schedule(cfg.drive, speed, straight_time, arc_radius)
-    return simulate(THESIS_START, {1: sched, 2: sched}, replace(cfg, absolute=absolute), seed)
+    sensor = RelativeSensor(
+        rate=sensor_rate,
+        max_range=1.5,
+        fov=2 * np.pi,
+        sigma_xy=noise_std,
+        sigma_theta=2 * noise_std if sigma_theta is None else sigma_theta,
+    )
+    drive = DiffDrive(r=0.033, l=0.2, D=D)
+    cfg = SimConfig(duration=duration, drive=drive, odom_rate=odom_rate, sensor=sensor, absolute=absolute,
+                    zero_noise=zero_noise)  # fmt: skip
+    sched = thesis_schedule(drive, speed, straight_time, arc_radius)
+    return simulate(THESIS_START, {1: sched, 2: sched}, cfg, seed)
 
 
 class ThesisOptions(TypedDict, total=False):

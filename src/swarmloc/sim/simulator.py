@@ -40,6 +40,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from swarmloc.arrays import readonly
 from swarmloc.events import Detection, Event, Kind, Odometry, Truth
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion.diffdrive import DiffDrive
@@ -194,12 +195,6 @@ def _steps(period: float, dt_f: float, what: str) -> int:
     return n
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    a.setflags(write=False)
-    return a
-
-
 def _commands(cmds: Sequence[WheelCommand], t: np.ndarray) -> np.ndarray:
     """Wheel speeds ``(len(t), n_robots, 2)`` at the interval start times ``t``."""
     out = np.empty((len(t), len(cmds), 2))
@@ -332,7 +327,7 @@ def _relative_detections(
     zx, zy, zth = compose_exp_xyt(mx, my, mth, n_pose)
     z_pose = np.stack([zx, zy, wrap_angle(zth)], axis=-1)
     z_rb = np.stack([rng_ + n_rb[..., 0], wrap_angle(bearing + n_rb[..., 1])], axis=-1)
-    cov_pose, cov_rb = _readonly(sen.pose_cov()), _readonly(sen.range_bearing_cov())
+    cov_pose, cov_rb = readonly(sen.pose_cov()), readonly(sen.range_bearing_cov())
     keyed: list[tuple[int, int, tuple, Event]] = []
     for q in range(s_.size):
         k = int(ks[s_[q]])
@@ -340,10 +335,10 @@ def _relative_detections(
         oi, ti = int(obs[q]), int(tgt[q])
         o, g = ids[oi], ids[ti]
         if Kind.POSE in sen.kinds:
-            ev = Detection(o, t, Kind.POSE, _readonly(z_pose[q]), cov_pose, target=g)
+            ev = Detection(o, t, Kind.POSE, readonly(z_pose[q]), cov_pose, target=g)
             keyed.append((k, 1, (oi, 0, ti), ev))
         if Kind.RANGE_BEARING in sen.kinds:
-            ev = Detection(o, t, Kind.RANGE_BEARING, _readonly(z_rb[q]), cov_rb, target=g)
+            ev = Detection(o, t, Kind.RANGE_BEARING, readonly(z_rb[q]), cov_rb, target=g)
             keyed.append((k, 1, (oi, 1, ti), ev))
     return keyed
 
@@ -360,11 +355,11 @@ def _absolute_fixes(
     noise = rng_a.standard_normal((len(ka), len(cols), 3)) * np.sqrt(np.diag(ab.cov()))
     z = truth_all[ka][:, cols] + noise
     z[..., 2] = wrap_angle(z[..., 2])
-    cov_a = _readonly(ab.cov())
+    cov_a = readonly(ab.cov())
     keyed: list[tuple[int, int, tuple, Event]] = []
     for a_, k in enumerate(ka):
         for c_, col in enumerate(cols):
-            ev = Detection(ids[col], int(k) / f, Kind.ABSOLUTE, _readonly(z[a_, c_]), cov_a, target=None)
+            ev = Detection(ids[col], int(k) / f, Kind.ABSOLUTE, readonly(z[a_, c_]), cov_a, target=None)
             keyed.append((int(k), 1, (len(ids) + col, 2, 0), ev))
     return keyed
 
@@ -430,12 +425,12 @@ def simulate(
     wrapped[..., 2] = wrap_angle(wrapped[..., 2])
     for k in k_truth:
         for r, rid in enumerate(ids):
-            keyed.append((int(k), 2, (r,), Truth(rid, int(k) / f, _readonly(wrapped[k, r]))))
+            keyed.append((int(k), 2, (r,), Truth(rid, int(k) / f, readonly(wrapped[k, r]))))
 
     keyed.sort(key=lambda e: (e[0], e[1], e[2]))
     return SimResult(
         events=[e[3] for e in keyed],
-        initial_poses={rid: _readonly(p0[r]) for r, rid in enumerate(ids)},
+        initial_poses={rid: readonly(p0[r]) for r, rid in enumerate(ids)},
         robot_ids=ids,
         times=np.arange(n_int + 1) * n_sub / f,
         truth=wrapped[::n_sub],

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarmloc.arrays import readonly
 from swarmloc.sim.simulator import SimResult
 
 __all__ = ["RangeFinder", "Scans", "Walls", "cast_rays", "chapter_lab", "office_walls", "scan_team"]
@@ -37,8 +38,7 @@ class Walls:
             raise ValueError("Walls: segments must be finite")
         if (np.linalg.norm(s[:, 1] - s[:, 0], axis=-1) <= 0).any():
             raise ValueError("Walls: a segment has zero length")
-        s.setflags(write=False)
-        object.__setattr__(self, "segments", s)
+        object.__setattr__(self, "segments", readonly(s))
 
     @classmethod
     def from_polylines(cls, *lines: Sequence[tuple[float, float]]) -> Walls:

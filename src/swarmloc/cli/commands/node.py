@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, refuse, run_config, timeouts
+from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, refuse, team_source, timeouts
 from swarmloc.cli.liveview import check_view, linger, open_view
 from swarmloc.cli.options import add_auth_args, add_net_args, add_source_args, add_timeout_args, add_view_args
 
@@ -37,8 +37,6 @@ def run(args: argparse.Namespace) -> int:
     """Run one robot until its source ends; 0, 2 on bad input, 3 when no teammate answered, 130 on Ctrl-C."""
     die_with_launcher(args)
     from swarmloc.config import ConfigError
-    from swarmloc.experiments.association import with_association
-    from swarmloc.experiments.sources import load_source
     from swarmloc.live.source import live_inputs, split_live
     from swarmloc.net.entry import node_main
     from swarmloc.net.transport import team_scope
@@ -49,10 +47,8 @@ def run(args: argparse.Namespace) -> int:
         check_view(args)
         team_scope(args.team, args.run_id)  # a bad name or run id is refused before the source is loaded
         auth = load_auth(args, args.robot)
-        config = run_config(args) if args.config else None
         live_kind, spec = split_live(args.source)
-        src = load_source(spec, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
-        src = with_association(src, args.association)
+        src = team_source(args, spec, args.robots)
         live = None
         if live_kind is not None:
             live = live_inputs(live_kind, team=args.team, run_id=args.run_id, domain=args.ros_domain or 0,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, refuse, run_config
+from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, refuse, team_source
 from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, add_auth_args, add_net_args
 
 
@@ -49,15 +49,9 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--robots: the team's robot ids, comma-separated (default: the roster's robots)")
         src = None
         if args.estimator is not None:
-            from swarmloc.experiments.sources import load_source
-
             if args.source is None:
                 raise ValueError("--estimator needs --source (the team's initial beliefs and configuration)")
-            config = run_config(args) if args.config else None
-            src = load_source(args.source, robots=len(robots), duration=args.duration, seed=args.seed, config=config)
-            from swarmloc.experiments.association import with_association
-
-            src = with_association(src, args.association)
+            src = team_source(args, args.source, len(robots))
         server_main(
             team=args.team, roster=[int(r) for r in robots], listen=endpoints(args.listen),
             connect=endpoints(args.connect), zenoh_config=args.zenoh_config, max_wall=args.max_wall, auth=auth,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarmloc.cli.common import endpoints, net_logging, refuse, run_config, timeouts
+from swarmloc.cli.common import endpoints, net_logging, refuse, team_source, timeouts
 from swarmloc.cli.liveview import check_view, linger, open_view
 from swarmloc.cli.options import add_source_args, add_timeout_args, add_view_args
 
@@ -36,10 +36,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Start, collect and score a team; 0, 1 when a process failed or timed out, 2 on bad input, 130."""
     from swarmloc.config import ConfigError
-    from swarmloc.experiments.association import with_association
     from swarmloc.experiments.evaluate import markdown_table
     from swarmloc.experiments.progress import progress_bar
-    from swarmloc.experiments.sources import load_source
     from swarmloc.experiments.team import run_team, write_team_report
 
     net_logging(args.verbose)
@@ -49,9 +47,7 @@ def run(args: argparse.Namespace) -> int:
     view, ran = None, False
     try:
         check_view(args)
-        config = run_config(args) if args.config else None
-        src = load_source(args.source, robots=args.robots, duration=args.duration, seed=args.seed, config=config)
-        src = with_association(src, args.association)
+        src = team_source(args, args.source, args.robots)
         if args.view is not None or args.record:
             view = open_view(args, src, src.events, "swarmloc team")
         with progress_bar(not args.quiet) as start:
