@@ -33,8 +33,8 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from swarmloc.estimators.dekf import DEGENERATE, linearize
-from swarmloc.estimators.diekf import TeamProtocol
 from swarmloc.estimators.fls import Factor, OfSolver, Window, WindowSolver
+from swarmloc.estimators.team_protocol import TeamProtocol
 from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
@@ -97,7 +97,7 @@ def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu
 
 class TeamFixedLagSmoother(RobotNode):
     """``diekf`` whose own landmark updates come from a fixed-lag smoother of its recent poses (module
-    docstring): the node's wiring of ``diekf``'s :class:`~swarmloc.estimators.diekf.TeamProtocol`
+    docstring): the node's wiring of ``diekf``'s :class:`~swarmloc.estimators.team_protocol.TeamProtocol`
     (:attr:`protocol`) and a :class:`~swarmloc.estimators.fls.WindowSolver` (:attr:`solver`). ``lag`` [s],
     ``max_iterations`` and ``delayed`` as :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s; ``team`` as
     ``diekf``'s; ``cluster`` must be 0 (its pseudo-factors are the exact update's)."""
@@ -150,7 +150,7 @@ class TeamFixedLagSmoother(RobotNode):
         self, s: TeamFlsState, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
         Pii: np.ndarray, Pjj: np.ndarray, w: float = 1.0,
     ) -> TeamFlsState:  # fmt: skip
-        """``diekf``'s update (:meth:`~swarmloc.estimators.diekf.TeamProtocol.team_update`); the change of this
+        """``diekf``'s update (:meth:`~swarmloc.estimators.team_protocol.TeamProtocol.team_update`); the change of this
         robot's pose is also filed in the window (:func:`pseudo_factor`) unless the update is the node's own landmark
         update (``i == j == robot``: the window holds its factors). No clusters here (``w`` is always 1)."""
         new = self.protocol.team_update(s, i, j, Hi, Hj, Sinv, nu, Pii, Pjj)
