@@ -51,9 +51,7 @@ def predict_error(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The first-order EKF's prediction (:class:`~swarmloc.estimators.dekf.DistributedEKF` on SE(3)): the node's
     :func:`swarmloc.kernels.cartesian3.propagate` on the stack."""
-    out = g.copy()
-    out[:, :3, 3], out[:, :3, :3], Pn = C3.propagate(g[:, :3, 3], g[:, :3, :3], P, *twist_increments(v, w, dt, noise))
-    return out, Pn
+    return C3.propagate(g, P, *twist_increments(v, w, dt, noise))
 
 
 def to_error(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -80,6 +78,4 @@ def pose3_linearize(
 
 def correct(g: np.ndarray, dx: np.ndarray) -> np.ndarray:
     """Poses corrected by ``dx = (dp, dtheta)`` on the group: ``p + dp``, ``R exp(dtheta^)``."""
-    out = g.copy()
-    out[:, :3, 3], out[:, :3, :3] = C3.correct(g[:, :3, 3], g[:, :3, :3], dx)
-    return out
+    return C3.correct(g, dx)

@@ -32,7 +32,7 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, linearize
+from swarmloc.estimators.dekf import linearize
 from swarmloc.estimators.fls import Factor, OfSolver, Window, WindowSolver
 from swarmloc.estimators.team_protocol import TeamProtocol
 from swarmloc.gaussian import GroupGaussian, symmetric
@@ -226,8 +226,8 @@ class TeamFixedLagSmoother(RobotNode):
                 msgs += sent
                 continue
             lin = linearize(d, s.x, target)
-            if lin is None:
-                outcomes.append(("rejected", DEGENERATE))
+            if isinstance(lin, str):
+                outcomes.append(("rejected", lin))
                 continue
             r, Hi_c, R, _ = lin
             Hw = Hi_c @ I.world_basis(s.x)

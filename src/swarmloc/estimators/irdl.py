@@ -28,7 +28,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from swarmloc.estimators.iekf import joint_correction
+from swarmloc.estimators.cekf import joint_correction
 from swarmloc.estimators.rdl import RdlFilter, RdlNode
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
@@ -73,7 +73,7 @@ class WorldPairs:
     def update(
         self, x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray, gate: Gate
     ) -> tuple[np.ndarray, np.ndarray] | Outcome:
-        """The correction (:func:`~swarmloc.estimators.iekf.joint_correction`) applied on the group."""
+        """The correction (:func:`~swarmloc.estimators.cekf.joint_correction`) applied on the group."""
         res = joint_correction(P, list(range(0, x.size, 3)), [H], r, R, gate)
         if isinstance(res[0], str):
             return res

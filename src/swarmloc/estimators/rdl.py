@@ -467,8 +467,8 @@ class RdlNode(RobotNode):
     def _private(self, s: RdlFilter, d: Any, target: tuple[str, Any]) -> Any:
         """Absolute fix or landmark: a private update, then every factor rescaled."""
         lin = linearize(d, s.x, target)
-        if lin is None:
-            return ("rejected", DEGENERATE)
+        if isinstance(lin, str):
+            return ("rejected", lin)
         r, Hi, R_eff, _ = lin
         H = self.form.to_error(Hi, s.x)
         res = self.form.update(s.x, s.P, r, H, R_eff, self.gate)

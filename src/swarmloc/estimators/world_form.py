@@ -109,8 +109,8 @@ class WorldForm:
     def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple[Any, ...] | str:
         """``(r, H_i, S, R)`` of a landmark detection (the map's uncertainty in ``R``), or the reason."""
         lin = linearize(d, s.x, target)
-        if lin is None:
-            return DEGENERATE
+        if isinstance(lin, str):
+            return lin
         r, Hi_c, R, _ = lin
         Hi = Hi_c @ I.world_basis(s.x)
         return r, Hi, Hi @ s.P @ Hi.T + R, R
