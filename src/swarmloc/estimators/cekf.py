@@ -184,11 +184,13 @@ def joint_correction(
     P: np.ndarray, starts: list[int], blocks: list[np.ndarray], r: np.ndarray, R: np.ndarray, gate: Gate
 ) -> tuple[np.ndarray, np.ndarray] | Outcome:
     """The gated Kalman update (:func:`~swarmloc.node.update.gated_kalman`, Joseph form) of a joint covariance
-    ``P (n, n)`` by a measurement whose Jacobian is nonzero only in the column blocks starting at ``starts``
-    (``blocks[k]`` of shape ``(m, d)``, ``d`` a robot's error size): the correction ``K r (n,)`` and ``P+``, or the
-    outcome that stops it. Cost ``O(n^2 m)``."""
-    cols = np.concatenate([np.arange(i, i + b.shape[1]) for i, b in zip(starts, blocks, strict=True)])
-    return gated_kalman(np.zeros(P.shape[0]), P, r, np.hstack(blocks), R, gate, cols=cols, angles=())
+    ``P (n, n)`` by a measurement whose Jacobian is nonzero only in the ``d``-column blocks starting at ``starts``
+    (``d`` a robot's error size; ``blocks``: the Jacobian's ``(m, d len(starts))`` columns there, in one or more
+    pieces): the correction ``K r (n,)`` and ``P+``, or the outcome that stops it. Cost ``O(n^2 m)``."""
+    H = np.hstack(blocks)
+    d = H.shape[1] // len(starts)
+    cols = np.concatenate([np.arange(i, i + d) for i in starts])
+    return gated_kalman(np.zeros(P.shape[0]), P, r, H, R, gate, cols=cols, angles=())
 
 
 class Linearization(Protocol):
