@@ -73,8 +73,7 @@ broadcast under that key, so where the identity is right the broadcast is the ta
 exchange is settled by an empty broadcast under its key (:meth:`TeamProtocol.settle`), as a gated
 detection's: an answerer over the network waits for the broadcast keyed by the query it answered before it goes on.
 
-**SE(3).** With an SE(3) initial belief the same node runs with 6-dof poses
-(:class:`~swarmloc.estimators.world_form.WorldForm3`; the group picks the node's
+**SE(3).** With an SE(3) initial belief the same node runs with 6-dof poses (the group picks the node's
 :class:`~swarmloc.estimators.world_form.WorldForm` once, :data:`FORMS`). Body-twist odometry ``g+ = g Delta exp(w^)`` is
 group-affine, so the world-frame error ``xi`` (``g = exp(xi^) g^``) still has the identity transition: a prediction adds
 ``Ad(g^+) Sigma_inc Ad(g^+)^T`` to ``P_ii`` and changes no cross-covariance. A relative pose ``"pose3"`` is autonomous
