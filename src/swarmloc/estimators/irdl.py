@@ -30,6 +30,7 @@ import numpy as np
 
 from swarmloc.estimators.cekf import joint_correction
 from swarmloc.estimators.rdl import RdlFilter, RdlNode
+from swarmloc.estimators.world_form import FORMS
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
@@ -42,8 +43,8 @@ class WorldPairs:
     """World-frame errors (:mod:`swarmloc.kernels.invariant`): the :class:`~swarmloc.estimators.rdl.PairForm` of
     ``irdl`` (module docstring)."""
 
-    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return C.from_group(mean, cov)[0], I.body_to_world(mean, cov)
+    initial = FORMS[SE2].initial  # the pose and the world-frame covariance, as diekf's
+    belief = FORMS[SE2].belief  # converted to the body-frame convention, Sigma = Ad(g^-1) P Ad(g^-1)^T
 
     def advance(self, node: RdlNode, s: RdlFilter, t: float) -> RdlFilter:
         """``P`` gains the world-frame process noise; the factors stay (the error transition is the identity)."""
@@ -57,11 +58,6 @@ class WorldPairs:
     ) -> RdlFilter | None:
         """None: no float loop in world-frame errors."""
         return None
-
-    def belief(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Converted to the body-frame convention, ``Sigma = Ad(g^-1) P Ad(g^-1)^T``."""
-        g = SE2.from_xytheta(x)
-        return g, I.world_to_body(g, P)
 
     def correction(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
         """The world-frame correction that takes the pose ``x0`` to ``x1``."""
