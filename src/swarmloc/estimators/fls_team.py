@@ -135,10 +135,9 @@ class TeamFixedLagSmoother(RobotNode):
         dt = t - s.t
         if dt <= 0:
             return s
-        x0, y0, th, _, _, *q = C.increment_terms(s.x, s.v, s.w, dt, self.noise)
-        x = np.array([x0, y0, th])
+        x, P = self.protocol.form.predict(s.x, s.P, s.v, s.w, dt, self.noise)  # diekf's world-frame step
         rel, Q, _, _ = C.predict_one(s.rel, s.Q, s.v, s.w, dt, self.noise)
-        return s._replace(t=t, x=x, P=s.P + I.cartesian_to_world_cov(x, C.sym3(q)), rel=rel, Q=Q)
+        return s._replace(t=t, x=x, P=P, rel=rel, Q=Q)
 
     def _set_command(self, s: TeamFlsState, robot: int, v: float, w: float) -> TeamFlsState:
         return s._replace(v=v, w=w)

@@ -31,7 +31,6 @@ import numpy as np
 from swarmloc.estimators.cekf import joint_correction
 from swarmloc.estimators.rdl import RdlFilter, RdlNode
 from swarmloc.estimators.world_form import FORMS
-from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
 from swarmloc.node import Gate, Outcome
@@ -48,9 +47,7 @@ class WorldPairs:
 
     def advance(self, node: RdlNode, s: RdlFilter, t: float) -> RdlFilter:
         """``P`` gains the world-frame process noise; the factors stay (the error transition is the identity)."""
-        x0, y0, th, _, _, *q = C.increment_terms(s.x, s.v, s.w, t - s.t, node.noise)
-        x = np.array([x0, y0, th])
-        P = s.P + I.cartesian_to_world_cov(x, C.sym3(q))
+        x, P = FORMS[SE2].predict(s.x, s.P, s.v, s.w, t - s.t, node.noise)
         return RdlFilter(t, s.v, s.w, x, P, s.ids, s.sigma)
 
     def advance_commands(
