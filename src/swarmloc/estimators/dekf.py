@@ -149,7 +149,7 @@ class CartesianForm:
         if isinstance(lin, str):
             return ("rejected", lin)
         r, Hi, R_eff, _ = lin
-        if self.runs:  # SE(2): the Kalman update on (x, y, theta)
+        if self.group is SE2:  # the Kalman update on (x, y, theta)
             return gated_kalman(x, P, r, Hi, R_eff, gate)
         res = gated_kalman(np.zeros(6), P, r, Hi, R_eff, gate, angles=())
         return res if isinstance(res[0], str) else (C3.correct(x, res[0]), res[1])

@@ -72,15 +72,15 @@ class WorldForm:
     times the world basis (:func:`robot_pair`). The covariances of SE(3)'s products are symmetrized."""
 
     def __init__(self, group: type[SEGroup] = SE2) -> None:
-        self.group, self.dim = group, group.dim
-        self.runs = self.clusters = group is SE2
+        self.group, self.dim, self.planar = group, group.dim, group is SE2
+        self.runs = self.clusters = self.planar
         """``runs``: whether a run of odometry has a float loop (:meth:`DistributedInvariantEKF._advance_commands`);
         ``clusters``: whether the covariance-intersection weight of an outsider is defined (SE(2)'s)."""
         self.eye = flat(np.eye(self.dim))
 
     def _sym(self, P: np.ndarray) -> np.ndarray:
         """``P`` symmetrized on SE(3), as it is on SE(2)."""
-        return P if self.runs else symmetric(P)
+        return P if self.planar else symmetric(P)
 
     def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[Any, np.ndarray]:
         """Pose and world-frame covariance ``Ad(g) cov Ad(g)^T`` of a right-perturbation belief."""
@@ -102,17 +102,17 @@ class WorldForm:
 
     def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The right-perturbation belief of pose ``x`` with world-frame covariance ``P``: ``Ad(g^-1) P Ad(g^-1)^T``."""
-        g = SE2.from_xytheta(x) if self.runs else x
+        g = SE2.from_xytheta(x) if self.planar else x
         A = self.group.Ad(self.group.inverse(g, validate=False), validate=False)
         return g, A @ P @ A.T
 
     def correct(self, x: Any, delta: np.ndarray) -> Any:
         """The pose ``x`` corrected by the world-frame ``delta``: ``exp(hat(delta)) g(x)``."""
-        return I.left_correct(x, delta) if self.runs else SE3.normalize(SE3.exp(delta, validate=False) @ x)
+        return I.left_correct(x, delta) if self.planar else SE3.normalize(SE3.exp(delta, validate=False) @ x)
 
     def unsupported(self, d: Any, target: tuple[str, Any]) -> str | None:
         """Why ``d`` of ``target`` cannot be fused on this group (None: it can)."""
-        return None if self.runs else C3.unsupported(d, target)
+        return None if self.planar else C3.unsupported(d, target)
 
     def robot(self, d: Any, s: Any, xj: Any, Pjj: np.ndarray, Sij: np.ndarray) -> tuple[Any, ...] | str:
         """``(r, H_i, H_j, S, R)`` of robot detection ``d`` of pose ``xj`` (covariance ``Pjj``, cross-covariance
@@ -122,7 +122,7 @@ class WorldForm:
         else:
             lin = robot_pair(d, s.x, xj, self.group)
         if lin is None:
-            return DEGENERATE if self.runs else DEGENERATE3
+            return DEGENERATE if self.planar else DEGENERATE3
         r, Hi, Hj, R = lin
         S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
         return r, Hi, Hj, self._sym(S), R
@@ -130,7 +130,7 @@ class WorldForm:
     def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple[Any, ...] | str:
         """``(r, H_i, S, R)`` of a landmark detection (the map's uncertainty in ``S``; on SE(2) in ``R`` too), or the
         reason."""
-        if self.runs:
+        if self.planar:
             lin = linearize(d, s.x, target)
             if isinstance(lin, str):
                 return lin
