@@ -113,14 +113,16 @@ def flush_pending(s: TeamState) -> TeamState:
     return TeamState(s.X, P, s.t, s.cmd, (None,) * len(s.pend), s.L)
 
 
-def team_state(node: TeamNode, t0: float, group: type[SEGroup] = SE2) -> TeamState:
+def team_state(node: TeamNode, t0: float, group: type[SEGroup] = SE2, start: Any = None) -> TeamState:
     """The team's Cartesian state at ``t0`` [s] from every robot's initial belief: on SE(2) ``X (3n,)``, on SE(3)
-    every robot's pose ``X (n, 4, 4)`` (:func:`swarmloc.kernels.cartesian3.from_group`)."""
+    every robot's pose ``X (n, 4, 4)``; each robot's block of ``X`` and ``P`` from its belief ``(mean, cov)`` by
+    ``start`` (default the group's :func:`~swarmloc.kernels.cartesian.from_group`,
+    :func:`~swarmloc.kernels.cartesian3.from_group`)."""
     n, d = len(node.robots), group.dim
     X, P = np.zeros(3 * n) if d == 3 else np.zeros((n, 4, 4)), np.zeros((d * n, d * n))
     for r, b in node.initial.items():
         i = node._idx[r]
-        x, P[i : i + d, i : i + d] = KERNELS[group].from_group(b.mean, b.cov)
+        x, P[i : i + d, i : i + d] = (start or KERNELS[group].from_group)(b.mean, b.cov)
         X[slice(i, i + 3) if d == 3 else i // d] = x
     return TeamState(X, P, (t0,) * n, ((0.0, 0.0),) * n, (None,) * n)
 

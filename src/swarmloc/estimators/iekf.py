@@ -19,9 +19,11 @@ Robots 2011). :mod:`swarmloc.evaluation.observability` measures that information
   propagation Jacobians maps the initial unobservable basis to the one at the first estimates, which the
   measurement Jacobians annihilate (Huang et al. 2011, FEJ-EKF). Residuals use the current estimate.
 
-Both keep the joint ``3n x 3n`` covariance like ``cekf`` and only touch the rows and columns a detection involves
-(one rank-``m`` correction). Which one to use: see the consistency tables of docs/estimators.md (the invariant EKF
-is the default recommendation there, on the evidence of the Monte Carlo runs and MRCLAM).
+Both keep the joint ``3n x 3n`` covariance like ``cekf`` (their forms are its
+:class:`~swarmloc.estimators.cekf.TeamForm` with their own linearization point and error coordinates) and only touch the
+rows and columns a detection involves (one rank-``m`` correction, :func:`~swarmloc.estimators.cekf.fuse_linearized`).
+Which one to use: see the consistency tables of docs/estimators.md (the invariant EKF is the default recommendation
+there, on the evidence of the Monte Carlo runs and MRCLAM).
 """
 
 from __future__ import annotations
@@ -38,16 +40,16 @@ from swarmloc.estimators.cekf import (
     compose_pending,
     flush_pending,
     increment,
-    joint_correction,
     log_shear,
     team_state,
 )
+from swarmloc.estimators.world_form import FORMS as WORLD_FORMS
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
 from swarmloc.node import TeamNode
 
-__all__ = ["FirstEstimatesEKF", "FirstEstimatesForm", "InvariantEKF", "InvariantForm", "joint_correction"]
+__all__ = ["FirstEstimatesEKF", "FirstEstimatesForm", "InvariantEKF", "InvariantForm"]
 
 
 class InvariantForm(TeamForm):
@@ -57,12 +59,8 @@ class InvariantForm(TeamForm):
     corrected on the group."""
 
     def initial(self, node: TeamNode, t0: float) -> TeamState:
-        s = team_state(node, t0)
-        P = s.P.copy()
-        for r, b in node.initial.items():
-            k = node._idx[r]
-            P[k : k + 3, k : k + 3] = I.body_to_world(b.mean, b.cov)
-        return TeamState(s.X, P, s.t, s.cmd, s.pend)
+        """Every robot's pose and world-frame covariance as ``diekf``'s form starts them."""
+        return team_state(node, t0, SE2, WORLD_FORMS[SE2].initial)
 
     def advance(self, node: TeamNode, s: TeamState, robot: int, t: float) -> TeamState:
         step = increment(node, s, robot, t)
