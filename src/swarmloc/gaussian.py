@@ -71,8 +71,10 @@ def check_covariance(cov: object, dim: int, where: str, name: str = "cov") -> np
     return C
 
 
-def _bvec(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return np.einsum("...ij,...j->...i", M, v)
+def bvec(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``M v`` batched over leading axes (``M (..., m, n)``, ``v (..., n)``)."""
+    out: np.ndarray = np.einsum("...ij,...j->...i", M, v)
+    return out
 
 
 def convolution_F_reference(group: type[SEGroup], A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -232,7 +234,7 @@ class GroupGaussian:
         rng = np.random.default_rng(rng)
         L = np.linalg.cholesky(self.cov)
         z = rng.standard_normal((n, *self.batch_shape, self.dim))
-        y = _bvec(L, z)
+        y = bvec(L, z)
         return self.mean @ self.group.exp(y, validate=False)
 
     def tangent_of(self, g: np.ndarray, validate: bool = True) -> np.ndarray:

@@ -10,7 +10,7 @@ the last cluster possibly smaller), so memory is ``O(n K)`` and each update cost
 * A detection inside a cluster (of a cluster mate, a landmark, an absolute fix) is :func:`swarmloc.engine.joint.
   replay_joint`'s ``diekf`` step (:func:`swarmloc.engine.joint.steps`) run on the cluster's views of the state.
 * A detection of a robot outside the observer's cluster is the node's covariance-intersection update
-  (:meth:`TeamProtocol.outsider <swarmloc.estimators.diekf.TeamProtocol.outsider>`): the
+  (:meth:`TeamProtocol.outsider <swarmloc.estimators.team_protocol.TeamProtocol.outsider>`): the
   outsider's belief at the stamp (predicted, not stored: its node answers a ``BeliefQuery``), ``A = H_i P_ii
   H_i^T``, ``B = H_j P_jj H_j^T``, the weight ``w`` minimizing the cluster's posterior log det
   (:func:`joint_weight`, :func:`swarmloc.kernels.ci.joint_weight` compiled), then the Kalman update of the cluster's

@@ -51,20 +51,16 @@ def predict_error(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The first-order EKF's prediction (:class:`~swarmloc.estimators.dekf.DistributedEKF` on SE(3)): the node's
     :func:`swarmloc.kernels.cartesian3.propagate` on the stack."""
-    out = g.copy()
-    out[:, :3, 3], out[:, :3, :3], Pn = C3.propagate(g[:, :3, 3], g[:, :3, :3], P, *twist_increments(v, w, dt, noise))
-    return out, Pn
+    return C3.propagate(g, P, *twist_increments(v, w, dt, noise))
 
 
-def to_error(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(pose, P)`` of right-perturbation beliefs: ``P = J cov J^T``, ``J = diag(R, I)``
-    (:func:`swarmloc.kernels.cartesian3.to_error`)."""
-    return mean.copy(), C3.error_cov(mean[..., :3, :3], cov)
+to_error = C3.from_group
+"""``(pose, P)`` of right-perturbation beliefs: ``P = J cov J^T``, ``J = diag(R, I)`` (the node's
+:func:`swarmloc.kernels.cartesian3.from_group`, on the stack)."""
 
-
-def to_group(g: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse of :func:`to_error`: the beliefs ``(mean, cov)`` the EKF's nodes answer and record."""
-    return g.copy(), C3.error_cov(_T(g[..., :3, :3], -1, -2), P)
+to_group = C3.to_group
+"""Inverse of :func:`to_error`: the beliefs ``(mean, cov)`` the EKF's nodes answer and record
+(:func:`swarmloc.kernels.cartesian3.to_group`)."""
 
 
 def pose3_linearize(
@@ -80,6 +76,4 @@ def pose3_linearize(
 
 def correct(g: np.ndarray, dx: np.ndarray) -> np.ndarray:
     """Poses corrected by ``dx = (dp, dtheta)`` on the group: ``p + dp``, ``R exp(dtheta^)``."""
-    out = g.copy()
-    out[:, :3, 3], out[:, :3, :3] = C3.correct(g[:, :3, 3], g[:, :3, :3], dx)
-    return out
+    return C3.correct(g, dx)

@@ -26,21 +26,22 @@ unobservable rigid motion (the world-frame ``diekf`` does not).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple, Protocol, cast
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE
+from swarmloc.estimators.dekf import DEGENERATE, KERNELS
 from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import symmetric
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import cartesian3 as C3
-from swarmloc.lie import SE2, SE3
+from swarmloc.lie import SE2, SE3, wrap_angle
+from swarmloc.lie.base import SEGroup
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.twist3 import TwistNoise
-from swarmloc.node import FUSED, Group, Outcome, TeamNode, gated_kalman
-from swarmloc.node.team import JointForm
+from swarmloc.node import FUSED, Gate, Group, Outcome, TeamNode, gated_kalman
 from swarmloc.sensors.models import model
+from swarmloc.sensors.models3 import DEGENERATE3, model3
 
 
 class TeamState(NamedTuple):
@@ -82,7 +83,7 @@ def compose_pending(old: tuple[float, ...] | None, dx: float, dy: float, q: Sequ
 
 
 def clock_and_pending(
-    s: TeamState, k: int, t: float, pend_k: tuple[float, ...]
+    s: TeamState, k: int, t: float, pend_k: tuple[float, ...] | None
 ) -> tuple[tuple[float, ...], tuple[tuple[float, float], ...], tuple[tuple[float, ...] | None, ...]]:
     """``(t, cmd, pend)`` of a team state with robot ``k``'s clock at ``t`` and its pending prediction ``pend_k``."""
     times = list(s.t)
@@ -112,15 +113,18 @@ def flush_pending(s: TeamState) -> TeamState:
     return TeamState(s.X, P, s.t, s.cmd, (None,) * len(s.pend), s.L)
 
 
-def team_state(node: TeamNode, t0: float) -> TeamState:
-    """The SE(2) team's Cartesian state at ``t0`` [s] from every robot's initial belief."""
-    n = 3 * len(node.robots)
-    X, P = np.zeros(n), np.zeros((n, n))
+def team_state(node: TeamNode, t0: float, group: type[SEGroup] = SE2, start: Any = None) -> TeamState:
+    """The team's Cartesian state at ``t0`` [s] from every robot's initial belief: on SE(2) ``X (3n,)``, on SE(3)
+    every robot's pose ``X (n, 4, 4)``; each robot's block of ``X`` and ``P`` from its belief ``(mean, cov)`` by
+    ``start`` (default the group's :func:`~swarmloc.kernels.cartesian.from_group`,
+    :func:`~swarmloc.kernels.cartesian3.from_group`)."""
+    n, d = len(node.robots), group.dim
+    X, P = np.zeros(3 * n) if d == 3 else np.zeros((n, 4, 4)), np.zeros((d * n, d * n))
     for r, b in node.initial.items():
         i = node._idx[r]
-        X[i : i + 3], P[i : i + 3, i : i + 3] = C.from_group(b.mean, b.cov)
-    n_r = len(node.robots)
-    return TeamState(X, P, (t0,) * n_r, ((0.0, 0.0),) * n_r, (None,) * n_r)
+        x, P[i : i + d, i : i + d] = (start or KERNELS[group].from_group)(b.mean, b.cov)
+        X[slice(i, i + 3) if d == 3 else i // d] = x
+    return TeamState(X, P, (t0,) * n, ((0.0, 0.0),) * n, (None,) * n)
 
 
 def planar_noise(node: TeamNode) -> UnicycleNoise:
@@ -178,35 +182,154 @@ def cartesian_cross(s: TeamState, i: int, ks: Sequence[int]) -> np.ndarray:
     return np.array([P[i : i + 3, k : k + 3] for k in ks]).reshape(-1, 3, 3)
 
 
-class Team3State(NamedTuple):
-    """An SE(3) team: positions ``p (n, 3)``, attitudes ``R (n, 3, 3)``, joint error covariance ``P (6n, 6n)``, each
-    robot's time [s] and command (linear and angular velocity)."""
+def joint_correction(
+    P: np.ndarray, starts: list[int], blocks: list[np.ndarray], r: np.ndarray, R: np.ndarray, gate: Gate
+) -> tuple[np.ndarray, np.ndarray] | Outcome:
+    """The gated Kalman update (:func:`~swarmloc.node.update.gated_kalman`, Joseph form) of a joint covariance
+    ``P (n, n)`` by a measurement whose Jacobian is nonzero only in the ``d``-column blocks starting at ``starts``
+    (``d`` a robot's error size; ``blocks``: the Jacobian's ``(m, d len(starts))`` columns there, in one or more
+    pieces): the correction ``K r (n,)`` and ``P+``, or the outcome that stops it. Cost ``O(n^2 m)``."""
+    H = np.hstack(blocks)
+    d = H.shape[1] // len(starts)
+    cols = np.concatenate([np.arange(i, i + d) for i in starts])
+    return gated_kalman(np.zeros(P.shape[0]), P, r, H, R, gate, cols=cols, angles=())
 
-    p: np.ndarray
-    R: np.ndarray
-    P: np.ndarray
-    t: tuple[float, ...]
-    cmd: tuple[tuple[Any, Any], ...]
+
+class Linearization(Protocol):
+    """Where a form evaluates its Jacobians and in which error coordinates it corrects (:func:`fuse_linearized`)."""
+
+    dim: int
+    """Size of one robot's error."""
+    first_estimates: bool
+    """Whether the Jacobians are evaluated at :meth:`lin_point` (else at the current estimates)."""
+
+    def pose(self, s: TeamState, k: int) -> np.ndarray:
+        """The current estimate of the robot whose block starts at ``k`` (SE(2): ``(x, y, theta)``; SE(3): the pose
+        ``(4, 4)``)."""
+
+    def lin_point(self, s: TeamState, k: int) -> np.ndarray:
+        """The point of the robot whose block starts at ``k`` at which its Jacobians are evaluated."""
+
+    def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """A Cartesian Jacobian block at ``x`` in the form's error coordinates."""
+
+    def correct(self, s: TeamState, delta: np.ndarray, P: np.ndarray) -> TeamState:
+        """``s`` (its predictions applied) corrected by ``delta`` in error coordinates, its covariance ``P``."""
+
+
+def fuse_linearized(
+    form: Linearization, node: TeamNode, s: TeamState, g: Group, d: Detection, target: tuple[str, Any]
+) -> tuple[TeamState, Outcome]:
+    """One classified detection of group ``g`` fused into the joint state ``s`` (one rank-``m`` correction of the
+    blocks it involves, :func:`joint_correction`) at ``form``'s linearization, recorded in the node's ``lin_log``:
+    the new state and its outcome (the state as it was, the detected robot predicted to the stamp, when the
+    detection is not fused). On SE(3) (``form.dim`` 6) the models are :mod:`swarmloc.sensors.models3`'s, a kind or
+    target they do not take is refused (:func:`~swarmloc.kernels.cartesian3.unsupported`) and the noise symmetrized.
+    """
+    planar = form.dim == 3
+    why = None if planar else C3.unsupported(d, target)
+    if why is not None:
+        return s, ("rejected", why)
+    m: Any = model(d.kind) if planar else model3(d.kind)
+    i = node._idx[g.observer]
+    xi, li = form.pose(s, i), form.lin_point(s, i)
+    starts, xk = [i], cast(Any, None)
+    lk = Ck = xk
+    if target[0] == "robot":
+        s = node._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
+        k = node._idx[target[1]]
+        starts, xk, lk = [i, k], form.pose(s, k), form.lin_point(s, k)
+    elif target[0] != Kind.ABSOLUTE:
+        xk, Ck = target[1]
+        lk = xk
+    lin = m.linearize(d.z, d.cov, xi, xk)
+    if lin is None or (form.first_estimates and m.degenerate(li, lk)):
+        return s, ("rejected", DEGENERATE if planar else DEGENERATE3)
+    r, Hi, Hk, R = lin
+    if form.first_estimates:
+        _, Hi, Hk = m.predict(li, lk)
+    blocks = [form.to_error(Hi, li)] + [form.to_error(Hk, lk) for _ in starts[1:]]
+    if Ck is not None:
+        R = R + Hk @ Ck @ Hk.T
+    sf = flush_pending(s)
+    res = joint_correction(sf.P, starts, blocks, r, R if planar else symmetric(R), node.gate)
+    if isinstance(res[0], str):
+        return s, res
+    s = form.correct(sf, *res)
+    if node.lin_log is not None:
+        robots = {k: r for r, k in node._idx.items()}
+        node.lin_log.append(("update", g.t, {robots[k]: H for k, H in zip(starts, blocks, strict=True)}, R))
+    return s, FUSED
 
 
 class TeamForm:
-    """The joint Cartesian state of an SE(2) team (:class:`TeamState`: ``(x, y, theta)`` per robot, predictions kept
-    pending) and the planar models (:mod:`swarmloc.sensors.models`): :class:`~swarmloc.node.team.JointForm`."""
+    """``cekf``'s joint Cartesian state of a team on ``group`` (:class:`TeamState`) and its models: on SE(2)
+    ``(x, y, theta)`` per robot, predictions kept pending, the planar models (:mod:`swarmloc.sensors.models`); on
+    SE(3) every robot's pose and the joint covariance of the errors ``(dp, dtheta)`` (module docstring,
+    :mod:`swarmloc.kernels.cartesian3`). A :class:`~swarmloc.node.team.JointForm` whose Jacobians are evaluated at the
+    current estimates (:func:`fuse_linearized`)."""
 
-    dim = 3
-
-    initial = staticmethod(team_state)
-    belief = staticmethod(cartesian_belief)
+    first_estimates = False
     joint = staticmethod(team_joint)
     world_cross = staticmethod(cartesian_cross)
+    fuse = fuse_linearized  # the detection loop, at this form's linearization
+
+    def __init__(self, group: type[SEGroup] = SE2) -> None:
+        self.group, self.dim = group, group.dim
+
+    def initial(self, node: TeamNode, t0: float) -> TeamState:
+        return team_state(node, t0, self.group)
 
     def advance(self, node: TeamNode, s: TeamState, robot: int, t: float) -> TeamState:
+        if self.dim == 6:
+            return self._advance3(node, s, robot, t)
         step = increment(node, s, robot, t)
         if step is None:
             return s
         k, _, (_, _, _, dx, dy, *q), X = step
         log_shear(node, t, robot, dx, dy)
         return TeamState(X, s.P, *clock_and_pending(s, k, t, compose_pending(s.pend[k], dx, dy, q)))
+
+    @staticmethod
+    def _advance3(node: TeamNode, s: TeamState, robot: int, t: float) -> TeamState:
+        """:meth:`advance` on SE(3): ``F`` on the robot's rows and columns of ``P``, ``G Sigma_inc G^T`` added."""
+        k = node._idx[robot] // 6
+        dt = t - s.t[k]
+        if dt <= 0:
+            return s
+        if not isinstance(node.noise, TwistNoise):
+            raise TypeError(f"{node.name}: an SE(3) team's noise is a TwistNoise, not {type(node.noise).__name__}")
+        X = s.X.copy()
+        X[k], F, G, S = C3.step(s.X[k], *s.cmd[k], dt, node.noise)
+        i = 6 * k
+        P = s.P.copy()
+        P[i : i + 6, :] = F @ P[i : i + 6, :]
+        P[:, i : i + 6] = P[:, i : i + 6] @ F.T
+        P[i : i + 6, i : i + 6] = symmetric(P[i : i + 6, i : i + 6] + G @ S @ G.T)
+        return TeamState(X, P, *clock_and_pending(s, k, t, None))
+
+    def belief(self, s: TeamState, i: int) -> tuple[np.ndarray, np.ndarray]:
+        if self.dim == 6:
+            mean, cov = C3.to_group(s.X[i // 6], s.P[i : i + 6, i : i + 6])
+            return mean, cov
+        return cartesian_belief(s, i)
+
+    def pose(self, s: TeamState, k: int) -> np.ndarray:
+        out: np.ndarray = s.X[k : k + 3] if self.dim == 3 else s.X[k // 6]
+        return out
+
+    lin_point = pose
+
+    def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return H
+
+    def correct(self, s: TeamState, delta: np.ndarray, P: np.ndarray) -> TeamState:
+        if self.dim == 6:
+            X = C3.correct(s.X, delta.reshape(-1, 6))
+        else:
+            X = s.X + delta
+            X[2::3] = wrap_angle(X[2::3])
+        return TeamState(X, P, s.t, s.cmd, s.pend, s.L)
 
     def advance_commands(
         self, node: TeamNode, s: TeamState, cmds: Sequence[tuple[float, int, float, float]]
@@ -234,125 +357,8 @@ class TeamForm:
                 pend[k] = (*shear, *q)
         return TeamState(s.X if X is None else X, s.P, tuple(times), tuple(cmd), tuple(pend))
 
-    def fuse(
-        self, node: TeamNode, s: TeamState, g: Group, d: Detection, target: tuple[str, Any]
-    ) -> tuple[TeamState, Outcome]:
-        m = model(d.kind)
-        R = m.noise(d.z, d.cov)
-        i = node._idx[g.observer]
-        own = np.arange(i, i + 3)
-        xi = s.X[i : i + 3]
-        # H is zero but in the observer's (and the detected robot's) 3 columns: H holds those, cols says which
-        if target[0] == Kind.ABSOLUTE:
-            h, H, _ = m.predict(xi)
-            cols, r = own, m.residual(d.z, h)
-        else:
-            if target[0] == "robot":
-                s = node._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
-                k = node._idx[target[1]]
-                xk, Ck = s.X[k : k + 3], None
-            else:
-                xk, Ck = target[1]
-            if m.degenerate(xi, xk):
-                return s, ("rejected", DEGENERATE)
-            h, Hi, Hk = m.predict(xi, xk)
-            assert Hk is not None  # noqa: S101  (a relative model: a Jacobian for the target)
-            if Ck is None:
-                H, cols = np.hstack([Hi, Hk]), np.r_[own, k : k + 3]
-            else:
-                H, cols = Hi, own
-                R = R + Hk @ Ck @ Hk.T
-            r = m.residual(d.z, h)
-        sf = flush_pending(s)  # pending predictions applied only for an update (so a rejected one changes no bit)
-        angles = tuple(range(2, 3 * len(node.robots), 3))  # the headings, wrapped in innovations
-        res = gated_kalman(sf.X, sf.P, r, H, R, node.gate, cols=cols, angles=angles)
-        if isinstance(res[0], str):
-            return s, res
-        if node.lin_log is not None:
-            blocks = {g.observer: H[:, :3]}  # H holds the observer's columns, then the detected robot's
-            if target[0] == "robot":
-                blocks[target[1]] = H[:, 3:6]
-            node.lin_log.append(("update", g.t, blocks, R))
-        return TeamState(*res, sf.t, sf.cmd, sf.pend), FUSED
 
-
-class TeamForm3:
-    """The joint state of an SE(3) team (:class:`Team3State`, module docstring) and the models of
-    :mod:`swarmloc.sensors.models3` (:mod:`swarmloc.kernels.cartesian3`): :class:`~swarmloc.node.team.JointForm`."""
-
-    dim = 6
-
-    def initial(self, node: TeamNode, t0: float) -> Team3State:
-        n = len(node.robots)
-        p, R, P = np.zeros((n, 3)), np.zeros((n, 3, 3)), np.zeros((6 * n, 6 * n))
-        for r, b in node.initial.items():
-            k = node._idx[r] // 6
-            p[k], R[k], P[6 * k : 6 * k + 6, 6 * k : 6 * k + 6] = C3.to_error(np.asarray(b.mean), np.asarray(b.cov))
-        return Team3State(p, R, P, (t0,) * n, ((0.0, 0.0),) * n)
-
-    def advance(self, node: TeamNode, s: Team3State, robot: int, t: float) -> Team3State:
-        k = node._idx[robot] // 6
-        dt = t - s.t[k]
-        if dt <= 0:
-            return s
-        p, R = s.p.copy(), s.R.copy()
-        v, w = s.cmd[k]
-        if not isinstance(node.noise, TwistNoise):
-            raise TypeError(f"{node.name}: an SE(3) team's noise is a TwistNoise, not {type(node.noise).__name__}")
-        p[k], R[k], F, G, S = C3.step(s.p[k], s.R[k], v, w, dt, node.noise)
-        i = 6 * k
-        P = s.P.copy()
-        P[i : i + 6, :] = F @ P[i : i + 6, :]
-        P[:, i : i + 6] = P[:, i : i + 6] @ F.T
-        P[i : i + 6, i : i + 6] += G @ S @ G.T
-        blk = P[i : i + 6, i : i + 6]
-        P[i : i + 6, i : i + 6] = symmetric(blk)
-        times = list(s.t)
-        times[k] = t
-        return Team3State(p, R, P, tuple(times), s.cmd)
-
-    def belief(self, s: Team3State, i: int) -> tuple[np.ndarray, np.ndarray]:
-        k = i // 6
-        return C3.to_group(s.p[k], s.R[k], s.P[i : i + 6, i : i + 6])
-
-    def joint(self, s: Team3State) -> tuple[np.ndarray, np.ndarray]:
-        """Every robot's pose ``(n, 4, 4)`` and the joint error covariance ``(6n, 6n)``."""
-        return np.stack([C3.pose(p, R) for p, R in zip(s.p, s.R, strict=True)]), s.P.copy()
-
-    def fuse(
-        self, node: TeamNode, s: Team3State, g: Group, d: Detection, target: tuple[str, Any]
-    ) -> tuple[Team3State, Outcome]:
-        why = C3.unsupported(d, target)
-        if why is not None:
-            return s, ("rejected", why)
-        ko = node._idx[g.observer] // 6
-        gi = C3.pose(s.p[ko], s.R[ko])
-        if target[0] == "robot":
-            s = node._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
-            kt = node._idx[target[1]] // 6
-            gk, Ck = C3.pose(s.p[kt], s.R[kt]), None
-            cols = np.r_[6 * ko : 6 * ko + 6, 6 * kt : 6 * kt + 6]
-        else:
-            gk, Ck = target[1]
-            cols = np.r_[6 * ko : 6 * ko + 6]
-        lin = C3.linearize(d, gi, gk)
-        if isinstance(lin, str):
-            return s, ("rejected", lin)
-        r, Hi, Hk, Rn = lin
-        if Ck is None:
-            H = np.hstack([Hi, Hk])
-        else:  # a landmark: its map uncertainty joins the noise
-            H, Rn = Hi, Rn + Hk @ Ck @ Hk.T
-        res = gated_kalman(np.zeros(6 * len(node.robots)), s.P, r, H, symmetric(Rn), node.gate, cols=cols,
-                           angles=())  # fmt: skip
-        if isinstance(res[0], str):
-            return s, res
-        dx, P = res
-        p, R = C3.correct(s.p, s.R, dx.reshape(-1, 6))
-        return Team3State(p, R, P, s.t, s.cmd), FUSED
-
-
-FORMS: dict[type, JointForm] = {SE2: TeamForm(), SE3: TeamForm3()}
+FORMS: dict[type, TeamForm] = {SE2: TeamForm(SE2), SE3: TeamForm(SE3)}
 """The joint-state form of each group."""
 
 
@@ -371,6 +377,6 @@ class CentralizedEKF(TeamNode):
     def _advance_commands(self, s: Any, cmds: Sequence[tuple[float, int, float, float]]) -> Any:
         """A run of odometry (:meth:`TeamForm.advance_commands` on SE(2); tests/test_node.py checks it for every
         estimator)."""
-        if isinstance(self._form, TeamForm) and not self.measure_time and self.lin_log is None:
-            return self._form.advance_commands(self, s, cmds)  # the log records each prediction: not with it
+        if self._form is FORMS[SE2] and not self.measure_time and self.lin_log is None:
+            return FORMS[SE2].advance_commands(self, s, cmds)  # the log records each prediction: not with it
         return super()._advance_commands(s, cmds)

@@ -180,9 +180,10 @@ class Boundary:
 
 
 class Pieces(Protocol):
-    """What :class:`Reforming` asks of its node's team protocol (:class:`~swarmloc.estimators.diekf.TeamProtocol`):
-    this robot's pieces for a boundary ``k`` from the state before it, the mates that owe it one, why a received
-    piece is not one they owe, and the state re-formed at a boundary."""
+    """What :class:`Reforming` asks of its node's team protocol
+    (:class:`~swarmloc.estimators.team_protocol.TeamProtocol`): this robot's pieces for a boundary ``k`` from the
+    state before it, the mates that owe it one, why a received piece is not one they owe, and the state re-formed at
+    a boundary."""
 
     def pieces(self, s: Any, k: int, t: float) -> list[Message]: ...
     def owed(self, k: int) -> set[int]: ...

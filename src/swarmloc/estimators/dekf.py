@@ -17,7 +17,7 @@ kinds) and the correction on the group are :mod:`swarmloc.kernels.cartesian3`'s.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, ClassVar, NamedTuple, Protocol
+from typing import Any, ClassVar, NamedTuple, Protocol, cast
 
 import numpy as np
 
@@ -30,6 +30,7 @@ from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node import Gate, Group, Outcome, RobotNode, applied, belief_of, gated_kalman
 from swarmloc.sensors.models import model
+from swarmloc.sensors.models3 import DEGENERATE3, model3
 
 DEGENERATE = "degenerate geometry: the target is at the observer's position"
 
@@ -69,25 +70,33 @@ class FilterState(Protocol):
     def P(self) -> np.ndarray: ...
 
 
-def linearize(d: Detection, x: np.ndarray, target: tuple[str, Any]) -> Linearized | None:
-    """``(r, H_i, R_eff, H_k)`` of detection ``d`` at observer state ``x`` against a classified target (its
-    :class:`~swarmloc.sensors.models.MeasurementModel`): innovation, Jacobian w.r.t. the observer, noise plus the
-    target's propagated covariance, Jacobian w.r.t. the target. Returns None for a degenerate geometry (range ~ 0).
-    """
-    m = model(d.kind)
-    R = m.noise(d.z, d.cov)
-    if target[0] == Kind.ABSOLUTE:
-        h, Hi, _ = m.predict(x)
-        return m.residual(d.z, h), Hi, R, None
+def linearize(d: Detection, x: Any, target: tuple[str, Any], group: type = SE2) -> Linearized | str:
+    """``(r, H_i, R_eff, H_k)`` of detection ``d`` at observer state ``x`` (the :class:`CartesianForm` of ``group``)
+    against a classified target (its :class:`~swarmloc.sensors.models.MeasurementModel`, on SE(3) its
+    :class:`~swarmloc.sensors.models3.Model3`): innovation, Jacobian w.r.t. the observer, noise plus the target's
+    propagated covariance, Jacobian w.r.t. the target. Returns the reason it cannot be fused instead: a degenerate
+    geometry (range ~ 0), on SE(3) a kind or target it does not support
+    (:func:`~swarmloc.kernels.cartesian3.unsupported`) or a neighbour's answer that is not an SE(3) belief."""
+    planar = group is SE2
+    why = None if planar else C3.unsupported(d, target)
+    if why is not None:
+        return why
+    m = model(d.kind) if planar else model3(d.kind)
+    xk = Pk = cast(Any, None)
     if target[0] == "robot":
-        xk, Pk = C.from_group(*target[1].belief_arrays())
-    else:
+        mean, Pk = target[1].belief_arrays()
+        if not planar and mean.shape != (4, 4):
+            return "the neighbour's answer is not an SE(3) belief"
+        xk, Pk = KERNELS[group].from_group(mean, Pk)
+    elif target[0] != Kind.ABSOLUTE:
         xk, Pk = target[1]
-    if m.degenerate(x, xk):
-        return None
-    h, Hi, Hk = m.predict(x, xk)
-    assert Hk is not None  # noqa: S101  (a relative model: a Jacobian for the target)
-    return m.residual(d.z, h), Hi, R + Hk @ Pk @ Hk.T, Hk
+    lin = m.linearize(d.z, d.cov, x, xk)
+    if lin is None:
+        return DEGENERATE if planar else DEGENERATE3
+    r, Hi, Hk, R = lin
+    if Hk is not None:
+        R = R + Hk @ Pk @ Hk.T
+    return r, Hi, R if planar else symmetric(R), Hk
 
 
 def predict_run(
@@ -107,82 +116,49 @@ def predict_run(
 
 
 class CartesianForm:
-    """The first-order Cartesian error on SE(2): mean ``(x, y, theta)`` and covariance ``(3, 3)``
-    (:mod:`swarmloc.kernels.cartesian`), the planar models (:mod:`swarmloc.sensors.models`)."""
+    """The first-order Cartesian error of a pose on ``group``: on SE(2) the mean ``(x, y, theta)`` and covariance
+    ``(3, 3)`` (:mod:`swarmloc.kernels.cartesian`, the planar models :mod:`swarmloc.sensors.models`), on SE(3) the pose
+    ``(4, 4)`` and the covariance ``(6, 6)`` of ``(dp, dtheta)`` (:mod:`swarmloc.kernels.cartesian3`, the models of
+    :mod:`swarmloc.sensors.models3`), corrected on the group."""
 
-    group: type = SE2
-    runs = True
-    """Whether a run of odometry has a one-loop form (:func:`predict_run`)."""
+    def __init__(self, group: type) -> None:
+        self.group = group
+        self.kernel: Any = KERNELS[group]
+        self.runs = group is SE2
+        """Whether a run of odometry has a one-loop form (:func:`predict_run`)."""
 
     def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[Any, np.ndarray]:
         """Mean and covariance of the error of a right-perturbation belief."""
-        return C.from_group(mean, cov)
+        x, P = self.kernel.from_group(mean, cov)
+        return x, P
 
     def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
         """Mean and covariance after the command ``(v, w)`` held over ``dt > 0`` [s]."""
-        x, P, _, _ = C.predict_one(x, P, v, w, dt, noise)
+        x, P, *_ = self.kernel.predict_one(x, P, v, w, dt, noise)
         return x, P
 
     def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`initial`."""
-        return C.to_group(x, P)
+        mean, cov = self.kernel.to_group(x, P)
+        return mean, cov
 
     def update(self, x: Any, P: np.ndarray, d: Detection, target: tuple[str, Any], gate: Gate) -> Any:
         """``(x, P)`` after detection ``d`` of a classified ``target`` (a neighbour's uncertainty in the noise), or
         the outcome that stops it."""
-        lin = linearize(d, x, target)
-        if lin is None:
-            return ("rejected", DEGENERATE)
-        r, Hi, R_eff, _ = lin
-        return gated_kalman(x, P, r, Hi, R_eff, gate)
-
-
-class CartesianForm3(CartesianForm):
-    """The first-order Cartesian error on SE(3): mean ``(p, R)``, covariance ``(6, 6)`` of ``(dp, dtheta)``
-    (:mod:`swarmloc.kernels.cartesian3`, the models of :mod:`swarmloc.sensors.models3`)."""
-
-    group = SE3
-    runs = False
-
-    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[Any, np.ndarray]:
-        p, R, P = C3.to_error(np.asarray(mean), np.asarray(cov))
-        return (p, R), P
-
-    def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
-        p, R = x
-        p, R, P = C3.predict(p, R, P, v, w, dt, noise)
-        return (p, R), P
-
-    def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        p, R = x
-        return C3.to_group(p, R, P)
-
-    def update(self, x: Any, P: np.ndarray, d: Detection, target: tuple[str, Any], gate: Gate) -> Any:
-        why = C3.unsupported(d, target)
-        if why is not None:
-            return ("rejected", why)
-        if target[0] == "robot":
-            nb_mean, nb_cov = target[1].belief_arrays()
-            if nb_mean.shape != (4, 4):
-                return ("rejected", "the neighbour's answer is not an SE(3) belief")
-            pk, Rk, Ck = C3.to_error(nb_mean, nb_cov)
-            gk = C3.pose(pk, Rk)
-        else:
-            gk, Ck = target[1]
-        lin = C3.linearize(d, C3.pose(*x), gk)
+        lin = linearize(d, x, target, self.group)
         if isinstance(lin, str):
             return ("rejected", lin)
-        r, Hi, Hk, Rn = lin
-        Rn = Rn + Hk @ Ck @ Hk.T
-        res = gated_kalman(np.zeros(6), P, r, Hi, symmetric(Rn), gate, angles=())
-        if isinstance(res[0], str):
-            return res
-        dx, P = res
-        p, R = x
-        return C3.correct(p, R, dx), P
+        r, Hi, R_eff, _ = lin
+        if self.group is SE2:  # the Kalman update on (x, y, theta)
+            return gated_kalman(x, P, r, Hi, R_eff, gate)
+        res = gated_kalman(np.zeros(6), P, r, Hi, R_eff, gate, angles=())
+        return res if isinstance(res[0], str) else (C3.correct(x, res[0]), res[1])
 
 
-FORMS: dict[type, CartesianForm] = {SE2: CartesianForm(), SE3: CartesianForm3()}
+KERNELS: dict[type, Any] = {SE2: C, SE3: C3}
+"""The Cartesian error's kernels of each group (the same names and forms)."""
+
+FORMS: dict[type, CartesianForm] = {SE2: CartesianForm(SE2), SE3: CartesianForm(SE3)}
 """The Cartesian error form of each group."""
 
 

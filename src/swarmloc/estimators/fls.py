@@ -71,7 +71,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.linalg import splu
 
-from swarmloc.estimators.dekf import DEGENERATE, linearize
+from swarmloc.estimators.dekf import linearize
 from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.kernels import cartesian as C
@@ -419,8 +419,8 @@ class FixedLagSmoother(RobotNode):
             intersection with the window), or the outcome that stops it."""
             factors, est, next_id, prior_scale = acc
             lin = linearize(d, s.x, target)
-            if lin is None:
-                return acc, ("rejected", DEGENERATE)
+            if isinstance(lin, str):
+                return acc, ("rejected", lin)
             r, Hi, R_eff, _ = lin
             if self.gate.p is not None:
                 verdict = self._gated(float(r @ np.linalg.solve(Hi @ s.P @ Hi.T + R_eff, r)), len(r))

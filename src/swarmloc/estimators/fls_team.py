@@ -32,9 +32,9 @@ from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, linearize
-from swarmloc.estimators.diekf import TeamProtocol
+from swarmloc.estimators.dekf import linearize
 from swarmloc.estimators.fls import Factor, OfSolver, Window, WindowSolver
+from swarmloc.estimators.team_protocol import TeamProtocol
 from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
@@ -97,7 +97,7 @@ def pseudo_factor(pose: int, P0: np.ndarray, G: np.ndarray, Sinv: np.ndarray, nu
 
 class TeamFixedLagSmoother(RobotNode):
     """``diekf`` whose own landmark updates come from a fixed-lag smoother of its recent poses (module
-    docstring): the node's wiring of ``diekf``'s :class:`~swarmloc.estimators.diekf.TeamProtocol`
+    docstring): the node's wiring of ``diekf``'s :class:`~swarmloc.estimators.team_protocol.TeamProtocol`
     (:attr:`protocol`) and a :class:`~swarmloc.estimators.fls.WindowSolver` (:attr:`solver`). ``lag`` [s],
     ``max_iterations`` and ``delayed`` as :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s; ``team`` as
     ``diekf``'s; ``cluster`` must be 0 (its pseudo-factors are the exact update's)."""
@@ -135,10 +135,9 @@ class TeamFixedLagSmoother(RobotNode):
         dt = t - s.t
         if dt <= 0:
             return s
-        x0, y0, th, _, _, *q = C.increment_terms(s.x, s.v, s.w, dt, self.noise)
-        x = np.array([x0, y0, th])
+        x, P = self.protocol.form.predict(s.x, s.P, s.v, s.w, dt, self.noise)  # diekf's world-frame step
         rel, Q, _, _ = C.predict_one(s.rel, s.Q, s.v, s.w, dt, self.noise)
-        return s._replace(t=t, x=x, P=s.P + I.cartesian_to_world_cov(x, C.sym3(q)), rel=rel, Q=Q)
+        return s._replace(t=t, x=x, P=P, rel=rel, Q=Q)
 
     def _set_command(self, s: TeamFlsState, robot: int, v: float, w: float) -> TeamFlsState:
         return s._replace(v=v, w=w)
@@ -150,7 +149,7 @@ class TeamFixedLagSmoother(RobotNode):
         self, s: TeamFlsState, i: int, j: int, Hi: np.ndarray, Hj: np.ndarray, Sinv: np.ndarray, nu: np.ndarray,
         Pii: np.ndarray, Pjj: np.ndarray, w: float = 1.0,
     ) -> TeamFlsState:  # fmt: skip
-        """``diekf``'s update (:meth:`~swarmloc.estimators.diekf.TeamProtocol.team_update`); the change of this
+        """``diekf``'s update (:meth:`~swarmloc.estimators.team_protocol.TeamProtocol.team_update`); the change of this
         robot's pose is also filed in the window (:func:`pseudo_factor`) unless the update is the node's own landmark
         update (``i == j == robot``: the window holds its factors). No clusters here (``w`` is always 1)."""
         new = self.protocol.team_update(s, i, j, Hi, Hj, Sinv, nu, Pii, Pjj)
@@ -226,8 +225,8 @@ class TeamFixedLagSmoother(RobotNode):
                 msgs += sent
                 continue
             lin = linearize(d, s.x, target)
-            if lin is None:
-                outcomes.append(("rejected", DEGENERATE))
+            if isinstance(lin, str):
+                outcomes.append(("rejected", lin))
                 continue
             r, Hi_c, R, _ = lin
             Hw = Hi_c @ I.world_basis(s.x)

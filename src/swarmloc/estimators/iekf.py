@@ -19,130 +19,48 @@ Robots 2011). :mod:`swarmloc.evaluation.observability` measures that information
   propagation Jacobians maps the initial unobservable basis to the one at the first estimates, which the
   measurement Jacobians annihilate (Huang et al. 2011, FEJ-EKF). Residuals use the current estimate.
 
-Both keep the joint ``3n x 3n`` covariance like ``cekf`` and only touch the rows and columns a detection involves
-(one rank-``m`` correction). Which one to use: see the consistency tables of docs/estimators.md (the invariant EKF
-is the default recommendation there, on the evidence of the Monte Carlo runs and MRCLAM).
+Both keep the joint ``3n x 3n`` covariance like ``cekf`` (their forms are its
+:class:`~swarmloc.estimators.cekf.TeamForm` with their own linearization point and error coordinates) and only touch the
+rows and columns a detection involves (one rank-``m`` correction, :func:`~swarmloc.estimators.cekf.fuse_linearized`).
+Which one to use: see the consistency tables of docs/estimators.md (the invariant EKF is the default recommendation
+there, on the evidence of the Monte Carlo runs and MRCLAM).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, ClassVar, Protocol
+from typing import ClassVar
 
 import numpy as np
 
 from swarmloc.estimators.cekf import (
+    TeamForm,
     TeamState,
-    cartesian_belief,
-    cartesian_cross,
     clock_and_pending,
     compose_pending,
     flush_pending,
     increment,
     log_shear,
-    team_joint,
     team_state,
 )
-from swarmloc.estimators.dekf import DEGENERATE
-from swarmloc.events import Detection, Kind
+from swarmloc.estimators.world_form import FORMS as WORLD_FORMS
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels import invariant as I
-from swarmloc.lie import SE2, wrap_angle
-from swarmloc.node import FUSED, Gate, Group, Outcome, TeamNode, gated_kalman
-from swarmloc.sensors.models import model
+from swarmloc.lie import SE2
+from swarmloc.node import TeamNode
 
-__all__ = ["FirstEstimatesEKF", "FirstEstimatesForm", "InvariantEKF", "InvariantForm", "joint_correction"]
-
-
-def joint_correction(
-    P: np.ndarray, starts: list[int], blocks: list[np.ndarray], r: np.ndarray, R: np.ndarray, gate: Gate
-) -> tuple[np.ndarray, np.ndarray] | Outcome:
-    """The gated Kalman update (:func:`~swarmloc.node.update.gated_kalman`, Joseph form) of a joint covariance
-    ``P (n, n)`` by a measurement whose Jacobian is nonzero only in the 3-column blocks starting at ``starts``
-    (``blocks[k]`` of shape ``(m, 3)``): the correction ``K r (n,)`` and ``P+``, or the outcome that stops it.
-    Cost ``O(n^2 m)``."""
-    cols = np.concatenate([np.arange(i, i + 3) for i in starts])
-    return gated_kalman(np.zeros(P.shape[0]), P, r, np.hstack(blocks), R, gate, cols=cols, angles=())
+__all__ = ["FirstEstimatesEKF", "FirstEstimatesForm", "InvariantEKF", "InvariantForm"]
 
 
-class Linearization(Protocol):
-    """Where a form evaluates its Jacobians and in which error coordinates it corrects (:func:`fuse_linearized`)."""
-
-    first_estimates: bool
-    """Whether the Jacobians are evaluated at :meth:`lin_point` (else at the current estimates)."""
-
-    def lin_point(self, s: TeamState, k: int) -> np.ndarray:
-        """The point of the robot whose block starts at ``k`` at which its Jacobians are evaluated."""
-
-    def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """A Cartesian Jacobian block at ``x`` in the form's error coordinates."""
-
-    def correct(self, s: TeamState, delta: np.ndarray, P: np.ndarray) -> TeamState:
-        """``s`` (its predictions applied) corrected by ``delta (3n,)`` in error coordinates, its covariance ``P``."""
-
-
-def fuse_linearized(
-    form: Linearization, node: TeamNode, s: TeamState, g: Group, d: Detection, target: tuple[str, Any]
-) -> tuple[TeamState, Outcome]:
-    """One classified detection of group ``g`` fused into the joint state ``s`` (one rank-``m`` correction of the
-    blocks it involves, :func:`joint_correction`) at ``form``'s linearization, recorded in the node's ``lin_log``:
-    the new state and its outcome (the state as it was, the detected robot predicted to the stamp, when the
-    detection is not fused)."""
-    i = node._idx[g.observer]
-    m = model(d.kind)
-    R = m.noise(d.z, d.cov)
-    xi, li = s.X[i : i + 3], form.lin_point(s, i)
-    if target[0] == Kind.ABSOLUTE:
-        starts, blocks = [i], [form.to_error(np.eye(3), li)]
-        r = m.residual(d.z, xi)
-    else:
-        if target[0] == "robot":
-            s = node._adv(s, target[1], g.t)  # the detected robot at the detection's stamp
-            k = node._idx[target[1]]
-            xk, lk, Ck = s.X[k : k + 3], form.lin_point(s, k), None
-        else:
-            xk, Ck = target[1]
-            lk = xk
-        if m.degenerate(xi, xk) or m.degenerate(li, lk):
-            return s, ("rejected", DEGENERATE)
-        h, Hi, Hk = m.predict(xi, xk)
-        if form.first_estimates:
-            _, Hi, Hk = m.predict(li, lk)
-        assert Hk is not None  # noqa: S101  (a relative model: a Jacobian for the target)
-        r = m.residual(d.z, h)
-        if Ck is None:
-            starts, blocks = [i, k], [form.to_error(Hi, li), form.to_error(Hk, lk)]
-        else:
-            starts, blocks = [i], [form.to_error(Hi, li)]
-            R = R + Hk @ Ck @ Hk.T
-    sf = flush_pending(s)
-    res = joint_correction(sf.P, starts, blocks, r, R, node.gate)
-    if isinstance(res[0], str):
-        return s, res
-    s = form.correct(sf, *res)
-    if node.lin_log is not None:
-        robots = {k: r for r, k in node._idx.items()}
-        node.lin_log.append(("update", g.t, {robots[k]: H for k, H in zip(starts, blocks, strict=True)}, R))
-    return s, FUSED
-
-
-class InvariantForm:
-    """The joint state in world-frame errors (:class:`InvariantEKF`): a :class:`~swarmloc.node.team.JointForm` whose
-    ``P`` is of the errors ``(xi_1, ..., xi_n)``, ``pend`` holding each robot's world-frame process noise (no shear:
-    the error transition of a prediction is the identity), corrected on the group."""
-
-    dim = 3
-    first_estimates = False
-    joint = staticmethod(team_joint)
-    fuse = fuse_linearized  # the detection loop, at this form's linearization
+class InvariantForm(TeamForm):
+    """The joint state in world-frame errors (:class:`InvariantEKF`): ``cekf``'s
+    :class:`~swarmloc.estimators.cekf.TeamForm` on SE(2) whose ``P`` is of the errors ``(xi_1, ..., xi_n)``, ``pend``
+    holding each robot's world-frame process noise (no shear: the error transition of a prediction is the identity),
+    corrected on the group."""
 
     def initial(self, node: TeamNode, t0: float) -> TeamState:
-        s = team_state(node, t0)
-        P = s.P.copy()
-        for r, b in node.initial.items():
-            k = node._idx[r]
-            P[k : k + 3, k : k + 3] = I.body_to_world(b.mean, b.cov)
-        return TeamState(s.X, P, s.t, s.cmd, s.pend)
+        """Every robot's pose and world-frame covariance as ``diekf``'s form starts them."""
+        return team_state(node, t0, SE2, WORLD_FORMS[SE2].initial)
 
     def advance(self, node: TeamNode, s: TeamState, robot: int, t: float) -> TeamState:
         step = increment(node, s, robot, t)
@@ -173,9 +91,6 @@ class InvariantForm:
         P = flush_pending(s).P
         Ni = I.world_basis(s.X[i : i + 3])
         return np.array([Ni @ P[i : i + 3, k : k + 3] @ I.world_basis(s.X[k : k + 3]).T for k in ks]).reshape(-1, 3, 3)
-
-    def lin_point(self, s: TeamState, k: int) -> np.ndarray:
-        return s.X[k : k + 3]
 
     def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
         return H @ I.world_basis(x)
@@ -211,17 +126,12 @@ class InvariantEKF(TeamNode):
         return world_to_cartesian(*self.joint_at(t))
 
 
-class FirstEstimatesForm:
-    """The Cartesian joint state of ``cekf`` with first-estimates Jacobians (:class:`FirstEstimatesEKF`): a
-    :class:`~swarmloc.node.team.JointForm` whose state keeps each robot's first estimate at its clock
+class FirstEstimatesForm(TeamForm):
+    """The Cartesian joint state of ``cekf`` (:class:`~swarmloc.estimators.cekf.TeamForm` on SE(2)) with
+    first-estimates Jacobians (:class:`FirstEstimatesEKF`): the state keeps each robot's first estimate at its clock
     (:attr:`~swarmloc.estimators.cekf.TeamState.L`), where every Jacobian is evaluated."""
 
-    dim = 3
     first_estimates = True
-    belief = staticmethod(cartesian_belief)
-    joint = staticmethod(team_joint)
-    world_cross = staticmethod(cartesian_cross)
-    fuse = fuse_linearized  # the detection loop, at this form's linearization
 
     def initial(self, node: TeamNode, t0: float) -> TeamState:
         s = team_state(node, t0)
@@ -247,14 +157,6 @@ class FirstEstimatesForm:
 
     def lin_point(self, s: TeamState, k: int) -> np.ndarray:
         return self.first(s)[k : k + 3]
-
-    def to_error(self, H: np.ndarray, x: np.ndarray) -> np.ndarray:
-        return H
-
-    def correct(self, s: TeamState, delta: np.ndarray, P: np.ndarray) -> TeamState:
-        X = s.X + delta
-        X[2::3] = wrap_angle(X[2::3])
-        return TeamState(X, P, s.t, s.cmd, s.pend, s.L)
 
 
 class FirstEstimatesEKF(TeamNode):

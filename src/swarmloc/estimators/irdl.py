@@ -28,9 +28,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from swarmloc.estimators.iekf import joint_correction
+from swarmloc.estimators.cekf import joint_correction
 from swarmloc.estimators.rdl import RdlFilter, RdlNode
-from swarmloc.kernels import cartesian as C
+from swarmloc.estimators.world_form import FORMS
 from swarmloc.kernels import invariant as I
 from swarmloc.lie import SE2
 from swarmloc.node import Gate, Outcome
@@ -42,14 +42,12 @@ class WorldPairs:
     """World-frame errors (:mod:`swarmloc.kernels.invariant`): the :class:`~swarmloc.estimators.rdl.PairForm` of
     ``irdl`` (module docstring)."""
 
-    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return C.from_group(mean, cov)[0], I.body_to_world(mean, cov)
+    initial = FORMS[SE2].initial  # the pose and the world-frame covariance, as diekf's
+    belief = FORMS[SE2].belief  # converted to the body-frame convention, Sigma = Ad(g^-1) P Ad(g^-1)^T
 
     def advance(self, node: RdlNode, s: RdlFilter, t: float) -> RdlFilter:
         """``P`` gains the world-frame process noise; the factors stay (the error transition is the identity)."""
-        x0, y0, th, _, _, *q = C.increment_terms(s.x, s.v, s.w, t - s.t, node.noise)
-        x = np.array([x0, y0, th])
-        P = s.P + I.cartesian_to_world_cov(x, C.sym3(q))
+        x, P = FORMS[SE2].predict(s.x, s.P, s.v, s.w, t - s.t, node.noise)
         return RdlFilter(t, s.v, s.w, x, P, s.ids, s.sigma)
 
     def advance_commands(
@@ -57,11 +55,6 @@ class WorldPairs:
     ) -> RdlFilter | None:
         """None: no float loop in world-frame errors."""
         return None
-
-    def belief(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Converted to the body-frame convention, ``Sigma = Ad(g^-1) P Ad(g^-1)^T``."""
-        g = SE2.from_xytheta(x)
-        return g, I.world_to_body(g, P)
 
     def correction(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
         """The world-frame correction that takes the pose ``x0`` to ``x1``."""
@@ -73,7 +66,7 @@ class WorldPairs:
     def update(
         self, x: np.ndarray, P: np.ndarray, r: np.ndarray, H: np.ndarray, R: np.ndarray, gate: Gate
     ) -> tuple[np.ndarray, np.ndarray] | Outcome:
-        """The correction (:func:`~swarmloc.estimators.iekf.joint_correction`) applied on the group."""
+        """The correction (:func:`~swarmloc.estimators.cekf.joint_correction`) applied on the group."""
         res = joint_correction(P, list(range(0, x.size, 3)), [H], r, R, gate)
         if isinstance(res[0], str):
             return res

@@ -141,9 +141,9 @@ class FaultMonitor:
 
 def observer_evidence(protocol: Any, s: Any, d: Any, answer: Any) -> Evidence | None:
     """The observer's :class:`Evidence` of its detection ``d`` of a teammate that answered ``answer`` (an
-    :class:`~swarmloc.messages.RdlState`), linearized as ``protocol`` (a :class:`~swarmloc.estimators.diekf.
-    TeamProtocol`) fuses it from state ``s``; None where it fuses none (not a teammate of the replica, a degenerate
-    geometry, a singular ``S``)."""
+    :class:`~swarmloc.messages.RdlState`), linearized as ``protocol`` (a
+    :class:`~swarmloc.estimators.team_protocol.TeamProtocol`) fuses it from state ``s``; None where it fuses none (not
+    a teammate of the replica, a degenerate geometry, a singular ``S``)."""
     j = d.target
     if not isinstance(answer, RdlState) or j not in protocol.pos:
         return None

@@ -234,8 +234,8 @@ class PairForm(Protocol):
 class CartesianPairs:
     """Cartesian errors (:mod:`swarmloc.kernels.cartesian`): the :class:`PairForm` of ``rdl``."""
 
-    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return C.from_group(mean, cov)
+    initial = staticmethod(C.from_group)
+    belief = staticmethod(C.to_group)
 
     def advance(self, node: RdlNode, s: RdlFilter, t: float) -> RdlFilter:
         x, P, dx, dy = C.predict_one(s.x, s.P, s.v, s.w, t - s.t, node.noise)
@@ -247,9 +247,6 @@ class CartesianPairs:
         """The factors' deferred shear accumulated as :meth:`advance` does."""
         x, P, t, (v, w), (sa, sb) = predict_run(s, (s.sa, s.sb), cmds, node.noise)
         return RdlFilter(t, v, w, x, P, s.ids, s.sigma, sa, sb)
-
-    def belief(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return C.to_group(x, P)
 
     def correction(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
         """``x1 - x0``, the angle wrapped."""
@@ -467,8 +464,8 @@ class RdlNode(RobotNode):
     def _private(self, s: RdlFilter, d: Any, target: tuple[str, Any]) -> Any:
         """Absolute fix or landmark: a private update, then every factor rescaled."""
         lin = linearize(d, s.x, target)
-        if lin is None:
-            return ("rejected", DEGENERATE)
+        if isinstance(lin, str):
+            return ("rejected", lin)
         r, Hi, R_eff, _ = lin
         H = self.form.to_error(Hi, s.x)
         res = self.form.update(s.x, s.P, r, H, R_eff, self.gate)

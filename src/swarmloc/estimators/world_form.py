@@ -1,6 +1,6 @@
 """The world-frame error form of ``diekf`` (:mod:`swarmloc.estimators.diekf`) on each group: a robot's filter state
 (:class:`TeamState`), its prediction with the world-frame process noise, and a detection linearized in world-frame
-errors (:class:`WorldForm` on SE(2), :class:`WorldForm3` on SE(3)); :data:`FORMS` picks one by group."""
+errors (:class:`WorldForm` of SE(2) or SE(3)); :data:`FORMS` holds one per group."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, linearize
+from swarmloc.estimators.dekf import DEGENERATE, KERNELS, linearize
 from swarmloc.events import Kind
 from swarmloc.gaussian import symmetric
 from swarmloc.kernels import cartesian as C
@@ -19,8 +19,9 @@ from swarmloc.lie.base import SEGroup
 from swarmloc.messages import flat
 from swarmloc.motion.twist3 import as_twist, twist_increment
 from swarmloc.sensors.models import model
+from swarmloc.sensors.models3 import DEGENERATE3, model3
 
-__all__ = ["FORMS", "TeamState", "WorldForm", "WorldForm3", "robot_pair", "world_step"]
+__all__ = ["FORMS", "TeamState", "WorldForm", "robot_pair", "world_step"]
 
 _EYE = flat(np.eye(3))
 _NO_SIGMA = np.zeros((0, 0, 3, 3))
@@ -40,15 +41,18 @@ class TeamState(NamedTuple):
     Sigma: np.ndarray
 
 
-def robot_pair(d: Any, xi: np.ndarray, xj: np.ndarray) -> tuple[np.ndarray, ...] | None:
-    """A robot detection ``d`` linearized at the two poses in world-frame errors: ``(r, H_i, H_j, R)`` (innovation,
-    Jacobians, noise), or None for a degenerate geometry."""
-    mm = model(d.kind)
-    if mm.degenerate(xi, xj):
+def robot_pair(d: Any, xi: np.ndarray, xj: np.ndarray, group: type[SEGroup] = SE2) -> tuple[np.ndarray, ...] | None:
+    """A robot detection ``d`` linearized at the two poses of ``group`` in world-frame errors: ``(r, H_i, H_j, R)``
+    (innovation, Jacobians: the model's Cartesian ones times the world basis,
+    :func:`~swarmloc.kernels.invariant.world_basis` or :func:`~swarmloc.kernels.cartesian3.world_basis3`; noise), or
+    None for a degenerate geometry."""
+    planar = group is SE2
+    lin: Any = (model(d.kind) if planar else model3(d.kind)).linearize(d.z, d.cov, xi, xj)
+    if lin is None:
         return None
-    h, Hi_c, Hj_c = mm.predict(xi, xj)
-    assert Hj_c is not None  # noqa: S101  (a robot's model: the target's Jacobian)
-    return mm.residual(d.z, h), Hi_c @ I.world_basis(xi), Hj_c @ I.world_basis(xj), mm.noise(d.z, d.cov)
+    r, Hi, Hj, R = lin
+    basis = I.world_basis if planar else C3.world_basis3
+    return r, Hi @ basis(xi), Hj @ basis(xj), R
 
 
 def world_step(x0: float, y0: float, th0: float, P: np.ndarray, v: float, w: float, dt: float,
@@ -62,117 +66,85 @@ def world_step(x0: float, y0: float, th0: float, P: np.ndarray, v: float, w: flo
 
 
 class WorldForm:
-    """The world-frame error on SE(2): pose ``(x, y, theta)``, the planar models' Jacobians times
-    :func:`~swarmloc.kernels.invariant.world_basis` (:mod:`swarmloc.kernels.invariant`)."""
+    """The world-frame error ``xi`` (``g = exp(xi^) g^``) of a pose on ``group`` (module docstring): on SE(2) the pose
+    ``(x, y, theta)`` (:mod:`swarmloc.kernels.invariant`), on SE(3) the pose ``(4, 4)``, ``"pose3"`` with constant
+    Jacobians (:func:`~swarmloc.kernels.cartesian3.relative_pose3_world`); every other kind's Cartesian Jacobians
+    times the world basis (:func:`robot_pair`). The covariances of SE(3)'s products are symmetrized."""
 
-    group: type[SEGroup] = SE2
-    dim = 3
-    runs = True
-    """Whether a run of odometry has a float loop (:meth:`DistributedInvariantEKF._advance_commands`)."""
-    clusters = True
-    """Whether the covariance-intersection weight of an outsider is defined (SE(2)'s)."""
-    eye = _EYE
+    def __init__(self, group: type[SEGroup] = SE2) -> None:
+        self.group, self.dim, self.planar = group, group.dim, group is SE2
+        self.runs = self.clusters = self.planar
+        """``runs``: whether a run of odometry has a float loop (:meth:`DistributedInvariantEKF._advance_commands`);
+        ``clusters``: whether the covariance-intersection weight of an outsider is defined (SE(2)'s)."""
+        self.eye = flat(np.eye(self.dim))
+
+    def _sym(self, P: np.ndarray) -> np.ndarray:
+        """``P`` symmetrized on SE(3), as it is on SE(2)."""
+        return P if self.planar else symmetric(P)
 
     def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[Any, np.ndarray]:
-        """Pose and world-frame covariance of a right-perturbation belief."""
-        x, _ = C.from_group(mean, cov)
-        return x, I.body_to_world(mean, cov)
+        """Pose and world-frame covariance ``Ad(g) cov Ad(g)^T`` of a right-perturbation belief."""
+        x, _ = KERNELS[self.group].from_group(mean, cov)
+        A = self.group.Ad(mean, validate=False)
+        return x, self._sym(A @ np.asarray(cov, dtype=float) @ A.T)
 
     def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
-        """Pose and covariance after the command held over ``dt > 0`` [s] (:func:`world_step`)."""
-        x0, y0, th0 = x.tolist()
-        x0, y0, th, P = world_step(x0, y0, th0, P, v, w, dt, noise)
-        return np.array([x0, y0, th]), P
+        """Pose and covariance after the command held over ``dt > 0`` [s] (SE(2): :func:`world_step`; SE(3):
+        ``g Delta``, ``P + Ad(g Delta) Sigma_inc Ad(g Delta)^T``)."""
+        if self.runs:
+            x0, y0, th0 = x.tolist()
+            x0, y0, th, P = world_step(x0, y0, th0, P, v, w, dt, noise)
+            return np.array([x0, y0, th]), P
+        inc, S = twist_increment(as_twist(v, w), dt, noise)
+        g = x @ inc
+        A = SE3.Ad(g, validate=False)
+        return g, symmetric(P + A @ S @ A.T)
 
     def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The right-perturbation belief of pose ``x`` with world-frame covariance ``P``."""
-        g = SE2.from_xytheta(x)
-        return g, I.world_to_body(g, P)
+        """The right-perturbation belief of pose ``x`` with world-frame covariance ``P``: ``Ad(g^-1) P Ad(g^-1)^T``."""
+        g = SE2.from_xytheta(x) if self.planar else x
+        A = self.group.Ad(self.group.inverse(g, validate=False), validate=False)
+        return g, A @ P @ A.T
 
     def correct(self, x: Any, delta: np.ndarray) -> Any:
         """The pose ``x`` corrected by the world-frame ``delta``: ``exp(hat(delta)) g(x)``."""
-        return I.left_correct(x, delta)
+        return I.left_correct(x, delta) if self.planar else SE3.normalize(SE3.exp(delta, validate=False) @ x)
 
     def unsupported(self, d: Any, target: tuple[str, Any]) -> str | None:
         """Why ``d`` of ``target`` cannot be fused on this group (None: it can)."""
-        return None
+        return None if self.planar else C3.unsupported(d, target)
 
     def robot(self, d: Any, s: Any, xj: Any, Pjj: np.ndarray, Sij: np.ndarray) -> tuple[Any, ...] | str:
         """``(r, H_i, H_j, S, R)`` of robot detection ``d`` of pose ``xj`` (covariance ``Pjj``, cross-covariance
         ``Sij`` with the observer), or the reason it cannot be fused."""
-        lin = robot_pair(d, s.x, xj)
+        if d.kind == Kind.POSE3:
+            lin: Any = C3.relative_pose3_world(s.x, xj, d.z, d.cov)
+        else:
+            lin = robot_pair(d, s.x, xj, self.group)
         if lin is None:
-            return DEGENERATE
+            return DEGENERATE if self.planar else DEGENERATE3
         r, Hi, Hj, R = lin
-        return r, Hi, Hj, Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R, R
+        S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
+        return r, Hi, Hj, self._sym(S), R
 
     def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple[Any, ...] | str:
-        """``(r, H_i, S, R)`` of a landmark detection (the map's uncertainty in ``R``), or the reason."""
-        lin = linearize(d, s.x, target)
-        if lin is None:
-            return DEGENERATE
-        r, Hi_c, R, _ = lin
-        Hi = Hi_c @ I.world_basis(s.x)
-        return r, Hi, Hi @ s.P @ Hi.T + R, R
-
-
-class WorldForm3(WorldForm):
-    """The world-frame error on SE(3): pose ``(4, 4)``, ``"pose3"`` with constant Jacobians
-    (:func:`~swarmloc.kernels.cartesian3.relative_pose3_world`), the point kinds' Cartesian Jacobians times
-    :func:`~swarmloc.kernels.cartesian3.world_basis3` (module docstring)."""
-
-    group = SE3
-    dim = 6
-    runs = False
-    clusters = False
-    eye = flat(np.eye(6))
-
-    def initial(self, mean: np.ndarray, cov: np.ndarray) -> tuple[Any, np.ndarray]:
-        g = np.asarray(mean, dtype=float)
-        A = SE3.Ad(g, validate=False)
-        P = A @ np.asarray(cov, dtype=float) @ A.T
-        return g.copy(), symmetric(P)
-
-    def predict(self, x: Any, P: np.ndarray, v: Any, w: Any, dt: float, noise: Any) -> tuple[Any, np.ndarray]:
-        inc, S = twist_increment(as_twist(v, w), dt, noise)
-        g = x @ inc
-        A = SE3.Ad(g, validate=False)
-        P = P + A @ S @ A.T
-        return g, symmetric(P)
-
-    def belief(self, x: Any, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        A = SE3.Ad(SE3.inverse(x, validate=False), validate=False)
-        return x, A @ P @ A.T
-
-    def correct(self, x: Any, delta: np.ndarray) -> Any:
-        return SE3.normalize(SE3.exp(delta, validate=False) @ x)
-
-    def unsupported(self, d: Any, target: tuple[str, Any]) -> str | None:
-        return C3.unsupported(d, target)
-
-    def robot(self, d: Any, s: Any, xj: Any, Pjj: np.ndarray, Sij: np.ndarray) -> tuple[Any, ...] | str:
-        if d.kind == Kind.POSE3:
-            r, Hi, Hj, R = C3.relative_pose3_world(s.x, xj, d.z, d.cov)
-            S = s.P - Sij - Sij.T + Pjj + R  # H P H^T with H_i = -I, H_j = I
-        else:
-            lin = C3.linearize(d, s.x, xj)
+        """``(r, H_i, S, R)`` of a landmark detection (the map's uncertainty in ``S``; on SE(2) in ``R`` too), or the
+        reason."""
+        if self.planar:
+            lin = linearize(d, s.x, target)
             if isinstance(lin, str):
                 return lin
-            r, Hi_c, Hj_c, R = lin
-            Hi, Hj = Hi_c @ C3.world_basis3(s.x), Hj_c @ C3.world_basis3(xj)
-            S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
-        return r, Hi, Hj, symmetric(S), R
-
-    def landmark(self, d: Any, s: Any, target: tuple[str, Any]) -> tuple[Any, ...] | str:
+            r, Hi_c, R, _ = lin
+            Hi = Hi_c @ I.world_basis(s.x)
+            return r, Hi, Hi @ s.P @ Hi.T + R, R
         pl, Cl = target[1]
-        lin = C3.linearize(d, s.x, pl)
-        if isinstance(lin, str):
-            return lin
-        r, Hi_c, Hl, R = lin
+        lin3 = C3.linearize(d, s.x, pl)
+        if isinstance(lin3, str):
+            return lin3
+        r, Hi_c, Hl, R = lin3
         Hi = Hi_c @ C3.world_basis3(s.x)
-        S = Hi @ s.P @ Hi.T + R + Hl @ Cl @ Hl.T
-        return r, Hi, symmetric(S), R
+        return r, Hi, symmetric(Hi @ s.P @ Hi.T + R + Hl @ Cl @ Hl.T), R
 
 
-FORMS: dict[type, WorldForm] = {SE2: WorldForm(), SE3: WorldForm3()}
+FORMS: dict[type, WorldForm] = {SE2: WorldForm(SE2), SE3: WorldForm(SE3)}
 """The world-frame error form of each group."""

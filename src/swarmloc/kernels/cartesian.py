@@ -40,7 +40,9 @@ def increment(
     """New mean ``(..., 3)``, ``Phi`` ``(..., 3, 3)`` and additive process covariance ``(..., 3, 3)`` of one step."""
     x = np.asarray(x, dtype=float)
     if x.ndim == 1 and isinstance(v, int | float) and isinstance(w, int | float) and isinstance(dt, int | float):
-        return _increment_one(x, float(v), float(w), float(dt), noise)
+        # one robot in floats (the same formulas; ~3x faster than the array path)
+        x0, y0, th, dx, dy, *q = increment_terms(x, float(v), float(w), float(dt), noise)
+        return np.array([x0, y0, th]), np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]]), sym3(q)
     inc_mean, inc_cov = odometry_increment(v, w, dt, noise)
     c, s = np.cos(x[..., 2]), np.sin(x[..., 2])
     ix, iy = inc_mean[..., 0, 2], inc_mean[..., 1, 2]
@@ -81,14 +83,6 @@ def sym3(p: Sequence[float]) -> FloatArray:
     """The symmetric ``(3, 3)`` matrix of the upper triangle ``p = (p00, p01, p02, p11, p12, p22)``."""
     p00, p01, p02, p11, p12, p22 = p
     return np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
-
-
-def _increment_one(
-    x: FloatArray, v: float, w: float, dt: float, noise: UnicycleNoise
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """:func:`increment` for one robot, in floats (the same formulas; ~3x faster than the array path)."""
-    x0, y0, th, dx, dy, *q = increment_terms(x, v, w, dt, noise)
-    return np.array([x0, y0, th]), np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]]), sym3(q)
 
 
 def predict_one(
@@ -241,7 +235,8 @@ def kalman_update(
     innovation covariance, an infinite innovation): the caller keeps the prior there.
     """
     if x.ndim == 1 and P.ndim == 2 and r.ndim == 1 and H.ndim == 2 and R.ndim == 2 and all(map(math.isfinite, r)):
-        return _kalman_update_one(x, P, r, H, R, angles)
+        xn, Pn, nis, ok = kalman_one(x, P, r, H, R, angles)  # one state: nis and ok as arrays
+        return xn, Pn, np.array(nis), np.array(ok)
     Ht = _T(H, -1, -2)
     PHt = P @ Ht
     S = H @ PHt + R
@@ -261,14 +256,6 @@ def kalman_update(
     Pn = symmetric(Pn)
     ok = np.isfinite(nis) & np.isfinite(xn).all(axis=-1) & np.isfinite(Pn).all(axis=(-1, -2))
     return xn, Pn, nis, ok
-
-
-def _kalman_update_one(
-    x: FloatArray, P: FloatArray, r: FloatArray, H: FloatArray, R: FloatArray, angles: tuple[int, ...]
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """:func:`kalman_update` for one state (:func:`kalman_one`; ``nis`` and ``ok`` as arrays)."""
-    xn, Pn, nis, ok = kalman_one(x, P, r, H, R, angles)
-    return xn, Pn, np.array(nis), np.array(ok)
 
 
 def matmul(A: FloatArray, B: FloatArray) -> FloatArray:

@@ -1,22 +1,23 @@
 """The first-order errors of an SE(3) pose, the 3-D form of :mod:`swarmloc.kernels.cartesian`'s ``(x, y, theta)``.
 
-A pose is its position ``p (3,)`` (world frame) and attitude ``R (3, 3)``. The *Cartesian* error ``(dp, dtheta)``
-(``p_true = p + dp``, ``R_true = R exp(dtheta^)``) is that of the first-order EKFs (``dekf``, ``cekf`` on SE(3)); the
-*world-frame* error ``xi`` (``g_true = exp(xi^) g``) that of the invariant ``diekf``. Everything is first order:
+A pose is the ``4 x 4`` matrix ``g`` of its position ``p (3,)`` (world frame) and attitude ``R (3, 3)``. The
+*Cartesian* error ``(dp, dtheta)`` (``p_true = p + dp``, ``R_true = R exp(dtheta^)``) is that of the first-order EKFs
+(``dekf``, ``cekf`` on SE(3)); the *world-frame* error ``xi`` (``g_true = exp(xi^) g``) that of the invariant
+``diekf``. Everything is first order:
 
 * prediction over a constant body twist with increment ``(t_inc, R_inc) = exp(dt h^)`` and increment noise
   ``Sigma_inc`` (:func:`swarmloc.motion.twist3.twist_increment`): ``p' = p + R t_inc``, ``R' = R R_inc``,
   ``F = [[I, -R t_inc^], [0, R_inc^T]]``, ``G = diag(R R_inc, I)``, ``P' = F P F^T + G Sigma_inc G^T``
-  (:func:`step`, :func:`predict`, batched: :func:`propagate`);
+  (:func:`step`, :func:`predict_one`, batched: :func:`propagate`);
 * the detections ``"pose3"``, ``"rbe3"``, ``"bearing3"`` of a robot (a pose) or of a known 3-D landmark (a point):
   :class:`~swarmloc.sensors.models3.Model3`'s residual, Jacobians and noise (:func:`linearize`);
 * the correction is applied on the group, ``p + dp``, ``R exp(dtheta^)`` (:func:`correct`), no reset Jacobian;
 * a right-perturbation Gaussian ``g exp(y)`` has ``cov = J^-1 P J^-T`` with ``J = diag(R, I)`` (``g exp(y)`` moves
-  the position by ``R v`` to first order): :func:`to_error`, :func:`to_group`.
+  the position by ``R v`` to first order): :func:`from_group`, :func:`to_group`.
 
-The pose functions take one pose; :func:`frame`, :func:`error_cov`, :func:`transition`, :func:`propagate` and
-:func:`correct` are batched over leading axes (the engine's :mod:`swarmloc.engine.se3` stacks robots).
-"""
+:func:`step`, :func:`linearize` and :func:`world_basis3` take one pose; the others are batched over leading axes
+(the engine's :mod:`swarmloc.engine.se3` stacks robots). :func:`from_group`, :func:`to_group` and :func:`predict_one`
+have the names and forms of :mod:`swarmloc.kernels.cartesian`'s (an EKF's form calls either module the same way)."""
 
 from __future__ import annotations
 
@@ -25,7 +26,6 @@ from typing import Any
 import numpy as np
 
 from swarmloc.arrays import FloatArray
-from swarmloc.events import Kind
 from swarmloc.gaussian import symmetric
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import skew, so3_exp
@@ -36,13 +36,12 @@ __all__ = [
     "correct",
     "error_cov",
     "frame",
+    "from_group",
     "linearize",
-    "pose",
-    "predict",
+    "predict_one",
     "propagate",
     "relative_pose3_world",
     "step",
-    "to_error",
     "to_group",
     "transition",
     "unsupported",
@@ -67,22 +66,16 @@ def error_cov(R: FloatArray, cov: FloatArray) -> FloatArray:
     return symmetric(J @ cov @ _T(J, -1, -2))
 
 
-def pose(p: FloatArray, R: FloatArray) -> FloatArray:
-    """The ``4 x 4`` pose of position ``p`` and attitude ``R``."""
-    g = np.eye(4)
-    g[:3, :3], g[:3, 3] = R, p
-    return g
+def from_group(mean: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``(g, P)`` of right-perturbation SE(3) Gaussians (batched): the pose and ``P = J cov J^T``, ``J = diag(R, I)``
+    (the name and form of :func:`swarmloc.kernels.cartesian.from_group`)."""
+    mean = np.asarray(mean, dtype=float)
+    return mean.copy(), error_cov(mean[..., :3, :3], cov)
 
 
-def to_error(mean: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """``(p, R, P)`` of a right-perturbation SE(3) Gaussian: ``P = J cov J^T``, ``J = diag(R, I)``."""
-    R = mean[:3, :3]
-    return mean[:3, 3].copy(), R.copy(), error_cov(R, cov)
-
-
-def to_group(p: FloatArray, R: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Inverse of :func:`to_error`: mean ``(4, 4)`` and right-perturbation covariance ``(6, 6)``."""
-    return pose(p, R), error_cov(R.T, P)
+def to_group(g: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Inverse of :func:`from_group`: mean ``(..., 4, 4)`` and right-perturbation covariance ``(..., 6, 6)``."""
+    return g.copy(), error_cov(_T(g[..., :3, :3], -1, -2), P)
 
 
 def transition(R: FloatArray, inc: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -97,36 +90,40 @@ def transition(R: FloatArray, inc: FloatArray) -> tuple[FloatArray, FloatArray]:
     return F, G
 
 
-def step(
-    p: FloatArray, R: FloatArray, v: Any, w: Any, dt: float, noise: TwistNoise
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """``(p', R', F, G, Sigma_inc)`` of the pose ``(p, R)`` moved by the body twist ``(v, w)`` over ``dt > 0`` [s]."""
+def step(g: FloatArray, v: Any, w: Any, dt: float, noise: TwistNoise) -> tuple[FloatArray, ...]:
+    """``(g', F, G, Sigma_inc)`` of the pose ``g`` moved by the body twist ``(v, w)`` over ``dt > 0`` [s]."""
     inc, S = twist_increment(as_twist(v, w), dt, noise)
+    R = g[:3, :3]
     F, G = transition(R, inc)
-    return p + R @ inc[:3, 3], R @ inc[:3, :3], F, G, S
+    out = g.copy()
+    out[:3, 3], out[:3, :3] = g[:3, 3] + R @ inc[:3, 3], R @ inc[:3, :3]
+    return out, F, G, S
 
 
-def predict(
-    p: FloatArray, R: FloatArray, P: FloatArray, v: Any, w: Any, dt: float, noise: TwistNoise
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """``(p', R', P')`` of one robot moved by the body twist ``(v, w)`` over ``dt > 0`` [s] (:func:`propagate`)."""
-    return propagate(p, R, P, *twist_increment(as_twist(v, w), dt, noise))
+def predict_one(
+    g: FloatArray, P: FloatArray, v: Any, w: Any, dt: float, noise: TwistNoise
+) -> tuple[FloatArray, FloatArray]:
+    """``(g', P')`` of one robot moved by the body twist ``(v, w)`` over ``dt > 0`` [s] (:func:`propagate`)."""
+    return propagate(g, P, *twist_increment(as_twist(v, w), dt, noise))
 
 
-def propagate(
-    p: FloatArray, R: FloatArray, P: FloatArray, inc: FloatArray, S: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """``(p', R', P')`` of poses moved by increments ``inc (..., 4, 4)`` of covariance ``S (..., 6, 6)``, batched
+def propagate(g: FloatArray, P: FloatArray, inc: FloatArray, S: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``(g', P')`` of poses ``g`` moved by increments ``inc (..., 4, 4)`` of covariance ``S (..., 6, 6)``, batched
     over leading axes: ``p' = p + R t_inc``, ``R' = R R_inc``, ``P' = F P F^T + G S G^T`` (symmetrized;
     :func:`transition`)."""
+    R = g[..., :3, :3]
     F, G = transition(R, inc)
     P1 = F @ P @ _T(F, -1, -2) + G @ S @ _T(G, -1, -2)
-    return p + (R @ inc[..., :3, 3:])[..., 0], R @ inc[..., :3, :3], symmetric(P1)
+    out = g.copy()
+    out[..., :3, 3], out[..., :3, :3] = g[..., :3, 3] + (R @ inc[..., :3, 3:])[..., 0], R @ inc[..., :3, :3]
+    return out, symmetric(P1)
 
 
-def correct(p: FloatArray, R: FloatArray, dx: FloatArray) -> tuple[FloatArray, FloatArray]:
+def correct(g: FloatArray, dx: FloatArray) -> FloatArray:
     """Poses (batched over leading axes) corrected by ``dx = (dp, dtheta)``: ``p + dp``, ``R exp(dtheta^)``."""
-    return p + dx[..., :3], R @ so3_exp(dx[..., 3:])
+    out = g.copy()
+    out[..., :3, 3], out[..., :3, :3] = g[..., :3, 3] + dx[..., :3], g[..., :3, :3] @ so3_exp(dx[..., 3:])
+    return out
 
 
 def unsupported(d: Any, target: tuple[str, Any]) -> str | None:
@@ -143,13 +140,10 @@ def unsupported(d: Any, target: tuple[str, Any]) -> str | None:
 
 def linearize(d: Any, gi: FloatArray, gk: FloatArray) -> tuple[FloatArray, ...] | str:
     """``(r, H_i, H_k, R)`` of detection ``d`` of ``gk`` (a pose ``(4, 4)`` or a point ``(3,)``) from pose ``gi`` in
-    the Cartesian error: residual, Jacobians w.r.t. the observer and the target, measurement noise; the reason
-    :data:`~swarmloc.sensors.models3.DEGENERATE3` for a degenerate geometry."""
-    m3 = model3(d.kind)
-    if m3.kind == Kind.POSE3:
-        h, Hi, Hk = m3.predict(gi, gk)
-        return m3.residual(d.z, h), Hi, Hk, m3.noise(d.z, d.cov)
-    lin = m3.linearize(d.z, d.cov, gi, gk)
+    the Cartesian error: residual, Jacobians w.r.t. the observer and the target, measurement noise
+    (:meth:`~swarmloc.sensors.models3.Model3.linearize`); the reason :data:`~swarmloc.sensors.models3.DEGENERATE3`
+    for a degenerate geometry."""
+    lin = model3(d.kind).linearize(d.z, d.cov, gi, gk)
     return DEGENERATE3 if lin is None else lin
 
 

@@ -21,7 +21,7 @@ from typing import NamedTuple, cast
 import numpy as np
 
 from swarmloc.arrays import BoolArray, FloatArray
-from swarmloc.gaussian import convolution_F, convolution_F_tensor, mahalanobis2, symmetric
+from swarmloc.gaussian import bvec, convolution_F, convolution_F_tensor, mahalanobis2, symmetric
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.lie.base import SEGroup
 from swarmloc.sensors.models import MIN_RANGE, MODELS
@@ -34,11 +34,6 @@ re-linearizes once. The default of every layer that passes it on (fusion functio
 
 POINT_ITERATIONS = 3
 """Default passes of a range/bearing update on the group (:func:`point_update`), likewise every layer's."""
-
-
-def _bvec(M: FloatArray, v: FloatArray) -> FloatArray:
-    out: FloatArray = np.einsum("...ij,...j->...i", M, v)
-    return out
 
 
 def gamma(group: type[SEGroup], x: FloatArray, order: int) -> FloatArray:
@@ -121,7 +116,7 @@ def fuse_pseudo(
         Gm = gamma(group, x, order)
         GtW = _T(Gm, -1, -2) @ W_inv
         S = np.sum(GtW @ Gm, axis=-3)
-        b = np.sum(_bvec(GtW, x), axis=-2)
+        b = np.sum(bvec(GtW, x), axis=-2)
         if it == 0:
             S = S + cov_inv
         else:
@@ -129,7 +124,7 @@ def fuse_pseudo(
             G0 = gamma(group, x0, order)
             G0tP = _T(G0, -1, -2) @ cov_inv
             S = S + G0tP @ G0
-            b = b + _bvec(G0tP, x0)
+            b = b + bvec(G0tP, x0)
         xbar = np.linalg.solve(S, b[..., None])[..., 0]
         cur = cur @ group.exp(-xbar, validate=False)
     Gb = gamma(group, xbar, order)
@@ -181,7 +176,7 @@ def point_model(
         q = rel[..., :2, 2]
         dq_dt = np.concatenate([rel[..., :2, :2], np.zeros((*rel.shape[:-2], 2, 1))], axis=-1)
     else:
-        q = _bvec(R_iT, target_mean - mu_i[..., :2, 2])
+        q = bvec(R_iT, target_mean - mu_i[..., :2, 2])
         dq_dt = R_iT
     qx, qy = q[..., 0], q[..., 1]
     r2 = qx * qx + qy * qy
@@ -190,7 +185,7 @@ def point_model(
     h = np.stack([(r, np.arctan2(qy, qx))[j] for j in sel], axis=-1)
     rows = {0: (qx / r, qy / r), 1: (-qy / r2, qx / r2)}
     dz = np.stack([np.stack(rows[j], axis=-1) for j in sel], axis=-2)  # (..., m, 2)
-    Jq = _bvec(_J2, q)
+    Jq = bvec(_J2, q)
     dq_dy = -np.concatenate([np.broadcast_to(np.eye(2), (*q.shape[:-1], 2, 2)), Jq[..., :, None]], axis=-1)
     H = dz @ dq_dy
     Ht = dz @ dq_dt
@@ -286,13 +281,13 @@ def point_update(
         HtS = _T(H, -1, -2) @ S_inv
         if it == 0:
             info = cov_inv + HtS @ H
-            rhs = _bvec(HtS, r)
+            rhs = bvec(HtS, r)
         else:
             x0 = SE2.log(SE2.inverse(mu, validate=False) @ cur, validate=False)
             G0 = gamma(SE2, x0, order)
             G0tP = _T(G0, -1, -2) @ cov_inv
             info = G0tP @ G0 + HtS @ H
-            rhs = _bvec(HtS, r) - _bvec(G0tP, x0)
+            rhs = bvec(HtS, r) - bvec(G0tP, x0)
         d = cast(FloatArray, np.linalg.solve(info, rhs[..., None])[..., 0])  # numpy types it floating[Any]
         cur = cur @ SE2.exp(d, validate=False)
     Gd = gamma(SE2, -d, order)

@@ -47,9 +47,10 @@ def check_model(where: str, initial: Mapping[int, Any], noise: object, groups: t
 
 class PeerProtocol(Protocol):
     """A part of a robot's node that speaks its estimator's protocol with the teammates beyond belief queries
-    (:attr:`RobotNode.protocol`; e.g. ``diekf``'s :class:`~swarmloc.estimators.diekf.TeamProtocol`): the queries a
-    detection group asks, the teammates' beliefs among their answers, the answers it gives, the messages that close
-    the exchanges a group did not use, the checks of a teammate's update, and what it forgets with the history."""
+    (:attr:`RobotNode.protocol`; e.g. ``diekf``'s :class:`~swarmloc.estimators.team_protocol.TeamProtocol`): the
+    queries a detection group asks, the teammates' beliefs among their answers, the answers it gives, the messages
+    that close the exchanges a group did not use, the checks of a teammate's update, and what it forgets with the
+    history."""
 
     def requests(self, g: Group, needs_answer: Callable[[Group, Detection], bool],
                  mates: Sequence[int]) -> list[Message]: ...  # fmt: skip

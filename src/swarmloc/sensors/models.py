@@ -192,6 +192,17 @@ class MeasurementModel:
             return np.zeros(np.shape(xi)[:-1], dtype=bool)
         return degenerate(self.kind, xi, xk)
 
+    def linearize(
+        self, z: np.ndarray, cov: np.ndarray, xi: np.ndarray, xk: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray] | None:
+        """``(r, H_i, H_k, R)`` of a detection ``z`` (covariance ``cov``) of target ``xk`` (None: an absolute fix)
+        from ``xi``: the residual, the Jacobians (:meth:`predict`) and the noise (:meth:`noise`); None where
+        :meth:`degenerate`. The SE(3) models (:class:`~swarmloc.sensors.models3.Model3`) answer it too."""
+        if self.degenerate(xi, xk):
+            return None
+        h, Hi, Hk = self.predict(xi, xk)
+        return self.residual(z, h), Hi, Hk, self.noise(z, cov)
+
     def noise(self, z: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """The noise covariance of ``z`` in the coordinates :meth:`predict` uses: a relative pose's noise is given
         on the exponential coordinates of ``m_true^-1 m_measured`` and mapped to Cartesian ones

@@ -127,9 +127,8 @@ class Model3:
         return h, Hi, Hk
 
     def _predict_point(self, gi: np.ndarray, gk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        gk = np.asarray(gk, dtype=float)
-        point = gk.shape == (3,)
-        y = point_in_body(gi, gk if point else gk[:3, 3])
+        point = np.shape(gk) == (3,)
+        y = self._point(gi, gk)
         Ri = gi[:3, :3]
         r2 = max(float(y @ y), MIN_RANGE**2)
         r = math.sqrt(r2)
@@ -174,27 +173,31 @@ class Model3:
         for ``"bearing3"`` (only the elevation's vertical derivative is left there, and it is 0)."""
         if self.kind == Kind.POSE3:
             return False
-        gk = np.asarray(gk, dtype=float)
-        y = point_in_body(gi, gk if gk.shape == (3,) else gk[:3, 3])
+        y = self._point(gi, gk)
         r = float(np.linalg.norm(y))
-        if r < MIN_RANGE:
-            return True
-        return self.kind == Kind.BEARING3 and math.hypot(y[0], y[1]) < SINGULAR_COS * r
+        return r < MIN_RANGE or (self.kind == Kind.BEARING3 and math.hypot(y[0], y[1]) < SINGULAR_COS * r)
 
     def linearize(
         self, z: np.ndarray, cov: np.ndarray, gi: np.ndarray, gk: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-        """``(r, H_i, H_k, R)`` of a ``"rbe3"`` / ``"bearing3"`` detection ``z`` (covariance ``cov``) of target ``gk``
-        (pose or point) from ``gi``: residual (angles wrapped), Jacobians and noise restricted to the rows that
-        carry information (at the pole the angles are dropped, module docstring); None where :meth:`degenerate`."""
+        """``(r, H_i, H_k, R)`` of a detection ``z`` (covariance ``cov``) of target ``gk`` (pose or point) from
+        ``gi``, as :meth:`swarmloc.sensors.models.MeasurementModel.linearize`: residual (angles wrapped), Jacobians
+        and noise, for ``"rbe3"`` / ``"bearing3"`` restricted to the rows that carry information (at the pole the
+        angles are dropped, module docstring); None where :meth:`degenerate`."""
         if self.degenerate(gi, gk):
             return None
         h, Hi, Hk = self.predict(gi, gk)
         r, R = self.residual(z, h), self.noise(z, cov)
-        y = point_in_body(gi, np.asarray(gk, dtype=float) if np.shape(gk) == (3,) else np.asarray(gk)[:3, 3])
-        if math.hypot(y[0], y[1]) < SINGULAR_COS * float(np.linalg.norm(y)):  # rbe3 at the pole: range only
-            return r[:1], Hi[:1], Hk[:1], R[:1, :1]
+        y = self._point(gi, gk)
+        if self.kind != Kind.POSE3 and math.hypot(y[0], y[1]) < SINGULAR_COS * float(np.linalg.norm(y)):
+            return r[:1], Hi[:1], Hk[:1], R[:1, :1]  # rbe3 at the pole: range only
         return r, Hi, Hk, R
+
+    @staticmethod
+    def _point(gi: np.ndarray, gk: np.ndarray) -> np.ndarray:
+        """The target's position (a point ``(3,)``, or a pose's) in the body frame of ``gi``."""
+        gk = np.asarray(gk, dtype=float)
+        return point_in_body(gi, gk if gk.shape == (3,) else gk[:3, 3])
 
 
 MODELS3: dict[str, Model3] = {
