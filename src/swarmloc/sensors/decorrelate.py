@@ -69,7 +69,6 @@ from swarmloc.sensors.snapshots import (
     DetectionSet,
     fit_residuals,
     snapshot_poses,
-    snapshot_residuals,
 )
 
 __all__ = [
@@ -91,7 +90,6 @@ __all__ = [
     "information_weights",
     "lag_correlation",
     "snapshot_poses",
-    "snapshot_residuals",
     "stream_nll",
     "truncated_variance",
 ]
