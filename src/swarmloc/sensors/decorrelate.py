@@ -286,10 +286,6 @@ class ErrorComponent:
             raise ValueError(f"std must be finite and > 0, got {self.std!r}")
         _check_corr(self.phi, self.tau)
 
-    def correlation(self, lag: float | np.ndarray) -> float | np.ndarray:
-        """``phi exp(-lag / tau)``: the correlation of two readings ``lag`` [s] apart."""
-        return self.phi * np.exp(-np.abs(lag) / self.tau)
-
 
 @dataclass(frozen=True)
 class CameraModel:
