@@ -14,6 +14,7 @@ from swarmloc.config import DEFAULTS, Config, SensorConfig
 from swarmloc.events import Detection, Odometry
 from swarmloc.sensors.decorrelate import (
     CameraModel,
+    DetectionSet,
     ErrorComponent,
     ar1_information,
     calibrate,
@@ -21,8 +22,8 @@ from swarmloc.sensors.decorrelate import (
     fit_correlation,
     information_weights,
     lag_correlation,
-    snapshot_residuals,
 )
+from swarmloc.sensors.snapshots import fit_residuals
 
 pytestmark = pytest.mark.data
 
@@ -162,7 +163,8 @@ def test_snapshot_redundancy_numbers_add_up_to_the_redundancy() -> None:
     """An instant with k landmarks leaves 2k - 3 degrees of freedom: the redundancy numbers of all residuals add up
     to sum(2k - 3); without noise the residuals vanish."""
     a, lm = _synthetic_landmark_detections(sr=1e-9, sb=1e-9)
-    res = snapshot_residuals(a[:, 0], a[:, 1], a[:, 2], a[:, 3:5], lm, range_std=0.1, bearing_std=0.01)
+    snaps = DetectionSet(a[:, 0], a[:, 1], a[:, 2], a[:, 3:5], lm).snapshots()[0]
+    res = fit_residuals(snaps, range_std=0.1, bearing_std=0.01)
     key = a[res["row"], 0] * 1e6 + a[res["row"], 1]
     k = np.unique(key, return_counts=True)[1]
     assert int(res["instants"]) == k.size

@@ -12,7 +12,7 @@ from scipy.stats import chi2
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.mapping import LineMap, LineObservation, MapLine, extract_lines, fit_line, line_to_world, map_error
-from swarmloc.sim.walls import RangeFinder, Walls, cast_rays, chapter_lab, office_walls
+from swarmloc.sim.walls import RangeFinder, Walls, cast_rays, office_walls
 
 pytestmark = pytest.mark.unit
 
@@ -232,7 +232,6 @@ def test_map_command_writes_a_table_figure_and_maps(tmp_path, capsys, terminal_p
     out, err = capsys.readouterr()
     assert "team, expfusion" in out and "2/2" not in out  # the table on stdout, the bar on stderr
     assert "map: seed 0, expfusion" in err and "2/2" in err  # dead reckoning, then expfusion
-    assert chapter_lab().length > 10
 
 
 def test_line_ends_are_closed_at_corners_and_wall_ends_open_at_the_fov_and_behind_occluders() -> None:

@@ -12,7 +12,8 @@ from _data import MRCLAM_DATASETS
 from swarmloc.datasets import MRCLAMData, MRCLAMError, load_mrclam, mrclam_events
 from swarmloc.datasets.mrclam import MAX_YAW_RATE
 from swarmloc.events import Detection, Odometry
-from swarmloc.sensors.decorrelate import snapshot_poses, snapshot_residuals
+from swarmloc.sensors.decorrelate import DetectionSet, snapshot_poses
+from swarmloc.sensors.snapshots import fit_residuals
 from swarmloc_studies.lodo import detection_set
 
 pytestmark = pytest.mark.data
@@ -363,7 +364,9 @@ def _far_landmark_share(d: MRCLAMData) -> float:
     """Share of dataset ``d``'s landmark range residuals beyond 0.5 m in the per-instant pose fits."""
     parts = [np.column_stack([np.full(len(m), r), m]) for r, m in sorted(d.measurements.items())]
     a = np.concatenate(parts)
-    res = snapshot_residuals(a[:, 0], a[:, 1], a[:, 2].astype(int), a[:, 3:5], d.landmarks, 0.1, 0.035)
+    res = fit_residuals(
+        DetectionSet(a[:, 0], a[:, 1], a[:, 2].astype(int), a[:, 3:5], d.landmarks).snapshots()[0], 0.1, 0.035
+    )
     return float(np.mean(np.abs(res["v_range"]) > 0.5))
 
 

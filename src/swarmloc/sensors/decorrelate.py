@@ -69,7 +69,6 @@ from swarmloc.sensors.snapshots import (
     DetectionSet,
     fit_residuals,
     snapshot_poses,
-    snapshot_residuals,
 )
 
 __all__ = [
@@ -91,7 +90,6 @@ __all__ = [
     "information_weights",
     "lag_correlation",
     "snapshot_poses",
-    "snapshot_residuals",
     "stream_nll",
     "truncated_variance",
 ]
@@ -287,10 +285,6 @@ class ErrorComponent:
         if not (math.isfinite(self.std) and self.std > 0):
             raise ValueError(f"std must be finite and > 0, got {self.std!r}")
         _check_corr(self.phi, self.tau)
-
-    def correlation(self, lag: float | np.ndarray) -> float | np.ndarray:
-        """``phi exp(-lag / tau)``: the correlation of two readings ``lag`` [s] apart."""
-        return self.phi * np.exp(-np.abs(lag) / self.tau)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DetectionSet", "fit_residuals", "snapshot_poses", "snapshot_residuals"]
+__all__ = ["DetectionSet", "fit_residuals", "snapshot_poses"]
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -104,27 +104,6 @@ def _snapshots(
         p = pos[np.searchsorted(ids, tg)]
         groups[k] = (z[idx], p, idx)
     return _Snapshots(groups)
-
-
-def snapshot_residuals(
-    observer: np.ndarray,
-    t: np.ndarray,
-    target: np.ndarray,
-    z: np.ndarray,
-    landmarks: Mapping[int, Any],
-    range_std: float,
-    bearing_std: float,
-) -> dict[str, np.ndarray]:
-    """Residuals of the per-instant pose fits (step 1 of the module docstring) under the given std.
-
-    Inputs are the detections as arrays: ``observer``, ``t`` [s], ``target`` (landmark ids are the keys of
-    ``landmarks``, whose values start with ``x, y`` [m]) and ``z`` ``(n, 2)`` range [m], bearing [rad]. Returns
-    ``row`` (index of the detection), ``v_range``, ``r_range``, ``v_bearing``, ``r_bearing`` (residual and
-    redundancy number of each component) and ``instants``.
-    """
-    obs, tt, tg, zz = _check_detections(observer, t, target, z)
-    snaps = _snapshots(obs, tt, tg, zz, landmarks)
-    return fit_residuals(snaps, range_std, bearing_std)
 
 
 def snapshot_poses(ds: DetectionSet, range_std: float, bearing_std: float) -> dict[str, np.ndarray]:

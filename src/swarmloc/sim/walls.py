@@ -46,11 +46,6 @@ class Walls:
         segs = [(a, b) for pl in lines for a, b in zip(pl[:-1], pl[1:], strict=True)]
         return cls(np.array(segs, dtype=float))
 
-    @property
-    def length(self) -> float:
-        """Total wall length [m]."""
-        return float(np.linalg.norm(self.segments[:, 1] - self.segments[:, 0], axis=-1).sum())
-
 
 def office_walls() -> Walls:
     """An office floor of 10 m x 6 m: a corridor ``1 m`` wide along ``y in [2.5, 3.5]``, three rooms below and two
