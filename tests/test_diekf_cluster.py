@@ -90,7 +90,7 @@ def test_an_outside_detection_is_the_kalman_update_of_the_ci_bounded_cluster() -
     d = Detection(0, 1.0, "range_bearing", z, R, target=2)
     g2 = SE2.from_xytheta(x2)  # robot 2 answers its belief (group mean, body-frame covariance)
     answer = BeliefAnswer(sender=2, receiver=0, stamp=1.0, mean=flat(g2), cov=flat(I.world_to_body(g2, P2)))
-    new0, (j, Hi, Hj, Sinv, nu, Pii, Pjj, w) = n0._one(s0, None, d, ("robot", answer))
+    new0, (j, Hi, Hj, Sinv, nu, Pii, Pjj, w) = n0.protocol.one(s0, d, ("robot", answer), n0.gate, n0.lin_log, None)
     assert j == 0 and not Hj.any() and 0.001 < w < 0.999
     u = TeamUpdate(sender=0, receiver=1, stamp=1.0, target=j, m=2, Hi=flat(Hi), Hj=flat(Hj), Sinv=flat(Sinv),
                    nu=flat(nu), Pii=flat(Pii), Pjj=flat(Pjj), scale=w)  # fmt: skip

@@ -284,10 +284,6 @@ class DistributedInvariantEKF(RobotNode):
             self.noise_scale.record(g.t, sub, self.protocol.last_innovation)
         return out
 
-    def _one(self, s: TeamState, g: Group | None, d: Any, target: tuple[str, Any]) -> Any:
-        """One detection: the new state and the broadcast's numbers, or an outcome (:meth:`TeamProtocol.one`)."""
-        return self.protocol.one(s, d, target, self.gate, self.lin_log, None if g is None else g.t)
-
     # ------------------------------------------------------------------------------------------------ exchange
     def _robot_target(self, g: Group, d: Any, sub: SubKey) -> tuple[str, Any]:
         if self.protocol.cluster and d.target not in self.protocol.pos:
