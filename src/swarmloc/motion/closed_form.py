@@ -52,6 +52,7 @@ import numpy as np
 
 from swarmloc.lie import SE2
 from swarmloc.motion import _stable
+from swarmloc.motion._stable import horner
 
 T = Any
 """A float or an array (numpy or jax.numpy) of them."""
@@ -191,6 +192,29 @@ def unicycle_cov(v: Floats, omega: Floats, t: Floats, q_v: Floats, q_w: Floats, 
     S23 = q_w * v * G[..., 0, 3]
     S33 = q_w * t
     return _sym(S11, S12, S13, S22, S23, S33)
+
+
+def series_terms(xp: Any, x: T) -> tuple[T, ...]:
+    """``(sin x, s2, A, B, E, s1, h2, h4)`` for ``x = omega t``: the sine and the series terms :func:`unicycle_terms`
+    takes (:func:`swarmloc.motion._stable.scalar_terms`' for arrays) on the array namespace ``xp`` (numpy, jax.numpy
+    or the engine's traced scalars): the Taylor branch below ``SERIES_BELOW`` with all its terms, each selected by
+    ``xp.where`` from both branches computed at a safe argument."""
+    near = xp.abs(x) < _stable.SERIES_BELOW
+    zero = x == 0.0
+    x2 = x * x
+    safe = xp.where(near, 1.0, x)
+    s3 = safe * safe * safe
+    A = xp.where(near, horner(_stable.SERIES["A"], x2), (2 * safe - xp.sin(2 * safe)) / (4 * s3))
+    B = xp.where(near, horner(_stable.SERIES["B"], x2), (safe - xp.sin(safe)) / s3)
+    E = xp.where(near, horner(_stable.SERIES["E"], x2),
+                 (1.5 * safe - 2 * xp.sin(safe) + xp.sin(2 * safe) / 4) / (s3 * safe * safe))  # fmt: skip
+    nz = xp.where(zero, 1.0, x)
+    sin_x = xp.sin(x)  # also sin(nz) where it is used (nz == x there): one sine, not two
+    s2 = xp.where(zero, 1.0, xp.sin(2 * nz) / (2 * nz))
+    s1 = xp.where(zero, 1.0, sin_x / nz)
+    h = xp.where(zero, 1.0, xp.sin(nz / 2) / (nz / 2))
+    h2 = h * h
+    return sin_x, s2, A, B, E, s1, h2, h2 * h2
 
 
 def unicycle_increment_terms(
