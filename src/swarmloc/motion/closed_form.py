@@ -178,20 +178,13 @@ def constant_twist_cov(h: np.ndarray, Q: np.ndarray, t: Floats) -> np.ndarray:
 def unicycle_cov(v: Floats, omega: Floats, t: Floats, q_v: Floats, q_w: Floats, q_lat: Floats = 0.0) -> np.ndarray:
     """(5.4) for twist ``(v, 0, omega)`` and ``Q = diag(q_v, q_lat, q_w)``, stable for all ``omega`` (batched).
 
-    Same as :func:`circular_cov` (and :func:`straight_line_cov` at ``omega = 0``) but cancellation-free.
+    Same as :func:`circular_cov` (and :func:`straight_line_cov` at ``omega = 0``) but cancellation-free: the entries
+    of :func:`unicycle_terms` with the series terms of :func:`series_terms`.
     """
     v, omega, t, q_v, q_w, q_lat = _arr(v, omega, t, q_v, q_w, q_lat)
     x = omega * t
-    G = _stable.gram(x, t)
-    Gcc, Gss, Gcs = G[..., 1, 1], G[..., 2, 2], G[..., 1, 2]
-    vv = v * v
-    S11 = q_v * Gcc + q_lat * Gss + q_w * vv * G[..., 4, 4]
-    S12 = (q_lat - q_v) * Gcs + q_w * vv * G[..., 3, 4]
-    S13 = q_w * v * G[..., 0, 4]
-    S22 = q_v * Gss + q_lat * Gcc + q_w * vv * G[..., 3, 3]
-    S23 = q_w * v * G[..., 0, 3]
-    S33 = q_w * t
-    return _sym(S11, S12, S13, S22, S23, S33)
+    _, *terms = series_terms(np, x)
+    return _sym(*unicycle_terms(x, t, v, q_v, q_w, q_lat, *terms)[2:])
 
 
 def series_terms(xp: Any, x: T) -> tuple[T, ...]:
