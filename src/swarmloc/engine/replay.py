@@ -177,7 +177,7 @@ _CENTRAL = ("cekf", "iekf")
 def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
     """``cekf``, ``iekf``, ``rdl`` or ``diekf`` through their compiled replay (planar teams) with the nodes' options
     ``opts`` (:func:`_options`): the same input checks and timeline as the other estimators, the whole replay in one
-    numba call (:func:`_compiled_replay`)."""
+    numba call (:func:`_replayer`)."""
     if backend != "numba":
         raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only, which backend='numba'"
                          f" runs (the one backend that replays it), not backend={backend!r}")  # fmt: skip
@@ -199,7 +199,7 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
                         np.stack([src.initial[r].cov for r in src.robots]))  # fmt: skip
     use_relative, use_landmarks = bool(opts.get("use_relative", True)), bool(opts.get("use_landmarks", True))
     wall = time.perf_counter()
-    status, reason, (o_robot, o_stamp, o_x, o_P) = _compiled_replay(estimator, cluster)(
+    status, reason, (o_robot, o_stamp, o_x, o_P) = _replayer(estimator, cluster)(
         tl, x, P, t0, opts["noise"], gate=opts.get("gate"), use_relative=use_relative, use_landmarks=use_landmarks,
         landmarks=landmark_table(opts.get("landmarks"))[1])  # fmt: skip
     wall = time.perf_counter() - wall
@@ -218,7 +218,7 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
     return _result(f"{estimator}/engine", src, rows, checked, counts, reasons, wall, truth_missing)
 
 
-def _compiled_replay(estimator: str, cluster: int) -> Callable[..., Replayed]:
+def _replayer(estimator: str, cluster: int) -> Callable[..., Replayed]:
     """``estimator``'s compiled replay as ``replay(timeline, x, P, t0, noise, **switches)``: ``rdl``'s
     (:func:`swarmloc.engine.pairs.replay_rdl`), ``diekf``'s in clusters of ``cluster`` robots
     (:func:`swarmloc.engine.joint_clusters.replay_clusters`), else the joint state's
