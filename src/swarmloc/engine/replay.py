@@ -192,7 +192,7 @@ def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, 
     checked, rt = _check(src, opts, record_times)
     starts = checked.start_times()
     # a centralized node starts at the team's first input, the others each at its own
-    t0 = float(starts.min(initial=math.inf)) if estimator in _CENTRAL else starts
+    t0: Any = float(starts.min(initial=math.inf)) if estimator in _CENTRAL else starts  # the replays take either
     records = _record_index(rt)
     tl = _timeline(checked, records)
     x, P = C.from_group(np.stack([src.initial[r].mean for r in src.robots]),
