@@ -282,7 +282,7 @@ class DeviceStamp:
         self.calls = 0
         self._fns: dict[tuple[int, ...], Any] = {}
 
-        self._columns = jax.jit(lambda *a, size: pack(jnp, Detections(*a), size), static_argnames="size")
+        self._columns = jax.jit(lambda *a, size: pack(Detections(*a), size, jnp), static_argnames="size")
         """:func:`pack` on the device, of the detections' five arrays."""
 
     def _fn(self, sizes: tuple[int, ...]) -> Any:
@@ -332,7 +332,7 @@ class DeviceStamp:
         count)."""
         m = len(det)
         if m < DEVICE_PAD:
-            return pack(np, det, bucket(m))
+            return pack(det, bucket(m))
         arrays = [det.observer, det.target, det.kind, det.z, det.R]
         arrays[:3] = (a.astype(np.int64, copy=False) for a in arrays[:3])  # one integer type: another compiles again
         return self._columns(*self._jax.device_put(arrays), size=bucket(m))
@@ -350,7 +350,7 @@ def consts(gate: Gate, relative: bool, lm_on: bool, landmarks: Landmarks | None)
     return thr, np.array([gate.p is not None, relative, lm_on]), lxy, lcov
 
 
-def pack(xp: Any, det: Detections, size: int) -> Any:
+def pack(det: Detections, size: int, xp: Any = np) -> Any:
     """The detections ``det`` (planar) as one ``(12, size)`` float64 array of ``xp`` (numpy's on the host, jax's on
     the device), a column per detection: observer, target and kind codes, ``z[:3]``, the upper triangle of
     ``R[:3, :3]`` (``R00, R01, R02, R11, R12, R22``); columns past ``len(det)`` padded (:data:`_FILL`)."""
