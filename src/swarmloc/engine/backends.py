@@ -31,11 +31,9 @@ BACKENDS = ("numpy", "jax", "jax32", "numba")
 
 Arrays = tuple[np.ndarray, ...]
 
-_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-
 
 def _up(P: Any) -> tuple[Any, ...]:
-    return tuple(P[..., i, j] for i, j in _UPPER)
+    return tuple(P[..., i, j] for i, j in soa.UPPER)
 
 
 def _up2(L: Any) -> tuple[Any, ...]:

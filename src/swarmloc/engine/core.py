@@ -52,7 +52,7 @@ The engine's modules are layers, each importing only modules below it (an import
 from __future__ import annotations
 
 from collections import Counter
-from typing import TYPE_CHECKING, Any, TypeAlias, overload
+from typing import TYPE_CHECKING, Any, TypeAlias, TypeVar, overload
 
 import numpy as np
 
@@ -88,6 +88,8 @@ __all__ = ["ENGINE_ESTIMATORS", "Detections", "Engine", "levels"]
 
 ENGINE_ESTIMATORS = ("expfusion", "dekf", "ci")
 """Estimators the engine runs (the per-robot nodes of the same names)."""
+
+_N = TypeVar("_N", UnicycleNoise, TwistNoise)
 
 Records: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 """A compiled replay's beliefs, filled in place (:meth:`Engine.replay_timeline`): ``(robot (K,), stamp index (K,),
@@ -178,7 +180,7 @@ class Engine:
         self.use_relative = use_relative
         self.fast = bool(fast) and estimator == "dekf" and self.group is SE2
         self.backend = backend
-        self.ops = make_ops(backend, self._planar_noise()) if self.fast else None
+        self.ops = make_ops(backend, self._noise(UnicycleNoise)) if self.fast else None
         """The fast path's kernels (:func:`~swarmloc.engine.backends.make_ops`), None off the fast path."""
         self.numba = _numba(self.ops, backend)
         """The same kernels when they are numba's (their in-place and compiled-replay kernels), else None."""
@@ -225,31 +227,27 @@ class Engine:
             return xn, Pn
         a, b = s[0].copy(), s[1].copy()
         rows: np.ndarray | slice = slice(None) if move.size == dt.shape[0] else move  # everybody: no gather
+        x, P, v, w, dt = s[0][rows], s[1][rows], v[rows], w[rows], dt[rows]
         if ops is not None:
-            a[rows], b[rows] = ops.predict(s[0][rows], s[1][rows], v[rows], w[rows], dt[rows])
+            a[rows], b[rows] = ops.predict(x, P, v, w, dt)
+        elif self.group is SE3 and self.estimator == "dekf":  # body twists (swarmloc.engine.se3)
+            a[rows], b[rows] = E3.predict_error(x, P, v, w, dt, self._noise(TwistNoise))
         elif self.group is SE3:
-            a[rows], b[rows] = self._advance3(s[0][rows], s[1][rows], v[rows], w[rows], dt[rows])
+            a[rows], b[rows] = E3.predict_group(x, P, v, w, dt, self._noise(TwistNoise), self.order)
         elif self.estimator == "dekf":
-            a[rows], b[rows], _ = C.predict(s[0][rows], s[1][rows], v[rows], w[rows], dt[rows], self._planar_noise())
+            a[rows], b[rows], _ = C.predict(x, P, v, w, dt, self._noise(UnicycleNoise))
         else:
-            inc_mean, inc_cov = odometry_increment(v[rows], w[rows], dt[rows], self._planar_noise())
-            a[rows], b[rows] = K.predict(SE2, s[0][rows], s[1][rows], inc_mean, inc_cov, self.order)
+            inc_mean, inc_cov = odometry_increment(v, w, dt, self._noise(UnicycleNoise))
+            a[rows], b[rows] = K.predict(SE2, x, P, inc_mean, inc_cov, self.order)
         return a, b
 
-    def _advance3(self, a: np.ndarray, b: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray) -> State:
-        """SE(3) rows predicted over ``dt > 0`` [s] with their body twists (:mod:`swarmloc.engine.se3`)."""
+    def _noise(self, kind: type[_N]) -> _N:
+        """:attr:`noise`, which a team of this group takes as a ``kind`` (SE(2): a
+        :class:`~swarmloc.motion.UnicycleNoise`, SE(3): a :class:`~swarmloc.motion.twist3.TwistNoise`)."""
         noise = self.noise
-        if not isinstance(noise, TwistNoise):
-            raise TypeError(f"Engine: an SE(3) team's odometry noise is a TwistNoise, got {type(noise).__name__}")
-        if self.estimator == "dekf":
-            return E3.predict_error(a, b, v, w, dt, noise)
-        return E3.predict_group(a, b, v, w, dt, noise, self.order)
-
-    def _planar_noise(self) -> UnicycleNoise:
-        """:attr:`noise` of an SE(2) team."""
-        noise = self.noise
-        if not isinstance(noise, UnicycleNoise):
-            raise TypeError(f"Engine: an SE(2) team's odometry noise is a UnicycleNoise, got {type(noise).__name__}")
+        if not isinstance(noise, kind):
+            raise TypeError(f"Engine: an {self.group.name} team's odometry noise is a {kind.__name__}, got "
+                            f"{type(noise).__name__}")  # fmt: skip
         return noise
 
     def _rows(self, idx: np.ndarray, t: float) -> State:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from swarmloc.engine.codes import ABSOLUTE, MODEL, POSE, POSE3, R_DEGENERATE, R_NUMERICAL, REJECTED
-from swarmloc.engine.fuse_exp import pseudo
+from swarmloc.engine.fuse_exp import fuse_pseudo
 from swarmloc.engine.stamp import Sequential, Stamp
 from swarmloc.kernels import ci as KCI
 from swarmloc.kernels import group as K
@@ -42,8 +42,8 @@ class CiFusion(Sequential):
         """A level's detections of kind ``code``: relative poses and range/bearing of robots by covariance
         intersection (``"pose3"`` on SE(3) at the closed-form weight whatever ``ci_weight`` says, as the node:
         :meth:`swarmloc.estimators.ci.CovarianceIntersection.ci`), absolute fixes as independent information."""
-        if code == ABSOLUTE:
-            self._independent(st, rows)
+        if code == ABSOLUTE:  # the thesis estimator's update, gated against the prior
+            fuse_pseudo(st, rows, SE2, self.gate, self.order, self.iterations)
             return
         G = SE3 if code == POSE3 else SE2
         m = G.dim if code in (POSE, POSE3) else MODEL[code].size
@@ -72,18 +72,6 @@ class CiFusion(Sequential):
             m2, c2, ok = KCI.point_fusion(MODEL[code].kind, pair, point_its, order)
             st.mark(rows[~ok], REJECTED, R_DEGENERATE)
             st.accept(rows[ok], m2[ok], c2[ok], why)
-
-    def _independent(self, st: Stamp, rows: np.ndarray) -> None:
-        """Absolute fixes: the thesis estimator's update, gated against the prior."""
-        lo = st.lo[rows]
-        mean, cov = st.cur[0][lo], st.cur[1][lo]
-        nu, W = pseudo(st, rows, ABSOLUTE, self.order)
-        if self.gate.p is not None:
-            keep = st.gate(rows, K.pseudo_nis(SE2, mean, cov, nu, W), self.gate, 3)
-            rows, mean, cov, nu, W = (a[keep] for a in (rows, mean, cov, nu, W))
-        if rows.size:
-            m2, c2 = K.fuse_pseudo(SE2, mean, cov, nu[:, None], W[:, None], self.order, self.iterations)
-            st.accept(rows, m2, c2, R_NUMERICAL)
 
     def _gate(self, st: Stamp, rows: np.ndarray, code: int, pair: KCI.Pair) -> np.ndarray:
         """The gate on the fusion with the neighbour's belief as independent (relative poses: as a pseudo-observation;

@@ -34,6 +34,36 @@ def pseudo(st: Stamp, rows: np.ndarray, code: int, order: int) -> tuple[np.ndarr
     return K.relative_to_pseudo(SE2, tm, tc, SE2.from_xytheta(det.z[rows]), det.R[rows], order)
 
 
+def fuse_pseudo(st: Stamp, rows: np.ndarray, G: type[SEGroup], gate: Gate, order: int, iterations: int) -> None:
+    """All pose pseudo-observations ``rows`` of each group at once on the group ``G``, gated one by one against the
+    prior (the thesis estimator's; covariance intersection fuses its absolute fixes so, one per group at a time)."""
+    det = st.det
+    nu = np.empty((rows.size, G.n + 1, G.n + 1))
+    W = np.empty((rows.size, G.dim, G.dim))
+    for code in PSEUDO_KINDS:
+        sel = det.kind[rows] == code
+        if sel.any():
+            nu[sel], W[sel] = pseudo(st, rows[sel], code, order)
+    if gate.p is not None:
+        lo = st.lo[rows]
+        keep = st.gate(rows, K.pseudo_nis(G, st.cur[0][lo], st.cur[1][lo], nu, W), gate, G.dim)
+        rows, nu, W = rows[keep], nu[keep], W[keep]
+    if rows.size == 0:
+        return
+    starts, _ = runs(det.observer[rows])
+    count = np.diff(np.r_[starts, rows.size])
+    for c in np.unique(count):
+        first = starts[count == c]
+        idx = first[:, None] + np.arange(c)  # (B, c): each observer's pseudo-observations in order
+        lo = st.lo[rows[first]]
+        m2, c2 = K.fuse_pseudo(G, st.cur[0][lo], st.cur[1][lo], nu[idx], W[idx], order, iterations)
+        ok = np.isfinite(m2).all(axis=(-1, -2)) & usable(c2)
+        st.cur[0][lo[ok]] = m2[ok]
+        st.cur[1][lo[ok]] = c2[ok]
+        st.status[rows[idx[ok]].ravel()] = FUSED  # all of the group's pseudo-observations
+        st.mark(rows[idx[~ok]].ravel(), REJECTED, R_NUMERICAL)
+
+
 class ExpFusionLevel(Fusion):
     """:class:`~swarmloc.estimators.ExpFusion` on a level; ``group``: the team's, SE(2) or SE(3) (whose groups hold
     ``"pose3"`` detections only: the engine rejects the other kinds before fusion, as the nodes do)."""
@@ -48,7 +78,7 @@ class ExpFusionLevel(Fusion):
         kinds = det.kind[rows]
         poses = np.isin(kinds, PSEUDO_KINDS)
         if poses.any():
-            self._fuse_pseudo(st, rows[poses])
+            fuse_pseudo(st, rows[poses], self.group, self.gate, self.order, self.iterations)
         points = rows[~poses]
         if points.size:
             _, rank = runs(det.observer[points])
@@ -57,35 +87,6 @@ class ExpFusionLevel(Fusion):
                 at = at[st.status[at] == PENDING]
                 for code in np.unique(det.kind[at]):
                     self.point(st, at[det.kind[at] == code], int(code))
-
-    def _fuse_pseudo(self, st: Stamp, rows: np.ndarray) -> None:
-        """All pose pseudo-observations of each group at once, gated one by one against the prior."""
-        det = st.det
-        G = self.group
-        nu = np.empty((rows.size, G.n + 1, G.n + 1))
-        W = np.empty((rows.size, G.dim, G.dim))
-        for code in PSEUDO_KINDS:
-            sel = det.kind[rows] == code
-            if sel.any():
-                nu[sel], W[sel] = pseudo(st, rows[sel], code, self.order)
-        if self.gate.p is not None:
-            lo = st.lo[rows]
-            keep = st.gate(rows, K.pseudo_nis(G, st.cur[0][lo], st.cur[1][lo], nu, W), self.gate, G.dim)
-            rows, nu, W = rows[keep], nu[keep], W[keep]
-        if rows.size == 0:
-            return
-        starts, _ = runs(det.observer[rows])
-        count = np.diff(np.r_[starts, rows.size])
-        for c in np.unique(count):
-            first = starts[count == c]
-            idx = first[:, None] + np.arange(c)  # (B, c): each observer's pseudo-observations in order
-            lo = st.lo[rows[first]]
-            m2, c2 = K.fuse_pseudo(G, st.cur[0][lo], st.cur[1][lo], nu[idx], W[idx], self.order, self.iterations)
-            ok = np.isfinite(m2).all(axis=(-1, -2)) & usable(c2)
-            st.cur[0][lo[ok]] = m2[ok]
-            st.cur[1][lo[ok]] = c2[ok]
-            st.status[rows[idx[ok]].ravel()] = FUSED  # all of the group's pseudo-observations
-            st.mark(rows[idx[~ok]].ravel(), REJECTED, R_NUMERICAL)
 
     def point(self, st: Stamp, rows: np.ndarray, code: int) -> None:
         """Range/bearing of robots: gate, then the iterated update on the group."""

@@ -50,6 +50,7 @@ from swarmloc.engine.codes import (
 )
 from swarmloc.engine.detections import Detections
 from swarmloc.engine.formulas import build
+from swarmloc.engine.replay_io import constants
 from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
@@ -68,7 +69,6 @@ SIZE_STEPS = 3
 by 4 and 16 (not below 8); a segment longer than the first runs as several chunks. Each size is a compiled branch
 per kind: more sizes waste less work on short segments and take longer to compile (on a 2-core CPU at 10,000
 robots 8 s with 2 sizes, 14 s with 4, 23 s with 7, for the same step time)."""
-_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 _KIND_INDEX = np.zeros(len(MODEL), dtype=np.int64)
 _KIND_INDEX[list(DEVICE_KINDS)] = np.arange(len(DEVICE_KINDS))
 _FILL = np.array([0.0, -1.0, POSE, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
@@ -282,12 +282,8 @@ class DeviceStamp:
         self.calls = 0
         self._fns: dict[tuple[int, ...], Any] = {}
 
-        def columns(obs: Array, tgt: Array, kind: Array, z: Array, R: Array, size: int) -> Array:  # pack, on the device
-            cols = [obs, tgt, kind, *(z[:, i] for i in range(3)), *(R[:, i, j] for i, j in _UPPER)]
-            fill = jnp.broadcast_to(_FILL[:, None], (12, size - obs.shape[0]))
-            return jnp.concatenate([jnp.stack(cols).astype(jnp.float64), fill], axis=1)
-
-        self._columns = jax.jit(columns, static_argnums=5)
+        self._columns = jax.jit(lambda *a, size: pack(Detections(*a), size, jnp), static_argnames="size")
+        """:func:`pack` on the device, of the detections' five arrays."""
 
     def _fn(self, sizes: tuple[int, ...]) -> Any:
         if sizes not in self._fns:
@@ -339,12 +335,12 @@ class DeviceStamp:
             return pack(det, bucket(m))
         arrays = [det.observer, det.target, det.kind, det.z, det.R]
         arrays[:3] = (a.astype(np.int64, copy=False) for a in arrays[:3])  # one integer type: another compiles again
-        return self._columns(*self._jax.device_put(arrays), bucket(m))
+        return self._columns(*self._jax.device_put(arrays), size=bucket(m))
 
 
 def consts(gate: Gate, relative: bool, lm_on: bool, landmarks: Landmarks | None) -> Consts:
     """The options of a stamp as the kernel reads them (:data:`Consts`)."""
-    thr = np.array([gate.threshold(MODEL[c].size) if gate.p is not None else np.inf for c in range(len(MODEL))])
+    thr = constants(gate.p).thr  # the compiled replays' table (inf: no gate)
     if landmarks is None:
         lxy, lcov = np.zeros((8, 2)), np.tile([1.0, 0.0, 1.0], (8, 1))
     else:
@@ -354,18 +350,14 @@ def consts(gate: Gate, relative: bool, lm_on: bool, landmarks: Landmarks | None)
     return thr, np.array([gate.p is not None, relative, lm_on]), lxy, lcov
 
 
-def pack(det: Detections, size: int) -> np.ndarray:
-    """The detections ``det`` (planar) as one ``(12, size)`` float64 array, a column per detection: observer, target
-    and kind codes, ``z[:3]``, the upper triangle of ``R[:3, :3]`` (``R00, R01, R02, R11, R12, R22``); columns past
-    ``len(det)`` padded (:data:`_FILL`)."""
-    m = len(det)
-    out = np.empty((12, size))
-    out[0, :m], out[1, :m], out[2, :m] = det.observer, det.target, det.kind
-    out[3:6, :m] = det.z[:, :3].T
-    for k, (i, j) in enumerate(_UPPER):
-        out[6 + k, :m] = det.R[:, i, j]
-    out[:, m:] = _FILL[:, None]
-    return out
+def pack(det: Detections, size: int, xp: Any = np) -> Any:
+    """The detections ``det`` (planar) as one ``(12, size)`` float64 array of ``xp`` (numpy's on the host, jax's on
+    the device), a column per detection: observer, target and kind codes, ``z[:3]``, the upper triangle of
+    ``R[:3, :3]`` (``R00, R01, R02, R11, R12, R22``); columns past ``len(det)`` padded (:data:`_FILL`)."""
+    cols = [det.observer, det.target, det.kind, *(det.z[:, i] for i in range(3)),
+            *(det.R[:, i, j] for i, j in soa.UPPER)]  # fmt: skip
+    fill = xp.broadcast_to(_FILL[:, None], (12, size - len(det)))
+    return xp.concatenate([xp.stack(cols).astype(xp.float64), fill], axis=1)
 
 
 _EMPTY = np.repeat(_FILL[:, None], 8, axis=1)

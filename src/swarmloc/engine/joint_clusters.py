@@ -29,25 +29,13 @@ import numpy as np
 from numba import njit
 
 from swarmloc.arrays import BoolArray, FloatArray
-from swarmloc.engine.blocks import Mat
 from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import flush, run, stamp_loop, steps
-from swarmloc.engine.joint_math import F, commit, degenerate, kalman, measure, to_world
+from swarmloc.engine.joint_math import F, commit, degenerate, kalman, measure, rows3, to_world
 from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
-
-
-@njit(error_model="numpy")
-def _rows3(M: np.ndarray, fill: float) -> Mat:
-    """``M (m, m)``, ``m <= 3``, as 3x3 rows of entries, padded with ``fill`` on the diagonal and zeros."""
-    P = np.zeros((3, 3))
-    for a in range(3):
-        P[a, a] = fill
-    m = M.shape[0]
-    P[:m, :m] = M
-    return (P[0, 0], P[0, 1], P[0, 2]), (P[1, 0], P[1, 1], P[1, 2]), (P[2, 0], P[2, 1], P[2, 2])
 
 
 @njit(error_model="numpy")
@@ -56,7 +44,7 @@ def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> float
     log det(S_w + A / w) + log det S_w``, ``S_w = R + B / (1 - w)``, on the same grid of ``WEIGHT_GRID`` points,
     then the vertex of the parabola through the best point and its neighbours (:func:`swarmloc.engine.formulas.
     ci_cost`, ``ci_grid``, ``ci_vertex``; a 1- or 2-row measurement padded as there)."""
-    a, b, r = _rows3(A, 0.0), _rows3(B, 0.0), _rows3(R, 1.0)
+    a, b, r = rows3(A), rows3(B), rows3(R, 1.0)
     g = WEIGHT_GRID
     c = np.empty(g)
     for k in range(g):

@@ -102,9 +102,15 @@ def _joseph_blocks(P: Any, K: Any, U: Any, S: Any) -> Any:
 
 
 @njit(error_model="numpy")
-def rows3(M: np.ndarray) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
-    """The 3x3 ``M`` as rows of entries (:mod:`swarmloc.engine.blocks`' matrices)."""
-    return (M[0, 0], M[0, 1], M[0, 2]), (M[1, 0], M[1, 1], M[1, 2]), (M[2, 0], M[2, 1], M[2, 2])
+def rows3(M: np.ndarray, fill: float = 0.0) -> B.Mat:
+    """``M (m, m)``, ``m <= 3``, as 3x3 rows of entries (:mod:`swarmloc.engine.blocks`' matrices), padded with
+    ``fill`` on the diagonal and zeros."""
+    P = np.zeros((3, 3))
+    for a in range(3):
+        P[a, a] = fill
+    m = M.shape[0]
+    P[:m, :m] = M
+    return (P[0, 0], P[0, 1], P[0, 2]), (P[1, 0], P[1, 1], P[1, 2]), (P[2, 0], P[2, 1], P[2, 2])
 
 
 @njit(error_model="numpy")

@@ -24,7 +24,6 @@ from swarmloc.engine.codes import (
     ABSOLUTE,
     FUSED,
     GATED,
-    MODEL,
     NO_LANDMARK,
     PENDING,
     POSE,
@@ -33,8 +32,9 @@ from swarmloc.engine.codes import (
     R_NUMERICAL,
     REJECTED,
 )
-from swarmloc.engine.detections import Timeline
+from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.joint_math import F
+from swarmloc.engine.replay_io import constants
 from swarmloc.engine.scalar import absolute_source, landmark_source, pose_source, predict_source
 from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
@@ -45,13 +45,6 @@ Rows: TypeAlias = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArr
 """The engine's arrays a compiled stamp updates in place: ``(x (n, 3), P (n, 3, 3), clock, start, v, w (n,))``."""
 Updated: TypeAlias = tuple[FloatArray, FloatArray, FloatArray, BoolArray, BoolArray]
 """A batch of updates: ``(x+, P+, nis, ok, positive definite)`` (the kernels' ``ok`` is both flags)."""
-
-
-class _Det:
-    """Detection arrays for the warm-up (the fields :meth:`NumbaOps.fuse_serial` reads)."""
-
-    def __init__(self, observer: np.ndarray, target: np.ndarray, kind: np.ndarray, z: np.ndarray, R: np.ndarray):
-        self.observer, self.target, self.kind, self.z, self.R = observer, target, kind, z, R
 
 
 _UP = "{a}[{i}, 0, 0], {a}[{i}, 0, 1], {a}[{i}, 0, 2], {a}[{i}, 1, 1], {a}[{i}, 1, 2], {a}[{i}, 2, 2]"
@@ -225,7 +218,7 @@ def predict_into(x, P, tc, v, w, robots, t):
 {_advance(8)}
 
 
-def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason, gate, thr,
+def fuse_serial(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason,
                 lev):
     m = obs.shape[0]
     n = x.shape[0]
@@ -240,7 +233,7 @@ def fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
     return top + 1
 
 
-def fuse_levels(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason, gate, thr,
+def fuse_levels(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason,
                 lev, px, pP):
     m = obs.shape[0]
     n = x.shape[0]
@@ -287,27 +280,24 @@ def fuse_levels(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs, tgt, kin
     return top + 1
 
 
-def replay_serial(x, P, tc, t0, v, w, stamps, s0, relative, lm_on, lxy, lcov, d0, obs, tgt, kind, z, R, status,
-                  reason, gate, thr, lev, c0, crow, cv, cw, rec, out_robot, out_stamp, out_x, out_P, nout):
+def replay_serial(x, P, tc, t0, v, w, stamps, s0, thr, gate, relative, lm_on, lxy, lcov, d0, obs, tgt, kind, z, R,
+                  status, reason, lev, c0, crow, cv, cw, rec, out_robot, out_stamp, out_x, out_P, nout):
     n = x.shape[0]
     k = nout[0]
     for s in range(s0, stamps.shape[0]):
         t = stamps[s]
-        for c in range(c0[s], c0[s + 1]):  # robots with a command at t move to t first
-            i = crow[c]
-{_advance(12)}
+        c, e = c0[s], c0[s + 1]
+        predict_into(x, P, tc, v, w, crow[c:e], t)  # robots with a command at t move to t first
         a, b = d0[s], d0[s + 1]
         if b > a:
-            lv = fuse_serial(x, P, tc, t0, v, w, t, relative, lm_on, lxy, lcov, obs[a:b], tgt[a:b], kind[a:b],
-                             z[a:b], R[a:b], status[a:b], reason[a:b], gate, thr, lev)
+            lv = fuse_serial(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, obs[a:b], tgt[a:b],
+                             kind[a:b], z[a:b], R[a:b], status[a:b], reason[a:b], lev)
             for q in range(a, b):
                 lev[obs[q]] = -1
             if lv < 0:
                 nout[0] = k
                 return s
-        for c in range(c0[s], c0[s + 1]):
-            v[crow[c]] = cv[c]
-            w[crow[c]] = cw[c]
+        scatter2(v, w, crow[c:e], cv[c:e], cw[c:e])
         if rec[s]:
             for i in range(n):
                 if not t >= t0[i]:
@@ -372,14 +362,12 @@ def _pick(k: dict[str, Any], name: str, rows: int) -> Any:
     return k[name + "_serial"] if _serial(rows) else k[name]
 
 
-def _tables(gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None, n: int
-            ) -> tuple[FloatArray, FloatArray, FloatArray, IntArray]:  # fmt: skip
-    """The in-place kernels' tables: the map ``(lxy, lcov)`` (a dummy row without one), the gate's threshold by
-    model code, and ``n`` robots' levels (all -1)."""
-    lxy, lcov = (np.zeros((1, 2)), np.zeros((1, 2, 2))) if landmarks is None else landmarks
-    thr = np.array([gate.threshold(MODEL[code].size) for code in range(len(MODEL))])
+def _detections(det: Any) -> tuple[IntArray, IntArray, IntArray, FloatArray, FloatArray]:
+    """The arrays of detections ``det`` as the in-place kernels take them: ``(observer, target, kind, z, R)``,
+    C-contiguous, codes as int64 and the rest float."""
     f = np.ascontiguousarray
-    return f(lxy, dtype=float), f(lcov, dtype=float), thr, np.full(n, -1, dtype=np.int64)
+    return (f(det.observer, dtype=np.int64), f(det.target, dtype=np.int64), f(det.kind, dtype=np.int64),
+            f(det.z, dtype=float), f(det.R, dtype=float))  # fmt: skip
 
 
 class NumbaOps:
@@ -404,7 +392,7 @@ class NumbaOps:
         self.absolute_update(x, P, x, P)
         self.landmark_update(x, P, x[:, :2] + 1.0, P[:, :2, :2], x[:, :2] + 1.0, P[:, :2, :2])
         z = np.zeros((2, 3))
-        det = _Det(np.array([0, 1]), np.array([1, 0]), np.array([1, 0]), z, P)
+        det = Detections(np.array([0, 1]), np.array([1, 0]), np.array([1, 0]), z, P)
         status, reason = np.zeros(2, dtype=np.int8), np.zeros(2, dtype=np.int8)
         i = np.array([0, 1])
         for gate in (Gate(), Gate(0.5)):  # the serial variants; the parallel ones compile on their first large batch
@@ -415,9 +403,8 @@ class NumbaOps:
 
     def predict(self, x: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray
                 ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
-        f = np.ascontiguousarray
         kernel = _pick(self.k, "predict_rows", x.shape[0])
-        xn, Pn = kernel(f(x, dtype=float), f(P, dtype=float), f(v, dtype=float), f(w, dtype=float), f(dt, dtype=float))
+        xn, Pn = kernel(*(np.ascontiguousarray(a, dtype=float) for a in (x, P, v, w, dt)))
         return xn, Pn
 
     def pose_update(self, x: np.ndarray, P: np.ndarray, xk: np.ndarray, Pk: np.ndarray, z: np.ndarray,
@@ -492,13 +479,9 @@ class NumbaOps:
     def _in_place(self, name: str, state: Rows, t: float, use_relative: bool, det: Any, status: np.ndarray,
                   reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
                   use_landmarks: bool, extra: tuple[()] | tuple[FloatArray, FloatArray]) -> int:  # fmt: skip
-        f = np.ascontiguousarray
-        i64 = np.int64
-        lxy, lcov, thr, lev = _tables(gate, landmarks, state[0].shape[0])
-        return int(self.k[name](*state, float(t), bool(use_relative), bool(use_landmarks), lxy, lcov,
-                                f(det.observer, dtype=i64), f(det.target, dtype=i64), f(det.kind, dtype=i64),
-                                f(det.z, dtype=float), f(det.R, dtype=float), status, reason, gate.p is not None,
-                                thr, lev, *extra))  # fmt: skip
+        const = constants(gate.p, use_relative, use_landmarks, landmarks)
+        lev = np.full(state[0].shape[0], -1, dtype=np.int64)  # every robot's level: none yet
+        return int(self.k[name](*state, float(t), *const, *_detections(det), status, reason, lev, *extra))
 
     def replay_serial(self, state: Rows, tl: Timeline, s0: int, use_relative: bool, status: np.ndarray,
                       reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
@@ -515,14 +498,12 @@ class NumbaOps:
         far."""
         f = np.ascontiguousarray
         i64 = np.int64
-        lxy, lcov, thr, lev = _tables(gate, landmarks, state[0].shape[0])
-        d = tl.det
-        stop = self.k["replay_serial"](*state, f(tl.stamps, dtype=float), int(s0), bool(use_relative),
-                                       bool(use_landmarks), lxy, lcov, f(tl.d0, dtype=i64),
-                                       f(d.observer, dtype=i64), f(d.target, dtype=i64), f(d.kind, dtype=i64),
-                                       f(d.z, dtype=float), f(d.R, dtype=float), status, reason, gate.p is not None,
-                                       thr, lev, f(tl.c0, dtype=i64), f(tl.robot, dtype=i64), f(tl.v, dtype=float),
-                                       f(tl.w, dtype=float), f(tl.record, dtype=np.bool_), *out)  # fmt: skip
+        const = constants(gate.p, use_relative, use_landmarks, landmarks)
+        lev = np.full(state[0].shape[0], -1, dtype=i64)
+        stop = self.k["replay_serial"](*state, f(tl.stamps, dtype=float), int(s0), *const, f(tl.d0, dtype=i64),
+                                       *_detections(tl.det), status, reason, lev, f(tl.c0, dtype=i64),
+                                       f(tl.robot, dtype=i64), f(tl.v, dtype=float), f(tl.w, dtype=float),
+                                       f(tl.record, dtype=np.bool_), *out)  # fmt: skip
         return int(stop), int(out[-1][0])
 
     def scatter2(self, a: np.ndarray, b: np.ndarray, rows: np.ndarray, va: np.ndarray, vb: np.ndarray) -> None:

@@ -34,7 +34,7 @@ import time
 from collections import Counter, defaultdict
 from collections.abc import Callable, Sequence
 from functools import partial
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -58,6 +58,7 @@ from swarmloc.engine.codes import (
 from swarmloc.engine.core import Engine, Records, landmark_table, map_code
 from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.outcomes import tally
+from swarmloc.engine.replay_io import Replayed
 from swarmloc.estimators import node_options
 from swarmloc.events import Detection, Kind
 from swarmloc.kernels import cartesian as C
@@ -125,15 +126,15 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
     opts.pop("association_gate", None)
     if opts.pop("association", "tags") != "tags":
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
-    if opts.pop("adaptive", False):
-        raise ValueError("the engine's diekf keeps its noise fixed: run [filter] diekf_adaptive with the nodes")
-    if opts.pop("odocal", False):
-        raise ValueError("the engine's diekf takes the odometry as given: run [filter] diekf_odocal with the nodes")
-    if opts.pop("fault", False):
-        raise ValueError("the engine's diekf has no odometry-fault test: run [filter] diekf_fault with the nodes")
-    if opts.pop("reform", 0.0):
-        raise ValueError("the engine's diekf clusters stay fixed: run [filter] diekf_reform with the nodes")
+    for option, why in _NODES_ONLY.items():
+        if opts.pop(option, False):
+            raise ValueError(f"the engine's diekf {why}: run [filter] diekf_{option} with the nodes")
     return opts
+
+
+_NODES_ONLY = {"adaptive": "keeps its noise fixed", "odocal": "takes the odometry as given",
+               "fault": "has no odometry-fault test", "reform": "clusters stay fixed"}  # fmt: skip
+"""``diekf``'s options that only its nodes run (a true value refused) -> what the engine's replay does instead."""
 
 
 def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: Checked, counts: Counter[str],
@@ -173,29 +174,13 @@ _CENTRAL = ("cekf", "iekf")
 """Compiled replays of a centralized node: it starts at the team's first input and words its own refusals."""
 
 
-class JointInputs(NamedTuple):
-    """A source as the compiled replays take it (:func:`_joint_inputs`): ``replay(timeline, x, P, t0, noise,
-    **options)`` of :func:`swarmloc.engine.pairs.replay_rdl`, or with ``invariant=...`` of
-    :func:`swarmloc.engine.joint.replay_joint`."""
-
-    timeline: Timeline
-    x: np.ndarray
-    """Cartesian initial beliefs ``(n, 3)`` and ``P (n, 3, 3)``."""
-    P: np.ndarray
-    t0: Any
-    """The team's start (centralized filters) or each robot's ``(n,)`` (``diekf``, ``rdl``)."""
-    noise: Any
-    options: dict[str, Any]
-    """``gate``, ``use_relative``, ``use_landmarks``, ``landmarks``; ``cluster`` for ``diekf`` in clusters (then for
-    :func:`swarmloc.engine.joint_clusters.replay_clusters`, with the cluster size as its own argument)."""
-    checked: Checked
-    record_times: np.ndarray
-    records: dict[float, tuple[int, ...]]
-
-
-def _joint_inputs(src: Source, estimator: str, record_times: Any, opts: dict[str, Any]) -> JointInputs:
-    """``src``'s events checked and packed for ``estimator``'s compiled replay (``cekf``, ``iekf``, ``diekf``,
-    ``rdl``; planar teams) with the nodes' options ``opts`` (:func:`_options`)."""
+def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
+    """``cekf``, ``iekf``, ``rdl`` or ``diekf`` through their compiled replay (planar teams) with the nodes' options
+    ``opts`` (:func:`_options`): the same input checks and timeline as the other estimators, the whole replay in one
+    numba call (:func:`_replayer`)."""
+    if backend != "numba":
+        raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only, which backend='numba'"
+                         f" runs (the one backend that replays it), not backend={backend!r}")  # fmt: skip
     if src.noise is not None or any(np.shape(b.mean) != (3, 3) for b in src.initial.values()):
         raise ValueError(f"run_engine: {estimator!r} on the engine takes planar (SE(2)) teams; run the nodes")
     extra = sorted(set(opts) - _COMPILED_OPTIONS)
@@ -207,59 +192,48 @@ def _joint_inputs(src: Source, estimator: str, record_times: Any, opts: dict[str
     checked, rt = _check(src, opts, record_times)
     starts = checked.start_times()
     # a centralized node starts at the team's first input, the others each at its own
-    t0 = float(starts.min(initial=math.inf)) if estimator in _CENTRAL else starts
+    t0: Any = float(starts.min(initial=math.inf)) if estimator in _CENTRAL else starts  # the replays take either
     records = _record_index(rt)
+    tl = _timeline(checked, records)
     x, P = C.from_group(np.stack([src.initial[r].mean for r in src.robots]),
                         np.stack([src.initial[r].cov for r in src.robots]))  # fmt: skip
-    kw = {"gate": opts.get("gate"), "use_relative": bool(opts.get("use_relative", True)),
-          "use_landmarks": bool(opts.get("use_landmarks", True)),
-          "landmarks": landmark_table(opts.get("landmarks"))[1]}  # fmt: skip
-    if cluster:
-        kw["cluster"] = cluster
-    return JointInputs(_timeline(checked, records), x, P, t0, opts["noise"], kw, checked, rt, records)
-
-
-def _run_compiled(src: Source, estimator: str, backend: str, record_times: Any, opts: dict[str, Any]) -> RunResult:
-    """``cekf``, ``iekf``, ``rdl`` or ``diekf`` through their compiled replay: the same input checks and timeline as
-    the other estimators, the whole replay in one numba call (planar teams)."""
-    if backend != "numba":
-        raise ValueError(f"run_engine: {estimator!r} runs on the engine's compiled replay only, which backend='numba'"
-                         f" runs (the one backend that replays it), not backend={backend!r}")  # fmt: skip
-    inp = _joint_inputs(src, estimator, record_times, opts)
-    tl, checked, kw = inp.timeline, inp.checked, inp.options
+    use_relative, use_landmarks = bool(opts.get("use_relative", True)), bool(opts.get("use_landmarks", True))
     wall = time.perf_counter()
-    if estimator == "rdl":
-        from swarmloc.engine.pairs import replay_rdl
-
-        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_rdl(tl, inp.x, inp.P, inp.t0, inp.noise, **kw)
-    elif "cluster" in kw:
-        from swarmloc.engine.joint_clusters import replay_clusters
-
-        kw = dict(kw)
-        cluster = kw.pop("cluster")
-        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_clusters(tl, inp.x, inp.P, inp.t0, inp.noise, cluster,
-                                                                       **kw)  # fmt: skip
-    else:
-        from swarmloc.engine.joint import replay_joint
-
-        status, reason, (o_robot, o_stamp, o_x, o_P) = replay_joint(tl, inp.x, inp.P, inp.t0, inp.noise,
-                                                                    invariant=estimator != "cekf", **kw)  # fmt: skip
+    status, reason, (o_robot, o_stamp, o_x, o_P) = _replayer(estimator, cluster)(
+        tl, x, P, t0, opts["noise"], gate=opts.get("gate"), use_relative=use_relative, use_landmarks=use_landmarks,
+        landmarks=landmark_table(opts.get("landmarks"))[1])  # fmt: skip
     wall = time.perf_counter() - wall
     counts: Counter[str] = Counter()
     reasons: Counter[str] = Counter(checked.reasons)
-    use_relative, use_landmarks = kw["use_relative"], kw["use_landmarks"]
     if estimator in _CENTRAL:  # the centralized node's own words for what it refuses before reading a state
         dynamic = np.isin(reason, (R_DEGENERATE, R_NONFINITE, R_NUMERICAL))
         tally(counts, reasons, status, np.where(dynamic, reason, 0).astype(np.int8))
-        reasons.update(_joint_reasons(checked, inp.t0, use_relative, use_landmarks))
+        reasons.update(_joint_reasons(checked, t0, use_relative, use_landmarks))
     else:
         tally(counts, reasons, status, reason)
-        _name_unknown(reasons, checked, use_relative, inp.t0)
-        _name_unusable(reasons, checked, inp.t0, use_relative, use_landmarks)
-        _name_not_started(reasons, checked, inp.t0, src.robots)
-    rows, truth_missing = _file_all(src, tl, inp.records, _truth_rows(src, inp.record_times), o_robot, o_stamp, o_x,
-                                    o_P)  # fmt: skip
+        _name_unknown(reasons, checked, use_relative, t0)
+        _name_unusable(reasons, checked, t0, use_relative, use_landmarks)
+        _name_not_started(reasons, checked, t0, src.robots)
+    rows, truth_missing = _file_all(src, tl, records, _truth_rows(src, rt), o_robot, o_stamp, o_x, o_P)
     return _result(f"{estimator}/engine", src, rows, checked, counts, reasons, wall, truth_missing)
+
+
+def _replayer(estimator: str, cluster: int) -> Callable[..., Replayed]:
+    """``estimator``'s compiled replay as ``replay(timeline, x, P, t0, noise, **switches)``: ``rdl``'s
+    (:func:`swarmloc.engine.pairs.replay_rdl`), ``diekf``'s in clusters of ``cluster`` robots
+    (:func:`swarmloc.engine.joint_clusters.replay_clusters`), else the joint state's
+    (:func:`swarmloc.engine.joint.replay_joint`, invariant but for ``cekf``). Imported here: numba is optional."""
+    if estimator == "rdl":
+        from swarmloc.engine.pairs import replay_rdl
+
+        return replay_rdl
+    if cluster:
+        from swarmloc.engine.joint_clusters import replay_clusters
+
+        return partial(replay_clusters, cluster=cluster)
+    from swarmloc.engine.joint import replay_joint
+
+    return partial(replay_joint, invariant=estimator != "cekf")
 
 
 def _check(src: Source, opts: dict[str, Any], record_times: Any) -> tuple[Checked, np.ndarray]:

@@ -24,8 +24,8 @@ from __future__ import annotations
 from typing import Any
 
 from swarmloc.kernels.cartesian import shifted_cov, world_cov
-from swarmloc.motion import SERIES, SERIES_BELOW, UnicycleNoise
-from swarmloc.motion.closed_form import unicycle_terms
+from swarmloc.motion import UnicycleNoise
+from swarmloc.motion.closed_form import series_terms, unicycle_terms
 from swarmloc.sensors.planar import build
 
 Entry = Any
@@ -35,6 +35,8 @@ Vec = tuple[Entry, ...]
 """A vector of entries, one a component: a state ``(x, y, theta)``, a measurement, or a packed upper triangle."""
 Updated = tuple[Vec, Vec, Entry, Entry]
 """What an update returns: ``(x+, P+ upper triangle, nis, ok)``."""
+UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+"""The entries of a packed upper triangle ``(p00, p01, p02, p11, p12, p22)``, in order."""
 
 
 # ------------------------------------------------------------------------------------------------ entry algebra
@@ -138,37 +140,14 @@ def wrap(xp: Any, a: Entry) -> Entry:
 
 
 # ------------------------------------------------------------------------------------------------ prediction
-def _horner(coeffs: tuple[float, ...], x2: Entry) -> Entry:
-    acc: Entry = 0.0
-    for c in reversed(coeffs):
-        acc = acc * x2 + c
-    return acc
-
-
 def increment_terms(xp: Any, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise) -> Vec:
     """``(cos, sin, tx, ty, S11, S12, S13, S22, S23, S33)`` of the odometry increment over ``dt`` [s] for ``(v [m/s],
-    w [rad/s])``: :func:`swarmloc.motion.odometry_increment_terms`, batched (Taylor branch below
-    ``SERIES_BELOW``, all ``N_TERMS`` terms)."""
+    w [rad/s])``: :func:`swarmloc.motion.odometry_increment_terms`, batched (the series terms of
+    :func:`swarmloc.motion.closed_form.series_terms`)."""
     q_v, q_lat, q_w = noise.diag(v, w)
-    t = dt
-    x = w * t
-    near = xp.abs(x) < SERIES_BELOW
-    zero = x == 0.0
-    x2 = x * x
-    safe = xp.where(near, 1.0, x)
-    s3 = safe * safe * safe
-    A = xp.where(near, _horner(SERIES["A"], x2), (2 * safe - xp.sin(2 * safe)) / (4 * s3))
-    B = xp.where(near, _horner(SERIES["B"], x2), (safe - xp.sin(safe)) / s3)
-    E = xp.where(
-        near, _horner(SERIES["E"], x2), (1.5 * safe - 2 * xp.sin(safe) + xp.sin(2 * safe) / 4) / (s3 * safe * safe)
-    )
-    nz = xp.where(zero, 1.0, x)
-    sin_x = xp.sin(x)  # also sin(nz) where it is used (nz == x there): one sine, not two
-    s2 = xp.where(zero, 1.0, xp.sin(2 * nz) / (2 * nz))
-    s1 = xp.where(zero, 1.0, sin_x / nz)
-    h = xp.where(zero, 1.0, xp.sin(nz / 2) / (nz / 2))
-    h2 = h * h
-    return (xp.cos(x), sin_x, *unicycle_terms(x, t, v, q_v, q_w, q_lat, s2, A, B, E, s1, h2, h2 * h2))
+    x = w * dt
+    sin_x, *terms = series_terms(xp, x)
+    return (xp.cos(x), sin_x, *unicycle_terms(x, dt, v, q_v, q_w, q_lat, *terms))
 
 
 def predict(xp: Any, x: Vec, p: Vec, v: Entry, w: Entry, dt: Entry, noise: UnicycleNoise) -> tuple[Vec, Vec]:
@@ -211,7 +190,7 @@ def kalman(xp: Any, x: Vec, p: Vec, r: list[Entry], H: Mat, R: Mat) -> Updated:
     xn[2] = wrap(xp, xn[2])
     IKH = msub(eye(3), mm(K, H))
     Pn = madd(mm(mm(IKH, P), tr(IKH)), mm(mm(K, R), tr(K)))
-    pn = tuple(0.5 * (Pn[i][j] + Pn[j][i]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+    pn = tuple(0.5 * (Pn[i][j] + Pn[j][i]) for i, j in UPPER)
     ok = xp.isfinite(nis)
     for a in (*xn, *pn):
         ok = ok & xp.isfinite(a)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from fractions import Fraction
+from typing import Any
 
 import numpy as np
 
@@ -123,8 +124,9 @@ def gram(x: np.ndarray, t: np.ndarray) -> np.ndarray:
     return G
 
 
-def _horner(coeffs: tuple[float, ...], x2: float) -> float:
-    acc = 0.0
+def horner(coeffs: tuple[float, ...], x2: Any) -> Any:
+    """``sum_k coeffs[k] x2^k`` by Horner's rule, in plain arithmetic (a float, or an array of any namespace)."""
+    acc: Any = 0.0
     for c in reversed(coeffs):
         acc = acc * x2 + c
     return acc
@@ -159,9 +161,9 @@ def scalar_terms(x: float) -> tuple[float, float, float, float, float, float, fl
     if abs(x) < SERIES_BELOW:
         x2 = x * x
         n = _terms(x2)
-        A = _horner(_A[:n], x2)
-        B = _horner(_B[:n], x2)
-        E = _horner(_E[:n], x2)
+        A = horner(_A[:n], x2)
+        B = horner(_B[:n], x2)
+        E = horner(_E[:n], x2)
         if x == 0.0:
             return 1.0, A, B, E, 1.0, 1.0, 1.0
         sx, s2x = math.sin(x), math.sin(2 * x)

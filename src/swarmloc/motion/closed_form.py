@@ -52,6 +52,7 @@ import numpy as np
 
 from swarmloc.lie import SE2
 from swarmloc.motion import _stable
+from swarmloc.motion._stable import horner
 
 T = Any
 """A float or an array (numpy or jax.numpy) of them."""
@@ -177,20 +178,36 @@ def constant_twist_cov(h: np.ndarray, Q: np.ndarray, t: Floats) -> np.ndarray:
 def unicycle_cov(v: Floats, omega: Floats, t: Floats, q_v: Floats, q_w: Floats, q_lat: Floats = 0.0) -> np.ndarray:
     """(5.4) for twist ``(v, 0, omega)`` and ``Q = diag(q_v, q_lat, q_w)``, stable for all ``omega`` (batched).
 
-    Same as :func:`circular_cov` (and :func:`straight_line_cov` at ``omega = 0``) but cancellation-free.
+    Same as :func:`circular_cov` (and :func:`straight_line_cov` at ``omega = 0``) but cancellation-free: the entries
+    of :func:`unicycle_terms` with the series terms of :func:`series_terms`.
     """
     v, omega, t, q_v, q_w, q_lat = _arr(v, omega, t, q_v, q_w, q_lat)
     x = omega * t
-    G = _stable.gram(x, t)
-    Gcc, Gss, Gcs = G[..., 1, 1], G[..., 2, 2], G[..., 1, 2]
-    vv = v * v
-    S11 = q_v * Gcc + q_lat * Gss + q_w * vv * G[..., 4, 4]
-    S12 = (q_lat - q_v) * Gcs + q_w * vv * G[..., 3, 4]
-    S13 = q_w * v * G[..., 0, 4]
-    S22 = q_v * Gss + q_lat * Gcc + q_w * vv * G[..., 3, 3]
-    S23 = q_w * v * G[..., 0, 3]
-    S33 = q_w * t
-    return _sym(S11, S12, S13, S22, S23, S33)
+    _, *terms = series_terms(np, x)
+    return _sym(*unicycle_terms(x, t, v, q_v, q_w, q_lat, *terms)[2:])
+
+
+def series_terms(xp: Any, x: T) -> tuple[T, ...]:
+    """``(sin x, s2, A, B, E, s1, h2, h4)`` for ``x = omega t``: the sine and the series terms :func:`unicycle_terms`
+    takes (:func:`swarmloc.motion._stable.scalar_terms`' for arrays) on the array namespace ``xp`` (numpy, jax.numpy
+    or the engine's traced scalars): the Taylor branch below ``SERIES_BELOW`` with all its terms, each selected by
+    ``xp.where`` from both branches computed at a safe argument."""
+    near = xp.abs(x) < _stable.SERIES_BELOW
+    zero = x == 0.0
+    x2 = x * x
+    safe = xp.where(near, 1.0, x)
+    s3 = safe * safe * safe
+    A = xp.where(near, horner(_stable.SERIES["A"], x2), (2 * safe - xp.sin(2 * safe)) / (4 * s3))
+    B = xp.where(near, horner(_stable.SERIES["B"], x2), (safe - xp.sin(safe)) / s3)
+    E = xp.where(near, horner(_stable.SERIES["E"], x2),
+                 (1.5 * safe - 2 * xp.sin(safe) + xp.sin(2 * safe) / 4) / (s3 * safe * safe))  # fmt: skip
+    nz = xp.where(zero, 1.0, x)
+    sin_x = xp.sin(x)  # also sin(nz) where it is used (nz == x there): one sine, not two
+    s2 = xp.where(zero, 1.0, xp.sin(2 * nz) / (2 * nz))
+    s1 = xp.where(zero, 1.0, sin_x / nz)
+    h = xp.where(zero, 1.0, xp.sin(nz / 2) / (nz / 2))
+    h2 = h * h
+    return sin_x, s2, A, B, E, s1, h2, h2 * h2
 
 
 def unicycle_increment_terms(
