@@ -63,6 +63,7 @@ from swarmloc.estimators import node_options
 from swarmloc.events import Detection, Kind
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, SE3
+from swarmloc.node.base import refusal
 from swarmloc.node.keys import SubKey
 from swarmloc.runner import RobotTrack, RunResult, truth_table
 from swarmloc.runner.result import RUN_COUNTERS
@@ -286,20 +287,13 @@ def _joint_reasons(checked: Checked, t0: float, use_relative: bool, use_landmark
 
 def _static_reason(d: Detection, code: int, use_relative: bool, use_landmarks: bool) -> str | None:
     """``"<outcome>: <reason>"`` of a detection the centralized node refuses before it reads a state, or None."""
+    why = refusal(d, d.observer, use_relative, use_landmarks)
+    if why is not None:
+        return f"{why[0]}: {why[1]}"
     if d.kind == Kind.ABSOLUTE:
         return None
     if d.target_is_robot:
-        if not use_relative:
-            return "rejected: relative measurements are switched off"
-        if d.target is None:
-            return "rejected: robot detection without a target id"
-        if d.target == d.observer:
-            return "rejected: the target is the observer itself"
         return f"unknown: robot {d.target} is not in the team" if code == UNKNOWN_ROBOT else None
-    if d.kind == Kind.POSE:
-        return "rejected: a landmark is a point: it has no relative pose"
-    if not use_landmarks:
-        return "rejected: landmark measurements are switched off"
     return f"unknown: landmark {d.target} is not in the map" if code == NO_LANDMARK else None
 
 

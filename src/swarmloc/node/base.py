@@ -62,7 +62,7 @@ from swarmloc.node.trust import DEFAULT_QUARANTINE, Trust
 from swarmloc.node.update import Gate, Outcome
 from swarmloc.text import ids, numbers, stamp
 
-__all__ = ["Node", "Reach", "belief_of"]
+__all__ = ["Node", "Reach", "belief_of", "refusal"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,6 +79,27 @@ def belief_of(mean: np.ndarray, cov: np.ndarray) -> GroupGaussian:
     filter state is valid by construction (every input is checked once, at the node's door, and every update's
     result is checked by :func:`~swarmloc.node.update.gated_kalman` or the filter)."""
     return GroupGaussian(SE2 if mean.shape[-1] == 3 else SE3, mean, cov, validate=False)
+
+
+def refusal(d: Detection, observer: int, use_relative: bool, use_landmarks: bool) -> tuple[str, str] | None:
+    """``("rejected", reason)`` of a detection by ``observer`` refused before any state is read (its kind switched
+    off, a robot detection without a target or of its observer, a landmark's relative pose), or None: the node's and
+    the engine's one wording (:meth:`Node._classify`)."""
+    if d.kind == Kind.ABSOLUTE:
+        return None
+    if d.target_is_robot:
+        if not use_relative:
+            return ("rejected", "relative measurements are switched off")
+        if d.target is None:
+            return ("rejected", "robot detection without a target id")
+        if d.target == observer:
+            return ("rejected", "the target is the observer itself")
+        return None
+    if d.kind == Kind.POSE:
+        return ("rejected", "a landmark is a point: it has no relative pose")
+    if not use_landmarks:
+        return ("rejected", "landmark measurements are switched off")
+    return None
 
 
 class Node:
@@ -479,18 +500,11 @@ class Node:
         ``("rejected" | "unknown", reason)`` when it cannot be fused."""
         if d.kind == Kind.ABSOLUTE:
             return (Kind.ABSOLUTE, None)
+        why = refusal(d, g.observer, self.use_relative, self.use_landmarks)
+        if why is not None:
+            return why
         if d.target_is_robot:
-            if not self.use_relative:
-                return ("rejected", "relative measurements are switched off")
-            if d.target is None:
-                return ("rejected", "robot detection without a target id")
-            if d.target == g.observer:
-                return ("rejected", "the target is the observer itself")
             return self._robot_target(g, d, sub)
-        if d.kind == Kind.POSE:
-            return ("rejected", "a landmark is a point: it has no relative pose")
-        if not self.use_landmarks:
-            return ("rejected", "landmark measurements are switched off")
         lm = landmark_state(self.landmarks, d.target)
         if lm is None:
             return ("unknown", f"landmark {d.target} is not in the map")
