@@ -61,7 +61,19 @@ def test_book_fusion_example_fuses_and_the_team_beats_dead_reckoning(capsys):
     fusion shrinks every input's variance, and in the chapter's experiment both robots end nearer the truth and more
     certain with cooperation than by dead reckoning."""
     ns = _run("book_fusion.py")
-    assert len(capsys.readouterr().out.splitlines()) == 4
+    assert len(capsys.readouterr().out.splitlines()) == 5
+    # the Jacobian, by central differences of the book's model (x_j = x_r + R(theta_r) e, theta_j = theta_r + theta_e)
+    def model(v):
+        c, s = np.cos(v[2]), np.sin(v[2])
+        return np.array([v[0] + c * v[3] - s * v[4], v[1] + s * v[3] + c * v[4], v[2] + v[5]])
+
+    M, h = np.concatenate([ns["observer"], ns["z"]]), 1e-6
+    fd = np.stack([(model(M + h * e) - model(M - h * e)) / (2 * h) for e in np.eye(6)], axis=1)
+    np.testing.assert_allclose(ns["J"], fd, atol=1e-8)
+    np.testing.assert_array_equal(ns["J"][2], [0, 0, 1, 0, 0, 1])  # the printed third row is [0, 1, 0, 0, 0, 1]
+    B = np.zeros((6, 6))
+    B[:3, :3], B[3:, 3:] = ns["observer_cov"], ns["z_cov"]
+    np.testing.assert_allclose(ns["seen_cov"], ns["J"] @ B @ ns["J"].T, atol=1e-15)
     assert np.all(np.diag(ns["seen_cov"]) > [0.01, 0.02, 0.003])
     for cov in (ns["own_cov"], ns["seen_cov"]):
         assert np.all(np.linalg.eigvalsh(cov - ns["fused_cov"]) > -1e-12)
@@ -85,8 +97,8 @@ def test_robocentric_example_tracks_teammates_and_shows_the_separate_filters_ove
 
 
 def test_sensor_network_example_localizes_and_names_the_weak_node(capsys):
-    """Every node within 3 std (and 15 cm) of where it is; without its ranges to anchors 1, 2 and node 14, node 13
-    is refused by name."""
+    """Every node within 3 std (and 15 cm) of where it is, nearer than its MDS-MAP start; without its ranges to
+    anchors 1, 2 and node 14, node 13 is refused by name."""
     ns = _run("sensor_network.py")
     out = capsys.readouterr().out
     sol = ns["solution"]
@@ -95,6 +107,10 @@ def test_sensor_network_example_localizes_and_names_the_weak_node(capsys):
         err = sol.positions[node] - true
         assert np.linalg.norm(err) < 0.15 and err @ np.linalg.solve(sol.marginal(node), err) < 9.0
     assert "refused: node(s) with fewer than 3 distinct measured neighbours: 13 (2)" in out
+    # the MDS-MAP start is near (every node within 0.3 m) and the least squares improves on it
+    np.testing.assert_array_equal(sol.position_array(), [sol.positions[n] for n in sol.node_ids])
+    assert max(np.linalg.norm(ns["start"][n] - true) for n, true in ns["nodes"].items()) < 0.3
+    assert ns["rms"] < 0.6 * ns["start_rms"] and f"least squares {ns['rms']:.3f} m" in out
 
 
 def test_cooperative_positioning_example_beats_dead_reckoning(capsys):
@@ -108,9 +124,15 @@ def test_cooperative_positioning_example_beats_dead_reckoning(capsys):
 
 def test_observability_example_bounds_the_absolute_error_only_with_fixes(capsys, tmp_path):
     """Without fixes the absolute error exceeds the relative one; one robot with fixes halves it; the figure is
-    written."""
-    _run("observability.py", str(tmp_path / "obs.png"))
+    written. Along the team's rigid motions the centralized EKF gains information about the rotation only, the
+    invariant EKF none."""
+    ns = _run("observability.py", str(tmp_path / "obs.png"))
     lines = capsys.readouterr().out.splitlines()
+    cekf, iekf = (ns["gained"][name] for name in ("cekf", "iekf"))
+    assert cekf["updates"] == iekf["updates"] > 100
+    assert np.abs(iekf["information"]).max() < 1e-9 < 1.0 < cekf["information"][2, 2]
+    assert np.abs(cekf["information"][:2, :2]).max() < 1e-6 * cekf["information"][2, 2]
+    assert lines[2].startswith("cekf: information along the team's x 0, y 0, rotation 36 over")
     (abs0, rel0), (abs1, _) = ([float(w) for w in line.split() if w[0].isdigit() and "." in w] for line in lines[:2])
     assert abs0 > 2 * rel0 and abs1 < 0.6 * abs0
     assert (tmp_path / "obs.png").stat().st_size > 10_000
