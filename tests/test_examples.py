@@ -132,7 +132,7 @@ def test_observability_example_bounds_the_absolute_error_only_with_fixes(capsys,
     assert cekf["updates"] == iekf["updates"] > 100
     assert np.abs(iekf["information"]).max() < 1e-9 < 1.0 < cekf["information"][2, 2]
     assert np.abs(cekf["information"][:2, :2]).max() < 1e-6 * cekf["information"][2, 2]
-    assert lines[2].startswith("cekf: information along the team's x 0, y 0, rotation 36 over")
+    assert lines[2] == "cekf: information along the team's x 0, y 0, rotation 36 [rad^-2]"
     (abs0, rel0), (abs1, _) = ([float(w) for w in line.split() if w[0].isdigit() and "." in w] for line in lines[:2])
     assert abs0 > 2 * rel0 and abs1 < 0.6 * abs0
     assert (tmp_path / "obs.png").stat().st_size > 10_000
