@@ -62,6 +62,7 @@ def test_book_fusion_example_fuses_and_the_team_beats_dead_reckoning(capsys):
     certain with cooperation than by dead reckoning."""
     ns = _run("book_fusion.py")
     assert len(capsys.readouterr().out.splitlines()) == 5
+
     # the Jacobian, by central differences of the book's model (x_j = x_r + R(theta_r) e, theta_j = theta_r + theta_e)
     def model(v):
         c, s = np.cos(v[2]), np.sin(v[2])
@@ -111,6 +112,25 @@ def test_sensor_network_example_localizes_and_names_the_weak_node(capsys):
     np.testing.assert_array_equal(sol.position_array(), [sol.positions[n] for n in sol.node_ids])
     assert max(np.linalg.norm(ns["start"][n] - true) for n, true in ns["nodes"].items()) < 0.3
     assert ns["rms"] < 0.6 * ns["start_rms"] and f"least squares {ns['rms']:.3f} m" in out
+
+
+def test_anonymous_localization_example_counts_the_symmetric_solutions_and_finds_the_unique_one(capsys):
+    """The square has 3! = 6 solutions, each a different assignment of identities to robot 0's points; with one
+    robot moved the one solution puts every teammate within 5 cm (and 0.05 rad) of where it is, computed here from
+    the world poses."""
+    ns = _run("anonymous_localization.py")
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "square: symmetry metric 0.000 m, 6 solution(s) (theory 6)"
+    assert lines[1].startswith("one robot moved: symmetry metric 0.") and lines[1].endswith("1 solution(s) (theory 1)")
+    assert len({tuple(s.features[j] for j in (1, 2, 3)) for s in ns["square_result"].solutions}) == 6
+    poses = ns["poses"]
+    c, s = np.cos(poses[0, 2]), np.sin(poses[0, 2])
+    for j in (1, 2, 3):
+        d = poses[j, :2] - poses[0, :2]
+        true = [c * d[0] + s * d[1], -s * d[0] + c * d[1], poses[j, 2] - poses[0, 2]]
+        found = ns["result"].solutions[0].poses[j]
+        assert np.hypot(*(found[:2] - true[:2])) < 0.05
+        assert abs((found[2] - true[2] + np.pi) % (2 * np.pi) - np.pi) < 0.05
 
 
 def test_cooperative_positioning_example_beats_dead_reckoning(capsys):
