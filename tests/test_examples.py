@@ -150,6 +150,40 @@ def test_thesis_motion_example_closed_forms_agree_with_the_general_ones(capsys):
     np.testing.assert_allclose(lateral, q_w * v**2 * ns["t"] ** 3 / 3, rtol=1e-14)
 
 
+def test_group_fusion_example_agrees_with_sampling_and_with_the_formulas_written_out(capsys):
+    """Every comparison the example prints, as it says: the transforms exact, the second-order prediction and the
+    two fusions near sampling, the fix and the landmark's innovation as computed here by hand."""
+    ns = _run("group_fusion.py")
+    assert len(capsys.readouterr().out.splitlines()) == 10
+    SE2 = ns["SE2"]
+    np.testing.assert_allclose(ns["turned"].cov, np.diag([0.01, 0.02, 0.25]), atol=1e-15)  # x and y swapped
+    np.testing.assert_allclose(SE2.to_xytheta(ns["shifted"].mean), [6.0, 0.5, 0.3], atol=1e-15)
+    np.testing.assert_array_equal(ns["shifted"].cov, ns["belief"].cov)
+    assert ns["first"] > 0.03 and ns["second"] < 0.01  # sampling's own error: about 0.3%
+    for mean_apart, cov_off in (ns["relative"], ns["point"]):
+        assert mean_apart < 0.005 and cov_off < 0.03
+    # the fix (variance 0.01 in x, as the prior's) halves the x variance and lands halfway, to first order
+    np.testing.assert_allclose(SE2.to_xytheta(ns["fixed"].mean)[0], 0.025, atol=5e-4)
+    np.testing.assert_allclose(ns["fixed"].cov[0, 0], 0.005, atol=5e-4)
+    # the innovation by hand: h = (range, bearing) of the landmark seen from the pose, differentiated numerically
+    landmark, C, R, P = ns["landmark"], ns["landmark_cov"], ns["R"], ns["prior"].cov
+
+    def h(y, p):  # the landmark p seen from exp(y) (the prior's mean is the identity)
+        g = SE2.exp(y)
+        q = g[:2, :2].T @ (p - g[:2, 2])
+        return np.array([np.hypot(*q), np.arctan2(q[1], q[0])])
+
+    e = 1e-6
+    H = np.stack([(h(e * u, landmark) - h(-e * u, landmark)) / (2 * e) for u in np.eye(3)], axis=1)
+    Hp = np.stack(
+        [(h(np.zeros(3), landmark + e * u) - h(np.zeros(3), landmark - e * u)) / (2 * e) for u in np.eye(2)], 1
+    )
+    r = ns["z"] - h(np.zeros(3), landmark)
+    np.testing.assert_allclose(ns["nis"], r @ np.linalg.solve(H @ P @ H.T + Hp @ C @ Hp.T + R, r), rtol=1e-6)
+    assert ns["bch"][0] > ns["bch"][1] > ns["bch"][2] and ns["bch"][1] < 0.01
+    assert np.abs(ns["moved"] - SE2.right_jacobian(ns["x"]) @ ns["d"]).max() < 1e-8
+
+
 def test_cooperative_positioning_example_beats_dead_reckoning(capsys):
     ns = _run("cooperative_positioning.py")
     rms = {line.split(":")[0]: float(line.split()[4]) for line in capsys.readouterr().out.splitlines()}
