@@ -1,7 +1,8 @@
 """The node snippet a reader copies (``examples/node_snippet.py``, the one the documentation shows) runs and does
 what its comments say: ``node.x`` at the present, the belief at 0.5 s after the odometry, the detection filed
-once the teammate's answer is in. The sources' other methods' examples (``docs/toolbox.md`` shows them) run and
-come out as their docstrings say."""
+once the teammate's answer is in. The sources' other methods' examples (``docs/toolbox.md`` shows them; the
+thesis' closed forms ``docs/thesis.md``, the beliefs' fusion ``docs/concepts-beliefs.md``) run and come out as their
+docstrings say."""
 
 from __future__ import annotations
 
