@@ -6,7 +6,8 @@ Serial fusion: robot 1 at ``(x, y, theta)`` with its covariance sees robot 2 at 
 the result is robot 2's pose in the world with the observer's uncertainty carried into it (eqs 7-8). Parallel
 fusion merges every estimate of robot 2 (its own and each observer's) into one (eqs 34-35); it never grows a
 covariance. ``serial_jacobian`` is the Jacobian of eq. (4) with its third row corrected: serial fusion's covariance
-is ``J diag(C_r, C_e) J^T``. Last, the chapter's two-robot experiment: dead reckoning alone against the cooperative team.
+is ``J diag(C_r, C_e) J^T``. Last, the chapter's two-robot experiment: dead reckoning alone against the cooperative
+team.
 """
 
 import numpy as np

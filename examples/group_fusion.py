@@ -10,12 +10,13 @@ the first-order sum ``A + B`` is off by several percent, the second order by a f
 updates: a relative pose of an uncertain neighbour (``fuse_relative``), a GPS-like fix of the pose itself
 (``fuse_absolute``) and a range and bearing of a landmark known to 2 cm (``fuse_point_measurement``, gated first
 by its normalized innovation ``point_innovation``). The relative and range-bearing posteriors are compared with
-importance sampling, which never linearizes. The group's own tools: ``SE2.bch`` approximates
-``log(exp(x) exp(y))``, and ``SE2.right_jacobian`` carries a small change of coordinates into a right
-perturbation, ``exp(x + d) ~ exp(x) exp(Jr(x) d)``.
+importance sampling, which never linearizes. The group's own tools: ``SE2.log`` is the matrix logarithm read as a
+vector (``SE2.vee``), ``SE2.bch`` approximates ``log(exp(x) exp(y))``, and ``SE2.right_jacobian`` carries a small
+change of coordinates into a right perturbation, ``exp(x + d) ~ exp(x) exp(Jr(x) d)``.
 """
 
 import numpy as np
+import scipy.linalg
 
 from swarmloc import SE2, GroupGaussian
 from swarmloc.evaluation.montecarlo import convolution_mc, importance_posterior, importance_posterior_point
@@ -70,6 +71,7 @@ point = apart(m, mean), off(c, cov)
 print("  against sampling: the mean {:.4f} apart, covariance {:.1%} off".format(*point))
 
 x, y = np.array([0.3, -0.2, 0.5]), np.array([-0.1, 0.4, 0.3])
+print(f"log against the matrix logarithm: {np.abs(SE2.vee(scipy.linalg.logm(SE2.exp(x)).real) - x).max():.0e}")
 exact = SE2.log(SE2.exp(x) @ SE2.exp(y))
 bch = [np.abs(SE2.bch(x, y, order=k) - exact).max() for k in (1, 2, 3)]
 print("BCH error, first, second and third order: {:.1e}, {:.1e}, {:.1e}".format(*bch))

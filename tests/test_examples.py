@@ -155,7 +155,8 @@ def test_group_fusion_example_agrees_with_sampling_and_with_the_formulas_written
     """Every comparison the example prints, as it says: the transforms exact, the second-order prediction and the
     two fusions near sampling, the fix and the landmark's innovation as computed here by hand."""
     ns = _run("group_fusion.py")
-    assert len(capsys.readouterr().out.splitlines()) == 10
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 11 and lines[8].startswith("log against the matrix logarithm:")
     SE2 = ns["SE2"]
     np.testing.assert_allclose(ns["turned"].cov, np.diag([0.01, 0.02, 0.25]), atol=1e-15)  # x and y swapped
     np.testing.assert_allclose(SE2.to_xytheta(ns["shifted"].mean), [6.0, 0.5, 0.3], atol=1e-15)
@@ -181,6 +182,7 @@ def test_group_fusion_example_agrees_with_sampling_and_with_the_formulas_written
     )
     r = ns["z"] - h(np.zeros(3), landmark)
     np.testing.assert_allclose(ns["nis"], r @ np.linalg.solve(H @ P @ H.T + Hp @ C @ Hp.T + R, r), rtol=1e-6)
+    assert float(lines[8].split()[-1]) < 1e-12  # log(exp(x)) = x by the matrix logarithm
     assert ns["bch"][0] > ns["bch"][1] > ns["bch"][2] and ns["bch"][1] < 0.01
     assert np.abs(ns["moved"] - SE2.right_jacobian(ns["x"]) @ ns["d"]).max() < 1e-8
 
