@@ -54,7 +54,7 @@ def test_covariance_conversions_agree_with_sampling_and_the_adjoint() -> None:
     Pw = A @ A.T + 1e-6 * np.eye(3)
     # body-frame covariance: y = Ad(g^-1) xi
     S = I.world_to_body(g, Pw)
-    np.testing.assert_allclose(I.body_to_world(g, S), Pw, atol=1e-15)
+    np.testing.assert_allclose(SE2.Ad(g) @ S @ SE2.Ad(g).T, Pw, atol=1e-15)  # back to the world: xi = Ad(g) y
     xi = rng.multivariate_normal(np.zeros(3), Pw, size=20000)
     y = SE2.log(SE2.inverse(g)[None] @ SE2.exp(xi) @ g[None])
     np.testing.assert_allclose(np.cov(y.T), S, rtol=0.05, atol=2e-7)

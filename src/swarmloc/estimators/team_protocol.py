@@ -276,7 +276,7 @@ class TeamProtocol:
             return ("rejected", f"the answer of robot {d.target}, outside the cluster, is not a belief")
         gj, bj = a.belief_arrays()  # checked as a message: an SE(2) element, a covariance
         Ad = SE2.Ad(gj, validate=False)
-        xj, Pjj = SE2.to_xytheta(gj), Ad @ bj @ Ad.T  # I.body_to_world, without checking gj again
+        xj, Pjj = SE2.to_xytheta(gj), Ad @ bj @ Ad.T  # the world-frame error's covariance
         lin = robot_pair(d, s.x, xj)
         if lin is None:
             return ("rejected", DEGENERATE)

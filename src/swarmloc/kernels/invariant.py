@@ -34,7 +34,6 @@ def _T(a: FloatArray, i: int, j: int) -> FloatArray:
 
 
 __all__ = [
-    "body_to_world",
     "cartesian_to_world_cov",
     "left_correct",
     "world_basis",
@@ -76,12 +75,6 @@ def world_to_body(g: FloatArray, P: FloatArray) -> FloatArray:
     """Covariance of the body-frame (right-perturbation) error ``y = Ad(g^-1) xi`` at the pose matrix ``g``."""
     A = SE2.Ad(SE2.inverse(g, validate=False))
     return A @ P @ _T(A, -1, -2)
-
-
-def body_to_world(g: FloatArray, S: FloatArray) -> FloatArray:
-    """Covariance of the world-frame error ``xi = Ad(g) y`` from the body-frame covariance ``S`` at ``g``."""
-    A = SE2.Ad(g)
-    return A @ S @ _T(A, -1, -2)
 
 
 def left_correct(x: FloatArray, delta: FloatArray) -> FloatArray:
