@@ -11,9 +11,9 @@ update as the structure-of-arrays formulas of :mod:`swarmloc.engine.soa` on an a
 
 On SE(3) (``group=SE3``) the rows are ``"pose3"`` detections and the state the pose ``(4, 4)`` with the covariance of
 ``(dp, dtheta)``: the neighbour's answer travels as its group belief (:func:`~swarmloc.engine.se3.to_group`, then back
-to the error form, as the node receives it), the residual, Jacobian and noise are
-:func:`~swarmloc.engine.se3.pose3_linearize`, the correction ``K r`` is applied on the group
-(:func:`~swarmloc.engine.se3.correct`).
+to the error form, as the node receives it), the residual, Jacobian and noise are the node's
+(:class:`swarmloc.sensors.models3.Model3`'s, on the stack; the neighbour's covariance seen through its Jacobian
+added, the sum symmetrized), the correction ``K r`` is applied on the group (:func:`~swarmloc.engine.se3.correct`).
 """
 
 from __future__ import annotations
@@ -26,10 +26,12 @@ from swarmloc.engine import se3 as E3
 from swarmloc.engine.codes import ABSOLUTE, MODEL, NO_LANDMARK, POSE, R_DEGENERATE, R_NUMERICAL, REJECTED
 from swarmloc.engine.stamp import Sequential, Stamp, usable
 from swarmloc.events import Kind
+from swarmloc.gaussian import symmetric
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, SE3
 from swarmloc.node.update import Gate
 from swarmloc.sensors.models import KIND_ORDER, MeasurementModel
+from swarmloc.sensors.models3 import MODELS3
 
 SOA_MIN_ROWS = 2048
 """On numpy, batches smaller than this take the stacked-matrix kernels even on the fast path: the
@@ -42,6 +44,9 @@ RANGE_BEARING = KIND_ORDER[Kind.RANGE_BEARING]
 and a robot's as a landmark's at the neighbour's position and covariance (the node's ``R + Hk Pk Hk^T``; range and
 bearing of a position do not depend on its heading). The range-only and bearing-only kinds take the
 stacked-matrix kernels."""
+
+POSE3_MODEL = MODELS3[Kind.POSE3]
+"""The ``"pose3"`` model, batched here over the stacked detections of an SE(3) team."""
 
 
 def kalman_rows(
@@ -147,8 +152,10 @@ class EkfFusion(Sequential):
         lo = st.lo[rows]
         g, P = st.cur[0][lo], st.cur[1][lo]
         gk, Pk = E3.to_error(*E3.to_group(*st.target(rows)))  # the answer travels as a group belief
-        r, H, Rn = E3.pose3_linearize(g, gk, Pk, st.det.z[rows, :6], st.det.R[rows, :6, :6])
-        dx, Pn, nis, ok = kalman_rows(np.zeros((rows.size, 6)), P, r, H, Rn, angles=())
+        z, Rz = st.det.z[rows, :6], st.det.R[rows, :6, :6]
+        h, H, Hk = POSE3_MODEL.predict(g, gk)
+        Rn = symmetric(POSE3_MODEL.noise(z, Rz) + Hk @ Pk @ np.swapaxes(Hk, -1, -2))
+        dx, Pn, nis, ok = kalman_rows(np.zeros((rows.size, 6)), P, POSE3_MODEL.residual(z, h), H, Rn, angles=())
         ok = ok & usable(Pn)
         keep = st.gate(rows, nis, self.gate, 6)
         st.mark(rows[keep & ~ok], REJECTED, R_NUMERICAL)

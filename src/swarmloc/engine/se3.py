@@ -9,27 +9,19 @@ stacked arrays: poses ``(B, 4, 4)``, covariances ``(B, 6, 6)`` (translation firs
   batched ``12 x 12`` matrix exponential (:func:`swarmloc.motion.twist3.twist_increments`);
 * :func:`predict_group`: the thesis estimator's (and covariance intersection's) prediction on the group;
 * :func:`predict_error`, :func:`to_error`, :func:`to_group`: the first-order EKF's state ``(pose, P)``, ``P`` the
-  covariance of ``(dp, dtheta)`` (world-frame position, body-frame attitude);
-* :func:`pose3_linearize`: the ``"pose3"`` model's residual, Jacobian and effective noise for the EKF.
+  covariance of ``(dp, dtheta)`` (world-frame position, body-frame attitude); the ``"pose3"`` model itself is the
+  node's, batched (:mod:`swarmloc.engine.fuse_ekf`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from swarmloc.events import Kind
-from swarmloc.gaussian import symmetric
 from swarmloc.kernels import cartesian3 as C3
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE3
 from swarmloc.motion import twist3 as T3
 from swarmloc.motion.twist3 import TwistNoise
-from swarmloc.sensors.models3 import model3
-
-POSE3_MODEL = model3(Kind.POSE3)
-"""The ``"pose3"`` model, batched here over the stacked detections."""
-
-_T = np.swapaxes
 
 
 def twist_increments(v: np.ndarray, w: np.ndarray, dt: np.ndarray, noise: TwistNoise) -> tuple[np.ndarray, ...]:
@@ -61,17 +53,6 @@ to_error = C3.from_group
 to_group = C3.to_group
 """Inverse of :func:`to_error`: the beliefs ``(mean, cov)`` the EKF's nodes answer and record
 (:func:`swarmloc.kernels.cartesian3.to_group`)."""
-
-
-def pose3_linearize(
-    g: np.ndarray, gk: np.ndarray, Pk: np.ndarray, z: np.ndarray, Rz: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(r (B, 6), H (B, 6, 6), R_eff (B, 6, 6))`` of ``"pose3"`` detections ``z (B, 6)`` (noise ``Rz``) of
-    neighbours ``(gk, Pk)`` from observers ``g``: the node's :class:`swarmloc.sensors.models3.Model3` prediction,
-    residual and noise on the stack, plus the neighbour's covariance seen through its Jacobian."""
-    h, H, Hk = POSE3_MODEL.predict(g, gk)
-    Rn = POSE3_MODEL.noise(z, Rz) + Hk @ Pk @ _T(Hk, -1, -2)
-    return POSE3_MODEL.residual(z, h), H, symmetric(Rn)
 
 
 def correct(g: np.ndarray, dx: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ import numpy as np
 from scipy import special
 from scipy.optimize import minimize
 
+from swarmloc.lie import wrap_angle
 from swarmloc.motion.unicycle import UnicycleNoise
 
 __all__ = ["FIT_PRIOR_STD", "YawScale", "fit_yaw_scale", "heading_increments", "held_integral", "scale_yaw"]
@@ -45,12 +46,6 @@ def held_integral(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     """The integral of a piecewise-constant signal ``x`` held from each stamp of ``t`` [s] to the next, at every
     stamp (0 at the first); ``t`` increasing."""
     return np.concatenate([[0.0], np.cumsum(x[:-1] * np.diff(t))])
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    """To [-pi, pi), not :func:`swarmloc.lie.wrap_angle`: these residuals feed a fit (an optimizer), whose result
-    moves by 1e-8 when its inputs move by an ulp; kept so that the fitted models stay as they are."""
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def heading_increments(
@@ -94,7 +89,7 @@ def heading_increments(
             ok &= ~inside[:-1] & ~inside[1:]
         out["robot"].append(np.full(int(ok.sum()), r))
         out["t"].append(ts[1:][ok])
-        out["res"].append(_wrap(np.diff(ps[:, 2]) - np.diff(yaw))[ok])
+        out["res"].append(wrap_angle(np.diff(ps[:, 2]) - np.diff(yaw))[ok])
         out["fit"].append((cs[:-1, 2, 2] + cs[1:, 2, 2])[ok])
         out["model"].append(np.diff(diff)[ok])
         out["turn"].append(np.diff(turn)[ok])

@@ -48,9 +48,6 @@ class _Numpy:
 _P = planar.build(_Numpy)
 """The planar models' math (:mod:`swarmloc.sensors.planar`) on numpy arrays and scalars."""
 
-wrap = _P.wrap
-"""An angle [rad] wrapped to (-pi, pi] (the residuals' wrap: :func:`swarmloc.lie.wrap_angle`'s formula, on numpy)."""
-
 
 def _matrix(rows: Sequence[Sequence[np.ndarray | float]], shape: tuple[int, ...], cols: int = 0) -> np.ndarray:
     """``(*shape, len(rows), cols)`` (``cols`` 0: the rows' length; zero columns pad) from rows of entries, each a

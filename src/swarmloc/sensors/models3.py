@@ -109,7 +109,7 @@ class Model3:
         ``(dp, dtheta)`` errors (module docstring). ``"pose3"``: ``gk (4, 4)``, ``h (4, 4)``, ``H (6, 6)``;
         ``"rbe3"`` / ``"bearing3"``: ``gk`` a pose ``(4, 4)`` (``H_k (m, 6)``) or a point ``(3,)`` (a landmark,
         ``H_k (m, 3)``), ``h (m,)``; the rows are finite everywhere (at the pole the azimuth row is 0). ``"pose3"`` is
-        batched over leading axes (the engine's stacks, :func:`swarmloc.engine.se3.pose3_linearize`)."""
+        batched over leading axes (the engine's stacks, :mod:`swarmloc.engine.fuse_ekf`)."""
         if self.kind != Kind.POSE3:
             return self._predict_point(gi, gk)
         RiT = _T(gi[..., :3, :3], -1, -2)

@@ -18,8 +18,10 @@ __all__ = ["DetectionSet", "fit_residuals", "snapshot_poses"]
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
-    """To [-pi, pi), not :func:`swarmloc.lie.wrap_angle`: these residuals feed a fit (an optimizer), whose result
-    moves by 1e-8 when its inputs move by an ulp; kept so that the fitted models stay as they are."""
+    """To [-pi, pi), not :func:`swarmloc.lie.wrap_angle`: the two round differently (a few ulp of pi apart), and the
+    snapshot fits that have not converged after their Gauss-Newton steps (diverging two-landmark geometries) turn
+    that into a different pose; through them the camera model fitted on MRCLAM moves by 1e-8 and the filters'
+    beliefs by up to 2e-6. Kept so that the fitted models stay as they are."""
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
