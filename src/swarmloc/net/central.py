@@ -42,9 +42,10 @@ import numpy as np
 
 from swarmloc.events import Detection, Event, Kind, Odometry, OwnEvent
 from swarmloc.messages import flat
-from swarmloc.net.auth import open_envelope, seal
+from swarmloc.net.auth import open_envelope
 from swarmloc.net.faults import Faults, FaultySender
 from swarmloc.net.numbered import Numbered
+from swarmloc.net.outbound import Envelopes
 from swarmloc.net.schema import (
     MAX_RAW_ITEMS,
     MAX_REPAIR,
@@ -57,7 +58,6 @@ from swarmloc.net.schema import (
     RawOdometry,
     Rejected,
     Report,
-    encode,
     group_tag,
 )
 from swarmloc.net.teamlink import Presence, TeamLink
@@ -371,7 +371,7 @@ class Forwarder:
         plan = faults.plan(robot) if faults is not None and faults.link else None
         self.sends = FaultySender(plan, self.counts, robot)
         """The forwards sent with the link faults (lost, delayed, duplicated)."""
-        self._seq = 0
+        self._seal = Envelopes(self.auth, self.team, robot).seal  # its envelopes: numbered in one sequence, sealed
         self._server_done = threading.Event()
         self._server_alive = threading.Event()
         self._stop = threading.Event()
@@ -381,10 +381,6 @@ class Forwarder:
 
     def stop(self) -> None:
         self._stop.set()
-
-    def _seal(self, key: str, body: Any) -> bytes:
-        self._seq += 1
-        return seal(self.auth, key, encode(self.team, self.robot, self._seq, body))
 
     def _from_server(self, x: Any, key: str) -> Any:
         """The body of sample ``x`` on the server's ``key`` when the server sent it (None otherwise); a refused one
@@ -431,11 +427,11 @@ class Forwarder:
 
     def _send(self, key: str, body: Raw) -> None:
         """One forward, as the link faults say (lost, delayed, duplicated)."""
-        self.sends.faulty(partial(self.session.put, key, self._seal(key, body), congestion_control=self._block))
+        self.sends.faulty(partial(self.session.put, key, self._seal(body, key), congestion_control=self._block))
 
     def _put(self, key: str, body: Any) -> None:
         """``body`` sealed and put on ``key``, never dropped (not subject to the link faults: progress, report)."""
-        self.session.put(key, self._seal(key, body), congestion_control=self._block)
+        self.session.put(key, self._seal(body, key), congestion_control=self._block)
 
     def run(self, max_wall: float | None = None) -> Report:
         """Forward everything, then wait for the server's report; returns this robot's report."""
