@@ -73,24 +73,24 @@ class Wiring:
         self.block = block()  # never drop a belief, a progress announcement or a push
 
         s, team, r = self.session, self.scope, self.robot  # keys: the team's scope (its name, and the run's id)
-        decl = self.presence.decl
-        self.presence.join()  # the per-pair handshake answered before anything else is declared
+        p = self.presence
+        p.join()  # the per-pair handshake answered before anything else is declared
         put = self.offer  # within the budgets of what a node takes in (:mod:`.intake`)
-        decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
-        decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
+        p.decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
+        p.decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
         # the teammates' progress (lockstep's: :func:`~swarmloc.net.lockstep.watched`) and broadcasts (a team
         # estimator: :mod:`swarmloc.net.broadcast`; diekf in clusters: its cluster's only, each a key of its own, so
         # that what a node takes in is flat in the team's size)
         self.hear("progress", self.watched)
         self.hear("broadcast", self.mates or ())
-        decl.append(
+        p.decl.append(
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
         )
         for kind in ("belief", "progress", *(["delayed"] if self.delayed else []), *(["lines"] if self.lines else [])):
             self.pub[kind] = s.declare_publisher(robot_key(team, r, kind), congestion_control=self.block)
         if self.ros_domain is not None:
             self._open_ros(self.ros_domain)
-        self.presence.announce(r)
+        p.announce(r)
 
     def hear(self, kind: str, robots: Sequence[str]) -> None:
         """Subscribe to the ``kind`` key (``progress``, ``broadcast``) of each of ``robots`` (``"*"``: all) not
