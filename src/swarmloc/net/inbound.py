@@ -65,6 +65,7 @@ class Inbound:
         """Handling a batch of the queue: what the node pushes waits for its end (:meth:`drain`)."""
         self._replayed = False  # the last refusal was of a replayed copy
         self.refusals = Refusals(counts, reasons, f"robot {robot}", log)
+        """Counts (and logs) what it drops, by reason (:class:`~.auth.Refusals`)."""
 
     def wake(self) -> None:
         """Wake the node's loop from another thread (or a signal handler)."""
