@@ -159,7 +159,7 @@ class Wiring:
     def close(self, last: Callable[[], Any] | None = None) -> None:
         """Undeclare everything :meth:`open` declared (the session itself belongs to the caller), once ``last()``
         has sent the node's last messages (:meth:`~.teamlink.Presence.leave`)."""
-        undeclare_all(self._subs.values())
+        self.presence.decl += self._subs.values()  # undeclared with the rest, once the last messages are sent
         self._subs.clear()
         self.presence.leave(last, f"robot {self.robot}")
         if self._ros_graph is not None:
