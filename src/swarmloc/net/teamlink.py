@@ -66,6 +66,7 @@ class Presence:
         """What the process declared on its session, its liveliness token too (undeclared by :meth:`leave`)."""
 
     def join(self) -> None:
+        """Answer the per-pair handshake, before anything else is declared."""
         attach(self.auth, self.session, self.scope, hello=False)
 
     def announce(self, member: int | str) -> None:
@@ -74,6 +75,7 @@ class Presence:
         self.decl.append(self.session.liveliness().declare_token(alive_key(self.scope, member)))
 
     def undeclare(self) -> None:
+        """Undeclare what it declared; the per-pair sessions stay (until :meth:`leave`)."""
         undeclare_all(self.decl)
         self.decl.clear()
 
