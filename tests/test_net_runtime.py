@@ -192,7 +192,7 @@ def test_a_node_waits_for_its_teammates_no_longer_than_its_wall_time_bound(caplo
     session = open_session([f"tcp/127.0.0.1:{port}"], [])
     try:
         net = offline_net(start_timeout=30.0)
-        net.session = net.wiring.session = session  # the node sends on it, its wiring declares on it
+        net.session = net.wiring.session = net.wiring.presence.session = session  # it sends, its wiring declares on it
         t0 = time.monotonic()
         with caplog.at_level(logging.INFO, logger="swarmloc.net.process"):
             net.run(max_wall=1.0)

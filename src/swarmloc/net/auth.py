@@ -76,6 +76,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 
 from swarmloc.net.schema import SERVER, Envelope, Rejected, decode
 from swarmloc.net.transport import robot_of
+from swarmloc.node.accounting import reason_key
 
 log = logging.getLogger(__name__)
 
@@ -527,6 +528,28 @@ def note_refusal(counts: Counter[str], exc: Rejected, who: str, where: str, pref
     level = logging.WARNING if n <= 5 or n % 1000 == 0 else logging.DEBUG
     log.log(level, "%s: refused a %s: %s (%s) [%s: %d]", who, where, exc.reason, getattr(exc, "detail", ""), name, n)
     return True
+
+
+class Refusals:
+    """What a receiver refuses, counted and logged in one way: each refusal as ``<prefix>rejected`` in ``counts`` and
+    under its reason in ``reasons`` (at most 256 distinct: :func:`~swarmloc.node.accounting.reason_key`); an
+    authentication failure also as ``<prefix>auth_<category>``, logged by :func:`note_refusal`; any other logged to
+    ``logger`` as ``"<who>: <verb> a <where>: <reason>"``, the first of each of the first ``warn`` reasons at WARNING,
+    the rest at DEBUG."""
+
+    def __init__(self, counts: Counter[str], reasons: Counter[str], who: str, logger: logging.Logger, *,
+                 verb: str = "dropped", prefix: str = "", warn: float = 20) -> None:  # fmt: skip
+        self.counts, self.reasons, self.who, self.log = counts, reasons, who, logger
+        self.verb, self.prefix, self.warn = verb, prefix, warn
+
+    def __call__(self, reason: str, where: str = "message", exc: Rejected | None = None) -> None:
+        """Count (and log) one refused ``where`` (a message, a query...) for ``reason``; ``exc``: the refusal raised."""
+        self.counts[f"{self.prefix}rejected"] += 1
+        key = reason_key(self.reasons, reason)
+        self.reasons[key] += 1
+        if exc is None or not note_refusal(self.counts, exc, self.who, where, self.prefix):
+            level = logging.WARNING if self.reasons[key] == 1 and len(self.reasons) <= self.warn else logging.DEBUG
+            self.log.log(level, "%s: %s a %s: %s", self.who, self.verb, where, key)
 
 
 class TeamKeys:

@@ -42,10 +42,10 @@ import numpy as np
 
 from swarmloc.events import Detection, Event, Kind, Odometry, OwnEvent
 from swarmloc.messages import flat
-from swarmloc.net.auth import open_envelope, seal
+from swarmloc.net.auth import open_envelope
 from swarmloc.net.faults import Faults, FaultySender
 from swarmloc.net.numbered import Numbered
-from swarmloc.net.pairing import attach
+from swarmloc.net.outbound import Envelopes
 from swarmloc.net.schema import (
     MAX_RAW_ITEMS,
     MAX_REPAIR,
@@ -58,11 +58,10 @@ from swarmloc.net.schema import (
     RawOdometry,
     Rejected,
     Report,
-    encode,
     group_tag,
 )
-from swarmloc.net.teamlink import TeamLink
-from swarmloc.net.transport import alive_key, block, robot_key, server_key, undeclare_all
+from swarmloc.net.teamlink import Presence, TeamLink
+from swarmloc.net.transport import alive_key, block, robot_key, server_key
 from swarmloc.node import Node
 
 __all__ = ["Forwarder", "Fusion", "from_wire", "to_wire"]
@@ -372,7 +371,7 @@ class Forwarder:
         plan = faults.plan(robot) if faults is not None and faults.link else None
         self.sends = FaultySender(plan, self.counts, robot)
         """The forwards sent with the link faults (lost, delayed, duplicated)."""
-        self._seq = 0
+        self._seal = Envelopes(self.auth, self.team, robot).seal  # its envelopes: numbered in one sequence, sealed
         self._server_done = threading.Event()
         self._server_alive = threading.Event()
         self._stop = threading.Event()
@@ -382,10 +381,6 @@ class Forwarder:
 
     def stop(self) -> None:
         self._stop.set()
-
-    def _seal(self, key: str, body: Any) -> bytes:
-        self._seq += 1
-        return seal(self.auth, key, encode(self.team, self.robot, self._seq, body))
 
     def _from_server(self, x: Any, key: str) -> Any:
         """The body of sample ``x`` on the server's ``key`` when the server sent it (None otherwise); a refused one
@@ -432,11 +427,11 @@ class Forwarder:
 
     def _send(self, key: str, body: Raw) -> None:
         """One forward, as the link faults say (lost, delayed, duplicated)."""
-        self.sends.faulty(partial(self.session.put, key, self._seal(key, body), congestion_control=self._block))
+        self.sends.faulty(partial(self.session.put, key, self._seal(body, key), congestion_control=self._block))
 
     def _put(self, key: str, body: Any) -> None:
         """``body`` sealed and put on ``key``, never dropped (not subject to the link faults: progress, report)."""
-        self.session.put(key, self._seal(key, body), congestion_control=self._block)
+        self.session.put(key, self._seal(body, key), congestion_control=self._block)
 
     def run(self, max_wall: float | None = None) -> Report:
         """Forward everything, then wait for the server's report; returns this robot's report."""
@@ -444,15 +439,14 @@ class Forwarder:
         t_wall0, t_cpu0 = time.perf_counter(), time.process_time()
         end = math.inf if max_wall is None else time.monotonic() + max_wall
         s, sc, r = self.session, self.scope, self.robot
-        attach(self.auth, s, sc, hello=False)  # the per-pair handshake answered first (:mod:`.pairing`)
-        decl = [
+        p = Presence(s, sc, self.auth)
+        p.join()
+        p.decl += [
             s.declare_subscriber(server_key(sc, "report"), handler=self._on_report),
             s.declare_subscriber(server_key(sc, "ack"), handler=self._on_ack),
             s.liveliness().declare_subscriber(alive_key(sc, "server"), history=True, handler=self._on_alive),
         ]
-        if self.auth is not None:  # a session with every member up now (the server's replies are opened on
-            self.auth.sessions.hello_all()  # Zenoh's threads, which never wait for a handshake)
-        token = s.liveliness().declare_token(alive_key(sc, r))
+        p.announce(r)
         try:
             self._forward(end)
             self._linger(end)
@@ -460,14 +454,7 @@ class Forwarder:
             net = {**self.counts, **(self.auth.session_counts() if self.auth is not None else {})}
             report = Report(robot=r, net={k: int(v) for k, v in net.items()},
                             wall_s=time.perf_counter() - t_wall0, cpu_s=time.process_time() - t_cpu0)  # fmt: skip
-            try:
-                self._put(robot_key(sc, r, "report"), report)
-                time.sleep(0.2)  # let Zenoh flush the report
-            except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
-                log.debug("robot %s: final report not sent: %s", r, exc)
-            undeclare_all([*decl, token])
-            if self.auth is not None:
-                self.auth.sessions.close()
+            p.leave(lambda: self._put(robot_key(sc, r, "report"), report), f"robot {r}")
         return report
 
     def _forward(self, end: float) -> None:

@@ -17,6 +17,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Container, Iterator, Sequence
+from contextlib import suppress
 from pathlib import Path
 from typing import Any, Unpack
 
@@ -303,8 +304,7 @@ def _forward(
     from swarmloc.net.central import Forwarder
 
     faults = parse_faults(faults) if isinstance(faults, str | None) else faults
-    session = open_session(listen, connect, zenoh_config)
-    try:
+    with open_session(listen, connect, zenoh_config) as session:
         link = TeamLink(session, team, src.robots, auth, run_id)
         fw = Forwarder(robot, faults.jumped(robot, src.own_events(robot)), link, faults=faults, speed=speed,
                        start_timeout=start_timeout, lost_timeout=lost_timeout)  # fmt: skip
@@ -313,8 +313,6 @@ def _forward(
         if out is not None:
             _write_report(Path(out), robot, report)
         return report
-    finally:
-        session.close()
 
 
 def _own_scans(src: Source, robot: int, events: Sequence[Event]) -> Any:
@@ -444,16 +442,11 @@ def server_main(
     hosted = None
     if estimator is not None:
         hosted = _hosted(estimator, src, roster, start_timeout, lost_timeout)
-    session = open_session(listen, connect, zenoh_config)
-    try:
+    with open_session(listen, connect, zenoh_config) as session:
         sp = ServerProcess(TeamLink(session, team, roster, auth, run_id), hosted=hosted, map_out=map_out)
         _stop_on_sigterm(sp.stop)
-        try:
+        with suppress(KeyboardInterrupt):
             sp.run(max_wall=max_wall)
-        except KeyboardInterrupt:
-            pass
-    finally:
-        session.close()
 
 
 def _hosted(estimator: str, src: Source | None, roster: Sequence[int], start_timeout: float,

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate
-from swarmloc.net.auth import Auth, note_refusal, open_envelope
+from swarmloc.net.auth import Auth, Refusals, open_envelope
 from swarmloc.net.intake import Intake
 from swarmloc.net.lockstep import MAX_HELD, MAX_HELD_FROM, Lockstep
 from swarmloc.net.outbound import Outbound, key_of, reply_err
@@ -33,7 +33,6 @@ from swarmloc.net.schema import (
     Report,
 )
 from swarmloc.net.transport import close_query
-from swarmloc.node.accounting import reason_key
 
 if TYPE_CHECKING:
     from swarmloc.net.broadcast import Broadcaster
@@ -65,6 +64,8 @@ class Inbound:
         self.draining = False
         """Handling a batch of the queue: what the node pushes waits for its end (:meth:`drain`)."""
         self._replayed = False  # the last refusal was of a replayed copy
+        self.refusals = Refusals(counts, reasons, f"robot {robot}", log)
+        """Counts (and logs) what it drops, by reason (:class:`~.auth.Refusals`)."""
 
     def wake(self) -> None:
         """Wake the node's loop from another thread (or a signal handler)."""
@@ -192,24 +193,14 @@ class Inbound:
 
     def reject(self, reason: str, where: str) -> None:
         """Count a dropped message with its reason (``rejected``, ``reasons``: at most 256 distinct,
-        :func:`~swarmloc.node.accounting.reason_key`) and log the first of each reason."""
-        self.counts["rejected"] += 1
-        reason = reason_key(self.reasons, reason)
-        self.reasons[reason] += 1
-        if self.reasons[reason] == 1 and len(self.reasons) <= 20:  # the first of each of the first 20 reasons
-            log.warning("robot %s: dropped a %s: %s", self.robot, where, reason)
-        else:
-            log.debug("robot %s: dropped a %s: %s", self.robot, where, reason)
+        :func:`~swarmloc.node.accounting.reason_key`) and log the first of each reason (:class:`~.auth.Refusals`)."""
+        self.refusals(reason, where)
 
     def _refuse(self, exc: Rejected, where: str) -> None:
         """Count a dropped message: an authentication failure also as ``auth_<category>``, logged with its detail
         (:func:`~swarmloc.net.auth.note_refusal`)."""
         self._replayed = getattr(exc, "category", None) == "replay"
-        if note_refusal(self.counts, exc, f"robot {self.robot}", where):
-            self.counts["rejected"] += 1
-            self.reasons[reason_key(self.reasons, exc.reason)] += 1
-        else:
-            self.reject(exc.reason, where)
+        self.refusals(exc.reason, where, exc)
 
     def _decode(self, payload: bytes | None, where: str, key: str = "") -> Envelope | None:
         """A neighbour's (or the server's) message for this robot received on ``key``, authenticated (with ``auth``:

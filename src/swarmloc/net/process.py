@@ -252,16 +252,14 @@ class NetNode:
                 self._finish(deadline)
         finally:
             report = self.report(time.perf_counter() - t_wall0, time.process_time() - t_cpu0)
-            try:
-                done = Progress(robot=self.robot, t=math.inf, done=True)
-                self.wiring.put("progress", done)
-                key = self.wiring.key("report")
-                self.session.put(key, self.envelopes.seal(report, key), congestion_control=self.wiring.block)
-                time.sleep(0.2)  # let Zenoh flush the report before the session closes
-            except Exception as exc:  # noqa: BLE001 - the session may be gone (Ctrl-C)
-                log.debug("robot %s: final report not sent: %s", self.robot, exc)
-            self.wiring.close()
+            self.wiring.close(lambda: self._say_done(report))
         return report
+
+    def _say_done(self, report: Report) -> None:
+        """The node's last messages: its progress, done, and its ``report``."""
+        self.wiring.put("progress", Progress(robot=self.robot, t=math.inf, done=True))
+        key = self.wiring.key("report")
+        self.session.put(key, self.envelopes.seal(report, key), congestion_control=self.wiring.block)
 
     def _wait_start(self, deadline: float) -> None:
         """Wait for the robots of ``wait_for`` (and, with ``use_server``, the belief server) to be alive: at most

@@ -50,9 +50,8 @@ from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.mapping import LineMap, LineObservation
 from swarmloc.messages import BeliefAnswer, BeliefQuery, flat
-from swarmloc.net.auth import note_refusal, open_envelope, seal
+from swarmloc.net.auth import Refusals, open_envelope, seal
 from swarmloc.net.intake import SERVER_BUDGET, Intake, vouch_for
-from swarmloc.net.pairing import attach
 from swarmloc.net.schema import (
     MAX_MAP_LINES,
     SERVER,
@@ -65,9 +64,8 @@ from swarmloc.net.schema import (
     encode,
     group_tag,
 )
-from swarmloc.net.teamlink import TeamLink
-from swarmloc.net.transport import alive_key, block, robot_key, server_key, undeclare_all
-from swarmloc.node.accounting import reason_key
+from swarmloc.net.teamlink import Presence, TeamLink
+from swarmloc.net.transport import block, robot_key, server_key
 
 __all__ = ["BeliefServer", "MapStore", "ServerProcess", "linemap_of", "observations_of", "wire_line"]
 
@@ -280,6 +278,8 @@ class ServerProcess:
         self.map_out = map_out
         self.counts: Counter[str] = Counter()
         self.reasons: Counter[str] = Counter()
+        self._reject = Refusals(self.counts, self.reasons, "belief server", log, warn=0)
+        """Counts (and logs) a message dropped, for its reason (:class:`~swarmloc.net.auth.Refusals`)."""
         self._q = Intake(self.roster, SERVER_BUDGET, signed=self.auth is not None, team_size=len(self.roster),
                          vouch=None if self.auth is None else vouch_for(self.auth))  # fmt: skip
         """What the server receives, within its budgets (:mod:`swarmloc.net.intake`)."""
@@ -292,31 +292,23 @@ class ServerProcess:
         self._stop.set()
         self._q.put(("wake", None))
 
-    def _reject(self, reason: str, exc: Rejected | None = None) -> None:
-        if exc is not None:
-            note_refusal(self.counts, exc, "belief server", "message")
-        self.counts["rejected"] += 1
-        self.reasons[reason_key(self.reasons, reason)] += 1  # bounded: distinct reasons past a cap share one key
-        log.debug("belief server: dropped a message: %s", reason)
-
     def run(self, max_wall: float | None = None) -> None:
         """Serve until :meth:`stop` (or ``max_wall`` s)."""
         s, put = self.session, self._q.offer  # within the server's budgets (:mod:`swarmloc.net.intake`)
-        attach(self.auth, s, self.scope, hello=False)  # the per-pair handshake answered first (:mod:`.pairing`)
-        decl = [
+        p = Presence(s, self.scope, self.auth)
+        p.join()
+        p.decl += [
             s.declare_subscriber(robot_key(self.scope, "*", "belief"), handler=lambda x: put(("belief", x))),
             s.declare_subscriber(robot_key(self.scope, "*", "lines"), handler=lambda x: put(("lines", x))),
             s.declare_queryable(server_key(self.scope), handler=lambda q: put(("query", q))),
         ]
         if self.hosted is not None:
-            decl += [s.declare_subscriber(robot_key(self.scope, "*", w), handler=lambda x, w=w: put((w, x)))
-                     for w in ("raw", "progress")]  # fmt: skip
+            p.decl += [s.declare_subscriber(robot_key(self.scope, "*", w), handler=lambda x, w=w: put((w, x)))
+                       for w in ("raw", "progress")]  # fmt: skip
             self._pubs = {w: s.declare_publisher(server_key(self.scope, w), congestion_control=block())
                           for w in ("belief", "report", "ack")}  # fmt: skip
-            decl += list(self._pubs.values())
-        if self.auth is not None:  # a session with every member up now, before the team hears of the server
-            self.auth.sessions.hello_all()
-        token = s.liveliness().declare_token(alive_key(self.scope, "server"))
+            p.decl += list(self._pubs.values())
+        p.announce("server")
         end = None if max_wall is None else time.monotonic() + max_wall
         self._wall0, self._cpu0 = time.perf_counter(), time.process_time()
         try:
@@ -335,10 +327,7 @@ class ServerProcess:
                     log.exception("belief server: error on %s", kind)
                     self._reject(f"internal error: {type(exc).__name__}")
         finally:
-            undeclare_all([*decl, token])
-            if self.auth is not None:
-                self.counts.update(self.auth.session_counts())
-                self.auth.sessions.close()
+            p.leave(counts=self.counts)
             if self.map_out is not None:
                 try:
                     self.maps.current().save_geojson(self.map_out)
@@ -381,7 +370,7 @@ class ServerProcess:
             env = open_envelope(self.auth, str(x.key_expr), x.payload.to_bytes(), self.team, self.roster,
                                 server_ok=False, publication=True)  # fmt: skip
         except Rejected as exc:
-            self._reject(exc.reason, exc)
+            self._reject(exc.reason, "message", exc)
             return
         body = env.body
         if kind == "progress":  # a forwarding robot is alive (hosted estimator)
@@ -419,7 +408,7 @@ class ServerProcess:
             payload = q.payload.to_bytes() if q.payload is not None else b""
             env = open_envelope(self.auth, str(q.key_expr), payload, self.team, self.roster, server_ok=False)
         except Rejected as exc:
-            self._reject(exc.reason, exc)
+            self._reject(exc.reason, "message", exc)
             q.reply_err(exc.reason.encode()[:200])
             return
         if not isinstance(env.body, BeliefQuery):

@@ -36,12 +36,12 @@ import numpy as np
 
 from swarmloc.datasets.source import Source
 from swarmloc.events import Detection
-from swarmloc.net.auth import COLLECTOR, TeamKeys, note_refusal, open_envelope
+from swarmloc.net.auth import COLLECTOR, Refusals, TeamKeys, open_envelope
 from swarmloc.net.entry import hosted_class, map_answers, network_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.intake import COLLECTOR_BUDGET, Intake, vouch_for
-from swarmloc.net.pairing import attach
 from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
+from swarmloc.net.teamlink import Presence
 from swarmloc.net.timeouts import ANSWER_RETRIES, TIMEOUTS, Waits, check_retries
 from swarmloc.net.transport import (
     check_team,
@@ -52,7 +52,6 @@ from swarmloc.net.transport import (
     router_mesh,
     server_key,
     team_scope,
-    undeclare_all,
 )  # fmt: skip
 
 log = logging.getLogger(__name__)
@@ -296,6 +295,8 @@ class _Launcher:
         self.logs.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, subprocess.Popen] = {}
         self.result = TeamRun(run_id=self.run_id)
+        self._refuse = Refusals(self.result.counts, self.result.reasons, "collector", log, verb="refused",
+                                prefix="collector_", warn=math.inf)  # fmt: skip
         self.progress: dict[int, float] = {}
         self._intake = self.inq = Intake(self.roster | {SERVER}, COLLECTOR_BUDGET, signed=True,
                                          vouch=vouch_for(self.auth))  # fmt: skip
@@ -416,7 +417,6 @@ class _Launcher:
         """Keep a published belief, report or progress announcement signed by the robot whose key it is published on,
         or a belief or report signed by the server on its own keys (a hosted estimator's; a bad payload, or a belief
         stamped at no record time of the run, is counted and dropped)."""
-        counts = self.result.counts
         try:
             key = str(sample.key_expr)
             on_server = key in (server_key(self.scope, "belief"), server_key(self.scope, "report"))
@@ -431,11 +431,7 @@ class _Launcher:
             if isinstance(b, Belief) and not delayed and b.stamp not in self.record_times:
                 raise Rejected("belief stamped at no record time of the run")
         except Rejected as exc:
-            counts["collector_rejected"] += 1
-            self.result.reasons[exc.reason] += 1
-            if not note_refusal(counts, exc, "collector", "message", prefix="collector_"):
-                log.log(logging.WARNING if self.result.reasons[exc.reason] == 1 else logging.DEBUG,
-                        "collector: refused a message: %s", exc.reason)  # fmt: skip
+            self._refuse(exc.reason, "message", exc)
             return
         if self.view is not None and not delayed:
             self.view.observe(b)
@@ -501,9 +497,10 @@ class _Launcher:
         else:
             others = [self.ep[k] for k in self.ep if k != "collector"] + self.connect_extra
             session = open_session([self.ep["collector"]], others)
-        attach(self.auth, session, self.scope, hello=False)  # the nodes make their sessions with it as they start
+        presence = Presence(session, self.scope, self.auth)
+        presence.join()  # the nodes make their sessions with it as they start
         put = self.inq.offer  # within the collector's budgets (:mod:`swarmloc.net.intake`)
-        subs = [
+        presence.decl += [
             session.declare_subscriber(robot_key(self.scope, "*", what), handler=lambda x: put(("sample", x)))
             for what in ("belief", "report", "progress", "lines", "delayed")
         ] + [session.declare_subscriber(server_key(self.scope, w), handler=lambda x: put(("sample", x)))
@@ -516,15 +513,14 @@ class _Launcher:
             if self.server and not self.result.counts["timed_out"]:
                 self.result.map = self.ask_map(session)
         finally:
-            undeclare_all(subs)
+            presence.undeclare()
             self._intake.fold(self.result.counts, self.result.reasons, prefix="collector_")
             self.note_ended()  # those that ended by themselves, then those the launcher stops
             stop_all(self.procs)
             limit = " at its time limit" if self.result.counts["timed_out"] else ""
             self.note_ended(f"stopped by the launcher{limit}")
             self.result.exit_codes = {n: p.returncode for n, p in self.procs.items()}
-            self.result.counts.update({f"collector_{k}": v for k, v in self.auth.session_counts().items()})
-            self.auth.sessions.close()
+            presence.leave(counts=self.result.counts, prefix="collector_")
             session.close()
             if self._temp_logs:
                 shutil.rmtree(self.logs, ignore_errors=True)

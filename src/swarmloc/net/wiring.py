@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from swarmloc.net.auth import Auth
-from swarmloc.net.pairing import attach
+from swarmloc.net.teamlink import Presence
 from swarmloc.net.transport import alive_key, block, robot_key, undeclare_all
 
 PUBLISHED = ("belief", "progress", "delayed", "lines")
@@ -53,10 +53,11 @@ class Wiring:
         ros_domain: int | None = None,
     ) -> None:
         self.session, self.scope, self.team, self.robot = session, scope, team, robot
-        self.offer, self.env, self.auth, self.mates, self.watched = offer, env, auth, mates, watched
+        self.offer, self.env, self.mates, self.watched = offer, env, mates, watched
         self.delayed, self.lines, self.ros_domain = delayed, lines, ros_domain
-        self.decl: list[Any] = []
-        """What it declared (undeclared by :meth:`close`); a part that declares more appends it here."""
+        self.presence = Presence(session, scope, auth)
+        """Its joining and leaving the team; what it declares (:attr:`~.teamlink.Presence.decl`) is undeclared by
+        :meth:`close`."""
         self.block: Any = None
         """``zenoh.CongestionControl.BLOCK`` once opened (zenoh is imported lazily): what it sends is never dropped."""
         self.pub: dict[str, Any] = dict.fromkeys(PUBLISHED)
@@ -65,7 +66,6 @@ class Wiring:
         self._ros_graph: Any = None
         self._ros_gid = b""
         self._ros_seq = 0
-        self._token: Any = None
         self._subs: dict[tuple[str, str], Any] = {}  # (kind, robot): the subscriber of a teammate's key (:meth:`hear`)
 
     def open(self) -> None:
@@ -73,26 +73,24 @@ class Wiring:
         self.block = block()  # never drop a belief, a progress announcement or a push
 
         s, team, r = self.session, self.scope, self.robot  # keys: the team's scope (its name, and the run's id)
-        # per-pair sessions (:mod:`swarmloc.net.pairing`): answer the handshake before anything else is declared
-        attach(self.auth, s, team, hello=False)
+        p = self.presence
+        p.join()  # the per-pair handshake answered before anything else is declared
         put = self.offer  # within the budgets of what a node takes in (:mod:`.intake`)
-        self.decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
-        self.decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
+        p.decl.append(s.declare_queryable(robot_key(team, r, "query"), handler=lambda q: put(("query", q))))
+        p.decl.append(s.declare_subscriber(robot_key(team, r, "inbox"), handler=lambda x: put(("inbox", x))))
         # the teammates' progress (lockstep's: :func:`~swarmloc.net.lockstep.watched`) and broadcasts (a team
         # estimator: :mod:`swarmloc.net.broadcast`; diekf in clusters: its cluster's only, each a key of its own, so
         # that what a node takes in is flat in the team's size)
         self.hear("progress", self.watched)
         self.hear("broadcast", self.mates or ())
-        self.decl.append(
+        p.decl.append(
             s.liveliness().declare_subscriber(alive_key(team), history=True, handler=lambda x: put(("alive", x)))
         )
         for kind in ("belief", "progress", *(["delayed"] if self.delayed else []), *(["lines"] if self.lines else [])):
             self.pub[kind] = s.declare_publisher(robot_key(team, r, kind), congestion_control=self.block)
         if self.ros_domain is not None:
             self._open_ros(self.ros_domain)
-        if self.auth is not None:  # a session with every member up now, before the team hears of this process
-            self.auth.sessions.hello_all()
-        self._token = s.liveliness().declare_token(alive_key(team, r))
+        p.announce(r)
 
     def hear(self, kind: str, robots: Sequence[str]) -> None:
         """Subscribe to the ``kind`` key (``progress``, ``broadcast``) of each of ``robots`` (``"*"``: all) not
@@ -145,7 +143,7 @@ class Wiring:
         estimator's ``broadcast``) declared on first use."""
         if self.pub.get(kind) is None:
             self.pub[kind] = self.session.declare_publisher(self.key(kind), congestion_control=self.block)
-            self.decl.append(self.pub[kind])
+            self.presence.decl.append(self.pub[kind])
         return self.pub[kind]
 
     def put_ros(self, t: Any, b: Any) -> None:
@@ -158,12 +156,11 @@ class Wiring:
         att = ros.ros_attachment(self._ros_seq, time.time_ns(), self._ros_gid)
         self._ros_pub.put(ros.to_cdr(ros.pose_message(t, b.mean, b.cov)), attachment=att)
 
-    def close(self) -> None:
-        """Undeclare everything :meth:`open` declared (the session itself belongs to the caller)."""
-        undeclare_all([*self.decl, *self._subs.values(), self._token])  # the token: None unless opened (passed over)
-        self.decl.clear()
+    def close(self, last: Callable[[], Any] | None = None) -> None:
+        """Undeclare everything :meth:`open` declared (the session itself belongs to the caller), once ``last()``
+        has sent the node's last messages (:meth:`~.teamlink.Presence.leave`)."""
+        self.presence.decl += self._subs.values()  # undeclared with the rest, once the last messages are sent
         self._subs.clear()
-        if self.auth is not None and self.auth.sessions is not None:
-            self.auth.sessions.close()
+        self.presence.leave(last, f"robot {self.robot}")
         if self._ros_graph is not None:
             self._ros_graph.close()
