@@ -195,37 +195,36 @@ def test_a_mate_that_starts_hearing_a_sender_asks_for_its_head_and_gets_it_at_on
     assert [decode(p, "t", src.robots, to_robot=2).body.receiver for _, p in receiver.session.pushed[2:]] == [2]
 
 
-def test_an_unchanged_head_is_announced_again_ever_more_rarely_and_reveals_the_last_broadcast_lost(monkeypatch):
-    """A sender's head unchanged is announced again after ``HEAD_EVERY`` s, then after twice as long each time (up
-    to ``HEAD_MAX`` s); a change announces it at once and starts again. A receiver that lost the sender's last
-    broadcast and the head that came with it (a link down) learns of it from that repeat and asks for it."""
+def test_an_unchanged_head_is_announced_again_per_second_of_data_and_reveals_the_last_broadcast_lost(monkeypatch):
+    """A sender's unchanged head is announced again once its present has moved ``HEAD_EVERY`` s of data on, or after
+    ``lost_timeout`` s of wall time (a sender that waits), not every second of wall time: a replay slower than real
+    time no longer receives more of them per second of data. A receiver that lost the sender's last broadcast and
+    the head that came with it (a link down) learns of it from that repeat and asks for it."""
     clock = _Clock()
     monkeypatch.setattr(bc, "time", clock)
     sender, src = offline_diekf(robot=1)
-    b = sender.broadcaster
+    b, t0 = sender.broadcaster, sender.node.present
+
+    def flush_at(wall: float, present: float) -> int:
+        clock.now, sender.node._clock.present = wall, present
+        b.flush()
+        return len(_heads(sender))
+
     start = clock.now
-    for dt in np.arange(0.0, 200.0, 0.25):
-        clock.now = start + dt
-        b.flush()
-    heads = _heads(sender)
-    assert len({(h.n, h.t, h.prio) for h in heads}) == 1  # the same head throughout
-    # announced at 0, then 1, 3, 7, 15, 31 (doubling), then every 32 s: 63, 95, 127, 159, 191
-    assert len(heads) == 11 and sender.counts["broadcast_heads_sent"] == 11
-    sender.broadcaster.queue(msgspec.structs.replace(update(1, src.t_start + 0.5), receiver=0))
-    for _ in range(2):  # the broadcast and its head, then its head once the group is quiet: lost to the receiver
-        clock.now += 0.25
-        b.flush()
-    assert [h.n for h in _heads(sender, since=11)] == [1, 1]
+    assert flush_at(start, t0) == 1
+    assert flush_at(start + 9.0, t0 + 0.9) == 1  # 9 s of wall time, 0.9 s of data: not yet (before, 9 heartbeats)
+    assert flush_at(start + 9.5, t0 + 1.0 + 1e-9) == 2  # a second of data
+    lost = sender.lockstep.settings.lost_timeout
+    assert flush_at(start + 9.5 + lost - 0.1, t0 + 1.5) == 2
+    assert flush_at(start + 9.5 + lost, t0 + 1.5) == 3  # the present has not moved on: lost_timeout s of wall time
+    assert len({(h.n, h.t, h.prio) for h in _heads(sender)}) == 1 and sender.counts["broadcast_heads_sent"] == 3
+    b.queue(msgspec.structs.replace(update(1, src.t_start + 0.5), receiver=0))
+    for dt in (0.25, 0.5):  # the broadcast and its head, then its head once the group is quiet: lost to the receiver
+        flush_at(start + 9.5 + lost + dt, t0 + 1.5)
+    assert [h.n for h in _heads(sender, since=3)] == [1, 1]
     receiver, _ = offline_diekf(robot=0)
     receiver.inbound.handle("broadcast", _Sample(sender.session.published[0][1]))  # the first head: n = 0
-    n_pub = len(sender.session.published)
-    clock.now += 0.9
-    b.flush()
-    assert len(sender.session.published) == n_pub  # changed less than HEAD_EVERY s ago: not yet
-    clock.now += 0.1
-    b.flush()
-    again = _heads(sender, since=n_pub)
-    assert [h.n for h in again] == [1]  # the repeat, one second after the change
+    assert flush_at(clock.now + 0.1, t0 + 2.5 + 1e-9) == 6  # the repeat, a second of data on
     receiver.inbound.handle("broadcast", _Sample(sender.session.published[-1][1]))
     assert receiver.broadcaster._peers[1].missing() == [0]
     receiver.broadcaster.ask_missing(clock.now + receiver.broadcaster.repair_wait + 1e-3)

@@ -23,11 +23,12 @@ lost are seen missing too). A receiver that needs the head of a live mate it hea
 it: the node's start, a re-formed cluster) asks its sender for it after ``repair_wait`` s (a
 :class:`~swarmloc.net.schema.BroadcastRepair` with ``head`` set, ``head_requests``, asked again every ``2
 repair_wait + 0.2`` s while it has none); the sender announces its head again at its next flush (at most once per
-``repair_wait`` s, however many ask). Unchanged, a head is announced again only after :data:`HEAD_EVERY` s of wall
-time, then after twice as long each time, up to :data:`HEAD_MAX` s (a heartbeat, for a head lost on the way: equal
-to the last heard from its sender, it is counted ``broadcast_heads_repeated`` too). Before, the heartbeat came every
-second of wall time, to tell a mate that started hearing its sender the head: a replay slower than real time
-received more of them per second of data the slower it ran.
+``repair_wait`` s, however many ask). Unchanged, a head is announced again (a heartbeat, for a head lost on the way;
+equal to the last heard from its sender, it is counted ``broadcast_heads_repeated`` too) once the node's present has
+moved :data:`HEAD_EVERY` s of data on, or after ``lost_timeout`` s of wall time (a sender that waits: well before
+its teammates would declare it stalled, after :data:`~swarmloc.net.timeouts.STALL_TIMEOUTS` lost timeouts). Before,
+it came every second of wall time, to tell a mate that started hearing its sender the head: a replay slower than
+real time received more of them per second of data the slower it ran.
 A number missing for ``repair_wait`` s (the link's delay, plus 50 ms) is asked again
 of its sender with a :class:`~swarmloc.net.schema.BroadcastRepair` on the sender's inbox (``repair_requests``),
 again every ``2 repair_wait + 0.2`` s, ``REPAIR_TRIES`` times at most. The sender keeps its last ``BUFFER``
@@ -82,10 +83,7 @@ past it is refused and counted (it is asked again later), so that requests canno
 REPAIR_TRIES = 8
 """Requests for one missing broadcast before it is given up."""
 HEAD_EVERY = 1.0
-"""[s] wall time before a sender's unchanged head is announced again (announced at once when it changes); each
-repeat after that waits twice as long as the one before, up to :data:`HEAD_MAX`."""
-HEAD_MAX = 32.0
-"""[s] the longest wall time between two announcements of an unchanged head."""
+"""[s] data time (the sender's present) before its unchanged head is announced again (at once when it changes)."""
 
 
 class Broadcaster:
@@ -116,7 +114,7 @@ class Broadcaster:
         self._revised: set[tuple] = set()  # (stamp, sub, target): revised answers received
         self._quiet: dict[float, float] = {}  # group stamp: wall time of its last broadcast or revised answer
         self._bflush = 0.0
-        self._bhead: tuple[float, tuple, int] = (-1.0, (), 0)  # (wall time, (count, t, prio), repeats) announced last
+        self._bhead: tuple[float, float, tuple] = (-1.0, -math.inf, ())  # (wall time, present, head) announced last
         self._head_asked = False  # a teammate asked for this node's head since it was last announced
         self._head_asks: dict[int, tuple[int, float]] = {}  # per live mate without head: (requests sent, since when)
         self._heads: dict[int, tuple[int, float, int]] = {}  # per teammate: its latest head (count, t, prio)
@@ -170,12 +168,10 @@ class Broadcaster:
             if now - since > 2 * self.repair_wait + 0.2:
                 del self._rev_wait[k]
                 self.counts["revision_not_received"] += 1
-        head, (when, last, repeats) = (self._bn, *self._settled()), self._bhead
-        again = now - when >= min(HEAD_EVERY * 2**repeats, HEAD_MAX) or (
-            self._head_asked and now - when >= self.repair_wait
-        )
-        if head != last or again:
-            self._bhead, self._head_asked = (now, head, 0 if head != last else repeats + 1), False
+        head, (when, at, last), present = (self._bn, *self._settled()), self._bhead, self.node.present
+        again = present - at >= HEAD_EVERY or now - when >= self.lockstep.settings.lost_timeout
+        if head != last or again or (self._head_asked and now - when >= self.repair_wait):
+            self._bhead, self._head_asked = (now, present, head), False
             self.counts["broadcast_heads_sent"] += 1
             self._publish_b(BroadcastHead(robot=self.robot, n=head[0], t=head[1], prio=head[2]), faults=False)
         self.ask_missing(now)
