@@ -144,7 +144,8 @@ class Broadcaster:
 
     def flush(self, force: bool = False) -> None:
         """Publish the queued broadcasts (at once without faults, at most every ``coalesce`` s with them), announce
-        the count now and then, and ask for the missing ones of the teammates."""
+        the head when it changed, was asked for, or is due again (module docstring), and ask for the teammates'
+        missing broadcasts and heads."""
         now = time.monotonic()
         link, coalesce = self.outbound.link, self.outbound.coalesce
         if self._bout and (force or link is None or now - self._bflush >= coalesce):
