@@ -137,6 +137,100 @@ def test_a_head_reveals_the_last_broadcasts_lost_and_holds_what_is_keyed_after_t
     assert net.broadcaster.unsettled(key) is None
 
 
+class _Clock:
+    """The broadcaster's wall clock (``time.monotonic``), set by the test."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+def _heads(net: NetNode, since: int = 0) -> list[BroadcastHead]:
+    """The heads ``net`` published (from its ``since``-th publication on)."""
+    bodies = [decode(p, "t", {0, 1, 2}).body for _, p in net.session.published[since:]]
+    return [b for b in bodies if isinstance(b, BroadcastHead)]
+
+
+def test_a_mate_that_starts_hearing_a_sender_asks_for_its_head_and_gets_it_at_once(monkeypatch):
+    """A receiver without the head of a live mate it hears (it subscribed after the head was announced) asks its
+    sender for it once it has waited ``repair_wait`` s, and again while it has none; the sender announces its
+    unchanged head at its next flush (at most once per ``repair_wait`` s, however many ask), not a heartbeat later.
+    Before, the receiver waited for the sender's heartbeat (every second of wall time)."""
+    clock = _Clock()
+    monkeypatch.setattr(bc, "time", clock)
+    sender, src = offline_diekf(robot=1)
+    sender.broadcaster.flush()
+    assert len(_heads(sender)) == 1  # announced before the receiver heard it: lost to it
+    receiver, _ = offline_diekf(robot=0)
+    receiver.lockstep.alive |= {1, 2}
+    rb = receiver.broadcaster
+    rb.ask_missing(clock.now)
+    assert receiver.counts["head_requests"] == 0  # not yet: the head may still be on its way
+    clock.now += rb.repair_wait + 1e-3
+    rb.ask_missing(clock.now)
+    pushed = receiver.session.pushed
+    asks = [decode(p, "t", src.robots, to_robot=r).body for r, (_, p) in zip((1, 2), pushed, strict=True)]
+    assert asks == [BroadcastRepair(sender=0, receiver=r, first=0, last=-1, head=True) for r in (1, 2)]
+    rb.ask_missing(clock.now + 1e-3)
+    assert receiver.counts["head_requests"] == 2  # asked again only after 2 repair_wait + 0.2 s
+    sender.inbound.handle("inbox", _Sample(receiver.session.pushed[0][1]))
+    sender.inbound.handle("inbox", _Sample(encode("t", 0, 9, asks[0])))  # asked twice: announced once
+    assert sender.counts["head_requests_received"] == 2 and sender.counts["repairs_sent"] == 0
+    sender.broadcaster.flush()
+    sender.broadcaster.flush()
+    assert len(_heads(sender)) == 2  # announced again at once (long before a heartbeat), once
+    receiver.inbound.handle("broadcast", _Sample(sender.session.published[-1][1]))
+    sender.inbound.handle("inbox", _Sample(encode("t", 0, 10, asks[0])))
+    sender.broadcaster.flush()
+    assert len(_heads(sender)) == 2  # asked again: its last announcement less than repair_wait s ago
+    clock.now += sender.broadcaster.repair_wait + 1e-3
+    sender.broadcaster.flush()
+    assert len(_heads(sender)) == 3
+    assert "no broadcast head from robot 1" not in rb.unsettled((src.t_start + 1.0, 1, 0))
+    clock.now += 10.0
+    rb.ask_missing(clock.now)
+    assert receiver.counts["head_requests"] == 3  # robot 2 still has not answered; robot 1 is not asked again
+    assert [decode(p, "t", src.robots, to_robot=2).body.receiver for _, p in receiver.session.pushed[2:]] == [2]
+
+
+def test_an_unchanged_head_is_announced_again_per_second_of_data_and_reveals_the_last_broadcast_lost(monkeypatch):
+    """A sender's unchanged head is announced again once its present has moved ``HEAD_EVERY`` s of data on, or after
+    ``lost_timeout`` s of wall time (a sender that waits), not every second of wall time: a replay slower than real
+    time no longer receives more of them per second of data. A receiver that lost the sender's last broadcast and
+    the head that came with it (a link down) learns of it from that repeat and asks for it."""
+    clock = _Clock()
+    monkeypatch.setattr(bc, "time", clock)
+    sender, src = offline_diekf(robot=1)
+    b, t0 = sender.broadcaster, sender.node.present
+
+    def flush_at(wall: float, present: float) -> int:
+        clock.now, sender.node._clock.present = wall, present
+        b.flush()
+        return len(_heads(sender))
+
+    start = clock.now
+    assert flush_at(start, t0) == 1
+    assert flush_at(start + 9.0, t0 + 0.9) == 1  # 9 s of wall time, 0.9 s of data: not yet (before, 9 heartbeats)
+    assert flush_at(start + 9.5, t0 + 1.0 + 1e-9) == 2  # a second of data
+    lost = sender.lockstep.settings.lost_timeout
+    assert flush_at(start + 9.5 + lost - 0.1, t0 + 1.5) == 2
+    assert flush_at(start + 9.5 + lost, t0 + 1.5) == 3  # the present has not moved on: lost_timeout s of wall time
+    assert len({(h.n, h.t, h.prio) for h in _heads(sender)}) == 1 and sender.counts["broadcast_heads_sent"] == 3
+    b.queue(msgspec.structs.replace(update(1, src.t_start + 0.5), receiver=0))
+    for dt in (0.25, 0.5):  # the broadcast and its head, then its head once the group is quiet: lost to the receiver
+        flush_at(start + 9.5 + lost + dt, t0 + 1.5)
+    assert [h.n for h in _heads(sender, since=3)] == [1, 1]
+    receiver, _ = offline_diekf(robot=0)
+    receiver.inbound.handle("broadcast", _Sample(sender.session.published[0][1]))  # the first head: n = 0
+    assert flush_at(clock.now + 0.1, t0 + 2.5 + 1e-9) == 6  # the repeat, a second of data on
+    receiver.inbound.handle("broadcast", _Sample(sender.session.published[-1][1]))
+    assert receiver.broadcaster._peers[1].missing() == [0]
+    receiver.broadcaster.ask_missing(clock.now + receiver.broadcaster.repair_wait + 1e-3)
+    assert receiver.counts["repair_requests"] == 1
+
+
 def test_the_sender_answers_repairs_from_its_buffer_and_says_when_one_is_gone(monkeypatch):
     monkeypatch.setattr(bc, "BUFFER", 2)
     net, src = offline_diekf(robot=1)
@@ -171,6 +265,7 @@ def test_the_sender_answers_repairs_from_its_buffer_and_says_when_one_is_gone(mo
         (Broadcast(robot=0, n=0, update=update(0, 1.0)), "received by itself"),
         (BroadcastHead(robot=1, n=0, t=float("nan")), "NaN"),
         (BroadcastRepair(sender=1, receiver=0, first=5, last=4), "not an interval"),
+        (BroadcastRepair(sender=1, receiver=0, first=5, last=3, head=True), "not an interval"),
         (BroadcastRepair(sender=1, receiver=0, first=0, last=10**6), "at most 256"),
         (BroadcastRepair(sender=1, receiver=2, first=0, last=1), "addressed to robot 2"),
     ],

@@ -18,9 +18,17 @@ and dropped; anything else is applied (``broadcasts_applied``). Every broadcast 
 ``broadcasts_received``.
 
 **Repair.** A receiver knows each sender's numbers received and the highest one it has heard of (from a broadcast
-or from the :class:`~swarmloc.net.schema.BroadcastHead` each sender announces now and then, so that the last ones
-lost are seen missing too; a head is announced when it changes and, unchanged, every :data:`HEAD_EVERY` s of wall
-time: one equal to the last heard from its sender, such a heartbeat, is counted ``broadcast_heads_repeated`` too).
+or from the :class:`~swarmloc.net.schema.BroadcastHead` each sender announces when it changes, so that the last ones
+lost are seen missing too). A receiver that needs the head of a live mate it hears and has none (it starts hearing
+it: the node's start, a re-formed cluster) asks its sender for it after ``repair_wait`` s (a
+:class:`~swarmloc.net.schema.BroadcastRepair` with ``head`` set, ``head_requests``, asked again every ``2
+repair_wait + 0.2`` s while it has none); the sender announces its head again at its next flush (at most once per
+``repair_wait`` s, however many ask). Unchanged, a head is announced again (a heartbeat, for a head lost on the way;
+equal to the last heard from its sender, it is counted ``broadcast_heads_repeated`` too) once the node's present has
+moved :data:`HEAD_EVERY` s of data on, or after ``lost_timeout`` s of wall time (a sender that waits: well before
+its teammates would declare it stalled, after :data:`~swarmloc.net.timeouts.STALL_TIMEOUTS` lost timeouts). Before,
+it came every second of wall time, to tell a mate that started hearing its sender the head: a replay slower than
+real time received more of them per second of data the slower it ran.
 A number missing for ``repair_wait`` s (the link's delay, plus 50 ms) is asked again
 of its sender with a :class:`~swarmloc.net.schema.BroadcastRepair` on the sender's inbox (``repair_requests``),
 again every ``2 repair_wait + 0.2`` s, ``REPAIR_TRIES`` times at most. The sender keeps its last ``BUFFER``
@@ -75,8 +83,7 @@ past it is refused and counted (it is asked again later), so that requests canno
 REPAIR_TRIES = 8
 """Requests for one missing broadcast before it is given up."""
 HEAD_EVERY = 1.0
-"""[s] wall time between two announcements of a sender's head when it does not change (announced at once when it
-does)."""
+"""[s] data time (the sender's present) before its unchanged head is announced again (at once when it changes)."""
 
 
 class Broadcaster:
@@ -107,7 +114,9 @@ class Broadcaster:
         self._revised: set[tuple] = set()  # (stamp, sub, target): revised answers received
         self._quiet: dict[float, float] = {}  # group stamp: wall time of its last broadcast or revised answer
         self._bflush = 0.0
-        self._bhead: tuple[float, tuple] = (-1.0, ())  # (wall time, (count, t, prio)) of the last head announced
+        self._bhead: tuple[float, float, tuple] = (-1.0, -math.inf, ())  # (wall time, present, head) announced last
+        self._head_asked = False  # a teammate asked for this node's head since it was last announced
+        self._head_asks: dict[int, tuple[int, float]] = {}  # per live mate without head: (requests sent, since when)
         self._heads: dict[int, tuple[int, float, int]] = {}  # per teammate: its latest head (count, t, prio)
         self._peers: dict[int, Numbered[None]] = {}  # per teammate: its numbers received, missing, asked for
         self._bkey: dict[tuple, int] = {}  # (sender, stamp, sub): the number of the update applied for the exchange
@@ -135,7 +144,8 @@ class Broadcaster:
 
     def flush(self, force: bool = False) -> None:
         """Publish the queued broadcasts (at once without faults, at most every ``coalesce`` s with them), announce
-        the count now and then, and ask for the missing ones of the teammates."""
+        the head when it changed, was asked for, or is due again (module docstring), and ask for the teammates'
+        missing broadcasts and heads."""
         now = time.monotonic()
         link, coalesce = self.outbound.link, self.outbound.coalesce
         if self._bout and (force or link is None or now - self._bflush >= coalesce):
@@ -159,13 +169,13 @@ class Broadcaster:
             if now - since > 2 * self.repair_wait + 0.2:
                 del self._rev_wait[k]
                 self.counts["revision_not_received"] += 1
-        head = (self._bn, *self._settled())
-        if head != self._bhead[1] or now - self._bhead[0] >= HEAD_EVERY:
-            self._bhead = (now, head)
+        head, (when, at, last), present = (self._bn, *self._settled()), self._bhead, self.node.present
+        again = present - at >= HEAD_EVERY or now - when >= self.lockstep.settings.lost_timeout
+        if head != last or again or (self._head_asked and now - when >= self.repair_wait):
+            self._bhead, self._head_asked = (now, present, head), False
             self.counts["broadcast_heads_sent"] += 1
             self._publish_b(BroadcastHead(robot=self.robot, n=head[0], t=head[1], prio=head[2]), faults=False)
-        if self._peers:
-            self.ask_missing(now)
+        self.ask_missing(now)
 
     def _settled(self) -> tuple[float, int]:
         """``(t, prio)``: every update this node will broadcast for an exchange keyed before ``(t, prio, robot)`` is
@@ -222,13 +232,16 @@ class Broadcaster:
         them before this node fuses a group or answers a query keyed ``key`` (:mod:`swarmloc.net.lockstep`)."""
         if not self.active:
             return None
-        team_node: Any = self.node  # a team estimator's (diekf): its team, not declared on Node
-        mates = team_node.team if self.heard is None else self.heard  # whose broadcasts this node receives
-        for r in self.lockstep.alive & set(mates):
+        for r in self.lockstep.alive & self._mates():
             why = self.unsettled_by(r, key)
             if why is not None:
                 return why
         return None
+
+    def _mates(self) -> set[int]:
+        """The teammates whose broadcasts this node receives."""
+        team_node: Any = self.node  # a team estimator's (diekf): its team, not declared on Node
+        return set(team_node.team if self.heard is None else self.heard) - {self.robot}
 
     def unsettled_by(self, r: int, key: tuple) -> str | None:
         """Why live teammate ``r``'s broadcast keyed before ``key`` may still be missing here, or None (not live:
@@ -252,6 +265,7 @@ class Broadcaster:
         for r in robots:
             self._heads.pop(r, None)
             self._peers.pop(r, None)
+            self._head_asks.pop(r, None)
             self._fresh.add(r)
 
     def _publish_b(self, body: Any, faults: bool = True) -> None:
@@ -271,8 +285,11 @@ class Broadcaster:
 
     def on_repair(self, r: BroadcastRepair) -> None:
         """A teammate asks again for some of this node's broadcasts: the ones kept, or "gone" (within the asker's
-        budget, :data:`REPAIR_RATE`)."""
+        budget, :data:`REPAIR_RATE`); and, with ``head``, for this node's head (announced again at its next flush)."""
         self.counts["repair_requests_received"] += 1
+        if r.head:
+            self.counts["head_requests_received"] += 1
+            self._head_asked = True
         last = min(r.last, self._bn - 1)
         now = time.monotonic()
         budget = self._repair_budget.setdefault(r.sender, TokenBucket(REPAIR_RATE, 2 * REPAIR_RATE, now))
@@ -303,6 +320,7 @@ class Broadcaster:
             if not self._in_window(b.robot, b.n - 1, b.n):
                 return
             self._heads[b.robot] = max(self._heads.get(b.robot, (-1, -math.inf, 0)), (b.n, b.t, b.prio))
+            self._head_asks.pop(b.robot, None)
             self._peers[b.robot].heard_of(b.n - 1, time.monotonic())
         elif isinstance(b, Broadcast) and b.to == ALL:
             self.on_broadcast(b)
@@ -369,8 +387,14 @@ class Broadcaster:
 
     def ask_missing(self, now: float) -> None:
         """Ask each teammate again for its broadcasts missing longer than ``repair_wait`` s (retries spaced, then given
-        up)."""
+        up), and each live mate heard for its head, none here for ``repair_wait`` s (retries spaced, while none)."""
         retry = 2 * self.repair_wait + 0.2
+        for r in sorted(self.lockstep.alive & self._mates() - self._heads.keys()) if self.active else ():
+            tries, since = self._head_asks.setdefault(r, (0, now))
+            if now - since >= (self.repair_wait if tries == 0 else retry):
+                self._head_asks[r] = (tries + 1, now)
+                self.counts["head_requests"] += 1
+                self._push(BroadcastRepair(sender=self.robot, receiver=r, first=0, last=-1, head=True), r)
         for r, p in self._peers.items():
             due = p.due(now, self.repair_wait, retry)
             for n in [n for n in due if p.asked[n][0] > REPAIR_TRIES]:

@@ -133,12 +133,14 @@ class BroadcastHead(msgspec.Struct, frozen=True, kw_only=True, tag="broadcast_he
 
 class BroadcastRepair(msgspec.Struct, frozen=True, kw_only=True, tag="broadcast_repair"):
     """``sender`` asks ``receiver`` (on its inbox) for its broadcasts ``first .. last`` again (at most
-    :data:`MAX_REPAIR`)."""
+    :data:`MAX_REPAIR`); with ``head``, also for its :class:`BroadcastHead` (announced again on its broadcast key:
+    ``sender`` has none of it), and the interval may be empty (``last = first - 1``)."""
 
     sender: int
     receiver: int
     first: int
     last: int
+    head: bool = False
 
 
 MAX_RAW_ITEMS = 512
@@ -345,7 +347,7 @@ def body_problem(b: Body) -> str | None:
             return "broadcast head: NaN time"
         return None if 0 <= b.n < MAX_BROADCAST_N else f"broadcast head: count {b.n} outside [0, 2^62)"
     if isinstance(b, BroadcastRepair):
-        if not 0 <= b.first <= b.last < MAX_BROADCAST_N:
+        if not 0 <= b.first <= b.last + int(b.head) and b.last < MAX_BROADCAST_N:
             return f"broadcast repair: numbers {b.first}..{b.last} are not an interval in [0, 2^62)"
         if b.last - b.first >= MAX_REPAIR:
             return f"broadcast repair: at most {MAX_REPAIR} numbers at once, asked {b.last - b.first + 1}"
