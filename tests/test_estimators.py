@@ -19,11 +19,11 @@ from swarmloc.estimators import (
     RecursiveDecentralized,
     options_for,
 )
-from swarmloc.evaluation.metrics import evaluate, wrap
+from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection, Odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.kernels.cartesian import from_group
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.messages import BeliefAnswer, BeliefQuery, Message, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RunResult
@@ -70,7 +70,7 @@ def _initial(poses: dict, var: float, offset: dict | None = None) -> dict[int, G
 
 def _max_errors(res: RunResult) -> tuple[float, float]:
     ep = max(np.abs(tr.mean[:, :2] - tr.truth[:, :2]).max() for tr in res.tracks.values())
-    eh = max(np.abs(wrap(tr.mean[:, 2] - tr.truth[:, 2])).max() for tr in res.tracks.values())
+    eh = max(np.abs(wrap_angle(tr.mean[:, 2] - tr.truth[:, 2])).max() for tr in res.tracks.values())
     return float(ep), float(eh)
 
 
@@ -92,7 +92,7 @@ def test_zero_noise_reproduces_truth(variant: str, zero_noise_team):
     for r, tr in res.tracks.items():
         np.testing.assert_array_equal(tr.times, sim.times)
         np.testing.assert_allclose(tr.mean[:, :2], tr.truth[:, :2], rtol=0, atol=1e-9, err_msg=f"robot {r}")
-        np.testing.assert_allclose(wrap(tr.mean[:, 2] - tr.truth[:, 2]), 0.0, atol=1e-9, err_msg=f"robot {r}")
+        np.testing.assert_allclose(wrap_angle(tr.mean[:, 2] - tr.truth[:, 2]), 0.0, atol=1e-9, err_msg=f"robot {r}")
     assert res.stats["fused"] == 0
     assert res.stats["detections"] == res.stats["rejected"] == n_det
     assert res.accounted()
@@ -137,7 +137,7 @@ def test_relative_poses_correct_an_initial_error(variant: str, tiny_noise_team):
         tr = res.tracks[r]
         e0 = np.abs(tr.mean[0, :2] - tr.truth[0, :2]).max()
         e_end = np.abs(tr.mean[-1, :2] - tr.truth[-1, :2]).max()
-        h_end = abs(wrap(tr.mean[-1, 2] - tr.truth[-1, 2]))
+        h_end = abs(wrap_angle(tr.mean[-1, 2] - tr.truth[-1, 2]))
         assert e0 == pytest.approx(1e-3)
         if variant == "dr":
             assert e_end > 1e-3 and h_end == pytest.approx(1e-3)
@@ -157,7 +157,7 @@ def _gauss(x: np.ndarray, var: float) -> GroupGaussian:
 
 def _dist(a: np.ndarray, b: np.ndarray) -> float:
     d = SE2.to_xytheta(a) - SE2.to_xytheta(b)
-    d[2] = wrap(d[2])
+    d[2] = wrap_angle(d[2])
     return float(np.linalg.norm(d))
 
 

@@ -15,7 +15,7 @@ from swarmloc.estimators import Node, options_for
 from swarmloc.evaluation import metrics
 from swarmloc.events import Detection, Odometry, Truth
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.lie import SE2
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.motion import UnicycleNoise
 from swarmloc.runner import RobotTrack, RunResult, run
 from swarmloc.sim import random_team
@@ -161,7 +161,7 @@ def test_record_grid_with_truth_function_and_missing_truth_counted():
     for tr in res.tracks.values():
         np.testing.assert_array_equal(tr.times, grid)
         np.testing.assert_allclose(tr.mean[:, :2], tr.truth[:, :2], atol=1e-9)
-        np.testing.assert_allclose(metrics.wrap(tr.mean[:, 2] - tr.truth[:, 2]), 0.0, atol=1e-9)
+        np.testing.assert_allclose(wrap_angle(tr.mean[:, 2] - tr.truth[:, 2]), 0.0, atol=1e-9)
     # a grid time without truth is not recorded, and counted (one per robot)
     late = np.array([1.0, sim.times[-1], sim.times[-1] + 0.5])
     res = run(nodes(), events, record_times=late, truth=truth)
@@ -274,7 +274,7 @@ def test_nees_of_samples_from_the_belief_is_chi2_3():
     # the same draws scored with a Cartesian (x, y, theta) error and the same covariance are far off:
     # the check above is sensitive to the error parametrization
     d = truth - SE2.to_xytheta(belief.mean)
-    d[:, 2] = metrics.wrap(d[:, 2])
+    d[:, 2] = wrap_angle(d[:, 2])
     cart = np.einsum("ni,ni->n", d, np.linalg.solve(belief.cov, d.T).T)
     assert abs(cart.mean() / 3 - 1.0) > 20 * sd
 

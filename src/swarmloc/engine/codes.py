@@ -8,19 +8,18 @@ table of kinds of its own.
 
 from __future__ import annotations
 
-from swarmloc.estimators.expfusion import DEGENERATE
 from swarmloc.estimators.rdl import UNKNOWN_CORRELATION
 from swarmloc.events import Kind
 from swarmloc.node.update import NONFINITE, NUMERICAL
-from swarmloc.sensors.models import KIND_ORDER, MODELS, MeasurementModel
-from swarmloc.sensors.models3 import KIND_ORDER3
+from swarmloc.sensors.models import DEGENERATE, KIND_ORDER, MODELS, MeasurementModel
+from swarmloc.sensors.models3 import MODELS3
 
 KINDS: dict[int, str] = {code: kind for kind, code in KIND_ORDER.items()}
 """Kind code (the canonical order :data:`swarmloc.sensors.models.KIND_ORDER`) -> name."""
 MODEL: dict[int, MeasurementModel] = {KIND_ORDER[kind]: m for kind, m in MODELS.items()}
 """Kind code -> its :class:`~swarmloc.sensors.models.MeasurementModel`."""
 ABSOLUTE, POSE = KIND_ORDER[Kind.ABSOLUTE], KIND_ORDER[Kind.POSE]
-POSE3 = KIND_ORDER3[Kind.POSE3]
+POSE3 = MODELS3[Kind.POSE3].order
 """Kind code of an SE(3) relative pose (``"pose3"``, :data:`swarmloc.sensors.models3.MODELS3`): the one kind an SE(3)
 team's engine fuses."""
 KIND_NAMES: dict[int, str] = {**KINDS, POSE3: Kind.POSE3}

@@ -67,8 +67,7 @@ from swarmloc.node.base import refusal
 from swarmloc.node.keys import SubKey
 from swarmloc.runner import RobotTrack, RunResult, truth_table
 from swarmloc.runner.result import RUN_COUNTERS
-from swarmloc.sensors.models import KIND_ORDER
-from swarmloc.sensors.models3 import KIND_ORDER3
+from swarmloc.sensors.models3 import ALL_MODELS
 from swarmloc.sim.simulator import SimResult
 from swarmloc.sim.source import sim_source
 
@@ -494,6 +493,6 @@ def _detections(groups: Sequence[tuple[int, dict[SubKey, tuple[Detection, int]]]
     for m, rows in sizes.items():
         z[rows, :m] = np.array([dets[k].z for k in rows], dtype=float).reshape(-1, m)
         R[rows, :m, :m] = np.array([dets[k].cov for k in rows], dtype=float).reshape(-1, m, m)
-    kind = [KIND_ORDER[d.kind] if d.kind in KIND_ORDER else KIND_ORDER3[d.kind] for d in dets]
+    kind = [ALL_MODELS[d.kind].order for d in dets]
     return Detections(np.array(obs, dtype=np.int64), np.array(codes, dtype=np.int64), np.array(kind, dtype=np.int64),
                       z, R)  # fmt: skip

@@ -30,7 +30,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol, cast
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, KERNELS
+from swarmloc.estimators.dekf import KERNELS
 from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import symmetric
 from swarmloc.kernels import cartesian as C
@@ -40,8 +40,7 @@ from swarmloc.lie.base import SEGroup
 from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.twist3 import TwistNoise
 from swarmloc.node import FUSED, Gate, Group, Outcome, TeamNode, gated_kalman
-from swarmloc.sensors.models import model
-from swarmloc.sensors.models3 import DEGENERATE3, model3
+from swarmloc.sensors.models3 import group_model
 
 
 class TeamState(NamedTuple):
@@ -230,7 +229,7 @@ def fuse_linearized(
     why = None if planar else C3.unsupported(d, target)
     if why is not None:
         return s, ("rejected", why)
-    m: Any = model(d.kind) if planar else model3(d.kind)
+    m: Any = group_model(d.kind, planar)
     i = node._idx[g.observer]
     xi, li = form.pose(s, i), form.lin_point(s, i)
     starts, xk = [i], cast(Any, None)
@@ -244,7 +243,7 @@ def fuse_linearized(
         lk = xk
     lin = m.linearize(d.z, d.cov, xi, xk)
     if lin is None or (form.first_estimates and m.degenerate(li, lk)):
-        return s, ("rejected", DEGENERATE if planar else DEGENERATE3)
+        return s, ("rejected", m.why_degenerate)
     r, Hi, Hk, R = lin
     if form.first_estimates:
         _, Hi, Hk = m.predict(li, lk)

@@ -18,13 +18,14 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from swarmloc.estimators.expfusion import DEGENERATE, ExpNode, ExpState, point, point_gate, pseudo
+from swarmloc.estimators.expfusion import ExpNode, ExpState, point, point_gate, pseudo
 from swarmloc.events import Kind
 from swarmloc.kernels import ci as KCI
 from swarmloc.kernels import group as K
 from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
 from swarmloc.node import NUMERICAL, Group, Outcome, applied, usable_covariance
+from swarmloc.sensors.models import DEGENERATE
 from swarmloc.sensors.models3 import pose3_matrix
 
 

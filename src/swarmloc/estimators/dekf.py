@@ -29,10 +29,7 @@ from swarmloc.lie import SE2, SE3
 from swarmloc.messages import Message
 from swarmloc.motion import UnicycleNoise
 from swarmloc.node import Gate, Group, Outcome, RobotNode, applied, belief_of, gated_kalman
-from swarmloc.sensors.models import model
-from swarmloc.sensors.models3 import DEGENERATE3, model3
-
-DEGENERATE = "degenerate geometry: the target is at the observer's position"
+from swarmloc.sensors.models3 import group_model
 
 
 class CartState(NamedTuple):
@@ -81,7 +78,7 @@ def linearize(d: Detection, x: Any, target: tuple[str, Any], group: type = SE2) 
     why = None if planar else C3.unsupported(d, target)
     if why is not None:
         return why
-    m = model(d.kind) if planar else model3(d.kind)
+    m = group_model(d.kind, planar)
     xk = Pk = cast(Any, None)
     if target[0] == "robot":
         mean, Pk = target[1].belief_arrays()
@@ -92,7 +89,7 @@ def linearize(d: Detection, x: Any, target: tuple[str, Any], group: type = SE2) 
         xk, Pk = target[1]
     lin = m.linearize(d.z, d.cov, x, xk)
     if lin is None:
-        return DEGENERATE if planar else DEGENERATE3
+        return m.why_degenerate
     r, Hi, Hk, R = lin
     if Hk is not None:
         R = R + Hk @ Pk @ Hk.T

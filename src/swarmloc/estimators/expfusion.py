@@ -37,10 +37,8 @@ from swarmloc.messages import BeliefAnswer, Message
 from swarmloc.motion import UnicycleNoise, odometry_increment
 from swarmloc.motion.twist3 import TwistNoise, as_twist, twist_increment
 from swarmloc.node import FUSED, NUMERICAL, Group, Outcome, RobotNode, belief_of, usable_covariance
+from swarmloc.sensors.models import DEGENERATE
 from swarmloc.sensors.models3 import pose3_matrix
-
-DEGENERATE = "degenerate geometry: the target is at the observer's position"
-
 
 STEP_CACHE_SIZE = 1 << 15
 """Odometry steps kept per (noise model, order) by :func:`_step_map` (the cache is emptied when it is full)."""

@@ -66,7 +66,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, linearize, predict_run
+from swarmloc.estimators.dekf import linearize, predict_run
 from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
@@ -90,7 +90,7 @@ from swarmloc.node import (
     same,
 )
 from swarmloc.node.keys import SubKey
-from swarmloc.sensors.models import model
+from swarmloc.sensors.models import DEGENERATE, model
 
 _ZERO = np.zeros((3, 3))
 _ZERO.setflags(write=False)

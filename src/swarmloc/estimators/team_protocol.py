@@ -12,7 +12,7 @@ import numpy as np
 
 from swarmloc.estimators.adaptive_noise import Innovation, innovation_terms
 from swarmloc.estimators.cluster_reform import Schedule, stacked_bound
-from swarmloc.estimators.dekf import DEGENERATE, FilterState
+from swarmloc.estimators.dekf import FilterState
 from swarmloc.estimators.state_exchange import StateQueries
 from swarmloc.estimators.world_form import FORMS, TeamState, robot_pair
 from swarmloc.gaussian import GroupGaussian, symmetric
@@ -43,6 +43,7 @@ from swarmloc.node import (
     usable_covariance,
 )
 from swarmloc.node.keys import SubKey
+from swarmloc.sensors.models import DEGENERATE
 
 __all__ = ["Numbers", "Replica", "TeamProtocol"]
 

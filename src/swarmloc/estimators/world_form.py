@@ -8,7 +8,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from swarmloc.estimators.dekf import DEGENERATE, KERNELS, linearize
+from swarmloc.estimators.dekf import KERNELS, linearize
 from swarmloc.events import Kind
 from swarmloc.gaussian import symmetric
 from swarmloc.kernels import cartesian as C
@@ -18,8 +18,7 @@ from swarmloc.lie import SE2, SE3
 from swarmloc.lie.base import SEGroup
 from swarmloc.messages import flat
 from swarmloc.motion.twist3 import as_twist, twist_increment
-from swarmloc.sensors.models import model
-from swarmloc.sensors.models3 import DEGENERATE3, model3
+from swarmloc.sensors.models3 import group_model
 
 __all__ = ["FORMS", "TeamState", "WorldForm", "robot_pair", "world_step"]
 
@@ -47,7 +46,7 @@ def robot_pair(d: Any, xi: np.ndarray, xj: np.ndarray, group: type[SEGroup] = SE
     :func:`~swarmloc.kernels.invariant.world_basis` or :func:`~swarmloc.kernels.cartesian3.world_basis3`; noise), or
     None for a degenerate geometry."""
     planar = group is SE2
-    lin: Any = (model(d.kind) if planar else model3(d.kind)).linearize(d.z, d.cov, xi, xj)
+    lin: Any = group_model(d.kind, planar).linearize(d.z, d.cov, xi, xj)
     if lin is None:
         return None
     r, Hi, Hj, R = lin
@@ -122,7 +121,7 @@ class WorldForm:
         else:
             lin = robot_pair(d, s.x, xj, self.group)
         if lin is None:
-            return DEGENERATE if self.planar else DEGENERATE3
+            return group_model(d.kind, self.planar).why_degenerate
         r, Hi, Hj, R = lin
         S = Hi @ s.P @ Hi.T + Hi @ Sij @ Hj.T + Hj @ Sij.T @ Hi.T + Hj @ Pjj @ Hj.T + R
         return r, Hi, Hj, self._sym(S), R

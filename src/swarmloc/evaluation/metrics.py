@@ -13,8 +13,7 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from swarmloc.gaussian import chi2_ppf, mahalanobis2
-from swarmloc.lie import SE2
-from swarmloc.lie import wrap_angle as wrap
+from swarmloc.lie import SE2, wrap_angle
 from swarmloc.runner import RobotTrack, RunResult
 
 DOF = 3
@@ -26,7 +25,7 @@ def errors(track: RobotTrack) -> dict[str, np.ndarray]:
         return errors_se3(track)
     with np.errstate(invalid="ignore"):  # a row that is not finite has NaN errors (its caller counts it)
         ep = np.linalg.norm(track.mean[:, :2] - track.truth[:, :2], axis=1)
-        eh = wrap(track.mean[:, 2] - track.truth[:, 2])
+        eh = wrap_angle(track.mean[:, 2] - track.truth[:, 2])
         y = SE2.log(
             SE2.inverse(SE2.from_xytheta(track.mean), validate=False) @ SE2.from_xytheta(track.truth), validate=False
         )

@@ -24,7 +24,7 @@ from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.gaussian import check_covariance
 from swarmloc.node.keys import Position
 from swarmloc.sensors.models import MODELS
-from swarmloc.sensors.models3 import MODELS3
+from swarmloc.sensors.models3 import ALL_MODELS
 
 __all__ = [
     "CONTIGUOUS",
@@ -92,7 +92,7 @@ def validate_detection(d: Detection) -> str | None:
         cov = np.asarray(d.cov, dtype=float)
     except (TypeError, ValueError) as exc:
         return f"z or cov is not numeric: {exc}"
-    model = (MODELS.get(d.kind) or MODELS3.get(d.kind)) if isinstance(d.kind, str) else None
+    model = ALL_MODELS.get(d.kind) if isinstance(d.kind, str) else None
     if model is None:
         return f"unknown measurement kind {brief(d.kind)}"
     want = model.size

@@ -21,8 +21,7 @@ import numpy as np
 
 from swarmloc.events import Detection
 from swarmloc.messages import Answer, Message
-from swarmloc.sensors.models import KIND_ORDER
-from swarmloc.sensors.models3 import KIND_ORDER3
+from swarmloc.sensors.models3 import ALL_MODELS
 
 __all__ = ["P_GROUP", "P_ODOMETRY", "Entry", "Group", "Key", "Mark", "Position", "SubKey", "detection_key"]
 
@@ -45,8 +44,8 @@ P_ODOMETRY = 2
 def detection_key(d: Detection) -> SubKey:
     """Canonical order of the detections in a group (and the sub-key of per-detection exchanges)."""
     target = -1.0 if d.target is None else float(d.target)
-    order = KIND_ORDER[d.kind] if d.kind in KIND_ORDER else KIND_ORDER3[d.kind]
-    return (float(order), 0.0 if d.target_is_robot else 1.0, target, *np.asarray(d.z, float).tolist())
+    order = float(ALL_MODELS[d.kind].order)
+    return (order, 0.0 if d.target_is_robot else 1.0, target, *np.asarray(d.z, float).tolist())
 
 
 class Group:

@@ -34,6 +34,9 @@ from swarmloc.events import Kind
 from swarmloc.sensors import planar
 from swarmloc.sensors.planar import MIN_RANGE as MIN_RANGE  # ranges [m] below it are degenerate (:func:`degenerate`)
 
+DEGENERATE = "degenerate geometry: the target is at the observer's position"
+"""The reason a detection is refused where its planar model is :meth:`MeasurementModel.degenerate`."""
+
 Prediction = tuple[np.ndarray, np.ndarray, np.ndarray]
 """``(h, H_i, H_k)``: a predicted measurement and its Jacobians w.r.t. the observer and the target."""
 
@@ -158,6 +161,8 @@ class MeasurementModel:
     targets: str
     order: int
     components: tuple[int, ...] = ()
+    why_degenerate = DEGENERATE
+    """The reason a detection is refused where :meth:`degenerate`."""
 
     @property
     def ranged(self) -> bool:

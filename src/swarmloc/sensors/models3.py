@@ -40,14 +40,15 @@ import numpy as np
 from swarmloc.events import Kind
 from swarmloc.lie import wrap_angle
 from swarmloc.lie.se3 import skew, so3_exp, so3_log
-from swarmloc.sensors.models import MIN_RANGE
+from swarmloc.sensors.models import MIN_RANGE, MODELS, MeasurementModel, model
 
 __all__ = [
+    "ALL_MODELS",
     "DEGENERATE3",
-    "KIND_ORDER3",
     "MODELS3",
     "SINGULAR_COS",
     "Model3",
+    "group_model",
     "model3",
     "point_in_body",
     "pose3_matrix",
@@ -93,6 +94,8 @@ class Model3:
     targets: str
     order: int
     angular: tuple[bool, ...] = ()
+    why_degenerate = DEGENERATE3
+    """The reason a detection is refused where :meth:`degenerate`."""
 
     def problem(self, z: np.ndarray) -> str | None:
         """Why ``z`` (finite, of the right size) is not a value of this kind, or None."""
@@ -219,8 +222,16 @@ def model3(kind: str) -> Model3:
         raise ValueError(f"unknown 3-D measurement kind {kind!r}; expected one of {list(MODELS3)}") from None
 
 
-KIND_ORDER3: dict[str, int] = {k: m.order for k, m in MODELS3.items()}
-"""Rank of each 3-D kind in the canonical order of a detection group (after the planar kinds)."""
+ALL_MODELS: dict[str, MeasurementModel | Model3] = {**MODELS, **MODELS3}
+"""The model of every detection kind, planar and 3-D, by name (a kind says its group): its size and its rank in the
+canonical order of a detection group, whichever the team."""
+
+
+def group_model(kind: str, planar: bool) -> MeasurementModel | Model3:
+    """The model of ``kind`` in a planar team (:func:`~swarmloc.sensors.models.model`) or a 3-D one
+    (:func:`model3`): ValueError naming that group's kinds otherwise. Its ``why_degenerate`` is the reason a
+    detection is refused where the model is degenerate."""
+    return model(kind) if planar else model3(kind)
 
 
 def pose3_matrix(z: np.ndarray) -> np.ndarray:
