@@ -176,11 +176,11 @@ def test_every_shared_folder_evaluates_or_says_why(number: int, mrclam_dataset, 
 
 
 def test_a_recording_without_truth_starts_from_its_landmark_snapshots(mrclam_dataset, capsys):
-    """Dataset 4 has no ground truth: the team starts once every robot has had a fit to two or more landmarks read
-    at once (9.4 s in), from each robot's latest such fit, not from the placeholder at (id, 0, 0) with std 10 m,
-    from which the filters gated most detections (measured on the first 40 s: dekf fused 146 of 938 and gated 792;
-    from the first snapshots 681 of 691, 10 gated). What came before the start is left out and counted; the source
-    of compare/node/team starts there too."""
+    """Dataset 4 has no ground truth: the team starts from each robot's first fit to two or more landmarks read at
+    once (9.4 s in), not from the placeholder at (id, 0, 0) with std 10 m, from which the filters gated most
+    detections (measured on the first 40 s: dekf fused 146 of 938 and gated 792; from the snapshots 681 of 691,
+    10 gated). What came before the start is left out and counted; the source of compare/node/team starts there
+    too."""
     folder = mrclam_dataset(4)
     rc = main(["evaluate", "mrclam", str(folder), "--estimators", "dekf", "--duration", "40", "--json"])
     cap = capsys.readouterr()

@@ -128,9 +128,8 @@ class Start:
 def mrclam_start(data: MRCLAMData, config: Config = DEFAULTS, t_end: float | None = None) -> Start:
     """The start of a run on ``data`` (up to ``t_end`` [s]): the ground truth at the recording's start where it has
     truth (:func:`initial_beliefs`); without truth, the truth-free start of
-    :func:`~swarmloc.experiments.truthfree.initial_from_snapshots` (once every robot has had a fit to two or more
-    landmarks read at once, each robot's latest such fit, dead-reckoned to that instant: the run starts there, what
-    comes before is left out); where
+    :func:`~swarmloc.experiments.truthfree.initial_from_snapshots` (each robot's first fit to two or more landmarks
+    read at once, dead-reckoned to the latest of them: the run starts there, what comes before is left out); where
     a robot never reads two landmarks at once, or that start is at or after ``t_end``, the placeholder of
     :func:`initial_beliefs` at the recording's start (the trajectories are then not to be read as poses)."""
     if data.has_truth:
@@ -139,7 +138,7 @@ def mrclam_start(data: MRCLAMData, config: Config = DEFAULTS, t_end: float | Non
     try:
         t0, beliefs = initial_from_snapshots(data, detection_set(data), config)
         if t0 < end:
-            return Start(t0, beliefs, f"no ground truth: from each robot's latest landmark snapshot, "
+            return Start(t0, beliefs, f"no ground truth: from each robot's first landmark snapshot, "
                                       f"{t0 - data.t_start:.1f} s in", False, data.t_start)  # fmt: skip
         why = f"the first landmark snapshots end {t0 - data.t_start:.1f} s in, after the span"
     except ValueError as exc:

@@ -41,29 +41,21 @@ leave-one-dataset-out study scores 200-300 s too)."""
 def initial_from_snapshots(
     data: MRCLAMData, ds: DetectionSet, config: Config = DEFAULTS
 ) -> tuple[float, dict[int, GroupGaussian]]:
-    """Truth-free initial beliefs at ``t0``, the instant by which every robot has had a landmark snapshot (its first
-    fit to two or more landmarks read at once): each robot's latest snapshot pose at or before ``t0`` (fit
-    covariance at the a-priori std), dead-reckoned to ``t0``; returns ``(t0, beliefs)``. Raises ValueError when a
-    robot of ``data`` never sees two landmarks at once.
-
-    The latest snapshot, not the first: each robot starts from its freshest absolute fix, so that every robot's
-    heading is known to about its fit's std at ``t0``. From the first snapshots only the robot that defines ``t0``
-    was (the others dead-reckoned for up to a hundred seconds), the team's heading rested on that one robot, and an
-    odometry fault of it soon after the start turned the whole team (without landmarks, nothing corrects the team's
-    common heading)."""
+    """Truth-free initial beliefs: each robot's first landmark snapshot pose (fit covariance at the a-priori std),
+    dead-reckoned to ``t0``, the latest first snapshot; returns ``(t0, beliefs)``. Raises ValueError when a robot
+    of ``data`` never sees two landmarks at once."""
     poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
-    mine_at = {r: np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start)) for r in data.robots}
-    for r, sel in mine_at.items():
+    first: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
+    for r in data.robots:
+        sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start))
         if sel.size == 0:
             raise ValueError(f"{data.name}: robot {r} never reads two landmarks at once; no truth-free start")
-    t0 = max(float(poses["t"][sel[0]]) for sel in mine_at.values())
-    latest: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
-    for r, sel in mine_at.items():
-        i = int(sel[poses["t"][sel] <= t0][-1])
-        latest[r] = (float(poses["t"][i]), poses["pose"][i], poses["cov"][i])
+        i = int(sel[0])
+        first[r] = (float(poses["t"][i]), poses["pose"][i], poses["cov"][i])
+    t0 = max(v[0] for v in first.values())
     events = mrclam_events(data, landmarks=False, robot_measurements=False)
     out: dict[int, GroupGaussian] = {}
-    for r, (ts, pose, cov) in latest.items():
+    for r, (ts, pose, cov) in first.items():
         # the fit's covariance is of (x, y, theta); at a small angle it is that of the left perturbation: rotate
         # it into the body frame for the right-perturbation convention of the nodes
         c, s = math.cos(pose[2]), math.sin(pose[2])

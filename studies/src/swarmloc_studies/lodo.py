@@ -24,9 +24,9 @@ Only dataset 6 has ground truth here, so every dataset is scored without it, by 
   dof against the truth are given too.
 
 Initial beliefs are truth-free on every dataset (dataset 6 included, so that its row is run as the others are):
-each robot's latest landmark snapshot at the latest of the robots' first snapshots, where the run starts, gives
-its pose by the weighted fit of :mod:`swarmloc.sensors.decorrelate` (covariance from the a-priori std 0.1 m,
-0.035 rad), dead-reckoned (``dr``) to that start. Runs cover ``duration`` s from there (part of
+each robot's first landmark snapshot gives its pose by the weighted fit of
+:mod:`swarmloc.sensors.decorrelate` (covariance from the a-priori std 0.1 m, 0.035 rad), dead-reckoned (``dr``)
+to the latest of the robots' first snapshots, where the run starts. Runs cover ``duration`` s from there (part of
 each dataset, for compute).
 
 **Yaw diffusion calibrated on the recording itself** (run ``on+yaw``): the motion model's yaw terms scaled by the
