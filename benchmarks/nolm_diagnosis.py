@@ -240,6 +240,32 @@ def windows(
     return out
 
 
+def study_rows(datasets: list[int], root: Path, start: str) -> dict[int, Any]:
+    """The leave-one-dataset-out study's ``diekf`` row per dataset (:mod:`swarmloc_studies.lodo`: camera model
+    fitted on the other recordings, 200 s, landmark folds held out), landmarks on and off, with the study's start
+    replaced by :data:`START` ``[start]``: RMSE [m] and ANEES/dof where there is truth, the truth-free score."""
+    import swarmloc_studies.lodo as lodo
+    from swarmloc.datasets.mrclam import load_mrclam
+
+    datas = {k: load_mrclam(root / f"MRCLAM_Dataset{k}", require=("measurements",)) for k in lodo.DATASETS}
+    ms = lodo.model_scores({k: lodo.detection_set(d) for k, d in datas.items()})
+    chosen, own = ms["chosen"], lodo.initial_from_snapshots
+    lodo.initial_from_snapshots = START[start]  # the study calls it by this name
+    out: dict[int, Any] = {}
+    try:
+        for k in datasets:
+            model = ms["models"][k][chosen]
+            ref = lodo.own_std(model, ms["folds"][k][chosen])
+            for lm in (True, False):
+                r = lodo.filter_scores(datas[k], model, ["diekf"], lm, 200.0, holdout=3, reference_std=ref)["diekf"]
+                row = {x: round(r[x], 3) for x in ("pos_rmse", "anees", "nis_ratio_ref", "nis_ratio") if x in r}
+                out.setdefault(k, {})["on" if lm else "off"] = row
+                print(start, k, "on" if lm else "off", row, flush=True)
+    finally:
+        lodo.initial_from_snapshots = own
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -253,9 +279,15 @@ def main() -> None:
     ap.add_argument("--calibrate-yaw", action="store_true", help="as swarmloc evaluate's (on the whole recording)")
     ap.add_argument("--out", type=Path, default=Path("nolm_diag.json"))
     ap.add_argument("--windows", type=float, default=0.0, help="stride [s]: score 300 s windows (no diagnosis)")
+    study = "the leave-one-dataset-out study's filter row (200 s, camera held out) from --start"
+    ap.add_argument("--study", action="store_true", help=study)
     a = ap.parse_args()
     config = DEFAULTS if a.config is None else load_config(a.config)
     out: dict[int, Any] = {}
+    if a.study:
+        out = study_rows([int(x) for x in a.datasets.split(",")], a.mrclam, a.start)
+        a.out.write_text(json.dumps(out, default=float))
+        return
     if a.windows:
         for k in (int(x) for x in a.datasets.split(",")):
             out[k] = windows(k, a.mrclam, config, a.windows, start=a.start, yaw=a.calibrate_yaw)

@@ -1,4 +1,4 @@
-"""Four suspected causes of ``diekf``'s out-of-band truth-free scores without landmarks (issue 45), each measured
+"""Four suspected causes of ``diekf``'s out-of-band truth-free scores without landmarks, each measured
 without ground truth on the MRCLAM recordings:
 
 * ``gap``: the odometry's sample interval. A command held over the interval to the next sample is wrong, when the
