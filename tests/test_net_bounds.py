@@ -509,6 +509,8 @@ def test_refusals_with_numbers_in_their_reasons_are_counted_under_a_bounded_set_
         (BeliefAnswer(sender=1, receiver=0, stamp=1.0, seq=2**62, mean=I3, cov=COV), r"revision 4611686018427387904"),
         (RdlUpdate(sender=1, receiver=0, stamp=1.0, based_on=MAX_REVISION, x=(0.0,) * 3, P=COV), "revision"),
         (Progress(robot=1, t=1.0, prio=2**62), "priority"),
+        (Progress(robot=1, t=1.0, moved=2**62), "moved 4611686018427387904"),
+        (Progress(robot=1, t=1.0, moved=-1), "moved -1"),
         (Raw(robot=1, n=0, first=0.0, upto=1.0, items=(RawOdometry(0.0, 0.1, 0.0, 0.0),) * 10_000), "length <= 512"),
         (RawAck(robot=1, next=0, missing=tuple(range(10_000))), "length <= 256"),
         (Report(robot=1, net={str(k): k for k in range(10_000)}), "length <= 4096"),

@@ -19,6 +19,8 @@ import sys
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
+from typing import Any
 
 import pytest
 
@@ -277,16 +279,12 @@ def test_a_teammate_whose_token_outlives_it_is_declared_lost_and_the_node_goes_o
     assert report.net["asked_lost"] == s["detections"]
 
 
-def test_a_teammate_that_waits_announcing_is_not_lost_one_that_falls_silent_or_never_advances_is(monkeypatch):
-    """Robot 0 waits for robot 1 (lost timeout 1 s, on a clock of the test's own). Robot 1 repeats the same
-    progress every 0.2 s for 4 s (it waits itself, for answers lost on the link): not declared lost (before, its
-    progress not advancing for 1 s was read as hung: lost at 1 s, and its detections ended "robot 1 is lost").
-    Silent for more than 1 s it is declared lost, and back as soon as it announces again. Announcing without
-    advancing, it is declared lost after ``STALL_TIMEOUTS`` lost timeouts, and back only once it advances."""
+def watching_robot_1(monkeypatch) -> tuple[Any, NetNode, Callable[..., None]]:
+    """Robot 0 (lost timeout 1 s) on a clock of the test's own (``clock.t``, monotonic s), and ``announce(t,
+    moved=0)``: robot 1's progress (priority 2) received by it."""
     from types import SimpleNamespace
 
     from swarmloc.net import lockstep
-    from swarmloc.net.timeouts import STALL_TIMEOUTS
 
     clock = SimpleNamespace(t=100.0)
     monkeypatch.setattr(lockstep, "time", SimpleNamespace(monotonic=lambda: clock.t))
@@ -294,9 +292,22 @@ def test_a_teammate_that_waits_announcing_is_not_lost_one_that_falls_silent_or_n
     key = robot_key(team_scope("t"), 1, "progress")
     seq = iter(range(1, 10**6))
 
-    def announce(t: float) -> None:
-        raw = encode("t", 1, next(seq), Progress(robot=1, t=t, prio=2))
+    def announce(t: float, moved: int = 0) -> None:
+        raw = encode("t", 1, next(seq), Progress(robot=1, t=t, prio=2, moved=moved))
         net.inbound.handle("progress", type("Sample", (), {"key_expr": key, "payload": _Payload(raw)})())
+
+    return clock, net, announce
+
+
+def test_a_teammate_that_waits_announcing_is_not_lost_one_that_falls_silent_or_never_advances_is(monkeypatch):
+    """Robot 0 waits for robot 1 (lost timeout 1 s, on a clock of the test's own). Robot 1 repeats the same
+    progress every 0.2 s for 4 s (it waits itself, for answers lost on the link): not declared lost (before, its
+    progress not advancing for 1 s was read as hung: lost at 1 s, and its detections ended "robot 1 is lost").
+    Silent for more than 1 s it is declared lost, and back as soon as it announces again. Announcing without
+    advancing, it is declared lost after ``STALL_TIMEOUTS`` lost timeouts, and back only once it advances."""
+    from swarmloc.net.timeouts import STALL_TIMEOUTS
+
+    clock, net, announce = watching_robot_1(monkeypatch)
 
     def run(seconds: float, t: float | None) -> None:  # 0.05 s steps; robot 1 announces t every 0.2 s (None: not)
         for k in range(round(seconds / 0.05)):
@@ -321,6 +332,53 @@ def test_a_teammate_that_waits_announcing_is_not_lost_one_that_falls_silent_or_n
     assert 1 in net.lockstep.lost
     announce(0.6)
     assert 1 in net.lockstep.alive and 1 not in net.lockstep.lost and net.counts["peers_back"] == 2
+
+
+def test_a_teammate_waiting_on_a_moving_chain_is_not_stalled_one_whose_chain_does_not_move_is(monkeypatch):
+    """Robot 0 waits for robot 1 (lost timeout 1 s, a clock of the test's own). Robot 1 repeats the same progress
+    every 0.2 s for twice the stall timeout, but what it waits on moves (its ``moved`` changes each second: a slow
+    new mate at a cluster boundary, whom robot 0 does not hear): not declared lost, the stall clock restarted by the
+    moving chain counted. Before, robot 0 declared it stalled after ``STALL_TIMEOUTS`` lost timeouts, went on without
+    it, and its late broadcasts set off a cascade of re-broadcasts. Once its chain stops moving, robot 1 is declared
+    stalled after the same time as before."""
+    from swarmloc.net.timeouts import STALL_TIMEOUTS
+
+    clock, net, progress = watching_robot_1(monkeypatch)
+
+    def run(seconds: float, moving: bool) -> None:  # 0.05 s steps, an announcement every 0.2 s
+        for k in range(round(seconds / 0.05)):
+            clock.t += 0.05
+            if k % 4 == 3:
+                progress(0.5, moves[0])
+            if moving and k % 20 == 19:
+                moves[0] += 1
+            net.lockstep.check_lost(5.0)  # robot 0's next input at 5 s: it waits for robot 1
+
+    moves = [7]
+    net.lockstep.alive.add(1)
+    progress(0.5, moves[0])
+    run(2 * STALL_TIMEOUTS, moving=True)
+    assert net.counts["peers_lost"] == 0 and 1 in net.lockstep.alive
+    assert net.counts["stall_clock_chain_moved"] == 2 * STALL_TIMEOUTS - 1
+    run(STALL_TIMEOUTS + 0.05, moving=False)  # its last move is announced 0.2 s in: no move for 5.85 s ...
+    assert net.counts["peers_lost"] == 0 and 1 in net.lockstep.alive
+    assert net.counts["stall_clock_chain_moved"] == 2 * STALL_TIMEOUTS
+    run(0.3, moving=False)  # ... and past STALL_TIMEOUTS lost timeouts
+    assert net.counts["peers_lost_stalled"] == 1 and net.lockstep.lost_why[1] == f"no progress for {STALL_TIMEOUTS:g} s"
+
+
+def test_a_node_counts_the_advances_of_those_it_waits_for_while_they_are_behind_it_and_announces_them():
+    """Robot 0's ``moved``, announced with its progress: an advance of a teammate's progress behind robot 0's next
+    input counts; a repeated progress, or an advance from at or beyond its next input, does not."""
+    net = offline_net()
+    sent: list[Progress] = []
+    net.announcer.put = lambda kind, m: sent.append(m)
+    s0 = net.inputs.next_key()[0]
+    for t in (s0 - 1.0, s0 - 0.5, s0 - 0.5, s0 + 1.0, s0 + 2.0):
+        net.lockstep.on_progress(Progress(robot=1, t=t, prio=2))
+    assert net.lockstep.moved == 3  # the first (from nothing), then s0 - 0.5 and s0 + 1.0 (from s0 - 0.5)
+    net.announcer.announce(s0, force=True)
+    assert sent[-1].moved == 3 and net.counts["stall_clock_chain_moved"] == 0
 
 
 def test_a_lone_node_says_whom_it_waits_for_and_fails_when_no_teammate_ever_answered():

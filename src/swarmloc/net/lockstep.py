@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 from swarmloc.events import Detection
 from swarmloc.messages import Message
-from swarmloc.net.schema import Envelope, Progress
+from swarmloc.net.schema import MAX_MOVED, Envelope, Progress
 from swarmloc.net.settings import NetSettings
 from swarmloc.net.timeouts import STALL_TIMEOUTS
 from swarmloc.net.transport import robot_of
@@ -119,6 +119,10 @@ class Lockstep:
         self._lost_silent: set[int] = set()  # ... of them, those declared for silence (back on any announcement)
         self._heard: dict[int, float] = {}  # per live teammate: wall time its progress last advanced (or it came)
         self._beat: dict[int, float] = {}  # per live teammate: wall time of its last announcement (repeated or not)
+        self._moved: dict[int, int] = {}  # per teammate: the ``moved`` of its last announcement
+        self.moved = 0
+        """How many times the progress of a teammate this node waits for advanced while behind its next input
+        (modulo :data:`~swarmloc.net.schema.MAX_MOVED`): announced with its progress (``Progress.moved``)."""
         self.seen: set[int] = set()
         """Teammates ever seen alive or heard from."""
         self.server_up = False
@@ -142,12 +146,20 @@ class Lockstep:
             self.seen.add(r)
             now = time.monotonic()
             self._beat[r] = now
+            chain = self._moved.get(r, p.moved) != p.moved
+            self._moved[r] = p.moved
             if (p.t, p.prio) > old or (p.done and r not in self.done):
                 self._heard[r] = now
+                if (self.watched is None or r in self.watched) and old < self.next_key():
+                    self.moved = (self.moved + 1) % MAX_MOVED
                 if r in self.lost:
                     self._found(r, "it announced progress again")
-            elif r in self._lost_silent:
-                self._found(r, "it announces again (waiting, not hung)")
+            else:
+                if chain:  # it waits, and what it waits on moved: not stalled (check_lost)
+                    self._heard[r] = now
+                    self.counts["stall_clock_chain_moved"] += 1
+                if r in self._lost_silent:
+                    self._found(r, "it announces again (waiting, not hung)")
             self.progress[r] = max(self.progress.get(r, -math.inf), p.t)
             self._progress_key[r] = max(old, (p.t, p.prio))
             if p.done:
@@ -159,7 +171,14 @@ class Lockstep:
         or a token that outlived its process) or **stalled** (announcing, but its progress has not advanced for
         ``STALL_TIMEOUTS`` lost timeouts). A node waiting announces its unchanged progress every 0.2 s, so a
         teammate that waits legitimately (for answers lost on the link, asked again) is neither: before, its
-        progress not advancing for ``lost_timeout`` s was read as hung. The node goes on without a lost teammate
+        progress not advancing for ``lost_timeout`` s was read as hung. **A teammate is not stalled while what it
+        waits on moves**: its announcement carries ``moved`` (:attr:`moved`: how many times the progress of a
+        teammate it waits for advanced while behind its next input), and a change of it restarts the teammate's
+        stall clock as an advance would (counted ``stall_clock_chain_moved``), so the clock measures nothing moving
+        in the whole chain of waits. Before, a node waiting at a cluster boundary for a slow new mate whose
+        progress advanced was declared stalled by its other mates, who do not hear that mate; its late broadcasts
+        then set off a cascade of re-broadcasts. A teammate whose chain does not move either is still stalled after
+        the same time, a silent one after ``lost_timeout``. The node goes on without a lost teammate
         (counted ``peers_lost``, logged); its queries to it are answered "not found" at once. It is back if it
         announces progress again (a silent one: if it announces at all) or its token comes anew."""
         now = time.monotonic()

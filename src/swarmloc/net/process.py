@@ -209,7 +209,9 @@ class NetNode:
                                      unsettled=self.lockstep.unsettled, ros=self.wiring.put_ros, scans=scans,
                                      on_belief=on_belief, on_lines=on_lines, on_settled=on_settled)  # fmt: skip
         """Its beliefs, delayed output and scans' lines, published (:class:`~.publishing.Publishing`)."""
-        self.announcer = Announcer(self.robot, settings.lag, self.wiring.put, self.inputs.next_key)
+        self.announcer = Announcer(
+            self.robot, settings.lag, self.wiring.put, self.inputs.next_key, lambda: self.lockstep.moved
+        )
         """Its progress, announced (:class:`~.publishing.Announcer`)."""
 
     def _step(self, item: Any, query: Any = None) -> None:

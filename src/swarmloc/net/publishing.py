@@ -50,10 +50,13 @@ def lagging(node: Node) -> bool:
 class Announcer:
     """Part of :class:`~swarmloc.net.process.NetNode`: announcing its progress, the key of its next input, which
     its teammates' lockstep waits on (rate-limited). ``next_key``: ``(stamp, priority)`` of the node's next input
-    (:meth:`~swarmloc.net.inputs.Inputs.next_key`); ``lag``: [s] the lockstep slack."""
+    (:meth:`~swarmloc.net.inputs.Inputs.next_key`); ``lag``: [s] the lockstep slack; ``moved``: how many times what
+    it waits on moved (:attr:`~swarmloc.net.lockstep.Lockstep.moved`), announced with it."""
 
-    def __init__(self, robot: int, lag: float, put: Put, next_key: Callable[[], tuple[float, int]]) -> None:
-        self.robot, self.lag, self.put, self.next_key = robot, lag, put, next_key
+    def __init__(
+        self, robot: int, lag: float, put: Put, next_key: Callable[[], tuple[float, int]], moved: Callable[[], int]
+    ) -> None:
+        self.robot, self.lag, self.put, self.next_key, self.moved = robot, lag, put, next_key, moved
         self.last = -math.inf  # the last progress announced: its stamp, wall time and key
         """The stamp last announced."""
         self.last_wall = 0.0
@@ -72,7 +75,7 @@ class Announcer:
         self.last = t
         self._last_key = key
         self.last_wall = now
-        self.put("progress", Progress(robot=self.robot, t=key[0], prio=key[1], done=done))
+        self.put("progress", Progress(robot=self.robot, t=key[0], prio=key[1], done=done, moved=self.moved()))
 
 
 class Publishing:

@@ -78,12 +78,16 @@ def group_tag(b: object) -> str:
 class Progress(msgspec.Struct, frozen=True, kw_only=True, tag="progress"):
     """``robot`` has read every source event keyed before ``(t, prio)`` (its next input: a detection group has
     priority 1, odometry 2; ``t = inf``: its source is exhausted); ``done``: it has also settled (no answer
-    outstanding) and published its final beliefs."""
+    outstanding) and published its final beliefs. ``moved``: how many times the progress of a teammate it waits
+    for advanced while behind its next input (modulo :data:`MAX_MOVED`): a node that waits repeats an unchanged
+    progress, and while ``moved`` changes what it waits on moves, so it is not stalled
+    (:meth:`~swarmloc.net.lockstep.Lockstep.check_lost`)."""
 
     robot: int
     t: float
     prio: int = 1
     done: bool = False
+    moved: int = 0
 
 
 class Report(msgspec.Struct, frozen=True, kw_only=True, tag="report"):
@@ -100,6 +104,8 @@ class Report(msgspec.Struct, frozen=True, kw_only=True, tag="report"):
 
 MAX_BROADCAST_N = 1 << 62
 """Bound on a broadcast number (numbers count a sender's broadcasts over its life, from 0)."""
+MAX_MOVED = 1 << 62
+"""Bound on :class:`Progress`'s ``moved`` (a count over the sender's life, from 0)."""
 MAX_REPAIR = 256
 """The most broadcast numbers one :class:`BroadcastRepair` asks for."""
 ALL = -1
@@ -296,13 +302,15 @@ def _finite(xs: tuple, n: int) -> bool:
 
 def number_problem(b: Body) -> str | None:
     """Why a revision or priority of ``b`` is out of range (revisions in ``[-2, 2^31)``: -2 a node's own "not
-    found", -1 the belief server's; priorities in ``[0, 3]``), or None."""
+    found", -1 the belief server's; priorities in ``[0, 3]``; a progress's ``moved`` in ``[0, 2^62)``), or None."""
     rev = b.seq if isinstance(b, BeliefAnswer | RdlState) else b.based_on if isinstance(b, RdlUpdate) else None
     rev = b.rev if isinstance(b, Belief) else rev
     if rev is not None and not -2 <= rev < MAX_REVISION:
         return f"{type(b).__name__}: revision {rev} outside [-2, 2^31)"
     if isinstance(b, Progress | BroadcastHead) and not 0 <= b.prio <= 3:
         return f"{type(b).__name__}: priority {b.prio} outside [0, 3]"
+    if isinstance(b, Progress) and not 0 <= b.moved < MAX_MOVED:
+        return f"Progress: moved {b.moved} outside [0, 2^62)"
     return None
 
 

@@ -14,7 +14,8 @@
   announcement of its progress, which a waiting node repeats every 0.2 s), while lockstep waits for it, before
   declaring it lost and going on without it (counted ``peers_lost``, logged; its queries to it are answered "not
   found" at once, or by the belief server); one that announces but whose progress does not advance (it waits
-  itself) is declared lost after ``STALL_TIMEOUTS`` times as long. It is back if it announces progress again.
+  itself) is declared lost after ``STALL_TIMEOUTS`` times as long, unless what it waits on moves (its announced
+  ``moved`` changes: :meth:`~swarmloc.net.lockstep.Lockstep.check_lost`). It is back if it announces progress again.
 
 A query that ends unanswered is asked again while its robot is alive (not declared lost): ``ANSWER_RETRIES`` more
 times, and beyond that while less than ``lost_timeout`` s have passed since its first ask (as long as a silent
