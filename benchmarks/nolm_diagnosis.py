@@ -166,7 +166,8 @@ def fused_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]]
         fixes = [Detection(r, float(poses["t"][j]), "absolute", np.asarray(poses["pose"][j], float),
                            np.asarray(poses["cov"][j], float) + 1e-8 * np.eye(3), target=None)
                  for j in sel[1:] if poses["t"][j] > ts]  # fmt: skip
-        mine = sorted([e for e in odo if e.robot == r and ts <= e.stamp <= t0] + fixes, key=lambda e: e.stamp)
+        mine: list[Any] = [e for e in odo if e.robot == r and ts <= e.stamp <= t0]
+        mine = sorted(mine + fixes, key=lambda e: e.stamp)
         node = make_team("diekf", {r: belief}, **node_options("diekf", gated, None, ts))
         res = run(node, mine, record_times=[t0])
         tr = res.tracks[r]
