@@ -68,7 +68,7 @@ from swarmloc.evaluation.metrics import evaluate, over_seeds  # noqa: E402
 from swarmloc.events import Odometry  # noqa: E402
 from swarmloc.messages import Message  # noqa: E402
 from swarmloc.net.entry import make_node  # noqa: E402
-from swarmloc.net.lockstep import timed_detections  # noqa: E402
+from swarmloc.net.lockstep import detected_pairs  # noqa: E402
 from swarmloc.net.process import NetNode  # noqa: E402
 from swarmloc.net.schema import encode  # noqa: E402
 from swarmloc.net.team import TeamRun  # noqa: E402
@@ -152,7 +152,7 @@ def networked(src: Source, n: int, cluster: int, duration: float, max_wall: floa
     sessions, nets = [], []
     reports: dict[int, Any] = {}
     beliefs = TeamRun()  # the best belief per robot and record time
-    detected = timed_detections(src.events)
+    detected = detected_pairs(src.events)
     t0 = time.perf_counter()
     try:
         for i, r in enumerate(src.robots):

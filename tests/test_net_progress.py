@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import Counter
-from collections.abc import Iterator
 from types import ModuleType
 from typing import Any
 
@@ -27,7 +26,7 @@ from swarmloc.config import Config
 from swarmloc.datasets.source import Source
 from swarmloc.messages import ClusterPiece
 from swarmloc.net.entry import make_node
-from swarmloc.net.lockstep import heard_in, timed_detections, watched
+from swarmloc.net.lockstep import detected_pairs, heard_in, timed_detections, watched
 from swarmloc.net.process import NetNode
 from swarmloc.net.schema import BroadcastHead, Progress
 from swarmloc.net.team import TeamRun
@@ -113,15 +112,14 @@ def test_a_node_in_clusters_subscribes_to_the_progress_of_its_cluster_and_its_de
     net, keys = opened(src, 8, detected=())
     assert net.watched == {5, 6, 7, 9}
     assert keys == sorted(robot_key("t", r, "progress") for r in (5, 6, 7, 9))
-    dets = timed_detections(src.events)
-    pairs = {(o, t) for _, o, t in dets}
+    pairs = detected_pairs(src.events)
     outsiders = {t for o, t in pairs if o == 8} | {o for o, t in pairs if t == 8}
     outsiders -= {5, 6, 7, 8, 9}
     assert len(outsiders) == 2  # in 3 s robot 8 meets 2 outsiders
-    net, keys = opened(src, 8, detected=dets)
+    net, keys = opened(src, 8, detected=pairs)
     assert net.watched == {5, 6, 7, 9} | outsiders
     assert keys == sorted(robot_key("t", r, "progress") for r in net.watched)
-    for kw, est, k in (({}, "diekf", 5), ({"detected": dets}, "diekf", 0), ({"detected": dets}, "rdl", 5)):
+    for kw, est, k in (({}, "diekf", 5), ({"detected": pairs}, "diekf", 0), ({"detected": pairs}, "rdl", 5)):
         net, keys = opened(clustered(src, k), 8, est, **kw)
         assert net.watched is None and keys == [robot_key("t", "*", "progress")]
     assert watched(3, None, pairs) is None and watched(3, (0, 1, 2, 3), None) is None
@@ -155,7 +153,7 @@ def test_diekf_in_clusters_watching_fewer_teammates_equals_in_process() -> None:
     src = clustered(_scene_module().scene(10, 5.0, 1, "grouped"), 5)
     run = TeamRun()
     team = f"progress{np.random.default_rng().integers(1 << 30)}"
-    nets, reports = thread_team(src, "diekf", max_wall=120.0, team=team, detected=timed_detections(src.events),
+    nets, reports = thread_team(src, "diekf", max_wall=120.0, team=team, detected=detected_pairs(src.events),
                                 on_belief=run.keep)  # fmt: skip
     assert len(reports) == 10
     assert all(n.watched is not None and len(n.watched) < 9 for n in nets)
@@ -182,7 +180,7 @@ def test_lockstep_reaches_a_boundary_once_settled_and_holds_groups_for_the_piece
     node.plan(src.events)
     assert node.team == (0, 1, 2, 3, 4, 5) and node.boundary() == 1.0
     net = NetNode(node, src.own_events(2), session=_Quiet(), team="t", roster=src.robots, record_times=(),
-                  detected=timed_detections(src.events))  # fmt: skip
+                  detected=detected_pairs(src.events))  # fmt: skip
     ls = net.lockstep
     assert net.watched is not None
     ls.alive |= set(net.watched)
@@ -226,6 +224,7 @@ def test_a_reforming_node_hears_only_its_current_and_next_periods_mates() -> Non
     cluster with (the node's ``team``): robot 14, whose clusters hold 13 others over the run, hears 10 at most."""
     src = clustered(_scene_module().scene(20, 10.0, 1, "grouped"), 5, 1.0)
     dets = timed_detections(src.events)
+    assert {(o, t) for _, o, t in dets} == detected_pairs(src.events)
     most: dict[int, int] = {}
     ever_most: dict[int, int] = {}
     for r in src.robots:
@@ -246,73 +245,32 @@ def test_a_reforming_node_hears_only_its_current_and_next_periods_mates() -> Non
     assert len(sched.cuts) == 11 and ever_most[14] == 13 and most[14] == 10
 
 
-def _stepped(robot: int) -> tuple[NetNode, list[tuple[float, int, int]]]:
-    """Robot ``robot``'s NetNode of the 20 robots of the grouped scene for 10 s in clusters of 5 re-formed every
-    second (the team's detections known), on a session that records its declarations; and the detections."""
-    src = clustered(_scene_module().scene(20, 10.0, 1, "grouped"), 5, 1.0)
-    node = make_node("diekf", robot, src.initial[robot], src.config, src.landmarks, team=src.robots)
-    node.start(src.t_start)
-    node.plan(src.events)
-    dets = timed_detections(src.events)
-    net = NetNode(node, src.own_events(robot), session=_Quiet(), team="t", roster=src.robots, detected=dets)
-    return net, dets
-
-
-def _step_through(net: NetNode, behind: float) -> Iterator[float]:
-    """Step ``net``'s node through its own inputs offline, every teammate announcing (before each input) progress
-    ``behind`` s before it; yield each input's stamp once stepped."""
-    net.wiring.open()
-    for s, item in net.inputs.items:
-        for r in net.roster - {net.robot}:
-            net.lockstep.on_progress(Progress(robot=r, t=s - behind))
-        net._step(item)
-        yield s
-    net.wiring.close()
-
-
 @pytest.mark.unit
 def test_a_reforming_node_subscribes_per_period_to_its_current_and_next_mates() -> None:
-    """Robot 14 of the same 20 robots, its node stepped through its own inputs offline (its teammates' progress at
-    each input's stamp): after each input it subscribes to the broadcasts of its clusters of the input's period and
-    the next only, and to the progress of those and of the robots it detects or is detected by in those periods;
-    fewer than the 13 it shares a cluster with over the run, and a mate of the period before only is let go once past
-    the boundary."""
-    net, dets = _stepped(14)
-    sched = net.node.protocol.schedule
-    assert len(net.node.team) == 14 and net.hearing is not None
+    """Robot 14 of the same 20 robots, its node stepped through its own inputs offline (nobody else alive): after
+    each input it subscribes to the broadcasts of its clusters of the input's period and the next only, and to the
+    progress of those and of the robots it detects or is detected by; fewer than the 13 it shares a cluster with over
+    the run, and a mate of the period before only is let go once past the boundary."""
+    src = clustered(_scene_module().scene(20, 10.0, 1, "grouped"), 5, 1.0)
+    node = make_node("diekf", 14, src.initial[14], src.config, src.landmarks, team=src.robots)
+    node.start(src.t_start)
+    node.plan(src.events)
+    pairs = detected_pairs(src.events)
+    net = NetNode(node, src.own_events(14), session=_Quiet(), team="t", roster=src.robots, detected=pairs)
+    net.wiring.open()
+    sched = node.protocol.schedule
+    met = {t for o, t in pairs if o == 14} | {o for o, t in pairs if t == 14}
+    assert len(node.team) == 14 and net.hearing is not None
     sizes = set()
-    for s in _step_through(net, 0.0):
-        mates, waits = heard_in(14, sched, sched.period(s), dets)
+    for s, item in net.inputs.items:
+        net._step(item)
+        mates = heard_in(14, sched, sched.period(s), ())[0]
         assert net.wiring.heard("broadcast") == sorted(str(r) for r in mates)
-        assert net.wiring.heard("progress") == sorted(str(r) for r in waits)
-        assert net.lockstep.watched == waits and net.broadcaster.heard == mates
+        assert net.wiring.heard("progress") == sorted(str(r) for r in mates | met)
+        assert net.lockstep.watched == mates | met and net.broadcaster.heard == mates
         sizes.add(len(mates))
+    net.wiring.close()
     assert max(sizes) == 10 and min(sizes) == 5 and net.wiring.heard("broadcast") == []
-
-
-@pytest.mark.unit
-def test_a_reforming_node_watches_per_period_and_keeps_a_leaving_teammate_until_past_the_boundary() -> None:
-    """Robot 8 of the same 20 robots, its teammates half a second behind it: it watches the robots it detects or is
-    detected by in the current and next periods only (6 at most of the 8 over the run), and a teammate watched before
-    a boundary only (robot 13, which detects it in the period before 3 s and is no mate) stays watched until its
-    progress has passed the boundary, then is let go."""
-    net, dets = _stepped(8)
-    sched = net.node.protocol.schedule
-    assert any(o == 13 and t == 8 and sched.period(s) == 2 for s, o, t in dets)
-    plan = [heard_in(8, sched, k, dets)[1] for k in range(len(sched.cuts))]
-    assert 13 in plan[2] - plan[3] and 13 not in heard_in(8, sched, 2, dets)[0]
-    ever: set[int] = set()
-    kept13 = []
-    for s in _step_through(net, 0.5):
-        k = sched.period(s)
-        kept = plan[k - 1] - plan[k] if k > 0 and s - 0.5 < sched.times[k - 1] else frozenset()
-        assert net.lockstep.watched == plan[k] | kept
-        assert net.wiring.heard("progress") == sorted(str(r) for r in plan[k] | kept)
-        ever |= net.lockstep.watched
-        if k == 3:
-            kept13.append((s, 13 in net.lockstep.watched))
-    assert len(ever) == 8 and max(map(len, plan)) == 6
-    assert {w for s, w in kept13 if s < 3.5} == {True} and {w for s, w in kept13 if s >= 3.5} == {False}
 
 
 @pytest.mark.network

@@ -155,7 +155,7 @@ def node_main(
     (:func:`swarmloc.live.source.live_inputs`; ``src`` still gives the team, initial beliefs and record times).
     ``view``: a :class:`~swarmloc.net.view.TeamView` shown this robot's beliefs and lines, and the belief server's
     map, asked for every second while the node runs and once at its end (not with a server-hosted estimator)."""
-    from swarmloc.net.lockstep import timed_detections
+    from swarmloc.net.lockstep import detected_pairs
     from swarmloc.net.process import NetNode
     from swarmloc.net.settings import NetSettings
 
@@ -187,7 +187,7 @@ def node_main(
                       settings=settings, on_belief=lambda b: _on_belief(b, finals, view),
                       on_lines=None if view is None else view.observe, auth=auth,
                       scans=None if live is not None else _own_scans(src, robot, events),
-                      detected=None if live is not None else timed_detections(src.events))  # fmt: skip
+                      detected=None if live is not None else detected_pairs(src.events))  # fmt: skip
         _stop_on_sigterm(net.stop)
         report = _run_viewed(net, max_wall, view, session, scope, team, src.robots, auth)
         if out is not None:

@@ -49,17 +49,17 @@ def watched(
     """The teammates whose progress robot ``robot``'s lockstep waits for (and subscribes to); None: every teammate.
 
     ``cluster``: the robots whose broadcasts it hears, ``diekf`` in clusters (None: any other node); ``detected``:
-    the ``(observer, target)`` of every robot detection of the team's run, known in advance from a recording (the
-    pairs of :func:`timed_detections`; None: a live source). In clusters, the cluster's mates and the robots it
-    detects or that detect it. That is enough: the node's state changes only by its own inputs, its cluster's
-    broadcasts (a mate's progress and broadcast head tell when none keyed before a key can still come) and the
-    answers to its own queries; an outsider's detection of it changes nothing of it (the covariance intersection is
-    one-sided). A robot it detects must have read its source to the detection's stamp when its query comes (else the
-    query is held, and past ``hold_timeout`` answered as things stand: "not yet" beyond the answerer's tolerance). A
-    robot that detects it must not be left more than ``lag`` behind (its queries are answered from a history of one
+    the ``(observer, target)`` of every robot detection of the team's run, known in advance from a recording
+    (:func:`detected_pairs`; None: a live source). In clusters, the cluster's mates and the robots it detects or
+    that detect it. That is enough: the node's state changes only by its own inputs, its cluster's broadcasts (a
+    mate's progress and broadcast head tell when none keyed before a key can still come) and the answers to its own
+    queries; an outsider's detection of it changes nothing of it (the covariance intersection is one-sided). A
+    robot it detects must have read its source to the detection's stamp when its query comes (else the query is
+    held, and past ``hold_timeout`` answered as things stand: "not yet" beyond the answerer's tolerance). A robot
+    that detects it must not be left more than ``lag`` behind (its queries are answered from a history of one
     horizon) nor left before it is done. Every wait is for something keyed before, as with the whole team, so the
-    robot with the lowest next key still goes on. Any other node (and a live source, whose detections are not known
-    in advance): every teammate, unchanged."""
+    robot with the lowest next key still goes on. Any other node (and a live source, whose detections are not
+    known in advance): every teammate, unchanged."""
     if cluster is None or detected is None:
         return None
     pairs = {(int(o), int(t)) for o, t in detected}
@@ -84,9 +84,15 @@ def heard_in(
 
 def timed_detections(events: Iterable[Any]) -> list[tuple[float, int, int]]:
     """``(stamp, observer, target)`` of the robot detections among ``events`` (a recording of the whole team): for
-    :func:`heard_in`, and their pairs for :func:`watched`."""
+    :func:`heard_in`."""
     return [(float(e.stamp), e.observer, e.target) for e in events if isinstance(e, Detection)
             and e.target_is_robot and e.target is not None]  # fmt: skip
+
+
+def detected_pairs(events: Iterable[Any]) -> set[tuple[int, int]]:
+    """``(observer, target)`` of the robot detections among ``events`` (a recording of the whole team): for
+    :func:`watched`."""
+    return {(o, t) for _, o, t in timed_detections(events)}
 
 
 class Lockstep:

@@ -114,11 +114,10 @@ class NetNode:
         everything it receives must be signed by the member it claims to come from (refusals counted
         ``auth_<category>``); None: an unauthenticated team (tests on one machine, a trusted network).
     scans: this robot's range scans (see the attribute).
-    detected: ``(stamp, observer, target)`` of every robot detection of the team's run, when known in advance (a
-        recording: :func:`~swarmloc.net.lockstep.timed_detections`): with ``diekf`` in clusters, lockstep then waits
-        only for the cluster and the robots this one detects or is detected by (:func:`~swarmloc.net.lockstep.watched`;
-        with re-forming clusters, those of the current and next periods: :class:`~swarmloc.net.hearing.Hearing`);
-        None: for every teammate.
+    detected: ``(observer, target)`` of every robot detection of the team's run, when known in advance (a recording:
+        :func:`~swarmloc.net.lockstep.detected_pairs`): with ``diekf`` in clusters, lockstep then waits only for the
+        cluster and the robots this one detects or is detected by (:func:`~swarmloc.net.lockstep.watched`); None: for
+        every teammate.
     """
 
     def __init__(
@@ -136,7 +135,7 @@ class NetNode:
         on_settled: Callable[[float, Any], None] | None = None,
         auth: Auth | None = None,
         scans: Any = None,
-        detected: Iterable[tuple[float, int, int]] | None = None,
+        detected: Iterable[tuple[int, int]] | None = None,
         **kw: Any,
     ) -> None:
         if len(node.robots) != 1:
