@@ -24,7 +24,7 @@ from swarmloc.config import DEFAULTS, load_config
 from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.heldout import landmark_nis, reading_times
-from swarmloc.events import Detection, Odometry
+from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.experiments.mrclam import detection_set, mrclam_stream, yaw_calibrated
 from swarmloc.experiments.truthfree import initial_from_snapshots, landmark_readings
 from swarmloc.gaussian import GroupGaussian
@@ -118,6 +118,16 @@ def _mutual(log: list[tuple[float, int, Any, str, Any]], robots: list[int]) -> d
             "anis_pred": float(e[hi].mean() / 2) if hi.any() else float("nan")}  # fmt: skip
 
 
+def snapshot_belief(poses: Any, i: int) -> tuple[float, Any]:
+    """``(t, belief)`` of snapshot ``i`` of ``poses`` as :func:`~swarmloc.experiments.truthfree.initial_from_snapshots`
+    makes it: the fit's ``(x, y, theta)`` covariance rotated into the body frame (the nodes' right perturbation)."""
+    pose, cov = poses["pose"][i], poses["cov"][i]
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    belief = GroupGaussian(SE2, SE2.from_xytheta(pose), rot @ cov @ rot.T + 1e-8 * np.eye(3), validate=False)
+    return float(poses["t"][i]), belief
+
+
 def latest_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]]:
     """As :func:`~swarmloc.experiments.truthfree.initial_from_snapshots` (the same ``t0``: every robot's first
     snapshot in), but each robot starts from its *latest* snapshot at or before ``t0``, not its first: the least
@@ -128,10 +138,7 @@ def latest_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]
     out = {}
     for r in data.robots:
         i = int(np.flatnonzero((poses["t"] <= t0) & (poses["observer"] == r))[-1])
-        ts, pose, cov = float(poses["t"][i]), poses["pose"][i], poses["cov"][i]
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        belief = GroupGaussian(SE2, SE2.from_xytheta(pose), rot @ cov @ rot.T + 1e-8 * np.eye(3), validate=False)
+        ts, belief = snapshot_belief(poses, i)
         if ts >= t0:
             out[r] = belief
             continue
@@ -155,15 +162,12 @@ def fused_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]]
     for r in data.robots:
         sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start) & (poses["t"] <= t0))
         i = int(sel[0])
-        ts, pose, cov = float(poses["t"][i]), poses["pose"][i], poses["cov"][i]
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        belief = GroupGaussian(SE2, SE2.from_xytheta(pose), rot @ cov @ rot.T + 1e-8 * np.eye(3), validate=False)
+        ts, belief = snapshot_belief(poses, i)
         if ts >= t0:
             out[r] = belief
             FUSED_COUNTS[(data.name, r)] = {"snapshots": 0}
             continue
-        fixes = [Detection(r, float(poses["t"][j]), "absolute", np.asarray(poses["pose"][j], float),
+        fixes = [Detection(r, float(poses["t"][j]), Kind.ABSOLUTE, np.asarray(poses["pose"][j], float),
                            np.asarray(poses["cov"][j], float) + 1e-8 * np.eye(3), target=None)
                  for j in sel[1:] if poses["t"][j] > ts]  # fmt: skip
         mine: list[Any] = [e for e in odo if e.robot == r and ts <= e.stamp <= t0]
@@ -285,7 +289,6 @@ def study_rows(datasets: list[int], root: Path, start: str) -> dict[int, Any]:
     fitted on the other recordings, 200 s, landmark folds held out), landmarks on and off, with the study's start
     replaced by :data:`START` ``[start]``: RMSE [m] and ANEES/dof where there is truth, the truth-free score."""
     import swarmloc_studies.lodo as lodo
-    from swarmloc.datasets.mrclam import load_mrclam
 
     datas = {k: load_mrclam(root / f"MRCLAM_Dataset{k}", require=("measurements",)) for k in lodo.DATASETS}
     ms = lodo.model_scores({k: lodo.detection_set(d) for k, d in datas.items()})
