@@ -14,9 +14,11 @@ import os
 import sys
 from pathlib import Path
 
+from _common import mrclam_root
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "src"), str(ROOT / "studies" / "src")]  # this checkout: swarmloc and its studies
-os.environ.setdefault("SWARMLOC_MRCLAM", str(ROOT.parent / "shared/data/mrclam"))
+os.environ.setdefault("SWARMLOC_MRCLAM", str(mrclam_root()))
 
 from swarmloc_studies.bench_command import main  # noqa: E402
 

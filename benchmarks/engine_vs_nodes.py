@@ -12,11 +12,11 @@ of MRCLAM 6, tests/test_engine_clusters.py and tests/test_engine_invariant.py).
 from __future__ import annotations
 
 import argparse
-import os
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from _common import mrclam_root
 
 from swarmloc.engine import run_engine
 from swarmloc.estimators import make_team, node_options
@@ -24,7 +24,6 @@ from swarmloc.experiments.sources import load_source
 from swarmloc.lie import wrap_angle
 from swarmloc.runner import RunResult, run
 
-ROOT = Path(__file__).resolve().parents[1]
 COUNTS = ("detections", "fused", "gated", "rejected", "unknown")
 
 
@@ -35,8 +34,7 @@ def _reasons(res: RunResult) -> Counter:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    default = Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam"))
-    ap.add_argument("--data", type=Path, default=default, help="the folder of the MRCLAM_DatasetN folders")
+    ap.add_argument("--data", type=Path, default=mrclam_root(), help="the folder of the MRCLAM_DatasetN folders")
     ap.add_argument("--datasets", default="1,2,3,4,6,9")
     ap.add_argument("--cluster", type=int, default=2, help="robots per cluster (0: the exact filter)")
     a = ap.parse_args()

@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 from pathlib import Path
 
 import numpy as np
+from _common import add_mrclam
 from scipy.optimize import minimize
 
 from swarmloc.config import DEFAULTS
@@ -35,7 +35,6 @@ from swarmloc.motion.calibrate import heading_increments
 from swarmloc.sensors.decorrelate import snapshot_poses
 from swarmloc_studies.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
 
-ROOT = Path(__file__).resolve().parents[1]
 CHI2_1_MEDIAN = 0.4549
 
 
@@ -92,9 +91,7 @@ def lodo_yaw(root: Path, fitted: list[int], scored: list[int]) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--mrclam", type=Path, default=Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam"))
-    )
+    add_mrclam(ap)
     ap.add_argument("--datasets", default="1,2,4,6,9")
     ap.add_argument("--range-std", type=float, default=0.158, help="[m] the snapshot fits' range std")
     ap.add_argument("--bearing-std", type=float, default=0.0046, help="[rad] the snapshot fits' bearing std")

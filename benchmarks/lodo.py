@@ -9,21 +9,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
+
+from _common import add_mrclam
 
 from swarmloc.experiments.evaluate import json_default
 from swarmloc_studies.lodo import lodo, lodo_markdown
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--mrclam", type=Path, default=Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam"))
-    )
+    add_mrclam(ap)
     ap.add_argument("--estimators", default="dekf,ci,rdl,diekf")
     ap.add_argument("--duration", type=float, default=200.0, help="seconds of each left-out dataset the filters run")
     ap.add_argument("--datasets", default="1,2,3,4,5,6,8,9", help="datasets to fit and score on")

@@ -9,22 +9,20 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 from pathlib import Path
+
+from _common import add_mrclam
 
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
 from swarmloc_studies.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
 
-ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("pos_rmse", "anees", "anees_folds", "nis_ratio_ref", "anis_ref", "beyond_gate_ref")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--mrclam", type=Path, default=Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam"))
-    )
+    add_mrclam(ap)
     ap.add_argument("--duration", type=float, default=200.0)
     ap.add_argument("--datasets", default="6,9,3,1,2,4", help="datasets the filters run on")
     ap.add_argument("--out", type=Path, default=Path("lodo_adaptive.json"))

@@ -12,22 +12,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import time
-from pathlib import Path
+
+from _common import add_mrclam
 
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
 from swarmloc_studies.lodo import DATASETS, detection_set, filter_scores, model_scores, own_std
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--mrclam", type=Path, default=Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam"))
-    )
+    add_mrclam(ap)
     ap.add_argument("--datasets", default="1,2,3,4,6,9", help="left-out datasets the filters run on")
     ap.add_argument("--scales", default="1,0.5,0.25,0.125", help="multipliers of the process noise")
     ap.add_argument("--terms", default=None, help="comma-separated [motion] keys to scale (default: all)")

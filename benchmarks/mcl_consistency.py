@@ -20,13 +20,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _common import add_mrclam
 
 from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.experiments.sources import load_source
 from swarmloc.runner import run
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def score(src, est: str, **opts) -> dict[str, float]:
@@ -39,8 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--duration", type=float, default=60.0, help="seconds of each simulated run")
-    ap.add_argument("--mrclam", type=Path,
-                    default=Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam")))  # fmt: skip
+    add_mrclam(ap)
     ap.add_argument("--mrclam-duration", type=float, default=300.0)
     ap.add_argument("--particles", default="200,500,2000")
     ap.add_argument("--out", type=Path, default=None)

@@ -51,9 +51,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _common import add_mrclam, mrclam_root
 
-ROOT = Path(__file__).resolve().parents[1]
-MRCLAM = Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam")) / "MRCLAM_Dataset6"
+MRCLAM = mrclam_root() / "MRCLAM_Dataset6"
 TEAM = f"netbench{os.getpid()}"
 GRACE = 3.0
 GET_TIMEOUT = 5.0
@@ -462,7 +462,7 @@ def main() -> None:
     ap.add_argument("--procs", default="5,20", help="processes per round-trip run, asker included (default 5,20)")
     ap.add_argument("--queries", type=int, default=2000, help="queries per row (default 2000)")
     ap.add_argument("--window", type=int, default=32, help="gets in flight for the throughput rows (default 32)")
-    ap.add_argument("--mrclam", type=Path, default=MRCLAM, help=f"MRCLAM dataset 6 folder (default {MRCLAM})")
+    add_mrclam(ap, default=MRCLAM, help=f"MRCLAM dataset 6 folder (default {MRCLAM})")
     ap.add_argument("--duration", type=float, default=None, help="seconds of the dataset (default: all)")
     ap.add_argument("--estimators", default="expfusion,rdl", help="distributed estimators (default expfusion,rdl)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="time limit per live team run [s]")

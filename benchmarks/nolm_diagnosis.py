@@ -25,6 +25,7 @@ from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.heldout import landmark_nis, reading_times
 from swarmloc.events import Detection, Kind, Odometry
+from swarmloc.experiments import truthfree
 from swarmloc.experiments.mrclam import detection_set, mrclam_stream, yaw_calibrated
 from swarmloc.experiments.truthfree import initial_from_snapshots, landmark_readings
 from swarmloc.gaussian import GroupGaussian
@@ -121,11 +122,7 @@ def _mutual(log: list[tuple[float, int, Any, str, Any]], robots: list[int]) -> d
 def snapshot_belief(poses: Any, i: int) -> tuple[float, Any]:
     """``(t, belief)`` of snapshot ``i`` of ``poses`` as :func:`~swarmloc.experiments.truthfree.initial_from_snapshots`
     makes it: the fit's ``(x, y, theta)`` covariance rotated into the body frame (the nodes' right perturbation)."""
-    pose, cov = poses["pose"][i], poses["cov"][i]
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    belief = GroupGaussian(SE2, SE2.from_xytheta(pose), rot @ cov @ rot.T + 1e-8 * np.eye(3), validate=False)
-    return float(poses["t"][i]), belief
+    return truthfree.snapshot_belief(poses, i)
 
 
 def latest_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]]:

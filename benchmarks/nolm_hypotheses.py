@@ -23,12 +23,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _common import add_mrclam
 
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import ROBOT_SUBJECTS, load_mrclam
@@ -37,7 +37,6 @@ from swarmloc.motion import UnicycleNoise
 from swarmloc.motion.calibrate import heading_increments, held_integral
 from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD, snapshot_poses
 
-ROOT = Path(__file__).resolve().parents[1]
 MED1 = 0.454936  # chi-square median, 1 dof
 TAUS = (-1.0, -0.5, -0.25, -0.12, 0.0, 0.12, 0.25, 0.5, 1.0)
 NOISE = UnicycleNoise(**{f.name: getattr(DEFAULTS.motion, f.name) for f in dataclasses.fields(UnicycleNoise)})
@@ -94,9 +93,7 @@ def lag(data: Any, snaps: dict[str, np.ndarray]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--mrclam", type=Path, default=Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam"))
-    )
+    add_mrclam(ap)
     ap.add_argument("--datasets", default="1,2,3,4,6,9")
     ap.add_argument("--filter", default="", help="datasets to score with shifted odometry (diekf, landmarks off)")
     ap.add_argument("--taus", default="0,0.12,0.25")

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
+
+from _common import add_mrclam
 
 from swarmloc.config import DEFAULTS, load_config
 from swarmloc.experiments.mrclam import evaluate_mrclam
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def cell(path: Path, landmarks: bool, duration: float | None, config_path: str) -> str:
@@ -31,9 +30,7 @@ def cell(path: Path, landmarks: bool, duration: float | None, config_path: str) 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--mrclam", type=Path, default=Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam"))
-    )
+    add_mrclam(ap)
     ap.add_argument("--datasets", default="1,2,3,4,9,6")
     ap.add_argument("--configs", default="default", help="comma-separated: default or TOML files")
     ap.add_argument("--landmarks", default="on,off")

@@ -25,8 +25,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+from _common import mrclam_root
+
 ROOT = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam"))
+DATA = mrclam_root()
 ESTIMATORS = ("dr", "dekf", "cekf", "expfusion", "ci", "rdl")
 
 SNIPPET = """

@@ -9,9 +9,9 @@ from __future__ import annotations
 import os
 import platform
 import time
-from pathlib import Path
 
 import numpy as np
+from _common import mrclam_root
 
 from swarmloc import SE2, SE3
 from swarmloc.gaussian import convolution_F, convolution_F_reference, convolve_moments
@@ -61,7 +61,7 @@ def main() -> None:
     for G, n in ((SE2, 100_000), (SE3, 20_000)):
         bench_group(G, n, rng)
 
-    data = Path(os.environ.get("SWARMLOC_MRCLAM", Path(__file__).resolve().parents[1].parent / "shared/data/mrclam"))
+    data = mrclam_root()
     ds6 = data / "MRCLAM_Dataset6"
     if ds6.is_dir():
         from swarmloc.experiments.mrclam import evaluate_mrclam

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _common import mrclam_root
 
 from swarmloc.estimators import make_team, node_options
 from swarmloc.experiments.sources import load_source
@@ -22,13 +23,10 @@ from swarmloc.experiments.team import run_team, team_result
 from swarmloc.net.timeouts import ANSWER_RETRIES
 from swarmloc.runner import run
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    default = Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam")) / "MRCLAM_Dataset6"
-    ap.add_argument("--dataset", type=Path, default=default)
+    ap.add_argument("--dataset", type=Path, default=mrclam_root() / "MRCLAM_Dataset6")
     ap.add_argument("--estimator", default="rdl")
     ap.add_argument("--duration", type=float, default=120.0)
     ap.add_argument("--answer-timeout", type=float, required=True)

@@ -137,9 +137,10 @@ class WorldForm:
             Hi = Hi_c @ I.world_basis(s.x)
             return r, Hi, Hi @ s.P @ Hi.T + R, R
         pl, Cl = target[1]
-        lin3 = C3.linearize(d, s.x, pl)
-        if isinstance(lin3, str):
-            return lin3
+        m = group_model(d.kind, self.planar)
+        lin3: Any = m.linearize(d.z, d.cov, s.x, pl)
+        if lin3 is None:
+            return m.why_degenerate
         r, Hi_c, Hl, R = lin3
         Hi = Hi_c @ C3.world_basis3(s.x)
         return r, Hi, symmetric(Hi @ s.P @ Hi.T + R + Hl @ Cl @ Hl.T), R

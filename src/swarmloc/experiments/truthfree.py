@@ -30,7 +30,14 @@ from swarmloc.lie import SE2
 from swarmloc.runner import RunResult, TruthFn, run
 from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD, DetectionSet, snapshot_poses
 
-__all__ = ["SCORED_SPAN", "heldout_runs", "initial_from_snapshots", "landmark_readings", "truth_free_score"]
+__all__ = [
+    "SCORED_SPAN",
+    "heldout_runs",
+    "initial_from_snapshots",
+    "landmark_readings",
+    "snapshot_belief",
+    "truth_free_score",
+]
 
 SCORED_SPAN = 300.0
 """[s] The longest span :func:`truth_free_score` scores, from the truth-free start: its runs (3 with landmarks) then
@@ -45,22 +52,16 @@ def initial_from_snapshots(
     dead-reckoned to ``t0``, the latest first snapshot; returns ``(t0, beliefs)``. Raises ValueError when a robot
     of ``data`` never sees two landmarks at once."""
     poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
-    first: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
+    first: dict[int, tuple[float, GroupGaussian]] = {}
     for r in data.robots:
         sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start))
         if sel.size == 0:
             raise ValueError(f"{data.name}: robot {r} never reads two landmarks at once; no truth-free start")
-        i = int(sel[0])
-        first[r] = (float(poses["t"][i]), poses["pose"][i], poses["cov"][i])
+        first[r] = snapshot_belief(poses, int(sel[0]))
     t0 = max(v[0] for v in first.values())
     events = mrclam_events(data, landmarks=False, robot_measurements=False)
     out: dict[int, GroupGaussian] = {}
-    for r, (ts, pose, cov) in first.items():
-        # the fit's covariance is of (x, y, theta); at a small angle it is that of the left perturbation: rotate
-        # it into the body frame for the right-perturbation convention of the nodes
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        belief = GroupGaussian(SE2, SE2.from_xytheta(pose), rot @ cov @ rot.T + 1e-8 * np.eye(3), validate=False)
+    for r, (ts, belief) in first.items():
         if t0 - ts <= 0:
             out[r] = belief
             continue
@@ -69,6 +70,19 @@ def initial_from_snapshots(
         tr = res.tracks[r]
         out[r] = GroupGaussian(SE2, SE2.from_xytheta(tr.mean[-1]), tr.cov[-1], validate=False)
     return t0, out
+
+
+def snapshot_belief(poses: Mapping[str, np.ndarray], i: int) -> tuple[float, GroupGaussian]:
+    """``(t, belief)`` of snapshot ``i`` of ``poses`` (as
+    :func:`~swarmloc.sensors.snapshots.snapshot_poses` returns them): the fitted pose with the fit's covariance
+    plus ``1e-8`` on the diagonal, at the snapshot's time ``t`` [s]. The fit's covariance is of ``(x, y, theta)``;
+    at a small angle it is that of the left perturbation, so it is rotated into the body frame for the
+    right-perturbation convention of the nodes."""
+    pose, cov = poses["pose"][i], poses["cov"][i]
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    belief = GroupGaussian(SE2, SE2.from_xytheta(pose), rot @ cov @ rot.T + 1e-8 * np.eye(3), validate=False)
+    return float(poses["t"][i]), belief
 
 
 def landmark_readings(data: MRCLAMData, t0: float, t1: float) -> list[Detection]:

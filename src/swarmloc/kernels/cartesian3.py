@@ -10,12 +10,12 @@ A pose is the ``4 x 4`` matrix ``g`` of its position ``p (3,)`` (world frame) an
   ``F = [[I, -R t_inc^], [0, R_inc^T]]``, ``G = diag(R R_inc, I)``, ``P' = F P F^T + G Sigma_inc G^T``
   (:func:`step`, :func:`predict_one`, batched: :func:`propagate`);
 * the detections ``"pose3"``, ``"rbe3"``, ``"bearing3"`` of a robot (a pose) or of a known 3-D landmark (a point):
-  :class:`~swarmloc.sensors.models3.Model3`'s residual, Jacobians and noise (:func:`linearize`);
+  :class:`~swarmloc.sensors.models3.Model3`'s residual, Jacobians and noise (its ``linearize``);
 * the correction is applied on the group, ``p + dp``, ``R exp(dtheta^)`` (:func:`correct`), no reset Jacobian;
 * a right-perturbation Gaussian ``g exp(y)`` has ``cov = J^-1 P J^-T`` with ``J = diag(R, I)`` (``g exp(y)`` moves
   the position by ``R v`` to first order): :func:`from_group`, :func:`to_group`.
 
-:func:`step`, :func:`linearize` and :func:`world_basis3` take one pose; the others are batched over leading axes
+:func:`step` and :func:`world_basis3` take one pose; the others are batched over leading axes
 (the engine's :mod:`swarmloc.engine.se3` stacks robots). :func:`from_group`, :func:`to_group` and :func:`predict_one`
 have the names and forms of :mod:`swarmloc.kernels.cartesian`'s (an EKF's form calls either module the same way)."""
 
@@ -30,14 +30,13 @@ from swarmloc.gaussian import symmetric
 from swarmloc.lie import SE3
 from swarmloc.lie.se3 import skew, so3_exp
 from swarmloc.motion.twist3 import TwistNoise, as_twist, twist_increment
-from swarmloc.sensors.models3 import DEGENERATE3, MODELS3, model3, pose3_matrix
+from swarmloc.sensors.models3 import MODELS3, model3, pose3_matrix
 
 __all__ = [
     "correct",
     "error_cov",
     "frame",
     "from_group",
-    "linearize",
     "predict_one",
     "propagate",
     "relative_pose3_world",
@@ -136,15 +135,6 @@ def unsupported(d: Any, target: tuple[str, Any]) -> str | None:
     if target[0] == "landmark" and model3(d.kind).targets == "point" and np.shape(target[1][0]) == (3,):
         return None
     return f"kind {d.kind!r} of a {target[0]} is not supported on SE(3)"
-
-
-def linearize(d: Any, gi: FloatArray, gk: FloatArray) -> tuple[FloatArray, ...] | str:
-    """``(r, H_i, H_k, R)`` of detection ``d`` of ``gk`` (a pose ``(4, 4)`` or a point ``(3,)``) from pose ``gi`` in
-    the Cartesian error: residual, Jacobians w.r.t. the observer and the target, measurement noise
-    (:meth:`~swarmloc.sensors.models3.Model3.linearize`); the reason :data:`~swarmloc.sensors.models3.DEGENERATE3`
-    for a degenerate geometry."""
-    lin = model3(d.kind).linearize(d.z, d.cov, gi, gk)
-    return DEGENERATE3 if lin is None else lin
 
 
 def world_basis3(g: FloatArray) -> FloatArray:

@@ -41,7 +41,7 @@ import numpy as np
 from swarmloc.events import Detection, Kind, Odometry
 from swarmloc.gaussian import symmetric
 from swarmloc.net import ros
-from swarmloc.net.feed import LiveFeed
+from swarmloc.net.feed import InputRefusals, LiveFeed
 from swarmloc.net.rosgraph import RosGraph
 from swarmloc.net.transport import block
 from swarmloc.rmw.inbox import Refused
@@ -153,6 +153,7 @@ class RosInput:
         self.counts: Counter[str] = Counter()
         self.reasons: Counter[str] = Counter()
         self._lock = threading.Lock()
+        self._refuse = InputRefusals(f"robot {self.robot}: ROS input", self.counts, self.reasons, log, total="rejected")
         self._prev = feed.t0  # the previous odometry stamp: the next interval starts there
         self._seqs: OrderedDict[bytes, int] = OrderedDict()  # per publisher gid: its latest sequence number
         self._subs: list[Any] = []
@@ -224,10 +225,7 @@ class RosInput:
 
     def _bad(self, reason: str, detail: str, what: str) -> None:
         self.feed.refused_input(reason, counted=what != "input_progress")  # inputs count towards the end's count
-        self.counts["rejected"] += 1
-        self.reasons[reason] += 1
-        if self.reasons[reason] == 1:
-            log.warning("robot %s: ROS input refused (%s): %s (further ones counted)", self.robot, reason, detail)
+        self._refuse(reason, detail)
 
 
 class RosInputPublisher:

@@ -55,7 +55,7 @@ from swarmloc.net.auth import (
     note_refusal,
     signs_as,
 )
-from swarmloc.net.feed import LiveFeed
+from swarmloc.net.feed import InputRefusals, LiveFeed
 from swarmloc.net.transport import PREFIX, block
 from swarmloc.rmw.inbox import Refused
 from swarmloc.sensors.models import SIZES
@@ -146,6 +146,7 @@ class ZenohInput:
         self.reasons: Counter[str] = Counter()
         """Refusals by reason: ``auth_<category>`` (:data:`swarmloc.net.auth.CATEGORIES`), ``bad_schema``..."""
         self._lock = threading.Lock()
+        self._refuse = InputRefusals(f"robot {self.robot}: input", self.counts, self.reasons, log, total="rejected")
         self._sub: Any = None
 
     def open(self) -> None:
@@ -192,10 +193,7 @@ class ZenohInput:
 
     def _bad(self, reason: str, detail: str, counted: bool) -> None:
         self.feed.refused_input(reason, counted)  # counted: the robot's own input, in its end's count
-        self.counts["rejected"] += 1
-        self.reasons[reason] += 1
-        if self.reasons[reason] == 1:
-            log.warning("robot %s: input refused (%s): %s (further ones counted)", self.robot, reason, detail[:200])
+        self._refuse(reason, detail[:200])
 
 
 def wait_matched_all(pubs: Any, timeout: float) -> bool:

@@ -30,6 +30,7 @@ The run then equals the in-process replay of the inputs the feed accepted (teste
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import itertools
 import logging
@@ -55,13 +56,26 @@ MAX_KEPT = 100
 """Refused events kept with their reason (:attr:`LiveFeed.refused`); the later ones are only counted."""
 
 
-def count_refusal(counts: Counter[str], reasons: Counter[str], lock: threading.Lock, reason: str) -> bool:
-    """Count one refused input, as ``refused`` in ``counts`` and under ``reason`` in ``reasons``, holding ``lock``;
-    True for the first of its reason (the one to log: the others are counted only)."""
-    with lock:
-        counts["refused"] += 1
-        reasons[reason] += 1
-        return reasons[reason] == 1
+class InputRefusals:
+    """Refused inputs counted and logged in one way: each as ``total`` in ``counts`` and under its reason in
+    ``reasons`` (holding ``lock`` when one is given), the first of each reason logged to ``logger`` at WARNING as
+    ``"<what> refused (<reason>): <detail> (further ones counted)"``, the later ones counted only. The feed, the live
+    input layers (:mod:`swarmloc.live`) and the middlewares' receive path (:mod:`swarmloc.rmw.inbox`) each keep one.
+    """
+
+    def __init__(self, what: str, counts: Counter[str], reasons: Counter[str], logger: logging.Logger, *,
+                 total: str = "refused", lock: threading.Lock | None = None) -> None:  # fmt: skip
+        self.what, self.counts, self.reasons, self.log = what, counts, reasons, logger
+        self.total, self.lock = total, lock
+
+    def __call__(self, reason: str, detail: object) -> None:
+        """Count one input refused for ``reason``; ``detail`` (what it was) is logged with the first of its reason."""
+        with self.lock or contextlib.nullcontext():
+            self.counts[self.total] += 1
+            self.reasons[reason] += 1
+            first = self.reasons[reason] == 1
+        if first:
+            self.log.warning("%s refused (%s): %s (further ones counted)", self.what, reason, detail)
 
 
 class LiveFeed:
@@ -112,6 +126,7 @@ class LiveFeed:
         """What the input layer in front of the feed (:mod:`swarmloc.live`) refused before pushing, by reason
         (``auth_unsigned``, ``bad_schema``, ``bad_cdr``...: :meth:`refused_input`)."""
         self._lock = threading.Lock()
+        self._refuse = InputRefusals(f"robot {self.robot}: live input", self.counts, self.reasons, log, lock=self._lock)
         self._heap: list[tuple[float, int, int, Event]] = []  # (stamp, prio, arrival, event)
         self._seq = itertools.count()
         self._latest = -math.inf  # the largest time an input is known at
@@ -250,10 +265,6 @@ class LiveFeed:
         if isinstance(e, Odometry):
             self.counts["odometry"] += 1
         return None
-
-    def _refuse(self, why: str, what: Any) -> None:
-        if count_refusal(self.counts, self.reasons, self._lock, why):
-            log.warning("robot %s: live input refused (%s): %s (further ones counted)", self.robot, why, what)
 
     def _notify(self) -> None:
         self._wake.set()

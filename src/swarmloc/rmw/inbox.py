@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from swarmloc.net.feed import count_refusal
+from swarmloc.net.feed import InputRefusals
 from swarmloc.rmw.types import decode
 
 log = logging.getLogger("swarmloc.rmw")
@@ -58,15 +58,12 @@ class Inbox:
         self.counts: Counter[str] = Counter()
         self.reasons: Counter[str] = Counter()
         self._lock = threading.Lock()
+        self.refuse = InputRefusals("ROS sample", self.counts, self.reasons, log, lock=self._lock)
+        """Count a refused sample: ``refuse(reason, detail)``; the first of each reason is logged."""
 
     def count(self, what: str) -> None:
         with self._lock:
             self.counts[what] += 1
-
-    def refuse(self, reason: str, detail: str) -> None:
-        """Count a refused sample under ``reason``; log the first of each reason."""
-        if count_refusal(self.counts, self.reasons, self._lock, reason):
-            log.warning("ROS sample refused (%s): %s (further ones counted)", reason, detail)
 
     def deliver(self, topic: str, msgtype: str, raw: Any, info: Received, callback: Callback) -> bool:
         """Bound, decode and hand one sample to ``callback``; True if the callback returned."""
