@@ -48,6 +48,7 @@ the scale at ``t`` reads entries stamped before ``t`` only: a replay gives the i
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from bisect import bisect_left
 from typing import Any, NamedTuple
 
@@ -120,19 +121,58 @@ def _scaled(P0: np.ndarray, P1: np.ndarray, lam: float) -> np.ndarray:
     return P1 if lam == 1.0 else P0 + lam * (P1 - P0)
 
 
-class NoiseScale:
+class _Windowed:
+    """What both scales share: the log of innovations keyed ``(stamp, key)`` (each entry's first item its stamp),
+    its rows sorted by stamp (rebuilt when the log changed), the window of rows in force at a time, and the scaled
+    prediction. ``_rebuild`` is each scale's own."""
+
+    def __init__(self, window: float) -> None:
+        self.window = float(window)
+        self._log: dict[tuple[float, Any], Any] = {}
+        self._stamps: list[float] = []
+        self._dirty = False
+
+    @abstractmethod
+    def scale(self, t: float) -> float: ...
+
+    def inflate(self, P0: np.ndarray, P1: np.ndarray, t: float) -> np.ndarray:
+        """The covariance after a prediction ending at ``t`` [s] that took ``P0`` to ``P1``, its process noise
+        ``P1 - P0`` scaled."""
+        return _scaled(P0, P1, self.scale(t))
+
+    def _span(self, t: float) -> tuple[int, int]:
+        """The rows stamped in ``[t - window, t)``: ``(first, past the last)``, the rows rebuilt first if the log
+        changed."""
+        if self._dirty:
+            self._rebuild()
+            self._dirty = False
+        return bisect_left(self._stamps, t - self.window), bisect_left(self._stamps, t)
+
+    def _rows(self) -> list[Any]:
+        """The log's entries sorted by stamp (and their stamps kept), the entries no scale reads again forgotten
+        (older than two windows before the newest: a replay goes back the node's horizon, less than a window)."""
+        if self._log:
+            newest = max(k[0] for k in self._log)
+            for k in [k for k in self._log if k[0] < newest - 2 * self.window]:
+                del self._log[k]
+        rows = sorted(self._log.values(), key=lambda v: v[0])
+        self._stamps = [v[0] for v in rows]
+        return rows
+
+    def _rebuild(self) -> None:
+        """Each scale's own: its window's numbers from :meth:`_rows`."""
+
+
+class NoiseScale(_Windowed):
     """The process-noise scale of one robot's filter (module docstring), a part of its node.
 
-    ``window`` [s]: how far back innovations count (longer than the node's replay horizon); ``prior_dof``: ``nu0``."""
+    ``window`` [s]: how far back innovations count (longer than the node's replay horizon); ``prior_dof``: ``nu0``.
+    Its log's entries: ``(stamp, lam_k (min(e_k, c_k) - a_k), b_k)``."""
 
     def __init__(self, window: float = 30.0, prior_dof: float = 4.0) -> None:
-        self.window = float(window)
+        super().__init__(window)
         self.prior_dof = float(prior_dof)
-        self._log: dict[tuple[float, Any], tuple[float, float, float]] = {}
-        """(stamp [s], key) -> (stamp, lam_k (min(e_k, c_k) - a_k), b_k)"""
-        self._stamps: list[float] = []
         self._sums = np.zeros((1, 2))
-        self._dirty = False
 
     def record(self, t: float, key: Any, inn: Innovation) -> None:
         """File the innovation ``inn`` of the detection keyed ``key`` stamped ``t`` [s] (a replay overwrites it)."""
@@ -142,46 +182,30 @@ class NoiseScale:
 
     def scale(self, t: float) -> float:
         """The scale in force at ``t`` [s]: from the entries stamped in ``[t - window, t)``."""
-        if self._dirty:
-            self._rebuild()
-        i0, i1 = bisect_left(self._stamps, t - self.window), bisect_left(self._stamps, t)
+        i0, i1 = self._span(t)
         if i1 == i0:
             return 1.0
         num, den = self._sums[i1] - self._sums[i0]
         return float(np.clip((self.prior_dof + num) / (self.prior_dof + den), LOW, HIGH))
 
-    def inflate(self, P0: np.ndarray, P1: np.ndarray, t: float) -> np.ndarray:
-        """The covariance after a prediction ending at ``t`` [s] that took ``P0`` to ``P1``, its process noise
-        ``P1 - P0`` scaled."""
-        return _scaled(P0, P1, self.scale(t))
-
     def _rebuild(self) -> None:
-        """The window's prefix sums, the entries no scale reads again forgotten (older than two windows before the
-        newest: a replay goes back the node's horizon, less than a window)."""
-        newest = max(k[0] for k in self._log)
-        for k in [k for k in self._log if k[0] < newest - 2 * self.window]:
-            del self._log[k]
-        rows = sorted(self._log.values(), key=lambda v: v[0])
-        self._stamps = [v[0] for v in rows]
+        """The window's prefix sums (:meth:`_Windowed._rows`)."""
+        rows = self._rows()
         self._sums = np.vstack([np.zeros((1, 2)), np.cumsum([[v[1], v[2]] for v in rows], axis=0)])
-        self._dirty = False
 
 
-class MedianScale:
+class MedianScale(_Windowed):
     """The median variant of the process-noise scale (module docstring), the same interface as :class:`NoiseScale`.
 
-    ``window`` [s]: how far back innovations count."""
+    ``window`` [s]: how far back innovations count. Its log's entries: ``(stamp, landmark, c, mu at the scale 1,
+    chi-square median of the dof)``."""
 
     def __init__(self, window: float = 60.0) -> None:
-        self.window = float(window)
-        self._log: dict[tuple[float, Any], tuple[float, bool, np.ndarray, np.ndarray, float]] = {}
-        """(stamp [s], key) -> (stamp, landmark, c, mu at the scale 1, chi-square median of the dof)"""
-        self._stamps: list[float] = []
+        super().__init__(window)
         self._landmarks = np.zeros(1)
         self._c = self._mu = np.zeros((0, 0))
         self._med = np.zeros(0)
         self._solved: dict[tuple[int, int], float] = {}
-        self._dirty = False
 
     def record(self, t: float, key: Any, inn: Innovation) -> None:
         """File the innovation ``inn`` of the detection keyed ``key`` stamped ``t`` [s] if it is prediction-dominated
@@ -197,18 +221,12 @@ class MedianScale:
 
     def scale(self, t: float) -> float:
         """The scale in force at ``t`` [s]: from the entries stamped in ``[t - window, t)``."""
-        if self._dirty:
-            self._rebuild()
-        i0, i1 = bisect_left(self._stamps, t - self.window), bisect_left(self._stamps, t)
+        i0, i1 = self._span(t)
         if i1 - i0 < MIN_COUNT or self._landmarks[i1] == self._landmarks[i0]:
             return 1.0
         if (i0, i1) not in self._solved:
             self._solved[(i0, i1)] = self._solve(self._c[i0:i1], self._mu[i0:i1], self._med[i0:i1])
         return self._solved[(i0, i1)]
-
-    def inflate(self, P0: np.ndarray, P1: np.ndarray, t: float) -> np.ndarray:
-        """As :meth:`NoiseScale.inflate`."""
-        return _scaled(P0, P1, self.scale(t))
 
     @staticmethod
     def _solve(c: np.ndarray, mu: np.ndarray, med: np.ndarray) -> float:
@@ -229,18 +247,11 @@ class MedianScale:
         return float(np.exp(0.5 * (lo + hi)))
 
     def _rebuild(self) -> None:
-        """The window's rows and landmark counts, the entries no scale reads again forgotten (as
-        :meth:`NoiseScale._rebuild`)."""
-        if self._log:
-            newest = max(k[0] for k in self._log)
-            for k in [k for k in self._log if k[0] < newest - 2 * self.window]:
-                del self._log[k]
-        rows = sorted(self._log.values(), key=lambda v: v[0])
+        """The window's rows and landmark counts (:meth:`_Windowed._rows`)."""
+        rows = self._rows()
         m = max((len(v[2]) for v in rows), default=0)  # fewer dof padded with c = 0
-        self._stamps = [v[0] for v in rows]
         self._landmarks = np.concatenate([[0], np.cumsum([v[1] for v in rows])])
         self._c = np.array([np.pad(v[2], (0, m - len(v[2]))) for v in rows]).reshape(-1, m)
         self._mu = np.array([np.pad(v[3], (0, m - len(v[3]))) for v in rows]).reshape(-1, m)
         self._med = np.array([v[4] for v in rows])
         self._solved = {}
-        self._dirty = False

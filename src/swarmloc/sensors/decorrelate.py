@@ -202,6 +202,17 @@ def ar1_information(n: int, rho: float) -> float:
 # autocorrelation of residual streams
 
 
+def _check_streams(stream: np.ndarray, times: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Residual streams as arrays (``times`` and ``values`` as floats): ValueError unless ``stream``, ``times`` and
+    ``values`` are 1-D arrays of equal length."""
+    stream = np.asarray(stream)
+    t = np.asarray(times, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    if not (stream.ndim == t.ndim == v.ndim == 1 and stream.size == t.size == v.size):
+        raise ValueError("stream, times and values must be 1-D arrays of equal length")
+    return stream, t, v
+
+
 def lag_correlation(
     stream: np.ndarray, times: np.ndarray, values: np.ndarray, edges: Sequence[float] = LAG_EDGES
 ) -> dict[str, np.ndarray]:
@@ -212,11 +223,7 @@ def lag_correlation(
     ``rho[b] = sum v_i v_j / sum (v_i^2 + v_j^2) / 2`` (values taken as zero-mean). Returns ``lag`` (mean lag of
     the pairs of each bin), ``rho`` and ``pairs`` (NaN ``rho`` where a bin has none).
     """
-    stream = np.asarray(stream)
-    t = np.asarray(times, dtype=np.float64)
-    v = np.asarray(values, dtype=np.float64)
-    if not (stream.ndim == t.ndim == v.ndim == 1 and stream.size == t.size == v.size):
-        raise ValueError("stream, times and values must be 1-D arrays of equal length")
+    stream, t, v = _check_streams(stream, times, values)
     if not np.isfinite(t).all():
         raise ValueError("times must be finite")
     e = np.asarray(edges, dtype=np.float64)
@@ -443,11 +450,7 @@ def stream_nll(
     prediction-error decomposition (a scalar Kalman filter per stream, all streams advanced together). Returns
     ``(sum of -log p, number of values)``; the per-value mean is comparable between models on the same values.
     """
-    stream = np.asarray(stream)
-    t = np.asarray(times, dtype=np.float64)
-    v = np.asarray(values, dtype=np.float64)
-    if not (stream.ndim == t.ndim == v.ndim == 1 and stream.size == t.size == v.size):
-        raise ValueError("stream, times and values must be 1-D arrays of equal length")
+    stream, t, v = _check_streams(stream, times, values)
     keep = np.isfinite(v) & np.isfinite(t)
     stream, t, v = stream[keep], t[keep], v[keep]
     if v.size == 0:
