@@ -124,3 +124,22 @@ def test_one_meaning_of_estimators():
                 if any(isinstance(t, ast.Name) and t.id == "ESTIMATORS" for t in targets):
                     hits.append(f.relative_to(SRC).as_posix())
     assert hits == ["estimators/__init__.py"], hits
+
+
+def test_the_command_line_starts_without_the_numerical_core():
+    """In a fresh interpreter, ``import swarmloc.cli`` (every command's parser) loads no other part of swarmloc and
+    neither numpy nor scipy: ``swarmloc --help`` answers at once, and a node started with ``--parent-pid`` arms its
+    lifeline before its heavy imports (a launcher killed while it starts must not leave it running). The public
+    names still come with ``import swarmloc``, each from the subpackage that defines it."""
+    code = ("import sys, swarmloc.cli\n"
+            "print(sorted(m for m in sys.modules if m.partition('.')[0] in ('numpy', 'scipy', 'msgspec', 'zenoh')\n"
+            "             or m.startswith('swarmloc.') and not m.startswith('swarmloc.cli')))")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+    import swarmloc
+
+    assert sorted(swarmloc._MODULE_OF) == sorted(swarmloc.__all__)
+    for name in swarmloc.__all__:
+        assert getattr(swarmloc, name) is getattr(sys.modules[f"swarmloc.{swarmloc._MODULE_OF[name]}"], name), name
+        assert name in dir(swarmloc)
