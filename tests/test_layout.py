@@ -139,7 +139,9 @@ def test_the_command_line_starts_without_the_numerical_core():
     assert out.stdout.strip() == "[]"
     import swarmloc
 
-    assert sorted(swarmloc._MODULE_OF) == sorted(swarmloc.__all__)
+    stub = ast.parse((SRC / "__init__.pyi").read_text())
+    home = {a.name: f"swarmloc.{n.module}" for n in stub.body if isinstance(n, ast.ImportFrom) for a in n.names}
+    assert sorted(home) == sorted(swarmloc.__all__)
     for name in swarmloc.__all__:
-        assert getattr(swarmloc, name) is getattr(sys.modules[f"swarmloc.{swarmloc._MODULE_OF[name]}"], name), name
+        assert getattr(swarmloc, name) is getattr(sys.modules[home[name]], name), name
         assert name in dir(swarmloc)
