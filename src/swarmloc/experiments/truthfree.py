@@ -1,6 +1,10 @@
 """The truth-free consistency score (:mod:`swarmloc.evaluation.heldout`) run on an MRCLAM recording: a truth-free
 start from the robots' landmark snapshots, and the runs that hold each fold of the landmarks out.
 
+The default start (:func:`initial_from_snapshots`) dead-reckons each robot from its first snapshot; the fused one
+(:func:`fused_from_snapshots`, an option: ``start=`` of :func:`truth_free_score`) filters every snapshot up to the
+start as an absolute pose fix, with restarts where the gate locks a robot out of its own fixes (:func:`fuse_fixes`).
+
 Used by ``swarmloc evaluate mrclam`` on a recording without ground truth (:func:`truth_free_score`, the recommended
 estimator only) and by the leave-one-dataset-out study (the repository's ``swarmloc_studies.lodo``).
 """
@@ -51,7 +55,7 @@ def initial_from_snapshots(
 ) -> tuple[float, dict[int, GroupGaussian]]:
     """Truth-free initial beliefs: each robot's first landmark snapshot pose (fit covariance at the a-priori std),
     dead-reckoned to ``t0``, the latest first snapshot; returns ``(t0, beliefs)``. Raises ValueError when a robot
-    of ``data`` never sees two landmarks at once."""
+    of ``data`` never sees two landmarks at once. :func:`fused_from_snapshots` also fuses the snapshots up to ``t0``."""
     poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
     first: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
     for r in data.robots:
@@ -244,8 +248,9 @@ def truth_free_score(
     readings, without landmarks one run scores every reading. ``std`` (range [m], bearing [rad]): the readings' noise
     in the NIS (the camera model's). Returns :func:`~swarmloc.evaluation.heldout.nis_summary` with ``folds`` (0:
     landmarks off), ``t0_s`` (after the recording's start), ``duration_s`` (scored) and ``wall_s`` (every run of the
-    score). ``start``: :func:`initial_from_snapshots`' ``(t0, beliefs)`` when the caller has them already. Raises
-    ValueError where there is no truth-free start before ``t_end``."""
+    score). ``start``: :func:`initial_from_snapshots`' ``(t0, beliefs)`` when the caller has them already, or
+    another start's (:func:`fused_from_snapshots`' first two). Raises ValueError where there is no truth-free start
+    before ``t_end``."""
     wall = time.perf_counter()
     t0, initial = initial_from_snapshots(data, ds, config) if start is None else start
     if t0 >= t_end:
