@@ -7,6 +7,9 @@ detections the filter fused.
 
 Each dataset: the run of ``swarmloc evaluate mrclam DIR --duration 300 --estimators diekf --landmarks off``'s score
 (from the truth-free start, to 300 s after the recording's start), with its camera model and ``config``.
+``--start`` replaces that start: ``latest`` (each robot's latest snapshot), ``fused`` (every snapshot up to it
+filtered as an absolute fix, gated) or ``restart`` (the fused one with restarts after ``--restart-k`` fixes in a
+row gated: :func:`~swarmloc.experiments.truthfree.fuse_fixes`).
 """
 
 from __future__ import annotations
