@@ -7,33 +7,36 @@ detections the filter fused.
 
 Each dataset: the run of ``swarmloc evaluate mrclam DIR --duration 300 --estimators diekf --landmarks off``'s score
 (from the truth-free start, to 300 s after the recording's start), with its camera model and ``config``.
+``--start`` replaces that start: ``latest`` (each robot's latest snapshot), ``fused`` (every snapshot up to it
+filtered as an absolute fix, gated) or ``restart`` (the fused one with restarts after ``--restart-k`` fixes in a
+row gated: :func:`~swarmloc.experiments.truthfree.fuse_fixes`).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _common import add_mrclam
 
 from swarmloc.config import DEFAULTS, load_config
 from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.heldout import landmark_nis, reading_times
-from swarmloc.events import Detection, Kind, Odometry
+from swarmloc.events import Odometry
 from swarmloc.experiments import truthfree
 from swarmloc.experiments.mrclam import detection_set, mrclam_stream, yaw_calibrated
-from swarmloc.experiments.truthfree import initial_from_snapshots, landmark_readings
+from swarmloc.experiments.truthfree import fused_from_snapshots, initial_from_snapshots, landmark_readings
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, wrap_angle
 from swarmloc.runner import run
 from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD, snapshot_poses
 
-ROOT = Path(__file__).resolve().parents[1]
 MED1 = 0.454936  # chi-square median, 1 dof
 MED2 = 1.386294
 
@@ -146,44 +149,30 @@ def latest_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]
     return t0, out
 
 
-def fused_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]]:
-    """As :func:`~swarmloc.experiments.truthfree.initial_from_snapshots` (the same ``t0``), but each robot's filter
-    runs from its first snapshot to ``t0``: a one-robot ``diekf`` (no landmarks) on its odometry that fuses every
-    later snapshot before ``t0`` as an absolute pose fix (``Detection`` kind ``"absolute"``, the fit's covariance),
-    gated by the node at chi-square 0.99 (3 dof); the gated ones are counted in :data:`FUSED_COUNTS`."""
-    t0, _ = initial_from_snapshots(data, ds, config)
-    poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
-    odo = [e for e in mrclam_events(data, landmarks=False, robot_measurements=False) if isinstance(e, Odometry)]
-    gated = config.with_filter(gate=0.99)
-    out = {}
-    for r in data.robots:
-        sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start) & (poses["t"] <= t0))
-        i = int(sel[0])
-        ts, belief = snapshot_belief(poses, i)
-        if ts >= t0:
-            out[r] = belief
-            FUSED_COUNTS[(data.name, r)] = {"snapshots": 0}
-            continue
-        fixes = [Detection(r, float(poses["t"][j]), Kind.ABSOLUTE, np.asarray(poses["pose"][j], float),
-                           np.asarray(poses["cov"][j], float) + 1e-8 * np.eye(3), target=None)
-                 for j in sel[1:] if poses["t"][j] > ts]  # fmt: skip
-        mine: list[Any] = [e for e in odo if e.robot == r and ts <= e.stamp <= t0]
-        mine = sorted(mine + fixes, key=lambda e: e.stamp)
-        node = make_team("diekf", {r: belief}, **node_options("diekf", gated, None, ts))
-        res = run(node, mine, record_times=[t0])
-        tr = res.tracks[r]
-        n = {k: int(res.stats.get(k, 0)) for k in ("fused", "gated", "rejected", "unknown")}
-        FUSED_COUNTS[(data.name, r)] = {"snapshots": len(fixes), **n}
-        print(f"  fused start {data.name} robot {r}: {ts - data.t_start:.1f} s -> {t0 - data.t_start:.1f} s,",
-              len(fixes), "snapshots", n, flush=True)  # fmt: skip
-        out[r] = GroupGaussian(SE2, SE2.from_xytheta(tr.mean[-1]), tr.cov[-1], validate=False)
+def fused_start(
+    data: Any, ds: Any, config: Any, restart: int | None = None, inflate: float = 1.0
+) -> tuple[float, dict[int, Any]]:
+    """:func:`~swarmloc.experiments.truthfree.fused_from_snapshots` (the same ``t0`` as
+    :func:`~swarmloc.experiments.truthfree.initial_from_snapshots`): each robot's one-robot ``diekf`` from its first
+    snapshot to ``t0`` fuses every later snapshot as an absolute pose fix, gated at chi-square 0.99 (3 dof);
+    ``restart`` (k; None, the default here: never) re-acquires a robot after k fixes in a row gated (``--start
+    restart``). The counts go to :data:`FUSED_COUNTS`."""
+    t0, out, counts = fused_from_snapshots(data, ds, config, restart, inflate)
+    for r, n in counts.items():
+        FUSED_COUNTS[(data.name, r)] = n
+        print(f"  fused start {data.name} robot {r}:", n, flush=True)
     return t0, out
 
 
 FUSED_COUNTS: dict[tuple[str, int], dict[str, int]] = {}
 """Per ``(dataset name, robot)`` of the last :func:`fused_start`: the snapshots offered and the node's counters."""
 
-START = {"first": initial_from_snapshots, "latest": latest_start, "fused": fused_start}
+START = {
+    "first": initial_from_snapshots,
+    "latest": latest_start,
+    "fused": fused_start,
+    "restart": functools.partial(fused_start, restart=3),
+}
 
 
 def diagnose(
@@ -308,20 +297,21 @@ def study_rows(datasets: list[int], root: Path, start: str) -> dict[int, Any]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--mrclam", type=Path, default=Path(os.environ.get("SWARMLOC_MRCLAM", ROOT.parent / "shared/data/mrclam"))
-    )
+    add_mrclam(ap)
     ap.add_argument("--duration", type=float, default=300.0)
     ap.add_argument("--datasets", default="9,3,2,4,1,6")
     ap.add_argument("--config", type=Path, default=None)
     ap.add_argument("--estimator", default="diekf")
     ap.add_argument("--start", choices=sorted(START), default="first")
+    ap.add_argument("--restart-k", type=int, default=3, help="--start restart: gated fixes in a row before a restart")
+    ap.add_argument("--inflate", type=float, default=1.0, help="--start restart: the seed fix's covariance scale")
     ap.add_argument("--calibrate-yaw", action="store_true", help="as swarmloc evaluate's (on the whole recording)")
     ap.add_argument("--out", type=Path, default=Path("nolm_diag.json"))
     ap.add_argument("--windows", type=float, default=0.0, help="stride [s]: score 300 s windows (no diagnosis)")
     study = "the leave-one-dataset-out study's filter row (200 s, camera held out) from --start"
     ap.add_argument("--study", action="store_true", help=study)
     a = ap.parse_args()
+    START["restart"] = functools.partial(fused_start, restart=a.restart_k, inflate=a.inflate)
     config = DEFAULTS if a.config is None else load_config(a.config)
     out: dict[int, Any] = {}
     if a.study:

@@ -1,6 +1,10 @@
 """The truth-free consistency score (:mod:`swarmloc.evaluation.heldout`) run on an MRCLAM recording: a truth-free
 start from the robots' landmark snapshots, and the runs that hold each fold of the landmarks out.
 
+The default start (:func:`initial_from_snapshots`) dead-reckons each robot from its first snapshot; the fused one
+(:func:`fused_from_snapshots`, an option: ``start=`` of :func:`truth_free_score`) filters every snapshot up to the
+start as an absolute pose fix, with restarts where the gate locks a robot out of its own fixes (:func:`fuse_fixes`).
+
 Used by ``swarmloc evaluate mrclam`` on a recording without ground truth (:func:`truth_free_score`, the recommended
 estimator only) and by the leave-one-dataset-out study (the repository's ``swarmloc_studies.lodo``).
 """
@@ -9,7 +13,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -24,7 +28,7 @@ from swarmloc.evaluation.heldout import (
     tracks_nis,
     without_landmarks,
 )
-from swarmloc.events import Detection, Event, Odometry
+from swarmloc.events import Detection, Event, Kind, Odometry
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.runner import RunResult, TruthFn, run
@@ -32,6 +36,8 @@ from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD, Det
 
 __all__ = [
     "SCORED_SPAN",
+    "fuse_fixes",
+    "fused_from_snapshots",
     "heldout_runs",
     "initial_from_snapshots",
     "landmark_readings",
@@ -50,7 +56,7 @@ def initial_from_snapshots(
 ) -> tuple[float, dict[int, GroupGaussian]]:
     """Truth-free initial beliefs: each robot's first landmark snapshot pose (fit covariance at the a-priori std),
     dead-reckoned to ``t0``, the latest first snapshot; returns ``(t0, beliefs)``. Raises ValueError when a robot
-    of ``data`` never sees two landmarks at once."""
+    of ``data`` never sees two landmarks at once. :func:`fused_from_snapshots` also fuses the snapshots up to ``t0``."""
     poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
     first: dict[int, tuple[float, GroupGaussian]] = {}
     for r in data.robots:
@@ -72,17 +78,131 @@ def initial_from_snapshots(
     return t0, out
 
 
+def _fix_belief(pose: np.ndarray, cov: np.ndarray, scale: float = 1.0) -> GroupGaussian:
+    """The belief a pose fit ``(x, y, theta)`` with covariance ``cov`` of those gives (times ``scale``)."""
+    # the fit's covariance is of (x, y, theta); at a small angle it is that of the left perturbation: rotate it into
+    # the body frame for the right-perturbation convention of the nodes
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return GroupGaussian(SE2, SE2.from_xytheta(pose), scale * (rot @ cov @ rot.T) + 1e-8 * np.eye(3), validate=False)
+
+
 def snapshot_belief(poses: Mapping[str, np.ndarray], i: int) -> tuple[float, GroupGaussian]:
     """``(t, belief)`` of snapshot ``i`` of ``poses`` (as
     :func:`~swarmloc.sensors.snapshots.snapshot_poses` returns them): the fitted pose with the fit's covariance
-    plus ``1e-8`` on the diagonal, at the snapshot's time ``t`` [s]. The fit's covariance is of ``(x, y, theta)``;
-    at a small angle it is that of the left perturbation, so it is rotated into the body frame for the
-    right-perturbation convention of the nodes."""
-    pose, cov = poses["pose"][i], poses["cov"][i]
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    belief = GroupGaussian(SE2, SE2.from_xytheta(pose), rot @ cov @ rot.T + 1e-8 * np.eye(3), validate=False)
-    return float(poses["t"][i]), belief
+    plus ``1e-8`` on the diagonal, at the snapshot's time ``t`` [s] (:func:`_fix_belief`)."""
+    return float(poses["t"][i]), _fix_belief(poses["pose"][i], poses["cov"][i])
+
+
+def fuse_fixes(
+    robot: int,
+    belief: GroupGaussian,
+    t_start: float,
+    t_end: float,
+    events: Sequence[Odometry | Detection],
+    config: Config = DEFAULTS,
+    restart: int | None = 3,
+    inflate: float = 1.0,
+) -> tuple[GroupGaussian, dict[str, int]]:
+    """Robot ``robot``'s ``diekf`` (no landmarks, ``config``'s gate) from ``belief`` at ``t_start`` [s] over its
+    ``events`` (its odometry and its absolute pose fixes, ``Kind.ABSOLUTE`` detections, in stamp order) to
+    ``t_end``: its belief at ``t_end`` and its counts (every fix once: ``fused`` by the filter in force, ``gated``,
+    ``restart_fixes``, or the node's ``rejected`` / ``unknown``; ``restarts``).
+
+    A gate locks a filter out of its own fixes once its belief is off beyond its covariance. ``restart`` (k; None:
+    never) re-acquires it as a tracker replaces a confirmed track that keeps missing its gate with a tentative track
+    its measurements confirm (M-of-N confirmation and deletion: Blackman & Popoli 1999, *Design and Analysis of
+    Modern Tracking Systems*, sec. 9.3; Bar-Shalom, Willett & Tian 2011, *Tracking and Data Fusion*, ch. 3): after k
+    fixes in a row gated, a tentative filter started from the first of them (its mean, its covariance times
+    ``inflate``, at least 1) on the same odometry must fuse the other k - 1 through the same gate; then it replaces
+    the robot's filter (a restart, its k fixes counted ``restart_fixes``), else the run's first fix is counted
+    ``gated`` (an outlier, not a lost track) and the run goes on from the next. Raises ValueError for ``restart`` < 1
+    or ``inflate`` < 1."""
+    if restart is not None and restart < 1:
+        raise ValueError(f"fuse_fixes: restart must be at least 1 fix (or None), got {restart}")
+    if not inflate >= 1.0:
+        raise ValueError(f"fuse_fixes: inflate must be at least 1, got {inflate}")
+
+    def node_from(b: GroupGaussian, t: float) -> Any:
+        return make_team("diekf", {robot: b}, **node_options("diekf", config, None, t))[0]
+
+    def outcome(node: Any, d: Detection) -> str:
+        before = node.stats()
+        node.step([d])
+        after = node.stats()
+        return next(k for k in ("fused", "gated", "rejected", "unknown") if after[k] > before[k])
+
+    node = node_from(belief, t_start)
+    counts = dict.fromkeys(("fused", "gated", "rejected", "unknown", "restarts", "restart_fixes"), 0)
+    lost: list[tuple[int, Detection]] = []  # the fixes gated in a row, with their indices in events
+    for i, e in enumerate(events):
+        if isinstance(e, Odometry):
+            node.step(e)
+            continue
+        got = outcome(node, e)
+        if got != "gated":
+            counts[got] += 1
+            if got == "fused":
+                counts["gated"] += len(lost)
+                lost = []
+            continue
+        lost.append((i, e))
+        while restart is not None and len(lost) >= restart:
+            j, seed = lost[0]
+            tentative = node_from(_fix_belief(seed.z, seed.cov, inflate), seed.stamp)
+            held = [x for x in events[:j] if isinstance(x, Odometry)]
+            if held:  # the command in force at the seed's stamp, from there on
+                tentative.step(Odometry(robot, seed.stamp, max(held[-1].t1, seed.stamp), held[-1].v, held[-1].w))
+            if _confirms(tentative, events[j + 1 : i + 1], outcome):
+                node = tentative
+                counts["restarts"] += 1
+                counts["restart_fixes"] += len(lost)
+                lost = []
+            else:
+                counts["gated"] += 1
+                lost = lost[1:]
+    counts["gated"] += len(lost)
+    return node.belief(t_end), counts
+
+
+def _confirms(node: Any, events: Sequence[Odometry | Detection], outcome: Callable[[Any, Detection], str]) -> bool:
+    """Whether ``node`` fuses every fix of ``events`` (stepped in order, up to the first it does not fuse)."""
+    for e in events:
+        if isinstance(e, Odometry):
+            node.step(e)
+        elif outcome(node, e) != "fused":
+            return False
+    return True
+
+
+def fused_from_snapshots(
+    data: MRCLAMData, ds: DetectionSet, config: Config = DEFAULTS, restart: int | None = 3, inflate: float = 1.0
+) -> tuple[float, dict[int, GroupGaussian], dict[int, dict[str, int]]]:
+    """A truth-free start at :func:`initial_from_snapshots`' ``t0`` that fuses every landmark snapshot up to it:
+    each robot's :func:`fuse_fixes` from its first snapshot, its later ones up to ``t0`` its absolute pose fixes
+    (the fit's covariance at the a-priori std), gated at chi-square 0.99; returns ``(t0, beliefs, counts per
+    robot)`` (``fixes`` and :func:`fuse_fixes`' counts). ``restart``, ``inflate``: :func:`fuse_fixes`' (None: a
+    robot its gate locked out of its fixes stays out). Raises ValueError as :func:`initial_from_snapshots` does."""
+    t0, _ = initial_from_snapshots(data, ds, config)
+    poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
+    odometry = [e for e in mrclam_events(data, landmarks=False, robot_measurements=False) if isinstance(e, Odometry)]
+    gated = config.with_filter(gate=0.99)
+    beliefs: dict[int, GroupGaussian] = {}
+    counts: dict[int, dict[str, int]] = {}
+    for r in data.robots:
+        sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start) & (poses["t"] <= t0))
+        ts, first = snapshot_belief(poses, int(sel[0]))
+        fixes = [Detection(r, float(poses["t"][j]), Kind.ABSOLUTE, np.asarray(poses["pose"][j], float),
+                           np.asarray(poses["cov"][j], float) + 1e-8 * np.eye(3), target=None)
+                 for j in sel[1:] if poses["t"][j] > ts]  # fmt: skip
+        if ts >= t0:  # the robot whose first snapshot defines t0
+            beliefs[r], counts[r] = first, {"fixes": 0}
+            continue
+        mine: list[Odometry | Detection] = [e for e in odometry if e.robot == r and ts <= e.stamp <= t0]
+        mine = sorted([*mine, *fixes], key=lambda e: e.stamp)
+        beliefs[r], n = fuse_fixes(r, first, ts, t0, mine, gated, restart, inflate)
+        counts[r] = {"fixes": len(fixes), **n}
+    return t0, beliefs, counts
 
 
 def landmark_readings(data: MRCLAMData, t0: float, t1: float) -> list[Detection]:
@@ -133,8 +253,9 @@ def truth_free_score(
     readings, without landmarks one run scores every reading. ``std`` (range [m], bearing [rad]): the readings' noise
     in the NIS (the camera model's). Returns :func:`~swarmloc.evaluation.heldout.nis_summary` with ``folds`` (0:
     landmarks off), ``t0_s`` (after the recording's start), ``duration_s`` (scored) and ``wall_s`` (every run of the
-    score). ``start``: :func:`initial_from_snapshots`' ``(t0, beliefs)`` when the caller has them already. Raises
-    ValueError where there is no truth-free start before ``t_end``."""
+    score). ``start``: :func:`initial_from_snapshots`' ``(t0, beliefs)`` when the caller has them already, or
+    another start's (:func:`fused_from_snapshots`' first two). Raises ValueError where there is no truth-free start
+    before ``t_end``."""
     wall = time.perf_counter()
     t0, initial = initial_from_snapshots(data, ds, config) if start is None else start
     if t0 >= t_end:
