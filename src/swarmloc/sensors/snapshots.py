@@ -5,11 +5,12 @@ Step 1 of the camera calibration (:mod:`swarmloc.sensors.decorrelate`) and the p
 range-bearing readings by weighted Gauss-Newton (started from a 2-D Procrustes fit), leaving residuals ``v_i`` with
 redundancy numbers ``r_i = 1 - (A N^-1 A' W)_ii`` (``sum r_i = 2k - 3``) and the fit's covariance ``N^-1``.
 
-A fit is used only when it has converged: its last Gauss-Newton step ``dx`` is below :data:`STEP_TOL` of its own
-standard deviations, ``sqrt(dx' N dx) <= STEP_TOL``. One that has not (a diverging or oscillating geometry, nearly
-always two landmarks nearly in line with the observer) is dropped and counted (``unconverged``), as a fit that is
-not finite is: its pose is chaotic (an ulp of difference in the start moves it by metres), so neither its pose nor
-its residuals describe the robot or the camera.
+A fit runs 20 Gauss-Newton steps (a well-spread geometry converges in a few; two landmarks weighted by a tight
+bearing std need more) and is used only when it has converged: its last step ``dx`` is below :data:`STEP_TOL` of
+its own standard deviations, ``sqrt(dx' N dx) <= STEP_TOL``. One that has not is dropped and counted
+(``unconverged``), as a fit that is not finite is: such fits oscillate or diverge (on MRCLAM nearly all of them
+two-landmark fits, some still moving by metres per step), an ulp of difference in their start moves them by
+metres, and neither their poses nor their residuals describe the robot or the camera.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ STEP_TOL = 1e-3
 (the step's Mahalanobis size under the fit's covariance); otherwise it is dropped and counted, not used."""
 
 
-def _fit_group(z: np.ndarray, p: np.ndarray, range_std: float, bearing_std: float, iterations: int = 6):  # noqa: ANN202
+def _fit_group(z: np.ndarray, p: np.ndarray, range_std: float, bearing_std: float, iterations: int = 20):  # noqa: ANN202
     """Weighted Gauss-Newton pose fits of ``m`` instants with ``k`` landmarks each: ``z`` ``(m, k, 2)`` range and
     bearing, ``p`` ``(m, k, 2)`` landmark positions. Returns residuals and redundancy numbers ``(m, 2k)`` (ranges
     first), a mask of the instants whose fit is finite and has converged (:data:`STEP_TOL`), the poses ``(m, 3)``,
