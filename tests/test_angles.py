@@ -22,8 +22,6 @@ OWN_FORM = {
     "wrap_angle's float form inline (numba cannot call wrap_angle)",
     "sim/lab.py": "np.angle(exp(1j x)) gives -pi at x = -pi: it decides which way a scripted robot turns",
     "association/pmr.py": "angles ordered in [0, 2 pi), not wrapped",
-    "sensors/snapshots.py": "[-pi, pi) residuals of the snapshot fits: wrap_angle's rounding (a few ulp of pi apart) "
-    "moves the fits that have not converged, the camera model fitted from them by 1e-8, MRCLAM's beliefs by 2e-6",
 }
 """Modules that keep their own form of a wrap, and why."""
 

@@ -22,6 +22,7 @@ from swarmloc.sensors.decorrelate import (
     stream_nll,
     truncated_variance,
 )
+from swarmloc.sensors.snapshots import _fit_group
 
 pytestmark = pytest.mark.unit
 
@@ -128,3 +129,20 @@ def test_snapshot_poses_recover_the_observer() -> None:
     assert p["t"].tolist() == [1.0, 2.0] and p["observer"].tolist() == [1, 1]
     np.testing.assert_allclose(p["pose"], np.tile(pose, (2, 1)), atol=1e-9)
     assert np.all(np.linalg.eigvalsh(p["cov"]) > 0)
+    assert int(p["unconverged"]) == 0
+
+
+def test_snapshot_fits_that_have_not_converged_are_dropped_and_counted() -> None:
+    """A fit whose last Gauss-Newton step exceeds STEP_TOL of its own std is neither used nor silently lost: noisy
+    readings stopped after one step (from the Procrustes start) are counted as unconverged; the full fit converges."""
+    rng = np.random.default_rng(3)
+    pos = np.array([[4.0, 0.0], [0.0, 4.0], [-3.0, -1.0]])
+    pose = np.array([0.5, -0.2, 0.3])
+    d = pos - pose[:2]
+    z = np.column_stack([np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0]) - pose[2]])
+    z = z + rng.normal(0.0, [0.1, 0.01], (5, 3, 2))
+    p = np.broadcast_to(pos, z.shape)
+    *_, ok, _, _, dropped = _fit_group(z, p, 0.1, 0.01, iterations=1)
+    assert not ok.any() and dropped == 5
+    *_, ok, _, _, dropped = _fit_group(z, p, 0.1, 0.01)
+    assert ok.all() and dropped == 0

@@ -36,6 +36,8 @@ two to four times a second (the white-noise model claims ``1 / n``, often a tent
 1. *snapshots*: every instant at which one observer reads two or more distinct landmarks; the observer's pose
    ``(x, y, theta)`` is fitted to that instant's readings by weighted Gauss-Newton (started from a 2-D Procrustes
    fit), leaving residuals ``v_i`` with redundancy numbers ``r_i = 1 - (A N^-1 A' W)_ii`` (``sum r_i = 2k - 3``);
+   a fit that has not converged (:data:`swarmloc.sensors.snapshots.STEP_TOL`) is dropped and counted (the
+   model's diagnostic ``unconverged_fits``);
 2. *variance components* (Helmert/Foerstner): ``std_c^2 = sum_i v_i^2 / (kappa sum_i r_i)`` over the range (or
    bearing) residuals with ``|v_i| <= 3 std_c sqrt(r_i)``, ``kappa = 0.9733`` the variance of a standard normal cut
    at 3 (a convention against the heavy tails, not a fitted number); iterated from the a-priori std to a fixed
@@ -396,6 +398,7 @@ def calibrate_pooled(
         out = {k: np.concatenate([q[k] for q in parts]) for k in ("v_range", "r_range", "v_bearing", "r_bearing")}
         out["set"] = np.concatenate([np.full(q["row"].size, i) for i, q in enumerate(parts)])
         out["row"] = np.concatenate([q["row"] for q in parts])
+        out["unconverged"] = np.sum([q["unconverged"] for q in parts])
         return out
 
     res = pooled(sr, sb)
@@ -425,6 +428,7 @@ def calibrate_pooled(
         diag[f"rho_{name}"] = [None if not np.isfinite(x) else round(float(x), 4) for x in lc["rho"]]
         diag["pairs"] = [int(x) for x in lc["pairs"]]
     diag["vce_iterations"] = iterations
+    diag["unconverged_fits"] = int(res["unconverged"])  # snapshot fits dropped at the final std
     if len(sets) > 1 or cut != 3.0:
         diag["sets"] = [ds.name for ds in sets]
         diag["cut"] = cut

@@ -4,6 +4,13 @@ Step 1 of the camera calibration (:mod:`swarmloc.sensors.decorrelate`) and the p
 (:mod:`swarmloc.motion.calibrate`) pairs up: each snapshot's pose ``(x, y, theta)`` is fitted to that instant's
 range-bearing readings by weighted Gauss-Newton (started from a 2-D Procrustes fit), leaving residuals ``v_i`` with
 redundancy numbers ``r_i = 1 - (A N^-1 A' W)_ii`` (``sum r_i = 2k - 3``) and the fit's covariance ``N^-1``.
+
+A fit runs 20 Gauss-Newton steps (a well-spread geometry converges in a few; two landmarks weighted by a tight
+bearing std need more) and is used only when it has converged: its last step ``dx`` is below :data:`STEP_TOL` of
+its own standard deviations, ``sqrt(dx' N dx) <= STEP_TOL``. One that has not is dropped and counted
+(``unconverged``), as a fit that is not finite is: such fits oscillate or diverge (on MRCLAM nearly all of them
+two-landmark fits, some still moving by metres per step), an ulp of difference in their start moves them by
+metres, and neither their poses nor their residuals describe the robot or the camera.
 """
 
 from __future__ import annotations
@@ -14,21 +21,20 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DetectionSet", "fit_residuals", "snapshot_poses"]
+from swarmloc.lie import wrap_angle
+
+__all__ = ["STEP_TOL", "DetectionSet", "fit_residuals", "snapshot_poses"]
+
+STEP_TOL = 1e-3
+"""A snapshot fit has converged when its last Gauss-Newton step is at most this many of its own standard deviations
+(the step's Mahalanobis size under the fit's covariance); otherwise it is dropped and counted, not used."""
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    """To [-pi, pi), not :func:`swarmloc.lie.wrap_angle`: the two round differently (a few ulp of pi apart), and the
-    snapshot fits that have not converged after their Gauss-Newton steps (diverging two-landmark geometries) turn
-    that into a different pose; through them the camera model fitted on MRCLAM moves by 1e-8 and the filters'
-    beliefs by up to 2e-6. Kept so that the fitted models stay as they are."""
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def _fit_group(z: np.ndarray, p: np.ndarray, range_std: float, bearing_std: float, iterations: int = 6):  # noqa: ANN202
+def _fit_group(z: np.ndarray, p: np.ndarray, range_std: float, bearing_std: float, iterations: int = 20):  # noqa: ANN202
     """Weighted Gauss-Newton pose fits of ``m`` instants with ``k`` landmarks each: ``z`` ``(m, k, 2)`` range and
     bearing, ``p`` ``(m, k, 2)`` landmark positions. Returns residuals and redundancy numbers ``(m, 2k)`` (ranges
-    first) and a mask of the instants whose fit is finite."""
+    first), a mask of the instants whose fit is finite and has converged (:data:`STEP_TOL`), the poses ``(m, 3)``,
+    the fits' covariances ``(m, 3, 3)`` and the number of finite fits that have not converged."""
     m, k, _ = z.shape
     r, b = z[..., 0], z[..., 1]
     q = np.stack([r * np.cos(b), r * np.sin(b)], axis=-1)
@@ -48,25 +54,28 @@ def _fit_group(z: np.ndarray, p: np.ndarray, range_std: float, bearing_std: floa
         dx, dy = p[..., 0] - x[:, :1], p[..., 1] - x[:, 1:2]
         d2 = np.maximum(dx * dx + dy * dy, 1e-12)
         d = np.sqrt(d2)
-        v = np.concatenate([r - d, _wrap(b - (np.arctan2(dy, dx) - x[:, 2:3]))], axis=1)
+        v = np.concatenate([r - d, wrap_angle(b - (np.arctan2(dy, dx) - x[:, 2:3]))], axis=1)
         zero = np.zeros_like(d)
         a_r = np.stack([-dx / d, -dy / d, zero], axis=-1)
         a_b = np.stack([dy / d2, -dx / d2, zero - 1.0], axis=-1)
         return v, np.concatenate([a_r, a_b], axis=1)
 
+    step = np.zeros_like(x)
     for _ in range(iterations):
         v, a = linearize(x)
         n = np.einsum("mik,i,mil->mkl", a, w, a)
         n += 1e-12 * np.trace(n, axis1=1, axis2=2)[:, None, None] * eye
         g = np.einsum("mik,i,mi->mk", a, w, v)
-        x = x + np.linalg.solve(n, g[..., None])[..., 0]
+        step = np.linalg.solve(n, g[..., None])[..., 0]
+        x = x + step
     v, a = linearize(x)
     n = np.einsum("mik,i,mil->mkl", a, w, a)
     n += 1e-12 * np.trace(n, axis1=1, axis2=2)[:, None, None] * eye
     ninv = np.linalg.inv(n)
     red = 1.0 - np.einsum("mik,mkl,mil->mi", a, ninv, a) * w
-    ok = np.isfinite(v).all(axis=1) & np.isfinite(red).all(axis=1)
-    return v, red, ok, x, ninv
+    ok = np.isfinite(v).all(axis=1) & np.isfinite(red).all(axis=1) & np.isfinite(x).all(axis=1)
+    converged = np.einsum("mk,mkl,ml->m", step, n, step) <= STEP_TOL**2
+    return v, red, ok & converged, x, ninv, int((ok & ~converged).sum())
 
 
 @dataclass
@@ -111,15 +120,17 @@ def _snapshots(
 def snapshot_poses(ds: DetectionSet, range_std: float, bearing_std: float) -> dict[str, np.ndarray]:
     """The observer's pose fitted at every snapshot of ``ds`` (two or more landmarks at one instant), weighted by
     the given std [m], [rad]: ``observer``, ``t`` [s], ``pose`` ``(m, 3)`` as ``(x, y, theta)`` and ``cov``
-    ``(m, 3, 3)`` (the fit's covariance of ``(x, y, theta)`` under those std), sorted by time."""
+    ``(m, 3, 3)`` (the fit's covariance of ``(x, y, theta)`` under those std), sorted by time, and ``unconverged``
+    the number of fits dropped for not having converged (module docstring)."""
     snaps, obs, tt, _ = ds.snapshots()
     parts: dict[str, list[np.ndarray]] = {"observer": [], "t": [], "pose": [], "cov": []}
+    unconverged = 0
     for z, p, idx in snaps.groups.values():
-        _, _, ok, x, ninv = _fit_group(z, p, range_std, bearing_std)
-        ok &= np.isfinite(x).all(axis=1)
+        _, _, ok, x, ninv, dropped = _fit_group(z, p, range_std, bearing_std)
+        unconverged += dropped
         parts["observer"].append(obs[idx[ok, 0]])
         parts["t"].append(tt[idx[ok, 0]])
-        parts["pose"].append(np.column_stack([x[ok, :2], _wrap(x[ok, 2])]))
+        parts["pose"].append(np.column_stack([x[ok, :2], wrap_angle(x[ok, 2])]))
         parts["cov"].append(ninv[ok])
     if not parts["t"]:
         return {
@@ -127,18 +138,22 @@ def snapshot_poses(ds: DetectionSet, range_std: float, bearing_std: float) -> di
             "t": np.empty(0),
             "pose": np.empty((0, 3)),
             "cov": np.empty((0, 3, 3)),
+            "unconverged": np.array(unconverged),
         }
     out = {k: np.concatenate(v) for k, v in parts.items()}
     order = np.argsort(out["t"], kind="stable")
-    return {k: v[order] for k, v in out.items()}
+    return {**{k: v[order] for k, v in out.items()}, "unconverged": np.array(unconverged)}
 
 
 def fit_residuals(snaps: _Snapshots, range_std: float, bearing_std: float) -> dict[str, np.ndarray]:
     """Residuals and redundancy numbers of every snapshot fit of ``snaps`` under the given std [m], [rad]: ``row``
-    (index of the detection), ``v_range``, ``r_range``, ``v_bearing``, ``r_bearing`` and ``instants``."""
+    (index of the detection), ``v_range``, ``r_range``, ``v_bearing``, ``r_bearing``, ``instants`` and
+    ``unconverged`` (the fits dropped for not having converged, module docstring)."""
     out: dict[str, list[np.ndarray]] = {"row": [], "v_range": [], "r_range": [], "v_bearing": [], "r_bearing": []}
+    unconverged = 0
     for k, (z, p, idx) in sorted(snaps.groups.items()):
-        v, red, ok, _, _ = _fit_group(z, p, range_std, bearing_std)
+        v, red, ok, _, _, dropped = _fit_group(z, p, range_std, bearing_std)
+        unconverged += dropped
         out["row"].append(idx[ok].ravel())
         out["v_range"].append(v[ok, :k].ravel())
         out["r_range"].append(red[ok, :k].ravel())
@@ -147,6 +162,7 @@ def fit_residuals(snaps: _Snapshots, range_std: float, bearing_std: float) -> di
     res = {key: (np.concatenate(val) if val else np.empty(0)) for key, val in out.items()}
     res["row"] = res["row"].astype(np.int64)
     res["instants"] = np.array(snaps.instants)
+    res["unconverged"] = np.array(unconverged)
     return res
 
 
