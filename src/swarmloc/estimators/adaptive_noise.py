@@ -48,7 +48,7 @@ the scale at ``t`` reads entries stamped before ``t`` only: a replay gives the i
 
 from __future__ import annotations
 
-from abc import abstractmethod
+from abc import ABC, abstractmethod
 from bisect import bisect_left
 from typing import Any, NamedTuple
 
@@ -121,7 +121,7 @@ def _scaled(P0: np.ndarray, P1: np.ndarray, lam: float) -> np.ndarray:
     return P1 if lam == 1.0 else P0 + lam * (P1 - P0)
 
 
-class _Windowed:
+class _Windowed(ABC):
     """What both scales share: the log of innovations keyed ``(stamp, key)`` (each entry's first item its stamp),
     its rows sorted by stamp (rebuilt when the log changed), the window of rows in force at a time, and the scaled
     prediction. ``_rebuild`` is each scale's own."""
@@ -159,6 +159,7 @@ class _Windowed:
         self._stamps = [v[0] for v in rows]
         return rows
 
+    @abstractmethod
     def _rebuild(self) -> None:
         """Each scale's own: its window's numbers from :meth:`_rows`."""
 
