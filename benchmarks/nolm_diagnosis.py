@@ -122,12 +122,6 @@ def _mutual(log: list[tuple[float, int, Any, str, Any]], robots: list[int]) -> d
             "anis_pred": float(e[hi].mean() / 2) if hi.any() else float("nan")}  # fmt: skip
 
 
-def snapshot_belief(poses: Any, i: int) -> tuple[float, Any]:
-    """``(t, belief)`` of snapshot ``i`` of ``poses`` as :func:`~swarmloc.experiments.truthfree.initial_from_snapshots`
-    makes it: the fit's ``(x, y, theta)`` covariance rotated into the body frame (the nodes' right perturbation)."""
-    return truthfree.snapshot_belief(poses, i)
-
-
 def latest_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]]:
     """As :func:`~swarmloc.experiments.truthfree.initial_from_snapshots` (the same ``t0``: every robot's first
     snapshot in), but each robot starts from its *latest* snapshot at or before ``t0``, not its first: the least
@@ -138,7 +132,7 @@ def latest_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]
     out = {}
     for r in data.robots:
         i = int(np.flatnonzero((poses["t"] <= t0) & (poses["observer"] == r))[-1])
-        ts, belief = snapshot_belief(poses, i)
+        ts, belief = truthfree.snapshot_belief(poses, i)
         if ts >= t0:
             out[r] = belief
             continue
