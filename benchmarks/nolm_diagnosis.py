@@ -1,4 +1,4 @@
-"""Why ``diekf``'s truth-free score without landmarks is out of band on some MRCLAM recordings (issue 45): the
+"""Why ``diekf``'s truth-free score without landmarks is out of band on some MRCLAM recordings: the
 held-out landmark NIS split by robot, by time and into its heading and position parts, the robots' beliefs against
 their own landmark snapshots (a pose fit the filter never saw: a truth proxy, 3 dof), and the NIS of the mutual
 detections the filter fused.
@@ -7,9 +7,10 @@ detections the filter fused.
 
 Each dataset: the run of ``swarmloc evaluate mrclam DIR --duration 300 --estimators diekf --landmarks off``'s score
 (from the truth-free start, to 300 s after the recording's start), with its camera model and ``config``.
-``--start`` replaces that start: ``latest`` (each robot's latest snapshot), ``fused`` (every snapshot up to it
-filtered as an absolute fix, gated) or ``restart`` (the fused one with restarts after ``--restart-k`` fixes in a
-row gated: :func:`~swarmloc.experiments.truthfree.fuse_fixes`).
+``--start`` chooses that start: ``restart`` (the default, ``swarmloc evaluate``'s: every snapshot up to it
+filtered as an absolute fix, gated, with restarts after ``--restart-k`` fixes in a row gated:
+:func:`~swarmloc.experiments.truthfree.fused_from_snapshots`), ``fused`` (the same without restarts), ``first``
+(each robot's first snapshot, dead-reckoned: the start before) or ``latest`` (each robot's latest snapshot).
 """
 
 from __future__ import annotations
@@ -170,7 +171,7 @@ START = {
 
 
 def diagnose(
-    k: int, root: Path, config: Any, duration: float, name: str = "diekf", start: str = "first", yaw: bool = False
+    k: int, root: Path, config: Any, duration: float, name: str = "diekf", start: str = "restart", yaw: bool = False
 ) -> dict[str, Any]:
     """The diagnosis of estimator ``name`` on dataset ``k``, landmarks off (module docstring)."""
     data = load_mrclam(root / f"MRCLAM_Dataset{k}")
@@ -230,7 +231,7 @@ def diagnose(
 
 
 def windows(
-    k: int, root: Path, config: Any, stride: float, span: float = 300.0, start: str = "first", yaw: bool = False
+    k: int, root: Path, config: Any, stride: float, span: float = 300.0, start: str = "restart", yaw: bool = False
 ) -> list[dict[str, Any]]:
     """The truth-free score (landmarks off) of ``diekf`` over windows of ``span`` s starting every ``stride`` s, each
     from its own truth-free start (the first snapshots after the window's start); with truth, its ANEES/dof too."""
@@ -272,20 +273,17 @@ def study_rows(datasets: list[int], root: Path, start: str) -> dict[int, Any]:
 
     datas = {k: load_mrclam(root / f"MRCLAM_Dataset{k}", require=("measurements",)) for k in lodo.DATASETS}
     ms = lodo.model_scores({k: lodo.detection_set(d) for k, d in datas.items()})
-    chosen, own = ms["chosen"], lodo.initial_from_snapshots
-    lodo.initial_from_snapshots = START[start]  # the study calls it by this name
+    chosen = ms["chosen"]
     out: dict[int, Any] = {}
-    try:
-        for k in datasets:
-            model = ms["models"][k][chosen]
-            ref = lodo.own_std(model, ms["folds"][k][chosen])
-            for lm in (True, False):
-                r = lodo.filter_scores(datas[k], model, ["diekf"], lm, 200.0, holdout=3, reference_std=ref)["diekf"]
-                row = {x: round(r[x], 3) for x in ("pos_rmse", "anees", "nis_ratio_ref", "nis_ratio") if x in r}
-                out.setdefault(k, {})["on" if lm else "off"] = row
-                print(start, k, "on" if lm else "off", row, flush=True)
-    finally:
-        lodo.initial_from_snapshots = own
+    for k in datasets:
+        model = ms["models"][k][chosen]
+        ref = lodo.own_std(model, ms["folds"][k][chosen])
+        for lm in (True, False):
+            r = lodo.filter_scores(datas[k], model, ["diekf"], lm, 200.0, holdout=3, reference_std=ref,
+                                   start=START[start])["diekf"]  # fmt: skip
+            row = {x: round(r[x], 3) for x in ("pos_rmse", "anees", "nis_ratio_ref", "nis_ratio") if x in r}
+            out.setdefault(k, {})["on" if lm else "off"] = row
+            print(start, k, "on" if lm else "off", row, flush=True)
     return out
 
 
@@ -296,7 +294,7 @@ def main() -> None:
     ap.add_argument("--datasets", default="9,3,2,4,1,6")
     ap.add_argument("--config", type=Path, default=None)
     ap.add_argument("--estimator", default="diekf")
-    ap.add_argument("--start", choices=sorted(START), default="first")
+    ap.add_argument("--start", choices=sorted(START), default="restart")
     ap.add_argument("--restart-k", type=int, default=3, help="--start restart: gated fixes in a row before a restart")
     ap.add_argument("--inflate", type=float, default=1.0, help="--start restart: the seed fix's covariance scale")
     ap.add_argument("--calibrate-yaw", action="store_true", help="as swarmloc evaluate's (on the whole recording)")

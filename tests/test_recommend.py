@@ -76,25 +76,30 @@ def test_dataset6_short_span_in_band_and_an_over_confident_camera_out_of_band(mr
 @pytest.mark.data
 def test_the_truth_free_score_is_the_studys_own_and_is_unchanged_by_the_move(mrclam_dataset):
     """On 100 s of dataset 9 (no truth), the score ``swarmloc evaluate`` uses (:func:`truth_free_score`) is the LODO
-    study's filter score of the same run (:func:`~swarmloc_studies.lodo.filter_scores`), and both are what the study
-    gave before the score moved into the library (main 1814715: 0.34977354270167166 over 1625 readings)."""
+    study's filter score of the same run (:func:`~swarmloc_studies.lodo.filter_scores`), from the default start (the
+    fused snapshots) as from the first-snapshot start; from the latter both are what the study gave before the score
+    moved into the library (main 1814715: 0.34977354270167166 over 1625 readings)."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
     from swarmloc.experiments.mrclam import detection_set
-    from swarmloc.experiments.truthfree import truth_free_score
+    from swarmloc.experiments.truthfree import initial_from_snapshots, truth_free_score
     from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent, decorrelate
     from swarmloc_studies.lodo import filter_scores
 
     data = load_mrclam(mrclam_dataset(9))
+    ds = detection_set(data)
     model = CameraModel(ErrorComponent(0.15, 0.7, 10.0), ErrorComponent(0.005, 0.5, 20.0), source="test")
-    study = filter_scores(data, model, ["diekf"], True, 100.0, holdout=3)
-    assert study["diekf"]["nis_ratio"] == pytest.approx(0.34977354270167166, rel=1e-9)
-    assert study["diekf"]["readings"] == 1625
-    t_end = data.t_start + study["_span"]["t0"] + study["_span"]["duration_s"]
     events = decorrelate(mrclam_events(data, landmarks=True, range_std=0.15, bearing_std=0.005), model)
     std = (model.range.std, model.bearing.std)
-    mine = truth_free_score(data, detection_set(data), events, "diekf", DEFAULTS, std, True, t_end)
-    assert mine["nis_ratio"] == study["diekf"]["nis_ratio"] and mine["readings"] == 1625 and mine["folds"] == 3
+    first = filter_scores(data, model, ["diekf"], True, 100.0, holdout=3, start=initial_from_snapshots)
+    assert first["diekf"]["nis_ratio"] == pytest.approx(0.34977354270167166, rel=1e-9)
+    assert first["diekf"]["readings"] == 1625
+    study = filter_scores(data, model, ["diekf"], True, 100.0, holdout=3)
+    assert study["_span"] == first["_span"] and study["diekf"]["nis_ratio"] != first["diekf"]["nis_ratio"]
+    t_end = data.t_start + study["_span"]["t0"] + study["_span"]["duration_s"]
+    for start, scored in ((initial_from_snapshots(data, ds), first), (None, study)):
+        mine = truth_free_score(data, ds, events, "diekf", DEFAULTS, std, True, t_end, start=start)
+        assert mine["nis_ratio"] == scored["diekf"]["nis_ratio"] and mine["readings"] == 1625 and mine["folds"] == 3
 
 
 @pytest.mark.data

@@ -83,5 +83,18 @@ def test_the_fused_start_reacquires_dataset_9s_robots_and_counts_every_fix(mrcla
     t1, beliefs, counts = fused_from_snapshots(data, ds)
     assert t0 == t1 == initial_from_snapshots(data, ds)[0] and set(beliefs) == set(data.robots)
     assert locked[1]["gated"] == 40 and counts[1]["restarts"] == 1 and counts[1]["fused"] == 38
-    for n in counts.values():
-        assert n["fixes"] == 0 or _accounted(n, n["fixes"])
+    assert all(_accounted(n, n["fixes"]) for n in counts.values())  # the robot that defines t0 too (no fixes)
+
+
+@pytest.mark.data
+def test_a_recording_without_truth_starts_from_the_fused_snapshots(mrclam_dataset: Callable[[int], Path]):
+    """``swarmloc evaluate``'s start without truth is the fused one, its fixes' counts in the start."""
+    from swarmloc.datasets.mrclam import load_mrclam
+    from swarmloc.experiments.mrclam import detection_set, mrclam_start
+    from swarmloc.experiments.truthfree import fused_from_snapshots
+
+    data = load_mrclam(mrclam_dataset(9))
+    start = mrclam_start(data)
+    t0, beliefs, counts = fused_from_snapshots(data, detection_set(data))
+    assert not start.truth and start.t0 == t0 and start.fixes == counts and counts[1]["restarts"] == 1
+    assert all(np.array_equal(start.beliefs[r].mean, b.mean) for r, b in beliefs.items())

@@ -68,7 +68,7 @@ from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.events import Event
 from swarmloc.experiments.evaluate import ALL, RECOMMENDED, evaluate_stream, markdown_table, recommended, write_report
-from swarmloc.experiments.truthfree import initial_from_snapshots, truth_free_score
+from swarmloc.experiments.truthfree import fused_from_snapshots, truth_free_score
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
@@ -119,6 +119,9 @@ class Start:
     truth: bool
     t_start: float
     """[s] the recording's start"""
+    fixes: dict[int, dict[str, int]] = dataclasses.field(default_factory=dict)
+    """The truth-free start's landmark snapshots per robot and what became of them
+    (:func:`~swarmloc.experiments.truthfree.fused_from_snapshots`' counts; empty for another start)"""
 
     def after(self, events: list[Event]) -> list[Event]:
         """``events`` from :attr:`t0` on (all of them when the run starts at the recording's start)."""
@@ -128,18 +131,18 @@ class Start:
 def mrclam_start(data: MRCLAMData, config: Config = DEFAULTS, t_end: float | None = None) -> Start:
     """The start of a run on ``data`` (up to ``t_end`` [s]): the ground truth at the recording's start where it has
     truth (:func:`initial_beliefs`); without truth, the truth-free start of
-    :func:`~swarmloc.experiments.truthfree.initial_from_snapshots` (each robot's first fit to two or more landmarks
-    read at once, dead-reckoned to the latest of them: the run starts there, what comes before is left out); where
-    a robot never reads two landmarks at once, or that start is at or after ``t_end``, the placeholder of
-    :func:`initial_beliefs` at the recording's start (the trajectories are then not to be read as poses)."""
+    :func:`~swarmloc.experiments.truthfree.fused_from_snapshots` (each robot's fits to two or more landmarks read at
+    once, filtered from its first up to the latest robot's first: the run starts there, what comes before is left
+    out); where a robot never reads two landmarks at once, or that start is at or after ``t_end``, the placeholder
+    of :func:`initial_beliefs` at the recording's start (the trajectories are then not to be read as poses)."""
     if data.has_truth:
         return Start(data.t_start, initial_beliefs(data, config), "ground truth at the start", True, data.t_start)
     end = data.t_end if t_end is None else t_end
     try:
-        t0, beliefs = initial_from_snapshots(data, detection_set(data), config)
+        t0, beliefs, fixes = fused_from_snapshots(data, detection_set(data), config)
         if t0 < end:
-            return Start(t0, beliefs, f"no ground truth: from each robot's first landmark snapshot, "
-                                      f"{t0 - data.t_start:.1f} s in", False, data.t_start)  # fmt: skip
+            return Start(t0, beliefs, f"no ground truth: from each robot's landmark snapshots, fused up to "
+                                      f"{t0 - data.t_start:.1f} s in", False, data.t_start, fixes)  # fmt: skip
         why = f"the first landmark snapshots end {t0 - data.t_start:.1f} s in, after the span"
     except ValueError as exc:
         why = str(exc)
@@ -326,6 +329,7 @@ def evaluate_mrclam(
             "truth": start.truth,
             "t0_s": start.t0 - data.t_start,
             "events_before": len(events) - len(run_events),
+            **({"fixes": {str(r): n for r, n in start.fixes.items()}} if start.fixes else {}),
         },
         **({"yaw_calibration": yaw} if yaw else {}),
         **report,

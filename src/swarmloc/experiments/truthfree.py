@@ -1,9 +1,10 @@
 """The truth-free consistency score (:mod:`swarmloc.evaluation.heldout`) run on an MRCLAM recording: a truth-free
 start from the robots' landmark snapshots, and the runs that hold each fold of the landmarks out.
 
-The default start (:func:`initial_from_snapshots`) dead-reckons each robot from its first snapshot; the fused one
-(:func:`fused_from_snapshots`, an option: ``start=`` of :func:`truth_free_score`) filters every snapshot up to the
-start as an absolute pose fix, with restarts where the gate locks a robot out of its own fixes (:func:`fuse_fixes`).
+The start (:func:`fused_from_snapshots`) filters each robot's landmark snapshots up to the start as absolute pose
+fixes, from its first one, with restarts where the gate locks a robot out of its own fixes (:func:`fuse_fixes`);
+the first-snapshot start (:func:`initial_from_snapshots`, an option: ``start=`` of :func:`truth_free_score`)
+dead-reckons each robot from its first snapshot alone.
 
 Used by ``swarmloc evaluate mrclam`` on a recording without ground truth (:func:`truth_free_score`, the recommended
 estimator only) and by the leave-one-dataset-out study (the repository's ``swarmloc_studies.lodo``).
@@ -35,6 +36,7 @@ from swarmloc.runner import RunResult, TruthFn, run
 from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD, DetectionSet, snapshot_poses
 
 __all__ = [
+    "FIX_COUNTS",
     "SCORED_SPAN",
     "fuse_fixes",
     "fused_from_snapshots",
@@ -51,6 +53,11 @@ cost at most about what the estimator's own run of 900 s does, whatever the reco
 leave-one-dataset-out study scores 200-300 s too)."""
 
 
+FIX_COUNTS = ("fused", "gated", "rejected", "unknown", "restarts", "restart_fixes")
+"""The counts of :func:`fuse_fixes`: a fix ``fused`` by the filter in force, ``gated``, ``rejected`` or
+``unknown`` by the node, or taken by a restart (``restart_fixes``); ``restarts``."""
+
+
 def initial_from_snapshots(
     data: MRCLAMData, ds: DetectionSet, config: Config = DEFAULTS
 ) -> tuple[float, dict[int, GroupGaussian]]:
@@ -58,12 +65,7 @@ def initial_from_snapshots(
     dead-reckoned to ``t0``, the latest first snapshot; returns ``(t0, beliefs)``. Raises ValueError when a robot
     of ``data`` never sees two landmarks at once. :func:`fused_from_snapshots` also fuses the snapshots up to ``t0``."""
     poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
-    first: dict[int, tuple[float, GroupGaussian]] = {}
-    for r in data.robots:
-        sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start))
-        if sel.size == 0:
-            raise ValueError(f"{data.name}: robot {r} never reads two landmarks at once; no truth-free start")
-        first[r] = snapshot_belief(poses, int(sel[0]))
+    first = {r: snapshot_belief(poses, i) for r, i in _first_snapshots(data, poses).items()}
     t0 = max(v[0] for v in first.values())
     events = mrclam_events(data, landmarks=False, robot_measurements=False)
     out: dict[int, GroupGaussian] = {}
@@ -76,6 +78,18 @@ def initial_from_snapshots(
         tr = res.tracks[r]
         out[r] = GroupGaussian(SE2, SE2.from_xytheta(tr.mean[-1]), tr.cov[-1], validate=False)
     return t0, out
+
+
+def _first_snapshots(data: MRCLAMData, poses: Mapping[str, np.ndarray]) -> dict[int, int]:
+    """Each robot's first snapshot in ``poses`` (robot -> index) from the recording's start; raises ValueError when
+    a robot of ``data`` has none."""
+    first = {}
+    for r in data.robots:
+        sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start))
+        if sel.size == 0:
+            raise ValueError(f"{data.name}: robot {r} never reads two landmarks at once; no truth-free start")
+        first[r] = int(sel[0])
+    return first
 
 
 def _fix_belief(pose: np.ndarray, cov: np.ndarray, scale: float = 1.0) -> GroupGaussian:
@@ -130,10 +144,13 @@ def fuse_fixes(
         before = node.stats()
         node.step([d])
         after = node.stats()
-        return next(k for k in ("fused", "gated", "rejected", "unknown") if after[k] > before[k])
+        moved = [k for k in ("fused", "gated", "rejected", "unknown") if after[k] > before[k]]
+        if len(moved) != 1:
+            raise RuntimeError(f"fuse_fixes: the fix at {d.stamp} s moved the counters {moved}, not one of them")
+        return moved[0]
 
     node = node_from(belief, t_start)
-    counts = dict.fromkeys(("fused", "gated", "rejected", "unknown", "restarts", "restart_fixes"), 0)
+    counts = dict.fromkeys(FIX_COUNTS, 0)
     lost: list[tuple[int, Detection]] = []  # the fixes gated in a row, with their indices in events
     for i, e in enumerate(events):
         if isinstance(e, Odometry):
@@ -178,29 +195,31 @@ def _confirms(node: Any, events: Sequence[Odometry | Detection], outcome: Callab
 def fused_from_snapshots(
     data: MRCLAMData, ds: DetectionSet, config: Config = DEFAULTS, restart: int | None = 3, inflate: float = 1.0
 ) -> tuple[float, dict[int, GroupGaussian], dict[int, dict[str, int]]]:
-    """A truth-free start at :func:`initial_from_snapshots`' ``t0`` that fuses every landmark snapshot up to it:
-    each robot's :func:`fuse_fixes` from its first snapshot, its later ones up to ``t0`` its absolute pose fixes
-    (the fit's covariance at the a-priori std), gated at chi-square 0.99; returns ``(t0, beliefs, counts per
-    robot)`` (``fixes`` and :func:`fuse_fixes`' counts). ``restart``, ``inflate``: :func:`fuse_fixes`' (None: a
-    robot its gate locked out of its fixes stays out). Raises ValueError as :func:`initial_from_snapshots` does."""
-    t0, _ = initial_from_snapshots(data, ds, config)
+    """The truth-free start: at ``t0``, the latest of the robots' first landmark snapshots (as
+    :func:`initial_from_snapshots`'), each robot's :func:`fuse_fixes` from its first snapshot, its later ones up to
+    ``t0`` its absolute pose fixes (the fit's covariance at the a-priori std), gated at chi-square 0.99; returns
+    ``(t0, beliefs, counts per robot)`` (``fixes`` and :func:`fuse_fixes`' counts). ``restart``, ``inflate``:
+    :func:`fuse_fixes`' (None: a robot its gate locked out of its fixes stays out). Raises ValueError as
+    :func:`initial_from_snapshots` does."""
     poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
+    first = _first_snapshots(data, poses)
+    t0 = max(float(poses["t"][i]) for i in first.values())
     odometry = [e for e in mrclam_events(data, landmarks=False, robot_measurements=False) if isinstance(e, Odometry)]
     gated = config.with_filter(gate=0.99)
     beliefs: dict[int, GroupGaussian] = {}
     counts: dict[int, dict[str, int]] = {}
     for r in data.robots:
-        sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start) & (poses["t"] <= t0))
-        ts, first = snapshot_belief(poses, int(sel[0]))
+        sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] > poses["t"][first[r]]) & (poses["t"] <= t0))
+        ts, seed = snapshot_belief(poses, first[r])
         fixes = [Detection(r, float(poses["t"][j]), Kind.ABSOLUTE, np.asarray(poses["pose"][j], float),
                            np.asarray(poses["cov"][j], float) + 1e-8 * np.eye(3), target=None)
-                 for j in sel[1:] if poses["t"][j] > ts]  # fmt: skip
+                 for j in sel]  # fmt: skip
         if ts >= t0:  # the robot whose first snapshot defines t0
-            beliefs[r], counts[r] = first, {"fixes": 0}
+            beliefs[r], counts[r] = seed, {"fixes": 0, **dict.fromkeys(FIX_COUNTS, 0)}
             continue
         mine: list[Odometry | Detection] = [e for e in odometry if e.robot == r and ts <= e.stamp <= t0]
         mine = sorted([*mine, *fixes], key=lambda e: e.stamp)
-        beliefs[r], n = fuse_fixes(r, first, ts, t0, mine, gated, restart, inflate)
+        beliefs[r], n = fuse_fixes(r, seed, ts, t0, mine, gated, restart, inflate)
         counts[r] = {"fixes": len(fixes), **n}
     return t0, beliefs, counts
 
@@ -248,16 +267,16 @@ def truth_free_score(
     start: tuple[float, Mapping[int, GroupGaussian]] | None = None,
 ) -> dict[str, Any]:
     """The held-out landmark NIS score of estimator ``name`` on ``data`` up to ``t_end`` [s], at most ``longest`` s:
-    the runs start from :func:`initial_from_snapshots` (at ``t0``) on ``events`` (those of the evaluation: its camera
+    the runs start from :func:`fused_from_snapshots` (at ``t0``) on ``events`` (those of the evaluation: its camera
     model), with ``config``; with ``landmarks`` one run per each of ``holdout`` landmark folds scores that fold's
     readings, without landmarks one run scores every reading. ``std`` (range [m], bearing [rad]): the readings' noise
     in the NIS (the camera model's). Returns :func:`~swarmloc.evaluation.heldout.nis_summary` with ``folds`` (0:
     landmarks off), ``t0_s`` (after the recording's start), ``duration_s`` (scored) and ``wall_s`` (every run of the
-    score). ``start``: :func:`initial_from_snapshots`' ``(t0, beliefs)`` when the caller has them already, or
-    another start's (:func:`fused_from_snapshots`' first two). Raises ValueError where there is no truth-free start
-    before ``t_end``."""
+    score). ``start``: ``(t0, beliefs)`` of :func:`fused_from_snapshots` when the caller has them already, or
+    another start's (:func:`initial_from_snapshots`'). Raises ValueError where there is no truth-free start before
+    ``t_end``."""
     wall = time.perf_counter()
-    t0, initial = initial_from_snapshots(data, ds, config) if start is None else start
+    t0, initial = fused_from_snapshots(data, ds, config)[:2] if start is None else start
     if t0 >= t_end:
         raise ValueError(f"the truth-free start (every robot's first landmark snapshot) is {t0 - data.t_start:.1f} s "
                          f"in, after the span's end")  # fmt: skip

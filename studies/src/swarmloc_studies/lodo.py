@@ -24,10 +24,11 @@ Only dataset 6 has ground truth here, so every dataset is scored without it, by 
   dof against the truth are given too.
 
 Initial beliefs are truth-free on every dataset (dataset 6 included, so that its row is run as the others are):
-each robot's first landmark snapshot gives its pose by the weighted fit of
-:mod:`swarmloc.sensors.decorrelate` (covariance from the a-priori std 0.1 m, 0.035 rad), dead-reckoned (``dr``)
-to the latest of the robots' first snapshots, where the run starts. Runs cover ``duration`` s from there (part of
-each dataset, for compute).
+each robot's landmark snapshots give its pose by the weighted fit of :mod:`swarmloc.sensors.decorrelate`
+(covariance from the a-priori std 0.1 m, 0.035 rad), filtered as absolute pose fixes from its first one up to the
+latest of the robots' first snapshots, where the run starts (the start of ``swarmloc evaluate`` without truth:
+:func:`swarmloc.experiments.truthfree.fused_from_snapshots`; ``start=`` of :func:`filter_scores` takes another).
+Runs cover ``duration`` s from there (part of each dataset, for compute).
 
 **Yaw diffusion calibrated on the recording itself** (run ``on+yaw``): the motion model's yaw terms scaled by the
 factor :func:`yaw_calibration` fits to the left-out recording's own snapshot heading increments
@@ -43,9 +44,9 @@ import dataclasses
 import functools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
@@ -56,7 +57,8 @@ from swarmloc.evaluation.heldout import landmark_folds, nis_summary, reading_tim
 from swarmloc.evaluation.metrics import evaluate
 from swarmloc.events import Detection
 from swarmloc.experiments.mrclam import detection_set, yaw_calibration
-from swarmloc.experiments.truthfree import heldout_runs, initial_from_snapshots, landmark_readings
+from swarmloc.experiments.truthfree import fused_from_snapshots, heldout_runs, landmark_readings
+from swarmloc.gaussian import GroupGaussian
 from swarmloc.motion.calibrate import scale_yaw
 from swarmloc.runner import run
 from swarmloc.runner.fanout import fan_out
@@ -85,6 +87,9 @@ __all__ = [
     "own_std",
     "yaw_calibration",
 ]
+
+StartFn: TypeAlias = Callable[[MRCLAMData, DetectionSet, Config], tuple[float, Mapping[int, GroupGaussian]]]
+"""A truth-free start: ``(data, its detection set, config) -> (t0 [s], robot -> initial belief)``."""
 
 DATASETS: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 9)
 CUTS: tuple[float, ...] = (2.5, 3.0, 4.0)
@@ -148,6 +153,7 @@ def filter_scores(
     holdout: int = 3,
     reference_std: tuple[float, float] | None = None,
     calibrate_yaw: bool = False,
+    start: StartFn | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run ``estimators`` on ``duration`` s of ``data`` with camera ``model`` (truth-free start) and return per
     estimator the landmark-reading NIS scores, and RMSE/ANEES when ``data`` has truth.
@@ -163,9 +169,12 @@ def filter_scores(
 
     ``calibrate_yaw`` (landmarks on): each run's yaw diffusion is scaled by :func:`yaw_calibration` from the
     recording's own snapshots outside the scored span, without the fold that run leaves out (``yaw_scale``: the
-    scale of the run with every landmark, ``yaw_scale_folds``: the folds' runs')."""
+    scale of the run with every landmark, ``yaw_scale_folds``: the folds' runs').
+
+    ``start``: the truth-free start, ``(data, ds, config) -> (t0, beliefs)`` (None: the first two of
+    :func:`~swarmloc.experiments.truthfree.fused_from_snapshots`)."""
     ds = detection_set(data)
-    t0, initial = initial_from_snapshots(data, ds, config)
+    t0, initial = fused_from_snapshots(data, ds, config)[:2] if start is None else start(data, ds, config)
     t1 = min(data.t_end, t0 + duration)
     events = mrclam_events(data, landmarks=landmarks, range_std=model.range.std, bearing_std=model.bearing.std)
     events = [e for e in decorrelate(events, model) if t0 <= e.stamp <= t1]
