@@ -98,3 +98,19 @@ def test_a_recording_without_truth_starts_from_the_fused_snapshots(mrclam_datase
     t0, beliefs, counts = fused_from_snapshots(data, detection_set(data))
     assert not start.truth and start.t0 == t0 and start.fixes == counts and counts[1]["restarts"] == 1
     assert all(np.array_equal(start.beliefs[r].mean, b.mean) for r, b in beliefs.items())
+
+
+@pytest.mark.unit
+def test_a_fix_that_moves_no_counter_is_a_clear_error(monkeypatch: pytest.MonkeyPatch):
+    import swarmloc.experiments.truthfree as tf
+
+    class Silent:  # a node that takes every input and counts none
+        def step(self, _: object) -> None:
+            pass
+
+        def stats(self) -> dict[str, int]:
+            return dict.fromkeys(("fused", "gated", "rejected", "unknown"), 0)
+
+    monkeypatch.setattr(tf, "make_team", lambda *a, **k: [Silent()])
+    with pytest.raises(RuntimeError, match=r"fuse_fixes: the fix at 1.0 s moved the counters \[\]"):
+        tf.fuse_fixes(0, _start(0.0), 0.0, 20.0, _drive(), GATED)

@@ -131,7 +131,7 @@ def fuse_fixes(
     ``inflate``, at least 1) on the same odometry must fuse the other k - 1 through the same gate; then it replaces
     the robot's filter (a restart, its k fixes counted ``restart_fixes``), else the run's first fix is counted
     ``gated`` (an outlier, not a lost track) and the run goes on from the next. Raises ValueError for ``restart`` < 1
-    or ``inflate`` < 1."""
+    or ``inflate`` < 1, RuntimeError for a fix that moves none of the node's counters or more than one."""
     if restart is not None and restart < 1:
         raise ValueError(f"fuse_fixes: restart must be at least 1 fix (or None), got {restart}")
     if not inflate >= 1.0:
