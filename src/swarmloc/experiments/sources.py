@@ -14,7 +14,7 @@ A source spec is one of
 * ``mrclam:PATH``: a UTIAS MRCLAM dataset folder (``duration`` truncates it; landmarks on unless told otherwise;
   detection covariances from the camera model that ``config.sensors.decorrelate`` names,
   :func:`swarmloc.experiments.mrclam.mrclam_stream`; the start :func:`swarmloc.experiments.mrclam.mrclam_start`:
-  the truth, or without it the robots' first landmark snapshots);
+  the truth, or without it the robots' landmark snapshots fused);
 * ``sim:3d``: a 3-D team (:func:`swarmloc.sim.sim3d.simulate3d`, ``robots`` quadrotor-like robots on SE(3), body
   twist odometry at 10 Hz, relative poses ``"pose3"`` at 2 Hz within 12 m, 5 cm / 2 deg; initial beliefs drawn
   about the truth with 10 cm / 3 deg); ``sim:3d_rot``: the same with large rotational uncertainty (30 deg per
