@@ -214,6 +214,28 @@ def test_a_message_superseded_before_its_delivery_is_not_delivered():
     assert fed.accounted() and ordered.accounted()
 
 
+def test_an_exchange_that_does_not_settle_stops_the_run_with_a_clear_error():
+    """Two nodes whose every answer asks again (a choice that depends on its own outcome) would route messages for
+    ever: the runner stops once one exchange's message is delivered more than ``SETTLE_ROUNDS`` times, naming
+    it, after exactly that many deliveries of each of the two."""
+    from swarmloc.messages import BeliefQuery
+    from swarmloc.runner.inprocess import SETTLE_ROUNDS, _Driver
+
+    class Echo:
+        def __init__(self, robot: int, other: int) -> None:
+            self.robots, self.other, self.steps = (robot,), other, 0
+
+        def step(self, m):
+            self.steps += 1
+            return [BeliefQuery(sender=self.robots[0], receiver=self.other, stamp=5.0)]
+
+    a, b = Echo(1, 2), Echo(2, 1)
+    drv = _Driver([a, b])
+    with pytest.raises(RuntimeError, match=r"exchange of \d -> \d at stamp 5.0 \(BeliefQuery.*does not settle"):
+        drv.pump([BeliefQuery(sender=1, receiver=2, stamp=5.0)])
+    assert drv.stats["messages"] == a.steps + b.steps == 2 * SETTLE_ROUNDS
+
+
 def test_progress_callback_reaches_the_end():
     sim = random_team(2, 3.0, seed=1)
     calls: list[tuple[int, int]] = []

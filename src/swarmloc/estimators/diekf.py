@@ -68,7 +68,8 @@ the run equals the in-process one (tests/test_net_progress.py).
 
 Anonymous detections (``association`` ``nearest`` or ``joint``): every teammate is asked with the
 ``RdlStateQuery`` keyed as the detection would be were it of that teammate
-(:func:`~swarmloc.estimators.state_exchange.anonymous_sub`), as ``rdl`` does; the detection given a robot is
+(:func:`~swarmloc.estimators.state_exchange.anonymous_sub`), and its belief before the scan with a ``BeliefQuery``,
+from which the identity is chosen, as ``rdl`` does; the detection given a robot is
 broadcast under that key, so where the identity is right the broadcast is the tagged run's. Every other teammate's
 exchange is settled by an empty broadcast under its key (:meth:`TeamProtocol.settle`), as a gated
 detection's: an answerer over the network waits for the broadcast keyed by the query it answered before it goes on.

@@ -46,15 +46,17 @@ three in a row quarantine the sender.
 **Anonymous detections** (``association`` ``nearest`` or ``joint``, :mod:`swarmloc.node.associate`): the pair's
 exchange needs the target before the question, so for each anonymous detection ``d`` the observer asks **every
 teammate** ``r`` with an ``RdlStateQuery`` keyed :func:`~swarmloc.estimators.state_exchange.anonymous_sub` ``(d, r)``,
-the key ``d`` would have were it of ``r``. The answers give the candidates' beliefs
-(:meth:`RecursiveDecentralized._candidates`); the detection given
+the key ``d`` would have were it of ``r``, and with a ``BeliefQuery`` for its belief before the scan, from which the
+identity is chosen (:meth:`RecursiveDecentralized._candidates`; why not from the first answers:
+:mod:`~swarmloc.estimators.state_exchange`); the detection given
 ``r`` is fused under that key from ``r``'s answer, so the true target's exchange is the tagged run's, and every
 other teammate gets "no update" (:meth:`RecursiveDecentralized._settle`), which removes the
 :class:`Unconfirmed` placeholder its answer filed. A replay that changes the identity changes which teammate gets
 the update and which "no update" (the one retracts, the other files). Cost: ``n - 1`` queries, answers and updates
-per anonymous detection; with two or more in one scan, a teammate's answer to the second is computed while the first
-one's placeholder stands (its factor for the observer dropped) and is revised once that "no update" arrives, so the
-update computed from it is refused as stale and sent again (``tests/test_association_node.py``: where every identity
+per anonymous detection, and ``n - 1`` belief queries and answers per scan; with two or more in one scan, a
+teammate's answer to the second is computed while the first one's placeholder stands (its factor for the observer
+dropped) and is revised once that "no update" arrives, so the update computed from it is refused as stale and sent
+again (``tests/test_association_node.py``: where every identity
 is right the beliefs equal the tagged run's bit for bit, in process and over Zenoh).
 """
 
@@ -306,10 +308,7 @@ class RdlNode(RobotNode):
     def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
         """The teammates' beliefs from their answers to the anonymous detections' queries
         (:meth:`~swarmloc.estimators.state_exchange.StateQueries.candidates`)."""
-        return self._queries.candidates(g, mates, self._answered_belief)
-
-    def _answered_belief(self, t: float, x: np.ndarray, P: np.ndarray, robot: int) -> GroupGaussian:
-        return self._belief(RdlFilter(t, 0.0, 0.0, x, P, (), _NO_FACTORS), robot)
+        return self._queries.candidates(g, mates)
 
     def _settle(self, g: Group) -> list[Message]:
         """ "No update" for every unused answer (:meth:`~swarmloc.estimators.state_exchange.StateQueries.unused`): it

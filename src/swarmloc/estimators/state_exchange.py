@@ -4,28 +4,30 @@ detection, keyed by the detection's key), and with an association policy asks ev
 detection, keyed as the detection would be were it of that teammate (:func:`anonymous_sub`), so that the true
 target's exchange is the tagged run's. What the answers are used for (a pairwise update, a broadcast) is the
 estimator's; this part only forms the queries and reads the answers back.
+
+The identities are chosen from each teammate's belief **before the scan**: a
+:class:`~swarmloc.messages.BeliefQuery` (sub-key ``()``, answered from the state before every key of the scan), not
+from the ``RdlStateQuery`` answers. Those are keyed per teammate, so a teammate with a higher id answers from a state
+that holds the observer's own update of this scan (``diekf``'s broadcast moves every robot; ``rdl``'s moves the
+target of another detection of the scan): a choice made from them depends on itself. On MRCLAM dataset 6 with
+``joint`` association, ``diekf`` chose a robot, its broadcast changed the other answers, the choice became "none",
+the retraction changed them back, and the exchange never settled (at 612 s of the recording, 10,000 replays of one
+scan and counting). Cost: ``n - 1`` more queries and answers per scan with anonymous detections.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import Any
-
-import numpy as np
 
 from swarmloc.events import Detection
 from swarmloc.gaussian import GroupGaussian
-from swarmloc.messages import Message, RdlState, RdlStateQuery
+from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery
 from swarmloc.node import Group
-from swarmloc.node.associate import is_anonymous
+from swarmloc.node.associate import answered_beliefs, is_anonymous
 from swarmloc.node.keys import SubKey, detection_key
 
 __all__ = ["StateQueries", "anonymous_sub"]
-
-BeliefOf = Callable[[float, np.ndarray, np.ndarray, int], GroupGaussian]
-"""``(stamp [s], x, P, robot) -> belief``: a teammate's belief from the state it answered with (the estimator's
-convention)."""
 
 
 def anonymous_sub(d: Detection, robot: int) -> tuple[float, ...]:
@@ -44,35 +46,29 @@ class StateQueries:
     def requests(
         self, g: Group, needs_answer: Callable[[Group, Detection], bool], mates: Sequence[int]
     ) -> list[Message]:
-        """One ``RdlStateQuery`` per detection for which ``needs_answer(g, d)`` (sub-key: the detection's key) and
-        one per anonymous detection and teammate in ``mates`` (sub-key: :func:`anonymous_sub`)."""
+        """One ``RdlStateQuery`` per detection for which ``needs_answer(g, d)`` (sub-key: the detection's key); with
+        an anonymous detection, one per anonymous detection and teammate in ``mates`` (sub-key:
+        :func:`anonymous_sub`) and one ``BeliefQuery`` per teammate (sub-key ``()``: the candidates)."""
         out = {
             (d.target, k): RdlStateQuery(sender=self.robot, receiver=d.target, stamp=g.t, sub=k)
             for d, k in zip(g.detections, g.keys, strict=True)
             if d.target is not None and needs_answer(g, d)
         }
-        for d in g.detections if mates else ():
-            if is_anonymous(d):
-                for r in mates:
-                    k = anonymous_sub(d, r)
-                    out.setdefault((r, k), RdlStateQuery(sender=self.robot, receiver=r, stamp=g.t, sub=k))
+        anon = [d for d in g.detections if is_anonymous(d)] if mates else []
+        for d in anon:
+            for r in mates:
+                k = anonymous_sub(d, r)
+                out.setdefault((r, k), RdlStateQuery(sender=self.robot, receiver=r, stamp=g.t, sub=k))
+        if anon:
+            for r in mates:
+                out.setdefault((r, ()), BeliefQuery(sender=self.robot, receiver=r, stamp=g.t))
         return list(out.values())
 
     @staticmethod
-    def candidates(g: Group, mates: Sequence[int], belief: BeliefOf) -> dict[int, GroupGaussian]:
-        """Each teammate's belief at the stamp from its answer to the group's first anonymous detection's query
-        (the state before that key: the same as a ``BeliefQuery``'s unless the observer's own updates of this scan
-        keyed before it reached the teammate)."""
-        anon = [d for d in g.detections if is_anonymous(d)]
-        out = {}
-        for r in mates:
-            for d in anon:
-                a: Any = g.answers.get((r, anonymous_sub(d, r)))
-                if a is not None and a.found:
-                    x, P, _ = a.arrays()
-                    out[r] = belief(float(a.stamp), x, P, r)
-                    break
-        return out
+    def candidates(g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
+        """Each teammate's belief before the scan, from its answer to the group's ``BeliefQuery`` (module
+        docstring: never from a state the scan's own updates reached)."""
+        return answered_beliefs(g, mates)
 
     @staticmethod
     def unused(g: Group) -> list[tuple[int, SubKey, RdlState]]:

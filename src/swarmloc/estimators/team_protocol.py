@@ -336,7 +336,7 @@ class TeamProtocol:
         return list(kept.values())
 
     def candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        return self.queries.candidates(g, mates, lambda t, x, P, robot: self.belief(x, P))
+        return self.queries.candidates(g, mates)
 
     def broadcast(self, t: float, sub: SubKey, numbers: Numbers | None = None) -> list[Message]:
         """One exchange's broadcast to every teammate: an update's :data:`Numbers`, or none (an empty update: the

@@ -38,6 +38,13 @@ from swarmloc.runner.result import RUN_COUNTERS, RobotTrack, RunResult
 Progress = Callable[[int, int], None]
 """``progress(done, total)``, called every few thousand events (e.g. to drive a progress bar)."""
 
+SETTLE_ROUNDS = 1000
+"""How many times one exchange's message (same type, sender, receiver, stamp and sub-key) may be delivered while
+the messages one input caused are routed, before the run stops with an error: an exchange that does not settle (a
+choice that depends on its own outcome) would otherwise route messages for ever, its history growing. An input
+revises each answer about once (:meth:`_Driver.pump`); the most seen in the test suite and on the MRCLAM
+recordings is far below (see the benchmarks page)."""
+
 
 class _Records:
     """Pending records per node (a heap by time), resolved once final."""
@@ -182,9 +189,12 @@ class _Driver:
         updates replacing the one filed under their key), and delivering it made every node replay, re-send and
         revise once more for it. A late input at a stamp where all robots detect each other made such rounds grow
         without bound: ``diekf`` on 5 robots sharing stamps replayed 229,687 history entries in 9 s of data (36 s of
-        wall time) where the newest messages alone need 4,543 (2.6 s), with the same beliefs."""
+        wall time) where the newest messages alone need 4,543 (2.6 s), with the same beliefs.
+
+        Raises RuntimeError once one exchange's message is delivered more than :data:`SETTLE_ROUNDS` times."""
         heap: list[tuple] = []
         latest: dict[tuple, int] = {}
+        rounds: Counter[tuple] = Counter()
 
         def push(ms: list[Message]) -> None:
             for m in ms:
@@ -199,6 +209,12 @@ class _Driver:
                 self.stats["messages_superseded"] += 1
                 continue
             del latest[k]
+            rounds[k] += 1
+            if rounds[k] > SETTLE_ROUNDS:
+                raise RuntimeError(
+                    f"run: the exchange of {m.sender} -> {m.receiver} at stamp {m.stamp!r} ({type(m).__name__}, "
+                    f"sub-key {m.sub!r}) does not settle: delivered {SETTLE_ROUNDS} times for one input"
+                )
             self.stats["messages"] += 1
             node = self.owner.get(m.receiver)
             if node is None:
