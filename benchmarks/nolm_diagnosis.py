@@ -127,8 +127,8 @@ def latest_start(data: Any, ds: Any, config: Any) -> tuple[float, dict[int, Any]
     """As :func:`~swarmloc.experiments.truthfree.initial_from_snapshots` (the same ``t0``: every robot's first
     snapshot in), but each robot starts from its *latest* snapshot at or before ``t0``, not its first: the least
     dead reckoning to ``t0``."""
-    t0, first = initial_from_snapshots(data, ds, config)
     poses = snapshot_poses(ds, PRIOR_RANGE_STD, PRIOR_BEARING_STD)
+    t0 = max(float(poses["t"][i]) for i in truthfree._first_snapshots(data, poses).values())
     odo = [e for e in mrclam_events(data, landmarks=False, robot_measurements=False) if isinstance(e, Odometry)]
     out = {}
     for r in data.robots:
