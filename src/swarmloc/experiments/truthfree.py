@@ -205,7 +205,8 @@ def fused_from_snapshots(
     first = _first_snapshots(data, poses)
     t0 = max(float(poses["t"][i]) for i in first.values())
     odometry = [e for e in mrclam_events(data, landmarks=False, robot_measurements=False) if isinstance(e, Odometry)]
-    gated = config.with_filter(gate=0.99)
+    # one robot and its own fixes: the team's options (association of robot detections, clusters) do not apply
+    gated = config.with_filter(gate=0.99, association="tags", diekf_cluster=0, diekf_reform=0.0)
     beliefs: dict[int, GroupGaussian] = {}
     counts: dict[int, dict[str, int]] = {}
     for r in data.robots:
