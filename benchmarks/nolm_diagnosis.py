@@ -248,7 +248,7 @@ def windows(
         sub = dataclasses.replace(data, t_start=float(T))
         try:
             t0, initial = START[start](sub, ds, config)
-        except ValueError:
+        except truthfree.NoStart:  # a window with no truth-free start is skipped
             continue
         sc = truth_free_score(sub, ds, events, "diekf", config, (camera.range.std, camera.bearing.std), False,
                               float(T) + span, start=(t0, initial))  # fmt: skip

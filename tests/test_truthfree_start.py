@@ -120,6 +120,30 @@ def test_the_start_is_the_same_whatever_the_teams_association_and_clusters(mrcla
             np.testing.assert_array_equal(s.beliefs[r].cov, b.cov)
 
 
+@pytest.mark.data
+def test_only_the_datas_fault_falls_back_to_the_placeholder(mrclam_dataset: Callable[[int], Path], monkeypatch):
+    """A recording that gives no truth-free start falls back to the placeholder and says why; anything else the
+    start raises (a configuration its filters cannot run) is an error, not a start 10 m off."""
+    import swarmloc.experiments.truthfree as tf
+    from swarmloc.datasets.mrclam import load_mrclam
+    from swarmloc.experiments.mrclam import mrclam_start
+
+    data = load_mrclam(mrclam_dataset(9))
+
+    def no_start(*_: object, **__: object) -> None:
+        raise tf.NoStart("robot 3 never reads two landmarks at once")
+
+    def bad_config(*_: object, **__: object) -> None:
+        raise ValueError("diekf: some option it refuses")
+
+    monkeypatch.setattr(tf, "_first_snapshots", no_start)
+    s = mrclam_start(data)
+    assert not s.truth and s.t0 == data.t_start and "robot 3 never reads" in s.how and "not poses" in s.how
+    monkeypatch.setattr(tf, "_first_snapshots", bad_config)
+    with pytest.raises(ValueError, match="some option it refuses"):
+        mrclam_start(data)
+
+
 @pytest.mark.unit
 def test_a_fix_that_moves_no_counter_is_a_clear_error(monkeypatch: pytest.MonkeyPatch):
     import swarmloc.experiments.truthfree as tf

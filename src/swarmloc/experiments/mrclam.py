@@ -68,7 +68,7 @@ from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.events import Event
 from swarmloc.experiments.evaluate import ALL, RECOMMENDED, evaluate_stream, markdown_table, recommended, write_report
-from swarmloc.experiments.truthfree import fused_from_snapshots, truth_free_score
+from swarmloc.experiments.truthfree import NoStart, fused_from_snapshots, truth_free_score
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2
 from swarmloc.motion import UnicycleNoise
@@ -144,7 +144,7 @@ def mrclam_start(data: MRCLAMData, config: Config = DEFAULTS, t_end: float | Non
             return Start(t0, beliefs, f"no ground truth: from each robot's landmark snapshots, fused up to "
                                       f"{t0 - data.t_start:.1f} s in", False, data.t_start, fixes)  # fmt: skip
         why = f"the first landmark snapshots end {t0 - data.t_start:.1f} s in, after the span"
-    except ValueError as exc:
+    except NoStart as exc:  # the data's: a configuration the start cannot run is an error, not a placeholder
         why = str(exc)
     how = f"no ground truth and {why}: robots at (id, 0, 0), std 10 m / 3 rad: the trajectories are not poses"
     return Start(data.t_start, initial_beliefs(data, config), how, False, data.t_start)
@@ -356,7 +356,7 @@ def recommended_score(
     try:
         return truth_free_score(data, detection_set(data), events, RECOMMENDED, config,
                                 (camera.range.std, camera.bearing.std), landmarks, t_end, start=first)  # fmt: skip
-    except ValueError as exc:  # no truth-free start
+    except NoStart as exc:
         return str(exc)
 
 

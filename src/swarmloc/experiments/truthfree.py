@@ -37,6 +37,7 @@ from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD, Det
 
 __all__ = [
     "FIX_COUNTS",
+    "NoStart",
     "SCORED_SPAN",
     "fuse_fixes",
     "fused_from_snapshots",
@@ -46,6 +47,12 @@ __all__ = [
     "snapshot_belief",
     "truth_free_score",
 ]
+
+
+class NoStart(ValueError):
+    """The recording gives no truth-free start (a robot never reads two landmarks at once, or the start is after
+    the span): the data's fault, not the configuration's, which raises a plain ValueError."""
+
 
 SCORED_SPAN = 300.0
 """[s] The longest span :func:`truth_free_score` scores, from the truth-free start: its runs (3 with landmarks) then
@@ -81,13 +88,13 @@ def initial_from_snapshots(
 
 
 def _first_snapshots(data: MRCLAMData, poses: Mapping[str, np.ndarray]) -> dict[int, int]:
-    """Each robot's first snapshot in ``poses`` (robot -> index) from the recording's start; raises ValueError when
-    a robot of ``data`` has none."""
+    """Each robot's first snapshot in ``poses`` (robot -> index) from the recording's start; raises :class:`NoStart`
+    when a robot of ``data`` has none."""
     first = {}
     for r in data.robots:
         sel = np.flatnonzero((poses["observer"] == r) & (poses["t"] >= data.t_start))
         if sel.size == 0:
-            raise ValueError(f"{data.name}: robot {r} never reads two landmarks at once; no truth-free start")
+            raise NoStart(f"{data.name}: robot {r} never reads two landmarks at once; no truth-free start")
         first[r] = int(sel[0])
     return first
 
@@ -274,12 +281,12 @@ def truth_free_score(
     in the NIS (the camera model's). Returns :func:`~swarmloc.evaluation.heldout.nis_summary` with ``folds`` (0:
     landmarks off), ``t0_s`` (after the recording's start), ``duration_s`` (scored) and ``wall_s`` (every run of the
     score). ``start``: ``(t0, beliefs)`` of :func:`fused_from_snapshots` when the caller has them already, or
-    another start's (:func:`initial_from_snapshots`'). Raises ValueError where there is no truth-free start before
-    ``t_end``."""
+    another start's (:func:`initial_from_snapshots`'). Raises :class:`NoStart` where there is no truth-free start
+    before ``t_end``."""
     wall = time.perf_counter()
     t0, initial = fused_from_snapshots(data, ds, config)[:2] if start is None else start
     if t0 >= t_end:
-        raise ValueError(f"the truth-free start (every robot's first landmark snapshot) is {t0 - data.t_start:.1f} s "
+        raise NoStart(f"the truth-free start (every robot's first landmark snapshot) is {t0 - data.t_start:.1f} s "
                          f"in, after the span's end")  # fmt: skip
     t_end = min(t_end, t0 + longest)
     span = [e for e in events if t0 <= e.stamp <= t_end]
