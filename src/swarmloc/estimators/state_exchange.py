@@ -49,7 +49,7 @@ class StateQueries:
         """One ``RdlStateQuery`` per detection for which ``needs_answer(g, d)`` (sub-key: the detection's key); with
         an anonymous detection, one per anonymous detection and teammate in ``mates`` (sub-key:
         :func:`anonymous_sub`) and one ``BeliefQuery`` per teammate (sub-key ``()``: the candidates)."""
-        out = {
+        out: dict[tuple[int, SubKey], Message] = {
             (d.target, k): RdlStateQuery(sender=self.robot, receiver=d.target, stamp=g.t, sub=k)
             for d, k in zip(g.detections, g.keys, strict=True)
             if d.target is not None and needs_answer(g, d)
