@@ -53,6 +53,27 @@ def test_anonymize_drops_ids_keeps_truth_and_adds_clutter_and_misses_at_the_requ
     ]
 
 
+def test_a_detection_of_a_robot_outside_the_team_is_clutter_to_it():
+    """MRCLAM dataset 3 has no robot 4 in its team, yet its cameras see robot 4's barcode 1,395 times: with the ids
+    hidden those detections are false ones to the team, so refusing them is right (scored so), and giving them to a
+    teammate is wrong."""
+    from swarmloc.experiments.association import association_events
+    from swarmloc.sim.anonymous import anonymize
+
+    sim = team(10.0)
+    dets = [e for e in sim.events if isinstance(e, Detection) and e.target_is_robot]
+    assert {e.target for e in dets} >= {3, 4}
+    out = [e for e in anonymize(sim.events, team={0, 1, 2, 3}) if isinstance(e, Detection) and e.target_is_robot]
+    assert len(out) == len(dets) and all(e.target is None for e in out)
+    for a, b in zip(dets, out, strict=True):
+        assert b.truth_target == (a.target if a.target != 4 else CLUTTER_TRUTH)
+    everyone = [e for e in anonymize(sim.events) if isinstance(e, Detection) and e.target_is_robot]
+    assert [e.truth_target for e in everyone] == [e.target for e in dets]
+    joint, _ = association_events(sim.events, "joint", [0, 1, 2, 3], UnicycleNoise())
+    truths = {e.truth_target for e in joint if isinstance(e, Detection) and e.target_is_robot}
+    assert CLUTTER_TRUTH in truths and 4 not in truths
+
+
 def test_anonymous_scans_reveal_nothing_by_their_order():
     anon = anonymize_sim(team(10.0), AnonymousSensor())
     by_scan: dict = {}

@@ -75,7 +75,7 @@ def association_events(
     tracker's counters for ``anonymous``). ``clutter``: mean false detections per scan; ``p_detect``: detection
     probability; ``max_range`` [m]: the clutter's range; ``seed``: of misses and clutter."""
     association_policy(policy)
-    kw: dict[str, Any] = dict(p_detect=p_detect, clutter=clutter, max_range=max_range, seed=seed)
+    kw: dict[str, Any] = dict(p_detect=p_detect, clutter=clutter, max_range=max_range, seed=seed, team=set(robots))
     if policy == "tags":
         if clutter == 0 and p_detect == 1:
             return list(events), {}

@@ -6,7 +6,8 @@ neither written to event files nor sent), :data:`CLUTTER_TRUTH` (-1) for a false
 
 :func:`anonymize` works on any event list (recorded or simulated):
 
-* **anonymous**: each robot detection loses its ``target``;
+* **anonymous**: each robot detection loses its ``target``; given the ``team``, a detection of a robot outside it is
+  a false detection to the team (its ``truth_target`` :data:`CLUTTER_TRUTH`: refusing it is right);
 * **misses**: each robot detection is kept with probability ``p_detect``;
 * **clutter**: each scan (an observer's robot detections at one instant, before misses) gains ``Poisson(clutter)``
   false detections of the scan's kind, uniform in range ``[min_range, max_range]`` [m] and bearing within
@@ -24,7 +25,7 @@ Khepera III experiment built on it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -69,8 +70,10 @@ def anonymize(
     fov: float = 2 * np.pi,
     hide_ids: bool = True,
     seed: int = 0,
+    team: Collection[int] | None = None,
 ) -> list[Event]:
-    """The events with robot detections made anonymous (``hide_ids``), missed and cluttered as the module says."""
+    """The events with robot detections made anonymous (``hide_ids``), missed and cluttered as the module says;
+    ``team``: the robots the nodes know (None: every detected robot is one of them)."""
     if not 0.0 <= p_detect <= 1.0:
         raise ValueError(f"p_detect must be in [0, 1], got {p_detect}")
     if not (np.isfinite(clutter) and 0.0 <= clutter <= 100.0):
@@ -94,7 +97,8 @@ def anonymize(
         if p_detect < 1.0 and rng.random() >= p_detect:
             continue
         target = None if hide_ids else e.target
-        out.append(Detection(e.observer, e.t, e.kind, e.z, e.cov, target, True, e.target))
+        truth = e.target if team is None or e.target in team else CLUTTER_TRUTH
+        out.append(Detection(e.observer, e.t, e.kind, e.z, e.cov, target, True, truth))
     return out
 
 
