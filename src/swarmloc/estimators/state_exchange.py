@@ -11,8 +11,8 @@ from the ``RdlStateQuery`` answers. Those are keyed per teammate, so a teammate 
 that holds the observer's own update of this scan (``diekf``'s broadcast moves every robot; ``rdl``'s moves the
 target of another detection of the scan): a choice made from them depends on itself. On MRCLAM dataset 6 with
 ``joint`` association, ``diekf`` chose a robot, its broadcast changed the other answers, the choice became "none",
-the retraction changed them back, and the exchange never settled (at 612 s of the recording, 10,000 replays of one
-scan and counting). Cost: ``n - 1`` more queries and answers per scan with anonymous detections.
+the retraction changed them back, and the exchange never settled (at 604 s of the recording: one answer revised
+10,000 times and counting). Cost: ``n - 1`` more queries and answers per scan with anonymous detections.
 """
 
 from __future__ import annotations

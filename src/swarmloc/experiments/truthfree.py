@@ -287,7 +287,7 @@ def truth_free_score(
     t0, initial = fused_from_snapshots(data, ds, config)[:2] if start is None else start
     if t0 >= t_end:
         raise NoStart(f"the truth-free start (every robot's first landmark snapshot) is {t0 - data.t_start:.1f} s "
-                         f"in, after the span's end")  # fmt: skip
+                      f"in, after the span's end")  # fmt: skip
     t_end = min(t_end, t0 + longest)
     span = [e for e in events if t0 <= e.stamp <= t_end]
     readings = landmark_readings(data, t0, t_end)
