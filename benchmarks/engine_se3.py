@@ -1,4 +1,4 @@
-"""Throughput of the batched engine's step on SE(3) teams against SE(2) teams, numpy backend, in one run (issue 22).
+"""Throughput of the batched engine's step on SE(3) teams against SE(2) teams, numpy backend, in one run.
 
 One step: predict every robot over 0.1 s with its command, then fuse ``--neighbours`` relative-pose detections per
 robot (its nearest robots; ``"pose3"`` on SE(3), ``"pose"`` on SE(2)), Gauss-Seidel levels included, no gate (every

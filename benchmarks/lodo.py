@@ -1,4 +1,4 @@
-"""Leave-one-dataset-out check of the MRCLAM camera model (issue 21): held-out truth-free scores of the candidate
+"""Leave-one-dataset-out check of the MRCLAM camera model: held-out truth-free scores of the candidate
 models on every dataset, and filter consistency on every dataset with odometry (:mod:`swarmloc_studies.lodo`):
 landmarks on, on with the yaw diffusion calibrated on the recording (``on+yaw``; ``--no-yaw`` leaves it out), off.
 

@@ -1,4 +1,4 @@
-"""Which of particles, roughening and a regularised summary makes multi-robot MCL consistent (issue 21)?
+"""Which of particles, roughening and a regularised summary makes multi-robot MCL consistent?
 
     python benchmarks/mcl_consistency.py [--seeds 1,2,3] [--duration 60] [--mrclam-duration 300] [--out FILE.md]
 

@@ -1,4 +1,4 @@
-"""Figures of the landmarks-off diagnosis (issue 45) from ``benchmarks/nolm_diagnosis.py``'s JSON files.
+"""Figures of the landmarks-off diagnosis from ``benchmarks/nolm_diagnosis.py``'s JSON files.
 
     python benchmarks/nolm_diagnosis.py --datasets 9 --out diekf.json
     python benchmarks/nolm_diagnosis.py --datasets 9 --estimator dr --out dr.json

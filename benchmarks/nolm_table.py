@@ -1,4 +1,4 @@
-"""The recommended estimator's verdict per MRCLAM dataset, landmarks on and off, for configurations given (issue 45):
+"""The recommended estimator's verdict per MRCLAM dataset, landmarks on and off, for configurations given:
 what ``swarmloc evaluate mrclam DIR --duration 300 --estimators diekf --landmarks on|off [--config X.toml]`` prints.
 
     python benchmarks/nolm_table.py --datasets 1,2,3,4,9,6 --configs default,odocal.toml [--whole 6]

@@ -11,7 +11,7 @@ this checkout in fresh subprocesses, one after the other, each calling its own
 ``wall``; with ``--engine``, the engine's compiled replays, each timed whole after an untimed warm-up in which
 numba compiles: ``swarmloc evaluate mrclam --engine``). The best wall time over the rounds is kept per estimator,
 and the ratio baseline / current is printed (above 1: this checkout is faster). The default baseline ``9bda81e`` is
-the last commit before estimators became nodes (issue 7).
+the last commit before estimators became nodes.
 """
 
 from __future__ import annotations

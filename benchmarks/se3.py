@@ -1,4 +1,4 @@
-"""The thesis' second-order estimator against the first-order EKF on 3-D teams (issue 22): ``sim:3d`` and
+"""The thesis' second-order estimator against the first-order EKF on 3-D teams: ``sim:3d`` and
 ``sim:3d_rot`` (large rotational uncertainty), ``expfusion``, ``dekf``, ``ci``, ``diekf``, ``cekf`` and ``dr`` over 20
 seeds.
 
