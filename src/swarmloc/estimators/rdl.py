@@ -47,7 +47,7 @@ three in a row quarantine the sender.
 exchange needs the target before the question, so for each anonymous detection ``d`` the observer asks **every
 teammate** ``r`` with an ``RdlStateQuery`` keyed :func:`~swarmloc.estimators.state_exchange.anonymous_sub` ``(d, r)``,
 the key ``d`` would have were it of ``r``, and with a ``BeliefQuery`` for its belief before the scan, from which the
-identity is chosen (:meth:`RecursiveDecentralized._candidates`; why not from the first answers:
+identity is chosen (:meth:`~swarmloc.node.robot.RobotNode._candidates`; why not from the first answers:
 :mod:`~swarmloc.estimators.state_exchange`); the detection given
 ``r`` is fused under that key from ``r``'s answer, so the true target's exchange is the tagged run's, and every
 other teammate gets "no update" (:meth:`RecursiveDecentralized._settle`), which removes the
@@ -304,11 +304,6 @@ class RdlNode(RobotNode):
         """:class:`~swarmloc.estimators.state_exchange.StateQueries`' queries: one ``RdlStateQuery`` per tagged robot
         detection and, with an association policy, one per anonymous detection and teammate."""
         return self._queries.requests(g, self._needs_answer, self._teammates(g))
-
-    def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        """The teammates' beliefs from their answers to the anonymous detections' queries
-        (:meth:`~swarmloc.estimators.state_exchange.StateQueries.candidates`)."""
-        return self._queries.candidates(g, mates)
 
     def _settle(self, g: Group) -> list[Message]:
         """ "No update" for every unused answer (:meth:`~swarmloc.estimators.state_exchange.StateQueries.unused`): it

@@ -21,10 +21,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 from swarmloc.events import Detection
-from swarmloc.gaussian import GroupGaussian
 from swarmloc.messages import BeliefQuery, Message, RdlState, RdlStateQuery
 from swarmloc.node import Group
-from swarmloc.node.associate import answered_beliefs, is_anonymous
+from swarmloc.node.associate import is_anonymous
 from swarmloc.node.keys import SubKey, detection_key
 
 __all__ = ["StateQueries", "anonymous_sub"]
@@ -38,7 +37,7 @@ def anonymous_sub(d: Detection, robot: int) -> tuple[float, ...]:
 
 class StateQueries:
     """The queries of one observer (``robot``) and the answers it reads back: :meth:`requests` (what a group asks),
-    :meth:`candidates` (teammates' beliefs for association), :meth:`unused` (answers no detection used)."""
+    :meth:`unused` (answers no detection used); the node reads the candidates from the ``BeliefQuery`` answers."""
 
     def __init__(self, robot: int) -> None:
         self.robot = robot
@@ -63,12 +62,6 @@ class StateQueries:
             for r in mates:
                 out.setdefault((r, ()), BeliefQuery(sender=self.robot, receiver=r, stamp=g.t))
         return list(out.values())
-
-    @staticmethod
-    def candidates(g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        """Each teammate's belief before the scan, from its answer to the group's ``BeliefQuery`` (module
-        docstring: never from a state the scan's own updates reached)."""
-        return answered_beliefs(g, mates)
 
     @staticmethod
     def unused(g: Group) -> list[tuple[int, SubKey, RdlState]]:

@@ -335,9 +335,6 @@ class TeamProtocol:
                 kept.setdefault((q.receiver, ()), BeliefQuery(sender=self.robot, receiver=q.receiver, stamp=q.stamp))
         return list(kept.values())
 
-    def candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        return self.queries.candidates(g, mates)
-
     def broadcast(self, t: float, sub: SubKey, numbers: Numbers | None = None) -> list[Message]:
         """One exchange's broadcast to every teammate: an update's :data:`Numbers`, or none (an empty update: the
         exchange is settled, its detection not fused)."""

@@ -13,9 +13,10 @@ A robot detection with ``target=None`` (:mod:`swarmloc.sim.anonymous`) is given 
   answers "not found", is no candidate. The last belief each teammate published, predicted, would cost no
   round trip, but its covariance is stale by the prediction's age and a node does not have a teammate's
   command; the exchange keeps the identities exactly those of the tagged run whenever the policy is right
-  (tests/test_association_node.py). ``rdl``, ``irdl``, ``diekf`` and ``flsd`` ask with their own exchange's query
-  instead, one per anonymous detection and teammate (:mod:`swarmloc.estimators.rdl`), and read the candidates
-  from its answers (:meth:`~swarmloc.node.robot.RobotNode._candidates`); ``dr`` associates nothing.
+  (tests/test_association_node.py). ``rdl``, ``irdl``, ``diekf`` and ``flsd`` also ask with their own exchange's
+  query, one per anonymous detection and teammate (:mod:`swarmloc.estimators.rdl`), whose answer the detection
+  given that teammate is fused from; every node reads the candidates from the ``BeliefQuery`` answers, the beliefs
+  before the scan (:meth:`~swarmloc.node.robot.RobotNode._candidates`); ``dr`` associates nothing.
 
 Outcomes (:class:`AssociationView`): a detection given an identity is fused by the filter as a tagged one and
 its outcome marked ``association right`` / ``association wrong`` where the truth is known; one left without is

@@ -48,13 +48,12 @@ def check_model(where: str, initial: Mapping[int, Any], noise: object, groups: t
 class PeerProtocol(Protocol):
     """A part of a robot's node that speaks its estimator's protocol with the teammates beyond belief queries
     (:attr:`RobotNode.protocol`; e.g. ``diekf``'s :class:`~swarmloc.estimators.team_protocol.TeamProtocol`): the
-    queries a detection group asks, the teammates' beliefs among their answers, the answers it gives, the messages
+    queries a detection group asks, the answers it gives, the messages
     that close the exchanges a group did not use, the checks of a teammate's update, and what it forgets with the
     history."""
 
     def requests(self, g: Group, needs_answer: Callable[[Group, Detection], bool],
                  mates: Sequence[int]) -> list[Message]: ...  # fmt: skip
-    def candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]: ...
     def answer(self, s: Any, q: Message) -> Answer | None: ...
     def settle(self, g: Group) -> list[Message]: ...
     def update_problem(self, u: Message) -> str | None: ...
@@ -136,10 +135,10 @@ class RobotNode(Node):
         return [BeliefQuery(sender=self.robot, receiver=t, stamp=g.t) for t in targets]
 
     def _candidates(self, g: Group, mates: Sequence[int]) -> dict[int, GroupGaussian]:
-        """The teammates' beliefs at ``g``'s stamp among which its anonymous detections are associated: from their
-        answers to the group's queries (default: the :class:`~swarmloc.messages.BeliefQuery` ones, sub-key ``()``;
-        an estimator that asks with its own query reads its answers: its :attr:`protocol`)."""
-        return answered_beliefs(g, mates) if self.protocol is None else self.protocol.candidates(g, mates)
+        """The teammates' beliefs before ``g`` among which its anonymous detections are associated: their answers to
+        the group's :class:`~swarmloc.messages.BeliefQuery` (sub-key ``()``), whatever else an estimator asks (never
+        a state the scan's own updates reached: :mod:`~swarmloc.estimators.state_exchange`)."""
+        return answered_beliefs(g, mates)
 
     def _associate(self, s: Any, g: Group) -> AssociationView | None:
         mates = self._teammates(g)
