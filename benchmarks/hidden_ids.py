@@ -25,7 +25,7 @@ from _common import add_mrclam
 
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam
-from swarmloc.experiments.evaluate import evaluate_stream
+from swarmloc.experiments.evaluate import evaluate_stream, handoffs
 from swarmloc.experiments.mrclam import detector_reach, mrclam_start, mrclam_stream
 from swarmloc.runner import RunResult
 
@@ -69,10 +69,9 @@ def one_dataset(path: Path, estimator: str, policies: list[str], duration: float
             tagged = res
         else:
             assert tagged is not None  # noqa: S101  (tags run first)
-            why = res.reasons  # a detection given an identity: its outcome's reason ends with the verdict
+            given = handoffs(res, {})  # the detections given an identity, scored by their outcomes' reasons
             row.update(
-                given_right=sum(int(n) for k, n in why.items() if k.endswith(": association right")),
-                given_wrong=sum(int(n) for k, n in why.items() if k.endswith(": association wrong")),
+                given_right=given["assigned_right"], given_wrong=given["assigned_wrong"],
                 associated=s["association_associated"], right=s["association_right"], wrong=s["association_wrong"],
                 ambiguous=s["association_ambiguous"], clutter=s["association_clutter"],
                 accuracy=ev["association_accuracy"], gap_m=trajectory_gap(res, tagged),
