@@ -14,7 +14,8 @@ Modes (each exits on its own after ``--duration`` seconds at most)::
         Lines {"topic": "/r1/odom", "type": "nav_msgs/msg/Odometry", "msg": {...}, "at": 0.5}: waits until every
         topic's writer has ``--readers`` matched readers (``--match-timeout``), then publishes each message at
         ``at`` seconds (default: one after the other), writing each line it sent, with its wall time ("sent_ns"),
-        to ``--sent``; then stays ``--linger`` seconds so reliable data is acknowledged. Prints "matched" when it
+        to ``--sent``; then stays ``--linger`` seconds so reliable data is acknowledged (with ``--expect TOPIC:N``:
+        until ``N`` samples of each such echoed topic came, ``--linger`` s at most). Prints "matched" when it
         starts sending.
         With ``--restamp`` every ``header.stamp`` (nested ones too) is set to the wall time publishing began plus
         ``at``: ROS time, as a live robot stamps its messages. With ``--topic``/``--out`` it also echoes those topics
@@ -40,6 +41,7 @@ import time
 import typing
 from dataclasses import dataclass, field, fields, is_dataclass
 
+from _echo_tally import Tally, parse_expect
 from cyclonedds.core import Listener, Policy
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
@@ -367,7 +369,8 @@ def publish(args: argparse.Namespace) -> int:
     src = sys.stdin if args.input == "-" else open(args.input)  # noqa: SIM115
     lines = [json.loads(line) for line in src if line.strip()]
     dp = participant(args)
-    echoing = start_readers(dp, args) if args.topic else None
+    tally = Tally()
+    echoing = start_readers(dp, args, tally) if args.topic else None
     writers: dict[tuple[str, str], DataWriter] = {}
     for rec in lines:
         k = (rec["topic"], rec["type"])
@@ -398,14 +401,15 @@ def publish(args: argparse.Namespace) -> int:
         if out:
             out.write(json.dumps({**rec, "sent_ns": time.time_ns()}) + "\n")
             out.flush()
-    time.sleep(args.linger)
+    tally.wait(parse_expect(args.expect), args.linger)
     if echoing is not None:
         echoing.set()
     return 0
 
 
-def start_readers(dp: DomainParticipant, args: argparse.Namespace) -> threading.Event:
-    """Readers of ``--topic`` writing each sample to ``--out`` (stdout); the event is set once ``--count`` came."""
+def start_readers(dp: DomainParticipant, args: argparse.Namespace, tally: Tally | None = None) -> threading.Event:
+    """Readers of ``--topic`` writing each sample to ``--out`` (stdout), counted in ``tally``; the event is set once
+    ``--count`` came."""
     out = open(args.out, "w") if args.out else sys.stdout  # noqa: SIM115
     lock, done, n = threading.Lock(), threading.Event(), [0]
 
@@ -419,6 +423,8 @@ def start_readers(dp: DomainParticipant, args: argparse.Namespace) -> threading.
                     out.write(json.dumps(rec) + "\n")
                     out.flush()
                     n[0] += 1
+                    if tally is not None:
+                        tally.add(name)
                     if args.count and n[0] >= args.count:
                         done.set()
 
@@ -455,7 +461,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sent", default=None)
     ap.add_argument("--match-timeout", type=float, default=15.0)
     ap.add_argument("--readers", type=int, default=1, help="publish once each writer has this many matched readers")
-    ap.add_argument("--linger", type=float, default=1.0)
+    ap.add_argument("--linger", type=float, default=1.0, help="publish: stay [s] (at most, with --expect)")
+    ap.add_argument("--expect", action="append", default=[], help="publish: TOPIC:N, stay until N echoed")
     ap.add_argument("--topic", action="append", default=[], help="TOPIC:TYPE to echo (repeatable)")
     ap.add_argument("--out", default=None)
     ap.add_argument("--count", type=int, default=0)

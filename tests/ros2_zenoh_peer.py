@@ -13,7 +13,8 @@ Modes (each exits on its own after ``--duration`` seconds at most)::
         at ``at`` s (default one after the other), writing what it sent to ``--sent``; ``--restamp`` sets every
         ``header.stamp`` to the wall time publishing began plus ``at``; ``--late K:S`` sends line ``K`` (from 0) ``S``
         seconds after its ``at`` (its stamp unchanged: a late input); with ``--topic``/``--out`` it also echoes
-        (below) on the same session while publishing and lingering.
+        (below) on the same session while publishing and lingering (``--linger`` s; with ``--expect TOPIC:N``, until
+        ``N`` samples of each such topic came, ``--linger`` s at most).
     ros2_zenoh_peer.py echo --topic /r1/odom:nav_msgs/msg/Odometry --listen tcp/127.0.0.1:PORT --count N
         Writes each sample as {"topic", "type", "msg", "seq", "source_ns", "gid"} (stdout, or --out); "ready" on stderr.
 
@@ -31,6 +32,7 @@ import time
 
 import numpy as np
 import zenoh
+from _echo_tally import Tally, parse_expect
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
 
@@ -102,8 +104,9 @@ def restamp(obj, sec, nanosec):
 def publish(args) -> int:
     lines = [json.loads(x) for x in open(args.input) if x.strip()]
     s = session(args)
+    tally = Tally()
     if args.topic:
-        start_echo(s, args)  # echoes while publishing and lingering, until the session closes
+        start_echo(s, args, tally)  # echoes while publishing and lingering, until the session closes
     pubs, seqs = {}, {}
     for rec in lines:
         k = key(args.domain, rec["topic"], rec["type"])
@@ -136,13 +139,14 @@ def publish(args) -> int:
         if sent:
             sent.write(json.dumps({**rec, "sent_ns": time.time_ns()}) + "\n")
             sent.flush()
-    time.sleep(args.linger)
+    tally.wait(parse_expect(args.expect), args.linger)
     s.close()
     return 0
 
 
-def start_echo(s, args):
-    """Subscribers of ``--topic`` writing each sample to ``--out`` (stdout); the event is set once ``--count`` came."""
+def start_echo(s, args, tally=None):
+    """Subscribers of ``--topic`` writing each sample to ``--out`` (stdout), counted in ``tally``; the event is set
+    once ``--count`` came."""
     out = open(args.out, "w") if args.out else sys.stdout
     lock, done, n = threading.Lock(), threading.Event(), [0]
 
@@ -157,6 +161,8 @@ def start_echo(s, args):
                 out.write(json.dumps(rec) + "\n")
                 out.flush()
                 n[0] += 1
+                if tally is not None:
+                    tally.add(topic)
                 if args.count and n[0] >= args.count:
                     done.set()
 
@@ -189,7 +195,8 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=30.0)
     ap.add_argument("--input", default=None)
     ap.add_argument("--match-timeout", type=float, default=15.0)
-    ap.add_argument("--linger", type=float, default=0.5)
+    ap.add_argument("--linger", type=float, default=0.5, help="publish: stay [s] (at most, with --expect)")
+    ap.add_argument("--expect", action="append", default=[], help="publish: TOPIC:N, stay until N echoed")
     ap.add_argument("--topic", action="append", default=[])
     ap.add_argument("--out", default=None)
     ap.add_argument("--count", type=int, default=0)

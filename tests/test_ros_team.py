@@ -110,17 +110,37 @@ def refused_in(logs: list[str]) -> list[dict]:
     return out
 
 
-def compare_to_replay(tmp: Path, params_file: Path, sent: Path, got: Path, refused: list[dict]) -> dict[int, int]:
-    """The outputs received equal to 1e-9 the replay of the messages sent, less the input events the nodes refused
-    (``refused``: a late input, as a loaded machine may make one); returns outputs compared per robot."""
+def replay_of(lines: Path, params_file: Path, refused: list[dict]):
+    """The offline replay of the messages in ``lines`` (JSON lines of the peer's input or what it sent) with the
+    nodes' params, less ``refused``; returns it and the params per robot."""
     route = {TOPIC[k].format(r=r): (r, k) for r in ROBOTS for k in TOPIC}
     messages: dict[int, list] = {r: [] for r in ROBOTS}
-    for line in sent.read_text().splitlines():
+    for line in lines.read_text().splitlines():
         rec = json.loads(line)
         r, kind = route[rec["topic"]]
         messages[r].append((kind, from_json(rec["type"], rec["msg"])))
     params = {r: load_params([str(params_file)], {}, "swarmloc", f"/robot{r}") for r in ROBOTS}
-    ref = replay_messages(messages, params, refused=refused)
+    return replay_messages(messages, params, refused=refused), params
+
+
+def expect_outputs(msgs: Path, params_file: Path) -> list[str]:
+    """The peer's ``--expect`` arguments: as many odometry outputs per robot and ``/tf`` messages as the replay of
+    ``msgs`` gives (the peer lingers until they came, :data:`LINGER` s at most: a loaded machine may answer later
+    than a fixed wait)."""
+    ref, params = replay_of(msgs, params_file, [])
+    outputs = {r: ref.outputs(r, params[r]) for r in ROBOTS}
+    tf = sum(tf is not None for r in ROBOTS for _, _, tf in outputs[r])
+    return [a for r in ROBOTS for a in ("--expect", f"/robot{r}/odometry/filtered:{len(outputs[r])}")] + [
+        "--expect", f"/tf:{tf}"]  # fmt: skip
+
+
+LINGER = "30"  # the most a peer waits for the outputs after sending [s]
+
+
+def compare_to_replay(tmp: Path, params_file: Path, sent: Path, got: Path, refused: list[dict]) -> dict[int, int]:
+    """The outputs received equal to 1e-9 the replay of the messages sent, less the input events the nodes refused
+    (``refused``: a late input, as a loaded machine may make one); returns outputs compared per robot."""
+    ref, params = replay_of(sent, params_file, refused)
     assert ref.stats["fused"] > 10 and ref.stats["unknown"] == 0, ref.stats
     odo: dict[int, dict[float, dict]] = {r: {} for r in ROBOTS}
     tfs: dict[tuple[str, float], dict] = {}
@@ -196,8 +216,9 @@ def run_team(tmp_path: Path, src, middleware: str, late: tuple[str, ...] = ()) -
         peer = [sys.executable, str(HERE / "ros2_dds_peer.py"), "publish", "--domain", str(domain), "--readers", "1"]
     else:  # the peer is the ROS graph's hub (a router's place): the nodes connect to it
         peer = [sys.executable, str(HERE / "ros2_zenoh_peer.py"), "publish", "--domain", str(domain), "--listen", hub]
-    peer += ["--input", str(msgs), "--sent", str(sent), "--restamp", "--out", str(got), "--linger", "5",
-             "--duration", "60", "--match-timeout", "40", *echo, *(a for x in late for a in ("--late", x))]  # fmt: skip
+    peer += ["--input", str(msgs), "--sent", str(sent), "--restamp", "--out", str(got), "--linger", LINGER,
+             *expect_outputs(msgs, params), "--duration", "60", "--match-timeout", "40", *echo,
+             *(a for x in late for a in ("--late", x))]  # fmt: skip
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHONPATH")}  # the peer: no swarmloc on its path
     rec = {0: ["--record", str(tmp_path / "robot0.mcap")]}  # robot 0 also records its beliefs as ROS 2 messages
     if middleware == "zenoh":  # the hub first, so the nodes have something to connect to
@@ -265,7 +286,7 @@ def check_recording(path: Path, sent: Path) -> None:
     assert len(poses) > 10 and poses[0].schema.name == cv.POSE
     for _, _, _, msg in poses:
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        assert lo - 1e-6 <= t <= hi + 10.0, (t, lo, hi)  # ROS time went on while the peer lingered
+        assert lo - 1e-6 <= t <= hi + float(LINGER) + 10.0, (t, lo, hi)  # ROS time went on while the peer lingered
         C = np.asarray(msg.pose.covariance).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))]
         assert np.all(np.linalg.eigvalsh(C) > 0)
 
@@ -322,8 +343,8 @@ def test_a_stranger_on_another_host_writes_no_ros_input(tmp_path, middleware, wh
         echo = [a for r in ROBOTS for a in ("--topic", f"/robot{r}/odometry/filtered:{cv.ODOMETRY}")]
         echo += ["--topic", f"/tf:{cv.TF}"]
         env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHONPATH")}
-        common = ["--input", str(msgs), "--sent", str(sent), "--restamp", "--out", str(got), "--linger", "5",
-                  "--duration", "60", "--match-timeout", "40", *echo]  # fmt: skip
+        common = ["--input", str(msgs), "--sent", str(sent), "--restamp", "--out", str(got), "--linger", LINGER,
+                  *expect_outputs(msgs, params), "--duration", "60", "--match-timeout", "40", *echo]  # fmt: skip
         dds = [sys.executable, str(HERE / "ros2_dds_peer.py"), "publish", "--domain", str(domain), "--readers", "1"]
         zen = [sys.executable, str(HERE / "ros2_zenoh_peer.py"), "publish", "--domain", str(domain)]
         if middleware == "cyclonedds":  # the stranger discovers by unicast the host's address it can reach
