@@ -8,9 +8,18 @@ import itertools
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
+from scipy.stats import chi2, multivariate_normal
 
-from swarmloc.association import AMBIGUOUS, CLUTTER, gate_threshold, innovation_costs, joint, nearest
+from swarmloc.association import (
+    AMBIGUOUS,
+    CLUTTER,
+    gate_threshold,
+    innovation_costs,
+    innovation_terms,
+    joint,
+    likely_rivals,
+    nearest,
+)
 from swarmloc.sensors.models import MODELS
 
 pytestmark = pytest.mark.unit
@@ -159,6 +168,58 @@ def test_nearest_gates_and_refuses_ambiguity_joint_resolves_the_conflict():
     assert b.identity.tolist() == [0, 1, CLUTTER]
     assert b.counts() == {"associated": 2, "clutter": 1, "ambiguous": 0, "missed": 1}
     assert b.missed.tolist() == [2]
+
+
+@pytest.mark.parametrize("kind", ["range_bearing", "pose"])
+def test_innovation_terms_are_the_gaussian_likelihood_of_each_robot(kind):
+    """``d2 + ln det S`` is ``-2 ln p(z | j) - k ln 2 pi``, the innovation's Gaussian density (scipy's, with ``S``
+    built from finite-difference Jacobians as above)."""
+    rng = np.random.default_rng(3)
+    k = MODELS[kind].size
+    xo, Po = np.array([0.3, -0.2, 0.4]), _spd(rng, np.array([0.02, 0.03, 0.01]))
+    xt = rng.uniform(-4, 4, size=(4, 3))
+    Pt = np.stack([_spd(rng, np.array([0.05, 0.04, 0.02]) * (1 + 20 * j)) for j in range(4)])  # spreads apart
+    z = rng.normal(size=(3, k)) * 0.3 + np.stack([_h(kind, xo, xt[i]) for i in range(3)])
+    R = np.stack([np.eye(k) * 0.01 * (i + 1) for i in range(3)])
+    d2, logdet = innovation_terms(kind, z, R, xo, Po, xt, Pt)
+    np.testing.assert_array_equal(d2, innovation_costs(kind, z, R, xo, Po, xt, Pt))
+    for i, j in itertools.product(range(3), range(4)):
+        Hi, Hj = _jac(kind, xo, xt[j], 0), _jac(kind, xo, xt[j], 1)
+        S = Hi @ Po @ Hi.T + Hj @ Pt[j] @ Hj.T + MODELS[kind].noise(z[i], R[i])
+        r = _wrap(kind, z[i] - _h(kind, xo, xt[j]))
+        logpdf = multivariate_normal(np.zeros(k), S).logpdf(r)
+        np.testing.assert_allclose(d2[i, j] + logdet[i, j], -2 * logpdf - k * np.log(2 * np.pi), rtol=1e-6)
+
+
+def test_a_detection_a_well_known_robot_explains_better_is_not_given_a_lost_one():
+    """Dataset 1's case: a robot 1.2 m uncertain is inside the gate (8.4), the robot truly seen, known to 5 cm,
+    just outside it (10.9). By the squared distance alone the lost robot gets the detection (and jumps metres); by
+    the likelihood the known robot explains it e^1.4 times better, so the detection is refused as ambiguous. The
+    rule is the density ratio (scipy) against ``exp(-ambiguity / 2)``, whichever robot is given."""
+    kind, rng = "range_bearing", np.random.default_rng(4)
+    xo, Po = np.array([0.0, 0.0, 0.0]), np.diag([0.05, 0.05, 0.02]) ** 2
+    xt = np.array([[3.0, -1.6, 0.0], [2.25, -2.25, 0.0]])  # robot 0 seen (known), robot 1 lost
+    Pt = np.stack([np.diag([0.06, 0.05, 0.04]) ** 2, np.diag([0.12, 1.2, 0.17]) ** 2])
+    z, R = np.array([[3.25, -0.6]]), np.diag([0.1, 0.02])[None] ** 2
+    d2, logdet = innovation_terms(kind, z, R, xo, Po, xt, Pt)
+    gate = gate_threshold(2, 0.99)
+    assert d2[0, 1] < gate < d2[0, 0], d2  # the lost robot in the gate, the seen one out
+    for policy in (nearest(d2, gate, 2.0), joint(d2, gate, ambiguity=2.0)):
+        assert policy.identity.tolist() == [1]
+    for policy in (nearest(d2, gate, 2.0, logdet=logdet), joint(d2, gate, ambiguity=2.0, logdet=logdet)):
+        assert policy.identity.tolist() == [AMBIGUOUS]
+    for _ in range(200):  # random costs and spreads: refused exactly when a rival's density is within the ratio
+        c, ld = rng.uniform(0, 12, size=(1, 3)), rng.uniform(-8, 2, size=(1, 3))
+        ident = nearest(c, gate).identity
+        got = likely_rivals(c, ld, ident, 2.0)
+        if ident[0] < 0:
+            assert got.tolist() == ident.tolist()
+            continue
+        dens = np.exp(-(c[0] + ld[0]) / 2)  # proportional to each robot's density of z
+        rivals = np.delete(dens, ident[0])
+        assert (got[0] == AMBIGUOUS) == bool(np.any(rivals > dens[ident[0]] * np.exp(-1.0))), (c, ld)
+    with pytest.raises(ValueError, match="logdet must be finite"):
+        likely_rivals(d2, logdet[:, :1], np.array([1]), 2.0)
 
 
 def test_bad_input_is_refused_with_a_reason():

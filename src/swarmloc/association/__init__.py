@@ -22,7 +22,9 @@ from swarmloc.association.policies import (
     Association,
     gate_threshold,
     innovation_costs,
+    innovation_terms,
     joint,
+    likely_rivals,
     nearest,
 )
 from swarmloc.association.registration import Registration, binary_register, points_from_range_bearing
@@ -42,7 +44,9 @@ __all__ = [
     "binary_register",
     "gate_threshold",
     "innovation_costs",
+    "innovation_terms",
     "joint",
+    "likely_rivals",
     "multiple_registration",
     "nearest",
     "points_from_range_bearing",

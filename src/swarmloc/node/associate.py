@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmloc.association import AMBIGUOUS, CLUTTER, gate_threshold, innovation_costs, joint, nearest
+from swarmloc.association import AMBIGUOUS, CLUTTER, gate_threshold, innovation_terms, joint, nearest
 from swarmloc.events import Detection, Kind
 from swarmloc.gaussian import GroupGaussian, world_covariance
 from swarmloc.lie import wrap_angle
@@ -65,8 +65,9 @@ ASSOCIATIONS = ("tags", "nearest", "joint")
 eq. 8, with an ambiguity margin) and ``joint`` (slide 39, eq. 9) give them one (:mod:`swarmloc.association`)."""
 AMBIGUITY = 2.0
 """A detection whose second-best robot (``nearest``), or whose best joint assignment without its robot
-(``joint``), costs less than this much more (squared Mahalanobis distance, a likelihood ratio below e) is refused
-as ambiguous."""
+(``joint``), costs less than this much more (squared Mahalanobis distance), or which another robot, in its gate or
+not, explains by the likelihood at least ``exp(-AMBIGUITY / 2)`` (1/e) times as well as the one chosen (the
+innovations' spreads counted: :func:`~swarmloc.association.likely_rivals`), is refused as ambiguous."""
 ASSOCIATION_KEYS = tuple(
     f"association_{k}" for k in ("associated", "clutter", "ambiguous", "missed", "gated", "right", "wrong")
 )
@@ -179,9 +180,12 @@ def associate(
                 left[i] = ("rejected", f"association: kind {kind!r} does not observe another robot")
             continue
         z, R = np.stack([dets[i].z for i in idx]), np.stack([dets[i].cov for i in idx])
-        costs = innovation_costs(kind, z, R, xo, Po, xt, Pt, Pc)
+        costs, logdet = innovation_terms(kind, z, R, xo, Po, xt, Pt, Pc)
         gate = gate_threshold(MODELS[kind].size, gate_probability)
-        a = joint(costs, gate, ambiguity=AMBIGUITY) if policy == "joint" else nearest(costs, gate, AMBIGUITY)
+        if policy == "joint":
+            a = joint(costs, gate, ambiguity=AMBIGUITY, logdet=logdet)
+        else:
+            a = nearest(costs, gate, AMBIGUITY, logdet=logdet)
         for i, j in zip(idx, a.identity.tolist(), strict=True):
             truth = dets[i].truth_target
             if j >= 0:
