@@ -10,16 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2, multivariate_normal
 
-from swarmloc.association import (
-    AMBIGUOUS,
-    CLUTTER,
-    gate_threshold,
-    innovation_costs,
-    innovation_terms,
-    joint,
-    likely_rivals,
-    nearest,
-)
+from swarmloc.association import AMBIGUOUS, CLUTTER, gate_threshold, innovation_terms, joint, likely_rivals, nearest
 from swarmloc.sensors.models import MODELS
 
 pytestmark = pytest.mark.unit
@@ -61,7 +52,7 @@ def _spd(rng: np.random.Generator, scale: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("kind", ["range_bearing", "range", "bearing", "pose"])
-def test_innovation_costs_equal_a_finite_difference_computation(kind):
+def test_innovation_distances_equal_a_finite_difference_computation(kind):
     rng = np.random.default_rng(1)
     k = MODELS[kind].size
     xo, Po = np.array([0.3, -0.2, 0.4]), _spd(rng, np.array([0.02, 0.03, 0.01]))
@@ -70,7 +61,7 @@ def test_innovation_costs_equal_a_finite_difference_computation(kind):
     z = rng.normal(size=(4, k)) * 0.5 + np.stack([_h(kind, xo, xt[i]) for i in range(4)])
     z[:, 0] = np.abs(z[:, 0]) if kind in ("range", "range_bearing") else z[:, 0]
     R = np.stack([np.eye(k) * 0.01 * (i + 1) for i in range(4)])
-    got = innovation_costs(kind, z, R, xo, Po, xt, Pt)
+    got = innovation_terms(kind, z, R, xo, Po, xt, Pt)[0]
     want = np.empty((4, 5))
     for i, j in itertools.product(range(4), range(5)):
         Hi, Hj = _jac(kind, xo, xt[j], 0), _jac(kind, xo, xt[j], 1)
@@ -82,7 +73,7 @@ def test_innovation_costs_equal_a_finite_difference_computation(kind):
 
 
 @pytest.mark.parametrize("kind", ["range_bearing", "pose"])
-def test_innovation_costs_with_cross_covariances_are_the_joint_innovations(kind):
+def test_innovation_distances_with_cross_covariances_are_the_joint_innovations(kind):
     """With ``cross`` (a joint filter's observer-candidate covariances) a cost is ``r^T S^-1 r`` with ``S = H P H^T +
     R``, ``H = [H_i, H_j]`` and ``P`` the pair's joint covariance (finite-difference Jacobians); the blocks are not
     symmetric, so a transposed ``cross`` would fail."""
@@ -95,14 +86,14 @@ def test_innovation_costs_with_cross_covariances_are_the_joint_innovations(kind)
     C = np.stack([P[:3, 3 * j + 3 : 3 * j + 6] for j in range(5)])
     z = rng.normal(size=(3, k)) * 0.3 + np.stack([_h(kind, xo, xt[i]) for i in range(3)])
     R = np.stack([np.eye(k) * 0.01 * (i + 1) for i in range(3)])
-    got = innovation_costs(kind, z, R, xo, P[:3, :3], xt, Pt, cross=C)
+    got = innovation_terms(kind, z, R, xo, P[:3, :3], xt, Pt, cross=C)[0]
     for i, j in itertools.product(range(3), range(5)):
         H = np.hstack([_jac(kind, xo, xt[j], 0), _jac(kind, xo, xt[j], 1)])
         Pj = P[np.r_[0:3, 3 * j + 3 : 3 * j + 6]][:, np.r_[0:3, 3 * j + 3 : 3 * j + 6]]
         r = _wrap(kind, z[i] - _h(kind, xo, xt[j]))
         S = H @ Pj @ H.T + MODELS[kind].noise(z[i], R[i])
         np.testing.assert_allclose(got[i, j], r @ np.linalg.solve(S, r), rtol=1e-6)
-    assert not np.allclose(got, innovation_costs(kind, z, R, xo, P[:3, :3], xt, Pt))  # the cross terms count here
+    assert not np.allclose(got, innovation_terms(kind, z, R, xo, P[:3, :3], xt, Pt)[0])  # the cross terms count here
 
 
 def test_the_true_associations_cost_is_chi_square_with_the_measurements_dof():
@@ -121,7 +112,7 @@ def test_the_true_associations_cost_is_chi_square_with_the_measurements_dof():
         o = rng.multivariate_normal(xo, Po)
         t = rng.multivariate_normal(xt[0], Pt[0])
         z = _h("range_bearing", o, t) + rng.multivariate_normal(np.zeros(2), R)
-        d2[s] = innovation_costs("range_bearing", z[None], R[None], xo, Po, xt, Pt)[0, 0]
+        d2[s] = innovation_terms("range_bearing", z[None], R[None], xo, Po, xt, Pt)[0][0, 0]
         r = _wrap("range_bearing", z - _h("range_bearing", xo, xt[0]))
         d2_pjj[s] = r @ np.linalg.solve(Hj @ Pt[0] @ Hj.T, r)  # eq. 8 as printed: the target's covariance only
     se = np.sqrt(2 * 2 / n)  # standard error of the mean of chi2(2)
@@ -182,7 +173,6 @@ def test_innovation_terms_are_the_gaussian_likelihood_of_each_robot(kind):
     z = rng.normal(size=(3, k)) * 0.3 + np.stack([_h(kind, xo, xt[i]) for i in range(3)])
     R = np.stack([np.eye(k) * 0.01 * (i + 1) for i in range(3)])
     d2, logdet = innovation_terms(kind, z, R, xo, Po, xt, Pt)
-    np.testing.assert_array_equal(d2, innovation_costs(kind, z, R, xo, Po, xt, Pt))
     for i, j in itertools.product(range(3), range(4)):
         Hi, Hj = _jac(kind, xo, xt[j], 0), _jac(kind, xo, xt[j], 1)
         S = Hi @ Po @ Hi.T + Hj @ Pt[j] @ Hj.T + MODELS[kind].noise(z[i], R[i])
@@ -228,13 +218,14 @@ def test_bad_input_is_refused_with_a_reason():
     with pytest.raises(ValueError, match="gate must be positive"):
         nearest(np.zeros((1, 1)), 0.0)
     with pytest.raises(ValueError, match="not kind 'absolute'"):
-        innovation_costs("absolute", np.zeros((1, 3)), np.eye(3)[None], np.zeros(3), np.eye(3), np.zeros((1, 3)),
+        innovation_terms("absolute", np.zeros((1, 3)), np.eye(3)[None], np.zeros(3), np.eye(3), np.zeros((1, 3)),
                          np.eye(3)[None])  # fmt: skip
     with pytest.raises(ValueError, match="gate probability"):
         gate_threshold(2, 1.0)
-    on_top = innovation_costs("range_bearing", np.array([[1.0, 0.0]]), np.eye(2)[None] * 0.01, np.zeros(3),
-                              np.eye(3) * 0.01, np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
-                              np.stack([np.eye(3) * 0.01] * 2))  # fmt: skip
+    on_top, spread = innovation_terms("range_bearing", np.array([[1.0, 0.0]]), np.eye(2)[None] * 0.01, np.zeros(3),
+                                      np.eye(3) * 0.01, np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
+                                      np.stack([np.eye(3) * 0.01] * 2))  # fmt: skip
+    assert spread[0, 0] == 0.0 and np.isfinite(spread).all()  # the robot on top: no spread, its cost inf
     assert on_top[0, 0] == np.inf and on_top[0, 1] == pytest.approx(0.0)
     assert joint(on_top, 9.0).identity.tolist() == [1]
     assert joint(np.zeros((0, 3)), 9.0).identity.size == 0

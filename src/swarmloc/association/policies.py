@@ -8,7 +8,7 @@ problem solved here exactly with :func:`scipy.optimize.linear_sum_assignment` (t
 **Corrected formula.** Eq. 8 weighs the innovation with ``P_jj``, the target's state covariance. The innovation
 ``z - h(q_j)`` has covariance ``S_ij = H_i P_ii H_i^T + H_j P_jj H_j^T + R`` (observer and target independent, as
 the distributed estimators take them), which is what a chi-square gate needs: with ``P_jj`` alone the distance is
-not chi-square distributed (not even of the right units when ``z`` is a range and bearing). :func:`innovation_costs`
+not chi-square distributed (not even of the right units when ``z`` is a range and bearing). :func:`innovation_terms`
 uses ``S_ij``; tests/test_association.py checks that the gated distance of a true association is chi-square with
 ``size(z)`` degrees of freedom by Monte Carlo. A centralized filter knows the cross-covariance ``P_ij`` of observer
 and target and passes it (``cross``): ``S_ij`` then gains ``H_i P_ij H_j^T + H_j P_ji H_i^T`` and is the innovation
@@ -39,7 +39,7 @@ from scipy.optimize import linear_sum_assignment
 from swarmloc.gaussian import chi2_ppf, mahalanobis2
 from swarmloc.sensors.models import MODELS
 
-__all__ = ["Association", "gate_threshold", "innovation_costs", "innovation_terms", "joint", "likely_rivals", "nearest"]
+__all__ = ["Association", "gate_threshold", "innovation_terms", "joint", "likely_rivals", "nearest"]
 
 CLUTTER = -1
 """Identity given to a detection outside every gate."""
@@ -53,20 +53,6 @@ def gate_threshold(dof: int, probability: float = 0.99) -> float:
     if not 0.0 < probability < 1.0:
         raise ValueError(f"gate probability must be in (0, 1), got {probability}")
     return chi2_ppf(probability, dof)
-
-
-def innovation_costs(
-    kind: str,
-    z: np.ndarray,
-    R: np.ndarray,
-    x_obs: np.ndarray,
-    P_obs: np.ndarray,
-    x_targets: np.ndarray,
-    P_targets: np.ndarray,
-    cross: np.ndarray | None = None,
-) -> np.ndarray:
-    """Squared Mahalanobis distances ``(m, n)`` of :func:`innovation_terms` (its first array)."""
-    return innovation_terms(kind, z, R, x_obs, P_obs, x_targets, P_targets, cross)[0]
 
 
 def innovation_terms(

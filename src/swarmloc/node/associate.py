@@ -156,7 +156,7 @@ def associate(
     coordinates), compared in world ``(x, y, theta)`` to first order. ``sensor_range`` [m] and ``sensor_fov`` [rad]
     (total width centred on the observer's heading; None: all round): the detector's reach, for the missed count.
     ``cross``: a joint filter's world-frame covariance ``(3, 3)`` of the observer's and each candidate's pose, by
-    candidate id (:func:`~swarmloc.association.innovation_costs`; None: independent, as a distributed node has them)."""
+    candidate id (:func:`~swarmloc.association.innovation_terms`; None: independent, as a distributed node has them)."""
     dets = list(g.detections)
     anon = [i for i, d in enumerate(dets) if is_anonymous(d)]
     if not anon:
