@@ -146,7 +146,7 @@ def nearest(costs: np.ndarray, gate: float, ambiguity: float = 0.0, expected: np
     """Eq. 8, each detection on its own: the robot of least cost inside the ``gate``; :data:`CLUTTER` if none.
     With ``ambiguity > 0`` a detection whose second-best robot inside the gate costs less than ``ambiguity`` more
     is :data:`AMBIGUOUS` (a likelihood ratio below ``exp(ambiguity / 2)`` where the two innovations' spreads are
-    alike); with ``logdet`` as well, so is one another robot explains almost as well by the likelihood
+    alike); with ``logdet`` as well, so is one that another robot explains almost as well by the likelihood
     (:func:`likely_rivals`). Two detections may get one robot (the slides' "relaxed" solution); ``expected``:
     robots ``(n,)`` in view, for the ``missed`` count."""
     c = _check_costs(costs, gate)
@@ -174,7 +174,7 @@ def joint(costs: np.ndarray, gate: float, expected: np.ndarray | None = None, am
     With ``ambiguity > 0`` (beyond the slides) a detection ``i`` given robot ``j`` is :data:`AMBIGUOUS` when the
     best assignment that gives ``i`` *another robot* costs less than ``ambiguity`` more in total (a likelihood ratio
     of the two joint hypotheses below ``exp(ambiguity / 2)`` where the spreads are alike): the joint analogue of
-    :func:`nearest`'s margin, one more assignment per associated detection; with ``logdet`` as well, so is one
+    :func:`nearest`'s margin, one more assignment per associated detection; with ``logdet`` as well, so is one that
     another robot alone explains almost as well by the likelihood (:func:`likely_rivals`)."""
     c = _check_costs(costs, gate)
     m, n = c.shape
@@ -208,8 +208,8 @@ def likely_rivals(costs: np.ndarray, logdet: np.ndarray | None, identity: np.nda
     the gate or not, has the likelihood cost ``costs[i, k] + logdet[i, k]`` (``-2 ln p(z_i | k)`` up to a constant)
     below ``costs[i, j] + logdet[i, j] + ambiguity``: robot ``k`` explains the detection at least ``exp(-ambiguity
     / 2)`` times as well as ``j``. The squared distance alone favours a robot whose belief is spread wide: it lets
-    a detection of a well-known robot just outside its gate go to a lost one (on MRCLAM dataset 1, a robot 3 m away
-    whose start was 1.5 m uncertain). Unchanged with ``logdet`` None or ``ambiguity`` 0."""
+    a detection of a well-known robot just outside its gate go to a lost one (on MRCLAM dataset 1, to a robot whose
+    start was 1.5 m uncertain, which jumped 3 m). Unchanged with ``logdet`` None or ``ambiguity`` 0."""
     if logdet is None or not ambiguity > 0:
         return identity
     ld = np.asarray(logdet, dtype=float)
