@@ -7,6 +7,10 @@ from __future__ import annotations
 import threading
 import time
 
+QUIET = 1.0
+"""[s] how long no sample may come, once the expected ones came, before a peer closes: it then closes while nothing
+is arriving, as after the fixed linger (a session closed while samples still came once ended a peer with SIGSEGV)."""
+
 
 class Tally:
     """Samples echoed per topic name; :meth:`wait` blocks until each expected topic has its count or time is up."""
@@ -14,20 +18,30 @@ class Tally:
     def __init__(self) -> None:
         self._cond = threading.Condition()
         self._n: dict[str, int] = {}
+        self._last = time.monotonic()
 
     def add(self, topic: str) -> None:
         with self._cond:
             self._n[topic] = self._n.get(topic, 0) + 1
+            self._last = time.monotonic()
             self._cond.notify_all()
 
-    def wait(self, expect: dict[str, int], timeout: float) -> bool:
-        """True once every ``topic: n`` of ``expect`` has ``n`` samples; False after ``timeout`` s (then the caller's
-        comparison tells what is missing). With nothing expected: sleeps ``timeout`` s (a fixed linger)."""
+    def wait(self, expect: dict[str, int], timeout: float, quiet: float = QUIET) -> bool:
+        """True once every ``topic: n`` of ``expect`` has ``n`` samples and none came for ``quiet`` s; False after
+        ``timeout`` s (then the caller's comparison tells what is missing). With nothing expected: sleeps ``timeout``
+        s (a fixed linger)."""
         if not expect:
             time.sleep(timeout)
             return True
+        deadline = time.monotonic() + timeout
         with self._cond:
-            return self._cond.wait_for(lambda: all(self._n.get(t, 0) >= n for t, n in expect.items()), timeout)
+            while True:
+                now = time.monotonic()
+                if all(self._n.get(t, 0) >= n for t, n in expect.items()) and now - self._last >= quiet:
+                    return True
+                if now >= deadline:
+                    return False
+                self._cond.wait(min(deadline - now, max(quiet - (now - self._last), 0.05)))
 
 
 def parse_expect(specs: list[str]) -> dict[str, int]:
