@@ -8,7 +8,7 @@ import pytest
 from scipy.stats import chi2
 
 from swarmloc.association import multiple_registration
-from swarmloc.association.pfbank import ParticleFilterBank
+from swarmloc.association.pfbank import BankSettings, ParticleFilterBank
 from swarmloc.lie import SE2, between_xyt, compose_xyt, exp_xyt
 
 pytestmark = pytest.mark.unit
@@ -28,7 +28,7 @@ def test_nees_of_the_bank_estimate_is_within_chi_square_bounds():
     rng = np.random.default_rng(0)
     values = []
     for run in range(runs):
-        bank = ParticleFilterBank(1000, rng=run)
+        bank = ParticleFilterBank(BankSettings.checked(n_particles=1000), rng=run)
         q = np.array([1.0, 0.5, 0.3])
         assert bank.update(7, [(compose_xyt(q, exp_xyt(rng.multivariate_normal(np.zeros(3), R))), R)]) == "initialized"
         for _ in range(steps):
@@ -64,7 +64,7 @@ def test_a_symmetric_start_is_ambiguous_until_motion_breaks_the_symmetry():
     sigma = 0.005
     rng = np.random.default_rng(1)
     world = triangle()
-    bank = ParticleFilterBank(1000, rng=1)
+    bank = ParticleFilterBank(BankSettings.checked(n_particles=1000), rng=1)
     res = multiple_registration(observations(world, rng, sigma), 0, sigma)
     assert len(res.solutions) == 2  # (n - 1)! for the equilateral triangle
     for j in (1, 2):
@@ -104,7 +104,7 @@ def test_ambiguity_persists_while_the_formation_stays_symmetric():
     # about its centre, still symmetric, and every robot's odometry is the same -- nothing can tell 1 from 2
     world[:, 2] = np.arctan2(world[:, 1], world[:, 0]) + np.pi / 2
     move = np.array([0.05, 0.0, 0.05])
-    bank = ParticleFilterBank(1000, rng=2)
+    bank = ParticleFilterBank(BankSettings.checked(n_particles=1000), rng=2)
     res = multiple_registration(observations(world, rng, sigma), 0, sigma)
     for j in (1, 2):
         bank.update(j, res.hypotheses(j))
@@ -122,7 +122,7 @@ def test_ambiguity_persists_while_the_formation_stays_symmetric():
 
 def test_a_kidnapped_robot_resets_its_filter():
     R = np.diag([0.01**2, 0.01**2, 0.02**2])
-    bank = ParticleFilterBank(500, rng=3)
+    bank = ParticleFilterBank(BankSettings.checked(n_particles=500), rng=3)
     bank.update(4, [(np.array([1.0, 0.0, 0.0]), R)])
     assert bank.update(4, [(np.array([1.0, 0.01, 0.0]), R)]) == "updated"
     assert bank.update(4, [(np.array([-2.0, 1.0, 2.0]), R)]) == "reset"
@@ -130,7 +130,7 @@ def test_a_kidnapped_robot_resets_its_filter():
     assert np.allclose(SE2.to_xytheta(est.gaussian.mean), [-2.0, 1.0, 2.0], atol=0.01)
     assert bank.counts == {"initialized": 1, "updated": 1, "reset": 1}
     assert bank.update(4, []) == "none"
-    patient = ParticleFilterBank(500, rng=3, reset_after=3)
+    patient = ParticleFilterBank(BankSettings.checked(n_particles=500, reset_after=3), rng=3)
     patient.update(4, [(np.array([1.0, 0.0, 0.0]), R)])
     far = [(np.array([-2.0, 1.0, 2.0]), R)]
     assert [patient.update(4, far) for _ in range(3)] == ["unexplained", "unexplained", "reset"]
@@ -139,10 +139,16 @@ def test_a_kidnapped_robot_resets_its_filter():
 
 def test_bank_rejects_bad_input():
     with pytest.raises(ValueError, match="n_particles"):
-        ParticleFilterBank(3)
+        BankSettings.checked(n_particles=3)
     with pytest.raises(ValueError, match="mode_radius"):
-        ParticleFilterBank(100, mode_radius=0.0)
-    bank = ParticleFilterBank(100, rng=0)
+        BankSettings.checked(n_particles=100, mode_radius=0.0)
+    with pytest.raises(ValueError, match="mode_radius"):
+        BankSettings.checked(mode_radius=float("inf"))
+    with pytest.raises(ValueError, match="reset_after"):
+        BankSettings.checked(reset_after=True)
+    with pytest.raises(ValueError, match="unknown field"):
+        BankSettings.checked(modes=3)
+    bank = ParticleFilterBank(BankSettings.checked(n_particles=100), rng=0)
     with pytest.raises(KeyError, match="no filter"):
         bank.estimate(1)
     with pytest.raises(ValueError, match="symmetric"):
@@ -155,7 +161,7 @@ def test_bank_rejects_bad_input():
 def test_a_scattered_filter_is_ambiguous_not_an_error():
     """Particles spread so thin that no mode holds ``ambiguity_mass`` (seen on MRCLAM dataset 6): the estimate is
     the heaviest mode's, flagged ambiguous (it raised IndexError before)."""
-    bank = ParticleFilterBank(400, rng=1)
+    bank = ParticleFilterBank(BankSettings.checked(n_particles=400), rng=1)
     R = np.diag([0.01**2, 0.01**2, 0.02**2])
     bank.update(2, [(np.array([1.0, 0.0, 0.0]), R)])
     rng = np.random.default_rng(0)

@@ -7,7 +7,7 @@
   ``tracker``: anonymous mutual localization of a team from them.
 """
 
-from swarmloc.association.pfbank import BankEstimate, ParticleFilterBank
+from swarmloc.association.pfbank import BankEstimate, BankSettings, ParticleFilterBank
 from swarmloc.association.pmr import (
     PMRResult,
     Solution,
@@ -35,6 +35,7 @@ __all__ = [
     "AnonymousTrack",
     "Association",
     "BankEstimate",
+    "BankSettings",
     "PMRResult",
     "ParticleFilterBank",
     "Registration",

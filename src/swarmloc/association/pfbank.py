@@ -30,13 +30,15 @@ import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Annotated
 
+import msgspec
 import numpy as np
 
 from swarmloc.gaussian import GroupGaussian, check_covariance, symmetric
 from swarmloc.lie import SE2, between_xyt, compose_xyt, exp_xyt, log_xyt, wrap_angle
 
-__all__ = ["BankEstimate", "ParticleFilterBank"]
+__all__ = ["BankEstimate", "BankSettings", "ParticleFilterBank"]
 
 Hypothesis = tuple[np.ndarray, np.ndarray]
 """A measurement of a neighbour's pose in ego's frame: ``(pose (3,) (x, y, theta), cov (3, 3))``."""
@@ -106,41 +108,42 @@ def _log_rel(mu: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.column_stack([k * t1 + h * t2, k * t2 - h * t1, a])
 
 
+class BankSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """The bank's constants, each declared once with its range; :meth:`checked` builds one and checks every range
+    (a direct construction does not: msgspec checks on conversion)."""
+
+    n_particles: Annotated[int, msgspec.Meta(ge=10, le=1_000_000)] = 1000
+    """Particles per filter."""
+    mode_radius: Annotated[float, msgspec.Meta(gt=0, le=100)] = 0.1
+    """[m] particles closer than this (headings scaled by ``angle_scale``) are linked into one mode."""
+    angle_scale: Annotated[float, msgspec.Meta(gt=0, le=100)] = 0.3
+    """[m/rad] weight of the heading in the distance that links particles."""
+    ambiguity_mass: Annotated[float, msgspec.Meta(gt=0, lt=0.5)] = 0.05
+    """Smallest weight of a significant mode."""
+    reset_nis: Annotated[float, msgspec.Meta(gt=0, le=1e6)] = 30.0
+    """Mahalanobis squared beyond which a hypothesis explains no particle."""
+    reset_after: Annotated[int, msgspec.Meta(ge=1, le=1_000_000)] = 1
+    """Unexplained updates in a row before a filter restarts from the latest hypotheses."""
+    resample_ess: Annotated[float, msgspec.Meta(gt=0, le=1)] = 0.5
+    """Effective sample size, as a fraction of ``n_particles``, below which a filter resamples."""
+
+    @classmethod
+    def checked(cls, **values: object) -> BankSettings:
+        """Settings from keyword values (the rest default), every range checked; ValueError naming the field."""
+        try:
+            return msgspec.convert(values, cls)
+        except msgspec.ValidationError as exc:
+            raise ValueError(f"ParticleFilterBank settings: {exc}") from None
+
+
 class ParticleFilterBank:
-    """Particle filters for the robots ego has met (module docstring).
+    """Particle filters for the robots ego has met (module docstring), with the constants of ``settings``
+    (:meth:`BankSettings.checked`; default: every default); ``rng`` seeds the particles' draws."""
 
-    ``n_particles`` per filter; ``mode_radius`` [m] links particles into modes, with headings scaled by
-    ``angle_scale`` [m/rad]; ``ambiguity_mass``: smallest weight of a significant mode; ``reset_nis``: Mahalanobis
-    squared beyond which a hypothesis explains no particle; ``reset_after``: unexplained updates in a row before a
-    reset; ``resample_ess``: fraction of ``n_particles``.
-    """
-
-    def __init__(
-        self,
-        n_particles: int = 1000,
-        rng: np.random.Generator | int | None = None,
-        *,
-        mode_radius: float = 0.1,
-        angle_scale: float = 0.3,
-        ambiguity_mass: float = 0.05,
-        reset_nis: float = 30.0,
-        reset_after: int = 1,
-        resample_ess: float = 0.5,
-    ) -> None:
-        if not (isinstance(n_particles, int) and n_particles >= 10):
-            raise ValueError(f"ParticleFilterBank: n_particles must be an integer >= 10, got {n_particles!r}")
-        for name, v in (("mode_radius", mode_radius), ("angle_scale", angle_scale), ("reset_nis", reset_nis)):
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"ParticleFilterBank: {name} must be a finite number > 0, got {v!r}")
-        if not (isinstance(reset_after, int) and reset_after >= 1):
-            raise ValueError(f"ParticleFilterBank: reset_after must be an integer >= 1, got {reset_after!r}")
-        if not (0 < ambiguity_mass < 0.5 and 0 < resample_ess <= 1):
-            raise ValueError("ParticleFilterBank: need 0 < ambiguity_mass < 0.5 and 0 < resample_ess <= 1")
-        self.n = n_particles
+    def __init__(self, settings: BankSettings | None = None, rng: np.random.Generator | int | None = None) -> None:
+        self.settings = BankSettings() if settings is None else settings
+        self.n = self.settings.n_particles
         self.rng = np.random.default_rng(rng)
-        self.mode_radius, self.angle_scale = float(mode_radius), float(angle_scale)
-        self.ambiguity_mass, self.reset_nis, self.resample_ess = float(ambiguity_mass), float(reset_nis), resample_ess
-        self.reset_after = reset_after
         self.unexplained: dict[int, int] = {}
         self.particles: dict[int, np.ndarray] = {}
         self.weights: dict[int, np.ndarray] = {}
@@ -187,9 +190,9 @@ class ParticleFilterBank:
         y = log_xyt(rel)
         Ri = np.linalg.inv(R)
         m2 = np.einsum("nhi,hij,nhj->nh", y, Ri, y)
-        if m2.min() > self.reset_nis:
+        if m2.min() > self.settings.reset_nis:
             self.unexplained[robot] = self.unexplained.get(robot, 0) + 1
-            if self.unexplained[robot] < self.reset_after:
+            if self.unexplained[robot] < self.settings.reset_after:
                 self.counts["unexplained"] += 1
                 return "unexplained"
             self._init(robot, H, R)
@@ -202,7 +205,7 @@ class ParticleFilterBank:
         w = np.exp(lw - lw.max())
         w /= w.sum()
         self.weights[robot] = w
-        if 1.0 / (w * w).sum() < self.resample_ess * self.n:
+        if 1.0 / (w * w).sum() < self.settings.resample_ess * self.n:
             idx = self._systematic(w)
             self.particles[robot], self.weights[robot] = q[idx], np.full(self.n, 1.0 / self.n)
         self.counts["updated"] += 1
@@ -223,12 +226,12 @@ class ParticleFilterBank:
     def modes(self, robot: int) -> list[tuple[np.ndarray, float]]:
         """Every mode of ``robot``'s filter as ``(particle indices, mass)``, heaviest first (small ones included)."""
         q, w = self.particles[robot], self.weights[robot]
-        L = self.angle_scale
+        L = self.settings.angle_scale
         emb = np.column_stack([q[:, 0], q[:, 1], L * np.cos(q[:, 2]), L * np.sin(q[:, 2])])
         # every pair closer than mode_radius (a dense N x N test: cheaper than a k-d tree at a few hundred particles)
         sq = np.einsum("ni,ni->n", emb, emb)
         d2 = sq[:, None] + sq[None, :] - 2.0 * (emb @ emb.T)
-        label = _components(d2 <= self.mode_radius**2)
+        label = _components(d2 <= self.settings.mode_radius**2)
         mass = np.bincount(label, weights=w)
         order = np.argsort(-mass)
         return [(np.nonzero(label == c)[0], float(mass[c])) for c in order]
@@ -239,7 +242,7 @@ class ParticleFilterBank:
             raise KeyError(f"ParticleFilterBank: no filter for robot {robot!r} (met: {self.known()})")
         q, w = self.particles[robot], self.weights[robot]
         found = self.modes(robot)
-        significant = [(idx, m) for idx, m in found if m >= self.ambiguity_mass]
+        significant = [(idx, m) for idx, m in found if m >= self.settings.ambiguity_mass]
         out = []
         first = None
         for idx, m in significant:

@@ -25,7 +25,7 @@ from typing import Any, TypeGuard
 import numpy as np
 
 from swarmloc.arrays import readonly
-from swarmloc.association.pfbank import BankEstimate, ParticleFilterBank
+from swarmloc.association.pfbank import BankEstimate, BankSettings, ParticleFilterBank
 from swarmloc.association.pmr import multiple_registration
 from swarmloc.association.registration import points_from_range_bearing
 from swarmloc.events import Detection, Event, Kind, Odometry, sim_order
@@ -221,7 +221,7 @@ def track_anonymous(
     of the detections that share a stamp."""
     if ego not in robots:
         raise ValueError(f"track_anonymous: ego {ego!r} is not one of the robots {list(robots)}")
-    bank = ParticleFilterBank(n_particles, rng=rng, reset_after=reset_after)
+    bank = ParticleFilterBank(BankSettings.checked(n_particles=n_particles, reset_after=reset_after), rng=rng)
     if bin_width is None:
         scans = anonymous_scans(events, robots)
     else:
