@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from swarmloc.evaluation.heldout import RECORD_LEAD, landmark_folds, landmark_nis, nis_summary
+from swarmloc.evaluation.heldout import RECORD_LEAD, landmark_folds, landmark_innovations, landmark_nis, nis_summary
 from swarmloc.events import Detection
 from swarmloc.lie import SE2
 
@@ -48,6 +48,36 @@ def test_landmark_nis_is_chi_square_2_for_a_consistent_belief_and_grows_for_an_o
     assert stats.kstest(nis, stats.chi2(2).cdf).pvalue > 1e-3
     over = landmark_nis(*_draw(20_000, 9.0), STD)  # errors three times the belief's std
     assert over.mean() > 5.0
+
+
+def test_landmark_innovations_split_the_nis_with_the_jacobian_of_the_reading_model():
+    """Each component's ``r^2 / S`` has mean 1 for a consistent belief (chi-square of 1 dof), the NIS is the
+    innovations' Mahalanobis distance in ``belief + noise``, and ``H`` equals the finite-difference derivative of the
+    predicted (range, bearing) under a right perturbation of the pose (an independent computation)."""
+    times, mean, cov, dets, lms = _draw(20_000, 1.0, seed=4)
+    li = landmark_innovations(times, mean, cov, dets, lms, STD)
+    assert li.ok.all()
+    S = li.belief + li.noise
+    for c in (0, 1):
+        assert abs(np.mean(li.r[:, c] ** 2 / S[:, c, c]) - 1.0) < 0.05
+    nis = np.einsum("ni,ni->n", li.r, np.linalg.solve(S, li.r[..., None])[..., 0])
+    np.testing.assert_allclose(nis, landmark_nis(times, mean, cov, dets, lms, STD), rtol=1e-12)
+    np.testing.assert_allclose(li.belief, li.H @ cov @ np.swapaxes(li.H, 1, 2), rtol=1e-12)
+
+    def predicted(pose, lm):
+        d = lm - pose[:2]
+        return np.array([np.hypot(*d), np.arctan2(d[1], d[0]) - pose[2]])
+
+    for i in range(5):
+        g, lm, h = SE2.from_xytheta(mean[i]), np.array(lms[i][:2]), 1e-6
+        cols = []
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = h
+            up = predicted(SE2.to_xytheta(g @ SE2.exp(e)), lm)
+            down = predicted(SE2.to_xytheta(g @ SE2.exp(-e)), lm)
+            cols.append((up - down) / (2 * h))
+        np.testing.assert_allclose(li.H[i], np.column_stack(cols), atol=1e-6)
 
 
 def test_the_median_score_and_the_mean_anis_part_on_heavy_tails_only():

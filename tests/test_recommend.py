@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from swarmloc.evaluation.heldout import band_verdict
@@ -81,6 +82,7 @@ def test_the_truth_free_score_is_the_studys_own_and_is_unchanged_by_the_move(mrc
     moved into the library (main 1814715: 0.34977354270167166 over 1625 readings)."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
+    from swarmloc.evaluation.heldout import MEDIAN_CHI2_2, tracks_nis
     from swarmloc.experiments.mrclam import detection_set
     from swarmloc.experiments.truthfree import initial_from_snapshots, truth_free_score
     from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent, decorrelate
@@ -100,6 +102,10 @@ def test_the_truth_free_score_is_the_studys_own_and_is_unchanged_by_the_move(mrc
     for start, scored in ((initial_from_snapshots(data, ds), first), (None, study)):
         mine = truth_free_score(data, ds, events, "diekf", DEFAULTS, std, True, t_end, start=start)
         assert mine["nis_ratio"] == scored["diekf"]["nis_ratio"] and mine["readings"] == 1625 and mine["folds"] == 3
+    kept = truth_free_score(data, ds, events, "diekf", DEFAULTS, std, True, t_end, keep_runs=True)
+    assert "runs" not in mine and len(kept["runs"]) == 3  # the runs a diagnosis reads, one per fold
+    again = np.concatenate([tracks_nis(run.tracks, readings, data.landmarks, std) for run, readings in kept["runs"]])
+    assert np.median(again) / MEDIAN_CHI2_2 == kept["nis_ratio"] == mine["nis_ratio"] and again.size == 1625
 
 
 @pytest.mark.data

@@ -14,7 +14,7 @@ leave-one-dataset-out study (the repository's ``swarmloc_studies.lodo``).
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -26,10 +26,12 @@ from swarmloc.runner import RobotTrack
 __all__ = [
     "BAND",
     "GATE_2DOF",
+    "LandmarkInnovations",
     "MEDIAN_CHI2_2",
     "RECORD_LEAD",
     "band_verdict",
     "landmark_folds",
+    "landmark_innovations",
     "landmark_nis",
     "nis_summary",
     "reading_times",
@@ -51,23 +53,37 @@ def band_verdict(value: float, band: tuple[float, float] = BAND) -> str:
     return "in band" if band[0] <= value <= band[1] else "out of band"
 
 
-def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, dets: Sequence[Detection],
-                 landmarks: Mapping[int, Sequence[float]], std: tuple[float, float]) -> np.ndarray:  # fmt: skip
-    """Predictive NIS (2 dof) of landmark readings ``dets`` of one observer against its beliefs recorded
+class LandmarkInnovations(NamedTuple):
+    """The innovations of landmark readings against the beliefs recorded just before them
+    (:func:`landmark_innovations`), one row per reading: ``r`` ``(n, 2)`` (range [m], bearing [rad], the bearing
+    wrapped), the belief's share of their covariance ``belief = H P H'`` ``(n, 2, 2)``, the rest ``noise = R + L``
+    (the reading's variance and the landmark's map std pushed through the model), the Jacobian ``H`` ``(n, 2, 3)``
+    in the belief's right perturbation, and ``ok``: whether a belief was recorded just before the reading (the other
+    rows are not meaningful)."""
+
+    r: np.ndarray
+    belief: np.ndarray
+    noise: np.ndarray
+    H: np.ndarray
+    ok: np.ndarray
+
+
+def landmark_innovations(
+    track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, dets: Sequence[Detection],
+    landmarks: Mapping[int, Sequence[float]], std: tuple[float, float],
+) -> LandmarkInnovations:  # fmt: skip
+    """The :class:`LandmarkInnovations` of landmark readings ``dets`` of one observer against its beliefs recorded
     :data:`RECORD_LEAD` s before each (``mean`` ``(T, 3)``, right-perturbation ``cov`` ``(T, 3, 3)``), with the
-    reading's error std ``std`` = (range [m], bearing [rad]) and each landmark's map std; NaN where no belief was
-    recorded just before a reading."""
-    if not dets:
-        return np.empty(0)
-    t = np.array([d.t for d in dets])
-    idx = np.clip(np.searchsorted(track_times, t - RECORD_LEAD - 1e-9), 0, len(track_times) - 1)
-    ok = np.abs(track_times[idx] - (t - RECORD_LEAD)) < 1e-7
+    reading's error std ``std`` = (range [m], bearing [rad]) and each landmark's map std."""
+    t = np.array([d.t for d in dets], dtype=float).reshape(-1)
+    idx = np.clip(np.searchsorted(track_times, t - RECORD_LEAD - 1e-9), 0, max(len(track_times) - 1, 0))
+    ok = np.abs(track_times[idx] - (t - RECORD_LEAD)) < 1e-7 if len(track_times) else np.zeros(len(t), bool)
     x, P = mean[idx], cov[idx]
     ids = [d.target for d in dets if d.target is not None]
     if len(ids) < len(dets):
-        raise ValueError("landmark_nis: a reading without its landmark's id (target)")
-    lm = np.array([landmarks[k][:4] for k in ids], dtype=float)
-    z = np.array([d.z for d in dets])
+        raise ValueError("landmark_innovations: a reading without its landmark's id (target)")
+    lm = np.array([landmarks[k][:4] for k in ids], dtype=float).reshape(-1, 4)
+    z = np.array([d.z for d in dets], dtype=float).reshape(-1, 2)
     c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
     dx, dy = lm[:, 0] - x[:, 0], lm[:, 1] - x[:, 1]
     q = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)  # landmark in the body frame
@@ -81,8 +97,19 @@ def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, det
     rot_t = np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], axis=1)  # d q / d landmark
     jl = jq @ rot_t
     L = jl @ (np.eye(2)[None] * np.square(lm[:, 2:4])[:, :, None]) @ np.swapaxes(jl, 1, 2)
-    S = H @ P @ np.swapaxes(H, 1, 2) + np.diag([std[0] ** 2, std[1] ** 2])[None] + L
-    return np.where(ok, mahalanobis2(r, S), np.nan)
+    noise = np.diag([std[0] ** 2, std[1] ** 2])[None] + L
+    return LandmarkInnovations(r, H @ P @ np.swapaxes(H, 1, 2), noise, H, ok)
+
+
+def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, dets: Sequence[Detection],
+                 landmarks: Mapping[int, Sequence[float]], std: tuple[float, float]) -> np.ndarray:  # fmt: skip
+    """Predictive NIS (2 dof) of landmark readings ``dets`` of one observer against its beliefs recorded just
+    before each (:func:`landmark_innovations`: ``r' (H P H' + R + L)^-1 r``); NaN where no belief was recorded
+    just before a reading."""
+    if not dets:
+        return np.empty(0)
+    li = landmark_innovations(track_times, mean, cov, dets, landmarks, std)
+    return np.where(li.ok, mahalanobis2(li.r, li.belief + li.noise), np.nan)
 
 
 def tracks_nis(tracks: Mapping[int, RobotTrack], readings: Sequence[Detection],

@@ -273,6 +273,7 @@ def truth_free_score(
     holdout: int = 3,
     longest: float = SCORED_SPAN,
     start: tuple[float, Mapping[int, GroupGaussian]] | None = None,
+    keep_runs: bool = False,
 ) -> dict[str, Any]:
     """The held-out landmark NIS score of estimator ``name`` on ``data`` up to ``t_end`` [s], at most ``longest`` s:
     the runs start from :func:`fused_from_snapshots` (at ``t0``) on ``events`` (those of the evaluation: its camera
@@ -281,8 +282,9 @@ def truth_free_score(
     in the NIS (the camera model's). Returns :func:`~swarmloc.evaluation.heldout.nis_summary` with ``folds`` (0:
     landmarks off), ``t0_s`` (after the recording's start), ``duration_s`` (scored) and ``wall_s`` (every run of the
     score). ``start``: ``(t0, beliefs)`` of :func:`fused_from_snapshots` when the caller has them already, or
-    another start's (:func:`initial_from_snapshots`'). Raises :class:`NoStart` where there is no truth-free start
-    before ``t_end``."""
+    another start's (:func:`initial_from_snapshots`'). ``keep_runs``: also ``runs``, the runs scored, each with the
+    readings it scores (``(run, readings)`` pairs; a diagnosis reads their innovations). Raises :class:`NoStart`
+    where there is no truth-free start before ``t_end``."""
     wall = time.perf_counter()
     t0, initial = fused_from_snapshots(data, ds, config)[:2] if start is None else start
     if t0 >= t_end:
@@ -294,5 +296,6 @@ def truth_free_score(
     folds = landmark_folds(data.landmarks, holdout) if landmarks else [frozenset(data.landmarks)]
     scored = heldout_runs(name, initial, span, readings, data.landmarks, t0, dict.fromkeys(folds, config))
     nis = np.concatenate([np.empty(0)] + [tracks_nis(r.tracks, d, data.landmarks, std) for r, d in scored])
+    kept = {"runs": scored} if keep_runs else {}
     return {**nis_summary(nis), "folds": len(folds) if landmarks else 0, "t0_s": t0 - data.t_start,
-            "duration_s": t_end - t0, "wall_s": time.perf_counter() - wall}  # fmt: skip
+            "duration_s": t_end - t0, "wall_s": time.perf_counter() - wall, **kept}  # fmt: skip
