@@ -4,9 +4,12 @@ among their default estimators; ``--help`` says so."""
 
 from __future__ import annotations
 
+import argparse
+
 import pytest
 
 from swarmloc.cli import build_parser
+from swarmloc.cli.options import real
 
 pytestmark = pytest.mark.unit
 
@@ -57,3 +60,44 @@ def test_compare_default_estimators_include_iekf_and_diekf(monkeypatch):
     assert {"iekf", "diekf", "cekf", "rdl"} <= set(seen["sim:random"])
     assert "diekf" in seen["sim:3d"] and set(seen["sim:3d"]) <= set(ESTIMATORS_SE3)
     assert [e for e in seen["sim:random"] if e in ESTIMATORS_SE3] == seen["sim:3d"]
+
+
+def _options(parser: argparse.ArgumentParser):
+    """Every option of ``parser`` and of its subcommands' parsers, as ``(command, action)``."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from ((f"{name} {c}".strip(), a) for c, a in _options(sub))
+        else:
+            yield "", action
+
+
+def test_no_option_of_either_command_line_takes_a_bare_float():
+    """A bare ``float`` takes ``nan`` and ``inf``: every real-valued option is typed ``real`` (finite) instead."""
+    from swarmloc_studies.cli import build_parser as studies_parser
+
+    seen = 0
+    for parser in (build_parser(), studies_parser()):
+        for command, action in _options(parser):
+            assert action.type is not float, f"{command} {action.option_strings} takes a bare float"
+            seen += action.type is real
+    assert seen >= 25  # the durations, timeouts, gates, rates ... of both command lines
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["evaluate", "mrclam", "d", "--duration", "nan"],
+        ["team", "--max-wall", "inf"],
+        ["compare", "--p-detect", "Infinity"],
+        ["node", "--team", "t", "--robot", "0", "--no-auth", "--start-timeout", "NaN"],
+        ["evaluate", "events", "x.csv", "--gate", "ten"],
+    ],
+)
+def test_a_real_valued_option_refuses_what_is_not_a_finite_number(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        build_parser().parse_args(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {argv[-2]}" in err and f"got '{argv[-1]}'" in err and "number" in err
+    assert real("2.5") == 2.5 and real("-1e3") == -1000.0

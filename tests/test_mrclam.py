@@ -186,6 +186,9 @@ def test_dataset6_events_sorted_and_tiling(ds6: MRCLAMData) -> None:
         assert iv[0, 0] == ds6.t_start and iv[-1, 1] == t_cut and np.all(iv[1:, 0] == iv[:-1, 1])
     n_det_short = sum(isinstance(e, Detection) for e in short)
     assert 0 < n_det_short < len(det)
+    for bad in (float("nan"), float("inf"), -1.0, True, "60"):  # nan passed the old check and ran the whole span
+        with pytest.raises(ValueError, match="duration must be a finite number of seconds >= 0"):
+            mrclam_events(ds6, duration=bad)
 
     only_lm = [e for e in mrclam_events(ds6, duration=60.0, robot_measurements=False) if isinstance(e, Detection)]
     only_rb = [e for e in mrclam_events(ds6, duration=60.0, landmarks=False) if isinstance(e, Detection)]

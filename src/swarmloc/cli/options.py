@@ -1,7 +1,8 @@
 """Argument groups and defaults shared by several commands: a network process's (``--team``, ``--listen`` ...),
 authentication (``--key``, ``--roster``), the live view (``--view``, ``--record``, ``--linger``), a node's waits
 (``--start-timeout`` ...), a sweep's workers (``--jobs``, ``--cluster``) and a team's source (``--source``,
-``--estimator`` ...). Each ``add_*`` adds its options to a command's parser, in the order ``--help`` lists them."""
+``--estimator`` ...). Each ``add_*`` adds its options to a command's parser, in the order ``--help`` lists them;
+every real-valued option of every command is typed :func:`real` (finite)."""
 
 from __future__ import annotations
 
@@ -24,6 +25,18 @@ ASSOCIATION_HELP = (
 )
 
 
+def real(text: str) -> float:
+    """The type of every real-valued option: a finite number (argparse names the option when this refuses ``nan``,
+    ``inf`` or a word)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
 def add_sweep_args(p: argparse.ArgumentParser, jobs: int | None = 2) -> None:
     """Where a sweep's runs go: ``--jobs`` local worker processes (omitted when ``jobs`` is None) or ``--cluster``."""
     if jobs is not None:
@@ -39,7 +52,7 @@ def add_net_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", default=None, help="this peer's Zenoh endpoints, comma-separated (tcp/HOST:PORT)")
     p.add_argument("--connect", default=None, help="the other peers' endpoints, comma-separated")
     p.add_argument("--zenoh-config", default=None, help="a Zenoh JSON5 configuration file (TLS, access control)")
-    p.add_argument("--max-wall", type=float, default=None, help="stop after this many wall-clock seconds")
+    p.add_argument("--max-wall", type=real, default=None, help="stop after this many wall-clock seconds")
     p.add_argument("--verbose", action="store_true", help="log the node's state every 2 s")
     p.add_argument("--run-id", default=None, help="this run's id, in every key with the team's name (swarmloc team "
                    "gives each run its own, so that two teams of one name never hear each other)")  # fmt: skip
@@ -61,7 +74,7 @@ def add_view_args(p: argparse.ArgumentParser, what: str) -> None:
                    "(default 8765; 0: a free port)")  # fmt: skip
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record the view as MCAP of ROS 2 messages (Foxglove, Lichtblick, ros2 bag play)")  # fmt: skip
-    p.add_argument("--linger", type=float, nargs="?", const=math.inf, default=None, metavar="SECONDS",
+    p.add_argument("--linger", type=real, nargs="?", const=math.inf, default=None, metavar="SECONDS",
                    help="keep the live view up after the run ends: SECONDS, or until Ctrl-C without a number; 0: "
                    "stop with the run (default: until Ctrl-C when run from a terminal, else 0)")  # fmt: skip
 
@@ -72,7 +85,7 @@ def add_timeout_args(p: argparse.ArgumentParser) -> None:
 
     for name, (default, meaning) in TIMEOUTS.items():
         p.add_argument(
-            f"--{name.replace('_', '-')}", type=float, default=default, help=f"{meaning} (default {default:g})"
+            f"--{name.replace('_', '-')}", type=real, default=default, help=f"{meaning} (default {default:g})"
         )
     p.add_argument("--answer-retries", type=int, default=ANSWER_RETRIES,
                    help="how many more times a node asks a query that went unanswered, while its robot is alive "
@@ -90,10 +103,10 @@ def add_source_args(p: argparse.ArgumentParser, default: str | None) -> None:
                         "filter")  # fmt: skip
     p.add_argument("--config", default=None, help="TOML file of model and filter settings")
     p.add_argument("--robots", type=int, default=3, help="sim: team size (default 3)")
-    p.add_argument("--duration", type=float, default=None, help="seconds of the source (sim default 30)")
+    p.add_argument("--duration", type=real, default=None, help="seconds of the source (sim default 30)")
     p.add_argument("--seed", type=int, default=0, help="sim: seed")
-    p.add_argument("--speed", type=float, default=0.0, help="x real time; 0: as fast as lockstep allows")
-    p.add_argument("--lag", type=float, default=0.5, help="lockstep slack in seconds of data time")
+    p.add_argument("--speed", type=real, default=0.0, help="x real time; 0: as fast as lockstep allows")
+    p.add_argument("--lag", type=real, default=0.5, help="lockstep slack in seconds of data time")
     p.add_argument("--faults", default=None, help="loss=P,delay=S,reorder=P,dup=P,kill=R@T,late=R@T,seed=N")
     p.add_argument("--ros-domain", type=int, default=None, help="also publish ROS 2 poses (rmw_zenoh, this domain)")
     p.add_argument("--association", choices=ASSOCIATION_CHOICES, default=None,

@@ -34,6 +34,8 @@ Two known defects of the recordings are corrected on loading, each reported in :
 
 from __future__ import annotations
 
+import math
+import numbers
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -297,8 +299,8 @@ def mrclam_events(
     t_start = data.t_start
     t_end = data.t_end
     if duration is not None:
-        if duration < 0:
-            raise ValueError(f"duration must be non-negative, got {duration}")
+        if isinstance(duration, bool) or not (isinstance(duration, numbers.Real) and 0 <= duration < math.inf):
+            raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration!r}")
         t_end = min(t_end, t_start + float(duration))
 
     cov = readonly(np.diag([range_std**2, bearing_std**2]))

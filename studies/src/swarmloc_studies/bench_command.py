@@ -8,6 +8,7 @@ import json
 import sys
 from dataclasses import replace
 
+from swarmloc.cli.options import real
 from swarmloc_studies.bench import FULL, MRCLAM_ENV, QUICK, REPLAY_ESTIMATORS, SECTIONS, BenchConfig, run_bench
 from swarmloc_studies.bench_report import format_report
 
@@ -17,7 +18,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--quick", action="store_true", help="small sizes and 60 s of the replay (under a minute)")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     ap.add_argument("--mrclam", default=None, help=f"MRCLAM_Dataset6 folder (or its parent; default ${MRCLAM_ENV})")
-    ap.add_argument("--duration", type=float, default=None, help="replay: seconds of the dataset (default all)")
+    ap.add_argument("--duration", type=real, default=None, help="replay: seconds of the dataset (default all)")
     ap.add_argument("--runs", type=int, default=None, help="fusion step: runs of each engine row, the median "
                     "reported with the minimum and maximum (default 10; --quick 3)")  # fmt: skip
     ap.add_argument("--rounds", type=int, default=None, help="replay: rounds, the best kept (default 1)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from swarmloc.cli.common import refuse
-from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, EST_DEFAULT, add_sweep_args
+from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, EST_DEFAULT, add_sweep_args, real
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -20,12 +20,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                          "SE(3) form)")  # fmt: skip
     cp.add_argument("--runs", type=int, default=1, help="seeds of a simulated scenario (default 1)")
     cp.add_argument("--robots", type=int, default=4, help="sim: team size (default 4)")
-    cp.add_argument("--duration", type=float, default=None, help="seconds (sim default 30; dataset: all)")
+    cp.add_argument("--duration", type=real, default=None, help="seconds (sim default 30; dataset: all)")
     add_sweep_args(cp)
     cp.add_argument("--out", default=None, help="output folder for compare.md / compare.json")
     cp.add_argument("--association", choices=ASSOCIATION_CHOICES, default="tags", help=ASSOCIATION_HELP)
-    cp.add_argument("--clutter", type=float, default=0.0, help="false robot detections per scan, Poisson (default 0)")
-    cp.add_argument("--p-detect", type=float, default=1.0, help="robot detection probability (default 1)")
+    cp.add_argument("--clutter", type=real, default=0.0, help="false robot detections per scan, Poisson (default 0)")
+    cp.add_argument("--p-detect", type=real, default=1.0, help="robot detection probability (default 1)")
     cp.add_argument("--quiet", action="store_true", help="no progress bar")
     cp.set_defaults(func=run)
 

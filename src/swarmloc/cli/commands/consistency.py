@@ -8,7 +8,7 @@ import json
 import sys
 
 from swarmloc.cli.common import refuse
-from swarmloc.cli.options import add_sweep_args
+from swarmloc.cli.options import add_sweep_args, real
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -18,7 +18,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     cs.add_argument("--estimators", default=None, help="comma-separated names (default: all registered but mcl, dr)")
     cs.add_argument("--seeds", type=int, default=50, help="independent simulated teams (default 50)")
     cs.add_argument("--robots", type=int, default=5, help="team size (default 5)")
-    cs.add_argument("--duration", type=float, default=60.0, help="seconds per run (default 60)")
+    cs.add_argument("--duration", type=real, default=60.0, help="seconds per run (default 60)")
     cs.add_argument("--landmarks", default="off,on", help="off, on or off,on (default off,on)")
     add_sweep_args(cs)
     cs.add_argument("--out", default=None, help="output folder for consistency.md / .json / .png")

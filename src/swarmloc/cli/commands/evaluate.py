@@ -7,7 +7,7 @@ import json
 import sys
 
 from swarmloc.cli.common import refuse, run_config
-from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, EST_DEFAULT
+from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, EST_DEFAULT, real
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -17,11 +17,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     e.add_argument("path", help="an MRCLAM_DatasetN folder, or an event file (.csv or .jsonl)")
     e.add_argument("--estimators", default=EST_DEFAULT, help=f"comma-separated names (default {EST_DEFAULT})")
     e.add_argument("--config", default=None, help="TOML file of model and filter settings (swarmloc config)")
-    e.add_argument("--gate", type=float, default=None, help="override the chi-square gate probability; 0 disables")
+    e.add_argument("--gate", type=real, default=None, help="override the chi-square gate probability; 0 disables")
     e.add_argument("--landmarks", choices=["on", "off"], default="on", help="mrclam: use landmark measurements")
     e.add_argument("--association", choices=ASSOCIATION_CHOICES, default=None,
                    help=ASSOCIATION_HELP + " (default: the configuration's [filter] association)")  # fmt: skip
-    e.add_argument("--duration", type=float, default=None, help="mrclam: seconds from the start (default: all)")
+    e.add_argument("--duration", type=real, default=None, help="mrclam: seconds from the start (default: all)")
     e.add_argument("--calibrate-yaw", action="store_true",
                    help="mrclam: yaw diffusion scaled as the recording's landmark snapshots say")  # fmt: skip
     e.add_argument("--engine", action="store_true",

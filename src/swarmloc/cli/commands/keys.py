@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from swarmloc.cli.common import ids, refuse
+from swarmloc.cli.options import real
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--robots", required=True, help="robot ids, comma-separated")
     t.add_argument("--out", required=True, help="folder for robot<id>.key, server.key, collector.key, roster.json")
     for p in (r, t):
-        p.add_argument("--max-age", type=float, default=30.0, help="seconds a signed stamp may be old (default 30)")
+        p.add_argument("--max-age", type=real, default=30.0, help="seconds a signed stamp may be old (default 30)")
     k.set_defaults(func=run)
 
 

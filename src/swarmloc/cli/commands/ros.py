@@ -11,6 +11,7 @@ import sys
 from typing import Any
 
 from swarmloc.cli.common import net_logging, refuse
+from swarmloc.cli.options import real
 
 HINT = "swarmloc ros needs the ROS extra: pip install 'swarmloc[ros]'"
 
@@ -24,13 +25,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "node of the params file; params: print every parameter with its default; sim: simulated robots "
                    "publishing their odometry and detections (write the nodes' params with --params-out)")  # fmt: skip
     r.add_argument("--robots", type=int, default=3, help="sim: robots (default 3)")
-    r.add_argument("--duration", type=float, default=60.0, help="sim: seconds of driving (default 60)")
+    r.add_argument("--duration", type=real, default=60.0, help="sim: seconds of driving (default 60)")
     r.add_argument("--seed", type=int, default=1, help="sim: the simulation's seed")
     r.add_argument("--params-out", default=None, metavar="FILE", help="sim: write the nodes' params file (team, "
                    "initial poses, frames, keys beside it) and exit")  # fmt: skip
     r.add_argument("bag", nargs="?", default=None, help="replay: the rosbag2 folder (or .mcap) to read")
     r.add_argument("--out", default=None, help="replay: write the outputs to this new rosbag2")
-    r.add_argument("--max-wall", type=float, default=None, help="run: stop after this many wall-clock seconds")
+    r.add_argument("--max-wall", type=real, default=None, help="run: stop after this many wall-clock seconds")
     r.add_argument("--verbose", action="store_true", help="log the team node's state every 2 s")
     r.add_argument("--view", type=int, default=None, metavar="PORT",
                    help="run: serve this robot's beliefs to Foxglove or Lichtblick on ws://127.0.0.1:PORT (0: a free "

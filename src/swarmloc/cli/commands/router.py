@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from swarmloc.cli.common import endpoints, net_logging, refuse
+from swarmloc.cli.options import real
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -15,7 +16,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="endpoints to listen on, comma-separated (default tcp/0.0.0.0:7447, Zenoh's port)")  # fmt: skip
     r.add_argument("--connect", default=None, help="the other routers' endpoints, comma-separated (a mesh)")
     r.add_argument("--zenoh-config", default=None, help="a Zenoh JSON5 configuration file (TLS, access control)")
-    r.add_argument("--max-wall", type=float, default=None, help="stop after this many wall-clock seconds")
+    r.add_argument("--max-wall", type=real, default=None, help="stop after this many wall-clock seconds")
     r.add_argument("--verbose", action="store_true", help="log at INFO")
     r.set_defaults(func=run)
 

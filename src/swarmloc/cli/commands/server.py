@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, refuse, team_source
-from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, add_auth_args, add_net_args
+from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, add_auth_args, add_net_args, real
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -19,13 +19,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     sv.add_argument("--source", default=None, help="with --estimator: the team's source (initial beliefs, landmarks, "
                     "configuration, record times; its events come from the robots)")  # fmt: skip
     sv.add_argument("--config", default=None, help="with --estimator: TOML file of model and filter settings")
-    sv.add_argument("--duration", type=float, default=None, help="with --estimator: seconds of the source")
+    sv.add_argument("--duration", type=real, default=None, help="with --estimator: seconds of the source")
     sv.add_argument("--seed", type=int, default=0, help="with --estimator, sim: seed")
     sv.add_argument("--association", choices=ASSOCIATION_CHOICES, default=None,
                     help="with --estimator: " + ASSOCIATION_HELP)  # fmt: skip
-    sv.add_argument("--start-timeout", type=float, default=30.0,
+    sv.add_argument("--start-timeout", type=real, default=30.0,
                     help="with --estimator: seconds it waits for every robot's first forward (default 30)")  # fmt: skip
-    sv.add_argument("--lost-timeout", type=float, default=10.0, help="with --estimator: seconds a robot's stream may "
+    sv.add_argument("--lost-timeout", type=real, default=10.0, help="with --estimator: seconds a robot's stream may "
                     "stay silent while the fusion waits on it before it is declared lost (default 10)")  # fmt: skip
     sv.add_argument("--map-out", default=None, help="save the fused line map there as GeoJSON when it stops")
     add_auth_args(sv)

@@ -7,7 +7,7 @@ import sys
 
 from swarmloc.cli.common import endpoints, net_logging, refuse, team_source, timeouts
 from swarmloc.cli.liveview import check_view, linger, open_view
-from swarmloc.cli.options import add_source_args, add_timeout_args, add_view_args
+from swarmloc.cli.options import add_source_args, add_timeout_args, add_view_args, real
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "one (as robots on several machines would be); 0: every process a peer of the others "
                         "(default)")  # fmt: skip
     t.add_argument("--bag", default=None, help="record the beliefs as a rosbag2 (folder to create)")
-    t.add_argument("--max-wall", "--timeout", dest="max_wall", type=float, default=600.0,
+    t.add_argument("--max-wall", "--timeout", dest="max_wall", type=real, default=600.0,
                    help="stop every process after this many wall-clock seconds (default 600)")  # fmt: skip
     t.add_argument("--out", required=True, help="output folder (report, figures, TUM files, logs)")
     t.add_argument("--verbose", action="store_true", help="nodes log their state every 2 s (in OUT/logs)")
