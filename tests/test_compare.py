@@ -39,10 +39,25 @@ def test_compare_cli(tmp_path, capsys):
     assert set(s["estimators"]) == {"dekf", "ci"} and s["estimators"]["ci"]["update_us"] > 0
 
 
-@pytest.mark.parametrize("bad", [["--estimators", "nope"], ["--runs", "0"], ["--scenario", "sim:unknown"]])
+@pytest.mark.parametrize(
+    "bad",
+    [["--estimators", "nope"], ["--runs", "0"], ["--runs", "100000000"], ["--scenario", "sim:unknown"]],
+)
 def test_compare_refuses_bad_input(bad, capsys):
+    """(``--runs 100000000`` built its list of a hundred million jobs before refusing nothing.)"""
     assert main(["compare", "--quiet", *bad]) == 2
     assert "swarmloc compare:" in capsys.readouterr().err
+
+
+def test_a_sweep_of_more_runs_than_the_bound_is_refused_before_it_starts(capsys):
+    from swarmloc.runner.fanout import MAX_RUNS, check_runs
+
+    assert check_runs(MAX_RUNS) == MAX_RUNS and check_runs(1) == 1
+    for bad in (0, MAX_RUNS + 1, True, 2.0, "3"):
+        with pytest.raises(ValueError, match=r"must be an integer in \[1, 10000\]"):
+            check_runs(bad)
+    assert main(["consistency", "--quiet", "--seeds", str(MAX_RUNS + 1)]) == 2
+    assert "seeds must be an integer in [1, 10000]" in capsys.readouterr().err
 
 
 def test_compare_takes_a_3d_scenario_as_team_does(tmp_path, capsys):

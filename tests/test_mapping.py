@@ -234,6 +234,27 @@ def test_map_command_writes_a_table_figure_and_maps(tmp_path, capsys, terminal_p
     assert "map: seed 0, expfusion" in err and "2/2" in err  # dead reckoning, then expfusion
 
 
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["--seeds", "0"], "seeds must be an integer in [1, 10000], got 0"),
+        (["--seeds", "20000"], "seeds must be an integer in [1, 10000], got 20000"),
+        (["--first-seed", "-5"], "the first seed must be an integer in [0, 2^32 - seeds], got -5"),
+        (["--estimators", "foo"], "unknown estimator(s) ['foo']"),
+        (["--D", "-1"], "D (the wheel-speed diffusion) must be a finite number >= 0"),
+        (["--sigma", "-1"], "RangeFinder: need"),
+    ],
+)
+def test_map_command_refuses_bad_input_in_one_line_before_any_run(argv, says, capsys) -> None:
+    """Each of these raised a traceback (an IndexError for no seeds, a KeyError for an unknown estimator, a
+    configuration error naming ``q_v0`` for a negative ``--D``) after or before runs; now one line, status 2."""
+    from swarmloc.cli import main
+
+    assert main(["map", "--quiet", *argv]) == 2
+    out, err = capsys.readouterr()
+    assert err.startswith("swarmloc map: ") and says in err and err.count("\n") == 1 and not out
+
+
 def test_line_ends_are_closed_at_corners_and_wall_ends_open_at_the_fov_and_behind_occluders() -> None:
     rng = np.random.default_rng(5)
     # a corner ahead-left (walls x = 2 and y = 1.5 meeting at (2, 1.5)), and a short wall x = 1 for y in [-0.9, -0.3]

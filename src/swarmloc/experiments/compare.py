@@ -34,7 +34,7 @@ from swarmloc.experiments.output import write_summary
 from swarmloc.experiments.progress import steps
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.lie import SE2, SE3
-from swarmloc.runner.fanout import cluster_address, fan_out
+from swarmloc.runner.fanout import check_runs, cluster_address, fan_out
 from swarmloc.runner.result import summed
 
 if TYPE_CHECKING:
@@ -171,8 +171,7 @@ def compare(
     from swarmloc.estimators import check_known
 
     check_known(estimators)
-    if runs < 1:
-        raise ValueError(f"runs must be >= 1, got {runs}")
+    check_runs(runs)
     _refuse_what_cannot_run(scenario, estimators, association, clutter, p_detect)
     sim = scenario.startswith("sim:")
     seeds = list(range(runs)) if sim else [0]

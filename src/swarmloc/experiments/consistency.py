@@ -46,7 +46,7 @@ import numpy as np
 from swarmloc.evaluation.metrics import DOF, anees_bounds, errors
 from swarmloc.experiments.output import save_figure, write_summary
 from swarmloc.experiments.progress import steps
-from swarmloc.runner.fanout import cluster_address, fan_out
+from swarmloc.runner.fanout import check_runs, cluster_address, fan_out
 from swarmloc.runner.result import summed
 
 if TYPE_CHECKING:
@@ -175,8 +175,9 @@ def consistency(
     check_known(estimators)
     if not estimators:
         raise ValueError("no estimators given")
-    if not (isinstance(seeds, int) and seeds >= 1 and isinstance(robots, int) and robots >= 1):
-        raise ValueError(f"seeds and robots must be positive integers, got {seeds!r}, {robots!r}")
+    check_runs(seeds, "seeds")
+    if not (isinstance(robots, int) and robots >= 1):
+        raise ValueError(f"robots must be a positive integer, got {robots!r}")
     if not duration > 0:
         raise ValueError(f"duration must be positive, got {duration!r}")
     settings = list(dict.fromkeys(bool(x) for x in landmarks))

@@ -29,6 +29,7 @@ from swarmloc.experiments.progress import Tick, no_tick, steps
 from swarmloc.lie import SE2
 from swarmloc.mapping import LineMap, map_error, scan_observations
 from swarmloc.runner import run
+from swarmloc.runner.fanout import check_runs
 from swarmloc.sim.lab import chapter_team
 from swarmloc.sim.source import sim_source
 from swarmloc.sim.walls import RangeFinder, Scans, Walls, chapter_lab, scan_team
@@ -102,7 +103,19 @@ def map_experiment(
     progress: bool = False,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Run :func:`one_seed` for ``seeds`` seeds; returns ``(report, first seed's result)``: the report has the
-    errors per seed and their means per map. ``progress``: a bar on stderr over the estimator runs."""
+    errors per seed and their means per map. ``progress``: a bar on stderr over the estimator runs. Raises
+    ValueError, before any run, for a count of seeds outside ``[1, MAX_RUNS]``, a first seed outside ``[0, 2^32 -
+    seeds]``, an order other than 1 or 2, an unknown estimator or a bad ``D`` or ``finder``."""
+    from swarmloc.estimators import check_known
+
+    check_runs(seeds, "seeds")
+    if isinstance(first_seed, bool) or not isinstance(first_seed, int) or not 0 <= first_seed <= 2**32 - seeds:
+        raise ValueError(f"the first seed must be an integer in [0, 2^32 - seeds], got {first_seed!r}")
+    if order not in (1, 2):
+        raise ValueError(f"order must be 1 or 2, got {order!r}")
+    if not (isinstance(D, int | float) and 0 <= D < np.inf):
+        raise ValueError(f"D (the wheel-speed diffusion) must be a finite number >= 0 [rad^2/s], got {D!r}")
+    check_known(list(estimators))
     finder = RangeFinder() if finder is None else finder
     per_seed, first = [], None
     with steps(progress, seeds * (1 + len(estimators)), "map") as tick:

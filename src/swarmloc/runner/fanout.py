@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 if TYPE_CHECKING:
     from distributed import Client
 
-__all__ = ["CLUSTER_HINT", "ClusterUnavailable", "cluster_address", "connected", "fan_out"]
+__all__ = ["CLUSTER_HINT", "MAX_RUNS", "ClusterUnavailable", "check_runs", "cluster_address", "connected", "fan_out"]
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +41,18 @@ CLUSTER_HINT = "pip install 'swarmloc[cluster]'"
 
 CONNECT_TIMEOUT_S = 10.0
 """How long [s] :func:`fan_out` waits for the scheduler at an address before it gives up."""
+
+
+MAX_RUNS = 10_000
+"""Most runs (seeds) one sweep takes: its job list is built before the first runs, and 10,000 runs of the smallest
+simulated team (about a second each) already take hours on two cores."""
+
+
+def check_runs(runs: object, what: str = "runs") -> int:
+    """``runs`` if it is an integer in ``[1, MAX_RUNS]``, else ValueError naming ``what``."""
+    if isinstance(runs, bool) or not isinstance(runs, int) or not 1 <= runs <= MAX_RUNS:
+        raise ValueError(f"{what} must be an integer in [1, {MAX_RUNS}], got {runs!r}")
+    return runs
 
 
 class ClusterUnavailable(RuntimeError):
