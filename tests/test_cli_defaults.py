@@ -9,7 +9,7 @@ import argparse
 import pytest
 
 from swarmloc.cli import build_parser
-from swarmloc.cli.options import real
+from swarmloc.cli.options import SEED_MAX, real, seed
 
 pytestmark = pytest.mark.unit
 
@@ -72,16 +72,21 @@ def _options(parser: argparse.ArgumentParser):
             yield "", action
 
 
-def test_no_option_of_either_command_line_takes_a_bare_float():
-    """A bare ``float`` takes ``nan`` and ``inf``: every real-valued option is typed ``real`` (finite) instead."""
+def test_no_option_of_either_command_line_takes_a_bare_float_or_any_integer_as_a_seed():
+    """A bare ``float`` takes ``nan`` and ``inf``: every real-valued option is typed ``real`` (finite) instead; every
+    seed option ``seed`` (an integer in ``[0, 2^32 - 1]``: ``demo --seed -1`` was a traceback)."""
     from swarmloc_studies.cli import build_parser as studies_parser
 
-    seen = 0
+    seen = seeds = 0
     for parser in (build_parser(), studies_parser()):
         for command, action in _options(parser):
             assert action.type is not float, f"{command} {action.option_strings} takes a bare float"
             seen += action.type is real
+            if action.dest in ("seed", "first_seed"):
+                assert action.type is seed, f"{command} {action.option_strings} takes any integer as a seed"
+                seeds += 1
     assert seen >= 25  # the durations, timeouts, gates, rates ... of both command lines
+    assert seeds >= 8  # demo, simulate, node, team, server, ros, map, reproduce
 
 
 @pytest.mark.parametrize(
@@ -92,6 +97,8 @@ def test_no_option_of_either_command_line_takes_a_bare_float():
         ["compare", "--p-detect", "Infinity"],
         ["node", "--team", "t", "--robot", "0", "--no-auth", "--start-timeout", "NaN"],
         ["evaluate", "events", "x.csv", "--gate", "ten"],
+        ["demo", "--seed", "-1"],
+        ["map", "--first-seed", str(2**32)],
     ],
 )
 def test_a_real_valued_option_refuses_what_is_not_a_finite_number(argv, capsys):
@@ -99,5 +106,5 @@ def test_a_real_valued_option_refuses_what_is_not_a_finite_number(argv, capsys):
         build_parser().parse_args(argv)
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert f"argument {argv[-2]}" in err and f"got '{argv[-1]}'" in err and "number" in err
-    assert real("2.5") == 2.5 and real("-1e3") == -1000.0
+    assert f"argument {argv[-2]}" in err and f"got '{argv[-1]}'" in err and ("number" in err or "seed" in err)
+    assert real("2.5") == 2.5 and real("-1e3") == -1000.0 and seed("0") == 0 and seed(str(SEED_MAX)) == SEED_MAX

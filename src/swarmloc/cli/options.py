@@ -37,6 +37,21 @@ def real(text: str) -> float:
     return value
 
 
+SEED_MAX = 2**32 - 1
+"""Largest seed an option takes (what every seeded generator here accepts, and a range no sweep exhausts)."""
+
+
+def seed(text: str) -> int:
+    """The type of every seed option: an integer in ``[0, SEED_MAX]``."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a seed, an integer in [0, {SEED_MAX}], got {text!r}") from None
+    if not 0 <= value <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"expected a seed, an integer in [0, {SEED_MAX}], got {text!r}")
+    return value
+
+
 def add_sweep_args(p: argparse.ArgumentParser, jobs: int | None = 2) -> None:
     """Where a sweep's runs go: ``--jobs`` local worker processes (omitted when ``jobs`` is None) or ``--cluster``."""
     if jobs is not None:
@@ -104,7 +119,7 @@ def add_source_args(p: argparse.ArgumentParser, default: str | None) -> None:
     p.add_argument("--config", default=None, help="TOML file of model and filter settings")
     p.add_argument("--robots", type=int, default=3, help="sim: team size (default 3)")
     p.add_argument("--duration", type=real, default=None, help="seconds of the source (sim default 30)")
-    p.add_argument("--seed", type=int, default=0, help="sim: seed")
+    p.add_argument("--seed", type=seed, default=0, help="sim: seed")
     p.add_argument("--speed", type=real, default=0.0, help="x real time; 0: as fast as lockstep allows")
     p.add_argument("--lag", type=real, default=0.5, help="lockstep slack in seconds of data time")
     p.add_argument("--faults", default=None, help="loss=P,delay=S,reorder=P,dup=P,kill=R@T,late=R@T,seed=N")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from swarmloc.cli.options import real
+from swarmloc.cli.options import real, seed
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -13,7 +13,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "reckoning, each robot alone and the cooperative team, their error against the true walls; "
                         "table, figure, GeoJSON/DXF")  # fmt: skip
     mp.add_argument("--seeds", type=int, default=3, help="simulated runs (default 3)")
-    mp.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
+    mp.add_argument("--first-seed", type=seed, default=0, help="first seed (default 0)")
     mp.add_argument("--estimators", default="expfusion,diekf", help="cooperative estimators (default expfusion,diekf)")
     mp.add_argument("--order", type=int, choices=[1, 2], default=2, help="line propagation order (default 2)")
     mp.add_argument("--sigma", type=real, default=0.01, help="range noise std [m] (default 0.01)")

@@ -11,7 +11,7 @@ import sys
 from typing import Any
 
 from swarmloc.cli.common import net_logging, refuse
-from swarmloc.cli.options import real
+from swarmloc.cli.options import real, seed
 
 HINT = "swarmloc ros needs the ROS extra: pip install 'swarmloc[ros]'"
 
@@ -26,7 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "publishing their odometry and detections (write the nodes' params with --params-out)")  # fmt: skip
     r.add_argument("--robots", type=int, default=3, help="sim: robots (default 3)")
     r.add_argument("--duration", type=real, default=60.0, help="sim: seconds of driving (default 60)")
-    r.add_argument("--seed", type=int, default=1, help="sim: the simulation's seed")
+    r.add_argument("--seed", type=seed, default=1, help="sim: the simulation's seed")
     r.add_argument("--params-out", default=None, metavar="FILE", help="sim: write the nodes' params file (team, "
                    "initial poses, frames, keys beside it) and exit")  # fmt: skip
     r.add_argument("bag", nargs="?", default=None, help="replay: the rosbag2 folder (or .mcap) to read")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from swarmloc.cli.common import die_with_launcher, endpoints, ids, load_auth, net_logging, refuse, team_source
-from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, add_auth_args, add_net_args, real
+from swarmloc.cli.options import ASSOCIATION_CHOICES, ASSOCIATION_HELP, add_auth_args, add_net_args, real, seed
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -20,7 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "configuration, record times; its events come from the robots)")  # fmt: skip
     sv.add_argument("--config", default=None, help="with --estimator: TOML file of model and filter settings")
     sv.add_argument("--duration", type=real, default=None, help="with --estimator: seconds of the source")
-    sv.add_argument("--seed", type=int, default=0, help="with --estimator, sim: seed")
+    sv.add_argument("--seed", type=seed, default=0, help="with --estimator, sim: seed")
     sv.add_argument("--association", choices=ASSOCIATION_CHOICES, default=None,
                     help="with --estimator: " + ASSOCIATION_HELP)  # fmt: skip
     sv.add_argument("--start-timeout", type=real, default=30.0,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from swarmloc.cli.common import refuse
-from swarmloc.cli.options import real
+from swarmloc.cli.options import real, seed
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -13,7 +13,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("simulate", help="simulate a random team and write it as an event file + TUM truth")
     s.add_argument("--robots", type=int, default=4)
     s.add_argument("--duration", type=real, default=60.0, help="seconds (default 60)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=seed, default=0, help="the simulation's seed (default 0)")
     s.add_argument("--format", choices=["csv", "jsonl"], default="csv")
     s.add_argument("--out", required=True, help="output folder")
     s.set_defaults(func=run)

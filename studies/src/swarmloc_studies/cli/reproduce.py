@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from swarmloc.cli.options import add_sweep_args
+from swarmloc.cli.options import add_sweep_args, seed
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +21,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--seeds", type=int, default=20, help="seeds per dynamic experiment, or pooled seeds (default 20)")
     r.add_argument("--reps", type=int, default=None,
                    help="repetitions for Tables 5.1/5.2 (60; with 'tables': per seed, 20000)")  # fmt: skip
-    r.add_argument("--first-seed", type=int, default=100, help="tables: first of the pooled seeds (default 100)")
+    r.add_argument("--first-seed", type=seed, default=100, help="tables: first of the pooled seeds (default 100)")
     r.add_argument("--quick", action="store_true", help="few seeds and short runs (a smoke test)")
     add_sweep_args(r, jobs=None)
     r.add_argument("--quiet", action="store_true", help="no progress bars")
