@@ -426,7 +426,9 @@ def test_every_timeout_reaches_every_node_under_its_own_name(monkeypatch, capsys
         assert build_parser().parse_args(["team", "--out", "o", flag, "5"]).max_wall == 5.0
 
 
-@pytest.mark.parametrize("name", ["answer_timeout", "hold_timeout", "update_timeout", "start_timeout", "linger"])
+@pytest.mark.parametrize(
+    "name", ["answer_timeout", "hold_timeout", "update_timeout", "start_timeout", "linger", "speed", "lag"]
+)
 def test_a_negative_or_nan_timeout_is_refused(name):
     for bad in (-1.0, math.nan):
         with pytest.raises(ValueError, match=name):
@@ -789,6 +791,11 @@ def test_cli_team_report_bag_and_ros_output(tmp_path, monkeypatch, capsys, termi
     [
         ("cekf", ["--faults", "kill=1@1"], "kill and late are for a distributed team"),  # hosted by the server
         ("nope", [], "unknown estimator"),
+        # each node process refused these only once started (a negative lag held the nodes until the wall limit)
+        ("diekf", ["--lag", "-1"], "lag is a finite number >= 0"),
+        ("diekf", ["--speed", "-1"], "speed is a finite number >= 0"),
+        ("diekf", ["--start-timeout", "-1"], "timeouts are seconds >= 0"),
+        ("diekf", ["--answer-retries", "1000"], "answer_retries is a count from 0 to 100"),
     ],
 )
 def test_team_refuses_what_it_cannot_run_before_starting_anything(est, extra, why, capsys, tmp_path):

@@ -66,6 +66,9 @@ class NetSettings:
         bad = {k: getattr(self, k) for k in WAITS if not float(getattr(self, k)) >= 0.0}
         if bad:
             raise ValueError(f"NetNode: timeouts are seconds >= 0, got {bad}")
+        for k in ("speed", "lag"):  # a negative lag held every node back for good; a negative speed read as 0
+            if not 0.0 <= float(getattr(self, k)) < math.inf:
+                raise ValueError(f"NetNode: {k} is a finite number >= 0, got {getattr(self, k)!r}")
         for k in (*WAITS, "speed", "lag"):
             object.__setattr__(self, k, float(getattr(self, k)))
         object.__setattr__(self, "answer_retries", T.check_retries(self.answer_retries))

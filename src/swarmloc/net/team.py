@@ -41,8 +41,9 @@ from swarmloc.net.entry import hosted_class, map_answers, network_class
 from swarmloc.net.faults import Faults, parse_faults
 from swarmloc.net.intake import COLLECTOR_BUDGET, Intake, vouch_for
 from swarmloc.net.schema import SERVER, Belief, Lines, MapAnswer, Progress, Rejected, Report
+from swarmloc.net.settings import NetSettings
 from swarmloc.net.teamlink import Presence
-from swarmloc.net.timeouts import ANSWER_RETRIES, TIMEOUTS, Waits, check_retries
+from swarmloc.net.timeouts import ANSWER_RETRIES, TIMEOUTS, Waits
 from swarmloc.net.transport import (
     check_team,
     client_config,
@@ -164,7 +165,7 @@ def launch_team(
     of one of them, in turn (:func:`~swarmloc.net.transport.router_mesh`), the routers meshed with ``connect_extra``.
     """
     f = parse_faults(faults)
-    check_retries(waits.get("answer_retries", ANSWER_RETRIES))  # refused here, not by every node process
+    NetSettings(speed=speed, lag=lag, faults=f, **waits)  # what every node process would refuse, refused here
     team = check_team(team or f"team{os.getpid()}")
     network_class(estimator)  # refuse an estimator a team cannot run before starting anything
     hosted = hosted_class(estimator) is not None
