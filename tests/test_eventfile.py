@@ -213,7 +213,7 @@ def test_bad_csv_line_names_file_line_and_problem(tmp_path: Path, line: str, pro
     assert "events.csv: 1 bad line" in msg
     assert "events.csv line 4: " in msg
     assert problem in msg
-    assert f"got {line!r}" in msg
+    assert f"; the line: {line!r}" in msg
     assert ei.value.problems == [msg.splitlines()[1].strip()]
     # the same file loads with strict=False, without that line
     ef = load_events(p, strict=False)

@@ -552,7 +552,7 @@ def load_events(
                     raise Bad(fields_or_problem)
                 reader.record(Record(fields_or_problem, text=fmt == "csv"), lineno, seq)
             except Bad as exc:
-                reader.bad.add(lineno, f"{exc}, got {shorten(text.strip())!r}" if text else str(exc))
+                reader.bad.add(lineno, f"{exc}; the line: {shorten(text.strip())!r}" if text else str(exc))
     except UnicodeDecodeError as exc:
         raise EventFileError(f"{label}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     except OSError as exc:
