@@ -156,3 +156,32 @@ def test_a_20_robot_team_through_three_routers_equals_the_peer_to_peer_run(tmp_p
         a, b = p2p.tracks[r], mesh.tracks[r]
         assert np.array_equal(a.times, b.times)
         assert np.max(np.abs(a.mean - b.mean)) <= 1e-9 and np.max(np.abs(a.cov - b.cov)) <= 1e-9
+
+
+def test_a_session_zenoh_cannot_open_is_refused_in_one_line_with_zenoh_s_reason(tmp_path: Path, capsys) -> None:
+    """A malformed endpoint, a port out of range and a missing configuration file raise :class:`TransportError`
+    (a ValueError) with Zenoh's reason and without the location in Zenoh's Rust sources it carries; ``swarmloc
+    node``, ``server`` and ``router`` say it in one line, status 2 (``node --listen garbage`` was a traceback)."""
+    from swarmloc.cli import main
+    from swarmloc.net.transport import TransportError, open_session, zenoh_config, zenoh_reason
+
+    cases = [
+        ((["garbage"], []), "Endpoints must be of the form <protocol>/<address>"),
+        ((["tcp/127.0.0.1:99999"], []), "invalid port value"),
+    ]
+    for (listen, connect), says in cases:
+        with pytest.raises(TransportError) as exc:
+            open_session(listen, connect)
+        assert says in str(exc.value) and ".rs:" not in str(exc.value) and "\n" not in str(exc.value)
+    with pytest.raises(TransportError, match="no Zenoh configuration file"):
+        zenoh_config([], [], tmp_path / "missing.json5")
+    raw = 'Json5Err(Message { msg: "bad \\"x\\" at /a/b/c.rs:12.", location: None }) at /d/e.rs:61.'
+    assert zenoh_reason(RuntimeError(raw)) == 'bad \\"x\\"'
+    for argv in (
+        ["node", "--team", "t", "--robot", "0", "--no-auth", "--source", "sim:random", "--listen", "garbage"],
+        ["server", "--team", "t", "--no-auth", "--robots", "0,1", "--listen", "garbage", "--max-wall", "1"],
+        ["router", "--listen", "tcp/127.0.0.1:99999", "--max-wall", "1"],
+    ):
+        assert main(argv) == 2
+        said = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("warning: --no-auth")]
+        assert len(said) == 1 and said[0].startswith(f"swarmloc {argv[0]}: cannot open a Zenoh session: ")

@@ -206,6 +206,8 @@ def zenoh_config(
 
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if config_file is not None and not os.path.isfile(config_file):
+        raise TransportError(f"no Zenoh configuration file {os.fspath(config_file)!r}")
     cfg = zenoh.Config.from_file(str(config_file)) if config_file is not None else zenoh.Config()
     if config_file is None:
         cfg.insert_json5("mode", json.dumps(mode))
@@ -287,16 +289,35 @@ def close_query(query: Any) -> None:
         query.drop()
 
 
+class TransportError(ValueError):
+    """A Zenoh session that cannot be opened: a malformed endpoint, a port out of range or taken, a bad configuration
+    file. The message is Zenoh's reason without the location in Zenoh's own sources it carries."""
+
+
+def zenoh_reason(exc: BaseException) -> str:
+    """Zenoh's reason for ``exc`` in one line: the message inside a JSON5 error, without the ``at <file>.rs:<line>``
+    locations of Zenoh's sources."""
+    text = str(exc)
+    inner = re.search(r'msg: "((?:[^"\\]|\\.)*)"', text)
+    if inner:
+        text = inner.group(1)
+    return " ".join(re.sub(r"\s+at \S+\.rs:\d+\.?", "", text).split())
+
+
 def _opener(config: Callable[P, Any]) -> Callable[P, Any]:
     """A function of ``config``'s parameters that opens a Zenoh session with the configuration ``config`` makes of
     them: one parameter list serves both (``inspect.signature`` of the result shows ``config``'s)."""
 
     @functools.wraps(config, assigned=("__module__",))
     def open_session(*args: P.args, **kwargs: P.kwargs) -> Any:
-        """Open a Zenoh session: ``zenoh.open`` of :func:`zenoh_config` of the same arguments."""
+        """Open a Zenoh session: ``zenoh.open`` of :func:`zenoh_config` of the same arguments; a session that Zenoh
+        cannot open or configure raises :class:`TransportError`."""
         import zenoh
 
-        return zenoh.open(config(*args, **kwargs))
+        try:
+            return zenoh.open(config(*args, **kwargs))
+        except zenoh.ZError as exc:
+            raise TransportError(f"cannot open a Zenoh session: {zenoh_reason(exc)}") from None
 
     return open_session
 

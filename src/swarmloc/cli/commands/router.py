@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
     import threading
 
     from swarmloc.net.timeouts import wait_event
-    from swarmloc.net.transport import open_session
+    from swarmloc.net.transport import TransportError, open_session
 
     net_logging(args.verbose)
     if args.max_wall is not None and not (math.isfinite(args.max_wall) and args.max_wall > 0):
@@ -36,7 +36,9 @@ def run(args: argparse.Namespace) -> int:
     listen = endpoints(args.listen)
     try:
         session = open_session(listen, endpoints(args.connect), args.zenoh_config, mode="router")
-    except Exception as exc:  # zenoh.ZError and OSError: an endpoint taken or malformed, a bad configuration file
+    except TransportError as exc:  # an endpoint taken or malformed, a bad configuration file
+        return refuse("router", exc)
+    except OSError as exc:
         return refuse("router", f"cannot start ({exc})")
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
