@@ -105,6 +105,10 @@ def test_bad_params_files(tmp_path):
         load_params([str(tmp_path / "a.yaml")], {})
     with pytest.raises(ParamsError, match="YAML"):
         load_params([str(tmp_path / "b.yaml")], {})
+    (tmp_path / "c.yaml").write_text("garbage: [\n")
+    with pytest.raises(ParamsError, match=r"c.yaml: not a YAML file: .*line 2, column 1$") as exc:
+        load_params([str(tmp_path / "c.yaml")], {})
+    assert "\n" not in str(exc.value) and "^" not in str(exc.value)  # PyYAML's message, with its caret, on one line
     with pytest.raises(ParamsError, match="cannot read"):
         load_params([str(tmp_path / "missing.yaml")], {})
 

@@ -196,8 +196,9 @@ def read_params_file(path: str | os.PathLike[str], node: str, fqn: str) -> dict[
         data = yaml.safe_load(p.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ParamsError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ParamsError(f"{path}: not a YAML file: {exc}") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:  # PyYAML's message spans lines (with a caret): one line
+        why = " ".join(str(exc).replace(" ^", " ").split()).rstrip(": ")
+        raise ParamsError(f"{path}: not a YAML file: {why}") from None
     if not isinstance(data, dict):
         raise ParamsError(f"{path}: expected '<node name>: {{ros__parameters: {{...}}}}' sections")
     out: dict[str, Any] = {}
