@@ -108,3 +108,14 @@ def test_a_real_valued_option_refuses_what_is_not_a_finite_number(argv, capsys):
     err = capsys.readouterr().err
     assert f"argument {argv[-2]}" in err and f"got '{argv[-1]}'" in err and ("number" in err or "seed" in err)
     assert real("2.5") == 2.5 and real("-1e3") == -1000.0 and seed("0") == 0 and seed(str(SEED_MAX)) == SEED_MAX
+
+
+def test_evaluate_refuses_a_negative_gate_and_turns_the_gate_off_at_0(tmp_path, capsys):
+    """(``--gate -1`` turned the gate off as 0 does.)"""
+    from swarmloc.cli import main
+
+    events = tmp_path / "events.csv"
+    assert main(["simulate", "--robots", "2", "--duration", "3", "--out", str(tmp_path)]) == 0
+    assert main(["evaluate", "events", str(events), "--quiet", "--estimators", "dekf", "--gate", "-1"]) == 2
+    assert "--gate: a probability in (0, 1), or 0 to turn the gate off, got -1.0" in capsys.readouterr().err
+    assert main(["evaluate", "events", str(events), "--quiet", "--estimators", "dekf", "--gate", "0", "--json"]) == 0

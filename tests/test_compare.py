@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 
@@ -58,6 +59,16 @@ def test_a_sweep_of_more_runs_than_the_bound_is_refused_before_it_starts(capsys)
             check_runs(bad)
     assert main(["consistency", "--quiet", "--seeds", str(MAX_RUNS + 1)]) == 2
     assert "seeds must be an integer in [1, 10000]" in capsys.readouterr().err
+
+
+def test_a_sweep_refuses_negative_or_more_worker_processes_than_four_per_core(capsys):
+    """(``--jobs -1`` ran in this process; ``--jobs 100000`` would have started a process per run.)"""
+    from swarmloc.runner.fanout import check_jobs, max_jobs
+
+    assert check_jobs(0) == 0 and check_jobs(max_jobs()) == max_jobs() == 4 * (os.cpu_count() or 1)
+    for jobs in ("-1", str(max_jobs() + 1)):
+        assert main(["compare", "--quiet", "--runs", "2", "--duration", "2", "--jobs", jobs]) == 2
+        assert "jobs (local worker processes) must be an integer in [0, " in capsys.readouterr().err
 
 
 def test_compare_takes_a_3d_scenario_as_team_does(tmp_path, capsys):

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -30,7 +31,10 @@ from typing import TYPE_CHECKING, Any, TypeVar
 if TYPE_CHECKING:
     from distributed import Client
 
-__all__ = ["CLUSTER_HINT", "MAX_RUNS", "ClusterUnavailable", "check_runs", "cluster_address", "connected", "fan_out"]
+__all__ = [
+    "CLUSTER_HINT", "MAX_RUNS", "ClusterUnavailable", "check_jobs", "check_runs", "cluster_address", "connected",
+    "fan_out", "max_jobs",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +59,19 @@ def check_runs(runs: object, what: str = "runs") -> int:
     return runs
 
 
+def max_jobs() -> int:
+    """Most local worker processes a sweep starts: four per core of this machine (each holds its own interpreter,
+    numpy and estimators: more only queue for the cores and fill the memory)."""
+    return 4 * (os.cpu_count() or 1)
+
+
+def check_jobs(jobs: object) -> int:
+    """``jobs`` if it is an integer in ``[0, max_jobs()]`` (0 and 1: in this process), else ValueError."""
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or not 0 <= jobs <= max_jobs():
+        raise ValueError(f"jobs (local worker processes) must be an integer in [0, {max_jobs()}] here, got {jobs!r}")
+    return jobs
+
+
 class ClusterUnavailable(RuntimeError):
     """The cluster cannot be used: Dask is not installed, or no scheduler answers at the address."""
 
@@ -76,8 +93,10 @@ def fan_out(
     """``(i, fn(*tasks[i]))`` for every task, in the order the jobs complete (module docstring for where they run).
 
     ``fn`` must be a module-level function (it is pickled to the workers). ``jobs``: local worker processes (ignored
-    with a cluster); ``cluster``: a Dask scheduler's address or a :class:`distributed.Client` (not closed here).
-    A job's exception is raised here, after the jobs still running are cancelled."""
+    with a cluster; :func:`check_jobs`, before anything runs); ``cluster``: a Dask scheduler's address or a
+    :class:`distributed.Client` (not closed here). A job's exception is raised here, after the jobs still running
+    are cancelled."""
+    check_jobs(jobs)
     if cluster is not None:
         yield from _on_cluster(fn, tasks, cluster)
     elif jobs <= 1 or len(tasks) <= 1:

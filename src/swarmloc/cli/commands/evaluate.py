@@ -47,7 +47,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         config = run_config(args)
         if args.gate is not None:  # --gate overrides the configuration's (0 disables it)
-            config = config.with_filter(gate=None if args.gate <= 0 else args.gate)
+            if args.gate < 0:
+                raise ConfigError(f"--gate: a probability in (0, 1), or 0 to turn the gate off, got {args.gate!r}")
+            config = config.with_filter(gate=None if args.gate == 0 else args.gate)
         if args.association is not None:
             config = config.with_filter(association=args.association)
         progress = not (args.quiet or args.json)
