@@ -9,6 +9,7 @@ import sys
 from dataclasses import replace
 
 from swarmloc.cli.options import real
+from swarmloc.runner.fanout import check_runs
 from swarmloc_studies.bench import FULL, MRCLAM_ENV, QUICK, REPLAY_ESTIMATORS, SECTIONS, BenchConfig, run_bench
 from swarmloc_studies.bench_report import format_report
 
@@ -31,13 +32,17 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> BenchConfig:
+    """The run's :class:`BenchConfig` from the options; ValueError naming a bad one (a count below 1 was taken as 1,
+    a duration below 0 as given)."""
     cfg = QUICK if args.quick else FULL
     if args.duration is not None:
+        if not args.duration > 0:
+            raise ValueError(f"bench: --duration is seconds > 0, got {args.duration!r}")
         cfg = replace(cfg, replay_duration=args.duration)
     if args.rounds is not None:
-        cfg = replace(cfg, replay_rounds=max(1, args.rounds))
+        cfg = replace(cfg, replay_rounds=check_runs(args.rounds, "bench: --rounds"))
     if getattr(args, "runs", None) is not None:
-        cfg = replace(cfg, runs=max(1, args.runs))
+        cfg = replace(cfg, runs=check_runs(args.runs, "bench: --runs"))
     if args.estimators:
         cfg = replace(cfg, estimators=tuple(e for e in args.estimators.split(",") if e))
     if getattr(args, "accelerator_sizes", None):

@@ -30,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Reproduce ``thesis`` or ``tables`` into ``--out``; 0, or 2 on a bad target or argument."""
-    from swarmloc.runner.fanout import ClusterUnavailable, connected
+    from swarmloc.runner.fanout import ClusterUnavailable, check_runs, connected
 
     if args.what == "tables":
         from swarmloc_studies.thesis_static.pooled import pooled_tables
@@ -51,6 +51,13 @@ def run(args: argparse.Namespace) -> int:
     from swarmloc_studies.thesis_dynamic import run_dynamic
     from swarmloc_studies.thesis_static import run_demo, run_tables
 
+    try:
+        check_runs(args.seeds, "--seeds")
+        if args.reps is not None and args.reps < 1:
+            raise ValueError(f"--reps must be >= 1, got {args.reps}")
+    except ValueError as exc:
+        print(f"swarmloc-studies reproduce thesis: {exc}", file=sys.stderr)
+        return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
@@ -63,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
                 "dynamic": run_dynamic(out / "dynamic", seeds=args.seeds, progress=progress, quick=args.quick,
                                        cluster=cluster),
             }  # fmt: skip
-    except ClusterUnavailable as exc:
+    except (ValueError, ClusterUnavailable) as exc:
         print(f"swarmloc-studies reproduce thesis: {exc}", file=sys.stderr)
         return 2
     report["wall_time_s"] = time.perf_counter() - t
