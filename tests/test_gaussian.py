@@ -65,6 +65,10 @@ def test_sample_covariance(G):
     # reproducible from the seed, different for another seed
     np.testing.assert_array_equal(gg.sample(5, 3), gg.sample(5, np.random.default_rng(3)))
     assert not np.allclose(gg.sample(5, 3), gg.sample(5, 4))
+    assert gg.sample(0, 1).shape == (0, G.n + 1, G.n + 1) and gg.sample(np.int64(2), 1).shape[0] == 2
+    for n in (-1, 10**12, 2.0, True):  # numpy's own error, or a 22 TiB allocation attempt, before
+        with pytest.raises(ValueError, match=r"GroupGaussian.sample: n must be an integer in \[0, "):
+            gg.sample(n, 1)
 
 
 @pytest.mark.parametrize("G", GROUPS, ids=_gid)

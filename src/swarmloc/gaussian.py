@@ -29,6 +29,9 @@ from swarmloc.lie.base import SEGroup
 from swarmloc.lie.checks import as_element, as_square, first_bad
 from swarmloc.text import numbers
 
+MAX_SAMPLE_ENTRIES = 10**9
+"""Most numbers one :meth:`GroupGaussian.sample` draws (8 GB of tangent vectors, before the group elements)."""
+
 _GROUPS: dict[str, type[SEGroup]] = {"SE2": SE2, "SE(2)": SE2, "se2": SE2, "SE3": SE3, "SE(3)": SE3, "se3": SE3}
 
 SYM_TOL = 1e-9
@@ -230,7 +233,11 @@ class GroupGaussian:
         return f"GroupGaussian({self.group.__name__}, {batch}{where}, std={std})"
 
     def sample(self, n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
-        """``n`` draws ``mean @ exp(hat(y))``, shape ``(n, *batch_shape, n+1, n+1)``."""
+        """``n`` draws ``mean @ exp(hat(y))``, shape ``(n, *batch_shape, n+1, n+1)``; ``n`` an integer from 0 to
+        :data:`MAX_SAMPLE_ENTRIES` over the batch size times the dimension (ValueError, before any allocation)."""
+        most = MAX_SAMPLE_ENTRIES // (int(np.prod(self.batch_shape, dtype=np.int64)) * self.dim)
+        if isinstance(n, bool) or not isinstance(n, int | np.integer) or not 0 <= n <= most:
+            raise ValueError(f"GroupGaussian.sample: n must be an integer in [0, {most}], got {n!r}")
         rng = np.random.default_rng(rng)
         L = np.linalg.cholesky(self.cov)
         z = rng.standard_normal((n, *self.batch_shape, self.dim))
