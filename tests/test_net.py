@@ -796,6 +796,7 @@ def test_cli_team_report_bag_and_ros_output(tmp_path, monkeypatch, capsys, termi
         ("diekf", ["--speed", "-1"], "speed is a finite number >= 0"),
         ("diekf", ["--start-timeout", "-1"], "timeouts are seconds >= 0"),
         ("diekf", ["--answer-retries", "1000"], "answer_retries is a count from 0 to 100"),
+        ("diekf", ["--ros-domain", "999"], "ros_domain is a ROS 2 domain id in 0..232"),  # (it ran, publishing there)
     ],
 )
 def test_team_refuses_what_it_cannot_run_before_starting_anything(est, extra, why, capsys, tmp_path):

@@ -16,6 +16,9 @@ from typing import Any
 from swarmloc.net import timeouts as T
 from swarmloc.net.faults import Faults
 
+MAX_ROS_DOMAIN = 232
+"""Largest ROS 2 domain id (DDS's: its ports would overflow above it)."""
+
 WAITS = ("answer_timeout", "hold_timeout", "update_timeout", "start_timeout", "lost_timeout", "quiet", "linger")
 """The settings that are waits: seconds >= 0."""
 
@@ -72,6 +75,9 @@ class NetSettings:
         for k in (*WAITS, "speed", "lag"):
             object.__setattr__(self, k, float(getattr(self, k)))
         object.__setattr__(self, "answer_retries", T.check_retries(self.answer_retries))
+        d = self.ros_domain
+        if d is not None and (isinstance(d, bool) or not isinstance(d, int) or not 0 <= d <= MAX_ROS_DOMAIN):
+            raise ValueError(f"NetNode: ros_domain is a ROS 2 domain id in 0..{MAX_ROS_DOMAIN}, got {d!r}")
         if self.wait_for is not None:
             object.__setattr__(self, "wait_for", frozenset(int(r) for r in self.wait_for))
         if self.record_rate is not None:

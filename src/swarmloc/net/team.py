@@ -165,7 +165,7 @@ def launch_team(
     of one of them, in turn (:func:`~swarmloc.net.transport.router_mesh`), the routers meshed with ``connect_extra``.
     """
     f = parse_faults(faults)
-    NetSettings(speed=speed, lag=lag, faults=f, **waits)  # what every node process would refuse, refused here
+    NetSettings(speed=speed, lag=lag, faults=f, ros_domain=ros_domain, **waits)  # what every node would refuse
     team = check_team(team or f"team{os.getpid()}")
     network_class(estimator)  # refuse an estimator a team cannot run before starting anything
     hosted = hosted_class(estimator) is not None

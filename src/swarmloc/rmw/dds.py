@@ -27,6 +27,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from swarmloc.net.settings import MAX_ROS_DOMAIN
 from swarmloc.rmw.ddsconfig import dds_config
 from swarmloc.rmw.inbox import MAX_BYTES, Callback, Inbox, Received
 from swarmloc.rmw.names import check_namespace, check_node_name, check_topic, dds_topic
@@ -190,8 +191,8 @@ class DdsMiddleware:
         from cyclonedds.qos import Qos as DdsQos
         from cyclonedds.sub import Subscriber
 
-        if isinstance(domain, bool) or not isinstance(domain, int) or not 0 <= domain <= 232:
-            raise ValueError(f"domain must be a DDS domain id in 0..232, got {domain!r}")
+        if isinstance(domain, bool) or not isinstance(domain, int) or not 0 <= domain <= MAX_ROS_DOMAIN:
+            raise ValueError(f"domain must be a DDS domain id in 0..{MAX_ROS_DOMAIN}, got {domain!r}")
         self.node_name, self.namespace = check_node_name(node_name), check_namespace(namespace)
         self.domain, self.scope = domain, scope
         self.inbox = Inbox(max_bytes)

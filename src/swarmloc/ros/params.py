@@ -21,6 +21,7 @@ import msgspec
 
 from swarmloc.config import Config, ConfigError
 from swarmloc.declared import attribute_docs, markdown_table
+from swarmloc.net.settings import MAX_ROS_DOMAIN
 
 Hz = Annotated[float, msgspec.Meta(gt=0, le=1000)]
 Seconds = Annotated[float, msgspec.Meta(ge=0, le=3600)]
@@ -89,7 +90,7 @@ class RosParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     middleware: Literal["cyclonedds", "zenoh"] = "cyclonedds"
     """ROS 2 middleware spoken: DDS (cyclonedds, as a stock rmw_cyclonedds_cpp or rmw_fastrtps_cpp robot) or
     rmw_zenoh's layout on Zenoh."""
-    domain_id: Annotated[int, msgspec.Meta(ge=0, le=232)] = 0
+    domain_id: Annotated[int, msgspec.Meta(ge=0, le=MAX_ROS_DOMAIN)] = 0
     """ROS_DOMAIN_ID of the robot's ROS graph (default: the environment's ROS_DOMAIN_ID, else 0)."""
     discovery_range: Literal["localhost", "subnet"] = "localhost"
     """Where ROS inputs may come from: this host only (inputs cannot be written from elsewhere) or the subnet."""
