@@ -148,6 +148,10 @@ def test_bank_rejects_bad_input():
         BankSettings.checked(reset_after=True)
     with pytest.raises(ValueError, match="unknown field"):
         BankSettings.checked(modes=3)
+    with pytest.raises(ValueError, match="n_particles"):  # built directly, unchecked: the bank checks it
+        ParticleFilterBank(BankSettings(n_particles=3))
+    with pytest.raises(TypeError, match="settings must be a BankSettings"):  # the count the bank took before
+        ParticleFilterBank(1000)  # type: ignore[arg-type]
     bank = ParticleFilterBank(BankSettings.checked(n_particles=100), rng=0)
     with pytest.raises(KeyError, match="no filter"):
         bank.estimate(1)

@@ -110,7 +110,8 @@ def _log_rel(mu: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 class BankSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """The bank's constants, each declared once with its range; :meth:`checked` builds one and checks every range
-    (a direct construction does not: msgspec checks on conversion)."""
+    (a direct construction does not: msgspec checks on conversion; :class:`ParticleFilterBank` checks what it is
+    given)."""
 
     n_particles: Annotated[int, msgspec.Meta(ge=10, le=1_000_000)] = 1000
     """Particles per filter."""
@@ -141,7 +142,10 @@ class ParticleFilterBank:
     (:meth:`BankSettings.checked`; default: every default); ``rng`` seeds the particles' draws."""
 
     def __init__(self, settings: BankSettings | None = None, rng: np.random.Generator | int | None = None) -> None:
-        self.settings = BankSettings() if settings is None else settings
+        if settings is not None and not isinstance(settings, BankSettings):
+            raise TypeError(f"ParticleFilterBank: settings must be a BankSettings (BankSettings.checked(n_particles="
+                            f"...)), got {settings!r}")  # fmt: skip
+        self.settings = BankSettings() if settings is None else BankSettings.checked(**msgspec.structs.asdict(settings))
         self.n = self.settings.n_particles
         self.rng = np.random.default_rng(rng)
         self.unexplained: dict[int, int] = {}
