@@ -48,9 +48,9 @@ def innovations(k: int, root: Path, config: Any, duration: float, yaw: bool) -> 
                              keep_runs=True)  # fmt: skip
     t0 = data.t_start + score["t0_s"]
     rows: dict[str, list[np.ndarray]] = {}
-    for run, readings in score["runs"]:
-        for robot, tr in run.tracks.items():
-            mine = [d for d in readings if d.observer == robot]
+    for held in score["runs"]:
+        for robot, tr in held.run.tracks.items():
+            mine = [d for d in held.readings if d.observer == robot]
             if not mine:
                 continue
             li = landmark_innovations(tr.times, tr.mean, tr.cov, mine, data.landmarks, std)

@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from swarmloc.evaluation.heldout import RECORD_LEAD, landmark_folds, landmark_innovations, landmark_nis, nis_summary
+from swarmloc.evaluation.heldout import (
+    RECORD_LEAD,
+    landmark_folds,
+    landmark_innovations,
+    landmark_nis,
+    nis_summary,
+    reading_times,
+)
 from swarmloc.events import Detection
 from swarmloc.lie import SE2
 
@@ -128,6 +135,41 @@ def test_filter_scores_score_every_reading_once_against_a_run_without_its_landma
     assert wide["anis_ref"] < same["anis"]
     off = filter_scores(data, model, ["rdl"], False, 40.0)["rdl"]
     assert off["readings"] == same["readings"] and "readings_all" not in off and "anees_folds" not in off
+
+
+def test_a_smoother_s_delayed_output_is_scored_on_the_held_out_readings_at_their_stamps(mrclam6):
+    """``flsd`` gets a row ``flsd_delayed``: each fold's held-out readings scored against that fold's run's delayed
+    output at their stamps (the poses that left the window there: a stamp where the robot read another fold's
+    landmark; 342 of 630 readings in these 30 s), and the truth at its poses' stamps. Filing the delayed output
+    changes no causal belief: the causal row's truth metrics equal a run of the default configuration (no delayed
+    output) to the bit, and the delayed row's those of the delayed output of a team run by hand."""
+    from swarmloc.config import DEFAULTS
+    from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
+    from swarmloc.estimators import make_team, node_options
+    from swarmloc.evaluation.delayed import delayed_output
+    from swarmloc.evaluation.metrics import evaluate
+    from swarmloc.experiments.mrclam import detection_set
+    from swarmloc.experiments.truthfree import fused_from_snapshots, landmark_readings
+    from swarmloc.runner import run
+    from swarmloc.sensors.decorrelate import CameraModel, ErrorComponent, decorrelate
+    from swarmloc_studies.lodo import filter_scores
+
+    data = load_mrclam(mrclam6)
+    model = CameraModel(ErrorComponent(0.15), ErrorComponent(0.005), source="test")
+    rows = filter_scores(data, model, ["flsd"], True, 30.0, holdout=3)
+    causal, late = rows["flsd"], rows["flsd_delayed"]
+    assert 0.3 * causal["readings"] < late["readings"] < causal["readings"] and np.isfinite(late["nis_ratio"])
+    assert np.isfinite(late["anees_folds"]) and late["pos_rmse"] < causal["pos_rmse"]  # smoothed: more accurate
+    t0, initial = fused_from_snapshots(data, detection_set(data), DEFAULTS)[:2]
+    rec = reading_times(landmark_readings(data, t0, t0 + 30.0))
+    events = [e for e in decorrelate(mrclam_events(data, range_std=0.15, bearing_std=0.005), model)
+              if t0 <= e.stamp <= t0 + 30.0]  # fmt: skip
+    for config in (DEFAULTS, DEFAULTS.with_filter(delayed_output=True)):
+        nodes = make_team("flsd", initial, **node_options("flsd", config, data.landmarks, t0))
+        team = evaluate(run(nodes, events, record_times=rec, truth=data.truth_at, name="flsd"))["team"]
+        assert (team["pos_rmse"], team["anees"]) == (causal["pos_rmse"], causal["anees"])
+    team = evaluate(delayed_output(nodes, data.truth_at, "flsd"))["team"]
+    assert (team["pos_rmse"], team["anees"]) == (late["pos_rmse"], late["anees"])
 
 
 def test_filter_scores_calibrate_the_yaw_diffusion_without_the_scored_span_or_the_held_out_fold(mrclam6, monkeypatch):

@@ -104,7 +104,7 @@ def test_the_truth_free_score_is_the_studys_own_and_is_unchanged_by_the_move(mrc
         assert mine["nis_ratio"] == scored["diekf"]["nis_ratio"] and mine["readings"] == 1625 and mine["folds"] == 3
     kept = truth_free_score(data, ds, events, "diekf", DEFAULTS, std, True, t_end, keep_runs=True)
     assert "runs" not in mine and len(kept["runs"]) == 3  # the runs a diagnosis reads, one per fold
-    again = np.concatenate([tracks_nis(run.tracks, readings, data.landmarks, std) for run, readings in kept["runs"]])
+    again = np.concatenate([tracks_nis(h.run.tracks, h.readings, data.landmarks, std) for h in kept["runs"]])
     assert np.median(again) / MEDIAN_CHI2_2 == kept["nis_ratio"] == mine["nis_ratio"] and again.size == 1625
 
 

@@ -70,14 +70,15 @@ class LandmarkInnovations(NamedTuple):
 
 def landmark_innovations(
     track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, dets: Sequence[Detection],
-    landmarks: Mapping[int, Sequence[float]], std: tuple[float, float],
+    landmarks: Mapping[int, Sequence[float]], std: tuple[float, float], lead: float = RECORD_LEAD,
 ) -> LandmarkInnovations:  # fmt: skip
     """The :class:`LandmarkInnovations` of landmark readings ``dets`` of one observer against its beliefs recorded
-    :data:`RECORD_LEAD` s before each (``mean`` ``(T, 3)``, right-perturbation ``cov`` ``(T, 3, 3)``), with the
-    reading's error std ``std`` = (range [m], bearing [rad]) and each landmark's map std."""
+    ``lead`` s before each (``mean`` ``(T, 3)``, right-perturbation ``cov`` ``(T, 3, 3)``; default
+    :data:`RECORD_LEAD`; 0: at the reading's stamp, as a smoother's delayed output has its poses), with the reading's
+    error std ``std`` = (range [m], bearing [rad]) and each landmark's map std."""
     t = np.array([d.t for d in dets], dtype=float).reshape(-1)
-    idx = np.clip(np.searchsorted(track_times, t - RECORD_LEAD - 1e-9), 0, max(len(track_times) - 1, 0))
-    ok = np.abs(track_times[idx] - (t - RECORD_LEAD)) < 1e-7 if len(track_times) else np.zeros(len(t), bool)
+    idx = np.clip(np.searchsorted(track_times, t - lead - 1e-9), 0, max(len(track_times) - 1, 0))
+    ok = np.abs(track_times[idx] - (t - lead)) < 1e-7 if len(track_times) else np.zeros(len(t), bool)
     x, P = mean[idx], cov[idx]
     ids = [d.target for d in dets if d.target is not None]
     if len(ids) < len(dets):
@@ -102,22 +103,25 @@ def landmark_innovations(
 
 
 def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, dets: Sequence[Detection],
-                 landmarks: Mapping[int, Sequence[float]], std: tuple[float, float]) -> np.ndarray:  # fmt: skip
-    """Predictive NIS (2 dof) of landmark readings ``dets`` of one observer against its beliefs recorded just
+                 landmarks: Mapping[int, Sequence[float]], std: tuple[float, float],
+                 lead: float = RECORD_LEAD) -> np.ndarray:  # fmt: skip
+    """Predictive NIS (2 dof) of landmark readings ``dets`` of one observer against its beliefs recorded ``lead`` s
     before each (:func:`landmark_innovations`: ``r' (H P H' + R + L)^-1 r``); NaN where no belief was recorded
-    just before a reading."""
+    then."""
     if not dets:
         return np.empty(0)
-    li = landmark_innovations(track_times, mean, cov, dets, landmarks, std)
+    li = landmark_innovations(track_times, mean, cov, dets, landmarks, std, lead)
     return np.where(li.ok, mahalanobis2(li.r, li.belief + li.noise), np.nan)
 
 
 def tracks_nis(tracks: Mapping[int, RobotTrack], readings: Sequence[Detection],
-               landmarks: Mapping[int, Sequence[float]], std: tuple[float, float]) -> np.ndarray:  # fmt: skip
+               landmarks: Mapping[int, Sequence[float]], std: tuple[float, float],
+               lead: float = RECORD_LEAD) -> np.ndarray:  # fmt: skip
     """The finite predictive NIS of landmark ``readings`` against the beliefs of ``tracks`` (every observer's own
-    track, recorded at :func:`reading_times`)."""
+    track, recorded at :func:`reading_times`, or with ``lead`` 0 at the readings' stamps; readings without a belief
+    then are left out)."""
     nis = np.concatenate([np.empty(0)] + [
-        landmark_nis(tr.times, tr.mean, tr.cov, [d for d in readings if d.observer == rb], landmarks, std)
+        landmark_nis(tr.times, tr.mean, tr.cov, [d for d in readings if d.observer == rb], landmarks, std, lead)
         for rb, tr in tracks.items()
     ])  # fmt: skip
     return nis[np.isfinite(nis)]

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from swarmloc.sensors.decorrelate import PRIOR_BEARING_STD, PRIOR_RANGE_STD, Det
 
 __all__ = [
     "FIX_COUNTS",
+    "HeldOutRun",
     "NoStart",
     "SCORED_SPAN",
     "fuse_fixes",
@@ -239,6 +240,15 @@ def landmark_readings(data: MRCLAMData, t0: float, t1: float) -> list[Detection]
     return [e for e in events if isinstance(e, Detection) and not e.target_is_robot and t0 < e.t <= t1]
 
 
+class HeldOutRun(NamedTuple):
+    """One run of :func:`heldout_runs`: its result, the readings it scores (its fold's, never fused in it) and its
+    nodes (a smoother's delayed output is theirs: :func:`~swarmloc.evaluation.delayed.delayed_output`)."""
+
+    run: RunResult
+    readings: list[Detection]
+    nodes: list[Any]
+
+
 def heldout_runs(
     name: str,
     initial: Mapping[int, GroupGaussian],
@@ -248,16 +258,17 @@ def heldout_runs(
     t0: float,
     configs: Mapping[frozenset[int], Config],
     truth: TruthFn | None = None,
-) -> list[tuple[RunResult, list[Detection]]]:
+) -> list[HeldOutRun]:
     """Estimator ``name`` once per fold of ``configs`` (landmark ids -> the run's configuration) from ``initial`` at
     ``t0``, on ``events`` less that fold's landmark readings (:func:`~swarmloc.evaluation.heldout.without_landmarks`),
-    beliefs recorded just before each of that fold's ``readings``; returns ``(run, the fold's readings)`` pairs."""
+    beliefs recorded just before each of that fold's ``readings``; one :class:`HeldOutRun` per fold."""
     out = []
     for fold, config in configs.items():
         mine = [d for d in readings if d.target in fold]
         nodes = make_team(name, initial, **node_options(name, config, landmarks, t0))
         rec = reading_times(mine) if mine else np.array([t0])
-        out.append((run(nodes, without_landmarks(events, fold), record_times=rec, truth=truth, name=name), mine))
+        res = run(nodes, without_landmarks(events, fold), record_times=rec, truth=truth, name=name)
+        out.append(HeldOutRun(res, mine, nodes))
     return out
 
 
@@ -283,7 +294,7 @@ def truth_free_score(
     landmarks off), ``t0_s`` (after the recording's start), ``duration_s`` (scored) and ``wall_s`` (every run of the
     score). ``start``: ``(t0, beliefs)`` of :func:`fused_from_snapshots` when the caller has them already, or
     another start's (:func:`initial_from_snapshots`'). ``keep_runs``: also ``runs``, the runs scored, each with the
-    readings it scores (``(run, readings)`` pairs; a diagnosis reads their innovations). Raises :class:`NoStart`
+    readings it scores (:class:`HeldOutRun`; a diagnosis reads their innovations). Raises :class:`NoStart`
     where there is no truth-free start before ``t_end``."""
     wall = time.perf_counter()
     t0, initial = fused_from_snapshots(data, ds, config)[:2] if start is None else start
@@ -295,7 +306,7 @@ def truth_free_score(
     readings = landmark_readings(data, t0, t_end)
     folds = landmark_folds(data.landmarks, holdout) if landmarks else [frozenset(data.landmarks)]
     scored = heldout_runs(name, initial, span, readings, data.landmarks, t0, dict.fromkeys(folds, config))
-    nis = np.concatenate([np.empty(0)] + [tracks_nis(r.tracks, d, data.landmarks, std) for r, d in scored])
+    nis = np.concatenate([np.empty(0)] + [tracks_nis(h.run.tracks, h.readings, data.landmarks, std) for h in scored])
     kept = {"runs": scored} if keep_runs else {}
     return {**nis_summary(nis), "folds": len(folds) if landmarks else 0, "t0_s": t0 - data.t_start,
             "duration_s": t_end - t0, "wall_s": time.perf_counter() - wall, **kept}  # fmt: skip

@@ -53,14 +53,14 @@ import numpy as np
 from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
-from swarmloc.evaluation.heldout import landmark_folds, nis_summary, reading_times, tracks_nis
+from swarmloc.evaluation.delayed import delayed_output
+from swarmloc.evaluation.heldout import RECORD_LEAD, landmark_folds, nis_summary, reading_times, tracks_nis
 from swarmloc.evaluation.metrics import evaluate
-from swarmloc.events import Detection
 from swarmloc.experiments.mrclam import detection_set, yaw_calibration
-from swarmloc.experiments.truthfree import fused_from_snapshots, heldout_runs, landmark_readings
+from swarmloc.experiments.truthfree import HeldOutRun, fused_from_snapshots, heldout_runs, landmark_readings
 from swarmloc.gaussian import GroupGaussian
 from swarmloc.motion.calibrate import scale_yaw
-from swarmloc.runner import run
+from swarmloc.runner import RunResult, TruthFn, run
 from swarmloc.runner.fanout import fan_out
 from swarmloc.sensors.decorrelate import (
     PRIOR_BEARING_STD,
@@ -192,31 +192,52 @@ def filter_scores(
                    for f, s in scales.items()}  # fmt: skip
     out: dict[str, dict[str, Any]] = {}
     for name in estimators:
-        nodes = make_team(name, initial, **node_options(name, configs[frozenset()], data.landmarks, t0))
+        own = configs
+        if name in SMOOTHER_NAMES:  # the delayed output too (filing it changes no causal belief)
+            own = {f: c.with_filter(delayed_output=True) for f, c in configs.items()}
+        nodes = make_team(name, initial, **node_options(name, own[frozenset()], data.landmarks, t0))
         wall = time.perf_counter()
         res = run(nodes, events, record_times=record, truth=truth, name=name)
         wall = time.perf_counter() - wall
         row: dict[str, Any] = {"wall_s": wall, "fused": int(res.stats.get("fused", 0))}
-        if truth is not None:
-            team = evaluate(res)["team"]
-            row.update(pos_rmse=team["pos_rmse"], heading_rmse=team["heading_rmse"], anees=team["anees"])
-        scored: list[tuple[Any, list[Detection]]] = [(res, readings)]  # landmarks off: every reading, this run
+        scored = [HeldOutRun(res, readings, nodes)]  # landmarks off: every reading, this run
         if folds:
             row.update(nis_summary(tracks_nis(res.tracks, readings, data.landmarks, std), "_all"))
-            scored = heldout_runs(name, initial, events, readings, data.landmarks, t0,
-                                  {f: configs[f] for f in folds}, truth)  # fmt: skip
-            if truth is not None:
-                row["anees_folds"] = float(np.mean([evaluate(r)["team"]["anees"] for r, _ in scored]))
-        row.update(nis_summary(np.concatenate([tracks_nis(r.tracks, d, data.landmarks, std) for r, d in scored])))
-        row.update(nis_summary(np.concatenate([tracks_nis(r.tracks, d, data.landmarks, ref) for r, d in scored]),
-                               "_ref"))  # fmt: skip
+            scored = heldout_runs(name, initial, events, readings, data.landmarks, t0, {f: own[f] for f in folds},
+                                  truth)  # fmt: skip
+        out[name] = row | _scores(res, scored, data, truth, std, ref)
+        if name in SMOOTHER_NAMES:
+            late = [HeldOutRun(delayed_output(h.nodes, truth, name), h.readings, h.nodes) for h in scored]
+            out[f"{name}_delayed"] = _scores(delayed_output(nodes, truth, name), late, data, truth, std, ref, 0.0)
         if calibrate_yaw and landmarks:
-            row["yaw_scale"] = scales[frozenset()]
-            row["yaw_scale_folds"] = [scales[f] for f in folds]
-        out[name] = row
+            out[name]["yaw_scale"] = scales[frozenset()]
+            out[name]["yaw_scale_folds"] = [scales[f] for f in folds]
     out["_span"] = {"t0": t0 - data.t_start, "duration_s": t1 - t0}
     out["_reference_std"] = {"range": ref[0], "bearing": ref[1]}
     return out
+
+
+SMOOTHER_NAMES = ("fls", "flsd")
+"""The estimators :func:`filter_scores` also scores by their delayed output (a row ``<name>_delayed``)."""
+
+
+def _scores(
+    res: RunResult, scored: Sequence[HeldOutRun], data: MRCLAMData, truth: TruthFn | None, std: tuple[float, float],
+    ref: tuple[float, float], lead: float = RECORD_LEAD,
+) -> dict[str, Any]:  # fmt: skip
+    """A row of :func:`filter_scores`: against the truth (the run ``res`` with every landmark; ``anees_folds``, the
+    folds' runs), and the held-out NIS of ``scored`` with the model's std ``std`` and the reference ``ref``, beliefs
+    ``lead`` s before each reading (0: the delayed output's, at the readings' stamps)."""
+    row: dict[str, Any] = {}
+    if truth is not None:
+        team = evaluate(res)["team"]
+        row.update(pos_rmse=team["pos_rmse"], heading_rmse=team["heading_rmse"], anees=team["anees"])
+        if len(scored) > 1 or scored[0].run is not res:
+            row["anees_folds"] = float(np.mean([evaluate(h.run)["team"]["anees"] for h in scored]))
+    for suffix, s in (("", std), ("_ref", ref)):
+        nis = [tracks_nis(h.run.tracks, h.readings, data.landmarks, s, lead) for h in scored]
+        row.update(nis_summary(np.concatenate([np.empty(0), *nis]), suffix))
+    return row
 
 
 def own_std(model: CameraModel, fold: dict[str, Any]) -> tuple[float, float]:
