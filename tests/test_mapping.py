@@ -239,7 +239,7 @@ def test_map_command_writes_a_table_figure_and_maps(tmp_path, capsys, terminal_p
     [
         (["--seeds", "0"], "seeds must be an integer in [1, 10000], got 0"),
         (["--seeds", "20000"], "seeds must be an integer in [1, 10000], got 20000"),
-        (["--first-seed", "-5"], "the first seed must be an integer in [0, 2^32 - seeds], got -5"),
+        (["--seeds", "2", "--first-seed", str(2**32 - 1)], "the first seed must be an integer in [0, 2^32 - seeds]"),
         (["--estimators", "foo"], "unknown estimator(s) ['foo']"),
         (["--D", "-1"], "D (the wheel-speed diffusion) must be a finite number >= 0"),
         (["--sigma", "-1"], "RangeFinder: need"),
@@ -247,7 +247,8 @@ def test_map_command_writes_a_table_figure_and_maps(tmp_path, capsys, terminal_p
 )
 def test_map_command_refuses_bad_input_in_one_line_before_any_run(argv, says, capsys) -> None:
     """Each of these raised a traceback (an IndexError for no seeds, a KeyError for an unknown estimator, a
-    configuration error naming ``q_v0`` for a negative ``--D``) after or before runs; now one line, status 2."""
+    configuration error naming ``q_v0`` for a negative ``--D``, numpy's for seeds past 2^32) after or before runs;
+    now one line, status 2."""
     from swarmloc.cli import main
 
     assert main(["map", "--quiet", *argv]) == 2
