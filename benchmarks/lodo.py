@@ -21,7 +21,7 @@ from swarmloc_studies.lodo import lodo, lodo_markdown
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_mrclam(ap)
-    ap.add_argument("--estimators", default="dekf,ci,rdl,diekf")
+    ap.add_argument("--estimators", default="dekf,ci,rdl,diekf,flsd", help="flsd: its delayed output too")
     ap.add_argument("--duration", type=float, default=200.0, help="seconds of each left-out dataset the filters run")
     ap.add_argument("--datasets", default="1,2,3,4,5,6,8,9", help="datasets to fit and score on")
     ap.add_argument("--filter-datasets", default=None, help="datasets the filters run on (default: all with odometry)")
