@@ -170,6 +170,8 @@ def test_a_smoother_s_delayed_output_is_scored_on_the_held_out_readings_at_their
         assert (team["pos_rmse"], team["anees"]) == (causal["pos_rmse"], causal["anees"])
     team = evaluate(delayed_output(nodes, data.truth_at, "flsd"))["team"]
     assert (team["pos_rmse"], team["anees"]) == (late["pos_rmse"], late["anees"])
+    off = filter_scores(data, model, ["flsd"], False, 30.0)["flsd_delayed"]  # one run, no folds: none to average
+    assert "anees_folds" not in off and 0 < off["readings"] and np.isfinite(off["anees"])
 
 
 def test_filter_scores_calibrate_the_yaw_diffusion_without_the_scored_span_or_the_held_out_fold(mrclam6, monkeypatch):

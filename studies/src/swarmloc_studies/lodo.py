@@ -205,10 +205,12 @@ def filter_scores(
             row.update(nis_summary(tracks_nis(res.tracks, readings, data.landmarks, std), "_all"))
             scored = heldout_runs(name, initial, events, readings, data.landmarks, t0, {f: own[f] for f in folds},
                                   truth)  # fmt: skip
-        out[name] = row | _scores(res, scored, data, truth, std, ref)
+        out[name] = row | _scores(res, scored, bool(folds), data, truth, std, ref)
         if name in SMOOTHER_NAMES:
-            late = [HeldOutRun(delayed_output(h.nodes, truth, name), h.readings, h.nodes) for h in scored]
-            out[f"{name}_delayed"] = _scores(delayed_output(nodes, truth, name), late, data, truth, std, ref, 0.0)
+            whole = delayed_output(nodes, truth, name)
+            late = [HeldOutRun(delayed_output(h.nodes, truth, name) if folds else whole, h.readings, h.nodes)
+                    for h in scored]  # fmt: skip
+            out[f"{name}_delayed"] = _scores(whole, late, bool(folds), data, truth, std, ref, 0.0)
         if calibrate_yaw and landmarks:
             out[name]["yaw_scale"] = scales[frozenset()]
             out[name]["yaw_scale_folds"] = [scales[f] for f in folds]
@@ -222,17 +224,18 @@ SMOOTHER_NAMES = ("fls", "flsd")
 
 
 def _scores(
-    res: RunResult, scored: Sequence[HeldOutRun], data: MRCLAMData, truth: TruthFn | None, std: tuple[float, float],
-    ref: tuple[float, float], lead: float = RECORD_LEAD,
+    res: RunResult, scored: Sequence[HeldOutRun], folds: bool, data: MRCLAMData, truth: TruthFn | None,
+    std: tuple[float, float], ref: tuple[float, float], lead: float = RECORD_LEAD,
 ) -> dict[str, Any]:  # fmt: skip
-    """A row of :func:`filter_scores`: against the truth (the run ``res`` with every landmark; ``anees_folds``, the
-    folds' runs), and the held-out NIS of ``scored`` with the model's std ``std`` and the reference ``ref``, beliefs
-    ``lead`` s before each reading (0: the delayed output's, at the readings' stamps)."""
+    """A row of :func:`filter_scores`: against the truth (the run ``res`` with every landmark; with ``folds``,
+    ``anees_folds`` of the folds' runs ``scored``), and the held-out NIS of ``scored`` with the model's std ``std``
+    and the reference ``ref``, beliefs ``lead`` s before each reading (0: the delayed output's, at the readings'
+    stamps)."""
     row: dict[str, Any] = {}
     if truth is not None:
         team = evaluate(res)["team"]
         row.update(pos_rmse=team["pos_rmse"], heading_rmse=team["heading_rmse"], anees=team["anees"])
-        if len(scored) > 1 or scored[0].run is not res:
+        if folds:
             row["anees_folds"] = float(np.mean([evaluate(h.run)["team"]["anees"] for h in scored]))
     for suffix, s in (("", std), ("_ref", ref)):
         nis = [tracks_nis(h.run.tracks, h.readings, data.landmarks, s, lead) for h in scored]
