@@ -26,7 +26,7 @@ from _common import add_mrclam
 
 from swarmloc.config import DEFAULTS, load_config
 from swarmloc.datasets.mrclam import load_mrclam
-from swarmloc.evaluation.heldout import MEDIAN_CHI2_2, landmark_innovations, landmark_nis
+from swarmloc.evaluation.heldout import MEDIAN_CHI2_2, landmark_innovations
 from swarmloc.experiments.evaluate import RECOMMENDED
 from swarmloc.experiments.mrclam import detection_set, mrclam_start, mrclam_stream, yaw_calibrated
 from swarmloc.experiments.truthfree import truth_free_score
@@ -54,10 +54,9 @@ def innovations(k: int, root: Path, config: Any, duration: float, yaw: bool) -> 
             if not mine:
                 continue
             li = landmark_innovations(tr.times, tr.mean, tr.cov, mine, data.landmarks, std)
-            nis = landmark_nis(tr.times, tr.mean, tr.cov, mine, data.landmarks, std)
-            idx = np.clip(np.searchsorted(tr.times, np.array([d.t for d in mine]) - 2e-6), 0, len(tr.times) - 1)
+            nis = li.nis()
             ok = li.ok & np.isfinite(nis)
-            P = tr.cov[idx][ok]
+            P = li.P[ok]
             heading = np.zeros_like(P)
             heading[:, 2, 2] = P[:, 2, 2]
             H = li.H[ok]

@@ -58,14 +58,19 @@ class LandmarkInnovations(NamedTuple):
     (:func:`landmark_innovations`), one row per reading: ``r`` ``(n, 2)`` (range [m], bearing [rad], the bearing
     wrapped), the belief's share of their covariance ``belief = H P H'`` ``(n, 2, 2)``, the rest ``noise = R + L``
     (the reading's variance and the landmark's map std pushed through the model), the Jacobian ``H`` ``(n, 2, 3)``
-    in the belief's right perturbation, and ``ok``: whether a belief was recorded just before the reading (the other
-    rows are not meaningful)."""
+    in the belief's right perturbation, the belief's covariance ``P`` ``(n, 3, 3)`` it was formed with, and ``ok``:
+    whether a belief was recorded just before the reading (the other rows are not meaningful)."""
 
     r: np.ndarray
     belief: np.ndarray
     noise: np.ndarray
     H: np.ndarray
+    P: np.ndarray
     ok: np.ndarray
+
+    def nis(self) -> np.ndarray:
+        """The normalized innovation squared ``r' (belief + noise)^-1 r`` of each row (NaN where not ``ok``)."""
+        return np.where(self.ok, mahalanobis2(self.r, self.belief + self.noise), np.nan)
 
 
 def landmark_innovations(
@@ -99,7 +104,7 @@ def landmark_innovations(
     jl = jq @ rot_t
     L = jl @ (np.eye(2)[None] * np.square(lm[:, 2:4])[:, :, None]) @ np.swapaxes(jl, 1, 2)
     noise = np.diag([std[0] ** 2, std[1] ** 2])[None] + L
-    return LandmarkInnovations(r, H @ P @ np.swapaxes(H, 1, 2), noise, H, ok)
+    return LandmarkInnovations(r, H @ P @ np.swapaxes(H, 1, 2), noise, H, P, ok)
 
 
 def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, dets: Sequence[Detection],
@@ -110,8 +115,7 @@ def landmark_nis(track_times: np.ndarray, mean: np.ndarray, cov: np.ndarray, det
     then."""
     if not dets:
         return np.empty(0)
-    li = landmark_innovations(track_times, mean, cov, dets, landmarks, std, lead)
-    return np.where(li.ok, mahalanobis2(li.r, li.belief + li.noise), np.nan)
+    return landmark_innovations(track_times, mean, cov, dets, landmarks, std, lead).nis()
 
 
 def tracks_nis(tracks: Mapping[int, RobotTrack], readings: Sequence[Detection],
