@@ -221,7 +221,7 @@ def track_anonymous(
     of the detections that share a stamp."""
     if ego not in robots:
         raise ValueError(f"track_anonymous: ego {ego!r} is not one of the robots {list(robots)}")
-    bank = ParticleFilterBank(BankSettings.checked(n_particles=n_particles, reset_after=reset_after), rng=rng)
+    bank = ParticleFilterBank(BankSettings(n_particles=n_particles, reset_after=reset_after), rng=rng)  # it checks them
     if bin_width is None:
         scans = anonymous_scans(events, robots)
     else:
