@@ -75,15 +75,30 @@ def test_config_option_reaches_diekf_only():
     cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, diekf_adaptive=True))
     assert node_options("diekf", cfg, None)["adaptive"] is True
     median = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, diekf_adaptive="median"))
-    assert node_options("diekf", median, None)["adaptive"] == "median"
-    assert "adaptive" not in node_options("diekf", DEFAULTS, None)  # the engine's diekf takes no such option
+    assert node_options("diekf", median, None)["adaptive"] == "median" == DEFAULTS.filter.diekf_adaptive
+    fixed = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, diekf_adaptive=False))
+    assert "adaptive" not in node_options("diekf", fixed, None)  # the engine's diekf takes no such option
     assert "adaptive" not in node_options("rdl", cfg, None)
 
 
 def test_the_engine_refuses_the_option_clearly():
-    src = load_source("sim:landmarks", robots=2, duration=2.0, seed=0)
-    with pytest.raises(ValueError, match="keeps its noise fixed"):
+    """A scale the engine would not reproduce is refused (the default median scale where landmarks are fused);
+    without landmarks to fuse the median scale is 1 and the engine replays the nodes' numbers."""
+    src = load_source("sim:landmarks", robots=4, duration=8.0, seed=0)
+    with pytest.raises(ValueError, match="keeps its noise fixed.*diekf_adaptive.*set it to false"):
         run_engine(src, "diekf", adaptive=True)
+    with pytest.raises(ValueError, match="keeps its noise fixed"):
+        run_engine(src, "diekf")  # the default, with a map and landmark detections
+    assert run_engine(src, "diekf", backend="numba", adaptive=False).stats["fused"] > 0
+    off = run_engine(src, "diekf", backend="numba", use_landmarks=False)  # median without landmarks: fixed noise
+    opts = {**node_options("diekf", src.config, src.landmarks), "use_landmarks": False}
+    assert opts["adaptive"] == "median"
+    nodes = make_team("diekf", src.initial, **opts)
+    assert all(n.noise_scale is None for n in nodes)
+    ref = run(nodes, src.events, record_times=src.record_times(), truth=src.truth)
+    assert ref.stats["fused"] == off.stats["fused"] > 0
+    for r, tr in ref.tracks.items():
+        assert np.allclose(off.tracks[r].mean, tr.mean, rtol=0, atol=1e-10)
 
 
 def _anees(adaptive: bool, seed: int) -> float:
@@ -92,7 +107,7 @@ def _anees(adaptive: bool, seed: int) -> float:
     noise = opts["noise"]  # every variance 9 times too small: the std 3 times
     small = {f.name: getattr(noise, f.name) / 9 for f in dataclasses.fields(noise)}
     opts["noise"] = dataclasses.replace(noise, **small)
-    nodes = make_team("diekf", src.initial, adaptive=adaptive, **opts)
+    nodes = make_team("diekf", src.initial, **{**opts, "adaptive": adaptive})
     res = run(nodes, src.events, src.record_times(), truth=src.truth, name="diekf")
     return float(evaluate(res)["team"]["anees"])
 

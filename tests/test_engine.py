@@ -3,6 +3,8 @@ counts), its structure-of-arrays kernels equal the kernels, its backends agree, 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -24,6 +26,13 @@ pytestmark = pytest.mark.unit
 
 TOL = 1e-10
 COUNTS = ("detections", "fused", "gated", "rejected", "unknown", "odometry", "odometry_used", "recorded")
+
+
+def fixed_noise(src: Source) -> Source:
+    """``src`` with ``diekf``'s process noise fixed (``[filter] diekf_adaptive = false``): the engine's replay does
+    not scale it (it refuses the default median scale where landmarks are fused), so the nodes it is held equal to
+    run it fixed too."""
+    return dataclasses.replace(src, config=src.config.with_filter(diekf_adaptive=False))
 
 
 def _source(n: int, duration: float, seed: int, kinds: tuple[str, ...] = ("pose",), fixes: bool = False) -> Source:

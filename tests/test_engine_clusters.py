@@ -9,7 +9,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_engine import _source
+from test_engine import _source, fixed_noise
 from test_engine_cekf import _same, _same_on_mrclam, _with, robot_extras
 
 from swarmloc.engine import run_engine
@@ -61,7 +61,7 @@ def test_clusters_as_large_as_the_team_are_the_exact_filter() -> None:
 
 def test_clusters_on_the_engine_equal_the_nodes_with_landmarks() -> None:
     """Landmarks on, off, and relative measurements off (landmarks only), clusters of 2 of 5 robots."""
-    src = load_source("sim:landmarks", robots=5, duration=12.0, seed=5)
+    src = fixed_noise(load_source("sim:landmarks", robots=5, duration=12.0, seed=5))
     for opts in ({}, {"use_landmarks": False}, {"use_relative": False}):
         ref, eng = _nodes(src, cluster=2, **opts), run_engine(src, "diekf", backend="numba", cluster=2, **opts)
         _same(ref, eng)
@@ -86,7 +86,7 @@ def test_clusters_on_the_engine_equal_the_nodes_when_a_cluster_mate_starts_late(
 
 def test_clusters_on_the_engine_equal_the_nodes_on_mrclam6(mrclam6) -> None:
     """The first 120 s of MRCLAM dataset 6, clusters of 2 (robots 1-2, 3-4, 5), landmarks on."""
-    src = load_source(f"mrclam:{mrclam6}", duration=120.0)
+    src = fixed_noise(load_source(f"mrclam:{mrclam6}", duration=120.0))
     ref, eng = _nodes(src, cluster=2), run_engine(src, "diekf", backend="numba", cluster=2)
     _same_on_mrclam(ref, eng)
     assert eng.stats["fused"] > 2000

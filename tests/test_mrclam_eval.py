@@ -116,12 +116,17 @@ def test_cli_calibrate_yaw_scales_the_yaw_terms_as_the_recording_says(capsys, mr
     assert "--calibrate-yaw needs an MRCLAM recording" in capsys.readouterr().err
 
 
-def test_cli_engine_flag_runs_the_compiled_replays_with_the_nodes_results(capsys, mrclam6: Path):
-    """``--engine``: dekf, cekf, rdl and diekf through the engine's compiled replays score as the nodes do (same
-    counts, RMSE and ANEES to 1e-9), their rows say so; another estimator, an association policy or an event file
-    is refused with the reason (exit 2)."""
-    args = ["evaluate", "mrclam", str(mrclam6), "--estimators", "dekf,cekf,rdl,diekf", "--duration", "20", "--json",
+def test_cli_engine_flag_runs_the_compiled_replays_with_the_nodes_results(capsys, mrclam6: Path, tmp_path: Path):
+    """``--engine``: dekf, cekf, rdl and diekf (its noise fixed) through the engine's compiled replays score as the
+    nodes do (same counts, RMSE and ANEES to 1e-9), their rows say so; diekf's default adaptive noise with
+    landmarks, another estimator, an association policy or an event file is refused with the reason (exit 2)."""
+    fixed = tmp_path / "fixed.toml"
+    fixed.write_text("[filter]\ndiekf_adaptive = false\n")
+    base = ["evaluate", "mrclam", str(mrclam6), "--estimators", "dekf,cekf,rdl,diekf", "--duration", "20", "--json",
             "--quiet"]  # fmt: skip
+    assert main([*base[:4], "diekf", *base[5:], "--engine"]) == 2
+    assert "diekf keeps its noise fixed: run [filter] diekf_adaptive" in capsys.readouterr().err
+    args = [*base, "--config", str(fixed)]
     assert main([*args, "--engine"]) == 0
     eng = json.loads(capsys.readouterr().out)["estimators"]
     assert main(args) == 0

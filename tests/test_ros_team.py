@@ -251,8 +251,8 @@ def test_three_ros_nodes_on_a_stock_ros2_graph_equal_the_replay(tmp_path, middle
 
 def test_a_detection_sent_late_is_refused_and_the_outputs_equal_the_replay_without_it(tmp_path):
     """The peer sends one of robot 2's detections 1.5 s after its stamp (the window is 1 s): robot 2's node refuses
-    it (``late_stale``) and says which event it refused; the outputs equal the replay of the messages sent less that
-    event to 1e-9 (the replay of every message sent, which fuses it, differs)."""
+    it (``late_stale``) and says which event it refused; the outputs equal the replay of the messages sent less the
+    events refused to 1e-9 (the replay of every message sent, which fuses it, differs)."""
     src = load_source("sim:random", robots=3, duration=4.0, seed=1)
     lines = [json.loads(x) for x in messages_file(tmp_path, src).read_text().splitlines()]
     k = next(i for i, x in enumerate(lines) if x["topic"] == TOPIC["detections"].format(r=2) and x["at"] >= 2.0)
@@ -263,9 +263,14 @@ def test_a_detection_sent_late_is_refused_and_the_outputs_equal_the_replay_witho
                if x["topic"] == lines[k]["topic"] and x["at"] == lines[k]["at"])  # fmt: skip
     stamp = rec["msg"]["header"]["stamp"]
     assert rec["sent_ns"] * 1e-9 - stamp["sec"] - 1e-9 * stamp["nanosec"] > 1.4, rec  # it was sent late
-    assert [(x["kind"], x["robot"], x["reason"]) for x in refused] == [("detection", 2, "stale")], refused
-    assert abs(refused[0]["stamp"] - (stamp["sec"] + 1e-9 * stamp["nanosec"])) < 1e-6, (refused, stamp)
-    assert "'late_stale': 1" in next(x for x in logs[2].splitlines() if "inputs {" in x), logs[2]
+    t_late = stamp["sec"] + 1e-9 * stamp["nanosec"]
+    mine = [x for x in refused if x["robot"] == 2 and abs(x["stamp"] - t_late) < 1e-6]
+    assert [(x["kind"], x["reason"]) for x in mine] == [("detection", "stale")], (refused, stamp)
+    # on a loaded machine a node can read another input more than the window late: refused as stale too, said so,
+    # and left out of the replay as well (once, in CI, robot 0's and two more of robot 2's)
+    assert all(x["reason"] == "stale" for x in refused), refused
+    n2 = sum(x["robot"] == 2 for x in refused)
+    assert f"'late_stale': {n2}" in next(x for x in logs[2].splitlines() if "inputs {" in x), logs[2]
     compared = compare_or_tell(tmp_path, params, sent, got, logs)
     assert min(compared.values()) > 5, compared
     with pytest.raises(AssertionError):  # the replay of every message sent is not what the nodes read

@@ -126,9 +126,12 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
     opts.pop("association_gate", None)
     if opts.pop("association", "tags") != "tags":
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
+    if opts.get("adaptive") == "median" and not (opts.get("landmarks") and opts.get("use_landmarks", True)):
+        opts.pop("adaptive")  # the median scale reads landmark innovations: without any it is 1 (the fixed noise)
     for option, why in _NODES_ONLY.items():
         if opts.pop(option, False):
-            raise ValueError(f"the engine's diekf {why}: run [filter] diekf_{option} with the nodes")
+            raise ValueError(f"the engine's diekf {why}: run [filter] diekf_{option} with the nodes, or set it to "
+                             f"false for the engine")  # fmt: skip
     return opts
 
 

@@ -152,6 +152,8 @@ class DistributedInvariantEKF(RobotNode):
                  reform: float = 0.0, adaptive: bool | Literal["median"] = False, odocal: bool = False,
                  fault: bool = False, **kw: Any) -> None:  # fmt: skip
         self.faults = FaultMonitor() if fault else None
+        if adaptive == "median" and not (kw.get("landmarks") and kw.get("use_landmarks", True)):
+            adaptive = False  # its scale reads landmark innovations: with none to fuse it is 1, the noise as given
         self.noise_scale = MedianScale() if adaptive == "median" else NoiseScale() if adaptive else None
         self.odometry = OdometryCalibration() if odocal else None
         self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=True,

@@ -447,8 +447,12 @@ def mrclam_replay(
     without landmarks, through :func:`swarmloc.experiments.evaluate.evaluate_stream` (the events built once per setting,
     as ``swarmloc evaluate mrclam`` builds them). ``x_real_time``: replayed seconds / best wall time of the event loop
     over ``rounds``. With an estimator of :data:`ENGINE_REPLAY`, also a row ``<name>/engine``: the same run through
-    the batched engine's compiled replay (numba; :func:`swarmloc.experiments.mrclam.engine_replay`, whole call)."""
+    the batched engine's compiled replay (numba; :func:`swarmloc.experiments.mrclam.engine_replay`, whole call).
+    Both rows run ``diekf`` with its process noise fixed (``diekf_adaptive = false``): the engine's replay does not
+    scale it, so the rows time one filter."""
     from swarmloc.config import DEFAULTS
+
+    fixed = DEFAULTS.with_filter(diekf_adaptive=False)
     from swarmloc.datasets.mrclam import load_mrclam
     from swarmloc.experiments import mrclam as M
     from swarmloc.experiments.evaluate import evaluate_stream
@@ -471,7 +475,7 @@ def mrclam_replay(
                 rep, _ = evaluate_stream(
                     events, M.initial_beliefs(data, DEFAULTS), t_start=data.t_start, t_end=t_end,
                     truth=data.truth_at if data.has_truth else None, landmarks=data.landmarks, estimators=[name],
-                    config=DEFAULTS,
+                    config=fixed,
                 )  # fmt: skip
                 best = min(best, rep["estimators"][name]["wall_time_s"])
             team = rep["estimators"][name].get("team") or {}
@@ -479,7 +483,7 @@ def mrclam_replay(
                           "anees": team.get("anees")}  # fmt: skip
             tick(f"replay {name}, landmarks {'on' if lm else 'off'}")
         for name in ENGINE_REPLAY:  # the same filter through the engine's compiled replay, every call timed whole
-            eng = M.engine_replay(data, events, t_end, lm, rounds, estimator=name) if name in estimators else None
+            eng = M.engine_replay(data, events, t_end, lm, rounds, fixed, name) if name in estimators else None
             if eng is not None:
                 rows[f"{name}/engine"] = eng
                 tick(f"replay {name}/engine, landmarks {'on' if lm else 'off'}")
