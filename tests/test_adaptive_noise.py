@@ -93,6 +93,8 @@ def test_the_engine_refuses_the_option_clearly():
     off = run_engine(src, "diekf", backend="numba", use_landmarks=False)  # median without landmarks: fixed noise
     opts = {**node_options("diekf", src.config, src.landmarks), "use_landmarks": False}
     assert opts["adaptive"] == "median"
+    with_map = make_team("diekf", src.initial, **{**opts, "use_landmarks": True})
+    assert all(isinstance(n.noise_scale, MedianScale) for n in with_map)  # the default where landmarks are fused
     nodes = make_team("diekf", src.initial, **opts)
     assert all(n.noise_scale is None for n in nodes)
     ref = run(nodes, src.events, record_times=src.record_times(), truth=src.truth)
@@ -197,3 +199,15 @@ def test_median_scale_replays_rewrite():
         assert inn is not None
         ms.record(0.01 * k, ("d", 0.01 * k), inn)
     assert before < 0.5 and ms.scale(1.0) == 1.0
+
+
+def test_median_scale_whose_only_entry_a_replay_drops_reads_1():
+    """A replay that drops the one innovation filed (it is no longer prediction-dominated) leaves an empty log: the
+    scale reads 1 (the empty window once failed to rebuild, first met by a lying teammate's replayed updates)."""
+    ms = MedianScale(window=60.0)
+    rng = np.random.default_rng(3)
+    R, B = _pencil(rng, 300.0)
+    ms.record(1.0, "d", innovation_terms(np.ones(2), R + B, R, landmark=True))  # type: ignore[arg-type]
+    assert ms._log
+    ms.record(1.0, "d", innovation_terms(np.ones(2), R + 1e-6 * B, R, landmark=True))  # type: ignore[arg-type]
+    assert not ms._log and ms.scale(2.0) == 1.0

@@ -252,7 +252,7 @@ class MedianScale(_Windowed):
         rows = self._rows()
         m = max((len(v[2]) for v in rows), default=0)  # fewer dof padded with c = 0
         self._landmarks = np.concatenate([[0], np.cumsum([v[1] for v in rows])])
-        self._c = np.array([np.pad(v[2], (0, m - len(v[2]))) for v in rows]).reshape(-1, m)
-        self._mu = np.array([np.pad(v[3], (0, m - len(v[3]))) for v in rows]).reshape(-1, m)
+        self._c = np.array([np.pad(v[2], (0, m - len(v[2]))) for v in rows]).reshape(len(rows), m)  # (0, 0): none
+        self._mu = np.array([np.pad(v[3], (0, m - len(v[3]))) for v in rows]).reshape(len(rows), m)
         self._med = np.array([v[4] for v in rows])
         self._solved = {}

@@ -21,8 +21,11 @@ An update of observer ``i`` detecting ``j`` (or a landmark: ``j = i``, ``H_j = 0
    covariance-intersection divisions inflated the part, docs/benchmarks.md).
 
 Every robot applies the broadcasts in key order (the node's history replays a late one), so all replicas agree and
-the estimates equal the centralized invariant EKF's (tested to 1e-9). Nothing is approximated: no correlation is
-left untracked, which is what makes the filter consistent without landmarks, where ``rdl``'s pairwise
+the estimates equal the centralized invariant EKF's (tested to 1e-9) with the same process noise. Where landmarks
+are fused, each robot by default scales its own process noise online from its innovations (``adaptive="median"``,
+:class:`~swarmloc.estimators.adaptive_noise.MedianScale`; a prediction only adds to ``P_ii``, so a scaled one changes
+no cross-covariance and no replica); ``adaptive=False`` keeps the noise as given. Nothing is approximated: no
+correlation is left untracked, which is what makes the filter consistent without landmarks, where ``rdl``'s pairwise
 approximation of third-party correlations fails. The price is communication and memory: one broadcast of
 ``O(m^2)`` numbers to all ``n - 1`` teammates per fused detection, ``O(n^2)`` memory and flops per robot per
 update, and a connected all-to-all channel (a lost broadcast leaves replicas different). Gated detections are
@@ -133,9 +136,10 @@ class DistributedInvariantEKF(RobotNode):
     replica and broadcasts over the robot's cluster only, covariance intersection with robots outside it. The
     exchange's queries are :class:`~swarmloc.estimators.state_exchange.StateQueries`' (``rdl``'s). ``adaptive``: the
     process noise scaled online from this robot's own innovations (:class:`~swarmloc.estimators.adaptive_noise.
-    NoiseScale`, or ``"median"``: :class:`~swarmloc.estimators.adaptive_noise.MedianScale`; :attr:`noise_scale`;
-    ``[filter] diekf_adaptive``). ``odocal``: this robot's odometry scale and yaw-rate
-    bias calibrated online from its own posteriors (:class:`~swarmloc.motion.odocal.OdometryCalibration`,
+    NoiseScale`, or ``"median"``, the default: :class:`~swarmloc.estimators.adaptive_noise.MedianScale`, only where
+    landmarks are fused; :attr:`noise_scale`; ``[filter] diekf_adaptive``; False: the noise as given).
+    ``odocal``: this robot's odometry scale and yaw-rate bias calibrated online from its own posteriors
+    (:class:`~swarmloc.motion.odocal.OdometryCalibration`,
     :attr:`odometry`; SE(2) only; ``[filter] diekf_odocal``). ``fault``: an odometry fault of this robot detected
     from the mutual detections it takes part in, its covariance inflated
     (:class:`~swarmloc.estimators.odometry_fault.FaultMonitor`, :attr:`faults`; ``[filter] diekf_fault``)."""
@@ -149,7 +153,7 @@ class DistributedInvariantEKF(RobotNode):
     protocol: TeamProtocol
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
-                 reform: float = 0.0, adaptive: bool | Literal["median"] = False, odocal: bool = False,
+                 reform: float = 0.0, adaptive: bool | Literal["median"] = "median", odocal: bool = False,
                  fault: bool = False, **kw: Any) -> None:  # fmt: skip
         self.faults = FaultMonitor() if fault else None
         if adaptive == "median" and not (kw.get("landmarks") and kw.get("use_landmarks", True)):
