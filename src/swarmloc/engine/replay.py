@@ -135,9 +135,10 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
     return opts
 
 
-_NODES_ONLY = {"adaptive": "keeps its noise fixed", "odocal": "takes the odometry as given",
-               "fault": "has no odometry-fault test", "reform": "clusters stay fixed"}  # fmt: skip
-"""``diekf``'s options that only its nodes run (a true value refused) -> what the engine's replay does instead."""
+_NODES_ONLY = {"odocal": "takes the odometry as given", "fault": "has no odometry-fault test",
+               "reform": "clusters stay fixed", "adaptive": "keeps its noise fixed"}  # fmt: skip
+"""``diekf``'s options that only its nodes run (a true value refused) -> what the engine's replay does instead; the
+default one (``adaptive``) last, so that an option set on purpose is the one named."""
 
 
 def _result(name: str, src: Source, rows: dict[Any, list[Row]], checked: Checked, counts: Counter[str],
