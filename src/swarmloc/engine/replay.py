@@ -60,6 +60,7 @@ from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.outcomes import tally
 from swarmloc.engine.replay_io import Replayed
 from swarmloc.estimators import node_options
+from swarmloc.estimators.adaptive_noise import in_force
 from swarmloc.events import Detection, Kind
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2, SE3
@@ -126,8 +127,8 @@ def _options(src: Source, estimator: str, options: dict[str, Any]) -> dict[str, 
     opts.pop("association_gate", None)
     if opts.pop("association", "tags") != "tags":
         raise ValueError("the engine fuses tagged detections only: run an association policy with the nodes")
-    if opts.get("adaptive") == "median" and not (opts.get("landmarks") and opts.get("use_landmarks", True)):
-        opts.pop("adaptive")  # the median scale reads landmark innovations: without any it is 1 (the fixed noise)
+    if "adaptive" in opts:  # the median scale without a landmark to fuse is the fixed noise the replay keeps
+        opts["adaptive"] = in_force(opts["adaptive"], opts.get("landmarks"), opts.get("use_landmarks", True))
     for option, why in _NODES_ONLY.items():
         if opts.pop(option, False):
             raise ValueError(f"the engine's diekf {why}: run [filter] diekf_{option} with the nodes, or set it to "

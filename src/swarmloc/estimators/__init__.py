@@ -174,8 +174,8 @@ def node_options(
         lag=f.smoother_lag,
         delayed=f.delayed_output,
         cluster=f.diekf_cluster,
-        **({"reform": f.diekf_reform} if f.diekf_reform else {}),  # the engine's diekf takes no such option
         adaptive=f.diekf_adaptive,  # always given: False must reach a diekf whose default is "median"
+        **({"reform": f.diekf_reform} if f.diekf_reform else {}),  # the engine's diekf takes no such option
         **({"odocal": True} if f.diekf_odocal else {}),  # nor this one
         **({"fault": True} if f.diekf_fault else {}),  # nor this one
         quarantine=f.quarantine,

@@ -50,7 +50,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from bisect import bisect_left
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
@@ -66,6 +66,7 @@ __all__ = [
     "Innovation",
     "MedianScale",
     "NoiseScale",
+    "in_force",
     "innovation_terms",
 ]
 
@@ -75,6 +76,17 @@ LOW, HIGH = 1.0, 100.0
 """Bounds of the process-noise scale (module docstring: why not below 1)."""
 FLOOR, SHARE, MIN_COUNT = 0.01, 0.5, 5
 """The median variant's lowest scale, least prediction share per dof, and fewest innovations in a window."""
+
+
+Adaptive = bool | Literal["median"]
+"""``diekf``'s ``adaptive`` option: False, True (:class:`NoiseScale`) or ``"median"`` (:class:`MedianScale`)."""
+
+
+def in_force(adaptive: Adaptive, landmarks: Any, use_landmarks: bool = True) -> Adaptive:
+    """``adaptive`` as it acts on a ``diekf`` with the landmark map ``landmarks``: the median variant reads landmark
+    innovations only, so where no landmark can be fused (no map, or landmarks off) its scale is 1 and it is the fixed
+    noise, ``False`` (the node builds no scale, the engine replays it as it is)."""
+    return False if adaptive == "median" and not (landmarks and use_landmarks) else adaptive
 
 
 class Innovation(NamedTuple):

@@ -101,7 +101,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from swarmloc.estimators.adaptive_noise import MedianScale, NoiseScale
+from swarmloc.estimators.adaptive_noise import MedianScale, NoiseScale, in_force
 from swarmloc.estimators.cluster_reform import Boundary, Reforming, seen_schedule
 from swarmloc.estimators.odometry_fault import FaultMonitor, broadcast_evidence, observer_evidence
 from swarmloc.estimators.team_protocol import TeamProtocol
@@ -156,8 +156,7 @@ class DistributedInvariantEKF(RobotNode):
                  reform: float = 0.0, adaptive: bool | Literal["median"] = "median", odocal: bool = False,
                  fault: bool = False, **kw: Any) -> None:  # fmt: skip
         self.faults = FaultMonitor() if fault else None
-        if adaptive == "median" and not (kw.get("landmarks") and kw.get("use_landmarks", True)):
-            adaptive = False  # its scale reads landmark innovations: with none to fuse it is 1, the noise as given
+        adaptive = in_force(adaptive, kw.get("landmarks"), kw.get("use_landmarks", True))
         self.noise_scale = MedianScale() if adaptive == "median" else NoiseScale() if adaptive else None
         self.odometry = OdometryCalibration() if odocal else None
         self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=True,
