@@ -71,13 +71,14 @@ def test_outliers_are_capped_and_replays_rewrite():
     assert lam > 1 and np.allclose(ns.inflate(P0, P1, 2.0), P0 + lam * (P1 - P0))
 
 
-def test_config_option_reaches_diekf_only():
+def test_config_option_reaches_diekf_and_flsd_only():
     cfg = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, diekf_adaptive=True))
     assert node_options("diekf", cfg, None)["adaptive"] is True
     median = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, diekf_adaptive="median"))
     assert node_options("diekf", median, None)["adaptive"] == "median" == DEFAULTS.filter.diekf_adaptive
     fixed = dataclasses.replace(DEFAULTS, filter=dataclasses.replace(DEFAULTS.filter, diekf_adaptive=False))
     assert node_options("diekf", fixed, None)["adaptive"] is False  # given, or the class default would apply
+    assert node_options("flsd", fixed, None)["adaptive"] is False
     assert "adaptive" not in node_options("rdl", cfg, None)
 
 

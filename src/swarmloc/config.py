@@ -337,9 +337,9 @@ class FilterConfig(Section):
     """[s] period at which diekf's clusters re-form from whom the robots saw (0: fixed clusters; needs diekf_cluster
     and a recording)"""
     diekf_adaptive: bool | Literal["median"] = "median"
-    """diekf scales its process noise online from its own innovations (swarmloc.estimators.adaptive_noise): "median"
-    (median matching after dead reckoning, down to 0.01, only while it fuses landmarks), true (covariance matching,
-    only up) or false (the noise as configured)"""
+    """diekf and flsd scale their process noise online from their own innovations (swarmloc.estimators.adaptive_noise):
+    "median" (median matching after dead reckoning, down to 0.01, only while they fuse landmarks), true (covariance
+    matching, only up) or false (the noise as configured)"""
     diekf_odocal: bool = False
     """diekf calibrates each robot's odometry scale and yaw-rate bias online, truth-free (swarmloc.motion.odocal)"""
     diekf_fault: bool = False

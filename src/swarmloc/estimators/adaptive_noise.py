@@ -1,5 +1,5 @@
-"""Online process-noise adaptation from a filter's own innovations (``diekf``'s ``adaptive`` option): a robust,
-windowed covariance-matching scale of the process noise.
+"""Online process-noise adaptation from a filter's own innovations (the ``adaptive`` option of ``diekf`` and
+``flsd``): a robust, windowed covariance-matching scale of the process noise.
 
 An innovation ``r`` (``m`` dof) with covariance ``S = H P H^T + R`` gives three numbers
 (:func:`innovation_terms`): its NIS ``e = r^T S^-1 r``, the measurement's share ``a = tr(S^-1 R)`` and the
@@ -68,6 +68,8 @@ __all__ = [
     "NoiseScale",
     "in_force",
     "innovation_terms",
+    "scale_for",
+    "scaled",
 ]
 
 GUARD = 0.997
@@ -87,6 +89,13 @@ def in_force(adaptive: Adaptive, landmarks: Any, use_landmarks: bool = True) -> 
     innovations only, so where no landmark can be fused (no map, or landmarks off) its scale is 1 and it is the fixed
     noise, ``False`` (the node builds no scale, the engine replays it as it is)."""
     return False if adaptive == "median" and not (landmarks and use_landmarks) else adaptive
+
+
+def scale_for(adaptive: Adaptive, landmarks: Any, use_landmarks: bool = True) -> NoiseScale | MedianScale | None:
+    """The scale a node with the landmark map ``landmarks`` builds for ``adaptive`` (:func:`in_force`): a
+    :class:`MedianScale`, a :class:`NoiseScale`, or None (the noise as given)."""
+    adaptive = in_force(adaptive, landmarks, use_landmarks)
+    return MedianScale() if adaptive == "median" else NoiseScale() if adaptive else None
 
 
 class Innovation(NamedTuple):
@@ -128,7 +137,7 @@ def _modes(r: np.ndarray, S: np.ndarray, R: np.ndarray) -> tuple[tuple[float, fl
     return tuple(zip(c.tolist(), np.maximum(mu, 0.0).tolist(), strict=True))
 
 
-def _scaled(P0: np.ndarray, P1: np.ndarray, lam: float) -> np.ndarray:
+def scaled(P0: np.ndarray, P1: np.ndarray, lam: float) -> np.ndarray:
     """The covariance ``P0 + lam (P1 - P0)``: a prediction's process noise scaled."""
     return P1 if lam == 1.0 else P0 + lam * (P1 - P0)
 
@@ -150,7 +159,7 @@ class _Windowed(ABC):
     def inflate(self, P0: np.ndarray, P1: np.ndarray, t: float) -> np.ndarray:
         """The covariance after a prediction ending at ``t`` [s] that took ``P0`` to ``P1``, its process noise
         ``P1 - P0`` scaled."""
-        return _scaled(P0, P1, self.scale(t))
+        return scaled(P0, P1, self.scale(t))
 
     def _span(self, t: float) -> tuple[int, int]:
         """The rows stamped in ``[t - window, t)``: ``(first, past the last)``, the rows rebuilt first if the log

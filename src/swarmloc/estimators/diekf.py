@@ -101,7 +101,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from swarmloc.estimators.adaptive_noise import MedianScale, NoiseScale, in_force
+from swarmloc.estimators.adaptive_noise import scale_for
 from swarmloc.estimators.cluster_reform import Boundary, Reforming, seen_schedule
 from swarmloc.estimators.odometry_fault import FaultMonitor, broadcast_evidence, observer_evidence
 from swarmloc.estimators.team_protocol import TeamProtocol
@@ -156,12 +156,11 @@ class DistributedInvariantEKF(RobotNode):
                  reform: float = 0.0, adaptive: bool | Literal["median"] = "median", odocal: bool = False,
                  fault: bool = False, **kw: Any) -> None:  # fmt: skip
         self.faults = FaultMonitor() if fault else None
-        adaptive = in_force(adaptive, kw.get("landmarks"), kw.get("use_landmarks", True))
-        self.noise_scale = MedianScale() if adaptive == "median" else NoiseScale() if adaptive else None
+        self.noise_scale = scale_for(adaptive, kw.get("landmarks"), kw.get("use_landmarks", True))
         self.odometry = OdometryCalibration() if odocal else None
         self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=True,
                                      association=kw.get("association", "tags"), gated_broadcasts=True)  # fmt: skip
-        self.protocol.innovations = bool(adaptive)
+        self.protocol.innovations = self.noise_scale is not None
         if odocal and self.protocol.form.group is not SE2:
             raise ValueError("diekf: 'odocal' calibrates planar odometry: SE(2) only")
         if isinstance(reform, bool) or not isinstance(reform, int | float) or not (0 <= reform < math.inf):

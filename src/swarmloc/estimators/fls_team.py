@@ -21,17 +21,20 @@ one nonlinear factor per own landmark (or absolute) detection, poses older than 
   1e-6.)
 
 The estimates and covariances answered and recorded are the filter's; what the window adds is the
-linearization point of the landmark updates. Everything else (answers, queries, broadcasts, replay, the networked
+linearization point of the landmark updates. The process noise is scaled online as ``diekf``'s
+(:mod:`swarmloc.estimators.adaptive_noise`, by default where landmarks are fused): the filter's prediction and the
+window's odometry increments by the same scale, read from the innovations the filter fuses one after another. Everything else (answers, queries, broadcasts, replay, the networked
 driver) is ``diekf``'s: the node needs the whole team's all-to-all channel, as ``diekf`` does.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, ClassVar, Literal, NamedTuple
 
 import numpy as np
 
+from swarmloc.estimators.adaptive_noise import innovation_terms, scale_for, scaled
 from swarmloc.estimators.dekf import linearize
 from swarmloc.estimators.fls import Factor, OfSolver, Window, WindowSolver
 from swarmloc.estimators.team_protocol import TeamProtocol
@@ -99,8 +102,10 @@ class TeamFixedLagSmoother(RobotNode):
     """``diekf`` whose own landmark updates come from a fixed-lag smoother of its recent poses (module
     docstring): the node's wiring of ``diekf``'s :class:`~swarmloc.estimators.team_protocol.TeamProtocol`
     (:attr:`protocol`) and a :class:`~swarmloc.estimators.fls.WindowSolver` (:attr:`solver`). ``lag`` [s],
-    ``max_iterations`` and ``delayed`` as :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s; ``team`` as
-    ``diekf``'s; ``cluster`` must be 0 (its pseudo-factors are the exact update's)."""
+    ``max_iterations`` and ``delayed`` as :class:`~swarmloc.estimators.fls.FixedLagSmoother`'s; ``team`` and
+    ``adaptive`` as ``diekf``'s (by default the process noise scaled online where landmarks are fused, in the filter
+    and in the window's odometry factors alike: :attr:`noise_scale`); ``cluster`` must be 0 (its pseudo-factors are
+    the exact update's)."""
 
     name = "flsd"
     lazy_odometry = True
@@ -115,14 +120,17 @@ class TeamFixedLagSmoother(RobotNode):
     lagged_fresh = OfSolver()
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
-                 lag: float = 2.0, max_iterations: int = 3, delayed: bool = False, **kw: Any) -> None:  # fmt: skip
+                 lag: float = 2.0, max_iterations: int = 3, delayed: bool = False,
+                 adaptive: bool | Literal["median"] = "median", **kw: Any) -> None:  # fmt: skip
         self.solver = WindowSolver(type(self).__name__, lag, max_iterations, delayed)
+        self.noise_scale = scale_for(adaptive, kw.get("landmarks"), kw.get("use_landmarks", True))
         # no gate on a teammate's broadcast: a landmark's is linearized at the smoothed pose, where the filter's gate
         # does not bound its normalized innovation (8 of MRCLAM dataset 6's went past it): only the covariance it
         # leaves is checked
         self.protocol = TeamProtocol(type(self).__name__, self.name, robot, initial, team, cluster, clusters=False,
                                      association=kw.get("association", "tags"), update=self._team_update,
                                      gated_broadcasts=False)  # fmt: skip
+        self.protocol.innovations = self.noise_scale is not None
         super().__init__(robot, initial, team=self.protocol.team, **kw)
 
     # ------------------------------------------------------------------------------------------------ filter
@@ -137,6 +145,10 @@ class TeamFixedLagSmoother(RobotNode):
             return s
         x, P = self.protocol.form.predict(s.x, s.P, s.v, s.w, dt, self.noise)  # diekf's world-frame step
         rel, Q, _, _ = C.predict_one(s.rel, s.Q, s.v, s.w, dt, self.noise)
+        lam = 1.0 if self.noise_scale is None else self.noise_scale.scale(t)
+        if lam != 1.0:  # diekf's scaled step; the window's increment Phi Q Phi^T + lam Q_step likewise
+            P = scaled(s.P, P, lam)
+            Q = scaled(Q - C.predict_one(s.rel, _ZERO33, s.v, s.w, dt, self.noise)[1], Q, lam)
         return s._replace(t=t, x=x, P=P, rel=rel, Q=Q)
 
     def _set_command(self, s: TeamFlsState, robot: int, v: float, w: float) -> TeamFlsState:
@@ -180,6 +192,11 @@ class TeamFixedLagSmoother(RobotNode):
                 win = solved[0]
         return s._replace(rel=_ZERO3, Q=_ZERO33, win=win)
 
+    def _record(self, t: float, sub: SubKey, inn: Any) -> None:
+        """File an innovation with the noise scale (none: nothing to file)."""
+        if self.noise_scale is not None and inn is not None:
+            self.noise_scale.record(t, sub, inn)
+
     def _apply_update(self, s: TeamFlsState, u: Message) -> tuple[TeamFlsState, bool]:
         s = self._adv(s, self.robot, u.stamp)  # the pose at the update's stamp: a function of the inputs only
         return self.protocol.apply(s, u, self.counts)
@@ -220,7 +237,9 @@ class TeamFixedLagSmoother(RobotNode):
                 outcomes.append(target)
                 continue
             if target[0] == "robot":
+                self.protocol.last_innovation = None
                 s, outcome, sent = self.protocol.fuse(s, d, target, sub, self.gate, self.lin_log, g.t)
+                self._record(g.t, sub, self.protocol.last_innovation)
                 outcomes.append(outcome)
                 msgs += sent
                 continue
@@ -230,13 +249,16 @@ class TeamFixedLagSmoother(RobotNode):
                 continue
             r, Hi_c, R, _ = lin
             Hw = Hi_c @ I.world_basis(s.x)
+            S = Hw @ s.P @ Hw.T + R
             try:
-                nis = float(r @ np.linalg.solve(Hw @ s.P @ Hw.T + R, r))
+                nis = float(r @ np.linalg.solve(S, r))
             except np.linalg.LinAlgError:
                 outcomes.append(("rejected", NUMERICAL))
                 continue
             verdict = self._gated(nis, len(r))
             if verdict is not None:
+                if self.noise_scale is not None:
+                    self._record(g.t, sub, innovation_terms(r, S, R, landmark=True))
                 outcomes.append(verdict)
                 msgs += broadcast(g.t, sub)
                 continue
@@ -252,8 +274,11 @@ class TeamFixedLagSmoother(RobotNode):
         applied = None if solved is None else self._smoothed_landmarks(s, [f for _, _, f in landmarks], solved[1])
         if solved is not None and applied is not None:
             new, updates = applied
-            for (k, sub, _), (Hw, Sinv, nu, Pii) in zip(landmarks, updates, strict=True):
+            for (k, sub, f), (Hw, Sinv, nu, Pii) in zip(landmarks, updates, strict=True):
                 outcomes[k] = FUSED
+                if self.noise_scale is not None:  # the innovation the filter fused, one after another as diekf's
+                    S = np.linalg.inv(Sinv)
+                    self._record(g.t, sub, innovation_terms(S @ nu, S, f.R, landmark=True))
                 msgs += broadcast(g.t, sub, (self.robot, Hw, np.zeros_like(Hw), Sinv, nu, Pii, Pii, 1.0))
             return new._replace(win=solved[0]), [o for o in outcomes if o is not None], msgs
         for k, sub, _ in landmarks:
