@@ -160,6 +160,9 @@ def test_a_smoother_s_delayed_output_is_scored_on_the_held_out_readings_at_their
     causal, late = rows["flsd"], rows["flsd_delayed"]
     assert 0.3 * causal["readings"] < late["readings"] < causal["readings"] and np.isfinite(late["nis_ratio"])
     assert np.isfinite(late["anees_folds"]) and late["pos_rmse"] < causal["pos_rmse"]  # smoothed: more accurate
+    # the causal belief scored on the very readings the delayed output scores (it has a belief before every reading)
+    assert late["readings_causal"] == late["readings_causal_ref"] == late["readings"]
+    assert np.isfinite(late["nis_ratio_causal"]) and "readings_causal" not in causal
     t0, initial = fused_from_snapshots(data, detection_set(data), DEFAULTS)[:2]
     rec = reading_times(landmark_readings(data, t0, t0 + 30.0))
     events = [e for e in decorrelate(mrclam_events(data, range_std=0.15, bearing_std=0.005), model)
@@ -171,7 +174,7 @@ def test_a_smoother_s_delayed_output_is_scored_on_the_held_out_readings_at_their
     team = evaluate(delayed_output(nodes, data.truth_at, "flsd"))["team"]
     assert (team["pos_rmse"], team["anees"]) == (late["pos_rmse"], late["anees"])
     off = filter_scores(data, model, ["flsd"], False, 30.0)["flsd_delayed"]  # one run, no folds: none to average
-    assert "anees_folds" not in off and 0 < off["readings"] and np.isfinite(off["anees"])
+    assert "anees_folds" not in off and 0 < off["readings"] == off["readings_causal"] and np.isfinite(off["anees"])
 
 
 def test_filter_scores_calibrate_the_yaw_diffusion_without_the_scored_span_or_the_held_out_fold(mrclam6, monkeypatch):
