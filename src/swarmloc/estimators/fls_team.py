@@ -23,8 +23,9 @@ one nonlinear factor per own landmark (or absolute) detection, poses older than 
 The estimates and covariances answered and recorded are the filter's; what the window adds is the
 linearization point of the landmark updates. The process noise is scaled online as ``diekf``'s
 (:mod:`swarmloc.estimators.adaptive_noise`, by default where landmarks are fused): the filter's prediction and the
-window's odometry increments by the same scale, read from the innovations the filter fuses one after another. Everything else (answers, queries, broadcasts, replay, the networked
-driver) is ``diekf``'s: the node needs the whole team's all-to-all channel, as ``diekf`` does.
+window's odometry increments by the same scale, read from the innovations the filter fuses one after another.
+Everything else (answers, queries, broadcasts, replay, the networked driver) is ``diekf``'s: the node needs the
+whole team's all-to-all channel, as ``diekf`` does.
 """
 
 from __future__ import annotations
