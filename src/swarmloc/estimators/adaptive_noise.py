@@ -40,11 +40,8 @@ errors whatever the process noise). Over those stamped in ``[t - window, t)`` th
 of ``(S - R) v = mu R v``, ``v^T R v = 1``, :attr:`Innovation.modes`: ``e_k(lam)`` is the NIS had the prediction
 been formed at ``lam``), covariance matching on the median (robust to the heavy tail). It needs ``MIN_COUNT``
 such innovations in the window, one at least of a landmark (robot-robot innovations cannot see the team's common
-drift: scaled down from them alone, ``diekf`` was over-confident on dataset 6 without landmarks, docs/mrclam.md).
-Where the last window lacks them (a robot that saw no landmark for a while) the last two windows are read,
-``[t - 2 window, t)``, so that a spell without landmarks keeps the scale the robot had rather than falling back to
-the model's noise for its remainder (on MRCLAM dataset 9 up to half a robot's time, under-confident then); only
-where those lack them too is the scale 1.
+drift: scaled down from them alone, ``diekf`` was over-confident on dataset 6 without landmarks, docs/mrclam.md);
+otherwise the scale is 1.
 
 The log is keyed by the detection's key, so a replay of late input rewrites an entry rather than adding one, and
 the scale at ``t`` reads entries stamped before ``t`` only: a replay gives the in-order run's numbers."""
@@ -174,11 +171,10 @@ class _Windowed(ABC):
 
     def _rows(self) -> list[Any]:
         """The log's entries sorted by stamp (and their stamps kept), the entries no scale reads again forgotten
-        (older than three windows before the newest: a scale reads two back, a replay goes back the node's horizon,
-        less than a window)."""
+        (older than two windows before the newest: a replay goes back the node's horizon, less than a window)."""
         if self._log:
             newest = max(k[0] for k in self._log)
-            for k in [k for k in self._log if k[0] < newest - 3 * self.window]:
+            for k in [k for k in self._log if k[0] < newest - 2 * self.window]:
                 del self._log[k]
         rows = sorted(self._log.values(), key=lambda v: v[0])
         self._stamps = [v[0] for v in rows]
@@ -246,13 +242,10 @@ class MedianScale(_Windowed):
         self._dirty = True
 
     def scale(self, t: float) -> float:
-        """The scale in force at ``t`` [s]: from the entries stamped in ``[t - window, t)``, or where those are too
-        few or hold no landmark's, ``[t - 2 window, t)`` (module docstring)."""
+        """The scale in force at ``t`` [s]: from the entries stamped in ``[t - window, t)``."""
         i0, i1 = self._span(t)
         if i1 - i0 < MIN_COUNT or self._landmarks[i1] == self._landmarks[i0]:
-            i0 = bisect_left(self._stamps, t - 2 * self.window)
-            if i1 - i0 < MIN_COUNT or self._landmarks[i1] == self._landmarks[i0]:
-                return 1.0
+            return 1.0
         if (i0, i1) not in self._solved:
             self._solved[(i0, i1)] = self._solve(self._c[i0:i1], self._mu[i0:i1], self._med[i0:i1])
         return self._solved[(i0, i1)]
