@@ -41,8 +41,12 @@ def main() -> None:
     for ds in a.datasets.split(","):
         src = load_source(f"mrclam:{a.data / f'MRCLAM_Dataset{ds}'}")
         for lm in (True, False):
-            opts = {**node_options("diekf", src.config, src.landmarks), "cluster": a.cluster, "use_landmarks": lm,
-                    "adaptive": False}  # the engine's diekf keeps its noise fixed
+            opts = {
+                **node_options("diekf", src.config, src.landmarks),
+                "cluster": a.cluster,
+                "use_landmarks": lm,
+                "adaptive": False,
+            }  # the engine's diekf keeps its noise fixed
             ref = run(make_team("diekf", src.initial, **opts), src.events, src.record_times(), truth=src.truth)
             eng = run_engine(src, "diekf", backend="numba", cluster=a.cluster, use_landmarks=lm, adaptive=False)
             dm = dc = cmax = 0.0
