@@ -338,7 +338,7 @@ class FilterConfig(Section):
     and a recording)"""
     diekf_adaptive: bool | Literal["median"] = "median"
     """diekf and flsd scale their process noise online from their own innovations (swarmloc.estimators.adaptive_noise):
-    "median" (median matching after dead reckoning, down to 0.01, only while they fuse landmarks), true (covariance
+    "median" (median matching after dead reckoning, down to 0.003, only while they fuse landmarks), true (covariance
     matching, only up) or false (the noise as configured)"""
     diekf_odocal: bool = False
     """diekf calibrates each robot's odometry scale and yaw-rate bias online, truth-free (swarmloc.motion.odocal)"""
