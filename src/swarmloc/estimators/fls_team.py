@@ -205,23 +205,24 @@ class TeamFixedLagSmoother(RobotNode):
     # ------------------------------------------------------------------------------------------------ update
     def _smoothed_landmarks(
         self, s: TeamFlsState, factors: list[Factor], xw: np.ndarray
-    ) -> tuple[TeamFlsState, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] | None:
+    ) -> tuple[TeamFlsState, list[tuple[np.ndarray, ...]]] | None:
         """Each landmark factor linearized at the smoothed pose ``xw`` and applied to the filter in turn, with the
-        ``(Hw, Sinv, nu, Pii)`` of each update to broadcast; None when an innovation covariance is singular or the
-        result is not a usable state."""
-        new, updates = s, []
+        ``(Hw, Sinv, nu, Pii)`` of each update to broadcast and its innovation ``(r, S)``; None when an innovation
+        covariance is singular or the result is not a usable state."""
+        new = s
+        updates: list[tuple[np.ndarray, ...]] = []
         for f in factors:
             m = model(f.meas)
             h, Hc, _ = m.predict(xw, f.target) if f.target is not None else m.predict(xw)
             Hw = np.asarray(Hc, dtype=float) @ I.world_basis(xw)
             r = m.residual(f.z, h) - Hw @ I.world_delta(xw, new.x)
+            S = Hw @ new.P @ Hw.T + f.R
             try:
-                Sinv = np.linalg.inv(Hw @ new.P @ Hw.T + f.R)
+                Sinv = symmetric(np.linalg.inv(S))
             except np.linalg.LinAlgError:
                 return None
-            Sinv = symmetric(Sinv)
             nu = Sinv @ r
-            updates.append((Hw, Sinv, nu, new.P))
+            updates.append((Hw, Sinv, nu, new.P, r, S))
             new = self._team_update(new, self.robot, self.robot, Hw, np.zeros_like(Hw), Sinv, nu, new.P, new.P)
         if not (np.isfinite(new.x).all() and usable_covariance(new.P) and np.isfinite(new.Sigma).all()):
             return None
@@ -275,11 +276,10 @@ class TeamFixedLagSmoother(RobotNode):
         applied = None if solved is None else self._smoothed_landmarks(s, [f for _, _, f in landmarks], solved[1])
         if solved is not None and applied is not None:
             new, updates = applied
-            for (k, sub, f), (Hw, Sinv, nu, Pii) in zip(landmarks, updates, strict=True):
+            for (k, sub, f), (Hw, Sinv, nu, Pii, r, S) in zip(landmarks, updates, strict=True):
                 outcomes[k] = FUSED
                 if self.noise_scale is not None:  # the innovation the filter fused, one after another as diekf's
-                    S = np.linalg.inv(Sinv)
-                    self._record(g.t, sub, innovation_terms(S @ nu, S, f.R, landmark=True))
+                    self._record(g.t, sub, innovation_terms(r, S, f.R, landmark=True))
                 msgs += broadcast(g.t, sub, (self.robot, Hw, np.zeros_like(Hw), Sinv, nu, Pii, Pii, 1.0))
             return new._replace(win=solved[0]), [o for o in outcomes if o is not None], msgs
         for k, sub, _ in landmarks:
