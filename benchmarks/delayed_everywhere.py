@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from bisect import bisect_right
 from typing import Any
 
 import numpy as np
@@ -34,17 +35,17 @@ from swarmloc.runner import run
 from swarmloc.sensors.decorrelate import decorrelate
 
 
-def carried(log: dict[float, tuple[np.ndarray, np.ndarray]], odometry: list[Odometry], t: float,
-            noise: Any) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
-    """The pose of ``log`` filed last at or before ``t`` [s], predicted to ``t`` through ``odometry`` (stopped
-    outside its intervals); None before the first filing or after the last (not smoothed yet)."""
-    ks = sorted(log)
-    i = int(np.searchsorted(ks, t, side="right")) - 1
-    if i < 0 or i == len(ks) - 1:
+def carried(log: dict[float, tuple[np.ndarray, np.ndarray]], stamps: list[float], odometry: list[Odometry],
+            starts: list[float], t: float, noise: Any) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
+    """The pose of ``log`` (its ``stamps`` sorted) filed last at or before ``t`` [s], predicted to ``t`` through
+    ``odometry`` (intervals in order, ``starts`` their ``t0``; stopped outside them); None before the first filing
+    or after the last (not smoothed yet)."""
+    i = bisect_right(stamps, t) - 1
+    if i < 0 or i == len(stamps) - 1:
         return None
-    cur = ks[i]
+    cur = stamps[i]
     x, P = (np.array(a, dtype=float) for a in log[cur])
-    for o in odometry:
+    for o in odometry[max(bisect_right(starts, cur) - 1, 0) :]:
         if o.t1 <= cur:
             continue
         if o.t0 >= t:
@@ -76,8 +77,9 @@ def scores(n: int, root: Any, duration: float) -> dict[str, Any]:
     for node in nodes:
         odometry = sorted((e for e in events if isinstance(e, Odometry) and e.robot == node.robot),
                           key=lambda o: o.t0)  # fmt: skip
+        starts, stamps = [o.t0 for o in odometry], sorted(node.lagged_log)
         mine = [d for d in readings if d.observer == node.robot]
-        at = {d.stamp: carried(node.lagged_log, odometry, d.stamp, node.noise) for d in mine}
+        at = {d.stamp: carried(node.lagged_log, stamps, odometry, starts, d.stamp, node.noise) for d in mine}
         log = {t: xp for t, xp in at.items() if xp is not None}
         if not log:
             continue
