@@ -2,21 +2,19 @@
 
     python benchmarks/delayed_everywhere.py --datasets 1,4,6 --duration 200
 
-The leave-one-out study scores the delayed output only at the instants it files (the window's poses: the stamps
-of the team's detections), 9-27% of the held-out landmark readings without landmarks. Here it is carried to every
-reading: the pose filed last at or before the reading, predicted to the reading's stamp through the robot's
-odometry with the node's motion model (:func:`swarmloc.kernels.cartesian.predict_one`, as the node predicts
-between detections). Landmarks off, the recording's own camera model (not held out), from the truth-free start;
-the held-out score ``median(NIS) / 1.386`` of the causal belief on every reading, of the delayed output carried to
-every reading, and of the causal belief on those same readings. A diagnosis, not a library feature: the delayed
-output the library files and publishes stays at its own instants.
+The leave-one-out study scored the delayed output only at the instants it files (the window's poses: the
+stamps of the team's detections), 9-27% of the held-out landmark readings without landmarks. Here it is carried
+to every reading: the pose filed last at or before the reading, predicted to the reading's stamp through the
+robot's odometry with the node's motion model (:func:`swarmloc.evaluation.delayed.carried`, as the node predicts
+between detections; the study scores it so now). Landmarks off, the recording's own camera model (not held out),
+from the truth-free start; the held-out score ``median(NIS) / 1.386`` of the causal belief on every reading, of the
+delayed output carried to every reading, and of the causal belief on those same readings.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from bisect import bisect_right
 from typing import Any
 
 import numpy as np
@@ -25,38 +23,13 @@ from _common import add_mrclam
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
-from swarmloc.evaluation.delayed import lagged_track
+from swarmloc.evaluation.delayed import carried, lagged_track
 from swarmloc.evaluation.heldout import landmark_nis, nis_summary, reading_times, tracks_nis
 from swarmloc.events import Odometry
 from swarmloc.experiments.mrclam import camera_model, detection_set
 from swarmloc.experiments.truthfree import fused_from_snapshots, landmark_readings
-from swarmloc.kernels import cartesian as C
 from swarmloc.runner import run
 from swarmloc.sensors.decorrelate import decorrelate
-
-
-def carried(log: dict[float, tuple[np.ndarray, np.ndarray]], stamps: list[float], odometry: list[Odometry],
-            starts: list[float], t: float, noise: Any) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
-    """The pose of ``log`` (its ``stamps`` sorted) filed last at or before ``t`` [s], predicted to ``t`` through
-    ``odometry`` (intervals in order, ``starts`` their ``t0``; stopped outside them); None before the first filing
-    or after the last (not smoothed yet)."""
-    i = bisect_right(stamps, t) - 1
-    if i < 0 or i == len(stamps) - 1:
-        return None
-    cur = stamps[i]
-    x, P = (np.array(a, dtype=float) for a in log[cur])
-    for o in odometry[max(bisect_right(starts, cur) - 1, 0) :]:
-        if o.t1 <= cur:
-            continue
-        if o.t0 >= t:
-            break
-        for v, w, end in ((0.0, 0.0, o.t0), (o.v, o.w, min(o.t1, t))):
-            if end > cur:
-                x, P, _, _ = C.predict_one(x, P, v, w, end - cur, noise)
-                cur = end
-    if t > cur:
-        x, P, _, _ = C.predict_one(x, P, 0.0, 0.0, t - cur, noise)
-    return x, P
 
 
 def scores(n: int, root: Any, duration: float) -> dict[str, Any]:
@@ -77,13 +50,11 @@ def scores(n: int, root: Any, duration: float) -> dict[str, Any]:
     for node in nodes:
         odometry = sorted((e for e in events if isinstance(e, Odometry) and e.robot == node.robot),
                           key=lambda o: o.t0)  # fmt: skip
-        starts, stamps = [o.t0 for o in odometry], sorted(node.lagged_log)
         mine = [d for d in readings if d.observer == node.robot]
-        at = {d.stamp: carried(node.lagged_log, stamps, odometry, starts, d.stamp, node.noise) for d in mine}
-        log = {t: xp for t, xp in at.items() if xp is not None}
-        if not log:
+        ts, x, P = carried(node.lagged_log, odometry, np.array([d.stamp for d in mine]), node.noise)
+        if not len(ts):
             continue
-        tr = lagged_track(log, node.robot, None)
+        tr = lagged_track({t: (xk, Pk) for t, xk, Pk in zip(ts.tolist(), x, P, strict=True)}, node.robot, None)
         nis = landmark_nis(tr.times, tr.mean, tr.cov, mine, data.landmarks, std, 0.0)
         delayed.append(nis[np.isfinite(nis)])
         kept = [d for d, k in zip(mine, np.isfinite(nis), strict=True) if k]

@@ -344,3 +344,52 @@ def test_flsd_on_mrclam6_first_120s(mrclam6):
     assert out["flsd"]["pos_rmse"] <= 1.005 * out["diekf"]["pos_rmse"], out
     assert out["flsd"]["pos_rmse"] <= 0.65 * out["fls"]["pos_rmse"], out
     assert 0.5 <= out["flsd"]["anees"] <= 2.0, out["flsd"]
+
+
+def _se2(x: np.ndarray) -> np.ndarray:
+    c, s = math.cos(x[2]), math.sin(x[2])
+    return np.array([[c, -s, x[0]], [s, c, x[1]], [0.0, 0.0, 1.0]])
+
+
+def test_the_delayed_output_carried_through_the_odometry_is_the_unicycle_flow_from_the_last_filing():
+    """:func:`~swarmloc.evaluation.delayed.carried`: at each time the pose filed last at or before it, moved by the
+    odometry after it (a gap without a command: standing still), against the matrix exponential of each interval's
+    twist (1e-12); without process noise its covariance is the filed one transported by the total displacement
+    ``Phi = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]]``, with noise it is larger, by the node's scale of the noise where
+    one was filed. None before the first filing, or at or after the last one."""
+    from scipy.linalg import expm
+
+    from swarmloc.evaluation.delayed import carried
+
+    P0 = np.diag([0.01, 0.02, 0.003])
+    log = {0.0: (np.array([1.0, 2.0, 0.3]), P0), 2.0: (np.array([1.5, 2.9, 0.6]), 2 * P0), 5.0: (np.zeros(3), P0)}
+    odometry = [Odometry(0, 0.0, 1.0, 1.0, 0.5), Odometry(0, 1.5, 3.0, 0.5, -0.2), Odometry(0, 3.0, 6.0, 0.2, 0.0)]
+    times = np.array([6.0, 1.9, -1.0, 0.0, 2.5, 0.5, 1.2, 2.0, 4.9, 5.0])
+
+    def flow(base: float, t: float) -> np.ndarray:
+        T = _se2(log[base][0])
+        for o in odometry:
+            dt = min(o.t1, t) - max(o.t0, base)
+            if dt > 0:
+                T = T @ expm(np.array([[0.0, -o.w, o.v], [o.w, 0.0, 0.0], [0.0, 0.0, 0.0]]) * dt)
+        return T
+
+    zero = UnicycleNoise(q_v0=0.0, q_w0=0.0)
+    ts, x, P = carried(log, odometry, times, zero)
+    np.testing.assert_array_equal(ts, [0.0, 0.5, 1.2, 1.9, 2.0, 2.5, 4.9])
+    for t, xk, Pk in zip(ts, x, P, strict=True):
+        base = max(s for s in log if s <= t)
+        T = flow(base, t)
+        np.testing.assert_allclose(_se2(xk), T, atol=1e-12)
+        dx, dy = T[0, 2] - log[base][0][0], T[1, 2] - log[base][0][1]
+        Phi = np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])
+        np.testing.assert_allclose(Pk, Phi @ log[base][1] @ Phi.T, atol=1e-12)
+    _, xn, Pn = carried(log, odometry, times, NOISE)
+    np.testing.assert_allclose(xn, x, atol=1e-12)  # the noise moves no mean
+    for k, t in enumerate(ts):
+        grown = np.linalg.eigvalsh(Pn[k] - P[k])
+        assert grown.min() > -1e-15 and (grown.max() > 1e-6) == (t not in log), (t, grown)
+    _, _, Ps = carried(log, odometry, times, NOISE, {0.0: 0.25})  # the node's scale at the first filing only
+    for k, t in enumerate(ts):
+        lam = 0.25 if t < 2.0 else 1.0
+        np.testing.assert_allclose(Ps[k] - P[k], lam * (Pn[k] - P[k]), atol=1e-15)

@@ -139,14 +139,16 @@ def test_filter_scores_score_every_reading_once_against_a_run_without_its_landma
 
 def test_a_smoother_s_delayed_output_is_scored_on_the_held_out_readings_at_their_stamps(mrclam6):
     """``flsd`` gets a row ``flsd_delayed``: each fold's held-out readings scored against that fold's run's delayed
-    output at their stamps (the poses that left the window there: a stamp where the robot read another fold's
-    landmark; 342 of 630 readings in these 30 s), and the truth at its poses' stamps. Filing the delayed output
-    changes no causal belief: the causal row's truth metrics equal a run of the default configuration (no delayed
-    output) to the bit, and the delayed row's those of the delayed output of a team run by hand."""
+    output carried to their stamps (the pose filed last before each, predicted through the odometry: every reading
+    after the first filing and before the run's last lag: 583 of 630 in these 30 s), and the truth at those
+    instants.
+    Filing the delayed output changes no causal belief: the causal row's truth metrics equal a run of the default
+    configuration (no delayed output) to the bit, and the delayed row's those of the delayed output of a team run by
+    hand, carried to those instants."""
     from swarmloc.config import DEFAULTS
     from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
     from swarmloc.estimators import make_team, node_options
-    from swarmloc.evaluation.delayed import delayed_output
+    from swarmloc.evaluation.delayed import carried_output
     from swarmloc.evaluation.metrics import evaluate
     from swarmloc.experiments.mrclam import detection_set
     from swarmloc.experiments.truthfree import fused_from_snapshots, landmark_readings
@@ -158,20 +160,22 @@ def test_a_smoother_s_delayed_output_is_scored_on_the_held_out_readings_at_their
     model = CameraModel(ErrorComponent(0.15), ErrorComponent(0.005), source="test")
     rows = filter_scores(data, model, ["flsd"], True, 30.0, holdout=3)
     causal, late = rows["flsd"], rows["flsd_delayed"]
-    assert 0.3 * causal["readings"] < late["readings"] < causal["readings"] and np.isfinite(late["nis_ratio"])
+    assert 0.8 * causal["readings"] < late["readings"] < causal["readings"] and np.isfinite(late["nis_ratio"])
     assert np.isfinite(late["anees_folds"]) and late["pos_rmse"] < causal["pos_rmse"]  # smoothed: more accurate
     # the causal belief scored on the very readings the delayed output scores (it has a belief before every reading)
     assert late["readings_causal"] == late["readings_causal_ref"] == late["readings"]
     assert np.isfinite(late["nis_ratio_causal"]) and "readings_causal" not in causal
     t0, initial = fused_from_snapshots(data, detection_set(data), DEFAULTS)[:2]
-    rec = reading_times(landmark_readings(data, t0, t0 + 30.0))
+    readings = landmark_readings(data, t0, t0 + 30.0)
+    rec = reading_times(readings)
     events = [e for e in decorrelate(mrclam_events(data, range_std=0.15, bearing_std=0.005), model)
               if t0 <= e.stamp <= t0 + 30.0]  # fmt: skip
     for config in (DEFAULTS, DEFAULTS.with_filter(delayed_output=True)):
         nodes = make_team("flsd", initial, **node_options("flsd", config, data.landmarks, t0))
         team = evaluate(run(nodes, events, record_times=rec, truth=data.truth_at, name="flsd"))["team"]
         assert (team["pos_rmse"], team["anees"]) == (causal["pos_rmse"], causal["anees"])
-    team = evaluate(delayed_output(nodes, data.truth_at, "flsd"))["team"]
+    at = np.unique([d.t for d in readings])
+    team = evaluate(carried_output(nodes, events, at, data.truth_at, "flsd"))["team"]
     assert (team["pos_rmse"], team["anees"]) == (late["pos_rmse"], late["anees"])
     off = filter_scores(data, model, ["flsd"], False, 30.0)["flsd_delayed"]  # one run, no folds: none to average
     assert "anees_folds" not in off and 0 < off["readings"] == off["readings_causal"] and np.isfinite(off["anees"])

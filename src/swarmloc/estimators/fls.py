@@ -65,6 +65,7 @@ at each one): its filed covariance is the marginal.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -264,6 +265,12 @@ class WindowSolver:
     once the node's history has passed ``t`` by a horizon: no late input replays that solve any more."""
     lagged_fresh: list[float] | None
     """None, or a list a driver empties: the stamps filed (or filed again by a replay) since it last did."""
+    lagged_scale: dict[float, float]
+    """``stamp [s] -> scale``: the online scale of the process noise in force at each filed pose's stamp (where the
+    node has one, :attr:`scale_at`), for whoever carries the pose forward through the odometry
+    (:func:`swarmloc.evaluation.delayed.carried`); dropped with the pose by whoever drops it."""
+    scale_at: Callable[[float], float] | None
+    """The owner's online scale of its process noise at a time [s] (None: the noise as given)."""
 
     def __init__(self, where: str, lag: float, max_iterations: int, delayed: bool) -> None:
         if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
@@ -277,6 +284,8 @@ class WindowSolver:
         self.lagged_log = {} if delayed else None
         self.lagged_when = None
         self.lagged_fresh = None
+        self.lagged_scale = {}
+        self.scale_at = None
         self._g = load_gtsam()
 
     def _file_lagged(self, ts: float, x: np.ndarray, P: np.ndarray, t: float) -> None:
@@ -289,6 +298,8 @@ class WindowSolver:
         self.lagged_when[ts] = t
         if self.lagged_fresh is not None:
             self.lagged_fresh.append(ts)
+        if self.scale_at is not None:
+            self.lagged_scale[ts] = self.scale_at(ts)
 
     def solve(self, win: Window, newest: int, t: float) -> tuple[Window, np.ndarray, np.ndarray] | None:
         """Solve the window (Gauss-Newton from its estimates), take the newest pose's marginal and
@@ -375,6 +386,7 @@ class FixedLagSmoother(RobotNode):
     lagged_log = OfSolver()
     lagged_when = OfSolver()
     lagged_fresh = OfSolver()
+    lagged_scale = OfSolver()
 
     def __init__(self, robot: int, initial: GroupGaussian, *, lag: float = 2.0, max_iterations: int = 3,
                  delayed: bool = False, **kw: Any) -> None:  # fmt: skip

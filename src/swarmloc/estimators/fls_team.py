@@ -119,12 +119,15 @@ class TeamFixedLagSmoother(RobotNode):
     lagged_log = OfSolver()
     lagged_when = OfSolver()
     lagged_fresh = OfSolver()
+    lagged_scale = OfSolver()
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
                  lag: float = 2.0, max_iterations: int = 3, delayed: bool = False,
                  adaptive: bool | Literal["median"] = "median", **kw: Any) -> None:  # fmt: skip
         self.solver = WindowSolver(type(self).__name__, lag, max_iterations, delayed)
         self.noise_scale = scale_for(adaptive, kw.get("landmarks"), kw.get("use_landmarks", True))
+        if self.noise_scale is not None:
+            self.solver.scale_at = self.noise_scale.scale
         # no gate on a teammate's broadcast: a landmark's is linearized at the smoothed pose, where the filter's gate
         # does not bound its normalized innovation (8 of MRCLAM dataset 6's went past it): only the covariance it
         # leaves is checked

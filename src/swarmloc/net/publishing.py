@@ -192,6 +192,7 @@ class Publishing:
             del self._delayed_due[ts]
             x, P = node.lagged_log.pop(ts)
             node.lagged_when.pop(ts)
+            node.lagged_scale.pop(ts, None)
             g, gcov = C.to_group(x, P)
             mean, cov = flat(g), flat(gcov)
             old = delayed.get(ts)

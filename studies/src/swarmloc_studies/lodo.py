@@ -30,6 +30,11 @@ latest of the robots' first snapshots, where the run starts (the start of ``swar
 :func:`swarmloc.experiments.truthfree.fused_from_snapshots`; ``start=`` of :func:`filter_scores` takes another).
 Runs cover ``duration`` s from there (part of each dataset, for compute).
 
+**A smoother's delayed output** (``flsd``, ``fls``: a row ``<name>_delayed``) is scored on the same held-out
+readings as the causal belief: at each reading's stamp, the pose filed last before it carried through the robot's
+odometry (:func:`swarmloc.evaluation.delayed.carried_output`). Readings before its first filing, or in the run's
+last lag, have none; the row ``causal`` of its columns scores the causal belief on the readings it does score.
+
 **Yaw diffusion calibrated on the recording itself** (run ``on+yaw``): the motion model's yaw terms scaled by the
 factor :func:`yaw_calibration` fits to the left-out recording's own snapshot heading increments
 (:mod:`swarmloc.motion.calibrate`; truth-free, camera std of the held-out model). The fit never sees what scores
@@ -53,7 +58,7 @@ import numpy as np
 from swarmloc.config import DEFAULTS, Config, MotionConfig
 from swarmloc.datasets.mrclam import MRCLAMData, load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
-from swarmloc.evaluation.delayed import delayed_output
+from swarmloc.evaluation.delayed import carried_output
 from swarmloc.evaluation.heldout import (
     RECORD_LEAD,
     landmark_folds,
@@ -214,9 +219,11 @@ def filter_scores(
                                   truth)  # fmt: skip
         out[name] = row | _scores(res, scored, bool(folds), data, truth, std, ref)
         if name in SMOOTHER_NAMES:
-            whole = delayed_output(nodes, truth, name)
-            late = [HeldOutRun(delayed_output(h.nodes, truth, name) if folds else whole, h.readings, h.nodes)
-                    for h in scored]  # fmt: skip
+            # carried to every reading's stamp through the robot's odometry (the truth scored there too)
+            at = np.unique([d.t for d in readings])
+            whole = carried_output(nodes, events, at, truth, name)
+            late = [HeldOutRun(carried_output(h.nodes, events, at, truth, name) if folds else whole, h.readings,
+                               h.nodes) for h in scored]  # fmt: skip
             out[f"{name}_delayed"] = _scores(whole, late, bool(folds), data, truth, std, ref, 0.0)
             # the causal belief on the very readings the delayed output scores: the two rows' readings differ
             same = [HeldOutRun(h.run, scored_at(d.run, h.readings, data.landmarks, std), h.nodes)
