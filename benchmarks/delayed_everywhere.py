@@ -5,7 +5,7 @@
 The leave-one-out study scored the delayed output only at the instants it files (the window's poses: the
 stamps of the team's detections), 9-27% of the held-out landmark readings without landmarks. Here it is carried
 to every reading: the pose filed last at or before the reading, predicted to the reading's stamp through the
-robot's odometry with the node's motion model (:func:`swarmloc.evaluation.delayed.carried`, as the node predicts
+robot's odometry with the node's motion model (:func:`swarmloc.evaluation.delayed.carried_output`, as the node predicts
 between detections; the study scores it so now). Landmarks off, the recording's own camera model (not held out),
 from the truth-free start; the held-out score ``median(NIS) / 1.386`` of the causal belief on every reading, of the
 delayed output carried to every reading, and of the causal belief on those same readings.
@@ -23,9 +23,8 @@ from _common import add_mrclam
 from swarmloc.config import DEFAULTS
 from swarmloc.datasets.mrclam import load_mrclam, mrclam_events
 from swarmloc.estimators import make_team, node_options
-from swarmloc.evaluation.delayed import carried, lagged_track
+from swarmloc.evaluation.delayed import carried_output
 from swarmloc.evaluation.heldout import landmark_nis, nis_summary, reading_times, tracks_nis
-from swarmloc.events import Odometry
 from swarmloc.experiments.mrclam import camera_model, detection_set
 from swarmloc.experiments.truthfree import fused_from_snapshots, landmark_readings
 from swarmloc.runner import run
@@ -46,15 +45,11 @@ def scores(n: int, root: Any, duration: float) -> dict[str, Any]:
     nodes = make_team("flsd", initial, **node_options("flsd", config, data.landmarks, t0))
     res = run(nodes, events, record_times=reading_times(readings), truth=None, name="flsd")
     out = {"causal": nis_summary(tracks_nis(res.tracks, readings, data.landmarks, std))}
+    late = carried_output(nodes, events, np.unique([d.stamp for d in readings]), None, "flsd")
     delayed, same = [], []
     for node in nodes:
-        odometry = sorted((e for e in events if isinstance(e, Odometry) and e.robot == node.robot),
-                          key=lambda o: o.t0)  # fmt: skip
         mine = [d for d in readings if d.observer == node.robot]
-        ts, x, P = carried(node.lagged_log, odometry, np.array([d.stamp for d in mine]), node.noise)
-        if not len(ts):
-            continue
-        tr = lagged_track({t: (xk, Pk) for t, xk, Pk in zip(ts.tolist(), x, P, strict=True)}, node.robot, None)
+        tr = late.tracks[node.robot]
         nis = landmark_nis(tr.times, tr.mean, tr.cov, mine, data.landmarks, std, 0.0)
         delayed.append(nis[np.isfinite(nis)])
         kept = [d for d, k in zip(mine, np.isfinite(nis), strict=True) if k]
