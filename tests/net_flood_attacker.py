@@ -13,7 +13,10 @@ id from the robots' progress frames, then for ``--seconds`` s puts, in turns, on
 
 and small ``bad_signature`` frames in robot 1's name on robot 1's progress key (every teammate and the collector
 hear them). Every put waits for room (``CongestionControl.BLOCK``), so that each frame counted here reaches its
-receivers. It writes, as JSON, how many of each kind it put where, and when it flooded (``span``: Unix times).
+receivers. It writes, as JSON, how many of each kind it put where, and when it flooded (``span``: Unix times), and
+keeps its session open until every peer has left (at most ``--wait`` s): a session closed at once discards what a
+loaded receiver has not read yet (measured: 20,000 small puts to a subscriber slower than the sender, 6,716 received
+when the sender closed at once, all of them when it stayed open).
 """
 
 from __future__ import annotations
@@ -79,9 +82,12 @@ def main() -> None:
     if scope and all(r in kids for r in robots):
         sent = flood(s, f"swarmloc/{scope[0]}", robots, kids, a.seconds)
     t1 = time.time()
-    s.close()
     with open(a.out, "w") as f:
         json.dump({"scope": scope[:1], "sent": sent, "span": [t0, t1]}, f)
+    end = time.monotonic() + a.wait
+    while list(s.info.peers_zid()) and time.monotonic() < end:  # the team reads what is in flight, then leaves
+        time.sleep(0.05)
+    s.close()
 
 
 def flood(s, prefix: str, robots: list[int], kids: dict[int, bytes], seconds: float) -> dict[str, Counter[str]]:

@@ -684,8 +684,10 @@ def test_fuzz_live_nodes_keep_publishing_correct_beliefs():
         blast()
         t_fuzz_end = time.monotonic()
     finally:
-        fuzzer.close()
+        # closed once the team has ended: a session closed at once discards what a loaded node has not read yet
+        # (robot 0 once counted 6,316 of 6,408: the last example's puts)
         th.join(120)
+        fuzzer.close()
     assert done.is_set() and "nets" in result
     assert sum(sent.values()) >= 10_000
     assert t_fuzz_end < t_team_end, "the nodes stopped before the fuzzer was done: lengthen the source"
