@@ -60,6 +60,16 @@ def team_scope_of(session, team: str, robots: Sequence[int], end: float) -> str:
         return next(iter(seen.values()), team)
 
 
+def close_when_alone(session, wait: float = 60.0) -> None:
+    """Close ``session`` once no peer is connected to it (the team has ended), or after ``wait`` s: a session closed
+    at once discards what a loaded receiver has not read yet, and an attacker counts every frame it put as received
+    (tests/net_flood_attacker.py has the measurement)."""
+    end = time.monotonic() + wait
+    while list(session.info.peers_zid()) and time.monotonic() < end:
+        time.sleep(0.05)
+    session.close()
+
+
 def wait_alive(session, key: str, end: float) -> bool:
     """Ask ``session`` for the liveliness token ``key`` until one answers or ``time.monotonic()`` passes ``end``;
     whether it was seen. A process declares its token after its subscribers: before the token is seen, a put to it

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
-from _attacker import envelope_of, wait_alive
+from _attacker import close_when_alone, envelope_of, wait_alive
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.auth import COLLECTOR, Roster, Signer, key_id, load_private
@@ -236,7 +236,7 @@ def main() -> None:
            "schema_ok": atk.schema_ok, "schema_bad": atk.schema_bad, "seen_inbox": atk.seen_inbox,
            "server_seen": server_seen, "seconds": time.monotonic() - started}  # fmt: skip
     Path(a.out).write_text(json.dumps(out, indent=1))
-    s.close()
+    close_when_alone(s)
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
+from _attacker import close_when_alone
 
 from swarmloc.messages import TeamUpdate, flat
 from swarmloc.net.auth import Roster, Signer, key_id, load_private
@@ -113,7 +114,7 @@ def main() -> None:
     for d in decl:
         d.undeclare()
     Path(a.out).write_text(json.dumps({"sent": dict(sent)}, indent=1))
-    s.close()
+    close_when_alone(s)
 
 
 if __name__ == "__main__":

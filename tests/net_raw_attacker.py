@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
-from _attacker import wait_alive
+from _attacker import close_when_alone, wait_alive
 
 from swarmloc.messages import flat
 from swarmloc.net.auth import Roster, Signer, load_private
@@ -85,7 +85,7 @@ def main() -> None:
     Path(a.out).write_text(
         json.dumps({"expected": expected, "schema_ok": schema_ok, "scope": scope, "server_seen": server_seen}, indent=1)
     )
-    session.close()
+    close_when_alone(session)
 
 
 if __name__ == "__main__":

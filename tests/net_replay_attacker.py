@@ -24,6 +24,7 @@ from collections import Counter
 from pathlib import Path
 
 import zenoh
+from _attacker import close_when_alone
 
 from swarmloc.net.transport import open_session
 
@@ -106,7 +107,7 @@ def main() -> None:
     out = {"second_run": second_run, "recorded": dict(kinds), "received": dict(received), "answers": dict(answers),
            "incarnations": [{str(r): i.hex() for r, i in run.items()} for run in runs]}  # fmt: skip
     Path(a.out).write_text(json.dumps(out, indent=1))
-    s.close()
+    close_when_alone(s)
 
 
 if __name__ == "__main__":

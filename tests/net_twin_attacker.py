@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
-from _attacker import envelope_of, team_scope_of
+from _attacker import close_when_alone, envelope_of, team_scope_of
 
 from swarmloc.messages import BeliefAnswer, BeliefQuery, RdlState, RdlStateQuery, RdlUpdate, flat
 from swarmloc.net.auth import Auth
@@ -115,7 +115,7 @@ def main() -> None:
     out = {"incarnation": auth.signer.incarnation.hex(), "counts": auth.session_counts(),
            "received": dict(received), "answers": dict(answers), "storm_s": seconds}  # fmt: skip
     Path(a.out).write_text(json.dumps(out, indent=1))
-    s.close()
+    close_when_alone(s)
 
 
 if __name__ == "__main__":
