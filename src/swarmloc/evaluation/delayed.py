@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmloc.estimators.adaptive_noise import scaled
 from swarmloc.events import Event, Odometry
 from swarmloc.kernels import cartesian as C
 from swarmloc.lie import SE2
@@ -115,8 +116,8 @@ def carried(log: Mapping[float, tuple[np.ndarray, np.ndarray]], odometry: Sequen
             else:  # no command: standing still until the next interval
                 v, w, end = 0.0, 0.0, min(odometry[j].t0, t) if j < len(odometry) else t
             x1, P1, _, _ = C.predict_one(x, P, v, w, end - cur, noise)
-            if lam != 1.0:  # the step's process noise (its covariance from zero) scaled
-                P1 = P1 - (1.0 - lam) * C.predict_one(x, _ZERO33, v, w, end - cur, noise)[1]
+            if lam != 1.0:  # the step's process noise (its covariance from zero) scaled, as the node scales it
+                P1 = scaled(P1 - C.predict_one(x, _ZERO33, v, w, end - cur, noise)[1], P1, lam)
             x, P, cur = x1, P1, end
         ts.append(t)
         xs.append(x)
