@@ -9,7 +9,9 @@ window pose leaving the window has been re-estimated with at least ``lag`` secon
 delayed output (:attr:`swarmloc.estimators.fls.WindowSolver.lagged_log`, estimate and marginal covariance;
 paired with the beliefs by :func:`swarmloc.evaluation.delayed.delayed_tracks`). This prints, at the same
 instants (the window's poses that have ground truth), the team position RMSE [m] and ANEES per dof of the causal
-belief and of the delayed output. The delayed output answers ``lag`` seconds (or more) late.
+belief and of the delayed output, and how many poses ``flsd`` filed as its causal belief because the window's
+covariance bound was the larger (:attr:`~swarmloc.estimators.fls.WindowSolver.lagged_causal`; ``fls`` files none).
+The delayed output answers ``lag`` seconds (or more) late.
 """
 
 from __future__ import annotations
@@ -47,6 +49,8 @@ def main() -> None:
     causal, delayed = delayed_tracks(nodes, res)
     n = sum(t.times.size for t in causal.tracks.values())
     print(f"{a.estimator}, lag {a.lag:g} s, {src.t_end - src.t_start:.0f} s, {n} instants, {wall:.0f} s wall")
+    filed, causal_filed = (sum(len(getattr(node, k)) for node in nodes) for k in ("lagged_log", "lagged_causal"))
+    print(f"poses filed: {filed}, as the causal belief (the window's bound the larger): {causal_filed}")
     for name, r in (("causal belief", causal), ("lagged (smoothed)", delayed)):
         team = evaluate(r)["team"]
         print(f"{name:18s} pos RMSE [m] {team['pos_rmse']:.4f}  ANEES/dof {team['anees']:.3f}")

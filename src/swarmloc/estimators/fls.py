@@ -60,12 +60,22 @@ estimate is ``M^-1`` times the sum of the factors' gradients; with the shared on
 whose correlation is unknown) gives ``M^-1 (L_a / w + L_b / (1 - w) + L_r) M^-1``. The estimates are unchanged.
 ``fls`` has no such factors (its neighbours are fused by covariance intersection, which scales the whole window
 at each one): its filed covariance is the marginal.
+
+**Never less sure than the filter was.** The bound assumes nothing about how much of a pose's information is
+shared, so where most of it came through teammates (no landmarks) it can exceed the covariance ``flsd``'s exact
+filter had at that pose's stamp. Both are consistent estimates of one pose; ``flsd`` files the one with the smaller
+covariance (determinant, Cartesian): its causal belief at the stamp (the filter's after the last input stamped
+then, kept with the pose in the window: :attr:`Window.causal`) where the window's bound is larger, the window's
+estimate otherwise (:attr:`WindowSolver.lagged_causal` lists the stamps filed as the causal belief). The choice
+looks at the two covariances only, never at an error; it is part of the window, so a replay of late input files
+what the ordered run filed.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from types import MappingProxyType
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -138,7 +148,9 @@ class Factor(NamedTuple):
 class Window(NamedTuple):
     """The smoother's window: pose variable ids and stamps [s] (oldest first), the estimate of every variable
     (``id -> (x, y, theta)``; neighbour variables included), the prior on the oldest pose (``mean (x, y, theta)``,
-    ``Pose2``-tangent covariance, information scale), the factors, and the next free variable id."""
+    ``Pose2``-tangent covariance, information scale), the factors, the next free variable id, and the owner's causal
+    belief at a pose's stamp where it keeps one (``id -> (x (3,), P (3, 3))`` Cartesian; ``flsd``'s, module
+    docstring)."""
 
     poses: tuple[int, ...]
     stamps: tuple[float, ...]
@@ -146,6 +158,7 @@ class Window(NamedTuple):
     prior: tuple[np.ndarray, np.ndarray, float]
     factors: tuple[Factor, ...]
     next_id: int
+    causal: Mapping[int, tuple[np.ndarray, np.ndarray]] = MappingProxyType({})
 
 
 _Factors = tuple[list[Factor], dict[int, np.ndarray], int, float]
@@ -271,6 +284,9 @@ class WindowSolver:
     (:func:`swarmloc.evaluation.delayed.carried`); dropped with the pose by whoever drops it."""
     scale_at: Callable[[float], float] | None
     """The owner's online scale of its process noise at a time [s] (None: the noise as given)."""
+    lagged_causal: set[float]
+    """The stamps of :attr:`lagged_log` filed as the owner's causal belief at the pose (:attr:`Window.causal`): where
+    the window kept one with a smaller covariance determinant than the window's estimate (module docstring)."""
 
     def __init__(self, where: str, lag: float, max_iterations: int, delayed: bool) -> None:
         if not (isinstance(lag, int | float) and math.isfinite(lag) and lag > 0):
@@ -286,12 +302,20 @@ class WindowSolver:
         self.lagged_fresh = None
         self.lagged_scale = {}
         self.scale_at = None
+        self.lagged_causal = set()
         self._g = load_gtsam()
 
-    def _file_lagged(self, ts: float, x: np.ndarray, P: np.ndarray, t: float) -> None:
-        """File pose ``ts``'s smoothed estimate and marginal, solved at ``t``, in the delayed output."""
+    def _file_lagged(self, ts: float, x: np.ndarray, P: np.ndarray, t: float,
+                     causal: tuple[np.ndarray, np.ndarray] | None = None) -> None:  # fmt: skip
+        """File pose ``ts``'s smoothed estimate and marginal, solved at ``t``, in the delayed output; ``causal``:
+        the owner's causal belief at ``ts``, filed instead where its covariance is the smaller (determinant)."""
         if self.lagged_log is None:
             return
+        if causal is not None and np.linalg.det(causal[1]) < np.linalg.det(P):
+            x, P = causal
+            self.lagged_causal.add(ts)
+        else:
+            self.lagged_causal.discard(ts)
         self.lagged_log[ts] = (x, P)
         if self.lagged_when is None:
             self.lagged_when = {}
@@ -331,7 +355,7 @@ class WindowSolver:
                     if any(f.kind == "pseudo" for f in win.factors):
                         covs = delayed_covariances(_factor_blocks(graph.linearize(result), win), win, covs)
                     for pid, ts, cov in zip(win.poses[:k0], win.stamps[:k0], covs, strict=True):
-                        self._file_lagged(ts, est[pid], _cartesian_cov(est[pid][2], cov), t)
+                        self._file_lagged(ts, est[pid], _cartesian_cov(est[pid][2], cov), t, win.causal.get(pid))
                 win = self._marginalize(win, k0, result)
         except RuntimeError:  # GTSAM: an indeterminant system
             return None
@@ -351,7 +375,8 @@ class WindowSolver:
         mean = _xyt(values.atPose2(keep).retract(delta.at(keep)))
         est = {k: v for k, v in win.est.items() if k not in gone}
         factors = tuple(f for f in win.factors if f.a not in drop)
-        return Window(win.poses[k0:], win.stamps[k0:], est, (mean, np.array(cov), 1.0), factors, win.next_id)
+        causal = {k: v for k, v in win.causal.items() if k not in drop}
+        return Window(win.poses[k0:], win.stamps[k0:], est, (mean, np.array(cov), 1.0), factors, win.next_id, causal)
 
 
 class OfSolver:
@@ -387,6 +412,7 @@ class FixedLagSmoother(RobotNode):
     lagged_when = OfSolver()
     lagged_fresh = OfSolver()
     lagged_scale = OfSolver()
+    lagged_causal = OfSolver()
 
     def __init__(self, robot: int, initial: GroupGaussian, *, lag: float = 2.0, max_iterations: int = 3,
                  delayed: bool = False, **kw: Any) -> None:  # fmt: skip

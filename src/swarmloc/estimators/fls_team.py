@@ -120,6 +120,7 @@ class TeamFixedLagSmoother(RobotNode):
     lagged_when = OfSolver()
     lagged_fresh = OfSolver()
     lagged_scale = OfSolver()
+    lagged_causal = OfSolver()
 
     def __init__(self, robot: int, initial: GroupGaussian, *, team: Sequence[int] = (), cluster: int = 0,
                  lag: float = 2.0, max_iterations: int = 3, delayed: bool = False,
@@ -141,7 +142,7 @@ class TeamFixedLagSmoother(RobotNode):
     def _initial_state(self, t0: float) -> TeamFlsState:
         s = self.protocol.initial(self.initial.mean, self.initial.cov, t0)
         win = Window((0,), (t0,), {0: s.x}, (s.x, np.array(self.initial.cov, dtype=float), 1.0), (), 1)
-        return TeamFlsState(s.t, s.v, s.w, s.x, s.P, s.Sigma, _ZERO3, _ZERO33, win)
+        return self._with_causal(TeamFlsState(s.t, s.v, s.w, s.x, s.P, s.Sigma, _ZERO3, _ZERO33, win))
 
     def _advance(self, s: TeamFlsState, robot: int, t: float) -> TeamFlsState:
         dt = t - s.t
@@ -189,7 +190,7 @@ class TeamFixedLagSmoother(RobotNode):
         pid = win.next_id
         odo = Factor.odometry(win.poses[-1], pid, s.rel, s.Q)
         win = Window((*win.poses, pid), (*win.stamps, s.t), {**win.est, pid: s.x}, win.prior,
-                     (*win.factors, odo), pid + 1)  # fmt: skip
+                     (*win.factors, odo), pid + 1, win.causal)  # fmt: skip
         if win.stamps[0] < s.t - 2 * self.solver.lag:  # no landmark solve for a while: marginalize the old poses
             solved = self.solver.solve(win, pid, s.t)
             if solved is not None:
@@ -203,7 +204,19 @@ class TeamFixedLagSmoother(RobotNode):
 
     def _apply_update(self, s: TeamFlsState, u: Message) -> tuple[TeamFlsState, bool]:
         s = self._adv(s, self.robot, u.stamp)  # the pose at the update's stamp: a function of the inputs only
-        return self.protocol.apply(s, u, self.counts)
+        new, applied = self.protocol.apply(s, u, self.counts)
+        return self._with_causal(new), applied
+
+    def _with_causal(self, s: TeamFlsState) -> TeamFlsState:
+        """``s`` with its belief kept in the window as the causal belief at the newest pose when that pose is at
+        ``s``'s time (the last input at a stamp leaves the belief after every input stamped then), so that the
+        delayed output is never less sure than the filter was there (:mod:`swarmloc.estimators.fls`); nothing
+        without the delayed output."""
+        win = s.win
+        if self.solver.lagged_log is None or win.stamps[-1] != s.t:
+            return s
+        N = I.world_basis(s.x)  # the world-frame covariance as a Cartesian one, as the window files its poses
+        return s._replace(win=win._replace(causal={**win.causal, win.poses[-1]: (s.x, N @ s.P @ N.T)}))
 
     # ------------------------------------------------------------------------------------------------ update
     def _smoothed_landmarks(
@@ -270,7 +283,7 @@ class TeamFixedLagSmoother(RobotNode):
             landmarks.append((len(outcomes), sub, Factor.unary(d, target, R)))
             outcomes.append(None)
         if not landmarks:
-            return s, [o for o in outcomes if o is not None], msgs
+            return self._with_causal(s), [o for o in outcomes if o is not None], msgs
         s = self._posed(s)  # the pose at this group's instant (its robot detections made it already)
         pid = s.win.poses[-1]
         win = s.win._replace(est={**s.win.est, pid: s.x})
@@ -284,8 +297,8 @@ class TeamFixedLagSmoother(RobotNode):
                 if self.noise_scale is not None:  # the innovation the filter fused, one after another as diekf's
                     self._record(g.t, sub, innovation_terms(r, S, f.R, landmark=True))
                 msgs += broadcast(g.t, sub, (self.robot, Hw, np.zeros_like(Hw), Sinv, nu, Pii, Pii, 1.0))
-            return new._replace(win=solved[0]), [o for o in outcomes if o is not None], msgs
+            return self._with_causal(new._replace(win=solved[0])), [o for o in outcomes if o is not None], msgs
         for k, sub, _ in landmarks:
             outcomes[k] = ("rejected", NUMERICAL)
             msgs += broadcast(g.t, sub)
-        return s._replace(win=win), [o for o in outcomes if o is not None], msgs
+        return self._with_causal(s._replace(win=win)), [o for o in outcomes if o is not None], msgs
