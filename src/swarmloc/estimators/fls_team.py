@@ -38,6 +38,7 @@ import numpy as np
 from swarmloc.estimators.adaptive_noise import innovation_terms, scale_for, scaled
 from swarmloc.estimators.dekf import linearize
 from swarmloc.estimators.fls import Factor, OfSolver, Window, WindowSolver
+from swarmloc.estimators.iekf import world_to_cartesian
 from swarmloc.estimators.team_protocol import TeamProtocol
 from swarmloc.gaussian import GroupGaussian, symmetric
 from swarmloc.kernels import cartesian as C
@@ -215,8 +216,8 @@ class TeamFixedLagSmoother(RobotNode):
         win = s.win
         if self.solver.lagged_log is None or win.stamps[-1] != s.t:
             return s
-        N = I.world_basis(s.x)  # the world-frame covariance as a Cartesian one, as the window files its poses
-        return s._replace(win=win._replace(causal={**win.causal, win.poses[-1]: (s.x, N @ s.P @ N.T)}))
+        kept = world_to_cartesian(s.x, s.P)  # the world-frame covariance as a Cartesian one, as the window files
+        return s._replace(win=win._replace(causal={**win.causal, win.poses[-1]: kept}))
 
     # ------------------------------------------------------------------------------------------------ update
     def _smoothed_landmarks(
