@@ -517,7 +517,7 @@ def test_a_team_of_processes_with_association_equals_the_in_process_run(est):
     assert not leftovers(team)
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, est)
-    assert max_diff(res, ref) <= 1e-6
+    assert max_diff(res, ref) <= 1e-9
     scored = ("association_right", "association_wrong")  # the server gets no truth over the wire: 0 there
     for k in ("detections", "fused", "gated", "rejected", *ASSOCIATION_KEYS):
         if not (est == "cekf" and k in scored):

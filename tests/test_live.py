@@ -311,7 +311,7 @@ def test_python_api_three_live_nodes_equal_the_in_process_run(est):
     finals = {k: b for k, b in finals.items() if k[1] in set(src.record_times())}
     d = max_diff(finals, reference(src, src.events, est))
     print(f"live API {est}: {len(finals)} final beliefs, max difference to the in-process run {d:.3g}")
-    assert d <= 1e-6
+    assert d <= 1e-9
     assert nodes[1].belief(src.record_times()[-1]).final
 
 
@@ -387,7 +387,7 @@ def test_three_node_processes_localize_live_from_a_ros2_publisher_process_as_the
     assert sum(tr.times.size for tr in ref.tracks.values()) == len(finals) == 3 * src.record_times().size
     d = max_diff(finals, ref)
     print(f"live ros2 processes: {len(finals)} final beliefs, max difference to the replay {d:.3g}")
-    assert d <= 1e-6
+    assert d <= 1e-9
     assert sorted(reports) == src.robots and sum(r.stats["fused"] for r in reports.values()) > 30
     assert sum(r.net.get("answered_unsettled", 0) + r.stats["revisions_sent"] for r in reports.values()) == 0
 
@@ -435,4 +435,4 @@ def test_three_nodes_localize_from_swarmlocs_own_input_keys_as_the_in_process_ru
     finals = {k: b for k, b in finals.items() if k[1] in set(src.record_times())}
     d = max_diff(finals, reference(src, src.events))
     print(f"live zenoh inputs: {len(finals)} final beliefs, max difference to the in-process run {d:.3g}")
-    assert d <= 1e-6
+    assert d <= 1e-9

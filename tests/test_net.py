@@ -502,7 +502,7 @@ def test_networked_equals_in_process_on_a_simulated_team(est):
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, est)
     assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
-    assert max_diff(res, reference(src, est)) <= 1e-6
+    assert max_diff(res, reference(src, est)) <= 1e-9
     assert res.stats["fused"] > 50
 
 
@@ -517,7 +517,7 @@ def test_fls_networked_equals_in_process_on_a_simulated_team():
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, "fls")
     assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
-    assert max_diff(res, reference(src, "fls")) <= 1e-6
+    assert max_diff(res, reference(src, "fls")) <= 1e-9
     assert res.stats["fused"] > 50
 
 
@@ -556,7 +556,7 @@ def test_networked_equals_in_process_on_mrclam6_first_120s(est, mrclam6):
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, est)
     assert res.stats["reports"] == 5
-    assert max_diff(res, reference(src, est)) <= 1e-6
+    assert max_diff(res, reference(src, est)) <= 1e-9
     assert res.stats["fused"] > 1000
 
 

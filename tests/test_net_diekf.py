@@ -302,7 +302,7 @@ def test_diekf_networked_equals_in_process_on_a_simulated_team():
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, "diekf")
     assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
-    assert max_diff(res, reference(src, "diekf")) <= 1e-6  # every recorded mean and covariance
+    assert max_diff(res, reference(src, "diekf")) <= 1e-9  # every recorded mean and covariance
     assert res.stats["fused"] > 50
     s = res.stats  # all to all: each broadcast applied by both teammates, none repaired or dropped
     assert s["net_broadcasts_sent"] >= s["fused"] and s["net_broadcasts_applied"] == 2 * s["net_broadcasts_sent"]
@@ -325,7 +325,7 @@ def test_diekf_in_clusters_networked_equals_in_process(tmp_path):
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, "diekf")
     assert res.stats["reports"] == 5 and res.stats["recorded_provisional_only"] == 0
-    assert max_diff(res, reference(src, "diekf")) <= 1e-6
+    assert max_diff(res, reference(src, "diekf")) <= 1e-9
     assert res.stats["fused"] > 100
     sent = {r: rep.net.get("broadcasts_sent", 0) for r, rep in tr.reports.items()}
     applied = {r: rep.net.get("broadcasts_applied", 0) for r, rep in tr.reports.items()}

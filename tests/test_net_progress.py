@@ -164,7 +164,7 @@ def test_diekf_in_clusters_watching_fewer_teammates_equals_in_process() -> None:
     assert net["broadcasts_applied"] > 0 and net.get("peers_lost", 0) == 0
     ref = reference(src, "diekf")
     assert ref.stats["fused"] > 100
-    assert max_diff(dataclasses.replace(ref, tracks=run.tracks(src.truth)), ref) <= 1e-6
+    assert max_diff(dataclasses.replace(ref, tracks=run.tracks(src.truth)), ref) <= 1e-9
 
 
 @pytest.mark.unit
@@ -277,8 +277,8 @@ def test_a_reforming_node_subscribes_per_period_to_its_current_and_next_mates() 
 def test_diekf_reforming_networked_equals_in_process() -> None:
     """The same 6 robots for 10 s (threads of this process on 127.0.0.1, benchmarks/diekf_swarm.py's networked run):
     the clusters re-form every second, the pieces travel (as many taken as in process), and every recorded mean and
-    covariance equals the in-process run's to 1e-6."""
+    covariance equals the in-process run's to 1e-9."""
     swarm = load_benchmark("diekf_swarm")
     r = swarm.networked(_scene_module().scene(6, 10.0, 1, "grouped"), 6, 3, 10.0, 120.0, 1.0)
-    assert r["reports"] == 6 and r["diff"] <= 1e-6, r
+    assert r["reports"] == 6 and r["diff"] <= 1e-9, r
     assert r["pieces"] == r["ref_pieces"] == 2

@@ -81,5 +81,5 @@ def test_networked_equals_in_process_on_a_3d_team(est: str) -> None:
     assert res.stats["reports"] == 3 and res.stats["recorded_provisional_only"] == 0
     ref = reference3(src, est)
     assert res.tracks[0].mean.shape[-1] == 7 and res.tracks[0].cov.shape[-1] == 6
-    assert max_diff(res, ref) <= 1e-6  # every recorded mean (x, y, z, quaternion) and 6 x 6 covariance
+    assert max_diff(res, ref) <= 1e-9  # every recorded mean (x, y, z, quaternion) and 6 x 6 covariance
     assert res.stats["fused"] == ref.stats["fused"] == res.stats["detections"] > 50

@@ -213,7 +213,7 @@ def test_networked_equals_in_process_with_points(spec: str, est: str) -> None:
     assert all(c == 0 for c in tr.exit_codes.values()), tr.exit_codes
     res = team_result(tr, src, est)
     ref = reference3(src, est)
-    assert max_diff(res, ref) <= 1e-6
+    assert max_diff(res, ref) <= 1e-9
     assert res.stats["fused"] == ref.stats["fused"] == res.stats["detections"] > 50
 
 

@@ -153,7 +153,7 @@ class Broadcaster:
             out, self._bout = self._bout, {}
             for k, m in sorted(out.items()):
                 m = msgspec.structs.replace(m, receiver=ALL)
-                if same(self._bsent.get(k), m):  # a replay that changed only the last bits: nothing to send
+                if same(self._bsent.get(k), m):  # a replay that changed nothing: nothing to send
                     self.counts["broadcasts_unchanged"] += 1
                     continue
                 self._bsent[k] = m
