@@ -199,7 +199,8 @@ def test_an_update_passes_only_within_the_gate_and_three_refused_quarantine(cls:
     <= gamma_3``) it is taken, and the receiver moves by exactly that; beyond, it is refused and counted against the
     sender, the belief untouched. Three refused in a row quarantine the sender: its next messages are refused
     (a query answered "not found"), the receiver's detection waiting for its answer is given up, and the receiver
-    asks it nothing more."""
+    asks it nothing more and revises none of its answers to it (giving the detection up moved the answer at 4.0 in
+    its last bits: before, that revision went to the quarantined sender)."""
     node = _node(cls)
     gamma = chi2_ppf(GATE, 3)
     waiting = node.step(Detection(0, 3.5, "pose", np.array([1.0, 0.0, 0.0]), 1e-4 * np.eye(3), target=1))

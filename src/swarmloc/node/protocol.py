@@ -14,7 +14,8 @@
   estimators that take them, once they pass their check (:mod:`~swarmloc.node.trust`: refused, counted against
   their sender otherwise).
 * A **quarantined** teammate's messages are all refused (counted ``quarantined``); its queries are answered
-  "not found" and nothing is asked of it any more (:mod:`~swarmloc.node.trust`).
+  "not found", the answers it was given are not revised, and nothing is asked of it any more
+  (:mod:`~swarmloc.node.trust`).
 """
 
 from __future__ import annotations
@@ -257,6 +258,8 @@ class Exchange:
         out: list[Message] = []
         for skey, old in list(self.served.after(after)):
             key, asker, _ = skey
+            if asker in self.trust.quarantined:  # nothing more is sent to it, revisions included
+                continue
             q = query_of(old, asker)
             new = self.host._answer(self.query_state(key, q.receiver), q)
             if new is not None and (new := self.served.revise(skey, new)) is not None:

@@ -37,8 +37,9 @@ Gamma^T < P``, the new covariance being positive definite; a cluster's covarianc
 
 **Quarantine.** After ``quarantine`` (default 3) of a teammate's updates in a row were refused (none accepted
 between), it is quarantined for the rest of the run: every later message from it is refused and counted
-(``quarantined``, ``quarantined_<robot>``, ``messages_rejected``), a query from it is answered "not found", and this
-node no longer asks it anything (its detections of it end ``unknown``). Logged once per teammate: the first
+(``quarantined``, ``quarantined_<robot>``, ``messages_rejected``), a query from it is answered "not found", the
+answers it was given are not revised, and this node no longer asks it anything (its detections of it end
+``unknown``). Logged once per teammate: the first
 suspicion and the quarantine.
 """
 
