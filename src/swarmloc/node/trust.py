@@ -39,8 +39,7 @@ Gamma^T < P``, the new covariance being positive definite; a cluster's covarianc
 between), it is quarantined for the rest of the run: every later message from it is refused and counted
 (``quarantined``, ``quarantined_<robot>``, ``messages_rejected``), a query from it is answered "not found", the
 answers it was given are not revised, and this node no longer asks it anything (its detections of it end
-``unknown``). Logged once per teammate: the first
-suspicion and the quarantine.
+``unknown``). Logged once per teammate: the first suspicion and the quarantine.
 """
 
 from __future__ import annotations
