@@ -272,14 +272,14 @@ def _live(src, est, tmp_path, **kw):
 @pytest.mark.parametrize("est", ["cekf", "iekf"])
 def test_live_hosted_estimator_equals_the_in_process_run(src, est, tmp_path):
     """``swarmloc team --estimator cekf|iekf``: three robot processes forward, the server fuses; every final belief
-    of every robot at every record time equals the in-process run's to 1e-6, and every detection is fused."""
+    of every robot at every record time equals the in-process run's to 1e-9, and every detection is fused."""
     tr, res = _live(src, est, tmp_path)
     ref = reference(src, est)
     assert res.stats["recorded"] == 3 * src.record_times().size and res.stats["recorded_provisional_only"] == 0
     for r, t in ref.tracks.items():
         a = res.tracks[r]
         np.testing.assert_array_equal(a.times, t.times)
-        assert np.abs(a.mean - t.mean).max() <= 1e-6 and np.abs(a.cov - t.cov).max() <= 1e-6, f"robot {r}"
+        assert np.abs(a.mean - t.mean).max() <= 1e-9 and np.abs(a.cov - t.cov).max() <= 1e-9, f"robot {r}"
     assert set(tr.reports) == {*src.robots, SERVER}
     assert res.stats["fused"] == ref.stats["fused"] == res.stats["detections"] and res.accounted()
     assert res.stats.get("net_raw_lost_forwards", 0) == 0 and res.stats.get("net_robots_lost", 0) == 0
@@ -287,7 +287,7 @@ def test_live_hosted_estimator_equals_the_in_process_run(src, est, tmp_path):
 
 def test_live_hosted_estimator_under_loss_repairs_what_was_lost(src, tmp_path):
     """Loss 0.3 on every forward (and every repeat): the server asks the robots again for the numbers missing, they
-    send them again, and the run equals the in-process run (1e-6); every detection of the source is accounted for.
+    send them again, and the run equals the in-process run (1e-9); every detection of the source is accounted for.
     (Without the repair, this run lost 5 forwards with 114 of the 200 detections and 177 odometry records, and the
     filter diverged: ANEES 1627.)"""
     tr, res = _live(src, "cekf", tmp_path, faults="loss=0.3,seed=3")
@@ -302,7 +302,7 @@ def test_live_hosted_estimator_under_loss_repairs_what_was_lost(src, tmp_path):
     assert s["detections"] == forwarded == n_det and res.accounted()
     for r, t in ref.tracks.items():
         a = res.tracks[r]
-        assert np.abs(a.mean - t.mean).max() <= 1e-6 and np.abs(a.cov - t.cov).max() <= 1e-6, f"robot {r}"
+        assert np.abs(a.mean - t.mean).max() <= 1e-9 and np.abs(a.cov - t.cov).max() <= 1e-9, f"robot {r}"
 
 
 def _server_refusals(log: Path) -> dict:
