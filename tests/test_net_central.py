@@ -5,7 +5,7 @@ Without a network: the forwards of the robots interleaved in any order (and one 
 the in-process run exactly; a missing forward is asked for again; one lost for good is counted with what it carried,
 and every detection stays accounted for.
 Live (127.0.0.1 only, bounded, every process stopped): ``swarmloc team --estimator cekf|iekf`` equals the in-process
-run to 1e-6; under loss the missing forwards are asked for again and the run still equals it; an attacker holding
+run to 1e-9; under loss the missing forwards are asked for again and the run still equals it; an attacker holding
 robot 2's key forwarding in robot 1's name is refused and counted at the server, and the run equals the clean one to
 1e-9.
 """
