@@ -33,7 +33,7 @@ from swarmloc.config import DEFAULTS, InitialConfig, MotionConfig
 from swarmloc.estimators import make_team, node_options
 from swarmloc.evaluation.heldout import BAND, nis_summary, reading_times, tracks_nis
 from swarmloc.evaluation.metrics import DOF, errors
-from swarmloc.events import Kind
+from swarmloc.events import Detection, Kind
 from swarmloc.runner import run
 from swarmloc.runner.fanout import fan_out
 from swarmloc.sim.landmarks import LandmarkSensor, landmark_detections, landmark_streams, place_landmarks
@@ -66,7 +66,7 @@ def one_seed(seed: int, duration: float, D: float, estimator: str) -> dict[str, 
     on_grid = np.isin(times, grid)
     nees = np.concatenate([errors(res.tracks[r])["nees"][on_grid] for r in src.robots])
     scores = nis_summary(tracks_nis(res.tracks, readings, landmarks, (SIGMA_RANGE, SIGMA_BEARING)))
-    mutual = sum(1 for e in src.events if getattr(e, "target_is_robot", False))
+    mutual = sum(1 for e in src.events if isinstance(e, Detection) and e.target_is_robot)
     return {"seed": seed, "anees": float(np.mean(nees) / DOF), **scores, "mutual": mutual,
             "fused": int(res.stats.get("fused", 0))}  # fmt: skip
 
