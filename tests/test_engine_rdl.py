@@ -20,7 +20,7 @@ from swarmloc.estimators import make_team, node_options
 from swarmloc.events import Detection
 from swarmloc.experiments.sources import load_source
 from swarmloc.kernels import cartesian as C
-from swarmloc.kernels.pairs import PAIRS
+from swarmloc.kernels.pairs import CI_WEIGHTS, PAIRS
 from swarmloc.runner import RunResult, run
 
 # slow: the first test of the module compiles the engine's numba/JAX kernels
@@ -112,6 +112,35 @@ def test_pair_prior_equals_the_nodes_on_every_branch() -> None:
         if flag == 1 and np.allclose(P[:3, 3:], fi @ fj.T):
             seen["tracked"] += 1
             continue
+        seen[flag] += 1
+    assert min(seen.values()) >= 5, seen
+
+
+def test_ci_prior_picks_the_weight_the_joint_update_itself_would() -> None:
+    """Covariance intersection's weight, computed in measurement space (the determinant lemma, every weight at once),
+    against the 6x6 joint update for each weight: both robots' posterior blocks from the Kalman form and their log
+    determinants, the max-min (or the observer's own) gain picked from them; the same weight and flag every time."""
+    seen = {1: 0, 0: 0, -1: 0}
+    for Pi, Pj, _, _, _, H, R in pair_cases(200):
+        gains = []
+        for w in CI_WEIGHTS:
+            P = np.zeros((6, 6))
+            P[:3, :3], P[3:, 3:] = Pi / w, Pj / (1.0 - w)
+            K_ = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+            Pn = P - K_ @ H @ P
+            gains.append([np.linalg.slogdet(Pi)[1] - np.linalg.slogdet(Pn[:3, :3])[1],
+                          np.linalg.slogdet(Pj)[1] - np.linalg.slogdet(Pn[3:, 3:])[1]])  # fmt: skip
+        g = np.array(gains)
+        k = int(np.argmax(g.min(axis=1)))
+        want = 1
+        if g[k].min() < 0.0:
+            k = int(np.argmax(g[:, 0]))
+            want = 0 if g[k, 0] > 0.0 else -1
+        P, flag = PAIRS.ci_prior(Pi, Pj, H, R)
+        assert flag == want
+        np.testing.assert_allclose(P[:3, :3], Pi / CI_WEIGHTS[k], rtol=1e-12)
+        np.testing.assert_allclose(P[3:, 3:], Pj / (1.0 - CI_WEIGHTS[k]), rtol=1e-12)
+        assert not P[:3, 3:].any()
         seen[flag] += 1
     assert min(seen.values()) >= 5, seen
 

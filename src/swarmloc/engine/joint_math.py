@@ -1,8 +1,8 @@
 """The compiled pieces the engine's replays share (numba; :mod:`swarmloc.engine.formulas` compiled on scalars, with
 :mod:`swarmloc.engine.blocks`): a detection's residual, Jacobian and noise (:func:`measure`), the positive-definite
 check, the world-frame pieces of the invariant filters, the Kalman update on a few columns of a joint covariance
-(:func:`kalman`, the nodes' own compiled) and the order of its outcomes (:func:`verdict`), and the loop form of
-:func:`swarmloc.kernels.cartesian.matmul` that the nodes' kernels compiled in the engine use.
+(:func:`kalman`, the nodes' own compiled) and the order of its outcomes (:func:`verdict`), and the loop forms of
+:func:`swarmloc.kernels.cartesian.matmul` and ``logdets`` that the nodes' kernels compiled in the engine use.
 :mod:`swarmloc.engine.joint`, :mod:`swarmloc.engine.joint_clusters` and :mod:`swarmloc.engine.pairs` build their loops
 from them. Units: metres, radians; angles wrapped to (-pi, pi]."""
 
@@ -73,6 +73,19 @@ def _matmul(A: Any, B: Any) -> Any:
         return out
 
     return matmat
+
+
+@overload(C.logdets, jit_options={"error_model": "numpy"})
+def _logdets(M: Any) -> Any:
+    """:func:`swarmloc.kernels.cartesian.logdets` compiled: one ``slogdet`` per matrix."""
+
+    def each(M: Any) -> Any:
+        out = np.empty(M.shape[0])
+        for k in range(M.shape[0]):
+            out[k] = np.linalg.slogdet(np.ascontiguousarray(M[k]))[1]
+        return out
+
+    return each
 
 
 @overload(C.joseph_blocks, jit_options={"error_model": "numpy"})

@@ -265,6 +265,13 @@ def matmul(A: FloatArray, B: FloatArray) -> FloatArray:
     return out
 
 
+def logdets(M: FloatArray) -> FloatArray:
+    """``log |det M|`` of each matrix of ``M (k, m, m)``, ``(k,)``; numba-compiled code runs it one matrix at a time
+    (:mod:`swarmloc.engine.joint_math` registers that form)."""
+    out: FloatArray = np.linalg.slogdet(M)[1]
+    return out
+
+
 def kalman_one(
     x: FloatArray, P: FloatArray, r: FloatArray, H: FloatArray, R: FloatArray, angles: tuple[int, ...]
 ) -> tuple[FloatArray, FloatArray, float, bool]:

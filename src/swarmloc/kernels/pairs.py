@@ -13,14 +13,13 @@ Cartesian (``rdl``) or world-frame (``irdl``) errors, the math is the same.
 
 from __future__ import annotations
 
-import math
 from functools import cache
 from types import ModuleType
 
 import numpy as np
 
 from swarmloc.gaussian import positive_definite as _positive_definite
-from swarmloc.kernels.cartesian import matmul
+from swarmloc.kernels.cartesian import logdets, matmul
 from swarmloc.sensors.planar import Jit, plain
 
 CI_WEIGHTS = np.linspace(0.02, 0.98, 49)
@@ -67,36 +66,36 @@ def build(jit: Jit = plain) -> ModuleType:
 
     @jit
     def ci_prior(Pi: np.ndarray, Pj: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, int]:
-        """The pair's joint prior ``(6, 6)`` when the cross-covariance is unknown: ``blockdiag(Pi / w, Pj / (1 -
+        """The pair's joint prior ``(2n, 2n)`` when the cross-covariance is unknown: ``blockdiag(Pi / w, Pj / (1 -
         w))``, which bounds the joint covariance for every ``w`` in (0, 1) and every cross-covariance (covariance
         intersection), ``w`` from :data:`CI_WEIGHTS` maximizing the smaller of the two robots' gains ``log det
-        P_prior - log det P_post`` of the joint update (``H (m, 6)``, ``R (m, m)``), flag 1 when both gain; else
+        P_prior - log det P_post`` of the joint update (``H (m, 2n)``, ``R (m, m)``), flag 1 when both gain; else
         ``w`` maximizing the observer's own gain, flag 0 when it gains (it alone takes the update), -1 when not
-        (the measurement is too weak to pay for the bound)."""
-        nw = CI_WEIGHTS.shape[0]
-        gi, gj = np.empty(nw), np.empty(nw)
-        Ps = np.zeros((nw, 6, 6))
-        li, lj = np.linalg.slogdet(Pi)[1], np.linalg.slogdet(Pj)[1]
-        for k in range(nw):
-            Ps[k, :3, :3] = Pi / CI_WEIGHTS[k]
-            Ps[k, 3:, 3:] = Pj / (1.0 - CI_WEIGHTS[k])
-            PHt = Ps[k] @ H.T
-            Pn = Ps[k] - PHt @ np.linalg.solve(H @ PHt + R, PHt.T)
-            gi[k] = li - np.linalg.slogdet(Pn[:3, :3].copy())[1]
-            gj[k] = lj - np.linalg.slogdet(Pn[3:, 3:].copy())[1]
-        best, kb = -math.inf, 0
-        for k in range(nw):
-            both = min(gi[k], gj[k]) if math.isfinite(gi[k]) and math.isfinite(gj[k]) else -math.inf
-            if both > best:
-                best, kb = both, k
-        if best >= 0.0:
-            return Ps[kb].copy(), 1
-        best, kb = -math.inf, 0
-        for k in range(nw):
-            g = gi[k] if math.isfinite(gi[k]) else -math.inf
-            if g > best:
-                best, kb = g, k
-        return Ps[kb].copy(), (0 if best > 0.0 else -1)
+        (the measurement is too weak to pay for the bound).
+
+        The gains in measurement space (the matrix determinant lemma on each robot's block of the posterior), for
+        every weight at once: with ``A = Hi Pi Hi^T``, ``B = Hj Pj Hj^T`` and ``S = A / w + B / (1 - w) + R``, the
+        observer's gain is ``n log w + log det S - log det(B / (1 - w) + R)``, the target's ``n log(1 - w) + log det
+        S - log det(A / w + R)``."""
+        n = Pi.shape[0]
+        Hi, Hj = np.ascontiguousarray(H[:, :n]), np.ascontiguousarray(H[:, n:])
+        A = matmul(matmul(Hi, Pi), Hi.T)
+        B = matmul(matmul(Hj, Pj), Hj.T)
+        w = CI_WEIGHTS.reshape((-1, 1, 1))
+        ls = logdets(A / w + B / (1.0 - w) + R)
+        gi = n * np.log(CI_WEIGHTS) + ls - logdets(B / (1.0 - w) + R)
+        gj = n * np.log(1.0 - CI_WEIGHTS) + ls - logdets(A / w + R)
+        ok_i = np.isfinite(gi)
+        both = np.where(ok_i & np.isfinite(gj), np.minimum(gi, gj), -np.inf)
+        kb, flag = np.argmax(both), 1
+        if not both[kb] >= 0.0:
+            own = np.where(ok_i, gi, -np.inf)
+            kb = np.argmax(own)
+            flag = 0 if own[kb] > 0.0 else -1
+        P = np.zeros((2 * n, 2 * n))
+        P[:n, :n] = Pi / CI_WEIGHTS[kb]
+        P[n:, n:] = Pj / (1.0 - CI_WEIGHTS[kb])
+        return P, flag
 
     @jit
     def pair_prior(Pi: np.ndarray, Pj: np.ndarray, fi: np.ndarray, fj: np.ndarray, met: bool, H: np.ndarray,
