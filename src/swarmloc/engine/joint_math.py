@@ -76,13 +76,18 @@ def _matmul(A: Any, B: Any) -> Any:
 
 
 @overload(C.logdets, jit_options={"error_model": "numpy"})
-def _logdets(M: Any) -> Any:
-    """:func:`swarmloc.kernels.cartesian.logdets` compiled: one ``slogdet`` per matrix."""
+def _logdets(a: Any, A: Any, b: Any, B: Any, R: Any) -> Any:
+    """:func:`swarmloc.kernels.cartesian.logdets` compiled: each matrix formed and its ``slogdet`` taken in turn."""
 
-    def each(M: Any) -> Any:
-        out = np.empty(M.shape[0])
-        for k in range(M.shape[0]):
-            out[k] = np.linalg.slogdet(np.ascontiguousarray(M[k]))[1]
+    def each(a: Any, A: Any, b: Any, B: Any, R: Any) -> Any:
+        m = R.shape[0]
+        out = np.empty(a.shape[0])
+        M = np.empty((m, m))
+        for k in range(a.shape[0]):
+            for i in range(m):
+                for j in range(m):
+                    M[i, j] = a[k] * A[i, j] + b[k] * B[i, j] + R[i, j]
+            out[k] = np.linalg.slogdet(M)[1]
         return out
 
     return each

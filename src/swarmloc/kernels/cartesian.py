@@ -265,9 +265,11 @@ def matmul(A: FloatArray, B: FloatArray) -> FloatArray:
     return out
 
 
-def logdets(M: FloatArray) -> FloatArray:
-    """``log |det M|`` of each matrix of ``M (k, m, m)``, ``(k,)``; numba-compiled code runs it one matrix at a time
-    (:mod:`swarmloc.engine.joint_math` registers that form)."""
+def logdets(a: FloatArray, A: FloatArray, b: FloatArray, B: FloatArray, R: FloatArray) -> FloatArray:
+    """``log |det(a_k A + b_k B + R)|`` for each ``k`` of the coefficients ``a, b (k,)``, matrices ``A, B, R (m, m)``:
+    ``(k,)``. Numba-compiled code runs it one matrix at a time (:mod:`swarmloc.engine.joint_math` registers that
+    form: the batched expression made the replays that inline it compile for seconds longer)."""
+    M = a[:, None, None] * A + b[:, None, None] * B + R
     out: FloatArray = np.linalg.slogdet(M)[1]
     return out
 
