@@ -52,10 +52,11 @@ def convolution_mc(a: GroupGaussian, b: GroupGaussian, n: int, rng: np.random.Ge
 def log_abs_det_jacobian(group: type[SEGroup], x: np.ndarray) -> np.ndarray:
     """``log|det Jl(x)|`` (= ``log|det Jr(x)|`` on SE(n)): the density correction of the exponential map.
 
-    In closed form: ``Jl`` is block triangular with SO(n)'s left Jacobian on its diagonal (once on SE(2), where it
-    is the 2x2 ``V(alpha)``; twice on SE(3)), whose determinant is ``2 (1 - cos t) / t^2 = sinc(t / 2)^2`` for the
-    rotation angle ``t = |w|``; so ``log|det Jl| = 2 (n - 1) log|sinc(t / 2)|`` (checked in the tests against
-    ``slogdet`` of :meth:`~swarmloc.lie.base.SEGroup.left_jacobian` and against central differences of ``expm``)."""
+    In closed form: ``Jl`` is block triangular, its diagonal ``V(alpha)`` (2x2) and 1 on SE(2), SO(3)'s left
+    Jacobian twice on SE(3); each of those blocks has determinant ``2 (1 - cos t) / t^2 = sinc(t / 2)^2`` for the
+    rotation angle ``t = |w|`` (``np.sinc`` is ``sin(pi u) / (pi u)``), so ``log|det Jl| = 2 (n - 1)
+    log|sinc(t / 2)|`` (checked in the tests against ``slogdet`` of
+    :meth:`~swarmloc.lie.base.SEGroup.left_jacobian` and against central differences of ``expm``)."""
     t = np.linalg.norm(np.asarray(x, dtype=float)[..., group.n :], axis=-1)
     return 2.0 * (group.n - 1) * np.log(np.abs(np.sinc(t / (2.0 * np.pi))))
 
