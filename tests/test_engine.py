@@ -219,6 +219,35 @@ def test_soa_kernels_equal_kernels() -> None:
     np.testing.assert_allclose(nis, nr, rtol=1e-12)
 
 
+def test_one_compiled_prediction_serves_every_noise_model() -> None:
+    """The compiled prediction takes the noise model's coefficients at run time: two models (every coefficient set,
+    and the defaults) through one compiled function, each equal to the numpy formulas of its own model, and numba
+    compiled it once (a replay's loops call it, so a second model in a process compiles nothing)."""
+    from swarmloc.engine.joint import predict_kernel
+    from swarmloc.engine.replay_io import noise_tuple
+
+    rng = np.random.default_rng(4)
+    B = 50
+    x = np.column_stack([rng.normal(size=(B, 2)), rng.uniform(-np.pi, np.pi, B)])
+    A = rng.normal(size=(B, 3, 3))
+    P = 0.01 * A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)
+    v, w, dt = rng.uniform(-1, 1, B), rng.uniform(-3, 3, B), rng.uniform(0, 2, B)
+    w[:5] = 0.0
+    every = UnicycleNoise(q_v0=1e-3, q_v1=2e-3, q_v2=3e-3, q_lat0=1e-4, q_lat1=2e-4, q_w0=1e-3, q_w1=4e-3,
+                          q_w2=5e-3, q_wv=6e-3)  # fmt: skip
+    kernel = predict_kernel()
+    outs = []
+    for noise in (every, UnicycleNoise()):
+        xs, ps = soa.predict(np, tuple(x.T), _up(P), v, w, dt, noise)
+        ref = np.column_stack([*xs, *ps])
+        got = np.array([kernel(*x[i], *P[i][np.triu_indices(3)], v[i], w[i], dt[i], noise_tuple(noise))
+                        for i in range(B)])  # fmt: skip
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-14)
+        outs.append(got)
+    assert np.abs(outs[0][:, 3:] - outs[1][:, 3:]).min() > 0  # the models' covariances differ everywhere
+    assert len(kernel.signatures) == 1
+
+
 def test_jax_backend_equals_numpy() -> None:
     """jax is in the dev extra: this runs in CI, not skipped."""
     src = _source(5, 10.0, 13, fixes=True)

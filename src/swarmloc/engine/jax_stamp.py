@@ -340,7 +340,7 @@ class DeviceStamp:
 
 def consts(gate: Gate, relative: bool, lm_on: bool, landmarks: Landmarks | None) -> Consts:
     """The options of a stamp as the kernel reads them (:data:`Consts`)."""
-    thr = constants(gate.p).thr  # the compiled replays' table (inf: no gate)
+    thr = constants(gate=gate.p).thr  # the compiled replays' table (inf: no gate)
     if landmarks is None:
         lxy, lcov = np.zeros((8, 2)), np.tile([1.0, 0.0, 1.0], (8, 1))
     else:

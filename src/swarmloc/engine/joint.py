@@ -64,7 +64,7 @@ from swarmloc.engine.joint_math import (
     to_world,
     world_noise,
 )
-from swarmloc.engine.replay_io import Constants, Replayed, Switches, constants, joint_start
+from swarmloc.engine.replay_io import Constants, Noise, Replayed, Switches, constants, joint_start
 from swarmloc.engine.scalar import predict_source
 from swarmloc.motion import UnicycleNoise
 
@@ -129,35 +129,36 @@ def flush(P: np.ndarray, pend: np.ndarray, has: np.ndarray) -> None:
 
 
 @cache
-def predict_kernel(noise: UnicycleNoise) -> Any:
-    """The engine's scalar prediction for ``noise`` (:func:`swarmloc.engine.scalar.predict_source`) compiled:
-    ``predict(x0, x1, x2, p00, p01, p02, p11, p12, p22, v, w, dt) -> (x (3), P upper triangle (6))``."""
+def predict_kernel() -> Any:
+    """The engine's scalar prediction (:func:`swarmloc.engine.scalar.predict_source`) compiled: ``predict(x0, x1,
+    x2, p00, p01, p02, p11, p12, p22, v, w, dt, qn) -> (x (3), P upper triangle (6))``, ``qn`` the noise model's
+    coefficients (:func:`~swarmloc.engine.replay_io.noise_tuple`)."""
     ns: dict[str, Any] = {"math": math, "np": np}
-    exec(predict_source(noise), ns)  # noqa: S102 - our own generated code
+    exec(predict_source(), ns)  # noqa: S102 - our own generated code
     return njit(error_model="numpy")(ns["predict"])
 
 
 @cache
-def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = False) -> Any:
-    """Compile the replay loop (:func:`stamp_loop`) with the noise model's prediction (once per process, noise model
-    and form) over the state ``(X, P, pend, has, tc, v, w)``. ``invariant``: world-frame errors (``iekf``, ``diekf``).
-    ``distributed`` (with ``invariant``: ``diekf``'s nodes): each robot starts at its own first input and answers
-    from then on (``screen_started`` of :mod:`swarmloc.engine.formulas`), and a detected robot moves to the
-    detection's stamp only when it takes the update (its node answers a query from a prediction it does not store;
-    it moves when the broadcast updates it)."""
-    advance, marginal, fuse, _ = steps(noise, invariant, distributed)
+def _kernels(invariant: bool = False, distributed: bool = False) -> Any:
+    """Compile the replay loop (:func:`stamp_loop`) (once per process and form; the noise model is an argument, in
+    the loop's constants) over the state ``(X, P, pend, has, tc, v, w)``. ``invariant``: world-frame errors
+    (``iekf``, ``diekf``). ``distributed`` (with ``invariant``: ``diekf``'s nodes): each robot starts at its own
+    first input and answers from then on (``screen_started`` of :mod:`swarmloc.engine.formulas`), and a detected
+    robot moves to the detection's stamp only when it takes the update (its node answers a query from a prediction
+    it does not store; it moves when the broadcast updates it)."""
+    advance, marginal, fuse, _ = steps(invariant, distributed)
 
     @njit(error_model="numpy", inline="always")  # no call between the loop and its step
     def detect(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
-               w: FloatArray, t0: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray,
-               thr: FloatArray, gate: bool, relative: bool, lm_on: bool, lxy: FloatArray, lcov: FloatArray
-               ) -> tuple[int, int]:  # fmt: skip
+               w: FloatArray, qn: Noise, t0: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray,
+               R: FloatArray, thr: FloatArray, gate: bool, relative: bool, lm_on: bool, lxy: FloatArray,
+               lcov: FloatArray) -> tuple[int, int]:  # fmt: skip
         if distributed:
             res, why = F.screen_started(kind, i, j, t, t0, relative, lm_on)
         else:
             res, why = F.screen_central(kind, i, j, relative, lm_on)
         if res == 0:
-            st, reason = fuse(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
+            st, reason = fuse(X, P, pend, has, tc, v, w, qn, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
             return st, reason
         return res, why
 
@@ -165,16 +166,17 @@ def _kernels(noise: UnicycleNoise, invariant: bool = False, distributed: bool = 
 
 
 @cache
-def steps(noise: UnicycleNoise, invariant: bool = False, distributed: bool = False) -> tuple[Any, Any, Any, Any]:
-    """The compiled steps of the replay loop (:func:`_kernels`): ``advance(X, pend, has, tc, v, w, k, t)`` (robot
-    ``k`` to ``t``, its prediction pending), ``marginal(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)`` (robot
-    ``k``'s Cartesian belief at ``t`` into record ``o``, nothing stored), ``fuse(X, P, pend, has, tc, v, w, t, q,
-    i, j, kind, z, R, lxy, lcov, thr, gate) -> (outcome, reason)`` (detection ``q`` of observer ``i``, target ``j``:
-    a robot's index, or a landmark's code) and ``belief(X, P, pend, has, tc, v, w, k, t) -> (x, P)`` (robot ``k``
-    at ``t`` in the filter's error frame, nothing stored: what ``marginal`` records). They index robots by their
-    rows of the arrays passed, so a cluster's views of them run the same steps
+def steps(invariant: bool = False, distributed: bool = False) -> tuple[Any, Any, Any, Any]:
+    """The compiled steps of the replay loop (:func:`_kernels`): ``advance(X, pend, has, tc, v, w, qn, k, t)``
+    (robot ``k`` to ``t``, its prediction pending; ``qn`` the noise model's coefficients,
+    :func:`~swarmloc.engine.replay_io.noise_tuple`), ``marginal(X, P, pend, has, tc, v, w, qn, k, t, out_x, out_P, o)``
+    (robot ``k``'s Cartesian belief at ``t`` into record ``o``, nothing stored), ``fuse(X, P, pend, has, tc, v, w,
+    qn, t, q, i, j, kind, z, R, lxy, lcov, thr, gate) -> (outcome, reason)`` (detection ``q`` of observer ``i``,
+    target ``j``: a robot's index, or a landmark's code) and ``belief(X, P, pend, has, tc, v, w, qn, k, t) -> (x,
+    P)`` (robot ``k`` at ``t`` in the filter's error frame, nothing stored: what ``marginal`` records). They index
+    robots by their rows of the arrays passed, so a cluster's views of them run the same steps
     (:mod:`swarmloc.engine.joint_clusters`)."""
-    advance, belief, marginal = _moves(predict_kernel(noise), invariant)
+    advance, belief, marginal = _moves(predict_kernel(), invariant)
     return advance, marginal, _fusion(advance, invariant, distributed), belief
 
 
@@ -183,13 +185,13 @@ def _moves(predict: Any, invariant: bool) -> tuple[Any, Any, Any]:
     prediction ``predict`` (:func:`predict_kernel`)."""
 
     @njit(error_model="numpy")
-    def advance(X: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray, w: FloatArray, k: int,
-                t: float) -> None:  # fmt: skip
+    def advance(X: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray, w: FloatArray,
+                qn: Noise, k: int, t: float) -> None:  # fmt: skip
         dt = t - tc[k]
         if not dt > 0:
             return
         i = 3 * k
-        r = predict(X[i], X[i + 1], X[i + 2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, v[k], w[k], dt)
+        r = predict(X[i], X[i + 1], X[i + 2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, v[k], w[k], dt, qn)
         q = np.array([r[3], r[4], r[5], r[6], r[7], r[8]])
         if invariant:  # the error transition is the identity: no shear, the noise in world-frame errors
             a, b, q = -0.0, 0.0, world_noise(r[0], r[1], q)
@@ -201,11 +203,11 @@ def _moves(predict: Any, invariant: bool) -> tuple[Any, Any, Any]:
 
     @njit(error_model="numpy")
     def belief(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
-               w: FloatArray, k: int, t: float) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+               w: FloatArray, qn: Noise, k: int, t: float) -> tuple[FloatArray, FloatArray]:  # fmt: skip
         """Robot ``k``'s ``(x (3,), P (3, 3))`` at ``t`` (its filter's error frame), nothing stored."""
         i = 3 * k
         x, pd, hs, clock = X[i : i + 3].copy(), pend[k : k + 1].copy(), has[k : k + 1].copy(), tc[k : k + 1].copy()
-        advance(x, pd, hs, clock, v[k : k + 1], w[k : k + 1], 0, t)
+        advance(x, pd, hs, clock, v[k : k + 1], w[k : k + 1], qn, 0, t)
         M = rows3(P[i : i + 3, i : i + 3])
         if hs[0]:
             M = B.predicted_block(M, pd[0, 0], pd[0, 1], (pd[0, 2], pd[0, 3], pd[0, 4], pd[0, 5], pd[0, 6], pd[0, 7]))
@@ -213,8 +215,9 @@ def _moves(predict: Any, invariant: bool) -> tuple[Any, Any, Any]:
 
     @njit(error_model="numpy")
     def marginal(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
-                 w: FloatArray, k: int, t: float, out_x: FloatArray, out_P: FloatArray, o: int) -> None:  # fmt: skip
-        x, M = belief(X, P, pend, has, tc, v, w, k, t)
+                 w: FloatArray, qn: Noise, k: int, t: float, out_x: FloatArray, out_P: FloatArray, o: int
+                 ) -> None:  # fmt: skip
+        x, M = belief(X, P, pend, has, tc, v, w, qn, k, t)
         out_x[o] = x
         if invariant:  # recorded Cartesian: N M N^T (blocks.sheared(M, -y, x), but BLAS's rounding: the bits kept)
             N = np.array([[1.0, 0.0, -x[1]], [0.0, 1.0, x[0]], [0.0, 0.0, 1.0]])
@@ -230,24 +233,24 @@ def _fusion(advance: Any, invariant: bool, distributed: bool) -> Any:
 
     @njit(error_model="numpy")
     def fuse(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
-             w: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray, lxy: FloatArray,
-             lcov: FloatArray, thr: FloatArray, gate: bool) -> tuple[int, int]:  # fmt: skip
+             w: FloatArray, qn: Noise, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray,
+             lxy: FloatArray, lcov: FloatArray, thr: FloatArray, gate: bool) -> tuple[int, int]:  # fmt: skip
         if not (distributed and j >= 0):
-            return update(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
+            return update(X, P, pend, has, tc, v, w, qn, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
         flush(P, pend, has)  # (world-frame noise: additive) the target's step to t is then all it has pending
         k = 3 * j
         xj, tj, Pjj = X[k : k + 3].copy(), tc[j], P[k : k + 3, k : k + 3].copy()
-        st, why = update(X, P, pend, has, tc, v, w, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
+        st, why = update(X, P, pend, has, tc, v, w, qn, t, q, i, j, kind, z, R, lxy, lcov, thr, gate)
         if st != FUSED:  # not taken: the target stays where it was
             X[k : k + 3], tc[j], P[k : k + 3, k : k + 3], has[j] = xj, tj, Pjj, False
         return st, why
 
     @njit(error_model="numpy")
     def update(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
-               w: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray,
+               w: FloatArray, qn: Noise, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray,
                lxy: FloatArray, lcov: FloatArray, thr: FloatArray, gate: bool) -> tuple[int, int]:  # fmt: skip
         if j >= 0:  # a robot: predicted to the stamp (and kept there) before anything is read of it
-            advance(X, pend, has, tc, v, w, j, t)
+            advance(X, pend, has, tc, v, w, qn, j, t)
         xk = X[3 * j : 3 * j + 3].copy() if j >= 0 else (lxy[NO_LANDMARK - 1 - j].copy() if kind != ABSOLUTE
                                                          else np.zeros(0))  # fmt: skip
         if degenerate(kind, X, 3 * i, xk):
@@ -275,15 +278,16 @@ def _fusion(advance: Any, invariant: bool, distributed: bool) -> Any:
 
 def stamp_loop(advance: Any, detect: Any, record: Any) -> Any:
     """The compiled loop over the stamps of a timeline (this module's, the clusters', ``rdl``'s) around the steps of
-    its form on the state ``(X, P, pend, has, tc, v, w)`` (:func:`steps`; a cluster's ``P`` is its clusters' blocks):
-    ``advance(X, pend, has, tc, v, w, k, t)``, ``detect(X, P, pend, has, tc, v, w, t0, t, q, i, j, kind, z, R, thr,
-    gate, relative, lm_on, lxy, lcov) -> (outcome, reason)`` (detection ``q`` of observer ``i``, target ``j``) and
-    ``record(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)`` (robot ``k``'s Cartesian belief at ``t`` into record
-    ``o``, nothing stored). At a stamp: each detection, its observer moved to the stamp first; then the commands, each
-    robot moved to the stamp before it starts its command (after the updates: they move every correlated heading);
-    then, if recorded, every started robot. ``rdl``'s loop fills the same slots with its own state
-    (:mod:`swarmloc.engine.pairs`). The state is unpacked once, not in each step (steps that take the state
-    tuple whole cost this loop 15-24% on MRCLAM 6: the arrays' reference counts)."""
+    its form on the state ``(X, P, pend, has, tc, v, w)`` (:func:`steps`; a cluster's ``P`` is its clusters' blocks)
+    and the noise model's coefficients ``qn`` (the constants' last, :func:`~swarmloc.engine.replay_io.noise_tuple`):
+    ``advance(X, pend, has, tc, v, w, qn, k, t)``, ``detect(X, P, pend, has, tc, v, w, qn, t0, t, q, i, j, kind, z,
+    R, thr, gate, relative, lm_on, lxy, lcov) -> (outcome, reason)`` (detection ``q`` of observer ``i``, target
+    ``j``) and ``record(X, P, pend, has, tc, v, w, qn, k, t, out_x, out_P, o)`` (robot ``k``'s Cartesian belief at
+    ``t`` into record ``o``, nothing stored). At a stamp: each detection, its observer moved to the stamp first;
+    then the commands, each robot moved to the stamp before it starts its command (after the updates: they move
+    every correlated heading); then, if recorded, every started robot. ``rdl``'s loop fills the same slots with its
+    own state (:mod:`swarmloc.engine.pairs`). The state is unpacked once, not in each step (steps that take the
+    state tuple whole cost this loop 15-24% on MRCLAM 6: the arrays' reference counts)."""
 
     @njit(error_model="numpy")
     def replay(state: State, vw: tuple[FloatArray, FloatArray], t0: FloatArray, stamps: FloatArray, d0: IntArray,
@@ -291,7 +295,7 @@ def stamp_loop(advance: Any, detect: Any, record: Any) -> Any:
                const: Constants, cmd: tuple[IntArray, IntArray, FloatArray, FloatArray], rec: BoolArray,
                out: tuple[IntArray, IntArray, FloatArray, FloatArray]) -> int:  # noqa: ARG001  # fmt: skip
         X, P, pend, has, tc, v, w = state
-        thr, gate, relative, lm_on, lxy, lcov = const
+        thr, gate, relative, lm_on, lxy, lcov, qn = const
         obs, tgt, kind, z, R = det
         c0, crow, cv, cw = cmd
         out_robot, out_stamp, out_x, out_P = out
@@ -300,17 +304,17 @@ def stamp_loop(advance: Any, detect: Any, record: Any) -> Any:
             t = stamps[s]
             for q in range(d0[s], d0[s + 1]):
                 i = obs[q]
-                advance(X, pend, has, tc, v, w, i, t)  # the observer moves to its group's stamp
-                status[q], reason[q] = detect(X, P, pend, has, tc, v, w, t0, t, q, i, tgt[q], kind[q], z, R, thr, gate,
-                                              relative, lm_on, lxy, lcov)  # fmt: skip
+                advance(X, pend, has, tc, v, w, qn, i, t)  # the observer moves to its group's stamp
+                status[q], reason[q] = detect(X, P, pend, has, tc, v, w, qn, t0, t, q, i, tgt[q], kind[q], z, R, thr,
+                                              gate, relative, lm_on, lxy, lcov)  # fmt: skip
             for c in range(c0[s], c0[s + 1]):  # then the commands: a robot moves to t and starts its command
-                advance(X, pend, has, tc, v, w, crow[c], t)
+                advance(X, pend, has, tc, v, w, qn, crow[c], t)
                 v[crow[c]] = cv[c]
                 w[crow[c]] = cw[c]
             if rec[s]:
                 for k in range(tc.shape[0]):
                     if t >= t0[k]:
-                        record(X, P, pend, has, tc, v, w, k, t, out_x, out_P, o)
+                        record(X, P, pend, has, tc, v, w, qn, k, t, out_x, out_P, o)
                         out_robot[o] = k
                         out_stamp[o] = s
                         o += 1
@@ -355,4 +359,4 @@ def replay_joint(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndar
         raise ValueError("replay_joint: per-robot starts are diekf's (invariant=True); cekf starts at one t0")
     X, J, clock, starts = joint_start(x, P, t0, invariant)
     st = (X.reshape(3 * n), J[0], np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
-    return run(_kernels(noise, bool(invariant), bool(distributed)), st, st[5:], tl, starts, constants(**switches))
+    return run(_kernels(bool(invariant), bool(distributed)), st, st[5:], tl, starts, constants(noise, **switches))

@@ -33,7 +33,7 @@ from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import flush, run, stamp_loop, steps
 from swarmloc.engine.joint_math import F, commit, degenerate, kalman, measure, rows3, to_world
-from swarmloc.engine.replay_io import Replayed, Switches, constants, joint_start
+from swarmloc.engine.replay_io import Noise, Replayed, Switches, constants, joint_start
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
 
@@ -55,10 +55,11 @@ def joint_weight(A: np.ndarray, B: np.ndarray, R: np.ndarray, dof: int) -> float
 
 
 @cache
-def _kernels(noise: UnicycleNoise) -> Any:
+def _kernels() -> Any:
     """Compile the cluster loop (:func:`swarmloc.engine.joint.stamp_loop`) around :func:`swarmloc.engine.joint.steps`
-    (``diekf``'s, once per noise model), each robot's steps run on its cluster's views of the state."""
-    advance, marginal, fuse, belief = steps(noise, True, True)
+    (``diekf``'s, once per process; the noise model is an argument, ``qn``), each robot's steps run on its cluster's
+    views of the state."""
+    advance, marginal, fuse, belief = steps(True, True)
 
     @njit(error_model="numpy")
     def outsider(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, i: int, xj: FloatArray, Pj: FloatArray,
@@ -88,9 +89,9 @@ def _kernels(noise: UnicycleNoise) -> Any:
 
     @njit(error_model="numpy", inline="always")  # no call between the loop and its step
     def detect(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
-               w: FloatArray, t0: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray, R: FloatArray,
-               thr: FloatArray, gate: bool, relative: bool, lm_on: bool, lxy: FloatArray, lcov: FloatArray
-               ) -> tuple[int, int]:  # fmt: skip
+               w: FloatArray, qn: Noise, t0: FloatArray, t: float, q: int, i: int, j: int, kind: int, z: FloatArray,
+               R: FloatArray, thr: FloatArray, gate: bool, relative: bool, lm_on: bool, lxy: FloatArray,
+               lcov: FloatArray) -> tuple[int, int]:  # fmt: skip
         """Detection ``q`` of observer ``i``, target ``j``, on its cluster's views of the state (``P (clusters, 3K,
         3K)``): :func:`swarmloc.engine.joint.steps`' ``fuse``, or :func:`outsider` for a robot of another cluster."""
         st, why = F.screen_started(kind, i, j, t, t0, relative, lm_on)
@@ -104,20 +105,21 @@ def _kernels(noise: UnicycleNoise) -> Any:
             bj, lj, hj = _span(j, K, n)
             mj = 3 * (hj - lj)
             xj, Pj = belief(X[3 * lj : 3 * hj], P[bj, :mj, :mj], pend[lj:hj], has[lj:hj], tc[lj:hj], v[lj:hj],
-                            w[lj:hj], j - lj, t)  # fmt: skip
+                            w[lj:hj], qn, j - lj, t)  # fmt: skip
             return outsider(Xc, Pc, pc, hc, i - lo, xj, Pj, kind, z[q], R[q], thr, gate, ~(t >= t0[lo:hi]))
-        st, why = fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], t, q, i - lo, j - lo if j >= 0 else j, kind, z,
-                       R, lxy, lcov, thr, gate)  # fmt: skip
+        st, why = fuse(Xc, Pc, pc, hc, tc[lo:hi], v[lo:hi], w[lo:hi], qn, t, q, i - lo, j - lo if j >= 0 else j, kind,
+                       z, R, lxy, lcov, thr, gate)  # fmt: skip
         return st, why
 
     @njit(error_model="numpy")
     def record(X: FloatArray, P: FloatArray, pend: FloatArray, has: BoolArray, tc: FloatArray, v: FloatArray,
-               w: FloatArray, k: int, t: float, out_x: FloatArray, out_P: FloatArray, o: int) -> None:  # fmt: skip
+               w: FloatArray, qn: Noise, k: int, t: float, out_x: FloatArray, out_P: FloatArray, o: int
+               ) -> None:  # fmt: skip
         """Robot ``k``'s record (:func:`swarmloc.engine.joint.steps`' ``marginal``) on its cluster's views."""
         b, lo, hi = _span(k, P.shape[1] // 3, tc.shape[0])
         m = 3 * (hi - lo)
-        marginal(X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi], tc[lo:hi], v[lo:hi], w[lo:hi], k - lo, t,
-                 out_x, out_P, o)  # fmt: skip
+        marginal(X[3 * lo : 3 * hi], P[b, :m, :m], pend[lo:hi], has[lo:hi], tc[lo:hi], v[lo:hi], w[lo:hi], qn, k - lo,
+                 t, out_x, out_P, o)  # fmt: skip
 
     return stamp_loop(advance, detect, record)
 
@@ -149,4 +151,4 @@ def replay_clusters(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, 
     K = _cluster_size(cluster, n, t0)
     X, J, clock, starts = joint_start(x, P, t0, True, K)
     st = (X.reshape(3 * n), J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
-    return run(_kernels(noise), st, st[5:], tl, starts, constants(**switches))
+    return run(_kernels(), st, st[5:], tl, starts, constants(noise, **switches))

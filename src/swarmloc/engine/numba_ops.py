@@ -6,7 +6,7 @@ them, loops over robots (``numba.prange``: ``NUMBA_NUM_THREADS`` threads), and t
 stamp's pose, absolute and range-bearing detections in place: :meth:`NumbaOps.fuse_serial` in canonical order on
 one thread, :meth:`NumbaOps.fuse_levels` level by level (the Gauss-Seidel levels of :mod:`swarmloc.engine.stamp`),
 the groups of one level in parallel; both from one template (``_SCREEN``, ``_FUSE``). Compiled once per process
-and noise model (a few seconds). Units: m, rad, s.
+(a few seconds): the noise model's coefficients are an argument (``qn``), not constants compiled in. Units: m, rad, s.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from swarmloc.engine.codes import (
 )
 from swarmloc.engine.detections import Detections, Timeline
 from swarmloc.engine.joint_math import F
-from swarmloc.engine.replay_io import constants
+from swarmloc.engine.replay_io import constants, noise_tuple
 from swarmloc.engine.scalar import absolute_source, landmark_source, pose_source, predict_source
 from swarmloc.events import Kind
 from swarmloc.motion import UnicycleNoise
@@ -83,7 +83,7 @@ def _store(o: str, oP: str, i: str, indent: int) -> str:
 def _advance(indent: int) -> str:
     """Code moving robot ``i`` to ``t`` in place when its clock ``tc[i]`` is behind: predicted, stored, clock set."""
     code = f"""if tc[i] < t:
-    r = predict({_XP}, v[i], w[i], t - tc[i])
+    r = predict({_XP}, v[i], w[i], t - tc[i], qn)
 {_store("x", "P", "i", 4)}
     tc[i] = t"""
     return textwrap.indent(code, " " * indent)
@@ -141,7 +141,7 @@ _FUSE = f"""
             r = absolute({_args("x", "i")}, {_args("P", "i", True)}, {_args("z", "q")}, {_args("R", "q", True)})
         elif kind[q] == {RANGE_BEARING}:  # a robot's: its position and covariance as an uncertain landmark's
             if tc[j] < t:  # (answered as below: predicted, not stored, when it has no input at t)
-                a = predict({_args("nx", "j")}, {_args("nP", "j", True)}, v[j], w[j], t - tc[j])
+                a = predict({_args("nx", "j")}, {_args("nP", "j", True)}, v[j], w[j], t - tc[j], qn)
                 a0, a1, c00, c01, c11 = a[0], a[1], a[3], a[4], a[6]
             else:
                 a0, a1, c00, c01, c11 = nx[j, 0], nx[j, 1], nP[j, 0, 0], nP[j, 0, 1], nP[j, 1, 1]
@@ -152,7 +152,7 @@ _FUSE = f"""
             r = landmark({_args("x", "i")}, {_args("P", "i", True)}, a0, a1, c00, c01, c11, z[q, 0], z[q, 1],
                          R[q, 0, 0], R[q, 0, 1], R[q, 1, 1])
         elif tc[j] < t:  # a neighbour without input at t: its answer predicted, not stored
-            k = predict({_args("nx", "j")}, {_args("nP", "j", True)}, v[j], w[j], t - tc[j])
+            k = predict({_args("nx", "j")}, {_args("nP", "j", True)}, v[j], w[j], t - tc[j], qn)
             r = pose({_args("x", "i")}, {_args("P", "i", True)}, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7],
                      k[8], {_args("z", "q")}, {_args("R", "q", True)})
         else:  # j < i: after its own group at t; j > i: before its group (Gauss-Seidel, as the nodes)
@@ -201,25 +201,25 @@ _ROWS = "\n\n".join((
 
 
 _LOOPS = f"""
-def predict_rows(x, P, v, w, dt):
+def predict_rows(x, P, v, w, dt, qn):
     ox = np.empty_like(x)
     oP = np.empty_like(P)
     for i in prange(x.shape[0]):
-        r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], dt[i])
+        r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], dt[i], qn)
 {_store("ox", "oP", "i", 8)}
     return ox, oP
 
 
 {_ROWS}
 
-def predict_into(x, P, tc, v, w, robots, t):
+def predict_into(x, P, tc, v, w, robots, t, qn):
     for k in range(robots.shape[0]):
         i = robots[k]
 {_advance(8)}
 
 
-def fuse_serial(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason,
-                lev):
+def fuse_serial(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, qn, obs, tgt, kind, z, R, status,
+                reason, lev):
     m = obs.shape[0]
     n = x.shape[0]
 {_KINDS}
@@ -233,8 +233,8 @@ def fuse_serial(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, ob
     return top + 1
 
 
-def fuse_levels(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, obs, tgt, kind, z, R, status, reason,
-                lev, px, pP):
+def fuse_levels(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, qn, obs, tgt, kind, z, R, status,
+                reason, lev, px, pP):
     m = obs.shape[0]
     n = x.shape[0]
 {_KINDS}
@@ -280,17 +280,17 @@ def fuse_levels(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, ob
     return top + 1
 
 
-def replay_serial(x, P, tc, t0, v, w, stamps, s0, thr, gate, relative, lm_on, lxy, lcov, d0, obs, tgt, kind, z, R,
-                  status, reason, lev, c0, crow, cv, cw, rec, out_robot, out_stamp, out_x, out_P, nout):
+def replay_serial(x, P, tc, t0, v, w, stamps, s0, thr, gate, relative, lm_on, lxy, lcov, qn, d0, obs, tgt, kind, z,
+                  R, status, reason, lev, c0, crow, cv, cw, rec, out_robot, out_stamp, out_x, out_P, nout):
     n = x.shape[0]
     k = nout[0]
     for s in range(s0, stamps.shape[0]):
         t = stamps[s]
         c, e = c0[s], c0[s + 1]
-        predict_into(x, P, tc, v, w, crow[c:e], t)  # robots with a command at t move to t first
+        predict_into(x, P, tc, v, w, crow[c:e], t, qn)  # robots with a command at t move to t first
         a, b = d0[s], d0[s + 1]
         if b > a:
-            lv = fuse_serial(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, obs[a:b], tgt[a:b],
+            lv = fuse_serial(x, P, tc, t0, v, w, t, thr, gate, relative, lm_on, lxy, lcov, qn, obs[a:b], tgt[a:b],
                              kind[a:b], z[a:b], R[a:b], status[a:b], reason[a:b], lev)
             for q in range(a, b):
                 lev[obs[q]] = -1
@@ -303,7 +303,7 @@ def replay_serial(x, P, tc, t0, v, w, stamps, s0, thr, gate, relative, lm_on, lx
                 if not t >= t0[i]:
                     continue
                 if tc[i] < t:  # the belief at t: predicted, not stored
-                    r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i])
+                    r = predict({_args("x", "i")}, {_args("P", "i", True)}, v[i], w[i], t - tc[i], qn)
 {_store("out_x", "out_P", "k", 20)}
                 else:
                     out_x[k] = x[i]
@@ -323,11 +323,12 @@ def scatter2(a, b, rows, va, vb):
 
 
 @cache
-def _kernels(noise: UnicycleNoise) -> dict[str, Any]:
-    """Compile the generated scalar functions and the loops around them (once per noise model)."""
+def _kernels() -> dict[str, Any]:
+    """Compile the generated scalar functions and the loops around them (once per process; the noise model is the
+    loops' argument ``qn``)."""
     ns: dict[str, Any] = {"math": math, "np": np, "prange": prange, "screen_stamp": F.screen_stamp,
                           "degenerate": F.degenerate}  # fmt: skip
-    for src in (predict_source(noise), pose_source(), absolute_source(), landmark_source()):
+    for src in (predict_source(), pose_source(), absolute_source(), landmark_source()):
         exec(src, ns)  # noqa: S102 - our own generated code
     for name in ("predict", "pose", "absolute", "landmark"):
         ns[name] = njit(error_model="numpy")(ns[name])
@@ -379,7 +380,8 @@ class NumbaOps:
 
     def __init__(self, noise: UnicycleNoise) -> None:
         self.noise = noise
-        self.k = _kernels(noise)
+        self.qn = noise_tuple(noise)
+        self.k = _kernels()
         self._snapshot = (np.zeros((0, 3)), np.zeros((0, 3, 3)))  # fuse_levels' rows, kept between stamps
         self._warm_up()
 
@@ -404,7 +406,7 @@ class NumbaOps:
     def predict(self, x: np.ndarray, P: np.ndarray, v: np.ndarray, w: np.ndarray, dt: np.ndarray
                 ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
         kernel = _pick(self.k, "predict_rows", x.shape[0])
-        xn, Pn = kernel(*(np.ascontiguousarray(a, dtype=float) for a in (x, P, v, w, dt)))
+        xn, Pn = kernel(*(np.ascontiguousarray(a, dtype=float) for a in (x, P, v, w, dt)), self.qn)
         return xn, Pn
 
     def pose_update(self, x: np.ndarray, P: np.ndarray, xk: np.ndarray, Pk: np.ndarray, z: np.ndarray,
@@ -433,7 +435,7 @@ class NumbaOps:
                      robots: np.ndarray, t: float) -> None:  # fmt: skip
         """Predict rows ``robots`` of ``(x, P)`` (clocks ``tc`` [s], commands ``v``, ``w``) to ``t`` [s] in place
         (rows already at or past ``t`` unchanged); one thread, no gather or scatter."""
-        self.k["predict_into"](x, P, tc, v, w, np.asarray(robots, dtype=np.int64), float(t))
+        self.k["predict_into"](x, P, tc, v, w, np.asarray(robots, dtype=np.int64), float(t), self.qn)
 
     def fuse_serial(self, x: np.ndarray, P: np.ndarray, tc: np.ndarray, t0: np.ndarray, v: np.ndarray,
                     w: np.ndarray, t: float, use_relative: bool, det: Any, status: np.ndarray, reason: np.ndarray,
@@ -479,7 +481,7 @@ class NumbaOps:
     def _in_place(self, name: str, state: Rows, t: float, use_relative: bool, det: Any, status: np.ndarray,
                   reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
                   use_landmarks: bool, extra: tuple[()] | tuple[FloatArray, FloatArray]) -> int:  # fmt: skip
-        const = constants(gate.p, use_relative, use_landmarks, landmarks)
+        const = constants(self.noise, gate.p, use_relative, use_landmarks, landmarks)
         lev = np.full(state[0].shape[0], -1, dtype=np.int64)  # every robot's level: none yet
         return int(self.k[name](*state, float(t), *const, *_detections(det), status, reason, lev, *extra))
 
@@ -498,7 +500,7 @@ class NumbaOps:
         far."""
         f = np.ascontiguousarray
         i64 = np.int64
-        const = constants(gate.p, use_relative, use_landmarks, landmarks)
+        const = constants(self.noise, gate.p, use_relative, use_landmarks, landmarks)
         lev = np.full(state[0].shape[0], -1, dtype=i64)
         stop = self.k["replay_serial"](*state, f(tl.stamps, dtype=float), int(s0), *const, f(tl.d0, dtype=i64),
                                        *_detections(tl.det), status, reason, lev, f(tl.c0, dtype=i64),

@@ -42,7 +42,7 @@ from swarmloc.engine.joint_math import (
     measure,
     verdict,
 )
-from swarmloc.engine.replay_io import Replayed, Switches, constants
+from swarmloc.engine.replay_io import Noise, Replayed, Switches, constants
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels.pairs import build
 from swarmloc.motion import UnicycleNoise
@@ -80,36 +80,36 @@ def _rescale(sig: np.ndarray, sa: np.ndarray, sb: np.ndarray, k: int, P_new: np.
 
 
 @cache
-def _kernels(noise: UnicycleNoise) -> Any:
-    """Compile the replay loop (:func:`swarmloc.engine.joint.stamp_loop`) with the noise model's prediction (once per
-    process and noise model) over the state ``(x (n, 3), (met, sig), P (n, 3, 3), (sa, sb), tc, v, w)``: in the
+def _kernels() -> Any:
+    """Compile the replay loop (:func:`swarmloc.engine.joint.stamp_loop`) (once per process; the noise model is an
+    argument, ``qn``) over the state ``(x (n, 3), (met, sig), P (n, 3, 3), (sa, sb), tc, v, w)``: in the
     joint form's slots, the correlations where its joint covariance is, each robot's own covariance and shear (what a
     prediction moves) where its pending prediction is."""
-    predict = predict_kernel(noise)
+    predict = predict_kernel()
 
     @njit(error_model="numpy")
-    def predicted(x: FloatArray, P: FloatArray, tc: FloatArray, v: FloatArray, w: FloatArray, k: int, t: float
-                  ) -> tuple[FloatArray, FloatArray, float, float]:  # fmt: skip
+    def predicted(x: FloatArray, P: FloatArray, tc: FloatArray, v: FloatArray, w: FloatArray, qn: Noise, k: int,
+                  t: float) -> tuple[FloatArray, FloatArray, float, float]:  # fmt: skip
         """Robot ``k``'s ``(x, P, a, b)`` predicted to ``t``, ``(a, b)`` the prediction's shear
         (:func:`swarmloc.engine.blocks.moved`; zero: already there)."""
         dt = t - tc[k]
         xk, Pk = x[k].copy(), P[k].copy()
         if not dt > 0:
             return xk, Pk, 0.0, 0.0
-        r = predict(xk[0], xk[1], xk[2], Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2], v[k], w[k], dt)
+        r = predict(xk[0], xk[1], xk[2], Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2], v[k], w[k], dt, qn)
         out = np.array([[r[3], r[4], r[5]], [r[4], r[6], r[7]], [r[5], r[7], r[8]]])
         return (np.array([r[0], r[1], r[2]]), out, *B.moved(xk[0], xk[1], r[0], r[1]))
 
     @njit(error_model="numpy")
     def advance(x: FloatArray, P: FloatArray, shear: tuple[FloatArray, FloatArray], tc: FloatArray, v: FloatArray,
-                w: FloatArray, k: int, t: float) -> None:  # fmt: skip
+                w: FloatArray, qn: Noise, k: int, t: float) -> None:  # fmt: skip
         """Robot ``k`` predicted to ``t`` in place (as :func:`predicted`, no arrays made: once per command)."""
         dt = t - tc[k]
         if not dt > 0:
             return
         sa, sb = shear
         xk, Pk = x[k], P[k]
-        r = predict(xk[0], xk[1], xk[2], Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2], v[k], w[k], dt)
+        r = predict(xk[0], xk[1], xk[2], Pk[0, 0], Pk[0, 1], Pk[0, 2], Pk[1, 1], Pk[1, 2], Pk[2, 2], v[k], w[k], dt, qn)
         a, b = B.moved(xk[0], xk[1], r[0], r[1])
         sa[k] += a
         sb[k] += b
@@ -120,9 +120,9 @@ def _kernels(noise: UnicycleNoise) -> Any:
 
     @njit(error_model="numpy")
     def record(x: FloatArray, corr: tuple[BoolArray, FloatArray], P: FloatArray, shear: tuple[FloatArray, FloatArray],
-               tc: FloatArray, v: FloatArray, w: FloatArray, k: int, t: float, out_x: FloatArray, out_P: FloatArray,
-               o: int) -> None:  # noqa: ARG001  # fmt: skip
-        out_x[o], out_P[o], _, _ = predicted(x, P, tc, v, w, k, t)
+               tc: FloatArray, v: FloatArray, w: FloatArray, qn: Noise, k: int, t: float, out_x: FloatArray,
+               out_P: FloatArray, o: int) -> None:  # noqa: ARG001  # fmt: skip
+        out_x[o], out_P[o], _, _ = predicted(x, P, tc, v, w, qn, k, t)
 
     return stamp_loop(advance, _detect(predicted, advance), record)
 
@@ -133,9 +133,9 @@ def _detect(predicted: Any, advance: Any) -> Any:
 
     @njit(error_model="numpy")
     def pair(x: FloatArray, P: FloatArray, sa: FloatArray, sb: FloatArray, met: BoolArray, sig: FloatArray,
-             tc: FloatArray, v: FloatArray, w: FloatArray, i: int, j: int, kind: int, zq: FloatArray, Rq: FloatArray,
-             t: float, thr: FloatArray, gate: bool) -> tuple[int, int]:  # fmt: skip
-        xj, Pj, a, b = predicted(x, P, tc, v, w, j, t)  # the target's answer (not stored)
+             tc: FloatArray, v: FloatArray, w: FloatArray, qn: Noise, i: int, j: int, kind: int, zq: FloatArray,
+             Rq: FloatArray, t: float, thr: FloatArray, gate: bool) -> tuple[int, int]:  # fmt: skip
+        xj, Pj, a, b = predicted(x, P, tc, v, w, qn, j, t)  # the target's answer (not stored)
         if B.degenerate(kind, x[i, 0], x[i, 1], xj[0], xj[1]):
             return REJECTED, R_DEGENERATE
         fj = _factor(sig, met, sa[j] + a, sb[j] + b, j, i)
@@ -156,7 +156,7 @@ def _detect(predicted: Any, advance: Any) -> Any:
             sig[i, j] = 0.0
             return FUSED, 0
         sig[i, j], met[i, j] = Pn[:3, 3:], True
-        advance(x, P, (sa, sb), tc, v, w, j, t)  # the target takes its part at the stamp
+        advance(x, P, (sa, sb), tc, v, w, qn, j, t)  # the target takes its part at the stamp
         Pj_old = P[j].copy()
         x[j], P[j] = Xn[3:], Pn[3:, 3:]
         _rescale(sig, sa, sb, j, P[j], Pj_old)
@@ -165,9 +165,9 @@ def _detect(predicted: Any, advance: Any) -> Any:
 
     @njit(error_model="numpy", inline="always")  # no call between the loop and its step
     def detect(x: FloatArray, corr: tuple[BoolArray, FloatArray], P: FloatArray, shear: tuple[FloatArray, FloatArray],
-               tc: FloatArray, v: FloatArray, w: FloatArray, t0: FloatArray, t: float, q: int, i: int, j: int,
-               kind: int, z: FloatArray, R: FloatArray, thr: FloatArray, gate: bool, relative: bool, lm_on: bool,
-               lxy: FloatArray, lcov: FloatArray) -> tuple[int, int]:  # fmt: skip
+               tc: FloatArray, v: FloatArray, w: FloatArray, qn: Noise, t0: FloatArray, t: float, q: int, i: int,
+               j: int, kind: int, z: FloatArray, R: FloatArray, thr: FloatArray, gate: bool, relative: bool,
+               lm_on: bool, lxy: FloatArray, lcov: FloatArray) -> tuple[int, int]:  # fmt: skip
         res, why = F.screen_started(kind, i, j, t, t0, relative, lm_on)
         if res != 0:
             return res, why
@@ -175,7 +175,7 @@ def _detect(predicted: Any, advance: Any) -> Any:
         sa, sb = shear
         if kind == ABSOLUTE or j <= NO_LANDMARK:
             return _private(x, P, sa, sb, met, sig, i, kind, j, z[q], R[q], lxy, lcov, thr, gate)
-        return pair(x, P, sa, sb, met, sig, tc, v, w, i, j, kind, z[q], R[q], t, thr, gate)
+        return pair(x, P, sa, sb, met, sig, tc, v, w, qn, i, j, kind, z[q], R[q], t, thr, gate)
 
     return detect
 
@@ -217,4 +217,4 @@ def replay_rdl(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise
     corr = (np.zeros((n, n), dtype=np.bool_), np.zeros((n, n, 3, 3)))  # (met, sig)
     st = (np.array(x, dtype=float), corr, np.array(P, dtype=float), (np.zeros(n), np.zeros(n)),
           np.where(np.isfinite(t0), t0, 0.0), np.zeros(n), np.zeros(n))  # fmt: skip
-    return run(_kernels(noise), st, st[5:], tl, t0, constants(**switches))
+    return run(_kernels(), st, st[5:], tl, t0, constants(noise, **switches))

@@ -5,12 +5,14 @@ Units: metres, radians, seconds.
 
 from __future__ import annotations
 
+from dataclasses import astuple
 from typing import NamedTuple, TypedDict
 
 import numpy as np
 
 from swarmloc.engine.codes import MODEL
 from swarmloc.kernels.invariant import cartesian_to_world_cov
+from swarmloc.motion import UnicycleNoise
 from swarmloc.node.update import Gate
 
 Replayed = tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
@@ -29,6 +31,16 @@ class Switches(TypedDict, total=False):
     landmarks: tuple[np.ndarray, np.ndarray] | None
 
 
+Noise = tuple[float, ...]
+"""A noise model's coefficients as the compiled prediction takes them (:func:`noise_tuple`)."""
+
+
+def noise_tuple(noise: UnicycleNoise) -> Noise:
+    """``noise``'s coefficients as floats in the order of its fields: the argument ``q`` of the compiled prediction
+    (:func:`swarmloc.engine.scalar.predict_source`), which traces them in that order."""
+    return tuple(float(v) for v in astuple(noise))
+
+
 class Constants(NamedTuple):
     """:class:`Switches` as the compiled loops read them (:func:`constants`)."""
 
@@ -41,16 +53,22 @@ class Constants(NamedTuple):
     """The landmarks' positions ``(L, 2)`` (one zero row when there are none)."""
     lcov: np.ndarray
     """Their covariances ``(L, 2, 2)``."""
+    noise: Noise
+    """The noise model's coefficients (:func:`noise_tuple`): an argument of the compiled
+    prediction, not a constant compiled in, so one compiled loop serves every noise model."""
 
 
-def constants(gate: float | None = None, use_relative: bool = True, use_landmarks: bool = True,
-              landmarks: tuple[np.ndarray, np.ndarray] | None = None) -> Constants:  # fmt: skip
-    """The :class:`Constants` of a replay's :class:`Switches` (their defaults: no gate, everything on, no map)."""
+def constants(noise: UnicycleNoise | None = None, gate: float | None = None, use_relative: bool = True,
+              use_landmarks: bool = True, landmarks: tuple[np.ndarray, np.ndarray] | None = None
+              ) -> Constants:  # fmt: skip
+    """The :class:`Constants` of a replay's noise model (None: :class:`~swarmloc.motion.UnicycleNoise`'s defaults)
+    and :class:`Switches` (their defaults: no gate, everything on, no map)."""
     g = Gate(gate)
     thr = np.array([g.threshold(MODEL[code].size) for code in range(len(MODEL))])
     lxy, lcov = landmarks if landmarks is not None and len(landmarks[0]) else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
     return Constants(thr, np.bool_(g.p is not None), np.bool_(use_relative), np.bool_(use_landmarks),
-                     np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float))  # fmt: skip
+                     np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
+                     noise_tuple(noise or UnicycleNoise()))  # fmt: skip
 
 
 def joint_start(x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, invariant: bool, K: int = 0

@@ -1,13 +1,15 @@
 """Straight-line scalar code generated from the structure-of-arrays formulas of :mod:`swarmloc.engine.soa`.
 
 The formulas are traced once with symbolic entries (:class:`_Sym`): every operation becomes one assignment of a
-scalar temporary, constants (the Jacobians' zeros and ones, the noise coefficients) are folded in as soa folds
-them, and the result is the source of a plain Python function of floats that numba compiles to register code.
+scalar temporary, constants (the Jacobians' zeros and ones) are folded in as soa folds them, the noise model's
+coefficients are an argument (one compiled prediction for every model), and the result is the source of a plain
+Python function of floats that numba compiles to register code.
 So the numba backend runs the very formulas of the numpy and jax backends.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Callable
 from itertools import accumulate
@@ -166,22 +168,31 @@ def _branches(b: _Builder, outs: list[str]) -> list[str]:
     return emit([i for i in range(len(lines)) if i not in owner], "    ")
 
 
-def _generate(name: str, n_in: int, body: Callable[[_XP, list[_Sym]], list[soa.Entry]]) -> str:
+def _generate(name: str, n_in: int, body: Callable[[_XP, list[_Sym]], list[soa.Entry]], packed: int = 0) -> str:
+    """Source of ``name(a0, .., a{n_in - 1}[, q])``: ``body`` traced on the arguments; with ``packed``, a last
+    argument ``q`` holds that many more (a tuple, unpacked first), which ``body`` gets after the others."""
     b = _Builder()
-    args = [_Sym(f"a{i}", b) for i in range(n_in)]
+    args = [_Sym(f"a{i}", b) for i in range(n_in + packed)]
     outs = [_s(o) for o in body(_XP(b), args)]
-    head = f"def {name}({', '.join(a.name for a in args)}):"
-    return "\n".join([head, *_branches(b, outs), f"    return ({', '.join(outs)},)"]) + "\n"
+    names = [a.name for a in args]
+    head = [f"def {name}({', '.join(names[:n_in] + ['q'] * bool(packed))}):"]
+    if packed:
+        head.append(f"    {', '.join(names[n_in:])} = q")
+    return "\n".join([*head, *_branches(b, outs), f"    return ({', '.join(outs)},)"]) + "\n"
 
 
-def predict_source(noise: UnicycleNoise) -> str:
-    """``predict(x0, x1, x2, p00, p01, p02, p11, p12, p22, v, w, dt) -> (x, P upper triangle)``."""
+def predict_source() -> str:
+    """``predict(x0, x1, x2, p00, p01, p02, p11, p12, p22, v, w, dt, q) -> (x, P upper triangle)``, ``q`` the noise
+    model's coefficients (:func:`swarmloc.engine.replay_io.noise_tuple`), read at run time: one compiled prediction
+    serves every noise model, with the operations (and bits) of a model's coefficients written in as constants."""
 
     def body(xp: _XP, a: list[_Sym]) -> list[soa.Entry]:
+        coefficients: list[Any] = a[12:]  # symbolic, in the fields' order: traced as floats
+        noise = UnicycleNoise(*coefficients)
         xs, ps = soa.predict(xp, tuple(a[0:3]), tuple(a[3:9]), a[9], a[10], a[11], noise)
         return [*xs, *ps]
 
-    return _generate("predict", 12, body)
+    return _generate("predict", 12, body, packed=len(dataclasses.fields(UnicycleNoise)))
 
 
 def _update_source(name: str, update: Callable[..., soa.Updated], sizes: tuple[int, ...]) -> str:
