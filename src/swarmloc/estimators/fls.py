@@ -193,11 +193,8 @@ def _xyt(p: Any) -> np.ndarray:
 def _body(H: np.ndarray, theta: float) -> np.ndarray:
     """A Jacobian w.r.t. world ``(x, y, theta)`` turned into one w.r.t. ``Pose2``'s tangent (body-frame right
     perturbation: ``dp = R(theta) d_xy``, ``dtheta = d_theta``)."""
-    c, s = math.cos(theta), math.sin(theta)
-    out = H.copy()
-    out[:, 0] = H[:, 0] * c + H[:, 1] * s
-    out[:, 1] = -H[:, 0] * s + H[:, 1] * c
-    return out
+    c, s = math.cos(theta), math.sin(theta)  # on Python floats: one factor's few rows, called per linearization
+    return np.array([[a * c + b * s, -a * s + b * c, *rest] for a, b, *rest in np.asarray(H, dtype=float).tolist()])
 
 
 def _measurement_factor(g: Any, f: Factor, keys: list[int]) -> Any:
