@@ -1,6 +1,6 @@
-"""What every compiled replay (the numba loops) takes and returns: the nodes' switches (:class:`Switches`, read as
-:class:`Constants`), the team's start as a joint state (:func:`joint_start`) and the result (:data:`Replayed`).
-Units: metres, radians, seconds.
+"""What every compiled replay (the numba loops) takes and returns: the nodes' switches (:class:`Switches`) and the
+noise model's coefficients (:func:`noise_tuple`), read as :class:`Constants`, the team's start as a joint state
+(:func:`joint_start`) and the result (:data:`Replayed`). Units: metres, radians, seconds.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def noise_tuple(noise: UnicycleNoise) -> Noise:
 
 
 class Constants(NamedTuple):
-    """:class:`Switches` as the compiled loops read them (:func:`constants`)."""
+    """:class:`Switches` and the noise model as the compiled loops read them (:func:`constants`)."""
 
     thr: np.ndarray
     """The gate's threshold by measurement kind (code)."""
@@ -54,8 +54,8 @@ class Constants(NamedTuple):
     lcov: np.ndarray
     """Their covariances ``(L, 2, 2)``."""
     noise: Noise
-    """The noise model's coefficients (:func:`noise_tuple`): an argument of the compiled
-    prediction, not a constant compiled in, so one compiled loop serves every noise model."""
+    """The noise model's coefficients (:func:`noise_tuple`): an argument of the compiled prediction, not constants
+    compiled in, so one compiled loop serves every noise model."""
 
 
 def constants(noise: UnicycleNoise | None = None, gate: float | None = None, use_relative: bool = True,
@@ -68,7 +68,7 @@ def constants(noise: UnicycleNoise | None = None, gate: float | None = None, use
     lxy, lcov = landmarks if landmarks is not None and len(landmarks[0]) else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
     return Constants(thr, np.bool_(g.p is not None), np.bool_(use_relative), np.bool_(use_landmarks),
                      np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
-                     noise_tuple(noise or UnicycleNoise()))  # fmt: skip
+                     noise_tuple(UnicycleNoise() if noise is None else noise))  # fmt: skip
 
 
 def joint_start(x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, invariant: bool, K: int = 0
