@@ -64,7 +64,7 @@ from swarmloc.engine.joint_math import (
     to_world,
     world_noise,
 )
-from swarmloc.engine.replay_io import Constants, Noise, Replayed, Switches, constants, joint_start
+from swarmloc.engine.replay_io import Constants, Noise, Replayed, Switches, constants, joint_start, noise_tuple
 from swarmloc.engine.scalar import predict_source
 from swarmloc.motion import UnicycleNoise
 
@@ -359,4 +359,5 @@ def replay_joint(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: float | np.ndar
         raise ValueError("replay_joint: per-robot starts are diekf's (invariant=True); cekf starts at one t0")
     X, J, clock, starts = joint_start(x, P, t0, invariant)
     st = (X.reshape(3 * n), J[0], np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
-    return run(_kernels(bool(invariant), bool(distributed)), st, st[5:], tl, starts, constants(noise, **switches))
+    const = constants(noise_tuple(noise), **switches)
+    return run(_kernels(bool(invariant), bool(distributed)), st, st[5:], tl, starts, const)

@@ -33,7 +33,7 @@ from swarmloc.engine.codes import R_DEGENERATE, REJECTED
 from swarmloc.engine.detections import Timeline
 from swarmloc.engine.joint import flush, run, stamp_loop, steps
 from swarmloc.engine.joint_math import F, commit, degenerate, kalman, measure, rows3, to_world
-from swarmloc.engine.replay_io import Noise, Replayed, Switches, constants, joint_start
+from swarmloc.engine.replay_io import Noise, Replayed, Switches, constants, joint_start, noise_tuple
 from swarmloc.kernels.ci import WEIGHT_GRID
 from swarmloc.motion import UnicycleNoise
 
@@ -151,4 +151,4 @@ def replay_clusters(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, 
     K = _cluster_size(cluster, n, t0)
     X, J, clock, starts = joint_start(x, P, t0, True, K)
     st = (X.reshape(3 * n), J, np.zeros((n, 8)), np.zeros(n, dtype=np.bool_), clock, np.zeros(n), np.zeros(n))
-    return run(_kernels(), st, st[5:], tl, starts, constants(noise, **switches))
+    return run(_kernels(), st, st[5:], tl, starts, constants(noise_tuple(noise), **switches))

@@ -481,7 +481,7 @@ class NumbaOps:
     def _in_place(self, name: str, state: Rows, t: float, use_relative: bool, det: Any, status: np.ndarray,
                   reason: np.ndarray, gate: Gate, landmarks: tuple[np.ndarray, np.ndarray] | None,
                   use_landmarks: bool, extra: tuple[()] | tuple[FloatArray, FloatArray]) -> int:  # fmt: skip
-        const = constants(self.noise, gate.p, use_relative, use_landmarks, landmarks)
+        const = constants(self.qn, gate.p, use_relative, use_landmarks, landmarks)
         lev = np.full(state[0].shape[0], -1, dtype=np.int64)  # every robot's level: none yet
         return int(self.k[name](*state, float(t), *const, *_detections(det), status, reason, lev, *extra))
 
@@ -500,7 +500,7 @@ class NumbaOps:
         far."""
         f = np.ascontiguousarray
         i64 = np.int64
-        const = constants(self.noise, gate.p, use_relative, use_landmarks, landmarks)
+        const = constants(self.qn, gate.p, use_relative, use_landmarks, landmarks)
         lev = np.full(state[0].shape[0], -1, dtype=i64)
         stop = self.k["replay_serial"](*state, f(tl.stamps, dtype=float), int(s0), *const, f(tl.d0, dtype=i64),
                                        *_detections(tl.det), status, reason, lev, f(tl.c0, dtype=i64),

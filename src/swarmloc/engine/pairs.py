@@ -42,7 +42,7 @@ from swarmloc.engine.joint_math import (
     measure,
     verdict,
 )
-from swarmloc.engine.replay_io import Noise, Replayed, Switches, constants
+from swarmloc.engine.replay_io import Noise, Replayed, Switches, constants, noise_tuple
 from swarmloc.kernels import cartesian as C
 from swarmloc.kernels.pairs import build
 from swarmloc.motion import UnicycleNoise
@@ -217,4 +217,4 @@ def replay_rdl(tl: Timeline, x: np.ndarray, P: np.ndarray, t0: np.ndarray, noise
     corr = (np.zeros((n, n), dtype=np.bool_), np.zeros((n, n, 3, 3)))  # (met, sig)
     st = (np.array(x, dtype=float), corr, np.array(P, dtype=float), (np.zeros(n), np.zeros(n)),
           np.where(np.isfinite(t0), t0, 0.0), np.zeros(n), np.zeros(n))  # fmt: skip
-    return run(_kernels(), st, st[5:], tl, t0, constants(noise, **switches))
+    return run(_kernels(), st, st[5:], tl, t0, constants(noise_tuple(noise), **switches))

@@ -5,7 +5,7 @@ noise model's coefficients (:func:`noise_tuple`), read as :class:`Constants`, th
 
 from __future__ import annotations
 
-from dataclasses import astuple
+from dataclasses import fields
 from typing import NamedTuple, TypedDict
 
 import numpy as np
@@ -38,7 +38,7 @@ Noise = tuple[float, ...]
 def noise_tuple(noise: UnicycleNoise) -> Noise:
     """``noise``'s coefficients as floats in the order of its fields: the argument ``q`` of the compiled prediction
     (:func:`swarmloc.engine.scalar.predict_source`), which traces them in that order."""
-    return tuple(float(v) for v in astuple(noise))
+    return tuple(float(getattr(noise, f.name)) for f in fields(noise))  # not astuple: it deep-copies every field
 
 
 class Constants(NamedTuple):
@@ -58,17 +58,18 @@ class Constants(NamedTuple):
     compiled in, so one compiled loop serves every noise model."""
 
 
-def constants(noise: UnicycleNoise | None = None, gate: float | None = None, use_relative: bool = True,
+def constants(noise: Noise | None = None, gate: float | None = None, use_relative: bool = True,
               use_landmarks: bool = True, landmarks: tuple[np.ndarray, np.ndarray] | None = None
               ) -> Constants:  # fmt: skip
-    """The :class:`Constants` of a replay's noise model (None: :class:`~swarmloc.motion.UnicycleNoise`'s defaults)
-    and :class:`Switches` (their defaults: no gate, everything on, no map)."""
+    """The :class:`Constants` of a replay's noise model (its :func:`noise_tuple`, made once by the caller; None:
+    :class:`~swarmloc.motion.UnicycleNoise`'s defaults) and :class:`Switches` (their defaults: no gate, everything
+    on, no map)."""
     g = Gate(gate)
     thr = np.array([g.threshold(MODEL[code].size) for code in range(len(MODEL))])
     lxy, lcov = landmarks if landmarks is not None and len(landmarks[0]) else (np.zeros((1, 2)), np.zeros((1, 2, 2)))
     return Constants(thr, np.bool_(g.p is not None), np.bool_(use_relative), np.bool_(use_landmarks),
                      np.ascontiguousarray(lxy, dtype=float), np.ascontiguousarray(lcov, dtype=float),
-                     noise_tuple(UnicycleNoise() if noise is None else noise))  # fmt: skip
+                     noise_tuple(UnicycleNoise()) if noise is None else noise)  # fmt: skip
 
 
 def joint_start(x: np.ndarray, P: np.ndarray, t0: float | np.ndarray, invariant: bool, K: int = 0
